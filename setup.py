@@ -1,0 +1,18 @@
+"""Builds the optional C accelerators; the package works (slower) without them."""
+
+import sys
+
+from setuptools import Extension, setup
+
+_FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off", "-fno-fast-math", "-std=c99"]
+
+setup(
+    ext_modules=[
+        Extension(
+            "steval_link.estimators._st_mahony_native",
+            sources=["steval_link/estimators/_st_mahony_native.c"],
+            extra_compile_args=_FLAGS,
+            optional=True,
+        ),
+    ]
+)
