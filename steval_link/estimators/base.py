@@ -1,0 +1,131 @@
+"""The interface every attitude estimator shares, and the firmware's Euler-angle convention in float64.
+
+All estimators take the firmware's units and axes: accelerometer in mg, gyro in mdps, throttle as ``gTHR``; axes
+x right, y forward, z up (at rest acc ≈ (0, 0, +1000) mg). Angles follow ``QuaternionToEuler``:
+``thx_rad`` is the rotation about x (pitch, nose up +), ``thy_rad`` about y (roll), ``thz_rad`` about z (yaw).
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["AttitudeEstimate", "Estimator", "euler_from_quaternion", "yaw_from_quaternion"]
+
+
+@dataclass(frozen=True)
+class AttitudeEstimate:
+    """The attitude of every step of a run.
+
+    Attributes:
+        q_wxyz: (N, 4) quaternion, scalar first (float64, or float32 for the bit-exact firmware port).
+        thx_rad: (N,) rotation about x, rad (pitch, nose up +).
+        thy_rad: (N,) rotation about y, rad (roll).
+        thz_rad: (N,) rotation about z, rad (yaw); NaN where the estimator has none.
+        valid: (N,) bool, False where the estimate is not defined (e.g. zero acceleration vector, NaN state).
+    """
+
+    q_wxyz: np.ndarray
+    thx_rad: np.ndarray
+    thy_rad: np.ndarray
+    thz_rad: np.ndarray
+    valid: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.thx_rad.shape[0])
+
+
+def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Euler angles in the firmware's convention, in float64: (thx_rad, thy_rad, thz_rad).
+
+    thx = atan2(2(q0q1 + q2q3), q0² − q1² − q2² + q3²) (about x, pitch), thy = asin(2(q0q2 − q1q3)) (about y,
+    roll; the argument is clipped to [−1, 1] so a unit quaternion never yields NaN), thz = atan2(2(q1q2 + q0q3),
+    q0² + q1² − q2² − q3²) (about z, yaw, the Lab 5 handout's formula). ``q_wxyz`` is (..., 4), scalar first.
+    For the firmware's own float32 result use :func:`steval_link.estimators.st_mahony.quaternion_to_euler`.
+    """
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    if q.shape[-1] != 4:
+        raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
+    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    thx = np.arctan2(2.0 * (q0 * q1 + q2 * q3), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+    with np.errstate(invalid="ignore"):
+        thy = np.arcsin(np.clip(2.0 * (q0 * q2 - q1 * q3), -1.0, 1.0))
+    thz = yaw_from_quaternion(q)
+    return thx, thy, thz
+
+
+def yaw_from_quaternion(q_wxyz) -> np.ndarray:
+    """Yaw (about z), rad, float64: atan2(2(q1q2 + q0q3), q0² + q1² − q2² − q3²) as in the Lab 5 handout."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
+
+
+class Estimator(abc.ABC):
+    """An attitude estimator fed with the firmware's inputs, one AHRS step at a time or a whole run at once.
+
+    Subclasses set :attr:`name` (the registry name) and implement :meth:`reset` and :meth:`step`; :meth:`run` has a
+    generic implementation over :meth:`step` that fast estimators override.
+    """
+
+    #: registry name, e.g. ``"st-mahony"``
+    name: str = "estimator"
+
+    @abc.abstractmethod
+    def reset(self) -> None:
+        """Return to the power-up state (identity attitude, no accumulated bias)."""
+
+    @abc.abstractmethod
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        """Advance one AHRS step.
+
+        Args:
+            acc_mg: (3,) accelerometer, mg.
+            gyro_mdps: (3,) gyro rate, mdps.
+            thr: throttle ``gTHR`` of the step (only estimators that switch gains on it use it).
+
+        Returns:
+            (4,) quaternion after the step, scalar first.
+        """
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        """Run :meth:`step` over N steps (continuing from the current state) and return every step's attitude.
+
+        Args:
+            acc_mg: (N, 3) accelerometer, mg.
+            gyro_mdps: (N, 3) gyro, mdps.
+            thr: (N,) throttle, or None for 0 throughout.
+        """
+        acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
+        n = acc.shape[0]
+        q = np.empty((n, 4), dtype=np.float64)
+        for k in range(n):
+            q[k] = self.step(acc[k], gyro[k], int(thr_arr[k]))
+        thx, thy, thz = euler_from_quaternion(q)
+        valid = np.isfinite(q).all(axis=1)
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name!r}>"
+
+
+def check_inputs(acc_mg, gyro_mdps, thr=None, dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate run inputs: (N, 3) acc and gyro as ``dtype``, (N,) int64 throttle (zeros when None)."""
+    acc = np.ascontiguousarray(acc_mg, dtype=dtype)
+    gyro = np.ascontiguousarray(gyro_mdps, dtype=dtype)
+    if acc.ndim != 2 or acc.shape[1] != 3:
+        raise ValueError(f"acc_mg must be (N, 3), got shape {acc.shape}")
+    if gyro.shape != acc.shape:
+        raise ValueError(f"gyro_mdps must have the shape of acc_mg {acc.shape}, got {gyro.shape}")
+    if thr is None:
+        thr_arr = np.zeros(acc.shape[0], dtype=np.int64)
+    else:
+        thr_arr = np.asarray(thr)
+        if thr_arr.ndim == 0:
+            thr_arr = np.full(acc.shape[0], int(thr_arr), dtype=np.int64)
+        thr_arr = np.ascontiguousarray(thr_arr, dtype=np.int64)
+        if thr_arr.shape != (acc.shape[0],):
+            raise ValueError(f"thr must be (N,) = ({acc.shape[0]},), got shape {thr_arr.shape}")
+    return acc, gyro, thr_arr
