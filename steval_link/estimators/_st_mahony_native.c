@@ -1,0 +1,234 @@
+/*
+ * Native loop of the bit-exact port of the STEVAL-FCU001V1 Mahony filter (firmware release 170120).
+ *
+ * Written from scratch for steval-link (it is not ST's code): it reproduces, operation by operation and in the
+ * same evaluation order, the float32 arithmetic of the firmware's ahrs_fusion_ag + QuaternionToEuler as the
+ * drone's Cortex-M4F executes it (-O0, hard float, no fused multiply-add). Only atan2/asin run in double, as in
+ * the firmware. Build flags: -O2 -ffp-contract=off -fno-fast-math (setup.py); FLT_EVAL_METHOD must be 0 (SSE on
+ * x86-64, any AArch64), which is checked below.
+ *
+ * Python signature (called by steval_link/estimators/st_mahony.py, which validates shapes and dtypes):
+ *
+ *   run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags) -> None
+ *     acc, gyro : float32 buffers of 3*N values (mg, mdps), C order
+ *     thr       : int64 buffer of N values (gTHR)
+ *     q_out     : writable float32 buffer of 4*N values (q0..q3 after each step)
+ *     thx_out, thy_out : writable float32 buffers of N values (rad), or None to skip QuaternionToEuler
+ *     state     : writable float32 buffer of 7 values: q0, q1, q2, q3, exInt, eyInt, ezInt (in: start, out: end)
+ *     params    : float32 buffer of 4 values: kp_ground, kp_flight, ki, dt_s
+ *     flags     : int: min_thr in bits 0..31 (signed), bit 32 = no correction, bit 33 = fresh squares
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <float.h>
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF /* clang contracts a*b+c by default on AArch64; GCC uses -ffp-contract=off */
+#endif
+
+#if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD != 0 && FLT_EVAL_METHOD != -1
+#error "float expressions must be evaluated in float (FLT_EVAL_METHOD 0) for bit-exact results"
+#endif
+
+/* COE_MDPS_TO_RADPS is the double literal 1.745329252e-5, cast to float where it is used. */
+#define COE_MDPS_TO_RADPS_F ((float)1.745329252e-5)
+
+static float inv_sqrt(float x)
+{
+    float halfx = 0.5f * x;
+    float y = x;
+    int32_t i;
+    memcpy(&i, &y, sizeof i);
+    i = (int32_t)0x5f3759df - (i >> 1);
+    memcpy(&y, &i, sizeof y);
+    y = y * (1.5f - (halfx * y * y));
+    return y;
+}
+
+static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
+{
+    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) {
+        return -1;
+    }
+    if (view->len != nbytes) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *native_run(PyObject *self, PyObject *args)
+{
+    PyObject *o_acc, *o_gyro, *o_thr, *o_q, *o_thx, *o_thy, *o_state, *o_params;
+    long long flags;
+    Py_buffer b_acc, b_gyro, b_thr, b_q, b_thx, b_thy, b_state, b_params;
+    int have_euler, ok = 0;
+    Py_ssize_t n, k;
+
+    (void)self;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o_acc, &o_gyro, &o_thr, &o_q, &o_thx, &o_thy, &o_state, &o_params,
+                          &flags)) {
+        return NULL;
+    }
+    if (PyObject_GetBuffer(o_thr, &b_thr, PyBUF_C_CONTIGUOUS) < 0) {
+        return NULL;
+    }
+    n = b_thr.len / (Py_ssize_t)sizeof(int64_t);
+    if (b_thr.len != n * (Py_ssize_t)sizeof(int64_t)) {
+        PyErr_SetString(PyExc_ValueError, "thr: length is not a multiple of 8 bytes");
+        PyBuffer_Release(&b_thr);
+        return NULL;
+    }
+    have_euler = (o_thx != Py_None) && (o_thy != Py_None);
+    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0) goto out_thr;
+    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0) goto out_acc;
+    if (get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0) goto out_gyro;
+    if (have_euler) {
+        if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) goto out_q;
+        if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) goto out_thx;
+    }
+    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0) goto out_thy;
+    if (get_buffer(o_params, &b_params, 0, 4 * 4, "params") < 0) goto out_state;
+
+    {
+        const float *acc = (const float *)b_acc.buf;
+        const float *gyro = (const float *)b_gyro.buf;
+        const int64_t *thr = (const int64_t *)b_thr.buf;
+        float *qo = (float *)b_q.buf;
+        float *thx_o = have_euler ? (float *)b_thx.buf : NULL;
+        float *thy_o = have_euler ? (float *)b_thy.buf : NULL;
+        float *st = (float *)b_state.buf;
+        const float *prm = (const float *)b_params.buf;
+        const float kp_ground = prm[0], kp_flight = prm[1], ki = prm[2], dt = prm[3];
+        const int64_t min_thr = (int64_t)(int32_t)(uint32_t)(flags & 0xffffffffLL);
+        const int correction = !((flags >> 32) & 1);
+        const int fresh_squares = (int)((flags >> 33) & 1);
+        float q0 = st[0], q1 = st[1], q2 = st[2], q3 = st[3];
+        float exInt = st[4], eyInt = st[5], ezInt = st[6];
+
+        Py_BEGIN_ALLOW_THREADS
+        for (k = 0; k < n; k++) {
+            float axf, ayf, azf, gxf, gyf, gzf, norm, vx, vy, vz, ex, ey, ez;
+            float q0q0, q0q1, q0q2, q1q1, q1q3, q2q2, q2q3, q3q3, halfT, ahrs_kp;
+
+            ahrs_kp = (thr[k] < min_thr) ? kp_ground : kp_flight;
+
+            axf = acc[3 * k + 0];
+            ayf = acc[3 * k + 1];
+            azf = acc[3 * k + 2];
+            gxf = gyro[3 * k + 0] * COE_MDPS_TO_RADPS_F;
+            gyf = gyro[3 * k + 1] * COE_MDPS_TO_RADPS_F;
+            gzf = gyro[3 * k + 2] * COE_MDPS_TO_RADPS_F;
+
+            q0q0 = q0 * q0;
+            q0q1 = q0 * q1;
+            q0q2 = q0 * q2;
+            q1q1 = q1 * q1;
+            q1q3 = q1 * q3;
+            q2q2 = q2 * q2;
+            q2q3 = q2 * q3;
+            q3q3 = q3 * q3;
+
+            if (correction) {
+                norm = inv_sqrt(axf * axf + ayf * ayf + azf * azf);
+                axf = axf * norm;
+                ayf = ayf * norm;
+                azf = azf * norm;
+
+                vx = 2.0f * (q1q3 - q0q2);
+                vy = 2.0f * (q0q1 + q2q3);
+                vz = q0q0 - q1q1 - q2q2 + q3q3;
+
+                ex = (ayf * vz - azf * vy);
+                ey = (azf * vx - axf * vz);
+                ez = (axf * vy - ayf * vx);
+
+                exInt = exInt + ex * ki * dt;
+                eyInt = eyInt + ey * ki * dt;
+                ezInt = ezInt + ez * ki * dt;
+
+                gxf = gxf + ahrs_kp * ex + exInt;
+                gyf = gyf + ahrs_kp * ey + eyInt;
+                gzf = gzf + ahrs_kp * ez + ezInt;
+            }
+
+            halfT = 0.5f * dt;
+            q0 = q0 + (-q1 * gxf - q2 * gyf - q3 * gzf) * halfT;
+            q1 = q1 + (q0 * gxf + q2 * gzf - q3 * gyf) * halfT;
+            q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * halfT;
+            q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * halfT;
+
+            if (fresh_squares) {
+                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3);
+            } else {
+                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3);
+            }
+            q0 *= norm;
+            q1 *= norm;
+            q2 *= norm;
+            q3 *= norm;
+
+            qo[4 * k + 0] = q0;
+            qo[4 * k + 1] = q1;
+            qo[4 * k + 2] = q2;
+            qo[4 * k + 3] = q3;
+
+            if (have_euler) {
+                float e00 = q0 * q0, e11 = q1 * q1, e22 = q2 * q2, e33 = q3 * q3;
+                float d0 = 2.0f * q0, d1 = 2.0f * q1, d2 = 2.0f * q2;
+                float d1q3 = d1 * q3, d0q2 = d0 * q2, d0q1 = d0 * q1, d2q3 = d2 * q3;
+                float num = d0q1 + d2q3;
+                float den = e00 + e33 - e11 - e22;
+                float sarg = d0q2 - d1q3;
+                thx_o[k] = (float)atan2((double)num, (double)den);
+                thy_o[k] = (float)asin((double)sarg);
+            }
+        }
+        Py_END_ALLOW_THREADS
+
+        st[0] = q0;
+        st[1] = q1;
+        st[2] = q2;
+        st[3] = q3;
+        st[4] = exInt;
+        st[5] = eyInt;
+        st[6] = ezInt;
+    }
+    ok = 1;
+
+    PyBuffer_Release(&b_params);
+out_state:
+    PyBuffer_Release(&b_state);
+out_thy:
+    if (have_euler) PyBuffer_Release(&b_thy);
+out_thx:
+    if (have_euler) PyBuffer_Release(&b_thx);
+out_q:
+    PyBuffer_Release(&b_q);
+out_gyro:
+    PyBuffer_Release(&b_gyro);
+out_acc:
+    PyBuffer_Release(&b_acc);
+out_thr:
+    PyBuffer_Release(&b_thr);
+    if (!ok) return NULL;
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef native_methods[] = {
+    {"run", native_run, METH_VARARGS,
+     "run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags): the firmware's Mahony loop, in place."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef native_module = {
+    PyModuleDef_HEAD_INIT, "_st_mahony_native",
+    "Native, bit-exact loop of the STEVAL-FCU001V1 Mahony filter port (see st_mahony.py).", -1, native_methods,
+};
+
+PyMODINIT_FUNC PyInit__st_mahony_native(void) { return PyModule_Create(&native_module); }
