@@ -8,11 +8,11 @@ rad; axes x right, y forward, z up; ``thx`` is the rotation about x (pitch, nose
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from steval_link.estimators.base import check_inputs
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
@@ -20,7 +20,13 @@ __all__ = [
     "NATIVE_AVAILABLE",
     "MahonySettings",
     "MahonyState",
+    "StMahony",
+    "FirmwareReplay",
+    "ReplaySeed",
     "run",
+    "replay_firmware",
+    "bits_equal",
+    "handout_yaw",
     "quaternion_to_euler",
     "inv_sqrt",
 ]
@@ -312,3 +318,240 @@ def _inv_sqrt_scalar(x: np.float32) -> np.float32:
     i = _INVSQRT_MAGIC - (np.array(x, dtype=_F32).view(np.int32) >> np.int32(1))
     y = i.view(_F32)[()]
     return y * (_THREE_HALVES - (halfx * y * y))
+
+
+def handout_yaw(q_wxyz) -> np.ndarray:
+    """Yaw (about z), rad, float32: the Lab 5 handout's ``thz = atan2(2*q1*q2+2*q0*q3, q0*q0+q1*q1-q2*q2-q3*q3)``.
+
+    Evaluated like the handout's C (float32 products and sums, double ``atan2``, stored to float32). The 170120
+    firmware does not compute this (its thz is the gyro yaw integrated in the ISR); the Lab 5 simulator does.
+    """
+    q = np.asarray(q_wxyz, dtype=_F32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+        num = (_TWO * q1) * q2 + (_TWO * q0) * q3
+        den = ((q0 * q0 + q1 * q1) - q2 * q2) - q3 * q3
+        return np.arctan2(num.astype(np.float64), den.astype(np.float64)).astype(_F32)
+
+
+class StMahony(Estimator):
+    """The firmware's Mahony filter as an :class:`~steval_link.estimators.base.Estimator` (bit-exact, float32).
+
+    Options (all keyword): ``kp_ground``, ``kp_flight`` (or ``kp`` for both), ``ki``, ``dt_s``, ``min_thr``,
+    ``correction``, ``fresh_squares`` (see :class:`MahonySettings`), or a whole ``settings``; ``state`` seeds the
+    filter (a :class:`MahonyState`, e.g. a status-frame snapshot); ``native`` forces the C or pure path.
+    ``run`` returns q and thx/thy exactly as the firmware computes them (float32) and thz from the Lab 5 handout's
+    yaw formula (the firmware's own thz is integrated in its ISR, not derived from q).
+    """
+
+    name = "st-mahony"
+
+    def __init__(
+        self,
+        *,
+        settings: MahonySettings | None = None,
+        state: MahonyState | None = None,
+        native: bool | None = None,
+        kp: float | None = None,
+        **setting_overrides,
+    ) -> None:
+        base = MahonySettings() if settings is None else settings
+        if kp is not None:
+            setting_overrides.setdefault("kp_ground", kp)
+            setting_overrides.setdefault("kp_flight", kp)
+        unknown = set(setting_overrides) - set(MahonySettings.__dataclass_fields__)
+        if unknown:
+            raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
+        self.settings = replace(base, **setting_overrides) if setting_overrides else base
+        if native and not NATIVE_AVAILABLE:
+            raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+        self.native = native
+        self.state = MahonyState() if state is None else state
+
+    def reset(self) -> None:
+        """Back to the power-up state (q = 1, 0, 0, 0; integrals 0)."""
+        self.state = MahonyState()
+
+    def seed(self, state: MahonyState) -> None:
+        """Continue from ``state`` (e.g. a status frame's ``q_wxyz``/``int_xyz`` snapshot)."""
+        self.state = state
+
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        """One ``ahrs_fusion_ag`` call: returns ``ahrs.q`` after it, (4,) float32."""
+        acc = np.asarray(acc_mg, dtype=_F32).reshape(1, 3)
+        gyro = np.asarray(gyro_mdps, dtype=_F32).reshape(1, 3)
+        q, _, _, self.state = run(
+            acc, gyro, np.array([thr]), settings=self.settings, state=self.state, euler=False, native=self.native
+        )
+        return q[0]
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        """N steps from the current state; q, thx, thy float32 bit-exact, thz float32 (handout formula)."""
+        q, thx, thy, self.state = run(
+            acc_mg, gyro_mdps, thr, settings=self.settings, state=self.state, native=self.native
+        )
+        valid = np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=handout_yaw(q), valid=valid)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Replaying a capture against the firmware's own outputs
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def bits_equal(a, b) -> np.ndarray:
+    """Element-wise float32 identity: same bits, or both NaN (any NaN payload)."""
+    a = np.asarray(a, dtype=_F32)
+    b = np.asarray(b, dtype=_F32)
+    return (a.view(np.uint32) == b.view(np.uint32)) | (np.isnan(a) & np.isnan(b))
+
+
+@dataclass(frozen=True)
+class ReplaySeed:
+    """Where the port (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
+
+    ``source`` is ``"power-up"`` (capture from step 0) or ``"status"`` (snapshot of status row ``status_row``,
+    taken right after step ``step - 1``).
+    """
+
+    row: int
+    step: int
+    source: str
+    status_row: int | None
+    settings: MahonySettings
+
+
+@dataclass(frozen=True)
+class FirmwareReplay:
+    """The port re-run over a capture, row by row next to the firmware's attitude frames.
+
+    Attributes:
+        q_wxyz: (N, 4) float32, the port's ``ahrs.q`` per attitude row (NaN where not seeded).
+        thx_rad, thy_rad: (N,) float32, the port's ``QuaternionToEuler`` (pitch about x, roll about y).
+        bit_exact: (N,) bool, port q, thx and thy carry the firmware's bits (NaN == NaN).
+        seeded: (N,) bool, the port had a known state for this row (from power-up or a status snapshot).
+        first_mismatch: row index of the first seeded row that is not bit-exact, or None.
+        seeds: every (re)start of the port, in row order.
+    """
+
+    q_wxyz: np.ndarray
+    thx_rad: np.ndarray
+    thy_rad: np.ndarray
+    bit_exact: np.ndarray
+    seeded: np.ndarray
+    first_mismatch: int | None
+    seeds: tuple[ReplaySeed, ...]
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.seeded.shape[0])
+
+    @property
+    def n_seeded(self) -> int:
+        return int(np.count_nonzero(self.seeded))
+
+    @property
+    def n_bit_exact(self) -> int:
+        return int(np.count_nonzero(self.bit_exact))
+
+    @property
+    def all_exact(self) -> bool:
+        """True when every seeded row is bit-exact (and at least one row is seeded)."""
+        return self.n_seeded > 0 and self.first_mismatch is None
+
+
+def _col(table, name: str):
+    """A column of a telemetry table given as an object with array attributes or as a structured array."""
+    try:
+        return getattr(table, name)
+    except AttributeError:
+        return table[name]
+
+
+def _status_settings(status, j: int) -> MahonySettings:
+    return MahonySettings.from_status(
+        kp_ground=_col(status, "kp_ground")[j],
+        kp_flight=_col(status, "kp_flight")[j],
+        ki=_col(status, "ki")[j],
+        dt_s=_col(status, "dt_s")[j],
+        min_thr=_col(status, "min_thr")[j],
+        flags=_col(status, "flags")[j],
+    )
+
+
+def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
+    """Re-run the port over a capture's inputs and compare it with the firmware's outputs, bit for bit.
+
+    Args:
+        tel: a :class:`steval_link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
+            ``thx_rad/thy_rad`` when present, and ``status.step/q_wxyz/int_xyz/kp_ground/kp_flight/ki/dt_s/
+            min_thr/flags``).
+        settings: filter constants; default: those reported by the status frames (the seeding one, else the
+            first one), or the firmware's defaults when the capture has no status frame.
+        native: force the C or the pure loop (default: C when built).
+
+    The port starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
+    mid-flight, or after dropped frames: any step gap) it waits for the first status snapshot inside that run and
+    continues from the following step. Rows before a seed are unseeded: NaN, not bit-exact.
+    """
+    att = tel.attitude
+    steps = np.asarray(_col(att, "step"), dtype=np.int64)
+    n = steps.shape[0]
+    acc = np.ascontiguousarray(_col(att, "acc_mg"), dtype=_F32).reshape(n, 3)
+    gyro = np.ascontiguousarray(_col(att, "gyro_mdps"), dtype=_F32).reshape(n, 3)
+    thr = np.asarray(_col(att, "thr"), dtype=np.int64).reshape(n)
+    fw_q = np.asarray(_col(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
+    try:
+        fw_thx = np.asarray(_col(att, "thx_rad"), dtype=_F32).reshape(n)
+        fw_thy = np.asarray(_col(att, "thy_rad"), dtype=_F32).reshape(n)
+    except (AttributeError, KeyError, ValueError):
+        fw_thx, fw_thy = quaternion_to_euler(fw_q)
+
+    status = getattr(tel, "status", None)
+    st_steps = np.zeros(0, dtype=np.int64) if status is None else np.asarray(_col(status, "step"), dtype=np.int64)
+    order = np.argsort(st_steps, kind="stable")
+    st_sorted = st_steps[order]
+    default_settings = settings
+    if default_settings is None:
+        default_settings = _status_settings(status, int(order[0])) if st_steps.size else MahonySettings()
+
+    q = np.full((n, 4), np.nan, dtype=_F32)
+    thx = np.full(n, np.nan, dtype=_F32)
+    thy = np.full(n, np.nan, dtype=_F32)
+    seeded = np.zeros(n, dtype=bool)
+    seeds: list[ReplaySeed] = []
+
+    breaks = np.flatnonzero(np.diff(steps) != 1) + 1
+    starts = np.concatenate(([0], breaks)) if n else np.zeros(0, dtype=np.int64)
+    ends = np.concatenate((breaks, [n])) if n else np.zeros(0, dtype=np.int64)
+    for a, b in zip(starts.tolist(), ends.tolist()):
+        s_first, s_last = int(steps[a]), int(steps[b - 1])
+        if s_first == 0:
+            start_row, state, seg_settings, seed = a, MahonyState(), default_settings, ("power-up", None)
+        else:
+            k = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
+            if k >= st_sorted.size or st_sorted[k] > s_last - 1:
+                continue  # no snapshot inside this run: it stays unseeded
+            j = int(order[k])
+            state = MahonyState(q_wxyz=_col(status, "q_wxyz")[j], int_xyz=_col(status, "int_xyz")[j])
+            seg_settings = settings if settings is not None else _status_settings(status, j)
+            start_row = a + int(st_sorted[k]) + 1 - s_first
+            seed = ("status", j)
+        sl = slice(start_row, b)
+        q[sl], thx[sl], thy[sl], _ = run(
+            acc[sl], gyro[sl], thr[sl], settings=seg_settings, state=state, native=native
+        )
+        seeded[sl] = True
+        seeds.append(ReplaySeed(start_row, int(steps[start_row]), seed[0], seed[1], seg_settings))
+
+    exact = seeded & bits_equal(q, fw_q).all(axis=1) & bits_equal(thx, fw_thx) & bits_equal(thy, fw_thy)
+    bad = np.flatnonzero(seeded & ~exact)
+    return FirmwareReplay(
+        q_wxyz=q,
+        thx_rad=thx,
+        thy_rad=thy,
+        bit_exact=exact,
+        seeded=seeded,
+        first_mismatch=int(bad[0]) if bad.size else None,
+        seeds=tuple(seeds),
+    )

@@ -1,0 +1,84 @@
+"""Accelerometer-only tilt (ETH lecture 4, exercise 8): pitch and roll from the direction of gravity alone.
+
+Firmware axes (x right, y forward, z up; at rest acc ≈ (0, 0, +1000) mg), angles named like ``QuaternionToEuler``
+so they line up with the firmware's: ``thx_rad`` = atan2(ay, az) is the rotation about x (pitch, nose up +),
+``thy_rad`` = atan2(−ax, √(ay² + az²)) the rotation about y (roll). Yaw is unobservable from gravity (NaN).
+Exact only when the drone is not accelerating; under linear acceleration the tilt is wrong, which is what the
+exercise shows next to the Mahony filter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from steval_link.estimators.base import AttitudeEstimate, Estimator
+
+__all__ = ["accel_tilt", "tilt_quaternion", "AccelTilt"]
+
+
+def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pitch and roll from accelerometer samples.
+
+    Args:
+        acc_mg: (N, 3) or (3,) accelerometer, mg (any consistent unit works; only the direction matters).
+        max_dev_mg: when given, samples whose magnitude differs from 1000 mg by more than this are also flagged
+            invalid (the drone is accelerating, so gravity is not what the accelerometer sees).
+
+    Returns:
+        ``(thx_rad, thy_rad, valid)``, float64 and bool, shaped like the input without its last axis. A zero
+        vector gives thx = thy = 0 with ``valid`` False; non-finite input gives NaN with ``valid`` False.
+    """
+    a = np.asarray(acc_mg, dtype=np.float64)
+    if a.shape[-1] != 3:
+        raise ValueError(f"acc_mg must have 3 components in its last axis, got shape {a.shape}")
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    thx = np.arctan2(ay, az)  # atan2(0, 0) = 0: defined for a zero vector
+    thy = np.arctan2(-ax, np.hypot(ay, az))
+    norm = np.sqrt(ax * ax + ay * ay + az * az)
+    valid = np.isfinite(norm) & (norm > 0.0)
+    if max_dev_mg is not None:
+        valid &= np.abs(norm - 1000.0) <= float(max_dev_mg)
+    return thx, thy, valid
+
+
+def tilt_quaternion(thx_rad, thy_rad) -> np.ndarray:
+    """Quaternion (scalar first, float64) with the given pitch (about x) and roll (about y) and zero yaw.
+
+    ``euler_from_quaternion`` of the result returns the same thx and thy (Z-Y-X convention, yaw 0).
+    """
+    hx = 0.5 * np.asarray(thx_rad, dtype=np.float64)
+    hy = 0.5 * np.asarray(thy_rad, dtype=np.float64)
+    cx, sx, cy, sy = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy)
+    return np.stack([cx * cy, sx * cy, cx * sy, -sx * sy], axis=-1)
+
+
+class AccelTilt(Estimator):
+    """Accelerometer-only tilt as an estimator (registry name ``accel``): memoryless, gyro ignored.
+
+    Options: ``max_dev_mg`` (see :func:`accel_tilt`). ``valid`` is False for a zero or non-finite acceleration.
+    """
+
+    name = "accel"
+
+    def __init__(self, *, max_dev_mg: float | None = None) -> None:
+        self.max_dev_mg = max_dev_mg
+
+    def reset(self) -> None:
+        """Nothing to reset: every step depends on its own sample only."""
+
+    def step(self, acc_mg, gyro_mdps=None, thr: int = 0) -> np.ndarray:
+        thx, thy, _ = accel_tilt(np.asarray(acc_mg, dtype=np.float64).reshape(3), max_dev_mg=self.max_dev_mg)
+        return tilt_quaternion(thx, thy)
+
+    def run(self, acc_mg, gyro_mdps=None, thr=None) -> AttitudeEstimate:
+        acc = np.asarray(acc_mg, dtype=np.float64)
+        if acc.ndim != 2 or acc.shape[1] != 3:
+            raise ValueError(f"acc_mg must be (N, 3), got shape {acc.shape}")
+        thx, thy, valid = accel_tilt(acc, max_dev_mg=self.max_dev_mg)
+        return AttitudeEstimate(
+            q_wxyz=tilt_quaternion(thx, thy),
+            thx_rad=thx,
+            thy_rad=thy,
+            thz_rad=np.full(acc.shape[0], np.nan),
+            valid=valid,
+        )
