@@ -1,0 +1,312 @@
+"""Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again.
+
+- :func:`probe_port` reads a port briefly and says whether it carries valid steval frames.
+- :func:`choose_port` implements ``--port auto`` (and glob patterns such as ``/dev/ttyUSB*``).
+- :func:`describe_bytes` / :func:`no_frames_message` turn bytes without a single valid frame into one line that says
+  what they look like and which ``--baud`` to try.
+- :class:`PortIdentity` / :class:`PortFinder` remember what a port was (path, USB VID:PID, serial number) and find
+  it again after an unplug, even when it comes back under another name (``/dev/ttyUSB0`` → ``/dev/ttyUSB1``).
+  Pseudo-terminals and other ports without USB identity are found again by their path or, failing that, by a
+  new name in the same family (the path with its trailing digits replaced by ``*``).
+
+Plain listing of ports is :mod:`steval_link.ports`' job; this module only uses it.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+
+import serial
+
+from steval_link.transport import open_serial
+
+#: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
+COMMON_BAUDS = (115200, 921600, 460800, 230400, 57600, 38400, 19200, 9600)
+
+_GLOB_CHARS = re.compile(r"[*?\[]")
+
+
+def is_glob(port: str) -> bool:
+    """True when ``port`` is a pattern (``*``, ``?`` or ``[``) rather than one path."""
+    return bool(_GLOB_CHARS.search(port))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# listing
+
+
+def list_candidate_ports() -> list[str]:
+    """Serial ports that may be the drone's USB-UART adapter (from :mod:`steval_link.ports`), device paths."""
+    from steval_link import ports
+
+    return [p.device for p in ports.list_ports()]
+
+
+def _comports():
+    from serial.tools import list_ports
+
+    try:
+        return list(list_ports.comports())
+    except OSError:  # a sysfs entry vanished while being read (unplug in progress)
+        return []
+
+
+# --------------------------------------------------------------------------------------------------------------
+# identity
+
+
+@dataclass(frozen=True)
+class PortIdentity:
+    """What a port is, to find it again: the path given, its real device, and USB identity where there is one."""
+
+    path: str
+    device: str
+    vid: int | None = None
+    pid: int | None = None
+    serial_number: str | None = None
+    location: str | None = None
+
+    @classmethod
+    def of(cls, path: str) -> "PortIdentity":
+        """Identity of the port at ``path`` now (USB fields from pyserial's port list; ``None`` for ptys)."""
+        device = os.path.realpath(path)
+        for info in _comports():
+            if os.path.realpath(info.device) == device and info.vid is not None:
+                return cls(path, device, info.vid, info.pid, info.serial_number, info.location)
+        return cls(path, device)
+
+    @property
+    def has_usb_id(self) -> bool:
+        return self.vid is not None and self.pid is not None
+
+    def describe(self) -> str:
+        if self.has_usb_id:
+            sn = f" serial {self.serial_number}" if self.serial_number else ""
+            return f"{self.path} (USB {self.vid:04X}:{self.pid:04X}{sn})"
+        return self.path
+
+
+def family_glob(path: str) -> str | None:
+    """The pattern of a port's sibling names: ``/dev/ttyUSB0`` → ``/dev/ttyUSB*``; ``None`` when no trailing digits."""
+    m = re.match(r"^(.*?)(\d+)$", path)
+    if not m or not m.group(1):
+        return None
+    return glob.escape(m.group(1)) + "*"
+
+
+@dataclass
+class PortFinder:
+    """Finds a port again after it vanished (call :meth:`find` while disconnected; cheap enough to poll at 10 Hz).
+
+    Order: a USB device with the same VID:PID and serial number (any name); the same path when it exists again;
+    a name matching ``pattern`` (default :func:`family_glob` of the path) that did not exist when the port was lost.
+    """
+
+    identity: PortIdentity
+    pattern: str | None = None
+    _present_at_loss: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        if self.pattern is None:
+            self.pattern = family_glob(self.identity.path)
+
+    def mark_lost(self) -> None:
+        """Remember which sibling names exist now, so that only a name that appears later is taken for the port."""
+        self._present_at_loss = set(self._siblings()) - {self.identity.path, self.identity.device}
+
+    def _siblings(self) -> list[str]:
+        return sorted(glob.glob(self.pattern)) if self.pattern else []
+
+    def find(self) -> str | None:
+        """The path to reopen, or ``None`` when the port is not back yet."""
+        ident = self.identity
+        if ident.has_usb_id:
+            for info in _comports():
+                if info.vid == ident.vid and info.pid == ident.pid and (
+                    ident.serial_number is None or info.serial_number == ident.serial_number
+                ):
+                    return info.device
+        if os.path.exists(ident.path):
+            return ident.path
+        for path in self._siblings():
+            if path not in self._present_at_loss and os.path.exists(path):
+                return path
+        return None
+
+
+# --------------------------------------------------------------------------------------------------------------
+# probing
+
+
+@dataclass
+class ProbeResult:
+    """What a short read of one port found."""
+
+    port: str
+    baud: int
+    bytes_read: bytes = b""
+    frames_ok: int = 0
+    error: str | None = None
+    seconds: float = 0.0
+
+    @property
+    def answered(self) -> bool:
+        """True when at least one valid frame (binary or text-mode) arrived."""
+        return self.frames_ok > 0
+
+
+def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
+    """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
+    from steval_link.decoder import StreamDecoder
+
+    result = ProbeResult(port, baud)
+    t0 = time.monotonic()
+    try:
+        ser = open_serial(port, baud, timeout_s=0.02)
+    except (serial.SerialException, OSError) as exc:
+        result.error = str(exc)
+        return result
+    decoder = StreamDecoder()
+    buf = bytearray()
+    try:
+        while time.monotonic() - t0 < duration_s and len(buf) < max_bytes:
+            try:
+                data = ser.read(4096)
+            except (serial.SerialException, OSError) as exc:
+                result.error = str(exc)
+                break
+            if data:
+                buf += data
+                result.frames_ok += len(decoder.feed(data))
+                if result.frames_ok >= 2:
+                    break
+    finally:
+        try:
+            ser.close()
+        except (serial.SerialException, OSError):
+            pass
+    result.bytes_read = bytes(buf)
+    result.seconds = time.monotonic() - t0
+    return result
+
+
+def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[ProbeResult]:
+    """:func:`probe_port` on several ports at once (one thread each), results in the order of ``ports``."""
+    results: list[ProbeResult | None] = [None] * len(ports)
+
+    def work(i: int, p: str) -> None:
+        results[i] = probe_port(p, baud, duration_s)
+
+    threads = [threading.Thread(target=work, args=(i, p), daemon=True) for i, p in enumerate(ports)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(duration_s + 5.0)
+    return [r if r is not None else ProbeResult(p, baud, error="probe did not finish") for r, p in zip(results, ports)]
+
+
+class PortChoiceError(Exception):
+    """``--port auto`` could not decide; the message is one sentence for the user."""
+
+
+def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[str] | None = None) -> str:
+    """Resolve ``--port``: a path is returned as is; ``auto`` or a glob picks the candidate that carries frames.
+
+    One candidate is taken without probing (the live session then diagnoses it). Several are probed for
+    ``probe_s`` at once; the one with valid frames wins. Raises :class:`PortChoiceError` when none or several
+    answer, listing them.
+    """
+    if spec != "auto" and not is_glob(spec):
+        return spec
+    if candidates is None:
+        candidates = list_candidate_ports() if spec == "auto" else sorted(glob.glob(spec))
+    where = "" if spec == "auto" else f" matching {spec}"
+    if not candidates:
+        raise PortChoiceError(
+            f"no serial ports found{where}; plug in the drone's USB-UART adapter (or give --port, or --wait)"
+        )
+    if len(candidates) == 1:
+        return candidates[0]
+    results = probe_ports(candidates, baud, probe_s)
+    answering = [r.port for r in results if r.answered]
+    if len(answering) == 1:
+        return answering[0]
+    listing = ", ".join(candidates)
+    if answering:
+        raise PortChoiceError(
+            f"several ports carry steval frames ({', '.join(answering)}); pick one with --port"
+        )
+    raise PortChoiceError(
+        f"none of the serial ports{where} sent valid frames at {baud} baud within {probe_s:.1f} s "
+        f"({listing}); pick one with --port"
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# describing bytes without frames
+
+
+def describe_bytes(data: bytes) -> str:
+    """A few words on what bytes without any valid frame look like (for the wrong-baud message)."""
+    n = len(data)
+    if n == 0:
+        return "no bytes at all"
+    sample = data[:4096]
+    counts = [0] * 256
+    for b in sample:
+        counts[b] += 1
+    m = len(sample)
+    printable = sum(counts[b] for b in range(32, 127)) + counts[9] + counts[10] + counts[13]
+    zeros = counts[0]
+    ffs = counts[0xFF]
+    distinct = sum(1 for c in counts if c)
+    if zeros / m > 0.9:
+        return f"all 0x00 ({n} bytes: a line held low, or a much slower baud rate)"
+    if ffs / m > 0.9:
+        return f"all 0xFF ({n} bytes: framing noise from a much faster baud rate)"
+    if printable / m > 0.9:
+        text = sample.decode("ascii", "replace")
+        lines = [ln.strip() for ln in text.replace("\r", "\n").split("\n") if ln.strip()]
+        shown = (lines[0] if lines else text.strip())[:40]
+        return f'text, not steval frames ({n} bytes, e.g. "{shown}": another device, or firmware without the patch)'
+    if distinct < 8:
+        shown = " ".join(f"{b:02X}" for b in sorted(range(256), key=lambda b: -counts[b])[: min(distinct, 4)])
+        return f"a few repeating values ({shown}; {n} bytes: framing noise from another baud rate)"
+    if (zeros + ffs) / m > 0.4 or counts[0x80] + counts[0xF8] + counts[0xE0] + counts[0xFE] > 0.3 * m:
+        return f"framing noise ({n} bytes, mostly 0x00/0x80/0xF8/0xFF: another baud rate)"
+    return f"random binary ({n} bytes, {100 * printable / m:.0f}% printable: another baud rate or another protocol)"
+
+
+def suggest_bauds(data: bytes, baud: int, seconds: float) -> list[int]:
+    """Baud rates worth trying, most likely first, from how many bytes arrived in ``seconds`` at ``baud``.
+
+    A sender faster than the reader keeps the line busy: close to ``baud``/10 bytes/s arrive, so faster rates
+    come first. A slower sender yields about its own byte rate (well under the maximum): slower rates first.
+    """
+    capacity = baud / 10.0 * max(seconds, 1e-3)
+    busy = len(data) / capacity if capacity else 0.0
+    others = [b for b in COMMON_BAUDS if b != baud]
+    faster = sorted((b for b in others if b > baud), key=lambda b: (b != 921600, -b))
+    slower = sorted((b for b in others if b < baud), key=lambda b: (b != 115200, -b))
+    return (faster + slower) if busy > 0.5 or not slower else (slower + faster)
+
+
+def no_frames_message(port: str, baud: int, data: bytes, seconds: float) -> str:
+    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds``."""
+    if not data:
+        return (
+            f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "
+            "wired to the adapter's RX? (--wait keeps waiting)"
+        )
+    tries = suggest_bauds(data, baud, seconds)
+    what = describe_bytes(data)
+    if what.startswith("text"):
+        hint = "flash the steval firmware patch (or check --port)"
+    else:
+        hint = f"try --baud {tries[0]}" + (f" (or {', '.join(str(b) for b in tries[1:3])})" if len(tries) > 1 else "")
+    return f"no valid frames at {baud} baud on {port}; bytes look like {what}; {hint}"

@@ -1,0 +1,222 @@
+"""Serial transport: a reader thread that hands raw byte chunks with host times to a protocol object.
+
+The thread only moves bytes (as pyserial's ``serial.threaded``): it reads with a short timeout, stamps every chunk
+with the host time it arrived, and calls :meth:`Protocol.data_received`. Decoding, estimation and logging live in
+the protocol (``steval_link.live``), never here.
+
+When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
+tells the protocol (:meth:`Protocol.connection_lost`), then polls ``find_port`` every ``reconnect_poll_s`` for the
+device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.autodetect`), reopens it and calls
+:meth:`Protocol.connection_made` again. Only :meth:`SerialReader.stop` ends the thread.
+
+Errors when opening a port are turned into one sentence with the fix by :func:`open_error_message`.
+"""
+
+from __future__ import annotations
+
+import errno
+import threading
+import time
+from typing import Callable
+
+import serial
+
+#: Read timeout of the reader thread, s: the latency a chunk can add and the granularity of ``stop()``.
+READ_TIMEOUT_S = 0.01
+#: Largest chunk read at once, bytes.
+READ_SIZE = 4096
+#: How often a lost port is looked for again, s.
+RECONNECT_POLL_S = 0.1
+
+
+class HostClock:
+    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock.
+
+    ``time.time()`` may jump (NTP, suspend); chunk times must not. The wall time is read once, at construction, and
+    every later time is that plus the monotonic time elapsed since, so times are ordered and spaced correctly.
+    """
+
+    def __init__(self) -> None:
+        self.wall0_s = time.time()
+        self.mono0_s = time.monotonic()
+
+    def now_s(self) -> float:
+        """Current host time, s since the Unix epoch (monotonic since construction)."""
+        return self.wall0_s + (time.monotonic() - self.mono0_s)
+
+    def elapsed_s(self) -> float:
+        """Seconds since construction (monotonic)."""
+        return time.monotonic() - self.mono0_s
+
+
+class Protocol:
+    """What the reader thread calls; every method runs in the reader thread. Subclass and override.
+
+    Exceptions raised by a method stop the thread; they are kept in :attr:`SerialReader.error`.
+    """
+
+    def connection_made(self, port: str) -> None:
+        """The port ``port`` was (re)opened and bytes may follow."""
+
+    def data_received(self, data: bytes, t_host_s: float) -> None:
+        """``data`` arrived; ``t_host_s`` is the host time (s, Unix epoch) the read returned."""
+
+    def connection_lost(self, exc: BaseException | None) -> None:
+        """The port failed with ``exc`` (``None``: closed by :meth:`SerialReader.stop`)."""
+
+    def idle(self, t_host_s: float) -> None:
+        """Called after every read (even an empty one) and while waiting to reconnect: a periodic tick."""
+
+
+def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, exclusive: bool = True) -> serial.Serial:
+    """Open ``port`` at ``baud`` 8N1 for reading (``exclusive``: fail if another program holds the port's lock).
+
+    Raises ``serial.SerialException`` (with ``errno`` set where the OS gave one) like pyserial.
+    """
+    kwargs = {"exclusive": True} if exclusive else {}
+    try:
+        return serial.Serial(port, baud, timeout=timeout_s, **kwargs)
+    except ValueError as exc:  # pyserial: baud rate out of range
+        raise serial.SerialException(errno.EINVAL, f"cannot open {port} at {baud} baud: {exc}") from exc
+
+
+def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> str:
+    """One sentence saying why ``port`` could not be opened and what to do about it.
+
+    ``available``: the serial ports that do exist, listed when ``port`` does not.
+    """
+    code = getattr(exc, "errno", None)
+    text = str(exc)
+    cause = exc.__cause__ or exc.__context__
+    if code is None and cause is not None:
+        code = getattr(cause, "errno", None)
+    if code == errno.ENOENT or "No such file or directory" in text:
+        if available:
+            return f"no serial port {port}; available ports: {', '.join(available)} (pick one with --port, or --port auto)"
+        return f"no serial port {port}, and no serial ports found; plug in the USB-UART adapter (or use --wait)"
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+        return (
+            f"permission denied on {port}: add yourself to the dialout group: "
+            "sudo usermod -aG dialout $USER, then log out and in"
+        )
+    if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "exclusively lock" in text or "busy" in text.lower():
+        return (
+            f"{port} is busy: close the other program using it (screen, minicom, Arduino IDE, another steval...) "
+            "and try again"
+        )
+    if code == errno.EINVAL:
+        return f"cannot open {port}: {text.split(': ', 1)[-1]}"
+    if code == errno.ENOTTY or "Inappropriate ioctl" in text:
+        return f"{port} is not a serial port"
+    return f"cannot open {port}: {text}"
+
+
+class SerialReader(threading.Thread):
+    """Reads an open serial port in a thread and feeds a :class:`Protocol`; reconnects when the port fails.
+
+    ``find_port``: called while disconnected, returns the path to reopen (or ``None``: not back yet); ``None``
+    disables reconnection (the thread ends after :meth:`Protocol.connection_lost`). ``opener(path)`` opens a path
+    (default :func:`open_serial` at ``baud``). Times come from ``clock``.
+    """
+
+    def __init__(
+        self,
+        ser: serial.Serial,
+        protocol: Protocol,
+        *,
+        baud: int,
+        clock: HostClock | None = None,
+        find_port: Callable[[], str | None] | None = None,
+        opener: Callable[[str], serial.Serial] | None = None,
+        read_size: int = READ_SIZE,
+        reconnect_poll_s: float = RECONNECT_POLL_S,
+    ) -> None:
+        super().__init__(name="steval-serial-reader", daemon=True)
+        self.serial: serial.Serial | None = ser
+        self.protocol = protocol
+        self.baud = baud
+        self.clock = clock or HostClock()
+        self.find_port = find_port
+        self.opener = opener or (lambda path: open_serial(path, baud))
+        self.read_size = read_size
+        self.reconnect_poll_s = reconnect_poll_s
+        self.port: str = ser.port
+        #: The exception that ended the thread (raised by the protocol), or ``None``.
+        self.error: BaseException | None = None
+        self.connected = threading.Event()
+        self._stop_event = threading.Event()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Ask the thread to finish, wait for it (up to ``timeout_s``) and close the port."""
+        self._stop_event.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop_event.is_set()
+
+    def run(self) -> None:
+        try:
+            self.connected.set()
+            self.protocol.connection_made(self.port)
+            while not self._stop_event.is_set():
+                if self.serial is None:
+                    if not self._reconnect():
+                        break
+                    continue
+                try:
+                    data = self.serial.read(self.read_size)
+                except (serial.SerialException, OSError) as exc:
+                    self._drop(exc)
+                    continue
+                t_host_s = self.clock.now_s()
+                if data:
+                    self.protocol.data_received(data, t_host_s)
+                self.protocol.idle(t_host_s)
+        except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
+            self.error = exc
+        finally:
+            ser, self.serial = self.serial, None
+            if ser is not None:
+                _close_quietly(ser)
+                self.connected.clear()
+                try:
+                    self.protocol.connection_lost(None)
+                except BaseException as exc:  # noqa: BLE001
+                    self.error = self.error or exc
+
+    def _drop(self, exc: BaseException) -> None:
+        ser, self.serial = self.serial, None
+        if ser is not None:
+            _close_quietly(ser)
+        self.connected.clear()
+        self.protocol.connection_lost(exc)
+
+    def _reconnect(self) -> bool:
+        """Wait for the port to return and reopen it; ``False`` when the thread should end."""
+        if self.find_port is None:
+            return False
+        while not self._stop_event.is_set():
+            path = self.find_port()
+            if path is not None:
+                try:
+                    ser = self.opener(path)
+                except (serial.SerialException, OSError):
+                    ser = None  # still settling (udev permissions, node half-made): try again next poll
+                if ser is not None:
+                    self.serial = ser
+                    self.port = path
+                    self.connected.set()
+                    self.protocol.connection_made(path)
+                    return True
+            self.protocol.idle(self.clock.now_s())
+            self._stop_event.wait(self.reconnect_poll_s)
+        return False
+
+
+def _close_quietly(ser: serial.Serial) -> None:
+    try:
+        ser.close()
+    except (serial.SerialException, OSError):
+        pass
