@@ -1,0 +1,128 @@
+"""The default Rerun blueprint of steval-link, sent with every recording (replay, simulate, live).
+
+Left: the 3D view (firmware quadcopter, host-estimate ghost, world axes, accelerometer gravity arrow) above a
+link-health / firmware-log tab. Right: pitch (thx) and roll (thy) with firmware, ST-Mahony port, EKF and
+accelerometer-only overlaid; yaw; firmware − port; raw accelerometer (mg), gyro (dps), throttle.
+
+Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` seconds; replays show the whole flight.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import rerun as rr
+import rerun.blueprint as rrb
+
+from steval_viewer import entities as ent
+
+#: Width of the scrolling window of the live blueprint, seconds.
+LIVE_WINDOW_S = 10.0
+
+
+def _time_ranges(live: bool, timeline: str):
+    if not live:
+        return None
+    return rrb.VisibleTimeRange(
+        timeline,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+
+
+def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_range=None) -> rrb.TimeSeriesView:
+    kwargs = {}
+    if y_range is not None:
+        kwargs["axis_y"] = rrb.ScalarAxis(range=y_range)
+    return rrb.TimeSeriesView(
+        origin=origin,
+        contents=contents if contents is not None else "$origin/**",
+        name=name,
+        time_ranges=_time_ranges(live, timeline),
+        plot_legend=rrb.PlotLegend(visible=True),
+        **kwargs,
+    )
+
+
+def make_blueprint(
+    *,
+    live: bool = False,
+    ghost_sources: Iterable[str] = (),
+    ghost: str | None = None,
+    timeline: str | None = None,
+) -> rrb.Blueprint:
+    """The default blueprint.
+
+    ``live``: scrolling window of the last 10 s (else the whole flight). ``ghost_sources``: source segments that
+    have a ghost drone (``entities.estimate_path``); ``ghost`` is the one shown (default: the ST-Mahony port if
+    present, else the first by ``entities.GHOST_PREFERENCE``); the others stay in the view, hidden, and can be
+    switched on in the blueprint panel. ``timeline``: the active timeline (default ``fw_time`` for replays,
+    ``host_time`` live).
+    """
+    sources = list(ghost_sources)
+    if ghost is None:
+        ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
+    if timeline is None:
+        timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
+    overrides = {ent.estimate_path(s): rrb.EntityBehavior(visible=False) for s in sources if s != ghost}
+
+    view3d = rrb.Spatial3DView(
+        origin=ent.WORLD,
+        name="Attitude (solid: firmware, ghost: host estimate)",
+        overrides=overrides or None,
+        eye_controls=rrb.EyeControls3D(
+            position=(3.2, -3.6, 2.4), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)
+        ),
+        line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
+    )
+    link = rrb.Tabs(
+        rrb.Grid(
+            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline),
+            _series(
+                ent.LINK,
+                "Link losses (count, cumulative)",
+                live,
+                timeline,
+                contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
+            ),
+            _series(ent.LINK_CYCLES, "AHRS cycles per step (min/mean/max)", live, timeline),
+            _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline),
+            grid_columns=2,
+            name="Link health",
+        ),
+        rrb.TextLogView(origin="log", name="Firmware log"),
+        name="Link",
+    )
+    left = rrb.Vertical(view3d, link, row_shares=[3, 2])
+
+    right = rrb.Vertical(
+        rrb.Horizontal(
+            _series(ent.PLOT_PITCH, "thx pitch, about x (deg, nose up +)", live, timeline),
+            _series(ent.PLOT_ROLL, "thy roll, about y (deg)", live, timeline),
+        ),
+        rrb.Horizontal(
+            _series(ent.PLOT_YAW, "thz yaw, gyro-integrated (deg)", live, timeline),
+            _series(ent.PLOT_DIFF, "firmware − ST-Mahony port (deg)", live, timeline),
+        ),
+        rrb.Horizontal(
+            _series(ent.PLOT_ACC, "accelerometer (mg)", live, timeline),
+            _series(ent.PLOT_GYRO, "gyro (deg/s)", live, timeline),
+            _series(ent.PLOT_THROTTLE, "throttle gTHR", live, timeline),
+            column_shares=[2, 2, 1],
+        ),
+        row_shares=[3, 2, 2],
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(left, right, column_shares=[2, 3]),
+        rrb.TimePanel(timeline=timeline, expanded=True, play_state="following" if live else None),
+        rrb.BlueprintPanel(expanded=False),
+        rrb.SelectionPanel(expanded=False),
+        collapse_panels=False,
+    )
+
+
+def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
+    """Build the blueprint (arguments of :func:`make_blueprint`) and send it as the recording's default."""
+    bp = make_blueprint(**kwargs)
+    rec.send_blueprint(bp, make_active=True, make_default=True)
+    return bp

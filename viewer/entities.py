@@ -1,0 +1,156 @@
+"""Entity paths, timelines, series labels and colours of every steval-link recording, in one place.
+
+Tests, docs, the blueprint and both logging paths (replay and live) refer to these names, so a recording made by
+``steval replay`` and one made live have the same layout. Units are in the path names.
+
+Layout::
+
+    world                                 view coordinates: x right, y forward (nose), z up (RIGHT_HAND_Z_UP)
+    world/axes                            world x/y/z arrows (static)
+    world/drone/firmware                  Transform3D: the firmware's ahrs.q (body -> earth)
+    world/drone/firmware/model            the quadcopter (static mesh)
+    world/drone/firmware/acc_gravity      gravity direction seen by the accelerometer (body frame, 1 g = 1 unit)
+    world/drone/estimate/<source>         Transform3D of a host estimate (ST-Mahony port, EKF, ...)
+    world/drone/estimate/<source>/model   translucent wireframe ghost (static)
+    plots/pitch_thx_deg/<source>          thx = rotation about x (pitch, nose up +), degrees
+    plots/roll_thy_deg/<source>           thy = rotation about y (roll), degrees
+    plots/yaw_thz_deg/firmware            thz = ISR-integrated yaw, degrees
+    plots/acc_mg                          accelerometer x, y, z (mg), the inputs of ahrs_fusion_ag
+    plots/gyro_dps                        gyro x, y, z (deg/s)
+    plots/throttle_thr                    gTHR
+    plots/fw_minus_port_deg/thx|thy       firmware − ST-Mahony port, degrees (0 when the port is bit-exact)
+    link/frame_rate_hz                    attitude frames received per second (1 s bins)
+    link/frames_missing                   frames lost on the link (sequence gaps), cumulative
+    link/crc_failures                     frames rejected by the decoder's CRC check, cumulative
+    link/tx_dropped                       frames the firmware dropped (TX queue full), cumulative, from status
+    link/tx_queue_peak_bytes              TX queue high-water mark per status period
+    link/ahrs_cycles                      CPU cycles of one ahrs_fusion_ag + QuaternionToEuler: min, mean, max
+    log/firmware                          firmware text lines
+    log/host                              host notes (decoder summary, estimator notes)
+"""
+
+from __future__ import annotations
+
+import re
+
+#: Timelines. ``fw_time``: firmware time (s since boot, from t_us); ``host_time``: host receive time (s since
+#: capture start); ``ahrs_step``: the AHRS step counter.
+TIMELINE_FW = "fw_time"
+TIMELINE_HOST = "host_time"
+TIMELINE_STEP = "ahrs_step"
+
+WORLD = "world"
+WORLD_AXES = "world/axes"
+DRONE_FIRMWARE = "world/drone/firmware"
+DRONE_FIRMWARE_MODEL = "world/drone/firmware/model"
+ACC_GRAVITY = "world/drone/firmware/acc_gravity"
+DRONE_ESTIMATE_ROOT = "world/drone/estimate"
+
+PLOTS = "plots"
+PLOT_PITCH = "plots/pitch_thx_deg"
+PLOT_ROLL = "plots/roll_thy_deg"
+PLOT_YAW = "plots/yaw_thz_deg"
+PLOT_ACC = "plots/acc_mg"
+PLOT_GYRO = "plots/gyro_dps"
+PLOT_THROTTLE = "plots/throttle_thr"
+PLOT_DIFF = "plots/fw_minus_port_deg"
+DIFF_THX = f"{PLOT_DIFF}/thx"
+DIFF_THY = f"{PLOT_DIFF}/thy"
+
+LINK = "link"
+LINK_RATE = "link/frame_rate_hz"
+LINK_MISSING = "link/frames_missing"
+LINK_CRC = "link/crc_failures"
+LINK_TX_DROPPED = "link/tx_dropped"
+LINK_QUEUE = "link/tx_queue_peak_bytes"
+LINK_CYCLES = "link/ahrs_cycles"
+
+LOG_FIRMWARE = "log/firmware"
+LOG_HOST = "log/host"
+
+#: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_port`` the host's
+#: bit-exact port of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).
+SOURCE_FIRMWARE = "firmware"
+SOURCE_PORT = "st_mahony_port"
+
+#: Human labels of the sources, used in series names ("thx pitch (firmware)").
+SOURCE_LABELS = {
+    "firmware": "firmware",
+    "st_mahony_port": "ST-Mahony port",
+    "st_mahony": "ST-Mahony (Python)",
+    "ekf3": "EKF3",
+    "mekf": "MEKF",
+    "accel": "accelerometer only",
+    "vqf": "VQF",
+}
+
+#: RGB colours of the sources (same colour in every plot and for the 3D ghost).
+SOURCE_COLORS = {
+    "firmware": (230, 230, 230),
+    "st_mahony_port": (255, 160, 40),
+    "st_mahony": (255, 200, 90),
+    "ekf3": (70, 170, 255),
+    "mekf": (170, 110, 255),
+    "accel": (90, 210, 110),
+    "vqf": (255, 90, 160),
+}
+_FALLBACK_COLORS = [(240, 228, 66), (0, 158, 115), (213, 94, 0), (204, 121, 167)]
+
+#: Which host estimate the 3D ghost shows by default (the others are logged too, hidden in the blueprint).
+DEFAULT_GHOST = "st_mahony_port"
+GHOST_PREFERENCE = ("st_mahony_port", "ekf3", "mekf", "st_mahony", "vqf", "accel")
+
+
+def source_name(name: str) -> str:
+    """Entity-path segment for an estimator name: lower case, ``-`` and other separators become ``_``."""
+    seg = re.sub(r"[^0-9a-zA-Z_]+", "_", name.strip()).strip("_").lower()
+    if not seg:
+        raise ValueError(f"estimator name {name!r} has no usable characters")
+    return seg
+
+
+def source_label(source: str) -> str:
+    """Readable label of a source segment (``ekf3`` -> ``EKF3``)."""
+    return SOURCE_LABELS.get(source, source)
+
+
+def source_color(source: str) -> tuple[int, int, int]:
+    """RGB colour of a source segment (stable for unknown names)."""
+    if source in SOURCE_COLORS:
+        return SOURCE_COLORS[source]
+    return _FALLBACK_COLORS[sum(source.encode()) % len(_FALLBACK_COLORS)]
+
+
+def pitch_path(source: str) -> str:
+    """Time series of thx (pitch, about x) in degrees from ``source``."""
+    return f"{PLOT_PITCH}/{source}"
+
+
+def roll_path(source: str) -> str:
+    """Time series of thy (roll, about y) in degrees from ``source``."""
+    return f"{PLOT_ROLL}/{source}"
+
+
+def yaw_path(source: str) -> str:
+    """Time series of thz (yaw) in degrees from ``source``."""
+    return f"{PLOT_YAW}/{source}"
+
+
+def estimate_path(source: str) -> str:
+    """3D transform of the ghost drone of ``source``."""
+    return f"{DRONE_ESTIMATE_ROOT}/{source}"
+
+
+def estimate_model_path(source: str) -> str:
+    """Static wireframe model of the ghost drone of ``source``."""
+    return f"{estimate_path(source)}/model"
+
+
+def pitch_label(source: str) -> str:
+    """Series name of thx, e.g. ``thx pitch (firmware)``."""
+    return f"thx pitch ({source_label(source)})"
+
+
+def roll_label(source: str) -> str:
+    """Series name of thy, e.g. ``thy roll (EKF3)``."""
+    return f"thy roll ({source_label(source)})"

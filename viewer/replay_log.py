@@ -1,0 +1,252 @@
+"""Columnar logging of a whole :class:`~steval_link.telemetry.Telemetry` and its host estimates to Rerun.
+
+One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time`` (firmware s since boot),
+``host_time`` (host receive s since capture start, when known) and ``ahrs_step`` timelines. Used by
+``steval replay`` and ``steval simulate``; :func:`log_replay` is the entry point::
+
+    rec = steval_viewer.sinks.open_recording("capture", rrd="out.rrd")
+    summary = log_replay(rec, tel, {"ekf3": ekf.run(acc, gyro, thr)}, port=replay_firmware(tel))
+
+Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,) and optionally a
+``valid`` (N,) bool mask works (``AttitudeEstimate``, ``FirmwareReplay``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+import rerun as rr
+
+from steval_link.protocol import AHRS_PERIOD_S
+from steval_viewer import blueprint as bp
+from steval_viewer import entities as ent
+from steval_viewer import scene
+from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
+
+_MASK_NAMES = ("valid", "mask", "seeded")
+
+
+def estimate_mask(est: Any, n: int) -> np.ndarray:
+    """The rows of an estimate that hold a real value (its ``valid`` / ``mask`` / ``seeded`` array, else all)."""
+    for name in _MASK_NAMES:
+        m = getattr(est, name, None)
+        if m is not None:
+            m = np.asarray(m, dtype=bool)
+            if m.shape == (n,):
+                return m
+    return np.ones(n, dtype=bool)
+
+
+@dataclass
+class ReplaySummary:
+    """What :func:`log_replay` logged: samples per entity path (values sent, gaps excluded) and the sources."""
+
+    samples: dict[str, int] = field(default_factory=dict)
+    sources: list[str] = field(default_factory=list)
+
+
+def _count(summary: ReplaySummary, path: str, values: np.ndarray, valid: np.ndarray | None = None) -> None:
+    v = np.asarray(values, dtype=np.float64)
+    good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
+    if valid is not None:
+        good &= valid
+    summary.samples[path] = int(good.sum())
+
+
+def _deg(rad: np.ndarray) -> np.ndarray:
+    return np.degrees(np.asarray(rad, dtype=np.float64))
+
+
+def log_firmware(rec: rr.RecordingStream, times: Times, att: Any, summary: ReplaySummary) -> None:
+    """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
+    q = np.asarray(att.q_wxyz, dtype=np.float64)
+    send_transforms(rec, ent.DRONE_FIRMWARE, times, q)
+    summary.samples[ent.DRONE_FIRMWARE] = int(np.isfinite(q).all(axis=1).sum())
+
+    acc = np.asarray(att.acc_mg, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        gravity = -acc / 1000.0  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
+    send_arrows(rec, ent.ACC_GRAVITY, times, gravity)
+    _count(summary, ent.ACC_GRAVITY, gravity)
+
+    for path, values in (
+        (ent.pitch_path(ent.SOURCE_FIRMWARE), _deg(att.thx_rad)),
+        (ent.roll_path(ent.SOURCE_FIRMWARE), _deg(att.thy_rad)),
+        (ent.yaw_path(ent.SOURCE_FIRMWARE), _deg(att.thz_rad)),
+        (ent.PLOT_ACC, acc),
+        (ent.PLOT_GYRO, np.asarray(att.gyro_mdps, dtype=np.float64) / 1000.0),
+        (ent.PLOT_THROTTLE, np.asarray(att.thr, dtype=np.float64)),
+    ):
+        send_scalars(rec, path, times, values)
+        _count(summary, path, values)
+
+
+def log_estimate(
+    rec: rr.RecordingStream, times: Times, source: str, est: Any, summary: ReplaySummary, *, ghost: bool = True
+) -> None:
+    """One host estimate: ghost drone (when ``ghost``), thx/thy series; invalid rows are gaps."""
+    n = len(times)
+    valid = estimate_mask(est, n)
+    if ghost and getattr(est, "q_wxyz", None) is not None:
+        q = np.asarray(est.q_wxyz, dtype=np.float64)
+        send_transforms(rec, ent.estimate_path(source), times, q, valid)
+        summary.samples[ent.estimate_path(source)] = int((np.isfinite(q).all(axis=1) & valid).sum())
+    for path, values in (
+        (ent.pitch_path(source), _deg(est.thx_rad)),
+        (ent.roll_path(source), _deg(est.thy_rad)),
+    ):
+        send_scalars(rec, path, times, values, valid)
+        _count(summary, path, values, valid)
+
+
+def log_port_difference(rec: rr.RecordingStream, times: Times, att: Any, port: Any, summary: ReplaySummary) -> None:
+    """firmware − ST-Mahony port for thx and thy, in degrees, where the port is seeded (0 when bit-exact)."""
+    valid = estimate_mask(port, len(times))
+    for path, fw, py in ((ent.DIFF_THX, att.thx_rad, port.thx_rad), (ent.DIFF_THY, att.thy_rad, port.thy_rad)):
+        d = _deg(np.asarray(fw, dtype=np.float64) - np.asarray(py, dtype=np.float64))
+        send_scalars(rec, path, times, d, valid)
+        _count(summary, path, d, valid)
+
+
+def _bins_1s(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(last row index of each 1 s bin, rows per bin) over a time array (NaN rows ignored)."""
+    finite = np.isfinite(t_s)
+    if not finite.any():
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    rows = np.flatnonzero(finite)
+    k = np.floor(t_s[rows] - t_s[rows[0]]).astype(np.int64)
+    k = np.maximum.accumulate(k)  # time never goes back
+    ends = np.flatnonzero(np.diff(k, append=k[-1] + 1))
+    counts = np.diff(np.concatenate(([-1], ends)))
+    return rows[ends], counts
+
+
+def log_link(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
+    """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
+    att = tel.attitude
+    n = len(times)
+    if n:
+        last, counts = _bins_1s(times.t_fw_s)
+        # The first and last bins are partial: their rate is over the time they really span.
+        t = times.t_fw_s
+        first = np.concatenate(([0], last[:-1] + 1))
+        denom = np.ones(len(last))
+        for b in {0, len(last) - 1}:
+            denom[b] = min(1.0, t[last[b]] - t[first[b]] + AHRS_PERIOD_S)
+        rate = counts / denom
+        bt = times.take(last)
+        send_scalars(rec, ent.LINK_RATE, bt, rate)
+        summary.samples[ent.LINK_RATE] = len(last)
+        step = np.asarray(att.step, dtype=np.int64)
+        gaps = np.concatenate(([0], np.clip(np.diff(step) - 1, 0, None)))
+        missing = np.cumsum(gaps)[last].astype(np.float64)
+        send_scalars(rec, ent.LINK_MISSING, bt, missing)
+        summary.samples[ent.LINK_MISSING] = len(last)
+        stats = getattr(tel, "stats", None)
+        crc = getattr(stats, "crc_failures", None)
+        if crc is not None:
+            # The decoder counts CRC failures for the whole stream only: one sample at the end.
+            send_scalars(rec, ent.LINK_CRC, times.take(np.array([n - 1])), np.array([float(crc)]))
+            summary.samples[ent.LINK_CRC] = 1
+
+    st = getattr(tel, "status", None)
+    if st is not None and len(getattr(st, "t_fw_s", ())):
+        stimes = Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
+        cyc = np.stack([st.cyc_min, st.cyc_mean, st.cyc_max], axis=1).astype(np.float64)
+        has_cycles = np.asarray(st.cyc_n) > 0  # no steps covered: no cycle figures
+        send_scalars(rec, ent.LINK_CYCLES, stimes, cyc, has_cycles)
+        summary.samples[ent.LINK_CYCLES] = int(has_cycles.sum())
+        for path, values in (
+            (ent.LINK_TX_DROPPED, np.asarray(st.tx_dropped, dtype=np.float64)),
+            (ent.LINK_QUEUE, np.asarray(st.queue_peak, dtype=np.float64)),
+        ):
+            send_scalars(rec, path, stimes, values)
+            summary.samples[path] = len(values)
+
+
+def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplaySummary) -> None:
+    """Firmware text lines as a text log. Each line has a host time; firmware time is interpolated from the
+    attitude rows' (host, firmware) pairs. Lines without any time are logged without a timeline."""
+    if not text:
+        return
+    t_host = np.array([float(t) if t is not None else np.nan for t, _ in text], dtype=np.float64)
+    lines = [str(s) for _, s in text]
+    timed = np.isfinite(t_host)
+    if times.t_host_s is not None and timed.any():
+        pairs = np.isfinite(times.t_host_s)
+        t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
+        idx = np.flatnonzero(timed)
+        lt = Times(t_fw[idx], t_host[idx])
+        texts = [lines[i] for i in idx]
+        send_rows(
+            rec,
+            ent.LOG_FIRMWARE,
+            lt,
+            lambda sel: rr.TextLog.columns(
+                text=texts if sel is None else [texts[i] for i in sel],
+                level=["INFO"] * (len(texts) if sel is None else len(sel)),
+            ),
+        )
+        untimed = np.flatnonzero(~timed)
+    else:
+        untimed = np.arange(len(lines))
+    for i in untimed:
+        rec.log(ent.LOG_FIRMWARE, rr.TextLog(lines[i], level="INFO"))
+    summary.samples[ent.LOG_FIRMWARE] = len(lines)
+
+
+def log_replay(
+    rec: rr.RecordingStream,
+    tel: Any,
+    estimates: Mapping[str, Any] | None = None,
+    port: Any | None = None,
+    *,
+    blueprint: bool = True,
+    ghost: str | None = None,
+    live_blueprint: bool = False,
+) -> ReplaySummary:
+    """Log a whole Telemetry, the ST-Mahony port (``port``, a ``FirmwareReplay``) and host ``estimates``
+    (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``.
+
+    Sends the default blueprint first (unless ``blueprint`` is False); ``ghost`` picks the estimate the 3D ghost
+    shows (a source segment or estimator name; default: the port, else EKF3, ...). Returns the samples logged per
+    entity path. Arrays must have one row per attitude row of ``tel``.
+    """
+    att = tel.attitude
+    n = len(att.t_fw_s)
+    sources: list[tuple[str, Any]] = []
+    if port is not None:
+        sources.append((ent.SOURCE_PORT, port))
+    for name, est in (estimates or {}).items():
+        sources.append((ent.source_name(name), est))
+    seen = set()
+    for source, est in sources:
+        if source in seen or source == ent.SOURCE_FIRMWARE:
+            raise ValueError(f"estimate name {source!r} is used twice or clashes with the firmware")
+        seen.add(source)
+        if len(np.asarray(est.thx_rad)) != n:
+            raise ValueError(f"estimate {source!r} has {len(np.asarray(est.thx_rad))} rows, telemetry has {n}")
+    names = [s for s, _ in sources]
+    ghost_sources = [s for s, e in sources if getattr(e, "q_wxyz", None) is not None]
+
+    summary = ReplaySummary(sources=names)
+    if blueprint:
+        bp.send_blueprint(
+            rec,
+            live=live_blueprint,
+            ghost_sources=ghost_sources,
+            ghost=None if ghost is None else ent.source_name(ghost),
+        )
+    scene.log_static(rec, names, with_port=port is not None)
+
+    times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
+    log_firmware(rec, times, att, summary)
+    for source, est in sources:
+        log_estimate(rec, times, source, est, summary, ghost=source in ghost_sources)
+    if port is not None:
+        log_port_difference(rec, times, att, port, summary)
+    log_link(rec, times, tel, summary)
+    log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
+    return summary

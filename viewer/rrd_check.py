@@ -1,0 +1,54 @@
+"""Read an ``.rrd`` back and summarise it: samples per entity path, timelines, whether a blueprint is embedded.
+
+Used by the tests and CI to check that ``steval replay CAPTURE --rrd out.rrd`` wrote what the viewer needs::
+
+    info = read_rrd("out.rrd")
+    info.samples["plots/pitch_thx_deg/firmware"]   # rows with a value (gaps' Clear rows not counted)
+    info.has_blueprint
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class RrdInfo:
+    """``samples``: temporal rows with data per entity path (no leading ``/``); ``clears``: Clear rows (gaps) per
+    path; ``static``: paths with static data; ``timelines``; ``has_blueprint``; ``application_id``."""
+
+    samples: dict[str, int] = field(default_factory=dict)
+    clears: dict[str, int] = field(default_factory=dict)
+    static: set[str] = field(default_factory=set)
+    timelines: set[str] = field(default_factory=set)
+    has_blueprint: bool = False
+    application_id: str | None = None
+
+
+def read_rrd(path: str | Path) -> RrdInfo:
+    """Read every chunk of the first recording in ``path`` (raises on a file Rerun cannot read)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    recordings = reader.recordings()
+    if not recordings:
+        raise ValueError(f"{path} holds no Rerun recording")
+    info = RrdInfo(has_blueprint=bool(reader.blueprints()), application_id=recordings[0].application_id)
+    samples: dict[str, int] = defaultdict(int)
+    clears: dict[str, int] = defaultdict(int)
+    for chunk in reader.stream(store=recordings[0]):
+        entity = chunk.entity_path.lstrip("/")
+        if chunk.is_static:
+            info.static.add(entity)
+            continue
+        info.timelines.update(chunk.timeline_names)
+        names = [f.name for f in chunk.to_record_batch().schema if ":" in f.name]
+        if names and all(n.startswith("Clear:") for n in names):
+            clears[entity] += chunk.num_rows
+        elif names:
+            samples[entity] += chunk.num_rows
+    info.samples = dict(samples)
+    info.clears = dict(clears)
+    return info

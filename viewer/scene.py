@@ -1,0 +1,65 @@
+"""Static part of every recording: world axes, view coordinates, drone models and the series styles (names,
+colours) of every time series. Logged once per recording by the replay and the live path."""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import rerun as rr
+
+from steval_viewer import drone_model
+from steval_viewer import entities as ent
+
+AXIS_LENGTH = 1.6
+
+
+def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5) -> None:
+    names = [name] if isinstance(name, str) else list(name)
+    colors = [color] if isinstance(color, tuple) else list(color)
+    rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
+
+
+def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_port: bool) -> None:
+    """Log the 3D scene and the styles of all series.
+
+    ``estimate_sources``: source segments of the host estimates that will be logged (ghosts + pitch/roll series);
+    ``with_port``: whether the firmware − port difference series will be logged.
+    """
+    sources = list(estimate_sources)
+    rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log(
+        ent.WORLD_AXES,
+        rr.Arrows3D(
+            vectors=[(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)],
+            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
+            labels=["x right", "y forward", "z up"],
+            radii=0.015,
+        ),
+        static=True,
+    )
+    drone_model.log_models(rec, sources)
+    rec.log(
+        ent.ACC_GRAVITY,
+        rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03], labels=["gravity (accelerometer)"]),
+        static=True,
+    )
+
+    for source in [ent.SOURCE_FIRMWARE, *sources]:
+        color = ent.source_color(source)
+        width = 2.5 if source == ent.SOURCE_FIRMWARE else 1.5
+        _line(rec, ent.pitch_path(source), ent.pitch_label(source), color, width)
+        _line(rec, ent.roll_path(source), ent.roll_label(source), color, width)
+    _line(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
+    if with_port:
+        _line(rec, ent.DIFF_THX, "thx pitch: firmware − port", (230, 90, 90))
+        _line(rec, ent.DIFF_THY, "thy roll: firmware − port", (90, 150, 230))
+    xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
+    _line(rec, ent.PLOT_ACC, ["acc x right (mg)", "acc y forward (mg)", "acc z up (mg)"], xyz)
+    _line(rec, ent.PLOT_GYRO, ["gyro x, pitch rate (dps)", "gyro y, roll rate (dps)", "gyro z, yaw rate (dps)"], xyz)
+    _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (200, 200, 200))
+    _line(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
+    _line(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
+    _line(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
+    _line(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
+    _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (160, 160, 160))
+    _line(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], [(90, 210, 110), (200, 200, 200), (230, 60, 60)])
