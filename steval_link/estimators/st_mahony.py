@@ -462,10 +462,9 @@ class FirmwareReplay:
 
 def _col(table, name: str):
     """A column of a telemetry table given as an object with array attributes or as a structured array."""
-    try:
-        return getattr(table, name)
-    except AttributeError:
+    if isinstance(table, np.ndarray) and table.dtype.names:
         return table[name]
+    return getattr(table, name)
 
 
 def _status_settings(status, j: int) -> MahonySettings:

@@ -1,0 +1,171 @@
+"""Firmware conformance vectors: load a CSV of ``ahrs_fusion_ag`` calls and check the port against it, bit for bit.
+
+A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
+``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
+per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
+exact float32 value.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, run
+
+__all__ = ["COLUMNS", "ConformanceVectors", "ConformanceResult", "load_conformance_csv", "check_conformance"]
+
+#: the header every vector file has
+COLUMNS = (
+    "step",
+    "thr",
+    "acc_x_mg",
+    "acc_y_mg",
+    "acc_z_mg",
+    "gyro_x_mdps",
+    "gyro_y_mdps",
+    "gyro_z_mdps",
+    "q0",
+    "q1",
+    "q2",
+    "q3",
+    "thx_rad",
+    "thy_rad",
+)
+
+
+@dataclass(frozen=True)
+class ConformanceVectors:
+    """One vector file: inputs of each call and the firmware's outputs after it (float32, firmware units)."""
+
+    path: Path
+    description: str
+    step: np.ndarray  # (N,) int64
+    thr: np.ndarray  # (N,) int64, gTHR
+    acc_mg: np.ndarray  # (N, 3) float32
+    gyro_mdps: np.ndarray  # (N, 3) float32
+    q_wxyz: np.ndarray  # (N, 4) float32, ahrs.q after the call
+    thx_rad: np.ndarray  # (N,) float32, pitch (about x)
+    thy_rad: np.ndarray  # (N,) float32, roll (about y)
+
+    def __len__(self) -> int:
+        return int(self.step.shape[0])
+
+
+@dataclass(frozen=True)
+class ConformanceResult:
+    """How the port compares with one vector file.
+
+    ``max_abs_dq`` / ``max_abs_dth`` are the largest |port − firmware| over rows where both are finite (0 when
+    all equal); ``nan_mismatches`` counts values that are NaN on one side only.
+    """
+
+    name: str
+    steps: int
+    exact_steps: int
+    max_abs_dq: float
+    max_abs_dth: float
+    nan_mismatches: int
+    first_mismatch_step: int | None
+
+    @property
+    def ok(self) -> bool:
+        return self.exact_steps == self.steps
+
+    def as_dict(self) -> dict:
+        return {
+            "file": self.name,
+            "steps": self.steps,
+            "bit_exact_steps": self.exact_steps,
+            "max_abs_dq": self.max_abs_dq,
+            "max_abs_dth_rad": self.max_abs_dth,
+            "nan_mismatches": self.nan_mismatches,
+            "first_mismatch_step": self.first_mismatch_step,
+            "ok": self.ok,
+        }
+
+
+def load_conformance_csv(path) -> ConformanceVectors:
+    """Read a vector file.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a vector file (one sentence naming the file and what is wrong).
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    lines = text.splitlines()
+    description = ""
+    k = 0
+    while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
+        if lines[k].startswith("#") and not description:
+            description = lines[k].lstrip("#").strip()
+        k += 1
+    if k >= len(lines):
+        raise ValueError(f"{path}: no header line (expected {','.join(COLUMNS)})")
+    header = tuple(h.strip() for h in lines[k].split(","))
+    if header != COLUMNS:
+        raise ValueError(f"{path}: unexpected header {lines[k][:80]!r} (expected {','.join(COLUMNS)})")
+    body = "\n".join(line for line in lines[k + 1 :] if line.strip() and not line.startswith("#"))
+    if not body:
+        raise ValueError(f"{path}: no data rows")
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=",", dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{path}: malformed data row ({exc})") from None
+    if data.shape[1] != len(COLUMNS):
+        raise ValueError(f"{path}: rows have {data.shape[1]} columns, expected {len(COLUMNS)}")
+    step_thr = data[:, :2]
+    if not np.all(np.isfinite(step_thr)) or np.any(step_thr != np.round(step_thr)):
+        raise ValueError(f"{path}: the step and thr columns must hold integers")
+    f32 = data.astype(np.float32)
+    return ConformanceVectors(
+        path=path,
+        description=description,
+        step=data[:, 0].astype(np.int64),
+        thr=data[:, 1].astype(np.int64),
+        acc_mg=np.ascontiguousarray(f32[:, 2:5]),
+        gyro_mdps=np.ascontiguousarray(f32[:, 5:8]),
+        q_wxyz=np.ascontiguousarray(f32[:, 8:12]),
+        thx_rad=np.ascontiguousarray(f32[:, 12]),
+        thy_rad=np.ascontiguousarray(f32[:, 13]),
+    )
+
+
+def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
+    both = np.isfinite(a) & np.isfinite(b)
+    if not both.any():
+        return 0.0
+    return float(np.max(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64))))
+
+
+def check_conformance(
+    vectors: ConformanceVectors,
+    settings: MahonySettings | None = None,
+    *,
+    native: bool | None = None,
+) -> ConformanceResult:
+    """Run the port from the power-up state over the file's inputs and compare every output bit."""
+    q, thx, thy, _ = run(
+        vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, state=MahonyState(), native=native
+    )
+    exact = bits_equal(q, vectors.q_wxyz).all(axis=1) & bits_equal(thx, vectors.thx_rad)
+    exact &= bits_equal(thy, vectors.thy_rad)
+    bad = np.flatnonzero(~exact)
+    nan_mism = int(
+        np.count_nonzero(np.isnan(q) != np.isnan(vectors.q_wxyz))
+        + np.count_nonzero(np.isnan(thx) != np.isnan(vectors.thx_rad))
+        + np.count_nonzero(np.isnan(thy) != np.isnan(vectors.thy_rad))
+    )
+    return ConformanceResult(
+        name=vectors.path.name,
+        steps=len(vectors),
+        exact_steps=int(np.count_nonzero(exact)),
+        max_abs_dq=_max_abs(q, vectors.q_wxyz),
+        max_abs_dth=max(_max_abs(thx, vectors.thx_rad), _max_abs(thy, vectors.thy_rad)),
+        nan_mismatches=nan_mism,
+        first_mismatch_step=int(vectors.step[bad[0]]) if bad.size else None,
+    )
