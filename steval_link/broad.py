@@ -1,0 +1,267 @@
+"""BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, conversion to firmware units, the STEVAL view of a trial,
+and the ground-truth error metrics.
+
+A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN rows where the
+markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz). The IMU axes match the firmware's (x right,
+y forward, z up; ≈ +9.81 m/s² on z when level).
+
+Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``,
+heading error ``2·atan(|z / w|)``; RMSE over ``movement`` samples ignoring NaN. Estimates must be body → earth
+quaternions, like the firmware's: ``ahrs_fusion_ag`` integrates ``q̇ = ½ q ⊗ (0, ω)`` and takes its gravity estimate
+``(vx, vy, vz)`` from the third row of R(q), i.e. R(q)ᵀ·e_z, so its q maps body vectors to the earth frame (the
+same direction as BROAD's IMU → ENU). A constant heading offset (a rotation about the earth z axis, left-multiplied)
+leaves the inclination error unchanged, so 6-axis estimators are compared on inclination only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from steval_link import sensor_model as sm
+from steval_link.errors import UserError
+
+__all__ = [
+    "G_MPS2",
+    "BroadTrial",
+    "SteValView",
+    "load_trial",
+    "trial_paths",
+    "steval_view",
+    "native_view",
+    "quat_multiply",
+    "quat_conjugate",
+    "quat_normalize",
+    "interpolate_quat",
+    "inclination_error_rad",
+    "heading_error_rad",
+    "rmse_deg",
+]
+
+#: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
+#: local gravity in Berlin is 9.813), so 9.81 is the right scale to within the sensors' own 0.6 % spread.
+G_MPS2 = 9.81
+_RAD_TO_MDPS = 180.0 / np.pi * 1000.0
+_KEYS = ("acc", "gyr", "quat", "movement", "fs")
+
+
+@dataclass(frozen=True)
+class BroadTrial:
+    """One BROAD trial in SI units, as stored.
+
+    Attributes:
+        name: file stem, e.g. ``02_undisturbed_slow_rotation_B``.
+        fs_hz: sampling rate, Hz (285.714).
+        acc_mps2: (N, 3) float64, m/s².
+        gyr_radps: (N, 3) float64, rad/s.
+        quat_wxyz: (N, 4) float64, ground truth IMU → ENU (NaN where occluded).
+        movement: (N,) bool, samples that count for the metrics.
+    """
+
+    name: str
+    fs_hz: float
+    acc_mps2: np.ndarray
+    gyr_radps: np.ndarray
+    quat_wxyz: np.ndarray
+    movement: np.ndarray
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """(N,) sample times, s from the first sample."""
+        return np.arange(self.acc_mps2.shape[0]) / self.fs_hz
+
+    @property
+    def acc_mg(self) -> np.ndarray:
+        """(N, 3) accelerometer in mg (÷ :data:`G_MPS2`)."""
+        return self.acc_mps2 / G_MPS2 * 1000.0
+
+    @property
+    def gyro_mdps(self) -> np.ndarray:
+        """(N, 3) gyro in mdps."""
+        return self.gyr_radps * _RAD_TO_MDPS
+
+
+def load_trial(path) -> BroadTrial:
+    """Read a BROAD trial ``.npz``; a missing or malformed file raises :class:`UserError` (one sentence)."""
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: no such file")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            missing = [k for k in _KEYS if k not in z.files]
+            if missing:
+                raise UserError(f"{p}: not a BROAD trial (.npz without {', '.join(missing)})")
+            acc = np.asarray(z["acc"], dtype=np.float64)
+            gyr = np.asarray(z["gyr"], dtype=np.float64)
+            quat = np.asarray(z["quat"], dtype=np.float64)
+            mov = np.asarray(z["movement"]).astype(bool)
+            fs = float(np.asarray(z["fs"]).reshape(()))
+    except UserError:
+        raise
+    except Exception as exc:  # zip/pickle/format errors from numpy
+        raise UserError(f"{p}: cannot read as a BROAD .npz ({type(exc).__name__}: {exc})") from None
+    n = acc.shape[0]
+    if acc.ndim != 2 or acc.shape[1] != 3 or gyr.shape != acc.shape or quat.shape != (n, 4) or mov.shape != (n,):
+        raise UserError(f"{p}: malformed BROAD trial (acc {acc.shape}, gyr {gyr.shape}, quat {quat.shape}, "
+                        f"movement {mov.shape}; expected (N,3), (N,3), (N,4), (N,))")
+    if not np.isfinite(fs) or fs <= 0 or n < 2:
+        raise UserError(f"{p}: malformed BROAD trial (fs = {fs}, {n} samples)")
+    return BroadTrial(p.stem, fs, acc, gyr, quat, mov)
+
+
+def trial_paths(items) -> list[Path]:
+    """Expand DATA arguments: directories become their ``*.npz`` (sorted); files stay. Missing → UserError."""
+    out: list[Path] = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(p.glob("*.npz"))
+            if not found:
+                raise UserError(f"{p}: directory holds no .npz trial")
+            out.extend(found)
+        elif p.exists():
+            out.append(p)
+        else:
+            raise UserError(f"{p}: no such file or directory")
+    return out
+
+
+# --- quaternions (wxyz, float64) ---------------------------------------------------------------------------------
+
+def quat_multiply(a, b) -> np.ndarray:
+    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    """Conjugate (inverse of a unit quaternion), (..., 4) wxyz."""
+    q = np.asarray(q, dtype=np.float64)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_normalize(q) -> np.ndarray:
+    """Unit quaternions (the firmware's |q| ≈ 0.998 is rescaled); zero rows become NaN."""
+    q = np.asarray(q, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def interpolate_quat(t_s, q_wxyz, t_new_s) -> np.ndarray:
+    """Normalised linear interpolation (nlerp, sign-consistent) of quaternions to new times; NaN stays NaN nearby.
+
+    Times outside ``t_s`` get NaN.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    q = np.asarray(q_wxyz, dtype=np.float64).copy()
+    tn = np.asarray(t_new_s, dtype=np.float64)
+    # make neighbours sign-consistent so the interpolation takes the short way
+    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+    flip = np.cumsum(np.nan_to_num(dots) < 0) % 2 == 1
+    q[1:][flip] *= -1.0
+    i = np.clip(np.searchsorted(t, tn, side="right") - 1, 0, len(t) - 2)
+    w = ((tn - t[i]) / (t[i + 1] - t[i]))[:, None]
+    out = quat_normalize((1 - w) * q[i] + w * q[i + 1])
+    out[(tn < t[0]) | (tn > t[-1])] = np.nan
+    return out
+
+
+def _error_quat(q_est, q_true) -> np.ndarray:
+    return quat_multiply(quat_normalize(q_est), quat_conjugate(quat_normalize(q_true)))
+
+
+def inclination_error_rad(q_est_wxyz, q_true_wxyz) -> np.ndarray:
+    """Inclination error, rad: ``2·acos(√(w² + z²))`` of ``q_est ⊗ q_true⁻¹`` (both body → earth, any norm)."""
+    e = _error_quat(q_est_wxyz, q_true_wxyz)
+    return 2.0 * np.arccos(np.clip(np.sqrt(e[..., 0] ** 2 + e[..., 3] ** 2), 0.0, 1.0))
+
+
+def heading_error_rad(q_est_wxyz, q_true_wxyz) -> np.ndarray:
+    """Heading error, rad: ``2·atan(|z / w|)`` of ``q_est ⊗ q_true⁻¹``."""
+    e = _error_quat(q_est_wxyz, q_true_wxyz)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 2.0 * np.arctan(np.abs(e[..., 3] / e[..., 0]))
+
+
+def rmse_deg(err_rad, mask=None) -> float:
+    """RMSE in degrees over ``mask`` (all when None), ignoring NaN; NaN when nothing is left."""
+    e = np.asarray(err_rad, dtype=np.float64)
+    if mask is not None:
+        e = e[np.asarray(mask, dtype=bool)]
+    e = e[np.isfinite(e)]
+    if e.size == 0:
+        return float("nan")
+    return float(np.degrees(np.sqrt(np.mean(e * e))))
+
+
+# --- the trial as the estimators see it --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SteValView:
+    """Estimator inputs and ground truth on a common step grid.
+
+    Attributes:
+        acc_mg: (M, 3) float32 accelerometer input per step, mg.
+        gyro_mdps: (M, 3) float32 gyro input per step, mdps.
+        t_s: (M,) time each step represents in trial time, s (see :func:`steval_view`).
+        quat_true_wxyz: (M, 4) float64 ground truth at ``t_s`` (NaN where occluded).
+        movement: (M,) bool, the trial's movement mask at ``t_s``.
+        rate_hz: step rate, Hz.
+    """
+
+    acc_mg: np.ndarray
+    gyro_mdps: np.ndarray
+    t_s: np.ndarray
+    quat_true_wxyz: np.ndarray
+    movement: np.ndarray
+    rate_hz: float
+
+
+def _truth_at(trial: BroadTrial, t_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = trial.t_s
+    q = interpolate_quat(t, trial.quat_wxyz, t_new)
+    idx = np.clip(np.rint(t_new * trial.fs_hz).astype(np.int64), 0, len(t) - 1)
+    return q, trial.movement[idx]
+
+
+def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
+    """The trial as the STEVAL would see it at 161.5 Hz.
+
+    acc (mg) is linearly resampled to the 807.7 Hz ISR tick; the gyro (mdps) is read as a 416 Hz sample-and-hold
+    (the LSM6DSL's gyro ODR); both are quantised like the ST driver (``Lsm6dsl`` noise is added first only when
+    ``sensor`` is given — the trial's own sensor noise is already in the data); then the firmware's power-up
+    calibration (first 2 s, the trials start at rest), offset removal, gyro IIR and 5-sample boxcar give the AHRS
+    inputs. Each step's time (``t_s``, where its ground truth is taken) is the middle tick of the 5 it averages
+    (the boxcar's own centre; the gyro's 416 Hz hold and IIR delay, ≈ 3.3 ms together, stay part of every
+    estimator's error). ``seed`` seeds ``sensor``'s noise (deterministic by default).
+    """
+    t = trial.t_s
+    t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
+    _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)
+    if sensor is not None:
+        acc_r, gyro_r = sensor.read(acc, gyro, rng=0 if seed is None else seed, t_tick_s=t_tick)
+    else:
+        acc_r, gyro_r = sm.quantise_acc_mg(acc), sm.quantise_gyro_mdps(gyro)
+    try:
+        out = sm.run_isr(acc_r, gyro_r)
+    except ValueError as exc:
+        raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
+    t_step = t_tick[out.step_tick - (sm.FIFO_ORDER // 2)]
+    q, mov = _truth_at(trial, t_step)
+    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, sm.AHRS_HZ)
+
+
+def native_view(trial: BroadTrial) -> SteValView:
+    """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
+    return SteValView(trial.acc_mg.astype(np.float32), trial.gyro_mdps.astype(np.float32), trial.t_s,
+                      trial.quat_wxyz, trial.movement, trial.fs_hz)
