@@ -1,0 +1,93 @@
+"""``steval conformance``: check the ST Mahony port (optionally with modified settings) against firmware vectors."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+from steval_link.estimators.conformance import check_conformance, load_conformance_csv
+from steval_link.estimators.st_mahony import MahonySettings
+
+
+def _json_num(x: float):
+    return x if math.isfinite(x) else None
+
+
+@app.command("conformance")
+def conformance_command(
+    csv_files: list[Path] = typer.Argument(..., metavar="CSV...", help="Conformance vector files (firmware outputs)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the per-file results as JSON."),
+    ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain of the checked firmware (default 0.1)."),
+    kp_ground: Optional[float] = typer.Option(None, "--kp-ground", help="kp below MIN_THR (default 10)."),
+    kp_flight: Optional[float] = typer.Option(None, "--kp-flight", help="kp at or above MIN_THR (default 0.4)."),
+    min_thr: Optional[int] = typer.Option(None, "--min-thr", help="MIN_THR throttle threshold (default 200)."),
+    dt: Optional[float] = typer.Option(None, "--dt", help="SENSOR_SAMPLING_TIME in s (default 0.00625)."),
+    no_correction: bool = typer.Option(False, "--no-correction", help="Firmware without accelerometer correction."),
+    fresh_squares: bool = typer.Option(False, "--fresh-squares", help="Firmware normalising with fresh squares."),
+    pure: bool = typer.Option(False, "--pure", help="Use the pure-Python loop instead of the compiled one."),
+) -> None:
+    """Run the bit-exact Mahony port on each file's inputs and compare every output bit with the firmware's.
+
+    Exit status 0 when every step of every file is bit-exact, 1 otherwise, 2 for unreadable files.
+    """
+    overrides = {
+        k: v
+        for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt).items()
+        if v is not None
+    }
+    try:
+        settings = MahonySettings(
+            **overrides, correction=not no_correction, fresh_squares=fresh_squares
+        )
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    cases = []
+    for path in csv_files:
+        try:
+            cases.append(load_conformance_csv(path))
+        except FileNotFoundError:
+            raise UserError(f"{path}: no such file") from None
+        except IsADirectoryError:
+            raise UserError(f"{path}: is a directory, not a conformance CSV") from None
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read ({exc.strerror})") from None
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    results = [check_conformance(case, settings, native=False if pure else None) for case in cases]
+    all_ok = all(r.ok for r in results)
+
+    if json_out:
+        out = {
+            "settings": settings.__dict__,
+            "ok": all_ok,
+            "files": [
+                {**r.as_dict(), "max_abs_dq": _json_num(r.max_abs_dq), "max_abs_dth_rad": _json_num(r.max_abs_dth)}
+                for r in results
+            ],
+        }
+        json.dump(out, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        width = max(len(r.name) for r in results)
+        print(f"{'file':<{width}}  {'steps':>8}  {'bit-exact':>9}  {'max|Δq|':>10}  {'max|Δθ| rad':>11}  first mismatch")
+        for r in results:
+            first = "-" if r.first_mismatch_step is None else f"step {r.first_mismatch_step}"
+            if r.nan_mismatches:
+                first += f" ({r.nan_mismatches} NaN on one side only)"
+            print(
+                f"{r.name:<{width}}  {r.steps:>8}  {r.exact_steps:>9}  {r.max_abs_dq:>10.3g}  "
+                f"{r.max_abs_dth:>11.3g}  {first}"
+            )
+        total = sum(r.steps for r in results)
+        exact = sum(r.exact_steps for r in results)
+        verdict = "all bit-exact" if all_ok else "MISMATCH"
+        print(f"{len(results)} file(s), {exact} of {total} steps bit-exact: {verdict}")
+    if not all_ok:
+        raise SystemExit(1)

@@ -1,0 +1,278 @@
+"""``steval simulate``: the UMaine Lab 5 AHRS simulator (constant inputs, optional noise) on any estimator."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+from steval_link.estimators import registry
+from steval_link.simulate import (
+    BASELINE_ACC_MG,
+    BASELINE_GYRO_MDPS,
+    TYPICAL_ACC_NOISE_MG,
+    TYPICAL_GYRO_NOISE_MDPS,
+    SimulationResult,
+    run_simulation,
+)
+
+CSV_COLUMNS = (
+    "iteration",
+    "acc_x_mg",
+    "acc_y_mg",
+    "acc_z_mg",
+    "gyro_x_mdps",
+    "gyro_y_mdps",
+    "gyro_z_mdps",
+    "thr",
+    "q0",
+    "q1",
+    "q2",
+    "q3",
+    "eax_rad",
+    "eay_rad",
+    "eaz_rad",
+    "eax_deg",
+    "eay_deg",
+    "eaz_deg",
+    "valid",
+)
+
+_ON_WORDS = {"on", "typical", "yes", "true"}
+_OFF_WORDS = {"off", "no", "false", "none"}
+
+
+def _noise(text: Optional[str], typical: float, what: str, unit: str) -> float:
+    if text is None:
+        return 0.0
+    word = text.strip().lower()
+    if word in _ON_WORDS:
+        return typical
+    if word in _OFF_WORDS:
+        return 0.0
+    try:
+        value = float(word)
+    except ValueError:
+        raise UserError(f"--{what}-noise takes a standard deviation in {unit} or 'on' (typical {typical:g}), got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise UserError(f"--{what}-noise must be a standard deviation ≥ 0 {unit}, got {text!r}")
+    return value
+
+
+def _num(value) -> float | None:
+    """Exact JSON/CSV value: float32 values widen to double exactly; NaN becomes None (JSON null)."""
+    v = float(value)
+    return None if math.isnan(v) else v
+
+
+def _text(value) -> str:
+    """Shortest decimal that parses (as a double) back to exactly the value; 'nan' for NaN."""
+    return repr(float(value))
+
+
+def _rows(res: SimulationResult):
+    deg = [np.degrees(np.asarray(a, dtype=np.float64)) for a in (res.eax_rad, res.eay_rad, res.eaz_rad)]
+    for k in range(res.iterations):
+        yield (
+            [str(int(res.step[k]))]
+            + [_text(v) for v in res.acc_mg[k]]
+            + [_text(v) for v in res.gyro_mdps[k]]
+            + [str(int(res.thr[k]))]
+            + [_text(v) for v in res.q_wxyz[k]]
+            + [_text(res.eax_rad[k]), _text(res.eay_rad[k]), _text(res.eaz_rad[k])]
+            + [_text(d[k]) for d in deg]
+            + ["1" if res.valid[k] else "0"]
+        )
+
+
+def write_csv(res: SimulationResult, stream) -> None:
+    """Every iteration as CSV (header :data:`CSV_COLUMNS`); floats round-trip exactly."""
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    writer.writerows(_rows(res))
+
+
+def to_json(res: SimulationResult) -> dict:
+    """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
+    eax, eay, eaz = res.final_angles_rad()
+    return {
+        "estimator": res.estimator,
+        "options": res.options,
+        "settings": res.settings,
+        "dt_s": res.dt_s,
+        "iterations": res.iterations,
+        "seed": res.seed,
+        "gyro_noise_mdps": res.gyro_noise_mdps,
+        "acc_noise_mg": res.acc_noise_mg,
+        "final": {
+            "eax_rad": _num(eax),
+            "eay_rad": _num(eay),
+            "eaz_rad": _num(eaz),
+            "eax_deg": _num(math.degrees(eax)),
+            "eay_deg": _num(math.degrees(eay)),
+            "eaz_deg": _num(math.degrees(eaz)),
+        },
+        "rows": [
+            {
+                "iteration": int(res.step[k]),
+                "acc_mg": [_num(v) for v in res.acc_mg[k]],
+                "gyro_mdps": [_num(v) for v in res.gyro_mdps[k]],
+                "thr": int(res.thr[k]),
+                "q_wxyz": [_num(v) for v in res.q_wxyz[k]],
+                "eax_rad": _num(res.eax_rad[k]),
+                "eay_rad": _num(res.eay_rad[k]),
+                "eaz_rad": _num(res.eaz_rad[k]),
+                "valid": bool(res.valid[k]),
+            }
+            for k in range(res.iterations)
+        ],
+    }
+
+
+def _fmt_vec(v) -> str:
+    return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
+
+
+def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
+    """Human-readable inputs and final angles, labelled pitch/roll/yaw with the handout's eax/eay/eaz names."""
+    lines = [f"steval simulate: {res.estimator}, {res.iterations} iterations of {res.dt_s * 1e3:g} ms"]
+    noise = "no noise"
+    if res.seed is not None:
+        noise = f"noise σ gyro {res.gyro_noise_mdps:g} mdps, acc {res.acc_noise_mg:g} mg (seed {res.seed})"
+    lines.append(f"  inputs: gyro {_fmt_vec(gyro)} mdps, acc {_fmt_vec(acc)} mg, throttle {throttle}, {noise}")
+    if res.settings:
+        s = res.settings
+        kp = s["kp_ground"] if throttle < s["min_thr"] else s["kp_flight"]
+        extra = ("" if s["correction"] else ", no correction (g* = g)") + (
+            ", fresh-squares normalisation" if s["fresh_squares"] else ""
+        )
+        lines.append(f"  filter: kp {kp:g} (throttle {'<' if throttle < s['min_thr'] else '≥'} MIN_THR {s['min_thr']}), "
+                     f"KI {s['ki']:g}, dt {s['dt_s']:g} s{extra}")
+    elif res.options:
+        lines.append("  options: " + ", ".join(f"{k}={v}" for k, v in res.options.items()))
+    lines.append("final angles (firmware axes: x right, y forward, z up)")
+    names = (("eax", "thx", "pitch", "x"), ("eay", "thy", "roll ", "y"), ("eaz", "thz", "yaw  ", "z"))
+    for (ea, th, label, axis), rad in zip(names, res.final_angles_rad()):
+        if math.isnan(rad):
+            lines.append(f"  {ea} = {th}  {label} (about {axis}):          n/a")
+        else:
+            lines.append(f"  {ea} = {th}  {label} (about {axis}): {math.degrees(rad):+14.6f} deg  {rad:+.9g} rad")
+    if res.iterations and not res.valid.all():
+        lines.append(f"  note: {int((~res.valid).sum())} of {res.iterations} iterations flagged invalid")
+    return "\n".join(lines)
+
+
+@app.command("simulate")
+def simulate_command(
+    gyro: tuple[float, float, float] = typer.Option(
+        BASELINE_GYRO_MDPS, "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+    ),
+    acc: tuple[float, float, float] = typer.Option(
+        BASELINE_ACC_MG, "--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."
+    ),
+    iterations: int = typer.Option(100, "--iterations", "-n", min=0, help="Number of AHRS steps."),
+    noise: bool = typer.Option(
+        False, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
+    ),
+    gyro_noise: Optional[str] = typer.Option(
+        None, "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
+    ),
+    acc_noise: Optional[str] = typer.Option(
+        None, "--acc-noise", metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
+    ),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Noise seed (default: random, printed)."),
+    throttle: int = typer.Option(
+        0, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4."
+    ),
+    ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain AHRS_KI (firmware 0.1; exercise 4: 1.0)."),
+    kp: Optional[float] = typer.Option(None, "--kp", help="Proportional gain, replacing both 10 and 0.4."),
+    no_correction: bool = typer.Option(
+        False, "--no-correction", help="Drop the accelerometer correction, g* = g (exercise 5)."
+    ),
+    fresh_squares: bool = typer.Option(
+        False, "--fresh-squares", help="Normalise q with fresh squares (2017 firmware releases)."
+    ),
+    dt: Optional[float] = typer.Option(
+        None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
+    ),
+    estimator: str = typer.Option("st-mahony", "--estimator", "-e", help="Estimator registry name."),
+    csv_out: Optional[str] = typer.Option(
+        None, "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+    ),
+    json_out: bool = typer.Option(False, "--json", help="Print the run (every iteration, exact values) as JSON."),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Log the run to a Rerun .rrd file for the viewer."),
+) -> None:
+    """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
+    estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
+    if estimator not in registry.ESTIMATORS:
+        raise UserError(f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}")
+    if json_out and csv_out == "-":
+        raise UserError("--json and --csv - both write to stdout; give --csv a file name")
+    gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps")
+    acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg")
+    if noise:
+        gyro_sigma = gyro_sigma if gyro_noise is not None else TYPICAL_GYRO_NOISE_MDPS
+        acc_sigma = acc_sigma if acc_noise is not None else TYPICAL_ACC_NOISE_MG
+    options: dict = {}
+    if ki is not None:
+        options["ki"] = ki
+    if kp is not None:
+        options["kp"] = kp
+    if no_correction:
+        options["correction"] = False
+    if fresh_squares:
+        options["fresh_squares"] = True
+    if dt is not None:
+        if not (math.isfinite(dt) and dt > 0):
+            raise UserError(f"--dt must be a period > 0 s, got {dt}")
+        options["dt_s"] = dt
+    try:
+        res = run_simulation(
+            gyro_mdps=gyro,
+            acc_mg=acc,
+            iterations=iterations,
+            gyro_noise_mdps=gyro_sigma,
+            acc_noise_mg=acc_sigma,
+            seed=seed,
+            throttle=throttle,
+            estimator=estimator,
+            estimator_options=options,
+        )
+    except ImportError as exc:
+        raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+    if rrd is not None:
+        _log_rrd(res, rrd)
+    if csv_out is not None and csv_out != "-":
+        try:
+            with open(csv_out, "w", newline="", encoding="utf-8") as fh:
+                write_csv(res, fh)
+        except OSError as exc:
+            raise UserError(f"cannot write {csv_out}: {exc.strerror}") from None
+    text = summary(res, gyro, acc, throttle)
+    if json_out:
+        json.dump(to_json(res), sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    elif csv_out == "-":
+        write_csv(res, sys.stdout)
+        print(text, file=sys.stderr)
+    else:
+        print(text)
+
+
+def _log_rrd(res: SimulationResult, path: Path) -> None:
+    try:
+        from steval_viewer.simulate_log import log_simulation
+    except ImportError:
+        raise UserError("--rrd needs the viewer's steval_viewer.simulate_log, which this installation lacks") from None
+    log_simulation(res, path)

@@ -1,0 +1,177 @@
+"""The UMaine Lab 5 AHRS simulator: constant (optionally noisy) gyro and accelerometer inputs through an estimator.
+
+The handout's baseline is gyro [1000, 2000, 4000] mdps, acc [0, 0, 0] mg, 100 iterations; with the default
+``st-mahony`` estimator every iteration is bit-exact with the firmware (``lab5_baseline`` conformance vectors).
+Angles use the handout's names: ``eax`` = thx (pitch, about x), ``eay`` = thy (roll, about y), ``eaz`` = thz
+(yaw, about z, from the handout's ``atan2(2q1q2 + 2q0q3, q0² + q1² − q2² − q3²)``). Firmware axes: x right,
+y forward, z up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link.estimators import registry
+from steval_link.estimators.st_mahony import StMahony, handout_yaw
+
+__all__ = [
+    "BASELINE_GYRO_MDPS",
+    "BASELINE_ACC_MG",
+    "TYPICAL_GYRO_NOISE_MDPS",
+    "TYPICAL_ACC_NOISE_MG",
+    "SimulationResult",
+    "run_simulation",
+]
+
+#: Lab 5 baseline inputs
+BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
+BASELINE_ACC_MG = (0.0, 0.0, 0.0)
+#: LSM6DSL typical noise (Lab 5 appendix B): gyro 75 mdps, accelerometer (±4 g range) 2 mg, standard deviations
+TYPICAL_GYRO_NOISE_MDPS = 75.0
+TYPICAL_ACC_NOISE_MG = 2.0
+#: the firmware's assumed AHRS period, s (used for the time axis when an estimator does not say)
+DEFAULT_DT_S = 0.00625
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Every iteration of a simulation run.
+
+    Attributes:
+        estimator: registry name of the estimator used.
+        options: the estimator options passed to :func:`steval_link.estimators.registry.create`.
+        dt_s: the estimator's integration period, s (``t_s = (step + 1) * dt_s`` after each iteration).
+        seed: the noise generator's seed (None when no noise was added).
+        gyro_noise_mdps, acc_noise_mg: noise standard deviations used.
+        step: (N,) int64, 0-based iteration index.
+        acc_mg: (N, 3) float32 inputs, mg. gyro_mdps: (N, 3) float32 inputs, mdps. thr: (N,) int64 throttle.
+        q_wxyz: (N, 4) quaternion after each iteration (float32 for st-mahony, bit-exact).
+        eax_rad: (N,) thx, pitch about x. eay_rad: (N,) thy, roll about y. eaz_rad: (N,) thz, yaw about z.
+        valid: (N,) bool, the estimator's validity flag.
+    """
+
+    estimator: str
+    options: dict
+    dt_s: float
+    seed: int | None
+    gyro_noise_mdps: float
+    acc_noise_mg: float
+    step: np.ndarray
+    acc_mg: np.ndarray
+    gyro_mdps: np.ndarray
+    thr: np.ndarray
+    q_wxyz: np.ndarray
+    eax_rad: np.ndarray
+    eay_rad: np.ndarray
+    eaz_rad: np.ndarray
+    valid: np.ndarray
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def iterations(self) -> int:
+        return int(self.step.shape[0])
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """(N,) float64, simulated time after each iteration, s."""
+        return (self.step + 1) * float(self.dt_s)
+
+    def final_angles_rad(self) -> tuple[float, float, float]:
+        """(eax, eay, eaz) after the last iteration, rad (NaN when there was none)."""
+        if self.iterations == 0:
+            return (float("nan"),) * 3
+        return float(self.eax_rad[-1]), float(self.eay_rad[-1]), float(self.eaz_rad[-1])
+
+
+def _vector3(values, what: str) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise ValueError(f"{what} needs 3 finite values, got {list(np.ravel(values))}")
+    return v
+
+
+def run_simulation(
+    *,
+    gyro_mdps=BASELINE_GYRO_MDPS,
+    acc_mg=BASELINE_ACC_MG,
+    iterations: int = 100,
+    gyro_noise_mdps: float = 0.0,
+    acc_noise_mg: float = 0.0,
+    seed: int | None = None,
+    throttle: int = 0,
+    estimator: str = "st-mahony",
+    estimator_options: dict | None = None,
+) -> SimulationResult:
+    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs plus Gaussian noise, from power-up.
+
+    Args:
+        gyro_mdps: (3,) gyro rate, mdps (firmware axes x right, y forward, z up).
+        acc_mg: (3,) acceleration, mg.
+        iterations: number of AHRS steps (≥ 0).
+        gyro_noise_mdps, acc_noise_mg: standard deviation of white Gaussian noise added to every sample (0: none;
+            typical LSM6DSL values are :data:`TYPICAL_GYRO_NOISE_MDPS` and :data:`TYPICAL_ACC_NOISE_MG`).
+        seed: noise generator seed; None draws one (recorded in the result so the run can be repeated).
+        throttle: ``gTHR`` for every step (st-mahony uses kp_ground below MIN_THR, kp_flight otherwise).
+        estimator: registry name (:func:`steval_link.estimators.registry.names`).
+        estimator_options: keyword options for the estimator (e.g. ``ki``, ``kp``, ``correction``, ``dt_s``).
+
+    Raises:
+        ValueError: bad inputs, unknown estimator or options it does not take.
+    """
+    gyro = _vector3(gyro_mdps, "gyro")
+    acc = _vector3(acc_mg, "acc")
+    iterations = int(iterations)
+    if iterations < 0:
+        raise ValueError(f"iterations must be ≥ 0, got {iterations}")
+    for name, value in (("gyro noise", gyro_noise_mdps), ("acc noise", acc_noise_mg)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a standard deviation ≥ 0, got {value}")
+    throttle = int(throttle)
+    if not -32768 <= throttle <= 32767:
+        raise ValueError(f"throttle is the firmware's int16 gTHR: −32768..32767, got {throttle}")
+    options = dict(estimator_options or {})
+    est = registry.create(estimator, **options)
+
+    noisy = gyro_noise_mdps > 0 or acc_noise_mg > 0
+    if noisy and seed is None:
+        seed = int(np.random.SeedSequence().entropy % (1 << 32))
+    gyro_in = np.tile(gyro, (iterations, 1))
+    acc_in = np.tile(acc, (iterations, 1))
+    if noisy:
+        rng = np.random.default_rng(seed)
+        gyro_in = gyro_in + rng.normal(0.0, float(gyro_noise_mdps), size=gyro_in.shape)
+        acc_in = acc_in + rng.normal(0.0, float(acc_noise_mg), size=acc_in.shape)
+    gyro_in = gyro_in.astype(np.float32)
+    acc_in = acc_in.astype(np.float32)
+    thr = np.full(iterations, throttle, dtype=np.int64)
+
+    est.reset()
+    res = est.run(acc_in, gyro_in, thr)
+    if isinstance(est, StMahony):
+        eaz = handout_yaw(res.q_wxyz)  # float32, as the Lab 5 simulator's QuaternionToEuler computes it
+        settings = dict(est.settings.__dict__)
+        dt_s = est.settings.dt_s
+    else:
+        eaz = np.asarray(res.thz_rad)  # NaN where the estimator has no yaw (e.g. accelerometer-only tilt)
+        settings = {}
+        dt_s = float(getattr(est, "dt_s", DEFAULT_DT_S))
+    return SimulationResult(
+        estimator=estimator,
+        options=options,
+        dt_s=float(dt_s),
+        seed=seed if noisy else None,
+        gyro_noise_mdps=float(gyro_noise_mdps),
+        acc_noise_mg=float(acc_noise_mg),
+        step=np.arange(iterations, dtype=np.int64),
+        acc_mg=acc_in,
+        gyro_mdps=gyro_in,
+        thr=thr,
+        q_wxyz=res.q_wxyz,
+        eax_rad=res.thx_rad,
+        eay_rad=res.thy_rad,
+        eaz_rad=eaz,
+        valid=res.valid,
+        settings=settings,
+    )
