@@ -1,0 +1,79 @@
+/* steval-link firmware port for the STM32F401 (see stv_fw.h). */
+#include "stv_fw.h"
+
+/* Cortex-M4 core debug: DEMCR.TRCENA enables the DWT; DWT_CTRL.CYCCNTENA starts CYCCNT. */
+#define STV_DEMCR (*(volatile uint32_t *)0xE000EDFCu)
+#define STV_DEMCR_TRCENA (1u << 24)
+#define STV_DWT_CTRL (*(volatile uint32_t *)0xE0001000u)
+#define STV_DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)
+
+/* USART1 (APB2, 0x40011000): SR, DR, CR1. */
+#define STV_USART1_BASE 0x40011000u
+#define STV_USART1_SR (*(volatile uint32_t *)(STV_USART1_BASE + 0x00u))
+#define STV_USART1_DR (*(volatile uint32_t *)(STV_USART1_BASE + 0x04u))
+#define STV_USART1_CR1 (*(volatile uint32_t *)(STV_USART1_BASE + 0x0Cu))
+#define STV_USART_SR_TXE (1u << 7)
+#define STV_USART_CR1_TXEIE_BIT 7u
+/* CR1.TXEIE through the peripheral bit-band alias: set/cleared atomically by main loop and ISR alike. */
+#define STV_USART1_TXEIE_BB \
+  (*(volatile uint32_t *)(0x42000000u + ((STV_USART1_BASE + 0x0Cu - 0x40000000u) * 32u) + STV_USART_CR1_TXEIE_BIT * 4u))
+
+static stv_link_t g_stv;
+static volatile uint8_t g_stv_ready;
+
+static inline uint32_t irq_save(void) {
+  uint32_t primask;
+  __asm__ volatile("mrs %0, primask\n\tcpsid i" : "=r"(primask)::"memory");
+  return primask;
+}
+
+static inline void irq_restore(uint32_t primask) { __asm__ volatile("msr primask, %0" ::"r"(primask) : "memory"); }
+
+static inline void tx_kick(void) {
+  if (stv_txq_used(&g_stv.txq)) STV_USART1_TXEIE_BB = 1u;
+}
+
+void stv_fw_init(const stv_link_config_t *cfg) {
+  STV_DEMCR |= STV_DEMCR_TRCENA;
+  STV_DWT_CTRL |= 1u; /* CYCCNTENA; CYCCNT keeps counting from where it is */
+  stv_link_init(&g_stv, cfg, STV_DWT_CYCCNT);
+  g_stv_ready = 1u;
+}
+
+void stv_fw_step_begin(int16_t thr) {
+  uint32_t s = irq_save();
+  stv_link_step_begin(&g_stv, STV_DWT_CYCCNT, thr);
+  irq_restore(s);
+}
+
+void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]) {
+  uint32_t cyc = STV_DWT_CYCCNT;
+  uint32_t s = irq_save();
+  stv_link_step_end(&g_stv, cyc, acc_mg, gyro_mdps, q, euler_rad);
+  tx_kick();
+  irq_restore(s);
+}
+
+void stv_fw_log_write(const char *str, size_t n) {
+  uint32_t s;
+  if (!g_stv_ready) return;
+  s = irq_save();
+  stv_link_update_time(&g_stv, STV_DWT_CYCCNT);
+  stv_link_log_write(&g_stv, str, n);
+  tx_kick();
+  irq_restore(s);
+}
+
+void stv_fw_usart1_irq(void) {
+  uint32_t sr = STV_USART1_SR;
+  if ((sr & STV_USART_SR_TXE) && (STV_USART1_CR1 & (1u << STV_USART_CR1_TXEIE_BIT))) {
+    uint8_t b;
+    if (stv_txq_pop_byte(&g_stv.txq, &b))
+      STV_USART1_DR = b;
+    else
+      STV_USART1_TXEIE_BB = 0u; /* queue empty: stop TXE interrupts until the next frame */
+  }
+  if (sr & 0x0Fu) (void)STV_USART1_DR; /* ORE/NE/FE/PE (RX unused): SR then DR read clears them */
+}
+
+uint32_t stv_fw_dropped(void) { return g_stv.txq.dropped; }

@@ -1,0 +1,45 @@
+/* steval-link firmware port for the STEVAL-FCU001V1 (STM32F401, USART1 on PA9/PA10, DWT cycle counter).
+ *
+ * The main loop calls stv_fw_step_begin()/stv_fw_step_end() around ahrs_fusion_ag + QuaternionToEuler; the
+ * frames go into a RAM ring buffer that the USART1 TXE interrupt drains. Nothing here ever waits for the UART: a
+ * frame that does not fit in the queue is dropped and counted (status frame, tx_dropped).
+ * Registers are addressed directly (no HAL/CMSIS headers needed), so this file cross-compiles on its own.
+ */
+#ifndef STV_FW_H
+#define STV_FW_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "stv_config.h"
+#include "stv_link.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* After MX_USART1_UART_Init (the HAL has configured pins, baud rate and the USART1 NVIC line). Starts the DWT
+ * cycle counter (without resetting it) and the link; cfg->baud/cpu_hz/... describe the build (status frame). */
+void stv_fw_init(const stv_link_config_t *cfg);
+
+/* Right before ahrs_fusion_ag(&acc_ahrs, &gyro_ahrs, &ahrs); thr = gTHR. */
+void stv_fw_step_begin(int16_t thr);
+
+/* Right after QuaternionToEuler(&ahrs.q, &euler_ahrs): queue the step's frames and start the transmitter. */
+void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]);
+
+/* Log text (PRINTF): gathered into lines, sent as text frames (binary mode) or plain lines (text mode).
+ * Safe from any context (runs with interrupts masked for the few µs it takes). */
+void stv_fw_log_write(const char *s, size_t n);
+
+/* The USART1 interrupt handler's body (replaces HAL_UART_IRQHandler(&huart1) in stm32f4xx_it.c). */
+void stv_fw_usart1_irq(void);
+
+/* Frames dropped since boot because the TX queue was full. */
+uint32_t stv_fw_dropped(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* STV_FW_H */
