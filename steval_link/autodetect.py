@@ -15,12 +15,14 @@ Plain listing of ports is :mod:`steval_link.ports`' job; this module only uses i
 from __future__ import annotations
 
 import glob
+import math
 import os
 import re
 import threading
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import serial
 
 from steval_link.transport import open_serial
@@ -156,13 +158,14 @@ class ProbeResult:
 
     @property
     def answered(self) -> bool:
-        """True when at least one valid frame (binary or text-mode) arrived."""
+        """True when at least one valid attitude or status frame (binary or text mode) arrived."""
         return self.frames_ok > 0
 
 
 def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
     """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
     from steval_link.decoder import StreamDecoder
+    from steval_link.frames import TextFrame
 
     result = ProbeResult(port, baud)
     t0 = time.monotonic()
@@ -182,7 +185,8 @@ def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int 
                 break
             if data:
                 buf += data
-                result.frames_ok += len(decoder.feed(data))
+                # text frames do not count: any device's text lines decode as firmware log lines
+                result.frames_ok += sum(1 for f in decoder.feed(data) if not isinstance(f, TextFrame))
                 if result.frames_ok >= 2:
                     break
     finally:
@@ -282,18 +286,39 @@ def describe_bytes(data: bytes) -> str:
     return f"random binary ({n} bytes, {100 * printable / m:.0f}% printable: another baud rate or another protocol)"
 
 
-def suggest_bauds(data: bytes, baud: int, seconds: float) -> list[int]:
-    """Baud rates worth trying, most likely first, from how many bytes arrived in ``seconds`` at ``baud``.
+def bit_run_length(data: bytes) -> float:
+    """Mean length of runs of equal bits inside the 8N1 frames of ``data`` (start bit, 8 data bits, stop bit).
 
-    A sender faster than the reader keeps the line busy: close to ``baud``/10 bytes/s arrive, so faster rates
-    come first. A slower sender yields about its own byte rate (well under the maximum): slower rates first.
+    Bytes sent at the reader's baud rate give about 1.8 (random-looking payloads). A sender k times *slower* than the
+    reader stretches every bit over k sampled bits, so runs get longer: about 2.7 for k = 2, 3.8 for k = 3..4,
+    5 for k ≥ 8. A *faster* sender gives samples of unrelated bits: about 1.8 again.
     """
-    capacity = baud / 10.0 * max(seconds, 1e-3)
-    busy = len(data) / capacity if capacity else 0.0
+    a = np.frombuffer(bytes(data[:8192]), dtype=np.uint8)
+    if a.size == 0:
+        return 0.0
+    bits = np.ones((a.size, 10), dtype=np.uint8)
+    bits[:, 0] = 0
+    bits[:, 1:9] = (a[:, None] >> np.arange(8, dtype=np.uint8)) & 1
+    runs = (np.diff(bits, axis=1) != 0).sum(axis=1) + 1
+    return float(10.0 / runs.mean())
+
+
+def suggest_bauds(data: bytes, baud: int) -> list[int]:
+    """Baud rates worth trying, most likely first, for bytes without frames read at ``baud``.
+
+    Long bit runs (:func:`bit_run_length`) mean a slower sender; the run length estimates by how much. Otherwise
+    the sender is faster (or speaks another protocol): faster rates first, 921600 (the patch's fast setting) first.
+    """
     others = [b for b in COMMON_BAUDS if b != baud]
     faster = sorted((b for b in others if b > baud), key=lambda b: (b != 921600, -b))
-    slower = sorted((b for b in others if b < baud), key=lambda b: (b != 115200, -b))
-    return (faster + slower) if busy > 0.5 or not slower else (slower + faster)
+    slower = [b for b in others if b < baud]
+    run = bit_run_length(data)
+    if run < 2.3 or not slower:
+        return faster + sorted(slower, key=lambda b: -b)
+    ratio = 2.0 if run < 3.2 else 4.0 if run < 4.4 else 8.0
+    guess = baud / ratio
+    slower.sort(key=lambda b: abs(math.log(b / guess)))
+    return slower + faster
 
 
 def no_frames_message(port: str, baud: int, data: bytes, seconds: float) -> str:
@@ -303,7 +328,7 @@ def no_frames_message(port: str, baud: int, data: bytes, seconds: float) -> str:
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "
             "wired to the adapter's RX? (--wait keeps waiting)"
         )
-    tries = suggest_bauds(data, baud, seconds)
+    tries = suggest_bauds(data, baud)
     what = describe_bytes(data)
     if what.startswith("text"):
         hint = "flash the steval firmware patch (or check --port)"

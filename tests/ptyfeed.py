@@ -218,3 +218,70 @@ def uart_resample(data: bytes, baud_tx: int, baud_rx: int, *, idle_bits: int = 0
             i += 1
         t = max(t, i * t_bit_tx)
     return bytes(out)
+
+
+def flight_stream(
+    n_steps: int,
+    *,
+    first_step: int = 0,
+    status_every: int = 161,
+    seed: int = 0,
+    text_lines: tuple[str, ...] = (),
+) -> bytes:
+    """The byte stream of a drone on the bench / in the air, as the patched firmware sends it.
+
+    Steps 0..first_step+n_steps-1 are run through the bit-exact filter port (so ``q`` is what the firmware would
+    send); frames from ``first_step`` on are emitted (``first_step`` > 0: the link joins mid-flight). A status frame
+    with the filter snapshot follows every ``status_every``-th attitude frame (step % status_every == status_every-1).
+    Inputs: gravity on a slow rocking motion plus noise, throttle ramping through MIN_THR, in float32.
+    """
+    from steval_link.estimators import st_mahony
+
+    rng = np.random.default_rng(seed)
+    total = first_step + n_steps
+    t = np.arange(total) * protocol.AHRS_PERIOD_S
+    pitch = 0.35 * np.sin(2 * np.pi * 0.3 * t)
+    roll = 0.25 * np.sin(2 * np.pi * 0.17 * t + 1.0)
+    acc = np.stack(
+        [1000 * np.sin(roll), -1000 * np.sin(pitch) * np.cos(roll), 1000 * np.cos(pitch) * np.cos(roll)], axis=1
+    ) + rng.normal(0, 15, (total, 3))
+    gyro = np.stack(
+        [np.gradient(pitch, t) * 57295.8, np.gradient(roll, t) * 57295.8, 2000 * np.sin(0.5 * t)], axis=1
+    ) + rng.normal(0, 300, (total, 3))
+    acc = acc.astype(np.float32)
+    gyro = gyro.astype(np.float32)
+    thr = np.clip((t * 80).astype(np.int64) % 600, 0, 500).astype(np.int16)
+    state = st_mahony.MahonyState()
+    out = bytearray(b"".join(protocol.encode_text(line) for line in text_lines))
+    t_us = (t * 1e6).astype(np.int64) + 1_234_567
+    thz = np.cumsum(gyro[:, 2].astype(np.float64) * protocol.AHRS_PERIOD_S / 57295.8).astype(np.float32)
+    block = status_every
+    start = 0
+    while start < total:
+        # run up to and including the next status step
+        end = min(total, (start // block + 1) * block)
+        q, _, _, state = st_mahony.run(acc[start:end], gyro[start:end], thr[start:end], state=state, euler=False)
+        lo = max(start, first_step)
+        if lo < end:
+            rec = np.zeros(end - lo, dtype=protocol.ATTITUDE_DTYPE)
+            rec["t_us"] = t_us[lo:end] % protocol.T_US_MODULUS
+            rec["acc_mg"] = acc[lo:end]
+            rec["gyro_mdps"] = gyro[lo:end]
+            rec["q_wxyz"] = q[lo - start :]
+            rec["thz_rad"] = thz[lo:end]
+            rec["seq"] = np.arange(lo, end) % protocol.SEQ_MODULUS
+            rec["thr"] = thr[lo:end]
+            out += protocol.encode_attitude_block(rec)
+            if end % block == 0:
+                out += protocol.encode_status(
+                    step=end - 1,
+                    t_us=int(t_us[end - 1]),
+                    q_wxyz=state.q_wxyz,
+                    int_xyz=state.int_xyz,
+                    cyc_min=9000,
+                    cyc_mean=9100,
+                    cyc_max=9500,
+                    cyc_n=block,
+                )
+        start = end
+    return bytes(out)
