@@ -1,0 +1,378 @@
+"""Wire-protocol decoder: :class:`StreamDecoder` (incremental, bounded memory) and :func:`decode_bytes` (bulk, fast).
+
+Both implement ``firmware_patch/PROTOCOL.md`` and give exactly the same frames and counters on the same bytes.
+
+Rules (position by position, from the start of the stream):
+
+* ``A5 5A``: a binary frame candidate. Valid (version 1, known type, the type's ``LEN``, CRC) → handed out and the
+  whole frame consumed; otherwise only the ``A5`` is discarded and the search resumes at the next byte. A known
+  header whose CRC fails counts in ``crc_failures``; a version-1 frame of unknown type whose CRC matches counts in
+  ``unknown_frames`` (and is skipped the same way).
+* Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
+  is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``);
+  a plain line (firmware log, handed out as a :class:`TextFrame`) only at a line boundary: right after a frame or
+  line that was handed out, or after a ``\\n``. So a stream joined in the middle of a line never yields the tail of
+  that line, and garbage between binary frames is not mistaken for text.
+* Every byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
+
+The decoder waits for more bytes only while the candidate at its position could still become valid, so its
+buffer never holds more than one frame (≤ 261 bytes) or one text line (≤ 512 bytes): memory is bounded whatever
+the input, and the frames do not depend on how the bytes are chunked.
+
+Sequence counters: between consecutive binary attitude frames, ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
+normal, ``2 ≤ d < 2¹⁵`` is a gap (``seq_gaps`` += 1, ``frames_missing`` += d − 1), ``d = 0`` or ``d ≥ 2¹⁵`` (a
+step backwards) is a firmware restart (``seq_resets``). Text-mode rows are decimated by design and not counted.
+"""
+
+from __future__ import annotations
+
+import binascii
+import re
+import struct
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from steval_link import protocol as P
+from steval_link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
+from steval_link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
+
+__all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
+
+_ATT_STRUCT = struct.Struct("<I3f3f4ffHh")
+_STA_STRUCT = struct.Struct("<II4f3f4f6IHhHH3BB")
+assert _ATT_STRUCT.size == P.ATTITUDE_PAYLOAD_SIZE and _STA_STRUCT.size == P.STATUS_PAYLOAD_SIZE
+
+_VT_ATT = (P.VERSION << 4) | P.TYPE_ATTITUDE
+_VT_STA = (P.VERSION << 4) | P.TYPE_STATUS
+_VT_TXT = (P.VERSION << 4) | P.TYPE_TEXT
+_NEXT_START = re.compile(rb"[\xa5$\n]")
+_BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
+_crc_hqx = binascii.crc_hqx
+
+
+@dataclass(slots=True)
+class DecoderStats:
+    """Counters of one decoded stream (see the module docstring for the exact rules)."""
+
+    frames_ok: int = 0  #: valid frames handed out (attitude + status + text, binary and text mode)
+    attitude: int = 0
+    status: int = 0
+    text: int = 0
+    crc_failures: int = 0  #: binary frames with a valid header but a bad CRC; ``$`` lines with a bad checksum
+    bytes_skipped: int = 0  #: bytes that were not part of a frame handed out
+    seq_gaps: int = 0  #: gap events in the attitude ``seq`` (frames dropped on the way)
+    frames_missing: int = 0  #: attitude frames lost in those gaps (sum of the missing ``seq`` values)
+    seq_resets: int = 0  #: ``seq`` went backwards (firmware restart)
+    unknown_frames: int = 0  #: CRC-valid version-1 frames of a type this decoder does not know
+    bytes_total: int = 0  #: bytes fed
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters as a plain dict (JSON-friendly)."""
+        return asdict(self)
+
+
+def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
+    """``(seq_gaps, frames_missing, seq_resets)`` of consecutive binary attitude ``seq`` values (u16)."""
+    s = np.asarray(seq, dtype=np.int64)
+    if len(s) < 2:
+        return 0, 0, 0
+    d = (s[1:] - s[:-1]) % P.SEQ_MODULUS
+    gap = (d >= 2) & (d < P.SEQ_MODULUS // 2)
+    reset = (d == 0) | (d >= P.SEQ_MODULUS // 2)
+    return int(gap.sum()), int((d[gap] - 1).sum()), int(reset.sum())
+
+
+class StreamDecoder:
+    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them.
+
+    Call :meth:`finish` at the end of the stream to decide the last incomplete candidate (its bytes are counted
+    as skipped). ``stats`` holds the counters (:class:`DecoderStats`). ``offset`` of each frame is its position in
+    the stream (bytes fed since construction).
+    """
+
+    def __init__(self) -> None:
+        self.stats = DecoderStats()
+        self._buf = bytearray()
+        self._base = 0  # stream offset of _buf[0]
+        self._boundary = False  # True when _buf[0] starts a line (after a handed-out frame/line or a "\n")
+        self._last_seq: int | None = None
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held back because the candidate frame or line at the current position is not complete yet."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        """Decode ``data`` (the next bytes of the stream); returns the frames completed by it, in stream order."""
+        self._buf += data
+        self.stats.bytes_total += len(data)
+        return self._run(final=False)
+
+    def finish(self) -> list[Frame]:
+        """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames."""
+        return self._run(final=True)
+
+    # -- internals ---------------------------------------------------------------------------------------------
+    def _restart_at(self, offset: int, boundary: bool) -> None:
+        """Continue as if the stream were positioned at ``offset`` (used by the bulk decoder; buffer must be empty)."""
+        assert not self._buf
+        self._base = offset
+        self._boundary = boundary
+
+    def _skip(self, buf: bytearray, p: int, n: int) -> int:
+        """Reject the candidate at ``p``: move to the next position that could start a frame or a line."""
+        if buf[p] == 0x0A:
+            q, boundary = p + 1, True
+        else:
+            m = _NEXT_START.search(buf, p + 1)
+            if m is None:
+                q, boundary = n, False
+            elif buf[m.start()] == 0x0A:
+                q, boundary = m.start() + 1, True
+            else:
+                q, boundary = m.start(), False
+        self.stats.bytes_skipped += q - p
+        self._boundary = boundary
+        return q
+
+    def _run(self, final: bool) -> list[Frame]:
+        buf = self._buf
+        n = len(buf)
+        p = 0
+        out: list[Frame] = []
+        stats = self.stats
+        while p < n:
+            c = buf[p]
+            if c == 0xA5:
+                # ---- binary frame candidate
+                if n - p < 4:
+                    if not final and (n - p < 2 or buf[p + 1] == 0x5A):
+                        break
+                    p = self._skip(buf, p, n)
+                    continue
+                vt = buf[p + 2]
+                ln = buf[p + 3]
+                if buf[p + 1] != 0x5A or (vt >> 4) != P.VERSION:
+                    p = self._skip(buf, p, n)
+                    continue
+                known = (
+                    (vt == _VT_ATT and ln == P.ATTITUDE_PAYLOAD_SIZE)
+                    or (vt == _VT_STA and ln == P.STATUS_PAYLOAD_SIZE)
+                    or (vt == _VT_TXT and ln >= 1)
+                )
+                if not known and vt in (_VT_ATT, _VT_STA, _VT_TXT):
+                    p = self._skip(buf, p, n)  # known type, wrong length
+                    continue
+                end = p + 4 + ln
+                if end + 2 > n:
+                    if not final:
+                        break
+                    p = self._skip(buf, p, n)
+                    continue
+                crc_ok = _crc_hqx(memoryview(buf)[p + 2 : end], 0xFFFF) == (buf[end] | (buf[end + 1] << 8))
+                if not known:
+                    if crc_ok:
+                        stats.unknown_frames += 1
+                    p = self._skip(buf, p, n)
+                    continue
+                if not crc_ok:
+                    stats.crc_failures += 1
+                    p = self._skip(buf, p, n)
+                    continue
+                out.append(self._binary_frame(buf, p, vt, ln))
+                p = end + 2
+                self._boundary = True
+                continue
+            # ---- text line candidate
+            dollar = c == 0x24
+            if not dollar and not self._boundary:
+                p = self._skip(buf, p, n)
+                continue
+            limit = min(n, p + MAX_LINE_BYTES)
+            nl = buf.find(b"\n", p, limit)
+            if nl < 0:
+                if final or limit - p >= MAX_LINE_BYTES:
+                    p = self._skip(buf, p, n)
+                    continue
+                # reject now if the line can no longer become valid (a control byte; "\r" not at the end)
+                if _BAD_PARTIAL.search(buf, p, limit) is not None or buf.find(b"\r", p, limit - 1) >= 0:
+                    p = self._skip(buf, p, n)
+                    continue
+                break  # wait for the rest of the line
+            raw = bytes(buf[p:nl])
+            text = decode_line(raw)
+            if text is None:
+                p = self._skip(buf, p, n)
+                continue
+            offset = self._base + p
+            nbytes = nl + 1 - p
+            if dollar:
+                frame = parse_sentence(raw.rstrip(b"\r"), offset=offset, nbytes=nbytes)
+                if frame is None:
+                    stats.crc_failures += 1
+                    p = self._skip(buf, p, n)
+                    continue
+                if isinstance(frame, TextFrame):
+                    frame.text = text
+            else:
+                frame = TextFrame(text, offset=offset, nbytes=nbytes)
+            self._count(frame)
+            out.append(frame)
+            p = nl + 1
+            self._boundary = True
+        if p:
+            del buf[:p]
+            self._base += p
+        if final and buf:  # cannot happen (every candidate is decided when final), kept as a guard
+            stats.bytes_skipped += len(buf)
+            self._base += len(buf)
+            buf.clear()
+        return out
+
+    def _count(self, frame: Frame) -> None:
+        stats = self.stats
+        stats.frames_ok += 1
+        if isinstance(frame, AttitudeFrame):
+            stats.attitude += 1
+            if frame.exact:
+                seq = frame.seq
+                last = self._last_seq
+                if last is not None:
+                    d = (seq - last) % P.SEQ_MODULUS
+                    if 2 <= d < P.SEQ_MODULUS // 2:
+                        stats.seq_gaps += 1
+                        stats.frames_missing += d - 1
+                    elif d != 1:
+                        stats.seq_resets += 1
+                self._last_seq = seq
+        elif isinstance(frame, StatusFrame):
+            stats.status += 1
+        else:
+            stats.text += 1
+
+    def _binary_frame(self, buf: bytearray, p: int, vt: int, ln: int) -> Frame:
+        offset = self._base + p
+        if vt == _VT_ATT:
+            v = _ATT_STRUCT.unpack_from(buf, p + 4)
+            frame: Frame = AttitudeFrame(
+                v[0], v[1:4], v[4:7], v[7:11], v[11], v[12], v[13], True, offset, ln + 6
+            )
+        elif vt == _VT_STA:
+            v = _STA_STRUCT.unpack_from(buf, p + 4)
+            frame = StatusFrame(
+                v[0], v[1], v[2:6], v[6:9], v[9], v[10], v[11], v[12], v[13], v[14], v[15], v[16], v[17], v[18],
+                v[19], v[20], v[21], v[22], v[23:26], v[26], True, offset, ln + 6,
+            )
+        else:
+            frame = TextFrame(bytes(buf[p + 4 : p + 4 + ln]).decode("utf-8", "replace"), offset, ln + 6)
+        self._count(frame)
+        return frame
+
+
+def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included)."""
+    n = len(arr)
+    idx = np.flatnonzero((arr[:-1] == 0xA5) & (arr[1:] == 0x5A)) if n >= 2 else np.zeros(0, np.int64)
+    idx = idx[idx + 6 <= n]
+    vt = arr[idx + 2]
+    ln = arr[idx + 3].astype(np.int64)
+    ok = ((vt == _VT_ATT) & (ln == P.ATTITUDE_PAYLOAD_SIZE)) | ((vt == _VT_STA) & (ln == P.STATUS_PAYLOAD_SIZE))
+    ok |= (vt == _VT_TXT) & (ln >= 1)
+    size = ln + 6
+    ok &= idx + size <= n
+    idx, size, vt = idx[ok], size[ok], vt[ok]
+    end = idx + size
+    crc_stored = arr[end - 2].astype(np.int64) | (arr[end - 1].astype(np.int64) << 8)
+    mv = memoryview(data)
+    crc = np.fromiter(
+        (_crc_hqx(mv[s:e], 0xFFFF) for s, e in zip((idx + 2).tolist(), (end - 2).tolist())),
+        dtype=np.int64,
+        count=len(idx),
+    )
+    good = crc == crc_stored
+    return idx[good].astype(np.int64), size[good], vt[good]
+
+
+def decode_bytes(
+    data: bytes | bytearray | memoryview,
+    chunk_times: tuple[np.ndarray, np.ndarray] | None = None,
+    *,
+    baud: int | None = None,
+    source: dict | None = None,
+    events: list | None = None,
+):
+    """Decode a whole byte stream at once into a :class:`~steval_link.telemetry.Telemetry`.
+
+    ``chunk_times`` is ``(chunk_offsets, t_host_s)``: the stream offset where each received chunk starts and the
+    host time (s since capture start) when it was received; each frame gets the time of the chunk its last byte
+    arrived in, moved back by the bytes after it in that chunk at ``baud`` (10 bit times per byte) when ``baud``
+    is given. Without ``chunk_times`` host times are NaN.
+
+    Same frames and counters as :class:`StreamDecoder` on the same bytes (then :meth:`StreamDecoder.finish`): runs
+    of back-to-back valid binary frames are decoded with numpy, everything else (damage, text mode) by a
+    :class:`StreamDecoder` over just those regions.
+    """
+    from steval_link.telemetry import Telemetry, TelemetryParts
+
+    data = bytes(data)
+    n = len(data)
+    arr = np.frombuffer(data, dtype=np.uint8)
+    starts, sizes, vts = _valid_binary_starts(arr, data)
+    nxt = starts + sizes
+    K = len(starts)
+    # run_end[k]: last index of the run of back-to-back frames that starts at k
+    breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if K > 1 else np.zeros(0, np.int64)
+    parts = TelemetryParts()
+    fast_idx: list[np.ndarray] = []
+    sd = StreamDecoder()
+    slow_frames: list[Frame] = []
+    p = 0
+    last_fast = False
+    starts_list = starts  # numpy, searchsorted below
+    while p < n:
+        k = int(np.searchsorted(starts_list, p))
+        if not sd._buf and k < K and starts[k] == p:
+            b = int(np.searchsorted(breaks, k))
+            j = int(breaks[b]) if b < len(breaks) else K - 1
+            fast_idx.append(np.arange(k, j + 1))
+            p = int(nxt[j])
+            last_fast = True
+            continue
+        if not sd._buf:
+            sd._restart_at(p, boundary=last_fast or sd._boundary if p else False)
+        last_fast = False
+        end = int(nxt[k]) if k < K else n
+        slow_frames.extend(sd.feed(data[p:end]))
+        p = end
+    slow_frames.extend(sd.finish())
+
+    idx = np.concatenate(fast_idx) if fast_idx else np.zeros(0, np.int64)
+    f_starts, f_vts = starts[idx], vts[idx]
+    att_starts = f_starts[f_vts == _VT_ATT]
+    sta_starts = f_starts[f_vts == _VT_STA]
+    txt_sel = idx[f_vts == _VT_TXT]
+    parts.add_attitude_payloads(arr, att_starts + P.HEADER_SIZE, att_starts)
+    parts.add_status_payloads(arr, sta_starts + P.HEADER_SIZE, sta_starts)
+    for s, size in zip(starts[txt_sel].tolist(), sizes[txt_sel].tolist()):
+        parts.add_frame(TextFrame(data[s + 4 : s + size - 2].decode("utf-8", "replace"), s, size))
+    for f in slow_frames:
+        parts.add_frame(f)
+
+    st = sd.stats
+    stats = DecoderStats(
+        attitude=st.attitude + len(att_starts),
+        status=st.status + len(sta_starts),
+        text=st.text + len(txt_sel),
+        crc_failures=st.crc_failures,
+        bytes_skipped=st.bytes_skipped,
+        unknown_frames=st.unknown_frames,
+        bytes_total=n,
+    )
+    stats.frames_ok = stats.attitude + stats.status + stats.text
+    tel = Telemetry.from_parts(
+        parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n
+    )
+    exact = tel.attitude.exact
+    stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(tel.attitude.seq[exact])
+    return tel

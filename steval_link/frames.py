@@ -1,0 +1,88 @@
+"""One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`.
+
+Field names follow the payload dtypes of :mod:`steval_link.protocol` (units in the names). Binary frames carry the
+firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows (``exact=False``) carry
+the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset`` is the stream byte offset
+of the frame's first byte and ``nbytes`` its length on the wire (frame or text line including the line ending).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+NAN = math.nan
+_NAN3 = (NAN, NAN, NAN)
+_NAN4 = (NAN, NAN, NAN, NAN)
+
+
+@dataclass(slots=True)
+class AttitudeFrame:
+    """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False).
+
+    ``t_us`` firmware time in µs mod 2³²; ``acc_mg`` (x, y, z) mg and ``gyro_mdps`` (x, y, z) mdps as passed to
+    ``ahrs_fusion_ag``; ``q_wxyz`` the filter quaternion after the step (NaN in text mode); ``thz_rad`` the
+    ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full step counter when the
+    frame itself carries it (text mode), else None (the binary frame only has ``seq``; :class:`Telemetry` unwraps
+    it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text line; NaN for binary frames,
+    whose angles are recomputed bit-exactly from ``q_wxyz`` in :class:`~steval_link.telemetry.Telemetry`.
+    """
+
+    t_us: int
+    acc_mg: tuple[float, float, float]
+    gyro_mdps: tuple[float, float, float]
+    q_wxyz: tuple[float, float, float, float]
+    thz_rad: float
+    seq: int
+    thr: int
+    exact: bool = True
+    offset: int = 0
+    nbytes: int = 0
+    step: int | None = None
+    thx_rad: float = NAN
+    thy_rad: float = NAN
+
+
+@dataclass(slots=True)
+class StatusFrame:
+    """Link statistics, filter settings and filter-state snapshot, about once a second (fields as STATUS_DTYPE).
+
+    Text-mode ``$STA`` rows (``exact`` False) carry only step, t_us, cycle figures, tx_dropped, flags and ki; the
+    other float fields are NaN and the other integers 0.
+    """
+
+    step: int
+    t_us: int
+    q_wxyz: tuple[float, float, float, float] = _NAN4
+    int_xyz: tuple[float, float, float] = _NAN3
+    kp_ground: float = NAN
+    kp_flight: float = NAN
+    ki: float = NAN
+    dt_s: float = NAN
+    cyc_min: int = 0
+    cyc_mean: int = 0
+    cyc_max: int = 0
+    cpu_hz: int = 0
+    tx_dropped: int = 0
+    baud: int = 0
+    cyc_n: int = 0
+    min_thr: int = 0
+    flags: int = 0
+    queue_peak: int = 0
+    fw_version: tuple[int, int, int] = (0, 0, 0)
+    reserved: int = 0
+    exact: bool = True
+    offset: int = 0
+    nbytes: int = 0
+
+
+@dataclass(slots=True)
+class TextFrame:
+    """One firmware log line (binary text frame, or a plain line of a text-mode stream), without line ending."""
+
+    text: str
+    offset: int = 0
+    nbytes: int = 0
+
+
+Frame = AttitudeFrame | StatusFrame | TextFrame

@@ -1,0 +1,399 @@
+"""``Telemetry``: every field of a decoded stream as numpy arrays, with units in the names.
+
+Built by :func:`steval_link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames` (frames of a
+:class:`~steval_link.decoder.StreamDecoder`). Rows are in stream order.
+
+Derived fields:
+
+* ``step`` (int64): binary rows unwrap ``seq`` (u16) by consecutive differences mod 2¹⁶, starting at the first
+  ``seq``; a status frame, which carries the full u32 step of the attitude frame just before it, anchors the
+  absolute step (the first anchor of each stretch without a firmware restart wins). Text-mode rows carry the full
+  step themselves.
+* ``t_fw_s`` (float64): firmware time, ``t_us`` unwrapped mod 2³² (restarting after a firmware restart) / 10⁶.
+* ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
+* ``thx_rad``/``thy_rad`` of binary rows: ``QuaternionToEuler`` of ``q_wxyz``, bit-exact
+  (:func:`steval_link.estimators.st_mahony.quaternion_to_euler`); of text-mode rows: the line's values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from steval_link import protocol as P
+from steval_link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
+
+if TYPE_CHECKING:  # pragma: no cover
+    from steval_link.decoder import DecoderStats
+
+__all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
+
+_EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
+#: Internal row layouts: the wire payload plus where the row came from.
+ATT_RECORD_DTYPE = np.dtype(
+    ATT_DESCR := P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")]
+)
+STA_RECORD_DTYPE = np.dtype(P.STATUS_DTYPE.descr + _EXTRA)
+
+
+@dataclass
+class AttitudeArrays:
+    """One row per attitude frame (see the module docstring for the derived fields).
+
+    Axes are the firmware's: x right, y forward, z up; ``thx_rad`` is pitch (about x, nose up +), ``thy_rad`` roll
+    (about y), ``thz_rad`` the ISR-integrated yaw.
+    """
+
+    step: np.ndarray  #: (N,) int64, AHRS step counter
+    seq: np.ndarray  #: (N,) uint16, as sent
+    t_us: np.ndarray  #: (N,) uint32, firmware time as sent, µs mod 2³²
+    t_fw_s: np.ndarray  #: (N,) float64, firmware time, s since boot
+    t_host_s: np.ndarray  #: (N,) float64, host receive time, s since capture start (NaN when unknown)
+    acc_mg: np.ndarray  #: (N,3) float32, accelerometer input of ahrs_fusion_ag, mg
+    gyro_mdps: np.ndarray  #: (N,3) float32, gyroscope input of ahrs_fusion_ag, mdps
+    thr: np.ndarray  #: (N,) int16, gTHR
+    q_wxyz: np.ndarray  #: (N,4) float32, ahrs.q after the step (NaN for text-mode rows)
+    thz_rad: np.ndarray  #: (N,) float32, yaw, rad
+    thx_rad: np.ndarray  #: (N,) float32, pitch (about x), rad
+    thy_rad: np.ndarray  #: (N,) float32, roll (about y), rad
+    exact: np.ndarray  #: (N,) bool, True for binary frames (bit-exact), False for rounded text-mode rows
+    offset: np.ndarray  #: (N,) int64, stream byte offset of the frame
+
+    def __len__(self) -> int:
+        return len(self.step)
+
+
+@dataclass
+class StatusArrays:
+    """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
+    (N,3)), plus ``t_fw_s``, ``t_host_s``, ``exact`` and ``offset`` as in :class:`AttitudeArrays`."""
+
+    step: np.ndarray
+    t_us: np.ndarray
+    q_wxyz: np.ndarray
+    int_xyz: np.ndarray
+    kp_ground: np.ndarray
+    kp_flight: np.ndarray
+    ki: np.ndarray
+    dt_s: np.ndarray
+    cyc_min: np.ndarray
+    cyc_mean: np.ndarray
+    cyc_max: np.ndarray
+    cpu_hz: np.ndarray
+    tx_dropped: np.ndarray
+    baud: np.ndarray
+    cyc_n: np.ndarray
+    min_thr: np.ndarray
+    flags: np.ndarray
+    queue_peak: np.ndarray
+    fw_version: np.ndarray
+    reserved: np.ndarray
+    t_fw_s: np.ndarray
+    t_host_s: np.ndarray
+    exact: np.ndarray
+    offset: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.step)
+
+
+class TelemetryParts:
+    """Accumulates decoded rows (numpy blocks or single frames) before :meth:`Telemetry.from_parts`."""
+
+    def __init__(self) -> None:
+        self.att_blocks: list[np.ndarray] = []
+        self.sta_blocks: list[np.ndarray] = []
+        self.att_frames: list[AttitudeFrame] = []
+        self.sta_frames: list[StatusFrame] = []
+        self.texts: list[TextFrame] = []
+
+    def add_attitude_payloads(self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray) -> None:
+        """Binary attitude frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
+        if len(payload_starts) == 0:
+            return
+        win = np.lib.stride_tricks.sliding_window_view(arr, P.ATTITUDE_PAYLOAD_SIZE)
+        pay = np.ascontiguousarray(win[payload_starts]).view(P.ATTITUDE_DTYPE).reshape(-1)
+        rec = np.empty(len(pay), ATT_RECORD_DTYPE)
+        for name in P.ATTITUDE_DTYPE.names:
+            rec[name] = pay[name]
+        rec["offset"] = frame_starts
+        rec["nbytes"] = P.ATTITUDE_FRAME_SIZE
+        rec["exact"] = True
+        rec["step"] = -1
+        rec["thx_rad"] = np.nan
+        rec["thy_rad"] = np.nan
+        self.att_blocks.append(rec)
+
+    def add_status_payloads(self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray) -> None:
+        """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
+        if len(payload_starts) == 0:
+            return
+        win = np.lib.stride_tricks.sliding_window_view(arr, P.STATUS_PAYLOAD_SIZE)
+        pay = np.ascontiguousarray(win[payload_starts]).view(P.STATUS_DTYPE).reshape(-1)
+        rec = np.empty(len(pay), STA_RECORD_DTYPE)
+        for name in P.STATUS_DTYPE.names:
+            rec[name] = pay[name]
+        rec["offset"] = frame_starts
+        rec["nbytes"] = P.STATUS_FRAME_SIZE
+        rec["exact"] = True
+        self.sta_blocks.append(rec)
+
+    def add_frame(self, frame: Frame) -> None:
+        if isinstance(frame, AttitudeFrame):
+            self.att_frames.append(frame)
+        elif isinstance(frame, StatusFrame):
+            self.sta_frames.append(frame)
+        else:
+            self.texts.append(frame)
+
+    def attitude_records(self) -> np.ndarray:
+        blocks = list(self.att_blocks)
+        if self.att_frames:
+            rec = np.empty(len(self.att_frames), ATT_RECORD_DTYPE)
+            rec[:] = [
+                (
+                    f.t_us, f.acc_mg, f.gyro_mdps, f.q_wxyz, f.thz_rad, f.seq, f.thr, f.offset, f.nbytes, f.exact,
+                    -1 if f.step is None else f.step, f.thx_rad, f.thy_rad,
+                )
+                for f in self.att_frames
+            ]
+            blocks.append(rec)
+        rec = np.concatenate(blocks) if blocks else np.zeros(0, ATT_RECORD_DTYPE)
+        return rec[np.argsort(rec["offset"], kind="stable")]
+
+    def status_records(self) -> np.ndarray:
+        blocks = list(self.sta_blocks)
+        if self.sta_frames:
+            rec = np.empty(len(self.sta_frames), STA_RECORD_DTYPE)
+            rec[:] = [
+                (
+                    f.step, f.t_us, f.q_wxyz, f.int_xyz, f.kp_ground, f.kp_flight, f.ki, f.dt_s, f.cyc_min,
+                    f.cyc_mean, f.cyc_max, f.cpu_hz, f.tx_dropped, f.baud, f.cyc_n, f.min_thr, f.flags,
+                    f.queue_peak, f.fw_version, f.reserved, f.offset, f.nbytes, f.exact,
+                )
+                for f in self.sta_frames
+            ]
+            blocks.append(rec)
+        rec = np.concatenate(blocks) if blocks else np.zeros(0, STA_RECORD_DTYPE)
+        return rec[np.argsort(rec["offset"], kind="stable")]
+
+
+def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(step per attitude row, restart offsets) — see the module docstring."""
+    step = att["step"].copy()
+    b = np.flatnonzero(att["exact"])
+    restarts = np.zeros(0, np.int64)
+    if len(b):
+        seq = att["seq"][b].astype(np.int64)
+        d = np.diff(seq) % P.SEQ_MODULUS
+        reset = (d == 0) | (d >= P.SEQ_MODULUS // 2)
+        inc = np.where(reset, 0, d)
+        cs = np.concatenate([[0], np.cumsum(inc)])
+        seg = np.concatenate([[0], np.cumsum(reset)])
+        seg_first = np.concatenate([[0], np.flatnonzero(reset) + 1])  # row (in b) where each segment starts
+        local = seq[seg_first][seg] + cs - cs[seg_first][seg]
+        delta = np.zeros(len(seg_first), np.int64)
+        if len(sta):
+            off_b = att["offset"][b]
+            j = np.searchsorted(off_b, sta["offset"]) - 1
+            ok = j >= 0
+            j_ok = j[ok]
+            sstep = sta["step"][ok].astype(np.int64)
+            match = (local[j_ok] - sstep) % P.SEQ_MODULUS == 0
+            j_m, s_m = j_ok[match], sstep[match]
+            if len(j_m):
+                segs, first = np.unique(seg[j_m], return_index=True)
+                delta[segs] = s_m[first] - local[j_m[first]]
+        step[b] = local + delta[seg]
+        restarts = att["offset"][b][1:][reset]
+    return step, restarts
+
+
+def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) -> np.ndarray:
+    """Firmware time in s: ``t_us`` (rows in stream order) unwrapped mod 2³², restarting at each firmware restart."""
+    t = t_us.astype(np.int64)
+    if len(t) == 0:
+        return np.zeros(0, np.float64)
+    seg = np.searchsorted(restarts, offsets, side="right")
+    dec = (t[1:] < t[:-1]) & (seg[1:] == seg[:-1])
+    wraps = np.concatenate([[0], np.cumsum(dec)])
+    first = np.concatenate([[0], np.flatnonzero(seg[1:] != seg[:-1]) + 1])
+    seg_idx = np.cumsum(np.isin(np.arange(len(t)), first)) - 1
+    wraps = wraps - wraps[first][seg_idx]
+    return (t + wraps * P.T_US_MODULUS) / 1e6
+
+
+def _host_times(
+    last_byte: np.ndarray, chunk_times: tuple[np.ndarray, np.ndarray] | None, baud: int | None, total: int
+) -> np.ndarray:
+    if chunk_times is None or len(chunk_times[0]) == 0:
+        return np.full(len(last_byte), np.nan)
+    c_off = np.asarray(chunk_times[0], dtype=np.int64)
+    c_t = np.asarray(chunk_times[1], dtype=np.float64)
+    k = np.clip(np.searchsorted(c_off, last_byte, side="right") - 1, 0, len(c_off) - 1)
+    t = c_t[k].copy()
+    if baud:
+        c_end = np.append(c_off[1:], total)
+        t -= (c_end[k] - (last_byte + 1)) * (10.0 / baud)
+        # a byte cannot have arrived before the previous chunk was received
+        prev = np.where(k > 0, c_t[np.maximum(k - 1, 0)], -np.inf)
+        t = np.maximum(t, prev)
+    return t
+
+
+def _quaternion_to_euler(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from steval_link.estimators.st_mahony import quaternion_to_euler
+
+    return quaternion_to_euler(q_wxyz)
+
+
+@dataclass
+class Telemetry:
+    """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
+    and ``source`` (``path``, ``kind`` 'stv' | 'raw' | 'text', ``header`` of a capture, ``warnings``)."""
+
+    attitude: AttitudeArrays
+    status: StatusArrays
+    text: list[tuple[float, str]]
+    stats: DecoderStats
+    events: list[Any] = field(default_factory=list)
+    source: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_parts(
+        cls,
+        parts: TelemetryParts,
+        stats: DecoderStats,
+        *,
+        chunk_times: tuple[np.ndarray, np.ndarray] | None = None,
+        baud: int | None = None,
+        total_bytes: int | None = None,
+        source: dict | None = None,
+        events: list | None = None,
+    ) -> Telemetry:
+        att = parts.attitude_records()
+        sta = parts.status_records()
+        texts = sorted(parts.texts, key=lambda f: f.offset)
+        total = int(total_bytes if total_bytes is not None else stats.bytes_total)
+
+        step, restarts = _unwrap_steps(att, sta)
+        # firmware time over attitude and status rows together, in stream order
+        off_all = np.concatenate([att["offset"], sta["offset"]])
+        order = np.argsort(off_all, kind="stable")
+        t_all = np.empty(len(off_all))
+        t_all[order] = _unwrap_time(
+            np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order], off_all[order], restarts
+        )
+        na = len(att)
+        att_last = att["offset"] + att["nbytes"] - 1
+        sta_last = sta["offset"] + sta["nbytes"] - 1
+
+        thx = att["thx_rad"].copy()
+        thy = att["thy_rad"].copy()
+        ex = att["exact"]
+        if ex.any():
+            thx[ex], thy[ex] = _quaternion_to_euler(att["q_wxyz"][ex])
+
+        attitude = AttitudeArrays(
+            step=step.astype(np.int64),
+            seq=att["seq"].astype(np.uint16),
+            t_us=att["t_us"].astype(np.uint32),
+            t_fw_s=t_all[:na],
+            t_host_s=_host_times(att_last, chunk_times, baud, total),
+            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
+            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
+            thr=att["thr"].astype(np.int16),
+            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
+            thz_rad=att["thz_rad"].astype(np.float32),
+            thx_rad=thx.astype(np.float32),
+            thy_rad=thy.astype(np.float32),
+            exact=att["exact"].astype(bool),
+            offset=att["offset"].astype(np.int64),
+        )
+        st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
+        status = StatusArrays(
+            **st_fields,
+            t_fw_s=t_all[na:],
+            t_host_s=_host_times(sta_last, chunk_times, baud, total),
+            exact=sta["exact"].astype(bool),
+            offset=sta["offset"].astype(np.int64),
+        )
+        if texts:
+            t_last = np.array([f.offset + f.nbytes - 1 for f in texts], dtype=np.int64)
+            t_text = _host_times(t_last, chunk_times, baud, total)
+            text = [(float(t), f.text) for t, f in zip(t_text, texts)]
+        else:
+            text = []
+        return cls(attitude, status, text, stats, list(events or []), dict(source or {}))
+
+    # -- tables ------------------------------------------------------------------------------------------------
+    def attitude_table(self) -> dict[str, np.ndarray]:
+        """One 1-D column per attitude field, units in the names (``pandas.DataFrame(tel.attitude_table())``)."""
+        a = self.attitude
+        cols: dict[str, np.ndarray] = {
+            "step": a.step,
+            "seq": a.seq,
+            "t_fw_s": a.t_fw_s,
+            "t_host_s": a.t_host_s,
+        }
+        for i, ax in enumerate("xyz"):
+            cols[f"acc_{ax}_mg"] = a.acc_mg[:, i]
+        for i, ax in enumerate("xyz"):
+            cols[f"gyro_{ax}_mdps"] = a.gyro_mdps[:, i]
+        for i, c in enumerate("wxyz"):
+            cols[f"q_{c}"] = a.q_wxyz[:, i]
+        cols["thx_pitch_rad"] = a.thx_rad
+        cols["thy_roll_rad"] = a.thy_rad
+        cols["thz_yaw_rad"] = a.thz_rad
+        cols["thr"] = a.thr
+        cols["exact"] = a.exact
+        cols["offset"] = a.offset
+        return cols
+
+    def status_table(self) -> dict[str, np.ndarray]:
+        """One 1-D column per status field (vector fields split per component)."""
+        s = self.status
+        cols: dict[str, np.ndarray] = {"step": s.step, "t_fw_s": s.t_fw_s, "t_host_s": s.t_host_s}
+        for i, c in enumerate("wxyz"):
+            cols[f"q_{c}"] = s.q_wxyz[:, i]
+        for i, c in enumerate("xyz"):
+            cols[f"int_{c}"] = s.int_xyz[:, i]
+        for name in ("kp_ground", "kp_flight", "ki", "dt_s", "cyc_min", "cyc_mean", "cyc_max", "cyc_n", "cpu_hz"):
+            cols[name] = getattr(s, name)
+        for name in ("tx_dropped", "baud", "min_thr", "flags", "queue_peak"):
+            cols[name] = getattr(s, name)
+        cols["exact"] = s.exact
+        cols["offset"] = s.offset
+        return cols
+
+    def attitude_dataframe(self):
+        """The attitude table as a ``pandas.DataFrame`` (needs pandas)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.attitude_table())
+
+
+def telemetry_from_frames(
+    frames: list[Frame],
+    stats: DecoderStats,
+    *,
+    frame_times: np.ndarray | None = None,
+    source: dict | None = None,
+    events: list | None = None,
+) -> Telemetry:
+    """A :class:`Telemetry` from the frames of a :class:`~steval_link.decoder.StreamDecoder` (e.g. the live path).
+
+    ``frame_times`` (one host time per frame, s) sets ``t_host_s``; else host times are NaN.
+    """
+    parts = TelemetryParts()
+    for f in frames:
+        parts.add_frame(f)
+    chunk_times = None
+    if frame_times is not None and len(frames):
+        # one pseudo-chunk per frame, ending at the frame's last byte
+        offs = np.array([f.offset + f.nbytes - 1 for f in frames], dtype=np.int64)
+        order = np.argsort(offs, kind="stable")
+        chunk_times = (offs[order], np.asarray(frame_times, dtype=np.float64)[order])
+    return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, source=source, events=events)

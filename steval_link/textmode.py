@@ -1,0 +1,147 @@
+"""Text mode of the wire protocol: ``$ATT``/``$STA`` lines with an NMEA-style checksum, and plain log lines.
+
+A text-mode line is ASCII (log lines may be any printable UTF-8), at most :data:`MAX_LINE_BYTES` bytes including
+its ``\\n`` (an optional ``\\r`` before it is dropped)::
+
+    $ATT,<step>,<t_ms>,<thr>,<thx_mdeg>,<thy_mdeg>,<thz_mdeg>,<acc_x_mg>,<acc_y_mg>,<acc_z_mg>,
+         <gyro_x_mdps>,<gyro_y_mdps>,<gyro_z_mdps>*HH
+    $STA,<step>,<t_ms>,<cyc_min>,<cyc_mean>,<cyc_max>,<cyc_n>,<tx_dropped>,<flags>,<ki_micro>*HH
+
+``HH`` is the XOR of every byte between ``$`` and ``*`` as two upper-case hex digits. Values are integers rounded
+toward zero (angles in millidegrees, acc in mg, gyro in mdps, ``t_ms`` = ``t_us // 1000``, ``ki_micro`` = KI × 10⁶).
+See ``firmware_patch/PROTOCOL.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
+
+#: Longest line accepted, in bytes, including the line ending.
+MAX_LINE_BYTES = 512
+
+_INT = rb"-?[0-9]{1,11}"
+_ATT_RE = re.compile(rb"\$ATT((?:," + _INT + rb"){12})\*([0-9A-F]{2})")
+_STA_RE = re.compile(rb"\$STA((?:," + _INT + rb"){9})\*([0-9A-F]{2})")
+_SENTENCE_RE = re.compile(rb"\$([^*]*)\*([0-9A-F]{2})")
+#: Bytes that may never appear inside a text line (control characters except TAB, and DEL).
+BAD_LINE_BYTE = re.compile(rb"[\x00-\x08\x0a-\x1f\x7f]")
+
+_MDEG_TO_RAD = math.pi / 180_000.0
+_NAN4 = (math.nan,) * 4
+
+
+def checksum(body: bytes) -> int:
+    """XOR of the bytes of ``body`` (the text between ``$`` and ``*``)."""
+    value = 0
+    for b in body:
+        value ^= b
+    return value
+
+
+def _sentence(body: str) -> bytes:
+    raw = body.encode("ascii")
+    return b"$" + raw + b"*%02X\r\n" % checksum(raw)
+
+
+def _trunc(x: float) -> int:
+    """Round toward zero, as the firmware's integer conversion does."""
+    return int(math.trunc(x))
+
+
+def format_att(
+    *, step: int, t_ms: int, thr: int, thx_mdeg: int, thy_mdeg: int, thz_mdeg: int, acc_mg, gyro_mdps
+) -> bytes:
+    """One ``$ATT`` line with checksum and ``\\r\\n`` (integers; floats are rounded toward zero)."""
+    vals = [step, t_ms, thr, thx_mdeg, thy_mdeg, thz_mdeg, *acc_mg, *gyro_mdps]
+    return _sentence("ATT," + ",".join(str(_trunc(v)) for v in vals))
+
+
+def format_sta(
+    *,
+    step: int,
+    t_ms: int,
+    cyc_min: int,
+    cyc_mean: int,
+    cyc_max: int,
+    cyc_n: int,
+    tx_dropped: int,
+    flags: int,
+    ki_micro: int,
+) -> bytes:
+    """One ``$STA`` line with checksum and ``\\r\\n``."""
+    vals = [step, t_ms, cyc_min, cyc_mean, cyc_max, cyc_n, tx_dropped, flags, ki_micro]
+    return _sentence("STA," + ",".join(str(_trunc(v)) for v in vals))
+
+
+def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
+    """Parse one ``$`` line (without line ending); None when its checksum fails or its fields do not parse.
+
+    A ``$`` sentence of another name with a correct checksum is returned as a :class:`TextFrame`.
+    """
+    m = _SENTENCE_RE.fullmatch(line)
+    if m is None or checksum(m.group(1)) != int(m.group(2), 16):
+        return None
+    if line.startswith(b"$ATT,"):
+        a = _ATT_RE.fullmatch(line)
+        if a is None:
+            return None
+        v = [int(x) for x in a.group(1)[1:].split(b",")]
+        step, t_ms, thr = v[0], v[1], v[2]
+        if step < 0 or t_ms < 0 or not -32768 <= thr <= 32767:
+            return None
+        return AttitudeFrame(
+            t_us=(t_ms * 1000) % (1 << 32),
+            acc_mg=(float(v[6]), float(v[7]), float(v[8])),
+            gyro_mdps=(float(v[9]), float(v[10]), float(v[11])),
+            q_wxyz=_NAN4,
+            thz_rad=v[5] * _MDEG_TO_RAD,
+            seq=step % (1 << 16),
+            thr=thr,
+            exact=False,
+            offset=offset,
+            nbytes=nbytes,
+            step=step,
+            thx_rad=v[3] * _MDEG_TO_RAD,
+            thy_rad=v[4] * _MDEG_TO_RAD,
+        )
+    if line.startswith(b"$STA,"):
+        s = _STA_RE.fullmatch(line)
+        if s is None:
+            return None
+        v = [int(x) for x in s.group(1)[1:].split(b",")]
+        if min(v[:8]) < 0:
+            return None
+        return StatusFrame(
+            step=v[0] % (1 << 32),
+            t_us=(v[1] * 1000) % (1 << 32),
+            cyc_min=v[2],
+            cyc_mean=v[3],
+            cyc_max=v[4],
+            cyc_n=v[5],
+            tx_dropped=v[6],
+            flags=v[7],
+            ki=v[8] / 1e6,
+            exact=False,
+            offset=offset,
+            nbytes=nbytes,
+        )
+    return TextFrame(line.decode("ascii", "replace"), offset=offset, nbytes=nbytes)
+
+
+def decode_line(raw: bytes) -> str | None:
+    """The text of one line (without its ``\\n``; a trailing ``\\r`` dropped), or None when it is not a valid text
+    line: not UTF-8, contains control characters, or empty."""
+    if raw.endswith(b"\r"):
+        raw = raw[:-1]
+    if not raw or BAD_LINE_BYTE.search(raw):
+        return None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    if not text.replace("\t", " ").isprintable():
+        return None
+    return text
