@@ -1,0 +1,411 @@
+"""Capture files (``.stv``): the raw serial bytes exactly as received, with host receive times, plus events.
+
+Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then chunks that are each
+self-checking (CRC-32), so a file cut anywhere (power cut, ``kill -9``) reads back up to its last complete chunk.
+Raw bytes are the source of truth: a decoder fix re-decodes old captures.
+
+* :class:`CaptureWriter` appends crash-safely (each chunk goes to the OS at once; ``fsync`` at least once a second).
+* :func:`read_capture` returns a :class:`Capture` (header, bytes, chunk offsets/times, events, truncation).
+* :func:`read_source` / :func:`load_telemetry` also accept a raw byte dump (``cat /dev/ttyUSB0 > log.bin``) or a
+  text-mode log, detected by content; bad input raises :class:`~steval_link.errors.UserError` with one sentence.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import threading
+import time
+import warnings
+import zlib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from steval_link.errors import UserError
+
+__all__ = [
+    "MAGIC",
+    "Capture",
+    "CaptureEvent",
+    "CaptureTruncatedWarning",
+    "CaptureWriter",
+    "Source",
+    "demo_capture_path",
+    "load_telemetry",
+    "read_capture",
+    "read_source",
+]
+
+#: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
+MAGIC = b"\x89STV\r\n\x1a\n"
+FORMAT_VERSION = 1
+CHUNK_DATA = ord("D")
+CHUNK_EVENT = ord("E")
+_HEADER_LEN = struct.Struct("<I")
+_CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
+_CRC = struct.Struct("<I")
+#: Largest chunk payload the reader accepts (the writer splits larger writes).
+MAX_CHUNK = 1 << 20
+MAX_HEADER = 1 << 20
+#: Longest time between two fsyncs while data is pending, s.
+SYNC_INTERVAL_S = 1.0
+
+
+class CaptureTruncatedWarning(UserWarning):
+    """The capture ends in an incomplete or damaged chunk (recording cut short); data before it is intact."""
+
+
+@dataclass(frozen=True, slots=True)
+class CaptureEvent:
+    """A marked event of the recording (``kind`` e.g. "disconnect", "reconnect"), at host time ``t_host_s`` (s since
+    capture start) and stream byte ``offset`` (bytes recorded before it)."""
+
+    t_host_s: float
+    kind: str
+    text: str
+    offset: int
+
+
+@dataclass
+class Capture:
+    """A capture file read back: ``data`` is every received byte in order; chunk ``i`` starts at stream offset
+    ``chunk_offsets[i]`` and was received at ``chunk_times_s[i]`` (s since capture start)."""
+
+    path: Path
+    header: dict[str, Any]
+    data: bytes
+    chunk_offsets: np.ndarray
+    chunk_times_s: np.ndarray
+    events: list[CaptureEvent]
+    truncated: bool = False
+    warning: str | None = None
+
+
+def _chunk(kind: int, payload: bytes, t_host_s: float) -> bytes:
+    head = _CHUNK_HEAD.pack(kind, len(payload), t_host_s)
+    return head + payload + _CRC.pack(zlib.crc32(payload, zlib.crc32(head)))
+
+
+class CaptureWriter:
+    """Append-only ``.stv`` writer; use as a context manager.
+
+    ``write(data, t_host_s)`` stores one received chunk (``t_host_s``: host time when it was received, s since
+    the capture started; default: now on ``time.monotonic``). ``mark_event(kind, text)`` stores an event (e.g.
+    "disconnect"/"reconnect"). Every chunk is handed to the OS immediately (nothing is lost on ``kill -9``); a
+    background thread ``fsync``\\s pending data at least every :data:`SYNC_INTERVAL_S` (power cuts). An existing
+    file is never overwritten (``FileExistsError``).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        port: str,
+        baud: int,
+        tool_version: str | None = None,
+        extra: dict[str, Any] | None = None,
+        sync_interval_s: float = SYNC_INTERVAL_S,
+    ) -> None:
+        if tool_version is None:
+            from steval_link import __version__ as tool_version
+        self.path = Path(path)
+        self._t0 = time.monotonic()
+        now = time.time()
+        self.header: dict[str, Any] = {
+            "format": "steval-capture",
+            "format_version": FORMAT_VERSION,
+            "port": port,
+            "baud": int(baud),
+            "start_time_utc": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="microseconds"),
+            "start_time_unix_s": now,
+            "tool_version": tool_version,
+            "extra": dict(extra or {}),
+        }
+        head = json.dumps(self.header, sort_keys=True).encode("utf-8")
+        self._file = open(self.path, "xb", buffering=0)
+        self._lock = threading.Lock()
+        self._dirty = False
+        self._closed = False
+        self.bytes_written = 0  #: raw serial bytes stored so far
+        self._write_all(MAGIC + _HEADER_LEN.pack(len(head)) + head + _CRC.pack(zlib.crc32(head)))
+        self._sync()
+        self._stop = threading.Event()
+        self._interval = float(sync_interval_s)
+        self._thread = threading.Thread(target=self._sync_loop, name="stv-fsync", daemon=True)
+        self._thread.start()
+
+    # -- public ------------------------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Seconds since the capture started (the time base of ``t_host_s``)."""
+        return time.monotonic() - self._t0
+
+    def write(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
+        """Store one chunk of received bytes (``t_host_s``: when it was received, s since capture start)."""
+        if not data:
+            return
+        t = self.now() if t_host_s is None else float(t_host_s)
+        data = bytes(data)
+        with self._lock:
+            self._check_open()
+            for i in range(0, len(data), MAX_CHUNK):
+                self._write_all(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], t))
+            self.bytes_written += len(data)
+            self._dirty = True
+
+    def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
+        """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
+        t = self.now() if t_host_s is None else float(t_host_s)
+        with self._lock:
+            self._check_open()
+            payload = json.dumps({"kind": str(kind), "text": str(text), "offset": self.bytes_written}).encode()
+            self._write_all(_chunk(CHUNK_EVENT, payload, t))
+            self._dirty = True
+
+    def flush(self) -> None:
+        """Force everything written so far to disk (``fsync``)."""
+        with self._lock:
+            if not self._closed:
+                self._sync()
+
+    def close(self) -> None:
+        """Flush and close (idempotent)."""
+        if self._closed:
+            return
+        self._stop.set()
+        self._thread.join()
+        with self._lock:
+            self._sync()
+            self._closed = True
+            self._file.close()
+
+    def __enter__(self) -> CaptureWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError("write to a closed CaptureWriter")
+
+    def _write_all(self, b: bytes) -> None:
+        view = memoryview(b)
+        while view:
+            n = self._file.write(view)
+            view = view[n:]
+
+    def _sync(self) -> None:
+        os.fsync(self._file.fileno())
+        self._dirty = False
+
+    def _sync_loop(self) -> None:
+        while not self._stop.wait(self._interval):
+            with self._lock:
+                if self._dirty and not self._closed:
+                    self._sync()
+
+
+def _read_bytes(path: Path) -> bytes:
+    if not path.exists():
+        raise UserError(f"{path}: no such file.")
+    if path.is_dir():
+        raise UserError(f"{path} is a directory, not a capture file.")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise UserError(f"cannot read {path}: {exc.strerror or exc}.") from None
+
+
+def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Capture:
+    """Read a ``.stv`` file. A file cut short (or damaged) reads up to its last complete chunk: ``truncated`` is
+    set, ``warning`` says where, and a :class:`CaptureTruncatedWarning` is issued. Raises
+    :class:`~steval_link.errors.UserError` when the file is missing, unreadable or not a capture."""
+    path = Path(path)
+    raw = _read_bytes(path) if data is None else data
+    if not raw.startswith(MAGIC):
+        raise UserError(f"{path} is not a steval capture (.stv) file.")
+    mv = memoryview(raw)
+    pos = len(MAGIC)
+    try:
+        (hlen,) = _HEADER_LEN.unpack_from(raw, pos)
+        if hlen > MAX_HEADER or pos + 4 + hlen + 4 > len(raw):
+            raise ValueError
+        head = raw[pos + 4 : pos + 4 + hlen]
+        (crc,) = _CRC.unpack_from(raw, pos + 4 + hlen)
+        if zlib.crc32(head) != crc:
+            raise ValueError
+        header = json.loads(head.decode("utf-8"))
+        if not isinstance(header, dict):
+            raise ValueError
+    except (ValueError, struct.error, UnicodeDecodeError):
+        raise UserError(f"{path}: the capture header is damaged or incomplete.") from None
+    if int(header.get("format_version", 0)) > FORMAT_VERSION:
+        raise UserError(
+            f"{path} uses capture format {header.get('format_version')}; this steval-link reads up to "
+            f"{FORMAT_VERSION} (please upgrade)."
+        )
+    pos += 4 + hlen + 4
+    pieces: list[memoryview] = []
+    offsets: list[int] = []
+    times: list[float] = []
+    events: list[CaptureEvent] = []
+    total = 0
+    n = len(raw)
+    warning = None
+    head_size = _CHUNK_HEAD.size
+    unpack_head = _CHUNK_HEAD.unpack_from
+    unpack_crc = _CRC.unpack_from
+    crc32 = zlib.crc32
+    while pos < n:
+        bad = None
+        if pos + head_size > n:
+            bad = "incomplete chunk header"
+        else:
+            kind, length, t = unpack_head(raw, pos)
+            end = pos + head_size + length
+            if kind not in (CHUNK_DATA, CHUNK_EVENT) or length > MAX_CHUNK:
+                bad = "damaged chunk header"
+            elif end + 4 > n:
+                bad = "incomplete chunk"
+            elif crc32(mv[pos:end]) != unpack_crc(raw, end)[0]:
+                bad = "chunk CRC mismatch"
+        if bad is not None:
+            warning = (
+                f"{path}: capture cut short or damaged at file byte {pos} ({bad}); read {total} bytes of "
+                f"serial data up to the last complete chunk, {n - pos} trailing bytes ignored."
+            )
+            break
+        payload = mv[pos + head_size : end]
+        if kind == CHUNK_DATA:
+            offsets.append(total)
+            times.append(t)
+            pieces.append(payload)
+            total += length
+        else:
+            try:
+                ev = json.loads(bytes(payload).decode("utf-8"))
+                events.append(CaptureEvent(t, str(ev.get("kind", "")), str(ev.get("text", "")), total))
+            except (ValueError, UnicodeDecodeError, AttributeError):
+                events.append(CaptureEvent(t, "unreadable-event", "", total))
+        pos = end + 4
+    if warning is not None:
+        warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
+    return Capture(
+        path=path,
+        header=header,
+        data=b"".join(pieces),
+        chunk_offsets=np.asarray(offsets, dtype=np.int64),
+        chunk_times_s=np.asarray(times, dtype=np.float64),
+        events=events,
+        truncated=warning is not None,
+        warning=warning,
+    )
+
+
+@dataclass
+class Source:
+    """The bytes of a capture, raw dump or text log, with whatever timing the file holds.
+
+    ``kind``: "stv" (capture file), or "bytes" until decoding tells "raw" (binary dump) from "text" (text-mode log).
+    """
+
+    path: Path
+    kind: str
+    data: bytes
+    header: dict[str, Any] = field(default_factory=dict)
+    chunk_offsets: np.ndarray | None = None
+    chunk_times_s: np.ndarray | None = None
+    events: list[CaptureEvent] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_source(path: str | os.PathLike) -> Source:
+    """The bytes of ``path``: a ``.stv`` capture (by its magic, whatever the extension) or any other file as raw
+    serial bytes. Raises :class:`~steval_link.errors.UserError` for a missing, unreadable or empty file."""
+    path = Path(path)
+    raw = _read_bytes(path)
+    if not raw:
+        raise UserError(f"{path} is empty.")
+    if raw.startswith(MAGIC) or (path.suffix.lower() == ".stv" and MAGIC.startswith(raw[: len(MAGIC)])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CaptureTruncatedWarning)
+            cap = read_capture(path, data=raw)
+        return Source(
+            path=path,
+            kind="stv",
+            data=cap.data,
+            header=cap.header,
+            chunk_offsets=cap.chunk_offsets,
+            chunk_times_s=cap.chunk_times_s,
+            events=cap.events,
+            warnings=[cap.warning] if cap.warning else [],
+        )
+    return Source(path=path, kind="bytes", data=raw)
+
+
+def load_telemetry(path: str | os.PathLike):
+    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.telemetry.Telemetry`.
+
+    The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
+    truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
+    Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
+    damaged capture header, or a file in which no frame is found.
+    """
+    from steval_link.decoder import decode_bytes
+
+    src = read_source(path)
+    for w in src.warnings:
+        warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
+    return telemetry_of_source(src)
+
+
+def telemetry_of_source(src: Source):
+    """Decode a :class:`Source` (see :func:`load_telemetry`)."""
+    from steval_link.decoder import decode_bytes
+
+    if src.kind == "stv" and not src.data:
+        raise UserError(f"{src.path} is an empty capture (no bytes were received).")
+    chunk_times = None
+    if src.chunk_offsets is not None and src.chunk_times_s is not None:
+        chunk_times = (src.chunk_offsets, src.chunk_times_s)
+    baud = src.header.get("baud") if src.header else None
+    source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
+    tel = decode_bytes(src.data, chunk_times, baud=baud, source=source, events=src.events)
+    a = tel.attitude
+    if src.kind != "stv":
+        if len(a) + len(tel.status) == 0:
+            raise UserError(
+                f"{src.path} is not a steval capture, raw serial dump or text-mode log (no frames found in "
+                f"{len(src.data)} bytes)."
+            )
+        binary = int(a.exact.sum()) + int(tel.status.exact.sum())
+        tel.source["kind"] = "raw" if binary else "text"
+    elif tel.stats.frames_ok == 0:
+        raise UserError(
+            f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "
+            f"firmware?)."
+        )
+    return tel
+
+
+def demo_capture_path() -> Path:
+    """The bundled demo recording (``recordings/demo.stv``), in a source tree / editable install or as installed
+    package data; raises :class:`~steval_link.errors.UserError` when it cannot be found."""
+    here = Path(__file__).resolve().parent
+    candidates = [here.parent / "recordings" / "demo.stv", here / "recordings" / "demo.stv"]
+    try:
+        from importlib.resources import files
+
+        candidates.append(Path(str(files("steval_link.recordings") / "demo.stv")))
+    except (ImportError, ModuleNotFoundError, TypeError, ValueError):
+        pass
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise UserError("the demo recording (recordings/demo.stv) is not installed; pass a capture file.")

@@ -1,0 +1,181 @@
+"""Summary of a :class:`~steval_link.telemetry.Telemetry` as a plain dict (for ``--json``) and as text lines."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from steval_link import protocol as P
+
+__all__ = ["summarize", "format_summary"]
+
+_FLAG_NAMES = {
+    P.FLAG_NO_CORRECTION: "no-correction",
+    P.FLAG_FRESH_SQUARES: "fresh-squares",
+    P.FLAG_TEXT_MODE: "text-mode",
+}
+
+
+def _num(x) -> float | None:
+    """A JSON-friendly float (None for NaN)."""
+    x = float(x)
+    return None if np.isnan(x) else x
+
+
+def _fw_duration_s(t_fw_s: np.ndarray, restarts_at: np.ndarray) -> float:
+    """Sum of firmware-time spans of the stretches between firmware restarts."""
+    if len(t_fw_s) < 2:
+        return 0.0
+    seg = np.concatenate([[0], np.cumsum(restarts_at)])
+    total = 0.0
+    for s in np.unique(seg):
+        t = t_fw_s[seg == s]
+        total += float(t[-1] - t[0])
+    return total
+
+
+def summarize(tel) -> dict[str, Any]:
+    """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
+
+    ``duration_s`` is firmware time covered by the attitude rows (host time when there is none), ``rate_hz`` the
+    attitude frames per second over it, ``step_rate_hz`` the AHRS steps per second (161.5 on the drone; in text
+    mode rows are decimated so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in
+    ``seq_gaps`` gaps (binary stream), ``drop_ratio`` = missing / (received + missing); ``tx_dropped`` is the
+    firmware's own count of frames its TX queue could not take (last status frame).
+    """
+    a, s, st = tel.attitude, tel.status, tel.stats
+    n = len(a)
+    src = tel.source or {}
+    header = src.get("header") or {}
+    binary = a.exact
+    restarts = np.zeros(max(n - 1, 0), bool)
+    if n > 1:
+        d = np.diff(a.step)
+        restarts = d <= 0
+    duration = _fw_duration_s(a.t_fw_s, restarts) if n > 1 else 0.0
+    host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
+    host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
+    if duration <= 0 and host_duration:
+        duration = host_duration
+    steps = float(np.sum(np.where(restarts, 0, np.diff(a.step)))) if n > 1 else 0.0
+    out: dict[str, Any] = {
+        "source": {
+            "path": src.get("path"),
+            "kind": src.get("kind"),
+            "port": header.get("port"),
+            "baud": header.get("baud"),
+            "start_time_utc": header.get("start_time_utc"),
+            "tool_version": header.get("tool_version"),
+        },
+        "frames": {
+            "attitude": n,
+            "attitude_binary": int(binary.sum()),
+            "attitude_text_mode": int(n - binary.sum()),
+            "status": len(s),
+            "text": len(tel.text),
+        },
+        "duration_s": duration,
+        "host_duration_s": host_duration,
+        "rate_hz": (n - 1) / duration if duration > 0 and n > 1 else None,
+        "step_rate_hz": steps / duration if duration > 0 and steps > 0 else None,
+        "first_step": int(a.step[0]) if n else None,
+        "last_step": int(a.step[-1]) if n else None,
+        "drops": {
+            "seq_gaps": st.seq_gaps,
+            "frames_missing": st.frames_missing,
+            "drop_ratio": st.frames_missing / (int(binary.sum()) + st.frames_missing)
+            if (binary.any() or st.frames_missing)
+            else 0.0,
+            "seq_resets": st.seq_resets,
+            "tx_dropped": int(s.tx_dropped[-1]) if len(s) else None,
+        },
+        "crc_failures": st.crc_failures,
+        "bytes_skipped": st.bytes_skipped,
+        "bytes_total": st.bytes_total,
+        "unknown_frames": st.unknown_frames,
+        "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
+        "warnings": list(src.get("warnings") or []),
+        "text_lines": [t for _, t in tel.text[:20]],
+        "filter": None,
+    }
+    if len(s):
+        i = len(s) - 1
+        flags = int(s.flags[i])
+        cpu = int(s.cpu_hz[i])
+        cyc_mean = int(s.cyc_mean[i])
+        out["filter"] = {
+            "from_step": int(s.step[i]),
+            "kp_ground": _num(s.kp_ground[i]),
+            "kp_flight": _num(s.kp_flight[i]),
+            "ki": _num(s.ki[i]),
+            "dt_s": _num(s.dt_s[i]),
+            "min_thr": int(s.min_thr[i]) if s.exact[i] else None,
+            "flags": flags,
+            "flag_names": [name for bit, name in _FLAG_NAMES.items() if flags & bit],
+            "fw_version": ".".join(str(int(v)) for v in s.fw_version[i]) if s.exact[i] else None,
+            "link_baud": int(s.baud[i]) if s.exact[i] else None,
+            "ahrs_cycles_mean": cyc_mean,
+            "ahrs_time_mean_us": cyc_mean / cpu * 1e6 if cpu else None,
+            "ahrs_cycles_max": int(s.cyc_max[i]),
+            "queue_peak_bytes": int(s.queue_peak[i]) if s.exact[i] else None,
+        }
+    return out
+
+
+def format_summary(summary: dict[str, Any]) -> list[str]:
+    """Human-readable lines of a :func:`summarize` dict."""
+    s = summary
+    src = s["source"]
+    f = s["frames"]
+    d = s["drops"]
+    lines = [f"source: {src['path']} ({src['kind']})"]
+    if src.get("port") or src.get("start_time_utc"):
+        lines.append(
+            f"  recorded from {src.get('port')} at {src.get('baud')} baud, start {src.get('start_time_utc')}, "
+            f"steval-link {src.get('tool_version')}"
+        )
+    kinds = f"{f['attitude_binary']} binary"
+    if f["attitude_text_mode"]:
+        kinds += f", {f['attitude_text_mode']} text-mode"
+    lines.append(f"frames: {f['attitude']} attitude ({kinds}), {f['status']} status, {f['text']} text")
+    rate = f"{s['rate_hz']:.2f} Hz" if s["rate_hz"] else "n/a"
+    step_rate = f", AHRS steps at {s['step_rate_hz']:.2f} Hz" if s["step_rate_hz"] else ""
+    lines.append(f"duration: {s['duration_s']:.3f} s, attitude rate {rate}{step_rate}")
+    if s["first_step"] is not None:
+        lines.append(f"steps: {s['first_step']} .. {s['last_step']}")
+    tx = "" if d["tx_dropped"] is None else f", firmware TX queue dropped {d['tx_dropped']}"
+    lines.append(
+        f"drops: {d['frames_missing']} frames missing in {d['seq_gaps']} gaps ({100 * d['drop_ratio']:.3f} %)"
+        f"{tx}" + (f", {d['seq_resets']} firmware restarts" if d["seq_resets"] else "")
+    )
+    lines.append(
+        f"link: {s['crc_failures']} CRC failures, {s['bytes_skipped']} of {s['bytes_total']} bytes skipped"
+        + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
+    )
+    flt = s.get("filter")
+    if flt:
+
+        def g(x):
+            return "n/a" if x is None else f"{x:g}"
+
+        lines.append(
+            f"filter (status at step {flt['from_step']}): kp_ground {g(flt['kp_ground'])}, kp_flight "
+            f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {g(flt['dt_s'])} s, min_thr {flt['min_thr']}, "
+            f"flags {flt['flags']}" + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
+        )
+        if flt["ahrs_time_mean_us"] is not None:
+            lines.append(
+                f"firmware: version {flt['fw_version']}, AHRS step {flt['ahrs_time_mean_us']:.1f} µs mean "
+                f"({flt['ahrs_cycles_mean']} cycles, max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
+            )
+    for e in s["events"]:
+        lines.append(f"event at {e['t_host_s']:.3f} s: {e['kind']}" + (f" ({e['text']})" if e["text"] else ""))
+    if f["text"]:
+        lines.append(f"text lines ({f['text']}):")
+        lines.extend(f"  | {t}" for t in s["text_lines"])
+        if f["text"] > len(s["text_lines"]):
+            lines.append(f"  | ... {f['text'] - len(s['text_lines'])} more")
+    for w in s["warnings"]:
+        lines.append(f"warning: {w}")
+    return lines
