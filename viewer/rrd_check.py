@@ -44,11 +44,14 @@ def read_rrd(path: str | Path) -> RrdInfo:
             info.static.add(entity)
             continue
         info.timelines.update(chunk.timeline_names)
-        names = [f.name for f in chunk.to_record_batch().schema if ":" in f.name]
-        if names and all(n.startswith("Clear:") for n in names):
+        rb = chunk.to_record_batch()
+        names = [f.name for f in rb.schema if ":" in f.name]
+        data = [n for n in names if not n.startswith("Clear:")]
+        if names and not data:
             clears[entity] += chunk.num_rows
-        elif names:
-            samples[entity] += chunk.num_rows
+        elif data:
+            # rows with a value in at least one data column (a live batch leaves gaps as null rows)
+            samples[entity] += max(rb.num_rows - rb.column(n).null_count for n in data)
     info.samples = dict(samples)
     info.clears = dict(clears)
     return info

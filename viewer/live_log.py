@@ -1,0 +1,341 @@
+"""Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
+
+The live session (``steval_link.live``) decodes the serial bytes and calls, in arrival order::
+
+    logger = LiveLogger(session.rec, estimator_names=["st-mahony", "accel", "ekf3"])
+    logger.log_batch(batch)              # an AttitudeBatch: arrays of N frames + their estimates
+    logger.log_status(frame, t_host_s)   # a StatusFrame
+    logger.log_text(frame, t_host_s)     # a TextFrame
+    logger.log_link(stats, t_host_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
+    logger.close()
+
+Nothing is held back: every call sends its rows with one ``send_columns`` per entity before it returns (the
+per-call cost is per entity, not per sample, so a batch of 1 or of 50 frames costs about the same). The entity
+layout is the replay's (:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on
+``host_time``). ``host_time`` is seconds since the first logged frame (Unix-epoch inputs are converted);
+``fw_time`` is the firmware's ``t_us`` unwrapped across its 2³² µs wrap.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import rerun as rr
+
+from steval_link.estimators.st_mahony import quaternion_to_euler
+from steval_link.protocol import SEQ_MODULUS, T_US_MODULUS
+from steval_viewer import blueprint as bp
+from steval_viewer import entities as ent
+from steval_viewer import scene
+from steval_viewer.columns import Times, send_scalars
+
+#: The live path logs link counters (CRC failures) at most this often, s.
+LINK_INTERVAL_S = 0.5
+
+#: Estimator names of the live session that mean the bit-exact firmware port.
+PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
+
+
+def live_source(name: str) -> str:
+    """Entity segment of a live estimate name (the seeded ST port -> ``st_mahony_port``, as in replays)."""
+    return ent.SOURCE_PORT if name in PORT_NAMES else ent.source_name(name)
+
+
+class TimeUnwrapper:
+    """Firmware seconds since boot from ``t_us`` (u32 µs, wraps every 71.6 min), across calls."""
+
+    def __init__(self) -> None:
+        self.wraps = 0
+        self.last: int | None = None
+
+    def seconds(self, t_us: np.ndarray) -> np.ndarray:
+        """(N,) float64 seconds of these ``t_us`` values, in order."""
+        raw = np.asarray(t_us, dtype=np.int64) % T_US_MODULUS
+        out = np.empty(raw.shape[0], dtype=np.float64)
+        for i, v in enumerate(raw.tolist()):
+            if self.last is not None and v < self.last and self.last - v > T_US_MODULUS // 2:
+                self.wraps += 1
+            self.last = v
+            out[i] = (v + self.wraps * T_US_MODULUS) / 1e6
+        return out
+
+
+_SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
+_QUAT = ("Transform3D:quaternion", "rerun.archetypes.Transform3D", "rerun.components.RotationQuat")
+_VEC = ("Arrows3D:vectors", "rerun.archetypes.Arrows3D", "rerun.components.Vector3D")
+
+
+_FIELDS: dict = {}
+_OFFSETS: dict = {}
+
+
+def _field(pa, path: str, kind: tuple[str, str, str], typ):
+    """The Arrow field of ``path``'s component (cached: same path, same type)."""
+    key = (path, kind[0], str(typ))
+    f = _FIELDS.get(key)
+    if f is None:
+        comp, arch, ctype = kind
+        md = {
+            b"rerun:kind": b"data",
+            b"rerun:entity_path": ("/" + path).encode(),
+            b"rerun:component": comp.encode(),
+            b"rerun:archetype": arch.encode(),
+            b"rerun:component_type": ctype.encode(),
+        }
+        f = pa.field(f"/{path}:{comp}", typ, metadata=md)
+        _FIELDS[key] = f
+    return f
+
+
+class RowBatch:
+    """One Arrow record batch holding many entities' columns for the same N rows: sent with a single
+    ``send_record_batch`` call (Rerun splits it into one chunk per entity). A row whose value is not finite is a
+    null (no sample) in that entity's column; a ``Clear`` is sent when an entity turns bad, so plots show a gap.
+    """
+
+    def __init__(self, times: Times, bad_state: dict[str, bool]) -> None:
+        import pyarrow as pa
+
+        self._pa = pa
+        self.times = times
+        self.n = len(times)
+        self.fields: list = []
+        self.arrays: list = []
+        self.bad_state = bad_state
+        self.clear_rows: dict[str, np.ndarray] = {}
+        self._offsets = None
+
+    def _index(self) -> None:
+        pa = self._pa
+        t = self.times
+        cols = [(ent.TIMELINE_FW, pa.duration("ns"), np.round(t.t_fw_s * 1e9).astype(np.int64))]
+        if t.host_complete():
+            cols.append((ent.TIMELINE_HOST, pa.duration("ns"), np.round(t.t_host_s * 1e9).astype(np.int64)))
+        if t.step is not None:
+            cols.append((ent.TIMELINE_STEP, pa.int64(), t.step))
+        for name, typ, values in cols:
+            md = {b"rerun:kind": b"index", b"rerun:index_name": name.encode()}
+            self.fields.insert(0, pa.field(name, typ, metadata=md))
+            self.arrays.insert(0, pa.array(values, type=typ))
+
+    def _add(self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray) -> None:
+        pa = self._pa
+        n = self.n
+        if kind is _SCALAR:
+            inner = pa.array(values.reshape(-1).astype(np.float64, copy=False))
+            step = width
+        else:
+            inner = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width)
+            step = 1
+        offsets = self._offsets_for(n, step)
+        mask = None if good.all() else pa.array(~good)
+        arr = pa.ListArray.from_arrays(offsets, inner, mask=mask)
+        self.fields.append(_field(pa, path, kind, arr.type))
+        self.arrays.append(arr)
+        # gaps: a Clear at each row where the entity turns bad (state carried across batches)
+        was_bad = self.bad_state.get(path, False)
+        bad = ~good
+        prev = np.concatenate(([was_bad], bad[:-1]))
+        starts = np.flatnonzero(bad & ~prev)
+        if starts.size:
+            self.clear_rows[path] = starts
+        self.bad_state[path] = bool(bad[-1])
+
+    def _offsets_for(self, n: int, step: int):
+        key = (n, step)
+        off = _OFFSETS.get(key)
+        if off is None:
+            off = self._pa.array(np.arange(0, n * step + 1, step, dtype=np.int32))
+            if len(_OFFSETS) < 256:
+                _OFFSETS[key] = off
+        return off
+
+    def scalars(self, path: str, values: np.ndarray) -> None:
+        v = np.asarray(values, dtype=np.float64)
+        v2 = v.reshape(self.n, -1)
+        good = np.isfinite(v2).all(axis=1)
+        if not good.all():
+            v2 = np.where(good[:, None], v2, 0.0)
+        self._add(path, _SCALAR, v2, v2.shape[1], good)
+
+    def quaternions(self, path: str, q_wxyz: np.ndarray) -> None:
+        q = np.asarray(q_wxyz, dtype=np.float64).reshape(self.n, 4)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm = np.sqrt((q * q).sum(axis=1))
+            good = np.isfinite(norm) & (norm > 1e-6)
+            xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
+        self._add(path, _QUAT, xyzw, 4, good)
+        self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
+
+    def vectors(self, path: str, v: np.ndarray) -> None:
+        v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
+        good = np.isfinite(v).all(axis=1)
+        self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good)
+        self.bad_state[path] = False
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        if not self.arrays:
+            return
+        self._index()
+        pa = self._pa
+        rec.send_record_batch(pa.RecordBatch.from_arrays(self.arrays, schema=pa.schema(self.fields)))
+        for path, rows in self.clear_rows.items():
+            if path.startswith(ent.PLOTS + "/") or path.startswith(ent.LINK + "/"):
+                sub = self.times.take(rows)
+                rec.send_columns(path, indexes=sub.indexes(), columns=rr.Clear.columns(is_recursive=[False] * len(rows)))
+
+
+class LiveLogger:
+    """Logs a live session to a RecordingStream, batch by batch.
+
+    ``rec``: the recording (``sinks.open_session(...).rec``). ``estimator_names``: the names the session will put
+    in ``batch.estimates`` (known up front so the blueprint and the series styles are sent once). ``ghost``: which
+    estimate the 3D ghost shows (default: the ST port, else EKF3...). ``t0_host_s``: host time origin (default:
+    the first frame's host time).
+    """
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        estimator_names: Iterable[str] = (),
+        *,
+        ghost: str | None = None,
+        t0_host_s: float | None = None,
+        blueprint: bool = True,
+    ) -> None:
+        self.rec = rec
+        self.sources = {name: live_source(name) for name in estimator_names}
+        segs = list(dict.fromkeys(self.sources.values()))
+        if blueprint:
+            bp.send_blueprint(
+                rec, live=True, ghost_sources=segs, ghost=None if ghost is None else live_source(ghost)
+            )
+        scene.log_static(rec, segs, with_port=ent.SOURCE_PORT in segs)
+        self.t0_host_s = t0_host_s
+        self.fw_clock = TimeUnwrapper()
+        self.frames = 0
+        self.frames_missing = 0
+        self._last_step: int | None = None
+        self._bin_start: float | None = None  # host s of the current 1 s frame-rate bin
+        self._bin_count = 0
+        self._last_link_s = -math.inf
+        self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
+        self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
+
+    # -- time ------------------------------------------------------------------------------------------------
+    def _host(self, t_host_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_host_s, dtype=np.float64)
+        if self.t0_host_s is None:
+            finite = t[np.isfinite(t)]
+            if finite.size:
+                self.t0_host_s = float(finite[0])
+        return t - (self.t0_host_s if self.t0_host_s is not None else 0.0)
+
+    def _scalar_times(self, t_host_s: float) -> Times | None:
+        """Times for an event at host time ``t_host_s``: fw time estimated from the latest frame."""
+        host = float(self._host(np.array([t_host_s]))[0])
+        if self._last_times is None:
+            return None
+        fw_last, host_last = self._last_times
+        return Times(np.array([fw_last + max(0.0, host - host_last)]), np.array([host]))
+
+    # -- frames ----------------------------------------------------------------------------------------------
+    def log_batch(self, batch: Any) -> None:
+        """Log N attitude frames that arrived together (an ``AttitudeBatch``: ``step``, ``t_us``, ``t_host_s``,
+        ``acc_mg``, ``gyro_mdps``, ``q_wxyz``, ``thz_rad``, ``thr``, ``estimates`` name -> (N, 4) q_wxyz with NaN
+        where undefined). Non-finite values are gaps, never plotted."""
+        n = len(batch.step)
+        if n == 0:
+            return
+        rec = self.rec
+        step = np.asarray(batch.step, dtype=np.int64)
+        times = Times(self.fw_clock.seconds(batch.t_us), self._host(batch.t_host_s), step)
+        q = np.asarray(batch.q_wxyz, dtype=np.float32)
+        thx, thy = quaternion_to_euler(q)
+        acc = np.asarray(batch.acc_mg, dtype=np.float64)
+
+        rb = RowBatch(times, self._bad)
+        rb.quaternions(ent.DRONE_FIRMWARE, q)
+        rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0)
+        rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))
+        rb.scalars(ent.roll_path(ent.SOURCE_FIRMWARE), np.degrees(thy.astype(np.float64)))
+        rb.scalars(ent.yaw_path(ent.SOURCE_FIRMWARE), np.degrees(np.asarray(batch.thz_rad, np.float64)))
+        rb.scalars(ent.PLOT_ACC, acc)
+        rb.scalars(ent.PLOT_GYRO, np.asarray(batch.gyro_mdps, dtype=np.float64) / 1000.0)
+        rb.scalars(ent.PLOT_THROTTLE, np.asarray(batch.thr, dtype=np.float64))
+
+        estimates: Mapping[str, np.ndarray] = getattr(batch, "estimates", None) or {}
+        for name, eq in estimates.items():
+            source = self.sources.get(name) or live_source(name)
+            eq = np.asarray(eq).reshape(n, 4)
+            ex, ey = quaternion_to_euler(eq.astype(np.float32))
+            rb.quaternions(ent.estimate_path(source), eq)
+            rb.scalars(ent.pitch_path(source), np.degrees(ex.astype(np.float64)))
+            rb.scalars(ent.roll_path(source), np.degrees(ey.astype(np.float64)))
+            if source == ent.SOURCE_PORT:
+                rb.scalars(ent.DIFF_THX, np.degrees(thx.astype(np.float64) - ex))
+                rb.scalars(ent.DIFF_THY, np.degrees(thy.astype(np.float64) - ey))
+        rb.send(rec)
+
+        self._link_from_frames(times, step)
+        self.frames += n
+        self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
+
+    def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
+        """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
+        prev = self._last_step
+        steps = step if prev is None else np.concatenate(([prev], step))
+        gaps = np.clip(np.diff(steps) - 1, 0, None)
+        self.frames_missing += int(gaps[(gaps < SEQ_MODULUS)].sum())  # a firmware restart is not a loss
+        self._last_step = int(step[-1])
+        host = times.t_host_s if times.t_host_s is not None else times.t_fw_s
+        for i, h in enumerate(host.tolist()):
+            if self._bin_start is None:
+                self._bin_start = h
+            if h - self._bin_start >= 1.0:
+                t = times.take(np.array([i]))
+                send_scalars(self.rec, ent.LINK_RATE, t, np.array([self._bin_count / (h - self._bin_start)]))
+                send_scalars(self.rec, ent.LINK_MISSING, t, np.array([float(self.frames_missing)]))
+                self._bin_start = h
+                self._bin_count = 0
+            self._bin_count += 1
+
+    def log_status(self, frame: Any, t_host_s: float) -> None:
+        """A status frame: AHRS cycles (min/mean/max), firmware TX drops and queue peak."""
+        times = self._scalar_times(t_host_s)
+        if times is None:
+            return
+        if int(getattr(frame, "cyc_n", 0) or 0) > 0:
+            cyc = np.array([[frame.cyc_min, frame.cyc_mean, frame.cyc_max]], dtype=np.float64)
+            send_scalars(self.rec, ent.LINK_CYCLES, times, cyc)
+        send_scalars(self.rec, ent.LINK_TX_DROPPED, times, np.array([float(frame.tx_dropped)]))
+        send_scalars(self.rec, ent.LINK_QUEUE, times, np.array([float(getattr(frame, "queue_peak", 0))]))
+
+    def log_text(self, frame: Any, t_host_s: float) -> None:
+        """A firmware text line (TextFrame or str)."""
+        text = frame if isinstance(frame, str) else frame.text
+        host = float(self._host(np.array([t_host_s]))[0]) if t_host_s is not None else math.nan
+        self.rec.reset_time()
+        if math.isfinite(host):
+            self.rec.set_time(ent.TIMELINE_HOST, duration=host)
+        times = self._scalar_times(t_host_s) if math.isfinite(host) else None
+        if times is not None:
+            self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
+        self.rec.log(ent.LOG_FIRMWARE, rr.TextLog(text, level="INFO"))
+        self.rec.reset_time()
+
+    def log_link(self, stats: Any, t_host_s: float, *, force: bool = False) -> None:
+        """Decoder counters (``DecoderStats``): CRC failures, cumulative; at most every LINK_INTERVAL_S."""
+        if not force and t_host_s - self._last_link_s < LINK_INTERVAL_S:
+            return
+        times = self._scalar_times(t_host_s)
+        if times is None:
+            return
+        self._last_link_s = t_host_s
+        send_scalars(self.rec, ent.LINK_CRC, times, np.array([float(getattr(stats, "crc_failures", 0))]))
+
+    def close(self) -> None:
+        """Flush what was logged."""
+        self.rec.flush()
