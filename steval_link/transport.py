@@ -34,11 +34,12 @@ class HostClock:
 
     ``time.time()`` may jump (NTP, suspend); chunk times must not. The wall time is read once, at construction, and
     every later time is that plus the monotonic time elapsed since, so times are ordered and spaced correctly.
+    ``wall0_s`` sets that origin (e.g. a capture file's start time), else ``time.time()`` now.
     """
 
-    def __init__(self) -> None:
-        self.wall0_s = time.time()
+    def __init__(self, wall0_s: float | None = None) -> None:
         self.mono0_s = time.monotonic()
+        self.wall0_s = time.time() if wall0_s is None else float(wall0_s)
 
     def now_s(self) -> float:
         """Current host time, s since the Unix epoch (monotonic since construction)."""

@@ -9,6 +9,7 @@ from steval_link.errors import UserError
 
 # Each import registers its sub-command(s) on ``app``.
 from steval_link.cli import replay as _replay  # noqa: F401,E402
+from steval_link.cli import live as _live  # noqa: F401,E402
 from steval_link.cli import simulate as _simulate  # noqa: F401,E402
 from steval_link.cli import conformance as _conformance  # noqa: F401,E402
 

@@ -1,0 +1,109 @@
+"""``steval live`` (watch the drone: capture + estimators + Rerun) and ``steval record`` (capture only)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from steval_link import protocol
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+from steval_link.live import LiveOptions, LiveSession, resolve_estimators
+
+_PORT_HELP = "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), or 'auto': the one that carries frames."
+_BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
+_WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead of stopping with an error."
+
+
+def _check_baud(baud: int) -> None:
+    if baud <= 0:
+        raise UserError(f"--baud must be a positive baud rate, got {baud}")
+
+
+@app.command("live")
+def live_command(
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(protocol.DEFAULT_BAUD, "--baud", "-b", help=_BAUD_HELP),
+    out: Optional[Path] = typer.Option(
+        None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
+    ),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Also save the Rerun recording to this .rrd file."),
+    no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
+    spawn: bool = typer.Option(False, "--spawn", help="Start a native Rerun viewer (the default view)."),
+    serve: bool = typer.Option(False, "--serve", help="Serve the recording to a web viewer instead."),
+    connect: Optional[str] = typer.Option(None, "--connect", help="Send to a running Rerun viewer at this URL."),
+    estimators: Optional[str] = typer.Option(
+        None,
+        "--estimators",
+        "-e",
+        help="Host estimators next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf) or 'none'; "
+        "default: st-mahony,accel,ekf3 (those installed).",
+    ),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
+) -> None:
+    """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
+
+    The link health (frame rate, missing frames, CRC failures) is shown continuously on stderr; Ctrl-C stops,
+    closes the capture (and the .rrd) and prints a one-line summary. Unplugging the adapter is survived: the
+    session waits and resumes when the port comes back.
+    """
+    _check_baud(baud)
+    if sum([spawn, serve, connect is not None]) > 1:
+        raise UserError("choose one of --spawn, --serve and --connect")
+    if no_view and (spawn or serve or connect):
+        raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
+    if duration is not None and duration <= 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+    options = LiveOptions(
+        port=port,
+        baud=baud,
+        out=out,
+        rrd=rrd,
+        view=not no_view,
+        spawn=spawn,
+        serve=serve,
+        connect=connect,
+        estimators=resolve_estimators(estimators),
+        duration_s=duration,
+        wait=wait,
+    )
+    summary = LiveSession(options).run()
+    print(summary.line())
+    sys.stdout.flush()
+
+
+@app.command("record")
+def record_command(
+    port: str = typer.Option(..., "--port", "-p", help=_PORT_HELP),
+    out: Optional[Path] = typer.Option(
+        None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv."
+    ),
+    baud: int = typer.Option(protocol.DEFAULT_BAUD, "--baud", "-b", help=_BAUD_HELP),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
+) -> None:
+    """Record the raw stream to a capture file, no viewer (field use, scripts).
+
+    The stream is still decoded to show the link health and to stop with a clear message when the port carries no
+    valid frames (wrong baud rate, another device). Ctrl-C or --duration ends the recording.
+    """
+    _check_baud(baud)
+    if duration is not None and duration <= 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+    options = LiveOptions(
+        port=port,
+        baud=baud,
+        out=out,
+        rrd=None,
+        view=False,
+        estimators=[],
+        duration_s=duration,
+        wait=wait,
+    )
+    summary = LiveSession(options).run()
+    print(summary.line())
+    sys.stdout.flush()
