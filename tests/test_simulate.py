@@ -126,6 +126,7 @@ def test_other_estimators_by_name(monkeypatch, capsys):
     "args, message",
     [
         (["-e", "nope"], "unknown estimator"),
+        (["-n", "-1"], "--iterations"),
         (["-e", "accel", "--ki", "1"], "does not take"),
         (["--gyro-noise", "loud"], "--gyro-noise"),
         (["--acc-noise", "-3"], "--acc-noise"),

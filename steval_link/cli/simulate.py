@@ -178,7 +178,7 @@ def simulate_command(
     acc: tuple[float, float, float] = typer.Option(
         BASELINE_ACC_MG, "--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."
     ),
-    iterations: int = typer.Option(100, "--iterations", "-n", min=0, help="Number of AHRS steps."),
+    iterations: int = typer.Option(100, "--iterations", "-n", help="Number of AHRS steps (≥ 0)."),
     noise: bool = typer.Option(
         False, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
     ),
@@ -212,6 +212,8 @@ def simulate_command(
 ) -> None:
     """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
     estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
+    if iterations < 0:
+        raise UserError(f"--iterations must be ≥ 0, got {iterations}")
     if estimator not in registry.ESTIMATORS:
         raise UserError(f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}")
     if json_out and csv_out == "-":
