@@ -1,1 +1,131 @@
-"""``steval replay``: decode a capture and summarise it (placeholder until the link core lands)."""
+"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it.
+
+Replay is a pipeline, one stage per step of the data flow::
+
+    load_replay(path)             bytes → Telemetry            (capture.load_telemetry)
+    run_estimators(tel, names)    Telemetry → {name: AttitudeEstimate}   (estimators.registry)
+    sinks                         each ``sink(tel, estimates)``: summary printing, Rerun .rrd, ...
+
+:func:`replay_pipeline` runs them; ``steval replay`` builds the sink list from its options.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+from steval_link.capture import CaptureTruncatedWarning, demo_capture_path, load_telemetry
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+from steval_link.summary import format_summary, summarize
+
+__all__ = ["ReplayResult", "load_replay", "run_estimators", "replay_pipeline", "DEFAULT_ESTIMATORS"]
+
+#: Estimators a sink that shows attitudes (Rerun) runs by default: the firmware's filter port and the accel tilt.
+DEFAULT_ESTIMATORS: tuple[str, ...] = ("st-mahony", "accel")
+
+#: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
+Sink = Callable[[Any, dict[str, Any]], None]
+
+
+@dataclass
+class ReplayResult:
+    telemetry: Any
+    estimates: dict[str, Any] = field(default_factory=dict)
+
+
+def load_replay(path: Path | None) -> tuple[Any, list[str]]:
+    """Stage 1: the :class:`~steval_link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
+    warnings met while reading it (e.g. a capture cut short)."""
+    path = demo_capture_path() if path is None else Path(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CaptureTruncatedWarning)
+        tel = load_telemetry(path)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, CaptureTruncatedWarning)]
+    return tel, msgs
+
+
+def run_estimators(tel, names: Sequence[str]) -> dict[str, Any]:
+    """Stage 2: run each named estimator (``steval_link.estimators.registry``) over every attitude row's inputs
+    (``acc_mg``, ``gyro_mdps``, ``thr``); returns name → ``AttitudeEstimate``."""
+    if not names:
+        return {}
+    from steval_link.estimators.registry import create
+
+    a = tel.attitude
+    out = {}
+    for name in names:
+        est = create(name)
+        out[name] = est.run(a.acc_mg, a.gyro_mdps, a.thr)
+    return out
+
+
+def replay_pipeline(
+    path: Path | None, *, estimators: Sequence[str] = (), sinks: Sequence[Sink] = ()
+) -> ReplayResult:
+    """load → Telemetry → estimators → sinks."""
+    tel, _ = load_replay(path)
+    estimates = run_estimators(tel, estimators)
+    for sink in sinks:
+        sink(tel, estimates)
+    return ReplayResult(tel, estimates)
+
+
+def rrd_sink(out: Path) -> Sink:
+    """Sink writing a Rerun recording to ``out`` (viewer engineer: implement with steval_viewer)."""
+    raise UserError("--rrd is not available yet in this version of steval-link.")
+
+
+def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
+    """Sink printing the summary (text, or one JSON object) on stdout."""
+
+    def sink(tel, estimates) -> None:
+        s = summarize(tel)
+        for w in warnings_seen:
+            if w not in s["warnings"]:
+                s["warnings"].append(w)
+        if as_json:
+            json.dump(s, sys.stdout, indent=2, allow_nan=False)
+            sys.stdout.write("\n")
+        else:
+            for w in s["warnings"]:
+                print(f"steval: warning: {w}", file=sys.stderr)
+            s = dict(s, warnings=[])
+            print("\n".join(format_summary(s)))
+
+    return sink
+
+
+@app.command()
+def replay(
+    capture: Annotated[
+        Optional[Path],
+        typer.Argument(
+            help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled "
+            "demo recording.",
+            show_default=False,
+        ),
+    ] = None,
+    rrd: Annotated[
+        Optional[Path], typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (for scripts).")] = False,
+) -> None:
+    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings."""
+    tel, seen = load_replay(capture)
+    sinks: list[Sink] = []
+    names: tuple[str, ...] = ()
+    if rrd is not None:
+        sinks.append(rrd_sink(rrd))
+        names = DEFAULT_ESTIMATORS
+    sinks.append(summary_sink(as_json, seen))
+    estimates = run_estimators(tel, names)
+    for sink in sinks:
+        sink(tel, estimates)
