@@ -12,7 +12,7 @@ typedef union {
 int stv_send_attitude(stv_txq_t *q, const stv_attitude_t *att) {
   frame_buf_t f;
   stv_encode_attitude(f.b, att);
-  return stv_txq_push(q, f.b, STV_ATTITUDE_FRAME_SIZE);
+  return stv_txq_push_keep(q, f.b, STV_ATTITUDE_FRAME_SIZE, STV_STATUS_FRAME_SIZE);
 }
 
 int stv_send_status(stv_txq_t *q, const stv_status_t *st) {
@@ -31,7 +31,7 @@ uint32_t stv_send_text(stv_txq_t *q, const uint8_t *text, size_t len) {
   while (len) {
     size_t n = len > STV_TEXT_MAX_PAYLOAD ? STV_TEXT_MAX_PAYLOAD : len;
     size_t sz = stv_encode_frame(f.b, STV_TYPE_TEXT, text, n);
-    if (!stv_txq_push(q, f.b, (uint32_t)sz)) lost++;
+    if (!stv_txq_push_keep(q, f.b, (uint32_t)sz, STV_STATUS_FRAME_SIZE)) lost++;
     text += n;
     len -= n;
   }
@@ -113,8 +113,9 @@ void stv_link_make_status(stv_link_t *link, stv_status_t *st) {
   reset_cycle_stats(link);
 }
 
-static void push_line(stv_link_t *link, const char *s, size_t n) {
-  if (!stv_txq_push(&link->txq, (const uint8_t *)s, (uint32_t)n)) return; /* counted as dropped */
+/* Text mode: one line, whole or dropped (counted). $STA lines use the reserve the others leave. */
+static void push_line(stv_link_t *link, const char *s, size_t n, uint32_t keep_free) {
+  (void)stv_txq_push_keep(&link->txq, (const uint8_t *)s, (uint32_t)n, keep_free);
 }
 
 void stv_link_step_end(stv_link_t *link, uint32_t cyc_now, const float acc_mg[3], const float gyro_mdps[3],
@@ -146,7 +147,7 @@ void stv_link_step_end(stv_link_t *link, uint32_t cyc_now, const float acc_mg[3]
     v.thz_rad = euler_rad[2];
     memcpy(v.acc_mg, acc_mg, sizeof(v.acc_mg));
     memcpy(v.gyro_mdps, gyro_mdps, sizeof(v.gyro_mdps));
-    push_line(link, line, stv_format_att_line(line, &v));
+    push_line(link, line, stv_format_att_line(line, &v), STV_TEXT_LINE_MAX);
   }
 
   if (++link->since_status >= link->cfg.status_every) {
@@ -157,7 +158,7 @@ void stv_link_step_end(stv_link_t *link, uint32_t cyc_now, const float acc_mg[3]
       stv_send_status(&link->txq, &st);
     } else {
       char line[STV_TEXT_LINE_MAX];
-      push_line(link, line, stv_format_sta_line(line, &st));
+      push_line(link, line, stv_format_sta_line(line, &st), 0u);
     }
   }
   link->step++;
@@ -174,7 +175,7 @@ static void flush_line(stv_link_t *link) {
     if (buf[0] == '$') buf[0] = '#'; /* a log line must not look like a $ATT/$STA record */
     buf[n++] = '\r';
     buf[n++] = '\n';
-    push_line(link, buf, n);
+    push_line(link, buf, n, STV_TEXT_LINE_MAX);
   }
   link->line_len = 0;
 }

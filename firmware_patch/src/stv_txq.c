@@ -25,11 +25,11 @@ static inline void copy_bytes(uint8_t *dst, const uint8_t *src, uint32_t n) {
   while (n--) *dst++ = *src++;
 }
 
-int stv_txq_push(stv_txq_t *q, const uint8_t *src, uint32_t len) {
+int stv_txq_push_keep(stv_txq_t *q, const uint8_t *src, uint32_t len, uint32_t keep_free) {
   uint32_t h = q->head;
   uint32_t used = h - q->tail;
   uint32_t idx, run;
-  if (len > STV_TXQ_SIZE - used) {
+  if (len + keep_free > STV_TXQ_SIZE - used) {
     q->dropped++;
     return 0;
   }

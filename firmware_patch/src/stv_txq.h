@@ -29,8 +29,15 @@ void stv_txq_init(stv_txq_t *q);
 /* Bytes waiting. */
 static inline uint32_t stv_txq_used(const stv_txq_t *q) { return q->head - q->tail; }
 
-/* Append len bytes as one unit. Returns 1, or 0 (and counts one dropped frame) when they do not fit. */
-int stv_txq_push(stv_txq_t *q, const uint8_t *src, uint32_t len);
+/* Append len bytes as one unit if at least `keep_free` bytes stay free after them. Returns 1, or 0 (and counts one
+ * dropped frame) when they do not fit. The reserve gives status frames priority: under overload attitude and text
+ * frames leave room for the next status, so the host still learns how many frames were dropped. */
+int stv_txq_push_keep(stv_txq_t *q, const uint8_t *src, uint32_t len, uint32_t keep_free);
+
+/* Append len bytes as one unit (no reserve). */
+static inline int stv_txq_push(stv_txq_t *q, const uint8_t *src, uint32_t len) {
+  return stv_txq_push_keep(q, src, len, 0u);
+}
 
 /* Consumer: up to max bytes into dst; returns how many. */
 uint32_t stv_txq_pop(stv_txq_t *q, uint8_t *dst, uint32_t max);
