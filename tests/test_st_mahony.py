@@ -160,6 +160,40 @@ def test_native_and_pure_loops_agree_bit_for_bit(settings):
     assert a[3].bits_equal(b[3])
 
 
+@needs_native
+def test_loops_agree_on_extreme_inputs():
+    # zeros, ±0, denormals, overflow to inf, inf, NaN and huge rates: C and numpy must round (and NaN) alike
+    rng = np.random.default_rng(0)
+    n = 3000
+    specials = np.array([0, -0.0, 1e-45, -1e-45, 1e-38, 3e38, -3e38, np.inf, -np.inf, np.nan, 1e20, 1, -2e6], np.float32)
+    acc = rng.choice(specials, (n, 3)).astype(np.float32)
+    gyro = rng.choice(specials, (n, 3)).astype(np.float32)
+    normal = rng.random(n) < 0.8
+    acc[normal] = rng.normal([0, 0, 1000], 500, (normal.sum(), 3))
+    gyro[normal] = rng.normal(0, 1e5, (normal.sum(), 3))
+    thr = rng.integers(-300, 900, n)
+    for settings in (MahonySettings(), MahonySettings(fresh_squares=True), MahonySettings(correction=False)):
+        for seg in range(0, n, 25):  # restart often, or the first NaN would make the rest trivially NaN
+            sl = slice(seg, seg + 25)
+            state = MahonyState(q_wxyz=rng.normal(size=4), int_xyz=rng.normal(size=3) * 1e-2)
+            a = run(acc[sl], gyro[sl], thr[sl], settings=settings, state=state, native=True)
+            b = run(acc[sl], gyro[sl], thr[sl], settings=settings, state=state, native=False)
+            for x, y, what in zip(a[:3], b[:3], ("q", "thx", "thy")):
+                assert_bits(x, y, f"{what} segment {seg}")
+            assert a[3].bits_equal(b[3])
+
+
+@needs_shared
+def test_pure_fallback_is_used_without_the_extension(monkeypatch):
+    monkeypatch.setattr(st_mahony, "_native", None)
+    monkeypatch.setattr(st_mahony, "NATIVE_AVAILABLE", False)
+    v = vectors("throttle_switch.csv")
+    q, thx, _, _ = run(v.acc_mg[:500], v.gyro_mdps[:500], v.thr[:500])
+    assert_bits(q, v.q_wxyz[:500], "fallback q")
+    with pytest.raises(RuntimeError, match="not built"):
+        run(v.acc_mg[:5], v.gyro_mdps[:5], native=True)
+
+
 def test_inputs_and_constants_are_the_firmwares():
     assert COE_MDPS_TO_RADPS_F32 == np.float32(1.745329252e-5)
     assert np.isfinite(inv_sqrt(np.float32(0.0)))  # free fall does not blow up

@@ -190,8 +190,8 @@ class MahonyState:
         return cls(q_wxyz=tuple(v[:4]), int_xyz=tuple(v[4:]))
 
     def bits_equal(self, other: MahonyState) -> bool:
-        """True when both states hold the same float32 bits."""
-        return bool(np.array_equal(self.as_array().view(np.uint32), other.as_array().view(np.uint32)))
+        """True when both states hold the same float32 bits (any NaN equals any NaN, as in :func:`bits_equal`)."""
+        return bool(bits_equal(self.as_array(), other.as_array()).all())
 
 
 def run(
