@@ -206,13 +206,15 @@ def log_replay(
     blueprint: bool = True,
     ghost: str | None = None,
     live_blueprint: bool = False,
+    link: bool = True,
 ) -> ReplaySummary:
     """Log a whole Telemetry, the ST-Mahony port (``port``, a ``FirmwareReplay``) and host ``estimates``
     (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``.
 
     Sends the default blueprint first (unless ``blueprint`` is False); ``ghost`` picks the estimate the 3D ghost
     shows (a source segment or estimator name; default: the port, else EKF3, ...). Returns the samples logged per
-    entity path. Arrays must have one row per attitude row of ``tel``.
+    entity path. Arrays must have one row per attitude row of ``tel``. ``link``: log the link-health series (False
+    for simulations, which have no link).
     """
     att = tel.attitude
     n = len(att.t_fw_s)
@@ -247,6 +249,7 @@ def log_replay(
         log_estimate(rec, times, source, est, summary, ghost=source in ghost_sources)
     if port is not None:
         log_port_difference(rec, times, att, port, summary)
-    log_link(rec, times, tel, summary)
+    if link:
+        log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
     return summary
