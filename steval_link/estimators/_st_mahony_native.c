@@ -42,9 +42,11 @@ static float inv_sqrt(float x)
     float halfx = 0.5f * x;
     float y = x;
     int32_t i;
+    uint32_t u;
     memcpy(&i, &y, sizeof i);
-    i = (int32_t)0x5f3759df - (i >> 1);
-    memcpy(&y, &i, sizeof y);
+    /* the firmware's 32-bit `long`: arithmetic shift, then a subtraction that wraps (done unsigned: no UB) */
+    u = 0x5f3759dfu - (uint32_t)(i >> 1);
+    memcpy(&y, &u, sizeof y);
     y = y * (1.5f - (halfx * y * y));
     return y;
 }
