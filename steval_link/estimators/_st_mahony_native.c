@@ -231,6 +231,7 @@ static PyMethodDef native_methods[] = {
 static struct PyModuleDef native_module = {
     PyModuleDef_HEAD_INIT, "_st_mahony_native",
     "Native, bit-exact loop of the STEVAL-FCU001V1 Mahony filter port (see st_mahony.py).", -1, native_methods,
+    NULL, NULL, NULL, NULL,
 };
 
 PyMODINIT_FUNC PyInit__st_mahony_native(void) { return PyModule_Create(&native_module); }
