@@ -1,0 +1,156 @@
+"""The firmware module as the Cortex-M4 gets it: strict cross-compile, and the target build's bytes under emulation.
+
+CI installs Debian's arm-none-eabi-gcc (``.ci/run``) and unicorn (test extra); on a machine without them these
+tests skip with the reason.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from steval_link import protocol as P
+from steval_link.decoder import StreamDecoder
+
+ROOT = Path(__file__).resolve().parents[1]
+FW = ROOT / "firmware_patch"
+sys.path.insert(0, str(FW / "tools"))
+import stv_emu  # noqa: E402
+
+NO_ARM = shutil.which("arm-none-eabi-gcc") is None or shutil.which("make") is None
+needs_arm = pytest.mark.skipif(NO_ARM, reason="arm-none-eabi-gcc (Debian: gcc-arm-none-eabi) or make not installed")
+
+
+@needs_arm
+@pytest.mark.parametrize(
+    "options",
+    [
+        [],
+        ["BAUD=921600", "TEXT_MODE=1", "TEXT_DECIMATION=8", "AHRS_KI=1.0f", "NO_CORRECTION=1"],
+    ],
+    ids=["default", "text-ki1-nocorr-921600"],
+)
+def test_cross_compile_strict(tmp_path, options):
+    """-mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard -O2 -Wall -Wextra -Werror, every module."""
+    r = subprocess.run(["make", "-C", str(FW), "cross", f"BUILD_DIR={tmp_path}", *options],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    for flag in ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-O2", "-Werror"):
+        assert flag in r.stdout
+    objs = sorted(p.name for p in (tmp_path / "arm").glob("*.o"))
+    assert objs == ["stv_frame.o", "stv_fw.o", "stv_link.o", "stv_txq.o"]
+    # hard-float EABI objects for the M4
+    attrs = subprocess.run(["arm-none-eabi-readelf", "-A", str(tmp_path / "arm" / "stv_link.o")],
+                           capture_output=True, text=True).stdout
+    assert "Tag_CPU_arch: v7E-M" in attrs and "Tag_ABI_VFP_args: VFP registers" in attrs
+
+
+@pytest.fixture(scope="module")
+def target(tmp_path_factory):
+    why = stv_emu.missing_tools()
+    if why:
+        pytest.skip(why)
+    elf = stv_emu.build_emu(tmp_path_factory.mktemp("fw-emu"))
+    return stv_emu.TargetEncoder(elf)
+
+
+def test_target_build_bytes_decode_in_python(target):
+    """Requests -> target code (Thumb-2, hard-float) under unicorn -> frames identical to steval_link.protocol's,
+    decoded by StreamDecoder back to the exact payloads (CRC, ATTITUDE_DTYPE/STATUS_DTYPE)."""
+    rng = np.random.default_rng(99)
+    req, exp, payloads = bytearray(), bytearray(), []
+    for i in range(150):
+        if i % 10 == 9:
+            payload = rng.integers(0, 256, P.STATUS_PAYLOAD_SIZE, dtype=np.uint8).tobytes()
+            ftype = P.TYPE_STATUS
+        elif i % 25 == 12:
+            payload = bytes(rng.integers(32, 127, int(rng.integers(0, 256)), dtype=np.uint8))
+            ftype = P.TYPE_TEXT
+        else:
+            payload = rng.integers(0, 256, P.ATTITUDE_PAYLOAD_SIZE, dtype=np.uint8).tobytes()
+            ftype = P.TYPE_ATTITUDE
+        req += bytes([ftype, len(payload)]) + payload
+        exp += P.encode_frame(ftype, payload) if payload or ftype != P.TYPE_TEXT else P.encode_text("")
+        payloads.append((ftype, payload))
+    res = target.run(bytes(req))
+    assert res.rc == 0
+    assert res.output == bytes(exp)
+    dec = StreamDecoder()
+    frames = dec.feed(res.output) + dec.finish()
+    assert dec.stats.bytes_skipped == 0 and dec.stats.crc_failures == 0
+    assert len(frames) == len(payloads)
+    # attitude payloads: field by field through ATTITUDE_DTYPE, exact bits
+    att_in = np.frombuffer(b"".join(p for t, p in payloads if t == P.TYPE_ATTITUDE), P.ATTITUDE_DTYPE)
+    att_out = [f for f in frames if type(f).__name__ == "AttitudeFrame"]
+    assert len(att_out) == len(att_in)
+    for f, r in zip(att_out, att_in):
+        assert f.t_us == r["t_us"] and f.seq == r["seq"] and f.thr == r["thr"]
+        got = np.array([*f.acc_mg, *f.gyro_mdps, *f.q_wxyz, f.thz_rad], np.float32)
+        want = np.concatenate([r["acc_mg"], r["gyro_mdps"], r["q_wxyz"], [r["thz_rad"]]]).astype(np.float32)
+        finite = np.isfinite(want)
+        assert got[finite].view(np.uint32).tolist() == want[finite].view(np.uint32).tolist()
+        assert np.isnan(got[~finite]).tolist() == np.isnan(want[~finite]).tolist()
+    # every attitude call counted (the benchmark's instruction figure comes from here)
+    assert len(res.calls["stv_send_attitude"]) == len(att_in)
+    assert all(n > 50 for n in res.calls["stv_send_attitude"])
+
+
+def test_target_and_host_builds_agree(target, tmp_path):
+    """The host build (stv_encode, used for the bundled recordings) and the target build emit identical bytes."""
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    subprocess.run(["make", "-s", "-C", str(FW), f"BUILD_DIR={tmp_path}", f"{tmp_path}/host/stv_encode"],
+                   check=True, capture_output=True)
+    rng = np.random.default_rng(5)
+    req = b"".join(bytes([1, 52]) + rng.integers(0, 256, 52, dtype=np.uint8).tobytes() for _ in range(100))
+    req += bytes([3, 0]) + bytes([2, 88]) + bytes(range(88))
+    host = subprocess.run([tmp_path / "host" / "stv_encode"], input=req, capture_output=True, check=True).stdout
+    assert target.run(req).output == host
+
+
+def test_patch_is_small_and_touches_only_hook_points():
+    """The ST patch carries our hooks plus git's few context lines, nothing else of ST's code."""
+    text = (FW / "st-fcu-170120.patch").read_text()
+    files = re.findall(r"^diff --git a/(.+?) b/", text, flags=re.M)
+    base = "STM32 FW Project/Official release - 170120/"
+    assert files == [base + f for f in ("Inc/ahrs.h", "Src/ahrs.c", "Src/debug.c", "Src/main.c", "Src/stm32f4xx_it.c")]
+    total_context: list[str] = []
+    for hunk in re.split(r"^@@.*@@.*$", text, flags=re.M)[1:]:
+        body = [l for l in hunk.splitlines() if l and not l.startswith(("diff --git", "index ", "--- ", "+++ "))]
+        context = [l for l in body if l.startswith(" ")]
+        assert len(context) <= 12, hunk  # 3 lines before and after, plus the few lines between two hooks
+        total_context.extend(context)
+    assert len(total_context) <= 80
+    assert "stv_fw_step_begin(gTHR)" in text and "stv_fw_step_end(" in text and "stv_fw_usart1_irq()" in text
+
+
+def st_checkout() -> Path | None:
+    import os
+
+    d = os.environ.get("STEVAL_ST_DIR")
+    return Path(d) if d and (Path(d) / "STM32 FW Project").is_dir() else None
+
+
+@pytest.mark.skipif(st_checkout() is None or NO_ARM,
+                    reason="set STEVAL_ST_DIR to a checkout of ST_Drone_FCU_F401 (CI has none) and install arm gcc")
+def test_patch_applies_and_firmware_links(tmp_path):
+    """Developer check against ST's real sources: git apply --check, then build the patched firmware."""
+    st = st_checkout()
+    work = tmp_path / "st"
+    shutil.copytree(st / "STM32 FW Project" / "Official release - 170120",
+                    work / "STM32 FW Project" / "Official release - 170120", symlinks=True)
+    subprocess.run(["git", "init", "-q"], cwd=work, check=True)
+    patch = FW / "st-fcu-170120.patch"
+    if "stv_fw_step_end" not in (work / "STM32 FW Project/Official release - 170120/Src/main.c").read_text():
+        subprocess.run(["git", "apply", "--check", str(patch)], cwd=work, check=True)
+        subprocess.run(["git", "apply", str(patch)], cwd=work, check=True)
+    r = subprocess.run(["make", "-C", str(FW), "firmware", f"ST_DIR={work}", f"BUILD_DIR={tmp_path / 'b'}", "-j2"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert (tmp_path / "b" / "fw" / "steval-fcu-link.bin").stat().st_size > 50_000
