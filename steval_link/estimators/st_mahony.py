@@ -3,6 +3,16 @@
 Reproduces ``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them (Cortex-M4F,
 hard float, -O0, no FMA), rounding included. Units are the firmware's: accelerometer in mg, gyro in mdps, angles in
 rad; axes x right, y forward, z up; ``thx`` is the rotation about x (pitch, nose up +), ``thy`` about y (roll).
+
+The firmware's quirks are kept on purpose: the fast inverse square root (0x5f3759df, one Newton step; finite for
+0, so free fall gives no correction instead of NaN); gyro scaled by ``(float)1.745329252e-5``; kp switched by
+throttle (10 below MIN_THR, else 0.4); integral ``ex*KI*dt`` in float; the in-place quaternion update (q1..q3 use
+the new q0); and the final normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and
+``asin`` in ``QuaternionToEuler`` can return NaN near ±90° roll, as on the drone.
+
+Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
+(≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
+:class:`StMahony` (the shared estimator interface) and :func:`replay_firmware` (a capture against the drone).
 """
 
 from __future__ import annotations
