@@ -319,3 +319,65 @@ def test_simulation_logs_to_rrd(tmp_path):
     assert info.has_blueprint
     assert info.samples[ent.pitch_path("firmware")] == int(np.isfinite(res.eax_rad).sum())
     assert ent.LINK_RATE not in info.samples
+
+
+def _steval(*args: str, cwd=None):
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    return subprocess.run(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", *args],
+        capture_output=True, text=True, env=env, cwd=cwd, timeout=300,
+    )
+
+
+def test_cli_replay_to_rrd_headless(tmp_path):
+    data, _ = make_stream(1200, nan_rows=(10, 11, 12))
+    cap = tmp_path / "dump.bin"
+    cap.write_bytes(data)
+    out = tmp_path / "out.rrd"
+    r = _steval("replay", str(cap), "--rrd", str(out))
+    assert r.returncode == 0, r.stderr
+    info = read_rrd(out)
+    assert info.has_blueprint
+    assert info.samples[ent.pitch_path("firmware")] == 1200
+    assert info.samples[ent.roll_path("firmware")] == 1197
+    assert info.samples[ent.pitch_path("accel")] == 1200
+    assert ent.pitch_path("st_mahony_port") in info.samples
+    assert ent.pitch_path("st_mahony") not in info.samples  # replaced by the seeded port
+
+    r = _steval("replay", str(cap), "--rrd", str(tmp_path / "missing" / "x.rrd"))
+    assert r.returncode == 2 and "does not exist" in r.stderr and "Traceback" not in r.stderr
+    r = _steval("replay", str(cap), "--connect", "http://localhost:1")
+    assert r.returncode == 2 and "rerun+http" in r.stderr
+
+
+BUNDLED = sorted((Path(__file__).resolve().parents[1] / "recordings").glob("*.stv"))
+
+
+@pytest.mark.skipif(not BUNDLED, reason="no bundled recordings in recordings/")
+@pytest.mark.parametrize("capture", BUNDLED, ids=[p.name for p in BUNDLED])
+def test_every_bundled_recording_replays_to_rrd(capture, tmp_path):
+    """CI: each bundled capture replays headlessly to an .rrd that reads back with every entity and all samples."""
+    from steval_link.capture import load_telemetry
+
+    tel = load_telemetry(capture)
+    out = tmp_path / (capture.stem + ".rrd")
+    r = _steval("replay", str(capture), "--rrd", str(out))
+    assert r.returncode == 0, r.stderr
+    info = read_rrd(out)
+    assert info.has_blueprint
+    att = tel.attitude
+    n = len(att.t_fw_s)
+    assert info.samples[ent.pitch_path("firmware")] == int(np.isfinite(att.thx_rad).sum())
+    assert info.samples[ent.roll_path("firmware")] == int(np.isfinite(att.thy_rad).sum())
+    assert info.samples[ent.PLOT_ACC] == n
+    assert info.samples[ent.DRONE_FIRMWARE] == int(np.isfinite(att.q_wxyz).all(axis=1).sum())
+    for path in (ent.pitch_path("accel"), ent.roll_path("accel"), ent.LINK_RATE):
+        assert info.samples.get(path, 0) > 0, path
+    if np.asarray(att.exact).any():
+        assert info.samples.get(ent.pitch_path("st_mahony_port"), 0) > 0
+    if len(tel.status.step):
+        assert info.samples.get(ent.LINK_CYCLES, 0) > 0

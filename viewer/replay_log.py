@@ -14,6 +14,7 @@ Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -253,3 +254,51 @@ def log_replay(
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
     return summary
+
+
+#: Registry names that mean the firmware's own filter: replaced by the status-seeded bit-exact port.
+_PORT_NAMES = ("st-mahony", "st_mahony")
+
+
+def firmware_port(tel: Any) -> Any | None:
+    """The bit-exact ST-Mahony port re-run over ``tel`` (seeded from status snapshots), or None when the capture
+    has no bit-exact rows (text mode) or the port is unavailable."""
+    exact = getattr(tel.attitude, "exact", None)
+    if exact is not None and not np.asarray(exact).any():
+        return None
+    try:
+        from steval_link.estimators.st_mahony import replay_firmware
+    except ImportError:  # pragma: no cover - the port ships with steval_link
+        return None
+    return replay_firmware(tel)
+
+
+def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None) -> ReplaySummary:
+    """Replay entry point used by ``steval replay``: runs the seeded firmware port and logs it with ``estimates``.
+
+    A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the port, which is the
+    same filter followed bit for bit from the firmware's status snapshots.
+    """
+    port = firmware_port(tel)
+    others = {k: v for k, v in (estimates or {}).items() if not (port is not None and k in _PORT_NAMES)}
+    return log_replay(rec, tel, others, port=port)
+
+
+def replay_sink(options: Any, *, recording_name: str | None = None):
+    """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
+    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first)."""
+    from steval_viewer.sinks import open_session
+
+    def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
+        src = getattr(tel, "source", None) or {}
+        name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
+        session = open_session(options, recording_name=name)
+        try:
+            log_telemetry(session.rec, tel, estimates)
+            session.flush()
+            if options.serve:
+                session.wait_for_viewer()
+        finally:
+            session.close()
+
+    return sink
