@@ -79,8 +79,16 @@ def replay_pipeline(
 
 
 def rrd_sink(out: Path) -> Sink:
-    """Sink writing a Rerun recording to ``out`` (viewer engineer: implement with steval_viewer)."""
-    raise UserError("--rrd is not available yet in this version of steval-link.")
+    """Sink writing a Rerun recording to ``out``."""
+    return viewer_sink(rrd=out)
+
+
+def viewer_sink(*, rrd: Path | None = None, spawn: bool = False, serve: bool = False, connect: str | None = None) -> Sink:
+    """Sink logging the replay to Rerun (``steval_viewer``): an .rrd file and/or a viewer."""
+    from steval_viewer.replay_log import replay_sink
+    from steval_viewer.sinks import SinkOptions
+
+    return replay_sink(SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd))
 
 
 def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
@@ -117,13 +125,20 @@ def replay(
         Optional[Path], typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (for scripts).")] = False,
+    spawn: Annotated[bool, typer.Option("--spawn", help="Show the replay in a native Rerun viewer.")] = False,
+    serve: Annotated[
+        bool, typer.Option("--serve", help="Show the replay in the Rerun web viewer on 127.0.0.1 (Ctrl-C to stop).")
+    ] = False,
+    connect: Annotated[
+        Optional[str], typer.Option("--connect", help="Send the replay to a running Rerun viewer at this gRPC URL.")
+    ] = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings."""
     tel, seen = load_replay(capture)
     sinks: list[Sink] = []
     names: tuple[str, ...] = ()
-    if rrd is not None:
-        sinks.append(rrd_sink(rrd))
+    if rrd is not None or spawn or serve or connect:
+        sinks.append(viewer_sink(rrd=rrd, spawn=spawn, serve=serve, connect=connect))
         names = DEFAULT_ESTIMATORS
     sinks.append(summary_sink(as_json, seen))
     estimates = run_estimators(tel, names)
