@@ -161,6 +161,7 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     lines.append("final angles (firmware axes: x right, y forward, z up)")
     names = (("eax", "thx", "pitch", "x"), ("eay", "thy", "roll ", "y"), ("eaz", "thz", "yaw  ", "z"))
     for (ea, th, label, axis), rad in zip(names, res.final_angles_rad()):
+        rad += 0.0  # print -0 as 0
         if math.isnan(rad):
             lines.append(f"  {ea} = {th}  {label} (about {axis}):          n/a")
         else:
@@ -262,6 +263,8 @@ def simulate_command(
         except OSError as exc:
             raise UserError(f"cannot write {csv_out}: {exc.strerror}") from None
     text = summary(res, gyro, acc, throttle)
+    if rrd is not None:
+        text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"
     if json_out:
         json.dump(to_json(res), sys.stdout, allow_nan=False)
         sys.stdout.write("\n")
