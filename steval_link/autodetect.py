@@ -43,10 +43,16 @@ def is_glob(port: str) -> bool:
 
 
 def list_candidate_ports() -> list[str]:
-    """Serial ports that may be the drone's USB-UART adapter (from :mod:`steval_link.ports`), device paths."""
+    """Serial ports that may carry the drone (from :mod:`steval_link.ports`), device paths.
+
+    USB ports (USB-UART adapters, ST-LINK virtual COM ports) when there are any, else every port listed (a board's
+    own UART such as a Raspberry Pi's ``/dev/ttyAMA0``).
+    """
     from steval_link import ports
 
-    return [p.device for p in ports.list_ports()]
+    listed = ports.list_ports()
+    usb = [p.device for p in listed if p.vid_pid]
+    return usb or [p.device for p in listed]
 
 
 def _comports():
@@ -255,9 +261,12 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
 # describing bytes without frames
 
 
-def describe_bytes(data: bytes) -> str:
-    """A few words on what bytes without any valid frame look like (for the wrong-baud message)."""
-    n = len(data)
+def describe_bytes(data: bytes, total: int | None = None) -> str:
+    """A few words on what bytes without any valid frame look like (for the wrong-baud message).
+
+    ``data``: a sample of the bytes (the first few kB); ``total``: how many arrived in all (default ``len(data)``).
+    """
+    n = len(data) if total is None else total
     if n == 0:
         return "no bytes at all"
     sample = data[:4096]
@@ -321,15 +330,18 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
     return slower + faster
 
 
-def no_frames_message(port: str, baud: int, data: bytes, seconds: float) -> str:
-    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds``."""
+def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> str:
+    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds``.
+
+    ``data``: a sample of the bytes (the first few kB); ``total``: how many arrived in all (default ``len(data)``).
+    """
     if not data:
         return (
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "
             "wired to the adapter's RX? (--wait keeps waiting)"
         )
     tries = suggest_bauds(data, baud)
-    what = describe_bytes(data)
+    what = describe_bytes(data, total)
     if what.startswith("text"):
         hint = "flash the steval firmware patch (or check --port)"
     else:

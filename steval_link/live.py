@@ -480,6 +480,7 @@ class LiveSummary:
     capture_path: Path
     rrd_path: Path | None
     seconds: float
+    streaming_s: float  # from the first to the last attitude frame, less the time disconnected
     bytes_total: int
     attitude: int
     status: int
@@ -495,10 +496,10 @@ class LiveSummary:
     stopped_by: str
 
     def line(self) -> str:
-        rate = self.attitude / self.seconds if self.seconds > 0 else 0.0
+        rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
         parts = [
             f"{_fmt_duration(self.seconds)}",
-            f"{self.attitude} attitude frames ({rate:.1f} Hz)",
+            f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({rate:.1f} Hz)"),
             f"{self.frames_missing} missing",
             f"{self.crc_failures} CRC failures",
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
@@ -794,7 +795,9 @@ class LiveSession:
         nbytes = proto.connect_bytes
         if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
             return
-        message = autodetect.no_frames_message(proto.port or "?", self.options.baud, bytes(self.sample), elapsed)
+        message = autodetect.no_frames_message(
+            proto.port or "?", self.options.baud, bytes(self.sample), elapsed, total=nbytes
+        )
         if self.options.wait:
             self.warned_no_frames = True
             self.display.note(message + "; still waiting (--wait)")
@@ -834,6 +837,9 @@ class LiveSession:
         s = self.decoder.stats if hasattr(self, "decoder") else None
         h = getattr(self, "health", LinkHealth())
         port_note = None
+        streaming_s = 0.0
+        if h.first_frame_mono is not None and h.last_frame_mono is not None:
+            streaming_s = max(0.0, h.last_frame_mono - h.first_frame_mono - proto.offline_s)
         est = getattr(self, "estimators", None)
         if est is not None and est.port is not None:
             p = est.port
@@ -847,6 +853,7 @@ class LiveSession:
             capture_path=capture_path,
             rrd_path=self.options.rrd,
             seconds=seconds,
+            streaming_s=streaming_s,
             bytes_total=proto.bytes_total,
             attitude=h.attitude,
             status=h.status,

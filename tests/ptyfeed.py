@@ -285,3 +285,76 @@ def flight_stream(
                 )
         start = end
     return bytes(out)
+
+
+class StevalProcess:
+    """``steval ARGS`` in a child process; stderr lines are collected with the monotonic time they arrived.
+
+    The CLI runs as ``python -c "from steval_link.cli import main; main()"`` (no console script needed).
+    """
+
+    def __init__(self, args: list[str], *, cwd: str | os.PathLike | None = None, preexec_fn=None) -> None:
+        import subprocess
+        import sys
+
+        env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="200")
+        env.pop("DISPLAY", None)
+        env.pop("WAYLAND_DISPLAY", None)
+        self.t_start = time.monotonic()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from steval_link.cli import main; main()", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            cwd=cwd,
+            env=env,
+            preexec_fn=preexec_fn,
+        )
+        self.lines: list[tuple[float, str]] = []
+        self._out: list[bytes] = []
+        self._threads = [
+            threading.Thread(target=self._read_err, daemon=True),
+            threading.Thread(target=self._read_out, daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def _read_err(self) -> None:
+        for raw in self.proc.stderr:
+            self.lines.append((time.monotonic(), raw.decode("utf-8", "replace").rstrip("\n")))
+
+    def _read_out(self) -> None:
+        for raw in self.proc.stdout:
+            self._out.append(raw)
+
+    def wait_line(self, text: str, timeout_s: float) -> float | None:
+        """Monotonic arrival time of the first stderr line containing ``text`` (waits up to ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            for t, line in list(self.lines):
+                if text in line:
+                    return t
+            if time.monotonic() > deadline or self.proc.poll() is not None and not self._threads[0].is_alive():
+                return None
+            time.sleep(0.01)
+
+    def finish(self, timeout_s: float = 60.0, sig: int | None = None) -> int:
+        """Send ``sig`` (if any), wait for the exit code; the output threads are drained."""
+        if sig is not None and self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            rc = self.proc.wait(timeout_s)
+        except Exception:
+            self.proc.kill()
+            raise
+        for t in self._threads:
+            t.join(10)
+        return rc
+
+    @property
+    def stderr(self) -> str:
+        return "\n".join(line for _, line in self.lines)
+
+    @property
+    def stdout(self) -> str:
+        return b"".join(self._out).decode("utf-8", "replace")
