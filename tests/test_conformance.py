@@ -62,6 +62,14 @@ def test_every_shared_vector_file_is_bit_exact(monkeypatch, capsys):
 
 
 @needs_shared
+def test_a_directory_means_all_its_csv_files(monkeypatch, capsys, tmp_path):
+    code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)
+    assert code == 0 and f"{len(CSV_FILES)} file(s)" in out and "all bit-exact" in out
+    code, _, err = run_cli(monkeypatch, capsys, "conformance", tmp_path)
+    assert code == 2 and "no .csv" in err
+
+
+@needs_shared
 def test_text_report_and_pure_loop(monkeypatch, capsys):
     baseline = CONFORMANCE_DIR / "lab5_baseline.csv"
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", "--pure", baseline, CONFORMANCE_DIR / "edge_cases.csv")

@@ -22,7 +22,7 @@ def _json_num(x: float):
 
 @app.command("conformance")
 def conformance_command(
-    csv_files: list[Path] = typer.Argument(..., metavar="CSV...", help="Conformance vector files (firmware outputs)."),
+    csv_files: list[Path] = typer.Argument(..., metavar="CSV...", help="Conformance vector files (firmware outputs), or directories of them."),
     json_out: bool = typer.Option(False, "--json", help="Print the per-file results as JSON."),
     ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain of the checked firmware (default 0.1)."),
     kp_ground: Optional[float] = typer.Option(None, "--kp-ground", help="kp below MIN_THR (default 10)."),
@@ -48,14 +48,21 @@ def conformance_command(
         )
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    cases = []
+    paths: list[Path] = []
     for path in csv_files:
+        if path.is_dir():
+            found = sorted(path.glob("*.csv"))
+            if not found:
+                raise UserError(f"{path}: directory holds no .csv conformance files")
+            paths.extend(found)
+        else:
+            paths.append(path)
+    cases = []
+    for path in paths:
         try:
             cases.append(load_conformance_csv(path))
         except FileNotFoundError:
             raise UserError(f"{path}: no such file") from None
-        except IsADirectoryError:
-            raise UserError(f"{path}: is a directory, not a conformance CSV") from None
         except OSError as exc:
             raise UserError(f"{path}: cannot read ({exc.strerror})") from None
         except ValueError as exc:
