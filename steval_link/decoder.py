@@ -10,9 +10,10 @@ Rules (position by position, from the start of the stream):
   ``unknown_frames`` (and is skipped the same way).
 * Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
   is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``);
-  a plain line (firmware log, handed out as a :class:`TextFrame`) only at a line boundary: right after a frame or
-  line that was handed out, or after a ``\\n``. So a stream joined in the middle of a line never yields the tail of
-  that line, and garbage between binary frames is not mistaken for text.
+  a plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only right
+  after a frame or line that was handed out (blank lines in between are skipped). So a stream joined in the
+  middle of a line never yields the tail of that line, garbage is not mistaken for text, and the first plain
+  line of a stream, or one right after damage, is dropped (counted as skipped).
 * Every byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
 
 The decoder waits for more bytes only while the candidate at its position could still become valid, so its
@@ -46,7 +47,7 @@ assert _ATT_STRUCT.size == P.ATTITUDE_PAYLOAD_SIZE and _STA_STRUCT.size == P.STA
 _VT_ATT = (P.VERSION << 4) | P.TYPE_ATTITUDE
 _VT_STA = (P.VERSION << 4) | P.TYPE_STATUS
 _VT_TXT = (P.VERSION << 4) | P.TYPE_TEXT
-_NEXT_START = re.compile(rb"[\xa5$\n]")
+_NEXT_START = re.compile(rb"[\xa5$]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _crc_hqx = binascii.crc_hqx
 
@@ -121,19 +122,12 @@ class StreamDecoder:
         self._boundary = boundary
 
     def _skip(self, buf: bytearray, p: int, n: int) -> int:
-        """Reject the candidate at ``p``: move to the next position that could start a frame or a line."""
-        if buf[p] == 0x0A:
-            q, boundary = p + 1, True
-        else:
-            m = _NEXT_START.search(buf, p + 1)
-            if m is None:
-                q, boundary = n, False
-            elif buf[m.start()] == 0x0A:
-                q, boundary = m.start() + 1, True
-            else:
-                q, boundary = m.start(), False
+        """Reject the candidate at ``p``: move to the next byte that could start a frame (``A5``) or a ``$`` line;
+        the bytes in between can start nothing (plain lines start only right after a handed-out frame/line)."""
+        m = _NEXT_START.search(buf, p + 1)
+        q = n if m is None else m.start()
         self.stats.bytes_skipped += q - p
-        self._boundary = boundary
+        self._boundary = False
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -201,6 +195,10 @@ class StreamDecoder:
                     continue
                 break  # wait for the rest of the line
             raw = bytes(buf[p:nl])
+            if self._boundary and raw in (b"", b"\r"):  # blank line between lines: skipped, still a boundary
+                stats.bytes_skipped += nl + 1 - p
+                p = nl + 1
+                continue
             text = decode_line(raw)
             if text is None:
                 p = self._skip(buf, p, n)

@@ -15,6 +15,7 @@ See ``firmware_patch/PROTOCOL.md``.
 from __future__ import annotations
 
 import math
+import operator
 import re
 
 from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
@@ -25,7 +26,7 @@ MAX_LINE_BYTES = 512
 _INT = rb"-?[0-9]{1,11}"
 _ATT_RE = re.compile(rb"\$ATT((?:," + _INT + rb"){12})\*([0-9A-F]{2})")
 _STA_RE = re.compile(rb"\$STA((?:," + _INT + rb"){9})\*([0-9A-F]{2})")
-_SENTENCE_RE = re.compile(rb"\$([^*]*)\*([0-9A-F]{2})")
+_SENTENCE_RE = re.compile(rb"\$([A-Z][A-Z0-9]{2,}(?:,[^*]*)?)\*([0-9A-F]{2})")
 #: Bytes that may never appear inside a text line (control characters except TAB, and DEL).
 BAD_LINE_BYTE = re.compile(rb"[\x00-\x08\x0a-\x1f\x7f]")
 
@@ -48,7 +49,10 @@ def _sentence(body: str) -> bytes:
 
 def _trunc(x: float) -> int:
     """Round toward zero, as the firmware's integer conversion does."""
-    return int(math.trunc(x))
+    try:
+        return operator.index(x)  # any integer type, exactly
+    except TypeError:
+        return int(math.trunc(float(x)))
 
 
 def format_att(
@@ -79,7 +83,8 @@ def format_sta(
 def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
     """Parse one ``$`` line (without line ending); None when its checksum fails or its fields do not parse.
 
-    A ``$`` sentence of another name with a correct checksum is returned as a :class:`TextFrame`.
+    A ``$`` sentence of another name (upper-case letters and digits, at least 3) with a correct checksum is
+    returned as a :class:`TextFrame`.
     """
     m = _SENTENCE_RE.fullmatch(line)
     if m is None or checksum(m.group(1)) != int(m.group(2), 16):
