@@ -229,6 +229,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     path = Path(path)
     raw = _read_bytes(path) if data is None else data
     if not raw.startswith(MAGIC):
+        if raw and MAGIC.startswith(raw):
+            raise UserError(f"{path}: the capture header is damaged or incomplete.")
         raise UserError(f"{path} is not a steval capture (.stv) file.")
     mv = memoryview(raw)
     pos = len(MAGIC)
