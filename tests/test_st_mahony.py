@@ -67,10 +67,11 @@ def test_conformance_vectors_are_all_found():
 
 
 @needs_shared
+@pytest.mark.parametrize("native", [pytest.param(True, marks=needs_native), False], ids=["native", "numpy"])
 @pytest.mark.parametrize("name", CSV_NAMES)
-def test_quaternion_to_euler_matches_firmware_bits(name):
+def test_quaternion_to_euler_matches_firmware_bits(name, native):
     v = vectors(name)
-    thx, thy = quaternion_to_euler(v.q_wxyz)
+    thx, thy = quaternion_to_euler(v.q_wxyz, native=native)
     assert thx.dtype == np.float32 and thy.dtype == np.float32
     assert_bits(thx, v.thx_rad, f"{name} thx")
     assert_bits(thy, v.thy_rad, f"{name} thy")

@@ -17,6 +17,12 @@
  *     state     : writable float32 buffer of 7 values: q0, q1, q2, q3, exInt, eyInt, ezInt (in: start, out: end)
  *     params    : float32 buffer of 4 values: kp_ground, kp_flight, ki, dt_s
  *     flags     : int: min_thr in bits 0..31 (signed), bit 32 = no correction, bit 33 = fresh squares
+ *
+ *   euler(q, thx_out, thy_out) -> None
+ *     q         : float32 buffer of 4*N values; thx_out, thy_out: writable float32 buffers of N values
+ *
+ * Both use the C library's atan2/asin, so thx/thy of the port and of firmware quaternions converted on the host
+ * come from the same math library.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -49,6 +55,19 @@ static float inv_sqrt(float x)
     memcpy(&y, &u, sizeof y);
     y = y * (1.5f - (halfx * y * y));
     return y;
+}
+
+/* QuaternionToEuler: float products and sums in the C source's order, double atan2/asin, stored to float. */
+static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *thx, float *thy)
+{
+    float e00 = q0 * q0, e11 = q1 * q1, e22 = q2 * q2, e33 = q3 * q3;
+    float d0 = 2.0f * q0, d1 = 2.0f * q1, d2 = 2.0f * q2;
+    float d1q3 = d1 * q3, d0q2 = d0 * q2, d0q1 = d0 * q1, d2q3 = d2 * q3;
+    float num = d0q1 + d2q3;
+    float den = e00 + e33 - e11 - e22;
+    float sarg = d0q2 - d1q3;
+    *thx = (float)atan2((double)num, (double)den);
+    *thy = (float)asin((double)sarg);
 }
 
 static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
@@ -181,14 +200,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
             qo[4 * k + 3] = q3;
 
             if (have_euler) {
-                float e00 = q0 * q0, e11 = q1 * q1, e22 = q2 * q2, e33 = q3 * q3;
-                float d0 = 2.0f * q0, d1 = 2.0f * q1, d2 = 2.0f * q2;
-                float d1q3 = d1 * q3, d0q2 = d0 * q2, d0q1 = d0 * q1, d2q3 = d2 * q3;
-                float num = d0q1 + d2q3;
-                float den = e00 + e33 - e11 - e22;
-                float sarg = d0q2 - d1q3;
-                thx_o[k] = (float)atan2((double)num, (double)den);
-                thy_o[k] = (float)asin((double)sarg);
+                quaternion_to_euler(q0, q1, q2, q3, &thx_o[k], &thy_o[k]);
             }
         }
         Py_END_ALLOW_THREADS
@@ -222,7 +234,53 @@ out_thr:
     Py_RETURN_NONE;
 }
 
+static PyObject *native_euler(PyObject *self, PyObject *args)
+{
+    PyObject *o_q, *o_thx, *o_thy;
+    Py_buffer b_q, b_thx, b_thy;
+    Py_ssize_t n, k;
+
+    (void)self;
+    if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_thx, &o_thy)) {
+        return NULL;
+    }
+    if (PyObject_GetBuffer(o_q, &b_q, PyBUF_C_CONTIGUOUS) < 0) {
+        return NULL;
+    }
+    n = b_q.len / 16;
+    if (b_q.len != n * 16) {
+        PyErr_SetString(PyExc_ValueError, "q: length is not a multiple of 16 bytes (4 float32)");
+        PyBuffer_Release(&b_q);
+        return NULL;
+    }
+    if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) {
+        PyBuffer_Release(&b_q);
+        return NULL;
+    }
+    if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) {
+        PyBuffer_Release(&b_thx);
+        PyBuffer_Release(&b_q);
+        return NULL;
+    }
+    {
+        const float *q = (const float *)b_q.buf;
+        float *thx = (float *)b_thx.buf;
+        float *thy = (float *)b_thy.buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (k = 0; k < n; k++) {
+            quaternion_to_euler(q[4 * k], q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], &thx[k], &thy[k]);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&b_thy);
+    PyBuffer_Release(&b_thx);
+    PyBuffer_Release(&b_q);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef native_methods[] = {
+    {"euler", native_euler, METH_VARARGS,
+     "euler(q, thx_out, thy_out): the firmware's QuaternionToEuler over 4*N float32 values, in place."},
     {"run", native_run, METH_VARARGS,
      "run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags): the firmware's Mahony loop, in place."},
     {NULL, NULL, 0, NULL},

@@ -61,18 +61,27 @@ def inv_sqrt(x) -> np.ndarray:
     return y * (_THREE_HALVES - (halfx * y * y))
 
 
-def quaternion_to_euler(q_wxyz) -> tuple[np.ndarray, np.ndarray]:
+def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
 
     ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``: q0 scalar first). Products and sums are float32 in the C
     source's order; only ``atan2``/``asin`` run in double, and their results are stored to float32 as the firmware
     does. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation about x (pitch), thy =
     asin(2q0q2 − 2q1q3) the rotation about y (roll); thy is NaN where the (not quite unit) quaternion makes the
-    argument leave [−1, 1], as on the drone.
+    argument leave [−1, 1], as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's
+    (used by default when the extension is built, like the native filter loop).
     """
     q = np.asarray(q_wxyz, dtype=_F32)
     if q.shape[-1] != 4:
         raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
+    if native and _native is None:
+        raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+    if _native is not None and native is not False:
+        qc = np.ascontiguousarray(q)
+        thx = np.empty(q.shape[:-1], dtype=_F32)
+        thy = np.empty(q.shape[:-1], dtype=_F32)
+        _native.euler(qc, thx, thy)  # the C library's atan2/asin, same as the native filter loop
+        return thx, thy
     with np.errstate(invalid="ignore", over="ignore"):
         q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
         q0q0 = q0 * q0
@@ -247,7 +256,7 @@ def run(
         _native.run(acc, gyro, thr_arr, q, thx, thy, st, settings._params_f32(), flags)
     else:
         st = _run_pure(acc, gyro, thr_arr, q, st, settings)
-        thx, thy = quaternion_to_euler(q) if euler else (None, None)
+        thx, thy = quaternion_to_euler(q, native=False) if euler else (None, None)
     return q, thx, thy, MahonyState.from_array(st)
 
 
