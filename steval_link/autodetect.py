@@ -134,11 +134,16 @@ class PortFinder:
         """The path to reopen, or ``None`` when the port is not back yet."""
         ident = self.identity
         if ident.has_usb_id:
-            for info in _comports():
-                if info.vid == ident.vid and info.pid == ident.pid and (
-                    ident.serial_number is None or info.serial_number == ident.serial_number
-                ):
-                    return info.device
+            matches = [
+                info.device
+                for info in _comports()
+                if info.vid == ident.vid
+                and info.pid == ident.pid
+                and (ident.serial_number is None or info.serial_number == ident.serial_number)
+            ]
+            if matches:
+                # several identical adapters without serial numbers: keep the old name when it is among them
+                return ident.device if ident.device in matches else matches[0]
         if os.path.exists(ident.path):
             return ident.path
         for path in self._siblings():

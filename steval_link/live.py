@@ -359,38 +359,35 @@ def resolve_estimators(spec: str | None) -> list[str]:
 
 
 class LinkHealth:
-    """Counters and rates of the live link, for the health line and the summary."""
+    """Counters and rates of the live link, for the health line and the summary (times: host s, Unix epoch)."""
 
     def __init__(self) -> None:
         self.attitude = 0
         self.status = 0
         self.text = 0
         self.nonfinite = 0
-        self.last_step: int | None = None
-        self.last_tx_dropped = 0
-        self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=64)
-        self.first_frame_mono: float | None = None
-        self.last_frame_mono: float | None = None
+        self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
+        self.first_frame_s: float | None = None  # host receive time of the first attitude frame
+        self.last_frame_s: float | None = None
         self.last_text: str | None = None
 
-    def count(self, n_attitude: int, now_mono: float) -> None:
+    def count(self, n_attitude: int, t_first_s: float, t_last_s: float) -> None:
+        """``n_attitude`` frames received between host times ``t_first_s`` and ``t_last_s``."""
         if n_attitude:
-            if self.first_frame_mono is None:
-                self.first_frame_mono = now_mono
-            self.last_frame_mono = now_mono
-        self.attitude += n_attitude
-        self._times.append((now_mono, self.attitude))
+            if self.first_frame_s is None:
+                self.first_frame_s = t_first_s
+            self.last_frame_s = t_last_s
+            self.attitude += n_attitude
+            self._times.append((t_last_s, self.attitude))
 
-    def rate_hz(self, now_mono: float, window_s: float = 2.0) -> float:
-        """Attitude frames per second over the last ``window_s``."""
-        old = None
-        for t, n in self._times:
-            if now_mono - t <= window_s:
-                old = (t, n)
-                break
-        if old is None or now_mono - old[0] < 0.2:
-            return 0.0 if (self.last_frame_mono is None or now_mono - self.last_frame_mono > 1.0) else float("nan")
-        return (self.attitude - old[1]) / (now_mono - old[0])
+    def rate_hz(self, now_s: float, window_s: float = 2.0) -> float:
+        """Attitude frames per second received over the last ``window_s`` (NaN while too little is known)."""
+        if self.last_frame_s is None or now_s - self.last_frame_s > 1.0:
+            return 0.0
+        recent = [(t, n) for t, n in self._times if now_s - t <= window_s]
+        if len(recent) < 2 or recent[-1][0] - recent[0][0] < 0.2:
+            return float("nan")
+        return (recent[-1][1] - recent[0][1]) / (recent[-1][0] - recent[0][0])
 
 
 def _fmt_bytes(n: float) -> str:
@@ -445,6 +442,94 @@ class HealthDisplay:
             self.stream.write("\r\x1b[2K")
             self.stream.flush()
             self._dirty = False
+
+
+class LivePipeline:
+    """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
+
+    ``feed([(bytes, t_host_s), ...])`` decodes the chunks in order and, per processing round, turns the
+    attitude frames into one :class:`AttitudeBatch` that goes through :class:`LiveEstimators` and then to
+    ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
+    ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept.
+    """
+
+    def __init__(self, estimator_names: list[str], viewer=None) -> None:
+        from steval_link.decoder import StreamDecoder
+
+        self.decoder = StreamDecoder()
+        self.health = LinkHealth()
+        self.estimators = LiveEstimators(estimator_names) if estimator_names else None
+        self.viewer = viewer
+        self.step_unwrap = StepUnwrapper()
+        #: the first bytes of the current connection (to describe a stream without frames)
+        self.sample = bytearray()
+
+    @property
+    def port(self) -> "LivePort | None":
+        return self.estimators.port if self.estimators is not None else None
+
+    def feed(self, chunks: list[tuple[bytes, float]]) -> None:
+        """Decode and process chunks received at host times ``t_host_s`` (s, Unix epoch), in stream order."""
+        from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
+
+        viewer = self.viewer
+        att: list[tuple[object, float]] = []
+        for data, t_host_s in chunks:
+            if len(self.sample) < SAMPLE_BYTES:
+                self.sample += data[: SAMPLE_BYTES - len(self.sample)]
+            for frame in self.decoder.feed(data):
+                if isinstance(frame, AttitudeFrame):
+                    att.append((frame, t_host_s))
+                elif isinstance(frame, StatusFrame):
+                    self._attitude(att)
+                    att = []
+                    self.health.status += 1
+                    self.step_unwrap.status(int(frame.step))
+                    if self.estimators is not None:
+                        self.estimators.status(frame)
+                    if viewer is not None:
+                        viewer.log_status(frame, t_host_s)
+                elif isinstance(frame, TextFrame):
+                    self.health.text += 1
+                    self.health.last_text = frame.text
+                    if viewer is not None:
+                        viewer.log_text(frame, t_host_s)
+        self._attitude(att)
+
+    def _attitude(self, att: list) -> None:
+        if not att:
+            return
+        frames = [f for f, _ in att]
+        n = len(frames)
+        acc = np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3)
+        gyro = np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3)
+        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
+        thz = np.array([f.thz_rad for f in frames], dtype=np.float32)
+        exact = np.array([f.exact for f in frames], dtype=bool)
+        # binary frames must carry a finite q; text-mode rows carry no q but angles instead
+        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
+        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1) & np.isfinite(thz)
+        finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
+        batch = AttitudeBatch(
+            step=self.step_unwrap.frames(frames),
+            t_us=np.array([f.t_us for f in frames], dtype=np.int64),
+            t_host_s=np.array([t for _, t in att], dtype=np.float64),
+            acc_mg=acc,
+            gyro_mdps=gyro,
+            q_wxyz=q,
+            thz_rad=thz,
+            thr=np.array([f.thr for f in frames], dtype=np.int16),
+            finite=finite,
+            exact=exact,
+            thx_rad=angles[:, 0],
+            thy_rad=angles[:, 1],
+        )
+        self.health.nonfinite += int(n - np.count_nonzero(finite))
+        self.health.count(n, float(batch.t_host_s[0]), float(batch.t_host_s[-1]))
+        if self.estimators is not None:
+            self.estimators.process(batch)
+        if self.viewer is not None:
+            self.viewer.log_batch(batch)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -586,6 +671,8 @@ class LiveSession:
         opts = self.options
         from steval_link.capture import CaptureWriter
 
+        if opts.uses_rerun:
+            check_viewer_options(opts)  # e.g. no display and no --rrd: say so before anything is opened
         path, ser = self._open_port()
         identity = autodetect.PortIdentity.of(path)
         finder = autodetect.PortFinder(identity, pattern=opts.port if autodetect.is_glob(opts.port) else None)
@@ -610,7 +697,6 @@ class LiveSession:
         proto = RecorderProtocol(capture, inbox, finder, self.clock)
         reader = SerialReader(ser, proto, baud=opts.baud, clock=self.clock, find_port=finder.find)
         viewer = None
-        summary: LiveSummary | None = None
         t0 = time.monotonic()
         error: BaseException | None = None
         old_handlers = self._install_signals()
@@ -623,7 +709,7 @@ class LiveSession:
             reader.start()
             if opts.uses_rerun:
                 viewer = (self.viewer_factory or make_viewer_logger)(opts, capture_path.stem)
-            summary_state = self._loop(reader, proto, inbox, viewer, t0)
+            self._loop(reader, proto, inbox, viewer, t0)
         except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
             error = exc
         finally:
@@ -631,7 +717,7 @@ class LiveSession:
             # whatever is still queued goes to the live side; the capture already holds it
             try:
                 if error is None or isinstance(error, (LinkError, KeyboardInterrupt)):
-                    self._drain(inbox, viewer)
+                    self._drain(inbox)
             except Exception:  # noqa: BLE001
                 pass
             try:
@@ -682,113 +768,47 @@ class LiveSession:
             except (ValueError, OSError):
                 pass
 
-    def _setup_decode(self):
-        from steval_link.decoder import StreamDecoder
-
-        self.decoder = StreamDecoder()
-        self.health = LinkHealth()
-        self.estimators = LiveEstimators(self.options.estimators) if self.options.estimators else None
-        self.step_unwrap = StepUnwrapper()
-        self.sample = bytearray()
-        self.warned_no_frames = False
-
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
-        self._setup_decode()
+        pipe = self.pipeline = LivePipeline(opts.estimators, viewer)
+        self.warned_no_frames = False
         was_connected = True
         while self._stop_reason is None:
             if reader.error is not None:
+                if isinstance(reader.error, OSError):  # the capture could not be written (disk full, removed)
+                    raise UserError(
+                        f"writing the capture failed ({reader.error.strerror or reader.error}); "
+                        f"what was received until then is in {proto.capture.path}"
+                    )
                 raise reader.error
             chunks = inbox.get_all(0.02)
             now = time.monotonic()
             if chunks:
-                self._process(chunks, viewer, now)
+                pipe.feed(chunks)
                 if viewer is not None:
-                    viewer.log_link(self.decoder.stats, self.clock.now_s())
+                    viewer.log_link(pipe.decoder.stats, self.clock.now_s())
             for _ in range(len(proto.events)):
                 self.display.note(proto.events.popleft())
             if proto.connected != was_connected:
                 was_connected = proto.connected
                 if proto.connected:
-                    self.sample.clear()
+                    pipe.sample.clear()
             self._check_frames(proto, now)
             self.display.show(self._health_line(proto, inbox, now), now)
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
-        return None
 
-    def _process(self, chunks: list[tuple[bytes, float]], viewer, now: float) -> None:
-        from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
-
-        att: list[tuple[object, float]] = []
-        for data, t_host_s in chunks:
-            if len(self.sample) < SAMPLE_BYTES:
-                self.sample += data[: SAMPLE_BYTES - len(self.sample)]
-            for frame in self.decoder.feed(data):
-                if isinstance(frame, AttitudeFrame):
-                    att.append((frame, t_host_s))
-                elif isinstance(frame, StatusFrame):
-                    self._flush_attitude(att, viewer, now)
-                    att = []
-                    self.health.status += 1
-                    self.step_unwrap.status(int(frame.step))
-                    if self.estimators is not None:
-                        self.estimators.status(frame)
-                    if viewer is not None:
-                        viewer.log_status(frame, t_host_s)
-                elif isinstance(frame, TextFrame):
-                    self.health.text += 1
-                    self.health.last_text = frame.text
-                    if viewer is not None:
-                        viewer.log_text(frame, t_host_s)
-        self._flush_attitude(att, viewer, now)
-
-    def _flush_attitude(self, att: list, viewer, now: float) -> None:
-        if not att:
-            self.health.count(0, now)
-            return
-        frames = [f for f, _ in att]
-        n = len(frames)
-        acc = np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3)
-        gyro = np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3)
-        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
-        thz = np.array([f.thz_rad for f in frames], dtype=np.float32)
-        exact = np.array([f.exact for f in frames], dtype=bool)
-        # binary frames must carry a finite q; text-mode rows carry no q but angles instead
-        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
-        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1) & np.isfinite(thz)
-        finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
-        batch = AttitudeBatch(
-            step=self.step_unwrap.frames(frames),
-            t_us=np.array([f.t_us for f in frames], dtype=np.int64),
-            t_host_s=np.array([t for _, t in att], dtype=np.float64),
-            acc_mg=acc,
-            gyro_mdps=gyro,
-            q_wxyz=q,
-            thz_rad=thz,
-            thr=np.array([f.thr for f in frames], dtype=np.int16),
-            finite=finite,
-            exact=exact,
-            thx_rad=angles[:, 0],
-            thy_rad=angles[:, 1],
-        )
-        self.health.nonfinite += int(n - np.count_nonzero(finite))
-        self.health.count(n, now)
-        if self.estimators is not None:
-            self.estimators.process(batch)
-        if viewer is not None:
-            viewer.log_batch(batch)
-
-    def _drain(self, inbox: Inbox, viewer) -> None:
-        if not hasattr(self, "decoder"):
+    def _drain(self, inbox: Inbox) -> None:
+        pipe = getattr(self, "pipeline", None)
+        if pipe is None:
             return
         chunks = inbox.get_all(0.0)
         if chunks:
-            self._process(chunks, viewer, time.monotonic())
+            pipe.feed(chunks)
 
     def _check_frames(self, proto: RecorderProtocol, now: float) -> None:
         """Wrong baud rate / not a STEVAL / silence: give up (or warn once with --wait) when no frame ever came."""
-        stats = self.decoder.stats
+        stats = self.pipeline.decoder.stats
         if stats.attitude + stats.status > 0 or self.warned_no_frames or not proto.connected or proto.connected_at_s is None:
             return
         elapsed = now - proto.connected_at_s
@@ -796,7 +816,7 @@ class LiveSession:
         if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
             return
         message = autodetect.no_frames_message(
-            proto.port or "?", self.options.baud, bytes(self.sample), elapsed, total=nbytes
+            proto.port or "?", self.options.baud, bytes(self.pipeline.sample), elapsed, total=nbytes
         )
         if self.options.wait:
             self.warned_no_frames = True
@@ -805,15 +825,15 @@ class LiveSession:
         raise LinkError(message)
 
     def _health_line(self, proto: RecorderProtocol, inbox: Inbox, now: float) -> str:
-        s = self.decoder.stats
-        h = self.health
+        s = self.pipeline.decoder.stats
+        h = self.pipeline.health
         if not proto.connected:
             lost = now - (proto.lost_at_s or now)
             head = f"disconnected, waiting for {proto.port} ({lost:.0f} s)"
         elif s.attitude + s.status == 0:
             head = f"{proto.port}: waiting for frames ({_fmt_bytes(proto.connect_bytes)} received)"
         else:
-            rate = h.rate_hz(now)
+            rate = h.rate_hz(self.clock.now_s())
             head = f"{proto.port} {'--' if math.isnan(rate) else f'{rate:5.1f}'} Hz"
         parts = [
             head,
@@ -828,21 +848,21 @@ class LiveSession:
             parts.append(f"disconnects {proto.disconnects}")
         if inbox.dropped_bytes:
             parts.append(f"live lag: {_fmt_bytes(inbox.dropped_bytes)} not shown")
-        if self.estimators is not None and self.estimators.port is not None:
-            parts.append(self.estimators.port.describe())
+        if self.pipeline.port is not None:
+            parts.append(self.pipeline.port.describe())
         parts.append(f"rec {_fmt_bytes(proto.bytes_total)}")
         return " | ".join(parts)
 
     def _summary(self, capture_path: Path, seconds: float, proto: RecorderProtocol, inbox: Inbox) -> LiveSummary:
-        s = self.decoder.stats if hasattr(self, "decoder") else None
-        h = getattr(self, "health", LinkHealth())
+        pipe = getattr(self, "pipeline", None)
+        s = pipe.decoder.stats if pipe is not None else None
+        h = pipe.health if pipe is not None else LinkHealth()
         port_note = None
         streaming_s = 0.0
-        if h.first_frame_mono is not None and h.last_frame_mono is not None:
-            streaming_s = max(0.0, h.last_frame_mono - h.first_frame_mono - proto.offline_s)
-        est = getattr(self, "estimators", None)
-        if est is not None and est.port is not None:
-            p = est.port
+        if h.first_frame_s is not None and h.last_frame_s is not None:
+            streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - proto.offline_s)
+        p = pipe.port if pipe is not None else None
+        if p is not None:
             if p.rows_mismatch:
                 port_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
             elif p.rows_exact:
@@ -939,6 +959,17 @@ class ViewerLogger:
             self.logger.close()
         finally:
             self.session.close()
+
+
+def check_viewer_options(options: LiveOptions) -> None:
+    """Raise the viewer's :class:`UserError` now when its sinks cannot work (no display for ``--spawn``...)."""
+    if not options.view:
+        return
+    from steval_viewer import sinks
+
+    sinks.resolve_sinks(
+        sinks.SinkOptions(spawn=options.spawn, serve=options.serve, connect=options.connect, rrd=options.rrd)
+    )
 
 
 def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:
