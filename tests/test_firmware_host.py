@@ -369,3 +369,31 @@ def test_link_text_mode_lines(host_build):
         assert f.flags == P.FLAG_TEXT_MODE and f.ki == 0.1 and f.cyc_n == every
     decoded, stats = decode_all(out)
     assert stats.crc_failures == 0 and stats.attitude == n // dec and stats.status == n // every
+
+
+# ---- bundled recordings are C-encoder output --------------------------------------------------------------------
+
+
+def bundled_recordings() -> list[Path]:
+    rec = ROOT / "recordings"
+    return sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin")) if rec.is_dir() else []
+
+
+@pytest.mark.parametrize("path", bundled_recordings() or [None], ids=lambda p: p.name if p else "none")
+def test_bundled_recording_frames_are_c_encoder_output(host_build, path):
+    """Every valid binary frame of every bundled capture is exactly what stv_encode (the C encoder) makes of its
+    payload: the recordings double as C -> Python conformance fixtures."""
+    if path is None:
+        pytest.skip("no bundled captures in recordings/ yet")
+    from steval_link.capture import read_source
+
+    data = read_source(path).data
+    dec = StreamDecoder()
+    frames = dec.feed(data) + dec.finish()
+    spans = [data[f.offset : f.offset + f.nbytes] for f in frames if getattr(f, "exact", True) and f.nbytes]
+    binary = [s for s in spans if s[:2] == P.SYNC]
+    if not binary:
+        pytest.skip(f"{path.name} holds no binary frames (text mode)")
+    req = b"".join(bytes([s[2] & 0x0F, s[3]]) + s[4:-2] for s in binary)
+    out = subprocess.run([host_build / "stv_encode"], input=req, capture_output=True, check=True).stdout
+    assert out == b"".join(binary)

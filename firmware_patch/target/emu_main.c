@@ -4,6 +4,7 @@
  * sections at their run addresses and sets SP.
  */
 #include <stdint.h>
+#include <string.h>
 
 #include "stv_requests.h"
 
@@ -19,6 +20,7 @@ volatile int32_t emu_rc;
 static stv_txq_t emu_q;
 
 void emu_run(void);
+void emu_run_link(void);
 void emu_halt(void);
 
 static void sink(void *ctx, const uint8_t *data, uint32_t len) {
@@ -33,6 +35,46 @@ void emu_run(void) {
   emu_out_len = 0;
   stv_txq_init(&emu_q);
   emu_rc = stv_run_requests(&emu_q, emu_in, emu_in_len, &done, sink, 0);
+  emu_halt();
+}
+
+/* The main-loop side as the firmware runs it: emu_in holds emu_in_len / 40 steps of
+ * f32 acc[3], gyro[3], q[4] (bytes 0..39); binary mode, status every 162 steps, queue drained after each step. */
+void emu_run_link(void) {
+  static stv_link_t link;
+  static const float zero = 0.0f;
+  stv_link_config_t c;
+  uint32_t i, n = emu_in_len / 40u, cyc = 1000u;
+  memset(&c, 0, sizeof(c));
+  c.kp_ground = 10.0f;
+  c.kp_flight = 0.4f;
+  c.ki = 0.1f;
+  c.dt_s = 0.00625f;
+  c.min_thr = 200;
+  c.cpu_hz = 84000000u;
+  c.baud = 115200u;
+  c.text_decimation = 16u;
+  c.status_every = 162u;
+  for (i = 0; i < 4; i++) c.q_state[i] = &zero;
+  for (i = 0; i < 3; i++) c.int_state[i] = &zero;
+  emu_out_len = 0;
+  stv_link_init(&link, &c, cyc);
+  for (i = 0; i < n; i++) {
+    const float *v = (const float *)(const void *)(emu_in + 40u * i);
+    float eul[3] = {0.0f, 0.0f, v[2]};
+    cyc += 519960u;
+    stv_link_step_begin(&link, cyc, (int16_t)i);
+    stv_link_step_end(&link, cyc + 5000u, v, v + 3, v + 6, eul);
+    {
+      uint32_t len;
+      const uint8_t *p;
+      while ((p = stv_txq_peek(&link.txq, &len)), len) {
+        sink(0, p, len);
+        stv_txq_consume(&link.txq, len);
+      }
+    }
+  }
+  emu_rc = (int32_t)link.txq.dropped;
   emu_halt();
 }
 

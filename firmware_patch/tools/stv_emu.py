@@ -105,8 +105,17 @@ class TargetEncoder:
         mu.reg_write(UC_ARM_REG_LR, self.syms["emu_halt"] | 1)
         return mu
 
-    def run(self, requests: bytes, count: tuple[str, ...] = ("stv_send_attitude", "stv_send_status")) -> EmuResult:
-        """Run frame requests (``u8 type, u8 len, payload``) through the target code; count instructions."""
+    def run(
+        self,
+        requests: bytes,
+        count: tuple[str, ...] = ("stv_send_attitude", "stv_send_status"),
+        entry: str = "emu_run",
+    ) -> EmuResult:
+        """Run frame requests (``u8 type, u8 len, payload``) through the target code; count instructions.
+
+        ``entry="emu_run_link"`` instead runs the main-loop side (``stv_link_step_begin/_end``) over steps of
+        40 bytes each (f32 acc[3], gyro[3], q[4]).
+        """
         from unicorn import UC_HOOK_CODE
         from unicorn.arm_const import UC_ARM_REG_LR
 
@@ -137,7 +146,7 @@ class TargetEncoder:
 
         mu.hook_add(UC_HOOK_CODE, hook)
         halt = s["emu_halt"] & ~1
-        mu.emu_start(s["emu_run"] | 1, halt, count=50_000_000)
+        mu.emu_start(s[entry] | 1, halt, count=50_000_000)
         n_out, = struct.unpack("<I", mu.mem_read(s["emu_out_len"], 4))
         rc, = struct.unpack("<i", mu.mem_read(s["emu_rc"], 4))
         out = bytes(mu.mem_read(s["emu_out"], n_out))
