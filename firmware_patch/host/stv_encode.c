@@ -1,7 +1,7 @@
 /* stv_encode: frame requests on stdin -> wire-protocol v1 frames on stdout, made by the firmware's C encoder and
  * TX queue (firmware_patch/src). Used to produce the bundled recordings and as a C -> Python conformance check.
  *
- *   steval synth ... | firmware_patch/host/stv_encode > capture.bin
+ *   <frame requests> | firmware_patch/host/stv_encode > frames.bin
  *
  * Input: records `u8 type, u8 len, payload[len]` (payload = PROTOCOL.md payload of type 1/2/3). Exit 0 on success;
  * 2 with one line on stderr for malformed input (all frames of the requests before it are already written).
