@@ -7,6 +7,7 @@ tests skip with the reason.
 from __future__ import annotations
 
 import re
+import struct
 import shutil
 import subprocess
 import sys
@@ -154,3 +155,30 @@ def test_patch_applies_and_firmware_links(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert (tmp_path / "b" / "fw" / "steval-fcu-link.bin").stat().st_size > 50_000
+
+
+def test_target_text_mode_lines_match_python(target):
+    """Text mode on the target (hardware float -> int): $ATT lines identical to steval_link.textmode's."""
+    from steval_link.textmode import format_att
+
+    rng = np.random.default_rng(3)
+    n = 200
+    recs, expect = [], b""
+    rad2mdeg = np.float32(57295.78)
+    for i in range(n):
+        step, t_us, thr = int(rng.integers(0, 1 << 32)), int(rng.integers(0, 1 << 32)), int(rng.integers(-32768, 32768))
+        ang = rng.uniform(-np.pi, np.pi, 3).astype(np.float32)
+        acc = rng.uniform(-16000, 16000, 3).astype(np.float32)
+        gyro = rng.uniform(-2e6, 2e6, 3).astype(np.float32)
+        recs.append(struct.pack("<IIi", step, t_us, thr) + np.concatenate([ang, acc, gyro]).astype(np.float32).tobytes())
+        mdeg = [int(np.trunc(a * rad2mdeg)) for a in ang]  # float32 product, rounded toward zero
+        expect += format_att(step=step, t_ms=t_us // 1000, thr=thr, thx_mdeg=mdeg[0], thy_mdeg=mdeg[1],
+                             thz_mdeg=mdeg[2], acc_mg=[int(np.trunc(x)) for x in acc],
+                             gyro_mdps=[int(np.trunc(x)) for x in gyro])
+    res = target.run(b"".join(recs), count=(), entry="emu_run_text")
+    assert res.output == expect
+    # out of int32 range saturates, NaN gives 0 (never undefined behaviour on the drone)
+    sat = struct.pack("<IIi", 1, 2000, 0) + np.array([0, 0, 0, 3e9, -3e9, np.nan, np.inf, -np.inf, 0],
+                                                     np.float32).tobytes()
+    line = target.run(sat, count=(), entry="emu_run_text").output
+    assert line.split(b"*")[0] == b"$ATT,1,2,0,0,0,0,2147483647,-2147483648,0,2147483647,-2147483648,0"

@@ -21,6 +21,7 @@ static stv_txq_t emu_q;
 
 void emu_run(void);
 void emu_run_link(void);
+void emu_run_text(void);
 void emu_halt(void);
 
 static void sink(void *ctx, const uint8_t *data, uint32_t len) {
@@ -75,6 +76,30 @@ void emu_run_link(void) {
     }
   }
   emu_rc = (int32_t)link.txq.dropped;
+  emu_halt();
+}
+
+/* Text mode on the target (float -> integer conversions in hardware): emu_in holds emu_in_len / 48 lines of
+ * u32 step, u32 t_us, i32 thr, f32 thx, thy, thz, acc[3], gyro[3]; the $ATT lines go to emu_out. */
+void emu_run_text(void) {
+  uint32_t i, n = emu_in_len / 48u;
+  emu_out_len = 0;
+  for (i = 0; i < n; i++) {
+    const uint8_t *p = emu_in + 48u * i;
+    stv_att_line_t v;
+    int32_t thr;
+    char line[STV_TEXT_LINE_MAX];
+    memcpy(&v.step, p, 4);
+    memcpy(&v.t_us, p + 4, 4);
+    memcpy(&thr, p + 8, 4);
+    v.thr = (int16_t)thr;
+    memcpy(&v.thx_rad, p + 12, 4);
+    memcpy(&v.thy_rad, p + 16, 4);
+    memcpy(&v.thz_rad, p + 20, 4);
+    memcpy(v.acc_mg, p + 24, 12);
+    memcpy(v.gyro_mdps, p + 36, 12);
+    sink(0, (const uint8_t *)line, (uint32_t)stv_format_att_line(line, &v));
+  }
   emu_halt();
 }
 
