@@ -72,7 +72,8 @@ void stv_link_step_end(stv_link_t *link, uint32_t cyc_now, const float acc_mg[3]
 void stv_link_make_status(stv_link_t *link, stv_status_t *st);
 
 /* Log output (e.g. PRINTF): bytes are gathered into lines; each '\n' ends a line ('\r' and empty lines are
- * dropped), lines longer than 255 bytes are split. Binary mode: text frames; text mode: the line + "\r\n". */
+ * dropped), lines longer than 255 bytes are split. Binary mode: text frames; text mode: the line + "\r\n", with a
+ * leading '$' replaced by '#' so that no log line can pass for a $ATT/$STA record. */
 void stv_link_log_write(stv_link_t *link, const char *s, size_t n);
 
 /* Encode + enqueue helpers (what the firmware does per frame). Return 1 if queued, 0 if dropped (counted). */

@@ -25,6 +25,10 @@ def missing_tools() -> str | None:
         return "arm-none-eabi-gcc is not installed (Debian: apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi)"
     if shutil.which("make") is None:
         return "make is not installed"
+    libc = subprocess.run(["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
+                           "-mfpu=fpv4-sp-d16", "-print-file-name=libc_nano.a"], capture_output=True, text=True)
+    if "/" not in libc.stdout:
+        return "newlib-nano for arm-none-eabi is not installed (Debian: apt-get install libnewlib-arm-none-eabi)"
     try:
         import unicorn  # noqa: F401
     except ImportError:
