@@ -44,6 +44,7 @@ void stv_fw_step_begin(int16_t thr) {
   uint32_t s = irq_save();
   stv_link_step_begin(&g_stv, STV_DWT_CYCCNT, thr);
   irq_restore(s);
+  g_stv.cyc_begin = STV_DWT_CYCCNT; /* count from here: ahrs_fusion_ag + QuaternionToEuler, not our bookkeeping */
 }
 
 void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]) {
