@@ -1,0 +1,122 @@
+"""``steval compare``: the firmware's angles against the bit-exact port, the EKFs and accelerometer-only tilt.
+
+Exit codes: 0 when the report was produced — also when the port disagrees with the firmware (that is a finding,
+shown with its first step and a diagnosis, and ``port.all_exact`` is false in ``--json``); 2 for user errors
+(missing or unreadable capture, no attitude frames, unknown estimator, matplotlib missing for ``--plot``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+
+__all__ = ["compare_command"]
+
+
+def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares):
+    """Port settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
+    from steval_link.estimators.st_mahony import MahonySettings
+
+    changes = {
+        k: v
+        for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, dt_s=dt, min_thr=min_thr,
+                         correction=correction, fresh_squares=fresh_squares).items()
+        if v is not None
+    }
+    if not changes:
+        return None
+    for k, v in changes.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise UserError(f"--{k.replace('_s', '').replace('_', '-')} must be a finite number, got {v}")
+    if dt is not None and dt <= 0:
+        raise UserError(f"--dt must be a period > 0 s, got {dt}")
+    s = tel.status
+    base = MahonySettings()
+    ex = [j for j in range(len(s)) if s.exact[j]]
+    if ex:
+        j = ex[0]
+        base = MahonySettings.from_status(kp_ground=s.kp_ground[j], kp_flight=s.kp_flight[j], ki=s.ki[j],
+                                          dt_s=s.dt_s[j], min_thr=s.min_thr[j], flags=s.flags[j])
+    return replace(base, **changes)
+
+
+@app.command("compare")
+def compare_command(
+    capture: Annotated[
+        Optional[Path],
+        typer.Argument(help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording.",
+                       show_default=False),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
+                                                          "stdout).")] = False,
+    plot: Annotated[
+        Optional[Path],
+        typer.Option("--plot", metavar="OUT.png", help='Also write a figure (angles over time, firmware − port, '
+                     'differences per estimator); needs matplotlib: pip install "steval-link\\[plot]".'),
+    ] = None,
+    estimator: Annotated[
+        Optional[list[str]],
+        typer.Option("--estimator", "-e", help="Estimator to compare (repeatable; default: ekf3, mekf, accel). "
+                     "The seeded ST-Mahony port is always compared."),
+    ] = None,
+    ki: Annotated[Optional[float], typer.Option("--ki", help="Run the port with this AHRS_KI instead of the "
+                                                             "status frames' (diagnosis of a mismatch).")] = None,
+    kp_ground: Annotated[Optional[float], typer.Option("--kp-ground", help="Port kp below MIN_THR.")] = None,
+    kp_flight: Annotated[Optional[float], typer.Option("--kp-flight", help="Port kp at or above MIN_THR.")] = None,
+    dt: Annotated[Optional[float], typer.Option("--dt", help="Port integration period, s.")] = None,
+    min_thr: Annotated[Optional[int], typer.Option("--min-thr", help="Port gain-switch throttle.")] = None,
+    correction: Annotated[
+        Optional[bool], typer.Option("--correction/--no-correction", help="Port with/without accelerometer "
+                                     "correction.", show_default=False)
+    ] = None,
+    fresh_squares: Annotated[
+        Optional[bool], typer.Option("--fresh-squares/--stale-squares", help="Port normalisation variant (fresh: "
+                                     "2017 releases; stale: 170120).", show_default=False)
+    ] = None,
+) -> None:
+    """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
+    difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
+    drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees."""
+    from steval_link.analysis.compare import DEFAULT_COMPARE_ESTIMATORS, compare_capture, format_report
+    from steval_link.cli.replay import load_replay
+    from steval_link.estimators import registry
+
+    names = tuple(estimator) if estimator else DEFAULT_COMPARE_ESTIMATORS
+    for name in names:
+        if estimator and name not in registry.ESTIMATORS:
+            raise UserError(f"unknown estimator {name!r}; choose from: {', '.join(registry.names())}")
+    if plot is not None:
+        from steval_link.analysis.plots import require_matplotlib
+
+        require_matplotlib()
+    tel, seen = load_replay(capture)
+    if len(tel.attitude) == 0:
+        raise UserError(f"{tel.source.get('path')} has no attitude frames to compare "
+                        f"({len(tel.status)} status frames, {len(tel.text)} text lines).")
+    settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
+    report = compare_capture(tel, estimators=names, settings=settings)
+    for w in seen:
+        report.notes.append(w)
+    if plot is not None:
+        from steval_link.analysis.plots import plot_comparison
+
+        plot_comparison(tel, report, plot)
+    if as_json:
+        d = report.as_dict()
+        if plot is not None:
+            d["plot"] = str(plot)
+        json.dump(d, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print("\n".join(format_report(report)))
+        if plot is not None:
+            print(f"plot: {plot}")
