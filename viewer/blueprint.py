@@ -71,13 +71,13 @@ def make_blueprint(
         name="Attitude (solid: firmware, ghost: host estimate)",
         overrides=overrides or None,
         eye_controls=rrb.EyeControls3D(
-            position=(3.2, -3.6, 2.4), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)
+            position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)
         ),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
     link = rrb.Tabs(
         rrb.Grid(
-            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline),
+            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0)),
             _series(
                 ent.LINK,
                 "Link losses (count, cumulative)",
@@ -114,7 +114,7 @@ def make_blueprint(
     )
     return rrb.Blueprint(
         rrb.Horizontal(left, right, column_shares=[2, 3]),
-        rrb.TimePanel(timeline=timeline, expanded=True, play_state="following" if live else None),
+        rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
         rrb.BlueprintPanel(expanded=False),
         rrb.SelectionPanel(expanded=False),
         collapse_panels=False,

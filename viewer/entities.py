@@ -86,15 +86,15 @@ SOURCE_LABELS = {
 
 #: RGB colours of the sources (same colour in every plot and for the 3D ghost).
 SOURCE_COLORS = {
-    "firmware": (230, 230, 230),
-    "st_mahony_port": (255, 160, 40),
-    "st_mahony": (255, 200, 90),
-    "ekf3": (70, 170, 255),
-    "mekf": (170, 110, 255),
-    "accel": (90, 210, 110),
-    "vqf": (255, 90, 160),
+    "firmware": (214, 39, 40),
+    "st_mahony_port": (255, 187, 0),
+    "st_mahony": (140, 86, 75),
+    "ekf3": (31, 119, 180),
+    "mekf": (148, 103, 189),
+    "accel": (44, 160, 44),
+    "vqf": (227, 119, 194),
 }
-_FALLBACK_COLORS = [(240, 228, 66), (0, 158, 115), (213, 94, 0), (204, 121, 167)]
+_FALLBACK_COLORS = [(23, 190, 207), (188, 189, 34), (127, 127, 127), (0, 158, 115)]
 
 #: Which host estimate the 3D ghost shows by default (the others are logged too, hidden in the blueprint).
 DEFAULT_GHOST = "st_mahony_port"

@@ -20,7 +20,6 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
-from steval_link.protocol import AHRS_PERIOD_S
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
@@ -130,13 +129,12 @@ def log_link(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySum
     n = len(times)
     if n:
         last, counts = _bins_1s(times.t_fw_s)
-        # The first and last bins are partial: their rate is over the time they really span.
+        # frames per second of firmware time inside each bin (exact for partial first/last bins too)
         t = times.t_fw_s
         first = np.concatenate(([0], last[:-1] + 1))
-        denom = np.ones(len(last))
-        for b in {0, len(last) - 1}:
-            denom[b] = min(1.0, t[last[b]] - t[first[b]] + AHRS_PERIOD_S)
-        rate = counts / denom
+        span = t[last] - t[first]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = np.where((counts > 1) & (span > 0), (counts - 1) / span, np.nan)
         bt = times.take(last)
         send_scalars(rec, ent.LINK_RATE, bt, rate)
         summary.samples[ent.LINK_RATE] = len(last)

@@ -56,10 +56,10 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
     _line(rec, ent.PLOT_ACC, ["acc x right (mg)", "acc y forward (mg)", "acc z up (mg)"], xyz)
     _line(rec, ent.PLOT_GYRO, ["gyro x, pitch rate (dps)", "gyro y, roll rate (dps)", "gyro z, yaw rate (dps)"], xyz)
-    _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (200, 200, 200))
+    _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
     _line(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
     _line(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
     _line(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
     _line(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
-    _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (160, 160, 160))
-    _line(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], [(90, 210, 110), (200, 200, 200), (230, 60, 60)])
+    _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
+    _line(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], [(44, 160, 44), (127, 127, 127), (214, 39, 40)])
