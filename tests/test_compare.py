@@ -111,7 +111,7 @@ def test_clean_capture_is_bit_exact_on_every_step():
     p = r.port
     assert p.rows == p.seeded == p.bit_exact == 1500 and p.all_exact and p.first_mismatch is None
     assert p.seeds[0]["source"] == "power-up" and not p.diagnosis
-    port = r.trace("st-mahony")
+    port = r.trace("st-mahony-port")
     assert port.pitch.rms_deg == 0.0 and port.roll.max_abs_deg == 0.0 and port.pitch.n == 1500
     text = "\n".join(format_report(r))
     assert "bit-exact on every step" in text and "bit-exact steps 1500 of 1500" in text
@@ -298,7 +298,7 @@ def test_text_mode_capture_compares_estimators_only():
     assert not tel.attitude.exact.any()
     r = compare_capture(tel, estimators=("accel",))
     assert r.port is None and r.text_rows == len(tel.attitude)
-    assert not r.trace("st-mahony").available
+    assert not r.trace("st-mahony-port").available
     assert r.trace("accel").available and r.trace("accel").pitch.n == len(tel.attitude)
     text = "\n".join(format_report(r))
     assert "cannot be bit-exact" in text
@@ -339,7 +339,7 @@ def test_cli_json_is_machine_output_only(stv_file, capsys):
     d = json.loads(out)
     assert d["port"]["all_exact"] is True and d["port"]["bit_exact_steps"] == d["port"]["seeded_steps"] == 899 - 21
     assert d["rates"]["frames_missing"] == 1 and d["rows"]["attitude"] == 899
-    assert {t["name"] for t in d["traces"]} >= {"st-mahony", "accel", "ekf3", "mekf"}
+    assert {t["name"] for t in d["traces"]} >= {"st-mahony-port", "accel", "ekf3", "mekf"}
 
 
 def test_cli_port_disagreement_still_exits_0(tmp_path, capsys):

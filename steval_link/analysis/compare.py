@@ -42,6 +42,7 @@ from steval_link.estimators.st_mahony import (
 
 __all__ = [
     "DEFAULT_COMPARE_ESTIMATORS",
+    "PORT_TRACE",
     "AngleStats",
     "TraceComparison",
     "PortComparison",
@@ -55,11 +56,15 @@ __all__ = [
 #: Estimators ``steval compare`` runs next to the port by default (missing ones are reported, not fatal).
 DEFAULT_COMPARE_ESTIMATORS: tuple[str, ...] = ("ekf3", "mekf", "accel")
 
+#: Trace name of the seeded port (``st-mahony`` is the registry estimator run from power-up, if requested).
+PORT_TRACE = "st-mahony-port"
+
 #: Rows after the first mismatch over which an alternative setting must reproduce the firmware to be named.
 DIAGNOSIS_WINDOW_ROWS = 600
 
 _LABELS = {
-    "st-mahony": "ST-Mahony port",
+    "st-mahony-port": "ST-Mahony port",
+    "st-mahony": "ST-Mahony from power-up",
     "accel": "accel-only tilt",
     "ekf3": "EKF (3-state)",
     "mekf": "MEKF",
@@ -731,14 +736,14 @@ def compare_capture(
         valid = np.zeros(n, bool)
         valid[prow] = rep.seeded
         note = "bit-exact" if port.all_exact else ("not seeded" if port.seeded == 0 else "")
-        traces.append(_trace("st-mahony", "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
+        traces.append(_trace(PORT_TRACE, "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
     if (~exact).any():
         notes.append(
             f"{int((~exact).sum())} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
             "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
         )
         if port is None:
-            traces.append(_unavailable("st-mahony", "text-mode capture: the bit-exact port needs binary frames"))
+            traces.append(_unavailable(PORT_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
 
     estimates: dict[str, Any] = {}
     for name in estimators:
@@ -748,8 +753,6 @@ def compare_capture(
             continue
         estimates[name] = est
         label = _LABELS.get(name, name)
-        if name == "st-mahony":
-            label = "ST-Mahony from power-up"
         traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy))
 
     nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))

@@ -210,6 +210,10 @@ def simulate_command(
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the run (every iteration, exact values) as JSON."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Log the run to a Rerun .rrd file for the viewer."),
+    plot: Optional[Path] = typer.Option(
+        None, "--plot", metavar="OUT.png",
+        help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
+    ),
 ) -> None:
     """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
     estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
@@ -219,6 +223,10 @@ def simulate_command(
         raise UserError(f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}")
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
+    if plot is not None:
+        from steval_link.analysis.plots import require_matplotlib
+
+        require_matplotlib()
     gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps")
     acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg")
     if noise:
@@ -256,6 +264,10 @@ def simulate_command(
 
     if rrd is not None:
         _log_rrd(res, rrd)
+    if plot is not None:
+        from steval_link.analysis.plots import plot_simulation
+
+        plot_simulation(res, plot)
     if csv_out is not None and csv_out != "-":
         try:
             with open(csv_out, "w", newline="", encoding="utf-8") as fh:
@@ -272,7 +284,7 @@ def simulate_command(
         write_csv(res, sys.stdout)
         print(text, file=sys.stderr)
     else:
-        print(text)
+        print(text + (f"\nplot: {plot}" if plot is not None else ""))
 
 
 def _log_rrd(res: SimulationResult, path: Path) -> None:

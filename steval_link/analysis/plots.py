@@ -1,0 +1,343 @@
+"""Figures for lab reports (PNG): ``steval compare --plot`` and ``steval simulate --plot``.
+
+matplotlib is an optional dependency (``pip install "steval-link[plot]"``); :func:`require_matplotlib` turns its
+absence into one :class:`~steval_link.errors.UserError` sentence. Figures are drawn with the Agg backend (no display
+needed). Angles are in degrees; thx is labelled pitch (about x), thy roll (about y), as in the firmware.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from steval_link.errors import UserError
+
+__all__ = [
+    "INSTALL_HINT",
+    "require_matplotlib",
+    "plot_comparison",
+    "comparison_figure",
+    "plot_simulation",
+    "simulation_figure",
+]
+
+INSTALL_HINT = 'pip install "steval-link[plot]"'
+
+#: Line styles per trace: (colour, width, linestyle, z-order).
+_STYLE = {
+    "firmware": ("black", 1.6, "-", 5),
+    "port": ("tab:orange", 1.0, "--", 6),
+    "st-mahony": ("tab:purple", 1.0, ":", 4),
+    "accel": ("tab:gray", 0.6, "-", 2),
+    "ekf3": ("tab:blue", 1.0, "-", 4),
+    "mekf": ("tab:green", 1.0, "-", 4),
+    "vqf": ("tab:pink", 1.0, "-", 4),
+}
+_EXTRA_COLOURS = ["tab:red", "tab:brown", "tab:olive", "tab:cyan"]
+#: Lines longer than this are reduced (min/max per bucket, so peaks stay visible).
+MAX_LINE_POINTS = 8000
+
+
+def require_matplotlib():
+    """``matplotlib.pyplot`` on the Agg backend; raises :class:`UserError` (exit 2) naming the install command."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg", force=True)
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UserError(f"--plot needs matplotlib, which is not installed: {INSTALL_HINT}") from None
+    return plt
+
+
+def _decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Min/max decimation of a line for drawing: peaks survive, NaN gaps stay gaps."""
+    n = t.shape[0]
+    if n <= max_points:
+        return t, y
+    buckets = max_points // 2
+    edges = np.linspace(0, n, buckets + 1).astype(np.int64)
+    tt, yy = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        seg = y[a:b]
+        fin = np.isfinite(seg)
+        if not fin.any():
+            tt += [t[a]]
+            yy += [np.nan]
+            continue
+        i_lo = a + int(np.nanargmin(seg))
+        i_hi = a + int(np.nanargmax(seg))
+        for i in sorted((i_lo, i_hi)):
+            tt.append(t[i])
+            yy.append(y[i])
+        if not fin.all():
+            tt.append(t[b - 1])
+            yy.append(np.nan)
+    return np.asarray(tt), np.asarray(yy)
+
+
+def _save(fig, out_png) -> Path:
+    out = Path(out_png)
+    try:
+        fig.savefig(out, dpi=130)
+    except OSError as exc:
+        raise UserError(f"cannot write the plot {out}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # unknown file extension
+        raise UserError(f"cannot write the plot {out}: {exc}") from None
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    return out
+
+
+def _spans(ax, t: np.ndarray, mask: np.ndarray, label: str | None, color: str = "gold", alpha: float = 0.18) -> None:
+    """Shade every run of rows where ``mask`` is True (one legend entry)."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1
+    for k, (a, b) in enumerate(zip(starts, stops)):
+        ax.axvspan(t[a], t[b], color=color, alpha=alpha, lw=0, zorder=0, label=label if k == 0 else None)
+
+
+def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
+    """Write :func:`comparison_figure` as a PNG to ``out_png`` (returns the path; UserError when not writable)."""
+    return _save(comparison_figure(tel, report, title=title), out_png)
+
+
+def comparison_figure(tel, report, *, title: str | None = None):
+    """Angles over time and differences per estimator, for a :class:`~steval_link.analysis.compare.ComparisonReport`.
+
+    Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time with the firmware, the seeded
+    ST-Mahony port, the EKF(s) and accel-only tilt overlaid; below them firmware − port (degrees; bit-exact rows
+    marked, rows the port could not cover greyed) with the throttle. Spans at flight throttle (≥ MIN_THR, kp_flight)
+    are shaded. Right: RMS and max |Δ| against the firmware per estimator, pitch and roll. Returns the
+    matplotlib figure (Agg).
+    """
+    plt = require_matplotlib()
+    from matplotlib.gridspec import GridSpec
+
+    a = tel.attitude
+    t = np.asarray(report.t_rel_s, dtype=np.float64)
+    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
+    n = t.shape[0]
+    min_thr = 200
+    fs = report.filter_settings or {}
+    if isinstance(fs.get("min_thr"), int):
+        min_thr = fs["min_thr"]
+
+    traces: list[tuple[str, str, dict[str, np.ndarray]]] = []
+    port_x = port_y = None
+    if report.replay is not None:
+        port_x = np.full(n, np.nan)
+        port_y = np.full(n, np.nan)
+        port_x[report.port_rows] = np.degrees(report.replay.thx_rad.astype(np.float64))
+        port_y[report.port_rows] = np.degrees(report.replay.thy_rad.astype(np.float64))
+    extra = iter(_EXTRA_COLOURS)
+    for name, est in report.estimates.items():
+        label = next((tr.label for tr in report.traces if tr.name == name), name)
+        valid = np.asarray(est.valid, bool)
+        x = np.where(valid, np.degrees(np.asarray(est.thx_rad, np.float64)), np.nan)
+        y = np.where(valid, np.degrees(np.asarray(est.thy_rad, np.float64)), np.nan)
+        traces.append((name, label, {"pitch": x, "roll": y}))
+    styles = {name: _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4) for name, _, _ in traces}
+
+    fig = plt.figure(figsize=(13, 8.2))
+    gs = GridSpec(3, 2, figure=fig, width_ratios=[3.2, 1], height_ratios=[1, 1, 0.8], hspace=0.4, wspace=0.22)
+    ax_p = fig.add_subplot(gs[0, 0])
+    ax_r = fig.add_subplot(gs[1, 0], sharex=ax_p)
+    ax_d = fig.add_subplot(gs[2, 0], sharex=ax_p)
+    ax_b = fig.add_subplot(gs[0:2, 1])
+    ax_txt = fig.add_subplot(gs[2, 1])
+    ax_txt.axis("off")
+
+    thr = np.asarray(a.thr)
+    for ax, key, what in ((ax_p, "pitch", "pitch (thx, about x)"), (ax_r, "roll", "roll (thy, about y)")):
+        _spans(ax, t, thr >= min_thr, f"throttle ≥ {min_thr}: kp_flight" if key == "pitch" else None)
+        for name, label, vals in traces:
+            c, lw, ls, z = styles[name]
+            ax.plot(*_decimate(t, vals[key]), color=c, lw=lw, ls=ls, zorder=z, label=label)
+        ax.plot(*_decimate(t, fw[key]), color="black", lw=1.6, zorder=5, label="firmware (drone)")
+        port = port_x if key == "pitch" else port_y
+        if port is not None:
+            c, lw, ls, z = _STYLE["port"]
+            ax.plot(*_decimate(t, port), color=c, lw=lw, ls=ls, zorder=6, label="ST-Mahony port (seeded)")
+        nan_rows = ~np.isfinite(fw[key])
+        if nan_rows.any():
+            ax.plot(t[nan_rows], np.zeros(int(nan_rows.sum())), "x", color="crimson", ms=4, zorder=7,
+                    label="firmware NaN (asin out of range)")
+        ax.set_ylabel(f"{what} [deg]")
+        ax.set_title(what, fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+    h, lab = ax_p.get_legend_handles_labels()
+    fig.legend(h, lab, loc="upper left", bbox_to_anchor=(0.07, 0.955), ncol=min(len(h), 7), fontsize=8,
+               frameon=False, columnspacing=1.2, handlelength=2.0)
+    plt.setp(ax_p.get_xticklabels(), visible=False)
+    plt.setp(ax_r.get_xticklabels(), visible=False)
+
+    # firmware − port
+    p = report.port
+    if port_x is not None:
+        dx = np.degrees(_wrap(np.radians(fw["pitch"] - port_x)))
+        dy = np.degrees(_wrap(np.radians(fw["roll"] - port_y)))
+        ax_d.plot(*_decimate(t, dx), color="tab:blue", lw=0.9, label="pitch: firmware − port")
+        ax_d.plot(*_decimate(t, dy), color="tab:red", lw=0.9, label="roll: firmware − port")
+        covered = np.zeros(n, bool)
+        covered[report.port_rows] = report.replay.seeded
+        _spans(ax_d, t, ~covered, "port not seeded", color="lightgray", alpha=0.6)
+        exact = np.zeros(n, bool)
+        exact[report.port_rows] = report.replay.bit_exact
+        if p.all_exact:
+            ax_d.set_ylim(-1, 1)
+            ax_d.text(0.5, 0.5, f"port bit-exact on all {p.bit_exact} seeded steps", transform=ax_d.transAxes,
+                      ha="center", va="center", fontsize=11, color="darkgreen",
+                      bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"))
+        else:
+            fm = p.first_mismatch
+            if fm is not None:
+                ax_d.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":",
+                             label=f"first difference: step {fm['step']}")
+            _spans(ax_d, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
+        ax_d.set_ylabel("firmware − port [deg]")
+        ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+    else:
+        ax_d.text(0.5, 0.5, "text-mode capture: the bit-exact port needs binary frames", transform=ax_d.transAxes,
+                  ha="center", va="center", fontsize=10)
+        ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+    ax_thr = ax_d.twinx()
+    ax_thr.fill_between(t, thr, step="mid", color="gold", alpha=0.25, lw=0, label="throttle (gTHR)")
+    ax_thr.set_ylabel("throttle", fontsize=8, color="darkgoldenrod")
+    ax_thr.tick_params(labelsize=7, colors="darkgoldenrod")
+    ax_thr.set_ylim(0, max(float(np.max(thr)) * 1.1 if thr.size else 1.0, float(min_thr) * 1.5))
+    ax_d.set_zorder(ax_thr.get_zorder() + 1)
+    ax_d.patch.set_visible(False)
+    h1, l1 = ax_d.get_legend_handles_labels()
+    h2, l2 = ax_thr.get_legend_handles_labels()
+    ax_d.legend(h1 + h2, l1 + l2, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, frameon=False,
+                borderaxespad=0.1, columnspacing=1.0)
+    ax_d.set_xlabel("firmware time since the first frame [s]")
+    ax_d.grid(True, alpha=0.3)
+
+    # differences per estimator
+    avail = [tr for tr in report.traces if tr.available and tr.pitch.n]
+    labels = [tr.label for tr in avail]
+    y = np.arange(len(avail))
+    h = 0.2
+    series = [
+        ("pitch RMS", [tr.pitch.rms_deg for tr in avail], "tab:blue", 1.0),
+        ("pitch max |Δ|", [tr.pitch.max_abs_deg for tr in avail], "tab:blue", 0.35),
+        ("roll RMS", [tr.roll.rms_deg for tr in avail], "tab:red", 1.0),
+        ("roll max |Δ|", [tr.roll.max_abs_deg for tr in avail], "tab:red", 0.35),
+    ]
+    vmax = max([v for _, vals, _, _ in series for v in vals if math.isfinite(v)] + [0.0])
+    for k, (lab, vals, c, alpha) in enumerate(series):
+        vals = np.nan_to_num(np.asarray(vals, float), nan=0.0)
+        pos = y + (k - 1.5) * h
+        ax_b.barh(pos, vals, height=h, color=c, alpha=alpha, label=lab)
+        for yy, v, tr in zip(pos, vals, avail):
+            txt = "0 (bit-exact)" if v == 0 and tr.note == "bit-exact" else f"{v:.3g}"
+            ax_b.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
+    ax_b.set_yticks(y, labels, fontsize=8)
+    ax_b.invert_yaxis()
+    ax_b.set_xlim(0, vmax * 1.25 if vmax > 0 else 1.0)
+    ax_b.set_xlabel("difference from the firmware [deg]")
+    ax_b.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
+    hb, lb = ax_b.get_legend_handles_labels()
+    ax_txt.legend(hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False,
+                  borderaxespad=0.0)
+    ax_b.grid(True, axis="x", alpha=0.3)
+
+    # summary text
+    rt = report.rates
+    lines = []
+    if p is not None:
+        lines.append(f"port bit-exact: {p.bit_exact} / {p.seeded} seeded steps")
+        if p.first_mismatch:
+            lines.append(f"first difference: step {p.first_mismatch['step']} "
+                         f"(t = {p.first_mismatch['t_rel_s']:.2f} s)")
+            if p.matching_variant:
+                lines.append("matches: " + ", ".join(f"{k}={v}" for k, v in p.matching_variant.items()))
+    if rt.rate_hz:
+        lines.append(f"rate {rt.rate_hz:.1f} Hz, period σ {rt.period_std_ms or 0:.3f} ms")
+    lines.append(f"dropped {rt.frames_missing} frames in {rt.seq_gaps} gaps, {rt.crc_failures} CRC failures")
+    if fs.get("from") == "status frames":
+        lines.append(f"kp {fs['kp_ground']:g}/{fs['kp_flight']:g}, ki {fs['ki']:g}, dt {fs['dt_s']:g} s")
+    if report.firmware_nan_pitch or report.firmware_nan_roll:
+        lines.append(f"firmware NaN: {report.firmware_nan_pitch} pitch, {report.firmware_nan_roll} roll steps")
+    wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]
+    ax_txt.text(0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace",
+                transform=ax_txt.transAxes)
+
+    src = report.source.get("path") or "capture"
+    fig.suptitle(title or f"steval compare: {Path(str(src)).name} — firmware vs ST-Mahony port, EKF and accel-only "
+                 "tilt (axes: x right, y forward, z up)", fontsize=11)
+    fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
+    return fig
+
+
+def _wrap(d: np.ndarray) -> np.ndarray:
+    return (d + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def plot_simulation(result, out_png, *, title: str | None = None) -> Path:
+    """Write :func:`simulation_figure` as a PNG to ``out_png`` (returns the path; UserError when not writable)."""
+    return _save(simulation_figure(result, title=title), out_png)
+
+
+def simulation_figure(result, *, title: str | None = None):
+    """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
+    :class:`steval_link.simulate.SimulationResult` (UMaine Lab 5), with the inputs in the title. Returns the
+    matplotlib figure (Agg)."""
+    plt = require_matplotlib()
+    res = result
+    k = np.asarray(res.step, dtype=np.int64)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.2), sharex=True)
+    names = (("eax_rad", "eax = thx: pitch (about x)", "tab:blue"), ("eay_rad", "eay = thy: roll (about y)", "tab:red"),
+             ("eaz_rad", "eaz = thz: yaw (about z)", "tab:green"))
+    valid = np.asarray(res.valid, bool)
+    for ax, (attr, label, c) in zip(axes, names):
+        v = np.degrees(np.asarray(getattr(res, attr), dtype=np.float64))
+        ax.plot(k, v, color=c, lw=1.2, marker="." if k.size <= 200 else None, ms=3, label=label)
+        bad = ~valid | ~np.isfinite(v)
+        if bad.any():
+            ax.plot(k[bad], np.zeros(int(bad.sum())), "x", color="crimson", ms=4, label="invalid / NaN")
+        if k.size:
+            final = f"final {v[-1]:+.6f}°" if np.isfinite(v[-1]) else "final: NaN"
+            ax.set_title(final, fontsize=9, loc="right", color=c)
+        ax.set_ylabel(f"{label.split(':')[0]} [deg]")
+        ax.set_title(label, fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+        if bad.any():
+            ax.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel(f"iteration (dt = {res.dt_s * 1e3:g} ms)")
+    dt = float(res.dt_s)
+    if dt > 0:
+        top = axes[0].secondary_xaxis("top", functions=(lambda x: (x + 1) * dt, lambda s: s / dt - 1))
+        top.set_xlabel("simulated time [s]", fontsize=8)
+        top.tick_params(labelsize=7)
+
+    def vec(x) -> str:
+        x = np.asarray(x, dtype=np.float64)
+        return "[" + ", ".join(f"{float(v):g}" for v in (x if x.ndim == 1 else x[0])) + "]"
+
+    noise = ""
+    if res.seed is not None:
+        noise = f", noise σ gyro {res.gyro_noise_mdps:g} mdps, acc {res.acc_noise_mg:g} mg (seed {res.seed})"
+    opts = ""
+    if res.options:
+        opts = " (" + ", ".join(f"{k2}={v2}" for k2, v2 in res.options.items()) + ")"
+    inputs = f"gyro {vec(res.gyro_mdps)} mdps, acc {vec(res.acc_mg)} mg" if res.iterations else "no iterations"
+    if res.iterations and res.seed is not None:
+        mg = np.mean(np.asarray(res.gyro_mdps, np.float64), axis=0)
+        ma = np.mean(np.asarray(res.acc_mg, np.float64), axis=0)
+        inputs = f"mean gyro {vec(np.round(mg, 1))} mdps, acc {vec(np.round(ma, 1))} mg"
+    fig.suptitle(title or f"steval simulate: {res.estimator}{opts}, {res.iterations} iterations\n{inputs}{noise}",
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    return fig

@@ -1,0 +1,151 @@
+"""Figures of ``steval compare --plot`` and ``steval simulate --plot`` (skipped without matplotlib), and the
+one-line error when matplotlib is missing."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from steval_link.analysis import plots
+from steval_link.analysis.compare import compare_capture
+from steval_link.errors import UserError
+from steval_link.estimators.st_mahony import MahonySettings
+
+from test_compare import capture_bytes, run_cli, telemetry, text_mode_bytes  # noqa: E402
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == PNG_MAGIC
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+@pytest.fixture
+def mpl():
+    return pytest.importorskip("matplotlib")
+
+
+def lines_by_label(ax) -> dict:
+    return {ln.get_label(): ln for ln in ax.get_lines()}
+
+
+def test_comparison_figure_draws_every_trace_in_degrees(mpl):
+    tel = telemetry(n=800)
+    r = compare_capture(tel, estimators=("accel",))
+    fig = plots.comparison_figure(tel, r)
+    ax_p, ax_r, ax_d = fig.axes[0], fig.axes[1], fig.axes[2]
+    assert "pitch (thx, about x)" in ax_p.get_title(loc="left") and "roll (thy, about y)" in ax_r.get_title(loc="left")
+    assert "[deg]" in ax_p.get_ylabel()
+    lp = lines_by_label(ax_p)
+    assert {"firmware (drone)", "ST-Mahony port (seeded)", "accel-only tilt"} <= set(lp)
+    assert np.allclose(lp["firmware (drone)"].get_ydata(), np.degrees(tel.attitude.thx_rad.astype(float)))
+    assert np.allclose(lines_by_label(ax_r)["firmware (drone)"].get_ydata(),
+                       np.degrees(tel.attitude.thy_rad.astype(float)))
+    # the port is bit-exact: the difference panel says so and its lines are zero
+    texts = [t.get_text() for t in ax_d.texts]
+    assert any("bit-exact on all 800" in t for t in texts)
+    assert np.all(lines_by_label(ax_d)["pitch: firmware − port"].get_ydata() == 0)
+    # the bar panel has one group per available estimator
+    ax_b = fig.axes[3]
+    assert [t.get_text() for t in ax_b.get_yticklabels()] == ["ST-Mahony port", "accel-only tilt"]
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_comparison_png_of_a_mismatch_with_drops_and_nan(mpl, tmp_path):
+    tel = telemetry(n=1200, drop=range(300, 320), burst=(700, 760), fw_settings=MahonySettings(ki=1.0),
+                    status_settings=MahonySettings())
+    r = compare_capture(tel, estimators=("accel", "st-mahony"))
+    fig = plots.comparison_figure(tel, r)
+    ax_d = fig.axes[2]
+    assert "first difference: step 0" in lines_by_label(ax_d)
+    assert any("firmware NaN" in ln.get_label() for ln in fig.axes[1].get_lines())
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    out = plots.plot_comparison(tel, r, tmp_path / "mismatch.png")
+    w, h = png_size(out)
+    assert w > 1000 and h > 600
+
+
+def test_text_mode_comparison_png(mpl, tmp_path):
+    from steval_link.decoder import decode_bytes
+
+    tel = decode_bytes(text_mode_bytes(), source={"path": "log.txt", "kind": "text"})
+    r = compare_capture(tel, estimators=("accel",))
+    out = plots.plot_comparison(tel, r, tmp_path / "text.png")
+    assert png_size(out)[0] > 1000
+
+
+def test_decimation_keeps_peaks():
+    t = np.arange(100_000, dtype=float)
+    y = np.zeros_like(t)
+    y[54_321] = 7.0
+    y[10_000:10_010] = np.nan
+    tt, yy = plots._decimate(t, y, 2000)
+    assert tt.size <= 4000 and np.nanmax(yy) == 7.0 and np.isnan(yy).any()
+    assert np.all(np.diff(tt[np.isfinite(yy)]) >= 0)
+
+
+def test_simulation_figure_and_png(mpl, tmp_path):
+    from steval_link.simulate import run_simulation
+
+    res = run_simulation(gyro_mdps=(1000, 2000, 4000), acc_mg=(0, 0, 0), iterations=100)
+    fig = plots.simulation_figure(res)
+    titles = [ax.get_title(loc="left") for ax in fig.axes[:3]]
+    assert titles == ["eax = thx: pitch (about x)", "eay = thy: roll (about y)", "eaz = thz: yaw (about z)"]
+    y = fig.axes[0].get_lines()[0].get_ydata()
+    assert np.allclose(y, np.degrees(res.eax_rad.astype(float)))
+    assert "final" in fig.axes[2].get_title(loc="right")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    out = plots.plot_simulation(res, tmp_path / "sim.png")
+    assert png_size(out)[1] > 500
+
+
+def test_cli_compare_plot(mpl, tmp_path, capsys):
+    cap = tmp_path / "c.bin"
+    cap.write_bytes(capture_bytes(n=600))
+    out = tmp_path / "c.png"
+    code, stdout, err = run_cli(["compare", str(cap), "--plot", str(out), "--json"], capsys)
+    assert code == 0, err
+    import json
+
+    assert json.loads(stdout)["plot"] == str(out)
+    assert png_size(out)[0] > 1000
+
+
+def test_cli_simulate_plot(mpl, tmp_path, capsys):
+    out = tmp_path / "s.png"
+    code, stdout, err = run_cli(["simulate", "--plot", str(out)], capsys)
+    assert code == 0, err
+    assert f"plot: {out}" in stdout and png_size(out)[0] > 800
+
+
+def test_cli_plot_unwritable_exits_2(mpl, tmp_path, capsys):
+    cap = tmp_path / "c.bin"
+    cap.write_bytes(capture_bytes(n=300))
+    code, _, err = run_cli(["compare", str(cap), "--plot", str(tmp_path / "no" / "dir" / "c.png")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "cannot write the plot" in err
+
+
+def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tmp_path, capsys):
+    for name in list(sys.modules):
+        if name == "matplotlib" or name.startswith("matplotlib."):
+            monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    with pytest.raises(UserError, match=r'pip install "steval-link\[plot\]"'):
+        plots.require_matplotlib()
+    cap = tmp_path / "c.bin"
+    cap.write_bytes(capture_bytes(n=300))
+    for args in (["compare", str(cap), "--plot", str(tmp_path / "x.png")], ["simulate", "--plot", str(tmp_path / "y.png")]):
+        code, out, err = run_cli(args, capsys)
+        assert code == 2 and err.count("\n") == 1 and 'pip install "steval-link[plot]"' in err
+        assert out == ""
+    assert not (tmp_path / "x.png").exists()
