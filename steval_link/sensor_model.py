@@ -50,6 +50,7 @@ __all__ = [
     "remove_offsets",
     "gyro_iir",
     "iir_frequency_response",
+    "GYRO_LATENCY_S",
     "fifo_average",
     "run_isr",
     "steval_pipeline",
@@ -283,6 +284,12 @@ def iir_frequency_response(freq_hz, fs_hz: float = TICK_HZ, coeffs: GyroIirCoeff
     with np.errstate(divide="ignore"):
         gain_db = 20 * np.log10(np.abs(h))
     return h, gain_db, np.angle(h), tau_samples / fs_hz
+
+
+#: delay of the gyro input of an AHRS step relative to its accelerometer input, s (≈ 3.3 ms): the IIR's group
+#: delay at low frequency (≈ 2.1 ms at the 807.7 Hz tick) plus the mean age of a 416 Hz sample-and-hold read
+#: (half an ODR period, 1.2 ms). Both inputs share the boxcar, whose centre lies 2 ticks before the step.
+GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_ODR_HZ
 
 
 def fifo_average(fifo) -> np.ndarray:

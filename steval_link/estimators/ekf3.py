@@ -1,0 +1,216 @@
+"""The 3-state attitude EKF of the ETH PBL course project (lecture 4): Euler angles, gyro prediction, accelerometer
+update.
+
+State ``x = (φ, θ, ψ)``, rad, in the firmware's convention (ZYX / Tait–Bryan: body → earth ``R = Rz(ψ)·Ry(θ)·Rx(φ)``):
+φ = ``thx`` (rotation about x, the firmware's "pitch"), θ = ``thy`` (about y, "roll"), ψ = ``thz`` (yaw).
+
+Prediction with the body rates ``ω = (p, q, r)`` (gyro, rad/s) and the Euler-rate kinematics::
+
+    φ̇ = p + sinφ·tanθ·q + cosφ·tanθ·r
+    θ̇ = cosφ·q − sinφ·r
+    ψ̇ = (sinφ·q + cosφ·r) / cosθ
+
+    x ← x + dt·f(x, ω),   F = I + dt·∂f/∂x,   P ← F P Fᵀ + Q
+
+(by default the mean is propagated with the exact solution for a rate constant over the step — the same
+kinematics without forward-Euler error and without the tan θ blow-up near θ = ±90°; ``exact_propagation=False``
+gives the plain forward-Euler step)
+
+    ∂φ̇/∂φ = tanθ·(cosφ·q − sinφ·r)       ∂φ̇/∂θ = (sinφ·q + cosφ·r) / cos²θ
+    ∂θ̇/∂φ = −sinφ·q − cosφ·r              ∂θ̇/∂θ = 0
+    ∂ψ̇/∂φ = (cosφ·q − sinφ·r) / cosθ      ∂ψ̇/∂θ = (sinφ·q + cosφ·r)·sinθ / cos²θ      (ψ column: 0)
+
+    Q = dt²·W·(σ_ω²·I)·Wᵀ + dt·σ_p²·I     (W: the matrix of the Euler-rate equations above, f = W·ω)
+
+σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS; the LSM6DSL's ≈ 75 mdps) and σ_p the process
+noise for everything the gyro model leaves out — bias residue, scale errors, the pipeline's filtering
+(``process_noise_dps_rthz``, dps/√Hz).
+
+Update with the accelerometer direction ``y = a / |a|`` against the predicted gravity direction in the body frame
+(the third row of R, as in the firmware's Mahony filter)::
+
+    h(x) = (−sinθ, sinφ·cosθ, cosφ·cosθ)
+    H = ∂h/∂x = [[0, −cosθ, 0], [cosφ·cosθ, −sinφ·sinθ, 0], [−sinφ·cosθ, −cosφ·sinθ, 0]]
+    K = P Hᵀ (H P Hᵀ + R)⁻¹,   x ← x + K (y − h(x)),   P ← (I − K H) P
+
+with ``R = σ_a²·I``, σ_a the accelerometer noise in g (``acc_noise_mg``; LSM6DSL ≈ 2 mg) plus, as for any body
+that also translates, the unmodelled linear acceleration (``acc_motion_mg``). With ``adaptive=True`` (off by
+default: it drops the strongest accelerations, which biases the tilt during back-and-forth translation) σ_a also grows with the deviation of |a| from 1 g: ``σ_a² = σ_n² + σ_m² + (k·| |a| − 1 g |)²`` (``norm_gain`` k),
+so shakes and taps are trusted less. ψ is unobservable (no magnetometer) and only integrates the gyro.
+The filter starts from the first accelerometer sample's tilt (ψ = 0). cos θ is kept away from 0 (gimbal lock
+at θ = ±90°, a limitation of the Euler-angle state).
+
+Units at the interface are the firmware's: acc in mg, gyro in mdps, axes x right, y forward, z up.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.sensor_model import AHRS_HZ
+
+__all__ = ["Ekf3", "quaternion_from_euler"]
+
+_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
+_MIN_COS = 1e-3
+
+
+def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
+    """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``)."""
+    hx, hy, hz = (0.5 * np.asarray(a, dtype=np.float64) for a in (thx_rad, thy_rad, thz_rad))
+    cx, sx, cy, sy, cz, sz = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy), np.cos(hz), np.sin(hz)
+    return np.stack([
+        cz * cy * cx + sz * sy * sx,
+        cz * cy * sx - sz * sy * cx,
+        cz * sy * cx + sz * cy * sx,
+        sz * cy * cx - cz * sy * sx,
+    ], axis=-1)
+
+
+def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
+    """Euler angles after rotating the body by the rotation vector (rx, ry, rz) (rad, body frame): the exact
+    solution of the Euler-rate kinematics for a rate constant over the step."""
+    qw, qx, qy, qz = quaternion_from_euler(*x).tolist()
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if ang > 1e-12:
+        sn = math.sin(0.5 * ang) / ang
+        dw, dx, dy, dz = math.cos(0.5 * ang), rx * sn, ry * sn, rz * sn
+    else:
+        dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
+    w = qw * dw - qx * dx - qy * dy - qz * dz
+    x_ = qw * dx + qx * dw + qy * dz - qz * dy
+    y = qw * dy - qx * dz + qy * dw + qz * dx
+    z = qw * dz + qx * dy - qy * dx + qz * dw
+    phi = math.atan2(2 * (w * x_ + y * z), w * w - x_ * x_ - y * y + z * z)
+    th = math.asin(max(-1.0, min(1.0, 2 * (w * y - x_ * z))))
+    psi = math.atan2(2 * (x_ * y + w * z), w * w + x_ * x_ - y * y - z * z)
+    return phi, th, psi
+
+
+class Ekf3(Estimator):
+    """3-state Euler-angle EKF (see the module docstring for the equations).
+
+    Args:
+        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
+        gyro_noise_mdps: gyro noise σ_ω, mdps RMS per sample.
+        process_noise_dps_rthz: σ_p, dps/√Hz.
+        acc_noise_mg: σ_n, mg.
+        acc_motion_mg: σ_m, mg.
+        adaptive: add ``(norm_gain·| |a| − 1 g |)²`` to the accelerometer variance.
+        norm_gain: k, dimensionless.
+        exact_propagation: True integrates the Euler-rate kinematics exactly over each step (through the
+            rotation of the step; no tan θ blow-up near ±90°); False uses the forward-Euler step x + dt·f(x, ω)
+            of the course. The covariance always uses the Jacobian F above.
+    """
+
+    name = "ekf3"
+
+    def __init__(self, rate_hz: float = AHRS_HZ, gyro_noise_mdps: float = 75.0,
+                 process_noise_dps_rthz: float = 0.05, acc_noise_mg: float = 2.0, acc_motion_mg: float = 50.0,
+                 adaptive: bool = False, norm_gain: float = 2.0, exact_propagation: bool = True) -> None:
+        if rate_hz <= 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.rate_hz = float(rate_hz)
+        self.dt = 1.0 / self.rate_hz
+        self.gyro_var = (gyro_noise_mdps * _MDPS_TO_RADPS) ** 2
+        self.proc_var = (math.radians(process_noise_dps_rthz)) ** 2
+        self.acc_var = (acc_noise_mg * 1e-3) ** 2 + (acc_motion_mg * 1e-3) ** 2
+        self.adaptive = bool(adaptive)
+        self.norm_gain = float(norm_gain)
+        self.exact_propagation = bool(exact_propagation)
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = np.zeros(3)
+        self.P = np.diag([0.1 ** 2, 0.1 ** 2, 0.0])
+        self._initialised = False
+
+    @property
+    def q(self) -> np.ndarray:
+        return quaternion_from_euler(*self.x)
+
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        self._advance(acc_mg, gyro_mdps)
+        return self.q
+
+    def _advance(self, acc_mg, gyro_mdps) -> None:
+        ax, ay, az = (float(v) * 1e-3 for v in acc_mg)
+        p, q, r = (float(v) * _MDPS_TO_RADPS for v in gyro_mdps)
+        an = math.sqrt(ax * ax + ay * ay + az * az)
+        acc_ok = math.isfinite(an) and an > 1e-6
+        if not self._initialised:
+            if acc_ok:
+                self.x[:] = (math.atan2(ay, az), math.asin(max(-1.0, min(1.0, -ax / an))), 0.0)
+                self._initialised = True
+            return
+        if math.isfinite(p) and math.isfinite(q) and math.isfinite(r):
+            self._predict(p, q, r)
+        if acc_ok:
+            self._update(ax / an, ay / an, az / an, an)
+
+    def _predict(self, p: float, q: float, r: float) -> None:
+        dt = self.dt
+        phi, th, _ = self.x
+        sp, cp = math.sin(phi), math.cos(phi)
+        ct = math.cos(th)
+        if abs(ct) < _MIN_COS:
+            ct = math.copysign(_MIN_COS, ct)
+        st = math.sin(th)
+        tt = st / ct
+        a = sp * q + cp * r  # appears in φ̇, ψ̇
+        c = cp * q - sp * r
+        f = (p + tt * a, c, a / ct)
+        F = np.array([
+            [1.0 + dt * tt * c, dt * a / (ct * ct), 0.0],
+            [-dt * a, 1.0, 0.0],
+            [dt * c / ct, dt * a * st / (ct * ct), 1.0],
+        ])
+        W = np.array([[1.0, sp * tt, cp * tt], [0.0, cp, -sp], [0.0, sp / ct, cp / ct]])
+        if self.exact_propagation:
+            self.x[:] = _propagate_exact(self.x, p * dt, q * dt, r * dt)
+        else:
+            self.x[0] = math.remainder(self.x[0] + dt * f[0], 2 * math.pi)
+            self.x[1] += dt * f[1]
+            self.x[2] = math.remainder(self.x[2] + dt * f[2], 2 * math.pi)
+        Q = (dt * dt * self.gyro_var) * (W @ W.T)
+        Q[0, 0] += dt * self.proc_var
+        Q[1, 1] += dt * self.proc_var
+        Q[2, 2] += dt * self.proc_var
+        self.P = F @ self.P @ F.T + Q
+
+    def _update(self, ux: float, uy: float, uz: float, an: float) -> None:
+        phi, th, _ = self.x
+        sp, cp, st, ct = math.sin(phi), math.cos(phi), math.sin(th), math.cos(th)
+        h = (-st, sp * ct, cp * ct)
+        H = np.array([[0.0, -ct, 0.0], [cp * ct, -sp * st, 0.0], [-sp * ct, -cp * st, 0.0]])
+        var = self.acc_var
+        if self.adaptive:
+            var += (self.norm_gain * (an - 1.0)) ** 2
+        P = self.P
+        PHt = P @ H.T
+        S = H @ PHt
+        S[0, 0] += var
+        S[1, 1] += var
+        S[2, 2] += var
+        K = np.linalg.solve(S, PHt.T).T
+        self.x += K @ np.array([ux - h[0], uy - h[1], uz - h[2]])
+        IKH = np.eye(3) - K @ H
+        P = IKH @ P @ IKH.T + var * (K @ K.T)
+        self.P = 0.5 * (P + P.T)
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+        n = acc.shape[0]
+        x = np.empty((n, 3))
+        acc_l = acc.tolist()
+        gyro_l = gyro.tolist()
+        advance = self._advance
+        for k in range(n):
+            advance(acc_l[k], gyro_l[k])
+            x[k] = self.x
+        q = quaternion_from_euler(x[:, 0], x[:, 1], x[:, 2])
+        valid = np.isfinite(x).all(axis=1)
+        return AttitudeEstimate(q_wxyz=q, thx_rad=x[:, 0], thy_rad=x[:, 1], thz_rad=x[:, 2], valid=valid)

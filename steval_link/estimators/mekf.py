@@ -1,0 +1,304 @@
+"""Multiplicative quaternion EKF (MEKF) with gyro-bias states, inertial-frame accelerometer averaging and
+acceleration-aware measurement noise — steval-link's most accurate 6-axis estimator.
+
+Why inertial-frame averaging: a hand-held or flying body's linear acceleration is large (tenths of a g) but it
+averages out over seconds *in the earth frame* (the velocity stays bounded), while in the body frame it does not
+(it rotates with the body). So, like VQF (Laidig & Seel 2023), the accelerometer is rotated into a strapdown
+("inertial", I) frame integrated from the gyro alone, low-pass filtered there, and only that filtered gravity
+direction corrects the attitude. The correction itself is a textbook MEKF.
+
+Attitude: ``q = q_c ⊗ q_s`` (body → earth, scalar first, like the firmware's ``ahrs.q``):
+
+- ``q_s`` (body → I): ``q_s ← q_s ⊗ Exp((gyro − b)·dt)`` every step, never corrected by the accelerometer;
+- ``q_c`` (I → earth): slowly varying, estimated by the EKF;
+- ``b``: gyro bias, rad/s, estimated by the EKF.
+
+Error state ``δx = (δθ, δb)`` (6), with ``q_c,true = q_c ⊗ Exp(δθ)`` (δθ in the I frame) and ``b_true = b + δb``.
+Per step (``dt = 1 / rate_hz``)::
+
+    δθ ← δθ − dt·R(q_s)·δb            (a bias error makes the strapdown frame drift)
+    P  ← F P Fᵀ + diag(σ_g²·dt·I, σ_b²·dt·I),   F = [[I, −dt·R(q_s)], [0, I]]
+
+Accelerometer: ``a_I = R(q_s)·a`` (g) goes through a 2nd-order Butterworth low-pass with time constant τ
+(``acc_tau_s``; cut-off √2 / (2πτ)), giving ``ā_I``. Measurement ``y = ā_I / |ā_I|``, prediction
+``h = R(q_c)ᵀ·e_z`` (gravity direction in the I frame; for the whole chain it is the third row of R(q), as in
+the firmware), Jacobian ``H = [[h]×, 0]``, noise ``R = σ_a²·I`` with an acceleration-aware standard deviation (g)::
+
+    σ_a² = σ_n² + (k_n·d)²,   d = low-passed | |a| − 1 g |   (same τ)
+
+- σ_n (``acc_noise_mg``): residual error of the averaged direction for a body at rest or in gentle motion,
+- k_n (``norm_gain``): how much of the recent deviation of |a| from 1 g stays in the average as a disturbance
+  (vibration, tapping, fast translation make σ_a grow and the correction slow down).
+
+Samples with ``| |a| − 1 g | > reject_mg`` (or a zero vector) are not fed into the low-pass; the last value is held.
+The error state is folded back (``q_c ← q_c ⊗ Exp(δθ)``, ``b ← b + δb``, Joseph-form covariance). The bias
+variance is capped at its initial value because the bias about the earth's vertical is unobservable without a
+magnetometer. The first valid accelerometer sample sets the initial tilt (heading 0).
+
+``acc_tau_s = 0`` gives the classic direct MEKF (the raw accelerometer direction each step, noise
+``σ_a² = σ_n² + (k_n·| |a| − 1 g |)²``), kept for comparison.
+
+Latency: in the STEVAL pipeline the gyro input lags the accelerometer input by the IIR's group delay and the gyro's
+416 Hz sample-and-hold (``sensor_model.GYRO_LATENCY_S`` ≈ 3.3 ms). By default the returned attitude is predicted
+that far ahead with the current rate (``latency_s``), which matters during fast rotation (≈ 1° on BROAD trial 07).
+
+Units at the interface are the firmware's: acc in mg, gyro in mdps, axes x right, y forward, z up.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, euler_from_quaternion
+from steval_link.sensor_model import AHRS_HZ, GYRO_LATENCY_S
+
+__all__ = ["Mekf"]
+
+_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
+
+
+def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, float]:
+    """Body → earth quaternion with zero heading whose gravity direction Rᵀe_z is (ax, ay, az)/|a|."""
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / n, ay / n, az / n
+    w = 1.0 + az  # shortest arc taking a to e_z: (1 + a·e_z, a × e_z)
+    if w < 1e-9:  # upside down
+        return 0.0, 1.0, 0.0, 0.0
+    x, y = ay, -ax
+    s = math.sqrt(w * w + x * x + y * y)
+    return w / s, x / s, y / s, 0.0
+
+
+def _qmul(a, b) -> tuple[float, float, float, float]:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
+def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """R(q) of a unit quaternion (maps body vectors to the reference frame)."""
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def _butter2(fc_hz: float, fs_hz: float) -> tuple[float, float, float, float, float]:
+    """2nd-order Butterworth low-pass (bilinear): (b0, b1, b2, a1, a2), y = b·x − a1·y1 − a2·y2."""
+    k = math.tan(math.pi * min(fc_hz, 0.45 * fs_hz) / fs_hz)
+    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * norm
+    return b0, 2 * b0, b0, 2 * (k * k - 1) * norm, (1 - math.sqrt(2.0) * k + k * k) * norm
+
+
+class _LowPass:
+    """Vector 2nd-order Butterworth low-pass (direct form I), initialised to the first input (steady state)."""
+
+    __slots__ = ("c", "x1", "x2", "y1", "y2", "ready")
+
+    def __init__(self, coeffs) -> None:
+        self.c = coeffs
+        self.ready = False
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if not self.ready:
+            self.x1 = self.x2 = self.y1 = self.y2 = x.copy()
+            self.ready = True
+            return x.copy()
+        b0, b1, b2, a1, a2 = self.c
+        y = b0 * x + b1 * self.x1 + b2 * self.x2 - a1 * self.y1 - a2 * self.y2
+        self.x2, self.x1 = self.x1, x
+        self.y2, self.y1 = self.y1, y
+        return y
+
+
+class Mekf(Estimator):
+    """Multiplicative EKF with gyro bias and inertial-frame accelerometer averaging (see the module docstring).
+
+    Args:
+        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; BROAD native 285.7).
+        acc_tau_s: time constant τ of the accelerometer low-pass in the strapdown frame, s (0: direct MEKF).
+        gyro_noise_mdps_rthz: gyro angle random walk density σ_g, mdps/√Hz.
+        bias_rw_mdps_per_sqrt_s: gyro bias random walk σ_b, mdps/√s.
+        acc_noise_mg: σ_n, mg (≈ mrad of tilt).
+        norm_gain: k_n, dimensionless.
+        reject_mg: accelerometer samples with | |a| − 1000 mg | above this are ignored, mg.
+        init_bias_mdps: initial bias standard deviation (and cap), mdps. The firmware's power-up calibration
+            already removes most of the bias.
+        estimate_bias: False freezes the bias at 0.
+        latency_s: output prediction horizon, s: the returned attitude is ``q ⊗ Exp(ω·latency_s)``, compensating
+            the delay of the gyro input behind the accelerometer input in the STEVAL pipeline
+            (:data:`steval_link.sensor_model.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
+            filter state itself is not shifted. Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
+    """
+
+    name = "mekf"
+
+    def __init__(self, rate_hz: float = AHRS_HZ, acc_tau_s: float = 3.0, gyro_noise_mdps_rthz: float = 10.0,
+                 bias_rw_mdps_per_sqrt_s: float = 0.3, acc_noise_mg: float = 3.0, norm_gain: float = 0.0,
+                 reject_mg: float = math.inf, init_bias_mdps: float = 100.0, estimate_bias: bool = True,
+                 latency_s: float = GYRO_LATENCY_S) -> None:
+        if rate_hz <= 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if acc_tau_s < 0:
+            raise ValueError(f"acc_tau_s must be ≥ 0, got {acc_tau_s}")
+        self.rate_hz = float(rate_hz)
+        self.dt = 1.0 / self.rate_hz
+        self.acc_tau_s = float(acc_tau_s)
+        self.gyro_noise = gyro_noise_mdps_rthz * _MDPS_TO_RADPS
+        self.bias_rw = bias_rw_mdps_per_sqrt_s * _MDPS_TO_RADPS
+        self.acc_noise = acc_noise_mg / 1000.0
+        self.norm_gain = float(norm_gain)
+        self.reject = reject_mg / 1000.0
+        self.init_bias = init_bias_mdps * _MDPS_TO_RADPS
+        self.estimate_bias = bool(estimate_bias)
+        self.latency_s = float(latency_s)
+        self._q_att = self.gyro_noise ** 2 * self.dt
+        self._q_bias = self.bias_rw ** 2 * self.dt
+        self._lp_coeffs = (_butter2(math.sqrt(2.0) / (2 * math.pi * self.acc_tau_s), self.rate_hz)
+                           if self.acc_tau_s > 0 else None)
+        self.reset()
+
+    def reset(self) -> None:
+        self.qs = (1.0, 0.0, 0.0, 0.0)
+        self.qc = (1.0, 0.0, 0.0, 0.0)
+        self.b = np.zeros(3)
+        nb = 6 if self.estimate_bias else 3
+        self.P = np.diag([0.05 ** 2] * 3 + [self.init_bias ** 2] * (nb - 3))
+        self._acc_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
+        self._dev_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
+        self._initialised = False
+        self._eye = np.eye(nb)
+        self._w = (0.0, 0.0, 0.0)
+
+    @property
+    def q(self) -> np.ndarray:
+        """Current attitude, body → earth, (4,) wxyz."""
+        return np.array(_qmul(self.qc, self.qs))
+
+    @property
+    def bias_mdps(self) -> np.ndarray:
+        """Current gyro bias estimate, mdps."""
+        return self.b / _MDPS_TO_RADPS
+
+    # --- one step --------------------------------------------------------------------------------------------
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        ax, ay, az = (float(v) * 1e-3 for v in acc_mg)  # g
+        gx, gy, gz = (float(v) * _MDPS_TO_RADPS for v in gyro_mdps)  # rad/s
+        an = math.sqrt(ax * ax + ay * ay + az * az)
+        acc_ok = math.isfinite(an) and an > 1e-6 and abs(an - 1.0) <= self.reject
+        if not self._initialised:
+            if acc_ok:
+                self.qc = _tilt_quat(ax, ay, az)
+                self._initialised = True
+            return self.q
+        if math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz):
+            self._w = (gx - self.b[0], gy - self.b[1], gz - self.b[2])
+            self._predict(*self._w)
+        if acc_ok:
+            self._correct(ax, ay, az, an)
+        if self.latency_s > 0.0:
+            return self._extrapolated()
+        return self.q
+
+    def _extrapolated(self) -> np.ndarray:
+        """The attitude ``latency_s`` ahead: q ⊗ Exp(ω·latency_s) with the last bias-corrected rate."""
+        rx, ry, rz = (v * self.latency_s for v in self._w)
+        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if ang < 1e-12:
+            return self.q
+        s = math.sin(0.5 * ang) / ang
+        return np.array(_qmul(_qmul(self.qc, self.qs), (math.cos(0.5 * ang), rx * s, ry * s, rz * s)))
+
+    def _predict(self, wx: float, wy: float, wz: float) -> None:
+        dt = self.dt
+        rx, ry, rz = wx * dt, wy * dt, wz * dt
+        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if ang > 1e-12:
+            s = math.sin(0.5 * ang) / ang
+            d = (math.cos(0.5 * ang), rx * s, ry * s, rz * s)
+        else:
+            d = (1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz)
+        w, x, y, z = _qmul(self.qs, d)
+        n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+        self.qs = (w * n, x * n, y * n, z * n)
+        P = self.P
+        if self.estimate_bias:
+            G = -dt * _rotmat(*self.qs)  # ∂δθ/∂δb
+            Pab = P[:3, 3:]
+            Pbb = P[3:, 3:]
+            GPbb = G @ Pbb
+            P[:3, :3] += G @ Pab.T + Pab @ G.T + GPbb @ G.T
+            Pab = Pab + GPbb
+            P[:3, 3:] = Pab
+            P[3:, :3] = Pab.T
+            P[3, 3] += self._q_bias
+            P[4, 4] += self._q_bias
+            P[5, 5] += self._q_bias
+        P[0, 0] += self._q_att
+        P[1, 1] += self._q_att
+        P[2, 2] += self._q_att
+
+    def _correct(self, ax: float, ay: float, az: float, an: float) -> None:
+        dev = abs(an - 1.0)
+        if self._acc_lp is not None:
+            w, x, y, z = self.qs
+            a_i = _rotmat(w, x, y, z) @ np.array([ax, ay, az])
+            m = self._acc_lp(a_i)
+            d = float(self._dev_lp(np.array([dev]))[0])
+            mn = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+            if mn < 1e-6:
+                return
+            ux, uy, uz = m[0] / mn, m[1] / mn, m[2] / mn
+        else:
+            ux, uy, uz = ax / an, ay / an, az / an
+            d = dev
+        var = self.acc_noise ** 2 + (self.norm_gain * d) ** 2
+        w, x, y, z = self.qc
+        hx = 2.0 * (x * z - w * y)
+        hy = 2.0 * (w * x + y * z)
+        hz = w * w - x * x - y * y + z * z
+        Hh = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
+        P = self.P
+        PHt = P[:, :3] @ Hh.T
+        S = Hh @ PHt[:3]
+        S[0, 0] += var
+        S[1, 1] += var
+        S[2, 2] += var
+        # S is singular along h (heading is unobservable): a tiny regularisation keeps the solve well posed
+        K = np.linalg.solve(S + 1e-12 * np.eye(3), PHt.T).T
+        dxs = K @ np.array([ux - hx, uy - hy, uz - hz])
+        IKH = self._eye.copy()
+        IKH[:, :3] -= K @ Hh
+        P = IKH @ P @ IKH.T + var * (K @ K.T)
+        self.P = 0.5 * (P + P.T)
+        ex, ey, ez = 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]
+        w, x, y, z = _qmul(self.qc, (1.0, ex, ey, ez))
+        n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+        self.qc = (w * n, x * n, y * n, z * n)
+        if self.estimate_bias:
+            self.b += dxs[3:]
+            Pbb = self.P[3:, 3:]
+            tr = Pbb[0, 0] + Pbb[1, 1] + Pbb[2, 2]
+            cap = 3 * self.init_bias ** 2
+            if tr > cap:
+                self.P[3:, 3:] *= cap / tr
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+        n = acc.shape[0]
+        q = np.empty((n, 4))
+        step = self.step
+        acc_l = acc.tolist()
+        gyro_l = gyro.tolist()
+        for k in range(n):
+            q[k] = step(acc_l[k], gyro_l[k])
+        thx, thy, thz = euler_from_quaternion(q)
+        valid = np.isfinite(q).all(axis=1)
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
