@@ -15,6 +15,7 @@ from steval_link.cli import live as _live  # noqa: F401,E402
 from steval_link.cli import export as _export  # noqa: F401,E402
 from steval_link.cli import ports as _ports  # noqa: F401,E402
 from steval_link.cli import simulate as _simulate  # noqa: F401,E402
+from steval_link.cli import synth as _synth  # noqa: F401,E402
 from steval_link.cli import conformance as _conformance  # noqa: F401,E402
 from steval_link.cli import compare as _compare  # noqa: F401,E402
 
