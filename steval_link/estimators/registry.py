@@ -38,6 +38,9 @@ class _lazy:
 _ENTRIES: dict[str, Callable[..., Estimator]] = {
     "st-mahony": _lazy("steval_link.estimators.st_mahony", "StMahony"),
     "accel": _lazy("steval_link.estimators.accel_tilt", "AccelTilt"),
+    "ekf3": _lazy("steval_link.estimators.ekf3", "Ekf3"),
+    "mekf": _lazy("steval_link.estimators.mekf", "Mekf"),
+    "vqf": _lazy("steval_link.estimators.vqf_adapter", "VqfEstimator"),
 }
 
 #: registry name → constructor (keyword options only), read-only

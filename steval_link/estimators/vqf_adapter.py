@@ -1,0 +1,65 @@
+"""VQF (Laidig & Seel 2023, the ``vqf`` package) as an :class:`Estimator`: the 6-axis state of the art, for reference.
+
+Install with ``pip install "steval-link[vqf]"``. Inputs are converted from the firmware's units to SI (acc mg →
+m/s² with g = 9.81, gyro mdps → rad/s); the axes already match (x right, y forward, z up). The output is VQF's
+6D quaternion (gyro + accelerometer; body → earth, scalar first; heading arbitrary).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, euler_from_quaternion
+from steval_link.sensor_model import AHRS_HZ
+
+INSTALL_HINT = 'the VQF estimator needs the vqf package: pip install "steval-link[vqf]"'
+
+try:  # optional dependency: importing this module without it fails with the install hint (registry: unavailable)
+    from vqf import VQF as _VQF
+except ImportError:  # pragma: no cover - exercised only without the extra
+    raise ImportError(INSTALL_HINT) from None
+
+__all__ = ["VqfEstimator", "INSTALL_HINT"]
+_MG_TO_MPS2 = 9.81e-3
+_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
+
+
+class VqfEstimator(Estimator):
+    """VQF's 6D orientation at the step rate.
+
+    Args:
+        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
+        **params: VQF parameters by name (e.g. ``tauAcc=3.0``, ``motionBiasEstEnabled=True``), passed to ``VQF``.
+
+    Importing this module raises ImportError with the install hint when ``vqf`` is missing; use
+    ``registry.is_available("vqf")`` to check.
+    """
+
+    name = "vqf"
+
+    def __init__(self, rate_hz: float = AHRS_HZ, **params) -> None:
+        if rate_hz <= 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.rate_hz = float(rate_hz)
+        self.params = dict(params)
+        self.reset()
+
+    def reset(self) -> None:
+        self._vqf = _VQF(1.0 / self.rate_hz, **self.params)
+
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        gyr = np.asarray(gyro_mdps, dtype=np.float64).reshape(3) * _MDPS_TO_RADPS
+        acc = np.asarray(acc_mg, dtype=np.float64).reshape(3) * _MG_TO_MPS2
+        self._vqf.update(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
+        return np.asarray(self._vqf.getQuat6D(), dtype=np.float64)
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+        out = self._vqf.updateBatch(np.ascontiguousarray(gyro * _MDPS_TO_RADPS),
+                                    np.ascontiguousarray(acc * _MG_TO_MPS2))
+        q = np.asarray(out["quat6D"], dtype=np.float64)
+        thx, thy, thz = euler_from_quaternion(q)
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz,
+                                valid=np.isfinite(q).all(axis=1))
