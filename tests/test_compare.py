@@ -168,6 +168,7 @@ def test_settings_override_is_diagnosed_against_the_status_frames():
         (MahonySettings(correction=False), "correction"),
         (MahonySettings(dt_s=1 / 161.5), "dt_s"),
         (MahonySettings(kp_ground=0.4), "kp"),
+        (MahonySettings(kp_flight=10.0), "kp"),  # differs only at flight throttle, from row 300 on
     ],
 )
 def test_other_firmware_variants_are_named(fw, expect_key):

@@ -516,22 +516,29 @@ def _diagnose(view, rep: FirmwareReplay, settings_override: MahonySettings | Non
     breaks = np.flatnonzero(np.diff(steps) != 1) + 1
     seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else n
     r1 = min(seg_end, m + DIAGNOSIS_WINDOW_ROWS)
-    state = _seed_state(view, seed)
     base = seed.settings
-    need = r1 - seed.row
+    # candidates start from the last snapshot before the mismatch (the port was exact up to there), else the seed
+    r0, state = seed.row, _seed_state(view, seed)
+    st_steps = np.asarray(view.status.step, dtype=np.int64)
+    k = np.flatnonzero((st_steps >= steps[seed.row]) & (st_steps < steps[m]))
+    if k.size:
+        j = int(k[np.argmax(st_steps[k])])
+        r0 = seed.row + int(st_steps[j]) + 1 - int(steps[seed.row])
+        state = MahonyState(q_wxyz=view.status.q_wxyz[j], int_xyz=view.status.int_xyz[j])
+    need = r1 - r0
     lines: list[str] = []
 
     candidates = _variants(base)
     found = None
     for ch, s in candidates:
-        if _window_exact(view, state, s, seed.row, r1) == need:
+        if _window_exact(view, state, s, r0, r1) == need:
             found = (ch, s)
             break
     if found is None:
         singles = [c for c in candidates if "defaults" not in c[0]]
         for x, y in combinations(singles, 2):
             c = _combine(x, y, base)
-            if c is not None and _window_exact(view, state, c[1], seed.row, r1) == need:
+            if c is not None and _window_exact(view, state, c[1], r0, r1) == need:
                 found = c
                 break
     if found is not None:

@@ -29,14 +29,16 @@ INSTALL_HINT = 'pip install "steval-link[plot]"'
 
 #: Line styles per trace: (colour, width, linestyle, z-order).
 _STYLE = {
-    "firmware": ("black", 1.6, "-", 5),
-    "port": ("tab:orange", 1.0, "--", 6),
-    "st-mahony": ("tab:purple", 1.0, ":", 4),
+    "firmware": ("black", 2.2, "-", 3),
+    "port": ("tab:orange", 1.1, "--", 4),
+    "st-mahony": ("tab:purple", 1.0, ":", 5),
     "accel": ("tab:gray", 0.6, "-", 2),
-    "ekf3": ("tab:blue", 1.0, "-", 4),
-    "mekf": ("tab:green", 1.0, "-", 4),
-    "vqf": ("tab:pink", 1.0, "-", 4),
+    "ekf3": ("tab:blue", 1.0, "-", 5),
+    "mekf": ("tab:green", 1.0, "-.", 5),
+    "vqf": ("tab:pink", 1.0, "-", 5),
 }
+#: Legend order: firmware and port first, then the estimators in this order.
+_ORDER = ["firmware (drone)", "ST-Mahony port (seeded)"]
 _EXTRA_COLOURS = ["tab:red", "tab:brown", "tab:olive", "tab:cyan"]
 #: Lines longer than this are reduced (min/max per bucket, so peaks stay visible).
 MAX_LINE_POINTS = 8000
@@ -163,11 +165,12 @@ def comparison_figure(tel, report, *, title: str | None = None):
         for name, label, vals in traces:
             c, lw, ls, z = styles[name]
             ax.plot(*_decimate(t, vals[key]), color=c, lw=lw, ls=ls, zorder=z, label=label)
-        ax.plot(*_decimate(t, fw[key]), color="black", lw=1.6, zorder=5, label="firmware (drone)")
+        c, lw, ls, z = _STYLE["firmware"]
+        ax.plot(*_decimate(t, fw[key]), color=c, lw=lw, ls=ls, zorder=z, label="firmware (drone)")
         port = port_x if key == "pitch" else port_y
         if port is not None:
             c, lw, ls, z = _STYLE["port"]
-            ax.plot(*_decimate(t, port), color=c, lw=lw, ls=ls, zorder=6, label="ST-Mahony port (seeded)")
+            ax.plot(*_decimate(t, port), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
         nan_rows = ~np.isfinite(fw[key])
         if nan_rows.any():
             ax.plot(t[nan_rows], np.zeros(int(nan_rows.sum())), "x", color="crimson", ms=4, zorder=7,
@@ -176,6 +179,9 @@ def comparison_figure(tel, report, *, title: str | None = None):
         ax.set_title(what, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
     h, lab = ax_p.get_legend_handles_labels()
+    rank = {name: i for i, name in enumerate(_ORDER)}
+    order = sorted(range(len(lab)), key=lambda i: (rank.get(lab[i], len(rank)), i))
+    h, lab = [h[i] for i in order], [lab[i] for i in order]
     fig.legend(h, lab, loc="upper left", bbox_to_anchor=(0.07, 0.955), ncol=min(len(h), 7), fontsize=8,
                frameon=False, columnspacing=1.2, handlelength=2.0)
     plt.setp(ax_p.get_xticklabels(), visible=False)
@@ -262,7 +268,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
             lines.append(f"first difference: step {p.first_mismatch['step']} "
                          f"(t = {p.first_mismatch['t_rel_s']:.2f} s)")
             if p.matching_variant:
-                lines.append("matches: " + ", ".join(f"{k}={v}" for k, v in p.matching_variant.items()))
+                lines.append("matches: " + _variant_text(p.matching_variant))
     if rt.rate_hz:
         lines.append(f"rate {rt.rate_hz:.1f} Hz, period σ {rt.period_std_ms or 0:.3f} ms")
     lines.append(f"dropped {rt.frames_missing} frames in {rt.seq_gaps} gaps, {rt.crc_failures} CRC failures")
@@ -279,6 +285,23 @@ def comparison_figure(tel, report, *, title: str | None = None):
                  "tilt (axes: x right, y forward, z up)", fontsize=11)
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
     return fig
+
+
+def _variant_text(variant: dict) -> str:
+    """``{"ki": 1.0, "kp": [10, 10]}`` → ``ki=1, kp_ground=10, kp_flight=10``."""
+    out = []
+    for k, v in variant.items():
+        if k == "kp":
+            out.append(f"kp_ground={v[0]:g}, kp_flight={v[1]:g}")
+        elif k == "defaults":
+            out.append("the firmware defaults")
+        elif isinstance(v, bool):
+            out.append(f"{k}={'on' if v else 'off'}")
+        elif isinstance(v, float):
+            out.append(f"{k}={v:.7g}")
+        else:
+            out.append(f"{k}={v}")
+    return ", ".join(out)
 
 
 def _wrap(d: np.ndarray) -> np.ndarray:
