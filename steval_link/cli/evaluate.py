@@ -1,0 +1,96 @@
+"""``steval evaluate``: inclination accuracy of every estimator against ground truth (BROAD trials or captures)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+
+__all__ = ["evaluate_command"]
+
+_HELP = """Inclination accuracy of the estimators against ground truth.
+
+DATA are BROAD trial .npz files (acc m/s², gyr rad/s, quat wxyz IMU→ENU, movement, fs) or directories (their
+*.npz), or captures (.stv, raw dump, text log) with a ground-truth sidecar CAPTURE.truth.npz next to them holding
+`step` (int, the frames' AHRS step counter), `quat` (wxyz, body→earth) and optionally `movement` (bool).
+
+A BROAD trial runs through the STEVAL sensor pipeline model (807.7 Hz tick, LSM6DSL quantisation, the firmware's
+2 s offset calibration, gyro IIR, 5-sample average → 161.5 Hz AHRS steps; deterministic); --native runs the
+estimators on the trial's own 285.7 Hz samples instead. Estimators: st-mahony-flight (firmware filter, thr 450,
+kp 0.4), st-mahony-ground (thr 0, kp 10), accel (accelerometer-only), ekf3, mekf, vqf (when installed).
+Metric: q_err = q_est ⊗ q_true⁻¹, inclination 2·acos(√(w²+z²)), RMSE (deg) over movement samples, NaN ignored.
+"""
+
+
+@app.command("evaluate", help=_HELP)
+def evaluate_command(
+    data: Annotated[list[Path], typer.Argument(help="BROAD .npz trials, directories of them, or captures with a "
+                                                    ".truth.npz sidecar.", show_default=False)],
+    estimators: Annotated[Optional[str], typer.Option(
+        "--estimators", "-e", help="Comma-separated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
+                                   "accel, ekf3, mekf, vqf. Default: all available.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
+                                                          "stdout).")] = False,
+    native: Annotated[bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL "
+                                                          "pipeline.")] = False,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a PNG: RMSE bars per estimator and trial, "
+                                                                "and the first trial's error over time "
+                                                                "(needs steval-link[plot]).",
+                                                 show_default=False)] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the sensor model (the pipeline adds no noise to "
+                                                     "BROAD data, so results do not depend on it today).")] = 0,
+) -> None:
+    from steval_link import broad
+    from steval_link.analysis import evaluate as ev
+
+    if plot is not None:
+        from steval_link.analysis.plots import require_matplotlib
+
+        require_matplotlib()  # fail before the long run
+    items: list[Path] = []
+    for p in data:
+        if p.is_dir():
+            found = sorted(q for q in p.glob("*.npz") if not q.name.endswith(".truth.npz"))
+            if not found:
+                raise UserError(f"{p}: directory holds no .npz trial")
+            items.extend(found)
+        elif not p.exists():
+            raise UserError(f"{p}: no such file or directory")
+        else:
+            items.append(p)
+    only = [s for s in estimators.split(",")] if estimators is not None else None
+    # validate the selection once, before any work (rate does not matter for that)
+    ev.default_specs(100.0, only=only)
+    progress = ev.stderr_progress(len(items) * len(ev.default_specs(100.0, only=only)))
+    results = []
+    try:
+        for p in items:
+            if p.suffix == ".npz":
+                trial = broad.load_trial(p)
+                view = broad.native_view(trial) if native else broad.steval_view(trial, seed=seed)
+                specs = ev.default_specs(view.rate_hz, native=native, only=only)
+                results.append(ev.evaluate_view(view, specs, trial.name, progress))
+            else:
+                from steval_link.sensor_model import AHRS_HZ
+
+                specs = ev.default_specs(AHRS_HZ, only=only)
+                results.append(ev.evaluate_capture(p, specs, progress=progress))
+    finally:
+        progress.finish()
+    if plot is not None:
+        ev.plot_evaluation(results, plot)
+    if as_json:
+        report = ev.summary(results)
+        report["mode"] = "native" if native else "steval-pipeline"
+        if plot is not None:
+            report["plot"] = str(plot)
+        typer.echo(json.dumps(report, allow_nan=False))
+    else:
+        typer.echo(ev.format_table(results))
+        if plot is not None:
+            typer.echo(f"plot written to {plot}")
