@@ -182,9 +182,10 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
     out = tmp_path / "live.rrd"
     session = open_session(SinkOptions(rrd=out))
     logger = LiveLogger(session.rec, ["st-mahony", "accel"])
-    n_frames = 0
+    n_frames = n_batches = 0
     for t_host, att, events in _batches_from_stream(data, 300):
         if att:
+            n_batches += 1
             n = len(att)
             est_q = np.array([f.q_wxyz for f in att], dtype=np.float32)
             est_q[: n // 2] = np.nan  # e.g. the port waiting for its first snapshot
@@ -216,7 +217,12 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
     assert info.samples[ent.pitch_path("firmware")] == 700
     assert info.samples[ent.roll_path("firmware")] == 698
     assert info.clears[ent.roll_path("firmware")] == 1
-    assert info.samples[ent.DRONE_FIRMWARE] == 700
+    # the 3D view is updated with the newest frame of a batch, at most LIVE_3D_MAX_HZ
+    from steval_viewer.live_log import LIVE_3D_MAX_HZ
+
+    n3d = info.samples[ent.DRONE_FIRMWARE]
+    assert 0.8 * n_batches <= n3d <= min(n_batches, 700 / RATE * LIVE_3D_MAX_HZ + 1)
+    assert info.samples[ent.ACC_GRAVITY] == n3d
     assert info.samples[ent.pitch_path("accel")] == 700
     port_rows = info.samples[ent.pitch_path("st_mahony_port")]
     assert 0 < port_rows < 700

@@ -31,6 +31,11 @@ from steval_viewer import entities as ent
 from steval_viewer import scene
 from steval_viewer.columns import Times, send_scalars
 
+#: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
+#: frame of a batch: the view shows only the latest attitude, and this keeps the per-frame cost down. Plots get
+#: every frame. (The capture keeps everything; ``steval replay`` logs every frame's attitude.)
+LIVE_3D_MAX_HZ = 60.0
+
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
 
@@ -160,18 +165,22 @@ class RowBatch:
             v2 = np.where(good[:, None], v2, 0.0)
         self._add(path, _SCALAR, v2, v2.shape[1], good)
 
-    def quaternions(self, path: str, q_wxyz: np.ndarray) -> None:
+    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
         q = np.asarray(q_wxyz, dtype=np.float64).reshape(self.n, 4)
         with np.errstate(invalid="ignore", divide="ignore"):
             norm = np.sqrt((q * q).sum(axis=1))
             good = np.isfinite(norm) & (norm > 1e-6)
+            if select is not None:
+                good &= select
             xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
         self._add(path, _QUAT, xyzw, 4, good)
         self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
 
-    def vectors(self, path: str, v: np.ndarray) -> None:
+    def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
         v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
         good = np.isfinite(v).all(axis=1)
+        if select is not None:
+            good &= select
         self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good)
         self.bad_state[path] = False
 
@@ -223,6 +232,7 @@ class LiveLogger:
         self._last_link_s = -math.inf
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
+        self._last_3d_s = -math.inf  # fw time of the last 3D update
 
     # -- time ------------------------------------------------------------------------------------------------
     def _host(self, t_host_s: np.ndarray) -> np.ndarray:
@@ -245,7 +255,8 @@ class LiveLogger:
     def log_batch(self, batch: Any) -> None:
         """Log N attitude frames that arrived together (an ``AttitudeBatch``: ``step``, ``t_us``, ``t_host_s``,
         ``acc_mg``, ``gyro_mdps``, ``q_wxyz``, ``thz_rad``, ``thr``, ``estimates`` name -> (N, 4) q_wxyz with NaN
-        where undefined). Non-finite values are gaps, never plotted."""
+        where undefined; optionally ``exact`` with ``thx_rad``/``thy_rad`` for text-mode rows, which have no q).
+        Non-finite values are gaps, never plotted."""
         n = len(batch.step)
         if n == 0:
             return
@@ -254,11 +265,27 @@ class LiveLogger:
         times = Times(self.fw_clock.seconds(batch.t_us), self._host(batch.t_host_s), step)
         q = np.asarray(batch.q_wxyz, dtype=np.float32)
         thx, thy = quaternion_to_euler(q)
+        exact = getattr(batch, "exact", None)
+        if exact is not None and not np.all(exact):
+            # text-mode rows carry no q: their (rounded) angles come with the row
+            rows = ~np.asarray(exact, dtype=bool)
+            thx[rows] = np.asarray(batch.thx_rad, dtype=np.float32)[rows]
+            thy[rows] = np.asarray(batch.thy_rad, dtype=np.float32)[rows]
         acc = np.asarray(batch.acc_mg, dtype=np.float64)
 
+        # 3D entities show only the latest attitude: at most LIVE_3D_MAX_HZ updates (the batch's last row)
+        t_last = float(times.t_fw_s[-1])
+        do3d = not (0.0 <= t_last - self._last_3d_s < 1.0 / LIVE_3D_MAX_HZ)
+        sel3d = None
+        if do3d:
+            self._last_3d_s = t_last
+            sel3d = np.zeros(n, dtype=bool)
+            sel3d[-1] = True
         rb = RowBatch(times, self._bad)
-        rb.quaternions(ent.DRONE_FIRMWARE, q)
-        rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0)
+        if do3d:
+            rb.quaternions(ent.DRONE_FIRMWARE, q, sel3d)
+            with np.errstate(invalid="ignore"):
+                rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
         rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))
         rb.scalars(ent.roll_path(ent.SOURCE_FIRMWARE), np.degrees(thy.astype(np.float64)))
         rb.scalars(ent.yaw_path(ent.SOURCE_FIRMWARE), np.degrees(np.asarray(batch.thz_rad, np.float64)))
@@ -271,7 +298,8 @@ class LiveLogger:
             source = self.sources.get(name) or live_source(name)
             eq = np.asarray(eq).reshape(n, 4)
             ex, ey = quaternion_to_euler(eq.astype(np.float32))
-            rb.quaternions(ent.estimate_path(source), eq)
+            if do3d:
+                rb.quaternions(ent.estimate_path(source), eq, sel3d)
             rb.scalars(ent.pitch_path(source), np.degrees(ex.astype(np.float64)))
             rb.scalars(ent.roll_path(source), np.degrees(ey.astype(np.float64)))
             if source == ent.SOURCE_PORT:
