@@ -272,7 +272,10 @@ def test_default_sink_without_display_is_a_clear_user_error(monkeypatch):
     with pytest.raises(UserError, match="--rrd"):
         resolve_sinks(SinkOptions())
     opts = resolve_sinks(SinkOptions(rrd=Path("x.rrd")))
-    assert not opts.spawn
+    assert not opts.spawn  # headless: the file alone
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert resolve_sinks(SinkOptions(rrd=Path("x.rrd"))).spawn  # a display: watch it too
+    assert not resolve_sinks(SinkOptions(serve=True)).spawn
 
 
 def test_rrd_into_missing_folder_is_a_user_error(tmp_path):

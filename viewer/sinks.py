@@ -3,8 +3,8 @@
 
 ``open_session(...)`` returns a :class:`ViewerSession` whose ``rec`` (a ``rerun.RecordingStream``) is handed to
 the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With no sink
-given, :func:`resolve_sinks` picks ``--spawn`` when a display exists and otherwise fails with one clear sentence,
-so headless runs (CI) say ``--rrd FILE``.
+chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
+(headless runs, CI), and nothing at all fails with one clear sentence.
 
 The web viewer (``--serve``) runs as a ``rerun --serve-web --bind 127.0.0.1`` child process: its HTTP page and
 its gRPC proxy listen on the loopback interface only.
@@ -95,11 +95,15 @@ def display_available() -> bool:
 
 
 def resolve_sinks(options: SinkOptions) -> SinkOptions:
-    """Apply the default: no sink given -> ``--spawn`` where a display exists, else a UserError."""
-    if options.any():
+    """Apply the default viewer: when no viewer is chosen (``--spawn``/``--serve``/``--connect``), ``--spawn``
+    where a display exists; without a display, an ``--rrd`` alone is fine (headless), nothing at all is a
+    UserError."""
+    if options.spawn or options.serve or options.connect:
         return options
     if display_available():
         options.spawn = True
+        return options
+    if options.rrd is not None:
         return options
     raise UserError(
         "no display for the native viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
