@@ -191,6 +191,22 @@ def test_unknown_variant_is_called_so():
     assert p.matching_variant is None and any("unknown firmware variant" in d for d in p.diagnosis)
 
 
+def test_one_corrupted_input_is_a_one_off_not_a_variant():
+    tel = telemetry(n=1000)
+    tel.attitude.acc_mg[500, 0] += 40.0  # a frame damaged in a way its CRC did not catch
+    p = compare_capture(tel, estimators=()).port
+    assert p.first_mismatch["step"] == 500 and p.matching_variant is None
+    assert any("one-off disturbance around step 500" in d for d in p.diagnosis), p.diagnosis
+    assert not any("unknown firmware variant" in d for d in p.diagnosis)
+
+
+def test_slow_link_note():
+    tel = telemetry(n=400, tx_dropped=120)
+    tel.status.baud[:] = 57600
+    r = compare_capture(tel, estimators=())
+    assert any("at 57600 baud" in n and "baud needed" in n for n in r.notes)
+
+
 def test_status_settings_are_used_and_compared_with_defaults():
     s = MahonySettings(ki=1.0, correction=False)
     tel = telemetry(n=600, fw_settings=s)

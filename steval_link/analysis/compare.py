@@ -689,6 +689,25 @@ def _unavailable(name: str, note: str) -> TraceComparison:
     return TraceComparison(name, _LABELS.get(name, name), False, empty, empty, 0, note)
 
 
+def _link_notes(tel) -> list[str]:
+    """A hint when the firmware's TX queue dropped frames because the baud rate cannot carry the stream."""
+    s = tel.status
+    if not len(s) or int(s.tx_dropped[-1]) == 0:
+        return []
+    ex = np.flatnonzero(np.asarray(s.exact, bool))
+    baud = int(s.baud[ex[-1]]) if ex.size else 0
+    if not baud:
+        baud = int(((tel.source or {}).get("header") or {}).get("baud") or 0)
+    need = P.ATTITUDE_FRAME_SIZE * 10 * P.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
+    dropped = int(s.tx_dropped[-1])
+    if baud and baud < need:
+        return [f"the firmware's TX queue dropped {dropped} frames: at {baud} baud the link carries at most "
+                f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {P.AHRS_RATE_HZ:.1f} the AHRS "
+                f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"]
+    return [f"the firmware's TX queue dropped {dropped} frames (the link was busy: text lines, or the host "
+            "stopped reading)"]
+
+
 def run_estimator(name: str, tel) -> tuple[Any | None, str]:
     """Run registry estimator ``name`` from power-up over every attitude row; (estimate, "") or (None, why not)."""
     from steval_link.estimators import registry
@@ -762,6 +781,7 @@ def compare_capture(
         label = _LABELS.get(name, name)
         traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy))
 
+    notes.extend(_link_notes(tel))
     nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
     nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))
     if nan_x or nan_y:
@@ -806,7 +826,7 @@ def format_report(r: ComparisonReport) -> list[str]:
         rate += f" (AHRS steps {rt.step_rate_hz:.2f} Hz)"
     per = ""
     if rt.period_mean_ms is not None:
-        per = (f", period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
+        per = (f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
                f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms")
     lines.append(f"rate: {rate}{per}")
     tx = "" if rt.tx_dropped is None else f", firmware TX queue dropped {rt.tx_dropped}"
@@ -823,9 +843,11 @@ def format_report(r: ComparisonReport) -> list[str]:
     elif fs["from"] == "status frames":
         norm = "fresh squares" if fs["fresh_squares"] else "squares before update (170120)"
         diff = fs["differs_from_defaults"]
+        def val(x):
+            return ("on" if x else "off") if isinstance(x, bool) else f"{x:g}"
+
         tail = "firmware defaults" if not diff else "differs from defaults: " + ", ".join(
-            f"{k} {v[0]:g} (default {v[1]:g})" if isinstance(v[0], float) else f"{k} {v[0]} (default {v[1]})"
-            for k, v in diff.items())
+            f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
         lines.append(f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
                      f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
                      f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}")
