@@ -363,7 +363,11 @@ def test_cli_replay_to_rrd_headless(tmp_path):
     assert r.returncode == 2 and "rerun+http" in r.stderr
 
 
-BUNDLED = sorted((Path(__file__).resolve().parents[1] / "recordings").glob("*.stv"))
+BUNDLED = sorted(
+    p
+    for p in (Path(__file__).resolve().parents[1] / "recordings").iterdir()
+    if p.suffix in (".stv", ".log", ".bin", ".raw")
+)
 
 
 @pytest.mark.skipif(not BUNDLED, reason="no bundled recordings in recordings/")
@@ -380,13 +384,29 @@ def test_every_bundled_recording_replays_to_rrd(capture, tmp_path):
     assert info.has_blueprint
     att = tel.attitude
     n = len(att.t_fw_s)
+    assert n > 0
     assert info.samples[ent.pitch_path("firmware")] == int(np.isfinite(att.thx_rad).sum())
-    assert info.samples[ent.roll_path("firmware")] == int(np.isfinite(att.thy_rad).sum())
+    assert info.samples.get(ent.roll_path("firmware"), 0) == int(np.isfinite(att.thy_rad).sum())
     assert info.samples[ent.PLOT_ACC] == n
-    assert info.samples[ent.DRONE_FIRMWARE] == int(np.isfinite(att.q_wxyz).all(axis=1).sum())
+    # text-mode rows have no q: the 3D drone follows their thx/thy instead
+    shown = np.isfinite(att.q_wxyz).all(axis=1) | (np.isfinite(att.thx_rad) & np.isfinite(att.thy_rad))
+    assert info.samples.get(ent.DRONE_FIRMWARE, 0) == int(shown.sum())
     for path in (ent.pitch_path("accel"), ent.roll_path("accel"), ent.LINK_RATE):
         assert info.samples.get(path, 0) > 0, path
     if np.asarray(att.exact).any():
         assert info.samples.get(ent.pitch_path("st_mahony_port"), 0) > 0
     if len(tel.status.step):
         assert info.samples.get(ent.LINK_CYCLES, 0) > 0
+
+
+def test_quaternion_from_text_mode_angles_round_trips_through_the_firmware_euler():
+    from steval_viewer.columns import quaternion_from_euler
+
+    rng = np.random.default_rng(0)
+    thx = rng.uniform(-3.0, 3.0, 200)
+    thy = rng.uniform(-1.4, 1.4, 200)
+    thz = rng.uniform(-3.0, 3.0, 200)
+    q = quaternion_from_euler(thx, thy, thz)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    bx, by = quaternion_to_euler(q.astype(np.float32))
+    assert np.allclose(bx, thx, atol=1e-5) and np.allclose(by, thy, atol=1e-5)

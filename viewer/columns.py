@@ -149,3 +149,22 @@ def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.nd
     good = np.isfinite(v).all(axis=1)
     rows = None if good.all() else np.flatnonzero(good)
     send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]), rows)
+
+
+def quaternion_from_euler(thx_rad, thy_rad, thz_rad=None) -> np.ndarray:
+    """(N, 4) wxyz body -> earth quaternion whose firmware ``QuaternionToEuler`` gives back (thx, thy): the
+    z-y-x rotation qz(thz) qy(thy) qx(thx). For text-mode rows, which carry angles but no q, so the 3D view can
+    still show the attitude (thz: the firmware's gyro-integrated yaw, 0 when None)."""
+    ax = np.asarray(thx_rad, dtype=np.float64) / 2
+    ay = np.asarray(thy_rad, dtype=np.float64) / 2
+    az = np.zeros_like(ax) if thz_rad is None else np.nan_to_num(np.asarray(thz_rad, dtype=np.float64)) / 2
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    return np.stack(
+        [
+            cz * cy * cx + sz * sy * sx,
+            cz * cy * sx - sz * sy * cx,
+            cz * sy * cx + sz * cy * sx,
+            sz * cy * cx - cz * sy * sx,
+        ],
+        axis=-1,
+    )

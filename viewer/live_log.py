@@ -29,7 +29,7 @@ from steval_link.protocol import SEQ_MODULUS, T_US_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
-from steval_viewer.columns import Times, send_scalars
+from steval_viewer.columns import Times, quaternion_from_euler, send_scalars
 
 #: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
 #: frame of a batch: the view shows only the latest attitude, and this keeps the per-frame cost down. Plots get
@@ -271,6 +271,8 @@ class LiveLogger:
             rows = ~np.asarray(exact, dtype=bool)
             thx[rows] = np.asarray(batch.thx_rad, dtype=np.float32)[rows]
             thy[rows] = np.asarray(batch.thy_rad, dtype=np.float32)[rows]
+            q = q.astype(np.float64)
+            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(batch.thz_rad)[rows])
         acc = np.asarray(batch.acc_mg, dtype=np.float64)
 
         # 3D entities show only the latest attitude: at most LIVE_3D_MAX_HZ updates (the batch's last row)

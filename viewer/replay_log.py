@@ -23,7 +23,14 @@ import rerun as rr
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
-from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
+from steval_viewer.columns import (
+    Times,
+    quaternion_from_euler,
+    send_arrows,
+    send_rows,
+    send_scalars,
+    send_transforms,
+)
 
 _MASK_NAMES = ("valid", "mask", "seeded")
 
@@ -59,9 +66,22 @@ def _deg(rad: np.ndarray) -> np.ndarray:
     return np.degrees(np.asarray(rad, dtype=np.float64))
 
 
+def display_quaternions(att: Any) -> np.ndarray:
+    """The firmware attitude for the 3D view: ``q_wxyz``; text-mode rows (no q) get it from their thx/thy/thz."""
+    q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
+    missing = ~np.isfinite(q).all(axis=1)
+    if missing.any():
+        thx = np.asarray(att.thx_rad, dtype=np.float64)
+        thy = np.asarray(att.thy_rad, dtype=np.float64)
+        rows = missing & np.isfinite(thx) & np.isfinite(thy)
+        if rows.any():
+            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(att.thz_rad)[rows])
+    return q
+
+
 def log_firmware(rec: rr.RecordingStream, times: Times, att: Any, summary: ReplaySummary) -> None:
     """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
-    q = np.asarray(att.q_wxyz, dtype=np.float64)
+    q = display_quaternions(att)
     send_transforms(rec, ent.DRONE_FIRMWARE, times, q)
     summary.samples[ent.DRONE_FIRMWARE] = int(np.isfinite(q).all(axis=1).sum())
 
