@@ -283,15 +283,18 @@ class _TxQueue:
 
 
 def _forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndarray:
-    """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts of mean length 3."""
+    """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts (mean 3 frames) separated by
+    geometric gaps, so the long-run fraction is ``rate``."""
     out = np.zeros(n_steps, dtype=bool)
     if rate <= 0 or n_steps == 0:
         return out
-    mean_burst = 3.0
-    starts = rng.random(n_steps) < rate / mean_burst
-    lengths = rng.geometric(1.0 / mean_burst, n_steps)
-    for i in np.flatnonzero(starts):
-        out[i : i + lengths[i]] = True
+    mean_gap = max(1.0, 3.0 * (1.0 - rate) / rate)
+    mean_burst = rate * mean_gap / (1.0 - rate)
+    i = int(rng.geometric(1.0 / mean_gap)) - 1
+    while i < n_steps:
+        burst = int(rng.geometric(min(1.0, 1.0 / mean_burst)))
+        out[i : i + burst] = True
+        i += burst + int(rng.geometric(1.0 / mean_gap))
     return out
 
 
