@@ -59,6 +59,9 @@ def synthetic_telemetry(n: int, seed: int = 1) -> SimpleNamespace:
         t_fw_s=t[si], t_host_s=att.t_host_s[si], step=step[si],
         cyc_min=np.full(ns, 9000), cyc_mean=np.full(ns, 9500), cyc_max=np.full(ns, 12000), cyc_n=np.full(ns, 161),
         tx_dropped=np.zeros(ns), queue_peak=np.full(ns, 116),
+        q_wxyz=att.q_wxyz[si], int_xyz=np.zeros((ns, 3), np.float32), kp_ground=np.full(ns, 10.0, np.float32),
+        kp_flight=np.full(ns, 0.4, np.float32), ki=np.full(ns, 0.1, np.float32), dt_s=np.full(ns, 0.00625, np.float32),
+        min_thr=np.full(ns, 200, np.int16), flags=np.zeros(ns, np.uint16),
     )
     return SimpleNamespace(
         attitude=att, status=status, text=[(0.01, "STEVAL-FCU001V1 telemetry v1.0.0")],
@@ -82,6 +85,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=581_000)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument(
+        "--run-estimators",
+        default=None,
+        metavar="NAMES",
+        help="comma-separated registry names to really run (e.g. accel,vqf,ekf3,mekf) and time, plus the seeded "
+        "firmware port; default: synthetic estimate arrays (viewer side only)",
+    )
     args = ap.parse_args()
 
     from steval_viewer.replay_log import log_replay
@@ -90,8 +100,24 @@ def main() -> None:
 
     rng = np.random.default_rng(2)
     tel = synthetic_telemetry(args.frames)
-    port = estimate(tel, 1.0, rng)
-    estimates = {name: estimate(tel, s, rng) for name, s in (("ekf3", 0.98), ("mekf", 0.97), ("accel", 1.05), ("vqf", 0.99))}
+    if args.run_estimators:
+        from steval_link.estimators.registry import create
+        from steval_link.estimators.st_mahony import replay_firmware
+
+        t = time.perf_counter()
+        port = replay_firmware(tel)
+        print(f"estimator st-mahony port (seeded replay): {time.perf_counter() - t:.2f} s")
+        estimates = {}
+        a = tel.attitude
+        for name in args.run_estimators.split(","):
+            t = time.perf_counter()
+            estimates[name] = create(name).run(a.acc_mg, a.gyro_mdps, a.thr)
+            print(f"estimator {name}: {time.perf_counter() - t:.2f} s")
+    else:
+        port = estimate(tel, 1.0, rng)
+        estimates = {
+            name: estimate(tel, s, rng) for name, s in (("ekf3", 0.98), ("mekf", 0.97), ("accel", 1.05), ("vqf", 0.99))
+        }
     out = args.out or Path(tempfile.mkdtemp()) / "bench_replay.rrd"
 
     t0 = time.perf_counter()
