@@ -20,7 +20,7 @@ from steval_link.analysis.compare import (
     format_report,
     rate_stats,
 )
-from steval_link.capture import CaptureWriter, load_telemetry
+from steval_link.capture import CaptureWriter
 from steval_link.decoder import decode_bytes
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run
 from steval_link.textmode import format_att, format_sta
@@ -274,6 +274,18 @@ def test_firmware_nan_rows_are_counted_and_excluded():
     assert acc.roll.n == 1200 - nan_rows and math.isfinite(acc.roll.rms_deg)
     assert "firmware NaN steps" in "\n".join(format_report(r))
     json.dumps(r.as_dict(), allow_nan=False)
+
+
+def test_firmware_restart_restarts_the_port_and_keeps_time_increasing():
+    data = capture_bytes(n=500) + capture_bytes(n=400, seed=2, fw_settings=MahonySettings(ki=1.0),
+                                                status_settings=MahonySettings())
+    tel = decode_bytes(data, source={"path": "restart", "kind": "raw"})
+    r = compare_capture(tel, estimators=())
+    p = r.port
+    assert [s["source"] for s in p.seeds] == ["power-up", "power-up"] and r.rates.seq_resets == 1
+    assert p.bit_exact == 500 and p.first_mismatch["row"] == 500 and p.first_mismatch["step"] == 0
+    assert p.matching_variant == {"ki": 1.0}  # reflashed with AHRS_KI=1 after the first run
+    assert np.all(np.diff(r.t_rel_s) > 0) and p.first_mismatch["t_rel_s"] == pytest.approx(r.t_rel_s[500])
 
 
 def test_rate_statistics():

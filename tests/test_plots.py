@@ -144,7 +144,8 @@ def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tm
         plots.require_matplotlib()
     cap = tmp_path / "c.bin"
     cap.write_bytes(capture_bytes(n=300))
-    for args in (["compare", str(cap), "--plot", str(tmp_path / "x.png")], ["simulate", "--plot", str(tmp_path / "y.png")]):
+    for args in (["compare", str(cap), "--plot", str(tmp_path / "x.png")],
+                 ["simulate", "--plot", str(tmp_path / "y.png")]):
         code, out, err = run_cli(args, capsys)
         assert code == 2 and err.count("\n") == 1 and 'pip install "steval-link[plot]"' in err
         assert out == ""

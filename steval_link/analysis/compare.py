@@ -292,6 +292,19 @@ def _restart_mask(step: np.ndarray) -> np.ndarray:
     return np.diff(step) <= 0 if step.size > 1 else np.zeros(0, bool)
 
 
+def relative_time_s(step, t_fw_s) -> np.ndarray:
+    """Firmware time since the first row, s, kept increasing across firmware restarts (each restart continues one
+    AHRS period after the last row before it) so plots never run backwards."""
+    t = np.asarray(t_fw_s, dtype=np.float64)
+    if t.size == 0:
+        return t
+    dt = np.diff(t)
+    bad = (np.diff(np.asarray(step, dtype=np.int64)) <= 0) | ~np.isfinite(dt) | (dt < 0)
+    if bad.any():
+        dt = np.where(bad, P.AHRS_PERIOD_S, dt)
+    return np.concatenate([[0.0], np.cumsum(dt)])
+
+
 def rate_stats(tel) -> RateStats:
     """Rate, period jitter, drops, CRC failures and AHRS cycles of a telemetry (see :class:`RateStats`)."""
     a, s, st = tel.attitude, tel.status, tel.stats
@@ -509,7 +522,9 @@ def _seed_state(view, seed) -> MahonyState:
     return MahonyState()
 
 
-def _diagnose(view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
+def _diagnose(
+    view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats
+) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
     """Why the port disagrees: (sentences, matching variant, its bit-exact rows over the capture, its settings)."""
     a = view.attitude
     steps = a.step
@@ -624,15 +639,15 @@ def _status_base(view) -> MahonySettings | None:
                                       dt_s=s.dt_s[j], min_thr=s.min_thr[j], flags=s.flags[j])
 
 
-def compare_port(tel, settings: MahonySettings | None = None, *, t0: float | None = None
-                 ) -> tuple[PortComparison | None, FirmwareReplay | None, np.ndarray | None]:
+def compare_port(
+    tel, settings: MahonySettings | None = None
+) -> tuple[PortComparison | None, FirmwareReplay | None, np.ndarray | None]:
     """The seeded port against the firmware's binary rows: (report, replay over the binary rows, those rows'
     indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None
     a = view.attitude
-    t0 = float(tel.attitude.t_fw_s[0]) if t0 is None else t0
     rep = replay_firmware(view, settings=settings)
     used = settings
     if used is None:
@@ -653,8 +668,9 @@ def compare_port(tel, settings: MahonySettings | None = None, *, t0: float | Non
                         "start from")
     if rep.first_mismatch is not None:
         m = rep.first_mismatch
+        t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
         first = {"row": int(rows[m]), "step": int(a.step[m]), "t_fw_s": float(a.t_fw_s[m]),
-                 "t_rel_s": float(a.t_fw_s[m] - t0)}
+                 "t_rel_s": float(t_rel[rows[m]])}
         diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
     return (
         PortComparison(
@@ -771,12 +787,11 @@ def compare_capture(
         raise ValueError("the capture has no attitude frames")
     fw_thx = np.asarray(a.thx_rad, dtype=np.float64)
     fw_thy = np.asarray(a.thy_rad, dtype=np.float64)
-    t0 = float(a.t_fw_s[0])
     exact = np.asarray(a.exact, bool)
     notes: list[str] = []
     traces: list[TraceComparison] = []
 
-    port, rep, prow = compare_port(tel, settings, t0=t0)
+    port, rep, prow = compare_port(tel, settings)
     if port is not None:
         thx = np.full(n, np.nan)
         thy = np.full(n, np.nan)
@@ -824,7 +839,7 @@ def compare_capture(
         port=port,
         traces=traces,
         notes=notes,
-        t_rel_s=np.asarray(a.t_fw_s, dtype=np.float64) - t0,
+        t_rel_s=relative_time_s(a.step, a.t_fw_s),
         replay=rep,
         port_rows=prow,
         estimates=estimates,

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import textwrap
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -178,6 +177,11 @@ def comparison_figure(tel, report, *, title: str | None = None):
         ax.set_ylabel(f"{what} [deg]")
         ax.set_title(what, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
+    restarts = np.flatnonzero(np.diff(np.asarray(a.step, dtype=np.int64)) <= 0) + 1
+    for ax in (ax_p, ax_r, ax_d):
+        for k, r in enumerate(restarts):
+            ax.axvline(t[r], color="dimgray", lw=1.0, ls="-.", zorder=1,
+                       label="firmware restart" if (k == 0 and ax is ax_p) else None)
     h, lab = ax_p.get_legend_handles_labels()
     rank = {name: i for i, name in enumerate(_ORDER)}
     order = sorted(range(len(lab)), key=lambda i: (rank.get(lab[i], len(rank)), i))
