@@ -23,7 +23,7 @@ Until real drone captures exist, tests and the demo use these. The chain, one fu
 What is emulated rather than measured (documented so nobody mistakes it for the drone's): the boot timing, the
 main loop's latency after each tick, the DWT cycle counts of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (a noisy
 constant of :data:`AHRS_CYCLES` at -O0 on the Cortex-M4 at 84 MHz plus the USART TXE interrupts that land in the
-step), the BLE module's banner values, the adapter (FTDI-like: 62 data bytes per USB packet, 16 ms latency timer,
+step), the slow drift of the gyro's zero-rate level after calibration, the BLE module's banner values, the adapter (FTDI-like: 62 data bytes per USB packet, 16 ms latency timer,
 1 ms USB frames). ``--drop-rate P`` makes the queue refuse about a fraction P of the attitude frames (bursts of
 about 3, as when it is full); a baud rate too low for the stream overflows the emulated queue by itself.
 
@@ -317,6 +317,18 @@ def _sensor(rng: np.random.Generator) -> sm.Lsm6dsl:
     )
 
 
+def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Slow zero-rate drift after the power-up calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over
+    minutes, so the calibrated offset is not perfect and the filter's integral terms have work to do."""
+    out = np.empty((len(t_s), 3))
+    for i in range(3):
+        f = rng.uniform(0.002, 0.02, 3)
+        a = rng.normal(0.0, 40.0 / np.sqrt(1.5), 3)
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        out[:, i] = (np.sin(2 * np.pi * f * t_s[:, None] + ph) - np.sin(ph)) @ a
+    return out
+
+
 def _settings(opts: SynthOptions) -> MahonySettings:
     return MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
 
@@ -359,11 +371,13 @@ def synthesize(opts: SynthOptions) -> SynthResult:
     first_tick_s = (TIM9_START_CYCLES + M.TICK_CYCLES) / CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * sm.TICK_HZ)) + 1
     profile = _profile(opts, r_motion, n_ticks, first_tick_s, total, trial)
+    gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
     else:
         sensor = _sensor(r_sensor)
-    acc_raw, gyro_raw = sensor.read(profile.acc_mg, profile.gyro_mdps, rng=r_noise, t_tick_s=profile.t_s)
+        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, r_sensor)
+    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=r_noise, t_tick_s=profile.t_s)
 
     # 3: ISR and main-loop averaging; ISR yaw
     isr = sm.run_isr(acc_raw, gyro_raw)
