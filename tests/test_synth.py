@@ -253,14 +253,10 @@ def test_broad_trial(shared_dir):
     res = synthesize(SynthOptions(str(trial), duration_s=6, seed=1))
     tel = decode(res)
     assert res.profile.measured and tel.stats.crc_failures == 0
-    assert read_capture_header_port(res) == "synth:02_undisturbed_slow_rotation_B"
+    assert res.header["port"] == "synth:02_undisturbed_slow_rotation_B"
     assert replay_firmware(tel).all_exact
     with pytest.raises(UserError):
         synthesize(SynthOptions(str(trial), duration_s=10_000))
-
-
-def read_capture_header_port(res):
-    return res.header["port"]
 
 
 # ---- encoders ---------------------------------------------------------------------------------------------------
