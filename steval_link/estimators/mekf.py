@@ -1,5 +1,5 @@
-"""Multiplicative quaternion EKF (MEKF) with gyro-bias states, inertial-frame accelerometer averaging and
-acceleration-aware measurement noise — steval-link's most accurate 6-axis estimator.
+"""Multiplicative quaternion EKF (MEKF) with gyro-bias states and inertial-frame accelerometer averaging —
+steval-link's most accurate 6-axis estimator.
 
 Why inertial-frame averaging: a hand-held or flying body's linear acceleration is large (tenths of a g) but it
 averages out over seconds *in the earth frame* (the velocity stays bounded), while in the body frame it does not
@@ -20,23 +20,33 @@ Per step (``dt = 1 / rate_hz``)::
     P  ← F P Fᵀ + diag(σ_g²·dt·I, σ_b²·dt·I),   F = [[I, −dt·R(q_s)], [0, I]]
 
 Accelerometer: ``a_I = R(q_s)·a`` (g) goes through a 2nd-order Butterworth low-pass with time constant τ
-(``acc_tau_s``; cut-off √2 / (2πτ)), giving ``ā_I``. Measurement ``y = ā_I / |ā_I|``, prediction
-``h = R(q_c)ᵀ·e_z`` (gravity direction in the I frame; for the whole chain it is the third row of R(q), as in
-the firmware), Jacobian ``H = [[h]×, 0]``, noise ``R = σ_a²·I`` with an acceleration-aware standard deviation (g)::
+(``acc_tau_s``; cut-off √2 / (2πτ); during the first τ seconds it outputs the running mean, as VQF does), giving
+``ā_I``. Measurement ``y = ā_I / |ā_I|``, prediction ``h = R(q_c)ᵀ·e_z`` (gravity direction in the I frame; for
+the whole chain it is the third row of R(q), as in the firmware)::
 
-    σ_a² = σ_n² + (k_n·d)²,   d = low-passed | |a| − 1 g |   (same τ)
+    H = [[h]×, [h]×·D],   D = C − LP(C),   C = Σ dt·R(q_s)
 
-- σ_n (``acc_noise_mg``): residual error of the averaged direction for a body at rest or in gentle motion,
-- k_n (``norm_gain``): how much of the recent deviation of |a| from 1 g stays in the average as a disturbance
-  (vibration, tapping, fast translation make σ_a grow and the correction slow down).
+The bias block models the low-pass' delay: ``ā_I`` reflects the attitude error of the last ≈ τ seconds, which
+differs from the current one by the drift a bias error caused meanwhile (D: that drift per unit bias, through the
+same low-pass). Without it the bias loop, closed through a τ-second delay, oscillates. While the low-pass warms
+up the bias is not updated. Noise ``R = σ_a²·I`` (g²)::
 
-Samples with ``| |a| − 1 g | > reject_mg`` (or a zero vector) are not fed into the low-pass; the last value is held.
+    σ_a² = σ_n² + (k_n·d)²,   d = low-passed | |a| − 1 g |
+
+- σ_n (``acc_noise_mg``): error of the averaged gravity direction (the averaging already removes most linear
+  acceleration, so a few mg),
+- k_n (``norm_gain``, default 0): optional acceleration-aware inflation from the recent deviation of |a| from
+  1 g. Measured on the BROAD trials it does not help once the accelerometer is averaged in the I frame (it even
+  hurts fast translation, where the strongest accelerations must stay in the average to cancel), so it is off.
+
+Samples with ``| |a| − 1 g | > reject_mg`` (default: none) or a zero vector are skipped: dropping large
+accelerations biases the average (e.g. when the ±4 g range saturates), so nothing is dropped by default.
 The error state is folded back (``q_c ← q_c ⊗ Exp(δθ)``, ``b ← b + δb``, Joseph-form covariance). The bias
 variance is capped at its initial value because the bias about the earth's vertical is unobservable without a
 magnetometer. The first valid accelerometer sample sets the initial tilt (heading 0).
 
-``acc_tau_s = 0`` gives the classic direct MEKF (the raw accelerometer direction each step, noise
-``σ_a² = σ_n² + (k_n·| |a| − 1 g |)²``), kept for comparison.
+``acc_tau_s = 0`` gives the classic direct MEKF (the raw accelerometer direction each step, ``H = [[h]×, 0]``,
+noise ``σ_a² = σ_n² + (k_n·| |a| − 1 g |)²``), kept for comparison: it is pulled around by linear acceleration.
 
 Latency: in the STEVAL pipeline the gyro input lags the accelerometer input by the IIR's group delay and the gyro's
 416 Hz sample-and-hold (``sensor_model.GYRO_LATENCY_S`` ≈ 3.3 ms). By default the returned attitude is predicted
@@ -98,15 +108,28 @@ def _butter2(fc_hz: float, fs_hz: float) -> tuple[float, float, float, float, fl
 
 
 class _LowPass:
-    """Vector 2nd-order Butterworth low-pass (direct form I), initialised to the first input (steady state)."""
+    """Vector 2nd-order Butterworth low-pass (direct form I).
 
-    __slots__ = ("c", "x1", "x2", "y1", "y2", "ready")
+    Like VQF's, it starts with the running mean of its inputs for ``warmup`` samples (≈ τ) and then continues
+    from that mean in steady state, so a single first sample taken during motion does not linger.
+    """
 
-    def __init__(self, coeffs) -> None:
+    __slots__ = ("c", "x1", "x2", "y1", "y2", "ready", "warmup", "n", "acc")
+
+    def __init__(self, coeffs, warmup: int = 0) -> None:
         self.c = coeffs
         self.ready = False
+        self.warmup = int(warmup)
+        self.n = 0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.n < self.warmup:
+            self.acc = x.copy() if self.n == 0 else self.acc + x
+            self.n += 1
+            mean = self.acc / self.n
+            self.x1 = self.x2 = self.y1 = self.y2 = mean
+            self.ready = True
+            return mean
         if not self.ready:
             self.x1 = self.x2 = self.y1 = self.y2 = x.copy()
             self.ready = True
@@ -171,8 +194,11 @@ class Mekf(Estimator):
         self.b = np.zeros(3)
         nb = 6 if self.estimate_bias else 3
         self.P = np.diag([0.05 ** 2] * 3 + [self.init_bias ** 2] * (nb - 3))
-        self._acc_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
-        self._dev_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
+        warm = int(round(self.acc_tau_s * self.rate_hz))
+        self._acc_lp = _LowPass(self._lp_coeffs, warm) if self._lp_coeffs else None
+        self._norm_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
+        self._cum_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
+        self._cum_rs = np.zeros((3, 3))
         self._initialised = False
         self._eye = np.eye(nb)
         self._w = (0.0, 0.0, 0.0)
@@ -230,7 +256,9 @@ class Mekf(Estimator):
         self.qs = (w * n, x * n, y * n, z * n)
         P = self.P
         if self.estimate_bias:
-            G = -dt * _rotmat(*self.qs)  # ∂δθ/∂δb
+            rs = _rotmat(*self.qs)
+            self._cum_rs += dt * rs  # C_k = Σ dt·R(q_s): the strapdown frame's drift per unit bias error
+            G = -dt * rs  # ∂δθ/∂δb
             Pab = P[:3, 3:]
             Pbb = P[3:, 3:]
             GPbb = G @ Pbb
@@ -251,7 +279,7 @@ class Mekf(Estimator):
             w, x, y, z = self.qs
             a_i = _rotmat(w, x, y, z) @ np.array([ax, ay, az])
             m = self._acc_lp(a_i)
-            d = float(self._dev_lp(np.array([dev]))[0])
+            d = float(self._norm_lp(np.array([dev]))[0]) if self.norm_gain > 0.0 else 0.0
             mn = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
             if mn < 1e-6:
                 return
@@ -266,16 +294,29 @@ class Mekf(Estimator):
         hz = w * w - x * x - y * y + z * z
         Hh = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
         P = self.P
-        PHt = P[:, :3] @ Hh.T
-        S = Hh @ PHt[:3]
+        if self.estimate_bias:
+            H = np.empty((3, 6))
+            H[:, :3] = Hh
+            if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
+                # the low-passed measurement lags: a bias error shows up as the drift of the last ≈ τ seconds,
+                # D = C − LP(C) (zero for the direct MEKF)
+                d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
+                H[:, 3:] = Hh @ d
+            else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)
+                H[:, 3:] = 0.0
+        else:
+            H = Hh
+        PHt = P @ H.T
+        S = H @ PHt
         S[0, 0] += var
         S[1, 1] += var
         S[2, 2] += var
         # S is singular along h (heading is unobservable): a tiny regularisation keeps the solve well posed
         K = np.linalg.solve(S + 1e-12 * np.eye(3), PHt.T).T
+        if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
+            K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
         dxs = K @ np.array([ux - hx, uy - hy, uz - hz])
-        IKH = self._eye.copy()
-        IKH[:, :3] -= K @ Hh
+        IKH = self._eye - K @ H
         P = IKH @ P @ IKH.T + var * (K @ K.T)
         self.P = 0.5 * (P + P.T)
         ex, ey, ez = 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]
