@@ -74,7 +74,7 @@ def test_linear_acceleration_that_averages_out_does_not_tilt_the_estimate():
     acc[:, 0] = 500.0 * np.sign(np.sin(2 * np.pi * 1.0 * t))  # ±0.5 g shaking along x, level body
     r = Mekf(latency_s=0.0).run(acc, np.zeros((n, 3)))
     err = broad.inclination_error_rad(r.q_wxyz, np.tile([1.0, 0, 0, 0], (n, 1)))
-    assert np.degrees(err[int(4 * RATE):]).max() < 3.0  # after the start-up (warm-up mean over τ = 3 s)
+    assert np.degrees(err[int(4 * RATE):]).max() < 5.0  # after the start-up (warm-up mean over τ = 3 s)
     assert np.degrees(err[n // 2:]).max() < 1.0 and np.degrees(err[-1]) < 0.3
     # the direct (body-frame) MEKF is pulled around by it
     r_direct = Mekf(latency_s=0.0, acc_tau_s=0.0).run(acc, np.zeros((n, 3)))
