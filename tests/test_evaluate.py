@@ -207,3 +207,25 @@ def test_plot_evaluation(tmp_path):
     out = ev.plot_evaluation([r], tmp_path / "eval.png")
     assert out.stat().st_size > 10_000
     assert "97_synthetic" in ev.format_table([r])
+
+
+def test_vqf_adapter_units_frames_and_interface():
+    pytest.importorskip("vqf")
+    from steval_link.estimators.registry import create
+
+    thx, thy = 0.2, 0.35
+    g = np.array([-math.sin(thy), math.sin(thx) * math.cos(thy), math.cos(thx) * math.cos(thy)]) * 1000.0
+    acc = np.tile(g, (3000, 1))
+    gyro = np.zeros_like(acc)
+    est = create("vqf")
+    r = est.run(acc, gyro)
+    assert np.degrees(broad.inclination_error_rad(r.q_wxyz[-1], quaternion_from_euler(thx, thy, 0.0))) < 0.1
+    est.reset()
+    steps = np.array([est.step(a, w) for a, w in zip(acc[:30], gyro[:30])])
+    assert np.allclose(steps, create("vqf").run(acc[:30], gyro[:30]).q_wxyz)
+    # 90 dps about z predicted 10 ms ahead: 0.9° further
+    spin = np.tile([0.0, 0.0, 90000.0], (5, 1))
+    a = create("vqf").run(acc[:5], spin).q_wxyz[-1]
+    b = create("vqf", latency_s=0.01).run(acc[:5], spin).q_wxyz[-1]
+    d = broad.quat_multiply(broad.quat_conjugate(a), b)
+    assert 2 * np.degrees(np.arctan2(np.linalg.norm(d[1:]), d[0])) == pytest.approx(0.9, rel=1e-3)

@@ -31,6 +31,9 @@ class VqfEstimator(Estimator):
 
     Args:
         rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
+        latency_s: output prediction horizon, s (default 0: VQF untouched, the reference). With
+            ``steval_link.sensor_model.GYRO_LATENCY_S`` the output is ``q ⊗ Exp(ω·latency_s)`` like ``mekf``'s,
+            compensating the STEVAL pipeline's gyro delay.
         **params: VQF parameters by name (e.g. ``tauAcc=3.0``, ``motionBiasEstEnabled=True``), passed to ``VQF``.
 
     Importing this module raises ImportError with the install hint when ``vqf`` is missing; use
@@ -39,11 +42,12 @@ class VqfEstimator(Estimator):
 
     name = "vqf"
 
-    def __init__(self, rate_hz: float = AHRS_HZ, **params) -> None:
+    def __init__(self, rate_hz: float = AHRS_HZ, latency_s: float = 0.0, **params) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.rate_hz = float(rate_hz)
         self.params = dict(params)
+        self.latency_s = float(latency_s)
         self.reset()
 
     def reset(self) -> None:
@@ -53,13 +57,27 @@ class VqfEstimator(Estimator):
         gyr = np.asarray(gyro_mdps, dtype=np.float64).reshape(3) * _MDPS_TO_RADPS
         acc = np.asarray(acc_mg, dtype=np.float64).reshape(3) * _MG_TO_MPS2
         self._vqf.update(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
-        return np.asarray(self._vqf.getQuat6D(), dtype=np.float64)
+        q = np.asarray(self._vqf.getQuat6D(), dtype=np.float64)
+        return self._predict(q[None], gyr[None])[0] if self.latency_s else q
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
         out = self._vqf.updateBatch(np.ascontiguousarray(gyro * _MDPS_TO_RADPS),
                                     np.ascontiguousarray(acc * _MG_TO_MPS2))
         q = np.asarray(out["quat6D"], dtype=np.float64)
+        if self.latency_s:
+            q = self._predict(q, gyro * _MDPS_TO_RADPS)
         thx, thy, thz = euler_from_quaternion(q)
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz,
                                 valid=np.isfinite(q).all(axis=1))
+
+    def _predict(self, q: np.ndarray, gyr_radps: np.ndarray) -> np.ndarray:
+        """q ⊗ Exp(ω·latency_s) for (N, 4) q and (N, 3) ω (rad/s, bias not removed: VQF's is not exposed)."""
+        r = gyr_radps * self.latency_s
+        ang = np.linalg.norm(r, axis=1)
+        s = np.where(ang > 1e-12, np.sin(0.5 * ang) / np.maximum(ang, 1e-12), 0.5)
+        d = np.column_stack([np.cos(0.5 * ang), r * s[:, None]])
+        w1, x1, y1, z1 = q.T
+        w2, x2, y2, z2 = d.T
+        return np.column_stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
