@@ -410,3 +410,38 @@ def test_quaternion_from_text_mode_angles_round_trips_through_the_firmware_euler
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
     bx, by = quaternion_to_euler(q.astype(np.float32))
     assert np.allclose(bx, thx, atol=1e-5) and np.allclose(by, thy, atol=1e-5)
+
+
+def test_serve_starts_a_web_viewer_on_loopback_only_and_stops_it(tmp_path):
+    import socket
+    import urllib.request
+
+    from steval_viewer.sinks import _free_port
+    from steval_viewer.replay_log import log_telemetry
+
+    web, grpc = _free_port(), _free_port()
+    session = open_session(SinkOptions(serve=True, web_port=web, grpc_port=grpc, rrd=tmp_path / "s.rrd"))
+    try:
+        log_telemetry(session.rec, make_telemetry(300), {})
+        session.flush()
+        assert session.web_url.startswith(f"http://127.0.0.1:{web}/?url=rerun%2Bhttp")
+        assert urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=10).status == 200
+        # bound to the loopback interface only: not reachable on another local address
+        others = set()
+        try:  # the address of the interface with the default route (a UDP connect sends nothing)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+                u.connect(("192.0.2.1", 9))
+                others.add(u.getsockname()[0])
+        except OSError:
+            pass
+        for addr in others - {"127.0.0.1", "0.0.0.0"}:
+            with socket.socket() as s:
+                s.settimeout(1)
+                assert s.connect_ex((addr, web)) != 0
+        child = session.children[0]
+    finally:
+        session.close()
+    assert child.poll() is not None
+    with socket.socket() as s:
+        assert s.connect_ex(("127.0.0.1", grpc)) != 0
+    assert read_rrd(tmp_path / "s.rrd").samples[ent.pitch_path("firmware")] == 300

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
 import time
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -67,12 +69,7 @@ class ViewerSession:
         finally:
             self.rec.disconnect()
             for child in self.children:
-                if child.poll() is None:
-                    child.terminate()
-                    try:
-                        child.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        child.kill()
+                _stop_child(child)
             self.children.clear()
 
     def wait_for_viewer(self) -> None:
@@ -134,8 +131,33 @@ def _wait_port(port: int, timeout_s: float, child: subprocess.Popen) -> bool:
 
 
 def _rerun_command() -> list[str]:
-    exe = shutil.which("rerun")
-    return [exe] if exe else [sys.executable, "-m", "rerun"]
+    """The Rerun viewer binary (the ``rerun`` script is a Python wrapper around it)."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+        if exe.is_file():
+            return [str(exe)]
+    except ImportError:  # pragma: no cover - rerun-sdk ships rerun_cli
+        pass
+    found = shutil.which("rerun")
+    return [found] if found else [sys.executable, "-m", "rerun"]
+
+
+def _stop_child(child: subprocess.Popen) -> None:
+    """Stop a viewer process and whatever it started (its own process group on POSIX)."""
+    if child.poll() is not None:
+        return
+    try:
+        if hasattr(os, "killpg"):
+            os.killpg(child.pid, signal.SIGTERM)
+        else:  # pragma: no cover - Windows
+            child.terminate()
+        child.wait(timeout=5)
+    except (ProcessLookupError, PermissionError):
+        pass
+    except subprocess.TimeoutExpired:
+        child.kill()
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
@@ -152,12 +174,18 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
         "--port",
         str(grpc_port),
     ]
-    child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    child = subprocess.Popen(
+        cmd,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=sys.platform != "win32",
+    )
     if not _wait_port(grpc_port, 15.0, child):
-        child.kill()
+        _stop_child(child)
         raise UserError("the Rerun web viewer did not start (is rerun-sdk installed completely?)")
     proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-    page = f"http://127.0.0.1:{web_port}/?url={proxy}"
+    page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
 
 
