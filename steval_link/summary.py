@@ -123,8 +123,8 @@ def summarize(tel) -> dict[str, Any]:
     return out
 
 
-def format_summary(summary: dict[str, Any]) -> list[str]:
-    """Human-readable lines of a :func:`summarize` dict."""
+def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str]:
+    """Human-readable lines of a :func:`summarize` dict (the first ``max_text_lines`` firmware log lines)."""
     s = summary
     src = s["source"]
     f = s["frames"]
@@ -159,9 +159,10 @@ def format_summary(summary: dict[str, Any]) -> list[str]:
         def g(x):
             return "n/a" if x is None else f"{x:g}"
 
+        dt = "n/a" if flt["dt_s"] is None else f"{flt['dt_s']:g} s"
         lines.append(
             f"filter (status at step {flt['from_step']}): kp_ground {g(flt['kp_ground'])}, kp_flight "
-            f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {g(flt['dt_s'])} s, min_thr {flt['min_thr']}, "
+            f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {dt}, min_thr {g(flt['min_thr'])}, "
             f"flags {flt['flags']}" + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
         )
         if flt["ahrs_time_mean_us"] is not None:
@@ -172,10 +173,11 @@ def format_summary(summary: dict[str, Any]) -> list[str]:
     for e in s["events"]:
         lines.append(f"event at {e['t_host_s']:.3f} s: {e['kind']}" + (f" ({e['text']})" if e["text"] else ""))
     if f["text"]:
+        shown = s["text_lines"][:max_text_lines]
         lines.append(f"text lines ({f['text']}):")
-        lines.extend(f"  | {t}" for t in s["text_lines"])
-        if f["text"] > len(s["text_lines"]):
-            lines.append(f"  | ... {f['text'] - len(s['text_lines'])} more")
+        lines.extend(f"  | {t}" for t in shown)
+        if f["text"] > len(shown):
+            lines.append(f"  | ... {f['text'] - len(shown)} more")
     for w in s["warnings"]:
         lines.append(f"warning: {w}")
     return lines
