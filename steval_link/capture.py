@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import struct
 import threading
 import time
@@ -49,6 +50,7 @@ CHUNK_EVENT = ord("E")
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
+_CHUNK_TYPE = re.compile(b"[DE]")
 #: Largest chunk payload the reader accepts (the writer splits larger writes).
 MAX_CHUNK = 1 << 20
 MAX_HEADER = 1 << 20
@@ -223,8 +225,9 @@ def _read_bytes(path: Path) -> bytes:
 
 
 def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Capture:
-    """Read a ``.stv`` file. A file cut short (or damaged) reads up to its last complete chunk: ``truncated`` is
-    set, ``warning`` says where, and a :class:`CaptureTruncatedWarning` is issued. Raises
+    """Read a ``.stv`` file. A file cut short reads up to its last complete chunk; a damaged chunk inside the file
+    is skipped (reading resumes at the next valid chunk, and a "damaged" event marks the spot). Either way
+    ``truncated`` is set, ``warning`` says where, and a :class:`CaptureTruncatedWarning` is issued. Raises
     :class:`~steval_link.errors.UserError` when the file is missing, unreadable or not a capture."""
     path = Path(path)
     raw = _read_bytes(path) if data is None else data
@@ -259,30 +262,46 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     events: list[CaptureEvent] = []
     total = 0
     n = len(raw)
-    warning = None
     head_size = _CHUNK_HEAD.size
     unpack_head = _CHUNK_HEAD.unpack_from
     unpack_crc = _CRC.unpack_from
     crc32 = zlib.crc32
+    def chunk_at(p: int) -> tuple[int, int, float, int] | str:
+        """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none."""
+        if p + head_size > n:
+            return "incomplete chunk header"
+        kind, length, t = unpack_head(raw, p)
+        end = p + head_size + length
+        if kind not in (CHUNK_DATA, CHUNK_EVENT) or length > MAX_CHUNK:
+            return "damaged chunk header"
+        if end + 4 > n:
+            return "incomplete chunk"
+        if crc32(mv[p:end]) != unpack_crc(raw, end)[0]:
+            return "chunk CRC mismatch"
+        return kind, length, t, end
+
+    problems: list[str] = []
     while pos < n:
-        bad = None
-        if pos + head_size > n:
-            bad = "incomplete chunk header"
-        else:
-            kind, length, t = unpack_head(raw, pos)
-            end = pos + head_size + length
-            if kind not in (CHUNK_DATA, CHUNK_EVENT) or length > MAX_CHUNK:
-                bad = "damaged chunk header"
-            elif end + 4 > n:
-                bad = "incomplete chunk"
-            elif crc32(mv[pos:end]) != unpack_crc(raw, end)[0]:
-                bad = "chunk CRC mismatch"
-        if bad is not None:
-            warning = (
-                f"{path}: capture cut short or damaged at file byte {pos} ({bad}); read {total} bytes of "
-                f"serial data up to the last complete chunk, {n - pos} trailing bytes ignored."
-            )
-            break
+        found = chunk_at(pos)
+        if isinstance(found, str):
+            # damaged: look for the next valid chunk (a damaged middle loses only itself), else it is the end
+            resume = None
+            for m in _CHUNK_TYPE.finditer(raw, pos + 1):
+                if not isinstance(chunk_at(m.start()), str):
+                    resume = m.start()
+                    break
+            if resume is None:
+                problems.append(
+                    f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
+                    f"data up to the last complete chunk, {n - pos} trailing bytes ignored"
+                )
+                break
+            problems.append(f"{resume - pos} damaged bytes at file byte {pos} ({found}) skipped")
+            events.append(CaptureEvent(times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes "
+                                       "unreadable here", total))
+            pos = resume
+            continue
+        kind, length, t, end = found
         payload = mv[pos + head_size : end]
         if kind == CHUNK_DATA:
             offsets.append(total)
@@ -296,6 +315,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             except (ValueError, UnicodeDecodeError, AttributeError):
                 events.append(CaptureEvent(t, "unreadable-event", "", total))
         pos = end + 4
+    warning = f"{path}: " + "; ".join(problems) + "." if problems else None
     if warning is not None:
         warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
     return Capture(

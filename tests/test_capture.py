@@ -86,20 +86,25 @@ def test_truncated_anywhere_reads_up_to_last_complete_chunk(tmp_path, stream: St
         read_capture(p)
 
 
-def test_damaged_chunk_stops_with_warning(tmp_path, stream: StreamBuilder):
+def test_damaged_chunk_inside_is_skipped_with_warning(tmp_path, stream: StreamBuilder):
     data = stream.flight(40, status_every=0).bytes()
     path = write_capture(tmp_path / "d.stv", data, 500)
     raw = bytearray(path.read_bytes())
-    raw[-300] ^= 0xFF
+    raw[-337 - 200] ^= 0xFF  # inside the 4th of 5 data chunks (the 5th holds 320 bytes: 337 in the file)
     path.write_bytes(bytes(raw))
     with pytest.warns(CaptureTruncatedWarning, match="CRC"):
         cap = read_capture(path)
-    assert cap.truncated and data.startswith(cap.data) and len(cap.data) == 2000
+    assert cap.truncated and cap.data == data[:1500] + data[2000:]
+    assert [(e.kind, e.offset) for e in cap.events] == [("damaged", 1500)]
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         tel = load_telemetry(path)
     assert any(issubclass(x.category, CaptureTruncatedWarning) for x in w)
-    assert tel.source["warnings"] and len(tel.attitude) == 2000 // 58
+    assert tel.source["warnings"]
+    # every frame not touched by the lost chunk is decoded, the loss shows as a sequence gap
+    lost = {i for i in range(40) if i * 58 + 58 > 1500 and i * 58 < 2000}
+    assert tel.attitude.seq.tolist() == [i for i in range(40) if i not in lost]
+    assert tel.stats.frames_missing == len(lost)
 
 
 def test_kill_9_loses_nothing_written(tmp_path, stream: StreamBuilder):
