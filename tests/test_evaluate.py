@@ -229,3 +229,14 @@ def test_vqf_adapter_units_frames_and_interface():
     b = create("vqf", latency_s=0.01).run(acc[:5], spin).q_wxyz[-1]
     d = broad.quat_multiply(broad.quat_conjugate(a), b)
     assert 2 * np.degrees(np.arctan2(np.linalg.norm(d[1:]), d[0])) == pytest.approx(0.9, rel=1e-3)
+
+
+def test_cli_sensor_noise_is_seeded(tmp_path):
+    trial = _synthetic_trial(tmp_path / "96_synthetic.npz")
+    args = ["evaluate", str(trial), "-e", "accel", "--json"]
+    a = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
+    b = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
+    c = json.loads(_steval(*args).stdout)
+    assert a["trials"][0]["rmse_deg"] == b["trials"][0]["rmse_deg"]
+    assert a["sensor_noise"] and not c["sensor_noise"]
+    assert a["trials"][0]["rmse_deg"]["accel"] > c["trials"][0]["rmse_deg"]["accel"]

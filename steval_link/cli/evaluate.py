@@ -13,18 +13,20 @@ from steval_link.errors import UserError
 
 __all__ = ["evaluate_command"]
 
-_HELP = """Inclination accuracy of the estimators against ground truth.
-
-DATA are BROAD trial .npz files (acc m/s², gyr rad/s, quat wxyz IMU→ENU, movement, fs) or directories (their
-*.npz), or captures (.stv, raw dump, text log) with a ground-truth sidecar CAPTURE.truth.npz next to them holding
-`step` (int, the frames' AHRS step counter), `quat` (wxyz, body→earth) and optionally `movement` (bool).
-
-A BROAD trial runs through the STEVAL sensor pipeline model (807.7 Hz tick, LSM6DSL quantisation, the firmware's
-2 s offset calibration, gyro IIR, 5-sample average → 161.5 Hz AHRS steps; deterministic); --native runs the
-estimators on the trial's own 285.7 Hz samples instead. Estimators: st-mahony-flight (firmware filter, thr 450,
-kp 0.4), st-mahony-ground (thr 0, kp 10), accel (accelerometer-only), ekf3, mekf, vqf (when installed).
-Metric: q_err = q_est ⊗ q_true⁻¹, inclination 2·acos(√(w²+z²)), RMSE (deg) over movement samples, NaN ignored.
-"""
+_HELP = (
+    "Inclination accuracy of the estimators against ground truth.\n\n"
+    "DATA are BROAD trial .npz files (acc m/s², gyr rad/s, quat wxyz IMU→ENU, movement, fs), directories (their "
+    "*.npz), or captures (.stv, raw dump, text log) with a ground-truth sidecar CAPTURE.truth.npz next to them "
+    "(e.g. flight.stv.truth.npz) holding `step` (int, the frames' AHRS step counter), `quat` (wxyz, body→earth) "
+    "and optionally `movement` (bool); the firmware's own estimate is then scored too.\n\n"
+    "A BROAD trial runs through the STEVAL sensor pipeline model (807.7 Hz tick, LSM6DSL quantisation, 416 Hz gyro "
+    "hold, the firmware's 2 s offset calibration, gyro IIR, 5-sample average → 161.5 Hz AHRS steps; "
+    "deterministic); --native runs the estimators on the trial's own 285.7 Hz samples instead.\n\n"
+    "Estimators: st-mahony-flight (firmware filter, thr 450, kp 0.4), st-mahony-ground (thr 0, kp 10), accel "
+    "(accelerometer-only), ekf3, mekf, vqf (when installed).\n\n"
+    "Metric: q_err = q_est ⊗ q_true⁻¹, inclination error 2·acos(√(w²+z²)), RMSE (deg) over movement samples, NaN "
+    "ignored. Exit code 2 for unreadable or malformed input."
+)
 
 
 @app.command("evaluate", help=_HELP)
@@ -40,13 +42,16 @@ def evaluate_command(
                                                           "pipeline.")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a PNG: RMSE bars per estimator and trial, "
                                                                 "and the first trial's error over time "
-                                                                "(needs steval-link[plot]).",
+                                                                "(needs matplotlib: pip install \"steval-link\\[plot]\").",
                                                  show_default=False)] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the sensor model (the pipeline adds no noise to "
-                                                     "BROAD data, so results do not depend on it today).")] = 0,
+    sensor_noise: Annotated[bool, typer.Option("--sensor-noise", help="Add the LSM6DSL model's white noise (gyro "
+                                                                     "75 mdps, acc 2 mg RMS) on top of the trial's "
+                                                                     "own before quantisation.")] = False,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
 ) -> None:
     from steval_link import broad
     from steval_link.analysis import evaluate as ev
+    from steval_link.sensor_model import Lsm6dsl
 
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib
@@ -72,7 +77,10 @@ def evaluate_command(
         for p in items:
             if p.suffix == ".npz":
                 trial = broad.load_trial(p)
-                view = broad.native_view(trial) if native else broad.steval_view(trial, seed=seed)
+                if native:
+                    view = broad.native_view(trial)
+                else:
+                    view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
                 specs = ev.default_specs(view.rate_hz, native=native, only=only)
                 results.append(ev.evaluate_view(view, specs, trial.name, progress))
             else:
@@ -87,6 +95,8 @@ def evaluate_command(
     if as_json:
         report = ev.summary(results)
         report["mode"] = "native" if native else "steval-pipeline"
+        report["sensor_noise"] = bool(sensor_noise and not native)
+        report["seed"] = seed
         if plot is not None:
             report["plot"] = str(plot)
         typer.echo(json.dumps(report, allow_nan=False))
