@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import protocol as P
-from steval_link.capture import CaptureWriter, load_telemetry
+from steval_link.capture import CaptureWriter, load_telemetry, read_capture
 from steval_link.decoder import StreamDecoder, decode_bytes
 
 
@@ -72,10 +72,14 @@ def main() -> None:
                 w.write(data[j : j + chunk], t_host_s=j / 11520.0)
         t_write = time.perf_counter() - t0
         t0 = time.perf_counter()
+        cap = read_capture(path)
+        t_read = time.perf_counter() - t0
+        t0 = time.perf_counter()
         tel2 = load_telemetry(path)
         t_load = time.perf_counter() - t0
-        print(f"capture: write {t_write:.2f} s ({path.stat().st_size / 1e6:.1f} MB, {chunk}-byte chunks), "
-              f"load_telemetry {t_load:.2f} s ({len(tel2.attitude)} attitude frames)")
+        print(f"capture: write {t_write:.2f} s ({path.stat().st_size / 1e6:.1f} MB, {len(cap.chunk_offsets)} chunks "
+              f"of {chunk} bytes), read_capture {t_read:.2f} s, load_telemetry (read + decode + host times) "
+              f"{t_load:.2f} s ({len(tel2.attitude)} attitude frames)")
 
 
 if __name__ == "__main__":
