@@ -112,12 +112,13 @@ def load_trial(path) -> BroadTrial:
 
 
 def trial_paths(items) -> list[Path]:
-    """Expand DATA arguments: directories become their ``*.npz`` (sorted); files stay. Missing → UserError."""
+    """Expand DATA arguments: directories become their ``*.npz`` (sorted, ground-truth sidecars ``*.truth.npz``
+    left out); files stay. Missing → UserError."""
     out: list[Path] = []
     for item in items:
         p = Path(item)
         if p.is_dir():
-            found = sorted(p.glob("*.npz"))
+            found = sorted(q for q in p.glob("*.npz") if not q.name.endswith(".truth.npz"))
             if not found:
                 raise UserError(f"{p}: directory holds no .npz trial")
             out.extend(found)

@@ -38,6 +38,7 @@ __all__ = [
     "format_table",
     "plot_evaluation",
     "MEAN_TRIALS",
+    "stderr_progress",
 ]
 
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)

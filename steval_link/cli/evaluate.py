@@ -57,17 +57,7 @@ def evaluate_command(
         from steval_link.analysis.plots import require_matplotlib
 
         require_matplotlib()  # fail before the long run
-    items: list[Path] = []
-    for p in data:
-        if p.is_dir():
-            found = sorted(q for q in p.glob("*.npz") if not q.name.endswith(".truth.npz"))
-            if not found:
-                raise UserError(f"{p}: directory holds no .npz trial")
-            items.extend(found)
-        elif not p.exists():
-            raise UserError(f"{p}: no such file or directory")
-        else:
-            items.append(p)
+    items = broad.trial_paths(data)
     only = [s for s in estimators.split(",")] if estimators is not None else None
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
