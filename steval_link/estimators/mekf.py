@@ -99,6 +99,20 @@ def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
     ])
 
 
+def _inv3(S: np.ndarray) -> np.ndarray:
+    """Inverse of a 3×3 matrix by its adjugate (S = H P Hᵀ + σ²I is symmetric positive definite: σ² > 0)."""
+    a, b, c = S[0]
+    d, e, f = S[1]
+    g, h, i = S[2]
+    A = e * i - f * h
+    B = f * g - d * i
+    C = d * h - e * g
+    det = a * A + b * B + c * C
+    return np.array([[A, c * h - b * i, b * f - c * e],
+                     [B, a * i - c * g, c * d - a * f],
+                     [C, b * g - a * h, a * e - b * d]]) / det
+
+
 def _butter2(fc_hz: float, fs_hz: float) -> tuple[float, float, float, float, float]:
     """2nd-order Butterworth low-pass (bilinear): (b0, b1, b2, a1, a2), y = b·x − a1·y1 − a2·y2."""
     k = math.tan(math.pi * min(fc_hz, 0.45 * fs_hz) / fs_hz)
@@ -171,6 +185,8 @@ class Mekf(Estimator):
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         if acc_tau_s < 0:
             raise ValueError(f"acc_tau_s must be ≥ 0, got {acc_tau_s}")
+        if not acc_noise_mg > 0:
+            raise ValueError(f"acc_noise_mg must be > 0, got {acc_noise_mg}")
         self.rate_hz = float(rate_hz)
         self.dt = 1.0 / self.rate_hz
         self.acc_tau_s = float(acc_tau_s)
@@ -311,8 +327,7 @@ class Mekf(Estimator):
         S[0, 0] += var
         S[1, 1] += var
         S[2, 2] += var
-        # S is singular along h (heading is unobservable): a tiny regularisation keeps the solve well posed
-        K = np.linalg.solve(S + 1e-12 * np.eye(3), PHt.T).T
+        K = PHt @ _inv3(S)
         if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
             K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
         dxs = K @ np.array([ux - hx, uy - hy, uz - hz])
