@@ -9,7 +9,6 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
-from steval_link.errors import UserError
 
 __all__ = ["evaluate_command"]
 
@@ -42,7 +41,8 @@ def evaluate_command(
                                                           "pipeline.")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a PNG: RMSE bars per estimator and trial, "
                                                                 "and the first trial's error over time "
-                                                                "(needs matplotlib: pip install \"steval-link\\[plot]\").",
+                                                                "(needs matplotlib: pip install "
+                                                                "\"steval-link\\[plot]\").",
                                                  show_default=False)] = None,
     sensor_noise: Annotated[bool, typer.Option("--sensor-noise", help="Add the LSM6DSL model's white noise (gyro "
                                                                      "75 mdps, acc 2 mg RMS) on top of the trial's "
