@@ -72,14 +72,10 @@ _QUAT = ("Transform3D:quaternion", "rerun.archetypes.Transform3D", "rerun.compon
 _VEC = ("Arrows3D:vectors", "rerun.archetypes.Arrows3D", "rerun.components.Vector3D")
 
 
-_FIELDS: dict = {}
-_OFFSETS: dict = {}
-
-
-def _field(pa, path: str, kind: tuple[str, str, str], typ):
-    """The Arrow field of ``path``'s component (cached: same path, same type)."""
+def _field(pa, cache: dict, path: str, kind: tuple[str, str, str], typ):
+    """The Arrow field of ``path``'s component (cached in ``cache``: same path, same type)."""
     key = (path, kind[0], str(typ))
-    f = _FIELDS.get(key)
+    f = cache.get(key)
     if f is None:
         comp, arch, ctype = kind
         md = {
@@ -90,7 +86,17 @@ def _field(pa, path: str, kind: tuple[str, str, str], typ):
             b"rerun:component_type": ctype.encode(),
         }
         f = pa.field(f"/{path}:{comp}", typ, metadata=md)
-        _FIELDS[key] = f
+        cache[key] = f
+    return f
+
+
+def _index_field(pa, cache: dict, name: str):
+    """The Arrow field of a timeline column (cached in ``cache``)."""
+    f = cache.get(("index", name))
+    if f is None:
+        typ = pa.int64() if name == ent.TIMELINE_STEP else pa.duration("ns")
+        f = pa.field(name, typ, metadata={b"rerun:kind": b"index", b"rerun:index_name": name.encode()})
+        cache[("index", name)] = f
     return f
 
 
@@ -100,7 +106,7 @@ class RowBatch:
     null (no sample) in that entity's column; a ``Clear`` is sent when an entity turns bad, so plots show a gap.
     """
 
-    def __init__(self, times: Times, bad_state: dict[str, bool]) -> None:
+    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
         import pyarrow as pa
 
         self._pa = pa
@@ -110,37 +116,41 @@ class RowBatch:
         self.arrays: list = []
         self.bad_state = bad_state
         self.clear_rows: dict[str, np.ndarray] = {}
-        self._offsets = None
+        self.cache = {} if cache is None else cache  # Arrow fields and offsets, reused across batches
 
     def _index(self) -> None:
         pa = self._pa
         t = self.times
-        cols = [(ent.TIMELINE_FW, pa.duration("ns"), np.round(t.t_fw_s * 1e9).astype(np.int64))]
+        cols = [(ent.TIMELINE_FW, np.round(t.t_fw_s * 1e9).astype(np.int64))]
         if t.host_complete():
-            cols.append((ent.TIMELINE_HOST, pa.duration("ns"), np.round(t.t_host_s * 1e9).astype(np.int64)))
+            cols.append((ent.TIMELINE_HOST, np.round(t.t_host_s * 1e9).astype(np.int64)))
         if t.step is not None:
-            cols.append((ent.TIMELINE_STEP, pa.int64(), t.step))
-        for name, typ, values in cols:
-            md = {b"rerun:kind": b"index", b"rerun:index_name": name.encode()}
-            self.fields.insert(0, pa.field(name, typ, metadata=md))
-            self.arrays.insert(0, pa.array(values, type=typ))
+            cols.append((ent.TIMELINE_STEP, t.step))
+        for name, values in cols:
+            f = _index_field(pa, self.cache, name)
+            self.fields.insert(0, f)
+            self.arrays.insert(0, pa.array(values, type=f.type))
 
-    def _add(self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray) -> None:
+    def _add(
+        self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray, all_good: bool
+    ) -> None:
         pa = self._pa
         n = self.n
         if kind is _SCALAR:
-            inner = pa.array(values.reshape(-1).astype(np.float64, copy=False))
+            inner = pa.array(values.reshape(-1))
             step = width
         else:
             inner = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width)
             step = 1
-        offsets = self._offsets_for(n, step)
-        mask = None if good.all() else pa.array(~good)
-        arr = pa.ListArray.from_arrays(offsets, inner, mask=mask)
-        self.fields.append(_field(pa, path, kind, arr.type))
+        arr = pa.ListArray.from_arrays(self._offsets_for(n, step), inner, mask=None if all_good else pa.array(~good))
+        self.fields.append(_field(pa, self.cache, path, kind, arr.type))
         self.arrays.append(arr)
         # gaps: a Clear at each row where the entity turns bad (state carried across batches)
         was_bad = self.bad_state.get(path, False)
+        if all_good:
+            if was_bad:
+                self.bad_state[path] = False
+            return
         bad = ~good
         prev = np.concatenate(([was_bad], bad[:-1]))
         starts = np.flatnonzero(bad & ~prev)
@@ -149,21 +159,21 @@ class RowBatch:
         self.bad_state[path] = bool(bad[-1])
 
     def _offsets_for(self, n: int, step: int):
-        key = (n, step)
-        off = _OFFSETS.get(key)
+        key = ("offsets", n, step)
+        off = self.cache.get(key)
         if off is None:
             off = self._pa.array(np.arange(0, n * step + 1, step, dtype=np.int32))
-            if len(_OFFSETS) < 256:
-                _OFFSETS[key] = off
+            if n <= 64:
+                self.cache[key] = off
         return off
 
     def scalars(self, path: str, values: np.ndarray) -> None:
-        v = np.asarray(values, dtype=np.float64)
-        v2 = v.reshape(self.n, -1)
+        v2 = np.asarray(values, dtype=np.float64).reshape(self.n, -1)
         good = np.isfinite(v2).all(axis=1)
-        if not good.all():
+        all_good = bool(good.all())
+        if not all_good:
             v2 = np.where(good[:, None], v2, 0.0)
-        self._add(path, _SCALAR, v2, v2.shape[1], good)
+        self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
 
     def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
         q = np.asarray(q_wxyz, dtype=np.float64).reshape(self.n, 4)
@@ -173,7 +183,7 @@ class RowBatch:
             if select is not None:
                 good &= select
             xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
-        self._add(path, _QUAT, xyzw, 4, good)
+        self._add(path, _QUAT, xyzw, 4, good, bool(good.all()))
         self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
 
     def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
@@ -181,7 +191,7 @@ class RowBatch:
         good = np.isfinite(v).all(axis=1)
         if select is not None:
             good &= select
-        self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good)
+        self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good, bool(good.all()))
         self.bad_state[path] = False
 
     def send(self, rec: rr.RecordingStream) -> None:
@@ -233,6 +243,7 @@ class LiveLogger:
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
         self._last_3d_s = -math.inf  # fw time of the last 3D update
+        self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
 
     # -- time ------------------------------------------------------------------------------------------------
     def _host(self, t_host_s: np.ndarray) -> np.ndarray:
@@ -283,7 +294,7 @@ class LiveLogger:
             self._last_3d_s = t_last
             sel3d = np.zeros(n, dtype=bool)
             sel3d[-1] = True
-        rb = RowBatch(times, self._bad)
+        rb = RowBatch(times, self._bad, self._arrow_cache)
         if do3d:
             rb.quaternions(ent.DRONE_FIRMWARE, q, sel3d)
             with np.errstate(invalid="ignore"):
