@@ -395,3 +395,14 @@ def test_replay_of_encoded_frames_when_the_decoder_exists(capture):
     assert rep.seeded[: np.searchsorted(tel.attitude.step, 199)].all()
     assert rep.seeded[np.searchsorted(tel.attitude.step, 501) :].all()
     assert not rep.seeded[np.searchsorted(tel.attitude.step, 300)]
+
+
+def test_replay_firmware_never_seeds_rounded_text_mode_rows():
+    """Text-mode rows are rounded and $STA rows carry no snapshot: nothing is replayed, nothing crashes."""
+    from steval_link.capture import load_telemetry
+
+    tel = load_telemetry(Path(__file__).resolve().parents[1] / "recordings" / "textmode.log")
+    assert len(tel.attitude.step) > 100 and not tel.attitude.exact.any()
+    rep = st_mahony.replay_firmware(tel)
+    assert rep.n_seeded == 0 and rep.first_mismatch is None
+    assert np.isnan(rep.q_wxyz).all()

@@ -527,11 +527,21 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
 
     status = getattr(tel, "status", None)
     st_steps = np.zeros(0, dtype=np.int64) if status is None else np.asarray(_col(status, "step"), dtype=np.int64)
-    order = np.argsort(st_steps, kind="stable")
+    if st_steps.size:
+        # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
+        usable = (
+            np.isfinite(np.asarray(_col(status, "kp_ground"), dtype=np.float64))
+            & np.isfinite(np.asarray(_col(status, "q_wxyz"), dtype=np.float64)).all(axis=1)
+            & np.isfinite(np.asarray(_col(status, "int_xyz"), dtype=np.float64)).all(axis=1)
+        )
+        st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
+        order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
+    else:
+        order = np.zeros(0, dtype=np.int64)
     st_sorted = st_steps[order]
     default_settings = settings
     if default_settings is None:
-        default_settings = _status_settings(status, int(order[0])) if st_steps.size else MahonySettings()
+        default_settings = _status_settings(status, int(order[0])) if order.size else MahonySettings()
 
     q = np.full((n, 4), np.nan, dtype=_F32)
     thx = np.full(n, np.nan, dtype=_F32)
@@ -539,10 +549,16 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     seeded = np.zeros(n, dtype=bool)
     seeds: list[ReplaySeed] = []
 
-    breaks = np.flatnonzero(np.diff(steps) != 1) + 1
+    try:  # rounded text-mode rows are no exact filter inputs: never replayed
+        exact_rows = np.asarray(_col(att, "exact"), dtype=bool).reshape(n)
+    except (AttributeError, KeyError, ValueError):
+        exact_rows = np.ones(n, dtype=bool)
+    breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
     starts = np.concatenate(([0], breaks)) if n else np.zeros(0, dtype=np.int64)
     ends = np.concatenate((breaks, [n])) if n else np.zeros(0, dtype=np.int64)
     for a, b in zip(starts.tolist(), ends.tolist()):
+        if not exact_rows[a]:
+            continue
         s_first, s_last = int(steps[a]), int(steps[b - 1])
         if s_first == 0:
             start_row, state, seg_settings, seed = a, MahonyState(), default_settings, ("power-up", None)
