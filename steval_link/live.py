@@ -219,6 +219,7 @@ class LivePort:
         self.rows_exact = 0
         self.rows_mismatch = 0
         self.rows_unseeded = 0
+        self.last_rows_mismatch = 0  # mismatching rows of the latest call
 
     @property
     def seeded(self) -> bool:
@@ -228,6 +229,7 @@ class LivePort:
         """Step the port over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
         n = step.shape[0]
         out = np.full((n, 4), np.nan, dtype=np.float32)
+        mismatch_before = self.rows_mismatch
         a = 0
         while a < n:
             # a run of consecutive steps with finite inputs
@@ -259,6 +261,7 @@ class LivePort:
                 self.rows_unseeded += b - a
                 self.next_step = int(step[b - 1]) + 1
             a = b
+        self.last_rows_mismatch = self.rows_mismatch - mismatch_before
         return out
 
     def status(self, frame) -> None:
@@ -291,10 +294,11 @@ class LivePort:
         self.seeds += 1
 
     def describe(self) -> str:
-        if self.rows_mismatch:
-            return f"port MISMATCH {self.rows_mismatch}"
+        """The port's state in a few words for the health line."""
         if self.state is None:
-            return "port waiting for snapshot" if self.rows_exact == 0 else "port resyncing"
+            return "port resyncing" if self.seeds else "port waiting for a status snapshot"
+        if self.last_rows_mismatch:
+            return f"port DIFFERS from firmware ({self.rows_mismatch} frames)"
         return "port bit-exact" if self.rows_exact else "port seeded"
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import errno
 import os
 import pty
+import select
 import threading
 import time
 import tty
@@ -77,8 +78,7 @@ class PtyFeeder:
             tty.setraw(slave)  # no echo, no line editing before the reader opens it
             self.slave_name = os.ttyname(slave)
             os.close(slave)
-            if not self.blocking:
-                os.set_blocking(master, False)
+            os.set_blocking(master, False)  # "blocking" feeding waits with select, never inside a write
             tmp = self.link.with_name(self.link.name + ".tmp")
             tmp.unlink(missing_ok=True)
             os.symlink(self.slave_name, tmp)
@@ -173,8 +173,11 @@ class PtyFeeder:
                 self.sent_ranges.append((start, start + k))
         if self.blocking:
             self.pos = start + k  # a partial write continues where it stopped
-            if k == 0:
-                time.sleep(0.001)
+            if k == 0:  # the pty is full: wait until the reader makes room (or for stop/unplug)
+                try:
+                    select.select([], [master], [], 0.05)
+                except (OSError, ValueError):
+                    time.sleep(0.01)
             return
         self.dropped += (end - start) - k
         self.pos = end
@@ -227,16 +230,19 @@ def flight_stream(
     status_every: int = 161,
     seed: int = 0,
     text_lines: tuple[str, ...] = (),
+    ki: float = 0.1,
 ) -> bytes:
     """The byte stream of a drone on the bench / in the air, as the patched firmware sends it.
 
     Steps 0..first_step+n_steps-1 are run through the bit-exact filter port (so ``q`` is what the firmware would
     send); frames from ``first_step`` on are emitted (``first_step`` > 0: the link joins mid-flight). A status frame
     with the filter snapshot follows every ``status_every``-th attitude frame (step % status_every == status_every-1).
-    Inputs: gravity on a slow rocking motion plus noise, throttle ramping through MIN_THR, in float32.
+    Inputs: gravity on a slow rocking motion plus noise, throttle ramping through MIN_THR, in float32. ``ki``: the
+    firmware's AHRS_KI (0.1; lab exercise 4 sets 1.0), used by the filter and reported in the status frames.
     """
     from steval_link.estimators import st_mahony
 
+    settings = st_mahony.MahonySettings(ki=ki)
     rng = np.random.default_rng(seed)
     total = first_step + n_steps
     t = np.arange(total) * protocol.AHRS_PERIOD_S
@@ -260,7 +266,9 @@ def flight_stream(
     while start < total:
         # run up to and including the next status step
         end = min(total, (start // block + 1) * block)
-        q, _, _, state = st_mahony.run(acc[start:end], gyro[start:end], thr[start:end], state=state, euler=False)
+        q, _, _, state = st_mahony.run(
+            acc[start:end], gyro[start:end], thr[start:end], settings=settings, state=state, euler=False
+        )
         lo = max(start, first_step)
         if lo < end:
             rec = np.zeros(end - lo, dtype=protocol.ATTITUDE_DTYPE)
@@ -282,6 +290,7 @@ def flight_stream(
                     cyc_mean=9100,
                     cyc_max=9500,
                     cyc_n=block,
+                    ki=ki,
                 )
         start = end
     return bytes(out)

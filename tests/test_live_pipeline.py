@@ -1,0 +1,226 @@
+"""The live pipeline in-process: the seeded ST port against the offline replay, batches, health, bounded memory."""
+
+from __future__ import annotations
+
+import io
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from ptyfeed import PtyFeeder, flight_stream
+from steval_link import protocol
+from steval_link.decoder import decode_bytes
+from steval_link.estimators.st_mahony import bits_equal, replay_firmware
+from steval_link.live import (
+    HealthDisplay,
+    Inbox,
+    LiveOptions,
+    LivePipeline,
+    LiveSession,
+    StepUnwrapper,
+    default_capture_path,
+)
+
+
+class BatchLog:
+    """Collects what the pipeline hands to the viewer (the viewer's side of the interface)."""
+
+    def __init__(self) -> None:
+        self.batches = []
+        self.status = []
+        self.text = []
+
+    def log_batch(self, batch) -> None:
+        self.batches.append(batch)
+
+    def log_status(self, frame, t_host_s) -> None:
+        self.status.append(frame)
+
+    def log_text(self, frame, t_host_s) -> None:
+        self.text.append(frame.text)
+
+    def rows(self, name: str) -> np.ndarray:
+        return np.concatenate([b.estimates[name] for b in self.batches])
+
+    def column(self, field: str) -> np.ndarray:
+        return np.concatenate([getattr(b, field) for b in self.batches])
+
+
+def feed_in_chunks(pipe: LivePipeline, data: bytes, seed: int = 0) -> None:
+    rng = np.random.default_rng(seed)
+    pos = 0
+    t = 1.7e9
+    while pos < len(data):
+        n = int(rng.integers(1, 400))
+        pipe.feed([(data[pos : pos + n], t)])
+        pos += n
+        t += n / 9461.0
+
+
+@pytest.mark.parametrize("first_step", [0, 2500])
+def test_port_matches_the_offline_replay_bit_for_bit(first_step):
+    data = flight_stream(900, first_step=first_step, text_lines=("STEVAL boot",))
+    log = BatchLog()
+    pipe = LivePipeline(["st-mahony", "accel"], log)
+    feed_in_chunks(pipe, data)
+    live_q = log.rows("st-mahony")
+    replay = replay_firmware(decode_bytes(data))
+    assert live_q.shape == replay.q_wxyz.shape == (900, 4)
+    # the same rows are seeded (power-up at step 0, else from the first status snapshot) with the same bits
+    seeded = np.isfinite(live_q).all(axis=1)
+    assert np.array_equal(seeded, replay.seeded)
+    assert bits_equal(live_q[seeded], replay.q_wxyz[seeded]).all()
+    assert bits_equal(live_q[seeded], log.column("q_wxyz")[seeded]).all()  # == the firmware's own q
+    port = pipe.port
+    assert port.rows_mismatch == 0 and port.rows_exact == seeded.sum()
+    if first_step == 0:
+        assert seeded.all()
+    else:
+        assert 0 < seeded.argmax() <= 161 and not seeded[: seeded.argmax()].any()
+    assert port.snapshots_confirmed >= 4  # later snapshots agree with the port's own state
+    assert log.text == ["STEVAL boot"] and len(log.status) == len(decode_bytes(data).status)
+    steps = log.column("step")
+    assert np.array_equal(steps, np.arange(first_step, first_step + 900))
+    assert np.isfinite(log.rows("accel")).all()
+
+
+def test_port_resyncs_after_lost_frames_and_follows_lab_settings():
+    # ETH exercise 4: KI = 1.0, reported by the status frames; frames 300..309 lost on the link
+    data = flight_stream(800, first_step=1000, ki=1.0)
+    cut_a = 300 * protocol.ATTITUDE_FRAME_SIZE + 94 + 94  # after two status frames (steps 1126, 1287)
+    lost = data[:cut_a] + data[cut_a + 10 * protocol.ATTITUDE_FRAME_SIZE :]
+    log = BatchLog()
+    pipe = LivePipeline(["st-mahony"], log)
+    feed_in_chunks(pipe, lost, seed=3)
+    q = log.rows("st-mahony")
+    seeded = np.isfinite(q).all(axis=1)
+    fw = log.column("q_wxyz")
+    assert bits_equal(q[seeded], fw[seeded]).all() and pipe.port.rows_mismatch == 0
+    assert pipe.port.settings.ki == np.float32(1.0)
+    # unseeded from the gap to the next snapshot, then exact again
+    steps = log.column("step")
+    gap_row = int(np.flatnonzero(np.diff(steps) > 1)[0]) + 1
+    assert seeded[gap_row - 1] and not seeded[gap_row]
+    assert seeded[gap_row:].any() and seeded[-1]
+    assert pipe.decoder.stats.frames_missing == 10
+    assert pipe.port.seeds == 2
+
+
+def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():
+    good = flight_stream(400)
+    frames = [good[i : i + 58] for i in range(0, 161 * 58, 58)]  # first 161 attitude frames
+    out = bytearray()
+    for k, f in enumerate(frames):
+        if k in (50, 51, 90):
+            rec = np.frombuffer(f[4:56], dtype=protocol.ATTITUDE_DTYPE).copy()
+            rec["acc_mg"][0, 0] = np.nan if k != 90 else np.inf
+            f = protocol.encode_frame(protocol.TYPE_ATTITUDE, rec.tobytes())
+        out += f
+    out += good[161 * 58 :]
+    log = BatchLog()
+    pipe = LivePipeline(["st-mahony", "accel"], log)
+    feed_in_chunks(pipe, bytes(out))
+    assert pipe.health.nonfinite == 3
+    finite = log.column("finite")
+    assert list(np.flatnonzero(~finite)) == [50, 51, 90]
+    accel = log.rows("accel")
+    assert np.isnan(accel[~finite]).all() and np.isfinite(accel[finite]).all()
+    port = log.rows("st-mahony")
+    assert np.isfinite(port[:50]).all()  # from power-up
+    assert np.isnan(port[50:161]).all()  # no state to follow until the next snapshot (step 160)
+    assert np.isfinite(port[161:]).all()
+    assert pipe.port.rows_mismatch == 0
+
+
+def test_step_unwrapper_crosses_the_seq_wrap():
+    class F:
+        def __init__(self, seq, step=None):
+            self.seq, self.step = seq, step
+
+    u = StepUnwrapper()
+    u.status(65533 + 65536)  # a status frame tells the full step
+    got = u.frames([F(65534), F(65535), F(0), F(2)])
+    assert list(got) == [65534 + 65536, 65535 + 65536, 131072, 131074]
+
+
+def test_inbox_drops_oldest_from_the_live_view_only_and_counts_it():
+    box = Inbox(max_bytes=1000)
+    for i in range(30):
+        box.put(bytes([i]) * 100, float(i))
+    got = box.get_all(0)
+    assert sum(len(c) for c, _ in got) <= 1000 and got[-1][1] == 29.0
+    assert box.dropped_bytes == 3000 - sum(len(c) for c, _ in got)
+    assert box.get_all(0.01) == []
+
+
+def test_health_line_rewrites_in_place_on_a_terminal_and_prints_lines_otherwise():
+    tty = io.StringIO()
+    d = HealthDisplay(tty, tty=True)
+    d.show("a 161.5 Hz", 10.0)
+    d.show("b", 10.01)  # too soon: not drawn
+    d.show("c 160.9 Hz", 10.5)
+    d.note("disconnected")
+    d.close()
+    assert tty.getvalue() == "\r\x1b[2Ka 161.5 Hz\r\x1b[2Kc 160.9 Hz\r\x1b[2Ksteval: disconnected\n"
+    plain = io.StringIO()
+    d = HealthDisplay(plain, tty=False)
+    for k in range(100):
+        d.show(f"line {k}", k * 0.1)
+    assert plain.getvalue().count("\n") == 2 and "\r" not in plain.getvalue()
+
+
+def test_default_capture_name_is_utc_and_unique(tmp_path):
+    from datetime import datetime, timezone
+
+    now = datetime(2026, 3, 1, 14, 5, 9, tzinfo=timezone.utc)
+    p = default_capture_path(tmp_path / "recordings", now)
+    assert p.name == "steval-20260301T140509Z.stv"
+    p.parent.mkdir()
+    p.write_bytes(b"")
+    assert default_capture_path(tmp_path / "recordings", now).name == "steval-20260301T140509Z-2.stv"
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
+    rng = np.random.default_rng(5)
+    garbage = rng.integers(0, 256, 1 << 20, dtype=np.uint8).tobytes()
+    # no sync pair, no line ending, no "$": nothing that could ever complete a frame or a text line
+    garbage = garbage.replace(b"\xa5\x5a", b"\xa5\x00").replace(b"\n", b"\x0b").replace(b"$", b"%")
+    out = tmp_path / "g.stv"
+    err = io.StringIO()
+    # 3 MB/s (26x the real link) for 4 s: 12 MB that can never decode
+    with PtyFeeder(garbage, tmp_path / "ttyUSB0", bytes_per_s=3e6, loop=True) as feeder:
+        session = LiveSession(
+            LiveOptions(port=str(feeder.link), out=out, view=False, wait=True, estimators=[]), stream=err, tty=False
+        )
+        rss = []
+
+        def drive():
+            time.sleep(0.5)
+            feeder.start()
+            for _ in range(16):
+                time.sleep(0.25)
+                rss.append(_rss_bytes())
+            session.request_stop("test")
+
+        t = threading.Thread(target=drive)
+        t.start()
+        summary = session.run()
+        t.join()
+    from steval_link.capture import read_capture
+
+    cap = read_capture(out)
+    assert summary.attitude == 0 and summary.bytes_total == len(cap.data) > 5_000_000
+    assert cap.data[:4096] == garbage[:4096]
+    assert "no valid frames at 115200 baud" in err.getvalue() and "still waiting (--wait)" in err.getvalue()
+    pipe = session.pipeline
+    assert pipe.decoder.pending_bytes < 64 * 1024 and len(pipe.sample) <= 4096
+    # several MB went through; resident memory did not follow them
+    assert max(rss) - rss[0] < 40 * 1024 * 1024
