@@ -1,7 +1,8 @@
 """Serial transport: a reader thread that hands raw byte chunks with host times to a protocol object.
 
-The thread only moves bytes (as pyserial's ``serial.threaded``): it reads with a short timeout, stamps every chunk
-with the host time it arrived, and calls :meth:`Protocol.data_received`. Decoding, estimation and logging live in
+The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until the line
+is quiet for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
+and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding, estimation and logging live in
 the protocol (``steval_link.live``), never here.
 
 When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
@@ -21,9 +22,14 @@ from typing import Callable
 
 import serial
 
-#: Read timeout of the reader thread, s: the latency a chunk can add and the granularity of ``stop()``.
-READ_TIMEOUT_S = 0.01
-#: Largest chunk read at once, bytes.
+#: How long one read waits for a first byte, s (the tick of :meth:`Protocol.idle` on a silent port).
+READ_TIMEOUT_S = 0.05
+#: A chunk ends when the line has been quiet this long, s (0.5 ms: well under the ~1.2 ms idle time after each
+#: 58-byte frame at 115200 baud, so a chunk is usually one burst of frames and is handed on at once) ...
+CHUNK_GAP_S = 0.0005
+#: ... or after this long since its first byte, s (bounds the latency of a continuous stream) ...
+CHUNK_MAX_S = 0.01
+#: ... or at this many bytes.
 READ_SIZE = 4096
 #: How often a lost port is looked for again, s.
 RECONNECT_POLL_S = 0.1
@@ -150,7 +156,17 @@ class SerialReader(threading.Thread):
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to finish, wait for it (up to ``timeout_s``) and close the port."""
         self._stop_event.set()
-        if self.is_alive() and threading.current_thread() is not self:
+        ser = self.serial
+        if ser is not None and hasattr(ser, "cancel_read"):
+            try:
+                ser.cancel_read()  # wake a read that waits for bytes
+            except (serial.SerialException, OSError, AttributeError):
+                pass
+        if self.ident is None:  # never started: close the port here
+            self.serial = None
+            if ser is not None:
+                _close_quietly(ser)
+        elif self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
 
     @property
@@ -167,7 +183,7 @@ class SerialReader(threading.Thread):
                         break
                     continue
                 try:
-                    data = self.serial.read(self.read_size)
+                    data = self._read_chunk(self.serial)
                 except (serial.SerialException, OSError) as exc:
                     self._drop(exc)
                     continue
@@ -186,6 +202,23 @@ class SerialReader(threading.Thread):
                     self.protocol.connection_lost(None)
                 except BaseException as exc:  # noqa: BLE001
                     self.error = self.error or exc
+
+    def _read_chunk(self, ser: serial.Serial) -> bytes:
+        """Wait up to the port's timeout for bytes, then gather the burst (see the module doc)."""
+        data = ser.read(ser.in_waiting or 1)
+        if not data:
+            return data
+        buf = bytearray(data)
+        t_end = time.monotonic() + CHUNK_MAX_S
+        while len(buf) < self.read_size and not self._stop_event.is_set():
+            time.sleep(CHUNK_GAP_S)
+            n = ser.in_waiting
+            if n == 0 or time.monotonic() >= t_end:
+                if n:
+                    buf += ser.read(min(n, self.read_size - len(buf)))
+                break
+            buf += ser.read(min(n, self.read_size - len(buf)))
+        return bytes(buf)
 
     def _drop(self, exc: BaseException) -> None:
         ser, self.serial = self.serial, None

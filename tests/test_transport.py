@@ -114,7 +114,7 @@ def test_reader_survives_unplug_and_finds_renamed_port_again(tmp_path):
     assert dec.stats.frames_missing > 0  # the frames sent while unplugged are gone (and counted)
     kinds = [e[0] for e in proto.events]
     assert kinds == ["made", "lost", "made", "lost"]
-    assert proto.events[1][1] == "SerialException"
+    assert proto.events[1][1] in ("SerialException", "OSError")  # I/O error or "readiness to read but no data"
 
 
 def test_port_finder_prefers_same_path_then_new_sibling(tmp_path):
