@@ -379,8 +379,6 @@ def load_telemetry(path: str | os.PathLike):
     Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
     damaged capture header, or a file in which no frame is found.
     """
-    from steval_link.decoder import decode_bytes
-
     src = read_source(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)

@@ -23,7 +23,6 @@ import typer
 
 from steval_link.capture import CaptureTruncatedWarning, demo_capture_path, load_telemetry
 from steval_link.cli.app import app
-from steval_link.errors import UserError
 from steval_link.summary import format_summary, summarize
 
 __all__ = ["ReplayResult", "load_replay", "run_estimators", "replay_pipeline", "DEFAULT_ESTIMATORS"]
