@@ -14,5 +14,11 @@ setup(
             extra_compile_args=_FLAGS,
             optional=True,
         ),
+        Extension(
+            "steval_link.estimators._ekf_native",
+            sources=["steval_link/estimators/_ekf_native.c"],
+            extra_compile_args=_FLAGS,
+            optional=True,
+        ),
     ]
 )
