@@ -49,6 +49,10 @@ NO_FRAMES_TIMEOUT_S = 2.5
 #: ... or after this long once at least NO_FRAMES_EARLY_BYTES arrived without a valid frame.
 NO_FRAMES_EARLY_S = 1.0
 NO_FRAMES_EARLY_BYTES = 2048
+#: Frames go to a live viewer at most this often, s (a screen refresh: no visible latency, 5x fewer Rerun chunks) ...
+VIEW_INTERVAL_S = 1 / 30
+#: ... and to an ``.rrd`` nobody watches live at most this often (Rerun's memory grows per chunk logged).
+RRD_ONLY_INTERVAL_S = 2.0
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
 HEALTH_PLAIN_INTERVAL_S = 5.0
@@ -197,6 +201,19 @@ class AttitudeBatch:
 
     def __len__(self) -> int:
         return int(self.step.shape[0])
+
+    @classmethod
+    def concat(cls, batches: list["AttitudeBatch"]) -> "AttitudeBatch":
+        """One batch of the frames of ``batches``, in order (estimate names must agree)."""
+        if len(batches) == 1:
+            return batches[0]
+        arrays = {
+            name: np.concatenate([getattr(b, name) for b in batches])
+            for name in cls.__dataclass_fields__
+            if name != "estimates"
+        }
+        estimates = {name: np.concatenate([b.estimates[name] for b in batches]) for name in batches[0].estimates}
+        return cls(**arrays, estimates=estimates)
 
 
 class LivePort:
@@ -454,12 +471,20 @@ class LivePipeline:
     ``feed([(bytes, t_host_s), ...])`` decodes the chunks in order and, per processing round, turns the
     attitude frames into one :class:`AttitudeBatch` that goes through :class:`LiveEstimators` and then to
     ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
-    ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept.
+    ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
+
+    ``view_interval_s``: batches are handed to the viewer at most this often (merged; always before a status or
+    text frame, so the order is kept): every Rerun log call costs a chunk per entity, and Rerun keeps some memory
+    per chunk for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat. Call
+    :meth:`tick` regularly and :meth:`flush_view` at the end.
     """
 
-    def __init__(self, estimator_names: list[str], viewer=None) -> None:
+    def __init__(self, estimator_names: list[str], viewer=None, *, view_interval_s: float = 0.0) -> None:
         from steval_link.decoder import StreamDecoder
 
+        self.view_interval_s = view_interval_s
+        self._pending: list[AttitudeBatch] = []
+        self._pending_since = 0.0
         self.decoder = StreamDecoder()
         self.health = LinkHealth()
         self.estimators = LiveEstimators(estimator_names) if estimator_names else None
@@ -487,6 +512,7 @@ class LivePipeline:
                 elif isinstance(frame, StatusFrame):
                     self._attitude(att)
                     att = []
+                    self.flush_view()
                     self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
                     if self.estimators is not None:
@@ -494,11 +520,27 @@ class LivePipeline:
                     if viewer is not None:
                         viewer.log_status(frame, t_host_s)
                 elif isinstance(frame, TextFrame):
+                    self._attitude(att)
+                    att = []
+                    self.flush_view()
                     self.health.text += 1
                     self.health.last_text = frame.text
                     if viewer is not None:
                         viewer.log_text(frame, t_host_s)
         self._attitude(att)
+        self.tick()
+
+    def tick(self, now_mono: float | None = None) -> None:
+        """Hand the pending frames to the viewer when they have waited ``view_interval_s``."""
+        if self._pending and (now_mono or time.monotonic()) - self._pending_since >= self.view_interval_s:
+            self.flush_view()
+
+    def flush_view(self) -> None:
+        """Hand every pending frame to the viewer now (one merged batch)."""
+        if self._pending:
+            batch = AttitudeBatch.concat(self._pending)
+            self._pending = []
+            self.viewer.log_batch(batch)
 
     def _attitude(self, att: list) -> None:
         if not att:
@@ -533,7 +575,9 @@ class LivePipeline:
         if self.estimators is not None:
             self.estimators.process(batch)
         if self.viewer is not None:
-            self.viewer.log_batch(batch)
+            if not self._pending:
+                self._pending_since = time.monotonic()
+            self._pending.append(batch)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -774,7 +818,10 @@ class LiveSession:
 
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
-        pipe = self.pipeline = LivePipeline(opts.estimators, viewer)
+        live_viewer = opts.view and viewer is not None
+        pipe = self.pipeline = LivePipeline(
+            opts.estimators, viewer, view_interval_s=VIEW_INTERVAL_S if live_viewer else RRD_ONLY_INTERVAL_S
+        )
         self.warned_no_frames = False
         was_connected = True
         while self._stop_reason is None:
@@ -791,6 +838,7 @@ class LiveSession:
                 pipe.feed(chunks)
                 if viewer is not None:
                     viewer.log_link(pipe.decoder.stats, self.clock.now_s())
+            pipe.tick(now)
             for _ in range(len(proto.events)):
                 self.display.note(proto.events.popleft())
             if proto.connected != was_connected:
@@ -809,6 +857,7 @@ class LiveSession:
         chunks = inbox.get_all(0.0)
         if chunks:
             pipe.feed(chunks)
+        pipe.flush_view()
 
     def _check_frames(self, proto: RecorderProtocol, now: float) -> None:
         """Wrong baud rate / not a STEVAL / silence: give up (or warn once with --wait) when no frame ever came."""

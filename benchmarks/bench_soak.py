@@ -1,0 +1,132 @@
+"""Soak benchmark: ``steval live`` on one hour of stream, fed as fast as the link consumes it; memory must stay flat.
+
+A fake drone (``tests/ptyfeed.py``) replays a synthetic flight (bit-exact firmware filter outputs, a status frame
+every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-terminal. The real CLI runs on it as a
+child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST port, accel, EKF),
+and the child's resident memory (VmRSS, and the peak VmHWM) is sampled once a second.
+
+Printed: a table of stream time fed / wall time / RSS, the peak RSS, and the growth of RSS from 10 % of the stream
+to its end scaled to one hour of stream. Goal: flat memory, growth < 10 MB per hour of stream.
+
+    python benchmarks/bench_soak.py                   # 60 min of stream, as fast as it is consumed, with --rrd
+    python benchmarks/bench_soak.py --minutes 10 --no-rrd --speed 50   # 50x the real rate, no Rerun at all
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream  # noqa: E402
+
+from steval_link import protocol  # noqa: E402
+
+
+def proc_mem_mb(pid: int) -> tuple[float, float]:
+    """(VmRSS, VmHWM) of ``pid`` in MB (NaN when the process is gone)."""
+    rss = hwm = float("nan")
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    rss = int(line.split()[1]) / 1024
+                elif line.startswith("VmHWM:"):
+                    hwm = int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return rss, hwm
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=60.0, help="stream time to feed (default 60)")
+    ap.add_argument(
+        "--speed",
+        default="max",
+        help="'max': as fast as the link consumes it (the pty never drops bytes: the feeder waits for room), or a "
+        "multiple of the real rate (paced, still never dropping)",
+    )
+    ap.add_argument("--no-rrd", action="store_true", help="no --rrd (then no Rerun at all)")
+    ap.add_argument("--estimators", default=None, help="passed to --estimators (default: the CLI's default)")
+    ap.add_argument("--keep", action="store_true", help="keep the capture and .rrd (prints the folder)")
+    args = ap.parse_args()
+
+    n_steps = int(args.minutes * 60 * protocol.AHRS_RATE_HZ)
+    t0 = time.perf_counter()
+    data = flight_stream(n_steps, seed=11)
+    print(
+        f"stream: {args.minutes:.0f} min = {n_steps} attitude frames, {len(data) / 1e6:.1f} MB "
+        f"(made in {time.perf_counter() - t0:.1f} s)"
+    )
+    tmp = Path(tempfile.mkdtemp(prefix="steval-soak-"))
+    cmd = ["live", "--no-view", "--port", str(tmp / "ttyUSB0"), "--out", str(tmp / "soak.stv")]
+    if not args.no_rrd:
+        cmd += ["--rrd", str(tmp / "soak.rrd")]
+    if args.estimators:
+        cmd += ["--estimators", args.estimators]
+    speed = None if args.speed == "max" else float(args.speed) * REAL_BYTES_PER_S
+
+    with PtyFeeder(data, tmp / "ttyUSB0", bytes_per_s=speed, blocking=True) as feeder:
+        proc = StevalProcess(cmd, cwd=tmp)
+        if proc.wait_line("reading ", 120) is None:
+            print(proc.stderr)
+            raise SystemExit("steval live did not start")
+        pid = proc.proc.pid
+        rss0, _ = proc_mem_mb(pid)
+        print(f"steval live {' '.join(cmd[1:])}\nRSS at start (port open, nothing received): {rss0:.1f} MB")
+        print(f"{'stream min':>10} {'wall s':>8} {'RSS MB':>8} {'peak MB':>8}")
+        samples: list[tuple[float, float]] = []  # (stream fraction, rss)
+        t_start = time.monotonic()
+        feeder.start()
+        next_report = 0.0
+        cap_path = tmp / "soak.stv"
+        last_size, last_change = -1, time.monotonic()
+        while True:
+            time.sleep(1.0)
+            rss, hwm = proc_mem_mb(pid)
+            frac = feeder.pos / len(data)
+            samples.append((frac, rss))
+            stream_min = frac * args.minutes
+            if stream_min >= next_report or feeder.done.is_set():
+                print(f"{stream_min:10.1f} {time.monotonic() - t_start:8.1f} {rss:8.1f} {hwm:8.1f}", flush=True)
+                next_report += max(1.0, args.minutes / 12)
+            if proc.proc.poll() is not None:
+                print(proc.stderr)
+                raise SystemExit(f"steval live ended early (exit {proc.proc.returncode})")
+            size = cap_path.stat().st_size if cap_path.exists() else 0
+            if size != last_size:
+                last_size, last_change = size, time.monotonic()
+            if feeder.done.is_set() and time.monotonic() - last_change > 3.0:
+                break  # everything fed and nothing more arriving: the child has caught up
+        wall = time.monotonic() - t_start
+        rss_end, hwm_end = proc_mem_mb(pid)
+        rc = proc.finish(timeout_s=600, sig=signal.SIGINT)
+    tenth = [r for f, r in samples if f >= 0.1]
+    rss_10 = tenth[0] if tenth else samples[0][1]
+    growth_per_h = (rss_end - rss_10) / max(0.9 * args.minutes / 60.0, 1e-9)
+    print(proc.stdout.strip())
+    print(
+        f"fed {feeder.sent / 1e6:.1f} MB in {wall:.0f} s ({args.minutes * 60 / wall:.0f}x real time); exit {rc}\n"
+        f"peak RSS {hwm_end:.1f} MB; RSS {rss0:.1f} MB at start, {rss_10:.1f} MB at 10 % of the stream, "
+        f"{rss_end:.1f} MB at the end\n"
+        f"growth from 10 % to the end: {rss_end - rss_10:+.1f} MB = {growth_per_h:+.1f} MB per hour of stream "
+        f"(goal < 10 MB/h): {'OK' if growth_per_h < 10 else 'TOO MUCH'}"
+    )
+    if args.keep:
+        print(f"files kept in {tmp}")
+    else:
+        for p in tmp.iterdir():
+            p.unlink()
+        os.rmdir(tmp)
+
+
+if __name__ == "__main__":
+    main()
