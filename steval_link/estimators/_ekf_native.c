@@ -405,9 +405,7 @@ out_acc:
 #define MEKF_I_ALP_WARMUP 3
 #define MEKF_I_NLP_READY 4
 #define MEKF_I_CLP_READY 5
-#define MEKF_I_CLP_ALIAS1 6 /* the low-pass of C's x1 is the live C (see cum_lowpass) */
-#define MEKF_I_CLP_ALIAS2 7 /* ... and its x2 */
-#define MEKF_ISTATE 8
+#define MEKF_ISTATE 6
 
 #define MEKF_P_DT 0
 #define MEKF_P_MDPS_TO_RADPS 1
@@ -471,35 +469,6 @@ static void lowpass(const double *c, double *s, int m, int *ready, int64_t *n, i
         y2[i] = y1[i];
         y1[i] = out[i] = y;
     }
-}
-
-/*
- * The low-pass of C as the Python reference computes it. Mekf._correct passes ``self._cum_rs.ravel()`` (a view)
- * and _LowPass keeps that very array as x1 (then x2); _predict updates ``_cum_rs`` in place, so once stored, x1
- * and x2 read the live C. Reproduced here with two flags (x1 / x2 alias C) so that run() equals step().
- */
-static void cum_lowpass(const double *c, double *s, int *ready, int64_t *alias1, int64_t *alias2, const double *C,
-                        double *out)
-{
-    double *x1 = s, *x2 = s + 9, *y1 = s + 18, *y2 = s + 27;
-    int i;
-    if (!*ready) {
-        for (i = 0; i < 9; i++) out[i] = x1[i] = x2[i] = y1[i] = y2[i] = C[i];
-        *ready = 1;
-        *alias1 = *alias2 = 0;
-        return;
-    }
-    for (i = 0; i < 9; i++) {
-        double v1 = *alias1 ? C[i] : x1[i];
-        double v2 = *alias2 ? C[i] : x2[i];
-        double y = c[0] * C[i] + c[1] * v1 + c[2] * v2 - c[3] * y1[i] - c[4] * y2[i];
-        x2[i] = v1;
-        x1[i] = C[i];
-        y2[i] = y1[i];
-        y1[i] = out[i] = y;
-    }
-    *alias2 = *alias1;
-    *alias1 = 1;
 }
 
 static void tilt_quat(double ax, double ay, double az, double *q)
@@ -671,8 +640,8 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
             double lpc[9], D[9], HD[9];
             int ready = (int)ist[MEKF_I_CLP_READY];
             const double *cum = st + MEKF_CUM;
-            cum_lowpass(prm + MEKF_P_LP, st + MEKF_CLP, &ready, &ist[MEKF_I_CLP_ALIAS1], &ist[MEKF_I_CLP_ALIAS2], cum,
-                        lpc);
+            int64_t n0 = 0;
+            lowpass(prm + MEKF_P_LP, st + MEKF_CLP, 9, &ready, &n0, 0, cum, lpc);
             ist[MEKF_I_CLP_READY] = ready;
             for (i = 0; i < 9; i++) D[i] = cum[i] - lpc[i];
             matmul(Hh, D, HD, 3, 3, 3);

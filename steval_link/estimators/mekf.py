@@ -134,6 +134,10 @@ class _LowPass:
 
     Like VQF's, it starts with the running mean of its inputs for ``warmup`` samples (≈ τ) and then continues
     from that mean in steady state, so a single first sample taken during motion does not linger.
+
+    It keeps copies of its inputs as the history x1, x2, so the caller may pass a view of an array it later
+    updates in place (Mekf passes ``_cum_rs.ravel()``). The returned array is the filter's own y1: do not modify
+    it in place.
     """
 
     __slots__ = ("c", "x1", "x2", "y1", "y2", "ready", "warmup", "n", "acc")
@@ -158,7 +162,7 @@ class _LowPass:
             return x.copy()
         b0, b1, b2, a1, a2 = self.c
         y = b0 * x + b1 * self.x1 + b2 * self.x2 - a1 * self.y1 - a2 * self.y2
-        self.x2, self.x1 = self.x1, x
+        self.x2, self.x1 = self.x1, x.copy()
         self.y2, self.y1 = self.y1, y
         return y
 
@@ -330,11 +334,8 @@ class Mekf(Estimator):
             H[:, :3] = Hh
             if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
                 # the low-passed measurement lags: a bias error shows up as the drift of the last ≈ τ seconds,
-                # D = C − LP(C) (zero for the direct MEKF). Note: _LowPass keeps the array it is given as x1 (then
-                # x2), and ravel() is a view of _cum_rs, which _predict updates in place, so x1 and x2 read the
-                # current C: LP(C)ₖ = (b0 + b1 + b2)·Cₖ − a1·yₖ₋₁ − a2·yₖ₋₂ (same poles and DC gain as the
-                # Butterworth, no zeros). The native loop reproduces this; passing a copy changes mekf by
-                # ≤ 0.0006° on the BROAD trials (same accuracy table).
+                # D = C − LP(C) (zero for the direct MEKF), LP the same 2nd-order Butterworth as the measurement's
+                # (_LowPass copies the view of _cum_rs it is given, which _predict later updates in place)
                 d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
                 H[:, 3:] = Hh @ d
             else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)
@@ -425,10 +426,6 @@ class Mekf(Estimator):
         if clp is not None and clp.ready:
             st[78:114] = np.concatenate([clp.x1, clp.x2, clp.y1, clp.y2])
             ist[5] = 1
-            # _correct hands the low-pass a view of _cum_rs, which it keeps as x1 (then x2) and _predict updates
-            # in place: those slots follow the live C (mirrored by the C loop's alias flags)
-            ist[6] = np.shares_memory(clp.x1, self._cum_rs)
-            ist[7] = np.shares_memory(clp.x2, self._cum_rs)
         return st, ist
 
     def _unpack_state(self, st: np.ndarray, ist: np.ndarray) -> None:
@@ -438,7 +435,7 @@ class Mekf(Estimator):
         self.b[:] = st[8:11]
         self._w = tuple(st[11:14].tolist())
         self.P = st[14:14 + nb * nb].reshape(nb, nb).copy()
-        self._cum_rs[...] = st[50:59].reshape(3, 3)  # in place: the low-pass of C may hold views of it
+        self._cum_rs = st[50:59].reshape(3, 3).copy()
         self._initialised = bool(ist[0])
         alp, nlp, clp = self._acc_lp, self._norm_lp, self._cum_lp
         if alp is not None:
@@ -453,7 +450,3 @@ class Mekf(Estimator):
         if clp is not None and ist[5]:
             clp.ready = True
             clp.x1, clp.x2, clp.y1, clp.y2 = (st[78 + 9 * i:87 + 9 * i].copy() for i in range(4))
-            if ist[6]:
-                clp.x1 = self._cum_rs.ravel()
-            if ist[7]:
-                clp.x2 = self._cum_rs.ravel()
