@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -451,7 +452,7 @@ class HealthDisplay:
             return
         self._last = now_mono
         if self.tty:
-            width = 160
+            width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
             self.stream.write("\r\x1b[2K" + line[:width])
             self._dirty = True
         else:
@@ -492,6 +493,8 @@ class LivePipeline:
         self.step_unwrap = StepUnwrapper()
         #: the first bytes of the current connection (to describe a stream without frames)
         self.sample = bytearray()
+        #: firmware log lines not shown yet (the session prints them; bounded)
+        self.texts: collections.deque[str] = collections.deque(maxlen=32)
 
     @property
     def port(self) -> "LivePort | None":
@@ -525,6 +528,7 @@ class LivePipeline:
                     self.flush_view()
                     self.health.text += 1
                     self.health.last_text = frame.text
+                    self.texts.append(frame.text)
                     if viewer is not None:
                         viewer.log_text(frame, t_host_s)
         self._attitude(att)
@@ -841,6 +845,8 @@ class LiveSession:
             pipe.tick(now)
             for _ in range(len(proto.events)):
                 self.display.note(proto.events.popleft())
+            for _ in range(len(pipe.texts)):
+                self.display.note("firmware: " + pipe.texts.popleft()[:200])
             if proto.connected != was_connected:
                 was_connected = proto.connected
                 if proto.connected:

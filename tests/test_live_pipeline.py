@@ -82,6 +82,7 @@ def test_port_matches_the_offline_replay_bit_for_bit(first_step):
         assert 0 < seeded.argmax() <= 161 and not seeded[: seeded.argmax()].any()
     assert port.snapshots_confirmed >= 4  # later snapshots agree with the port's own state
     assert log.text == ["STEVAL boot"] and len(log.status) == len(decode_bytes(data).status)
+    assert list(pipe.texts) == ["STEVAL boot"]  # shown to the user by the session
     steps = log.column("step")
     assert np.array_equal(steps, np.arange(first_step, first_step + 900))
     assert np.isfinite(log.rows("accel")).all()
