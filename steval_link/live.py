@@ -852,7 +852,7 @@ class LiveSession:
                 if proto.connected:
                     pipe.sample.clear()
             self._check_frames(proto, now)
-            self.display.show(self._health_line(proto, inbox, now), now)
+            self.display.show(self._health_line(proto, inbox, now, reader), now)
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
 
@@ -883,12 +883,15 @@ class LiveSession:
             return
         raise LinkError(message)
 
-    def _health_line(self, proto: RecorderProtocol, inbox: Inbox, now: float) -> str:
+    def _health_line(self, proto: RecorderProtocol, inbox: Inbox, now: float, reader: SerialReader) -> str:
         s = self.pipeline.decoder.stats
         h = self.pipeline.health
         if not proto.connected:
             lost = now - (proto.lost_at_s or now)
             head = f"disconnected, waiting for {proto.port} ({lost:.0f} s)"
+            failed = reader.reopen_error
+            if failed is not None:  # it is back but cannot be opened: say why (busy, permissions)
+                head += f"; {open_error_message(failed[0], failed[1])}"
         elif s.attitude + s.status == 0:
             head = f"{proto.port}: waiting for frames ({_fmt_bytes(proto.connect_bytes)} received)"
         else:

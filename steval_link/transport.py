@@ -150,6 +150,8 @@ class SerialReader(threading.Thread):
         self.port: str = ser.port
         #: The exception that ended the thread (raised by the protocol), or ``None``.
         self.error: BaseException | None = None
+        #: While disconnected: (path, exception) of the last failed attempt to reopen the port, else ``None``.
+        self.reopen_error: tuple[str, BaseException] | None = None
         self.connected = threading.Event()
         self._stop_event = threading.Event()
 
@@ -236,9 +238,11 @@ class SerialReader(threading.Thread):
             if path is not None:
                 try:
                     ser = self.opener(path)
-                except (serial.SerialException, OSError):
-                    ser = None  # still settling (udev permissions, node half-made): try again next poll
+                except (serial.SerialException, OSError) as exc:
+                    ser = None  # still settling (udev permissions, ModemManager probing): try again next poll
+                    self.reopen_error = (path, exc)
                 if ser is not None:
+                    self.reopen_error = None
                     self.serial = ser
                     self.port = path
                     self.connected.set()

@@ -202,3 +202,29 @@ def test_open_errors_are_one_sentence_with_the_fix(tmp_path):
     with pytest.raises(serial.SerialException) as info:
         open_serial(str(not_tty), 115200)
     assert "not a serial port" in open_error_message(str(not_tty), info.value)
+
+
+def test_reader_keeps_trying_a_port_that_came_back_busy_and_says_why(tmp_path):
+    with PtyFeeder(flight_stream(300), tmp_path / "ttyACM0") as feeder:
+        ser = open_serial(str(feeder.link), 115200)
+        proto = Collector()
+        reader = SerialReader(ser, proto, baud=115200, find_port=lambda: str(feeder.link) if feeder.plugged else None)
+        reader.start()
+        feeder.start()
+        assert wait_for(lambda: len(proto.data()) > 1000, 10)
+        feeder.unplug()
+        assert wait_for(lambda: any(e[0] == "lost" for e in proto.events), 5)
+        feeder.replug()
+        holder = os.open(str(feeder.link), os.O_RDWR | os.O_NOCTTY)  # e.g. ModemManager probing the new port
+        fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        try:
+            assert wait_for(lambda: reader.reopen_error is not None, 5)
+            path, exc = reader.reopen_error
+            assert path == str(feeder.link) and "is busy" in open_error_message(path, exc)
+            assert not reader.connected.is_set()
+        finally:
+            os.close(holder)
+        assert wait_for(lambda: reader.connected.is_set(), 5)  # released: reopened at the next poll
+        assert reader.reopen_error is None
+        reader.stop()
+    assert [e[0] for e in proto.events] == ["made", "lost", "made", "lost"]
