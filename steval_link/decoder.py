@@ -9,11 +9,12 @@ Rules (position by position, from the start of the stream):
   header whose CRC fails counts in ``crc_failures``; a version-1 frame of unknown type whose CRC matches counts in
   ``unknown_frames`` (and is skipped the same way).
 * Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
-  is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``);
-  a plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only right
-  after a frame or line that was handed out (blank lines in between are skipped). So a stream joined in the
-  middle of a line never yields the tail of that line, garbage is not mistaken for text, and the first plain
-  line of a stream, or one right after damage, is dropped (counted as skipped).
+  is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``).
+  A plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only at a
+  clean line start: right after a frame or line that was handed out, or after a whole printable line (blank
+  lines in between are skipped). So a stream joined in the middle of a line never yields the tail of that line
+  (the first plain line of a stream is dropped, counted as skipped), a line right after binary damage is not
+  trusted, and a line holding a valid ``$`` sentence after a glitch byte yields the sentence, not a log line.
 * Every byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
 
 The decoder waits for more bytes only while the candidate at its position could still become valid, so its
@@ -47,9 +48,19 @@ assert _ATT_STRUCT.size == P.ATTITUDE_PAYLOAD_SIZE and _STA_STRUCT.size == P.STA
 _VT_ATT = (P.VERSION << 4) | P.TYPE_ATTITUDE
 _VT_STA = (P.VERSION << 4) | P.TYPE_STATUS
 _VT_TXT = (P.VERSION << 4) | P.TYPE_TEXT
-_NEXT_START = re.compile(rb"[\xa5$]")
+_NEXT_START = re.compile(rb"[\xa5$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _crc_hqx = binascii.crc_hqx
+
+
+def _hides_sentence(raw: bytes) -> bool:
+    """True when a valid ``$`` sentence starts inside the line ``raw`` (then the line is not a plain log line)."""
+    j = raw.find(b"$", 1)
+    while j >= 0:
+        if parse_sentence(raw[j:].rstrip(b"\r")) is not None:
+            return True
+        j = raw.find(b"$", j + 1)
+    return False
 
 
 @dataclass(slots=True)
@@ -122,10 +133,13 @@ class StreamDecoder:
         self._boundary = boundary
 
     def _skip(self, buf: bytearray, p: int, n: int) -> int:
-        """Reject the candidate at ``p``: move to the next byte that could start a frame (``A5``) or a ``$`` line;
-        the bytes in between can start nothing (plain lines start only right after a handed-out frame/line)."""
+        """Reject the candidate at ``p``: move to the next byte that could start something (``A5``, ``$``, or the
+        byte after a ``\\n``); the bytes in between cannot."""
         m = _NEXT_START.search(buf, p + 1)
-        q = n if m is None else m.start()
+        if m is None:
+            q = n
+        else:
+            q = m.start() + (buf[m.start()] == 0x0A)
         self.stats.bytes_skipped += q - p
         self._boundary = False
         return q
@@ -180,9 +194,6 @@ class StreamDecoder:
                 continue
             # ---- text line candidate
             dollar = c == 0x24
-            if not dollar and not self._boundary:
-                p = self._skip(buf, p, n)
-                continue
             limit = min(n, p + MAX_LINE_BYTES)
             nl = buf.find(b"\n", p, limit)
             if nl < 0:
@@ -195,8 +206,9 @@ class StreamDecoder:
                     continue
                 break  # wait for the rest of the line
             raw = bytes(buf[p:nl])
-            if self._boundary and raw in (b"", b"\r"):  # blank line between lines: skipped, still a boundary
-                stats.bytes_skipped += nl + 1 - p
+            nbytes = nl + 1 - p
+            if raw in (b"", b"\r"):  # blank line: skipped, the boundary state is kept
+                stats.bytes_skipped += nbytes
                 p = nl + 1
                 continue
             text = decode_line(raw)
@@ -204,7 +216,6 @@ class StreamDecoder:
                 p = self._skip(buf, p, n)
                 continue
             offset = self._base + p
-            nbytes = nl + 1 - p
             if dollar:
                 frame = parse_sentence(raw.rstrip(b"\r"), offset=offset, nbytes=nbytes)
                 if frame is None:
@@ -214,6 +225,15 @@ class StreamDecoder:
                 if isinstance(frame, TextFrame):
                     frame.text = text
             else:
+                if _hides_sentence(raw):  # e.g. a glitch byte before a "$ATT" line: decode the sentence
+                    p = self._skip(buf, p, n)
+                    continue
+                if not self._boundary:
+                    # a whole printable line that may be the tail of a line cut off: skipped, the next one is clean
+                    stats.bytes_skipped += nbytes
+                    p = nl + 1
+                    self._boundary = True
+                    continue
                 frame = TextFrame(text, offset=offset, nbytes=nbytes)
             self._count(frame)
             out.append(frame)
