@@ -20,6 +20,7 @@ import threading
 import time
 import warnings
 import zlib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -93,6 +94,22 @@ def _chunk(kind: int, payload: bytes, t_host_s: float) -> bytes:
     return head + payload + _CRC.pack(zlib.crc32(payload, zlib.crc32(head)))
 
 
+def _file_header(header: dict[str, Any]) -> bytes:
+    head = json.dumps(header, sort_keys=True).encode("utf-8")
+    return MAGIC + _HEADER_LEN.pack(len(head)) + head + _CRC.pack(zlib.crc32(head))
+
+
+def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]]) -> bytes:
+    """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
+    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``)."""
+    parts = [_file_header(header)]
+    for data, t_host_s in chunks:
+        data = bytes(data)
+        for i in range(0, len(data), MAX_CHUNK):
+            parts.append(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], float(t_host_s)))
+    return b"".join(parts)
+
+
 class CaptureWriter:
     """Append-only ``.stv`` writer; use as a context manager.
 
@@ -128,13 +145,12 @@ class CaptureWriter:
             "tool_version": tool_version,
             "extra": dict(extra or {}),
         }
-        head = json.dumps(self.header, sort_keys=True).encode("utf-8")
         self._file = open(self.path, "xb", buffering=0)
         self._lock = threading.Lock()
         self._dirty = False
         self._closed = False
         self.bytes_written = 0  #: raw serial bytes stored so far
-        self._write_all(MAGIC + _HEADER_LEN.pack(len(head)) + head + _CRC.pack(zlib.crc32(head)))
+        self._write_all(_file_header(self.header))
         self._sync()
         self._stop = threading.Event()
         self._interval = float(sync_interval_s)
@@ -207,10 +223,14 @@ class CaptureWriter:
         self._dirty = False
 
     def _sync_loop(self) -> None:
+        # fsync outside the lock: a slow disk must never hold up write() in the serial reader thread. close()
+        # joins this thread before it closes the file, so the descriptor stays valid here.
         while not self._stop.wait(self._interval):
             with self._lock:
-                if self._dirty and not self._closed:
-                    self._sync()
+                if not self._dirty or self._closed:
+                    continue
+                self._dirty = False
+            os.fsync(self._file.fileno())
 
 
 def _read_bytes(path: Path) -> bytes:

@@ -33,12 +33,10 @@ Everything is deterministic for a given :class:`SynthOptions` (seeded numpy gene
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shlex
 import subprocess
-import zlib
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -710,12 +708,11 @@ def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = 
     if kind == "raw":
         blob = result.data
     else:
-        head = json.dumps(result.header, sort_keys=True).encode("utf-8")
-        parts = [C.MAGIC, C._HEADER_LEN.pack(len(head)), head, C._CRC.pack(zlib.crc32(head))]
         bounds = list(result.chunk_offsets) + [len(result.data)]
-        for i, t in enumerate(result.chunk_times_s):
-            parts.append(C._chunk(C.CHUNK_DATA, result.data[bounds[i] : bounds[i + 1]], float(t)))
-        blob = b"".join(parts)
+        blob = C.encode_capture(
+            result.header,
+            ((result.data[bounds[i] : bounds[i + 1]], t) for i, t in enumerate(result.chunk_times_s)),
+        )
     tmp = path.with_name(path.name + ".part")
     try:
         tmp.write_bytes(blob)
