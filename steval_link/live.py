@@ -52,8 +52,9 @@ NO_FRAMES_EARLY_S = 1.0
 NO_FRAMES_EARLY_BYTES = 2048
 #: Frames go to a live viewer at most this often, s (a screen refresh: no visible latency, 5x fewer Rerun chunks) ...
 VIEW_INTERVAL_S = 1 / 30
-#: ... and to an ``.rrd`` nobody watches live at most this often (Rerun's memory grows per chunk logged).
-RRD_ONLY_INTERVAL_S = 2.0
+#: ... and to an ``.rrd`` nobody watches live at most this often (an .rrd sink keeps ~270 bytes per chunk until the
+#: file closes, and each batch is about one chunk per entity: 10 s keeps an hour's growth to a few MB).
+RRD_ONLY_INTERVAL_S = 10.0
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
 HEALTH_PLAIN_INTERVAL_S = 5.0
@@ -474,10 +475,11 @@ class LivePipeline:
     ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
     ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
 
-    ``view_interval_s``: batches are handed to the viewer at most this often (merged; always before a status or
-    text frame, so the order is kept): every Rerun log call costs a chunk per entity, and Rerun keeps some memory
-    per chunk for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat. Call
-    :meth:`tick` regularly and :meth:`flush_view` at the end.
+    ``view_interval_s``: batches are handed to the viewer at most this often (merged; the status and text frames
+    that came meanwhile follow the merged batch, in stream order, and are timed by their own firmware time, so
+    they never cut a batch): every Rerun log call costs a chunk per entity, and Rerun keeps some memory per chunk
+    for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat. Call :meth:`tick`
+    regularly and :meth:`flush_view` at the end.
     """
 
     def __init__(self, estimator_names: list[str], viewer=None, *, view_interval_s: float = 0.0) -> None:
@@ -485,6 +487,7 @@ class LivePipeline:
 
         self.view_interval_s = view_interval_s
         self._pending: list[AttitudeBatch] = []
+        self._pending_events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
         self._pending_since = 0.0
         self.decoder = StreamDecoder()
         self.health = LinkHealth()
@@ -513,38 +516,50 @@ class LivePipeline:
                 if isinstance(frame, AttitudeFrame):
                     att.append((frame, t_host_s))
                 elif isinstance(frame, StatusFrame):
-                    self._attitude(att)
+                    self._attitude(att)  # the port must step through the frames before the snapshot
                     att = []
-                    self.flush_view()
                     self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
                     if self.estimators is not None:
                         self.estimators.status(frame)
                     if viewer is not None:
-                        viewer.log_status(frame, t_host_s)
+                        self._event("status", frame, t_host_s)
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
                     att = []
-                    self.flush_view()
                     self.health.text += 1
                     self.health.last_text = frame.text
                     self.texts.append(frame.text)
                     if viewer is not None:
-                        viewer.log_text(frame, t_host_s)
+                        self._event("text", frame, t_host_s)
         self._attitude(att)
         self.tick()
 
+    def _event(self, kind: str, frame, t_host_s: float) -> None:
+        if not self._pending and not self._pending_events:
+            self._pending_since = time.monotonic()
+        self._pending_events.append((kind, frame, t_host_s))
+
     def tick(self, now_mono: float | None = None) -> None:
         """Hand the pending frames to the viewer when they have waited ``view_interval_s``."""
-        if self._pending and (now_mono or time.monotonic()) - self._pending_since >= self.view_interval_s:
+        if (self._pending or self._pending_events) and (
+            now_mono or time.monotonic()
+        ) - self._pending_since >= self.view_interval_s:
             self.flush_view()
 
     def flush_view(self) -> None:
-        """Hand every pending frame to the viewer now (one merged batch)."""
+        """Hand every pending frame to the viewer now: one merged batch, then the status and text frames."""
         if self._pending:
             batch = AttitudeBatch.concat(self._pending)
             self._pending = []
             self.viewer.log_batch(batch)
+        if self._pending_events:
+            events, self._pending_events = self._pending_events, []
+            for kind, frame, t_host_s in events:
+                if kind == "status":
+                    self.viewer.log_status(frame, t_host_s)
+                else:
+                    self.viewer.log_text(frame, t_host_s)
 
     def _attitude(self, att: list) -> None:
         if not att:
@@ -579,7 +594,7 @@ class LivePipeline:
         if self.estimators is not None:
             self.estimators.process(batch)
         if self.viewer is not None:
-            if not self._pending:
+            if not self._pending and not self._pending_events:
                 self._pending_since = time.monotonic()
             self._pending.append(batch)
 

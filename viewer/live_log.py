@@ -9,8 +9,11 @@ The live session (``steval_link.live``) decodes the serial bytes and calls, in a
     logger.log_link(stats, t_host_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
     logger.close()
 
-Nothing is held back: every call sends its rows with one ``send_columns`` per entity before it returns (the
-per-call cost is per entity, not per sample, so a batch of 1 or of 50 frames costs about the same). The entity
+Attitude rows are not held back: ``log_batch`` sends them with one Arrow record batch (one chunk per entity)
+before it returns (the per-call cost is per entity, not per sample, so a batch of 1 or of 50 frames costs about the
+same). Status and link rows (about 1 Hz) are queued and sent with the next batch, one chunk per entity, and on
+``close()``: an ``.rrd`` sink keeps memory per chunk until the file closes. Status rows are timed by their own
+``t_us``, so the session need not cut a batch at a status frame. The entity
 layout is the replay's (:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on
 ``host_time``). ``host_time`` is seconds since the first logged frame (Unix-epoch inputs are converted);
 ``fw_time`` is the firmware's ``t_us`` unwrapped across its 2³² µs wrap.
@@ -65,6 +68,20 @@ class TimeUnwrapper:
             self.last = v
             out[i] = (v + self.wraps * T_US_MODULUS) / 1e6
         return out
+
+    def nearest(self, t_us: int) -> float:
+        """Seconds of one ``t_us`` near the latest value seen (a status frame's time, which repeats the time of
+        the attitude frame before it), without changing the state: the wrap count giving the time closest to the
+        latest one (so a value just before or just after a wrap is placed right)."""
+        v = int(t_us) % T_US_MODULUS
+        if self.last is None:
+            return v / 1e6
+        wraps = self.wraps
+        if v - self.last > T_US_MODULUS // 2 and wraps > 0:
+            wraps -= 1  # from before the latest wrap
+        elif self.last - v > T_US_MODULUS // 2:
+            wraps += 1  # already past the next wrap
+        return (v + wraps * T_US_MODULUS) / 1e6
 
 
 _SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
@@ -244,6 +261,10 @@ class LiveLogger:
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
         self._last_3d_s = -math.inf  # fw time of the last 3D update
         self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
+        #: link/status rows waiting for the next batch: path -> [(fw s, host s, values)], sent as one chunk per
+        #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
+        #: some memory for, so fewer calls keep a long session's memory flat
+        self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
 
     # -- time ------------------------------------------------------------------------------------------------
     def _host(self, t_host_s: np.ndarray) -> np.ndarray:
@@ -255,12 +276,13 @@ class LiveLogger:
         return t - (self.t0_host_s if self.t0_host_s is not None else 0.0)
 
     def _scalar_times(self, t_host_s: float) -> Times | None:
-        """Times for an event at host time ``t_host_s``: fw time estimated from the latest frame."""
+        """Times for an event at host time ``t_host_s``: fw time estimated from the latest frame (the host time
+        elapsed since it, or before it: events are logged after the batch they arrived within)."""
         host = float(self._host(np.array([t_host_s]))[0])
         if self._last_times is None:
             return None
         fw_last, host_last = self._last_times
-        return Times(np.array([fw_last + max(0.0, host - host_last)]), np.array([host]))
+        return Times(np.array([max(0.0, fw_last + (host - host_last))]), np.array([host]))
 
     # -- frames ----------------------------------------------------------------------------------------------
     def log_batch(self, batch: Any) -> None:
@@ -320,9 +342,27 @@ class LiveLogger:
                 rb.scalars(ent.DIFF_THY, np.degrees(thy.astype(np.float64) - ey))
         rb.send(rec)
 
-        self._link_from_frames(times, step)
         self.frames += n
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
+        self._link_from_frames(times, step)
+        self.flush_rows()
+
+    def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
+        self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
+
+    def flush_rows(self) -> None:
+        """Send the queued link/status rows: one ``send_columns`` per entity (rows in time order)."""
+        if not self._pending_rows:
+            return
+        pending, self._pending_rows = self._pending_rows, {}
+        for path, rows in pending.items():
+            rows.sort(key=lambda r: r[0])
+            t_fw = np.array([r[0] for r in rows], dtype=np.float64)
+            t_host = np.array([r[1] for r in rows], dtype=np.float64)
+            values = np.array([r[2] for r in rows], dtype=np.float64)
+            if values.shape[1] == 1:
+                values = values[:, 0]
+            send_scalars(self.rec, path, Times(t_fw, t_host), values)
 
     def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
         """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
@@ -336,23 +376,26 @@ class LiveLogger:
             if self._bin_start is None:
                 self._bin_start = h
             if h - self._bin_start >= 1.0:
-                t = times.take(np.array([i]))
-                send_scalars(self.rec, ent.LINK_RATE, t, np.array([self._bin_count / (h - self._bin_start)]))
-                send_scalars(self.rec, ent.LINK_MISSING, t, np.array([float(self.frames_missing)]))
+                fw = float(times.t_fw_s[i])
+                host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
+                self._queue_row(ent.LINK_RATE, fw, host_i, (self._bin_count / (h - self._bin_start),))
+                self._queue_row(ent.LINK_MISSING, fw, host_i, (float(self.frames_missing),))
                 self._bin_start = h
                 self._bin_count = 0
             self._bin_count += 1
 
     def log_status(self, frame: Any, t_host_s: float) -> None:
-        """A status frame: AHRS cycles (min/mean/max), firmware TX drops and queue peak."""
-        times = self._scalar_times(t_host_s)
-        if times is None:
-            return
+        """A status frame: AHRS cycles (min/mean/max), firmware TX drops and queue peak.
+
+        Timed by the frame's own ``t_us`` (unwrapped like the attitude rows; a status frame repeats the time of
+        the attitude frame before it), so it may be logged before or after the batch holding that frame. The rows
+        are queued and sent with the next batch (or on :meth:`close`)."""
+        host = float(self._host(np.array([t_host_s], dtype=np.float64))[0]) if t_host_s is not None else math.nan
+        fw = self.fw_clock.nearest(int(frame.t_us))
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
-            cyc = np.array([[frame.cyc_min, frame.cyc_mean, frame.cyc_max]], dtype=np.float64)
-            send_scalars(self.rec, ent.LINK_CYCLES, times, cyc)
-        send_scalars(self.rec, ent.LINK_TX_DROPPED, times, np.array([float(frame.tx_dropped)]))
-        send_scalars(self.rec, ent.LINK_QUEUE, times, np.array([float(getattr(frame, "queue_peak", 0))]))
+            self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
+        self._queue_row(ent.LINK_TX_DROPPED, fw, host, (float(frame.tx_dropped),))
+        self._queue_row(ent.LINK_QUEUE, fw, host, (float(getattr(frame, "queue_peak", 0)),))
 
     def log_text(self, frame: Any, t_host_s: float) -> None:
         """A firmware text line (TextFrame or str)."""
@@ -375,8 +418,12 @@ class LiveLogger:
         if times is None:
             return
         self._last_link_s = t_host_s
-        send_scalars(self.rec, ent.LINK_CRC, times, np.array([float(getattr(stats, "crc_failures", 0))]))
+        self._queue_row(
+            ent.LINK_CRC, float(times.t_fw_s[0]), float(times.t_host_s[0]) if times.t_host_s is not None else math.nan,
+            (float(getattr(stats, "crc_failures", 0)),),
+        )
 
     def close(self) -> None:
-        """Flush what was logged."""
+        """Send the queued rows and flush what was logged."""
+        self.flush_rows()
         self.rec.flush()
