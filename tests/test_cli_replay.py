@@ -135,3 +135,26 @@ def test_console_script_subprocess(capture):
     r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "replay", "/nope"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("steval: error:") and "Traceback" not in r.stderr
+
+
+def test_replay_estimators_choose_what_the_rrd_holds(capture, tmp_path, capsys):
+    from steval_viewer.rrd_check import read_rrd
+
+    out_rrd = tmp_path / "accel_only.rrd"
+    code, out, err = run(["replay", str(capture), "--rrd", str(out_rrd), "-e", "accel"], capsys)
+    assert code == 0, err
+    paths = read_rrd(out_rrd).samples
+    assert any(p.endswith("/accel") for p in paths)
+    assert not any(p.endswith("/ekf3") or p.endswith("/mekf") for p in paths)
+
+    default_rrd = tmp_path / "default.rrd"
+    code, _, err = run(["replay", str(capture), "--rrd", str(default_rrd)], capsys)
+    assert code == 0, err
+    paths = read_rrd(default_rrd).samples
+    assert any(p.endswith("/ekf3") for p in paths) and any(p.endswith("/mekf") for p in paths)
+
+
+def test_replay_unknown_estimator_is_one_line_exit_2(capture, tmp_path, capsys):
+    code, _, err = run(["replay", str(capture), "--rrd", str(tmp_path / "x.rrd"), "-e", "kalman9"], capsys)
+    assert code == 2
+    assert err.strip().count("\n") == 0 and "kalman9" in err and "ekf3" in err

@@ -31,6 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from steval_link import protocol as P
+from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     FirmwareReplay,
     MahonySettings,
@@ -70,9 +71,6 @@ _LABELS = {
     "mekf": "MEKF",
     "vqf": "VQF",
 }
-
-#: Estimators whose output depends on the current row only (no rate to adapt to decimated rows).
-_MEMORYLESS = frozenset({"accel"})
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
 
@@ -725,40 +723,6 @@ def _link_notes(tel) -> list[str]:
                 f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"]
     return [f"the firmware's TX queue dropped {dropped} frames since power-up (queue full: bursts of text or "
             "status frames); frames dropped before the capture started count too"]
-
-
-def row_decimation(tel) -> int:
-    """AHRS steps per attitude row (1 for a binary stream; 16 for the text-mode build's ``$ATT`` lines)."""
-    d = np.diff(np.asarray(tel.attitude.step, dtype=np.int64))
-    d = d[d > 0]
-    return int(np.median(d)) if d.size else 1
-
-
-def run_estimator(name: str, tel, *, decimation: int = 1) -> tuple[Any | None, str]:
-    """Run registry estimator ``name`` from power-up over every attitude row; (estimate, note) or (None, why not).
-
-    With decimated rows (``decimation`` steps per row, text mode) estimators that take ``rate_hz`` run at the row
-    rate (the note says so); the others assume every row is one AHRS step.
-    """
-    from steval_link.estimators import registry
-
-    if name not in registry.ESTIMATORS:
-        return None, f"not available in this installation (known: {', '.join(registry.names())})"
-    note = ""
-    try:
-        est = None
-        if decimation > 1 and name not in _MEMORYLESS:
-            try:
-                est = registry.create(name, rate_hz=P.AHRS_RATE_HZ / decimation)
-                note = f"run at {P.AHRS_RATE_HZ / decimation:.2f} Hz: one row per {decimation} steps"
-            except ValueError:
-                note = f"assumes one AHRS step per row, but rows are {decimation} steps apart"
-        if est is None:
-            est = registry.create(name)
-    except ImportError as exc:
-        return None, f"needs a package that is not installed ({exc})"
-    a = tel.attitude
-    return est.run(a.acc_mg, a.gyro_mdps, a.thr), note
 
 
 def compare_capture(

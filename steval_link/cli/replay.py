@@ -23,12 +23,14 @@ import typer
 
 from steval_link.capture import CaptureTruncatedWarning, demo_capture_path, load_telemetry
 from steval_link.cli.app import app
+from steval_link.errors import UserError
 from steval_link.summary import format_summary, summarize
 
 __all__ = ["ReplayResult", "load_replay", "run_estimators", "replay_pipeline", "DEFAULT_ESTIMATORS"]
 
-#: Estimators a sink that shows attitudes (Rerun) runs by default: the firmware's filter port and the accel tilt.
-DEFAULT_ESTIMATORS: tuple[str, ...] = ("st-mahony", "accel")
+#: Estimators a sink that shows attitudes (Rerun) runs by default: the firmware's filter (the viewer shows it as the
+#: bit-exact port seeded from status snapshots), accelerometer-only tilt and both EKFs.
+DEFAULT_ESTIMATORS: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
 Sink = Callable[[Any, dict[str, Any]], None]
@@ -52,17 +54,18 @@ def load_replay(path: Path | None) -> tuple[Any, list[str]]:
 
 
 def run_estimators(tel, names: Sequence[str]) -> dict[str, Any]:
-    """Stage 2: run each named estimator (``steval_link.estimators.registry``) over every attitude row's inputs
-    (``acc_mg``, ``gyro_mdps``, ``thr``); returns name → ``AttitudeEstimate``."""
-    if not names:
-        return {}
-    from steval_link.estimators.registry import create
+    """Stage 2: run each named estimator (``steval_link.estimators.registry``) from power-up over every attitude
+    row's inputs (``acc_mg``, ``gyro_mdps``, ``thr``; decimated text-mode rows at their row rate); returns
+    name → ``AttitudeEstimate``. Raises UserError for an unknown or uninstalled estimator."""
+    from steval_link.estimators.runner import row_decimation, run_estimator
 
-    a = tel.attitude
+    decimation = row_decimation(tel)
     out = {}
     for name in names:
-        est = create(name)
-        out[name] = est.run(a.acc_mg, a.gyro_mdps, a.thr)
+        estimate, why = run_estimator(name, tel, decimation=decimation)
+        if estimate is None:
+            raise UserError(f"estimator {name!r} is {why}")
+        out[name] = estimate
     return out
 
 
@@ -131,15 +134,30 @@ def replay(
     connect: Annotated[
         Optional[str], typer.Option("--connect", help="Send the replay to a running Rerun viewer at this gRPC URL.")
     ] = None,
+    estimators: Annotated[
+        Optional[str],
+        typer.Option(
+            "--estimators",
+            "-e",
+            help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf; "
+            f"'none' for none). Default with a viewer or --rrd: {','.join(DEFAULT_ESTIMATORS)}.",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings."""
     tel, seen = load_replay(capture)
-    sinks: list[Sink] = []
-    names: tuple[str, ...] = ()
-    if rrd is not None or spawn or serve or connect:
+    viewer = rrd is not None or spawn or serve or connect
+    names = _estimator_names(estimators) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
+    # the summary first: a --serve viewer keeps running until Ctrl-C
+    sinks: list[Sink] = [summary_sink(as_json, seen)]
+    if viewer:
         sinks.append(viewer_sink(rrd=rrd, spawn=spawn, serve=serve, connect=connect))
-        names = DEFAULT_ESTIMATORS
-    sinks.append(summary_sink(as_json, seen))
     estimates = run_estimators(tel, names)
     for sink in sinks:
         sink(tel, estimates)
+
+
+def _estimator_names(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    return () if names in ((), ("none",)) else names

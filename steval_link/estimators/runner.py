@@ -1,0 +1,53 @@
+"""Run registry estimators over a whole :class:`~steval_link.telemetry.Telemetry` (replay, compare, the viewer).
+
+Binary captures have one attitude row per AHRS step; the text-mode build's ``$ATT`` rows are decimated (16 steps
+per row by default), so estimators that take ``rate_hz`` run at the row rate there.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from steval_link import protocol as P
+from steval_link.estimators import registry
+
+__all__ = ["MEMORYLESS", "row_decimation", "run_estimator"]
+
+#: estimators without state, indifferent to the row rate
+MEMORYLESS = frozenset({"accel"})
+
+
+def row_decimation(tel) -> int:
+    """AHRS steps per attitude row (1 for a binary stream; 16 for the text-mode build's ``$ATT`` lines)."""
+    d = np.diff(np.asarray(tel.attitude.step, dtype=np.int64))
+    d = d[d > 0]
+    return int(np.median(d)) if d.size else 1
+
+
+def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any | None, str]:
+    """Run registry estimator ``name`` from power-up over every attitude row; (estimate, note) or (None, why not).
+
+    With decimated rows (``decimation`` steps per row, text mode; default: :func:`row_decimation`) estimators that
+    take ``rate_hz`` run at the row rate (the note says so); the others assume every row is one AHRS step.
+    """
+    if decimation is None:
+        decimation = row_decimation(tel)
+    if name not in registry.ESTIMATORS:
+        return None, f"not available in this installation (known: {', '.join(registry.names())})"
+    note = ""
+    try:
+        est = None
+        if decimation > 1 and name not in MEMORYLESS:
+            try:
+                est = registry.create(name, rate_hz=P.AHRS_RATE_HZ / decimation)
+                note = f"run at {P.AHRS_RATE_HZ / decimation:.2f} Hz: one row per {decimation} steps"
+            except ValueError:
+                note = f"assumes one AHRS step per row, but rows are {decimation} steps apart"
+        if est is None:
+            est = registry.create(name)
+    except ImportError as exc:
+        return None, f"needs a package that is not installed ({exc})"
+    a = tel.attitude
+    return est.run(a.acc_mg, a.gyro_mdps, a.thr), note
