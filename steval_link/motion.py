@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link import sensor_model as sm
+from steval_link.broad import quat_multiply
 from steval_link.errors import UserError
 
 __all__ = [
@@ -97,17 +98,6 @@ def quat_from_angles(thx, thy, yaw) -> np.ndarray:
         cp * ct * sf - sp * st * cf,
         cp * st * cf + sp * ct * sf,
         sp * ct * cf - cp * st * sf,
-    ], axis=-1)
-
-
-def _qmul(a, b):
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
     ], axis=-1)
 
 
@@ -250,7 +240,7 @@ def _body_rate_radps(kin: _Kinematics, t) -> np.ndarray:
     q = kin.q(t)
     dq = (kin.q(t + _H_RATE) - kin.q(t - _H_RATE)) / (2 * _H_RATE)
     qc = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return 2.0 * _qmul(qc, dq)[:, 1:]
+    return 2.0 * quat_multiply(qc, dq)[:, 1:]
 
 
 def _lever_acc_mps2(kin: _Kinematics, t) -> np.ndarray:
