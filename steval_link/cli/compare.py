@@ -65,7 +65,7 @@ def compare_command(
     ] = None,
     estimator: Annotated[
         Optional[list[str]],
-        typer.Option("--estimator", "-e", help="Estimator to compare (repeatable; default: ekf3, mekf, accel). "
+        typer.Option("--estimator", "--estimators", "-e", help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel). "
                      "The seeded ST-Mahony port is always compared."),
     ] = None,
     ki: Annotated[Optional[float], typer.Option("--ki", help="Run the port with this AHRS_KI instead of the "
@@ -90,7 +90,9 @@ def compare_command(
     from steval_link.cli.replay import load_replay
     from steval_link.estimators import registry
 
-    names = tuple(estimator) if estimator else DEFAULT_COMPARE_ESTIMATORS
+    # repeatable, and each value may be a comma-separated list like the other commands' --estimators
+    names = tuple(n.strip() for e in estimator for n in e.split(",") if n.strip()) if estimator else ()
+    names = names or DEFAULT_COMPARE_ESTIMATORS
     for name in names:
         if estimator and name not in registry.ESTIMATORS:
             raise UserError(f"unknown estimator {name!r}; choose from: {', '.join(registry.names())}")
