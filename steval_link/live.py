@@ -52,9 +52,10 @@ NO_FRAMES_EARLY_S = 1.0
 NO_FRAMES_EARLY_BYTES = 2048
 #: Frames go to a live viewer at most this often, s (a screen refresh: no visible latency, 5x fewer Rerun chunks) ...
 VIEW_INTERVAL_S = 1 / 30
-#: ... and to an ``.rrd`` nobody watches live at most this often (an .rrd sink keeps ~270 bytes per chunk until the
-#: file closes, and each batch is about one chunk per entity: 10 s keeps an hour's growth to a few MB).
-RRD_ONLY_INTERVAL_S = 10.0
+#: ... and to an ``.rrd`` nobody watches live at most this often, or once this much stream time waits. Rerun's file
+#: sink keeps about 1 kB per chunk for the file's footer (its manifest) until the file closes, and each batch is
+#: about one chunk per entity (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
+RRD_ONLY_INTERVAL_S = 30.0
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
 HEALTH_PLAIN_INTERVAL_S = 5.0
@@ -475,7 +476,8 @@ class LivePipeline:
     ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
     ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
 
-    ``view_interval_s``: batches are handed to the viewer at most this often (merged; the status and text frames
+    ``view_interval_s``: batches are handed to the viewer at most this often, or once that much stream time
+    (``view_interval_s`` × 161.5 frames) waits (merged; the status and text frames
     that came meanwhile follow the merged batch, in stream order, and are timed by their own firmware time, so
     they never cut a batch): every Rerun log call costs a chunk per entity, and Rerun keeps some memory per chunk
     for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat. Call :meth:`tick`
@@ -486,6 +488,10 @@ class LivePipeline:
         from steval_link.decoder import StreamDecoder
 
         self.view_interval_s = view_interval_s
+        #: ... or once this many frames wait (the interval in stream time: a stream fed faster than real time, e.g.
+        #: catching up or a benchmark, still makes chunks of the same size, not bigger ones)
+        self.view_max_rows = max(1, math.ceil(view_interval_s * protocol.AHRS_RATE_HZ))
+        self._pending_rows = 0
         self._pending: list[AttitudeBatch] = []
         self._pending_events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
         self._pending_since = 0.0
@@ -542,9 +548,12 @@ class LivePipeline:
 
     def tick(self, now_mono: float | None = None) -> None:
         """Hand the pending frames to the viewer when they have waited ``view_interval_s``."""
-        if (self._pending or self._pending_events) and (
-            now_mono or time.monotonic()
-        ) - self._pending_since >= self.view_interval_s:
+        if not (self._pending or self._pending_events):
+            return
+        if (
+            self._pending_rows >= self.view_max_rows
+            or (now_mono or time.monotonic()) - self._pending_since >= self.view_interval_s
+        ):
             self.flush_view()
 
     def flush_view(self) -> None:
@@ -552,6 +561,7 @@ class LivePipeline:
         if self._pending:
             batch = AttitudeBatch.concat(self._pending)
             self._pending = []
+            self._pending_rows = 0
             self.viewer.log_batch(batch)
         if self._pending_events:
             events, self._pending_events = self._pending_events, []
@@ -597,6 +607,7 @@ class LivePipeline:
             if not self._pending and not self._pending_events:
                 self._pending_since = time.monotonic()
             self._pending.append(batch)
+            self._pending_rows += n
 
 
 # ----------------------------------------------------------------------------------------------------------------
