@@ -1,7 +1,7 @@
 """Serial transport: a reader thread that hands raw byte chunks with host times to a protocol object.
 
-The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until the line
-is quiet for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
+The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until no more
+bytes came for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
 and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding, estimation and logging live in
 the protocol (``steval_link.live``), never here.
 
@@ -16,6 +16,8 @@ Errors when opening a port are turned into one sentence with the fix by :func:`o
 from __future__ import annotations
 
 import errno
+import select
+import sys
 import threading
 import time
 from typing import Callable
@@ -24,9 +26,10 @@ import serial
 
 #: How long one read waits for a first byte, s (the tick of :meth:`Protocol.idle` on a silent port).
 READ_TIMEOUT_S = 0.05
-#: A chunk ends when the line has been quiet this long, s (0.5 ms: well under the ~1.2 ms idle time after each
-#: 58-byte frame at 115200 baud, so a chunk is usually one burst of frames and is handed on at once) ...
-CHUNK_GAP_S = 0.0005
+#: A chunk ends when no more bytes came for this long, s (0.2 ms: a USB adapter delivers a frame in one or a few
+#: bursts; the consumer decodes every chunk at once, so a short gap hands a complete frame on quickly, and the
+#: wait for more bytes returns as soon as they arrive: ``select`` on the port's descriptor) ...
+CHUNK_GAP_S = 0.0002
 #: ... or after this long since its first byte, s (bounds the latency of a continuous stream) ...
 CHUNK_MAX_S = 0.01
 #: ... or at this many bytes.
@@ -212,8 +215,15 @@ class SerialReader(threading.Thread):
             return data
         buf = bytearray(data)
         t_end = time.monotonic() + CHUNK_MAX_S
+        fd = _fileno(ser)
         while len(buf) < self.read_size and not self._stop_event.is_set():
-            time.sleep(CHUNK_GAP_S)
+            if fd is None:
+                time.sleep(CHUNK_GAP_S)
+            else:
+                try:
+                    select.select([fd], [], [], CHUNK_GAP_S)  # returns at once when bytes come
+                except (OSError, ValueError):
+                    time.sleep(CHUNK_GAP_S)
             n = ser.in_waiting
             if n == 0 or time.monotonic() >= t_end:
                 if n:
@@ -251,6 +261,17 @@ class SerialReader(threading.Thread):
             self.protocol.idle(self.clock.now_s())
             self._stop_event.wait(self.reconnect_poll_s)
         return False
+
+
+def _fileno(ser) -> int | None:
+    """The port's file descriptor where ``select`` works on it (POSIX), else ``None`` (then the gap is slept)."""
+    if sys.platform.startswith("win"):
+        return None
+    try:
+        fd = ser.fileno()
+    except (AttributeError, OSError, ValueError, serial.SerialException):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
 
 
 def _close_quietly(ser: serial.Serial) -> None:
