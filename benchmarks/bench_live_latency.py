@@ -4,17 +4,18 @@ A fake drone (separate process) writes attitude frames into a pseudo-terminal at
 162 steps, as the firmware). Each frame carries in ``t_us`` the writer's CLOCK_MONOTONIC time in µs (mod 2³²) taken
 as its bytes are written, so the reader can measure, per frame, ``logged - written`` on the same clock.
 
-Reader pipeline (the live path, one way): serial reader thread -> queue of chunks -> StreamDecoder -> estimators
-(seeded ST-Mahony port + accelerometer tilt, as ``steval_link.live.LiveEstimators``) -> ``LiveLogger.log_batch``
--> .rrd file sink. The latency of a frame is taken when ``log_batch`` returns for its batch.
+The measured path is the live session's own (``steval_link.live``): ``SerialReader`` thread with
+``RecorderProtocol`` (each chunk to a capture file first, then the session's ``Inbox``) -> the session's main
+loop -> ``LivePipeline`` (``StreamDecoder``, ``AttitudeBatch``, ``LiveEstimators``: the default estimators, e.g.
+the seeded ST port, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
+(``live.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its batch.
 
-``--reader transport`` (default when present) uses the project's ``steval_link.transport.SerialReader`` on the
-pty's slave; ``--reader own`` a minimal select()-based reader (returns as soon as bytes arrive), to tell the
-transport's read timeout apart from the logging cost.
+``--reader transport`` uses ``steval_link.transport.SerialReader`` on the pty's slave; ``--reader own`` a minimal
+select()-based reader (hands bytes on as soon as they arrive), to tell the transport's cost apart from the rest.
 
 Goal: p99 <= 5 ms at 161.5 Hz.
 
-    python benchmarks/bench_live_latency.py [--seconds 20] [--reader transport|own|both]
+    python benchmarks/bench_live_latency.py [--seconds 20] [--reader transport|own|both] [--runs 3] [--estimators ...]
 """
 
 from __future__ import annotations
@@ -22,14 +23,12 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
-import queue
 import select
 import tempfile
 import threading
 import time
 import tty
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -69,17 +68,18 @@ def fake_drone(master_fd: int, seconds: float, ready) -> None:
     time.sleep(0.3)
 
 
-class _Queue:
-    """What the reader thread hands the main thread: (bytes, host time) chunks."""
+class _OwnInbox:
+    """For ``--reader own``: what a minimal reader thread hands on (bytes with the host time)."""
 
-    def __init__(self) -> None:
-        self.q: queue.Queue = queue.Queue()
+    def __init__(self, inbox, clock) -> None:
+        self.inbox = inbox
+        self.clock = clock
 
-    def data_received(self, data: bytes, t_host_s: float) -> None:
-        self.q.put(data)
+    def data_received(self, data: bytes) -> None:
+        self.inbox.put(data, self.clock.now_s())
 
 
-def _own_reader(fd: int, sink: _Queue, stop: threading.Event) -> None:
+def _own_reader(fd: int, sink: _OwnInbox, stop: threading.Event) -> None:
     while not stop.is_set():
         r, _, _ = select.select([fd], [], [], 0.05)
         if r:
@@ -88,14 +88,45 @@ def _own_reader(fd: int, sink: _Queue, stop: threading.Event) -> None:
             except OSError:
                 return
             if data:
-                sink.data_received(data, time.time())
+                sink.data_received(data)
 
 
-def run_once(reader: str, seconds: float) -> dict:
-    from steval_link.decoder import StreamDecoder
-    from steval_link.frames import AttitudeFrame, StatusFrame
+class _TimedViewer:
+    """The live session's viewer side (``steval_link.live.ViewerLogger``: a ``LiveLogger`` on an .rrd sink) that
+    notes, for each frame, when ``log_batch`` returned for it."""
+
+    def __init__(self, logger) -> None:
+        self.logger = logger
+        self.lat_us: list[int] = []
+        self.log_ms: list[float] = []
+        self.batch_sizes: list[int] = []
+
+    def log_batch(self, batch) -> None:
+        t_a = time.perf_counter()
+        self.logger.log_batch(batch)
+        t_b = time.perf_counter()
+        done = now_us()
+        self.lat_us += [int((done - t) % U32) for t in batch.t_us.tolist()]
+        self.log_ms.append((t_b - t_a) * 1e3)
+        self.batch_sizes.append(len(batch))
+
+    def log_status(self, frame, t_host_s) -> None:
+        self.logger.log_status(frame, t_host_s)
+
+    def log_text(self, frame, t_host_s) -> None:
+        self.logger.log_text(frame, t_host_s)
+
+    def log_link(self, stats, t_host_s) -> None:
+        self.logger.log_link(stats, t_host_s)
+
+
+def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     from steval_viewer.live_log import LiveLogger
     from steval_viewer.sinks import SinkOptions, open_session
+
+    from steval_link import live
+    from steval_link.capture import CaptureWriter
+    from steval_link.transport import HostClock, SerialReader
 
     master, slave = os.openpty()
     tty.setraw(slave)
@@ -104,130 +135,87 @@ def run_once(reader: str, seconds: float) -> dict:
     writer = mp.get_context("fork").Process(target=fake_drone, args=(master, seconds, ready), daemon=True)
     writer.start()
 
-    inbox = _Queue()
+    tmp = Path(tempfile.mkdtemp())
+    capture = CaptureWriter(tmp / "live_bench.stv", port=slave_name, baud=115200)
+    clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
+    inbox = live.Inbox()
     stop = threading.Event()
-    ser = None
-    if reader == "transport":
+    if reader == "transport":  # the live session's reader thread: capture first, then the inbox
         import serial
 
-        from steval_link.transport import Protocol, SerialReader
-
-        class P(Protocol):
-            def data_received(self, data, t_host_s):
-                inbox.data_received(data, t_host_s)
-
-        ser = serial.Serial(slave_name, 115200, timeout=0.01)
-        thread = SerialReader(ser, P(), baud=115200)
+        ser = serial.Serial(slave_name, 115200, timeout=0.05)
+        proto = live.RecorderProtocol(capture, inbox, None, clock)
+        thread = SerialReader(ser, proto, baud=115200, clock=clock)
         thread.start()
     else:
-        thread = threading.Thread(target=_own_reader, args=(slave, inbox, stop), daemon=True)
+        thread = threading.Thread(target=_own_reader, args=(slave, _OwnInbox(inbox, clock), stop), daemon=True)
         thread.start()
 
-    estimators = None
-    try:
-        from steval_link.live import LiveEstimators
-
-        estimators = LiveEstimators(["st-mahony", "accel"])
-    except Exception:  # the live module is not there: log the firmware side only
-        estimators = None
-
-    out = Path(tempfile.mkdtemp()) / "live_bench.rrd"
+    out = tmp / "live_bench.rrd"
     session = open_session(SinkOptions(rrd=out))
-    logger = LiveLogger(session.rec, ["st-mahony", "accel"] if estimators else [])
-    dec = StreamDecoder()
-    lat_us: list[int] = []
-    log_ms: list[float] = []
+    viewer = _TimedViewer(LiveLogger(session.rec, estimators))
+    # the live viewer's path: every processing round is logged at once (live.VIEW_INTERVAL_S)
+    pipe = live.LivePipeline(estimators, viewer, view_interval_s=live.VIEW_INTERVAL_S)
     est_ms: list[float] = []
-    batch_sizes: list[int] = []
-    step = 0
+    process = pipe.estimators.process if pipe.estimators is not None else None
+    if process is not None:
+
+        def timed(batch, _process=process):
+            t = time.perf_counter()
+            _process(batch)
+            est_ms.append((time.perf_counter() - t) * 1e3)
+
+        pipe.estimators.process = timed
     ready.set()
     deadline = time.monotonic() + seconds + 1.5
-    while time.monotonic() < deadline:
-        try:
-            chunks = [inbox.q.get(timeout=0.05)]
-        except queue.Empty:
-            if not writer.is_alive() and inbox.q.empty():
-                break
-            continue
-        while True:  # everything that arrived meanwhile goes into the same batch (as the live session's inbox)
-            try:
-                chunks.append(inbox.q.get_nowait())
-            except queue.Empty:
-                break
-        frames = dec.feed(b"".join(chunks))
-        att = [f for f in frames if isinstance(f, AttitudeFrame)]
-        for f in frames:
-            if isinstance(f, StatusFrame) and estimators is not None:
-                estimators.status(f)
-        if not att:
-            continue
-        n = len(att)
-        batch = SimpleNamespace(
-            step=np.array([f.seq for f in att], dtype=np.int64),
-            t_us=np.array([f.t_us for f in att], dtype=np.int64),
-            t_host_s=np.full(n, time.time()),
-            acc_mg=np.array([f.acc_mg for f in att], dtype=np.float32),
-            gyro_mdps=np.array([f.gyro_mdps for f in att], dtype=np.float32),
-            q_wxyz=np.array([f.q_wxyz for f in att], dtype=np.float32),
-            thz_rad=np.array([f.thz_rad for f in att], dtype=np.float32),
-            thr=np.array([f.thr for f in att], dtype=np.int16),
-            finite=np.ones(n, dtype=bool),
-            exact=np.ones(n, dtype=bool),
-            thx_rad=np.full(n, np.nan, dtype=np.float32),
-            thy_rad=np.full(n, np.nan, dtype=np.float32),
-            estimates={},
-        )
-        batch = _Batch(batch)
-        t_e = time.perf_counter()
-        if estimators is not None:
-            estimators.process(batch)
-        t_a = time.perf_counter()
-        est_ms.append((t_a - t_e) * 1e3)
-        logger.log_batch(batch)
-        t_b = time.perf_counter()
-        done = now_us()
-        lat_us += [int((done - f.t_us) % U32) for f in att]
-        log_ms.append((t_b - t_a) * 1e3)
-        batch_sizes.append(n)
-        step += n
+    while time.monotonic() < deadline:  # the session's main loop (steval_link.live.LiveSession._loop)
+        chunks = inbox.get_all(0.02)
+        if chunks:
+            pipe.feed(chunks)
+            viewer.log_link(pipe.decoder.stats, clock.now_s())
+        pipe.tick(time.monotonic())
+        if not writer.is_alive() and not chunks:
+            break
     stop.set()
     if reader == "transport":
         thread.stop()
+    pipe.flush_view()
     writer.join(2)
     session.close()
+    capture.close()
     os.close(master)
     os.close(slave)
-    out.unlink(missing_ok=True)
-    lat = np.array(lat_us[int(RATE_HZ):], dtype=np.float64) / 1e3  # skip the first second (warm-up)
+    for f in tmp.iterdir():
+        f.unlink()
+    os.rmdir(tmp)
+    lat = np.array(viewer.lat_us[int(RATE_HZ):], dtype=np.float64) / 1e3  # skip the first second (warm-up)
     return {
         "reader": reader,
-        "frames": len(lat_us),
+        "frames": len(viewer.lat_us),
         "p50": float(np.percentile(lat, 50)),
         "p90": float(np.percentile(lat, 90)),
         "p99": float(np.percentile(lat, 99)),
         "max": float(lat.max()),
-        "log_p50": float(np.percentile(log_ms, 50)),
-        "log_p99": float(np.percentile(log_ms, 99)),
-        "batch_mean": float(np.mean(batch_sizes)),
-        "est_p50": float(np.percentile(est_ms, 50)),
+        "log_p50": float(np.percentile(viewer.log_ms, 50)),
+        "log_p99": float(np.percentile(viewer.log_ms, 99)),
+        "batch_mean": float(np.mean(viewer.batch_sizes)),
+        "est_p50": float(np.percentile(est_ms, 50)) if est_ms else 0.0,
     }
-
-
-class _Batch:
-    """An AttitudeBatch view for LiveEstimators.process (needs len())."""
-
-    def __init__(self, ns) -> None:
-        self.__dict__ = ns.__dict__
-
-    def __len__(self) -> int:
-        return int(self.step.shape[0])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--reader", choices=("transport", "own", "both"), default="both")
+    ap.add_argument(
+        "--estimators", default=None, help="comma list (default: the live session's defaults that are installed)"
+    )
+    ap.add_argument("--runs", type=int, default=1, help="repeat each reader this many times")
     args = ap.parse_args()
+    from steval_link.live import resolve_estimators
+
+    estimators = resolve_estimators(args.estimators)
+    print(f"estimators: {', '.join(estimators) or 'none'}; .rrd sink; {args.seconds:.0f} s per run")
     readers = ["transport", "own"] if args.reader == "both" else [args.reader]
     for r in readers:
         if r == "transport":
@@ -236,13 +224,14 @@ def main() -> None:
             except ImportError:
                 print("transport: steval_link.transport not present, skipped")
                 continue
-        res = run_once(r, args.seconds)
-        print(
-            f"reader {res['reader']:9s}: {res['frames']} frames at {RATE_HZ} Hz, latency last byte -> logged: "
-            f"p50 {res['p50']:.2f} ms, p90 {res['p90']:.2f} ms, p99 {res['p99']:.2f} ms, max {res['max']:.2f} ms "
-            f"(goal p99 <= 5 ms); log_batch p50 {res['log_p50']:.2f} ms p99 {res['log_p99']:.2f} ms; "
-            f"estimators p50 {res['est_p50']:.2f} ms; {res['batch_mean']:.2f} frames/batch"
-        )
+        for _ in range(args.runs):
+            res = run_once(r, args.seconds, estimators)
+            print(
+                f"reader {res['reader']:9s}: {res['frames']} frames at {RATE_HZ} Hz, latency last byte -> logged: "
+                f"p50 {res['p50']:.2f} ms, p90 {res['p90']:.2f} ms, p99 {res['p99']:.2f} ms, max {res['max']:.2f} ms "
+                f"(goal p99 <= 5 ms); log_batch p50 {res['log_p50']:.2f} ms p99 {res['log_p99']:.2f} ms; "
+                f"estimators p50 {res['est_p50']:.2f} ms; {res['batch_mean']:.2f} frames/batch"
+            )
 
 
 if __name__ == "__main__":

@@ -50,8 +50,11 @@ NO_FRAMES_TIMEOUT_S = 2.5
 #: ... or after this long once at least NO_FRAMES_EARLY_BYTES arrived without a valid frame.
 NO_FRAMES_EARLY_S = 1.0
 NO_FRAMES_EARLY_BYTES = 2048
-#: Frames go to a live viewer at most this often, s (a screen refresh: no visible latency, 5x fewer Rerun chunks) ...
-VIEW_INTERVAL_S = 1 / 30
+#: Frames go to a live viewer as soon as they are decoded (every processing round: latency goal p99 <= 5 ms,
+#: ``benchmarks/bench_live_latency.py``; a viewer over gRPC costs this process no memory per chunk) ...
+VIEW_INTERVAL_S = 0.0
+#: ... but at most this often when an ``.rrd`` is written too (its file sink keeps ~1 kB per chunk until it closes) ...
+VIEW_AND_RRD_INTERVAL_S = 1 / 30
 #: ... and to an ``.rrd`` nobody watches live at most this often, or once this much stream time waits. Rerun's file
 #: sink keeps about 1 kB per chunk for the file's footer (its manifest) until the file closes, and each batch is
 #: about one chunk per entity (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
@@ -849,9 +852,11 @@ class LiveSession:
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
         live_viewer = opts.view and viewer is not None
-        pipe = self.pipeline = LivePipeline(
-            opts.estimators, viewer, view_interval_s=VIEW_INTERVAL_S if live_viewer else RRD_ONLY_INTERVAL_S
-        )
+        if not live_viewer:
+            interval = RRD_ONLY_INTERVAL_S
+        else:
+            interval = VIEW_AND_RRD_INTERVAL_S if opts.rrd else VIEW_INTERVAL_S
+        pipe = self.pipeline = LivePipeline(opts.estimators, viewer, view_interval_s=interval)
         self.warned_no_frames = False
         was_connected = True
         while self._stop_reason is None:
