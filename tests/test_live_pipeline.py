@@ -88,6 +88,50 @@ def test_port_matches_the_offline_replay_bit_for_bit(first_step):
     assert np.isfinite(log.rows("accel")).all()
 
 
+def test_status_and_text_frames_do_not_cut_a_view_batch():
+    # 900 frames with 5 status frames and a text line, all within one view interval: one batch, then the events
+    data = flight_stream(900, text_lines=("STEVAL boot",))
+
+    class Ordered(BatchLog):
+        def __init__(self) -> None:
+            super().__init__()
+            self.order = []
+
+        def log_batch(self, batch) -> None:
+            super().log_batch(batch)
+            self.order.append("batch")
+
+        def log_status(self, frame, t_host_s) -> None:
+            super().log_status(frame, t_host_s)
+            self.order.append("status")
+
+        def log_text(self, frame, t_host_s) -> None:
+            super().log_text(frame, t_host_s)
+            self.order.append("text")
+
+    log = Ordered()
+    pipe = LivePipeline(["st-mahony"], log, view_interval_s=3600.0)
+    feed_in_chunks(pipe, data)
+    assert log.order == []  # 900 frames are 5.6 s of stream: still pending
+    pipe.flush_view()
+    n_status = len(decode_bytes(data).status)
+    assert n_status >= 5
+    assert log.order[0] == "batch"
+    assert log.order.count("batch") == 1 and log.order.count("status") == n_status and log.order.count("text") == 1
+    assert len(log.batches[0]) == 900
+    assert pipe.port.rows_mismatch == 0 and pipe.port.rows_exact > 0  # the port still saw each snapshot in order
+
+
+def test_view_batches_are_bounded_in_stream_time():
+    data = flight_stream(900)
+    log = BatchLog()
+    pipe = LivePipeline(["accel"], log, view_interval_s=1.0)  # at most ~162 frames per batch, however fast fed
+    feed_in_chunks(pipe, data)  # fed in one go, far faster than real time
+    pipe.flush_view()
+    sizes = [len(b) for b in log.batches]
+    assert sum(sizes) == 900 and max(sizes) <= 2 * 162 and len(sizes) >= 3
+
+
 def test_port_resyncs_after_lost_frames_and_follows_lab_settings():
     # ETH exercise 4: KI = 1.0, reported by the status frames; frames 300..309 lost on the link
     data = flight_stream(800, first_step=1000, ki=1.0)

@@ -240,6 +240,17 @@ def test_time_unwrapper_crosses_the_u32_wrap():
     assert b[0] - a[1] == pytest.approx(1500e-6)
 
 
+def test_time_unwrapper_nearest_places_a_status_time_next_to_the_attitude_rows():
+    u = TimeUnwrapper()
+    u.seconds(np.array([P.T_US_MODULUS - 1000, 500]))  # crossed the wrap
+    assert u.nearest(500) == pytest.approx((P.T_US_MODULUS + 500) / 1e6)
+    assert u.nearest(P.T_US_MODULUS - 1000) == pytest.approx((P.T_US_MODULUS - 1000) / 1e6)  # from before it
+    v = TimeUnwrapper()
+    v.seconds(np.array([P.T_US_MODULUS - 1000]))
+    assert v.nearest(200) == pytest.approx((P.T_US_MODULUS + 200) / 1e6)  # already past the next wrap
+    assert v.wraps == 0 and v.last == P.T_US_MODULUS - 1000  # nearest() changes nothing
+
+
 def _views(container):
     """Every view of a blueprint container, depth first."""
     for child in container.contents:
