@@ -99,6 +99,20 @@ class StatusArrays:
         return len(self.step)
 
 
+def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dtype, frame_size) -> np.ndarray:
+    """Records of ``record_dtype`` from the binary payloads starting at ``payload_starts`` in the byte array ``arr``
+    (fields of ``payload_dtype`` copied; ``offset``/``nbytes`` of the frame; ``exact`` True)."""
+    win = np.lib.stride_tricks.sliding_window_view(arr, payload_dtype.itemsize)
+    pay = np.ascontiguousarray(win[payload_starts]).view(payload_dtype).reshape(-1)
+    rec = np.empty(len(pay), record_dtype)
+    for name in payload_dtype.names:
+        rec[name] = pay[name]
+    rec["offset"] = frame_starts
+    rec["nbytes"] = frame_size
+    rec["exact"] = True
+    return rec
+
+
 class TelemetryParts:
     """Accumulates decoded rows (numpy blocks or single frames) before :meth:`Telemetry.from_parts`."""
 
@@ -113,14 +127,8 @@ class TelemetryParts:
         """Binary attitude frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
         if len(payload_starts) == 0:
             return
-        win = np.lib.stride_tricks.sliding_window_view(arr, P.ATTITUDE_PAYLOAD_SIZE)
-        pay = np.ascontiguousarray(win[payload_starts]).view(P.ATTITUDE_DTYPE).reshape(-1)
-        rec = np.empty(len(pay), ATT_RECORD_DTYPE)
-        for name in P.ATTITUDE_DTYPE.names:
-            rec[name] = pay[name]
-        rec["offset"] = frame_starts
-        rec["nbytes"] = P.ATTITUDE_FRAME_SIZE
-        rec["exact"] = True
+        rec = _payload_records(arr, payload_starts, frame_starts, P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE,
+                               P.ATTITUDE_FRAME_SIZE)
         rec["step"] = -1
         rec["thx_rad"] = np.nan
         rec["thy_rad"] = np.nan
@@ -130,15 +138,8 @@ class TelemetryParts:
         """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
         if len(payload_starts) == 0:
             return
-        win = np.lib.stride_tricks.sliding_window_view(arr, P.STATUS_PAYLOAD_SIZE)
-        pay = np.ascontiguousarray(win[payload_starts]).view(P.STATUS_DTYPE).reshape(-1)
-        rec = np.empty(len(pay), STA_RECORD_DTYPE)
-        for name in P.STATUS_DTYPE.names:
-            rec[name] = pay[name]
-        rec["offset"] = frame_starts
-        rec["nbytes"] = P.STATUS_FRAME_SIZE
-        rec["exact"] = True
-        self.sta_blocks.append(rec)
+        self.sta_blocks.append(_payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE,
+                                                STA_RECORD_DTYPE, P.STATUS_FRAME_SIZE))
 
     def add_frame(self, frame: Frame) -> None:
         if isinstance(frame, AttitudeFrame):
