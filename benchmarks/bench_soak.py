@@ -5,11 +5,19 @@ every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-termina
 child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST port, accel, EKF),
 and the child's resident memory (VmRSS, and the peak VmHWM) is sampled once a second.
 
+With ``--viewer`` the child also streams to a live viewer: ``steval live --connect URL --rrd ...`` where URL is a
+real Rerun gRPC server (``rr.serve_grpc``, the message proxy a viewer reads from) run headless in this benchmark's
+process with a 64 MB buffer limit; only the child's memory is measured. The viewer stream gets every processing
+round at once and the ``.rrd`` its own stream of the same recording, merged every 30 s. Faster than real time the
+viewer gets fewer, larger rounds per hour of stream than a real session (~30 per s): ``--speed 1`` measures it at the
+real cadence.
+
 Printed: a table of stream time fed / wall time / RSS, the peak RSS, and the growth of RSS from 10 % of the stream
 to its end scaled to one hour of stream. Goal: flat memory, growth < 10 MB per hour of stream.
 
     python benchmarks/bench_soak.py                   # 60 min of stream at 40x the real rate, with --rrd
     python benchmarks/bench_soak.py --minutes 10 --no-rrd --speed 50   # 50x the real rate, no Rerun at all
+    python benchmarks/bench_soak.py --viewer          # live viewer (headless gRPC server) and --rrd
 """
 
 from __future__ import annotations
@@ -55,7 +63,12 @@ def main() -> None:
         "one core), or 'max': as fast as the serial reader consumes it (the pipeline then falls behind and drops "
         "frames from the live view only; the capture keeps everything)",
     )
-    ap.add_argument("--no-rrd", action="store_true", help="no --rrd (then no Rerun at all)")
+    ap.add_argument("--no-rrd", action="store_true", help="no --rrd (then no Rerun at all, unless --viewer)")
+    ap.add_argument(
+        "--viewer",
+        action="store_true",
+        help="also stream to a live viewer: --connect to a headless Rerun gRPC server in this process",
+    )
     ap.add_argument("--estimators", default=None, help="passed to --estimators (default: the CLI's default)")
     ap.add_argument("--keep", action="store_true", help="keep the capture and .rrd (prints the folder)")
     args = ap.parse_args()
@@ -68,7 +81,20 @@ def main() -> None:
         f"(made in {time.perf_counter() - t0:.1f} s)"
     )
     tmp = Path(tempfile.mkdtemp(prefix="steval-soak-"))
-    cmd = ["live", "--no-view", "--port", str(tmp / "ttyUSB0"), "--out", str(tmp / "soak.stv")]
+    cmd = ["live", "--port", str(tmp / "ttyUSB0"), "--out", str(tmp / "soak.stv")]
+    if args.viewer:
+        import socket
+
+        import rerun as rr
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            grpc_port = s.getsockname()[1]
+        server = rr.RecordingStream("bench-soak-viewer-server", make_default=False, make_thread_default=False)
+        url = rr.serve_grpc(grpc_port=grpc_port, recording=server, server_memory_limit="64MB")
+        cmd += ["--connect", url]
+    else:
+        cmd.insert(1, "--no-view")
     if not args.no_rrd:
         cmd += ["--rrd", str(tmp / "soak.rrd")]
     if args.estimators:
@@ -121,6 +147,16 @@ def main() -> None:
         f"growth from 10 % to the end: {rss_end - rss_10:+.1f} MB = {growth_per_h:+.1f} MB per hour of stream "
         f"(goal < 10 MB/h): {'OK' if growth_per_h < 10 else 'TOO MUCH'}"
     )
+    rrd = tmp / "soak.rrd"
+    if rrd.exists():
+        from steval_viewer import entities as ent
+        from steval_viewer.rrd_check import read_rrd
+
+        rows = read_rrd(rrd).samples.get(ent.pitch_path(ent.SOURCE_FIRMWARE), 0)
+        print(
+            f".rrd {rrd.stat().st_size / 1e6:.1f} MB reads back with {rows} of {n_steps} frames: "
+            f"{'complete' if rows == n_steps else 'INCOMPLETE'}"
+        )
     if args.keep:
         print(f"files kept in {tmp}")
     else:

@@ -53,11 +53,10 @@ NO_FRAMES_EARLY_BYTES = 2048
 #: Frames go to a live viewer as soon as they are decoded (every processing round: latency goal p99 <= 5 ms,
 #: ``benchmarks/bench_live_latency.py``; a viewer over gRPC costs this process no memory per chunk) ...
 VIEW_INTERVAL_S = 0.0
-#: ... but at most this often when an ``.rrd`` is written too (its file sink keeps ~1 kB per chunk until it closes) ...
-VIEW_AND_RRD_INTERVAL_S = 1 / 30
-#: ... and to an ``.rrd`` nobody watches live at most this often, or once this much stream time waits. Rerun's file
-#: sink keeps about 1 kB per chunk for the file's footer (its manifest) until the file closes, and each batch is
-#: about one chunk per entity (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
+#: ... and to an ``.rrd`` at most this often, or once this much stream time waits (with a live viewer too, the file
+#: has its own stream of the same recording, fed these merged batches). Rerun's file sink keeps about 1 kB per
+#: chunk for the file's footer (its manifest) until the file closes, and each batch is about one chunk per entity
+#: (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
 RRD_ONLY_INTERVAL_S = 30.0
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
@@ -471,6 +470,59 @@ class HealthDisplay:
             self._dirty = False
 
 
+class BatchOutlet:
+    """One logger fed merged batches at its own cadence (see :class:`LivePipeline`).
+
+    ``logger`` takes ``log_batch(batch)``, ``log_status(frame, t_host_s)`` and ``log_text(frame, t_host_s)``.
+    Batches wait at most ``interval_s`` (monotonic wall time) or ``interval_s`` × 161.5 frames of stream time (a
+    stream fed faster than real time, e.g. catching up or a benchmark, still makes chunks of the same size).
+    """
+
+    def __init__(self, logger, interval_s: float) -> None:
+        self.logger = logger
+        self.interval_s = interval_s
+        self.max_rows = max(1, math.ceil(interval_s * protocol.AHRS_RATE_HZ))
+        self._batches: list[AttitudeBatch] = []
+        self._rows = 0
+        self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
+        self._since = 0.0  # monotonic time the oldest pending item came
+
+    def _touch(self) -> None:
+        if not self._batches and not self._events:
+            self._since = time.monotonic()
+
+    def add_batch(self, batch: AttitudeBatch) -> None:
+        self._touch()
+        self._batches.append(batch)
+        self._rows += len(batch)
+
+    def add_event(self, kind: str, frame, t_host_s: float) -> None:
+        self._touch()
+        self._events.append((kind, frame, t_host_s))
+
+    def tick(self, now_mono: float | None = None) -> None:
+        """Flush when the pending frames have waited ``interval_s`` or fill ``max_rows``."""
+        if not (self._batches or self._events):
+            return
+        if self._rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Log every pending frame now: one merged batch, then the status and text frames in stream order."""
+        if self._batches:
+            batch = AttitudeBatch.concat(self._batches)
+            self._batches = []
+            self._rows = 0
+            self.logger.log_batch(batch)
+        if self._events:
+            events, self._events = self._events, []
+            for kind, frame, t_host_s in events:
+                if kind == "status":
+                    self.logger.log_status(frame, t_host_s)
+                else:
+                    self.logger.log_text(frame, t_host_s)
+
+
 class LivePipeline:
     """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
 
@@ -483,25 +535,36 @@ class LivePipeline:
     (``view_interval_s`` × 161.5 frames) waits (merged; the status and text frames
     that came meanwhile follow the merged batch, in stream order, and are timed by their own firmware time, so
     they never cut a batch): every Rerun log call costs a chunk per entity, and Rerun keeps some memory per chunk
-    for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat. Call :meth:`tick`
+    for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat.
+
+    ``file_logger``: a second logger (the ``.rrd``'s own stream next to a live viewer) that gets the same frames
+    merged at its own cadence, ``file_interval_s``. Each logger gets every frame once. Call :meth:`tick`
     regularly and :meth:`flush_view` at the end.
     """
 
-    def __init__(self, estimator_names: list[str], viewer=None, *, view_interval_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        estimator_names: list[str],
+        viewer=None,
+        *,
+        view_interval_s: float = 0.0,
+        file_logger=None,
+        file_interval_s: float = RRD_ONLY_INTERVAL_S,
+    ) -> None:
         from steval_link.decoder import StreamDecoder
 
         self.view_interval_s = view_interval_s
-        #: ... or once this many frames wait (the interval in stream time: a stream fed faster than real time, e.g.
-        #: catching up or a benchmark, still makes chunks of the same size, not bigger ones)
-        self.view_max_rows = max(1, math.ceil(view_interval_s * protocol.AHRS_RATE_HZ))
-        self._pending_rows = 0
-        self._pending: list[AttitudeBatch] = []
-        self._pending_events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
-        self._pending_since = 0.0
+        #: the loggers, each with its own cadence (the viewer first)
+        self.outlets = [
+            BatchOutlet(logger, interval_s)
+            for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
+            if logger is not None
+        ]
         self.decoder = StreamDecoder()
         self.health = LinkHealth()
         self.estimators = LiveEstimators(estimator_names) if estimator_names else None
         self.viewer = viewer
+        self.file_logger = file_logger
         self.step_unwrap = StepUnwrapper()
         #: the first bytes of the current connection (to describe a stream without frames)
         self.sample = bytearray()
@@ -516,7 +579,7 @@ class LivePipeline:
         """Decode and process chunks received at host times ``t_host_s`` (s, Unix epoch), in stream order."""
         from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
 
-        viewer = self.viewer
+        outlets = self.outlets
         att: list[tuple[object, float]] = []
         for data, t_host_s in chunks:
             if len(self.sample) < SAMPLE_BYTES:
@@ -531,7 +594,7 @@ class LivePipeline:
                     self.step_unwrap.status(int(frame.step))
                     if self.estimators is not None:
                         self.estimators.status(frame)
-                    if viewer is not None:
+                    if outlets:
                         self._event("status", frame, t_host_s)
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
@@ -539,40 +602,24 @@ class LivePipeline:
                     self.health.text += 1
                     self.health.last_text = frame.text
                     self.texts.append(frame.text)
-                    if viewer is not None:
+                    if outlets:
                         self._event("text", frame, t_host_s)
         self._attitude(att)
         self.tick()
 
     def _event(self, kind: str, frame, t_host_s: float) -> None:
-        if not self._pending and not self._pending_events:
-            self._pending_since = time.monotonic()
-        self._pending_events.append((kind, frame, t_host_s))
+        for outlet in self.outlets:
+            outlet.add_event(kind, frame, t_host_s)
 
     def tick(self, now_mono: float | None = None) -> None:
-        """Hand the pending frames to the viewer when they have waited ``view_interval_s``."""
-        if not (self._pending or self._pending_events):
-            return
-        if (
-            self._pending_rows >= self.view_max_rows
-            or (now_mono or time.monotonic()) - self._pending_since >= self.view_interval_s
-        ):
-            self.flush_view()
+        """Hand the pending frames to each logger whose interval has passed."""
+        for outlet in self.outlets:
+            outlet.tick(now_mono)
 
     def flush_view(self) -> None:
-        """Hand every pending frame to the viewer now: one merged batch, then the status and text frames."""
-        if self._pending:
-            batch = AttitudeBatch.concat(self._pending)
-            self._pending = []
-            self._pending_rows = 0
-            self.viewer.log_batch(batch)
-        if self._pending_events:
-            events, self._pending_events = self._pending_events, []
-            for kind, frame, t_host_s in events:
-                if kind == "status":
-                    self.viewer.log_status(frame, t_host_s)
-                else:
-                    self.viewer.log_text(frame, t_host_s)
+        """Hand every pending frame to every logger now: one merged batch each, then the status and text frames."""
+        for outlet in self.outlets:
+            outlet.flush()
 
     def _attitude(self, att: list) -> None:
         if not att:
@@ -606,11 +653,8 @@ class LivePipeline:
         self.health.count(n, float(batch.t_host_s[0]), float(batch.t_host_s[-1]))
         if self.estimators is not None:
             self.estimators.process(batch)
-        if self.viewer is not None:
-            if not self._pending and not self._pending_events:
-                self._pending_since = time.monotonic()
-            self._pending.append(batch)
-            self._pending_rows += n
+        for outlet in self.outlets:
+            outlet.add_batch(batch)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -689,7 +733,8 @@ class LiveSession:
 
     ``stream``: where the health line and notes go (stderr). ``viewer_factory(options) -> logger`` makes the
     Rerun side (``None``: :func:`make_viewer_logger`); the logger takes ``log_batch(batch)``, ``log_status(frame)``,
-    ``log_text(t_host_s, text)``, ``log_health(...)`` and ``close()``.
+    ``log_text(t_host_s, text)``, ``log_health(...)`` and ``close()``; an optional ``file`` attribute (another such
+    logger: the ``.rrd``'s own stream next to a live viewer) is fed merged batches every RRD_ONLY_INTERVAL_S.
     """
 
     def __init__(
@@ -852,11 +897,14 @@ class LiveSession:
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
         live_viewer = opts.view and viewer is not None
-        if not live_viewer:
-            interval = RRD_ONLY_INTERVAL_S
-        else:
-            interval = VIEW_AND_RRD_INTERVAL_S if opts.rrd else VIEW_INTERVAL_S
-        pipe = self.pipeline = LivePipeline(opts.estimators, viewer, view_interval_s=interval)
+        # a live viewer gets every round at once; an .rrd merged batches (its own stream when a viewer runs too)
+        pipe = self.pipeline = LivePipeline(
+            opts.estimators,
+            viewer,
+            view_interval_s=VIEW_INTERVAL_S if live_viewer else RRD_ONLY_INTERVAL_S,
+            file_logger=getattr(viewer, "file", None) if live_viewer else None,
+            file_interval_s=RRD_ONLY_INTERVAL_S,
+        )
         self.warned_no_frames = False
         was_connected = True
         while self._stop_reason is None:
@@ -1018,6 +1066,11 @@ class StepUnwrapper:
 class ViewerLogger:
     """The Rerun side of a live session: the sinks of ``options`` and a :class:`steval_viewer.live_log.LiveLogger`.
 
+    ``log_batch``/``log_status``/``log_text`` go to the session's main stream (the viewer's; the ``.rrd``'s when
+    there is no viewer). With a viewer *and* ``--rrd`` the file has its own stream of the same recording and its
+    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (Rerun's file
+    sink keeps ~1 kB per chunk until the file closes); ``log_link`` goes to both; ``close`` flushes and closes both.
+
     Imported only when a viewer or an ``.rrd`` is asked for (``--no-view`` without ``--rrd``: no Rerun at all).
     """
 
@@ -1032,8 +1085,14 @@ class ViewerLogger:
         )
         if options.view:
             sink_options = sinks.resolve_sinks(sink_options)
-        self.session = sinks.open_session(sink_options, recording_name=recording_name)
+        self.session = sinks.open_session(sink_options, recording_name=recording_name, split_file=True)
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
+        self.file: live_log.LiveLogger | None = None
+        if self.session.file_rec is not None:
+            # same host-time origin as the live view, so the .rrd lines up with it when opened together
+            self.file = live_log.LiveLogger(
+                self.session.file_rec, estimator_names=options.estimators, t0_from=self.logger
+            )
 
     def log_batch(self, batch: AttitudeBatch) -> None:
         self.logger.log_batch(batch)
@@ -1046,10 +1105,17 @@ class ViewerLogger:
 
     def log_link(self, stats, t_host_s: float) -> None:
         self.logger.log_link(stats, t_host_s)
+        if self.file is not None:
+            self.file.log_link(stats, t_host_s)
 
     def close(self) -> None:
+        """Send what the loggers hold and finish both streams (the ``.rrd`` is complete afterwards)."""
         try:
-            self.logger.close()
+            try:
+                self.logger.close()
+            finally:
+                if self.file is not None:
+                    self.file.close()
         finally:
             self.session.close()
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from ptyfeed import PtyFeeder, flight_stream
+from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
 from steval_link import protocol
 from steval_link.decoder import decode_bytes
 from steval_link.estimators.st_mahony import bits_equal, replay_firmware
@@ -269,3 +269,82 @@ def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
     assert pipe.decoder.pending_bytes < 64 * 1024 and len(pipe.sample) <= 4096
     # several MB went through; resident memory did not follow them
     assert max(rss) - rss[0] < 40 * 1024 * 1024
+
+
+def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete(tmp_path):
+    # a live viewer (an in-process Rerun gRPC server, reached with --connect) and --rrd at once: the viewer gets every
+    # processing round at once, the .rrd its own stream of the same recording with merged batches; stopping the
+    # session (what Ctrl-C does) leaves a complete .rrd with every frame exactly once
+    import socket
+
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    from steval_link import live
+    from steval_viewer import entities as ent
+    from steval_viewer.rrd_check import read_rrd
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        grpc_port = s.getsockname()[1]
+    server = rr.RecordingStream("test-viewer-server", make_default=False, make_thread_default=False)
+    url = rr.serve_grpc(grpc_port=grpc_port, recording=server, server_memory_limit="64MB")
+
+    n_frames = 1200
+    data = flight_stream(n_frames, text_lines=("STEVAL boot",))
+    n_status = len(decode_bytes(data).status)
+    rrd = tmp_path / "live.rrd"
+    made = []
+    received: dict[str, list[int]] = {"live": [], "file": []}
+
+    def factory(options, name):
+        viewer = live.make_viewer_logger(options, name)
+        for key, logger in (("live", viewer.logger), ("file", viewer.file)):
+            orig = logger.log_batch
+            logger.log_batch = lambda batch, orig=orig, key=key: (received[key].append(len(batch)), orig(batch))
+        made.append(viewer)
+        return viewer
+
+    opts = LiveOptions(
+        out=tmp_path / "cap.stv", rrd=rrd, connect=url, wait=True, estimators=["st-mahony", "accel"]
+    )
+    err = io.StringIO()
+    with PtyFeeder(data, tmp_path / "ttyUSB0", bytes_per_s=8 * REAL_BYTES_PER_S) as feeder:
+        opts.port = str(feeder.link)
+        session = LiveSession(opts, stream=err, tty=False, viewer_factory=factory)
+
+        def drive():
+            deadline = time.monotonic() + 30
+            while not made and time.monotonic() < deadline:
+                time.sleep(0.05)
+            feeder.start()
+            while time.monotonic() < deadline:
+                pipe = getattr(session, "pipeline", None)
+                if pipe is not None and pipe.health.attitude >= n_frames:
+                    break
+                time.sleep(0.05)
+            session.request_stop("interrupted")
+
+        t = threading.Thread(target=drive)
+        t.start()
+        summary = session.run()
+        t.join()
+
+    assert summary.attitude == n_frames, err.getvalue()
+    viewer = made[0]
+    # two streams, one recording: the viewer's has no file sink, the file's is its own
+    assert viewer.file is not None and viewer.session.file_rec is not viewer.session.rec
+    assert viewer.session.file_rec.get_recording_id() == viewer.session.rec.get_recording_id()
+    # the viewer got the frames round by round; the file the same frames in few merged batches
+    assert sum(received["live"]) == n_frames and len(received["live"]) > 5
+    assert sum(received["file"]) == n_frames and len(received["file"]) <= 2
+    entry = RrdReader(str(rrd)).recordings()[0]
+    assert entry.recording_id == viewer.session.rec.get_recording_id()
+    info = read_rrd(rrd)
+    assert info.has_blueprint and info.application_id == "steval-link"
+    for path in (ent.pitch_path("firmware"), ent.roll_path("firmware"), ent.PLOT_ACC, ent.PLOT_GYRO,
+                 ent.pitch_path("accel"), ent.pitch_path(ent.SOURCE_PORT), ent.DIFF_THX):
+        assert info.samples[path] == n_frames, path  # every frame once (nothing logged twice into the file)
+    assert info.samples[ent.DRONE_FIRMWARE] >= 1
+    assert info.samples[ent.LINK_CYCLES] == n_status
+    assert info.samples[ent.LOG_FIRMWARE] == 1

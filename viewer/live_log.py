@@ -17,6 +17,10 @@ same). Status and link rows (about 1 Hz) are queued and sent with the next batch
 layout is the replay's (:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on
 ``host_time``). ``host_time`` is seconds since the first logged frame (Unix-epoch inputs are converted);
 ``fw_time`` is the firmware's ``t_us`` unwrapped across its 2³² µs wrap.
+
+With a live viewer and an ``.rrd`` the session runs two loggers, one per stream of the same recording
+(``sinks.open_session(..., split_file=True)``): the viewer's gets every round, the file's merged batches and
+``t0_from=`` the viewer's logger, so ``host_time`` agrees between them.
 """
 
 from __future__ import annotations
@@ -229,7 +233,8 @@ class LiveLogger:
     ``rec``: the recording (``sinks.open_session(...).rec``). ``estimator_names``: the names the session will put
     in ``batch.estimates`` (known up front so the blueprint and the series styles are sent once). ``ghost``: which
     estimate the 3D ghost shows (default: the ST port, else EKF3...). ``t0_host_s``: host time origin (default:
-    the first frame's host time).
+    the first frame's host time). ``t0_from``: another LiveLogger of the same recording whose origin this one takes
+    when it has one (a live session's ``.rrd`` stream follows its viewer stream, so both share ``host_time``).
     """
 
     def __init__(
@@ -240,8 +245,10 @@ class LiveLogger:
         ghost: str | None = None,
         t0_host_s: float | None = None,
         blueprint: bool = True,
+        t0_from: "LiveLogger | None" = None,
     ) -> None:
         self.rec = rec
+        self.t0_from = t0_from
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
         if blueprint:
@@ -269,6 +276,8 @@ class LiveLogger:
     # -- time ------------------------------------------------------------------------------------------------
     def _host(self, t_host_s: np.ndarray) -> np.ndarray:
         t = np.asarray(t_host_s, dtype=np.float64)
+        if self.t0_host_s is None and self.t0_from is not None:
+            self.t0_host_s = self.t0_from.t0_host_s
         if self.t0_host_s is None:
             finite = t[np.isfinite(t)]
             if finite.size:

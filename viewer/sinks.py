@@ -2,7 +2,10 @@
 (``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
 
 ``open_session(...)`` returns a :class:`ViewerSession` whose ``rec`` (a ``rerun.RecordingStream``) is handed to
-the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With no sink
+the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With
+``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one recording (same application
+and recording id, so both open as one): ``rec`` to the viewer and ``file_rec`` to the file, each logged at its own
+cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer wants every frame at once). With no sink
 chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
 (headless runs, CI), and nothing at all fails with one clear sentence.
 
@@ -50,24 +53,39 @@ class SinkOptions:
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it."""
+    """An open recording and the processes serving it.
+
+    ``rec``: the stream to log to (every sink; with ``open_session(split_file=True)`` and a viewer plus an
+    ``.rrd``: the viewer's sinks only). ``file_rec``: the ``.rrd``'s own stream of the same recording in that
+    split case, else None.
+    """
 
     rec: rr.RecordingStream
     options: SinkOptions
     web_url: str | None = None
     children: list[subprocess.Popen] = field(default_factory=list)
+    file_rec: rr.RecordingStream | None = None
+
+    @property
+    def streams(self) -> list[rr.RecordingStream]:
+        """Every stream of the session (``rec`` first)."""
+        return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
     def flush(self) -> None:
         """Push everything logged so far to the sinks."""
-        self.rec.flush()
+        for rec in self.streams:
+            rec.flush()
 
     def close(self) -> None:
         """Flush and finish the recording (the ``.rrd`` file is complete afterwards). A spawned native viewer
         keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer` first to keep it up)."""
         try:
-            self.rec.flush()
+            for rec in self.streams:
+                try:
+                    rec.flush()
+                finally:
+                    rec.disconnect()
         finally:
-            self.rec.disconnect()
             for child in self.children:
                 _stop_child(child)
             self.children.clear()
@@ -194,8 +212,13 @@ def open_session(
     *,
     recording_name: str | None = None,
     application_id: str = APPLICATION_ID,
+    split_file: bool = False,
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
+
+    ``split_file``: when a viewer and an ``.rrd`` are both chosen, the file gets its own stream
+    (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
+    caller can log to each at its own cadence; the two are one recording when opened together.
 
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
@@ -204,13 +227,15 @@ def open_session(
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     sinks: list = []
+    file_sinks: list = []
+    viewer = bool(options.spawn or options.serve or options.connect)
     if options.rrd is not None:
         path = Path(options.rrd)
         if path.parent and not path.parent.exists():
             raise UserError(f"cannot write {path}: folder {path.parent} does not exist")
         if path.is_dir():
             raise UserError(f"cannot write {path}: it is a folder")
-        sinks.append(rr.FileSink(str(path)))
+        (file_sinks if split_file and viewer else sinks).append(rr.FileSink(str(path)))
     if options.spawn:
         port = options.grpc_port if _port_free(options.grpc_port) else _free_port()
         try:
@@ -233,8 +258,15 @@ def open_session(
         except Exception as exc:
             raise UserError(f"cannot connect to {url}: {exc}") from None
     rec.set_sinks(*sinks)
+    if file_sinks:
+        file_rec = rr.RecordingStream(
+            application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
+        )
+        file_rec.set_sinks(*file_sinks)
+        session.file_rec = file_rec
     if recording_name:
-        rec.send_recording_name(recording_name)
+        for stream in session.streams:
+            stream.send_recording_name(recording_name)
     return session
 
 
