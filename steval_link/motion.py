@@ -32,6 +32,7 @@ import numpy as np
 
 from steval_link import sensor_model as sm
 from steval_link.broad import quat_multiply
+from steval_link.estimators.base import quaternion_from_euler
 from steval_link.errors import UserError
 
 __all__ = [
@@ -43,7 +44,6 @@ __all__ = [
     "build_profile",
     "broad_profile",
     "tick_times_s",
-    "quat_from_angles",
     "parse_throttle",
 ]
 
@@ -87,19 +87,6 @@ def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
 
 
 # ---- quaternions (float64, wxyz) ---------------------------------------------------------------------------------
-
-def quat_from_angles(thx, thy, yaw) -> np.ndarray:
-    """``Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)`` as (N, 4) wxyz; ``QuaternionToEuler`` of it gives back (thx, thy)."""
-    cf, sf = np.cos(thx / 2), np.sin(thx / 2)
-    ct, st = np.cos(thy / 2), np.sin(thy / 2)
-    cp, sp = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.stack([
-        cp * ct * cf + sp * st * sf,
-        cp * ct * sf - sp * st * cf,
-        cp * st * cf + sp * ct * sf,
-        sp * ct * cf - cp * st * sf,
-    ], axis=-1)
-
 
 def _rotmat(q) -> np.ndarray:
     """(N, 3, 3) rotation matrices body → earth of unit quaternions (N, 4)."""
@@ -224,7 +211,7 @@ class _Kinematics:
     thr: Callable = _zero  #: throttle profile (float, before RC sampling)
 
     def q(self, t) -> np.ndarray:
-        return quat_from_angles(self.thx(t), self.thy(t), self.yaw(t))
+        return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
 
 
 # ---- rendering ---------------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
+from steval_link.estimators.base import quaternion_from_euler as euler_quaternion
 from steval_viewer import entities as ent
 
 
@@ -154,17 +155,7 @@ def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.nd
 def quaternion_from_euler(thx_rad, thy_rad, thz_rad=None) -> np.ndarray:
     """(N, 4) wxyz body -> earth quaternion whose firmware ``QuaternionToEuler`` gives back (thx, thy): the
     z-y-x rotation qz(thz) qy(thy) qx(thx). For text-mode rows, which carry angles but no q, so the 3D view can
-    still show the attitude (thz: the firmware's gyro-integrated yaw, 0 when None)."""
-    ax = np.asarray(thx_rad, dtype=np.float64) / 2
-    ay = np.asarray(thy_rad, dtype=np.float64) / 2
-    az = np.zeros_like(ax) if thz_rad is None else np.nan_to_num(np.asarray(thz_rad, dtype=np.float64)) / 2
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    return np.stack(
-        [
-            cz * cy * cx + sz * sy * sx,
-            cz * cy * sx - sz * sy * cx,
-            cz * sy * cx + sz * cy * sx,
-            sz * cy * cx - cz * sy * sx,
-        ],
-        axis=-1,
-    )
+    still show the attitude (thz: the firmware's gyro-integrated yaw, 0 when None or NaN)."""
+    thx = np.asarray(thx_rad, dtype=np.float64)
+    thz = np.zeros_like(thx) if thz_rad is None else np.nan_to_num(np.asarray(thz_rad, dtype=np.float64))
+    return euler_quaternion(thx, thy_rad, thz)

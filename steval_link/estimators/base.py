@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AttitudeEstimate", "Estimator", "euler_from_quaternion", "yaw_from_quaternion"]
+__all__ = ["AttitudeEstimate", "Estimator", "euler_from_quaternion", "quaternion_from_euler", "yaw_from_quaternion"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,19 @@ class AttitudeEstimate:
 
     def __len__(self) -> int:
         return int(self.thx_rad.shape[0])
+
+
+def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
+    """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``), float64: the
+    inverse of :func:`euler_from_quaternion` (the firmware's ``QuaternionToEuler`` of it gives back thx, thy)."""
+    hx, hy, hz = (0.5 * np.asarray(a, dtype=np.float64) for a in (thx_rad, thy_rad, thz_rad))
+    cx, sx, cy, sy, cz, sz = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy), np.cos(hz), np.sin(hz)
+    return np.stack([
+        cz * cy * cx + sz * sy * sx,
+        cz * cy * sx - sz * sy * cx,
+        cz * sy * cx + sz * cy * sx,
+        sz * cy * cx - cz * sy * sx,
+    ], axis=-1)
 
 
 def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

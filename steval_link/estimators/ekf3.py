@@ -50,7 +50,7 @@ import math
 
 import numpy as np
 
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, quaternion_from_euler
 from steval_link.sensor_model import AHRS_HZ
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -65,18 +65,6 @@ NATIVE_AVAILABLE = _native is not None
 
 _MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
 _MIN_COS = 1e-3
-
-
-def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
-    """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``)."""
-    hx, hy, hz = (0.5 * np.asarray(a, dtype=np.float64) for a in (thx_rad, thy_rad, thz_rad))
-    cx, sx, cy, sy, cz, sz = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy), np.cos(hz), np.sin(hz)
-    return np.stack([
-        cz * cy * cx + sz * sy * sx,
-        cz * cy * sx - sz * sy * cx,
-        cz * sy * cx + sz * cy * sx,
-        sz * cy * cx - cz * sy * sx,
-    ], axis=-1)
 
 
 def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
