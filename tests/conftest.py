@@ -116,3 +116,19 @@ def frame_keys(frames) -> list[tuple]:
         else:
             out.append(("t", f.offset, f.text))
     return out
+
+
+def run_cli(monkeypatch, capsys, *args):
+    """``steval`` as a user runs it (``sys.argv`` and ``main()``): returns (exit code, stdout, stderr)."""
+    import sys
+
+    from steval_link.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["steval", *map(str, args)])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    out, err = capsys.readouterr()
+    return code, out, err

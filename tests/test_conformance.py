@@ -3,31 +3,18 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from steval_link.cli import main
 from steval_link.estimators.conformance import COLUMNS, check_conformance, load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, run
+from conftest import run_cli
 
 CONFORMANCE_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120"
 CSV_FILES = sorted(CONFORMANCE_DIR.glob("*.csv")) if CONFORMANCE_DIR.is_dir() else []
 needs_shared = pytest.mark.skipif(not CSV_FILES, reason="shared conformance vectors (../shared) not present")
-
-
-def run_cli(monkeypatch, capsys, *args):
-    """``steval`` as a user runs it: returns (exit code, stdout, stderr)."""
-    monkeypatch.setattr(sys, "argv", ["steval", *map(str, args)])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def write_vectors(path: Path, acc, gyro, thr, q, thx, thy, comment="# synthetic") -> Path:

@@ -7,30 +7,18 @@ import importlib.util
 import io
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from steval_link.cli import main
 from steval_link.estimators.conformance import load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, bits_equal, run
 from steval_link.simulate import run_simulation
+from conftest import run_cli
 
 BASELINE = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120" / "lab5_baseline.csv"
 needs_baseline = pytest.mark.skipif(not BASELINE.is_file(), reason="shared conformance vectors (../shared) not present")
-
-
-def run_cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["steval", *map(str, args)])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def parse_csv(text: str) -> dict[str, np.ndarray]:
