@@ -13,6 +13,7 @@ Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -20,6 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link.errors import UserError
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
@@ -31,6 +33,7 @@ from steval_viewer.columns import (
     send_scalars,
     send_transforms,
 )
+from steval_viewer.sinks import open_session
 
 _MASK_NAMES = ("valid", "mask", "seeded")
 
@@ -304,19 +307,35 @@ def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any
 
 def replay_sink(options: Any, *, recording_name: str | None = None):
     """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
-    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first)."""
-    from steval_viewer.sinks import open_session
+    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
 
+    The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
+    spawned native viewer stays open after the sink returns."""
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}
         name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
-        session = open_session(options, recording_name=name)
+        session = open_session(options, recording_name=name, atomic_rrd=True)
         try:
             log_telemetry(session.rec, tel, estimates)
             session.flush()
             if options.serve:
                 session.wait_for_viewer()
-        finally:
-            session.close()
+        except UserError:  # a viewer went away: the .rrd is still complete
+            try:
+                session.close()
+            except UserError:
+                pass
+            _say_written(options.rrd)
+            raise
+        except BaseException:  # Ctrl-C, SIGTERM: no half file
+            session.close(complete=False)
+            raise
+        session.close()
+        _say_written(options.rrd)
 
     return sink
+
+
+def _say_written(rrd: Path | None) -> None:
+    if rrd is not None:
+        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)
