@@ -7,6 +7,7 @@ import sys
 import typer
 
 from steval_link.cli.app import app
+from steval_link.cli.signals import signals_interrupt
 from steval_link.errors import UserError
 
 # Each import registers its sub-command(s) on ``app`` (one per line; add yours below).
@@ -46,16 +47,20 @@ def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type
 
 
 _USAGE_ERRORS, _EXITS, _ABORTS = _exception_classes()
+#: exit code of a command ended by Ctrl-C (128 + SIGINT), as shells report it
+_INTERRUPTED = 130
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``steval`` console script.
 
     User errors (:class:`UserError`) become one line on stderr and exit code 2; usage errors print the usage and
-    exit 2; ``--help`` exits 0; Ctrl-C exits 130. Never a traceback for bad input.
+    exit 2; ``--help`` exits 0; Ctrl-C exits 130, and SIGTERM/SIGHUP end it the same way (its cleanup runs).
+    Never a traceback for bad input.
     """
     try:
-        rv = app(args=argv, prog_name="steval", standalone_mode=False)
+        with signals_interrupt():
+            rv = app(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
         print(f"steval: error: {exc}", file=sys.stderr)
         sys.exit(exc.exit_code)
@@ -66,8 +71,10 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(getattr(exc, "exit_code", getattr(exc, "code", 0)))
     except (*_ABORTS, KeyboardInterrupt):
         print("steval: interrupted", file=sys.stderr)
-        sys.exit(130)
+        sys.exit(_INTERRUPTED)
     except BrokenPipeError:  # e.g. `steval replay --json | head`
         sys.stderr.close()
         sys.exit(1)
+    if rv == _INTERRUPTED:  # typer turns KeyboardInterrupt into this exit code without a word
+        print("steval: interrupted", file=sys.stderr)
     sys.exit(rv if isinstance(rv, int) else 0)

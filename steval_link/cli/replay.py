@@ -6,7 +6,8 @@ Replay is a pipeline, one stage per step of the data flow::
     run_estimators(tel, names)    Telemetry → {name: AttitudeEstimate}   (estimators.registry)
     sinks                         each ``sink(tel, estimates)``: summary printing, Rerun .rrd, ...
 
-:func:`replay_pipeline` runs them; ``steval replay`` builds the sink list from its options.
+``steval replay`` checks its Rerun options first (before the work), then runs the stages and hands the result to
+the summary and, when asked, to the Rerun sink (``steval_viewer.replay_log.replay_sink``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ import json
 import sys
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -23,10 +23,20 @@ import typer
 
 from steval_link.capture import CaptureTruncatedWarning, demo_capture_path, load_telemetry
 from steval_link.cli.app import app
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+    sink_options,
+)
 from steval_link.errors import UserError
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 from steval_link.summary import format_summary, summarize
 
-__all__ = ["ReplayResult", "load_replay", "run_estimators", "replay_pipeline", "DEFAULT_ESTIMATORS"]
+__all__ = ["load_replay", "run_estimators", "DEFAULT_ESTIMATORS"]
 
 #: Estimators a sink that shows attitudes (Rerun) runs by default: the firmware's filter (the viewer shows it as the
 #: bit-exact port seeded from status snapshots), accelerometer-only tilt and both EKFs.
@@ -34,12 +44,6 @@ DEFAULT_ESTIMATORS: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
 Sink = Callable[[Any, dict[str, Any]], None]
-
-
-@dataclass
-class ReplayResult:
-    telemetry: Any
-    estimates: dict[str, Any] = field(default_factory=dict)
 
 
 def load_replay(path: Path | None) -> tuple[Any, list[str]]:
@@ -67,30 +71,6 @@ def run_estimators(tel, names: Sequence[str]) -> dict[str, Any]:
             raise UserError(f"estimator {name!r} is {why}")
         out[name] = estimate
     return out
-
-
-def replay_pipeline(
-    path: Path | None, *, estimators: Sequence[str] = (), sinks: Sequence[Sink] = ()
-) -> ReplayResult:
-    """load → Telemetry → estimators → sinks."""
-    tel, _ = load_replay(path)
-    estimates = run_estimators(tel, estimators)
-    for sink in sinks:
-        sink(tel, estimates)
-    return ReplayResult(tel, estimates)
-
-
-def rrd_sink(out: Path) -> Sink:
-    """Sink writing a Rerun recording to ``out``."""
-    return viewer_sink(rrd=out)
-
-
-def viewer_sink(*, rrd: Path | None = None, spawn: bool = False, serve: bool = False, connect: str | None = None) -> Sink:
-    """Sink logging the replay to Rerun (``steval_viewer``): an .rrd file and/or a viewer."""
-    from steval_viewer.replay_log import replay_sink
-    from steval_viewer.sinks import SinkOptions
-
-    return replay_sink(SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd))
 
 
 def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
@@ -123,17 +103,13 @@ def replay(
             show_default=False,
         ),
     ] = None,
-    rrd: Annotated[
-        Optional[Path], typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file.")
-    ] = None,
+    rrd: RrdOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (for scripts).")] = False,
-    spawn: Annotated[bool, typer.Option("--spawn", help="Show the replay in a native Rerun viewer.")] = False,
-    serve: Annotated[
-        bool, typer.Option("--serve", help="Show the replay in the Rerun web viewer on 127.0.0.1 (Ctrl-C to stop).")
-    ] = False,
-    connect: Annotated[
-        Optional[str], typer.Option("--connect", help="Send the replay to a running Rerun viewer at this gRPC URL.")
-    ] = None,
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Annotated[
         Optional[str],
         typer.Option(
@@ -145,17 +121,30 @@ def replay(
         ),
     ] = None,
 ) -> None:
-    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings."""
-    tel, seen = load_replay(capture)
+    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
+
+    With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
+    web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none."""
     viewer = rrd is not None or spawn or serve or connect
-    names = _estimator_names(estimators) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
-    # the summary first: a --serve viewer keeps running until Ctrl-C
-    sinks: list[Sink] = [summary_sink(as_json, seen)]
-    if viewer:
-        sinks.append(viewer_sink(rrd=rrd, spawn=spawn, serve=serve, connect=connect))
-    estimates = run_estimators(tel, names)
-    for sink in sinks:
-        sink(tel, estimates)
+    options = None
+    if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        options = sink_options(
+            rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
+        )
+    try:
+        tel, seen = load_replay(capture)
+        names = _estimator_names(estimators) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
+        estimates = run_estimators(tel, names)
+        # the summary first: a --serve viewer keeps running until Ctrl-C
+        summary_sink(as_json, seen)(tel, estimates)
+        if options is not None:
+            from steval_viewer.replay_log import replay_sink  # Rerun loads only when a viewer or .rrd is asked for
+
+            replay_sink(options)(tel, estimates)
+    except KeyboardInterrupt:
+        if rrd is not None:  # the sink writes it whole or not at all (an earlier file there stays as it was)
+            print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
+        raise
 
 
 def _estimator_names(text: str) -> tuple[str, ...]:
