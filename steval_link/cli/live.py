@@ -10,8 +10,17 @@ import typer
 
 from steval_link import protocol
 from steval_link.cli.app import app
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+)
 from steval_link.errors import UserError
 from steval_link.live import LiveOptions, LiveSession, resolve_estimators
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 _PORT_HELP = "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), or 'auto': the one that carries frames."
 _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
@@ -30,11 +39,13 @@ def live_command(
     out: Optional[Path] = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
     ),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Also save the Rerun recording to this .rrd file."),
+    rrd: RrdOption = None,
     no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
-    spawn: bool = typer.Option(False, "--spawn", help="Start a native Rerun viewer (the default view)."),
-    serve: bool = typer.Option(False, "--serve", help="Serve the recording to a web viewer instead."),
-    connect: Optional[str] = typer.Option(None, "--connect", help="Send to a running Rerun viewer at this URL."),
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Optional[str] = typer.Option(
         None,
         "--estimators",
@@ -67,6 +78,8 @@ def live_command(
         spawn=spawn,
         serve=serve,
         connect=connect,
+        web_port=web_port,
+        grpc_port=grpc_port,
         estimators=resolve_estimators(estimators),
         duration_s=duration,
         wait=wait,
