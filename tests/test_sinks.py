@@ -166,3 +166,37 @@ def test_live_rrd_without_a_display_is_as_small_as_no_view(tmp_path):
     default = _live_rrd_size(tmp_path, "default")
     no_view = _live_rrd_size(tmp_path, "no_view", "--no-view")
     assert default <= 1.5 * no_view, (default, no_view)
+
+
+def test_a_viewer_that_stops_taking_data_ends_the_flush_with_one_sentence(tmp_path):
+    """A viewer frozen mid-stream (SIGSTOP): the flush gives up after its bound instead of hanging; one killed
+    while we wait: 'cannot be reached'."""
+    import numpy as np
+    import rerun as rr
+
+    from steval_viewer.sinks import _flush_bounded, start_web_viewer, stop_child
+
+    child, _page, url = start_web_viewer(free_port(), free_port())
+    try:
+        rec = rr.RecordingStream("steval-link-test", make_default=False, make_thread_default=False)
+        rec.set_sinks(rr.GrpcSink(url))
+        rec.log("x", rr.Scalars([1.0]))
+        _flush_bounded(rec, 10.0, url)  # a live viewer takes it
+        child.send_signal(signal.SIGSTOP)
+        for i in range(60):  # more than the socket buffers hold
+            seq = np.arange(100_000) + i * 100_000
+            rec.send_columns("y", indexes=[rr.TimeColumn("s", sequence=seq)],
+                             columns=rr.Scalars.columns(scalars=np.random.default_rng(i).random(100_000)))
+        t0 = time.monotonic()
+        with pytest.raises(UserError, match=r"did not take the data within 2 s"):
+            _flush_bounded(rec, 2.0, url)
+        assert time.monotonic() - t0 < 4.0
+        child.kill()
+        child.wait(10)
+        with pytest.raises(UserError, match="cannot be reached"):
+            _flush_bounded(rec, 2.0, url)
+        rec.disconnect()
+    finally:
+        if child.poll() is None:
+            child.send_signal(signal.SIGCONT)
+        stop_child(child)

@@ -27,6 +27,7 @@ Processes:
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -57,6 +58,8 @@ APPLICATION_ID = "steval-link"
 VIEWER_START_TIMEOUT_S = 20.0
 #: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
 FLUSH_TIMEOUT_S = 120.0
+#: a flush is waited for in slices this long (Ctrl-C is handled between two)
+FLUSH_SLICE_S = 0.25
 #: suffix of an ``.rrd`` being written by a session opened with ``atomic_rrd=True``
 PARTIAL_SUFFIX = ".partial"
 
@@ -93,7 +96,10 @@ class ViewerSession:
         """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
         (it was closed, or the URL is no Rerun viewer)."""
         for rec in self.streams:
-            _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
+            self._flush_stream(rec, timeout_s)
+
+    def _flush_stream(self, rec: rr.RecordingStream, timeout_s: float) -> None:
+        _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
 
     def close(self, *, complete: bool = True) -> None:
         """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
@@ -105,7 +111,7 @@ class ViewerSession:
             for rec in self.streams:
                 try:
                     if complete:
-                        _flush_bounded(rec, FLUSH_TIMEOUT_S, self.viewer_url if rec is self.rec else None)
+                        self._flush_stream(rec, FLUSH_TIMEOUT_S)
                 except UserError as exc:  # a viewer that went away; the file still closes whole below
                     error = error or exc
                 finally:
@@ -142,15 +148,22 @@ class ViewerSession:
 
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
-    """``rec.flush`` with a bound; a viewer that cannot be reached or does not keep up is a UserError."""
-    try:
-        rec.flush(timeout_sec=timeout_s)
-    except RuntimeError as exc:  # Rerun raises RuntimeError for a sink that failed or a flush that timed out
+    """``rec.flush`` with a bound, waited for in short slices so that Ctrl-C gets through at once; a viewer that
+    cannot be reached or does not keep up within ``timeout_s`` is a UserError."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            rec.flush(timeout_sec=min(FLUSH_SLICE_S, max(0.01, deadline - time.monotonic())))
+            return
+        except RuntimeError as exc:  # Rerun raises RuntimeError for a sink that failed or a flush that timed out
+            text = str(exc)
+            timed_out = "timed out" in text.lower()
+            if timed_out and time.monotonic() < deadline:
+                continue
         where = f"the Rerun viewer at {viewer_url}" if viewer_url else "the Rerun sink"
-        text = str(exc)
-        if "connect" in text:
+        if not timed_out:
             raise UserError(f"{where} cannot be reached (closed?); nothing more was sent to it") from None
-        raise UserError(f"{where} did not take the data within {timeout_s:.0f} s ({text})") from None
+        raise UserError(f"{where} did not take the data within {timeout_s:.0f} s") from None
 
 
 def rerun_command() -> list[str]:
@@ -234,8 +247,6 @@ def _wait_listening(child: subprocess.Popen, port: int, timeout_s: float, what: 
 
 def _last_line(log_path: Path) -> str:
     """The last meaningful line a viewer printed (ANSI colours removed), for an error message."""
-    import re
-
     try:
         text = log_path.read_text(errors="replace")
     except OSError:
