@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import sys
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,8 +20,9 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.capture import CaptureTruncatedWarning, demo_capture_path, load_telemetry
+from steval_link.capture import demo_capture_path, read_source, telemetry_of_source
 from steval_link.cli.app import app
+from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.summary import format_summary, summarize
 
@@ -42,26 +42,30 @@ class ReplayResult:
     estimates: dict[str, Any] = field(default_factory=dict)
 
 
-def load_replay(path: Path | None) -> tuple[Any, list[str]]:
+def load_replay(path: Path | None, progress: Progress | None = None) -> tuple[Any, list[str]]:
     """Stage 1: the :class:`~steval_link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
     warnings met while reading it (e.g. a capture cut short)."""
+    progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", CaptureTruncatedWarning)
-        tel = load_telemetry(path)
-    msgs = [str(w.message) for w in caught if issubclass(w.category, CaptureTruncatedWarning)]
-    return tel, msgs
+    progress(0.0, f"reading {path.name}")
+    src = read_source(path)
+    progress(0.2, "decoding")
+    tel = telemetry_of_source(src)
+    progress(1.0, "decoded")
+    return tel, list(src.warnings)
 
 
-def run_estimators(tel, names: Sequence[str]) -> dict[str, Any]:
+def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) -> dict[str, Any]:
     """Stage 2: run each named estimator (``steval_link.estimators.registry``) from power-up over every attitude
     row's inputs (``acc_mg``, ``gyro_mdps``, ``thr``; decimated text-mode rows at their row rate); returns
     name → ``AttitudeEstimate``. Raises UserError for an unknown or uninstalled estimator."""
     from steval_link.estimators.runner import row_decimation, run_estimator
 
+    progress = scaled(progress, 0.0, 1.0)
     decimation = row_decimation(tel)
     out = {}
-    for name in names:
+    for i, name in enumerate(names):
+        progress(i / len(names), f"estimator {name}")
         estimate, why = run_estimator(name, tel, decimation=decimation)
         if estimate is None:
             raise UserError(f"estimator {name!r} is {why}")
@@ -85,12 +89,13 @@ def rrd_sink(out: Path) -> Sink:
     return viewer_sink(rrd=out)
 
 
-def viewer_sink(*, rrd: Path | None = None, spawn: bool = False, serve: bool = False, connect: str | None = None) -> Sink:
+def viewer_sink(*, rrd: Path | None = None, spawn: bool = False, serve: bool = False, connect: str | None = None,
+                progress: Progress | None = None) -> Sink:
     """Sink logging the replay to Rerun (``steval_viewer``): an .rrd file and/or a viewer."""
     from steval_viewer.replay_log import replay_sink
     from steval_viewer.sinks import SinkOptions
 
-    return replay_sink(SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd))
+    return replay_sink(SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd), progress=progress)
 
 
 def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
@@ -146,18 +151,17 @@ def replay(
     ] = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings."""
-    tel, seen = load_replay(capture)
+    from steval_link.live import resolve_estimators
+
     viewer = rrd is not None or spawn or serve or connect
-    names = _estimator_names(estimators) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
-    # the summary first: a --serve viewer keeps running until Ctrl-C
-    sinks: list[Sink] = [summary_sink(as_json, seen)]
-    if viewer:
-        sinks.append(viewer_sink(rrd=rrd, spawn=spawn, serve=serve, connect=connect))
-    estimates = run_estimators(tel, names)
-    for sink in sinks:
-        sink(tel, estimates)
-
-
-def _estimator_names(text: str) -> tuple[str, ...]:
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    return () if names in ((), ("none",)) else names
+    names = tuple(resolve_estimators(estimators)) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
+    with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
+        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0))
+        # the summary first: a --serve viewer keeps running until Ctrl-C
+        sinks: list[Sink] = [summary_sink(as_json, seen)]
+        if viewer:
+            sinks.append(viewer_sink(rrd=rrd, spawn=spawn, serve=serve, connect=connect,
+                                     progress=scaled(progress, 0.5, 1.0)))
+        estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
+        for sink in sinks:
+            sink(tel, estimates)
