@@ -300,7 +300,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             return "chunk CRC mismatch"
         return kind, length, t, end
 
-    problems: list[str] = []
+    damaged: list[tuple[int, int, str]] = []  # (file byte, length, why) of each damaged stretch skipped
+    cut: str | None = None
     while pos < n:
         found = chunk_at(pos)
         if isinstance(found, str):
@@ -311,12 +312,10 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
                     resume = m.start()
                     break
             if resume is None:
-                problems.append(
-                    f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
-                    f"data up to the last complete chunk, {n - pos} trailing bytes ignored"
-                )
+                cut = (f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
+                       f"data up to the last complete chunk, {n - pos} trailing bytes ignored")
                 break
-            problems.append(f"{resume - pos} damaged bytes at file byte {pos} ({found}) skipped")
+            damaged.append((pos, resume - pos, found))
             events.append(CaptureEvent(times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes "
                                        "unreadable here", total))
             pos = resume
@@ -335,6 +334,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             except (ValueError, UnicodeDecodeError, AttributeError):
                 events.append(CaptureEvent(t, "unreadable-event", "", total))
         pos = end + 4
+    problems = ([_damage_summary(damaged)] if damaged else []) + ([cut] if cut else [])
     warning = f"{path}: " + "; ".join(problems) + "." if problems else None
     if warning is not None:
         warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
@@ -348,6 +348,19 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         truncated=warning is not None,
         warning=warning,
     )
+
+
+#: Damaged stretches a warning lists by position; the rest are counted.
+DAMAGE_LISTED = 3
+
+
+def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
+    """One short sentence for any number of damaged stretches: count, bytes, the first few file byte ranges."""
+    listed = ", ".join(f"{p}–{p + k - 1} ({why})" for p, k, why in damaged[:DAMAGE_LISTED])
+    more = f" and {len(damaged) - DAMAGE_LISTED} more" if len(damaged) > DAMAGE_LISTED else ""
+    places = "1 place" if len(damaged) == 1 else f"{len(damaged)} places"
+    total = sum(k for _, k, _ in damaged)
+    return f"{total} damaged bytes in {places} skipped (file bytes {listed}{more})"
 
 
 @dataclass

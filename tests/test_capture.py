@@ -218,3 +218,34 @@ def test_header_is_json_documented_fields(tmp_path):
     head = json.loads(raw[12 : 12 + n])
     assert set(head) == {"format", "format_version", "port", "baud", "start_time_utc", "start_time_unix_s",
                          "tool_version", "extra"}
+
+
+def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuilder, monkeypatch, capsys):
+    """A capture damaged in 60 places (e.g. a flaky SD card) warns once: count, bytes, the first few byte ranges,
+    not one clause per place (that used to be a 13 kB line)."""
+    import json
+
+    from conftest import run_cli
+
+    data = stream.flight(1200, status_every=0).bytes()
+    path = write_capture(tmp_path / "flaky.stv", data, 500)
+    raw = bytearray(path.read_bytes())
+    header_end = 12 + int.from_bytes(raw[8:12], "little") + 4
+    starts, pos = [], header_end
+    while pos < len(raw):
+        starts.append(pos)
+        pos += 13 + int.from_bytes(raw[pos + 1 : pos + 5], "little") + 4
+    hit = starts[1:-1:2][:60]
+    for p in hit:
+        raw[p + 13 + 100] ^= 0xFF  # inside the payload: CRC mismatch
+    path.write_bytes(bytes(raw))
+
+    code, out, err = run_cli(monkeypatch, capsys, "replay", path)
+    assert code == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("steval: warning:") and len(lines[0]) < 400, err
+    first = hit[0]
+    assert f"{len(hit)} places" in err and f"{first}–{first + 517 - 1}" in err and f"and {len(hit) - 3} more" in err
+    assert f"{517 * len(hit)} damaged bytes" in err
+    code, out, err = run_cli(monkeypatch, capsys, "replay", path, "--json")
+    assert code == 0 and [len(w) < 400 for w in json.loads(out)["warnings"]] == [True]
