@@ -41,6 +41,7 @@ __all__ = [
     "load_telemetry",
     "read_capture",
     "read_source",
+    "resolve_capture_out",
 ]
 
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
@@ -117,7 +118,8 @@ class CaptureWriter:
     the capture started; default: now on ``time.monotonic``). ``mark_event(kind, text)`` stores an event (e.g.
     "disconnect"/"reconnect"). Every chunk is handed to the OS immediately (nothing is lost on ``kill -9``); a
     background thread ``fsync``\\s pending data at least every :data:`SYNC_INTERVAL_S` (power cuts). An existing
-    file is never overwritten (``FileExistsError``).
+    file is never overwritten (``FileExistsError``). ``discard_empty``: a capture that got no serial bytes at all
+    is deleted on :meth:`close` (it would hold only its header); ``discarded`` then says so.
     """
 
     def __init__(
@@ -129,6 +131,7 @@ class CaptureWriter:
         tool_version: str | None = None,
         extra: dict[str, Any] | None = None,
         sync_interval_s: float = SYNC_INTERVAL_S,
+        discard_empty: bool = False,
     ) -> None:
         if tool_version is None:
             from steval_link import __version__ as tool_version
@@ -149,6 +152,8 @@ class CaptureWriter:
         self._lock = threading.Lock()
         self._dirty = False
         self._closed = False
+        self._discard_empty = bool(discard_empty)
+        self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
         self._write_all(_file_header(self.header))
         self._sync()
@@ -200,6 +205,12 @@ class CaptureWriter:
             self._sync()
             self._closed = True
             self._file.close()
+            if self._discard_empty and self.bytes_written == 0:
+                try:
+                    self.path.unlink()
+                    self.discarded = True
+                except OSError:  # e.g. removed meanwhile: nothing left behind either way
+                    self.discarded = not self.path.exists()
 
     def __enter__(self) -> CaptureWriter:
         return self
@@ -231,6 +242,33 @@ class CaptureWriter:
                     continue
                 self._dirty = False
             os.fsync(self._file.fileno())
+
+
+def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out") -> Path | None:
+    """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
+
+    None stays None (the default ``recordings/steval-<UTC>.stv``); an existing directory means "write inside it"
+    (``DIR/steval-<UTC>.stv``); a file name must be in an existing directory (no folders are created at random
+    places: a typo stays a typo) and must not exist yet (captures are never overwritten). Raises
+    :class:`~steval_link.errors.UserError` otherwise.
+    """
+    if out is None:
+        return None
+    path = Path(out).expanduser()
+    if path.is_dir():
+        from steval_link.live import default_capture_path
+
+        return default_capture_path(path)
+    if str(out).endswith(("/", os.sep)):
+        raise UserError(f"{option} {out}: directory {path} does not exist (create it first)")
+    if path.exists():
+        raise UserError(f"{option} {path} already exists; choose another name (captures are never overwritten)")
+    parent = path.parent
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise UserError(f"{option} {path}: directory {parent} {what} (create it first, or give an existing "
+                        "directory to write a capture inside it)")
+    return path
 
 
 def _read_bytes(path: Path) -> bytes:
