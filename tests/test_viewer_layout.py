@@ -50,8 +50,8 @@ def test_angle_legends_sit_where_the_demo_has_no_data(demo_rrd):
     assert pitch_deg[(t > 10) & (t < 20)].min() < -25
     late = t > 0.55 * t[-1]
     assert pitch_deg[late].max() < 0.6 * pitch_deg.max()
-    # one-series plots need no legend (their title names the series)
-    for origin in (ent.PLOT_YAW, ent.PLOT_THROTTLE, ent.LINK_RATE, ent.LINK_QUEUE):
+    # one-series plots need no legend (their title names the series; the cycles plot lists max, mean, min top down)
+    for origin in (ent.PLOT_YAW, ent.PLOT_THROTTLE, ent.LINK_RATE, ent.LINK_QUEUE, ent.LINK_CYCLES):
         view = next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == origin)
         assert view["PlotLegend:visible"] is False, origin
 

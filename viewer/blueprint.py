@@ -31,11 +31,12 @@ def _time_ranges(live: bool, timeline: str):
     )
 
 
-def legend_corner(live: bool, bottom: bool = False) -> rrb.Corner2D:
+def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
     """Where a plot's legend sits: on the right in a replay (the end of a flight, usually calm: the demo's pitch
     dip near 17 s stays clear of it), on the left live, where the right edge is the newest data; at the top, or at
-    the bottom for plots whose top holds data (the accelerometer's z ≈ +1000 mg)."""
-    if live:
+    the bottom for plots whose top holds data (the accelerometer's z ≈ +1000 mg); ``left``: on the left in a replay
+    too (cumulative counts, which start low)."""
+    if live or left:
         return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
     return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
 
@@ -55,7 +56,7 @@ def axis_limit(max_abs: float) -> float | None:
 
 
 def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_range=None, *,
-            legend: bool = True, legend_bottom: bool = False) -> rrb.TimeSeriesView:
+            legend: bool = True, legend_bottom: bool = False, legend_left: bool = False) -> rrb.TimeSeriesView:
     """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
     kwargs = {}
     if y_range is not None:
@@ -65,7 +66,7 @@ def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_
         contents=contents if contents is not None else "$origin/**",
         name=name,
         time_ranges=_time_ranges(live, timeline),
-        plot_legend=rrb.PlotLegend(corner=legend_corner(live, legend_bottom), visible=legend),
+        plot_legend=rrb.PlotLegend(corner=legend_corner(live, legend_bottom, legend_left), visible=legend),
         **kwargs,
     )
 
@@ -112,8 +113,10 @@ def make_blueprint(
                 live,
                 timeline,
                 contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
+                legend_left=True,
             ),
-            _series(ent.LINK_CYCLES, "AHRS cycles per step (min/mean/max)", live, timeline),
+            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean, min)", live, timeline,
+                    legend=False),
             _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
