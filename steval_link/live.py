@@ -30,7 +30,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, TextIO
 
@@ -38,6 +37,7 @@ import numpy as np
 import serial
 
 from steval_link import autodetect, protocol
+from steval_link.capture import CaptureWriter, default_capture_path
 from steval_link.errors import UserError
 from steval_link.transport import HostClock, Protocol, SerialReader, open_error_message, open_serial
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks, resolve_sinks
@@ -68,18 +68,6 @@ DEFAULT_ESTIMATORS = ("st-mahony", "accel", "ekf3")
 
 class LinkError(UserError):
     """The port carries no valid frames (wrong baud rate, another device, silence): one line, exit code 2."""
-
-
-def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
-    """``recordings/steval-YYYYmmddTHHMMSSZ.stv`` (UTC); a ``-2``, ``-3``... suffix keeps it unique."""
-    now = now or datetime.now(timezone.utc)
-    stem = "steval-" + now.strftime("%Y%m%dT%H%M%SZ")
-    path = Path(directory) / f"{stem}.stv"
-    k = 2
-    while path.exists():
-        path = Path(directory) / f"{stem}-{k}.stv"
-        k += 1
-    return path
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -707,6 +695,7 @@ class LiveSummary:
     live_dropped_bytes: int
     port_note: str | None
     stopped_by: str
+    capture_discarded: bool = False  # no byte came: the header-only file was removed
 
     def line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
@@ -725,7 +714,10 @@ class LiveSummary:
             parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
         if self.port_note:
             parts.append(self.port_note)
-        out = f"capture {self.capture_path} ({_fmt_bytes(self.bytes_total)})"
+        if self.capture_discarded:
+            out = "no byte received, so no capture file was kept"
+        else:
+            out = f"capture {self.capture_path} ({_fmt_bytes(self.bytes_total)})"
         if self.rrd_path:
             out += f", rerun {self.rrd_path}"
         return "recorded " + ", ".join(parts) + "; " + out
@@ -798,8 +790,6 @@ class LiveSession:
 
     def run(self) -> LiveSummary:
         opts = self.options
-        from steval_link.capture import CaptureWriter
-
         if opts.uses_rerun:
             viewer_sink_options(opts)  # e.g. no display and no --rrd: say so before anything is opened
         path, ser = self._open_port()
@@ -810,6 +800,7 @@ class LiveSession:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
             capture = CaptureWriter(
                 capture_path,
+                discard_empty=True,  # a session that got no byte leaves no header-only file behind
                 port=path,
                 baud=opts.baud,
                 extra={"device": identity.device, "usb": identity.describe(), "estimators": list(opts.estimators)},
@@ -866,7 +857,9 @@ class LiveSession:
         elif error is not None:
             raise error
         seconds = time.monotonic() - t0
-        return self._summary(capture_path, seconds, proto, inbox)
+        summary = self._summary(capture_path, seconds, proto, inbox)
+        summary.capture_discarded = capture.discarded
+        return summary
 
     # -- internals --------------------------------------------------------------------------------------------
 

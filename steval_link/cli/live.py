@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from steval_link import protocol
+from steval_link.capture import resolve_capture_out
 from steval_link.cli.app import app
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -69,6 +70,7 @@ def live_command(
         raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
     options = LiveOptions(
         port=port,
         baud=baud,
@@ -107,6 +109,7 @@ def record_command(
     _check_baud(baud)
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
     options = LiveOptions(
         port=port,
         baud=baud,
