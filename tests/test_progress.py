@@ -49,8 +49,10 @@ def test_json_and_pipes_get_no_bar(long_capture, monkeypatch, capsys, tmp_path):
     assert json.loads(stdout)["frames"]["attitude"] > 30000
     code, stdout, term = run_cli_tty("compare", cap, "-e", "ekf3,mekf", "--json")
     assert code == 0 and BAR not in term
-    code, out, err = run_cli(monkeypatch, capsys, "replay", cap, "--rrd", tmp_path / "b.rrd")  # stderr: a pipe
-    assert code == 0 and BAR not in err and err == ""
+    rrd = tmp_path / "b.rrd"
+    code, out, err = run_cli(monkeypatch, capsys, "replay", cap, "--rrd", rrd)  # stderr: a pipe
+    assert code == 0 and BAR not in err
+    assert err.splitlines() == [f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})"]
 
 
 def test_evaluate_shows_a_bar(shared_dir, tmp_path):
