@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.analysis import evaluate as ev
 
 

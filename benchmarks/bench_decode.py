@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import protocol as P
-from steval_link.capture import CaptureWriter, load_telemetry, read_capture
-from steval_link.decoder import StreamDecoder, decode_bytes
+from steval_link.link import protocol as P
+from steval_link.link.capture import CaptureWriter, load_telemetry, read_capture
+from steval_link.link.decoder import StreamDecoder, decode_bytes
 
 
 def synthetic_stream(seconds: float, seed: int = 1) -> bytes:

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 from steval_link.estimators import registry, st_mahony
 
 

@@ -28,8 +28,8 @@ FW = ROOT / "firmware_patch"
 sys.path.insert(0, str(FW / "tools"))
 import stv_emu  # noqa: E402
 
-from steval_link import protocol as P  # noqa: E402
-from steval_link.decoder import StreamDecoder  # noqa: E402
+from steval_link.link import protocol as P  # noqa: E402
+from steval_link.link.decoder import StreamDecoder  # noqa: E402
 
 
 def stats(xs: list[int]) -> str:

@@ -8,9 +8,9 @@ The measured path is the live session's own (``steval_link.live``): ``SerialRead
 ``RecorderProtocol`` (each chunk to a capture file first, then the session's ``Inbox``) -> the session's main
 loop -> ``LivePipeline`` (``StreamDecoder``, ``AttitudeBatch``, ``LiveEstimators``: the default estimators, e.g.
 the seeded ST port, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
-(``live.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its batch.
+(``steval_link.live.pipeline.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its batch.
 
-``--reader transport`` uses ``steval_link.transport.SerialReader`` on the pty's slave; ``--reader own`` a minimal
+``--reader transport`` uses ``steval_link.link.transport.SerialReader`` on the pty's slave; ``--reader own`` a minimal
 select()-based reader (hands bytes on as soon as they arrive), to tell the transport's cost apart from the rest.
 
 Goal: p99 <= 5 ms at 161.5 Hz.
@@ -42,7 +42,7 @@ def now_us() -> int:
 
 def fake_drone(master_fd: int, seconds: float, ready) -> None:
     """Write frames at 161.5 Hz into the pty master; t_us = monotonic µs at write time."""
-    from steval_link import protocol as P
+    from steval_link.link import protocol as P
 
     n = int(seconds * RATE_HZ)
     period = 1.0 / RATE_HZ
@@ -92,7 +92,7 @@ def _own_reader(fd: int, sink: _OwnInbox, stop: threading.Event) -> None:
 
 
 class _TimedViewer:
-    """The live session's viewer side (``steval_link.live.ViewerLogger``: a ``LiveLogger`` on an .rrd sink) that
+    """The live session's viewer side (``steval_viewer.live_adapter.ViewerLogger``: a ``LiveLogger`` on an .rrd sink) that
     notes, for each frame, when ``log_batch`` returned for it."""
 
     def __init__(self, logger) -> None:
@@ -124,9 +124,9 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     from steval_viewer.live_log import LiveLogger
     from steval_viewer.sinks import SinkOptions, open_session
 
-    from steval_link import live
-    from steval_link.capture import CaptureWriter
-    from steval_link.transport import HostClock, SerialReader
+    from steval_link.live import pipeline, recorder
+    from steval_link.link.capture import CaptureWriter
+    from steval_link.link.transport import HostClock, SerialReader
 
     master, slave = os.openpty()
     tty.setraw(slave)
@@ -138,13 +138,13 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     tmp = Path(tempfile.mkdtemp())
     capture = CaptureWriter(tmp / "live_bench.stv", port=slave_name, baud=115200)
     clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
-    inbox = live.Inbox()
+    inbox = recorder.Inbox()
     stop = threading.Event()
     if reader == "transport":  # the live session's reader thread: capture first, then the inbox
         import serial
 
         ser = serial.Serial(slave_name, 115200, timeout=0.05)
-        proto = live.RecorderProtocol(capture, inbox, None, clock)
+        proto = recorder.RecorderProtocol(capture, inbox, None, clock)
         thread = SerialReader(ser, proto, baud=115200, clock=clock)
         thread.start()
     else:
@@ -154,8 +154,8 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     out = tmp / "live_bench.rrd"
     session = open_session(SinkOptions(rrd=out))
     viewer = _TimedViewer(LiveLogger(session.rec, estimators))
-    # the live viewer's path: every processing round is logged at once (live.VIEW_INTERVAL_S)
-    pipe = live.LivePipeline(estimators, viewer, view_interval_s=live.VIEW_INTERVAL_S)
+    # the live viewer's path: every processing round is logged at once (pipeline.VIEW_INTERVAL_S)
+    pipe = pipeline.LivePipeline(estimators, viewer, view_interval_s=pipeline.VIEW_INTERVAL_S)
     est_ms: list[float] = []
     process = pipe.estimators.process if pipe.estimators is not None else None
     if process is not None:
@@ -168,7 +168,7 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
         pipe.estimators.process = timed
     ready.set()
     deadline = time.monotonic() + seconds + 1.5
-    while time.monotonic() < deadline:  # the session's main loop (steval_link.live.LiveSession._loop)
+    while time.monotonic() < deadline:  # the session's main loop (steval_link.live.session.LiveSession._loop)
         chunks = inbox.get_all(0.02)
         if chunks:
             pipe.feed(chunks)
@@ -212,7 +212,7 @@ def main() -> None:
     )
     ap.add_argument("--runs", type=int, default=1, help="repeat each reader this many times")
     args = ap.parse_args()
-    from steval_link.live import resolve_estimators
+    from steval_link.live.estimators import resolve_estimators
 
     estimators = resolve_estimators(args.estimators)
     print(f"estimators: {', '.join(estimators) or 'none'}; .rrd sink; {args.seconds:.0f} s per run")
@@ -220,9 +220,9 @@ def main() -> None:
     for r in readers:
         if r == "transport":
             try:
-                import steval_link.transport  # noqa: F401
+                import steval_link.link.transport  # noqa: F401
             except ImportError:
-                print("transport: steval_link.transport not present, skipped")
+                print("transport: steval_link.link.transport not present, skipped")
                 continue
         for _ in range(args.runs):
             res = run_once(r, args.seconds, estimators)

@@ -43,7 +43,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream  # noqa: E402
 
-from steval_link import protocol  # noqa: E402
+from steval_link.link import protocol  # noqa: E402
 
 
 def proc_mem_mb(pid: int) -> tuple[float, float]:

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
-from steval_link.textmode import format_att, format_sta
+from steval_link.link import protocol as P
+from steval_link.link.textmode import format_att, format_sta
 
 SHARED_DIR = Path(__file__).resolve().parents[1] / ".." / "shared"
 
@@ -104,7 +104,7 @@ def make_stream():
 
 def frame_keys(frames) -> list[tuple]:
     """Comparable identity of decoded frames (kind-specific fields + offset)."""
-    from steval_link.frames import AttitudeFrame, StatusFrame
+    from steval_link.link.frames import AttitudeFrame, StatusFrame
 
     out = []
     for f in frames:

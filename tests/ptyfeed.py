@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import protocol
+from steval_link.link import protocol
 
 #: Bytes per second of the real stream at 161.5 Hz (PROTOCOL.md, "Bandwidth").
 REAL_BYTES_PER_S = protocol.AHRS_RATE_HZ * protocol.ATTITUDE_FRAME_SIZE + protocol.STATUS_FRAME_SIZE

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import StreamBuilder
-from steval_link.capture import (
+from steval_link.link.capture import (
     MAGIC,
     CaptureTruncatedWarning,
     CaptureWriter,
@@ -116,7 +116,7 @@ def test_kill_9_loses_nothing_written(tmp_path, stream: StreamBuilder):
     path = tmp_path / "killed.stv"
     code = (
         "import sys, time\n"
-        "from steval_link.capture import CaptureWriter\n"
+        "from steval_link.link.capture import CaptureWriter\n"
         f"data = open({str(src)!r}, 'rb').read()\n"
         f"w = CaptureWriter({str(path)!r}, port='p', baud=115200)\n"
         "for i in range(0, len(data), 58):\n"
@@ -253,7 +253,7 @@ def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuil
 
 
 def test_resolve_capture_out_never_makes_folders(tmp_path, monkeypatch):
-    from steval_link.capture import resolve_capture_out
+    from steval_link.link.capture import resolve_capture_out
 
     monkeypatch.chdir(tmp_path)
     assert resolve_capture_out(None) is None

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from conftest import StreamBuilder
-from steval_link.capture import CaptureWriter
+from steval_link.link.capture import CaptureWriter
 from steval_link.cli import main
 
 
@@ -71,7 +71,7 @@ def test_replay_default_is_demo_recording(capture, capsys, monkeypatch):
 
 
 def test_replay_raw_dump_and_truncated_capture(tmp_path, capture, capsys):
-    from steval_link.capture import read_capture
+    from steval_link.link.capture import read_capture
 
     raw = tmp_path / "log.bin"
     raw.write_bytes(read_capture(capture).data[100:])

@@ -2,7 +2,7 @@
 
 Captures are built here from real wire bytes: a "firmware" (the bit-exact port, verified against ST's binary in
 test_st_mahony) runs over smooth synthetic motion, its outputs and status snapshots are encoded with
-``steval_link.protocol`` and decoded back with ``decode_bytes`` / written as ``.stv`` files.
+``steval_link.link.protocol`` and decoded back with ``decode_bytes`` / written as ``.stv`` files.
 """
 
 from __future__ import annotations
@@ -13,17 +13,17 @@ import math
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 from steval_link.analysis.compare import (
     angle_diff_rad,
     compare_capture,
     format_report,
     rate_stats,
 )
-from steval_link.capture import CaptureWriter
-from steval_link.decoder import decode_bytes
+from steval_link.link.capture import CaptureWriter
+from steval_link.link.decoder import decode_bytes
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run
-from steval_link.textmode import format_att, format_sta
+from steval_link.link.textmode import format_att, format_sta
 
 PERIOD_US = 6191.9
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from conftest import StreamBuilder, frame_keys
-from steval_link import protocol as P
-from steval_link.decoder import StreamDecoder, decode_bytes
-from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
-from steval_link.telemetry import telemetry_from_frames
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.telemetry import telemetry_from_frames
 
 
 def stream_decode(data: bytes, chunk: int | list[int] = 4096):

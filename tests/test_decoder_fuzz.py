@@ -7,10 +7,10 @@ import numpy as np
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from steval_link import protocol as P
-from steval_link.decoder import StreamDecoder, decode_bytes
-from steval_link.frames import TextFrame
-from steval_link.textmode import format_att, format_sta
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import TextFrame
+from steval_link.link.textmode import format_att, format_sta
 
 FUZZ = settings(
     derandomize=True,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.estimators.base import euler_from_quaternion
 from steval_link.estimators.ekf3 import Ekf3, quaternion_from_euler
 from steval_link.estimators.registry import create

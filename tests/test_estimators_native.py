@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.estimators import ekf3, mekf
 from steval_link.estimators.ekf3 import Ekf3, quaternion_from_euler
 from steval_link.estimators.mekf import Mekf

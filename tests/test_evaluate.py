@@ -1,4 +1,4 @@
-"""BROAD loading and metrics (steval_link.broad), the evaluation (steval_link.analysis.evaluate) and
+"""BROAD loading and metrics (steval_link.emulation.broad), the evaluation (steval_link.analysis.evaluate) and
 ``steval evaluate``."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.analysis import evaluate as ev
 from steval_link.errors import UserError
 from steval_link.estimators.ekf3 import quaternion_from_euler
@@ -178,7 +178,7 @@ def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path):
 
 
 def test_evaluate_capture_with_truth_sidecar(tmp_path):
-    from steval_link.capture import demo_capture_path, load_telemetry
+    from steval_link.link.capture import demo_capture_path, load_telemetry
 
     cap = demo_capture_path()
     tel = load_telemetry(cap)

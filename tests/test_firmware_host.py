@@ -3,7 +3,7 @@
 The C encoder and TX queue run on real bytes and the Python side decodes them: frames from C carry exactly the
 float bits Python put in, the queue drops and counts instead of blocking, sequence number, timestamp and the
 cycle counter wrap correctly, and ``host/stv_encode`` (which makes the bundled recordings) is byte-for-byte
-``steval_link.protocol``'s encoder.
+``steval_link.link.protocol``'s encoder.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
-from steval_link.decoder import StreamDecoder
-from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
-from steval_link.textmode import parse_sentence
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.textmode import parse_sentence
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_patch"
@@ -90,7 +90,7 @@ def test_c_selftest(host_build):
 
 
 def make_requests(rng: np.random.Generator, n: int) -> tuple[bytes, bytes]:
-    """Random frame requests and the frames steval_link.protocol makes of them."""
+    """Random frame requests and the frames steval_link.link.protocol makes of them."""
     req, exp = bytearray(), bytearray()
     for i in range(n):
         kind = i % 5
@@ -385,7 +385,7 @@ def test_bundled_recording_frames_are_c_encoder_output(host_build, path):
     payload: the recordings double as C -> Python conformance fixtures."""
     if path is None:
         pytest.skip("no bundled captures in recordings/ yet")
-    from steval_link.capture import read_source
+    from steval_link.link.capture import read_source
 
     data = read_source(path).data
     dec = StreamDecoder()

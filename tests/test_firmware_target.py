@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
-from steval_link.decoder import StreamDecoder
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_patch"
@@ -62,7 +62,7 @@ def target(tmp_path_factory):
 
 
 def test_target_build_bytes_decode_in_python(target):
-    """Requests -> target code (Thumb-2, hard-float) under unicorn -> frames identical to steval_link.protocol's,
+    """Requests -> target code (Thumb-2, hard-float) under unicorn -> frames identical to steval_link.link.protocol's,
     decoded by StreamDecoder back to the exact payloads (CRC, ATTITUDE_DTYPE/STATUS_DTYPE)."""
     rng = np.random.default_rng(99)
     req, exp, payloads = bytearray(), bytearray(), []
@@ -158,8 +158,8 @@ def test_patch_applies_and_firmware_links(tmp_path):
 
 
 def test_target_text_mode_lines_match_python(target):
-    """Text mode on the target (hardware float -> int): $ATT lines identical to steval_link.textmode's."""
-    from steval_link.textmode import format_att
+    """Text mode on the target (hardware float -> int): $ATT lines identical to steval_link.link.textmode's."""
+    from steval_link.link.textmode import format_att
 
     rng = np.random.default_rng(3)
     n = 200

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream, uart_resample
-from steval_link import protocol
-from steval_link.capture import read_capture
-from steval_link.decoder import StreamDecoder
+from steval_link.link import protocol
+from steval_link.link.capture import read_capture
+from steval_link.link.decoder import StreamDecoder
 
 #: Generous for a loaded 2-core CI machine: the child's start (imports) and Rerun's setup.
 START_TIMEOUT_S = 60.0

@@ -11,18 +11,14 @@ import numpy as np
 import pytest
 
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
-from steval_link import protocol
-from steval_link.decoder import decode_bytes
+from steval_link.link import protocol
+from steval_link.link.decoder import decode_bytes
 from steval_link.estimators.st_mahony import bits_equal, replay_firmware
-from steval_link.live import (
-    HealthDisplay,
-    Inbox,
-    LiveOptions,
-    LivePipeline,
-    LiveSession,
-    StepUnwrapper,
-    default_capture_path,
-)
+from steval_link.link.capture import default_capture_path
+from steval_link.live.health import HealthDisplay
+from steval_link.live.pipeline import LivePipeline, StepUnwrapper
+from steval_link.live.recorder import Inbox
+from steval_link.live.session import LiveOptions, LiveSession
 
 
 class BatchLog:
@@ -259,7 +255,7 @@ def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
         t.start()
         summary = session.run()
         t.join()
-    from steval_link.capture import read_capture
+    from steval_link.link.capture import read_capture
 
     cap = read_capture(out)
     assert summary.attitude == 0 and summary.bytes_total == len(cap.data) > 5_000_000
@@ -280,7 +276,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     import rerun as rr
     from rerun.chunk import RrdReader
 
-    from steval_link import live
+    from steval_viewer import live_adapter
     from steval_viewer import entities as ent
     from steval_viewer.rrd_check import read_rrd
 
@@ -298,7 +294,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     received: dict[str, list[int]] = {"live": [], "file": []}
 
     def factory(options, name):
-        viewer = live.make_viewer_logger(options, name)
+        viewer = live_adapter.make_viewer_logger(options, name)
         for key, logger in (("live", viewer.logger), ("file", viewer.file)):
             orig = logger.log_batch
             logger.log_batch = lambda batch, orig=orig, key=key: (received[key].append(len(batch)), orig(batch))

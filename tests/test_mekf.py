@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.estimators.ekf3 import quaternion_from_euler
 from steval_link.estimators.mekf import Mekf
 from steval_link.estimators.registry import create

@@ -74,7 +74,7 @@ def test_comparison_png_of_a_mismatch_with_drops_and_nan(mpl, tmp_path):
 
 
 def test_text_mode_comparison_png(mpl, tmp_path):
-    from steval_link.decoder import decode_bytes
+    from steval_link.link.decoder import decode_bytes
 
     tel = decode_bytes(text_mode_bytes(), source={"path": "log.txt", "kind": "text"})
     r = compare_capture(tel, estimators=("accel",))
@@ -93,7 +93,7 @@ def test_decimation_keeps_peaks():
 
 
 def test_simulation_figure_and_png(mpl, tmp_path):
-    from steval_link.simulate import run_simulation
+    from steval_link.emulation.lab5 import run_simulation
 
     res = run_simulation(gyro_mdps=(1000, 2000, 4000), acc_mg=(0, 0, 0), iterations=100)
     fig = plots.simulation_figure(res)

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 
 
 def test_crc_check_value():

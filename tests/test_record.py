@@ -10,7 +10,7 @@ import time
 import pytest
 
 from ptyfeed import PtyFeeder, StevalProcess, flight_stream
-from steval_link.capture import read_capture, load_telemetry
+from steval_link.link.capture import read_capture, load_telemetry
 
 START_TIMEOUT_S = 60.0
 

@@ -1,7 +1,7 @@
 """``record --out`` / ``live --out`` as a user types them: never a folder made at a random place, a directory means
 "write inside it", and a recording that got no bytes leaves no header-only file behind.
 
-The resolution is ``steval_link.capture.resolve_capture_out`` and ``CaptureWriter(discard_empty=True)``; the two
+The resolution is ``steval_link.link.capture.resolve_capture_out`` and ``CaptureWriter(discard_empty=True)``; the two
 marks below come off when ``cli/live.py`` and ``live.py`` call them (strict: a pass fails until then)."""
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
-"""The LSM6DSL model and the firmware's ISR pipeline (steval_link.sensor_model)."""
+"""The LSM6DSL model and the firmware's ISR pipeline (steval_link.emulation.sensor_model)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from steval_link import sensor_model as sm
+from steval_link.emulation import sensor_model as sm
 
 F32 = np.float32
 
@@ -149,7 +149,7 @@ def test_isr_yaw_integrates_and_resets_below_min_thr():
 
 def test_pipeline_matches_the_conformance_vectors_inputs(shared_dir):
     """broad_02.csv's inputs were made by an emulated STEVAL pipeline; ours must agree in scale, offset and lag."""
-    from steval_link import broad
+    from steval_link.emulation import broad
 
     trial = broad.load_trial(shared_dir / "datasets" / "broad" / "02_undisturbed_slow_rotation_B.npz")
     view = broad.steval_view(trial)

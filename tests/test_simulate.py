@@ -14,7 +14,7 @@ import pytest
 
 from steval_link.estimators.conformance import load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, bits_equal, run
-from steval_link.simulate import run_simulation
+from steval_link.emulation.lab5 import run_simulation
 from conftest import run_cli
 
 BASELINE = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120" / "lab5_baseline.csv"

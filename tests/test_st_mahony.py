@@ -22,7 +22,7 @@ from steval_link.estimators.st_mahony import (
     replay_firmware,
     run,
 )
-from steval_link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION, STATUS_DTYPE
+from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION, STATUS_DTYPE
 
 CONFORMANCE_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120"
 CSV_NAMES = sorted(p.name for p in CONFORMANCE_DIR.glob("*.csv")) if CONFORMANCE_DIR.is_dir() else []
@@ -368,8 +368,8 @@ def test_replay_takes_settings_from_status_frames():
 
 
 def test_replay_of_encoded_frames_when_the_decoder_exists(capture):
-    decoder = pytest.importorskip("steval_link.decoder")
-    from steval_link import protocol
+    decoder = pytest.importorskip("steval_link.link.decoder")
+    from steval_link.link import protocol
 
     n = 800
     parts = []
@@ -399,7 +399,7 @@ def test_replay_of_encoded_frames_when_the_decoder_exists(capture):
 
 def test_replay_firmware_never_seeds_rounded_text_mode_rows():
     """Text-mode rows are rounded and $STA rows carry no snapshot: nothing is replayed, nothing crashes."""
-    from steval_link.capture import load_telemetry
+    from steval_link.link.capture import load_telemetry
 
     tel = load_telemetry(Path(__file__).resolve().parents[1] / "recordings" / "textmode.log")
     assert len(tel.attitude.step) > 100 and not tel.attitude.exact.any()

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link import motion as M
-from steval_link import protocol as P
-from steval_link import sensor_model as sm
-from steval_link.capture import load_telemetry, read_capture
+from steval_link.emulation import motion as M
+from steval_link.link import protocol as P
+from steval_link.emulation import sensor_model as sm
+from steval_link.link.capture import load_telemetry, read_capture
 from steval_link.cli import main
-from steval_link.decoder import decode_bytes
+from steval_link.link.decoder import decode_bytes
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import (
     MahonySettings,
@@ -25,7 +25,7 @@ from steval_link.estimators.st_mahony import (
     replay_firmware,
     run as mahony_run,
 )
-from steval_link.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
+from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 from conftest import StreamBuilder
-from steval_link.decoder import StreamDecoder, decode_bytes
-from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
-from steval_link.textmode import checksum, format_att, format_sta, parse_sentence
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.textmode import checksum, format_att, format_sta, parse_sentence
 
 
 def decode_all(data: bytes, chunk: int = 13):

@@ -9,11 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from steval_link import protocol as P
-from steval_link.decoder import StreamDecoder, decode_bytes
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import quaternion_to_euler
-from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent
 from steval_viewer.live_log import LiveLogger, TimeUnwrapper
@@ -326,7 +326,7 @@ def test_firmware_quaternion_is_body_to_earth_so_nose_up_is_up():
 
 
 def test_simulation_logs_to_rrd(tmp_path):
-    from steval_link.simulate import BASELINE_ACC_MG, BASELINE_GYRO_MDPS, run_simulation
+    from steval_link.emulation.lab5 import BASELINE_ACC_MG, BASELINE_GYRO_MDPS, run_simulation
     from steval_viewer.simulate_log import log_simulation
 
     res = run_simulation(
@@ -385,7 +385,7 @@ BUNDLED = sorted(
 @pytest.mark.parametrize("capture", BUNDLED, ids=[p.name for p in BUNDLED])
 def test_every_bundled_recording_replays_to_rrd(capture, tmp_path):
     """CI: each bundled capture replays headlessly to an .rrd that reads back with every entity and all samples."""
-    from steval_link.capture import load_telemetry
+    from steval_link.link.capture import load_telemetry
 
     tel = load_telemetry(capture)
     out = tmp_path / (capture.stem + ".rrd")

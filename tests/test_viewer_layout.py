@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link.capture import load_telemetry
+from steval_link.link.capture import load_telemetry
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit

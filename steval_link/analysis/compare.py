@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     FirmwareReplay,
@@ -733,7 +733,7 @@ def compare_capture(
     """Compare a capture's firmware angles with the seeded ST-Mahony port and with ``estimators``.
 
     Args:
-        tel: a :class:`steval_link.telemetry.Telemetry` with at least one attitude row.
+        tel: a :class:`steval_link.link.telemetry.Telemetry` with at least one attitude row.
         estimators: registry names run from power-up over the capture's inputs (``st-mahony`` here means the
             unseeded port from power-up; the seeded port is always compared). Names this installation lacks are
             reported as unavailable.

@@ -2,7 +2,7 @@
 the trial's own rate) or on a capture with a ground-truth sidecar; inclination RMSE per trial and estimator.
 
 Metric (BROAD): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in
-degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See :mod:`steval_link.broad`.
+degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See :mod:`steval_link.emulation.broad`.
 
 Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
 given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import broad
+from steval_link.emulation import broad
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 
@@ -154,7 +154,7 @@ def evaluate_trial(path, specs: Sequence[EstimatorSpec] | None = None, *, native
     """Load a BROAD trial and evaluate ``specs`` (default: :func:`default_specs`) on it.
 
     Without ``native`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
-    (:func:`steval_link.broad.steval_view`, deterministic for a given ``seed``); with ``native`` the estimators run
+    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``native`` the estimators run
     on the trial's own samples (285.7 Hz).
     """
     trial = path if isinstance(path, broad.BroadTrial) else broad.load_trial(path)
@@ -193,8 +193,8 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
 
     The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
     """
-    from steval_link.capture import read_source, telemetry_of_source
-    from steval_link.sensor_model import AHRS_HZ
+    from steval_link.link.capture import read_source, telemetry_of_source
+    from steval_link.emulation.sensor_model import AHRS_HZ
 
     p = Path(path)
     src = read_source(p)  # missing, unreadable, empty: its own sentence

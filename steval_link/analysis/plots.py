@@ -319,7 +319,7 @@ def plot_simulation(result, out_png, *, title: str | None = None) -> Path:
 
 def simulation_figure(result, *, title: str | None = None):
     """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    :class:`steval_link.simulate.SimulationResult` (UMaine Lab 5), with the inputs in the title. Returns the
+    :class:`steval_link.emulation.lab5.SimulationResult` (UMaine Lab 5), with the inputs in the title. Returns the
     matplotlib figure (Agg)."""
     plt = require_matplotlib()
     res = result

@@ -50,9 +50,9 @@ def evaluate_command(
                                                                      "own before quantisation.")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
 ) -> None:
-    from steval_link import broad
+    from steval_link.emulation import broad
     from steval_link.analysis import evaluate as ev
-    from steval_link.sensor_model import Lsm6dsl
+    from steval_link.emulation.sensor_model import Lsm6dsl
 
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib
@@ -83,7 +83,7 @@ def evaluate_command(
                 specs = ev.default_specs(view.rate_hz, native=native, only=only)
                 results.append(ev.evaluate_view(view, specs, trial.name, progress))
             else:
-                from steval_link.sensor_model import AHRS_HZ
+                from steval_link.emulation.sensor_model import AHRS_HZ
 
                 specs = ev.default_specs(AHRS_HZ, only=only)
                 results.append(ev.evaluate_capture(p, specs, progress=progress))

@@ -8,8 +8,8 @@ from typing import Optional
 
 import typer
 
-from steval_link import protocol
-from steval_link.capture import resolve_capture_out
+from steval_link.link import protocol
+from steval_link.link.capture import resolve_capture_out
 from steval_link.cli.app import app
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -20,7 +20,9 @@ from steval_link.cli.viewer_options import (
     WebPortOption,
 )
 from steval_link.errors import UserError
-from steval_link.live import LiveOptions, LiveSession, resolve_estimators
+from steval_link.live.estimators import resolve_estimators
+from steval_link.live.session import LiveOptions, LiveSession
+from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 _PORT_HELP = "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), or 'auto': the one that carries frames."
@@ -86,7 +88,9 @@ def live_command(
         duration_s=duration,
         wait=wait,
     )
-    summary = LiveSession(options).run()
+    if options.uses_rerun:
+        viewer_sink_options(options)  # e.g. no display and no --rrd: say so before the port is opened
+    summary = LiveSession(options, viewer_factory=make_viewer_logger).run()
     print(summary.line())
     sys.stdout.flush()
 

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from steval_link.cli.app import app
-from steval_link.ports import list_ports
+from steval_link.link.ports import list_ports
 
 
 @app.command()

@@ -20,7 +20,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.capture import demo_capture_path, read_source, telemetry_of_source
+from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
 from steval_link.cli.app import app
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -33,9 +33,9 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
-from steval_link.live import resolve_estimators
+from steval_link.live.estimators import resolve_estimators
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
-from steval_link.summary import format_summary, summarize
+from steval_link.analysis.summary import format_summary, summarize
 
 __all__ = ["load_replay", "run_estimators", "DEFAULT_ESTIMATORS"]
 
@@ -48,7 +48,7 @@ Sink = Callable[[Any, dict[str, Any]], None]
 
 
 def load_replay(path: Path | None, progress: Progress | None = None) -> tuple[Any, list[str]]:
-    """Stage 1: the :class:`~steval_link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
+    """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
     warnings met while reading it (e.g. a capture cut short)."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)

@@ -16,7 +16,7 @@ from steval_link.cli.app import app
 from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.simulate import (
+from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
     BASELINE_GYRO_MDPS,
     TYPICAL_ACC_NOISE_MG,

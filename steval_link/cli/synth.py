@@ -12,8 +12,8 @@ from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
-from steval_link.motion import SCENARIOS
-from steval_link.protocol import DEFAULT_BAUD, DEFAULT_KI
+from steval_link.emulation.motion import SCENARIOS
+from steval_link.link.protocol import DEFAULT_BAUD, DEFAULT_KI
 
 
 def _list() -> None:
@@ -71,7 +71,7 @@ def synth_cmd(
     check_gain("--ki", ki)
     if c_encoder is not None:
         encoder = "c"
-    from steval_link.synth import SynthOptions, synthesize, write_output
+    from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 
     opts = SynthOptions(
         scenario=scenario, duration_s=duration, seed=seed, baud=baud, throttle=throttle, ki=ki,

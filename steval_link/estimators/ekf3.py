@@ -57,7 +57,7 @@ from steval_link.estimators.base import (
     quaternion_from_euler,
     rows_before_tilt,
 )
-from steval_link.sensor_model import AHRS_HZ
+from steval_link.emulation.sensor_model import AHRS_HZ
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native

@@ -68,7 +68,7 @@ from steval_link.estimators.base import (
     euler_from_quaternion,
     rows_before_tilt,
 )
-from steval_link.sensor_model import AHRS_HZ, GYRO_LATENCY_S
+from steval_link.emulation.sensor_model import AHRS_HZ, GYRO_LATENCY_S
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native
@@ -189,7 +189,7 @@ class Mekf(Estimator):
         estimate_bias: False freezes the bias at 0.
         latency_s: output prediction horizon, s: the returned attitude is ``q ⊗ Exp(ω·latency_s)``, compensating
             the delay of the gyro input behind the accelerometer input in the STEVAL pipeline
-            (:data:`steval_link.sensor_model.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
+            (:data:`steval_link.emulation.sensor_model.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
             filter state itself is not shifted. Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
 
     :meth:`step` is the Python reference. :meth:`run` uses the C loop of ``_ekf_native`` when it is built (every

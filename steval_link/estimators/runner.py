@@ -1,4 +1,4 @@
-"""Run registry estimators over a whole :class:`~steval_link.telemetry.Telemetry` (replay, compare, the viewer).
+"""Run registry estimators over a whole :class:`~steval_link.link.telemetry.Telemetry` (replay, compare, the viewer).
 
 Binary captures have one attitude row per AHRS step; the text-mode build's ``$ATT`` rows are decimated (16 steps
 per row by default), so estimators that take ``rate_hz`` run at the row rate there.
@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 from steval_link.estimators import registry
 
 __all__ = ["MEMORYLESS", "row_decimation", "run_estimator"]

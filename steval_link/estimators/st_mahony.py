@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
-from steval_link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
+from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
     "COE_MDPS_TO_RADPS_F32",
@@ -501,7 +501,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     """Re-run the port over a capture's inputs and compare it with the firmware's outputs, bit for bit.
 
     Args:
-        tel: a :class:`steval_link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
+        tel: a :class:`steval_link.link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
             ``thx_rad/thy_rad`` when present, and ``status.step/q_wxyz/int_xyz/kp_ground/kp_flight/ki/dt_s/
             min_thr/flags``).
         settings: filter constants; default: those reported by the status frames (the seeding one, else the

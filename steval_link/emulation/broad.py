@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import sensor_model as sm
+from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 
 __all__ = [

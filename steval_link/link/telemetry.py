@@ -1,7 +1,7 @@
 """``Telemetry``: every field of a decoded stream as numpy arrays, with units in the names.
 
-Built by :func:`steval_link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames` (frames of a
-:class:`~steval_link.decoder.StreamDecoder`). Rows are in stream order.
+Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames` (frames of a
+:class:`~steval_link.link.decoder.StreamDecoder`). Rows are in stream order.
 
 Derived fields:
 
@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from steval_link import protocol as P
-from steval_link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
+from steval_link.link import protocol as P
+from steval_link.link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
 
 if TYPE_CHECKING:  # pragma: no cover
-    from steval_link.decoder import DecoderStats
+    from steval_link.link.decoder import DecoderStats
 
 __all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
 
@@ -384,7 +384,7 @@ def telemetry_from_frames(
     source: dict | None = None,
     events: list | None = None,
 ) -> Telemetry:
-    """A :class:`Telemetry` from the frames of a :class:`~steval_link.decoder.StreamDecoder` (e.g. the live path).
+    """A :class:`Telemetry` from the frames of a :class:`~steval_link.link.decoder.StreamDecoder` (e.g. the live path).
 
     ``frame_times`` (one host time per frame, s) sets ``t_host_s``; else host times are NaN.
     """

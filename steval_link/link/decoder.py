@@ -35,9 +35,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from steval_link import protocol as P
-from steval_link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
-from steval_link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
+from steval_link.link import protocol as P
+from steval_link.link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
+from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
 
@@ -320,7 +320,7 @@ def decode_bytes(
     source: dict | None = None,
     events: list | None = None,
 ):
-    """Decode a whole byte stream at once into a :class:`~steval_link.telemetry.Telemetry`.
+    """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
     ``chunk_times`` is ``(chunk_offsets, t_host_s)``: the stream offset where each received chunk starts and the
     host time (s since capture start) when it was received; each frame gets the time of the chunk its last byte
@@ -331,7 +331,7 @@ def decode_bytes(
     of back-to-back valid binary frames are decoded with numpy, everything else (damage, text mode) by a
     :class:`StreamDecoder` over just those regions.
     """
-    from steval_link.telemetry import Telemetry, TelemetryParts
+    from steval_link.link.telemetry import Telemetry, TelemetryParts
 
     data = bytes(data)
     n = len(data)

@@ -9,7 +9,7 @@
   Pseudo-terminals and other ports without USB identity are found again by their path or, failing that, by a
   new name in the same family (the path with its trailing digits replaced by ``*``).
 
-Plain listing of ports is :mod:`steval_link.ports`' job; this module only uses it.
+Plain listing of ports is :mod:`steval_link.link.ports`' job; this module only uses it.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
-from steval_link.transport import open_serial
+from steval_link.link.transport import open_serial
 
 #: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
 COMMON_BAUDS = (115200, 921600, 460800, 230400, 57600, 38400, 19200, 9600)
@@ -43,12 +43,12 @@ def is_glob(port: str) -> bool:
 
 
 def list_candidate_ports() -> list[str]:
-    """Serial ports that may carry the drone (from :mod:`steval_link.ports`), device paths.
+    """Serial ports that may carry the drone (from :mod:`steval_link.link.ports`), device paths.
 
     USB ports (USB-UART adapters, ST-LINK virtual COM ports) when there are any, else every port listed (a board's
     own UART such as a Raspberry Pi's ``/dev/ttyAMA0``).
     """
-    from steval_link import ports
+    from steval_link.link import ports
 
     listed = ports.list_ports()
     usb = [p.device for p in listed if p.vid_pid]
@@ -175,8 +175,8 @@ class ProbeResult:
 
 def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
     """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
-    from steval_link.decoder import StreamDecoder
-    from steval_link.frames import TextFrame
+    from steval_link.link.decoder import StreamDecoder
+    from steval_link.link.frames import TextFrame
 
     result = ProbeResult(port, baud)
     t0 = time.monotonic()

@@ -18,7 +18,7 @@ import math
 import operator
 import re
 
-from steval_link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 
 #: Longest line accepted, in bytes, including the line ending.
 MAX_LINE_BYTES = 512

@@ -7,7 +7,7 @@ the protocol (``steval_link.live``), never here.
 
 When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
 tells the protocol (:meth:`Protocol.connection_lost`), then polls ``find_port`` every ``reconnect_poll_s`` for the
-device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.autodetect`), reopens it and calls
+device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.link.autodetect`), reopens it and calls
 :meth:`Protocol.connection_made` again. Only :meth:`SerialReader.stop` ends the thread.
 
 Errors when opening a port are turned into one sentence with the fix by :func:`open_error_message`.

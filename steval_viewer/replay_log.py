@@ -1,4 +1,4 @@
-"""Columnar logging of a whole :class:`~steval_link.telemetry.Telemetry` and its host estimates to Rerun.
+"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun.
 
 One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time`` (firmware s since boot),
 ``host_time`` (host receive s since capture start, when known) and ``ahrs_step`` timelines. Used by

@@ -32,7 +32,7 @@ import numpy as np
 import rerun as rr
 
 from steval_link.estimators.st_mahony import quaternion_to_euler
-from steval_link.protocol import SEQ_MODULUS, T_US_MODULUS
+from steval_link.link.protocol import SEQ_MODULUS, T_US_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene

@@ -2,10 +2,10 @@
 
 Until real drone captures exist, tests and the demo use these. The chain, one function per link:
 
-1. motion (:mod:`steval_link.motion`): a built-in scenario or a BROAD trial, at every TIM9 tick (807.7 Hz);
-2. LSM6DSL (:class:`steval_link.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver quantisation;
-3. the firmware's ISR and main loop (:func:`steval_link.sensor_model.run_isr`): power-up offset calibration (the
-   AHRS starts ≈ 2 s after TIM9), gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.sensor_model.isr_yaw_rad`
+1. motion (:mod:`steval_link.emulation.motion`): a built-in scenario or a BROAD trial, at every TIM9 tick (807.7 Hz);
+2. LSM6DSL (:class:`steval_link.emulation.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver quantisation;
+3. the firmware's ISR and main loop (:func:`steval_link.emulation.sensor_model.run_isr`): power-up offset calibration (the
+   AHRS starts ≈ 2 s after TIM9), gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`
    (reset below MIN_THR);
 4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact port (:func:`steval_link.estimators.st_mahony.run`),
    with the firmware variant's settings (``--ki``, ``--no-correction``);
@@ -15,7 +15,7 @@ Until real drone captures exist, tests and the demo use these. The chain, one fu
    step, boot log lines as text frames, text mode (``$ATT`` every 16th step, ``$STA``), and the 2048-byte TX
    queue drained by USART1 at the baud rate (frames that do not fit are dropped and counted in ``tx_dropped``;
    attitude and text frames leave room for a status frame);
-6. frame bytes from the Python encoder (:mod:`steval_link.protocol`) or the firmware's own C encoder
+6. frame bytes from the Python encoder (:mod:`steval_link.link.protocol`) or the firmware's own C encoder
    (``firmware_patch/host/stv_encode``, fed with frame requests);
 7. the host: a USB-UART adapter delivering the bytes in packets, with receive times, into a ``.stv`` capture
    (or the plain bytes, like ``cat /dev/ttyUSB0 > file``).
@@ -44,13 +44,13 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link import capture as C
-from steval_link import motion as M
-from steval_link import protocol as P
-from steval_link import sensor_model as sm
+from steval_link.link import capture as C
+from steval_link.emulation import motion as M
+from steval_link.link import protocol as P
+from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run as mahony_run
-from steval_link.textmode import format_att, format_sta
+from steval_link.link.textmode import format_att, format_sta
 
 __all__ = [
     "EPOCH_UNIX_S",
@@ -95,11 +95,11 @@ class SynthOptions:
     """What to emulate (the ``steval synth`` options).
 
     Attributes:
-        scenario: built-in scenario name (:data:`steval_link.motion.SCENARIOS`) or a BROAD trial ``.npz`` path.
+        scenario: built-in scenario name (:data:`steval_link.emulation.motion.SCENARIOS`) or a BROAD trial ``.npz`` path.
         duration_s: capture length, s (default: the scenario's; a BROAD trial: all of it after the join).
         seed: seeds every random choice (motion details, sensor bias and noise, latencies, drops).
         baud: USART1 baud rate (header, status frames, byte timing, queue drain).
-        throttle: ``--throttle`` spec overriding the scenario's throttle (see :func:`steval_link.motion.parse_throttle`).
+        throttle: ``--throttle`` spec overriding the scenario's throttle (see :func:`steval_link.emulation.motion.parse_throttle`).
         ki: ``AHRS_KI`` of the emulated build (float32 like the firmware).
         correction: False: the build without accelerometer correction (lab exercise 5, status flag bit 0).
         text_mode: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines).
@@ -343,7 +343,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
 
     trial = None
     if _is_path(opts.scenario):
-        from steval_link.broad import load_trial
+        from steval_link.emulation.broad import load_trial
 
         trial = load_trial(opts.scenario)
         min_total = 3.0
@@ -696,7 +696,7 @@ def _header(opts: SynthOptions, name: str, duration: float, counts: dict, droppe
         "tool_version": __version__,
         "extra": {
             "emulated": True,
-            "generator": "steval synth (steval_link.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "
+            "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "
                          "ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
             "command": opts.command(),
             "synth": params,

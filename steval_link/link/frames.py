@@ -1,6 +1,6 @@
 """One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`.
 
-Field names follow the payload dtypes of :mod:`steval_link.protocol` (units in the names). Binary frames carry the
+Field names follow the payload dtypes of :mod:`steval_link.link.protocol` (units in the names). Binary frames carry the
 firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows (``exact=False``) carry
 the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset`` is the stream byte offset
 of the frame's first byte and ``nbytes`` its length on the wire (frame or text line including the line ending).
@@ -25,7 +25,7 @@ class AttitudeFrame:
     ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full step counter when the
     frame itself carries it (text mode), else None (the binary frame only has ``seq``; :class:`Telemetry` unwraps
     it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text line; NaN for binary frames,
-    whose angles are recomputed bit-exactly from ``q_wxyz`` in :class:`~steval_link.telemetry.Telemetry`.
+    whose angles are recomputed bit-exactly from ``q_wxyz`` in :class:`~steval_link.link.telemetry.Telemetry`.
     """
 
     t_us: int

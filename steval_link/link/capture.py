@@ -453,7 +453,7 @@ def read_source(path: str | os.PathLike) -> Source:
 
 
 def load_telemetry(path: str | os.PathLike):
-    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.telemetry.Telemetry`.
+    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.link.telemetry.Telemetry`.
 
     The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
     truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
@@ -468,7 +468,7 @@ def load_telemetry(path: str | os.PathLike):
 
 def telemetry_of_source(src: Source):
     """Decode a :class:`Source` (see :func:`load_telemetry`)."""
-    from steval_link.decoder import decode_bytes
+    from steval_link.link.decoder import decode_bytes
 
     if src.kind == "stv" and not src.data:
         raise UserError(f"{src.path} is an empty capture (no bytes were received).")
@@ -498,8 +498,8 @@ def telemetry_of_source(src: Source):
 def demo_capture_path() -> Path:
     """The bundled demo recording (``recordings/demo.stv``), in a source tree / editable install or as installed
     package data; raises :class:`~steval_link.errors.UserError` when it cannot be found."""
-    here = Path(__file__).resolve().parent
-    candidates = [here.parent / "recordings" / "demo.stv", here / "recordings" / "demo.stv"]
+    package = Path(__file__).resolve().parents[1]  # steval_link/
+    candidates = [package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"]
     try:
         from importlib.resources import files
 

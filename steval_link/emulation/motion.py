@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from steval_link import sensor_model as sm
-from steval_link.broad import quat_multiply
+from steval_link.emulation import sensor_model as sm
+from steval_link.emulation.broad import quat_multiply
 from steval_link.estimators.base import quaternion_from_euler
 from steval_link.errors import UserError
 
@@ -605,7 +605,7 @@ def build_profile(name: str, t_s: np.ndarray, rng: np.random.Generator, *, throt
 
 
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:
-    """A BROAD trial (:class:`steval_link.broad.BroadTrial`) at tick times ``t_s``: trial time 0 is the first
+    """A BROAD trial (:class:`steval_link.emulation.broad.BroadTrial`) at tick times ``t_s``: trial time 0 is the first
     TIM9 tick ``first_tick_s``. acc is linearly resampled, the gyro read as a 416 Hz sample-and-hold; values are
     the trial's measurements (its IMU's noise and bias included), so ``measured`` is True. Throttle 0 (hand-held)
     unless ``throttle`` is given."""
@@ -617,7 +617,7 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_hold = np.floor(t_rel * sm.GYRO_ODR_HZ + 1e-9) / sm.GYRO_ODR_HZ
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
     gyro = np.stack([np.interp(t_hold, t_trial, trial.gyro_mdps[:, i]) for i in range(3)], axis=-1)
-    from steval_link.broad import interpolate_quat
+    from steval_link.emulation.broad import interpolate_quat
 
     q = interpolate_quat(t_trial, trial.quat_wxyz, t_rel)
     if throttle is None:

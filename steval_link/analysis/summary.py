@@ -1,4 +1,4 @@
-"""Summary of a :class:`~steval_link.telemetry.Telemetry` as a plain dict (for ``--json``) and as text lines."""
+"""Summary of a :class:`~steval_link.link.telemetry.Telemetry` as a plain dict (for ``--json``) and as text lines."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link import protocol as P
+from steval_link.link import protocol as P
 
 __all__ = ["summarize", "format_summary"]
 

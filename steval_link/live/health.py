@@ -1,0 +1,101 @@
+"""Link health of a live session: counters (:class:`LinkHealth`) and the health line on stderr (:class:`HealthDisplay`).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import shutil
+from typing import TextIO
+
+#: Health line refresh on a terminal / plain health lines otherwise, s.
+HEALTH_TTY_INTERVAL_S = 0.25
+
+
+HEALTH_PLAIN_INTERVAL_S = 5.0
+
+
+class LinkHealth:
+    """Counters and rates of the live link, for the health line and the summary (times: host s, Unix epoch)."""
+
+    def __init__(self) -> None:
+        self.attitude = 0
+        self.status = 0
+        self.text = 0
+        self.nonfinite = 0
+        self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
+        self.first_frame_s: float | None = None  # host receive time of the first attitude frame
+        self.last_frame_s: float | None = None
+        self.last_text: str | None = None
+
+    def count(self, n_attitude: int, t_first_s: float, t_last_s: float) -> None:
+        """``n_attitude`` frames received between host times ``t_first_s`` and ``t_last_s``."""
+        if n_attitude:
+            if self.first_frame_s is None:
+                self.first_frame_s = t_first_s
+            self.last_frame_s = t_last_s
+            self.attitude += n_attitude
+            self._times.append((t_last_s, self.attitude))
+
+    def rate_hz(self, now_s: float, window_s: float = 2.0) -> float:
+        """Attitude frames per second received over the last ``window_s`` (NaN while too little is known)."""
+        if self.last_frame_s is None or now_s - self.last_frame_s > 1.0:
+            return 0.0
+        recent = [(t, n) for t, n in self._times if now_s - t <= window_s]
+        if len(recent) < 2 or recent[-1][0] - recent[0][0] < 0.2:
+            return float("nan")
+        return (recent[-1][1] - recent[0][1]) / (recent[-1][0] - recent[0][0])
+
+
+def _fmt_bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} GB"
+
+
+def _fmt_duration(s: float) -> str:
+    s = max(0.0, s)
+    if s < 60:
+        return f"{s:.1f} s"
+    m, sec = divmod(int(round(s)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h{m:02d}m{sec:02d}s" if h else f"{m}m{sec:02d}s"
+
+
+class HealthDisplay:
+    """The health line on ``stream``: one line rewritten in place on a terminal, periodic plain lines otherwise."""
+
+    def __init__(self, stream: TextIO, *, tty: bool | None = None) -> None:
+        self.stream = stream
+        self.tty = stream.isatty() if tty is None else tty
+        self.interval_s = HEALTH_TTY_INTERVAL_S if self.tty else HEALTH_PLAIN_INTERVAL_S
+        self._last = -math.inf
+        self._dirty = False
+
+    def note(self, text: str) -> None:
+        """A message on its own line (events: connected, disconnected...)."""
+        if self.tty and self._dirty:
+            self.stream.write("\r\x1b[2K")
+            self._dirty = False
+        self.stream.write(f"steval: {text}\n")
+        self.stream.flush()
+
+    def show(self, line: str, now_mono: float, *, force: bool = False) -> None:
+        if not force and now_mono - self._last < self.interval_s:
+            return
+        self._last = now_mono
+        if self.tty:
+            width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
+            self.stream.write("\r\x1b[2K" + line[:width])
+            self._dirty = True
+        else:
+            self.stream.write(f"steval: {line}\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty and self._dirty:
+            self.stream.write("\r\x1b[2K")
+            self.stream.flush()
+            self._dirty = False

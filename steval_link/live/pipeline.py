@@ -1,0 +1,265 @@
+"""Bytes → frames → estimators → viewer for one live stream (:class:`LivePipeline`), each viewer fed merged batches at
+its own cadence (:class:`BatchOutlet`); AHRS step numbers from the 16-bit ``seq`` (:class:`StepUnwrapper`).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import time
+import typing
+
+import numpy as np
+
+from steval_link.link import protocol
+from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
+from steval_link.live.health import LinkHealth
+
+#: Bytes kept from the start of a connection to describe a stream without frames.
+SAMPLE_BYTES = 4096
+
+
+#: Frames go to a live viewer as soon as they are decoded (every processing round: latency goal p99 <= 5 ms,
+#: ``benchmarks/bench_live_latency.py``; a viewer over gRPC costs this process no memory per chunk) ...
+VIEW_INTERVAL_S = 0.0
+
+
+#: ... and to an ``.rrd`` at most this often, or once this much stream time waits (with a live viewer too, the file
+#: has its own stream of the same recording, fed these merged batches). Rerun's file sink keeps about 1 kB per
+#: chunk for the file's footer (its manifest) until the file closes, and each batch is about one chunk per entity
+#: (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
+RRD_ONLY_INTERVAL_S = 30.0
+
+
+
+class LiveViewer(typing.Protocol):
+    """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
+
+    Optional attributes, read when present: ``has_viewer`` (a viewer gets the stream, not only an ``.rrd``: then
+    every processing round goes out at once) and ``file`` (the ``.rrd``'s own LiveViewer next to a live viewer,
+    fed merged batches).
+    """
+
+    def log_batch(self, batch: AttitudeBatch) -> None: ...
+
+    def log_status(self, frame, t_host_s: float) -> None: ...
+
+    def log_text(self, frame, t_host_s: float) -> None: ...
+
+    def log_link(self, stats, t_host_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+class StepUnwrapper:
+    """Full AHRS step numbers from the 16-bit ``seq`` of attitude frames, corrected by status frames' 32-bit step."""
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+
+    def frames(self, frames) -> np.ndarray:
+        """(N,) int64 steps of these attitude frames, in order: ``step`` where the frame has it (text mode), else
+        unwrapped from ``seq`` (a repeated seq keeps its step)."""
+        out = np.empty(len(frames), dtype=np.int64)
+        last = self.last
+        for i, f in enumerate(frames):
+            if f.step is not None:
+                last = int(f.step)
+            elif last is None:
+                last = int(f.seq)
+            else:
+                last = last + ((int(f.seq) - last) % protocol.SEQ_MODULUS)
+            out[i] = last
+        self.last = last
+        return out
+
+    def status(self, step: int) -> None:
+        """A status frame describes the step of the attitude frame just before it: take its full number."""
+        if self.last is None or self.last % protocol.SEQ_MODULUS == step % protocol.SEQ_MODULUS:
+            self.last = step
+
+
+class BatchOutlet:
+    """One logger fed merged batches at its own cadence (see :class:`LivePipeline`).
+
+    ``logger`` takes ``log_batch(batch)``, ``log_status(frame, t_host_s)`` and ``log_text(frame, t_host_s)``.
+    Batches wait at most ``interval_s`` (monotonic wall time) or ``interval_s`` × 161.5 frames of stream time (a
+    stream fed faster than real time, e.g. catching up or a benchmark, still makes chunks of the same size).
+    """
+
+    def __init__(self, logger, interval_s: float) -> None:
+        self.logger = logger
+        self.interval_s = interval_s
+        self.max_rows = max(1, math.ceil(interval_s * protocol.AHRS_RATE_HZ))
+        self._batches: list[AttitudeBatch] = []
+        self._rows = 0
+        self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
+        self._since = 0.0  # monotonic time the oldest pending item came
+
+    def _touch(self) -> None:
+        if not self._batches and not self._events:
+            self._since = time.monotonic()
+
+    def add_batch(self, batch: AttitudeBatch) -> None:
+        self._touch()
+        self._batches.append(batch)
+        self._rows += len(batch)
+
+    def add_event(self, kind: str, frame, t_host_s: float) -> None:
+        self._touch()
+        self._events.append((kind, frame, t_host_s))
+
+    def tick(self, now_mono: float | None = None) -> None:
+        """Flush when the pending frames have waited ``interval_s`` or fill ``max_rows``."""
+        if not (self._batches or self._events):
+            return
+        if self._rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Log every pending frame now: one merged batch, then the status and text frames in stream order."""
+        if self._batches:
+            batch = AttitudeBatch.concat(self._batches)
+            self._batches = []
+            self._rows = 0
+            self.logger.log_batch(batch)
+        if self._events:
+            events, self._events = self._events, []
+            for kind, frame, t_host_s in events:
+                if kind == "status":
+                    self.logger.log_status(frame, t_host_s)
+                else:
+                    self.logger.log_text(frame, t_host_s)
+
+
+class LivePipeline:
+    """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
+
+    ``feed([(bytes, t_host_s), ...])`` decodes the chunks in order and, per processing round, turns the
+    attitude frames into one :class:`AttitudeBatch` that goes through :class:`LiveEstimators` and then to
+    ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
+    ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
+
+    ``view_interval_s``: batches are handed to the viewer at most this often, or once that much stream time
+    (``view_interval_s`` × 161.5 frames) waits (merged; the status and text frames
+    that came meanwhile follow the merged batch, in stream order, and are timed by their own firmware time, so
+    they never cut a batch): every Rerun log call costs a chunk per entity, and Rerun keeps some memory per chunk
+    for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat.
+
+    ``file_logger``: a second logger (the ``.rrd``'s own stream next to a live viewer) that gets the same frames
+    merged at its own cadence, ``file_interval_s``. Each logger gets every frame once. Call :meth:`tick`
+    regularly and :meth:`flush_view` at the end.
+    """
+
+    def __init__(
+        self,
+        estimator_names: list[str],
+        viewer=None,
+        *,
+        view_interval_s: float = 0.0,
+        file_logger=None,
+        file_interval_s: float = RRD_ONLY_INTERVAL_S,
+    ) -> None:
+        from steval_link.link.decoder import StreamDecoder
+
+        self.view_interval_s = view_interval_s
+        #: the loggers, each with its own cadence (the viewer first)
+        self.outlets = [
+            BatchOutlet(logger, interval_s)
+            for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
+            if logger is not None
+        ]
+        self.decoder = StreamDecoder()
+        self.health = LinkHealth()
+        self.estimators = LiveEstimators(estimator_names) if estimator_names else None
+        self.viewer = viewer
+        self.file_logger = file_logger
+        self.step_unwrap = StepUnwrapper()
+        #: the first bytes of the current connection (to describe a stream without frames)
+        self.sample = bytearray()
+        #: firmware log lines not shown yet (the session prints them; bounded)
+        self.texts: collections.deque[str] = collections.deque(maxlen=32)
+
+    @property
+    def port(self) -> "LivePort | None":
+        return self.estimators.port if self.estimators is not None else None
+
+    def feed(self, chunks: list[tuple[bytes, float]]) -> None:
+        """Decode and process chunks received at host times ``t_host_s`` (s, Unix epoch), in stream order."""
+        from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+
+        outlets = self.outlets
+        att: list[tuple[object, float]] = []
+        for data, t_host_s in chunks:
+            if len(self.sample) < SAMPLE_BYTES:
+                self.sample += data[: SAMPLE_BYTES - len(self.sample)]
+            for frame in self.decoder.feed(data):
+                if isinstance(frame, AttitudeFrame):
+                    att.append((frame, t_host_s))
+                elif isinstance(frame, StatusFrame):
+                    self._attitude(att)  # the port must step through the frames before the snapshot
+                    att = []
+                    self.health.status += 1
+                    self.step_unwrap.status(int(frame.step))
+                    if self.estimators is not None:
+                        self.estimators.status(frame)
+                    if outlets:
+                        self._event("status", frame, t_host_s)
+                elif isinstance(frame, TextFrame):
+                    self._attitude(att)
+                    att = []
+                    self.health.text += 1
+                    self.health.last_text = frame.text
+                    self.texts.append(frame.text)
+                    if outlets:
+                        self._event("text", frame, t_host_s)
+        self._attitude(att)
+        self.tick()
+
+    def _event(self, kind: str, frame, t_host_s: float) -> None:
+        for outlet in self.outlets:
+            outlet.add_event(kind, frame, t_host_s)
+
+    def tick(self, now_mono: float | None = None) -> None:
+        """Hand the pending frames to each logger whose interval has passed."""
+        for outlet in self.outlets:
+            outlet.tick(now_mono)
+
+    def flush_view(self) -> None:
+        """Hand every pending frame to every logger now: one merged batch each, then the status and text frames."""
+        for outlet in self.outlets:
+            outlet.flush()
+
+    def _attitude(self, att: list) -> None:
+        if not att:
+            return
+        frames = [f for f, _ in att]
+        n = len(frames)
+        acc = np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3)
+        gyro = np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3)
+        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
+        thz = np.array([f.thz_rad for f in frames], dtype=np.float32)
+        exact = np.array([f.exact for f in frames], dtype=bool)
+        # binary frames must carry a finite q; text-mode rows carry no q but angles instead
+        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
+        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1) & np.isfinite(thz)
+        finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
+        batch = AttitudeBatch(
+            step=self.step_unwrap.frames(frames),
+            t_us=np.array([f.t_us for f in frames], dtype=np.int64),
+            t_host_s=np.array([t for _, t in att], dtype=np.float64),
+            acc_mg=acc,
+            gyro_mdps=gyro,
+            q_wxyz=q,
+            thz_rad=thz,
+            thr=np.array([f.thr for f in frames], dtype=np.int16),
+            finite=finite,
+            exact=exact,
+            thx_rad=angles[:, 0],
+            thy_rad=angles[:, 1],
+        )
+        self.health.nonfinite += int(n - np.count_nonzero(finite))
+        self.health.count(n, float(batch.t_host_s[0]), float(batch.t_host_s[-1]))
+        if self.estimators is not None:
+            self.estimators.process(batch)
+        for outlet in self.outlets:
+            outlet.add_batch(batch)

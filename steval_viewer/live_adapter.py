@@ -1,0 +1,91 @@
+"""The Rerun side of a live session (:class:`ViewerLogger`): the sinks a session chose and the loggers that write
+to them; the session knows it only through the :class:`steval_link.live.pipeline.LiveViewer` protocol.
+"""
+
+from __future__ import annotations
+
+from steval_link.live.estimators import AttitudeBatch
+from steval_link.live.session import LiveOptions
+from steval_viewer.sink_options import (
+    SinkOptions,
+    check_sinks,
+    resolve_sinks,
+)
+
+
+class ViewerLogger:
+    """The Rerun side of a live session: the sinks of ``options`` and a :class:`steval_viewer.live_log.LiveLogger`.
+
+    ``log_batch``/``log_status``/``log_text`` go to the session's main stream (the viewer's; the ``.rrd``'s when
+    there is no viewer). With a viewer *and* ``--rrd`` the file has its own stream of the same recording and its
+    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (Rerun's file
+    sink keeps ~1 kB per chunk until the file closes); ``log_link`` goes to both; ``close`` flushes and closes both.
+
+    Imported only when a viewer or an ``.rrd`` is asked for (``--no-view`` without ``--rrd``: no Rerun at all).
+    """
+
+    def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
+        from steval_viewer import live_log, sinks
+
+        self.session = sinks.open_session(
+            viewer_sink_options(options), recording_name=recording_name, split_file=True
+        )
+        self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
+        self.file: live_log.LiveLogger | None = None
+        if self.session.file_rec is not None:
+            # same host-time origin as the live view, so the .rrd lines up with it when opened together
+            self.file = live_log.LiveLogger(
+                self.session.file_rec, estimator_names=options.estimators, t0_from=self.logger
+            )
+
+    @property
+    def has_viewer(self) -> bool:
+        """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
+        return self.session.has_viewer
+
+    def log_batch(self, batch: AttitudeBatch) -> None:
+        self.logger.log_batch(batch)
+
+    def log_status(self, frame, t_host_s: float) -> None:
+        self.logger.log_status(frame, t_host_s)
+
+    def log_text(self, frame, t_host_s: float) -> None:
+        self.logger.log_text(frame, t_host_s)
+
+    def log_link(self, stats, t_host_s: float) -> None:
+        self.logger.log_link(stats, t_host_s)
+        if self.file is not None:
+            self.file.log_link(stats, t_host_s)
+
+    def close(self) -> None:
+        """Send what the loggers hold and finish both streams (the ``.rrd`` is complete afterwards)."""
+        try:
+            try:
+                self.logger.close()
+            finally:
+                if self.file is not None:
+                    self.file.close()
+        finally:
+            self.session.close()
+
+
+def viewer_sink_options(options: LiveOptions) -> SinkOptions:
+    """The Rerun sinks of a session (``steval_viewer.sink_options.SinkOptions``): the chosen viewer, or the default
+    one (``--spawn`` where a display exists), and the ``.rrd``; ``--no-view``: the ``.rrd`` alone. UserError when
+    they cannot work (no display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a
+    missing ``.rrd`` folder)."""
+    chosen = SinkOptions(rrd=options.rrd)
+    if options.web_port is not None:
+        chosen.web_port = options.web_port
+    if options.grpc_port is not None:
+        chosen.grpc_port = options.grpc_port
+    if options.view:
+        chosen.spawn, chosen.serve, chosen.connect = options.spawn, options.serve, options.connect
+        chosen = resolve_sinks(chosen)
+    check_sinks(chosen)
+    return chosen
+
+
+def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:
+    """The Rerun side of a live session (see :class:`ViewerLogger`)."""
+    return ViewerLogger(options, recording_name)
