@@ -9,8 +9,8 @@ _FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off", "-fno-f
 setup(
     ext_modules=[
         Extension(
-            "steval_link.estimators._st_mahony_native",
-            sources=["steval_link/estimators/_st_mahony_native.c"],
+            "steval_link._st_mahony_native",
+            sources=["steval_link/_st_mahony_native.c"],
             extra_compile_args=_FLAGS,
             optional=True,
         ),

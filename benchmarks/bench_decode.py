@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.link import protocol as P
 from steval_link.link.capture import CaptureWriter, load_telemetry, read_capture
 from steval_link.link.decoder import StreamDecoder, decode_bytes
@@ -20,10 +21,10 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 
 def synthetic_stream(seconds: float, seed: int = 1) -> bytes:
     """Binary stream of ``seconds`` of flight: attitude every AHRS step, a status frame after every 161st."""
-    n = int(seconds * P.AHRS_RATE_HZ)
+    n = int(seconds * C.AHRS_RATE_HZ)
     rng = np.random.default_rng(seed)
     rec = np.zeros(n, P.ATTITUDE_DTYPE)
-    rec["t_us"] = (np.arange(n) * P.AHRS_PERIOD_S * 1e6).astype(np.int64) % P.T_US_MODULUS
+    rec["t_us"] = (np.arange(n) * C.AHRS_PERIOD_S * 1e6).astype(np.int64) % P.T_US_MODULUS
     rec["acc_mg"] = rng.normal([0, 0, 1000], 20, (n, 3)).astype(np.float32)
     rec["gyro_mdps"] = rng.normal(0, 500, (n, 3)).astype(np.float32)
     rec["q_wxyz"] = np.array([0.9983, 0.01, -0.02, 0.0], np.float32)

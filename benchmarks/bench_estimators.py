@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from steval_link.link import protocol as P
+from steval_link import constants as C
 from steval_link.estimators import registry, st_mahony
 
 
@@ -47,12 +47,12 @@ def time_run(make, acc, gyro, thr, n_total: int, budget_s: float):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=int(round(3600 * P.AHRS_RATE_HZ)), help="steps of the flight")
+    ap.add_argument("--steps", type=int, default=int(round(3600 * C.AHRS_RATE_HZ)), help="steps of the flight")
     ap.add_argument("--budget", type=float, default=20.0, help="seconds allowed per estimator before extrapolating")
     args = ap.parse_args()
     n = args.steps
     acc, gyro, thr = flight_inputs(n)
-    print(f"{n} AHRS steps ({n / P.AHRS_RATE_HZ / 60:.1f} min of flight at {P.AHRS_RATE_HZ:.1f} Hz)")
+    print(f"{n} AHRS steps ({n / C.AHRS_RATE_HZ / 60:.1f} min of flight at {C.AHRS_RATE_HZ:.1f} Hz)")
     print(f"{'estimator':<24} {'steps/s':>12} {'1-h flight':>11}  note")
 
     cases = []

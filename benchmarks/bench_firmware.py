@@ -28,7 +28,7 @@ FW = ROOT / "firmware_patch"
 sys.path.insert(0, str(FW / "tools"))
 import stv_emu  # noqa: E402
 
-from steval_link.link import protocol as P  # noqa: E402
+from steval_link import constants as C
 from steval_link.link.decoder import StreamDecoder  # noqa: E402
 
 
@@ -64,13 +64,13 @@ def main() -> None:
         print(f"  per AHRS step in the main loop (step_begin + step_end): {stats(per_step)}")
         mean_step = float(np.mean(per_step))
         print(f"    = {mean_step / 84:.2f} µs at 84 MHz (~1 cycle/instruction), "
-              f"{100 * mean_step * P.AHRS_RATE_HZ / 84e6:.3f} % CPU at 161.5 Hz")
+              f"{100 * mean_step * C.AHRS_RATE_HZ / 84e6:.3f} % CPU at 161.5 Hz")
 
         dec = StreamDecoder()
         dec.feed(link.output)
         dec.finish()
         assert dec.stats.bytes_skipped == 0 and dec.stats.attitude == steps
-        bytes_per_s = len(link.output) / steps * P.AHRS_RATE_HZ
+        bytes_per_s = len(link.output) / steps * C.AHRS_RATE_HZ
         print("\nUART load of the binary stream (bytes the target code emitted, 161.5 Hz, status every 162 steps)")
         print(f"  {bytes_per_s:.0f} bytes/s")
         for baud in (115200, 230400, 460800, 921600):

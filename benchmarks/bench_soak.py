@@ -43,7 +43,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream  # noqa: E402
 
-from steval_link.link import protocol  # noqa: E402
+from steval_link import constants as C
 
 
 def proc_mem_mb(pid: int) -> tuple[float, float]:
@@ -86,7 +86,7 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true", help="keep the capture and .rrd (prints the folder)")
     args = ap.parse_args()
 
-    n_steps = int(args.minutes * 60 * protocol.AHRS_RATE_HZ)
+    n_steps = int(args.minutes * 60 * C.AHRS_RATE_HZ)
     t0 = time.perf_counter()
     data = flight_stream(n_steps, seed=11)
     print(

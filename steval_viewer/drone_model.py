@@ -13,6 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import rerun as rr
+
+from steval_viewer import entities as ent
 
 ARM_LENGTH = 1.0  #: centre to motor axis
 ARM_HALF_WIDTH = 0.045
@@ -166,10 +169,6 @@ def log_models(rec, ghost_sources: list[str]) -> None:
 
     ``rec`` is a ``rerun.RecordingStream``; ``ghost_sources`` are source segments (see ``entities.source_name``).
     """
-    import rerun as rr
-
-    from steval_viewer import entities as ent
-
     mesh = quadcopter_mesh()
     rec.log(
         ent.DRONE_FIRMWARE_MODEL,

@@ -25,7 +25,7 @@ class ViewerLogger:
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
-        from steval_viewer import live_log, sinks
+        from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(
             viewer_sink_options(options), recording_name=recording_name, split_file=True

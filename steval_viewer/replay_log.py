@@ -23,6 +23,7 @@ import numpy as np
 import rerun as rr
 
 from steval_link.errors import UserError
+from steval_link.estimators.st_mahony import replay_firmware
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
@@ -306,10 +307,6 @@ def firmware_port(tel: Any) -> Any | None:
     has no bit-exact rows (text mode) or the port is unavailable."""
     exact = getattr(tel.attitude, "exact", None)
     if exact is not None and not np.asarray(exact).any():
-        return None
-    try:
-        from steval_link.estimators.st_mahony import replay_firmware
-    except ImportError:  # pragma: no cover - the port ships with steval_link
         return None
     return replay_firmware(tel)
 

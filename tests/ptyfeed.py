@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.link import protocol
 
 #: Bytes per second of the real stream at 161.5 Hz (PROTOCOL.md, "Bandwidth").
-REAL_BYTES_PER_S = protocol.AHRS_RATE_HZ * protocol.ATTITUDE_FRAME_SIZE + protocol.STATUS_FRAME_SIZE
+REAL_BYTES_PER_S = C.AHRS_RATE_HZ * protocol.ATTITUDE_FRAME_SIZE + protocol.STATUS_FRAME_SIZE
 
 TICK_S = 0.005
 
@@ -245,7 +246,7 @@ def flight_stream(
     settings = st_mahony.MahonySettings(ki=ki)
     rng = np.random.default_rng(seed)
     total = first_step + n_steps
-    t = np.arange(total) * protocol.AHRS_PERIOD_S
+    t = np.arange(total) * C.AHRS_PERIOD_S
     pitch = 0.35 * np.sin(2 * np.pi * 0.3 * t)
     roll = 0.25 * np.sin(2 * np.pi * 0.17 * t + 1.0)
     acc = np.stack(
@@ -260,7 +261,7 @@ def flight_stream(
     state = st_mahony.MahonyState()
     out = bytearray(b"".join(protocol.encode_text(line) for line in text_lines))
     t_us = (t * 1e6).astype(np.int64) + 1_234_567
-    thz = np.cumsum(gyro[:, 2].astype(np.float64) * protocol.AHRS_PERIOD_S / 57295.8).astype(np.float32)
+    thz = np.cumsum(gyro[:, 2].astype(np.float64) * C.AHRS_PERIOD_S / 57295.8).astype(np.float32)
     block = status_every
     start = 0
     while start < total:

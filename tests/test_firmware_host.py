@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from steval_link import constants as C
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
@@ -313,7 +314,7 @@ def test_link_uart_model(host_build, baud, expect_drops):
     """UART draining baud/10 bytes/s between 161.5 Hz steps, with log lines: 115200 keeps up, 57600 drops."""
     n = 1500
     s = Steps(n, 0)
-    per_step = baud / 10 / P.AHRS_RATE_HZ
+    per_step = baud / 10 / C.AHRS_RATE_HZ
     cmds, sent = cmd_config(status_every=162, baud=baud), 0.0
     for i in range(n):
         cmds += s.command(i)

@@ -11,7 +11,6 @@ import signal
 import time
 
 import numpy as np
-import pytest
 
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream, uart_resample
 from steval_link.link import protocol

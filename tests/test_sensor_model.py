@@ -166,3 +166,10 @@ def test_pipeline_matches_the_conformance_vectors_inputs(shared_dir):
     assert np.all(d_acc.std(axis=0) < 0.5)
     assert np.all(np.abs(d_gyro.mean(axis=0)) < 40)
     assert np.all(d_gyro.std(axis=0) < 2.0)
+
+
+def test_the_gyro_latency_stated_in_constants_is_the_sensor_models():
+    from steval_link import constants
+
+    assert constants.GYRO_LATENCY_S == pytest.approx(sm.GYRO_LATENCY_S, rel=1e-12)
+    assert constants.AHRS_RATE_HZ == pytest.approx(sm.AHRS_HZ, rel=1e-15)

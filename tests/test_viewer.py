@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from steval_link import constants as C
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.errors import UserError
@@ -21,7 +22,7 @@ from steval_viewer.replay_log import log_replay
 from steval_viewer.rrd_check import read_rrd
 from steval_viewer.sinks import SinkOptions, open_session, resolve_sinks
 
-RATE = P.AHRS_RATE_HZ
+RATE = C.AHRS_RATE_HZ
 
 
 def _pitch_q(angle_rad: np.ndarray) -> np.ndarray:

@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from steval_link.link import protocol as P
+from steval_link import constants as C
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     FirmwareReplay,
@@ -38,8 +38,11 @@ from steval_link.estimators.st_mahony import (
     MahonyState,
     bits_equal,
     replay_firmware,
+)
+from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
+from steval_link.link import protocol as P
 
 __all__ = [
     "DEFAULT_COMPARE_ESTIMATORS",
@@ -299,7 +302,7 @@ def relative_time_s(step, t_fw_s) -> np.ndarray:
     dt = np.diff(t)
     bad = (np.diff(np.asarray(step, dtype=np.int64)) <= 0) | ~np.isfinite(dt) | (dt < 0)
     if bad.any():
-        dt = np.where(bad, P.AHRS_PERIOD_S, dt)
+        dt = np.where(bad, C.AHRS_PERIOD_S, dt)
     return np.concatenate([[0.0], np.cumsum(dt)])
 
 
@@ -332,7 +335,7 @@ def rate_stats(tel) -> RateStats:
             kw["ahrs_cycles_mean"] = float(np.mean(s.cyc_mean))
         cpu = np.asarray(s.cpu_hz)[np.asarray(s.exact, bool)] if np.any(s.exact) else np.zeros(0)
         cpu = cpu[cpu > 0]
-        kw["cpu_hz"] = int(cpu[-1]) if cpu.size else (P.DEFAULT_CPU_HZ if kw.get("ahrs_cycles_mean") else None)
+        kw["cpu_hz"] = int(cpu[-1]) if cpu.size else (C.CPU_HZ if kw.get("ahrs_cycles_mean") else None)
     return RateStats(
         duration_s=duration,
         rate_hz=(int(np.count_nonzero(ok)) / duration) if duration > 0 else None,
@@ -387,8 +390,8 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     if len(s) and not ex.any():
         ki = float(s.ki[-1])
         return {"from": "text-mode status lines", "ki": _num(ki), "flags": int(s.flags[-1]),
-                "differs_from_defaults": {} if not math.isfinite(ki) or np.float32(ki) == np.float32(P.DEFAULT_KI)
-                else {"ki": [_num(ki), P.DEFAULT_KI]}, "changes": 0}
+                "differs_from_defaults": {} if not math.isfinite(ki) or np.float32(ki) == np.float32(C.KI)
+                else {"ki": [_num(ki), C.KI]}, "changes": 0}
     if not ex.any():
         return None
     rows = np.flatnonzero(ex)
@@ -476,17 +479,17 @@ def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings
 
     defaults = MahonySettings()
     add({"defaults": True}, defaults)
-    for ki in (1.0, P.DEFAULT_KI, 0.0):
+    for ki in (1.0, C.KI, 0.0):
         add({"ki": ki}, replace(base, ki=ki))
     add({"correction": not base.correction}, replace(base, correction=not base.correction))
     add({"fresh_squares": not base.fresh_squares}, replace(base, fresh_squares=not base.fresh_squares))
-    for dt in (_DT_REAL_S, float(np.float32(P.AHRS_PERIOD_S)), P.DEFAULT_DT_S):
+    for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
         add({"dt_s": dt}, replace(base, dt_s=dt))
     kps = [(base.kp_flight, base.kp_flight), (base.kp_ground, base.kp_ground), (base.kp_flight, base.kp_ground),
-           (P.DEFAULT_KP_GROUND, P.DEFAULT_KP_FLIGHT)]
+           (C.KP_GROUND, C.KP_FLIGHT)]
     for kg, kf in kps:
         add({"kp": (kg, kf)}, replace(base, kp_ground=kg, kp_flight=kf))
-    add({"min_thr": P.DEFAULT_MIN_THR}, replace(base, min_thr=P.DEFAULT_MIN_THR))
+    add({"min_thr": C.MIN_THR}, replace(base, min_thr=C.MIN_THR))
     return out
 
 
@@ -715,11 +718,11 @@ def _link_notes(tel) -> list[str]:
     baud = int(s.baud[ex[-1]]) if ex.size else 0
     if not baud:
         baud = int(((tel.source or {}).get("header") or {}).get("baud") or 0)
-    need = P.ATTITUDE_FRAME_SIZE * 10 * P.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
+    need = P.ATTITUDE_FRAME_SIZE * 10 * C.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
     dropped = int(s.tx_dropped[-1])
     if baud and baud < need:
         return [f"the firmware's TX queue dropped {dropped} frames: at {baud} baud the link carries at most "
-                f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {P.AHRS_RATE_HZ:.1f} the AHRS "
+                f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {C.AHRS_RATE_HZ:.1f} the AHRS "
                 f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"]
     return [f"the firmware's TX queue dropped {dropped} frames since power-up (queue full: bursts of text or "
             "status frames); frames dropped before the capture started count too"]

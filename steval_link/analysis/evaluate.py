@@ -20,9 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link.analysis.plots import require_matplotlib
 from steval_link.emulation import broad
+from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.link.capture import read_source, telemetry_of_source
 
 __all__ = [
     "EstimatorSpec",
@@ -193,8 +196,6 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
 
     The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
     """
-    from steval_link.link.capture import read_source, telemetry_of_source
-    from steval_link.emulation.sensor_model import AHRS_HZ
 
     p = Path(path)
     src = read_source(p)  # missing, unreadable, empty: its own sentence
@@ -292,7 +293,6 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
 
     Needs matplotlib (``pip install "steval-link[plot]"``; UserError otherwise).
     """
-    from steval_link.analysis.plots import require_matplotlib
 
     plt = require_matplotlib()
     s = summary(results)

@@ -5,6 +5,8 @@ from typing import Optional
 
 import typer
 
+from steval_link import __version__
+
 #: ``-h`` as well as ``--help``, on every command
 HELP_OPTION_NAMES = ["-h", "--help"]
 
@@ -20,7 +22,6 @@ app = typer.Typer(
 
 def _print_version(value: bool) -> None:
     if value:
-        from steval_link import __version__
 
         typer.echo(f"steval-link {__version__}")
         raise typer.Exit(0)

@@ -16,17 +16,20 @@ from typing import Annotated, Optional
 
 import typer
 
+from steval_link.analysis.compare import DEFAULT_COMPARE_ESTIMATORS, compare_capture, format_report
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain, check_throttle
 from steval_link.cli.progress import progress_bar, scaled
+from steval_link.cli.replay import load_replay
 from steval_link.errors import UserError
+from steval_link.estimators import registry
+from steval_link.estimators.st_mahony import MahonySettings
 
 __all__ = ["compare_command"]
 
 
 def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares):
     """Port settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
-    from steval_link.estimators.st_mahony import MahonySettings
 
     changes = {
         k: v
@@ -88,9 +91,6 @@ def compare_command(
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
     drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees."""
-    from steval_link.analysis.compare import DEFAULT_COMPARE_ESTIMATORS, compare_capture, format_report
-    from steval_link.cli.replay import load_replay
-    from steval_link.estimators import registry
 
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
     names = tuple(n.strip() for e in estimator for n in e.split(",") if n.strip()) if estimator else ()
@@ -99,7 +99,7 @@ def compare_command(
         if estimator and name not in registry.ESTIMATORS:
             raise UserError(f"unknown estimator {name!r}; choose from: {', '.join(registry.names())}")
     if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
     for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
@@ -116,7 +116,7 @@ def compare_command(
         for w in seen:
             report.notes.append(w)
         if plot is not None:
-            from steval_link.analysis.plots import plot_comparison
+            from steval_link.analysis.plots import plot_comparison  # matplotlib loads only for --plot (start-up time)
 
             progress(0.9, f"plotting {plot.name}")
             plot_comparison(tel, report, plot)

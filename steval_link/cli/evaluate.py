@@ -8,8 +8,11 @@ from typing import Annotated, Optional
 
 import typer
 
+from steval_link.analysis import evaluate as ev
 from steval_link.cli.app import app
 from steval_link.cli.progress import progress_bar
+from steval_link.emulation import broad
+from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
 
 __all__ = ["evaluate_command"]
 
@@ -50,12 +53,9 @@ def evaluate_command(
                                                                      "own before quantisation.")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
 ) -> None:
-    from steval_link.emulation import broad
-    from steval_link.analysis import evaluate as ev
-    from steval_link.emulation.sensor_model import Lsm6dsl
 
     if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()  # fail before the long run
     items = broad.trial_paths(data)
@@ -83,7 +83,6 @@ def evaluate_command(
                 specs = ev.default_specs(view.rate_hz, native=native, only=only)
                 results.append(ev.evaluate_view(view, specs, trial.name, progress))
             else:
-                from steval_link.emulation.sensor_model import AHRS_HZ
 
                 specs = ev.default_specs(AHRS_HZ, only=only)
                 results.append(ev.evaluate_capture(p, specs, progress=progress))

@@ -8,10 +8,10 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from steval_link.link.capture import read_source, telemetry_of_source
 from steval_link.cli.app import app
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
+from steval_link.link.capture import read_source, telemetry_of_source
 
 __all__ = ["write_csv", "write_parquet", "write_raw"]
 

@@ -8,8 +8,7 @@ from typing import Optional
 
 import typer
 
-from steval_link.link import protocol
-from steval_link.link.capture import resolve_capture_out
+from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -20,6 +19,7 @@ from steval_link.cli.viewer_options import (
     WebPortOption,
 )
 from steval_link.errors import UserError
+from steval_link.link.capture import resolve_capture_out
 from steval_link.live.estimators import resolve_estimators
 from steval_link.live.session import LiveOptions, LiveSession
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
@@ -38,7 +38,7 @@ def _check_baud(baud: int) -> None:
 @app.command("live")
 def live_command(
     port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(protocol.DEFAULT_BAUD, "--baud", "-b", help=_BAUD_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: Optional[Path] = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
     ),
@@ -101,7 +101,7 @@ def record_command(
     out: Optional[Path] = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv."
     ),
-    baud: int = typer.Option(protocol.DEFAULT_BAUD, "--baud", "-b", help=_BAUD_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
 ) -> None:

@@ -20,7 +20,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
+from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -33,9 +33,10 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
+from steval_link.estimators.runner import row_decimation, run_estimator
+from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
 from steval_link.live.estimators import resolve_estimators
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
-from steval_link.analysis.summary import format_summary, summarize
 
 __all__ = ["load_replay", "run_estimators", "DEFAULT_ESTIMATORS"]
 
@@ -64,7 +65,6 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     """Stage 2: run each named estimator (``steval_link.estimators.registry``) from power-up over every attitude
     row's inputs (``acc_mg``, ``gyro_mdps``, ``thr``; decimated text-mode rows at their row rate); returns
     name → ``AttitudeEstimate``. Raises UserError for an unknown or uninstalled estimator."""
-    from steval_link.estimators.runner import row_decimation, run_estimator
 
     progress = scaled(progress, 0.0, 1.0)
     decimation = row_decimation(tel)

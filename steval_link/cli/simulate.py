@@ -14,8 +14,6 @@ import typer
 
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
-from steval_link.errors import UserError
-from steval_link.estimators import registry
 from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
     BASELINE_GYRO_MDPS,
@@ -24,6 +22,8 @@ from steval_link.emulation.lab5 import (
     SimulationResult,
     run_simulation,
 )
+from steval_link.errors import UserError
+from steval_link.estimators import registry
 
 CSV_COLUMNS = (
     "iteration",
@@ -254,7 +254,7 @@ def simulate_command(
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
     gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps")
@@ -295,7 +295,7 @@ def simulate_command(
     if rrd is not None:
         _log_rrd(res, rrd)
     if plot is not None:
-        from steval_link.analysis.plots import plot_simulation
+        from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
 
         plot_simulation(res, plot)
     if csv_out is not None and csv_out != "-":
@@ -319,7 +319,7 @@ def simulate_command(
 
 def _log_rrd(res: SimulationResult, path: Path) -> None:
     try:
-        from steval_viewer.simulate_log import log_simulation
+        from steval_viewer.simulate_log import log_simulation  # Rerun loads only for --rrd (start-up time)
     except ImportError:
         raise UserError("--rrd needs the viewer's steval_viewer.simulate_log, which this installation lacks") from None
     log_simulation(res, path)

@@ -11,9 +11,10 @@ import typer
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain
 from steval_link.cli.progress import progress_bar, scaled
-from steval_link.errors import UserError
+from steval_link.constants import BAUD, KI
 from steval_link.emulation.motion import SCENARIOS
-from steval_link.link.protocol import DEFAULT_BAUD, DEFAULT_KI
+from steval_link.emulation.synth import SynthOptions, synthesize, write_output
+from steval_link.errors import UserError
 
 
 def _list() -> None:
@@ -34,12 +35,12 @@ def synth_cmd(
     seed: Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")] = 0,
     baud: Annotated[int, typer.Option(
         "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it.")]
-    = DEFAULT_BAUD,
+    = BAUD,
     throttle: Annotated[Optional[str], typer.Option(
         "--throttle", help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : value, "
                            "linear in between).")] = None,
     ki: Annotated[float, typer.Option("--ki", help="AHRS_KI of the emulated build (lab exercise 4: 1.0).")]
-    = DEFAULT_KI,
+    = KI,
     no_correction: Annotated[bool, typer.Option(
         "--no-correction", help="Build without accelerometer correction (lab exercise 5).")] = False,
     text_mode: Annotated[bool, typer.Option(
@@ -71,7 +72,6 @@ def synth_cmd(
     check_gain("--ki", ki)
     if c_encoder is not None:
         encoder = "c"
-    from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 
     opts = SynthOptions(
         scenario=scenario, duration_s=duration, seed=seed, baud=baud, throttle=throttle, ki=ki,

@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.broad import quat_multiply
-from steval_link.estimators.base import quaternion_from_euler
+from steval_link.emulation.broad import interpolate_quat, quat_multiply
 from steval_link.errors import UserError
+from steval_link.estimators.base import quaternion_from_euler
 
 __all__ = [
     "G_MPS2",
@@ -617,7 +617,6 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_hold = np.floor(t_rel * sm.GYRO_ODR_HZ + 1e-9) / sm.GYRO_ODR_HZ
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
     gyro = np.stack([np.interp(t_hold, t_trial, trial.gyro_mdps[:, i]) for i in range(3)], axis=-1)
-    from steval_link.emulation.broad import interpolate_quat
 
     q = interpolate_quat(t_trial, trial.quat_wxyz, t_rel)
     if throttle is None:

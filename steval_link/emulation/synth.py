@@ -44,12 +44,16 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.link import capture as C
+from steval_link import __version__
+from steval_link import constants as C
 from steval_link.emulation import motion as M
-from steval_link.link import protocol as P
 from steval_link.emulation import sensor_model as sm
+from steval_link.emulation.broad import load_trial
 from steval_link.errors import UserError
-from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run as mahony_run
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState
+from steval_link.estimators.st_mahony import run as mahony_run
+from steval_link.link import capture
+from steval_link.link import protocol as P
 from steval_link.link.textmode import format_att, format_sta
 
 __all__ = [
@@ -78,7 +82,7 @@ TEXT_DECIMATION = 16
 TXQ_SIZE = 2048
 TEXT_LINE_MAX = 192
 FW_VERSION = (1, 0, 0)
-CPU_HZ = P.DEFAULT_CPU_HZ
+CPU_HZ = C.CPU_HZ
 #: TIM9 starts this long after the link (≈ power-up): sensor set-up in main() before HAL_TIM_Base_Start_IT.
 TIM9_START_CYCLES = 2_604_000  # 31 ms
 #: USB-UART adapter (FTDI FT232R-like): data bytes per USB packet, latency timer, USB frame.
@@ -112,9 +116,9 @@ class SynthOptions:
     scenario: str = "bench"
     duration_s: float | None = None
     seed: int = 0
-    baud: int = P.DEFAULT_BAUD
+    baud: int = C.BAUD
     throttle: str | None = None
-    ki: float = P.DEFAULT_KI
+    ki: float = C.KI
     correction: bool = True
     text_mode: bool = False
     join_at_s: float = 0.0
@@ -128,11 +132,11 @@ class SynthOptions:
         if self.duration_s is not None:
             parts += ["--duration", f"{self.duration_s:g}"]
         parts += ["--seed", str(self.seed)]
-        if self.baud != P.DEFAULT_BAUD:
+        if self.baud != C.BAUD:
             parts += ["--baud", str(self.baud)]
         if self.throttle is not None:
             parts += ["--throttle", self.throttle]
-        if self.ki != P.DEFAULT_KI:
+        if self.ki != C.KI:
             parts += ["--ki", f"{self.ki:g}"]
         if not self.correction:
             parts.append("--no-correction")
@@ -343,7 +347,6 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
 
     trial = None
     if _is_path(opts.scenario):
-        from steval_link.emulation.broad import load_trial
 
         trial = load_trial(opts.scenario)
         min_total = 3.0
@@ -681,14 +684,13 @@ def _count(order, offsets) -> dict:
 
 
 def _header(opts: SynthOptions, name: str, duration: float, counts: dict, dropped: int) -> dict:
-    from steval_link import __version__
 
     start = EPOCH_UNIX_S + opts.join_at_s
     params = {k: v for k, v in asdict(opts).items() if k not in ("encoder", "c_encoder")}
     params["duration_s"] = duration
     return {
         "format": "steval-capture",
-        "format_version": C.FORMAT_VERSION,
+        "format_version": capture.FORMAT_VERSION,
         "port": f"synth:{name}",
         "baud": int(opts.baud),
         "start_time_utc": datetime.fromtimestamp(start, timezone.utc).isoformat(timespec="microseconds"),
@@ -721,7 +723,7 @@ def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = 
         blob = result.data
     else:
         bounds = list(result.chunk_offsets) + [len(result.data)]
-        blob = C.encode_capture(
+        blob = capture.encode_capture(
             result.header,
             ((result.data[bounds[i] : bounds[i + 1]], t) for i, t in enumerate(result.chunk_times_s)),
         )

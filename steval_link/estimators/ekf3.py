@@ -50,6 +50,7 @@ import math
 
 import numpy as np
 
+from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import (
     AttitudeEstimate,
     Estimator,
@@ -57,7 +58,6 @@ from steval_link.estimators.base import (
     quaternion_from_euler,
     rows_before_tilt,
 )
-from steval_link.emulation.sensor_model import AHRS_HZ
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native
@@ -117,7 +117,7 @@ class Ekf3(Estimator):
 
     name = "ekf3"
 
-    def __init__(self, rate_hz: float = AHRS_HZ, gyro_noise_mdps: float = 75.0,
+    def __init__(self, rate_hz: float = AHRS_RATE_HZ, gyro_noise_mdps: float = 75.0,
                  process_noise_dps_rthz: float = 0.05, acc_noise_mg: float = 2.0, acc_motion_mg: float = 50.0,
                  adaptive: bool = False, norm_gain: float = 2.0, exact_propagation: bool = True) -> None:
         if rate_hz <= 0:

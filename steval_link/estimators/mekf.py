@@ -61,6 +61,7 @@ import math
 
 import numpy as np
 
+from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
 from steval_link.estimators.base import (
     AttitudeEstimate,
     Estimator,
@@ -68,7 +69,6 @@ from steval_link.estimators.base import (
     euler_from_quaternion,
     rows_before_tilt,
 )
-from steval_link.emulation.sensor_model import AHRS_HZ, GYRO_LATENCY_S
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native
@@ -189,7 +189,7 @@ class Mekf(Estimator):
         estimate_bias: False freezes the bias at 0.
         latency_s: output prediction horizon, s: the returned attitude is ``q ⊗ Exp(ω·latency_s)``, compensating
             the delay of the gyro input behind the accelerometer input in the STEVAL pipeline
-            (:data:`steval_link.emulation.sensor_model.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
+            (:data:`steval_link.constants.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
             filter state itself is not shifted. Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
 
     :meth:`step` is the Python reference. :meth:`run` uses the C loop of ``_ekf_native`` when it is built (every
@@ -202,7 +202,7 @@ class Mekf(Estimator):
 
     name = "mekf"
 
-    def __init__(self, rate_hz: float = AHRS_HZ, acc_tau_s: float = 3.0, gyro_noise_mdps_rthz: float = 10.0,
+    def __init__(self, rate_hz: float = AHRS_RATE_HZ, acc_tau_s: float = 3.0, gyro_noise_mdps_rthz: float = 10.0,
                  bias_rw_mdps_per_sqrt_s: float = 0.3, acc_noise_mg: float = 3.0, norm_gain: float = 0.0,
                  reject_mg: float = math.inf, init_bias_mdps: float = 100.0, estimate_bias: bool = True,
                  latency_s: float = GYRO_LATENCY_S) -> None:

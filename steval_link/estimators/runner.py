@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.link import protocol as P
+from steval_link import constants as C
 from steval_link.estimators import registry
 
 __all__ = ["MEMORYLESS", "row_decimation", "run_estimator"]
@@ -41,8 +41,8 @@ def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any
         est = None
         if decimation > 1 and name not in MEMORYLESS:
             try:
-                est = registry.create(name, rate_hz=P.AHRS_RATE_HZ / decimation)
-                note = f"run at {P.AHRS_RATE_HZ / decimation:.2f} Hz: one row per {decimation} steps"
+                est = registry.create(name, rate_hz=C.AHRS_RATE_HZ / decimation)
+                note = f"run at {C.AHRS_RATE_HZ / decimation:.2f} Hz: one row per {decimation} steps"
             except ValueError:
                 note = f"assumes one AHRS step per row, but rows are {decimation} steps apart"
         if est is None:

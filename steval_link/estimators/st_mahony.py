@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
@@ -41,67 +42,17 @@ __all__ = [
     "inv_sqrt",
 ]
 
-_F32 = np.float32
-_TWO = _F32(2.0)
-_HALF = _F32(0.5)
-_THREE_HALVES = _F32(1.5)
-_INVSQRT_MAGIC = np.int32(0x5F3759DF)
-
-
-def inv_sqrt(x) -> np.ndarray:
-    """The firmware's ``invSqrt``: 0x5f3759df guess and one Newton step, all float32 (finite for 0).
-
-    ``x`` is any float32 array (or scalar); returns float32 of the same shape.
-    """
-    x = np.asarray(x, dtype=_F32)
-    halfx = _HALF * x
-    i = x.view(np.int32)
-    i = _INVSQRT_MAGIC - (i >> 1)  # arithmetic shift, as ``long`` on the Cortex-M4
-    y = i.view(_F32)
-    return y * (_THREE_HALVES - (halfx * y * y))
-
-
-def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
-
-    ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``: q0 scalar first). Products and sums are float32 in the C
-    source's order; only ``atan2``/``asin`` run in double, and their results are stored to float32 as the firmware
-    does. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation about x (pitch), thy =
-    asin(2q0q2 − 2q1q3) the rotation about y (roll); thy is NaN where the (not quite unit) quaternion makes the
-    argument leave [−1, 1], as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's
-    (used by default when the extension is built, like the native filter loop).
-    """
-    q = np.asarray(q_wxyz, dtype=_F32)
-    if q.shape[-1] != 4:
-        raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
-    if native and _native is None:
-        raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
-    if _native is not None and native is not False:
-        qc = np.ascontiguousarray(q)
-        thx = np.empty(q.shape[:-1], dtype=_F32)
-        thy = np.empty(q.shape[:-1], dtype=_F32)
-        _native.euler(qc, thx, thy)  # the C library's atan2/asin, same as the native filter loop
-        return thx, thy
-    with np.errstate(invalid="ignore", over="ignore"):
-        q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-        q0q0 = q0 * q0
-        q1q1 = q1 * q1
-        q2q2 = q2 * q2
-        q3q3 = q3 * q3
-        dq0 = _TWO * q0
-        dq1 = _TWO * q1
-        dq2 = _TWO * q2
-        dq1q3 = dq1 * q3
-        dq0q2 = dq0 * q2
-        dq0q1 = dq0 * q1
-        dq2q3 = dq2 * q3
-        num_x = dq0q1 + dq2q3
-        den_x = ((q0q0 + q3q3) - q1q1) - q2q2
-        arg_y = dq0q2 - dq1q3
-        thx = np.arctan2(num_x.astype(np.float64), den_x.astype(np.float64)).astype(_F32)
-        thy = np.arcsin(arg_y.astype(np.float64)).astype(_F32)
-    return thx, thy
-
+from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
+    _F32,
+    _HALF,
+    _INVSQRT_MAGIC,
+    _THREE_HALVES,
+    _TWO,
+    NATIVE_AVAILABLE,
+    _native,
+    inv_sqrt,
+    quaternion_to_euler,
+)
 
 # ---------------------------------------------------------------------------------------------------------------
 # ahrs_fusion_ag
@@ -110,13 +61,6 @@ def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarr
 #: ``(float)COE_MDPS_TO_RADPS``: the firmware's double literal 1.745329252e-5 cast to float32 (mdps → rad/s).
 COE_MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
 
-try:  # the C loop (built by setup.py, optional); the pure-numpy path below gives the same bits, slower
-    from steval_link.estimators import _st_mahony_native as _native
-except ImportError:  # pragma: no cover - depends on the build
-    _native = None
-
-#: True when the compiled loop is available (≈ 100× faster than the pure path, same bits).
-NATIVE_AVAILABLE = _native is not None
 
 
 @dataclass(frozen=True)
@@ -136,11 +80,11 @@ class MahonySettings:
             with the squares from before the update, which leaves |q| ≈ 0.9983.
     """
 
-    kp_ground: float = 10.0
-    kp_flight: float = 0.4
-    ki: float = 0.1
-    dt_s: float = 0.00625
-    min_thr: int = 200
+    kp_ground: float = C.KP_GROUND
+    kp_flight: float = C.KP_FLIGHT
+    ki: float = C.KI
+    dt_s: float = C.DT_S
+    min_thr: int = C.MIN_THR
     correction: bool = True
     fresh_squares: bool = False
 

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
+from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, euler_from_quaternion
-from steval_link.emulation.sensor_model import AHRS_HZ
 
 INSTALL_HINT = 'the VQF estimator needs the vqf package: pip install "steval-link[vqf]"'
 
@@ -32,7 +32,7 @@ class VqfEstimator(Estimator):
     Args:
         rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
         latency_s: output prediction horizon, s (default 0: VQF untouched, the reference). With
-            ``steval_link.emulation.sensor_model.GYRO_LATENCY_S`` the output is ``q ⊗ Exp(ω·latency_s)`` like ``mekf``'s,
+            ``steval_link.constants.GYRO_LATENCY_S`` the output is ``q ⊗ Exp(ω·latency_s)`` like ``mekf``'s,
             compensating the STEVAL pipeline's gyro delay.
         **params: VQF parameters by name (e.g. ``tauAcc=3.0``, ``motionBiasEstEnabled=True``), passed to ``VQF``.
 
@@ -42,7 +42,7 @@ class VqfEstimator(Estimator):
 
     name = "vqf"
 
-    def __init__(self, rate_hz: float = AHRS_HZ, latency_s: float = 0.0, **params) -> None:
+    def __init__(self, rate_hz: float = AHRS_RATE_HZ, latency_s: float = 0.0, **params) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.rate_hz = float(rate_hz)

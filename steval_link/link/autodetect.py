@@ -25,6 +25,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
+from steval_link.link import ports
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import TextFrame
 from steval_link.link.transport import open_serial
 
 #: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
@@ -48,7 +51,6 @@ def list_candidate_ports() -> list[str]:
     USB ports (USB-UART adapters, ST-LINK virtual COM ports) when there are any, else every port listed (a board's
     own UART such as a Raspberry Pi's ``/dev/ttyAMA0``).
     """
-    from steval_link.link import ports
 
     listed = ports.list_ports()
     usb = [p.device for p in listed if p.vid_pid]
@@ -175,8 +177,6 @@ class ProbeResult:
 
 def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
     """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
-    from steval_link.link.decoder import StreamDecoder
-    from steval_link.link.frames import TextFrame
 
     result = ProbeResult(port, baud)
     t0 = time.monotonic()

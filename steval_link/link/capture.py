@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from steval_link import __version__
 from steval_link.errors import UserError
+from steval_link.link.decoder import decode_bytes
 
 __all__ = [
     "MAGIC",
@@ -134,7 +136,7 @@ class CaptureWriter:
         discard_empty: bool = False,
     ) -> None:
         if tool_version is None:
-            from steval_link import __version__ as tool_version
+            tool_version = __version__
         self.path = Path(path)
         self._t0 = time.monotonic()
         now = time.time()
@@ -468,7 +470,6 @@ def load_telemetry(path: str | os.PathLike):
 
 def telemetry_of_source(src: Source):
     """Decode a :class:`Source` (see :func:`load_telemetry`)."""
-    from steval_link.link.decoder import decode_bytes
 
     if src.kind == "stv" and not src.data:
         raise UserError(f"{src.path} is an empty capture (no bytes were received).")

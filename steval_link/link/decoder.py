@@ -31,12 +31,12 @@ from __future__ import annotations
 import binascii
 import re
 import struct
-from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from steval_link.link import protocol as P
-from steval_link.link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
+from steval_link.link.frames import AttitudeFrame, DecoderStats, Frame, StatusFrame, TextFrame
+from steval_link.link.telemetry import Telemetry, TelemetryParts
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
@@ -61,27 +61,6 @@ def _hides_sentence(raw: bytes) -> bool:
             return True
         j = raw.find(b"$", j + 1)
     return False
-
-
-@dataclass(slots=True)
-class DecoderStats:
-    """Counters of one decoded stream (see the module docstring for the exact rules)."""
-
-    frames_ok: int = 0  #: valid frames handed out (attitude + status + text, binary and text mode)
-    attitude: int = 0
-    status: int = 0
-    text: int = 0
-    crc_failures: int = 0  #: binary frames with a valid header but a bad CRC; ``$`` lines with a bad checksum
-    bytes_skipped: int = 0  #: bytes that were not part of a frame handed out
-    seq_gaps: int = 0  #: gap events in the attitude ``seq`` (frames dropped on the way)
-    frames_missing: int = 0  #: attitude frames lost in those gaps (sum of the missing ``seq`` values)
-    seq_resets: int = 0  #: ``seq`` went backwards (firmware restart)
-    unknown_frames: int = 0  #: CRC-valid version-1 frames of a type this decoder does not know
-    bytes_total: int = 0  #: bytes fed
-
-    def as_dict(self) -> dict[str, int]:
-        """The counters as a plain dict (JSON-friendly)."""
-        return asdict(self)
 
 
 def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
@@ -331,7 +310,6 @@ def decode_bytes(
     of back-to-back valid binary frames are decoded with numpy, everything else (damage, text mode) by a
     :class:`StreamDecoder` over just those regions.
     """
-    from steval_link.link.telemetry import Telemetry, TelemetryParts
 
     data = bytes(data)
     n = len(data)

@@ -9,7 +9,7 @@ of the frame's first byte and ``nbytes`` its length on the wire (frame or text l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 NAN = math.nan
 _NAN3 = (NAN, NAN, NAN)
@@ -86,3 +86,24 @@ class TextFrame:
 
 
 Frame = AttitudeFrame | StatusFrame | TextFrame
+
+
+@dataclass(slots=True)
+class DecoderStats:
+    """Counters of one decoded stream (see the module docstring for the exact rules)."""
+
+    frames_ok: int = 0  #: valid frames handed out (attitude + status + text, binary and text mode)
+    attitude: int = 0
+    status: int = 0
+    text: int = 0
+    crc_failures: int = 0  #: binary frames with a valid header but a bad CRC; ``$`` lines with a bad checksum
+    bytes_skipped: int = 0  #: bytes that were not part of a frame handed out
+    seq_gaps: int = 0  #: gap events in the attitude ``seq`` (frames dropped on the way)
+    frames_missing: int = 0  #: attitude frames lost in those gaps (sum of the missing ``seq`` values)
+    seq_resets: int = 0  #: ``seq`` went backwards (firmware restart)
+    unknown_frames: int = 0  #: CRC-valid version-1 frames of a type this decoder does not know
+    bytes_total: int = 0  #: bytes fed
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters as a plain dict (JSON-friendly)."""
+        return asdict(self)

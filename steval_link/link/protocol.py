@@ -15,6 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
+from steval_link import constants as C
+
 SYNC = b"\xa5\x5a"
 VERSION = 1
 HEADER_SIZE = 4  # sync (2) + VT + LEN
@@ -39,11 +41,6 @@ FIXED_PAYLOAD_SIZE = {TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE, TYPE_STATUS: STATUS_
 FLAG_NO_CORRECTION = 1 << 0
 FLAG_FRESH_SQUARES = 1 << 1
 FLAG_TEXT_MODE = 1 << 2
-
-#: Firmware timing: the TIM9 ISR runs at 807.7 Hz and the AHRS on every 5th tick.
-ISR_RATE_HZ = 807.7
-AHRS_RATE_HZ = ISR_RATE_HZ / 5.0
-AHRS_PERIOD_S = 1.0 / AHRS_RATE_HZ
 
 #: ``t_us`` wraps at 2**32 µs, ``seq`` at 2**16 steps.
 T_US_MODULUS = 1 << 32
@@ -89,15 +86,6 @@ STATUS_DTYPE = np.dtype(
     ]
 )
 assert STATUS_DTYPE.itemsize == STATUS_PAYLOAD_SIZE
-
-#: The firmware's default filter settings (ST release 170120).
-DEFAULT_KP_GROUND = 10.0
-DEFAULT_KP_FLIGHT = 0.4
-DEFAULT_KI = 0.1
-DEFAULT_DT_S = 0.00625
-DEFAULT_MIN_THR = 200
-DEFAULT_CPU_HZ = 84_000_000
-DEFAULT_BAUD = 115_200
 
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
@@ -159,18 +147,18 @@ def encode_status(
     t_us: int,
     q_wxyz: Sequence[float],
     int_xyz: Sequence[float],
-    kp_ground: float = DEFAULT_KP_GROUND,
-    kp_flight: float = DEFAULT_KP_FLIGHT,
-    ki: float = DEFAULT_KI,
-    dt_s: float = DEFAULT_DT_S,
+    kp_ground: float = C.KP_GROUND,
+    kp_flight: float = C.KP_FLIGHT,
+    ki: float = C.KI,
+    dt_s: float = C.DT_S,
     cyc_min: int = 0,
     cyc_mean: int = 0,
     cyc_max: int = 0,
     cyc_n: int = 0,
-    cpu_hz: int = DEFAULT_CPU_HZ,
+    cpu_hz: int = C.CPU_HZ,
     tx_dropped: int = 0,
-    baud: int = DEFAULT_BAUD,
-    min_thr: int = DEFAULT_MIN_THR,
+    baud: int = C.BAUD,
+    min_thr: int = C.MIN_THR,
     flags: int = 0,
     queue_peak: int = 0,
     fw_version: Sequence[int] = (1, 0, 0),

@@ -18,15 +18,13 @@ Derived fields:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.frames import AttitudeFrame, Frame, StatusFrame, TextFrame
-
-if TYPE_CHECKING:  # pragma: no cover
-    from steval_link.link.decoder import DecoderStats
+from steval_link.link.frames import AttitudeFrame, DecoderStats, Frame, StatusFrame, TextFrame
 
 __all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
 
@@ -244,12 +242,6 @@ def _host_times(
     return t
 
 
-def _quaternion_to_euler(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    from steval_link.estimators.st_mahony import quaternion_to_euler
-
-    return quaternion_to_euler(q_wxyz)
-
-
 @dataclass
 class Telemetry:
     """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
@@ -295,7 +287,7 @@ class Telemetry:
         thy = att["thy_rad"].copy()
         ex = att["exact"]
         if ex.any():
-            thx[ex], thy[ex] = _quaternion_to_euler(att["q_wxyz"][ex])
+            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
 
         attitude = AttitudeArrays(
             step=step.astype(np.int64),

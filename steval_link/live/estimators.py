@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link.errors import UserError
+from steval_link.estimators import registry, st_mahony
 
 
 @dataclass
@@ -59,7 +60,6 @@ class LivePort:
     """
 
     def __init__(self) -> None:
-        from steval_link.estimators import st_mahony
 
         self._sm = st_mahony
         self.state = None  # MahonyState, or None when unseeded
@@ -161,7 +161,6 @@ class LiveEstimators:
     """
 
     def __init__(self, names: list[str]) -> None:
-        from steval_link.estimators import registry
 
         self.port = LivePort() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
@@ -189,7 +188,6 @@ class LiveEstimators:
 
 def resolve_estimators(spec: str | None) -> list[str]:
     """``--estimators``: comma list of registry names, ``none``, or None for the defaults that are installed."""
-    from steval_link.estimators import registry
 
     if spec is None:
         return [n for n in DEFAULT_ESTIMATORS if registry.is_available(n)]

@@ -11,7 +11,10 @@ import typing
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.link import protocol
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
 from steval_link.live.health import LinkHealth
 
@@ -89,7 +92,7 @@ class BatchOutlet:
     def __init__(self, logger, interval_s: float) -> None:
         self.logger = logger
         self.interval_s = interval_s
-        self.max_rows = max(1, math.ceil(interval_s * protocol.AHRS_RATE_HZ))
+        self.max_rows = max(1, math.ceil(interval_s * C.AHRS_RATE_HZ))
         self._batches: list[AttitudeBatch] = []
         self._rows = 0
         self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
@@ -159,7 +162,6 @@ class LivePipeline:
         file_logger=None,
         file_interval_s: float = RRD_ONLY_INTERVAL_S,
     ) -> None:
-        from steval_link.link.decoder import StreamDecoder
 
         self.view_interval_s = view_interval_s
         #: the loggers, each with its own cadence (the viewer first)
@@ -185,7 +187,6 @@ class LivePipeline:
 
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
         """Decode and process chunks received at host times ``t_host_s`` (s, Unix epoch), in stream order."""
-        from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 
         outlets = self.outlets
         att: list[tuple[object, float]] = []

@@ -33,8 +33,9 @@ from typing import Callable, TextIO
 
 import serial
 
+from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link import autodetect, protocol
+from steval_link.link import autodetect
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import (
     HostClock,
@@ -71,7 +72,7 @@ class LiveOptions:
     """Everything ``steval live`` / ``steval record`` configure."""
 
     port: str = "auto"
-    baud: int = protocol.DEFAULT_BAUD
+    baud: int = C.BAUD
     out: Path | None = None
     rrd: Path | None = None
     view: bool = True  # False: --no-view

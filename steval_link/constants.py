@@ -1,0 +1,38 @@
+"""The STEVAL-FCU001V1 firmware's facts (ST release 170120), each stated once: clock, timer and AHRS rates, the
+filter's default settings, the link's default baud rate. Every other module takes them from here.
+"""
+
+from __future__ import annotations
+
+#: ``SystemCoreClock`` after HAL's PLL set-up, Hz (also the DWT cycle counter's rate)
+CPU_HZ: int = 84_000_000
+#: CPU cycles per TIM9 interrupt: APB2 timer clock 84 MHz, prescaler 51 (÷52), period 1999 (÷2000)
+TICK_CYCLES: int = 52 * 2000
+#: TIM9 interrupt rate, Hz (≈ 807.69 Hz, 1.238 ms): sensor read, offset removal, gyro IIR, FIFOs
+ISR_RATE_HZ: float = CPU_HZ / TICK_CYCLES
+#: samples averaged per AHRS step (``FIFO_Order``): the main loop runs the AHRS on every 5th tick
+FIFO_ORDER: int = 5
+#: AHRS step rate, Hz (≈ 161.54 Hz, 6.19 ms)
+AHRS_RATE_HZ: float = ISR_RATE_HZ / FIFO_ORDER
+#: AHRS step period, s
+AHRS_PERIOD_S: float = 1.0 / AHRS_RATE_HZ
+
+#: ``AHRS_KP_BIG``: proportional gain while on the ground (throttle below MIN_THR)
+KP_GROUND: float = 10.0
+#: ``AHRS_KP_NORM``: proportional gain in flight
+KP_FLIGHT: float = 0.4
+#: ``AHRS_KI``: integral gain (lab exercise 4 sets 1.0)
+KI: float = 0.1
+#: ``SENSOR_SAMPLING_TIME``: the dt the filter integrates with, s (not the real 6.19 ms step)
+DT_S: float = 0.00625
+#: ``MIN_THR``: throttle below which the ground gain is used and the ISR resets the integrated yaw
+MIN_THR: int = 200
+
+#: USART1 baud rate of the firmware patch's default build
+BAUD: int = 115_200
+
+#: delay of the gyro input of an AHRS step relative to its accelerometer input, s (≈ 3.3 ms): the ISR gyro IIR's
+#: group delay at low frequency plus the mean age of a 416 Hz sample-and-hold read. Derived in
+#: :data:`steval_link.emulation.sensor_model.GYRO_LATENCY_S` from the IIR coefficients (a test keeps the two equal);
+#: stated here so that estimators can compensate it without depending on the sensor model.
+GYRO_LATENCY_S: float = 0.003315483788573155

@@ -1,0 +1,142 @@
+"""The package's imports run one way, layer by layer, with no cycle (docs/ARCHITECTURE.md draws the layers).
+
+Every ``import`` of a project module in ``steval_link`` and ``steval_viewer`` is read from the source (top level and
+inside functions). A module may import its own layer or a lower one, never a higher one; no two modules import each
+other through any chain; and an import inside a function is allowed only where it says why on its line (``#``
+comment: start-up time, an optional dependency), since a hidden import is how the cycles of the past came in.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("steval_link", "steval_viewer")
+
+#: layers from the bottom; a module belongs to the first prefix it starts with (longest first below)
+LAYERS: list[tuple[str, ...]] = [
+    ("steval_link.errors", "steval_link.constants", "steval_link.quat", "steval_link.fw_math",
+     "steval_link._st_mahony_native", "steval_link.recordings", "steval_link"),
+    ("steval_link.link",),
+    ("steval_link.estimators",),
+    ("steval_link.emulation",),
+    ("steval_link.live", "steval_link.analysis"),
+    ("steval_viewer",),
+    ("steval_link.cli",),
+]
+
+
+def layer_of(module: str) -> int:
+    best, best_len = None, -1
+    for i, prefixes in enumerate(LAYERS):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and len(p) > best_len:
+                best, best_len = i, len(p)
+    assert best is not None, f"{module} is in no layer: add it to LAYERS and to docs/ARCHITECTURE.md"
+    return best
+
+
+def project_modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = list(rel.parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+def imports_of(path: Path, modules: dict[str, Path]) -> list[tuple[str, int, bool, str]]:
+    """(imported project module, line, inside a function, the source line) of every project import in ``path``."""
+    source = path.read_text(encoding="utf-8")
+    lines = source.splitlines()
+    tree = ast.parse(source)
+    found = []
+
+    def visit(node, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            inner = in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            names: list[str] = []
+            if isinstance(child, ast.Import):
+                names = [a.name for a in child.names]
+            elif isinstance(child, ast.ImportFrom) and child.module and child.level == 0:
+                names = [child.module] + [f"{child.module}.{a.name}" for a in child.names]
+            for name in names:
+                target = name
+                while target and target not in modules:
+                    target = target.rpartition(".")[0]
+                if target and target.split(".")[0] in PACKAGES:
+                    found.append((target, child.lineno, in_function, lines[child.lineno - 1]))
+            visit(child, inner)
+
+    visit(tree, False)
+    return found
+
+
+def test_imports_run_down_the_layers_never_up():
+    modules = project_modules()
+    up = []
+    for name, path in sorted(modules.items()):
+        mine = layer_of(name)
+        for target, line, _, _ in imports_of(path, modules):
+            if target == name or name.startswith(target + "."):  # a package's own __init__ / parent package
+                continue
+            if layer_of(target) > mine:
+                up.append(f"{path.relative_to(ROOT)}:{line} imports {target} (layer {layer_of(target)} > {mine})")
+    assert not up, "imports that run up the layers:\n" + "\n".join(up)
+
+
+def test_no_import_cycle():
+    modules = project_modules()
+    graph = {}
+    for name, path in modules.items():
+        graph[name] = {t for t, *_ in imports_of(path, modules) if t != name and not name.startswith(t + ".")}
+    # Tarjan's strongly connected components
+    index, low, stack, on_stack, cycles, counter = {}, {}, [], set(), [], [0]
+
+    def strong(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in graph:
+                continue
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            strong(v)
+    assert not cycles, f"modules that import each other: {cycles}"
+
+
+def test_imports_inside_functions_say_why():
+    modules = project_modules()
+    silent = []
+    for name, path in sorted(modules.items()):
+        for target, line, in_function, text in imports_of(path, modules):
+            if in_function and "#" not in text:
+                silent.append(f"{path.relative_to(ROOT)}:{line}: {text.strip()}")
+    assert not silent, "project imports inside functions without a reason on the line:\n" + "\n".join(silent)
+
+
+def test_every_module_is_in_a_layer():
+    for name in project_modules():
+        layer_of(name)
