@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import StreamBuilder
+
+from steval_link.errors import UserError
 from steval_link.link.capture import (
     MAGIC,
     CaptureTruncatedWarning,
@@ -22,7 +23,6 @@ from steval_link.link.capture import (
     read_capture,
     read_source,
 )
-from steval_link.errors import UserError
 
 
 def write_capture(path, data: bytes, chunk: int = 100, events=()):

@@ -6,11 +6,10 @@ from __future__ import annotations
 import re
 
 import pytest
+from conftest import run_cli
 
 from steval_link import __version__
 from steval_link.estimators import registry
-
-from conftest import run_cli
 
 COMMANDS = ["replay", "live", "record", "export", "ports", "simulate", "synth", "conformance", "compare", "evaluate"]
 

@@ -7,10 +7,10 @@ import subprocess
 import sys
 
 import pytest
-
 from conftest import StreamBuilder
-from steval_link.link.capture import CaptureWriter
+
 from steval_link.cli import main
+from steval_link.link.capture import CaptureWriter
 
 
 def run(argv, capsys):

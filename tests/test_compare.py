@@ -13,16 +13,12 @@ import math
 import numpy as np
 import pytest
 
+from steval_link.analysis.compare import angle_diff_rad, compare_capture, format_report
+from steval_link.analysis.link_stats import rate_stats
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run
 from steval_link.link import protocol as P
-from steval_link.analysis.compare import (
-    angle_diff_rad,
-    compare_capture,
-    format_report,
-    rate_stats,
-)
 from steval_link.link.capture import CaptureWriter
 from steval_link.link.decoder import decode_bytes
-from steval_link.estimators.st_mahony import MahonySettings, MahonyState, run
 from steval_link.link.textmode import format_att, format_sta
 
 PERIOD_US = 6191.9

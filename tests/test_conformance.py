@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from steval_link.estimators.conformance import COLUMNS, check_conformance, load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, run
-from conftest import run_cli
 
 CONFORMANCE_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120"
 CSV_FILES = sorted(CONFORMANCE_DIR.glob("*.csv")) if CONFORMANCE_DIR.is_dir() else []

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import StreamBuilder, frame_keys
+
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame

@@ -108,17 +108,14 @@ def damaged_stream(draw):
     sent = draw(st.lists(frames(), min_size=2, max_size=20))
     out = bytearray()
     intact: list[tuple[int, bytes]] = []
-    damaged_any = False
     for fb in sent:
         if draw(st.integers(0, 9)) < 3:  # garbage between frames
             out += draw(st.binary(min_size=1, max_size=30))
-            damaged_any = True
         op = draw(st.sampled_from(["none", "none", "flip", "delete", "insert", "truncate"]))
         if op == "none":
             intact.append((len(out), fb))
             out += fb
             continue
-        damaged_any = True
         b = bytearray(fb)
         i = draw(st.integers(0, len(b) - 1))
         if op == "flip":

@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from steval_link.emulation import broad
 from steval_link.analysis import evaluate as ev
+from steval_link.emulation import broad
 from steval_link.errors import UserError
 from steval_link.estimators.ekf3 import quaternion_from_euler
 from steval_link.estimators.st_mahony import StMahony

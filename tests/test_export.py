@@ -6,10 +6,10 @@ import csv as csv_mod
 
 import numpy as np
 import pytest
-
 from conftest import StreamBuilder
-from steval_link.link.capture import CaptureWriter, read_capture
+
 from steval_link.cli import main
+from steval_link.link.capture import CaptureWriter, read_capture
 from steval_link.link.decoder import decode_bytes
 
 

@@ -7,8 +7,8 @@ tests skip with the reason.
 from __future__ import annotations
 
 import re
-import struct
 import shutil
+import struct
 import subprocess
 import sys
 from pathlib import Path

@@ -11,8 +11,8 @@ import signal
 import time
 
 import numpy as np
-
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream, uart_resample
+
 from steval_link.link import protocol
 from steval_link.link.capture import read_capture
 from steval_link.link.decoder import StreamDecoder

@@ -9,12 +9,12 @@ import time
 
 import numpy as np
 import pytest
-
 from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
-from steval_link.link import protocol
-from steval_link.link.decoder import decode_bytes
+
 from steval_link.estimators.st_mahony import bits_equal, replay_firmware
+from steval_link.link import protocol
 from steval_link.link.capture import default_capture_path
+from steval_link.link.decoder import decode_bytes
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, StepUnwrapper
 from steval_link.live.recorder import Inbox
@@ -276,8 +276,8 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     import rerun as rr
     from rerun.chunk import RrdReader
 
-    from steval_viewer import live_adapter
     from steval_viewer import entities as ent
+    from steval_viewer import live_adapter
     from steval_viewer.rrd_check import read_rrd
 
     with socket.socket() as s:

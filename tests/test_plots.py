@@ -7,13 +7,12 @@ import sys
 
 import numpy as np
 import pytest
+from test_compare import capture_bytes, run_cli, telemetry, text_mode_bytes  # noqa: E402
 
 from steval_link.analysis import plots
 from steval_link.analysis.compare import compare_capture
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import MahonySettings
-
-from test_compare import capture_bytes, run_cli, telemetry, text_mode_bytes  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from conftest import run_cli, run_cli_tty
 
 BAR = "━"  # rich's bar segments

@@ -8,9 +8,9 @@ import signal
 import time
 
 import pytest
-
 from ptyfeed import PtyFeeder, StevalProcess, flight_stream
-from steval_link.link.capture import read_capture, load_telemetry
+
+from steval_link.link.capture import load_telemetry, read_capture
 
 START_TIMEOUT_S = 60.0
 

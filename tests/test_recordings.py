@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from steval_link.estimators.st_mahony import MahonyState, bits_equal, replay_firmware
+from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
 from steval_link.link.decoder import StreamDecoder
-from steval_link.estimators.st_mahony import MahonyState, bits_equal, replay_firmware, run as mahony_run
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 
 REC = Path(__file__).resolve().parents[1] / "recordings"

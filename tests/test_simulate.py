@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
+from steval_link.emulation.lab5 import run_simulation
 from steval_link.estimators.conformance import load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, bits_equal, run
-from steval_link.emulation.lab5 import run_simulation
-from conftest import run_cli
 
 BASELINE = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120" / "lab5_baseline.csv"
 needs_baseline = pytest.mark.skipif(not BASELINE.is_file(), reason="shared conformance vectors (../shared) not present")

@@ -13,13 +13,13 @@ import time
 from pathlib import Path
 
 import pytest
-
 from ptyfeed import PtyFeeder, StevalProcess, flight_stream
+
+from steval_link.errors import UserError
 from steval_link.link.capture import demo_capture_path, read_capture
 from steval_viewer import entities as ent
 from steval_viewer.rrd_check import read_rrd
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, speaks_grpc
-from steval_link.errors import UserError
 
 
 def _steval(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:

@@ -10,12 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link.emulation import motion as M
-from steval_link.link import protocol as P
-from steval_link.emulation import sensor_model as sm
-from steval_link.link.capture import load_telemetry, read_capture
 from steval_link.cli import main
-from steval_link.link.decoder import decode_bytes
+from steval_link.emulation import motion as M
+from steval_link.emulation import sensor_model as sm
+from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import (
     MahonySettings,
@@ -23,9 +21,13 @@ from steval_link.estimators.st_mahony import (
     bits_equal,
     quaternion_to_euler,
     replay_firmware,
+)
+from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
-from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
+from steval_link.link import protocol as P
+from steval_link.link.capture import load_telemetry, read_capture
+from steval_link.link.decoder import decode_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from conftest import StreamBuilder
+
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_link.link.textmode import checksum, format_att, format_sta, parse_sentence

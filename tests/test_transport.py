@@ -9,8 +9,8 @@ import time
 
 import pytest
 import serial
-
 from ptyfeed import PtyFeeder, flight_stream, uart_resample
+
 from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial

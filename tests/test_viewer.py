@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from steval_link import constants as C
-from steval_link.link import protocol as P
-from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import quaternion_to_euler
+from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent
@@ -428,8 +428,8 @@ def test_serve_starts_a_web_viewer_on_loopback_only_and_stops_it(tmp_path):
     import socket
     import urllib.request
 
-    from steval_viewer.sinks import free_port as _free_port
     from steval_viewer.replay_log import log_telemetry
+    from steval_viewer.sinks import free_port as _free_port
 
     web, grpc = _free_port(), _free_port()
     session = open_session(SinkOptions(serve=True, web_port=web, grpc_port=grpc, rrd=tmp_path / "s.rrd"))

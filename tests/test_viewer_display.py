@@ -18,16 +18,16 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-
 from ptyfeed import PtyFeeder, StevalProcess, flight_stream
 from xdisplay import (
     VirtualDisplay,
     kill_processes,
-    rerun_processes,
     require_display_tools,
+    rerun_processes,
     screenshot,
     viewer_recording,
 )
+
 from steval_viewer import entities as ent
 from steval_viewer.sink_options import free_port, port_free
 from steval_viewer.sinks import rerun_command

@@ -7,14 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from steval_link.link.capture import load_telemetry
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit
 from steval_viewer.rrd_check import blueprint_views, static_values
-
-from conftest import run_cli
 
 DEMO = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
 LEFT_BOTTOM, RIGHT_TOP = 3, 2

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.analysis.plots import require_matplotlib
+from steval_link.analysis.report import json_number
 from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
@@ -247,13 +248,13 @@ def summary(results: Sequence[TrialResult]) -> dict:
     for r in results:
         labels.extend(k for k in r.rmse_deg if k not in labels)
     trials = [{"trial": r.name, "rate_hz": r.rate_hz, "steps": int(r.t_s.shape[0]),
-               "rmse_deg": {k: _num(r.rmse_deg.get(k)) for k in labels},
-               "steps_per_s": {k: _num(r.steps_per_s.get(k)) for k in labels}} for r in results]
+               "rmse_deg": {k: _rounded(r.rmse_deg.get(k)) for k in labels},
+               "steps_per_s": {k: _rounded(r.steps_per_s.get(k)) for k in labels}} for r in results]
     out = {"metric": "inclination RMSE over movement samples, degrees", "estimators": labels, "trials": trials,
-           "mean_rmse_deg": {k: _num(_mean([r.rmse_deg.get(k) for r in results])) for k in labels}}
+           "mean_rmse_deg": {k: _rounded(_mean([r.rmse_deg.get(k) for r in results])) for k in labels}}
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
-        out["mean_02_07_15_24_rmse_deg"] = {k: _num(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
+        out["mean_02_07_15_24_rmse_deg"] = {k: _rounded(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
     return out
 
 
@@ -262,8 +263,10 @@ def _mean(values) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def _num(x):
-    return None if x is None or not math.isfinite(x) else round(float(x), 4)
+def _rounded(x) -> float | None:
+    """A JSON number to 4 decimals (None for NaN/inf)."""
+    v = json_number(x)
+    return None if v is None else round(v, 4)
 
 
 def format_table(results: Sequence[TrialResult]) -> str:

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.report import json_number
 from steval_link.link import protocol as P
 
 __all__ = ["summarize", "format_summary"]
@@ -15,12 +16,6 @@ _FLAG_NAMES = {
     P.FLAG_FRESH_SQUARES: "fresh-squares",
     P.FLAG_TEXT_MODE: "text-mode",
 }
-
-
-def _num(x) -> float | None:
-    """A JSON-friendly float (None for NaN)."""
-    x = float(x)
-    return None if np.isnan(x) else x
 
 
 def _fw_duration_s(t_fw_s: np.ndarray, restarts_at: np.ndarray) -> float:
@@ -106,10 +101,10 @@ def summarize(tel) -> dict[str, Any]:
         cyc_mean = int(s.cyc_mean[i])
         out["filter"] = {
             "from_step": int(s.step[i]),
-            "kp_ground": _num(s.kp_ground[i]),
-            "kp_flight": _num(s.kp_flight[i]),
-            "ki": _num(s.ki[i]),
-            "dt_s": _num(s.dt_s[i]),
+            "kp_ground": json_number(s.kp_ground[i]),
+            "kp_flight": json_number(s.kp_flight[i]),
+            "ki": json_number(s.ki[i]),
+            "dt_s": json_number(s.dt_s[i]),
             "min_thr": int(s.min_thr[i]) if s.exact[i] else None,
             "flags": flags,
             "flag_names": [name for bit, name in _FLAG_NAMES.items() if flags & bit],

@@ -12,6 +12,7 @@ from typing import Optional
 import numpy as np
 import typer
 
+from steval_link.analysis.report import json_number
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
 from steval_link.emulation.lab5 import (
@@ -71,12 +72,6 @@ def _noise(text: Optional[str], typical: float, what: str, unit: str) -> float:
     return value
 
 
-def _num(value) -> float | None:
-    """Exact JSON/CSV value: float32 values widen to double exactly; NaN becomes None (JSON null)."""
-    v = float(value)
-    return None if math.isnan(v) else v
-
-
 def _text(value) -> str:
     """Shortest decimal that parses (as a double) back to exactly the value; 'nan' for NaN."""
     return repr(float(value))
@@ -117,23 +112,23 @@ def to_json(res: SimulationResult) -> dict:
         "gyro_noise_mdps": res.gyro_noise_mdps,
         "acc_noise_mg": res.acc_noise_mg,
         "final": {
-            "eax_rad": _num(eax),
-            "eay_rad": _num(eay),
-            "eaz_rad": _num(eaz),
-            "eax_deg": _num(math.degrees(eax)),
-            "eay_deg": _num(math.degrees(eay)),
-            "eaz_deg": _num(math.degrees(eaz)),
+            "eax_rad": json_number(eax),
+            "eay_rad": json_number(eay),
+            "eaz_rad": json_number(eaz),
+            "eax_deg": json_number(math.degrees(eax)),
+            "eay_deg": json_number(math.degrees(eay)),
+            "eaz_deg": json_number(math.degrees(eaz)),
         },
         "rows": [
             {
                 "iteration": int(res.step[k]),
-                "acc_mg": [_num(v) for v in res.acc_mg[k]],
-                "gyro_mdps": [_num(v) for v in res.gyro_mdps[k]],
+                "acc_mg": [json_number(v) for v in res.acc_mg[k]],
+                "gyro_mdps": [json_number(v) for v in res.gyro_mdps[k]],
                 "thr": int(res.thr[k]),
-                "q_wxyz": [_num(v) for v in res.q_wxyz[k]],
-                "eax_rad": _num(res.eax_rad[k]),
-                "eay_rad": _num(res.eay_rad[k]),
-                "eaz_rad": _num(res.eaz_rad[k]),
+                "q_wxyz": [json_number(v) for v in res.q_wxyz[k]],
+                "eax_rad": json_number(res.eax_rad[k]),
+                "eay_rad": json_number(res.eay_rad[k]),
+                "eaz_rad": json_number(res.eaz_rad[k]),
                 "valid": bool(res.valid[k]),
             }
             for k in range(res.iterations)

@@ -1,0 +1,369 @@
+"""The bit-exact ST-Mahony port against the firmware (:func:`compare_port`): steps that match bit for bit, the first
+that differs and *why*: the port is re-run from the same seed with alternative settings (normalisation variant,
+KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named. Also the
+filter settings the status frames announce (:func:`filter_settings_report`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from itertools import combinations
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.analysis.link_stats import relative_time_s
+from steval_link.analysis.report import PortComparison, json_number
+from steval_link.estimators.st_mahony import (
+    FirmwareReplay,
+    MahonySettings,
+    MahonyState,
+    bits_equal,
+    replay_firmware,
+)
+from steval_link.estimators.st_mahony import (
+    run as mahony_run,
+)
+
+#: Rows after the first mismatch over which an alternative setting must reproduce the firmware to be named.
+DIAGNOSIS_WINDOW_ROWS = 600
+
+
+_DT_REAL_S = float(np.float32(1.0 / 161.5))
+
+
+def _settings_dict(s: MahonySettings) -> dict[str, Any]:
+    return {
+        "kp_ground": float(np.float32(s.kp_ground)),
+        "kp_flight": float(np.float32(s.kp_flight)),
+        "ki": float(np.float32(s.ki)),
+        "dt_s": float(np.float32(s.dt_s)),
+        "min_thr": s.min_thr,
+        "correction": s.correction,
+        "fresh_squares": s.fresh_squares,
+    }
+
+
+def _same_settings(a: MahonySettings, b: MahonySettings) -> bool:
+    return _settings_dict(a) == _settings_dict(b)
+
+
+def _status_settings_list(status) -> list[MahonySettings]:
+    out = []
+    for j in range(len(status.ki)):
+        out.append(
+            MahonySettings.from_status(
+                kp_ground=status.kp_ground[j], kp_flight=status.kp_flight[j], ki=status.ki[j],
+                dt_s=status.dt_s[j], min_thr=status.min_thr[j], flags=status.flags[j],
+            )
+        )
+    return out
+
+
+def filter_settings_report(tel) -> dict[str, Any] | None:
+    """The filter settings the (binary) status frames report, compared with the 170120 defaults; None without
+    binary status frames. Text-mode status lines carry only KI and the flags (``ki`` and ``flags``)."""
+    s = tel.status
+    ex = np.asarray(s.exact, bool) if len(s) else np.zeros(0, bool)
+    if len(s) and not ex.any():
+        ki = float(s.ki[-1])
+        return {"from": "text-mode status lines", "ki": json_number(ki), "flags": int(s.flags[-1]),
+                "differs_from_defaults": {} if not math.isfinite(ki) or np.float32(ki) == np.float32(C.KI)
+                else {"ki": [json_number(ki), C.KI]}, "changes": 0}
+    if not ex.any():
+        return None
+    rows = np.flatnonzero(ex)
+    settings = _status_settings_list(SimpleNamespace(**{k: np.asarray(getattr(s, k))[rows] for k in (
+        "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")}))
+    last = settings[-1]
+    d = _settings_dict(last)
+    defaults = _settings_dict(MahonySettings())
+    changes = sum(1 for x, y in zip(settings[:-1], settings[1:]) if not _same_settings(x, y))
+    return {
+        "from": "status frames",
+        "status_frames": int(rows.size),
+        **d,
+        "flags": int(s.flags[rows[-1]]),
+        "differs_from_defaults": {k: [d[k], defaults[k]] for k in d if d[k] != defaults[k]},
+        "changes": changes,
+    }
+
+
+def _binary_view(tel):
+    """Attitude and status rows of binary frames only (what the port can be compared with bit for bit)."""
+    a, s = tel.attitude, tel.status
+    rows = np.flatnonzero(np.asarray(a.exact, bool))
+    srows = np.flatnonzero(np.asarray(s.exact, bool)) if len(s) else np.zeros(0, np.int64)
+    att = SimpleNamespace(**{k: np.asarray(getattr(a, k))[rows] for k in (
+        "step", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad", "t_fw_s")})
+    sta = SimpleNamespace(**{k: np.asarray(getattr(s, k))[srows] for k in (
+        "step", "q_wxyz", "int_xyz", "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")})
+    return SimpleNamespace(attitude=att, status=sta), rows
+
+
+def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
+    """A sentence naming the firmware build that ``changes`` (field → value) describe."""
+    parts = []
+    for k, v in changes.items():
+        if k == "ki":
+            parts.append(f"KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?")
+        elif k == "correction":
+            parts.append("no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?"
+                         if not v else "the accelerometer correction on, though the status frames say it is off")
+        elif k == "fresh_squares":
+            parts.append("normalisation with the fresh squares of the updated quaternion: is this an older (2017) "
+                         "ST firmware release?" if v else
+                         "normalisation with the squares from before the update (release 170120)")
+        elif k == "kp":
+            kg, kf = v
+            parts.append(f"kp_ground={kg:g}, kp_flight={kf:g} (status/default {base.kp_ground:g}, "
+                         f"{base.kp_flight:g}): were AHRS_KP_BIG/AHRS_KP_NORM changed?")
+        elif k == "dt_s":
+            parts.append(f"dt={v:.7g} s (status/default {base.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the "
+                         "real main-loop period?")
+        elif k == "min_thr":
+            parts.append(f"MIN_THR={v} (status/default {base.min_thr}): was the gain-switch threshold changed?")
+        elif k == "defaults":
+            parts.append("the firmware's default settings: the status frames report settings the filter does not "
+                         "use (or the port was given other settings)")
+    return "; ".join(parts)
+
+
+def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
+    """``steval compare`` options that run the port with ``s`` when the status frames report ``base``."""
+    out = []
+    for name, opt in (("ki", "--ki"), ("kp_ground", "--kp-ground"), ("kp_flight", "--kp-flight"), ("dt_s", "--dt")):
+        if np.float32(getattr(s, name)) != np.float32(getattr(base, name)):
+            out.append(f"{opt} {getattr(s, name):.9g}")
+    if s.min_thr != base.min_thr:
+        out.append(f"--min-thr {s.min_thr}")
+    if s.correction != base.correction:
+        out.append("--correction" if s.correction else "--no-correction")
+    if s.fresh_squares != base.fresh_squares:
+        out.append("--fresh-squares" if s.fresh_squares else "--stale-squares")
+    return " ".join(out)
+
+
+def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings]]:
+    """Single-change alternatives to ``base`` the diagnosis tries, most common student edits first."""
+    out: list[tuple[dict[str, Any], MahonySettings]] = []
+
+    def add(changes: dict[str, Any], s: MahonySettings) -> None:
+        if not _same_settings(s, base) and not any(_same_settings(s, o) for _, o in out):
+            out.append((changes, s))
+
+    defaults = MahonySettings()
+    add({"defaults": True}, defaults)
+    for ki in (1.0, C.KI, 0.0):
+        add({"ki": ki}, replace(base, ki=ki))
+    add({"correction": not base.correction}, replace(base, correction=not base.correction))
+    add({"fresh_squares": not base.fresh_squares}, replace(base, fresh_squares=not base.fresh_squares))
+    for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
+        add({"dt_s": dt}, replace(base, dt_s=dt))
+    kps = [(base.kp_flight, base.kp_flight), (base.kp_ground, base.kp_ground), (base.kp_flight, base.kp_ground),
+           (C.KP_GROUND, C.KP_FLIGHT)]
+    for kg, kf in kps:
+        add({"kp": (kg, kf)}, replace(base, kp_ground=kg, kp_flight=kf))
+    add({"min_thr": C.MIN_THR}, replace(base, min_thr=C.MIN_THR))
+    return out
+
+
+def _combine(a: tuple[dict, MahonySettings], b: tuple[dict, MahonySettings], base: MahonySettings):
+    """Both changes at once (None when they touch the same field or either is 'defaults')."""
+    ca, cb = a[0], b[0]
+    if "defaults" in ca or "defaults" in cb or set(ca) & set(cb):
+        return None
+    s = base
+    for ch in (ca, cb):
+        for k, v in ch.items():
+            s = replace(s, kp_ground=v[0], kp_flight=v[1]) if k == "kp" else replace(s, **{k: v})
+    return {**ca, **cb}, s
+
+
+def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: int, r1: int) -> int:
+    """Rows from ``r0`` (the seed row) that the port reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
+    a = view.attitude
+    q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings,
+                                state=seed_state)
+    ok = bits_equal(q, a.q_wxyz[r0:r1]).all(axis=1) & bits_equal(thx, a.thx_rad[r0:r1]) & bits_equal(
+        thy, a.thy_rad[r0:r1])
+    bad = np.flatnonzero(~ok)
+    return int(bad[0]) if bad.size else r1 - r0
+
+
+def _seed_state(view, seed) -> MahonyState:
+    if seed.source == "status":
+        s = view.status
+        return MahonyState(q_wxyz=s.q_wxyz[seed.status_row], int_xyz=s.int_xyz[seed.status_row])
+    return MahonyState()
+
+
+def _diagnose(
+    view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats
+) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
+    """Why the port disagrees: (sentences, matching variant, its bit-exact rows over the capture, its settings)."""
+    a = view.attitude
+    steps = a.step
+    n = steps.size
+    m = rep.first_mismatch
+    seed = max((s for s in rep.seeds if s.row <= m), key=lambda s: s.row)
+    breaks = np.flatnonzero(np.diff(steps) != 1) + 1
+    seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else n
+    r1 = min(seg_end, m + DIAGNOSIS_WINDOW_ROWS)
+    base = seed.settings
+    # candidates start from the last snapshot before the mismatch (the port was exact up to there), else the seed
+    r0, state = seed.row, _seed_state(view, seed)
+    st_steps = np.asarray(view.status.step, dtype=np.int64)
+    k = np.flatnonzero((st_steps >= steps[seed.row]) & (st_steps < steps[m]))
+    if k.size:
+        j = int(k[np.argmax(st_steps[k])])
+        r0 = seed.row + int(st_steps[j]) + 1 - int(steps[seed.row])
+        state = MahonyState(q_wxyz=view.status.q_wxyz[j], int_xyz=view.status.int_xyz[j])
+    need = r1 - r0
+    lines: list[str] = []
+
+    candidates = _variants(base)
+    found = None
+    for ch, s in candidates:
+        if _window_exact(view, state, s, r0, r1) == need:
+            found = (ch, s)
+            break
+    if found is None:
+        singles = [c for c in candidates if "defaults" not in c[0]]
+        for x, y in combinations(singles, 2):
+            c = _combine(x, y, base)
+            if c is not None and _window_exact(view, state, c[1], r0, r1) == need:
+                found = c
+                break
+    if found is not None:
+        ch, s = found
+        full = replay_firmware(view, settings=s)
+        lines.append(f"the capture matches {_describe_variant(ch, base)}")
+        flags = _cli_flags(s, _status_base(view) or MahonySettings())
+        how = f" (steval compare CAPTURE {flags})" if flags else ""
+        if full.all_exact:
+            lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
+        else:
+            lines.append(f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} "
+                         f"seeded steps{how}")
+        variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
+        if settings_override is not None and _same_settings(s, _status_base(view)):
+            lines.append("these are the settings the status frames report: the --settings override is wrong")
+        return lines, variant, full.n_bit_exact, s
+
+    seg_start = int(breaks[np.searchsorted(breaks, seed.row, side="right") - 1]) if np.any(breaks <= seed.row) else 0
+    at_restart = seed.source == "status" and m - seed.row < 2
+    if at_restart:
+        snap = int(view.status.step[seed.status_row])
+        if seg_start > 0:
+            lines.append(f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
+                         f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
+                         f"{snap}, which does not reproduce the next step")
+        else:
+            lines.append(f"the port started from the status snapshot of step {snap}, which does not reproduce the "
+                         "next step")
+        lines.extend(_snapshot_check(view, seed.status_row) or [
+            "the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"])
+    if int(stats.crc_failures) > 0 or int(stats.bytes_skipped) > 0:
+        lines.append(f"the stream had {int(stats.crc_failures)} CRC failures and {int(stats.bytes_skipped)} skipped "
+                     "bytes: damaged frames are dropped, but a corrupted frame that passes its CRC would also do this")
+    # a one-off disturbance or a different filter? Restart from the next snapshot after the mismatch.
+    st = view.status
+    k = np.flatnonzero((st.step >= steps[m]) & (st.step < steps[seg_end - 1]))
+    if k.size:
+        j = int(k[np.argmin(st.step[k])])
+        r0 = m + int(st.step[j]) + 1 - int(steps[m])
+        if r0 < seg_end:
+            rr1 = min(seg_end, r0 + DIAGNOSIS_WINDOW_ROWS)
+            good = _window_exact(view, MahonyState(q_wxyz=st.q_wxyz[j], int_xyz=st.int_xyz[j]), base, r0, rr1)
+            if good == rr1 - r0:
+                lines.append(f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
+                             f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
+                             "than a different filter")
+                return lines, None, None, None
+    if not at_restart:
+        lines.append("no known setting reproduces it (tried: firmware defaults, KI 1.0/0.1/0, correction on/off, "
+                     "both normalisation variants, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
+                     "of these): unknown firmware variant — was ahrs.c or QuaternionToEuler modified, or the "
+                     "firmware built with other compiler options (FMA, -O2 reordering)?")
+    return lines, None, None, None
+
+
+def _snapshot_check(view, j: int) -> list[str]:
+    """Is status snapshot ``j`` consistent with the attitude frame of its own step? (q must be the same bits.)"""
+    st, a = view.status, view.attitude
+    snap = int(st.step[j])
+    r = np.flatnonzero(a.step == snap)
+    if r.size == 0:
+        return []
+    same_q = bool(bits_equal(st.q_wxyz[j], a.q_wxyz[r[0]]).all())
+    ints = ", ".join(f"{float(v):.6g}" for v in st.int_xyz[j])
+    if same_q:
+        return [f"the snapshot of step {snap} carries the same q as that step's attitude frame, so its integral "
+                f"terms exInt/eyInt/ezInt ({ints}) must be wrong: does the firmware (or the tool that wrote the "
+                "capture) report the integrals of that step?"]
+    return [f"the snapshot of step {snap} does not carry the q of that step's attitude frame: the snapshot was "
+            "taken at another step (race between the AHRS step and the status frame in the firmware)"]
+
+
+def _status_base(view) -> MahonySettings | None:
+    s = view.status
+    if s.step.size == 0:
+        return None
+    j = int(np.argmin(s.step))
+    return MahonySettings.from_status(kp_ground=s.kp_ground[j], kp_flight=s.kp_flight[j], ki=s.ki[j],
+                                      dt_s=s.dt_s[j], min_thr=s.min_thr[j], flags=s.flags[j])
+
+
+def compare_port(
+    tel, settings: MahonySettings | None = None
+) -> tuple[PortComparison | None, FirmwareReplay | None, np.ndarray | None]:
+    """The seeded port against the firmware's binary rows: (report, replay over the binary rows, those rows'
+    indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row."""
+    view, rows = _binary_view(tel)
+    if rows.size == 0:
+        return None, None, None
+    a = view.attitude
+    rep = replay_firmware(view, settings=settings)
+    used = settings
+    if used is None:
+        used = rep.seeds[0].settings if rep.seeds else (_status_base(view) or MahonySettings())
+    seeds = [{"row": int(rows[s.row]), "step": s.step, "source": s.source,
+              "status_row": None if s.status_row is None else int(s.status_row)} for s in rep.seeds]
+    first = None
+    diagnosis: list[str] = []
+    variant = None
+    variant_exact = None
+    unseeded = None
+    if rep.n_seeded == 0:
+        if view.status.step.size == 0:
+            unseeded = ("the capture does not start at step 0 (power-up) and has no status frame with a filter "
+                        "snapshot, so the port has no state to start from")
+        else:
+            unseeded = ("no status snapshot falls inside a run of consecutive steps, so the port has no state to "
+                        "start from")
+    if rep.first_mismatch is not None:
+        m = rep.first_mismatch
+        t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
+        first = {"row": int(rows[m]), "step": int(a.step[m]), "t_fw_s": float(a.t_fw_s[m]),
+                 "t_rel_s": float(t_rel[rows[m]])}
+        diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
+    return (
+        PortComparison(
+            rows=int(rows.size),
+            seeded=rep.n_seeded,
+            bit_exact=rep.n_bit_exact,
+            seeds=seeds,
+            first_mismatch=first,
+            settings=_settings_dict(used),
+            diagnosis=diagnosis,
+            matching_variant=variant,
+            matching_bit_exact=variant_exact,
+            unseeded_reason=unseeded,
+        ),
+        rep,
+        rows,
+    )

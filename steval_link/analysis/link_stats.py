@@ -1,0 +1,98 @@
+"""Link and timing statistics of a decoded stream: frame rate and jitter, drops, firmware restarts, AHRS cycle
+counts (:func:`rate_stats`), and the plain-sentence notes on what the link could not carry (:func:`link_notes`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.analysis.report import RateStats
+from steval_link.link import protocol as P
+
+
+def _restart_mask(step: np.ndarray) -> np.ndarray:
+    """(N-1,) True where the step counter did not advance (firmware restart)."""
+    return np.diff(step) <= 0 if step.size > 1 else np.zeros(0, bool)
+
+
+def relative_time_s(step, t_fw_s) -> np.ndarray:
+    """Firmware time since the first row, s, kept increasing across firmware restarts (each restart continues one
+    AHRS period after the last row before it) so plots never run backwards."""
+    t = np.asarray(t_fw_s, dtype=np.float64)
+    if t.size == 0:
+        return t
+    dt = np.diff(t)
+    bad = (np.diff(np.asarray(step, dtype=np.int64)) <= 0) | ~np.isfinite(dt) | (dt < 0)
+    if bad.any():
+        dt = np.where(bad, C.AHRS_PERIOD_S, dt)
+    return np.concatenate([[0.0], np.cumsum(dt)])
+
+
+def rate_stats(tel) -> RateStats:
+    """Rate, period jitter, drops, CRC failures and AHRS cycles of a telemetry (see :class:`RateStats`)."""
+    a, s, st = tel.attitude, tel.status, tel.stats
+    n = len(a)
+    step = np.asarray(a.step, dtype=np.int64)
+    t = np.asarray(a.t_fw_s, dtype=np.float64)
+    restart = _restart_mask(step)
+    dt = np.diff(t) if n > 1 else np.zeros(0)
+    dstep = np.diff(step) if n > 1 else np.zeros(0, np.int64)
+    ok = ~restart & np.isfinite(dt) & (dt >= 0)
+    duration = float(np.sum(dt[ok])) if n > 1 else 0.0
+    steps = float(np.sum(dstep[ok])) if n > 1 else 0.0
+    per = dt[ok & (dstep == 1)] * 1e3
+    if per.size == 0 and ok.any():  # text mode sends every k-th step: per-step period of each row pair
+        per = (dt[ok] / dstep[ok]) * 1e3
+    kw: dict[str, Any] = {}
+    if len(s):
+        n_cyc = np.asarray(s.cyc_n, dtype=np.float64)
+        have = n_cyc > 0
+        if have.any():
+            kw["ahrs_cycles_min"] = int(np.min(s.cyc_min[have]))
+            kw["ahrs_cycles_max"] = int(np.max(s.cyc_max[have]))
+            kw["ahrs_cycles_mean"] = float(np.sum(s.cyc_mean[have] * n_cyc[have]) / np.sum(n_cyc[have]))
+        elif np.any(s.cyc_mean > 0):
+            kw["ahrs_cycles_min"] = int(np.min(s.cyc_min))
+            kw["ahrs_cycles_max"] = int(np.max(s.cyc_max))
+            kw["ahrs_cycles_mean"] = float(np.mean(s.cyc_mean))
+        cpu = np.asarray(s.cpu_hz)[np.asarray(s.exact, bool)] if np.any(s.exact) else np.zeros(0)
+        cpu = cpu[cpu > 0]
+        kw["cpu_hz"] = int(cpu[-1]) if cpu.size else (C.CPU_HZ if kw.get("ahrs_cycles_mean") else None)
+    return RateStats(
+        duration_s=duration,
+        rate_hz=(int(np.count_nonzero(ok)) / duration) if duration > 0 else None,
+        step_rate_hz=(steps / duration) if duration > 0 and steps > 0 else None,
+        period_mean_ms=float(np.mean(per)) if per.size else None,
+        period_std_ms=float(np.std(per)) if per.size > 1 else None,
+        period_p99_ms=float(np.percentile(per, 99)) if per.size else None,
+        period_max_ms=float(np.max(per)) if per.size else None,
+        seq_gaps=int(st.seq_gaps),
+        frames_missing=int(st.frames_missing),
+        seq_resets=int(getattr(st, "seq_resets", 0)),
+        tx_dropped=int(s.tx_dropped[-1]) if len(s) else None,
+        crc_failures=int(st.crc_failures),
+        bytes_skipped=int(st.bytes_skipped),
+        **kw,
+    )
+
+
+def link_notes(tel) -> list[str]:
+    """A hint when the firmware's TX queue dropped frames because the baud rate cannot carry the stream."""
+    s = tel.status
+    if not len(s) or int(s.tx_dropped[-1]) == 0:
+        return []
+    ex = np.flatnonzero(np.asarray(s.exact, bool))
+    baud = int(s.baud[ex[-1]]) if ex.size else 0
+    if not baud:
+        baud = int(((tel.source or {}).get("header") or {}).get("baud") or 0)
+    need = P.ATTITUDE_FRAME_SIZE * 10 * C.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
+    dropped = int(s.tx_dropped[-1])
+    if baud and baud < need:
+        return [f"the firmware's TX queue dropped {dropped} frames: at {baud} baud the link carries at most "
+                f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {C.AHRS_RATE_HZ:.1f} the AHRS "
+                f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"]
+    return [f"the firmware's TX queue dropped {dropped} frames since power-up (queue full: bursts of text or "
+            "status frames); frames dropped before the capture started count too"]

@@ -1,0 +1,329 @@
+"""What ``steval compare`` reports (:class:`ComparisonReport` and its parts, JSON-friendly with ``as_dict``) and
+its text form (:func:`format_report`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from steval_link.estimators.st_mahony import (
+    FirmwareReplay,
+)
+
+#: Trace name of the seeded port (``st-mahony`` is the registry estimator run from power-up, if requested).
+PORT_TRACE = "st-mahony-port"
+
+
+TRACE_LABELS = {
+    "st-mahony-port": "ST-Mahony port",
+    "st-mahony": "ST-Mahony from power-up",
+    "accel": "accel-only tilt",
+    "ekf3": "EKF (3-state)",
+    "mekf": "MEKF",
+    "vqf": "VQF",
+}
+
+
+def angle_diff_rad(a, b) -> np.ndarray:
+    """``a − b`` wrapped to [−π, π), float64 (so 179° vs −179° is 2°, not 358°); NaN where either is NaN."""
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    return (d + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def json_number(x) -> float | None:
+    """JSON-friendly float: None for NaN/inf."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class AngleStats:
+    """Differences of one angle against the firmware's, in degrees, over ``n`` rows where both are finite."""
+
+    n: int
+    rms_deg: float
+    max_abs_deg: float
+    mean_deg: float
+
+    @classmethod
+    def of(cls, diff_rad: np.ndarray) -> AngleStats:
+        d = np.degrees(diff_rad[np.isfinite(diff_rad)])
+        if d.size == 0:
+            return cls(0, math.nan, math.nan, math.nan)
+        return cls(int(d.size), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(d))), float(np.mean(d)))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"n": self.n, "rms_deg": json_number(self.rms_deg), "max_abs_deg": json_number(self.max_abs_deg),
+                "mean_deg": json_number(self.mean_deg)}
+
+
+@dataclass(frozen=True)
+class TraceComparison:
+    """One estimator's angles against the firmware's.
+
+    Attributes:
+        name: registry name (``st-mahony`` for the seeded port).
+        label: human-readable name.
+        available: False when the estimator could not run here (``note`` says why); the stats are then empty.
+        pitch: differences of thx (about x), degrees. roll: differences of thy (about y), degrees.
+        n_invalid: rows the estimator flagged invalid (or did not cover, e.g. port rows before a seed); excluded.
+        note: why it is unavailable, or a remark about the trace.
+    """
+
+    name: str
+    label: str
+    available: bool
+    pitch: AngleStats
+    roll: AngleStats
+    n_invalid: int = 0
+    note: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "label": self.label, "available": self.available,
+                "pitch_thx": self.pitch.as_dict(), "roll_thy": self.roll.as_dict(),
+                "n_invalid": self.n_invalid, "note": self.note}
+
+
+@dataclass(frozen=True)
+class PortComparison:
+    """The bit-exact port against the firmware.
+
+    Attributes:
+        rows: attitude rows considered (binary rows only). seeded: rows where the port had a known state.
+        bit_exact: seeded rows whose q, thx and thy carry the firmware's exact bits.
+        seeds: every (re)start: ``{"row", "step", "source" ("power-up"|"status"), "status_row"}``.
+        first_mismatch: ``{"row", "step", "t_fw_s", "t_rel_s"}`` of the first seeded row that differs, or None.
+        settings: the settings the port used (from the status frames, or overridden, or the defaults).
+        diagnosis: sentences saying why the port disagrees (empty when it agrees).
+        matching_variant: the alternative settings that reproduce the firmware (dict of the changed fields), or None.
+        matching_bit_exact: with ``matching_variant``, bit-exact rows over the whole capture.
+        unseeded_reason: why no row could be seeded (None when some were).
+    """
+
+    rows: int
+    seeded: int
+    bit_exact: int
+    seeds: list[dict[str, Any]]
+    first_mismatch: dict[str, Any] | None
+    settings: dict[str, Any]
+    diagnosis: list[str] = field(default_factory=list)
+    matching_variant: dict[str, Any] | None = None
+    matching_bit_exact: int | None = None
+    unseeded_reason: str | None = None
+
+    @property
+    def all_exact(self) -> bool:
+        return self.seeded > 0 and self.first_mismatch is None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "rows": self.rows,
+            "seeded_steps": self.seeded,
+            "bit_exact_steps": self.bit_exact,
+            "all_exact": self.all_exact,
+            "seeds": self.seeds,
+            "first_mismatch": self.first_mismatch,
+            "settings": self.settings,
+            "diagnosis": self.diagnosis,
+            "matching_variant": self.matching_variant,
+            "matching_bit_exact_steps": self.matching_bit_exact,
+            "unseeded_reason": self.unseeded_reason,
+        }
+
+
+@dataclass(frozen=True)
+class RateStats:
+    """Timing and link health of a capture.
+
+    Attributes:
+        duration_s: firmware time covered by the attitude rows (sum over stretches between firmware restarts).
+        rate_hz: attitude rows per second. step_rate_hz: AHRS steps per second (161.5 Hz on the drone).
+        period_mean_ms, period_std_ms, period_p99_ms, period_max_ms: Δt_fw between consecutive AHRS steps, ms
+            (rows whose step advanced by one).
+        seq_gaps, frames_missing: attitude frames lost on the way (decoder). tx_dropped: frames the firmware's
+            TX queue could not take (last status frame; None without status frames). crc_failures: damaged frames.
+        ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them);
+            ``ahrs_us_*`` the same in µs at ``cpu_hz``.
+    """
+
+    duration_s: float
+    rate_hz: float | None
+    step_rate_hz: float | None
+    period_mean_ms: float | None
+    period_std_ms: float | None
+    period_p99_ms: float | None
+    period_max_ms: float | None
+    seq_gaps: int
+    frames_missing: int
+    seq_resets: int
+    tx_dropped: int | None
+    crc_failures: int
+    bytes_skipped: int
+    ahrs_cycles_min: int | None = None
+    ahrs_cycles_mean: float | None = None
+    ahrs_cycles_max: int | None = None
+    cpu_hz: int | None = None
+
+    def _us(self, cycles) -> float | None:
+        if cycles is None or not self.cpu_hz:
+            return None
+        return float(cycles) / self.cpu_hz * 1e6
+
+    @property
+    def ahrs_us_min(self) -> float | None:
+        return self._us(self.ahrs_cycles_min)
+
+    @property
+    def ahrs_us_mean(self) -> float | None:
+        return self._us(self.ahrs_cycles_mean)
+
+    @property
+    def ahrs_us_max(self) -> float | None:
+        return self._us(self.ahrs_cycles_max)
+
+    def as_dict(self) -> dict[str, Any]:
+        out = {k: (json_number(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+        out.update(ahrs_us_min=json_number(self.ahrs_us_min), ahrs_us_mean=json_number(self.ahrs_us_mean),
+                   ahrs_us_max=json_number(self.ahrs_us_max))
+        return out
+
+
+@dataclass
+class ComparisonReport:
+    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json`` output).
+
+    The arrays behind the numbers (``t_rel_s``, the port replay, every estimator's estimate) are kept for plots
+    (:func:`steval_link.analysis.plots.plot_comparison`) but are not part of ``as_dict()``.
+    """
+
+    source: dict[str, Any]
+    rows: int
+    binary_rows: int
+    text_rows: int
+    firmware_nan_pitch: int
+    firmware_nan_roll: int
+    rates: RateStats
+    filter_settings: dict[str, Any] | None
+    port: PortComparison | None
+    traces: list[TraceComparison]
+    notes: list[str] = field(default_factory=list)
+    # arrays for plots (not serialised)
+    t_rel_s: np.ndarray = field(default=None, repr=False)
+    replay: FirmwareReplay | None = field(default=None, repr=False)
+    port_rows: np.ndarray | None = field(default=None, repr=False)
+    estimates: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def trace(self, name: str) -> TraceComparison | None:
+        return next((t for t in self.traces if t.name == name), None)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "rows": {"attitude": self.rows, "binary": self.binary_rows, "text_mode": self.text_rows},
+            "firmware_nan_steps": {"pitch_thx": self.firmware_nan_pitch, "roll_thy": self.firmware_nan_roll},
+            "rates": self.rates.as_dict(),
+            "filter_settings": self.filter_settings,
+            "port": None if self.port is None else self.port.as_dict(),
+            "traces": [t.as_dict() for t in self.traces],
+            "notes": list(self.notes),
+        }
+
+
+def _f(x, fmt: str = ".4f", none: str = "n/a") -> str:
+    return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+
+def format_report(r: ComparisonReport) -> list[str]:
+    """Human-readable lines of a :class:`ComparisonReport` (plain text, aligned)."""
+    lines: list[str] = []
+    rt = r.rates
+    kind = r.source.get("kind") or "telemetry"
+    rows = f"{r.rows} attitude rows" + (f" ({r.text_rows} text-mode)" if r.text_rows else "")
+    lines.append(f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time")
+    rate = f"{rt.rate_hz:.2f} Hz" if rt.rate_hz else "n/a"
+    if rt.step_rate_hz and rt.rate_hz and abs(rt.step_rate_hz - rt.rate_hz) > 0.01 * rt.rate_hz:
+        rate += f" (AHRS steps {rt.step_rate_hz:.2f} Hz)"
+    per = ""
+    if rt.period_mean_ms is not None:
+        per = (f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
+               f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms")
+    lines.append(f"rate: {rate}{per}")
+    tx = "" if rt.tx_dropped is None else f", firmware TX queue dropped {rt.tx_dropped}"
+    lines.append(f"drops: {rt.frames_missing} frames missing in {rt.seq_gaps} seq gaps{tx}; "
+                 f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
+                 + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else ""))
+    if rt.ahrs_cycles_mean is not None:
+        lines.append(f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
+                     f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} cycles at "
+                     f"{(rt.cpu_hz or 0) / 1e6:g} MHz)")
+    fs = r.filter_settings
+    if fs is None:
+        lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
+    elif fs["from"] == "status frames":
+        norm = "fresh squares" if fs["fresh_squares"] else "squares before update (170120)"
+        diff = fs["differs_from_defaults"]
+        def val(x):
+            return ("on" if x else "off") if isinstance(x, bool) else f"{x:g}"
+
+        tail = "firmware defaults" if not diff else "differs from defaults: " + ", ".join(
+            f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
+        lines.append(f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
+                     f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
+                     f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}")
+        if fs["changes"]:
+            lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
+    else:
+        lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
+
+    lines.append("")
+    p = r.port
+    if p is None:
+        lines.append("ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
+                     "cannot be bit-exact; compare the estimators below with the firmware instead")
+    else:
+        seeds = ", ".join(
+            ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
+            for s in p.seeds[:4]) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
+        verdict = "bit-exact on every step" if p.all_exact else (
+            "NOT bit-exact" if p.seeded else "not run")
+        lines.append(f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
+                     f"({p.rows} binary rows)")
+        if p.seeds:
+            lines.append(f"  started from: {seeds}")
+        if p.seeded < p.rows and p.seeded:
+            lines.append(f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until "
+                         "the next one)")
+        if p.unseeded_reason:
+            lines.append(f"  {p.unseeded_reason}")
+        if p.first_mismatch:
+            fm = p.first_mismatch
+            lines.append(f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
+                         f"the capture (firmware clock {fm['t_fw_s']:.3f} s)")
+            for d in p.diagnosis:
+                lines.append(f"  → {d}")
+
+    lines.append("")
+    lines.append("angles vs firmware, degrees (Δ = estimator − firmware)")
+    w = max([len(t.label) for t in r.traces] + [9]) + 2
+    head1 = " " * w + f"{'':>7}  {'pitch (thx, about x)':^21}  {'roll (thy, about y)':^21}"
+    head2 = f"{'estimator':<{w}}{'steps':>7}  {'RMS':>10} {'max |Δ|':>10}  {'RMS':>10} {'max |Δ|':>10}"
+    lines += [head1, head2]
+    for t in r.traces:
+        if not t.available:
+            lines.append(f"{t.label:<{w}}{'—':>7}  {t.note}")
+            continue
+        n = min(t.pitch.n, t.roll.n)
+        row = (f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
+               f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}")
+        if t.note:
+            row += f"  ({t.note})"
+        lines.append(row)
+    for note in r.notes:
+        lines.append(f"note: {note}")
+    return lines
