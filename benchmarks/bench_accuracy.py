@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.emulation import broad
 from steval_link.analysis import evaluate as ev
+from steval_link.emulation import broad
 
 
 def main(argv=None) -> int:

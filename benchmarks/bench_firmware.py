@@ -28,7 +28,7 @@ FW = ROOT / "firmware_patch"
 sys.path.insert(0, str(FW / "tools"))
 import stv_emu  # noqa: E402
 
-from steval_link import constants as C
+from steval_link import constants as C  # noqa: E402
 from steval_link.link.decoder import StreamDecoder  # noqa: E402
 
 

@@ -121,12 +121,11 @@ class _TimedViewer:
 
 
 def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
-    from steval_viewer.live_log import LiveLogger
-    from steval_viewer.sinks import SinkOptions, open_session
-
-    from steval_link.live import pipeline, recorder
     from steval_link.link.capture import CaptureWriter
     from steval_link.link.transport import HostClock, SerialReader
+    from steval_link.live import pipeline, recorder
+    from steval_viewer.live_log import LiveLogger
+    from steval_viewer.sinks import SinkOptions, open_session
 
     master, slave = os.openpty()
     tty.setraw(slave)

@@ -1,6 +1,6 @@
 """Soak benchmark: ``steval live`` on one hour of stream, fed as fast as the link consumes it; memory must stay flat.
 
-A fake drone (``tests/ptyfeed.py``) replays a synthetic flight (bit-exact firmware filter outputs, a status frame
+A fake drone (``tests/support/ptyfeed.py``) replays a synthetic flight (bit-exact firmware filter outputs, a status frame
 every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-terminal. The real CLI runs on it as a
 child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST port, accel, EKF),
 and the child's resident memory (VmRSS, and the peak VmHWM) is sampled once a second.
@@ -41,9 +41,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream  # noqa: E402
+from support.ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream  # noqa: E402
 
-from steval_link import constants as C
+from steval_link import constants as C  # noqa: E402
 
 
 def proc_mem_mb(pid: int) -> tuple[float, float]:

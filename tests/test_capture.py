@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import StreamBuilder
+from support.streams import StreamBuilder
 
 from steval_link.errors import UserError
 from steval_link.link.capture import (
@@ -226,7 +226,7 @@ def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuil
     not one clause per place (that used to be a 13 kB line)."""
     import json
 
-    from conftest import run_cli
+    from support.cli import run_cli
 
     data = stream.flight(1200, status_every=0).bytes()
     path = write_capture(tmp_path / "flaky.stv", data, 500)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 import pytest
-from conftest import run_cli
+from support.cli import run_cli
 
 from steval_link import __version__
 from steval_link.estimators import registry

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import StreamBuilder
+from support.streams import StreamBuilder
 
 from steval_link.cli import main
 from steval_link.link.capture import CaptureWriter

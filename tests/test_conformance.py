@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from support.cli import run_cli
 
 from steval_link.estimators.conformance import COLUMNS, check_conformance, load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, run

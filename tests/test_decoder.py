@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import StreamBuilder, frame_keys
+from support.streams import StreamBuilder, frame_keys
 
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes

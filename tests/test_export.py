@@ -6,7 +6,7 @@ import csv as csv_mod
 
 import numpy as np
 import pytest
-from conftest import StreamBuilder
+from support.streams import StreamBuilder
 
 from steval_link.cli import main
 from steval_link.link.capture import CaptureWriter, read_capture

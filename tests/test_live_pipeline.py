@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
+from support.ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
 
 from steval_link.estimators.st_mahony import bits_equal, replay_firmware
 from steval_link.link import protocol

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import run_cli, run_cli_tty
+from support.cli import run_cli, run_cli_tty
 
 BAR = "━"  # rich's bar segments
 

@@ -8,7 +8,7 @@ import signal
 import time
 
 import pytest
-from ptyfeed import PtyFeeder, StevalProcess, flight_stream
+from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 from steval_link.link.capture import load_telemetry, read_capture
 

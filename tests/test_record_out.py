@@ -7,7 +7,7 @@ marks below come off when ``cli/live.py`` and ``live.py`` call them (strict: a p
 from __future__ import annotations
 
 import pytest
-from ptyfeed import PtyFeeder, StevalProcess, flight_stream
+from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 START_TIMEOUT_S = 60.0
 

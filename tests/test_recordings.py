@@ -60,7 +60,7 @@ def test_readme_says_truly_where_the_synthesis_command_is(monkeypatch, capsys):
     import subprocess
     import sys
 
-    from conftest import run_cli
+    from support.cli import run_cli
 
     text = (REC / "README.md").read_text(encoding="utf-8")
     code, out, _ = run_cli(monkeypatch, capsys, "replay", REC / "demo.stv", "--json")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from support.cli import run_cli
 
 from steval_link.emulation.lab5 import run_simulation
 from steval_link.estimators.conformance import load_conformance_csv

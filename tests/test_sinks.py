@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from ptyfeed import PtyFeeder, StevalProcess, flight_stream
+from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 from steval_link.errors import UserError
 from steval_link.link.capture import demo_capture_path, read_capture

@@ -9,7 +9,7 @@ import time
 
 import pytest
 import serial
-from ptyfeed import PtyFeeder, flight_stream, uart_resample
+from support.ptyfeed import PtyFeeder, flight_stream, uart_resample
 
 from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder

@@ -18,8 +18,8 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-from ptyfeed import PtyFeeder, StevalProcess, flight_stream
-from xdisplay import (
+from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
+from support.xdisplay import (
     VirtualDisplay,
     kill_processes,
     require_display_tools,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from support.cli import run_cli
 
 from steval_link.link.capture import load_telemetry
 from steval_viewer import drone_model
