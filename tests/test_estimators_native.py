@@ -233,6 +233,7 @@ def _broad_trials(shared_dir):
 
 
 @needs_native
+@pytest.mark.slow
 def test_native_equals_python_on_broad_trials(shared_dir):
     """Every BROAD trial through the STEVAL pipeline model, default options (as in the accuracy benchmark)."""
     n_max = 6000  # ≈ 37 s of each trial keeps the Python reference quick
@@ -258,6 +259,7 @@ def translation_view(shared_dir):
 @pytest.mark.parametrize("cls, options", [(Ekf3, {"adaptive": True}), (Ekf3, {"exact_propagation": False}),
                                           (Mekf, {"latency_s": 0.0, "acc_tau_s": 0.0}),
                                           (Mekf, {"norm_gain": 1.0, "reject_mg": 300.0})])
+@pytest.mark.slow
 def test_native_equals_python_on_a_whole_broad_trial(translation_view, cls, options):
     """A whole trial with other option sets."""
     view = translation_view

@@ -7,6 +7,8 @@ student would see: the health/notes on stderr, the summary line, the capture fil
 
 from __future__ import annotations
 
+import pytest
+
 import signal
 import time
 
@@ -18,6 +20,9 @@ from steval_link.link.capture import read_capture
 from steval_link.link.decoder import StreamDecoder
 
 #: Generous for a loaded 2-core CI machine: the child's start (imports) and Rerun's setup.
+pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
+
+
 START_TIMEOUT_S = 60.0
 
 

@@ -229,6 +229,7 @@ def _rss_bytes() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
+@pytest.mark.slow
 def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
     rng = np.random.default_rng(5)
     garbage = rng.integers(0, 256, 1 << 20, dtype=np.uint8).tobytes()

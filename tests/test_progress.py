@@ -7,6 +7,9 @@ import json
 import pytest
 from support.cli import run_cli, run_cli_tty
 
+pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
+
+
 BAR = "━"  # rich's bar segments
 
 

@@ -12,6 +12,9 @@ from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 from steval_link.link.capture import load_telemetry, read_capture
 
+pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
+
+
 START_TIMEOUT_S = 60.0
 
 

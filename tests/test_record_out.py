@@ -9,6 +9,9 @@ from __future__ import annotations
 import pytest
 from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
+pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
+
+
 START_TIMEOUT_S = 60.0
 
 

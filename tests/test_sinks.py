@@ -52,6 +52,7 @@ class SilentServer:
         self.sock.close()
 
 
+@pytest.mark.slow
 def test_connect_where_nothing_listens_is_one_line_exit_2_at_once(tmp_path):
     url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
     t0 = time.monotonic()
@@ -65,6 +66,7 @@ def test_connect_where_nothing_listens_is_one_line_exit_2_at_once(tmp_path):
     assert took < 5.0, took
 
 
+@pytest.mark.slow
 def test_connect_to_a_program_that_is_no_viewer_is_refused_instead_of_hanging(tmp_path):
     server = SilentServer()
     try:
@@ -102,12 +104,14 @@ def test_serve_on_busy_ports_names_the_option_to_pick_another():
         (["--connect", "http://127.0.0.1:9876"], "--connect needs a Rerun gRPC URL"),
     ],
 )
+@pytest.mark.slow
 def test_output_options_are_checked_before_the_work(tmp_path, args, needle):
     done = _steval("replay", *args, cwd=tmp_path)
     assert done.returncode == 2 and needle in done.stderr
     assert done.stdout == "" and "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
 def test_replay_rrd_says_where_it_wrote_and_how_to_open_it(tmp_path):
     out = tmp_path / "demo.rrd"
     done = _steval("replay", "--rrd", str(out), "-e", "accel", cwd=tmp_path)
@@ -168,6 +172,7 @@ def test_live_rrd_without_a_display_is_as_small_as_no_view(tmp_path):
     assert default <= 1.5 * no_view, (default, no_view)
 
 
+@pytest.mark.slow
 def test_a_viewer_that_stops_taking_data_ends_the_flush_with_one_sentence(tmp_path):
     """A viewer frozen mid-stream (SIGSTOP): the flush gives up after its bound instead of hanging; one killed
     while we wait: 'cannot be reached'."""

@@ -16,6 +16,9 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial
 
 
+pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
+
+
 class Collector(Protocol):
     """Keeps every event of the reader thread with the monotonic time it happened."""
 
