@@ -211,9 +211,9 @@ def main() -> None:
     )
     ap.add_argument("--runs", type=int, default=1, help="repeat each reader this many times")
     args = ap.parse_args()
-    from steval_link.live.estimators import resolve_estimators
+    from steval_link.estimators import registry
 
-    estimators = resolve_estimators(args.estimators)
+    estimators = registry.parse_names(args.estimators, registry.LIVE_DEFAULT)
     print(f"estimators: {', '.join(estimators) or 'none'}; .rrd sink; {args.seconds:.0f} s per run")
     readers = ["transport", "own"] if args.reader == "both" else [args.reader]
     for r in readers:

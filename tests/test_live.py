@@ -7,12 +7,11 @@ student would see: the health/notes on stderr, the summary line, the capture fil
 
 from __future__ import annotations
 
-import pytest
-
 import signal
 import time
 
 import numpy as np
+import pytest
 from support.ptyfeed import REAL_BYTES_PER_S, PtyFeeder, StevalProcess, flight_stream, uart_resample
 
 from steval_link.link import protocol

@@ -15,7 +15,6 @@ from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial
 
-
 pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
 
 

@@ -23,7 +23,6 @@ it is not run; the firmware's angles are compared with the other estimators only
 from __future__ import annotations
 
 __all__ = [
-    "DEFAULT_COMPARE_ESTIMATORS",
     "PORT_TRACE",
     "AngleStats",
     "ComparisonReport",
@@ -49,13 +48,11 @@ from steval_link.analysis.report import (
     angle_diff_rad,
     format_report,
 )
+from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     MahonySettings,
 )
-
-#: Estimators ``steval compare`` runs next to the port by default (missing ones are reported, not fatal).
-DEFAULT_COMPARE_ESTIMATORS: tuple[str, ...] = ("ekf3", "mekf", "accel")
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:
@@ -75,7 +72,7 @@ def _unavailable(name: str, note: str) -> TraceComparison:
 
 def compare_capture(
     tel,
-    estimators: Sequence[str] = DEFAULT_COMPARE_ESTIMATORS,
+    estimators: Sequence[str] = registry.COMPARE_DEFAULT,
     settings: MahonySettings | None = None,
 ) -> ComparisonReport:
     """Compare a capture's firmware angles with the seeded ST-Mahony port and with ``estimators``.

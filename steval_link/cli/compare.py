@@ -16,7 +16,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.analysis.compare import DEFAULT_COMPARE_ESTIMATORS, compare_capture, format_report
+from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain, check_throttle
 from steval_link.cli.progress import progress_bar, scaled
@@ -93,11 +93,8 @@ def compare_command(
     drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees."""
 
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
-    names = tuple(n.strip() for e in estimator for n in e.split(",") if n.strip()) if estimator else ()
-    names = names or DEFAULT_COMPARE_ESTIMATORS
-    for name in names:
-        if estimator and name not in registry.ESTIMATORS:
-            raise UserError(f"unknown estimator {name!r}; choose from: {', '.join(registry.names())}")
+    names = registry.parse_names(",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT,
+                                 require_installed=False)  # a missing optional package is a row of the report
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 

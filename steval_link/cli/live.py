@@ -19,8 +19,8 @@ from steval_link.cli.viewer_options import (
     WebPortOption,
 )
 from steval_link.errors import UserError
+from steval_link.estimators import registry
 from steval_link.link.capture import resolve_capture_out
-from steval_link.live.estimators import resolve_estimators
 from steval_link.live.session import LiveOptions, LiveSession
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
@@ -84,7 +84,7 @@ def live_command(
         connect=connect,
         web_port=web_port,
         grpc_port=grpc_port,
-        estimators=resolve_estimators(estimators),
+        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
         duration_s=duration,
         wait=wait,
     )

@@ -33,16 +33,13 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
+from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
-from steval_link.live.estimators import resolve_estimators
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
-__all__ = ["load_replay", "run_estimators", "DEFAULT_ESTIMATORS"]
+__all__ = ["load_replay", "run_estimators"]
 
-#: Estimators a sink that shows attitudes (Rerun) runs by default: the firmware's filter (the viewer shows it as the
-#: bit-exact port seeded from status snapshots), accelerometer-only tilt and both EKFs.
-DEFAULT_ESTIMATORS: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
 Sink = Callable[[Any, dict[str, Any]], None]
@@ -121,7 +118,7 @@ def replay(
             "--estimators",
             "-e",
             help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf; "
-            f"'none' for none). Default with a viewer or --rrd: {','.join(DEFAULT_ESTIMATORS)}.",
+            f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
             show_default=False,
         ),
     ] = None,
@@ -131,7 +128,7 @@ def replay(
     With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none."""
     viewer = rrd is not None or spawn or serve or connect
-    names = tuple(resolve_estimators(estimators)) if estimators is not None else (DEFAULT_ESTIMATORS if viewer else ())
+    names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
     options = None
     if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
         options = sink_options(

@@ -11,9 +11,11 @@ import importlib
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
 
+from steval_link.errors import UserError
 from steval_link.estimators.base import Estimator
 
-__all__ = ["ESTIMATORS", "names", "create", "is_available", "available_names"]
+__all__ = ["ESTIMATORS", "LIVE_DEFAULT", "REPLAY_DEFAULT", "COMPARE_DEFAULT", "names", "create", "is_available",
+           "available_names", "parse_names"]
 
 
 class _lazy:
@@ -45,6 +47,12 @@ _ENTRIES: dict[str, Callable[..., Estimator]] = {
 
 #: registry name → constructor (keyword options only), read-only
 ESTIMATORS: Mapping[str, Callable[..., Estimator]] = MappingProxyType(_ENTRIES)
+
+#: what each command runs next to the firmware when ``--estimators`` is not given (uninstalled ones skipped):
+#: ``steval live`` (every frame as it comes), ``steval replay`` with a viewer or ``--rrd``, ``steval compare``
+LIVE_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3")
+REPLAY_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
+COMPARE_DEFAULT: tuple[str, ...] = ("ekf3", "mekf", "accel")
 
 
 def names() -> tuple[str, ...]:
@@ -86,3 +94,20 @@ def create(name: str, **options) -> Estimator:
         if "unexpected keyword" in str(exc) or "positional argument" in str(exc):
             raise ValueError(f"estimator {name!r} does not take these options: {exc}") from None
         raise
+
+
+def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed: bool = True) -> list[str]:
+    """``--estimators``: a comma-separated list of registry names or ``none``; None gives those of ``default`` that
+    are installed. UserError for an unknown name (the valid ones listed) or, with ``require_installed``, one whose
+    package is missing (``steval compare`` reports those in its table instead)."""
+    if spec is None:
+        return [n for n in default if is_available(n) or not require_installed]
+    chosen = [s.strip() for s in spec.split(",") if s.strip()]
+    if chosen in (["none"], []):
+        return []
+    for n in chosen:
+        if n not in ESTIMATORS:
+            raise UserError(f"unknown estimator {n!r}; choose from: {', '.join(ESTIMATORS)} (or none)")
+        if require_installed and not is_available(n):
+            raise UserError(f"estimator {n!r} needs an optional package: pip install 'steval-link[{n}]'")
+    return chosen

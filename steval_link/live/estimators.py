@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from steval_link.errors import UserError
 from steval_link.estimators import registry, st_mahony
 
 
@@ -185,22 +184,3 @@ class LiveEstimators:
         if self.port is not None:
             self.port.status(frame)
 
-
-def resolve_estimators(spec: str | None) -> list[str]:
-    """``--estimators``: comma list of registry names, ``none``, or None for the defaults that are installed."""
-
-    if spec is None:
-        return [n for n in DEFAULT_ESTIMATORS if registry.is_available(n)]
-    names = [s.strip() for s in spec.split(",") if s.strip()]
-    if names in (["none"], []):
-        return []
-    for n in names:
-        if n not in registry.names():
-            raise UserError(f"unknown estimator {n!r}; choose from: {', '.join(registry.names())} (or none)")
-        if not registry.is_available(n):
-            raise UserError(f"estimator {n!r} needs an optional package: pip install 'steval-link[{n}]'")
-    return names
-
-
-#: Default estimators run next to the firmware (those not installed are skipped when not asked for explicitly).
-DEFAULT_ESTIMATORS = ("st-mahony", "accel", "ekf3")
