@@ -110,14 +110,14 @@ class _TimedViewer:
         self.log_ms.append((t_b - t_a) * 1e3)
         self.batch_sizes.append(len(batch))
 
-    def log_status(self, frame, t_host_s) -> None:
-        self.logger.log_status(frame, t_host_s)
+    def log_status(self, frame, t_unix_s) -> None:
+        self.logger.log_status(frame, t_unix_s)
 
-    def log_text(self, frame, t_host_s) -> None:
-        self.logger.log_text(frame, t_host_s)
+    def log_text(self, frame, t_unix_s) -> None:
+        self.logger.log_text(frame, t_unix_s)
 
-    def log_link(self, stats, t_host_s) -> None:
-        self.logger.log_link(stats, t_host_s)
+    def log_link(self, stats, t_unix_s) -> None:
+        self.logger.log_link(stats, t_unix_s)
 
 
 def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:

@@ -46,16 +46,16 @@ class ViewerLogger:
     def log_batch(self, batch: AttitudeBatch) -> None:
         self.logger.log_batch(batch)
 
-    def log_status(self, frame, t_host_s: float) -> None:
-        self.logger.log_status(frame, t_host_s)
+    def log_status(self, frame, t_unix_s: float) -> None:
+        self.logger.log_status(frame, t_unix_s)
 
-    def log_text(self, frame, t_host_s: float) -> None:
-        self.logger.log_text(frame, t_host_s)
+    def log_text(self, frame, t_unix_s: float) -> None:
+        self.logger.log_text(frame, t_unix_s)
 
-    def log_link(self, stats, t_host_s: float) -> None:
-        self.logger.log_link(stats, t_host_s)
+    def log_link(self, stats, t_unix_s: float) -> None:
+        self.logger.log_link(stats, t_unix_s)
         if self.file is not None:
-            self.file.log_link(stats, t_host_s)
+            self.file.log_link(stats, t_unix_s)
 
     def close(self) -> None:
         """Send what the loggers hold and finish both streams (the ``.rrd`` is complete afterwards)."""

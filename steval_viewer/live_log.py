@@ -4,9 +4,9 @@ The live session (``steval_link.live``) decodes the serial bytes and calls, in a
 
     logger = LiveLogger(session.rec, estimator_names=["st-mahony", "accel", "ekf3"])
     logger.log_batch(batch)              # an AttitudeBatch: arrays of N frames + their estimates
-    logger.log_status(frame, t_host_s)   # a StatusFrame
-    logger.log_text(frame, t_host_s)     # a TextFrame
-    logger.log_link(stats, t_host_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
+    logger.log_status(frame, t_unix_s)   # a StatusFrame
+    logger.log_text(frame, t_unix_s)     # a TextFrame
+    logger.log_link(stats, t_unix_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
     logger.close()
 
 Attitude rows are not held back: ``log_batch`` sends them with one Arrow record batch (one chunk per entity)
@@ -274,8 +274,8 @@ class LiveLogger:
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
 
     # -- time ------------------------------------------------------------------------------------------------
-    def _host(self, t_host_s: np.ndarray) -> np.ndarray:
-        t = np.asarray(t_host_s, dtype=np.float64)
+    def _host(self, t_unix_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_unix_s, dtype=np.float64)
         if self.t0_host_s is None and self.t0_from is not None:
             self.t0_host_s = self.t0_from.t0_host_s
         if self.t0_host_s is None:
@@ -284,10 +284,10 @@ class LiveLogger:
                 self.t0_host_s = float(finite[0])
         return t - (self.t0_host_s if self.t0_host_s is not None else 0.0)
 
-    def _scalar_times(self, t_host_s: float) -> Times | None:
-        """Times for an event at host time ``t_host_s``: fw time estimated from the latest frame (the host time
+    def _scalar_times(self, t_unix_s: float) -> Times | None:
+        """Times for an event at host time ``t_unix_s``: fw time estimated from the latest frame (the host time
         elapsed since it, or before it: events are logged after the batch they arrived within)."""
-        host = float(self._host(np.array([t_host_s]))[0])
+        host = float(self._host(np.array([t_unix_s]))[0])
         if self._last_times is None:
             return None
         fw_last, host_last = self._last_times
@@ -295,7 +295,7 @@ class LiveLogger:
 
     # -- frames ----------------------------------------------------------------------------------------------
     def log_batch(self, batch: Any) -> None:
-        """Log N attitude frames that arrived together (an ``AttitudeBatch``: ``step``, ``t_us``, ``t_host_s``,
+        """Log N attitude frames that arrived together (an ``AttitudeBatch``: ``step``, ``t_us``, ``t_unix_s``,
         ``acc_mg``, ``gyro_mdps``, ``q_wxyz``, ``thz_rad``, ``thr``, ``estimates`` name -> (N, 4) q_wxyz with NaN
         where undefined; optionally ``exact`` with ``thx_rad``/``thy_rad`` for text-mode rows, which have no q).
         Non-finite values are gaps, never plotted."""
@@ -304,7 +304,7 @@ class LiveLogger:
             return
         rec = self.rec
         step = np.asarray(batch.step, dtype=np.int64)
-        times = Times(self.fw_clock.seconds(batch.t_us), self._host(batch.t_host_s), step)
+        times = Times(self.fw_clock.seconds(batch.t_us), self._host(batch.t_unix_s), step)
         q = np.asarray(batch.q_wxyz, dtype=np.float32)
         thx, thy = quaternion_to_euler(q)
         exact = getattr(batch, "exact", None)
@@ -393,40 +393,40 @@ class LiveLogger:
                 self._bin_count = 0
             self._bin_count += 1
 
-    def log_status(self, frame: Any, t_host_s: float) -> None:
+    def log_status(self, frame: Any, t_unix_s: float) -> None:
         """A status frame: AHRS cycles (min/mean/max), firmware TX drops and queue peak.
 
         Timed by the frame's own ``t_us`` (unwrapped like the attitude rows; a status frame repeats the time of
         the attitude frame before it), so it may be logged before or after the batch holding that frame. The rows
         are queued and sent with the next batch (or on :meth:`close`)."""
-        host = float(self._host(np.array([t_host_s], dtype=np.float64))[0]) if t_host_s is not None else math.nan
+        host = float(self._host(np.array([t_unix_s], dtype=np.float64))[0]) if t_unix_s is not None else math.nan
         fw = self.fw_clock.nearest(int(frame.t_us))
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
             self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
         self._queue_row(ent.LINK_TX_DROPPED, fw, host, (float(frame.tx_dropped),))
         self._queue_row(ent.LINK_QUEUE, fw, host, (float(getattr(frame, "queue_peak", 0)),))
 
-    def log_text(self, frame: Any, t_host_s: float) -> None:
+    def log_text(self, frame: Any, t_unix_s: float) -> None:
         """A firmware text line (TextFrame or str)."""
         text = frame if isinstance(frame, str) else frame.text
-        host = float(self._host(np.array([t_host_s]))[0]) if t_host_s is not None else math.nan
+        host = float(self._host(np.array([t_unix_s]))[0]) if t_unix_s is not None else math.nan
         self.rec.reset_time()
         if math.isfinite(host):
             self.rec.set_time(ent.TIMELINE_HOST, duration=host)
-        times = self._scalar_times(t_host_s) if math.isfinite(host) else None
+        times = self._scalar_times(t_unix_s) if math.isfinite(host) else None
         if times is not None:
             self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
         self.rec.log(ent.LOG_FIRMWARE, rr.TextLog(text, level="INFO"))
         self.rec.reset_time()
 
-    def log_link(self, stats: Any, t_host_s: float, *, force: bool = False) -> None:
+    def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
         """Decoder counters (``DecoderStats``): CRC failures, cumulative; at most every LINK_INTERVAL_S."""
-        if not force and t_host_s - self._last_link_s < LINK_INTERVAL_S:
+        if not force and t_unix_s - self._last_link_s < LINK_INTERVAL_S:
             return
-        times = self._scalar_times(t_host_s)
+        times = self._scalar_times(t_unix_s)
         if times is None:
             return
-        self._last_link_s = t_host_s
+        self._last_link_s = t_unix_s
         self._queue_row(
             ent.LINK_CRC, float(times.t_fw_s[0]), float(times.t_host_s[0]) if times.t_host_s is not None else math.nan,
             (float(getattr(stats, "crc_failures", 0)),),

@@ -32,10 +32,10 @@ class BatchLog:
     def log_batch(self, batch) -> None:
         self.batches.append(batch)
 
-    def log_status(self, frame, t_host_s) -> None:
+    def log_status(self, frame, t_unix_s) -> None:
         self.status.append(frame)
 
-    def log_text(self, frame, t_host_s) -> None:
+    def log_text(self, frame, t_unix_s) -> None:
         self.text.append(frame.text)
 
     def rows(self, name: str) -> np.ndarray:
@@ -97,12 +97,12 @@ def test_status_and_text_frames_do_not_cut_a_view_batch():
             super().log_batch(batch)
             self.order.append("batch")
 
-        def log_status(self, frame, t_host_s) -> None:
-            super().log_status(frame, t_host_s)
+        def log_status(self, frame, t_unix_s) -> None:
+            super().log_status(frame, t_unix_s)
             self.order.append("status")
 
-        def log_text(self, frame, t_host_s) -> None:
-            super().log_text(frame, t_host_s)
+        def log_text(self, frame, t_unix_s) -> None:
+            super().log_text(frame, t_unix_s)
             self.order.append("text")
 
     log = Ordered()

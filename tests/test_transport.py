@@ -29,9 +29,9 @@ class Collector(Protocol):
     def connection_made(self, port: str) -> None:
         self.events.append(("made", port, time.monotonic()))
 
-    def data_received(self, data: bytes, t_host_s: float) -> None:
+    def data_received(self, data: bytes, t_unix_s: float) -> None:
         with self.lock:
-            self.chunks.append((data, t_host_s))
+            self.chunks.append((data, t_unix_s))
 
     def connection_lost(self, exc) -> None:
         self.events.append(("lost", "" if exc is None else type(exc).__name__, time.monotonic()))

@@ -193,7 +193,7 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
             batch = SimpleNamespace(
                 step=np.array([65_500 + n_frames + i for i in range(n)]),
                 t_us=np.array([f.t_us for f in att]),
-                t_host_s=np.full(n, t_host),
+                t_unix_s=np.full(n, t_host),
                 acc_mg=np.array([f.acc_mg for f in att], dtype=np.float32),
                 gyro_mdps=np.array([f.gyro_mdps for f in att], dtype=np.float32),
                 q_wxyz=np.array([f.q_wxyz for f in att], dtype=np.float32),

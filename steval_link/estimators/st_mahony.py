@@ -406,10 +406,6 @@ class FirmwareReplay:
     seeds: tuple[ReplaySeed, ...]
 
     @property
-    def n_rows(self) -> int:
-        return int(self.seeded.shape[0])
-
-    @property
     def n_seeded(self) -> int:
         return int(np.count_nonzero(self.seeded))
 

@@ -345,28 +345,6 @@ class Telemetry:
         cols["offset"] = a.offset
         return cols
 
-    def status_table(self) -> dict[str, np.ndarray]:
-        """One 1-D column per status field (vector fields split per component)."""
-        s = self.status
-        cols: dict[str, np.ndarray] = {"step": s.step, "t_fw_s": s.t_fw_s, "t_host_s": s.t_host_s}
-        for i, c in enumerate("wxyz"):
-            cols[f"q_{c}"] = s.q_wxyz[:, i]
-        for i, c in enumerate("xyz"):
-            cols[f"int_{c}"] = s.int_xyz[:, i]
-        for name in ("kp_ground", "kp_flight", "ki", "dt_s", "cyc_min", "cyc_mean", "cyc_max", "cyc_n", "cpu_hz"):
-            cols[name] = getattr(s, name)
-        for name in ("tx_dropped", "baud", "min_thr", "flags", "queue_peak"):
-            cols[name] = getattr(s, name)
-        cols["exact"] = s.exact
-        cols["offset"] = s.offset
-        return cols
-
-    def attitude_dataframe(self):
-        """The attitude table as a ``pandas.DataFrame`` (needs pandas)."""
-        import pandas as pd
-
-        return pd.DataFrame(self.attitude_table())
-
 
 def telemetry_from_frames(
     frames: list[Frame],

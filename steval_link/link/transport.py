@@ -54,10 +54,6 @@ class HostClock:
         """Current host time, s since the Unix epoch (monotonic since construction)."""
         return self.wall0_s + (time.monotonic() - self.mono0_s)
 
-    def elapsed_s(self) -> float:
-        """Seconds since construction (monotonic)."""
-        return time.monotonic() - self.mono0_s
-
 
 class Protocol:
     """What the reader thread calls; every method runs in the reader thread. Subclass and override.
@@ -68,13 +64,13 @@ class Protocol:
     def connection_made(self, port: str) -> None:
         """The port ``port`` was (re)opened and bytes may follow."""
 
-    def data_received(self, data: bytes, t_host_s: float) -> None:
-        """``data`` arrived; ``t_host_s`` is the host time (s, Unix epoch) the read returned."""
+    def data_received(self, data: bytes, t_unix_s: float) -> None:
+        """``data`` arrived; ``t_unix_s`` is the host time (s, Unix epoch) the read returned."""
 
     def connection_lost(self, exc: BaseException | None) -> None:
         """The port failed with ``exc`` (``None``: closed by :meth:`SerialReader.stop`)."""
 
-    def idle(self, t_host_s: float) -> None:
+    def idle(self, t_unix_s: float) -> None:
         """Called after every read (even an empty one) and while waiting to reconnect: a periodic tick."""
 
 
@@ -192,10 +188,10 @@ class SerialReader(threading.Thread):
                 except (serial.SerialException, OSError) as exc:
                     self._drop(exc)
                     continue
-                t_host_s = self.clock.now_s()
+                t_unix_s = self.clock.now_s()
                 if data:
-                    self.protocol.data_received(data, t_host_s)
-                self.protocol.idle(t_host_s)
+                    self.protocol.data_received(data, t_unix_s)
+                self.protocol.idle(t_unix_s)
         except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
             self.error = exc
         finally:

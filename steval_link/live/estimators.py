@@ -21,7 +21,7 @@ class AttitudeBatch:
 
     step: np.ndarray  # (N,) int64
     t_us: np.ndarray  # (N,) int64 (firmware µs, as sent)
-    t_host_s: np.ndarray  # (N,) float64, Unix epoch
+    t_unix_s: np.ndarray  # (N,) float64, Unix epoch
     acc_mg: np.ndarray  # (N, 3) float32
     gyro_mdps: np.ndarray  # (N, 3) float32
     q_wxyz: np.ndarray  # (N, 4) float32, firmware

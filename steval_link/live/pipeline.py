@@ -45,11 +45,11 @@ class LiveViewer(typing.Protocol):
 
     def log_batch(self, batch: AttitudeBatch) -> None: ...
 
-    def log_status(self, frame, t_host_s: float) -> None: ...
+    def log_status(self, frame, t_unix_s: float) -> None: ...
 
-    def log_text(self, frame, t_host_s: float) -> None: ...
+    def log_text(self, frame, t_unix_s: float) -> None: ...
 
-    def log_link(self, stats, t_host_s: float) -> None: ...
+    def log_link(self, stats, t_unix_s: float) -> None: ...
 
     def close(self) -> None: ...
 
@@ -84,7 +84,7 @@ class StepUnwrapper:
 class BatchOutlet:
     """One logger fed merged batches at its own cadence (see :class:`LivePipeline`).
 
-    ``logger`` takes ``log_batch(batch)``, ``log_status(frame, t_host_s)`` and ``log_text(frame, t_host_s)``.
+    ``logger`` takes ``log_batch(batch)``, ``log_status(frame, t_unix_s)`` and ``log_text(frame, t_unix_s)``.
     Batches wait at most ``interval_s`` (monotonic wall time) or ``interval_s`` × 161.5 frames of stream time (a
     stream fed faster than real time, e.g. catching up or a benchmark, still makes chunks of the same size).
     """
@@ -95,7 +95,7 @@ class BatchOutlet:
         self.max_rows = max(1, math.ceil(interval_s * C.AHRS_RATE_HZ))
         self._batches: list[AttitudeBatch] = []
         self._rows = 0
-        self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_host_s)
+        self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_unix_s)
         self._since = 0.0  # monotonic time the oldest pending item came
 
     def _touch(self) -> None:
@@ -107,9 +107,9 @@ class BatchOutlet:
         self._batches.append(batch)
         self._rows += len(batch)
 
-    def add_event(self, kind: str, frame, t_host_s: float) -> None:
+    def add_event(self, kind: str, frame, t_unix_s: float) -> None:
         self._touch()
-        self._events.append((kind, frame, t_host_s))
+        self._events.append((kind, frame, t_unix_s))
 
     def tick(self, now_mono: float | None = None) -> None:
         """Flush when the pending frames have waited ``interval_s`` or fill ``max_rows``."""
@@ -127,17 +127,17 @@ class BatchOutlet:
             self.logger.log_batch(batch)
         if self._events:
             events, self._events = self._events, []
-            for kind, frame, t_host_s in events:
+            for kind, frame, t_unix_s in events:
                 if kind == "status":
-                    self.logger.log_status(frame, t_host_s)
+                    self.logger.log_status(frame, t_unix_s)
                 else:
-                    self.logger.log_text(frame, t_host_s)
+                    self.logger.log_text(frame, t_unix_s)
 
 
 class LivePipeline:
     """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
 
-    ``feed([(bytes, t_host_s), ...])`` decodes the chunks in order and, per processing round, turns the
+    ``feed([(bytes, t_unix_s), ...])`` decodes the chunks in order and, per processing round, turns the
     attitude frames into one :class:`AttitudeBatch` that goes through :class:`LiveEstimators` and then to
     ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
     ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
@@ -186,16 +186,16 @@ class LivePipeline:
         return self.estimators.port if self.estimators is not None else None
 
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
-        """Decode and process chunks received at host times ``t_host_s`` (s, Unix epoch), in stream order."""
+        """Decode and process chunks received at host times ``t_unix_s`` (s, Unix epoch), in stream order."""
 
         outlets = self.outlets
         att: list[tuple[object, float]] = []
-        for data, t_host_s in chunks:
+        for data, t_unix_s in chunks:
             if len(self.sample) < SAMPLE_BYTES:
                 self.sample += data[: SAMPLE_BYTES - len(self.sample)]
             for frame in self.decoder.feed(data):
                 if isinstance(frame, AttitudeFrame):
-                    att.append((frame, t_host_s))
+                    att.append((frame, t_unix_s))
                 elif isinstance(frame, StatusFrame):
                     self._attitude(att)  # the port must step through the frames before the snapshot
                     att = []
@@ -204,7 +204,7 @@ class LivePipeline:
                     if self.estimators is not None:
                         self.estimators.status(frame)
                     if outlets:
-                        self._event("status", frame, t_host_s)
+                        self._event("status", frame, t_unix_s)
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
                     att = []
@@ -212,13 +212,13 @@ class LivePipeline:
                     self.health.last_text = frame.text
                     self.texts.append(frame.text)
                     if outlets:
-                        self._event("text", frame, t_host_s)
+                        self._event("text", frame, t_unix_s)
         self._attitude(att)
         self.tick()
 
-    def _event(self, kind: str, frame, t_host_s: float) -> None:
+    def _event(self, kind: str, frame, t_unix_s: float) -> None:
         for outlet in self.outlets:
-            outlet.add_event(kind, frame, t_host_s)
+            outlet.add_event(kind, frame, t_unix_s)
 
     def tick(self, now_mono: float | None = None) -> None:
         """Hand the pending frames to each logger whose interval has passed."""
@@ -247,7 +247,7 @@ class LivePipeline:
         batch = AttitudeBatch(
             step=self.step_unwrap.frames(frames),
             t_us=np.array([f.t_us for f in frames], dtype=np.int64),
-            t_host_s=np.array([t for _, t in att], dtype=np.float64),
+            t_unix_s=np.array([t for _, t in att], dtype=np.float64),
             acc_mg=acc,
             gyro_mdps=gyro,
             q_wxyz=q,
@@ -259,7 +259,7 @@ class LivePipeline:
             thy_rad=angles[:, 1],
         )
         self.health.nonfinite += int(n - np.count_nonzero(finite))
-        self.health.count(n, float(batch.t_host_s[0]), float(batch.t_host_s[-1]))
+        self.health.count(n, float(batch.t_unix_s[0]), float(batch.t_unix_s[-1]))
         if self.estimators is not None:
             self.estimators.process(batch)
         for outlet in self.outlets:

@@ -29,9 +29,9 @@ class Inbox:
         #: bytes dropped from the live view because the main thread fell behind (still in the capture)
         self.dropped_bytes = 0
 
-    def put(self, data: bytes, t_host_s: float) -> None:
+    def put(self, data: bytes, t_unix_s: float) -> None:
         with self._cond:
-            self._chunks.append((data, t_host_s))
+            self._chunks.append((data, t_unix_s))
             self._bytes += len(data)
             while self._bytes > self.max_bytes and len(self._chunks) > 1:
                 old, _ = self._chunks.popleft()
@@ -75,9 +75,9 @@ class RecorderProtocol(Protocol):
         self.connect_bytes = 0  # bytes since the current connection was made
         self.connected_at_s: float | None = None  # monotonic
 
-    def _t_capture(self, t_host_s: float | None = None) -> float:
+    def _t_capture(self, t_unix_s: float | None = None) -> float:
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
-        return (self.clock.now_s() if t_host_s is None else t_host_s) - self.clock.wall0_s
+        return (self.clock.now_s() if t_unix_s is None else t_unix_s) - self.clock.wall0_s
 
     def connection_made(self, port: str) -> None:
         now = time.monotonic()
@@ -92,11 +92,11 @@ class RecorderProtocol(Protocol):
         self.connected_at_s = now
         self.connected = True
 
-    def data_received(self, data: bytes, t_host_s: float) -> None:
-        self.capture.write(data, self._t_capture(t_host_s))  # first: whatever happens next, the bytes are kept
+    def data_received(self, data: bytes, t_unix_s: float) -> None:
+        self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
         self.bytes_total += len(data)
         self.connect_bytes += len(data)
-        self.inbox.put(data, t_host_s)
+        self.inbox.put(data, t_unix_s)
 
     def connection_lost(self, exc: BaseException | None) -> None:
         self.connected = False
