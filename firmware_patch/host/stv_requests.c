@@ -30,7 +30,7 @@ static void parse_status(const uint8_t *p, stv_status_t *s) {
   s->step = rd_u32(p);
   s->t_us = rd_u32(p + 4);
   for (i = 0; i < 4; i++) s->q[i] = rd_f32(p + 8 + 4 * i);
-  for (i = 0; i < 3; i++) s->integ[i] = rd_f32(p + 24 + 4 * i);
+  for (i = 0; i < 3; i++) s->int_xyz[i] = rd_f32(p + 24 + 4 * i);
   s->kp_ground = rd_f32(p + 36);
   s->kp_flight = rd_f32(p + 40);
   s->ki = rd_f32(p + 44);

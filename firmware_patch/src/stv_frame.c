@@ -21,7 +21,7 @@ STV_STATIC_ASSERT(offsetof(stv_attitude_t, seq) == 48, att_seq);
 STV_STATIC_ASSERT(offsetof(stv_attitude_t, thr) == 50, att_thr);
 STV_STATIC_ASSERT(sizeof(stv_status_t) == STV_STATUS_PAYLOAD_SIZE, status_size);
 STV_STATIC_ASSERT(offsetof(stv_status_t, q) == 8, sta_q);
-STV_STATIC_ASSERT(offsetof(stv_status_t, integ) == 24, sta_int);
+STV_STATIC_ASSERT(offsetof(stv_status_t, int_xyz) == 24, sta_int);
 STV_STATIC_ASSERT(offsetof(stv_status_t, kp_ground) == 36, sta_kpg);
 STV_STATIC_ASSERT(offsetof(stv_status_t, dt_s) == 48, sta_dt);
 STV_STATIC_ASSERT(offsetof(stv_status_t, cyc_min) == 52, sta_cycmin);

@@ -52,7 +52,7 @@ typedef struct {
   uint32_t step;        /* full AHRS step counter of the step just sent */
   uint32_t t_us;        /* firmware time, µs */
   float q[4];           /* ahrs.c globals q0..q3 after step `step` */
-  float integ[3];       /* ahrs.c globals exInt, eyInt, ezInt after step `step` */
+  float int_xyz[3];       /* ahrs.c globals exInt, eyInt, ezInt after step `step` */
   float kp_ground;      /* AHRS_KP_BIG */
   float kp_flight;      /* AHRS_KP_NORM */
   float ki;             /* AHRS_KI */

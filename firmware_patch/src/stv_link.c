@@ -87,7 +87,7 @@ void stv_link_make_status(stv_link_t *link, stv_status_t *st) {
   st->step = link->step;
   st->t_us = link->step_t_us;
   for (i = 0; i < 4; i++) st->q[i] = read_state(c->q_state[i]);
-  for (i = 0; i < 3; i++) st->integ[i] = read_state(c->int_state[i]);
+  for (i = 0; i < 3; i++) st->int_xyz[i] = read_state(c->int_state[i]);
   st->kp_ground = c->kp_ground;
   st->kp_flight = c->kp_flight;
   st->ki = c->ki;
