@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
-from steval_link.estimators.base import quaternion_from_euler as euler_quaternion
+from steval_link.quat import quaternion_from_euler as euler_quaternion
 from steval_viewer import entities as ent
 
 

@@ -7,8 +7,8 @@ import pytest
 
 from steval_link.estimators import registry
 from steval_link.estimators.accel_tilt import AccelTilt, accel_tilt, tilt_quaternion
-from steval_link.estimators.base import euler_from_quaternion
 from steval_link.estimators.st_mahony import quaternion_to_euler, run
+from steval_link.quat import euler_from_quaternion
 
 
 def gravity_in_body_mg(q_wxyz) -> np.ndarray:

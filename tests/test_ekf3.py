@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from steval_link.emulation import broad
-from steval_link.estimators.base import euler_from_quaternion
-from steval_link.estimators.ekf3 import Ekf3, quaternion_from_euler
+from steval_link.estimators.ekf3 import Ekf3
 from steval_link.estimators.registry import create
+from steval_link.quat import euler_from_quaternion, quaternion_from_euler
 
 RATE = 161.5384615
 

@@ -14,8 +14,9 @@ import pytest
 
 from steval_link.emulation import broad
 from steval_link.estimators import ekf3, mekf
-from steval_link.estimators.ekf3 import Ekf3, quaternion_from_euler
+from steval_link.estimators.ekf3 import Ekf3
 from steval_link.estimators.mekf import Mekf
+from steval_link.quat import quaternion_from_euler
 
 RATE = 161.5384615
 TOL_RAD = 1e-9

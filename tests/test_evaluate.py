@@ -14,8 +14,8 @@ import pytest
 from steval_link.analysis import evaluate as ev
 from steval_link.emulation import broad
 from steval_link.errors import UserError
-from steval_link.estimators.ekf3 import quaternion_from_euler
 from steval_link.estimators.st_mahony import StMahony
+from steval_link.quat import quaternion_from_euler
 
 BROAD_TRIALS = ("02_undisturbed_slow_rotation_B", "24_disturbed_tapping_A")
 

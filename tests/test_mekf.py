@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from steval_link.emulation import broad
-from steval_link.estimators.ekf3 import quaternion_from_euler
 from steval_link.estimators.mekf import Mekf
 from steval_link.estimators.registry import create
+from steval_link.quat import quaternion_from_euler
 
 RATE = 161.5384615
 

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from steval_link.estimators import registry, st_mahony
-from steval_link.estimators.base import euler_from_quaternion
 from steval_link.estimators.conformance import load_conformance_csv
 from steval_link.estimators.st_mahony import (
     COE_MDPS_TO_RADPS_F32,
@@ -23,6 +22,7 @@ from steval_link.estimators.st_mahony import (
     run,
 )
 from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION, STATUS_DTYPE
+from steval_link.quat import euler_from_quaternion
 
 CONFORMANCE_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120"
 CSV_NAMES = sorted(p.name for p in CONFORMANCE_DIR.glob("*.csv")) if CONFORMANCE_DIR.is_dir() else []

@@ -22,6 +22,7 @@ import numpy as np
 
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
+from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
 
 __all__ = [
     "G_MPS2",
@@ -31,10 +32,6 @@ __all__ = [
     "trial_paths",
     "steval_view",
     "native_view",
-    "quat_multiply",
-    "quat_conjugate",
-    "quat_normalize",
-    "interpolate_quat",
     "inclination_error_rad",
     "heading_error_rad",
     "rmse_deg",
@@ -130,52 +127,6 @@ def trial_paths(items) -> list[Path]:
 
 
 # --- quaternions (wxyz, float64) ---------------------------------------------------------------------------------
-
-def quat_multiply(a, b) -> np.ndarray:
-    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
-
-
-def quat_conjugate(q) -> np.ndarray:
-    """Conjugate (inverse of a unit quaternion), (..., 4) wxyz."""
-    q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def quat_normalize(q) -> np.ndarray:
-    """Unit quaternions (the firmware's |q| ≈ 0.998 is rescaled); zero rows become NaN."""
-    q = np.asarray(q, dtype=np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def interpolate_quat(t_s, q_wxyz, t_new_s) -> np.ndarray:
-    """Normalised linear interpolation (nlerp, sign-consistent) of quaternions to new times; NaN stays NaN nearby.
-
-    Times outside ``t_s`` get NaN.
-    """
-    t = np.asarray(t_s, dtype=np.float64)
-    q = np.asarray(q_wxyz, dtype=np.float64).copy()
-    tn = np.asarray(t_new_s, dtype=np.float64)
-    # make neighbours sign-consistent so the interpolation takes the short way
-    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
-    flip = np.cumsum(np.nan_to_num(dots) < 0) % 2 == 1
-    q[1:][flip] *= -1.0
-    i = np.clip(np.searchsorted(t, tn, side="right") - 1, 0, len(t) - 2)
-    w = ((tn - t[i]) / (t[i + 1] - t[i]))[:, None]
-    out = quat_normalize((1 - w) * q[i] + w * q[i + 1])
-    out[(tn < t[0]) | (tn > t[-1])] = np.nan
-    return out
-
 
 def _error_quat(q_est, q_true) -> np.ndarray:
     return quat_multiply(quat_normalize(q_est), quat_conjugate(quat_normalize(q_true)))

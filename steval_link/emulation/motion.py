@@ -31,9 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.broad import interpolate_quat, quat_multiply
 from steval_link.errors import UserError
-from steval_link.estimators.base import quaternion_from_euler
+from steval_link.quat import interpolate_quat, quat_multiply, quaternion_from_euler
 
 __all__ = [
     "G_MPS2",

@@ -12,13 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from steval_link.quat import euler_from_quaternion
+
 __all__ = [
     "AttitudeEstimate",
     "Estimator",
-    "euler_from_quaternion",
-    "quaternion_from_euler",
     "rows_before_tilt",
-    "yaw_from_quaternion",
 ]
 
 
@@ -42,45 +41,6 @@ class AttitudeEstimate:
 
     def __len__(self) -> int:
         return int(self.thx_rad.shape[0])
-
-
-def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
-    """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``), float64: the
-    inverse of :func:`euler_from_quaternion` (the firmware's ``QuaternionToEuler`` of it gives back thx, thy)."""
-    hx, hy, hz = (0.5 * np.asarray(a, dtype=np.float64) for a in (thx_rad, thy_rad, thz_rad))
-    cx, sx, cy, sy, cz, sz = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy), np.cos(hz), np.sin(hz)
-    return np.stack([
-        cz * cy * cx + sz * sy * sx,
-        cz * cy * sx - sz * sy * cx,
-        cz * sy * cx + sz * cy * sx,
-        sz * cy * cx - cz * sy * sx,
-    ], axis=-1)
-
-
-def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euler angles in the firmware's convention, in float64: (thx_rad, thy_rad, thz_rad).
-
-    thx = atan2(2(q0q1 + q2q3), q0² − q1² − q2² + q3²) (about x, pitch), thy = asin(2(q0q2 − q1q3)) (about y,
-    roll; the argument is clipped to [−1, 1] so a unit quaternion never yields NaN), thz = atan2(2(q1q2 + q0q3),
-    q0² + q1² − q2² − q3²) (about z, yaw, the Lab 5 handout's formula). ``q_wxyz`` is (..., 4), scalar first.
-    For the firmware's own float32 result use :func:`steval_link.estimators.st_mahony.quaternion_to_euler`.
-    """
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    if q.shape[-1] != 4:
-        raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
-    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    thx = np.arctan2(2.0 * (q0 * q1 + q2 * q3), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
-    with np.errstate(invalid="ignore"):
-        thy = np.arcsin(np.clip(2.0 * (q0 * q2 - q1 * q3), -1.0, 1.0))
-    thz = yaw_from_quaternion(q)
-    return thx, thy, thz
-
-
-def yaw_from_quaternion(q_wxyz) -> np.ndarray:
-    """Yaw (about z), rad, float64: atan2(2(q1q2 + q0q3), q0² + q1² − q2² − q3²) as in the Lab 5 handout."""
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
 
 
 class Estimator(abc.ABC):

@@ -51,13 +51,8 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
-from steval_link.estimators.base import (
-    AttitudeEstimate,
-    Estimator,
-    check_inputs,
-    quaternion_from_euler,
-    rows_before_tilt,
-)
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, rows_before_tilt
+from steval_link.quat import quaternion_from_euler
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native

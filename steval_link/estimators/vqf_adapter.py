@@ -12,7 +12,8 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, euler_from_quaternion
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.quat import euler_from_quaternion
 
 INSTALL_HINT = 'the VQF estimator needs the vqf package: pip install "steval-link[vqf]"'
 

@@ -1,0 +1,103 @@
+"""Quaternion helpers in float64, wxyz (scalar first), in the firmware's Euler convention (x right, y forward, z up;
+``thx`` about x = pitch, ``thy`` about y = roll, ``thz`` about z = yaw). The firmware's own float32
+``QuaternionToEuler`` is :func:`steval_link.fw_math.quaternion_to_euler`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "quaternion_from_euler",
+    "euler_from_quaternion",
+    "yaw_from_quaternion",
+    "quat_multiply",
+    "quat_conjugate",
+    "quat_normalize",
+    "interpolate_quat",
+]
+
+
+def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
+    """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``), float64: the
+    inverse of :func:`euler_from_quaternion` (the firmware's ``QuaternionToEuler`` of it gives back thx, thy)."""
+    hx, hy, hz = (0.5 * np.asarray(a, dtype=np.float64) for a in (thx_rad, thy_rad, thz_rad))
+    cx, sx, cy, sy, cz, sz = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy), np.cos(hz), np.sin(hz)
+    return np.stack([
+        cz * cy * cx + sz * sy * sx,
+        cz * cy * sx - sz * sy * cx,
+        cz * sy * cx + sz * cy * sx,
+        sz * cy * cx - cz * sy * sx,
+    ], axis=-1)
+
+
+def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Euler angles in the firmware's convention, in float64: (thx_rad, thy_rad, thz_rad).
+
+    thx = atan2(2(q0q1 + q2q3), q0² − q1² − q2² + q3²) (about x, pitch), thy = asin(2(q0q2 − q1q3)) (about y,
+    roll; the argument is clipped to [−1, 1] so a unit quaternion never yields NaN), thz = atan2(2(q1q2 + q0q3),
+    q0² + q1² − q2² − q3²) (about z, yaw, the Lab 5 handout's formula). ``q_wxyz`` is (..., 4), scalar first.
+    For the firmware's own float32 result use :func:`steval_link.estimators.st_mahony.quaternion_to_euler`.
+    """
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    if q.shape[-1] != 4:
+        raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
+    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    thx = np.arctan2(2.0 * (q0 * q1 + q2 * q3), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+    with np.errstate(invalid="ignore"):
+        thy = np.arcsin(np.clip(2.0 * (q0 * q2 - q1 * q3), -1.0, 1.0))
+    thz = yaw_from_quaternion(q)
+    return thx, thy, thz
+
+
+def yaw_from_quaternion(q_wxyz) -> np.ndarray:
+    """Yaw (about z), rad, float64: atan2(2(q1q2 + q0q3), q0² + q1² − q2² − q3²) as in the Lab 5 handout."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
+
+
+def quat_multiply(a, b) -> np.ndarray:
+    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    """Conjugate (inverse of a unit quaternion), (..., 4) wxyz."""
+    q = np.asarray(q, dtype=np.float64)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_normalize(q) -> np.ndarray:
+    """Unit quaternions (the firmware's |q| ≈ 0.998 is rescaled); zero rows become NaN."""
+    q = np.asarray(q, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def interpolate_quat(t_s, q_wxyz, t_new_s) -> np.ndarray:
+    """Normalised linear interpolation (nlerp, sign-consistent) of quaternions to new times; NaN stays NaN nearby.
+
+    Times outside ``t_s`` get NaN.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    q = np.asarray(q_wxyz, dtype=np.float64).copy()
+    tn = np.asarray(t_new_s, dtype=np.float64)
+    # make neighbours sign-consistent so the interpolation takes the short way
+    dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+    flip = np.cumsum(np.nan_to_num(dots) < 0) % 2 == 1
+    q[1:][flip] *= -1.0
+    i = np.clip(np.searchsorted(t, tn, side="right") - 1, 0, len(t) - 2)
+    w = ((tn - t[i]) / (t[i + 1] - t[i]))[:, None]
+    out = quat_normalize((1 - w) * q[i] + w * q[i + 1])
+    out[(tn < t[0]) | (tn > t[-1])] = np.nan
+    return out
