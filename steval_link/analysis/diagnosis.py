@@ -52,15 +52,7 @@ def _same_settings(a: MahonySettings, b: MahonySettings) -> bool:
 
 
 def _status_settings_list(status) -> list[MahonySettings]:
-    out = []
-    for j in range(len(status.ki)):
-        out.append(
-            MahonySettings.from_status(
-                kp_ground=status.kp_ground[j], kp_flight=status.kp_flight[j], ki=status.ki[j],
-                dt_s=status.dt_s[j], min_thr=status.min_thr[j], flags=status.flags[j],
-            )
-        )
-    return out
+    return [MahonySettings.of_status(status, j) for j in range(len(status.ki))]
 
 
 def filter_settings_report(tel) -> dict[str, Any] | None:
@@ -314,8 +306,7 @@ def _status_base(view) -> MahonySettings | None:
     if s.step.size == 0:
         return None
     j = int(np.argmin(s.step))
-    return MahonySettings.from_status(kp_ground=s.kp_ground[j], kp_flight=s.kp_flight[j], ki=s.ki[j],
-                                      dt_s=s.dt_s[j], min_thr=s.min_thr[j], flags=s.flags[j])
+    return MahonySettings.of_status(s, j)
 
 
 def compare_port(

@@ -49,8 +49,7 @@ def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squa
     ex = [j for j in range(len(s)) if s.exact[j]]
     if ex:
         j = ex[0]
-        base = MahonySettings.from_status(kp_ground=s.kp_ground[j], kp_flight=s.kp_flight[j], ki=s.ki[j],
-                                          dt_s=s.dt_s[j], min_thr=s.min_thr[j], flags=s.flags[j])
+        base = MahonySettings.of_status(s, j)
     return replace(base, **changes)
 
 

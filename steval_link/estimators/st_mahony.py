@@ -120,6 +120,16 @@ class MahonySettings:
             fresh_squares=bool(flags & FLAG_FRESH_SQUARES),
         )
 
+    @classmethod
+    def of_status(cls, status, j: int | None = None) -> MahonySettings:
+        """The settings a status frame reports: ``status`` is one frame (``j`` None) or a table of status rows
+        (``Telemetry.status`` or a structured array) and ``j`` its row. The one builder of settings from status
+        frames (replay, compare, the live port and the diagnosis all use it)."""
+        def field(name: str):
+            return getattr(status, name) if j is None else _col(status, name)[j]
+
+        return cls.from_status(**{name: field(name) for name in _STATUS_SETTING_FIELDS})
+
     def _params_f32(self) -> np.ndarray:
         return np.array([self.kp_ground, self.kp_flight, self.ki, self.dt_s], dtype=_F32)
 
@@ -419,22 +429,15 @@ class FirmwareReplay:
         return self.n_seeded > 0 and self.first_mismatch is None
 
 
+#: the status-frame fields that make up a :class:`MahonySettings`
+_STATUS_SETTING_FIELDS = ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")
+
+
 def _col(table, name: str):
     """A column of a telemetry table given as an object with array attributes or as a structured array."""
     if isinstance(table, np.ndarray) and table.dtype.names:
         return table[name]
     return getattr(table, name)
-
-
-def _status_settings(status, j: int) -> MahonySettings:
-    return MahonySettings.from_status(
-        kp_ground=_col(status, "kp_ground")[j],
-        kp_flight=_col(status, "kp_flight")[j],
-        ki=_col(status, "ki")[j],
-        dt_s=_col(status, "dt_s")[j],
-        min_thr=_col(status, "min_thr")[j],
-        flags=_col(status, "flags")[j],
-    )
 
 
 def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
@@ -481,7 +484,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     st_sorted = st_steps[order]
     default_settings = settings
     if default_settings is None:
-        default_settings = _status_settings(status, int(order[0])) if order.size else MahonySettings()
+        default_settings = MahonySettings.of_status(status, int(order[0])) if order.size else MahonySettings()
 
     q = np.full((n, 4), np.nan, dtype=_F32)
     thx = np.full(n, np.nan, dtype=_F32)
@@ -508,7 +511,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
                 continue  # no snapshot inside this run: it stays unseeded
             j = int(order[k])
             state = MahonyState(q_wxyz=_col(status, "q_wxyz")[j], int_xyz=_col(status, "int_xyz")[j])
-            seg_settings = settings if settings is not None else _status_settings(status, j)
+            seg_settings = settings if settings is not None else MahonySettings.of_status(status, j)
             start_row = a + int(st_sorted[k]) + 1 - s_first
             seed = ("status", j)
         sl = slice(start_row, b)

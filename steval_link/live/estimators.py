@@ -118,14 +118,7 @@ class LivePort:
         """A status frame: seed the port from its snapshot when unseeded or out of sync (else confirm it)."""
         st = self._sm
         snap = st.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
-        settings = st.MahonySettings.from_status(
-            kp_ground=frame.kp_ground,
-            kp_flight=frame.kp_flight,
-            ki=frame.ki,
-            dt_s=frame.dt_s,
-            min_thr=frame.min_thr,
-            flags=frame.flags,
-        )
+        settings = st.MahonySettings.of_status(frame)
         step = int(frame.step)
         if (
             self.state is not None
