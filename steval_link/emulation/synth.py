@@ -39,12 +39,10 @@ import shlex
 import subprocess
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from steval_link import __version__
 from steval_link import constants as C
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
@@ -688,22 +686,13 @@ def _header(opts: SynthOptions, name: str, duration: float, counts: dict, droppe
     start = EPOCH_UNIX_S + opts.join_at_s
     params = {k: v for k, v in asdict(opts).items() if k not in ("encoder", "c_encoder")}
     params["duration_s"] = duration
-    return {
-        "format": "steval-capture",
-        "format_version": capture.FORMAT_VERSION,
-        "port": f"synth:{name}",
-        "baud": int(opts.baud),
-        "start_time_utc": datetime.fromtimestamp(start, timezone.utc).isoformat(timespec="microseconds"),
-        "start_time_unix_s": start,
-        "tool_version": __version__,
-        "extra": {
-            "emulated": True,
-            "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "
-                         "ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
-            "command": opts.command(),
-            "synth": params,
-        },
-    }
+    return capture.capture_header(f"synth:{name}", opts.baud, start, {
+        "emulated": True,
+        "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "
+                     "ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
+        "command": opts.command(),
+        "synth": params,
+    })
 
 
 def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = False) -> str:

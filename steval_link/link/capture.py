@@ -102,6 +102,22 @@ def _file_header(header: dict[str, Any]) -> bytes:
     return MAGIC + _HEADER_LEN.pack(len(head)) + head + _CRC.pack(zlib.crc32(head))
 
 
+def capture_header(
+    port: str, baud: int, start_unix_s: float, extra: dict[str, Any] | None = None, *, tool_version: str | None = None
+) -> dict[str, Any]:
+    """The JSON header of a capture (CAPTURE_FORMAT.md): where and when it was recorded, by which tool version."""
+    return {
+        "format": "steval-capture",
+        "format_version": FORMAT_VERSION,
+        "port": port,
+        "baud": int(baud),
+        "start_time_utc": datetime.fromtimestamp(start_unix_s, timezone.utc).isoformat(timespec="microseconds"),
+        "start_time_unix_s": start_unix_s,
+        "tool_version": __version__ if tool_version is None else tool_version,
+        "extra": dict(extra or {}),
+    }
+
+
 def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]]) -> bytes:
     """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
     ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``)."""
@@ -135,21 +151,10 @@ class CaptureWriter:
         sync_interval_s: float = SYNC_INTERVAL_S,
         discard_empty: bool = False,
     ) -> None:
-        if tool_version is None:
-            tool_version = __version__
         self.path = Path(path)
         self._t0 = time.monotonic()
         now = time.time()
-        self.header: dict[str, Any] = {
-            "format": "steval-capture",
-            "format_version": FORMAT_VERSION,
-            "port": port,
-            "baud": int(baud),
-            "start_time_utc": datetime.fromtimestamp(now, timezone.utc).isoformat(timespec="microseconds"),
-            "start_time_unix_s": now,
-            "tool_version": tool_version,
-            "extra": dict(extra or {}),
-        }
+        self.header: dict[str, Any] = capture_header(port, baud, now, extra, tool_version=tool_version)
         self._file = open(self.path, "xb", buffering=0)
         self._lock = threading.Lock()
         self._dirty = False
