@@ -1,0 +1,158 @@
+"""One Arrow record batch per live processing round for many entities at once (:class:`RowBatch`), sent with a
+single ``RecordingStream.send_record_batch`` call; Rerun splits it into one chunk per entity.
+
+Why not the public ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one
+record batch costs about half as much (measured by ``benchmarks/bench_live_batch.py`` on this project's 2-core
+machine, 2026-11-23: median 0.53 vs 0.96 ms, p99 1.0 vs 2.4 ms per round), which matters against the live
+latency goal (p99 ≤ 5 ms, ``bench_live_latency.py``). The price is that the Arrow fields carry Rerun's column
+metadata keys (``rerun:kind``, ``rerun:entity_path``, ``rerun:component``, ...), which tie this module, and only
+this module, to the Rerun SDK version ``pyproject.toml`` pins; ``tests/test_viewer.py`` reads every live entity
+back from an ``.rrd`` so a change of that format fails the tests, not the users.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+from steval_viewer import entities as ent
+from steval_viewer.columns import Times
+
+#: (column name, archetype, component type) of each component kind a live round logs
+_SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
+_QUAT = ("Transform3D:quaternion", "rerun.archetypes.Transform3D", "rerun.components.RotationQuat")
+_VEC = ("Arrows3D:vectors", "rerun.archetypes.Arrows3D", "rerun.components.Vector3D")
+
+
+def _field(pa, cache: dict, path: str, kind: tuple[str, str, str], typ):
+    """The Arrow field of ``path``'s component (cached in ``cache``: same path, same type)."""
+    key = (path, kind[0], str(typ))
+    f = cache.get(key)
+    if f is None:
+        comp, arch, ctype = kind
+        md = {
+            b"rerun:kind": b"data",
+            b"rerun:entity_path": ("/" + path).encode(),
+            b"rerun:component": comp.encode(),
+            b"rerun:archetype": arch.encode(),
+            b"rerun:component_type": ctype.encode(),
+        }
+        f = pa.field(f"/{path}:{comp}", typ, metadata=md)
+        cache[key] = f
+    return f
+
+
+def _index_field(pa, cache: dict, name: str):
+    """The Arrow field of a timeline column (cached in ``cache``)."""
+    f = cache.get(("index", name))
+    if f is None:
+        typ = pa.int64() if name == ent.TIMELINE_STEP else pa.duration("ns")
+        f = pa.field(name, typ, metadata={b"rerun:kind": b"index", b"rerun:index_name": name.encode()})
+        cache[("index", name)] = f
+    return f
+
+
+class RowBatch:
+    """One Arrow record batch holding many entities' columns for the same N rows: sent with a single
+    ``send_record_batch`` call (Rerun splits it into one chunk per entity). A row whose value is not finite is a
+    null (no sample) in that entity's column; a ``Clear`` is sent when an entity turns bad, so plots show a gap.
+    """
+
+    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
+        import pyarrow as pa
+
+        self._pa = pa
+        self.times = times
+        self.n = len(times)
+        self.fields: list = []
+        self.arrays: list = []
+        self.bad_state = bad_state
+        self.clear_rows: dict[str, np.ndarray] = {}
+        self.cache = {} if cache is None else cache  # Arrow fields and offsets, reused across batches
+
+    def _index(self) -> None:
+        pa = self._pa
+        t = self.times
+        cols = [(ent.TIMELINE_FW, np.round(t.t_fw_s * 1e9).astype(np.int64))]
+        if t.host_complete():
+            cols.append((ent.TIMELINE_HOST, np.round(t.t_host_s * 1e9).astype(np.int64)))
+        if t.step is not None:
+            cols.append((ent.TIMELINE_STEP, t.step))
+        for name, values in cols:
+            f = _index_field(pa, self.cache, name)
+            self.fields.insert(0, f)
+            self.arrays.insert(0, pa.array(values, type=f.type))
+
+    def _add(
+        self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray, all_good: bool
+    ) -> None:
+        pa = self._pa
+        n = self.n
+        if kind is _SCALAR:
+            inner = pa.array(values.reshape(-1))
+            step = width
+        else:
+            inner = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width)
+            step = 1
+        arr = pa.ListArray.from_arrays(self._offsets_for(n, step), inner, mask=None if all_good else pa.array(~good))
+        self.fields.append(_field(pa, self.cache, path, kind, arr.type))
+        self.arrays.append(arr)
+        # gaps: a Clear at each row where the entity turns bad (state carried across batches)
+        was_bad = self.bad_state.get(path, False)
+        if all_good:
+            if was_bad:
+                self.bad_state[path] = False
+            return
+        bad = ~good
+        prev = np.concatenate(([was_bad], bad[:-1]))
+        starts = np.flatnonzero(bad & ~prev)
+        if starts.size:
+            self.clear_rows[path] = starts
+        self.bad_state[path] = bool(bad[-1])
+
+    def _offsets_for(self, n: int, step: int):
+        key = ("offsets", n, step)
+        off = self.cache.get(key)
+        if off is None:
+            off = self._pa.array(np.arange(0, n * step + 1, step, dtype=np.int32))
+            if n <= 64:
+                self.cache[key] = off
+        return off
+
+    def scalars(self, path: str, values: np.ndarray) -> None:
+        v2 = np.asarray(values, dtype=np.float64).reshape(self.n, -1)
+        good = np.isfinite(v2).all(axis=1)
+        all_good = bool(good.all())
+        if not all_good:
+            v2 = np.where(good[:, None], v2, 0.0)
+        self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
+
+    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
+        q = np.asarray(q_wxyz, dtype=np.float64).reshape(self.n, 4)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm = np.sqrt((q * q).sum(axis=1))
+            good = np.isfinite(norm) & (norm > 1e-6)
+            if select is not None:
+                good &= select
+            xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
+        self._add(path, _QUAT, xyzw, 4, good, bool(good.all()))
+        self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
+
+    def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
+        v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
+        good = np.isfinite(v).all(axis=1)
+        if select is not None:
+            good &= select
+        self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good, bool(good.all()))
+        self.bad_state[path] = False
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        if not self.arrays:
+            return
+        self._index()
+        pa = self._pa
+        rec.send_record_batch(pa.RecordBatch.from_arrays(self.arrays, schema=pa.schema(self.fields)))
+        for path, rows in self.clear_rows.items():
+            if path.startswith(ent.PLOTS + "/") or path.startswith(ent.LINK + "/"):
+                sub = self.times.take(rows)
+                rec.send_columns(path, indexes=sub.indexes(), columns=rr.Clear.columns(is_recursive=[False] * len(rows)))
