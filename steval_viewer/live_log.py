@@ -32,7 +32,8 @@ import numpy as np
 import rerun as rr
 
 from steval_link.estimators.st_mahony import quaternion_to_euler
-from steval_link.link.protocol import SEQ_MODULUS, T_US_MODULUS
+from steval_link.link.protocol import SEQ_MODULUS
+from steval_link.link.unwrap import TimeUnwrapper
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
@@ -54,39 +55,6 @@ PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
 def live_source(name: str) -> str:
     """Entity segment of a live estimate name (the seeded ST port -> ``st_mahony_port``, as in replays)."""
     return ent.SOURCE_PORT if name in PORT_NAMES else ent.source_name(name)
-
-
-class TimeUnwrapper:
-    """Firmware seconds since boot from ``t_us`` (u32 µs, wraps every 71.6 min), across calls."""
-
-    def __init__(self) -> None:
-        self.wraps = 0
-        self.last: int | None = None
-
-    def seconds(self, t_us: np.ndarray) -> np.ndarray:
-        """(N,) float64 seconds of these ``t_us`` values, in order."""
-        raw = np.asarray(t_us, dtype=np.int64) % T_US_MODULUS
-        out = np.empty(raw.shape[0], dtype=np.float64)
-        for i, v in enumerate(raw.tolist()):
-            if self.last is not None and v < self.last and self.last - v > T_US_MODULUS // 2:
-                self.wraps += 1
-            self.last = v
-            out[i] = (v + self.wraps * T_US_MODULUS) / 1e6
-        return out
-
-    def nearest(self, t_us: int) -> float:
-        """Seconds of one ``t_us`` near the latest value seen (a status frame's time, which repeats the time of
-        the attitude frame before it), without changing the state: the wrap count giving the time closest to the
-        latest one (so a value just before or just after a wrap is placed right)."""
-        v = int(t_us) % T_US_MODULUS
-        if self.last is None:
-            return v / 1e6
-        wraps = self.wraps
-        if v - self.last > T_US_MODULUS // 2 and wraps > 0:
-            wraps -= 1  # from before the latest wrap
-        elif self.last - v > T_US_MODULUS // 2:
-            wraps += 1  # already past the next wrap
-        return (v + wraps * T_US_MODULUS) / 1e6
 
 
 class LiveLogger:

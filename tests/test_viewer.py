@@ -15,9 +15,10 @@ from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.unwrap import TimeUnwrapper
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent
-from steval_viewer.live_log import LiveLogger, TimeUnwrapper
+from steval_viewer.live_log import LiveLogger
 from steval_viewer.replay_log import log_replay
 from steval_viewer.rrd_check import read_rrd
 from steval_viewer.sinks import SinkOptions, open_session, resolve_sinks

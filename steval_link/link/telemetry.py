@@ -25,6 +25,7 @@ import numpy as np
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.frames import AttitudeFrame, DecoderStats, Frame, StatusFrame, TextFrame
+from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
 __all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
 
@@ -180,20 +181,16 @@ class TelemetryParts:
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(step per attitude row, restart offsets) — see the module docstring."""
+    """(step per attitude row, restart offsets) — see the module docstring. The binary rows' ``seq`` go through
+    :class:`~steval_link.link.unwrap.SeqUnwrapper` (as on the live path); then each firmware run takes the high
+    bits from its first status frame whose step agrees, for all its rows, before that frame too."""
     step = att["step"].copy()
     b = np.flatnonzero(att["exact"])
     restarts = np.zeros(0, np.int64)
     if len(b):
-        seq = att["seq"][b].astype(np.int64)
-        d = np.diff(seq) % P.SEQ_MODULUS
-        reset = (d == 0) | (d >= P.SEQ_MODULUS // 2)
-        inc = np.where(reset, 0, d)
-        cs = np.concatenate([[0], np.cumsum(inc)])
-        seg = np.concatenate([[0], np.cumsum(reset)])
-        seg_first = np.concatenate([[0], np.flatnonzero(reset) + 1])  # row (in b) where each segment starts
-        local = seq[seg_first][seg] + cs - cs[seg_first][seg]
-        delta = np.zeros(len(seg_first), np.int64)
+        local, reset = SeqUnwrapper().steps(att["seq"][b])
+        seg = np.cumsum(reset)
+        delta = np.zeros(int(seg[-1]) + 1, np.int64)
         if len(sta):
             off_b = att["offset"][b]
             j = np.searchsorted(off_b, sta["offset"]) - 1
@@ -206,22 +203,19 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
                 segs, first = np.unique(seg[j_m], return_index=True)
                 delta[segs] = s_m[first] - local[j_m[first]]
         step[b] = local + delta[seg]
-        restarts = att["offset"][b][1:][reset]
+        restarts = att["offset"][b][reset]
     return step, restarts
 
 
 def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) -> np.ndarray:
-    """Firmware time in s: ``t_us`` (rows in stream order) unwrapped mod 2³², restarting at each firmware restart."""
-    t = t_us.astype(np.int64)
-    if len(t) == 0:
-        return np.zeros(0, np.float64)
+    """Firmware time in s: ``t_us`` (rows in stream order) unwrapped mod 2³², from 0 again at each firmware restart
+    (one :class:`~steval_link.link.unwrap.TimeUnwrapper` per firmware run, as the live path uses)."""
+    out = np.zeros(len(t_us), np.float64)
     seg = np.searchsorted(restarts, offsets, side="right")
-    dec = (t[1:] < t[:-1]) & (seg[1:] == seg[:-1])
-    wraps = np.concatenate([[0], np.cumsum(dec)])
-    first = np.concatenate([[0], np.flatnonzero(seg[1:] != seg[:-1]) + 1])
-    seg_idx = np.cumsum(np.isin(np.arange(len(t)), first)) - 1
-    wraps = wraps - wraps[first][seg_idx]
-    return (t + wraps * P.T_US_MODULUS) / 1e6
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(seg)) + 1, [len(t_us)]])
+    for a, b in zip(starts[:-1], starts[1:]):
+        out[a:b] = TimeUnwrapper().seconds(t_us[a:b])
+    return out
 
 
 def _host_times(

@@ -12,9 +12,9 @@ import typing
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.link import protocol
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.unwrap import SeqUnwrapper
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
 from steval_link.live.health import LinkHealth
 
@@ -54,31 +54,38 @@ class LiveViewer(typing.Protocol):
     def close(self) -> None: ...
 
 class StepUnwrapper:
-    """Full AHRS step numbers from the 16-bit ``seq`` of attitude frames, corrected by status frames' 32-bit step."""
+    """Full AHRS step numbers of live attitude frames: a text-mode frame carries its step, a binary frame's u16
+    ``seq`` goes through :class:`~steval_link.link.unwrap.SeqUnwrapper` (the bulk decoder's rule: a repeated seq
+    is the same step, a step back a firmware restart), and status frames give the full step back."""
 
     def __init__(self) -> None:
-        self.last: int | None = None
+        self.seq = SeqUnwrapper()
+
+    @property
+    def last(self) -> int | None:
+        return self.seq.last
 
     def frames(self, frames) -> np.ndarray:
-        """(N,) int64 steps of these attitude frames, in order: ``step`` where the frame has it (text mode), else
-        unwrapped from ``seq`` (a repeated seq keeps its step)."""
+        """(N,) int64 steps of these attitude frames, in order."""
         out = np.empty(len(frames), dtype=np.int64)
-        last = self.last
+        run: list[int] = []  # indexes of the current run of binary frames
         for i, f in enumerate(frames):
-            if f.step is not None:
-                last = int(f.step)
-            elif last is None:
-                last = int(f.seq)
-            else:
-                last = last + ((int(f.seq) - last) % protocol.SEQ_MODULUS)
-            out[i] = last
-        self.last = last
+            if f.step is None:
+                run.append(i)
+                continue
+            self._binary(frames, run, out)
+            run = []
+            out[i] = self.seq.last = int(f.step)
+        self._binary(frames, run, out)
         return out
+
+    def _binary(self, frames, run: list[int], out: np.ndarray) -> None:
+        if run:
+            out[run] = self.seq.steps(np.array([int(frames[i].seq) for i in run], dtype=np.int64))[0]
 
     def status(self, step: int) -> None:
         """A status frame describes the step of the attitude frame just before it: take its full number."""
-        if self.last is None or self.last % protocol.SEQ_MODULUS == step % protocol.SEQ_MODULUS:
-            self.last = step
+        self.seq.status(step)
 
 
 class BatchOutlet:
