@@ -546,7 +546,7 @@ class Board:
         #: instructions executed inside exception handlers (entry to the return to thread mode)
         self.exception_instructions = 0
         self._exc_started = 0
-        self.usart_enabled_at: int | None = None
+        self.usart_enabled_at = None
 
         self._map_memory()
         self._make_peripherals()

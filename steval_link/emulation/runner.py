@@ -52,6 +52,8 @@ class EmulationOptions:
     skip_idle: bool = True
     #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
     log_samples: int = 0
+    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte
+    watchdog_s: float = WATCHDOG_S
 
 
 class ScenarioMotion:
@@ -245,8 +247,9 @@ class Emulation:
         b = self.board
         end = int(round(self.duration_s * CPU_HZ))
         last_byte_t = 0
+        slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
         while b.now < end:
-            b.run_until(min(end, b.now + int(slice_s * CPU_HZ)))
+            b.run_until(min(end, b.now + slice_cycles))
             if b.out:
                 data = bytes(x for x, _ in b.out)
                 last_byte_t = b.out[-1][1]
@@ -255,9 +258,9 @@ class Emulation:
                 b.out.clear()
                 self._bytes += len(data)
                 yield data, last_byte_t / CPU_HZ
-            elif b.now - max(last_byte_t, b.usart_enabled_at or b.now) > WATCHDOG_S * CPU_HZ:
+            elif b.now - last_byte_t > self.options.watchdog_s * CPU_HZ:
                 raise FirmwareStuck(
-                    f"no USART1 output for {WATCHDOG_S:.0f} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
+                    f"no USART1 output for {self.options.watchdog_s:g} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
                     f"is in {b.where()} (pc 0x{b.pc():08x})")
 
     def run(self) -> bytes:

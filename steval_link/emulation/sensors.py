@@ -179,6 +179,10 @@ class SensorBus:
             self._tick_offset = -(-tim.first_update // self.TICK_CYCLES)  # first update → its own tick index
         return self._tick_offset + tim.updates - 1
 
+    def tick_index_of_update(self, update: int) -> int:
+        """Motion tick index of the TIM9 update number ``update`` (1 = the first)."""
+        return (self._tick_offset or 0) + update - 1
+
     def read(self, device: int, reg: int, n: int, board) -> bytes:
         dev = self.devices.get(device)
         if dev is None:
