@@ -19,6 +19,7 @@ from steval_link.cli import synth as _synth  # noqa: F401,E402
 from steval_link.cli import conformance as _conformance  # noqa: F401,E402
 from steval_link.cli import compare as _compare  # noqa: F401,E402
 from steval_link.cli import evaluate as _evaluate  # noqa: F401,E402
+from steval_link.cli import emulate as _emulate  # noqa: F401,E402
 
 __all__ = ["app", "main"]
 
