@@ -541,6 +541,8 @@ class Board:
         self._next_event = 0
         self._slice_start = 0
         self._skip_base = 0
+        self._run_end = 0
+        self._resumed_idle = False
         #: called with the board at each TIM9 update event (the runner's remote control)
         self.tick_observers: list[Callable] = []
         #: instructions executed inside exception handlers (entry to the return to thread mode)
@@ -549,6 +551,7 @@ class Board:
         self.usart_enabled_at = None
 
         self._map_memory()
+        self._setup_regs()
         self._make_peripherals()
         self._install_counter(native)
         self._install_hooks(skip_idle)
@@ -572,6 +575,7 @@ class Board:
         uc.mem_map_ptr(FLASH_BASE, FLASH_SIZE, 5, flash_ptr)
         uc.mem_map_ptr(0, FLASH_SIZE, 5, flash_ptr)  # boot alias
         uc.mem_map_ptr(RAM_BASE, RAM_SIZE, 7, ctypes.addressof(self._ram))
+        self._ram_mv = memoryview(self._ram).cast("B")  # (ctypes' .raw copies the whole buffer)
         # system memory, OTP, option bytes (read only; the UID lives in system memory at 0x1FFF7A10)
         self._sysmem = ctypes.create_string_buffer(0x8000)
         ctypes.memmove(ctypes.addressof(self._sysmem) + 0x7A10, struct.pack("<III", 0x00380021, 0x3437510B,
@@ -599,7 +603,7 @@ class Board:
         self.uc.hook_add(UC_HOOK_CODE, hook, begin=addr, end=addr)
 
     def ram_read(self, addr: int, n: int) -> bytes:
-        return self._ram.raw[addr - RAM_BASE:addr - RAM_BASE + n]
+        return bytes(self._ram_mv[addr - RAM_BASE:addr - RAM_BASE + n])
 
     def _make_peripherals(self) -> None:
         P = PERIPH_BASE
@@ -687,7 +691,7 @@ class Board:
 
     # -- CPU helpers
     def pc(self) -> int:
-        return self.uc.reg_read(self._A.UC_ARM_REG_PC)
+        return self.reg(self._PC)
 
     def where(self) -> str:
         return self.elf.func_at(self.pc())
@@ -762,28 +766,39 @@ class Board:
         A = self._A
         observers = self.call_observers.setdefault(name, [])
 
+        R0, R1, R2, R3 = self._R
+        LR, PC = self._LR, self._PC
+        reg, set_reg = self.reg, self.set_reg
+
         def hook(uc, address, size, user):
-            r0, r1, r2, r3, lr = (uc.reg_read(r) for r in (A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2,
-                                                            A.UC_ARM_REG_R3, A.UC_ARM_REG_LR))
+            r0, r1, r2, r3 = reg(R0), reg(R1), reg(R2), reg(R3)
             self._sync_now()
             rv = fn(r0, r1, r2, r3)
             for ob in observers:
                 ob(self, r0, r1, r2, r3)
-            uc.reg_write(A.UC_ARM_REG_R0, rv)
-            uc.reg_write(A.UC_ARM_REG_PC, lr | 1)
+            set_reg(R0, rv)
+            set_reg(PC, reg(LR) | 1)
 
         return hook
 
     def _sensor_read(self, handle, reg, buf, n) -> int:
-        device = self.uc.mem_read(handle + 3, 1)[0]  # DrvContextTypeDef.spiDevice
+        device = self._ram_byte(handle + 3)  # DrvContextTypeDef.spiDevice
         data = self.sensors.read(device, reg & 0x7F, n & 0xFFFF, self)
-        self.uc.mem_write(buf, data)
+        if RAM_BASE <= buf and buf + len(data) <= RAM_BASE + RAM_SIZE:
+            ctypes.memmove(ctypes.addressof(self._ram) + buf - RAM_BASE, data, len(data))
+        else:
+            self.uc.mem_write(buf, data)
         return 0
 
     def _sensor_write(self, handle, reg, buf, n) -> int:
-        device = self.uc.mem_read(handle + 3, 1)[0]
+        device = self._ram_byte(handle + 3)
         self.sensors.write(device, reg & 0x7F, bytes(self.uc.mem_read(buf, n & 0xFFFF)), self)
         return 0
+
+    def _ram_byte(self, addr: int) -> int:
+        if RAM_BASE <= addr < RAM_BASE + RAM_SIZE:
+            return ctypes.c_uint8.from_buffer(self._ram, addr - RAM_BASE).value
+        return self.uc.mem_read(addr, 1)[0]
 
     def _hci_send_req(self, req, is_async, _r2, _r3) -> int:
         ogf, ocf, _event, cparam, clen, rparam, rlen = struct.unpack("<HHiIiIi", self.uc.mem_read(req, 24))
@@ -842,11 +857,20 @@ class Board:
             sizes = {n: e.by_name[n].size for n in names}
             tim_event = tim + 16  # tUserTimer.event_cnt (interval, target_tick, flag, flag2, event_cnt)
 
+            fmt = {1: "<B", 2: "<H", 4: "<I"}
+            checks = [(fmt.get(min(sizes[n], 4), "<I"), a - RAM_BASE)
+                      for n, a in (("tim9_event_flag", flag), ("HCI_ProcessEvent", hci), ("set_connectable", conn))]
+            checks.append(("<I", tim_event - RAM_BASE))
+            ram = self._ram
+            unpack_from = struct.unpack_from
+
             def idle(uc, address, size, user):
-                if (self._u(flag, sizes["tim9_event_flag"]) == 0 and self._u(hci, sizes["HCI_ProcessEvent"]) == 0
-                        and self._u(conn, sizes["set_connectable"]) == 0 and self._u(tim_event, 4) == 0
-                        and not self.nvic.pending):
-                    self._skip_to_event()
+                if self.nvic.pending:
+                    return
+                for f, off in checks:
+                    if unpack_from(f, ram, off)[0]:
+                        return
+                self._skip_to_event()
 
             uc.hook_add(UC_HOOK_CODE, idle, begin=poll, end=poll)
         delay = e.by_name.get("HAL_Delay")
@@ -855,69 +879,123 @@ class Board:
             lo, hi = delay.addr & ~1, (delay.addr & ~1) + max(delay.size, 2)
             A = self._A
 
+            LR = self._LR
+
             def delay_poll(uc, address, size, user):
-                if lo <= (uc.reg_read(A.UC_ARM_REG_LR) & ~1) < hi and not self.nvic.pending:
+                if lo <= (self.reg(LR) & ~1) < hi and not self.nvic.pending:
                     self._skip_to_event()
 
             uc.hook_add(UC_HOOK_CODE, delay_poll, begin=get_tick, end=get_tick)
 
     def _u(self, addr: int, size: int) -> int:
         off = addr - RAM_BASE
-        return int.from_bytes(self._ram.raw[off:off + min(size, 4)], "little") if 0 <= off < RAM_SIZE else 1
+        return int.from_bytes(self._ram_mv[off:off + min(size, 4)], "little") if 0 <= off < RAM_SIZE else 1
 
     def _skip_to_event(self) -> None:
-        """Nothing to do until the next event: let the clock jump there (the polling would change nothing)."""
+        """Called in a code hook when the CPU (thread mode) has nothing to do until the next event.
+
+        The clock jumps to that event; it fires here and its interrupt is taken at once (PC redirected inside the
+        hook), so an idle CPU goes from event to event without leaving the emulation. At the end of the current
+        run the CPU stops instead.
+        """
+        if self.nvic.active:
+            return
+        if self._resumed_idle:
+            # back from the handler taken here: this visit runs normally (the poll sees what the handler did)
+            self._resumed_idle = False
+            return
         ic = self._ic
-        target = self._next_event - self._slice_start
-        if target > ic.n + 1:
-            self.stats.skipped_instructions += target - ic.n
-            self._skip_base += target - ic.n
+        now = self._slice_start + ic.n + self._skip_base
+        nxt = self._earliest()
+        if nxt is None or nxt >= self._run_end:
+            if self._run_end > now:
+                self.stats.skipped_instructions += self._run_end - now
+                self._skip_base += self._run_end - now
             ic.limit = ic.n + 1
+            return
+        if nxt > now:
+            self.stats.skipped_instructions += nxt - now
+            self._skip_base += nxt - now
+        self.now = self._slice_start + ic.n + self._skip_base
+        self._fire_events()
+        if self.nvic.pending:
+            exc = self.nvic.next_exception(self.reg(self._PRIMASK))
+            if exc is not None:
+                # the polled instruction did not run: it runs again after the handler
+                ic.n -= 1
+                self._skip_base += 1
+                self._take(exc)
+                self._resumed_idle = True
+        end = self._earliest()
+        end = self._run_end if end is None else min(end, self._run_end)
+        self._next_event = end
+        ic.limit = max(end - self._slice_start - self._skip_base + 1, ic.n + 1)
 
-    # -- exceptions
-    _CORE = None
-
-    def _regs(self):
+    # -- registers through unicorn's C API (the Python binding's per-call class lookup costs ~5 µs a register)
+    def _setup_regs(self) -> None:
         A = self._A
-        if Board._CORE is None:
-            Board._CORE = (
-                [A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2, A.UC_ARM_REG_R3, A.UC_ARM_REG_R12,
-                 A.UC_ARM_REG_LR, A.UC_ARM_REG_PC, A.UC_ARM_REG_XPSR],
-                [getattr(A, f"UC_ARM_REG_S{i}") for i in range(16)] + [A.UC_ARM_REG_FPSCR],
-            )
-        return Board._CORE
+        uclib = _uclib()
+        self._uch = self.uc._uch
+        self._c_read, self._c_write = uclib.uc_reg_read, uclib.uc_reg_write
+        self._c_read_batch, self._c_write_batch = uclib.uc_reg_read_batch, uclib.uc_reg_write_batch
+        self._one = ctypes.c_uint32()
+        self._one_p = ctypes.cast(ctypes.byref(self._one), ctypes.c_void_p)
+        # the exception frame: r0-r3, r12, lr, pc, xpsr, s0-s15, fpscr (26 words with the reserved one)
+        ids = [A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2, A.UC_ARM_REG_R3, A.UC_ARM_REG_R12,
+               A.UC_ARM_REG_LR, A.UC_ARM_REG_PC, A.UC_ARM_REG_XPSR]
+        ids += [getattr(A, f"UC_ARM_REG_S{i}") for i in range(16)] + [A.UC_ARM_REG_FPSCR]
+        n = len(ids)
+        self._frame_ids = (ctypes.c_int32 * n)(*ids)
+        self._frame_vals = (ctypes.c_uint32 * n)()
+        base = ctypes.addressof(self._frame_vals)
+        self._frame_ptrs = (ctypes.c_void_p * n)(*[base + 4 * i for i in range(n)])
+        # the same without PC and xPSR, for writing back (PC and xPSR are written one by one)
+        wids = ids[:6] + ids[8:]
+        self._wframe_ids = (ctypes.c_int32 * len(wids))(*wids)
+        self._wframe_vals = (ctypes.c_uint32 * len(wids))()
+        wbase = ctypes.addressof(self._wframe_vals)
+        self._wframe_ptrs = (ctypes.c_void_p * len(wids))(*[wbase + 4 * i for i in range(len(wids))])
+        self._SP, self._LR, self._PC = A.UC_ARM_REG_SP, A.UC_ARM_REG_LR, A.UC_ARM_REG_PC
+        self._XPSR, self._PRIMASK = A.UC_ARM_REG_XPSR, A.UC_ARM_REG_PRIMASK
+        self._R = [A.UC_ARM_REG_R0, A.UC_ARM_REG_R1, A.UC_ARM_REG_R2, A.UC_ARM_REG_R3]
+
+    def reg(self, reg_id: int) -> int:
+        self._c_read(self._uch, reg_id, self._one_p)
+        return self._one.value
+
+    def set_reg(self, reg_id: int, value: int) -> None:
+        self._one.value = value & 0xFFFFFFFF
+        self._c_write(self._uch, reg_id, self._one_p)
 
     def _take(self, exc: int) -> None:
         """Exception entry: push the FP frame on MSP, EXC_RETURN in LR, IPSR = exc, PC = vector."""
-        uc, A = self.uc, self._A
-        core, fp = self._regs()
-        vals = uc.reg_read_batch(core) if hasattr(uc, "reg_read_batch") else [uc.reg_read(r) for r in core]
-        fvals = uc.reg_read_batch(fp) if hasattr(uc, "reg_read_batch") else [uc.reg_read(r) for r in fp]
-        sp = uc.reg_read(A.UC_ARM_REG_SP)
+        vals = self._frame_vals
+        self._c_read_batch(self._uch, self._frame_ids, self._frame_ptrs, 25)
+        sp = self.reg(self._SP)
         xpsr = vals[7]
         align = sp & 4
-        sp -= align
-        sp -= FP_FRAME_WORDS * 4
-        stacked_xpsr = (xpsr & ~(1 << 9)) | ((1 << 9) if align else 0)
-        frame = struct.pack("<8I", *vals[:7], stacked_xpsr) + struct.pack("<18I", *fvals, 0)
-        uc.mem_write(sp, frame)
+        sp -= align + FP_FRAME_WORDS * 4
+        vals[7] = (xpsr & ~(1 << 9)) | ((1 << 9) if align else 0)
+        off = sp - RAM_BASE
+        if not 0 <= off <= RAM_SIZE - FP_FRAME_WORDS * 4:
+            self.fault = EmulationError(f"stack overflow: exception {exc} at sp 0x{sp:08x} in {self.where()}")
+            self.request_stop()
+            return
+        ctypes.memmove(ctypes.addressof(self._ram) + off, vals, 100)
+        struct.pack_into("<I", self._ram, off + 100, 0)
         handler_mode = bool(self.nvic.active)
         if not handler_mode:
             self._exc_started = self.instructions_now()
-        uc.reg_write(A.UC_ARM_REG_SP, sp)
-        uc.reg_write(A.UC_ARM_REG_LR, 0xFFFFFFE1 if handler_mode else 0xFFFFFFE9)
-        uc.reg_write(A.UC_ARM_REG_XPSR, (xpsr & 0xF8000000) | (1 << 24) | exc)
-        vtor = self.scs.regs.get(0xED08, 0)
-        vector = struct.unpack("<I", uc.mem_read(vtor + 4 * exc, 4))[0]
+        self.set_reg(self._SP, sp)
+        self.set_reg(self._LR, 0xFFFFFFE1 if handler_mode else 0xFFFFFFE9)
+        self.set_reg(self._XPSR, (xpsr & 0xF8000000) | (1 << 24) | exc)
+        vtor = self.scs.regs.get(0xED08, 0) & (FLASH_SIZE - 1)
+        vector = struct.unpack_from("<I", self._flash, vtor + 4 * exc)[0]
         self.nvic.pending.discard(exc)
         self.nvic.active.append(exc)
-        self.stats.interrupts[exc] = self.stats.interrupts.get(exc, 0) + 1
-        uc.reg_write(A.UC_ARM_REG_PC, vector | 1)
-        if exc >= IRQ_BASE:
-            self._reraise_level(exc)
-
-    def _reraise_level(self, exc: int) -> None:
-        """Level-sensitive sources stay pending while their condition holds (re-evaluated on return)."""
+        ints = self.stats.interrupts
+        ints[exc] = ints.get(exc, 0) + 1
+        self.set_reg(self._PC, vector | 1)
 
     def _on_intr(self, uc, intno, user):
         if intno != 8:
@@ -929,9 +1007,7 @@ class Board:
         self._return_from_exception()
 
     def _return_from_exception(self) -> None:
-        uc, A = self.uc, self._A
-        exc_return = uc.reg_read(A.UC_ARM_REG_PC) | 0xF0000000
-        core, fp = self._regs()
+        exc_return = self.reg(self._PC) | 0xF0000000
         if not self.nvic.active:
             self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
             self.request_stop()
@@ -939,27 +1015,30 @@ class Board:
         self.nvic.active.pop()
         if not self.nvic.active:
             self.exception_instructions += self.instructions_now() - self._exc_started
-        sp = uc.reg_read(A.UC_ARM_REG_SP)
+        sp = self.reg(self._SP)
         extended = not exc_return & 0x10
         words = FP_FRAME_WORDS if extended else 8
-        raw = struct.unpack(f"<{words}I", uc.mem_read(sp, 4 * words))
+        off = sp - RAM_BASE
+        raw = struct.unpack_from(f"<{words}I", self._ram, off)
         sp += 4 * words
         xpsr = raw[7]
         if xpsr & (1 << 9):
             sp += 4
-        # a tail-chained or newly takeable exception is taken now
         self._refresh_levels()
-        for r, v in zip(core[:7], raw[:7]):
-            uc.reg_write(r, v)
+        w = self._wframe_vals
+        w[0:6] = raw[0:6]
         if extended:
-            for r, v in zip(fp, raw[8:25]):
-                uc.reg_write(r, v)
-        uc.reg_write(A.UC_ARM_REG_SP, sp)
-        uc.reg_write(A.UC_ARM_REG_XPSR, xpsr & ~(1 << 9))
-        uc.reg_write(A.UC_ARM_REG_PC, raw[6] | 1)
-        nxt = self.nvic.next_exception(uc.reg_read(A.UC_ARM_REG_PRIMASK))
-        if nxt is not None:
-            self._take(nxt)
+            w[6:23] = raw[8:25]
+            self._c_write_batch(self._uch, self._wframe_ids, self._wframe_ptrs, 23)
+        else:
+            self._c_write_batch(self._uch, self._wframe_ids, self._wframe_ptrs, 6)
+        self.set_reg(self._SP, sp)
+        self.set_reg(self._XPSR, xpsr & ~(1 << 9))
+        self.set_reg(self._PC, raw[6] | 1)
+        if self.nvic.pending:
+            nxt = self.nvic.next_exception(self.reg(self._PRIMASK))
+            if nxt is not None:
+                self._take(nxt)
 
     def _refresh_levels(self) -> None:
         self.usart1._irq_line()
@@ -980,7 +1059,7 @@ class Board:
         t = self._earliest()
         if t is not None and t < self._next_event:
             self._next_event = t
-            self._ic.limit = min(self._ic.limit, max(t - self._slice_start + 1, self._ic.n + 1))
+            self._ic.limit = min(self._ic.limit, max(t - self._slice_start - self._skip_base + 1, self._ic.n + 1))
 
     def _earliest(self) -> int | None:
         ts = [t for t in (self.scs.systick_next, self.tim9.next_update, self.tim2.next_update,
@@ -994,13 +1073,15 @@ class Board:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
         uc, A = self.uc, self._A
         ic = self._ic
+        self._run_end = t_end
         while self.now < t_end:
             if self.fault is not None:
                 raise self.fault
             self._fire_events()
-            nxt = self.nvic.next_exception(uc.reg_read(A.UC_ARM_REG_PRIMASK))
-            if nxt is not None:
-                self._take(nxt)
+            if self.nvic.pending:
+                nxt = self.nvic.next_exception(self.reg(self._PRIMASK))
+                if nxt is not None:
+                    self._take(nxt)
             ev = self._earliest()
             end = min(t_end, self.now + max_slice, ev if ev is not None else t_end)
             self._next_event = end
@@ -1008,7 +1089,7 @@ class Board:
             self._skip_base = 0
             ic.n = 0
             ic.limit = max(end - self.now, 1) + 1  # the hook that reaches the limit stops before its instruction
-            pc = uc.reg_read(A.UC_ARM_REG_PC)
+            pc = self.reg(self._PC)
             self.stats.slices += 1
             try:
                 uc.emu_start(pc | 1, 0xFFFFFFFE)
@@ -1050,7 +1131,7 @@ def _thumb_count(flash, address: int, size: int) -> int:
     off = address & (FLASH_SIZE - 1) if address < FLASH_BASE + FLASH_SIZE else None
     if off is None or address < FLASH_BASE and address >= FLASH_SIZE:
         return max(size // 2, 1)
-    raw = flash.raw[off:off + size]
+    raw = bytes(memoryview(flash).cast("B")[off:off + size])
     n = i = 0
     while i < size:
         hw = raw[i] | raw[i + 1] << 8 if i + 1 < len(raw) else 0

@@ -82,6 +82,8 @@ class _Regs:
 
     def read(self, reg: int, n: int, sample) -> bytes:
         self.refresh(sample)
+        if reg + n <= 0x80:
+            return bytes(self.r[reg:reg + n])
         return bytes(self.r[(reg + i) & 0x7F] for i in range(n))
 
     def refresh(self, sample) -> None:  # fill the output registers
@@ -102,10 +104,15 @@ class _Lsm6dsl(_Regs):
         return value
 
     def refresh(self, sample) -> None:
+        if sample is self._last:
+            return
+        self._last = sample
         acc, gyro = sample
         self.r[0x22:0x28] = np.asarray(gyro, "<i2").tobytes()
         self.r[0x28:0x2E] = np.asarray(acc, "<i2").tobytes()
         self.r[0x1E] = 0x07
+
+    _last = None
 
 
 class _Lis2mdl(_Regs):
@@ -170,6 +177,8 @@ class SensorBus:
         self.reads = 0
         self._tick_offset: int | None = None
         self._last_tick = -1
+        self._cached_k = None
+        self._cached = None
 
     def tick_index(self, board) -> int:
         tim = board.tim9
@@ -194,7 +203,9 @@ class SensorBus:
         sample = None
         if device == LSM6DSL:
             k = self.tick_index(board)
-            sample = self.motion.counts(k)
+            if k != self._cached_k:
+                self._cached_k, self._cached = k, self.motion.counts(k)
+            sample = self._cached
             if reg <= 0x28 < reg + n and k != self._last_tick:
                 self._last_tick = k
                 if len(self.served) < self.log_limit:
