@@ -159,6 +159,22 @@ def test_text_mode_build(st_patched, tmp_path):
     assert stats.crc_failures == 0
 
 
+@pytest.mark.slow
+def test_st_stock_build_blocking_printf_text(tmp_path):
+    """ST's unpatched release (make stock): PRINTF goes through the blocking HAL_UART_Transmit; its boot text
+    comes out as plain lines, and the AHRS runs (counted) though nothing is streamed."""
+    st = S.st_copy(tmp_path, patched=False)
+    elf = S.build(st, tmp_path / "b", target="stock")
+    emu, chunks = emulate(elf, "bench", duration_s=4.0)
+    text = b"".join(d for d, _ in chunks).decode("ascii")
+    assert text.startswith("STEVAL-FCU001V1 FW rev.1.0 - Sep 2017\n")
+    assert "LPS22HB Pressure sensor initialized and enabled" in text and "All test passed!" in text
+    rep = emu.report()
+    assert "USART1" not in rep.interrupts  # no TX interrupt: the HAL polls TXE/TC
+    assert rep.ahrs_steps > 150 and 3800 < min(rep.step_instructions)
+    assert 2.9 < rep.first_attitude_s < 3.1
+
+
 def _patched_elf(elf, tmp_path, func: str, code: bytes):
     """A copy of the ELF with the first bytes of ``func`` replaced by Thumb ``code``."""
     from steval_link.emulation.elf import Elf

@@ -52,7 +52,7 @@ class EmulationOptions:
     skip_idle: bool = True
     #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
     log_samples: int = 0
-    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte
+    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
     watchdog_s: float = WATCHDOG_S
 
 
@@ -146,7 +146,7 @@ class EmulationReport:
             a = np.asarray(self.step_instructions)
             out.append(f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
                        f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}")
-        if self.dwt_windows:
+        if self.dwt_windows and any(self.dwt_windows):
             d = np.asarray(self.dwt_windows)
             out.append(f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
                        f"min {d.min()} median {int(np.median(d))} max {d.max()}")
@@ -247,6 +247,7 @@ class Emulation:
         b = self.board
         end = int(round(self.duration_s * CPU_HZ))
         last_byte_t = 0
+        last_steps, last_progress_t = 0, 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
         while b.now < end:
             b.run_until(min(end, b.now + slice_cycles))
@@ -258,9 +259,11 @@ class Emulation:
                 b.out.clear()
                 self._bytes += len(data)
                 yield data, last_byte_t / CPU_HZ
-            elif b.now - last_byte_t > self.options.watchdog_s * CPU_HZ:
+            if self.n_steps != last_steps:
+                last_steps, last_progress_t = self.n_steps, b.now
+            if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * CPU_HZ:
                 raise FirmwareStuck(
-                    f"no USART1 output for {self.options.watchdog_s:g} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
+                    f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
                     f"is in {b.where()} (pc 0x{b.pc():08x})")
 
     def run(self) -> bytes:
