@@ -160,6 +160,32 @@ def test_text_mode_build(st_patched, tmp_path):
 
 
 @pytest.mark.slow
+def test_throttle_race_frame_carries_the_throttle_the_filter_used(fw_default, tmp_path):
+    """REMOCON_PWM's TIM2 capture interrupt can change gTHR between stv_fw_step_begin and the filter's read.
+    Emulate exactly that (gTHR := 520 at ahrs_fusion_ag's entry on every 3rd step, after the snapshot): the
+    frames must carry 520 there, so the port (kp 0.4 on those steps) stays bit-exact."""
+    from steval_link.emulation.runner import Emulation, EmulationOptions
+
+    emu = Emulation(EmulationOptions(elf=fw_default, scenario="bench", duration_s=4.5))
+    gthr = emu.elf.addr("gTHR")
+    calls = [0]
+
+    def rc_interrupt(board):
+        calls[0] += 1
+        if calls[0] % 3 == 0:
+            board.ram_write(gthr, (520).to_bytes(2, "little"))
+
+    emu.board.probe(emu.elf.addr("ahrs_fusion_ag"), rc_interrupt)
+    chunks = list(emu.chunks())
+    _stats, frames = decode(chunks)
+    att = [f for f in frames if isinstance(f, AttitudeFrame)]
+    assert len(att) > 200
+    assert [f.thr for f in att[:9]] == [0, 0, 520] * 3
+    port = port_check(chunks, tmp_path)
+    assert port.all_exact and port.bit_exact == port.rows == len(att)
+
+
+@pytest.mark.slow
 def test_st_stock_build_blocking_printf_text(tmp_path):
     """ST's unpatched release (make stock): PRINTF goes through the blocking HAL_UART_Transmit; its boot text
     comes out as plain lines, and the AHRS runs (counted) though nothing is streamed."""
