@@ -55,6 +55,20 @@ class EmulationOptions:
     #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
     watchdog_s: float = WATCHDOG_S
 
+    def command(self, duration_s: float | None = None) -> str:
+        """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
+        import shlex
+
+        parts = ["steval", "emulate", str(self.elf)]
+        parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
+        d = self.duration_s if duration_s is None else duration_s
+        if d is not None:
+            parts += ["--duration", f"{d:g}"]
+        parts += ["--seed", str(self.seed)]
+        if self.throttle is not None:
+            parts += ["--throttle", self.throttle]
+        return shlex.join(parts)
+
 
 class ScenarioMotion:
     """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""

@@ -86,8 +86,9 @@ class EmulateSession:
             check_viewer_options(opts)
         emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
-        extra = {"source": "steval emulate", "elf": str(emu.elf.path), "scenario": emu.motion.name,
-                 "seed": self.emu_options.seed, "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
+        extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
+                 "elf": str(emu.elf.path), "scenario": emu.motion.name, "seed": self.emu_options.seed,
+                 "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
         try:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
             capture = CaptureWriter(capture_path, port=f"emulated:{emu.elf.path.name}", baud=opts.baud, extra=extra)
