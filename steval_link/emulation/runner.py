@@ -11,8 +11,10 @@ Motion: a built-in scenario of :mod:`steval_link.motion` (rendered in windows of
 bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
 LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
 registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
-loop); the emulated remote writes ``joydata[3]`` at each TIM9 tick, so gTHR moves in steps of 13 as with the ST
-app. Builds with ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
+loop, while ``connected``); the emulated remote writes ``joydata[3]`` at each TIM9 tick, so gTHR moves in steps of
+13 as with the ST app, and sets ``connected`` at its first non-zero throttle (from then on the firmware also sends
+its BLE notifications through ``hci_send_req``). It never arms the motors. Builds with ``REMOCON_PWM`` keep gTHR 0
+(no RC receiver is modelled).
 """
 
 from __future__ import annotations
@@ -127,7 +129,8 @@ class ScenarioMotion:
         return self._acc[i], self._gyro[i]
 
     def throttle(self, k: int) -> int:
-        return int(self._thr[self._at(k)])
+        i = self._at(k)  # (renders the window first)
+        return int(self._thr[i])
 
 
 @dataclass
@@ -206,6 +209,8 @@ class Emulation:
             raise UserError("steval emulate needs unicorn: pip install unicorn (or steval-link[test])") from None
         self.board = Board(self.elf, self.bus, skip_idle=options.skip_idle)
         self._joy = self.elf.addr("joydata")
+        self._connected = self.elf.by_name.get("connected")
+        self._remote_connected = False
         self.board.tick_observers.append(self._on_tick)
         self._steps: list[int] = []
         self._dwt: list[int] = []
@@ -225,6 +230,11 @@ class Emulation:
             k = self.bus.tick_index(board) + 1
             thr = self.motion.throttle(k)
             board.ram_write(self._joy + 3, bytes([min(max(int(round(thr / 13)), 0), 255)]))
+            if thr and not self._remote_connected and self._connected is not None:
+                # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
+                # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
+                board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
+                self._remote_connected = True
 
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
