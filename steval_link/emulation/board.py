@@ -763,21 +763,27 @@ class Board:
             self._setup_idle(e)
 
     def _replacement(self, name: str, fn: Callable):
-        A = self._A
         observers = self.call_observers.setdefault(name, [])
 
-        R0, R1, R2, R3 = self._R
-        LR, PC = self._LR, self._PC
-        reg, set_reg = self.reg, self.set_reg
+        R0 = self._R[0]
+        PC = self._PC
+        set_reg = self.set_reg
+        ids = [self._R[0], self._R[1], self._R[2], self._R[3], self._LR]
+        arg_ids = (ctypes.c_int32 * 5)(*ids)
+        arg_vals = (ctypes.c_uint32 * 5)()
+        base = ctypes.addressof(arg_vals)
+        arg_ptrs = (ctypes.c_void_p * 5)(*[base + 4 * i for i in range(5)])
+        read_batch, uch = self._c_read_batch, self._uch
 
         def hook(uc, address, size, user):
-            r0, r1, r2, r3 = reg(R0), reg(R1), reg(R2), reg(R3)
+            read_batch(uch, arg_ids, arg_ptrs, 5)
+            r0, r1, r2, r3, lr = arg_vals
             self._sync_now()
             rv = fn(r0, r1, r2, r3)
             for ob in observers:
                 ob(self, r0, r1, r2, r3)
             set_reg(R0, rv)
-            set_reg(PC, reg(LR) | 1)
+            set_reg(PC, lr | 1)
 
         return hook
 

@@ -226,6 +226,7 @@ class Emulation:
     def _on_tick(self, board: Board) -> None:
         if self.motion.trial is not None and self.motion.first_tick_s is None:
             self.motion.first_tick_s = board.now / CPU_HZ
+            self.motion._window = -1  # render again with trial time 0 at this tick
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
             thr = self.motion.throttle(k)
