@@ -5,6 +5,10 @@ every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-termina
 child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST port, accel, EKF),
 and the child's resident memory (VmRSS, and the peak VmHWM) is sampled once a second.
 
+With ``--default-view`` the child runs as a user on a machine without a display types it, ``steval live --rrd
+...`` (neither ``--no-view`` nor a viewer flag): the default view resolves to the ``.rrd`` alone, which must be
+written as with ``--no-view`` (merged batches), not one chunk per processing round.
+
 With ``--viewer`` the child also streams to a live viewer: ``steval live --connect URL --rrd ...`` where URL is a
 real Rerun gRPC server (``rr.serve_grpc``, the message proxy a viewer reads from) run headless in this benchmark's
 process with a 64 MB buffer limit; only the child's memory is measured. The viewer stream gets every processing
@@ -18,6 +22,10 @@ to its end scaled to one hour of stream. Goal: flat memory, growth < 10 MB per h
     python benchmarks/bench_soak.py                   # 60 min of stream at 40x the real rate, with --rrd
     python benchmarks/bench_soak.py --minutes 10 --no-rrd --speed 50   # 50x the real rate, no Rerun at all
     python benchmarks/bench_soak.py --viewer          # live viewer (headless gRPC server) and --rrd
+    python benchmarks/bench_soak.py --default-view --minutes 2 --speed 1   # `steval live --rrd X`, no display
+
+The ``.rrd``'s size is printed as MB per hour of stream: compare the modes at ``--speed 1`` (the real cadence of
+processing rounds), where the number of chunks per hour is what a real session makes.
 """
 
 from __future__ import annotations
@@ -69,6 +77,11 @@ def main() -> None:
         action="store_true",
         help="also stream to a live viewer: --connect to a headless Rerun gRPC server in this process",
     )
+    ap.add_argument(
+        "--default-view",
+        action="store_true",
+        help="no --no-view and no viewer flag, and no display: what `steval live --rrd X` does headless",
+    )
     ap.add_argument("--estimators", default=None, help="passed to --estimators (default: the CLI's default)")
     ap.add_argument("--keep", action="store_true", help="keep the capture and .rrd (prints the folder)")
     args = ap.parse_args()
@@ -93,7 +106,7 @@ def main() -> None:
         server = rr.RecordingStream("bench-soak-viewer-server", make_default=False, make_thread_default=False)
         url = rr.serve_grpc(grpc_port=grpc_port, recording=server, server_memory_limit="64MB")
         cmd += ["--connect", url]
-    else:
+    elif not args.default_view:
         cmd.insert(1, "--no-view")
     if not args.no_rrd:
         cmd += ["--rrd", str(tmp / "soak.rrd")]
@@ -153,9 +166,10 @@ def main() -> None:
         from steval_viewer.rrd_check import read_rrd
 
         rows = read_rrd(rrd).samples.get(ent.pitch_path(ent.SOURCE_FIRMWARE), 0)
+        size_mb = rrd.stat().st_size / 1e6
         print(
-            f".rrd {rrd.stat().st_size / 1e6:.1f} MB reads back with {rows} of {n_steps} frames: "
-            f"{'complete' if rows == n_steps else 'INCOMPLETE'}"
+            f".rrd {size_mb:.1f} MB = {size_mb * 60 / args.minutes:.1f} MB per hour of stream; reads back with "
+            f"{rows} of {n_steps} frames: {'complete' if rows == n_steps else 'INCOMPLETE'}"
         )
     if args.keep:
         print(f"files kept in {tmp}")

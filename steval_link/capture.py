@@ -41,6 +41,7 @@ __all__ = [
     "load_telemetry",
     "read_capture",
     "read_source",
+    "resolve_capture_out",
 ]
 
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
@@ -117,7 +118,8 @@ class CaptureWriter:
     the capture started; default: now on ``time.monotonic``). ``mark_event(kind, text)`` stores an event (e.g.
     "disconnect"/"reconnect"). Every chunk is handed to the OS immediately (nothing is lost on ``kill -9``); a
     background thread ``fsync``\\s pending data at least every :data:`SYNC_INTERVAL_S` (power cuts). An existing
-    file is never overwritten (``FileExistsError``).
+    file is never overwritten (``FileExistsError``). ``discard_empty``: a capture that got no serial bytes at all
+    is deleted on :meth:`close` (it would hold only its header); ``discarded`` then says so.
     """
 
     def __init__(
@@ -129,6 +131,7 @@ class CaptureWriter:
         tool_version: str | None = None,
         extra: dict[str, Any] | None = None,
         sync_interval_s: float = SYNC_INTERVAL_S,
+        discard_empty: bool = False,
     ) -> None:
         if tool_version is None:
             from steval_link import __version__ as tool_version
@@ -149,6 +152,8 @@ class CaptureWriter:
         self._lock = threading.Lock()
         self._dirty = False
         self._closed = False
+        self._discard_empty = bool(discard_empty)
+        self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
         self._write_all(_file_header(self.header))
         self._sync()
@@ -200,6 +205,12 @@ class CaptureWriter:
             self._sync()
             self._closed = True
             self._file.close()
+            if self._discard_empty and self.bytes_written == 0:
+                try:
+                    self.path.unlink()
+                    self.discarded = True
+                except OSError:  # e.g. removed meanwhile: nothing left behind either way
+                    self.discarded = not self.path.exists()
 
     def __enter__(self) -> CaptureWriter:
         return self
@@ -231,6 +242,43 @@ class CaptureWriter:
                     continue
                 self._dirty = False
             os.fsync(self._file.fileno())
+
+
+def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
+    """``recordings/steval-YYYYmmddTHHMMSSZ.stv`` (UTC); a ``-2``, ``-3``... suffix keeps it unique."""
+    now = now or datetime.now(timezone.utc)
+    stem = "steval-" + now.strftime("%Y%m%dT%H%M%SZ")
+    path = Path(directory) / f"{stem}.stv"
+    k = 2
+    while path.exists():
+        path = Path(directory) / f"{stem}-{k}.stv"
+        k += 1
+    return path
+
+
+def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out") -> Path | None:
+    """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
+
+    None stays None (the default ``recordings/steval-<UTC>.stv``); an existing directory means "write inside it"
+    (``DIR/steval-<UTC>.stv``); a file name must be in an existing directory (no folders are created at random
+    places: a typo stays a typo) and must not exist yet (captures are never overwritten). Raises
+    :class:`~steval_link.errors.UserError` otherwise.
+    """
+    if out is None:
+        return None
+    path = Path(out).expanduser()
+    if path.is_dir():
+        return default_capture_path(path)
+    if str(out).endswith(("/", os.sep)):
+        raise UserError(f"{option} {out}: directory {path} does not exist (create it first)")
+    if path.exists():
+        raise UserError(f"{option} {path} already exists; choose another name (captures are never overwritten)")
+    parent = path.parent
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise UserError(f"{option} {path}: directory {parent} {what} (create it first, or give an existing "
+                        "directory to write a capture inside it)")
+    return path
 
 
 def _read_bytes(path: Path) -> bytes:
@@ -300,7 +348,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             return "chunk CRC mismatch"
         return kind, length, t, end
 
-    problems: list[str] = []
+    damaged: list[tuple[int, int, str]] = []  # (file byte, length, why) of each damaged stretch skipped
+    cut: str | None = None
     while pos < n:
         found = chunk_at(pos)
         if isinstance(found, str):
@@ -311,12 +360,10 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
                     resume = m.start()
                     break
             if resume is None:
-                problems.append(
-                    f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
-                    f"data up to the last complete chunk, {n - pos} trailing bytes ignored"
-                )
+                cut = (f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
+                       f"data up to the last complete chunk, {n - pos} trailing bytes ignored")
                 break
-            problems.append(f"{resume - pos} damaged bytes at file byte {pos} ({found}) skipped")
+            damaged.append((pos, resume - pos, found))
             events.append(CaptureEvent(times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes "
                                        "unreadable here", total))
             pos = resume
@@ -335,6 +382,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             except (ValueError, UnicodeDecodeError, AttributeError):
                 events.append(CaptureEvent(t, "unreadable-event", "", total))
         pos = end + 4
+    problems = ([_damage_summary(damaged)] if damaged else []) + ([cut] if cut else [])
     warning = f"{path}: " + "; ".join(problems) + "." if problems else None
     if warning is not None:
         warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
@@ -348,6 +396,19 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         truncated=warning is not None,
         warning=warning,
     )
+
+
+#: Damaged stretches a warning lists by position; the rest are counted.
+DAMAGE_LISTED = 3
+
+
+def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
+    """One short sentence for any number of damaged stretches: count, bytes, the first few file byte ranges."""
+    listed = ", ".join(f"{p}–{p + k - 1} ({why})" for p, k, why in damaged[:DAMAGE_LISTED])
+    more = f" and {len(damaged) - DAMAGE_LISTED} more" if len(damaged) > DAMAGE_LISTED else ""
+    places = "1 place" if len(damaged) == 1 else f"{len(damaged)} places"
+    total = sum(k for _, k, _ in damaged)
+    return f"{total} damaged bytes in {places} skipped (file bytes {listed}{more})"
 
 
 @dataclass

@@ -30,7 +30,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, TextIO
 
@@ -38,8 +37,10 @@ import numpy as np
 import serial
 
 from steval_link import autodetect, protocol
+from steval_link.capture import CaptureWriter, default_capture_path
 from steval_link.errors import UserError
 from steval_link.transport import HostClock, Protocol, SerialReader, open_error_message, open_serial
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks, resolve_sinks
 
 #: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
 INBOX_MAX_BYTES = 4 * 1024 * 1024
@@ -67,18 +68,6 @@ DEFAULT_ESTIMATORS = ("st-mahony", "accel", "ekf3")
 
 class LinkError(UserError):
     """The port carries no valid frames (wrong baud rate, another device, silence): one line, exit code 2."""
-
-
-def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
-    """``recordings/steval-YYYYmmddTHHMMSSZ.stv`` (UTC); a ``-2``, ``-3``... suffix keeps it unique."""
-    now = now or datetime.now(timezone.utc)
-    stem = "steval-" + now.strftime("%Y%m%dT%H%M%SZ")
-    path = Path(directory) / f"{stem}.stv"
-    k = 2
-    while path.exists():
-        path = Path(directory) / f"{stem}-{k}.stv"
-        k += 1
-    return path
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -673,6 +662,8 @@ class LiveOptions:
     spawn: bool = False
     serve: bool = False
     connect: str | None = None
+    web_port: int = DEFAULT_WEB_PORT
+    grpc_port: int = DEFAULT_GRPC_PORT
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     wait: bool = False
@@ -704,6 +695,7 @@ class LiveSummary:
     live_dropped_bytes: int
     port_note: str | None
     stopped_by: str
+    capture_discarded: bool = False  # no byte came: the header-only file was removed
 
     def line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
@@ -722,7 +714,10 @@ class LiveSummary:
             parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
         if self.port_note:
             parts.append(self.port_note)
-        out = f"capture {self.capture_path} ({_fmt_bytes(self.bytes_total)})"
+        if self.capture_discarded:
+            out = "no byte received, so no capture file was kept"
+        else:
+            out = f"capture {self.capture_path} ({_fmt_bytes(self.bytes_total)})"
         if self.rrd_path:
             out += f", rerun {self.rrd_path}"
         return "recorded " + ", ".join(parts) + "; " + out
@@ -795,10 +790,8 @@ class LiveSession:
 
     def run(self) -> LiveSummary:
         opts = self.options
-        from steval_link.capture import CaptureWriter
-
         if opts.uses_rerun:
-            check_viewer_options(opts)  # e.g. no display and no --rrd: say so before anything is opened
+            viewer_sink_options(opts)  # e.g. no display and no --rrd: say so before anything is opened
         path, ser = self._open_port()
         identity = autodetect.PortIdentity.of(path)
         finder = autodetect.PortFinder(identity, pattern=opts.port if autodetect.is_glob(opts.port) else None)
@@ -807,6 +800,7 @@ class LiveSession:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
             capture = CaptureWriter(
                 capture_path,
+                discard_empty=True,  # a session that got no byte leaves no header-only file behind
                 port=path,
                 baud=opts.baud,
                 extra={"device": identity.device, "usb": identity.describe(), "estimators": list(opts.estimators)},
@@ -863,7 +857,9 @@ class LiveSession:
         elif error is not None:
             raise error
         seconds = time.monotonic() - t0
-        return self._summary(capture_path, seconds, proto, inbox)
+        summary = self._summary(capture_path, seconds, proto, inbox)
+        summary.capture_discarded = capture.discarded
+        return summary
 
     # -- internals --------------------------------------------------------------------------------------------
 
@@ -877,7 +873,9 @@ class LiveSession:
                 raise KeyboardInterrupt
             self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
 
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+            if sig is None:  # pragma: no cover - Windows has no SIGHUP
+                continue
             try:
                 old[sig] = signal.signal(sig, on_signal)
             except (ValueError, OSError):
@@ -896,7 +894,8 @@ class LiveSession:
 
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
-        live_viewer = opts.view and viewer is not None
+        # a viewer sink, not only an .rrd (headless `steval live --rrd X` resolves to the file alone)
+        live_viewer = viewer is not None and bool(getattr(viewer, "has_viewer", opts.view))
         # a live viewer gets every round at once; an .rrd merged batches (its own stream when a viewer runs too)
         pipe = self.pipeline = LivePipeline(
             opts.estimators,
@@ -1077,15 +1076,9 @@ class ViewerLogger:
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
         from steval_viewer import live_log, sinks
 
-        sink_options = sinks.SinkOptions(
-            spawn=options.spawn if options.view else False,
-            serve=options.serve if options.view else False,
-            connect=options.connect if options.view else None,
-            rrd=options.rrd,
+        self.session = sinks.open_session(
+            viewer_sink_options(options), recording_name=recording_name, split_file=True
         )
-        if options.view:
-            sink_options = sinks.resolve_sinks(sink_options)
-        self.session = sinks.open_session(sink_options, recording_name=recording_name, split_file=True)
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:
@@ -1093,6 +1086,11 @@ class ViewerLogger:
             self.file = live_log.LiveLogger(
                 self.session.file_rec, estimator_names=options.estimators, t0_from=self.logger
             )
+
+    @property
+    def has_viewer(self) -> bool:
+        """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
+        return self.session.has_viewer
 
     def log_batch(self, batch: AttitudeBatch) -> None:
         self.logger.log_batch(batch)
@@ -1120,15 +1118,17 @@ class ViewerLogger:
             self.session.close()
 
 
-def check_viewer_options(options: LiveOptions) -> None:
-    """Raise the viewer's :class:`UserError` now when its sinks cannot work (no display for ``--spawn``...)."""
-    if not options.view:
-        return
-    from steval_viewer import sinks
-
-    sinks.resolve_sinks(
-        sinks.SinkOptions(spawn=options.spawn, serve=options.serve, connect=options.connect, rrd=options.rrd)
-    )
+def viewer_sink_options(options: LiveOptions) -> SinkOptions:
+    """The Rerun sinks of a session (``steval_viewer.sink_options.SinkOptions``): the chosen viewer, or the default
+    one (``--spawn`` where a display exists), and the ``.rrd``; ``--no-view``: the ``.rrd`` alone. UserError when
+    they cannot work (no display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a
+    missing ``.rrd`` folder)."""
+    chosen = SinkOptions(rrd=options.rrd, web_port=options.web_port, grpc_port=options.grpc_port)
+    if options.view:
+        chosen.spawn, chosen.serve, chosen.connect = options.spawn, options.serve, options.connect
+        chosen = resolve_sinks(chosen)
+    check_sinks(chosen)
+    return chosen
 
 
 def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:

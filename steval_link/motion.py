@@ -584,8 +584,8 @@ def parse_throttle(spec: str) -> Callable:
     vs = np.array([p[1] for p in pts])
     if not (np.all(np.isfinite(ts)) and np.all(np.isfinite(vs))) or np.any(np.diff(ts) <= 0):
         raise UserError(f"--throttle breakpoints need finite, increasing times, got {spec!r}")
-    if np.any(vs < -32768) or np.any(vs > 32767):
-        raise UserError(f"--throttle values must fit gTHR (int16), got {spec!r}")
+    if np.any(vs < 0) or np.any(vs > 32767):
+        raise UserError(f"--throttle values are the firmware's gTHR (int16, from 0): 0..32767, got {spec!r}")
     return lambda t: np.interp(t, ts, vs)
 
 

@@ -37,6 +37,7 @@ import math
 import os
 import shlex
 import subprocess
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -339,9 +340,12 @@ def _settings(opts: SynthOptions) -> MahonySettings:
     return MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
 
 
-def synthesize(opts: SynthOptions) -> SynthResult:
-    """Emulate the drone end to end for ``opts``; deterministic for given options (see the module docstring)."""
+def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None = None) -> SynthResult:
+    """Emulate the drone end to end for ``opts``; deterministic for given options (see the module docstring).
+    ``progress(fraction, stage)`` is called as the stages advance (e.g. ``steval_link.cli.progress``)."""
     _check(opts)
+    if progress is None:
+        progress = lambda fraction, stage="": None  # noqa: E731
     root = np.random.SeedSequence([int(opts.seed), 0x5EA1])
     r_motion, r_sensor, r_noise, r_fw, r_drop, r_host, r_boot = (np.random.default_rng(s) for s in root.spawn(7))
 
@@ -376,6 +380,7 @@ def synthesize(opts: SynthOptions) -> SynthResult:
     # 1-2: motion and sensor at every tick, from TIM9's first tick to the end of the capture
     first_tick_s = (TIM9_START_CYCLES + M.TICK_CYCLES) / CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * sm.TICK_HZ)) + 1
+    progress(0.0, "motion profile")
     profile = _profile(opts, r_motion, n_ticks, first_tick_s, total, trial)
     gyro_true = profile.gyro_mdps
     if profile.measured:
@@ -383,9 +388,11 @@ def synthesize(opts: SynthOptions) -> SynthResult:
     else:
         sensor = _sensor(r_sensor)
         gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, r_sensor)
+    progress(0.55, "LSM6DSL model")
     acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=r_noise, t_tick_s=profile.t_s)
 
     # 3: ISR and main-loop averaging; ISR yaw
+    progress(0.6, "ISR pipeline")
     isr = sm.run_isr(acc_raw, gyro_raw)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick:])
@@ -394,6 +401,7 @@ def synthesize(opts: SynthOptions) -> SynthResult:
     thz = yaw[isr.step_tick - isr.first_tick]
 
     # 4: the port, in runs between status snapshots
+    progress(0.8, "filter port")
     settings = _settings(opts)
     q = np.empty((n_steps, 4), np.float32)
     thx = np.empty(n_steps, np.float32)
@@ -461,7 +469,10 @@ def synthesize(opts: SynthOptions) -> SynthResult:
 
     cyc_min, cyc_max, cyc_sum, cyc_n = 2**32 - 1, 0, 0, 0
     snap_i = 0
+    progress(0.85, "link and TX queue")
     for k in range(n_steps):
+        if k % 8192 == 0:
+            progress(0.85 + 0.1 * k / n_steps, "link and TX queue")
         c0 = float(begin[k])
         base = AHRS_CYCLES + int(cyc_noise[k])
         irqs = txq.busy_overlap(c0, c0 + base)
@@ -530,6 +541,7 @@ def synthesize(opts: SynthOptions) -> SynthResult:
     status = np.array(status_recs, dtype=P.STATUS_DTYPE).reshape(-1)
 
     # 6: the bytes, in transmit order
+    progress(0.95, "encoding frames")
     stream = _encode(order, att, opts)
     sizes = np.array([o[3] for o in order], dtype=np.int64)
     starts = np.array([o[2] for o in order], dtype=np.float64)

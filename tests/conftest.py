@@ -132,3 +132,44 @@ def run_cli(monkeypatch, capsys, *args):
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def run_cli_tty(*args, timeout: float = 120.0):
+    """``steval ARGS`` in a subprocess whose stderr is a terminal (a pseudo-terminal, 100 columns), as on a user's
+    screen: returns (exit code, stdout text, everything written to the terminal as text)."""
+    import os
+    import pty
+    import select
+    import subprocess
+    import sys
+    import time
+
+    master, slave = pty.openpty()
+    env = dict(os.environ, TERM="xterm", COLUMNS="100", LINES="30")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", *map(str, args)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave, env=env,
+    )
+    os.close(slave)
+    chunks = []
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.2)
+            if ready:
+                try:
+                    data = os.read(master, 65536)
+                except OSError:  # the child closed the terminal
+                    break
+                if not data:
+                    break
+                chunks.append(data)
+            elif proc.poll() is not None:
+                break
+        else:
+            proc.kill()
+            raise AssertionError(f"steval {' '.join(map(str, args))} did not end within {timeout} s")
+        stdout = proc.communicate(timeout=timeout)[0]
+    finally:
+        os.close(master)
+    return proc.returncode, stdout.decode("utf-8", "replace"), b"".join(chunks).decode("utf-8", "replace")

@@ -299,16 +299,21 @@ def flight_stream(
 class StevalProcess:
     """``steval ARGS`` in a child process; stderr lines are collected with the monotonic time they arrived.
 
-    The CLI runs as ``python -c "from steval_link.cli import main; main()"`` (no console script needed).
+    The CLI runs as ``python -c "from steval_link.cli import main; main()"`` (no console script needed), with no
+    display unless ``env`` (a whole environment, e.g. a virtual display's) is given.
     """
 
-    def __init__(self, args: list[str], *, cwd: str | os.PathLike | None = None, preexec_fn=None) -> None:
+    def __init__(
+        self, args: list[str], *, cwd: str | os.PathLike | None = None, preexec_fn=None, env: dict | None = None
+    ) -> None:
         import subprocess
         import sys
 
-        env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="200")
-        env.pop("DISPLAY", None)
-        env.pop("WAYLAND_DISPLAY", None)
+        if env is None:  # headless unless the test hands a display's environment
+            env = dict(os.environ)
+            env.pop("DISPLAY", None)
+            env.pop("WAYLAND_DISPLAY", None)
+        env = dict(env, PYTHONUNBUFFERED="1", COLUMNS="200")
         self.t_start = time.monotonic()
         self.proc = subprocess.Popen(
             [sys.executable, "-c", "from steval_link.cli import main; main()", *args],

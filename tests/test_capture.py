@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -218,3 +219,70 @@ def test_header_is_json_documented_fields(tmp_path):
     head = json.loads(raw[12 : 12 + n])
     assert set(head) == {"format", "format_version", "port", "baud", "start_time_utc", "start_time_unix_s",
                          "tool_version", "extra"}
+
+
+def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuilder, monkeypatch, capsys):
+    """A capture damaged in 60 places (e.g. a flaky SD card) warns once: count, bytes, the first few byte ranges,
+    not one clause per place (that used to be a 13 kB line)."""
+    import json
+
+    from conftest import run_cli
+
+    data = stream.flight(1200, status_every=0).bytes()
+    path = write_capture(tmp_path / "flaky.stv", data, 500)
+    raw = bytearray(path.read_bytes())
+    header_end = 12 + int.from_bytes(raw[8:12], "little") + 4
+    starts, pos = [], header_end
+    while pos < len(raw):
+        starts.append(pos)
+        pos += 13 + int.from_bytes(raw[pos + 1 : pos + 5], "little") + 4
+    hit = starts[1:-1:2][:60]
+    for p in hit:
+        raw[p + 13 + 100] ^= 0xFF  # inside the payload: CRC mismatch
+    path.write_bytes(bytes(raw))
+
+    code, out, err = run_cli(monkeypatch, capsys, "replay", path)
+    assert code == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("steval: warning:") and len(lines[0]) < 400, err
+    first = hit[0]
+    assert f"{len(hit)} places" in err and f"{first}–{first + 517 - 1}" in err and f"and {len(hit) - 3} more" in err
+    assert f"{517 * len(hit)} damaged bytes" in err
+    code, out, err = run_cli(monkeypatch, capsys, "replay", path, "--json")
+    assert code == 0 and [len(w) < 400 for w in json.loads(out)["warnings"]] == [True]
+
+
+def test_resolve_capture_out_never_makes_folders(tmp_path, monkeypatch):
+    from steval_link.capture import resolve_capture_out
+
+    monkeypatch.chdir(tmp_path)
+    assert resolve_capture_out(None) is None
+    assert resolve_capture_out("flight.stv") == Path("flight.stv")
+    inside = resolve_capture_out(tmp_path)  # an existing directory: write inside it
+    assert inside.parent == tmp_path and inside.name.startswith("steval-") and inside.suffix == ".stv"
+    for bad, words in (
+        ("missing/sub/flight.stv", "does not exist"),
+        ("missing/", "does not exist"),
+        ("flight.stv/x.stv", None),
+    ):
+        if bad.startswith("flight.stv/"):
+            (tmp_path / "flight.stv").write_bytes(b"x")
+            words = "is not a directory"
+        with pytest.raises(UserError, match=words) as exc:
+            resolve_capture_out(bad)
+        assert str(exc.value).startswith("--out ")
+    with pytest.raises(UserError, match="already exists"):
+        resolve_capture_out("flight.stv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.stv"]  # nothing created
+
+
+def test_capture_without_bytes_can_be_discarded(tmp_path):
+    with CaptureWriter(tmp_path / "empty.stv", port="p", baud=115200, discard_empty=True) as w:
+        w.mark_event("stop", "no bytes")
+    assert w.discarded and not (tmp_path / "empty.stv").exists()
+    with CaptureWriter(tmp_path / "one.stv", port="p", baud=115200, discard_empty=True) as w:
+        w.write(b"\x00")
+    assert not w.discarded and read_capture(tmp_path / "one.stv").data == b"\x00"
+    with CaptureWriter(tmp_path / "kept.stv", port="p", baud=115200) as w:  # default: kept
+        pass
+    assert not w.discarded and (tmp_path / "kept.stv").exists()

@@ -106,9 +106,10 @@ def test_not_a_capture_and_empty(tmp_path, capsys):
     assert code == 2 and "empty" in err
 
 
-def test_usage_errors_print_usage_and_exit_2(capsys):
+def test_usage_errors_are_one_line_and_exit_2(capsys):
     code, out, err = run(["replay", "--bogus"], capsys)
-    assert code == 2 and "Usage" in err and "--bogus" in err
+    assert code == 2 and err.startswith("steval: error:") and "--bogus" in err and "steval replay --help" in err
+    assert len(err.strip().splitlines()) == 1
     code, out, err = run(["no-such-command"], capsys)
     assert code == 2
 

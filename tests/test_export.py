@@ -100,3 +100,44 @@ def test_output_safety(capture, tmp_path, capsys):
     assert code == 2 and "capture itself" in err
     code, _, err = run(["export", capture, "--csv", tmp_path / "no" / "dir.csv"], capsys)
     assert code == 2 and "does not exist" in err
+
+
+def test_csv_floats_are_the_shortest_exact_decimals_for_excel(tmp_path, capsys):
+    """A float32 999.4 is written 999.4 (not 999.400024), and still reads back as exactly the same float32."""
+    from pathlib import Path
+
+    from steval_link.capture import load_telemetry
+
+    demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
+    out = tmp_path / "demo.csv"
+    code, _, err = run(["export", demo, "--csv", out], capsys)
+    assert code == 0, err
+    text = out.read_text()
+    assert ",999.4," in text and "999.400024" not in text
+    rows = list(csv_mod.DictReader(text.splitlines()))
+    a = load_telemetry(demo).attitude
+    acc_z = np.array([np.float32(r["acc_z_mg"]) for r in rows])
+    assert np.array_equal(acc_z, a.acc_mg[:, 2])  # exact round trip
+    for field in ("acc_z_mg", "gyro_x_mdps", "q_w", "thx_pitch_rad"):
+        for r in rows[:200]:
+            v = r[field]
+            digits = len(v.split("e")[0].replace("-", "").replace(".", "").strip("0"))
+            # no shorter decimal reads back as the same float32
+            assert digits <= 1 or np.float32(float(f"%.{digits - 1}g" % float(v))) != np.float32(v), (field, v)
+
+
+def test_csv_degrees(tmp_path, capsys):
+    from pathlib import Path
+
+    from steval_link.capture import load_telemetry
+
+    demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
+    out = tmp_path / "deg.csv"
+    code, _, err = run(["export", demo, "--csv", out, "--degrees"], capsys)
+    assert code == 0, err
+    rows = list(csv_mod.DictReader(out.open()))
+    assert {"thx_pitch_deg", "thy_roll_deg", "thz_yaw_deg"} <= set(rows[0]) and "thx_pitch_rad" not in rows[0]
+    a = load_telemetry(demo).attitude
+    pitch = np.array([float(r["thx_pitch_deg"]) for r in rows])
+    assert np.allclose(pitch, np.degrees(a.thx_rad.astype(np.float64)), rtol=1e-6, atol=1e-9)
+    assert np.abs(pitch).max() > 20  # degrees, not radians

@@ -51,6 +51,27 @@ def test_readme_documents_every_file_and_says_emulated():
             assert opt in row and val in row, (name, opt, val)
 
 
+def test_readme_says_truly_where_the_synthesis_command_is(monkeypatch, capsys):
+    """The README's way to print a capture's ``extra.command`` works, and it does not send readers to
+    ``steval replay --json``, whose output has no ``extra``."""
+    import json
+    import re
+    import subprocess
+    import sys
+
+    from conftest import run_cli
+
+    text = (REC / "README.md").read_text(encoding="utf-8")
+    code, out, _ = run_cli(monkeypatch, capsys, "replay", REC / "demo.stv", "--json")
+    assert code == 0 and "extra" not in json.loads(out)["source"]
+    sentence = text[text.index("extra.command") - 400 : text.index("extra.command") + 400]
+    assert "`steval replay FILE --json` or" not in sentence
+    snippet = re.search(r'`(python -c ".*?read_capture.*?")`', text).group(1)
+    run = subprocess.run([sys.executable, "-c", shlex.split(snippet)[2]], capture_output=True, text=True,
+                         cwd=REC.parent, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == read_capture(REC / "demo.stv").header["extra"]["command"]
+
+
 def test_sizes():
     sizes = {p.name: p.stat().st_size for p in REC.iterdir() if p.is_file()}
     assert sizes["demo.stv"] < 2_000_000

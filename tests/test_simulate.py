@@ -151,3 +151,55 @@ def test_run_simulation_result_arrays():
     assert run_simulation(iterations=0).iterations == 0
     with pytest.raises(ValueError):
         run_simulation(gyro_mdps=(1, 2))
+
+
+def _angle_lines(out: str) -> list[str]:
+    return [line for line in out.splitlines() if line.strip().startswith(("eax", "eay", "eaz"))]
+
+
+def test_zero_acc_says_correction_and_ki_are_inactive(monkeypatch, capsys):
+    """The Lab 5 baseline has acc = 0: the firmware's error term is 0, so exercises 4 and 5 change nothing there,
+    and the output says so (instead of leaving students to wonder why --ki 1 prints the same numbers)."""
+    code, base, _ = run_cli(monkeypatch, capsys, "simulate")
+    assert code == 0 and "acc is 0: correction and KI inactive" in base
+    for option in ("--ki", "1"), ("--no-correction",):
+        code, out, _ = run_cli(monkeypatch, capsys, "simulate", *option)
+        assert code == 0 and "acc is 0: correction and KI inactive" in out
+        assert _angle_lines(out) == _angle_lines(base)
+
+
+README_EXERCISE = ("--acc", "0", "0", "1000", "--throttle", "500", "-n", "1000")
+
+
+def _pitch_deg(out: str) -> float:
+    line = next(x for x in out.splitlines() if x.strip().startswith("eax"))
+    return float(line.split(":")[1].split()[0])
+
+
+def test_readme_command_shows_exercises_4_and_5():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    assert "steval simulate " + " ".join(README_EXERCISE) in readme
+
+
+def test_exercises_4_and_5_change_the_angles_with_gravity(monkeypatch, capsys):
+    code, base, _ = run_cli(monkeypatch, capsys, "simulate", *README_EXERCISE)
+    assert code == 0 and "acc is 0" not in base
+    _, ki1, _ = run_cli(monkeypatch, capsys, "simulate", *README_EXERCISE, "--ki", "1")
+    _, free, _ = run_cli(monkeypatch, capsys, "simulate", *README_EXERCISE, "--no-correction")
+    # KI 1 removes the gyro-bias offset kp 0.4 leaves; without correction the gyro integrates freely
+    assert abs(_pitch_deg(base)) > 1.0 and abs(_pitch_deg(ki1)) < 0.2
+    assert abs(_pitch_deg(free)) > 5.0
+
+
+@pytest.mark.parametrize("estimator", ["ekf3", "mekf"])
+def test_ekfs_with_zero_acc_flag_every_row_instead_of_claiming_level(monkeypatch, capsys, estimator):
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", estimator, "-n", 20)
+    assert code == 0
+    assert "acc is 0" in out and "flagged invalid" in out and "does not integrate the gyro" in out
+    assert all("n/a" in line for line in _angle_lines(out))
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", estimator, "-n", 20, "--json")
+    doc = json.loads(out)
+    assert not any(row["valid"] for row in doc["rows"])
+    # with gravity from the first sample on, every row is valid
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", estimator, "-n", 20, "--acc", 0, 0, 1000, "--json")
+    assert all(row["valid"] for row in json.loads(out)["rows"])

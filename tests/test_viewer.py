@@ -427,7 +427,7 @@ def test_serve_starts_a_web_viewer_on_loopback_only_and_stops_it(tmp_path):
     import socket
     import urllib.request
 
-    from steval_viewer.sinks import _free_port
+    from steval_viewer.sinks import free_port as _free_port
     from steval_viewer.replay_log import log_telemetry
 
     web, grpc = _free_port(), _free_port()

@@ -9,6 +9,7 @@ Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` secon
 
 from __future__ import annotations
 
+import math
 from typing import Iterable
 
 import rerun as rr
@@ -30,7 +31,33 @@ def _time_ranges(live: bool, timeline: str):
     )
 
 
-def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_range=None) -> rrb.TimeSeriesView:
+def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
+    """Where a plot's legend sits: on the right in a replay (the end of a flight, usually calm: the demo's pitch
+    dip near 17 s stays clear of it), on the left live, where the right edge is the newest data; at the top, or at
+    the bottom for plots whose top holds data (the accelerometer's z ≈ +1000 mg); ``left``: on the left in a replay
+    too (cumulative counts, which start low)."""
+    if live or left:
+        return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
+    return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
+
+
+def axis_limit(max_abs: float) -> float | None:
+    """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks: Rerun's plots label only
+    powers of ten, so an automatic ±66 dps range shows nothing but 0; ±100 shows −100, 0, 100. 1, 2 or 5 × 10^k,
+    with room for the legend (the data fill the middle ~60 %); None for no finite data."""
+    if not (max_abs == max_abs and 0 < max_abs < float("inf")):
+        return None
+    need = 1.6 * max_abs
+    k = math.floor(math.log10(need))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * 10.0**k >= need:
+            return m * 10.0**k
+    return 10.0 ** (k + 1)  # pragma: no cover - the loop always returns
+
+
+def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_range=None, *,
+            legend: bool = True, legend_bottom: bool = False, legend_left: bool = False) -> rrb.TimeSeriesView:
+    """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
     kwargs = {}
     if y_range is not None:
         kwargs["axis_y"] = rrb.ScalarAxis(range=y_range)
@@ -39,7 +66,7 @@ def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_
         contents=contents if contents is not None else "$origin/**",
         name=name,
         time_ranges=_time_ranges(live, timeline),
-        plot_legend=rrb.PlotLegend(visible=True),
+        plot_legend=rrb.PlotLegend(corner=legend_corner(live, legend_bottom, legend_left), visible=legend),
         **kwargs,
     )
 
@@ -50,6 +77,7 @@ def make_blueprint(
     ghost_sources: Iterable[str] = (),
     ghost: str | None = None,
     timeline: str | None = None,
+    gyro_max_dps: float | None = None,
 ) -> rrb.Blueprint:
     """The default blueprint.
 
@@ -57,7 +85,8 @@ def make_blueprint(
     have a ghost drone (``entities.estimate_path``); ``ghost`` is the one shown (default: the ST-Mahony port if
     present, else the first by ``entities.GHOST_PREFERENCE``); the others stay in the view, hidden, and can be
     switched on in the blueprint panel. ``timeline``: the active timeline (default ``fw_time`` for replays,
-    ``host_time`` live).
+    ``host_time`` live). ``gyro_max_dps``: the largest gyro rate of the recording (a replay): the gyro plot gets a
+    fixed symmetric range with labelled ends (:func:`axis_limit`); None: automatic range.
     """
     sources = list(ghost_sources)
     if ghost is None:
@@ -68,7 +97,7 @@ def make_blueprint(
 
     view3d = rrb.Spatial3DView(
         origin=ent.WORLD,
-        name="Attitude (solid: firmware, ghost: host estimate)",
+        name="Attitude (solid: firmware, ghost: host estimate, yellow: gravity from the accelerometer)",
         overrides=overrides or None,
         eye_controls=rrb.EyeControls3D(
             position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)
@@ -77,16 +106,18 @@ def make_blueprint(
     )
     link = rrb.Tabs(
         rrb.Grid(
-            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0)),
+            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
             _series(
                 ent.LINK,
                 "Link losses (count, cumulative)",
                 live,
                 timeline,
                 contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
+                legend_left=True,
             ),
-            _series(ent.LINK_CYCLES, "AHRS cycles per step (min/mean/max)", live, timeline),
-            _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline),
+            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean, min)", live, timeline,
+                    legend=False),
+            _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
         ),
@@ -101,13 +132,14 @@ def make_blueprint(
             _series(ent.PLOT_ROLL, "thy roll, about y (deg)", live, timeline),
         ),
         rrb.Horizontal(
-            _series(ent.PLOT_YAW, "thz yaw, gyro-integrated (deg)", live, timeline),
+            _series(ent.PLOT_YAW, "thz yaw, gyro-integrated (deg)", live, timeline, legend=False),
             _series(ent.PLOT_DIFF, "firmware − ST-Mahony port (deg)", live, timeline),
         ),
         rrb.Horizontal(
-            _series(ent.PLOT_ACC, "accelerometer (mg)", live, timeline),
-            _series(ent.PLOT_GYRO, "gyro (deg/s)", live, timeline),
-            _series(ent.PLOT_THROTTLE, "throttle gTHR", live, timeline),
+            _series(ent.PLOT_ACC, "accelerometer (mg)", live, timeline, legend_bottom=True),
+            _series(ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps),
+                    legend_bottom=True),
+            _series(ent.PLOT_THROTTLE, "throttle gTHR", live, timeline, legend=False),
             column_shares=[2, 2, 1],
         ),
         row_shares=[3, 2, 2],
@@ -119,6 +151,11 @@ def make_blueprint(
         rrb.SelectionPanel(expanded=False),
         collapse_panels=False,
     )
+
+
+def _symmetric(max_abs: float | None) -> tuple[float, float] | None:
+    limit = None if max_abs is None else axis_limit(max_abs)
+    return None if limit is None else (-limit, limit)
 
 
 def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:

@@ -41,6 +41,7 @@ TIMELINE_STEP = "ahrs_step"
 
 WORLD = "world"
 WORLD_AXES = "world/axes"
+WORLD_AXIS_LABELS = "world/axis_labels"  #: the axes' names, as points beyond the arrow tips
 DRONE_FIRMWARE = "world/drone/firmware"
 DRONE_FIRMWARE_MODEL = "world/drone/firmware/model"
 ACC_GRAVITY = "world/drone/firmware/acc_gravity"
@@ -147,10 +148,11 @@ def estimate_model_path(source: str) -> str:
 
 
 def pitch_label(source: str) -> str:
-    """Series name of thx, e.g. ``thx pitch (firmware)``."""
-    return f"thx pitch ({source_label(source)})"
+    """Series name of thx in the pitch plot (titled "thx pitch"): the source, e.g. ``firmware`` (short, so the
+    legend stays small)."""
+    return source_label(source)
 
 
 def roll_label(source: str) -> str:
-    """Series name of thy, e.g. ``thy roll (EKF3)``."""
-    return f"thy roll ({source_label(source)})"
+    """Series name of thy in the roll plot (titled "thy roll"): the source, e.g. ``EKF3``."""
+    return source_label(source)

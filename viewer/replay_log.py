@@ -13,6 +13,8 @@ Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -20,6 +22,7 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link.errors import UserError
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import scene
@@ -31,8 +34,17 @@ from steval_viewer.columns import (
     send_scalars,
     send_transforms,
 )
+from steval_viewer.sinks import open_session
 
 _MASK_NAMES = ("valid", "mask", "seeded")
+
+#: ``progress(fraction done 0..1, stage)``, e.g. ``steval_link.cli.progress``; None: no reports
+Progress = Callable[[float, str], None] | None
+
+
+def _report(progress: Progress, fraction: float, stage: str) -> None:
+    if progress is not None:
+        progress(fraction, stage)
 
 
 def estimate_mask(est: Any, n: int) -> np.ndarray:
@@ -60,6 +72,12 @@ def _count(summary: ReplaySummary, path: str, values: np.ndarray, valid: np.ndar
     if valid is not None:
         good &= valid
     summary.samples[path] = int(good.sum())
+
+
+def _max_abs(values: np.ndarray) -> float:
+    """Largest finite |value| (NaN when there is none)."""
+    v = np.abs(values[np.isfinite(values)])
+    return float(v.max()) if v.size else float("nan")
 
 
 def _deg(rad: np.ndarray) -> np.ndarray:
@@ -226,6 +244,7 @@ def log_replay(
     ghost: str | None = None,
     live_blueprint: bool = False,
     link: bool = True,
+    progress: Progress = None,
 ) -> ReplaySummary:
     """Log a whole Telemetry, the ST-Mahony port (``port``, a ``FirmwareReplay``) and host ``estimates``
     (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``.
@@ -233,7 +252,7 @@ def log_replay(
     Sends the default blueprint first (unless ``blueprint`` is False); ``ghost`` picks the estimate the 3D ghost
     shows (a source segment or estimator name; default: the port, else EKF3, ...). Returns the samples logged per
     entity path. Arrays must have one row per attitude row of ``tel``. ``link``: log the link-health series (False
-    for simulations, which have no link).
+    for simulations, which have no link). ``progress(fraction, stage)`` is told as each source is logged.
     """
     att = tel.attitude
     n = len(att.t_fw_s)
@@ -259,13 +278,17 @@ def log_replay(
             live=live_blueprint,
             ghost_sources=ghost_sources,
             ghost=None if ghost is None else ent.source_name(ghost),
+            gyro_max_dps=_max_abs(np.asarray(att.gyro_mdps, dtype=np.float64)) / 1000.0,
         )
     scene.log_static(rec, names, with_port=port is not None)
 
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
+    _report(progress, 0.0, "logging the firmware's series")
     log_firmware(rec, times, att, summary)
-    for source, est in sources:
+    for i, (source, est) in enumerate(sources):
+        _report(progress, (i + 1) / (len(sources) + 2), f"logging {source}")
         log_estimate(rec, times, source, est, summary, ghost=source in ghost_sources)
+    _report(progress, (len(sources) + 1) / (len(sources) + 2), "logging link health and text")
     if port is not None:
         log_port_difference(rec, times, att, port, summary)
     if link:
@@ -291,32 +314,55 @@ def firmware_port(tel: Any) -> Any | None:
     return replay_firmware(tel)
 
 
-def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None) -> ReplaySummary:
+def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *,
+                  progress: Progress = None) -> ReplaySummary:
     """Replay entry point used by ``steval replay``: runs the seeded firmware port and logs it with ``estimates``.
 
     A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the port, which is the
     same filter followed bit for bit from the firmware's status snapshots.
     """
+    _report(progress, 0.0, "ST-Mahony port")
     port = firmware_port(tel)
     others = {k: v for k, v in (estimates or {}).items() if not (port is not None and k in _PORT_NAMES)}
-    return log_replay(rec, tel, others, port=port)
+    logged = None if progress is None else (lambda f, stage="": progress(0.1 + 0.9 * f, stage))
+    return log_replay(rec, tel, others, port=port, progress=logged)
 
 
-def replay_sink(options: Any, *, recording_name: str | None = None):
+def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
     """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
-    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first)."""
-    from steval_viewer.sinks import open_session
+    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
+    ``progress(fraction, stage)`` hears of each stage (port, logging, writing).
+
+    The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
+    spawned native viewer stays open after the sink returns."""
 
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}
         name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
-        session = open_session(options, recording_name=name)
+        session = open_session(options, recording_name=name, atomic_rrd=True)
         try:
-            log_telemetry(session.rec, tel, estimates)
+            log_telemetry(session.rec, tel, estimates,
+                          progress=None if progress is None else (lambda f, stage="": progress(0.6 * f, stage)))
+            _report(progress, 0.6, "writing to Rerun")
             session.flush()
             if options.serve:
                 session.wait_for_viewer()
-        finally:
-            session.close()
+        except UserError:  # a viewer went away: the .rrd is still complete
+            try:
+                session.close()
+            except UserError:
+                pass
+            _say_written(options.rrd)
+            raise
+        except BaseException:  # Ctrl-C, SIGTERM: no half file
+            session.close(complete=False)
+            raise
+        session.close()
+        _say_written(options.rrd)
 
     return sink
+
+
+def _say_written(rrd: Path | None) -> None:
+    if rrd is not None:
+        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)

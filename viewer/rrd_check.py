@@ -55,3 +55,41 @@ def read_rrd(path: str | Path) -> RrdInfo:
     info.samples = dict(samples)
     info.clears = dict(clears)
     return info
+
+
+def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
+    """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
+    of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
+    3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    by_id: dict[str, dict[str, object]] = defaultdict(dict)
+    for store in reader.blueprints()[:1]:
+        for chunk in reader.stream(store=store):
+            parts = chunk.entity_path.strip("/").split("/")
+            if len(parts) < 2 or parts[0] != "view":
+                continue
+            rb = chunk.to_record_batch()
+            for f in rb.schema:
+                if ":" in f.name:
+                    values = rb.column(f.name).to_pylist()
+                    value = values[-1] if values else None
+                    by_id[parts[1]][f.name] = value[0] if isinstance(value, list) and len(value) == 1 else value
+    return {str(v.get("ViewBlueprint:display_name")): v for v in by_id.values()}
+
+
+def static_values(path: str | Path, entity: str) -> dict[str, object]:
+    """The static components logged to ``entity`` in the first recording of ``path``: {component: values}."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    out: dict[str, object] = {}
+    for chunk in reader.stream(store=reader.recordings()[0]):
+        if chunk.is_static and chunk.entity_path.strip("/") == entity:
+            rb = chunk.to_record_batch()
+            for f in rb.schema:
+                if ":" in f.name:
+                    values = rb.column(f.name).to_pylist()
+                    out[f.name] = values[-1] if values else None
+    return out

@@ -11,6 +11,12 @@ from steval_viewer import drone_model
 from steval_viewer import entities as ent
 
 AXIS_LENGTH = 1.6
+#: The world axes' names sit just beyond their arrow tips, clear of the drone (rotor discs reach 1.42 from the
+#: centre on the diagonals); Rerun would put an arrow's label at its middle, on the rotors.
+AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
+#: ... and the horizontal axes' names a little above the ground plane, so that from the default eye they show
+#: above the front rotor discs, not on them.
+AXIS_LABEL_LIFT = 0.3
 
 
 def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5) -> None:
@@ -32,15 +38,24 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         rr.Arrows3D(
             vectors=[(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)],
             colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
-            labels=["x right", "y forward", "z up"],
             radii=0.015,
+        ),
+        static=True,
+    )
+    rec.log(
+        ent.WORLD_AXIS_LABELS,
+        rr.Points3D(
+            [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)],
+            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
+            labels=["x right", "y forward", "z up"],
+            radii=0.001,
         ),
         static=True,
     )
     drone_model.log_models(rec, sources)
     rec.log(
         ent.ACC_GRAVITY,
-        rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03], labels=["gravity (accelerometer)"]),
+        rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03]),  # named in the 3D view's title
         static=True,
     )
 
@@ -54,8 +69,9 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         _line(rec, ent.DIFF_THX, "thx pitch: firmware − port", (230, 90, 90))
         _line(rec, ent.DIFF_THY, "thy roll: firmware − port", (90, 150, 230))
     xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
-    _line(rec, ent.PLOT_ACC, ["acc x right (mg)", "acc y forward (mg)", "acc z up (mg)"], xyz)
-    _line(rec, ent.PLOT_GYRO, ["gyro x, pitch rate (dps)", "gyro y, roll rate (dps)", "gyro z, yaw rate (dps)"], xyz)
+    # short names: the plot titles give the units, and a small legend hides less
+    _line(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], xyz)
+    _line(rec, ent.PLOT_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], xyz)
     _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
     _line(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
     _line(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))

@@ -9,18 +9,30 @@ cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer
 chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
 (headless runs, CI), and nothing at all fails with one clear sentence.
 
-The web viewer (``--serve``) runs as a ``rerun --serve-web --bind 127.0.0.1`` child process: its HTTP page and
-its gRPC proxy listen on the loopback interface only.
+Nothing here can hang: every wait has a bound (:data:`VIEWER_START_TIMEOUT_S` for a viewer to listen,
+:data:`CONNECT_TIMEOUT_S` to reach a ``--connect`` URL, :data:`FLUSH_TIMEOUT_S` for a viewer to take the data), and
+each ends in one :class:`UserError` sentence. The options and the checks that need no viewer (the ``.rrd``'s
+folder, the URL, free ports) are in :mod:`steval_viewer.sink_options`, so a command can fail before its work.
+
+Processes:
+
+- ``--spawn`` starts the native viewer (``rerun --port N --bind 127.0.0.1``) in its own session, so it stays open
+  after the command returns, as users expect. When a viewer already listens on the port (an earlier ``--spawn``),
+  the recording goes to that one, as Rerun's own ``rr.spawn`` does.
+- ``--serve`` runs ``rerun --serve-web --bind 127.0.0.1`` as a child that lives as long as the command: it is
+  stopped on close, on Ctrl-C, SIGTERM and SIGHUP (the CLI turns those into KeyboardInterrupt), and on Linux also
+  when the command dies without cleaning up (the kernel's parent-death signal).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.parse
 from dataclasses import dataclass, field
@@ -29,26 +41,27 @@ from pathlib import Path
 import rerun as rr
 
 from steval_link.errors import UserError
+from steval_viewer.sink_options import (  # noqa: F401 - re-exported: the sinks' options live beside them
+    DEFAULT_GRPC_PORT,
+    DEFAULT_WEB_PORT,
+    SinkOptions,
+    check_sinks,
+    display_available,
+    free_port,
+    port_free,
+    port_open,
+    resolve_sinks,
+)
 
 APPLICATION_ID = "steval-link"
-DEFAULT_WEB_PORT = 9090
-DEFAULT_GRPC_PORT = 9876
-
-
-@dataclass
-class SinkOptions:
-    """The sink flags of a command. ``serve``: web viewer on localhost; ``connect``: a gRPC URL such as
-    ``rerun+http://127.0.0.1:9876/proxy``; ``rrd``: output file."""
-
-    spawn: bool = False
-    serve: bool = False
-    connect: str | None = None
-    rrd: Path | None = None
-    web_port: int = DEFAULT_WEB_PORT
-    grpc_port: int = DEFAULT_GRPC_PORT
-
-    def any(self) -> bool:
-        return bool(self.spawn or self.serve or self.connect or self.rrd)
+#: longest wait for a started viewer (native or web) to listen on its port
+VIEWER_START_TIMEOUT_S = 20.0
+#: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
+FLUSH_TIMEOUT_S = 120.0
+#: a flush is waited for in slices this long (Ctrl-C is handled between two)
+FLUSH_SLICE_S = 0.25
+#: suffix of an ``.rrd`` being written by a session opened with ``atomic_rrd=True``
+PARTIAL_SUFFIX = ".partial"
 
 
 @dataclass
@@ -57,98 +70,103 @@ class ViewerSession:
 
     ``rec``: the stream to log to (every sink; with ``open_session(split_file=True)`` and a viewer plus an
     ``.rrd``: the viewer's sinks only). ``file_rec``: the ``.rrd``'s own stream of the same recording in that
-    split case, else None.
+    split case, else None. ``viewer_url``: the gRPC URL the viewer gets the data on (None: file only).
+    ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it.
     """
 
     rec: rr.RecordingStream
     options: SinkOptions
     web_url: str | None = None
+    viewer_url: str | None = None
     children: list[subprocess.Popen] = field(default_factory=list)
     file_rec: rr.RecordingStream | None = None
+    rrd_partial: Path | None = None
 
     @property
     def streams(self) -> list[rr.RecordingStream]:
         """Every stream of the session (``rec`` first)."""
         return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
-    def flush(self) -> None:
-        """Push everything logged so far to the sinks."""
-        for rec in self.streams:
-            rec.flush()
+    @property
+    def has_viewer(self) -> bool:
+        """Whether a viewer gets the data (else only an ``.rrd``)."""
+        return self.viewer_url is not None
 
-    def close(self) -> None:
-        """Flush and finish the recording (the ``.rrd`` file is complete afterwards). A spawned native viewer
-        keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer` first to keep it up)."""
+    def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
+        """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
+        (it was closed, or the URL is no Rerun viewer)."""
+        for rec in self.streams:
+            self._flush_stream(rec, timeout_s)
+
+    def _flush_stream(self, rec: rr.RecordingStream, timeout_s: float) -> None:
+        _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
+
+    def close(self, *, complete: bool = True) -> None:
+        """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
+        when written atomically); ``complete=False`` (interrupted) removes an atomically written ``.rrd``. A
+        spawned native viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
+        first to keep it up). Bounded in time; raises UserError when a viewer did not take the data."""
+        error: UserError | None = None
         try:
             for rec in self.streams:
                 try:
-                    rec.flush()
+                    if complete:
+                        self._flush_stream(rec, FLUSH_TIMEOUT_S)
+                except UserError as exc:  # a viewer that went away; the file still closes whole below
+                    error = error or exc
                 finally:
                     rec.disconnect()
         finally:
             for child in self.children:
-                _stop_child(child)
+                stop_child(child)
             self.children.clear()
+            self._finish_rrd(complete)
+        if error is not None:
+            raise error
+
+    def _finish_rrd(self, keep: bool) -> None:
+        partial = self.rrd_partial
+        if partial is None:
+            return
+        self.rrd_partial = None
+        if keep and partial.exists():
+            os.replace(partial, Path(self.options.rrd))
+        else:
+            partial.unlink(missing_ok=True)
 
     def wait_for_viewer(self) -> None:
-        """With ``--serve``: keep the web viewer up until Ctrl-C (the data is buffered in its server)."""
+        """With ``--serve``: keep the web viewer up until Ctrl-C (the data is buffered in its server) or until
+        it exits."""
         if not self.children:
             return
-        print(f"steval: web viewer at {self.web_url} (Ctrl-C to stop)", file=sys.stderr)
+        print("steval: serving until Ctrl-C", file=sys.stderr)
         try:
             while all(c.poll() is None for c in self.children):
-                time.sleep(0.5)
+                time.sleep(0.2)
         except KeyboardInterrupt:
             pass
 
 
-def display_available() -> bool:
-    """Whether a native viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
-    if sys.platform in ("darwin", "win32"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
-def resolve_sinks(options: SinkOptions) -> SinkOptions:
-    """Apply the default viewer: when no viewer is chosen (``--spawn``/``--serve``/``--connect``), ``--spawn``
-    where a display exists; without a display, an ``--rrd`` alone is fine (headless), nothing at all is a
-    UserError."""
-    if options.spawn or options.serve or options.connect:
-        return options
-    if display_available():
-        options.spawn = True
-        return options
-    if options.rrd is not None:
-        return options
-    raise UserError(
-        "no display for the native viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
-        "or --connect URL for a running viewer"
-    )
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def _wait_port(port: int, timeout_s: float, child: subprocess.Popen) -> bool:
+def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
+    """``rec.flush`` with a bound, waited for in short slices so that Ctrl-C gets through at once; a viewer that
+    cannot be reached or does not keep up within ``timeout_s`` is a UserError."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if child.poll() is not None:
-            return False
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.settimeout(0.2)
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return True
-        time.sleep(0.1)
-    return False
+    while True:
+        try:
+            rec.flush(timeout_sec=min(FLUSH_SLICE_S, max(0.01, deadline - time.monotonic())))
+            return
+        except RuntimeError as exc:  # Rerun raises RuntimeError for a sink that failed or a flush that timed out
+            text = str(exc)
+            timed_out = "timed out" in text.lower()
+            if timed_out and time.monotonic() < deadline:
+                continue
+        where = f"the Rerun viewer at {viewer_url}" if viewer_url else "the Rerun sink"
+        if not timed_out:
+            raise UserError(f"{where} cannot be reached (closed?); nothing more was sent to it") from None
+        raise UserError(f"{where} did not take the data within {timeout_s:.0f} s") from None
 
 
-def _rerun_command() -> list[str]:
+def rerun_command() -> list[str]:
     """The Rerun viewer binary (the ``rerun`` script is a Python wrapper around it)."""
     try:
         import rerun_cli
@@ -162,8 +180,8 @@ def _rerun_command() -> list[str]:
     return [found] if found else [sys.executable, "-m", "rerun"]
 
 
-def _stop_child(child: subprocess.Popen) -> None:
-    """Stop a viewer process and whatever it started (its own process group on POSIX)."""
+def stop_child(child: subprocess.Popen) -> None:
+    """Stop a viewer process and whatever it started (its own process group on POSIX); bounded (≤ 7 s)."""
     if child.poll() is not None:
         return
     try:
@@ -175,15 +193,98 @@ def _stop_child(child: subprocess.Popen) -> None:
     except (ProcessLookupError, PermissionError):
         pass
     except subprocess.TimeoutExpired:
-        child.kill()
+        if hasattr(os, "killpg"):
+            os.killpg(child.pid, signal.SIGKILL)
+        else:  # pragma: no cover - Windows
+            child.kill()
+        try:
+            child.wait(timeout=2)
+        except subprocess.TimeoutExpired:  # pragma: no cover - a process that survives SIGKILL
+            pass
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """Linux: deliver SIGTERM to this process when the process that started it dies (prctl PR_SET_PDEATHSIG)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Popen:
+    """Start a viewer process with its output in ``log_path``. ``detached``: it outlives this program (a native
+    viewer the user closes); else it dies with it (a web viewer server)."""
+    env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
+    kwargs: dict = {}
+    if sys.platform == "win32":  # pragma: no cover - Windows
+        flags = subprocess.CREATE_NEW_PROCESS_GROUP
+        if detached:
+            flags |= subprocess.DETACHED_PROCESS
+        kwargs["creationflags"] = flags
+    else:
+        kwargs["start_new_session"] = True  # its own process group: Ctrl-C in the terminal is ours to handle
+        if not detached and sys.platform.startswith("linux"):
+            kwargs["preexec_fn"] = _die_with_parent
+    with open(log_path, "wb") as log:
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
+
+
+def _wait_listening(child: subprocess.Popen, port: int, timeout_s: float, what: str, log_path: Path) -> None:
+    """Wait until ``child`` listens on 127.0.0.1:``port``; UserError (with the child's last words) when it exits
+    or does not listen within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if child.poll() is not None:
+            raise UserError(f"the {what} exited at start ({_last_line(log_path)}); use --rrd FILE instead")
+        if port_open("127.0.0.1", port, 0.2):
+            return
+        time.sleep(0.05)
+    stop_child(child)
+    raise UserError(f"the {what} did not listen on port {port} within {timeout_s:.0f} s; use --rrd FILE instead")
+
+
+def _last_line(log_path: Path) -> str:
+    """The last meaningful line a viewer printed (ANSI colours removed), for an error message."""
+    try:
+        text = log_path.read_text(errors="replace")
+    except OSError:
+        return "no output"
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in text.splitlines()]
+    lines = [ln for ln in lines if ln]
+    errors = [ln for ln in lines if "error" in ln.lower() or "panic" in ln.lower()]
+    line = (errors or lines or ["no output"])[-1]
+    return line[:200]
+
+
+def _log_path(what: str, port: int) -> Path:
+    return Path(tempfile.gettempdir()) / f"steval-{what}-{port}.log"
+
+
+def spawn_native_viewer(port: int) -> tuple[str, subprocess.Popen | None]:
+    """Start the native viewer listening on 127.0.0.1:``port`` and return its gRPC URL and process (None when a
+    viewer already listens there and is reused). The process is detached: it stays open after we exit."""
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    if not port_free(port):
+        print(f"steval: sending to the viewer already listening on port {port} (--grpc-port N for a new one)",
+              file=sys.stderr)
+        return url, None
+    cmd = rerun_command() + ["--port", str(port), "--bind", "127.0.0.1", "--hide-welcome-screen",
+                             "--memory-limit", "75%"]
+    log_path = _log_path("viewer", port)
+    try:
+        child = _start(cmd, detached=True, log_path=log_path)
+    except OSError as exc:
+        raise UserError(f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve") from None
+    _wait_listening(child, port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
+    return url, child
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
     """Start ``rerun --serve-web`` bound to 127.0.0.1; returns (process, page URL, gRPC proxy URL)."""
-    for port, what in ((web_port, "web viewer"), (grpc_port, "gRPC")):
-        if not _port_free(port):
-            raise UserError(f"port {port} for the {what} is in use on 127.0.0.1; pick another port")
-    cmd = _rerun_command() + [
+    check_sinks(SinkOptions(serve=True, web_port=web_port, grpc_port=grpc_port))
+    cmd = rerun_command() + [
         "--serve-web",
         "--bind",
         "127.0.0.1",
@@ -192,16 +293,12 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
         "--port",
         str(grpc_port),
     ]
-    child = subprocess.Popen(
-        cmd,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=sys.platform != "win32",
-    )
-    if not _wait_port(grpc_port, 15.0, child):
-        _stop_child(child)
-        raise UserError("the Rerun web viewer did not start (is rerun-sdk installed completely?)")
+    log_path = _log_path("web-viewer", grpc_port)
+    try:
+        child = _start(cmd, detached=False, log_path=log_path)
+    except OSError as exc:
+        raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
+    _wait_listening(child, grpc_port, VIEWER_START_TIMEOUT_S, "Rerun web viewer", log_path)
     proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
@@ -213,50 +310,52 @@ def open_session(
     recording_name: str | None = None,
     application_id: str = APPLICATION_ID,
     split_file: bool = False,
+    atomic_rrd: bool = False,
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
 
     ``split_file``: when a viewer and an ``.rrd`` are both chosen, the file gets its own stream
     (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
     caller can log to each at its own cadence; the two are one recording when opened together.
+    ``atomic_rrd``: the ``.rrd`` is written next to its name (``NAME.partial``) and renamed into place by
+    ``close()``; ``close(complete=False)`` removes it: a complete file or none.
 
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
     if not options.any():
         raise UserError("no Rerun sink chosen: pass --rrd FILE, --spawn, --serve or --connect URL")
+    check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     sinks: list = []
     file_sinks: list = []
-    viewer = bool(options.spawn or options.serve or options.connect)
-    if options.rrd is not None:
-        path = Path(options.rrd)
-        if path.parent and not path.parent.exists():
-            raise UserError(f"cannot write {path}: folder {path.parent} does not exist")
-        if path.is_dir():
-            raise UserError(f"cannot write {path}: it is a folder")
-        (file_sinks if split_file and viewer else sinks).append(rr.FileSink(str(path)))
-    if options.spawn:
-        port = options.grpc_port if _port_free(options.grpc_port) else _free_port()
-        try:
-            rr.spawn(port=port, connect=False, hide_welcome_screen=True)
-        except Exception as exc:  # the viewer binary is missing or cannot start
-            raise UserError(f"could not start the Rerun viewer ({exc}); use --rrd FILE or --serve") from None
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
-    if options.serve:
-        child, page, proxy = start_web_viewer(options.web_port, options.grpc_port if not options.spawn else _free_port())
-        session.children.append(child)
-        session.web_url = page
-        sinks.append(rr.GrpcSink(proxy))
-        print(f"steval: web viewer at {page}", file=sys.stderr)
-    if options.connect:
-        url = options.connect
-        if not url.startswith(("rerun://", "rerun+http://", "rerun+https://")):
-            raise UserError(f"--connect needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}")
-        try:
+    try:
+        if options.rrd is not None:
+            path = Path(options.rrd)
+            if atomic_rrd:
+                session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
+                path = session.rrd_partial
+            (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
+        if options.spawn:
+            url, child = spawn_native_viewer(options.grpc_port)
+            session.viewer_url = url
             sinks.append(rr.GrpcSink(url))
-        except Exception as exc:
-            raise UserError(f"cannot connect to {url}: {exc}") from None
+        if options.serve:
+            grpc = options.grpc_port if not options.spawn else free_port()
+            child, page, proxy = start_web_viewer(options.web_port, grpc)
+            session.children.append(child)
+            session.web_url, session.viewer_url = page, proxy
+            sinks.append(rr.GrpcSink(proxy))
+            print(f"steval: web viewer at {page}", file=sys.stderr)
+        if options.connect:
+            session.viewer_url = options.connect
+            sinks.append(rr.GrpcSink(options.connect))
+    except BaseException:
+        for child in session.children:
+            stop_child(child)
+        if session.rrd_partial is not None:
+            session.rrd_partial.unlink(missing_ok=True)
+        raise
     rec.set_sinks(*sinks)
     if file_sinks:
         file_rec = rr.RecordingStream(
@@ -268,9 +367,3 @@ def open_session(
         for stream in session.streams:
             stream.send_recording_name(recording_name)
     return session
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

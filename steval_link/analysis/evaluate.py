@@ -13,7 +13,6 @@ bool (default: all True). Steps without a truth row are ignored.
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -38,7 +37,6 @@ __all__ = [
     "format_table",
     "plot_evaluation",
     "MEAN_TRIALS",
-    "stderr_progress",
 ]
 
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
@@ -195,14 +193,19 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
 
     The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
     """
-    from steval_link.capture import load_telemetry
+    from steval_link.capture import read_source, telemetry_of_source
     from steval_link.sensor_model import AHRS_HZ
 
     p = Path(path)
+    src = read_source(p)  # missing, unreadable, empty: its own sentence
+    try:
+        tel = telemetry_of_source(src)
+    except UserError:
+        raise UserError(f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "
+                        f"{len(src.data)} bytes") from None
     side = Path(truth) if truth is not None else truth_sidecar_path(p)
     if not side.is_file():
         raise UserError(f"{p}: no ground truth; expected the sidecar {side} (step, quat[, movement])")
-    tel = load_telemetry(p)
     att = tel.attitude
     if len(att.step) == 0:
         raise UserError(f"{p}: no attitude frames")
@@ -324,25 +327,3 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
     finally:
         plt.close(fig)
     return out
-
-
-def stderr_progress(total: int) -> Progress:
-    """A one-line progress indicator on stderr (only when stderr is a terminal)."""
-    state = {"i": 0}
-    tty = sys.stderr.isatty()
-
-    def update(trial: str, label: str) -> None:
-        state["i"] += 1
-        if tty:
-            done = state["i"] - 1
-            bar = "#" * int(20 * done / max(total, 1))
-            sys.stderr.write(f"\r[{bar:<20}] {done}/{total} {trial[:32]}: {label:<18}")
-            sys.stderr.flush()
-
-    def finish() -> None:
-        if tty:
-            sys.stderr.write("\r" + " " * 90 + "\r")
-            sys.stderr.flush()
-
-    update.finish = finish  # type: ignore[attr-defined]
-    return update

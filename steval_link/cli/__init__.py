@@ -6,8 +6,9 @@ import sys
 
 import typer
 
-from steval_link.cli.app import app
-from steval_link.errors import UserError
+from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.signals import signals_interrupt
+from steval_link.errors import UserError, printable
 
 # Each import registers its sub-command(s) on ``app`` (one per line; add yours below).
 from steval_link.cli import replay as _replay  # noqa: F401,E402
@@ -47,28 +48,62 @@ def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type
 
 
 _USAGE_ERRORS, _EXITS, _ABORTS = _exception_classes()
+#: exit code of a command ended by Ctrl-C (128 + SIGINT), as shells report it
+_INTERRUPTED = 130
+
+
+def _hide_flag_metavars(command) -> None:
+    """Boolean flags take no value: show no ``<bool>`` for them in ``--help`` (on every sub-command; the help
+    option itself is made here, as click would make it for a context with :data:`HELP_OPTION_NAMES`)."""
+    help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
+    for param in [*getattr(command, "params", ()), help_option]:
+        if getattr(param, "is_flag", False) and param.metavar is None:
+            param.metavar = ""
+    for sub in getattr(command, "commands", {}).values():
+        _hide_flag_metavars(sub)
+
+
+def _usage_line(exc) -> str:
+    """One ``steval: error:`` line for a typer/click usage error, with where to find help."""
+    message = exc.format_message().strip()
+    message = message[:1].lower() + message[1:].rstrip(".")
+    ctx = getattr(exc, "ctx", None)
+    command = ctx.command_path if ctx is not None else "steval"
+    return f"steval: error: {printable(message)} (see '{command} --help')"
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``steval`` console script.
 
-    User errors (:class:`UserError`) become one line on stderr and exit code 2; usage errors print the usage and
-    exit 2; ``--help`` exits 0; Ctrl-C exits 130. Never a traceback for bad input.
+    User errors (:class:`UserError`) and usage errors (unknown option, bad value) become one line
+    ``steval: error: ...`` on stderr and exit code 2; ``--help``/``-h`` and ``--version`` exit 0; Ctrl-C exits 130,
+    and SIGTERM/SIGHUP end it the same way (its cleanup runs). Never a traceback for bad input, never a raw
+    control character from the input echoed to the terminal.
     """
+    command = typer.main.get_command(app)
+    _hide_flag_metavars(command)
     try:
-        rv = app(args=argv, prog_name="steval", standalone_mode=False)
+        with signals_interrupt():
+            rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
-        print(f"steval: error: {exc}", file=sys.stderr)
+        print(f"steval: error: {printable(exc)}", file=sys.stderr)
         sys.exit(exc.exit_code)
-    except _USAGE_ERRORS as exc:  # usage errors, bad option values: usage line + message, exit 2
-        exc.show()
+    except _USAGE_ERRORS as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError":  # `steval` alone: the help, exit 2
+            exc.show()
+        elif hasattr(exc, "ctx"):  # usage errors, bad option values: one line, exit 2
+            print(_usage_line(exc), file=sys.stderr)
+        else:  # other click exceptions (e.g. a file error)
+            print(f"steval: error: {printable(exc.format_message())}", file=sys.stderr)
         sys.exit(getattr(exc, "exit_code", 2))
     except _EXITS as exc:
         sys.exit(getattr(exc, "exit_code", getattr(exc, "code", 0)))
     except (*_ABORTS, KeyboardInterrupt):
         print("steval: interrupted", file=sys.stderr)
-        sys.exit(130)
+        sys.exit(_INTERRUPTED)
     except BrokenPipeError:  # e.g. `steval replay --json | head`
         sys.stderr.close()
         sys.exit(1)
+    if rv == _INTERRUPTED:  # typer turns KeyboardInterrupt into this exit code without a word
+        print("steval: interrupted", file=sys.stderr)
     sys.exit(rv if isinstance(rv, int) else 0)

@@ -17,6 +17,8 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
+from steval_link.cli.checks import check_gain, check_throttle
+from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 
 __all__ = ["compare_command"]
@@ -100,18 +102,24 @@ def compare_command(
         from steval_link.analysis.plots import require_matplotlib
 
         require_matplotlib()
-    tel, seen = load_replay(capture)
-    if len(tel.attitude) == 0:
-        raise UserError(f"{tel.source.get('path')} has no attitude frames to compare "
-                        f"({len(tel.status)} status frames, {len(tel.text)} text lines).")
-    settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
-    report = compare_capture(tel, estimators=names, settings=settings)
-    for w in seen:
-        report.notes.append(w)
-    if plot is not None:
-        from steval_link.analysis.plots import plot_comparison
+    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
+        check_gain(option, gain)
+    check_throttle("--min-thr", min_thr)
+    with progress_bar("compare", quiet=as_json) as progress:
+        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4))
+        if len(tel.attitude) == 0:
+            raise UserError(f"{tel.source.get('path')} has no attitude frames to compare "
+                            f"({len(tel.status)} status frames, {len(tel.text)} text lines).")
+        settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
+        progress(0.4, f"port and {', '.join(names)}")
+        report = compare_capture(tel, estimators=names, settings=settings)
+        for w in seen:
+            report.notes.append(w)
+        if plot is not None:
+            from steval_link.analysis.plots import plot_comparison
 
-        plot_comparison(tel, report, plot)
+            progress(0.9, f"plotting {plot.name}")
+            plot_comparison(tel, report, plot)
     if as_json:
         d = report.as_dict()
         if plot is not None:

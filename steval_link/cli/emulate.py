@@ -9,9 +9,19 @@ from typing import Optional
 import typer
 
 from steval_link import protocol
+from steval_link.capture import resolve_capture_out
 from steval_link.cli.app import app
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+)
 from steval_link.errors import UserError
 from steval_link.live import LiveOptions, resolve_estimators
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 
 @app.command("emulate")
@@ -29,11 +39,13 @@ def emulate_command(
                                            "'t:v,t:v,...' (s since power-up : gTHR)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Capture file (.stv); default "
                                        "recordings/steval-<UTC time>.stv. Always written."),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Also save the Rerun recording to this .rrd file."),
+    rrd: RrdOption = None,
     no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
-    spawn: bool = typer.Option(False, "--spawn", help="Start a native Rerun viewer (the default view)."),
-    serve: bool = typer.Option(False, "--serve", help="Serve the recording to a web viewer instead."),
-    connect: Optional[str] = typer.Option(None, "--connect", help="Send to a running Rerun viewer at this URL."),
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Optional[str] = typer.Option(None, "--estimators", "-e", help="Host estimators next to the "
                                              "firmware (as for steval live), or 'none'."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace the emulation to the wall clock (default: as "
@@ -57,8 +69,12 @@ def emulate_command(
         raise UserError("choose --scenario or --broad, not both")
     emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
                                    throttle=throttle)
+    if duration is not None and not duration > 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
     live = LiveOptions(port="emulated", baud=protocol.DEFAULT_BAUD, out=out, rrd=rrd, view=not no_view,
-                       spawn=spawn, serve=serve, connect=connect, estimators=resolve_estimators(estimators))
+                       spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
+                       estimators=resolve_estimators(estimators))
     summary = EmulateSession(emu_options, live, realtime=realtime).run()
     print("\n".join(summary.lines()))
     sys.stdout.flush()

@@ -9,6 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
+from steval_link.cli.progress import progress_bar
 
 __all__ = ["evaluate_command"]
 
@@ -61,10 +62,18 @@ def evaluate_command(
     only = [s for s in estimators.split(",")] if estimators is not None else None
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
-    progress = ev.stderr_progress(len(items) * len(ev.default_specs(100.0, only=only)))
+    total = len(items) * len(ev.default_specs(100.0, only=only))
     results = []
-    try:
+    with progress_bar("evaluate", quiet=as_json) as bar:
+        done = 0
+
+        def progress(trial: str, label: str) -> None:  # evaluate's per-estimator report → the bar
+            nonlocal done
+            bar(done / total, f"{trial[:32]}: {label}")
+            done += 1
+
         for p in items:
+            bar(done / total, f"{p.name[:32]}: loading")
             if p.suffix == ".npz":
                 trial = broad.load_trial(p)
                 if native:
@@ -78,10 +87,9 @@ def evaluate_command(
 
                 specs = ev.default_specs(AHRS_HZ, only=only)
                 results.append(ev.evaluate_capture(p, specs, progress=progress))
-    finally:
-        progress.finish()
-    if plot is not None:
-        ev.plot_evaluation(results, plot)
+        if plot is not None:
+            bar(1.0, f"plotting {plot.name}")
+            ev.plot_evaluation(results, plot)
     if as_json:
         report = ev.summary(results)
         report["mode"] = "native" if native else "steval-pipeline"

@@ -10,25 +10,44 @@ import typer
 
 from steval_link.capture import read_source, telemetry_of_source
 from steval_link.cli.app import app
+from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 
 __all__ = ["write_csv", "write_parquet", "write_raw"]
 
 
+#: Angle columns of the attitude table and their names in degrees (``--degrees``).
+ANGLE_COLUMNS = {"thx_pitch_rad": "thx_pitch_deg", "thy_roll_rad": "thy_roll_deg", "thz_yaw_rad": "thz_yaw_deg"}
+
+
 def _column_strings(col: np.ndarray) -> list[str]:
-    """Text of one column: integers as such, float32 with 9 significant digits (exact round trip), float64 times
-    with µs resolution, booleans as 0/1, NaN as an empty field."""
+    """Text of one column: integers as such; float32 as the shortest decimal that reads back as the same float32
+    (999.4, not 999.400024); float64 times with µs resolution; booleans as 0/1; NaN as an empty field."""
     if col.dtype == bool:
         return ["1" if v else "0" for v in col.tolist()]
     if np.issubdtype(col.dtype, np.integer):
         return [str(v) for v in col.tolist()]
-    fmt = "%.9g" if col.dtype == np.float32 else "%.6f"
-    return ["" if v != v else fmt % v for v in col.tolist()]
+    if col.dtype == np.float32:
+        return ["" if v != v else str(v) for v in col]  # numpy's shortest round-trip text of each float32
+    return ["" if v != v else "%.6f" % v for v in col.tolist()]
 
 
-def write_csv(table: dict[str, np.ndarray], path: Path) -> None:
-    """Write a column table as CSV (comma separated, header row, ``\\n`` line endings, UTF-8)."""
-    cols = [_column_strings(np.asarray(c)) for c in table.values()]
+def in_degrees(table: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The table with its angle columns (``*_rad``) in degrees (``*_deg``, float32 like the firmware's angles)."""
+    return {
+        ANGLE_COLUMNS.get(k, k): np.degrees(np.asarray(v, np.float64)).astype(np.float32) if k in ANGLE_COLUMNS else v
+        for k, v in table.items()
+    }
+
+
+def write_csv(table: dict[str, np.ndarray], path: Path, progress=None) -> None:
+    """Write a column table as CSV (comma separated, header row, ``\\n`` line endings, UTF-8);
+    ``progress(fraction, stage)`` hears of each column formatted."""
+    cols = []
+    for i, c in enumerate(table.values()):
+        if progress is not None:
+            progress(i / len(table), "formatting")
+        cols.append(_column_strings(np.asarray(c)))
     with open(path, "w", encoding="utf-8", newline="\n") as f:
         f.write(",".join(table) + "\n")
         f.writelines(",".join(row) + "\n" for row in zip(*cols))
@@ -59,13 +78,17 @@ def export(
     raw: Annotated[
         Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
     ] = None,
+    degrees: Annotated[bool, typer.Option(
+        "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
+    )] = False,
     force: Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")] = False,
 ) -> None:
     """Export a capture as CSV / Parquet (one row per attitude frame) or as the raw serial bytes.
 
     Columns, units in the names: step, seq, t_fw_s, t_host_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps,
-    q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad, thr, exact (0 for rounded text-mode
-    rows), offset (stream byte). Missing values (NaN) are empty CSV fields.
+    q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad (_deg with --degrees), thr, exact
+    (0 for rounded text-mode rows), offset (stream byte). Missing values (NaN) are empty CSV fields; each float32
+    value is written as the shortest decimal that reads back as the same float32 (999.4).
     """
     outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw)) if p is not None]
     if not outputs:
@@ -77,22 +100,28 @@ def export(
             raise UserError(f"{p} already exists (use --force to overwrite).")
         if not p.parent.is_dir():
             raise UserError(f"{opt} {p}: directory {p.parent} does not exist.")
-    src = read_source(capture)
-    tel = telemetry_of_source(src) if (csv or parquet) else None
-    for w in src.warnings:
-        typer.echo(f"steval: warning: {w}", err=True)
-    try:
-        if raw is not None:
-            write_raw(src.data, raw)
-            typer.echo(f"{raw}: {len(src.data)} bytes")
-        if tel is not None:
-            table = tel.attitude_table()
-            n = len(tel.attitude)
-            if csv is not None:
-                write_csv(table, csv)
-                typer.echo(f"{csv}: {n} attitude rows")
-            if parquet is not None:
-                write_parquet(table, parquet)
-                typer.echo(f"{parquet}: {n} attitude rows")
-    except OSError as exc:
-        raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+    with progress_bar("export") as progress:
+        progress(0.0, f"reading {capture.name}")
+        src = read_source(capture)
+        progress(0.1, "decoding")
+        tel = telemetry_of_source(src) if (csv or parquet) else None
+        for w in src.warnings:
+            typer.echo(f"steval: warning: {w}", err=True)
+        try:
+            if raw is not None:
+                write_raw(src.data, raw)
+                typer.echo(f"{raw}: {len(src.data)} bytes")
+            if tel is not None:
+                table = tel.attitude_table()
+                if degrees:
+                    table = in_degrees(table)
+                n = len(tel.attitude)
+                if csv is not None:
+                    write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+                    typer.echo(f"{csv}: {n} attitude rows")
+                if parquet is not None:
+                    progress(0.9, f"writing {parquet.name}")
+                    write_parquet(table, parquet)
+                    typer.echo(f"{parquet}: {n} attitude rows")
+        except OSError as exc:
+            raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None

@@ -9,9 +9,19 @@ from typing import Optional
 import typer
 
 from steval_link import protocol
+from steval_link.capture import resolve_capture_out
 from steval_link.cli.app import app
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+)
 from steval_link.errors import UserError
 from steval_link.live import LiveOptions, LiveSession, resolve_estimators
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 _PORT_HELP = "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), or 'auto': the one that carries frames."
 _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
@@ -30,11 +40,13 @@ def live_command(
     out: Optional[Path] = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
     ),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Also save the Rerun recording to this .rrd file."),
+    rrd: RrdOption = None,
     no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
-    spawn: bool = typer.Option(False, "--spawn", help="Start a native Rerun viewer (the default view)."),
-    serve: bool = typer.Option(False, "--serve", help="Serve the recording to a web viewer instead."),
-    connect: Optional[str] = typer.Option(None, "--connect", help="Send to a running Rerun viewer at this URL."),
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Optional[str] = typer.Option(
         None,
         "--estimators",
@@ -58,6 +70,7 @@ def live_command(
         raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
     options = LiveOptions(
         port=port,
         baud=baud,
@@ -67,6 +80,8 @@ def live_command(
         spawn=spawn,
         serve=serve,
         connect=connect,
+        web_port=web_port,
+        grpc_port=grpc_port,
         estimators=resolve_estimators(estimators),
         duration_s=duration,
         wait=wait,
@@ -94,6 +109,7 @@ def record_command(
     _check_baud(baud)
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
     options = LiveOptions(
         port=port,
         baud=baud,

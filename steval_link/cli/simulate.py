@@ -13,6 +13,7 @@ import numpy as np
 import typer
 
 from steval_link.cli.app import app
+from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.simulate import (
@@ -45,6 +46,9 @@ CSV_COLUMNS = (
     "eaz_deg",
     "valid",
 )
+
+#: Most AHRS steps one run takes (≈ 17 h of firmware time; every iteration is kept in memory).
+MAX_ITERATIONS = 10_000_000
 
 _ON_WORDS = {"on", "typical", "yes", "true"}
 _OFF_WORDS = {"off", "no", "false", "none"}
@@ -159,16 +163,38 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     elif res.options:
         lines.append("  options: " + ", ".join(f"{k}={v}" for k, v in res.options.items()))
     lines.append("final angles (firmware axes: x right, y forward, z up)")
+    final_valid = bool(res.iterations and res.valid[-1])
     names = (("eax", "thx", "pitch", "x"), ("eay", "thy", "roll ", "y"), ("eaz", "thz", "yaw  ", "z"))
     for (ea, th, label, axis), rad in zip(names, res.final_angles_rad()):
         rad += 0.0  # print -0 as 0
-        if math.isnan(rad):
+        if math.isnan(rad) or not final_valid:
             lines.append(f"  {ea} = {th}  {label} (about {axis}):          n/a")
         else:
             lines.append(f"  {ea} = {th}  {label} (about {axis}): {math.degrees(rad):+14.6f} deg  {rad:+.9g} rad")
+    lines.extend(_zero_acc_notes(res))
     if res.iterations and not res.valid.all():
-        lines.append(f"  note: {int((~res.valid).sum())} of {res.iterations} iterations flagged invalid")
+        lines.append(f"  note: {int((~res.valid).sum())} of {res.iterations} iterations flagged invalid "
+                     "(valid = 0 in --csv and --json)")
     return "\n".join(lines)
+
+
+def _zero_acc_notes(res: SimulationResult) -> list[str]:
+    """What a zero accelerometer input (the Lab 5 baseline) does to the estimator: the firmware's error terms are
+    0, so its correction and KI do nothing; the EKFs wait for a first accelerometer sample to set their tilt."""
+    zero = ~np.asarray(res.acc_mg, dtype=np.float64).any(axis=1)
+    if not zero.any():
+        return []
+    where = "" if zero.all() else f" in {int(zero.sum())} of {res.iterations} iterations"
+    if res.settings:
+        return [f"  acc is 0{where}: correction and KI inactive (the firmware's error term is 0, so --ki and "
+                "--no-correction print the same angles; try --acc 0 0 1000 --throttle 500 -n 1000)"]
+    if res.estimator in ("ekf3", "mekf") and not res.valid[zero].any():
+        return [f"  acc is 0{where}: {res.estimator} takes its initial tilt from the first non-zero accelerometer "
+                "sample and does not integrate the gyro before it: those iterations are flagged invalid"]
+    if not res.valid[zero].any():
+        return [f"  acc is 0{where}: {res.estimator} has no tilt from a zero accelerometer vector: those iterations "
+                "are flagged invalid"]
+    return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
 @app.command("simulate")
@@ -217,8 +243,12 @@ def simulate_command(
 ) -> None:
     """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
     estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
-    if iterations < 0:
-        raise UserError(f"--iterations must be ≥ 0, got {iterations}")
+    check_count("--iterations", iterations, MAX_ITERATIONS)
+    check_vector("--gyro", gyro, "mdps")
+    check_vector("--acc", acc, "mg")
+    check_gain("--ki", ki)
+    check_gain("--kp", kp)
+    check_throttle("--throttle", throttle)
     if estimator not in registry.ESTIMATORS:
         raise UserError(f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}")
     if json_out and csv_out == "-":

@@ -9,6 +9,8 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
+from steval_link.cli.checks import check_gain
+from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.motion import SCENARIOS
 from steval_link.protocol import DEFAULT_BAUD, DEFAULT_KI
@@ -66,6 +68,7 @@ def synth_cmd(
         raise UserError("--scenario is required (see steval synth --list)")
     if out is None:
         raise UserError("--out is required (FILE.stv for a capture)")
+    check_gain("--ki", ki)
     if c_encoder is not None:
         encoder = "c"
     from steval_link.synth import SynthOptions, synthesize, write_output
@@ -78,8 +81,10 @@ def synth_cmd(
     if out.exists() and not force:
         raise UserError(f"{out} exists; pass --force to replace it")
     t0 = time.perf_counter()
-    res = synthesize(opts)
-    kind = write_output(res, out, fmt=fmt, force=force)
+    with progress_bar("synth") as progress:
+        res = synthesize(opts, scaled(progress, 0.0, 0.95))
+        progress(0.95, f"writing {out.name}")
+        kind = write_output(res, out, fmt=fmt, force=force)
     c = res.counts
     frames = (f"{c['att_lines']} $ATT, {c['sta_lines']} $STA, {c['log_lines']} log lines" if opts.text_mode
               else f"{c['attitude']} attitude, {c['status']} status, {c['text']} text frames")

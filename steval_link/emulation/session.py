@@ -27,9 +27,9 @@ from steval_link.live import (
     HealthDisplay,
     LiveOptions,
     LivePipeline,
-    check_viewer_options,
     default_capture_path,
     make_viewer_logger,
+    viewer_sink_options,
 )
 
 
@@ -83,7 +83,7 @@ class EmulateSession:
 
         opts = self.live
         if opts.uses_rerun:
-            check_viewer_options(opts)
+            viewer_sink_options(opts)  # e.g. no display and no --rrd: say so before anything is made
         emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
         extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
@@ -107,7 +107,8 @@ class EmulateSession:
                               f"to {capture_path}" + (f" and {opts.rrd}" if opts.rrd else "") + " (Ctrl-C to stop)")
             if opts.uses_rerun:
                 viewer = make_viewer_logger(opts, capture_path.stem)
-            live_viewer = opts.view and viewer is not None
+            # a viewer sink, not only an .rrd (headless --rrd X resolves to the file alone)
+            live_viewer = viewer is not None and bool(getattr(viewer, "has_viewer", opts.view))
             pipe = LivePipeline(
                 opts.estimators, viewer,
                 view_interval_s=VIEW_INTERVAL_S if live_viewer else RRD_ONLY_INTERVAL_S,

@@ -12,7 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AttitudeEstimate", "Estimator", "euler_from_quaternion", "quaternion_from_euler", "yaw_from_quaternion"]
+__all__ = [
+    "AttitudeEstimate",
+    "Estimator",
+    "euler_from_quaternion",
+    "quaternion_from_euler",
+    "rows_before_tilt",
+    "yaw_from_quaternion",
+]
 
 
 @dataclass(frozen=True)
@@ -122,6 +129,20 @@ class Estimator(abc.ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}>"
+
+
+def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:
+    """(N,) bool: the rows before the first accelerometer sample a filter that takes its initial tilt from gravity
+    accepts (|a| finite, > 1e-6 g, and within ``reject_g`` of 1 g; all rows when there is none). Such a filter
+    (ekf3, mekf) has no attitude before it and does not integrate the gyro there: those rows are not valid."""
+    a = np.asarray(acc_mg, dtype=np.float64) * 1e-3
+    an = np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])  # the filters' own order of operations
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(an) & (an > 1e-6) & (np.abs(an - 1.0) <= reject_g)
+    before = np.ones(len(ok), dtype=bool)
+    if ok.any():
+        before[int(np.argmax(ok)):] = False
+    return before
 
 
 def check_inputs(acc_mg, gyro_mdps, thr=None, dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

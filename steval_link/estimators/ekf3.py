@@ -50,7 +50,13 @@ import math
 
 import numpy as np
 
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, quaternion_from_euler
+from steval_link.estimators.base import (
+    AttitudeEstimate,
+    Estimator,
+    check_inputs,
+    quaternion_from_euler,
+    rows_before_tilt,
+)
 from steval_link.sensor_model import AHRS_HZ
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -218,6 +224,7 @@ class Ekf3(Estimator):
         elif native and not NATIVE_AVAILABLE:
             raise RuntimeError("the native EKF loop is not built (reinstall steval-link with a C compiler)")
         x = np.empty((n, 3))
+        waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc)
         if native:
             self._run_native(acc, gyro, x)
         else:
@@ -228,7 +235,7 @@ class Ekf3(Estimator):
                 advance(acc_l[k], gyro_l[k])
                 x[k] = self.x
         q = quaternion_from_euler(x[:, 0], x[:, 1], x[:, 2])
-        valid = np.isfinite(x).all(axis=1)
+        valid = np.isfinite(x).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=x[:, 0], thy_rad=x[:, 1], thz_rad=x[:, 2], valid=valid)
 
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, x_out: np.ndarray) -> None:

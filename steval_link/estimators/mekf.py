@@ -61,7 +61,13 @@ import math
 
 import numpy as np
 
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, euler_from_quaternion
+from steval_link.estimators.base import (
+    AttitudeEstimate,
+    Estimator,
+    check_inputs,
+    euler_from_quaternion,
+    rows_before_tilt,
+)
 from steval_link.sensor_model import AHRS_HZ, GYRO_LATENCY_S
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -380,6 +386,7 @@ class Mekf(Estimator):
         elif native and not NATIVE_AVAILABLE:
             raise RuntimeError("the native EKF loop is not built (reinstall steval-link with a C compiler)")
         q = np.empty((n, 4))
+        waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc, self.reject)
         if native:
             self._run_native(acc, gyro, q)
         else:
@@ -389,7 +396,7 @@ class Mekf(Estimator):
             for k in range(n):
                 q[k] = step(acc_l[k], gyro_l[k])
         thx, thy, thz = euler_from_quaternion(q)
-        valid = np.isfinite(q).all(axis=1)
+        valid = np.isfinite(q).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------

@@ -1,0 +1,40 @@
+"""Range checks of command-line values shared by the sub-commands: each raises a one-line
+:class:`~steval_link.errors.UserError` naming the option, before any work is done."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from steval_link.errors import UserError
+
+#: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
+MAX_THROTTLE = 32767
+
+
+def _num(value: float) -> str:
+    return f"{float(value):g}"
+
+
+def check_gain(option: str, value: float | None) -> None:
+    """A filter gain (kp, KI): a finite number ≥ 0 (None: not given)."""
+    if value is not None and not (math.isfinite(value) and value >= 0):
+        raise UserError(f"{option} must be a gain ≥ 0, got {_num(value)}")
+
+
+def check_throttle(option: str, value: int | None) -> None:
+    """A firmware throttle gTHR: 0 .. :data:`MAX_THROTTLE` (None: not given)."""
+    if value is not None and not 0 <= value <= MAX_THROTTLE:
+        raise UserError(f"{option} is the firmware's gTHR (int16, from 0; MIN_THR is 200): 0..{MAX_THROTTLE}, got {value}")
+
+
+def check_count(option: str, value: int, maximum: int) -> None:
+    """A count (iterations, steps): 0 .. ``maximum``."""
+    if not 0 <= value <= maximum:
+        raise UserError(f"{option} must be between 0 and {maximum:,}".replace(",", " ") + f", got {value}")
+
+
+def check_vector(option: str, values: Sequence[float], unit: str) -> None:
+    """A sensor vector: every component a finite number (no nan, no inf)."""
+    if not all(math.isfinite(v) for v in values):
+        raise UserError(f"{option} takes finite numbers in {unit}, got {' '.join(_num(v) for v in values)}")

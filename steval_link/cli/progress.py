@@ -1,0 +1,89 @@
+"""The one progress bar of the ``steval`` commands: rich, on stderr, only when stderr is a terminal.
+
+Library functions take a plain callback ``progress(fraction, stage)`` (fraction of the job done, 0..1, and what it
+is doing now) and never print; the commands open a bar with :func:`progress_bar` and pass its callback down::
+
+    with progress_bar("replay", quiet=as_json) as progress:
+        tel = load(path, progress=scaled(progress, 0.0, 0.4))
+
+Nothing is drawn when stderr is not a terminal (pipes, CI, tests), with ``quiet`` (``--json``), or for a job that
+ends within :data:`SHOW_AFTER_S`; the bar is erased when the job ends, so the command's own output stays clean.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+__all__ = ["Progress", "progress_bar", "scaled", "SHOW_AFTER_S"]
+
+#: progress(fraction done 0..1, stage) — what library functions call; the stage is a few words
+Progress = Callable[[float, str], None]
+
+#: A job that ends earlier shows no bar at all (no flicker on short captures).
+SHOW_AFTER_S = 0.5
+
+
+def _nothing(fraction: float, stage: str = "") -> None:
+    return None
+
+
+def scaled(progress: Progress | None, start: float, end: float) -> Progress:
+    """``progress`` for one part of a job: its 0..1 maps to ``start``..``end`` of the whole (no-op for None)."""
+    if progress is None:
+        return _nothing
+    span = end - start
+    return lambda fraction, stage="": progress(start + span * min(max(fraction, 0.0), 1.0), stage)
+
+
+@contextmanager
+def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]:
+    """A progress callback drawing a bar on stderr (description, bar, %, stage, elapsed time) while the block
+    runs; a no-op callback when ``quiet`` or when stderr is not a terminal."""
+    stream = sys.stderr
+    if quiet or not getattr(stream, "isatty", lambda: False)():
+        yield _nothing
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, SpinnerColumn, TaskProgressColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import Progress as RichProgress
+
+    bar = RichProgress(
+        SpinnerColumn(),
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[stage]}"),
+        console=Console(file=stream),
+        transient=True,
+        # what the command prints meanwhile goes above the bar (stdout only when it is this terminal too)
+        redirect_stdout=sys.stdout.isatty(),
+        redirect_stderr=True,
+    )
+    task = bar.add_task(description, total=1.0, stage="")
+    lock = threading.Lock()
+    state = {"shown": False, "done": False}
+
+    def show() -> None:  # after SHOW_AFTER_S, whether or not the job reported meanwhile
+        with lock:
+            if not state["done"]:
+                bar.start()
+                state["shown"] = True
+
+    def update(fraction: float, stage: str = "") -> None:
+        bar.update(task, completed=min(max(float(fraction), 0.0), 1.0), stage=stage)
+
+    timer = threading.Timer(SHOW_AFTER_S, show)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield update
+    finally:
+        timer.cancel()
+        with lock:
+            state["done"] = True
+            if state["shown"]:
+                bar.stop()

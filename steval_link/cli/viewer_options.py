@@ -1,0 +1,53 @@
+"""The Rerun sink options every viewing command shares (``--rrd``, ``--spawn``, ``--serve``, ``--connect``,
+``--web-port``, ``--grpc-port``): one definition, so their names and help read the same everywhere."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_viewer.sink_options import SinkOptions, check_sinks
+
+RrdOption = Annotated[
+    Optional[Path],
+    typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."),
+]
+SpawnOption = Annotated[
+    bool, typer.Option("--spawn", help="Show it in the native Rerun viewer (stays open when the command ends).")
+]
+ServeOption = Annotated[
+    bool, typer.Option("--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
+]
+ConnectOption = Annotated[
+    Optional[str],
+    typer.Option(
+        "--connect",
+        metavar="URL",
+        help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
+    ),
+]
+WebPortOption = Annotated[
+    int, typer.Option("--web-port", metavar="PORT", help="HTTP port of the --serve web viewer (127.0.0.1).")
+]
+GrpcPortOption = Annotated[
+    int,
+    typer.Option(
+        "--grpc-port",
+        metavar="PORT",
+        help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
+    ),
+]
+
+
+def sink_options(
+    *, rrd: Path | None, spawn: bool, serve: bool, connect: str | None, web_port: int, grpc_port: int
+) -> SinkOptions:
+    """The ``steval_viewer.sinks.SinkOptions`` of the shared flags, checked before any work is done (a missing
+    ``.rrd`` folder, a URL where nothing listens, a busy port: one UserError sentence)."""
+    options = SinkOptions(
+        spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port
+    )
+    check_sinks(options)
+    return options

@@ -1,0 +1,83 @@
+"""The default layout as a user sees it after ``steval replay recordings/demo.stv --rrd X``: legends out of the
+data, a gyro axis with labelled ticks, the 3D axis names clear of the rotor discs (read back from the .rrd)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from steval_link.capture import load_telemetry
+from steval_viewer import drone_model
+from steval_viewer import entities as ent
+from steval_viewer.blueprint import axis_limit
+from steval_viewer.rrd_check import blueprint_views, static_values
+
+from conftest import run_cli
+
+DEMO = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
+LEFT_BOTTOM, RIGHT_TOP = 3, 2
+
+
+@pytest.fixture(scope="module")
+def demo_rrd(tmp_path_factory):
+    out = tmp_path_factory.mktemp("layout") / "demo.rrd"
+    with pytest.MonkeyPatch.context() as mp:
+        code, _, err = run_cli(mp, _Capsys(), "replay", DEMO, "--rrd", out)
+    assert code == 0, err
+    return out
+
+
+class _Capsys:
+    """capsys for a module-scoped fixture: the CLI's output is not needed here."""
+
+    def readouterr(self):
+        return "", ""
+
+
+def test_angle_legends_sit_where_the_demo_has_no_data(demo_rrd):
+    views = blueprint_views(demo_rrd)
+    pitch = next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == ent.PLOT_PITCH)
+    roll = next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == ent.PLOT_ROLL)
+    for view in (pitch, roll):
+        assert view["PlotLegend:visible"] is True and view["PlotLegend:corner"] == RIGHT_TOP
+    # the demo's pitch dip near 17 s (the lower left, where the legend used to be) and, in the top right corner
+    # the legend now takes (last ~45 % of the flight, upper ~40 % of the axis), no data at all
+    tel = load_telemetry(DEMO)
+    t = tel.attitude.t_fw_s - tel.attitude.t_fw_s[0]
+    pitch_deg = np.degrees(tel.attitude.thx_rad)
+    assert pitch_deg[(t > 10) & (t < 20)].min() < -25
+    late = t > 0.55 * t[-1]
+    assert pitch_deg[late].max() < 0.6 * pitch_deg.max()
+    # one-series plots need no legend (their title names the series; the cycles plot lists max, mean, min top down)
+    for origin in (ent.PLOT_YAW, ent.PLOT_THROTTLE, ent.LINK_RATE, ent.LINK_QUEUE, ent.LINK_CYCLES):
+        view = next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == origin)
+        assert view["PlotLegend:visible"] is False, origin
+
+
+def test_gyro_axis_has_labelled_ticks_around_the_data(demo_rrd):
+    views = blueprint_views(demo_rrd)
+    gyro = next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == ent.PLOT_GYRO)
+    lo, hi = gyro["ScalarAxis:range"]
+    g_dps = np.abs(load_telemetry(DEMO).attitude.gyro_mdps).max() / 1000.0
+    assert lo == -hi and hi >= 1.5 * g_dps  # room for the legend at the bottom
+    assert gyro["PlotLegend:corner"] != LEFT_BOTTOM
+    # Rerun labels powers of ten: the ends ±1, 2 or 5 × 10^k show at least three labelled ticks
+    k = np.floor(np.log10(hi))
+    assert hi / 10**k in (1.0, 2.0, 5.0)
+    assert axis_limit(66.3) == 200.0 and axis_limit(5.0) == 10.0 and axis_limit(float("nan")) is None
+
+
+def test_3d_labels_are_off_the_rotor_discs(demo_rrd):
+    axes = static_values(demo_rrd, ent.WORLD_AXES)
+    assert "Arrows3D:labels" not in axes  # Rerun draws an arrow's label at its middle: on the rotors
+    gravity = static_values(demo_rrd, ent.ACC_GRAVITY)
+    assert "Arrows3D:labels" not in gravity
+    names = static_values(demo_rrd, ent.WORLD_AXIS_LABELS)
+    assert names["Points3D:labels"] == ["x right", "y forward", "z up"]
+    motors = drone_model.motor_positions()
+    for p in np.asarray(names["Points3D:positions"]):
+        # far from every rotor disc (and beyond the arrow tip)
+        assert np.linalg.norm(motors - p, axis=1).min() > drone_model.PROP_RADIUS + 0.3
+        assert np.linalg.norm(p) > np.linalg.norm(axes["Arrows3D:vectors"], axis=1).max()

@@ -1,0 +1,178 @@
+"""The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
+import: the ``.rrd``'s folder, the ``--connect`` URL and whether something listens there, free ports for
+``--serve``, whether a display exists for ``--spawn``. Light on purpose: the CLI checks its options with it before
+any work and before Rerun is loaded; :mod:`steval_viewer.sinks` opens the sinks.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+import urllib.parse
+from dataclasses import dataclass
+from pathlib import Path
+
+from steval_link.errors import UserError
+
+DEFAULT_WEB_PORT = 9090
+DEFAULT_GRPC_PORT = 9876
+#: longest wait to reach the gRPC port of a ``--connect`` URL
+CONNECT_TIMEOUT_S = 3.0
+
+
+@dataclass
+class SinkOptions:
+    """The sink flags of a command. ``serve``: web viewer on localhost; ``connect``: a gRPC URL such as
+    ``rerun+http://127.0.0.1:9876/proxy``; ``rrd``: output file; ``web_port``: the web viewer's HTTP port;
+    ``grpc_port``: the gRPC port of the spawned or served viewer."""
+
+    spawn: bool = False
+    serve: bool = False
+    connect: str | None = None
+    rrd: Path | None = None
+    web_port: int = DEFAULT_WEB_PORT
+    grpc_port: int = DEFAULT_GRPC_PORT
+
+    @property
+    def viewer(self) -> bool:
+        """A viewer is chosen (``--spawn``, ``--serve`` or ``--connect``), not only a file."""
+        return bool(self.spawn or self.serve or self.connect)
+
+    def any(self) -> bool:
+        return bool(self.viewer or self.rrd)
+
+
+def display_available() -> bool:
+    """Whether a native viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def resolve_sinks(options: SinkOptions) -> SinkOptions:
+    """Apply the default viewer: when no viewer is chosen (``--spawn``/``--serve``/``--connect``), ``--spawn``
+    where a display exists; without a display, an ``--rrd`` alone is fine (headless), nothing at all is a
+    UserError."""
+    if options.viewer:
+        return options
+    if display_available():
+        options.spawn = True
+        return options
+    if options.rrd is not None:
+        return options
+    raise UserError(
+        "no display for the native viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
+        "or --connect URL for a running viewer"
+    )
+
+
+def check_sinks(options: SinkOptions) -> None:
+    """Check what can be checked before any work: the ``.rrd`` can be created, the ``--connect`` URL is a Rerun
+    gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""
+    if options.rrd is not None:
+        check_rrd_path(Path(options.rrd))
+    for port, flag in ((options.web_port, "--web-port"), (options.grpc_port, "--grpc-port")):
+        if not 1 <= int(port) <= 65535:
+            raise UserError(f"{flag} must be a TCP port from 1 to 65535, got {port}")
+    if options.serve:
+        if options.web_port == options.grpc_port:
+            raise UserError(f"--web-port and --grpc-port must differ, both are {options.web_port}")
+        for port, flag, what in ((options.web_port, "--web-port", "web viewer"), (options.grpc_port, "--grpc-port", "gRPC")):
+            if not port_free(port):
+                raise UserError(
+                    f"port {port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "
+                    f"stop that program or pick another port with {flag} N"
+                )
+    if options.spawn and not port_free(options.grpc_port) and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
+        raise UserError(
+            f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
+            "pick another port with --grpc-port N"
+        )
+    if options.connect:
+        host, port = parse_grpc_url(options.connect)
+        if not port_open(host, port, CONNECT_TIMEOUT_S):
+            raise UserError(
+                f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use --spawn or --serve"
+            )
+        plain = options.connect.startswith(("rerun://", "rerun+http://"))
+        if plain and not speaks_grpc(host, port, CONNECT_TIMEOUT_S):
+            raise UserError(f"something listens at {options.connect} but it is not a Rerun viewer (no gRPC answer)")
+
+
+def check_rrd_path(path: Path) -> None:
+    """UserError unless ``path`` can be written as a new ``.rrd`` (existing folder, not itself a folder)."""
+    if path.is_dir():
+        raise UserError(f"cannot write {path}: it is a folder")
+    parent = path.parent
+    if not parent.is_dir():
+        raise UserError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"cannot write {path}: no permission to write in {parent}")
+
+
+def parse_grpc_url(url: str) -> tuple[str, int]:
+    """(host, port) of a Rerun gRPC URL such as ``rerun+http://127.0.0.1:9876/proxy``; UserError otherwise."""
+    if not url.startswith(("rerun://", "rerun+http://", "rerun+https://")):
+        raise UserError(f"--connect needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}")
+    parsed = urllib.parse.urlparse(url)
+    try:
+        port = parsed.port
+    except ValueError:
+        port = None
+    if not parsed.hostname:
+        raise UserError(f"--connect URL {url!r} names no host")
+    default = 443 if parsed.scheme == "rerun+https" else DEFAULT_GRPC_PORT
+    return parsed.hostname, port or default
+
+
+def port_free(port: int) -> bool:
+    """Whether nothing listens on 127.0.0.1:``port`` (a server could bind it; connections of an earlier run still
+    in TIME_WAIT do not count, as servers bind with SO_REUSEADDR)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        if sys.platform != "win32":  # on Windows SO_REUSEADDR would let us bind over a live listener
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def port_open(host: str, port: int, timeout_s: float) -> bool:
+    """Whether a TCP connection to ``host:port`` succeeds within ``timeout_s``."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+#: the HTTP/2 client connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5)
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+
+
+def speaks_grpc(host: str, port: int, timeout_s: float) -> bool:
+    """Whether ``host:port`` answers like a gRPC server (an HTTP/2 SETTINGS frame back for our connection
+    preface) within ``timeout_s``: a Rerun viewer or proxy does at once; another program on the port does not (a
+    program that accepts and stays silent would make Rerun's gRPC client wait for ever)."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as s:
+            s.settimeout(timeout_s)
+            s.sendall(_H2_PREFACE)
+            head = b""
+            while len(head) < 9:
+                part = s.recv(9 - len(head))
+                if not part:
+                    return False
+                head += part
+    except OSError:
+        return False
+    return head[3] == 0x04  # frame type SETTINGS
+
+
+def free_port() -> int:
+    """A TCP port that is free on 127.0.0.1 now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
