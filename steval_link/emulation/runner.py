@@ -81,15 +81,17 @@ class ScenarioMotion:
         self.seed = seed
         self.trial = trial
         self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
+        # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
+        root = np.random.SeedSequence([int(seed), 0x5EA1])
+        r_motion, r_sensor = (np.random.default_rng(q) for q in root.spawn(7)[:2])
         if trial is None:
             sc = M.SCENARIOS.get(name)
             if sc is None:
                 raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
                                 "(or --broad TRIAL.npz)")
-            self._kin = sc.build(total_s, np.random.default_rng([seed, 1]))
-        rng = np.random.default_rng([seed, 2])
-        self.acc_bias_mg = rng.normal(0.0, 12.0, 3)
-        self.gyro_bias_mdps = rng.normal(0.0, 600.0, 3)
+            self._kin = sc.build(total_s, r_motion)
+        self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
+        self.gyro_bias_mdps = r_sensor.normal(0.0, 600.0, 3)
         self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
         self.gyro_noise_mdps = sm.Lsm6dsl().gyro_noise_mdps
         self._window = -1
