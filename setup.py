@@ -20,5 +20,11 @@ setup(
             extra_compile_args=_FLAGS,
             optional=True,
         ),
+        Extension(
+            "steval_link.emulation._icount",
+            sources=["steval_link/emulation/_icount.c"],
+            extra_compile_args=_FLAGS,
+            optional=True,
+        ),
     ]
 )

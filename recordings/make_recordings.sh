@@ -1,18 +1,35 @@
 #!/usr/bin/env bash
-# Regenerate every bundled recording (all emulated by `steval synth`; see recordings/README.md).
-# Builds the firmware patch's host C encoder first: the binary captures' bytes are made by the firmware's own
-# encoder and TX-queue code (firmware_patch/src), so each of them is a C → Python conformance fixture.
-# Run from anywhere; needs make, gcc and steval-link installed (pip install -e .). Deterministic: same bytes.
+# Regenerate every bundled recording (see recordings/README.md for which source made which).
+# - demo.stv, freefall.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
+#   (`steval emulate`); needs ST's sources in ../shared/st-fcu-f401 (or ST_SRC=...), arm-none-eabi-gcc and make.
+# - midflight_drops.stv, textmode.log, broad_07.stv: `steval synth`, for what it alone does (a host joining
+#   mid-frame, injected queue drops, the USB-UART adapter's packet timing, a plain terminal log); their binary
+#   bytes come from the firmware patch's host C encoder (firmware_patch/src), so each is a C → Python fixture.
+# Run from anywhere; needs steval-link installed (pip install -e .). Deterministic: the same data bytes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 STEVAL=${STEVAL:-steval}
+ST_SRC=${ST_SRC:-../shared/st-fcu-f401}
 make -s -C firmware_patch host
 ENC=(--encoder c --c-encoder firmware_patch/host/stv_encode --force)
 
-"$STEVAL" synth --scenario demo --duration 60 --seed 1 "${ENC[@]}" --out recordings/demo.stv
-"$STEVAL" synth --scenario hover --duration 20 --join-at 18.3 --drop-rate 0.01 --seed 2 "${ENC[@]}" \
+if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null; then
+    ST_TMP=$(mktemp -d)
+    trap 'rm -rf "$ST_TMP"' EXIT
+    cp -r "$ST_SRC/STM32 FW Project" "$ST_TMP/"
+    (cd "$ST_TMP" && git init -q && git apply "$OLDPWD/firmware_patch/st-fcu-170120.patch")
+    rm -rf firmware_patch/build/recordings  # a fresh build (its ST tree is a new temporary copy each time)
+    make -s -C firmware_patch firmware ST_DIR="$ST_TMP" BUILD_DIR=build/recordings -j2
+    ELF=firmware_patch/build/recordings/fw/steval-fcu-link.elf
+    rm -f recordings/demo.stv recordings/freefall.stv
+    "$STEVAL" emulate "$ELF" --scenario demo --duration 60 --seed 1 --no-view --out recordings/demo.stv
+    "$STEVAL" emulate "$ELF" --scenario freefall --duration 10 --seed 4 --no-view --out recordings/freefall.stv
+else
+    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv and freefall.stv left as they are" >&2
+fi
+
+"$STEVAL" synth --scenario hover --duration 20 --join-at 18.31 --drop-rate 0.01 --seed 2 "${ENC[@]}" \
     --out recordings/midflight_drops.stv
-"$STEVAL" synth --scenario freefall --duration 10 --seed 4 "${ENC[@]}" --out recordings/freefall.stv
 # text mode: the plain bytes a serial terminal saves (the C host encoder takes binary frames only)
 "$STEVAL" synth --scenario hand-tilts --duration 20 --seed 3 --text-mode --force --out recordings/textmode.log
 

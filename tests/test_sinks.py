@@ -117,7 +117,7 @@ def test_replay_rrd_says_where_it_wrote_and_how_to_open_it(tmp_path):
     done = _steval("replay", "--rrd", str(out), "-e", "accel", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert f"steval: Rerun recording written to {out} (open it with: rerun {out})" in done.stderr
-    assert read_rrd(out).samples[ent.pitch_path("firmware")] == 9365
+    assert read_rrd(out).samples[ent.pitch_path("firmware")] == 9210  # recordings/demo.stv: 9210 attitude frames
     assert not list(tmp_path.glob("*.partial"))
 
 

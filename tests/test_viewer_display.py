@@ -33,7 +33,7 @@ from steval_viewer.sink_options import free_port, port_free
 from steval_viewer.sinks import rerun_command
 
 ROOT = Path(__file__).resolve().parents[1]
-DEMO_LAST_STEP = 9364  # recordings/demo.stv: AHRS steps 0..9364
+DEMO_LAST_STEP = 9209  # recordings/demo.stv: AHRS steps 0..9209
 #: generous bound for a command on a loaded 2-core CI machine (imports, estimators, the viewer's start)
 RETURN_S = 90.0
 
@@ -76,7 +76,7 @@ def test_readme_main_job_opens_the_viewer_with_the_data_and_returns(display, tmp
         took = time.monotonic() - t0
         assert done.returncode == 0, done.stderr
         assert "Traceback" not in done.stderr and "WARNING" not in done.stderr, done.stderr
-        assert "frames: 9365 attitude" in done.stdout
+        assert f"frames: {DEMO_LAST_STEP + 1} attitude" in done.stdout
         # returned, and the viewer stays open for the user
         pids = rerun_processes(port) if ours else []
         assert not ours or pids, "the spawned viewer is not running after the command returned"

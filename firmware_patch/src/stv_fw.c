@@ -47,9 +47,12 @@ void stv_fw_step_begin(int16_t thr) {
   g_stv.cyc_begin = STV_DWT_CYCCNT; /* count from here: ahrs_fusion_ag + QuaternionToEuler, not our bookkeeping */
 }
 
+int16_t stv_thr_used;
+
 void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]) {
   uint32_t cyc = STV_DWT_CYCCNT;
   uint32_t s = irq_save();
+  g_stv.thr = stv_thr_used; /* what the filter used (see stv_fw.h) */
   stv_link_step_end(&g_stv, cyc, acc_mg, gyro_mdps, q, euler_rad);
   tx_kick();
   irq_restore(s);

@@ -25,6 +25,11 @@ void stv_fw_init(const stv_link_config_t *cfg);
 /* Right before ahrs_fusion_ag(&acc_ahrs, &gyro_ahrs, &ahrs); thr = gTHR. */
 void stv_fw_step_begin(int16_t thr);
 
+/* The gTHR ahrs_fusion_ag chose its gain with: the patched ahrs.c reads gTHR once into this variable, and
+ * stv_fw_step_end sends it in the frame (not stv_fw_step_begin's snapshot: with REMOCON_PWM, TIM2's capture
+ * interrupt writes gTHR at any time, also between two reads). */
+extern int16_t stv_thr_used;
+
 /* Right after QuaternionToEuler(&ahrs.q, &euler_ahrs): queue the step's frames and start the transmitter. */
 void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]);
 

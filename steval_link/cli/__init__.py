@@ -6,17 +6,17 @@ import sys
 
 import typer
 
-from steval_link.cli import compare as _compare  # noqa: F401,E402
-from steval_link.cli import conformance as _conformance  # noqa: F401,E402
-from steval_link.cli import evaluate as _evaluate  # noqa: F401,E402
-from steval_link.cli import export as _export  # noqa: F401,E402
-from steval_link.cli import live as _live  # noqa: F401,E402
-from steval_link.cli import ports as _ports  # noqa: F401,E402
-
-# Each import registers its sub-command(s) on ``app`` (one per line; add yours below).
-from steval_link.cli import replay as _replay  # noqa: F401,E402
-from steval_link.cli import simulate as _simulate  # noqa: F401,E402
-from steval_link.cli import synth as _synth  # noqa: F401,E402
+# Each import registers its sub-command(s) on ``app`` (one per line, in the order of ``steval --help``).
+from steval_link.cli import compare as _compare  # noqa: F401
+from steval_link.cli import conformance as _conformance  # noqa: F401
+from steval_link.cli import emulate as _emulate  # noqa: F401
+from steval_link.cli import evaluate as _evaluate  # noqa: F401
+from steval_link.cli import export as _export  # noqa: F401
+from steval_link.cli import live as _live  # noqa: F401
+from steval_link.cli import ports as _ports  # noqa: F401
+from steval_link.cli import replay as _replay  # noqa: F401
+from steval_link.cli import simulate as _simulate  # noqa: F401
+from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.signals import signals_interrupt
 from steval_link.errors import UserError, printable

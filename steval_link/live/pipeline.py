@@ -188,6 +188,20 @@ class LivePipeline:
         #: firmware log lines not shown yet (the session prints them; bounded)
         self.texts: collections.deque[str] = collections.deque(maxlen=32)
 
+    @classmethod
+    def for_viewer(cls, estimator_names: list[str], viewer: LiveViewer | None) -> LivePipeline:
+        """The pipeline of a session with this viewer side: a live viewer gets every processing round at once and
+        its ``.rrd`` (the viewer's ``file``) merged batches every RRD_ONLY_INTERVAL_S; a viewer side that writes
+        only an ``.rrd`` (``has_viewer`` false: headless ``--rrd X``) gets merged batches too."""
+        live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
+        return cls(
+            estimator_names,
+            viewer,
+            view_interval_s=VIEW_INTERVAL_S if live else RRD_ONLY_INTERVAL_S,
+            file_logger=getattr(viewer, "file", None) if live else None,
+            file_interval_s=RRD_ONLY_INTERVAL_S,
+        )
+
     @property
     def port(self) -> "LivePort | None":
         return self.estimators.port if self.estimators is not None else None

@@ -45,8 +45,6 @@ from steval_link.link.transport import (
 )
 from steval_link.live.health import HealthDisplay, LinkHealth, _fmt_bytes, _fmt_duration
 from steval_link.live.pipeline import (
-    RRD_ONLY_INTERVAL_S,
-    VIEW_INTERVAL_S,
     LivePipeline,
     LiveViewer,
 )
@@ -312,16 +310,7 @@ class LiveSession:
 
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
-        # a viewer sink, not only an .rrd (headless `steval live --rrd X` resolves to the file alone)
-        live_viewer = viewer is not None and bool(getattr(viewer, "has_viewer", opts.view))
-        # a live viewer gets every round at once; an .rrd merged batches (its own stream when a viewer runs too)
-        pipe = self.pipeline = LivePipeline(
-            opts.estimators,
-            viewer,
-            view_interval_s=VIEW_INTERVAL_S if live_viewer else RRD_ONLY_INTERVAL_S,
-            file_logger=getattr(viewer, "file", None) if live_viewer else None,
-            file_interval_s=RRD_ONLY_INTERVAL_S,
-        )
+        pipe = self.pipeline = LivePipeline.for_viewer(opts.estimators, viewer)
         self.warned_no_frames = False
         was_connected = True
         while self._stop_reason is None:

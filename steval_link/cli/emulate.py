@@ -1,0 +1,83 @@
+"""``steval emulate``: run a firmware ELF on the emulated board (no drone), through the same path as a real port."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from steval_link import constants as C
+from steval_link.cli.app import app
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+)
+from steval_link.emulation.runner import EmulationOptions
+from steval_link.errors import UserError
+from steval_link.estimators import registry
+from steval_link.link.capture import resolve_capture_out
+from steval_link.live.emulated import EmulateSession
+from steval_link.live.session import LiveOptions
+from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+
+
+@app.command("emulate")
+def emulate_command(
+    elf: Path = typer.Argument(..., help="Firmware ELF (make -C firmware_patch firmware ST_DIR=...: "
+                               "firmware_patch/build/fw/steval-fcu-link.elf), patched or ST's stock build."),
+    scenario: str = typer.Option("bench", "--scenario", "-s", help="Built-in motion: bench, hand-tilts, yaw-spin, "
+                                 "hover, freefall, demo."),
+    broad: Optional[Path] = typer.Option(None, "--broad", help="Feed a BROAD trial (.npz: real IMU signals) instead "
+                                         "of a scenario, from the first TIM9 tick on."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Emulated seconds from power-up (default: "
+                                             "the scenario's length; the first attitude frame comes at ≈ 2.985 s)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
+    throttle: Optional[str] = typer.Option(None, "--throttle", help="Override the remote's throttle: N or "
+                                           "'t:v,t:v,...' (s since power-up : gTHR)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Capture file (.stv); default "
+                                       "recordings/steval-<UTC time>.stv. Always written."),
+    rrd: RrdOption = None,
+    no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+    estimators: Optional[str] = typer.Option(None, "--estimators", "-e", help="Host estimators next to the "
+                                             "firmware (as for steval live), or 'none'."),
+    realtime: bool = typer.Option(False, "--realtime", help="Pace the emulation to the wall clock (default: as "
+                                  "fast as it runs)."),
+) -> None:
+    """Run a firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
+
+    The board runs the whole ELF unchanged (boot, HAL, TIM9 ISR, AHRS, the patch's USART1 stream) with motion fed
+    to its sensor registers. Its USART1 bytes go through the same capture -> decoder -> estimators -> viewer path
+    as `steval live`; the capture replays and compares like a drone's (`steval compare X.stv`). At the end: the
+    instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
+    """
+    if sum([spawn, serve, connect is not None]) > 1:
+        raise UserError("choose one of --spawn, --serve and --connect")
+    if no_view and (spawn or serve or connect):
+        raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
+    if broad is not None and scenario != "bench":
+        raise UserError("choose --scenario or --broad, not both")
+    emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
+                                   throttle=throttle)
+    if duration is not None and not duration > 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+    out = resolve_capture_out(out)
+    live = LiveOptions(port="emulated", baud=C.BAUD, out=out, rrd=rrd, view=not no_view,
+                       spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
+                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT))
+    if live.uses_rerun:
+        viewer_sink_options(live)  # e.g. no display and no --rrd: say so before anything is made
+    summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger).run()
+    print("\n".join(summary.lines()))
+    sys.stdout.flush()

@@ -1,0 +1,90 @@
+"""A 32-bit little-endian ELF as the board needs it: load segments and function/object symbols (pure Python)."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+from steval_link.errors import UserError
+
+
+@dataclass(frozen=True)
+class Symbol:
+    name: str
+    addr: int
+    size: int
+    is_func: bool
+
+
+class Elf:
+    """Segments (``(address, bytes)`` of each PT_LOAD at its load address) and symbols of a firmware ELF."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise UserError(f"cannot read firmware ELF {self.path}: {exc.strerror or exc}") from None
+        if data[:4] != b"\x7fELF" or len(data) < 52:
+            raise UserError(f"{self.path} is not an ELF file (build it with `make -C firmware_patch firmware ...`)")
+        if data[4] != 1 or data[5] != 1 or struct.unpack_from("<H", data, 18)[0] != 40:
+            raise UserError(f"{self.path} is not a 32-bit little-endian ARM ELF (the STM32F401 firmware)")
+        self.entry = struct.unpack_from("<I", data, 24)[0]
+        self.segments = self._segments(data)
+        self.symbols = self._symbols(data)
+        self.by_name = {s.name: s for s in self.symbols}
+        funcs = sorted((s for s in self.symbols if s.is_func and s.addr), key=lambda s: s.addr & ~1)
+        self._func_starts = [s.addr & ~1 for s in funcs]
+        self._funcs = funcs
+
+    @staticmethod
+    def _segments(data: bytes) -> list[tuple[int, bytes]]:
+        phoff = struct.unpack_from("<I", data, 28)[0]
+        phentsize, phnum = struct.unpack_from("<HH", data, 42)
+        out = []
+        for i in range(phnum):
+            p_type, off, vaddr, paddr, filesz, memsz, _fl, _al = struct.unpack_from("<8I", data, phoff + i * phentsize)
+            if p_type == 1 and filesz:
+                # load (physical) address: .data's initial values live in flash, the startup code copies them
+                out.append((paddr, data[off:off + filesz]))
+        return out
+
+    @staticmethod
+    def _symbols(data: bytes) -> list[Symbol]:
+        shoff = struct.unpack_from("<I", data, 32)[0]
+        shentsize, shnum = struct.unpack_from("<HH", data, 46)
+        secs = [struct.unpack_from("<10I", data, shoff + i * shentsize) for i in range(shnum)]
+        out: list[Symbol] = []
+        for sh in secs:
+            if sh[1] != 2:  # SHT_SYMTAB
+                continue
+            strtab = secs[sh[6]]
+            str_off = strtab[4]
+            for k in range(sh[5] // 16):
+                name_off, value, size, info, _other, shndx = struct.unpack_from("<IIIBBH", data, sh[4] + k * 16)
+                typ = info & 0xF
+                if typ not in (1, 2) or shndx == 0:  # OBJECT, FUNC
+                    continue
+                end = data.index(b"\0", str_off + name_off)
+                out.append(Symbol(data[str_off + name_off:end].decode("ascii", "replace"), value, size, typ == 2))
+        if not out:
+            raise UserError("the firmware ELF has no symbols (do not strip it: the board finds its functions by name)")
+        return out
+
+    def addr(self, name: str) -> int | None:
+        """Address of a symbol (functions without the Thumb bit), or None."""
+        s = self.by_name.get(name)
+        return None if s is None else (s.addr & ~1 if s.is_func else s.addr)
+
+    def func_at(self, pc: int) -> str:
+        """``name+0xoff`` of the function containing pc (or ``?``)."""
+        import bisect
+
+        i = bisect.bisect_right(self._func_starts, pc & ~1) - 1
+        if i >= 0:
+            f = self._funcs[i]
+            off = (pc & ~1) - (f.addr & ~1)
+            if off < max(f.size, 1) or f.size == 0:
+                return f"{f.name}+0x{off:x}" if off else f.name
+        return "?"

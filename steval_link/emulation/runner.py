@@ -1,0 +1,312 @@
+"""Run a firmware ELF on the emulated board with motion fed to its sensors; USART1 bytes out with emulated times.
+
+:class:`Emulation` is what ``steval emulate`` and the tests use::
+
+    emu = Emulation(EmulationOptions(elf="firmware_patch/build/fw/steval-fcu-link.elf", scenario="hand-tilts"))
+    for data, t_s in emu.chunks():      # bytes that left USART1 in the last slice, emulated time of the last one
+        ...
+    print(emu.report().lines())
+
+Motion: a built-in scenario of :mod:`steval_link.emulation.motion` (rendered in windows of :data:`WINDOW_S`, so memory stays
+bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
+LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
+registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
+loop, while ``connected``); the emulated remote writes ``joydata[3]`` at each TIM9 tick, so gTHR moves in steps of
+13 as with the ST app, and sets ``connected`` at its first non-zero throttle (from then on the firmware also sends
+its BLE notifications through ``hci_send_req``). It never arms the motors. Builds with ``REMOCON_PWM`` keep gTHR 0
+(no RC receiver is modelled).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from steval_link.emulation import motion as M
+from steval_link.emulation import sensor_model as sm
+from steval_link.emulation.board import CPU_HZ, Board, EmulationError, FirmwareStuck
+from steval_link.emulation.broad import load_trial
+from steval_link.emulation.elf import Elf
+from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
+from steval_link.errors import UserError
+
+__all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "TICK_S"]
+
+#: motion is rendered this many seconds at a time
+WINDOW_S = 10.0
+TICK_CYCLES = 52 * 2000
+TICK_S = TICK_CYCLES / CPU_HZ
+#: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
+WATCHDOG_S = 6.0
+
+
+@dataclass
+class EmulationOptions:
+    elf: Path | str
+    scenario: str = "bench"
+    broad: Path | str | None = None
+    duration_s: float | None = None
+    seed: int = 0
+    throttle: str | None = None
+    skip_idle: bool = True
+    #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
+    log_samples: int = 0
+    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
+    watchdog_s: float = WATCHDOG_S
+
+    def command(self, duration_s: float | None = None) -> str:
+        """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
+        import shlex
+
+        parts = ["steval", "emulate", str(self.elf)]
+        parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
+        d = self.duration_s if duration_s is None else duration_s
+        if d is not None:
+            parts += ["--duration", f"{d:g}"]
+        parts += ["--seed", str(self.seed)]
+        if self.throttle is not None:
+            parts += ["--throttle", self.throttle]
+        return shlex.join(parts)
+
+
+class ScenarioMotion:
+    """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""
+
+    def __init__(self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None) -> None:
+        self.name = name
+        self.total_s = total_s
+        self.seed = seed
+        self.trial = trial
+        self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
+        # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
+        root = np.random.SeedSequence([int(seed), 0x5EA1])
+        r_motion, r_sensor = (np.random.default_rng(q) for q in root.spawn(7)[:2])
+        if trial is None:
+            sc = M.SCENARIOS.get(name)
+            if sc is None:
+                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
+                                "(or --broad TRIAL.npz)")
+            self._kin = sc.build(total_s, r_motion)
+        self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
+        self.gyro_bias_mdps = r_sensor.normal(0.0, 600.0, 3)
+        self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
+        self.gyro_noise_mdps = sm.Lsm6dsl().gyro_noise_mdps
+        self._window = -1
+        self._acc = self._gyro = self._thr = None
+        self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
+
+    def _render(self, w: int) -> None:
+        n = int(round(WINDOW_S / TICK_S))
+        k0 = w * n
+        t = (k0 + np.arange(n)) * TICK_S
+        rng = np.random.default_rng([self.seed, 3, w])
+        if self.trial is not None:
+            t0 = self.first_tick_s if self.first_tick_s is not None else 1.0
+            rel = np.clip(t - t0, 0.0, self.trial.t_s[-1])
+            prof = M.broad_profile(self.trial, t0 + rel, t0, self._thr_fn)
+            acc, gyro = prof.acc_mg, prof.gyro_mdps
+        else:
+            prof = M._render(self.name, self._kin, t, rng, self._thr_fn)
+            acc = prof.acc_mg + self.acc_bias_mg + self.acc_noise_mg * rng.standard_normal((n, 3))
+            hold = np.floor(t * sm.GYRO_ODR_HZ + 1e-9).astype(np.int64)
+            u, inv = np.unique(hold, return_inverse=True)
+            gyro = prof.gyro_mdps + self.gyro_bias_mdps + self.gyro_noise_mdps * rng.standard_normal((len(u), 3))[inv]
+        self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
+        self._thr = prof.thr
+        self._window = w
+        self._k0 = k0
+
+    def _at(self, k: int) -> int:
+        n = int(round(WINDOW_S / TICK_S))
+        w = max(k, 0) // n
+        if w != self._window:
+            self._render(w)
+        return max(k, 0) - self._k0
+
+    def counts(self, k: int):
+        i = self._at(k)
+        return self._acc[i], self._gyro[i]
+
+    def throttle(self, k: int) -> int:
+        i = self._at(k)  # (renders the window first)
+        return int(self._thr[i])
+
+
+@dataclass
+class EmulationReport:
+    """What the run measured (instruction counts of this emulator, not Cortex-M4 cycles)."""
+
+    elf: str
+    emulated_s: float
+    instructions: int
+    skipped_instructions: int
+    interrupts: dict[str, int]
+    usart_bytes: int
+    first_byte_s: float | None
+    first_attitude_s: float | None
+    tim9_start_s: float | None
+    ahrs_steps: int
+    step_instructions: list[int] = field(default_factory=list)
+    dwt_windows: list[int] = field(default_factory=list)
+    hci_requests: int = 0
+    native_counter: bool = True
+
+    def lines(self) -> list[str]:
+        out = [f"emulated {self.emulated_s:.3f} s of {Path(self.elf).name}: {self.usart_bytes} USART1 bytes, "
+               f"{self.ahrs_steps} AHRS steps, {self.instructions:,} instructions executed "
+               f"(+{self.skipped_instructions:,} idle skipped)"]
+        if self.tim9_start_s is not None:
+            out.append(f"TIM9 started at {self.tim9_start_s:.4f} s; first attitude step at "
+                       + (f"{self.first_attitude_s:.4f} s" if self.first_attitude_s is not None else "-"))
+        if self.step_instructions:
+            a = np.asarray(self.step_instructions)
+            out.append(f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
+                       f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}")
+        if self.dwt_windows and any(self.dwt_windows):
+            d = np.asarray(self.dwt_windows)
+            out.append(f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
+                       f"min {d.min()} median {int(np.median(d))} max {d.max()}")
+        irq = ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))
+        out.append(f"interrupts: {irq}")
+        return out
+
+
+_EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
+
+
+class Emulation:
+    """One firmware run (see the module docstring)."""
+
+    def __init__(self, options: EmulationOptions) -> None:
+        self.options = options
+        if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
+            raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
+        self.elf = Elf(options.elf)
+        trial = None
+        if options.broad is not None:
+            try:
+                trial = load_trial(options.broad)
+            except (OSError, ValueError, KeyError) as exc:
+                raise UserError(f"cannot read BROAD trial {options.broad}: {exc}") from None
+            name = trial.name
+            default = float(trial.t_s[-1]) + 3.0
+        else:
+            name = options.scenario
+            sc = M.SCENARIOS.get(name)
+            if sc is None:
+                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
+                                "(or --broad TRIAL.npz)")
+            default = sc.default_duration_s
+        self.duration_s = float(options.duration_s if options.duration_s is not None else default)
+        self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial)
+        self.bus = SensorBus(self.motion, log_limit=options.log_samples)
+        try:
+            import unicorn  # noqa: F401
+        except ImportError:
+            raise UserError("steval emulate needs unicorn: pip install unicorn (or steval-link[test])") from None
+        self.board = Board(self.elf, self.bus, skip_idle=options.skip_idle)
+        self._joy = self.elf.addr("joydata")
+        self._connected = self.elf.by_name.get("connected")
+        self._remote_connected = False
+        self.board.tick_observers.append(self._on_tick)
+        self._steps: list[int] = []
+        self._dwt: list[int] = []
+        self._step_start = None
+        self._cyc_start = None
+        self._first_step_s: float | None = None
+        self.n_steps = 0
+        self._bytes = 0
+        self._first_byte_s: float | None = None
+        self._install_step_probes()
+
+    # -- the remote control and the TIM9 tick
+    def _on_tick(self, board: Board) -> None:
+        if self.motion.trial is not None and self.motion.first_tick_s is None:
+            self.motion.first_tick_s = board.now / CPU_HZ
+            self.motion._window = -1  # render again with trial time 0 at this tick
+        if self._joy is not None:
+            k = self.bus.tick_index(board) + 1
+            thr = self.motion.throttle(k)
+            board.ram_write(self._joy + 3, bytes([min(max(int(round(thr / 13)), 0), 255)]))
+            if thr and not self._remote_connected and self._connected is not None:
+                # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
+                # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
+                board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
+                self._remote_connected = True
+
+    # -- instruction counts of the AHRS step
+    def _install_step_probes(self) -> None:
+        b, e = self.board, self.elf
+        start = e.addr("ahrs_fusion_ag")
+        end = e.addr("stv_fw_step_end") or e.addr("GetTargetEulerAngle")
+        if start is not None and end is not None:
+            b.probe(start, self._on_step_start)
+            b.probe(end, self._on_step_end)
+        begin = e.addr("stv_fw_step_begin")
+        if begin is not None:
+            b.probe(begin, lambda board: None)
+
+    def _on_step_start(self, board: Board) -> None:
+        self._step_start = (board.instructions_now(), board.exception_instructions)
+        self._cyc_start = board.scs.cyccnt()
+        if self._first_step_s is None:
+            self._first_step_s = board.now / CPU_HZ
+
+    def _on_step_end(self, board: Board) -> None:
+        if self._step_start is None:
+            return
+        i0, x0 = self._step_start
+        n = board.instructions_now() - i0 - (board.exception_instructions - x0)
+        self.n_steps += 1
+        if len(self._steps) < 100_000:
+            self._steps.append(n)
+            self._dwt.append(board.scs.cyccnt() - self._cyc_start)
+        self._step_start = None
+
+    # -- running
+    def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:
+        """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
+        b = self.board
+        end = int(round(self.duration_s * CPU_HZ))
+        last_byte_t = 0
+        last_steps, last_progress_t = 0, 0
+        slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
+        while b.now < end:
+            b.run_until(min(end, b.now + slice_cycles))
+            if b.out:
+                data = bytes(x for x, _ in b.out)
+                last_byte_t = b.out[-1][1]
+                if self._first_byte_s is None:
+                    self._first_byte_s = b.out[0][1] / CPU_HZ
+                b.out.clear()
+                self._bytes += len(data)
+                yield data, last_byte_t / CPU_HZ
+            if self.n_steps != last_steps:
+                last_steps, last_progress_t = self.n_steps, b.now
+            if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * CPU_HZ:
+                raise FirmwareStuck(
+                    f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
+                    f"is in {b.where()} (pc 0x{b.pc():08x})")
+
+    def run(self) -> bytes:
+        """Run to the end; all USART1 bytes."""
+        return b"".join(d for d, _ in self.chunks())
+
+    def report(self) -> EmulationReport:
+        b = self.board
+        tim9 = b.tim9.first_update
+        return EmulationReport(
+            elf=str(self.elf.path), emulated_s=b.now / CPU_HZ, instructions=b.stats.instructions,
+            skipped_instructions=b.stats.skipped_instructions,
+            interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
+            usart_bytes=self._bytes, first_byte_s=self._first_byte_s, first_attitude_s=self._first_step_s,
+            tim9_start_s=None if tim9 is None else tim9 / CPU_HZ, ahrs_steps=self.n_steps,
+            step_instructions=list(self._steps), dwt_windows=list(self._dwt), hci_requests=b.hci_requests,
+            native_counter=b.native)
+
+
+__all__ += ["EmulationError"]
