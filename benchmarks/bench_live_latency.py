@@ -8,7 +8,8 @@ The measured path is the live session's own (``steval_link.live``): ``SerialRead
 ``RecorderProtocol`` (each chunk to a capture file first, then the session's ``Inbox``) -> the session's main
 loop -> ``LivePipeline`` (``StreamDecoder``, ``AttitudeBatch``, ``LiveEstimators``: the default estimators, e.g.
 the seeded ST port, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
-(``steval_link.live.pipeline.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its batch.
+(``steval_link.live.pipeline.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its
+batch.
 
 ``--reader transport`` uses ``steval_link.link.transport.SerialReader`` on the pty's slave; ``--reader own`` a minimal
 select()-based reader (hands bytes on as soon as they arrive), to tell the transport's cost apart from the rest.
@@ -58,12 +59,25 @@ def fake_drone(master_fd: int, seconds: float, ready) -> None:
             time.sleep(min(d, 0.002) if d > 0.0005 else 0)
         t = now_us()
         frame = P.encode_attitude(
-            t_us=t % U32, acc_mg=(10.0, -20.0, 1000.0), gyro_mdps=(100.0, 0.0, -50.0), q_wxyz=q, thz_rad=0.0,
-            seq=i, thr=0,
+            t_us=t % U32,
+            acc_mg=(10.0, -20.0, 1000.0),
+            gyro_mdps=(100.0, 0.0, -50.0),
+            q_wxyz=q,
+            thz_rad=0.0,
+            seq=i,
+            thr=0,
         )
         if i % 162 == 161:
-            frame += P.encode_status(step=i, t_us=t % U32, q_wxyz=q, int_xyz=(0.0, 0.0, 0.0), cyc_n=162,
-                                     cyc_min=9000, cyc_mean=9400, cyc_max=12000)
+            frame += P.encode_status(
+                step=i,
+                t_us=t % U32,
+                q_wxyz=q,
+                int_xyz=(0.0, 0.0, 0.0),
+                cyc_n=162,
+                cyc_min=9000,
+                cyc_mean=9400,
+                cyc_max=12000,
+            )
         os.write(master_fd, frame)
     time.sleep(0.3)
 
@@ -92,8 +106,8 @@ def _own_reader(fd: int, sink: _OwnInbox, stop: threading.Event) -> None:
 
 
 class _TimedViewer:
-    """The live session's viewer side (``steval_viewer.live_adapter.ViewerLogger``: a ``LiveLogger`` on an .rrd sink) that
-    notes, for each frame, when ``log_batch`` returned for it."""
+    """The live session's viewer side (``steval_viewer.live_adapter.ViewerLogger``: a ``LiveLogger`` on an .rrd
+    sink) that notes, for each frame, when ``log_batch`` returned for it."""
 
     def __init__(self, logger) -> None:
         self.logger = logger
@@ -187,7 +201,7 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     for f in tmp.iterdir():
         f.unlink()
     os.rmdir(tmp)
-    lat = np.array(viewer.lat_us[int(RATE_HZ):], dtype=np.float64) / 1e3  # skip the first second (warm-up)
+    lat = np.array(viewer.lat_us[int(RATE_HZ) :], dtype=np.float64) / 1e3  # skip the first second (warm-up)
     return {
         "reader": reader,
         "frames": len(viewer.lat_us),

@@ -78,4 +78,9 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     _line(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
     _line(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
     _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
-    _line(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], [(44, 160, 44), (127, 127, 127), (214, 39, 40)])
+    _line(
+        rec,
+        ent.LINK_CYCLES,
+        ["cycles min", "cycles mean", "cycles max"],
+        [(44, 160, 44), (127, 127, 127), (214, 39, 40)],
+    )

@@ -53,7 +53,11 @@ def log_simulation_to(rec: rr.RecordingStream, res: Any) -> ReplaySummary:
         (ent.roll_path(ent.SOURCE_FIRMWARE), f"thy roll ({label})"),
         (ent.yaw_path(ent.SOURCE_FIRMWARE), f"thz yaw ({label})"),
     ):
-        rec.log(path, rr.SeriesLines(names=[name], colors=[ent.source_color(ent.SOURCE_FIRMWARE)], widths=[2.5]), static=True)
+        rec.log(
+            path,
+            rr.SeriesLines(names=[name], colors=[ent.source_color(ent.SOURCE_FIRMWARE)], widths=[2.5]),
+            static=True,
+        )
     noise = ""
     if getattr(res, "gyro_noise_mdps", 0) or getattr(res, "acc_noise_mg", 0):
         noise = f", noise gyro {res.gyro_noise_mdps:g} mdps / acc {res.acc_noise_mg:g} mg (seed {res.seed})"

@@ -78,7 +78,10 @@ def check_sinks(options: SinkOptions) -> None:
     if options.serve:
         if options.web_port == options.grpc_port:
             raise UserError(f"--web-port and --grpc-port must differ, both are {options.web_port}")
-        for port, flag, what in ((options.web_port, "--web-port", "web viewer"), (options.grpc_port, "--grpc-port", "gRPC")):
+        for port, flag, what in (
+            (options.web_port, "--web-port", "web viewer"),
+            (options.grpc_port, "--grpc-port", "gRPC"),
+        ):
             if not port_free(port):
                 raise UserError(
                     f"port {port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "

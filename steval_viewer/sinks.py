@@ -5,7 +5,8 @@
 the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With
 ``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one recording (same application
 and recording id, so both open as one): ``rec`` to the viewer and ``file_rec`` to the file, each logged at its own
-cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer wants every frame at once). With no sink
+cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer wants every frame at once). With no
+sink
 chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
 (headless runs, CI), and nothing at all fails with one clear sentence.
 
@@ -267,16 +268,27 @@ def spawn_native_viewer(port: int) -> tuple[str, subprocess.Popen | None]:
     viewer already listens there and is reused). The process is detached: it stays open after we exit."""
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     if not port_free(port):
-        print(f"steval: sending to the viewer already listening on port {port} (--grpc-port N for a new one)",
-              file=sys.stderr)
+        print(
+            f"steval: sending to the viewer already listening on port {port} (--grpc-port N for a new one)",
+            file=sys.stderr,
+        )
         return url, None
-    cmd = rerun_command() + ["--port", str(port), "--bind", "127.0.0.1", "--hide-welcome-screen",
-                             "--memory-limit", "75%"]
+    cmd = rerun_command() + [
+        "--port",
+        str(port),
+        "--bind",
+        "127.0.0.1",
+        "--hide-welcome-screen",
+        "--memory-limit",
+        "75%",
+    ]
     log_path = _log_path("viewer", port)
     try:
         child = _start(cmd, detached=True, log_path=log_path)
     except OSError as exc:
-        raise UserError(f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve") from None
+        raise UserError(
+            f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
+        ) from None
     _wait_listening(child, port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
     return url, child
 

@@ -66,7 +66,9 @@ def test_text_report_and_pure_loop(monkeypatch, capsys):
 
 @needs_shared
 def test_wrong_settings_fail_with_exit_1(monkeypatch, capsys):
-    code, out, _ = run_cli(monkeypatch, capsys, "conformance", "--json", "--ki", "1.0", CONFORMANCE_DIR / "lab5_noise.csv")
+    code, out, _ = run_cli(
+        monkeypatch, capsys, "conformance", "--json", "--ki", "1.0", CONFORMANCE_DIR / "lab5_noise.csv"
+    )
     assert code == 1
     f = json.loads(out)["files"][0]
     assert f["bit_exact_steps"] < f["steps"] and f["first_mismatch_step"] == 0 and f["max_abs_dq"] > 0

@@ -352,8 +352,8 @@ def test_link_text_mode_lines(host_build):
     assert lines[-1] == b""
     lines = lines[:-1]
     assert lines[0] == b"#not a record"
-    att = [parse_sentence(l) for l in lines if l.startswith(b"$ATT")]
-    sta = [parse_sentence(l) for l in lines if l.startswith(b"$STA")]
+    att = [parse_sentence(ln) for ln in lines if ln.startswith(b"$ATT")]
+    sta = [parse_sentence(ln) for ln in lines if ln.startswith(b"$STA")]
     assert len(att) == n // dec and len(sta) == n // every
     rad2mdeg = np.float32(57295.78)
     for f in att:

@@ -39,16 +39,18 @@ needs_arm = pytest.mark.skipif(NO_ARM, reason="arm-none-eabi-gcc (Debian: gcc-ar
 )
 def test_cross_compile_strict(tmp_path, options):
     """-mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard -O2 -Wall -Wextra -Werror, every module."""
-    r = subprocess.run(["make", "-C", str(FW), "cross", f"BUILD_DIR={tmp_path}", *options],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        ["make", "-C", str(FW), "cross", f"BUILD_DIR={tmp_path}", *options], capture_output=True, text=True
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     for flag in ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-O2", "-Werror"):
         assert flag in r.stdout
     objs = sorted(p.name for p in (tmp_path / "arm").glob("*.o"))
     assert objs == ["stv_frame.o", "stv_fw.o", "stv_link.o", "stv_txq.o"]
     # hard-float EABI objects for the M4
-    attrs = subprocess.run(["arm-none-eabi-readelf", "-A", str(tmp_path / "arm" / "stv_link.o")],
-                           capture_output=True, text=True).stdout
+    attrs = subprocess.run(
+        ["arm-none-eabi-readelf", "-A", str(tmp_path / "arm" / "stv_link.o")], capture_output=True, text=True
+    ).stdout
     assert "Tag_CPU_arch: v7E-M" in attrs and "Tag_ABI_VFP_args: VFP registers" in attrs
 
 
@@ -106,8 +108,11 @@ def test_target_and_host_builds_agree(target, tmp_path):
     """The host build (stv_encode, used for the bundled recordings) and the target build emit identical bytes."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    subprocess.run(["make", "-s", "-C", str(FW), f"BUILD_DIR={tmp_path}", f"{tmp_path}/host/stv_encode"],
-                   check=True, capture_output=True)
+    subprocess.run(
+        ["make", "-s", "-C", str(FW), f"BUILD_DIR={tmp_path}", f"{tmp_path}/host/stv_encode"],
+        check=True,
+        capture_output=True,
+    )
     rng = np.random.default_rng(5)
     req = b"".join(bytes([1, 52]) + rng.integers(0, 256, 52, dtype=np.uint8).tobytes() for _ in range(100))
     req += bytes([3, 0]) + bytes([2, 88]) + bytes(range(88))
@@ -123,8 +128,8 @@ def test_patch_is_small_and_touches_only_hook_points():
     assert files == [base + f for f in ("Inc/ahrs.h", "Src/ahrs.c", "Src/debug.c", "Src/main.c", "Src/stm32f4xx_it.c")]
     total_context: list[str] = []
     for hunk in re.split(r"^@@.*@@.*$", text, flags=re.M)[1:]:
-        body = [l for l in hunk.splitlines() if l and not l.startswith(("diff --git", "index ", "--- ", "+++ "))]
-        context = [l for l in body if l.startswith(" ")]
+        body = [ln for ln in hunk.splitlines() if ln and not ln.startswith(("diff --git", "index ", "--- ", "+++ "))]
+        context = [ln for ln in body if ln.startswith(" ")]
         assert len(context) <= 12, hunk  # 3 lines before and after, plus the few lines between two hooks
         total_context.extend(context)
     assert len(total_context) <= 80
@@ -138,21 +143,29 @@ def st_checkout() -> Path | None:
     return Path(d) if d and (Path(d) / "STM32 FW Project").is_dir() else None
 
 
-@pytest.mark.skipif(st_checkout() is None or NO_ARM,
-                    reason="set STEVAL_ST_DIR to a checkout of ST_Drone_FCU_F401 (CI has none) and install arm gcc")
+@pytest.mark.skipif(
+    st_checkout() is None or NO_ARM,
+    reason="set STEVAL_ST_DIR to a checkout of ST_Drone_FCU_F401 (CI has none) and install arm gcc",
+)
 def test_patch_applies_and_firmware_links(tmp_path):
     """Developer check against ST's real sources: git apply --check, then build the patched firmware."""
     st = st_checkout()
     work = tmp_path / "st"
-    shutil.copytree(st / "STM32 FW Project" / "Official release - 170120",
-                    work / "STM32 FW Project" / "Official release - 170120", symlinks=True)
+    shutil.copytree(
+        st / "STM32 FW Project" / "Official release - 170120",
+        work / "STM32 FW Project" / "Official release - 170120",
+        symlinks=True,
+    )
     subprocess.run(["git", "init", "-q"], cwd=work, check=True)
     patch = FW / "st-fcu-170120.patch"
     if "stv_fw_step_end" not in (work / "STM32 FW Project/Official release - 170120/Src/main.c").read_text():
         subprocess.run(["git", "apply", "--check", str(patch)], cwd=work, check=True)
         subprocess.run(["git", "apply", str(patch)], cwd=work, check=True)
-    r = subprocess.run(["make", "-C", str(FW), "firmware", f"ST_DIR={work}", f"BUILD_DIR={tmp_path / 'b'}", "-j2"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        ["make", "-C", str(FW), "firmware", f"ST_DIR={work}", f"BUILD_DIR={tmp_path / 'b'}", "-j2"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert (tmp_path / "b" / "fw" / "steval-fcu-link.bin").stat().st_size > 50_000
 
@@ -170,15 +183,26 @@ def test_target_text_mode_lines_match_python(target):
         ang = rng.uniform(-np.pi, np.pi, 3).astype(np.float32)
         acc = rng.uniform(-16000, 16000, 3).astype(np.float32)
         gyro = rng.uniform(-2e6, 2e6, 3).astype(np.float32)
-        recs.append(struct.pack("<IIi", step, t_us, thr) + np.concatenate([ang, acc, gyro]).astype(np.float32).tobytes())
+        recs.append(
+            struct.pack("<IIi", step, t_us, thr) + np.concatenate([ang, acc, gyro]).astype(np.float32).tobytes()
+        )
         mdeg = [int(np.trunc(a * rad2mdeg)) for a in ang]  # float32 product, rounded toward zero
-        expect += format_att(step=step, t_ms=t_us // 1000, thr=thr, thx_mdeg=mdeg[0], thy_mdeg=mdeg[1],
-                             thz_mdeg=mdeg[2], acc_mg=[int(np.trunc(x)) for x in acc],
-                             gyro_mdps=[int(np.trunc(x)) for x in gyro])
+        expect += format_att(
+            step=step,
+            t_ms=t_us // 1000,
+            thr=thr,
+            thx_mdeg=mdeg[0],
+            thy_mdeg=mdeg[1],
+            thz_mdeg=mdeg[2],
+            acc_mg=[int(np.trunc(x)) for x in acc],
+            gyro_mdps=[int(np.trunc(x)) for x in gyro],
+        )
     res = target.run(b"".join(recs), count=(), entry="emu_run_text")
     assert res.output == expect
     # out of int32 range saturates, NaN gives 0 (never undefined behaviour on the drone)
-    sat = struct.pack("<IIi", 1, 2000, 0) + np.array([0, 0, 0, 3e9, -3e9, np.nan, np.inf, -np.inf, 0],
-                                                     np.float32).tobytes()
+    sat = (
+        struct.pack("<IIi", 1, 2000, 0)
+        + np.array([0, 0, 0, 3e9, -3e9, np.nan, np.inf, -np.inf, 0], np.float32).tobytes()
+    )
     line = target.run(sat, count=(), entry="emu_run_text").output
     assert line.split(b"*")[0] == b"$ATT,1,2,0,0,0,0,2147483647,-2147483648,0,2147483647,-2147483648,0"

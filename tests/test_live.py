@@ -1,7 +1,8 @@
 """``steval live`` end to end against a pseudo-terminal fed at the link's real rate (no hardware).
 
 Each test runs the real CLI in a child process (``steval live --no-view --rrd ...``), with the device path a
-symlink to a pty that :class:`support.ptyfeed.PtyFeeder` fills with a flight's bytes at 161.5 frames/s, and checks what a
+symlink to a pty that :class:`support.ptyfeed.PtyFeeder` fills with a flight's bytes at 161.5 frames/s, and checks what
+a
 student would see: the health/notes on stderr, the summary line, the capture file and the ``.rrd``.
 """
 

@@ -26,9 +26,15 @@ ALL = BINARY + ["textmode.log"]
 def encode(frame) -> bytes:
     """The Python encoder's bytes for a decoded frame."""
     if isinstance(frame, AttitudeFrame):
-        return P.encode_attitude(t_us=frame.t_us, acc_mg=np.float32(frame.acc_mg), gyro_mdps=np.float32(frame.gyro_mdps),
-                                 q_wxyz=np.float32(frame.q_wxyz), thz_rad=np.float32(frame.thz_rad), seq=frame.seq,
-                                 thr=frame.thr)
+        return P.encode_attitude(
+            t_us=frame.t_us,
+            acc_mg=np.float32(frame.acc_mg),
+            gyro_mdps=np.float32(frame.gyro_mdps),
+            q_wxyz=np.float32(frame.q_wxyz),
+            thz_rad=np.float32(frame.thz_rad),
+            seq=frame.seq,
+            thr=frame.thr,
+        )
     if isinstance(frame, StatusFrame):
         names = [n for n in P.STATUS_DTYPE.names if n != "reserved"]
         return P.encode_status(**{n: getattr(frame, n) for n in names})
@@ -68,8 +74,9 @@ def test_readme_says_truly_where_the_synthesis_command_is(monkeypatch, capsys):
     sentence = text[text.index("extra.command") - 400 : text.index("extra.command") + 400]
     assert "`steval replay FILE --json` or" not in sentence
     snippet = re.search(r'`(python -c ".*?read_capture.*?")`', text).group(1)
-    run = subprocess.run([sys.executable, "-c", shlex.split(snippet)[2]], capture_output=True, text=True,
-                         cwd=REC.parent, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-c", shlex.split(snippet)[2]], capture_output=True, text=True, cwd=REC.parent, timeout=120
+    )
     assert run.returncode == 0 and run.stdout.strip() == read_capture(REC / "demo.stv").header["extra"]["command"]
 
 
@@ -121,8 +128,13 @@ def test_port_is_bit_exact_on_every_seeded_step(name):
         r1 = r0
         while r1 + 1 < len(a) and a.step[r1 + 1] == a.step[r1] + 1 and r1 - r0 < 400:
             r1 += 1
-        q, thx, thy, _ = mahony_run(a.acc_mg[r0 : r1 + 1], a.gyro_mdps[r0 : r1 + 1], a.thr[r0 : r1 + 1],
-                                    settings=settings, state=MahonyState(q_wxyz=s.q_wxyz[j], int_xyz=s.int_xyz[j]))
+        q, thx, thy, _ = mahony_run(
+            a.acc_mg[r0 : r1 + 1],
+            a.gyro_mdps[r0 : r1 + 1],
+            a.thr[r0 : r1 + 1],
+            settings=settings,
+            state=MahonyState(q_wxyz=s.q_wxyz[j], int_xyz=s.int_xyz[j]),
+        )
         assert bits_equal(q, a.q_wxyz[r0 : r1 + 1]).all() and bits_equal(thx, a.thx_rad[r0 : r1 + 1]).all()
         checked += 1
     assert checked >= len(s) // 2

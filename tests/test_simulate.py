@@ -29,7 +29,9 @@ def parse_csv(text: str) -> dict[str, np.ndarray]:
 @needs_baseline
 def test_baseline_csv_output_is_bit_exact_with_the_firmware(monkeypatch, capsys):
     v = load_conformance_csv(BASELINE)
-    code, out, err = run_cli(monkeypatch, capsys, "simulate", "--gyro", 1000, 2000, 4000, "--acc", 0, 0, 0, "--csv", "-")
+    code, out, err = run_cli(
+        monkeypatch, capsys, "simulate", "--gyro", 1000, 2000, 4000, "--acc", 0, 0, 0, "--csv", "-"
+    )
     assert code == 0
     cols = parse_csv(out)
     assert len(cols["iteration"]) == len(v) == 100
@@ -61,21 +63,62 @@ def test_baseline_defaults_json_and_printed_angles(monkeypatch, capsys):
 
 def test_options_reach_the_filter(monkeypatch, capsys, tmp_path):
     out_csv = tmp_path / "run.csv"
-    args = ["simulate", "--acc", 100, 300, 900, "--gyro", 0, 0, 0, "-n", 60, "--ki", 1.0, "--kp", 2.0,
-            "--throttle", 450, "--dt", 0.00619, "--csv", out_csv]
+    args = [
+        "simulate",
+        "--acc",
+        100,
+        300,
+        900,
+        "--gyro",
+        0,
+        0,
+        0,
+        "-n",
+        60,
+        "--ki",
+        1.0,
+        "--kp",
+        2.0,
+        "--throttle",
+        450,
+        "--dt",
+        0.00619,
+        "--csv",
+        out_csv,
+    ]
     code, out, _ = run_cli(monkeypatch, capsys, *args)
     assert code == 0 and "KI 1" in out and "kp 2" in out
     cols = parse_csv(out_csv.read_text())
     acc = np.tile(np.float32([100, 300, 900]), (60, 1))
-    q, thx, _, _ = run(acc, np.zeros((60, 3)), np.full(60, 450),
-                       settings=MahonySettings(ki=1.0, kp_ground=2.0, kp_flight=2.0, dt_s=0.00619))
+    q, thx, _, _ = run(
+        acc,
+        np.zeros((60, 3)),
+        np.full(60, 450),
+        settings=MahonySettings(ki=1.0, kp_ground=2.0, kp_flight=2.0, dt_s=0.00619),
+    )
     assert bits_equal(cols["q2"].astype(np.float32), q[:, 2]).all()
     assert bits_equal(cols["eax_rad"].astype(np.float32), thx).all()
 
 
 def test_no_correction_integrates_the_gyro_only(monkeypatch, capsys):
-    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "--gyro", 10000, 0, 0, "--acc", 0, 1000, 0,
-                           "--no-correction", "--fresh-squares", "-n", 160, "--json")
+    code, out, _ = run_cli(
+        monkeypatch,
+        capsys,
+        "simulate",
+        "--gyro",
+        10000,
+        0,
+        0,
+        "--acc",
+        0,
+        1000,
+        0,
+        "--no-correction",
+        "--fresh-squares",
+        "-n",
+        160,
+        "--json",
+    )
     assert code == 0
     doc = json.loads(out)
     assert abs(doc["final"]["eax_deg"] - 10.0 * 160 * 0.00625) < 0.02  # 10 dps for 1 s, acc ignored

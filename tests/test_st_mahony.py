@@ -166,7 +166,9 @@ def test_loops_agree_on_extreme_inputs():
     # zeros, ±0, denormals, overflow to inf, inf, NaN and huge rates: C and numpy must round (and NaN) alike
     rng = np.random.default_rng(0)
     n = 3000
-    specials = np.array([0, -0.0, 1e-45, -1e-45, 1e-38, 3e38, -3e38, np.inf, -np.inf, np.nan, 1e20, 1, -2e6], np.float32)
+    specials = np.array(
+        [0, -0.0, 1e-45, -1e-45, 1e-38, 3e38, -3e38, np.inf, -np.inf, np.nan, 1e20, 1, -2e6], np.float32
+    )
     acc = rng.choice(specials, (n, 3)).astype(np.float32)
     gyro = rng.choice(specials, (n, 3)).astype(np.float32)
     normal = rng.random(n) < 0.8

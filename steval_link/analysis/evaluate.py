@@ -158,7 +158,8 @@ def evaluate_trial(path, specs: Sequence[EstimatorSpec] | None = None, *, native
     """Load a BROAD trial and evaluate ``specs`` (default: :func:`default_specs`) on it.
 
     Without ``native`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
-    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``native`` the estimators run
+    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``native`` the
+    estimators run
     on the trial's own samples (285.7 Hz).
     """
     trial = path if isinstance(path, broad.BroadTrial) else broad.load_trial(path)

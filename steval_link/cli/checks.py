@@ -25,7 +25,9 @@ def check_gain(option: str, value: float | None) -> None:
 def check_throttle(option: str, value: int | None) -> None:
     """A firmware throttle gTHR: 0 .. :data:`MAX_THROTTLE` (None: not given)."""
     if value is not None and not 0 <= value <= MAX_THROTTLE:
-        raise UserError(f"{option} is the firmware's gTHR (int16, from 0; MIN_THR is 200): 0..{MAX_THROTTLE}, got {value}")
+        raise UserError(
+            f"{option} is the firmware's gTHR (int16, from 0; MIN_THR is 200): 0..{MAX_THROTTLE}, got {value}"
+        )
 
 
 def check_count(option: str, value: int, maximum: int) -> None:

@@ -33,8 +33,15 @@ def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squa
 
     changes = {
         k: v
-        for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, dt_s=dt, min_thr=min_thr,
-                         correction=correction, fresh_squares=fresh_squares).items()
+        for k, v in dict(
+            ki=ki,
+            kp_ground=kp_ground,
+            kp_flight=kp_flight,
+            dt_s=dt,
+            min_thr=min_thr,
+            correction=correction,
+            fresh_squares=fresh_squares,
+        ).items()
         if v is not None
     }
     if not changes:
@@ -57,34 +64,56 @@ def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squa
 def compare_command(
     capture: Annotated[
         Optional[Path],
-        typer.Argument(help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording.",
-                       show_default=False),
+        typer.Argument(
+            help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording.",
+            show_default=False,
+        ),
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
-                                                          "stdout).")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
+    ] = False,
     plot: Annotated[
         Optional[Path],
-        typer.Option("--plot", metavar="OUT.png", help='Also write a figure (angles over time, firmware − port, '
-                     'differences per estimator); needs matplotlib: pip install "steval-link\\[plot]".'),
+        typer.Option(
+            "--plot",
+            metavar="OUT.png",
+            help="Also write a figure (angles over time, firmware − port, "
+            'differences per estimator); needs matplotlib: pip install "steval-link\\[plot]".',
+        ),
     ] = None,
     estimator: Annotated[
         Optional[list[str]],
-        typer.Option("--estimator", "--estimators", "-e", help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel). "
-                     "The seeded ST-Mahony port is always compared."),
+        typer.Option(
+            "--estimator",
+            "--estimators",
+            "-e",
+            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel). "
+            "The seeded ST-Mahony port is always compared.",
+        ),
     ] = None,
-    ki: Annotated[Optional[float], typer.Option("--ki", help="Run the port with this AHRS_KI instead of the "
-                                                             "status frames' (diagnosis of a mismatch).")] = None,
+    ki: Annotated[
+        Optional[float],
+        typer.Option(
+            "--ki", help="Run the port with this AHRS_KI instead of the status frames' (diagnosis of a mismatch)."
+        ),
+    ] = None,
     kp_ground: Annotated[Optional[float], typer.Option("--kp-ground", help="Port kp below MIN_THR.")] = None,
     kp_flight: Annotated[Optional[float], typer.Option("--kp-flight", help="Port kp at or above MIN_THR.")] = None,
     dt: Annotated[Optional[float], typer.Option("--dt", help="Port integration period, s.")] = None,
     min_thr: Annotated[Optional[int], typer.Option("--min-thr", help="Port gain-switch throttle.")] = None,
     correction: Annotated[
-        Optional[bool], typer.Option("--correction/--no-correction", help="Port with/without accelerometer "
-                                     "correction.", show_default=False)
+        Optional[bool],
+        typer.Option(
+            "--correction/--no-correction", help="Port with/without accelerometer correction.", show_default=False
+        ),
     ] = None,
     fresh_squares: Annotated[
-        Optional[bool], typer.Option("--fresh-squares/--stale-squares", help="Port normalisation variant (fresh: "
-                                     "2017 releases; stale: 170120).", show_default=False)
+        Optional[bool],
+        typer.Option(
+            "--fresh-squares/--stale-squares",
+            help="Port normalisation variant (fresh: 2017 releases; stale: 170120).",
+            show_default=False,
+        ),
     ] = None,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
@@ -92,8 +121,9 @@ def compare_command(
     drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees."""
 
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
-    names = registry.parse_names(",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT,
-                                 require_installed=False)  # a missing optional package is a row of the report
+    names = registry.parse_names(
+        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
+    )  # a missing optional package is a row of the report
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
@@ -104,8 +134,10 @@ def compare_command(
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4))
         if len(tel.attitude) == 0:
-            raise UserError(f"{tel.source.get('path')} has no attitude frames to compare "
-                            f"({len(tel.status)} status frames, {len(tel.text)} text lines).")
+            raise UserError(
+                f"{tel.source.get('path')} has no attitude frames to compare "
+                f"({len(tel.status)} status frames, {len(tel.text)} text lines)."
+            )
         settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
         progress(0.4, f"port and {', '.join(names)}")
         report = compare_capture(tel, estimators=names, settings=settings)

@@ -23,7 +23,9 @@ def _json_num(x: float):
 
 @app.command("conformance")
 def conformance_command(
-    csv_files: list[Path] = typer.Argument(..., metavar="CSV...", help="Conformance vector files (firmware outputs), or directories of them."),
+    csv_files: list[Path] = typer.Argument(
+        ..., metavar="CSV...", help="Conformance vector files (firmware outputs), or directories of them."
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the per-file results as JSON."),
     ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain of the checked firmware (default 0.1)."),
     kp_ground: Optional[float] = typer.Option(None, "--kp-ground", help="kp below MIN_THR (default 10)."),
@@ -47,9 +49,7 @@ def conformance_command(
         if v is not None
     }
     try:
-        settings = MahonySettings(
-            **overrides, correction=not no_correction, fresh_squares=fresh_squares
-        )
+        settings = MahonySettings(**overrides, correction=not no_correction, fresh_squares=fresh_squares)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     paths: list[Path] = []
@@ -87,7 +87,9 @@ def conformance_command(
         sys.stdout.write("\n")
     else:
         width = max(len(r.name) for r in results)
-        print(f"{'file':<{width}}  {'steps':>8}  {'bit-exact':>9}  {'max|Δq|':>10}  {'max|Δθ| rad':>11}  first mismatch")
+        print(
+            f"{'file':<{width}}  {'steps':>8}  {'bit-exact':>9}  {'max|Δq|':>10}  {'max|Δθ| rad':>11}  first mismatch"
+        )
         for r in results:
             first = "-" if r.first_mismatch_step is None else f"step {r.first_mismatch_step}"
             if r.nan_mismatches:

@@ -66,7 +66,9 @@ def _noise(text: Optional[str], typical: float, what: str, unit: str) -> float:
     try:
         value = float(word)
     except ValueError:
-        raise UserError(f"--{what}-noise takes a standard deviation in {unit} or 'on' (typical {typical:g}), got {text!r}") from None
+        raise UserError(
+            f"--{what}-noise takes a standard deviation in {unit} or 'on' (typical {typical:g}), got {text!r}"
+        ) from None
     if not (math.isfinite(value) and value >= 0):
         raise UserError(f"--{what}-noise must be a standard deviation ≥ 0 {unit}, got {text!r}")
     return value
@@ -153,8 +155,10 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
         extra = ("" if s["correction"] else ", no correction (g* = g)") + (
             ", fresh-squares normalisation" if s["fresh_squares"] else ""
         )
-        lines.append(f"  filter: kp {kp:g} (throttle {'<' if throttle < s['min_thr'] else '≥'} MIN_THR {s['min_thr']}), "
-                     f"KI {s['ki']:g}, dt {s['dt_s']:g} s{extra}")
+        lines.append(
+            f"  filter: kp {kp:g} (throttle {'<' if throttle < s['min_thr'] else '≥'} MIN_THR {s['min_thr']}), "
+            f"KI {s['ki']:g}, dt {s['dt_s']:g} s{extra}"
+        )
     elif res.options:
         lines.append("  options: " + ", ".join(f"{k}={v}" for k, v in res.options.items()))
     lines.append("final angles (firmware axes: x right, y forward, z up)")
@@ -168,8 +172,10 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
             lines.append(f"  {ea} = {th}  {label} (about {axis}): {math.degrees(rad):+14.6f} deg  {rad:+.9g} rad")
     lines.extend(_zero_acc_notes(res))
     if res.iterations and not res.valid.all():
-        lines.append(f"  note: {int((~res.valid).sum())} of {res.iterations} iterations flagged invalid "
-                     "(valid = 0 in --csv and --json)")
+        lines.append(
+            f"  note: {int((~res.valid).sum())} of {res.iterations} iterations flagged invalid "
+            "(valid = 0 in --csv and --json)"
+        )
     return "\n".join(lines)
 
 
@@ -181,14 +187,20 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
         return []
     where = "" if zero.all() else f" in {int(zero.sum())} of {res.iterations} iterations"
     if res.settings:
-        return [f"  acc is 0{where}: correction and KI inactive (the firmware's error term is 0, so --ki and "
-                "--no-correction print the same angles; try --acc 0 0 1000 --throttle 500 -n 1000)"]
+        return [
+            f"  acc is 0{where}: correction and KI inactive (the firmware's error term is 0, so --ki and "
+            "--no-correction print the same angles; try --acc 0 0 1000 --throttle 500 -n 1000)"
+        ]
     if res.estimator in ("ekf3", "mekf") and not res.valid[zero].any():
-        return [f"  acc is 0{where}: {res.estimator} takes its initial tilt from the first non-zero accelerometer "
-                "sample and does not integrate the gyro before it: those iterations are flagged invalid"]
+        return [
+            f"  acc is 0{where}: {res.estimator} takes its initial tilt from the first non-zero accelerometer "
+            "sample and does not integrate the gyro before it: those iterations are flagged invalid"
+        ]
     if not res.valid[zero].any():
-        return [f"  acc is 0{where}: {res.estimator} has no tilt from a zero accelerometer vector: those iterations "
-                "are flagged invalid"]
+        return [
+            f"  acc is 0{where}: {res.estimator} has no tilt from a zero accelerometer vector: those iterations "
+            "are flagged invalid"
+        ]
     return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
@@ -232,7 +244,9 @@ def simulate_command(
     json_out: bool = typer.Option(False, "--json", help="Print the run (every iteration, exact values) as JSON."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Log the run to a Rerun .rrd file for the viewer."),
     plot: Optional[Path] = typer.Option(
-        None, "--plot", metavar="OUT.png",
+        None,
+        "--plot",
+        metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ),
 ) -> None:

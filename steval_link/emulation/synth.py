@@ -3,9 +3,12 @@
 Until real drone captures exist, tests and the demo use these. The chain, one function per link:
 
 1. motion (:mod:`steval_link.emulation.motion`): a built-in scenario or a BROAD trial, at every TIM9 tick (807.7 Hz);
-2. LSM6DSL (:class:`steval_link.emulation.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver quantisation;
-3. the firmware's ISR and main loop (:func:`steval_link.emulation.sensor_model.run_isr`): power-up offset calibration (the
-   AHRS starts ≈ 2 s after TIM9), gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`
+2. LSM6DSL (:class:`steval_link.emulation.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver
+quantisation;
+3. the firmware's ISR and main loop (:func:`steval_link.emulation.sensor_model.run_isr`): power-up offset calibration
+(the
+   AHRS starts ≈ 2 s after TIM9), gyro IIR, 5-sample boxcar; ``thz`` from
+   :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`
    (reset below MIN_THR);
 4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact port (:func:`steval_link.estimators.st_mahony.run`),
    with the firmware variant's settings (``--ki``, ``--no-correction``);
@@ -23,7 +26,8 @@ Until real drone captures exist, tests and the demo use these. The chain, one fu
 What is emulated rather than measured (documented so nobody mistakes it for the drone's): the boot timing, the
 main loop's latency after each tick, the DWT cycle counts of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (a noisy
 constant of :data:`AHRS_CYCLES` at -O0 on the Cortex-M4 at 84 MHz plus the USART TXE interrupts that land in the
-step), the slow drift of the gyro's zero-rate level after calibration, the BLE module's banner values, the adapter (FTDI-like: 62 data bytes per USB packet, 16 ms latency timer,
+step), the slow drift of the gyro's zero-rate level after calibration, the BLE module's banner values, the adapter
+(FTDI-like: 62 data bytes per USB packet, 16 ms latency timer,
 1 ms USB frames). ``--drop-rate P`` makes the queue refuse about a fraction P of the attitude frames (bursts of
 about 3, as when it is full); a baud rate too low for the stream overflows the emulated queue by itself.
 
@@ -103,11 +107,13 @@ class SynthOptions:
     """What to emulate (the ``steval synth`` options).
 
     Attributes:
-        scenario: built-in scenario name (:data:`steval_link.emulation.motion.SCENARIOS`) or a BROAD trial ``.npz`` path.
+        scenario: built-in scenario name (:data:`steval_link.emulation.motion.SCENARIOS`) or a BROAD trial ``.npz``
+        path.
         duration_s: capture length, s (default: the scenario's; a BROAD trial: all of it after the join).
         seed: seeds every random choice (motion details, sensor bias and noise, latencies, drops).
         baud: USART1 baud rate (header, status frames, byte timing, queue drain).
-        throttle: ``--throttle`` spec overriding the scenario's throttle (see :func:`steval_link.emulation.motion.parse_throttle`).
+        throttle: ``--throttle`` spec overriding the scenario's throttle (see
+        :func:`steval_link.emulation.motion.parse_throttle`).
         ki: ``AHRS_KI`` of the emulated build (float32 like the firmware).
         correction: False: the build without accelerometer correction (lab exercise 5, status flag bit 0).
         text_mode: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines).

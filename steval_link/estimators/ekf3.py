@@ -37,7 +37,8 @@ with ``R = σ_a²·I``, σ_a the accelerometer noise in g (``acc_noise_mg``; LSM
 that also translates, the unmodelled linear acceleration (``acc_motion_mg``). With ``adaptive=True`` σ_a
 also grows with the deviation of |a| from 1 g: ``σ_a² = σ_n² + σ_m² + (k·| |a| − 1 g |)²`` (``norm_gain`` k), so
 shakes and taps are trusted less. It is off by default: it discounts exactly the strongest accelerations, which
-biases the tilt during back-and-forth translation (BROAD trial 15: 5.8° without, 11.8° with). ψ is unobservable (no magnetometer) and only integrates the gyro.
+biases the tilt during back-and-forth translation (BROAD trial 15: 5.8° without, 11.8° with). ψ is unobservable (no
+magnetometer) and only integrates the gyro.
 The filter starts from the first accelerometer sample's tilt (ψ = 0). cos θ is kept away from 0 (gimbal lock
 at θ = ±90°, a limitation of the Euler-angle state).
 

@@ -2,12 +2,14 @@
 
 The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until no more
 bytes came for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
-and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding, estimation and logging live in
+and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding,
+estimation and logging live in
 the protocol (``steval_link.live``), never here.
 
 When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
 tells the protocol (:meth:`Protocol.connection_lost`), then polls ``find_port`` every ``reconnect_poll_s`` for the
-device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.link.autodetect`), reopens it and calls
+device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.link.autodetect`), reopens it and
+calls
 :meth:`Protocol.connection_made` again. Only :meth:`SerialReader.stop` ends the thread.
 
 Errors when opening a port are turned into one sentence with the fix by :func:`open_error_message`.
@@ -98,7 +100,9 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
         code = getattr(cause, "errno", None)
     if code == errno.ENOENT or "No such file or directory" in text:
         if available:
-            return f"no serial port {port}; available ports: {', '.join(available)} (pick one with --port, or --port auto)"
+            return (
+                f"no serial port {port}; available ports: {', '.join(available)} (pick one with --port, or --port auto)"
+            )
         return f"no serial port {port}, and no serial ports found; plug in the USB-UART adapter (or use --wait)"
     if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
         return (

@@ -10,7 +10,8 @@ Flow (one way)::
                                    └─► LinkHealth ──► HealthDisplay (stderr) and the summary line
 
 The capture is written before anything is decoded (each chunk goes to the OS at once, so even ``kill -9`` loses
-nothing already received; the writer syncs to disk at least once a second), and a slow viewer never costs bytes: when the main thread falls behind,
+nothing already received; the writer syncs to disk at least once a second), and a slow viewer never costs bytes: when
+the main thread falls behind,
 the inbox drops the oldest chunks from the *live* display only (counted), never from the capture.
 
 Faults the session survives: unplug/replug (the reader reopens the port, by path or USB identity, and the capture
@@ -353,7 +354,12 @@ class LiveSession:
     def _check_frames(self, proto: RecorderProtocol, now: float) -> None:
         """Wrong baud rate / not a STEVAL / silence: give up (or warn once with --wait) when no frame ever came."""
         stats = self.pipeline.decoder.stats
-        if stats.attitude + stats.status > 0 or self.warned_no_frames or not proto.connected or proto.connected_at_s is None:
+        if (
+            stats.attitude + stats.status > 0
+            or self.warned_no_frames
+            or not proto.connected
+            or proto.connected_at_s is None
+        ):
             return
         elapsed = now - proto.connected_at_s
         nbytes = proto.connect_bytes
