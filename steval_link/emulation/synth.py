@@ -76,7 +76,7 @@ __all__ = [
 EPOCH_UNIX_S = 1767225600.0
 #: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
 #: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
-#: instructions (``steval emulate``; 4050-5300 over tilted attitudes). A real M4 needs somewhat more cycles.
+#: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
 AHRS_CYCLES = 4420
 #: USART1 TXE interrupt (stv_fw_usart1_irq, -O2) including entry and exit, cycles.
 TXE_IRQ_CYCLES = 62
