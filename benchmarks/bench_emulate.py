@@ -68,8 +68,9 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
     per_s = {k: round(v / rep.emulated_s) for k, v in rep.interrupts.items()}
     print(f"  interrupts per emulated s: {per_s}; instructions executed {rep.instructions / rep.emulated_s / 1e6:.2f} M"
           f"/s, idle skipped {rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M/s")
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"  frames: {dec.stats.attitude} attitude, {dec.stats.crc_failures} CRC failures, "
-          f"{dec.stats.frames_missing} missing; peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+          f"{dec.stats.frames_missing} missing; peak RSS {peak_mb:.0f} MB")
 
 
 def main() -> None:

@@ -324,3 +324,12 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
     code, _, err = run_cli(["synth", *args, "--out", str(tmp_path / "y.stv")], capsys)
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "y.stv").exists()
+
+
+def test_the_default_c_encoder_is_this_trees_host_build():
+    from pathlib import Path
+
+    from steval_link.emulation.synth import default_c_encoder
+
+    root = Path(__file__).resolve().parents[1]
+    assert default_c_encoder() == root / "firmware_patch" / "host" / "stv_encode"

@@ -883,8 +883,6 @@ class Board:
         get_tick = e.addr("HAL_GetTick")
         if delay is not None and get_tick is not None:
             lo, hi = delay.addr & ~1, (delay.addr & ~1) + max(delay.size, 2)
-            A = self._A
-
             LR = self._LR
 
             def delay_poll(uc, address, size, user):
@@ -1077,7 +1075,7 @@ class Board:
 
     def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
-        uc, A = self.uc, self._A
+        uc = self.uc
         ic = self._ic
         self._run_end = t_end
         while self.now < t_end:

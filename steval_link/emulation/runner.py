@@ -7,7 +7,8 @@
         ...
     print(emu.report().lines())
 
-Motion: a built-in scenario of :mod:`steval_link.emulation.motion` (rendered in windows of :data:`WINDOW_S`, so memory stays
+Motion: a built-in scenario of :mod:`steval_link.emulation.motion` (rendered in windows of :data:`WINDOW_S`, so memory
+stays
 bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
 LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
 registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
@@ -289,8 +290,8 @@ class Emulation:
                 last_steps, last_progress_t = self.n_steps, b.now
             if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * CPU_HZ:
                 raise FirmwareStuck(
-                    f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time (t = {b.now / CPU_HZ:.3f} s); the CPU "
-                    f"is in {b.where()} (pc 0x{b.pc():08x})")
+                    f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time "
+                    f"(t = {b.now / CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})")
 
     def run(self) -> bytes:
         """Run to the end; all USART1 bytes."""

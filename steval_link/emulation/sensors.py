@@ -12,7 +12,8 @@ output registers filled from a motion source at the moment of the read:
 The board's body axes (COORDINATE_SYSTEM 3: x right, y forward, z up) come from the sensor's by ST's
 ``ReadSensorRawData``: body x = −sensor y, body y = sensor x, body z = sensor z. :func:`body_to_sensor_counts`
 does the inverse on ADC counts. :class:`SensorBus` logs every LSM6DSL sample it served (the *driver readings*
-``(int32_t)(raw * sensitivity)`` in body axes), so a test can run :mod:`steval_link.emulation.sensor_model`'s ISR pipeline on
+``(int32_t)(raw * sensitivity)`` in body axes), so a test can run :mod:`steval_link.emulation.sensor_model`'s ISR
+pipeline on
 exactly what the firmware read.
 """
 

@@ -195,7 +195,7 @@ class SynthResult:
 
 def default_c_encoder() -> Path:
     """``firmware_patch/host/stv_encode`` of this source tree (``make -C firmware_patch host`` builds it)."""
-    return Path(__file__).resolve().parents[1] / "firmware_patch" / "host" / "stv_encode"
+    return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
 
 
 def _is_path(scenario: str) -> bool:
