@@ -1,0 +1,376 @@
+"""The firmware patch's link (``firmware_patch/src/stv_link.c`` and ``stv_txq.c``) emulated step by step, for
+``steval synth``: the AHRS step timing of the main loop, an attitude frame per step (``$ATT`` lines every 16th step
+in text mode), a status frame after every 162nd step with the filter-state snapshot and the DWT cycle statistics,
+the boot log as text frames, and the 2048-byte TX queue drained by USART1 at the baud rate (a frame that does not
+fit is dropped and counted in ``tx_dropped``; attitude and text frames leave room for a status frame). Then the
+frames as bytes, by the Python encoder or the firmware's own C encoder.
+
+The timing figures are the real firmware's under emulation (``steval emulate``), where it can be measured; the
+rest (main-loop latency after a tick, the TIM9 ISR's length, BLE traffic) are models, documented where they stand.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.errors import UserError
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState
+from steval_link.link import protocol as P
+from steval_link.link.textmode import format_att, format_sta
+
+__all__ = [
+    "AHRS_CYCLES",
+    "STATUS_EVERY_STEPS",
+    "TEXT_DECIMATION",
+    "TXQ_SIZE",
+    "TIM9_START_CYCLES",
+    "LinkEmulation",
+    "TxQueue",
+    "boot_lines",
+    "count_frames",
+    "encode",
+    "forced_drops",
+    "step_timing",
+]
+
+CPU_HZ = C.CPU_HZ
+#: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
+#: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
+#: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
+AHRS_CYCLES = 4420
+#: USART1 TXE interrupt (stv_fw_usart1_irq, -O2) including entry and exit, cycles.
+TXE_IRQ_CYCLES = 62
+#: ``STV_STATUS_EVERY_STEPS``, ``STV_TEXT_DECIMATION``, ``STV_TXQ_SIZE``, ``STV_TEXT_LINE_MAX`` of the patch.
+STATUS_EVERY_STEPS = 162
+TEXT_DECIMATION = 16
+TXQ_SIZE = 2048
+TEXT_LINE_MAX = 192
+FW_VERSION = (1, 0, 0)
+#: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period: the sensor set-up in main()
+#: includes ST's ``HAL_Delay(1000)`` in the LPS22HB init, then HAL_TIM_Base_Start_IT's first interrupt comes at
+#: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under
+#: emulation (stv_fw_init → HAL_TIM_Base_Start_IT: 84 007 128 cycles); the first attitude frame then comes at
+#: t_us ≈ 2.985 s, as the emulated firmware's does.
+TIM9_START_CYCLES = 84_007_128 - 104_000
+_RAD_TO_MDEG_F32 = np.float32(57295.78)
+
+
+#: one frame in transmit order: (kind "att" | "status" | "text" | "raw", the attitude row or the payload, the cycle
+#: time its first byte starts, its size in bytes)
+Frame = tuple[str, object, float, int]
+
+
+def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
+    """The 170120 firmware's PRINTF lines from power-up (empty lines dropped by the link), with the emulated cycle
+    counts at which they are written. The BlueNRG version and the random BLE address come from ``rng``."""
+    uid = rng.integers(0, 256, 4)
+    mac = [0xC0, 0x8C, int(uid[0]), int(uid[1]), int(uid[2]), int(uid[3])]
+    # ms after the link starts, as the real firmware writes them under emulation (the sensor lines come after ST's
+    # HAL_Delay(1000); the BlueNRG's own reply times are not modelled there, so the BLE lines' spacing is a guess)
+    ms = [
+        (0.02, "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017"),
+        (999.95, "LSM6DSL MEMS Accelerometer initialized and enabled"),
+        (999.97, "LSM6DSL MEMS Gyroscope initialized and enabled"),
+        (1000.0, "LIS2MDL Magnetometer initialized and enabled"),
+        (1000.02, "LPS22HB Pressure sensor initialized and enabled"),
+        (1000.04, "LPS22HB Temperature sensor initialized and enabled"),
+        (1000.09, "BLE communication initialization..."),
+        (1000.11, "****** START BLE TESTS ******"),
+        (1009.9, "Reading BlueNRG version ..."),
+        (1019.9, "GATT Initializzation..."),
+        (1020.5, "GAP setting Authentication ...."),
+        (1021.0, "SERVER: BLE Stack Initialized "),
+        (1021.1, "Board HWver=49, FWver=7.2.c"),
+        (1021.2, "BoardMAC = " + ":".join(f"{b:x}" for b in mac)),
+        (1022.0, "Console Service W2ST added successfully"),
+        (1023.0, "Config  Service W2ST added successfully"),
+        (1023.1, "All test passed!"),
+        (1023.2, "****** END BLE TESTS ******"),
+        (1024.0, "HW      Service W2ST added successfully"),
+        (1025.0, "Console Service W2ST added successfully"),
+        (1026.0, "Config  Service W2ST added successfully"),
+    ]
+    jitter = rng.uniform(0.0, 0.03, len(ms))
+    return [(int((t + j) * CPU_HZ / 1000), text) for (t, text), j in zip(ms, jitter)]
+
+
+class TxQueue:
+    """The patch's TX ring buffer drained by USART1 at ``baud`` (10 bit times per byte), in cycle time."""
+
+    def __init__(self, baud: int) -> None:
+        self.tau = 10.0 * CPU_HZ / baud  # cycles per byte
+        self.busy_until = 0.0  # cycle time the last queued byte has been shifted out
+        self.dropped = 0
+        self.peak = 0
+
+    def used(self, t: float) -> int:
+        """Bytes still in the queue at ``t`` (one byte sits in the shift register, one in DR)."""
+        if self.busy_until <= t:
+            return 0
+        return max(0, math.ceil((self.busy_until - t) / self.tau - 1e-9) - 2)
+
+    def push(self, t: float, n: int, keep_free: int) -> float | None:
+        """Enqueue n bytes at cycle time t; the cycle time their first byte starts, or None if dropped."""
+        used = self.used(t)
+        if n + keep_free > TXQ_SIZE - used:
+            self.dropped += 1
+            return None
+        start = max(t, self.busy_until)
+        self.busy_until = start + n * self.tau
+        self.peak = max(self.peak, used + n)
+        return start
+
+    def take_peak(self, t: float) -> int:
+        p = self.peak
+        self.peak = self.used(t)
+        return p
+
+    def busy_overlap(self, t0: float, t1: float) -> float:
+        """Bytes the UART finishes between t0 and t1 (for the TXE interrupts landing in an AHRS step)."""
+        return max(0.0, min(self.busy_until, t1) - t0) / self.tau
+
+
+def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndarray:
+    """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts (mean 3 frames) separated by
+    geometric gaps, so the long-run fraction is ``rate``."""
+    out = np.zeros(n_steps, dtype=bool)
+    if rate <= 0 or n_steps == 0:
+        return out
+    mean_gap = max(1.0, 3.0 * (1.0 - rate) / rate)
+    mean_burst = rate * mean_gap / (1.0 - rate)
+    i = int(rng.geometric(1.0 / mean_gap)) - 1
+    while i < n_steps:
+        burst = int(rng.geometric(min(1.0, 1.0 / mean_burst)))
+        out[i : i + burst] = True
+        i += burst + int(rng.geometric(1.0 / mean_gap))
+    return out
+
+
+def step_timing(step_tick: np.ndarray, n_ticks: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
+                                                                                          np.ndarray]:
+    """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
+    ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
+    PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
+    n_steps = len(step_tick)
+    tick_cycles = TIM9_START_CYCLES + (np.arange(n_ticks, dtype=np.int64) + 1) * C.TICK_CYCLES
+    isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
+    loop_latency = rng.integers(0, 700, n_steps) + np.where(rng.random(n_steps) < 0.08,
+                                                            rng.integers(0, 34_000, n_steps), 0)
+    begin = tick_cycles[step_tick] + isr_cycles + loop_latency
+    cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
+    txe_u = rng.random(n_steps)
+    return begin, cyc_noise, txe_u
+
+
+@dataclass
+class LinkEmulation:
+    """``stv_link.c`` of one firmware run: feed it the boot lines (:meth:`text`) and every AHRS step
+    (:meth:`step`); it keeps the transmit ``order``, which attitude rows were ``sent`` and the ``status`` records.
+
+    ``att``: the attitude payload rows (``ATTITUDE_DTYPE``) of every step; ``snapshots``: the filter state after
+    each status step, in order; ``drop``: attitude frames the queue refuses on purpose (``--drop-rate``).
+    """
+
+    att: np.ndarray
+    settings: MahonySettings
+    ki: float
+    baud: int
+    text_mode: bool
+    snapshots: list[MahonyState]
+    drop: np.ndarray
+    order: list[Frame] = field(default_factory=list)
+    status: list[np.ndarray] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.txq = TxQueue(self.baud)
+        self.sent = np.zeros(len(self.att), dtype=bool)
+        self.flags = self.settings.flags | (P.FLAG_TEXT_MODE if self.text_mode else 0)
+        self.ki_f32 = np.float32(self.ki)
+        self._reset_cycles()
+
+    def _reset_cycles(self) -> None:
+        self.cyc_min, self.cyc_max, self.cyc_sum, self.cyc_n = 2**32 - 1, 0, 0, 0
+
+    def _push(self, kind: str, item, cyc: float, size: int, keep_free: int) -> bool:
+        start = self.txq.push(cyc, size, keep_free)
+        if start is not None:
+            self.order.append((kind, item, start, size))
+        return start is not None
+
+    def text(self, cyc: float, line: str) -> None:
+        """A ``PRINTF`` line at cycle time ``cyc``: text frames (binary mode) or a plain line (text mode)."""
+        if self.text_mode:
+            data = line.encode("utf-8")
+            if data.startswith(b"$"):
+                data = b"#" + data[1:]
+            data += b"\r\n"
+            self._push("raw", data, cyc, len(data), TEXT_LINE_MAX)
+            return
+        raw = line.encode("utf-8") or b" "
+        for i in range(0, len(raw), P.TEXT_MAX_PAYLOAD):
+            piece = raw[i : i + P.TEXT_MAX_PAYLOAD]
+            self._push("text", piece, cyc, P.HEADER_SIZE + len(piece) + P.CRC_SIZE, P.STATUS_FRAME_SIZE)
+
+    def step(self, k: int, c0: float, cyc_noise: int, txe_u: float, rows: dict) -> None:
+        """AHRS step ``k`` beginning at cycle ``c0``: its DWT count (the filter plus the TXE interrupts landing in
+        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step. ``rows`` holds the
+        text-mode line's values (``thx``, ``thy``, ``thz`` rad, ``thr``) of every step."""
+        base = AHRS_CYCLES + int(cyc_noise)
+        irqs = self.txq.busy_overlap(c0, c0 + base)
+        n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)
+        cyc = base + n_irq * TXE_IRQ_CYCLES
+        c1 = c0 + cyc
+        self.cyc_min, self.cyc_max = min(self.cyc_min, cyc), max(self.cyc_max, cyc)
+        self.cyc_sum, self.cyc_n = self.cyc_sum + cyc, self.cyc_n + 1
+        if not self.text_mode:
+            self._attitude(k, c1)
+        elif k % TEXT_DECIMATION == 0:
+            self._att_line(k, c1, rows)
+        if k % STATUS_EVERY_STEPS == STATUS_EVERY_STEPS - 1:
+            self._status(k, c1)
+
+    def _attitude(self, k: int, c1: float) -> None:
+        if self.drop[k]:
+            self.txq.dropped += 1
+        elif self._push("att", k, c1, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE):
+            self.sent[k] = True
+
+    def _att_line(self, k: int, c1: float, rows: dict) -> None:
+        a = self.att[k]
+        line = format_att(
+            step=k, t_ms=int(a["t_us"]) // 1000, thr=int(a["thr"]),
+            thx_mdeg=f2i(rows["thx"][k] * _RAD_TO_MDEG_F32), thy_mdeg=f2i(rows["thy"][k] * _RAD_TO_MDEG_F32),
+            thz_mdeg=f2i(np.float32(a["thz_rad"]) * _RAD_TO_MDEG_F32),
+            acc_mg=[f2i(v) for v in a["acc_mg"]], gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
+        )
+        if self.drop[k]:
+            self.txq.dropped += 1
+        elif self._push("raw", line, c1, len(line), TEXT_LINE_MAX):
+            self.sent[k] = True
+
+    def _status(self, k: int, c1: float) -> None:
+        snap = self.snapshots[len(self.status)]
+        s = self.settings
+        rec = np.zeros((), dtype=P.STATUS_DTYPE)
+        rec["step"] = k
+        rec["t_us"] = self.att[k]["t_us"]
+        rec["q_wxyz"] = snap.q_wxyz
+        rec["int_xyz"] = snap.int_xyz
+        rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
+        rec["cyc_min"], rec["cyc_mean"], rec["cyc_max"] = self.cyc_min, self.cyc_sum // self.cyc_n, self.cyc_max
+        rec["cyc_n"] = min(self.cyc_n, 0xFFFF)
+        rec["cpu_hz"] = CPU_HZ
+        rec["tx_dropped"] = self.txq.dropped
+        rec["baud"] = self.baud
+        rec["min_thr"] = s.min_thr
+        rec["flags"] = self.flags
+        rec["queue_peak"] = min(self.txq.take_peak(c1), 0xFFFF)
+        rec["fw_version"] = FW_VERSION
+        self.status.append(rec)
+        self._reset_cycles()
+        if self.text_mode:
+            line = format_sta(step=k, t_ms=int(rec["t_us"]) // 1000, cyc_min=int(rec["cyc_min"]),
+                              cyc_mean=int(rec["cyc_mean"]), cyc_max=int(rec["cyc_max"]), cyc_n=int(rec["cyc_n"]),
+                              tx_dropped=int(rec["tx_dropped"]), flags=self.flags, ki_micro=ki_micro(self.ki_f32))
+            self._push("raw", line, c1, len(line), 0)
+        else:
+            self._push("status", rec, c1, P.STATUS_FRAME_SIZE, 0)
+
+    def status_table(self) -> np.ndarray:
+        """The status records sent or not, as one ``STATUS_DTYPE`` array."""
+        return np.array(self.status, dtype=P.STATUS_DTYPE).reshape(-1)
+
+
+def f2i(x) -> int:
+    """The patch's ``stv_f2i_trunc``: float32 → int32 toward zero, NaN → 0, saturating."""
+    x = np.float32(x)
+    if x != x:
+        return 0
+    if x >= np.float32(2147483520.0):
+        return 2**31 - 1
+    if x <= np.float32(-2147483648.0):
+        return -(2**31)
+    return int(x)
+
+
+def ki_micro(ki: np.float32) -> int:
+    half = np.float32(0.5) if ki >= 0 else np.float32(-0.5)
+    return f2i(np.float32(ki * np.float32(1e6)) + half)
+
+
+def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -> bytes:
+    """The frames of ``order`` as bytes: by the Python encoder, or by the firmware's own C encoder (the host build
+    ``c_encoder``, fed with frame requests)."""
+    if c_encoder is not None:
+        return encode_c(order, att, c_encoder)
+    att_idx = [o[1] for o in order if o[0] == "att"]
+    block = P.encode_attitude_block(att[att_idx]) if att_idx else b""
+    out = []
+    j = 0
+    for kind, item, _, size in order:
+        if kind == "att":
+            out.append(block[j : j + size])
+            j += size
+        elif kind == "status":
+            out.append(P.encode_frame(P.TYPE_STATUS, item.tobytes()))
+        elif kind == "text":
+            out.append(P.encode_frame(P.TYPE_TEXT, item))
+        else:
+            out.append(item)
+    return b"".join(out)
+
+
+def encode_c(order: list[Frame], att: np.ndarray, exe: Path) -> bytes:
+    """The frames of ``order`` through the C host encoder ``exe`` (``firmware_patch/host/stv_encode``)."""
+    exe = Path(exe)
+    if not exe.is_file() or not os.access(exe, os.X_OK):
+        raise UserError(f"C encoder {exe} not found or not executable; build it with: make -C firmware_patch host")
+    req = []
+    for kind, item, _, _ in order:
+        if kind == "att":
+            payload = att[item].tobytes()
+            req.append(bytes((P.TYPE_ATTITUDE, len(payload))) + payload)
+        elif kind == "status":
+            payload = item.tobytes()
+            req.append(bytes((P.TYPE_STATUS, len(payload))) + payload)
+        elif kind == "text":
+            req.append(bytes((P.TYPE_TEXT, len(item))) + item)
+    try:
+        proc = subprocess.run([str(exe)], input=b"".join(req), capture_output=True, check=False, timeout=120)
+    except OSError as exc:
+        raise UserError(f"cannot run the C encoder {exe}: {exc.strerror or exc}") from None
+    if proc.returncode != 0:
+        msg = proc.stderr.decode("utf-8", "replace").strip().splitlines()
+        raise UserError(f"the C encoder {exe} failed (exit {proc.returncode}): {msg[-1] if msg else 'no message'}")
+    expected = sum(o[3] for o in order)
+    if len(proc.stdout) != expected:
+        raise UserError(f"the C encoder {exe} wrote {len(proc.stdout)} bytes, {expected} were expected")
+    return proc.stdout
+
+
+def count_frames(order: list[Frame], offsets: tuple[int, int]) -> dict:
+    """Frames of each kind whose bytes are entirely in the captured range."""
+    counts = {"attitude": 0, "status": 0, "text": 0, "att_lines": 0, "sta_lines": 0, "log_lines": 0}
+    pos = 0
+    lo, hi = offsets
+    for kind, item, _, size in order:
+        if pos >= lo and pos + size <= hi:
+            if kind == "att":
+                counts["attitude"] += 1
+            elif kind in ("status", "text"):
+                counts[kind] += 1
+            elif item.startswith(b"$ATT"):
+                counts["att_lines"] += 1
+            elif item.startswith(b"$STA"):
+                counts["sta_lines"] += 1
+            else:
+                counts["log_lines"] += 1
+        pos += size
+    return counts
