@@ -23,6 +23,10 @@ What is modelled, and how:
 Anything else the firmware touches (an address outside every model) stops the run with
 :class:`UnmodelledHardware`, one line naming the function and address. Nothing here holds module-level mutable
 state.
+
+Why one module of this size: the CPU, the NVIC and the peripheral models share one unicorn instance, one
+instruction clock and the hooks on the hot path (an interrupt per UART byte); each model is a small class here,
+and splitting them across modules would spread that shared state, not reduce it.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ does not see the tilt — exactly the situation the firmware's small in-flight g
 Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
 to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
 the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
-Nothing here holds module-level mutable state.
+Nothing here holds module-level mutable state. One module of this size on purpose: every scenario is a short
+function over the same tick-time helpers, and a reader compares them side by side.
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ Raw bytes are the source of truth: a decoder fix re-decodes old captures.
 * :func:`read_capture` returns a :class:`Capture` (header, bytes, chunk offsets/times, events, truncation).
 * :func:`read_source` / :func:`load_telemetry` also accept a raw byte dump (``cat /dev/ttyUSB0 > log.bin``) or a
   text-mode log, detected by content; bad input raises :class:`~steval_link.errors.UserError` with one sentence.
+
+One module for the format (writing, reading, loading) so that its byte layout is stated in one place.
 """
 
 from __future__ import annotations
