@@ -11,12 +11,15 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.viewer_options import (
+    CaptureOutOption,
     ConnectOption,
     GrpcPortOption,
+    NoViewOption,
     RrdOption,
     ServeOption,
     SpawnOption,
     WebPortOption,
+    check_view_flags,
 )
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
@@ -41,10 +44,9 @@ def emulate_command(
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
     throttle: Optional[str] = typer.Option(None, "--throttle", help="Override the remote's throttle: N or "
                                            "'t:v,t:v,...' (s since power-up : gTHR)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Capture file (.stv); default "
-                                       "recordings/steval-<UTC time>.stv. Always written."),
+    out: CaptureOutOption = None,
     rrd: RrdOption = None,
-    no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
+    no_view: NoViewOption = False,
     spawn: SpawnOption = False,
     serve: ServeOption = False,
     connect: ConnectOption = None,
@@ -62,10 +64,7 @@ def emulate_command(
     as `steval live`; the capture replays and compares like a drone's (`steval compare X.stv`). At the end: the
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
     """
-    if sum([spawn, serve, connect is not None]) > 1:
-        raise UserError("choose one of --spawn, --serve and --connect")
-    if no_view and (spawn or serve or connect):
-        raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
+    check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
     emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,

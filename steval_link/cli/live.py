@@ -11,12 +11,15 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.viewer_options import (
+    CaptureOutOption,
     ConnectOption,
     GrpcPortOption,
+    NoViewOption,
     RrdOption,
     ServeOption,
     SpawnOption,
     WebPortOption,
+    check_view_flags,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -39,11 +42,9 @@ def _check_baud(baud: int) -> None:
 def live_command(
     port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
-    out: Optional[Path] = typer.Option(
-        None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
-    ),
+    out: CaptureOutOption = None,
     rrd: RrdOption = None,
-    no_view: bool = typer.Option(False, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all)."),
+    no_view: NoViewOption = False,
     spawn: SpawnOption = False,
     serve: ServeOption = False,
     connect: ConnectOption = None,
@@ -66,10 +67,7 @@ def live_command(
     session waits and resumes when the port comes back.
     """
     _check_baud(baud)
-    if sum([spawn, serve, connect is not None]) > 1:
-        raise UserError("choose one of --spawn, --serve and --connect")
-    if no_view and (spawn or serve or connect):
-        raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
+    check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
     out = resolve_capture_out(out)

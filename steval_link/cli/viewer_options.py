@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from steval_link.errors import UserError
 from steval_viewer.sink_options import SinkOptions, check_sinks
 
 RrdOption = Annotated[
@@ -39,6 +40,23 @@ GrpcPortOption = Annotated[
         help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
     ),
 ]
+
+
+NoViewOption = Annotated[
+    bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
+]
+CaptureOutOption = Annotated[
+    Optional[Path],
+    typer.Option("--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."),
+]
+
+
+def check_view_flags(*, no_view: bool, spawn: bool, serve: bool, connect: str | None) -> None:
+    """A session shows one viewer at most, and none with ``--no-view``: UserError otherwise."""
+    if sum([spawn, serve, connect is not None]) > 1:
+        raise UserError("choose one of --spawn, --serve and --connect")
+    if no_view and (spawn or serve or connect):
+        raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
 
 
 def sink_options(

@@ -24,7 +24,7 @@ from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, LiveViewer
-from steval_link.live.session import LiveOptions
+from steval_link.live.session import LiveOptions, close_outputs
 
 
 @dataclass
@@ -129,17 +129,7 @@ class EmulateSession:
                     pipe.flush_view()
             except Exception:  # noqa: BLE001
                 pass
-            try:
-                capture.mark_event("stop", self._stop or (type(error).__name__ if error else "end"))
-            except Exception:  # noqa: BLE001
-                pass
-            capture.close()
-            if viewer is not None:
-                try:
-                    viewer.close()
-                except Exception as exc:  # noqa: BLE001
-                    self.display.note(f"could not finalise the Rerun output: {exc}")
-            self.display.close()
+            close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"))
             self._restore_signals(old)
         if error is not None:
             if isinstance(error, UserError):

@@ -257,17 +257,8 @@ class LiveSession:
                     self._drain(inbox)
             except Exception:  # noqa: BLE001
                 pass
-            try:
-                capture.mark_event("stop", self._stop_reason or (type(error).__name__ if error else "end"))
-            except Exception:  # noqa: BLE001
-                pass
-            capture.close()
-            if viewer is not None:
-                try:
-                    viewer.close()
-                except Exception as exc:  # noqa: BLE001 - the capture is safe; say what went wrong
-                    self.display.note(f"could not finalise the Rerun output: {exc}")
-            self.display.close()
+            stop = self._stop_reason or (type(error).__name__ if error else "end")
+            close_outputs(capture, viewer, self.display, stop)
             self._restore_signals(old_handlers)
         if isinstance(error, KeyboardInterrupt):
             self.request_stop("interrupted")
@@ -441,6 +432,22 @@ class LiveSession:
             port_note=port_note,
             stopped_by=self._stop_reason or "end",
         )
+
+
+def close_outputs(capture, viewer, display: HealthDisplay, stop_reason: str) -> None:
+    """End a session's outputs in their order of importance: the capture (its stop event, then closed), then the
+    Rerun side (a failure there is a note: the capture is safe), then the health line."""
+    try:
+        capture.mark_event("stop", stop_reason)
+    except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
+        pass
+    capture.close()
+    if viewer is not None:
+        try:
+            viewer.close()
+        except Exception as exc:  # noqa: BLE001 - the capture is safe; say what went wrong
+            display.note(f"could not finalise the Rerun output: {exc}")
+    display.close()
 
 
 def _stat(stats, name: str) -> int:
