@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.errors import UserError
 
 __all__ = [
@@ -128,7 +129,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
     t = np.asarray(report.t_rel_s, dtype=np.float64)
     fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
     n = t.shape[0]
-    min_thr = 200
+    min_thr = C.MIN_THR
     fs = report.filter_settings or {}
     if isinstance(fs.get("min_thr"), int):
         min_thr = fs["min_thr"]

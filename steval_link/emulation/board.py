@@ -37,10 +37,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
+from steval_link import constants as C
 from steval_link.emulation.elf import Elf
 from steval_link.errors import UserError
 
-CPU_HZ = 84_000_000
+CPU_HZ = C.CPU_HZ
 FLASH_BASE, FLASH_SIZE = 0x08000000, 256 * 1024
 RAM_BASE, RAM_SIZE = 0x20000000, 64 * 1024
 PERIPH_BASE = 0x40000000

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_multiply, quaternion_from_euler
@@ -52,8 +53,8 @@ G_MPS2 = 9.80665
 _MG_PER_MPS2 = 1000.0 / G_MPS2
 _DEG = np.pi / 180.0
 #: TIM9 period in core-clock cycles (84 MHz / 52 / 2000): ticks land on exact cycle counts
-TICK_CYCLES = 52 * 2000
-CPU_HZ = 84_000_000
+TICK_CYCLES = C.TICK_CYCLES
+CPU_HZ = C.CPU_HZ
 
 
 @dataclass(frozen=True)

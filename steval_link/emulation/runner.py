@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import CPU_HZ, Board, EmulationError, FirmwareStuck
@@ -39,7 +40,7 @@ __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "TICK
 
 #: motion is rendered this many seconds at a time
 WINDOW_S = 10.0
-TICK_CYCLES = 52 * 2000
+TICK_CYCLES = C.TICK_CYCLES
 TICK_S = TICK_CYCLES / CPU_HZ
 #: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
 WATCHDOG_S = 6.0

@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from steval_link import constants as C
+
 __all__ = [
     "TICK_HZ",
     "AHRS_HZ",
@@ -61,12 +63,10 @@ __all__ = [
 
 _F32 = np.float32
 
-#: TIM9 interrupt rate, Hz: APB2 timer clock 84 MHz, prescaler 51 (÷52), period 1999 (÷2000).
-TICK_HZ: float = 84e6 / (52 * 2000)
-#: samples averaged per AHRS step (``FIFO_Order``)
-FIFO_ORDER: int = 5
-#: AHRS step rate, Hz (every 5th tick), ≈ 161.54 Hz (6.19 ms)
-AHRS_HZ: float = TICK_HZ / FIFO_ORDER
+#: TIM9 interrupt rate, Hz, and the AHRS step rate (every ``FIFO_ORDER``-th tick): :mod:`steval_link.constants`
+TICK_HZ: float = C.ISR_RATE_HZ
+FIFO_ORDER: int = C.FIFO_ORDER
+AHRS_HZ: float = C.AHRS_RATE_HZ
 #: ticks ignored after power-up before the offset calibration starts
 CALIBRATION_SKIP_TICKS: int = 800
 #: ticks summed for the offset calibration
@@ -76,7 +76,7 @@ ISR_DT_S = _F32(0.00125)
 #: ``COE_MDPS_TO_RADPS`` as the firmware casts it, float32
 MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
 #: ``MIN_THR``: below this throttle the ISR resets the integrated yaw
-MIN_THR: int = 200
+MIN_THR: int = C.MIN_THR
 
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)

@@ -24,6 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import UnmodelledHardware
 
@@ -169,7 +170,7 @@ class SensorBus:
         log_limit: keep at most this many served LSM6DSL samples in :attr:`served` (for tests; 0 = none).
     """
 
-    TICK_CYCLES = 52 * 2000
+    TICK_CYCLES = C.TICK_CYCLES
 
     def __init__(self, motion: MotionSource, *, log_limit: int = 0) -> None:
         self.motion = motion
