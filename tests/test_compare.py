@@ -396,3 +396,18 @@ def test_cli_user_errors_exit_2_with_one_line(tmp_path, capsys):
     assert code == 2 and "no attitude frames" in err and err.count("\n") == 1
     code, out, err = run_cli(["compare", str(junk), "--estimator", "bogus"], capsys)
     assert code == 2
+
+
+def test_cycle_counts_of_an_emulated_capture_are_called_instruction_counts(tmp_path):
+    from steval_link.analysis.summary import format_summary, summarize
+    from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
+
+    demo = load_telemetry(demo_capture_path())  # made by steval emulate: its header says emulated
+    assert "emulated instructions (not M4 cycles)" in "\n".join(format_report(compare_capture(demo)))
+    assert "emulated instructions" in "\n".join(format_summary(summarize(demo)))
+    # the same bytes recorded from a port (no such header) are a drone's own DWT cycles
+    raw = tmp_path / "drone.bin"
+    raw.write_bytes(read_capture(demo_capture_path()).data)
+    drone = load_telemetry(raw)
+    text = "\n".join(format_report(compare_capture(drone)))
+    assert "cycles at 84 MHz" in text and "emulated" not in text

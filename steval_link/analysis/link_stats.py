@@ -31,6 +31,14 @@ def relative_time_s(step, t_fw_s) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(dt)])
 
 
+def cycles_are_emulated(tel) -> bool:
+    """Whether the status frames' ``cyc_*`` were counted by an emulator (``steval emulate``, ``steval synth``: the
+    capture header says ``extra.emulated``), where CYCCNT advances once per instruction: instruction counts, not
+    Cortex-M4 cycles."""
+    header = (getattr(tel, "source", None) or {}).get("header") or {}
+    return bool((header.get("extra") or {}).get("emulated"))
+
+
 def rate_stats(tel) -> RateStats:
     """Rate, period jitter, drops, CRC failures and AHRS cycles of a telemetry (see :class:`RateStats`)."""
     a, s, st = tel.attitude, tel.status, tel.stats
@@ -61,6 +69,7 @@ def rate_stats(tel) -> RateStats:
         cpu = np.asarray(s.cpu_hz)[np.asarray(s.exact, bool)] if np.any(s.exact) else np.zeros(0)
         cpu = cpu[cpu > 0]
         kw["cpu_hz"] = int(cpu[-1]) if cpu.size else (C.CPU_HZ if kw.get("ahrs_cycles_mean") else None)
+        kw["cycles_emulated"] = cycles_are_emulated(tel)
     return RateStats(
         duration_s=duration,
         rate_hz=(int(np.count_nonzero(ok)) / duration) if duration > 0 else None,

@@ -169,6 +169,7 @@ class RateStats:
     ahrs_cycles_mean: float | None = None
     ahrs_cycles_max: int | None = None
     cpu_hz: int | None = None
+    cycles_emulated: bool = False  #: ``ahrs_cycles_*`` are an emulator's instruction counts, not M4 cycles
 
     def _us(self, cycles) -> float | None:
         if cycles is None or not self.cpu_hz:
@@ -259,8 +260,9 @@ def format_report(r: ComparisonReport) -> list[str]:
                  f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
                  + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else ""))
     if rt.ahrs_cycles_mean is not None:
+        unit = "emulated instructions (not M4 cycles)" if rt.cycles_emulated else "cycles"
         lines.append(f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
-                     f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} cycles at "
+                     f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} {unit} at "
                      f"{(rt.cpu_hz or 0) / 1e6:g} MHz)")
     fs = r.filter_settings
     if fs is None:

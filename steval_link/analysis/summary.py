@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.link_stats import cycles_are_emulated
 from steval_link.analysis.report import json_number
 from steval_link.link import protocol as P
 
@@ -113,6 +114,7 @@ def summarize(tel) -> dict[str, Any]:
             "ahrs_cycles_mean": cyc_mean,
             "ahrs_time_mean_us": cyc_mean / cpu * 1e6 if cpu else None,
             "ahrs_cycles_max": int(s.cyc_max[i]),
+            "ahrs_cycles_emulated": cycles_are_emulated(tel),
             "queue_peak_bytes": int(s.queue_peak[i]) if s.exact[i] else None,
         }
     return out
@@ -163,7 +165,8 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
         if flt["ahrs_time_mean_us"] is not None:
             lines.append(
                 f"firmware: version {flt['fw_version']}, AHRS step {flt['ahrs_time_mean_us']:.1f} µs mean "
-                f"({flt['ahrs_cycles_mean']} cycles, max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
+                f"({flt['ahrs_cycles_mean']} {'emulated instructions' if flt['ahrs_cycles_emulated'] else 'cycles'}, "
+                f"max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
             )
     for e in s["events"]:
         lines.append(f"event at {e['t_host_s']:.3f} s: {e['kind']}" + (f" ({e['text']})" if e["text"] else ""))
