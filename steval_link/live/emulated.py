@@ -11,9 +11,7 @@ clock). Ctrl-C stops cleanly: the capture keeps every byte emulated so far.
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +22,7 @@ from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, LiveViewer
-from steval_link.live.session import LiveOptions, close_outputs
+from steval_link.live.session import LiveOptions, close_outputs, install_stop_signals, restore_signals
 
 
 @dataclass
@@ -77,6 +75,10 @@ class EmulateSession:
     def request_stop(self, reason: str = "stopped") -> None:
         if self._stop is None:
             self._stop = reason
+
+    @property
+    def stop_requested(self) -> bool:
+        return self._stop is not None
 
     def run(self) -> EmulateSummary:
         opts = self.live
@@ -152,26 +154,8 @@ class EmulateSession:
         return " | ".join(parts)
 
     def _install_signals(self):
-        if threading.current_thread() is not threading.main_thread():
-            return None
-        old = {}
-
-        def on_signal(signum, _frame):
-            if self._stop is not None:
-                raise KeyboardInterrupt
-            self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
-
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            try:
-                old[sig] = signal.signal(sig, on_signal)
-            except (ValueError, OSError):
-                pass
-        return old
+        return install_stop_signals(self)
 
     @staticmethod
     def _restore_signals(old) -> None:
-        for sig, handler in (old or {}).items():
-            try:
-                signal.signal(sig, handler)
-            except (ValueError, OSError):
-                pass
+        restore_signals(old)

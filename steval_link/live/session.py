@@ -172,6 +172,10 @@ class LiveSession:
         if self._stop_reason is None:
             self._stop_reason = reason
 
+    @property
+    def stop_requested(self) -> bool:
+        return self._stop_reason is not None
+
     # -- opening ----------------------------------------------------------------------------------------------
 
     def _open_port(self) -> tuple[str, serial.Serial]:
@@ -272,33 +276,11 @@ class LiveSession:
     # -- internals --------------------------------------------------------------------------------------------
 
     def _install_signals(self):
-        if threading.current_thread() is not threading.main_thread():
-            return None
-        old = {}
-
-        def on_signal(signum, _frame):
-            if self._stop_reason is not None:  # second Ctrl-C: stop now (files are flushed often)
-                raise KeyboardInterrupt
-            self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
-
-        for sig in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-            if sig is None:  # pragma: no cover - Windows has no SIGHUP
-                continue
-            try:
-                old[sig] = signal.signal(sig, on_signal)
-            except (ValueError, OSError):
-                pass
-        return old
+        return install_stop_signals(self)
 
     @staticmethod
     def _restore_signals(old) -> None:
-        if not old:
-            return
-        for sig, handler in old.items():
-            try:
-                signal.signal(sig, handler)
-            except (ValueError, OSError):
-                pass
+        restore_signals(old)
 
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
@@ -432,6 +414,39 @@ class LiveSession:
             port_note=port_note,
             stopped_by=self._stop_reason or "end",
         )
+
+
+def install_stop_signals(session) -> dict | None:
+    """Ctrl-C, SIGTERM and SIGHUP ask ``session`` to stop at its next round (``session.request_stop``; one that
+    comes while it is stopping already, ``session.stop_requested``, stops it at once: the files are flushed often).
+    Returns the old handlers for :func:`restore_signals` (None outside the main thread, where signals cannot be
+    handled)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    old = {}
+
+    def on_signal(signum, _frame):
+        if session.stop_requested:  # second Ctrl-C (or one while stopping anyway): stop now
+            raise KeyboardInterrupt
+        session.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
+
+    for sig in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is None:  # pragma: no cover - Windows has no SIGHUP
+            continue
+        try:
+            old[sig] = signal.signal(sig, on_signal)
+        except (ValueError, OSError):
+            pass
+    return old
+
+
+def restore_signals(old: dict | None) -> None:
+    """Put back the handlers :func:`install_stop_signals` replaced."""
+    for sig, handler in (old or {}).items():
+        try:
+            signal.signal(sig, handler)
+        except (ValueError, OSError):
+            pass
 
 
 def close_outputs(capture, viewer, display: HealthDisplay, stop_reason: str) -> None:

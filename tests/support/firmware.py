@@ -5,30 +5,24 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware_patch"
 ST_SHARED = ROOT.parent / "shared" / "st-fcu-f401"
 ST_SUBDIR = Path("STM32 FW Project") / "Official release - 170120"
+sys.path.insert(0, str(FW / "tools"))
+import stv_emu  # noqa: E402  (firmware_patch/tools: the emulated target harness and its tool checks)
 
 
 def missing() -> str | None:
     """Why the real firmware cannot be built and emulated here (None when it can)."""
     if not (ST_SHARED / ST_SUBDIR / "Src" / "main.c").is_file():
         return f"ST's firmware sources are not at {ST_SHARED} (../shared beside the project)"
-    for tool in ("arm-none-eabi-gcc", "make", "git"):
-        if shutil.which(tool) is None:
-            return f"{tool} is not installed (Debian: apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi make)"
-    libc = subprocess.run(["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
-                           "-mfpu=fpv4-sp-d16", "-print-file-name=libc_nano.a"], capture_output=True, text=True)
-    if "/" not in libc.stdout:
-        return "newlib-nano for arm-none-eabi is not installed (Debian: apt-get install libnewlib-arm-none-eabi)"
-    try:
-        import unicorn  # noqa: F401
-    except ImportError:
-        return "unicorn is not installed (pip install unicorn)"
-    return None
+    if shutil.which("git") is None:
+        return "git is not installed (the patch is applied with git apply)"
+    return stv_emu.missing_tools()  # the toolchain, newlib-nano and unicorn, as the emulated target tests need
 
 
 def st_copy(dest: Path, *, patched: bool = True) -> Path:
