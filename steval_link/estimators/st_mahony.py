@@ -381,6 +381,98 @@ def bits_equal(a, b) -> np.ndarray:
     return (a.view(np.uint32) == b.view(np.uint32)) | (np.isnan(a) & np.isnan(b))
 
 
+class PortFollower:
+    """The bit-exact port followed along a stream in order: runs of attitude rows and the status frames' filter
+    snapshots. One implementation for the replay of a whole capture (:func:`replay_firmware`) and the live port
+    (``steval_link.live.estimators.LivePort``).
+
+    The port starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
+    snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not
+    usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
+
+    ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
+    ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the port runs in sync: True (live) —
+    confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
+    (replay of a capture, which measures how far the port and the firmware agree) — ignore it.
+    """
+
+    def __init__(self, settings: MahonySettings | None = None, *, initial: MahonySettings | None = None,
+                 follow_snapshots: bool = True, euler: bool = True, native: bool | None = None) -> None:
+        self.fixed = settings
+        self.settings = settings or initial or MahonySettings()
+        self.follow_snapshots = follow_snapshots
+        self.euler = euler
+        self.native = native
+        self.state: MahonyState | None = None
+        self.next_step: int | None = None
+        self.seeds: list[tuple[str, int | None, MahonySettings]] = []  #: (source, snapshot id, settings), in order
+        self.confirmed = 0  #: snapshots that matched the port's own state and settings bit for bit
+        self._pending: tuple[str, int | None, MahonySettings] | None = None
+        #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
+        self.seed_rows: list[tuple[int, tuple[str, int | None, MahonySettings]]] = []
+
+    @property
+    def seeded(self) -> bool:
+        return self.state is not None
+
+    def snapshot(self, step: int, state: MahonyState, settings: MahonySettings, snapshot_id: int | None = None) -> str:
+        """The firmware's filter state right after step ``step``. Returns what it did: "confirmed", "seeded",
+        "ignored" or "unseeded" (a non-finite snapshot while following: the firmware's own filter holds NaN)."""
+        in_sync = self.state is not None and self.next_step == step + 1
+        if in_sync and not self.follow_snapshots:
+            return "ignored"
+        if in_sync and settings == self.settings and self.state.bits_equal(state):
+            self.confirmed += 1
+            return "confirmed"
+        if not np.all(np.isfinite(state.as_array())):
+            if self.follow_snapshots:
+                self.state = None
+                return "unseeded"
+            return "ignored"
+        self.state = state
+        self.settings = self.fixed or settings
+        self.next_step = step + 1
+        self._pending = ("status", snapshot_id, self.settings)
+        self.seeds.append(self._pending)
+        return "seeded"
+
+    def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
+        """Step the port over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
+        thx (N,), thy (N,) — None without ``euler`` —, seeded (N,) bool); NaN where unseeded."""
+        step = np.asarray(step, dtype=np.int64)
+        n = step.shape[0]
+        q = np.full((n, 4), np.nan, dtype=_F32)
+        thx = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        thy = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        seeded = np.zeros(n, dtype=bool)
+        breaks = np.flatnonzero((np.diff(step) != 1) | ~usable[1:] | ~usable[:-1]) + 1
+        for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
+            if a >= b:
+                continue
+            if not usable[a]:
+                self.state = self.next_step = None
+                continue
+            s0 = int(step[a])
+            if self.state is not None and self.next_step != s0:
+                self.state = None  # frames lost: out of sync until the next snapshot
+            if self.state is None and s0 == 0:
+                self.state = MahonyState()  # the stream starts at power-up
+                self._pending = ("power-up", None, self.settings)
+                self.seeds.append(self._pending)
+            if self.state is not None:
+                if self._pending is not None:
+                    self.seed_rows.append((first_row + a, self._pending))
+                    self._pending = None
+                out = run(acc_mg[a:b], gyro_mdps[a:b], thr[a:b], settings=self.settings, state=self.state,
+                          euler=self.euler, native=self.native)
+                q[a:b], self.state = out[0], out[3]
+                if self.euler:
+                    thx[a:b], thy[a:b] = out[1], out[2]
+                seeded[a:b] = True
+            self.next_step = int(step[b - 1]) + 1
+        return q, thx, thy, seeded
+
+
 @dataclass(frozen=True)
 class ReplaySeed:
     """Where the port (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
@@ -488,40 +580,43 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     if default_settings is None:
         default_settings = MahonySettings.of_status(status, int(order[0])) if order.size else MahonySettings()
 
-    q = np.full((n, 4), np.nan, dtype=_F32)
-    thx = np.full(n, np.nan, dtype=_F32)
-    thy = np.full(n, np.nan, dtype=_F32)
-    seeded = np.zeros(n, dtype=bool)
-    seeds: list[ReplaySeed] = []
-
     try:  # rounded text-mode rows are no exact filter inputs: never replayed
         exact_rows = np.asarray(_col(att, "exact"), dtype=bool).reshape(n)
     except (AttributeError, KeyError, ValueError):
         exact_rows = np.ones(n, dtype=bool)
+
+    # in stream order: each run of consecutive exact rows, with the snapshots taken inside it (the first seeds it)
+    port = PortFollower(settings, initial=default_settings, follow_snapshots=False, native=native)
+    parts = []
     breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
-    starts = np.concatenate(([0], breaks)) if n else np.zeros(0, dtype=np.int64)
-    ends = np.concatenate((breaks, [n])) if n else np.zeros(0, dtype=np.int64)
-    for a, b in zip(starts.tolist(), ends.tolist()):
-        if not exact_rows[a]:
+    for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
+        if a >= b:
             continue
-        s_first, s_last = int(steps[a]), int(steps[b - 1])
-        if s_first == 0:
-            start_row, state, seg_settings, seed = a, MahonyState(), default_settings, ("power-up", None)
-        else:
-            k = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
-            if k >= st_sorted.size or st_sorted[k] > s_last - 1:
-                continue  # no snapshot inside this run: it stays unseeded
-            j = int(order[k])
-            state = MahonyState(q_wxyz=_col(status, "q_wxyz")[j], int_xyz=_col(status, "int_xyz")[j])
-            seg_settings = settings if settings is not None else MahonySettings.of_status(status, j)
-            start_row = a + int(st_sorted[k]) + 1 - s_first
-            seed = ("status", j)
-        sl = slice(start_row, b)
-        q[sl], thx[sl], thy[sl], _ = run(
-            acc[sl], gyro[sl], thr[sl], settings=seg_settings, state=state, native=native
-        )
-        seeded[sl] = True
-        seeds.append(ReplaySeed(start_row, int(steps[start_row]), seed[0], seed[1], seg_settings))
+        cut = a
+        if exact_rows[a]:
+            s_first, s_last = int(steps[a]), int(steps[b - 1])
+            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
+            hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
+            for k in range(lo, hi):
+                end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
+                if end > cut:
+                    parts.append(port.rows(steps[cut:end], acc[cut:end], gyro[cut:end], thr[cut:end],
+                                           exact_rows[cut:end], first_row=cut))
+                    cut = end
+                j = int(order[k])
+                port.snapshot(int(st_sorted[k]), MahonyState(q_wxyz=_col(status, "q_wxyz")[j],
+                                                             int_xyz=_col(status, "int_xyz")[j]),
+                              MahonySettings.of_status(status, j), snapshot_id=j)
+        parts.append(port.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
+    if parts:
+        q = np.concatenate([p[0] for p in parts])
+        thx = np.concatenate([p[1] for p in parts])
+        thy = np.concatenate([p[2] for p in parts])
+        seeded = np.concatenate([p[3] for p in parts])
+    else:
+        q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
+        seeded = np.zeros(0, dtype=bool)
+    seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in port.seed_rows]
 
     exact = seeded & bits_equal(q, fw_q).all(axis=1) & bits_equal(thx, fw_thx) & bits_equal(thy, fw_thy)
     bad = np.flatnonzero(seeded & ~exact)

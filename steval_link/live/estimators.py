@@ -53,19 +53,15 @@ class AttitudeBatch:
 class LivePort:
     """The bit-exact ST Mahony port run live, (re)seeded from the firmware's status snapshots.
 
-    Semantics as :func:`steval_link.estimators.st_mahony.replay_firmware`: the port starts from the power-up state
-    when the stream starts at step 0; otherwise (joined mid-flight, frames lost, non-finite input) it is unseeded
-    (NaN) until the next status snapshot, and bit-exact from the step after it.
+    The same follower as :func:`steval_link.estimators.st_mahony.replay_firmware`
+    (:class:`~steval_link.estimators.st_mahony.PortFollower`): it starts from the power-up state when the stream
+    starts at step 0; otherwise (joined mid-flight, frames lost, non-finite input) it is unseeded (NaN) until the
+    next status snapshot, and bit-exact from the step after it. Live, a snapshot that disagrees with the port
+    (a settings change, a difference) re-seeds it.
     """
 
     def __init__(self) -> None:
-
-        self._sm = st_mahony
-        self.state = None  # MahonyState, or None when unseeded
-        self.settings = st_mahony.MahonySettings()
-        self.next_step: int | None = None
-        self.seeds = 0
-        self.snapshots_confirmed = 0  # status snapshots that matched the port's own state bit for bit
+        self.follower = st_mahony.PortFollower(follow_snapshots=True, euler=False)
         self.rows_exact = 0
         self.rows_mismatch = 0
         self.rows_unseeded = 0
@@ -73,72 +69,42 @@ class LivePort:
 
     @property
     def seeded(self) -> bool:
-        return self.state is not None
+        return self.follower.seeded
+
+    @property
+    def settings(self) -> st_mahony.MahonySettings:
+        """The filter settings the port runs with (the latest snapshot's)."""
+        return self.follower.settings
+
+    @property
+    def seeds(self) -> int:
+        return len(self.follower.seeds)
+
+    @property
+    def snapshots_confirmed(self) -> int:
+        """Status snapshots that matched the port's own state bit for bit."""
+        return self.follower.confirmed
 
     def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
         """Step the port over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
-        n = step.shape[0]
-        out = np.full((n, 4), np.nan, dtype=np.float32)
-        mismatch_before = self.rows_mismatch
-        a = 0
-        while a < n:
-            # a run of consecutive steps with finite inputs
-            if not finite[a]:
-                self.state = None
-                self.next_step = None
-                a += 1
-                continue
-            b = a + 1
-            while b < n and finite[b] and step[b] == step[b - 1] + 1:
-                b += 1
-            s0 = int(step[a])
-            if self.state is not None and self.next_step != s0:
-                self.state = None  # frames lost: out of sync until the next snapshot
-            if self.state is None and s0 == 0:
-                self.state = self._sm.MahonyState()  # the stream starts at power-up
-                self.seeds += 1
-            if self.state is not None:
-                q, _, _, self.state = self._sm.run(
-                    acc_mg[a:b], gyro_mdps[a:b], thr[a:b], settings=self.settings, state=self.state, euler=False
-                )
-                out[a:b] = q
-                exact = self._sm.bits_equal(q, fw_q_wxyz[a:b]).all(axis=1)
-                k = int(np.count_nonzero(exact))
-                self.rows_exact += k
-                self.rows_mismatch += (b - a) - k
-                self.next_step = int(step[b - 1]) + 1
-            else:
-                self.rows_unseeded += b - a
-                self.next_step = int(step[b - 1]) + 1
-            a = b
-        self.last_rows_mismatch = self.rows_mismatch - mismatch_before
-        return out
+        q, _, _, seeded = self.follower.rows(step, acc_mg, gyro_mdps, thr, np.asarray(finite, dtype=bool))
+        exact = seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)
+        k = int(np.count_nonzero(exact))
+        n_seeded = int(np.count_nonzero(seeded))
+        self.rows_exact += k
+        self.last_rows_mismatch = n_seeded - k
+        self.rows_mismatch += n_seeded - k
+        self.rows_unseeded += int(np.count_nonzero(np.asarray(finite, dtype=bool) & ~seeded))
+        return q
 
     def status(self, frame) -> None:
         """A status frame: seed the port from its snapshot when unseeded or out of sync (else confirm it)."""
-        st = self._sm
-        snap = st.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
-        settings = st.MahonySettings.of_status(frame)
-        step = int(frame.step)
-        if (
-            self.state is not None
-            and self.next_step == step + 1
-            and settings == self.settings
-            and self.state.bits_equal(snap)
-        ):
-            self.snapshots_confirmed += 1
-            return
-        if not np.all(np.isfinite(snap.as_array())):
-            self.state = None  # the firmware's own filter holds NaN: nothing to follow
-            return
-        self.state = snap
-        self.settings = settings
-        self.next_step = step + 1
-        self.seeds += 1
+        snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
+        self.follower.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
 
     def describe(self) -> str:
         """The port's state in a few words for the health line."""
-        if self.state is None:
+        if not self.seeded:
             return "port resyncing" if self.seeds else "port waiting for a status snapshot"
         if self.last_rows_mismatch:
             return f"port DIFFERS from firmware ({self.rows_mismatch} frames)"
