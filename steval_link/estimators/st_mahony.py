@@ -585,7 +585,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     except (AttributeError, KeyError, ValueError):
         exact_rows = np.ones(n, dtype=bool)
 
-    # in stream order: each run of consecutive exact rows, with the snapshots taken inside it (the first seeds it)
+    # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
     port = PortFollower(settings, initial=default_settings, follow_snapshots=False, native=native)
     parts = []
     breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
@@ -593,7 +593,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         if a >= b:
             continue
         cut = a
-        if exact_rows[a]:
+        if exact_rows[a] and steps[a] != 0:  # a run from step 0 starts at power-up
             s_first, s_last = int(steps[a]), int(steps[b - 1])
             lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
             hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
@@ -607,6 +607,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
                 port.snapshot(int(st_sorted[k]), MahonyState(q_wxyz=_col(status, "q_wxyz")[j],
                                                              int_xyz=_col(status, "int_xyz")[j]),
                               MahonySettings.of_status(status, j), snapshot_id=j)
+                break  # the first usable snapshot seeds the run; the replay does not follow later ones
         parts.append(port.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
     if parts:
         q = np.concatenate([p[0] for p in parts])
