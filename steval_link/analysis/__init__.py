@@ -1,1 +1,2 @@
-"""Analyses of captures: compare (firmware vs port, EKFs, accel tilt), evaluate (against ground truth), plots."""
+"""Analyses of captures: the replay summary, compare (firmware vs port, EKFs, accel tilt: report, link statistics,
+diagnosis), evaluate (against ground truth), plots."""

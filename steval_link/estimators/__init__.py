@@ -1,1 +1,2 @@
-"""Attitude estimators: the bit-exact ST Mahony port, accelerometer-only tilt, EKFs, and the sensor pipeline model."""
+"""Attitude estimators over arrays in the firmware's units: the bit-exact ST Mahony port, accelerometer-only tilt,
+the EKFs, VQF; the registry that names them."""

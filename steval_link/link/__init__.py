@@ -1,0 +1,1 @@
+"""The wire: protocol, text mode, frames, decoder, unwrapping, telemetry, capture files, serial transport, ports."""
