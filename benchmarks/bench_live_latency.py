@@ -139,7 +139,8 @@ def run_once(reader: str, seconds: float, estimators: list[str]) -> dict:
     from steval_link.link.transport import HostClock, SerialReader
     from steval_link.live import pipeline, recorder
     from steval_viewer.live_log import LiveLogger
-    from steval_viewer.sinks import SinkOptions, open_session
+    from steval_viewer.sink_options import SinkOptions
+    from steval_viewer.sinks import open_session
 
     master, slave = os.openpty()
     tty.setraw(slave)

@@ -96,7 +96,8 @@ def main() -> None:
 
     from steval_viewer.replay_log import log_replay
     from steval_viewer.rrd_check import read_rrd
-    from steval_viewer.sinks import SinkOptions, open_session
+    from steval_viewer.sink_options import SinkOptions
+    from steval_viewer.sinks import open_session
 
     rng = np.random.default_rng(2)
     tel = synthetic_telemetry(args.frames)

@@ -327,7 +327,7 @@ def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any
 
 def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
     """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
-    ``steval_viewer.sinks.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
+    ``steval_viewer.sink_options.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
     ``progress(fraction, stage)`` hears of each stage (port, logging, writing).
 
     The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A

@@ -18,7 +18,8 @@ import rerun as rr
 
 from steval_viewer import entities as ent
 from steval_viewer.replay_log import ReplaySummary, log_replay
-from steval_viewer.sinks import SinkOptions, ViewerSession, open_session
+from steval_viewer.sink_options import SinkOptions
+from steval_viewer.sinks import ViewerSession, open_session
 
 
 def simulation_telemetry(res: Any) -> SimpleNamespace:

@@ -42,17 +42,7 @@ from pathlib import Path
 import rerun as rr
 
 from steval_link.errors import UserError
-from steval_viewer.sink_options import (  # noqa: F401 - re-exported: the sinks' options live beside them
-    DEFAULT_GRPC_PORT,
-    DEFAULT_WEB_PORT,
-    SinkOptions,
-    check_sinks,
-    display_available,
-    free_port,
-    port_free,
-    port_open,
-    resolve_sinks,
-)
+from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
 
 APPLICATION_ID = "steval-link"
 #: longest wait for a started viewer (native or web) to listen on its port

@@ -21,7 +21,8 @@ from steval_viewer import entities as ent
 from steval_viewer.live_log import LiveLogger
 from steval_viewer.replay_log import log_replay
 from steval_viewer.rrd_check import read_rrd
-from steval_viewer.sinks import SinkOptions, open_session, resolve_sinks
+from steval_viewer.sink_options import SinkOptions, resolve_sinks
+from steval_viewer.sinks import open_session
 
 RATE = C.AHRS_RATE_HZ
 
@@ -430,7 +431,7 @@ def test_serve_starts_a_web_viewer_on_loopback_only_and_stops_it(tmp_path):
     import urllib.request
 
     from steval_viewer.replay_log import log_telemetry
-    from steval_viewer.sinks import free_port as _free_port
+    from steval_viewer.sink_options import free_port as _free_port
 
     web, grpc = _free_port(), _free_port()
     session = open_session(SinkOptions(serve=True, web_port=web, grpc_port=grpc, rrd=tmp_path / "s.rrd"))

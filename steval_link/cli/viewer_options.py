@@ -62,7 +62,7 @@ def check_view_flags(*, no_view: bool, spawn: bool, serve: bool, connect: str | 
 def sink_options(
     *, rrd: Path | None, spawn: bool, serve: bool, connect: str | None, web_port: int, grpc_port: int
 ) -> SinkOptions:
-    """The ``steval_viewer.sinks.SinkOptions`` of the shared flags, checked before any work is done (a missing
+    """The ``steval_viewer.sink_options.SinkOptions`` of the shared flags, checked before any work is done (a missing
     ``.rrd`` folder, a URL where nothing listens, a busy port: one UserError sentence)."""
     options = SinkOptions(
         spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port
