@@ -253,16 +253,21 @@ def _log_path(what: str, port: int) -> Path:
     return Path(tempfile.gettempdir()) / f"steval-{what}-{port}.log"
 
 
-def spawn_native_viewer(port: int) -> tuple[str, subprocess.Popen | None]:
-    """Start the native viewer listening on 127.0.0.1:``port`` and return its gRPC URL and process (None when a
-    viewer already listens there and is reused). The process is detached: it stays open after we exit."""
-    url = f"rerun+http://127.0.0.1:{port}/proxy"
+def proxy_url(port: int) -> str:
+    """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``port``."""
+    return f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def spawn_native_viewer(port: int) -> str:
+    """Start the native viewer listening on 127.0.0.1:``port`` (or reuse one that listens there already) and return
+    its gRPC URL. The process is detached: it stays open after we exit, and nothing here keeps it."""
+    url = proxy_url(port)
     if not port_free(port):
         print(
             f"steval: sending to the viewer already listening on port {port} (--grpc-port N for a new one)",
             file=sys.stderr,
         )
-        return url, None
+        return url
     cmd = rerun_command() + [
         "--port",
         str(port),
@@ -280,7 +285,7 @@ def spawn_native_viewer(port: int) -> tuple[str, subprocess.Popen | None]:
             f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
         ) from None
     _wait_listening(child, port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
-    return url, child
+    return url
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
@@ -301,7 +306,7 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
     _wait_listening(child, grpc_port, VIEWER_START_TIMEOUT_S, "Rerun web viewer", log_path)
-    proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    proxy = proxy_url(grpc_port)
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
 
@@ -339,9 +344,8 @@ def open_session(
                 path = session.rrd_partial
             (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
         if options.spawn:
-            url, child = spawn_native_viewer(options.grpc_port)
-            session.viewer_url = url
-            sinks.append(rr.GrpcSink(url))
+            session.viewer_url = spawn_native_viewer(options.grpc_port)
+            sinks.append(rr.GrpcSink(session.viewer_url))
         if options.serve:
             grpc = options.grpc_port if not options.spawn else free_port()
             child, page, proxy = start_web_viewer(options.web_port, grpc)

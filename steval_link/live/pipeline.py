@@ -61,10 +61,6 @@ class StepUnwrapper:
     def __init__(self) -> None:
         self.seq = SeqUnwrapper()
 
-    @property
-    def last(self) -> int | None:
-        return self.seq.last
-
     def frames(self, frames) -> np.ndarray:
         """(N,) int64 steps of these attitude frames, in order."""
         out = np.empty(len(frames), dtype=np.int64)
