@@ -405,7 +405,7 @@ class PortFollower:
         self.native = native
         self.state: MahonyState | None = None
         self.next_step: int | None = None
-        self.seeds: list[tuple[str, int | None, MahonySettings]] = []  #: (source, snapshot id, settings), in order
+        self.seed_count = 0  #: (re)starts of the port so far (power-up or snapshot)
         self.confirmed = 0  #: snapshots that matched the port's own state and settings bit for bit
         self._pending: tuple[str, int | None, MahonySettings] | None = None
         #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
@@ -433,7 +433,7 @@ class PortFollower:
         self.settings = self.fixed or settings
         self.next_step = step + 1
         self._pending = ("status", snapshot_id, self.settings)
-        self.seeds.append(self._pending)
+        self.seed_count += 1
         return "seeded"
 
     def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
@@ -458,7 +458,7 @@ class PortFollower:
             if self.state is None and s0 == 0:
                 self.state = MahonyState()  # the stream starts at power-up
                 self._pending = ("power-up", None, self.settings)
-                self.seeds.append(self._pending)
+                self.seed_count += 1
             if self.state is not None:
                 if self._pending is not None:
                     self.seed_rows.append((first_row + a, self._pending))

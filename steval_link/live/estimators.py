@@ -78,7 +78,7 @@ class LivePort:
 
     @property
     def seeds(self) -> int:
-        return len(self.follower.seeds)
+        return self.follower.seed_count
 
     @property
     def snapshots_confirmed(self) -> int:
