@@ -36,7 +36,8 @@ def emulate_command(
     elf: Path = typer.Argument(..., help="Firmware ELF (make -C firmware_patch firmware ST_DIR=...: "
                                "firmware_patch/build/fw/steval-fcu-link.elf), patched or ST's stock build."),
     scenario: str = typer.Option("bench", "--scenario", "-s", help="Built-in motion: bench, hand-tilts, yaw-spin, "
-                                 "hover, freefall, demo."),
+                                 "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
+                                 "check's hand moves)."),
     broad: Optional[Path] = typer.Option(None, "--broad", help="Feed a BROAD trial (.npz: real IMU signals) instead "
                                          "of a scenario, from the first TIM9 tick on."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Emulated seconds from power-up (default: "
@@ -44,6 +45,9 @@ def emulate_command(
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
     throttle: Optional[str] = typer.Option(None, "--throttle", help="Override the remote's throttle: N or "
                                            "'t:v,t:v,...' (s since power-up : gTHR)."),
+    mount: Optional[str] = typer.Option(None, "--mount", help="Sensor fault: the board mounted turned on the frame "
+                                        "(turned-90: x and y swapped; turned-180: x and y reversed), as a wrong "
+                                        "COORDINATE_SYSTEM would read it."),
     out: CaptureOutOption = None,
     rrd: RrdOption = None,
     no_view: NoViewOption = False,
@@ -68,7 +72,7 @@ def emulate_command(
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
     emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
-                                   throttle=throttle)
+                                   throttle=throttle, mount=mount)
     if duration is not None and not duration > 0:
         raise UserError(f"--duration must be positive, got {duration}")
     out = resolve_capture_out(out)

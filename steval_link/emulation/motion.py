@@ -46,6 +46,8 @@ __all__ = [
     "broad_profile",
     "tick_times_s",
     "parse_throttle",
+    "PREFLIGHT_MOVES",
+    "PREFLIGHT_IDLE_THR",
 ]
 
 #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
@@ -69,6 +71,10 @@ class MotionProfile:
         gyro_mdps: (T, 3) float64 angular rate as the gyro's output register holds it at the tick (416 Hz
             sample-and-hold of the true rate), mdps, body axes.
         thr: (T,) int16 throttle ``gTHR`` at the tick.
+        sticks: (T, 3) int16 the remote's other sticks as the firmware's ``gAIL, gELE, gRUD`` at the tick (None:
+            centred), in the firmware's units and signs (``euler_rc.thx = -gELE·30°/1800``, ``thy = -gAIL·30°/1800``,
+            ``gRUD`` beyond ±600 turns the yaw target).
+        armed: (T,) bool the remote's arming switch (the BLE app's ``joydata[7]`` bit 2) at the tick (None: never).
         measured: True when acc/gyro are a real IMU's measurements (BROAD) rather than true values, so no
             sensor noise should be added.
     """
@@ -80,6 +86,8 @@ class MotionProfile:
     gyro_mdps: np.ndarray
     thr: np.ndarray
     measured: bool = False
+    sticks: np.ndarray | None = None
+    armed: np.ndarray | None = None
 
 
 def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
@@ -210,6 +218,8 @@ class _Kinematics:
     lever_weight: Callable | None = None  #: (N,) 0..1: how much the pivot is held fixed (0 in free fall)
     airborne: Callable | None = None  #: (N,) 0..1: thrust model weight
     thr: Callable = _zero  #: throttle profile (float, before RC sampling)
+    sticks: Callable | None = None  #: (N,) → (N, 3) gAIL, gELE, gRUD (float, before RC sampling)
+    armed: Callable | None = None  #: (N,) → (N,) 0/1 arming switch
 
     def q(self, t) -> np.ndarray:
         return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
@@ -302,7 +312,13 @@ def _render(name: str, kin: _Kinematics, t: np.ndarray, rng: np.random.Generator
     if vib is not None:
         f = f + vib[0]
         gyro = gyro + vib[1]
-    return MotionProfile(name, t, q, f, gyro, thr_tick)
+    sticks = armed = None
+    if kin.sticks is not None:
+        sticks = np.clip(np.rint(np.asarray(kin.sticks(uniq), dtype=np.float64)), -32768, 32767)[inv]
+        sticks = sticks.astype(np.int16)
+    if kin.armed is not None:
+        armed = (np.asarray(kin.armed(uniq)) > 0.5)[inv]
+    return MotionProfile(name, t, q, f, gyro, thr_tick, sticks=sticks, armed=armed)
 
 
 # ---- scenarios ---------------------------------------------------------------------------------------------------
@@ -533,6 +549,94 @@ def _demo(T: float, rng) -> _Kinematics:
     )
 
 
+#: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
+#: ±EULER_Z_TH turns the yaw target by 60°·SENSOR_SAMPLING_TIME per AHRS step
+_RC_FULLSCALE = 1800.0
+_MAX_TILT_RAD = 30.0 * _DEG
+_YAW_STICK_RADPS = 60.0 * C.DT_S * _DEG * C.AHRS_RATE_HZ
+
+
+def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float, dur_s: float) -> _Steps:
+    """The drone's response to stick moves: the same moves, ``lag_s`` later, over ``dur_s``, times ``scale``."""
+    out = _Steps()
+    for t0, _, delta in moves:
+        out.move(t0 + lag_s, dur_s, delta * scale)
+    return out
+
+
+def _flight(T: float, rng, t0: float = 5.0) -> _Kinematics:
+    """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
+    x0, y0 = _surface_tilt(rng)
+    yaw0 = rng.uniform(-np.pi, np.pi)
+    throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
+    ele, ail, rud = _Steps(), _Steps(), _Steps()
+    t = t0 + 5.0
+    hold = 1.6
+    for stick, value in ((ele, 700.0), (ail, -700.0), (rud, -900.0)):
+        if t + hold + 1.2 > T - 7.0:
+            break
+        stick.move(t, 0.3, value)
+        stick.move(t + 0.3 + hold, 0.3, -value)
+        t += 0.6 + hold + 1.2
+    k = _MAX_TILT_RAD / _RC_FULLSCALE
+    resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)   # euler_rc.thx = -gELE·k
+    resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)   # euler_rc.thy = -gAIL·k
+    yaw_rate = _Steps()
+    for t_m, _, delta in rud.moves:                     # gRUD < -600: the yaw target turns right (clockwise)
+        yaw_rate.move(t_m + 0.15, 0.4, -np.sign(delta) * _YAW_STICK_RADPS * 0.95)
+    t_arm, t_disarm = t0 - 1.0, T - 1.5
+
+    return _Kinematics(
+        thx=lambda t: x0 * (1 - fly(t)) + fly(t) * (wander[0](t) + resp_x(t)),
+        thy=lambda t: y0 * (1 - fly(t)) + fly(t) * (wander[1](t) + resp_y(t)),
+        yaw=lambda t: yaw0 + 0.1 * fly(t) * yaw_w(t) + yaw_rate.integral(t),  # holds its heading
+        lin_acc_mg=_vertical_acc([z]),
+        airborne=air,
+        thr=throttle,
+        sticks=lambda t: np.stack([ail(t), ele(t), rud(t)], axis=-1),
+        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
+    )
+
+
+#: the preflight check's guided hand moves, in order: (name, axis 0 thx / 1 thy / 2 yaw, signed angle, rad)
+PREFLIGHT_MOVES = (("tilt right", 1, 25.0 * _DEG), ("nose up", 0, 25.0 * _DEG), ("turn right", 2, -90.0 * _DEG))
+#: the idle throttle of the preflight scenario: just above MIN_THR, so the armed firmware drives the motors
+PREFLIGHT_IDLE_THR = 210.0
+
+
+def _preflight(T: float, rng) -> _Kinematics:
+    """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
+    turned right (each out, hold, back), put down, throttle 0, disarmed."""
+    x0, y0 = _surface_tilt(rng)
+    yaw0 = rng.uniform(-np.pi, np.pi)
+    t_arm, t_pick = 3.5, 6.0
+    axes = [_Steps(x0), _Steps(y0), _Steps(yaw0)]
+    t = t_pick + 2.0
+    for _, axis, angle in PREFLIGHT_MOVES:
+        move = 1.5 if axis == 2 else 1.0
+        axes[axis].move(t, move, angle)
+        axes[axis].move(t + move + 2.0, move, -angle)
+        t += 2 * move + 2.0 + 1.5
+    t_put = t + 0.5
+    w, hand = _hand_held(rng, t_pick, t_put)
+    lift = _lift(t_pick, 0.15, 1.0, t_put)
+    thr = _Steps()
+    thr.move(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR)
+    thr.move(t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)
+    t_disarm = t_put + 2.0
+    return _Kinematics(
+        thx=lambda t: axes[0](t) + hand(0)(t),
+        thy=lambda t: axes[1](t) + hand(1)(t),
+        yaw=lambda t: axes[2](t) + hand(2)(t),
+        lin_acc_mg=_vertical_acc([lift]),
+        lever_m=np.array([0.0, -0.04, 0.07]),
+        lever_weight=w,
+        thr=thr,
+        sticks=lambda t: np.zeros((len(np.atleast_1d(t)), 3)),
+        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
+    )
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A built-in motion scenario."""
@@ -558,6 +662,10 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario("freefall", "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; "
                  "every 7 s; throttle 0", 10.0, 7.5, _freefall),
         Scenario("demo", "hand tilts on the bench, then a short hover", 60.0, 40.0, _demo),
+        Scenario("flight", "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), "
+                 "landing, disarmed", 30.0, 27.0, _flight),
+        Scenario("preflight", "the preflight check's hand moves: armed with the throttle at idle (props off), "
+                 "picked up, tilt right, nose up, turn right, put down, disarmed", 32.0, 30.0, _preflight),
     )
 }
 

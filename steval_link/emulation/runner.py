@@ -12,10 +12,18 @@ stays
 bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
 LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
 registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
-loop, while ``connected``); the emulated remote writes ``joydata[3]`` at each TIM9 tick, so gTHR moves in steps of
-13 as with the ST app, and sets ``connected`` at its first non-zero throttle (from then on the firmware also sends
-its BLE notifications through ``hci_send_req``). It never arms the motors. Builds with ``REMOCON_PWM`` keep gTHR 0
-(no RC receiver is modelled).
+loop, while ``connected``); the emulated remote writes ``joydata`` at each TIM9 tick, so gTHR moves in steps of
+13 as with the ST app, and sets ``connected`` at its first non-zero throttle or arming (from then on the firmware
+also sends its BLE notifications through ``hci_send_req``). Once connected it sends every stick as ST's app does:
+``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; the firmware computes
+``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
+the firmware reads into ``rc_enable_motor``; a scenario with sticks and arming (``flight``, ``preflight``) thereby
+makes the real firmware compute its targets ``euler_rc``, both PID loops and the motor PWM. Builds with
+``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
+
+Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
+``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
+and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
 """
 
 from __future__ import annotations
@@ -36,7 +44,7 @@ from steval_link.emulation.elf import Elf
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import UserError
 
-__all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "TICK_S"]
+__all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "TICK_S", "MOUNTS", "joydata_bytes"]
 
 #: motion is rendered this many seconds at a time
 WINDOW_S = 10.0
@@ -59,6 +67,8 @@ class EmulationOptions:
     log_samples: int = 0
     #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
     watchdog_s: float = WATCHDOG_S
+    #: the board mounted turned on the frame (a sensor fault, see the module docstring): None, or a MOUNTS key
+    mount: str | None = None
 
     def command(self, duration_s: float | None = None) -> str:
         """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
@@ -72,14 +82,34 @@ class EmulationOptions:
         parts += ["--seed", str(self.seed)]
         if self.throttle is not None:
             parts += ["--throttle", self.throttle]
+        if self.mount is not None:
+            parts += ["--mount", self.mount]
         return shlex.join(parts)
+
+
+#: board mountings (sensor faults): the frame's body axes (x right, y forward, z up) → what the board reads
+MOUNTS: dict[str, np.ndarray] = {
+    "turned-90": np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+    "turned-180": np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]),
+}
+
+
+def check_mount(mount: str | None) -> np.ndarray | None:
+    """The rotation of a ``--mount`` name (None for a correctly mounted board); :class:`UserError` if unknown."""
+    if mount is None:
+        return None
+    if mount not in MOUNTS:
+        raise UserError(f"unknown --mount {mount!r}; one of: {', '.join(MOUNTS)}")
+    return MOUNTS[mount]
 
 
 class ScenarioMotion:
     """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""
 
-    def __init__(self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None) -> None:
+    def __init__(self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None,
+                 mount: str | None = None) -> None:
         self.name = name
+        self._mount = check_mount(mount)
         self.total_s = total_s
         self.seed = seed
         self.trial = trial
@@ -98,7 +128,7 @@ class ScenarioMotion:
         self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
         self.gyro_noise_mdps = sm.Lsm6dsl().gyro_noise_mdps
         self._window = -1
-        self._acc = self._gyro = self._thr = None
+        self._acc = self._gyro = self._thr = self._sticks = self._armed = None
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
     def _render(self, w: int) -> None:
@@ -117,8 +147,11 @@ class ScenarioMotion:
             hold = np.floor(t * sm.GYRO_ODR_HZ + 1e-9).astype(np.int64)
             u, inv = np.unique(hold, return_inverse=True)
             gyro = prof.gyro_mdps + self.gyro_bias_mdps + self.gyro_noise_mdps * rng.standard_normal((len(u), 3))[inv]
+        if self._mount is not None:
+            acc, gyro = acc @ self._mount.T, gyro @ self._mount.T
         self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
         self._thr = prof.thr
+        self._sticks, self._armed = prof.sticks, prof.armed
         self._window = w
         self._k0 = k0
 
@@ -136,6 +169,13 @@ class ScenarioMotion:
     def throttle(self, k: int) -> int:
         i = self._at(k)  # (renders the window first)
         return int(self._thr[i])
+
+    def remote(self, k: int) -> tuple[int, tuple[int, int, int], bool]:
+        """gTHR, (gAIL, gELE, gRUD) and the arming switch the remote sets at tick ``k``."""
+        i = self._at(k)
+        sticks = (0, 0, 0) if self._sticks is None else tuple(int(v) for v in self._sticks[i])
+        armed = False if self._armed is None else bool(self._armed[i])
+        return int(self._thr[i]), sticks, armed
 
 
 @dataclass
@@ -180,6 +220,17 @@ class EmulationReport:
 _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
 
 
+def _byte(v: float) -> int:
+    return min(max(int(round(v)), 0), 255)
+
+
+def joydata_bytes(thr: int, ail: int, ele: int, rud: int, armed: bool) -> bytes:
+    """``joydata[2..7]`` of ST's BLE app for these stick values (the inverse of main.c's conversion, to the
+    nearest step of 13): rudder, throttle, aileron, elevator, seek bar (0), buttons (bit 2 armed)."""
+    return bytes([_byte(128 - rud / 13), _byte(thr / 13), _byte(128 - ail / 13), _byte(128 + ele / 13), 0,
+                  0x04 if armed else 0])
+
+
 class Emulation:
     """One firmware run (see the module docstring)."""
 
@@ -204,7 +255,7 @@ class Emulation:
                                 "(or --broad TRIAL.npz)")
             default = sc.default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
-        self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial)
+        self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)
         try:
             import unicorn  # noqa: F401
@@ -232,13 +283,16 @@ class Emulation:
             self.motion._window = -1  # render again with trial time 0 at this tick
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
-            thr = self.motion.throttle(k)
-            board.ram_write(self._joy + 3, bytes([min(max(int(round(thr / 13)), 0), 255)]))
-            if thr and not self._remote_connected and self._connected is not None:
+            thr, (ail, ele, rud), armed = self.motion.remote(k)
+            if (thr or armed) and not self._remote_connected and self._connected is not None:
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
                 self._remote_connected = True
+            if self._remote_connected:
+                board.ram_write(self._joy + 2, joydata_bytes(thr, ail, ele, rud, armed))
+            else:
+                board.ram_write(self._joy + 3, bytes([_byte(thr / 13)]))
 
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
