@@ -36,3 +36,29 @@ BAUD: int = 115_200
 #: :data:`steval_link.emulation.sensor_model.GYRO_LATENCY_S` from the IIR coefficients (a test keeps the two equal);
 #: stated here so that estimators can compensate it without depending on the sensor model.
 GYRO_LATENCY_S: float = 0.003315483788573155
+
+# ---- flight control (flight_control.h, rc.c, motor.h; MOTOR_DC, REMOCON_BLE: the default build) ----------------
+#: outer (angle) loop gains ``ROLL/PITCH_PID_KP1``, ``KI1``, ``YAW_PID_KP1``, ``KI1`` per axis x (pitch), y (roll), z
+OUTER_KP: tuple[float, float, float] = (3.0, 3.0, 4.0)
+OUTER_KI: tuple[float, float, float] = (0.0, 0.0, 0.0)
+#: inner (rate) loop gains ``KP2``, ``KI2``, ``KD2`` per axis
+INNER_KP: tuple[float, float, float] = (80.0, 80.0, 900.0)
+INNER_KI: tuple[float, float, float] = (80.0, 80.0, 3.0)
+INNER_KD: tuple[float, float, float] = (10.0, 10.0, 3.0)
+#: ``PID_SAMPLING_TIME``: the dt of both PID loops' integrators, s (the inner loop runs in the TIM9 ISR)
+PID_DT_S: float = 0.00125
+#: ``MAX_ADJ_AMOUNT``: the inner loop's output limit (PWM counts)
+MAX_ADJ: float = 800.0
+#: ``RC_FULLSCALE``, ``PITCH_MAX_DEG``/``ROLL_MAX_DEG``: a stick at ±1800 asks for ±30° pitch/roll
+RC_FULLSCALE: int = 1800
+MAX_TILT_DEG: float = 30.0
+#: TIM4 PWM period in counts (1 MHz, 2 ms): the motor outputs' full scale; ``MOTOR_MAX_PWM_VALUE`` clamps at 1900
+PWM_PERIOD: int = 2000
+MOTOR_MAX_PWM: float = 1900.0
+#: the inner loop's throttle term ``motor_thr = (int16)(0.05f·gTHR + 633.333f)`` (MOTOR_DC)
+MOTOR_THR_GAIN: float = 0.05
+MOTOR_THR_OFFSET: float = 633.333
+#: the mixer of ``FlightControlPID_innerLoop``: motor i = motor_thr + Σ_axis MIXER[i][axis] · s2[axis]
+#: (axis x pitch, y roll, z yaw): motor1 = thr - x - y + z, motor2 = thr + x - y - z, motor3 = thr + x + y + z,
+#: motor4 = thr - x + y - z
+MIXER: tuple[tuple[int, int, int], ...] = ((-1, -1, 1), (1, -1, -1), (1, 1, 1), (-1, 1, -1))

@@ -1,0 +1,331 @@
+"""The preflight wiring check (``steval preflight``): guided hand moves checked against the firmware's own chain.
+
+The user holds the drone (props off), armed with the throttle at idle (``gTHR`` just above ``MIN_THR``, so the
+firmware drives the motors) or with the motors off, and makes three moves in this order, each out, hold, back:
+**tilt right** (roll, right side down: ``thy`` > 0), **nose up** (pitch: ``thx`` > 0), **turn right** (yaw,
+clockwise seen from above: gyro z < 0). :data:`MOVES` lists them; the emulator's ``preflight`` scenario makes them.
+
+For each move the check finds the move in the gyro (bursts of rotation, in order, paired out/back, so a swapped or
+reversed axis cannot make it mistake one move for another) and asks, link by link:
+
+1. sensor: did the firmware's gyro turn about the right axis with the right sign, and did its attitude (``thx``,
+   ``thy``: accelerometer + AHRS) follow? Otherwise: a swapped axis or a reversed sensor axis, named.
+2. controller (flight-control frames): did the outer loop ask to go back (``s1`` of the opposite sign), and the
+   inner loop (``s2``, computed only while armed) too?
+3. motors: with the motors idling, did each motor speed up or slow down as the firmware's mixer says for this move
+   (tilt right: the right motors 1 and 2 speed up, 3 and 4 slow down)? And, over every flight-control frame with
+   the motors on: does each output carry its own mixer line (``motorN = motor_thr ± s2…``)? A build whose outputs
+   carry another motor's line (the mixer edited for a frame numbered otherwise, e.g. Betaflight's order) is named.
+
+Spin directions cannot be seen in the data; the report states what the mixer expects of each motor, to check by
+eye. Rest: the accelerometer must read about +1 g on z (else the board is upside down).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.analysis.flight_control import MOTORS, expected_motor_pwm, mixer_matrix, mixer_pwm
+
+__all__ = ["MOVES", "Move", "PreflightReport", "check_preflight"]
+
+
+@dataclass(frozen=True)
+class Move:
+    name: str
+    instruction: str  #: what the user is told
+    axis: int  #: 0 x (pitch), 1 y (roll), 2 z (yaw): the firmware axis it turns about
+    sign: int  #: +1 / -1: the sign of the rotation about that axis
+
+
+#: the guided moves, in order
+MOVES: tuple[Move, ...] = (
+    Move("tilt right", "tilt the drone to the right (right side down) by about 25°, hold 2 s, bring it back level",
+         1, +1),
+    Move("nose up", "lift the nose by about 25°, hold 2 s, bring it back level", 0, +1),
+    Move("turn right", "turn the drone to the right (clockwise seen from above) by about 90°, hold 2 s, turn it "
+         "back", 2, -1),
+)
+
+_AXIS_NAMES = ("x (pitch)", "y (roll)", "z (yaw)")
+_ANGLE_NAMES = ("pitch thx", "roll thy", "yaw thz")
+#: a burst of rotation: the gyro's magnitude above this (dps, smoothed over ~0.1 s)
+_BURST_DPS = 12.0
+#: a move turns the drone at least this much (deg, integrated gyro)
+_MIN_MOVE_DEG = 10.0
+#: a motor's change during a hold counts from this many PWM counts
+_MIN_MOTOR_DELTA = 3.0
+
+
+@dataclass
+class MoveResult:
+    move: Move
+    lines: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+
+@dataclass
+class PreflightReport:
+    """What the check found: ``lines`` (plain sentences, per move, motor and axis), ``problems`` (one sentence each)."""
+
+    source: str
+    lines: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return not self.problems
+
+    def text(self) -> str:
+        verdict = ("PASS: every check is OK." if self.passed else
+                   f"FAIL: {len(self.problems)} problem{'s' if len(self.problems) > 1 else ''}:")
+        out = list(self.lines) + ["", verdict] + [f"  - {p}" for p in self.problems]
+        return "\n".join(out)
+
+
+def _smooth(x: np.ndarray, n: int) -> np.ndarray:
+    if n <= 1 or len(x) < n:
+        return x
+    k = np.ones(n) / n
+    return np.convolve(x, k, mode="same")
+
+
+def _bursts(t_s: np.ndarray, gyro_dps: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """(start, end, integrated rotation deg (3,)) of each burst of rotation, in order."""
+    mag = _smooth(np.linalg.norm(gyro_dps, axis=1), 16)
+    active = mag > _BURST_DPS
+    # merge gaps shorter than 0.25 s
+    idx = np.flatnonzero(active)
+    if len(idx) == 0:
+        return []
+    dt = np.diff(t_s, prepend=t_s[0])
+    dt = np.clip(dt, 0.0, 0.05)
+    runs = []
+    start = prev = idx[0]
+    for i in idx[1:]:
+        if t_s[i] - t_s[prev] > 0.25:
+            runs.append((start, prev + 1))
+            start = i
+        prev = i
+    runs.append((start, prev + 1))
+    out = []
+    for a, b in runs:
+        rot = (gyro_dps[a:b] * dt[a:b, None]).sum(axis=0)
+        if np.linalg.norm(rot) >= _MIN_MOVE_DEG:
+            out.append((a, b, rot))
+    return out
+
+
+def _pair_moves(bursts):
+    """Consecutive (out, back) bursts whose rotations are opposite: [(out, back), ...] in order."""
+    pairs = []
+    i = 0
+    while i + 1 < len(bursts):
+        a, b = bursts[i], bursts[i + 1]
+        if float(np.dot(a[2], b[2])) < 0:
+            pairs.append((a, b))
+            i += 2
+        else:
+            i += 1
+    return pairs
+
+
+def _fmt(v: float, unit: str = "°") -> str:
+    return f"{v:+.1f}{unit}"
+
+
+def check_preflight(tel, source: str = "") -> PreflightReport:
+    """Run the check on a decoded stream (:class:`~steval_link.link.telemetry.Telemetry`)."""
+    rep = PreflightReport(source)
+    att = tel.attitude
+    if len(att) < 200:
+        rep.problems.append("the stream holds fewer than 200 attitude frames; record the whole guided sequence")
+        return rep
+    t = att.t_fw_s
+    gyro = att.gyro_mdps.astype(np.float64) / 1000.0
+    fc = getattr(tel, "fc", None)
+    has_fc = fc is not None and len(fc) > 0
+
+    # -- rest ---------------------------------------------------------------------------------------------------
+    mag = _smooth(np.linalg.norm(gyro, axis=1), 16)
+    still = mag < 3.0
+    rest = np.flatnonzero(still[: max(len(still) // 4, 1)])
+    rest = rest if len(rest) else np.arange(min(100, len(att)))
+    acc_rest = att.acc_mg[rest].mean(axis=0)
+    if acc_rest[2] > 700:
+        rep.lines.append(f"At rest: the accelerometer reads {acc_rest[2]:+.0f} mg on z (z up): OK.")
+    else:
+        rep.problems.append(f"At rest the accelerometer reads {acc_rest[2]:+.0f} mg on z instead of about +1000 mg: "
+                            "the board is mounted upside down or its z axis is reversed.")
+
+    armed_any = False
+    motors_on_any = False
+    if has_fc:
+        armed = (fc.fc_flags & 1).astype(bool)
+        thr_fc = fc.rc[:, 3]
+        motors_on = armed & (thr_fc >= C.MIN_THR)
+        armed_any, motors_on_any = bool(armed.any()), bool(motors_on.any())
+        every = int(np.max(fc.fc_every)) if len(fc.fc_every) else 0
+        state = ("armed, throttle at idle (motors running)" if motors_on_any else
+                 "armed, throttle below MIN_THR (motors off)" if armed_any else "not armed (motors off)")
+        rep.lines.append(f"Flight-control frames: {len(fc)} (one every {every} steps); the drone was {state}.")
+    else:
+        rep.lines.append("No flight-control frames in this stream (a firmware before protocol v2, or fc_every 0): "
+                         "only the sensors are checked.")
+
+    # -- the moves ----------------------------------------------------------------------------------------------
+    bursts = _bursts(t, gyro)
+    pairs = _pair_moves(bursts)
+    if len(pairs) < len(MOVES):
+        rep.problems.append(f"found {len(pairs)} of the {len(MOVES)} guided moves (each: out, hold, back) in the "
+                            "gyro; make each move slowly (about 1 s), by at least 20°, and hold it 2 s")
+    steps = att.step
+    for k, mv in enumerate(MOVES):
+        rep.lines.append("")
+        rep.lines.append(f"Move {k + 1}, {mv.name} ({mv.instruction}):")
+        if k >= len(pairs):
+            rep.lines.append("  not found in the stream.")
+            continue
+        (a0, a1, rot), (b0, _, _) = pairs[k]
+        _check_sensor(rep, mv, rot, att, a0, a1, b0)
+        if has_fc:
+            _check_controller(rep, mv, fc, att, a0, a1, b0, steps)
+
+    # -- motor outputs against the mixer ---------------------------------------------------------------------------
+    rep.lines.append("")
+    if has_fc:
+        _check_outputs(rep, fc, motors_on_any, armed_any)
+    rep.lines.append("Spin directions (from the mixer's yaw signs; check by eye, props off): " + "; ".join(
+        f"{m.label} {m.spin}" for m in MOTORS) + ", seen from above. A prop on the wrong motor or upside down "
+        "makes the drone spin or flip at take-off even when this check passes.")
+    return rep
+
+
+def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int, a1: int, b0: int) -> None:
+    dom = int(np.argmax(np.abs(rot)))
+    got = ", ".join(f"{n[0]} {_fmt(v)}" for n, v in zip(_AXIS_NAMES, rot))
+    exp_dir = "+" if mv.sign > 0 else "-"
+    if dom == mv.axis and np.sign(rot[dom]) == mv.sign:
+        rep.lines.append(f"  gyro: OK, turned about {_AXIS_NAMES[mv.axis]} {_fmt(rot[dom])} (x/y/z: {got}).")
+    elif dom == mv.axis:
+        rep.problems.append(f"{mv.name}: the gyro turned about {_AXIS_NAMES[mv.axis]} with the wrong sign "
+                            f"({_fmt(rot[dom])}, expected {exp_dir}): the sensor's {_AXIS_NAMES[mv.axis][0]} axis is "
+                            "reversed (board mounted turned, or a wrong COORDINATE_SYSTEM in config_drone.h).")
+        rep.lines.append(f"  gyro: REVERSED {_AXIS_NAMES[mv.axis]} ({got}).")
+    else:
+        rep.problems.append(f"{mv.name}: the gyro turned about {_AXIS_NAMES[dom]} ({_fmt(rot[dom])}) instead of "
+                            f"{_AXIS_NAMES[mv.axis]}: the sensor's axes are swapped (board mounted turned by 90°, "
+                            "or a wrong COORDINATE_SYSTEM in config_drone.h).")
+        rep.lines.append(f"  gyro: SWAPPED axis, turned about {_AXIS_NAMES[dom]} ({got}).")
+    if mv.axis < 2:
+        # the attitude (accelerometer + AHRS): before the move vs the middle of the hold
+        pre = slice(max(a0 - 30, 0), a0)
+        hold = slice(a1 + (b0 - a1) // 4, a1 + 3 * (b0 - a1) // 4 + 1)
+        ang = np.stack([att.thx_rad, att.thy_rad], axis=1).astype(np.float64)
+        d = np.degrees(ang[hold].mean(axis=0) - ang[pre].mean(axis=0))
+        ddom = int(np.argmax(np.abs(d)))
+        txt = f"pitch thx {_fmt(d[0])}, roll thy {_fmt(d[1])}"
+        if ddom == mv.axis and np.sign(d[ddom]) == mv.sign:
+            rep.lines.append(f"  attitude: OK, the firmware's {_ANGLE_NAMES[mv.axis]} moved {_fmt(d[ddom])} ({txt}).")
+        elif ddom == mv.axis:
+            rep.problems.append(f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
+                                f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "
+                                "push the drone over instead of levelling it.")
+            rep.lines.append(f"  attitude: REVERSED ({txt}).")
+        else:
+            rep.problems.append(f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
+                                f"its {_ANGLE_NAMES[mv.axis]}: pitch and roll are swapped.")
+            rep.lines.append(f"  attitude: SWAPPED ({txt}).")
+
+
+def _fc_window(fc, steps: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Flight-control rows whose step lies in the attitude rows [a, b)."""
+    if b <= a:
+        return np.zeros(0, np.int64)
+    return np.flatnonzero((fc.step >= steps[a]) & (fc.step < steps[min(b, len(steps) - 1)]))
+
+
+def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int, b0: int, steps) -> None:
+    pre = _fc_window(fc, steps, max(a0 - 160, 0), a0)
+    if mv.axis == 2:
+        # yaw: while turning (below MIN_THR the firmware resets its yaw angle and target, so a held turn shows
+        # nothing; the rate loop sees the turn itself)
+        hold = _fc_window(fc, steps, a0, a1)
+    else:
+        hold = _fc_window(fc, steps, a1 + (b0 - a1) // 4, a1 + 3 * (b0 - a1) // 4 + 1)
+    if len(hold) == 0:
+        rep.lines.append("  controller: no flight-control frame during the hold (hold the move longer).")
+        return
+    ax = mv.axis
+    name = "xyz"[ax]
+    want = -mv.sign  # the controller must push back
+    s1 = float(np.mean(fc.outer_s1_radps[hold, ax]))
+    ok1 = np.sign(s1) == want and abs(s1) > 1e-3
+    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
+        ok1 = True  # below MIN_THR the firmware holds its yaw angle and target at 0: z_s1 is 0
+    armed = bool(np.all(fc.fc_flags[hold] & 1))
+    line = f"  controller: outer {name}_s1 {s1:+.2f} rad/s"
+    if armed:
+        ds2 = float(np.mean(fc.inner_s2_pwm[hold, ax]) - (np.mean(fc.inner_s2_pwm[pre, ax]) if len(pre) else 0.0))
+        ok2 = np.sign(ds2) == want and abs(ds2) > 1.0
+        line += f", inner {name}_s2 {ds2:+.0f}"
+    else:
+        ok2 = True
+        line += " (not armed: the inner loop does not run)"
+    back = {0: "nose down", 1: "roll back left", 2: "turn back left"}[ax]
+    if ok1 and ok2:
+        rep.lines.append(line + f": OK, it asks to {back}.")
+    else:
+        rep.lines.append(line + ": WRONG direction.")
+        rep.problems.append(f"{mv.name}: the controller does not ask to {back} ({line.strip()}); the PID gains' "
+                            "signs or the sensor axis are wrong.")
+    # motors during the hold
+    mp = fc.motor_pwm
+    on = armed and np.all(fc.rc[hold, 3] >= C.MIN_THR)
+    mix = mixer_matrix()[:, ax] * want  # expected sign of each motor's change
+    if not on:
+        ups = [m.label for m, s in zip(MOTORS, mix) if s > 0]
+        rep.lines.append(f"  motors: off (the firmware zeroes them while disarmed or below MIN_THR "
+                         f"{C.MIN_THR}); the mixer would speed up {' and '.join(ups)}.")
+        return
+    dm = mp[hold].mean(axis=0) - (mp[pre].mean(axis=0) if len(pre) else 0.0)
+    for m, d, s in zip(MOTORS, dm, mix):
+        verb = "speeds up" if s > 0 else "slows down"
+        if np.sign(d) == s and abs(d) >= _MIN_MOTOR_DELTA:
+            rep.lines.append(f"  {m.label}: OK, {verb} ({d:+.0f}).")
+        else:
+            rep.lines.append(f"  {m.label}: WRONG, changed {d:+.0f}; it must {verb.replace('s ', ' ', 1)}.")
+            rep.problems.append(f"{mv.name}: {m.label} changed {d:+.0f} instead of the mixer's "
+                                f"'{verb}'.")
+
+
+def _check_outputs(rep: PreflightReport, fc, motors_on_any: bool, armed_any: bool) -> None:
+    armed = (fc.fc_flags & 1).astype(bool)
+    thr = fc.rc[:, 3]
+    on = armed & (thr >= C.MIN_THR)
+    if not motors_on_any:
+        rep.lines.append("Motor outputs: not checked, the motors were off the whole time (arm and raise the "
+                         f"throttle just above MIN_THR {C.MIN_THR}, props off, to check them).")
+        return
+    mp = fc.motor_pwm[on].astype(np.float32)
+    lines = mixer_pwm(thr[on], fc.inner_s2_pwm[on])
+    # residual of output i against mixer line j
+    res = np.abs(mp[:, :, None] - lines[:, None, :]).mean(axis=0)  # (4 outputs, 4 lines)
+    best = np.argmin(res, axis=1)
+    exact = float(np.mean(np.all(mp == expected_motor_pwm(thr[on], fc.inner_s2_pwm[on], armed[on]), axis=1)))
+    if np.all(best == np.arange(4)):
+        rep.lines.append(f"Motor outputs: OK, each output carries its own mixer line ({exact:.0%} of the "
+                         f"{len(mp)} frames with the motors on bit for bit).")
+        return
+    for i, j in enumerate(best):
+        if i != j:
+            mi, mj = MOTORS[i], MOTORS[j]
+            rep.problems.append(f"motor order: output {mi.number} (TIM4 channel {mi.number}, the {mi.position} "
+                                f"motor's plug) carries the mixer's line of {mj.label}; the motors at these "
+                                "plugs get each other's commands (swapped motors): fix the mixer/motor order.")
+            rep.lines.append(f"Motor output {mi.number}: SWAPPED, carries {mj.label}'s command.")
+        else:
+            rep.lines.append(f"Motor output {i + 1}: OK.")
