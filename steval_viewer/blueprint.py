@@ -78,6 +78,7 @@ def make_blueprint(
     ghost: str | None = None,
     timeline: str | None = None,
     gyro_max_dps: float | None = None,
+    flight_control: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint.
 
@@ -86,7 +87,8 @@ def make_blueprint(
     present, else the first by ``entities.GHOST_PREFERENCE``); the others stay in the view, hidden, and can be
     switched on in the blueprint panel. ``timeline``: the active timeline (default ``fw_time`` for replays,
     ``host_time`` live). ``gyro_max_dps``: the largest gyro rate of the recording (a replay): the gyro plot gets a
-    fixed symmetric range with labelled ends (:func:`axis_limit`); None: automatic range.
+    fixed symmetric range with labelled ends (:func:`axis_limit`); None: automatic range. ``flight_control``: the
+    recording has flight-control frames: the right side gets a second tab, "Flight control" (:func:`flight_view`).
     """
     sources = list(ghost_sources)
     if ghost is None:
@@ -143,7 +145,10 @@ def make_blueprint(
             column_shares=[2, 2, 1],
         ),
         row_shares=[3, 2, 2],
+        name="Attitude",
     )
+    if flight_control:
+        right = rrb.Tabs(right, flight_view(live, timeline), name="Attitude / flight control")
     return rrb.Blueprint(
         rrb.Horizontal(left, right, column_shares=[2, 3]),
         rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
@@ -151,6 +156,33 @@ def make_blueprint(
         rrb.SelectionPanel(expanded=False),
         collapse_panels=False,
     )
+
+
+def flight_view(live: bool, timeline: str) -> rrb.Vertical:
+    """The flight-control view: per axis the remote's target against the firmware's angle (pitch = thx about x,
+    roll = thy about y), the outer loop's output s1 with its P and I terms per axis, the inner loop's outputs s2,
+    the four motor commands, the sticks and the battery."""
+    fw = ent.SOURCE_FIRMWARE
+    targets = rrb.Horizontal(
+        _series("/", "pitch thx, about x: target vs firmware (deg, nose up +)", live, timeline,
+                contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"]),
+        _series("/", "roll thy, about y: target vs firmware (deg, right side down +)", live, timeline,
+                contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"]),
+        _series("/", "yaw thz: target vs firmware (deg)", live, timeline,
+                contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]),
+    )
+    outer = rrb.Horizontal(*[
+        _series(path, f"outer {name}: s1, P, I (rad/s)", live, timeline)
+        for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
+    ])
+    out = rrb.Horizontal(
+        _series(ent.FC_INNER, "inner loop s2 (PWM counts)", live, timeline, legend_bottom=True),
+        _series(ent.FC_MOTORS, "motors (TIM4 counts of 2000)", live, timeline, legend_bottom=True),
+        _series(ent.FC_STICKS, "sticks gAIL, gELE, gRUD, gTHR", live, timeline, legend_bottom=True),
+        _series(ent.FC_VBAT, "battery (V)", live, timeline, legend=False),
+        column_shares=[2, 2, 2, 1],
+    )
+    return rrb.Vertical(targets, outer, out, row_shares=[3, 2, 2], name="Flight control")
 
 
 def _symmetric(max_abs: float | None) -> tuple[float, float] | None:

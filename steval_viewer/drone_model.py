@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
+from steval_link import constants as C
 from steval_viewer import entities as ent
 
 ARM_LENGTH = 1.0  #: centre to motor axis
@@ -38,6 +39,15 @@ def motor_positions() -> np.ndarray:
     """(4, 3) motor centres: front-right, front-left, rear-left, rear-right (body frame)."""
     angles = np.deg2rad([45.0, 135.0, 225.0, 315.0])  # from +x, counter-clockwise seen from above
     return np.stack([ARM_LENGTH * np.cos(angles), ARM_LENGTH * np.sin(angles), np.zeros(4)], axis=1)
+
+
+def firmware_motor_positions() -> np.ndarray:
+    """(4, 3) centres of the firmware's motors 1..4 (``motorN_pwm``, TIM4 channel N), placed by the signs of its
+    mixer (:data:`steval_link.constants.MIXER`): motor 1 right rear, 2 right front, 3 left front, 4 left rear."""
+    rows = np.asarray(C.MIXER, dtype=np.float64)
+    d = ARM_LENGTH / np.sqrt(2.0)
+    # a + pitch (x) term: front (+y); a + roll (y) term: left (-x)
+    return np.stack([-np.sign(rows[:, 1]) * d, np.sign(rows[:, 0]) * d, np.zeros(4)], axis=1)
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,17 @@ Layout::
     plots/gyro_dps                        gyro x, y, z (deg/s)
     plots/throttle_thr                    gTHR
     plots/fw_minus_port_deg/thx|thy       firmware − ST-Mahony port, degrees (0 when the port is bit-exact)
+    fc/pitch_thx_deg/target               the remote's target thx (euler_rc), degrees (flight-control frames)
+    fc/roll_thy_deg/target                target thy, degrees
+    fc/yaw_thz_deg/target                 target thz, degrees
+    fc/outer_<axis>_radps/s1|p|i          the outer (angle) loop's output s1 (a rate setpoint, rad/s), and its P
+                                          and I terms recomputed with the firmware's gains (axis pitch_x, roll_y,
+                                          yaw_z)
+    fc/inner_s2_pwm                       the inner (rate) loop's outputs x_s2, y_s2, z_s2 (PWM counts)
+    fc/motor_pwm                          motor1..4_pwm (TIM4 counts, 2000 = 100 %)
+    fc/sticks                             gAIL, gELE, gRUD, gTHR
+    fc/vbat_v                             battery voltage, V
+    world/drone/firmware/motors/m1..m4    each motor's command as a thrust arrow on its prop (1 unit = 100 %)
     link/frame_rate_hz                    attitude frames received per second (1 s bins)
     link/frames_missing                   frames lost on the link (sequence gaps), cumulative
     link/crc_failures                     frames rejected by the decoder's CRC check, cumulative
@@ -65,6 +76,25 @@ LINK_CRC = "link/crc_failures"
 LINK_TX_DROPPED = "link/tx_dropped"
 LINK_QUEUE = "link/tx_queue_peak_bytes"
 LINK_CYCLES = "link/ahrs_cycles"
+
+FC = "fc"
+FC_PITCH = "fc/pitch_thx_deg"
+FC_ROLL = "fc/roll_thy_deg"
+FC_YAW = "fc/yaw_thz_deg"
+FC_TARGETS = (f"{FC_PITCH}/target", f"{FC_ROLL}/target", f"{FC_YAW}/target")
+#: the outer loop per axis (x pitch, y roll, z yaw): s1 and its P and I terms
+FC_OUTER = ("fc/outer_pitch_x_radps", "fc/outer_roll_y_radps", "fc/outer_yaw_z_radps")
+FC_INNER = "fc/inner_s2_pwm"
+FC_MOTORS = "fc/motor_pwm"
+FC_STICKS = "fc/sticks"
+FC_VBAT = "fc/vbat_v"
+DRONE_MOTORS = "world/drone/firmware/motors"
+
+
+def motor_path(number: int) -> str:
+    """The thrust arrow of motor ``number`` (1..4) on the firmware drone."""
+    return f"{DRONE_MOTORS}/m{number}"
+
 
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"

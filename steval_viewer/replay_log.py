@@ -26,7 +26,7 @@ from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import replay_firmware
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
-from steval_viewer import scene
+from steval_viewer import flight_log, scene
 from steval_viewer.columns import (
     Times,
     quaternion_from_euler,
@@ -273,6 +273,7 @@ def log_replay(
     ghost_sources = [s for s, e in sources if getattr(e, "q_wxyz", None) is not None]
 
     summary = ReplaySummary(sources=names)
+    has_fc = len(getattr(tel, "fc", None) or ()) > 0
     if blueprint:
         bp.send_blueprint(
             rec,
@@ -280,8 +281,11 @@ def log_replay(
             ghost_sources=ghost_sources,
             ghost=None if ghost is None else ent.source_name(ghost),
             gyro_max_dps=_max_abs(np.asarray(att.gyro_mdps, dtype=np.float64)) / 1000.0,
+            flight_control=has_fc,
         )
     scene.log_static(rec, names, with_port=port is not None)
+    if has_fc:
+        flight_log.log_flight_static(rec)
 
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
     _report(progress, 0.0, "logging the firmware's series")
@@ -295,6 +299,8 @@ def log_replay(
     if link:
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
+    if has_fc:
+        flight_log.log_flight_control(rec, tel, summary)
     return summary
 
 

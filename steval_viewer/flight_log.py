@@ -1,0 +1,108 @@
+"""Flight-control frames (type 4) of a whole :class:`~steval_link.link.telemetry.Telemetry` to Rerun: the remote's
+targets next to the firmware's attitude, the outer loop's output with its P and I terms, the inner loop's outputs,
+the four motor commands as series and as thrust arrows on the 3D drone's props, sticks and battery.
+
+The P and I terms are recomputed with the firmware's gains (:mod:`steval_link.analysis.flight_control`): pitch and
+roll bit for bit (P = kp1·(target − angle) of the same step, I = s1 − P, which is 0 with ST's ``ki1 = 0``); yaw's
+P uses the ISR-integrated ``thz`` of the attitude frame, which the ISR may move before the outer loop runs, so
+its P is approximate and no I is drawn. Entities: :mod:`steval_viewer.entities` (``fc/...``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+from steval_link import constants as C
+from steval_link.analysis.flight_control import MOTORS, outer_p
+from steval_viewer import drone_model
+from steval_viewer import entities as ent
+from steval_viewer.columns import Times, send_rows, send_scalars
+
+__all__ = ["log_flight_static", "log_flight_control", "flight_angles"]
+
+_AXIS_COLORS = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
+_MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
+_TARGET_COLOR = (40, 40, 40)
+
+
+def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(angles (N, 3) float32 thx, thy, thz of the attitude row with each flight-control row's step, found (N,)
+    bool): the angles the outer loop used (thz: as of the attitude frame)."""
+    steps = np.asarray(att.step, dtype=np.int64)
+    order = np.argsort(steps, kind="stable")
+    s_sorted = steps[order]
+    fs = np.asarray(fc.step, dtype=np.int64)
+    j = np.clip(np.searchsorted(s_sorted, fs), 0, max(len(s_sorted) - 1, 0))
+    found = (len(s_sorted) > 0) & (s_sorted[j] == fs) if len(s_sorted) else np.zeros(len(fs), bool)
+    idx = order[j] if len(s_sorted) else np.zeros(len(fs), np.int64)
+    ang = np.full((len(fs), 3), np.nan, np.float32)
+    if len(s_sorted):
+        ang[found] = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1)[idx[found]]
+    return ang, found
+
+
+def _line(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5) -> None:
+    names = [names] if isinstance(names, str) else list(names)
+    colors = [colors] if isinstance(colors, tuple) else list(colors)
+    rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
+
+
+def log_flight_static(rec: rr.RecordingStream) -> None:
+    """Series styles of the flight-control view and the motors' arrow origins on the 3D drone."""
+    for path, label in zip(ent.FC_TARGETS, ("target thx (remote)", "target thy (remote)", "target thz (remote)")):
+        _line(rec, path, label, _TARGET_COLOR, 2.0)
+    for path, axis in zip(ent.FC_OUTER, ("x pitch", "y roll", "z yaw")):
+        _line(rec, f"{path}/s1", f"{axis[0]}_s1 (firmware)", (214, 39, 40), 2.0)
+        _line(rec, f"{path}/p", "P = kp1·(target − angle)", (31, 119, 180))
+        if path != ent.FC_OUTER[2]:
+            _line(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
+    _line(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], _AXIS_COLORS)
+    _line(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
+    _line(rec, ent.FC_STICKS, ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
+          [*_AXIS_COLORS, (127, 127, 127)])
+    _line(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
+    pos = drone_model.firmware_motor_positions()
+    for m, p, color in zip(MOTORS, pos, _MOTOR_COLORS):
+        rec.log(
+            ent.motor_path(m.number),
+            rr.Arrows3D.from_fields(origins=[p + (0.0, 0.0, drone_model.PROP_Z)], colors=[color], radii=[0.035],
+                                    labels=[f"M{m.number}"], show_labels=True),  # vectors over time
+            static=True,
+        )
+
+
+def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = None) -> int:
+    """Log the flight-control rows of ``tel`` (``tel.fc``); returns the rows logged (0: none in the stream)."""
+    fc = getattr(tel, "fc", None)
+    if fc is None or len(fc) == 0:
+        return 0
+    times = Times(fc.t_fw_s, getattr(fc, "t_host_s", None), fc.step)
+    rc = np.asarray(fc.euler_rc_rad, dtype=np.float64)
+    for i, path in enumerate(ent.FC_TARGETS):
+        send_scalars(rec, path, times, np.degrees(rc[:, i]))
+    ang, found = flight_angles(fc, tel.attitude)
+    p = outer_p(fc.euler_rc_rad, ang)
+    s1 = np.asarray(fc.outer_s1_radps, dtype=np.float32)
+    for i, path in enumerate(ent.FC_OUTER):
+        send_scalars(rec, f"{path}/s1", times, s1[:, i].astype(np.float64))
+        send_scalars(rec, f"{path}/p", times, p[:, i].astype(np.float64), found)
+        if i < 2:
+            send_scalars(rec, f"{path}/i", times, (s1[:, i] - p[:, i]).astype(np.float64), found)
+    send_scalars(rec, ent.FC_INNER, times, np.asarray(fc.inner_s2_pwm, dtype=np.float64))
+    mp = np.asarray(fc.motor_pwm, dtype=np.float64)
+    send_scalars(rec, ent.FC_MOTORS, times, mp)
+    send_scalars(rec, ent.FC_STICKS, times, np.asarray(fc.rc, dtype=np.float64))
+    send_scalars(rec, ent.FC_VBAT, times, np.asarray(fc.vbat_v, dtype=np.float64))
+    # thrust arrows: the command TIM4 gets (clamped to 0..MOTOR_MAX_PWM), 1 unit = 100 % duty
+    frac = np.clip(mp, 0.0, C.MOTOR_MAX_PWM) / C.PWM_PERIOD
+    for k, m in enumerate(MOTORS):
+        v = np.zeros((len(mp), 3), np.float32)
+        v[:, 2] = frac[:, k]
+        send_rows(rec, ent.motor_path(m.number), times,
+                  lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]))
+    if summary is not None:
+        summary.samples[ent.FC_MOTORS] = len(fc)
+    return len(fc)
