@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_link.errors import UserError
 
 __all__ = [
@@ -23,6 +24,9 @@ __all__ = [
     "comparison_figure",
     "plot_simulation",
     "simulation_figure",
+    "plot_flight_control",
+    "flight_control_figure",
+    "flight_plot_path",
 ]
 
 INSTALL_HINT = 'pip install "steval-link[plot]"'
@@ -289,6 +293,84 @@ def comparison_figure(tel, report, *, title: str | None = None):
     fig.suptitle(title or f"steval compare: {Path(str(src)).name} — firmware vs ST-Mahony port, EKF and accel-only "
                  "tilt (axes: x right, y forward, z up)", fontsize=11)
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
+    return fig
+
+
+def flight_plot_path(out_png) -> Path:
+    """Where ``steval compare --plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
+    out = Path(out_png)
+    return out.with_name(f"{out.stem}-flight-control{out.suffix or '.png'}")
+
+
+def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
+    """Write :func:`flight_control_figure` as a PNG to ``out_png`` (returns the path)."""
+    return _save(flight_control_figure(tel, title=title), out_png)
+
+
+def flight_control_figure(tel, *, title: str | None = None):
+    """The flight-control frames of ``tel`` (``tel.fc``) as Betaflight's Blackbox shows a flight: per axis the
+    remote's target against the firmware's angle (left; pitch = thx about x, roll = thy about y), the outer loop's
+    output s1 with its P and I terms recomputed with the firmware's gains (right), the four motor commands and the
+    inner loop's outputs s2 (bottom)."""
+    plt = require_matplotlib()
+    a, fc = tel.attitude, tel.fc
+    t0 = float(a.t_fw_s[0]) if len(a) else 0.0
+    t = np.asarray(a.t_fw_s, np.float64) - t0
+    tf = np.asarray(fc.t_fw_s, np.float64) - t0
+    steps = np.asarray(a.step, np.int64)
+    order = np.argsort(steps, kind="stable")
+    j = np.clip(np.searchsorted(steps[order], fc.step), 0, max(len(steps) - 1, 0))
+    found = steps[order][j] == np.asarray(fc.step, np.int64)
+    ang = np.stack([a.thx_rad, a.thy_rad, a.thz_rad], axis=1)[order[j]].astype(np.float32)
+    ang[~found] = np.nan
+    p = outer_p(fc.euler_rc_rad, ang)
+    s1 = np.asarray(fc.outer_s1_radps, np.float32)
+    fw_ang = np.degrees(np.stack([a.thx_rad, a.thy_rad, a.thz_rad], axis=1).astype(np.float64))
+    rc = np.degrees(np.asarray(fc.euler_rc_rad, np.float64))
+
+    fig, axes = plt.subplots(4, 2, figsize=(13, 10), sharex=True)
+    names = ("pitch (thx, about x, nose up +)", "roll (thy, about y, right side down +)", "yaw (thz)")
+    for i, name in enumerate(names):
+        ax = axes[i, 0]
+        ax.plot(*_decimate(t, fw_ang[:, i]), color="black", lw=1.2, label="firmware angle")
+        ax.step(tf, rc[:, i], where="post", color="tab:red", lw=1.4, label="target (remote, euler_rc)")
+        ax.set_ylabel(f"{name.split(' ')[0]} [deg]")
+        ax.set_title(f"{name}: target vs firmware", fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+        ax = axes[i, 1]
+        ax.plot(tf, s1[:, i], ".-", color="tab:red", lw=1.0, ms=3, label=f"{'xyz'[i]}_s1 (firmware)")
+        ax.plot(tf, p[:, i], "--", color="tab:blue", lw=1.0, label="P = kp1·(target − angle)")
+        if i < 2:
+            ax.plot(tf, s1[:, i] - p[:, i], color="tab:green", lw=1.0, label="I = s1 − P (ki1 = 0)")
+        ax.set_ylabel("rate setpoint [rad/s]")
+        ax.set_title(f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I", fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="upper right")
+    for i in range(3):
+        axes[i, 1].legend(fontsize=7, loc="upper right")
+    ax = axes[3, 0]
+    mp = np.asarray(fc.motor_pwm, np.float64)
+    for k, m in enumerate(MOTORS):
+        ax.plot(tf, mp[:, k], lw=1.0, label=m.label)
+    ax.set_ylabel("PWM [counts of 2000]")
+    ax.set_title("motors (motor_pwm)", fontsize=10, loc="left")
+    ax.legend(fontsize=7, ncol=2, loc="upper right")
+    ax.grid(True, alpha=0.3)
+    ax = axes[3, 1]
+    s2 = np.asarray(fc.inner_s2_pwm, np.float64)
+    for k, lab in enumerate(("x_s2 pitch", "y_s2 roll", "z_s2 yaw")):
+        ax.plot(tf, s2[:, k], lw=1.0, label=lab)
+    ax.set_ylabel("PWM counts")
+    ax.set_title("inner loop outputs s2", fontsize=10, loc="left")
+    ax.legend(fontsize=7, loc="upper right")
+    ax.grid(True, alpha=0.3)
+    for ax in axes[3]:
+        ax.set_xlabel("firmware time since the first frame [s]")
+    every = int(np.max(fc.fc_every)) if len(fc) else 0
+    src = (getattr(tel, "source", None) or {}).get("path") or "capture"
+    fig.suptitle(title or f"steval compare: {Path(str(src)).name} — flight control ({len(fc)} frames, one every "
+                 f"{every} AHRS steps)", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
 
