@@ -14,6 +14,7 @@ from steval_link.cli import evaluate as _evaluate  # noqa: F401
 from steval_link.cli import export as _export  # noqa: F401
 from steval_link.cli import live as _live  # noqa: F401
 from steval_link.cli import ports as _ports  # noqa: F401
+from steval_link.cli import preflight as _preflight  # noqa: F401
 from steval_link.cli import replay as _replay  # noqa: F401
 from steval_link.cli import simulate as _simulate  # noqa: F401
 from steval_link.cli import synth as _synth  # noqa: F401

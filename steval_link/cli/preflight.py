@@ -1,0 +1,99 @@
+"""``steval preflight``: the guided wiring check, live on the drone's port or on a capture.
+
+Live: records the port (as ``steval record``) while telling the user, move by move, what to do; then checks the
+capture. On a capture: checks it. The check itself is :mod:`steval_link.analysis.preflight`. Exit 0 when every
+check passes, 1 when the check names a problem, 2 for bad input (as every command).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from steval_link import constants as C
+from steval_link.analysis.preflight import MOVES, check_preflight
+from steval_link.cli.app import app
+from steval_link.errors import UserError
+from steval_link.link.capture import load_telemetry, resolve_capture_out
+from steval_link.live.session import LiveOptions, LiveSession
+
+#: the guided sequence: (seconds after the start, what to say)
+SCRIPT: tuple[tuple[float, str], ...] = (
+    (0.0, "PROPS OFF. Put the drone level on the table. In the ST app: connect, arm, and raise the throttle just "
+          f"above idle (gTHR >= {C.MIN_THR}) so the motors idle; or leave the throttle at 0 to check with the "
+          "motors off. Keep still."),
+    (6.0, "Pick the drone up and hold it level."),
+    (8.0, f"1/3 {MOVES[0].name.upper()}: {MOVES[0].instruction}."),
+    (13.5, f"2/3 {MOVES[1].name.upper()}: {MOVES[1].instruction}."),
+    (19.0, f"3/3 {MOVES[2].name.upper()}: {MOVES[2].instruction}."),
+    (26.0, "Put the drone down, throttle to 0, disarm."),
+)
+#: how long the live check records, s
+LIVE_S = 30.0
+
+
+def _prompter(stop: threading.Event, stream) -> threading.Thread:
+    def run() -> None:
+        t = 0.0
+        for at, text in SCRIPT:
+            if stop.wait(max(at - t, 0.0)):
+                return
+            t = at
+            print(f"\nsteval preflight [{at:4.1f} s]: {text}", file=stream, flush=True)
+
+    th = threading.Thread(target=run, name="preflight-prompts", daemon=True)
+    th.start()
+    return th
+
+
+@app.command("preflight")
+def preflight_command(
+    capture: Optional[Path] = typer.Argument(None, help="Check a recorded capture (.stv) of the guided moves "
+                                             "instead of a live port."),
+    port: Optional[str] = typer.Option(None, "--port", "-p", help="Guide the moves live on this serial port "
+                                       "(e.g. /dev/ttyUSB0, or 'auto'), record them, then check."),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the drone's USART1."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Live: the capture file (default "
+                                       "recordings/steval-<UTC time>.stv)."),
+) -> None:
+    """Preflight wiring check: tilt right, nose up, turn right with the props off, checked against the firmware.
+
+    With the drone armed and the throttle at idle (or the motors off), each guided move is checked link by link:
+    the gyro and the firmware's attitude (swapped or reversed sensor axes), the outer and inner PID loops (do they
+    push back?), each motor against the firmware's mixer (motor1 = thr - x_s2 - y_s2 + z_s2, ...; wrong motor
+    order), and every motor output against its mixer line. The report says OK or what is wrong per move, motor
+    and axis, and which way each motor must spin. Exit 1 when it finds a problem.
+    """
+    if (capture is None) == (port is None):
+        raise UserError("give a capture to check, or --port to guide the moves live (not both).")
+    if capture is not None:
+        if out is not None:
+            raise UserError("--out is for the live check (--port); a capture is only read.")
+        path = capture
+    else:
+        if baud <= 0:
+            raise UserError(f"--baud must be a positive baud rate, got {baud}")
+        options = LiveOptions(port=port, baud=baud, out=resolve_capture_out(out), rrd=None, view=False,
+                              estimators=[], duration_s=LIVE_S)
+        stop = threading.Event()
+        th = _prompter(stop, sys.stderr)
+        try:
+            summary = LiveSession(options).run()
+        finally:
+            stop.set()
+            th.join(timeout=1.0)
+        print(summary.line())
+        path = summary.capture_path
+    tel = load_telemetry(path)
+    if len(tel.attitude) == 0:
+        raise UserError(f"{path} holds no attitude frames; is it a capture of the drone's stream?")
+    report = check_preflight(tel, str(path))
+    print(f"steval preflight: {path}")
+    print(report.text())
+    sys.stdout.flush()
+    if not report.passed:
+        raise typer.Exit(1)
