@@ -205,6 +205,9 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
 
 
 def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int, a1: int, b0: int) -> None:
+    """The gyro's rotation during the move, then the firmware's angles during the hold (an attitude problem is
+    named on its own only when the gyro was right: else it is the same fault, seen twice)."""
+    n_problems = len(rep.problems)
     dom = int(np.argmax(np.abs(rot)))
     got = ", ".join(f"{n[0]} {_fmt(v)}" for n, v in zip(_AXIS_NAMES, rot))
     exp_dir = "+" if mv.sign > 0 else "-"
@@ -228,8 +231,12 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
         d = np.degrees(ang[hold].mean(axis=0) - ang[pre].mean(axis=0))
         ddom = int(np.argmax(np.abs(d)))
         txt = f"pitch thx {_fmt(d[0])}, roll thy {_fmt(d[1])}"
+        gyro_ok = len(rep.problems) == n_problems
         if ddom == mv.axis and np.sign(d[ddom]) == mv.sign:
             rep.lines.append(f"  attitude: OK, the firmware's {_ANGLE_NAMES[mv.axis]} moved {_fmt(d[ddom])} ({txt}).")
+        elif not gyro_ok:
+            rep.lines.append(f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
+                             "drone over instead of levelling it.")
         elif ddom == mv.axis:
             rep.problems.append(f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
                                 f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "

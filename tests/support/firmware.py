@@ -43,3 +43,20 @@ def build(st_dir: Path, build_dir: Path, *options: str, target: str = "firmware"
         raise RuntimeError(f"make {target} failed:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
     sub = "fw" if target == "firmware" else "stock"
     return next((build_dir / sub).glob("*.elf"))
+
+
+#: the mixer's lines in ST's flight_control.c whose outputs a "swapped motors" build exchanges
+MIXER_FILE = ST_SUBDIR / "Src" / "flight_control.c"
+
+
+def swap_motor_outputs(st_dir: Path, a: int = 3, b: int = 4) -> None:
+    """Edit the copy's mixer so that outputs ``a`` and ``b`` carry each other's line (``motor_pwm->motor3_pwm =``
+    becomes ``motor_pwm->motor4_pwm =`` and back): the motor order of a mixer renumbered for another frame, e.g.
+    Betaflight's Quad-X order (3 rear left, 4 front left) where ST has 3 front left, 4 rear left. The same edit
+    as recordings/make_recordings.sh makes for preflight_swapped_motors.stv."""
+    path = st_dir / MIXER_FILE
+    text = path.read_text(encoding="latin-1")
+    pa, pb = f"motor_pwm->motor{a}_pwm =", f"motor_pwm->motor{b}_pwm ="
+    assert text.count(pa) == 2 and text.count(pb) == 2, "ST's mixer lines not found"
+    text = text.replace(pa, "@@A@@").replace(pb, pa).replace("@@A@@", pb)
+    path.write_text(text, encoding="latin-1")
