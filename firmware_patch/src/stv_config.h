@@ -44,6 +44,24 @@
 #define AHRS_NO_CORRECTION 0
 #endif
 
+/* A flight-control frame (80 bytes, PROTOCOL.md type 4) every STV_FC_EVERY AHRS steps, right after
+ * FlightControlPID_OuterLoop; 0 = none (the hook is compiled out). Default: from the baud rate, the smallest N that
+ * keeps the whole stream within 90 % of the line: attitude (60 B x 161.54/s) + status (96 B / 162 steps) = 9788
+ * B/s, plus 80 B x 161.54 / N = 12923 / N B/s, within STV_BAUD / 10 x 0.9 B/s. 115200 baud: N = 23 (89.8 %);
+ * 230400: N = 2; 460800 and above: N = 1 (every step). */
+#define STV_LINE_BUDGET_BPS (STV_BAUD * 9u / 100u)
+#define STV_BASE_STREAM_BPS 9788u
+#define STV_FC_STREAM_BPS 12923u
+#ifndef STV_FC_EVERY
+#if STV_TEXT_MODE || STV_LINE_BUDGET_BPS <= STV_BASE_STREAM_BPS
+#define STV_FC_EVERY 0u
+#elif (STV_FC_STREAM_BPS + STV_LINE_BUDGET_BPS - STV_BASE_STREAM_BPS - 1u) / (STV_LINE_BUDGET_BPS - STV_BASE_STREAM_BPS) > 255u
+#define STV_FC_EVERY 0u
+#else
+#define STV_FC_EVERY ((STV_FC_STREAM_BPS + STV_LINE_BUDGET_BPS - STV_BASE_STREAM_BPS - 1u) / (STV_LINE_BUDGET_BPS - STV_BASE_STREAM_BPS))
+#endif
+#endif
+
 /* Version of this patch, sent in the status frame (major, minor, patch). */
 #define STV_FW_VERSION_MAJOR 2u
 #define STV_FW_VERSION_MINOR 0u
@@ -53,6 +71,9 @@
 #endif
 #if STV_TEXT_DECIMATION < 1
 #error "STV_TEXT_DECIMATION must be >= 1"
+#endif
+#if STV_FC_EVERY > 255
+#error "STV_FC_EVERY must be 0..255"
 #endif
 #if STV_STATUS_EVERY_STEPS < 1
 #error "STV_STATUS_EVERY_STEPS must be >= 1"

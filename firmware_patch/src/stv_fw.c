@@ -81,3 +81,30 @@ void stv_fw_usart1_irq(void) {
 }
 
 uint32_t stv_fw_dropped(void) { return g_stv.txq.dropped; }
+
+int stv_fw_flight_due(void) {
+  return g_stv_ready && stv_link_flight_due(&g_stv);
+}
+
+void stv_fw_flight(const float euler_rc[3], int16_t ail, int16_t ele, int16_t rud, int16_t thr,
+                   const volatile float *pid_s, const volatile float *motor_pwm, float vbat_v, uint16_t fc_flags) {
+  stv_flight_t fc;
+  uint32_t s;
+  int i;
+  for (i = 0; i < 3; i++) fc.euler_rc_rad[i] = euler_rc[i];
+  fc.rc[0] = ail;
+  fc.rc[1] = ele;
+  fc.rc[2] = rud;
+  fc.rc[3] = thr;
+  fc.vbat_v = vbat_v;
+  fc.fc_flags = fc_flags;
+  s = irq_save();
+  for (i = 0; i < 3; i++) {
+    fc.outer_s1[i] = pid_s[2 * i];
+    fc.inner_s2[i] = pid_s[2 * i + 1];
+  }
+  for (i = 0; i < 4; i++) fc.motor_pwm[i] = motor_pwm[i];
+  stv_link_send_flight(&g_stv, &fc);
+  tx_kick();
+  irq_restore(s);
+}

@@ -33,6 +33,17 @@ extern int16_t stv_thr_used;
 /* Right after QuaternionToEuler(&ahrs.q, &euler_ahrs): queue the step's frames and start the transmitter. */
 void stv_fw_step_end(const float acc_mg[3], const float gyro_mdps[3], const float q[4], const float euler_rad[3]);
 
+/* Right after FlightControlPID_OuterLoop: 1 when this step's flight-control frame is due (STV_FC_EVERY). */
+int stv_fw_flight_due(void);
+
+/* The flight-control frame of this step (call when stv_fw_flight_due() says so). euler_rc: the targets thx, thy,
+ * thz passed to the outer loop (&euler_rc_fil.thx); the sticks gAIL, gELE, gRUD, gTHR; pid_s: &pid.x_s1 of ST's
+ * P_PI_PIDControlTypeDef, whose stage outputs lie x_s1, x_s2, y_s1, y_s2, z_s1, z_s2 in this order; motor_pwm:
+ * &motor_pwm.motor1_pwm (4 floats); vbat_v: VBAT; fc_flags: STV_FC_*. The inner-loop outputs and the motor PWM,
+ * which the TIM9 ISR writes, are copied with interrupts masked, so they come from one and the same ISR run. */
+void stv_fw_flight(const float euler_rc[3], int16_t ail, int16_t ele, int16_t rud, int16_t thr,
+                   const volatile float *pid_s, const volatile float *motor_pwm, float vbat_v, uint16_t fc_flags);
+
 /* Log text (PRINTF): gathered into lines, sent as text frames (binary mode) or plain lines (text mode).
  * Safe from any context (runs with interrupts masked for the few µs it takes). */
 void stv_fw_log_write(const char *s, size_t n);

@@ -205,3 +205,17 @@ void stv_link_log_write(stv_link_t *link, const char *s, size_t n) {
     }
   }
 }
+
+int stv_link_flight_due(stv_link_t *link) {
+  if (link->cfg.fc_every == 0u || link->cfg.text_mode) return 0;
+  if (++link->since_fc < link->cfg.fc_every) return 0;
+  link->since_fc = 0u;
+  return 1;
+}
+
+void stv_link_send_flight(stv_link_t *link, stv_flight_t *fc) {
+  fc->step = link->step - 1u; /* stv_link_step_end has counted the step whose attitude frame went out last */
+  fc->fc_every = link->cfg.fc_every;
+  fc->reserved = 0u;
+  (void)stv_send_flight(&link->txq, fc);
+}

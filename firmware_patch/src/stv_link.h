@@ -52,6 +52,7 @@ typedef struct {
   uint32_t cyc_min, cyc_max, cyc_n;
   uint64_t cyc_sum;
   uint8_t param_gen;      /* parameter changes and filter resets applied since boot, mod 256 (status) */
+  uint32_t since_fc;      /* steps since the last flight-control frame */
   uint32_t line_len;      /* log line being assembled */
   char line[STV_TEXT_MAX_PAYLOAD];
 } stv_link_t;
@@ -69,6 +70,13 @@ void stv_link_step_begin(stv_link_t *link, uint32_t cyc_now, int16_t thr);
  * acc_mg/gyro_mdps: the values passed to ahrs_fusion_ag; q: ahrs.q; euler_rad: thx, thy, thz of euler_ahrs. */
 void stv_link_step_end(stv_link_t *link, uint32_t cyc_now, const float acc_mg[3], const float gyro_mdps[3],
                        const float q[4], const float euler_rad[3]);
+
+/* Right after FlightControlPID_OuterLoop: 1 when this step's flight-control frame is due (every cfg.fc_every
+ * steps; never when fc_every is 0 or in text mode). */
+int stv_link_flight_due(stv_link_t *link);
+
+/* Queue the flight-control frame of the step just ended (fills fc->step, fc->fc_every, fc->reserved). */
+void stv_link_send_flight(stv_link_t *link, stv_flight_t *fc);
 
 /* Fill a status payload from the link's state (resets the cycle statistics and the queue peak). */
 void stv_link_make_status(stv_link_t *link, stv_status_t *st);

@@ -172,8 +172,9 @@ class Adc(Peripheral):
     """ADC1: a conversion completes at once on SWSTART; DR holds the battery divider's reading."""
 
     name = "ADC1"
-    #: 12-bit reading of the battery sense divider (≈ 3.9 V with the board's 10k/20k divider)
-    VBAT_COUNTS = 1613
+    #: 12-bit reading of the battery sense divider: the firmware's VBAT = counts·3.3/4095·(10k + 20k)/20k = 3.90 V, a
+    #: charged 1S LiPo
+    VBAT_COUNTS = 3226
 
     def read(self, off):
         if off == 0x00:

@@ -18,10 +18,12 @@ Derived fields:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.frames import (
@@ -36,7 +38,8 @@ from steval_link.link.frames import (
 )
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
-__all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
+__all__ = ["AttitudeArrays", "StatusArrays", "FlightControlArrays", "Telemetry", "TelemetryParts",
+           "telemetry_from_frames"]
 
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
@@ -111,6 +114,55 @@ class StatusArrays:
 
     def __len__(self) -> int:
         return len(self.step)
+
+
+@dataclass
+class FlightControlArrays:
+    """One row per flight-control frame (type 4, sent right after ``FlightControlPID_OuterLoop`` of step ``step``),
+    units in the names; ``tel.fc``. Axes x (pitch, about x), y (roll, about y), z (yaw).
+
+    ``t_fw_s`` is the firmware time of the frame's step: the time of the attitude row before it in the stream plus
+    the steps between (one AHRS period each); the frame itself carries no time.
+    """
+
+    step: np.ndarray  #: (N,) int64, the AHRS step (as the attitude rows' step)
+    t_fw_s: np.ndarray  #: (N,) float64, firmware time of the step, s since boot
+    t_host_s: np.ndarray  #: (N,) float64, host receive time, s since capture start (NaN when unknown)
+    euler_rc_rad: np.ndarray  #: (N,3) float32, the remote's targets thx, thy, thz passed to the outer loop
+    rc: np.ndarray  #: (N,4) int16, gAIL, gELE, gRUD, gTHR
+    outer_s1_radps: np.ndarray  #: (N,3) float32, outer (angle) loop outputs x_s1, y_s1, z_s1: rate setpoints
+    inner_s2_pwm: np.ndarray  #: (N,3) float32, inner (rate) loop outputs x_s2, y_s2, z_s2, PWM counts
+    motor_pwm: np.ndarray  #: (N,4) float32, motor1..4_pwm as computed (TIM4 counts of 2000; 0 when stopped)
+    vbat_v: np.ndarray  #: (N,) float32, battery voltage as the firmware last measured it, V
+    fc_flags: np.ndarray  #: (N,) uint16, bit0 armed, bit1 RC connected, bit2 RC calibration
+    fc_every: np.ndarray  #: (N,) uint8, a frame every this many steps
+    offset: np.ndarray  #: (N,) int64, stream byte offset of the frame
+
+    def __len__(self) -> int:
+        return len(self.step)
+
+    @property
+    def armed(self) -> np.ndarray:
+        return (self.fc_flags & P.FC_ARMED).astype(bool)
+
+    @classmethod
+    def from_rows(cls, rows: np.ndarray, att: AttitudeArrays) -> FlightControlArrays:
+        step = rows["step"].astype(np.int64)
+        if len(att):
+            j = np.clip(np.searchsorted(att.offset, rows["offset"]) - 1, 0, len(att) - 1)
+            t = att.t_fw_s[j] + (step - att.step[j]) * C.AHRS_PERIOD_S
+        else:
+            t = step * C.AHRS_PERIOD_S
+        return cls(
+            step=step, t_fw_s=np.asarray(t, np.float64), t_host_s=rows["t_host_s"].astype(np.float64),
+            euler_rc_rad=np.ascontiguousarray(rows["euler_rc_rad"], np.float32),
+            rc=np.ascontiguousarray(rows["rc"], np.int16),
+            outer_s1_radps=np.ascontiguousarray(rows["outer_s1"], np.float32),
+            inner_s2_pwm=np.ascontiguousarray(rows["inner_s2"], np.float32),
+            motor_pwm=np.ascontiguousarray(rows["motor_pwm"], np.float32),
+            vbat_v=rows["vbat_v"].astype(np.float32), fc_flags=rows["fc_flags"].astype(np.uint16),
+            fc_every=rows["fc_every"].astype(np.uint8), offset=rows["offset"].astype(np.int64),
+        )
 
 
 def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dtype, frame_size) -> np.ndarray:
@@ -370,7 +422,49 @@ class Telemetry:
             rows[name] = rec
         return cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows)
 
+    @cached_property
+    def fc(self) -> FlightControlArrays:
+        """The flight-control frames with units in the names (:class:`FlightControlArrays`)."""
+        return FlightControlArrays.from_rows(self.flight, self.attitude)
+
     # -- tables ------------------------------------------------------------------------------------------------
+    def flight_columns(self) -> dict[str, np.ndarray]:
+        """The flight-control fields as columns on the attitude rows (joined by step; NaN in the rows of steps
+        without a flight-control frame), units in the names; {} when the stream has none."""
+        fc = self.fc
+        if len(fc) == 0:
+            return {}
+        n = len(self.attitude)
+        # the flight-control row of each attitude row: same step, the nearest one after it in the stream
+        row = np.full(n, -1, np.int64)
+        j = np.searchsorted(self.attitude.offset, fc.offset) - 1
+        ok = (j >= 0) & (self.attitude.step[np.clip(j, 0, max(n - 1, 0))] == fc.step) if n else np.zeros(0, bool)
+        row[j[ok]] = np.flatnonzero(ok)
+        has = row >= 0
+        cols: dict[str, np.ndarray] = {}
+
+        def col(values, dtype=np.float32):
+            out = np.full(n, np.nan, dtype)
+            out[has] = np.asarray(values)[row[has]]
+            return out
+
+        for i, name in enumerate(("thx_pitch", "thy_roll", "thz_yaw")):
+            cols[f"target_{name}_rad"] = col(fc.euler_rc_rad[:, i])
+        for i, name in enumerate(("ail", "ele", "rud", "thr")):
+            cols[f"rc_{name}"] = col(fc.rc[:, i].astype(np.float32))
+        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
+            cols[f"outer_s1_{name}_radps"] = col(fc.outer_s1_radps[:, i])
+        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
+            cols[f"inner_s2_{name}_pwm"] = col(fc.inner_s2_pwm[:, i])
+        for i in range(4):
+            cols[f"motor{i + 1}_pwm"] = col(fc.motor_pwm[:, i])
+        cols["vbat_v"] = col(fc.vbat_v)
+        for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"),
+                          (P.FC_RC_CAL, "fc_rc_cal")):
+            cols[name] = col(((fc.fc_flags & bit) != 0).astype(np.float32))
+        cols["fc_every"] = col(fc.fc_every.astype(np.float32))
+        return cols
+
     def attitude_table(self) -> dict[str, np.ndarray]:
         """One 1-D column per attitude field, units in the names (``pandas.DataFrame(tel.attitude_table())``)."""
         a = self.attitude
