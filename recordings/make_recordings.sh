@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate every bundled recording (see recordings/README.md for which source made which).
-# - demo.stv, freefall.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
+# - demo.stv, freefall.stv, flight.stv, preflight_*.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
 #   (`steval emulate`); needs ST's sources in ../shared/st-fcu-f401 (or ST_SRC=...), arm-none-eabi-gcc and make.
 # - midflight_drops.stv, textmode.log, broad_07.stv: `steval synth`, for what it alone does (a host joining
 #   mid-frame, injected queue drops, the USB-UART adapter's packet timing, a plain terminal log); their binary
@@ -15,7 +15,8 @@ ENC=(--encoder c --c-encoder firmware_patch/host/stv_encode --force)
 
 if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null; then
     ST_TMP=$(mktemp -d)
-    trap 'rm -rf "$ST_TMP"' EXIT
+    SW_TMP=$(mktemp -d)
+    trap 'rm -rf "$ST_TMP" "$SW_TMP"' EXIT
     cp -r "$ST_SRC/STM32 FW Project" "$ST_TMP/"
     (cd "$ST_TMP" && git init -q && git apply "$OLDPWD/firmware_patch/st-fcu-170120.patch")
     rm -rf firmware_patch/build/recordings  # a fresh build (its ST tree is a new temporary copy each time)
@@ -24,8 +25,22 @@ if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null;
     rm -f recordings/demo.stv recordings/freefall.stv
     "$STEVAL" emulate "$ELF" --scenario demo --duration 60 --seed 1 --no-view --out recordings/demo.stv
     "$STEVAL" emulate "$ELF" --scenario freefall --duration 10 --seed 4 --no-view --out recordings/freefall.stv
+    # flight control (the FC frames): a flight with stick moves, the preflight check's guided moves on this build,
+    # and on a build whose mixer drives motor outputs 3 and 4 swapped (the mixer renumbered to Betaflight's Quad-X
+    # order; the same edit as tests/support/firmware.py swap_motor_outputs)
+    rm -f recordings/flight.stv recordings/preflight_ok.stv recordings/preflight_swapped_motors.stv
+    "$STEVAL" emulate "$ELF" --scenario flight --duration 27 --seed 1 --no-view --out recordings/flight.stv
+    "$STEVAL" emulate "$ELF" --scenario preflight --duration 30 --seed 1 --no-view --out recordings/preflight_ok.stv
+    cp -r "$ST_TMP/STM32 FW Project" "$SW_TMP/"
+    sed -i -e 's/motor_pwm->motor3_pwm =/motor_pwm->motorX_pwm =/' -e 's/motor_pwm->motor4_pwm =/motor_pwm->motor3_pwm =/' \
+        -e 's/motor_pwm->motorX_pwm =/motor_pwm->motor4_pwm =/' \
+        "$SW_TMP/STM32 FW Project/Official release - 170120/Src/flight_control.c"
+    rm -rf firmware_patch/build/recordings-swapped
+    make -s -C firmware_patch firmware ST_DIR="$SW_TMP" BUILD_DIR=build/recordings-swapped -j2
+    "$STEVAL" emulate firmware_patch/build/recordings-swapped/fw/steval-fcu-link.elf --scenario preflight \
+        --duration 30 --seed 1 --no-view --out recordings/preflight_swapped_motors.stv
 else
-    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv and freefall.stv left as they are" >&2
+    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; the emulated-firmware recordings left as they are" >&2
 fi
 
 "$STEVAL" synth --scenario hover --duration 20 --join-at 18.31 --drop-rate 0.01 --seed 2 "${ENC[@]}" \

@@ -16,10 +16,11 @@ from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AttitudeFrame, FlightFrame, StatusFrame, TextFrame
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
-BINARY = ["demo.stv", "midflight_drops.stv", "freefall.stv", "broad_07.stv"]
+BINARY = ["demo.stv", "midflight_drops.stv", "freefall.stv", "broad_07.stv", "flight.stv", "preflight_ok.stv",
+          "preflight_swapped_motors.stv"]
 ALL = BINARY + ["textmode.log"]
 
 
@@ -38,6 +39,9 @@ def encode(frame) -> bytes:
     if isinstance(frame, StatusFrame):
         names = [n for n in P.STATUS_DTYPE.names if n != "reserved"]
         return P.encode_status(**{n: getattr(frame, n) for n in names})
+    if isinstance(frame, FlightFrame):
+        names = [n for n in P.FLIGHT_DTYPE.names if n != "reserved"]
+        return P.encode_flight(**{n: getattr(frame, n) for n in names})
     assert isinstance(frame, TextFrame)
     return P.encode_text(frame.text)
 

@@ -26,7 +26,6 @@ __all__ = [
     "simulation_figure",
     "plot_flight_control",
     "flight_control_figure",
-    "flight_plot_path",
 ]
 
 INSTALL_HINT = 'pip install "steval-link[plot]"'
@@ -294,12 +293,6 @@ def comparison_figure(tel, report, *, title: str | None = None):
                  "tilt (axes: x right, y forward, z up)", fontsize=11)
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
     return fig
-
-
-def flight_plot_path(out_png) -> Path:
-    """Where ``steval compare --plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
-    out = Path(out_png)
-    return out.with_name(f"{out.stem}-flight-control{out.suffix or '.png'}")
 
 
 def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:

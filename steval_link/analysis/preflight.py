@@ -197,7 +197,7 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     # -- motor outputs against the mixer ---------------------------------------------------------------------------
     rep.lines.append("")
     if has_fc:
-        _check_outputs(rep, fc, motors_on_any, armed_any)
+        _check_outputs(rep, fc, att, motors_on_any)
     rep.lines.append("Spin directions (from the mixer's yaw signs; check by eye, props off): " + "; ".join(
         f"{m.label} {m.spin}" for m in MOTORS) + ", seen from above. A prop on the wrong motor or upside down "
         "makes the drone spin or flip at take-off even when this check passes.")
@@ -299,19 +299,27 @@ def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int,
                          f"{C.MIN_THR}); the mixer would speed up {' and '.join(ups)}.")
         return
     dm = mp[hold].mean(axis=0) - (mp[pre].mean(axis=0) if len(pre) else 0.0)
+    wrong = []
     for m, d, s in zip(MOTORS, dm, mix):
         verb = "speeds up" if s > 0 else "slows down"
         if np.sign(d) == s and abs(d) >= _MIN_MOTOR_DELTA:
             rep.lines.append(f"  {m.label}: OK, {verb} ({d:+.0f}).")
         else:
-            rep.lines.append(f"  {m.label}: WRONG, changed {d:+.0f}; it must {verb.replace('s ', ' ', 1)}.")
-            rep.problems.append(f"{mv.name}: {m.label} changed {d:+.0f} instead of the mixer's "
-                                f"'{verb}'.")
+            must = "speed up" if s > 0 else "slow down"
+            rep.lines.append(f"  {m.label}: WRONG, changed {d:+.0f}; the mixer says it must {must}.")
+            wrong.append(f"{m.label} changed {d:+.0f} instead of {'speeding up' if s > 0 else 'slowing down'}")
+    if wrong:
+        rep.problems.append(f"{mv.name}: " + "; ".join(wrong) + ".")
 
 
-def _check_outputs(rep: PreflightReport, fc, motors_on_any: bool, armed_any: bool) -> None:
+def _check_outputs(rep: PreflightReport, fc, att, motors_on_any: bool) -> None:
     armed = (fc.fc_flags & 1).astype(bool)
-    thr = fc.rc[:, 3]
+    # the throttle the TIM9 ISR mixed with: gTHR as ahrs_fusion_ag read it this step (the main loop sets the new
+    # gTHR after the AHRS step); the frame's own gTHR where the step's attitude row is missing
+    thr = fc.rc[:, 3].copy()
+    j = np.clip(np.searchsorted(att.step, fc.step), 0, len(att) - 1)
+    same = att.step[j] == fc.step
+    thr[same] = att.thr[j[same]]
     on = armed & (thr >= C.MIN_THR)
     if not motors_on_any:
         rep.lines.append("Motor outputs: not checked, the motors were off the whole time (arm and raise the "
@@ -327,12 +335,25 @@ def _check_outputs(rep: PreflightReport, fc, motors_on_any: bool, armed_any: boo
         rep.lines.append(f"Motor outputs: OK, each output carries its own mixer line ({exact:.0%} of the "
                          f"{len(mp)} frames with the motors on bit for bit).")
         return
+    done = set()
     for i, j in enumerate(best):
-        if i != j:
-            mi, mj = MOTORS[i], MOTORS[j]
-            rep.problems.append(f"motor order: output {mi.number} (TIM4 channel {mi.number}, the {mi.position} "
-                                f"motor's plug) carries the mixer's line of {mj.label}; the motors at these "
-                                "plugs get each other's commands (swapped motors): fix the mixer/motor order.")
-            rep.lines.append(f"Motor output {mi.number}: SWAPPED, carries {mj.label}'s command.")
-        else:
+        mi, mj = MOTORS[i], MOTORS[j]
+        if i == j:
             rep.lines.append(f"Motor output {i + 1}: OK.")
+            continue
+        rep.lines.append(f"Motor output {mi.number}: WRONG, carries {mj.label}'s command.")
+        if i in done:
+            continue
+        if best[j] == i:  # a pair swapped
+            done.update((i, j))
+            rep.problems.append(
+                f"motor order: outputs {mi.number} and {mj.number} are swapped: output {mi.number} (TIM4 channel "
+                f"{mi.number}, the {mi.position} motor's plug) carries the command of {mj.label} and output "
+                f"{mj.number} that of {mi.label}, so these two motors push the wrong way for pitch and yaw and the "
+                "drone flips or spins at take-off. Fix the mixer lines (motorN_pwm = ...) in flight_control.c or "
+                "the motor order of the build.")
+        else:
+            done.add(i)
+            rep.problems.append(f"motor order: output {mi.number} (TIM4 channel {mi.number}, the {mi.position} "
+                                f"motor's plug) carries the command of {mj.label}. Fix the mixer lines in "
+                                "flight_control.c or the motor order of the build.")

@@ -28,6 +28,12 @@ from steval_link.estimators.st_mahony import MahonySettings
 __all__ = ["compare_command"]
 
 
+def flight_plot_path(out_png: Path) -> Path:
+    """Where ``--plot OUT.png`` puts the flight-control figure of a capture with flight-control frames:
+    ``OUT-flight-control.png``."""
+    return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
+
+
 def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares):
     """Port settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
 
@@ -78,7 +84,9 @@ def compare_command(
             "--plot",
             metavar="OUT.png",
             help="Also write a figure (angles over time, firmware − port, "
-            'differences per estimator); needs matplotlib: pip install "steval-link\\[plot]".',
+            "differences per estimator) and, for a capture with flight-control frames, OUT-flight-control.png "
+            "(targets vs angles, PID terms, motors); needs matplotlib: "
+            'pip install "steval-link\\[plot]".',
         ),
     ] = None,
     estimator: Annotated[
@@ -148,13 +156,21 @@ def compare_command(
 
             progress(0.9, f"plotting {plot.name}")
             plot_comparison(tel, report, plot)
+            if len(tel.fc):
+                from steval_link.analysis.plots import plot_flight_control  # as above
+
+                plot_flight_control(tel, flight_plot_path(plot))
     if as_json:
         d = report.as_dict()
         if plot is not None:
             d["plot"] = str(plot)
+            if len(tel.fc):
+                d["plot_flight_control"] = str(flight_plot_path(plot))
         json.dump(d, sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print("\n".join(format_report(report)))
         if plot is not None:
             print(f"plot: {plot}")
+            if len(tel.fc):
+                print(f"flight-control plot: {flight_plot_path(plot)}")

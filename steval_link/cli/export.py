@@ -17,7 +17,9 @@ __all__ = ["write_csv", "write_parquet", "write_raw"]
 
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
-ANGLE_COLUMNS = {"thx_pitch_rad": "thx_pitch_deg", "thy_roll_rad": "thy_roll_deg", "thz_yaw_rad": "thz_yaw_deg"}
+ANGLE_COLUMNS = {"thx_pitch_rad": "thx_pitch_deg", "thy_roll_rad": "thy_roll_deg", "thz_yaw_rad": "thz_yaw_deg",
+                 "target_thx_pitch_rad": "target_thx_pitch_deg", "target_thy_roll_rad": "target_thy_roll_deg",
+                 "target_thz_yaw_rad": "target_thz_yaw_deg"}
 
 
 def _column_strings(col: np.ndarray) -> list[str]:
@@ -87,8 +89,12 @@ def export(
 
     Columns, units in the names: step, seq, t_fw_s, t_host_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps,
     q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad (_deg with --degrees), thr, exact
-    (0 for rounded text-mode rows), offset (stream byte). Missing values (NaN) are empty CSV fields; each float32
-    value is written as the shortest decimal that reads back as the same float32 (999.4).
+    (0 for rounded text-mode rows), offset (stream byte). A capture with flight-control frames adds, on the rows of
+    their steps: target_thx_pitch_rad .. target_thz_yaw_rad (the remote's targets), rc_ail, rc_ele, rc_rud, rc_thr,
+    outer_s1_x_pitch_radps .. (outer loop outputs), inner_s2_x_pitch_pwm .. (inner loop outputs), motor1_pwm ..
+    motor4_pwm (TIM4 counts of 2000), vbat_v, fc_armed, fc_rc_connected, fc_rc_cal, fc_every. Missing values (NaN)
+    are empty CSV fields; each float32 value is written as the shortest decimal that reads back as the same float32
+    (999.4).
     """
     outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw)) if p is not None]
     if not outputs:
@@ -113,6 +119,7 @@ def export(
                 typer.echo(f"{raw}: {len(src.data)} bytes")
             if tel is not None:
                 table = tel.attitude_table()
+                table.update(tel.flight_columns())
                 if degrees:
                     table = in_degrees(table)
                 n = len(tel.attitude)

@@ -583,7 +583,7 @@ def _flight(T: float, rng, t0: float = 5.0) -> _Kinematics:
     resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)   # euler_rc.thy = -gAIL·k
     yaw_rate = _Steps()
     for t_m, _, delta in rud.moves:                     # gRUD < -600: the yaw target turns right (clockwise)
-        yaw_rate.move(t_m + 0.15, 0.4, -np.sign(delta) * _YAW_STICK_RADPS * 0.95)
+        yaw_rate.move(t_m + 0.15, 0.4, np.sign(delta) * _YAW_STICK_RADPS * 0.95)
     t_arm, t_disarm = t0 - 1.0, T - 1.5
 
     return _Kinematics(

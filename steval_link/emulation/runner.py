@@ -13,8 +13,9 @@ bounded whatever the duration) or a BROAD trial (its real IMU signals, from the 
 LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
 registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
 loop, while ``connected``); the emulated remote writes ``joydata`` at each TIM9 tick, so gTHR moves in steps of
-13 as with the ST app, and sets ``connected`` at its first non-zero throttle or arming (from then on the firmware
-also sends its BLE notifications through ``hci_send_req``). Once connected it sends every stick as ST's app does:
+13 as with the ST app, and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a
+scenario with sticks (from then on the firmware also sends its BLE notifications through ``hci_send_req``).
+Once connected it sends every stick as ST's app does:
 ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; the firmware computes
 ``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
 the firmware reads into ``rc_enable_motor``; a scenario with sticks and arming (``flight``, ``preflight``) thereby
@@ -123,6 +124,8 @@ class ScenarioMotion:
                 raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
                                 "(or --broad TRIAL.npz)")
             self._kin = sc.build(total_s, r_motion)
+        #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
+        self.remote_from_start = trial is None and self._kin.sticks is not None
         self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
         self.gyro_bias_mdps = r_sensor.normal(0.0, 600.0, 3)
         self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
@@ -284,7 +287,8 @@ class Emulation:
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
             thr, (ail, ele, rud), armed = self.motion.remote(k)
-            if (thr or armed) and not self._remote_connected and self._connected is not None:
+            if ((thr or armed or self.motion.remote_from_start) and not self._remote_connected
+                    and self._connected is not None):
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
