@@ -31,12 +31,13 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link import constants as C
 from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link.protocol import SEQ_MODULUS
 from steval_link.link.unwrap import TimeUnwrapper
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
-from steval_viewer import scene
+from steval_viewer import flight_log, scene
 from steval_viewer.columns import Times, quaternion_from_euler, send_scalars
 from steval_viewer.record_batch import RowBatch
 
@@ -83,9 +84,12 @@ class LiveLogger:
         segs = list(dict.fromkeys(self.sources.values()))
         if blueprint:
             bp.send_blueprint(
-                rec, live=True, ghost_sources=segs, ghost=None if ghost is None else live_source(ghost)
+                rec, live=True, ghost_sources=segs, ghost=None if ghost is None else live_source(ghost),
+                flight_control=True,
             )
         scene.log_static(rec, segs, with_port=ent.SOURCE_PORT in segs)
+        flight_log.log_flight_static(rec)
+        self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
         self.t0_host_s = t0_host_s
         self.fw_clock = TimeUnwrapper()
         self.frames = 0
@@ -248,6 +252,35 @@ class LiveLogger:
             self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
         self.rec.log(ent.LOG_FIRMWARE, rr.TextLog(text, level="INFO"))
         self.rec.reset_time()
+
+    def log_flight(self, frame: Any, t_unix_s: float) -> None:
+        """A flight-control frame: targets, outer s1, inner s2, motors, sticks, battery (queued like the status
+        rows; timed by its step from the latest attitude frame); the motors' arrows at most every 0.1 s."""
+        if self._last_times is None:
+            return
+        host = float(self._host(np.array([t_unix_s], dtype=np.float64))[0]) if t_unix_s is not None else math.nan
+        fw_last, _ = self._last_times
+        d = int(frame.step) - (self._last_step if self._last_step is not None else int(frame.step))
+        fw = fw_last + (d * C.AHRS_PERIOD_S if abs(d) < SEQ_MODULUS else 0.0)  # (a restart: the latest time)
+        rc = np.degrees(np.asarray(frame.euler_rc_rad, dtype=np.float64))
+        for path, v in zip(ent.FC_TARGETS, rc):
+            self._queue_row(path, fw, host, (v,))
+        for path, v in zip(ent.FC_OUTER, frame.outer_s1):
+            self._queue_row(f"{path}/s1", fw, host, (v,))
+        self._queue_row(ent.FC_INNER, fw, host, frame.inner_s2)
+        self._queue_row(ent.FC_MOTORS, fw, host, frame.motor_pwm)
+        self._queue_row(ent.FC_STICKS, fw, host, frame.rc)
+        self._queue_row(ent.FC_VBAT, fw, host, (frame.vbat_v,))
+        if abs(fw - self._last_motors_fw) >= 0.1:
+            self._last_motors_fw = fw
+            self.rec.reset_time()
+            self.rec.set_time(ent.TIMELINE_FW, duration=fw)
+            if math.isfinite(host):
+                self.rec.set_time(ent.TIMELINE_HOST, duration=host)
+            for k, v in enumerate(frame.motor_pwm):
+                frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
+                self.rec.log(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]))
+            self.rec.reset_time()
 
     def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
         """Decoder counters (``DecoderStats``): CRC failures, cumulative; at most every LINK_INTERVAL_S."""

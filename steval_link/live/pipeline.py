@@ -13,7 +13,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AttitudeFrame, FlightFrame, StatusFrame, TextFrame
 from steval_link.link.unwrap import SeqUnwrapper
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
 from steval_link.live.health import LinkHealth
@@ -40,7 +40,7 @@ class LiveViewer(typing.Protocol):
 
     Optional attributes, read when present: ``has_viewer`` (a viewer gets the stream, not only an ``.rrd``: then
     every processing round goes out at once) and ``file`` (the ``.rrd``'s own LiveViewer next to a live viewer,
-    fed merged batches).
+    fed merged batches) and ``log_flight(frame, t_unix_s)`` (flight-control frames).
     """
 
     def log_batch(self, batch: AttitudeBatch) -> None: ...
@@ -133,6 +133,10 @@ class BatchOutlet:
             for kind, frame, t_unix_s in events:
                 if kind == "status":
                     self.logger.log_status(frame, t_unix_s)
+                elif kind == "flight":
+                    log_flight = getattr(self.logger, "log_flight", None)  # optional (LiveViewer)
+                    if log_flight is not None:
+                        log_flight(frame, t_unix_s)
                 else:
                     self.logger.log_text(frame, t_unix_s)
 
@@ -230,6 +234,10 @@ class LivePipeline:
                     self.texts.append(frame.text)
                     if outlets:
                         self._event("text", frame, t_unix_s)
+                elif isinstance(frame, FlightFrame) and outlets:
+                    self._attitude(att)  # its step's attitude frame first
+                    att = []
+                    self._event("flight", frame, t_unix_s)
         self._attitude(att)
         self.tick()
 
