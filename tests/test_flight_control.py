@@ -314,3 +314,8 @@ def test_fc_every_step_at_460800_baud(fw_elf, tmp_path):
     tel = _emulated(elf, tmp_path, "fast.stv", scenario="bench", duration_s=6.0, seed=1)
     assert len(tel.fc) >= len(tel.attitude) - 1 and np.all(tel.fc.fc_every == 1)
     assert np.all(tel.status.fc_every == 1) and np.all(np.diff(tel.fc.step) == 1)
+
+
+def test_preflight_refuses_a_capture_that_is_not_the_guided_sequence():
+    rep = check_preflight(load_telemetry(REC / "demo.stv"))  # hand tilts: pitch, pitch, roll, ...
+    assert not rep.passed and "not the guided sequence" in rep.problems[0]

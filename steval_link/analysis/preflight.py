@@ -182,6 +182,13 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     if len(pairs) < len(MOVES):
         rep.problems.append(f"found {len(pairs)} of the {len(MOVES)} guided moves (each: out, hold, back) in the "
                             "gyro; make each move slowly (about 1 s), by at least 20°, and hold it 2 s")
+    axes = [int(np.argmax(np.abs(rot))) for (_, _, rot), _ in pairs[:len(MOVES)]]
+    if len(axes) == len(MOVES) and len(set(axes)) < len(axes):
+        names = ", ".join(_AXIS_NAMES[a] for a in axes)
+        rep.problems.append(f"the first three moves turned about {names}: not the guided sequence (tilt right, nose "
+                            "up, turn right: three different axes, even when they are swapped); record it again "
+                            "with steval preflight --port")
+        return rep
     steps = att.step
     for k, mv in enumerate(MOVES):
         rep.lines.append("")

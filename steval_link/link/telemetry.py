@@ -438,7 +438,7 @@ class Telemetry:
         # the flight-control row of each attitude row: same step, the nearest one after it in the stream
         row = np.full(n, -1, np.int64)
         j = np.searchsorted(self.attitude.offset, fc.offset) - 1
-        ok = (j >= 0) & (self.attitude.step[np.clip(j, 0, max(n - 1, 0))] == fc.step) if n else np.zeros(0, bool)
+        ok = (j >= 0) & (self.attitude.step[np.clip(j, 0, max(n - 1, 0))] == fc.step) if n else np.zeros(len(fc), bool)
         row[j[ok]] = np.flatnonzero(ok)
         has = row >= 0
         cols: dict[str, np.ndarray] = {}
