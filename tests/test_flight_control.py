@@ -319,3 +319,19 @@ def test_fc_every_step_at_460800_baud(fw_elf, tmp_path):
 def test_preflight_refuses_a_capture_that_is_not_the_guided_sequence():
     rep = check_preflight(load_telemetry(REC / "demo.stv"))  # hand tilts: pitch, pitch, roll, ...
     assert not rep.passed and "not the guided sequence" in rep.problems[0]
+
+
+@pytest.mark.slow
+def test_cli_preflight_live_on_a_port(monkeypatch, capsys, tmp_path):
+    """``steval preflight --port``: prompts the moves on stderr while recording the port (here a pty replaying the
+    clean capture at the line's rate), then checks what it recorded."""
+    from support.ptyfeed import PtyFeeder
+
+    from steval_link.link.capture import read_capture
+
+    data = read_capture(REC / "preflight_ok.stv").data
+    out = tmp_path / "pre.stv"
+    with PtyFeeder(data, tmp_path / "ttyUSB0"):
+        code, stdout, err = run_cli(monkeypatch, capsys, "preflight", "--port", tmp_path / "ttyUSB0", "--out", out)
+    assert code == 0, (stdout, err)
+    assert "1/3 TILT RIGHT" in err and "3/3 TURN RIGHT" in err and "PASS" in stdout and out.is_file()

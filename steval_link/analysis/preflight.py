@@ -282,6 +282,8 @@ def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int,
         ok1 = True  # below MIN_THR the firmware holds its yaw angle and target at 0: z_s1 is 0
     armed = bool(np.all(fc.fc_flags[hold] & 1))
     line = f"  controller: outer {name}_s1 {s1:+.2f} rad/s"
+    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
+        line += " (0 below MIN_THR: the firmware resets its yaw angle and target)"
     if armed:
         ds2 = float(np.mean(fc.inner_s2_pwm[hold, ax]) - (np.mean(fc.inner_s2_pwm[pre, ax]) if len(pre) else 0.0))
         ok2 = np.sign(ds2) == want and abs(ds2) > 1.0
