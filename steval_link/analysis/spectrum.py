@@ -20,6 +20,7 @@ firmware's clock (``t_fw_s``) over the runs used.
 
 from __future__ import annotations
 
+import csv
 import math
 from dataclasses import dataclass, field
 
@@ -44,6 +45,10 @@ __all__ = [
     "compute_spectra",
     "find_peaks",
     "welch_windows",
+    "CSV_COLUMNS",
+    "write_csv",
+    "mark_lines",
+    "format_summary",
 ]
 
 #: the six signals, in column order: (name, sensor, axis index)
@@ -409,3 +414,91 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
         out.append(Peak(centre, float(p[i]), math.sqrt(2 * power),
                         float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf))
     return out
+
+
+# ---- output: CSV and the printed summary -------------------------------------------------------------------------
+
+#: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
+CSV_COLUMNS = (
+    "section", "t_fw_s", "thr", "thr_lo", "thr_hi", "windows", "freq_hz",
+    *(f"{name}_psd_{UNITS[sensor]}2_per_hz" for name, sensor, _ in SIGNALS),
+)
+
+
+def _num(v) -> str:
+    v = float(v)
+    return "" if not math.isfinite(v) else repr(v)
+
+
+def write_csv(sp: Spectra, stream) -> int:
+    """The spectra as one CSV table (:data:`CSV_COLUMNS`), a ``section`` column telling the three apart:
+    ``psd`` (the Welch average, one row per frequency), ``spectrogram`` (one row per window and frequency:
+    ``t_fw_s`` the window's centre, ``thr`` its mean throttle) and ``throttle`` (one row per throttle bin and
+    frequency: ``thr_lo`` … ``thr_hi``, ``windows`` averaged; empty bins are left out). Returns the rows written."""
+    w = csv.writer(stream, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    rows = 0
+    f = sp.freq_hz
+    for i in range(len(f)):
+        w.writerow(["psd", "", "", "", "", len(sp.window_t_fw_s), _num(f[i]), *(_num(v) for v in sp.psd[i])])
+        rows += 1
+    for k in range(len(sp.window_t_fw_s)):
+        t, thr = _num(sp.window_t_fw_s[k]), _num(sp.window_thr[k])
+        for i in range(len(f)):
+            w.writerow(["spectrogram", t, thr, "", "", 1, _num(f[i]), *(_num(v) for v in sp.spectrogram[k, i])])
+            rows += 1
+    for b in np.flatnonzero(sp.thr_windows):
+        lo, hi, nw = _num(sp.thr_edges[b]), _num(sp.thr_edges[b + 1]), int(sp.thr_windows[b])
+        for i in range(len(f)):
+            w.writerow(["throttle", "", "", lo, hi, nw, _num(f[i]), *(_num(v) for v in sp.thr_psd[b, i])])
+            rows += 1
+    return rows
+
+
+def _label(name: str) -> str:
+    sensor, axis = name.split("_")
+    return f"{sensor} {axis} ({UNITS[sensor]})"
+
+
+def mark_lines(sp: Spectra, marks_hz) -> list[AliasLine]:
+    """:func:`alias_lines` of every ``--mark-hz`` frequency for both sensors, at the rows' measured rate."""
+    return [line for f in marks_hz for sensor in ("gyro", "acc") for line in alias_lines(f, sensor, sp.rate_hz)]
+
+
+def format_summary(sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, min_hz: float = 1.0,
+                   source: str = "") -> list[str]:
+    """The printed summary: what was analysed, the rates and Nyquist, the top peaks per axis, the marks' aliases."""
+    secs = sp.seconds_used
+    lines = [
+        f"steval spectrum{' ' + source if source else ''}: {sp.rows} attitude rows, {sp.rows_used} in "
+        f"{len(sp.runs)} run{'s' if len(sp.runs) != 1 else ''} of consecutive steps ({secs:.1f} s); "
+        f"{len(sp.window_t_fw_s)} Hann windows of {sp.nperseg} rows ({sp.nperseg / sp.rate_hz:.2f} s, "
+        f"{100 * (1 - sp.hop / sp.nperseg):.0f} % overlap)",
+        f"rows at {sp.rate_hz:.2f} Hz (firmware clock): Nyquist {sp.nyquist_hz:.2f} Hz, resolution "
+        f"{sp.resolution_hz:.2f} Hz. The sensors are read at {C.ISR_RATE_HZ:.1f} Hz (ISR) and averaged 5 to 1, so "
+        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz| (--mark-hz F).",
+    ]
+    lines += [f"note: {n}" for n in sp.notes]
+    lines.append(f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that "
+                 f"would make it):")
+    for name, _, _ in SIGNALS:
+        found = peaks.get(name, [])
+        text = "   ".join(f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} "
+                           f"(+{p.above_floor_db:.0f} dB)" for p in found) or "no clear peak"
+        lines.append(f"  {_label(name):<16} {text}")
+    if len(sp.thr_edges) > 2 or sp.thr_windows.sum():
+        occupied = np.flatnonzero(sp.thr_windows)
+        lines.append(f"throttle: windows' mean gTHR {sp.window_thr.min():.0f}..{sp.window_thr.max():.0f}, "
+                     f"{len(occupied)} of {len(sp.thr_edges) - 1} throttle bins hold windows")
+    for f in marks_hz:
+        parts = []
+        for sensor in ("gyro", "acc"):
+            ls = alias_lines(f, sensor, sp.rate_hz)
+            main, images = ls[0], ls[1:]
+            s = f"{sensor} at {main.seen_hz:.2f} Hz (x{main.gain:.3g})"
+            s += "".join(f", its {im.source_hz:.1f} Hz 416 Hz-ODR image at {im.seen_hz:.2f} Hz (x{im.gain:.3g})"
+                         for im in images)
+            parts.append(s)
+        where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
+        lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))
+    return lines
