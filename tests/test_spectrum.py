@@ -255,3 +255,19 @@ def test_cli_help_names_the_rates(monkeypatch, capsys):
 def test_cli_missing_file(monkeypatch, capsys, tmp_path):
     line = _one_error_line(*run_cli(monkeypatch, capsys, "spectrum", tmp_path / "nope.stv"))
     assert "no such file" in line
+
+
+def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, tmp_path):
+    from steval_viewer.rrd_check import read_rrd
+
+    rrd = tmp_path / "s.rrd"
+    code, stdout, stderr = run_cli(monkeypatch, capsys, "spectrum", vib_capture, "--rrd", rrd, "--mark-hz", "130")
+    assert code == 0, stderr
+    info = read_rrd(rrd)
+    assert info.has_blueprint
+    for name, _, _ in S.SIGNALS:
+        for kind in ("psd", "spectrogram", "throttle"):
+            assert f"spectrum/{kind}/{name}" in info.static
+        assert info.samples[f"spectrum/window/{name}"] > 10
+    assert "spectrum/notes" in info.static
+    assert not list(tmp_path.glob("*.partial"))
