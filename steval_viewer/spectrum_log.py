@@ -23,6 +23,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
 from steval_link.errors import UserError
 from steval_viewer import entities as ent
@@ -74,11 +75,13 @@ def _heat(origin: str, name: str) -> rrb.TensorView:
     )
 
 
-def spectrum_blueprint() -> rrb.Blueprint:
-    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), the spectrograms, frequency vs
-    throttle; the notes (rates, Nyquist, aliases, peaks) on the right."""
+def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int = 0) -> rrb.Blueprint:
+    """Tabs (``active_tab`` shown first): the capture's PSD, the spectrum at the time cursor (with the signals), the
+    spectrograms, frequency vs throttle; the notes (rates, Nyquist, aliases, peaks) on the right. ``nyquist_hz``:
+    the top of the frequency axes, named in the bar charts' titles (Rerun labels few ticks)."""
+    span = f"0–{nyquist_hz:.2f} Hz →"
     cursor = rrb.Vertical(
-        _grid("window", _bars, "at the cursor"),
+        _grid("window", _bars, f"at the cursor, {span}"),
         rrb.Horizontal(
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
@@ -89,11 +92,12 @@ def spectrum_blueprint() -> rrb.Blueprint:
         name="Spectrum at the cursor",
     )
     tabs = rrb.Tabs(
-        _grid("psd", _bars, "PSD"),
+        _grid("psd", _bars, f"PSD, {span}"),
         cursor,
         _grid("spectrogram", _heat, "spectrogram (time →, frequency ↑)"),
         _grid("throttle", _heat, "frequency ↑ vs throttle →"),
         name="Spectra",
+        active_tab=active_tab,
     )
     return rrb.Blueprint(
         rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
@@ -107,7 +111,7 @@ def spectrum_blueprint() -> rrb.Blueprint:
 def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
     """Log ``sp`` (and the rows of ``tel`` it was computed from) to ``rec`` with :func:`spectrum_blueprint`;
     returns the number of values logged per entity path."""
-    rec.send_blueprint(spectrum_blueprint(), make_active=True, make_default=True)
+    rec.send_blueprint(spectrum_blueprint(sp.nyquist_hz), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     f = np.asarray(sp.freq_hz, dtype=np.float64)
     for k, (name, _, axis) in enumerate(SIGNALS):
