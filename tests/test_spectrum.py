@@ -271,3 +271,21 @@ def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, t
         assert info.samples[f"spectrum/window/{name}"] > 10
     assert "spectrum/notes" in info.static
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_readme_example_prints_what_the_readme_says(monkeypatch, capsys, tmp_path):
+    """The README's two commands, word for word (in a temporary folder), print the figures it quotes."""
+    pytest.importorskip("matplotlib")  # the example draws --plot
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = text.split("### Sensor spectra", 1)[1]
+    block = section.split("```sh\n", 1)[1].split("```", 1)[0]
+    synth_line, spectrum_line = [ln.split() for ln in block.strip().splitlines()]
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(monkeypatch, capsys, *synth_line[1:])
+    assert code == 0, err
+    code, out, err = run_cli(monkeypatch, capsys, *spectrum_line[1:])
+    assert code == 0, err
+    flat = " ".join(out.split())
+    for quoted in ("gyro x (mdps) 12.00 Hz 2971.4 mdps", "acc x (mg) 31.54 Hz 47.3 mg", "acc at 31.54 Hz (x0.238)"):
+        assert quoted in flat and quoted in " ".join(section.split())
+    assert (tmp_path / "vib.png").read_bytes()[:4] == b"\x89PNG"

@@ -496,8 +496,8 @@ def format_summary(sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, mi
             ls = alias_lines(f, sensor, sp.rate_hz)
             main, images = ls[0], ls[1:]
             s = f"{sensor} at {main.seen_hz:.2f} Hz (x{main.gain:.3g})"
-            s += "".join(f", its {im.source_hz:.1f} Hz 416 Hz-ODR image at {im.seen_hz:.2f} Hz (x{im.gain:.3g})"
-                         for im in images)
+            s += "".join(f", and at {im.seen_hz:.2f} Hz (x{im.gain:.3g}) through the gyro register's 416 Hz image at "
+                         f"{im.source_hz:.1f} Hz" for im in images)
             parts.append(s)
         where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
         lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))
