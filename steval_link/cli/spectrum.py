@@ -98,7 +98,12 @@ def spectrum_cmd(
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
-        require_matplotlib()
+        plt = require_matplotlib()
+        fig = plt.figure()
+        formats = fig.canvas.get_supported_filetypes()
+        plt.close(fig)
+        if plot.suffix.lower().lstrip(".") not in formats:
+            raise UserError(f"--plot {plot}: give a file name ending in one of .{', .'.join(sorted(formats))}")
     viewer = rrd is not None or spawn or serve or connect
     options = None
     if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
@@ -133,4 +138,9 @@ def spectrum_cmd(
     if options is not None:
         from steval_viewer.spectrum_log import spectrum_sink  # Rerun loads only for a viewer or an .rrd
 
-        spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
+        try:
+            spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
+        except KeyboardInterrupt:
+            if rrd is not None:  # the sink writes it whole or not at all
+                print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
+            raise
