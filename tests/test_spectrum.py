@@ -9,6 +9,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.cli import run_cli
+from support.streams import StreamBuilder
 
 from steval_link import constants as C
 from steval_link.analysis import spectrum as S
@@ -16,8 +18,6 @@ from steval_link.emulation import motion as M
 from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
 from steval_link.link.capture import load_telemetry
-from tests.support.cli import run_cli
-from tests.support.streams import StreamBuilder
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 
@@ -289,3 +289,45 @@ def test_readme_example_prints_what_the_readme_says(monkeypatch, capsys, tmp_pat
     for quoted in ("gyro x (mdps) 12.00 Hz 2971.4 mdps", "acc x (mg) 31.54 Hz 47.3 mg", "acc at 31.54 Hz (x0.238)"):
         assert quoted in flat and quoted in " ".join(section.split())
     assert (tmp_path / "vib.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_spawn_opens_the_native_viewer_with_the_spectra(tmp_path):
+    """``steval spectrum recordings/demo.stv --spawn`` on a virtual display: the command returns, the viewer stays
+    open and holds every spectrum entity; a screenshot shows a rendered window."""
+    import subprocess
+    import sys
+
+    from support.xdisplay import (
+        VirtualDisplay,
+        kill_processes,
+        require_display_tools,
+        rerun_processes,
+        screenshot,
+        viewer_recording,
+    )
+
+    from steval_viewer.sink_options import free_port
+
+    require_display_tools()
+    display = VirtualDisplay()
+    port = free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", "from steval_link.cli import main; main()", "spectrum",
+             str(RECORDINGS / "demo.stv"), "--spawn", "--grpc-port", str(port), "--mark-hz", "390"],
+            env=display.env, cwd=tmp_path, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+        )
+        assert done.returncode == 0, done.stderr
+        assert "Traceback" not in done.stderr
+        assert rerun_processes(port), "the spawned viewer is not running after the command returned"
+        rec = viewer_recording(url, timeline="ahrs_step", end=9209)
+        for name, _, _ in S.SIGNALS:
+            assert {f"/spectrum/psd/{name}", f"/spectrum/window/{name}", f"/spectrum/spectrogram/{name}",
+                    f"/spectrum/throttle/{name}"} <= rec.entities
+        png = screenshot(url, tmp_path / "spectrum.png")
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+    finally:
+        kill_processes(rerun_processes(port))
+        display.close()
