@@ -21,6 +21,18 @@ int stv_send_status(stv_txq_t *q, const stv_status_t *st) {
   return stv_txq_push(q, f.b, STV_STATUS_FRAME_SIZE);
 }
 
+int stv_send_flight(stv_txq_t *q, const stv_flight_t *fc) {
+  frame_buf_t f;
+  stv_encode_flight(f.b, fc);
+  return stv_txq_push_keep(q, f.b, STV_FLIGHT_FRAME_SIZE, STV_STATUS_FRAME_SIZE);
+}
+
+int stv_send_ack(stv_txq_t *q, const stv_ack_t *ack) {
+  frame_buf_t f;
+  stv_encode_ack(f.b, ack);
+  return stv_txq_push(q, f.b, STV_ACK_FRAME_SIZE);
+}
+
 uint32_t stv_send_text(stv_txq_t *q, const uint8_t *text, size_t len) {
   frame_buf_t f;
   uint32_t lost = 0;
@@ -109,7 +121,8 @@ void stv_link_make_status(stv_link_t *link, stv_status_t *st) {
   }
   st->fw_version[0] = STV_FW_VERSION_MAJOR;
   st->fw_version[1] = STV_FW_VERSION_MINOR;
-  st->fw_version[2] = STV_FW_VERSION_PATCH;
+  st->fc_every = c->fc_every;
+  st->param_gen = link->param_gen;
   reset_cycle_stats(link);
 }
 
