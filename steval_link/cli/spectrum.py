@@ -47,14 +47,15 @@ def spectrum_cmd(
     capture: Annotated[Path, typer.Argument(
         help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False)],
     plot: Annotated[Optional[Path], typer.Option(
-        "--plot", help='Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this PNG; needs '
-                       'matplotlib: pip install "steval-link\\[plot]".')] = None,
+        "--plot", help='Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image '
+                       '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".')] = None,
     csv_out: Annotated[Optional[Path], typer.Option(
         "--csv", help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
                       "mdps²/Hz and mg²/Hz.")] = None,
     mark_hz: Annotated[Optional[list[float]], typer.Option(
-        "--mark-hz", metavar="HZ", help="Mark where a vibration at HZ shows (its alias above the 80.77 Hz Nyquist, "
-                                        "with the gain of the firmware's averaging); repeatable.")] = None,
+        "--mark-hz", metavar="HZ", help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
+                                        "its alias above it (the gyro also at its 416 Hz-register images), with "
+                                        "the gain of the firmware's averaging and gyro filter; repeatable.")] = None,
     nperseg: Annotated[Optional[int], typer.Option(
         "--nperseg", metavar="ROWS", help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
                                           f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
@@ -65,7 +66,7 @@ def spectrum_cmd(
                                              "range of gTHR.")] = 10,
     peaks: Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")] = 3,
     min_hz: Annotated[float, typer.Option(
-        "--min-hz", metavar="HZ", help="Peaks below this are not printed (motion, not vibration).")] = 1.0,
+        "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")] = 1.0,
     rrd: RrdOption = None,
     spawn: SpawnOption = False,
     serve: ServeOption = False,
