@@ -327,8 +327,7 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     for a, b in used:
         freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
         specs.append(psd)
-        mid = a + starts + nperseg // 2
-        centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]) if nperseg > 1 else t[mid])
+        centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
         csum = np.concatenate(([0.0], np.cumsum(thr[a:b])))
         thr_w.append((csum[starts + nperseg] - csum[starts]) / nperseg)
     spectrogram = np.concatenate(specs, axis=0)
