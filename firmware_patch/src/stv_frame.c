@@ -70,11 +70,11 @@ static inline void store32(void *p, uint32_t v) { memcpy(p, &v, 4); }
 /* Advance the (non-inverted) CRC-32 register over four bytes given as a little-endian word. */
 static inline uint32_t crc_word(uint32_t crc, uint32_t word_le) {
   uint32_t x = crc ^ word_le;
-  return stv_crc32_table[3][x & 0xFFu] ^ stv_crc32_table[2][(x >> 8) & 0xFFu] ^
-         stv_crc32_table[1][(x >> 16) & 0xFFu] ^ stv_crc32_table[0][x >> 24];
+  return stv_crc32_t3[x & 0xFFu] ^ stv_crc32_t2[(x >> 8) & 0xFFu] ^ stv_crc32_t1[(x >> 16) & 0xFFu] ^
+         stv_crc32_t0[x >> 24];
 }
 
-static inline uint32_t crc_byte(uint32_t crc, uint32_t b) { return (crc >> 8) ^ stv_crc32_table[0][(crc ^ b) & 0xFFu]; }
+static inline uint32_t crc_byte(uint32_t crc, uint32_t b) { return (crc >> 8) ^ stv_crc32_t0[(crc ^ b) & 0xFFu]; }
 
 /* CRC register after VT and LEN (both constant per fixed-size type: folded by the compiler). */
 static inline uint32_t crc_header(uint32_t type, uint32_t len) {

@@ -138,7 +138,8 @@ typedef struct {
   uint32_t reserved;
 } stv_command_t;
 
-/* Fixed-size frames into out[0..size-1] (`out` 4-byte aligned). Each returns the frame size. */
+/* Fixed-size frames into out[0..size-1] (any alignment: whole words are stored with unaligned STR, which the
+ * Cortex-M4 allows). Each returns the frame size. */
 size_t stv_encode_attitude(uint8_t *out, const stv_attitude_t *att); /* 60 bytes */
 size_t stv_encode_status(uint8_t *out, const stv_status_t *st);      /* 96 bytes */
 size_t stv_encode_flight(uint8_t *out, const stv_flight_t *fc);      /* 80 bytes */
