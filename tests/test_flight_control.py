@@ -322,16 +322,20 @@ def test_preflight_refuses_a_capture_that_is_not_the_guided_sequence():
 
 
 @pytest.mark.slow
-def test_cli_preflight_live_on_a_port(monkeypatch, capsys, tmp_path):
+def test_cli_preflight_live_on_a_port(tmp_path):
     """``steval preflight --port``: prompts the moves on stderr while recording the port (here a pty replaying the
     clean capture at the line's rate), then checks what it recorded."""
-    from support.ptyfeed import PtyFeeder
+    from support.ptyfeed import PtyFeeder, StevalProcess
 
     from steval_link.link.capture import read_capture
 
     data = read_capture(REC / "preflight_ok.stv").data
     out = tmp_path / "pre.stv"
-    with PtyFeeder(data, tmp_path / "ttyUSB0"):
-        code, stdout, err = run_cli(monkeypatch, capsys, "preflight", "--port", tmp_path / "ttyUSB0", "--out", out)
-    assert code == 0, (stdout, err)
-    assert "1/3 TILT RIGHT" in err and "3/3 TURN RIGHT" in err and "PASS" in stdout and out.is_file()
+    with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
+        proc = StevalProcess(["preflight", "--port", str(feeder.link), "--out", str(out)], cwd=tmp_path)
+        assert proc.wait_line("reading ", 60.0) is not None, proc.stderr
+        feeder.start()
+        rc = proc.finish(timeout_s=120)
+    assert rc == 0, (proc.stdout, proc.stderr)
+    assert "1/3 TILT RIGHT" in proc.stderr and "3/3 TURN RIGHT" in proc.stderr
+    assert "PASS" in proc.stdout and out.is_file()
