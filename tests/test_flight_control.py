@@ -339,3 +339,8 @@ def test_cli_preflight_live_on_a_port(tmp_path):
     assert rc == 0, (proc.stdout, proc.stderr)
     assert "1/3 TILT RIGHT" in proc.stderr and "3/3 TURN RIGHT" in proc.stderr
     assert "PASS" in proc.stdout and out.is_file()
+
+
+def test_a_scenario_too_short_for_its_moves_is_one_sentence():
+    with pytest.raises(UserError, match="needs --duration of at least 27 s"):
+        ScenarioMotion("flight", 10.0, seed=0)

@@ -123,7 +123,11 @@ class ScenarioMotion:
             if sc is None:
                 raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
                                 "(or --broad TRIAL.npz)")
-            self._kin = sc.build(total_s, r_motion)
+            try:
+                self._kin = sc.build(total_s, r_motion)
+            except ValueError:  # its moves do not fit in so short a run
+                raise UserError(f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
+                                f"{sc.default_duration_s:g} s), got {total_s:g}") from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
         self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
