@@ -16,6 +16,7 @@ from steval_link.emulation.runner import MOUNTS, ScenarioMotion, joydata_bytes
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.capture import load_telemetry
+from steval_link.link.decoder import decode_bytes
 
 
 def test_motor_places_and_spin_follow_the_mixer_signs():
@@ -344,3 +345,25 @@ def test_cli_preflight_live_on_a_port(tmp_path):
 def test_a_scenario_too_short_for_its_moves_is_one_sentence():
     with pytest.raises(UserError, match="needs --duration of at least 27 s"):
         ScenarioMotion("flight", 10.0, seed=0)
+
+
+@pytest.mark.slow
+def test_frame_motors_are_what_tim4_drives(fw_elf):
+    """When the firmware builds a flight-control frame, TIM4's CCR1..4 (the motor pins) hold its motor_pwm as
+    set_motor_pwm writes it: truncated, clamped to 0..1900 (one ISR run wrote both)."""
+    from steval_link.emulation.runner import Emulation, EmulationOptions
+
+    _, _, elf = fw_elf
+    emu = Emulation(EmulationOptions(elf=elf, scenario="flight", duration_s=27.0, seed=1))
+    addr = emu.elf.addr("motor_pwm")
+    seen = []
+    emu.board.probe(emu.elf.addr("stv_fw_flight"),
+                    lambda b: seen.append((np.frombuffer(b.ram_read(addr, 16), "<f4").copy(), emu.motor_ccr())))
+    chunks = list(emu.chunks())
+    assert len(seen) > 150
+    pwm = np.array([p for p, _ in seen])
+    ccr = np.array([c for _, c in seen])
+    want = np.where(pwm >= C.MOTOR_MAX_PWM, C.MOTOR_MAX_PWM, np.where(pwm <= 0, 0, np.trunc(pwm)))
+    assert np.array_equal(ccr, want.astype(np.int64)) and ccr.max() > 600
+    tel = decode_bytes(b"".join(d for d, _ in chunks))
+    assert tel.fc.motor_pwm.tobytes() == pwm.astype(np.float32).tobytes()  # the frames carry exactly these

@@ -22,6 +22,8 @@ the firmware reads into ``rc_enable_motor``; a scenario with sticks and arming (
 makes the real firmware compute its targets ``euler_rc``, both PID loops and the motor PWM. Builds with
 ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
 
+The motor outputs: :meth:`Emulation.motor_ccr` reads TIM4's CCR1..4 as ``set_motor_pwm`` last wrote them.
+
 Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
 ``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
 and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
@@ -359,6 +361,12 @@ class Emulation:
     def run(self) -> bytes:
         """Run to the end; all USART1 bytes."""
         return b"".join(d for d, _ in self.chunks())
+
+    def motor_ccr(self) -> tuple[int, int, int, int]:
+        """TIM4 CCR1..4: the motor outputs the firmware last wrote (``set_motor_pwm``: counts of the 2000-count
+        period, clamped to 0..1900)."""
+        regs = self.board.tim4.regs
+        return tuple(int(regs.get(off, 0)) for off in (0x34, 0x38, 0x3C, 0x40))
 
     def report(self) -> EmulationReport:
         b = self.board
