@@ -183,7 +183,10 @@ _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
 class Emulation:
     """One firmware run (see the module docstring)."""
 
-    def __init__(self, options: EmulationOptions) -> None:
+    def __init__(self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0) -> None:
+        """``bluenrg``: an ``emulation.bluenrg.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
+        RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
+        before the BLE tick's wrap at 2^19 ms)."""
         self.options = options
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
             raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
@@ -224,6 +227,11 @@ class Emulation:
         self._bytes = 0
         self._first_byte_s: float | None = None
         self._install_step_probes()
+        self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
+        tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
+        if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
+            start = int(tick_start_ms) & 0xFFFFFFFF
+            self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
