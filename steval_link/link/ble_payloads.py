@@ -34,11 +34,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from steval_link.constants import AHRS_PERIOD_S
+from steval_link.link.capture import CHUNK_BLE
+
 __all__ = [
     "SERVICE_UUID", "CHAR_UUIDS", "CHAR_NAMES", "CHAR_MOTION", "CHAR_ENV", "CHAR_ARMING", "CHAR_STDOUT",
     "CHAR_STDERR", "DEVICE_NAME_PREFIX", "TICK_S", "TICK_WRAP", "char_id_of_uuid", "MotionSample", "EnvSample",
     "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
-    "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload",
+    "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
+    "is_ble_source", "ble_chunk",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -224,6 +228,23 @@ def _held(t_at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+def ble_chunk(char_id: int, payload: bytes) -> bytes:
+    """The payload of a capture's ``B`` chunk: the characteristic id, then the notification's bytes."""
+    return bytes([char_id]) + bytes(payload)
+
+
+def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[float, int, bytes]]:
+    """``(t_host_s, char id, payload)`` of a capture's ``B`` chunks (``Capture.chunks`` / ``Source.chunks``)."""
+    return [(t, p[0], p[1:]) for t, p in chunks.get(CHUNK_BLE, []) if p]
+
+
+def is_ble_source(src) -> bool:
+    """A capture recorded over BLE (``B`` chunks, or ``extra.link`` = "ble" in its header)."""
+    chunks = getattr(src, "chunks", None) or {}
+    extra = (getattr(src, "header", None) or {}).get("extra") or {}
+    return bool(chunks.get(CHUNK_BLE)) or (isinstance(extra, dict) and extra.get("link") == "ble")
+
+
 def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTelemetry:
     """``(t_host_s, char id, payload)`` in arrival order → :class:`BleTelemetry`. Wrong-length notifications are
     counted and skipped (never raise)."""
@@ -277,23 +298,29 @@ def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTele
 
 
 #: consecutive motion notifications per window when estimating the nominal interval
-_WINDOW = 64
+_WINDOW = 128
+#: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
+#: at 84 MHz: 6.190 ms); a measured interval within 3 % of it is that step period (the 8 ms tick blurs it)
+STEP_PERIOD_S = AHRS_PERIOD_S
 
 
 def nominal_interval_s(ticks) -> float | None:
-    """The sender's interval between motion notifications, s, from the unwrapped ticks: the span of windows of 64
-    notifications, the 10th percentile over windows (windows with drops or reconnects are longer; the 8 ms tick
-    quantisation averages out over 64). None below 2 notifications."""
+    """The sender's interval between motion notifications, s, from the unwrapped ticks: the median over windows of
+    128 notifications of their span / 128 (the 8 ms tick quantisation averages out; windows with drops or
+    reconnects are longer, the median ignores them), snapped to the firmware's AHRS step period when within 3 %
+    of it. None below 2 notifications."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     n = len(t)
     if n < 2:
         return None
     if n <= _WINDOW:
         span = t[-1] - t[0]
-        return span / (n - 1) if span > 0 else None
-    spans = (t[_WINDOW:] - t[:-_WINDOW]) / _WINDOW
-    v = float(np.percentile(spans, 10))
-    return v if v > 0 else None
+        v = span / (n - 1) if span > 0 else None
+    else:
+        v = float(np.median((t[_WINDOW:] - t[:-_WINDOW]) / _WINDOW))
+    if v is None or not v > 0:
+        return None
+    return STEP_PERIOD_S if abs(v / STEP_PERIOD_S - 1) < 0.03 else v
 
 
 def _gap_fill(t: np.ndarray, interval: float) -> np.ndarray:
