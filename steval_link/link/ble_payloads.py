@@ -323,26 +323,45 @@ def nominal_interval_s(ticks) -> float | None:
     return STEP_PERIOD_S if abs(v / STEP_PERIOD_S - 1) < 0.03 else v
 
 
-def _gap_fill(t: np.ndarray, interval: float) -> np.ndarray:
-    """Samples missing after each notification (dt beyond the tick quantisation: more than 2 intervals + 1 tick)."""
-    d = np.diff(t)
-    miss = np.where(d > 2 * interval + TICK_S, np.round(d / interval) - 1, 0)
-    return np.maximum(miss, 0).astype(np.int64)
+def _phase(t: np.ndarray, interval: float) -> float:
+    """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
+    consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""
+    w = min(len(t), 64)
+    i = np.arange(w)
+    lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
+    return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
+
+
+def sample_numbers(ticks, interval: float) -> np.ndarray:
+    """The sender's sample number of each received notification (0 for the first): the smallest increasing
+    numbering that the ticks allow, so a drop is placed where the ticks first prove it (within a sample or two)."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    if len(t) == 0:
+        return np.zeros(0, np.int64)
+    t0 = _phase(t, interval)
+    lo = np.ceil((t - t0) / interval - 1e-9).astype(np.int64)
+    lo[0] = 0
+    # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
+    return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
 
 
 def _dropped(ticks, interval: float | None) -> int:
+    """Motion notifications missing between the first and the last one received: the last sample's number from
+    the last 64 samples (taken as consecutive; intersection of what their ticks allow, so the 8 ms quantisation
+    does not blur the count) minus the notifications received."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
-    if interval is None or len(t) < 2:
+    n = len(t)
+    if interval is None or n < 2:
         return 0
-    gaps = _gap_fill(t, interval)
-    # between gaps the ticks are too coarse to see single drops: compare each stretch's span with its count
-    total = int(gaps.sum())
-    cuts = np.flatnonzero(gaps) + 1
-    for seg in np.split(np.arange(len(t)), cuts):
-        if len(seg) > 1:
-            expected = int(round((t[seg[-1]] - t[seg[0]]) / interval)) + 1
-            total += max(0, expected - len(seg))
-    return total
+    t0 = _phase(t, interval)
+    w = min(n, 64)
+    back = np.arange(w)[::-1]  # samples after each of the last w, up to the last one
+    k_lo = float(np.max((t[n - w:] - t0) / interval + back))
+    k_hi = float(np.min((t[n - w:] + TICK_S - t0) / interval + back))
+    k = int(np.ceil(k_lo - 1e-9))
+    if not k < k_hi:
+        k = int(round((t[-1] + TICK_S / 2 - t0) / interval))
+    return max(0, k - (n - 1))
 
 
 @dataclass
@@ -358,9 +377,8 @@ class UniformInputs:
 
 
 def uniform_inputs(ble: BleTelemetry, interval_s: float | None = None) -> UniformInputs:
-    """The estimators' inputs with dt from the ticks: between gaps the notifications are taken as evenly spaced
-    (each stretch's own span / count, the tick being coarser than the interval); over a gap the last sample is held
-    for the missing rows. The grid interval is the nominal one (:func:`nominal_interval_s`)."""
+    """The estimators' inputs with dt from the ticks: one row per sender sample (:func:`sample_numbers`, at the
+    nominal interval, :func:`nominal_interval_s`); a missing notification's row holds the last sample received."""
     n = len(ble)
     dt = interval_s if interval_s is not None else ble.interval_s
     if n == 0 or dt is None:
@@ -368,12 +386,9 @@ def uniform_inputs(ble: BleTelemetry, interval_s: float | None = None) -> Unifor
         z = np.zeros((n, 3), np.float32)
         return UniformInputs(ble.motion_t_fw_s.copy(), ble.acc_mg.copy() if n else z, ble.gyro_mdps.copy() if n
                              else z, np.zeros(n, bool), float(dt), np.arange(n))
-    t = ble.motion_t_fw_s
-    miss = _gap_fill(t, dt)
-    reps = np.concatenate([miss, [0]]) + 1
-    src = np.repeat(np.arange(n), reps)
+    k = sample_numbers(ble.motion_tick, dt)
+    src = np.searchsorted(k, np.arange(k[-1] + 1), side="right") - 1  # the last sample received at or before
     filled = np.ones(len(src), bool)
-    first = np.concatenate([[0], np.cumsum(reps)[:-1]])
-    filled[first] = False
-    t_grid = t[0] + np.arange(len(src)) * dt
+    filled[k] = False
+    t_grid = _phase(ble.motion_t_fw_s, dt) + np.arange(len(src)) * dt
     return UniformInputs(t_grid, ble.acc_mg[src], ble.gyro_mdps[src], filled, float(dt), src)
