@@ -20,13 +20,16 @@ import rerun.blueprint as rrb
 
 from steval_link.analysis.ble import NOT_BIT_EXACT, BleReplay
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import BleTelemetry
 from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
+from steval_viewer.live_adapter import viewer_sink_options
 from steval_viewer.sinks import open_session
 
-__all__ = ["ble_blueprint", "log_ble_static", "log_ble_replay", "ble_replay_sink"]
+__all__ = ["ble_blueprint", "log_ble_static", "log_ble_replay", "ble_replay_sink", "BleLiveLogger",
+           "log_ble_notifications", "log_ble_estimates"]
 
 Progress = Callable[[float, str], None] | None
 _XYZ = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
@@ -132,6 +135,63 @@ def _rate_bins(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ends, counts.astype(np.float64)
 
 
+def log_ble_notifications(rec: rr.RecordingStream, ble: BleTelemetry, t_motion: np.ndarray,
+                          counts: dict[str, int]) -> None:
+    """The notifications' values: raw sensors and gravity arrow (motion rows at ``t_motion``, drone s), environment,
+    arming, console."""
+    n = len(ble)
+    mt = Times(t_motion, ble.motion_t_host_s)
+    acc = np.asarray(ble.acc_mg, np.float64)
+    if n:
+        for path, v in ((ent.BLE_ACC, acc), (ent.BLE_GYRO, np.asarray(ble.gyro_mdps, np.float64) / 1000.0),
+                        (ent.BLE_MAG, np.asarray(ble.mag_mgauss, np.float64))):
+            send_scalars(rec, path, mt, v)
+            counts[path] = counts.get(path, 0) + n
+        with np.errstate(invalid="ignore"):
+            send_arrows(rec, ent.BLE_GRAVITY, mt, -acc / 1000.0)
+    et = Times(ble.env_t_fw_s, ble.env_t_host_s)
+    for path, v in ((ent.BLE_PRESSURE, ble.pressure_hpa), (ent.BLE_BATTERY, ble.battery_pct),
+                    (ent.BLE_TEMPERATURE, ble.temperature_c), (ent.BLE_RSSI, ble.rssi_dbm)):
+        if len(v):
+            send_scalars(rec, path, et, np.asarray(v, np.float64))
+            counts[path] = counts.get(path, 0) + len(v)
+    if len(ble.armed):
+        send_scalars(rec, ent.BLE_ARMED, Times(ble.arming_t_fw_s, ble.arming_t_host_s),
+                     ble.armed.astype(np.float64))
+        counts[ent.BLE_ARMED] = counts.get(ent.BLE_ARMED, 0) + len(ble.armed)
+    if ble.console:
+        th = np.array([c[0] for c in ble.console], np.float64)
+        tf = np.interp(th, ble.motion_t_host_s, t_motion) if n > 1 else th
+        texts = [f"[{c[1]}] {c[2]}" for c in ble.console]
+        levels = ["WARN" if c[1] == "stderr" else "INFO" for c in ble.console]
+        send_rows(rec, ent.LOG_BLE_CONSOLE, Times(tf, th),
+                  lambda idx: rr.TextLog.columns(text=texts if idx is None else [texts[j] for j in idx],
+                                                 level=levels if idx is None else [levels[j] for j in idx]))
+        counts[ent.LOG_BLE_CONSOLE] = counts.get(ent.LOG_BLE_CONSOLE, 0) + len(texts)
+
+
+def log_ble_estimates(rec: rr.RecordingStream, times: Times, estimates: dict[str, tuple],
+                      counts: dict[str, int]) -> None:
+    """Estimates on the estimators' grid: name → (q_wxyz (N,4), thx_rad, thy_rad, valid or None); the first one
+    moves the solid drone, the others their ghosts."""
+    for i, (name, (q, thx, thy, valid)) in enumerate(estimates.items()):
+        s = ent.source_name(name)
+        valid = np.ones(len(times), bool) if valid is None else np.asarray(valid, bool)
+        send_transforms(rec, ent.BLE_DRONE if i == 0 else ent.estimate_path(s), times,
+                        np.asarray(q, np.float64), valid)
+        for path, v in ((ent.pitch_path(s), np.degrees(np.asarray(thx, np.float64))),
+                        (ent.roll_path(s), np.degrees(np.asarray(thy, np.float64)))):
+            send_scalars(rec, path, times, v, valid)
+            counts[path] = counts.get(path, 0) + int(valid.sum())
+
+
+def _host_of(t_s: np.ndarray, ble: BleTelemetry, t_motion: np.ndarray) -> np.ndarray | None:
+    """Host times of grid rows, interpolated from the motion notifications' (drone, host) pairs."""
+    if len(ble) < 2:
+        return None
+    return np.interp(t_s, t_motion, ble.motion_t_host_s)
+
+
 def log_ble_replay(rec: rr.RecordingStream, replay: BleReplay, *, blueprint: bool = True,
                    progress: Progress = None) -> dict[str, int]:
     """Log a whole BLE replay; returns samples logged per entity path."""
@@ -142,55 +202,46 @@ def log_ble_replay(rec: rr.RecordingStream, replay: BleReplay, *, blueprint: boo
     log_ble_static(rec, sources)
     counts: dict[str, int] = {}
     n = len(ble)
-    # the motion notifications on the grid: the first grid row of each
+    # each motion notification at its row of the estimators' grid (its sample number)
     first = np.flatnonzero(~inp.filled) if len(inp.filled) else np.zeros(0, np.int64)
     t_motion = inp.t_s[first] if len(first) == n else ble.motion_t_fw_s
-    mt = Times(t_motion, ble.motion_t_host_s)
-    acc = np.asarray(ble.acc_mg, np.float64)
-    for path, v in ((ent.BLE_ACC, acc), (ent.BLE_GYRO, np.asarray(ble.gyro_mdps, np.float64) / 1000.0),
-                    (ent.BLE_MAG, np.asarray(ble.mag_mgauss, np.float64))):
-        send_scalars(rec, path, mt, v)
-        counts[path] = n
-    with np.errstate(invalid="ignore"):
-        send_arrows(rec, ent.BLE_GRAVITY, mt, -acc / 1000.0)
-    if progress is not None:
-        progress(0.3, "logging the environment")
-    et = Times(ble.env_t_fw_s, ble.env_t_host_s)
-    for path, v in ((ent.BLE_PRESSURE, ble.pressure_hpa), (ent.BLE_BATTERY, ble.battery_pct),
-                    (ent.BLE_TEMPERATURE, ble.temperature_c), (ent.BLE_RSSI, ble.rssi_dbm)):
-        if len(v):
-            send_scalars(rec, path, et, np.asarray(v, np.float64))
-            counts[path] = len(v)
-    if len(ble.armed):
-        send_scalars(rec, ent.BLE_ARMED, Times(ble.arming_t_fw_s, ble.arming_t_host_s),
-                     ble.armed.astype(np.float64))
-        counts[ent.BLE_ARMED] = len(ble.armed)
+    log_ble_notifications(rec, ble, t_motion, counts)
     ends, rate = _rate_bins(t_motion)
     if len(ends):
-        send_scalars(rec, ent.BLE_RATE, mt.take(ends), rate)
+        send_scalars(rec, ent.BLE_RATE, Times(t_motion, ble.motion_t_host_s).take(ends), rate)
         counts[ent.BLE_RATE] = len(ends)
     if progress is not None:
         progress(0.5, "logging the estimators")
-    gt = Times(inp.t_s)
-    for i, (name, est) in enumerate(replay.estimates.items()):
-        s = ent.source_name(name)
-        valid = np.asarray(getattr(est, "valid", np.ones(len(gt), bool)), bool)
-        q = np.asarray(est.q_wxyz, np.float64)
-        send_transforms(rec, ent.BLE_DRONE if i == 0 else ent.estimate_path(s), gt, q, valid)
-        for path, v in ((ent.pitch_path(s), np.degrees(np.asarray(est.thx_rad, np.float64))),
-                        (ent.roll_path(s), np.degrees(np.asarray(est.thy_rad, np.float64)))):
-            send_scalars(rec, path, gt, v, valid)
-            counts[path] = int(valid.sum())
-    if ble.console:
-        th = np.array([c[0] for c in ble.console], np.float64)
-        tf = np.interp(th, ble.motion_t_host_s, t_motion) if n > 1 else th
-        texts = [f"[{c[1]}] {c[2]}" for c in ble.console]
-        levels = ["WARN" if c[1] == "stderr" else "INFO" for c in ble.console]
-        send_rows(rec, ent.LOG_BLE_CONSOLE, Times(tf, th),
-                  lambda idx: rr.TextLog.columns(text=texts if idx is None else [texts[j] for j in idx],
-                                                 level=levels if idx is None else [levels[j] for j in idx]))
-        counts[ent.LOG_BLE_CONSOLE] = len(texts)
+    gt = Times(inp.t_s, _host_of(inp.t_s, ble, t_motion))
+    ests = {name: (e.q_wxyz, e.thx_rad, e.thy_rad, getattr(e, "valid", None))
+            for name, e in replay.estimates.items()}
+    log_ble_estimates(rec, gt, ests, counts)
     return counts
+
+
+class BleLiveLogger:
+    """The Rerun side of ``steval live --ble`` (``steval_link.live.ble_session.BleViewer``): the live blueprint
+    (host time, scrolling), then each round's rows."""
+
+    def __init__(self, options: Any, recording_name: str | None = None) -> None:
+        self.session = open_session(viewer_sink_options(options), recording_name=recording_name)
+        self.rec = self.session.rec
+        sources = [ent.source_name(n) for n in options.estimators]
+        self.rec.send_blueprint(ble_blueprint(sources, live=True), make_active=True, make_default=True)
+        log_ble_static(self.rec, sources)
+        self.counts: dict[str, int] = {}
+
+    def log_rows(self, rows) -> None:
+        ble = rows.ble
+        t_motion = np.asarray(ble.motion_t_fw_s, np.float64)
+        log_ble_notifications(self.rec, ble, t_motion, self.counts)
+        if len(rows.t_s):
+            times = Times(rows.t_s, _host_of(rows.t_s, ble, t_motion))
+            log_ble_estimates(self.rec, times, {k: (q, x, y, None) for k, (q, x, y) in rows.estimates.items()},
+                              self.counts)
+
+    def close(self) -> None:
+        self.session.close()
 
 
 def ble_replay_sink(options: Any, *, progress: Progress = None) -> Callable[[BleReplay], dict[str, int]]:
