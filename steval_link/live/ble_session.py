@@ -191,7 +191,8 @@ class BleLiveSession:
 
     def _round(self, viewer: BleViewer | None) -> None:
         if not self._inbox:
-            self.display.show(self._health(), time.monotonic())
+            if self.counts:
+                self.display.show(self._health(), time.monotonic())
             return
         items = list(self._inbox)
         self._inbox.clear()
