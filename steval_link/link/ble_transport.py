@@ -240,7 +240,8 @@ class BleLink:
         except BleError as exc:
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
-        delay = 0.5
+        first_delay = min(0.5, self.retry_max_s)
+        delay = first_delay
         while not stop.is_set():
             await _first(stop, self._lost)
             if stop.is_set():
@@ -256,7 +257,7 @@ class BleLink:
                     if found is not None:
                         await self._connect(found)
                         self.on_event("reconnect", f"{found.name or ''} {found.address}".strip())
-                        delay = 0.5
+                        delay = first_delay
                         break
                 except BleError:
                     pass
