@@ -9,6 +9,7 @@ import asyncio
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from steval_link.emulation.bluenrg import FakeBleBackend
@@ -128,8 +129,10 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
         def close(self):
             logged.append("closed")
 
-    # at a drone's pace (1 ms a notification): several rounds of the session, two link losses
-    firmware_notifications = firmware_notifications[:1500]
+    # at a drone's pace (1 ms a notification): several rounds of the session, two link losses, and the 8 ms tick's
+    # wrap (ble_demo's tick wraps 30 s after power-up: notifications 12500.. hold it)
+    recs = B.ble_records(read_source(DEMO).chunks)[12500:14000]
+    firmware_notifications = [(c, p) for _, c, p in recs]
     fake = FakeBleBackend(firmware_notifications, drop_after=[500, 400], pace_s=0.001)
     out = tmp_path / "ble.stv"
     opts = LiveOptions(port="ble:auto", baud=0, out=out, view=False, rrd=tmp_path / "x.rrd",
@@ -163,6 +166,12 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     assert n_motion == sum(1 for c, _ in firmware_notifications if c == B.CHAR_MOTION) == summary.counts["motion"]
     n_grid = sum(len(r.t_s) for r in rows)
     assert n_grid == n_motion + summary.rows_held and summary.rows_held == 0  # no notification was missing
+    ticks = np.concatenate([r.ble.motion_tick for r in rows])
+    assert (np.diff(ticks) >= 0).all() and ticks[0] < 1 << 16 <= ticks[-1]  # one clock across the wrap
+    env = np.concatenate([r.ble.env_t_fw_s for r in rows])
+    assert (np.diff(env) >= 0).all() and abs(env[-1] - ticks[-1] * B.TICK_S) < 0.05
+    t_grid = np.concatenate([r.t_s for r in rows])
+    assert np.allclose(np.diff(t_grid), B.STEP_PERIOD_S)
     q, thx, thy = rows[-1].estimates["st-mahony"]
     assert q.shape[1] == 4 and len(thx) == len(rows[-1].t_s)
     assert "3 connection(s), 2 lost" in summary.line()

@@ -25,6 +25,8 @@ import numpy as np
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_payloads import (
+    CHAR_ARMING,
+    CHAR_ENV,
     CHAR_MOTION,
     DEVICE_NAME_PREFIX,
     STEP_PERIOD_S,
@@ -199,12 +201,16 @@ class BleLiveSession:
         ble = decode_notifications([(t, cid, data) for cid, data, t in items])
         for k, v in ble.counts.items():
             self.counts[k] = self.counts.get(k, 0) + v
-        # one clock over the session: re-unwrap this round's ticks with the session's unwrapper
-        ticks = np.array([self._unwrap(int(data[0] | data[1] << 8)) for cid, data, _ in items
-                          if cid == CHAR_MOTION and len(data) == 20], dtype=np.int64)
-        if len(ticks) == len(ble):
-            ble.motion_tick = ticks
-            ble.motion_t_fw_s = ticks * TICK_S
+        # one clock over the session: every tick of this round unwrapped in arrival order by the session's unwrapper
+        sizes = {CHAR_MOTION: 20, CHAR_ENV: 12, CHAR_ARMING: 3}
+        ticks: dict[int, list[int]] = {c: [] for c in sizes}
+        for cid, data, _ in items:
+            if sizes.get(cid) == len(data):
+                ticks[cid].append(self._unwrap(data[0] | data[1] << 8))
+        ble.motion_tick = np.asarray(ticks[CHAR_MOTION], dtype=np.int64)
+        ble.motion_t_fw_s = ble.motion_tick * TICK_S
+        ble.env_t_fw_s = np.asarray(ticks[CHAR_ENV], dtype=np.float64) * TICK_S
+        ble.arming_t_fw_s = np.asarray(ticks[CHAR_ARMING], dtype=np.float64) * TICK_S
         t_s, acc, gyro = self._grid(ble)
         estimates = {}
         thr = 0
