@@ -222,3 +222,38 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
     monkeypatch.setattr("steval_link.cli.ble.bleak_backend", lambda: FakeBleBackend([], devices=devs[:1][:0]))
     code, out, err = run_cli(monkeypatch, capsys, "ble", "scan")
     assert code == 1 and "no drone advertising DRN1" in err
+
+
+def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
+    """steval live --ble --rrd FILE --no-view: the Rerun logger of the BLE session writes the BLE layout."""
+    from steval_link.live.ble_session import BleLiveSession
+    from steval_link.live.session import LiveOptions
+    from steval_viewer.ble_log import BleLiveLogger
+    from steval_viewer.rrd_check import blueprint_views, read_rrd
+
+    recs = B.ble_records(read_source(DEMO).chunks)[:900]
+    fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=0.0005)
+    rrd = tmp_path / "live.rrd"
+    opts = LiveOptions(port="ble:auto", baud=0, out=tmp_path / "c.stv", view=False, rrd=rrd,
+                       estimators=["st-mahony", "ekf3"])
+    session = BleLiveSession(opts, target="DRN1110", backend=fake, viewer_factory=BleLiveLogger, stream=sys.stderr)
+
+    async def stopper():
+        while fake.finished is None or not fake.finished.is_set():
+            await asyncio.sleep(0.01)
+        session.request_stop("test")
+
+    orig_main = session._main
+
+    async def main_with_stop(*a):
+        await asyncio.gather(orig_main(*a), stopper())
+
+    session._main = main_with_stop
+    summary = session.run()
+    n = summary.counts["motion"]
+    assert n == 300
+    info = read_rrd(rrd)
+    assert info.samples["ble/acc_mg"] == n and info.samples["ble/pressure_hpa"] == n
+    assert info.samples["world/drone/ble"] == n and info.samples["plots/pitch_thx_deg/ekf3"] == n
+    assert {"fw_time", "host_time"} <= info.timelines and "ble/note" in info.static
+    assert "Attitude over BLE" in " ".join(blueprint_views(rrd))
