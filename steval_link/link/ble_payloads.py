@@ -300,15 +300,16 @@ def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTele
 #: consecutive motion notifications per window when estimating the nominal interval
 _WINDOW = 128
 #: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
-#: at 84 MHz: 6.190 ms); a measured interval within 3 % of it is that step period (the 8 ms tick blurs it)
+#: at 84 MHz: 6.190 ms) and tries at every step: a slower stream is that firmware skipping (congestion), so the
+#: sender's interval is the step period (the 8 ms tick blurs a measured one)
 STEP_PERIOD_S = AHRS_PERIOD_S
 
 
 def nominal_interval_s(ticks) -> float | None:
-    """The sender's interval between motion notifications, s, from the unwrapped ticks: the median over windows of
-    128 notifications of their span / 128 (the 8 ms tick quantisation averages out; windows with drops or
-    reconnects are longer, the median ignores them), snapped to the firmware's AHRS step period when within 3 %
-    of it. None below 2 notifications."""
+    """The sender's interval between motion notifications, s: ST's AHRS step period (:data:`STEP_PERIOD_S`) unless
+    the stream is clearly faster (more than 3 % above 161.5 Hz: another firmware), then the measured one: the
+    median over windows of 128 notifications of their span / 128 (the 8 ms tick quantisation averages out; windows
+    with drops or reconnects are longer, the median ignores them). None below 2 notifications."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     n = len(t)
     if n < 2:
@@ -320,7 +321,7 @@ def nominal_interval_s(ticks) -> float | None:
         v = float(np.median((t[_WINDOW:] - t[:-_WINDOW]) / _WINDOW))
     if v is None or not v > 0:
         return None
-    return STEP_PERIOD_S if abs(v / STEP_PERIOD_S - 1) < 0.03 else v
+    return STEP_PERIOD_S if v > 0.97 * STEP_PERIOD_S else v
 
 
 def _phase(t: np.ndarray, interval: float) -> float:
