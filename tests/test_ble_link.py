@@ -114,6 +114,19 @@ def test_link_errors_are_one_sentence(firmware_notifications):
         with pytest.raises(UserError, match=words):
             run_link(FakeBleBackend(firmware_notifications, scan_error=exc))
     assert explain_ble_error(TimeoutError("connection timed out")) is None  # retried, not a platform failure
+    # a platform failure while connecting (first or again) is one sentence too, never a traceback
+    fake = FakeBleBackend(firmware_notifications[:600], drop_after=[200])
+    orig = fake.connect
+
+    async def refused(address, on_disconnect, _n=[0]):
+        _n[0] += 1
+        if _n[0] == 2:
+            raise Exception("[org.bluez.Error.NotPermitted] Not permitted")
+        await orig(address, on_disconnect)
+
+    fake.connect = refused
+    with pytest.raises(UserError, match="permission"):
+        run_link(fake)
 
 
 def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifications):

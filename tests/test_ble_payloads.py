@@ -11,12 +11,15 @@ wrap, with notifications dropped on the way (host side) and refused by a congest
 
 from __future__ import annotations
 
+import json
+import shlex
 import struct
 
 import numpy as np
 import pytest
 
 from steval_link.link import ble_payloads as B
+from steval_link.link.capture import read_capture
 
 # -- hand-made payloads ---------------------------------------------------------------------------------------------
 
@@ -248,3 +251,23 @@ def test_decoder_on_a_congested_link_the_firmware_skips(stock_elf, buffers, per_
     # the estimators' grid: one row per AHRS step from the first notification to the last, drops held
     u = B.uniform_inputs(ble)
     assert abs(len(u.t_s) - (len(ble) + missing)) <= 2 and int((~u.filled).sum()) == len(ble)
+
+
+@pytest.mark.slow
+def test_steval_emulate_ble_records_a_replayable_capture(stock_elf, tmp_path, monkeypatch, capsys):
+    """The recipe of recordings/ble_demo.stv, shortened: steval emulate ELF --ble ... then steval replay."""
+    from support.cli import run_cli
+
+    out = tmp_path / "ble.stv"
+    code, text, err = run_cli(monkeypatch, capsys, "emulate", stock_elf, "--ble", "--scenario", "hand-tilts",
+                              "--duration", "5", "--seed", "2", "--tick-start-ms", str(WRAP_MS - 4000), "--out", out)
+    assert code == 0, err
+    assert "motion notifications: 161.54 Hz" in text and "refused (congestion model) 0" in text
+    code, text, err = run_cli(monkeypatch, capsys, "replay", out, "--json")
+    s = json.loads(text)
+    assert code == 0 and s["kind"] == "ble" and s["tick_wraps"] == 1 and s["motion_dropped_estimate"] == 0
+    assert s["notifications"]["motion"] > 300 and s["emulated"]
+    cmd = shlex.split(read_capture(out).header["extra"]["command"])
+    assert cmd[:3] == ["steval", "emulate", str(stock_elf)] and "--ble" in cmd and str(WRAP_MS - 4000) in cmd
+    code, text, err = run_cli(monkeypatch, capsys, "emulate", stock_elf, "--ble", "--rrd", tmp_path / "x.rrd")
+    assert code == 2 and "--ble records a BLE capture only" in err

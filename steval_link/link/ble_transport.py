@@ -63,7 +63,7 @@ def explain_ble_error(exc: BaseException) -> str | None:
     reason = getattr(exc, "reason", None)
     reason = getattr(reason, "name", str(reason or "")).upper()
     if "DENIED" in reason or isinstance(exc, PermissionError) or "accessdenied" in low or "not authorized" in low \
-            or "permission" in low or "unauthorized" in low:
+            or "permission" in low or "unauthorized" in low or "notpermitted" in low or "notauthorized" in low:
         return ("Bluetooth permission denied: on Linux add yourself to the 'bluetooth' group or run BlueZ's polkit "
                 "rules; on macOS/Windows allow Bluetooth for this terminal in the system's privacy settings.")
     if reason == "POWERED_OFF" or "powered off" in low or "turned off" in low or "notready" in low \
@@ -237,7 +237,12 @@ class BleLink:
                             "(is the drone on, in range, and not connected to a phone?).")
         try:
             await self._connect(dev)
-        except BleError as exc:
+        except UserError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - BleError, or the platform's own (no permission, adapter off...)
+            why = explain_ble_error(exc)
+            if why:
+                raise UserError(why) from None
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
         first_delay = min(0.5, self.retry_max_s)
@@ -259,8 +264,12 @@ class BleLink:
                         self.on_event("reconnect", f"{found.name or ''} {found.address}".strip())
                         delay = first_delay
                         break
-                except BleError:
-                    pass
+                except UserError:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - retried unless the platform itself failed
+                    why = explain_ble_error(exc)
+                    if why:
+                        raise UserError(why) from None
                 delay = min(delay * 2, self.retry_max_s)
         await self.backend.disconnect()
 
