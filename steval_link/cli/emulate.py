@@ -104,7 +104,10 @@ def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s:
         raise UserError(f"--duration must be positive, got {duration}")
     if not connect_s >= 0:
         raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
-    path = resolve_capture_out(out) or default_capture_path()
+    path = resolve_capture_out(out)
+    if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
+        path = default_capture_path()
+        path.parent.mkdir(parents=True, exist_ok=True)
     emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
                                    throttle=throttle)
     command = emu_options.command() + f" --ble --ble-connect-at {connect_s:g}"
