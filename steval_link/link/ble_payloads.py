@@ -42,7 +42,7 @@ __all__ = [
     "CHAR_STDERR", "DEVICE_NAME_PREFIX", "TICK_S", "TICK_WRAP", "char_id_of_uuid", "MotionSample", "EnvSample",
     "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
     "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
-    "is_ble_source", "ble_chunk",
+    "is_ble_source", "ble_chunk", "sample_numbers", "STEP_PERIOD_S",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -278,21 +278,25 @@ def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTele
     e = np.array(en, dtype=np.float64).reshape(-1, 6)
     a = np.array(ar, dtype=np.float64).reshape(-1, 3)
     # one clock for all three: the ticks of every characteristic unwrapped together, in arrival order
-    mtick = unwrap_ticks(m[:, 1], m[:, 0]) if len(m) else np.zeros(0, np.int64)
-
-    def fw_s(rows: np.ndarray) -> np.ndarray:
-        if not len(rows):
-            return np.zeros(0)
-        return unwrap_ticks(rows[:, 1], rows[:, 0]) * TICK_S
+    order = [(r[0], k, j) for k, rows in enumerate((mo, en, ar)) for j, r in enumerate(rows)]
+    order.sort(key=lambda x: x[0])  # stable: arrival order kept for equal host times
+    rows_of = (m, e, a)
+    all_ticks = np.array([rows_of[k][j, 1] for _, k, j in order], dtype=np.int64)
+    all_t = np.array([t for t, _, _ in order], dtype=np.float64)
+    unwrapped = unwrap_ticks(all_ticks, all_t) if len(order) else np.zeros(0, np.int64)
+    ticks_of: list[np.ndarray] = [np.zeros(len(r), np.int64) for r in rows_of]
+    for (_, k, j), u in zip(order, unwrapped):
+        ticks_of[k][j] = u
+    mtick = ticks_of[0]
 
     return BleTelemetry(
         motion_t_host_s=m[:, 0].copy(), motion_tick=mtick, motion_t_fw_s=mtick * TICK_S,
         acc_mg=m[:, 2:5].astype(np.float32), gyro_mdps=(m[:, 5:8] * 100).astype(np.float32),
         mag_mgauss=m[:, 8:11].astype(np.float32),
-        env_t_host_s=e[:, 0].copy(), env_t_fw_s=fw_s(e), pressure_hpa=(e[:, 2] / 100).astype(np.float32),
+        env_t_host_s=e[:, 0].copy(), env_t_fw_s=ticks_of[1] * TICK_S, pressure_hpa=(e[:, 2] / 100).astype(np.float32),
         battery_pct=(e[:, 3] / 10).astype(np.float32), temperature_c=(e[:, 4] / 10).astype(np.float32),
         rssi_dbm=(e[:, 5] / 10).astype(np.float32),
-        arming_t_host_s=a[:, 0].copy(), arming_t_fw_s=fw_s(a), armed=a[:, 2].astype(bool),
+        arming_t_host_s=a[:, 0].copy(), arming_t_fw_s=ticks_of[2] * TICK_S, armed=a[:, 2].astype(bool),
         console=console, counts=counts, bad_payloads=bad, unknown=unknown,
     )
 
