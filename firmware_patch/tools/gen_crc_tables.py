@@ -61,7 +61,7 @@ def main() -> None:
     print("/* Slice-by-4 tables of CRC-32/ISO-HDLC (zlib; poly 0xEDB88320 reflected, LSB first). */")
     print("#ifndef STV_CRC_TABLES_H\n#define STV_CRC_TABLES_H\n\n#include <stdint.h>\n")
     print("/* Four separate arrays (not one [4][256]): the compiler then keeps four base registers and indexes each")
-    print(" * with one scaled load, instead of adding the table offset to every index (3 instructions less per word). */")
+    print(" * with one scaled load, not adding the table offset to every index (3 instructions less per word). */")
     for k in range(4):
         print(f"static const uint32_t stv_crc32_t{k}[256] = {{")
         for i in range(0, 256, 4):
