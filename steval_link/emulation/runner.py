@@ -243,8 +243,14 @@ def joydata_bytes(thr: int, ail: int, ele: int, rud: int, armed: bool) -> bytes:
 class Emulation:
     """One firmware run (see the module docstring)."""
 
-    def __init__(self, options: EmulationOptions) -> None:
+    def __init__(self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0,
+                 ble_connect_s: float | None = None) -> None:
+        """``bluenrg``: an ``emulation.bluenrg.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
+        RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
+        before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
+        stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""
         self.options = options
+        self._connect_at = None if ble_connect_s is None else int(ble_connect_s * CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
             raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
         self.elf = Elf(options.elf)
@@ -284,6 +290,11 @@ class Emulation:
         self._bytes = 0
         self._first_byte_s: float | None = None
         self._install_step_probes()
+        self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
+        tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
+        if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
+            start = int(tick_start_ms) & 0xFFFFFFFF
+            self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
@@ -293,7 +304,8 @@ class Emulation:
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
             thr, (ail, ele, rud), armed = self.motion.remote(k)
-            if ((thr or armed or self.motion.remote_from_start) and not self._remote_connected
+            central = self._connect_at is not None and board.now >= self._connect_at
+            if ((thr or armed or central or self.motion.remote_from_start) and not self._remote_connected
                     and self._connected is not None):
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step

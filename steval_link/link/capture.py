@@ -50,13 +50,17 @@ __all__ = [
 
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
 MAGIC = b"\x89STV\r\n\x1a\n"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 CHUNK_DATA = ord("D")
 CHUNK_EVENT = ord("E")
+CHUNK_BLE = ord("B")
+#: every chunk type the reader knows (format 2 adds B); D and E are read into the byte stream and the events, the
+#: others are kept as they are in ``Capture.chunks`` for the module that reads them
+CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble"}
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
-_CHUNK_TYPE = re.compile(b"[DE]")
+_CHUNK_TYPE = re.compile(b"[" + bytes(sorted(CHUNK_TYPES)) + b"]")
 #: Largest chunk payload the reader accepts (the writer splits larger writes).
 MAX_CHUNK = 1 << 20
 MAX_HEADER = 1 << 20
@@ -92,6 +96,8 @@ class Capture:
     events: list[CaptureEvent]
     truncated: bool = False
     warning: str | None = None
+    #: chunk type → [(t_host_s, payload)] of the chunks other than D and E (e.g. B: one BLE notification each)
+    chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
 
 
 def _chunk(kind: int, payload: bytes, t_host_s: float) -> bytes:
@@ -120,15 +126,25 @@ def capture_header(
     }
 
 
-def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]]) -> bytes:
+def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]],
+                   typed: Iterable[tuple[int, bytes, float]] = ()) -> bytes:
     """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
-    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``)."""
+    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``), then ``typed``
+    chunks ``(chunk type, payload, t_host_s)`` (e.g. :data:`CHUNK_BLE`)."""
     parts = [_file_header(header)]
     for data, t_host_s in chunks:
         data = bytes(data)
         for i in range(0, len(data), MAX_CHUNK):
             parts.append(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], float(t_host_s)))
+    for kind, payload, t_host_s in typed:
+        parts.append(_chunk(_known_kind(kind), bytes(payload), float(t_host_s)))
     return b"".join(parts)
+
+
+def _known_kind(kind: int) -> int:
+    if kind not in CHUNK_TYPES or kind in (CHUNK_DATA, CHUNK_EVENT) or not 0 <= kind < 256:
+        raise ValueError(f"not a typed chunk type: {kind!r}")
+    return kind
 
 
 class CaptureWriter:
@@ -164,6 +180,7 @@ class CaptureWriter:
         self._discard_empty = bool(discard_empty)
         self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
+        self.chunks_written = 0  #: typed chunks (e.g. BLE notifications) stored so far
         self._write_all(_file_header(self.header))
         self._sync()
         self._stop = threading.Event()
@@ -187,6 +204,20 @@ class CaptureWriter:
             for i in range(0, len(data), MAX_CHUNK):
                 self._write_all(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], t))
             self.bytes_written += len(data)
+            self._dirty = True
+
+    def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
+        """Store one typed chunk (a type of :data:`CHUNK_TYPES` other than D and E, e.g. :data:`CHUNK_BLE`: one BLE
+        notification, ``char id + bytes``), received at ``t_host_s`` (s since capture start)."""
+        kind = _known_kind(kind)
+        payload = bytes(payload)
+        if len(payload) > MAX_CHUNK:
+            raise ValueError(f"typed chunk of {len(payload)} bytes (at most {MAX_CHUNK})")
+        t = self.now() if t_host_s is None else float(t_host_s)
+        with self._lock:
+            self._check_open()
+            self._write_all(_chunk(kind, payload, t))
+            self.chunks_written += 1
             self._dirty = True
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
@@ -214,7 +245,7 @@ class CaptureWriter:
             self._sync()
             self._closed = True
             self._file.close()
-            if self._discard_empty and self.bytes_written == 0:
+            if self._discard_empty and self.bytes_written == 0 and self.chunks_written == 0:
                 try:
                     self.path.unlink()
                     self.discarded = True
@@ -337,6 +368,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     offsets: list[int] = []
     times: list[float] = []
     events: list[CaptureEvent] = []
+    typed: dict[int, list[tuple[float, bytes]]] = {}
     total = 0
     n = len(raw)
     head_size = _CHUNK_HEAD.size
@@ -349,7 +381,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             return "incomplete chunk header"
         kind, length, t = unpack_head(raw, p)
         end = p + head_size + length
-        if kind not in (CHUNK_DATA, CHUNK_EVENT) or length > MAX_CHUNK:
+        if kind not in CHUNK_TYPES or length > MAX_CHUNK:
             return "damaged chunk header"
         if end + 4 > n:
             return "incomplete chunk"
@@ -384,6 +416,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             times.append(t)
             pieces.append(payload)
             total += length
+        elif kind != CHUNK_EVENT:
+            typed.setdefault(kind, []).append((t, bytes(payload)))
         else:
             try:
                 ev = json.loads(bytes(payload).decode("utf-8"))
@@ -404,6 +438,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         events=events,
         truncated=warning is not None,
         warning=warning,
+        chunks=typed,
     )
 
 
@@ -435,6 +470,8 @@ class Source:
     chunk_times_s: np.ndarray | None = None
     events: list[CaptureEvent] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    #: typed chunks of a capture (see :attr:`Capture.chunks`)
+    chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
 
 
 def read_source(path: str | os.PathLike) -> Source:
@@ -457,6 +494,7 @@ def read_source(path: str | os.PathLike) -> Source:
             chunk_times_s=cap.chunk_times_s,
             events=cap.events,
             warnings=[cap.warning] if cap.warning else [],
+            chunks=cap.chunks,
         )
     return Source(path=path, kind="bytes", data=raw)
 
