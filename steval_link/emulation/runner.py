@@ -16,11 +16,17 @@ loop, while ``connected``); the emulated remote writes ``joydata[3]`` at each TI
 13 as with the ST app, and sets ``connected`` at its first non-zero throttle (from then on the firmware also sends
 its BLE notifications through ``hci_send_req``). It never arms the motors. Builds with ``REMOCON_PWM`` keep gTHR 0
 (no RC receiver is modelled).
+
+Host → drone bytes (the two-way link, USART1 RX): :meth:`Emulation.send_at` schedules bytes at an emulated time
+(tests, scenario scripts), :meth:`Emulation.send` queues them from any thread for the next slice (a live session);
+they arrive on the emulated RX line at the baud rate's pace. :meth:`Emulation.take_host_bytes` hands each sent
+block back with the emulated time it went on the line, for the capture's ``H`` chunks.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -223,7 +229,47 @@ class Emulation:
         self.n_steps = 0
         self._bytes = 0
         self._first_byte_s: float | None = None
+        self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
+        self._host_sched: list[tuple[int, int, bytes]] = []  # (instruction count, order, bytes) not yet on the line
+        self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
+        self._host_order = 0
         self._install_step_probes()
+
+    # -- host → drone bytes (USART1 RX)
+    def send_at(self, data: bytes, t_s: float) -> None:
+        """Schedule ``data`` (host → drone) to start on the RX line at emulated time ``t_s`` (s since power-up), or
+        as soon as bytes scheduled before it are through. A time already past means now."""
+        if not data:
+            return
+        if not math.isfinite(t_s) or t_s < 0:
+            raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
+        t = max(int(round(t_s * CPU_HZ)), self.board.now)
+        self.board.usart1.inject(bytes(data), t)
+        self._host_order += 1
+        self._host_sched.append((t, self._host_order, bytes(data)))
+        self._host_sched.sort()
+
+    def send(self, data: bytes) -> None:
+        """Queue ``data`` (host → drone) from any thread: it goes on the RX line at the start of the next slice."""
+        if data:
+            self._live_tx.put(bytes(data))
+
+    def take_host_bytes(self) -> list[tuple[bytes, float]]:
+        """The host → drone blocks that went on the line since the last call, with their emulated start times (s)."""
+        out, self._host_sent = self._host_sent, []
+        return out
+
+    def _host_progress(self) -> None:
+        while True:
+            try:
+                data = self._live_tx.get_nowait()
+            except queue.Empty:
+                break
+            self.send_at(data, self.board.now / CPU_HZ)
+        now = self.board.now
+        while self._host_sched and self._host_sched[0][0] <= now:
+            t, _, data = self._host_sched.pop(0)
+            self._host_sent.append((data, t / CPU_HZ))
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
@@ -278,7 +324,9 @@ class Emulation:
         last_steps, last_progress_t = 0, 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
         while b.now < end:
+            self._host_progress()
             b.run_until(min(end, b.now + slice_cycles))
+            self._host_progress()
             if b.out:
                 data = bytes(x for x, _ in b.out)
                 last_byte_t = b.out[-1][1]
