@@ -141,3 +141,117 @@ stv_cmd_outcome_t stv_cmd_handle(stv_filter_t *f, const stv_command_t *cmd, cons
   o.send_status = 1;
   return o;
 }
+
+int stv_cmd_next(stv_cmd_t *c, stv_command_t *cmd) {
+  uint8_t b;
+  while (stv_rxq_pop(&c->rx, &b))
+    if (stv_cmd_dec_feed(&c->dec, b, cmd)) return 1;
+  return 0;
+}
+
+uint16_t stv_cmd_flags(const stv_cmd_t *c, int16_t thr, uint8_t armed) {
+  stv_cmd_env_t env;
+  uint16_t flags = c->inflight_ok ? STV_FLAG_INFLIGHT_TUNING : 0u;
+  env.thr = thr;
+  env.armed = armed;
+  if (stv_cmd_motors_may_spin(c->filter, &env)) flags |= STV_FLAG_ARMED;
+  return flags;
+}
+
+void stv_cmd_sync_link(const stv_filter_t *f, stv_link_t *link) {
+  stv_link_config_t *cfg = &link->cfg;
+  cfg->kp_ground = f->kp_ground;
+  cfg->kp_flight = f->kp_flight;
+  cfg->ki = f->ki;
+  cfg->min_thr = f->min_thr;
+  if (f->correction)
+    cfg->flags &= (uint16_t)~STV_FLAG_NO_CORRECTION;
+  else
+    cfg->flags |= STV_FLAG_NO_CORRECTION;
+}
+
+/* Text mode: "#ACK seq cmd result step rx_ok rx_bad" as a log line ('#': never taken for a $ record). */
+static size_t format_ack_line(char *out, const stv_ack_t *a) {
+  uint32_t v[6];
+  size_t n = 0;
+  int i;
+  v[0] = a->cmd_seq;
+  v[1] = a->cmd;
+  v[2] = a->result;
+  v[3] = a->step;
+  v[4] = a->rx_ok;
+  v[5] = a->rx_bad;
+  memcpy(out, "#ACK", 4);
+  n = 4;
+  for (i = 0; i < 6; i++) {
+    char digits[10];
+    int k = 0;
+    uint32_t x = v[i];
+    do {
+      digits[k++] = (char)('0' + x % 10u);
+      x /= 10u;
+    } while (x);
+    out[n++] = ' ';
+    while (k) out[n++] = digits[--k];
+  }
+  out[n++] = '\r';
+  out[n++] = '\n';
+  return n;
+}
+
+static void send_status_now(stv_cmd_t *c, stv_link_t *link, int16_t thr, uint8_t armed) {
+  stv_status_t st;
+  stv_link_make_status(link, &st);
+  st.step = link->step - 1u; /* the last step done: the settings and the snapshot apply from the next one */
+  st.flags |= (uint16_t)(STV_FLAG_EVENT | stv_cmd_flags(c, thr, armed));
+  if (!link->cfg.text_mode) {
+    stv_send_status(&link->txq, &st);
+  } else {
+    char line[STV_TEXT_LINE_MAX];
+    (void)stv_txq_push(&link->txq, (const uint8_t *)line, (uint32_t)stv_format_sta_line(line, &st));
+  }
+}
+
+void stv_cmd_execute(stv_cmd_t *c, stv_link_t *link, const stv_command_t *cmd, int16_t thr, uint8_t armed) {
+  stv_cmd_env_t env;
+  stv_cmd_outcome_t o;
+  stv_ack_t ack;
+  env.thr = thr;
+  env.armed = armed;
+  env.inflight_ok = c->inflight_ok;
+  env.text_mode = link->cfg.text_mode;
+  o = stv_cmd_handle(c->filter, cmd, &env);
+  if (o.reset_state) {
+    int i;
+    for (i = 0; i < 4; i++)
+      if (c->q[i]) *c->q[i] = i == 0 ? 1.0f : 0.0f;
+    for (i = 0; i < 3; i++)
+      if (c->ints[i]) *c->ints[i] = 0.0f;
+  }
+  if (o.filter_changed) {
+    stv_cmd_sync_link(c->filter, link);
+    link->param_gen++;
+  }
+  memset(&ack, 0, sizeof(ack));
+  ack.cmd_seq = cmd->cmd_seq;
+  ack.cmd = cmd->cmd;
+  ack.result = o.result;
+  ack.step = link->step; /* the next step: the first one an accepted change applies to */
+  ack.rx_ok = (uint16_t)c->dec.rx_ok;
+  ack.rx_bad = (uint16_t)c->dec.rx_bad;
+  /* the ack goes out in the mode in force when the command arrived (SET_MODE switches after it) */
+  if (!link->cfg.text_mode) {
+    stv_send_ack(&link->txq, &ack);
+  } else {
+    char line[48];
+    (void)stv_txq_push(&link->txq, (const uint8_t *)line, (uint32_t)format_ack_line(line, &ack));
+  }
+  if (o.new_text_mode >= 0) {
+    link->cfg.text_mode = (uint8_t)o.new_text_mode;
+    if (o.new_text_mode)
+      link->cfg.flags |= STV_FLAG_TEXT_MODE;
+    else
+      link->cfg.flags &= (uint16_t)~STV_FLAG_TEXT_MODE;
+  }
+  if (o.send_status) send_status_now(c, link, thr, armed);
+}

@@ -18,6 +18,7 @@
 #include <stdint.h>
 
 #include "stv_frame.h"
+#include "stv_link.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -95,6 +96,30 @@ static inline int stv_cmd_motors_may_spin(const stv_filter_t *f, const stv_cmd_e
 /* Check and apply one command to *f (filter settings only; the caller resets the state, switches the mode and
  * sends the ack and status). Never changes *f unless the result is STV_ACK_ACCEPTED. */
 stv_cmd_outcome_t stv_cmd_handle(stv_filter_t *f, const stv_command_t *cmd, const stv_cmd_env_t *env);
+
+/* The command receiver of one link: the ring the RX interrupt fills, the decoder, the settings and state it acts on. */
+typedef struct {
+  stv_rxq_t rx;
+  stv_cmd_dec_t dec;
+  stv_filter_t *filter;      /* what ahrs_fusion_ag reads */
+  volatile float *q[4];      /* ahrs.c's q0..q3 (RESET_FILTER: 1, 0, 0, 0) */
+  volatile float *ints[3];   /* ahrs.c's exInt, eyInt, ezInt (RESET_FILTER: 0) */
+  uint8_t inflight_ok;       /* STV_INFLIGHT_TUNING of the build */
+} stv_cmd_t;
+
+/* Main loop: the next complete command from the received bytes, if any (never waits). */
+int stv_cmd_next(stv_cmd_t *c, stv_command_t *cmd);
+
+/* Between two AHRS steps (after stv_link_step_end of step link->step - 1): handle one command, send its ack and,
+ * when it asks for one, a status frame with STV_FLAG_EVENT naming the last step done (its settings and snapshot
+ * apply from the next step). thr: gTHR now; armed: rc_enable_motor. Call with the link's other users masked. */
+void stv_cmd_execute(stv_cmd_t *c, stv_link_t *link, const stv_command_t *cmd, int16_t thr, uint8_t armed);
+
+/* Status flags that describe the drone now (STV_FLAG_ARMED when the motors may spin, STV_FLAG_INFLIGHT_TUNING). */
+uint16_t stv_cmd_flags(const stv_cmd_t *c, int16_t thr, uint8_t armed);
+
+/* The link's reported settings (status frame) made equal to the filter's. */
+void stv_cmd_sync_link(const stv_filter_t *f, stv_link_t *link);
 
 #ifdef __cplusplus
 }
