@@ -38,6 +38,7 @@ __all__ = [
     "MAGIC",
     "Capture",
     "CaptureEvent",
+    "HostChunk",
     "CaptureTruncatedWarning",
     "CaptureWriter",
     "Source",
@@ -50,13 +51,16 @@ __all__ = [
 
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
 MAGIC = b"\x89STV\r\n\x1a\n"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 CHUNK_DATA = ord("D")
 CHUNK_EVENT = ord("E")
+CHUNK_HOST = ord("H")
+#: Chunk types (CAPTURE_FORMAT.md): D bytes received from the drone, E an event, H bytes the host sent to the drone.
+CHUNK_TYPES = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_HOST: "host"}
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
-_CHUNK_TYPE = re.compile(b"[DE]")
+_CHUNK_TYPE = re.compile(b"[" + re.escape(bytes(sorted(CHUNK_TYPES))) + b"]")
 #: Largest chunk payload the reader accepts (the writer splits larger writes).
 MAX_CHUNK = 1 << 20
 MAX_HEADER = 1 << 20
@@ -79,6 +83,16 @@ class CaptureEvent:
     offset: int
 
 
+@dataclass(frozen=True, slots=True)
+class HostChunk:
+    """Bytes the host sent to the drone (command frames), at host time ``t_host_s``, after ``offset`` received
+    bytes."""
+
+    t_host_s: float
+    data: bytes
+    offset: int
+
+
 @dataclass
 class Capture:
     """A capture file read back: ``data`` is every received byte in order; chunk ``i`` starts at stream offset
@@ -92,6 +106,8 @@ class Capture:
     events: list[CaptureEvent]
     truncated: bool = False
     warning: str | None = None
+    #: what the host sent to the drone (chunk type H), in file order
+    host: list[HostChunk] = field(default_factory=list)
 
 
 def _chunk(kind: int, payload: bytes, t_host_s: float) -> bytes:
@@ -187,6 +203,18 @@ class CaptureWriter:
             for i in range(0, len(data), MAX_CHUNK):
                 self._write_all(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], t))
             self.bytes_written += len(data)
+            self._dirty = True
+
+    def write_host(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
+        """Store bytes the host sent to the drone (``t_host_s``: when they were sent, s since capture start)."""
+        if not data:
+            return
+        t = self.now() if t_host_s is None else float(t_host_s)
+        data = bytes(data)
+        with self._lock:
+            self._check_open()
+            for i in range(0, len(data), MAX_CHUNK):
+                self._write_all(_chunk(CHUNK_HOST, data[i : i + MAX_CHUNK], t))
             self._dirty = True
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
@@ -337,6 +365,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     offsets: list[int] = []
     times: list[float] = []
     events: list[CaptureEvent] = []
+    host: list[HostChunk] = []
     total = 0
     n = len(raw)
     head_size = _CHUNK_HEAD.size
@@ -349,7 +378,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             return "incomplete chunk header"
         kind, length, t = unpack_head(raw, p)
         end = p + head_size + length
-        if kind not in (CHUNK_DATA, CHUNK_EVENT) or length > MAX_CHUNK:
+        if kind not in CHUNK_TYPES or length > MAX_CHUNK:
             return "damaged chunk header"
         if end + 4 > n:
             return "incomplete chunk"
@@ -384,6 +413,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             times.append(t)
             pieces.append(payload)
             total += length
+        elif kind == CHUNK_HOST:
+            host.append(HostChunk(t, bytes(payload), total))
         else:
             try:
                 ev = json.loads(bytes(payload).decode("utf-8"))
@@ -404,6 +435,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         events=events,
         truncated=warning is not None,
         warning=warning,
+        host=host,
     )
 
 
