@@ -27,6 +27,7 @@ Layout::
     link/ahrs_cycles                      CPU cycles of one ahrs_fusion_ag + QuaternionToEuler: min, mean, max
     log/firmware                          firmware text lines
     log/host                              host notes (decoder summary, estimator notes)
+    log/commands                          commands the host sent to the drone, its acknowledgements, the settings
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ LINK_CYCLES = "link/ahrs_cycles"
 
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"
+LOG_COMMANDS = "log/commands"
 
 #: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_port`` the host's
 #: bit-exact port of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).
