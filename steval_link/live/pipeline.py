@@ -12,9 +12,9 @@ import typing
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.link.decoder import StreamDecoder
 from steval_link.link import protocol as P
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
+from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, StatusFrame, TextFrame
 from steval_link.link.unwrap import SeqUnwrapper
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
