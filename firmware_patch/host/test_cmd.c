@@ -356,13 +356,18 @@ static void test_execute(void) {
   CHECK(ints[0] == 0.0f && ints[1] == 0.0f && ints[2] == 0.0f);
   CHECK(link.param_gen == 1);
   n = drain_all(&link.txq, out, sizeof(out));
-  CHECK(n == STV_ACK_FRAME_SIZE + STV_STATUS_FRAME_SIZE);
-  memcpy(&ack, out + 4, sizeof(ack));
-  CHECK(out[3] == STV_ACK_PAYLOAD_SIZE && (out[2] & 0x0F) == STV_TYPE_ACK);
+  /* the first change since boot: a status with the build's settings and state first (not EVENT), the ack, then
+   * the EVENT status with the new state */
+  CHECK(n == STV_STATUS_FRAME_SIZE + STV_ACK_FRAME_SIZE + STV_STATUS_FRAME_SIZE);
+  memcpy(&st, out + 4, sizeof(st));
+  CHECK((out[2] & 0x0F) == STV_TYPE_STATUS && st.step == 4 && !(st.flags & STV_FLAG_EVENT) && st.param_gen == 0);
+  CHECK(st.q[0] == 0.5f && st.int_xyz[2] == 3.0f);
+  memcpy(&ack, out + STV_STATUS_FRAME_SIZE + 4, sizeof(ack));
+  CHECK(out[STV_STATUS_FRAME_SIZE + 3] == STV_ACK_PAYLOAD_SIZE && (out[STV_STATUS_FRAME_SIZE + 2] & 0x0F) == STV_TYPE_ACK);
   CHECK(ack.cmd_seq == 41 && ack.cmd == STV_CMD_RESET_FILTER && ack.result == STV_ACK_ACCEPTED);
   CHECK(ack.step == 5 && ack.rx_ok == 1 && ack.rx_bad == 0);
-  memcpy(&st, out + STV_ACK_FRAME_SIZE + 4, sizeof(st));
-  CHECK((out[STV_ACK_FRAME_SIZE + 2] & 0x0F) == STV_TYPE_STATUS);
+  memcpy(&st, out + STV_STATUS_FRAME_SIZE + STV_ACK_FRAME_SIZE + 4, sizeof(st));
+  CHECK((out[STV_STATUS_FRAME_SIZE + STV_ACK_FRAME_SIZE + 2] & 0x0F) == STV_TYPE_STATUS);
   CHECK(st.step == 4 && (st.flags & STV_FLAG_EVENT) && st.param_gen == 1 && st.q[0] == 1.0f && st.int_xyz[2] == 0.0f);
 
   /* KI while armed: refused, the ack says why, no status, nothing changed */

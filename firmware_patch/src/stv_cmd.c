@@ -199,11 +199,11 @@ static size_t format_ack_line(char *out, const stv_ack_t *a) {
   return n;
 }
 
-static void send_status_now(stv_cmd_t *c, stv_link_t *link, int16_t thr, uint8_t armed) {
+static void send_status_now(stv_cmd_t *c, stv_link_t *link, int16_t thr, uint8_t armed, uint16_t event) {
   stv_status_t st;
   stv_link_make_status(link, &st);
   st.step = link->step - 1u; /* the last step done: the settings and the snapshot apply from the next one */
-  st.flags |= (uint16_t)(STV_FLAG_EVENT | stv_cmd_flags(c, thr, armed));
+  st.flags |= (uint16_t)(event | stv_cmd_flags(c, thr, armed));
   if (!link->cfg.text_mode) {
     stv_send_status(&link->txq, &st);
   } else {
@@ -221,6 +221,9 @@ void stv_cmd_execute(stv_cmd_t *c, stv_link_t *link, const stv_command_t *cmd, i
   env.inflight_ok = c->inflight_ok;
   env.text_mode = link->cfg.text_mode;
   o = stv_cmd_handle(c->filter, cmd, &env);
+  /* The first change since boot: a status with the build's settings goes first (not EVENT: nothing changed yet),
+   * so that a capture from power-up states them even when no periodic status came before the change. */
+  if (o.filter_changed && link->param_gen == 0u) send_status_now(c, link, thr, armed, 0u);
   if (o.reset_state) {
     int i;
     for (i = 0; i < 4; i++)
@@ -253,5 +256,5 @@ void stv_cmd_execute(stv_cmd_t *c, stv_link_t *link, const stv_command_t *cmd, i
     else
       link->cfg.flags &= (uint16_t)~STV_FLAG_TEXT_MODE;
   }
-  if (o.send_status) send_status_now(c, link, thr, armed);
+  if (o.send_status) send_status_now(c, link, thr, armed, STV_FLAG_EVENT);
 }

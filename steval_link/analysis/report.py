@@ -280,6 +280,9 @@ def format_report(r: ComparisonReport) -> list[str]:
                      f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}")
         if fs["changes"]:
             lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
+        for ch in fs.get("change_list", []):
+            how = "status EVENT after a host command" if ch["event"] else "status frame"
+            lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
     else:
         lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
 
