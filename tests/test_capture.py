@@ -15,6 +15,7 @@ import pytest
 from support.streams import StreamBuilder
 
 from steval_link.errors import UserError
+from steval_link.link import protocol as P
 from steval_link.link.capture import (
     MAGIC,
     CaptureTruncatedWarning,
@@ -52,7 +53,7 @@ def test_round_trip_bytes_times_header_events(tmp_path, stream: StreamBuilder):
     assert tel.source["kind"] == "stv" and len(tel.attitude) == 300
     assert [e.kind for e in tel.events] == ["disconnect", "reconnect"]
     # host time: frames completed in chunk i get chunk i's time, less the bytes after them at 115200 baud
-    last = tel.attitude.offset + 57
+    last = tel.attitude.offset + P.ATTITUDE_FRAME_SIZE - 1
     chunk = last // 100
     end = np.minimum((chunk + 1) * 100, len(data))
     np.testing.assert_allclose(tel.attitude.t_host_s, np.maximum((chunk + 1) * 0.01 - (end - last - 1) * 10 / 115200,
@@ -103,7 +104,8 @@ def test_damaged_chunk_inside_is_skipped_with_warning(tmp_path, stream: StreamBu
     assert any(issubclass(x.category, CaptureTruncatedWarning) for x in w)
     assert tel.source["warnings"]
     # every frame not touched by the lost chunk is decoded, the loss shows as a sequence gap
-    lost = {i for i in range(40) if i * 58 + 58 > 1500 and i * 58 < 2000}
+    FS = P.ATTITUDE_FRAME_SIZE
+    lost = {i for i in range(40) if i * FS + FS > 1500 and i * FS < 2000}
     assert tel.attitude.seq.tolist() == [i for i in range(40) if i not in lost]
     assert tel.stats.frames_missing == len(lost)
 
@@ -119,8 +121,8 @@ def test_kill_9_loses_nothing_written(tmp_path, stream: StreamBuilder):
         "from steval_link.link.capture import CaptureWriter\n"
         f"data = open({str(src)!r}, 'rb').read()\n"
         f"w = CaptureWriter({str(path)!r}, port='p', baud=115200)\n"
-        "for i in range(0, len(data), 58):\n"
-        "    w.write(data[i:i+58])\n"
+        "for i in range(0, len(data), 60):\n"
+        "    w.write(data[i:i+60])\n"
         "print('written', flush=True)\n"
         "time.sleep(60)\n"
     )

@@ -11,6 +11,8 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_link.link.telemetry import telemetry_from_frames
 
+FS = P.ATTITUDE_FRAME_SIZE  # 60 bytes in protocol v2
+
 
 def stream_decode(data: bytes, chunk: int | list[int] = 4096):
     sd = StreamDecoder()
@@ -80,17 +82,17 @@ def test_attitude_fields_are_exact_bits():
 def test_status_fields():
     data = P.encode_status(step=123456, t_us=99, q_wxyz=[1, 0, 0, 0], int_xyz=[0.5, -0.25, 0], ki=1.0,
                            cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=161, tx_dropped=7, baud=921600, flags=3,
-                           queue_peak=300, fw_version=(1, 2, 3))
+                           queue_peak=300, fw_version=(2, 1), fc_every=23, param_gen=4)
     (f,) = StreamDecoder().feed(data)
     assert isinstance(f, StatusFrame)
-    assert (f.step, f.t_us, f.ki, f.cyc_n, f.tx_dropped, f.baud, f.flags, f.queue_peak, f.fw_version) == (
-        123456, 99, 1.0, 161, 7, 921600, 3, 300, (1, 2, 3))
+    assert (f.step, f.t_us, f.ki, f.cyc_n, f.tx_dropped, f.baud, f.flags, f.queue_peak, f.fw_version, f.fc_every,
+            f.param_gen) == (123456, 99, 1.0, 161, 7, 921600, 3, 300, (2, 1), 23, 4)
     assert f.int_xyz == (0.5, -0.25, 0.0) and f.kp_ground == 10.0 and f.min_thr == 200
     tel = decode_bytes(data)
-    assert tel.status.step[0] == 123456 and tel.status.fw_version[0].tolist() == [1, 2, 3]
+    assert tel.status.step[0] == 123456 and tel.status.fw_version[0].tolist() == [2, 1]
 
 
-@pytest.mark.parametrize("chunk", [1, 2, 3, 57, 58, 59, 1000, 10**6])
+@pytest.mark.parametrize("chunk", [1, 2, 3, 59, 60, 61, 1000, 10**6])
 def test_any_chunking_gives_same_frames(stream: StreamBuilder, chunk: int):
     stream.flight(300, text_every=50)
     data = stream.bytes()
@@ -103,23 +105,23 @@ def test_any_chunking_gives_same_frames(stream: StreamBuilder, chunk: int):
 def test_mid_stream_start_resyncs_within_one_frame(stream: StreamBuilder):
     stream.flight(100, status_every=0)
     data = stream.bytes()
-    for cut in (1, 13, 57, 58 + 30):
+    for cut in (1, 13, FS - 1, FS + 30):
         frames, stats = stream_decode(data[cut:], 7)
-        first_full = -(-cut // 58)
+        first_full = -(-cut // FS)
         assert [f.seq for f in frames] == list(range(first_full, 100))
-        assert stats.bytes_skipped == first_full * 58 - cut
+        assert stats.bytes_skipped == first_full * FS - cut
 
 
 def test_corrupted_frame_is_dropped_and_counted(stream: StreamBuilder):
     stream.flight(50, status_every=0)
     data = bytearray(stream.bytes())
-    data[10 * 58 + 20] ^= 0x04  # payload bit flip in frame 10
-    data[20 * 58 + 56] ^= 0x80  # CRC bit flip in frame 20
+    data[10 * FS + 20] ^= 0x04  # payload bit flip in frame 10
+    data[20 * FS + 57] ^= 0x80  # CRC bit flip in frame 20
     frames, stats = stream_decode(bytes(data), 5)
     assert [f.seq for f in frames] == [i for i in range(50) if i not in (10, 20)]
     assert stats.crc_failures == 2
     assert stats.seq_gaps == 2 and stats.frames_missing == 2
-    assert stats.bytes_skipped == 2 * 58
+    assert stats.bytes_skipped == 2 * FS
     assert_bulk_equals_stream(bytes(data))
 
 
@@ -127,7 +129,7 @@ def test_frame_inside_damaged_frame_is_recovered(stream: StreamBuilder):
     """A frame whose bytes start inside the remains of a truncated frame is still found (discard one byte)."""
     stream.flight(10, status_every=0)
     data = stream.bytes()
-    damaged = data[: 3 * 58 + 30] + data[4 * 58 :]  # frame 3 cut short, frame 4 follows directly
+    damaged = data[: 3 * FS + 30] + data[4 * FS :]  # frame 3 cut short, frame 4 follows directly
     frames, stats = stream_decode(damaged, 11)
     assert [f.seq for f in frames] == [0, 1, 2, 4, 5, 6, 7, 8, 9]
     assert stats.crc_failures == 1  # the truncated frame's header claims 52 bytes, its CRC fails
@@ -162,8 +164,8 @@ def test_seq_wrap_gap_and_restart(make_stream):
     b = make_stream(2)
     for s in list(range(65530, 65536)) + list(range(0, 5)) + [9, 10]:  # wrap, then 4 missing
         b.attitude(s)
-    for s in range(0, 3):  # firmware restart
-        b.attitude(s, t_us=1000 * s)
+    for s in range(0, 3):  # firmware restart: three frames that fit each other are taken as the new timeline
+        b.attitude(s, t_us=1000 + 6190 * s)
     data = b.bytes()
     tel, frames, stats = assert_bulk_equals_stream(data)
     assert (stats.seq_gaps, stats.frames_missing, stats.seq_resets) == (1, 4, 1)
@@ -195,26 +197,28 @@ def test_firmware_time_unwraps_at_2_32_us(make_stream):
     assert tel.attitude.t_fw_s[-1] > P.T_US_MODULUS / 1e6
 
 
-def test_unknown_type_and_bad_version_are_skipped(stream: StreamBuilder):
+def test_unknown_type_bad_version_and_v1_after_v2_are_skipped(stream: StreamBuilder):
     stream.attitude(0)
-    future = P.encode_frame(7, b"\x01\x02\x03")  # version 1, type 7: CRC-valid, unknown
+    future = P.encode_frame(7, b"\x01\x02\x03")  # version 2, type 7: CRC-valid, unknown
     stream.parts.append(future)
-    v2 = bytearray(P.encode_attitude(t_us=0, acc_mg=[0] * 3, gyro_mdps=[0] * 3, q_wxyz=[1, 0, 0, 0], thz_rad=0,
-                                     seq=1, thr=0))
-    v2[2] = 0x21  # version 2
-    stream.parts.append(bytes(v2))
+    v3 = bytearray(stream.attitude(1))
+    stream.parts.pop()
+    v3[2] = 0x31  # version 3 does not exist
+    stream.parts.append(bytes(v3))
+    v1 = P.encode_frame(P.TYPE_ATTITUDE, bytes(v3[4:56]), version=1)  # a valid v1 frame inside a v2 stream
+    stream.parts.append(v1)
     stream.attitude(2)
     data = stream.bytes()
     tel, frames, stats = assert_bulk_equals_stream(data)
     assert [f.seq for f in frames] == [0, 2]
-    assert stats.unknown_frames == 1 and stats.crc_failures == 0
-    assert stats.bytes_skipped == len(future) + len(v2)
+    assert stats.unknown_frames == 1 and stats.crc_failures == 0 and stats.v1_frames == 0
+    assert stats.bytes_skipped == len(future) + len(v3) + len(v1)
 
 
 def test_sync_bytes_inside_payload_are_harmless():
-    acc = np.frombuffer(b"\xa5\x5a\x11\x34" * 3, np.float32)  # payload holds a fake header
+    acc = np.frombuffer(b"\xa5\x5a\x21\x34" * 3, np.float32)  # payload holds a fake header
     frames = b"".join(
-        P.encode_attitude(t_us=i, acc_mg=acc, gyro_mdps=acc, q_wxyz=[1, 0, 0, 0], thz_rad=0, seq=i, thr=0)
+        P.encode_attitude(t_us=6190 * i, acc_mg=acc, gyro_mdps=acc, q_wxyz=[1, 0, 0, 0], thz_rad=0, seq=i, thr=0)
         for i in range(20)
     )
     tel, got, stats = assert_bulk_equals_stream(frames)
@@ -250,16 +254,16 @@ def test_bulk_equals_stream_on_damaged_mixed_input(make_stream):
 def test_host_times_from_chunks(stream: StreamBuilder):
     stream.flight(10, status_every=0)
     data = stream.bytes()
-    offs = np.array([0, 116, 300], np.int64)  # chunks end after frames 1, mid frame 5, at the end
+    offs = np.array([0, 2 * FS, 300], np.int64)  # chunks end after frames 1, mid frame 5, at the end
     times = np.array([1.0, 2.0, 3.0])
     tel = decode_bytes(data, (offs, times))
-    last = tel.attitude.offset + 57
-    expect = np.where(last < 116, 1.0, np.where(last < 300, 2.0, 3.0))
+    last = tel.attitude.offset + FS - 1
+    expect = np.where(last < 2 * FS, 1.0, np.where(last < 300, 2.0, 3.0))
     np.testing.assert_array_equal(tel.attitude.t_host_s, expect)
     tel_b = decode_bytes(data, (offs, times), baud=115200)
     # the frame completed last in chunk 0 gets the chunk's time; earlier ones are earlier by 10 bit times/byte
     assert tel_b.attitude.t_host_s[1] == 1.0
-    assert tel_b.attitude.t_host_s[0] == pytest.approx(1.0 - 58 * 10 / 115200)
+    assert tel_b.attitude.t_host_s[0] == pytest.approx(1.0 - FS * 10 / 115200)
     assert np.all(np.diff(tel_b.attitude.t_host_s) >= 0)
 
 

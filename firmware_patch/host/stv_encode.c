@@ -1,9 +1,9 @@
-/* stv_encode: frame requests on stdin -> wire-protocol v1 frames on stdout, made by the firmware's C encoder and
+/* stv_encode: frame requests on stdin -> wire-protocol v2 frames on stdout, made by the firmware's C encoder and
  * TX queue (firmware_patch/src). Used to produce the bundled recordings and as a C -> Python conformance check.
  *
  *   <frame requests> | firmware_patch/host/stv_encode > frames.bin
  *
- * Input: records `u8 type, u8 len, payload[len]` (payload = PROTOCOL.md payload of type 1/2/3). Exit 0 on success;
+ * Input: records `u8 type, u8 len, payload[len]` (payload = PROTOCOL.md payload of type 1/2/3/4/5/8). Exit 0 on success;
  * 2 with one line on stderr for malformed input (all frames of the requests before it are already written).
  */
 #include <stdio.h>

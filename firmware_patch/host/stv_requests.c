@@ -3,54 +3,7 @@
 
 #include <string.h>
 
-static uint32_t rd_u32(const uint8_t *p) {
-  return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
-}
-static uint16_t rd_u16(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
-static float rd_f32(const uint8_t *p) {
-  uint32_t u = rd_u32(p);
-  float f;
-  memcpy(&f, &u, 4); /* the exact bits */
-  return f;
-}
-
-static void parse_attitude(const uint8_t *p, stv_attitude_t *a) {
-  int i;
-  a->t_us = rd_u32(p);
-  for (i = 0; i < 3; i++) a->acc_mg[i] = rd_f32(p + 4 + 4 * i);
-  for (i = 0; i < 3; i++) a->gyro_mdps[i] = rd_f32(p + 16 + 4 * i);
-  for (i = 0; i < 4; i++) a->q[i] = rd_f32(p + 28 + 4 * i);
-  a->thz_rad = rd_f32(p + 44);
-  a->seq = rd_u16(p + 48);
-  a->thr = (int16_t)rd_u16(p + 50);
-}
-
-static void parse_status(const uint8_t *p, stv_status_t *s) {
-  int i;
-  s->step = rd_u32(p);
-  s->t_us = rd_u32(p + 4);
-  for (i = 0; i < 4; i++) s->q[i] = rd_f32(p + 8 + 4 * i);
-  for (i = 0; i < 3; i++) s->int_xyz[i] = rd_f32(p + 24 + 4 * i);
-  s->kp_ground = rd_f32(p + 36);
-  s->kp_flight = rd_f32(p + 40);
-  s->ki = rd_f32(p + 44);
-  s->dt_s = rd_f32(p + 48);
-  s->cyc_min = rd_u32(p + 52);
-  s->cyc_mean = rd_u32(p + 56);
-  s->cyc_max = rd_u32(p + 60);
-  s->cpu_hz = rd_u32(p + 64);
-  s->tx_dropped = rd_u32(p + 68);
-  s->baud = rd_u32(p + 72);
-  s->cyc_n = rd_u16(p + 76);
-  s->min_thr = (int16_t)rd_u16(p + 78);
-  s->flags = rd_u16(p + 80);
-  s->queue_peak = rd_u16(p + 82);
-  s->fw_version[0] = p[84];
-  s->fw_version[1] = p[85];
-  s->fw_version[2] = p[86];
-  s->reserved = p[87];
-}
-
+/* The payload structs are the wire layout on a little-endian host (stv_frame.c checks it): copy the bytes. */
 static void drain(stv_txq_t *q, stv_sink_fn sink, void *ctx) {
   uint32_t len;
   const uint8_t *p;
@@ -77,24 +30,44 @@ int stv_run_requests(stv_txq_t *q, const uint8_t *in, size_t n, size_t *done, st
       break;
     }
     payload = in + pos + 2;
-    if (type == STV_TYPE_ATTITUDE) {
-      stv_attitude_t a;
-      if (len != STV_ATTITUDE_PAYLOAD_SIZE) {
-        rc = STV_REQ_BAD_LENGTH;
-        break;
-      }
-      parse_attitude(payload, &a);
-      if (!stv_send_attitude(q, &a)) rc = STV_REQ_DROPPED;
-    } else if (type == STV_TYPE_STATUS) {
-      stv_status_t s;
-      if (len != STV_STATUS_PAYLOAD_SIZE) {
-        rc = STV_REQ_BAD_LENGTH;
-        break;
-      }
-      parse_status(payload, &s);
-      if (!stv_send_status(q, &s)) rc = STV_REQ_DROPPED;
-    } else if (type == STV_TYPE_TEXT) {
+    if (type == STV_TYPE_TEXT) {
       if (stv_send_text(q, payload, len)) rc = STV_REQ_DROPPED;
+    } else if (type == STV_TYPE_ATTITUDE || type == STV_TYPE_STATUS || type == STV_TYPE_FLIGHT ||
+               type == STV_TYPE_ACK || type == STV_TYPE_COMMAND) {
+      union {
+        stv_attitude_t a;
+        stv_status_t s;
+        stv_flight_t f;
+        stv_ack_t k;
+        stv_command_t c;
+      } u;
+      static const uint8_t size_of[9] = {0, STV_ATTITUDE_PAYLOAD_SIZE, STV_STATUS_PAYLOAD_SIZE, 0,
+                                         STV_FLIGHT_PAYLOAD_SIZE, STV_ACK_PAYLOAD_SIZE, 0, 0,
+                                         STV_COMMAND_PAYLOAD_SIZE};
+      int ok;
+      if (len != size_of[type]) {
+        rc = STV_REQ_BAD_LENGTH;
+        break;
+      }
+      memcpy(&u, payload, len);
+      if (type == STV_TYPE_ATTITUDE) {
+        ok = stv_send_attitude(q, &u.a);
+      } else if (type == STV_TYPE_STATUS) {
+        ok = stv_send_status(q, &u.s);
+      } else if (type == STV_TYPE_FLIGHT) {
+        ok = stv_send_flight(q, &u.f);
+      } else if (type == STV_TYPE_ACK) {
+        ok = stv_send_ack(q, &u.k);
+      } else {
+        /* host -> drone commands, encoded by the same code (for the host tests and the emulated host) */
+        union {
+          uint32_t align;
+          uint8_t b[STV_COMMAND_FRAME_SIZE];
+        } f;
+        stv_encode_command(f.b, &u.c);
+        ok = stv_txq_push(q, f.b, STV_COMMAND_FRAME_SIZE);
+      }
+      if (!ok) rc = STV_REQ_DROPPED;
     } else {
       rc = STV_REQ_BAD_TYPE;
       break;

@@ -18,8 +18,8 @@ typedef void (*stv_sink_fn)(void *ctx, const uint8_t *data, uint32_t len);
 enum {
   STV_REQ_OK = 0,
   STV_REQ_TRUNCATED = 1,   /* the input ends inside a request */
-  STV_REQ_BAD_TYPE = 2,    /* type not 1, 2 or 3 */
-  STV_REQ_BAD_LENGTH = 3,  /* attitude not 52 bytes or status not 88 bytes */
+  STV_REQ_BAD_TYPE = 2,    /* type not 1, 2, 3, 4, 5 or 8 */
+  STV_REQ_BAD_LENGTH = 3,  /* a fixed-size type with another payload length */
   STV_REQ_DROPPED = 4      /* the queue refused a frame (cannot happen while it is drained after each request) */
 };
 

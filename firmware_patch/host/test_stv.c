@@ -28,15 +28,15 @@ static int checks, failures;
     }                                                                       \
   } while (0)
 
-static uint16_t crc_bitwise(const uint8_t *d, size_t n) {
-  uint16_t crc = 0xFFFF;
+static uint32_t crc_bitwise(const uint8_t *d, size_t n) {
+  uint32_t crc = 0xFFFFFFFFu;
   size_t i;
   int b;
   for (i = 0; i < n; i++) {
-    crc ^= (uint16_t)(d[i] << 8);
-    for (b = 0; b < 8; b++) crc = (uint16_t)((crc & 0x8000) ? (crc << 1) ^ 0x1021 : crc << 1);
+    crc ^= d[i];
+    for (b = 0; b < 8; b++) crc = (crc & 1u) ? (crc >> 1) ^ 0xEDB88320u : crc >> 1;
   }
-  return crc;
+  return ~crc;
 }
 
 static uint32_t lcg_state = 12345u;
@@ -48,11 +48,12 @@ static uint32_t lcg(void) {
 static void test_crc(void) {
   uint8_t buf[300];
   size_t n, i;
-  CHECK(stv_crc16_update(0xFFFF, (const uint8_t *)"123456789", 9) == 0x29B1);
+  CHECK(stv_crc32_update(0u, (const uint8_t *)"123456789", 9) == 0xCBF43926u);
   for (n = 0; n < sizeof(buf); n++) {
     for (i = 0; i < n; i++) buf[i] = (uint8_t)(lcg() >> 24);
-    CHECK(stv_crc16_update(0xFFFF, buf, n) == crc_bitwise(buf, n));
-    if (n > 3) CHECK(stv_crc16_update(0xFFFF, buf + 1, n - 1) == crc_bitwise(buf + 1, n - 1)); /* unaligned */
+    CHECK(stv_crc32_update(0u, buf, n) == crc_bitwise(buf, n));
+    if (n > 3) CHECK(stv_crc32_update(0u, buf + 1, n - 1) == crc_bitwise(buf + 1, n - 1)); /* unaligned */
+    if (n > 7) CHECK(stv_crc32_update(stv_crc32_update(0u, buf, 5), buf + 5, n - 5) == crc_bitwise(buf, n));
   }
 }
 
@@ -64,15 +65,34 @@ static void test_fixed_vs_generic(void) {
   for (i = 0; i < sizeof(att); i++) ((uint8_t *)&att)[i] = (uint8_t)(lcg() >> 24);
   for (i = 0; i < sizeof(st); i++) ((uint8_t *)&st)[i] = (uint8_t)(lcg() >> 24);
   n = stv_encode_attitude(f1.b, &att);
-  CHECK(n == 58);
-  CHECK(stv_encode_frame(f2.b, STV_TYPE_ATTITUDE, (const uint8_t *)&att, sizeof(att)) == 58);
-  CHECK(memcmp(f1.b, f2.b, 58) == 0);
-  CHECK(f1.b[0] == 0xA5 && f1.b[1] == 0x5A && f1.b[2] == 0x11 && f1.b[3] == 52);
+  CHECK(n == 60);
+  CHECK(stv_encode_frame(f2.b, STV_TYPE_ATTITUDE, (const uint8_t *)&att, sizeof(att)) == 60);
+  CHECK(memcmp(f1.b, f2.b, 60) == 0);
+  CHECK(f1.b[0] == 0xA5 && f1.b[1] == 0x5A && f1.b[2] == 0x21 && f1.b[3] == 52);
+  CHECK(crc_bitwise(f1.b + 2, 54) == ((uint32_t)f1.b[56] | ((uint32_t)f1.b[57] << 8) | ((uint32_t)f1.b[58] << 16) |
+                                     ((uint32_t)f1.b[59] << 24)));
   n = stv_encode_status(f1.b, &st);
-  CHECK(n == 94);
-  CHECK(stv_encode_frame(f2.b, STV_TYPE_STATUS, (const uint8_t *)&st, sizeof(st)) == 94);
-  CHECK(memcmp(f1.b, f2.b, 94) == 0);
-  CHECK(f1.b[2] == 0x12 && f1.b[3] == 88);
+  CHECK(n == 96);
+  CHECK(stv_encode_frame(f2.b, STV_TYPE_STATUS, (const uint8_t *)&st, sizeof(st)) == 96);
+  CHECK(memcmp(f1.b, f2.b, 96) == 0);
+  CHECK(f1.b[2] == 0x22 && f1.b[3] == 88);
+  {
+    stv_flight_t fc;
+    stv_ack_t ack;
+    stv_command_t cmd;
+    for (i = 0; i < sizeof(fc); i++) ((uint8_t *)&fc)[i] = (uint8_t)(lcg() >> 24);
+    for (i = 0; i < sizeof(ack); i++) ((uint8_t *)&ack)[i] = (uint8_t)(lcg() >> 24);
+    for (i = 0; i < sizeof(cmd); i++) ((uint8_t *)&cmd)[i] = (uint8_t)(lcg() >> 24);
+    CHECK(stv_encode_flight(f1.b, &fc) == 80);
+    CHECK(stv_encode_frame(f2.b, STV_TYPE_FLIGHT, (const uint8_t *)&fc, sizeof(fc)) == 80);
+    CHECK(memcmp(f1.b, f2.b, 80) == 0 && f1.b[2] == 0x24 && f1.b[3] == 72);
+    CHECK(stv_encode_ack(f1.b, &ack) == 20);
+    CHECK(stv_encode_frame(f2.b, STV_TYPE_ACK, (const uint8_t *)&ack, sizeof(ack)) == 20);
+    CHECK(memcmp(f1.b, f2.b, 20) == 0 && f1.b[2] == 0x25 && f1.b[3] == 12);
+    CHECK(stv_encode_command(f1.b, &cmd) == 20);
+    CHECK(stv_encode_frame(f2.b, STV_TYPE_COMMAND, (const uint8_t *)&cmd, sizeof(cmd)) == 20);
+    CHECK(memcmp(f1.b, f2.b, 20) == 0 && f1.b[2] == 0x28 && f1.b[3] == 12);
+  }
 }
 
 static void test_queue(void) {
@@ -159,9 +179,9 @@ static void test_log_lines(void) {
   stv_link_log_write(&link, "\n", 1);
   n = stv_txq_pop(&link.txq, out, sizeof(out));
   /* "Hello" (5), "partial" (7), 600 x -> 255 + 255 + 90: 5 frames */
-  CHECK(n == (4 + 5 + 2) + (4 + 7 + 2) + 2 * (4 + 255 + 2) + (4 + 90 + 2));
-  CHECK(memcmp(out + 4, "Hello", 5) == 0 && out[3] == 5 && out[2] == 0x13);
-  CHECK(memcmp(out + 15, "partial", 7) == 0);
+  CHECK(n == (4 + 5 + 4) + (4 + 7 + 4) + 2 * (4 + 255 + 4) + (4 + 90 + 4));
+  CHECK(memcmp(out + 4, "Hello", 5) == 0 && out[3] == 5 && out[2] == 0x23);
+  CHECK(memcmp(out + 17, "partial", 7) == 0);
 }
 
 static int selftest(void) {

@@ -7,7 +7,7 @@
 #ifndef STV_CONFIG_H
 #define STV_CONFIG_H
 
-/* USART1 baud rate (8N1). 115200 carries the full binary stream at 82 % load; 921600 leaves ample room. */
+/* USART1 baud rate (8N1). 115200 carries the attitude + status stream at 85.0 % load; 921600 leaves ample room. */
 #ifndef STV_BAUD
 #define STV_BAUD 115200u
 #endif
@@ -45,9 +45,8 @@
 #endif
 
 /* Version of this patch, sent in the status frame (major, minor, patch). */
-#define STV_FW_VERSION_MAJOR 1u
+#define STV_FW_VERSION_MAJOR 2u
 #define STV_FW_VERSION_MINOR 0u
-#define STV_FW_VERSION_PATCH 0u
 
 #if (STV_TXQ_SIZE & (STV_TXQ_SIZE - 1u)) != 0 || STV_TXQ_SIZE < 512u
 #error "STV_TXQ_SIZE must be a power of two >= 512"

@@ -1,4 +1,4 @@
-/* steval-link wire protocol v1: frame encoder and text-mode formatter (see stv_frame.h, PROTOCOL.md). */
+/* steval-link wire protocol v2: frame encoder and text-mode formatter (see stv_frame.h, PROTOCOL.md). */
 #include "stv_frame.h"
 
 #include <string.h>
@@ -31,7 +31,22 @@ STV_STATIC_ASSERT(offsetof(stv_status_t, min_thr) == 78, sta_minthr);
 STV_STATIC_ASSERT(offsetof(stv_status_t, flags) == 80, sta_flags);
 STV_STATIC_ASSERT(offsetof(stv_status_t, queue_peak) == 82, sta_peak);
 STV_STATIC_ASSERT(offsetof(stv_status_t, fw_version) == 84, sta_fw);
-STV_STATIC_ASSERT(offsetof(stv_status_t, reserved) == 87, sta_res);
+STV_STATIC_ASSERT(offsetof(stv_status_t, fc_every) == 86, sta_fc_every);
+STV_STATIC_ASSERT(offsetof(stv_status_t, param_gen) == 87, sta_param_gen);
+STV_STATIC_ASSERT(sizeof(stv_flight_t) == STV_FLIGHT_PAYLOAD_SIZE, flight_size);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, euler_rc_rad) == 4, fc_rc_rad);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, rc) == 16, fc_rc);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, outer_s1) == 24, fc_s1);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, inner_s2) == 36, fc_s2);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, motor_pwm) == 48, fc_motor);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, vbat_v) == 64, fc_vbat);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, fc_flags) == 68, fc_flags);
+STV_STATIC_ASSERT(offsetof(stv_flight_t, fc_every) == 70, fc_every);
+STV_STATIC_ASSERT(sizeof(stv_ack_t) == STV_ACK_PAYLOAD_SIZE, ack_size);
+STV_STATIC_ASSERT(offsetof(stv_ack_t, step) == 4, ack_step);
+STV_STATIC_ASSERT(offsetof(stv_ack_t, rx_bad) == 10, ack_rx_bad);
+STV_STATIC_ASSERT(sizeof(stv_command_t) == STV_COMMAND_PAYLOAD_SIZE, command_size);
+STV_STATIC_ASSERT(offsetof(stv_command_t, value) == 4, cmd_value);
 
 #define STV_VT(type) ((uint32_t)((STV_VERSION << 4) | (type)))
 /* Sync, VT and LEN as one little-endian word. */
@@ -52,31 +67,29 @@ static inline uint32_t load32(const void *p) {
 
 static inline void store32(void *p, uint32_t v) { memcpy(p, &v, 4); }
 
-/* Advance the CRC register over four bytes given as a little-endian word (the bytes in memory order). */
+/* Advance the (non-inverted) CRC-32 register over four bytes given as a little-endian word. */
 static inline uint32_t crc_word(uint32_t crc, uint32_t word_le) {
-  uint32_t x = (crc << 16) ^ __builtin_bswap32(word_le);
-  return (uint32_t)stv_crc_table[3][x >> 24] ^ stv_crc_table[2][(x >> 16) & 0xFFu] ^
-         stv_crc_table[1][(x >> 8) & 0xFFu] ^ stv_crc_table[0][x & 0xFFu];
+  uint32_t x = crc ^ word_le;
+  return stv_crc32_t3[x & 0xFFu] ^ stv_crc32_t2[(x >> 8) & 0xFFu] ^ stv_crc32_t1[(x >> 16) & 0xFFu] ^
+         stv_crc32_t0[x >> 24];
 }
 
-static inline uint32_t crc_byte(uint32_t crc, uint32_t b) {
-  return ((crc << 8) & 0xFFFFu) ^ stv_crc_table[0][((crc >> 8) ^ b) & 0xFFu];
-}
+static inline uint32_t crc_byte(uint32_t crc, uint32_t b) { return (crc >> 8) ^ stv_crc32_t0[(crc ^ b) & 0xFFu]; }
 
 /* CRC register after VT and LEN (both constant per fixed-size type: folded by the compiler). */
 static inline uint32_t crc_header(uint32_t type, uint32_t len) {
-  return crc_byte(crc_byte(0xFFFFu, STV_VT(type)), len);
+  return crc_byte(crc_byte(0xFFFFFFFFu, STV_VT(type)), len);
 }
 
-uint16_t stv_crc16_update(uint16_t crc16, const uint8_t *data, size_t len) {
-  uint32_t crc = crc16;
+uint32_t stv_crc32_update(uint32_t crc32, const uint8_t *data, size_t len) {
+  uint32_t crc = ~crc32;
   while (len >= 4u) {
     crc = crc_word(crc, load32(data));
     data += 4;
     len -= 4u;
   }
   while (len--) crc = crc_byte(crc, *data++);
-  return (uint16_t)crc;
+  return ~crc;
 }
 
 /* Frame of a fixed-size payload of `nwords` words: header word, payload words with the CRC, CRC. */
@@ -92,8 +105,7 @@ static inline size_t encode_fixed(uint8_t *out, const void *payload, uint32_t ty
     store32(dst + 4u * i, w);
     crc = crc_word(crc, w);
   }
-  dst[4u * nwords] = (uint8_t)crc;
-  dst[4u * nwords + 1u] = (uint8_t)(crc >> 8);
+  store32(dst + 4u * nwords, ~crc);
   return STV_HEADER_SIZE + 4u * nwords + STV_CRC_SIZE;
 }
 
@@ -105,17 +117,31 @@ size_t stv_encode_status(uint8_t *out, const stv_status_t *st) {
   return encode_fixed(out, st, STV_TYPE_STATUS, STV_STATUS_PAYLOAD_SIZE / 4u);
 }
 
+size_t stv_encode_flight(uint8_t *out, const stv_flight_t *fc) {
+  return encode_fixed(out, fc, STV_TYPE_FLIGHT, STV_FLIGHT_PAYLOAD_SIZE / 4u);
+}
+
+size_t stv_encode_ack(uint8_t *out, const stv_ack_t *ack) {
+  return encode_fixed(out, ack, STV_TYPE_ACK, STV_ACK_PAYLOAD_SIZE / 4u);
+}
+
+size_t stv_encode_command(uint8_t *out, const stv_command_t *cmd) {
+  return encode_fixed(out, cmd, STV_TYPE_COMMAND, STV_COMMAND_PAYLOAD_SIZE / 4u);
+}
+
 size_t stv_encode_frame(uint8_t *out, uint8_t type, const uint8_t *payload, size_t len) {
-  uint16_t crc;
+  uint32_t crc;
   if (len > 255u) len = 255u;
   out[0] = STV_SYNC0;
   out[1] = STV_SYNC1;
   out[2] = (uint8_t)STV_VT(type & 0x0Fu);
   out[3] = (uint8_t)len;
   if (len) memmove(out + STV_HEADER_SIZE, payload, len);
-  crc = stv_crc16_update(0xFFFFu, out + 2, len + 2u);
+  crc = stv_crc32_update(0u, out + 2, len + 2u);
   out[STV_HEADER_SIZE + len] = (uint8_t)crc;
   out[STV_HEADER_SIZE + len + 1u] = (uint8_t)(crc >> 8);
+  out[STV_HEADER_SIZE + len + 2u] = (uint8_t)(crc >> 16);
+  out[STV_HEADER_SIZE + len + 3u] = (uint8_t)(crc >> 24);
   return STV_HEADER_SIZE + len + STV_CRC_SIZE;
 }
 

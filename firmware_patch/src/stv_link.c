@@ -9,16 +9,36 @@ typedef union {
   uint8_t b[STV_TEXT_FRAME_MAX + 3u];
 } frame_buf_t;
 
+/* A fixed-size frame: encoded straight into the TX queue when it fits in one piece there (no copy), else through
+ * the staging buffer (a frame across the ring's wrap, or dropped and counted). */
+#define STV_SEND_FIXED(q, encode, payload, size, keep)                      \
+  do {                                                                      \
+    uint8_t *dst_ = stv_txq_reserve((q), (size), (keep));                    \
+    if (dst_) {                                                             \
+      encode(dst_, (payload));                                              \
+      stv_txq_commit((q), (size));                                          \
+      return 1;                                                             \
+    } else {                                                                \
+      frame_buf_t f_;                                                       \
+      encode(f_.b, (payload));                                              \
+      return stv_txq_push_keep((q), f_.b, (size), (keep));                  \
+    }                                                                       \
+  } while (0)
+
 int stv_send_attitude(stv_txq_t *q, const stv_attitude_t *att) {
-  frame_buf_t f;
-  stv_encode_attitude(f.b, att);
-  return stv_txq_push_keep(q, f.b, STV_ATTITUDE_FRAME_SIZE, STV_STATUS_FRAME_SIZE);
+  STV_SEND_FIXED(q, stv_encode_attitude, att, STV_ATTITUDE_FRAME_SIZE, STV_STATUS_FRAME_SIZE);
 }
 
 int stv_send_status(stv_txq_t *q, const stv_status_t *st) {
-  frame_buf_t f;
-  stv_encode_status(f.b, st);
-  return stv_txq_push(q, f.b, STV_STATUS_FRAME_SIZE);
+  STV_SEND_FIXED(q, stv_encode_status, st, STV_STATUS_FRAME_SIZE, 0u);
+}
+
+int stv_send_flight(stv_txq_t *q, const stv_flight_t *fc) {
+  STV_SEND_FIXED(q, stv_encode_flight, fc, STV_FLIGHT_FRAME_SIZE, STV_STATUS_FRAME_SIZE);
+}
+
+int stv_send_ack(stv_txq_t *q, const stv_ack_t *ack) {
+  STV_SEND_FIXED(q, stv_encode_ack, ack, STV_ACK_FRAME_SIZE, 0u);
 }
 
 uint32_t stv_send_text(stv_txq_t *q, const uint8_t *text, size_t len) {
@@ -109,7 +129,8 @@ void stv_link_make_status(stv_link_t *link, stv_status_t *st) {
   }
   st->fw_version[0] = STV_FW_VERSION_MAJOR;
   st->fw_version[1] = STV_FW_VERSION_MINOR;
-  st->fw_version[2] = STV_FW_VERSION_PATCH;
+  st->fc_every = c->fc_every;
+  st->param_gen = link->param_gen;
   reset_cycle_stats(link);
 }
 

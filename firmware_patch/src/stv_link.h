@@ -31,6 +31,7 @@ typedef struct {
   uint8_t text_mode; /* 0 binary frames, 1 text lines */
   uint32_t text_decimation; /* text mode: one $ATT line every this many steps (>= 1) */
   uint32_t status_every;    /* status frame after every this many steps (>= 1) */
+  uint8_t fc_every;         /* flight-control frame every this many steps (0 = none), reported in the status */
   /* The filter state of ahrs.c (q0..q3, exInt, eyInt, ezInt), read for the status snapshot. NULL reads 0. */
   const volatile float *q_state[4];
   const volatile float *int_state[3];
@@ -50,6 +51,7 @@ typedef struct {
   uint32_t since_status;  /* steps since the last status */
   uint32_t cyc_min, cyc_max, cyc_n;
   uint64_t cyc_sum;
+  uint8_t param_gen;      /* parameter changes and filter resets applied since boot, mod 256 (status) */
   uint32_t line_len;      /* log line being assembled */
   char line[STV_TEXT_MAX_PAYLOAD];
 } stv_link_t;
@@ -79,6 +81,8 @@ void stv_link_log_write(stv_link_t *link, const char *s, size_t n);
 /* Encode + enqueue helpers (what the firmware does per frame). Return 1 if queued, 0 if dropped (counted). */
 int stv_send_attitude(stv_txq_t *q, const stv_attitude_t *att);
 int stv_send_status(stv_txq_t *q, const stv_status_t *st);
+int stv_send_flight(stv_txq_t *q, const stv_flight_t *fc); /* keeps room for a status frame, like attitude */
+int stv_send_ack(stv_txq_t *q, const stv_ack_t *ack);      /* may use the status reserve, like status */
 /* One log line as text frames (split into 255-byte pieces; an empty line is sent as one space).
  * Returns the number of frames dropped. */
 uint32_t stv_send_text(stv_txq_t *q, const uint8_t *text, size_t len);

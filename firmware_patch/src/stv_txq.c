@@ -48,6 +48,21 @@ int stv_txq_push_keep(stv_txq_t *q, const uint8_t *src, uint32_t len, uint32_t k
   return 1;
 }
 
+uint8_t *stv_txq_reserve(stv_txq_t *q, uint32_t len, uint32_t keep_free) {
+  uint32_t h = q->head;
+  uint32_t idx = h & MASK;
+  if (len + keep_free > STV_TXQ_SIZE - (h - q->tail) || len > STV_TXQ_SIZE - idx) return 0;
+  return &q->buf[idx];
+}
+
+void stv_txq_commit(stv_txq_t *q, uint32_t len) {
+  uint32_t used;
+  __asm__ volatile("" ::: "memory"); /* bytes in place before the consumer can see them */
+  q->head += len;
+  used = q->head - q->tail;
+  if (used > q->peak) q->peak = used;
+}
+
 uint32_t stv_txq_pop(stv_txq_t *q, uint8_t *dst, uint32_t max) {
   uint32_t n = 0;
   while (n < max) {

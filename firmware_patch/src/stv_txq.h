@@ -42,6 +42,12 @@ static inline int stv_txq_push(stv_txq_t *q, const uint8_t *src, uint32_t len) {
 /* Consumer: up to max bytes into dst; returns how many. */
 uint32_t stv_txq_pop(stv_txq_t *q, uint8_t *dst, uint32_t max);
 
+/* Zero-copy enqueue: where `len` bytes can be written in one piece at the head with `keep_free` bytes left free,
+ * returns the place (the caller writes the frame there, then calls stv_txq_commit); else NULL, and nothing is
+ * counted (the caller falls back to stv_txq_push_keep, which copies around the wrap or drops and counts). */
+uint8_t *stv_txq_reserve(stv_txq_t *q, uint32_t len, uint32_t keep_free);
+void stv_txq_commit(stv_txq_t *q, uint32_t len);
+
 /* Consumer, one byte (for a TXE interrupt): returns 1 and the byte in *b, or 0 when empty. */
 static inline int stv_txq_pop_byte(stv_txq_t *q, uint8_t *b) {
   uint32_t t = q->tail;

@@ -90,6 +90,12 @@ def summarize(tel) -> dict[str, Any]:
         "bytes_skipped": st.bytes_skipped,
         "bytes_total": st.bytes_total,
         "unknown_frames": st.unknown_frames,
+        "implausible": st.implausible,
+        "protocol_version": 1 if st.v1_frames and st.v1_frames == st.attitude + st.status + st.text else (
+            2 if (st.attitude + st.status + st.text) > st.v1_frames else None),
+        "v1_frames": st.v1_frames,
+        "flight_frames": st.flight,
+        "ack_frames": st.ack,
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
         "warnings": list(src.get("warnings") or []),
         "text_lines": [t for _, t in tel.text[:20]],
@@ -149,7 +155,14 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     lines.append(
         f"link: {s['crc_failures']} CRC failures, {s['bytes_skipped']} of {s['bytes_total']} bytes skipped"
         + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
+        + (f", {s['implausible']} implausible frames held back" if s.get("implausible") else "")
     )
+    if s.get("v1_frames"):
+        lines.append(
+            f"protocol v1 ({s['v1_frames']} frames, CRC-16): about 1 in 65 536 damaged frames passes its check, so a"
+            " bad cable can show a frame that was never sent; the plausibility checks catch most, not all."
+            " Firmware patch 2.0 sends protocol v2 (CRC-32)."
+        )
     flt = s.get("filter")
     if flt:
 

@@ -17,6 +17,7 @@ from steval_link.cli import live as _live  # noqa: F401
 from steval_link.cli import ports as _ports  # noqa: F401
 from steval_link.cli import replay as _replay  # noqa: F401
 from steval_link.cli import simulate as _simulate  # noqa: F401
+from steval_link.cli import spectrum as _spectrum  # noqa: F401
 from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.signals import signals_interrupt

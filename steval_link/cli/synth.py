@@ -55,6 +55,10 @@ def synth_cmd(
     c_encoder: Annotated[Optional[Path], typer.Option(
         "--c-encoder", help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies "
                             "--encoder c).")] = None,
+    vibration: Annotated[Optional[list[str]], typer.Option(
+        "--vibration", metavar="SENSOR-AXIS:HZ:AMP",
+        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
+             "repeatable. To check steval spectrum against known peaks.")] = None,
     fmt: Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")] = "auto",
     force: Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")] = False,
     list_: Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")] = False,
@@ -77,6 +81,7 @@ def synth_cmd(
         scenario=scenario, duration_s=duration, seed=seed, baud=baud, throttle=throttle, ki=ki,
         correction=not no_correction, text_mode=text_mode, join_at_s=join_at, drop_rate=drop_rate,
         encoder=encoder.lower(), c_encoder=None if c_encoder is None else str(c_encoder),
+        vibration=tuple(vibration or ()),
     )
     if out.exists() and not force:
         raise UserError(f"{out} exists; pass --force to replace it")

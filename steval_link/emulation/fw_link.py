@@ -52,7 +52,7 @@ STATUS_EVERY_STEPS = 162
 TEXT_DECIMATION = 16
 TXQ_SIZE = 2048
 TEXT_LINE_MAX = 192
-FW_VERSION = (1, 0, 0)
+FW_VERSION = (2, 0)
 #: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period: the sensor set-up in main()
 #: includes ST's ``HAL_Delay(1000)`` in the LPS22HB init, then HAL_TIM_Base_Start_IT's first interrupt comes at
 #: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under

@@ -46,6 +46,9 @@ __all__ = [
     "broad_profile",
     "tick_times_s",
     "parse_throttle",
+    "Vibration",
+    "parse_vibration",
+    "add_vibrations",
 ]
 
 #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
@@ -626,3 +629,62 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
         t_rc = np.floor(np.asarray(t_s) * RC_RATE_HZ) / RC_RATE_HZ
         thr = np.clip(np.rint(throttle(t_rc)), -32768, 32767).astype(np.int16)
     return MotionProfile(trial.name, np.asarray(t_s, dtype=np.float64), q, acc, gyro, thr, measured=True)
+
+
+@dataclass(frozen=True)
+class Vibration:
+    """A pure sinusoid added to one sensor axis (``steval synth --vibration``), to check spectra against a known
+    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up.
+
+    Attributes:
+        sensor: "acc" (mg, at each ISR tick) or "gyro" (mdps, as the gyro's 416 Hz output register holds it).
+        axis: 0, 1, 2 for x, y, z (the firmware's body axes).
+        freq_hz: frequency, Hz (> 0; above the 80.77 Hz AHRS Nyquist it aliases, see
+            :mod:`steval_link.analysis.spectrum`).
+        amplitude: peak amplitude in the sensor's unit (mg or mdps).
+    """
+
+    sensor: str
+    axis: int
+    freq_hz: float
+    amplitude: float
+
+    @property
+    def spec(self) -> str:
+        return f"{self.sensor}-{'xyz'[self.axis]}:{self.freq_hz:g}:{self.amplitude:g}"
+
+
+def parse_vibration(spec: str) -> Vibration:
+    """``--vibration``: ``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg).
+    Raises :class:`UserError` for anything else."""
+    bad = (f"--vibration takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
+           f"mdps), e.g. gyro-x:47:2000; got {spec!r}")
+    parts = spec.strip().lower().split(":")
+    if len(parts) != 3 or parts[0] not in {f"{s}-{a}" for s in ("acc", "gyro") for a in "xyz"}:
+        raise UserError(bad)
+    sensor, axis = parts[0].split("-")
+    try:
+        freq, amp = float(parts[1]), float(parts[2])
+    except ValueError:
+        raise UserError(bad) from None
+    if not (np.isfinite(freq) and freq > 0 and np.isfinite(amp) and amp >= 0):
+        raise UserError(f"--vibration needs a frequency > 0 Hz and an amplitude ≥ 0, got {spec!r}")
+    return Vibration(sensor, "xyz".index(axis), freq, amp)
+
+
+def add_vibrations(profile: MotionProfile, vibrations) -> MotionProfile:
+    """``profile`` with the sinusoids ``vibrations`` (:class:`Vibration`) added: acc at each tick time, gyro at the
+    time its 416 Hz output register was last refreshed (as the motion's own gyro values)."""
+    vibrations = list(vibrations)
+    if not vibrations:
+        return profile
+    t = np.asarray(profile.t_s, dtype=np.float64)
+    t_hold = t[0] + np.floor((t - t[0]) * sm.GYRO_ODR_HZ + 1e-9) / sm.GYRO_ODR_HZ
+    acc = np.array(profile.acc_mg, dtype=np.float64, copy=True)
+    gyro = np.array(profile.gyro_mdps, dtype=np.float64, copy=True)
+    for v in vibrations:
+        if v.sensor == "acc":
+            acc[:, v.axis] += v.amplitude * np.sin(2 * np.pi * v.freq_hz * t)
+        else:
+            gyro[:, v.axis] += v.amplitude * np.sin(2 * np.pi * v.freq_hz * t_hold)
+    return MotionProfile(profile.name, profile.t_s, profile.q_wxyz, acc, gyro, profile.thr, profile.measured)

@@ -86,6 +86,8 @@ class SynthOptions:
         drop_rate: fraction of attitude frames the TX queue refuses (0 ≤ P < 1).
         encoder: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``).
         c_encoder: path of the host-built C encoder (default :func:`default_c_encoder`).
+        vibration: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``, :func:`~steval_link.emulation.motion.
+            parse_vibration`): pure sinusoids added to the motion, e.g. to check ``steval spectrum``.
     """
 
     scenario: str = "bench"
@@ -100,6 +102,7 @@ class SynthOptions:
     drop_rate: float = 0.0
     encoder: str = "python"
     c_encoder: str | None = None
+    vibration: tuple[str, ...] = ()
 
     def command(self) -> str:
         """The ``steval synth`` options that determine the serial bytes (no output path, no encoder choice)."""
@@ -121,6 +124,8 @@ class SynthOptions:
             parts += ["--join-at", f"{self.join_at_s:g}"]
         if self.drop_rate:
             parts += ["--drop-rate", f"{self.drop_rate:g}"]
+        for spec in self.vibration:
+            parts += ["--vibration", M.parse_vibration(spec).spec]
         return " ".join(shlex.quote(p) for p in parts)
 
 
@@ -185,6 +190,8 @@ def _check(opts: SynthOptions) -> None:
         raise UserError(f"--seed must be a non-negative integer, got {opts.seed}")
     if opts.encoder not in ("python", "c"):
         raise UserError(f"--encoder must be 'python' or 'c', got {opts.encoder!r}")
+    for spec in opts.vibration:
+        M.parse_vibration(spec)
     if opts.encoder == "c" and opts.text_mode:
         raise UserError("--text-mode lines are formatted in Python; the C host encoder (stv_encode) takes binary "
                         "frame requests only, so use --encoder python with --text-mode")
@@ -293,7 +300,8 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     first_tick_s = (fwl.TIM9_START_CYCLES + M.TICK_CYCLES) / CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * sm.TICK_HZ)) + 1
     progress(0.0, "motion profile")
-    profile = _profile(opts, r_motion, n_ticks, first_tick_s, total, trial)
+    profile = M.add_vibrations(_profile(opts, r_motion, n_ticks, first_tick_s, total, trial),
+                               [M.parse_vibration(spec) for spec in opts.vibration])
     gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
@@ -367,6 +375,8 @@ def _header(opts: SynthOptions, name: str, duration: float, counts: dict, droppe
     start = EPOCH_UNIX_S + opts.join_at_s
     params = {k: v for k, v in asdict(opts).items() if k not in ("encoder", "c_encoder")}
     params["duration_s"] = duration
+    if not opts.vibration:  # headers of captures made without it stay as they were
+        del params["vibration"]
     return capture.capture_header(f"synth:{name}", opts.baud, start, {
         "emulated": True,
         "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "

@@ -4,10 +4,13 @@ Both implement ``firmware_patch/PROTOCOL.md`` and give exactly the same frames a
 
 Rules (position by position, from the start of the stream):
 
-* ``A5 5A``: a binary frame candidate. Valid (version 1, known type, the type's ``LEN``, CRC) → handed out and the
-  whole frame consumed; otherwise only the ``A5`` is discarded and the search resumes at the next byte. A known
-  header whose CRC fails counts in ``crc_failures``; a version-1 frame of unknown type whose CRC matches counts in
-  ``unknown_frames`` (and is skipped the same way).
+* ``A5 5A``: a binary frame candidate. Valid (version 2 with CRC-32, or version 1 with CRC-16; known type, the
+  type's ``LEN``, CRC) → the whole frame consumed and handed to the plausibility gate
+  (:mod:`steval_link.link.plausibility`), which hands it out or holds it back (``implausible``); otherwise only the
+  ``A5`` is discarded and the search resumes at the next byte. A known header whose CRC fails counts in
+  ``crc_failures``; a frame of unknown type whose CRC matches counts in ``unknown_frames`` (skipped the same way).
+  Once a version-2 frame was accepted, version-1 candidates are no longer taken (a damaged v2 stream cannot
+  yield a v1 frame that passed only the weaker CRC-16).
 * Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
   is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``).
   A plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only at a
@@ -31,26 +34,60 @@ from __future__ import annotations
 import binascii
 import re
 import struct
+import zlib
 
 import numpy as np
 
 from steval_link.link import protocol as P
-from steval_link.link.frames import AttitudeFrame, DecoderStats, Frame, StatusFrame, TextFrame
+from steval_link.link.frames import (
+    AckFrame,
+    AttitudeFrame,
+    CommandFrame,
+    DecoderStats,
+    FlightFrame,
+    Frame,
+    StatusFrame,
+    TextFrame,
+)
+from steval_link.link.plausibility import (
+    KIND_ATTITUDE,
+    KIND_STATUS,
+    PlausibilityGate,
+    attitude_values_ok,
+    gate_rows,
+    status_values_ok,
+)
 from steval_link.link.telemetry import Telemetry, TelemetryParts
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
 
 _ATT_STRUCT = struct.Struct("<I3f3f4ffHh")
-_STA_STRUCT = struct.Struct("<II4f3f4f6IHhHH3BB")
+_STA_STRUCT = struct.Struct("<II4f3f4f6IHhHH2BBB")
+_FC_STRUCT = struct.Struct("<I3f4h3f3f4ffHBB")
+_ACK_STRUCT = struct.Struct("<HBBIHH")
+_CMD_STRUCT = struct.Struct("<HBBfI")
 assert _ATT_STRUCT.size == P.ATTITUDE_PAYLOAD_SIZE and _STA_STRUCT.size == P.STATUS_PAYLOAD_SIZE
+assert _FC_STRUCT.size == P.FLIGHT_PAYLOAD_SIZE and _ACK_STRUCT.size == P.ACK_PAYLOAD_SIZE
+assert _CMD_STRUCT.size == P.COMMAND_PAYLOAD_SIZE
 
-_VT_ATT = (P.VERSION << 4) | P.TYPE_ATTITUDE
-_VT_STA = (P.VERSION << 4) | P.TYPE_STATUS
-_VT_TXT = (P.VERSION << 4) | P.TYPE_TEXT
+_V1, _V2 = P.VERSION_1, P.VERSION
+#: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
+_FIXED_LEN = {(_V2 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
+_FIXED_LEN.update({(_V1 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE_V1.items()})
+_VT_TEXT = {(_V1 << 4) | P.TYPE_TEXT, (_V2 << 4) | P.TYPE_TEXT}
+_CRC_SIZE = {_V1: P.CRC_SIZE_V1, _V2: P.CRC_SIZE}
 _NEXT_START = re.compile(rb"[\xa5$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _crc_hqx = binascii.crc_hqx
+_crc32 = zlib.crc32
+
+
+def _crc_ok(buf, start: int, end: int, version: int) -> bool:
+    """Frame check of the frame whose ``VT`` is at ``start`` and whose CRC starts at ``end``."""
+    if version == _V2:
+        return _crc32(memoryview(buf)[start:end]) == int.from_bytes(buf[end : end + 4], "little")
+    return _crc_hqx(memoryview(buf)[start:end], 0xFFFF) == (buf[end] | (buf[end + 1] << 8))
 
 
 def _hides_sentence(raw: bytes) -> bool:
@@ -82,12 +119,19 @@ class StreamDecoder:
     the stream (bytes fed since construction).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, plausibility: bool = True) -> None:
         self.stats = DecoderStats()
         self._buf = bytearray()
         self._base = 0  # stream offset of _buf[0]
         self._boundary = False  # True when _buf[0] starts a line (after a handed-out frame/line or a "\n")
         self._last_seq: int | None = None
+        self._v2_seen = False  # a version-2 frame was accepted: version-1 candidates are refused from now on
+        self.gate = PlausibilityGate() if plausibility else None
+
+    @property
+    def protocol_version(self) -> int | None:
+        """2 once a version-2 frame was accepted, 1 if only version-1 frames were, None before any binary frame."""
+        return _V2 if self._v2_seen else (_V1 if self.stats.v1_frames else None)
 
     @property
     def pending_bytes(self) -> int:
@@ -101,8 +145,13 @@ class StreamDecoder:
         return self._run(final=False)
 
     def finish(self) -> list[Frame]:
-        """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames."""
-        return self._run(final=True)
+        """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames.
+        Frames the plausibility gate still holds are dropped (counted in ``implausible``)."""
+        out = self._run(final=True)
+        if self.gate is not None:
+            self.gate.finish()
+            self.stats.implausible = self.gate.held_back
+        return out
 
     # -- internals ---------------------------------------------------------------------------------------------
     def _restart_at(self, offset: int, boundary: bool) -> None:
@@ -140,24 +189,23 @@ class StreamDecoder:
                     continue
                 vt = buf[p + 2]
                 ln = buf[p + 3]
-                if buf[p + 1] != 0x5A or (vt >> 4) != P.VERSION:
+                ver = vt >> 4
+                if buf[p + 1] != 0x5A or ver not in _CRC_SIZE or (ver == _V1 and self._v2_seen):
                     p = self._skip(buf, p, n)
                     continue
-                known = (
-                    (vt == _VT_ATT and ln == P.ATTITUDE_PAYLOAD_SIZE)
-                    or (vt == _VT_STA and ln == P.STATUS_PAYLOAD_SIZE)
-                    or (vt == _VT_TXT and ln >= 1)
-                )
-                if not known and vt in (_VT_ATT, _VT_STA, _VT_TXT):
+                want = _FIXED_LEN.get(vt)
+                known = (ln == want) if want is not None else (vt in _VT_TEXT and ln >= 1)
+                if not known and (want is not None or vt in _VT_TEXT):
                     p = self._skip(buf, p, n)  # known type, wrong length
                     continue
                 end = p + 4 + ln
-                if end + 2 > n:
+                csz = _CRC_SIZE[ver]
+                if end + csz > n:
                     if not final:
                         break
                     p = self._skip(buf, p, n)
                     continue
-                crc_ok = _crc_hqx(memoryview(buf)[p + 2 : end], 0xFFFF) == (buf[end] | (buf[end + 1] << 8))
+                crc_ok = _crc_ok(buf, p + 2, end, ver)
                 if not known:
                     if crc_ok:
                         stats.unknown_frames += 1
@@ -167,8 +215,10 @@ class StreamDecoder:
                     stats.crc_failures += 1
                     p = self._skip(buf, p, n)
                     continue
-                out.append(self._binary_frame(buf, p, vt, ln))
-                p = end + 2
+                if ver == _V2:
+                    self._v2_seen = True
+                self._emit(out, _frame_at(buf, p, vt, ln, csz, self._base + p), ver)
+                p = end + csz
                 self._boundary = True
                 continue
             # ---- text line candidate
@@ -227,6 +277,27 @@ class StreamDecoder:
             buf.clear()
         return out
 
+    def _emit(self, out: list[Frame], frame: Frame, version: int) -> None:
+        """A CRC-valid binary frame: through the plausibility gate, then counted and handed out."""
+        if version == _V1:
+            self.stats.v1_frames += 1
+        gate = self.gate
+        if gate is None:
+            released = [frame]
+        elif isinstance(frame, AttitudeFrame):
+            ok = attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
+            released = gate.offer(KIND_ATTITUDE, frame.seq, frame.t_us, ok, frame)
+        elif isinstance(frame, StatusFrame):
+            ok = status_values_ok(frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s)
+            released = gate.offer(KIND_STATUS, frame.step, frame.t_us, ok, frame)
+        else:
+            released = [frame]
+        for f in released:
+            self._count(f)
+            out.append(f)
+        if gate is not None:
+            self.stats.implausible = gate.held_back
+
     def _count(self, frame: Frame) -> None:
         stats = self.stats
         stats.frames_ok += 1
@@ -245,50 +316,86 @@ class StreamDecoder:
                 self._last_seq = seq
         elif isinstance(frame, StatusFrame):
             stats.status += 1
-        else:
+        elif isinstance(frame, TextFrame):
             stats.text += 1
-
-    def _binary_frame(self, buf: bytearray, p: int, vt: int, ln: int) -> Frame:
-        offset = self._base + p
-        if vt == _VT_ATT:
-            v = _ATT_STRUCT.unpack_from(buf, p + 4)
-            frame: Frame = AttitudeFrame(
-                v[0], v[1:4], v[4:7], v[7:11], v[11], v[12], v[13], True, offset, ln + 6
-            )
-        elif vt == _VT_STA:
-            v = _STA_STRUCT.unpack_from(buf, p + 4)
-            frame = StatusFrame(
-                v[0], v[1], v[2:6], v[6:9], v[9], v[10], v[11], v[12], v[13], v[14], v[15], v[16], v[17], v[18],
-                v[19], v[20], v[21], v[22], v[23:26], v[26], True, offset, ln + 6,
-            )
+        elif isinstance(frame, FlightFrame):
+            stats.flight += 1
+        elif isinstance(frame, AckFrame):
+            stats.ack += 1
         else:
-            frame = TextFrame(bytes(buf[p + 4 : p + 4 + ln]).decode("utf-8", "replace"), offset, ln + 6)
-        self._count(frame)
-        return frame
+            stats.command += 1
+
+
+def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Frame:
+    """The binary frame whose sync is at ``buf[p]`` (already validated); ``offset`` its stream offset."""
+    size = 4 + ln + crc_size
+    t = vt & 0x0F
+    if t == P.TYPE_ATTITUDE:
+        v = _ATT_STRUCT.unpack_from(buf, p + 4)
+        return AttitudeFrame(v[0], v[1:4], v[4:7], v[7:11], v[11], v[12], v[13], True, offset, size)
+    if t == P.TYPE_STATUS:
+        v = _STA_STRUCT.unpack_from(buf, p + 4)
+        return StatusFrame(
+            v[0], v[1], v[2:6], v[6:9], v[9], v[10], v[11], v[12], v[13], v[14], v[15], v[16], v[17], v[18],
+            v[19], v[20], v[21], v[22], v[23:25], v[25], v[26], True, offset, size,
+        )
+    if t == P.TYPE_FLIGHT:
+        v = _FC_STRUCT.unpack_from(buf, p + 4)
+        return FlightFrame(v[0], v[1:4], v[4:8], v[8:11], v[11:14], v[14:18], v[18], v[19], v[20], offset, size)
+    if t == P.TYPE_ACK:
+        v = _ACK_STRUCT.unpack_from(buf, p + 4)
+        return AckFrame(*v, offset, size)
+    if t == P.TYPE_COMMAND:
+        v = _CMD_STRUCT.unpack_from(buf, p + 4)
+        return CommandFrame(v[0], v[1], v[2], v[3], offset, size)
+    return TextFrame(bytes(buf[p + 4 : p + 4 + ln]).decode("utf-8", "replace"), offset, size)
+
+
+_LEN_LUT = np.full(256, -1, np.int64)  # VT -> payload length of a fixed-size type; -2 text; -1 unknown
+for _vt, _n in _FIXED_LEN.items():
+    _LEN_LUT[_vt] = _n
+for _vt in _VT_TEXT:
+    _LEN_LUT[_vt] = -2
 
 
 def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included)."""
+    """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included), with
+    the version lock applied: no version-1 frame after the first valid version-2 frame."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == 0xA5) & (arr[1:] == 0x5A)) if n >= 2 else np.zeros(0, np.int64)
-    idx = idx[idx + 6 <= n]
+    idx = idx[idx + 4 <= n]
     vt = arr[idx + 2]
     ln = arr[idx + 3].astype(np.int64)
-    ok = ((vt == _VT_ATT) & (ln == P.ATTITUDE_PAYLOAD_SIZE)) | ((vt == _VT_STA) & (ln == P.STATUS_PAYLOAD_SIZE))
-    ok |= (vt == _VT_TXT) & (ln >= 1)
-    size = ln + 6
+    want = _LEN_LUT[vt]
+    ok = (want == ln) | ((want == -2) & (ln >= 1))
+    ver = vt >> 4
+    csz = np.where(ver == _V2, P.CRC_SIZE, P.CRC_SIZE_V1)
+    size = ln + 4 + csz
     ok &= idx + size <= n
-    idx, size, vt = idx[ok], size[ok], vt[ok]
+    idx, size, vt, ver = idx[ok], size[ok], vt[ok], ver[ok]
     end = idx + size
-    crc_stored = arr[end - 2].astype(np.int64) | (arr[end - 1].astype(np.int64) << 8)
     mv = memoryview(data)
-    crc = np.fromiter(
-        (_crc_hqx(mv[s:e], 0xFFFF) for s, e in zip((idx + 2).tolist(), (end - 2).tolist())),
-        dtype=np.int64,
+    good = np.fromiter(
+        (
+            (_crc32(mv[s + 2 : e - 4]) == int.from_bytes(mv[e - 4 : e], "little"))
+            if v == _V2
+            else (_crc_hqx(mv[s + 2 : e - 2], 0xFFFF) == (data[e - 2] | (data[e - 1] << 8)))
+            for s, e, v in zip(idx.tolist(), end.tolist(), ver.tolist())
+        ),
+        dtype=bool,
         count=len(idx),
     )
-    good = crc == crc_stored
-    return idx[good].astype(np.int64), size[good], vt[good]
+    idx, size, vt, ver = idx[good], size[good], vt[good], ver[good]
+    v2 = np.flatnonzero(ver == _V2)
+    if len(v2):
+        keep = (ver == _V2) | (idx < idx[v2[0]])
+        idx, size, vt = idx[keep], size[keep], vt[keep]
+    return idx.astype(np.int64), size, vt
+
+
+def _first_v2_start(starts: np.ndarray, vts: np.ndarray) -> float:
+    v2 = np.flatnonzero((vts >> 4) == _V2)
+    return float(starts[v2[0]]) if len(v2) else float("inf")
 
 
 def decode_bytes(
@@ -298,6 +405,7 @@ def decode_bytes(
     baud: int | None = None,
     source: dict | None = None,
     events: list | None = None,
+    plausibility: bool = True,
 ):
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
@@ -305,6 +413,9 @@ def decode_bytes(
     host time (s since capture start) when it was received; each frame gets the time of the chunk its last byte
     arrived in, moved back by the bytes after it in that chunk at ``baud`` (10 bit times per byte) when ``baud``
     is given. Without ``chunk_times`` host times are NaN.
+
+    ``plausibility`` False turns the plausibility gate off (as ``StreamDecoder(plausibility=False)``; for tests of
+    the framing alone).
 
     Same frames and counters as :class:`StreamDecoder` on the same bytes (then :meth:`StreamDecoder.finish`): runs
     of back-to-back valid binary frames are decoded with numpy, everything else (damage, text mode) by a
@@ -321,13 +432,13 @@ def decode_bytes(
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if K > 1 else np.zeros(0, np.int64)
     parts = TelemetryParts()
     fast_idx: list[np.ndarray] = []
-    sd = StreamDecoder()
+    sd = StreamDecoder(plausibility=False)
+    first_v2 = _first_v2_start(starts, vts)
     slow_frames: list[Frame] = []
     p = 0
     last_fast = False
-    starts_list = starts  # numpy, searchsorted below
     while p < n:
-        k = int(np.searchsorted(starts_list, p))
+        k = int(np.searchsorted(starts, p))
         if not sd._buf and k < K and starts[k] == p:
             b = int(np.searchsorted(breaks, k))
             j = int(breaks[b]) if b < len(breaks) else K - 1
@@ -337,6 +448,7 @@ def decode_bytes(
             continue
         if not sd._buf:
             sd._restart_at(p, boundary=last_fast or sd._boundary if p else False)
+        sd._v2_seen = sd._v2_seen or first_v2 < p
         last_fast = False
         end = int(nxt[k]) if k < K else n
         slow_frames.extend(sd.feed(data[p:end]))
@@ -344,31 +456,42 @@ def decode_bytes(
     slow_frames.extend(sd.finish())
 
     idx = np.concatenate(fast_idx) if fast_idx else np.zeros(0, np.int64)
-    f_starts, f_vts = starts[idx], vts[idx]
-    att_starts = f_starts[f_vts == _VT_ATT]
-    sta_starts = f_starts[f_vts == _VT_STA]
-    txt_sel = idx[f_vts == _VT_TXT]
-    parts.add_attitude_payloads(arr, att_starts + P.HEADER_SIZE, att_starts)
-    parts.add_status_payloads(arr, sta_starts + P.HEADER_SIZE, sta_starts)
-    for s, size in zip(starts[txt_sel].tolist(), sizes[txt_sel].tolist()):
-        parts.add_frame(TextFrame(data[s + 4 : s + size - 2].decode("utf-8", "replace"), s, size))
+    f_starts, f_vts, f_sizes = starts[idx], vts[idx], sizes[idx]
+    f_types = f_vts & 0x0F
+    is_att, is_sta = f_types == P.TYPE_ATTITUDE, f_types == P.TYPE_STATUS
+    parts.add_attitude_payloads(arr, f_starts[is_att] + P.HEADER_SIZE, f_starts[is_att], f_sizes[is_att])
+    parts.add_status_payloads(arr, f_starts[is_sta] + P.HEADER_SIZE, f_starts[is_sta], f_sizes[is_sta])
+    other = ~(is_att | is_sta)
+    for s, vt, size in zip(f_starts[other].tolist(), f_vts[other].tolist(), f_sizes[other].tolist()):
+        ln = data[s + 3]
+        parts.add_frame(_frame_at(data, s, vt, ln, size - 4 - ln, s))
     for f in slow_frames:
         parts.add_frame(f)
 
+    gate = PlausibilityGate()
+    if plausibility:
+        parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
+        gate.finish()
+
     st = sd.stats
     stats = DecoderStats(
-        attitude=st.attitude + len(att_starts),
-        status=st.status + len(sta_starts),
-        text=st.text + len(txt_sel),
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,
         unknown_frames=st.unknown_frames,
         bytes_total=n,
+        v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
+        implausible=gate.held_back,
     )
-    stats.frames_ok = stats.attitude + stats.status + stats.text
     tel = Telemetry.from_parts(
         parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n
     )
+    stats.attitude = len(tel.attitude)
+    stats.status = len(tel.status)
+    stats.text = len(tel.text)
+    stats.flight = len(tel.flight)
+    stats.ack = len(tel.acks)
+    stats.command = len(tel.commands)
+    stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
     exact = tel.attitude.exact
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(tel.attitude.seq[exact])
     return tel

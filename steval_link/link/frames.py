@@ -1,4 +1,5 @@
-"""One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`.
+"""One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, and the v2 frames
+:class:`FlightFrame`, :class:`AckFrame` (drone → host) and :class:`CommandFrame` (host → drone).
 
 Field names follow the payload dtypes of :mod:`steval_link.link.protocol` (units in the names). Binary frames carry the
 firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows (``exact=False``) carry
@@ -69,8 +70,9 @@ class StatusFrame:
     min_thr: int = 0
     flags: int = 0
     queue_peak: int = 0
-    fw_version: tuple[int, int, int] = (0, 0, 0)
-    reserved: int = 0
+    fw_version: tuple[int, int] = (0, 0)
+    fc_every: int = 0
+    param_gen: int = 0
     exact: bool = True
     offset: int = 0
     nbytes: int = 0
@@ -85,14 +87,57 @@ class TextFrame:
     nbytes: int = 0
 
 
-Frame = AttitudeFrame | StatusFrame | TextFrame
+@dataclass(slots=True)
+class FlightFrame:
+    """Flight control of one AHRS step (v2 type 4; fields as FLIGHT_DTYPE). ``rc`` is (gAIL, gELE, gRUD, gTHR)."""
+
+    step: int
+    euler_rc_rad: tuple[float, float, float]
+    rc: tuple[int, int, int, int]
+    outer_s1: tuple[float, float, float]
+    inner_s2: tuple[float, float, float]
+    motor_pwm: tuple[float, float, float, float]
+    vbat_v: float
+    fc_flags: int
+    fc_every: int
+    offset: int = 0
+    nbytes: int = 0
+
+
+@dataclass(slots=True)
+class AckFrame:
+    """The drone's answer to one command (v2 type 5; fields as ACK_DTYPE)."""
+
+    cmd_seq: int
+    cmd: int
+    result: int
+    step: int
+    rx_ok: int
+    rx_bad: int
+    offset: int = 0
+    nbytes: int = 0
+
+
+@dataclass(slots=True)
+class CommandFrame:
+    """One host → drone command (v2 type 8; fields as COMMAND_DTYPE)."""
+
+    cmd_seq: int
+    cmd: int
+    param: int
+    value: float
+    offset: int = 0
+    nbytes: int = 0
+
+
+Frame = AttitudeFrame | StatusFrame | TextFrame | FlightFrame | AckFrame | CommandFrame
 
 
 @dataclass(slots=True)
 class DecoderStats:
     """Counters of one decoded stream (see the module docstring for the exact rules)."""
 
-    frames_ok: int = 0  #: valid frames handed out (attitude + status + text, binary and text mode)
+    frames_ok: int = 0  #: valid frames handed out (all types, binary and text mode)
     attitude: int = 0
     status: int = 0
     text: int = 0
@@ -101,8 +146,13 @@ class DecoderStats:
     seq_gaps: int = 0  #: gap events in the attitude ``seq`` (frames dropped on the way)
     frames_missing: int = 0  #: attitude frames lost in those gaps (sum of the missing ``seq`` values)
     seq_resets: int = 0  #: ``seq`` went backwards (firmware restart)
-    unknown_frames: int = 0  #: CRC-valid version-1 frames of a type this decoder does not know
+    unknown_frames: int = 0  #: CRC-valid frames of a type this decoder does not know
     bytes_total: int = 0  #: bytes fed
+    flight: int = 0  #: v2 flight-control frames
+    ack: int = 0  #: v2 acknowledgements
+    command: int = 0  #: v2 host -> drone commands (decoded from the host's own bytes)
+    v1_frames: int = 0  #: frames of protocol version 1 (CRC-16: about 1 in 65 536 damaged candidates passes)
+    implausible: int = 0  #: CRC-valid frames held back by the plausibility checks (never handed out)
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dict (JSON-friendly)."""

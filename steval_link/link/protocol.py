@@ -1,16 +1,18 @@
-"""Wire protocol v1 of the STEVAL-FCU001V1 telemetry: frame layout, payload dtypes and the encoder.
+"""Wire protocol v2 of the STEVAL-FCU001V1 telemetry (and v1, still decoded): layout, payload dtypes, encoders.
 
 The layout is defined in ``firmware_patch/PROTOCOL.md``; this module is its Python side. Every multi-byte field is
 little-endian and ``f32`` values carry the firmware's exact bits.
 
-Frame: ``A5 5A | VT | LEN | payload[LEN] | CRC16 (LE)`` where ``VT`` = version << 4 | type and the CRC is
-CRC-16/CCITT-FALSE (``binascii.crc_hqx(..., 0xFFFF)``) over ``VT``, ``LEN`` and the payload.
+Frame: ``A5 5A | VT | LEN | payload[LEN] | CRC`` where ``VT`` = version << 4 | type. Version 2 (what the firmware
+sends): CRC-32/ISO-HDLC (``zlib.crc32``), 4 bytes little-endian, over ``VT``, ``LEN`` and the payload. Version 1
+(older captures): CRC-16/CCITT-FALSE (``binascii.crc_hqx(..., 0xFFFF)``), 2 bytes.
 """
 
 from __future__ import annotations
 
 import binascii
 import struct
+import zlib
 from typing import Sequence
 
 import numpy as np
@@ -18,29 +20,78 @@ import numpy as np
 from steval_link import constants as C
 
 SYNC = b"\xa5\x5a"
-VERSION = 1
+VERSION = 2  #: the version this tool's firmware patch sends
+VERSION_1 = 1  #: the first protocol version (CRC-16), still decoded
 HEADER_SIZE = 4  # sync (2) + VT + LEN
-CRC_SIZE = 2
-CRC_INIT = 0xFFFF
+CRC_SIZE = 4  #: v2: CRC-32
+CRC_SIZE_V1 = 2  #: v1: CRC-16
+CRC_INIT = 0xFFFF  #: v1 CRC-16 initial value
+
+#: CRC size of each protocol version.
+CRC_SIZE_OF = {VERSION_1: CRC_SIZE_V1, VERSION: CRC_SIZE}
 
 TYPE_ATTITUDE = 1
 TYPE_STATUS = 2
 TYPE_TEXT = 3
+TYPE_FLIGHT = 4  #: v2: flight control
+TYPE_ACK = 5  #: v2: acknowledgement of a command
+TYPE_COMMAND = 8  #: v2: host -> drone
 
 ATTITUDE_PAYLOAD_SIZE = 52
 STATUS_PAYLOAD_SIZE = 88
 TEXT_MAX_PAYLOAD = 255
+FLIGHT_PAYLOAD_SIZE = 72
+ACK_PAYLOAD_SIZE = 12
+COMMAND_PAYLOAD_SIZE = 12
 
-ATTITUDE_FRAME_SIZE = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE  # 58
-STATUS_FRAME_SIZE = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE  # 94
+ATTITUDE_FRAME_SIZE = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE  # 60
+STATUS_FRAME_SIZE = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE  # 96
+FLIGHT_FRAME_SIZE = HEADER_SIZE + FLIGHT_PAYLOAD_SIZE + CRC_SIZE  # 80
+ACK_FRAME_SIZE = HEADER_SIZE + ACK_PAYLOAD_SIZE + CRC_SIZE  # 20
+COMMAND_FRAME_SIZE = HEADER_SIZE + COMMAND_PAYLOAD_SIZE + CRC_SIZE  # 20
+ATTITUDE_FRAME_SIZE_V1 = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE_V1  # 58
+STATUS_FRAME_SIZE_V1 = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE_V1  # 94
 
-#: Payload length of each fixed-size frame type.
-FIXED_PAYLOAD_SIZE = {TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE, TYPE_STATUS: STATUS_PAYLOAD_SIZE}
+#: Payload length of each fixed-size frame type, by protocol version (v1 knew attitude and status only).
+FIXED_PAYLOAD_SIZE = {
+    TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE,
+    TYPE_STATUS: STATUS_PAYLOAD_SIZE,
+    TYPE_FLIGHT: FLIGHT_PAYLOAD_SIZE,
+    TYPE_ACK: ACK_PAYLOAD_SIZE,
+    TYPE_COMMAND: COMMAND_PAYLOAD_SIZE,
+}
+FIXED_PAYLOAD_SIZE_V1 = {TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE, TYPE_STATUS: STATUS_PAYLOAD_SIZE}
 
 #: Status ``flags`` bits.
 FLAG_NO_CORRECTION = 1 << 0
 FLAG_FRESH_SQUARES = 1 << 1
 FLAG_TEXT_MODE = 1 << 2
+FLAG_EVENT = 1 << 3  #: v2: sent at once because of a command (change, reset or request)
+FLAG_INFLIGHT_TUNING = 1 << 4  #: v2: the build accepts filter changes while the motors may spin
+FLAG_ARMED = 1 << 5  #: v2: the motors may spin now (throttle >= MIN_THR or armed)
+
+#: Flight-control ``fc_flags`` bits.
+FC_ARMED = 1 << 0
+FC_RC_CONNECTED = 1 << 1
+FC_RC_CAL = 1 << 2
+
+#: Commands, SET_PARAM parameters, SET_MODE modes and ack results.
+CMD_SET_PARAM = 1
+CMD_RESET_FILTER = 2
+CMD_REQUEST_STATUS = 3
+CMD_SET_MODE = 4
+PARAM_KP_GROUND = 1
+PARAM_KP_FLIGHT = 2
+PARAM_KI = 3
+PARAM_MIN_THR = 4
+PARAM_CORRECTION = 5
+MODE_BINARY = 0
+MODE_TEXT = 1
+ACK_ACCEPTED = 0
+ACK_REFUSED_ARMED = 1
+ACK_UNKNOWN = 2
+ACK_OUT_OF_RANGE = 3
+ACK_NOT_IN_BUILD = 4
 
 #: ``t_us`` wraps at 2**32 µs, ``seq`` at 2**16 steps.
 T_US_MODULUS = 1 << 32
@@ -81,24 +132,61 @@ STATUS_DTYPE = np.dtype(
         ("min_thr", "<i2"),
         ("flags", "<u2"),
         ("queue_peak", "<u2"),
-        ("fw_version", "u1", (3,)),
-        ("reserved", "u1"),
+        ("fw_version", "u1", (2,)),  # v1: major, minor (its patch byte 0 reads as fc_every 0)
+        ("fc_every", "u1"),  # v2: a flight-control frame every N steps (0 = none)
+        ("param_gen", "u1"),  # v2: parameter changes and filter resets applied since boot, mod 256
     ]
 )
 assert STATUS_DTYPE.itemsize == STATUS_PAYLOAD_SIZE
 
+#: Flight-control payload (type 4), sent after ``FlightControlPID_OuterLoop`` of step ``step``.
+FLIGHT_DTYPE = np.dtype(
+    [
+        ("step", "<u4"),
+        ("euler_rc_rad", "<f4", (3,)),  # targets thx (pitch), thy (roll), thz (yaw)
+        ("rc", "<i2", (4,)),  # gAIL, gELE, gRUD, gTHR
+        ("outer_s1", "<f4", (3,)),  # pid.x_s1, y_s1, z_s1 (rate setpoints, rad/s)
+        ("inner_s2", "<f4", (3,)),  # pid.x_s2, y_s2, z_s2 (latest, from the TIM9 ISR)
+        ("motor_pwm", "<f4", (4,)),  # motor1..4_pwm as computed
+        ("vbat_v", "<f4"),
+        ("fc_flags", "<u2"),
+        ("fc_every", "u1"),
+        ("reserved", "u1"),
+    ]
+)
+assert FLIGHT_DTYPE.itemsize == FLIGHT_PAYLOAD_SIZE
+
+#: Ack payload (type 5).
+ACK_DTYPE = np.dtype(
+    [("cmd_seq", "<u2"), ("cmd", "u1"), ("result", "u1"), ("step", "<u4"), ("rx_ok", "<u2"), ("rx_bad", "<u2")]
+)
+assert ACK_DTYPE.itemsize == ACK_PAYLOAD_SIZE
+
+#: Command payload (type 8, host -> drone).
+COMMAND_DTYPE = np.dtype(
+    [("cmd_seq", "<u2"), ("cmd", "u1"), ("param", "u1"), ("value", "<f4"), ("reserved", "<u4")]
+)
+assert COMMAND_DTYPE.itemsize == COMMAND_PAYLOAD_SIZE
+
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
-    """CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, no final XOR)."""
+    """v1 frame check: CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, no final XOR)."""
     return binascii.crc_hqx(data, CRC_INIT)
 
 
-def encode_frame(frame_type: int, payload: bytes) -> bytes:
-    """One complete frame of ``frame_type`` around ``payload`` (0..255 bytes)."""
+def crc32(data: bytes | bytearray | memoryview) -> int:
+    """v2 frame check: CRC-32/ISO-HDLC of ``data`` (``zlib.crc32``; check value of ``b"123456789"`` 0xCBF43926)."""
+    return zlib.crc32(data)
+
+
+def encode_frame(frame_type: int, payload: bytes, version: int = VERSION) -> bytes:
+    """One complete frame of ``frame_type`` around ``payload`` (0..255 bytes); ``version`` 1 for v1 test data."""
     if not 0 <= len(payload) <= 255:
         raise ValueError(f"payload of {len(payload)} bytes does not fit one frame (0..255)")
-    body = bytes(((VERSION << 4) | (frame_type & 0x0F), len(payload))) + payload
-    return SYNC + body + struct.pack("<H", crc16(body))
+    body = bytes(((version << 4) | (frame_type & 0x0F), len(payload))) + payload
+    if version == VERSION_1:
+        return SYNC + body + struct.pack("<H", crc16(body))
+    return SYNC + body + struct.pack("<I", crc32(body))
 
 
 def encode_attitude(
@@ -111,7 +199,7 @@ def encode_attitude(
     seq: int,
     thr: int,
 ) -> bytes:
-    """An attitude frame; floats are stored as float32 (pass float32 values to keep their exact bits)."""
+    """An attitude frame (v2); floats are stored as float32 (pass float32 values to keep their exact bits)."""
     rec = np.zeros((), dtype=ATTITUDE_DTYPE)
     rec["t_us"] = t_us % T_US_MODULUS
     rec["acc_mg"] = np.asarray(acc_mg, dtype=np.float32)
@@ -123,21 +211,21 @@ def encode_attitude(
     return encode_frame(TYPE_ATTITUDE, rec.tobytes())
 
 
-def encode_attitude_block(records: np.ndarray) -> bytes:
+def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
     """Many attitude frames at once from a structured array of ``ATTITUDE_DTYPE`` (fast path for synthesis)."""
     records = np.ascontiguousarray(records, dtype=ATTITUDE_DTYPE)
     n = len(records)
-    out = np.empty((n, ATTITUDE_FRAME_SIZE), dtype=np.uint8)
+    crc_size = CRC_SIZE_OF[version]
+    end = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE
+    out = np.empty((n, end + crc_size), dtype=np.uint8)
     out[:, 0] = SYNC[0]
     out[:, 1] = SYNC[1]
-    out[:, 2] = (VERSION << 4) | TYPE_ATTITUDE
+    out[:, 2] = (version << 4) | TYPE_ATTITUDE
     out[:, 3] = ATTITUDE_PAYLOAD_SIZE
-    out[:, HEADER_SIZE : HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE] = records.view(np.uint8).reshape(n, -1)
-    end = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE
-    for i in range(n):
-        crc = binascii.crc_hqx(out[i, 2:end].tobytes(), CRC_INIT)
-        out[i, end] = crc & 0xFF
-        out[i, end + 1] = crc >> 8
+    out[:, HEADER_SIZE:end] = records.view(np.uint8).reshape(n, -1)
+    check = crc16 if version == VERSION_1 else crc32
+    crcs = np.fromiter((check(out[i, 2:end].tobytes()) for i in range(n)), dtype=np.uint32, count=n)
+    out[:, end:] = crcs.astype("<u4").view(np.uint8).reshape(n, 4)[:, :crc_size]
     return out.tobytes()
 
 
@@ -161,7 +249,10 @@ def encode_status(
     min_thr: int = C.MIN_THR,
     flags: int = 0,
     queue_peak: int = 0,
-    fw_version: Sequence[int] = (1, 0, 0),
+    fw_version: Sequence[int] = (2, 0),
+    fc_every: int = 0,
+    param_gen: int = 0,
+    version: int = VERSION,
 ) -> bytes:
     """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``."""
     rec = np.zeros((), dtype=STATUS_DTYPE)
@@ -184,12 +275,43 @@ def encode_status(
     rec["flags"] = flags
     rec["queue_peak"] = queue_peak
     rec["fw_version"] = fw_version
-    return encode_frame(TYPE_STATUS, rec.tobytes())
+    rec["fc_every"] = fc_every
+    rec["param_gen"] = param_gen
+    return encode_frame(TYPE_STATUS, rec.tobytes(), version)
 
 
-def encode_text(line: str) -> bytes:
+def encode_text(line: str, version: int = VERSION) -> bytes:
     """Text frames for one log line (UTF-8, split into 255-byte pieces; an empty line is one space)."""
     data = line.rstrip("\r\n").encode("utf-8") or b" "
     return b"".join(
-        encode_frame(TYPE_TEXT, data[i : i + TEXT_MAX_PAYLOAD]) for i in range(0, len(data), TEXT_MAX_PAYLOAD)
+        encode_frame(TYPE_TEXT, data[i : i + TEXT_MAX_PAYLOAD], version)
+        for i in range(0, len(data), TEXT_MAX_PAYLOAD)
+    )
+
+
+def _encode_record(frame_type: int, dtype: np.dtype, fields: dict) -> bytes:
+    rec = np.zeros((), dtype=dtype)
+    for name, value in fields.items():
+        rec[name] = value
+    return encode_frame(frame_type, rec.tobytes())
+
+
+def encode_flight(**fields) -> bytes:
+    """A flight-control frame (type 4) from ``FLIGHT_DTYPE`` fields given by name (missing ones are 0)."""
+    return _encode_record(TYPE_FLIGHT, FLIGHT_DTYPE, fields)
+
+
+def encode_ack(*, cmd_seq: int, cmd: int, result: int, step: int, rx_ok: int = 0, rx_bad: int = 0) -> bytes:
+    """An acknowledgement frame (type 5)."""
+    return _encode_record(
+        TYPE_ACK, ACK_DTYPE,
+        dict(cmd_seq=cmd_seq % 65536, cmd=cmd, result=result, step=step % (1 << 32), rx_ok=rx_ok % 65536,
+             rx_bad=rx_bad % 65536),
+    )
+
+
+def encode_command(*, cmd_seq: int, cmd: int, param: int = 0, value: float = 0.0) -> bytes:
+    """A host -> drone command frame (type 8); ``value`` is stored as float32."""
+    return _encode_record(
+        TYPE_COMMAND, COMMAND_DTYPE, dict(cmd_seq=cmd_seq % 65536, cmd=cmd, param=param, value=np.float32(value))
     )

@@ -24,7 +24,16 @@ import numpy as np
 
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.frames import AttitudeFrame, DecoderStats, Frame, StatusFrame, TextFrame
+from steval_link.link.frames import (
+    AckFrame,
+    AttitudeFrame,
+    CommandFrame,
+    DecoderStats,
+    FlightFrame,
+    Frame,
+    StatusFrame,
+    TextFrame,
+)
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
 __all__ = ["AttitudeArrays", "StatusArrays", "Telemetry", "TelemetryParts", "telemetry_from_frames"]
@@ -35,6 +44,11 @@ ATT_RECORD_DTYPE = np.dtype(
     ATT_DESCR := P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")]
 )
 STA_RECORD_DTYPE = np.dtype(P.STATUS_DTYPE.descr + _EXTRA)
+_ROW_EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("t_host_s", "<f8")]
+#: Rows of the v2 frames kept as structured arrays (payload fields + where and when the frame arrived).
+FLIGHT_ROW_DTYPE = np.dtype(P.FLIGHT_DTYPE.descr + _ROW_EXTRA)
+ACK_ROW_DTYPE = np.dtype(P.ACK_DTYPE.descr + _ROW_EXTRA)
+COMMAND_ROW_DTYPE = np.dtype(P.COMMAND_DTYPE.descr + _ROW_EXTRA)
 
 
 @dataclass
@@ -67,7 +81,7 @@ class AttitudeArrays:
 @dataclass
 class StatusArrays:
     """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
-    (N,3)), plus ``t_fw_s``, ``t_host_s``, ``exact`` and ``offset`` as in :class:`AttitudeArrays`."""
+    (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact`` and ``offset`` as in :class:`AttitudeArrays`."""
 
     step: np.ndarray
     t_us: np.ndarray
@@ -88,7 +102,8 @@ class StatusArrays:
     flags: np.ndarray
     queue_peak: np.ndarray
     fw_version: np.ndarray
-    reserved: np.ndarray
+    fc_every: np.ndarray
+    param_gen: np.ndarray
     t_fw_s: np.ndarray
     t_host_s: np.ndarray
     exact: np.ndarray
@@ -100,7 +115,8 @@ class StatusArrays:
 
 def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dtype, frame_size) -> np.ndarray:
     """Records of ``record_dtype`` from the binary payloads starting at ``payload_starts`` in the byte array ``arr``
-    (fields of ``payload_dtype`` copied; ``offset``/``nbytes`` of the frame; ``exact`` True)."""
+    (fields of ``payload_dtype`` copied; ``offset``/``nbytes`` (``frame_size``, scalar or per frame) of the frame;
+    ``exact`` True)."""
     win = np.lib.stride_tricks.sliding_window_view(arr, payload_dtype.itemsize)
     pay = np.ascontiguousarray(win[payload_starts]).view(payload_dtype).reshape(-1)
     rec = np.empty(len(pay), record_dtype)
@@ -121,32 +137,59 @@ class TelemetryParts:
         self.att_frames: list[AttitudeFrame] = []
         self.sta_frames: list[StatusFrame] = []
         self.texts: list[TextFrame] = []
+        self.others: list[FlightFrame | AckFrame | CommandFrame] = []
 
-    def add_attitude_payloads(self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray) -> None:
+    def add_attitude_payloads(
+        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.ATTITUDE_FRAME_SIZE
+    ) -> None:
         """Binary attitude frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
         if len(payload_starts) == 0:
             return
-        rec = _payload_records(arr, payload_starts, frame_starts, P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE,
-                               P.ATTITUDE_FRAME_SIZE)
+        rec = _payload_records(arr, payload_starts, frame_starts, P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE, frame_sizes)
         rec["step"] = -1
         rec["thx_rad"] = np.nan
         rec["thy_rad"] = np.nan
         self.att_blocks.append(rec)
 
-    def add_status_payloads(self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray) -> None:
+    def add_status_payloads(
+        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.STATUS_FRAME_SIZE
+    ) -> None:
         """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
         if len(payload_starts) == 0:
             return
         self.sta_blocks.append(_payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE,
-                                                STA_RECORD_DTYPE, P.STATUS_FRAME_SIZE))
+                                                STA_RECORD_DTYPE, frame_sizes))
 
     def add_frame(self, frame: Frame) -> None:
         if isinstance(frame, AttitudeFrame):
             self.att_frames.append(frame)
         elif isinstance(frame, StatusFrame):
             self.sta_frames.append(frame)
-        else:
+        elif isinstance(frame, TextFrame):
             self.texts.append(frame)
+        else:
+            self.others.append(frame)
+
+    def apply_gate(self, keep_masks) -> None:
+        """Filter the attitude and status rows: ``keep_masks(att_records, sta_records)`` returns two boolean masks
+        (e.g. :func:`steval_link.link.plausibility.gate_rows`)."""
+        att, sta = self.attitude_records(), self.status_records()
+        keep_a, keep_s = keep_masks(att, sta)
+        self.att_blocks, self.att_frames = [att[keep_a]], []
+        self.sta_blocks, self.sta_frames = [sta[keep_s]], []
+
+    def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
+        """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
+        frames = sorted((f for f in self.others if isinstance(f, kind)), key=lambda f: f.offset)
+        rec = np.zeros(len(frames), dtype)
+        names = [n for n in dtype.names if n not in ("offset", "nbytes", "t_host_s", "reserved")]
+        for i, f in enumerate(frames):
+            for name in names:
+                rec[i][name] = getattr(f, name)
+            rec[i]["offset"] = f.offset
+            rec[i]["nbytes"] = f.nbytes
+        rec["t_host_s"] = np.nan
+        return rec
 
     def attitude_records(self) -> np.ndarray:
         blocks = list(self.att_blocks)
@@ -171,7 +214,7 @@ class TelemetryParts:
                 (
                     f.step, f.t_us, f.q_wxyz, f.int_xyz, f.kp_ground, f.kp_flight, f.ki, f.dt_s, f.cyc_min,
                     f.cyc_mean, f.cyc_max, f.cpu_hz, f.tx_dropped, f.baud, f.cyc_n, f.min_thr, f.flags,
-                    f.queue_peak, f.fw_version, f.reserved, f.offset, f.nbytes, f.exact,
+                    f.queue_peak, f.fw_version, f.fc_every, f.param_gen, f.offset, f.nbytes, f.exact,
                 )
                 for f in self.sta_frames
             ]
@@ -239,7 +282,9 @@ def _host_times(
 @dataclass
 class Telemetry:
     """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
-    and ``source`` (``path``, ``kind`` 'stv' | 'raw' | 'text', ``header`` of a capture, ``warnings``)."""
+    and ``source`` (``path``, ``kind`` 'stv' | 'raw' | 'text', ``header`` of a capture, ``warnings``); the v2
+    frames as structured arrays: ``flight`` (FLIGHT_ROW_DTYPE), ``acks`` (ACK_ROW_DTYPE) and ``commands``
+    (COMMAND_ROW_DTYPE, commands found in the decoded bytes themselves)."""
 
     attitude: AttitudeArrays
     status: StatusArrays
@@ -247,6 +292,9 @@ class Telemetry:
     stats: DecoderStats
     events: list[Any] = field(default_factory=list)
     source: dict[str, Any] = field(default_factory=dict)
+    flight: np.ndarray = field(default_factory=lambda: np.zeros(0, FLIGHT_ROW_DTYPE))
+    acks: np.ndarray = field(default_factory=lambda: np.zeros(0, ACK_ROW_DTYPE))
+    commands: np.ndarray = field(default_factory=lambda: np.zeros(0, COMMAND_ROW_DTYPE))
 
     @classmethod
     def from_parts(
@@ -313,7 +361,14 @@ class Telemetry:
             text = [(float(t), f.text) for t, f in zip(t_text, texts)]
         else:
             text = []
-        return cls(attitude, status, text, stats, list(events or []), dict(source or {}))
+        rows = {}
+        for name, kind, dtype in (("flight", FlightFrame, FLIGHT_ROW_DTYPE), ("acks", AckFrame, ACK_ROW_DTYPE),
+                                  ("commands", CommandFrame, COMMAND_ROW_DTYPE)):
+            rec = parts.other_rows(kind, dtype)
+            if len(rec):
+                rec["t_host_s"] = _host_times(rec["offset"] + rec["nbytes"] - 1, chunk_times, baud, total)
+            rows[name] = rec
+        return cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows)
 
     # -- tables ------------------------------------------------------------------------------------------------
     def attitude_table(self) -> dict[str, np.ndarray]:

@@ -115,6 +115,7 @@ class LiveSummary:
     port_note: str | None
     stopped_by: str
     capture_discarded: bool = False  # no byte came: the header-only file was removed
+    implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back
 
     def line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
@@ -127,6 +128,8 @@ class LiveSummary:
         ]
         if self.nonfinite:
             parts.append(f"{self.nonfinite} with NaN/inf")
+        if self.implausible:
+            parts.append(f"{self.implausible} implausible frames held back")
         if self.disconnects:
             parts.append(f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s)")
         if self.live_dropped_bytes:
@@ -395,6 +398,8 @@ class LiveSession:
         ]
         if h.nonfinite:
             parts.append(f"NaN/inf {h.nonfinite}")
+        if _stat(s, "implausible"):
+            parts.append(f"implausible {_stat(s, 'implausible')}")
         if proto.disconnects:
             parts.append(f"disconnects {proto.disconnects}")
         if inbox.dropped_bytes:
@@ -438,6 +443,7 @@ class LiveSession:
             live_dropped_bytes=inbox.dropped_bytes,
             port_note=port_note,
             stopped_by=self._stop_reason or "end",
+            implausible=_stat(s, "implausible"),
         )
 
 

@@ -1,0 +1,503 @@
+"""Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
+gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
+
+What the attitude rows sample. The TIM9 ISR reads the LSM6DSL at 807.7 Hz (the gyro's output register itself is
+refreshed at its 416 Hz ODR), removes the offsets, low-passes the gyro with its IIR (−3 dB near 101 Hz) and fills
+5-sample FIFOs; every 5th tick the main loop averages them (a boxcar) and runs the AHRS: ``acc_mg`` and
+``gyro_mdps`` of each row are those averages at 161.54 Hz. The spectra therefore end at the AHRS Nyquist, 80.77 Hz.
+A vibration above it (motors spin at 300–400 Hz in a hover) is not lost but *aliased*: it appears at
+``|f − k · 161.54 Hz|`` for the nearest k, scaled by the boxcar's gain at f (and, for the gyro, by the IIR's and
+the 416 Hz register's); the boxcar has zeros at multiples of 161.54 Hz, exactly the frequencies that would alias
+onto 0 Hz. :func:`alias_lines` computes where a given frequency lands and how strongly.
+
+Numerics: numpy only. Rows are split into runs of consecutive AHRS steps (a dropped frame, a restart or a time jump
+ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by half; each window's mean is
+removed; the one-sided PSD (unit²/Hz, scipy's ``welch(..., scaling="density")`` convention) is averaged over every
+window of every run. The spectrogram is the per-window PSD at each window's centre (firmware time); the throttle
+map averages the windows whose mean ``thr`` falls in each throttle bin. The sample rate is measured from the
+firmware's clock (``t_fw_s``) over the runs used.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.emulation.sensor_model import GYRO_ODR_HZ, iir_frequency_response
+from steval_link.errors import UserError
+
+__all__ = [
+    "SIGNALS",
+    "UNITS",
+    "DEFAULT_NPERSEG",
+    "MIN_NPERSEG",
+    "AliasLine",
+    "Peak",
+    "Spectra",
+    "alias_hz",
+    "alias_lines",
+    "chain_gain",
+    "contiguous_runs",
+    "compute_spectra",
+    "find_peaks",
+    "welch_windows",
+    "CSV_COLUMNS",
+    "write_csv",
+    "mark_lines",
+    "format_summary",
+]
+
+#: the six signals, in column order: (name, sensor, axis index)
+SIGNALS: tuple[tuple[str, str, int], ...] = tuple(
+    (f"{sensor}_{axis}", sensor, i) for sensor in ("gyro", "acc") for i, axis in enumerate("xyz")
+)
+#: unit of each sensor's samples
+UNITS = {"gyro": "mdps", "acc": "mg"}
+#: rows per FFT window by default (1.58 s at 161.54 Hz: 0.63 Hz resolution)
+DEFAULT_NPERSEG = 256
+#: fewest rows per window (a shorter capture is too short for a spectrum)
+MIN_NPERSEG = 32
+#: a window's step rate may differ from the nominal AHRS rate by this fraction before a run is cut there
+_TIME_TOLERANCE = 0.5
+
+
+# ---- aliasing ----------------------------------------------------------------------------------------------------
+
+def alias_hz(f_hz: float, rate_hz: float = C.AHRS_RATE_HZ) -> float:
+    """Where a sinusoid at ``f_hz`` appears when sampled at ``rate_hz``: folded into [0, rate/2]."""
+    r = math.fmod(abs(float(f_hz)), rate_hz)
+    return min(r, rate_hz - r)
+
+
+def _boxcar_gain(f_hz: float) -> float:
+    """|gain| of the main loop's 5-sample average at the ISR rate (1 at 0 Hz, 0 at multiples of the AHRS rate)."""
+    x = math.pi * f_hz / C.ISR_RATE_HZ
+    s = math.sin(x)
+    if abs(s) < 1e-12:
+        return 1.0
+    return abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
+
+
+def _hold_gain(f_hz: float, rate_hz: float = GYRO_ODR_HZ) -> float:
+    """|gain| of a sample-and-hold at ``rate_hz`` (the gyro's output register): |sinc(f / rate)|."""
+    x = math.pi * f_hz / rate_hz
+    return 1.0 if x == 0 else abs(math.sin(x) / x)
+
+
+def chain_gain(f_hz: float, sensor: str) -> float:
+    """|gain| from a sinusoid at ``f_hz`` at the sensor to what the AHRS rows hold (at its alias): the boxcar for
+    the accelerometer; the 416 Hz register hold, the gyro IIR and the boxcar for the gyro."""
+    g = _boxcar_gain(f_hz)
+    if sensor == "gyro":
+        h = iir_frequency_response([f_hz])[0][0]
+        g *= abs(complex(h)) * _hold_gain(f_hz)
+    return g
+
+
+@dataclass(frozen=True)
+class AliasLine:
+    """Where a vibration at ``source_hz`` shows in the rows of one sensor.
+
+    Attributes:
+        sensor: "gyro" or "acc".
+        source_hz: the frequency at the sensor (the vibration, or for the gyro an image ``|k·416 Hz ± f|`` its
+            416 Hz output register makes).
+        seen_hz: where it appears in the spectrum (0 … 80.77 Hz).
+        gain: amplitude seen / amplitude at the sensor (:func:`chain_gain` of ``source_hz``, hold of the image).
+        what: a few words: "direct", "alias", "416 Hz ODR image".
+    """
+
+    sensor: str
+    source_hz: float
+    seen_hz: float
+    gain: float
+    what: str
+
+
+def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.01) -> list[AliasLine]:
+    """The lines a sinusoid at ``f_hz`` (Hz, at the sensor) makes in the spectrum of ``sensor``'s rows.
+
+    The main line is at :func:`alias_hz` of f with :func:`chain_gain`; the gyro's 416 Hz output register adds images
+    at ``|k·416 ± f|`` (k = 1, 2) weighted by the hold, each then aliased the same way; images weaker than
+    ``min_gain`` are left out. ``rate_hz``: the rows' rate (161.54 Hz, or less for decimated text-mode rows).
+    """
+    f = abs(float(f_hz))
+    direct = f <= rate_hz / 2
+    lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
+    if sensor == "gyro":
+        for k in (1, 2):
+            for image in (k * GYRO_ODR_HZ - f, k * GYRO_ODR_HZ + f):
+                image = abs(image)
+                if abs(image - f) < 1e-9:
+                    continue
+                # the image's amplitude relative to f's: hold(image) / hold(f) of the register, then the same chain
+                g = _boxcar_gain(image) * abs(complex(iir_frequency_response([image])[0][0])) * _hold_gain(image)
+                if g >= min_gain:
+                    lines.append(AliasLine(sensor, image, alias_hz(image, rate_hz), g, "416 Hz ODR image"))
+    return lines
+
+
+# ---- segmentation and Welch --------------------------------------------------------------------------------------
+
+def contiguous_runs(step, t_fw_s, values, decimation: int = 1,
+                    rate_hz: float = C.AHRS_RATE_HZ) -> list[tuple[int, int]]:
+    """Runs ``(start, stop)`` of rows that are consecutive samples: each row ``decimation`` AHRS steps after the one
+    before, its firmware time that many periods later (± half), and every value finite. A dropped frame, a
+    restart (the step counter goes back), a time jump or a NaN ends a run."""
+    step = np.asarray(step, dtype=np.int64)
+    t = np.asarray(t_fw_s, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    n = len(step)
+    if n == 0:
+        return []
+    good = np.isfinite(v).reshape(n, -1).all(axis=1) & np.isfinite(t)
+    period = decimation / rate_hz
+    dt = np.diff(t)
+    link = (np.diff(step) == decimation) & (np.abs(dt - period) <= _TIME_TOLERANCE * period) & good[1:] & good[:-1]
+    runs = []
+    start = 0
+    for i in np.flatnonzero(~link):
+        runs.append((start, int(i) + 1))
+        start = int(i) + 1
+    runs.append((start, n))
+    return [(a, b) for a, b in runs if b - a >= 1 and good[a]]
+
+
+def _hann(n: int) -> np.ndarray:
+    """Periodic Hann window (scipy's ``get_window("hann", n)``, the Welch default)."""
+    return 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
+
+
+def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
+
+    Windows start every ``hop`` rows; each window's mean is removed; density scaling (unit²/Hz), so the mean of
+    the windows equals ``scipy.signal.welch(x, fs, nperseg=nperseg, noverlap=nperseg-hop, axis=0)``.
+    """
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim == 1:
+        a = a[:, None]
+    n = a.shape[0]
+    freq = np.fft.rfftfreq(nperseg, 1.0 / fs_hz)
+    if n < nperseg:
+        return freq, np.zeros(0, np.int64), np.zeros((0, len(freq), a.shape[1]))
+    starts = np.arange(0, n - nperseg + 1, hop, dtype=np.int64)
+    idx = starts[:, None] + np.arange(nperseg)[None, :]
+    frames = a[idx]  # (W, nperseg, K)
+    frames = frames - frames.mean(axis=1, keepdims=True)
+    w = _hann(nperseg)
+    spec = np.fft.rfft(frames * w[None, :, None], axis=1)
+    psd = (spec.real ** 2 + spec.imag ** 2) / (fs_hz * float(np.sum(w * w)))
+    if nperseg % 2 == 0:
+        psd[:, 1:-1] *= 2.0
+    else:
+        psd[:, 1:] *= 2.0
+    return freq, starts, psd
+
+
+# ---- the whole capture -------------------------------------------------------------------------------------------
+
+@dataclass
+class Spectra:
+    """Spectra of one capture. Column k of every array is signal ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc
+    x, y, z in mg²/Hz).
+
+    Attributes:
+        freq_hz: (F,) bin centres, 0 … Nyquist.
+        psd: (F, 6) Welch average over every window.
+        window_t_fw_s: (W,) firmware time of each window's centre, s since boot.
+        window_thr: (W,) mean throttle ``thr`` over each window.
+        spectrogram: (W, F, 6) PSD of each window.
+        thr_edges: (B+1,) throttle bin edges (gTHR units).
+        thr_psd: (B, F, 6) mean PSD of the windows in each throttle bin (NaN for an empty bin).
+        thr_windows: (B,) windows in each bin.
+        rate_hz: the rows' sample rate measured on the firmware clock (≈ 161.54 Hz, or /16 for text mode).
+        decimation: AHRS steps per row.
+        nperseg, hop: rows per window and between window starts.
+        runs: ``(start, stop)`` row ranges of the runs of consecutive rows long enough for a window.
+        rows: attitude rows in the capture; rows_used: rows inside those runs.
+        notes: sentences about what was left out or assumed.
+    """
+
+    freq_hz: np.ndarray
+    psd: np.ndarray
+    window_t_fw_s: np.ndarray
+    window_thr: np.ndarray
+    spectrogram: np.ndarray
+    thr_edges: np.ndarray
+    thr_psd: np.ndarray
+    thr_windows: np.ndarray
+    rate_hz: float
+    decimation: int
+    nperseg: int
+    hop: int
+    runs: list[tuple[int, int]]
+    rows: int
+    rows_used: int
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def nyquist_hz(self) -> float:
+        return self.rate_hz / 2
+
+    @property
+    def resolution_hz(self) -> float:
+        return self.rate_hz / self.nperseg
+
+    @property
+    def seconds_used(self) -> float:
+        return self.rows_used / self.rate_hz
+
+
+def _measured_rate(step, t, runs, decimation: int) -> float:
+    """Rows per second of firmware time over ``runs`` (the nominal rate when no run spans any time)."""
+    steps = sum(int(step[b - 1] - step[a]) for a, b in runs)
+    secs = sum(float(t[b - 1] - t[a]) for a, b in runs)
+    if steps <= 0 or secs <= 0:
+        return C.AHRS_RATE_HZ / decimation
+    return steps / secs / decimation
+
+
+def _throttle_bins(thr: np.ndarray, bins: int) -> np.ndarray:
+    """``bins`` equal-width throttle bins over the windows' mean throttles (one unit wide at least)."""
+    if thr.size == 0:
+        return np.array([0.0, 1.0])
+    lo, hi = math.floor(float(thr.min())), math.ceil(float(thr.max()))
+    if hi - lo < 1:
+        hi = lo + 1
+    return np.linspace(lo, hi, bins + 1)
+
+
+def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
+    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry` (see the module docstring).
+
+    ``nperseg`` rows per window (default :data:`DEFAULT_NPERSEG`, reduced to the longest run's power of two for a
+    short capture, but never below :data:`MIN_NPERSEG`); ``overlap`` the fraction windows share (0 ≤ overlap < 1).
+    Raises :class:`UserError` when the capture has no attitude rows or no run long enough for one window.
+    """
+    if not 0 <= overlap < 1:
+        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap}")
+    if throttle_bins < 1:
+        raise UserError(f"--throttle-bins must be at least 1, got {throttle_bins}")
+    if nperseg is not None and nperseg < MIN_NPERSEG:
+        raise UserError(f"--nperseg must be at least {MIN_NPERSEG} rows, got {nperseg}")
+    att = tel.attitude
+    n = len(att.step)
+    if n == 0:
+        raise UserError("the capture has no attitude frames, so there is nothing to take a spectrum of.")
+    step = np.asarray(att.step, dtype=np.int64)
+    t = np.asarray(att.t_fw_s, dtype=np.float64)
+    values = np.concatenate([np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)],
+                            axis=1)
+    thr = np.asarray(att.thr, dtype=np.float64)
+    d = np.diff(step)
+    d = d[d > 0]
+    decimation = int(np.median(d)) if d.size else 1
+    runs = contiguous_runs(step, t, values, decimation)
+    longest = max((b - a for a, b in runs), default=0)
+    notes: list[str] = []
+    if nperseg is None:
+        nperseg = DEFAULT_NPERSEG
+        if longest < nperseg:
+            nperseg = 1 << max(int(math.floor(math.log2(max(longest, 1)))), 0)
+            if nperseg >= MIN_NPERSEG:
+                notes.append(f"short capture: windows of {nperseg} rows instead of {DEFAULT_NPERSEG} (coarser "
+                             f"frequency resolution)")
+    if longest < max(nperseg, MIN_NPERSEG):
+        rate = C.AHRS_RATE_HZ / decimation
+        need = max(nperseg, MIN_NPERSEG)
+        raise UserError(f"the capture is too short for a spectrum: its longest run of consecutive attitude frames is "
+                        f"{longest} rows ({longest / rate:.2f} s), and a window needs {need} ({need / rate:.2f} s).")
+    hop = max(1, int(round(nperseg * (1 - overlap))))
+    used = [(a, b) for a, b in runs if b - a >= nperseg]
+    rate = _measured_rate(step, t, used, decimation)
+    nominal = C.AHRS_RATE_HZ / decimation
+    if abs(rate / nominal - 1) > 0.02:
+        notes.append(f"the firmware clock gives {rate:.2f} rows/s, not the nominal {nominal:.2f}; the spectra use the "
+                     f"measured rate")
+    if decimation > 1:
+        notes.append(f"decimated rows (one per {decimation} AHRS steps, text mode): Nyquist {rate / 2:.2f} Hz")
+
+    specs, centres, thr_w = [], [], []
+    freq = np.fft.rfftfreq(nperseg, 1.0 / rate)
+    for a, b in used:
+        freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
+        specs.append(psd)
+        centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
+        csum = np.concatenate(([0.0], np.cumsum(thr[a:b])))
+        thr_w.append((csum[starts + nperseg] - csum[starts]) / nperseg)
+    spectrogram = np.concatenate(specs, axis=0)
+    window_t = np.concatenate(centres)
+    window_thr = np.concatenate(thr_w)
+    edges = _throttle_bins(window_thr, throttle_bins)
+    which = np.clip(np.searchsorted(edges, window_thr, side="right") - 1, 0, len(edges) - 2)
+    thr_psd = np.full((len(edges) - 1, len(freq), len(SIGNALS)), np.nan)
+    counts = np.bincount(which, minlength=len(edges) - 1)
+    for k in np.flatnonzero(counts):
+        thr_psd[k] = spectrogram[which == k].mean(axis=0)
+    rows_used = sum(b - a for a, b in used)
+    dropped_runs = len(runs) - len(used)
+    if len(runs) > 1:
+        notes.append(f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
+                     f"{len(used)} long enough for a window" + (f", {dropped_runs} shorter ones left out"
+                                                                 if dropped_runs else ""))
+    return Spectra(
+        freq_hz=freq, psd=spectrogram.mean(axis=0), window_t_fw_s=window_t, window_thr=window_thr,
+        spectrogram=spectrogram, thr_edges=edges, thr_psd=thr_psd, thr_windows=counts, rate_hz=rate,
+        decimation=decimation, nperseg=nperseg, hop=hop, runs=used, rows=n, rows_used=rows_used, notes=notes,
+    )
+
+
+# ---- peaks -------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Peak:
+    """A peak of a PSD.
+
+    Attributes:
+        freq_hz: centre, interpolated between bins (Gaussian fit of the three bins around the maximum).
+        psd: the PSD at the peak bin (unit²/Hz).
+        amplitude: amplitude of the sinusoid that would make it (unit, peak): ``sqrt(2 · power)``, the power summed
+            over ±3 bins above the noise floor.
+        above_floor_db: the peak over the median PSD (the floor), dB.
+    """
+
+    freq_hz: float
+    psd: float
+    amplitude: float
+    above_floor_db: float
+
+
+def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float = 6.0) -> list[Peak]:
+    """Up to ``count`` strongest local maxima of ``psd`` (F,) at or above ``min_hz``, at least ``min_db`` over the
+    median PSD there, each at least 4 bins from a stronger one (a Hann window's main lobe is ±2 bins wide)."""
+    f = np.asarray(freq_hz, dtype=np.float64)
+    p = np.asarray(psd, dtype=np.float64)
+    if f.size < 3:
+        return []
+    df = f[1] - f[0]
+    band = f >= min_hz
+    if not band.any():
+        return []
+    floor = float(np.median(p[band]))
+    k = np.arange(1, len(p) - 1)
+    is_max = (p[k] > p[k - 1]) & (p[k] >= p[k + 1]) & band[k]
+    if band[-1] and len(p) > 1 and p[-1] > p[-2]:  # a peak on the Nyquist bin
+        k = np.append(k, len(p) - 1)
+        is_max = np.append(is_max, True)
+    cand = k[is_max]
+    cand = cand[np.argsort(-p[cand], kind="stable")]
+    out: list[Peak] = []
+    taken: list[int] = []
+    for i in cand:
+        if len(out) >= count:
+            break
+        ratio = p[i] / floor if floor > 0 else np.inf
+        if ratio < 10 ** (min_db / 10):
+            break
+        if any(abs(int(i) - j) < 4 for j in taken):
+            continue
+        taken.append(int(i))
+        centre = float(f[i])
+        if 0 < i < len(p) - 1 and np.all(p[i - 1 : i + 2] > 0):
+            a, b, c = np.log(p[i - 1 : i + 2])
+            den = a - 2 * b + c
+            if den < 0:
+                centre += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) * df
+        lo, hi = max(int(i) - 3, 0), min(int(i) + 4, len(p))
+        power = max(float(np.sum(p[lo:hi]) - floor * (hi - lo)), 0.0) * df
+        out.append(Peak(centre, float(p[i]), math.sqrt(2 * power),
+                        float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf))
+    return out
+
+
+# ---- output: CSV and the printed summary -------------------------------------------------------------------------
+
+#: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
+CSV_COLUMNS = (
+    "section", "t_fw_s", "thr", "thr_lo", "thr_hi", "windows", "freq_hz",
+    *(f"{name}_psd_{UNITS[sensor]}2_per_hz" for name, sensor, _ in SIGNALS),
+)
+
+
+def _num(v) -> str:
+    v = float(v)
+    return "" if not math.isfinite(v) else repr(v)
+
+
+def write_csv(sp: Spectra, stream) -> int:
+    """The spectra as one CSV table (:data:`CSV_COLUMNS`), a ``section`` column telling the three apart:
+    ``psd`` (the Welch average, one row per frequency), ``spectrogram`` (one row per window and frequency:
+    ``t_fw_s`` the window's centre, ``thr`` its mean throttle) and ``throttle`` (one row per throttle bin and
+    frequency: ``thr_lo`` … ``thr_hi``, ``windows`` averaged; empty bins are left out). Returns the rows written."""
+    w = csv.writer(stream, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    rows = 0
+    f = sp.freq_hz
+    for i in range(len(f)):
+        w.writerow(["psd", "", "", "", "", len(sp.window_t_fw_s), _num(f[i]), *(_num(v) for v in sp.psd[i])])
+        rows += 1
+    for k in range(len(sp.window_t_fw_s)):
+        t, thr = _num(sp.window_t_fw_s[k]), _num(sp.window_thr[k])
+        for i in range(len(f)):
+            w.writerow(["spectrogram", t, thr, "", "", 1, _num(f[i]), *(_num(v) for v in sp.spectrogram[k, i])])
+            rows += 1
+    for b in np.flatnonzero(sp.thr_windows):
+        lo, hi, nw = _num(sp.thr_edges[b]), _num(sp.thr_edges[b + 1]), int(sp.thr_windows[b])
+        for i in range(len(f)):
+            w.writerow(["throttle", "", "", lo, hi, nw, _num(f[i]), *(_num(v) for v in sp.thr_psd[b, i])])
+            rows += 1
+    return rows
+
+
+def _label(name: str) -> str:
+    sensor, axis = name.split("_")
+    return f"{sensor} {axis} ({UNITS[sensor]})"
+
+
+def mark_lines(sp: Spectra, marks_hz) -> list[AliasLine]:
+    """:func:`alias_lines` of every ``--mark-hz`` frequency for both sensors, at the rows' measured rate."""
+    return [line for f in marks_hz for sensor in ("gyro", "acc") for line in alias_lines(f, sensor, sp.rate_hz)]
+
+
+def format_summary(sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, min_hz: float = 1.0,
+                   source: str = "") -> list[str]:
+    """The printed summary: what was analysed, the rates and Nyquist, the top peaks per axis, the marks' aliases."""
+    secs = sp.seconds_used
+    lines = [
+        f"steval spectrum{' ' + source if source else ''}: {sp.rows} attitude rows, {sp.rows_used} in "
+        f"{len(sp.runs)} run{'s' if len(sp.runs) != 1 else ''} of consecutive steps ({secs:.1f} s); "
+        f"{len(sp.window_t_fw_s)} Hann windows of {sp.nperseg} rows ({sp.nperseg / sp.rate_hz:.2f} s, "
+        f"{100 * (1 - sp.hop / sp.nperseg):.0f} % overlap)",
+        f"rows at {sp.rate_hz:.2f} Hz (firmware clock): Nyquist {sp.nyquist_hz:.2f} Hz, resolution "
+        f"{sp.resolution_hz:.2f} Hz. The sensors are read at {C.ISR_RATE_HZ:.1f} Hz (ISR) and averaged 5 to 1, so "
+        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz| (--mark-hz F).",
+    ]
+    lines += [f"note: {n}" for n in sp.notes]
+    lines.append(f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that "
+                 f"would make it):")
+    for name, _, _ in SIGNALS:
+        found = peaks.get(name, [])
+        text = "   ".join(f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} "
+                           f"(+{p.above_floor_db:.0f} dB)" for p in found) or "no clear peak"
+        lines.append(f"  {_label(name):<16} {text}")
+    if len(sp.thr_edges) > 2 or sp.thr_windows.sum():
+        occupied = np.flatnonzero(sp.thr_windows)
+        lines.append(f"throttle: windows' mean gTHR {sp.window_thr.min():.0f}..{sp.window_thr.max():.0f}, "
+                     f"{len(occupied)} of {len(sp.thr_edges) - 1} throttle bins hold windows")
+    for f in marks_hz:
+        parts = []
+        for sensor in ("gyro", "acc"):
+            ls = alias_lines(f, sensor, sp.rate_hz)
+            main, images = ls[0], ls[1:]
+            s = f"{sensor} at {main.seen_hz:.2f} Hz (x{main.gain:.3g})"
+            s += "".join(f", and at {im.seen_hz:.2f} Hz (x{im.gain:.3g}) through the gyro register's 416 Hz image at "
+                         f"{im.source_hz:.1f} Hz" for im in images)
+            parts.append(s)
+        where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
+        lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))
+    return lines

@@ -1,0 +1,147 @@
+"""``steval spectrum``: PSD, spectrogram and frequency-vs-throttle map of the gyro and accelerometer of a capture
+(numerics in :mod:`steval_link.analysis.spectrum`; the figure in :mod:`steval_link.analysis.spectrum_plot`; the
+Rerun side in :mod:`steval_viewer.spectrum_log`)."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.analysis import spectrum as S
+from steval_link.cli.app import app
+from steval_link.cli.progress import progress_bar, scaled
+from steval_link.cli.replay import load_replay
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+    sink_options,
+)
+from steval_link.errors import UserError
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+
+#: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
+MAX_NPERSEG = 65536
+#: most throttle bins
+MAX_THROTTLE_BINS = 100
+
+
+def _check_out(option: str, path: Path | None) -> None:
+    if path is None:
+        return
+    if path.is_dir():
+        raise UserError(f"{option} {path} is a directory; give a file name")
+    if not path.parent.is_dir():
+        raise UserError(f"{option} {path}: directory {path.parent} does not exist (create it first)")
+
+
+@app.command("spectrum")
+def spectrum_cmd(
+    capture: Annotated[Path, typer.Argument(
+        help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False)],
+    plot: Annotated[Optional[Path], typer.Option(
+        "--plot", help='Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image '
+                       '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".')] = None,
+    csv_out: Annotated[Optional[Path], typer.Option(
+        "--csv", help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
+                      "mdps²/Hz and mg²/Hz.")] = None,
+    mark_hz: Annotated[Optional[list[float]], typer.Option(
+        "--mark-hz", metavar="HZ", help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
+                                        "its alias above it (the gyro also at its 416 Hz-register images), with "
+                                        "the gain of the firmware's averaging and gyro filter; repeatable.")] = None,
+    nperseg: Annotated[Optional[int], typer.Option(
+        "--nperseg", metavar="ROWS", help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+                                          f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+        show_default=False)] = None,
+    overlap: Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")] = 0.5,
+    throttle_bins: Annotated[int, typer.Option(
+        "--throttle-bins", metavar="N", help="Throttle bins of the frequency-vs-throttle map, over the capture's "
+                                             "range of gTHR.")] = 10,
+    peaks: Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")] = 3,
+    min_hz: Annotated[float, typer.Option(
+        "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")] = 1.0,
+    rrd: RrdOption = None,
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+) -> None:
+    """Gyro and accelerometer spectra per axis, like Blackbox's: Welch PSD, spectrogram over firmware time and
+    frequency vs throttle, over runs of consecutive AHRS steps (dropped frames split them).
+
+    The rows come at the AHRS rate (161.54 Hz: Nyquist 80.77 Hz); the sensors are read at 807.7 Hz and averaged 5 to
+    1, so motor vibration above the Nyquist shows at an alias: --mark-hz computes where. Prints the top peaks per
+    axis; --plot, --csv and the Rerun options (--spawn, --rrd, ...) add the figure, the numbers and the viewer."""
+    marks = list(mark_hz or [])
+    for f in marks:
+        if not (math.isfinite(f) and f > 0):
+            raise UserError(f"--mark-hz must be a frequency > 0 Hz, got {f:g}")
+    if nperseg is not None and not S.MIN_NPERSEG <= nperseg <= MAX_NPERSEG:
+        raise UserError(f"--nperseg must be between {S.MIN_NPERSEG} and {MAX_NPERSEG} rows, got {nperseg}")
+    if not (math.isfinite(overlap) and 0 <= overlap < 1):
+        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap:g}")
+    if not 1 <= throttle_bins <= MAX_THROTTLE_BINS:
+        raise UserError(f"--throttle-bins must be between 1 and {MAX_THROTTLE_BINS}, got {throttle_bins}")
+    if not 0 <= peaks <= 20:
+        raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
+    if not (math.isfinite(min_hz) and min_hz >= 0):
+        raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
+    _check_out("--plot", plot)
+    _check_out("--csv", csv_out)
+    if plot is not None:
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+        plt = require_matplotlib()
+        fig = plt.figure()
+        formats = fig.canvas.get_supported_filetypes()
+        plt.close(fig)
+        if plot.suffix.lower().lstrip(".") not in formats:
+            raise UserError(f"--plot {plot}: give a file name ending in one of .{', .'.join(sorted(formats))}")
+    viewer = rrd is not None or spawn or serve or connect
+    options = None
+    if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        options = sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port,
+                               grpc_port=grpc_port)
+    with progress_bar("spectrum", quiet=serve) as progress:
+        tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3))
+        progress(0.3, "spectra")
+        sp = S.compute_spectra(tel, nperseg=nperseg, overlap=overlap, throttle_bins=throttle_bins)
+        found = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k], peaks, min_hz) for k, (name, _, _) in
+                 enumerate(S.SIGNALS)}
+        lines = S.format_summary(sp, found, marks, min_hz=min_hz, source=capture.name)
+        if csv_out is not None:
+            progress(0.4, f"writing {csv_out.name}")
+            try:
+                with open(csv_out, "w", newline="", encoding="utf-8") as fh:
+                    S.write_csv(sp, fh)
+            except OSError as exc:
+                raise UserError(f"cannot write {csv_out}: {exc.strerror or exc}") from None
+        if plot is not None:
+            from steval_link.analysis.spectrum_plot import plot_spectra  # matplotlib loads only for --plot
+
+            progress(0.5, f"plotting {plot.name}")
+            plot_spectra(sp, plot, marks_hz=marks, peaks=found, title=f"steval spectrum {capture.name}")
+    for w in warnings_seen:
+        print(f"steval: warning: {w}", file=sys.stderr)
+    print("\n".join(lines))
+    if csv_out is not None:
+        print(f"csv: {csv_out}")
+    if plot is not None:
+        print(f"plot: {plot}")
+    if options is not None:
+        from steval_viewer.spectrum_log import spectrum_sink  # Rerun loads only for a viewer or an .rrd
+
+        try:
+            spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
+        except KeyboardInterrupt:
+            if rrd is not None:  # the sink writes it whole or not at all
+                print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
+            raise

@@ -1,0 +1,136 @@
+"""A loose wire on header P7, as bytes: bit flips, cut bytes and garbage bursts, and the score of a decoder on it.
+
+Used by ``benchmarks/bench_fuzz.py`` (≥ 10⁷ frames with fresh seeds) and by the test suite (a small derandomised
+run). :func:`long_stream` turns a capture into as many frames as wanted (the capture's attitude and status payloads
+repeated with the step counter and firmware time continued, so every frame is unique and plausible);
+:func:`damage` hurts it; :func:`score` tells which decoded frames were sent (recovered) and which never were (fake).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.link import protocol as P
+
+__all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "score"]
+
+PERIOD_US = 1e6 / C.AHRS_RATE_HZ
+
+
+@dataclass
+class DamageCounts:
+    """How many damage events of each kind :func:`damage` made."""
+
+    flips: int = 0
+    cuts: int = 0
+    bursts: int = 0
+
+
+def damage(
+    data: bytes,
+    rng: np.random.Generator,
+    *,
+    every: tuple[int, int] = (200, 5000),
+    cut_max: int = 16,
+    burst_max: int = 64,
+) -> tuple[bytes, DamageCounts]:
+    """``data`` with one damage event every ``every`` bytes (uniform): a single bit flip (60 %), a cut of 1 ..
+    ``cut_max`` bytes (20 %) or a burst of 1 .. ``burst_max`` random bytes inserted (20 %)."""
+    n = len(data)
+    gaps = rng.integers(every[0], every[1] + 1, size=n // every[0] + 2)
+    pos = np.cumsum(gaps)
+    pos = pos[pos < n]
+    kinds = rng.random(len(pos))
+    out = bytearray()
+    counts = DamageCounts()
+    last = 0
+    for p, k in zip(pos.tolist(), kinds.tolist()):
+        if p < last:
+            continue
+        out += data[last:p]
+        if k < 0.6:
+            out.append(data[p] ^ (1 << int(rng.integers(8))))
+            last = p + 1
+            counts.flips += 1
+        elif k < 0.8:
+            last = p + int(rng.integers(1, cut_max + 1))
+            counts.cuts += 1
+        else:
+            out += rng.integers(0, 256, int(rng.integers(1, burst_max + 1)), dtype=np.uint8).tobytes()
+            last = p
+            counts.bursts += 1
+    out += data[last:]
+    return bytes(out), counts
+
+
+def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int = 0) -> tuple[bytes, list[bytes]]:
+    """About ``n_frames`` v2 attitude frames (plus the status frames among them) made of the payload records ``att``
+    (ATTITUDE_DTYPE, consecutive steps) and ``sta`` (STATUS_DTYPE of the same steps), repeated with ``seq``, ``step``
+    and ``t_us`` continued; repetition numbers start at ``start_rep`` (so consecutive blocks continue each other).
+    Returns the bytes and the list of the frames' payloads (what a perfect decoder hands out)."""
+    n = len(att)
+    reps = -(-n_frames // n)
+    out = bytearray()
+    payloads: list[bytes] = []
+    row_of_seq = {int(q): i for i, q in enumerate(att["seq"])}
+    sta_after = {}
+    for s in sta:
+        i = row_of_seq.get(int(s["step"]) % P.SEQ_MODULUS)
+        if i is not None:
+            sta_after[i] = s
+    for r in range(start_rep, start_rep + reps):
+        a = att.copy()
+        shift = r * n
+        a["seq"] = (a["seq"].astype(np.int64) + shift) % P.SEQ_MODULUS
+        a["t_us"] = (a["t_us"].astype(np.int64) + int(round(shift * PERIOD_US))) % P.T_US_MODULUS
+        block = P.encode_attitude_block(a)
+        fs = P.ATTITUDE_FRAME_SIZE
+        for i in range(n):
+            out += block[i * fs : (i + 1) * fs]
+            payloads.append(a[i].tobytes())
+            s = sta_after.get(i)
+            if s is not None:
+                s2 = s.copy()
+                s2["step"] = (int(s["step"]) + shift) % (1 << 32)
+                s2["t_us"] = (int(s["t_us"]) + int(round(shift * PERIOD_US))) % P.T_US_MODULUS
+                out += P.encode_frame(P.TYPE_STATUS, s2.tobytes())
+                payloads.append(s2.tobytes())
+    return bytes(out), payloads
+
+
+@dataclass
+class FuzzScore:
+    """Frames sent, recovered (decoded and sent) and fake (decoded, never sent)."""
+
+    sent: int = 0
+    recovered: int = 0
+    fake: int = 0
+
+    def add(self, other: "FuzzScore") -> None:
+        self.sent += other.sent
+        self.recovered += other.recovered
+        self.fake += other.fake
+
+    @property
+    def recovered_ratio(self) -> float:
+        return self.recovered / self.sent if self.sent else 0.0
+
+
+def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
+    """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
+    and the fake payloads (for a report)."""
+    sent = set(sent_payloads)
+    a = tel.attitude
+    rec = np.zeros(len(a), P.ATTITUDE_DTYPE)
+    rec["t_us"], rec["acc_mg"], rec["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
+    rec["q_wxyz"], rec["thz_rad"], rec["seq"], rec["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
+    s = tel.status
+    srec = np.zeros(len(s), P.STATUS_DTYPE)
+    for name in P.STATUS_DTYPE.names:
+        srec[name] = getattr(s, name)
+    got = [r.tobytes() for r in rec[a.exact]] + [r.tobytes() for r in srec[s.exact]]
+    fakes = [g for g in got if g not in sent]
+    return FuzzScore(sent=len(sent_payloads), recovered=len(got) - len(fakes), fake=len(fakes)), fakes

@@ -1,0 +1,199 @@
+"""Plausibility checks behind the frame check: a CRC-valid frame that cannot be what the firmware sent is held back.
+
+A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
+about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
+
+* **Values** (binary attitude and status frames): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
+  2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so that no real reading, offset
+  or filter overshoot comes near; quaternion components within ±2 (the filter keeps ``|q|`` ≈ 1).
+* **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
+  ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
+  ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
+  A status frame must fit its anchor the same way with ``d ≥ 0`` (it follows the attitude frame of its step).
+
+An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
+(the firmware restarted, or the link was away longer than the window), they are released together and become the
+new anchor; otherwise held frames are dropped and counted in ``held_back``. Frames of other kinds, text-mode rows
+and the first attitude frame of a stream pass through.
+
+:class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frame by frame, the bulk
+decoder feeds it rows (after a vectorised pass that finds nothing to check on a clean stream).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.link import protocol as P
+
+__all__ = ["PlausibilityGate", "attitude_values_ok", "status_values_ok", "gate_rows"]
+
+#: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
+ACC_MAX_MG = 1.0e5
+GYRO_MAX_MDPS = 2.0e7
+Q_MAX = 2.0
+#: Default gate parameters.
+WINDOW_STEPS = 8192  # 50.7 s of AHRS steps
+TOL_US = 5_000.0
+CONFIRM = 3
+PERIOD_US = 1e6 / C.AHRS_RATE_HZ
+
+KIND_ATTITUDE = 0
+KIND_STATUS = 1
+
+
+def attitude_values_ok(acc_mg, gyro_mdps, q_wxyz, thz_rad) -> bool:
+    """True when an attitude frame's values are ones the firmware can send."""
+    for v in acc_mg:
+        if not (-ACC_MAX_MG <= v <= ACC_MAX_MG):  # also False for NaN
+            return False
+    for v in gyro_mdps:
+        if not (-GYRO_MAX_MDPS <= v <= GYRO_MAX_MDPS):
+            return False
+    for v in q_wxyz:
+        if not (-Q_MAX <= v <= Q_MAX):
+            return False
+    return math.isfinite(thz_rad)
+
+
+def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
+    """True when a status frame's filter snapshot and settings are finite (and q within ±2)."""
+    for v in q_wxyz:
+        if not (-Q_MAX <= v <= Q_MAX):
+            return False
+    for v in (*int_xyz, kp_ground, kp_flight, ki, dt_s):
+        if not math.isfinite(v):
+            return False
+    return True
+
+
+def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int, window: int, tol: float) -> bool:
+    d = (seq - seq_a) % P.SEQ_MODULUS
+    if d < d_min or d > window:
+        return False
+    dt = (t_us - t_a) % P.T_US_MODULUS
+    return d * PERIOD_US - tol <= dt <= 3.0 * d * PERIOD_US + 500_000.0
+
+
+class PlausibilityGate:
+    """Sequential gate over attitude/status rows (see the module docstring). Items are opaque to the gate."""
+
+    def __init__(self, window_steps: int = WINDOW_STEPS, tol_us: float = TOL_US, confirm: int = CONFIRM) -> None:
+        self.window = int(window_steps)
+        self.tol = float(tol_us)
+        self.confirm = int(confirm)
+        self.held_back = 0  #: frames dropped for good
+        self.reanchors = 0  #: times a confirmed run became the new anchor
+        self._anchor: tuple[int, int] | None = None
+        self._pending: list[tuple[int, int, Any]] = []
+
+    def offer(self, kind: int, seq: int, t_us: int, values_ok: bool, item: Any) -> list[Any]:
+        """Offer one row: ``seq`` is the attitude ``seq`` or the status ``step`` (any width), ``t_us`` mod 2³².
+        Returns the items released by it, in order (possibly none, possibly earlier held ones)."""
+        if not values_ok:
+            self.held_back += 1
+            return []
+        seq &= 0xFFFF
+        anchor = self._anchor
+        if kind == KIND_STATUS:
+            if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0, self.window, self.tol):
+                return [item]
+            self.held_back += 1
+            return []
+        if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1, self.window, self.tol):
+            self._anchor = (seq, t_us)
+            if self._pending:
+                self.held_back += len(self._pending)
+                self._pending = []
+            return [item]
+        pend = self._pending
+        if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1, self.window, self.tol):
+            pend.append((seq, t_us, item))
+        else:
+            self.held_back += len(pend)
+            pend[:] = [(seq, t_us, item)]
+        if len(pend) >= self.confirm:
+            self._anchor = (pend[-1][0], pend[-1][1])
+            self.reanchors += 1
+            items = [x[2] for x in pend]
+            pend.clear()
+            return items
+        return []
+
+    def finish(self) -> int:
+        """End of stream: frames still held are dropped (counted). Returns how many."""
+        n = len(self._pending)
+        self.held_back += n
+        self._pending = []
+        return n
+
+    @property
+    def pending(self) -> int:
+        """Frames held now, waiting for confirmation."""
+        return len(self._pending)
+
+
+def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
+    ``offset`` and ``exact``), as a :class:`PlausibilityGate` fed row by row in stream order would decide
+    (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
+    gate = gate or PlausibilityGate()
+    keep_a = np.ones(len(att), bool)
+    keep_s = np.ones(len(sta), bool)
+    ea = np.flatnonzero(att["exact"]) if len(att) else np.zeros(0, np.int64)
+    es = np.flatnonzero(sta["exact"]) if len(sta) else np.zeros(0, np.int64)
+    if len(ea) == 0 and len(es) == 0:
+        return keep_a, keep_s
+    a = att[ea]
+    s = sta[es]
+    vals_a = (
+        np.all(np.abs(a["acc_mg"]) <= ACC_MAX_MG, axis=1)
+        & np.all(np.abs(a["gyro_mdps"]) <= GYRO_MAX_MDPS, axis=1)
+        & np.all(np.abs(a["q_wxyz"]) <= Q_MAX, axis=1)
+        & np.isfinite(a["thz_rad"])
+    )
+    vals_s = (
+        np.all(np.abs(s["q_wxyz"]) <= Q_MAX, axis=1)
+        & np.all(np.isfinite(s["int_xyz"]), axis=1)
+        & np.isfinite(s["kp_ground"]) & np.isfinite(s["kp_flight"]) & np.isfinite(s["ki"]) & np.isfinite(s["dt_s"])
+    )
+    # fast path: every attitude row fits the previous one and every status the attitude row before it
+    clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
+    if clean and len(a) > 1:
+        d = (a["seq"][1:].astype(np.int64) - a["seq"][:-1]) % P.SEQ_MODULUS
+        dt = (a["t_us"][1:].astype(np.int64) - a["t_us"][:-1]) % P.T_US_MODULUS
+        clean = bool(np.all((d >= 1) & (d <= gate.window) & (dt >= d * PERIOD_US - gate.tol)
+                            & (dt <= 3.0 * d * PERIOD_US + 500_000.0)))
+    if clean and len(s):
+        j = np.searchsorted(a["offset"], s["offset"]) - 1
+        has = j >= 0
+        if has.any():
+            jj = j[has]
+            d = (s["step"][has].astype(np.int64) - a["seq"][jj]) % P.SEQ_MODULUS
+            dt = (s["t_us"][has].astype(np.int64) - a["t_us"][jj]) % P.T_US_MODULUS
+            clean = bool(np.all((d <= gate.window) & (dt >= d * PERIOD_US - gate.tol)
+                                & (dt <= 3.0 * d * PERIOD_US + 500_000.0)))
+    if clean:
+        if len(a):
+            gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))
+        return keep_a, keep_s
+    # slow path: the gate row by row, in stream order
+    keep_a[ea] = False
+    keep_s[es] = False
+    rows = [(int(o), KIND_ATTITUDE, int(i)) for o, i in zip(a["offset"], ea)]
+    rows += [(int(o), KIND_STATUS, int(i)) for o, i in zip(s["offset"], es)]
+    rows.sort()
+    va = dict(zip(ea.tolist(), vals_a.tolist()))
+    vs = dict(zip(es.tolist(), vals_s.tolist()))
+    for _, kind, i in rows:
+        if kind == KIND_ATTITUDE:
+            released = gate.offer(kind, int(att["seq"][i]), int(att["t_us"][i]), va[i], (kind, i))
+        else:
+            released = gate.offer(kind, int(sta["step"][i]), int(sta["t_us"][i]), vs[i], (kind, i))
+        for k, idx in released:
+            (keep_a if k == KIND_ATTITUDE else keep_s)[idx] = True
+    return keep_a, keep_s

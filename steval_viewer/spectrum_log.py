@@ -1,0 +1,190 @@
+"""``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`), their
+entities and their blueprint.
+
+Entities, per signal ``gyro_x`` … ``acc_z`` (PSD values in dB re 1 mdps²/Hz or 1 mg²/Hz, frequency from 0 to the
+AHRS Nyquist along each bar chart's x axis):
+
+- ``spectrum/psd/<signal>``: the Welch PSD of the whole capture (bar chart, static);
+- ``spectrum/window/<signal>``: the PSD of the window around the time cursor (bar chart on ``fw_time``, one per
+  window, so scrubbing the timeline plays the spectrum), next to ``spectrum/signal/gyro`` and ``…/acc``, the rows'
+  values themselves;
+- ``spectrum/spectrogram/<signal>``: frequency (up) × window (time →) heat map (tensor, static);
+- ``spectrum/throttle/<signal>``: frequency (up) × throttle bin (→) heat map, Blackbox's frequency vs throttle;
+- ``spectrum/notes``: the printed summary (rates, Nyquist, aliases of ``--mark-hz``, peaks) as a text document.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from steval_link import constants as C
+from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
+from steval_link.errors import UserError
+from steval_viewer import entities as ent
+from steval_viewer.columns import Times, send_scalars
+from steval_viewer.sinks import open_session
+
+__all__ = ["ROOT", "spectrum_blueprint", "log_spectra", "spectrum_sink"]
+
+ROOT = "spectrum"
+NOTES = f"{ROOT}/notes"
+_COLOURS = {"x": (220, 60, 60), "y": (60, 170, 60), "z": (60, 100, 230)}
+
+
+def _path(kind: str, name: str) -> str:
+    return f"{ROOT}/{kind}/{name}"
+
+
+def _db(psd: np.ndarray) -> np.ndarray:
+    p = np.asarray(psd, dtype=np.float64)
+    finite = p[np.isfinite(p)]
+    tiny = finite.max() * 1e-12 if finite.size and finite.max() > 0 else 1e-30
+    with np.errstate(invalid="ignore"):
+        return (10 * np.log10(np.maximum(p, tiny))).astype(np.float32)
+
+
+def _label(name: str) -> str:
+    sensor, axis = name.split("_")
+    return f"{sensor} {axis} (dB re 1 {UNITS[sensor]}²/Hz)"
+
+
+def _grid(kind: str, view, title: str) -> rrb.Grid:
+    return rrb.Grid(*(view(_path(kind, name), f"{title}: {_label(name)}") for name, _, _ in SIGNALS),
+                    grid_columns=3, name=title)
+
+
+def _bars(origin: str, name: str) -> rrb.BarChartView:
+    return rrb.BarChartView(origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=False))
+
+
+def _heat(origin: str, name: str) -> rrb.TensorView:
+    return rrb.TensorView(
+        origin=origin, name=name,
+        slice_selection=rrb.TensorSliceSelection(
+            width=rr.encodings.TensorDimensionSelection(dimension=1, invert=False),
+            height=rr.encodings.TensorDimensionSelection(dimension=0, invert=True),
+        ),
+        scalar_mapping=rrb.TensorScalarMapping(colormap="Inferno"),
+        view_fit="Fill",
+    )
+
+
+def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int = 0) -> rrb.Blueprint:
+    """Tabs (``active_tab`` shown first): the capture's PSD, the spectrum at the time cursor (with the signals), the
+    spectrograms, frequency vs throttle; the notes (rates, Nyquist, aliases, peaks) on the right. ``nyquist_hz``:
+    the top of the frequency axes, named in the bar charts' titles (Rerun labels few ticks)."""
+    span = f"0–{nyquist_hz:.2f} Hz →"
+    cursor = rrb.Vertical(
+        _grid("window", _bars, f"at the cursor, {span}"),
+        rrb.Horizontal(
+            rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
+            rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
+            rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR",
+                               plot_legend=rrb.PlotLegend(visible=False)),
+        ),
+        row_shares=[3, 1],
+        name="Spectrum at the cursor",
+    )
+    tabs = rrb.Tabs(
+        _grid("psd", _bars, f"PSD, {span}"),
+        cursor,
+        _grid("spectrogram", _heat, "spectrogram (time →, frequency ↑)"),
+        _grid("throttle", _heat, "frequency ↑ vs throttle →"),
+        name="Spectra",
+        active_tab=active_tab,
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
+        rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed"),
+        rrb.BlueprintPanel(expanded=False),
+        rrb.SelectionPanel(expanded=False),
+        collapse_panels=False,
+    )
+
+
+def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
+    """Log ``sp`` (and the rows of ``tel`` it was computed from) to ``rec`` with :func:`spectrum_blueprint`;
+    returns the number of values logged per entity path."""
+    rec.send_blueprint(spectrum_blueprint(sp.nyquist_hz), make_active=True, make_default=True)
+    counts: dict[str, int] = {}
+    f = np.asarray(sp.freq_hz, dtype=np.float64)
+    for k, (name, _, axis) in enumerate(SIGNALS):
+        colour = _COLOURS["xyz"[axis]]
+        path = _path("psd", name)
+        rec.log(path, rr.BarChart(_db(sp.psd[:, k]), abscissa=f, color=colour), static=True)
+        counts[path] = len(f)
+        spec = _db(sp.spectrogram[:, :, k]).T  # (F, W)
+        path = _path("spectrogram", name)
+        rec.log(path, rr.Tensor(spec, dim_names=("frequency", "window")), static=True)
+        counts[path] = int(spec.size)
+        occupied = np.flatnonzero(sp.thr_windows)
+        thr = _db(sp.thr_psd[occupied, :, k]).T if occupied.size else np.zeros((len(f), 0), np.float32)
+        path = _path("throttle", name)
+        rec.log(path, rr.Tensor(thr, dim_names=("frequency", "throttle bin")), static=True)
+        counts[path] = int(thr.size)
+    for w, t in enumerate(sp.window_t_fw_s):
+        rec.set_time(ent.TIMELINE_FW, duration=float(t))
+        for k, (name, _, axis) in enumerate(SIGNALS):
+            rec.log(_path("window", name), rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f,
+                                                       color=_COLOURS["xyz"[axis]]))
+    rec.reset_time()
+    for name, _, _ in SIGNALS:
+        counts[_path("window", name)] = len(sp.window_t_fw_s)
+    att = tel.attitude
+    times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
+    for sensor, values in (("gyro", att.gyro_mdps), ("acc", att.acc_mg)):
+        path = f"{ROOT}/signal/{sensor}"
+        rec.log(path, rr.SeriesLines(names=[f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"],
+                                     colors=[_COLOURS[a] for a in "xyz"]), static=True)
+        send_scalars(rec, path, times, np.asarray(values, dtype=np.float64))
+        counts[path] = len(times)
+    send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
+    text = "\n".join(f"- {line}" if i else f"**{line}**" for i, line in enumerate(notes))
+    edges = sp.thr_edges
+    bins = ", ".join(f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})"
+                     for b in np.flatnonzero(sp.thr_windows))
+    text += (f"\n\nBar charts: frequency 0 … {sp.nyquist_hz:.2f} Hz (the AHRS Nyquist) along x, PSD in dB. Heat maps: "
+             f"frequency up (bin {sp.resolution_hz:.2f} Hz), windows of {sp.nperseg} rows or throttle bins to the "
+             f"right. Throttle bins holding windows (gTHR range (windows)): {bins or 'none'}.")
+    rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+    counts[NOTES] = len(notes)
+    return counts
+
+
+def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
+    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the Rerun sinks of ``options`` (a
+    ``SinkOptions``): a complete ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+
+    def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
+        notes = format_summary(sp, peaks, marks_hz)
+        session = open_session(options, recording_name=recording_name, atomic_rrd=True)
+        try:
+            log_spectra(session.rec, tel, sp, notes)
+            session.flush()
+            if options.serve:
+                session.wait_for_viewer()
+        except UserError:
+            try:
+                session.close()
+            except UserError:
+                pass
+            _say_written(options.rrd)
+            raise
+        except BaseException:  # Ctrl-C, SIGTERM: no half file
+            session.close(complete=False)
+            raise
+        session.close()
+        _say_written(options.rrd)
+
+    return sink
+
+
+def _say_written(rrd: Path | None) -> None:
+    if rrd is not None:
+        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)
