@@ -26,7 +26,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
-from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
+from steval_link.link.protocol import FLAG_EVENT, FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
     "COE_MDPS_TO_RADPS_F32",
@@ -59,8 +59,6 @@ from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared w
 # ---------------------------------------------------------------------------------------------------------------
 # ahrs_fusion_ag
 # ---------------------------------------------------------------------------------------------------------------
-
-FLAG_EVENT = 1 << 3  # TODO(merge): protocol v2 defines it
 
 #: ``(float)COE_MDPS_TO_RADPS``: the firmware's double literal 1.745329252e-5 cast to float32 (mdps → rad/s).
 COE_MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
