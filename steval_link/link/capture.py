@@ -32,7 +32,8 @@ import numpy as np
 
 from steval_link import __version__
 from steval_link.errors import UserError
-from steval_link.link.decoder import decode_bytes
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import CommandFrame
 
 __all__ = [
     "MAGIC",
@@ -467,6 +468,8 @@ class Source:
     chunk_times_s: np.ndarray | None = None
     events: list[CaptureEvent] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    #: what the host sent to the drone (capture chunks H)
+    host: list[HostChunk] = field(default_factory=list)
 
 
 def read_source(path: str | os.PathLike) -> Source:
@@ -489,6 +492,7 @@ def read_source(path: str | os.PathLike) -> Source:
             chunk_times_s=cap.chunk_times_s,
             events=cap.events,
             warnings=[cap.warning] if cap.warning else [],
+            host=cap.host,
         )
     return Source(path=path, kind="bytes", data=raw)
 
@@ -518,6 +522,8 @@ def telemetry_of_source(src: Source):
     baud = src.header.get("baud") if src.header else None
     source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
     tel = decode_bytes(src.data, chunk_times, baud=baud, source=source, events=src.events)
+    if src.host:
+        tel.commands = _host_commands(src.host, tel.commands)
     a = tel.attitude
     if src.kind != "stv":
         if len(a) + len(tel.status) == 0:
@@ -533,6 +539,21 @@ def telemetry_of_source(src: Source):
             f"firmware?)."
         )
     return tel
+
+
+def _host_commands(host: list[HostChunk], found: np.ndarray) -> np.ndarray:
+    """The command frames the host sent (chunks H), timed by their chunk, after any found in the received bytes;
+    ``offset`` is the received-stream offset at which they were sent."""
+    dec = StreamDecoder()
+    rows = []
+    for h in host:
+        for f in dec.feed(h.data):
+            if isinstance(f, CommandFrame):
+                rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
+    if not rows:
+        return found
+    sent = np.array(rows, dtype=found.dtype)
+    return np.concatenate([found, sent]) if len(found) else sent
 
 
 def demo_capture_path() -> Path:

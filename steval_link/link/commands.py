@@ -26,6 +26,7 @@ __all__ = [
     "CommandChannel",
     "Sent",
     "ack_of_text",
+    "command_log",
     "describe_ack",
     "describe_settings",
     "param_of_status",
@@ -271,3 +272,35 @@ def ack_of_text(line: str):
         return None
     seq, cmd, result, step, ok, bad = (int(w) for w in words[1:])
     return AckFrame(cmd_seq=seq, cmd=cmd, result=result, step=step, rx_ok=ok, rx_bad=bad)
+
+
+def command_log(commands, acks) -> list[dict]:
+    """The commands of a capture with their answers, in the order sent: ``commands`` and ``acks`` are the
+    ``Telemetry.commands`` / ``Telemetry.acks`` rows. Each: ``{"t_host_s", "cmd_seq", "command" (as typed),
+    "result" (None when no ack came), "step", "text" (one sentence)}``; acks for commands not in the capture are
+    listed too (``command`` None)."""
+    out = []
+    answered = set()
+    by_seq: dict[tuple[int, int], int] = {}
+    for i in range(len(acks)):
+        by_seq.setdefault((int(acks["cmd_seq"][i]), int(acks["cmd"][i])), i)
+    for c in commands:
+        command = Command(int(c["cmd"]), int(c["param"]), float(c["value"]))
+        j = by_seq.get((int(c["cmd_seq"]), int(c["cmd"])))
+        ack = None
+        if j is not None and j not in answered:
+            answered.add(j)
+            a = acks[j]
+            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
+                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
+        out.append({"t_host_s": float(c["t_host_s"]), "cmd_seq": int(c["cmd_seq"]), "command": command.describe(),
+                    "result": None if ack is None else ack.result, "step": None if ack is None else ack.step,
+                    "text": describe_ack(command, ack) if ack is not None else f"{command.describe()}: no ack"})
+    for j in range(len(acks)):
+        if j not in answered:
+            a = acks[j]
+            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
+                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
+            out.append({"t_host_s": float(a["t_host_s"]), "cmd_seq": ack.cmd_seq, "command": None,
+                        "result": ack.result, "step": ack.step, "text": describe_ack(None, ack)})
+    return sorted(out, key=lambda r: r["t_host_s"])
