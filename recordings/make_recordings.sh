@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate every bundled recording (see recordings/README.md for which source made which).
-# - demo.stv, freefall.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
+# - demo.stv, freefall.stv, live_params.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
 #   (`steval emulate`); needs ST's sources in ../shared/st-fcu-f401 (or ST_SRC=...), arm-none-eabi-gcc and make.
 # - midflight_drops.stv, textmode.log, broad_07.stv: `steval synth`, for what it alone does (a host joining
 #   mid-frame, injected queue drops, the USB-UART adapter's packet timing, a plain terminal log); their binary
@@ -24,8 +24,14 @@ if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null;
     rm -f recordings/demo.stv recordings/freefall.stv
     "$STEVAL" emulate "$ELF" --scenario demo --duration 60 --seed 1 --no-view --out recordings/demo.stv
     "$STEVAL" emulate "$ELF" --scenario freefall --duration 10 --seed 4 --no-view --out recordings/freefall.stv
+    # two-way link: KI and the correction changed live through the emulated USART1 RX (the commands are in the
+    # capture's H chunks); a throttle pulse makes one change be refused
+    rm -f recordings/live_params.stv
+    "$STEVAL" emulate "$ELF" --scenario hand-tilts --duration 30 --seed 6 --throttle 0:0,26.1:0,26.2:300,27.2:300,27.3:0 \
+        --commands recordings/live_params.commands --no-view --out recordings/live_params.stv
 else
-    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv and freefall.stv left as they are" >&2
+    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv, freefall.stv and live_params.stv left" \
+        "as they are" >&2
 fi
 
 "$STEVAL" synth --scenario hover --duration 20 --join-at 18.31 --drop-rate 0.01 --seed 2 "${ENC[@]}" \

@@ -90,6 +90,6 @@ def emulate_command(
     if live.uses_rerun:
         viewer_sink_options(live)  # e.g. no display and no --rrd: say so before anything is made
     summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
-                             commands=script).run()
+                             commands=script, commands_file=str(commands) if commands is not None else None).run()
     print("\n".join(summary.lines()))
     sys.stdout.flush()

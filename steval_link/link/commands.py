@@ -16,6 +16,8 @@ import shlex
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.frames import AckFrame
@@ -104,9 +106,12 @@ class Command:
 
 
 def _fmt(name: str, value: float) -> str:
+    """As typed: whole numbers without a decimal point, a gain as the shortest text of its float32 (0.1, not
+    0.100000001)."""
     if name in ("min_thr", "correction"):
         return str(int(value))
-    return f"{value:.9g}"
+    text = str(np.float32(value))
+    return text[:-2] if text.endswith(".0") else text
 
 
 def set_param(name: str, value: str | float) -> Command:

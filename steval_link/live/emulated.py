@@ -11,6 +11,7 @@ clock). Ctrl-C stops cleanly: the capture keeps every byte emulated so far.
 
 from __future__ import annotations
 
+import shlex
 import sys
 import time
 from dataclasses import dataclass
@@ -69,10 +70,11 @@ class EmulateSession:
     def __init__(self, emu_options: EmulationOptions, live: LiveOptions, *, realtime: bool = False,
                  stream: TextIO | None = None, tty: bool | None = None,
                  viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
-                 commands: list[tuple[float, Command]] | None = None) -> None:
+                 commands: list[tuple[float, Command]] | None = None, commands_file: str | None = None) -> None:
         """``viewer_factory``: as :class:`~steval_link.live.session.LiveSession`'s (required when ``live`` uses
         Rerun; the caller checks the sinks first). ``commands``: (emulated s, command) sent to the firmware's
-        USART1 RX at those times (``--commands``); typed commands go out at the next slice."""
+        USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's command
+        names); typed commands go out at the next slice."""
         if live.uses_rerun and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or --rrd) needs a viewer_factory")
         self.viewer_factory = viewer_factory
@@ -82,6 +84,7 @@ class EmulateSession:
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
         self._stop: str | None = None
         self.commands = list(commands or [])
+        self.commands_file = commands_file
 
     def request_stop(self, reason: str = "stopped") -> None:
         if self._stop is None:
@@ -100,6 +103,8 @@ class EmulateSession:
                  "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
+            if self.commands_file:
+                extra["command"] += " " + shlex.join(["--commands", str(self.commands_file)])
         try:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
             capture = CaptureWriter(capture_path, port=f"emulated:{emu.elf.path.name}", baud=opts.baud, extra=extra)
