@@ -181,7 +181,7 @@ class FakeDrone:
     """Answers command frames on a pty like the patched firmware: an ack, then an EVENT status (accepted); it
     refuses filter changes while ``armed``; ``silent`` answers nothing; it streams attitude-like noise meanwhile."""
 
-    def __init__(self, link, *, armed=False, silent=False, ack=True):
+    def __init__(self, link, *, armed=False, silent=False, ack=True, stream: list[bytes] | None = None):
         self.master, slave = pty.openpty()
         tty.setraw(slave)
         self.slave_name = os.ttyname(slave)
@@ -192,6 +192,8 @@ class FakeDrone:
         self.step = 1000
         self.gen = 0
         self.received = []
+        self.stream = stream or []  # frames to send, 3 every 20 ms (a drone's stream)
+        self._k = 0
         self._stop = False
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -209,6 +211,13 @@ class FakeDrone:
         while not self._stop:
             r, _, _ = select.select([self.master], [], [], 0.02)
             self.step += 3
+            if self.stream:
+                out = b"".join(self.stream[(self._k + i) % len(self.stream)] for i in range(3))
+                self._k += 3
+                try:
+                    os.write(self.master, out)
+                except OSError:
+                    return
             if not r:
                 continue
             try:
@@ -320,3 +329,39 @@ def test_console_sends_typed_lines_and_reports_mistakes():
     assert notes[0] == "sent: set ki 1" and notes[1].startswith("not a command: 'blah'")
     assert notes[2] == "sent: correction off"
     assert np.frombuffer(sent[1][8:12], "<f4")[0] == 0.0
+
+
+def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
+    """The user's path: steval live with typed lines on stdin; the answer is printed, the capture keeps the bytes
+    sent (H chunk) and the drone's ack."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = read_capture(Path(__file__).resolve().parents[1] / "recordings" / "demo.stv").data
+    dec = StreamDecoder()
+    frames = [data[f.offset:f.offset + f.nbytes] for f in dec.feed(data)[100:700] if f.nbytes == P.ATTITUDE_FRAME_SIZE]
+    d, port = drone(stream=frames)
+    out = tmp_path / "live.stv"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", "live", "--port", port, "--no-view",
+         "--duration", "4", "--prompt", "--out", str(out), "-e", "none", "--rrd", str(tmp_path / "live.rrd")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)
+    proc.stdin.write("set ki 1.0\nfly away\n")
+    proc.stdin.flush()
+    stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0, stderr
+    assert "type a command and Enter" in stderr
+    assert "sent: set ki 1" in stderr and "set ki 1: accepted, applies from step" in stderr
+    assert "not a command: 'fly away'" in stderr
+    assert d.received and d.received[0].param == P.PARAM_KI
+    cap = read_capture(out)
+    assert len(cap.host) == 1 and cap.host[0].data == Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0).encode(
+        d.received[0].cmd_seq)
+    acks = [f for f in StreamDecoder().feed(cap.data) if isinstance(f, AckFrame)]
+    assert [a.cmd_seq for a in acks] == [d.received[0].cmd_seq]
+    from steval_viewer.rrd_check import read_rrd
+
+    # on the timeline: the command sent, the ack, the settings the drone announced
+    assert read_rrd(tmp_path / "live.rrd").samples.get("log/commands", 0) >= 3

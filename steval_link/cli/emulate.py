@@ -60,6 +60,9 @@ def emulate_command(
     commands: Optional[Path] = typer.Option(None, "--commands", help="Command script: lines 'TIME_S COMMAND' "
                                             "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
                                             "'15 reset'), sent to the firmware's USART1 RX at those times."),
+    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help="Read commands typed on stdin (set "
+                                          "ki 1.0, correction off, reset, status) and send them to the emulated "
+                                          "firmware. Default: when stdin is a terminal."),
 ) -> None:
     """Run a firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -86,7 +89,7 @@ def emulate_command(
     out = resolve_capture_out(out)
     live = LiveOptions(port="emulated", baud=C.BAUD, out=out, rrd=rrd, view=not no_view,
                        spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
-                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT))
+                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
     if live.uses_rerun:
         viewer_sink_options(live)  # e.g. no display and no --rrd: say so before anything is made
     summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
