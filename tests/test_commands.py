@@ -363,5 +363,5 @@ def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
     assert [a.cmd_seq for a in acks] == [d.received[0].cmd_seq]
     from steval_viewer.rrd_check import read_rrd
 
-    # on the timeline: the command sent, the ack, the settings the drone announced
-    assert read_rrd(tmp_path / "live.rrd").samples.get("log/commands", 0) >= 3
+    # on the timeline: the command sent and its ack
+    assert read_rrd(tmp_path / "live.rrd").samples.get("log/commands", 0) >= 2
