@@ -229,7 +229,7 @@ class Sent:
 
 class CommandChannel:
     """Numbers and sends commands through ``send(frame_bytes)``; ``record(frame_bytes)`` (the capture's ``H``
-    chunk writer) gets the same bytes first. :meth:`match` pairs an :class:`~steval_link.link.frames.AckFrame`
+    chunk writer) gets the same bytes once they are written. :meth:`match` pairs an :class:`~steval_link.link.frames.AckFrame`
     with the command it answers (by sequence number and command). Sequence numbers start at a random value so
     that acks left over from another session are not taken for this one's."""
 
@@ -254,10 +254,11 @@ class CommandChannel:
         return s
 
     def send(self, command: Command) -> Sent:
+        """Number, send, then record ``command`` (a write that fails raises and records nothing)."""
         s = self.next_frame(command)
+        self._send(s.frame)
         if self._record is not None:
             self._record(s.frame)
-        self._send(s.frame)
         self.sent += 1
         return s
 

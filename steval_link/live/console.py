@@ -28,7 +28,7 @@ PROMPT_HELP = ("type a command and Enter: set ki 1.0 | correction off | correcti
 class CommandConsole:
     """Typed lines → :class:`~steval_link.link.commands.Command` → ``send(frame)``.
 
-    ``record(frame)`` gets each frame before it is sent (the capture and the pipeline's log). ``stream``: where the
+    ``record(frame)`` gets each frame once it is sent (the capture and the pipeline's log). ``stream``: where the
     lines come from (default stdin); None and ``enabled=False`` read nothing (scripts still use :meth:`send`)."""
 
     def __init__(self, send: Callable[[bytes], object], note: Callable[[str], None], *,

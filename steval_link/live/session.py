@@ -324,7 +324,7 @@ class LiveSession:
                 self.request_stop("duration")
 
     def _console(self, reader: SerialReader, proto: RecorderProtocol, pipe: LivePipeline) -> CommandConsole:
-        """The command prompt: each frame goes into the capture (H chunk) and the pipeline's log, then the port."""
+        """The command prompt: each frame goes to the port, then into the capture (H chunk) and the pipeline's log."""
         enabled = self.options.prompt if self.options.prompt is not None else _stdin_is_tty()
 
         def record(frame: bytes) -> None:
