@@ -365,3 +365,33 @@ def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
 
     # on the timeline: the command sent and its ack
     assert read_rrd(tmp_path / "live.rrd").samples.get("log/commands", 0) >= 2
+
+
+def test_console_on_a_terminal_reads_keys_and_shows_the_line_being_typed():
+    """On a terminal the typed line survives the health line's redraws (shown in it) and Enter sends it; the
+    terminal gets its line mode back on close."""
+    import termios
+
+    from steval_link.live.console import CommandConsole
+
+    master, slave = pty.openpty()
+    stream = os.fdopen(slave, "rb", buffering=0)
+    before = termios.tcgetattr(slave)
+    sent, notes = [], []
+    console = CommandConsole(sent.append, notes.append, stream=stream)
+    try:
+        assert not termios.tcgetattr(slave)[3] & termios.ICANON
+        os.write(master, b"set ki 2x\x7f.5")
+        deadline = time.monotonic() + 3
+        while console.typing != "set ki 2.5" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert console.typing == "set ki 2.5" and console.take_typing_change()
+        assert console.decorate("frames 10").startswith("> set ki 2.5_")
+        os.write(master, b"\r")
+        while not console.poll() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert notes == ["sent: set ki 2.5"] and len(sent) == 1 and console.typing == ""
+    finally:
+        console.close()
+        assert termios.tcgetattr(slave)[3] == before[3]
+        os.close(master)

@@ -229,9 +229,10 @@ class Sent:
 
 class CommandChannel:
     """Numbers and sends commands through ``send(frame_bytes)``; ``record(frame_bytes)`` (the capture's ``H``
-    chunk writer) gets the same bytes once they are written. :meth:`match` pairs an :class:`~steval_link.link.frames.AckFrame`
-    with the command it answers (by sequence number and command). Sequence numbers start at a random value so
-    that acks left over from another session are not taken for this one's."""
+    chunk writer) gets the same bytes once they are written. :meth:`match` pairs an
+    :class:`~steval_link.link.frames.AckFrame` with the command it answers (by sequence number and command).
+    Sequence numbers start at a random value so that acks left over from another session are not taken for this
+    one's."""
 
     def __init__(self, send: Callable[[bytes], object], record: Callable[[bytes], object] | None = None, *,
                  first_seq: int | None = None, clock: Callable[[], float] | None = None) -> None:

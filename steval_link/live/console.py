@@ -4,12 +4,16 @@ viewing become commands to the drone.
 ``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode text`` (see
 :func:`steval_link.link.commands.parse_command`). A thread reads the lines (stdin blocks); the session's loop calls
 :meth:`CommandConsole.poll` every round, which sends the commands, and prints what the pipeline noted about them
-(the acknowledgements, one sentence each). The pipeline logs every command sent and answered on the viewer's
-timeline (``log/commands``); the capture gets the bytes sent (``H`` chunks) from the session's ``record``.
+(the acknowledgements, one sentence each). On a terminal (POSIX) the console reads key by key without the
+terminal's echo and the session shows the line being typed at the start of its health line (:attr:`typing`), so
+the health line, redrawn in place four times a second, never wipes it; :meth:`close` gives the terminal back.
+The pipeline logs every command sent and answered on the viewer's timeline (``log/commands``); the capture gets
+the bytes sent (``H`` chunks) from the session's ``record``.
 """
 
 from __future__ import annotations
 
+import os
 import queue
 import sys
 import threading
@@ -38,9 +42,45 @@ class CommandConsole:
         self.note = note
         self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
         self.enabled = enabled
+        #: the line being typed on a terminal (shown by the session after its health line), "" otherwise
+        self.typing = ""
+        self.typing_changed = False
+        self._restore = None
         if enabled:
             src = stream if stream is not None else sys.stdin
-            threading.Thread(target=self._read, args=(src,), name="steval-prompt", daemon=True).start()
+            target = self._read_keys if self._raw_terminal(src) else self._read
+            threading.Thread(target=target, args=(src,), name="steval-prompt", daemon=True).start()
+
+    def _raw_terminal(self, stream) -> bool:
+        """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
+        try:
+            import termios  # reason: POSIX only (Windows reads whole lines)
+
+            fd = stream.fileno()
+            if not os.isatty(fd):
+                return False
+            old = termios.tcgetattr(fd)
+            new = termios.tcgetattr(fd)
+            new[3] &= ~(termios.ICANON | termios.ECHO)
+            new[6][termios.VMIN] = 1
+            new[6][termios.VTIME] = 0
+            termios.tcsetattr(fd, termios.TCSANOW, new)
+        except (ImportError, AttributeError, ValueError, OSError):
+            return False
+        self._restore = (fd, old)
+        return True
+
+    def close(self) -> None:
+        """Give the terminal its line mode and echo back (idempotent)."""
+        if self._restore is not None:
+            import termios  # reason: only set on POSIX
+
+            fd, old = self._restore
+            self._restore = None
+            try:
+                termios.tcsetattr(fd, termios.TCSANOW, old)
+            except (OSError, ValueError):
+                pass
 
     def _read(self, stream: TextIO) -> None:
         try:
@@ -48,6 +88,29 @@ class CommandConsole:
                 self._lines.put(line)
         except (OSError, ValueError):  # stdin closed
             pass
+
+    def _read_keys(self, stream) -> None:
+        fd = stream.fileno()
+        buf = ""
+        while True:
+            try:
+                b = os.read(fd, 64)
+            except OSError:
+                return
+            if not b:
+                return
+            for ch in b.decode("utf-8", "replace"):
+                if ch in "\r\n":
+                    self._lines.put(buf + "\n")
+                    buf = ""
+                elif ch in "\x7f\b":
+                    buf = buf[:-1]
+                elif ch == "\x15":  # Ctrl-U: the whole line
+                    buf = ""
+                elif ch.isprintable():
+                    buf += ch
+            self.typing = buf
+            self.typing_changed = True
 
     def type_line(self, line: str) -> None:
         """As if ``line`` had been typed (tests, scripted sessions)."""
@@ -61,6 +124,17 @@ class CommandConsole:
             return None
         self.note(f"sent: {command.describe()}")
         return sent
+
+    def decorate(self, health_line: str) -> str:
+        """The health line with the command being typed after it (on a terminal)."""
+        if self._restore is None:
+            return health_line
+        return f"> {self.typing}_  | {health_line}"
+
+    def take_typing_change(self) -> bool:
+        """True once after each key typed (the session then redraws at once, so typing shows without delay)."""
+        changed, self.typing_changed = self.typing_changed, False
+        return changed
 
     def poll(self, notes=()) -> int:
         """Send what was typed since the last call; print ``notes`` (the pipeline's answers). Returns commands sent."""

@@ -142,7 +142,8 @@ class EmulateSession:
                 now = time.monotonic()
                 for _ in range(len(pipe.texts)):
                     self.display.note("firmware: " + pipe.texts.popleft()[:200])
-                self.display.show(self._health(emu, pipe, t_emu_s, now - t0), now)
+                self.display.show(console.decorate(self._health(emu, pipe, t_emu_s, now - t0)), now,
+                                  force=console.take_typing_change())
                 if self.realtime:
                     ahead = t_emu_s - (time.monotonic() - t0)
                     if ahead > 0:
@@ -159,6 +160,9 @@ class EmulateSession:
                     pipe.flush_view()
             except Exception:  # noqa: BLE001
                 pass
+            console = getattr(self, "console", None)
+            if console is not None:
+                console.close()
             close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"))
             self._restore_signals(old)
         if error is not None:

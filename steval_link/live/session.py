@@ -268,6 +268,9 @@ class LiveSession:
             except Exception:  # noqa: BLE001
                 pass
             stop = self._stop_reason or (type(error).__name__ if error else "end")
+            console = getattr(self, "console", None)
+            if console is not None:
+                console.close()
             close_outputs(capture, viewer, self.display, stop)
             self._restore_signals(old_handlers)
         if isinstance(error, KeyboardInterrupt):
@@ -319,7 +322,8 @@ class LiveSession:
                 if proto.connected:
                     pipe.sample.clear()
             self._check_frames(proto, now)
-            self.display.show(self._health_line(proto, inbox, now, reader), now)
+            self.display.show(console.decorate(self._health_line(proto, inbox, now, reader)), now,
+                              force=console.take_typing_change())
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
 
