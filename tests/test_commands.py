@@ -395,3 +395,15 @@ def test_console_on_a_terminal_reads_keys_and_shows_the_line_being_typed():
         console.close()
         assert termios.tcgetattr(slave)[3] == before[3]
         os.close(master)
+
+
+def test_a_port_held_by_steval_live_says_to_use_its_prompt(drone, monkeypatch, capsys):
+    from steval_link.link.transport import open_serial
+
+    d, port = drone()
+    held = open_serial(port, 115200)  # as steval live holds it (exclusive)
+    try:
+        code, out, err = run_cli(monkeypatch, capsys, "param", "set", "ki", "1", "--port", port)
+    finally:
+        held.close()
+    assert code == 2 and "is busy" in err and "type the command at its prompt" in err and err.count("\n") == 1

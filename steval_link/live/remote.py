@@ -60,7 +60,10 @@ def run_commands(port: str, baud: int, commands: list[Command], *, timeout_s: fl
         try:
             ser = open_serial(path, baud, timeout_s=0.05)
         except serial.SerialException as exc:
-            raise UserError(open_error_message(path, exc)) from None
+            message = open_error_message(path, exc).replace(" (or use --wait)", "")
+            if " is busy" in message:
+                message += " (if steval live has it, type the command at its prompt instead)"
+            raise UserError(message) from None
     capture = None
     try:
         if out is not None:
