@@ -277,8 +277,9 @@ class Usart(Peripheral):
         self.shift_done: int | None = None  # instruction count when the byte in the shift register has left
         self.shift_byte = 0
         # RX
-        self.rx_queue: deque[tuple[int, int]] = deque()  # (earliest start, byte) not yet on the line
-        self.rx_done: int | None = None  # instruction count when the byte on the RX line is complete
+        self.rx_queue: deque[tuple[int, int]] = deque()  # (earliest start, byte) not yet complete, by start time
+        self.rx_done: int | None = None  # instruction count when the queue's head is complete on the RX line
+        self._rx_line_free = 0  # when the last byte completed
         self.rx_byte = 0
         self.rx_dr: int | None = None  # the receive register (RXNE while not None)
         self.rx_ore = False
@@ -361,28 +362,29 @@ class Usart(Peripheral):
 
     # -- RX
     def inject(self, data: bytes, t: int) -> None:
-        """Queue ``data`` to arrive on the RX line, the first byte starting at instruction count ``t`` (or as soon
-        as the bytes queued before it are through)."""
-        new = [(int(t), b) for b in bytes(data)]
-        if self.rx_queue and self.rx_queue[-1][0] > int(t):  # scheduled out of order: keep the queue by time
-            merged = sorted(list(self.rx_queue) + new, key=lambda x: x[0])
-            self.rx_queue = deque(merged)
+        """Queue ``data`` to arrive on the RX line, the first byte starting at instruction count ``t`` (not before
+        now, and not before the bytes queued before it are through)."""
+        t = max(int(t), self.board.now)
+        new = [(t, b) for b in bytes(data)]
+        if self.rx_queue and self.rx_queue[-1][0] > t:  # scheduled out of order: keep the queue by start time
+            self.rx_queue = deque(sorted(list(self.rx_queue) + new, key=lambda x: x[0]))
         else:
             self.rx_queue.extend(new)
-        if self.rx_done is None:
-            self._rx_next(self.board.now)
+        self._rx_schedule()
 
-    def _rx_next(self, line_free: int) -> None:
+    def _rx_schedule(self) -> None:
+        """The next byte's completion: the queue's head, on the line from its start or when the line is free."""
         if not self.rx_queue:
             self.rx_done = None
             return
-        t0, self.rx_byte = self.rx_queue.popleft()
-        self.rx_done = max(t0, line_free) + self.byte_cycles()
+        self.rx_done = max(self.rx_queue[0][0], self._rx_line_free) + self.byte_cycles()
         self.board.reschedule()
 
     def rx_complete(self) -> None:
         """The byte on the RX line is complete (board event loop): into the receive register, or an overrun."""
         t = self.rx_done
+        _, self.rx_byte = self.rx_queue.popleft()
+        self._rx_line_free = t
         self.rx_log.append((self.rx_byte, t))
         cr1 = self.regs.get(0x0C, 0)
         if not (cr1 & 0x2000 and cr1 & 0x04):
@@ -393,7 +395,7 @@ class Usart(Peripheral):
         else:
             self.rx_dr = self.rx_byte
             self.rx_received += 1
-        self._rx_next(t)
+        self._rx_schedule()
         self._irq_line()
 
     def _irq_line(self) -> None:
