@@ -248,18 +248,40 @@ def test_corrupted_commands_are_ignored_and_counted(fw):
     assert emu.board.usart1.rx_received == len(sent_bytes) and emu.board.usart1.rx_overruns == 0
 
 
-def test_filter_changes_are_refused_while_the_throttle_is_up(fw, tmp_path):
-    """Throttle at MIN_THR or above: the motors may spin, a filter change or reset is refused (ack result 1, the
-    ARMED flag set), a status request is still answered; after the throttle is down again the change applies."""
-    script = [(4.0, "set ki 1.0"), (4.3, "reset"), (4.6, "status"), (6.0, "set ki 1.0")]
-    emu, chunks, host, sent = _scripted_run(fw, script, 6.6, throttle="0:0,3.7:0,3.8:300,5.0:300,5.1:0")
+def test_filter_changes_are_refused_while_the_motors_may_spin(fw, tmp_path):
+    """Throttle at MIN_THR or above, or armed (the remote's arming bit: rc_enable_motor): a filter change or reset is
+    refused (ack result 1, the ARMED flag set), a status request is still answered; once the throttle is down and
+    the drone disarmed, the change applies."""
+    script = [(4.0, "set ki 1.0"), (4.3, "reset"), (4.6, "status"), (5.5, "set ki 1.0"), (5.6, "status"),
+              (6.2, "set ki 1.0")]
+    emu = _emulation(fw, duration_s=6.8, throttle="0:0,3.7:0,3.8:300,5.0:300,5.1:0")
+    joy, connected = emu.elf.addr("joydata"), emu.elf.by_name["connected"]
+    armed_seen = []
+
+    def arm(board):  # the BLE remote's arming button from 5.2 s to 5.8 s (throttle 0)
+        t = board.now / 84e6
+        if 5.2 <= t < 5.8:
+            board.ram_write(joy + 7, b"\x04")
+            board.ram_write(connected.addr, (1).to_bytes(max(connected.size, 1), "little"))
+            armed_seen.append(int.from_bytes(board.ram_read(emu.elf.addr("rc_enable_motor"), 4), "little"))
+        elif t >= 5.8:
+            board.ram_write(joy + 7, b"\x00")
+
+    emu.board.tick_observers.append(arm)
+    channel = CommandChannel(lambda b: None, first_seq=1)
+    for t, text in script:
+        emu.send_at(channel.next_frame(parse_command(text)).frame, t)
+    chunks = list(emu.chunks())
+    assert 1 in armed_seen  # the firmware did arm
     _dec, frames = _frames(chunks)
     acks = [f for f in frames if isinstance(f, AckFrame)]
-    assert [a.result for a in acks] == [P.ACK_REFUSED_ARMED, P.ACK_REFUSED_ARMED, P.ACK_ACCEPTED, P.ACK_ACCEPTED]
+    assert [a.result for a in acks] == [P.ACK_REFUSED_ARMED, P.ACK_REFUSED_ARMED, P.ACK_ACCEPTED,
+                                        P.ACK_REFUSED_ARMED, P.ACK_ACCEPTED, P.ACK_ACCEPTED]
     events = [f for f in frames if isinstance(f, StatusFrame) and f.flags & P.FLAG_EVENT]
-    assert len(events) == 2
-    assert events[0].flags & P.FLAG_ARMED and events[0].ki == np.float32(0.1) and events[0].param_gen == 0
-    assert not events[1].flags & P.FLAG_ARMED and events[1].ki == np.float32(1.0) and events[1].param_gen == 1
+    assert len(events) == 3
+    for ev in events[:2]:  # throttle up, then armed: the motors may spin, nothing changed
+        assert ev.flags & P.FLAG_ARMED and ev.ki == np.float32(0.1) and ev.param_gen == 0
+    assert not events[2].flags & P.FLAG_ARMED and events[2].ki == np.float32(1.0) and events[2].param_gen == 1
     path = tmp_path / "refused.stv"
     path.write_bytes(encode_capture({"source": "test"}, chunks))
     assert replay_firmware(load_telemetry(path)).all_exact
