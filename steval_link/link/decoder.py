@@ -375,16 +375,21 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     idx, size, vt, ver = idx[ok], size[ok], vt[ok], ver[ok]
     end = idx + size
     mv = memoryview(data)
-    good = np.fromiter(
-        (
-            (_crc32(mv[s + 2 : e - 4]) == int.from_bytes(mv[e - 4 : e], "little"))
-            if v == _V2
-            else (_crc_hqx(mv[s + 2 : e - 2], 0xFFFF) == (data[e - 2] | (data[e - 1] << 8)))
-            for s, e, v in zip(idx.tolist(), end.tolist(), ver.tolist())
-        ),
-        dtype=bool,
-        count=len(idx),
-    )
+    good = np.zeros(len(idx), bool)
+    for v, csz, check in ((_V2, 4, _crc32), (_V1, 2, None)):
+        sel = np.flatnonzero(ver == v)
+        if not len(sel):
+            continue
+        e = end[sel]
+        stored = np.zeros(len(sel), np.int64)
+        for k in range(csz):
+            stored |= arr[e - csz + k].astype(np.int64) << (8 * k)
+        a_list, b_list = (idx[sel] + 2).tolist(), (e - csz).tolist()
+        if check is None:
+            crc = [_crc_hqx(mv[a:b], 0xFFFF) for a, b in zip(a_list, b_list)]
+        else:
+            crc = [check(mv[a:b]) for a, b in zip(a_list, b_list)]
+        good[sel] = np.array(crc, np.int64) == stored
     idx, size, vt, ver = idx[good], size[good], vt[good], ver[good]
     v2 = np.flatnonzero(ver == _V2)
     if len(v2):
