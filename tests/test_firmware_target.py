@@ -33,7 +33,7 @@ needs_arm = pytest.mark.skipif(NO_ARM, reason="arm-none-eabi-gcc (Debian: gcc-ar
     "options",
     [
         [],
-        ["BAUD=921600", "TEXT_MODE=1", "TEXT_DECIMATION=8", "AHRS_KI=1.0f", "NO_CORRECTION=1"],
+        ["BAUD=921600", "TEXT_MODE=1", "TEXT_DECIMATION=8", "AHRS_KI=1.0f", "NO_CORRECTION=1", "INFLIGHT_TUNING=1"],
     ],
     ids=["default", "text-ki1-nocorr-921600"],
 )
