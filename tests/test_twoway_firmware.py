@@ -297,6 +297,11 @@ def test_mode_switch_at_runtime(fw):
     assert acks and acks[0].result == P.ACK_ACCEPTED
     att = [f for f in frames if isinstance(f, AttitudeFrame)]
     assert att[-1].t_us > 4.7e6 - 2.985e6  # binary frames again after the switch back
+    from steval_link.link.commands import ack_of_text
+    from steval_link.link.frames import TextFrame
+
+    text_acks = [ack_of_text(f.text) for f in frames if isinstance(f, TextFrame) and f.text.startswith("#ACK")]
+    assert len(text_acks) == 1 and text_acks[0].cmd == P.CMD_SET_MODE and text_acks[0].result == P.ACK_ACCEPTED
 
 
 def test_cli_emulate_with_a_command_script_then_compare(fw, tmp_path, monkeypatch, capsys):
