@@ -93,7 +93,8 @@ def main() -> None:
     wall = time.perf_counter() - t0
     print(f"protocol v{1 if args.v1 else 2}, capture {args.capture}, seed {seed}")
     print(f"frames sent (attitude + status): {total.sent}")
-    print(f"bytes sent: {bytes_sent}, damage events: {damage_events} (one per {bytes_sent / max(1, damage_events):.0f} bytes)")
+    per = bytes_sent / max(1, damage_events)
+    print(f"bytes sent: {bytes_sent}, damage events: {damage_events} (one per {per:.0f} bytes)")
     print(f"recovered: {total.recovered} ({100 * total.recovered_ratio:.2f} %)")
     print(f"fake frames: {total.fake}")
     print(f"run time: {wall:.0f} s (decode {t_decode:.0f} s)")

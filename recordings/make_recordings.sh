@@ -2,6 +2,8 @@
 # Regenerate every bundled recording (see recordings/README.md for which source made which).
 # - demo.stv, freefall.stv, live_params.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
 #   (`steval emulate`); needs ST's sources in ../shared/st-fcu-f401 (or ST_SRC=...), arm-none-eabi-gcc and make.
+# - ble_demo.stv: ST's unmodified firmware (`make stock`) on the emulated board, its BLE notifications to a central
+#   (`steval emulate --ble`); the BLE tick (HAL_GetTick()>>3, u16) is started so that it wraps 30 s after power-up.
 # - midflight_drops.stv, textmode.log, broad_07.stv: `steval synth`, for what it alone does (a host joining
 #   mid-frame, injected queue drops, the USB-UART adapter's packet timing, a plain terminal log); their binary
 #   bytes come from the firmware patch's host C encoder (firmware_patch/src), so each is a C → Python fixture.
@@ -29,9 +31,17 @@ if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null;
     rm -f recordings/live_params.stv
     "$STEVAL" emulate "$ELF" --scenario hand-tilts --duration 30 --seed 6 --throttle 0:0,26.1:0,26.2:300,27.2:300,27.3:0 \
         --commands recordings/live_params.commands --no-view --out recordings/live_params.stv
+    # ST's stock build (an unpatched copy of the sources): what every BLE user's drone runs
+    ST_STOCK=$(mktemp -d)
+    trap 'rm -rf "$ST_TMP" "$ST_STOCK"' EXIT
+    cp -r "$ST_SRC/STM32 FW Project" "$ST_STOCK/"
+    make -s -C firmware_patch stock ST_DIR="$ST_STOCK" BUILD_DIR=build/recordings -j2
+    rm -f recordings/ble_demo.stv
+    "$STEVAL" emulate firmware_patch/build/recordings/stock/st-fcu-stock.elf --ble --scenario demo --duration 40 \
+        --seed 1 --tick-start-ms 494288 --out recordings/ble_demo.stv
 else
-    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv, freefall.stv and live_params.stv left" \
-        "as they are" >&2
+    echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; demo.stv, freefall.stv, live_params.stv and" \
+        "ble_demo.stv left as they are" >&2
 fi
 
 "$STEVAL" synth --scenario hover --duration 20 --join-at 18.31 --drop-rate 0.01 --seed 2 "${ENC[@]}" \

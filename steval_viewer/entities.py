@@ -28,6 +28,17 @@ Layout::
     log/firmware                          firmware text lines
     log/host                              host notes (decoder summary, estimator notes)
     log/commands                          commands the host sent to the drone, its acknowledgements, the settings
+
+BLE captures (ST's stock firmware over Bluetooth: raw samples, no firmware attitude)::
+
+    world/drone/ble                       Transform3D: the first host estimate run on the BLE samples (solid model)
+    world/drone/ble/model                 the quadcopter (static mesh)
+    world/drone/ble/acc_gravity           gravity direction of the BLE accelerometer sample
+    ble/acc_mg, ble/gyro_dps, ble/mag_mgauss   the motion notification's samples (one ISR sample each)
+    ble/pressure_hpa, ble/battery_pct, ble/temperature_c, ble/rssi_dbm, ble/armed   environment and arming
+    ble/notification_rate_hz              motion notifications per second (1 s bins)
+    ble/note                              why the firmware port cannot be bit-exact on BLE data (text)
+    log/ble_console                       the console stdout/stderr characteristics
 """
 
 from __future__ import annotations
@@ -66,6 +77,22 @@ LINK_CRC = "link/crc_failures"
 LINK_TX_DROPPED = "link/tx_dropped"
 LINK_QUEUE = "link/tx_queue_peak_bytes"
 LINK_CYCLES = "link/ahrs_cycles"
+
+BLE = "ble"
+BLE_DRONE = "world/drone/ble"
+BLE_DRONE_MODEL = "world/drone/ble/model"
+BLE_GRAVITY = "world/drone/ble/acc_gravity"
+BLE_ACC = "ble/acc_mg"
+BLE_GYRO = "ble/gyro_dps"
+BLE_MAG = "ble/mag_mgauss"
+BLE_PRESSURE = "ble/pressure_hpa"
+BLE_BATTERY = "ble/battery_pct"
+BLE_TEMPERATURE = "ble/temperature_c"
+BLE_RSSI = "ble/rssi_dbm"
+BLE_ARMED = "ble/armed"
+BLE_RATE = "ble/notification_rate_hz"
+BLE_NOTE = "ble/note"
+LOG_BLE_CONSOLE = "log/ble_console"
 
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"

@@ -377,8 +377,13 @@ def test_link_text_mode_lines(host_build):
 
 
 def bundled_recordings() -> list[Path]:
+    """The bundled serial captures (BLE captures carry ST's notifications, no frames of ours)."""
+    from steval_link.link.ble_payloads import is_ble_source
+    from steval_link.link.capture import read_source
+
     rec = ROOT / "recordings"
-    return sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin")) if rec.is_dir() else []
+    return sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin") and not is_ble_source(read_source(p))) \
+        if rec.is_dir() else []
 
 
 @pytest.mark.parametrize("path", bundled_recordings() or [None], ids=lambda p: p.name if p else "none")

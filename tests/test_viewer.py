@@ -377,11 +377,15 @@ def test_cli_replay_to_rrd_headless(tmp_path):
     assert r.returncode == 2 and "rerun+http" in r.stderr
 
 
-BUNDLED = sorted(
-    p
-    for p in (Path(__file__).resolve().parents[1] / "recordings").iterdir()
-    if p.suffix in (".stv", ".log", ".bin", ".raw")
-)
+def _serial_recording(p: Path) -> bool:
+    """A bundled serial capture or log (BLE captures have their own layout: tests/test_ble_replay.py)."""
+    from steval_link.link.ble_payloads import is_ble_source
+    from steval_link.link.capture import read_source
+
+    return p.suffix in (".stv", ".log", ".bin", ".raw") and not is_ble_source(read_source(p))
+
+
+BUNDLED = sorted(p for p in (Path(__file__).resolve().parents[1] / "recordings").iterdir() if _serial_recording(p))
 
 
 @pytest.mark.skipif(not BUNDLED, reason="no bundled recordings in recordings/")

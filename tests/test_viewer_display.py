@@ -202,3 +202,23 @@ def _running(pid: int) -> bool:
         return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
     except psutil.NoSuchProcess:
         return False
+
+
+def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
+    """README's Bluetooth section: `steval replay recordings/ble_demo.stv --spawn` (on its own port here)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "steval replay recordings/ble_demo.stv --spawn" in text
+    port = free_port()
+    try:
+        done = _steval(["replay", "recordings/ble_demo.stv", "--spawn", "--grpc-port", str(port)], display.env, ROOT)
+        assert done.returncode == 0, done.stderr
+        assert "Traceback" not in done.stderr and "BLE capture" in done.stdout
+        end_ns = int(520 * 1e9)  # the drone's clock (ticks since HAL_GetTick's start at 494.288 s) reaches ~534 s
+        rec = viewer_recording(_url(port), timeline="fw_time", end=end_ns)
+        assert {"/ble/acc_mg", "/ble/battery_pct", "/ble/pressure_hpa", "/ble/rssi_dbm", "/ble/armed",
+                "/world/drone/ble", "/world/drone/ble/model", "/ble/note",
+                "/" + ent.pitch_path("st_mahony")} <= rec.entities
+        png = screenshot(_url(port), tmp_path / "ble.png")
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+    finally:
+        kill_processes(rerun_processes(port))

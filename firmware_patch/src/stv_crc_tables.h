@@ -5,8 +5,8 @@
 
 #include <stdint.h>
 
-/* Four separate arrays (not one [4][256]): the compiler then keeps four base registers and indexes each with
- * one scaled load, instead of adding the table offset to every index (3 instructions less per word). */
+/* Four separate arrays (not one [4][256]): the compiler then keeps four base registers and indexes each
+ * with one scaled load, not adding the table offset to every index (3 instructions less per word). */
 static const uint32_t stv_crc32_t0[256] = {
   0x00000000u, 0x77073096u, 0xEE0E612Cu, 0x990951BAu,
   0x076DC419u, 0x706AF48Fu, 0xE963A535u, 0x9E6495A3u,

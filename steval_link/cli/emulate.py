@@ -24,7 +24,7 @@ from steval_link.cli.viewer_options import (
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.capture import resolve_capture_out
+from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
 from steval_link.live.emulated import EmulateSession
 from steval_link.live.session import LiveOptions
@@ -63,6 +63,13 @@ def emulate_command(
     prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help="Read commands typed on stdin (set "
                                           "ki 1.0, correction off, reset, status) and send them to the emulated "
                                           "firmware. Default: when stdin is a terminal."),
+    ble: bool = typer.Option(False, "--ble", help="Record the BLE notifications the firmware sends to a connected "
+                             "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
+                             "instead of USART1; replay it with steval replay."),
+    ble_connect_at: float = typer.Option(0.5, "--ble-connect-at", help="With --ble: emulated s at which the central "
+                                         "connects."),
+    tick_start_ms: int = typer.Option(0, "--tick-start-ms", help="HAL_GetTick() at main, ms (e.g. 494288: the BLE "
+                                      "tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).", min=0),
 ) -> None:
     """Run a firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -72,6 +79,12 @@ def emulate_command(
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
     Commands reach the firmware's USART1 RX from --commands at given times, or typed at the prompt (a terminal).
     """
+    if ble:
+        if rrd is not None or spawn or serve or connect:
+            raise UserError("--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv "
+                            "(--spawn, --rrd)")
+        _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, ble_connect_at, tick_start_ms)
+        return
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
@@ -95,4 +108,27 @@ def emulate_command(
     summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
                              commands=script, commands_file=str(commands) if commands is not None else None).run()
     print("\n".join(summary.lines()))
+    sys.stdout.flush()
+
+
+def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s: float, tick_start_ms: int) -> None:
+    from steval_link.emulation.ble_capture import record_ble  # reason: only for --ble (loads the BlueNRG model)
+
+    if broad is not None and scenario != "bench":
+        raise UserError("choose --scenario or --broad, not both")
+    if duration is not None and not duration > 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+    if not connect_s >= 0:
+        raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
+    path = resolve_capture_out(out)
+    if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
+        path = default_capture_path()
+        path.parent.mkdir(parents=True, exist_ok=True)
+    emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
+                                   throttle=throttle)
+    command = emu_options.command() + f" --ble --ble-connect-at {connect_s:g}"
+    if tick_start_ms:
+        command += f" --tick-start-ms {tick_start_ms}"
+    rec = record_ble(emu_options, path, connect_s=connect_s, tick_start_ms=tick_start_ms, command=command)
+    print("\n".join(rec.lines()))
     sys.stdout.flush()

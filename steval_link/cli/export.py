@@ -8,9 +8,11 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
+from steval_link.analysis.ble import load_ble
 from steval_link.cli.app import app
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import read_source, telemetry_of_source
 
 __all__ = ["write_csv", "write_parquet", "write_raw"]
@@ -89,6 +91,10 @@ def export(
     q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad (_deg with --degrees), thr, exact
     (0 for rounded text-mode rows), offset (stream byte). Missing values (NaN) are empty CSV fields; each float32
     value is written as the shortest decimal that reads back as the same float32 (999.4).
+
+    A BLE capture (steval live --ble) gives one row per motion notification: t_host_s, tick (8 ms, unwrapped),
+    t_fw_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps, mag_x_mgauss .. mag_z_mgauss, and the last
+    pressure_hpa, battery_pct, temperature_c, rssi_dbm, armed received before it.
     """
     outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw)) if p is not None]
     if not outputs:
@@ -104,6 +110,9 @@ def export(
         progress(0.0, f"reading {capture.name}")
         src = read_source(capture)
         progress(0.1, "decoding")
+        if is_ble_source(src):
+            _export_ble(src, csv, parquet, raw, progress)
+            return
         tel = telemetry_of_source(src) if (csv or parquet) else None
         for w in src.warnings:
             typer.echo(f"steval: warning: {w}", err=True)
@@ -125,3 +134,24 @@ def export(
                     typer.echo(f"{parquet}: {n} attitude rows")
         except OSError as exc:
             raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+
+
+def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, progress) -> None:
+    """A BLE capture: one row per motion notification (env and arming values held from their last one)."""
+    if raw is not None:
+        raise UserError(f"{src.path} is a BLE capture: it has notifications, no serial bytes for --raw "
+                        "(use --csv or --parquet).")
+    for w in src.warnings:
+        typer.echo(f"steval: warning: {w}", err=True)
+    ble = load_ble(src)
+    table = ble.motion_table()
+    try:
+        if csv is not None:
+            write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+            typer.echo(f"{csv}: {len(ble)} motion rows (BLE)")
+        if parquet is not None:
+            progress(0.9, f"writing {parquet.name}")
+            write_parquet(table, parquet)
+            typer.echo(f"{parquet}: {len(ble)} motion rows (BLE)")
+    except OSError as exc:
+        raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None

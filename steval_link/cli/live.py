@@ -23,7 +23,9 @@ from steval_link.cli.viewer_options import (
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
+from steval_link.live.ble_session import BleLiveSession
 from steval_link.live.session import LiveOptions, LiveSession
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
@@ -64,6 +66,14 @@ def live_command(
     duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
     prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
+    ble: bool = typer.Option(
+        False, "--ble",
+        help="Over Bluetooth instead of the serial port, from ST's unmodified firmware: --ble alone connects to the "
+        "strongest drone advertising DRN1…, --ble NAME or --ble ADDRESS to that one (see steval ble scan). Needs "
+        "bleak: pip install \"steval-link[ble]\".",
+    ),
+    device: Optional[str] = typer.Argument(None, metavar="[NAME|ADDRESS]", show_default=False,
+                                           help="With --ble: the drone's BLE name or address."),
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -77,6 +87,13 @@ def live_command(
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
     out = resolve_capture_out(out)
+    if device is not None and not ble:
+        raise UserError(f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
+                        "port is given with --port")
+    if ble:
+        target = device.strip() if device and device.strip() else None
+        _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration)
+        return
     options = LiveOptions(
         port=port,
         baud=baud,
@@ -132,3 +149,22 @@ def record_command(
     summary = LiveSession(options).run()
     print(summary.line())
     sys.stdout.flush()
+
+
+def _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration) -> None:
+    """``steval live --ble``: ST's stock firmware over Bluetooth (``steval_link.live.ble_session``)."""
+    backend = bleak_backend()  # a clear line without bleak, before anything else
+    options = LiveOptions(port=f"ble:{target or 'auto'}", baud=0, out=out, rrd=rrd, view=not no_view, spawn=spawn,
+                          serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
+                          estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration)
+    if options.uses_rerun:
+        viewer_sink_options(options)  # e.g. no display and no --rrd: say so before scanning
+    summary = BleLiveSession(options, target=target, backend=backend, viewer_factory=_ble_viewer).run()
+    print(summary.line())
+    sys.stdout.flush()
+
+
+def _ble_viewer(options: LiveOptions, recording_name: str):
+    from steval_viewer.ble_log import BleLiveLogger  # reason: Rerun loads only when a session uses it
+
+    return BleLiveLogger(options, recording_name)

@@ -20,6 +20,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
+from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
 from steval_link.cli.progress import Progress, progress_bar, scaled
@@ -35,6 +36,7 @@ from steval_link.cli.viewer_options import (
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
+from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
@@ -45,13 +47,13 @@ __all__ = ["load_replay", "run_estimators"]
 Sink = Callable[[Any, dict[str, Any]], None]
 
 
-def load_replay(path: Path | None, progress: Progress | None = None) -> tuple[Any, list[str]]:
+def load_replay(path: Path | None, progress: Progress | None = None, *, src=None) -> tuple[Any, list[str]]:
     """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
-    warnings met while reading it (e.g. a capture cut short)."""
+    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_source``)."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
     progress(0.0, f"reading {path.name}")
-    src = read_source(path)
+    src = read_source(path) if src is None else src
     progress(0.2, "decoding")
     tel = telemetry_of_source(src)
     progress(1.0, "decoded")
@@ -125,6 +127,9 @@ def replay(
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
 
+    A BLE capture (steval live --ble, ST's unmodified firmware) gives its notifications, rate, missing samples,
+    battery, pressure, RSSI and arming, and the estimators run on its raw samples (dt from the 8 ms ticks).
+
     With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none."""
     viewer = rrd is not None or spawn or serve or connect
@@ -134,9 +139,13 @@ def replay(
         options = sink_options(
             rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
         )
+    src = read_source(demo_capture_path() if capture is None else capture)
     try:
+        if is_ble_source(src):
+            _replay_ble(src, names, as_json, options)
+            return
         with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
-            tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0))
+            tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src)
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
             summary_sink(as_json, seen)(tel, estimates)
@@ -148,3 +157,27 @@ def replay(
         if rrd is not None:  # the sink writes it whole or not at all (an earlier file there stays as it was)
             print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
         raise
+
+
+def _replay_ble(src, names: Sequence[str], as_json: bool, options) -> None:
+    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks), the
+    summary, and the BLE viewer layout when asked."""
+    with progress_bar("replay", quiet=as_json or bool(options and options.serve)) as progress:
+        progress(0.0, "decoding BLE notifications")
+        ble = load_ble(src)
+        progress(0.1, "estimators")
+        inputs, estimates, notes = run_ble_estimators(ble, names)
+        s = summarize_ble(ble, src, inputs)
+        if as_json:
+            json.dump(s, sys.stdout, indent=2, allow_nan=False)
+            sys.stdout.write("\n")
+        else:
+            for w in s["warnings"]:
+                print(f"steval: warning: {w}", file=sys.stderr)
+            print("\n".join(format_ble_summary(s)))
+        sys.stdout.flush()
+        if options is not None:
+            from steval_viewer.ble_log import ble_replay_sink  # Rerun loads only for a viewer or an .rrd
+
+            replay = BleReplay(ble, inputs, estimates, notes, {"path": str(src.path), "header": src.header})
+            ble_replay_sink(options, progress=scaled(progress, 0.5, 1.0))(replay)

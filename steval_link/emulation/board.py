@@ -16,7 +16,8 @@ What is modelled, and how:
 - **Function-level replacements** (by symbol): ``Sensor_IO_Read``/``Sensor_IO_Write`` answer from the sensor
   register models (:mod:`steval_link.emulation.sensors`), so ST's drivers and scaling run unchanged;
   ``hci_send_req`` (the only path to the BlueNRG chip) returns success with a zeroed reply, so the BLE init runs
-  its real code. The replaced calls are reported to optional observers (later: BLE payloads).
+  its real code (or the reply of ``hci_handler``, :mod:`steval_link.emulation.bluenrg`). The replaced calls are
+  reported to optional observers.
 - **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set) or
   ``HAL_Delay`` waits for the tick, the clock jumps to the next event. No payload changes (the polled state only
   changes in interrupts).
@@ -887,12 +888,18 @@ class Board:
 
     def _hci_send_req(self, req, is_async, _r2, _r3) -> int:
         ogf, ocf, _event, cparam, clen, rparam, rlen = struct.unpack("<HHiIiIi", self.uc.mem_read(req, 24))
+        reply = b""
+        if self.hci_handler is not None:  # e.g. emulation.bluenrg: GATT handles, RSSI, the notifications sent
+            params = bytes(self.uc.mem_read(cparam, clen)) if cparam and 0 < clen <= 1024 else b""
+            reply = self.hci_handler(ogf, ocf, params, self) or b""
         if rparam and rlen > 0:
-            self.uc.mem_write(rparam, bytes(rlen))
+            self.uc.mem_write(rparam, (bytes(reply) + bytes(rlen))[:rlen])
         self.hci_requests += 1
         return 0
 
     hci_requests = 0
+    #: ``handler(ogf, ocf, command parameters, board) -> reply bytes`` for ``hci_send_req`` (None: zeroed replies)
+    hci_handler: Callable | None = None
 
     def _fault_handler(self, name: str):
         def hook(uc, address, size, user):

@@ -189,8 +189,14 @@ _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
 class Emulation:
     """One firmware run (see the module docstring)."""
 
-    def __init__(self, options: EmulationOptions) -> None:
+    def __init__(self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0,
+                 ble_connect_s: float | None = None) -> None:
+        """``bluenrg``: an ``emulation.bluenrg.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
+        RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
+        before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
+        stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""
         self.options = options
+        self._connect_at = None if ble_connect_s is None else int(ble_connect_s * CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
             raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
         self.elf = Elf(options.elf)
@@ -234,6 +240,11 @@ class Emulation:
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
         self._host_order = 0
         self._install_step_probes()
+        self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
+        tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
+        if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
+            start = int(tick_start_ms) & 0xFFFFFFFF
+            self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
     # -- host → drone bytes (USART1 RX)
     def send_at(self, data: bytes, t_s: float) -> None:
@@ -280,7 +291,8 @@ class Emulation:
             k = self.bus.tick_index(board) + 1
             thr = self.motion.throttle(k)
             board.ram_write(self._joy + 3, bytes([min(max(int(round(thr / 13)), 0), 255)]))
-            if thr and not self._remote_connected and self._connected is not None:
+            central = self._connect_at is not None and board.now >= self._connect_at
+            if (thr or central) and not self._remote_connected and self._connected is not None:
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))

@@ -55,13 +55,16 @@ MAGIC = b"\x89STV\r\n\x1a\n"
 FORMAT_VERSION = 2
 CHUNK_DATA = ord("D")
 CHUNK_EVENT = ord("E")
+CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
-#: Chunk types (CAPTURE_FORMAT.md): D bytes received from the drone, E an event, H bytes the host sent to the drone.
-CHUNK_TYPES = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_HOST: "host"}
+#: every chunk type the reader knows (format 2 adds B and H); D and E are read into the byte stream and the events,
+#: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
+#: for the module that reads them
+CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble", CHUNK_HOST: "host"}
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
-_CHUNK_TYPE = re.compile(b"[" + re.escape(bytes(sorted(CHUNK_TYPES))) + b"]")
+_CHUNK_TYPE = re.compile(b"[" + bytes(sorted(CHUNK_TYPES)) + b"]")
 #: Largest chunk payload the reader accepts (the writer splits larger writes).
 MAX_CHUNK = 1 << 20
 MAX_HEADER = 1 << 20
@@ -107,6 +110,8 @@ class Capture:
     events: list[CaptureEvent]
     truncated: bool = False
     warning: str | None = None
+    #: chunk type → [(t_host_s, payload)] of the chunks other than D, E and H (e.g. B: one BLE notification each)
+    chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
     #: what the host sent to the drone (chunk type H), in file order
     host: list[HostChunk] = field(default_factory=list)
 
@@ -137,15 +142,25 @@ def capture_header(
     }
 
 
-def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]]) -> bytes:
+def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]],
+                   typed: Iterable[tuple[int, bytes, float]] = ()) -> bytes:
     """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
-    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``)."""
+    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``), then ``typed``
+    chunks ``(chunk type, payload, t_host_s)`` (e.g. :data:`CHUNK_BLE`)."""
     parts = [_file_header(header)]
     for data, t_host_s in chunks:
         data = bytes(data)
         for i in range(0, len(data), MAX_CHUNK):
             parts.append(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], float(t_host_s)))
+    for kind, payload, t_host_s in typed:
+        parts.append(_chunk(_known_kind(kind), bytes(payload), float(t_host_s)))
     return b"".join(parts)
+
+
+def _known_kind(kind: int) -> int:
+    if kind not in CHUNK_TYPES or kind in (CHUNK_DATA, CHUNK_EVENT) or not 0 <= kind < 256:
+        raise ValueError(f"not a typed chunk type: {kind!r}")
+    return kind
 
 
 class CaptureWriter:
@@ -181,6 +196,7 @@ class CaptureWriter:
         self._discard_empty = bool(discard_empty)
         self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
+        self.chunks_written = 0  #: typed chunks (e.g. BLE notifications) stored so far
         self._write_all(_file_header(self.header))
         self._sync()
         self._stop = threading.Event()
@@ -218,6 +234,20 @@ class CaptureWriter:
                 self._write_all(_chunk(CHUNK_HOST, data[i : i + MAX_CHUNK], t))
             self._dirty = True
 
+    def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
+        """Store one typed chunk (a type of :data:`CHUNK_TYPES` other than D and E, e.g. :data:`CHUNK_BLE`: one BLE
+        notification, ``char id + bytes``), received at ``t_host_s`` (s since capture start)."""
+        kind = _known_kind(kind)
+        payload = bytes(payload)
+        if len(payload) > MAX_CHUNK:
+            raise ValueError(f"typed chunk of {len(payload)} bytes (at most {MAX_CHUNK})")
+        t = self.now() if t_host_s is None else float(t_host_s)
+        with self._lock:
+            self._check_open()
+            self._write_all(_chunk(kind, payload, t))
+            self.chunks_written += 1
+            self._dirty = True
+
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
         """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
         t = self.now() if t_host_s is None else float(t_host_s)
@@ -243,7 +273,7 @@ class CaptureWriter:
             self._sync()
             self._closed = True
             self._file.close()
-            if self._discard_empty and self.bytes_written == 0:
+            if self._discard_empty and self.bytes_written == 0 and self.chunks_written == 0:
                 try:
                     self.path.unlink()
                     self.discarded = True
@@ -366,6 +396,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     offsets: list[int] = []
     times: list[float] = []
     events: list[CaptureEvent] = []
+    typed: dict[int, list[tuple[float, bytes]]] = {}
     host: list[HostChunk] = []
     total = 0
     n = len(raw)
@@ -416,6 +447,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             total += length
         elif kind == CHUNK_HOST:
             host.append(HostChunk(t, bytes(payload), total))
+        elif kind != CHUNK_EVENT:
+            typed.setdefault(kind, []).append((t, bytes(payload)))
         else:
             try:
                 ev = json.loads(bytes(payload).decode("utf-8"))
@@ -436,6 +469,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         events=events,
         truncated=warning is not None,
         warning=warning,
+        chunks=typed,
         host=host,
     )
 
@@ -468,6 +502,8 @@ class Source:
     chunk_times_s: np.ndarray | None = None
     events: list[CaptureEvent] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    #: typed chunks of a capture (see :attr:`Capture.chunks`)
+    chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
     #: what the host sent to the drone (capture chunks H)
     host: list[HostChunk] = field(default_factory=list)
 
@@ -492,6 +528,7 @@ def read_source(path: str | os.PathLike) -> Source:
             chunk_times_s=cap.chunk_times_s,
             events=cap.events,
             warnings=[cap.warning] if cap.warning else [],
+            chunks=cap.chunks,
             host=cap.host,
         )
     return Source(path=path, kind="bytes", data=raw)

@@ -1,0 +1,166 @@
+"""A BLE capture (ST's stock firmware over Bluetooth) replayed: notifications → arrays → estimators → summary.
+
+The motion notifications carry one ISR sample each (after offset removal, before the gyro IIR and the boxcar),
+with an 8 ms tick; the estimators run on them on a uniform grid with dt from the ticks
+(:func:`steval_link.link.ble_payloads.uniform_inputs`). The firmware's own attitude is not sent over BLE, and the
+ST-Mahony port run on these samples cannot be bit-exact with the drone (different inputs, different dt): the
+summary and the viewer say so (:data:`NOT_BIT_EXACT`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from steval_link.errors import UserError
+from steval_link.estimators import registry
+from steval_link.link.ble_payloads import (
+    TICK_WRAP,
+    BleTelemetry,
+    UniformInputs,
+    ble_records,
+    decode_notifications,
+    uniform_inputs,
+)
+
+__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "run_ble_estimators", "summarize_ble", "format_ble_summary"]
+
+NOT_BIT_EXACT = ("BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
+                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the 8 ms tick, "
+                 "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
+                 "estimators' own.")
+
+
+@dataclass
+class BleReplay:
+    """A decoded BLE capture with its estimator inputs and estimates (name → ``AttitudeEstimate``)."""
+
+    ble: BleTelemetry
+    inputs: UniformInputs
+    estimates: dict[str, Any] = field(default_factory=dict)
+    notes: dict[str, str] = field(default_factory=dict)
+    source: dict[str, Any] = field(default_factory=dict)  #: path, header, warnings
+
+
+def load_ble(src) -> BleTelemetry:
+    """The notifications of a BLE capture (a ``link.capture.Source``); UserError without motion notifications."""
+    ble = decode_notifications(ble_records(src.chunks or {}))
+    if len(ble) == 0:
+        n = sum(ble.counts.values())
+        raise UserError(f"{src.path}: a BLE capture without motion notifications ({n} other notifications): "
+                        "nothing to replay.")
+    return ble
+
+
+def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[UniformInputs, dict[str, Any], dict]:
+    """Run each named estimator over the uniform inputs (dt from the ticks, thr 0: BLE does not carry gTHR);
+    returns (inputs, name → estimate, name → note)."""
+    inputs = uniform_inputs(ble)
+    dt = inputs.dt_s
+    out, notes = {}, {}
+    thr = np.zeros(len(inputs.t_s), dtype=np.int16)
+    for name in names:
+        try:
+            if name in ("st-mahony", "st_mahony"):
+                est = registry.create(name, dt_s=dt)
+            elif name == "accel":
+                est = registry.create(name)
+            else:
+                est = registry.create(name, rate_hz=1.0 / dt)
+        except ImportError as exc:
+            raise UserError(f"estimator {name!r} needs a package that is not installed ({exc})") from None
+        except ValueError as exc:
+            raise UserError(f"estimator {name!r}: {exc}") from None
+        out[name] = est.run(inputs.acc_mg, inputs.gyro_mdps, thr)
+        notes[name] = f"dt {dt * 1e3:.3f} ms from the ticks"
+    return inputs, out, notes
+
+
+def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -> dict[str, Any]:
+    """A JSON-ready summary of a BLE capture."""
+    header = getattr(src, "header", {}) or {}
+    extra = header.get("extra") or {}
+    t = ble.motion_t_host_s
+    interval = ble.interval_s
+    wraps = int((ble.motion_tick[-1] // TICK_WRAP) - (ble.motion_tick[0] // TICK_WRAP)) if len(ble) else 0
+    events = [{"t_host_s": round(e.t_host_s, 6), "kind": e.kind, "text": e.text}
+              for e in getattr(src, "events", []) or []]
+
+    def stat(v: np.ndarray, how) -> float | None:
+        v = np.asarray(v, dtype=np.float64)
+        return round(float(how(v)), 3) if v.size else None
+
+    s = {
+        "kind": "ble",
+        "file": str(getattr(src, "path", "")),
+        "port": header.get("port"),
+        "device": extra.get("device"),
+        "address": extra.get("address"),
+        "emulated": bool(extra.get("emulated", False)),
+        "start_time_utc": header.get("start_time_utc"),
+        "tool_version": header.get("tool_version"),
+        "notifications": dict(ble.counts),
+        "bad_payloads": ble.bad_payloads,
+        "unknown_characteristics": ble.unknown,
+        "duration_host_s": round(float(t[-1] - t[0]), 3) if len(t) > 1 else 0.0,
+        "duration_fw_s": round(float(ble.motion_t_fw_s[-1] - ble.motion_t_fw_s[0]), 3) if len(ble) > 1 else 0.0,
+        "motion_rate_hz": round(1.0 / interval, 2) if interval else None,
+        "motion_interval_ms": round(interval * 1e3, 3) if interval else None,
+        "motion_dropped_estimate": ble.dropped_estimate(),
+        "tick_wraps": wraps,
+        "estimator_dt_ms": round(inputs.dt_s * 1e3, 3) if inputs is not None and inputs.dt_s else None,
+        "rows_held_over_drops": int(inputs.filled.sum()) if inputs is not None else None,
+        "pressure_hpa_mean": stat(ble.pressure_hpa, np.mean),
+        "temperature_c_mean": stat(ble.temperature_c, np.mean),
+        "battery_pct_last": stat(ble.battery_pct[-1:], np.mean),
+        "rssi_dbm_mean": stat(ble.rssi_dbm, np.mean),
+        "armed_notifications": int(ble.armed.sum()),
+        "console_lines": len(ble.console),
+        "events": events,
+        "note": NOT_BIT_EXACT,
+        "warnings": list(getattr(src, "warnings", []) or []),
+    }
+    return s
+
+
+def format_ble_summary(s: dict[str, Any]) -> list[str]:
+    """The text lines of ``steval replay`` for a BLE capture."""
+    counts = ", ".join(f"{k} {v}" for k, v in s["notifications"].items() if v)
+    dev = " ".join(x for x in (s.get("device"), s.get("address")) if x) or s.get("port") or "?"
+    lines = [
+        f"file              {s['file']}  (BLE capture{', emulated firmware' if s['emulated'] else ''})",
+        f"device            {dev}",
+        f"notifications     {counts}",
+        f"duration          {s['duration_fw_s']:.3f} s drone clock (8 ms ticks, {s['tick_wraps']} wrap(s)), "
+        f"{s['duration_host_s']:.3f} s host",
+    ]
+    if s["motion_rate_hz"]:
+        lines.append(f"motion rate       {s['motion_rate_hz']:.2f} Hz (interval {s['motion_interval_ms']:.3f} ms); "
+                     f"dropped ≈ {s['motion_dropped_estimate']}")
+    if s["estimator_dt_ms"]:
+        lines.append(f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the ticks; "
+                     f"{s['rows_held_over_drops']} rows held over drops")
+    env = []
+    if s["pressure_hpa_mean"] is not None:
+        env.append(f"pressure {s['pressure_hpa_mean']:.2f} hPa")
+    if s["temperature_c_mean"] is not None:
+        env.append(f"temperature {s['temperature_c_mean']:.1f} °C")
+    if s["battery_pct_last"] is not None:
+        env.append(f"battery {s['battery_pct_last']:.1f} %")
+    if s["rssi_dbm_mean"] is not None:
+        env.append(f"RSSI {s['rssi_dbm_mean']:.1f} dBm")
+    if env:
+        lines.append("environment       " + ", ".join(env))
+    lines.append(f"arming            armed in {s['armed_notifications']} of {s['notifications']['arming']} "
+                 "notifications")
+    if s["bad_payloads"] or s["unknown_characteristics"]:
+        lines.append(f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
+                     "unknown-characteristic notifications")
+    for e in s["events"]:
+        lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
+    lines.append("note              " + s["note"])
+    return lines
+

@@ -1,0 +1,210 @@
+"""The BlueNRG-MS radio of the emulated board, at the HCI level, and a fake BLE backend that plays its notifications.
+
+:class:`EmulatedBlueNrg` answers the firmware's ``hci_send_req`` (``Board.hci_handler``): distinct GATT handles for
+``aci_gatt_add_serv`` / ``aci_gatt_add_char`` (so each ``aci_gatt_update_char_value`` names its characteristic by
+UUID, as on the chip), an RSSI for ``hci_read_rssi``, and every ``aci_gatt_update_char_value`` the firmware issues
+recorded exactly as its HCI command parameters carry it (service handle, char handle, offset, length, value): the
+source of truth for the payload decoder. Optional congestion model: the chip holds ``buffers`` notifications and
+the link sends ``per_event`` of them every connection interval (the firmware asks for 12.5 ms); a full buffer
+refuses the update with ``BLE_STATUS_INSUFFICIENT_RESOURCES`` (0x64), which ST's code answers by skipping the next
+30 motion updates. Without it (the default) every update is accepted at once.
+
+:class:`FakeBleBackend` implements :class:`steval_link.link.ble_transport.BleBackend` over a list of notifications
+(e.g. those the emulated firmware sent): scan results, a connection that can be made to fail or to drop after N
+notifications, notifications played in order. It tests the transport's scan/connect/reconnect logic without a radio.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from steval_link.emulation.board import CPU_HZ
+from steval_link.link.ble_payloads import CHAR_UUIDS, char_id_of_uuid
+from steval_link.link.ble_transport import BleDevice, BleError
+
+__all__ = ["EmulatedBlueNrg", "HciNotification", "FakeBleBackend", "OGF_VENDOR", "OCF_GATT_UPD_CHAR_VAL"]
+
+OGF_VENDOR = 0x3F
+OCF_GATT_ADD_SERV = 0x0102
+OCF_GATT_ADD_CHAR = 0x0104
+OCF_GATT_UPD_CHAR_VAL = 0x0106
+OGF_STATUS_PARAM = 0x05
+OCF_READ_RSSI = 0x0005
+UUID_TYPE_128 = 0x02
+BLE_STATUS_INSUFFICIENT_RESOURCES = 0x64
+
+
+@dataclass(frozen=True, slots=True)
+class HciNotification:
+    """One ``aci_gatt_update_char_value`` as the firmware issued it (decoded HCI command parameters)."""
+
+    t_s: float  #: emulated time of the HCI request, s since reset
+    t_sent_s: float  #: when the link delivered it (= t_s without the congestion model)
+    service_handle: int
+    char_handle: int
+    offset: int
+    value: bytes
+    uuid: str | None  #: the characteristic's UUID (from its aci_gatt_add_char), None if unknown
+    char_id: int | None  #: steval's id of that characteristic (ble_payloads), None for others (e.g. device name)
+
+
+def _uuid_str(le: bytes) -> str:
+    h = le[::-1].hex()
+    return f"{h[:8]}-{h[8:12]}-{h[12:16]}-{h[16:20]}-{h[20:]}"
+
+
+class EmulatedBlueNrg:
+    """``Board.hci_handler`` for the SPBTLE-RF module (see the module docstring)."""
+
+    def __init__(self, *, rssi_dbm: int = -62, buffers: int | None = None, per_event: int = 4,
+                 interval_s: float = 0.0125, keep: int = 1_000_000) -> None:
+        self.rssi_dbm = int(rssi_dbm)
+        self.buffers = buffers
+        self.per_event = int(per_event)
+        self.interval_s = float(interval_s)
+        self._next_handle = 0x0010
+        self.uuid_of_handle: dict[int, str] = {}
+        self.notifications: deque[HciNotification] = deque(maxlen=keep)
+        self.updates = 0  #: aci_gatt_update_char_value requests
+        self.refused = 0  #: of those, refused for lack of buffers
+        self._queue: deque[float] = deque()  # request times of the notifications waiting in the chip
+        self._next_event_s = 0.0
+
+    def _alloc(self, n: int) -> int:
+        h = self._next_handle
+        self._next_handle += n
+        return h
+
+    def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
+        t = board.now / CPU_HZ
+        if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_SERV:
+            return struct.pack("<BH", 0, self._alloc(16))
+        if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_CHAR and len(params) >= 5:
+            handle = self._alloc(3)  # declaration, value, CCCD
+            n = 16 if params[2] == UUID_TYPE_128 else 2
+            self.uuid_of_handle[handle] = _uuid_str(params[3:3 + n])
+            return struct.pack("<BH", 0, handle)
+        if ogf == OGF_VENDOR and ocf == OCF_GATT_UPD_CHAR_VAL and len(params) >= 6:
+            return bytes([self._update(t, params)])
+        if ogf == OGF_STATUS_PARAM and ocf == OCF_READ_RSSI:
+            return struct.pack("<BHb", 0, 0, self.rssi_dbm)
+        return b""
+
+    def _update(self, t: float, params: bytes) -> int:
+        serv, char, off, length = struct.unpack_from("<HHBB", params)
+        value = bytes(params[6:6 + length])
+        self.updates += 1
+        uuid = self.uuid_of_handle.get(char)
+        cid = char_id_of_uuid(uuid) if uuid else None
+        sent = t
+        if self.buffers is not None and cid is not None:
+            self._drain(t)
+            if len(self._queue) >= self.buffers:
+                self.refused += 1
+                return BLE_STATUS_INSUFFICIENT_RESOURCES
+            # it leaves at the first connection event with room after the ones already queued
+            k = len(self._queue) // self.per_event
+            sent = self._next_event_s + k * self.interval_s
+            self._queue.append(sent)
+        self.notifications.append(HciNotification(t, sent, serv, char, off, value, uuid, cid))
+        return 0
+
+    def _drain(self, t: float) -> None:
+        while self._next_event_s <= t:
+            for _ in range(min(self.per_event, len(self._queue))):
+                self._queue.popleft()
+            self._next_event_s += self.interval_s
+
+    def attach(self, board) -> EmulatedBlueNrg:
+        board.hci_handler = self
+        return self
+
+
+class FakeBleBackend:
+    """A :class:`~steval_link.link.ble_transport.BleBackend` without a radio (see the module docstring).
+
+    ``notifications``: ``(char id, payload)`` in the order the drone sends them. ``devices``: what a scan finds.
+    ``fail_connects``: the first N connection attempts fail. ``drop_after``: the link is lost after each of these
+    counts of notifications (one per connection, in order). Each notification is delivered after ``pace_s``.
+    """
+
+    def __init__(self, notifications: Sequence[tuple[int, bytes]], *,
+                 devices: Sequence[BleDevice] = (BleDevice("DRN1110", "C0:11:22:33:44:55", -60.0),),
+                 fail_connects: int = 0, drop_after: Sequence[int] = (), pace_s: float = 0.0,
+                 scan_error: Exception | None = None) -> None:
+        self._items = list(notifications)
+        self.devices = list(devices)
+        self.fail_connects = int(fail_connects)
+        self.drop_after = list(drop_after)
+        self.pace_s = float(pace_s)
+        self.scan_error = scan_error
+        self.scans = 0
+        self.connects = 0
+        self.connected_to: str | None = None
+        self.subscribed: dict[str, Callable[[bytes], None]] = {}
+        self._on_disconnect: Callable[[], None] | None = None
+        self._pos = 0
+        self._task: asyncio.Task | None = None
+        self.finished: asyncio.Event | None = None  #: set when every notification was played (made in connect)
+
+    async def scan(self, timeout_s: float) -> list[BleDevice]:
+        self.scans += 1
+        if self.scan_error is not None:
+            raise self.scan_error
+        await asyncio.sleep(0)
+        return list(self.devices)
+
+    async def connect(self, address: str, on_disconnect: Callable[[], None]) -> None:
+        self.connects += 1
+        if self.finished is None:
+            self.finished = asyncio.Event()
+        if self.connects <= self.fail_connects:
+            raise BleError(f"connection to {address} failed (fake: attempt {self.connects})")
+        if not any(d.address.lower() == address.lower() for d in self.devices):
+            raise BleError(f"device {address} not found")
+        self.connected_to = address
+        self._on_disconnect = on_disconnect
+        self.subscribed = {}
+
+    async def start_notify(self, uuid: str, callback: Callable[[bytes], None]) -> None:
+        if self.connected_to is None:
+            raise BleError("not connected")
+        if char_id_of_uuid(uuid) is None:
+            raise BleError(f"characteristic {uuid} not found")
+        self.subscribed[uuid.lower()] = callback
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._play())
+
+    async def _play(self) -> None:
+        await asyncio.sleep(0)
+        limit = self.drop_after.pop(0) if self.drop_after else None
+        sent = 0
+        while self._pos < len(self._items) and self.connected_to is not None:
+            if limit is not None and sent >= limit:
+                self._lose()
+                return
+            cid, payload = self._items[self._pos]
+            self._pos += 1
+            cb = self.subscribed.get(CHAR_UUIDS.get(cid, ""))
+            if cb is not None:
+                cb(bytes(payload))
+                sent += 1
+            await asyncio.sleep(self.pace_s)
+        if self._pos >= len(self._items):
+            self.finished.set()
+
+    def _lose(self) -> None:
+        self.connected_to = None
+        cb, self._on_disconnect = self._on_disconnect, None
+        if cb is not None:
+            cb()
+
+    async def disconnect(self) -> None:
+        self.connected_to = None
+        self._on_disconnect = None
+        if self._task is not None and not self._task.done():
+            self._task.cancel()

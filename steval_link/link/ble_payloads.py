@@ -1,0 +1,399 @@
+"""The BLE notifications of ST's stock firmware (release 170120, ``Src/sensor_service.c``): UUIDs, payload layouts,
+decoding into arrays with units in the names, tick unwrapping, dropped-notification estimates, and the uniform
+estimator inputs (dt from the ticks).
+
+What the unmodified drone sends while a central is connected (from the main loop, once per AHRS step for each
+characteristic, skipping 30 motion updates after a failed one: ``ACC_BLUENRG_CONGESTION``):
+
+=========== ======================================== ===== ==================================================
+char id     characteristic (UUID)                    bytes layout (little endian)
+=========== ======================================== ===== ==================================================
+1 motion    ``00e00000-0001-11e1-ac36-0002a5d5c51b`` 20    u16 tick, acc i16×3 mg, gyro i16×3 mdps/100, mag
+                                                           i16×3 mgauss
+2 env       ``001d0000-0001-11e1-ac36-0002a5d5c51b`` 12    u16 tick, i32 pressure hPa×100, u16 battery ‰,
+                                                           i16 temperature 0.1 °C, i16 RSSI dBm×10
+3 arming    ``20000000-0001-11e1-ac36-0002a5d5c51b`` 3     u16 tick, u8 armed
+4 stdout    ``00000001-000e-11e1-ac36-0002a5d5c51b`` ≤20   console text
+5 stderr    ``00000002-000e-11e1-ac36-0002a5d5c51b`` ≤20   console text
+=========== ======================================== ===== ==================================================
+
+The tick is ``HAL_GetTick() >> 3``: 8 ms units, wrapping every 2^16 ticks (524.288 s). The motion sample is the
+ISR's last single sample after offset removal (acc z keeps +1000 mg), *before* the gyro IIR filter and the 5-sample
+boxcar, so it is not the AHRS input: a host port of the firmware's filter cannot be bit-exact on BLE data.
+(The ST app labels the environment's battery and RSSI as BlueST "temperature/humidity" bits; the firmware sends
+battery = VBAT·100/4.2 in ‰ clipped to 1000 and RSSI·10.)
+
+Pure functions and small classes over numpy arrays; no I/O.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link.constants import AHRS_PERIOD_S
+from steval_link.link.capture import CHUNK_BLE
+
+__all__ = [
+    "SERVICE_UUID", "CHAR_UUIDS", "CHAR_NAMES", "CHAR_MOTION", "CHAR_ENV", "CHAR_ARMING", "CHAR_STDOUT",
+    "CHAR_STDERR", "DEVICE_NAME_PREFIX", "TICK_S", "TICK_WRAP", "char_id_of_uuid", "MotionSample", "EnvSample",
+    "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
+    "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
+    "is_ble_source", "ble_chunk", "sample_numbers", "STEP_PERIOD_S",
+]
+
+#: the HW sensor service of ST's firmware (BlueST)
+SERVICE_UUID = "00000000-0001-11e1-9ab4-0002a5d5c51b"
+CHAR_MOTION, CHAR_ENV, CHAR_ARMING, CHAR_STDOUT, CHAR_STDERR = 1, 2, 3, 4, 5
+#: characteristic id (the capture's ``B`` chunk byte) → UUID
+CHAR_UUIDS: dict[int, str] = {
+    CHAR_MOTION: "00e00000-0001-11e1-ac36-0002a5d5c51b",
+    CHAR_ENV: "001d0000-0001-11e1-ac36-0002a5d5c51b",
+    CHAR_ARMING: "20000000-0001-11e1-ac36-0002a5d5c51b",
+    CHAR_STDOUT: "00000001-000e-11e1-ac36-0002a5d5c51b",
+    CHAR_STDERR: "00000002-000e-11e1-ac36-0002a5d5c51b",
+}
+CHAR_NAMES: dict[int, str] = {CHAR_MOTION: "motion", CHAR_ENV: "environment", CHAR_ARMING: "arming",
+                              CHAR_STDOUT: "stdout", CHAR_STDERR: "stderr"}
+#: the firmware advertises "DRN1" + its version digits (release 170120: "DRN1110")
+DEVICE_NAME_PREFIX = "DRN1"
+#: one tick of ``HAL_GetTick() >> 3``, s
+TICK_S = 0.008
+TICK_WRAP = 1 << 16
+
+_MOTION = struct.Struct("<H3h3h3h")
+_ENV = struct.Struct("<HiHhh")
+_ARMING = struct.Struct("<HB")
+MOTION_BYTES, ENV_BYTES, ARMING_BYTES = _MOTION.size, _ENV.size, _ARMING.size
+
+
+class BadPayload(ValueError):
+    """A notification whose length does not match its characteristic."""
+
+
+def char_id_of_uuid(uuid: str) -> int | None:
+    """The characteristic id of a UUID (any case), None for one this tool does not read."""
+    u = str(uuid).lower()
+    for k, v in CHAR_UUIDS.items():
+        if v == u:
+            return k
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class MotionSample:
+    tick: int
+    acc_mg: tuple[int, int, int]
+    gyro_mdps: tuple[int, int, int]  #: the payload's mdps/100 × 100 (the firmware truncates toward zero)
+    mag_mgauss: tuple[int, int, int]
+
+
+@dataclass(frozen=True, slots=True)
+class EnvSample:
+    tick: int
+    pressure_hpa: float
+    battery_pct: float
+    temperature_c: float
+    rssi_dbm: float
+
+
+def _check(payload: bytes, n: int, what: str) -> None:
+    if len(payload) != n:
+        raise BadPayload(f"{what} notification of {len(payload)} bytes (expected {n})")
+
+
+def decode_motion(payload: bytes) -> MotionSample:
+    """One AccGyroMag notification (20 bytes)."""
+    _check(payload, MOTION_BYTES, "motion")
+    v = _MOTION.unpack(payload)
+    return MotionSample(v[0], v[1:4], (v[4] * 100, v[5] * 100, v[6] * 100), v[7:10])
+
+
+def decode_env(payload: bytes) -> EnvSample:
+    """One environment notification (12 bytes)."""
+    _check(payload, ENV_BYTES, "environment")
+    tick, p, b, t, r = _ENV.unpack(payload)
+    return EnvSample(tick, p / 100.0, b / 10.0, t / 10.0, r / 10.0)
+
+
+def decode_arming(payload: bytes) -> tuple[int, bool]:
+    """One arming notification (3 bytes): (tick, armed)."""
+    _check(payload, ARMING_BYTES, "arming")
+    tick, armed = _ARMING.unpack(payload)
+    return tick, bool(armed)
+
+
+def unwrap_ticks(ticks, t_host_s=None) -> np.ndarray:
+    """u16 ticks → int64 ticks since the first wrap-free start. Consecutive ticks step forward modulo 2^16; with
+    host times, a gap longer than a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock
+    says passed."""
+    t = np.asarray(ticks, dtype=np.int64) & 0xFFFF
+    if t.size == 0:
+        return t
+    d = np.diff(t) % TICK_WRAP
+    # a small step backwards (samples of the same connection event delivered out of order) stays backwards
+    d = np.where(d > TICK_WRAP - 256, d - TICK_WRAP, d)
+    if t_host_s is not None:
+        h = np.diff(np.asarray(t_host_s, dtype=np.float64))
+        period = TICK_WRAP * TICK_S
+        extra = np.round((np.nan_to_num(h, nan=0.0) - d * TICK_S) / period)
+        d = d + np.maximum(extra, 0).astype(np.int64) * TICK_WRAP
+    return t[0] + np.concatenate([[0], np.cumsum(d)])
+
+
+class TickUnwrapper:
+    """The live counterpart of :func:`unwrap_ticks`: one u16 tick at a time."""
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.value = 0
+
+    def __call__(self, tick: int, dt_host_s: float | None = None) -> int:
+        tick &= 0xFFFF
+        if self.last is None:
+            self.value = tick
+        else:
+            d = (tick - self.last) % TICK_WRAP
+            if d > TICK_WRAP - 256:
+                d -= TICK_WRAP
+            if dt_host_s is not None and dt_host_s == dt_host_s:
+                d += max(0, round((dt_host_s - d * TICK_S) / (TICK_WRAP * TICK_S))) * TICK_WRAP
+            self.value += d
+        self.last = tick
+        return self.value
+
+
+@dataclass
+class BleTelemetry:
+    """Every notification of a BLE capture as arrays (units in the names). ``t_fw_s`` = unwrapped tick × 8 ms
+    (the drone's clock, 8 ms resolution); ``t_host_s`` = arrival, s since the capture started."""
+
+    motion_t_host_s: np.ndarray
+    motion_tick: np.ndarray  #: (N,) int64, unwrapped
+    motion_t_fw_s: np.ndarray
+    acc_mg: np.ndarray  #: (N,3) float32
+    gyro_mdps: np.ndarray  #: (N,3) float32 (payload × 100)
+    mag_mgauss: np.ndarray  #: (N,3) float32
+    env_t_host_s: np.ndarray
+    env_t_fw_s: np.ndarray
+    pressure_hpa: np.ndarray
+    battery_pct: np.ndarray
+    temperature_c: np.ndarray
+    rssi_dbm: np.ndarray
+    arming_t_host_s: np.ndarray
+    arming_t_fw_s: np.ndarray
+    armed: np.ndarray
+    console: list[tuple[float, str, str]] = field(default_factory=list)  #: (t_host_s, "stdout"/"stderr", text)
+    counts: dict[str, int] = field(default_factory=dict)  #: notifications per characteristic name
+    bad_payloads: int = 0  #: notifications of the wrong length (skipped)
+    unknown: int = 0  #: notifications of an unknown characteristic id (skipped)
+
+    def __len__(self) -> int:
+        return len(self.motion_tick)
+
+    @property
+    def interval_s(self) -> float | None:
+        return nominal_interval_s(self.motion_tick)
+
+    def dropped_estimate(self) -> int:
+        """Motion notifications missing between the first and the last (from the ticks and the nominal interval)."""
+        return _dropped(self.motion_tick, self.interval_s)
+
+    def motion_table(self) -> dict[str, np.ndarray]:
+        """One row per motion notification, for CSV/Parquet (env and arming values held from their last one)."""
+        tab = {"t_host_s": self.motion_t_host_s, "tick": self.motion_tick, "t_fw_s": self.motion_t_fw_s}
+        for name, arr in (("acc", self.acc_mg), ("gyro", self.gyro_mdps), ("mag", self.mag_mgauss)):
+            unit = {"acc": "mg", "gyro": "mdps", "mag": "mgauss"}[name]
+            for i, ax in enumerate("xyz"):
+                tab[f"{name}_{ax}_{unit}"] = arr[:, i]
+        for key, t, v in (("pressure_hpa", self.env_t_fw_s, self.pressure_hpa),
+                          ("battery_pct", self.env_t_fw_s, self.battery_pct),
+                          ("temperature_c", self.env_t_fw_s, self.temperature_c),
+                          ("rssi_dbm", self.env_t_fw_s, self.rssi_dbm),
+                          ("armed", self.arming_t_fw_s, self.armed.astype(np.float32))):
+            tab[key] = _held(self.motion_t_fw_s, t, v)
+        return tab
+
+
+def _held(t_at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``v`` at each time of ``t_at``: its last value at or before it (NaN before the first)."""
+    out = np.full(len(t_at), np.nan, dtype=np.float32)
+    if len(t):
+        i = np.searchsorted(t, t_at, side="right") - 1
+        ok = i >= 0
+        out[ok] = np.asarray(v, dtype=np.float32)[i[ok]]
+    return out
+
+
+def ble_chunk(char_id: int, payload: bytes) -> bytes:
+    """The payload of a capture's ``B`` chunk: the characteristic id, then the notification's bytes."""
+    return bytes([char_id]) + bytes(payload)
+
+
+def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[float, int, bytes]]:
+    """``(t_host_s, char id, payload)`` of a capture's ``B`` chunks (``Capture.chunks`` / ``Source.chunks``)."""
+    return [(t, p[0], p[1:]) for t, p in chunks.get(CHUNK_BLE, []) if p]
+
+
+def is_ble_source(src) -> bool:
+    """A capture recorded over BLE (``B`` chunks, or ``extra.link`` = "ble" in its header)."""
+    chunks = getattr(src, "chunks", None) or {}
+    extra = (getattr(src, "header", None) or {}).get("extra") or {}
+    return bool(chunks.get(CHUNK_BLE)) or (isinstance(extra, dict) and extra.get("link") == "ble")
+
+
+def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTelemetry:
+    """``(t_host_s, char id, payload)`` in arrival order → :class:`BleTelemetry`. Wrong-length notifications are
+    counted and skipped (never raise)."""
+    mo: list[tuple] = []
+    en: list[tuple] = []
+    ar: list[tuple] = []
+    console: list[tuple[float, str, str]] = []
+    counts = {n: 0 for n in CHAR_NAMES.values()}
+    bad = unknown = 0
+    for t, cid, payload in records:
+        name = CHAR_NAMES.get(cid)
+        if name is None:
+            unknown += 1
+            continue
+        counts[name] += 1
+        try:
+            if cid == CHAR_MOTION:
+                _check(payload, MOTION_BYTES, "motion")
+                mo.append((t, *_MOTION.unpack(payload)))
+            elif cid == CHAR_ENV:
+                _check(payload, ENV_BYTES, "environment")
+                en.append((t, *_ENV.unpack(payload)))
+            elif cid == CHAR_ARMING:
+                _check(payload, ARMING_BYTES, "arming")
+                ar.append((t, *_ARMING.unpack(payload)))
+            else:
+                console.append((t, name, bytes(payload).decode("utf-8", "replace")))
+        except BadPayload:
+            bad += 1
+    m = np.array(mo, dtype=np.float64).reshape(-1, 11)
+    e = np.array(en, dtype=np.float64).reshape(-1, 6)
+    a = np.array(ar, dtype=np.float64).reshape(-1, 3)
+    # one clock for all three: the ticks of every characteristic unwrapped together, in arrival order
+    order = [(r[0], k, j) for k, rows in enumerate((mo, en, ar)) for j, r in enumerate(rows)]
+    order.sort(key=lambda x: x[0])  # stable: arrival order kept for equal host times
+    rows_of = (m, e, a)
+    all_ticks = np.array([rows_of[k][j, 1] for _, k, j in order], dtype=np.int64)
+    all_t = np.array([t for t, _, _ in order], dtype=np.float64)
+    unwrapped = unwrap_ticks(all_ticks, all_t) if len(order) else np.zeros(0, np.int64)
+    ticks_of: list[np.ndarray] = [np.zeros(len(r), np.int64) for r in rows_of]
+    for (_, k, j), u in zip(order, unwrapped):
+        ticks_of[k][j] = u
+    mtick = ticks_of[0]
+
+    return BleTelemetry(
+        motion_t_host_s=m[:, 0].copy(), motion_tick=mtick, motion_t_fw_s=mtick * TICK_S,
+        acc_mg=m[:, 2:5].astype(np.float32), gyro_mdps=(m[:, 5:8] * 100).astype(np.float32),
+        mag_mgauss=m[:, 8:11].astype(np.float32),
+        env_t_host_s=e[:, 0].copy(), env_t_fw_s=ticks_of[1] * TICK_S, pressure_hpa=(e[:, 2] / 100).astype(np.float32),
+        battery_pct=(e[:, 3] / 10).astype(np.float32), temperature_c=(e[:, 4] / 10).astype(np.float32),
+        rssi_dbm=(e[:, 5] / 10).astype(np.float32),
+        arming_t_host_s=a[:, 0].copy(), arming_t_fw_s=ticks_of[2] * TICK_S, armed=a[:, 2].astype(bool),
+        console=console, counts=counts, bad_payloads=bad, unknown=unknown,
+    )
+
+
+#: consecutive motion notifications per window when estimating the nominal interval
+_WINDOW = 128
+#: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
+#: at 84 MHz: 6.190 ms) and tries at every step: a slower stream is that firmware skipping (congestion), so the
+#: sender's interval is the step period (the 8 ms tick blurs a measured one)
+STEP_PERIOD_S = AHRS_PERIOD_S
+
+
+def nominal_interval_s(ticks) -> float | None:
+    """The sender's interval between motion notifications, s: ST's AHRS step period (:data:`STEP_PERIOD_S`) unless
+    the stream is clearly faster (more than 3 % above 161.5 Hz: another firmware), then the measured one: the
+    median over windows of 128 notifications of their span / 128 (the 8 ms tick quantisation averages out; windows
+    with drops or reconnects are longer, the median ignores them). None below 2 notifications."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    n = len(t)
+    if n < 2:
+        return None
+    if n <= _WINDOW:
+        span = t[-1] - t[0]
+        v = span / (n - 1) if span > 0 else None
+    else:
+        v = float(np.median((t[_WINDOW:] - t[:-_WINDOW]) / _WINDOW))
+    if v is None or not v > 0:
+        return None
+    return STEP_PERIOD_S if v > 0.97 * STEP_PERIOD_S else v
+
+
+def _phase(t: np.ndarray, interval: float) -> float:
+    """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
+    consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""
+    w = min(len(t), 64)
+    i = np.arange(w)
+    lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
+    return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
+
+
+def sample_numbers(ticks, interval: float) -> np.ndarray:
+    """The sender's sample number of each received notification (0 for the first): the smallest increasing
+    numbering that the ticks allow, so a drop is placed where the ticks first prove it (within a sample or two)."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    if len(t) == 0:
+        return np.zeros(0, np.int64)
+    t0 = _phase(t, interval)
+    lo = np.ceil((t - t0) / interval - 1e-9).astype(np.int64)
+    lo[0] = 0
+    # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
+    return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
+
+
+def _dropped(ticks, interval: float | None) -> int:
+    """Motion notifications missing between the first and the last one received: the last sample's number from
+    the last 64 samples (taken as consecutive; intersection of what their ticks allow, so the 8 ms quantisation
+    does not blur the count) minus the notifications received."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    n = len(t)
+    if interval is None or n < 2:
+        return 0
+    t0 = _phase(t, interval)
+    w = min(n, 64)
+    back = np.arange(w)[::-1]  # samples after each of the last w, up to the last one
+    k_lo = float(np.max((t[n - w:] - t0) / interval + back))
+    k_hi = float(np.min((t[n - w:] + TICK_S - t0) / interval + back))
+    k = int(np.ceil(k_lo - 1e-9))
+    if not k < k_hi:
+        k = int(round((t[-1] + TICK_S / 2 - t0) / interval))
+    return max(0, k - (n - 1))
+
+
+@dataclass
+class UniformInputs:
+    """Motion samples on a uniform time grid for the estimators (fixed dt = ``dt_s``)."""
+
+    t_s: np.ndarray  #: (M,) firmware time of each row, s (from the ticks)
+    acc_mg: np.ndarray  #: (M,3) float32
+    gyro_mdps: np.ndarray  #: (M,3) float32
+    filled: np.ndarray  #: (M,) bool: True for rows held over a dropped notification
+    dt_s: float
+    source_row: np.ndarray  #: (M,) int64: the motion notification each row holds
+
+
+def uniform_inputs(ble: BleTelemetry, interval_s: float | None = None) -> UniformInputs:
+    """The estimators' inputs with dt from the ticks: one row per sender sample (:func:`sample_numbers`, at the
+    nominal interval, :func:`nominal_interval_s`); a missing notification's row holds the last sample received."""
+    n = len(ble)
+    dt = interval_s if interval_s is not None else ble.interval_s
+    if n == 0 or dt is None:
+        dt = dt or 0.0
+        z = np.zeros((n, 3), np.float32)
+        return UniformInputs(ble.motion_t_fw_s.copy(), ble.acc_mg.copy() if n else z, ble.gyro_mdps.copy() if n
+                             else z, np.zeros(n, bool), float(dt), np.arange(n))
+    k = sample_numbers(ble.motion_tick, dt)
+    src = np.searchsorted(k, np.arange(k[-1] + 1), side="right") - 1  # the last sample received at or before
+    filled = np.ones(len(src), bool)
+    filled[k] = False
+    t_grid = _phase(ble.motion_t_fw_s, dt) + np.arange(len(src)) * dt
+    return UniformInputs(t_grid, ble.acc_mg[src], ble.gyro_mdps[src], filled, float(dt), src)

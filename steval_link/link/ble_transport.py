@@ -1,0 +1,283 @@
+"""The BLE transport: scan, connect, subscribe to the drone's notifications, reconnect when the link is lost.
+
+Two parts, as the serial transport keeps its protocol apart from its thread:
+
+* :class:`BleBackend`: the small interface to a radio (``scan``, ``connect``, ``start_notify``, ``disconnect``).
+  :class:`BleakBackend` implements it with `bleak <https://pypi.org/project/bleak/>`_ (optional extra
+  ``steval-link[ble]``; BlueZ on Linux, CoreBluetooth on macOS, WinRT on Windows);
+  ``steval_link.emulation.bluenrg.FakeBleBackend`` without a radio (tests).
+* :class:`BleLink`: the logic over any backend: find the drone (by name or address, default: the first
+  ``DRN1…`` advertiser), connect, subscribe to every characteristic of ``ble_payloads.CHAR_UUIDS`` it has, hand
+  each notification to ``on_notification(char id, bytes, t_unix_s)``, and on a lost link mark it and reconnect
+  (scan again, back off up to :data:`RETRY_MAX_S`) until stopped.
+
+Radio and permission failures become :class:`~steval_link.errors.UserError` sentences (:func:`explain_ble_error`),
+never a traceback.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+from steval_link.errors import UserError
+from steval_link.link.ble_payloads import CHAR_NAMES, CHAR_UUIDS, DEVICE_NAME_PREFIX
+
+__all__ = ["BleDevice", "BleError", "BleBackend", "BleakBackend", "BleLink", "explain_ble_error", "is_address",
+           "pick_device", "SCAN_TIMEOUT_S", "RETRY_MAX_S", "bleak_backend"]
+
+SCAN_TIMEOUT_S = 5.0
+#: longest wait between two reconnection attempts, s
+RETRY_MAX_S = 5.0
+
+
+class BleError(Exception):
+    """A BLE operation failed (connection refused, characteristic missing, link lost while connecting...)."""
+
+
+@dataclass(frozen=True, slots=True)
+class BleDevice:
+    name: str | None
+    address: str
+    rssi_dbm: float | None = None
+
+
+class BleBackend(Protocol):
+    async def scan(self, timeout_s: float) -> list[BleDevice]: ...
+
+    async def connect(self, address: str, on_disconnect: Callable[[], None]) -> None: ...
+
+    async def start_notify(self, uuid: str, callback: Callable[[bytes], None]) -> None: ...
+
+    async def disconnect(self) -> None: ...
+
+
+def explain_ble_error(exc: BaseException) -> str | None:
+    """One sentence for a failure of the platform's Bluetooth stack (no adapter, adapter off, no permission, no
+    BlueZ), None when it is not one of those (a connection failure, handled by retrying)."""
+    text = " ".join(str(a) for a in getattr(exc, "args", ()) if a is not None) or str(exc)
+    low = (text + " " + str(getattr(exc, "dbus_error", "") or "")).lower()
+    reason = getattr(exc, "reason", None)
+    reason = getattr(reason, "name", str(reason or "")).upper()
+    if "DENIED" in reason or isinstance(exc, PermissionError) or "accessdenied" in low or "not authorized" in low \
+            or "permission" in low or "unauthorized" in low or "notpermitted" in low or "notauthorized" in low:
+        return ("Bluetooth permission denied: on Linux add yourself to the 'bluetooth' group or run BlueZ's polkit "
+                "rules; on macOS/Windows allow Bluetooth for this terminal in the system's privacy settings.")
+    if reason == "POWERED_OFF" or "powered off" in low or "turned off" in low or "notready" in low \
+            or "not ready" in low or "poweredoff" in low:
+        return "the Bluetooth adapter is switched off: turn Bluetooth on (e.g. bluetoothctl power on) and retry."
+    if reason in ("NO_BLUETOOTH", "NO_BLE_CENTRAL_ROLE") or "no bluetooth adapters" in low \
+            or ("adapter" in low and ("not found" in low or "no such" in low)):
+        return "no Bluetooth LE adapter found on this computer (plug in a USB dongle or enable the built-in one)."
+    if isinstance(exc, FileNotFoundError) or "serviceunknown" in low or ("bluez" in low and "unknown" in low):
+        return ("no Bluetooth service reachable: BlueZ (bluetoothd) and the D-Bus system bus must be running "
+                "(e.g. sudo systemctl start bluetooth), and a Bluetooth adapter present.")
+    return None
+
+
+def is_address(text: str) -> bool:
+    """A BLE address (``C0:11:22:33:44:55``) or a macOS CoreBluetooth UUID, rather than a name."""
+    t = text.strip()
+    parts = t.split(":")
+    if len(parts) == 6 and all(len(p) == 2 for p in parts):
+        try:
+            [int(p, 16) for p in parts]
+            return True
+        except ValueError:
+            return False
+    return len(t) == 36 and t.count("-") == 4
+
+
+def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | None:
+    """The device ``target`` names (an address, or a name: exact, then case-insensitive prefix); without a target
+    the strongest ``DRN1…`` advertiser (ST's drone firmware)."""
+    if target:
+        t = target.strip()
+        if is_address(t):
+            return next((d for d in devices if d.address.lower() == t.lower()), None)
+        exact = [d for d in devices if d.name == t]
+        if exact:
+            return exact[0]
+        pref = [d for d in devices if d.name and d.name.lower().startswith(t.lower())]
+        return _strongest(pref)
+    return _strongest([d for d in devices if d.name and d.name.startswith(DEVICE_NAME_PREFIX)])
+
+
+def _strongest(devices: list[BleDevice]) -> BleDevice | None:
+    if not devices:
+        return None
+    return max(devices, key=lambda d: -1e9 if d.rssi_dbm is None else d.rssi_dbm)
+
+
+def bleak_backend() -> BleakBackend:
+    """A :class:`BleakBackend`, or a UserError when bleak is not installed."""
+    try:
+        import bleak  # noqa: F401  # reason: optional extra, checked before anything else runs
+    except ImportError:
+        raise UserError('BLE needs bleak: pip install "steval-link[ble]" (or pip install bleak).') from None
+    return BleakBackend()
+
+
+class BleakBackend:
+    """:class:`BleBackend` with bleak (imported when made: :func:`bleak_backend`)."""
+
+    def __init__(self) -> None:
+        self._client = None
+
+    async def scan(self, timeout_s: float) -> list[BleDevice]:
+        from bleak import BleakScanner  # reason: optional extra
+
+        found = await BleakScanner.discover(timeout=timeout_s, return_adv=True)
+        out = []
+        for dev, adv in found.values():
+            name = adv.local_name or dev.name
+            out.append(BleDevice(name, dev.address, float(adv.rssi) if adv.rssi is not None else None))
+        return out
+
+    async def connect(self, address: str, on_disconnect: Callable[[], None]) -> None:
+        from bleak import BleakClient  # reason: optional extra
+        from bleak.exc import BleakError  # reason: optional extra
+
+        client = BleakClient(address, disconnected_callback=lambda _c: on_disconnect())
+        try:
+            await client.connect()
+        except (BleakError, asyncio.TimeoutError, OSError) as exc:
+            if explain_ble_error(exc):
+                raise
+            raise BleError(f"connection to {address} failed: {exc or type(exc).__name__}") from None
+        self._client = client
+
+    async def start_notify(self, uuid: str, callback: Callable[[bytes], None]) -> None:
+        from bleak.exc import BleakError  # reason: optional extra
+
+        try:
+            await self._client.start_notify(uuid, lambda _ch, data: callback(bytes(data)))
+        except BleakError as exc:
+            raise BleError(str(exc)) from None
+
+    async def disconnect(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            try:
+                await client.disconnect()
+            except Exception:  # noqa: BLE001 - already gone: nothing to release
+                pass
+
+
+class BleLink:
+    """Scan, connect, subscribe, reconnect (see the module docstring). ``on_event(kind, text)`` hears "connect",
+    "disconnect", "reconnect" and "missing" (a characteristic the drone lacks); ``clock`` gives Unix seconds."""
+
+    def __init__(self, backend: BleBackend, target: str | None, on_notification: Callable[[int, bytes, float], None],
+                 *, on_event: Callable[[str, str], None] | None = None, clock: Callable[[], float] = time.time,
+                 scan_timeout_s: float = SCAN_TIMEOUT_S, retry_max_s: float = RETRY_MAX_S,
+                 first_scans: int = 1) -> None:
+        self.backend = backend
+        self.target = target
+        self.on_notification = on_notification
+        self.on_event = on_event or (lambda kind, text: None)
+        self.clock = clock
+        self.scan_timeout_s = float(scan_timeout_s)
+        self.retry_max_s = float(retry_max_s)
+        self.first_scans = int(first_scans)
+        self.device: BleDevice | None = None
+        self.connections = 0
+        self.losses = 0
+        self.notifications = 0
+        self._lost: asyncio.Event | None = None
+
+    def _what(self) -> str:
+        return repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
+
+    async def find(self, scans: int) -> BleDevice | None:
+        """Scan up to ``scans`` times for the target; platform failures raise UserError."""
+        for _ in range(max(scans, 1)):
+            try:
+                devices = await self.backend.scan(self.scan_timeout_s)
+            except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
+                why = explain_ble_error(exc)
+                if why:
+                    raise UserError(why) from None
+                raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
+            dev = pick_device(devices, self.target)
+            if dev is not None:
+                return dev
+        return None
+
+    async def _connect(self, dev: BleDevice) -> None:
+        self._lost = asyncio.Event()
+        lost = self._lost
+        await self.backend.connect(dev.address, lost.set)
+        for cid, uuid in CHAR_UUIDS.items():
+            try:
+                await self.backend.start_notify(uuid, self._handler(cid))
+            except BleError as exc:
+                if cid == 1:  # no motion characteristic: not ST's drone firmware
+                    await self.backend.disconnect()
+                    raise UserError(f"{dev.name or dev.address} has no AccGyroMag characteristic ({uuid}): not "
+                                    "ST's drone firmware?") from None
+                self.on_event("missing", f"{CHAR_NAMES[cid]}: {exc}")
+        self.device = dev
+        self.connections += 1
+
+    def _handler(self, cid: int) -> Callable[[bytes], None]:
+        def cb(data: bytes) -> None:
+            self.notifications += 1
+            self.on_notification(cid, data, self.clock())
+        return cb
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Connect (UserError when the drone is not found at first) and stay connected until ``stop`` is set."""
+        dev = await self.find(self.first_scans)
+        if dev is None:
+            raise UserError(f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
+                            "(is the drone on, in range, and not connected to a phone?).")
+        try:
+            await self._connect(dev)
+        except UserError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - BleError, or the platform's own (no permission, adapter off...)
+            why = explain_ble_error(exc)
+            if why:
+                raise UserError(why) from None
+            raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
+        self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
+        first_delay = min(0.5, self.retry_max_s)
+        delay = first_delay
+        while not stop.is_set():
+            await _first(stop, self._lost)
+            if stop.is_set():
+                break
+            self.losses += 1
+            self.on_event("disconnect", "BLE link lost")
+            while not stop.is_set():
+                await _first(stop, asyncio.sleep(delay))
+                if stop.is_set():
+                    break
+                try:
+                    found = await self.find(1)
+                    if found is not None:
+                        await self._connect(found)
+                        self.on_event("reconnect", f"{found.name or ''} {found.address}".strip())
+                        delay = first_delay
+                        break
+                except UserError:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - retried unless the platform itself failed
+                    why = explain_ble_error(exc)
+                    if why:
+                        raise UserError(why) from None
+                delay = min(delay * 2, self.retry_max_s)
+        await self.backend.disconnect()
+
+
+async def _first(stop: asyncio.Event, other) -> None:
+    """Wait until ``stop`` is set or ``other`` (an Event or a coroutine) completes."""
+    t1 = asyncio.ensure_future(stop.wait())
+    t2 = asyncio.ensure_future(other.wait() if isinstance(other, asyncio.Event) else other)
+    done, pending = await asyncio.wait({t1, t2}, return_when=asyncio.FIRST_COMPLETED)
+    for t in pending:
+        t.cancel()
