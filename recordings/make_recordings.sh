@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Regenerate every bundled recording (see recordings/README.md for which source made which).
-# - demo.stv, freefall.stv, flight.stv, preflight_*.stv: ST's real firmware (release 170120 + firmware_patch) on the emulated board
+# - demo.stv, freefall.stv, live_params.stv, flight.stv, preflight_*.stv: ST's real firmware (release 170120 +
+#   firmware_patch) on the emulated board
 #   (`steval emulate`); needs ST's sources in ../shared/st-fcu-f401 (or ST_SRC=...), arm-none-eabi-gcc and make.
 # - ble_demo.stv: ST's unmodified firmware (`make stock`) on the emulated board, its BLE notifications to a central
 #   (`steval emulate --ble`); the BLE tick (HAL_GetTick()>>3, u16) is started so that it wraps 30 s after power-up.
@@ -27,6 +28,11 @@ if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null;
     rm -f recordings/demo.stv recordings/freefall.stv
     "$STEVAL" emulate "$ELF" --scenario demo --duration 60 --seed 1 --no-view --out recordings/demo.stv
     "$STEVAL" emulate "$ELF" --scenario freefall --duration 10 --seed 4 --no-view --out recordings/freefall.stv
+    # two-way link: KI and the correction changed live through the emulated USART1 RX (the commands are in the
+    # capture's H chunks); a throttle pulse makes one change be refused
+    rm -f recordings/live_params.stv
+    "$STEVAL" emulate "$ELF" --scenario hand-tilts --duration 30 --seed 6 --throttle 0:0,26.1:0,26.2:300,27.2:300,27.3:0 \
+        --commands recordings/live_params.commands --no-view --out recordings/live_params.stv
     # flight control (the FC frames): a flight with stick moves, the preflight check's guided moves on this build,
     # and on a build whose mixer drives motor outputs 3 and 4 swapped (the mixer renumbered to Betaflight's Quad-X
     # order; the same edit as tests/support/firmware.py swap_motor_outputs)
@@ -51,7 +57,7 @@ if [ -d "$ST_SRC/STM32 FW Project" ] && command -v arm-none-eabi-gcc >/dev/null;
         --seed 1 --tick-start-ms 494288 --out recordings/ble_demo.stv
 else
     echo "make_recordings.sh: no $ST_SRC or no arm-none-eabi-gcc; the emulated-firmware recordings (demo, freefall," \
-        "flight, preflight_*, ble_demo) left as they are" >&2
+        "live_params, flight, preflight_*, ble_demo) left as they are" >&2
 fi
 
 "$STEVAL" synth --scenario hover --duration 20 --join-at 18.31 --drop-rate 0.01 --seed 2 "${ENC[@]}" \

@@ -38,6 +38,7 @@ Layout::
     link/ahrs_cycles                      CPU cycles of one ahrs_fusion_ag + QuaternionToEuler: min, mean, max
     log/firmware                          firmware text lines
     log/host                              host notes (decoder summary, estimator notes)
+    log/commands                          commands the host sent to the drone, its acknowledgements, the settings
 
 BLE captures (ST's stock firmware over Bluetooth: raw samples, no firmware attitude)::
 
@@ -124,6 +125,7 @@ LOG_BLE_CONSOLE = "log/ble_console"
 
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"
+LOG_COMMANDS = "log/commands"
 
 #: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_port`` the host's
 #: bit-exact port of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).

@@ -55,6 +55,9 @@ class ViewerLogger:
     def log_flight(self, frame, t_unix_s: float) -> None:
         self.logger.log_flight(frame, t_unix_s)
 
+    def log_event(self, text: str, t_unix_s: float, level: str = "INFO") -> None:
+        self.logger.log_event(text, t_unix_s, level)
+
     def log_link(self, stats, t_unix_s: float) -> None:
         self.logger.log_link(stats, t_unix_s)
         if self.file is not None:

@@ -282,6 +282,19 @@ class LiveLogger:
                 self.rec.log(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]))
             self.rec.reset_time()
 
+    def log_event(self, text: str, t_unix_s: float, level: str = "INFO") -> None:
+        """A command sent to the drone, its acknowledgement or the settings it announced: an entry on the
+        timeline (``log/commands``)."""
+        host = float(self._host(np.array([t_unix_s]))[0]) if t_unix_s is not None else math.nan
+        self.rec.reset_time()
+        if math.isfinite(host):
+            self.rec.set_time(ent.TIMELINE_HOST, duration=host)
+        times = self._scalar_times(t_unix_s) if math.isfinite(host) else None
+        if times is not None:
+            self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
+        self.rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))
+        self.rec.reset_time()
+
     def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
         """Decoder counters (``DecoderStats``): CRC failures, cumulative; at most every LINK_INTERVAL_S."""
         if not force and t_unix_s - self._last_link_s < LINK_INTERVAL_S:

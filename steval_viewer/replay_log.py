@@ -24,6 +24,7 @@ import rerun as rr
 
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import replay_firmware
+from steval_link.link.commands import command_log
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
@@ -235,6 +236,27 @@ def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplayS
     summary.samples[ent.LOG_FIRMWARE] = len(lines)
 
 
+def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
+    """The commands the host sent (capture chunks H) with the drone's acks, one text entry each at the time the
+    command was sent (``log/commands``; a refusal or a missing ack as a warning)."""
+    entries = command_log(getattr(tel, "commands", ()), getattr(tel, "acks", ()))
+    if not entries:
+        return
+    t_host = np.array([e["t_host_s"] for e in entries], dtype=np.float64)
+    texts = [e["text"] for e in entries]
+    levels = ["INFO" if e["result"] == 0 else "WARN" for e in entries]
+    if times.t_host_s is not None and np.isfinite(times.t_host_s).any() and np.isfinite(t_host).all():
+        pairs = np.isfinite(times.t_host_s)
+        t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
+        send_rows(rec, ent.LOG_COMMANDS, Times(t_fw, t_host),
+                  lambda sel: rr.TextLog.columns(text=texts if sel is None else [texts[i] for i in sel],
+                                                 level=levels if sel is None else [levels[i] for i in sel]))
+    else:
+        for text, level in zip(texts, levels):
+            rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))
+    summary.samples[ent.LOG_COMMANDS] = len(entries)
+
+
 def log_replay(
     rec: rr.RecordingStream,
     tel: Any,
@@ -299,6 +321,7 @@ def log_replay(
     if link:
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
+    log_commands(rec, times, tel, summary)
     if has_fc:
         flight_log.log_flight_control(rec, tel, summary)
     return summary

@@ -33,7 +33,7 @@ needs_arm = pytest.mark.skipif(NO_ARM, reason="arm-none-eabi-gcc (Debian: gcc-ar
     "options",
     [
         [],
-        ["BAUD=921600", "TEXT_MODE=1", "TEXT_DECIMATION=8", "AHRS_KI=1.0f", "NO_CORRECTION=1"],
+        ["BAUD=921600", "TEXT_MODE=1", "TEXT_DECIMATION=8", "AHRS_KI=1.0f", "NO_CORRECTION=1", "INFLIGHT_TUNING=1"],
     ],
     ids=["default", "text-ki1-nocorr-921600"],
 )
@@ -46,7 +46,7 @@ def test_cross_compile_strict(tmp_path, options):
     for flag in ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-O2", "-Werror"):
         assert flag in r.stdout
     objs = sorted(p.name for p in (tmp_path / "arm").glob("*.o"))
-    assert objs == ["stv_frame.o", "stv_fw.o", "stv_link.o", "stv_txq.o"]
+    assert objs == ["stv_cmd.o", "stv_frame.o", "stv_fw.o", "stv_link.o", "stv_txq.o"]
     # hard-float EABI objects for the M4
     attrs = subprocess.run(
         ["arm-none-eabi-readelf", "-A", str(tmp_path / "arm" / "stv_link.o")], capture_output=True, text=True

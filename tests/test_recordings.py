@@ -11,16 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link.estimators.st_mahony import MahonyState, bits_equal, replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, replay_firmware
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AttitudeFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AckFrame, AttitudeFrame, FlightFrame, StatusFrame, TextFrame
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
-BINARY = ["demo.stv", "midflight_drops.stv", "freefall.stv", "broad_07.stv", "flight.stv", "preflight_ok.stv",
-          "preflight_swapped_motors.stv"]
+BINARY = ["demo.stv", "midflight_drops.stv", "freefall.stv", "broad_07.stv", "live_params.stv", "flight.stv",
+          "preflight_ok.stv", "preflight_swapped_motors.stv"]
 ALL = BINARY + ["textmode.log"]
 
 
@@ -42,6 +42,9 @@ def encode(frame) -> bytes:
     if isinstance(frame, FlightFrame):
         names = [n for n in P.FLIGHT_DTYPE.names if n != "reserved"]
         return P.encode_flight(**{n: getattr(frame, n) for n in names})
+    if isinstance(frame, AckFrame):
+        return P.encode_ack(cmd_seq=frame.cmd_seq, cmd=frame.cmd, result=frame.result, step=frame.step,
+                            rx_ok=frame.rx_ok, rx_bad=frame.rx_bad)
     assert isinstance(frame, TextFrame)
     return P.encode_text(frame.text)
 
@@ -123,14 +126,15 @@ def test_port_is_bit_exact_on_every_seeded_step(name):
         assert rep.n_seeded == len(a)
     # every status snapshot seeds the port bit-exact up to the next gap
     row_of = {int(k): i for i, k in enumerate(a.step)}
-    settings = rep.seeds[0].settings
     checked = 0
     for j in range(len(s)):
         r0 = row_of.get(int(s.step[j]) + 1)
-        if r0 is None:
-            continue
+        if r0 is None or (j + 1 < len(s) and s.step[j + 1] == s.step[j]):
+            continue  # superseded: a later status names the same step (a command's change came between)
+        settings = MahonySettings.of_status(s, j)  # each snapshot's own settings (they change in live_params)
         r1 = r0
-        while r1 + 1 < len(a) and a.step[r1 + 1] == a.step[r1] + 1 and r1 - r0 < 400:
+        until = int(s.step[j + 1]) if j + 1 < len(s) else math.inf  # the next status may bring other settings
+        while r1 + 1 < len(a) and a.step[r1 + 1] == a.step[r1] + 1 and r1 - r0 < 400 and a.step[r1 + 1] <= until:
             r1 += 1
         q, thx, thy, _ = mahony_run(
             a.acc_mg[r0 : r1 + 1],
@@ -181,3 +185,26 @@ def test_textmode_log():
     assert len(a) > 150 and np.all(np.diff(a.step) == 16) and not a.exact.any()
     assert len(s) >= 15 and np.all(s.flags & P.FLAG_TEXT_MODE)
     assert all(math.isfinite(v) for v in a.thx_rad)
+
+
+def test_live_params_recording_shows_each_change_bit_exact(monkeypatch, capsys):
+    """Lab exercises 4 and 5 live: KI and the correction changed through the emulated USART1 RX; the commands are
+    in the capture (H chunks), each accepted change has its EVENT status, and compare is bit-exact on every step."""
+    from support.cli import run_cli
+
+    cap = read_capture(REC / "live_params.stv")
+    assert cap.host and "--commands recordings/live_params.commands" in cap.header["extra"]["command"]
+    tel = load_telemetry(REC / "live_params.stv")
+    sent = [(int(c["cmd"]), int(c["param"]), float(c["value"])) for c in tel.commands]
+    assert (P.CMD_SET_PARAM, P.PARAM_KI, 1.0) in sent and (P.CMD_SET_PARAM, P.PARAM_CORRECTION, 0.0) in sent
+    assert len(tel.acks) == len(tel.commands)
+    assert P.ACK_REFUSED_ARMED in set(tel.acks["result"].tolist())
+    ev = np.flatnonzero(tel.status.flags & P.FLAG_EVENT)
+    kis = {float(k) for k in tel.status.ki[ev]}
+    assert {np.float32(0.1), np.float32(1.0)} <= {np.float32(k) for k in kis}
+    assert (tel.status.flags[ev] & P.FLAG_NO_CORRECTION).any() and not (tel.status.flags[ev[-1]] & 1)
+    code, out, err = run_cli(monkeypatch, capsys, "compare", REC / "live_params.stv")
+    assert code == 0, err
+    assert "port vs firmware: bit-exact on every step" in out
+    for change in ("ki 0.1 → 1", "correction on → off", "correction off → on", "filter reset", "ki 1 → 0.1"):
+        assert change in out, change

@@ -2,7 +2,9 @@
  *
  * The main loop calls stv_fw_step_begin()/stv_fw_step_end() around ahrs_fusion_ag + QuaternionToEuler; the
  * frames go into a RAM ring buffer that the USART1 TXE interrupt drains. Nothing here ever waits for the UART: a
- * frame that does not fit in the queue is dropped and counted (status frame, tx_dropped).
+ * frame that does not fit in the queue is dropped and counted (status frame, tx_dropped). The USART1 RX interrupt
+ * puts received bytes in a small ring; stv_fw_step_end handles the complete command frames among them (stv_cmd.h)
+ * between two AHRS steps.
  * Registers are addressed directly (no HAL/CMSIS headers needed), so this file cross-compiles on its own.
  */
 #ifndef STV_FW_H
@@ -11,6 +13,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "stv_cmd.h"
 #include "stv_config.h"
 #include "stv_link.h"
 
@@ -50,6 +53,10 @@ void stv_fw_log_write(const char *s, size_t n);
 
 /* The USART1 interrupt handler's body (replaces HAL_UART_IRQHandler(&huart1) in stm32f4xx_it.c). */
 void stv_fw_usart1_irq(void);
+
+/* The filter settings the patched ahrs_fusion_ag reads at every step (kp_ground, kp_flight, ki, min_thr,
+ * correction): the build's values from stv_fw_init on; host commands change them between two steps. */
+extern stv_filter_t stv_filter;
 
 /* Frames dropped since boot because the TX queue was full. */
 uint32_t stv_fw_dropped(void);

@@ -27,6 +27,7 @@ from steval_link.estimators.st_mahony import (
 from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
+from steval_link.link.protocol import FLAG_EVENT
 
 #: Rows after the first mismatch over which an alternative setting must reproduce the firmware to be named.
 DIAGNOSIS_WINDOW_ROWS = 600
@@ -81,7 +82,31 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
         "flags": int(s.flags[rows[-1]]),
         "differs_from_defaults": {k: [d[k], defaults[k]] for k in d if d[k] != defaults[k]},
         "changes": changes,
+        "change_list": _change_list(s, rows, settings),
     }
+
+
+def _fmt_setting(v) -> str:
+    return ("on" if v else "off") if isinstance(v, bool) else f"{v:g}"
+
+
+def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[dict[str, Any]]:
+    """Each change the status frames show, in stream order: ``{"step": the first step it applies to, "status_row",
+    "event": announced at once after a host command (flag EVENT), "text": "ki 0.1 → 1, correction on → off" or
+    "filter reset"}``. A reset is an EVENT status whose parameter generation moved on with the same settings."""
+    flags = np.asarray(s.flags)[rows].astype(np.int64)
+    steps = np.asarray(s.step)[rows].astype(np.int64)
+    gen = np.asarray(getattr(s, "param_gen", np.zeros(len(s.flags))))[rows].astype(np.int64)
+    out = []
+    for i in range(1, len(settings)):
+        a, b = _settings_dict(settings[i - 1]), _settings_dict(settings[i])
+        parts = [f"{k} {_fmt_setting(a[k])} → {_fmt_setting(b[k])}" for k in a if a[k] != b[k]]
+        if not parts and gen[i] != gen[i - 1] and flags[i] & FLAG_EVENT:
+            parts = ["filter reset (q = 1, 0, 0, 0; integrals 0)"]
+        if parts:
+            out.append({"step": int(steps[i]) + 1, "status_row": int(rows[i]), "event": bool(flags[i] & FLAG_EVENT),
+                        "text": ", ".join(parts)})
+    return out
 
 
 def _binary_view(tel):

@@ -278,8 +278,15 @@ def format_report(r: ComparisonReport) -> list[str]:
         lines.append(f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
                      f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
                      f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}")
-        if fs["changes"]:
+        changes = fs.get("change_list", [])
+        if changes:
+            lines.append(f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
+                         "(settings and filter resets, as the status frames show them):")
+        elif fs["changes"]:
             lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
+        for ch in changes:
+            how = "status EVENT after a host command" if ch["event"] else "status frame"
+            lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
     else:
         lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
 

@@ -9,6 +9,7 @@ import numpy as np
 from steval_link.analysis.link_stats import cycles_are_emulated
 from steval_link.analysis.report import json_number
 from steval_link.link import protocol as P
+from steval_link.link.commands import command_log
 
 __all__ = ["summarize", "format_summary"]
 
@@ -96,6 +97,7 @@ def summarize(tel) -> dict[str, Any]:
         "v1_frames": st.v1_frames,
         "flight_frames": st.flight,
         "ack_frames": st.ack,
+        "commands": command_log(tel.commands, tel.acks),
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
         "warnings": list(src.get("warnings") or []),
         "text_lines": [t for _, t in tel.text[:20]],
@@ -157,6 +159,14 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
         + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
         + (f", {s['implausible']} implausible frames held back" if s.get("implausible") else "")
     )
+    cmds = s.get("commands") or []
+    if cmds:
+        acked = sum(1 for c in cmds if c["result"] is not None)
+        lines.append(f"commands: {len(cmds)} sent to the drone or answered, {acked} acknowledged")
+        for c in cmds[:max_text_lines]:
+            lines.append(f"  {c['t_host_s']:8.3f} s  {c['text']}")
+        if len(cmds) > max_text_lines:
+            lines.append(f"  … {len(cmds) - max_text_lines} more (--json lists them all)")
     if s.get("v1_frames"):
         lines.append(
             f"protocol v1 ({s['v1_frames']} frames, CRC-16): about 1 in 65 536 damaged frames passes its check, so a"

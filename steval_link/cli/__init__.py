@@ -8,6 +8,7 @@ import typer
 
 # Each import registers its sub-command(s) on ``app`` (one per line, in the order of ``steval --help``).
 from steval_link.cli import ble as _ble  # noqa: F401
+from steval_link.cli import command as _command  # noqa: F401
 from steval_link.cli import compare as _compare  # noqa: F401
 from steval_link.cli import conformance as _conformance  # noqa: F401
 from steval_link.cli import emulate as _emulate  # noqa: F401

@@ -25,6 +25,7 @@ from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import default_capture_path, resolve_capture_out
+from steval_link.link.commands import parse_script
 from steval_link.live.emulated import EmulateSession
 from steval_link.live.session import LiveOptions
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
@@ -60,6 +61,12 @@ def emulate_command(
                                              "firmware (as for steval live), or 'none'."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace the emulation to the wall clock (default: as "
                                   "fast as it runs)."),
+    commands: Optional[Path] = typer.Option(None, "--commands", help="Command script: lines 'TIME_S COMMAND' "
+                                            "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
+                                            "'15 reset'), sent to the firmware's USART1 RX at those times."),
+    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help="Read commands typed on stdin (set "
+                                          "ki 1.0, correction off, reset, status) and send them to the emulated "
+                                          "firmware. Default: when stdin is a terminal."),
     ble: bool = typer.Option(False, "--ble", help="Record the BLE notifications the firmware sends to a connected "
                              "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
                              "instead of USART1; replay it with steval replay."),
@@ -74,6 +81,7 @@ def emulate_command(
     to its sensor registers. Its USART1 bytes go through the same capture -> decoder -> estimators -> viewer path
     as `steval live`; the capture replays and compares like a drone's (`steval compare X.stv`). At the end: the
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
+    Commands reach the firmware's USART1 RX from --commands at given times, or typed at the prompt (a terminal).
     """
     if ble:
         if rrd is not None or spawn or serve or connect:
@@ -88,13 +96,21 @@ def emulate_command(
                                    throttle=throttle, mount=mount)
     if duration is not None and not duration > 0:
         raise UserError(f"--duration must be positive, got {duration}")
+    script = None
+    if commands is not None:
+        try:
+            text = commands.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
+        script = parse_script(text, str(commands))
     out = resolve_capture_out(out)
     live = LiveOptions(port="emulated", baud=C.BAUD, out=out, rrd=rrd, view=not no_view,
                        spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
-                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT))
+                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
     if live.uses_rerun:
         viewer_sink_options(live)  # e.g. no display and no --rrd: say so before anything is made
-    summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger).run()
+    summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
+                             commands=script, commands_file=str(commands) if commands is not None else None).run()
     print("\n".join(summary.lines()))
     sys.stdout.flush()
 

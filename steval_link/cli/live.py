@@ -35,6 +35,10 @@ _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 1
 _WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead of stopping with an error."
 
 
+_PROMPT_HELP = ("Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
+                "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal.")
+
+
 def _check_baud(baud: int) -> None:
     if baud <= 0:
         raise UserError(f"--baud must be a positive baud rate, got {baud}")
@@ -61,6 +65,7 @@ def live_command(
     ),
     duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
+    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
     ble: bool = typer.Option(
         False, "--ble",
         help="Over Bluetooth instead of the serial port, from ST's unmodified firmware: --ble alone connects to the "
@@ -74,7 +79,8 @@ def live_command(
 
     The link health (frame rate, missing frames, CRC failures) is shown continuously on stderr; Ctrl-C stops,
     closes the capture (and the .rrd) and prints a one-line summary. Unplugging the adapter is survived: the
-    session waits and resumes when the port comes back.
+    session waits and resumes when the port comes back. Commands typed in the terminal go to the drone (set ki
+    1.0, correction off, reset, status, ...): each change is marked on the viewer's timeline and in the capture.
     """
     _check_baud(baud)
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
@@ -102,6 +108,7 @@ def live_command(
         estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
         duration_s=duration,
         wait=wait,
+        prompt=prompt,
     )
     if options.uses_rerun:
         viewer_sink_options(options)  # e.g. no display and no --rrd: say so before the port is opened

@@ -10,8 +10,9 @@ What is modelled, and how:
   raises interrupt 8 on a branch to EXC_RETURN in handler mode) pops it.
 - **Register models**: RCC (ready flags follow their enables, SWS follows SW: HAL computes 84 MHz), FLASH, PWR,
   GPIOA..H (ODR/BSRR, IDR reads 0), SYSCFG, EXTI, SysTick, DWT ``CYCCNT``, SCB, TIM2/TIM4/TIM9 (TIM9 update events
-  from PSC/ARR), USART1 (DR → shift register, TXE/TC with the baud rate's timing, TXE/TC interrupts), SPI1/SPI2
-  (always ready), ADC1 (one conversion on SWSTART), the unique ID, and the peripheral bit-band alias.
+  from PSC/ARR), USART1 (DR → shift register, TXE/TC with the baud rate's timing, TXE/TC interrupts; RX: bytes
+  injected at emulated times arrive at the baud rate's pace, RXNE/ORE, the RXNE interrupt), SPI1/SPI2 (always
+  ready), ADC1 (one conversion on SWSTART), the unique ID, and the peripheral bit-band alias.
 - **Function-level replacements** (by symbol): ``Sensor_IO_Read``/``Sensor_IO_Write`` answer from the sensor
   register models (:mod:`steval_link.emulation.sensors`), so ST's drivers and scaling run unchanged;
   ``hci_send_req`` (the only path to the BlueNRG chip) returns success with a zeroed reply, so the BLE init runs
@@ -256,10 +257,17 @@ class Timer(Peripheral):
 
 
 class Usart(Peripheral):
-    """USART1 transmitter: DR → shift register → line, 10 bits per byte at the BRR's baud rate.
+    """USART1: transmitter and receiver, 10 bit times per byte (8N1) at the BRR's baud rate.
 
-    TXE is set while DR is empty (a write goes straight to an idle shift register), TC when the shift register is
-    idle too. Every byte leaves at an exact emulated time (instruction count); the board collects them.
+    TX: TXE is set while DR is empty (a write goes straight to an idle shift register), TC when the shift register
+    is idle too. Every byte leaves at an exact emulated time (instruction count); the board collects them.
+
+    RX (the host → drone line, PA10): :meth:`inject` queues bytes that start on the line at a given emulated time;
+    each takes 10 bit times, back to back when they queue up. A byte that completes while the receiver is enabled
+    (CR1 UE and RE) lands in the receive register and sets RXNE; if RXNE was still set it is lost and ORE is set
+    (the STM32F401's overrun: the receive register keeps the older byte). Reading DR clears RXNE; reading SR then DR
+    clears ORE. RXNEIE (CR1 bit 5) raises the USART1 interrupt while RXNE or ORE is set. Bytes that complete while
+    the receiver is off are lost (counted in :attr:`rx_lost`), as on the wire.
     """
 
     name = "USART1"
@@ -270,24 +278,50 @@ class Usart(Peripheral):
         self.dr_full: int | None = None
         self.shift_done: int | None = None  # instruction count when the byte in the shift register has left
         self.shift_byte = 0
+        # RX
+        self.rx_queue: deque[tuple[int, int]] = deque()  # (earliest start, byte) not yet complete, by start time
+        self.rx_done: int | None = None  # instruction count when the queue's head is complete on the RX line
+        self._rx_line_free = 0  # when the last byte completed
+        self.rx_byte = 0
+        self.rx_dr: int | None = None  # the receive register (RXNE while not None)
+        self.rx_ore = False
+        self._ore_sr_read = False  # SR read with ORE set: the next DR read clears ORE
+        self.rx_received = 0  # bytes that reached the receive register
+        self.rx_overruns = 0  # bytes lost to an overrun
+        self.rx_lost = 0  # bytes that completed while the receiver was disabled
+        self.rx_log: list[tuple[int, int]] = []  # (byte, instruction count) of every byte completed on the line
 
     def byte_cycles(self) -> int:
         brr = self.regs.get(0x08, 0) or 729
         return 10 * brr  # 16x oversampling: bit time = BRR cycles of PCLK2 (= the 84 MHz core clock)
 
     def _sr(self) -> int:
-        sr = self.regs.get(0x00, 0xC0) & ~0xC0
+        sr = self.regs.get(0x00, 0xC0) & ~0xE8
         if self.dr_full is None:
             sr |= 0x80
             if self.shift_done is None:
                 sr |= 0x40 if self.regs.get("tc", 1) else 0
+        if self.rx_dr is not None:
+            sr |= 0x20
+        if self.rx_ore:
+            sr |= 0x08
         return sr
 
     def read(self, off):
         if off == 0x00:
-            return self._sr()
+            sr = self._sr()
+            self._ore_sr_read = self.rx_ore
+            return sr
         if off == 0x04:
-            return 0  # RX: nothing received (an RX side comes with the two-way link)
+            value = self.rx_dr if self.rx_dr is not None else self.regs.get("rx_last", 0)
+            if self.rx_dr is not None:
+                self.regs["rx_last"] = self.rx_dr
+            self.rx_dr = None
+            if self._ore_sr_read:
+                self.rx_ore = False
+                self._ore_sr_read = False
+            self._irq_line()
+            return value
         return self.regs.get(off, 0)
 
     def write(self, off, value):
@@ -300,9 +334,11 @@ class Usart(Peripheral):
                 self.dr_full = value
             self._irq_line()
             return
-        if off == 0x00:  # SR: TC is rc_w0
+        if off == 0x00:  # SR: TC and RXNE are rc_w0
             if not value & 0x40:
                 self.regs["tc"] = 0
+            if not value & 0x20:
+                self.rx_dr = None
             self._irq_line()
             return
         super().write(off, value)
@@ -326,10 +362,48 @@ class Usart(Peripheral):
             self.regs["tc"] = 1
         self._irq_line()
 
+    # -- RX
+    def inject(self, data: bytes, t: int) -> None:
+        """Queue ``data`` to arrive on the RX line, the first byte starting at instruction count ``t`` (not before
+        now, and not before the bytes queued before it are through)."""
+        t = max(int(t), self.board.now)
+        new = [(t, b) for b in bytes(data)]
+        if self.rx_queue and self.rx_queue[-1][0] > t:  # scheduled out of order: keep the queue by start time
+            self.rx_queue = deque(sorted(list(self.rx_queue) + new, key=lambda x: x[0]))
+        else:
+            self.rx_queue.extend(new)
+        self._rx_schedule()
+
+    def _rx_schedule(self) -> None:
+        """The next byte's completion: the queue's head, on the line from its start or when the line is free."""
+        if not self.rx_queue:
+            self.rx_done = None
+            return
+        self.rx_done = max(self.rx_queue[0][0], self._rx_line_free) + self.byte_cycles()
+        self.board.reschedule()
+
+    def rx_complete(self) -> None:
+        """The byte on the RX line is complete (board event loop): into the receive register, or an overrun."""
+        t = self.rx_done
+        _, self.rx_byte = self.rx_queue.popleft()
+        self._rx_line_free = t
+        self.rx_log.append((self.rx_byte, t))
+        cr1 = self.regs.get(0x0C, 0)
+        if not (cr1 & 0x2000 and cr1 & 0x04):
+            self.rx_lost += 1
+        elif self.rx_dr is not None:
+            self.rx_ore = True
+            self.rx_overruns += 1
+        else:
+            self.rx_dr = self.rx_byte
+            self.rx_received += 1
+        self._rx_schedule()
+        self._irq_line()
+
     def _irq_line(self) -> None:
         cr1 = self.regs.get(0x0C, 0)
         sr = self._sr()
-        if (cr1 & 0x80 and sr & 0x80) or (cr1 & 0x40 and sr & 0x40):
+        if (cr1 & 0x80 and sr & 0x80) or (cr1 & 0x40 and sr & 0x40) or (cr1 & 0x20 and sr & 0x28):
             self.board.nvic.set_pending(self.irq)
         else:
             self.board.nvic.clear_pending(self.irq)
@@ -1080,7 +1154,7 @@ class Board:
 
     def _earliest(self) -> int | None:
         ts = [t for t in (self.scs.systick_next, self.tim9.next_update, self.tim2.next_update,
-                          self.usart1.shift_done) if t is not None]
+                          self.usart1.shift_done, self.usart1.rx_done) if t is not None]
         return min(ts) if ts else None
 
     def uart_out(self, byte: int, t: int) -> None:
@@ -1131,6 +1205,9 @@ class Board:
             fired = False
             if self.usart1.shift_done is not None and self.usart1.shift_done <= now:
                 self.usart1.shift_complete()
+                fired = True
+            if self.usart1.rx_done is not None and self.usart1.rx_done <= now:
+                self.usart1.rx_complete()
                 fired = True
             if self.scs.systick_next is not None and self.scs.systick_next <= now:
                 self.scs.systick_fire()

@@ -27,11 +27,17 @@ The motor outputs: :meth:`Emulation.motor_ccr` reads TIM4's CCR1..4 as ``set_mot
 Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
 ``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
 and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
+
+Host → drone bytes (the two-way link, USART1 RX): :meth:`Emulation.send_at` schedules bytes at an emulated time
+(tests, scenario scripts), :meth:`Emulation.send` queues them from any thread for the next slice (a live session);
+they arrive on the emulated RX line at the baud rate's pace. :meth:`Emulation.take_host_bytes` hands each sent
+block back with the emulated time it went on the line, for the capture's ``H`` chunks.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -289,12 +295,52 @@ class Emulation:
         self.n_steps = 0
         self._bytes = 0
         self._first_byte_s: float | None = None
+        self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
+        self._host_sched: list[tuple[int, int, bytes]] = []  # (instruction count, order, bytes) not yet on the line
+        self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
+        self._host_order = 0
         self._install_step_probes()
         self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
         tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
         if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
             start = int(tick_start_ms) & 0xFFFFFFFF
             self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
+
+    # -- host → drone bytes (USART1 RX)
+    def send_at(self, data: bytes, t_s: float) -> None:
+        """Schedule ``data`` (host → drone) to start on the RX line at emulated time ``t_s`` (s since power-up), or
+        as soon as bytes scheduled before it are through. A time already past means now."""
+        if not data:
+            return
+        if not math.isfinite(t_s) or t_s < 0:
+            raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
+        t = max(int(round(t_s * CPU_HZ)), self.board.now)
+        self.board.usart1.inject(bytes(data), t)
+        self._host_order += 1
+        self._host_sched.append((t, self._host_order, bytes(data)))
+        self._host_sched.sort()
+
+    def send(self, data: bytes) -> None:
+        """Queue ``data`` (host → drone) from any thread: it goes on the RX line at the start of the next slice."""
+        if data:
+            self._live_tx.put(bytes(data))
+
+    def take_host_bytes(self) -> list[tuple[bytes, float]]:
+        """The host → drone blocks that went on the line since the last call, with their emulated start times (s)."""
+        out, self._host_sent = self._host_sent, []
+        return out
+
+    def _host_progress(self) -> None:
+        while True:
+            try:
+                data = self._live_tx.get_nowait()
+            except queue.Empty:
+                break
+            self.send_at(data, self.board.now / CPU_HZ)
+        now = self.board.now
+        while self._host_sched and self._host_sched[0][0] <= now:
+            t, _, data = self._host_sched.pop(0)
+            self._host_sent.append((data, t / CPU_HZ))
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
@@ -354,7 +400,9 @@ class Emulation:
         last_steps, last_progress_t = 0, 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
         while b.now < end:
+            self._host_progress()
             b.run_until(min(end, b.now + slice_cycles))
+            self._host_progress()
             if b.out:
                 data = bytes(x for x, _ in b.out)
                 last_byte_t = b.out[-1][1]

@@ -26,7 +26,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
-from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
+from steval_link.link.protocol import FLAG_EVENT, FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
     "COE_MDPS_TO_RADPS_F32",
@@ -393,7 +393,9 @@ class PortFollower:
     ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
     ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the port runs in sync: True (live) —
     confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
-    (replay of a capture, which measures how far the port and the firmware agree) — ignore it.
+    (replay of a capture, which measures how far the port and the firmware agree) — ignore it, unless it is an
+    event snapshot (status flag ``EVENT``: sent at once because a host command changed the settings, reset the
+    filter or asked for it), which the port always follows: its settings and state apply from the next step.
     """
 
     def __init__(self, settings: MahonySettings | None = None, *, initial: MahonySettings | None = None,
@@ -415,17 +417,19 @@ class PortFollower:
     def seeded(self) -> bool:
         return self.state is not None
 
-    def snapshot(self, step: int, state: MahonyState, settings: MahonySettings, snapshot_id: int | None = None) -> str:
-        """The firmware's filter state right after step ``step``. Returns what it did: "confirmed", "seeded",
-        "ignored" or "unseeded" (a non-finite snapshot while following: the firmware's own filter holds NaN)."""
+    def snapshot(self, step: int, state: MahonyState, settings: MahonySettings, snapshot_id: int | None = None,
+                 *, event: bool = False) -> str:
+        """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
+        command, see the class docstring). Returns what it did: "confirmed", "seeded", "ignored" or "unseeded" (a
+        non-finite snapshot while following: the firmware's own filter holds NaN)."""
         in_sync = self.state is not None and self.next_step == step + 1
-        if in_sync and not self.follow_snapshots:
+        if in_sync and not (self.follow_snapshots or event):
             return "ignored"
-        if in_sync and settings == self.settings and self.state.bits_equal(state):
+        if in_sync and (self.fixed is not None or settings == self.settings) and self.state.bits_equal(state):
             self.confirmed += 1
             return "confirmed"
         if not np.all(np.isfinite(state.as_array())):
-            if self.follow_snapshots:
+            if self.follow_snapshots or event:
                 self.state = None
                 return "unseeded"
             return "ignored"
@@ -576,6 +580,9 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
     else:
         order = np.zeros(0, dtype=np.int64)
     st_sorted = st_steps[order]
+    st_events = np.zeros(st_steps.shape[0], dtype=bool)
+    if st_steps.size:
+        st_events = (np.asarray(_col(status, "flags"), dtype=np.int64) & FLAG_EVENT) != 0
     default_settings = settings
     if default_settings is None:
         default_settings = MahonySettings.of_status(status, int(order[0])) if order.size else MahonySettings()
@@ -593,21 +600,27 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         if a >= b:
             continue
         cut = a
-        if exact_rows[a] and steps[a] != 0:  # a run from step 0 starts at power-up
-            s_first, s_last = int(steps[a]), int(steps[b - 1])
-            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
+        s_first, s_last = int(steps[a]), int(steps[b - 1])
+        if exact_rows[a]:
+            # the first usable snapshot seeds a run that does not start at power-up; later ones are followed only
+            # when they announce a host command's change (EVENT), else the replay measures agreement
             hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
+            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
+            seeded_run = steps[a] == 0
             for k in range(lo, hi):
+                j = int(order[k])
+                is_event = bool(st_events[j])
+                if seeded_run and not is_event:
+                    continue
                 end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
                 if end > cut:
                     parts.append(port.rows(steps[cut:end], acc[cut:end], gyro[cut:end], thr[cut:end],
                                            exact_rows[cut:end], first_row=cut))
                     cut = end
-                j = int(order[k])
                 port.snapshot(int(st_sorted[k]), MahonyState(q_wxyz=_col(status, "q_wxyz")[j],
                                                              int_xyz=_col(status, "int_xyz")[j]),
-                              MahonySettings.of_status(status, j), snapshot_id=j)
-                break  # the first usable snapshot seeds the run; the replay does not follow later ones
+                              MahonySettings.of_status(status, j), snapshot_id=j, event=is_event)
+                seeded_run = seeded_run or port.seeded
         parts.append(port.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
     if parts:
         q = np.concatenate([p[0] for p in parts])

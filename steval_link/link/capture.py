@@ -32,12 +32,14 @@ import numpy as np
 
 from steval_link import __version__
 from steval_link.errors import UserError
-from steval_link.link.decoder import decode_bytes
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import CommandFrame
 
 __all__ = [
     "MAGIC",
     "Capture",
     "CaptureEvent",
+    "HostChunk",
     "CaptureTruncatedWarning",
     "CaptureWriter",
     "Source",
@@ -54,9 +56,11 @@ FORMAT_VERSION = 2
 CHUNK_DATA = ord("D")
 CHUNK_EVENT = ord("E")
 CHUNK_BLE = ord("B")
-#: every chunk type the reader knows (format 2 adds B); D and E are read into the byte stream and the events, the
-#: others are kept as they are in ``Capture.chunks`` for the module that reads them
-CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble"}
+CHUNK_HOST = ord("H")
+#: every chunk type the reader knows (format 2 adds B and H); D and E are read into the byte stream and the events,
+#: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
+#: for the module that reads them
+CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble", CHUNK_HOST: "host"}
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
@@ -83,6 +87,16 @@ class CaptureEvent:
     offset: int
 
 
+@dataclass(frozen=True, slots=True)
+class HostChunk:
+    """Bytes the host sent to the drone (command frames), at host time ``t_host_s``, after ``offset`` received
+    bytes."""
+
+    t_host_s: float
+    data: bytes
+    offset: int
+
+
 @dataclass
 class Capture:
     """A capture file read back: ``data`` is every received byte in order; chunk ``i`` starts at stream offset
@@ -96,8 +110,10 @@ class Capture:
     events: list[CaptureEvent]
     truncated: bool = False
     warning: str | None = None
-    #: chunk type → [(t_host_s, payload)] of the chunks other than D and E (e.g. B: one BLE notification each)
+    #: chunk type → [(t_host_s, payload)] of the chunks other than D, E and H (e.g. B: one BLE notification each)
     chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
+    #: what the host sent to the drone (chunk type H), in file order
+    host: list[HostChunk] = field(default_factory=list)
 
 
 def _chunk(kind: int, payload: bytes, t_host_s: float) -> bytes:
@@ -204,6 +220,18 @@ class CaptureWriter:
             for i in range(0, len(data), MAX_CHUNK):
                 self._write_all(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], t))
             self.bytes_written += len(data)
+            self._dirty = True
+
+    def write_host(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
+        """Store bytes the host sent to the drone (``t_host_s``: when they were sent, s since capture start)."""
+        if not data:
+            return
+        t = self.now() if t_host_s is None else float(t_host_s)
+        data = bytes(data)
+        with self._lock:
+            self._check_open()
+            for i in range(0, len(data), MAX_CHUNK):
+                self._write_all(_chunk(CHUNK_HOST, data[i : i + MAX_CHUNK], t))
             self._dirty = True
 
     def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
@@ -369,6 +397,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     times: list[float] = []
     events: list[CaptureEvent] = []
     typed: dict[int, list[tuple[float, bytes]]] = {}
+    host: list[HostChunk] = []
     total = 0
     n = len(raw)
     head_size = _CHUNK_HEAD.size
@@ -416,6 +445,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             times.append(t)
             pieces.append(payload)
             total += length
+        elif kind == CHUNK_HOST:
+            host.append(HostChunk(t, bytes(payload), total))
         elif kind != CHUNK_EVENT:
             typed.setdefault(kind, []).append((t, bytes(payload)))
         else:
@@ -439,6 +470,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         truncated=warning is not None,
         warning=warning,
         chunks=typed,
+        host=host,
     )
 
 
@@ -472,6 +504,8 @@ class Source:
     warnings: list[str] = field(default_factory=list)
     #: typed chunks of a capture (see :attr:`Capture.chunks`)
     chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
+    #: what the host sent to the drone (capture chunks H)
+    host: list[HostChunk] = field(default_factory=list)
 
 
 def read_source(path: str | os.PathLike) -> Source:
@@ -495,6 +529,7 @@ def read_source(path: str | os.PathLike) -> Source:
             events=cap.events,
             warnings=[cap.warning] if cap.warning else [],
             chunks=cap.chunks,
+            host=cap.host,
         )
     return Source(path=path, kind="bytes", data=raw)
 
@@ -524,6 +559,8 @@ def telemetry_of_source(src: Source):
     baud = src.header.get("baud") if src.header else None
     source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
     tel = decode_bytes(src.data, chunk_times, baud=baud, source=source, events=src.events)
+    if src.host:
+        tel.commands = _host_commands(src.host, tel.commands)
     a = tel.attitude
     if src.kind != "stv":
         if len(a) + len(tel.status) == 0:
@@ -539,6 +576,21 @@ def telemetry_of_source(src: Source):
             f"firmware?)."
         )
     return tel
+
+
+def _host_commands(host: list[HostChunk], found: np.ndarray) -> np.ndarray:
+    """The command frames the host sent (chunks H), timed by their chunk, after any found in the received bytes;
+    ``offset`` is the received-stream offset at which they were sent."""
+    dec = StreamDecoder()
+    rows = []
+    for h in host:
+        for f in dec.feed(h.data):
+            if isinstance(f, CommandFrame):
+                rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
+    if not rows:
+        return found
+    sent = np.array(rows, dtype=found.dtype)
+    return np.concatenate([found, sent]) if len(found) else sent
 
 
 def demo_capture_path() -> Path:

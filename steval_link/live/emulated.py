@@ -11,6 +11,7 @@ clock). Ctrl-C stops cleanly: the capture keeps every byte emulated so far.
 
 from __future__ import annotations
 
+import shlex
 import sys
 import time
 from dataclasses import dataclass
@@ -20,9 +21,17 @@ from typing import Callable, TextIO
 from steval_link.emulation.runner import Emulation, EmulationOptions, EmulationReport
 from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
+from steval_link.link.commands import Command
+from steval_link.live.console import PROMPT_HELP, CommandConsole
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, LiveViewer
-from steval_link.live.session import LiveOptions, close_outputs, install_stop_signals, restore_signals
+from steval_link.live.session import (
+    LiveOptions,
+    _stdin_is_tty,
+    close_outputs,
+    install_stop_signals,
+    restore_signals,
+)
 
 
 @dataclass
@@ -60,9 +69,12 @@ class EmulateSession:
 
     def __init__(self, emu_options: EmulationOptions, live: LiveOptions, *, realtime: bool = False,
                  stream: TextIO | None = None, tty: bool | None = None,
-                 viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None) -> None:
+                 viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
+                 commands: list[tuple[float, Command]] | None = None, commands_file: str | None = None) -> None:
         """``viewer_factory``: as :class:`~steval_link.live.session.LiveSession`'s (required when ``live`` uses
-        Rerun; the caller checks the sinks first)."""
+        Rerun; the caller checks the sinks first). ``commands``: (emulated s, command) sent to the firmware's
+        USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's command
+        names); typed commands go out at the next slice."""
         if live.uses_rerun and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or --rrd) needs a viewer_factory")
         self.viewer_factory = viewer_factory
@@ -71,6 +83,8 @@ class EmulateSession:
         self.realtime = realtime
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
         self._stop: str | None = None
+        self.commands = list(commands or [])
+        self.commands_file = commands_file
 
     def request_stop(self, reason: str = "stopped") -> None:
         if self._stop is None:
@@ -87,6 +101,10 @@ class EmulateSession:
         extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
                  "elf": str(emu.elf.path), "scenario": emu.motion.name, "seed": self.emu_options.seed,
                  "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
+        if self.commands:
+            extra["commands"] = [[t, c.describe()] for t, c in self.commands]
+            if self.commands_file:
+                extra["command"] += " " + shlex.join(["--commands", str(self.commands_file)])
         try:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
             capture = CaptureWriter(capture_path, port=f"emulated:{emu.elf.path.name}", baud=opts.baud, extra=extra)
@@ -106,15 +124,26 @@ class EmulateSession:
             if opts.uses_rerun:
                 viewer = self.viewer_factory(opts, capture_path.stem)
             pipe = LivePipeline.for_viewer(opts.estimators, viewer)
+            prompt = opts.prompt if opts.prompt is not None else _stdin_is_tty()
+            console = self.console = CommandConsole(emu.send, self.display.note, enabled=prompt)
+            if prompt:
+                self.display.note(PROMPT_HELP)
+            for t_s, command in self.commands:
+                emu.send_at(console.channel.next_frame(command).frame, t_s)
             for data, t_emu_s in emu.chunks():
+                for sent, t_sent_s in emu.take_host_bytes():  # what went on the RX line in this slice
+                    capture.write_host(sent, t_sent_s)
+                    pipe.feed_host(sent, wall0 + t_sent_s)
                 capture.write(data, t_emu_s)  # first: whatever happens next, the bytes are kept
                 pipe.feed([(data, wall0 + t_emu_s)])
+                console.poll(pipe.notes)
                 if viewer is not None:
                     viewer.log_link(pipe.decoder.stats, wall0 + t_emu_s)
                 now = time.monotonic()
                 for _ in range(len(pipe.texts)):
                     self.display.note("firmware: " + pipe.texts.popleft()[:200])
-                self.display.show(self._health(emu, pipe, t_emu_s, now - t0), now)
+                self.display.show(console.decorate(self._health(emu, pipe, t_emu_s, now - t0)), now,
+                                  force=console.take_typing_change())
                 if self.realtime:
                     ahead = t_emu_s - (time.monotonic() - t0)
                     if ahead > 0:
@@ -131,6 +160,9 @@ class EmulateSession:
                     pipe.flush_view()
             except Exception:  # noqa: BLE001
                 pass
+            console = getattr(self, "console", None)
+            if console is not None:
+                console.close()
             close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"))
             self._restore_signals(old)
         if error is not None:

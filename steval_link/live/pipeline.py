@@ -12,8 +12,10 @@ import typing
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.link import protocol as P
+from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AttitudeFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
 from steval_link.link.unwrap import SeqUnwrapper
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
 from steval_link.live.health import LinkHealth
@@ -50,6 +52,8 @@ class LiveViewer(typing.Protocol):
     def log_text(self, frame, t_unix_s: float) -> None: ...
 
     def log_link(self, stats, t_unix_s: float) -> None: ...
+
+    def log_event(self, text: str, t_unix_s: float, level: str) -> None: ...
 
     def close(self) -> None: ...
 
@@ -137,8 +141,12 @@ class BatchOutlet:
                     log_flight = getattr(self.logger, "log_flight", None)  # optional (LiveViewer)
                     if log_flight is not None:
                         log_flight(frame, t_unix_s)
-                else:
+                elif kind == "text":
                     self.logger.log_text(frame, t_unix_s)
+                else:  # "event": (text, level), a command sent or answered
+                    log_event = getattr(self.logger, "log_event", None)
+                    if log_event is not None:
+                        log_event(frame[0], t_unix_s, frame[1])
 
 
 class LivePipeline:
@@ -187,6 +195,12 @@ class LivePipeline:
         self.sample = bytearray()
         #: firmware log lines not shown yet (the session prints them; bounded)
         self.texts: collections.deque[str] = collections.deque(maxlen=32)
+        #: commands sent and their answers, one sentence each, not shown yet (the session prints them; bounded)
+        self.notes: collections.deque[str] = collections.deque(maxlen=32)
+        #: the host's own bytes (commands it sent), decoded to log them and to match the acknowledgements
+        self.host_decoder = StreamDecoder()
+        self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
+        self.acks = 0
 
     @classmethod
     def for_viewer(cls, estimator_names: list[str], viewer: LiveViewer | None) -> LivePipeline:
@@ -226,6 +240,12 @@ class LivePipeline:
                         self.estimators.status(frame)
                     if outlets:
                         self._event("status", frame, t_unix_s)
+                    if int(frame.flags) & P.FLAG_EVENT:
+                        self._note(f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}", t_unix_s,
+                                   "INFO", show=False)
+                elif isinstance(frame, AckFrame) or (isinstance(frame, TextFrame) and frame.text.startswith("#ACK")
+                                                     and ack_of_text(frame.text) is not None):
+                    self._ack(frame if isinstance(frame, AckFrame) else ack_of_text(frame.text), t_unix_s)
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
                     att = []
@@ -240,6 +260,29 @@ class LivePipeline:
                     self._event("flight", frame, t_unix_s)
         self._attitude(att)
         self.tick()
+
+    def feed_host(self, data: bytes, t_unix_s: float) -> None:
+        """Bytes the host sent to the drone at ``t_unix_s``: each command is logged and remembered for its ack."""
+        for frame in self.host_decoder.feed(data):
+            if isinstance(frame, CommandFrame):
+                command = Command(int(frame.cmd), int(frame.param), float(frame.value))
+                self._sent[int(frame.cmd_seq)] = command
+                while len(self._sent) > 256:
+                    self._sent.popitem(last=False)
+                self._note(f"sent: {command.describe()}", t_unix_s, "DEBUG", show=False)
+
+    def _ack(self, ack, t_unix_s: float) -> None:
+        self.acks += 1
+        command = self._sent.get(int(ack.cmd_seq))
+        if command is not None and command.cmd != int(ack.cmd):
+            command = None
+        self._note(describe_ack(command, ack), t_unix_s, "INFO" if int(ack.result) == P.ACK_ACCEPTED else "WARN")
+
+    def _note(self, text: str, t_unix_s: float, level: str, *, show: bool = True) -> None:
+        if show:
+            self.notes.append(text)
+        if self.outlets:
+            self._event("event", (text, level), t_unix_s)
 
     def _event(self, kind: str, frame, t_unix_s: float) -> None:
         for outlet in self.outlets:

@@ -44,6 +44,7 @@ from steval_link.link.transport import (
     open_error_message,
     open_serial,
 )
+from steval_link.live.console import PROMPT_HELP, CommandConsole
 from steval_link.live.health import HealthDisplay, LinkHealth, _fmt_bytes, _fmt_duration
 from steval_link.live.pipeline import (
     LivePipeline,
@@ -84,6 +85,8 @@ class LiveOptions:
     duration_s: float | None = None
     wait: bool = False
     recordings_dir: Path = Path("recordings")
+    #: the command prompt (lines typed on stdin → commands to the drone); None: when stdin is a terminal
+    prompt: bool | None = None
 
     @property
     def uses_rerun(self) -> bool:
@@ -265,6 +268,9 @@ class LiveSession:
             except Exception:  # noqa: BLE001
                 pass
             stop = self._stop_reason or (type(error).__name__ if error else "end")
+            console = getattr(self, "console", None)
+            if console is not None:
+                console.close()
             close_outputs(capture, viewer, self.display, stop)
             self._restore_signals(old_handlers)
         if isinstance(error, KeyboardInterrupt):
@@ -290,6 +296,7 @@ class LiveSession:
         pipe = self.pipeline = LivePipeline.for_viewer(opts.estimators, viewer)
         self.warned_no_frames = False
         was_connected = True
+        console = self.console = self._console(reader, proto, pipe)
         while self._stop_reason is None:
             if reader.error is not None:
                 if isinstance(reader.error, OSError):  # the capture could not be written (disk full, removed)
@@ -309,14 +316,36 @@ class LiveSession:
                 self.display.note(proto.events.popleft())
             for _ in range(len(pipe.texts)):
                 self.display.note("firmware: " + pipe.texts.popleft()[:200])
+            console.poll(pipe.notes)
             if proto.connected != was_connected:
                 was_connected = proto.connected
                 if proto.connected:
                     pipe.sample.clear()
             self._check_frames(proto, now)
-            self.display.show(self._health_line(proto, inbox, now, reader), now)
+            self.display.show(console.decorate(self._health_line(proto, inbox, now, reader)), now,
+                              force=console.take_typing_change())
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
+
+    def _console(self, reader: SerialReader, proto: RecorderProtocol, pipe: LivePipeline) -> CommandConsole:
+        """The command prompt: each frame goes to the port, then into the capture (H chunk) and the pipeline's log."""
+        enabled = self.options.prompt if self.options.prompt is not None else _stdin_is_tty()
+
+        def record(frame: bytes) -> None:
+            t_unix_s = self.clock.now_s()
+            proto.capture.write_host(frame, t_unix_s - self.clock.wall0_s)  # the capture's time base, as the D chunks
+            pipe.feed_host(frame, t_unix_s)
+
+        def send(frame: bytes) -> None:
+            ser = reader.serial
+            if ser is None:
+                raise UserError("the port is not connected")
+            ser.write(frame)
+
+        console = CommandConsole(send, self.display.note, record=record, enabled=enabled)
+        if enabled:
+            self.display.note(PROMPT_HELP)
+        return console
 
     def _drain(self, inbox: Inbox) -> None:
         pipe = getattr(self, "pipeline", None)
@@ -420,6 +449,13 @@ class LiveSession:
             stopped_by=self._stop_reason or "end",
             implausible=_stat(s, "implausible"),
         )
+
+
+def _stdin_is_tty() -> bool:
+    try:
+        return sys.stdin is not None and sys.stdin.isatty()
+    except (AttributeError, ValueError):
+        return False
 
 
 def install_stop_signals(session) -> dict | None:

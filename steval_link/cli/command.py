@@ -1,0 +1,124 @@
+"""``steval param get|set`` and ``steval command reset-filter|status|mode``: commands to the drone over USART1 RX.
+
+Each sends one command frame, waits for the acknowledgement (``--timeout``) and prints one sentence; a refusal or no
+answer is one ``steval: error:`` line (exit 2). While ``steval live`` holds the port, type the same commands at its
+prompt instead (they are then recorded in its capture and shown on the viewer's timeline).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from steval_link import constants as C
+from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.errors import UserError
+from steval_link.link import protocol as P
+from steval_link.link.commands import PARAM_HELP, PARAMS, Command, describe_settings, param_of_status, set_param
+from steval_link.live.remote import run_commands
+
+_PORT_HELP = "Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
+_TIMEOUT_HELP = "Seconds to wait for the drone's acknowledgement."
+_OUT_HELP = "Also record this exchange (bytes received and sent) to this new capture file."
+
+param_app = typer.Typer(help="Read or change a filter parameter of the drone's Mahony filter, live.",
+                        no_args_is_help=True, context_settings={"help_option_names": HELP_OPTION_NAMES})
+command_app = typer.Typer(help="Reset the drone's filter, ask it for a status frame, or switch its output mode.",
+                          no_args_is_help=True, context_settings={"help_option_names": HELP_OPTION_NAMES})
+app.add_typer(param_app, name="param")
+app.add_typer(command_app, name="command")
+
+_NAMES = ", ".join(f"{k} ({v})" for k, v in PARAM_HELP.items())
+
+
+def _run(port: str, baud: int, commands: list[Command], timeout: float, out: Optional[Path]):
+    if not (timeout > 0):
+        raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
+    return run_commands(port, baud, commands, timeout_s=timeout, out=out)
+
+
+def _finish(reply) -> None:
+    if not reply.accepted:
+        raise UserError(reply.text)
+    typer.echo(reply.text)
+    if reply.status is not None:
+        typer.echo(f"drone: {describe_settings(reply.status)} (from step {int(reply.status.step) + 1})")
+
+
+@param_app.command("get")
+def param_get(
+    name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."),
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
+    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+) -> None:
+    """Print a filter parameter as the drone reports it now (asks for a status frame)."""
+    if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:
+        raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
+    (reply,) = _run(port, baud, [Command(P.CMD_REQUEST_STATUS)], timeout, out)
+    if reply.status is None:
+        raise UserError("the drone acknowledged the status request but its status frame did not arrive; try again")
+    if name is None:
+        typer.echo(f"{describe_settings(reply.status)} (after step {int(reply.status.step)})")
+    else:
+        key = name.strip().lower().replace("-", "_")
+        typer.echo(f"{key} = {param_of_status(reply.status, key)} (after step {int(reply.status.step)})")
+
+
+@param_app.command("set")
+def param_set(
+    name: str = typer.Argument(..., help=f"Parameter: {_NAMES}."),
+    value: str = typer.Argument(..., help="New value (a number; correction: on or off)."),
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
+    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+) -> None:
+    """Change a filter parameter between two AHRS steps (refused while the motors may spin)."""
+    command = set_param(name, value)
+    (reply,) = _run(port, baud, [command], timeout, out)
+    _finish(reply)
+
+
+@command_app.command("reset-filter")
+def reset_filter(
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
+    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+) -> None:
+    """Reset the filter state (q = 1, 0, 0, 0; integrals 0) between two AHRS steps."""
+    (reply,) = _run(port, baud, [Command(P.CMD_RESET_FILTER)], timeout, out)
+    _finish(reply)
+
+
+@command_app.command("status")
+def request_status(
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
+    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+) -> None:
+    """Ask the drone for a status frame now (settings and filter state snapshot)."""
+    (reply,) = _run(port, baud, [Command(P.CMD_REQUEST_STATUS)], timeout, out)
+    _finish(reply)
+
+
+@command_app.command("mode")
+def set_mode(
+    mode: str = typer.Argument(..., help="text (readable lines for a serial terminal) or binary (frames)."),
+    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
+    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+) -> None:
+    """Switch the drone's output between binary frames and text lines."""
+    key = mode.strip().lower()
+    if key not in ("text", "binary"):
+        raise UserError(f"mode takes text or binary, got {mode!r}")
+    (reply,) = _run(port, baud, [Command(P.CMD_SET_MODE, P.MODE_TEXT if key == "text" else P.MODE_BINARY)],
+                    timeout, out)
+    _finish(reply)

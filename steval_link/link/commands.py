@@ -1,0 +1,313 @@
+"""Host → drone commands (protocol v2, frame type 8) and the drone's acknowledgements (type 5).
+
+One place for what a command is called and how it reads: :func:`parse_command` turns a typed line (``set ki 1.0``,
+``correction off``, ``reset``, ``status``, ``mode text``) into a :class:`Command`; :class:`CommandChannel` numbers
+and sends commands through any byte sink (a serial port, the emulated board), records every byte sent (the
+capture's ``H`` chunks) and matches the acknowledgements to what was sent; :func:`describe_ack` says in one
+sentence what the drone did. ``steval param``/``steval command``, the ``steval live`` prompt and ``steval emulate
+--commands`` all go through here.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import shlex
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from steval_link.errors import UserError
+from steval_link.link import protocol as P
+from steval_link.link.frames import AckFrame
+
+__all__ = [
+    "PARAMS",
+    "Command",
+    "CommandChannel",
+    "Sent",
+    "ack_of_text",
+    "command_log",
+    "describe_ack",
+    "describe_settings",
+    "param_of_status",
+    "parse_command",
+    "parse_script",
+]
+
+#: SET_PARAM parameter names (``steval param set NAME VALUE``) → ids
+PARAMS = {
+    "kp_ground": P.PARAM_KP_GROUND,
+    "kp_flight": P.PARAM_KP_FLIGHT,
+    "ki": P.PARAM_KI,
+    "min_thr": P.PARAM_MIN_THR,
+    "correction": P.PARAM_CORRECTION,
+}
+PARAM_NAMES = {v: k for k, v in PARAMS.items()}
+#: what each parameter is, for help texts and errors
+PARAM_HELP = {
+    "kp_ground": "proportional gain while the throttle is below min_thr (AHRS_KP_BIG, 10)",
+    "kp_flight": "proportional gain from min_thr on (AHRS_KP_NORM, 0.4)",
+    "ki": "integral gain (AHRS_KI, 0.1; lab exercise 4: 1.0)",
+    "min_thr": "the filter's throttle threshold for the gain switch (MIN_THR, 200)",
+    "correction": "accelerometer correction on/off (lab exercise 5: off)",
+}
+#: largest gain the firmware accepts (stv_cmd.h STV_GAIN_MAX)
+GAIN_MAX = 1000.0
+MODES = {"binary": P.MODE_BINARY, "text": P.MODE_TEXT}
+
+#: why the drone refused, by ack result
+RESULTS = {
+    P.ACK_ACCEPTED: "accepted",
+    P.ACK_REFUSED_ARMED: "refused: the motors may spin (throttle at or above MIN_THR, or armed) and this firmware "
+                         "does not allow filter changes in flight",
+    P.ACK_UNKNOWN: "refused: the firmware does not know this command or parameter",
+    P.ACK_OUT_OF_RANGE: "refused: value out of range",
+    P.ACK_NOT_IN_BUILD: "refused: not available in this firmware build",
+}
+
+_ON = {"on", "1", "true", "yes"}
+_OFF = {"off", "0", "false", "no"}
+_SYNTAX = ("commands: set NAME VALUE (NAME: " + ", ".join(PARAMS) + "), correction on|off, reset, status, "
+           "mode text|binary")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One command: ``cmd`` (protocol ``CMD_*``), ``param`` (``PARAM_*`` or the mode), ``value`` (SET_PARAM)."""
+
+    cmd: int
+    param: int = 0
+    value: float = 0.0
+
+    def encode(self, cmd_seq: int) -> bytes:
+        """The 20-byte command frame with sequence number ``cmd_seq``."""
+        return P.encode_command(cmd_seq=cmd_seq, cmd=self.cmd, param=self.param, value=self.value)
+
+    @property
+    def changes_filter(self) -> bool:
+        return self.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER)
+
+    def describe(self) -> str:
+        """The command as one would type it (``set ki 1``, ``correction off``, ``reset-filter``, ...)."""
+        if self.cmd == P.CMD_SET_PARAM:
+            name = PARAM_NAMES.get(self.param, f"param {self.param}")
+            if name == "correction":
+                return "correction " + ("on" if self.value else "off")
+            return f"set {name} {_fmt(name, self.value)}"
+        if self.cmd == P.CMD_RESET_FILTER:
+            return "reset-filter"
+        if self.cmd == P.CMD_REQUEST_STATUS:
+            return "status"
+        if self.cmd == P.CMD_SET_MODE:
+            return "mode " + ("text" if self.param == P.MODE_TEXT else "binary")
+        return f"command {self.cmd}"
+
+
+def _fmt(name: str, value: float) -> str:
+    """As typed: whole numbers without a decimal point, a gain as the shortest text of its float32 (0.1, not
+    0.100000001)."""
+    if name in ("min_thr", "correction"):
+        return str(int(value))
+    text = str(np.float32(value))
+    return text[:-2] if text.endswith(".0") else text
+
+
+def set_param(name: str, value: str | float) -> Command:
+    """SET_PARAM ``name`` = ``value``, checked as the firmware checks it (one-sentence UserError)."""
+    key = name.strip().lower().replace("-", "_")
+    if key not in PARAMS:
+        raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
+    if key == "correction":
+        text = str(value).strip().lower()
+        if text in _ON:
+            return Command(P.CMD_SET_PARAM, PARAMS[key], 1.0)
+        if text in _OFF:
+            return Command(P.CMD_SET_PARAM, PARAMS[key], 0.0)
+        raise UserError(f"correction takes on or off, got {value!r}")
+    try:
+        v = float(value)
+    except ValueError:
+        raise UserError(f"{key} takes a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise UserError(f"{key} must be a finite number >= 0, got {value!r}")
+    if key == "min_thr":
+        if v != int(v) or v > 32767:
+            raise UserError(f"min_thr must be a whole number from 0 to 32767, got {value!r}")
+    elif v > GAIN_MAX:
+        raise UserError(f"{key} must be at most {GAIN_MAX:g}, got {value!r}")
+    return Command(P.CMD_SET_PARAM, PARAMS[key], v)
+
+
+def parse_command(text: str) -> Command:
+    """A typed command line → :class:`Command`; a line that is no command raises a one-sentence UserError.
+
+    ``set NAME VALUE`` (or ``NAME VALUE``), ``correction on|off``, ``reset`` / ``reset-filter``, ``status``,
+    ``mode text|binary``."""
+    try:
+        words = shlex.split(text.strip().lower())
+    except ValueError:
+        words = text.strip().lower().split()
+    if not words:
+        raise UserError("empty command; " + _SYNTAX)
+    head, rest = words[0], words[1:]
+    if head == "set" and len(rest) == 2:
+        return set_param(rest[0], rest[1])
+    if head.replace("-", "_") in PARAMS and len(rest) == 1:
+        return set_param(head, rest[0])
+    if head in ("reset", "reset-filter", "reset_filter") and not rest:
+        return Command(P.CMD_RESET_FILTER)
+    if head in ("status", "request-status") and not rest:
+        return Command(P.CMD_REQUEST_STATUS)
+    if head == "mode" and len(rest) == 1:
+        if rest[0] not in MODES:
+            raise UserError(f"mode takes text or binary, got {rest[0]!r}")
+        return Command(P.CMD_SET_MODE, MODES[rest[0]])
+    raise UserError(f"not a command: {text.strip()!r}; " + _SYNTAX)
+
+
+def parse_script(text: str, source: str = "commands") -> list[tuple[float, Command]]:
+    """A command script (``steval emulate --commands FILE``): one ``TIME_S COMMAND...`` per line (emulated seconds
+    since power-up), ``#`` comments and blank lines ignored. Errors name the line."""
+    out: list[tuple[float, Command]] = []
+    for i, raw in enumerate(text.splitlines(), 1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        t_text, _, rest = line.partition(" ")
+        try:
+            t = float(t_text)
+            if not math.isfinite(t) or t < 0:
+                raise ValueError
+        except ValueError:
+            raise UserError(f"{source} line {i}: a line starts with the emulated time in seconds "
+                            f"(e.g. '5.0 set ki 1.0'), got {t_text!r}") from None
+        try:
+            out.append((t, parse_command(rest)))
+        except UserError as exc:
+            raise UserError(f"{source} line {i}: {exc}") from None
+    return sorted(out, key=lambda tc: tc[0])
+
+
+def describe_settings(status) -> str:
+    """The filter settings a status frame reports, in one line."""
+    correction = "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
+    return (f"kp_ground {float(status.kp_ground):.9g}, kp_flight {float(status.kp_flight):.9g}, "
+            f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {correction}")
+
+
+def param_of_status(status, name: str):
+    """One parameter's value as a status frame reports it (correction as "on"/"off")."""
+    if name == "correction":
+        return "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
+    if name == "min_thr":
+        return int(status.min_thr)
+    return float(getattr(status, name))
+
+
+def describe_ack(command: Command | None, ack) -> str:
+    """What the drone did with a command, one sentence (``command`` None: an ack for a command not sent here)."""
+    what = command.describe() if command is not None else f"command #{int(ack.cmd_seq)}"
+    counts = f"(commands received {int(ack.rx_ok)}, rejected {int(ack.rx_bad)})"
+    if int(ack.result) != P.ACK_ACCEPTED:
+        return f"{what}: {RESULTS.get(int(ack.result), f'refused (result {int(ack.result)})')} {counts}"
+    if command is not None and command.changes_filter:
+        return f"{what}: accepted, applies from step {int(ack.step)} {counts}"
+    return f"{what}: accepted {counts}"
+
+
+@dataclass
+class Sent:
+    """A command sent and not yet acknowledged."""
+
+    cmd_seq: int
+    command: Command
+    frame: bytes
+    t_s: float
+
+
+class CommandChannel:
+    """Numbers and sends commands through ``send(frame_bytes)``; ``record(frame_bytes)`` (the capture's ``H``
+    chunk writer) gets the same bytes once they are written. :meth:`match` pairs an
+    :class:`~steval_link.link.frames.AckFrame` with the command it answers (by sequence number and command).
+    Sequence numbers start at a random value so that acks left over from another session are not taken for this
+    one's."""
+
+    def __init__(self, send: Callable[[bytes], object], record: Callable[[bytes], object] | None = None, *,
+                 first_seq: int | None = None, clock: Callable[[], float] | None = None) -> None:
+        self._send = send
+        self._record = record
+        self._seq = random.randrange(1 << 16) if first_seq is None else int(first_seq) % (1 << 16)
+        self._clock = clock
+        self.pending: dict[int, Sent] = {}
+        self.sent = 0
+
+    def next_frame(self, command: Command) -> Sent:
+        """Number ``command`` and encode it, without sending (scripts that send at a given time)."""
+        seq = self._seq
+        self._seq = (self._seq + 1) % (1 << 16)
+        frame = command.encode(seq)
+        s = Sent(seq, command, frame, self._clock() if self._clock else math.nan)
+        self.pending[seq] = s
+        while len(self.pending) > 256:  # never answered (lost): forget the oldest
+            self.pending.pop(next(iter(self.pending)))
+        return s
+
+    def send(self, command: Command) -> Sent:
+        """Number, send, then record ``command`` (a write that fails raises and records nothing)."""
+        s = self.next_frame(command)
+        self._send(s.frame)
+        if self._record is not None:
+            self._record(s.frame)
+        self.sent += 1
+        return s
+
+    def match(self, ack) -> Sent | None:
+        """The sent command ``ack`` answers (removed from :attr:`pending`), or None."""
+        s = self.pending.get(int(ack.cmd_seq))
+        if s is None or s.command.cmd != int(ack.cmd):
+            return None
+        del self.pending[int(ack.cmd_seq)]
+        return s
+
+
+def ack_of_text(line: str):
+    """A text-mode acknowledgement line (``#ACK seq cmd result step rx_ok rx_bad``) as an ``AckFrame``, else None."""
+    words = line.strip().split()
+    if len(words) != 7 or words[0] != "#ACK" or not all(w.isdigit() for w in words[1:]):
+        return None
+    seq, cmd, result, step, ok, bad = (int(w) for w in words[1:])
+    return AckFrame(cmd_seq=seq, cmd=cmd, result=result, step=step, rx_ok=ok, rx_bad=bad)
+
+
+def command_log(commands, acks) -> list[dict]:
+    """The commands of a capture with their answers, in the order sent: ``commands`` and ``acks`` are the
+    ``Telemetry.commands`` / ``Telemetry.acks`` rows. Each: ``{"t_host_s", "cmd_seq", "command" (as typed),
+    "result" (None when no ack came), "step", "text" (one sentence)}``; acks for commands not in the capture are
+    listed too (``command`` None)."""
+    out = []
+    answered = set()
+    by_seq: dict[tuple[int, int], int] = {}
+    for i in range(len(acks)):
+        by_seq.setdefault((int(acks["cmd_seq"][i]), int(acks["cmd"][i])), i)
+    for c in commands:
+        command = Command(int(c["cmd"]), int(c["param"]), float(c["value"]))
+        j = by_seq.get((int(c["cmd_seq"]), int(c["cmd"])))
+        ack = None
+        if j is not None and j not in answered:
+            answered.add(j)
+            a = acks[j]
+            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
+                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
+        out.append({"t_host_s": float(c["t_host_s"]), "cmd_seq": int(c["cmd_seq"]), "command": command.describe(),
+                    "result": None if ack is None else ack.result, "step": None if ack is None else ack.step,
+                    "text": describe_ack(command, ack) if ack is not None else f"{command.describe()}: no ack"})
+    for j in range(len(acks)):
+        if j not in answered:
+            a = acks[j]
+            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
+                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
+            out.append({"t_host_s": float(a["t_host_s"]), "cmd_seq": ack.cmd_seq, "command": None,
+                        "result": ack.result, "step": ack.step, "text": describe_ack(None, ack)})
+    return sorted(out, key=lambda r: r["t_host_s"])

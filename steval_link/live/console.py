@@ -1,0 +1,158 @@
+"""The command prompt of a live session (``steval live``, ``steval emulate``): lines typed in the terminal while
+viewing become commands to the drone.
+
+``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode text`` (see
+:func:`steval_link.link.commands.parse_command`). A thread reads the lines (stdin blocks); the session's loop calls
+:meth:`CommandConsole.poll` every round, which sends the commands, and prints what the pipeline noted about them
+(the acknowledgements, one sentence each). On a terminal (POSIX) the console reads key by key without the
+terminal's echo and the session shows the line being typed at the start of its health line (:attr:`typing`), so
+the health line, redrawn in place four times a second, never wipes it; :meth:`close` gives the terminal back.
+The pipeline logs every command sent and answered on the viewer's timeline (``log/commands``); the capture gets
+the bytes sent (``H`` chunks) from the session's ``record``.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import sys
+import threading
+from collections.abc import Callable
+from typing import TextIO
+
+from steval_link.errors import UserError
+from steval_link.link.commands import Command, CommandChannel, Sent, parse_command
+
+__all__ = ["CommandConsole", "PROMPT_HELP"]
+
+PROMPT_HELP = ("type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
+               "set min_thr 300 | mode text")
+
+
+class CommandConsole:
+    """Typed lines → :class:`~steval_link.link.commands.Command` → ``send(frame)``.
+
+    ``record(frame)`` gets each frame once it is sent (the capture and the pipeline's log). ``stream``: where the
+    lines come from (default stdin); None and ``enabled=False`` read nothing (scripts still use :meth:`send`)."""
+
+    def __init__(self, send: Callable[[bytes], object], note: Callable[[str], None], *,
+                 record: Callable[[bytes], object] | None = None, stream: TextIO | None = None,
+                 enabled: bool = True) -> None:
+        self.channel = CommandChannel(send, record)
+        self.note = note
+        self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.enabled = enabled
+        #: the line being typed on a terminal (shown by the session after its health line), "" otherwise
+        self.typing = ""
+        self.typing_changed = False
+        self._restore = None
+        if enabled:
+            src = stream if stream is not None else sys.stdin
+            target = self._read_keys if self._raw_terminal(src) else self._read
+            threading.Thread(target=target, args=(src,), name="steval-prompt", daemon=True).start()
+
+    def _raw_terminal(self, stream) -> bool:
+        """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
+        try:
+            import termios  # reason: POSIX only (Windows reads whole lines)
+
+            fd = stream.fileno()
+            if not os.isatty(fd):
+                return False
+            old = termios.tcgetattr(fd)
+            new = termios.tcgetattr(fd)
+            new[3] &= ~(termios.ICANON | termios.ECHO)
+            new[6][termios.VMIN] = 1
+            new[6][termios.VTIME] = 0
+            termios.tcsetattr(fd, termios.TCSANOW, new)
+        except (ImportError, AttributeError, ValueError, OSError):
+            return False
+        self._restore = (fd, old)
+        return True
+
+    def close(self) -> None:
+        """Give the terminal its line mode and echo back (idempotent)."""
+        if self._restore is not None:
+            import termios  # reason: only set on POSIX
+
+            fd, old = self._restore
+            self._restore = None
+            try:
+                termios.tcsetattr(fd, termios.TCSANOW, old)
+            except (OSError, ValueError):
+                pass
+
+    def _read(self, stream: TextIO) -> None:
+        try:
+            for line in stream:
+                self._lines.put(line)
+        except (OSError, ValueError):  # stdin closed
+            pass
+
+    def _read_keys(self, stream) -> None:
+        fd = stream.fileno()
+        buf = ""
+        while True:
+            try:
+                b = os.read(fd, 64)
+            except OSError:
+                return
+            if not b:
+                return
+            for ch in b.decode("utf-8", "replace"):
+                if ch in "\r\n":
+                    self._lines.put(buf + "\n")
+                    buf = ""
+                elif ch in "\x7f\b":
+                    buf = buf[:-1]
+                elif ch == "\x15":  # Ctrl-U: the whole line
+                    buf = ""
+                elif ch.isprintable():
+                    buf += ch
+            self.typing = buf
+            self.typing_changed = True
+
+    def type_line(self, line: str) -> None:
+        """As if ``line`` had been typed (tests, scripted sessions)."""
+        self._lines.put(line)
+
+    def send(self, command: Command) -> Sent | None:
+        try:
+            sent = self.channel.send(command)
+        except (OSError, UserError) as exc:
+            self.note(f"{command.describe()}: not sent ({exc})")
+            return None
+        self.note(f"sent: {command.describe()}")
+        return sent
+
+    def decorate(self, health_line: str) -> str:
+        """The health line with the command being typed after it (on a terminal)."""
+        if self._restore is None:
+            return health_line
+        return f"> {self.typing}_  | {health_line}"
+
+    def take_typing_change(self) -> bool:
+        """True once after each key typed (the session then redraws at once, so typing shows without delay)."""
+        changed, self.typing_changed = self.typing_changed, False
+        return changed
+
+    def poll(self, notes=()) -> int:
+        """Send what was typed since the last call; print ``notes`` (the pipeline's answers). Returns commands sent."""
+        n = 0
+        while True:
+            try:
+                line = self._lines.get_nowait()
+            except queue.Empty:
+                break
+            if not line.strip():
+                continue
+            try:
+                command = parse_command(line)
+            except UserError as exc:
+                self.note(str(exc))
+                continue
+            if self.send(command) is not None:
+                n += 1
+        for _ in range(len(notes)):
+            self.note(notes.popleft())
+        return n

@@ -1,0 +1,135 @@
+"""``steval param`` / ``steval command``: send commands to the drone on a serial port and wait for its answers.
+
+Flow: open the port → for each command: write its frame (recorded first when ``--out`` is given) → read and decode
+until the acknowledgement with its sequence number comes (and, for a change, a reset, a status request or a mode
+switch, the status frame with the ``EVENT`` flag that follows it) or the timeout passes. Nothing here waits on the
+drone for longer than ``timeout_s`` per command; the drone never waits on the host.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import serial
+
+from steval_link.errors import UserError
+from steval_link.link import autodetect
+from steval_link.link import protocol as P
+from steval_link.link.capture import CaptureWriter
+from steval_link.link.commands import Command, CommandChannel, ack_of_text, describe_ack
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import AckFrame, StatusFrame, TextFrame
+from steval_link.link.transport import open_error_message, open_serial
+
+__all__ = ["Reply", "run_commands", "DEFAULT_TIMEOUT_S"]
+
+DEFAULT_TIMEOUT_S = 2.0
+
+
+@dataclass
+class Reply:
+    """What the drone answered to one command: its ack and the EVENT status frame after it (None if none came)."""
+
+    command: Command
+    ack: AckFrame
+    status: StatusFrame | None
+    text: str
+
+    @property
+    def accepted(self) -> bool:
+        return int(self.ack.result) == P.ACK_ACCEPTED
+
+
+def _wants_status(command: Command, ack: AckFrame) -> bool:
+    return int(ack.result) == P.ACK_ACCEPTED
+
+
+def run_commands(port: str, baud: int, commands: list[Command], *, timeout_s: float = DEFAULT_TIMEOUT_S,
+                 out: Path | None = None, ser: serial.Serial | None = None) -> list[Reply]:
+    """Send ``commands`` one after the other and return the drone's replies (UserError on no answer).
+
+    ``out``: also record the session (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
+    path = port
+    if ser is None:
+        try:
+            path = autodetect.choose_port(port, baud)
+        except autodetect.PortChoiceError as exc:
+            raise UserError(str(exc)) from None
+        try:
+            ser = open_serial(path, baud, timeout_s=0.05)
+        except serial.SerialException as exc:
+            message = open_error_message(path, exc).replace(" (or use --wait)", "")
+            if " is busy" in message:
+                message += " (if steval live has it, type the command at its prompt instead)"
+            raise UserError(message) from None
+    capture = None
+    try:
+        if out is not None:
+            try:
+                capture = CaptureWriter(out, port=path, baud=baud, extra={"source": "steval param/command"})
+            except FileExistsError:
+                raise UserError(f"{out} already exists; choose another --out (captures are never overwritten)")
+            except OSError as exc:
+                raise UserError(f"cannot write the capture {out}: {exc.strerror or exc}") from None
+
+        def write(frame: bytes) -> None:
+            try:
+                ser.write(frame)
+                ser.flush()
+            except (serial.SerialException, OSError) as exc:
+                raise UserError(f"cannot write to {path}: {exc}") from None
+
+        channel = CommandChannel(write, capture.write_host if capture is not None else None)
+        decoder = StreamDecoder()
+        replies = []
+        for command in commands:
+            replies.append(_one(ser, path, channel, decoder, command, timeout_s, capture))
+        return replies
+    finally:
+        if capture is not None:
+            capture.close()
+        try:
+            ser.close()
+        except (serial.SerialException, OSError):
+            pass
+
+
+def _one(ser, path: str, channel: CommandChannel, decoder: StreamDecoder, command: Command, timeout_s: float,
+         capture) -> Reply:
+    sent = channel.send(command)
+    deadline = time.monotonic() + timeout_s
+    ack: AckFrame | None = None
+    got_bytes = False
+    while time.monotonic() < deadline:
+        try:
+            data = ser.read(4096)
+        except (serial.SerialException, OSError) as exc:
+            raise UserError(f"reading {path} failed: {exc}") from None
+        if not data:
+            continue
+        got_bytes = True
+        if capture is not None:
+            capture.write(data)
+        for frame in decoder.feed(data):
+            if isinstance(frame, TextFrame):
+                frame = ack_of_text(frame.text) or frame
+            if ack is None and isinstance(frame, AckFrame):
+                if channel.match(frame) is sent:
+                    ack = frame
+                    if not _wants_status(command, ack):
+                        return Reply(command, ack, None, describe_ack(command, ack))
+            elif ack is not None and isinstance(frame, StatusFrame) and int(frame.flags) & P.FLAG_EVENT:
+                return Reply(command, ack, frame, describe_ack(command, ack))
+    if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer
+        return Reply(command, ack, None, describe_ack(command, ack))
+    if not got_bytes:
+        raise UserError(f"no answer from the drone on {path} within {timeout_s:g} s (nothing received: is it on, and "
+                        "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)")
+    if not decoder.stats.frames_ok:
+        raise UserError(f"no answer from the drone on {path} within {timeout_s:g} s (no valid frames either: wrong "
+                        "--baud, or not a STEVAL with the steval-link firmware)")
+    raise UserError(f"the drone on {path} did not acknowledge '{command.describe()}' within {timeout_s:g} s (its "
+                    "frames arrive: is the adapter's TX wired to PA10 on header P7, and does the firmware have the "
+                    "two-way link, protocol v2?)")
