@@ -9,7 +9,6 @@ drone's tick clock, motion rows on the estimators' uniform grid) and ``host_time
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,14 +18,13 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from steval_link.analysis.ble import NOT_BIT_EXACT, BleReplay
-from steval_link.errors import UserError
 from steval_link.link.ble_payloads import BleTelemetry
 from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
 from steval_viewer.live_adapter import viewer_sink_options
-from steval_viewer.sinks import open_session
+from steval_viewer.sinks import log_whole, open_session
 
 __all__ = ["ble_blueprint", "log_ble_static", "log_ble_replay", "ble_replay_sink", "BleLiveLogger",
            "log_ble_notifications", "log_ble_estimates"]
@@ -251,33 +249,14 @@ def ble_replay_sink(options: Any, *, progress: Progress = None) -> Callable[[Ble
     def sink(replay: BleReplay) -> dict[str, int]:
         path = replay.source.get("path")
         name = f"steval replay {Path(path).name}" if path else "steval replay (BLE)"
-        session = open_session(options, recording_name=name, atomic_rrd=True)
-        try:
-            counts = log_ble_replay(session.rec, replay,
+
+        def log(rec):
+            counts = log_ble_replay(rec, replay,
                                     progress=None if progress is None else (lambda f, s="": progress(0.6 * f, s)))
             if progress is not None:
                 progress(0.6, "writing to Rerun")
-            session.flush()
-            if options.serve:
-                session.wait_for_viewer()
-        except UserError:
-            try:
-                session.close()
-            except UserError:
-                pass
-            _say_written(options.rrd)
-            raise
-        except BaseException:
-            session.close(complete=False)
-            raise
-        session.close()
-        _say_written(options.rrd)
-        return counts
+            return counts
+
+        return log_whole(options, name, log)
 
     return sink
-
-
-def _say_written(rrd: Path | None) -> None:
-    if rrd is not None:
-        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)
-

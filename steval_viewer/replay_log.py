@@ -13,7 +13,6 @@ Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +21,6 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
-from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import replay_firmware
 from steval_link.link.commands import command_log
 from steval_viewer import blueprint as bp
@@ -36,7 +34,7 @@ from steval_viewer.columns import (
     send_scalars,
     send_transforms,
 )
-from steval_viewer.sinks import open_session
+from steval_viewer.sinks import log_whole
 
 _MASK_NAMES = ("valid", "mask", "seeded")
 
@@ -365,30 +363,12 @@ def replay_sink(options: Any, *, recording_name: str | None = None, progress: Pr
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}
         name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
-        session = open_session(options, recording_name=name, atomic_rrd=True)
-        try:
-            log_telemetry(session.rec, tel, estimates,
+
+        def log(rec):
+            log_telemetry(rec, tel, estimates,
                           progress=None if progress is None else (lambda f, stage="": progress(0.6 * f, stage)))
             _report(progress, 0.6, "writing to Rerun")
-            session.flush()
-            if options.serve:
-                session.wait_for_viewer()
-        except UserError:  # a viewer went away: the .rrd is still complete
-            try:
-                session.close()
-            except UserError:
-                pass
-            _say_written(options.rrd)
-            raise
-        except BaseException:  # Ctrl-C, SIGTERM: no half file
-            session.close(complete=False)
-            raise
-        session.close()
-        _say_written(options.rrd)
+
+        log_whole(options, name, log)
 
     return sink
-
-
-def _say_written(rrd: Path | None) -> None:
-    if rrd is not None:
-        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)

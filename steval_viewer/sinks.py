@@ -38,6 +38,7 @@ import time
 import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, TypeVar
 
 import rerun as rr
 
@@ -373,3 +374,38 @@ def open_session(
         for stream in session.streams:
             stream.send_recording_name(recording_name)
     return session
+
+
+T = TypeVar("T")
+
+
+def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
+    """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
+    first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
+    (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
+    completed before the error is raised. A spawned native viewer stays open."""
+    session = open_session(options, recording_name=recording_name, atomic_rrd=True)
+    try:
+        result = log(session.rec)
+        session.flush()
+        if options.serve:
+            session.wait_for_viewer()
+    except UserError:  # a viewer went away: the .rrd is still complete
+        try:
+            session.close()
+        except UserError:
+            pass
+        say_rrd_written(options.rrd)
+        raise
+    except BaseException:  # Ctrl-C, SIGTERM: no half file
+        session.close(complete=False)
+        raise
+    session.close()
+    say_rrd_written(options.rrd)
+    return result
+
+
+def say_rrd_written(rrd: Path | None) -> None:
+    """The one stderr line that says where a complete ``.rrd`` is and how to open it."""
+    if rrd is not None:
+        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)

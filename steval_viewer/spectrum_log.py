@@ -15,8 +15,6 @@ AHRS Nyquist along each bar chart's x axis):
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,10 +23,9 @@ import rerun.blueprint as rrb
 
 from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
-from steval_link.errors import UserError
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_scalars
-from steval_viewer.sinks import open_session
+from steval_viewer.sinks import log_whole
 
 __all__ = ["ROOT", "spectrum_blueprint", "log_spectra", "spectrum_sink"]
 
@@ -163,28 +160,6 @@ def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
 
     def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
         notes = format_summary(sp, peaks, marks_hz)
-        session = open_session(options, recording_name=recording_name, atomic_rrd=True)
-        try:
-            log_spectra(session.rec, tel, sp, notes)
-            session.flush()
-            if options.serve:
-                session.wait_for_viewer()
-        except UserError:
-            try:
-                session.close()
-            except UserError:
-                pass
-            _say_written(options.rrd)
-            raise
-        except BaseException:  # Ctrl-C, SIGTERM: no half file
-            session.close(complete=False)
-            raise
-        session.close()
-        _say_written(options.rrd)
+        log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, notes))
 
     return sink
-
-
-def _say_written(rrd: Path | None) -> None:
-    if rrd is not None:
-        print(f"steval: Rerun recording written to {rrd} (open it with: rerun {rrd})", file=sys.stderr)
