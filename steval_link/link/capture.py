@@ -211,19 +211,15 @@ class CaptureWriter:
 
     def write(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
         """Store one chunk of received bytes (``t_host_s``: when it was received, s since capture start)."""
-        if not data:
-            return
-        t = self.now() if t_host_s is None else float(t_host_s)
-        data = bytes(data)
-        with self._lock:
-            self._check_open()
-            for i in range(0, len(data), MAX_CHUNK):
-                self._write_all(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], t))
-            self.bytes_written += len(data)
-            self._dirty = True
+        self._write_stream(CHUNK_DATA, data, t_host_s)
 
     def write_host(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
         """Store bytes the host sent to the drone (``t_host_s``: when they were sent, s since capture start)."""
+        self._write_stream(CHUNK_HOST, data, t_host_s)
+
+    def _write_stream(self, kind: int, data: bytes | bytearray | memoryview, t_host_s: float | None) -> None:
+        """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes; received bytes count in
+        ``bytes_written`` (under the lock, so an event's offset is never stale)."""
         if not data:
             return
         t = self.now() if t_host_s is None else float(t_host_s)
@@ -231,7 +227,9 @@ class CaptureWriter:
         with self._lock:
             self._check_open()
             for i in range(0, len(data), MAX_CHUNK):
-                self._write_all(_chunk(CHUNK_HOST, data[i : i + MAX_CHUNK], t))
+                self._write_all(_chunk(kind, data[i : i + MAX_CHUNK], t))
+            if kind == CHUNK_DATA:
+                self.bytes_written += len(data)
             self._dirty = True
 
     def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
