@@ -159,3 +159,16 @@ def test_replay_unknown_estimator_is_one_line_exit_2(capture, tmp_path, capsys):
     code, _, err = run(["replay", str(capture), "--rrd", str(tmp_path / "x.rrd"), "-e", "kalman9"], capsys)
     assert code == 2
     assert err.strip().count("\n") == 0 and "kalman9" in err and "ekf3" in err
+
+
+def test_replay_names_flight_control_frames_and_their_rate(capsys):
+    from pathlib import Path
+
+    flight = Path(__file__).resolve().parents[1] / "recordings" / "flight.stv"
+    code, out, err = run(["replay", str(flight)], capsys)
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if x.startswith("frames:"))
+    assert "flight control (every 23 steps)" in line
+    code, out, _ = run(["replay", str(flight), "--json"], capsys)
+    f = json.loads(out)["frames"]
+    assert f["flight_control"] > 100 and f["flight_control_every"] == 23

@@ -17,6 +17,9 @@ _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
     P.FLAG_FRESH_SQUARES: "fresh-squares",
     P.FLAG_TEXT_MODE: "text-mode",
+    P.FLAG_EVENT: "event",
+    P.FLAG_INFLIGHT_TUNING: "in-flight-tuning",
+    P.FLAG_ARMED: "motors-may-spin",
 }
 
 
@@ -71,6 +74,9 @@ def summarize(tel) -> dict[str, Any]:
             "attitude_text_mode": int(n - binary.sum()),
             "status": len(s),
             "text": len(tel.text),
+            "flight_control": len(getattr(tel, "flight", ())),
+            "flight_control_every": int(s.fc_every[-1]) if len(s) and s.exact[-1] else None,
+            "acks": len(getattr(tel, "acks", ())),
         },
         "duration_s": duration,
         "host_duration_s": host_duration,
@@ -143,7 +149,11 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     kinds = f"{f['attitude_binary']} binary"
     if f["attitude_text_mode"]:
         kinds += f", {f['attitude_text_mode']} text-mode"
-    lines.append(f"frames: {f['attitude']} attitude ({kinds}), {f['status']} status, {f['text']} text")
+    fc = ""
+    if f.get("flight_control"):
+        every = f.get("flight_control_every")
+        fc = f", {f['flight_control']} flight control" + (f" (every {every} steps)" if every else "")
+    lines.append(f"frames: {f['attitude']} attitude ({kinds}), {f['status']} status, {f['text']} text{fc}")
     rate = f"{s['rate_hz']:.2f} Hz" if s["rate_hz"] else "n/a"
     step_rate = f", AHRS steps at {s['step_rate_hz']:.2f} Hz" if s["step_rate_hz"] else ""
     lines.append(f"duration: {s['duration_s']:.3f} s, attitude rate {rate}{step_rate}")
