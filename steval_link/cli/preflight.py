@@ -36,8 +36,13 @@ SCRIPT: tuple[tuple[float, str], ...] = (
 LIVE_S = 30.0
 
 
-def _prompter(stop: threading.Event, stream) -> threading.Thread:
+def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> threading.Thread:
+    """Prints the guided moves on ``stream`` at their times. The first waits ``first_after_s``, so that a port that
+    cannot be opened gives its one error line without a move prompt before it."""
+
     def run() -> None:
+        if stop.wait(first_after_s):
+            return
         t = 0.0
         for at, text in SCRIPT:
             if stop.wait(max(at - t, 0.0)):
