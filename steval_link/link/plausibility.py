@@ -71,12 +71,13 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
     return True
 
 
+def _steps_fit(d, dt, d_min: int, window: int, tol: float):
+    """The sequence-and-time rule for ``d`` steps and ``dt`` µs forward (Python ints or numpy arrays alike)."""
+    return (d >= d_min) & (d <= window) & (dt >= d * PERIOD_US - tol) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
+
+
 def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int, window: int, tol: float) -> bool:
-    d = (seq - seq_a) % P.SEQ_MODULUS
-    if d < d_min or d > window:
-        return False
-    dt = (t_us - t_a) % P.T_US_MODULUS
-    return d * PERIOD_US - tol <= dt <= 3.0 * d * PERIOD_US + 500_000.0
+    return bool(_steps_fit((seq - seq_a) % P.SEQ_MODULUS, (t_us - t_a) % P.T_US_MODULUS, d_min, window, tol))
 
 
 class PlausibilityGate:
@@ -166,8 +167,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     if clean and len(a) > 1:
         d = (a["seq"][1:].astype(np.int64) - a["seq"][:-1]) % P.SEQ_MODULUS
         dt = (a["t_us"][1:].astype(np.int64) - a["t_us"][:-1]) % P.T_US_MODULUS
-        clean = bool(np.all((d >= 1) & (d <= gate.window) & (dt >= d * PERIOD_US - gate.tol)
-                            & (dt <= 3.0 * d * PERIOD_US + 500_000.0)))
+        clean = bool(np.all(_steps_fit(d, dt, 1, gate.window, gate.tol)))
     if clean and len(s):
         j = np.searchsorted(a["offset"], s["offset"]) - 1
         has = j >= 0
@@ -175,8 +175,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
             jj = j[has]
             d = (s["step"][has].astype(np.int64) - a["seq"][jj]) % P.SEQ_MODULUS
             dt = (s["t_us"][has].astype(np.int64) - a["t_us"][jj]) % P.T_US_MODULUS
-            clean = bool(np.all((d <= gate.window) & (dt >= d * PERIOD_US - gate.tol)
-                                & (dt <= 3.0 * d * PERIOD_US + 500_000.0)))
+            clean = bool(np.all(_steps_fit(d, dt, 0, gate.window, gate.tol)))
     if clean:
         if len(a):
             gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))
