@@ -18,24 +18,10 @@ import time
 
 import numpy as np
 
-from steval_link.emulation.line_damage import FuzzScore, damage, long_stream, score
+from steval_link.emulation.line_damage import FuzzScore, damage, long_stream, payload_records, score
 from steval_link.link import protocol as P
 from steval_link.link.capture import load_telemetry
 from steval_link.link.decoder import decode_bytes
-
-
-def payload_records(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """The binary attitude and status payload records of a capture (consecutive steps: the longest gap-free run)."""
-    tel = load_telemetry(path)
-    a, s = tel.attitude, tel.status
-    att = np.zeros(len(a), P.ATTITUDE_DTYPE)
-    att["t_us"], att["acc_mg"], att["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
-    att["q_wxyz"], att["thz_rad"], att["seq"], att["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
-    att = att[a.exact]
-    sta = np.zeros(len(s), P.STATUS_DTYPE)
-    for name in P.STATUS_DTYPE.names:
-        sta[name] = getattr(s, name)
-    return att, sta[s.exact]
 
 
 def to_v1(data: bytes) -> bytes:
@@ -62,7 +48,7 @@ def main() -> None:
     args = ap.parse_args()
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(8), "little")
     rng = np.random.default_rng(seed)
-    att, sta = payload_records(args.capture)
+    att, sta = payload_records(load_telemetry(args.capture))
     total = FuzzScore()
     damage_events = 0
     bytes_sent = 0

@@ -11,7 +11,7 @@ import pytest
 
 from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.summary import format_summary, summarize
-from steval_link.emulation.line_damage import damage, long_stream, score
+from steval_link.emulation.line_damage import damage, long_stream, payload_records, score
 from steval_link.link import protocol as P
 from steval_link.link.capture import load_telemetry
 from steval_link.link.decoder import StreamDecoder, decode_bytes
@@ -83,15 +83,7 @@ def test_bundled_recordings_are_v2_and_bit_exact():
 
 @pytest.fixture(scope="module")
 def demo_payloads():
-    tel = load_telemetry(ROOT / "recordings" / "demo.stv")
-    a, s = tel.attitude, tel.status
-    rec = np.zeros(len(a), P.ATTITUDE_DTYPE)
-    rec["t_us"], rec["acc_mg"], rec["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
-    rec["q_wxyz"], rec["thz_rad"], rec["seq"], rec["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
-    sta = np.zeros(len(s), P.STATUS_DTYPE)
-    for name in P.STATUS_DTYPE.names:
-        sta[name] = getattr(s, name)
-    return rec, sta
+    return payload_records(load_telemetry(ROOT / "recordings" / "demo.stv"))
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])

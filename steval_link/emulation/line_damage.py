@@ -15,7 +15,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "score"]
+__all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "payload_records", "score"]
 
 PERIOD_US = 1e6 / C.AHRS_RATE_HZ
 
@@ -119,18 +119,24 @@ class FuzzScore:
         return self.recovered / self.sent if self.sent else 0.0
 
 
+def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
+    """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records (ATTITUDE_DTYPE,
+    STATUS_DTYPE): what the firmware sent, field for field."""
+    a, s = tel.attitude, tel.status
+    att = np.zeros(len(a), P.ATTITUDE_DTYPE)
+    att["t_us"], att["acc_mg"], att["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
+    att["q_wxyz"], att["thz_rad"], att["seq"], att["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
+    sta = np.zeros(len(s), P.STATUS_DTYPE)
+    for name in P.STATUS_DTYPE.names:
+        sta[name] = getattr(s, name)
+    return att[a.exact], sta[s.exact]
+
+
 def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
     """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
     and the fake payloads (for a report)."""
     sent = set(sent_payloads)
-    a = tel.attitude
-    rec = np.zeros(len(a), P.ATTITUDE_DTYPE)
-    rec["t_us"], rec["acc_mg"], rec["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
-    rec["q_wxyz"], rec["thz_rad"], rec["seq"], rec["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
-    s = tel.status
-    srec = np.zeros(len(s), P.STATUS_DTYPE)
-    for name in P.STATUS_DTYPE.names:
-        srec[name] = getattr(s, name)
-    got = [r.tobytes() for r in rec[a.exact]] + [r.tobytes() for r in srec[s.exact]]
+    att, sta = payload_records(tel)
+    got = [r.tobytes() for r in att] + [r.tobytes() for r in sta]
     fakes = [g for g in got if g not in sent]
     return FuzzScore(sent=len(sent_payloads), recovered=len(got) - len(fakes), fake=len(fakes)), fakes
