@@ -242,7 +242,10 @@ class LiveLogger:
 
     def log_text(self, frame: Any, t_unix_s: float) -> None:
         """A firmware text line (TextFrame or str)."""
-        text = frame if isinstance(frame, str) else frame.text
+        self._log_line(ent.LOG_FIRMWARE, frame if isinstance(frame, str) else frame.text, t_unix_s, "INFO")
+
+    def _log_line(self, path: str, text: str, t_unix_s: float | None, level: str) -> None:
+        """One TextLog entry at ``path``, on the host timeline and (when known) the firmware one."""
         host = float(self._host(np.array([t_unix_s]))[0]) if t_unix_s is not None else math.nan
         self.rec.reset_time()
         if math.isfinite(host):
@@ -250,7 +253,7 @@ class LiveLogger:
         times = self._scalar_times(t_unix_s) if math.isfinite(host) else None
         if times is not None:
             self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
-        self.rec.log(ent.LOG_FIRMWARE, rr.TextLog(text, level="INFO"))
+        self.rec.log(path, rr.TextLog(text, level=level))
         self.rec.reset_time()
 
     def log_flight(self, frame: Any, t_unix_s: float) -> None:
@@ -285,15 +288,7 @@ class LiveLogger:
     def log_event(self, text: str, t_unix_s: float, level: str = "INFO") -> None:
         """A command sent to the drone, its acknowledgement or the settings it announced: an entry on the
         timeline (``log/commands``)."""
-        host = float(self._host(np.array([t_unix_s]))[0]) if t_unix_s is not None else math.nan
-        self.rec.reset_time()
-        if math.isfinite(host):
-            self.rec.set_time(ent.TIMELINE_HOST, duration=host)
-        times = self._scalar_times(t_unix_s) if math.isfinite(host) else None
-        if times is not None:
-            self.rec.set_time(ent.TIMELINE_FW, duration=float(times.t_fw_s[0]))
-        self.rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))
-        self.rec.reset_time()
+        self._log_line(ent.LOG_COMMANDS, text, t_unix_s, level)
 
     def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
         """Decoder counters (``DecoderStats``): CRC failures, cumulative; at most every LINK_INTERVAL_S."""

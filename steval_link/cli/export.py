@@ -131,14 +131,7 @@ def export(
                 table.update(tel.flight_columns())
                 if degrees:
                     table = in_degrees(table)
-                n = len(tel.attitude)
-                if csv is not None:
-                    write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
-                    typer.echo(f"{csv}: {n} attitude rows")
-                if parquet is not None:
-                    progress(0.9, f"writing {parquet.name}")
-                    write_parquet(table, parquet)
-                    typer.echo(f"{parquet}: {n} attitude rows")
+                _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
         except OSError as exc:
             raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
 
@@ -151,14 +144,18 @@ def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, p
     for w in src.warnings:
         typer.echo(f"steval: warning: {w}", err=True)
     ble = load_ble(src)
-    table = ble.motion_table()
     try:
-        if csv is not None:
-            write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
-            typer.echo(f"{csv}: {len(ble)} motion rows (BLE)")
-        if parquet is not None:
-            progress(0.9, f"writing {parquet.name}")
-            write_parquet(table, parquet)
-            typer.echo(f"{parquet}: {len(ble)} motion rows (BLE)")
+        _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
     except OSError as exc:
         raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+
+
+def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str) -> None:
+    """The table to the CSV and/or Parquet file asked for, a line each saying how many ``rows``."""
+    if csv is not None:
+        write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+        typer.echo(f"{csv}: {rows}")
+    if parquet is not None:
+        progress(0.9, f"writing {parquet.name}")
+        write_parquet(table, parquet)
+        typer.echo(f"{parquet}: {rows}")
