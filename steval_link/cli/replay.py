@@ -85,16 +85,20 @@ def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)
-        if as_json:
-            json.dump(s, sys.stdout, indent=2, allow_nan=False)
-            sys.stdout.write("\n")
-        else:
-            for w in s["warnings"]:
-                print(f"steval: warning: {w}", file=sys.stderr)
-            s = dict(s, warnings=[])
-            print("\n".join(format_summary(s)))
+        _print_summary(s, format_summary, as_json)
 
     return sink
+
+
+def _print_summary(s: dict, format_lines, as_json: bool) -> None:
+    """A summary dict on stdout: one JSON object, or its lines with the warnings on stderr."""
+    if as_json:
+        json.dump(s, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        for w in s["warnings"]:
+            print(f"steval: warning: {w}", file=sys.stderr)
+        print("\n".join(format_lines(dict(s, warnings=[]))))
 
 
 @app.command()
@@ -167,14 +171,7 @@ def _replay_ble(src, names: Sequence[str], as_json: bool, options) -> None:
         ble = load_ble(src)
         progress(0.1, "estimators")
         inputs, estimates, notes = run_ble_estimators(ble, names)
-        s = summarize_ble(ble, src, inputs)
-        if as_json:
-            json.dump(s, sys.stdout, indent=2, allow_nan=False)
-            sys.stdout.write("\n")
-        else:
-            for w in s["warnings"]:
-                print(f"steval: warning: {w}", file=sys.stderr)
-            print("\n".join(format_ble_summary(s)))
+        _print_summary(summarize_ble(ble, src, inputs), format_ble_summary, as_json)
         sys.stdout.flush()
         if options is not None:
             from steval_viewer.ble_log import ble_replay_sink  # Rerun loads only for a viewer or an .rrd
