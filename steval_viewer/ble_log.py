@@ -82,13 +82,7 @@ def ble_blueprint(sources: list[str], *, live: bool = False) -> rrb.Blueprint:
         ),
         row_shares=[3, 2],
     )
-    return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[2, 3]),
-        rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
+    return bp.two_columns(left, right, live, timeline)
 
 
 def _line(rec: rr.RecordingStream, path: str, names: list[str], colors: list) -> None:

@@ -149,6 +149,12 @@ def make_blueprint(
     )
     if flight_control:
         right = rrb.Tabs(right, flight_view(live, timeline), name="Attitude / flight control")
+    return two_columns(left, right, live, timeline)
+
+
+def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:
+    """The window of every layout: ``left`` (the 3D view and link) and ``right`` (the plots) side by side, the
+    time panel collapsed (following the newest data when ``live``), the side panels closed."""
     return rrb.Blueprint(
         rrb.Horizontal(left, right, column_shares=[2, 3]),
         rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
