@@ -98,11 +98,7 @@ def summarize(tel) -> dict[str, Any]:
         "bytes_total": st.bytes_total,
         "unknown_frames": st.unknown_frames,
         "implausible": st.implausible,
-        "protocol_version": 1 if st.v1_frames and st.v1_frames == st.attitude + st.status + st.text else (
-            2 if (st.attitude + st.status + st.text) > st.v1_frames else None),
         "v1_frames": st.v1_frames,
-        "flight_frames": st.flight,
-        "ack_frames": st.ack,
         "commands": command_log(tel.commands, tel.acks),
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
         "warnings": list(src.get("warnings") or []),
