@@ -76,18 +76,24 @@ _V1, _V2 = P.VERSION_1, P.VERSION
 _FIXED_LEN = {(_V2 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
 _FIXED_LEN.update({(_V1 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE_V1.items()})
 _VT_TEXT = {(_V1 << 4) | P.TYPE_TEXT, (_V2 << 4) | P.TYPE_TEXT}
-_CRC_SIZE = {_V1: P.CRC_SIZE_V1, _V2: P.CRC_SIZE}
 _NEXT_START = re.compile(rb"[\xa5$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _crc_hqx = binascii.crc_hqx
 _crc32 = zlib.crc32
 
 
+def _crc16_v1(data) -> int:
+    return _crc_hqx(data, 0xFFFF)
+
+
+#: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
+_CHECK = {_V1: (P.CRC_SIZE_V1, _crc16_v1), _V2: (P.CRC_SIZE, _crc32)}
+
+
 def _crc_ok(buf, start: int, end: int, version: int) -> bool:
     """Frame check of the frame whose ``VT`` is at ``start`` and whose CRC starts at ``end``."""
-    if version == _V2:
-        return _crc32(memoryview(buf)[start:end]) == int.from_bytes(buf[end : end + 4], "little")
-    return _crc_hqx(memoryview(buf)[start:end], 0xFFFF) == (buf[end] | (buf[end + 1] << 8))
+    size, check = _CHECK[version]
+    return check(memoryview(buf)[start:end]) == int.from_bytes(buf[end : end + size], "little")
 
 
 def _hides_sentence(raw: bytes) -> bool:
@@ -190,7 +196,7 @@ class StreamDecoder:
                 vt = buf[p + 2]
                 ln = buf[p + 3]
                 ver = vt >> 4
-                if buf[p + 1] != 0x5A or ver not in _CRC_SIZE or (ver == _V1 and self._v2_seen):
+                if buf[p + 1] != 0x5A or ver not in _CHECK or (ver == _V1 and self._v2_seen):
                     p = self._skip(buf, p, n)
                     continue
                 want = _FIXED_LEN.get(vt)
@@ -199,7 +205,7 @@ class StreamDecoder:
                     p = self._skip(buf, p, n)  # known type, wrong length
                     continue
                 end = p + 4 + ln
-                csz = _CRC_SIZE[ver]
+                csz = _CHECK[ver][0]
                 if end + csz > n:
                     if not final:
                         break
@@ -358,9 +364,10 @@ for _vt in _VT_TEXT:
     _LEN_LUT[_vt] = -2
 
 
-def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included), with
-    the version lock applied: no version-1 frame after the first valid version-2 frame."""
+    the version lock applied: no version-1 frame after the first valid version-2 frame; and that frame's offset
+    (infinity when there is none)."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == 0xA5) & (arr[1:] == 0x5A)) if n >= 2 else np.zeros(0, np.int64)
     idx = idx[idx + 4 <= n]
@@ -376,7 +383,7 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     end = idx + size
     mv = memoryview(data)
     good = np.zeros(len(idx), bool)
-    for v, csz, check in ((_V2, 4, _crc32), (_V1, 2, None)):
+    for v, (csz, check) in _CHECK.items():
         sel = np.flatnonzero(ver == v)
         if not len(sel):
             continue
@@ -384,23 +391,15 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
         stored = np.zeros(len(sel), np.int64)
         for k in range(csz):
             stored |= arr[e - csz + k].astype(np.int64) << (8 * k)
-        a_list, b_list = (idx[sel] + 2).tolist(), (e - csz).tolist()
-        if check is None:
-            crc = [_crc_hqx(mv[a:b], 0xFFFF) for a, b in zip(a_list, b_list)]
-        else:
-            crc = [check(mv[a:b]) for a, b in zip(a_list, b_list)]
+        crc = [check(mv[a:b]) for a, b in zip((idx[sel] + 2).tolist(), (e - csz).tolist())]
         good[sel] = np.array(crc, np.int64) == stored
     idx, size, vt, ver = idx[good], size[good], vt[good], ver[good]
     v2 = np.flatnonzero(ver == _V2)
+    first_v2 = float(idx[v2[0]]) if len(v2) else float("inf")
     if len(v2):
-        keep = (ver == _V2) | (idx < idx[v2[0]])
+        keep = (ver == _V2) | (idx < first_v2)
         idx, size, vt = idx[keep], size[keep], vt[keep]
-    return idx.astype(np.int64), size, vt
-
-
-def _first_v2_start(starts: np.ndarray, vts: np.ndarray) -> float:
-    v2 = np.flatnonzero((vts >> 4) == _V2)
-    return float(starts[v2[0]]) if len(v2) else float("inf")
+    return idx.astype(np.int64), size, vt, first_v2
 
 
 def decode_bytes(
@@ -430,7 +429,7 @@ def decode_bytes(
     data = bytes(data)
     n = len(data)
     arr = np.frombuffer(data, dtype=np.uint8)
-    starts, sizes, vts = _valid_binary_starts(arr, data)
+    starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
     nxt = starts + sizes
     K = len(starts)
     # run_end[k]: last index of the run of back-to-back frames that starts at k
@@ -438,7 +437,6 @@ def decode_bytes(
     parts = TelemetryParts()
     fast_idx: list[np.ndarray] = []
     sd = StreamDecoder(plausibility=False)
-    first_v2 = _first_v2_start(starts, vts)
     slow_frames: list[Frame] = []
     p = 0
     last_fast = False
