@@ -41,10 +41,7 @@ int stv_txq_push_keep(stv_txq_t *q, const uint8_t *src, uint32_t len, uint32_t k
     copy_bytes(&q->buf[idx], src, run);
     copy_bytes(&q->buf[0], src + run, len - run);
   }
-  __asm__ volatile("" ::: "memory"); /* bytes in place before the consumer can see them */
-  q->head = h + len;
-  used += len;
-  if (used > q->peak) q->peak = used;
+  stv_txq_commit(q, len);
   return 1;
 }
 
