@@ -16,14 +16,35 @@ from typing import Annotated, Optional
 
 import typer
 
+from steval_link.analysis.ble import load_ble, run_ble_estimators
 from steval_link.analysis.compare import compare_capture, format_report
+from steval_link.analysis.side_by_side import (
+    ALIGN_MODES,
+    flight_of_ble,
+    flight_of_telemetry,
+    format_side_by_side,
+    side_by_side,
+)
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain, check_throttle
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
+from steval_link.cli.viewer_options import (
+    ConnectOption,
+    GrpcPortOption,
+    RrdOption,
+    ServeOption,
+    SpawnOption,
+    WebPortOption,
+    check_view_flags,
+    sink_options,
+)
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import MahonySettings
+from steval_link.link.ble_payloads import is_ble_source
+from steval_link.link.capture import read_source, telemetry_of_source
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["compare_command"]
 
@@ -68,10 +89,11 @@ def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squa
 
 @app.command("compare")
 def compare_command(
-    capture: Annotated[
-        Optional[Path],
+    captures: Annotated[
+        Optional[list[Path]],
         typer.Argument(
-            help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording.",
+            help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
+            "more: the flights side by side (see below).",
             show_default=False,
         ),
     ] = None,
@@ -123,10 +145,49 @@ def compare_command(
             show_default=False,
         ),
     ] = None,
+    align: Annotated[
+        str,
+        typer.Option(
+            "--align",
+            metavar="time|motion",
+            help="Two or more captures: align by firmware time from each first frame (time), or by "
+            "cross-correlating the gyro with the first capture's (motion; the lag found is printed).",
+        ),
+    ] = "time",
+    label: Annotated[
+        Optional[list[str]],
+        typer.Option("--label", help="Two or more captures: the name of each flight, in order (repeat it)."),
+    ] = None,
+    rrd: RrdOption = None,
+    spawn: SpawnOption = False,
+    serve: ServeOption = False,
+    connect: ConnectOption = None,
+    web_port: WebPortOption = DEFAULT_WEB_PORT,
+    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
-    drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees."""
+    drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees.
+
+    Two or more captures: the flights side by side (e.g. stock against AHRS_KI=1.0f NO_CORRECTION=1), aligned by
+    firmware time (or --align motion), labelled by what differs ("ki 0.1" vs "ki 1, correction off"; --label
+    overrides), each against its accelerometer-only tilt in still phases (RMS, drift) and minus the first;
+    mismatched inputs (durations, BLE against serial, lost frames, a truncated capture) are noted. --plot writes one
+    figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
+    with every flight in its own entity subtree, overlaid."""
+    if captures and len(captures) > 1:
+        _side_by_side(captures, as_json=as_json, plot=plot, align=align, labels=label,
+                      port_options={"--estimator": estimator, "--ki": ki, "--kp-ground": kp_ground,
+                                    "--kp-flight": kp_flight, "--dt": dt, "--min-thr": min_thr,
+                                    "--correction/--no-correction": correction,
+                                    "--fresh-squares/--stale-squares": fresh_squares},
+                      viewer=dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port,
+                                  grpc_port=grpc_port))
+        return
+    capture = captures[0] if captures else None
+    if align != "time" or label or rrd is not None or spawn or serve or connect is not None:
+        raise UserError("--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
+                        "(one capture in Rerun: steval replay CAPTURE --spawn).")
 
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
     names = registry.parse_names(
@@ -174,3 +235,66 @@ def compare_command(
             print(f"plot: {plot}")
             if len(tel.fc):
                 print(f"flight-control plot: {flight_plot_path(plot)}")
+
+
+def _load_flight(path: Path):
+    """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
+    with the ST-Mahony port run over them."""
+    src = read_source(path)
+    if is_ble_source(src):
+        ble = load_ble(src)
+        inputs, estimates, _ = run_ble_estimators(ble, ["st-mahony"])
+        return flight_of_ble(path, ble, inputs, estimates["st-mahony"], src.header, src.warnings)
+    tel = telemetry_of_source(src)
+    if len(tel.attitude) == 0:
+        raise UserError(f"{path} has no attitude frames to compare ({len(tel.status)} status frames, "
+                        f"{len(tel.text)} text lines).")
+    return flight_of_telemetry(path, tel, src.warnings)
+
+
+def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, align: str, labels, port_options,
+                  viewer) -> None:
+    """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
+    given = [opt for opt, v in port_options.items() if v is not None]
+    if given:
+        raise UserError(f"{', '.join(given)} apply to one capture; with two or more captures the flights are "
+                        "compared with each other (run steval compare CAPTURE on each for the port).")
+    if align not in ALIGN_MODES:
+        raise UserError(f"--align must be time or motion, got {align!r}.")
+    if labels and len(labels) != len(captures):
+        raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
+    check_view_flags(no_view=False, spawn=viewer["spawn"], serve=viewer["serve"], connect=viewer["connect"])
+    options = None
+    if viewer["rrd"] is not None or viewer["spawn"] or viewer["serve"] or viewer["connect"] is not None:
+        options = sink_options(**viewer)  # checked before the work: a bad .rrd folder, a dead URL
+    if plot is not None:
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+        require_matplotlib()
+    with progress_bar("compare", quiet=as_json or viewer["serve"]) as progress:
+        flights = []
+        for i, path in enumerate(captures):
+            progress(0.6 * i / len(captures), f"reading {path.name}")
+            flights.append(_load_flight(path))
+        progress(0.6, "aligning")
+        result = side_by_side(flights, align=align, labels=labels)
+        if plot is not None:
+            from steval_link.analysis.side_by_side_plot import plot_side_by_side  # matplotlib: only for --plot
+
+            progress(0.7, f"plotting {plot.name}")
+            plot_side_by_side(result, plot)
+    if as_json:
+        d = result.as_dict()
+        if plot is not None:
+            d["plot"] = str(plot)
+        json.dump(d, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print("\n".join(format_side_by_side(result)))
+        if plot is not None:
+            print(f"plot: {plot}")
+    sys.stdout.flush()
+    if options is not None:
+        from steval_viewer.side_by_side_log import side_by_side_sink  # Rerun loads only for a viewer or an .rrd
+
+        side_by_side_sink(options)(result)

@@ -1,0 +1,521 @@
+"""Flights side by side (``steval compare A.stv B.stv ...``): two or more captures on one time axis, labelled by
+what differs between them, each measured against its own accelerometer-only tilt.
+
+* **Aligned** by firmware time from each capture's first frame (``align="time"``), or by motion
+  (``align="motion"``): the gyro of each flight is cross-correlated with the first flight's and the lag found is
+  taken off its times (hand-held or real flights that did not start together).
+* **Labelled** by what differs: the filter settings of the status frames (``ki``, ``kp_ground``, ``kp_flight``,
+  ``correction``, ``min_thr``, the normalisation variant, the build flags text mode and in-flight tuning), else the
+  capture headers (link, firmware ELF name, scenario, seed, port), else the file names: "ki 0.1" against
+  "ki 1, correction off".
+* **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
+  accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
+  :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (least-squares slope of that error over
+  the still rows, deg/min) and the error in the last still phase; per later flight its difference from the first.
+* **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
+  one, frames lost on the link, a truncated capture.
+
+A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony port's, run on its raw samples
+(dt from the ticks; :mod:`steval_link.analysis.ble`), and the notes say so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.analysis.diagnosis import filter_settings_report
+from steval_link.analysis.link_stats import relative_time_s
+from steval_link.analysis.report import angle_diff_rad, json_number
+from steval_link.estimators.accel_tilt import AccelTilt
+from steval_link.estimators.st_mahony import MahonySettings
+from steval_link.link import protocol as P
+
+__all__ = [
+    "ALIGN_MODES",
+    "STILL_GYRO_DPS",
+    "STILL_ACC_MG",
+    "STILL_MIN_S",
+    "Flight",
+    "SideBySide",
+    "flight_of_telemetry",
+    "flight_of_ble",
+    "side_by_side",
+    "still_mask",
+    "motion_lag_s",
+    "labels_by_difference",
+    "format_side_by_side",
+]
+
+ALIGN_MODES = ("time", "motion")
+#: A row is still when the gyro's norm is below this (deg/s) ...
+STILL_GYRO_DPS = 3.0
+#: ... and the accelerometer's norm within this of 1000 mg ...
+STILL_ACC_MG = 50.0
+#: ... for at least this long (s).
+STILL_MIN_S = 0.3
+#: Durations differing by more than this (s, or 5 %) are reported.
+DURATION_TOLERANCE_S = 1.0
+#: The motion alignment searches lags up to this fraction of the shorter flight.
+MAX_LAG_FRACTION = 0.5
+
+#: Settings in label order, with their defaults (a label names a differing setting where it is not the default).
+_SETTING_KEYS = ("ki", "correction", "kp_ground", "kp_flight", "min_thr", "dt_s", "fresh_squares", "text_mode",
+                 "inflight_tuning")
+_SETTING_WORDS = {"ki": "ki", "correction": "correction", "kp_ground": "kp ground", "kp_flight": "kp flight",
+                  "min_thr": "min_thr", "dt_s": "dt", "fresh_squares": "fresh squares", "text_mode": "text mode",
+                  "inflight_tuning": "in-flight tuning"}
+_FACT_KEYS = ("link", "firmware", "scenario", "seed", "port")
+
+
+def _f32(x) -> float:
+    """A float32 setting as its shortest decimal (0.4, not 0.4000000059604645)."""
+    return float(str(np.float32(x)))
+
+
+def _defaults() -> dict[str, Any]:
+    d = MahonySettings()
+    return {"ki": _f32(d.ki), "correction": True, "kp_ground": _f32(d.kp_ground), "kp_flight": _f32(d.kp_flight),
+            "min_thr": int(d.min_thr), "dt_s": _f32(d.dt_s), "fresh_squares": False, "text_mode": False,
+            "inflight_tuning": False}
+
+
+@dataclass
+class Flight:
+    """One capture on the common time axis.
+
+    Attributes:
+        path: the capture file. label: what the plot, the viewer and the JSON call it.
+        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE).
+        t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
+        thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
+        accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
+        settings: the filter settings from the first status frame (None without status frames), with
+            ``changes`` (changes announced during the capture) and ``from``.
+        facts: link, firmware, scenario, seed, port from the capture header (None where unknown).
+        duration_s, rows, frames_lost, warnings (the reader's, e.g. a truncated capture), lag_s (motion alignment).
+        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the port's on BLE).
+    """
+
+    path: Path
+    label: str
+    kind: str
+    angles: str
+    t_s: np.ndarray
+    thx_rad: np.ndarray
+    thy_rad: np.ndarray
+    acc_mg: np.ndarray
+    gyro_mdps: np.ndarray
+    q_wxyz: np.ndarray
+    settings: dict[str, Any] | None
+    facts: dict[str, Any]
+    duration_s: float
+    frames_lost: int
+    warnings: list[str] = field(default_factory=list)
+    lag_s: float = 0.0
+    accel_thx_rad: np.ndarray = field(default=None, repr=False)
+    accel_thy_rad: np.ndarray = field(default=None, repr=False)
+    still: np.ndarray = field(default=None, repr=False)
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rows(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass
+class SideBySide:
+    """Flights on one time axis (``flights[0]`` is the reference of the differences), how they were aligned, the
+    differences of each later flight from the first, and the mismatch notes. ``as_dict()`` is ``--json``."""
+
+    flights: list[Flight]
+    align: str
+    differences: list[dict[str, Any]]
+    notes: list[str]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "align": {"method": self.align, "lags_s": [json_number(f.lag_s) for f in self.flights],
+                      "meaning": "each flight's times are s since its first frame minus its lag (the first: 0)"},
+            "flights": [{
+                "label": f.label,
+                "path": str(f.path),
+                "kind": f.kind,
+                "angles": f.angles,
+                "settings": f.settings,
+                "facts": f.facts,
+                "rows": f.rows,
+                "duration_s": json_number(f.duration_s),
+                "frames_lost": f.frames_lost,
+                "warnings": list(f.warnings),
+                "figures": f.figures,
+            } for f in self.flights],
+            "differences": self.differences,
+            "notes": list(self.notes),
+        }
+
+
+# -- one flight ------------------------------------------------------------------------------------------------
+
+def _settings_of_status(tel) -> dict[str, Any] | None:
+    s = tel.status
+    if not len(s):
+        return None
+    exact = np.asarray(s.exact, bool)
+    if not exact.any():  # text-mode status lines: KI and the flags only
+        flags = int(s.flags[0])
+        return {"from": "text-mode status lines", "ki": _f32(s.ki[0]),
+                "correction": not flags & P.FLAG_NO_CORRECTION, "text_mode": True,
+                "changes": int(np.count_nonzero(np.diff(np.asarray(s.ki, np.float32)) != 0))}
+    rows = np.flatnonzero(exact)
+    first = MahonySettings.of_status(s, int(rows[0]))
+    flags = int(s.flags[rows[0]])
+    changes = int((filter_settings_report(tel) or {}).get("changes") or 0)
+    return {
+        "from": "status frames",
+        "ki": _f32(first.ki),
+        "correction": bool(first.correction),
+        "kp_ground": _f32(first.kp_ground),
+        "kp_flight": _f32(first.kp_flight),
+        "min_thr": int(first.min_thr),
+        "dt_s": _f32(first.dt_s),
+        "fresh_squares": bool(first.fresh_squares),
+        "text_mode": bool(flags & P.FLAG_TEXT_MODE),
+        "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
+        "flags": flags,
+        "changes": changes,
+    }
+
+
+def _facts(header: dict[str, Any] | None, kind: str) -> dict[str, Any]:
+    header = header or {}
+    extra = header.get("extra") or {}
+    synth = extra.get("synth") or {}
+    elf = extra.get("elf") or extra.get("firmware")
+    return {
+        "link": kind,
+        "firmware": None if elf is None else Path(str(elf)).name,
+        "firmware_path": None if elf is None else str(elf),
+        "scenario": extra.get("scenario") or synth.get("scenario"),
+        "seed": extra.get("seed", synth.get("seed")),
+        "port": header.get("port"),
+        "emulated": bool(extra.get("emulated", False)),
+    }
+
+
+def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
+    """A serial capture (a decoded :class:`~steval_link.link.telemetry.Telemetry` with attitude rows)."""
+    a = tel.attitude
+    t = relative_time_s(a.step, a.t_fw_s)
+    lost = int(tel.stats.frames_missing)
+    return Flight(
+        path=Path(path), label="", kind="serial", angles="firmware", t_s=t,
+        thx_rad=np.asarray(a.thx_rad, np.float64), thy_rad=np.asarray(a.thy_rad, np.float64),
+        acc_mg=np.asarray(a.acc_mg, np.float32), gyro_mdps=np.asarray(a.gyro_mdps, np.float32),
+        q_wxyz=np.asarray(a.q_wxyz, np.float64),
+        settings=_settings_of_status(tel), facts=_facts((tel.source or {}).get("header"), "serial"),
+        duration_s=float(t[-1]) if len(t) else 0.0, frames_lost=lost, warnings=list(warnings),
+    )
+
+
+def flight_of_ble(path, ble, inputs, port_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
+    """A BLE capture: its uniform inputs (:func:`steval_link.link.ble_payloads.uniform_inputs`) and the
+    ST-Mahony port's estimate over them (no firmware angles are sent over BLE)."""
+    t = np.asarray(inputs.t_s, np.float64)
+    t = t - t[0] if len(t) else t
+    return Flight(
+        path=Path(path), label="", kind="ble", angles="st-mahony port",
+        t_s=t, thx_rad=np.asarray(port_estimate.thx_rad, np.float64),
+        thy_rad=np.asarray(port_estimate.thy_rad, np.float64),
+        acc_mg=np.asarray(inputs.acc_mg, np.float32), gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
+        q_wxyz=np.asarray(port_estimate.q_wxyz, np.float64),
+        settings=None, facts=_facts(header, "ble"), duration_s=float(t[-1]) if len(t) else 0.0,
+        frames_lost=int(ble.dropped_estimate() or 0), warnings=list(warnings),
+    )
+
+
+def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """(N,) True on the rows of still phases: gyro norm < :data:`STILL_GYRO_DPS`, accelerometer norm within
+    :data:`STILL_ACC_MG` of 1000 mg, in runs lasting at least :data:`STILL_MIN_S`."""
+    acc = np.asarray(acc_mg, np.float64)
+    gyro = np.asarray(gyro_mdps, np.float64)
+    with np.errstate(invalid="ignore"):
+        quiet = (np.linalg.norm(gyro, axis=1) < STILL_GYRO_DPS * 1000.0) & (
+            np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG)
+    if not quiet.any():
+        return quiet
+    d = np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    out = np.zeros_like(quiet)
+    t = np.asarray(t_s, np.float64)
+    for a, b in zip(starts, stops):
+        if t[b - 1] - t[a] >= STILL_MIN_S:
+            out[a:b] = True
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _still_figures(f: Flight) -> dict[str, Any]:
+    """RMS against accel-only tilt in still phases, drift (deg/min) and the error in the last still phase."""
+    out: dict[str, Any] = {"still_s": 0.0, "still_phases": 0}
+    still = f.still & np.isfinite(f.thx_rad) & np.isfinite(f.thy_rad)
+    runs = _runs(still)
+    dt = np.diff(f.t_s, append=f.t_s[-1] + C.AHRS_PERIOD_S) if f.rows else np.zeros(0)
+    out["still_s"] = round(float(np.sum(dt[still])), 3)
+    out["still_phases"] = len(runs)
+    for axis, est, ref in (("pitch_thx", f.thx_rad, f.accel_thx_rad), ("roll_thy", f.thy_rad, f.accel_thy_rad)):
+        err = np.degrees(angle_diff_rad(est, ref))
+        e = err[still]
+        t = f.t_s[still]
+        fig: dict[str, Any] = {"rms_still_deg": None, "mean_still_deg": None, "drift_deg_per_min": None,
+                               "last_still_deg": None}
+        if e.size:
+            fig["rms_still_deg"] = json_number(np.sqrt(np.mean(e * e)))
+            fig["mean_still_deg"] = json_number(np.mean(e))
+            a, b = runs[-1]
+            fig["last_still_deg"] = json_number(np.mean(err[a:b]))
+            if e.size > 2 and np.ptp(t) > 0:
+                fig["drift_deg_per_min"] = json_number(np.polyfit(t, e, 1)[0] * 60.0)
+        out[axis] = fig
+    return out
+
+
+# -- alignment -------------------------------------------------------------------------------------------------
+
+def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
+    """The gyro (deg/s, zero mean per axis) resampled on a uniform grid from the flight's first frame."""
+    g = np.asarray(gyro_mdps, np.float64) / 1000.0
+    grid = np.arange(0.0, float(t_s[-1]) + dt / 2, dt)
+    out = np.stack([np.interp(grid, t_s, np.nan_to_num(g[:, k])) for k in range(3)], axis=1)
+    return out - out.mean(axis=0)
+
+
+def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray,
+                 dt: float = C.AHRS_PERIOD_S) -> tuple[float, float]:
+    """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
+    and the correlation coefficient at that lag (0..1). A motion that happens 2 s later in the flight than in the
+    reference gives +2.0; its aligned times are ``t − lag``."""
+    if len(t_ref) < 8 or len(t) < 8:
+        return 0.0, 0.0
+    a = _grid(t_ref, gyro_ref, dt)
+    b = _grid(t, gyro, dt)
+    n = len(a) + len(b) - 1
+    size = 1 << (n - 1).bit_length()
+    xc = np.zeros(size)
+    for k in range(3):
+        xc += np.fft.irfft(np.fft.rfft(b[:, k], size) * np.conj(np.fft.rfft(a[:, k], size)), size)
+    # xc[m] = sum_i b[i + m] a[i]: lags m = 0 .. len(b)-1 at the start, negative lags wrapped at the end
+    max_lag = int(MAX_LAG_FRACTION * min(len(a), len(b)))
+    lags = np.concatenate([np.arange(0, max_lag + 1), np.arange(-max_lag, 0)])
+    vals = np.concatenate([xc[: max_lag + 1], xc[size - max_lag:]])
+    best = int(np.argmax(vals))
+    norm = math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b)))
+    return float(lags[best] * dt), (float(vals[best]) / norm if norm > 0 else 0.0)
+
+
+# -- labels ----------------------------------------------------------------------------------------------------
+
+def _word(key: str, value) -> str:
+    name = _SETTING_WORDS[key]
+    if key == "correction":
+        return f"correction {'on' if value else 'off'}"
+    if isinstance(value, bool):
+        return name if value else f"no {name}"
+    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
+
+
+def _fact_word(key: str, value) -> str:
+    if key == "link":
+        return "BLE" if value == "ble" else "serial"
+    return f"{key.replace('_path', '')} {value}"
+
+
+def labels_by_difference(flights: Sequence[Flight]) -> list[str]:
+    """A label per flight naming what differs between them: the settings first ("ki 0.1" against "ki 1,
+    correction off": a differing setting is named where it is not the default, and the first one where nothing
+    else would be), else the header facts (link, firmware, scenario, seed, port), else the file names. Labels
+    that still collide get their file name added."""
+    n = len(flights)
+    labels = [""] * n
+    known = [f.settings for f in flights]
+    defaults = _defaults()
+    if all(s is not None for s in known):
+        differing = [k for k in _SETTING_KEYS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
+        if differing:
+            for i, s in enumerate(known):
+                words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
+                labels[i] = ", ".join(words) or _word(differing[0], s.get(differing[0], defaults[differing[0]]))
+    if not all(labels):
+        facts = [f.facts for f in flights]
+        differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
+        if "firmware" not in differing and len({repr(x.get("firmware_path")) for x in facts}) > 1:
+            differing.insert(1, "firmware_path")  # same ELF name, other folders: the paths
+        words: list[list[str]] = [[] for _ in flights]
+        for k in differing:  # in order of priority, until the labels tell the flights apart
+            for i, x in enumerate(facts):
+                if x.get(k) is not None:
+                    words[i].append(_fact_word(k, x[k]))
+            if len({", ".join(w) for w in words}) == n:
+                break
+        for i in range(n):
+            if not labels[i]:
+                labels[i] = ", ".join(words[i])
+    for i, f in enumerate(flights):
+        if f.settings and f.settings.get("changes"):
+            labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
+    names = [f.path.name for f in flights]
+    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
+    labels = [f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
+              for i in range(n)]
+    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
+    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
+    return labels
+
+
+# -- mismatches ------------------------------------------------------------------------------------------------
+
+def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
+    notes: list[str] = []
+    durations = [f.duration_s for f in flights]
+    lo, hi = min(durations), max(durations)
+    if hi - lo > max(DURATION_TOLERANCE_S, 0.05 * hi):
+        each = ", ".join(f"{f.label} {f.duration_s:.1f} s" for f in flights)
+        notes.append(f"durations differ ({each}): the differences cover the overlap only.")
+    kinds = {f.kind for f in flights}
+    if len(kinds) > 1:
+        ble = [f.label for f in flights if f.kind == "ble"]
+        ser = [f.label for f in flights if f.kind == "serial"]
+        notes.append(f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
+                     "host's ST-Mahony port on raw ISR samples (dt from the 8 ms ticks), not the drone's own.")
+    elif kinds == {"ble"}:
+        notes.append("BLE captures: the angles are the host's ST-Mahony port on raw ISR samples, not the drone's.")
+    for f in flights:
+        if f.frames_lost:
+            notes.append(f"{f.label}: {f.frames_lost} frames lost on the link; its lines are interpolated across "
+                         "the gaps.")
+        for w in f.warnings:
+            notes.append(f"{f.label}: {w}")
+    text = [f.label for f in flights if f.settings and f.settings.get("text_mode")]
+    if text and len(text) < len(flights):
+        notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, one row per 16 steps) against binary "
+                     "frames.")
+    return notes
+
+
+# -- all together ----------------------------------------------------------------------------------------------
+
+def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
+    """``f − ref`` on ``ref``'s rows within the overlap, degrees (angles interpolated, wrapped to ±180°)."""
+    lo, hi = max(ref.t_s[0], f.t_s[0]), min(ref.t_s[-1], f.t_s[-1])
+    rows = (ref.t_s >= lo) & (ref.t_s <= hi)
+    out: dict[str, Any] = {"label": f.label, "against": ref.label, "overlap_s": json_number(max(0.0, hi - lo))}
+    for axis, a, b in (("pitch_thx", ref.thx_rad, f.thx_rad), ("roll_thy", ref.thy_rad, f.thy_rad)):
+        d = np.degrees(angle_diff_rad(np.interp(ref.t_s[rows], f.t_s, b), a[rows]))
+        d = d[np.isfinite(d)]
+        out[axis] = {"rms_deg": json_number(np.sqrt(np.mean(d * d))) if d.size else None,
+                     "max_abs_deg": json_number(np.max(np.abs(d))) if d.size else None}
+    return out
+
+
+def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t_s, pitch, roll) of ``f − ref`` in degrees on ``ref``'s rows within the overlap (plots, viewer)."""
+    lo, hi = max(ref.t_s[0], f.t_s[0]), min(ref.t_s[-1], f.t_s[-1])
+    rows = (ref.t_s >= lo) & (ref.t_s <= hi)
+    t = ref.t_s[rows]
+    dx = np.degrees(angle_diff_rad(np.interp(t, f.t_s, f.thx_rad), ref.thx_rad[rows]))
+    dy = np.degrees(angle_diff_rad(np.interp(t, f.t_s, f.thy_rad), ref.thy_rad[rows]))
+    return t, dx, dy
+
+
+def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None,
+                 ) -> SideBySide:
+    """Put ``flights`` (two or more, from :func:`flight_of_telemetry` / :func:`flight_of_ble`) on one time axis,
+    label them (``labels`` overrides, in order; missing ones are derived), measure each against its accel-only
+    tilt and each later one against the first. Raises ValueError for an unknown ``align`` or an empty flight."""
+    if align not in ALIGN_MODES:
+        raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
+    flights = list(flights)
+    for f in flights:
+        if f.rows == 0:
+            raise ValueError(f"{f.path} has no rows")
+    derived = labels_by_difference(flights)
+    given = list(labels or [])
+    for i, f in enumerate(flights):
+        f.label = given[i] if i < len(given) else derived[i]
+    notes: list[str] = []
+    if align == "motion":
+        ref = flights[0]
+        for f in flights[1:]:
+            lag, r = motion_lag_s(ref.t_s, ref.gyro_mdps, f.t_s, f.gyro_mdps)
+            f.lag_s = lag
+            f.t_s = f.t_s - lag
+            notes.append(f"motion alignment: {f.label} lags {ref.label} by {lag:+.3f} s (gyro correlation {r:.2f})")
+            if r < 0.5:
+                notes.append(f"{f.label}: the gyro correlates weakly with {ref.label} ({r:.2f}): the motions may "
+                             "not be the same, the lag may be wrong.")
+    tilt = AccelTilt()
+    for f in flights:
+        est = tilt.run(f.acc_mg, f.gyro_mdps)
+        f.accel_thx_rad = np.asarray(est.thx_rad, np.float64)
+        f.accel_thy_rad = np.asarray(est.thy_rad, np.float64)
+        f.still = still_mask(f.acc_mg, f.gyro_mdps, f.t_s)
+        f.figures = _still_figures(f)
+    notes = _mismatch_notes(flights) + notes
+    diffs = [_difference(flights[0], f) for f in flights[1:]]
+    return SideBySide(flights, align, diffs, notes)
+
+
+# -- text ------------------------------------------------------------------------------------------------------
+
+def _num(x, fmt: str = "+.3f") -> str:
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+
+def _settings_text(s: dict[str, Any] | None) -> str:
+    if s is None:
+        return "settings unknown (no status frames)"
+    if s.get("from") != "status frames":
+        return f"ki {s['ki']:g}, correction {'on' if s['correction'] else 'off'} (text-mode status)"
+    return (f"ki {s['ki']:g}, kp {s['kp_ground']:g}/{s['kp_flight']:g}, correction "
+            f"{'on' if s['correction'] else 'off'}, min_thr {s['min_thr']}"
+            + (f", {s['changes']} changes" if s.get("changes") else ""))
+
+
+def format_side_by_side(r: SideBySide) -> list[str]:
+    """The text form: flights, their figures against accel-only tilt, the differences, the notes."""
+    how = ("firmware time from each capture's first frame" if r.align == "time"
+           else "motion (gyro cross-correlation with the first flight)")
+    lines = [f"{len(r.flights)} flights side by side, aligned by {how}"]
+    width = max(len(f.label) for f in r.flights)
+    for i, f in enumerate(r.flights):
+        lag = f", lag {f.lag_s:+.3f} s" if r.align == "motion" else ""
+        lines.append(f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
+                     f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}")
+    lines.append("against accel-only tilt in still phases (deg; drift deg/min): pitch = thx (about x, nose up +), "
+                 "roll = thy (about y)")
+    lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  last still "
+                 "pitch/roll")
+    for f in r.flights:
+        g = f.figures
+        px, ry = g["pitch_thx"], g["roll_thy"]
+        lines.append(f"  {f.label:<{width}}  {g['still_s']:7.1f}  {_num(px['rms_still_deg'], '9.3f')}  "
+                     f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg_per_min'], '+11.3f')}  "
+                     f"{_num(ry['drift_deg_per_min'], '+10.3f')}  {_num(px['last_still_deg'])} / "
+                     f"{_num(ry['last_still_deg'])}")
+    for d in r.differences:
+        lines.append(f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch RMS "
+                     f"{_num(d['pitch_thx']['rms_deg'], '.3f')} max {_num(d['pitch_thx']['max_abs_deg'], '.3f')} deg, "
+                     f"roll RMS {_num(d['roll_thy']['rms_deg'], '.3f')} max {_num(d['roll_thy']['max_abs_deg'], '.3f')}"
+                     " deg")
+    for n in r.notes:
+        lines.append(f"note: {n}")
+    return lines

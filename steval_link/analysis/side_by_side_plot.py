@@ -1,0 +1,88 @@
+"""The figure of ``steval compare A.stv B.stv ... --plot OUT.png``: pitch (thx, about x, nose up +) and roll (thy,
+about y) of every flight overlaid with the first flight's accelerometer-only tilt as the reference and its still
+phases shaded, each later flight minus the first, and a table of RMS against accel-only tilt in still phases and
+of drift. matplotlib is optional (:func:`steval_link.analysis.plots.require_matplotlib`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from steval_link.analysis.plots import _decimate, _save, _spans, require_matplotlib
+from steval_link.analysis.side_by_side import SideBySide, difference_series
+
+__all__ = ["plot_side_by_side", "side_by_side_figure"]
+
+#: Flight colours, in order (the viewer uses the same).
+COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
+
+
+def plot_side_by_side(r: SideBySide, out_png) -> Path:
+    """Write :func:`side_by_side_figure` as a PNG to ``out_png`` (UserError when it cannot be written)."""
+    return _save(side_by_side_figure(r), out_png)
+
+
+def _cell(x, fmt: str) -> str:
+    return "n/a" if x is None else format(x, fmt)
+
+
+def side_by_side_figure(r: SideBySide):
+    plt = require_matplotlib()
+    fig = plt.figure(figsize=(13, 11))
+    grid = fig.add_gridspec(4, 1, height_ratios=[3, 3, 2, 1.0], hspace=0.38)
+    fig.subplots_adjust(top=0.93, bottom=0.02, left=0.07, right=0.98)
+    ax_p = fig.add_subplot(grid[0])
+    ax_r = fig.add_subplot(grid[1], sharex=ax_p)
+    ax_d = fig.add_subplot(grid[2], sharex=ax_p)
+    ax_t = fig.add_subplot(grid[3])
+    ref = r.flights[0]
+    for ax, attr, acc_attr, title in (
+        (ax_p, "thx_rad", "accel_thx_rad", "pitch = thx (rotation about x, nose up +)"),
+        (ax_r, "thy_rad", "accel_thy_rad", "roll = thy (rotation about y, right side down +)"),
+    ):
+        _spans(ax, ref.t_s, ref.still, f"still phases ({ref.label})")
+        t, y = _decimate(ref.t_s, np.degrees(getattr(ref, acc_attr)))
+        ax.plot(t, y, color="0.55", lw=0.8, label=f"accel-only tilt ({ref.label}): reference", zorder=1)
+        for i, f in enumerate(r.flights):
+            t, y = _decimate(f.t_s, np.degrees(getattr(f, attr)))
+            ax.plot(t, y, color=COLOURS[i % len(COLOURS)], lw=1.6 if i == 0 else 1.2, label=f.label, zorder=3 + i)
+        ax.set_ylabel(f"{title.split(' ')[0]} {attr[:3]} (deg)")
+        ax.set_title(title, fontsize=10, loc="left")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    for i, f in enumerate(r.flights[1:], start=1):
+        t, dx, dy = difference_series(ref, f)
+        c = COLOURS[i % len(COLOURS)]
+        tt, yy = _decimate(t, dx)
+        ax_d.plot(tt, yy, color=c, lw=1.2, label=f"pitch thx: {f.label} − {ref.label}")
+        tt, yy = _decimate(t, dy)
+        ax_d.plot(tt, yy, color=c, lw=1.0, ls="--", label=f"roll thy: {f.label} − {ref.label}")
+    ax_d.axhline(0, color="0.3", lw=0.6)
+    ax_d.set_ylabel("difference (deg)")
+    ax_d.set_title("each flight minus the first", fontsize=10, loc="left")
+    ax_d.grid(alpha=0.3)
+    ax_d.legend(fontsize=8, loc="upper right")
+    how = "firmware time from each first frame" if r.align == "time" else "motion (gyro cross-correlation)"
+    ax_d.set_xlabel(f"time (s), aligned by {how}")
+
+    ax_t.axis("off")
+    head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg/min)",
+            "drift roll (deg/min)", "last still pitch / roll (deg)"]
+    rows = []
+    for f in r.flights:
+        g = f.figures
+        px, ry = g["pitch_thx"], g["roll_thy"]
+        rows.append([f.label, f"{g['still_s']:.1f}", _cell(px["rms_still_deg"], ".3f"),
+                     _cell(ry["rms_still_deg"], ".3f"), _cell(px["drift_deg_per_min"], "+.3f"),
+                     _cell(ry["drift_deg_per_min"], "+.3f"),
+                     f"{_cell(px['last_still_deg'], '+.2f')} / {_cell(ry['last_still_deg'], '+.2f')}"])
+    table = ax_t.table(cellText=rows, colLabels=head, loc="center", cellLoc="center")
+    table.auto_set_font_size(False)
+    table.set_fontsize(8.5)
+    table.scale(1, 1.4)
+    for i in range(len(rows)):
+        table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
+    ax_t.set_title("against accel-only tilt, still phases only", fontsize=10, loc="left")
+    fig.suptitle(" vs ".join(f.label for f in r.flights), fontsize=12)
+    return fig

@@ -1,0 +1,158 @@
+"""``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree on one timeline, and a
+blueprint that overlays them.
+
+Entities (``<k>``: ``a``, ``b``, ... in the order of the command line; times on the ``aligned_time`` timeline, s
+since each flight's first frame minus its motion lag):
+
+- ``flights/<k>/pitch_thx_deg``, ``flights/<k>/roll_thy_deg``: the flight's pitch (about x, nose up +) and roll
+  (about y), its label as the series name;
+- ``flights/<k>/accel_pitch_thx_deg``, ``flights/<k>/accel_roll_thy_deg``: its accelerometer-only tilt;
+- ``flights/<k>/gyro_dps``: its gyro (x, y, z);
+- ``flights/<k>/world/drone``: its attitude (a quadcopter in its own 3D view);
+- ``flights/<k>/diff_pitch_thx_deg``, ``flights/<k>/diff_roll_thy_deg``: the flight minus the first one (from the
+  second flight on);
+- ``notes``: the printed summary.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
+from steval_viewer import drone_model
+from steval_viewer.sinks import log_whole
+
+__all__ = ["TIMELINE", "ROOT", "NOTES", "flight_key", "flight_path", "side_by_side_blueprint", "log_side_by_side",
+           "side_by_side_sink"]
+
+TIMELINE = "aligned_time"
+ROOT = "flights"
+NOTES = "notes"
+#: Line colours of the flights, in order (then repeated).
+COLOURS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14), (23, 190, 207)]
+_ACCEL_GREY = (150, 150, 150)
+
+
+def flight_key(i: int) -> str:
+    """The entity segment of the ``i``-th flight: ``a``, ``b``, ..., then ``f27``, ..."""
+    return chr(ord("a") + i) if i < 26 else f"f{i + 1}"
+
+
+def flight_path(i: int, leaf: str) -> str:
+    return f"{ROOT}/{flight_key(i)}/{leaf}"
+
+
+def _colour(i: int) -> tuple[int, int, int]:
+    return COLOURS[i % len(COLOURS)]
+
+
+def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
+    """Pitch of every flight overlaid (with their accel-only tilt), roll the same, the differences from the first
+    flight, one 3D view per flight, and the notes."""
+    n = len(labels)
+
+    def series(name: str, leaves: list[str]) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(origin=ROOT, name=name,
+                                  contents=[f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves],
+                                  plot_legend=rrb.PlotLegend(visible=True))
+
+    plots = rrb.Vertical(
+        series("pitch thx (about x, nose up +), deg", ["pitch_thx_deg", "accel_pitch_thx_deg"]),
+        series("roll thy (about y), deg", ["roll_thy_deg", "accel_roll_thy_deg"]),
+        series("difference from the first flight, deg", ["diff_pitch_thx_deg", "diff_roll_thy_deg"]),
+        series("gyro, deg/s", ["gyro_dps"]),
+        row_shares=[3, 3, 2, 2],
+    )
+    drones = rrb.Vertical(
+        *(rrb.Spatial3DView(origin=f"{ROOT}/{flight_key(i)}/world", name=labels[i]) for i in range(n)),
+        rrb.TextDocumentView(origin=NOTES, name="Notes"),
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(plots, drones, column_shares=[3, 1]),
+        rrb.TimePanel(timeline=TIMELINE),
+        rrb.BlueprintPanel(expanded=False),
+        rrb.SelectionPanel(expanded=False),
+        collapse_panels=False,
+    )
+
+
+def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarray) -> int:
+    """A scalar series (N,) or group (N, k) on :data:`TIMELINE`; non-finite rows are left out. Returns rows sent."""
+    v = np.asarray(values, np.float64)
+    good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
+    if not good.any():
+        return 0
+    rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])],
+                     columns=rr.Scalars.columns(scalars=v[good]))
+    return int(good.sum())
+
+
+def _style(rec: rr.RecordingStream, path: str, name, colour, width: float = 1.5) -> None:
+    names = [name] if isinstance(name, str) else list(name)
+    colours = [colour] if isinstance(colour, tuple) else list(colour)
+    rec.log(path, rr.SeriesLines(names=names, colors=colours, widths=[width] * len(names)), static=True)
+
+
+def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
+    """Log every flight of ``r`` under its own subtree, with :func:`side_by_side_blueprint`; returns the number of
+    rows logged per entity path."""
+    labels = [f.label for f in r.flights]
+    rec.send_blueprint(side_by_side_blueprint(labels), make_active=True, make_default=True)
+    counts: dict[str, int] = {}
+    mesh = drone_model.quadcopter_mesh()
+    ref = r.flights[0]
+    for i, f in enumerate(r.flights):
+        c = _colour(i)
+        light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
+        leaves = {
+            "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, np.degrees(f.thx_rad)),
+            "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, np.degrees(f.thy_rad)),
+            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", light, 1.0, np.degrees(f.accel_thx_rad)),
+            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", light, 1.0, np.degrees(f.accel_thy_rad)),
+        }
+        for leaf, (name, colour, width, values) in leaves.items():
+            path = flight_path(i, leaf)
+            _style(rec, path, name, colour, width)
+            counts[path] = _send(rec, path, f.t_s, values)
+        path = flight_path(i, "gyro_dps")
+        _style(rec, path, [f"{f.label}: gyro {a}" for a in "xyz"], [c, light, _ACCEL_GREY], 1.0)
+        counts[path] = _send(rec, path, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0)
+        if i:
+            t, dx, dy = difference_series(ref, f)
+            for leaf, what, values, w in (("diff_pitch_thx_deg", "pitch", dx, 2.0), ("diff_roll_thy_deg", "roll",
+                                                                                   dy, 1.0)):
+                path = flight_path(i, leaf)
+                _style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
+                counts[path] = _send(rec, path, t, values)
+        world = flight_path(i, "world")
+        rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(f"{world}/drone/model", rr.Mesh3D(vertex_positions=mesh.positions, vertex_normals=mesh.normals,
+                                                  vertex_colors=mesh.colors, triangle_indices=mesh.triangles),
+                static=True)
+        q = np.asarray(f.q_wxyz, np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm = np.sqrt((q * q).sum(axis=1))
+            good = np.isfinite(norm) & (norm > 1e-6)
+            xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
+        if good.any():
+            rec.send_columns(f"{world}/drone", indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
+                             columns=rr.Transform3D.columns(quaternion=xyzw[good]))
+        counts[f"{world}/drone"] = int(good.sum())
+    text = "\n".join(f"- {line}" if k else f"**{line}**" for k, line in enumerate(format_side_by_side(r)))
+    rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+    counts[NOTES] = 1
+    return counts
+
+
+def side_by_side_sink(options: Any, *, recording_name: str = "steval compare (side by side)"):
+    """A sink ``sink(side_by_side)`` writing to the Rerun sinks of ``options`` (a ``SinkOptions``): a complete
+    ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+
+    def sink(r: SideBySide) -> dict[str, int]:
+        return log_whole(options, recording_name, lambda rec: log_side_by_side(rec, r))
+
+    return sink
