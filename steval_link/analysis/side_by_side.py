@@ -70,7 +70,7 @@ _SETTING_KEYS = ("ki", "correction", "kp_ground", "kp_flight", "min_thr", "dt_s"
 _SETTING_WORDS = {"ki": "ki", "correction": "correction", "kp_ground": "kp ground", "kp_flight": "kp flight",
                   "min_thr": "min_thr", "dt_s": "dt", "fresh_squares": "fresh squares", "text_mode": "text mode",
                   "inflight_tuning": "in-flight tuning"}
-_FACT_KEYS = ("link", "firmware", "scenario", "seed", "port")
+_FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
 
 
 def _f32(x) -> float:
@@ -357,8 +357,8 @@ def labels_by_difference(flights: Sequence[Flight]) -> list[str]:
     if not all(labels):
         facts = [f.facts for f in flights]
         differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
-        if "firmware" not in differing and len({repr(x.get("firmware_path")) for x in facts}) > 1:
-            differing.insert(1, "firmware_path")  # same ELF name, other folders: the paths
+        if "firmware" in differing:  # the ELF names tell them apart; else the paths may (other build folders)
+            differing.remove("firmware_path")
         words: list[list[str]] = [[] for _ in flights]
         for k in differing:  # in order of priority, until the labels tell the flights apart
             for i, x in enumerate(facts):
