@@ -1,0 +1,135 @@
+"""A decoded capture as one column table per frame type, units in the column names (``steval export --mat``,
+``--mcap``): ``attitude`` (the CSV's columns: :meth:`Telemetry.attitude_table` and the flight-control columns on
+the rows of their steps), ``status``, ``fc`` (one row per flight-control frame), ``ack``, ``command`` and
+``text``; and the capture's settings and header as plain dicts."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from steval_link.analysis.diagnosis import filter_settings_report
+from steval_link.link import protocol as P
+
+__all__ = ["attitude_table", "status_table", "fc_table", "record_table", "frame_tables", "settings_of",
+           "header_of"]
+
+
+def attitude_table(tel) -> dict[str, np.ndarray]:
+    """The CSV's columns: one row per attitude frame, flight-control columns joined on by step (NaN elsewhere)."""
+    table = tel.attitude_table()
+    table.update(tel.flight_columns())
+    return table
+
+
+def status_table(tel) -> dict[str, np.ndarray]:
+    """One row per status frame: the filter snapshot (q, integrals), the settings, the AHRS cycle counts, the link
+    counters, the flags (bit 0 no correction, 1 fresh squares, 2 text mode, 3 event, 4 in-flight tuning, 5 armed)."""
+    s = tel.status
+    cols: dict[str, np.ndarray] = {"step": np.asarray(s.step, np.int64), "t_fw_s": s.t_fw_s, "t_host_s": s.t_host_s}
+    for i, c in enumerate("wxyz"):
+        cols[f"q_{c}"] = np.asarray(s.q_wxyz)[:, i] if len(s) else np.zeros(0, np.float32)
+    for i, c in enumerate("xyz"):
+        cols[f"int_{c}"] = np.asarray(s.int_xyz)[:, i] if len(s) else np.zeros(0, np.float32)
+    cols.update({
+        "kp_ground": s.kp_ground, "kp_flight": s.kp_flight, "ki": s.ki, "dt_s": s.dt_s,
+        "min_thr": s.min_thr, "flags": s.flags,
+        "ahrs_cycles_min": s.cyc_min, "ahrs_cycles_mean": s.cyc_mean, "ahrs_cycles_max": s.cyc_max,
+        "ahrs_cycles_n": s.cyc_n, "cpu_hz": s.cpu_hz, "tx_dropped_frames": s.tx_dropped, "baud": s.baud,
+        "queue_peak_bytes": s.queue_peak,
+        "fw_version_major": np.asarray(s.fw_version)[:, 0] if len(s) else np.zeros(0, np.uint8),
+        "fw_version_minor": np.asarray(s.fw_version)[:, 1] if len(s) else np.zeros(0, np.uint8),
+        "fc_every": s.fc_every, "param_gen": s.param_gen, "exact": s.exact, "offset": s.offset,
+    })
+    return {k: np.asarray(v) for k, v in cols.items()}
+
+
+def fc_table(tel) -> dict[str, np.ndarray]:
+    """One row per flight-control frame, the CSV's flight-control column names (targets, sticks, outer and inner
+    loop outputs, motors, battery, flags)."""
+    fc = tel.fc
+    cols: dict[str, np.ndarray] = {"step": fc.step, "t_fw_s": fc.t_fw_s, "t_host_s": fc.t_host_s}
+    n = len(fc)
+
+    def part(a, i, dtype=np.float32):
+        a = np.asarray(a)
+        return a[:, i] if n else np.zeros(0, dtype)
+
+    for i, name in enumerate(("thx_pitch", "thy_roll", "thz_yaw")):
+        cols[f"target_{name}_rad"] = part(fc.euler_rc_rad, i)
+    for i, name in enumerate(("ail", "ele", "rud", "thr")):
+        cols[f"rc_{name}"] = part(fc.rc, i, np.int16)
+    for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
+        cols[f"outer_s1_{name}_radps"] = part(fc.outer_s1_radps, i)
+    for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
+        cols[f"inner_s2_{name}_pwm"] = part(fc.inner_s2_pwm, i)
+    for i in range(4):
+        cols[f"motor{i + 1}_pwm"] = part(fc.motor_pwm, i)
+    cols["vbat_v"] = fc.vbat_v
+    flags = np.asarray(fc.fc_flags)
+    for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"), (P.FC_RC_CAL, "fc_rc_cal")):
+        cols[name] = (flags & bit) != 0
+    cols["fc_every"] = fc.fc_every
+    cols["offset"] = fc.offset
+    return {k: np.asarray(v) for k, v in cols.items()}
+
+
+def record_table(rows: np.ndarray) -> dict[str, np.ndarray]:
+    """A structured array (acks, commands) as columns; its (k,)-shaped fields split into ``name_0`` ..."""
+    cols: dict[str, np.ndarray] = {}
+    for name in rows.dtype.names or ():
+        if name == "reserved":
+            continue
+        v = np.asarray(rows[name])
+        if v.ndim == 1:
+            cols[name] = v
+        else:
+            for i in range(v.shape[1]):
+                cols[f"{name}_{i}"] = v[:, i]
+    return cols
+
+
+def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
+    """One column table per frame type the capture holds (``attitude`` always; ``status``, ``fc``, ``ack``,
+    ``command`` when present); ``text`` lines as ``t_host_s`` and ``text``."""
+    out = {"attitude": attitude_table(tel)}
+    if len(tel.status):
+        out["status"] = status_table(tel)
+    if len(tel.fc):
+        out["fc"] = fc_table(tel)
+    if len(tel.acks):
+        out["ack"] = record_table(tel.acks)
+    if len(tel.commands):
+        out["command"] = record_table(tel.commands)
+    if tel.text:
+        out["text"] = {"t_host_s": np.array([t for t, _ in tel.text], np.float64),
+                       "text": np.array([s for _, s in tel.text], dtype=object)}
+    return out
+
+
+def _plain(v: Any) -> Any:
+    """JSON-like values only (no None: MATLAB has no null; None becomes NaN or an empty string)."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if v is None:
+        return ""
+    return v
+
+
+def settings_of(tel) -> dict[str, Any]:
+    """The filter settings the status frames report (last frame; ``differs_from_defaults``, ``changes``,
+    ``change_list``), or ``{"from": "none"}`` without status frames."""
+    return _plain(filter_settings_report(tel) or {"from": "none"})
+
+
+def header_of(tel) -> dict[str, Any]:
+    """The capture header (``port``, ``baud``, ``start_time_utc``, ``tool_version``, ``extra``) and the file's
+    ``path`` and ``kind``."""
+    src = tel.source or {}
+    header = dict(src.get("header") or {})
+    header["path"] = str(src.get("path") or "")
+    header["kind"] = str(src.get("kind") or "")
+    return _plain(header)
