@@ -9,13 +9,16 @@ import numpy as np
 import typer
 
 from steval_link.analysis.ble import load_ble
+from steval_link.analysis.frame_tables import frame_tables, header_of, settings_of
+from steval_link.analysis.mat_export import require_scipy, write_mat
+from steval_link.analysis.mcap_export import require_mcap, write_mcap
 from steval_link.cli.app import app
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import read_source, telemetry_of_source
 
-__all__ = ["write_csv", "write_parquet", "write_raw"]
+__all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
 
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
@@ -82,12 +85,20 @@ def export(
     raw: Annotated[
         Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
     ] = None,
+    mat: Annotated[Optional[Path], typer.Option(
+        "--mat", help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
+        "columns, plus settings and header (needs scipy).")] = None,
+    mcap: Annotated[Optional[Path], typer.Option(
+        "--mcap", help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
+        "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
+        "mcap).")] = None,
     degrees: Annotated[bool, typer.Option(
         "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
     )] = False,
     force: Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")] = False,
 ) -> None:
-    """Export a capture as CSV / Parquet (one row per attitude frame) or as the raw serial bytes.
+    """Export a capture as CSV / Parquet (one row per attitude frame), MATLAB (--mat), MCAP (--mcap) or as the raw
+    serial bytes.
 
     Columns, units in the names: step, seq, t_fw_s, t_host_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps,
     q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad (_deg with --degrees), thr, exact
@@ -101,10 +112,21 @@ def export(
     A BLE capture (steval live --ble) gives one row per motion notification: t_host_s, tick (8 ms, unwrapped),
     t_fw_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps, mag_x_mgauss .. mag_z_mgauss, and the last
     pressure_hpa, battery_pct, temperature_c, rssi_dbm, armed received before it.
+
+    --mat: structs attitude (the columns above), status, fc (one row per flight-control frame), ack, command, text
+    (those the capture holds), settings and header; load('OUT.mat') in MATLAB. --mcap: topics /attitude/transform
+    (foxglove.FrameTransform), /attitude/pose (foxglove.PoseInFrame), /attitude (steval.Attitude), /status,
+    /flight_control; JSON, log time = firmware time. Both are written to OUT.partial, then renamed.
     """
-    outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw)) if p is not None]
+    outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw), ("--mat", mat),
+                                       ("--mcap", mcap)) if p is not None]
     if not outputs:
-        raise UserError("nothing to export: give --csv OUT, --parquet OUT and/or --raw OUT.bin.")
+        raise UserError("nothing to export: give --csv OUT, --parquet OUT, --raw OUT.bin, --mat OUT.mat and/or "
+                        "--mcap OUT.mcap.")
+    if mat is not None:
+        require_scipy()  # before any work: one line when scipy is missing
+    if mcap is not None:
+        require_mcap()
     for opt, p in outputs:
         if p.resolve() == capture.resolve():
             raise UserError(f"{opt} {p} is the capture itself; choose another output file.")
@@ -117,9 +139,12 @@ def export(
         src = read_source(capture)
         progress(0.1, "decoding")
         if is_ble_source(src):
-            _export_ble(src, csv, parquet, raw, progress)
+            if mcap is not None:
+                raise UserError(f"{src.path} is a BLE capture: --mcap needs a serial capture (attitude frames); "
+                                "use --csv, --parquet or --mat.")
+            _export_ble(src, csv, parquet, raw, progress, mat)
             return
-        tel = telemetry_of_source(src) if (csv or parquet) else None
+        tel = telemetry_of_source(src) if (csv or parquet or mat or mcap) else None
         for w in src.warnings:
             typer.echo(f"steval: warning: {w}", err=True)
         try:
@@ -132,11 +157,49 @@ def export(
                 if degrees:
                     table = in_degrees(table)
                 _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
+            if tel is not None and mat is not None:
+                _export_mat(tel, mat, degrees, progress)
+            if tel is not None and mcap is not None:
+                _export_mcap(tel, mcap, progress)
         except OSError as exc:
             raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
 
 
-def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, progress) -> None:
+def write_atomic(path: Path, write) -> None:
+    """``write(file)`` into ``PATH.partial``, then rename it to ``path``: a complete file or (error, Ctrl-C) none; an
+    earlier file at ``path`` stays until the new one is whole. The one place the --mat and --mcap exports write."""
+    partial = path.with_name(path.name + ".partial")
+    try:
+        with open(partial, "wb") as f:
+            write(f)
+        partial.replace(path)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+
+
+def _export_mat(tel, path: Path, degrees: bool, progress) -> None:
+    """One struct per frame type (the CSV's columns), settings and header, as a MATLAB file."""
+    progress(0.5, f"writing {path.name}")
+    tables = frame_tables(tel)
+    if degrees:
+        tables = {k: in_degrees(t) for k, t in tables.items()}
+    write_atomic(path, lambda f: write_mat(tables, settings_of(tel), header_of(tel), f))
+    counts = ", ".join(f"{len(next(iter(t.values())))} {k}" for k, t in tables.items() if t)
+    typer.echo(f"{path}: MATLAB structs {', '.join(tables)} (rows: {counts}), settings, header")
+
+
+def _export_mcap(tel, path: Path, progress) -> None:
+    """The capture as MCAP (topics and schemas: steval_link.analysis.mcap_export)."""
+    counts: dict[str, int] = {}
+    meta = {"settings": settings_of(tel), "header": header_of(tel)}
+    write_atomic(path, lambda f: counts.update(write_mcap(tel, f, metadata=meta,
+                                                           progress=scaled(progress, 0.5, 1.0))))
+    typer.echo(f"{path}: MCAP, " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
+
+
+def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, progress,
+                mat: Path | None = None) -> None:
     """A BLE capture: one row per motion notification (env and arming values held from their last one)."""
     if raw is not None:
         raise UserError(f"{src.path} is a BLE capture: it has notifications, no serial bytes for --raw "
@@ -146,6 +209,10 @@ def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, p
     ble = load_ble(src)
     try:
         _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
+        if mat is not None:
+            header = dict(src.header or {}, path=str(src.path), kind="ble")
+            write_atomic(mat, lambda f: write_mat({"motion": ble.motion_table()}, {"from": "none"}, header, f))
+            typer.echo(f"{mat}: MATLAB struct motion ({len(ble)} rows, BLE), settings, header")
     except OSError as exc:
         raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
 

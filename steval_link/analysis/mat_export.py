@@ -1,0 +1,82 @@
+"""A decoded capture as a MATLAB ``.mat`` file (``steval export --mat``; needs scipy, extra ``mat``).
+
+One struct per frame type, one field per CSV column, each a column vector with one row per frame (units in the
+names, as in the CSV: ``attitude.thx_pitch_rad``, ``attitude.acc_x_mg``, ``status.ki``, ``fc.motor1_pwm``, ...),
+and two more structs: ``settings`` (the filter settings the status frames report) and ``header`` (the capture
+header: port, baud, start time, tool version, ``extra``). MATLAB::
+
+    S = load('flight.mat');
+    t = S.attitude.t_fw_s; pitch = rad2deg(S.attitude.thx_pitch_rad);
+    plot(t, pitch); xlabel('firmware time (s)'); ylabel('pitch thx (deg)'); disp(S.settings.ki)
+
+Numbers keep their types (float32 as ``single``, counters as integers, flags as ``uint8`` 0/1); missing values are
+NaN; text (text-mode lines) is a cell array of char.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from steval_link.errors import UserError
+
+__all__ = ["INSTALL_HINT", "require_scipy", "mat_name", "write_mat"]
+
+INSTALL_HINT = 'pip install "steval-link[mat]"'
+#: MATLAB's longest field name.
+MAX_NAME = 63
+
+
+def require_scipy():
+    """``scipy.io.savemat``; UserError naming the install command when scipy is missing."""
+    try:
+        from scipy.io import savemat  # optional package (extra "mat")
+    except ImportError:
+        raise UserError(f"--mat needs scipy, which is not installed: {INSTALL_HINT}") from None
+    return savemat
+
+
+def mat_name(name: str) -> str:
+    """A valid MATLAB field name: letters, digits and ``_``, starting with a letter, at most 63 characters."""
+    s = re.sub(r"[^0-9A-Za-z_]", "_", str(name))
+    if not s or not s[0].isalpha():
+        s = "x" + s
+    return s[:MAX_NAME]
+
+
+def _value(v: Any) -> Any:
+    """Nested dicts as structs (names made valid), lists of dicts or mixed lists as cell arrays, bool as uint8,
+    numpy arrays as they are (1-D ones saved as columns)."""
+    if isinstance(v, dict):
+        return {mat_name(k): _value(x) for k, x in v.items()}
+    if isinstance(v, np.ndarray):
+        if v.dtype == bool:
+            return v.astype(np.uint8)
+        return v
+    if isinstance(v, bool):
+        return np.uint8(v)
+    if isinstance(v, (list, tuple)):
+        if v and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            return np.asarray(v, np.float64)
+        cell = np.empty(len(v), dtype=object)
+        for i, x in enumerate(v):
+            cell[i] = _value(x)
+        return cell
+    if v is None:
+        return np.zeros((0, 0))
+    return v
+
+
+def write_mat(tables: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], header: dict[str, Any],
+              out: BinaryIO | str) -> None:
+    """Write ``tables`` (frame type → column → array, e.g. :func:`steval_link.analysis.frame_tables.frame_tables`),
+    ``settings`` and ``header`` as one MATLAB (v5) file ``out`` (a path or a binary file)."""
+    savemat = require_scipy()
+    data: dict[str, Any] = {}
+    for kind, table in tables.items():
+        data[mat_name(kind)] = {mat_name(col): _value(np.asarray(v)) for col, v in table.items()}
+    data["settings"] = _value(settings)
+    data["header"] = _value(header)
+    savemat(out, data, appendmat=False, long_field_names=True, do_compression=False, oned_as="column")
