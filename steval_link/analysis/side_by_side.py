@@ -302,7 +302,7 @@ def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
 def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray,
                  dt: float = C.AHRS_PERIOD_S) -> tuple[float, float]:
     """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
-    and the correlation coefficient at that lag (0..1). A motion that happens 2 s later in the flight than in the
+    and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that happens 2 s later in the flight than in the
     reference gives +2.0; its aligned times are ``t − lag``."""
     if len(t_ref) < 8 or len(t) < 8:
         return 0.0, 0.0
@@ -317,9 +317,11 @@ def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: n
     max_lag = int(MAX_LAG_FRACTION * min(len(a), len(b)))
     lags = np.concatenate([np.arange(0, max_lag + 1), np.arange(-max_lag, 0)])
     vals = np.concatenate([xc[: max_lag + 1], xc[size - max_lag:]])
-    best = int(np.argmax(vals))
-    norm = math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b)))
-    return float(lags[best] * dt), (float(vals[best]) / norm if norm > 0 else 0.0)
+    m = int(lags[int(np.argmax(vals))])
+    i0, i1 = max(0, -m), min(len(a), len(b) - m)  # the rows of a that b overlaps at this lag
+    x, y = a[i0:i1].ravel(), b[i0 + m:i1 + m].ravel()
+    norm = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y))) if x.size else 0.0
+    return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
 
 
 # -- labels ----------------------------------------------------------------------------------------------------
