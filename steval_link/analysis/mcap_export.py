@@ -198,7 +198,7 @@ def _display_q(att) -> np.ndarray:
 def _attitude_messages(att, q: np.ndarray):
     """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row (``q``: the normalised
     quaternions for the Foxglove messages), null for any value that is not finite."""
-    n = len(att)
+    n = len(att.step)
     ns = _times_ns(att.t_fw_s)
     step = np.asarray(att.step).tolist()
     seq = np.asarray(att.seq).tolist()
