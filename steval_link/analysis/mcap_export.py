@@ -301,6 +301,12 @@ def _list(v) -> list:
     return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(v).tolist()]
 
 
+def _n(x) -> float | None:
+    """A float for JSON: None when not finite."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
 def _status_messages(tel):
     s = tel.status
     ns = _times_ns(s.t_fw_s).tolist()
@@ -308,11 +314,11 @@ def _status_messages(tel):
         flags = int(s.flags[i])
         msg = {
             "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(s.step[i]), "t_fw_s": float(s.t_fw_s[i]),
+            "step": int(s.step[i]), "t_fw_s": _n(s.t_fw_s[i]),
             "q_wxyz": _list(np.asarray(s.q_wxyz[i], np.float64)),
             "int_xyz": _list(np.asarray(s.int_xyz[i], np.float64)),
-            "kp_ground": float(np.float32(s.kp_ground[i])), "kp_flight": float(np.float32(s.kp_flight[i])),
-            "ki": float(np.float32(s.ki[i])), "dt_s": float(np.float32(s.dt_s[i])), "min_thr": int(s.min_thr[i]),
+            "kp_ground": _n(s.kp_ground[i]), "kp_flight": _n(s.kp_flight[i]), "ki": _n(s.ki[i]),
+            "dt_s": _n(s.dt_s[i]), "min_thr": int(s.min_thr[i]),
             "correction": not flags & 1, "flags": flags,
             "ahrs_cycles_min": int(s.cyc_min[i]), "ahrs_cycles_mean": int(s.cyc_mean[i]),
             "ahrs_cycles_max": int(s.cyc_max[i]), "ahrs_cycles_n": int(s.cyc_n[i]), "cpu_hz": int(s.cpu_hz[i]),
@@ -330,7 +336,7 @@ def _fc_messages(tel):
         flags = int(fc.fc_flags[i])
         msg = {
             "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(fc.step[i]), "t_fw_s": float(fc.t_fw_s[i]),
+            "step": int(fc.step[i]), "t_fw_s": _n(fc.t_fw_s[i]),
             "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)), "rc": _list(fc.rc[i]),
             "outer_s1_radps": _list(np.asarray(fc.outer_s1_radps[i], np.float64)),
             "inner_s2_pwm": _list(np.asarray(fc.inner_s2_pwm[i], np.float64)),
