@@ -89,7 +89,7 @@ def test_text_mode_and_missing_host_times(monkeypatch, capsys, tmp_path):
     assert len(att) == len(tel.attitude) > 0
     assert att[0]["q_wxyz"] == [None] * 4 and att[0]["exact"] is False  # text mode: no q, null not NaN
     tf = [json.loads(m.data) for _, ch, m in msgs if ch.topic == "/attitude/transform"]
-    assert len(tf) == len(att) and all(isinstance(t["rotation"]["w"], float) for t in tf)
+    assert len(tf) == len(att) and all(isinstance(t["rotation"]["w"], (int, float)) for t in tf)
 
 
 def test_refuses_to_overwrite_and_ble(monkeypatch, capsys, tmp_path):
