@@ -56,6 +56,7 @@ def test_two_flights_labelled_by_settings_and_measured(pair, monkeypatch, capsys
     r0 = f0["figures"]["pitch_thx"]["rms_still_deg"]
     r1 = f1["figures"]["pitch_thx"]["rms_still_deg"]
     assert r0 < 0.5 and r1 > 4 * r0
+    assert abs(f0["figures"]["pitch_thx"]["drift_deg"]) < 0.5 < abs(f1["figures"]["pitch_thx"]["drift_deg"])
     diff = d["differences"][0]
     assert diff["label"] == "ki 1, correction off" and diff["against"] == "ki 0.1"
     assert diff["pitch_thx"]["max_abs_deg"] > 1.0

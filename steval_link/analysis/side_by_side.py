@@ -10,8 +10,10 @@ what differs between them, each measured against its own accelerometer-only tilt
   "ki 1, correction off".
 * **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
   accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
-  :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (least-squares slope of that error over
-  the still rows, deg/min) and the error in the last still phase; per later flight its difference from the first.
+  :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (the mean error in the last still
+  phase, deg: where the flight ended up against the accelerometer) and its rate (least-squares slope of the error
+  over the still rows, deg/min, when they span at least :data:`RATE_SPAN_S`); per later flight its difference from
+  the first.
 * **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
   one, frames lost on the link, a truncated capture.
 
@@ -59,6 +61,8 @@ STILL_GYRO_DPS = 3.0
 STILL_ACC_MG = 50.0
 #: ... for at least this long (s).
 STILL_MIN_S = 0.3
+#: The drift rate needs still rows spanning at least this long (s).
+RATE_SPAN_S = 5.0
 #: Durations differing by more than this (s, or 5 %) are reported.
 DURATION_TOLERANCE_S = 1.0
 #: The motion alignment searches lags up to this fraction of the shorter flight.
@@ -265,7 +269,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _still_figures(f: Flight) -> dict[str, Any]:
-    """RMS against accel-only tilt in still phases, drift (deg/min) and the error in the last still phase."""
+    """RMS against accel-only tilt in still phases, drift (the error in the last still phase) and its rate."""
     out: dict[str, Any] = {"still_s": 0.0, "still_phases": 0}
     still = f.still & np.isfinite(f.thx_rad) & np.isfinite(f.thy_rad)
     runs = _runs(still)
@@ -276,15 +280,15 @@ def _still_figures(f: Flight) -> dict[str, Any]:
         err = np.degrees(angle_diff_rad(est, ref))
         e = err[still]
         t = f.t_s[still]
-        fig: dict[str, Any] = {"rms_still_deg": None, "mean_still_deg": None, "drift_deg_per_min": None,
-                               "last_still_deg": None}
+        fig: dict[str, Any] = {"rms_still_deg": None, "mean_still_deg": None, "drift_deg": None,
+                               "drift_rate_deg_per_min": None}
         if e.size:
             fig["rms_still_deg"] = json_number(np.sqrt(np.mean(e * e)))
             fig["mean_still_deg"] = json_number(np.mean(e))
             a, b = runs[-1]
-            fig["last_still_deg"] = json_number(np.mean(err[a:b]))
-            if e.size > 2 and np.ptp(t) > 0:
-                fig["drift_deg_per_min"] = json_number(np.polyfit(t, e, 1)[0] * 60.0)
+            fig["drift_deg"] = json_number(np.mean(err[a:b]))
+            if e.size > 2 and np.ptp(t) >= RATE_SPAN_S:
+                fig["drift_rate_deg_per_min"] = json_number(np.polyfit(t, e, 1)[0] * 60.0)
         out[axis] = fig
     return out
 
@@ -302,8 +306,8 @@ def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
 def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray,
                  dt: float = C.AHRS_PERIOD_S) -> tuple[float, float]:
     """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
-    and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that happens 2 s later in the flight than in the
-    reference gives +2.0; its aligned times are ``t − lag``."""
+    and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that
+    happens 2 s later in the flight than in the reference gives +2.0; its aligned times are ``t − lag``."""
     if len(t_ref) < 8 or len(t) < 8:
         return 0.0, 0.0
     a = _grid(t_ref, gyro_ref, dt)
@@ -502,17 +506,17 @@ def format_side_by_side(r: SideBySide) -> list[str]:
         lag = f", lag {f.lag_s:+.3f} s" if r.align == "motion" else ""
         lines.append(f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
                      f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}")
-    lines.append("against accel-only tilt in still phases (deg; drift deg/min): pitch = thx (about x, nose up +), "
+    lines.append("against accel-only tilt in still phases (deg; drift: the last still phase; rate deg/min): pitch = "
+                 "thx (about x, nose up +), "
                  "roll = thy (about y)")
-    lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  last still "
-                 "pitch/roll")
+    lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll")
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
         lines.append(f"  {f.label:<{width}}  {g['still_s']:7.1f}  {_num(px['rms_still_deg'], '9.3f')}  "
-                     f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg_per_min'], '+11.3f')}  "
-                     f"{_num(ry['drift_deg_per_min'], '+10.3f')}  {_num(px['last_still_deg'])} / "
-                     f"{_num(ry['last_still_deg'])}")
+                     f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg'], '+11.3f')}  "
+                     f"{_num(ry['drift_deg'], '+10.3f')}  {_num(px['drift_rate_deg_per_min'])} / "
+                     f"{_num(ry['drift_rate_deg_per_min'])}")
     for d in r.differences:
         lines.append(f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch RMS "
                      f"{_num(d['pitch_thx']['rms_deg'], '.3f')} max {_num(d['pitch_thx']['max_abs_deg'], '.3f')} deg, "

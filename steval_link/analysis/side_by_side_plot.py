@@ -1,7 +1,8 @@
 """The figure of ``steval compare A.stv B.stv ... --plot OUT.png``: pitch (thx, about x, nose up +) and roll (thy,
 about y) of every flight overlaid with the first flight's accelerometer-only tilt as the reference and its still
 phases shaded, each later flight minus the first, and a table of RMS against accel-only tilt in still phases and
-of drift. matplotlib is optional (:func:`steval_link.analysis.plots.require_matplotlib`)."""
+of drift (the error in the last still phase). matplotlib is optional
+(:func:`steval_link.analysis.plots.require_matplotlib`)."""
 
 from __future__ import annotations
 
@@ -67,22 +68,23 @@ def side_by_side_figure(r: SideBySide):
     ax_d.set_xlabel(f"time (s), aligned by {how}")
 
     ax_t.axis("off")
-    head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg/min)",
-            "drift roll (deg/min)", "last still pitch / roll (deg)"]
+    head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg)",
+            "drift roll (deg)", "drift rate pitch / roll (deg/min)"]
     rows = []
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
         rows.append([f.label, f"{g['still_s']:.1f}", _cell(px["rms_still_deg"], ".3f"),
-                     _cell(ry["rms_still_deg"], ".3f"), _cell(px["drift_deg_per_min"], "+.3f"),
-                     _cell(ry["drift_deg_per_min"], "+.3f"),
-                     f"{_cell(px['last_still_deg'], '+.2f')} / {_cell(ry['last_still_deg'], '+.2f')}"])
+                     _cell(ry["rms_still_deg"], ".3f"), _cell(px["drift_deg"], "+.3f"),
+                     _cell(ry["drift_deg"], "+.3f"),
+                     f"{_cell(px['drift_rate_deg_per_min'], '+.2f')} / {_cell(ry['drift_rate_deg_per_min'], '+.2f')}"])
     table = ax_t.table(cellText=rows, colLabels=head, loc="center", cellLoc="center")
     table.auto_set_font_size(False)
     table.set_fontsize(8.5)
     table.scale(1, 1.4)
     for i in range(len(rows)):
         table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
-    ax_t.set_title("against accel-only tilt, still phases only", fontsize=10, loc="left")
+    ax_t.set_title("against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
+                   fontsize=10, loc="left")
     fig.suptitle(" vs ".join(f.label for f in r.flights), fontsize=12)
     return fig
