@@ -108,11 +108,12 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     for i, f in enumerate(r.flights):
         c = _colour(i)
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
+        grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
         leaves = {
             "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, np.degrees(f.thx_rad)),
             "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, np.degrees(f.thy_rad)),
-            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", light, 1.0, np.degrees(f.accel_thx_rad)),
-            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", light, 1.0, np.degrees(f.accel_thy_rad)),
+            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, np.degrees(f.accel_thx_rad)),
+            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, np.degrees(f.accel_thy_rad)),
         }
         for leaf, (name, colour, width, values) in leaves.items():
             path = flight_path(i, leaf)
@@ -142,7 +143,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
             rec.send_columns(f"{world}/drone", indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
                              columns=rr.Transform3D.columns(quaternion=xyzw[good]))
         counts[f"{world}/drone"] = int(good.sum())
-    text = "\n".join(f"- {line}" if k else f"**{line}**" for k, line in enumerate(format_side_by_side(r)))
+    text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
     counts[NOTES] = 1
     return counts
