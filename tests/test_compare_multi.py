@@ -6,7 +6,6 @@ bundled recordings; the end-to-end check on the reference firmware under emulati
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -223,4 +222,43 @@ def test_reference_firmware_stock_against_exercises_4_and_5(tmp_path, monkeypatc
     info = read_rrd(rrd)
     assert info.samples["flights/a/pitch_thx_deg"] == d["flights"][0]["rows"]
     assert info.samples["flights/b/pitch_thx_deg"] == d["flights"][1]["rows"]
-    shutil.rmtree(tmp_path / "stock", ignore_errors=True)
+
+
+@pytest.mark.slow
+def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
+    """`steval compare stock.stv lab.stv --spawn` on a virtual display: the native viewer holds both flights'
+    subtrees on the aligned timeline (a screenshot is kept under the test's tmp path)."""
+    import subprocess
+    import sys
+
+    from support.xdisplay import (
+        VirtualDisplay,
+        kill_processes,
+        require_display_tools,
+        rerun_processes,
+        screenshot,
+        viewer_recording,
+    )
+
+    require_display_tools()
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    display = VirtualDisplay()
+    try:
+        r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "compare", *pair,
+                            "--spawn", "--grpc-port", str(port)], env=display.env, capture_output=True, text=True,
+                           timeout=180)
+        assert r.returncode == 0, r.stderr
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        held = viewer_recording(url, timeline="aligned_time", end=1)
+        for k in "ab":
+            assert {f"/flights/{k}/pitch_thx_deg", f"/flights/{k}/roll_thy_deg", f"/flights/{k}/world/drone"} <= \
+                held.entities
+        png = screenshot(url, tmp_path / "side_by_side.png")
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    finally:
+        kill_processes(rerun_processes(port))
+        display.close()

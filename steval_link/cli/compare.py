@@ -95,6 +95,7 @@ def compare_command(
             help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
             "more: the flights side by side (see below).",
             show_default=False,
+            metavar="CAPTURE",
         ),
     ] = None,
     as_json: Annotated[
@@ -107,8 +108,8 @@ def compare_command(
             metavar="OUT.png",
             help="Also write a figure (angles over time, firmware − port, "
             "differences per estimator) and, for a capture with flight-control frames, OUT-flight-control.png "
-            "(targets vs angles, PID terms, motors); needs matplotlib: "
-            'pip install "steval-link\\[plot]".',
+            "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
+            'side; needs matplotlib: pip install "steval-link\\[plot]".',
         ),
     ] = None,
     estimator: Annotated[
