@@ -262,3 +262,22 @@ def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
     finally:
         kill_processes(rerun_processes(port))
         display.close()
+
+
+def test_readme_example_word_for_word(monkeypatch, capsys, tmp_path):
+    """The README's side-by-side example, run as written: the output it shows is the output."""
+    import re
+    import shlex
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8").split("### Flights side by side", 1)[1]
+    commands = re.search(r"```sh\n(.*?)```", text, re.S).group(1).strip().splitlines()
+    shown = re.search(r"prints\n\n```text\n(.*?)```", text, re.S).group(1)
+    monkeypatch.chdir(tmp_path)
+    out = ""
+    for line in commands:
+        argv = shlex.split(line)
+        assert argv[0] == "steval"
+        code, out, err = run_cli(monkeypatch, capsys, *argv[1:])
+        assert code == 0, (line, err)
+    assert out == shown
+    assert (tmp_path / "ex45.png").is_file() and (tmp_path / "ex45.rrd").is_file()

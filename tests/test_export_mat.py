@@ -96,3 +96,17 @@ def test_without_scipy_one_line(monkeypatch, capsys, tmp_path):
     assert code == 2 and err == 'steval: error: --mat needs scipy, which is not installed: pip install ' \
                                 '"steval-link[mat]"\n'
     assert not (tmp_path / "x.mat").exists()
+
+
+def test_readme_matlab_lines_name_real_fields(monkeypatch, capsys, tmp_path):
+    """The README's three MATLAB lines use fields the file has (MATLAB itself is not run here)."""
+    import re
+
+    text = (REC.parent / "README.md").read_text(encoding="utf-8")
+    lines = re.search(r"```matlab\n(.*?)```", text, re.S).group(1).strip().splitlines()
+    assert len(lines) == 3 and lines[0] == "S = load('flight.mat');"
+    out = tmp_path / "flight.mat"
+    code, _, _ = run_cli(monkeypatch, capsys, "export", REC / "flight.stv", "--mat", out)
+    m = load(out)
+    for struct, field in re.findall(r"S\.(\w+)\.(\w+)", "\n".join(lines)):
+        assert field in m[struct]._fieldnames, (struct, field)
