@@ -177,10 +177,6 @@ def _stamp(ns: int) -> str:
     return '{"sec":%d,"nsec":%d}' % divmod(ns, 1_000_000_000)
 
 
-def _finite_rows(a: np.ndarray) -> bool:
-    return bool(np.isfinite(a).all())
-
-
 def _display_q(att) -> np.ndarray:
     """(N, 4) normalised wxyz for the Foxglove messages; text-mode rows from their angles."""
     q = np.asarray(att.q_wxyz, np.float64).copy()

@@ -331,15 +331,19 @@ def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: n
 # -- labels ----------------------------------------------------------------------------------------------------
 
 def _word(key: str, value) -> str:
+    """How a setting reads in a label: "ki 1", "correction off", "binary", "fresh squares", ..."""
     name = _SETTING_WORDS[key]
     if key == "correction":
         return f"correction {'on' if value else 'off'}"
+    if key == "text_mode":
+        return "text mode" if value else "binary"
     if isinstance(value, bool):
         return name if value else f"no {name}"
     return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
 
 
 def _fact_word(key: str, value) -> str:
+    """How a header fact reads in a label: "BLE", "firmware X.elf", "scenario demo", ..."""
     if key == "link":
         return "BLE" if value == "ble" else "serial"
     return f"{key.replace('_path', '')} {value}"
