@@ -416,7 +416,7 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
             notes.append(f"{f.label}: {w}")
     text = [f.label for f in flights if f.settings and f.settings.get("text_mode")]
     if text and len(text) < len(flights):
-        notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, one row per 16 steps) against binary "
+        notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary "
                      "frames.")
     return notes
 
