@@ -6,6 +6,7 @@ of drift (the error in the last still phase). matplotlib is optional
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +70,7 @@ def side_by_side_figure(r: SideBySide):
 
     ax_t.axis("off")
     head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg)",
-            "drift roll (deg)", "drift rate pitch / roll (deg/min)"]
+            "drift roll (deg)", "drift rate p / r (deg/min)"]
     rows = []
     for f in r.flights:
         g = f.figures
@@ -78,7 +79,10 @@ def side_by_side_figure(r: SideBySide):
                      _cell(ry["rms_still_deg"], ".3f"), _cell(px["drift_deg"], "+.3f"),
                      _cell(ry["drift_deg"], "+.3f"),
                      f"{_cell(px['drift_rate_deg_per_min'], '+.2f')} / {_cell(ry['drift_rate_deg_per_min'], '+.2f')}"])
-    table = ax_t.table(cellText=rows, colLabels=head, loc="center", cellLoc="center")
+    for row in rows:  # the legend above has the whole label
+        row[0] = textwrap.shorten(row[0], 46, placeholder=" …")
+    table = ax_t.table(cellText=rows, colLabels=head, loc="center", cellLoc="center",
+                       colWidths=[0.26] + [0.74 / (len(head) - 1)] * (len(head) - 1))
     table.auto_set_font_size(False)
     table.set_fontsize(8.5)
     table.scale(1, 1.4)
@@ -86,5 +90,5 @@ def side_by_side_figure(r: SideBySide):
         table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
     ax_t.set_title("against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
                    fontsize=10, loc="left")
-    fig.suptitle(" vs ".join(f.label for f in r.flights), fontsize=12)
+    fig.suptitle(textwrap.fill(" vs ".join(f.label for f in r.flights), 150), fontsize=12)
     return fig
