@@ -127,3 +127,12 @@ def test_rerun_opens_it(monkeypatch, capsys, tmp_path):
     n = len(load_telemetry(REC / "demo.stv").attitude)
     assert info.samples["attitude/transform"] == n and info.samples["attitude"] == n
     assert "message_log_time" in info.timelines
+
+
+def test_documented_topics_and_schemas_are_the_written_ones():
+    """docs/EXPORT_FORMATS.md's MCAP table names exactly the topics and schemas the writer uses."""
+    import re
+
+    doc = (REC.parent / "docs" / "EXPORT_FORMATS.md").read_text(encoding="utf-8").split("## MCAP", 1)[1]
+    documented = dict(re.findall(r"^\| `(/[\w/]+)` \| `([\w.]+)` \|", doc, re.M))
+    assert documented == {topic: schema for topic, (schema, _) in TOPICS.items()}
