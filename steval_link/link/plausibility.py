@@ -3,13 +3,20 @@
 A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
 about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
 
-* **Values** (binary attitude and status frames): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
+* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
   2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so that no real reading, offset
   or filter overshoot comes near; quaternion components within ±2 (the filter keeps ``|q|`` ≈ 1).
 * **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
   ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
   ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
   A status frame must fit its anchor the same way with ``d ≥ 0`` (it follows the attitude frame of its step).
+  This holds for both protocol versions.
+
+Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
+time is what the firmware sent, and a firmware whose own filter diverged sends NaN or ``|q|`` > 2 (a student's
+``ahrs.c``). Such rows are kept and flagged (``values_bad`` in :class:`~steval_link.link.telemetry.Telemetry`,
+counted in ``DecoderStats.values_bad``); :func:`values_bad_sentence` says it in words for every summary. Rows
+with bad values still anchor the sequence and time (``seq`` and ``t_us`` are integers, never NaN).
 
 An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
 (the firmware restarted, or the link was away longer than the window), they are released together and become the
@@ -30,7 +37,18 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = ["PlausibilityGate", "attitude_values_ok", "status_values_ok", "gate_rows"]
+__all__ = [
+    "PlausibilityGate",
+    "attitude_values_ok",
+    "attitude_rows_bad",
+    "attitude_frame_bad",
+    "attitude_inputs_bad",
+    "status_values_ok",
+    "status_rows_bad",
+    "gate_rows",
+    "values_bad_sentence",
+    "held_back_sentence",
+]
 
 #: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
 ACC_MAX_MG = 1.0e5
@@ -69,6 +87,88 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
         if not math.isfinite(v):
             return False
     return True
+
+
+def attitude_frame_bad(frame) -> bool:
+    """True when an :class:`~steval_link.link.frames.AttitudeFrame` carries bad values (what ``values_bad``
+    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with a non-finite value."""
+    if frame.exact:
+        return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
+    vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
+    return not all(math.isfinite(v) for v in vals)
+
+
+def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
+    """(N,) bool, rows with bad values, as :func:`attitude_frame_bad` row by row: binary rows outside the limits of
+    :func:`attitude_values_ok`, text-mode rows (no q) with a non-finite value."""
+    exact = np.asarray(exact, bool)
+    acc = np.asarray(acc_mg, np.float64).reshape(-1, 3)
+    gyro = np.asarray(gyro_mdps, np.float64).reshape(-1, 3)
+    q = np.asarray(q_wxyz, np.float64).reshape(-1, 4)
+    thz = np.asarray(thz_rad, np.float64)
+    with np.errstate(invalid="ignore"):
+        ok_bin = (
+            np.all(np.abs(acc) <= ACC_MAX_MG, axis=1)
+            & np.all(np.abs(gyro) <= GYRO_MAX_MDPS, axis=1)
+            & np.all(np.abs(q) <= Q_MAX, axis=1)
+            & np.isfinite(thz)
+        )
+    ok_txt = (
+        np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1) & np.isfinite(thz)
+        & np.isfinite(np.asarray(thx_rad, np.float64)) & np.isfinite(np.asarray(thy_rad, np.float64))
+    )
+    return ~np.where(exact, ok_bin, ok_txt)
+
+
+def attitude_inputs_bad(acc_mg, gyro_mdps) -> np.ndarray:
+    """(N,) bool, rows whose filter inputs (acc, gyro) are non-finite or beyond the limits."""
+    acc = np.asarray(acc_mg, np.float64).reshape(-1, 3)
+    gyro = np.asarray(gyro_mdps, np.float64).reshape(-1, 3)
+    with np.errstate(invalid="ignore"):
+        return ~(np.all(np.abs(acc) <= ACC_MAX_MG, axis=1) & np.all(np.abs(gyro) <= GYRO_MAX_MDPS, axis=1))
+
+
+def status_rows_bad(exact, q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> np.ndarray:
+    """(N,) bool, binary status rows failing :func:`status_values_ok` (text-mode rows: False, they carry no
+    snapshot)."""
+    q = np.asarray(q_wxyz, np.float64).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):
+        ok = (
+            np.all(np.abs(q) <= Q_MAX, axis=1)
+            & np.all(np.isfinite(np.asarray(int_xyz, np.float64).reshape(-1, 3)), axis=1)
+            & np.isfinite(np.asarray(kp_ground, np.float64)) & np.isfinite(np.asarray(kp_flight, np.float64))
+            & np.isfinite(np.asarray(ki, np.float64)) & np.isfinite(np.asarray(dt_s, np.float64))
+        )
+    return np.asarray(exact, bool) & ~ok
+
+
+def _count(n: int) -> str:
+    return f"{n:,}"
+
+
+def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False,
+                        v1: bool = False) -> str:
+    """The one sentence every summary prints about ``n`` kept frames with bad values (NaN or out of range), the first
+    at AHRS step ``first_step`` and firmware time ``first_t_s``; ``inputs``: the filter inputs (acc, gyro) are bad
+    too, so the fault is before the filter. E.g. "1,939 frames carry NaN or |q| > 2 from step 2 on (t = 2.998 s):
+    the firmware's own filter output; check ahrs.c"."""
+    where = "" if first_step is None else f" from step {first_step} on"
+    if first_t_s is not None and math.isfinite(first_t_s):
+        where += f" (t = {first_t_s:.3f} s)"
+    noun = "frame carries" if n == 1 else "frames carry"
+    if inputs:
+        return (f"{_count(n)} {noun} NaN or out-of-range values{where}, the filter inputs (acc, gyro) too: the "
+                "firmware's sensor path before the filter; check the ISR, offsets and averaging")
+    return f"{_count(n)} {noun} NaN or |q| > 2{where}: the firmware's own filter output; check ahrs.c"
+
+
+def held_back_sentence(n: int, v1_frames: int = 0) -> str:
+    """The sentence about ``n`` CRC-valid frames the gate held back (values on v1, sequence/time on both)."""
+    noun = "frame" if n == 1 else "frames"
+    why = ("NaN or out-of-range values (protocol v1, CRC-16) or a sequence and time that do not continue"
+           if v1_frames else "a sequence and time that do not continue")
+    return (f"{_count(n)} CRC-valid {noun} held back for {why}: not shown, counted only; a damaged or foreign frame "
+            "that passed its CRC, or a firmware restart not confirmed")
 
 
 def _steps_fit(d, dt, d_min: int, window: int, tol: float):
@@ -140,7 +240,7 @@ class PlausibilityGate:
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
-    ``offset`` and ``exact``), as a :class:`PlausibilityGate` fed row by row in stream order would decide
+    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a :class:`PlausibilityGate` fed row by row in stream order would decide
     (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
     gate = gate or PlausibilityGate()
     keep_a = np.ones(len(att), bool)
@@ -151,17 +251,12 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
         return keep_a, keep_s
     a = att[ea]
     s = sta[es]
-    vals_a = (
-        np.all(np.abs(a["acc_mg"]) <= ACC_MAX_MG, axis=1)
-        & np.all(np.abs(a["gyro_mdps"]) <= GYRO_MAX_MDPS, axis=1)
-        & np.all(np.abs(a["q_wxyz"]) <= Q_MAX, axis=1)
-        & np.isfinite(a["thz_rad"])
-    )
-    vals_s = (
-        np.all(np.abs(s["q_wxyz"]) <= Q_MAX, axis=1)
-        & np.all(np.isfinite(s["int_xyz"]), axis=1)
-        & np.isfinite(s["kp_ground"]) & np.isfinite(s["kp_flight"]) & np.isfinite(s["ki"]) & np.isfinite(s["dt_s"])
-    )
+    # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
+    v2_a = a["nbytes"] == P.ATTITUDE_FRAME_SIZE
+    v2_s = s["nbytes"] == P.STATUS_FRAME_SIZE
+    vals_a = v2_a | ~attitude_rows_bad(True, a["acc_mg"], a["gyro_mdps"], a["q_wxyz"], a["thz_rad"], 0.0, 0.0)
+    vals_s = v2_s | ~status_rows_bad(True, s["q_wxyz"], s["int_xyz"], s["kp_ground"], s["kp_flight"], s["ki"],
+                                     s["dt_s"])
     # fast path: every attitude row fits the previous one and every status the attitude row before it
     clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
     if clean and len(a) > 1:
