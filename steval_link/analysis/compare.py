@@ -39,7 +39,6 @@ import numpy as np
 
 from steval_link.analysis.diagnosis import compare_port, filter_settings_report
 from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s
-from steval_link.analysis.summary import values_bad_report
 from steval_link.analysis.report import (
     PORT_TRACE,
     TRACE_LABELS,
@@ -49,6 +48,7 @@ from steval_link.analysis.report import (
     angle_diff_rad,
     format_report,
 )
+from steval_link.analysis.summary import values_bad_report
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (

@@ -408,7 +408,8 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         text.append(f"the bit-exact port stayed finite on the same inputs (q = {_vec(port_q)}, |q| = "
                     f"{_norm(port_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
                     "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
-                    "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port handles, so none was searched)")
+                    "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
+                    "handles, so none was searched)")
     elif port_state == "diverged":
         text.append(f"the port diverged too on the same inputs (from step {port_div}): the inputs drive the filter "
                     "out of range; check the sensor values and the settings")

@@ -3,9 +3,10 @@
 A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
 about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
 
-* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
-  2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so that no real reading, offset
-  or filter overshoot comes near; quaternion components within ±2 (the filter keeps ``|q|`` ≈ 1).
+* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤
+  10⁵ and ``|gyro_mdps|`` ≤ 2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so
+  that no real reading, offset or filter overshoot comes near; quaternion components within ±2 (the filter keeps
+  ``|q|`` ≈ 1).
 * **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
   ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
   ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
@@ -240,7 +241,8 @@ class PlausibilityGate:
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
-    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a :class:`PlausibilityGate` fed row by row in stream order would decide
+    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a
+    :class:`PlausibilityGate` fed row by row in stream order would decide
     (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
     gate = gate or PlausibilityGate()
     keep_a = np.ones(len(att), bool)

@@ -30,7 +30,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.frames import (
     AckFrame,
     AttitudeFrame,
@@ -41,6 +40,7 @@ from steval_link.link.frames import (
     StatusFrame,
     TextFrame,
 )
+from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
 __all__ = ["AttitudeArrays", "StatusArrays", "FlightControlArrays", "Telemetry", "TelemetryParts",
