@@ -144,6 +144,12 @@ def test_replay_summary_says_it_in_one_sentence_and_json_has_the_numbers():
     json.dumps(s, allow_nan=False)
     lines = format_summary(s)
     assert f"firmware output: {SENTENCE}" in lines
+    # |q| ≈ 1.7 at DIVERGE is within ±2 per component (not flagged) but off the unit sphere: said too
+    t = (T0_US + int(DIVERGE * PERIOD_US)) / 1e6
+    assert s["q_off_unit_sphere"]["first_step"] == DIVERGE and s["q_off_unit_sphere"]["frames"] == N - DIVERGE
+    assert (f"firmware filter: the firmware's q leaves the unit sphere from step {DIVERGE} on (t = {t:.3f} s, |q| = "
+            f"{s['q_off_unit_sphere']['q_norm']:.4g}; the release keeps |q| ≈ 0.9983, ±0.05), {N - DIVERGE} frames "
+            "off it: steval compare names the step and its inputs") in lines
     # the status frames are read for their settings although their snapshot is NaN
     assert s["filter"]["kp_ground"] == KP_GROUND and s["filter"]["from_step"] == STATUS_AT[-1]
 
@@ -225,14 +231,15 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
     assert d["inputs"][0]["gyro_mdps"] == [float(v) for v in gyro[DIVERGE - 1]]
     assert abs(np.linalg.norm(d["port_q_wxyz"]) - 0.9983) < 0.01
     t = (T0_US + int(DIVERGE * PERIOD_US)) / 1e6
-    assert p.diagnosis[0].startswith(f"the firmware's own filter diverged at step {DIVERGE} (t = {t:.3f} s): q = (")
+    assert p.diagnosis[0].startswith(f"the firmware's own filter left the unit sphere at step {DIVERGE} (t = {t:.3f} "
+                                     "s): q = (")
     assert f"non-finite from step {NAN} on" in p.diagnosis[0]
     assert p.diagnosis[1].startswith(f"inputs at step {DIVERGE - 1}: acc (")
     assert p.diagnosis[3].startswith("the bit-exact port stayed finite on the same inputs")
     assert len(p.diagnosis) == 4
     lines = format_report(r)
     assert f"firmware output: {SENTENCE}" in lines
-    assert any(x.startswith("  → the firmware's own filter diverged at step") for x in lines)
+    assert any(x.startswith("  → the firmware's own filter left the unit sphere at step") for x in lines)
     assert not any("no status frames" in x for x in lines)
     assert "filter (status frames): kp_ground 5," in "\n".join(lines)
     out = r.as_dict()

@@ -4,7 +4,7 @@ KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces t
 filter settings the status frames announce (:func:`filter_settings_report`).
 
 A firmware whose own filter *diverged* (:func:`find_divergence`: its q left the unit sphere, ``| |q| − 1 |`` >
-:data:`Q_NORM_TOL`, or went non-finite) is named with the step, the inputs at that step and the one before, and
+``Q_NORM_TOL`` = 0.05, or went non-finite) is named with the step, the inputs at that step and the one before, and
 whether the port stayed finite on the same inputs. When it did, no setting of the release's filter explains the
 firmware, so no settings are searched: the firmware's ``ahrs.c`` differs (a student's filter, a refactor).
 """
@@ -32,13 +32,11 @@ from steval_link.estimators.st_mahony import (
 from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
+from steval_link.link.plausibility import q_off_sphere
 from steval_link.link.protocol import FLAG_EVENT
 
 #: Rows after the first mismatch over which an alternative setting must reproduce the firmware to be named.
 DIAGNOSIS_WINDOW_ROWS = 600
-#: The firmware keeps |q| ≈ 0.9983 (release 170120 normalises with the squares from before the update); a q
-#: further than this from the unit sphere means the filter left it.
-Q_NORM_TOL = 0.05
 
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
@@ -345,14 +343,6 @@ def _status_base(view) -> MahonySettings | None:
     return MahonySettings.of_status(s, j)
 
 
-def _q_off_sphere(q_wxyz) -> np.ndarray:
-    """(N,) bool: q non-finite or ``| |q| − 1 |`` > :data:`Q_NORM_TOL`."""
-    q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
-    with np.errstate(over="ignore", invalid="ignore"):
-        norm = np.sqrt((q * q).sum(axis=1))
-        return ~(np.abs(norm - 1.0) <= Q_NORM_TOL)
-
-
 def _vec(v, fmt: str = ".6g") -> str:
     return "(" + ", ".join(format(float(x), fmt) for x in np.asarray(v).reshape(-1)) + ")"
 
@@ -371,7 +361,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     "gyro_mdps", "thr"} of the step before (when received) and of the step], "port": "finite" | "diverged" |
     "unseeded", "port_q_wxyz", "port_diverged_step", "text": [sentences]}``."""
     a = view.attitude
-    off = _q_off_sphere(a.q_wxyz)
+    off = q_off_sphere(a.q_wxyz)
     if not off.any():
         return None
     k = int(np.argmax(off))
@@ -390,13 +380,15 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     if rep is not None and bool(rep.seeded[k]):
         port_q = [json_number(x) for x in rep.q_wxyz[k]]
         seeded_after = np.flatnonzero(rep.seeded[k:]) + k
-        p_off = _q_off_sphere(rep.q_wxyz[seeded_after])
+        p_off = q_off_sphere(rep.q_wxyz[seeded_after])
         if p_off.any():
             port_state, port_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
         else:
             port_state = "finite"
-    how = "non-finite" if not np.isfinite(q).all() else f"|q| = {_norm(q):.6g}"
-    text = [f"the firmware's own filter diverged at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}, {how} (the "
+    nonfinite = not np.isfinite(q).all()
+    what = "went non-finite" if nonfinite else "left the unit sphere"
+    how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
+    text = [f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
             f"release keeps |q| ≈ 0.9983)" + (f"; non-finite from step {first_nan} on" if first_nan is not None
                                              and first_nan != step else "")]
     for inp in inputs:

@@ -10,9 +10,15 @@ from steval_link.analysis.link_stats import cycles_are_emulated
 from steval_link.analysis.report import json_number
 from steval_link.link import protocol as P
 from steval_link.link.commands import command_log
-from steval_link.link.plausibility import attitude_inputs_bad, held_back_sentence, values_bad_sentence
+from steval_link.link.plausibility import (
+    Q_NORM_TOL,
+    attitude_inputs_bad,
+    held_back_sentence,
+    q_off_sphere,
+    values_bad_sentence,
+)
 
-__all__ = ["summarize", "format_summary", "values_bad_report"]
+__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report"]
 
 _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
@@ -66,6 +72,28 @@ def values_bad_report(tel) -> dict[str, Any] | None:
         "inputs_bad": inputs,
         "text": text,
     }
+
+
+def q_norm_report(tel) -> dict[str, Any] | None:
+    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite; the release keeps
+    ``|q|`` ≈ 0.9983), None when there is none: ``frames``, the first (``first_step``, ``first_t_fw_s``,
+    ``q_norm``) and ``text``."""
+    a = tel.attitude
+    ex = np.asarray(a.exact, bool)
+    off = ex & q_off_sphere(a.q_wxyz)
+    if not off.any():
+        return None
+    i = int(np.argmax(off))
+    q = np.asarray(a.q_wxyz[i], np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = float(np.sqrt((q * q).sum()))
+    n = int(off.sum())
+    how = f"|q| = {norm:.4g}" if np.isfinite(norm) else "non-finite"
+    text = (f"the firmware's q leaves the unit sphere from step {int(a.step[i])} on (t = {float(a.t_fw_s[i]):.3f} s, "
+            f"{how}; the release keeps |q| ≈ 0.9983, ±{Q_NORM_TOL:g}), {n:,} frame{'s' if n != 1 else ''} off it: "
+            "steval compare names the step and its inputs")
+    return {"frames": n, "first_step": int(a.step[i]), "first_t_fw_s": json_number(a.t_fw_s[i]),
+            "q_norm": json_number(norm), "text": text}
 
 
 def summarize(tel) -> dict[str, Any]:
@@ -133,6 +161,7 @@ def summarize(tel) -> dict[str, Any]:
         "implausible": st.implausible,
         "held_back_text": held_back_sentence(st.implausible, st.v1_frames) if st.implausible else None,
         "values_bad": values_bad_report(tel),
+        "q_off_unit_sphere": q_norm_report(tel),
         "v1_frames": st.v1_frames,
         "commands": command_log(tel.commands, tel.acks),
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
@@ -201,6 +230,9 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     )
     if s.get("values_bad"):
         lines.append(f"firmware output: {s['values_bad']['text']}")
+    off = s.get("q_off_unit_sphere")
+    if off and (not s.get("values_bad") or s["values_bad"]["first_step"] != off["first_step"]):
+        lines.append(f"firmware filter: {off['text']}")  # (said once when both start at the same step)
     if s.get("held_back_text"):
         lines.append(f"held back: {s['held_back_text']}")
     cmds = s.get("commands") or []

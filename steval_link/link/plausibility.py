@@ -49,12 +49,16 @@ __all__ = [
     "gate_rows",
     "values_bad_sentence",
     "held_back_sentence",
+    "q_off_sphere",
 ]
 
 #: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
 ACC_MAX_MG = 1.0e5
 GYRO_MAX_MDPS = 2.0e7
 Q_MAX = 2.0
+#: The firmware keeps |q| ≈ 0.9983 (release 170120 normalises with the squares from before the update); a q further
+#: than this from the unit sphere means its filter left it (compare's divergence diagnosis, the replay summary).
+Q_NORM_TOL = 0.05
 #: Default gate parameters.
 WINDOW_STEPS = 8192  # 50.7 s of AHRS steps
 TOL_US = 5_000.0
@@ -141,6 +145,14 @@ def status_rows_bad(exact, q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> n
             & np.isfinite(np.asarray(ki, np.float64)) & np.isfinite(np.asarray(dt_s, np.float64))
         )
     return np.asarray(exact, bool) & ~ok
+
+
+def q_off_sphere(q_wxyz) -> np.ndarray:
+    """(N,) bool: q non-finite or ``| |q| − 1 |`` > :data:`Q_NORM_TOL`."""
+    q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.sqrt((q * q).sum(axis=1))
+        return ~(np.abs(norm - 1.0) <= Q_NORM_TOL)
 
 
 def _count(n: int) -> str:
