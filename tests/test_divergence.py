@@ -344,3 +344,59 @@ def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
     info = read_rrd(out)
     assert info.samples[ent.LOG_FILTER] == 1
     assert logger._last_good_step == DIVERGE
+
+
+# ------------------------------------------------------------------------------------------------ end to end
+
+
+@pytest.mark.slow
+def test_a_reference_firmware_that_diverges_end_to_end(tmp_path, monkeypatch, capsys):
+    """The reference firmware built with AHRS_DIVERGE=1 (the MISRA-refactor bug: halfT multiplies only the last term
+    of the q0 update), through steval emulate, replay, compare and export --csv, as a student would."""
+    import re
+
+    from support import firmware as S
+    from support.cli import run_cli
+
+    why = S.missing()
+    if why:
+        pytest.skip(why)
+    if not hasattr(S, "build_reference"):
+        pytest.skip("tests/support/firmware.py has no build_reference (the reference firmware is not merged yet)")
+    elf = S.build_reference(tmp_path, "AHRS_DIVERGE=1")
+    cap = tmp_path / "div.stv"
+    code, out, err = run_cli(monkeypatch, capsys, "emulate", elf, "--scenario", "hand-tilts", "--duration", "15",
+                             "--out", cap, "--no-view")
+    assert code == 0, err
+    sent = int(re.search(r"(\d+) attitude, \d+ status", out).group(1))
+    assert sent > 1800  # 15 s from a boot: about 12 s of AHRS steps at 161.5 Hz
+    # the firmware's q leaves the unit sphere; once it is NaN or beyond ±2 the frames are flagged and said so
+    code, js, err = run_cli(monkeypatch, capsys, "replay", cap, "--json")
+    assert code == 0, err
+    s = json.loads(js)
+    assert s["frames"]["attitude"] == sent and s["implausible"] == 0  # nothing CRC-valid was held back
+    off = s["q_off_unit_sphere"]
+    assert off is not None  # the step where it leaves the unit sphere (compare names it below)
+    bad = s["values_bad"]
+    if bad is not None:  # NaN or |q| > 2: the sentence in the emulate summary, the replay text and compare
+        assert bad["text"] in out
+        code, text, err = run_cli(monkeypatch, capsys, "replay", cap)
+        assert f"firmware output: {bad['text']}" in text
+    code, text, err = run_cli(monkeypatch, capsys, "compare", cap)
+    assert code == 0, err
+    step = off["first_step"]
+    assert re.search(rf"→ the firmware's own filter (left the unit sphere|went non-finite) at step {step} ", text)
+    assert f"inputs at step {step}: acc (" in text
+    assert "the bit-exact port stayed finite on the same inputs" in text
+    assert "no known setting reproduces it" not in text  # no settings were searched for a diverged filter
+    assert "no status frames" not in text
+    code, js, err = run_cli(monkeypatch, capsys, "compare", cap, "--json")
+    assert code == 0, err
+    d = json.loads(js)["port"]["divergence"]
+    assert d["step"] == step and d["port"] == "finite" and len(d["inputs"]) == 2
+    csv_path = tmp_path / "div.csv"
+    code, _, err = run_cli(monkeypatch, capsys, "export", cap, "--csv", csv_path)
+    assert code == 0, err
+    rows = list(csv.DictReader(csv_path.open()))
+    assert len(rows) == sent
+    assert sum(r["values_bad"] == "1" for r in rows) == (bad["frames"] if bad else 0)
