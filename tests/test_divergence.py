@@ -188,6 +188,17 @@ def test_live_pipeline_health_and_note():
     assert pipe.port.rows_exact == 1 + (DIVERGE - STATUS_AT[0] - 1)
     h2 = LinkHealth()
     assert h2.values_sentence() is None
+    # the health lines of steval emulate and steval live say it
+    from steval_link.live.emulated import EmulateSession
+    from steval_link.live.session import LiveSession
+
+    line = EmulateSession._health(SimpleNamespace(duration_s=15.0), pipe, 5.0, 5.0)
+    assert line.split(" | ")[2] == SENTENCE
+    live = LiveSession.__new__(LiveSession)
+    live.pipeline, live.clock = pipe, SimpleNamespace(now_s=lambda: t)
+    proto = SimpleNamespace(connected=True, port="/dev/ttyUSB0", disconnects=0, bytes_total=len(data))
+    line = live._health_line(proto, SimpleNamespace(dropped_bytes=0), 0.0, None)
+    assert line.split(" | ")[2] == SENTENCE and "held back" not in line
 
 
 def test_live_and_emulate_summaries_carry_the_sentence():

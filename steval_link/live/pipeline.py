@@ -318,9 +318,9 @@ class LivePipeline:
         t_us = np.array([f.t_us for f in frames], dtype=np.int64)
         bad = attitude_rows_bad(exact, acc, gyro, q, thz, angles[:, 0], angles[:, 1])
         if self.health.count_bad(bad, attitude_inputs_bad(acc, gyro), step, t_us):
-            i = int(np.argmax(bad))
-            self._note(f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): NaN or "
-                       "out of range, as sent (CRC-valid); the summary counts them", float(att[i][1]), "WARN")
+            i = int(np.argmax(bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
+            self.notes.append(f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
+                              "NaN or out of range, as sent (CRC-valid); the summary counts them")
         batch = AttitudeBatch(
             step=step,
             t_us=t_us,
