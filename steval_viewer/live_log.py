@@ -182,7 +182,11 @@ class LiveLogger:
             sel3d[-1] = True
         rb = RowBatch(times, self._bad, self._arrow_cache)
         if do3d:
-            rb.quaternions(ent.DRONE_FIRMWARE, q3d, sel3d)
+            sel_fw = sel3d
+            if bad[-1]:  # the drone: the batch's last frame without bad values, if any
+                sel_fw = np.zeros(n, dtype=bool)
+                sel_fw[good_rows[-1:]] = True
+            rb.quaternions(ent.DRONE_FIRMWARE, q3d, sel_fw)
             with np.errstate(invalid="ignore"):
                 rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
         rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))

@@ -355,6 +355,8 @@ def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
     info = read_rrd(out)
     assert info.samples[ent.LOG_FILTER] == 1
     assert logger._last_good_step == DIVERGE
+    # the 3D drone: one update per batch up to the one holding step DIVERGE (its last good row), none after
+    assert info.samples[ent.DRONE_FIRMWARE] == DIVERGE // 50 + 1
 
 
 # ------------------------------------------------------------------------------------------------ end to end
