@@ -413,3 +413,29 @@ def test_a_reference_firmware_that_diverges_end_to_end(tmp_path, monkeypatch, ca
     rows = list(csv.DictReader(csv_path.open()))
     assert len(rows) == sent
     assert sum(r["values_bad"] == "1" for r in rows) == (bad["frames"] if bad else 0)
+
+
+def test_the_row_checks_agree_with_the_frame_checks():
+    """The vectorised checks (bulk decoder, Telemetry) and the per-frame ones (incremental decoder) flag the same."""
+    from steval_link.link.plausibility import (
+        attitude_frame_bad,
+        attitude_rows_bad,
+        status_rows_bad,
+        status_values_ok,
+    )
+
+    rng = np.random.default_rng(5)
+    specials = np.array([0.0, 1.0, -1.9, 2.0, 2.5, -3.0, 9e4, 1.1e5, 1.9e7, 2.1e7, np.nan, np.inf, -np.inf], np.float32)
+    n = 3000
+    pick = lambda *shape: specials[rng.integers(0, len(specials), shape)]  # noqa: E731
+    acc, gyro, q, thz, thx, thy = pick(n, 3), pick(n, 3), pick(n, 4), pick(n), pick(n), pick(n)
+    exact = rng.random(n) < 0.7
+    rows = attitude_rows_bad(exact, acc, gyro, q, thz, thx, thy)
+    frames = [attitude_frame_bad(AttitudeFrame(0, tuple(acc[i]), tuple(gyro[i]), tuple(q[i]), float(thz[i]), 0, 0,
+                                               bool(exact[i]), thx_rad=float(thx[i]), thy_rad=float(thy[i])))
+              for i in range(n)]
+    assert rows.tolist() == frames and 0 < rows.sum() < n
+    ints, kp = pick(n, 3), pick(n, 4)
+    rows = status_rows_bad(True, q, ints, kp[:, 0], kp[:, 1], kp[:, 2], kp[:, 3])
+    ok = [status_values_ok(q[i], ints[i], *kp[i]) for i in range(n)]
+    assert rows.tolist() == [not x for x in ok]
