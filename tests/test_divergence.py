@@ -115,9 +115,10 @@ def test_v1_holds_the_same_frames_back_and_says_so():
     assert stats.as_dict() == tel.stats.as_dict()
     lines = format_summary(summarize(tel))
     held = [x for x in lines if x.startswith("held back: ")]
-    assert held == [f"held back: {N - DIVERGE + 1} CRC-valid frames held back for NaN or out-of-range values "
-                    "(protocol v1, CRC-16) or a sequence and time that do not continue: not shown, counted only; a "
-                    "damaged or foreign frame that passed its CRC, or a firmware restart not confirmed"]
+    assert tel.stats.held_values == N - DIVERGE + 1
+    assert held == [f"held back: {N - DIVERGE + 1} CRC-valid frames held back, not shown: {N - DIVERGE + 1} for NaN or "
+                    "out-of-range values (protocol v1: its CRC-16 cannot tell the firmware's own filter output from "
+                    "damage; if the firmware's filter diverged, check ahrs.c)"]
     assert not any(x.startswith("firmware output") for x in lines)
 
 
@@ -209,13 +210,13 @@ def test_live_and_emulate_summaries_carry_the_sentence():
 
     report = SimpleNamespace(emulated_s=15.0, lines=lambda: ["head", "TIM9 started at 1.0 s"])
     es = EmulateSummary(Path("x.stv"), None, 10.0, report, 400, 3, 0, 0, 0, None, "end", SENTENCE,
-                        "2 CRC-valid frames held back for a sequence and time that do not continue: not shown")
+                        "2 CRC-valid frames held back, not shown: 2 for a sequence and time that do not continue")
     lines = es.lines()
     assert lines[1] == SENTENCE and lines[2].startswith("2 CRC-valid frames held back")
     ls = LiveSummary(Path("x.stv"), None, 10.0, 9.0, 1000, 400, 3, 0, 0, 0, 0, 279, 0, 0.0, 0, None, "end",
                      implausible=2, values_sentence=SENTENCE)
     line = ls.line()
-    assert SENTENCE in line and "2 CRC-valid frames held back for a sequence and time" in line
+    assert SENTENCE in line and "2 CRC-valid frames held back, not shown: 2 for a sequence and time" in line
 
 
 # ------------------------------------------------------------------------------------------------ compare

@@ -153,7 +153,7 @@ def compare_capture(
         traces=traces,
         notes=notes,
         values_bad=values_bad,
-        held_back=held_back_sentence(tel.stats.implausible, tel.stats.v1_frames) if tel.stats.implausible else None,
+        held_back=held_back_sentence(tel.stats.implausible, tel.stats.held_values) if tel.stats.implausible else None,
         t_rel_s=relative_time_s(a.step, a.t_fw_s),
         replay=rep,
         port_rows=prow,

@@ -160,6 +160,7 @@ class StreamDecoder:
         if self.gate is not None:
             self.gate.finish()
             self.stats.implausible = self.gate.held_back
+            self.stats.held_values = self.gate.held_values
         return out
 
     # -- internals ---------------------------------------------------------------------------------------------
@@ -308,6 +309,7 @@ class StreamDecoder:
             out.append(f)
         if gate is not None:
             self.stats.implausible = gate.held_back
+            self.stats.held_values = gate.held_values
 
     def _count(self, frame: Frame) -> None:
         stats = self.stats
@@ -491,6 +493,7 @@ def decode_bytes(
         bytes_total=n,
         v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
         implausible=gate.held_back,
+        held_values=gate.held_values,
     )
     tel = Telemetry.from_parts(
         parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n

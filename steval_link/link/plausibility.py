@@ -158,8 +158,7 @@ def _count(n: int) -> str:
     return f"{n:,}"
 
 
-def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False,
-                        v1: bool = False) -> str:
+def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
     """The one sentence every summary prints about ``n`` kept frames with bad values (NaN or out of range), the first
     at AHRS step ``first_step`` and firmware time ``first_t_s``; ``inputs``: the filter inputs (acc, gyro) are bad
     too, so the fault is before the filter. E.g. "1,939 frames carry NaN or |q| > 2 from step 2 on (t = 2.998 s):
@@ -174,13 +173,18 @@ def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None,
     return f"{_count(n)} {noun} NaN or |q| > 2{where}: the firmware's own filter output; check ahrs.c"
 
 
-def held_back_sentence(n: int, v1_frames: int = 0) -> str:
-    """The sentence about ``n`` CRC-valid frames the gate held back (values on v1, sequence/time on both)."""
+def held_back_sentence(n: int, held_values: int = 0) -> str:
+    """The sentence about ``n`` CRC-valid frames the gate held back, ``held_values`` of them (protocol v1 only) for
+    NaN or out-of-range values, the others for a sequence and time that do not continue."""
     noun = "frame" if n == 1 else "frames"
-    why = ("NaN or out-of-range values (protocol v1, CRC-16) or a sequence and time that do not continue"
-           if v1_frames else "a sequence and time that do not continue")
-    return (f"{_count(n)} CRC-valid {noun} held back for {why}: not shown, counted only; a damaged or foreign frame "
-            "that passed its CRC, or a firmware restart not confirmed")
+    parts = []
+    if held_values:
+        parts.append(f"{_count(held_values)} for NaN or out-of-range values (protocol v1: its CRC-16 cannot tell the "
+                     "firmware's own filter output from damage; if the firmware's filter diverged, check ahrs.c)")
+    if n - held_values:
+        parts.append(f"{_count(n - held_values)} for a sequence and time that do not continue (a damaged or foreign "
+                     "frame that passed its CRC, or a firmware restart not confirmed)")
+    return f"{_count(n)} CRC-valid {noun} held back, not shown: " + "; ".join(parts)
 
 
 def _steps_fit(d, dt, d_min: int, window: int, tol: float):
@@ -200,6 +204,7 @@ class PlausibilityGate:
         self.tol = float(tol_us)
         self.confirm = int(confirm)
         self.held_back = 0  #: frames dropped for good
+        self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
         self.reanchors = 0  #: times a confirmed run became the new anchor
         self._anchor: tuple[int, int] | None = None
         self._pending: list[tuple[int, int, Any]] = []
@@ -209,6 +214,7 @@ class PlausibilityGate:
         Returns the items released by it, in order (possibly none, possibly earlier held ones)."""
         if not values_ok:
             self.held_back += 1
+            self.held_values += 1
             return []
         seq &= 0xFFFF
         anchor = self._anchor

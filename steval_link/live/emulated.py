@@ -175,7 +175,7 @@ class EmulateSession:
         s = pipe.decoder.stats
         h = pipe.health
         port = pipe.port.describe() if pipe.port is not None else None
-        held = held_back_sentence(s.implausible, s.v1_frames) if s.implausible else None
+        held = held_back_sentence(s.implausible, s.held_values) if s.implausible else None
         return EmulateSummary(capture_path, opts.rrd, time.monotonic() - t0, emu.report(), h.attitude, h.status,
                               h.text, s.crc_failures, s.frames_missing, port, self._stop or "end",
                               h.values_sentence(), held)

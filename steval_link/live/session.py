@@ -118,7 +118,7 @@ class LiveSummary:
     capture_discarded: bool = False  # no byte came: the header-only file was removed
     implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back
     values_sentence: str | None = None  # the frames kept with NaN or out-of-range values, in words
-    v1_frames: int = 0  # protocol v1 frames (their values are checked too)
+    held_values: int = 0  # of ``implausible``: protocol v1 frames held back for their values
 
     def line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
@@ -134,7 +134,7 @@ class LiveSummary:
         elif self.nonfinite:
             parts.append(f"{self.nonfinite} with NaN/inf")
         if self.implausible:
-            parts.append(held_back_sentence(self.implausible, self.v1_frames))
+            parts.append(held_back_sentence(self.implausible, self.held_values))
         if self.disconnects:
             parts.append(f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s)")
         if self.live_dropped_bytes:
@@ -454,7 +454,7 @@ class LiveSession:
             stopped_by=self._stop_reason or "end",
             implausible=_stat(s, "implausible"),
             values_sentence=h.values_sentence(),
-            v1_frames=_stat(s, "v1_frames"),
+            held_values=_stat(s, "held_values"),
         )
 
 
