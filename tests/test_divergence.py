@@ -271,6 +271,8 @@ def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
     assert d["port"] == "unseeded" and d["first_nonfinite_step"] == d["step"]
     assert "the port had no state at that step" in d["text"][-1]
     assert r.port.settings["kp_ground"] == KP_GROUND
+    lines = format_report(r)  # said although the port has no step to compare
+    assert f"  → {d['text'][0]}" in lines and f"  → {d['text'][-1]}" in lines
 
 
 def test_a_healthy_capture_has_no_divergence():

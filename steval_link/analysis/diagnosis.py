@@ -462,6 +462,8 @@ def compare_port(
             diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
             if divergence is not None:
                 diagnosis = list(divergence["text"]) + diagnosis
+    elif divergence is not None:  # no step to compare with (the port had no state): the divergence alone
+        diagnosis = list(divergence["text"])
     return (
         PortComparison(
             rows=int(rows.size),

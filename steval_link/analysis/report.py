@@ -329,6 +329,8 @@ def format_report(r: ComparisonReport) -> list[str]:
                          f"the capture (firmware clock {fm['t_fw_s']:.3f} s)")
             for d in p.diagnosis:
                 lines.append(f"  → {d}")
+        elif p.diagnosis:
+            lines.extend(f"  → {d}" for d in p.diagnosis)
 
     lines.append("")
     lines.append("angles vs firmware, degrees (Δ = estimator − firmware)")
