@@ -126,6 +126,8 @@ LOG_BLE_CONSOLE = "log/ble_console"
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"
 LOG_COMMANDS = "log/commands"
+#: notes about the firmware's own filter output: the first row with NaN or out-of-range values (it diverged)
+LOG_FILTER = "log/filter"
 
 #: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_port`` the host's
 #: bit-exact port of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).

@@ -33,13 +33,15 @@ import rerun as rr
 
 from steval_link import constants as C
 from steval_link.estimators.st_mahony import quaternion_to_euler
+from steval_link.link.plausibility import attitude_rows_bad
 from steval_link.link.protocol import SEQ_MODULUS
 from steval_link.link.unwrap import TimeUnwrapper
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
-from steval_viewer.columns import Times, quaternion_from_euler, send_scalars
+from steval_viewer.columns import Times, quaternion_from_euler, send_rows, send_scalars
 from steval_viewer.record_batch import RowBatch
+from steval_viewer.replay_log import values_bad_note
 
 #: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
 #: frame of a batch: the view shows only the latest attitude, and this keeps the per-frame cost down. Plots get
@@ -102,6 +104,8 @@ class LiveLogger:
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
         self._last_3d_s = -math.inf  # fw time of the last 3D update
         self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
+        self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
+        self._last_good_step: int | None = None  # step of the latest frame without bad values
         #: link/status rows waiting for the next batch: path -> [(fw s, host s, values)], sent as one chunk per
         #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
         #: some memory for, so fewer calls keep a long session's memory flat
@@ -150,6 +154,23 @@ class LiveLogger:
             q = q.astype(np.float64)
             q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(batch.thz_rad)[rows])
         acc = np.asarray(batch.acc_mg, dtype=np.float64)
+        bad = attitude_rows_bad(exact if exact is not None else np.ones(n, bool), batch.acc_mg, batch.gyro_mdps,
+                                batch.q_wxyz, batch.thz_rad, getattr(batch, "thx_rad", thx),
+                                getattr(batch, "thy_rad", thy))
+        q3d = q
+        if bad.any():  # the firmware's filter output is NaN or off range: the 3D drone stays where it was
+            q3d = np.where(bad[:, None], np.nan, q)
+            if not self._values_bad_noted:
+                self._values_bad_noted = True
+                i = int(np.argmax(bad))
+                sentence = (f"the firmware's values are NaN or out of range from step {int(step[i])} on "
+                            f"(t = {float(times.t_fw_s[i]):.3f} s), as sent")
+                text = values_bad_note(sentence, self._good_before(step, bad, i))
+                send_rows(rec, ent.LOG_FILTER, times.take(np.array([i])),
+                          lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]))
+        good_rows = np.flatnonzero(~bad)
+        if good_rows.size:
+            self._last_good_step = int(step[good_rows[-1]])
 
         # 3D entities show only the latest attitude: at most LIVE_3D_MAX_HZ updates (the batch's last row)
         t_last = float(times.t_fw_s[-1])
@@ -161,7 +182,11 @@ class LiveLogger:
             sel3d[-1] = True
         rb = RowBatch(times, self._bad, self._arrow_cache)
         if do3d:
-            rb.quaternions(ent.DRONE_FIRMWARE, q, sel3d)
+            sel_fw = sel3d
+            if bad[-1]:  # the drone: the batch's last frame without bad values, if any
+                sel_fw = np.zeros(n, dtype=bool)
+                sel_fw[good_rows[-1:]] = True
+            rb.quaternions(ent.DRONE_FIRMWARE, q3d, sel_fw)
             with np.errstate(invalid="ignore"):
                 rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
         rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))
@@ -189,6 +214,11 @@ class LiveLogger:
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
         self._link_from_frames(times, step)
         self.flush_rows()
+
+    def _good_before(self, step: np.ndarray, bad: np.ndarray, i: int) -> int | None:
+        """Step of the last row before row ``i`` of this batch without bad values (else of an earlier batch)."""
+        good = np.flatnonzero(~bad[:i])
+        return int(step[good[-1]]) if good.size else self._last_good_step
 
     def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))

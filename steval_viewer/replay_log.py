@@ -21,6 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link.analysis.summary import values_bad_report
 from steval_link.estimators.st_mahony import replay_firmware
 from steval_link.link.commands import command_log
 from steval_viewer import blueprint as bp
@@ -85,7 +86,9 @@ def _deg(rad: np.ndarray) -> np.ndarray:
 
 
 def display_quaternions(att: Any) -> np.ndarray:
-    """The firmware attitude for the 3D view: ``q_wxyz``; text-mode rows (no q) get it from their thx/thy/thz."""
+    """The firmware attitude for the 3D view: ``q_wxyz``; text-mode rows (no q) get it from their thx/thy/thz.
+    Rows flagged ``values_bad`` (NaN or ``|q|`` > 2: the firmware's filter diverged) are NaN: the drone stays at
+    its last finite attitude."""
     q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
     missing = ~np.isfinite(q).all(axis=1)
     if missing.any():
@@ -94,7 +97,34 @@ def display_quaternions(att: Any) -> np.ndarray:
         rows = missing & np.isfinite(thx) & np.isfinite(thy)
         if rows.any():
             q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(att.thz_rad)[rows])
+    bad = getattr(att, "values_bad", None)
+    if bad is not None:
+        q[np.asarray(bad, dtype=bool)] = np.nan
     return q
+
+
+def values_bad_note(sentence: str, last_good_step: int | None) -> str:
+    """The viewer's note at the first row with bad values: the summary's sentence and where the 3D drone stays."""
+    where = ("at its last finite attitude (step " + str(last_good_step) + ")" if last_good_step is not None
+             else "without an attitude (no finite one before)")
+    return f"{sentence}; the 3D drone stays {where}"
+
+
+def log_values_bad(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
+    """The first attitude row flagged ``values_bad`` (the firmware's own filter went NaN or off the unit sphere):
+    a warning on the timeline at that step (``log/filter``). Nothing when no row is flagged."""
+    att = tel.attitude
+    rep = values_bad_report(tel) if hasattr(att, "values_bad") else None
+    if rep is None or rep["first_row"] is None:
+        return
+    i = int(rep["first_row"])
+    q = display_quaternions(att)[:i]
+    good = np.flatnonzero(np.isfinite(q).all(axis=1))
+    last = int(np.asarray(att.step)[good[-1]]) if good.size else None
+    text = values_bad_note(rep["text"], last)
+    send_rows(rec, ent.LOG_FILTER, times.take(np.array([i])),
+              lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]))
+    summary.samples[ent.LOG_FILTER] = 1
 
 
 def log_firmware(rec: rr.RecordingStream, times: Times, att: Any, summary: ReplaySummary) -> None:
@@ -320,6 +350,7 @@ def log_replay(
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
     log_commands(rec, times, tel, summary)
+    log_values_bad(rec, times, tel, summary)
     if has_fc:
         flight_log.log_flight_control(rec, tel, summary)
     return summary

@@ -180,7 +180,7 @@ def _damaged_stream() -> tuple[bytes, int, int]:
     return bytes(out), n_good, n_nan
 
 
-def test_live_counts_garbage_crc_and_holds_back_nan_frames(tmp_path):
+def test_live_counts_garbage_crc_and_shows_nan_frames(tmp_path):
     data, n_good, n_nan = _damaged_stream()
     rrd = tmp_path / "d.rrd"
     with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
@@ -192,17 +192,18 @@ def test_live_counts_garbage_crc_and_holds_back_nan_frames(tmp_path):
     assert rc == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     summary = proc.stdout.strip()
-    # the firmware cannot send a NaN/inf input: the decoder's plausibility checks hold those frames back
-    assert f"{n_good} attitude frames" in summary and n_nan > 0
-    assert f"{n_nan} implausible frames held back" in summary
+    # protocol v2: CRC-valid frames that continue the sequence are kept whatever their values, and said in words
+    assert f"{n_good + n_nan} attitude frames" in summary and n_nan > 0
+    assert f"{n_nan} frames carry NaN or out-of-range values from step 23 on" in summary
+    assert "held back" not in summary
     crc = int(summary.split(" CRC failures")[0].rsplit(", ", 1)[1])
     assert crc >= 12  # the flipped bits (and some noise that looked like a header)
 
     from steval_viewer.rrd_check import read_rrd
 
     info = read_rrd(rrd)
-    # nothing of the held-back frames reaches a plot or an estimator
-    assert info.samples["plots/pitch_thx_deg/firmware"] == n_good
+    # the firmware's (finite) angles of the flagged frames are plotted; their NaN inputs reach no estimator
+    assert info.samples["plots/pitch_thx_deg/firmware"] == n_good + n_nan
     assert info.samples["plots/pitch_thx_deg/accel"] == n_good
     port = info.samples.get("plots/pitch_thx_deg/st_mahony_port", 0)
     assert 0 < port < n_good

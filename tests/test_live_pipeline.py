@@ -166,13 +166,15 @@ def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():
     log = BatchLog()
     pipe = LivePipeline(["st-mahony", "accel"], log)
     feed_in_chunks(pipe, bytes(out))
-    # the firmware cannot send a non-finite acc: the decoder's plausibility gate holds those frames back
-    assert pipe.decoder.stats.implausible == 3 and pipe.health.nonfinite == 0
+    # protocol v2: CRC-32-valid frames that continue the sequence are kept and flagged, whatever their values (#24)
+    assert pipe.decoder.stats.implausible == 0 and pipe.decoder.stats.values_bad == 3 and pipe.health.nonfinite == 3
+    assert pipe.health.values_bad == 3 and pipe.health.first_bad_step == 50
     steps = log.column("step")
-    assert not np.isin([50, 51, 90], steps).any() and len(steps) == 400 - 3
-    assert np.isfinite(log.column("finite")).all() if log.column("finite").dtype != bool else log.column("finite").all()
+    assert np.isin([50, 51, 90], steps).all() and len(steps) == 400
+    finite = log.column("finite").astype(bool)
+    assert (~finite).sum() == 3 and not finite[np.isin(steps, [50, 51, 90])].any()
     accel = log.rows("accel")
-    assert np.isfinite(accel).all()
+    assert np.isfinite(accel[finite]).all()
     port = log.rows("st-mahony")
     before = steps < 50
     assert np.isfinite(port[before]).all()  # from power-up

@@ -116,14 +116,24 @@ def test_a_crc16_collision_cannot_pass_in_a_v2_stream():
 # ---------------------------------------------------------------------------------------------- plausibility
 
 
-def test_impossible_values_are_held_back_and_counted():
+def test_impossible_values_are_held_back_on_v1_and_kept_flagged_on_v2():
     bad = [att(10, acc=(3.3e28, 0, 1000)), att(11, acc=(np.nan, 0, 1000)),
            P.encode_attitude(t_us=int(12 * PERIOD_US), acc_mg=[0, 0, 1000], gyro_mdps=[0, 0, 0],
                              q_wxyz=[7.0, 0, 0, 0], thz_rad=0, seq=12, thr=0)]
-    data = b"".join(att(i) for i in range(10)) + b"".join(bad) + b"".join(att(i) for i in range(13, 20))
+    frames_v2 = [att(i) for i in range(10)] + bad + [att(i) for i in range(13, 20)]
+    # protocol v1 (CRC-16): the values guard the weak check, the three frames are held back
+    data = b"".join(P.encode_frame(P.TYPE_ATTITUDE, f[4:56], version=1) for f in frames_v2)
     tel = decode_bytes(data)
     assert tel.attitude.seq.tolist() == list(range(10)) + list(range(13, 20))
-    assert tel.stats.implausible == 3 and tel.stats.crc_failures == 0
+    assert tel.stats.implausible == 3 and tel.stats.crc_failures == 0 and tel.stats.values_bad == 0
+    frames, stats = stream_decode(data, 13)
+    assert stats.as_dict() == tel.stats.as_dict()
+    # protocol v2 (CRC-32): what the firmware sent is kept and flagged (issue #24)
+    data = b"".join(frames_v2)
+    tel = decode_bytes(data)
+    assert tel.attitude.seq.tolist() == list(range(20))
+    assert tel.attitude.values_bad.tolist() == [False] * 10 + [True] * 3 + [False] * 7
+    assert tel.stats.implausible == 0 and tel.stats.values_bad == 3
     frames, stats = stream_decode(data, 13)
     assert stats.as_dict() == tel.stats.as_dict()
 

@@ -48,11 +48,13 @@ from steval_link.analysis.report import (
     angle_diff_rad,
     format_report,
 )
+from steval_link.analysis.summary import values_bad_report
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     MahonySettings,
 )
+from steval_link.link.plausibility import held_back_sentence
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:
@@ -132,9 +134,11 @@ def compare_capture(
     notes.extend(link_notes(tel))
     nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
     nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))
+    values_bad = values_bad_report(tel)
     if nan_x or nan_y:
-        notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll (asin out of range at extreme rates); "
-                     "excluded from the statistics")
+        why = ("its filter output is NaN or out of range, see above" if values_bad
+               else "asin out of range at extreme rates")
+        notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
@@ -148,6 +152,8 @@ def compare_capture(
         port=port,
         traces=traces,
         notes=notes,
+        values_bad=values_bad,
+        held_back=held_back_sentence(tel.stats.implausible, tel.stats.held_values) if tel.stats.implausible else None,
         t_rel_s=relative_time_s(a.step, a.t_fw_s),
         replay=rep,
         port_rows=prow,

@@ -2,6 +2,11 @@
 that differs and *why*: the port is re-run from the same seed with alternative settings (normalisation variant,
 KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named. Also the
 filter settings the status frames announce (:func:`filter_settings_report`).
+
+A firmware whose own filter *diverged* (:func:`find_divergence`: its q left the unit sphere, ``| |q| − 1 |`` >
+``Q_NORM_TOL`` = 0.05, or went non-finite) is named with the step, the inputs at that step and the one before, and
+whether the port stayed finite on the same inputs. When it did, no setting of the release's filter explains the
+firmware, so no settings are searched: the firmware's ``ahrs.c`` differs (a student's filter, a refactor).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from steval_link.estimators.st_mahony import (
 from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
+from steval_link.link.plausibility import q_off_sphere
 from steval_link.link.protocol import FLAG_EVENT
 
 #: Rows after the first mismatch over which an alternative setting must reproduce the firmware to be named.
@@ -66,6 +72,9 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
         return {"from": "text-mode status lines", "ki": json_number(ki), "flags": int(s.flags[-1]),
                 "differs_from_defaults": {} if not math.isfinite(ki) or np.float32(ki) == np.float32(C.KI)
                 else {"ki": [json_number(ki), C.KI]}, "changes": 0}
+    # a snapshot holding NaN (a diverged filter) still reports the build's settings; non-finite settings do not
+    ex = ex & np.isfinite(np.asarray(s.kp_ground, np.float64)) & np.isfinite(np.asarray(s.kp_flight, np.float64)) \
+        & np.isfinite(np.asarray(s.ki, np.float64)) & np.isfinite(np.asarray(s.dt_s, np.float64))
     if not ex.any():
         return None
     rows = np.flatnonzero(ex)
@@ -334,6 +343,86 @@ def _status_base(view) -> MahonySettings | None:
     return MahonySettings.of_status(s, j)
 
 
+def _vec(v, fmt: str = ".6g") -> str:
+    return "(" + ", ".join(format(float(x), fmt) for x in np.asarray(v).reshape(-1)) + ")"
+
+
+def _norm(q) -> float:
+    q = np.asarray(q, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(np.sqrt((q * q).sum()))
+
+
+def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
+    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite, or None.
+
+    ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the port replayed over them (or None).
+    Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
+    "gyro_mdps", "thr"} of the step before (when received) and of the step], "port": "finite" | "diverged" |
+    "unseeded", "port_q_wxyz", "port_diverged_step", "text": [sentences]}``."""
+    a = view.attitude
+    off = q_off_sphere(a.q_wxyz)
+    if not off.any():
+        return None
+    k = int(np.argmax(off))
+    step = int(a.step[k])
+    q = np.asarray(a.q_wxyz[k], dtype=np.float64)
+    fin = ~np.isfinite(np.asarray(a.q_wxyz, dtype=np.float64)).all(axis=1)
+    first_nan = int(a.step[int(np.argmax(fin))]) if fin.any() else None
+    t_fw = float(a.t_fw_s[k])
+    inputs = []
+    for j in (k - 1, k):
+        if j < 0 or int(a.step[j]) != step - (k - j):
+            continue
+        inputs.append({"step": int(a.step[j]), "acc_mg": [json_number(x) for x in a.acc_mg[j]],
+                       "gyro_mdps": [json_number(x) for x in a.gyro_mdps[j]], "thr": int(a.thr[j])})
+    port_state, port_q, port_div = "unseeded", None, None
+    if rep is not None and bool(rep.seeded[k]):
+        port_q = [json_number(x) for x in rep.q_wxyz[k]]
+        seeded_after = np.flatnonzero(rep.seeded[k:]) + k
+        p_off = q_off_sphere(rep.q_wxyz[seeded_after])
+        if p_off.any():
+            port_state, port_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
+        else:
+            port_state = "finite"
+    nonfinite = not np.isfinite(q).all()
+    what = "went non-finite" if nonfinite else "left the unit sphere"
+    how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
+    text = [f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
+            f"release keeps |q| ≈ 0.9983)" + (f"; non-finite from step {first_nan} on" if first_nan is not None
+                                             and first_nan != step else "")]
+    for inp in inputs:
+        text.append(f"inputs at step {inp['step']}: acc {_vec(inp['acc_mg'], '.5g')} mg, gyro "
+                    f"{_vec(inp['gyro_mdps'], '.5g')} mdps, thr {inp['thr']}")
+    if len(inputs) < 2:
+        text.append(f"the step before ({step - 1}) was not received")
+    if port_state == "finite":
+        text.append(f"the bit-exact port stayed finite on the same inputs (q = {_vec(port_q)}, |q| = "
+                    f"{_norm(port_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+                    "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
+                    "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
+                    "handles, so none was searched)")
+    elif port_state == "diverged":
+        text.append(f"the port diverged too on the same inputs (from step {port_div}): the inputs drive the filter "
+                    "out of range; check the sensor values and the settings")
+    else:
+        text.append("the port had no state at that step (no power-up and no finite status snapshot before it), so "
+                    "it cannot tell whether the filter or its inputs are to blame")
+    return {
+        "row": int(rows[k]),
+        "step": step,
+        "t_fw_s": json_number(t_fw),
+        "q_wxyz": [json_number(x) for x in q],
+        "q_norm": json_number(_norm(q)),
+        "first_nonfinite_step": first_nan,
+        "inputs": inputs,
+        "port": port_state,
+        "port_q_wxyz": port_q,
+        "port_diverged_step": port_div,
+        "text": text,
+    }
+
+
 def compare_port(
     tel, settings: MahonySettings | None = None
 ) -> tuple[PortComparison | None, FirmwareReplay | None, np.ndarray | None]:
@@ -361,12 +450,20 @@ def compare_port(
         else:
             unseeded = ("no status snapshot falls inside a run of consecutive steps, so the port has no state to "
                         "start from")
+    divergence = find_divergence(view, rows, rep)
     if rep.first_mismatch is not None:
         m = rep.first_mismatch
         t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
         first = {"row": int(rows[m]), "step": int(a.step[m]), "t_fw_s": float(a.t_fw_s[m]),
                  "t_rel_s": float(t_rel[rows[m]])}
-        diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
+        if divergence is not None and divergence["port"] == "finite":
+            diagnosis = list(divergence["text"])  # no setting of the release's filter explains a NaN
+        else:
+            diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
+            if divergence is not None:
+                diagnosis = list(divergence["text"]) + diagnosis
+    elif divergence is not None:  # no step to compare with (the port had no state): the divergence alone
+        diagnosis = list(divergence["text"])
     return (
         PortComparison(
             rows=int(rows.size),
@@ -379,6 +476,7 @@ def compare_port(
             matching_variant=variant,
             matching_bit_exact=variant_exact,
             unseeded_reason=unseeded,
+            divergence=divergence,
         ),
         rep,
         rows,

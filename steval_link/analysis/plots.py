@@ -177,7 +177,8 @@ def comparison_figure(tel, report, *, title: str | None = None):
         nan_rows = ~np.isfinite(fw[key])
         if nan_rows.any():
             ax.plot(t[nan_rows], np.zeros(int(nan_rows.sum())), "x", color="crimson", ms=4, zorder=7,
-                    label="firmware NaN (asin out of range)")
+                    label="firmware NaN (its filter diverged)" if getattr(report, "values_bad", None)
+                    else "firmware NaN (asin out of range)")
         ax.set_ylabel(f"{what} [deg]")
         ax.set_title(what, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
@@ -284,6 +285,9 @@ def comparison_figure(tel, report, *, title: str | None = None):
         lines.append(f"kp {fs['kp_ground']:g}/{fs['kp_flight']:g}, ki {fs['ki']:g}, dt {fs['dt_s']:g} s")
     if report.firmware_nan_pitch or report.firmware_nan_roll:
         lines.append(f"firmware NaN: {report.firmware_nan_pitch} pitch, {report.firmware_nan_roll} roll steps")
+    div = report.port.divergence if report.port is not None else None
+    if div is not None:
+        lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; port {div['port']}")
     wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]
     ax_txt.text(0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace",
                 transform=ax_txt.transAxes)

@@ -104,6 +104,8 @@ class PortComparison:
         matching_variant: the alternative settings that reproduce the firmware (dict of the changed fields), or None.
         matching_bit_exact: with ``matching_variant``, bit-exact rows over the whole capture.
         unseeded_reason: why no row could be seeded (None when some were).
+        divergence: the first step where the firmware's q left the unit sphere or went non-finite, its inputs and
+            whether the port stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
     """
 
     rows: int
@@ -116,6 +118,7 @@ class PortComparison:
     matching_variant: dict[str, Any] | None = None
     matching_bit_exact: int | None = None
     unseeded_reason: str | None = None
+    divergence: dict[str, Any] | None = None
 
     @property
     def all_exact(self) -> bool:
@@ -134,6 +137,7 @@ class PortComparison:
             "matching_variant": self.matching_variant,
             "matching_bit_exact_steps": self.matching_bit_exact,
             "unseeded_reason": self.unseeded_reason,
+            "divergence": self.divergence,
         }
 
 
@@ -214,6 +218,9 @@ class ComparisonReport:
     port: PortComparison | None
     traces: list[TraceComparison]
     notes: list[str] = field(default_factory=list)
+    #: the rows kept with NaN or out-of-range values (:func:`steval_link.analysis.summary.values_bad_report`)
+    values_bad: dict[str, Any] | None = None
+    held_back: str | None = None  #: CRC-valid frames the decoder held back, in words (None: none)
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
@@ -233,6 +240,8 @@ class ComparisonReport:
             "port": None if self.port is None else self.port.as_dict(),
             "traces": [t.as_dict() for t in self.traces],
             "notes": list(self.notes),
+            "values_bad": self.values_bad,
+            "held_back": self.held_back,
         }
 
 
@@ -247,6 +256,10 @@ def format_report(r: ComparisonReport) -> list[str]:
     kind = r.source.get("kind") or "telemetry"
     rows = f"{r.rows} attitude rows" + (f" ({r.text_rows} text-mode)" if r.text_rows else "")
     lines.append(f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time")
+    if r.values_bad:
+        lines.append(f"firmware output: {r.values_bad['text']}")
+    if r.held_back:
+        lines.append(f"held back: {r.held_back}")
     rate = f"{rt.rate_hz:.2f} Hz" if rt.rate_hz else "n/a"
     if rt.step_rate_hz and rt.rate_hz and abs(rt.step_rate_hz - rt.rate_hz) > 0.01 * rt.rate_hz:
         rate += f" (AHRS steps {rt.step_rate_hz:.2f} Hz)"
@@ -316,6 +329,8 @@ def format_report(r: ComparisonReport) -> list[str]:
                          f"the capture (firmware clock {fm['t_fw_s']:.3f} s)")
             for d in p.diagnosis:
                 lines.append(f"  → {d}")
+        elif p.diagnosis:
+            lines.extend(f"  → {d}" for d in p.diagnosis)
 
     lines.append("")
     lines.append("angles vs firmware, degrees (Δ = estimator − firmware)")

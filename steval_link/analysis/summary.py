@@ -10,8 +10,15 @@ from steval_link.analysis.link_stats import cycles_are_emulated
 from steval_link.analysis.report import json_number
 from steval_link.link import protocol as P
 from steval_link.link.commands import command_log
+from steval_link.link.plausibility import (
+    Q_NORM_TOL,
+    attitude_inputs_bad,
+    held_back_sentence,
+    q_off_sphere,
+    values_bad_sentence,
+)
 
-__all__ = ["summarize", "format_summary"]
+__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report"]
 
 _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
@@ -33,6 +40,60 @@ def _fw_duration_s(t_fw_s: np.ndarray, restarts_at: np.ndarray) -> float:
         t = t_fw_s[seg == s]
         total += float(t[-1] - t[0])
     return total
+
+
+def values_bad_report(tel) -> dict[str, Any] | None:
+    """The rows kept with NaN or out-of-range values (the ``values_bad`` flag; protocol v2 keeps what the firmware
+    sent), None when there is none: ``frames`` (attitude rows), ``status_frames``, the first such row (``first_row``,
+    ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (the filter inputs acc/gyro are bad too) and ``text``, the
+    sentence every summary prints."""
+    a = tel.attitude
+    bad = np.asarray(getattr(a, "values_bad", np.zeros(len(a), bool)), bool)
+    sbad = np.asarray(getattr(tel.status, "values_bad", np.zeros(len(tel.status), bool)), bool)
+    if not bad.any() and not sbad.any():
+        return None
+    n = int(bad.sum())
+    i = int(np.argmax(bad)) if n else None
+    inputs = bool(np.any(attitude_inputs_bad(a.acc_mg[bad], a.gyro_mdps[bad]))) if n else False
+    first_step = int(a.step[i]) if i is not None else None
+    first_t = float(a.t_fw_s[i]) if i is not None else None
+    if n:
+        text = values_bad_sentence(n, first_step, first_t, inputs=inputs)
+    else:
+        j = int(np.argmax(sbad))
+        text = (f"{int(sbad.sum()):,} status snapshots carry NaN or |q| > 2 from step {int(tel.status.step[j])} on: "
+                "the firmware's own filter state; check ahrs.c")
+    return {
+        "frames": n,
+        "status_frames": int(sbad.sum()),
+        "first_row": i,
+        "first_step": first_step,
+        "first_t_fw_s": json_number(first_t) if first_t is not None else None,
+        "inputs_bad": inputs,
+        "text": text,
+    }
+
+
+def q_norm_report(tel) -> dict[str, Any] | None:
+    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite; the release keeps
+    ``|q|`` ≈ 0.9983), None when there is none: ``frames``, the first (``first_step``, ``first_t_fw_s``,
+    ``q_norm``) and ``text``."""
+    a = tel.attitude
+    ex = np.asarray(a.exact, bool)
+    off = ex & q_off_sphere(a.q_wxyz)
+    if not off.any():
+        return None
+    i = int(np.argmax(off))
+    q = np.asarray(a.q_wxyz[i], np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = float(np.sqrt((q * q).sum()))
+    n = int(off.sum())
+    how = f"|q| = {norm:.4g}" if np.isfinite(norm) else "non-finite"
+    text = (f"the firmware's q leaves the unit sphere from step {int(a.step[i])} on (t = {float(a.t_fw_s[i]):.3f} s, "
+            f"{how}; the release keeps |q| ≈ 0.9983, ±{Q_NORM_TOL:g}), {n:,} frame{'s' if n != 1 else ''} off it: "
+            "steval compare names the step and its inputs")
+    return {"frames": n, "first_step": int(a.step[i]), "first_t_fw_s": json_number(a.t_fw_s[i]),
+            "q_norm": json_number(norm), "text": text}
 
 
 def summarize(tel) -> dict[str, Any]:
@@ -98,6 +159,10 @@ def summarize(tel) -> dict[str, Any]:
         "bytes_total": st.bytes_total,
         "unknown_frames": st.unknown_frames,
         "implausible": st.implausible,
+        "held_back_for_values": st.held_values,
+        "held_back_text": held_back_sentence(st.implausible, st.held_values) if st.implausible else None,
+        "values_bad": values_bad_report(tel),
+        "q_off_unit_sphere": q_norm_report(tel),
         "v1_frames": st.v1_frames,
         "commands": command_log(tel.commands, tel.acks),
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
@@ -163,8 +228,14 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     lines.append(
         f"link: {s['crc_failures']} CRC failures, {s['bytes_skipped']} of {s['bytes_total']} bytes skipped"
         + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
-        + (f", {s['implausible']} implausible frames held back" if s.get("implausible") else "")
     )
+    if s.get("values_bad"):
+        lines.append(f"firmware output: {s['values_bad']['text']}")
+    off = s.get("q_off_unit_sphere")
+    if off and (not s.get("values_bad") or s["values_bad"]["first_step"] != off["first_step"]):
+        lines.append(f"firmware filter: {off['text']}")  # (said once when both start at the same step)
+    if s.get("held_back_text"):
+        lines.append(f"held back: {s['held_back_text']}")
     cmds = s.get("commands") or []
     if cmds:
         acked = sum(1 for c in cmds if c["result"] is not None)

@@ -102,7 +102,8 @@ def export(
 
     Columns, units in the names: step, seq, t_fw_s, t_host_s, acc_x_mg .. acc_z_mg, gyro_x_mdps .. gyro_z_mdps,
     q_w .. q_z, thx_pitch_rad (about x), thy_roll_rad (about y), thz_yaw_rad (_deg with --degrees), thr, exact
-    (0 for rounded text-mode rows), offset (stream byte). A capture with flight-control frames adds, on the rows of
+    (0 for rounded text-mode rows), offset (stream byte), values_bad (1: NaN or out-of-range values as the firmware
+    sent them, e.g. its filter diverged). A capture with flight-control frames adds, on the rows of
     their steps: target_thx_pitch_rad .. target_thz_yaw_rad (the remote's targets), rc_ail, rc_ele, rc_rud, rc_thr,
     outer_s1_x_pitch_radps .. (outer loop outputs), inner_s2_x_pitch_pwm .. (inner loop outputs), motor1_pwm ..
     motor4_pwm (TIM4 counts of 2000), vbat_v, fc_armed, fc_rc_connected, fc_rc_cal, fc_every. Missing values (NaN)

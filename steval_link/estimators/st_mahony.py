@@ -420,8 +420,9 @@ class PortFollower:
     def snapshot(self, step: int, state: MahonyState, settings: MahonySettings, snapshot_id: int | None = None,
                  *, event: bool = False) -> str:
         """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
-        command, see the class docstring). Returns what it did: "confirmed", "seeded", "ignored" or "unseeded" (a
-        non-finite snapshot while following: the firmware's own filter holds NaN)."""
+        command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
+        snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
+        the port takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
         in_sync = self.state is not None and self.next_step == step + 1
         if in_sync and not (self.follow_snapshots or event):
             return "ignored"
@@ -429,9 +430,8 @@ class PortFollower:
             self.confirmed += 1
             return "confirmed"
         if not np.all(np.isfinite(state.as_array())):
-            if self.follow_snapshots or event:
-                self.state = None
-                return "unseeded"
+            if self.fixed is None and (self.follow_snapshots or event or self.state is None):
+                self.settings = settings
             return "ignored"
         self.state = state
         self.settings = self.fixed or settings
@@ -585,7 +585,15 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         st_events = (np.asarray(_col(status, "flags"), dtype=np.int64) & FLAG_EVENT) != 0
     default_settings = settings
     if default_settings is None:
-        default_settings = MahonySettings.of_status(status, int(order[0])) if order.size else MahonySettings()
+        # the build's settings: the first status frame that reports them (its snapshot may hold NaN: a filter
+        # that diverged still runs with the build's settings)
+        has_settings = np.zeros(st_steps.shape[0], dtype=bool)
+        if st_steps.size:
+            has_settings = np.all([np.isfinite(np.asarray(_col(status, k), dtype=np.float64))
+                                   for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
+        first = np.flatnonzero(has_settings)
+        default_settings = (MahonySettings.of_status(status, int(order[0])) if order.size
+                            else MahonySettings.of_status(status, int(first[0])) if first.size else MahonySettings())
 
     try:  # rounded text-mode rows are no exact filter inputs: never replayed
         exact_rows = np.asarray(_col(att, "exact"), dtype=bool).reshape(n)

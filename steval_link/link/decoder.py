@@ -6,7 +6,9 @@ Rules (position by position, from the start of the stream):
 
 * ``A5 5A``: a binary frame candidate. Valid (version 2 with CRC-32, or version 1 with CRC-16; known type, the
   type's ``LEN``, CRC) → the whole frame consumed and handed to the plausibility gate
-  (:mod:`steval_link.link.plausibility`), which hands it out or holds it back (``implausible``); otherwise only the
+  (:mod:`steval_link.link.plausibility`), which hands it out or holds it back (``implausible``: sequence and time
+  that do not continue; on version 1 also NaN or out-of-range values. A version-2 frame with such values is handed
+  out and counted in ``values_bad``: the firmware sent it); otherwise only the
   ``A5`` is discarded and the search resumes at the next byte. A known header whose CRC fails counts in
   ``crc_failures``; a frame of unknown type whose CRC matches counts in ``unknown_frames`` (skipped the same way).
   Once a version-2 frame was accepted, version-1 candidates are no longer taken (a damaged v2 stream cannot
@@ -53,6 +55,7 @@ from steval_link.link.plausibility import (
     KIND_ATTITUDE,
     KIND_STATUS,
     PlausibilityGate,
+    attitude_frame_bad,
     attitude_values_ok,
     gate_rows,
     status_values_ok,
@@ -157,6 +160,7 @@ class StreamDecoder:
         if self.gate is not None:
             self.gate.finish()
             self.stats.implausible = self.gate.held_back
+            self.stats.held_values = self.gate.held_values
         return out
 
     # -- internals ---------------------------------------------------------------------------------------------
@@ -291,10 +295,12 @@ class StreamDecoder:
         if gate is None:
             released = [frame]
         elif isinstance(frame, AttitudeFrame):
-            ok = attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
+            # values gate v1 only: a v2 frame with NaN is what the firmware sent (kept, counted in values_bad)
+            ok = version == _V2 or attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
             released = gate.offer(KIND_ATTITUDE, frame.seq, frame.t_us, ok, frame)
         elif isinstance(frame, StatusFrame):
-            ok = status_values_ok(frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s)
+            ok = version == _V2 or status_values_ok(frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight,
+                                                    frame.ki, frame.dt_s)
             released = gate.offer(KIND_STATUS, frame.step, frame.t_us, ok, frame)
         else:
             released = [frame]
@@ -303,12 +309,15 @@ class StreamDecoder:
             out.append(f)
         if gate is not None:
             self.stats.implausible = gate.held_back
+            self.stats.held_values = gate.held_values
 
     def _count(self, frame: Frame) -> None:
         stats = self.stats
         stats.frames_ok += 1
         if isinstance(frame, AttitudeFrame):
             stats.attitude += 1
+            if attitude_frame_bad(frame):
+                stats.values_bad += 1
             if frame.exact:
                 seq = frame.seq
                 last = self._last_seq
@@ -484,6 +493,7 @@ def decode_bytes(
         bytes_total=n,
         v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
         implausible=gate.held_back,
+        held_values=gate.held_values,
     )
     tel = Telemetry.from_parts(
         parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n
@@ -495,6 +505,7 @@ def decode_bytes(
     stats.ack = len(tel.acks)
     stats.command = len(tel.commands)
     stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
+    stats.values_bad = int(np.count_nonzero(tel.attitude.values_bad))
     exact = tel.attitude.exact
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(tel.attitude.seq[exact])
     return tel

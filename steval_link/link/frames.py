@@ -153,6 +153,8 @@ class DecoderStats:
     command: int = 0  #: v2 host -> drone commands (decoded from the host's own bytes)
     v1_frames: int = 0  #: frames of protocol version 1 (CRC-16: about 1 in 65 536 damaged candidates passes)
     implausible: int = 0  #: CRC-valid frames held back by the plausibility checks (never handed out)
+    held_values: int = 0  #: of ``implausible``: v1 frames held back for NaN or out-of-range values
+    values_bad: int = 0  #: attitude rows handed out with NaN or out-of-range values (v2: the firmware sent them)
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dict (JSON-friendly)."""

@@ -3,13 +3,21 @@
 A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
 about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
 
-* **Values** (binary attitude and status frames): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
-  2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so that no real reading, offset
-  or filter overshoot comes near; quaternion components within ±2 (the filter keeps ``|q|`` ≈ 1).
+* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤
+  10⁵ and ``|gyro_mdps|`` ≤ 2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so
+  that no real reading, offset or filter overshoot comes near; quaternion components within ±2 (the filter keeps
+  ``|q|`` ≈ 1).
 * **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
   ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
   ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
   A status frame must fit its anchor the same way with ``d ≥ 0`` (it follows the attitude frame of its step).
+  This holds for both protocol versions.
+
+Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
+time is what the firmware sent, and a firmware whose own filter diverged sends NaN or ``|q|`` > 2 (a student's
+``ahrs.c``). Such rows are kept and flagged (``values_bad`` in :class:`~steval_link.link.telemetry.Telemetry`,
+counted in ``DecoderStats.values_bad``); :func:`values_bad_sentence` says it in words for every summary. Rows
+with bad values still anchor the sequence and time (``seq`` and ``t_us`` are integers, never NaN).
 
 An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
 (the firmware restarted, or the link was away longer than the window), they are released together and become the
@@ -30,12 +38,27 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = ["PlausibilityGate", "attitude_values_ok", "status_values_ok", "gate_rows"]
+__all__ = [
+    "PlausibilityGate",
+    "attitude_values_ok",
+    "attitude_rows_bad",
+    "attitude_frame_bad",
+    "attitude_inputs_bad",
+    "status_values_ok",
+    "status_rows_bad",
+    "gate_rows",
+    "values_bad_sentence",
+    "held_back_sentence",
+    "q_off_sphere",
+]
 
 #: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
 ACC_MAX_MG = 1.0e5
 GYRO_MAX_MDPS = 2.0e7
 Q_MAX = 2.0
+#: The firmware keeps |q| ≈ 0.9983 (release 170120 normalises with the squares from before the update); a q further
+#: than this from the unit sphere means its filter left it (compare's divergence diagnosis, the replay summary).
+Q_NORM_TOL = 0.05
 #: Default gate parameters.
 WINDOW_STEPS = 8192  # 50.7 s of AHRS steps
 TOL_US = 5_000.0
@@ -71,6 +94,99 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
     return True
 
 
+def attitude_frame_bad(frame) -> bool:
+    """True when an :class:`~steval_link.link.frames.AttitudeFrame` carries bad values (what ``values_bad``
+    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with a non-finite value."""
+    if frame.exact:
+        return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
+    vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
+    return not all(math.isfinite(v) for v in vals)
+
+
+def _within(v, limit: float, width: int) -> np.ndarray:
+    """(N,) bool: every one of the ``width`` values of each row is within ±``limit`` (False for NaN)."""
+    v = np.asarray(v).reshape(-1, width)
+    ok = np.abs(v[:, 0]) <= limit  # column by column: much faster than a reduction over a short axis
+    for k in range(1, width):
+        ok &= np.abs(v[:, k]) <= limit
+    return ok
+
+
+def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
+    """(N,) bool, rows with bad values, as :func:`attitude_frame_bad` row by row: binary rows outside the limits of
+    :func:`attitude_values_ok`, text-mode rows (no q) with a non-finite value."""
+    thz = np.asarray(thz_rad).reshape(-1)
+    n = thz.shape[0]
+    exact = np.broadcast_to(np.asarray(exact, bool), (n,))
+    ok = (_within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz))
+    if exact.all():
+        return ~(ok & _within(q_wxyz, Q_MAX, 4))
+    # text-mode rows: every value finite (no q; their angles come with the row)
+    ok_txt = (
+        np.isfinite(np.asarray(acc_mg, np.float64)).reshape(-1, 3).all(axis=1)
+        & np.isfinite(np.asarray(gyro_mdps, np.float64)).reshape(-1, 3).all(axis=1) & np.isfinite(thz)
+        & np.isfinite(np.broadcast_to(np.asarray(thx_rad, np.float64), (n,)))
+        & np.isfinite(np.broadcast_to(np.asarray(thy_rad, np.float64), (n,)))
+    )
+    return ~np.where(exact, ok & _within(q_wxyz, Q_MAX, 4), ok_txt)
+
+
+def attitude_inputs_bad(acc_mg, gyro_mdps) -> np.ndarray:
+    """(N,) bool, rows whose filter inputs (acc, gyro) are non-finite or beyond the limits."""
+    return ~(_within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3))
+
+
+def status_rows_bad(exact, q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> np.ndarray:
+    """(N,) bool, binary status rows failing :func:`status_values_ok` (text-mode rows: False, they carry no
+    snapshot)."""
+    ok = _within(q_wxyz, Q_MAX, 4)
+    ints = np.asarray(int_xyz).reshape(-1, 3)
+    for v in (ints[:, 0], ints[:, 1], ints[:, 2], kp_ground, kp_flight, ki, dt_s):
+        ok &= np.isfinite(np.asarray(v))
+    return np.asarray(exact, bool) & ~ok
+
+
+def q_off_sphere(q_wxyz) -> np.ndarray:
+    """(N,) bool: q non-finite or ``| |q| − 1 |`` > :data:`Q_NORM_TOL`."""
+    q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.sqrt((q * q).sum(axis=1))
+        return ~(np.abs(norm - 1.0) <= Q_NORM_TOL)
+
+
+def _count(n: int) -> str:
+    return f"{n:,}"
+
+
+def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
+    """The one sentence every summary prints about ``n`` kept frames with bad values (NaN or out of range), the first
+    at AHRS step ``first_step`` and firmware time ``first_t_s``; ``inputs``: the filter inputs (acc, gyro) are bad
+    too, so the fault is before the filter. E.g. "1,939 frames carry NaN or |q| > 2 from step 2 on (t = 2.998 s):
+    the firmware's own filter output; check ahrs.c"."""
+    where = "" if first_step is None else f" from step {first_step} on"
+    if first_t_s is not None and math.isfinite(first_t_s):
+        where += f" (t = {first_t_s:.3f} s)"
+    noun = "frame carries" if n == 1 else "frames carry"
+    if inputs:
+        return (f"{_count(n)} {noun} NaN or out-of-range values{where}, the filter inputs (acc, gyro) too: the "
+                "firmware's sensor path before the filter; check the ISR, offsets and averaging")
+    return f"{_count(n)} {noun} NaN or |q| > 2{where}: the firmware's own filter output; check ahrs.c"
+
+
+def held_back_sentence(n: int, held_values: int = 0) -> str:
+    """The sentence about ``n`` CRC-valid frames the gate held back, ``held_values`` of them (protocol v1 only) for
+    NaN or out-of-range values, the others for a sequence and time that do not continue."""
+    noun = "frame" if n == 1 else "frames"
+    parts = []
+    if held_values:
+        parts.append(f"{_count(held_values)} for NaN or out-of-range values (protocol v1: its CRC-16 cannot tell the "
+                     "firmware's own filter output from damage; if the firmware's filter diverged, check ahrs.c)")
+    if n - held_values:
+        parts.append(f"{_count(n - held_values)} for a sequence and time that do not continue (a damaged or foreign "
+                     "frame that passed its CRC, or a firmware restart not confirmed)")
+    return f"{_count(n)} CRC-valid {noun} held back, not shown: " + "; ".join(parts)
+
+
 def _steps_fit(d, dt, d_min: int, window: int, tol: float):
     """The sequence-and-time rule for ``d`` steps and ``dt`` µs forward (Python ints or numpy arrays alike)."""
     return (d >= d_min) & (d <= window) & (dt >= d * PERIOD_US - tol) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
@@ -88,6 +204,7 @@ class PlausibilityGate:
         self.tol = float(tol_us)
         self.confirm = int(confirm)
         self.held_back = 0  #: frames dropped for good
+        self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
         self.reanchors = 0  #: times a confirmed run became the new anchor
         self._anchor: tuple[int, int] | None = None
         self._pending: list[tuple[int, int, Any]] = []
@@ -97,6 +214,7 @@ class PlausibilityGate:
         Returns the items released by it, in order (possibly none, possibly earlier held ones)."""
         if not values_ok:
             self.held_back += 1
+            self.held_values += 1
             return []
         seq &= 0xFFFF
         anchor = self._anchor
@@ -140,7 +258,8 @@ class PlausibilityGate:
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
-    ``offset`` and ``exact``), as a :class:`PlausibilityGate` fed row by row in stream order would decide
+    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a
+    :class:`PlausibilityGate` fed row by row in stream order would decide
     (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
     gate = gate or PlausibilityGate()
     keep_a = np.ones(len(att), bool)
@@ -151,17 +270,18 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
         return keep_a, keep_s
     a = att[ea]
     s = sta[es]
-    vals_a = (
-        np.all(np.abs(a["acc_mg"]) <= ACC_MAX_MG, axis=1)
-        & np.all(np.abs(a["gyro_mdps"]) <= GYRO_MAX_MDPS, axis=1)
-        & np.all(np.abs(a["q_wxyz"]) <= Q_MAX, axis=1)
-        & np.isfinite(a["thz_rad"])
-    )
-    vals_s = (
-        np.all(np.abs(s["q_wxyz"]) <= Q_MAX, axis=1)
-        & np.all(np.isfinite(s["int_xyz"]), axis=1)
-        & np.isfinite(s["kp_ground"]) & np.isfinite(s["kp_flight"]) & np.isfinite(s["ki"]) & np.isfinite(s["dt_s"])
-    )
+    # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
+    v1_a = np.flatnonzero(a["nbytes"] != P.ATTITUDE_FRAME_SIZE)
+    v1_s = np.flatnonzero(s["nbytes"] != P.STATUS_FRAME_SIZE)
+    vals_a = np.ones(len(a), bool)
+    vals_s = np.ones(len(s), bool)
+    if len(v1_a):
+        b = a[v1_a]
+        vals_a[v1_a] = ~attitude_rows_bad(True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0)
+    if len(v1_s):
+        b = s[v1_s]
+        vals_s[v1_s] = ~status_rows_bad(True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"],
+                                        b["dt_s"])
     # fast path: every attitude row fits the previous one and every status the attitude row before it
     clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
     if clean and len(a) > 1:

@@ -13,6 +13,10 @@ Derived fields:
 * ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
 * ``thx_rad``/``thy_rad`` of binary rows: ``QuaternionToEuler`` of ``q_wxyz``, bit-exact
   (:func:`steval_link.estimators.st_mahony.quaternion_to_euler`); of text-mode rows: the line's values.
+* ``values_bad`` (bool, attitude and status rows): the row carries NaN/inf or values out of range (``|q|``
+  component > 2, ``|acc_mg|`` > 10⁵, ``|gyro_mdps|`` > 2·10⁷; :mod:`steval_link.link.plausibility`). Protocol v2
+  keeps such frames when their CRC-32, sequence and time are right: the firmware sent them, typically because its
+  own filter diverged. The column ``values_bad`` of :meth:`Telemetry.attitude_table` (CSV, Parquet) carries it.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from steval_link.link.frames import (
     StatusFrame,
     TextFrame,
 )
+from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
 __all__ = ["AttitudeArrays", "StatusArrays", "FlightControlArrays", "Telemetry", "TelemetryParts",
@@ -76,6 +81,13 @@ class AttitudeArrays:
     thy_rad: np.ndarray  #: (N,) float32, roll (about y), rad
     exact: np.ndarray  #: (N,) bool, True for binary frames (bit-exact), False for rounded text-mode rows
     offset: np.ndarray  #: (N,) int64, stream byte offset of the frame
+    #: (N,) bool, NaN/inf or out-of-range values as sent (see the module docstring); all False by default
+    values_bad: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.values_bad is None:
+            self.values_bad = attitude_rows_bad(self.exact, self.acc_mg, self.gyro_mdps, self.q_wxyz, self.thz_rad,
+                                                self.thx_rad, self.thy_rad)
 
     def __len__(self) -> int:
         return len(self.step)
@@ -84,7 +96,8 @@ class AttitudeArrays:
 @dataclass
 class StatusArrays:
     """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
-    (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact`` and ``offset`` as in :class:`AttitudeArrays`."""
+    (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact``, ``offset`` and ``values_bad`` (a snapshot holding NaN or
+    ``|q|`` > 2: its settings are still the firmware's) as in :class:`AttitudeArrays`."""
 
     step: np.ndarray
     t_us: np.ndarray
@@ -111,6 +124,12 @@ class StatusArrays:
     t_host_s: np.ndarray
     exact: np.ndarray
     offset: np.ndarray
+    values_bad: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.values_bad is None:
+            self.values_bad = status_rows_bad(self.exact, self.q_wxyz, self.int_xyz, self.kp_ground, self.kp_flight,
+                                              self.ki, self.dt_s)
 
     def __len__(self) -> int:
         return len(self.step)
@@ -486,6 +505,7 @@ class Telemetry:
         cols["thr"] = a.thr
         cols["exact"] = a.exact
         cols["offset"] = a.offset
+        cols["values_bad"] = a.values_bad
         return cols
 
 

@@ -22,6 +22,7 @@ from steval_link.emulation.runner import Emulation, EmulationOptions, EmulationR
 from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.commands import Command
+from steval_link.link.plausibility import held_back_sentence
 from steval_link.live.console import PROMPT_HELP, CommandConsole
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, LiveViewer
@@ -47,6 +48,8 @@ class EmulateSummary:
     frames_missing: int
     port_note: str | None
     stopped_by: str
+    values_sentence: str | None = None  # the frames kept with NaN or out-of-range values, in words
+    held_back: str | None = None  # CRC-valid frames the decoder held back, in words
 
     def lines(self) -> list[str]:
         r = self.report
@@ -56,7 +59,7 @@ class EmulateSummary:
                 f"{self.frames_missing} missing, {self.crc_failures} CRC failures"
                 + (f"; {self.port_note}" if self.port_note else "")
                 + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else ""))
-        out = [head] + r.lines()[1:]
+        out = [head] + [x for x in (self.values_sentence, self.held_back) if x] + r.lines()[1:]
         tail = f"capture {self.capture_path}"
         if self.rrd_path:
             tail += f", rerun {self.rrd_path}"
@@ -172,8 +175,10 @@ class EmulateSession:
         s = pipe.decoder.stats
         h = pipe.health
         port = pipe.port.describe() if pipe.port is not None else None
+        held = held_back_sentence(s.implausible, s.held_values) if s.implausible else None
         return EmulateSummary(capture_path, opts.rrd, time.monotonic() - t0, emu.report(), h.attitude, h.status,
-                              h.text, s.crc_failures, s.frames_missing, port, self._stop or "end")
+                              h.text, s.crc_failures, s.frames_missing, port, self._stop or "end",
+                              h.values_sentence(), held)
 
     @staticmethod
     def _health(emu: Emulation, pipe: LivePipeline, t_emu_s: float, wall_s: float) -> str:
@@ -181,6 +186,10 @@ class EmulateSession:
         speed = t_emu_s / wall_s if wall_s > 0 else 0.0
         parts = [f"emulated {t_emu_s:6.2f}/{emu.duration_s:g} s ({speed:.2f}x)", f"frames {pipe.health.attitude}",
                  f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
+        if pipe.health.values_bad:
+            parts.insert(2, pipe.health.values_sentence())
+        if s.implausible:
+            parts.append(f"held back {s.implausible}")
         if pipe.port is not None:
             parts.append(pipe.port.describe())
         return " | ".join(parts)

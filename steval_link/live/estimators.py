@@ -27,7 +27,7 @@ class AttitudeBatch:
     q_wxyz: np.ndarray  # (N, 4) float32, firmware
     thz_rad: np.ndarray  # (N,) float32
     thr: np.ndarray  # (N,) int16
-    finite: np.ndarray  # (N,) bool, every value of the frame is finite
+    finite: np.ndarray  # (N,) bool, the filter inputs (acc, gyro) are finite: estimators may take the row
     exact: np.ndarray  # (N,) bool, binary frame (bit-exact); False: rounded text-mode row without q
     thx_rad: np.ndarray  # (N,) float32, text-mode pitch (about x); NaN for binary frames (derive from q)
     thy_rad: np.ndarray  # (N,) float32, text-mode roll (about y); NaN for binary frames

@@ -8,6 +8,10 @@ import math
 import shutil
 from typing import TextIO
 
+import numpy as np
+
+from steval_link.link.plausibility import values_bad_sentence
+
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
 
@@ -22,7 +26,11 @@ class LinkHealth:
         self.attitude = 0
         self.status = 0
         self.text = 0
-        self.nonfinite = 0
+        self.nonfinite = 0  # attitude frames with a non-finite value
+        self.values_bad = 0  # attitude frames with NaN or out-of-range values (the ``values_bad`` flag)
+        self.inputs_bad = False  # some of those have bad filter inputs (acc, gyro) too
+        self.first_bad_step: int | None = None  # AHRS step of the first of them
+        self.first_bad_t_s: float | None = None  # its firmware time, s (t_us / 10⁶, mod 2³² µs)
         self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
         self.first_frame_s: float | None = None  # host receive time of the first attitude frame
         self.last_frame_s: float | None = None
@@ -36,6 +44,28 @@ class LinkHealth:
             self.last_frame_s = t_last_s
             self.attitude += n_attitude
             self._times.append((t_last_s, self.attitude))
+
+    def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
+        """Count the frames flagged ``bad`` ((N,) bool) of a batch with these ``step`` and ``t_us``;
+        ``inputs_bad`` (N,) bool marks bad acc/gyro. True when the first bad frame of the session is among them."""
+        bad = np.asarray(bad, dtype=bool)
+        k = int(np.count_nonzero(bad))
+        if not k:
+            return False
+        self.values_bad += k
+        self.inputs_bad = self.inputs_bad or bool(np.any(np.asarray(inputs_bad, dtype=bool) & bad))
+        if self.first_bad_step is not None:
+            return False
+        i = int(np.argmax(bad))
+        self.first_bad_step = int(step[i])
+        self.first_bad_t_s = int(t_us[i]) / 1e6
+        return True
+
+    def values_sentence(self) -> str | None:
+        """The sentence about the frames with bad values (None when there is none), as every summary says it."""
+        if not self.values_bad:
+            return None
+        return values_bad_sentence(self.values_bad, self.first_bad_step, self.first_bad_t_s, inputs=self.inputs_bad)
 
     def rate_hz(self, now_s: float, window_s: float = 2.0) -> float:
         """Attitude frames per second received over the last ``window_s`` (NaN while too little is known)."""

@@ -16,6 +16,7 @@ from steval_link.link import protocol as P
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.plausibility import attitude_inputs_bad, attitude_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper
 from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
 from steval_link.live.health import LinkHealth
@@ -308,13 +309,21 @@ class LivePipeline:
         q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
         thz = np.array([f.thz_rad for f in frames], dtype=np.float32)
         exact = np.array([f.exact for f in frames], dtype=bool)
-        # binary frames must carry a finite q; text-mode rows carry no q but angles instead
         angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
-        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1) & np.isfinite(thz)
-        finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
+        # the estimators take a row whose inputs are finite; the firmware's q may hold NaN (its filter diverged)
+        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
+        all_finite = finite & np.isfinite(thz)
+        all_finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
+        step = self.step_unwrap.frames(frames)
+        t_us = np.array([f.t_us for f in frames], dtype=np.int64)
+        bad = attitude_rows_bad(exact, acc, gyro, q, thz, angles[:, 0], angles[:, 1])
+        if self.health.count_bad(bad, attitude_inputs_bad(acc, gyro), step, t_us):
+            i = int(np.argmax(bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
+            self.notes.append(f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
+                              "NaN or out of range, as sent (CRC-valid); the summary counts them")
         batch = AttitudeBatch(
-            step=self.step_unwrap.frames(frames),
-            t_us=np.array([f.t_us for f in frames], dtype=np.int64),
+            step=step,
+            t_us=t_us,
             t_unix_s=np.array([t for _, t in att], dtype=np.float64),
             acc_mg=acc,
             gyro_mdps=gyro,
@@ -326,7 +335,7 @@ class LivePipeline:
             thx_rad=angles[:, 0],
             thy_rad=angles[:, 1],
         )
-        self.health.nonfinite += int(n - np.count_nonzero(finite))
+        self.health.nonfinite += int(n - np.count_nonzero(all_finite))
         self.health.count(n, float(batch.t_unix_s[0]), float(batch.t_unix_s[-1]))
         if self.estimators is not None:
             self.estimators.process(batch)

@@ -38,6 +38,7 @@ from steval_link import constants as C
 from steval_link.errors import UserError
 from steval_link.link import autodetect
 from steval_link.link.capture import CaptureWriter, default_capture_path
+from steval_link.link.plausibility import held_back_sentence
 from steval_link.link.transport import (
     HostClock,
     SerialReader,
@@ -116,6 +117,8 @@ class LiveSummary:
     stopped_by: str
     capture_discarded: bool = False  # no byte came: the header-only file was removed
     implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back
+    values_sentence: str | None = None  # the frames kept with NaN or out-of-range values, in words
+    held_values: int = 0  # of ``implausible``: protocol v1 frames held back for their values
 
     def line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
@@ -126,10 +129,12 @@ class LiveSummary:
             f"{self.crc_failures} CRC failures",
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
         ]
-        if self.nonfinite:
+        if self.values_sentence:
+            parts.append(self.values_sentence)
+        elif self.nonfinite:
             parts.append(f"{self.nonfinite} with NaN/inf")
         if self.implausible:
-            parts.append(f"{self.implausible} implausible frames held back")
+            parts.append(held_back_sentence(self.implausible, self.held_values))
         if self.disconnects:
             parts.append(f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s)")
         if self.live_dropped_bytes:
@@ -400,10 +405,10 @@ class LiveSession:
             f"CRC {_stat(s, 'crc_failures')}",
             f"skipped {_fmt_bytes(_stat(s, 'bytes_skipped'))}",
         ]
-        if h.nonfinite:
-            parts.append(f"NaN/inf {h.nonfinite}")
+        if h.values_bad:
+            parts.insert(2, h.values_sentence())
         if _stat(s, "implausible"):
-            parts.append(f"implausible {_stat(s, 'implausible')}")
+            parts.append(f"held back {_stat(s, 'implausible')}")
         if proto.disconnects:
             parts.append(f"disconnects {proto.disconnects}")
         if inbox.dropped_bytes:
@@ -448,6 +453,8 @@ class LiveSession:
             port_note=port_note,
             stopped_by=self._stop_reason or "end",
             implausible=_stat(s, "implausible"),
+            values_sentence=h.values_sentence(),
+            held_values=_stat(s, "held_values"),
         )
 
 
