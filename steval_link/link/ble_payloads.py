@@ -44,7 +44,7 @@ __all__ = [
     "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
     "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
     "is_ble_source", "ble_chunk", "sample_numbers", "STEP_PERIOD_S", "Cadence", "motion_cadence", "period_ticks",
-    "cadence_numbers", "STEADY", "CONGESTION", "GAPS", "POLLED",
+    "cadence_numbers", "gap_mask", "STEADY", "CONGESTION", "GAPS", "POLLED",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -379,7 +379,7 @@ def _n(k: int) -> str:
     return f"{int(k):,}".replace(",", " ")
 
 
-def _gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
+def gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
     """Tick deltas that are gaps: at least 1.5 periods beyond one tick of quantisation (and beyond one period's
     own spread, a tick either side)."""
     return (d_ticks >= GAP_PERIODS * period_ticks + 1) & (d_ticks > np.floor(period_ticks) + 1)
@@ -389,7 +389,7 @@ def period_ticks(d_ticks) -> float | None:
     """The sender's period in ticks from consecutive tick deltas: the mean of the deltas that are not gaps.
 
     Start from the bulk (deltas within one tick above the median: the quantisation of one period gives its floor or
-    its ceiling), then drop the gaps (:func:`_gap_mask`) and iterate. The mean of a run's deltas telescopes to the
+    its ceiling), then drop the gaps (:func:`gap_mask`) and iterate. The mean of a run's deltas telescopes to the
     run's span, so it is not biased by the 8 ms quantisation. None when every delta is 0 or there is none."""
     d = np.maximum(np.asarray(d_ticks, dtype=np.int64), 0)
     if d.size == 0:
@@ -399,7 +399,7 @@ def period_ticks(d_ticks) -> float | None:
     for _ in range(4):
         if not p > 0:
             break
-        keep = d[~_gap_mask(d, p)]
+        keep = d[~gap_mask(d, p)]
         q = float(keep.mean()) if keep.size else p
         if q == p:
             break
@@ -416,7 +416,7 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     when all share one tick.
 
     - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact).
-    - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`_gap_mask`).
+    - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
     - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
       interval is the mean over the whole span.
     - At ST's step: the missing notifications from the ticks' phase (:func:`_dropped`, sub-tick precise, so single
@@ -433,7 +433,7 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     if p is None:
         return None
     span_s = float(t[-1] - t[0]) * TICK_S
-    gap = _gap_mask(np.maximum(d, 0), p)
+    gap = gap_mask(np.maximum(d, 0), p)
     if repeats > 0 and p >= 1:
         return Cadence(POLLED, span_s / (n - 1), 0, int(gap.sum()), int(repeats), span_s, False)
     if abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S:
@@ -456,7 +456,7 @@ def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
         return sample_numbers(t, cadence.interval_s)
     p = cadence.interval_s / TICK_S
     d = np.maximum(np.diff(t), 0)
-    step = np.where(_gap_mask(d, p), np.maximum(np.round(d / p), 1), 1).astype(np.int64)
+    step = np.where(gap_mask(d, p), np.maximum(np.round(d / p), 1), 1).astype(np.int64)
     return np.concatenate([[0], np.cumsum(step)])
 
 
