@@ -44,7 +44,7 @@ __all__ = [
     "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
     "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
     "is_ble_source", "ble_chunk", "sample_numbers", "STEP_PERIOD_S", "Cadence", "motion_cadence", "period_ticks",
-    "cadence_numbers", "gap_mask", "STEADY", "CONGESTION", "GAPS", "POLLED",
+    "cadence_numbers", "gap_mask", "RunNumberer", "STEADY", "CONGESTION", "GAPS", "POLLED",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -341,7 +341,7 @@ class Cadence:
     kind: str
     interval_s: float  #: the sender's interval (polled: the mean interval between distinct samples), s
     dropped: int  #: motion samples missing between the first and the last received
-    gaps: int  #: tick deltas of 1.5 periods or more (plus the tick's quantisation)
+    gaps: int  #: tick deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`), if any dropped
     repeats: int  #: samples received again (same tick and payload), counted once
     span_s: float  #: first to last sample, drone clock, s
     exact: bool  #: the interval is ST's AHRS step (known exactly), not a measurement
@@ -419,10 +419,10 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
     - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
       interval is the mean over the whole span.
-    - At ST's step: the missing notifications from the ticks' phase (:func:`_dropped`, sub-tick precise, so single
-      drops count too); ``congestion`` if any, else ``steady``.
-    - Any other period: each gap of d ticks misses round(d / period) − 1 samples; ``gaps`` if any, else ``steady``
-      (the sender's own rate: a jittered delta of a tick or two is not a drop).
+    - At ST's step: the missing notifications from the ticks' phase (:func:`sample_numbers`, sub-tick precise, so
+      single drops count too); ``congestion`` if any, else ``steady``.
+    - Any other period: each gap's missing samples from the phases of the runs either side (:class:`RunNumberer`);
+      ``gaps`` if any, else ``steady`` (the sender's own rate: a jittered delta of a tick or two is not a drop).
     """
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
@@ -433,31 +433,83 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     if p is None:
         return None
     span_s = float(t[-1] - t[0]) * TICK_S
-    gap = gap_mask(np.maximum(d, 0), p)
     if repeats > 0 and p >= 1:
-        return Cadence(POLLED, span_s / (n - 1), 0, int(gap.sum()), int(repeats), span_s, False)
-    if abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S:
-        dropped = _dropped(t, STEP_PERIOD_S)
-        return Cadence(CONGESTION if dropped else STEADY, STEP_PERIOD_S, dropped, int(gap.sum()), int(repeats),
-                       span_s, True)
-    dropped = int(np.sum(np.maximum(np.round(d[gap] / p), 1) - 1))
-    return Cadence(GAPS if dropped else STEADY, p * TICK_S, dropped, int(gap.sum()), int(repeats), span_s, False)
+        return Cadence(POLLED, span_s / (n - 1), 0, 0, int(repeats), span_s, False)
+    exact = abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S
+    interval = STEP_PERIOD_S if exact else p * TICK_S
+    k = sample_numbers(t, interval) if exact else _run_numbers(t, p)
+    dropped = int(k[-1]) - (n - 1)
+    gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p))) if dropped else 0
+    kind = STEADY if not dropped else CONGESTION if exact else GAPS
+    return Cadence(kind, interval, dropped, gaps, int(repeats), span_s, exact)
+
+
+class RunNumberer:
+    """The sender's sample numbers of a stream with gaps, in batches of ticks (the whole capture for a replay, a
+    round at a time live): the rule of :func:`cadence_numbers` for any period but ST's step.
+
+    Samples between gaps (:func:`gap_mask`) are consecutive: a run. A run's phase, the mean of tick + ½ − i·period
+    over its samples, smooths out the 8 ms quantisation and the sender's own jitter (a main loop that cannot hit the
+    period exactly); a run after a gap starts at the number the two runs' phases say, so a gap counts the periods
+    that really passed (a single tick delta is blurred by up to two ticks). Live, the run after a gap is known only
+    as far as the batch goes."""
+
+    def __init__(self, period_ticks: float) -> None:
+        self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)
+        self.k: int | None = None  #: the last number given
+        self.tick: int | None = None  #: the last tick seen
+        self._k0 = 0  # the current run's first number
+        self._sum_t = 0.0  # Σ (tick + ½) over the current run
+        self._sum_i = 0  # Σ (k − k0) over the current run
+        self._n = 0
+
+    def numbers(self, ticks) -> np.ndarray:
+        t = np.asarray(ticks, dtype=np.int64)
+        out = np.zeros(len(t), np.int64)
+        if len(t) == 0:
+            return out
+        d = np.diff(t, prepend=t[0] if self.tick is None else self.tick)
+        gap = gap_mask(np.maximum(d, 0), self.p)
+        if self.tick is None:
+            gap[0] = False
+        bounds = np.concatenate([[0], np.flatnonzero(gap), [len(t)]])
+        for s, e in zip(bounds[:-1], bounds[1:]):
+            if e <= s:
+                continue
+            i = np.arange(e - s)
+            if self.k is None:
+                k0 = 0
+                self._k0, self._sum_t, self._sum_i, self._n = 0, 0.0, 0, 0
+            elif gap[s]:  # a new run: placed by the phases of the run before and of this one
+                phase_a = (self._sum_t - self.p * self._sum_i) / self._n - self._k0 * self.p  # number 0's time
+                phase_b = float(np.mean(t[s:e] + 0.5 - i * self.p))  # this run's first sample's time
+                k0 = max(self.k + 1, int(round((phase_b - phase_a) / self.p)))
+                self._k0, self._sum_t, self._sum_i, self._n = k0, 0.0, 0, 0
+            else:  # the current run goes on
+                k0 = self.k + 1
+            out[s:e] = k0 + i
+            self._sum_t += float(np.sum(t[s:e] + 0.5))
+            self._sum_i += int(np.sum(out[s:e] - self._k0))
+            self._n += e - s
+            self.k, self.tick = int(out[e - 1]), int(t[e - 1])
+        return out
+
+
+def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
+    return RunNumberer(period_ticks).numbers(ticks)
 
 
 def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
     """The sender's sample number of each received sample (0 for the first) under ``cadence``: consecutive for a
-    steady or polled stream; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise each gap of d
-    ticks advances round(d / period) numbers."""
+    steady or polled stream; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise from the phase
+    of each run between gaps (:class:`RunNumberer`)."""
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
     if cadence is None or cadence.kind in (STEADY, POLLED) or n < 2:
         return np.arange(n, dtype=np.int64)
     if cadence.exact:
         return sample_numbers(t, cadence.interval_s)
-    p = cadence.interval_s / TICK_S
-    d = np.maximum(np.diff(t), 0)
-    step = np.where(gap_mask(d, p), np.maximum(np.round(d / p), 1), 1).astype(np.int64)
-    return np.concatenate([[0], np.cumsum(step)])
+    return _run_numbers(t, cadence.interval_s / TICK_S)
 
 
 def nominal_interval_s(ticks, repeats: int = 0) -> float | None:
@@ -486,25 +538,6 @@ def sample_numbers(ticks, interval: float) -> np.ndarray:
     lo[0] = 0
     # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
     return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
-
-
-def _dropped(ticks, interval: float | None) -> int:
-    """Motion notifications missing between the first and the last one received: the last sample's number from
-    the last 64 samples (taken as consecutive; intersection of what their ticks allow, so the 8 ms quantisation
-    does not blur the count) minus the notifications received."""
-    t = np.asarray(ticks, dtype=np.float64) * TICK_S
-    n = len(t)
-    if interval is None or n < 2:
-        return 0
-    t0 = _phase(t, interval)
-    w = min(n, 64)
-    back = np.arange(w)[::-1]  # samples after each of the last w, up to the last one
-    k_lo = float(np.max((t[n - w:] - t0) / interval + back))
-    k_hi = float(np.min((t[n - w:] + TICK_S - t0) / interval + back))
-    k = int(np.ceil(k_lo - 1e-9))
-    if not k < k_hi:
-        k = int(round((t[-1] + TICK_S / 2 - t0) / interval))
-    return max(0, k - (n - 1))
 
 
 @dataclass

@@ -15,7 +15,6 @@ SIGHUP / ``--duration`` stop it; the capture is closed whole.
 from __future__ import annotations
 
 import asyncio
-import math
 import sys
 import time
 from collections import deque
@@ -42,12 +41,14 @@ from steval_link.link.ble_payloads import (
     TICK_S,
     BleTelemetry,
     Cadence,
+    RunNumberer,
     TickUnwrapper,
     _phase,
     ble_chunk,
     decode_notifications,
     gap_mask,
     motion_cadence,
+    period_ticks,
 )
 from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
@@ -127,7 +128,8 @@ class BleLiveSession:
         self._cadence: Cadence | None = None  # found from the first samples: fixes dt and the numbering
         self._t0_s = 0.0  # the sender's phase (drone time of sample 0), s
         self._last_k: int | None = None  # the last sender sample number given to the estimators
-        self._last_tick: int | None = None
+        self._numberer: RunNumberer | None = None
+        self._last_tick = 0
         self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self.estimators: dict = {}
@@ -286,56 +288,78 @@ class BleLiveSession:
             c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, self.repeats, 0.0, True)
         self._cadence = c
         self._t0_s = _phase(ble.motion_t_fw_s, c.interval_s) if c.kind != POLLED else 0.0
+        self._numberer = RunNumberer(c.interval_s / TICK_S)
         self._make_estimators(c.interval_s)
 
     def _grid(self, ble: BleTelemetry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The estimators' rows of this round: one per sender sample since the last round's; the rows of
-        notifications the ticks show as sent and lost hold the last sample (the numbering of
-        :func:`steval_link.link.ble_payloads.cadence_numbers`, one sample at a time)."""
+        notifications the ticks show as sent and lost hold the last sample. The numbering is a replay's
+        (:func:`steval_link.link.ble_payloads.cadence_numbers`), a round at a time: consecutive for reads, the
+        ticks' phase at ST's step, the runs' phases for any other period (a run after a gap known as far as this
+        round goes)."""
         c = self._cadence
-        if c is None:
+        n = len(ble)
+        if c is None or n == 0:
             return np.zeros(0), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
         dt = c.interval_s
-        p_ticks = dt / TICK_S
-        t_rows, acc_rows, gyro_rows = [], [], []
-        for tick, a, g in zip(ble.motion_tick.tolist(), ble.acc_mg, ble.gyro_mdps):
-            if self._last_k is None:
-                k = 0
-            elif c.kind == POLLED:
-                k = self._last_k + 1
-            elif c.exact:  # ST's step, known exactly: the smallest numbering the ticks' phase allows
-                k = max(self._last_k + 1, math.ceil((tick * TICK_S - self._t0_s) / dt - 1e-9))
-            else:
-                d = max(tick - self._last_tick, 0)
-                k = self._last_k + (max(1, round(d / p_ticks)) if gap_mask(np.array([d]), p_ticks)[0] else 1)
-            missing = 0 if self._last_k is None else k - self._last_k - 1
-            if missing > 0 and self._last_sample is not None:  # sent and lost: hold the last sample
-                la, lg = self._last_sample
-                for j in range(self._last_k + 1, k):
-                    t_rows.append(self._t0_s + j * dt)
-                    acc_rows.append(la)
-                    gyro_rows.append(lg)
-                self.rows_held += missing
-                self.gaps += 1
-            t_rows.append(tick * TICK_S + TICK_S / 2 if c.kind == POLLED else self._t0_s + k * dt)
-            acc_rows.append(a)
-            gyro_rows.append(g)
-            self._last_k, self._last_tick, self._last_sample = k, tick, (a, g)
-        return (np.asarray(t_rows, np.float64), np.asarray(acc_rows, np.float32).reshape(-1, 3),
-                np.asarray(gyro_rows, np.float32).reshape(-1, 3))
+        if not c.exact and c.kind != POLLED:  # the period measured so far (dt's precision grows with the span)
+            dt = self._period_s()
+            self._numberer.p = dt / TICK_S
+        first = self._last_k is None
+        if c.kind == POLLED:
+            k = np.arange(n, dtype=np.int64) + (0 if first else self._last_k + 1)
+        elif c.exact:  # ST's step, known exactly: the smallest numbering the ticks' phase allows
+            lo = np.ceil((ble.motion_t_fw_s - self._t0_s) / dt - 1e-9).astype(np.int64)
+            if first:
+                lo[0] = 0
+            prev = -1 if first else self._last_k
+            j = np.arange(n)
+            k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
+        else:
+            k = self._numberer.numbers(ble.motion_tick)
+        prev = k[0] - 1 if first else self._last_k
+        grid = np.arange(prev + 1, k[-1] + 1)
+        src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
+        acc, gyro = np.asarray(ble.acc_mg, np.float32), np.asarray(ble.gyro_mdps, np.float32)
+        acc_rows, gyro_rows = acc[np.maximum(src, 0)], gyro[np.maximum(src, 0)]
+        if (src < 0).any():  # rows before this round's first sample: held from the last round's
+            la, lg = self._last_sample
+            acc_rows[src < 0], gyro_rows[src < 0] = la, lg
+        self.rows_held += len(grid) - n
+        if c.kind != POLLED:
+            d = np.diff(ble.motion_tick, prepend=ble.motion_tick[0] if first else self._last_tick)
+            self.gaps += int(np.count_nonzero(gap_mask(np.maximum(d, 0), dt / TICK_S)))
+        if c.kind == POLLED:
+            t_rows = ble.motion_t_fw_s + TICK_S / 2
+        else:
+            t_rows = self._t0_s + grid * dt
+        self._last_k, self._last_tick = int(k[-1]), int(ble.motion_tick[-1])
+        self._last_sample = (acc[-1], gyro[-1])
+        return np.asarray(t_rows, np.float64), acc_rows, gyro_rows
+
+    def _period_s(self) -> float:
+        """The sender's interval measured over the motion ticks kept, s (the locked one if they cannot tell)."""
+        p = period_ticks(np.diff(np.asarray(self._ticks, dtype=np.int64)))
+        return p * TICK_S if p else self._cadence.interval_s
 
     def cadence(self) -> Cadence | None:
         """The cadence as found so far: the kind from the first samples and the rows held since, the interval
-        measured over the motion ticks kept (ST's step exactly when the stream runs at it)."""
-        if self._cadence is None:
-            return None
-        now = motion_cadence(np.asarray(self._ticks, dtype=np.int64), self.repeats)
+        measured over the motion ticks kept (ST's step exactly when the stream runs at it; a poller's mean)."""
         c = self._cadence
-        interval = c.interval_s if c.exact or now is None else now.interval_s
+        if c is None:
+            return None
+        ticks = self._ticks
+        span_s = (ticks[-1] - ticks[0]) * TICK_S if len(ticks) > 1 else c.span_s
+        if c.exact:
+            interval = c.interval_s
+        elif c.kind == POLLED:
+            interval = span_s / (len(ticks) - 1) if len(ticks) > 1 and span_s > 0 else c.interval_s
+        else:
+            interval = self._period_s()
         kind = (POLLED if c.kind == POLLED else STEADY if not self.rows_held
                 else CONGESTION if c.exact else GAPS)
-        return replace(c, kind=kind, interval_s=interval, dropped=self.rows_held, gaps=self.gaps,
-                       repeats=self.repeats, span_s=now.span_s if now is not None else c.span_s)
+        return replace(c, kind=kind, interval_s=interval, dropped=self.rows_held,
+                       gaps=self.gaps if self.rows_held else 0, repeats=self.repeats, span_s=span_s)
 
     def _health(self) -> str:
         c = self.counts
