@@ -31,7 +31,8 @@ from steval_link.link.ble_payloads import (
 __all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "run_ble_estimators", "summarize_ble", "format_ble_summary"]
 
 NOT_BIT_EXACT = ("BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
-                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the 8 ms tick, "
+                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
+                 "the 8 ms ticks, "
                  "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
                  "estimators' own.")
 

@@ -415,7 +415,8 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     the count of repeated samples already removed (:attr:`BleTelemetry.repeated_reads`). None below 2 samples or
     when all share one tick.
 
-    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact).
+    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact); any other
+      is refined by a least-squares fit of the ticks against the sample numbers (precise over the whole span).
     - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
     - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
       interval is the mean over the whole span.
@@ -436,8 +437,18 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     if repeats > 0 and p >= 1:
         return Cadence(POLLED, span_s / (n - 1), 0, 0, int(repeats), span_s, False)
     exact = abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S
-    interval = STEP_PERIOD_S if exact else p * TICK_S
-    k = sample_numbers(t, interval) if exact else _run_numbers(t, p)
+    if exact:
+        interval = STEP_PERIOD_S
+        k = sample_numbers(t, interval)
+    else:
+        k = _run_numbers(t, p)
+        for _ in range(2):  # the period from all samples at their numbers (least squares): precise over the span
+            fit = float(np.polyfit(k, t + 0.5, 1)[0]) if k[-1] > 1 else p
+            if not abs(fit - p) < 0.05 * p or fit == p:
+                break
+            p = fit
+            k = _run_numbers(t, p)
+        interval = p * TICK_S
     dropped = int(k[-1]) - (n - 1)
     gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p))) if dropped else 0
     kind = STEADY if not dropped else CONGESTION if exact else GAPS

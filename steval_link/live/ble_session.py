@@ -132,6 +132,7 @@ class BleLiveSession:
         self._last_tick = 0
         self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
+        self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)  # the sender's number of each tick kept
         self.estimators: dict = {}
         self.rows_held = 0
         self.gaps = 0
@@ -268,7 +269,6 @@ class BleLiveSession:
         ble.motion_t_fw_s = ble.motion_tick * TICK_S
         ble.env_t_fw_s = np.asarray(ticks[CHAR_ENV], dtype=np.float64) * TICK_S
         ble.arming_t_fw_s = np.asarray(ticks[CHAR_ARMING], dtype=np.float64) * TICK_S
-        self._ticks.extend(ticks[CHAR_MOTION])
         if self._cadence is None and len(ble):
             self._lock(ble)
         t_s, acc, gyro = self._grid(ble)
@@ -317,6 +317,8 @@ class BleLiveSession:
             k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
         else:
             k = self._numberer.numbers(ble.motion_tick)
+        self._ticks.extend(ble.motion_tick.tolist())
+        self._numbers.extend(k.tolist())
         prev = k[0] - 1 if first else self._last_k
         grid = np.arange(prev + 1, k[-1] + 1)
         src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
@@ -338,8 +340,12 @@ class BleLiveSession:
         return np.asarray(t_rows, np.float64), acc_rows, gyro_rows
 
     def _period_s(self) -> float:
-        """The sender's interval measured over the motion ticks kept, s (the locked one if they cannot tell)."""
-        p = period_ticks(np.diff(np.asarray(self._ticks, dtype=np.int64)))
+        """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample
+        numbers (as a replay refines it), or the mean of the tick deltas before any number is given."""
+        t = np.asarray(self._ticks, dtype=np.float64)
+        if len(self._numbers) == len(t) and len(t) > 2 and self._numbers[-1] - self._numbers[0] > 1:
+            return float(np.polyfit(np.asarray(self._numbers, dtype=np.float64), t, 1)[0]) * TICK_S
+        p = period_ticks(np.diff(t.astype(np.int64)))
         return p * TICK_S if p else self._cadence.interval_s
 
     def cadence(self) -> Cadence | None:
