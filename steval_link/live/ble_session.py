@@ -48,7 +48,6 @@ from steval_link.link.ble_payloads import (
     decode_notifications,
     gap_mask,
     motion_cadence,
-    period_ticks,
 )
 from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
@@ -341,12 +340,12 @@ class BleLiveSession:
 
     def _period_s(self) -> float:
         """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample
-        numbers (as a replay refines it), or the mean of the tick deltas before any number is given."""
-        t = np.asarray(self._ticks, dtype=np.float64)
-        if len(self._numbers) == len(t) and len(t) > 2 and self._numbers[-1] - self._numbers[0] > 1:
-            return float(np.polyfit(np.asarray(self._numbers, dtype=np.float64), t, 1)[0]) * TICK_S
-        p = period_ticks(np.diff(t.astype(np.int64)))
-        return p * TICK_S if p else self._cadence.interval_s
+        numbers (as a replay refines it) once they span more than the samples that found the cadence; until then
+        the cadence's own."""
+        if len(self._numbers) > LOCK_SAMPLES and self._numbers[-1] - self._numbers[0] > 1:
+            k = np.asarray(self._numbers, dtype=np.float64)
+            return float(np.polyfit(k, np.asarray(self._ticks, dtype=np.float64), 1)[0]) * TICK_S
+        return self._cadence.interval_s
 
     def cadence(self) -> Cadence | None:
         """The cadence as found so far: the kind from the first samples and the rows held since, the interval
