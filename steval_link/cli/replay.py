@@ -165,7 +165,7 @@ def replay(
 
 
 def _replay_ble(src, names: Sequence[str], as_json: bool, options) -> None:
-    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks), the
+    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks' cadence), the
     summary, and the BLE viewer layout when asked."""
     with progress_bar("replay", quiet=as_json or bool(options and options.serve)) as progress:
         progress(0.0, "decoding BLE notifications")
