@@ -226,7 +226,7 @@ def test_replay_of_a_poller_capture(monkeypatch, capsys, tmp_path):
 # -- live (steval live --ble through the fake backend) ----------------------------------------------------------------
 
 
-def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel")):
+def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), drop_after=()):
     from steval_link.live.ble_session import BleLiveSession
     from steval_link.live.session import LiveOptions
 
@@ -239,7 +239,7 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel")):
         def close(self):
             pass
 
-    fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=pace_s)
+    fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=pace_s, drop_after=list(drop_after))
     opts = LiveOptions(port="ble:auto", baud=0, out=tmp_path / "live.stv", view=False, rrd=tmp_path / "x.rrd",
                        estimators=list(estimators), duration_s=None)
     session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(),
@@ -297,3 +297,28 @@ def test_live_session_of_a_poller(tmp_path):
     assert c.kind == B.POLLED and summary.rows_held == 0 and abs(c.rate_hz - 35.0) < 3.5
     assert sum(len(r.t_s) for r in rows) == sum(len(r.ble) for r in rows) == distinct
     assert "reads of the characteristic" in summary.line()
+
+
+def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
+    """The drone sends nothing while no central is connected: the gap of a link loss (the capture's reconnect
+    event) is not counted as dropped and gets no held rows, live and replayed; the same gap without a reconnection
+    is a gap of the sender's cadence."""
+    recs, sent, _ = drone_stream(50.0, duration_s=6, others=False)
+    lost = slice(120, 220)  # 2 s of samples never sent: the link was down
+    recs = recs[:lost.start] + recs[lost.stop:]
+    n = len(recs)
+    summary, rows, session = run_live(tmp_path, recs, drop_after=[lost.start])
+    assert summary.losses == 1 and summary.counts["motion"] == n
+    c = summary.cadence
+    assert c.kind == B.STEADY and c.dropped == summary.rows_held == 0
+    assert sum(len(r.t_s) for r in rows) == n  # no row over the 2 s the drone sent nothing
+    t_grid = np.concatenate([r.t_s for r in rows])
+    assert np.diff(t_grid).max() == pytest.approx(101 * 0.02, abs=0.01)  # the estimators step once over it
+    # replayed: the capture's reconnect event says the same
+    code, out, err = run_cli(monkeypatch, capsys, "replay", tmp_path / "live.stv", "--json")
+    s = json.loads(out)
+    assert code == 0 and s["motion_cadence"] == B.STEADY and s["motion_dropped_estimate"] == 0
+    assert s["rows_held_over_drops"] == 0 and [e["kind"] for e in s["events"]].count("reconnect") == 1
+    # without the reconnection the same ticks are a gap of the cadence: 100 dropped
+    c = B.decode_notifications(recs).cadence()
+    assert c.kind == B.GAPS and c.dropped == 100 and c.gaps == 1

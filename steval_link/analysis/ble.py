@@ -28,7 +28,8 @@ from steval_link.link.ble_payloads import (
     uniform_inputs,
 )
 
-__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "run_ble_estimators", "summarize_ble", "format_ble_summary"]
+__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "reconnect_rows", "run_ble_estimators", "summarize_ble",
+           "format_ble_summary"]
 
 NOT_BIT_EXACT = ("BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
                  "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
@@ -49,13 +50,23 @@ class BleReplay:
 
 
 def load_ble(src) -> BleTelemetry:
-    """The notifications of a BLE capture (a ``link.capture.Source``); UserError without motion notifications."""
+    """The notifications of a BLE capture (a ``link.capture.Source``), with the motion rows that follow a
+    reconnection (its ``reconnect`` events: the gap before them is the link's, not a drop); UserError without
+    motion notifications."""
     ble = decode_notifications(ble_records(src.chunks or {}))
     if len(ble) == 0:
         n = sum(ble.counts.values())
         raise UserError(f"{src.path}: a BLE capture without motion notifications ({n} other notifications): "
                         "nothing to replay.")
+    ble.motion_breaks = reconnect_rows(ble, getattr(src, "events", None) or [])
     return ble
+
+
+def reconnect_rows(ble: BleTelemetry, events) -> np.ndarray:
+    """The motion rows that are the first to arrive after each ``reconnect`` event of a capture."""
+    t = np.array([e.t_host_s for e in events if e.kind == "reconnect"], dtype=np.float64)
+    rows = np.searchsorted(ble.motion_t_host_s, t, side="left")
+    return np.unique(rows[(rows > 0) & (rows < len(ble))]).astype(np.int64)
 
 
 def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[UniformInputs, dict[str, Any], dict]:

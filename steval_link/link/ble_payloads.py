@@ -193,13 +193,16 @@ class BleTelemetry:
     bad_payloads: int = 0  #: notifications of the wrong length (skipped)
     unknown: int = 0  #: notifications of an unknown characteristic id (skipped)
     repeated_reads: int = 0  #: motion samples received again (same tick and payload: a read of an unchanged value)
+    #: motion rows that are the first after a reconnection (the link was lost before them: the samples in between
+    #: were never sent, so that gap is no drop); set from the capture's events (``analysis.ble.load_ble``)
+    motion_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __len__(self) -> int:
         return len(self.motion_tick)
 
     def cadence(self) -> Cadence | None:
         """The motion stream's cadence (:func:`motion_cadence`), None below 2 samples."""
-        return motion_cadence(self.motion_tick, self.repeated_reads)
+        return motion_cadence(self.motion_tick, self.repeated_reads, self.motion_breaks)
 
     @property
     def interval_s(self) -> float | None:
@@ -410,10 +413,20 @@ def period_ticks(d_ticks) -> float | None:
     return p
 
 
-def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
-    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order) and
-    the count of repeated samples already removed (:attr:`BleTelemetry.repeated_reads`). None below 2 samples or
-    when all share one tick.
+def _break_mask(n: int, breaks) -> np.ndarray:
+    """(n,) bool: True at the samples that follow a reconnection (never the first)."""
+    m = np.zeros(n, bool)
+    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
+    b = b[(b > 0) & (b < n)]
+    m[b] = True
+    return m
+
+
+def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
+    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
+    count of repeated samples already removed (:attr:`BleTelemetry.repeated_reads`) and the samples that are the
+    first after a reconnection (``breaks``, indices: the gap before them is no drop, nothing was sent). None below
+    2 samples or when all share one tick.
 
     - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact); any other
       is refined by a least-squares fit of the ticks against the sample numbers (precise over the whole span).
@@ -430,7 +443,8 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
     if n < 2 or t[-1] <= t[0]:
         return None
     d = np.diff(t)
-    p = period_ticks(d)
+    brk = _break_mask(n, breaks)
+    p = period_ticks(d[~brk[1:]]) if brk.any() else period_ticks(d)
     if p is None:
         return None
     span_s = float(t[-1] - t[0]) * TICK_S
@@ -449,8 +463,9 @@ def motion_cadence(ticks, repeats: int = 0) -> Cadence | None:
             p = fit
             k = _run_numbers(t, p)
         interval = p * TICK_S
-    dropped = int(k[-1]) - (n - 1)
-    gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p))) if dropped else 0
+    jump = np.diff(k) - 1
+    dropped = int(jump[~brk[1:]].sum())
+    gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p) & ~brk[1:])) if dropped else 0
     kind = STEADY if not dropped else CONGESTION if exact else GAPS
     return Cadence(kind, interval, dropped, gaps, int(repeats), span_s, exact)
 
@@ -511,12 +526,12 @@ def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
 
 
 def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
-    """The sender's sample number of each received sample (0 for the first) under ``cadence``: consecutive for a
-    steady or polled stream; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise from the phase
-    of each run between gaps (:class:`RunNumberer`)."""
+    """The sender's sample number of each received sample (0 for the first) under ``cadence``: consecutive for
+    reads; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise from the phase of each run between
+    gaps (:class:`RunNumberer`). (A steady stream's numbers are consecutive but across a reconnection.)"""
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
-    if cadence is None or cadence.kind in (STEADY, POLLED) or n < 2:
+    if cadence is None or cadence.kind == POLLED or n < 2:
         return np.arange(n, dtype=np.int64)
     if cadence.exact:
         return sample_numbers(t, cadence.interval_s)
@@ -567,7 +582,8 @@ class UniformInputs:
 def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> UniformInputs:
     """The estimators' inputs with dt from the cadence found (:func:`motion_cadence`): one row per sender sample
     (:func:`cadence_numbers`); a dropped notification's row holds the last sample received. A steady or polled
-    stream has one row per sample received and none held."""
+    stream has one row per sample received and none held; the samples a lost link never sent
+    (:attr:`BleTelemetry.motion_breaks`) have no rows (the estimators step once over that gap)."""
     n = len(ble)
     c = cadence if cadence is not None else ble.cadence()
     if n == 0 or c is None:
@@ -576,11 +592,15 @@ def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> Uniform
                              else z, np.zeros(n, bool), 0.0, np.arange(n), c)
     dt = c.interval_s
     k = cadence_numbers(ble.motion_tick, c)
-    src = np.searchsorted(k, np.arange(k[-1] + 1), side="right") - 1  # the last sample received at or before
-    filled = np.ones(len(src), bool)
-    filled[k] = False
+    rows = np.ones(k[-1] + 1, bool)
+    for b in np.flatnonzero(_break_mask(n, ble.motion_breaks)):
+        rows[k[b - 1] + 1:k[b]] = False  # never sent: the link was down
+    numbers = np.flatnonzero(rows)
+    src = np.searchsorted(k, numbers, side="right") - 1  # the last sample received at or before
+    filled = np.ones(len(numbers), bool)
+    filled[np.searchsorted(numbers, k)] = False
     if c.kind == POLLED:  # reads at the host's moments: each row at its own tick (mid-tick)
         t_grid = ble.motion_t_fw_s + TICK_S / 2
     else:
-        t_grid = _phase(ble.motion_t_fw_s, dt) + np.arange(len(src)) * dt
+        t_grid = _phase(ble.motion_t_fw_s, dt) + numbers * dt
     return UniformInputs(t_grid, ble.acc_mg[src], ble.gyro_mdps[src], filled, float(dt), src, c)

@@ -64,6 +64,8 @@ ROUND_S = 0.1
 #: motion samples that fix the cadence (and the estimators' dt); fewer when 3 s of drone time pass or at the end
 LOCK_SAMPLES = 64
 LOCK_SPAN_S = 3.0
+#: the inbox's marker of a reconnection (not a characteristic id)
+RECONNECTED = -1
 #: motion ticks kept for the health line's interval (its precision grows with the span)
 TICKS_KEPT = 20_000
 
@@ -202,6 +204,7 @@ class BleLiveSession:
             elif kind == "disconnect":
                 self.display.note("BLE link lost; reconnecting (Ctrl-C stops)")
             elif kind == "reconnect":
+                self._inbox.append((RECONNECTED, b"", 0.0))  # the next motion sample follows a lost link
                 self.display.note(f"reconnected to {text}")
             else:
                 self.display.note(f"{kind}: {text}")
@@ -229,6 +232,9 @@ class BleLiveSession:
         items = list(self._inbox)
         self._inbox.clear()
         for cid, data, t in items:
+            if cid == RECONNECTED:
+                self._pending.append((cid, data, t))
+                continue
             name = CHAR_NAMES.get(cid)
             if name is not None:
                 self.counts[name] = self.counts.get(name, 0) + 1
@@ -257,7 +263,15 @@ class BleLiveSession:
         return len(ticks) >= 8 and span * TICK_S >= LOCK_SPAN_S
 
     def _process(self, items: list[tuple[int, bytes, float]], viewer: BleViewer | None) -> None:
+        breaks, n_motion = [], 0
+        for cid, data, _ in items:
+            if cid == RECONNECTED:
+                breaks.append(n_motion)
+            elif cid == CHAR_MOTION and len(data) == 20:
+                n_motion += 1
+        items = [it for it in items if it[0] != RECONNECTED]
         ble = decode_notifications([(t, cid, data) for cid, data, t in items])
+        ble.motion_breaks = np.unique(np.asarray(breaks, dtype=np.int64))
         # one clock over the session: every tick unwrapped in arrival order by the session's unwrapper
         sizes = {CHAR_MOTION: 20, CHAR_ENV: 12, CHAR_ARMING: 3}
         ticks: dict[int, list[int]] = {c: [] for c in sizes}
@@ -282,7 +296,7 @@ class BleLiveSession:
 
     def _lock(self, ble: BleTelemetry) -> None:
         """The cadence of the first samples fixes the estimators' dt and how samples are numbered."""
-        c = motion_cadence(ble.motion_tick, self.repeats)
+        c = motion_cadence(ble.motion_tick, self.repeats, ble.motion_breaks)
         if c is None:  # a single sample (or one tick) before the end: ST's step, as the stock firmware sends
             c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, self.repeats, 0.0, True)
         self._cadence = c
@@ -320,6 +334,9 @@ class BleLiveSession:
         self._numbers.extend(k.tolist())
         prev = k[0] - 1 if first else self._last_k
         grid = np.arange(prev + 1, k[-1] + 1)
+        before = np.concatenate([[prev], k[:-1]])
+        for b in ble.motion_breaks[ble.motion_breaks < n].tolist():
+            grid = grid[(grid <= before[b]) | (grid >= k[b])]  # never sent: the link was down
         src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
         acc, gyro = np.asarray(ble.acc_mg, np.float32), np.asarray(ble.gyro_mdps, np.float32)
         acc_rows, gyro_rows = acc[np.maximum(src, 0)], gyro[np.maximum(src, 0)]
@@ -329,7 +346,9 @@ class BleLiveSession:
         self.rows_held += len(grid) - n
         if c.kind != POLLED:
             d = np.diff(ble.motion_tick, prepend=ble.motion_tick[0] if first else self._last_tick)
-            self.gaps += int(np.count_nonzero(gap_mask(np.maximum(d, 0), dt / TICK_S)))
+            gap = gap_mask(np.maximum(d, 0), dt / TICK_S)
+            gap[ble.motion_breaks[ble.motion_breaks < n]] = False
+            self.gaps += int(np.count_nonzero(gap))
         if c.kind == POLLED:
             t_rows = ble.motion_t_fw_s + TICK_S / 2
         else:
