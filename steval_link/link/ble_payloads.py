@@ -323,7 +323,7 @@ def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTele
 #: at 84 MHz: 6.190 ms) and tries at every step; a measured interval within :data:`STEP_SNAP` of it is that step
 #: (known exactly), and missing notifications are then counted from the ticks' phase (sub-tick precise)
 STEP_PERIOD_S = AHRS_PERIOD_S
-STEP_SNAP = 0.02
+STEP_SNAP = 0.02  #: relative
 #: a tick delta is a gap (notifications missing) from 1.5 periods plus one tick (the 8 ms quantisation) on
 GAP_PERIODS = 1.5
 

@@ -257,7 +257,7 @@ class BleLiveSession:
     def _ready(self, final: bool) -> bool:
         """Enough motion samples pending to find the cadence (or the session ends)."""
         ticks = [d[0] | d[1] << 8 for c, d, _ in self._pending if c == CHAR_MOTION and len(d) == 20]
-        if final or len(ticks) >= LOCK_SAMPLES:
+        if final or len(ticks) >= LOCK_SAMPLES or len(self._pending) >= INBOX_MAX:  # (no motion: shown anyway)
             return True
         span = (ticks[-1] - ticks[0]) % (1 << 16) if len(ticks) > 1 else 0
         return len(ticks) >= 8 and span * TICK_S >= LOCK_SPAN_S
