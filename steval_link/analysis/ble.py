@@ -1,10 +1,12 @@
 """A BLE capture (ST's stock firmware over Bluetooth) replayed: notifications → arrays → estimators → summary.
 
 The motion notifications carry one ISR sample each (after offset removal, before the gyro IIR and the boxcar),
-with an 8 ms tick; the estimators run on them on a uniform grid with dt from the ticks
-(:func:`steval_link.link.ble_payloads.uniform_inputs`). The firmware's own attitude is not sent over BLE, and the
-ST-Mahony port run on these samples cannot be bit-exact with the drone (different inputs, different dt): the
-summary and the viewer say so (:data:`NOT_BIT_EXACT`).
+with an 8 ms tick. The ticks tell the stream's cadence (:func:`steval_link.link.ble_payloads.motion_cadence`: the
+sender's own rate, ST's congestion skips, gaps of another cadence, or a poller's reads), which the summary states;
+the estimators run on a uniform grid with dt from that cadence, rows held only over notifications that were sent
+and lost (:func:`steval_link.link.ble_payloads.uniform_inputs`). The firmware's own attitude is not sent over
+BLE, and the ST-Mahony port run on these samples cannot be bit-exact with the drone (different inputs, different
+dt): the summary and the viewer say so (:data:`NOT_BIT_EXACT`).
 """
 
 from __future__ import annotations
@@ -26,10 +28,12 @@ from steval_link.link.ble_payloads import (
     uniform_inputs,
 )
 
-__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "run_ble_estimators", "summarize_ble", "format_ble_summary"]
+__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "reconnect_rows", "run_ble_estimators", "summarize_ble",
+           "format_ble_summary"]
 
 NOT_BIT_EXACT = ("BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
-                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the 8 ms tick, "
+                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
+                 "the 8 ms ticks, "
                  "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
                  "estimators' own.")
 
@@ -46,21 +50,34 @@ class BleReplay:
 
 
 def load_ble(src) -> BleTelemetry:
-    """The notifications of a BLE capture (a ``link.capture.Source``); UserError without motion notifications."""
+    """The notifications of a BLE capture (a ``link.capture.Source``), with the motion rows that follow a
+    reconnection (its ``reconnect`` events: the gap before them is the link's, not a drop); UserError without
+    motion notifications."""
     ble = decode_notifications(ble_records(src.chunks or {}))
     if len(ble) == 0:
         n = sum(ble.counts.values())
         raise UserError(f"{src.path}: a BLE capture without motion notifications ({n} other notifications): "
                         "nothing to replay.")
+    ble.motion_breaks = reconnect_rows(ble, getattr(src, "events", None) or [])
     return ble
 
 
+def reconnect_rows(ble: BleTelemetry, events) -> np.ndarray:
+    """The motion rows that are the first to arrive after each ``reconnect`` event of a capture."""
+    t = np.array([e.t_host_s for e in events if e.kind == "reconnect"], dtype=np.float64)
+    rows = np.searchsorted(ble.motion_t_host_s, t, side="left")
+    return np.unique(rows[(rows > 0) & (rows < len(ble))]).astype(np.int64)
+
+
 def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[UniformInputs, dict[str, Any], dict]:
-    """Run each named estimator over the uniform inputs (dt from the ticks, thr 0: BLE does not carry gTHR);
-    returns (inputs, name → estimate, name → note)."""
+    """Run each named estimator over the uniform inputs (dt = the interval of the cadence found in the ticks,
+    :func:`~steval_link.link.ble_payloads.motion_cadence`; thr 0: BLE does not carry gTHR); returns (inputs,
+    name → estimate, name → note)."""
     inputs = uniform_inputs(ble)
     dt = inputs.dt_s
     out, notes = {}, {}
+    if names and not dt > 0:
+        raise UserError("the BLE capture's motion samples all share one tick: no interval for the estimators")
     thr = np.zeros(len(inputs.t_s), dtype=np.int16)
     for name in names:
         try:
@@ -75,7 +92,7 @@ def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[Uniform
         except ValueError as exc:
             raise UserError(f"estimator {name!r}: {exc}") from None
         out[name] = est.run(inputs.acc_mg, inputs.gyro_mdps, thr)
-        notes[name] = f"dt {dt * 1e3:.3f} ms from the ticks"
+        notes[name] = f"dt {dt * 1e3:.3f} ms from the ticks' cadence"
     return inputs, out, notes
 
 
@@ -84,7 +101,8 @@ def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -
     header = getattr(src, "header", {}) or {}
     extra = header.get("extra") or {}
     t = ble.motion_t_host_s
-    interval = ble.interval_s
+    cadence = inputs.cadence if inputs is not None and inputs.cadence is not None else ble.cadence()
+    interval = cadence.interval_s if cadence is not None else None
     wraps = int((ble.motion_tick[-1] // TICK_WRAP) - (ble.motion_tick[0] // TICK_WRAP)) if len(ble) else 0
     events = [{"t_host_s": round(e.t_host_s, 6), "kind": e.kind, "text": e.text}
               for e in getattr(src, "events", []) or []]
@@ -109,7 +127,11 @@ def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -
         "duration_fw_s": round(float(ble.motion_t_fw_s[-1] - ble.motion_t_fw_s[0]), 3) if len(ble) > 1 else 0.0,
         "motion_rate_hz": round(1.0 / interval, 2) if interval else None,
         "motion_interval_ms": round(interval * 1e3, 3) if interval else None,
-        "motion_dropped_estimate": ble.dropped_estimate(),
+        "motion_dropped_estimate": cadence.dropped if cadence is not None else 0,
+        "motion_cadence": cadence.kind if cadence is not None else None,
+        "motion_cadence_text": cadence.describe() if cadence is not None else None,
+        "motion_gaps": cadence.gaps if cadence is not None else 0,
+        "motion_repeated_reads": ble.repeated_reads,
         "tick_wraps": wraps,
         "estimator_dt_ms": round(inputs.dt_s * 1e3, 3) if inputs is not None and inputs.dt_s else None,
         "rows_held_over_drops": int(inputs.filled.sum()) if inputs is not None else None,
@@ -137,12 +159,12 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
         f"duration          {s['duration_fw_s']:.3f} s drone clock (8 ms ticks, {s['tick_wraps']} wrap(s)), "
         f"{s['duration_host_s']:.3f} s host",
     ]
-    if s["motion_rate_hz"]:
-        lines.append(f"motion rate       {s['motion_rate_hz']:.2f} Hz (interval {s['motion_interval_ms']:.3f} ms); "
-                     f"dropped ≈ {s['motion_dropped_estimate']}")
+    if s["motion_cadence_text"]:
+        lines.append(f"cadence           {s['motion_cadence_text']}")
     if s["estimator_dt_ms"]:
-        lines.append(f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the ticks; "
-                     f"{s['rows_held_over_drops']} rows held over drops")
+        held = s["rows_held_over_drops"]
+        lines.append(f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the cadence; "
+                     + (f"{held} rows held over dropped notifications" if held else "no rows held (nothing dropped)"))
     env = []
     if s["pressure_hpa_mean"] is not None:
         env.append(f"pressure {s['pressure_hpa_mean']:.2f} hPa")

@@ -131,8 +131,9 @@ def replay(
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
 
-    A BLE capture (steval live --ble, ST's unmodified firmware) gives its notifications, rate, missing samples,
-    battery, pressure, RSSI and arming, and the estimators run on its raw samples (dt from the 8 ms ticks).
+    A BLE capture (steval live --ble, ST's unmodified firmware) gives its notifications, the motion cadence its
+    ticks show (the sender's own rate, or drops: ST's congestion skips, gaps), battery, pressure, RSSI and arming,
+    and the estimators run on its raw samples (dt from that cadence).
 
     With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none."""
@@ -164,7 +165,7 @@ def replay(
 
 
 def _replay_ble(src, names: Sequence[str], as_json: bool, options) -> None:
-    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks), the
+    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks' cadence), the
     summary, and the BLE viewer layout when asked."""
     with progress_bar("replay", quiet=as_json or bool(options and options.serve)) as progress:
         progress(0.0, "decoding BLE notifications")
