@@ -89,6 +89,9 @@ def main(argv: list[str] | None = None) -> None:
         with signals_interrupt():
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
+        details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code
+        if details:
+            print(details, file=sys.stderr)
         print(f"steval: error: {printable(exc)}", file=sys.stderr)
         sys.exit(exc.exit_code)
     except _USAGE_ERRORS as exc:
