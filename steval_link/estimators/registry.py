@@ -15,6 +15,7 @@ syntax error, a missing class, a wrong interface or an option the class does not
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
 
@@ -24,7 +25,7 @@ from steval_link.estimators.base import Estimator
 from steval_link.estimators.plugins import PluginError, Selected
 
 __all__ = ["ESTIMATORS", "LIVE_DEFAULT", "REPLAY_DEFAULT", "COMPARE_DEFAULT", "names", "create", "is_available",
-           "available_names", "parse_names", "resolve", "is_known", "PluginError", "Selected"]
+           "available_names", "parse_names", "resolve", "is_known", "accepts", "PluginError", "Selected"]
 
 
 class _lazy:
@@ -119,6 +120,23 @@ def resolve(text: str) -> Selected:
         ref = plugins.Reference(ref.text, "entry-point", ref.source, None, ref.options)
     factory, label = plugins.load_factory(ref)
     return Selected(plugins.display_name(factory, ref), ref, factory, label)
+
+
+def accepts(name: str, option: str) -> bool:
+    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``: commands pass the
+    step rate only to estimators that take it)."""
+    sel = name if isinstance(name, Selected) else resolve(name)
+    ctor = sel.factory
+    if isinstance(ctor, _lazy):
+        try:
+            ctor = ctor.load()
+        except ImportError:
+            return False
+    try:
+        params = inspect.signature(ctor).parameters
+    except (TypeError, ValueError):
+        return False
+    return option in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def _build(sel: Selected, options: dict) -> Estimator:
