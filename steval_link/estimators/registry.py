@@ -25,7 +25,7 @@ from steval_link.estimators.base import Estimator
 from steval_link.estimators.plugins import PluginError, Selected
 
 __all__ = ["ESTIMATORS", "LIVE_DEFAULT", "REPLAY_DEFAULT", "COMPARE_DEFAULT", "names", "create", "is_available",
-           "available_names", "parse_names", "resolve", "is_known", "accepts", "PluginError", "Selected"]
+           "available_names", "parse_names", "resolve", "is_known", "accepts", "unique_name", "PluginError", "Selected"]
 
 
 class _lazy:
@@ -216,21 +216,27 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
 
 
 def _unique(names: list[str]) -> list[str]:
-    """Display names made unique: a repeated one gets its options (``MyEkf(q=1)``), else ``#2``, ``#3``..."""
-    seen: dict[str, int] = {}
+    """Display names made unique (:func:`unique_name`): a repeated one gets its options, else ``#2``, ``#3``..."""
+    counts: dict[str, int] = {}
     for n in names:
-        seen[str(n)] = seen.get(str(n), 0) + 1
+        counts[str(n)] = counts.get(str(n), 0) + 1
     out: list[str] = []
     taken: set[str] = set()
     for n in names:
-        name = str(n)
-        if seen[name] > 1 and isinstance(n, Selected) and n.reference.options and n.reference.kind != "builtin":
-            name = f"{name}({n.reference.options_text})"
-        k = 2
-        base = name
-        while name in taken:
-            name = f"{base}#{k}"
-            k += 1
+        name = unique_name(n, taken, repeated=counts[str(n)] > 1)
         taken.add(name)
         out.append(n.renamed(name) if isinstance(n, Selected) and name != str(n) else n)
+    return out
+
+
+def unique_name(name: str, taken: set[str], *, repeated: bool = True) -> str:
+    """``name`` as a display name not in ``taken``: a repeated reference with options gets them added
+    (``MyEkf(r_acc=0.001)``), then ``#2``, ``#3``... (tables and plots key their columns by it)."""
+    out = str(name)
+    if repeated and isinstance(name, Selected) and name.reference.options and name.reference.kind != "builtin":
+        out = f"{out}({name.reference.options_text})"
+    base, k = out, 2
+    while out in taken:
+        out = f"{base}#{k}"
+        k += 1
     return out
