@@ -276,6 +276,8 @@ def _load_file(ref: Reference):
     except Exception as exc:  # noqa: BLE001 - the user's code: any failure is theirs to see
         sys.modules.pop(name, None)
         where, details = _user_trace(exc, (str(resolved),))
+        if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
+            details = ""
         raise PluginError(f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""),
                           details) from None
     finally:

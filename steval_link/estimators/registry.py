@@ -98,8 +98,8 @@ def is_known(name: str) -> bool:
         return True
     try:
         ref = plugins.parse_reference(name)
-    except UserError:
-        return False
+    except UserError:  # meant as a reference (its options cannot be read): resolve() says why
+        return any(c in str(name) for c in ":(/\\") or str(name).endswith(".py")
     return ref.kind != "builtin" or ref.source in ESTIMATORS or ref.source in plugins.entry_point_names()
 
 
