@@ -200,7 +200,8 @@ def _specs(estimators, rate_hz: float, native: bool) -> list:
             specs = ev.default_specs(rate_hz, native=native, only=[e])
         else:
             sel = _instance_reference(e)
-            specs = [ev.EstimatorSpec(registry.unique_name(sel, {o.label for o in out}), sel, {})]
+            taken = {o.label for o in out}
+            specs = [ev.EstimatorSpec(registry.unique_name(sel, taken, repeated=str(sel) in taken), sel, {})]
         out.extend(s for s in specs if s.label not in {o.label for o in out})
     return out
 

@@ -94,7 +94,8 @@ def default_specs(rate_hz: float, *, native: bool = False, only: Sequence[str] |
         chosen = [s for k, s in specs.items() if k == item or s.name == item]
         if not chosen and registry.is_known(item):  # your own (FILE.py:CLASS, module:CLASS, a plug-in, options)
             sel = registry.resolve(item)
-            label = registry.unique_name(sel, {s.label for s in out})
+            taken = {s.label for s in out}
+            label = registry.unique_name(sel, taken, repeated=str(sel) in taken)
             chosen = [EstimatorSpec(label, sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
             try:
                 registry.create(sel, **chosen[0].options)  # its options and constructor checked before the work
