@@ -374,3 +374,43 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
     (batch,) = sink.batches
     q = batch.estimates["Fragile"]
     assert len(batch) == 1500 and np.isfinite(q[:600]).all() and np.isnan(q[-500:]).all()
+
+
+def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_notification_recorded(tmp_path):
+    import asyncio
+    import io
+
+    from steval_link.emulation.bluenrg import FakeBleBackend
+    from steval_link.link import ble_payloads as B
+    from steval_link.link.capture import read_capture, read_source
+    from steval_link.live.ble_session import BleLiveSession
+    from steval_link.live.session import LiveOptions
+
+    f = write(tmp_path / "fragile.py", RAISES_LATE.replace(
+        "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
+        "{}['no such key']"))
+    recs = [(c, p) for _, c, p in B.ble_records(read_source(ROOT / "recordings" / "ble_demo.stv").chunks)[:3000]]
+    fake = FakeBleBackend(recs, pace_s=0.0005)
+    out = tmp_path / "ble.stv"
+    stream = io.StringIO()
+    opts = LiveOptions(port="ble:auto", baud=0, out=out, view=False, rrd=None,
+                       estimators=registry.parse_names(f"{f}:Fragile,accel", ()), duration_s=None)
+    session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=None, stream=stream)
+
+    async def stopper():
+        while fake.finished is None or not fake.finished.is_set():
+            await asyncio.sleep(0.01)
+        session.request_stop("test")
+
+    orig_main = session._main
+
+    async def main_with_stop(*a):
+        await asyncio.gather(orig_main(*a), stopper())
+
+    session._main = main_with_stop
+    session.run()
+    notes = [line for line in stream.getvalue().splitlines() if "disabled" in line]
+    assert len(notes) == 1 and ("estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
+                                "Fragile disabled, recording and viewing go on") in notes[0]
+    assert [(c, p) for _, c, p in B.ble_records(read_capture(out).chunks)] == recs
+    assert list(session.estimators) == ["accel"]

@@ -178,7 +178,7 @@ class LiveEstimators:
                     qq[~valid] = np.nan
                     q[rows] = qq
                 except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
-                    self._disable(name, _failure(name, exc))
+                    self._disable(name, failure_sentence(name, exc))
                 else:
                     self._account(name, est, rows.size, valid, self.clock() - t0, int(batch.step[rows[0]]))
             batch.estimates[name] = q
@@ -234,7 +234,7 @@ class LiveEstimators:
             self.port.status(frame)
 
 
-def _failure(name: str, exc: BaseException) -> str:
+def failure_sentence(name: str, exc: BaseException) -> str:
     """One sentence for an estimator that raised: a user's (PluginError) names their file and line."""
     if isinstance(exc, registry.PluginError):
         return str(exc)
