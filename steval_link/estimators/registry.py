@@ -113,7 +113,7 @@ def resolve(text: str) -> Selected:
     if ref.kind == "builtin":
         if ref.source in ESTIMATORS:
             name = ref.source + (f"({ref.options_text})" if ref.options else "")
-            return Selected(name, ref, ESTIMATORS[ref.source], ref.source)
+            return Selected(name, ref, ESTIMATORS[ref.source], name)
         if ref.source not in plugins.entry_point_names():
             raise UserError(f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
                             "plug-in, FILE.py:CLASS or module:CLASS (or none)")
