@@ -126,6 +126,12 @@ def test_an_installed_entry_point(tmp_path, monkeypatch):
     assert names == ["Plugged", "accel"] and registry.create(names[0]).inner.gain == 0.25
 
 
+def test_a_plugin_named_like_a_builtin_keeps_its_own_name(tmp_path):
+    f = write(tmp_path / "t.py", TILT.format(cls="Mine") + "\n    name = 'st-mahony'\n")
+    (sel,) = registry.parse_names(f"{f}:Mine", ())
+    assert sel == "st-mahony (Mine)" and isinstance(registry.create(sel), plugins.Guarded)
+
+
 def test_the_same_class_twice_gets_its_options_in_the_name(tmp_path):
     f = write(tmp_path / "t.py", TILT.format(cls="T"))
     names = registry.parse_names(f"{f}:T,{f}:T(gain=0.1),{f}:T(gain=0.1)", ())
@@ -161,7 +167,7 @@ BAD = {
 
 
 @pytest.mark.parametrize("case", sorted(BAD))
-@pytest.mark.parametrize("command", ["compare", "replay", "simulate", "evaluate"])
+@pytest.mark.parametrize("command", ["compare", "replay", "simulate", "evaluate", "live", "emulate"])
 def test_every_bad_reference_is_one_line_and_exit_2(case, command, tmp_path, monkeypatch, capsys):
     source, ref, message = BAD[case]
     f = tmp_path / "student_filter.py"
@@ -170,9 +176,13 @@ def test_every_bad_reference_is_one_line_and_exit_2(case, command, tmp_path, mon
     monkeypatch.chdir(tmp_path)
     ref = ref.format(f=f.name)
     args = {"compare": [str(DEMO), "-e", ref], "replay": [str(DEMO), "-e", ref], "simulate": ["-e", ref],
-            "evaluate": [str(DEMO), "-e", ref]}[command]
+            "evaluate": [str(DEMO), "-e", ref],
+            # checked before the port is opened or the firmware loaded: no capture file is made
+            "live": ["--port", str(tmp_path / "ttyUSB9"), "--no-view", "-e", ref],
+            "emulate": [str(DEMO), "--no-view", "-e", ref]}[command]
     code, out, err = run_cli(monkeypatch, capsys, command, *args)
     assert code == 2, err
+    assert not list(tmp_path.glob("**/*.stv"))
     assert len(error_lines(err)) == 1 and message in error_lines(err)[0], err
     assert "Traceback (most recent call last)" not in err
     other = [line for line in err.splitlines() if not line.startswith("steval: error:")]

@@ -119,7 +119,10 @@ def resolve(text: str) -> Selected:
                             "plug-in, FILE.py:CLASS or module:CLASS (or none)")
         ref = plugins.Reference(ref.text, "entry-point", ref.source, None, ref.options)
     factory, label = plugins.load_factory(ref)
-    return Selected(plugins.display_name(factory, ref), ref, factory, label)
+    name = plugins.display_name(factory, ref)
+    if name.replace("_", "-") in ESTIMATORS:  # never taken for a built-in (st-mahony means the firmware's port live)
+        name = f"{name} ({getattr(factory, '__name__', ref.source)})"
+    return Selected(name, ref, factory, label)
 
 
 def accepts(name: str, option: str) -> bool:
