@@ -481,7 +481,9 @@ class Guarded(Estimator):
         a, g, t = (acc, gyro, thr_arr) if every else (acc[rows], gyro[rows], thr_arr[rows])
         m = a.shape[0]
         thx = thy = valid_in = None
-        if self.own_run:
+        if m == 0:  # nothing to feed (no row, or none finite): the estimator is not called
+            q = np.empty((0, 4))
+        elif self.own_run:
             try:
                 res = self.inner.run(a, g, t)
             except Exception as exc:  # noqa: BLE001
@@ -491,10 +493,8 @@ class Guarded(Estimator):
             q = np.empty((m, 4), dtype=np.float64)
             inner_step = self.inner.step
             t_l = t.tolist()
-            try:
-                if m:  # the first step's output checked in full, the others by the assignment's shape
-                    first = inner_step(a[0], g[0], t_l[0])
-                    q[0] = self._quaternion(first)
+            try:  # the first step's output checked in full, the others by the assignment's shape
+                q[0] = self._quaternion(inner_step(a[0], g[0], t_l[0]))
                 for k in range(1, m):
                     q[k] = inner_step(a[k], g[k], t_l[k])
             except PluginError:
