@@ -163,8 +163,8 @@ GHOST_PREFERENCE = ("st_mahony_port", "ekf3", "mekf", "st_mahony", "vqf", "accel
 
 
 def source_name(name: str) -> str:
-    """Entity-path segment for an estimator name: lower case, ``-`` and other separators become ``_``."""
-    seg = re.sub(r"[^0-9a-zA-Z_]+", "_", name.strip()).strip("_").lower()
+    """Entity-path segment for an estimator name: ``-`` and other separators become ``_`` (``MyEkf`` keeps its case)."""
+    seg = re.sub(r"[^0-9a-zA-Z_]+", "_", name.strip()).strip("_")
     if not seg:
         raise ValueError(f"estimator name {name!r} has no usable characters")
     return seg

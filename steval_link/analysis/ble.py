@@ -83,7 +83,7 @@ def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[Uniform
         try:
             if name in ("st-mahony", "st_mahony"):
                 est = registry.create(name, dt_s=dt)
-            elif name == "accel":
+            elif name == "accel" or not registry.accepts(name, "rate_hz"):
                 est = registry.create(name)
             else:
                 est = registry.create(name, rate_hz=1.0 / dt)

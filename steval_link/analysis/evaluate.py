@@ -92,8 +92,18 @@ def default_specs(rate_hz: float, *, native: bool = False, only: Sequence[str] |
         if not item:
             continue
         chosen = [s for k, s in specs.items() if k == item or s.name == item]
+        if not chosen and registry.is_known(item):  # your own (FILE.py:CLASS, module:CLASS, a plug-in, options)
+            sel = registry.resolve(item)
+            taken = {s.label for s in out}
+            label = registry.unique_name(sel, taken, repeated=str(sel) in taken)
+            chosen = [EstimatorSpec(label, sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
+            try:
+                registry.create(sel, **chosen[0].options)  # its options and constructor checked before the work
+            except ValueError as exc:
+                raise UserError(str(exc)) from None
         if not chosen:
-            raise UserError(f"unknown estimator {item!r}; choose from: {', '.join(spec_labels())} (or st-mahony)")
+            raise UserError(f"unknown estimator {item!r}; choose from: {', '.join(spec_labels())} (or st-mahony), "
+                            "FILE.py:CLASS, module:CLASS or an installed plug-in")
         if item == "vqf" and not registry.is_available("vqf"):
             raise UserError('estimator vqf needs the vqf package: pip install "steval-link[vqf]"')
         out.extend(s for s in chosen if s not in out)
@@ -137,7 +147,7 @@ def evaluate_view(view: broad.SteValView, specs: Sequence[EstimatorSpec], name: 
             progress(name, spec.label)
         try:
             est = registry.create(spec.name, **spec.options)
-        except ImportError as exc:
+        except (ImportError, ValueError) as exc:
             raise UserError(str(exc)) from None
         thr = np.full(view.acc_mg.shape[0], spec.thr, dtype=np.int64)
         t0 = time.perf_counter()

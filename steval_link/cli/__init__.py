@@ -12,6 +12,7 @@ from steval_link.cli import command as _command  # noqa: F401
 from steval_link.cli import compare as _compare  # noqa: F401
 from steval_link.cli import conformance as _conformance  # noqa: F401
 from steval_link.cli import emulate as _emulate  # noqa: F401
+from steval_link.cli import estimator as _estimator  # noqa: F401
 from steval_link.cli import evaluate as _evaluate  # noqa: F401
 from steval_link.cli import export as _export  # noqa: F401
 from steval_link.cli import live as _live  # noqa: F401
@@ -89,6 +90,9 @@ def main(argv: list[str] | None = None) -> None:
         with signals_interrupt():
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
+        details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code
+        if details:
+            print(details, file=sys.stderr)
         print(f"steval: error: {printable(exc)}", file=sys.stderr)
         sys.exit(exc.exit_code)
     except _USAGE_ERRORS as exc:

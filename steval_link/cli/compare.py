@@ -118,7 +118,8 @@ def compare_command(
             "--estimator",
             "--estimators",
             "-e",
-            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel). "
+            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
+            "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
             "The seeded ST-Mahony port is always compared.",
         ),
     ] = None,

@@ -13,6 +13,7 @@ from steval_link.cli.app import app
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
+from steval_link.estimators.plugins import split_list
 
 __all__ = ["evaluate_command"]
 
@@ -38,7 +39,9 @@ def evaluate_command(
                                                     ".truth.npz sidecar.", show_default=False)],
     estimators: Annotated[Optional[str], typer.Option(
         "--estimators", "-e", help="Comma-separated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
-                                   "accel, ekf3, mekf, vqf. Default: all available.")] = None,
+                                   "accel, ekf3, mekf, vqf, or your own (FILE.py:CLASS, "
+                                   "module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
+                                   "available.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
                                                           "stdout).")] = False,
     native: Annotated[bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL "
@@ -59,7 +62,7 @@ def evaluate_command(
 
         require_matplotlib()  # fail before the long run
     items = broad.trial_paths(data)
-    only = [s for s in estimators.split(",")] if estimators is not None else None
+    only = split_list(estimators) if estimators is not None else None  # commas inside (options) stay
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
     total = len(items) * len(ev.default_specs(100.0, only=only))

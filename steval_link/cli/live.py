@@ -60,7 +60,8 @@ def live_command(
         None,
         "--estimators",
         "-e",
-        help="Host estimators next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf) or 'none'; "
+        help="Host estimators next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf, your own: "
+        "FILE.py:CLASS, module:CLASS, options in parentheses, docs/ESTIMATORS.md) or 'none'; "
         "default: st-mahony,accel,ekf3 (those installed).",
     ),
     duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),

@@ -123,7 +123,8 @@ def replay(
         typer.Option(
             "--estimators",
             "-e",
-            help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf; "
+            help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf, "
+            "your own FILE.py:CLASS or module:CLASS; "
             f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
             show_default=False,
         ),

@@ -3,6 +3,9 @@
 All estimators take the firmware's units and axes: accelerometer in mg, gyro in mdps, throttle as ``gTHR``; axes
 x right, y forward, z up (at rest acc ≈ (0, 0, +1000) mg). Angles follow ``QuaternionToEuler``:
 ``thx_rad`` is the rotation about x (pitch, nose up +), ``thy_rad`` about y (roll), ``thz_rad`` about z (yaw).
+
+Your own estimator needs no base class: ``reset()`` and ``step()`` are enough (docs/ESTIMATORS.md: units, dt, what
+``step()`` returns, how invalid samples are flagged); :meth:`Estimator.run` is the default ``run()`` it gets.
 """
 
 from __future__ import annotations
@@ -71,7 +74,9 @@ class Estimator(abc.ABC):
         """
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
-        """Run :meth:`step` over N steps (continuing from the current state) and return every step's attitude.
+        """Run :meth:`step` over N steps (continuing from the current state, no reset) and return every step's
+        attitude: ``q_wxyz`` as step() returned it, the angles derived from it (``QuaternionToEuler``'s formulas in
+        float64), ``valid`` where q is finite (a step with no estimate returns NaN).
 
         Args:
             acc_mg: (N, 3) accelerometer, mg.

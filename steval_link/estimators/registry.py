@@ -1,21 +1,31 @@
-"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``.
+"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
 
 :data:`ESTIMATORS` is an immutable mapping of registry name → constructor. Constructors import their module only
 when called, so an estimator whose optional dependency is missing (e.g. ``vqf``) does not break the others.
-To add an estimator, add one line to ``_ENTRIES``: ``"name": _lazy("steval_link.estimators.module", "ClassName"),``.
+To add a built-in, add one line to ``_ENTRIES``: ``"name": _lazy("steval_link.estimators.module", "ClassName"),``.
+
+Everywhere an estimator is named (``-e`` of every command, :func:`create`), a reference also works
+(:mod:`steval_link.estimators.plugins`): ``my_ekf.py:MyEkf``, ``mypkg.filters:MyEkf``, an installed package's
+entry point (group ``steval_link.estimators``), each with options ``(q_gyro=1e-4)``, built-ins too
+(``ekf3(acc_motion_mg=20)``). :func:`parse_names` resolves them once (one line and exit 2 for a missing file, a
+syntax error, a missing class, a wrong interface or an option the class does not take) and returns
+:class:`~steval_link.estimators.plugins.Selected` names that :func:`create` builds.
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
 
 from steval_link.errors import UserError
+from steval_link.estimators import plugins
 from steval_link.estimators.base import Estimator
+from steval_link.estimators.plugins import PluginError, Selected
 
 __all__ = ["ESTIMATORS", "LIVE_DEFAULT", "REPLAY_DEFAULT", "COMPARE_DEFAULT", "names", "create", "is_available",
-           "available_names", "parse_names"]
+           "available_names", "parse_names", "resolve", "is_known", "accepts", "unique_name", "PluginError", "Selected"]
 
 
 class _lazy:
@@ -61,7 +71,10 @@ def names() -> tuple[str, ...]:
 
 
 def is_available(name: str) -> bool:
-    """True when ``name`` is registered and its module (and optional dependencies) can be imported."""
+    """True when ``name`` is registered and its module (and optional dependencies) can be imported (a resolved
+    :class:`Selected` reference always is)."""
+    if isinstance(name, Selected):
+        return True
     ctor = ESTIMATORS.get(name)
     if ctor is None:
         return False
@@ -78,15 +91,87 @@ def available_names() -> tuple[str, ...]:
     return tuple(n for n in ESTIMATORS if is_available(n))
 
 
+def is_known(name: str) -> bool:
+    """True for a registry name, a resolved :class:`Selected`, or text that reads as a reference to a file,
+    module, installed plug-in or a built-in with options (whether it loads is :func:`resolve`'s question)."""
+    if isinstance(name, Selected) or name in ESTIMATORS:
+        return True
+    try:
+        ref = plugins.parse_reference(name)
+    except UserError:  # meant as a reference (its options cannot be read): resolve() says why
+        return any(c in str(name) for c in ":(/\\") or str(name).endswith(".py")
+    return ref.kind != "builtin" or ref.source in ESTIMATORS or ref.source in plugins.entry_point_names()
+
+
+def resolve(text: str) -> Selected:
+    """Load what ``text`` names (see the module doc) and check it: a :class:`Selected` whose ``str`` is the
+    display name. UserError (one line) for every way it can fail; PluginError (with the user's traceback) when
+    their module or constructor raises. Nothing is constructed here."""
+    if isinstance(text, Selected):
+        return text
+    ref = plugins.parse_reference(text)
+    if ref.kind == "builtin":
+        if ref.source in ESTIMATORS:
+            name = ref.source + (f"({ref.options_text})" if ref.options else "")
+            return Selected(name, ref, ESTIMATORS[ref.source], name)
+        if ref.source not in plugins.entry_point_names():
+            raise UserError(f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
+                            "plug-in, FILE.py:CLASS or module:CLASS (or none)")
+        ref = plugins.Reference(ref.text, "entry-point", ref.source, None, ref.options)
+    factory, label = plugins.load_factory(ref)
+    name = plugins.display_name(factory, ref)
+    if name.replace("_", "-") in ESTIMATORS:  # never taken for a built-in (st-mahony means the firmware's port live)
+        name = f"{name} ({getattr(factory, '__name__', ref.source)})"
+    return Selected(name, ref, factory, label)
+
+
+def accepts(name: str, option: str) -> bool:
+    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``: commands pass the
+    step rate only to estimators that take it)."""
+    sel = name if isinstance(name, Selected) else resolve(name)
+    ctor = sel.factory
+    if isinstance(ctor, _lazy):
+        try:
+            ctor = ctor.load()
+        except ImportError:
+            return False
+    try:
+        params = inspect.signature(ctor).parameters
+    except (TypeError, ValueError):
+        return False
+    return option in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
+def _build(sel: Selected, options: dict) -> Estimator:
+    opts = {**sel.reference.options, **options}
+    if sel.reference.kind == "builtin":
+        return create(sel.reference.source, **opts)
+    inst = plugins.construct(sel.factory, sel.label, opts)
+    missing = [m for m in ("step", "reset") if not callable(getattr(inst, m, None))]
+    if missing:
+        raise UserError(f"{sel.label} made a {type(inst).__name__}, which has no "
+                        f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)")
+    return plugins.Guarded(inst, str(sel))
+
+
 def create(name: str, **options) -> Estimator:
-    """Build the estimator registered as ``name`` with keyword ``options``.
+    """Build the estimator ``name`` names with keyword ``options`` (on top of the reference's own).
+
+    ``name``: a registry name, a :class:`Selected` from :func:`parse_names` / :func:`resolve`, or a reference
+    (``my_ekf.py:MyEkf(q=1)``). A user's estimator comes wrapped in
+    :class:`~steval_link.estimators.plugins.Guarded` (checked output, its failures as :class:`PluginError`).
 
     Raises:
         ValueError: unknown name (the message lists the known ones), or options the estimator does not take.
         ImportError: the estimator's optional dependency is not installed.
+        UserError: a reference that cannot be loaded (PluginError when the user's code raised).
     """
+    if isinstance(name, Selected):
+        return _build(name, options)
     ctor = ESTIMATORS.get(name)
     if ctor is None:
+        if is_known(name):
+            return _build(resolve(name), options)
         raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
     try:
         return ctor(**options)
@@ -97,17 +182,64 @@ def create(name: str, **options) -> Estimator:
 
 
 def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed: bool = True) -> list[str]:
-    """``--estimators``: a comma-separated list of registry names or ``none``; None gives those of ``default`` that
-    are installed. UserError for an unknown name (the valid ones listed) or, with ``require_installed``, one whose
-    package is missing (``steval compare`` reports those in its table instead)."""
+    """``--estimators``: a comma-separated list of registry names, references (``my_ekf.py:MyEkf(q=1e-4)``,
+    ``mypkg.filters:MyEkf``, an installed plug-in, ``ekf3(acc_motion_mg=20)``) or ``none``; None gives those of
+    ``default`` that are installed. Commas inside parentheses belong to the options.
+
+    Registry names come back as they are, references as :class:`Selected` (display name: the class name or its
+    ``name`` attribute; the options are added when two share a name). Each reference is loaded and constructed
+    once here, so every mistake is one line before any work. UserError for an unknown name (the valid ones listed)
+    or, with ``require_installed``, one whose package is missing (``steval compare`` reports those in its table
+    instead)."""
     if spec is None:
         return [n for n in default if is_available(n) or not require_installed]
-    chosen = [s.strip() for s in spec.split(",") if s.strip()]
+    chosen = plugins.split_list(spec)
     if chosen in (["none"], []):
         return []
+    out: list[str] = []
     for n in chosen:
-        if n not in ESTIMATORS:
-            raise UserError(f"unknown estimator {n!r}; choose from: {', '.join(ESTIMATORS)} (or none)")
-        if require_installed and not is_available(n):
-            raise UserError(f"estimator {n!r} needs an optional package: pip install 'steval-link[{n}]'")
-    return chosen
+        if n in ESTIMATORS:
+            if require_installed and not is_available(n):
+                raise UserError(f"estimator {n!r} needs an optional package: pip install 'steval-link[{n}]'")
+            out.append(n)
+            continue
+        sel = resolve(n)
+        if sel.reference.kind == "builtin" and require_installed and not is_available(sel.reference.source):
+            raise UserError(f"estimator {sel.reference.source!r} needs an optional package: "
+                            f"pip install 'steval-link[{sel.reference.source}]'")
+        try:
+            create(sel)  # the options and the constructor checked now, before any work
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        except ImportError as exc:
+            if require_installed:
+                raise UserError(f"estimator {sel.label} needs a package that is not installed ({exc})") from None
+        out.append(sel)
+    return _unique(out)
+
+
+def _unique(names: list[str]) -> list[str]:
+    """Display names made unique (:func:`unique_name`): a repeated one gets its options, else ``#2``, ``#3``..."""
+    counts: dict[str, int] = {}
+    for n in names:
+        counts[str(n)] = counts.get(str(n), 0) + 1
+    out: list[str] = []
+    taken: set[str] = set()
+    for n in names:
+        name = unique_name(n, taken, repeated=counts[str(n)] > 1)
+        taken.add(name)
+        out.append(n.renamed(name) if isinstance(n, Selected) and name != str(n) else n)
+    return out
+
+
+def unique_name(name: str, taken: set[str], *, repeated: bool = True) -> str:
+    """``name`` as a display name not in ``taken``: a repeated reference with options gets them added
+    (``MyEkf(r_acc=0.001)``), then ``#2``, ``#3``... (tables and plots key their columns by it)."""
+    out = str(name)
+    if repeated and isinstance(name, Selected) and name.reference.options and name.reference.kind != "builtin":
+        out = f"{out}({name.reference.options_text})"
+    base, k = out, 2
+    while out in taken:
+        out = f"{base}#{k}"
+        k += 1
+    return out

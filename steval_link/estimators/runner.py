@@ -27,14 +27,16 @@ def row_decimation(tel) -> int:
 
 
 def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any | None, str]:
-    """Run registry estimator ``name`` from power-up over every attitude row; (estimate, note) or (None, why not).
+    """Run estimator ``name`` (a registry name or a reference, see :func:`registry.create`) from power-up over every
+    attitude row; (estimate, note) or (None, why not). A user's estimator that fails raises
+    :class:`~steval_link.estimators.plugins.PluginError`.
 
     With decimated rows (``decimation`` steps per row, text mode; default: :func:`row_decimation`) estimators that
     take ``rate_hz`` run at the row rate (the note says so); the others assume every row is one AHRS step.
     """
     if decimation is None:
         decimation = row_decimation(tel)
-    if name not in registry.ESTIMATORS:
+    if not registry.is_known(name):
         return None, f"not available in this installation (known: {', '.join(registry.names())})"
     note = ""
     try:

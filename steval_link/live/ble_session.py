@@ -51,6 +51,7 @@ from steval_link.link.ble_payloads import (
 )
 from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
+from steval_link.live.estimators import failure_sentence
 from steval_link.live.health import HealthDisplay
 from steval_link.live.session import LiveOptions, install_stop_signals, restore_signals
 from steval_link.quat import euler_from_quaternion
@@ -187,8 +188,9 @@ class BleLiveSession:
 
     def _make_estimators(self, dt_s: float) -> None:
         self.estimators = {n: registry.create(n, dt_s=dt_s) if n in ("st-mahony", "st_mahony")
-                           else registry.create(n) if n == "accel"
-                           else registry.create(n, rate_hz=1.0 / dt_s) for n in self.options.estimators}
+                           else registry.create(n, rate_hz=1.0 / dt_s)
+                           if n != "accel" and registry.accepts(n, "rate_hz")
+                           else registry.create(n) for n in self.options.estimators}
 
     # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
@@ -287,8 +289,13 @@ class BleLiveSession:
         t_s, acc, gyro = self._grid(ble)
         estimates = {}
         thr = 0
-        for name, est in self.estimators.items():
-            q = np.array([est.step(a, g, thr) for a, g in zip(acc, gyro)], dtype=np.float64).reshape(-1, 4)
+        for name, est in list(self.estimators.items()):
+            try:
+                q = np.array([est.step(a, g, thr) for a, g in zip(acc, gyro)], dtype=np.float64).reshape(-1, 4)
+            except Exception as exc:  # noqa: BLE001 - a failing estimator is switched off; the session goes on
+                self.display.note(f"{failure_sentence(name, exc)}; {name} disabled, recording and viewing go on")
+                del self.estimators[name]
+                continue
             thx, thy, _ = euler_from_quaternion(q) if len(q) else (np.zeros(0), np.zeros(0), None)
             estimates[name] = (q, thx, thy)
         if viewer is not None:

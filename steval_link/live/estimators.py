@@ -1,13 +1,16 @@
 """The estimators of a live session: the ST port followed bit for bit from status snapshots (:class:`LivePort`) and
-the registry estimators (:class:`LiveEstimators`), run per :class:`AttitudeBatch` of frames.
+the registry estimators and your own (:class:`LiveEstimators`, each disabled with one line when it fails, floods
+NaN or cannot keep up), run per :class:`AttitudeBatch` of frames.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.estimators import registry, st_mahony
 
 
@@ -111,18 +114,52 @@ class LivePort:
         return "port bit-exact" if self.rows_exact else "port seeded"
 
 
+#: A live estimator that gives no estimate (NaN) on this much stream of finite input in a row is disabled, s.
+NAN_FLOOD_S = 3.0
+#: A live estimator that needs more than this share of the stream time it is fed (it could not keep up with a
+#: stream at twice the real rate) over SLOW_WINDOW_S of wall time is disabled ...
+SLOW_SHARE = 0.5
+SLOW_WINDOW_S = 5.0
+#: ... and so is one whose single call took longer than this, s (the live view stood still meanwhile).
+STALL_S = 2.0
+
+
+class _Watch:
+    """One estimator's live record: NaN rows in a row, processing time against stream time in the current window."""
+
+    __slots__ = ("nan_rows", "busy_s", "stream_s", "window_start_s", "calls", "total_s", "total_rows")
+
+    def __init__(self, now_s: float) -> None:
+        self.nan_rows = 0
+        self.busy_s = 0.0
+        self.stream_s = 0.0
+        self.window_start_s = now_s
+        self.calls = 0
+        self.total_s = 0.0
+        self.total_rows = 0
+
+
 class LiveEstimators:
-    """Every host estimator run on each attitude frame: the seeded ST port plus any registry estimator.
+    """Every host estimator run on each attitude frame: the seeded ST port plus any registry estimator or your own.
 
     Rows with a non-finite input are never fed to an estimator (one NaN would poison a filter's state for good);
-    their estimates are NaN.
+    their estimates are NaN. An estimator that raises, floods NaN (:data:`NAN_FLOOD_S`) or cannot keep up
+    (:data:`SLOW_SHARE`, :data:`STALL_S`) is disabled: one line in :attr:`notes` (naming the user's file and line),
+    NaN estimates from then on, and the session goes on. The capture never depends on it: the reader thread writes
+    every byte before the main thread decodes (``live/recorder.py``).
     """
 
-    def __init__(self, names: list[str]) -> None:
-
+    def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.port = LivePort() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
         self.names = list(names)
+        self.clock = clock
+        #: name → why it was disabled (one sentence)
+        self.disabled: dict[str, str] = {}
+        #: sentences not shown yet (the pipeline hands them to the session's display and the viewer's log)
+        self.notes: list[str] = []
+        now = clock()
+        self._watch = {name: _Watch(now) for name in self.others}
 
     def process(self, batch: AttitudeBatch) -> None:
         if self.port is not None:
@@ -132,14 +169,74 @@ class LiveEstimators:
         rows = np.flatnonzero(batch.finite)
         for name, est in self.others.items():
             q = np.full((len(batch), 4), np.nan, dtype=np.float64)
-            if rows.size:
-                res = est.run(batch.acc_mg[rows], batch.gyro_mdps[rows], batch.thr[rows].astype(np.int64))
-                qq = np.asarray(res.q_wxyz, dtype=np.float64)
-                qq[~np.asarray(res.valid, dtype=bool)] = np.nan
-                q[rows] = qq
+            if rows.size and name not in self.disabled:
+                t0 = self.clock()
+                try:
+                    res = est.run(batch.acc_mg[rows], batch.gyro_mdps[rows], batch.thr[rows].astype(np.int64))
+                    qq = np.asarray(res.q_wxyz, dtype=np.float64)
+                    valid = np.asarray(res.valid, dtype=bool)
+                    qq[~valid] = np.nan
+                    q[rows] = qq
+                except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
+                    self._disable(name, failure_sentence(name, exc))
+                else:
+                    self._account(name, est, rows.size, valid, self.clock() - t0, int(batch.step[rows[0]]))
             batch.estimates[name] = q
+
+    def _account(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float, first_step: int) -> None:
+        w = self._watch[name]
+        w.calls += 1
+        w.total_s += elapsed_s
+        w.total_rows += n
+        if valid.all():
+            w.nan_rows = 0
+        else:
+            last_valid = np.flatnonzero(valid)
+            w.nan_rows = n - 1 - int(last_valid[-1]) if last_valid.size else w.nan_rows + n
+        flood = NAN_FLOOD_S * C.AHRS_RATE_HZ
+        if w.nan_rows >= flood:
+            where = est.origin("step") if hasattr(est, "origin") else name
+            self._disable(name, f"estimator {name} gave no estimate (NaN) for {w.nan_rows} frames of valid input in "
+                                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}")
+            return
+        if elapsed_s > STALL_S:
+            self._disable(name, f"estimator {name} took {elapsed_s:.1f} s for {n} frames ({n / C.AHRS_RATE_HZ:.2f} s "
+                                "of stream): too slow to run live (steval compare runs it offline)")
+            return
+        w.busy_s += elapsed_s
+        w.stream_s += n / C.AHRS_RATE_HZ
+        now = self.clock()
+        if now - w.window_start_s >= SLOW_WINDOW_S:
+            if w.stream_s > 0 and w.busy_s > SLOW_SHARE * w.stream_s:
+                self._disable(name, f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
+                                    f"second of stream for {now - w.window_start_s:.0f} s (at most "
+                                    f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)")
+                return
+            w.busy_s = w.stream_s = 0.0
+            w.window_start_s = now
+
+    def _disable(self, name: str, why: str) -> None:
+        self.disabled[name] = why
+        self.notes.append(f"{why}; {name} disabled, recording and viewing go on")
+
+    def cost_us_per_frame(self, name: str) -> float:
+        """Mean processing time of ``name`` per frame so far, µs (NaN before its first call)."""
+        w = self._watch.get(name)
+        return 1e6 * w.total_s / w.total_rows if w is not None and w.total_rows else float("nan")
+
+    def take_notes(self) -> list[str]:
+        """The sentences not shown yet (and forget them)."""
+        out, self.notes = self.notes, []
+        return out
 
     def status(self, frame) -> None:
         if self.port is not None:
             self.port.status(frame)
 
+
+def failure_sentence(name: str, exc: BaseException) -> str:
+    """One sentence for an estimator that raised: a user's (PluginError) names their file and line."""
+    if isinstance(exc, registry.PluginError):
+        return str(exc)
+    text = str(exc).strip().splitlines()
+    return f"estimator {name} failed: {type(exc).__name__}" + (f": {text[0]}" if text else "")

@@ -339,5 +339,7 @@ class LivePipeline:
         self.health.count(n, float(batch.t_unix_s[0]), float(batch.t_unix_s[-1]))
         if self.estimators is not None:
             self.estimators.process(batch)
+            for why in self.estimators.take_notes():  # an estimator disabled: one line, the session goes on
+                self._note(why, float(batch.t_unix_s[-1]), "WARN")
         for outlet in self.outlets:
             outlet.add_batch(batch)

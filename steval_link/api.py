@@ -1,0 +1,214 @@
+"""The Python API for notebooks and scripts: ``import steval_link as sl``.
+
+::
+
+    cap = sl.open_capture("recordings/demo.stv")       # any capture, raw dump or text-mode log
+    cap.attitude.t_fw_s, cap.attitude.thx_rad           # numpy arrays, units in the names (pitch = thx, about x)
+    df = cap.to_pandas()                                # one row per attitude frame, the columns of steval export
+    est = sl.run_estimator("ekf3", cap)                 # or "my_ekf.py:MyEkf(q_gyro=1e-5)", or MyEkf()
+    est.thx_rad, est.thy_rad, est.valid                 # one row per attitude frame
+    scores = sl.evaluate("../shared/datasets/broad", ["st-mahony-flight", "vqf", MyEkf()])
+    scores.mean_rmse_deg                                # label → inclination RMSE against ground truth, degrees
+
+``import steval_link`` stays cheap: this module loads on the first use of one of these names.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from steval_link.analysis import evaluate as ev
+from steval_link.emulation import broad
+from steval_link.errors import UserError
+from steval_link.estimators import plugins, registry
+from steval_link.estimators.base import AttitudeEstimate, Estimator
+from steval_link.estimators.runner import run_estimator as _run_named
+from steval_link.link.capture import read_source, telemetry_of_source
+
+__all__ = ["Capture", "Scores", "open_capture", "run_estimator", "evaluate", "require_pandas"]
+
+PANDAS_HINT = 'to_pandas() needs pandas, which is not installed: pip install pandas (or "steval-link[pandas]")'
+
+
+def require_pandas():
+    """The pandas module, or ImportError with the install hint."""
+    try:
+        import pandas  # optional: only to_pandas() needs it
+    except ImportError:
+        raise ImportError(PANDAS_HINT) from None
+    return pandas
+
+
+@dataclass
+class Capture:
+    """A decoded capture. ``attitude``: one row per attitude frame (``step``, ``t_fw_s``, ``t_host_s``, ``acc_mg``
+    (N, 3), ``gyro_mdps`` (N, 3), ``thr``, ``q_wxyz`` (N, 4), ``thx_rad`` (pitch, about x), ``thy_rad`` (roll,
+    about y), ``thz_rad``, ``exact``); ``status`` and ``fc`` the status and flight-control frames; ``telemetry``
+    everything (:class:`steval_link.link.telemetry.Telemetry`); ``warnings`` what was odd about the file."""
+
+    path: Path
+    telemetry: Any
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def attitude(self):
+        return self.telemetry.attitude
+
+    @property
+    def status(self):
+        return self.telemetry.status
+
+    @property
+    def fc(self):
+        return self.telemetry.fc
+
+    def __len__(self) -> int:
+        return len(self.telemetry.attitude)
+
+    def to_pandas(self, *, flight: bool = True):
+        """A pandas DataFrame, one row per attitude frame, the columns of ``steval export`` (``t_fw_s``,
+        ``acc_x_mg`` .. ``gyro_z_mdps``, ``q_w`` .. ``q_z``, ``thx_pitch_rad``, ``thy_roll_rad``, ...; with
+        ``flight`` the flight-control columns too). ImportError with the install hint without pandas."""
+        pd = require_pandas()
+        table = self.telemetry.attitude_table()
+        if flight:
+            table.update(self.telemetry.flight_columns())
+        return pd.DataFrame(table)
+
+    def __repr__(self) -> str:
+        return f"<Capture {self.path.name}: {len(self)} attitude frames, {len(self.status)} status frames>"
+
+
+def open_capture(path) -> Capture:
+    """Read and decode a capture (``.stv``), raw serial dump or text-mode log (UserError for a missing or
+    unreadable file, or one without frames)."""
+    src = read_source(path)
+    return Capture(Path(path), telemetry_of_source(src), list(src.warnings))
+
+
+def _instance_reference(est) -> plugins.Selected:
+    """Your estimator object as a reference: each run gets a fresh copy (reset), wrapped in the guard."""
+    missing = [m for m in ("step", "reset") if not callable(getattr(est, m, None))]
+    if missing:
+        raise TypeError(f"{type(est).__name__} is not an estimator: it has no "
+                        f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)")
+    name = getattr(est, "name", None)
+    if not isinstance(name, str) or name == Estimator.name or not name:
+        name = type(est).__name__
+    ref = plugins.Reference(repr(est), "object", type(est).__name__)
+    return plugins.Selected(name, ref, lambda: copy.deepcopy(est), type(est).__name__)
+
+
+def _selected(estimator) -> str:
+    if isinstance(estimator, str):
+        return estimator if estimator in registry.ESTIMATORS else registry.resolve(estimator)
+    return _instance_reference(estimator)
+
+
+def run_estimator(estimator, data) -> AttitudeEstimate:
+    """Run an estimator from power-up over a capture's attitude rows.
+
+    Args:
+        estimator: a registry name (``"ekf3"``, ``"st-mahony"``...), a reference (``"my_ekf.py:MyEkf(q=1e-5)"``)
+            or an estimator object (anything with ``reset()`` and ``step()``; a copy is run, reset first, so the
+            object itself is left as it was).
+        data: a :class:`Capture` (:func:`open_capture`), a path to one, or a ``Telemetry``.
+
+    Returns:
+        An :class:`~steval_link.estimators.base.AttitudeEstimate` with one row per attitude frame of the capture
+        (``q_wxyz``, ``thx_rad``, ``thy_rad``, ``thz_rad``, ``valid``), to plot against ``cap.attitude.t_fw_s``.
+        A user's estimator that raises gives :class:`~steval_link.estimators.plugins.PluginError` (the message
+        names the file and line; ``details`` holds the traceback trimmed to the user's code).
+    """
+    if isinstance(data, (str, Path)):
+        data = open_capture(data)
+    tel = data.telemetry if isinstance(data, Capture) else data
+    sel = _selected(estimator)
+    if isinstance(sel, plugins.Selected) and sel.reference.kind == "object":
+        est = registry.create(sel)  # a fresh copy, guarded
+        est.reset()
+        a = tel.attitude
+        return est.run(a.acc_mg, a.gyro_mdps, a.thr)
+    out, why = _run_named(sel, tel)
+    if out is None:
+        raise UserError(f"estimator {estimator!r} is {why}")
+    return out
+
+
+@dataclass
+class Scores:
+    """Inclination RMSE against ground truth (degrees) per trial and estimator, and their means.
+
+    ``rmse_deg``: trial → label → RMSE; ``mean_rmse_deg``: label → mean over the trials; ``results``: the
+    :class:`steval_link.analysis.evaluate.TrialResult` of each trial (``t_s``, ``err_rad`` label → error per step,
+    for plots); ``table()`` the text table of ``steval evaluate``; ``to_pandas()`` one row per trial.
+    """
+
+    results: list
+    summary: dict
+
+    @property
+    def rmse_deg(self) -> dict[str, dict[str, float | None]]:
+        return {t["trial"]: dict(t["rmse_deg"]) for t in self.summary["trials"]}
+
+    @property
+    def mean_rmse_deg(self) -> dict[str, float | None]:
+        return dict(self.summary["mean_rmse_deg"])
+
+    def table(self) -> str:
+        return ev.format_table(self.results)
+
+    def to_pandas(self):
+        pd = require_pandas()
+        return pd.DataFrame.from_dict(self.rmse_deg, orient="index")
+
+    def __repr__(self) -> str:
+        return self.table()
+
+
+def evaluate(trials, estimators: Sequence | None = None, *, native: bool = False, seed: int = 0) -> Scores:
+    """Score estimators against the ground truth of BROAD trials (the metric and pipeline of ``steval evaluate``).
+
+    Args:
+        trials: a BROAD ``.npz`` trial, a directory of them, or a list of those.
+        estimators: labels of ``steval evaluate`` (``st-mahony-flight``, ``st-mahony-ground``, ``accel``,
+            ``ekf3``, ``mekf``, ``vqf``), references (``"my_ekf.py:MyEkf"``) and estimator objects, in any mix;
+            None: every built-in available.
+        native: run at the trial's own 285.7 Hz instead of through the STEVAL sensor pipeline (161.5 Hz).
+        seed: seed of the pipeline model (runs are deterministic).
+    """
+    items = [trials] if isinstance(trials, (str, Path)) else list(trials)
+    paths = broad.trial_paths(items)
+    results = []
+    for p in paths:
+        trial = broad.load_trial(p)
+        view = broad.native_view(trial) if native else broad.steval_view(trial, seed=seed)
+        results.append(ev.evaluate_view(view, _specs(estimators, view.rate_hz, native), trial.name))
+    return Scores(results, ev.summary(results))
+
+
+def _specs(estimators, rate_hz: float, native: bool) -> list:
+    if estimators is None:
+        return ev.default_specs(rate_hz, native=native)
+    out: list = []
+    for e in _as_list(estimators):
+        if isinstance(e, str):
+            specs = ev.default_specs(rate_hz, native=native, only=[e])
+        else:
+            sel = _instance_reference(e)
+            taken = {o.label for o in out}
+            specs = [ev.EstimatorSpec(registry.unique_name(sel, taken, repeated=str(sel) in taken), sel, {})]
+        out.extend(s for s in specs if s.label not in {o.label for o in out})
+    return out
+
+
+def _as_list(estimators) -> list:
+    if isinstance(estimators, str):
+        return plugins.split_list(estimators)
+    if isinstance(estimators, Iterable):
+        return list(estimators)
+    return [estimators]

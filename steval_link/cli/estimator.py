@@ -1,0 +1,115 @@
+"""``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (interface checks,
+then its scores next to ST-Mahony and VQF on the bundled captures and on BROAD trials).
+
+Exit codes of ``check``: 0 when every interface check passes, 1 when one fails (the report says which and why),
+2 for user errors (the file, class or options cannot be loaded: one line).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.analysis.estimator_check import format_check, run_check
+from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.progress import progress_bar
+from steval_link.emulation import broad
+from steval_link.errors import UserError
+
+__all__ = ["estimator_app", "STARTER_CLASS", "DEFAULT_BROAD"]
+
+estimator_app = typer.Typer(
+    help="Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md.",
+    no_args_is_help=True,
+    context_settings={"help_option_names": HELP_OPTION_NAMES},
+)
+app.add_typer(estimator_app, name="estimator")
+
+#: the class name in the starter file
+STARTER_CLASS = "MyEkf"
+#: where ``check`` looks for BROAD trials when no ``--broad`` is given (the course's shared data beside the clone)
+DEFAULT_BROAD = Path("../shared/datasets/broad")
+_CLASS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def starter_source(class_name: str = STARTER_CLASS) -> str:
+    """The starter's Python source (``steval_link/estimators/starter_ekf.py``) with its class named ``class_name``."""
+    path = Path(__file__).resolve().parents[1] / "estimators" / "starter_ekf.py"
+    text = path.read_text(encoding="utf-8")
+    return re.sub(rf"\b{STARTER_CLASS}\b", class_name, text) if class_name != STARTER_CLASS else text
+
+
+@estimator_app.command("new")
+def new_command(
+    file: Annotated[Path, typer.Argument(help="The Python file to write, e.g. my_ekf.py.", show_default=False)],
+    class_name: Annotated[str, typer.Option("--class", help="Name of the estimator class in it.")] = STARTER_CLASS,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite the file if it exists.")] = False,
+) -> None:
+    """Write a starter estimator that works as it is: a 3-state EKF (Euler angles; prediction from the gyro,
+    update from the accelerometer), the lecture's steps marked, its tuning knobs named (q_gyro, r_acc, p0)."""
+    if file.suffix != ".py":
+        raise UserError(f"{file}: the starter is Python; give a name ending in .py (e.g. my_ekf.py)")
+    if not _CLASS_NAME.fullmatch(class_name):
+        raise UserError(f"--class {class_name!r} is not a Python class name")
+    if file.exists() and not force:
+        raise UserError(f"{file} already exists; choose another name or add --force to overwrite it")
+    try:
+        file.write_text(starter_source(class_name), encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"cannot write {file}: {exc.strerror or exc}") from None
+    ref = f"{file}:{class_name}"
+    print(f"wrote {file}: class {class_name}, a 3-state EKF (gyro prediction, accelerometer update)")
+    print("next:")
+    print(f"  steval estimator check {ref}")
+    print(f"  steval compare recordings/demo.stv -e {ref}")
+
+
+@estimator_app.command("check")
+def check_command(
+    estimator: Annotated[str, typer.Argument(
+        help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
+             "'my_ekf.py:MyEkf(q_gyro=1e-5)'.", show_default=False)],
+    broad_path: Annotated[Optional[list[Path]], typer.Option(
+        "--broad", help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
+                        f"{DEFAULT_BROAD} when it exists.", show_default=False)] = None,
+    no_broad: Annotated[bool, typer.Option("--no-broad", help="Do not score on BROAD trials (quicker).")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
+                                                          "stdout).")] = False,
+) -> None:
+    """Check an estimator's interface (shapes, units and signs at rest and tilted, a turn, NaN and invalid input,
+    determinism, steps per second), then score it next to ST-Mahony, the built-in EKF and VQF: tilt difference
+    from the firmware and from accelerometer-only tilt on the bundled captures, inclination RMSE against ground
+    truth on BROAD trials. Exit 1 when a check fails."""
+    if no_broad:
+        paths = []
+        note = ""
+    elif broad_path:
+        paths = broad.trial_paths(broad_path)
+        note = ""
+    elif DEFAULT_BROAD.is_dir():
+        paths = broad.trial_paths([DEFAULT_BROAD])
+        note = ""
+    else:
+        paths = []
+        note = f"no BROAD trials at {DEFAULT_BROAD} (give --broad PATH to score against ground truth)"
+    with progress_bar("estimator check", quiet=as_json) as progress:
+        report = run_check(estimator, broad_paths=paths, progress=progress)
+    if note and not report.broad_note:
+        report.broad_note = note
+    if report.traceback and not as_json:
+        print(report.traceback, file=sys.stderr)
+    if as_json:
+        d = report.as_dict()
+        if report.traceback:
+            d["traceback"] = report.traceback
+        json.dump(d, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print("\n".join(format_check(report)))
+    if not report.ok:
+        raise typer.Exit(1)

@@ -1,0 +1,559 @@
+"""Estimators from outside the package: your file, your module, an installed plug-in, with constructor options.
+
+One reference names one estimator (``-e`` of every command, ``registry.create``, ``steval_link.run_estimator``)::
+
+    ekf3                                  a built-in (registry name)
+    ekf3(acc_motion_mg=20)                a built-in with constructor options
+    my_ekf.py:MyEkf                       a class in a Python file (FILE.py alone: the one estimator class in it)
+    'my_ekf.py:MyEkf(q_gyro=1e-4, r_acc=0.05)'
+    mypkg.filters:MyEkf                   a class in an importable module
+    my-ekf                                an installed package's entry point (group ``steval_link.estimators``)
+
+Options are keyword arguments whose values are Python literals (numbers, strings, True/False/None, tuples,
+lists, dicts), read with :func:`ast.literal_eval`: nothing in them is executed. A list of references is
+comma-separated; commas inside the parentheses belong to the options.
+
+Plug-ins run behind :class:`Guarded`: rows with a non-finite input are never fed to them (flagged invalid), their
+output is checked ((4,) quaternion per step, N rows per run), and an exception in them becomes a
+:class:`PluginError`: one line naming the user's file and line, plus their own traceback trimmed to their frames.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib
+import importlib.metadata
+import importlib.util
+import inspect
+import math
+import os
+import re
+import sys
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from steval_link.errors import UserError
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.quat import euler_from_quaternion
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "Reference",
+    "Selected",
+    "PluginError",
+    "Guarded",
+    "split_list",
+    "parse_reference",
+    "entry_point_names",
+    "load_factory",
+    "display_name",
+]
+
+#: entry-point group under which installed packages register estimator classes (``name = "pkg.module:Class"``)
+ENTRY_POINT_GROUP = "steval_link.estimators"
+
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_DOTTED = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+#: where steval's own code lives (frames there are not the user's)
+_PACKAGE_DIR = str(Path(__file__).resolve().parents[1])
+
+
+class PluginError(UserError):
+    """A user's estimator failed (import, construction, a step): one line, exit 2; ``details`` holds the user's
+    own traceback trimmed to their frames (printed before the line), or "" when there is none."""
+
+    def __init__(self, message: str, details: str = "") -> None:
+        super().__init__(message)
+        self.details = details
+
+
+@dataclass(frozen=True)
+class Reference:
+    """One parsed estimator reference.
+
+    Attributes:
+        text: the reference as given.
+        kind: ``builtin``, ``file``, ``module`` or ``entry-point``.
+        source: registry name, file path, module name or entry-point name.
+        attr: class (or factory) name in the file or module; None: the file's only estimator class.
+        options: constructor keyword options.
+    """
+
+    text: str
+    kind: str
+    source: str
+    attr: str | None = None
+    options: dict = field(default_factory=dict)
+
+    @property
+    def options_text(self) -> str:
+        """``q_gyro=0.0001, r_acc=0.05`` (canonical, for display names)."""
+        return ", ".join(f"{k}={v!r}" for k, v in self.options.items())
+
+
+class Selected(str):
+    """An estimator chosen on the command line: the ``str`` is its display name (table rows, plot labels, viewer
+    entities), ``reference`` how to build it, ``factory`` the loaded constructor (keyword options only)."""
+
+    reference: Reference
+    factory: Callable[..., Any]
+    label: str
+
+    def __new__(cls, name: str, reference: Reference, factory: Callable[..., Any], label: str = "") -> "Selected":
+        self = super().__new__(cls, name)
+        self.reference = reference
+        self.factory = factory
+        self.label = label or str(name)
+        return self
+
+    def renamed(self, name: str) -> "Selected":
+        """The same estimator under another display name."""
+        return Selected(name, self.reference, self.factory, self.label)
+
+    def __reduce__(self):  # copies keep the reference
+        return (Selected, (str(self), self.reference, self.factory, self.label))
+
+
+def split_list(spec: str) -> list[str]:
+    """Split a comma-separated list of references, keeping commas inside ``(...)``, ``[...]``, ``{...}`` and quotes.
+
+    >>> split_list("ekf3, my.py:A(q=1, r=2),accel")
+    ['ekf3', 'my.py:A(q=1, r=2)', 'accel']
+    """
+    out: list[str] = []
+    depth = 0
+    quote = ""
+    cur: list[str] = []
+    for ch in spec:
+        if quote:
+            if ch == quote:
+                quote = ""
+        elif ch in "'\"":
+            quote = ch
+        elif ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth = max(0, depth - 1)
+        elif ch == "," and depth == 0:
+            out.append("".join(cur).strip())
+            cur = []
+            continue
+        cur.append(ch)
+    out.append("".join(cur).strip())
+    return [s for s in out if s]
+
+
+def _parse_options(text: str, ref: str) -> dict:
+    """``q=1e-4, name='x'`` → dict, literal values only (UserError otherwise)."""
+    if not text.strip():
+        return {}
+    hint = "options are keyword=value with Python literals, e.g. (q_gyro=1e-4, r_acc=0.05)"
+    try:
+        call = ast.parse(f"_({text})", mode="eval").body
+    except SyntaxError:
+        raise UserError(f"cannot read the options of {ref!r}: {hint}") from None
+    if not isinstance(call, ast.Call) or call.args:
+        raise UserError(f"cannot read the options of {ref!r}: {hint}")
+    options: dict = {}
+    for kw in call.keywords:
+        if kw.arg is None:
+            raise UserError(f"cannot read the options of {ref!r}: {hint}")
+        try:
+            options[kw.arg] = ast.literal_eval(kw.value)
+        except (ValueError, SyntaxError, TypeError):
+            raise UserError(f"option {kw.arg} of {ref!r} is not a literal value ({ast.unparse(kw.value)}): "
+                            f"{hint}") from None
+    return options
+
+
+def parse_reference(text: str) -> Reference:
+    """Parse one reference (see the module doc); UserError for one that cannot be read."""
+    raw = str(text).strip()
+    head, args = raw, ""
+    if raw.endswith(")") and "(" in raw:
+        i = raw.index("(")
+        head, args = raw[:i].strip(), raw[i + 1:-1]
+    if not head:
+        raise UserError(f"estimator reference {raw!r} names nothing")
+    options = _parse_options(args, raw)
+    source, attr = head, None
+    if ":" in head:
+        left, right = head.rsplit(":", 1)
+        if _IDENT.fullmatch(right) and left:
+            source, attr = left, right
+    looks_like_file = (source.endswith(".py") or "/" in source or "\\" in source
+                       or (attr is None and os.path.isfile(source)))
+    if looks_like_file:
+        return Reference(raw, "file", source, attr, options)
+    if attr is not None:
+        if not _DOTTED.fullmatch(source):
+            raise UserError(f"estimator reference {raw!r}: {source!r} is neither a .py file nor a module name")
+        return Reference(raw, "module", source, attr, options)
+    return Reference(raw, "builtin", source, None, options)  # a registry name or an entry point (registry decides)
+
+
+def entry_point_names() -> dict[str, importlib.metadata.EntryPoint]:
+    """Installed plug-ins: entry-point name → entry point (group :data:`ENTRY_POINT_GROUP`)."""
+    try:
+        eps = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+    except Exception:  # noqa: BLE001 - a broken distribution's metadata must not break the built-ins
+        return {}
+    return {ep.name: ep for ep in eps}
+
+
+# ---- loading ------------------------------------------------------------------------------------------------------
+
+
+def _is_user_frame(filename: str, user_files: tuple[str, ...]) -> bool:
+    try:
+        f = str(Path(filename).resolve())
+    except (OSError, ValueError):
+        return False
+    if user_files:
+        return any(f == u or (u.endswith(os.sep) and f.startswith(u)) for u in user_files)
+    return not f.startswith(_PACKAGE_DIR) and "site-packages" not in f and not f.startswith(sys.prefix)
+
+
+def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, str]:
+    """(where, details): the last frame of ``exc``'s traceback in the user's files as ``file.py, line N, in f``
+    and their frames formatted like Python's traceback (with the exception line); ("", "") without such frames."""
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if _is_user_frame(f.filename, user_files)]
+    if isinstance(exc, SyntaxError) and exc.filename and _is_user_frame(exc.filename, user_files):
+        where = f"{Path(exc.filename).name}, line {exc.lineno}"
+        return where, "".join(traceback.format_exception_only(type(exc), exc)).rstrip()
+    if not frames:
+        return "", ""
+    last = frames[-1]
+    where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
+    details = "Traceback (your code):\n" + "".join(traceback.format_list(frames)) + "".join(
+        traceback.format_exception_only(type(exc), exc))
+    return where, details.rstrip()
+
+
+def _exc_text(exc: BaseException) -> str:
+    msg = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
+
+
+def _user_files(obj) -> tuple[str, ...]:
+    """The files (or package directories, ending in os.sep) that hold ``obj``'s code."""
+    mod = sys.modules.get(getattr(obj, "__module__", "") or "")
+    f = getattr(mod, "__file__", None)
+    if not f:
+        return ()
+    p = Path(f).resolve()
+    if p.name == "__init__.py":
+        return (str(p.parent) + os.sep,)
+    return (str(p),)
+
+
+def _load_file(ref: Reference):
+    path = Path(ref.source).expanduser()
+    if not path.is_file():
+        what = "a directory, not a file" if path.is_dir() else "not found"
+        raise UserError(f"estimator file {ref.source} {what}")
+    if path.suffix != ".py":
+        raise UserError(f"estimator file {ref.source} is not a Python file (.py)")
+    resolved = path.resolve()
+    name = f"steval_user_{_IDENT_SAFE.sub('_', path.stem)}_{hashlib.sha1(str(resolved).encode()).hexdigest()[:8]}"
+    spec = importlib.util.spec_from_file_location(name, resolved)
+    if spec is None or spec.loader is None:
+        raise UserError(f"cannot load {ref.source} as Python")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses and pickling look their module up here
+    folder = str(resolved.parent)
+    sys.path.insert(0, folder)  # helper modules next to the file import as they would when run directly
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        sys.modules.pop(name, None)
+        raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
+    except Exception as exc:  # noqa: BLE001 - the user's code: any failure is theirs to see
+        sys.modules.pop(name, None)
+        where, details = _user_trace(exc, (str(resolved),))
+        if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
+            details = ""
+        raise PluginError(f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""),
+                          details) from None
+    finally:
+        try:
+            sys.path.remove(folder)
+        except ValueError:
+            pass
+    return module, path.name
+
+
+_IDENT_SAFE = re.compile(r"[^0-9A-Za-z_]")
+
+
+def _load_module(ref: Reference):
+    try:
+        module = importlib.import_module(ref.source)
+    except ModuleNotFoundError as exc:
+        missing = exc.name or ""
+        if missing and (ref.source == missing or ref.source.startswith(missing + ".")):
+            raise UserError(f"no module named {ref.source} (not installed, and not on the path; for a file "
+                            f"write FILE.py:{ref.attr})") from None
+        raise PluginError(f"module {ref.source} failed to load: {_exc_text(exc)}") from None
+    except SyntaxError as exc:
+        raise UserError(f"{Path(exc.filename or ref.source).name}, line {exc.lineno}: syntax error: {exc.msg}") \
+            from None
+    except Exception as exc:  # noqa: BLE001
+        where, details = _user_trace(exc, ())
+        raise PluginError(f"module {ref.source} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""),
+                          details) from None
+    return module, ref.source
+
+
+def _estimator_classes(module) -> list[type]:
+    out = []
+    for obj in vars(module).values():
+        if (isinstance(obj, type) and obj.__module__ == module.__name__ and callable(getattr(obj, "step", None))
+                and not inspect.isabstract(obj)):
+            out.append(obj)
+    return out
+
+
+def check_interface(factory, label: str) -> None:
+    """UserError when ``factory`` (a class) lacks ``step()`` or ``reset()``, or cannot be constructed."""
+    if not callable(factory):
+        raise UserError(f"{label} is not a class (it is a {type(factory).__name__})")
+    if isinstance(factory, type):
+        missing = [m for m in ("step", "reset") if not callable(getattr(factory, m, None))]
+        if missing:
+            raise UserError(f"{label} is not an estimator: it has no {' and no '.join(m + '()' for m in missing)} "
+                            "method (see docs/ESTIMATORS.md)")
+        if inspect.isabstract(factory):
+            left = ", ".join(sorted(factory.__abstractmethods__))
+            raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
+
+
+def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
+    """The constructor a file, module or entry-point reference names, and a label for messages
+    (``MyEkf in my_ekf.py``). UserError / PluginError for every way it can fail (one line each)."""
+    if ref.kind == "entry-point":
+        ep = entry_point_names()[ref.source]
+        try:
+            factory = ep.load()
+        except Exception as exc:  # noqa: BLE001
+            where, details = _user_trace(exc, ())
+            raise PluginError(f"plug-in {ref.source} ({ep.value}) failed to load: {_exc_text(exc)}"
+                              + (f" ({where})" if where else ""), details) from None
+        label = f"plug-in {ref.source} ({ep.value})"
+        check_interface(factory, label)
+        return factory, label
+    module, where = _load_file(ref) if ref.kind == "file" else _load_module(ref)
+    if ref.attr is None:
+        found = _estimator_classes(module)
+        if len(found) != 1:
+            names = ", ".join(c.__name__ for c in found) or "none"
+            raise UserError(f"{where} defines {len(found)} estimator classes ({names}): name one, "
+                            f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}")
+        factory = found[0]
+    else:
+        factory = getattr(module, ref.attr, None)
+        if factory is None:
+            classes = [c.__name__ for c in _estimator_classes(module)]
+            hint = f" (estimator classes there: {', '.join(classes)})" if classes else ""
+            raise UserError(f"{where} has no class {ref.attr}{hint}")
+    label = f"{getattr(factory, '__name__', ref.attr)} in {where}"
+    check_interface(factory, label)
+    return factory, label
+
+
+def display_name(factory, ref: Reference) -> str:
+    """A plug-in's name in tables, plots and the viewer: its ``name`` attribute when the class sets one, else
+    the class name; built-ins keep their registry name."""
+    if ref.kind == "builtin":
+        return ref.source
+    own = None
+    for klass in getattr(factory, "__mro__", ())[:-1]:
+        if klass is Estimator:
+            break
+        if "name" in vars(klass) and isinstance(vars(klass)["name"], str):
+            own = vars(klass)["name"]
+            break
+    return own or getattr(factory, "__name__", None) or ref.source
+
+
+def construct(factory, label: str, options: dict):
+    """``factory(**options)``: ValueError for options it does not take (naming the ones it does), PluginError
+    when the user's constructor raises."""
+    try:
+        sig = inspect.signature(factory)
+    except (TypeError, ValueError):
+        sig = None
+    if sig is not None:
+        params = sig.parameters
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+        names = [n for n, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        unknown = [k for k in options if k not in names]
+        if unknown and not takes_any:
+            takes = f"it takes: {', '.join(names)}" if names else "it takes none"
+            raise ValueError(f"{label} does not take the option{'s' if len(unknown) > 1 else ''} "
+                             f"{', '.join(unknown)} ({takes})")
+    try:
+        return factory(**options)
+    except Exception as exc:  # noqa: BLE001
+        where, details = _user_trace(exc, _user_files(factory))
+        if isinstance(exc, TypeError) and not where:
+            raise ValueError(f"{label}: {exc}") from None
+        raise PluginError(f"{label} could not be constructed: {_exc_text(exc)}" + (f" ({where})" if where else ""),
+                          details) from None
+
+
+# ---- the guard ----------------------------------------------------------------------------------------------------
+
+
+def _origin(obj, method: str) -> str:
+    """``my_ekf.py, line 57 (MyEkf.step)``: where a method is defined (for messages without a traceback)."""
+    fn = getattr(type(obj), method, None)
+    code = getattr(fn, "__code__", None)
+    if code is None:
+        return f"{type(obj).__name__}.{method}"
+    return f"{Path(code.co_filename).name}, line {code.co_firstlineno} ({type(obj).__name__}.{method})"
+
+
+class Guarded(Estimator):
+    """A user's estimator behind checks: non-finite input rows skipped (invalid), output shapes checked, every
+    exception turned into :class:`PluginError` (message naming their file and line; ``details``: their traceback).
+
+    ``run()`` uses the estimator's own ``run(acc_mg, gyro_mdps, thr)`` when it defines one (returning an
+    :class:`AttitudeEstimate`, or any object with ``q_wxyz`` and optionally ``thx_rad``, ``thy_rad``, ``valid``,
+    or an (N, 4) array), else calls ``step()`` row by row.
+    """
+
+    def __init__(self, inner, name: str) -> None:
+        self.inner = inner
+        self.name = str(name)
+        self.files = _user_files(type(inner))
+        own_run = getattr(type(inner), "run", None)
+        self.own_run = callable(own_run) and own_run is not Estimator.run
+        self.rate_hz = getattr(inner, "rate_hz", None)
+
+    def _fail(self, method: str, exc: BaseException) -> PluginError:
+        where, details = _user_trace(exc, self.files)
+        return PluginError(f"estimator {self.name} failed in {where or _origin(self.inner, method)}: "
+                           f"{_exc_text(exc)}", details)
+
+    def origin(self, method: str = "step") -> str:
+        """Where the user's ``method`` is defined (``my_ekf.py, line 57 (MyEkf.step)``)."""
+        return _origin(self.inner, method if hasattr(type(self.inner), method) else "step")
+
+    def reset(self) -> None:
+        try:
+            self.inner.reset()
+        except Exception as exc:  # noqa: BLE001
+            raise self._fail("reset", exc) from None
+
+    def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
+        acc = np.asarray(acc_mg, dtype=np.float64).reshape(3)
+        gyro = np.asarray(gyro_mdps, dtype=np.float64).reshape(3)
+        if not (np.isfinite(acc).all() and np.isfinite(gyro).all()):
+            return np.full(4, np.nan)
+        try:
+            q = self.inner.step(acc, gyro, int(thr))
+        except Exception as exc:  # noqa: BLE001
+            raise self._fail("step", exc) from None
+        return self._quaternion(q)
+
+    def _quaternion(self, q) -> np.ndarray:
+        try:
+            out = np.asarray(q, dtype=np.float64)
+        except (TypeError, ValueError):
+            out = None
+        if out is None or out.shape != (4,):
+            shape = "None" if q is None else (f"shape {out.shape}" if out is not None else type(q).__name__)
+            raise PluginError(f"estimator {self.name}: step() returned {shape}, not the (4,) quaternion w, x, y, z "
+                              f"({self.origin('step')}; see docs/ESTIMATORS.md)")
+        return out
+
+    def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
+        acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+        n = acc.shape[0]
+        rows = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
+        every = bool(rows.all())
+        a, g, t = (acc, gyro, thr_arr) if every else (acc[rows], gyro[rows], thr_arr[rows])
+        m = a.shape[0]
+        thx = thy = valid_in = None
+        if m == 0:  # nothing to feed (no row, or none finite): the estimator is not called
+            q = np.empty((0, 4))
+        elif self.own_run:
+            try:
+                res = self.inner.run(a, g, t)
+            except Exception as exc:  # noqa: BLE001
+                raise self._fail("run", exc) from None
+            q, thx, thy, valid_in = self._estimate(res, m)
+        else:
+            q = np.empty((m, 4), dtype=np.float64)
+            inner_step = self.inner.step
+            t_l = t.tolist()
+            try:  # the first step's output checked in full, the others by the assignment's shape
+                q[0] = self._quaternion(inner_step(a[0], g[0], t_l[0]))
+                for k in range(1, m):
+                    q[k] = inner_step(a[k], g[k], t_l[k])
+            except PluginError:
+                raise
+            except Exception as exc:  # noqa: BLE001
+                raise self._fail("step", exc) from None
+        if not every:
+            full = np.full((n, 4), np.nan)
+            full[rows] = q
+            q = full
+            if thx is not None:
+                thx, thy = _scatter(thx, rows, n), _scatter(thy, rows, n)
+            if valid_in is not None:
+                v = np.zeros(n, dtype=bool)
+                v[rows] = valid_in
+                valid_in = v
+        ex, ey, ez = euler_from_quaternion(q)
+        thx = ex if thx is None else thx
+        thy = ey if thy is None else thy
+        valid = np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
+        if valid_in is not None:
+            valid &= valid_in
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=ez, valid=valid)
+
+    def _estimate(self, res, m: int):
+        """(q, thx or None, thy or None, valid or None) of a user's run() result, shapes checked."""
+        where = self.origin("run")
+        if isinstance(res, np.ndarray) or isinstance(res, (list, tuple)):
+            q = np.asarray(res, dtype=np.float64)
+            thx = thy = valid = None
+        elif hasattr(res, "q_wxyz"):
+            q = np.asarray(res.q_wxyz, dtype=np.float64)
+            thx = getattr(res, "thx_rad", None)
+            thy = getattr(res, "thy_rad", None)
+            valid = getattr(res, "valid", None)
+        else:
+            raise PluginError(f"estimator {self.name}: run() returned {type(res).__name__}, not an AttitudeEstimate "
+                              f"or (N, 4) quaternions ({where}; see docs/ESTIMATORS.md)")
+        if q.shape != (m, 4):
+            raise PluginError(f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
+                              f"expected ({m}, 4) ({where})")
+        out = []
+        for label, arr, dtype in (("thx_rad", thx, np.float64), ("thy_rad", thy, np.float64),
+                                  ("valid", valid, bool)):
+            if arr is None:
+                out.append(None)
+                continue
+            arr = np.asarray(arr, dtype=dtype)
+            if arr.shape != (m,):
+                raise PluginError(f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows "
+                                  f"({where})")
+            out.append(arr)
+        return (q, *out)
+
+    def __repr__(self) -> str:
+        return f"<Guarded {self.name!r} {type(self.inner).__name__}>"
+
+
+def _scatter(values: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    out = np.full(n, math.nan)
+    out[rows] = values
+    return out
