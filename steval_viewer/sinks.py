@@ -250,6 +250,11 @@ def _last_line(log_path: Path) -> str:
     return line[:200]
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
+
+
 def _log_path(what: str, port: int) -> Path:
     return Path(tempfile.gettempdir()) / f"steval-{what}-{port}.log"
 
@@ -343,7 +348,11 @@ def open_session(
             if atomic_rrd:
                 session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
                 path = session.rrd_partial
-            (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
+            try:
+                file_sink = rr.FileSink(str(path))
+            except RuntimeError as exc:  # Rerun's "Failed to create file": one sentence, not its traceback
+                raise UserError(f"--rrd {options.rrd}: cannot write it ({_first_line(exc)})") from None
+            (file_sinks if split_file and options.viewer else sinks).append(file_sink)
         if options.spawn:
             session.viewer_url = spawn_native_viewer(options.grpc_port)
             sinks.append(rr.GrpcSink(session.viewer_url))

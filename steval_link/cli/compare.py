@@ -18,12 +18,14 @@ import typer
 
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain, check_throttle
+from steval_link.cli.checks import check_gain, check_throttle, require_attitude
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import MahonySettings
+from steval_link.link.capture import demo_capture_path, read_source
 
 __all__ = ["compare_command"]
 
@@ -123,6 +125,7 @@ def compare_command(
             show_default=False,
         ),
     ] = None,
+    force: ForceOption = False,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
@@ -132,7 +135,9 @@ def compare_command(
     names = registry.parse_names(
         ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
     )  # a missing optional package is a row of the report
+    src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     if plot is not None:
+        check_output(plot, option="--plot", force=force, inputs=(src.path,))
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
@@ -140,26 +145,29 @@ def compare_command(
         check_gain(option, gain)
     check_throttle("--min-thr", min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
-        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4))
-        if len(tel.attitude) == 0:
-            raise UserError(
-                f"{tel.source.get('path')} has no attitude frames to compare "
-                f"({len(tel.status)} status frames, {len(tel.text)} text lines)."
-            )
+        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src)
+        require_attitude(tel, "compare")
+        if plot is not None and len(tel.fc):
+            check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))
+        for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
+            print(f"steval: warning: {w}", file=sys.stderr)
         settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
         progress(0.4, f"port and {', '.join(names)}")
         report = compare_capture(tel, estimators=names, settings=settings)
-        for w in seen:
-            report.notes.append(w)
+        if as_json:
+            report.notes.extend(seen)
         if plot is not None:
             from steval_link.analysis.plots import plot_comparison  # matplotlib loads only for --plot (start-up time)
 
             progress(0.9, f"plotting {plot.name}")
-            plot_comparison(tel, report, plot)
-            if len(tel.fc):
-                from steval_link.analysis.plots import plot_flight_control  # as above
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_comparison(tel, report, part)
+                if len(tel.fc):
+                    from steval_link.analysis.plots import plot_flight_control  # as above
 
-                plot_flight_control(tel, flight_plot_path(plot))
+                    fc_plot = flight_plot_path(plot)
+                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                        plot_flight_control(tel, fc_part)
     if as_json:
         d = report.as_dict()
         if plot is not None:

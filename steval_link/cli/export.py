@@ -10,6 +10,8 @@ import typer
 
 from steval_link.analysis.ble import load_ble
 from steval_link.cli.app import app
+from steval_link.cli.checks import require_attitude
+from steval_link.cli.outputs import atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
@@ -105,35 +107,29 @@ def export(
     outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw)) if p is not None]
     if not outputs:
         raise UserError("nothing to export: give --csv OUT, --parquet OUT and/or --raw OUT.bin.")
+    src = read_source(capture)  # the input first, then the outputs, then the work
     for opt, p in outputs:
-        if p.resolve() == capture.resolve():
-            raise UserError(f"{opt} {p} is the capture itself; choose another output file.")
-        if p.exists() and not force:
-            raise UserError(f"{p} already exists (use --force to overwrite).")
-        if not p.parent.is_dir():
-            raise UserError(f"{opt} {p}: directory {p.parent} does not exist.")
+        check_output(p, option=opt, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
-        progress(0.0, f"reading {capture.name}")
-        src = read_source(capture)
         progress(0.1, "decoding")
         if is_ble_source(src):
             _export_ble(src, csv, parquet, raw, progress)
             return
         tel = telemetry_of_source(src) if (csv or parquet) else None
-        for w in src.warnings:
+        if tel is not None:
+            require_attitude(tel, "export (--raw gives the bytes)")
+        for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
             typer.echo(f"steval: warning: {w}", err=True)
-        try:
-            if raw is not None:
-                write_raw(src.data, raw)
-                typer.echo(f"{raw}: {len(src.data)} bytes")
-            if tel is not None:
-                table = tel.attitude_table()
-                table.update(tel.flight_columns())
-                if degrees:
-                    table = in_degrees(table)
-                _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
-        except OSError as exc:
-            raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+        if raw is not None:
+            with atomic_output(raw, option="--raw") as part:
+                write_raw(src.data, part)
+            typer.echo(f"{raw}: {len(src.data)} bytes")
+        if tel is not None:
+            table = tel.attitude_table()
+            table.update(tel.flight_columns())
+            if degrees:
+                table = in_degrees(table)
+            _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
 
 
 def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, progress) -> None:
@@ -144,18 +140,17 @@ def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, p
     for w in src.warnings:
         typer.echo(f"steval: warning: {w}", err=True)
     ble = load_ble(src)
-    try:
-        _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
-    except OSError as exc:
-        raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+    _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
 
 
 def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str) -> None:
     """The table to the CSV and/or Parquet file asked for, a line each saying how many ``rows``."""
     if csv is not None:
-        write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+        with atomic_output(csv, option="--csv") as part:
+            write_csv(table, part, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
         typer.echo(f"{csv}: {rows}")
     if parquet is not None:
         progress(0.9, f"writing {parquet.name}")
-        write_parquet(table, parquet)
+        with atomic_output(parquet, option="--parquet") as part:
+            write_parquet(table, part)
         typer.echo(f"{parquet}: {rows}")
