@@ -93,14 +93,14 @@ def check_output(
     p = Path(path).expanduser()
     label = f"{option} {p}"
     if p.is_dir():
-        raise UserError(f"{label} is a folder; give a file name")
+        raise UserError(f"{label}: cannot write it, it is a folder (give a file name)")
     for given in inputs:
         if given is not None and _same(p, Path(given)):
             raise UserError(f"{label} is the input itself; choose another output file (inputs are never modified)")
     parent = p.parent
     if not parent.is_dir():
         what = "is not a folder" if parent.exists() else "does not exist"
-        raise UserError(f"{label}: folder {parent} {what} (create it first)")
+        raise UserError(f"{label}: cannot write it, folder {parent} {what} (create it first)")
     if p.exists() or p.is_symlink():
         if overwrite == "never":
             raise UserError(f"{label} already exists; choose another name (this command never overwrites a file)")
@@ -108,7 +108,7 @@ def check_output(
             raise UserError(f"{label} already exists (use --force to overwrite)")
     failed = _probe(parent)
     if failed is not None:
-        raise UserError(f"{label}: cannot create a file in {parent} ({_why(failed)})")
+        raise UserError(f"{label}: cannot write it, folder {parent} takes no new file ({_why(failed)})")
     return p
 
 
