@@ -4,6 +4,7 @@ boxed usage panel, a traceback or the raw bytes of what they typed; ``--version`
 from __future__ import annotations
 
 import re
+import sys
 
 import pytest
 from support.cli import run_cli
@@ -120,3 +121,142 @@ def test_range_checks(monkeypatch, capsys, tmp_path, args, option):
 def test_registry_names_are_what_the_messages_list():
     assert {"st-mahony", "accel", "ekf3", "mekf"} <= set(registry.names())
     assert re.match(r"^\d+\.\d+", __version__)
+
+
+# -- issue 25: errors in the command line's order, the one capture rule, outputs, small defects ---------------
+
+@pytest.fixture(scope="module")
+def small_capture(tmp_path_factory):
+    from steval_link.emulation.synth import SynthOptions, synthesize, write_output
+
+    path = tmp_path_factory.mktemp("small") / "small.stv"
+    write_output(synthesize(SynthOptions(scenario="bench", duration_s=5.0)), path, fmt="stv")
+    return path
+
+
+def test_live_complains_about_the_port_before_the_display(monkeypatch, capsys):
+    # no display and no --rrd is an error too, but the port comes first on the command line
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("steval_link.link.autodetect.list_candidate_ports", lambda: ["/dev/ttyS7"])
+    code, _, err = run_cli(monkeypatch, capsys, "live", "--port", "/dev/steval-nonexistent")
+    _one_error_line(code, err)
+    assert "/dev/steval-nonexistent" in err and "display" not in err
+    # param and command list the ports as live does
+    live_line = err
+    for args in (["param", "get"], ["command", "status"], ["command", "mode", "text"]):
+        code, _, err = run_cli(monkeypatch, capsys, *args, "--port", "/dev/steval-nonexistent")
+        _one_error_line(code, err)
+        assert err == live_line and "available ports: /dev/ttyS7" in err
+
+
+def test_export_checks_its_input_before_its_output(monkeypatch, capsys, tmp_path):
+    existing = tmp_path / "j.csv"
+    existing.write_text("keep")
+    code, _, err = run_cli(monkeypatch, capsys, "export", tmp_path / "missing.stv", "--csv", existing)
+    _one_error_line(code, err)
+    assert "missing.stv" in err and "already exists" not in err and existing.read_text() == "keep"
+
+
+def test_replay_rrd_refuses_an_existing_file_without_force(monkeypatch, capsys, tmp_path, small_capture):
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--rrd", rrd)
+    _one_error_line(code, err)
+    assert "already exists (use --force to overwrite)" in err and out == ""  # before the summary
+    assert rrd.read_bytes() == b"an earlier recording"
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--rrd", rrd, "--force", "-e", "none")
+    assert code == 0, err
+    assert rrd.read_bytes()[:4] == b"RRF2" and sorted(p.name for p in tmp_path.iterdir()) == ["old.rrd"]
+
+
+def test_capture_without_attitude_frames_is_one_rule(monkeypatch, capsys, tmp_path, small_capture):
+    # the first 1000 bytes of a capture: its header and a few boot text frames, cut mid-chunk
+    cut = tmp_path / "cut.stv"
+    cut.write_bytes(small_capture.read_bytes()[:1000])
+    for args in (["export", cut, "--csv", tmp_path / "o.csv"], ["compare", cut], ["spectrum", cut],
+                 ["preflight", cut]):
+        code, _, err = run_cli(monkeypatch, capsys, *args)
+        _one_error_line(code, err)
+        assert "1000 bytes" in err and "no attitude frames" in err, err
+    assert not (tmp_path / "o.csv").exists()
+    code, out, err = run_cli(monkeypatch, capsys, "replay", cut)  # replay summarises whatever frames there are
+    assert code == 0 and err.count("\n") == 1 and err.startswith("steval: warning: ") and "cut short" in err
+    head = tmp_path / "head.stv"
+    head.write_bytes(small_capture.read_bytes()[:300])
+    code, _, err = run_cli(monkeypatch, capsys, "replay", head)
+    assert err == f"steval: error: {head}: 300 bytes, capture truncated in its header: no frames.\n"
+
+
+def test_atomic_output_is_whole_or_absent(tmp_path):
+    from steval_link.cli.outputs import atomic_output, check_output, partial_path
+    from steval_link.errors import UserError
+
+    final = tmp_path / "out.csv"
+    final.write_text("earlier")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_output(final, option="--csv") as part:
+            assert part == partial_path(final) == tmp_path / "out.csv.partial"
+            part.write_text("half")
+            raise KeyboardInterrupt
+    assert final.read_text() == "earlier" and not part.exists()
+    with pytest.raises(UserError, match=r"^--csv .*out.csv: cannot write it \(no space left on device\)"):
+        with atomic_output(final, option="--csv") as part:
+            raise OSError(28, "No space left on device")
+    with pytest.raises(UserError, match="Failed to create file"):
+        with atomic_output(final, option="--rrd") as part:
+            raise RuntimeError("Failed to create file\nmore lines of Rerun's")
+    with atomic_output(final, option="--csv") as part:
+        part.write_text("new")
+    assert final.read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    assert partial_path(tmp_path / "fig.png", keep_suffix=True).name == "fig.partial.png"
+    with pytest.raises(UserError, match="is the input itself"):
+        check_output(final, option="--csv", force=True, inputs=(final,))
+    with pytest.raises(UserError, match="takes no new file"):
+        check_output("/proc/steval.csv", option="--csv")
+
+
+def test_live_help_shows_the_ble_extra(monkeypatch, capsys):
+    code, out, _ = run_cli(monkeypatch, capsys, "live", "--help")
+    assert code == 0 and 'pip install "steval-link[ble]"' in " ".join(out.replace("│", " ").split())
+
+
+def test_simulate_json_final_is_null_where_the_text_says_n_a(monkeypatch, capsys):
+    import json
+
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3", "--json")
+    assert code == 0 and set(json.loads(out)["final"].values()) == {None}
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3")
+    assert code == 0 and out.count("n/a") == 3
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "--json")
+    assert code == 0 and None not in json.loads(out)["final"].values()
+
+
+FAKE_RERUN = """
+import socket, sys, time
+args = sys.argv[1:]
+port = int(args[args.index("--port") + 1])
+if "--listen-first" in sys.argv[0] or {listen}:
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    time.sleep(0.3)
+print("[2026-11-24T02:00:00Z ERROR re_viewer] Failed to create wgpu adapter: no suitable GPU adapter", flush=True)
+sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("listen", [False, True], ids=["exits-at-once", "listens-then-dies"])
+def test_spawn_reports_a_viewer_that_dies(monkeypatch, capsys, tmp_path, small_capture, listen):
+    from steval_viewer import sinks
+    from steval_viewer.sink_options import free_port
+
+    fake = tmp_path / "rerun.py"
+    fake.write_text(FAKE_RERUN.format(listen=listen))
+    monkeypatch.setattr(sinks, "rerun_command", lambda: [sys.executable, str(fake)])
+    port = free_port()
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--spawn", "--grpc-port", port,
+                             "-e", "none")
+    _one_error_line(code, err)
+    assert "no suitable GPU adapter" in err and "Rerun viewer exited" in err
