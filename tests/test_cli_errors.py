@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import sys
+from pathlib import Path
 
 import pytest
 from support.cli import run_cli
@@ -260,3 +261,47 @@ def test_spawn_reports_a_viewer_that_dies(monkeypatch, capsys, tmp_path, small_c
                              "-e", "none")
     _one_error_line(code, err)
     assert "no suitable GPU adapter" in err and "Rerun viewer exited" in err
+
+
+def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_capture):
+    # an emulated board (its bytes from a capture) whose frames carry emulated times: the stop event must too
+    from types import SimpleNamespace
+
+    from steval_link.emulation.runner import EmulationOptions
+    from steval_link.link.capture import read_capture
+    from steval_link.live import emulated
+    from steval_link.live.session import LiveOptions
+
+    cap = read_capture(small_capture)
+    bounds = [*cap.chunk_offsets.tolist(), len(cap.data)]
+    pieces = [(cap.data[bounds[i]:bounds[i + 1]], 0.05 * (i + 1)) for i in range(len(bounds) - 1)]
+
+    class FakeEmulation:
+        def __init__(self, options):
+            self.elf = SimpleNamespace(path=Path("fake.elf"))
+            self.motion = SimpleNamespace(name="bench")
+            self.duration_s = pieces[-1][1]
+
+        def chunks(self):
+            yield from pieces
+
+        def send(self, data):
+            pass
+
+        def send_at(self, data, t_s):
+            pass
+
+        def take_host_bytes(self):
+            return []
+
+        def report(self):
+            return None
+
+    monkeypatch.setattr(emulated, "Emulation", FakeEmulation)
+    out = tmp_path / "emu.stv"
+    live = LiveOptions(port="emulated", baud=115200, out=out, rrd=None, view=False, estimators=[], prompt=False)
+    emulated.EmulateSession(EmulationOptions(elf=Path("fake.elf")), live, tty=False).run()
+    got = read_capture(out)
+    stop = [e for e in got.events if e.kind == "stop"]
+    assert len(stop) == 1 and stop[0].t_host_s == pytest.approx(pieces[-1][1])
+    assert got.chunk_times_s.max() == pytest.approx(pieces[-1][1])
