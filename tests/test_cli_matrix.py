@@ -347,3 +347,27 @@ def test_a_new_command_that_leaks_a_traceback_fails_the_matrix(monkeypatch, caps
     finally:
         app.registered_commands[:] = [c for c in app.registered_commands if c.name != "matrix-probe"]
     assert "matrix-probe" not in command_table()
+
+
+# -- the suite as Windows sees it ------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_the_suite_collects_without_the_posix_modules():
+    """``.ci/run`` collects the suite with pty, tty, termios, fcntl and resource blocked for the tests (as on
+    Windows): no collection error, the pseudo-terminal modules skip with a reason."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    line = "PYTHONPATH=.ci python -m pytest -p block_posix --collect-only -q"
+    assert line in (root / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    env = dict(os.environ, PYTHONPATH=str(root / ".ci"))
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "block_posix", "--collect-only", "-q", "-rs"],
+                       cwd=root, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and "errors during collection" not in r.stdout and "ERROR " not in r.stdout, (
+        r.stdout[-3000:] + r.stderr[-2000:])
+    assert "pseudo-terminal (POSIX only)" in r.stdout
+    probe = subprocess.run([sys.executable, "-m", "pytest", "-p", "block_posix", "-q", "-rs",
+                            "tests/test_commands.py", "-k", "param"], cwd=root, env=env, capture_output=True,
+                           text=True, timeout=600)
+    assert probe.returncode == 0 and "skipped" in probe.stdout and "POSIX only" in probe.stdout, probe.stdout[-2000:]
