@@ -11,7 +11,7 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.live import session_outputs
-from steval_link.cli.outputs import check_output
+from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
     ConnectOption,
@@ -85,6 +85,11 @@ def emulate_command(
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
     Commands reach the firmware's USART1 RX from --commands at given times, or typed at the prompt (a terminal).
     """
+    check_input(elf, what="firmware ELF")  # the inputs first
+    if broad is not None:
+        check_input(broad, what="BROAD trial")
+    if commands is not None:
+        check_input(commands, what="command script")
     if ble:
         if rrd is not None or spawn or serve or connect:
             raise UserError("--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv "

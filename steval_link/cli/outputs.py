@@ -31,6 +31,7 @@ __all__ = [
     "OUTPUT_OPTIONS",
     "ForceOption",
     "atomic_output",
+    "check_input",
     "check_output",
     "output_error",
     "partial_path",
@@ -101,6 +102,8 @@ def check_output(
     if not parent.is_dir():
         what = "is not a folder" if parent.exists() else "does not exist"
         raise UserError(f"{label}: cannot write it, folder {parent} {what} (create it first)")
+    if p.exists() and not p.is_file():  # a device or a pipe (/dev/null): never replaced by a file
+        raise UserError(f"{label}: cannot write it, it is not a regular file (a device or a pipe)")
     if p.exists() or p.is_symlink():
         if overwrite == "never":
             raise UserError(f"{label} already exists; choose another name (this command never overwrites a file)")
@@ -119,6 +122,19 @@ def _same(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve()
     except OSError:
         return False
+
+
+def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
+    """An input file, checked before it is read: it exists, is not a folder, and is a regular file (a device such as
+    ``/dev/zero`` or a pipe may never end). Raises UserError; returns it as a Path."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise UserError(f"{p}: no such {what}")
+    if p.is_dir():
+        raise UserError(f"{p} is a folder, not a {what}")
+    if not p.is_file():
+        raise UserError(f"{p} is not a regular file (a device or a pipe), not a {what}")
+    return p
 
 
 def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:

@@ -352,6 +352,8 @@ def _read_bytes(path: Path) -> bytes:
         raise UserError(f"{path}: no such file.")
     if path.is_dir():
         raise UserError(f"{path} is a directory, not a capture file.")
+    if not path.is_file():  # a device or a pipe: it may never end (record a port with steval record)
+        raise UserError(f"{path} is not a regular file (a device or a pipe); record a port with steval record.")
     try:
         return path.read_bytes()
     except OSError as exc:
