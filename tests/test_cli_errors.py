@@ -351,3 +351,16 @@ def test_readme_states_the_capture_rule_in_the_words_the_code_uses(monkeypatch, 
     assert code == 2 and re.sub(r"\d+", "N", said) == re.sub(r"\d+", "N", example.group(0).strip("`"))
     assert "`steval: warning: FILE: capture cut short or damaged at file byte N" in text
     assert "an existing file is replaced only with `--force`" in text
+
+
+def test_a_sink_that_cannot_create_its_file_is_one_sentence():
+    # past the CLI's own checks (a library caller): Rerun's "RuntimeError: Failed to create file" becomes a UserError
+    from steval_link.errors import UserError
+    from steval_viewer.sink_options import SinkOptions
+    from steval_viewer.sinks import open_session
+
+    if not Path("/proc").is_dir():
+        pytest.skip("needs /proc")
+    with pytest.raises(UserError, match=r"^--rrd /proc/steval-sink\.rrd: cannot write it \(") as exc:
+        open_session(SinkOptions(rrd=Path("/proc/steval-sink.rrd")))
+    assert "\n" not in str(exc.value)

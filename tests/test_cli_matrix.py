@@ -162,18 +162,6 @@ def _header_size(data: bytes) -> int:
     return len(MAGIC) + 4 + hlen + 4
 
 
-@pytest.fixture
-def port():
-    """A pseudo-terminal's device path: opens like a serial port, carries nothing."""
-    if not hasattr(os, "openpty"):
-        pytest.skip("serial-port commands need a pseudo-terminal (POSIX)")
-    master, slave = os.openpty()
-    path = os.ttyname(slave)
-    yield path
-    os.close(slave)
-    os.close(master)
-
-
 def _fill(args: list[str], files: dict[str, Path], tmp: Path, port: str | None) -> list[str]:
     values = {"capture": files["capture"], "trial": files["trial"], "elf": files["elf"], "tmp": tmp,
               "port": port or "/dev/steval-no-port"}
