@@ -363,11 +363,7 @@ def open_session(
             if atomic_rrd:
                 session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
                 path = session.rrd_partial
-            try:
-                file_sink = rr.FileSink(str(path))
-            except RuntimeError as exc:  # Rerun's "Failed to create file": one sentence, not its traceback
-                raise UserError(f"--rrd {options.rrd}: cannot write it ({_first_line(exc)})") from None
-            (file_sinks if split_file and options.viewer else sinks).append(file_sink)
+            (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
         if options.spawn:
             session.viewer_url = spawn_native_viewer(options.grpc_port)
             sinks.append(rr.GrpcSink(session.viewer_url))
@@ -387,13 +383,21 @@ def open_session(
         if session.rrd_partial is not None:
             session.rrd_partial.unlink(missing_ok=True)
         raise
-    rec.set_sinks(*sinks)
-    if file_sinks:
-        file_rec = rr.RecordingStream(
-            application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
-        )
-        file_rec.set_sinks(*file_sinks)
-        session.file_rec = file_rec
+    try:
+        rec.set_sinks(*sinks)
+        if file_sinks:
+            file_rec = rr.RecordingStream(
+                application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
+            )
+            file_rec.set_sinks(*file_sinks)
+            session.file_rec = file_rec
+    except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
+        for child in session.children:
+            stop_child(child)
+        if session.rrd_partial is not None:
+            session.rrd_partial.unlink(missing_ok=True)
+        where = f"--rrd {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
+        raise UserError(f"{where} ({_first_line(exc)})") from None
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)
