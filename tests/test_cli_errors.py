@@ -364,3 +364,31 @@ def test_a_sink_that_cannot_create_its_file_is_one_sentence():
     with pytest.raises(UserError, match=r"^--rrd /proc/steval-sink\.rrd: cannot write it \(") as exc:
         open_session(SinkOptions(rrd=Path("/proc/steval-sink.rrd")))
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.slow
+def test_the_readme_screenshot_is_made_by_its_script(tmp_path):
+    """docs/make_screenshot.py: today's viewer on a virtual display, the viewer's own screenshot."""
+    import subprocess
+
+    from support.xdisplay import require_display_tools
+
+    require_display_tools()
+    root = Path(__file__).resolve().parents[1]
+    assert "`python docs/make_screenshot.py`" in " ".join(_readme().split())
+    out = tmp_path / "shot.png"
+    r = subprocess.run([sys.executable, str(root / "docs" / "make_screenshot.py"), str(out)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    png = out.read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 100_000  # a rendered window, not a blank one
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    assert (width, height) == (1600, 1000)
+
+
+def test_readme_speed_claims_are_dated():
+    perf = _readme().split("## Performance", 1)[1].split("\n## ", 1)[0]
+    assert "re-measured 2026-11-24" in perf.splitlines()[0]
+    for bench in ("bench_decode.py", "bench_estimators.py"):
+        row = next(ln for ln in perf.splitlines() if bench in ln)
+        assert "2026-11-24" in row, row
