@@ -129,7 +129,7 @@ def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
     ``/dev/zero`` or a pipe may never end). Raises UserError; returns it as a Path."""
     p = Path(path).expanduser()
     if not p.exists():
-        raise UserError(f"{p}: no such {what}")
+        raise UserError(f"{p}: no such file ({what})")
     if p.is_dir():
         raise UserError(f"{p} is a folder, not a {what}")
     if not p.is_file():
