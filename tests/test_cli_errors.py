@@ -392,3 +392,11 @@ def test_readme_speed_claims_are_dated():
     for bench in ("bench_decode.py", "bench_estimators.py"):
         row = next(ln for ln in perf.splitlines() if bench in ln)
         assert "2026-11-24" in row, row
+
+
+@pytest.mark.parametrize("command", ["compare", "spectrum", "preflight"])
+def test_a_ble_capture_where_serial_frames_are_needed_is_named(monkeypatch, capsys, command):
+    ble = Path(__file__).resolve().parents[1] / "recordings" / "ble_demo.stv"
+    code, _, err = run_cli(monkeypatch, capsys, command, ble)
+    _one_error_line(code, err)
+    assert "a BLE capture (" in err and "no serial frames" in err

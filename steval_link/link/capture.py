@@ -557,6 +557,9 @@ def telemetry_of_source(src: Source):
 
     if src.kind == "stv" and not src.data:
         size = _file_size(src.path)
+        if src.chunks.get(CHUNK_BLE):
+            raise UserError(f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
+                            "serial frames): steval replay and export read it, this command needs the serial stream.")
         if src.warnings:  # cut short or damaged right after the header
             raise UserError(f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
                             "short): no frames.")
