@@ -192,6 +192,7 @@ def _assert_one_error(code: int, out: str, err: str, args) -> None:
     assert code == 2, f"steval {' '.join(map(str, args))}: exit {code}\n{err}"
     assert len(lines) == 1 and lines[0].startswith("steval: error: "), f"steval {' '.join(map(str, args))}:\n{err}"
     assert "Traceback" not in err + out and "Warning:" not in err, err
+    assert out == "", f"steval {' '.join(map(str, args))} printed before its error:\n{out}"  # no work was done
 
 
 def _needs_port(args: list[str]) -> bool:
