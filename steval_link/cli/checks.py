@@ -1,5 +1,6 @@
 """Range checks of command-line values shared by the sub-commands: each raises a one-line
-:class:`~steval_link.errors.UserError` naming the option, before any work is done."""
+:class:`~steval_link.errors.UserError` naming the option, before any work is done; and the one rule for a capture
+without attitude frames (:func:`require_attitude`)."""
 
 from __future__ import annotations
 
