@@ -48,6 +48,9 @@ from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port
 APPLICATION_ID = "steval-link"
 #: longest wait for a started viewer (native or web) to listen on its port
 VIEWER_START_TIMEOUT_S = 20.0
+#: a spawned native viewer must still run this long after it starts listening (one that cannot open its window,
+#: e.g. no usable GPU adapter, listens first and dies a moment later)
+VIEWER_SETTLE_S = 1.0
 #: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
 FLUSH_TIMEOUT_S = 120.0
 #: a flush is waited for in slices this long (Ctrl-C is handled between two)
@@ -250,6 +253,11 @@ def _last_line(log_path: Path) -> str:
     return line[:200]
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
+
+
 def _log_path(what: str, port: int) -> Path:
     return Path(tempfile.gettempdir()) / f"steval-{what}-{port}.log"
 
@@ -286,7 +294,19 @@ def spawn_native_viewer(port: int) -> str:
             f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
         ) from None
     _wait_listening(child, port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
+    _wait_settled(child, VIEWER_SETTLE_S, log_path)
     return url
+
+
+def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> None:
+    """UserError when ``child`` exits within ``settle_s`` after it started listening, with the last line of its
+    log (a viewer that cannot open its window dies right after it binds its port)."""
+    deadline = time.monotonic() + settle_s
+    while time.monotonic() < deadline:
+        if child.poll() is not None:
+            raise UserError(f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
+                            f"{log_path}); use --rrd FILE or --serve instead")
+        time.sleep(0.05)
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
@@ -363,13 +383,21 @@ def open_session(
         if session.rrd_partial is not None:
             session.rrd_partial.unlink(missing_ok=True)
         raise
-    rec.set_sinks(*sinks)
-    if file_sinks:
-        file_rec = rr.RecordingStream(
-            application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
-        )
-        file_rec.set_sinks(*file_sinks)
-        session.file_rec = file_rec
+    try:
+        rec.set_sinks(*sinks)
+        if file_sinks:
+            file_rec = rr.RecordingStream(
+                application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
+            )
+            file_rec.set_sinks(*file_sinks)
+            session.file_rec = file_rec
+    except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
+        for child in session.children:
+            stop_child(child)
+        if session.rrd_partial is not None:
+            session.rrd_partial.unlink(missing_ok=True)
+        where = f"--rrd {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
+        raise UserError(f"{where} ({_first_line(exc)})") from None
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)

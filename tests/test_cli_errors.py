@@ -4,6 +4,8 @@ boxed usage panel, a traceback or the raw bytes of what they typed; ``--version`
 from __future__ import annotations
 
 import re
+import sys
+from pathlib import Path
 
 import pytest
 from support.cli import run_cli
@@ -120,3 +122,281 @@ def test_range_checks(monkeypatch, capsys, tmp_path, args, option):
 def test_registry_names_are_what_the_messages_list():
     assert {"st-mahony", "accel", "ekf3", "mekf"} <= set(registry.names())
     assert re.match(r"^\d+\.\d+", __version__)
+
+
+# -- issue 25: errors in the command line's order, the one capture rule, outputs, small defects ---------------
+
+@pytest.fixture(scope="module")
+def small_capture(tmp_path_factory):
+    from steval_link.emulation.synth import SynthOptions, synthesize, write_output
+
+    path = tmp_path_factory.mktemp("small") / "small.stv"
+    write_output(synthesize(SynthOptions(scenario="bench", duration_s=5.0)), path, fmt="stv")
+    return path
+
+
+def test_live_complains_about_the_port_before_the_display(monkeypatch, capsys):
+    # no display and no --rrd is an error too, but the port comes first on the command line
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("steval_link.link.autodetect.list_candidate_ports", lambda: ["/dev/ttyS7"])
+    code, _, err = run_cli(monkeypatch, capsys, "live", "--port", "/dev/steval-nonexistent")
+    _one_error_line(code, err)
+    assert "/dev/steval-nonexistent" in err and "display" not in err
+    # param and command list the ports as live does
+    live_line = err
+    for args in (["param", "get"], ["command", "status"], ["command", "mode", "text"]):
+        code, _, err = run_cli(monkeypatch, capsys, *args, "--port", "/dev/steval-nonexistent")
+        _one_error_line(code, err)
+        assert err == live_line and "available ports: /dev/ttyS7" in err
+
+
+def test_export_checks_its_input_before_its_output(monkeypatch, capsys, tmp_path):
+    existing = tmp_path / "j.csv"
+    existing.write_text("keep")
+    code, _, err = run_cli(monkeypatch, capsys, "export", tmp_path / "missing.stv", "--csv", existing)
+    _one_error_line(code, err)
+    assert "missing.stv" in err and "already exists" not in err and existing.read_text() == "keep"
+
+
+def test_replay_rrd_refuses_an_existing_file_without_force(monkeypatch, capsys, tmp_path, small_capture):
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--rrd", rrd)
+    _one_error_line(code, err)
+    assert "already exists (use --force to overwrite)" in err and out == ""  # before the summary
+    assert rrd.read_bytes() == b"an earlier recording"
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--rrd", rrd, "--force", "-e", "none")
+    assert code == 0, err
+    assert rrd.read_bytes()[:4] == b"RRF2" and sorted(p.name for p in tmp_path.iterdir()) == ["old.rrd"]
+
+
+def test_capture_without_attitude_frames_is_one_rule(monkeypatch, capsys, tmp_path, small_capture):
+    # the first 1000 bytes of a capture: its header and a few boot text frames, cut mid-chunk
+    cut = tmp_path / "cut.stv"
+    cut.write_bytes(small_capture.read_bytes()[:1000])
+    for args in (["export", cut, "--csv", tmp_path / "o.csv"], ["compare", cut], ["spectrum", cut],
+                 ["preflight", cut]):
+        code, _, err = run_cli(monkeypatch, capsys, *args)
+        _one_error_line(code, err)
+        assert "1000 bytes" in err and "no attitude frames" in err, err
+    assert not (tmp_path / "o.csv").exists()
+    code, out, err = run_cli(monkeypatch, capsys, "replay", cut)  # replay summarises whatever frames there are
+    assert code == 0 and err.count("\n") == 1 and err.startswith("steval: warning: ") and "cut short" in err
+    head = tmp_path / "head.stv"
+    head.write_bytes(small_capture.read_bytes()[:300])
+    code, _, err = run_cli(monkeypatch, capsys, "replay", head)
+    assert err == f"steval: error: {head}: 300 bytes, capture truncated in its header: no frames.\n"
+
+
+def test_atomic_output_is_whole_or_absent(tmp_path):
+    from steval_link.cli.outputs import atomic_output, check_output, partial_path
+    from steval_link.errors import UserError
+
+    final = tmp_path / "out.csv"
+    final.write_text("earlier")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_output(final, option="--csv") as part:
+            assert part == partial_path(final) == tmp_path / "out.csv.partial"
+            part.write_text("half")
+            raise KeyboardInterrupt
+    assert final.read_text() == "earlier" and not part.exists()
+    with pytest.raises(UserError, match=r"^--csv .*out.csv: cannot write it \(no space left on device\)"):
+        with atomic_output(final, option="--csv") as part:
+            raise OSError(28, "No space left on device")
+    with pytest.raises(UserError, match="Failed to create file"):
+        with atomic_output(final, option="--rrd") as part:
+            raise RuntimeError("Failed to create file\nmore lines of Rerun's")
+    with atomic_output(final, option="--csv") as part:
+        part.write_text("new")
+    assert final.read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    assert partial_path(tmp_path / "fig.png", keep_suffix=True).name == "fig.partial.png"
+    with pytest.raises(UserError, match="is the input itself"):
+        check_output(final, option="--csv", force=True, inputs=(final,))
+    with pytest.raises(UserError, match="takes no new file"):
+        check_output("/proc/steval.csv", option="--csv")
+
+
+def test_live_help_shows_the_ble_extra(monkeypatch, capsys):
+    code, out, _ = run_cli(monkeypatch, capsys, "live", "--help")
+    assert code == 0 and 'pip install "steval-link[ble]"' in " ".join(out.replace("│", " ").split())
+
+
+def test_simulate_json_final_is_null_where_the_text_says_n_a(monkeypatch, capsys):
+    import json
+
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3", "--json")
+    assert code == 0 and set(json.loads(out)["final"].values()) == {None}
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3")
+    assert code == 0 and out.count("n/a") == 3
+    code, out, _ = run_cli(monkeypatch, capsys, "simulate", "--json")
+    assert code == 0 and None not in json.loads(out)["final"].values()
+
+
+FAKE_RERUN = """
+import socket, sys, time
+args = sys.argv[1:]
+port = int(args[args.index("--port") + 1])
+if "--listen-first" in sys.argv[0] or {listen}:
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind(("127.0.0.1", port))
+    s.listen()
+    time.sleep(0.3)
+print("[2026-11-24T02:00:00Z ERROR re_viewer] Failed to create wgpu adapter: no suitable GPU adapter", flush=True)
+sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("listen", [False, True], ids=["exits-at-once", "listens-then-dies"])
+def test_spawn_reports_a_viewer_that_dies(monkeypatch, capsys, tmp_path, small_capture, listen):
+    from steval_viewer import sinks
+    from steval_viewer.sink_options import free_port
+
+    fake = tmp_path / "rerun.py"
+    fake.write_text(FAKE_RERUN.format(listen=listen))
+    monkeypatch.setattr(sinks, "rerun_command", lambda: [sys.executable, str(fake)])
+    port = free_port()
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--spawn", "--grpc-port", port,
+                             "-e", "none")
+    _one_error_line(code, err)
+    assert "no suitable GPU adapter" in err and "Rerun viewer exited" in err
+
+
+def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_capture):
+    # an emulated board (its bytes from a capture) whose frames carry emulated times: the stop event must too
+    from types import SimpleNamespace
+
+    from steval_link.emulation.runner import EmulationOptions
+    from steval_link.link.capture import read_capture
+    from steval_link.live import emulated
+    from steval_link.live.session import LiveOptions
+
+    cap = read_capture(small_capture)
+    bounds = [*cap.chunk_offsets.tolist(), len(cap.data)]
+    pieces = [(cap.data[bounds[i]:bounds[i + 1]], 0.05 * (i + 1)) for i in range(len(bounds) - 1)]
+
+    class FakeEmulation:
+        def __init__(self, options):
+            self.elf = SimpleNamespace(path=Path("fake.elf"))
+            self.motion = SimpleNamespace(name="bench")
+            self.duration_s = pieces[-1][1]
+
+        def chunks(self):
+            yield from pieces
+
+        def send(self, data):
+            pass
+
+        def send_at(self, data, t_s):
+            pass
+
+        def take_host_bytes(self):
+            return []
+
+        def report(self):
+            return None
+
+    monkeypatch.setattr(emulated, "Emulation", FakeEmulation)
+    out = tmp_path / "emu.stv"
+    live = LiveOptions(port="emulated", baud=115200, out=out, rrd=None, view=False, estimators=[], prompt=False)
+    emulated.EmulateSession(EmulationOptions(elf=Path("fake.elf")), live, tty=False).run()
+    got = read_capture(out)
+    stop = [e for e in got.events if e.kind == "stop"]
+    assert len(stop) == 1 and stop[0].t_host_s == pytest.approx(pieces[-1][1])
+    assert got.chunk_times_s.max() == pytest.approx(pieces[-1][1])
+
+
+def _readme() -> str:
+    return (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+
+
+def test_readme_windows_setup_is_one_command_per_line():
+    text = _readme()
+    setup = text.split("## Set up", 1)[1].split("\n## ", 1)[0]
+    blocks = dict(re.findall(r"```(powershell|bat)\n(.*?)```", setup, re.S))
+    assert set(blocks) == {"powershell", "bat"}
+    for shell, activate in (("powershell", r".venv\Scripts\Activate.ps1"), ("bat", r".venv\Scripts\activate.bat")):
+        lines = blocks[shell].strip().splitlines()
+        assert lines == ["py -3 -m venv .venv", activate, 'python -m pip install -e ".[test]"', "python -m pytest"]
+        assert not any("&&" in line for line in lines)  # PowerShell 5.1 rejects it
+    assert "Set-ExecutionPolicy -Scope CurrentUser RemoteSigned" in setup
+    assert r'`.venv\Scripts\python -m pip install -e ".[test]"`' in setup
+
+
+def test_readme_windows_and_macos_lines():
+    text = _readme()
+    assert "`steval record --port COM3 --out log.stv`" in text
+    fw = text.split("## Wiring", 1)[1].split("\n## ", 1)[0]
+    for system in ("Windows", "macOS"):
+        line = next(ln for ln in fw.splitlines() if ln.startswith(f"- {system}:"))
+        assert "firmware_patch/README.md" in line and "arm" in line.lower()
+    uuid = re.search(r"steval live --ble ([0-9A-F]{8}-[0-9A-F]{4}-[0-9A-F]{4}-[0-9A-F]{4}-[0-9A-F]{12}) +# macOS", text)
+    assert uuid is not None
+    from steval_link.cli.ble import format_devices
+    from steval_link.link.ble_transport import BleDevice
+
+    (line,) = format_devices([BleDevice(name="DRN1110", address=uuid.group(1), rssi_dbm=-60)], show_all=False)
+    assert line.split() == ["DRN1110", uuid.group(1), "-60", "dBm", "STEVAL", "drone", "(ST", "firmware)"]
+
+
+def test_readme_states_the_capture_rule_in_the_words_the_code_uses(monkeypatch, capsys, tmp_path, small_capture):
+    text = " ".join(_readme().split())
+    assert "Damaged and truncated captures, the same in every command." in text
+    example = re.search(r"`\d+ bytes, capture truncated in its header: no frames`", text)
+    cut = tmp_path / "cut.stv"
+    cut.write_bytes(small_capture.read_bytes()[:300])  # inside its header
+    code, _, err = run_cli(monkeypatch, capsys, "replay", cut)
+    said = err.removeprefix(f"steval: error: {cut}: ").strip().rstrip(".")
+    assert code == 2 and re.sub(r"\d+", "N", said) == re.sub(r"\d+", "N", example.group(0).strip("`"))
+    assert "`steval: warning: FILE: capture cut short or damaged at file byte N" in text
+    assert "an existing file is replaced only with `--force`" in text
+
+
+def test_a_sink_that_cannot_create_its_file_is_one_sentence():
+    # past the CLI's own checks (a library caller): Rerun's "RuntimeError: Failed to create file" becomes a UserError
+    from steval_link.errors import UserError
+    from steval_viewer.sink_options import SinkOptions
+    from steval_viewer.sinks import open_session
+
+    if not Path("/proc").is_dir():
+        pytest.skip("needs /proc")
+    with pytest.raises(UserError, match=r"^--rrd /proc/steval-sink\.rrd: cannot write it \(") as exc:
+        open_session(SinkOptions(rrd=Path("/proc/steval-sink.rrd")))
+    assert "\n" not in str(exc.value)
+
+
+@pytest.mark.slow
+def test_the_readme_screenshot_is_made_by_its_script(tmp_path):
+    """docs/make_screenshot.py: today's viewer on a virtual display, the viewer's own screenshot."""
+    import subprocess
+
+    from support.xdisplay import require_display_tools
+
+    require_display_tools()
+    root = Path(__file__).resolve().parents[1]
+    assert "`python docs/make_screenshot.py`" in " ".join(_readme().split())
+    out = tmp_path / "shot.png"
+    r = subprocess.run([sys.executable, str(root / "docs" / "make_screenshot.py"), str(out)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    png = out.read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 100_000  # a rendered window, not a blank one
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    assert (width, height) == (1600, 1000)
+
+
+def test_readme_speed_claims_are_dated():
+    perf = _readme().split("## Performance", 1)[1].split("\n## ", 1)[0]
+    assert "re-measured 2026-11-24" in perf.splitlines()[0]
+    for bench in ("bench_decode.py", "bench_estimators.py"):
+        row = next(ln for ln in perf.splitlines() if bench in ln)
+        assert "2026-11-24" in row, row
+
+
+@pytest.mark.parametrize("command", ["compare", "spectrum", "preflight"])
+def test_a_ble_capture_where_serial_frames_are_needed_is_named(monkeypatch, capsys, command):
+    ble = Path(__file__).resolve().parents[1] / "recordings" / "ble_demo.stv"
+    code, _, err = run_cli(monkeypatch, capsys, command, ble)
+    _one_error_line(code, err)
+    assert "a BLE capture (" in err and "no serial frames" in err

@@ -4,11 +4,9 @@ pipeline's command log, and ``steval param`` / ``steval command`` against a fake
 from __future__ import annotations
 
 import os
-import pty
 import select
 import threading
 import time
-import tty
 
 import numpy as np
 import pytest
@@ -182,6 +180,8 @@ class FakeDrone:
     refuses filter changes while ``armed``; ``silent`` answers nothing; it streams attitude-like noise meanwhile."""
 
     def __init__(self, link, *, armed=False, silent=False, ack=True, stream: list[bytes] | None = None):
+        pty = pytest.importorskip("pty", reason="the fake drone runs on a pseudo-terminal (POSIX only)")
+        tty = pytest.importorskip("tty", reason="the fake drone runs on a pseudo-terminal (POSIX only)")
         self.master, slave = pty.openpty()
         tty.setraw(slave)
         self.slave_name = os.ttyname(slave)
@@ -370,7 +370,8 @@ def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
 def test_console_on_a_terminal_reads_keys_and_shows_the_line_being_typed():
     """On a terminal the typed line survives the health line's redraws (shown in it) and Enter sends it; the
     terminal gets its line mode back on close."""
-    import termios
+    pty = pytest.importorskip("pty", reason="a terminal console needs a pseudo-terminal (POSIX only)")
+    termios = pytest.importorskip("termios", reason="a terminal console needs termios (POSIX only)")
 
     from steval_link.live.console import CommandConsole
 

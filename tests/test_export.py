@@ -97,7 +97,7 @@ def test_output_safety(capture, tmp_path, capsys):
     code, _, _ = run(["export", capture, "--csv", existing, "--force"], capsys)
     assert code == 0 and existing.read_text().startswith("step,")
     code, _, err = run(["export", capture, "--raw", capture, "--force"], capsys)
-    assert code == 2 and "capture itself" in err
+    assert code == 2 and "input itself" in err
     code, _, err = run(["export", capture, "--csv", tmp_path / "no" / "dir.csv"], capsys)
     assert code == 2 and "does not exist" in err
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import os
 import signal
 import time
@@ -11,6 +10,8 @@ import pytest
 from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 from steval_link.link.capture import load_telemetry, read_capture
+
+fcntl = pytest.importorskip("fcntl", reason="POSIX file control on a pseudo-terminal: not on Windows")
 
 pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
 

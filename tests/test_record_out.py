@@ -16,11 +16,18 @@ START_TIMEOUT_S = 60.0
 
 
 @pytest.mark.parametrize("command", ["record", "live"])
-def test_out_in_a_missing_folder_is_refused_before_the_port(tmp_path, command):
+def test_out_in_a_missing_folder_is_refused_before_anything_is_recorded(tmp_path, command):
+    # errors come in the command line's order: a missing port first, then the --out (issue 25)
     out = tmp_path / "flights" / "monday" / "f.stv"
     extra = ["--no-view"] if command == "live" else []
     proc = StevalProcess([command, "--port", str(tmp_path / "no-such-port"), "--out", str(out), *extra], cwd=tmp_path)
     assert proc.finish(timeout_s=60) == 2
+    err = [line for _, line in proc.lines if line.startswith("steval: error:")]
+    assert len(err) == 1 and "no-such-port" in err[0], proc.stderr
+    with PtyFeeder(flight_stream(300), tmp_path / "ttyUSB0") as feeder:
+        proc = StevalProcess([command, "--port", str(feeder.link), "--out", str(out), *extra], cwd=tmp_path)
+        feeder.start()
+        assert proc.finish(timeout_s=60) == 2
     err = [line for _, line in proc.lines if line.startswith("steval: error:")]
     assert len(err) == 1 and "--out" in err[0] and "does not exist" in err[0], proc.stderr
     assert not (tmp_path / "flights").exists()

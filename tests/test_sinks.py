@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
 from steval_link.errors import UserError
 from steval_link.link.capture import demo_capture_path, read_capture
@@ -126,6 +125,8 @@ def test_ctrl_c_during_replay_rrd_leaves_a_complete_file_or_none_and_says_which(
     # a long raw dump (the demo's bytes 12 times: ~12 min of stream) so that Ctrl-C lands while Rerun writes
     raw = tmp_path / "long.bin"
     raw.write_bytes(read_capture(demo_capture_path()).data * 12)
+    from support.ptyfeed import StevalProcess  # POSIX only: skips on Windows
+
     out = tmp_path / "long.rrd"
     proc = StevalProcess(["replay", str(raw), "--rrd", str(out)], cwd=tmp_path)
     deadline = time.monotonic() + 120
@@ -149,6 +150,8 @@ def _live_rrd_size(tmp_path: Path, name: str, *extra: str) -> int:
     folder = tmp_path / name
     folder.mkdir()
     rrd = folder / "live.rrd"
+    from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream  # POSIX only: skips on Windows
+
     with PtyFeeder(flight_stream(650), folder / "ttyUSB0") as feeder:
         proc = StevalProcess(
             ["live", "--port", str(feeder.link), "--out", str(folder / "cap.stv"), "--rrd", str(rrd), *extra],

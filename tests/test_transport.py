@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import os
 import threading
 import time
@@ -14,6 +13,8 @@ from support.ptyfeed import PtyFeeder, flight_stream, uart_resample
 from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial
+
+fcntl = pytest.importorskip("fcntl", reason="POSIX file control on a pseudo-terminal: not on Windows")
 
 pytestmark = pytest.mark.slow  # real time: processes on pseudo-terminals
 

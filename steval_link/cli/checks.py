@@ -1,9 +1,11 @@
 """Range checks of command-line values shared by the sub-commands: each raises a one-line
-:class:`~steval_link.errors.UserError` naming the option, before any work is done."""
+:class:`~steval_link.errors.UserError` naming the option, before any work is done; and the one rule for a capture
+without attitude frames (:func:`require_attitude`)."""
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 
 from steval_link.errors import UserError
@@ -40,3 +42,18 @@ def check_vector(option: str, values: Sequence[float], unit: str) -> None:
     """A sensor vector: every component a finite number (no nan, no inf)."""
     if not all(math.isfinite(v) for v in values):
         raise UserError(f"{option} takes finite numbers in {unit}, got {' '.join(_num(v) for v in values)}")
+
+
+def require_attitude(tel, purpose: str) -> None:
+    """The one rule for a capture without attitude frames (cut short, text only, status only), in every command
+    that needs them: UserError saying what the capture holds instead and what cannot be done."""
+    if len(tel.attitude):
+        return
+    path = tel.source.get("path", "the capture")
+    try:
+        size = f"{os.path.getsize(path)} bytes, "
+    except (OSError, TypeError):
+        size = ""
+    held = f"{len(tel.status)} status frames and {len(tel.text)} text lines" if len(tel.status) + len(tel.text) \
+        else "no frames"
+    raise UserError(f"{path}: {size}{held}, no attitude frames: nothing to {purpose}.")

@@ -26,7 +26,8 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain, check_throttle
+from steval_link.cli.checks import check_gain, check_throttle, require_attitude
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
@@ -43,7 +44,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["compare_command"]
@@ -166,6 +167,7 @@ def compare_command(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+    force: ForceOption = False,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
@@ -178,7 +180,7 @@ def compare_command(
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
     if captures and len(captures) > 1:
-        _side_by_side(captures, as_json=as_json, plot=plot, align=align, labels=label,
+        _side_by_side(captures, as_json=as_json, plot=plot, force=force, align=align, labels=label,
                       port_options={"--estimator": estimator, "--ki": ki, "--kp-ground": kp_ground,
                                     "--kp-flight": kp_flight, "--dt": dt, "--min-thr": min_thr,
                                     "--correction/--no-correction": correction,
@@ -195,7 +197,9 @@ def compare_command(
     names = registry.parse_names(
         ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
     )  # a missing optional package is a row of the report
+    src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     if plot is not None:
+        check_output(plot, option="--plot", force=force, inputs=(src.path,))
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
@@ -203,26 +207,29 @@ def compare_command(
         check_gain(option, gain)
     check_throttle("--min-thr", min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
-        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4))
-        if len(tel.attitude) == 0:
-            raise UserError(
-                f"{tel.source.get('path')} has no attitude frames to compare "
-                f"({len(tel.status)} status frames, {len(tel.text)} text lines)."
-            )
+        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src)
+        require_attitude(tel, "compare")
+        if plot is not None and len(tel.fc):
+            check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))
+        for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
+            print(f"steval: warning: {w}", file=sys.stderr)
         settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
         progress(0.4, f"port and {', '.join(names)}")
         report = compare_capture(tel, estimators=names, settings=settings)
-        for w in seen:
-            report.notes.append(w)
+        if as_json:
+            report.notes.extend(seen)
         if plot is not None:
             from steval_link.analysis.plots import plot_comparison  # matplotlib loads only for --plot (start-up time)
 
             progress(0.9, f"plotting {plot.name}")
-            plot_comparison(tel, report, plot)
-            if len(tel.fc):
-                from steval_link.analysis.plots import plot_flight_control  # as above
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_comparison(tel, report, part)
+                if len(tel.fc):
+                    from steval_link.analysis.plots import plot_flight_control  # as above
 
-                plot_flight_control(tel, flight_plot_path(plot))
+                    fc_plot = flight_plot_path(plot)
+                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                        plot_flight_control(tel, fc_part)
     if as_json:
         d = report.as_dict()
         if plot is not None:
@@ -254,8 +261,8 @@ def _load_flight(path: Path):
     return flight_of_telemetry(path, tel, src.warnings)
 
 
-def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, align: str, labels, port_options,
-                  viewer) -> None:
+def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels,
+                  port_options, viewer) -> None:
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
     given = [opt for opt, v in port_options.items() if v is not None]
     if given:
@@ -266,25 +273,30 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, ali
     if labels and len(labels) != len(captures):
         raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
     check_view_flags(no_view=False, spawn=viewer["spawn"], serve=viewer["serve"], connect=viewer["connect"])
-    options = None
-    if viewer["rrd"] is not None or viewer["spawn"] or viewer["serve"] or viewer["connect"] is not None:
-        options = sink_options(**viewer)  # checked before the work: a bad .rrd folder, a dead URL
-    if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()
     with progress_bar("compare", quiet=as_json or viewer["serve"]) as progress:
         flights = []
-        for i, path in enumerate(captures):
+        for i, path in enumerate(captures):  # the inputs first, then the outputs
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
+        inputs = tuple(captures)
+        if plot is not None:
+            check_output(plot, option="--plot", force=force, inputs=inputs)
+            from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot
+
+            require_matplotlib()
+        options = None
+        if viewer["rrd"] is not None:
+            check_output(viewer["rrd"], option="--rrd", force=force, inputs=inputs)
+        if viewer["rrd"] is not None or viewer["spawn"] or viewer["serve"] or viewer["connect"] is not None:
+            options = sink_options(**viewer)  # checked before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
         if plot is not None:
             from steval_link.analysis.side_by_side_plot import plot_side_by_side  # matplotlib: only for --plot
 
             progress(0.7, f"plotting {plot.name}")
-            plot_side_by_side(result, plot)
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_side_by_side(result, part)
     if as_json:
         d = result.as_dict()
         if plot is not None:

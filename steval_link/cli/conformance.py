@@ -12,6 +12,7 @@ import typer
 
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain, check_throttle
+from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
 from steval_link.estimators.conformance import check_conformance, load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings
@@ -60,7 +61,7 @@ def conformance_command(
                 raise UserError(f"{path}: directory holds no .csv conformance files")
             paths.extend(found)
         else:
-            paths.append(path)
+            paths.append(check_input(path, what="conformance file"))
     cases = []
     for path in paths:
         try:

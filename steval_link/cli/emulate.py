@@ -10,6 +10,8 @@ import typer
 
 from steval_link import constants as C
 from steval_link.cli.app import app
+from steval_link.cli.live import session_outputs
+from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
     ConnectOption,
@@ -28,7 +30,7 @@ from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
 from steval_link.live.emulated import EmulateSession
 from steval_link.live.session import LiveOptions
-from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
+from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 
@@ -83,6 +85,11 @@ def emulate_command(
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
     Commands reach the firmware's USART1 RX from --commands at given times, or typed at the prompt (a terminal).
     """
+    check_input(elf, what="firmware ELF")  # the inputs first
+    if broad is not None:
+        check_input(broad, what="BROAD trial")
+    if commands is not None:
+        check_input(commands, what="command script")
     if ble:
         if rrd is not None or spawn or serve or connect:
             raise UserError("--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv "
@@ -103,14 +110,13 @@ def emulate_command(
         except (OSError, UnicodeDecodeError) as exc:
             raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
         script = parse_script(text, str(commands))
-    out = resolve_capture_out(out)
-    live = LiveOptions(port="emulated", baud=C.BAUD, out=out, rrd=rrd, view=not no_view,
+    live = LiveOptions(port="emulated", baud=C.BAUD, out=None, rrd=rrd, view=not no_view,
                        spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
                        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
-    if live.uses_rerun:
-        viewer_sink_options(live)  # e.g. no display and no --rrd: say so before anything is made
+    # the ELF first (the input, read by the session), then the capture, the .rrd and the display
     summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
-                             commands=script, commands_file=str(commands) if commands is not None else None).run()
+                             commands=script, commands_file=str(commands) if commands is not None else None,
+                             check_outputs=session_outputs(live, out)).run()
     print("\n".join(summary.lines()))
     sys.stdout.flush()
 
@@ -125,6 +131,8 @@ def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s:
     if not connect_s >= 0:
         raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
     path = resolve_capture_out(out)
+    if path is not None:
+        check_output(path, option="--out", overwrite="never")
     if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)

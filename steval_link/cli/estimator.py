@@ -17,6 +17,7 @@ import typer
 
 from steval_link.analysis.estimator_check import format_check, run_check
 from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.errors import UserError
@@ -48,7 +49,7 @@ def starter_source(class_name: str = STARTER_CLASS) -> str:
 def new_command(
     file: Annotated[Path, typer.Argument(help="The Python file to write, e.g. my_ekf.py.", show_default=False)],
     class_name: Annotated[str, typer.Option("--class", help="Name of the estimator class in it.")] = STARTER_CLASS,
-    force: Annotated[bool, typer.Option("--force", help="Overwrite the file if it exists.")] = False,
+    force: ForceOption = False,
 ) -> None:
     """Write a starter estimator that works as it is: a 3-state EKF (Euler angles; prediction from the gyro,
     update from the accelerometer), the lecture's steps marked, its tuning knobs named (q_gyro, r_acc, p0)."""
@@ -56,12 +57,9 @@ def new_command(
         raise UserError(f"{file}: the starter is Python; give a name ending in .py (e.g. my_ekf.py)")
     if not _CLASS_NAME.fullmatch(class_name):
         raise UserError(f"--class {class_name!r} is not a Python class name")
-    if file.exists() and not force:
-        raise UserError(f"{file} already exists; choose another name or add --force to overwrite it")
-    try:
-        file.write_text(starter_source(class_name), encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"cannot write {file}: {exc.strerror or exc}") from None
+    check_output(file, option="FILE", force=force)
+    with atomic_output(file, option="FILE", keep_suffix=True) as part:
+        part.write_text(starter_source(class_name), encoding="utf-8")
     ref = f"{file}:{class_name}"
     print(f"wrote {file}: class {class_name}, a 3-state EKF (gyro prediction, accelerometer update)")
     print("next:")

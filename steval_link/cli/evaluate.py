@@ -10,6 +10,7 @@ import typer
 
 from steval_link.analysis import evaluate as ev
 from steval_link.cli.app import app
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
@@ -55,13 +56,15 @@ def evaluate_command(
                                                                      "75 mdps, acc 2 mg RMS) on top of the trial's "
                                                                      "own before quantisation.")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
+    force: ForceOption = False,
 ) -> None:
 
+    items = broad.trial_paths(data)  # the inputs first, then the output
     if plot is not None:
+        check_output(plot, option="--plot", force=force, inputs=tuple(items))
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()  # fail before the long run
-    items = broad.trial_paths(data)
     only = split_list(estimators) if estimators is not None else None  # commas inside (options) stay
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
@@ -91,7 +94,8 @@ def evaluate_command(
                 results.append(ev.evaluate_capture(p, specs, progress=progress))
         if plot is not None:
             bar(1.0, f"plotting {plot.name}")
-            ev.plot_evaluation(results, plot)
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                ev.plot_evaluation(results, part)
     if as_json:
         report = ev.summary(results)
         report["mode"] = "native" if native else "steval-pipeline"

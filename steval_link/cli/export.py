@@ -13,6 +13,8 @@ from steval_link.analysis.frame_tables import frame_tables, header_of, settings_
 from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
 from steval_link.cli.app import app
+from steval_link.cli.checks import require_attitude
+from steval_link.cli.outputs import atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
@@ -128,16 +130,10 @@ def export(
         require_scipy()  # before any work: one line when scipy is missing
     if mcap is not None:
         require_mcap()
+    src = read_source(capture)  # the input first, then the outputs, then the work
     for opt, p in outputs:
-        if p.resolve() == capture.resolve():
-            raise UserError(f"{opt} {p} is the capture itself; choose another output file.")
-        if p.exists() and not force:
-            raise UserError(f"{p} already exists (use --force to overwrite).")
-        if not p.parent.is_dir():
-            raise UserError(f"{opt} {p}: directory {p.parent} does not exist.")
+        check_output(p, option=opt, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
-        progress(0.0, f"reading {capture.name}")
-        src = read_source(capture)
         progress(0.1, "decoding")
         if is_ble_source(src):
             if mcap is not None:
@@ -146,37 +142,31 @@ def export(
             _export_ble(src, csv, parquet, raw, progress, mat)
             return
         tel = telemetry_of_source(src) if (csv or parquet or mat or mcap) else None
-        for w in src.warnings:
+        if tel is not None:
+            require_attitude(tel, "export (--raw gives the bytes)")
+        for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
             typer.echo(f"steval: warning: {w}", err=True)
-        try:
-            if raw is not None:
-                write_raw(src.data, raw)
-                typer.echo(f"{raw}: {len(src.data)} bytes")
-            if tel is not None:
-                table = tel.attitude_table()
-                table.update(tel.flight_columns())
-                if degrees:
-                    table = in_degrees(table)
-                _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
-            if tel is not None and mat is not None:
-                _export_mat(tel, mat, degrees, progress)
-            if tel is not None and mcap is not None:
-                _export_mcap(tel, mcap, progress)
-        except OSError as exc:
-            raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+        if raw is not None:
+            with atomic_output(raw, option="--raw") as part:
+                write_raw(src.data, part)
+            typer.echo(f"{raw}: {len(src.data)} bytes")
+        if tel is not None and (csv is not None or parquet is not None):
+            table = tel.attitude_table()
+            table.update(tel.flight_columns())
+            if degrees:
+                table = in_degrees(table)
+            _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
+        if tel is not None and mat is not None:
+            _export_mat(tel, mat, degrees, progress)
+        if tel is not None and mcap is not None:
+            _export_mcap(tel, mcap, progress)
 
 
-def write_atomic(path: Path, write) -> None:
-    """``write(file)`` into ``PATH.partial``, then rename it to ``path``: a complete file or (error, Ctrl-C) none; an
-    earlier file at ``path`` stays until the new one is whole. The one place the --mat and --mcap exports write."""
-    partial = path.with_name(path.name + ".partial")
-    try:
-        with open(partial, "wb") as f:
-            write(f)
-        partial.replace(path)
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
+def write_atomic(path: Path, option: str, write) -> None:
+    """``write(file)`` into ``PATH.partial``, renamed to ``path`` when complete (:func:`atomic_output`): the one
+    place the --mat and --mcap exports write."""
+    with atomic_output(path, option=option) as part, open(part, "wb") as f:
+        write(f)
 
 
 def _export_mat(tel, path: Path, degrees: bool, progress) -> None:
@@ -185,7 +175,7 @@ def _export_mat(tel, path: Path, degrees: bool, progress) -> None:
     tables = frame_tables(tel)
     if degrees:
         tables = {k: in_degrees(t) for k, t in tables.items()}
-    write_atomic(path, lambda f: write_mat(tables, settings_of(tel), header_of(tel), f))
+    write_atomic(path, "--mat", lambda f: write_mat(tables, settings_of(tel), header_of(tel), f))
     counts = ", ".join(f"{len(next(iter(t.values())))} {k}" for k, t in tables.items() if t)
     typer.echo(f"{path}: MATLAB structs {', '.join(tables)} (rows: {counts}), settings, header")
 
@@ -194,7 +184,7 @@ def _export_mcap(tel, path: Path, progress) -> None:
     """The capture as MCAP (topics and schemas: steval_link.analysis.mcap_export)."""
     counts: dict[str, int] = {}
     meta = {"settings": settings_of(tel), "header": header_of(tel)}
-    write_atomic(path, lambda f: counts.update(write_mcap(tel, f, metadata=meta,
+    write_atomic(path, "--mcap", lambda f: counts.update(write_mcap(tel, f, metadata=meta,
                                                            progress=scaled(progress, 0.5, 1.0))))
     typer.echo(f"{path}: MCAP, " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
 
@@ -208,22 +198,21 @@ def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, p
     for w in src.warnings:
         typer.echo(f"steval: warning: {w}", err=True)
     ble = load_ble(src)
-    try:
-        _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
-        if mat is not None:
-            header = dict(src.header or {}, path=str(src.path), kind="ble")
-            write_atomic(mat, lambda f: write_mat({"motion": ble.motion_table()}, {"from": "none"}, header, f))
-            typer.echo(f"{mat}: MATLAB struct motion ({len(ble)} rows, BLE), settings, header")
-    except OSError as exc:
-        raise UserError(f"cannot write {exc.filename or 'output'}: {exc.strerror or exc}.") from None
+    _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
+    if mat is not None:
+        header = dict(src.header or {}, path=str(src.path), kind="ble")
+        write_atomic(mat, "--mat", lambda f: write_mat({"motion": ble.motion_table()}, {"from": "none"}, header, f))
+        typer.echo(f"{mat}: MATLAB struct motion ({len(ble)} rows, BLE), settings, header")
 
 
 def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str) -> None:
     """The table to the CSV and/or Parquet file asked for, a line each saying how many ``rows``."""
     if csv is not None:
-        write_csv(table, csv, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+        with atomic_output(csv, option="--csv") as part:
+            write_csv(table, part, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
         typer.echo(f"{csv}: {rows}")
     if parquet is not None:
         progress(0.9, f"writing {parquet.name}")
-        write_parquet(table, parquet)
+        with atomic_output(parquet, option="--parquet") as part:
+            write_parquet(table, part)
         typer.echo(f"{parquet}: {rows}")

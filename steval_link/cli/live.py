@@ -10,6 +10,7 @@ import typer
 
 from steval_link import constants as C
 from steval_link.cli.app import app
+from steval_link.cli.outputs import check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
     ConnectOption,
@@ -37,6 +38,23 @@ _WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead o
 
 _PROMPT_HELP = ("Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
                 "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal.")
+
+
+def session_outputs(options: LiveOptions, out: Path | None):
+    """The checks of a session's outputs, for ``LiveSession(check_outputs=...)`` (run once the port is open, so
+    that a bad port is reported first): the capture (``--out``, resolved into ``options.out``; never overwritten),
+    the ``.rrd`` (never overwritten) and a display for the viewer."""
+
+    def check() -> None:
+        options.out = resolve_capture_out(out)
+        if options.out is not None:
+            check_output(options.out, option="--out", overwrite="never")
+        if options.rrd is not None:
+            check_output(options.rrd, option="--rrd", overwrite="never")
+        if options.uses_rerun:
+            viewer_sink_options(options)  # e.g. no display and no --rrd: say so before anything is made
+
+    return check
 
 
 def _check_baud(baud: int) -> None:
@@ -71,7 +89,7 @@ def live_command(
         False, "--ble",
         help="Over Bluetooth instead of the serial port, from ST's unmodified firmware: --ble alone connects to the "
         "strongest drone advertising DRN1…, --ble NAME or --ble ADDRESS to that one (see steval ble scan). Needs "
-        "bleak: pip install \"steval-link[ble]\".",
+        "bleak: pip install \"steval-link\\[ble]\".",
     ),
     device: Optional[str] = typer.Argument(None, metavar="[NAME|ADDRESS]", show_default=False,
                                            help="With --ble: the drone's BLE name or address."),
@@ -87,7 +105,6 @@ def live_command(
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
-    out = resolve_capture_out(out)
     if device is not None and not ble:
         raise UserError(f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
                         "port is given with --port")
@@ -98,7 +115,7 @@ def live_command(
     options = LiveOptions(
         port=port,
         baud=baud,
-        out=out,
+        out=None,  # resolved once the port is open (session_outputs)
         rrd=rrd,
         view=not no_view,
         spawn=spawn,
@@ -111,9 +128,9 @@ def live_command(
         wait=wait,
         prompt=prompt,
     )
-    if options.uses_rerun:
-        viewer_sink_options(options)  # e.g. no display and no --rrd: say so before the port is opened
-    summary = LiveSession(options, viewer_factory=make_viewer_logger).run()
+    # the port first (the input), then the capture, the .rrd and the display
+    summary = LiveSession(options, viewer_factory=make_viewer_logger,
+                          check_outputs=session_outputs(options, out)).run()
     print(summary.line())
     sys.stdout.flush()
 
@@ -136,18 +153,17 @@ def record_command(
     _check_baud(baud)
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
-    out = resolve_capture_out(out)
     options = LiveOptions(
         port=port,
         baud=baud,
-        out=out,
+        out=None,
         rrd=None,
         view=False,
         estimators=[],
         duration_s=duration,
         wait=wait,
     )
-    summary = LiveSession(options).run()
+    summary = LiveSession(options, check_outputs=session_outputs(options, out)).run()  # the port first
     print(summary.line())
     sys.stdout.flush()
 
@@ -155,6 +171,11 @@ def record_command(
 def _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration) -> None:
     """``steval live --ble``: ST's stock firmware over Bluetooth (``steval_link.live.ble_session``)."""
     backend = bleak_backend()  # a clear line without bleak, before anything else
+    out = resolve_capture_out(out)
+    if out is not None:
+        check_output(out, option="--out", overwrite="never")
+    if rrd is not None:
+        check_output(rrd, option="--rrd", overwrite="never")
     options = LiveOptions(port=f"ble:{target or 'auto'}", baud=0, out=out, rrd=rrd, view=not no_view, spawn=spawn,
                           serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
                           estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration)

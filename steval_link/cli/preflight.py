@@ -17,8 +17,10 @@ import typer
 from steval_link import constants as C
 from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
+from steval_link.cli.checks import require_attitude
+from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
-from steval_link.link.capture import load_telemetry, resolve_capture_out
+from steval_link.link.capture import read_source, telemetry_of_source
 from steval_link.live.session import LiveOptions, LiveSession
 
 #: the guided sequence: (seconds after the start, what to say)
@@ -82,20 +84,21 @@ def preflight_command(
     else:
         if baud <= 0:
             raise UserError(f"--baud must be a positive baud rate, got {baud}")
-        options = LiveOptions(port=port, baud=baud, out=resolve_capture_out(out), rrd=None, view=False,
-                              estimators=[], duration_s=LIVE_S)
+        options = LiveOptions(port=port, baud=baud, out=None, rrd=None, view=False, estimators=[], duration_s=LIVE_S)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
         try:
-            summary = LiveSession(options).run()
+            summary = LiveSession(options, check_outputs=session_outputs(options, out)).run()  # the port first
         finally:
             stop.set()
             th.join(timeout=1.0)
         print(summary.line())
         path = summary.capture_path
-    tel = load_telemetry(path)
-    if len(tel.attitude) == 0:
-        raise UserError(f"{path} holds no attitude frames; is it a capture of the drone's stream?")
+    src = read_source(path)
+    tel = telemetry_of_source(src)
+    require_attitude(tel, "check (is it a capture of the drone's stream?)")
+    for w in src.warnings:  # a damaged capture that still holds frames: one line of our own, the check goes on
+        print(f"steval: warning: {w}", file=sys.stderr)
     report = check_preflight(tel, str(path))
     print(f"steval preflight: {path}")
     print(report.text())

@@ -23,6 +23,7 @@ import typer
 from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
+from steval_link.cli.outputs import ForceOption, check_output
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -129,6 +130,7 @@ def replay(
             show_default=False,
         ),
     ] = None,
+    force: ForceOption = False,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
 
@@ -137,15 +139,18 @@ def replay(
     and the estimators run on its raw samples (dt from that cadence).
 
     With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
-    web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none."""
+    web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
+    replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
     names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
+    src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     options = None
-    if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+    if rrd is not None:
+        check_output(rrd, option="--rrd", force=force, inputs=(src.path,))
+    if viewer:  # the sinks before the work: a dead --connect URL fails at once
         options = sink_options(
             rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
         )
-    src = read_source(demo_capture_path() if capture is None else capture)
     try:
         if is_ble_source(src):
             _replay_ble(src, names, as_json, options)

@@ -15,6 +15,7 @@ import typer
 from steval_link.analysis.report import json_number
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
     BASELINE_GYRO_MDPS,
@@ -104,6 +105,8 @@ def write_csv(res: SimulationResult, stream) -> None:
 def to_json(res: SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
     eax, eay, eaz = res.final_angles_rad()
+    if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
+        eax = eay = eaz = math.nan
     return {
         "estimator": res.estimator,
         "options": res.options,
@@ -250,6 +253,7 @@ def simulate_command(
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ),
+    force: ForceOption = False,
 ) -> None:
     """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
     estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
@@ -266,6 +270,9 @@ def simulate_command(
         estimator = registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
+    for option, path in (("--csv", None if csv_out == "-" else csv_out), ("--rrd", rrd), ("--plot", plot)):
+        if path is not None:
+            check_output(path, option=option, force=force)
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
@@ -306,17 +313,16 @@ def simulate_command(
         raise UserError(str(exc)) from None
 
     if rrd is not None:
-        _log_rrd(res, rrd)
+        with atomic_output(rrd, option="--rrd") as part:
+            _log_rrd(res, part)
     if plot is not None:
         from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
 
-        plot_simulation(res, plot)
+        with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+            plot_simulation(res, part)
     if csv_out is not None and csv_out != "-":
-        try:
-            with open(csv_out, "w", newline="", encoding="utf-8") as fh:
-                write_csv(res, fh)
-        except OSError as exc:
-            raise UserError(f"cannot write {csv_out}: {exc.strerror}") from None
+        with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
+            write_csv(res, fh)
     text = summary(res, gyro, acc, throttle)
     if rrd is not None:
         text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"

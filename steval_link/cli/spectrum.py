@@ -13,6 +13,8 @@ import typer
 
 from steval_link.analysis import spectrum as S
 from steval_link.cli.app import app
+from steval_link.cli.checks import require_attitude
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
@@ -25,21 +27,13 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
+from steval_link.link.capture import read_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
 #: most throttle bins
 MAX_THROTTLE_BINS = 100
-
-
-def _check_out(option: str, path: Path | None) -> None:
-    if path is None:
-        return
-    if path.is_dir():
-        raise UserError(f"{option} {path} is a directory; give a file name")
-    if not path.parent.is_dir():
-        raise UserError(f"{option} {path}: directory {path.parent} does not exist (create it first)")
 
 
 @app.command("spectrum")
@@ -73,6 +67,7 @@ def spectrum_cmd(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+    force: ForceOption = False,
 ) -> None:
     """Gyro and accelerometer spectra per axis, like Blackbox's: Welch PSD, spectrogram over firmware time and
     frequency vs throttle, over runs of consecutive AHRS steps (dropped frames split them).
@@ -94,8 +89,10 @@ def spectrum_cmd(
         raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
     if not (math.isfinite(min_hz) and min_hz >= 0):
         raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
-    _check_out("--plot", plot)
-    _check_out("--csv", csv_out)
+    src = read_source(capture)  # the input first, then the outputs, then the work
+    for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
+        if path is not None:
+            check_output(path, option=option, force=force, inputs=(capture,))
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
@@ -111,7 +108,8 @@ def spectrum_cmd(
         options = sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port,
                                grpc_port=grpc_port)
     with progress_bar("spectrum", quiet=serve) as progress:
-        tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3))
+        tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
+        require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
         sp = S.compute_spectra(tel, nperseg=nperseg, overlap=overlap, throttle_bins=throttle_bins)
         found = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k], peaks, min_hz) for k, (name, _, _) in
@@ -119,16 +117,14 @@ def spectrum_cmd(
         lines = S.format_summary(sp, found, marks, min_hz=min_hz, source=capture.name)
         if csv_out is not None:
             progress(0.4, f"writing {csv_out.name}")
-            try:
-                with open(csv_out, "w", newline="", encoding="utf-8") as fh:
-                    S.write_csv(sp, fh)
-            except OSError as exc:
-                raise UserError(f"cannot write {csv_out}: {exc.strerror or exc}") from None
+            with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
+                S.write_csv(sp, fh)
         if plot is not None:
             from steval_link.analysis.spectrum_plot import plot_spectra  # matplotlib loads only for --plot
 
             progress(0.5, f"plotting {plot.name}")
-            plot_spectra(sp, plot, marks_hz=marks, peaks=found, title=f"steval spectrum {capture.name}")
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_spectra(sp, part, marks_hz=marks, peaks=found, title=f"steval spectrum {capture.name}")
     for w in warnings_seen:
         print(f"steval: warning: {w}", file=sys.stderr)
     print("\n".join(lines))

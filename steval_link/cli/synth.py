@@ -10,6 +10,7 @@ import typer
 
 from steval_link.cli.app import app
 from steval_link.cli.checks import check_gain
+from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
 from steval_link.emulation.motion import SCENARIOS
@@ -73,6 +74,7 @@ def synth_cmd(
         raise UserError("--scenario is required (see steval synth --list)")
     if out is None:
         raise UserError("--out is required (FILE.stv for a capture)")
+    check_output(out, option="--out", force=force)
     check_gain("--ki", ki)
     if c_encoder is not None:
         encoder = "c"
@@ -83,8 +85,6 @@ def synth_cmd(
         encoder=encoder.lower(), c_encoder=None if c_encoder is None else str(c_encoder),
         vibration=tuple(vibration or ()),
     )
-    if out.exists() and not force:
-        raise UserError(f"{out} exists; pass --force to replace it")
     t0 = time.perf_counter()
     with progress_bar("synth") as progress:
         res = synthesize(opts, scaled(progress, 0.0, 0.95))

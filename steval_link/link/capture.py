@@ -352,6 +352,8 @@ def _read_bytes(path: Path) -> bytes:
         raise UserError(f"{path}: no such file.")
     if path.is_dir():
         raise UserError(f"{path} is a directory, not a capture file.")
+    if not path.is_file():  # a device or a pipe: it may never end (record a port with steval record)
+        raise UserError(f"{path} is not a regular file (a device or a pipe); record a port with steval record.")
     try:
         return path.read_bytes()
     except OSError as exc:
@@ -367,13 +369,15 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     raw = _read_bytes(path) if data is None else data
     if not raw.startswith(MAGIC):
         if raw and MAGIC.startswith(raw):
-            raise UserError(f"{path}: the capture header is damaged or incomplete.")
+            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
         raise UserError(f"{path} is not a steval capture (.stv) file.")
     mv = memoryview(raw)
     pos = len(MAGIC)
     try:
         (hlen,) = _HEADER_LEN.unpack_from(raw, pos)
-        if hlen > MAX_HEADER or pos + 4 + hlen + 4 > len(raw):
+        if hlen <= MAX_HEADER and pos + 4 + hlen + 4 > len(raw):
+            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
+        if hlen > MAX_HEADER:
             raise ValueError
         head = raw[pos + 4 : pos + 4 + hlen]
         (crc,) = _CRC.unpack_from(raw, pos + 4 + hlen)
@@ -382,8 +386,10 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
         header = json.loads(head.decode("utf-8"))
         if not isinstance(header, dict):
             raise ValueError
-    except (ValueError, struct.error, UnicodeDecodeError):
-        raise UserError(f"{path}: the capture header is damaged or incomplete.") from None
+    except struct.error:
+        raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.") from None
+    except (ValueError, UnicodeDecodeError):
+        raise UserError(f"{path}: {len(raw)} bytes, capture header damaged: no frames.") from None
     if int(header.get("format_version", 0)) > FORMAT_VERSION:
         raise UserError(
             f"{path} uses capture format {header.get('format_version')}; this steval-link reads up to "
@@ -550,7 +556,14 @@ def telemetry_of_source(src: Source):
     """Decode a :class:`Source` (see :func:`load_telemetry`)."""
 
     if src.kind == "stv" and not src.data:
-        raise UserError(f"{src.path} is an empty capture (no bytes were received).")
+        size = _file_size(src.path)
+        if src.chunks.get(CHUNK_BLE):
+            raise UserError(f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
+                            "serial frames): steval replay and export read it, this command needs the serial stream.")
+        if src.warnings:  # cut short or damaged right after the header
+            raise UserError(f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
+                            "short): no frames.")
+        raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
     chunk_times = None
     if src.chunk_offsets is not None and src.chunk_times_s is not None:
         chunk_times = (src.chunk_offsets, src.chunk_times_s)
@@ -574,6 +587,13 @@ def telemetry_of_source(src: Source):
             f"firmware?)."
         )
     return tel
+
+
+def _file_size(path: Path) -> str:
+    try:
+        return f"{Path(path).stat().st_size} bytes"
+    except OSError:
+        return "size unknown"
 
 
 def _host_commands(host: list[HostChunk], found: np.ndarray) -> np.ndarray:

@@ -73,11 +73,13 @@ class EmulateSession:
     def __init__(self, emu_options: EmulationOptions, live: LiveOptions, *, realtime: bool = False,
                  stream: TextIO | None = None, tty: bool | None = None,
                  viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
-                 commands: list[tuple[float, Command]] | None = None, commands_file: str | None = None) -> None:
+                 commands: list[tuple[float, Command]] | None = None, commands_file: str | None = None,
+                 check_outputs: Callable[[], None] | None = None) -> None:
         """``viewer_factory``: as :class:`~steval_link.live.session.LiveSession`'s (required when ``live`` uses
         Rerun; the caller checks the sinks first). ``commands``: (emulated s, command) sent to the firmware's
         USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's command
-        names); typed commands go out at the next slice."""
+        names); typed commands go out at the next slice. ``check_outputs``: the CLI's checks of the outputs, run
+        once the ELF is read (the input first) and before any file is made."""
         if live.uses_rerun and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or --rrd) needs a viewer_factory")
         self.viewer_factory = viewer_factory
@@ -88,6 +90,7 @@ class EmulateSession:
         self._stop: str | None = None
         self.commands = list(commands or [])
         self.commands_file = commands_file
+        self.check_outputs = check_outputs
 
     def request_stop(self, reason: str = "stopped") -> None:
         if self._stop is None:
@@ -100,6 +103,8 @@ class EmulateSession:
     def run(self) -> EmulateSummary:
         opts = self.live
         emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
+        if self.check_outputs is not None:
+            self.check_outputs()
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
         extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
                  "elf": str(emu.elf.path), "scenario": emu.motion.name, "seed": self.emu_options.seed,
@@ -121,6 +126,7 @@ class EmulateSession:
         old = self._install_signals()
         t0 = time.monotonic()
         pipe = None
+        t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
         try:
             self.display.note(f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s); recording "
                               f"to {capture_path}" + (f" and {opts.rrd}" if opts.rrd else "") + " (Ctrl-C to stop)")
@@ -166,7 +172,8 @@ class EmulateSession:
             console = getattr(self, "console", None)
             if console is not None:
                 console.close()
-            close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"))
+            close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"),
+                          t_stop_s=t_emu_s)
             self._restore_signals(old)
         if error is not None:
             if isinstance(error, UserError):

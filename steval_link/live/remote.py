@@ -60,7 +60,11 @@ def run_commands(port: str, baud: int, commands: list[Command], *, timeout_s: fl
         try:
             ser = open_serial(path, baud, timeout_s=0.05)
         except serial.SerialException as exc:
-            message = open_error_message(path, exc).replace(" (or use --wait)", "")
+            try:  # the ports there are, listed as steval live lists them
+                available = autodetect.list_candidate_ports()
+            except Exception:  # noqa: BLE001 - the listing is only a hint in the message
+                available = []
+            message = open_error_message(path, exc, available).replace(" (or use --wait)", "")
             if " is busy" in message:
                 message += " (if steval live has it, type the command at its prompt instead)"
             raise UserError(message) from None

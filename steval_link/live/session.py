@@ -167,10 +167,14 @@ class LiveSession:
         stream: TextIO | None = None,
         tty: bool | None = None,
         viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
+        check_outputs: Callable[[], None] | None = None,
     ) -> None:
         if options.uses_rerun and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or --rrd) needs a viewer_factory")
         self.options = options
+        #: the CLI's checks of the outputs (capture, .rrd, a display for the viewer), run once the port is open:
+        #: errors come in the command line's order, the input (the port) first
+        self.check_outputs = check_outputs
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
         self.viewer_factory = viewer_factory
         self.clock = HostClock()
@@ -223,8 +227,14 @@ class LiveSession:
     # -- main -------------------------------------------------------------------------------------------------
 
     def run(self) -> LiveSummary:
-        opts = self.options
         path, ser = self._open_port()
+        if self.check_outputs is not None:
+            try:
+                self.check_outputs()
+            except BaseException:
+                ser.close()
+                raise
+        opts = self.options
         identity = autodetect.PortIdentity.of(path)
         finder = autodetect.PortFinder(identity, pattern=opts.port if autodetect.is_glob(opts.port) else None)
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
@@ -498,11 +508,12 @@ def restore_signals(old: dict | None) -> None:
             pass
 
 
-def close_outputs(capture, viewer, display: HealthDisplay, stop_reason: str) -> None:
+def close_outputs(capture, viewer, display: HealthDisplay, stop_reason: str, t_stop_s: float | None = None) -> None:
     """End a session's outputs in their order of importance: the capture (its stop event, then closed), then the
-    Rerun side (a failure there is a note: the capture is safe), then the health line."""
+    Rerun side (a failure there is a note: the capture is safe), then the health line. ``t_stop_s``: the stop
+    event's time on the capture's clock (the emulated time of an emulated session; default: the host clock now)."""
     try:
-        capture.mark_event("stop", stop_reason)
+        capture.mark_event("stop", stop_reason, t_host_s=t_stop_s)
     except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
         pass
     capture.close()

@@ -23,8 +23,11 @@ def run_cli_tty(*args, timeout: float = 120.0):
     """``steval ARGS`` in a subprocess whose stderr is a terminal (a pseudo-terminal, 100 columns), as on a user's
     screen: returns (exit code, stdout text, everything written to the terminal as text)."""
     import os
-    import pty
     import select
+
+    import pytest
+
+    pty = pytest.importorskip("pty", reason="a pseudo-terminal for stderr (POSIX only)")
     import subprocess
     import sys
     import time

@@ -18,17 +18,20 @@ from __future__ import annotations
 
 import errno
 import os
-import pty
 import select
 import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from steval_link import constants as C
 from steval_link.link import protocol
+
+# POSIX only: a test module importing this one skips on Windows, with this reason
+pty = pytest.importorskip("pty", reason="the fake drone runs on a pseudo-terminal (POSIX only)")
+tty = pytest.importorskip("tty", reason="the fake drone runs on a pseudo-terminal (POSIX only)")
 
 #: Bytes per second of the real stream at 161.5 Hz (PROTOCOL.md, "Bandwidth").
 REAL_BYTES_PER_S = C.AHRS_RATE_HZ * protocol.ATTITUDE_FRAME_SIZE + protocol.STATUS_FRAME_SIZE

@@ -1,0 +1,171 @@
+"""Every output file of every command, one rule: checked before any work, written whole or not at all.
+
+- :func:`check_output` runs for each output option after the inputs are read and before the work starts: the
+  folder exists and takes a new file (tried for real: a probe file is created and removed, so a read-only mount,
+  ``/proc`` or ``/sys`` fail here even for root), the path is not a folder, not the input itself, and an existing
+  file is refused unless the command has ``--force`` and it was given (captures are never overwritten).
+- :func:`atomic_output` writes to ``NAME.partial`` (``NAME.partial.EXT`` where the writer picks its format from
+  the extension) and renames it into place when the writer returns; a failure or Ctrl-C removes it. Nothing
+  half-written is left that looks complete, and an earlier file of that name stays as it was until the rename.
+- :func:`output_error` turns what a writer raises (``OSError``, Rerun's ``RuntimeError: Failed to create file``)
+  into one :class:`~steval_link.errors.UserError` sentence naming the option and the file.
+
+:data:`OUTPUT_OPTIONS` names the options that are output files (the CLI matrix test finds them by it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from steval_link.errors import UserError
+
+__all__ = [
+    "OUTPUT_OPTIONS",
+    "ForceOption",
+    "atomic_output",
+    "check_input",
+    "check_output",
+    "output_error",
+    "partial_path",
+]
+
+#: option names whose value is a file a command writes
+OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap"})
+#: suffix of a file being written (renamed into place when complete)
+PARTIAL = ".partial"
+
+ForceOption = Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")]
+
+
+def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
+    """Where ``path`` is written until complete: ``NAME.partial``, or ``STEM.partial.EXT`` with ``keep_suffix``
+    (for writers that pick the format from the extension, e.g. matplotlib)."""
+    path = Path(path)
+    if keep_suffix and path.suffix:
+        return path.with_name(f"{path.stem}{PARTIAL}{path.suffix}")
+    return path.with_name(path.name + PARTIAL)
+
+
+def _why(exc: BaseException) -> str:
+    if isinstance(exc, OSError):
+        if exc.errno in (errno.EROFS,):
+            return "read-only file system"
+        return (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text.rstrip(".")
+
+
+def _probe(folder: Path) -> OSError | None:
+    """Create and remove a file in ``folder``: None when that works, else the error (root ignores permission bits,
+    so ``os.access`` cannot tell a read-only mount or ``/proc``)."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".steval-probe-", dir=folder)
+    except OSError as exc:
+        return exc
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(name)
+    return None
+
+
+def check_output(
+    path: str | os.PathLike,
+    *,
+    option: str,
+    force: bool = False,
+    overwrite: str = "force",
+    inputs: tuple[str | os.PathLike | None, ...] = (),
+) -> Path:
+    """Check one output file before any work; returns it as a Path. Raises UserError, one sentence naming
+    ``option``, when: it is a folder; its folder is missing or not a folder; its folder takes no new file
+    (read-only, ``/proc``, no permission); it is one of ``inputs``; or it exists and may not be replaced.
+
+    ``overwrite``: ``"force"`` (replaced only with ``--force``: ``force`` true), ``"never"`` (captures: never
+    replaced), ``"always"`` (the command documents that it replaces the file).
+    """
+    p = Path(path).expanduser()
+    label = f"{option} {p}"
+    if p.is_dir():
+        raise UserError(f"{label}: cannot write it, it is a folder (give a file name)")
+    for given in inputs:
+        if given is not None and _same(p, Path(given)):
+            raise UserError(f"{label} is the input itself; choose another output file (inputs are never modified)")
+    parent = p.parent
+    if not parent.is_dir():
+        what = "is not a folder" if parent.exists() else "does not exist"
+        raise UserError(f"{label}: cannot write it, folder {parent} {what} (create it first)")
+    if p.exists() and not p.is_file():  # a device or a pipe (/dev/null): never replaced by a file
+        raise UserError(f"{label}: cannot write it, it is not a regular file (a device or a pipe)")
+    if p.exists() or p.is_symlink():
+        if overwrite == "never":
+            raise UserError(f"{label} already exists; choose another name (this command never overwrites a file)")
+        if overwrite == "force" and not force:
+            raise UserError(f"{label} already exists (use --force to overwrite)")
+    failed = _probe(parent)
+    if failed is not None:
+        raise UserError(f"{label}: cannot write it, folder {parent} takes no new file ({_why(failed)})")
+    return p
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
+    """An input file, checked before it is read: it exists, is not a folder, and is a regular file (a device such as
+    ``/dev/zero`` or a pipe may never end). Raises UserError; returns it as a Path."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise UserError(f"{p}: no such file ({what})")
+    if p.is_dir():
+        raise UserError(f"{p} is a folder, not a {what}")
+    if not p.is_file():
+        raise UserError(f"{p} is not a regular file (a device or a pipe), not a {what}")
+    return p
+
+
+def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:
+    """One sentence for a writer that failed on ``path`` (disk full, folder removed, a sink that cannot create
+    its file)."""
+    return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there")
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
+    """Yield the partial path to write ``path`` to; on a normal exit rename it into place (replacing an earlier
+    file), on any exception (Ctrl-C included) remove it. ``OSError`` and ``RuntimeError`` from the writer become
+    one UserError sentence (:func:`output_error`); a UserError passes unchanged."""
+    final = Path(path)
+    partial = partial_path(final, keep_suffix=keep_suffix)
+    try:
+        yield partial
+        if not partial.exists():  # the writer wrote nothing there (e.g. a plot it had nothing for)
+            return
+        os.replace(partial, final)
+    except UserError:
+        _remove(partial)
+        raise
+    except (OSError, RuntimeError) as exc:
+        _remove(partial)
+        raise output_error(option, final, exc) from None
+    except BaseException:
+        _remove(partial)
+        raise
+
+
+def _remove(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.unlink()
