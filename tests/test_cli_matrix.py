@@ -108,7 +108,7 @@ COMMANDS = command_table()
 def test_the_walk_finds_every_command_and_its_files():
     # the walk sees the sub-apps and what each command reads and writes; a new command appears by itself
     assert {"replay", "export", "live", "ble scan", "param get", "param set", "command mode"} <= set(COMMANDS)
-    assert COMMANDS["export"]["outputs"] == ["--csv", "--parquet", "--raw"]
+    assert COMMANDS["export"]["outputs"] == ["--csv", "--parquet", "--raw", "--mat", "--mcap"]
     assert COMMANDS["replay"]["path_args"] == ["capture"] and COMMANDS["replay"]["outputs"] == ["--rrd"]
     assert set(COMMANDS["spectrum"]["outputs"]) == {"--csv", "--plot", "--rrd"}
     assert COMMANDS["ports"] == {"path_args": [], "outputs": [], "has_force": False}

@@ -67,7 +67,7 @@ def test_refuses_to_overwrite_and_reports_bad_input(monkeypatch, capsys, tmp_pat
     out = tmp_path / "x.mat"
     out.write_bytes(b"keep me")
     code, _, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mat", out)
-    assert code == 2 and err == f"steval: error: {out} already exists (use --force to overwrite).\n"
+    assert code == 2 and err == f"steval: error: --mat {out} already exists (use --force to overwrite)\n"
     assert out.read_bytes() == b"keep me"
     code, _, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mat", out, "--force")
     assert code == 0 and load(out)["attitude"].step.size == len(load_telemetry(REC / "demo.stv").attitude)
@@ -86,7 +86,7 @@ def test_a_failed_write_leaves_nothing(monkeypatch, capsys, tmp_path):
     out = tmp_path / "x.mat"
     monkeypatch.setattr(mat_export, "require_scipy", lambda: broken)
     code, _, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mat", out)
-    assert code == 2 and "No space left on device" in err
+    assert code == 2 and "no space left on device" in err
     assert not out.exists() and not (tmp_path / "x.mat.partial").exists()
 
 

@@ -96,7 +96,7 @@ def test_refuses_to_overwrite_and_ble(monkeypatch, capsys, tmp_path):
     out = tmp_path / "x.mcap"
     out.write_bytes(b"keep me")
     code, _, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mcap", out)
-    assert code == 2 and err == f"steval: error: {out} already exists (use --force to overwrite).\n"
+    assert code == 2 and err == f"steval: error: --mcap {out} already exists (use --force to overwrite)\n"
     assert out.read_bytes() == b"keep me"
     export(monkeypatch, capsys, REC / "demo.stv", out, "--force")
     assert out.read_bytes()[:8] == b"\x89MCAP0\r\n" and not (tmp_path / "x.mcap.partial").exists()

@@ -34,8 +34,7 @@ def test_new_writes_a_starter_and_never_overwrites_without_force(tmp_path, monke
         assert marker in text
     f.write_text(text + "\n# my edits\n")
     code, out, err = run_cli(monkeypatch, capsys, "estimator", "new", "my_ekf.py")
-    assert code == 2 and err.strip() == ("steval: error: my_ekf.py already exists; choose another name or add "
-                                         "--force to overwrite it")
+    assert code == 2 and err.strip() == ("steval: error: my_ekf.py already exists (use --force to overwrite)")
     assert f.read_text().endswith("# my edits\n")
     code, out, err = run_cli(monkeypatch, capsys, "estimator", "new", "my_ekf.py", "--force", "--class", "Kalman3")
     assert code == 0 and "class Kalman3" in f.read_text() and "MyEkf" not in f.read_text()

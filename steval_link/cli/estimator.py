@@ -57,8 +57,8 @@ def new_command(
         raise UserError(f"{file}: the starter is Python; give a name ending in .py (e.g. my_ekf.py)")
     if not _CLASS_NAME.fullmatch(class_name):
         raise UserError(f"--class {class_name!r} is not a Python class name")
-    check_output(file, option="FILE", force=force)
-    with atomic_output(file, option="FILE", keep_suffix=True) as part:
+    check_output(file, option="", force=force)
+    with atomic_output(file, option="", keep_suffix=True) as part:
         part.write_text(starter_source(class_name), encoding="utf-8")
     ref = f"{file}:{class_name}"
     print(f"wrote {file}: class {class_name}, a 3-state EKF (gyro prediction, accelerometer update)")

@@ -92,7 +92,7 @@ def check_output(
     replaced), ``"always"`` (the command documents that it replaces the file).
     """
     p = Path(path).expanduser()
-    label = f"{option} {p}"
+    label = f"{option} {p}".lstrip()  # option "": a path argument, named by itself
     if p.is_dir():
         raise UserError(f"{label}: cannot write it, it is a folder (give a file name)")
     for given in inputs:
@@ -140,7 +140,7 @@ def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
 def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:
     """One sentence for a writer that failed on ``path`` (disk full, folder removed, a sink that cannot create
     its file)."""
-    return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there")
+    return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there".lstrip())
 
 
 @contextlib.contextmanager
