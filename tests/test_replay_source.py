@@ -15,7 +15,7 @@ from support.ptyfeed import StevalProcess
 from steval_link import constants as C
 from steval_link.errors import UserError
 from steval_link.link.capture import load_telemetry, read_capture
-from steval_link.link.replay_source import ReplayPort, open_replay, parse_replay_url
+from steval_link.link.replay_source import PROMPT_NOTE, ReplayPort, open_replay, parse_replay_url
 from steval_link.live.session import LiveOptions, LiveSession
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,3 +161,36 @@ def test_cli_bad_replay_url_is_one_line(monkeypatch, capsys, tmp_path):
         assert code == 2 and err.startswith("steval: error: cannot replay replay://no/such.stv"), err
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "x.stv").exists()
+
+
+@pytest.mark.slow  # real time: the CLI in a child process, 2 s of replay
+def test_cli_prompt_on_a_replay_says_once_that_commands_go_nowhere(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "cmd.stv"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.run(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", "live", "--no-view", "--prompt",
+         "--port", f"replay://{DEMO}", "--out", str(out), "-e", "none", "--duration", "2"],
+        input="set ki 1.0\nstatus\n", capture_output=True, text=True, timeout=120, cwd=tmp_path, env=env,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.count(PROMPT_NOTE) == 1, proc.stderr
+    assert "set ki" in proc.stderr and "not sent (a replay takes no commands)" in proc.stderr
+    cap = read_capture(out)
+    assert cap.host == [] and [e.text for e in cap.events] == ["duration"]  # nothing recorded as sent
+    assert proc.stdout.startswith("recorded ") and len(proc.stdout.strip().splitlines()) == 1
+
+
+@pytest.mark.slow  # real time: 17 s of text-mode log at 20x
+def test_a_text_mode_log_replays_live_to_its_end(tmp_path):
+    out = tmp_path / "text.stv"
+    opts = LiveOptions(port=f"replay://{TEXTLOG}?speed=20", out=out, view=False, estimators=["st-mahony", "accel"],
+                       prompt=False)
+    summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
+    src = load_telemetry(TEXTLOG)
+    assert summary.stopped_by == "end of replay" and summary.attitude == len(src.attitude) == 172
+    assert "ST port not seeded" in summary.line()  # text-mode status rows carry no state to seed it from
+    assert read_capture(out).data == TEXTLOG.read_bytes()
