@@ -40,8 +40,10 @@ BAUD_BLOCK_BYTES = 32
 BITS_PER_BYTE = 10
 #: A gap in firmware time longer than this (restart, wrap) is replayed as one AHRS period, s.
 MAX_FW_GAP_S = 1.0
-#: What the prompt says on a replay (once, at the start).
-PROMPT_NOTE = "a replay takes no commands: lines typed here are not sent anywhere"
+#: Why a command cannot be sent to a replay (the error of :meth:`ReplayPort.write`) ...
+NO_COMMANDS = "a replay takes no commands"
+#: ... and what the prompt says once, at the start.
+PROMPT_NOTE = f"{NO_COMMANDS}: lines typed here are not sent anywhere"
 
 
 def is_replay_url(port: str) -> bool:
@@ -202,7 +204,7 @@ class ReplayPort:
 
     def write(self, data: bytes) -> int:
         """Nothing can be sent to a recording: raises ``serial.SerialException`` (an ``OSError``)."""
-        raise serial.SerialException(PROMPT_NOTE.split(":")[0])
+        raise serial.SerialException(NO_COMMANDS)
 
     def close(self) -> None:
         self.is_open = False
