@@ -192,7 +192,7 @@ class LiveSession:
 
     def _open_port(self) -> tuple[str, serial.Serial]:
         opts = self.options
-        if is_replay_url(opts.port):  # the one place a source is chosen by its URL scheme
+        if is_replay_url(opts.port):  # the one place a source is opened by its URL scheme
             return opts.port, open_replay(opts.port, baud=opts.baud)
         deadline = time.monotonic() + (math.inf if opts.wait else 0.0)
         announced = False
@@ -339,8 +339,8 @@ class LiveSession:
                               force=console.take_typing_change())
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
-            elif getattr(reader.serial, "at_end", False):  # a replay played to its end
-                self.display.note(f"end of {reader.serial.path}")
+            elif getattr(source := reader.serial, "at_end", False):  # a replay played to its end
+                self.display.note(f"end of {source.path}")
                 self.request_stop("end of replay")
 
     def _console(self, reader: SerialReader, proto: RecorderProtocol, pipe: LivePipeline) -> CommandConsole:
