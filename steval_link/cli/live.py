@@ -31,7 +31,8 @@ from steval_link.live.session import LiveOptions, LiveSession
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
-_PORT_HELP = "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), or 'auto': the one that carries frames."
+_PORT_HELP = ("Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
+              "replay://CAPTURE.stv[?speed=5]: a recording played at its recorded pace (no drone needed).")
 _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
 _WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead of stopping with an error."
 

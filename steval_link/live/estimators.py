@@ -102,6 +102,8 @@ class LivePort:
 
     def status(self, frame) -> None:
         """A status frame: seed the port from its snapshot when unseeded or out of sync (else confirm it)."""
+        if not frame.exact:  # a text-mode $STA row has no q, integral or gains: nothing to seed from
+            return
         snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
         self.follower.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
 

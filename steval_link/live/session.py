@@ -39,6 +39,7 @@ from steval_link.errors import UserError
 from steval_link.link import autodetect
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.plausibility import held_back_sentence
+from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import (
     HostClock,
     SerialReader,
@@ -195,6 +196,8 @@ class LiveSession:
 
     def _open_port(self) -> tuple[str, serial.Serial]:
         opts = self.options
+        if is_replay_url(opts.port):  # the one place a source is opened by its URL scheme
+            return opts.port, open_replay(opts.port, baud=opts.baud)
         deadline = time.monotonic() + (math.inf if opts.wait else 0.0)
         announced = False
         while True:
@@ -235,8 +238,12 @@ class LiveSession:
                 ser.close()
                 raise
         opts = self.options
-        identity = autodetect.PortIdentity.of(path)
-        finder = autodetect.PortFinder(identity, pattern=opts.port if autodetect.is_glob(opts.port) else None)
+        if is_replay_url(path):  # a recording: nothing to find again after a loss
+            finder, described, extra = None, ser.describe(), {"replay_of": str(ser.path)}
+        else:
+            identity = autodetect.PortIdentity.of(path)
+            finder = autodetect.PortFinder(identity, pattern=opts.port if autodetect.is_glob(opts.port) else None)
+            described, extra = identity.describe(), {"device": identity.device, "usb": identity.describe()}
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
         try:
             capture_path.parent.mkdir(parents=True, exist_ok=True)
@@ -244,8 +251,8 @@ class LiveSession:
                 capture_path,
                 discard_empty=True,  # a session that got no byte leaves no header-only file behind
                 port=path,
-                baud=opts.baud,
-                extra={"device": identity.device, "usb": identity.describe(), "estimators": list(opts.estimators)},
+                baud=ser.baudrate,
+                extra={**extra, "estimators": list(opts.estimators)},
             )
         except FileExistsError:
             ser.close()
@@ -257,14 +264,15 @@ class LiveSession:
 
         inbox = Inbox()
         proto = RecorderProtocol(capture, inbox, finder, self.clock)
-        reader = SerialReader(ser, proto, baud=opts.baud, clock=self.clock, find_port=finder.find)
+        reader = SerialReader(ser, proto, baud=ser.baudrate, clock=self.clock,
+                              find_port=finder.find if finder is not None else None)
         viewer = None
         t0 = time.monotonic()
         error: BaseException | None = None
         old_handlers = self._install_signals()
         try:
             self.display.note(
-                f"reading {identity.describe()} at {opts.baud} baud; recording to {capture_path}"
+                f"reading {described} at {ser.baudrate} baud; recording to {capture_path}"
                 + (f" and {opts.rrd}" if opts.rrd else "")
                 + " (Ctrl-C to stop)"
             )
@@ -341,6 +349,9 @@ class LiveSession:
                               force=console.take_typing_change())
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
+            elif getattr(source := reader.serial, "at_end", False):  # a replay played to its end
+                self.display.note(f"end of {source.path}")
+                self.request_stop("end of replay")
 
     def _console(self, reader: SerialReader, proto: RecorderProtocol, pipe: LivePipeline) -> CommandConsole:
         """The command prompt: each frame goes to the port, then into the capture (H chunk) and the pipeline's log."""
@@ -358,8 +369,8 @@ class LiveSession:
             ser.write(frame)
 
         console = CommandConsole(send, self.display.note, record=record, enabled=enabled)
-        if enabled:
-            self.display.note(PROMPT_HELP)
+        if enabled:  # a replay says once that commands go nowhere
+            self.display.note(getattr(reader.serial, "prompt_note", PROMPT_HELP))
         return console
 
     def _drain(self, inbox: Inbox) -> None:

@@ -1,0 +1,234 @@
+"""A recorded stream played back as a live serial port: ``--port replay://recordings/demo.stv``.
+
+In the spirit of pyserial's URL handlers (``loop://``, ``spy://``): :class:`ReplayPort` has the surface the reader
+thread (:class:`~steval_link.link.transport.SerialReader`) uses of a ``serial.Serial`` (``read``, ``in_waiting``,
+``cancel_read``, ``write``, ``close``, ``port``, ``baudrate``, ``timeout``), so a replay walks the whole live path:
+capture, decoder, estimators, viewer, summary.
+
+Pace: a capture's bytes come out at the host times they were recorded at (chunk ``D`` times); a raw dump or a
+text-mode log has none, so its bytes come out at the firmware time of its frames (``t_fw_s``), or at the baud rate
+(10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
+silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
+URL plays X times faster. Commands go nowhere: :meth:`ReplayPort.write` raises.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import urllib.parse
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import serial
+
+from steval_link import constants as C
+from steval_link.errors import UserError
+from steval_link.link.capture import read_source, telemetry_of_source
+
+__all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
+
+SCHEME = "replay://"
+#: How long one read waits for bytes by default, s (as :data:`~steval_link.link.transport.READ_TIMEOUT_S`).
+READ_TIMEOUT_S = 0.05
+#: Bytes released together when pacing at the baud rate.
+BAUD_BLOCK_BYTES = 32
+#: Bit times per byte on the wire (8N1).
+BITS_PER_BYTE = 10
+#: A gap in firmware time longer than this (restart, wrap) is replayed as one AHRS period, s.
+MAX_FW_GAP_S = 1.0
+#: Why a command cannot be sent to a replay (the error of :meth:`ReplayPort.write`) ...
+NO_COMMANDS = "a replay takes no commands"
+#: ... and what the prompt says once, at the start.
+PROMPT_NOTE = f"{NO_COMMANDS}: lines typed here are not sent anywhere"
+
+
+def is_replay_url(port: str) -> bool:
+    """True for ``replay://PATH`` (any case of the scheme)."""
+    return port.lower().startswith(SCHEME)
+
+
+@dataclass(frozen=True)
+class ReplayUrl:
+    """``replay://PATH[?speed=X]``: the file to replay and how many times faster than recorded (1: as recorded)."""
+
+    path: Path
+    speed: float = 1.0
+
+
+def parse_replay_url(url: str) -> ReplayUrl:
+    """Parse ``replay://recordings/demo.stv`` (relative), ``replay:///abs/x.stv`` or ``...?speed=5``; raises
+    :class:`UserError` with one sentence."""
+    if not is_replay_url(url):
+        raise UserError(f"{url} is not a replay URL (replay://CAPTURE.stv)")
+    rest = url[len(SCHEME):]
+    path_text, _, query = rest.partition("?")
+    if not path_text:
+        raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
+    speed = 1.0
+    try:
+        params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
+    except ValueError:
+        raise UserError(f"{url}: cannot read the options after '?' (replay://FILE?speed=5)") from None
+    for key, values in params.items():
+        if key != "speed":
+            raise UserError(f"{url}: unknown replay option {key!r} (known: speed, e.g. ?speed=5)")
+        try:
+            speed = float(values[-1])
+        except ValueError:
+            speed = math.nan
+        if not (math.isfinite(speed) and speed > 0):
+            raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed)
+
+
+def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """When each byte of ``src`` (a :class:`~steval_link.link.capture.Source`, decoded as ``tel``) comes out.
+
+    Returns ``(ends, t_s, how)``: bytes ``[0, ends[i])`` are out at ``t_s[i]`` (s since the replay started,
+    non-decreasing), and ``how`` says which clock paced them (for the notes).
+    """
+    n = len(src.data)
+    att = tel.attitude
+    first = int(att.offset[0]) if len(att) else 0
+    if src.chunk_offsets is not None and src.chunk_times_s is not None and len(src.chunk_offsets):
+        t = np.asarray(src.chunk_times_s, np.float64)
+        if np.all(np.isfinite(t)):
+            ends = np.append(np.asarray(src.chunk_offsets[1:], np.int64), n)
+            t = np.maximum.accumulate(t)
+            k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
+            return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
+    t_fw = np.asarray(att.t_fw_s, np.float64) if len(att) else np.zeros(0)
+    if len(t_fw) >= 2 and np.isfinite(t_fw).all():
+        dt = np.diff(t_fw)
+        dt[(dt <= 0) | (dt > MAX_FW_GAP_S)] = C.AHRS_PERIOD_S
+        t = np.concatenate([[0.0], np.cumsum(dt)])
+        # frame i (and the bytes before frame i+1) is out at its own firmware time; the tail at the baud rate
+        ends = np.append(np.asarray(att.offset[1:], np.int64), n)
+        tail_s = (n - int(att.offset[-1])) * BITS_PER_BYTE / baud
+        t = np.append(t[:-1], t[-1] + tail_s)
+        return ends, t, "the frames' firmware times"
+    ends = np.append(np.arange(BAUD_BLOCK_BYTES, n, BAUD_BLOCK_BYTES, dtype=np.int64), n)
+    return ends, ends * (BITS_PER_BYTE / baud), f"{baud} baud"
+
+
+class ReplayPort:
+    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc).
+
+    ``data``: the byte stream; bytes ``[0, ends[i])`` are readable from ``t_s[i] / speed`` seconds after the first
+    read (or :attr:`in_waiting`). ``read`` waits like pyserial's (until ``size`` bytes or ``timeout``). After the
+    last byte :attr:`at_end` is True and reads return ``b""`` after the timeout.
+    """
+
+    def __init__(
+        self,
+        data: bytes,
+        ends: np.ndarray,
+        t_s: np.ndarray,
+        *,
+        port: str,
+        path: Path,
+        baudrate: int = C.BAUD,
+        speed: float = 1.0,
+        timeout: float = READ_TIMEOUT_S,
+        paced_by: str = "",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.data = bytes(data)
+        self.ends = np.asarray(ends, np.int64)
+        self.t_s = np.asarray(t_s, np.float64) / speed
+        self.port = port
+        self.path = path
+        self.baudrate = baudrate
+        self.speed = speed
+        self.timeout = timeout
+        self.paced_by = paced_by
+        self.prompt_note = PROMPT_NOTE
+        self._clock = clock
+        self._t0: float | None = None
+        self._pos = 0
+        self._cancel = threading.Event()
+        self.is_open = True
+
+    # -- timing -----------------------------------------------------------------------------------------------
+
+    def _elapsed_s(self) -> float:
+        now = self._clock()
+        if self._t0 is None:
+            self._t0 = now  # the replay starts when it is first read
+        return now - self._t0
+
+    def _released(self) -> tuple[int, float]:
+        """(bytes out by now, seconds until the next bytes come out, ``inf`` after the last)."""
+        el = self._elapsed_s()
+        i = int(np.searchsorted(self.t_s, el, side="right"))
+        out = int(self.ends[i - 1]) if i else 0
+        wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
+        return out, wait
+
+    # -- the serial surface -----------------------------------------------------------------------------------
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes out and not yet read."""
+        return max(0, self._released()[0] - self._pos)
+
+    @property
+    def at_end(self) -> bool:
+        """Every byte has been read."""
+        return self._pos >= len(self.data)
+
+    def read(self, size: int = 1) -> bytes:
+        """Up to ``size`` bytes: waits until that many are out or :attr:`timeout` passed (or :meth:`cancel_read`)."""
+        if not self.is_open:
+            raise serial.SerialException(f"{self.port} is closed")
+        deadline_s = self._elapsed_s() + (math.inf if self.timeout is None else self.timeout)
+        while True:
+            out, wait_s = self._released()
+            avail = out - self._pos
+            left_s = deadline_s - self._elapsed_s()
+            if avail >= size or left_s <= 0 or self._cancel.is_set():
+                break
+            self._cancel.wait(min(wait_s, left_s))
+        n = max(0, min(size, avail))
+        chunk = self.data[self._pos : self._pos + n]
+        self._pos += n
+        return chunk
+
+    def cancel_read(self) -> None:
+        """Wake a read that waits (as pyserial's); later reads no longer wait."""
+        self._cancel.set()
+
+    def write(self, data: bytes) -> int:
+        """Nothing can be sent to a recording: raises ``serial.SerialException`` (an ``OSError``)."""
+        raise serial.SerialException(NO_COMMANDS)
+
+    def close(self) -> None:
+        self.is_open = False
+        self._cancel.set()
+
+    def describe(self) -> str:
+        """Where the bytes come from, in words (for the session's first note)."""
+        pace = "the recorded pace" if self.speed == 1 else f"{self.speed:g}x the recorded pace"
+        return f"{self.path} replayed at {pace} ({self.paced_by})"
+
+
+def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
+    """Open ``replay://PATH[?speed=X]``: read and decode the file once (a missing file, a damaged capture or one
+    without frames is one sentence, :class:`UserError`), then pace it (:func:`pace_of`). ``baud``: the pace of a
+    file without times (a capture's own header wins)."""
+    parsed = parse_replay_url(url)
+    try:
+        src = read_source(parsed.path)
+        if src.header.get("extra", {}).get("link") == "ble":
+            raise UserError(f"{parsed.path} is a BLE capture (no serial bytes); open it with steval replay")
+        tel = telemetry_of_source(src)
+    except UserError as exc:
+        raise UserError(f"cannot replay {url}: {str(exc).rstrip('.')}") from None
+    rate = int(src.header.get("baud") or baud) if src.header else baud
+    ends, t_s, how = pace_of(src, tel, rate if rate > 0 else baud)
+    return ReplayPort(src.data, ends, t_s, port=url, path=parsed.path, baudrate=rate, speed=parsed.speed,
+                      timeout=timeout, paced_by=how)
