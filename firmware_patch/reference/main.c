@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "ref.h"
+#include "regs.h"
 #include "stv_fw.h"
 
 /* the BLE remote (written by the radio on the drone, by the emulator here): joydata[2] rudder, [3] throttle,
@@ -42,7 +43,8 @@ static void log_line(const char *s) { stv_fw_log_write(s, strlen(s)); }
 void TIM1_BRK_TIM9_IRQHandler(void) {
   int32_t acc[3], gyro[3];
   float gyro_fil[3], gyro_rad[3];
-  *(volatile uint32_t *)0x40014010u = 0u; /* TIM9 SR: clear UIF */
+  if (!(TIM_SR(TIM9) & 1u)) return; /* no update pending: a late repeat of the last one */
+  TIM_SR(TIM9) = ~1u;                /* clear UIF (the other flags are rc_w0: writing 1 keeps them) */
   if (!calibrated) { /* ticks 1..800 ignored, 801..1600 summed: offset = sum / 800 */
     if (++cal_ticks <= 800) return;
     imu_read(acc, gyro);
