@@ -236,20 +236,20 @@ def test_python_counter_fallback_gives_the_same_payloads(fw_default):
 
 
 @pytest.mark.slow
-def test_idle_skipping_changes_no_payload(fw_default):
-    """Jumping the clock over the main loop's sleep (wfi: the speed-up) against executing the idle loop: the same frames and boot lines, the same instructions per AHRS step,
+def test_idle_skipping_changes_no_payload(fw_default, tmp_path):
+    """Jumping the clock over the main loop's sleep (wfi: the speed-up) against a build whose main loop polls and
+    never sleeps, run without skipping: the same frames and boot lines, the same instructions per AHRS step,
     t_us within a microsecond."""
     from steval_link.emulation.runner import Emulation, EmulationOptions
 
-    def run(skip):
-        emu = Emulation(EmulationOptions(elf=fw_default, scenario="hand-tilts", duration_s=3.3, seed=2,
-                                         skip_idle=skip))
+    def run(elf, skip):
+        emu = Emulation(EmulationOptions(elf=elf, scenario="hand-tilts", duration_s=3.3, seed=2, skip_idle=skip))
         _stats, frames = decode(list(emu.chunks()))
         return emu.report(), [f for f in frames if isinstance(f, AttitudeFrame)], \
             [f.text for f in frames if isinstance(f, TextFrame)]
 
-    r1, a1, t1 = run(True)
-    r2, a2, t2 = run(False)
+    r1, a1, t1 = run(fw_default, True)
+    r2, a2, t2 = run(S.build_reference(tmp_path / "poll", "SLEEP=0"), False)
     assert r1.skipped_instructions > 20 * r1.instructions and r2.skipped_instructions == 0
     key = lambda f: (f.seq, f.thr, f.acc_mg, f.gyro_mdps, f.q_wxyz, f.thz_rad)  # noqa: E731
     assert len(a1) == len(a2) > 40 and [key(f) for f in a1] == [key(f) for f in a2] and t1 == t2

@@ -161,6 +161,10 @@ int main(void) {
   hw_tim9_start();
 
   for (;;) {
+#if !SLEEP
+    while (!tim9_event_flag) { /* SLEEP=0: poll, never sleep */
+    }
+#endif
     __asm__ volatile("cpsid i" ::: "memory");
     if (!tim9_event_flag) { /* nothing to do: sleep until the next interrupt, then take it */
       hw_sleep_until_irq();

@@ -10,6 +10,9 @@
 #ifndef AHRS_DIVERGE
 #define AHRS_DIVERGE 0 /* 1: a refactor's bug in the quaternion update (halfT scales only the last term) */
 #endif
+#ifndef SLEEP
+#define SLEEP 1 /* 0: the main loop polls instead of sleeping with wfi */
+#endif
 #ifndef SWAP_MOTORS
 #define SWAP_MOTORS 0 /* e.g. 34: motor outputs 3 and 4 exchanged (a mixer renumbered for another frame) */
 #endif
