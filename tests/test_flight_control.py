@@ -271,7 +271,7 @@ def test_cli_preflight_exit_codes(monkeypatch, capsys):
     assert code == 2 and err.startswith("steval: error:")
 
 
-# ---- the reference firmware under emulation: its flight control, injected faults, the baud rate's N ----------------------------------------
+# ---- the reference firmware under emulation: its flight control, injected faults, the baud rate's N -----------------
 
 def _emulated(elf, tmp_path, name, **kw):
     from steval_link.emulation.runner import Emulation, EmulationOptions

@@ -1,9 +1,9 @@
-"""The two-way link on the reference firmware (firmware_patch/reference, our link modules) under emulation: commands reach it through the
-emulated USART1 RX, and the port follows every change bit for bit.
+"""The two-way link on the reference firmware (firmware_patch/reference, our link modules) under emulation: commands
+reach it through the emulated USART1 RX, and the port follows every change bit for bit.
 
 - The runtime filter settings keep the stock arithmetic: the shared conformance vectors (computed from ST's
-  released binary), fed to the reference firmware's own ``ahrs_fusion_ag`` step by step, come out bit for bit (and with KI 1 / no correction set in
-  ``stv_filter``, bit for bit the port with those settings).
+  released binary), fed to the reference firmware's own ``ahrs_fusion_ag`` step by step, come out bit for bit
+  (and with KI 1 / no correction set in ``stv_filter``, bit for bit the port with those settings).
 - KI, the correction and a filter reset changed mid-stream: every step bit-exact in ``replay_firmware``, the live
   port and ``steval compare``; each change announced by an EVENT status naming its step; the capture holds the
   commands sent (``H`` chunks).
