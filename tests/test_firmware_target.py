@@ -134,7 +134,8 @@ def test_patch_is_small_and_touches_only_hook_points():
         if "\nnew file mode" in d[:300]:
             continue
         for hunk in re.split(r"^@@.*@@.*$", d, flags=re.M)[1:]:
-            body = [ln for ln in hunk.splitlines() if ln and not ln.startswith(("diff --git", "index ", "--- ", "+++ "))]
+            body = [ln for ln in hunk.splitlines()
+                    if ln and not ln.startswith(("diff --git", "index ", "--- ", "+++ "))]
             context = [ln for ln in body if ln.startswith(" ")]
             assert len(context) <= 12, hunk  # 3 lines before and after, plus the few lines between two hooks
             total_context.extend(context)
