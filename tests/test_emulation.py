@@ -340,3 +340,59 @@ def test_cli_emulate_stops_cleanly_on_one_signal_and_keeps_the_capture(fw_defaul
     tel = load_telemetry(out)
     assert len(tel.attitude) > 100 and tel.stats.crc_failures == 0
     assert replay_firmware(tel).all_exact
+
+
+# ---- the viewer paths of `steval emulate` -------------------------------------------------------------------------
+
+def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
+    """`steval emulate ELF --rrd X.rrd`: the emulated stream logged as a live session is (every attitude frame, the
+    flight-control entities, the blueprint)."""
+    from support.cli import run_cli
+
+    from steval_viewer import entities as ent
+    from steval_viewer.rrd_check import read_rrd
+
+    out = tmp_path / "emu.rrd"
+    code, _stdout, stderr = run_cli(monkeypatch, capsys, "emulate", fw_default, "--scenario", "bench",
+                                    "--duration", "5", "--rrd", out, "-e", "none")
+    assert code == 0, stderr
+    info = read_rrd(out)
+    assert info.has_blueprint
+    steps = info.samples[ent.pitch_path("firmware")]
+    assert 300 < steps < 340  # 161.5 steps/s from 2.985 s
+    assert info.samples.get("fc/motor_pwm", 0) >= steps // 23 - 1
+
+
+@pytest.mark.slow
+def test_cli_emulate_spawns_the_viewer_with_the_stream(fw_default, tmp_path):
+    """`steval emulate ELF --spawn` on a virtual display: the real Rerun viewer opens, gets every attitude step,
+    stays open when the emulation ends."""
+    import subprocess
+    import sys
+
+    from support.xdisplay import (
+        VirtualDisplay,
+        kill_processes,
+        require_display_tools,
+        rerun_processes,
+        viewer_recording,
+    )
+
+    from steval_viewer import entities as ent
+    from steval_viewer.sink_options import free_port
+
+    require_display_tools()
+    display = VirtualDisplay()
+    port = free_port()
+    try:
+        done = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "emulate",
+                               str(fw_default), "--scenario", "bench", "--duration", "4", "--spawn", "--grpc-port",
+                               str(port), "-e", "none"], env=display.env, cwd=tmp_path, capture_output=True,
+                              text=True, timeout=180, stdin=subprocess.DEVNULL)
+        assert done.returncode == 0, done.stderr
+        rec = viewer_recording(f"rerun+http://127.0.0.1:{port}/proxy", timeline="ahrs_step", end=160, timeout_s=60)
+        assert "/" + ent.pitch_path("firmware") in rec.entities
+        assert rerun_processes(port), "the spawned viewer should stay open after the emulation"
+    finally:
+        kill_processes(rerun_processes(port))
+        display.close()
