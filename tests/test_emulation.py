@@ -354,7 +354,7 @@ def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
 
     out = tmp_path / "emu.rrd"
     code, _stdout, stderr = run_cli(monkeypatch, capsys, "emulate", fw_default, "--scenario", "bench",
-                                    "--duration", "5", "--rrd", out, "-e", "none")
+                                    "--duration", "5", "--rrd", out, "-e", "none", "--out", tmp_path / "emu.stv")
     assert code == 0, stderr
     info = read_rrd(out)
     assert info.has_blueprint
