@@ -31,8 +31,8 @@ BOOT_LINES = [BANNER, "LSM6DSL ready: acc +-4 g, gyro +-2000 dps",
 
 
 @pytest.fixture(scope="session")
-def fw_default(tmp_path_factory):
-    return S.build_reference(tmp_path_factory.mktemp("fw-default"))
+def fw_default(reference_elf):
+    return reference_elf
 
 
 @pytest.fixture(scope="session")

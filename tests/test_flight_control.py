@@ -284,13 +284,10 @@ def _emulated(elf, tmp_path, name, **kw):
 
 
 @pytest.fixture(scope="module")
-def fw_elf(tmp_path_factory):
+def fw_elf(reference_elf):
     from support import firmware as S
 
-    why = S.missing()
-    if why:
-        pytest.skip(why)
-    return S, S.build_reference(tmp_path_factory.mktemp("fw"))
+    return S, reference_elf
 
 
 @pytest.fixture(scope="module")

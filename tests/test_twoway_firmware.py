@@ -38,8 +38,8 @@ STEP_S = 0.00619
 
 
 @pytest.fixture(scope="module")
-def fw(tmp_path_factory):
-    return S.build_reference(tmp_path_factory.mktemp("fw"))
+def fw(reference_elf):
+    return reference_elf
 
 
 def _emulation(elf, scenario="hand-tilts", duration_s=6.0, **kw):
