@@ -18,8 +18,8 @@ What is modelled, and how:
   ``hci_send_req`` (the only path to the BlueNRG chip) returns success with a zeroed reply, so the BLE init runs
   its real code (or the reply of ``hci_handler``, :mod:`steval_link.emulation.bluenrg`). The replaced calls are
   reported to optional observers.
-- **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set) or
-  ``HAL_Delay`` waits for the tick, the clock jumps to the next event. No payload changes (the polled state only
+- **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set),
+  ``HAL_Delay`` waits for the tick, or a ``wfi`` sleeps in thread mode, the clock jumps to the next event. No payload changes (the polled state only
   changes in interrupts).
 
 Anything else the firmware touches (an address outside every model) stops the run with
