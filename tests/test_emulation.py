@@ -175,6 +175,19 @@ def test_lab_variant_ki1_nocorrection_921600(fw_lab, tmp_path):
 
 
 @pytest.mark.slow
+def test_diverge_build_reproduces_the_refactor_bug(tmp_path):
+    """AHRS_DIVERGE=1 (halfT scales only the last term of the quaternion update): the filter leaves the unit sphere
+    within a few steps; the host's decoder then finds the frames implausible."""
+    elf = S.build_reference(tmp_path / "b", "AHRS_DIVERGE=1")
+    emu, chunks = emulate(elf, "bench", duration_s=4.0)
+    stats, frames = decode(chunks)
+    att = [f for f in frames if isinstance(f, AttitudeFrame)]
+    assert emu.report().ahrs_steps > 150 and stats.crc_failures == 0
+    assert stats.implausible > 100 and len(att) < 10
+    assert abs(np.linalg.norm(att[1].q_wxyz) - 1.0) > 0.05  # |q| 1.08 after the second step
+
+
+@pytest.mark.slow
 def test_text_mode_build(tmp_path):
     elf = S.build_reference(tmp_path / "b", "TEXT_MODE=1")
     emu, chunks = emulate(elf, "bench", duration_s=4.5)
