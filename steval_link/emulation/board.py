@@ -19,8 +19,8 @@ What is modelled, and how:
   its real code (or the reply of ``hci_handler``, :mod:`steval_link.emulation.bluenrg`). The replaced calls are
   reported to optional observers.
 - **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set),
-  ``HAL_Delay`` waits for the tick, or a ``wfi`` sleeps in thread mode, the clock jumps to the next event. No payload changes (the polled state only
-  changes in interrupts).
+  ``HAL_Delay`` waits for the tick, or a ``wfi`` sleeps in thread mode, the clock jumps to the next event. No
+  payload changes (the polled state only changes in interrupts).
 
 Anything else the firmware touches (an address outside every model) stops the run with
 :class:`UnmodelledHardware`, one line naming the function and address. Nothing here holds module-level mutable
