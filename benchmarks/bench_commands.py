@@ -1,8 +1,8 @@
-"""What the two-way link costs the drone, counted on the real firmware under emulation (instruction counts of the
+"""What the two-way link costs the drone, counted on the reference firmware under emulation (instruction counts of the
 emulated Cortex-M4, not M4 cycles): the command check after every AHRS step when nothing arrived, the whole
 stv_fw_step_end, and the handling of one command (decode + check + ack + EVENT status).
 
-    python benchmarks/bench_commands.py        (needs ../shared/st-fcu-f401, arm-none-eabi-gcc and unicorn)
+    python benchmarks/bench_commands.py        (needs arm-none-eabi-gcc, newlib-nano and unicorn)
 """
 
 from __future__ import annotations
@@ -59,8 +59,7 @@ def main() -> None:
         print(f"skipped: {why}")
         return
     with tempfile.TemporaryDirectory() as tmp:
-        st = S.st_copy(Path(tmp))
-        elf = S.build(st, Path(tmp) / "build")
+        elf = S.build_reference(Path(tmp) / "build")
         quiet = measure(elf, commands=False)
         busy = measure(elf, commands=True)
     q = quiet["stv_cmd_next"][5:]  # the first calls run before the dynamic return probe is in place

@@ -1,6 +1,7 @@
-"""Firmware-in-the-loop benchmark: how fast the emulated board runs ST's real firmware, and what one AHRS step costs.
+"""Firmware-in-the-loop benchmark: how fast the emulated board runs a firmware, and what one AHRS step costs.
 
-Builds the patched firmware from ../shared/st-fcu-f401 (a temporary copy; or pass ELF paths), then for each ELF:
+Builds the reference firmware (``make -C firmware_patch reference`` into a temporary directory; or pass ELF paths,
+e.g. a build of ST's release made elsewhere), then for each ELF:
 - emulated seconds per wall second and per CPU second of this process, for the boot (power-up to the first
   attitude frame, ≈ 2.985 s) and for the streaming phase (the full 82 % UART load at 115200 baud);
 - instructions per AHRS step (``ahrs_fusion_ag`` + ``QuaternionToEuler``, interrupts excluded) and the firmware's
@@ -88,9 +89,8 @@ def main() -> None:
                 print(f"cannot build the firmware: {why}")
                 return
             t = time.perf_counter()
-            st = S.st_copy(Path(tmp))
-            elfs = [S.build(st, Path(tmp) / "b")]
-            print(f"built the patched firmware in {time.perf_counter() - t:.1f} s")
+            elfs = [S.build_reference(Path(tmp) / "b")]
+            print(f"built the reference firmware in {time.perf_counter() - t:.1f} s")
         for elf in elfs:
             bench(elf, args.duration, None, args.scenario)
             if args.pure:

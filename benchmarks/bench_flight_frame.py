@@ -1,14 +1,14 @@
-"""Flight-control frame: what it adds to each AHRS step of ST's real firmware, and what it adds to the line.
+"""Flight-control frame: what it adds to each AHRS step of the reference firmware, and what it adds to the line.
 
-Builds the patched firmware three times from ../shared/st-fcu-f401 (``STV_FC_EVERY=0``: the hook compiled out,
+Builds the reference firmware three times (``STV_FC_EVERY=0``: the hook compiled out,
 the baseline; the default 115200 build, one frame every N steps; ``BAUD=460800``, a frame every step) and runs the
 emulator's ``flight`` scenario (armed, hover, stick moves) on each. It counts the instructions the main loop
-executes from the entry of ``FlightControlPID_OuterLoop`` to the next ``HAL_GPIO_ReadPin`` (the main loop's next
-statement after the flight-control block), interrupts excluded, per AHRS step, and prints the difference to the
+executes from the entry of ``FlightControlPID_OuterLoop`` to the next ``hw_sleep_until_irq`` (where the main loop
+goes to sleep after the flight-control block), interrupts excluded, per AHRS step, and prints the difference to the
 baseline: the added instructions per step (mean over all steps and per step that sends a frame). Instruction
 counts of the emulator, not Cortex-M4 cycles. Also the USART1 bytes per second and the line load at each baud rate.
 
-Run: ``python benchmarks/bench_flight_frame.py [seconds]`` (needs arm-none-eabi-gcc, make, git and unicorn).
+Run: ``python benchmarks/bench_flight_frame.py [seconds]`` (needs arm-none-eabi-gcc, make and unicorn).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from steval_link.link.decoder import decode_bytes  # noqa: E402
 
 
 def window_counts(elf: Path, seconds: float) -> tuple[np.ndarray, bytes, float]:
-    """Instructions from FlightControlPID_OuterLoop's entry to the next HAL_GPIO_ReadPin, per AHRS step."""
+    """Instructions from FlightControlPID_OuterLoop's entry to the next hw_sleep_until_irq, per AHRS step."""
     emu = Emulation(EmulationOptions(elf=elf, scenario="flight", duration_s=seconds, seed=1))
     b, e = emu.board, emu.elf
     counts: list[int] = []
@@ -44,7 +44,7 @@ def window_counts(elf: Path, seconds: float) -> tuple[np.ndarray, bytes, float]:
             start[0] = None
 
     b.probe(e.addr("FlightControlPID_OuterLoop"), on_outer)
-    b.probe(e.addr("HAL_GPIO_ReadPin"), on_gpio)
+    b.probe(e.addr("hw_sleep_until_irq"), on_gpio)
     data = emu.run()
     return np.asarray(counts), data, emu.board.now / 84e6
 
@@ -56,11 +56,10 @@ def main() -> None:
         return
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 27.0
     with tempfile.TemporaryDirectory() as tmp:
-        st = S.st_copy(Path(tmp))
         builds = {
-            "no FC frame (STV_FC_EVERY=0)": S.build(st, Path(tmp) / "b0", "FC_EVERY=0"),
-            "115200 baud (default)": S.build(st, Path(tmp) / "b1"),
-            "460800 baud": S.build(st, Path(tmp) / "b2", "BAUD=460800"),
+            "no FC frame (STV_FC_EVERY=0)": S.build_reference(Path(tmp) / "b0", "FC_EVERY=0"),
+            "115200 baud (default)": S.build_reference(Path(tmp) / "b1"),
+            "460800 baud": S.build_reference(Path(tmp) / "b2", "BAUD=460800"),
         }
         base = None
         for name, elf in builds.items():

@@ -20,6 +20,18 @@ def shared_dir() -> Path:
 
 
 
+@pytest.fixture(scope="session")
+def reference_elf(tmp_path_factory) -> Path:
+    """The reference firmware's default build (``make -C firmware_patch reference``), once per test session; skips
+    when it cannot be built here (in CI the build fails instead: tests/support/firmware.py)."""
+    from support import firmware as S
+
+    why = S.missing()
+    if why:
+        pytest.skip(why)
+    return S.build_reference(tmp_path_factory.mktemp("reference"))
+
+
 @pytest.fixture
 def stream() -> StreamBuilder:
     """A fresh :class:`StreamBuilder` (deterministic values)."""

@@ -271,7 +271,7 @@ def test_cli_preflight_exit_codes(monkeypatch, capsys):
     assert code == 2 and err.startswith("steval: error:")
 
 
-# ---- the real firmware under emulation: injected faults, the baud rate's N ----------------------------------------
+# ---- the reference firmware under emulation: its flight control, injected faults, the baud rate's N -----------------
 
 def _emulated(elf, tmp_path, name, **kw):
     from steval_link.emulation.runner import Emulation, EmulationOptions
@@ -284,14 +284,52 @@ def _emulated(elf, tmp_path, name, **kw):
 
 
 @pytest.fixture(scope="module")
-def fw_elf(tmp_path_factory):
+def fw_elf(reference_elf):
     from support import firmware as S
 
-    why = S.missing()
-    if why:
-        pytest.skip(why)
-    st = S.st_copy(tmp_path_factory.mktemp("st"))
-    return S, st, S.build(st, tmp_path_factory.mktemp("fw"))
+    return S, reference_elf
+
+
+@pytest.fixture(scope="module")
+def ref_flight(fw_elf, tmp_path_factory):
+    """The flight scenario on the reference firmware (its own flight controller)."""
+    _, elf = fw_elf
+    return _emulated(elf, tmp_path_factory.mktemp("flight"), "flight.stv", scenario="flight", duration_s=27.0,
+                     seed=1)
+
+
+@pytest.mark.slow
+def test_reference_flight_frames_are_the_hosts_arithmetic(ref_flight):
+    """The reference's flight control has ST's structure, so the host's checks hold on its frames: targets from the
+    sticks (rc.c's formula), outer s1 = P bit for bit (I = 0), the motors = the mixer of s2 bit for bit."""
+    fc, a = ref_flight.fc, ref_flight.attitude
+    assert len(fc) > 150 and np.all(fc.fc_every == 23) and fc.armed.any()
+    max_rad = np.float32(np.float32(3.141592654) * np.float32(30)) / np.float32(180.0)
+    for axis, stick in ((0, 1), (1, 0)):
+        t1 = np.clip(fc.rc[:, stick].astype(np.int32), -1800, 1800)
+        want = (np.float32(1) * (-t1).astype(np.float32) * max_rad) / np.float32(1800)
+        assert fc.euler_rc_rad[:, axis].tobytes() == want.astype(np.float32).tobytes()
+    assert fc.euler_rc_rad[:, 2].min() < -1.0  # the rudder turned the yaw target
+    j = _att_rows(ref_flight)
+    ang = np.stack([a.thx_rad, a.thy_rad, a.thz_rad], axis=1)[j]
+    p = outer_p(fc.euler_rc_rad, ang)
+    assert p[:, :2].tobytes() == fc.outer_s1_radps[:, :2].tobytes()
+    on = fc.armed & (a.thr[j] >= C.MIN_THR)
+    assert on.sum() > 100
+    assert expected_motor_pwm(a.thr[j], fc.inner_s2_pwm, fc.armed).tobytes() == fc.motor_pwm.tobytes()
+    assert np.all(np.abs(fc.inner_s2_pwm) <= C.MAX_ADJ) and np.all(np.abs(fc.vbat_v - 3.9) < 0.01)
+
+
+@pytest.mark.slow
+def test_preflight_on_the_reference_and_its_swapped_motors_build(fw_elf, tmp_path):
+    """steval preflight passes the reference firmware's preflight moves and names outputs 3 and 4 of a build whose
+    mixer drives them swapped (SWAP_MOTORS=34)."""
+    S, elf = fw_elf
+    ok = check_preflight(_emulated(elf, tmp_path, "ok.stv", scenario="preflight", duration_s=30.0, seed=1))
+    assert ok.passed, ok.problems
+    swapped = S.build_reference(tmp_path / "sw", "SWAP_MOTORS=34")
+    bad = check_preflight(_emulated(swapped, tmp_path, "sw.stv", scenario="preflight", duration_s=30.0, seed=1))
+    assert not bad.passed and any("outputs 3 and 4 are swapped" in p for p in bad.problems)
 
 
 @pytest.mark.slow
@@ -299,7 +337,7 @@ def fw_elf(tmp_path_factory):
 def test_preflight_names_a_board_mounted_turned(fw_elf, tmp_path, mount, words):
     """The sensor fault as a real one happens: the board mounted turned on the frame (the same readings as a
     wrong COORDINATE_SYSTEM in config_drone.h); the motion and the firmware are unchanged."""
-    _, _, elf = fw_elf
+    _, elf = fw_elf
     tel = _emulated(elf, tmp_path, f"{mount}.stv", scenario="preflight", duration_s=30.0, seed=2, mount=mount)
     rep = check_preflight(tel)
     assert not rep.passed
@@ -310,8 +348,8 @@ def test_preflight_names_a_board_mounted_turned(fw_elf, tmp_path, mount, words):
 
 @pytest.mark.slow
 def test_fc_every_step_at_460800_baud(fw_elf, tmp_path):
-    S, st, _ = fw_elf
-    elf = S.build(st, tmp_path / "b", "BAUD=460800")
+    S, _ = fw_elf
+    elf = S.build_reference(tmp_path / "b", "BAUD=460800")
     tel = _emulated(elf, tmp_path, "fast.stv", scenario="bench", duration_s=6.0, seed=1)
     assert len(tel.fc) >= len(tel.attitude) - 1 and np.all(tel.fc.fc_every == 1)
     assert np.all(tel.status.fc_every == 1) and np.all(np.diff(tel.fc.step) == 1)
@@ -353,7 +391,7 @@ def test_frame_motors_are_what_tim4_drives(fw_elf):
     set_motor_pwm writes it: truncated, clamped to 0..1900 (one ISR run wrote both)."""
     from steval_link.emulation.runner import Emulation, EmulationOptions
 
-    _, _, elf = fw_elf
+    _, elf = fw_elf
     emu = Emulation(EmulationOptions(elf=elf, scenario="flight", duration_s=27.0, seed=1))
     addr = emu.elf.addr("motor_pwm")
     seen = []

@@ -1,16 +1,16 @@
-"""The two-way link on the real firmware (release 170120 + our patch) under emulation: commands reach it through the
-emulated USART1 RX, and the port follows every change bit for bit.
+"""The two-way link on the reference firmware (firmware_patch/reference, our link modules) under emulation: commands
+reach it through the emulated USART1 RX, and the port follows every change bit for bit.
 
-- The runtime filter settings keep the stock arithmetic: the shared conformance vectors, fed to the patched
-  firmware's own ``ahrs_fusion_ag`` step by step, come out bit for bit (and with KI 1 / no correction set in
-  ``stv_filter``, bit for bit the port with those settings).
+- The runtime filter settings keep the stock arithmetic: the shared conformance vectors (computed from ST's
+  released binary), fed to the reference firmware's own ``ahrs_fusion_ag`` step by step, come out bit for bit
+  (and with KI 1 / no correction set in ``stv_filter``, bit for bit the port with those settings).
 - KI, the correction and a filter reset changed mid-stream: every step bit-exact in ``replay_firmware``, the live
   port and ``steval compare``; each change announced by an EVENT status naming its step; the capture holds the
   commands sent (``H`` chunks).
 - Corrupted, cut and foreign bytes on RX are ignored and counted (the acks' ``rx_bad``); nothing else is applied.
 - With the throttle up a filter change is refused, the ack says why, and nothing changes.
 
-Skips cleanly without ../shared, arm-none-eabi-gcc or unicorn; CI has all three.
+Skips cleanly without arm-none-eabi-gcc or unicorn (the conformance tests without ../shared); CI has all.
 """
 
 from __future__ import annotations
@@ -38,9 +38,8 @@ STEP_S = 0.00619
 
 
 @pytest.fixture(scope="module")
-def fw(tmp_path_factory):
-    st = S.st_copy(tmp_path_factory.mktemp("st"), patched=True)
-    return S.build(st, tmp_path_factory.mktemp("fw"))
+def fw(reference_elf):
+    return reference_elf
 
 
 def _emulation(elf, scenario="hand-tilts", duration_s=6.0, **kw):
@@ -101,8 +100,8 @@ def _through_firmware(elf, vec, rows: int, ki: float | None = None, correction: 
 
 @pytest.mark.parametrize("name,rows", [("throttle_switch.csv", 900), ("edge_cases.csv", 700),
                                        ("broad_02.csv", 600)])
-def test_conformance_vectors_through_the_patched_firmware(fw, name, rows):
-    """The patched ahrs.c (settings read from stv_filter) computes exactly what ST's released binary computes."""
+def test_conformance_vectors_through_the_firmware(fw, name, rows):
+    """The reference's ahrs.c (settings read from stv_filter) computes exactly what ST's released binary computes."""
     if not (CONFORMANCE / name).is_file():
         pytest.skip("shared conformance vectors not present")
     vec = load_conformance_csv(CONFORMANCE / name)

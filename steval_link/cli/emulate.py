@@ -36,8 +36,9 @@ from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 @app.command("emulate")
 def emulate_command(
-    elf: Path = typer.Argument(..., help="Firmware ELF (make -C firmware_patch firmware ST_DIR=...: "
-                               "firmware_patch/build/fw/steval-fcu-link.elf), patched or ST's stock build."),
+    elf: Path = typer.Argument(..., help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
+                               "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
+                               "(patched or stock, e.g. from STM32CubeIDE)."),
     scenario: str = typer.Option("bench", "--scenario", "-s", help="Built-in motion: bench, hand-tilts, yaw-spin, "
                                  "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
                                  "check's hand moves)."),

@@ -18,9 +18,9 @@ What is modelled, and how:
   ``hci_send_req`` (the only path to the BlueNRG chip) returns success with a zeroed reply, so the BLE init runs
   its real code (or the reply of ``hci_handler``, :mod:`steval_link.emulation.bluenrg`). The replaced calls are
   reported to optional observers.
-- **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set) or
-  ``HAL_Delay`` waits for the tick, the clock jumps to the next event. No payload changes (the polled state only
-  changes in interrupts).
+- **Idle skipping**: when the main loop polls with nothing to do (``isTimerEventExist`` with no flag set),
+  ``HAL_Delay`` waits for the tick, or a ``wfi`` sleeps in thread mode, the clock jumps to the next event. No
+  payload changes (the polled state only changes in interrupts).
 
 Anything else the firmware touches (an address outside every model) stops the run with
 :class:`UnmodelledHardware`, one line naming the function and address. Nothing here holds module-level mutable
@@ -977,6 +977,15 @@ class Board:
                     self._skip_to_event()
 
             uc.hook_add(UC_HOOK_CODE, delay_poll, begin=get_tick, end=get_tick)
+        # a firmware that sleeps with `wfi` (unicorn runs it as a no-op): the clock jumps to the next event
+        for a in _wfi_sites(self._flash, e):
+            uc.hook_add(UC_HOOK_CODE, self._on_wfi, begin=a, end=a)
+
+    def _on_wfi(self, uc, address, size, user):
+        """``wfi`` in thread mode with no interrupt pending: skip to the next event. Its interrupt is taken here
+        when PRIMASK allows, else at the ``cpsie i`` after the ``wfi`` (as the chip wakes with PRIMASK set)."""
+        if not self.nvic.active and self.nvic.next_exception(0) is None:
+            self._skip_to_event()
 
     def _u(self, addr: int, size: int) -> int:
         off = addr - RAM_BASE
@@ -1251,3 +1260,20 @@ def _cpsie_sites(flash, e: Elf) -> list[int]:
             if (hw2 & 0xFF00) == 0x8800 and (hw2 & 0xFF) == 0x10:  # msr primask
                 out.append(FLASH_BASE + off + 4)
     return out
+
+
+def _wfi_sites(flash, e: Elf) -> list[int]:
+    """Addresses of the ``wfi`` instructions (0xBF30) in the firmware's functions, decoded from each function's
+    start (16- and 32-bit Thumb encodings), so that no half of a 32-bit instruction is taken for one."""
+    raw = flash.raw
+    out = []
+    for s in e.symbols:
+        if not (s.is_func and FLASH_BASE <= s.addr < FLASH_BASE + FLASH_SIZE):
+            continue
+        off, end = (s.addr & ~1) - FLASH_BASE, (s.addr & ~1) - FLASH_BASE + s.size
+        while off + 1 < end:
+            hw = raw[off] | raw[off + 1] << 8
+            if hw == 0xBF30:
+                out.append(FLASH_BASE + off)
+            off += 4 if (hw >> 11) in (0x1D, 0x1E, 0x1F) else 2
+    return sorted(set(out))

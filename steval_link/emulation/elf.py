@@ -27,7 +27,7 @@ class Elf:
         except OSError as exc:
             raise UserError(f"cannot read firmware ELF {self.path}: {exc.strerror or exc}") from None
         if data[:4] != b"\x7fELF" or len(data) < 52:
-            raise UserError(f"{self.path} is not an ELF file (build it with `make -C firmware_patch firmware ...`)")
+            raise UserError(f"{self.path} is not an ELF file (e.g. `make -C firmware_patch reference`)")
         if data[4] != 1 or data[5] != 1 or struct.unpack_from("<H", data, 18)[0] != 40:
             raise UserError(f"{self.path} is not a 32-bit little-endian ARM ELF (the STM32F401 firmware)")
         self.entry = struct.unpack_from("<I", data, 24)[0]

@@ -2,7 +2,7 @@
 
 :class:`Emulation` is what ``steval emulate`` and the tests use::
 
-    emu = Emulation(EmulationOptions(elf="firmware_patch/build/fw/steval-fcu-link.elf", scenario="hand-tilts"))
+    emu = Emulation(EmulationOptions(elf="firmware_patch/build/reference/steval-reference.elf", scenario="hand-tilts"))
     for data, t_s in emu.chunks():      # bytes that left USART1 in the last slice, emulated time of the last one
         ...
     print(emu.report().lines())
