@@ -33,15 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.emulation import broad
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
-from steval_link.emulation.step_truth import StepTruth, TruthRows
+from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
 from steval_link.errors import UserError
 from steval_link.estimators import st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
-from steval_link.quat import quaternion_from_euler
 
 __all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler"]
 
@@ -78,13 +76,6 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
     n = max(n, 2)
     return BroadTrial(trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n],
                       trial.movement[:n])
-
-
-def score_euler(thx_rad, thy_rad, q_true_wxyz, movement) -> tuple[np.ndarray, float]:
-    """(inclination error (M,) rad, RMSE deg over ``movement``) of the attitude thx/thy against the truth."""
-    q = quaternion_from_euler(np.asarray(thx_rad, np.float64), np.asarray(thy_rad, np.float64), 0.0)
-    err = broad.inclination_error_rad(q, q_true_wxyz)
-    return err, broad.rmse_deg(err, movement)
 
 
 @dataclass

@@ -214,6 +214,8 @@ class ComparisonReport:
     port: PortComparison | None
     traces: list[TraceComparison]
     notes: list[str] = field(default_factory=list)
+    #: ground truth the capture keeps (an emulated BROAD run's chunks T): inclination RMSE per trace, or None
+    truth: dict[str, Any] | None = None
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
@@ -233,6 +235,7 @@ class ComparisonReport:
             "port": None if self.port is None else self.port.as_dict(),
             "traces": [t.as_dict() for t in self.traces],
             "notes": list(self.notes),
+            **({"truth": self.truth} if self.truth is not None else {}),
         }
 
 
@@ -333,6 +336,11 @@ def format_report(r: ComparisonReport) -> list[str]:
         if t.note:
             row += f"  ({t.note})"
         lines.append(row)
+    if r.truth is not None:
+        lines += ["", f"against the ground truth the capture keeps: inclination RMSE (deg) over "
+                      f"{r.truth['movement_steps']} movement steps"]
+        for name, v in r.truth["rmse_deg"].items():
+            lines.append(f"  {name:<{w}}{_f(v, '.3f')}")
     for note in r.notes:
         lines.append(f"note: {note}")
     return lines

@@ -26,11 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from steval_link.emulation import broad
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.sensor_model import FIFO_ORDER
-from steval_link.quat import interpolate_quat
+from steval_link.quat import interpolate_quat, quaternion_from_euler
 
-__all__ = ["TruthRows", "StepTruth", "truth_at_trial_time"]
+__all__ = ["TruthRows", "StepTruth", "truth_at_trial_time", "score_euler"]
 
 
 @dataclass(frozen=True)
@@ -110,3 +111,10 @@ class StepTruth:
         out = self.rows(self._taken, n)
         self._taken = n
         return out
+
+
+def score_euler(thx_rad, thy_rad, q_true_wxyz, movement) -> tuple[np.ndarray, float]:
+    """(inclination error (M,) rad, RMSE deg over ``movement``) of the attitude thx/thy against the truth."""
+    q = quaternion_from_euler(np.asarray(thx_rad, np.float64), np.asarray(thy_rad, np.float64), 0.0)
+    err = broad.inclination_error_rad(q, q_true_wxyz)
+    return err, broad.rmse_deg(err, movement)
