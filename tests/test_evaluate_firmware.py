@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from support.cli import run_cli
+from support.cli import run_cli, run_cli_tty
 
 from steval_link.analysis.firmware_eval import cut_trial, firmware_labels
 from steval_link.emulation import broad
@@ -228,9 +228,11 @@ def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path
     # and near the Python port on the modelled pipeline (same trial, same alignment; inputs modelled apart)
     assert s["rmse_deg"] == pytest.approx(rep["trials"][0]["rmse_deg"]["st-mahony-ground"], rel=0.05)
 
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "-e", "accel", "--firmware", stock,
-                             "--firmware", lab, "--max-seconds", 3, trial)  # the plain view (no movement yet)
-    assert code == 0, err
+    # the plain view on a terminal (no movement in 3 s yet: the lines are what counts here), with its progress bar
+    code, out, term = run_cli_tty("evaluate", "-e", "accel", "--firmware", stock, "--firmware", lab,
+                                  "--max-seconds", "3", trial)
+    assert code == 0, term
+    assert "evaluate" in term and "%" in term and "(emulated)" in term
     lines = [ln for ln in out.splitlines() if ln.startswith(TRIAL[:-4]) and "fw:" in ln and "instr/step" in ln]
     assert len(lines) == 2 and "fw:stock/firmware.elf" in lines[0] and "fw:lab/firmware.elf" in lines[1]
 
@@ -255,3 +257,8 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
     r = truth["rmse_deg"]
     assert r["firmware"] > 0 and r["ekf3"] > 0
     assert r["st-mahony-port"] == r["firmware"]  # the bit-exact port, scored the same way
+    # evaluate of the capture reads the same truth (no sidecar needed)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", cap, "-e", "ekf3", "--json")
+    assert code == 0, err
+    ev = json.loads(out)["trials"][0]["rmse_deg"]
+    assert ev["ekf3"] > 0 and ev["firmware"] == pytest.approx(r["firmware"], abs=0.05)  # q vs thx/thy: ~0.01°

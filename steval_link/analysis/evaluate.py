@@ -32,7 +32,7 @@ from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.capture import capture_truth, read_source, telemetry_of_source
 
 __all__ = [
     "EstimatorSpec",
@@ -254,7 +254,8 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None,
                      progress: Progress | None = None) -> TrialResult:
-    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc).
+    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc), or,
+    without one, the truth the capture keeps (chunks T of ``steval emulate --broad``).
 
     The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
     """
@@ -267,12 +268,16 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
         raise UserError(f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "
                         f"{len(src.data)} bytes") from None
     side = Path(truth) if truth is not None else truth_sidecar_path(p)
-    if not side.is_file():
+    kept = capture_truth(src.chunks) if truth is None and not side.is_file() else None
+    if kept is None and not side.is_file():
         raise UserError(f"{p}: no ground truth; expected the sidecar {side} (step, quat[, movement])")
     att = tel.attitude
     if len(att.step) == 0:
         raise UserError(f"{p}: no attitude frames")
-    step, quat, mov = _load_sidecar(side)
+    if kept is not None:  # an emulated BROAD run keeps the truth it was fed (chunks T)
+        step, quat, mov = kept.step, kept.q_wxyz, kept.movement
+    else:
+        step, quat, mov = _load_sidecar(side)
     order = np.argsort(step)
     step, quat, mov = step[order], quat[order], mov[order]
     idx = np.searchsorted(step, att.step)
