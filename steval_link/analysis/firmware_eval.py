@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
@@ -170,15 +171,25 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     truth_rec = StepTruth(emu)
     glob = _Globals(emu)
-    data = bytearray()
-    for chunk, t_s in emu.chunks():
-        data += chunk
-        if progress is not None:
-            progress(min(t_s / emu.duration_s, 1.0))
-    report = emu.report()
     label = label or "fw:" + Path(elf).name
+    if progress is not None:  # every ≈ 1 s of AHRS steps (an unpatched build sends next to nothing on USART1)
+        def on_step(board) -> None:
+            if emu.n_steps % 160 == 0:
+                progress(min(board.now / C.CPU_HZ / emu.duration_s, 1.0))
+
+        emu.step_end_observers.append(on_step)
+    data = bytearray()
+    try:
+        for chunk, _ in emu.chunks():
+            data += chunk
+    except UserError as exc:  # stuck, or hardware the emulator does not model: say which firmware
+        raise UserError(f"{label} on {trial.name}: {exc}") from None
+    report = emu.report()
     n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
     if n == 0:
+        if emu.elf.addr("ahrs_fusion_ag") is None and emu.elf.addr("stv_fw_step_begin") is None:
+            raise UserError(f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
+                            "told apart (an ELF with its symbols, not a stripped one)")
         raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
     truth = truth_rec.rows(0, n)
     tel = decode_bytes(bytes(data)) if data else None
@@ -198,6 +209,11 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
         lost &= truth.movement
         if lost.any():
             notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
+        if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
+            inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
+            if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
+                notes.append("the frames' inputs differ from acc_ahrs at the steps counted: the truth may be "
+                             "misaligned")
         rep = st_mahony.replay_firmware(tel)
         port_thx = np.full(n, np.nan, _F32)
         port_thy = np.full(n, np.nan, _F32)

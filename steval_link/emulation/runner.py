@@ -374,7 +374,8 @@ class Emulation:
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
         b, e = self.board, self.elf
-        start = e.addr("ahrs_fusion_ag")
+        # ST's filter; else the patch's hook right before it (a build whose filter function has another name)
+        start = e.addr("ahrs_fusion_ag") or e.addr("stv_fw_step_begin")
         end = e.addr("stv_fw_step_end") or e.addr("GetTargetEulerAngle")
         if start is not None and end is not None:
             b.probe(start, self._on_step_start)
