@@ -262,3 +262,78 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
     assert code == 0, err
     ev = json.loads(out)["trials"][0]["rmse_deg"]
     assert ev["ekf3"] > 0 and ev["firmware"] == pytest.approx(r["firmware"], abs=0.05)  # q vs thx/thy: ~0.01°
+
+
+# --- compare's truth section and the evaluate table, without an ELF -------------------------------------------------
+
+def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path):
+    """A synthesised capture (Python drone, bit-exact port) re-written with truth chunks: the truth is the firmware's
+    own attitude turned 1.5° about x on the movement steps, so the firmware and the port score exactly that."""
+    syn = tmp_path / "syn.stv"
+    code, _, err = run_cli(monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "12", "--out", syn)
+    assert code == 0, err
+    cap = read_capture(syn)
+    from steval_link.link.capture import load_telemetry
+
+    att = load_telemetry(syn).attitude
+    mov = (np.arange(len(att.step)) % 3) != 0
+    tilt = np.where(mov, np.radians(1.5), 0.0)
+    q_true = quaternion_from_euler(np.asarray(att.thx_rad, np.float64) + tilt, np.asarray(att.thy_rad, np.float64),
+                                   0.7)  # a heading offset does not count
+    out = tmp_path / "with-truth.stv"
+    with CaptureWriter(out, port="emulated:synth", baud=115200) as w:
+        w.write(cap.data, 1.0)
+        w.write_truth(att.step, att.t_fw_s, q_true, mov, 1.0)
+    code, stdout, err = run_cli(monkeypatch, capsys, "compare", out, "-e", "accel", "--json")
+    assert code == 0, err
+    truth = json.loads(stdout)["truth"]
+    assert truth["steps_matched"] == len(att.step) and truth["movement_steps"] == int(mov.sum())
+    r = truth["rmse_deg"]
+    assert r["firmware"] == pytest.approx(1.5, abs=0.05) and r["st-mahony-port"] == r["firmware"]
+    assert r["accel"] > 0
+    code, stdout, err = run_cli(monkeypatch, capsys, "compare", out, "-e", "accel")
+    assert code == 0 and "against the ground truth the capture keeps" in stdout
+    # no truth chunk, no section
+    code, stdout, err = run_cli(monkeypatch, capsys, "compare", syn, "-e", "accel", "--json")
+    assert code == 0 and "truth" not in json.loads(stdout)
+
+
+def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
+    from steval_link.analysis.firmware_eval import FirmwareResult
+    from steval_link.emulation.step_truth import TruthRows
+
+    m = 300
+    t = 2.0 + np.arange(m) / 161.5
+    q_true = quaternion_from_euler(0.2 * np.sin(t), 0.0, 0.0)
+    mov = t > 2.5
+    thx, thy = 0.2 * np.sin(t) + np.radians(rmse_offset_deg), np.zeros(m)  # level in roll: the error is the offset
+    err, rmse = score_euler(thx, thy, q_true, mov)
+    truth = TruthRows(np.arange(m), t + 1.0, t, q_true, mov)
+    return FirmwareResult(label, f"/x/{label}", trial, "frames", truth, thx.astype(np.float32),
+                          thy.astype(np.float32), err, rmse, np.full(m, 4400), port_rmse_deg=rmse, port_bit_exact=m,
+                          port_steps=m)
+
+
+def test_table_has_a_column_and_one_line_per_firmware_per_trial(tmp_path):
+    from steval_link.analysis import evaluate as ev
+
+    results = []
+    for name in ("02_a", "07_b"):
+        res = ev.TrialResult(name, 161.5, np.arange(10) / 161.5, np.ones(10, bool), {"ekf3": 1.0},
+                             {"ekf3": np.zeros(10)}, {"ekf3": 1e5})
+        ev.add_firmware(res, _fake_firmware("fw:stock/a.elf", name, 2.0))
+        ev.add_firmware(res, _fake_firmware("fw:lab/a.elf", name, 5.0))
+        results.append(res)
+    text = ev.format_table(results)
+    assert "fw:stock/a.elf" in text.splitlines()[1] and "fw:lab/a.elf" in text.splitlines()[1]
+    lines = [ln for ln in text.splitlines() if "instr/step" in ln]
+    assert len(lines) == 4 and lines[0].startswith("02_a") and "fw:stock/a.elf  2.000" in lines[0]
+    assert "4400 instr/step" in lines[1] and "bit-exact 300/300" in lines[1]
+    s = ev.summary(results)
+    assert [f["firmware"] for f in s["firmware"]] == ["fw:stock/a.elf", "fw:lab/a.elf"] * 2
+    assert s["trials"][1]["rmse_deg"]["fw:lab/a.elf"] == pytest.approx(5.0, abs=1e-3)
+    assert s["mean_rmse_deg"]["fw:stock/a.elf"] == pytest.approx(2.0, abs=1e-3)
+    json.dumps(s, allow_nan=False)
+    pytest.importorskip("matplotlib")
+    png = ev.plot_evaluation(results, tmp_path / "e.png")
+    assert png.stat().st_size > 10_000
