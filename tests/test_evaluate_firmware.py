@@ -226,7 +226,7 @@ def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path
     assert s["port_steps"] > 0 and s["port_bit_exact_steps"] == s["port_steps"]
     assert s["port_rmse_deg"] == s["rmse_deg"]
     # and near the Python port on the modelled pipeline (same trial, same alignment; inputs modelled apart)
-    assert s["rmse_deg"] == pytest.approx(rep["trials"][0]["rmse_deg"]["st-mahony-ground"], rel=0.05)
+    assert s["rmse_deg"] == pytest.approx(rep["trials"][0]["rmse_deg"]["st-mahony-ground"], rel=0.15)
 
     # the plain view on a terminal (no movement in 3 s yet: the lines are what counts here), with its progress bar
     code, out, term = run_cli_tty("evaluate", "-e", "accel", "--firmware", stock, "--firmware", lab,
