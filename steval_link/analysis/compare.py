@@ -47,14 +47,19 @@ from steval_link.analysis.report import (
     TraceComparison,
     angle_diff_rad,
     format_report,
+    json_number,
 )
 from steval_link.analysis.summary import values_bad_report
+from steval_link.emulation import broad
+from steval_link.emulation.step_truth import score_euler
+from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     MahonySettings,
 )
 from steval_link.link.plausibility import held_back_sentence
+from steval_link.link.capture import capture_truth, read_source
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:
@@ -140,6 +145,7 @@ def compare_capture(
                else "asin out of range at extreme rates")
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
+    truth = truth_section(tel, rep, prow, estimates)
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
         rows=n,
@@ -158,4 +164,43 @@ def compare_capture(
         replay=rep,
         port_rows=prow,
         estimates=estimates,
+        truth=truth,
     )
+
+
+def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] | None:
+    """Inclination RMSE (deg, movement steps) of the firmware, the port and each estimator against the ground truth
+    a capture keeps (chunks T of an emulated BROAD run, matched to the frames by AHRS step), or None without one.
+    The firmware and the port are scored from their thx/thy (``quaternion_from_euler(thx, thy, 0)``) as
+    ``steval evaluate --firmware`` scores them; the estimators from their quaternions as ``steval evaluate``."""
+    src = tel.source or {}
+    if src.get("kind") != "stv" or not src.get("path"):
+        return None
+    try:
+        truth = capture_truth(read_source(src["path"]).chunks)
+    except (UserError, OSError):
+        return None
+    if truth is None:
+        return None
+    a = tel.attitude
+    order = np.argsort(truth.step, kind="stable")
+    t_step = truth.step[order]
+    idx = np.clip(np.searchsorted(t_step, a.step), 0, max(len(t_step) - 1, 0))
+    hit = (t_step[idx] == a.step) if len(t_step) else np.zeros(len(a.step), bool)
+    q_true = np.full((len(a.step), 4), np.nan)
+    q_true[hit] = truth.q_wxyz[order][idx[hit]]
+    movement = np.zeros(len(a.step), bool)
+    movement[hit] = truth.movement[order][idx[hit]]
+    out: dict[str, float | None] = {}
+    _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
+    if rep is not None and prow is not None:
+        thx = np.full(len(a.step), np.nan)
+        thy = np.full(len(a.step), np.nan)
+        thx[prow], thy[prow] = rep.thx_rad, rep.thy_rad
+        _, out[PORT_TRACE] = score_euler(thx, thy, q_true, movement)
+    for name, est in estimates.items():
+        q = np.asarray(est.q_wxyz, dtype=np.float64)
+        out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)
+    return {"source": "capture chunks T", "steps_matched": int(hit.sum()), "movement_steps": int(movement.sum()),
+            "metric": "inclination RMSE over movement steps, degrees",
+            "rmse_deg": {k: json_number(v) for k, v in out.items()}}

@@ -4,6 +4,11 @@ the trial's own rate) or on a capture with a ground-truth sidecar; inclination R
 Metric (BROAD): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in
 degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See :mod:`steval_link.emulation.broad`.
 
+Firmware (``--firmware ELF``): each ELF runs on the emulated board fed with the trial's motion and its own attitude
+output is scored against the same truth, aligned per step the same way (:mod:`steval_link.analysis.firmware_eval`):
+one more column of the table, and one line per firmware per trial with its instructions per AHRS step and the
+bit-exact port's score on the firmware's own inputs.
+
 Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
 given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
 (M, 4) float wxyz body → earth (x right, y forward, z up body axes; z up earth), and optionally ``movement`` (M,)
@@ -20,13 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link.analysis.firmware_eval import FirmwareResult
 from steval_link.analysis.plots import require_matplotlib
 from steval_link.analysis.report import json_number
 from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.capture import capture_truth, read_source, telemetry_of_source
 
 __all__ = [
     "EstimatorSpec",
@@ -41,6 +47,8 @@ __all__ = [
     "format_table",
     "plot_evaluation",
     "MEAN_TRIALS",
+    "add_firmware",
+    "firmware_lines",
 ]
 
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
@@ -124,6 +132,8 @@ class TrialResult:
         rmse_deg: label → inclination RMSE, degrees.
         err_rad: label → (M,) inclination error, rad.
         steps_per_s: label → estimator speed, steps/s.
+        err_t_s: label → (K,) times of ``err_rad[label]`` when not ``t_s`` (a firmware's own steps), s.
+        firmware: the firmware runs on this trial (``--firmware``).
     """
 
     name: str
@@ -133,6 +143,56 @@ class TrialResult:
     rmse_deg: dict[str, float] = field(default_factory=dict)
     err_rad: dict[str, np.ndarray] = field(default_factory=dict)
     steps_per_s: dict[str, float] = field(default_factory=dict)
+    err_t_s: dict[str, np.ndarray] = field(default_factory=dict)
+    firmware: list[FirmwareResult] = field(default_factory=list)
+
+
+def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
+    """Put a firmware run into a trial's result: its column (RMSE, error over its own steps) and its line."""
+    res.rmse_deg[fw.label] = fw.rmse_deg
+    res.err_rad[fw.label] = fw.err_rad
+    res.err_t_s[fw.label] = fw.truth.t_trial_s
+    res.steps_per_s[fw.label] = float("nan")  # emulated: its cost is the instructions per step
+    res.firmware.append(fw)
+
+
+def _firmware_dict(fw: FirmwareResult) -> dict:
+    st = fw.settings
+    return {"trial": fw.trial, "firmware": fw.label, "elf": fw.elf, "attitude_from": fw.source,
+            "rmse_deg": _rounded(fw.rmse_deg), "steps": fw.steps,
+            "movement_steps": int(np.count_nonzero(fw.truth.movement)),
+            "instructions_per_step": fw.instructions_summary(),
+            "port_rmse_deg": _rounded(fw.port_rmse_deg), "port_bit_exact_steps": fw.port_bit_exact,
+            "port_steps": fw.port_steps,
+            "port_settings": None if st is None else {"kp_ground": st.kp_ground, "kp_flight": st.kp_flight,
+                                                      "ki": st.ki, "dt_s": st.dt_s, "min_thr": st.min_thr,
+                                                      "correction": st.correction},
+            "emulated_s": round(fw.emulated_s, 3), "notes": list(fw.notes)}
+
+
+def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
+    """One line per firmware per trial: RMSE, instructions per AHRS step, the port's RMSE on its inputs."""
+    fws = [fw for r in results for fw in r.firmware]
+    if not fws:
+        return []
+    w0 = max(len(fw.trial) for fw in fws)
+    w1 = max(len(fw.label) for fw in fws)
+    out = ["firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
+           "(emulator counts, interrupts excluded); the bit-exact ST-Mahony port on the firmware's own inputs"]
+    for fw in fws:
+        ins = fw.instructions_summary()
+        cost = "n/a" if ins["median"] is None else f"{ins['median']:.0f} instr/step ({ins['min']}-{ins['max']})"
+        port = ("port n/a" if fw.port_rmse_deg is None else
+                f"port {_fmt(fw.port_rmse_deg)}, bit-exact {fw.port_bit_exact}/{fw.port_steps} steps")
+        note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
+        out.append(f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; "
+                   f"{port}){note}")
+    return out
+
+
+def _fmt(x) -> str:
+    v = json_number(x)
+    return "—" if v is None else f"{v:.3f}"
 
 
 Progress = Callable[[str, str], None]
@@ -204,7 +264,8 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None,
                      progress: Progress | None = None) -> TrialResult:
-    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc).
+    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc), or,
+    without one, the truth the capture keeps (chunks T of ``steval emulate --broad``).
 
     The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
     """
@@ -217,12 +278,16 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
         raise UserError(f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "
                         f"{len(src.data)} bytes") from None
     side = Path(truth) if truth is not None else truth_sidecar_path(p)
-    if not side.is_file():
+    kept = capture_truth(src.chunks) if truth is None and not side.is_file() else None
+    if kept is None and not side.is_file():
         raise UserError(f"{p}: no ground truth; expected the sidecar {side} (step, quat[, movement])")
     att = tel.attitude
     if len(att.step) == 0:
         raise UserError(f"{p}: no attitude frames")
-    step, quat, mov = _load_sidecar(side)
+    if kept is not None:  # an emulated BROAD run keeps the truth it was fed (chunks T)
+        step, quat, mov = kept.step, kept.q_wxyz, kept.movement
+    else:
+        step, quat, mov = _load_sidecar(side)
     order = np.argsort(step)
     step, quat, mov = step[order], quat[order], mov[order]
     idx = np.searchsorted(step, att.step)
@@ -263,6 +328,11 @@ def summary(results: Sequence[TrialResult]) -> dict:
                "steps_per_s": {k: _rounded(r.steps_per_s.get(k)) for k in labels}} for r in results]
     out = {"metric": "inclination RMSE over movement samples, degrees", "estimators": labels, "trials": trials,
            "mean_rmse_deg": {k: _rounded(_mean([r.rmse_deg.get(k) for r in results])) for k in labels}}
+    fws = [_firmware_dict(fw) for r in results for fw in r.firmware]
+    if fws:
+        out["firmware"] = fws
+        out["firmware_metric"] = ("inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
+                                  "output (the port's the same way), over movement steps, degrees")
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
         out["mean_02_07_15_24_rmse_deg"] = {k: _rounded(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
@@ -299,6 +369,9 @@ def format_table(results: Sequence[TrialResult]) -> str:
         lines.append(row("mean", [s["mean_rmse_deg"][k] for k in labels]))
     if "mean_02_07_15_24_rmse_deg" in s:
         lines.append(row("mean 02/07/15/24", [s["mean_02_07_15_24_rmse_deg"][k] for k in labels]))
+    fw = firmware_lines(results)
+    if fw:
+        lines += [""] + fw
     return "\n".join(lines)
 
 
@@ -326,7 +399,7 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
     r = results[min(max(detail, 0), n - 1)]
     for k in labels:
         e = np.degrees(r.err_rad[k])
-        ax1.plot(r.t_s, e, lw=0.7, label=f"{k} ({r.rmse_deg[k]:.2f}°)")
+        ax1.plot(r.err_t_s.get(k, r.t_s), e, lw=0.7, label=f"{k} ({r.rmse_deg[k]:.2f}°)")
     ax1.set_xlabel("time (s)")
     ax1.set_ylabel("inclination error (deg)")
     ax1.set_title(f"{r.name}: inclination error over time")

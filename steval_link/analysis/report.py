@@ -221,6 +221,8 @@ class ComparisonReport:
     #: the rows kept with NaN or out-of-range values (:func:`steval_link.analysis.summary.values_bad_report`)
     values_bad: dict[str, Any] | None = None
     held_back: str | None = None  #: CRC-valid frames the decoder held back, in words (None: none)
+    #: ground truth the capture keeps (an emulated BROAD run's chunks T): inclination RMSE per trace, or None
+    truth: dict[str, Any] | None = None
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
@@ -242,6 +244,7 @@ class ComparisonReport:
             "notes": list(self.notes),
             "values_bad": self.values_bad,
             "held_back": self.held_back,
+            **({"truth": self.truth} if self.truth is not None else {}),
         }
 
 
@@ -348,6 +351,11 @@ def format_report(r: ComparisonReport) -> list[str]:
         if t.note:
             row += f"  ({t.note})"
         lines.append(row)
+    if r.truth is not None:
+        lines += ["", f"against the ground truth the capture keeps: inclination RMSE (deg) over "
+                      f"{r.truth['movement_steps']} movement steps"]
+        for name, v in r.truth["rmse_deg"].items():
+            lines.append(f"  {name:<{w}}{_f(v, '.3f')}")
     for note in r.notes:
         lines.append(f"note: {note}")
     return lines

@@ -43,7 +43,9 @@ def emulate_command(
                                  "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
                                  "check's hand moves)."),
     broad: Optional[Path] = typer.Option(None, "--broad", help="Feed a BROAD trial (.npz: real IMU signals) instead "
-                                         "of a scenario, from the first TIM9 tick on."),
+                                         "of a scenario, from the first TIM9 tick on; the capture keeps its "
+                                         "ground truth per AHRS step (steval compare and evaluate score "
+                                         "against it)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Emulated seconds from power-up (default: "
                                              "the scenario's length; the first attitude frame comes at ≈ 2.985 s)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),

@@ -3,32 +3,49 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from steval_link.analysis import evaluate as ev
+from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
+from steval_link.emulation.elf import Elf
 from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
 from steval_link.estimators.plugins import split_list
+from steval_link.errors import UserError
 
 __all__ = ["evaluate_command"]
+
+#: a firmware run counts this many estimator runs on the progress bar
+_FIRMWARE_WEIGHT = 20
 
 _HELP = (
     "Inclination accuracy of the estimators against ground truth.\n\n"
     "DATA are BROAD trial .npz files (acc m/s², gyr rad/s, quat wxyz IMU→ENU, movement, fs), directories (their "
     "*.npz), or captures (.stv, raw dump, text log) with a ground-truth sidecar CAPTURE.truth.npz next to them "
     "(e.g. flight.stv.truth.npz) holding `step` (int, the frames' AHRS step counter), `quat` (wxyz, body→earth) "
-    "and optionally `movement` (bool); the firmware's own estimate is then scored too.\n\n"
+    "and optionally `movement` (bool), or captures of steval emulate --broad, which keep their truth; the firmware's "
+    "own estimate is then scored too.\n\n"
     "A BROAD trial runs through the STEVAL sensor pipeline model (807.7 Hz tick, LSM6DSL quantisation, 416 Hz gyro "
     "hold, the firmware's 2 s offset calibration, gyro IIR, 5-sample average → 161.5 Hz AHRS steps; "
     "deterministic); --native runs the estimators on the trial's own 285.7 Hz samples instead.\n\n"
     "Estimators: st-mahony-flight (firmware filter, thr 450, kp 0.4), st-mahony-ground (thr 0, kp 10), accel "
     "(accelerometer-only), ekf3, mekf, vqf (when installed).\n\n"
+    "Firmware (--firmware ELF, repeatable): each ELF (a CubeIDE build of ST's release, patched or not, or the "
+    "reference firmware) runs on the emulated board fed with each trial's motion (as steval emulate --broad), and its "
+    "own attitude output (thx/thy of its attitude frames; for a build without them, its euler_ahrs global read by "
+    "symbol each AHRS step) is scored against the same truth, one column each, labelled by the shortest path "
+    "suffix that tells the ELFs apart. Each gets one line per trial: its RMSE, instructions per AHRS step (the "
+    "emulator's counts) and the bit-exact ST-Mahony port's RMSE on the firmware's own inputs (equal for a stock "
+    "build). Truth per step: the middle tick of the step's 5-tick input window (trial time 0 = the first TIM9 tick, "
+    "≈ 1 s after power-up; the first 2 s are the firmware's calibration), as for the Python estimators. An "
+    "emulated trial runs at a few times real time: --max-seconds cuts every trial short.\n\n"
     "Metric: q_err = q_est ⊗ q_true⁻¹, inclination error 2·acos(√(w²+z²)), RMSE (deg) over movement samples, NaN "
     "ignored. Exit code 2 for unreadable or malformed input."
 )
@@ -57,18 +74,34 @@ def evaluate_command(
                                                                      "own before quantisation.")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
     force: ForceOption = False,
+    firmware: Annotated[Optional[list[Path]], typer.Option(
+        "--firmware", help="A firmware ELF to run on the emulated board with each BROAD trial and score "
+                           "(repeatable).", show_default=False)] = None,
+    max_seconds: Annotated[Optional[float], typer.Option(
+        "--max-seconds", help="Use only the first S seconds of each BROAD trial (every estimator and firmware; "
+                              "the trials' movement starts after 26-46 s).", show_default=False)] = None,
 ) -> None:
 
     items = broad.trial_paths(data)  # the inputs first, then the output
-    if plot is not None:
-        check_output(plot, option="--plot", force=force, inputs=tuple(items))
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()  # fail before the long run
     only = split_list(estimators) if estimators is not None else None  # commas inside (options) stay
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
-    total = len(items) * len(ev.default_specs(100.0, only=only))
+    if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):
+        raise UserError(f"--max-seconds must be a positive number of seconds, got {max_seconds}")
+    elfs = list(firmware or [])
+    fw_labels = fw.firmware_labels(elfs)
+    for elf in elfs:
+        Elf(elf)  # missing or not an ARM ELF: one sentence before the long run
+    if elfs and not any(p.suffix == ".npz" for p in items):
+        raise UserError("--firmware runs on BROAD trials (.npz): give at least one")
+    if plot is not None:
+        check_output(plot, option="--plot", force=force, inputs=(*items, *elfs))
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+        require_matplotlib()  # fail before the long run
+    n_trials = sum(p.suffix == ".npz" for p in items)
+    # the bar: one unit per estimator run, FIRMWARE_WEIGHT per firmware run (an emulation takes much longer)
+    total = len(items) * len(ev.default_specs(100.0, only=only)) + n_trials * len(elfs) * _FIRMWARE_WEIGHT
     results = []
     with progress_bar("evaluate", quiet=as_json) as bar:
         done = 0
@@ -81,13 +114,22 @@ def evaluate_command(
         for p in items:
             bar(done / total, f"{p.name[:32]}: loading")
             if p.suffix == ".npz":
-                trial = broad.load_trial(p)
+                trial = fw.cut_trial(broad.load_trial(p), max_seconds)
                 if native:
                     view = broad.native_view(trial)
                 else:
                     view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
                 specs = ev.default_specs(view.rate_hz, native=native, only=only)
-                results.append(ev.evaluate_view(view, specs, trial.name, progress))
+                res = ev.evaluate_view(view, specs, trial.name, progress)
+                for elf, label in zip(elfs, fw_labels):
+                    start = done
+
+                    def fw_progress(fraction: float, trial=trial.name, label=label, start=start) -> None:
+                        bar((start + fraction * _FIRMWARE_WEIGHT) / total, f"{trial[:32]}: {label} (emulated)")
+
+                    ev.add_firmware(res, fw.run_firmware(elf, trial, label=label, seed=seed, progress=fw_progress))
+                    done += _FIRMWARE_WEIGHT
+                results.append(res)
             else:
 
                 specs = ev.default_specs(AHRS_HZ, only=only)
@@ -101,6 +143,8 @@ def evaluate_command(
         report["mode"] = "native" if native else "steval-pipeline"
         report["sensor_noise"] = bool(sensor_noise and not native)
         report["seed"] = seed
+        if max_seconds is not None:
+            report["max_seconds"] = max_seconds
         if plot is not None:
             report["plot"] = str(plot)
         typer.echo(json.dumps(report, allow_nan=False))

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import queue
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,7 +48,7 @@ from steval_link import constants as C
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import CPU_HZ, Board, EmulationError, FirmwareStuck
-from steval_link.emulation.broad import load_trial
+from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import UserError
@@ -67,7 +67,8 @@ WATCHDOG_S = 6.0
 class EmulationOptions:
     elf: Path | str
     scenario: str = "bench"
-    broad: Path | str | None = None
+    #: a BROAD trial: its .npz, or a loaded :class:`~steval_link.emulation.broad.BroadTrial`
+    broad: Path | str | BroadTrial | None = None
     duration_s: float | None = None
     seed: int = 0
     throttle: str | None = None
@@ -261,7 +262,11 @@ class Emulation:
             raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
         self.elf = Elf(options.elf)
         trial = None
-        if options.broad is not None:
+        if isinstance(options.broad, BroadTrial):  # already loaded (e.g. cut short by steval evaluate)
+            trial = options.broad
+            name = trial.name
+            default = float(trial.t_s[-1]) + 3.0
+        elif options.broad is not None:
             try:
                 trial = load_trial(options.broad)
             except (OSError, ValueError, KeyError) as exc:
@@ -288,6 +293,10 @@ class Emulation:
         self._remote_connected = False
         self.board.tick_observers.append(self._on_tick)
         self._steps: list[int] = []
+        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry, inputs ready) and end (its
+        #: Euler angles computed): a debugger's view of the step (e.g. the firmware's globals read by symbol)
+        self.step_start_observers: list[Callable[[Board], None]] = []
+        self.step_end_observers: list[Callable[[Board], None]] = []
         self._dwt: list[int] = []
         self._step_start = None
         self._cyc_start = None
@@ -365,7 +374,8 @@ class Emulation:
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
         b, e = self.board, self.elf
-        start = e.addr("ahrs_fusion_ag")
+        # ST's filter; else the patch's hook right before it (a build whose filter function has another name)
+        start = e.addr("ahrs_fusion_ag") or e.addr("stv_fw_step_begin")
         end = e.addr("stv_fw_step_end") or e.addr("GetTargetEulerAngle")
         if start is not None and end is not None:
             b.probe(start, self._on_step_start)
@@ -379,6 +389,8 @@ class Emulation:
         self._cyc_start = board.scs.cyccnt()
         if self._first_step_s is None:
             self._first_step_s = board.now / CPU_HZ
+        for ob in self.step_start_observers:
+            ob(board)
 
     def _on_step_end(self, board: Board) -> None:
         if self._step_start is None:
@@ -390,6 +402,29 @@ class Emulation:
             self._steps.append(n)
             self._dwt.append(board.scs.cyccnt() - self._cyc_start)
         self._step_start = None
+        for ob in self.step_end_observers:
+            ob(board)
+
+    # -- the motion's time base
+    def tick_index(self) -> int:
+        """Motion tick index of the latest TIM9 update (the sample the ISR last read)."""
+        return self.bus.tick_index(self.board)
+
+    def tick_time_s(self, k) -> np.ndarray | float:
+        """Emulated time (s since power-up) of motion tick ``k``'s TIM9 update (after TIM9 started)."""
+        first = self.board.tim9.first_update
+        if first is None:
+            raise ValueError("TIM9 has not started")
+        k0 = self.bus.tick_index_of_update(1)
+        return (first + (np.asarray(k) - k0) * TICK_CYCLES) / CPU_HZ
+
+    def trial_time_s(self, k) -> np.ndarray | float:
+        """BROAD runs: trial time (s) of the sample the sensors hold at motion tick ``k``: ``k · TICK_S`` minus the
+        first TIM9 tick's emulated time. Not clipped (the sensors hold the trial's first sample before 0 and its last
+        after its end), so a caller can tell the ticks outside the trial."""
+        if self.motion.first_tick_s is None:
+            raise ValueError("TIM9 has not started")
+        return np.asarray(k) * TICK_S - self.motion.first_tick_s
 
     # -- running
     def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:

@@ -39,6 +39,9 @@ __all__ = [
     "MAGIC",
     "Capture",
     "CaptureEvent",
+    "CaptureTruth",
+    "capture_truth",
+    "truth_payloads",
     "HostChunk",
     "CaptureTruncatedWarning",
     "CaptureWriter",
@@ -57,10 +60,15 @@ CHUNK_DATA = ord("D")
 CHUNK_EVENT = ord("E")
 CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
-#: every chunk type the reader knows (format 2 adds B and H); D and E are read into the byte stream and the events,
+CHUNK_TRUTH = ord("T")
+#: every chunk type the reader knows (format 2 adds B, H and T); D and E are read into the byte stream and the events,
 #: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
-#: for the module that reads them
-CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble", CHUNK_HOST: "host"}
+#: for the module that reads them. A type it does not know (a newer writer's) is kept there too when its CRC holds.
+CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble", CHUNK_HOST: "host",
+                               CHUNK_TRUTH: "truth"}
+#: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
+TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
+TRUTH_ROWS_PER_CHUNK = (1 << 20) // TRUTH_DTYPE.itemsize
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
@@ -157,6 +165,44 @@ def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]]
     return b"".join(parts)
 
 
+@dataclass(frozen=True)
+class CaptureTruth:
+    """The ground truth a capture keeps (truth chunks T, CAPTURE_FORMAT.md): per AHRS step ``step`` (M,) int64,
+    ``t_s`` (M,) emulated time of the step's middle input tick (s since power-up), ``q_wxyz`` (M, 4) float64 body →
+    earth (NaN: none), ``movement`` (M,) bool (the step counts for the metric)."""
+
+    step: np.ndarray
+    t_s: np.ndarray
+    q_wxyz: np.ndarray
+    movement: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.step.shape[0])
+
+
+def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
+    """Truth rows as the payloads of T chunks (at most :data:`TRUTH_ROWS_PER_CHUNK` rows each)."""
+    step = np.asarray(step, dtype=np.int64).reshape(-1)
+    rows = np.zeros(step.shape[0], dtype=TRUTH_DTYPE)
+    rows["step"] = step
+    rows["t_s"] = np.asarray(t_s, dtype=np.float64).reshape(-1)
+    rows["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    rows["movement"] = np.asarray(movement, dtype=bool).reshape(-1)
+    return [rows[i : i + TRUTH_ROWS_PER_CHUNK].tobytes() for i in range(0, len(rows), TRUTH_ROWS_PER_CHUNK)]
+
+
+def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
+    """The truth rows of a capture's T chunks (``Capture.chunks`` / ``Source.chunks``) in file order, or None when it
+    has none. A payload that is not a whole number of rows keeps its whole rows."""
+    parts = [np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
+             for _, p in chunks.get(CHUNK_TRUTH, [])]
+    if not parts:
+        return None
+    rows = np.concatenate(parts)
+    return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(),
+                        rows["movement"] != 0)
+
+
 def _known_kind(kind: int) -> int:
     if kind not in CHUNK_TYPES or kind in (CHUNK_DATA, CHUNK_EVENT) or not 0 <= kind < 256:
         raise ValueError(f"not a typed chunk type: {kind!r}")
@@ -245,6 +291,11 @@ class CaptureWriter:
             self._write_all(_chunk(kind, payload, t))
             self.chunks_written += 1
             self._dirty = True
+
+    def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
+        """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks at ``t_host_s``."""
+        for payload in truth_payloads(step, t_s, q_wxyz, movement):
+            self.write_chunk(CHUNK_TRUTH, payload, t_host_s)
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
         """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
@@ -414,7 +465,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             return "incomplete chunk header"
         kind, length, t = unpack_head(raw, p)
         end = p + head_size + length
-        if kind not in CHUNK_TYPES or length > MAX_CHUNK:
+        if length > MAX_CHUNK:  # an unknown type with a good CRC is a newer writer's chunk: kept, not damage
             return "damaged chunk header"
         if end + 4 > n:
             return "incomplete chunk"

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable, TextIO
 
 from steval_link.emulation.runner import Emulation, EmulationOptions, EmulationReport
+from steval_link.emulation.step_truth import StepTruth
 from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.commands import Command
@@ -109,6 +110,10 @@ class EmulateSession:
         extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
                  "elf": str(emu.elf.path), "scenario": emu.motion.name, "seed": self.emu_options.seed,
                  "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
+        truth = StepTruth(emu) if emu.motion.trial is not None else None  # the truth it is fed: chunks T
+        if truth is not None:
+            extra["truth"] = (f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
+                              "middle tick of the step's input window, emulated time)")
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
             if self.commands_file:
@@ -127,6 +132,7 @@ class EmulateSession:
         t0 = time.monotonic()
         pipe = None
         t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
+        last_t_s = 0.0
         try:
             self.display.note(f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s); recording "
                               f"to {capture_path}" + (f" and {opts.rrd}" if opts.rrd else "") + " (Ctrl-C to stop)")
@@ -144,6 +150,9 @@ class EmulateSession:
                     capture.write_host(sent, t_sent_s)
                     pipe.feed_host(sent, wall0 + t_sent_s)
                 capture.write(data, t_emu_s)  # first: whatever happens next, the bytes are kept
+                last_t_s = t_emu_s
+                if truth is not None:
+                    self._write_truth(capture, truth, t_emu_s)
                 pipe.feed([(data, wall0 + t_emu_s)])
                 console.poll(pipe.notes)
                 if viewer is not None:
@@ -164,6 +173,11 @@ class EmulateSession:
         except BaseException as exc:  # noqa: BLE001 - close the files first, then re-raise
             error = exc
         finally:
+            try:
+                if truth is not None:
+                    self._write_truth(capture, truth, last_t_s)  # the steps of the last slice
+            except Exception:  # noqa: BLE001 - the capture is closed below whatever happens
+                pass
             try:
                 if pipe is not None:
                     pipe.flush_view()
@@ -186,6 +200,12 @@ class EmulateSession:
         return EmulateSummary(capture_path, opts.rrd, time.monotonic() - t0, emu.report(), h.attitude, h.status,
                               h.text, s.crc_failures, s.frames_missing, port, self._stop or "end",
                               h.values_sentence(), held)
+
+    @staticmethod
+    def _write_truth(capture: CaptureWriter, truth: StepTruth, t_s: float | None) -> None:
+        rows = truth.take()
+        if len(rows):
+            capture.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s)
 
     @staticmethod
     def _health(emu: Emulation, pipe: LivePipeline, t_emu_s: float, wall_s: float) -> str:

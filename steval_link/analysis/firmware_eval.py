@@ -1,0 +1,253 @@
+"""A firmware ELF scored against ground truth: it runs on the emulated board fed with a BROAD trial's motion, and its
+own attitude output is scored like the Python estimators (``steval evaluate --firmware``).
+
+The firmware's output is ``thx``/``thy`` (pitch about x, roll about y) per AHRS step:
+
+* from its attitude frames when it streams them (the patched release, the reference firmware): frame step ``i`` is
+  the ``i``-th AHRS step;
+* else (an unpatched build) from its globals, read by symbol once per step as a debugger would: ``euler_ahrs``
+  (``EulerAngleTypeDef``: float thx, thy, thz) when the step ends, and ``ahrs`` (``AHRS_State_TypeDef``: q0..q3
+  first) for the quaternion; the step's inputs from ``acc_ahrs`` / ``gyro_ahrs`` (``AxesRaw_TypeDef_Float``: float
+  x, y, z in mg / mdps) and ``gTHR`` (int16) when it starts.
+
+Metric: the inclination error of the quaternion ``quaternion_from_euler(thx, thy, 0)`` against the truth (yaw
+does not enter the inclination), RMSE in degrees over the trial's movement steps: the same
+:func:`~steval_link.emulation.broad.inclination_error_rad` and :func:`~steval_link.emulation.broad.rmse_deg` as
+the Python estimators, on the ground truth aligned per step by :mod:`steval_link.emulation.step_truth` (the middle
+tick of the step's 5-tick input window, as the Python estimators' STEVAL view).
+
+The bit-exact ST-Mahony port runs over the firmware's own inputs (frames, or the globals) with the firmware's
+settings (status frames, else ST's defaults) and is scored the same way from its thx/thy: for a stock build the
+two scores agree exactly; ``port_bit_exact`` counts the steps whose q, thx and thy carry the firmware's bits.
+
+Cost: instructions per AHRS step (``ahrs_fusion_ag`` to the end of the step, interrupts excluded) as the emulator
+counts them (not Cortex-M4 cycles).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.emulation.broad import BroadTrial
+from steval_link.emulation.runner import Emulation, EmulationOptions
+from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
+from steval_link.errors import UserError
+from steval_link.estimators import st_mahony
+from steval_link.estimators.st_mahony import MahonySettings
+from steval_link.link.decoder import decode_bytes
+
+__all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler"]
+
+_F32 = np.float32
+
+
+def firmware_labels(paths: Sequence[Path | str]) -> list[str]:
+    """Table labels of firmware ELFs: ``fw:`` and the shortest path suffix that tells them apart (``fw:a.elf``, or
+    ``fw:stock/steval-reference.elf`` next to ``fw:lab/steval-reference.elf``). The same file twice: UserError."""
+    resolved = [Path(p).resolve() for p in paths]
+    seen: dict[Path, str] = {}
+    for p, given in zip(resolved, paths):
+        if p in seen:
+            raise UserError(f"--firmware {given} is given twice (as {seen[p]})")
+        seen[p] = str(given)
+    parts = [p.parts for p in resolved]
+    labels = []
+    for i, ps in enumerate(parts):
+        for n in range(1, len(ps) + 1):
+            suffix = ps[-n:]
+            if all(other[-n:] != suffix for j, other in enumerate(parts) if j != i):
+                break
+        labels.append("fw:" + "/".join(suffix))
+    return labels
+
+
+def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
+    """The first ``max_seconds`` of ``trial`` (the whole trial when None or longer)."""
+    if max_seconds is None:
+        return trial
+    n = int(math.floor(max_seconds * trial.fs_hz)) + 1
+    if n >= trial.acc_mps2.shape[0]:
+        return trial
+    n = max(n, 2)
+    return BroadTrial(trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n],
+                      trial.movement[:n])
+
+
+@dataclass
+class FirmwareResult:
+    """One firmware on one trial.
+
+    Attributes:
+        label: table label (:func:`firmware_labels`).
+        elf: the ELF's path.
+        trial: trial name.
+        source: where the attitude came from: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by
+            symbol).
+        truth: per-step ground truth (:class:`~steval_link.emulation.step_truth.TruthRows`).
+        thx_rad, thy_rad: (M,) float32 the firmware's output per step (NaN: no frame for that step).
+        err_rad: (M,) inclination error, rad.
+        rmse_deg: inclination RMSE over the movement steps, degrees.
+        instructions: (K,) instructions per AHRS step.
+        port_rmse_deg: the bit-exact port's RMSE on the firmware's own inputs (None: inputs unknown).
+        port_bit_exact: steps where the port carries the firmware's bits, of ``port_steps``.
+        settings: the port's filter settings (status frames, else ST's defaults).
+        emulated_s: emulated seconds.
+    """
+
+    label: str
+    elf: str
+    trial: str
+    source: str
+    truth: TruthRows
+    thx_rad: np.ndarray
+    thy_rad: np.ndarray
+    err_rad: np.ndarray
+    rmse_deg: float
+    instructions: np.ndarray
+    port_rmse_deg: float | None = None
+    port_bit_exact: int = 0
+    port_steps: int = 0
+    settings: MahonySettings | None = None
+    emulated_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def steps(self) -> int:
+        return len(self.truth)
+
+    def instructions_summary(self) -> dict[str, float | None]:
+        a = self.instructions
+        if a.size == 0:
+            return {"median": None, "mean": None, "min": None, "max": None}
+        return {"median": float(np.median(a)), "mean": round(float(np.mean(a)), 1), "min": int(a.min()),
+                "max": int(a.max())}
+
+
+class _Globals:
+    """The firmware's attitude globals read by symbol at each AHRS step's start (inputs) and end (outputs)."""
+
+    def __init__(self, emu: Emulation) -> None:
+        e = emu.elf
+        self.euler = e.addr("euler_ahrs")
+        self.ahrs = e.addr("ahrs")
+        self.acc = e.addr("acc_ahrs")
+        self.gyro = e.addr("gyro_ahrs")
+        self.thr = e.addr("gTHR")
+        self.inputs: list[tuple[float, ...]] = []
+        self.outputs: list[tuple[float, ...]] = []
+        emu.step_start_observers.append(self._start)
+        emu.step_end_observers.append(self._end)
+
+    @property
+    def has_inputs(self) -> bool:
+        return self.acc is not None and self.gyro is not None
+
+    def _start(self, board) -> None:
+        if not self.has_inputs:
+            return
+        acc = np.frombuffer(board.ram_read(self.acc, 12), "<f4")
+        gyro = np.frombuffer(board.ram_read(self.gyro, 12), "<f4")
+        thr = int.from_bytes(board.ram_read(self.thr, 2), "little", signed=True) if self.thr is not None else 0
+        self.inputs.append((*acc.tolist(), *gyro.tolist(), thr))
+
+    def _end(self, board) -> None:
+        nan = float("nan")
+        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [nan] * 2
+        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [nan] * 4
+        self.outputs.append((*e, *q))
+
+
+def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None, seed: int = 0,
+                 progress: Callable[[float], None] | None = None) -> FirmwareResult:
+    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output
+    (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
+    streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step."""
+    emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
+    truth_rec = StepTruth(emu)
+    glob = _Globals(emu)
+    label = label or "fw:" + Path(elf).name
+    if progress is not None:  # every ≈ 1 s of AHRS steps (an unpatched build sends next to nothing on USART1)
+        def on_step(board) -> None:
+            if emu.n_steps % 160 == 0:
+                progress(min(board.now / C.CPU_HZ / emu.duration_s, 1.0))
+
+        emu.step_end_observers.append(on_step)
+    data = bytearray()
+    try:
+        for chunk, _ in emu.chunks():
+            data += chunk
+    except UserError as exc:  # stuck, or hardware the emulator does not model: say which firmware
+        raise UserError(f"{label} on {trial.name}: {exc}") from None
+    report = emu.report()
+    n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
+    if n == 0:
+        if emu.elf.addr("ahrs_fusion_ag") is None and emu.elf.addr("stv_fw_step_begin") is None:
+            raise UserError(f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
+                            "told apart (an ELF with its symbols, not a stripped one)")
+        raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
+    truth = truth_rec.rows(0, n)
+    tel = decode_bytes(bytes(data)) if data else None
+    att = tel.attitude if tel is not None else None
+    notes: list[str] = []
+    settings = None
+    if att is not None and np.count_nonzero(att.exact):
+        source = "frames"
+        rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
+        steps = np.asarray(att.step)[rows]
+        thx = np.full(n, np.nan, _F32)
+        thy = np.full(n, np.nan, _F32)
+        thx[steps] = np.asarray(att.thx_rad, _F32)[rows]
+        thy[steps] = np.asarray(att.thy_rad, _F32)[rows]
+        lost = np.ones(n, bool)
+        lost[steps] = False
+        lost &= truth.movement
+        if lost.any():
+            notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
+        if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
+            inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
+            if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
+                notes.append("the frames' inputs differ from acc_ahrs at the steps counted: the truth may be "
+                             "misaligned")
+        rep = st_mahony.replay_firmware(tel)
+        port_thx = np.full(n, np.nan, _F32)
+        port_thy = np.full(n, np.nan, _F32)
+        port_thx[steps] = rep.thx_rad[rows]
+        port_thy[steps] = rep.thy_rad[rows]
+        port_exact, port_steps = int(np.count_nonzero(rep.bit_exact[rows])), int(np.count_nonzero(rep.seeded[rows]))
+        settings = rep.seeds[0].settings if rep.seeds else None
+    elif glob.euler is not None:
+        source = "globals"
+        out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
+        thx = np.full(n, np.nan, _F32)
+        thy = np.full(n, np.nan, _F32)
+        thx[: out.shape[0]], thy[: out.shape[0]] = out[:, 0], out[:, 1]
+        port_thx = port_thy = None
+        port_exact = port_steps = 0
+        if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
+            inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
+            settings = MahonySettings()
+            q, px, py, _ = st_mahony.run(inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32),
+                                         inp[:, 6].astype(np.int64), settings=settings)
+            port_thx = np.full(n, np.nan, _F32)
+            port_thy = np.full(n, np.nan, _F32)
+            port_thx[: out.shape[0]], port_thy[: out.shape[0]] = px, py
+            exact = (st_mahony.bits_equal(px, out[:, 0]) & st_mahony.bits_equal(py, out[:, 1])
+                     & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if glob.ahrs is not None else True))
+            port_exact, port_steps = int(np.count_nonzero(exact)), out.shape[0]
+    else:
+        raise UserError(f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
+                        "(an ELF with its symbols, not a stripped .bin/.hex)")
+    err, rmse = score_euler(thx, thy, truth.q_wxyz, truth.movement)
+    res = FirmwareResult(label, str(elf), trial.name, source, truth, thx, thy, err, rmse,
+                         np.asarray(report.step_instructions, np.int64), settings=settings,
+                         emulated_s=report.emulated_s, notes=notes)
+    if port_thx is not None:
+        _, res.port_rmse_deg = score_euler(port_thx, port_thy, truth.q_wxyz, truth.movement)
+        res.port_bit_exact, res.port_steps = port_exact, port_steps
+    return res

@@ -1,0 +1,120 @@
+"""The ground truth each AHRS step of an emulated BROAD run saw, on the emulated board's time base.
+
+Alignment (the same as :func:`steval_link.emulation.broad.steval_view` for the Python estimators):
+
+* The emulated sensors hold, at motion tick ``k``, the trial sample of trial time ``k · TICK_S − t_first`` (trial
+  time 0 is the first TIM9 tick, ``t_first`` ≈ 1 s after power-up: the firmware's start-up delay); each TIM9 ISR
+  reads the sample of its own tick.
+* The firmware's first 1600 ticks (2 s) are its offset calibration, so the first AHRS step comes ≈ 3 s after
+  power-up, its inputs averaging trial time ≈ 1.98 s .. 2.0 s. The calibration takes the trial's pose during the
+  second of those seconds as level (acc offset removal keeps only +1000 mg on z): the Python estimators' pipeline
+  does the same, and the truth is not corrected for it on either side (the trials start at rest, near level).
+* A step's inputs are the average of the 5 ISR samples in the firmware's FIFO when ``ahrs_fusion_ag`` is entered:
+  the last of them is the latest TIM9 tick at that moment, ``k_last``. The step's truth is taken at the middle of
+  that window, tick ``k_last − 2`` (the boxcar's centre), interpolated from the trial's quaternions (NaN where the
+  markers were occluded); ``movement`` is the trial's mask at the nearest sample.
+* Steps whose middle tick lies outside the trial (the emulation runs a little past its end) get NaN truth and
+  ``movement`` False.
+
+:class:`StepTruth` records ``k_last`` with a probe at ``ahrs_fusion_ag`` (``Emulation.step_start_observers``); AHRS
+step ``i`` (from 0) is the ``i``-th call, the step counter of the patch's frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from steval_link.emulation import broad
+from steval_link.emulation.broad import BroadTrial
+from steval_link.emulation.sensor_model import FIFO_ORDER
+from steval_link.quat import interpolate_quat, quaternion_from_euler
+
+__all__ = ["TruthRows", "StepTruth", "truth_at_trial_time", "score_euler"]
+
+
+@dataclass(frozen=True)
+class TruthRows:
+    """Ground truth per AHRS step.
+
+    Attributes:
+        step: (M,) int64 AHRS step counter (0 = the first step after power-up).
+        t_s: (M,) float64 emulated time of the step's middle input tick, s since power-up.
+        t_trial_s: (M,) float64 trial time of that tick, s (outside [0, trial end]: no truth).
+        q_wxyz: (M, 4) float64 ground truth, body → earth (NaN: occluded or outside the trial).
+        movement: (M,) bool, the step counts for the metric.
+    """
+
+    step: np.ndarray
+    t_s: np.ndarray
+    t_trial_s: np.ndarray
+    q_wxyz: np.ndarray
+    movement: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.step.shape[0])
+
+
+def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
+    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
+    interpolated, movement at the nearest sample; NaN / False outside the trial."""
+    t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
+    t_end = float(trial.t_s[-1])
+    inside = (t >= 0.0) & (t <= t_end)
+    q = np.full((t.shape[0], 4), np.nan)
+    mov = np.zeros(t.shape[0], dtype=bool)
+    if inside.any():
+        q[inside] = interpolate_quat(trial.t_s, trial.quat_wxyz, t[inside])
+        idx = np.clip(np.rint(t[inside] * trial.fs_hz).astype(np.int64), 0, len(trial.t_s) - 1)
+        mov[inside] = trial.movement[idx]
+    return q, mov
+
+
+class StepTruth:
+    """Records each AHRS step's input window on an ``Emulation`` of a BROAD trial and gives its ground truth
+    (see the module docstring). Attach before running: ``truth = StepTruth(emu)``."""
+
+    def __init__(self, emu) -> None:
+        if emu.motion.trial is None:
+            raise ValueError("ground truth needs a BROAD trial (--broad)")
+        self.emu = emu
+        self.trial: BroadTrial = emu.motion.trial
+        self._last_tick: list[int] = []
+        self._taken = 0
+        emu.step_start_observers.append(self._on_step_start)
+
+    def _on_step_start(self, board) -> None:
+        self._last_tick.append(self.emu.tick_index())
+
+    @property
+    def last_ticks(self) -> np.ndarray:
+        """(M,) int64 motion tick of the newest sample in each step's FIFO window."""
+        return np.asarray(self._last_tick, dtype=np.int64)
+
+    def rows(self, start: int = 0, stop: int | None = None) -> TruthRows:
+        """The truth of steps ``start`` .. ``stop`` (default: every step so far)."""
+        ticks = self.last_ticks[start:stop]
+        mid = ticks - FIFO_ORDER // 2
+        step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
+        if ticks.shape[0] == 0:
+            empty = np.zeros(0)
+            return TruthRows(step, empty, empty, np.zeros((0, 4)), np.zeros(0, dtype=bool))
+        t_trial = np.asarray(self.emu.trial_time_s(mid), dtype=np.float64)
+        t_emu = np.asarray(self.emu.tick_time_s(mid), dtype=np.float64)
+        q, mov = truth_at_trial_time(self.trial, t_trial)
+        return TruthRows(step, t_emu, t_trial, q, mov)
+
+    def take(self) -> TruthRows:
+        """The truth of the steps recorded since the last call (for a capture's truth chunks as it grows)."""
+        n = len(self._last_tick)
+        out = self.rows(self._taken, n)
+        self._taken = n
+        return out
+
+
+def score_euler(thx_rad, thy_rad, q_true_wxyz, movement) -> tuple[np.ndarray, float]:
+    """(inclination error (M,) rad, RMSE deg over ``movement``) of the attitude thx/thy against the truth."""
+    q = quaternion_from_euler(np.asarray(thx_rad, np.float64), np.asarray(thy_rad, np.float64), 0.0)
+    err = broad.inclination_error_rad(q, q_true_wxyz)
+    return err, broad.rmse_deg(err, movement)
