@@ -58,8 +58,8 @@ from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     MahonySettings,
 )
-from steval_link.link.plausibility import held_back_sentence
 from steval_link.link.capture import capture_truth, read_source
+from steval_link.link.plausibility import held_back_sentence
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:

@@ -17,8 +17,8 @@ from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.emulation.elf import Elf
 from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
-from steval_link.estimators.plugins import split_list
 from steval_link.errors import UserError
+from steval_link.estimators.plugins import split_list
 
 __all__ = ["evaluate_command"]
 
