@@ -121,8 +121,11 @@ def test_decoder_on_st_firmwares_notifications_across_the_tick_wrap(demo):
 def test_decoder_sees_notifications_dropped_on_the_way(demo):
     keep = np.ones(len(demo), bool)
     keep[100:160] = False
-    records = [(float(t), B.CHAR_MOTION, motion(int(k) & 0xFFFF, tuple(map(int, a)))) for t, k, a, ok in
-               zip(demo.motion_t_host_s, demo.motion_tick, demo.acc_mg, keep) if ok]
+    # the whole sample as sent (acc, gyro, mag): two updates within one 8 ms tick differ by their sensor noise
+    records = [(float(t), B.CHAR_MOTION, motion(int(k) & 0xFFFF, tuple(map(int, a)),
+                                                tuple(int(round(v / 100)) for v in g), tuple(map(int, m))))
+               for t, k, a, g, m, ok in zip(demo.motion_t_host_s, demo.motion_tick, demo.acc_mg, demo.gyro_mdps,
+                                            demo.mag_mgauss, keep) if ok]
     dropped = B.decode_notifications(records)
     assert dropped.dropped_estimate() == 60
     u = B.uniform_inputs(dropped)
