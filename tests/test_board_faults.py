@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("unicorn")
 
 from steval_link.emulation.board import Board, UnmodelledHardware  # noqa: E402
-from steval_link.emulation.board.core import _native_hook  # noqa: E402
+from steval_link.emulation.board.native import core_library  # noqa: E402
 
 FLASH = 0x08000000
 STACK_TOP = 0x20010000
@@ -20,7 +20,7 @@ NOWHERE = 0x60000000  # FSMC bank 1: not on the STM32F401
 READ_UNMAPPED = bytes.fromhex("4ff0c040" "0168" "fbe7")  # mov.w r0, #0x60000000; ldr r1, [r0]; b .-6
 FETCH_UNMAPPED = bytes.fromhex("0048" "0047" "01000060")  # ldr r0, [pc, #0]; bx r0; .word 0x60000001
 
-MODES = [False] + ([True] if _native_hook() is not None else [])
+MODES = [False] + ([True] if core_library() is not None else [])
 
 
 def _elf(code: bytes) -> bytes:

@@ -33,23 +33,25 @@ class FirmwareCalls:
     def __init__(self, board) -> None:
         self.board = board
 
-    def install(self) -> None:
+    def install(self, skip: tuple[str, ...] = ()) -> None:
+        """Hook the replaced functions (but those in ``skip``: the C core's) and the fault handlers."""
         from unicorn import UC_HOOK_CODE  # reason: unicorn is optional (steval-link[test])
 
         b, e = self.board, self.board.elf
-        replaced = {"Sensor_IO_Read": self._sensor_read, "Sensor_IO_Write": self._sensor_write,
-                    "hci_send_req": self._hci_send_req}
-        for name, fn in replaced.items():
+        for name in ("Sensor_IO_Read", "Sensor_IO_Write", "hci_send_req"):
             a = e.addr(name)
-            if a is not None:
-                b.uc.hook_add(UC_HOOK_CODE, b.guarded(self._replacement(name, fn)), begin=a, end=a)
+            if a is not None and name not in skip:
+                b.uc.hook_add(UC_HOOK_CODE, b.guarded(self.replacement_hook(name)), begin=a, end=a)
         # fault handlers and the default handler loop forever: stop with their name
         for name in FAULT_HANDLERS:
             a = e.addr(name)
             if a is not None:
                 b.uc.hook_add(UC_HOOK_CODE, b.guarded(self._fault_handler(name)), begin=a, end=a)
 
-    def _replacement(self, name: str, fn: Callable):
+    def replacement_hook(self, name: str) -> Callable:
+        """The code hook that runs the Python replacement of ``name`` and returns to its caller."""
+        fn = {"Sensor_IO_Read": self._sensor_read, "Sensor_IO_Write": self._sensor_write,
+              "hci_send_req": self._hci_send_req}[name]
         b = self.board
         observers = b.call_observers.setdefault(name, [])
         regs = b.regs

@@ -87,6 +87,13 @@ class Board:
     #: ``handler(ogf, ocf, command parameters, board) -> reply bytes`` for ``hci_send_req`` (None: zeroed replies)
     hci_handler: Callable | None = None
 
+    def __new__(cls, elf=None, sensors=None, *, skip_idle: bool = True, native: bool | None = None):
+        if cls is Board and _want_native(native):
+            from steval_link.emulation.board.native import NativeBoard  # reason: native builds on this module
+
+            return super().__new__(NativeBoard)
+        return super().__new__(cls)
+
     def __init__(self, elf: Elf | str, sensors, *, skip_idle: bool = True, native: bool | None = None):
         from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc  # reason: unicorn is optional
         from unicorn import arm_const as A  # reason: unicorn is optional
@@ -112,7 +119,7 @@ class Board:
         self._skip_base = 0
         self._run_end = 0
         self._resumed_idle = False
-        self.native = _want_native(native)
+        self.native = native is not False and _want_native(native)
         self._map_memory()
         self.regs = Registers(uc)
         self.exceptions = Exceptions(self)
@@ -160,8 +167,8 @@ class Board:
         self.tim9 = Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9")
         self.tim2 = Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2")
         self.tim4 = Timer(self, P + TIM4_OFF, None, "TIM4")
-        self.usart1 = Usart(self, P + USART1_OFF, IRQ_USART1)
-        self.scs = Scs(self)
+        self.usart1 = self._make_usart()
+        self.scs = self._make_scs()
         periphs: list[Peripheral] = [self.tim9, self.tim2, self.tim4, self.usart1] + simple_peripherals(self)
         self.rcc = next(p for p in periphs if p.name == "RCC")
         self.periphs = sorted(periphs, key=lambda p: p.base)
@@ -169,10 +176,22 @@ class Board:
         uc = self.uc
         rd, wr = self.guarded(self._mmio_read), self.guarded(self._mmio_write)
         for p in self.periphs:
-            uc.mmio_map(p.base, p.size, rd, p, wr, p)
+            if p is self.usart1:
+                self._map_usart(uc, p)
+            else:
+                uc.mmio_map(p.base, p.size, rd, p, wr, p)
         uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write),
                     None)
         uc.mmio_map(SCS_BASE, SCS_SIZE, rd, self.scs, wr, self.scs)
+
+    def _make_usart(self):
+        return Usart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
+
+    def _make_scs(self):
+        return Scs(self)
+
+    def _map_usart(self, uc, usart) -> None:
+        uc.mmio_map(usart.base, usart.size, self._mmio_read, usart, self._mmio_write, usart)
 
     def _mmio_read(self, uc, off, size, p: Peripheral):
         self.now = self._slice_start + self._ic.n + self._skip_base
@@ -276,18 +295,9 @@ class Board:
 
     # -- the counter
     def _install_counter(self, native: bool | None) -> None:
-        from unicorn import UC_HOOK_BLOCK, UC_HOOK_CODE  # reason: unicorn is optional
+        from unicorn import UC_HOOK_BLOCK  # reason: unicorn is optional
 
-        lib = _uclib()
-        self._ic = ICount(0, 1, ctypes.cast(lib.uc_emu_stop, ctypes.c_void_p).value)
-        hook = _native_hook() if self.native else None
-        if hook is not None:
-            h = ctypes.c_size_t()
-            err = lib.uc_hook_add(self.uc._uch, ctypes.byref(h), UC_HOOK_CODE, ctypes.c_void_p(hook),
-                                  ctypes.byref(self._ic), ctypes.c_uint64(1), ctypes.c_uint64(0))
-            if err:
-                raise EmulationError(f"unicorn refused the instruction counter hook (error {err})")
-            return
+        self._ic = ICount(0, 1, ctypes.cast(_uclib().uc_emu_stop, ctypes.c_void_p).value)
         sizes: dict[int, int] = {}
         ic = self._ic
         flash = self.flash
@@ -545,20 +555,12 @@ class Board:
 
 
 def _want_native(native: bool | None) -> bool:
-    """Whether to use the C extension: ``native`` True requires it, None uses it when built."""
+    """Whether to use the C core: ``native`` True requires it, None uses it when built, False never."""
     if native is False:
         return False
-    ok = _native_hook() is not None
+    from steval_link.emulation.board.native import core_library  # reason: native builds on this module
+
+    ok = core_library() is not None
     if native and not ok:
-        raise UserError("the C instruction counter (steval_link.emulation._icount) is not built")
+        raise UserError("the board's C core (steval_link.emulation._core) is not built")
     return ok
-
-
-def _native_hook() -> int | None:
-    """Address of the C counting hook (``_icount``), or None when the extension is not built."""
-    try:
-        from steval_link.emulation import _icount  # reason: the optional C extension (built when a compiler exists)
-    except ImportError:
-        return None
-    lib = ctypes.CDLL(_icount.__file__)
-    return ctypes.cast(lib.steval_icount_hook, ctypes.c_void_p).value

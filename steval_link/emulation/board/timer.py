@@ -29,8 +29,8 @@ UG = 1 << 0  # EGR
 class Timer(Peripheral):
     """TIMx with update events: counter clock 84 MHz / (PSC + 1), update every ARR + 1 counts when CEN is set.
 
-    ``next_update`` (instruction count of the next update event, or None) is told to the board's event scheduler
-    whenever it changes (``board.timer_moved``).
+    ``next_update`` (instruction count of the next update event, or None), the update count and the interrupt line
+    are told to the board after every change (``board.timer_moved``: the C core keeps a copy).
     """
 
     name = "TIM"
@@ -38,24 +38,19 @@ class Timer(Peripheral):
     def __init__(self, board, base, irq: int | None, name: str):
         super().__init__(board, base, name=name)
         self.irq = irq
-        self._next: int | None = None
+        self.next_update: int | None = None
         self.updates = 0
         self.first_update: int | None = None
-
-    @property
-    def next_update(self) -> int | None:
-        return self._next
-
-    @next_update.setter
-    def next_update(self, t: int | None) -> None:
-        self._next = t
-        self.board.timer_moved(self)
 
     @property
     def period(self) -> int:
         return (self.regs.get(TimReg.PSC, 0) + 1) * (self.regs.get(TimReg.ARR, 0) + 1)
 
     def write(self, off, value):
+        self._write(off, value)
+        self.board.timer_moved(self)
+
+    def _write(self, off, value):
         if off == TimReg.SR:  # rc_w0
             super().write(off, self.regs.get(TimReg.SR, 0) & value)
             self.irq_line()
@@ -63,7 +58,7 @@ class Timer(Peripheral):
         super().write(off, value)
         if off == TimReg.CR1:
             running = bool(value & CEN) and self.regs.get(TimReg.ARR, 0) > 0
-            if running and self._next is None:
+            if running and self.next_update is None:
                 self.next_update = self.board.now + self.period
                 self.board.reschedule()
             elif not running:
@@ -76,9 +71,9 @@ class Timer(Peripheral):
                 self.irq_line()
 
     def read(self, off):
-        if off == TimReg.CNT and self._next is not None:
+        if off == TimReg.CNT and self.next_update is not None:
             psc = self.regs.get(TimReg.PSC, 0) + 1
-            return (self.period - (self._next - self.board.now)) // psc
+            return (self.period - (self.next_update - self.board.now)) // psc
         return self.regs.get(off, 0)
 
     def update(self) -> None:
@@ -86,9 +81,10 @@ class Timer(Peripheral):
         self.updates += 1
         if self.first_update is None:
             self.first_update = self.board.now
-        self.next_update = (self._next or self.board.now) + max(self.period, 1)
+        self.next_update = (self.next_update or self.board.now) + max(self.period, 1)
         self.regs[TimReg.SR] = self.regs.get(TimReg.SR, 0) | UIF
         self.irq_line()
+        self.board.timer_moved(self)
 
     def irq_line(self) -> None:
         if self.irq is not None and self.regs.get(TimReg.SR, 0) & self.regs.get(TimReg.DIER, 0) & 0xFF:

@@ -1,0 +1,503 @@
+"""The board with its hot path in C (``steval_link.emulation._core``): the instruction counter, the event scheduler,
+USART1, SysTick, the NVIC, exception entry/return, idle skipping and the sensor reads run inside unicorn's hooks
+without Python. The timers, the other peripherals, the replaced firmware calls and the probes stay in Python.
+
+The C state is a ``core_t`` allocated here (:class:`CoreState` mirrors it; ``core_sizeof`` checks the layout). The
+models are the Python ones translated (board/usart.py, scs.py, cpu.py, core.py): the firmware sees the same thing at
+the same instruction counts.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+from steval_link.emulation.board.core import Board
+from steval_link.emulation.board.cpu import uclib, wfi_sites
+from steval_link.emulation.board.memory_map import (
+    CPU_HZ,
+    EXC_SYSTICK,
+    IRQ_BASE,
+    IRQ_USART1,
+    PERIPH_BASE,
+    USART1_OFF,
+    EmulationError,
+    Peripheral,
+)
+from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
+from steval_link.emulation.board.timer import TimReg
+from steval_link.emulation.board.usart import SR_RESET, UsartReg
+
+I64, U64, U8, U32, I32, P = ctypes.c_int64, ctypes.c_uint64, ctypes.c_uint8, ctypes.c_uint32, ctypes.c_int32, \
+    ctypes.c_void_p
+NONE = -1
+MAX_IDLE, MAX_IDLE_WORDS = 4, 8
+EV_TIMER, EV_OUT_FULL, EV_SENSOR = 1, 2, 3
+F_PYTHON, F_STACK, F_RETURN, F_CPU_EXC, F_EMU = 1, 2, 3, 4, 5
+RX_CAPACITY, OUT_CAPACITY, RXLOG_CAPACITY = 1 << 16, 1 << 14, 1 << 16
+SENSOR_DEVICES = 3
+
+
+class CoreState(ctypes.Structure):
+    """``core_t`` of _core.c, field by field."""
+
+    _fields_ = [("n", U64), ("limit", U64), ("uc", P), ("emu_start", P), ("emu_stop", P), ("reg_read", P),
+                ("reg_write", P), ("reg_read_batch", P), ("reg_write_batch", P), ("py_event", P), ("ram", P),
+                ("flash", P), ("rid", I64 * 9), ("frame_ids", I32 * 26), ("wframe_ids", I32 * 24),
+                ("now", I64), ("slice_start", I64), ("skip_base", I64), ("run_end", I64), ("next_event", I64),
+                ("max_slice", I64), ("instructions", I64), ("skipped", I64), ("slices", I64), ("fault", I64),
+                ("fault_arg", I64), ("resumed_idle", I64), ("pending", U64 * 4), ("enabled", U64 * 4),
+                ("prio", U8 * 256), ("prigroup", I64), ("n_active", I64), ("active", I64 * 64),
+                ("counts", I64 * 256), ("exc_instructions", I64), ("exc_started", I64), ("vtor", I64),
+                ("systick_next", I64), ("systick_period", I64), ("systick_tickint", I64), ("countflag", I64),
+                ("tim_next", I64 * 2), ("tim9_level", I64), ("tim9_updates", I64), ("uregs", U32 * 256),
+                ("dr_full", I64), ("shift_done", I64), ("shift_byte", I64), ("tc", I64), ("rx_done", I64),
+                ("rx_line_free", I64), ("rx_dr", I64), ("rx_last", I64), ("rx_ore", I64), ("ore_sr_read", I64),
+                ("rx_received", I64), ("rx_overruns", I64), ("rx_lost", I64), ("rx_t", P), ("rx_b", P),
+                ("rx_cap", I64), ("rx_head", I64), ("rx_len", I64), ("rxlog_t", P), ("rxlog_b", P),
+                ("rxlog_cap", I64), ("rxlog_len", I64), ("out_t", P), ("out_b", P), ("out_cap", I64),
+                ("out_len", I64), ("n_idle", I64), ("idle_addr", I64 * MAX_IDLE), ("idle_n_words", I64 * MAX_IDLE),
+                ("idle_off", (I64 * MAX_IDLE_WORDS) * MAX_IDLE), ("idle_size", (I64 * MAX_IDLE_WORDS) * MAX_IDLE),
+                ("idle_lo", I64 * MAX_IDLE), ("idle_hi", I64 * MAX_IDLE),
+                ("sensor_img", (U8 * 128) * SENSOR_DEVICES), ("sensor_fast", I64 * SENSOR_DEVICES),
+                ("sensor_valid", I64), ("sensor_reads", I64)]
+
+
+def _opt(t: int) -> int | None:
+    return None if t == NONE else t
+
+
+def _raw(t: int | None) -> int:
+    return NONE if t is None else int(t)
+
+
+def core_library() -> ctypes.CDLL | None:
+    """The C core (None when the extension is not built)."""
+    try:
+        from steval_link.emulation import _core  # reason: the optional C extension (built when a compiler exists)
+    except ImportError:
+        return None
+    lib = ctypes.CDLL(_core.__file__)
+    lib.core_sizeof.restype = I64
+    if lib.core_sizeof() != ctypes.sizeof(CoreState):
+        raise EmulationError(f"the C core's state ({lib.core_sizeof()} B) does not match native.CoreState "
+                             f"({ctypes.sizeof(CoreState)} B): rebuild it (pip install -e .)")
+    for name in ("core_run", "core_next_exception", "usart_inject"):
+        getattr(lib, name).restype = I64
+    lib.usart_read.restype = U32
+    for name in ("core_run", "core_request_stop", "core_reschedule", "core_irq_check", "core_next_exception",
+                 "usart_read", "usart_write", "usart_inject", "rx_complete", "shift_complete_now",
+                 "core_fire_events", "core_take"):
+        getattr(lib, name).argtypes = None
+    return lib
+
+
+class NativeNvic:
+    """:class:`~steval_link.emulation.board.scs.Nvic`'s methods over the C core's NVIC state."""
+
+    def __init__(self, st: CoreState, lib, ptr) -> None:
+        self.st, self.lib, self.ptr = st, lib, ptr
+        self.prio = st.prio
+
+    @property
+    def prigroup(self) -> int:
+        return self.st.prigroup
+
+    @prigroup.setter
+    def prigroup(self, v: int) -> None:
+        self.st.prigroup = v
+
+    def _bit(self, arr, i: int) -> bool:
+        return bool(arr[i >> 6] >> (i & 63) & 1)
+
+    def _put(self, arr, i: int, on: bool) -> None:
+        arr[i >> 6] = arr[i >> 6] | (1 << (i & 63)) if on else arr[i >> 6] & ~(1 << (i & 63))
+
+    def set_pending(self, irq: int) -> None:
+        self._put(self.st.pending, irq + IRQ_BASE, True)
+
+    def clear_pending(self, irq: int) -> None:
+        self._put(self.st.pending, irq + IRQ_BASE, False)
+
+    def pend(self, exc: int) -> None:
+        self._put(self.st.pending, exc, True)
+
+    def unpend(self, exc: int) -> None:
+        self._put(self.st.pending, exc, False)
+
+    def any_pending(self) -> bool:
+        return any(self.st.pending)
+
+    def is_pending(self, exc: int) -> bool:
+        return self._bit(self.st.pending, exc)
+
+    @property
+    def pending(self) -> set[int]:
+        return {e for e in range(256) if self._bit(self.st.pending, e)}
+
+    @property
+    def active(self) -> list[int]:
+        return list(self.st.active[:self.st.n_active])
+
+    def current(self) -> int:
+        n = self.st.n_active
+        return self.st.active[n - 1] if n else 0
+
+    def word(self, bank: str, i: int) -> int:
+        if bank == "enabled":
+            return (self.st.enabled[i >> 1] >> (32 * (i & 1))) & 0xFFFFFFFF
+        if bank == "pending":
+            return sum(1 << b for b in range(32) if self._bit(self.st.pending, 32 * i + b + IRQ_BASE))
+        act = set(self.active)
+        return sum(1 << b for b in range(32) if 32 * i + b + IRQ_BASE in act)
+
+    def set_word(self, bank: str, i: int, mask: int, on: bool) -> None:
+        for b in range(32):
+            if mask >> b & 1:
+                if bank == "enabled":
+                    self._put(self.st.enabled, 32 * i + b, on)
+                else:
+                    self._put(self.st.pending, 32 * i + b + IRQ_BASE, on)
+
+    def next_exception(self, primask: int) -> int | None:
+        e = self.lib.core_next_exception(self.ptr, I64(primask))
+        return None if e < 0 else e
+
+
+class NativeUsart(Peripheral):
+    """USART1 in the C core: registers, TX shift register, RX queue (the Python model: usart.Usart)."""
+
+    name = "USART1"
+
+    def __init__(self, board, base, irq):
+        super().__init__(board, base)
+        self.irq = irq
+        self.st, self.lib, self.ptr = board.st, board.lib, board.st_ptr
+        self.st.uregs[UsartReg.SR // 4] = SR_RESET
+
+    def read(self, off):
+        return self.lib.usart_read(self.ptr, U32(off))
+
+    def write(self, off, value):
+        self.board.sync_now()
+        self.lib.usart_write(self.ptr, U32(off), U32(value & 0xFFFFFFFF))
+
+    def stored(self, off):
+        return 0 if off == UsartReg.DR else self.st.uregs[(off // 4) & 255]
+
+    def bitband_base(self, off):
+        return self.st.uregs[0] if off == UsartReg.SR else self.read(off)
+
+    def byte_cycles(self) -> int:
+        return 10 * (self.st.uregs[UsartReg.BRR // 4] or 729)
+
+    def inject(self, data: bytes, t: int) -> None:
+        data = bytes(data)
+        t = max(int(t), self.board.now)
+        if not self.lib.usart_inject(self.ptr, data, I64(len(data)), I64(t)):
+            raise EmulationError(f"the emulated USART1 RX queue is full ({RX_CAPACITY} bytes)")
+
+    def rx_complete(self) -> None:
+        self.lib.rx_complete(self.ptr)
+
+    def shift_complete(self) -> None:
+        self.lib.shift_complete_now(self.ptr)
+
+    @property
+    def rx_log(self) -> list[tuple[int, int]]:
+        n = self.st.rxlog_len
+        return [(self.board.rxlog_b[i], self.board.rxlog_t[i]) for i in range(n)]
+
+    def __getattr__(self, name):
+        if name in ("rx_done", "shift_done", "dr_full", "rx_dr"):
+            return _opt(getattr(self.st, name))
+        if name in ("rx_received", "rx_overruns", "rx_lost", "tc", "rx_last"):
+            return getattr(self.st, name)
+        if name == "rx_ore":
+            return bool(self.st.rx_ore)
+        raise AttributeError(name)
+
+
+class NativeScs(Scs):
+    """The SCS registers in Python, SysTick's schedule and the VTOR the C core needs mirrored into it."""
+
+    def __init__(self, board):
+        self.st = board.st
+        super().__init__(board)
+
+    @property
+    def systick_next(self) -> int | None:
+        return _opt(self.st.systick_next)
+
+    @systick_next.setter
+    def systick_next(self, t: int | None) -> None:
+        self.st.systick_next = _raw(t)
+
+    @property
+    def countflag(self) -> int:
+        return self.st.countflag
+
+    @countflag.setter
+    def countflag(self, v: int) -> None:
+        self.st.countflag = v
+
+    def write(self, off, value):
+        super().write(off, value)
+        st = self.st
+        st.systick_period = self.systick_period()
+        st.systick_tickint = 1 if self.regs.get(ScsReg.SYST_CSR, 0) & SYST_TICKINT else 0
+        st.vtor = self.regs.get(ScsReg.VTOR, 0)
+
+
+class NativeBoard(Board):
+    """:class:`Board` with the C core (see the module docstring)."""
+
+    def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
+        self.lib = core_library()
+        self.st = CoreState()
+        self.st_ptr = ctypes.byref(self.st)
+        self.rx_t, self.rx_b = (I64 * RX_CAPACITY)(), (U8 * RX_CAPACITY)()
+        self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
+        self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
+        self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
+        super().__init__(elf, sensors, skip_idle=skip_idle, native=True)
+
+    # -- construction
+    def _make_peripherals(self) -> None:
+        lib = uclib()
+        st = self.st
+        st.uc = self.uc._uch.value if hasattr(self.uc._uch, "value") else self.uc._uch
+        for name in ("emu_start", "emu_stop", "reg_read", "reg_write", "reg_read_batch", "reg_write_batch"):
+            setattr(st, name, ctypes.cast(getattr(lib, "uc_" + name), P).value)
+        st.py_event = ctypes.cast(self._event_cb, P).value
+        st.ram, st.flash = ctypes.addressof(self.ram), ctypes.addressof(self.flash)
+        r = self.regs
+        st.rid[:] = [r.SP, r.LR, r.PC, r.XPSR, r.PRIMASK] + r.R
+        st.frame_ids[:25] = r.frame_ids
+        st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
+        st.max_slice = CPU_HZ // 1000
+        for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
+            setattr(st, name, NONE)
+        st.tim_next[:] = [NONE, NONE]
+        st.tc = 1
+        st.systick_period = 1
+        st.rx_t, st.rx_b, st.rx_cap = ctypes.addressof(self.rx_t), ctypes.addressof(self.rx_b), RX_CAPACITY
+        st.rxlog_t, st.rxlog_b, st.rxlog_cap = (ctypes.addressof(self.rxlog_t), ctypes.addressof(self.rxlog_b),
+                                                RXLOG_CAPACITY)
+        st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
+        self.nvic = NativeNvic(st, self.lib, self.st_ptr)
+        super()._make_peripherals()
+
+    def _make_usart(self):
+        return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
+
+    def _make_scs(self):
+        return NativeScs(self)
+
+    def _map_usart(self, uc, usart) -> None:
+        lib = uclib()
+        err = lib.uc_mmio_map(self.uc._uch, ctypes.c_uint64(usart.base), ctypes.c_size_t(usart.size),
+                              ctypes.cast(self.lib.usart_mmio_read, P), self.st_ptr,
+                              ctypes.cast(self.lib.usart_mmio_write, P), self.st_ptr)
+        if err:
+            raise EmulationError(f"unicorn refused the USART1 MMIO model (error {err})")
+
+    def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
+        h = ctypes.c_size_t()
+        err = uclib().uc_hook_add(self.uc._uch, ctypes.byref(h), kind, ctypes.cast(getattr(self.lib, fn), P),
+                                  self.st_ptr, ctypes.c_uint64(begin), ctypes.c_uint64(end))
+        if err:
+            raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
+
+    def _install_counter(self, native) -> None:
+        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
+
+        self._c_hook(UC_HOOK_CODE, "core_count_hook")
+
+    def _install_hooks(self, skip_idle: bool) -> None:
+        from unicorn import UC_HOOK_CODE, UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
+
+        from steval_link.emulation.board.calls import FirmwareCalls  # reason: (kept next to its use)
+        from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
+
+        self._c_hook(UC_HOOK_INTR, "core_intr_hook")
+        self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid))
+        calls = FirmwareCalls(self)
+        sensor_read = self.elf.addr("Sensor_IO_Read")
+        # a write changes the register files: the C core's copies follow
+        self.call_observers.setdefault("Sensor_IO_Write", []).append(lambda board, *args: self._sensor_images())
+        calls.install(skip=("Sensor_IO_Read",) if sensor_read is not None else ())
+        if sensor_read is not None:
+            self._sensor_slow = calls.replacement_hook("Sensor_IO_Read")
+            self._c_hook(UC_HOOK_CODE, "core_sensor_read_hook", sensor_read, sensor_read)
+        for a in cpsie_sites(self.flash, self.elf):
+            self._c_hook(UC_HOOK_CODE, "core_unmask_hook", a, a)
+        st = self.st
+        if skip_idle:
+            sites = self.idle_sites(self.elf)[:MAX_IDLE]
+            st.n_idle = len(sites)
+            for k, (addr, words, caller) in enumerate(sites):
+                st.idle_addr[k] = addr
+                st.idle_n_words[k] = len(words[:MAX_IDLE_WORDS])
+                for j, (off, size) in enumerate(words[:MAX_IDLE_WORDS]):
+                    st.idle_off[k][j], st.idle_size[k][j] = off, size
+                st.idle_lo[k], st.idle_hi[k] = caller if caller is not None else (0, 0)
+                self._c_hook(UC_HOOK_CODE, "core_idle_hook", addr, addr)
+        for a in wfi_sites(self.flash, self.elf):
+            self._c_hook(UC_HOOK_CODE, "core_wfi_hook", a, a)
+
+    # -- Python called from C
+    def _on_event(self, kind: int, arg: int) -> int:
+        try:
+            self.now = self.st.now
+            if kind == EV_TIMER:
+                tim = self.tim9 if arg == 0 else self.tim2
+                if tim.next_update is not None and tim.next_update <= self.now:
+                    self.timer_update(tim)
+            elif kind == EV_OUT_FULL:
+                self._drain()
+            elif kind == EV_SENSOR:
+                self._sensor_slow(self.uc, 0, 0, None)
+                self._sensor_images()
+        except BaseException as exc:  # noqa: BLE001 - raised again by run_until
+            self.stop_with(exc)
+        return 0
+
+    def _sensor_images(self) -> None:
+        """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
+        bus, st = self.sensors, self.st
+        devices = getattr(bus, "devices", None)
+        fast = devices is not None and not getattr(bus, "log_limit", 1) and not self.call_observers.get(
+            "Sensor_IO_Read")
+        for d in range(SENSOR_DEVICES):
+            dev = devices.get(d) if devices is not None else None
+            st.sensor_fast[d] = 1 if fast and dev is not None else 0
+            if dev is not None:
+                ctypes.memmove(ctypes.addressof(st.sensor_img[d]), bytes(dev.r), 128)
+        st.sensor_valid = st.tim9_updates if self.tim9.first_update is not None else -1
+
+    def _drain(self) -> None:
+        st = self.st
+        n = st.out_len
+        if n:
+            self.out.extend(zip(bytes(self.out_b[:n]), self.out_t[:n]))
+            st.out_len = 0
+
+    # -- the board's interface, over the C state
+    def timer_moved(self, tim) -> None:
+        st = self.st
+        i = 0 if tim is self.tim9 else 1 if tim is self.tim2 else None
+        if i is None:
+            return
+        st.tim_next[i] = _raw(tim.next_update)
+        if i == 0:
+            st.tim9_level = 1 if tim.regs.get(TimReg.SR, 0) & tim.regs.get(TimReg.DIER, 0) & 0xFF else 0
+            st.tim9_updates = tim.updates
+
+    def sync_now(self) -> None:
+        st = self.st
+        self.now = st.slice_start + st.n + st.skip_base
+
+    def _mmio_read(self, uc, off, size, p):
+        self.sync_now()
+        word = p.read(off & ~3)
+        return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
+
+    def _mmio_write(self, uc, off, size, value, p):
+        self.sync_now()
+        if size != 4:
+            sh = (off & 3) * 8
+            mask = ((1 << (8 * size)) - 1) << sh
+            value = (p.stored(off & ~3) & ~mask) | ((value << sh) & mask)
+        p.write(off & ~3, value)
+
+    def _bb_read(self, uc, off, size, user):
+        self.sync_now()
+        t = self._bb_target(off)
+        return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
+
+    def _bb_write(self, uc, off, size, value, user):
+        self.sync_now()
+        t = self._bb_target(off)
+        if t is not None:
+            p, reg, bit = t
+            old = p.bitband_base(reg)
+            p.write(reg, (old | (1 << bit)) if value & 1 else (old & ~(1 << bit)))
+
+    def instructions_now(self) -> int:
+        return self.st.instructions + self.st.n
+
+    @property
+    def exception_instructions(self) -> int:
+        return self.st.exc_instructions
+
+    @exception_instructions.setter
+    def exception_instructions(self, v: int) -> None:
+        self.st.exc_instructions = v
+
+    def request_stop(self) -> None:
+        self.lib.core_request_stop(self.st_ptr)
+
+    def stop_with(self, exc: BaseException) -> None:
+        if self.fault is None:
+            self.fault = exc
+        if not self.st.fault:
+            self.st.fault = F_PYTHON
+        self.request_stop()
+
+    def reschedule(self) -> None:
+        self.timer_moved(self.tim9)  # (a timer reschedules before its write is through)
+        self.timer_moved(self.tim2)
+        self.lib.core_reschedule(self.st_ptr)
+
+    def irq_check(self) -> None:
+        self.lib.core_irq_check(self.st_ptr)
+
+    def vtor(self) -> int:
+        return self.st.vtor
+
+    def _reset(self) -> None:
+        super()._reset()
+        self.st.now = self.st.slice_start = self.st.skip_base = 0
+
+    def _stats(self) -> None:
+        st, s = self.st, self.stats
+        s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
+        s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
+
+    def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
+        """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
+        st = self.st
+        st.max_slice = max_slice
+        if self.fault is not None:
+            raise self.fault
+        if self.st.sensor_valid and self.call_observers.get("Sensor_IO_Read"):
+            st.sensor_fast[:] = [0] * SENSOR_DEVICES
+        rc = self.lib.core_run(self.st_ptr, I64(t_end))
+        self.now = st.now
+        self._drain()
+        self._stats()
+        if rc:
+            raise self._fault_error()
+
+    def _fault_error(self) -> BaseException:
+        st = self.st
+        if self.fault is not None:
+            return self.fault
+        t = f"t = {self.now / CPU_HZ:.6f} s"
+        if st.fault == F_STACK:
+            self.fault = EmulationError(f"stack overflow: exception {st.fault_arg >> 32} at sp "
+                                        f"0x{st.fault_arg & 0xFFFFFFFF:08x} in {self.where()}")
+        elif st.fault == F_RETURN:
+            self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
+        elif st.fault == F_CPU_EXC:
+            self.fault = EmulationError(f"the CPU raised exception {st.fault_arg} in {self.where()} "
+                                        f"(pc 0x{self.pc():08x}, {t})")
+        else:
+            from unicorn import UcError  # reason: unicorn is optional
+
+            self.fault = EmulationError(f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): "
+                                        f"{UcError(st.fault_arg)}")
+        return self.fault
+
+
+__all__ = ["NativeBoard", "core_library", "EXC_SYSTICK"]
