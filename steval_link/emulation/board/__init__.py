@@ -28,20 +28,38 @@ Anything else the firmware touches (an address outside every model) stops the ru
 :class:`UnmodelledHardware`, one line naming the function and address.
 """
 
-from steval_link.emulation.board.core import Board, BoardStats
+from steval_link.emulation.board.core import BoardStats, PythonBoard
 from steval_link.emulation.board.memory_map import (
-                                                     CPU_HZ,
-                                                     EXC_SYSTICK,
-                                                     IRQ_BASE,
-                                                     IRQ_TIM2,
-                                                     IRQ_TIM9,
-                                                     IRQ_USART1,
-                                                     EmulationError,
-                                                     FirmwareStuck,
-                                                     UnmodelledHardware,
+    CPU_HZ,
+    EXC_SYSTICK,
+    IRQ_BASE,
+    IRQ_TIM2,
+    IRQ_TIM9,
+    IRQ_USART1,
+    EmulationError,
+    FirmwareStuck,
+    UnmodelledHardware,
 )
+from steval_link.emulation.board.native import NativeBoard, core_library
 from steval_link.emulation.board.scs import Nvic
 from steval_link.emulation.board.usart import Usart
+from steval_link.errors import UserError
+
+
+class Board(PythonBoard):
+    """The board: :class:`NativeBoard` (the C core) when it is built, else :class:`PythonBoard`.
+
+    ``native``: True requires the C core, False takes the Python models, None (default) the C core when built.
+    """
+
+    def __new__(cls, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
+        if native is not False and core_library() is not None:
+            return NativeBoard(elf, sensors, skip_idle=skip_idle)
+        if native:
+            raise UserError("the board's C core (steval_link.emulation._core) is not built: pip install -e . with a "
+                            "C compiler")
+        return PythonBoard(elf, sensors, skip_idle=skip_idle)
+
 
 __all__ = ["Board", "BoardStats", "CPU_HZ", "EXC_SYSTICK", "IRQ_BASE", "IRQ_TIM2", "IRQ_TIM9", "IRQ_USART1",
-           "EmulationError", "FirmwareStuck", "UnmodelledHardware", "Nvic", "Usart"]
+           "EmulationError", "FirmwareStuck", "UnmodelledHardware", "NativeBoard", "Nvic", "PythonBoard", "Usart"]

@@ -72,27 +72,23 @@ class BoardStats:
     slices: int = 0
 
 
-class Board:
-    """The STEVAL-FCU001V1's MCU running one firmware ELF.
+class PythonBoard:
+    """The STEVAL-FCU001V1's MCU running one firmware ELF, with the Python models (the fallback of the C core:
+    :class:`~steval_link.emulation.board.native.NativeBoard`).
 
     Args:
         elf: the firmware (path or :class:`Elf`).
         sensors: the sensor bus (:class:`steval_link.emulation.sensors.SensorBus`) answering ``Sensor_IO_*``.
         skip_idle: jump the clock over idle polling (no payload changes; off only to check exactly that).
-        native: the C core (True: required, False: the Python models, None: C when built).
+        native: ignored (:class:`~steval_link.emulation.board.Board` chooses).
     """
 
+    #: the C core runs the hot path (NativeBoard)
+    native = False
     cpu_hz = CPU_HZ
     hci_requests = 0
     #: ``handler(ogf, ocf, command parameters, board) -> reply bytes`` for ``hci_send_req`` (None: zeroed replies)
     hci_handler: Callable | None = None
-
-    def __new__(cls, elf=None, sensors=None, *, skip_idle: bool = True, native: bool | None = None):
-        if cls is Board and _want_native(native):
-            from steval_link.emulation.board.native import NativeBoard  # reason: native builds on this module
-
-            return super().__new__(NativeBoard)
-        return super().__new__(cls)
 
     def __init__(self, elf: Elf | str, sensors, *, skip_idle: bool = True, native: bool | None = None):
         from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc  # reason: unicorn is optional
@@ -119,7 +115,6 @@ class Board:
         self._skip_base = 0
         self._run_end = 0
         self._resumed_idle = False
-        self.native = native is not False and _want_native(native)
         self._map_memory()
         self.regs = Registers(uc)
         self.exceptions = Exceptions(self)
@@ -552,15 +547,3 @@ class Board:
         if tim is self.tim9:
             for ob in self.tick_observers:
                 ob(self)
-
-
-def _want_native(native: bool | None) -> bool:
-    """Whether to use the C core: ``native`` True requires it, None uses it when built, False never."""
-    if native is False:
-        return False
-    from steval_link.emulation.board.native import core_library  # reason: native builds on this module
-
-    ok = core_library() is not None
-    if native and not ok:
-        raise UserError("the board's C core (steval_link.emulation._core) is not built")
-    return ok

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import ctypes
 
-from steval_link.emulation.board.core import Board
+from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
 from steval_link.emulation.board.memory_map import (
     CPU_HZ,
-    EXC_SYSTICK,
     IRQ_BASE,
     IRQ_USART1,
     PERIPH_BASE,
@@ -248,8 +247,10 @@ class NativeScs(Scs):
         st.vtor = self.regs.get(ScsReg.VTOR, 0)
 
 
-class NativeBoard(Board):
-    """:class:`Board` with the C core (see the module docstring)."""
+class NativeBoard(PythonBoard):
+    """:class:`PythonBoard` with the C core (see the module docstring)."""
+
+    native = True
 
     def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
         self.lib = core_library()
@@ -259,7 +260,7 @@ class NativeBoard(Board):
         self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
         self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
-        super().__init__(elf, sensors, skip_idle=skip_idle, native=True)
+        super().__init__(elf, sensors, skip_idle=skip_idle)
 
     # -- construction
     def _make_peripherals(self) -> None:
@@ -500,4 +501,4 @@ class NativeBoard(Board):
         return self.fault
 
 
-__all__ = ["NativeBoard", "core_library", "EXC_SYSTICK"]
+__all__ = ["NativeBoard", "core_library"]
