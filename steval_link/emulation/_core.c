@@ -37,6 +37,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define EV_TIMER 1      /* arg: 0 TIM9, 1 TIM2 */
 #define EV_OUT_FULL 2   /* drain the output buffer */
 #define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
+#define EV_CODE 4       /* a Python code hook (arg: its index; hook_addr, hook_size) */
 
 /* fault codes (Python words the message) */
 #define F_PYTHON 1
@@ -56,6 +57,14 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define CR1_RXNEIE 0x20
 #define CR1_RE 0x04
 
+#define MAX_SITES 512
+#define FLASH_BASE 0x08000000u
+/* code site kinds */
+#define K_UNMASK 1
+#define K_IDLE 2
+#define K_WFI 3
+#define K_SENSOR 4
+#define K_PY 5
 #define MAX_IDLE 4
 #define MAX_IDLE_WORDS 8
 
@@ -95,6 +104,9 @@ typedef struct {
   /* sensors: 128-byte images of devices 0..2; device 0 (LSM6DSL) valid for TIM9 update sensor_valid only */
   uint8_t sensor_img[3][128];
   int64_t sensor_fast[3], sensor_valid, sensor_reads;
+  /* code sites, sorted by address (stable): kind, argument; a bitmap of the flash half-words that have one */
+  int64_t n_sites, site_addr[MAX_SITES], site_kind[MAX_SITES], site_arg[MAX_SITES], hook_addr, hook_size;
+  uint8_t site_map[FLASH_SIZE / 16];
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -478,14 +490,6 @@ EXPORT void core_fire_events(core_t *s) { fire_events(s); }
 
 /* ---- hooks ------------------------------------------------------------------------------------------------- */
 
-/* before every instruction (UC_HOOK_CODE over all addresses) */
-EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *user) {
-  core_t *s = (core_t *)user;
-  (void)address;
-  (void)size;
-  if (++s->n >= s->limit) ((emu_stop_t)s->emu_stop)(uc);
-}
-
 /* after cpsie i / msr primask: take what became pending */
 EXPORT void core_unmask_hook(void *uc, uint64_t address, uint32_t size, void *user) {
   (void)uc;
@@ -593,6 +597,61 @@ EXPORT void core_sensor_read_hook(void *uc, uint64_t address, uint32_t size, voi
   s->sensor_reads++;
   reg_set(s, s->rid[5], 0);
   reg_set(s, s->PC, reg_get(s, s->LR) | 1);
+}
+
+/* ---- the code sites: one unicorn code hook (the counter) dispatches them all ---------------------------------- */
+
+/* Add a site (kind, arg) at addr, after those already there. 0: no room or not in flash. */
+EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg) {
+  uint64_t off = (uint64_t)addr - FLASH_BASE;
+  if (s->n_sites >= MAX_SITES || off >= FLASH_SIZE) return 0;
+  int64_t i = s->n_sites++;
+  while (i > 0 && s->site_addr[i - 1] > addr) {
+    s->site_addr[i] = s->site_addr[i - 1];
+    s->site_kind[i] = s->site_kind[i - 1];
+    s->site_arg[i] = s->site_arg[i - 1];
+    i--;
+  }
+  s->site_addr[i] = addr;
+  s->site_kind[i] = kind;
+  s->site_arg[i] = arg;
+  s->site_map[off >> 4] |= (uint8_t)(1u << ((off >> 1) & 7));
+  return 1;
+}
+
+static void dispatch(core_t *s, void *uc, uint64_t address, uint32_t size) {
+  int64_t lo = 0, hi = s->n_sites;
+  while (lo < hi) {
+    int64_t mid = (lo + hi) / 2;
+    if ((uint64_t)s->site_addr[mid] < address)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  for (int64_t i = lo; i < s->n_sites && (uint64_t)s->site_addr[i] == address; i++) {
+    switch (s->site_kind[i]) {
+      case K_UNMASK: core_unmask_hook(uc, address, size, s); break;
+      case K_IDLE: core_idle_hook(uc, address, size, s); break;
+      case K_WFI: core_wfi_hook(uc, address, size, s); break;
+      case K_SENSOR: core_sensor_read_hook(uc, address, size, s); break;
+      case K_PY:
+        s->hook_addr = (int64_t)address;
+        s->hook_size = size;
+        ((py_event_t)s->py_event)(EV_CODE, s->site_arg[i]);
+        break;
+    }
+  }
+}
+
+/* before every instruction (UC_HOOK_CODE over all addresses): count, stop at the limit, run the sites here */
+EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *user) {
+  core_t *s = (core_t *)user;
+  if (++s->n >= s->limit) {
+    ((emu_stop_t)s->emu_stop)(uc);
+    return;
+  }
+  uint64_t off = address - FLASH_BASE;
+  if (off < FLASH_SIZE && (s->site_map[off >> 4] >> ((off >> 1) & 7) & 1)) dispatch(s, uc, address, size);
 }
 
 /* ---- the event loop ---------------------------------------------------------------------------------------- */

@@ -35,18 +35,16 @@ class FirmwareCalls:
 
     def install(self, skip: tuple[str, ...] = ()) -> None:
         """Hook the replaced functions (but those in ``skip``: the C core's) and the fault handlers."""
-        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional (steval-link[test])
-
         b, e = self.board, self.board.elf
         for name in ("Sensor_IO_Read", "Sensor_IO_Write", "hci_send_req"):
             a = e.addr(name)
             if a is not None and name not in skip:
-                b.uc.hook_add(UC_HOOK_CODE, b.guarded(self.replacement_hook(name)), begin=a, end=a)
+                b.code_hook(a, self.replacement_hook(name))
         # fault handlers and the default handler loop forever: stop with their name
         for name in FAULT_HANDLERS:
             a = e.addr(name)
             if a is not None:
-                b.uc.hook_add(UC_HOOK_CODE, b.guarded(self._fault_handler(name)), begin=a, end=a)
+                b.code_hook(a, self._fault_handler(name))
 
     def replacement_hook(self, name: str) -> Callable:
         """The code hook that runs the Python replacement of ``name`` and returns to its caller."""

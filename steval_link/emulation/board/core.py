@@ -257,13 +257,17 @@ class PythonBoard:
 
     def probe(self, addr: int, fn: Callable) -> None:
         """Call ``fn(board)`` whenever the CPU reaches ``addr`` (a function entry), with the clock in sync."""
-        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
-
         def hook(uc, address, size, user):
             self.sync_now()
             fn(self)
 
-        self.uc.hook_add(UC_HOOK_CODE, self.guarded(hook), begin=addr, end=addr)
+        self.code_hook(addr, hook)
+
+    def code_hook(self, addr: int, fn: Callable) -> None:
+        """Call ``fn(uc, address, size, user)`` before the instruction at ``addr``."""
+        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
+
+        self.uc.hook_add(UC_HOOK_CODE, self.guarded(fn), begin=addr, end=addr)
 
     def guarded(self, fn: Callable) -> Callable:
         """``fn`` as a hook: an exception stops the run and is raised by :meth:`run_until` (the C core calls

@@ -30,7 +30,9 @@ I64, U64, U8, U32, I32, P = ctypes.c_int64, ctypes.c_uint64, ctypes.c_uint8, cty
     ctypes.c_void_p
 NONE = -1
 MAX_IDLE, MAX_IDLE_WORDS = 4, 8
-EV_TIMER, EV_OUT_FULL, EV_SENSOR = 1, 2, 3
+EV_TIMER, EV_OUT_FULL, EV_SENSOR, EV_CODE = 1, 2, 3, 4
+K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY = 1, 2, 3, 4, 5
+MAX_SITES = 512
 F_PYTHON, F_STACK, F_RETURN, F_CPU_EXC, F_EMU = 1, 2, 3, 4, 5
 RX_CAPACITY, OUT_CAPACITY, RXLOG_CAPACITY = 1 << 16, 1 << 14, 1 << 16
 SENSOR_DEVICES = 3
@@ -58,7 +60,9 @@ class CoreState(ctypes.Structure):
                 ("idle_off", (I64 * MAX_IDLE_WORDS) * MAX_IDLE), ("idle_size", (I64 * MAX_IDLE_WORDS) * MAX_IDLE),
                 ("idle_lo", I64 * MAX_IDLE), ("idle_hi", I64 * MAX_IDLE),
                 ("sensor_img", (U8 * 128) * SENSOR_DEVICES), ("sensor_fast", I64 * SENSOR_DEVICES),
-                ("sensor_valid", I64), ("sensor_reads", I64)]
+                ("sensor_valid", I64), ("sensor_reads", I64), ("n_sites", I64), ("site_addr", I64 * MAX_SITES),
+                ("site_kind", I64 * MAX_SITES), ("site_arg", I64 * MAX_SITES), ("hook_addr", I64),
+                ("hook_size", I64), ("site_map", U8 * (0x40000 // 16))]
 
 
 def _opt(t: int) -> int | None:
@@ -80,12 +84,12 @@ def core_library() -> ctypes.CDLL | None:
     if lib.core_sizeof() != ctypes.sizeof(CoreState):
         raise EmulationError(f"the C core's state ({lib.core_sizeof()} B) does not match native.CoreState "
                              f"({ctypes.sizeof(CoreState)} B): rebuild it (pip install -e .)")
-    for name in ("core_run", "core_next_exception", "usart_inject"):
+    for name in ("core_run", "core_next_exception", "usart_inject", "core_add_site"):
         getattr(lib, name).restype = I64
     lib.usart_read.restype = U32
     for name in ("core_run", "core_request_stop", "core_reschedule", "core_irq_check", "core_next_exception",
                  "usart_read", "usart_write", "usart_inject", "rx_complete", "shift_complete_now",
-                 "core_fire_events", "core_take"):
+                 "core_fire_events", "core_take", "core_add_site"):
         getattr(lib, name).argtypes = None
     return lib
 
@@ -260,6 +264,7 @@ class NativeBoard(PythonBoard):
         self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
         self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
+        self._py_hooks: list = []
         super().__init__(elf, sensors, skip_idle=skip_idle)
 
     # -- construction
@@ -315,7 +320,7 @@ class NativeBoard(PythonBoard):
         self._c_hook(UC_HOOK_CODE, "core_count_hook")
 
     def _install_hooks(self, skip_idle: bool) -> None:
-        from unicorn import UC_HOOK_CODE, UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
+        from unicorn import UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
 
         from steval_link.emulation.board.calls import FirmwareCalls  # reason: (kept next to its use)
         from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
@@ -329,9 +334,9 @@ class NativeBoard(PythonBoard):
         calls.install(skip=("Sensor_IO_Read",) if sensor_read is not None else ())
         if sensor_read is not None:
             self._sensor_slow = calls.replacement_hook("Sensor_IO_Read")
-            self._c_hook(UC_HOOK_CODE, "core_sensor_read_hook", sensor_read, sensor_read)
+            self._site(sensor_read, K_SENSOR)
         for a in cpsie_sites(self.flash, self.elf):
-            self._c_hook(UC_HOOK_CODE, "core_unmask_hook", a, a)
+            self._site(a, K_UNMASK)
         st = self.st
         if skip_idle:
             sites = self.idle_sites(self.elf)[:MAX_IDLE]
@@ -342,9 +347,19 @@ class NativeBoard(PythonBoard):
                 for j, (off, size) in enumerate(words[:MAX_IDLE_WORDS]):
                     st.idle_off[k][j], st.idle_size[k][j] = off, size
                 st.idle_lo[k], st.idle_hi[k] = caller if caller is not None else (0, 0)
-                self._c_hook(UC_HOOK_CODE, "core_idle_hook", addr, addr)
+                self._site(addr, K_IDLE)
         for a in wfi_sites(self.flash, self.elf):
-            self._c_hook(UC_HOOK_CODE, "core_wfi_hook", a, a)
+            self._site(a, K_WFI)
+
+    def _site(self, addr: int, kind: int, arg: int = 0) -> None:
+        if not self.lib.core_add_site(self.st_ptr, I64(addr), I64(kind), I64(arg)):
+            raise EmulationError(f"the C core cannot hook 0x{addr:08x} (outside the flash, or more than "
+                                 f"{MAX_SITES} hooks)")
+
+    def code_hook(self, addr: int, fn) -> None:
+        """Call ``fn(uc, address, size, user)`` before the instruction at ``addr`` (dispatched by the C core)."""
+        self._py_hooks.append(fn)
+        self._site(addr, K_PY, len(self._py_hooks) - 1)
 
     # -- Python called from C
     def _on_event(self, kind: int, arg: int) -> int:
@@ -356,6 +371,8 @@ class NativeBoard(PythonBoard):
                     self.timer_update(tim)
             elif kind == EV_OUT_FULL:
                 self._drain()
+            elif kind == EV_CODE:
+                self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
             elif kind == EV_SENSOR:
                 self._sensor_slow(self.uc, 0, 0, None)
                 self._sensor_images()
