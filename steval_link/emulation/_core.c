@@ -37,6 +37,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define EV_TIMER 1      /* arg: 0 TIM9, 1 TIM2 */
 #define EV_OUT_FULL 2   /* drain the output buffer */
 #define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
+#define EV_MMIO 5       /* an access to a Python peripheral's mirrored page that the mirror cannot serve */
 #define EV_CODE 4       /* a Python code hook (arg: its index; hook_addr, hook_size) */
 
 /* fault codes (Python words the message) */
@@ -66,7 +67,17 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define K_SENSOR 4
 #define K_PY 5
 #define MAX_IDLE 4
+#define MAX_MIRROR 8
 #define MAX_IDLE_WORDS 8
+
+/* A Python peripheral's page with reads served in C: the words marked served hold what Python's model reads
+ * (Python keeps them current); other reads and every write go to Python. */
+typedef struct {
+  void *core;
+  int64_t page;
+  uint32_t vals[256];
+  uint8_t served[256];
+} mirror_t;
 
 typedef struct {
   /* the counter: n instructions in this slice, stop when n reaches limit */
@@ -107,6 +118,9 @@ typedef struct {
   /* code sites, sorted by address (stable): kind, argument; a bitmap of the flash half-words that have one */
   int64_t n_sites, site_addr[MAX_SITES], site_kind[MAX_SITES], site_arg[MAX_SITES], hook_addr, hook_size;
   uint8_t site_map[FLASH_SIZE / 16];
+  /* mirrored pages; the access handed to Python (hook_addr: offset, hook_size: bytes) */
+  mirror_t mirror[MAX_MIRROR];
+  int64_t mmio_write, mmio_value;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -356,6 +370,37 @@ EXPORT void usart_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
     v = (old & ~mask) | ((v << sh) & mask);
   }
   usart_write(s, o, v);
+}
+
+/* MMIO callbacks of a mirrored page (user: its mirror_t) */
+EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
+  mirror_t *m = (mirror_t *)user;
+  core_t *s = (core_t *)m->core;
+  (void)uc;
+  uint64_t w = off >> 2;
+  if (w < 256 && m->served[w]) {
+    uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+    return (m->vals[w] >> ((off & 3) * 8)) & mask;
+  }
+  sync_now(s);
+  s->hook_addr = (int64_t)off;
+  s->hook_size = size;
+  s->mmio_write = 0;
+  s->mmio_value = 0;
+  ((py_event_t)s->py_event)(EV_MMIO, m->page);
+  return (uint64_t)s->mmio_value;
+}
+
+EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
+  mirror_t *m = (mirror_t *)user;
+  core_t *s = (core_t *)m->core;
+  (void)uc;
+  sync_now(s);
+  s->hook_addr = (int64_t)off;
+  s->hook_size = size;
+  s->mmio_write = 1;
+  s->mmio_value = (int64_t)value;
+  ((py_event_t)s->py_event)(EV_MMIO, m->page);
 }
 
 /* ---- exceptions -------------------------------------------------------------------------------------------- */

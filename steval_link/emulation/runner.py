@@ -403,12 +403,11 @@ class Emulation:
             self._host_progress()
             b.run_until(min(end, b.now + slice_cycles))
             self._host_progress()
-            if b.out:
-                data = bytes(x for x, _ in b.out)
-                last_byte_t = b.out[-1][1]
+            data, first_t, last_t = b.take_output()
+            if data:
+                last_byte_t = last_t
                 if self._first_byte_s is None:
-                    self._first_byte_s = b.out[0][1] / CPU_HZ
-                b.out.clear()
+                    self._first_byte_s = first_t / CPU_HZ
                 self._bytes += len(data)
                 yield data, last_byte_t / CPU_HZ
             if self.n_steps != last_steps:

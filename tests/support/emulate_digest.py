@@ -4,7 +4,8 @@ For one ELF, each run gives the sha256 of the USART1 byte stream, the sha256 of 
 field but the stream offset) and the median instructions per AHRS step. ``tests/data/emulate_digests.json`` maps the
 ELF's sha256 to the expected digests of each run (``tests/test_emulate_digest.py``).
 
-Record (with a stated reason; it works on the board before and after the speed work)::
+Record (with a stated reason; it works on the board before and after the speed work, also copied out of the tree
+and run from another checkout: ``--table`` names the JSON to update)::
 
     python tests/support/emulate_digest.py ELF --record "reference firmware, board before the C core"
 
@@ -21,8 +22,10 @@ import statistics
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-DIGESTS = ROOT / "tests" / "data" / "emulate_digests.json"
+#: the checkout: the current directory when it is one (the script copied out to run on another checkout), else this
+#: file's
+ROOT = Path.cwd() if (Path.cwd() / "steval_link").is_dir() else Path(__file__).resolve().parents[2]
+DIGESTS = Path(__file__).resolve().parents[1] / "data" / "emulate_digests.json"
 COMMANDS = ROOT / "recordings" / "live_params.commands"
 
 #: run name → (scenario, duration s, seed, with host commands, BLE capture)
@@ -94,20 +97,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("elf", type=Path)
     ap.add_argument("--runs", default=",".join(TEST_RUNS), help=f"comma-separated, of: {', '.join(RUNS)}")
-    ap.add_argument("--record", metavar="REASON", help=f"store the digests in {DIGESTS.relative_to(ROOT)}")
+    ap.add_argument("--record", metavar="REASON", help="store the digests in the table, with this reason")
+    ap.add_argument("--table", type=Path, default=DIGESTS, help="the digest table (default: tests/data/...)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     sha = elf_sha256(args.elf)
     out = {name: run(args.elf, name) for name in args.runs.split(",") if name}
     print(json.dumps({sha: {"elf": args.elf.name, "runs": out}}, indent=2))
     if args.record:
-        table = json.loads(DIGESTS.read_text()) if DIGESTS.exists() else {}
+        table = json.loads(args.table.read_text()) if args.table.exists() else {}
         entry = table.setdefault(sha, {"elf": args.elf.name, "runs": {}, "reasons": []})
         entry["runs"].update(out)
         entry["reasons"].append(args.record)
-        DIGESTS.parent.mkdir(parents=True, exist_ok=True)
-        DIGESTS.write_text(json.dumps(table, indent=2, sort_keys=True) + "\n")
-        print(f"recorded in {DIGESTS}")
+        args.table.parent.mkdir(parents=True, exist_ok=True)
+        args.table.write_text(json.dumps(table, indent=2, sort_keys=True) + "\n")
+        print(f"recorded in {args.table}")
     return 0
 
 

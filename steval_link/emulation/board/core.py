@@ -174,7 +174,7 @@ class PythonBoard:
             if p is self.usart1:
                 self._map_usart(uc, p)
             else:
-                uc.mmio_map(p.base, p.size, rd, p, wr, p)
+                self._map_python(uc, p, rd, wr)
         uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write),
                     None)
         uc.mmio_map(SCS_BASE, SCS_SIZE, rd, self.scs, wr, self.scs)
@@ -184,6 +184,9 @@ class PythonBoard:
 
     def _make_scs(self):
         return Scs(self)
+
+    def _map_python(self, uc, p: Peripheral, rd, wr) -> None:
+        uc.mmio_map(p.base, p.size, rd, p, wr, p)
 
     def _map_usart(self, uc, usart) -> None:
         uc.mmio_map(usart.base, usart.size, self._mmio_read, usart, self._mmio_write, usart)

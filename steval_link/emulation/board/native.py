@@ -20,6 +20,8 @@ from steval_link.emulation.board.memory_map import (
     PERIPH_BASE,
     USART1_OFF,
     EmulationError,
+    Gpio,
+    GpioReg,
     Peripheral,
 )
 from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
@@ -30,12 +32,19 @@ I64, U64, U8, U32, I32, P = ctypes.c_int64, ctypes.c_uint64, ctypes.c_uint8, cty
     ctypes.c_void_p
 NONE = -1
 MAX_IDLE, MAX_IDLE_WORDS = 4, 8
-EV_TIMER, EV_OUT_FULL, EV_SENSOR, EV_CODE = 1, 2, 3, 4
+EV_TIMER, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO = 1, 2, 3, 4, 5
+MAX_MIRROR = 8
 K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY = 1, 2, 3, 4, 5
 MAX_SITES = 512
 F_PYTHON, F_STACK, F_RETURN, F_CPU_EXC, F_EMU = 1, 2, 3, 4, 5
 RX_CAPACITY, OUT_CAPACITY, RXLOG_CAPACITY = 1 << 16, 1 << 14, 1 << 16
 SENSOR_DEVICES = 3
+
+
+class Mirror(ctypes.Structure):
+    """``mirror_t``: a Python peripheral's page whose ``served`` words C reads from ``vals``."""
+
+    _fields_ = [("core", P), ("page", I64), ("vals", U32 * 256), ("served", U8 * 256)]
 
 
 class CoreState(ctypes.Structure):
@@ -62,7 +71,8 @@ class CoreState(ctypes.Structure):
                 ("sensor_img", (U8 * 128) * SENSOR_DEVICES), ("sensor_fast", I64 * SENSOR_DEVICES),
                 ("sensor_valid", I64), ("sensor_reads", I64), ("n_sites", I64), ("site_addr", I64 * MAX_SITES),
                 ("site_kind", I64 * MAX_SITES), ("site_arg", I64 * MAX_SITES), ("hook_addr", I64),
-                ("hook_size", I64), ("site_map", U8 * (0x40000 // 16))]
+                ("hook_size", I64), ("site_map", U8 * (0x40000 // 16)), ("mirror", Mirror * MAX_MIRROR),
+                ("mmio_write", I64), ("mmio_value", I64)]
 
 
 def _opt(t: int) -> int | None:
@@ -265,6 +275,7 @@ class NativeBoard(PythonBoard):
         self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
         self._py_hooks: list = []
+        self._mirrored: list = []
         super().__init__(elf, sensors, skip_idle=skip_idle)
 
     # -- construction
@@ -306,6 +317,24 @@ class NativeBoard(PythonBoard):
                               ctypes.cast(self.lib.usart_mmio_write, P), self.st_ptr)
         if err:
             raise EmulationError(f"unicorn refused the USART1 MMIO model (error {err})")
+
+    def _map_python(self, uc, p, rd, wr) -> None:
+        """A Python peripheral's page: GPIO IDR (inputs read 0) and TIM9's SR and DIER are read in C."""
+        served = {"TIM9": (TimReg.SR, TimReg.DIER)}.get(p.name, (GpioReg.IDR,) if isinstance(p, Gpio) else ())
+        if not served or len(self._mirrored) >= MAX_MIRROR:
+            return super()._map_python(uc, p, rd, wr)
+        k = len(self._mirrored)
+        self._mirrored.append(p)
+        m = self.st.mirror[k]
+        m.core, m.page = ctypes.addressof(self.st), k
+        for off in served:
+            m.served[off // 4] = 1
+        p.mirror = m
+        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
+                                  ctypes.cast(self.lib.mirror_mmio_read, P), ctypes.byref(m),
+                                  ctypes.cast(self.lib.mirror_mmio_write, P), ctypes.byref(m))
+        if err:
+            raise EmulationError(f"unicorn refused the {p.name} MMIO mirror (error {err})")
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
@@ -371,6 +400,12 @@ class NativeBoard(PythonBoard):
                     self.timer_update(tim)
             elif kind == EV_OUT_FULL:
                 self._drain()
+            elif kind == EV_MMIO:
+                p, st = self._mirrored[arg], self.st
+                if st.mmio_write:
+                    self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
+                else:
+                    st.mmio_value = self._mmio_read(self.uc, st.hook_addr, st.hook_size, p)
             elif kind == EV_CODE:
                 self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
             elif kind == EV_SENSOR:
@@ -393,6 +428,21 @@ class NativeBoard(PythonBoard):
                 ctypes.memmove(ctypes.addressof(st.sensor_img[d]), bytes(dev.r), 128)
         st.sensor_valid = st.tim9_updates if self.tim9.first_update is not None else -1
 
+    def take_output(self) -> tuple[bytes, int | None, int | None]:
+        """The USART1 bytes that left the line since the last call (one copy out of the C buffer), with the
+        instruction counts at which the first and the last one left (None, None if none)."""
+        st = self.st
+        if self.out:  # (the buffer overflowed into out during a long run)
+            self._drain()
+            return super().take_output()
+        n = st.out_len
+        if not n:
+            return b"", None, None
+        data = ctypes.string_at(self.out_b, n)
+        first, last = self.out_t[0], self.out_t[n - 1]
+        st.out_len = 0
+        return data, first, last
+
     def _drain(self) -> None:
         st = self.st
         n = st.out_len
@@ -408,8 +458,12 @@ class NativeBoard(PythonBoard):
             return
         st.tim_next[i] = _raw(tim.next_update)
         if i == 0:
-            st.tim9_level = 1 if tim.regs.get(TimReg.SR, 0) & tim.regs.get(TimReg.DIER, 0) & 0xFF else 0
+            sr, dier = tim.regs.get(TimReg.SR, 0), tim.regs.get(TimReg.DIER, 0)
+            st.tim9_level = 1 if sr & dier & 0xFF else 0
             st.tim9_updates = tim.updates
+            m = getattr(tim, "mirror", None)
+            if m is not None:
+                m.vals[TimReg.SR // 4], m.vals[TimReg.DIER // 4] = sr, dier
 
     def sync_now(self) -> None:
         st = self.st
@@ -492,7 +546,8 @@ class NativeBoard(PythonBoard):
             st.sensor_fast[:] = [0] * SENSOR_DEVICES
         rc = self.lib.core_run(self.st_ptr, I64(t_end))
         self.now = st.now
-        self._drain()
+        if self.out:  # (bytes already drained into out: keep the order)
+            self._drain()
         self._stats()
         if rc:
             raise self._fault_error()
