@@ -34,7 +34,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define NONE (-1)
 
 /* py_event kinds */
-#define EV_TIMER 1      /* arg: 0 TIM9, 1 TIM2 */
+#define EV_TICK 1       /* TIM9's update event: the tick observers */
 #define EV_OUT_FULL 2   /* drain the output buffer */
 #define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
 #define EV_MMIO 5       /* an access to a Python peripheral's mirrored page that the mirror cannot serve */
@@ -79,6 +79,13 @@ typedef struct {
   uint8_t served[256];
 } mirror_t;
 
+/* A general-purpose timer (TIM9, TIM2, TIM4): registers by word, the next update event, the update count. */
+typedef struct {
+  void *core;
+  int64_t irq, next, updates, first_update;
+  uint32_t regs[256];
+} ctimer_t;
+
 typedef struct {
   /* the counter: n instructions in this slice, stop when n reaches limit */
   uint64_t n, limit;
@@ -100,8 +107,8 @@ typedef struct {
   int64_t exc_instructions, exc_started, vtor;
   /* SysTick */
   int64_t systick_next, systick_period, systick_tickint, countflag;
-  /* the Python timers: next update (NONE: stopped), SR & DIER level of TIM9's line */
-  int64_t tim_next[2], tim9_level, tim9_updates;
+  /* TIM9, TIM2, TIM4 (only the first two have update events scheduled, as in the Python board) */
+  ctimer_t tim[3];
   /* USART1: registers by word (SR's stored bits, BRR, CR1...), TX, RX */
   uint32_t uregs[256];
   int64_t dr_full, shift_done, shift_byte, tc;
@@ -178,7 +185,7 @@ EXPORT int64_t core_next_exception(core_t *s, int64_t primask) {
 }
 
 static int64_t earliest(core_t *s) {
-  int64_t t[5] = {s->systick_next, s->tim_next[0], s->tim_next[1], s->shift_done, s->rx_done};
+  int64_t t[5] = {s->systick_next, s->tim[0].next, s->tim[1].next, s->shift_done, s->rx_done};
   int64_t m = NONE;
   for (int i = 0; i < 5; i++)
     if (t[i] != NONE && (m == NONE || t[i] < m)) m = t[i];
@@ -403,6 +410,96 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
   ((py_event_t)s->py_event)(EV_MMIO, m->page);
 }
 
+/* ---- timers ------------------------------------------------------------------------------------------------ */
+
+#define TIM_CR1 0x00
+#define TIM_DIER 0x0C
+#define TIM_SR 0x10
+#define TIM_EGR 0x14
+#define TIM_CNT 0x24
+#define TIM_PSC 0x28
+#define TIM_ARR 0x2C
+
+static inline int64_t timer_period(ctimer_t *t) {
+  return ((int64_t)t->regs[TIM_PSC >> 2] + 1) * ((int64_t)t->regs[TIM_ARR >> 2] + 1);
+}
+
+static void timer_irq_line(core_t *s, ctimer_t *t) {
+  if (t->irq >= 0 && (t->regs[TIM_SR >> 2] & t->regs[TIM_DIER >> 2] & 0xFF)) pend(s, (int)t->irq + IRQ_BASE);
+}
+
+EXPORT uint32_t timer_read(core_t *s, int64_t i, uint32_t off) {
+  ctimer_t *t = &s->tim[i];
+  if (off == TIM_CNT && t->next != NONE) {
+    int64_t psc = (int64_t)t->regs[TIM_PSC >> 2] + 1;
+    int64_t v = timer_period(t) - (t->next - s->now);
+    return (uint32_t)(v >= 0 ? v / psc : -((-v + psc - 1) / psc)); /* Python's floor division */
+  }
+  return t->regs[(off >> 2) & 255];
+}
+
+EXPORT void timer_write(core_t *s, int64_t i, uint32_t off, uint32_t value) {
+  ctimer_t *t = &s->tim[i];
+  if (off == TIM_SR) { /* rc_w0 */
+    t->regs[TIM_SR >> 2] &= value;
+    timer_irq_line(s, t);
+    return;
+  }
+  t->regs[(off >> 2) & 255] = value;
+  if (off == TIM_CR1) {
+    int running = (value & 1) && t->regs[TIM_ARR >> 2] > 0;
+    if (running && t->next == NONE) {
+      t->next = s->now + timer_period(t);
+      core_reschedule(s);
+    } else if (!running) {
+      t->next = NONE;
+    }
+  } else if (off == TIM_DIER) {
+    timer_irq_line(s, t);
+  } else if (off == TIM_EGR && (value & 1)) { /* UG: update flag unless URS */
+    if (!(t->regs[TIM_CR1 >> 2] & 4)) {
+      t->regs[TIM_SR >> 2] |= 1;
+      timer_irq_line(s, t);
+    }
+  }
+}
+
+static void timer_update(core_t *s, int64_t i) {
+  ctimer_t *t = &s->tim[i];
+  int64_t period = timer_period(t);
+  t->updates++;
+  if (t->first_update == NONE) t->first_update = s->now;
+  t->next = (t->next ? t->next : s->now) + (period > 1 ? period : 1);
+  t->regs[TIM_SR >> 2] |= 1;
+  timer_irq_line(s, t);
+  if (i == 0) ((py_event_t)s->py_event)(EV_TICK, 0);
+}
+
+static ctimer_t *timer_of(void *user) { return (ctimer_t *)user; }
+
+EXPORT uint64_t timer_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
+  ctimer_t *t = timer_of(user);
+  core_t *s = (core_t *)t->core;
+  (void)uc;
+  sync_now(s);
+  uint32_t w = timer_read(s, t - s->tim, (uint32_t)off & ~3u);
+  uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+  return (w >> ((off & 3) * 8)) & mask;
+}
+
+EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
+  ctimer_t *t = timer_of(user);
+  core_t *s = (core_t *)t->core;
+  (void)uc;
+  sync_now(s);
+  uint32_t o = (uint32_t)off & ~3u, v = (uint32_t)value;
+  if (size != 4) {
+    uint32_t sh = (off & 3) * 8, mask = (uint32_t)(((1ull << (8 * size)) - 1) << sh);
+    v = (t->regs[(o >> 2) & 255] & ~mask) | ((v << sh) & mask);
+  }
+  timer_write(s, t - s->tim, o, v);
+}
+
 /* ---- exceptions -------------------------------------------------------------------------------------------- */
 
 static void take(core_t *s, int exc) {
@@ -462,7 +559,7 @@ static void leave(core_t *s) {
   if (xpsr & (1u << 9)) sp += 4;
   /* the level-triggered lines again: USART1, TIM9 */
   usart_irq_line(s);
-  if (s->tim9_level) pend(s, 24 + IRQ_BASE);
+  timer_irq_line(s, &s->tim[0]);
   uint32_t w[23];
   void *ptrs[23];
   for (int i = 0; i < 23; i++) ptrs[i] = &w[i];
@@ -522,8 +619,8 @@ static void fire_events(core_t *s) {
       fired = 1;
     }
     for (int i = 0; i < 2; i++) {
-      if (s->tim_next[i] != NONE && s->tim_next[i] <= now) {
-        ((py_event_t)s->py_event)(EV_TIMER, i);
+      if (s->tim[i].next != NONE && s->tim[i].next <= now) {
+        timer_update(s, i);
         fired = 1;
       }
     }
@@ -632,7 +729,7 @@ EXPORT void core_sensor_read_hook(void *uc, uint64_t address, uint32_t size, voi
   int64_t dev = -1;
   if (handle + 3 >= RAM_BASE && handle + 3 < RAM_BASE + RAM_SIZE) dev = s->ram[handle + 3 - RAM_BASE];
   int ok = dev >= 0 && dev < 3 && s->sensor_fast[dev] && buf >= RAM_BASE && buf + n <= RAM_BASE + RAM_SIZE;
-  if (ok && dev == 0) ok = s->tim9_updates > 0 && s->sensor_valid == s->tim9_updates;
+  if (ok && dev == 0) ok = s->tim[0].updates > 0 && s->sensor_valid == s->tim[0].updates;
   if (!ok) {
     sync_now(s);
     ((py_event_t)s->py_event)(EV_SENSOR, 0);

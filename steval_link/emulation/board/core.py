@@ -158,10 +158,7 @@ class PythonBoard:
 
     # -- peripherals
     def _make_peripherals(self) -> None:
-        P = PERIPH_BASE
-        self.tim9 = Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9")
-        self.tim2 = Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2")
-        self.tim4 = Timer(self, P + TIM4_OFF, None, "TIM4")
+        self.tim9, self.tim2, self.tim4 = self._make_timers()
         self.usart1 = self._make_usart()
         self.scs = self._make_scs()
         periphs: list[Peripheral] = [self.tim9, self.tim2, self.tim4, self.usart1] + simple_peripherals(self)
@@ -178,6 +175,11 @@ class PythonBoard:
         uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write),
                     None)
         uc.mmio_map(SCS_BASE, SCS_SIZE, rd, self.scs, wr, self.scs)
+
+    def _make_timers(self):
+        P = PERIPH_BASE
+        return (Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9"), Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2"),
+                Timer(self, P + TIM4_OFF, None, "TIM4"))
 
     def _make_usart(self):
         return Usart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)

@@ -16,8 +16,13 @@ from steval_link.emulation.board.cpu import uclib, wfi_sites
 from steval_link.emulation.board.memory_map import (
     CPU_HZ,
     IRQ_BASE,
+    IRQ_TIM2,
+    IRQ_TIM9,
     IRQ_USART1,
     PERIPH_BASE,
+    TIM2_OFF,
+    TIM4_OFF,
+    TIM9_OFF,
     USART1_OFF,
     EmulationError,
     Gpio,
@@ -32,7 +37,7 @@ I64, U64, U8, U32, I32, P = ctypes.c_int64, ctypes.c_uint64, ctypes.c_uint8, cty
     ctypes.c_void_p
 NONE = -1
 MAX_IDLE, MAX_IDLE_WORDS = 4, 8
-EV_TIMER, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO = 1, 2, 3, 4, 5
+EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO = 1, 2, 3, 4, 5
 MAX_MIRROR = 8
 K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY = 1, 2, 3, 4, 5
 MAX_SITES = 512
@@ -47,6 +52,13 @@ class Mirror(ctypes.Structure):
     _fields_ = [("core", P), ("page", I64), ("vals", U32 * 256), ("served", U8 * 256)]
 
 
+class CTimer(ctypes.Structure):
+    """``ctimer_t``: a timer in the C core."""
+
+    _fields_ = [("core", P), ("irq", I64), ("next", I64), ("updates", I64), ("first_update", I64),
+                ("regs", U32 * 256)]
+
+
 class CoreState(ctypes.Structure):
     """``core_t`` of _core.c, field by field."""
 
@@ -59,7 +71,7 @@ class CoreState(ctypes.Structure):
                 ("prio", U8 * 256), ("prigroup", I64), ("n_active", I64), ("active", I64 * 64),
                 ("counts", I64 * 256), ("exc_instructions", I64), ("exc_started", I64), ("vtor", I64),
                 ("systick_next", I64), ("systick_period", I64), ("systick_tickint", I64), ("countflag", I64),
-                ("tim_next", I64 * 2), ("tim9_level", I64), ("tim9_updates", I64), ("uregs", U32 * 256),
+                ("tim", CTimer * 3), ("uregs", U32 * 256),
                 ("dr_full", I64), ("shift_done", I64), ("shift_byte", I64), ("tc", I64), ("rx_done", I64),
                 ("rx_line_free", I64), ("rx_dr", I64), ("rx_last", I64), ("rx_ore", I64), ("ore_sr_read", I64),
                 ("rx_received", I64), ("rx_overruns", I64), ("rx_lost", I64), ("rx_t", P), ("rx_b", P),
@@ -94,12 +106,13 @@ def core_library() -> ctypes.CDLL | None:
     if lib.core_sizeof() != ctypes.sizeof(CoreState):
         raise EmulationError(f"the C core's state ({lib.core_sizeof()} B) does not match native.CoreState "
                              f"({ctypes.sizeof(CoreState)} B): rebuild it (pip install -e .)")
+    lib.timer_read.restype = U32
     for name in ("core_run", "core_next_exception", "usart_inject", "core_add_site"):
         getattr(lib, name).restype = I64
     lib.usart_read.restype = U32
     for name in ("core_run", "core_request_stop", "core_reschedule", "core_irq_check", "core_next_exception",
                  "usart_read", "usart_write", "usart_inject", "rx_complete", "shift_complete_now",
-                 "core_fire_events", "core_take", "core_add_site"):
+                 "core_fire_events", "core_take", "core_add_site", "timer_read", "timer_write"):
         getattr(lib, name).argtypes = None
     return lib
 
@@ -230,6 +243,50 @@ class NativeUsart(Peripheral):
         raise AttributeError(name)
 
 
+class NativeTimer(Peripheral):
+    """TIMx in the C core (the Python model: timer.Timer); ``regs`` is a copy of its nonzero registers."""
+
+    def __init__(self, board, base, irq: int | None, name: str, index: int):
+        super().__init__(board, base, name=name)
+        self.irq, self.index = irq, index
+        self.t = board.st.tim[index]
+        self.t.core, self.t.irq, self.t.next, self.t.first_update = ctypes.addressof(board.st), _raw(irq), NONE, NONE
+        self.lib, self.ptr = board.lib, board.st_ptr
+
+    def read(self, off):
+        return self.lib.timer_read(self.ptr, I64(self.index), U32(off))
+
+    def write(self, off, value):
+        self.lib.timer_write(self.ptr, I64(self.index), U32(off), U32(value & 0xFFFFFFFF))
+
+    def stored(self, off):
+        return self.t.regs[(off // 4) & 255]
+
+    @property
+    def regs(self) -> dict[int, int]:
+        return {4 * i: v for i, v in enumerate(self.t.regs) if v}
+
+    @regs.setter
+    def regs(self, value) -> None:  # (Peripheral.__init__)
+        pass
+
+    @property
+    def next_update(self) -> int | None:
+        return _opt(self.t.next)
+
+    @property
+    def updates(self) -> int:
+        return self.t.updates
+
+    @property
+    def first_update(self) -> int | None:
+        return _opt(self.t.first_update)
+
+    @property
+    def period(self) -> int:
+        return (self.t.regs[TimReg.PSC // 4] + 1) * (self.t.regs[TimReg.ARR // 4] + 1)
+
+
 class NativeScs(Scs):
     """The SCS registers in Python, SysTick's schedule and the VTOR the C core needs mirrored into it."""
 
@@ -294,7 +351,6 @@ class NativeBoard(PythonBoard):
         st.max_slice = CPU_HZ // 1000
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
-        st.tim_next[:] = [NONE, NONE]
         st.tc = 1
         st.systick_period = 1
         st.rx_t, st.rx_b, st.rx_cap = ctypes.addressof(self.rx_t), ctypes.addressof(self.rx_b), RX_CAPACITY
@@ -307,20 +363,29 @@ class NativeBoard(PythonBoard):
     def _make_usart(self):
         return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
 
+    def _make_timers(self):
+        return (NativeTimer(self, PERIPH_BASE + TIM9_OFF, IRQ_TIM9, "TIM9", 0),
+                NativeTimer(self, PERIPH_BASE + TIM2_OFF, IRQ_TIM2, "TIM2", 1),
+                NativeTimer(self, PERIPH_BASE + TIM4_OFF, None, "TIM4", 2))
+
     def _make_scs(self):
         return NativeScs(self)
 
     def _map_usart(self, uc, usart) -> None:
-        lib = uclib()
-        err = lib.uc_mmio_map(self.uc._uch, ctypes.c_uint64(usart.base), ctypes.c_size_t(usart.size),
-                              ctypes.cast(self.lib.usart_mmio_read, P), self.st_ptr,
-                              ctypes.cast(self.lib.usart_mmio_write, P), self.st_ptr)
+        self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
+
+    def _map_c(self, p, read: str, write: str, user) -> None:
+        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
+                                  ctypes.cast(getattr(self.lib, read), P), user,
+                                  ctypes.cast(getattr(self.lib, write), P), user)
         if err:
-            raise EmulationError(f"unicorn refused the USART1 MMIO model (error {err})")
+            raise EmulationError(f"unicorn refused the {p.name} MMIO model (error {err})")
 
     def _map_python(self, uc, p, rd, wr) -> None:
-        """A Python peripheral's page: GPIO IDR (inputs read 0) and TIM9's SR and DIER are read in C."""
-        served = {"TIM9": (TimReg.SR, TimReg.DIER)}.get(p.name, (GpioReg.IDR,) if isinstance(p, Gpio) else ())
+        """A Python peripheral's page: the timers are C's; GPIO IDR (inputs read 0) is read in C."""
+        if isinstance(p, NativeTimer):
+            return self._map_c(p, "timer_mmio_read", "timer_mmio_write", ctypes.byref(p.t))
+        served = (GpioReg.IDR,) if isinstance(p, Gpio) else ()
         if not served or len(self._mirrored) >= MAX_MIRROR:
             return super()._map_python(uc, p, rd, wr)
         k = len(self._mirrored)
@@ -394,10 +459,10 @@ class NativeBoard(PythonBoard):
     def _on_event(self, kind: int, arg: int) -> int:
         try:
             self.now = self.st.now
-            if kind == EV_TIMER:
-                tim = self.tim9 if arg == 0 else self.tim2
-                if tim.next_update is not None and tim.next_update <= self.now:
-                    self.timer_update(tim)
+            if kind == EV_TICK:
+                for ob in self.tick_observers:
+                    ob(self)
+                self._sensor_tick()
             elif kind == EV_OUT_FULL:
                 self._drain()
             elif kind == EV_MMIO:
@@ -415,6 +480,16 @@ class NativeBoard(PythonBoard):
             self.stop_with(exc)
         return 0
 
+    def _sensor_tick(self) -> None:
+        """At TIM9's update, the LSM6DSL's sample of the new tick into the C core's image (as the ISR's first read
+        would fetch it): the ISR's reads all run in C."""
+        bus, st = self.sensors, self.st
+        if not st.sensor_fast[0] or self.call_observers.get("Sensor_IO_Read"):
+            return
+        bus.read(0, 0x22, 12, self)
+        ctypes.memmove(ctypes.addressof(st.sensor_img[0]), bytes(bus.devices[0].r), 128)
+        st.sensor_valid = st.tim[0].updates
+
     def _sensor_images(self) -> None:
         """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
         bus, st = self.sensors, self.st
@@ -426,7 +501,7 @@ class NativeBoard(PythonBoard):
             st.sensor_fast[d] = 1 if fast and dev is not None else 0
             if dev is not None:
                 ctypes.memmove(ctypes.addressof(st.sensor_img[d]), bytes(dev.r), 128)
-        st.sensor_valid = st.tim9_updates if self.tim9.first_update is not None else -1
+        st.sensor_valid = st.tim[0].updates if self.tim9.first_update is not None else -1
 
     def take_output(self) -> tuple[bytes, int | None, int | None]:
         """The USART1 bytes that left the line since the last call (one copy out of the C buffer), with the
@@ -452,18 +527,7 @@ class NativeBoard(PythonBoard):
 
     # -- the board's interface, over the C state
     def timer_moved(self, tim) -> None:
-        st = self.st
-        i = 0 if tim is self.tim9 else 1 if tim is self.tim2 else None
-        if i is None:
-            return
-        st.tim_next[i] = _raw(tim.next_update)
-        if i == 0:
-            sr, dier = tim.regs.get(TimReg.SR, 0), tim.regs.get(TimReg.DIER, 0)
-            st.tim9_level = 1 if sr & dier & 0xFF else 0
-            st.tim9_updates = tim.updates
-            m = getattr(tim, "mirror", None)
-            if m is not None:
-                m.vals[TimReg.SR // 4], m.vals[TimReg.DIER // 4] = sr, dier
+        """(The timers live in the C core.)"""
 
     def sync_now(self) -> None:
         st = self.st
@@ -517,8 +581,6 @@ class NativeBoard(PythonBoard):
         self.request_stop()
 
     def reschedule(self) -> None:
-        self.timer_moved(self.tim9)  # (a timer reschedules before its write is through)
-        self.timer_moved(self.tim2)
         self.lib.core_reschedule(self.st_ptr)
 
     def irq_check(self) -> None:
