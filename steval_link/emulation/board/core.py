@@ -388,20 +388,20 @@ class PythonBoard:
     def _setup_idle(self, e: Elf) -> None:
         from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
 
-        ram, LR = self.ram, self.regs.LR
+        ram, LR, nvic, unpack_from, skip = self.ram, self.regs.LR, self.nvic, struct.unpack_from, self._skip_to_event
         fmt = {1: "<B", 2: "<H", 4: "<I"}
         for addr, words, caller in self.idle_sites(e):
             checks = [(fmt[n], off) for off, n in words]
 
             def idle(uc, address, size, user, checks=checks, caller=caller):
-                if self.nvic.pending:
+                if nvic.pending:
                     return
                 for f, off in checks:
-                    if struct.unpack_from(f, ram, off)[0]:
+                    if unpack_from(f, ram, off)[0]:
                         return
                 if caller is not None and not caller[0] <= (self.reg(LR) & ~1) < caller[1]:
                     return
-                self._skip_to_event()
+                skip()
 
             self.uc.hook_add(UC_HOOK_CODE, self.guarded(idle), begin=addr, end=addr)
 
@@ -475,9 +475,12 @@ class PythonBoard:
             self._ic.limit = min(self._ic.limit, max(t - self._slice_start - self._skip_base + 1, self._ic.n + 1))
 
     def _earliest(self) -> int | None:
-        ts = [t for t in (self.scs.systick_next, self.tim9.next_update, self.tim2.next_update,
-                          self.usart1.shift_done, self.usart1.rx_done) if t is not None]
-        return min(ts) if ts else None
+        best = None
+        for t in (self.scs.systick_next, self.tim9.next_update, self.tim2.next_update, self.usart1.shift_done,
+                  self.usart1.rx_done):
+            if t is not None and (best is None or t < best):
+                best = t
+        return best
 
     def uart_out(self, byte: int, t: int) -> None:
         self.out.append((byte, t))
