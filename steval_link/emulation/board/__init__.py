@@ -20,9 +20,12 @@ What is modelled, and where:
 - **Idle skipping** (:mod:`.core`): when the main loop polls with nothing to do (``isTimerEventExist`` with no flag
   set), ``HAL_Delay`` waits for the tick, or the CPU sleeps in ``wfi``, the clock jumps to the next event. No
   payload changes (the polled state only changes in interrupts).
-- **The C core** (``_icount.c``, optional): the instruction counter, and with it USART1, SysTick, the NVIC,
-  exception entry/return, the event scheduler and idle skipping in C (:mod:`.native`). Without a compiler the Python
-  models above run (slower; timing at block granularity).
+- **The C core** (``steval_link/emulation/_core.c``, optional; :mod:`.native`): the instruction counter, the event
+  scheduler, USART1, SysTick, the NVIC, the timers, exception entry/return, idle skipping and the SPI sensor reads run
+  inside unicorn's hooks; Python is called for TIM9's tick (the runner's remote control, the next sensor sample),
+  the other peripherals, the replaced BLE calls and the probes. The firmware sees the same registers at the same
+  instruction counts as with the Python models (``tests/test_emulate_digest.py``). Without a C compiler the Python
+  models above run (about 6x slower; the instruction clock at block granularity, so times differ slightly).
 
 Anything else the firmware touches (an address outside every model) stops the run with
 :class:`UnmodelledHardware`, one line naming the function and address.

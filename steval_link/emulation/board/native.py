@@ -204,7 +204,6 @@ class NativeUsart(Peripheral):
         return self.lib.usart_read(self.ptr, U32(off))
 
     def write(self, off, value):
-        self.board.sync_now()
         self.lib.usart_write(self.ptr, U32(off), U32(value & 0xFFFFFFFF))
 
     def stored(self, off):
@@ -530,8 +529,9 @@ class NativeBoard(PythonBoard):
         """(The timers live in the C core.)"""
 
     def sync_now(self) -> None:
+        """``now`` from the counter, in Python and in the C core (a model called from Python reads it there)."""
         st = self.st
-        self.now = st.slice_start + st.n + st.skip_base
+        self.now = st.now = st.slice_start + st.n + st.skip_base
 
     def _mmio_read(self, uc, off, size, p):
         self.sync_now()
