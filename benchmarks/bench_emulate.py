@@ -54,6 +54,7 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
         marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))
         if boot is None and dec.stats.attitude:
             boot = marks[-1]
+    marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))  # (quiet ends)
     rep = emu.report()
     end = marks[-1]
     brr = emu.board.usart1.read(0x08)

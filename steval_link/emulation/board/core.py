@@ -240,8 +240,12 @@ class PythonBoard:
         self.regs.set(reg_id, value)
 
     @property
-    def _LR(self) -> int:  # (tests and benchmarks read the caller's return address)
+    def _LR(self) -> int:  # (tests and benchmarks read arguments and the caller's return address)
         return self.regs.LR
+
+    @property
+    def _R(self) -> list[int]:
+        return self.regs.R
 
     @property
     def _PC(self) -> int:
