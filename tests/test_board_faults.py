@@ -40,3 +40,21 @@ def test_a_fetch_from_unmapped_memory_is_execution(tmp_path, native):
 def test_a_load_from_unmapped_memory_is_a_read(tmp_path, native):
     msg = _fault(tmp_path, READ_UNMAPPED, native)
     assert f"read of 0x{NOWHERE:08x}" in msg and "Reset_Handler" in msg, msg
+
+
+# SysTick every 1 ms (RVR 83999, CSR 7); the main loop sleeps in wfi; the handler counts in RAM at 0x20000000
+WFI_LOOP = bytes.fromhex("06480749016007480721016030bffde74ff00050016801310160704714e000e01f48010010e000e0")
+SYSTICK_HANDLER = 0x10
+
+
+@pytest.mark.parametrize("native", MODES)
+def test_wfi_sleeps_to_the_next_interrupt(tmp_path, native):
+    """A CPU in wfi wakes for each SysTick (the handler runs, execution continues after the wfi) and the clock
+    jumps between them: 10 interrupts in 10 ms for a few hundred instructions."""
+    path = tmp_path / "wfi.elf"
+    path.write_bytes(tiny_elf(WFI_LOOP, {15: SYSTICK_HANDLER}))
+    board = Board(path, sensors=None, native=native)
+    board.run_until(84_000 * 10 + 100)
+    ticks = board.ram_u32(0x20000000)
+    assert ticks == 10 and board.stats.interrupts == {15: 10}
+    assert board.stats.instructions < 200 and board.stats.skipped_instructions > 800_000
