@@ -1,8 +1,8 @@
 """Digests of short firmware-in-the-loop runs: what the emulated board's speed work must not change.
 
-For one ELF, each run gives the sha256 of the USART1 byte stream, the sha256 of the decoded attitude frames (every
+For one ELF (identified by the sha256 of its load segments and symbols), each run gives the sha256 of the USART1 byte stream, the sha256 of the decoded attitude frames (every
 field but the stream offset) and the median instructions per AHRS step. ``tests/data/emulate_digests.json`` maps the
-ELF's sha256 to the expected digests of each run (``tests/test_emulate_digest.py``).
+ELF's image sha256 to the expected digests of each run (``tests/test_emulate_digest.py``).
 
 Record (with a stated reason; it works on the board before and after the speed work, also copied out of the tree
 and run from another checkout: ``--table`` names the JSON to update)::
@@ -40,7 +40,17 @@ TEST_RUNS = ("hand-tilts", "commands")
 
 
 def elf_sha256(elf: Path) -> str:
-    return hashlib.sha256(Path(elf).read_bytes()).hexdigest()
+    """sha256 of what the board runs: the load segments (address, bytes) and the symbols (name, address, size);
+    not the debug sections, whose paths differ from one build folder to the next."""
+    from steval_link.emulation.elf import Elf
+
+    e = Elf(elf)
+    h = hashlib.sha256()
+    for addr, data in e.segments:
+        h.update(addr.to_bytes(4, "little") + len(data).to_bytes(4, "little") + bytes(data))
+    for sym in sorted(e.symbols, key=lambda x: (x.name, x.addr)):
+        h.update(f"{sym.name} {sym.addr:08x} {sym.size} {int(sym.is_func)}\n".encode())
+    return h.hexdigest()
 
 
 def _frame_digest(stream: bytes) -> tuple[str, int]:
