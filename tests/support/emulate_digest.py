@@ -1,8 +1,9 @@
 """Digests of short firmware-in-the-loop runs: what the emulated board's speed work must not change.
 
-For one ELF (identified by the sha256 of its load segments and symbols), each run gives the sha256 of the USART1 byte stream, the sha256 of the decoded attitude frames (every
-field but the stream offset) and the median instructions per AHRS step. ``tests/data/emulate_digests.json`` maps the
-ELF's image sha256 to the expected digests of each run (``tests/test_emulate_digest.py``).
+For one ELF (identified by the sha256 of its load segments and symbols), each run gives the sha256 of the USART1
+byte stream, the sha256 of the decoded attitude frames (every field but the stream offset) and the median
+instructions per AHRS step. ``tests/data/emulate_digests.json`` maps the ELF's image sha256 to the expected digests
+of each run (``tests/test_emulate_digest.py``).
 
 Record (with a stated reason; it works on the board before and after the speed work, also copied out of the tree
 and run from another checkout: ``--table`` names the JSON to update)::
