@@ -641,8 +641,8 @@ EXPORT void core_unmask_hook(void *uc, uint64_t address, uint32_t size, void *us
 }
 
 /* The CPU (thread mode) has nothing to do until the next event: jump there, fire it, take its interrupt in the
- * hook. wake >= 0: continue there after the handler (wfi); else the polled instruction runs again, normally. */
-static void skip_to_event(core_t *s, int64_t wake) {
+ * hook; the polled instruction runs again after the handler, normally. */
+static void skip_to_event(core_t *s) {
   if (s->n_active) return;
   if (s->resumed_idle) {
     s->resumed_idle = 0;
@@ -667,13 +667,9 @@ static void skip_to_event(core_t *s, int64_t wake) {
   if (any_pending(s)) {
     int64_t exc = core_next_exception(s, reg_get(s, s->PRIMASK));
     if (exc >= 0) {
-      if (wake >= 0) {
-        reg_set(s, s->PC, (uint32_t)wake | 1);
-      } else {
-        s->n -= 1;
-        s->skip_base += 1;
-        s->resumed_idle = 1;
-      }
+      s->n -= 1;
+      s->skip_base += 1;
+      s->resumed_idle = 1;
       take(s, (int)exc);
     }
   }
@@ -701,21 +697,18 @@ EXPORT void core_idle_hook(void *uc, uint64_t address, uint32_t size, void *user
       int64_t lr = reg_get(s, s->LR) & ~1u;
       if (!(s->idle_lo[k] <= lr && lr < s->idle_hi[k])) return;
     }
-    skip_to_event(s, NONE);
+    skip_to_event(s);
     return;
   }
 }
 
+/* wfi in thread mode with no interrupt to take (PRIMASK aside): sleep to the next event (core.py's _on_wfi) */
 EXPORT void core_wfi_hook(void *uc, uint64_t address, uint32_t size, void *user) {
   core_t *s = (core_t *)user;
   (void)uc;
+  (void)address;
   (void)size;
-  if (s->n_active) return;
-  if (any_pending(s)) { /* a pending interrupt (even a masked one) wakes the CPU at once: a no-op */
-    reg_set(s, s->PC, (uint32_t)(address + 2) | 1);
-    return;
-  }
-  skip_to_event(s, (int64_t)address + 2);
+  if (!s->n_active && core_next_exception(s, 0) < 0) skip_to_event(s);
 }
 
 /* Sensor_IO_Read(handle, reg, buf, n) from the register images; Python when the image is not current */

@@ -410,21 +410,19 @@ class PythonBoard:
             self.uc.hook_add(UC_HOOK_CODE, self.guarded(idle), begin=addr, end=addr)
 
     def _on_wfi(self, uc, address, size, user):
-        """``wfi`` in thread mode: sleep to the next event; its interrupt wakes the CPU after the ``wfi``."""
-        if self.nvic.active:
-            return
-        if self.nvic.pending:  # a pending interrupt (even a masked one) wakes the CPU at once: a no-op
-            self.set_reg(self.regs.PC, address + 2 | 1)
-            return
-        self._skip_to_event(wake=address + 2)
+        """``wfi`` in thread mode with no interrupt to take: skip to the next event. Its interrupt is taken here
+        when PRIMASK allows, else at the ``cpsie i`` after the ``wfi`` (as the chip wakes with PRIMASK set); back
+        from the handler, the ``wfi`` runs (unicorn: a no-op). The same rule as the reference firmware's board."""
+        if not self.nvic.active and self.nvic.next_exception(0) is None:
+            self._skip_to_event()
 
-    def _skip_to_event(self, wake: int | None = None) -> None:
+    def _skip_to_event(self) -> None:
         """Called in a code hook when the CPU (thread mode) has nothing to do until the next event.
 
         The clock jumps to that event; it fires here and its interrupt is taken at once (PC redirected inside the
         hook), so an idle CPU goes from event to event without leaving the emulation. At the end of the current
-        run the CPU stops instead. ``wake``: where execution continues after the handler (``wfi``: the next
-        instruction); None: the polled instruction runs again, normally (it sees what the handler did).
+        run the CPU stops instead. The polled instruction runs again after the handler, normally (it sees what the
+        handler did).
         """
         if self.nvic.active:
             return
@@ -447,13 +445,10 @@ class PythonBoard:
         self._fire_events()
         if self.nvic.pending:
             exc = self.nvic.next_exception(self.reg(self.regs.PRIMASK))
-            if exc is not None:
-                if wake is not None:  # the wfi completed: the handler returns after it
-                    self.set_reg(self.regs.PC, wake | 1)
-                else:  # the polled instruction did not run: it runs again after the handler
-                    ic.n -= 1
-                    self._skip_base += 1
-                    self._resumed_idle = True
+            if exc is not None:  # the polled instruction did not run: it runs again after the handler
+                ic.n -= 1
+                self._skip_base += 1
+                self._resumed_idle = True
                 self.exceptions.take(exc)
         end = self._earliest()
         end = self._run_end if end is None else min(end, self._run_end)
