@@ -340,9 +340,9 @@ class PythonBoard:
             uc.hook_add(UC_HOOK_CODE, self._after_unmask, begin=a, end=a)
         if skip_idle:
             self._setup_idle(self.elf)
-        # wfi sleeps to the next event whatever skip_idle says (the CPU cannot spin in it)
-        for a in wfi_sites(self.flash, self.elf):
-            uc.hook_add(UC_HOOK_CODE, self.guarded(self._on_wfi), begin=a, end=a)
+            # wfi sleeps to the next event (without skip_idle it runs as unicorn's no-op: the CPU spins through it)
+            for a in wfi_sites(self.flash, self.elf):
+                uc.hook_add(UC_HOOK_CODE, self.guarded(self._on_wfi), begin=a, end=a)
 
     def _after_unmask(self, uc, address, size, user):
         if self.nvic.pending:

@@ -188,8 +188,8 @@ class NativeBoard(PythonBoard):
                     st.idle_off[k][j], st.idle_size[k][j] = off, size
                 st.idle_lo[k], st.idle_hi[k] = caller if caller is not None else (0, 0)
                 self._site(addr, K_IDLE)
-        for a in wfi_sites(self.flash, self.elf):
-            self._site(a, K_WFI)
+            for a in wfi_sites(self.flash, self.elf):
+                self._site(a, K_WFI)
 
     def _site(self, addr: int, kind: int, arg: int = 0) -> None:
         if not self.lib.core_add_site(self.st_ptr, I64(addr), I64(kind), I64(arg)):
