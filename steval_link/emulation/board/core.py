@@ -12,14 +12,12 @@ from typing import Callable
 from steval_link.emulation.board.calls import FirmwareCalls
 from steval_link.emulation.board.cpu import (
     Exceptions,
-    ICount,
     Registers,
     access_kind,
     cpsie_sites,
     thumb_count,
     wfi_sites,
 )
-from steval_link.emulation.board.cpu import uclib as _uclib
 from steval_link.emulation.board.memory_map import (
     BITBAND_PERIPH,
     BITBAND_SIZE,
@@ -62,6 +60,15 @@ IDLE_FLAGS = ("tim9_event_flag", "HCI_ProcessEvent", "set_connectable")
 #: tUserTimer.event_cnt (interval, target_tick, flag, flag2, event_cnt) of the firmware's `tim`
 TIM_EVENT_CNT = 16
 UC_PROT_RX, UC_PROT_RWX, UC_PROT_R = 5, 7, 1
+
+
+class _Counter:
+    """The Python block counter's state: instructions in this slice, and the count at which to stop."""
+
+    __slots__ = ("n", "limit")
+
+    def __init__(self) -> None:
+        self.n, self.limit = 0, 1
 
 
 @dataclass
@@ -305,7 +312,7 @@ class PythonBoard:
     def _install_counter(self, native: bool | None) -> None:
         from unicorn import UC_HOOK_BLOCK  # reason: unicorn is optional
 
-        self._ic = ICount(0, 1, ctypes.cast(_uclib().uc_emu_stop, ctypes.c_void_p).value)
+        self._ic = _Counter()
         sizes: dict[int, int] = {}
         ic = self._ic
         flash = self.flash

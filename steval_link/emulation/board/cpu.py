@@ -21,12 +21,6 @@ CPSIE_I = 0xB662
 WFI = 0xBF30
 
 
-class ICount(ctypes.Structure):
-    """The C counting hook's state: instructions executed in this slice, and the count at which to stop."""
-
-    _fields_ = [("n", ctypes.c_uint64), ("limit", ctypes.c_uint64), ("stop", ctypes.c_void_p)]
-
-
 def uclib():
     """unicorn's shared library as the Python binding loaded it (ctypes)."""
     try:
