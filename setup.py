@@ -21,8 +21,8 @@ setup(
             optional=True,
         ),
         Extension(
-            "steval_link.emulation._icount",
-            sources=["steval_link/emulation/_icount.c"],
+            "steval_link.emulation._core",
+            sources=["steval_link/emulation/_core.c"],
             extra_compile_args=_FLAGS,
             optional=True,
         ),

@@ -7,17 +7,20 @@ e.g. a build of ST's release made elsewhere), then for each ELF:
 - instructions per AHRS step (``ahrs_fusion_ag`` + ``QuaternionToEuler``, interrupts excluded) and the firmware's
   own DWT window (CYCCNT, which here counts instructions, interrupts included): instruction counts of this
   emulator, not Cortex-M4 cycles;
-- interrupts per emulated second, idle instructions skipped, peak memory (RSS) of the run.
+- interrupts per emulated second, instructions executed and idle-skipped per emulated second, the USART1 baud rate
+  the firmware set (pass a 460800 baud build as another ELF), peak memory (RSS) of the run (each run in its own
+  process).
 Asserts nothing.
 
-Run: ``python benchmarks/bench_emulate.py [--duration 20] [--pure] [ELF...]`` (``--pure``: the Python block-hook
-counter instead of the C one, to see what the optional extension buys).
+Run: ``python benchmarks/bench_emulate.py [--duration 20] [--pure] [ELF...]`` (``--pure``: also the Python models,
+as on a machine without a C compiler, to see what the C core buys).
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -35,11 +38,12 @@ from steval_link.link.decoder import StreamDecoder  # noqa: E402
 
 
 def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> None:
-    emu = Emulation(EmulationOptions(elf=elf, scenario=scenario, duration_s=duration_s, seed=1))
-    if native is False:
-        from steval_link.emulation.board import Board
+    """One run (in its own process, for its peak RSS): speeds, counts, memory."""
+    from steval_link.emulation.board import Board  # reason: after sys.path is set (module top)
 
-        emu.board = Board(emu.elf, emu.bus, native=False)
+    emu = Emulation(EmulationOptions(elf=elf, scenario=scenario, duration_s=duration_s, seed=1))
+    if native is not None:
+        emu.board = Board(emu.elf, emu.bus, native=native)
         emu.board.tick_observers.append(emu._on_tick)
         emu._install_step_probes()
     dec = StreamDecoder()
@@ -51,27 +55,40 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
         marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))
         if boot is None and dec.stats.attitude:
             boot = marks[-1]
+    marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))  # (quiet ends)
     rep = emu.report()
     end = marks[-1]
-    print(f"\n{elf.name}  ({'C counter' if emu.board.native else 'Python block counter'}, {scenario}, "
-          f"{duration_s:g} s emulated)")
-    print(f"  whole run: {end[0] / end[1]:.2f} emulated s per wall s, {end[0] / end[2]:.2f} per CPU s "
-          f"({end[1]:.1f} s wall)")
+    brr = emu.board.usart1.read(0x08)
+    baud = f"{CPU_HZ / brr:.0f} baud" if brr else "baud ?"
+    core = "C core" if emu.board.native else "Python models (no C compiler)"
+    print(f"\n{elf.name}  ({core}, {scenario}, {duration_s:g} s emulated, USART1 at {baud})")
+    print(f"  overall: {end[0] / end[1]:.2f} emulated s per wall s, {end[0] / end[2]:.2f} per CPU s "
+          f"({end[1]:.1f} s wall, {end[2]:.1f} s CPU)")
     if boot is not None and end[0] - boot[0] > 1:
-        print(f"  boot (to first frame at {rep.first_attitude_s:.3f} s): {boot[0] / boot[1]:.2f} per wall s; "
+        print(f"  boot (to the first frame at {rep.first_attitude_s:.3f} s): {boot[0] / boot[1]:.2f} per wall s; "
               f"streaming: {(end[0] - boot[0]) / (end[1] - boot[1]):.2f} per wall s, "
               f"{(end[0] - boot[0]) / (end[2] - boot[2]):.2f} per CPU s")
     a = np.asarray(rep.step_instructions)
     d = np.asarray(rep.dwt_windows)
     if a.size:
         print(f"  instructions per AHRS step (emulator count, not M4 cycles): min {a.min()} mean {a.mean():.0f} "
-              f"max {a.max()} (n={a.size}); DWT window min {d.min()} mean {d.mean():.0f} max {d.max()}")
+              f"max {a.max()} (n={a.size})" + (f"; DWT window min {d.min()} mean {d.mean():.0f} max {d.max()}"
+                                                 if d.size and d.any() else ""))
     per_s = {k: round(v / rep.emulated_s) for k, v in rep.interrupts.items()}
-    print(f"  interrupts per emulated s: {per_s}; instructions executed {rep.instructions / rep.emulated_s / 1e6:.2f} M"
-          f"/s, idle skipped {rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M/s")
+    print(f"  interrupts per emulated s: {per_s} (total {sum(per_s.values())})")
+    print(f"  instructions per emulated s: {rep.instructions / rep.emulated_s / 1e6:.2f} M executed, "
+          f"{rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M idle skipped")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"  frames: {dec.stats.attitude} attitude, {dec.stats.crc_failures} CRC failures, "
           f"{dec.stats.frames_missing} missing; peak RSS {peak_mb:.0f} MB")
+
+
+def _in_child(elf: Path, args, native: bool | None) -> None:
+    """Run :func:`bench` in a fresh process (its own peak RSS)."""
+    cmd = [sys.executable, __file__, "--one", str(elf), "--duration", str(args.duration), "--scenario", args.scenario]
+    if native is not None:
+        cmd += ["--native" if native else "--pure-only"]
+    subprocess.run(cmd, check=False)
 
 
 def main() -> None:
@@ -79,8 +96,14 @@ def main() -> None:
     ap.add_argument("elf", nargs="*", type=Path)
     ap.add_argument("--duration", type=float, default=15.0)
     ap.add_argument("--scenario", default="hand-tilts")
-    ap.add_argument("--pure", action="store_true", help="also run with the Python block-hook counter")
+    ap.add_argument("--pure", action="store_true", help="also run with the Python models (as without a C compiler)")
+    ap.add_argument("--one", type=Path, help=argparse.SUPPRESS)  # (the child process of one run)
+    ap.add_argument("--native", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--pure-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.one is not None:
+        bench(args.one, args.duration, True if args.native else False if args.pure_only else None, args.scenario)
+        return
     elfs = list(args.elf)
     with tempfile.TemporaryDirectory() as tmp:
         if not elfs:
@@ -92,9 +115,9 @@ def main() -> None:
             elfs = [S.build_reference(Path(tmp) / "b")]
             print(f"built the reference firmware in {time.perf_counter() - t:.1f} s")
         for elf in elfs:
-            bench(elf, args.duration, None, args.scenario)
+            _in_child(elf, args, None)
             if args.pure:
-                bench(elf, args.duration, False, args.scenario)
+                _in_child(elf, args, False)
 
 
 if __name__ == "__main__":

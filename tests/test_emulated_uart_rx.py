@@ -1,8 +1,12 @@
 """The emulated USART1's receiver as an STM32F401's: bytes injected at emulated times arrive 10 bit times apart at
 the BRR's baud rate; RXNE, the RXNE interrupt, DR reads, overrun (ORE, cleared by SR then DR), a disabled
-receiver. (The real firmware's use of it: tests/test_twoway_firmware.py.)"""
+receiver. The Python model and the C core's, the same assertions. (The real firmware's use of it:
+tests/test_twoway_firmware.py.)"""
 
 from __future__ import annotations
+
+import pytest
+from support.tiny_elf import tiny_elf
 
 from steval_link.emulation.board import IRQ_BASE, IRQ_USART1, Nvic, Usart
 
@@ -26,19 +30,43 @@ class _Board:
         pass
 
 
-def _uart(cr1=UE | RE | TE | RXNEIE):
-    board = _Board()
-    u = Usart(board, 0x40011000, IRQ_USART1)
-    u.write(BRR, 729)  # 115200 baud at 84 MHz: a bit every 729 cycles
-    u.write(CR1, cr1)
-    return board, u
+@pytest.fixture(params=["python", "native"])
+def model(request, tmp_path):
+    """Builds (board, USART1) of the Python model or of the C core."""
+    if request.param == "python":
+        return lambda: (_Board(), None)
+    pytest.importorskip("unicorn")
+    from steval_link.emulation.board import NativeBoard, core_library
+
+    if core_library() is None:
+        pytest.skip("the C core is not built")
+    path = tmp_path / "loop.elf"
+    path.write_bytes(tiny_elf())
+
+    def make():
+        board = NativeBoard(path, None)
+        board.rescheduled = 1  # (the C core reschedules itself)
+        return board, board.usart1
+    return make
+
+
+@pytest.fixture
+def _uart(model):
+    def make(cr1=UE | RE | TE | RXNEIE):
+        board, u = model()
+        if u is None:
+            u = Usart(board, 0x40011000, IRQ_USART1)
+        u.write(BRR, 729)  # 115200 baud at 84 MHz: a bit every 729 cycles
+        u.write(CR1, cr1)
+        return board, u
+    return make
 
 
 def _pending(board) -> bool:
     return IRQ_USART1 + IRQ_BASE in board.nvic.pending
 
 
-def test_bytes_arrive_at_the_baud_rate_and_raise_rxne():
+def test_bytes_arrive_at_the_baud_rate_and_raise_rxne(_uart):
     board, u = _uart()
     u.inject(b"AB", 1000)
     assert u.rx_done == 1000 + 7290 and board.rescheduled
@@ -55,7 +83,7 @@ def test_bytes_arrive_at_the_baud_rate_and_raise_rxne():
     assert [b for b, _ in u.rx_log] == [ord("A"), ord("B")] and u.rx_received == 2
 
 
-def test_later_injections_wait_for_the_line_and_keep_time_order():
+def test_later_injections_wait_for_the_line_and_keep_time_order(_uart):
     board, u = _uart()
     u.inject(b"x", 50_000)
     u.inject(b"y", 10_000)  # scheduled earlier, added later: goes first
@@ -65,7 +93,7 @@ def test_later_injections_wait_for_the_line_and_keep_time_order():
     assert u.read(DR) == ord("y") and u.rx_done == 50_000 + 7290
 
 
-def test_overrun_keeps_the_older_byte_and_sr_then_dr_clears_it():
+def test_overrun_keeps_the_older_byte_and_sr_then_dr_clears_it(_uart):
     board, u = _uart(UE | RE)  # no interrupt: nobody reads in time
     u.inject(b"12", 0)
     for _ in range(2):
@@ -78,7 +106,7 @@ def test_overrun_keeps_the_older_byte_and_sr_then_dr_clears_it():
     assert not u.read(SR) & (RXNE | ORE)
 
 
-def test_overrun_raises_the_interrupt_with_rxneie():
+def test_overrun_raises_the_interrupt_with_rxneie(_uart):
     board, u = _uart()
     u.inject(b"12", 0)
     for _ in range(2):
@@ -90,7 +118,7 @@ def test_overrun_raises_the_interrupt_with_rxneie():
     assert not _pending(board)
 
 
-def test_a_disabled_receiver_loses_the_bytes():
+def test_a_disabled_receiver_loses_the_bytes(_uart):
     board, u = _uart(UE | TE)
     u.inject(b"z", 0)
     board.now = u.rx_done

@@ -144,6 +144,8 @@ class ScenarioMotion:
         self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
         self.gyro_noise_mdps = sm.Lsm6dsl().gyro_noise_mdps
         self._window = -1
+        #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
+        self._rendered = self._previous = None
         self._acc = self._gyro = self._thr = self._sticks = self._armed = None
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
@@ -170,12 +172,24 @@ class ScenarioMotion:
         self._sticks, self._armed = prof.sticks, prof.armed
         self._window = w
         self._k0 = k0
+        self._previous, self._rendered = self._rendered, (w, k0, self._acc, self._gyro, self._thr, self._sticks,
+                                                          self._armed)
+
+    def forget(self) -> None:
+        """Render the windows again (their trial time changed)."""
+        self._window = -1
+        self._rendered = self._previous = None
 
     def _at(self, k: int) -> int:
         n = int(round(WINDOW_S / TICK_S))
         w = max(k, 0) // n
         if w != self._window:
-            self._render(w)
+            if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
+                self._previous, self._rendered = self._rendered, self._previous
+                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks,
+                 self._armed) = self._rendered
+            else:
+                self._render(w)
         return max(k, 0) - self._k0
 
     def counts(self, k: int):
@@ -355,7 +369,7 @@ class Emulation:
     def _on_tick(self, board: Board) -> None:
         if self.motion.trial is not None and self.motion.first_tick_s is None:
             self.motion.first_tick_s = board.now / CPU_HZ
-            self.motion._window = -1  # render again with trial time 0 at this tick
+            self.motion.forget()  # render again with trial time 0 at this tick
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
             thr, (ail, ele, rud), armed = self.motion.remote(k)
@@ -438,12 +452,11 @@ class Emulation:
             self._host_progress()
             b.run_until(min(end, b.now + slice_cycles))
             self._host_progress()
-            if b.out:
-                data = bytes(x for x, _ in b.out)
-                last_byte_t = b.out[-1][1]
+            data, first_t, last_t = b.take_output()
+            if data:
+                last_byte_t = last_t
                 if self._first_byte_s is None:
-                    self._first_byte_s = b.out[0][1] / CPU_HZ
-                b.out.clear()
+                    self._first_byte_s = first_t / CPU_HZ
                 self._bytes += len(data)
                 yield data, last_byte_t / CPU_HZ
             if self.n_steps != last_steps:

@@ -1,0 +1,385 @@
+"""The board with its hot path in C (``steval_link.emulation._core``): the instruction counter, the event scheduler,
+USART1, SysTick, the NVIC, the timers, exception entry/return, idle skipping and the sensor reads run inside unicorn's
+hooks without Python. The other peripherals, the replaced firmware calls, TIM9's tick observers and the probes stay
+in Python.
+
+The C state is a ``core_t`` allocated here (:mod:`.native_state` mirrors it; ``core_sizeof`` checks the layout).
+The models are the Python ones translated (board/usart.py, timer.py, scs.py, cpu.py, core.py): the firmware sees the
+same thing at the same instruction counts.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+from steval_link.emulation.board.core import PythonBoard
+from steval_link.emulation.board.cpu import uclib, wfi_sites
+from steval_link.emulation.board.memory_map import (
+    CPU_HZ,
+    IRQ_TIM2,
+    IRQ_TIM9,
+    IRQ_USART1,
+    PERIPH_BASE,
+    TIM2_OFF,
+    TIM4_OFF,
+    TIM9_OFF,
+    USART1_OFF,
+    EmulationError,
+    Gpio,
+    GpioReg,
+)
+from steval_link.emulation.board.native_state import (
+    EV_CODE,
+    EV_MMIO,
+    EV_OUT_FULL,
+    EV_SENSOR,
+    EV_TICK,
+    F_CPU_EXC,
+    F_PYTHON,
+    F_RETURN,
+    F_STACK,
+    I64,
+    K_IDLE,
+    K_PY,
+    K_SENSOR,
+    K_UNMASK,
+    K_WFI,
+    MAX_IDLE,
+    MAX_IDLE_WORDS,
+    MAX_MIRROR,
+    MAX_SITES,
+    NONE,
+    OUT_CAPACITY,
+    RX_CAPACITY,
+    RXLOG_CAPACITY,
+    SENSOR_DEVICES,
+    U8,
+    CoreState,
+    NativeNvic,
+    NativeScs,
+    NativeTimer,
+    NativeUsart,
+    P,
+    core_library,
+)
+
+
+class NativeBoard(PythonBoard):
+    """:class:`PythonBoard` with the C core (see the module docstring)."""
+
+    native = True
+
+    def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
+        self.lib = core_library()
+        self.st = CoreState()
+        self.st_ptr = ctypes.byref(self.st)
+        self.rx_t, self.rx_b = (I64 * RX_CAPACITY)(), (U8 * RX_CAPACITY)()
+        self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
+        self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
+        self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
+        self._py_hooks: list = []
+        self._mirrored: list = []
+        super().__init__(elf, sensors, skip_idle=skip_idle)
+
+    # -- construction
+    def _make_peripherals(self) -> None:
+        lib = uclib()
+        st = self.st
+        st.uc = self.uc._uch.value if hasattr(self.uc._uch, "value") else self.uc._uch
+        for name in ("emu_start", "emu_stop", "reg_read", "reg_write", "reg_read_batch", "reg_write_batch"):
+            setattr(st, name, ctypes.cast(getattr(lib, "uc_" + name), P).value)
+        st.py_event = ctypes.cast(self._event_cb, P).value
+        st.ram, st.flash = ctypes.addressof(self.ram), ctypes.addressof(self.flash)
+        r = self.regs
+        st.rid[:] = [r.SP, r.LR, r.PC, r.XPSR, r.PRIMASK] + r.R
+        st.frame_ids[:25] = r.frame_ids
+        st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
+        st.max_slice = CPU_HZ // 1000
+        for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
+            setattr(st, name, NONE)
+        st.tc = 1
+        st.systick_period = 1
+        st.rx_t, st.rx_b, st.rx_cap = ctypes.addressof(self.rx_t), ctypes.addressof(self.rx_b), RX_CAPACITY
+        st.rxlog_t, st.rxlog_b, st.rxlog_cap = (ctypes.addressof(self.rxlog_t), ctypes.addressof(self.rxlog_b),
+                                                RXLOG_CAPACITY)
+        st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
+        self.nvic = NativeNvic(st, self.lib, self.st_ptr)
+        super()._make_peripherals()
+
+    def _make_usart(self):
+        return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
+
+    def _make_timers(self):
+        return (NativeTimer(self, PERIPH_BASE + TIM9_OFF, IRQ_TIM9, "TIM9", 0),
+                NativeTimer(self, PERIPH_BASE + TIM2_OFF, IRQ_TIM2, "TIM2", 1),
+                NativeTimer(self, PERIPH_BASE + TIM4_OFF, None, "TIM4", 2))
+
+    def _make_scs(self):
+        return NativeScs(self)
+
+    def _map_usart(self, uc, usart) -> None:
+        self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
+
+    def _map_c(self, p, read: str, write: str, user) -> None:
+        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
+                                  ctypes.cast(getattr(self.lib, read), P), user,
+                                  ctypes.cast(getattr(self.lib, write), P), user)
+        if err:
+            raise EmulationError(f"unicorn refused the {p.name} MMIO model (error {err})")
+
+    def _map_python(self, uc, p, rd, wr) -> None:
+        """A Python peripheral's page: the timers are C's; GPIO IDR (inputs read 0) is read in C."""
+        if isinstance(p, NativeTimer):
+            return self._map_c(p, "timer_mmio_read", "timer_mmio_write", ctypes.byref(p.t))
+        served = (GpioReg.IDR,) if isinstance(p, Gpio) else ()
+        if not served or len(self._mirrored) >= MAX_MIRROR:
+            return super()._map_python(uc, p, rd, wr)
+        k = len(self._mirrored)
+        self._mirrored.append(p)
+        m = self.st.mirror[k]
+        m.core, m.page = ctypes.addressof(self.st), k
+        for off in served:
+            m.served[off // 4] = 1
+        p.mirror = m
+        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
+                                  ctypes.cast(self.lib.mirror_mmio_read, P), ctypes.byref(m),
+                                  ctypes.cast(self.lib.mirror_mmio_write, P), ctypes.byref(m))
+        if err:
+            raise EmulationError(f"unicorn refused the {p.name} MMIO mirror (error {err})")
+
+    def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
+        h = ctypes.c_size_t()
+        err = uclib().uc_hook_add(self.uc._uch, ctypes.byref(h), kind, ctypes.cast(getattr(self.lib, fn), P),
+                                  self.st_ptr, ctypes.c_uint64(begin), ctypes.c_uint64(end))
+        if err:
+            raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
+
+    def _install_counter(self, native) -> None:
+        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
+
+        self._c_hook(UC_HOOK_CODE, "core_count_hook")
+
+    def _install_hooks(self, skip_idle: bool) -> None:
+        from unicorn import UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
+
+        from steval_link.emulation.board.calls import FirmwareCalls  # reason: (kept next to its use)
+        from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
+
+        self._c_hook(UC_HOOK_INTR, "core_intr_hook")
+        self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid))
+        calls = FirmwareCalls(self)
+        sensor_read = self.elf.addr("Sensor_IO_Read")
+        # a write changes the register files: the C core's copies follow
+        self.call_observers.setdefault("Sensor_IO_Write", []).append(lambda board, *args: self._sensor_images())
+        calls.install(skip=("Sensor_IO_Read",) if sensor_read is not None else ())
+        if sensor_read is not None:
+            self._sensor_slow = calls.replacement_hook("Sensor_IO_Read")
+            self._site(sensor_read, K_SENSOR)
+        for a in cpsie_sites(self.flash, self.elf):
+            self._site(a, K_UNMASK)
+        st = self.st
+        if skip_idle:
+            sites = self.idle_sites(self.elf)[:MAX_IDLE]
+            st.n_idle = len(sites)
+            for k, (addr, words, caller) in enumerate(sites):
+                st.idle_addr[k] = addr
+                st.idle_n_words[k] = len(words[:MAX_IDLE_WORDS])
+                for j, (off, size) in enumerate(words[:MAX_IDLE_WORDS]):
+                    st.idle_off[k][j], st.idle_size[k][j] = off, size
+                st.idle_lo[k], st.idle_hi[k] = caller if caller is not None else (0, 0)
+                self._site(addr, K_IDLE)
+            for a in wfi_sites(self.flash, self.elf):
+                self._site(a, K_WFI)
+
+    def _site(self, addr: int, kind: int, arg: int = 0) -> None:
+        if not self.lib.core_add_site(self.st_ptr, I64(addr), I64(kind), I64(arg)):
+            raise EmulationError(f"the C core cannot hook 0x{addr:08x} (outside the flash, or more than "
+                                 f"{MAX_SITES} hooks)")
+
+    def code_hook(self, addr: int, fn) -> None:
+        """Call ``fn(uc, address, size, user)`` before the instruction at ``addr`` (dispatched by the C core)."""
+        self._py_hooks.append(fn)
+        self._site(addr, K_PY, len(self._py_hooks) - 1)
+
+    # -- Python called from C
+    def _on_event(self, kind: int, arg: int) -> int:
+        try:
+            self.now = self.st.now
+            if kind == EV_TICK:
+                for ob in self.tick_observers:
+                    ob(self)
+                self._sensor_tick()
+            elif kind == EV_OUT_FULL:
+                self._drain()
+            elif kind == EV_MMIO:
+                p, st = self._mirrored[arg], self.st
+                if st.mmio_write:
+                    self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
+                else:
+                    st.mmio_value = self._mmio_read(self.uc, st.hook_addr, st.hook_size, p)
+            elif kind == EV_CODE:
+                self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
+            elif kind == EV_SENSOR:
+                self._sensor_slow(self.uc, 0, 0, None)
+                self._sensor_images()
+        except BaseException as exc:  # noqa: BLE001 - raised again by run_until
+            self.stop_with(exc)
+        return 0
+
+    def _sensor_tick(self) -> None:
+        """At TIM9's update, the LSM6DSL's sample of the new tick into the C core's image (as the ISR's first read
+        would fetch it): the ISR's reads all run in C."""
+        bus, st = self.sensors, self.st
+        if not st.sensor_fast[0] or self.call_observers.get("Sensor_IO_Read"):
+            return
+        bus.read(0, 0x22, 12, self)
+        ctypes.memmove(ctypes.addressof(st.sensor_img[0]), bytes(bus.devices[0].r), 128)
+        st.sensor_valid = st.tim[0].updates
+
+    def _sensor_images(self) -> None:
+        """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
+        bus, st = self.sensors, self.st
+        devices = getattr(bus, "devices", None)
+        fast = devices is not None and not getattr(bus, "log_limit", 1) and not self.call_observers.get(
+            "Sensor_IO_Read")
+        for d in range(SENSOR_DEVICES):
+            dev = devices.get(d) if devices is not None else None
+            st.sensor_fast[d] = 1 if fast and dev is not None else 0
+            if dev is not None:
+                ctypes.memmove(ctypes.addressof(st.sensor_img[d]), bytes(dev.r), 128)
+        st.sensor_valid = st.tim[0].updates if self.tim9.first_update is not None else -1
+
+    def take_output(self) -> tuple[bytes, int | None, int | None]:
+        """The USART1 bytes that left the line since the last call (one copy out of the C buffer), with the
+        instruction counts at which the first and the last one left (None, None if none)."""
+        st = self.st
+        if self.out:  # (the buffer overflowed into out during a long run)
+            self._drain()
+            return super().take_output()
+        n = st.out_len
+        if not n:
+            return b"", None, None
+        data = ctypes.string_at(self.out_b, n)
+        first, last = self.out_t[0], self.out_t[n - 1]
+        st.out_len = 0
+        return data, first, last
+
+    def _drain(self) -> None:
+        st = self.st
+        n = st.out_len
+        if n:
+            self.out.extend(zip(bytes(self.out_b[:n]), self.out_t[:n]))
+            st.out_len = 0
+
+    # -- the board's interface, over the C state
+    def timer_moved(self, tim) -> None:
+        """(The timers live in the C core.)"""
+
+    def sync_now(self) -> None:
+        """``now`` from the counter, in Python and in the C core (a model called from Python reads it there)."""
+        st = self.st
+        self.now = st.now = st.slice_start + st.n + st.skip_base
+
+    def _mmio_read(self, uc, off, size, p):
+        self.sync_now()
+        word = p.read(off & ~3)
+        return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
+
+    def _mmio_write(self, uc, off, size, value, p):
+        self.sync_now()
+        if size != 4:
+            sh = (off & 3) * 8
+            mask = ((1 << (8 * size)) - 1) << sh
+            value = (p.stored(off & ~3) & ~mask) | ((value << sh) & mask)
+        p.write(off & ~3, value)
+
+    def _bb_read(self, uc, off, size, user):
+        self.sync_now()
+        t = self._bb_target(off)
+        return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
+
+    def _bb_write(self, uc, off, size, value, user):
+        self.sync_now()
+        t = self._bb_target(off)
+        if t is not None:
+            p, reg, bit = t
+            old = p.bitband_base(reg)
+            p.write(reg, (old | (1 << bit)) if value & 1 else (old & ~(1 << bit)))
+
+    def instructions_now(self) -> int:
+        return self.st.instructions + self.st.n
+
+    @property
+    def exception_instructions(self) -> int:
+        return self.st.exc_instructions
+
+    @exception_instructions.setter
+    def exception_instructions(self, v: int) -> None:
+        self.st.exc_instructions = v
+
+    def request_stop(self) -> None:
+        self.lib.core_request_stop(self.st_ptr)
+
+    def stop_with(self, exc: BaseException) -> None:
+        if self.fault is None:
+            self.fault = exc
+        if not self.st.fault:
+            self.st.fault = F_PYTHON
+        self.request_stop()
+
+    def reschedule(self) -> None:
+        self.lib.core_reschedule(self.st_ptr)
+
+    def irq_check(self) -> None:
+        self.lib.core_irq_check(self.st_ptr)
+
+    def vtor(self) -> int:
+        return self.st.vtor
+
+    def _reset(self) -> None:
+        super()._reset()
+        self.st.now = self.st.slice_start = self.st.skip_base = 0
+
+    def _stats(self) -> None:
+        st, s = self.st, self.stats
+        s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
+        s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
+
+    def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
+        """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
+        st = self.st
+        st.max_slice = max_slice
+        if self.fault is not None:
+            raise self.fault
+        if self.st.sensor_valid and self.call_observers.get("Sensor_IO_Read"):
+            st.sensor_fast[:] = [0] * SENSOR_DEVICES
+        rc = self.lib.core_run(self.st_ptr, I64(t_end))
+        self.now = st.now
+        if self.out:  # (bytes already drained into out: keep the order)
+            self._drain()
+        self._stats()
+        if rc:
+            raise self._fault_error()
+
+    def _fault_error(self) -> BaseException:
+        st = self.st
+        if self.fault is not None:
+            return self.fault
+        t = f"t = {self.now / CPU_HZ:.6f} s"
+        if st.fault == F_STACK:
+            self.fault = EmulationError(f"stack overflow: exception {st.fault_arg >> 32} at sp "
+                                        f"0x{st.fault_arg & 0xFFFFFFFF:08x} in {self.where()}")
+        elif st.fault == F_RETURN:
+            self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
+        elif st.fault == F_CPU_EXC:
+            self.fault = EmulationError(f"the CPU raised exception {st.fault_arg} in {self.where()} "
+                                        f"(pc 0x{self.pc():08x}, {t})")
+        else:
+            from unicorn import UcError  # reason: unicorn is optional
+
+            self.fault = EmulationError(f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): "
+                                        f"{UcError(st.fault_arg)}")
+        return self.fault
+
+
+__all__ = ["NativeBoard", "core_library"]

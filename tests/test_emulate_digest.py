@@ -1,0 +1,75 @@
+"""The emulated board's output does not change: a short run's USART1 bytes and attitude frames have the digests
+recorded for this ELF in tests/data/emulate_digests.json (ELF sha256 → runs), and its instructions per AHRS step are
+within 1 % of the recorded ones.
+
+The ELF: ``STEVAL_DIGEST_ELF`` (a path), else the reference firmware (``make -C firmware_patch reference``), built
+here into a temporary folder. An ELF whose digests were never recorded fails in CI, with its digests printed: record
+them, with a reason, by ``python tests/support/emulate_digest.py ELF --record REASON`` (on the board before a change
+that must not alter the output)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from support import emulate_digest as D
+
+pytestmark = pytest.mark.slow
+ROOT = Path(__file__).resolve().parents[1]
+FW = ROOT / "firmware_patch"
+
+
+def _elf(tmp_path_factory) -> Path:
+    env = os.environ.get("STEVAL_DIGEST_ELF")
+    if env:
+        return Path(env)
+    why = None
+    if shutil.which("arm-none-eabi-gcc") is None:
+        why = "arm-none-eabi-gcc is not installed"
+    elif "reference:" not in (FW / "Makefile").read_text(encoding="utf-8"):
+        why = "firmware_patch/Makefile has no reference target"
+    if why is None:
+        build = tmp_path_factory.mktemp("digest-ref")
+        r = subprocess.run(["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={build}", "-j2"],
+                           capture_output=True, text=True)
+        elfs = sorted((build / "reference").glob("*.elf"))
+        if r.returncode == 0 and elfs:
+            return elfs[0]
+        why = f"make reference failed: {(r.stdout + r.stderr)[-500:]}"
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"no ELF for the digest test: {why}")
+    pytest.skip(f"no ELF for the digest test: {why}")
+
+
+@pytest.fixture(scope="module")
+def elf(tmp_path_factory) -> Path:
+    pytest.importorskip("unicorn")
+    from steval_link.emulation.board import core_library  # reason: after the unicorn check
+
+    if core_library() is None:  # the digests are of the C core's per-instruction clock
+        if os.environ.get("CI") == "true":
+            pytest.fail("the board's C core (steval_link.emulation._core) is not built")
+        pytest.skip("the board's C core is not built (no C compiler at install)")
+    return _elf(tmp_path_factory)
+
+
+@pytest.mark.parametrize("run", D.TEST_RUNS)
+def test_the_firmware_output_is_the_recorded_one(elf, run):
+    table = json.loads(D.DIGESTS.read_text(encoding="utf-8"))
+    sha = D.elf_sha256(elf)
+    got = D.run(elf, run)
+    want = table.get(sha, {}).get("runs", {}).get(run)
+    if want is None:
+        msg = (f"no digests recorded for {elf.name} (sha256 {sha}), run {run!r}: got {json.dumps(got)}. Record them "
+               f"with a reason: python tests/support/emulate_digest.py {elf} --runs {run} --record 'REASON'")
+        if os.environ.get("CI") == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    steps = got.pop("step_instructions_median"), want.get("step_instructions_median")
+    assert got == {k: v for k, v in want.items() if k != "step_instructions_median"}
+    if steps[1]:
+        assert abs(steps[0] - steps[1]) <= 0.01 * steps[1], f"instructions per AHRS step {steps[0]} vs {steps[1]}"
