@@ -7,9 +7,11 @@ import json
 import math
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.cli import run_cli
 
 from steval_link.analysis import evaluate as ev
 from steval_link.emulation import broad
@@ -23,6 +25,12 @@ BROAD_TRIALS = ("02_undisturbed_slow_rotation_B", "24_disturbed_tapping_A")
 def _steval(*args, timeout=600):
     return subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", *args],
                           capture_output=True, text=True, timeout=timeout)
+
+
+def _steval_here(monkeypatch, capsys, *args):
+    """``steval ARGS`` in this process (no interpreter start-up): the same returncode, stdout and stderr."""
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
 
 
 # --- metric -------------------------------------------------------------------------------------------------------
@@ -132,6 +140,7 @@ def test_default_specs_selection():
 
 # --- the command ----------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # a steval child over two whole BROAD trials and five estimators: ≈ 3 s
 def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path):
     paths = [str(shared_dir / "datasets" / "broad" / f"{name}.npz") for name in BROAD_TRIALS]
     res = _steval("evaluate", *paths, "--json")
@@ -162,21 +171,22 @@ def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path):
     assert len(lines[2].split()) == 4
 
 
-def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path):
-    missing = _steval("evaluate", str(tmp_path / "nope.npz"))
+def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
+    missing = _steval_here(monkeypatch, capsys, "evaluate", str(tmp_path / "nope.npz"))
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "no such file" in missing.stderr
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"garbage")
-    res = _steval("evaluate", str(bad))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(bad))
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     empty = tmp_path / "empty"
     empty.mkdir()
-    res = _steval("evaluate", str(empty))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(empty))
     assert res.returncode == 2 and "no .npz" in res.stderr
-    res = _steval("evaluate", str(bad), "--estimators", "kalman")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(bad), "--estimators", "kalman")
     assert res.returncode == 2 and "unknown estimator" in res.stderr
 
 
+@pytest.mark.slow  # the demo capture through the MEKF, then a steval child: ≈ 2.5 s
 def test_evaluate_capture_with_truth_sidecar(tmp_path):
     from steval_link.link.capture import demo_capture_path, load_telemetry
 
@@ -231,12 +241,12 @@ def test_vqf_adapter_units_frames_and_interface():
     assert 2 * np.degrees(np.arctan2(np.linalg.norm(d[1:]), d[0])) == pytest.approx(0.9, rel=1e-3)
 
 
-def test_cli_sensor_noise_is_seeded(tmp_path):
+def test_cli_sensor_noise_is_seeded(tmp_path, monkeypatch, capsys):
     trial = _synthetic_trial(tmp_path / "96_synthetic.npz")
     args = ["evaluate", str(trial), "-e", "accel", "--json"]
-    a = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
-    b = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
-    c = json.loads(_steval(*args).stdout)
+    a = json.loads(_steval_here(monkeypatch, capsys, *args, "--sensor-noise", "--seed", "4").stdout)
+    b = json.loads(_steval_here(monkeypatch, capsys, *args, "--sensor-noise", "--seed", "4").stdout)
+    c = json.loads(_steval_here(monkeypatch, capsys, *args).stdout)
     assert a["trials"][0]["rmse_deg"] == b["trials"][0]["rmse_deg"]
     assert a["sensor_noise"] and not c["sensor_noise"]
     assert a["trials"][0]["rmse_deg"]["accel"] > c["trials"][0]["rmse_deg"]["accel"]

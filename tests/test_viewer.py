@@ -356,6 +356,7 @@ def _steval(*args: str, cwd=None):
     )
 
 
+@pytest.mark.slow  # three steval children (interpreter, Rerun start-up): ≈ 4 s
 def test_cli_replay_to_rrd_headless(tmp_path):
     data, _ = make_stream(1200, nan_rows=(10, 11, 12))
     cap = tmp_path / "dump.bin"
@@ -388,8 +389,12 @@ def _serial_recording(p: Path) -> bool:
 BUNDLED = sorted(p for p in (Path(__file__).resolve().parents[1] / "recordings").iterdir() if _serial_recording(p))
 
 
+#: one steval child each (≈ 1.5 s): the quick run replays the demo, the full run every bundled recording
+BUNDLED_PARAMS = [pytest.param(p, id=p.name, marks=() if p.name == "demo.stv" else pytest.mark.slow) for p in BUNDLED]
+
+
 @pytest.mark.skipif(not BUNDLED, reason="no bundled recordings in recordings/")
-@pytest.mark.parametrize("capture", BUNDLED, ids=[p.name for p in BUNDLED])
+@pytest.mark.parametrize("capture", BUNDLED_PARAMS)
 def test_every_bundled_recording_replays_to_rrd(capture, tmp_path):
     """CI: each bundled capture replays headlessly to an .rrd that reads back with every entity and all samples."""
     from steval_link.link.capture import load_telemetry
