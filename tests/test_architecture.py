@@ -98,12 +98,19 @@ def imports_of(path: Path, modules: dict[str, Path]) -> list[tuple[str, int, boo
     return found
 
 
-def test_imports_run_down_the_layers_never_up():
+@pytest.fixture(scope="module")
+def project():
+    """(every project module and its path, every module's project imports): the tree is parsed once."""
     modules = project_modules()
+    return modules, {name: imports_of(path, modules) for name, path in modules.items()}
+
+
+def test_imports_run_down_the_layers_never_up(project):
+    modules, imports = project
     up = []
     for name, path in sorted(modules.items()):
         mine = layer_of(name)
-        for target, line, in_function, _ in imports_of(path, modules):
+        for target, line, in_function, _ in imports[name]:
             if target == name or name.startswith(target + "."):  # a package's own __init__ / parent package
                 continue
             if (name, target) == LAZY_FACADE and in_function:
@@ -113,11 +120,11 @@ def test_imports_run_down_the_layers_never_up():
     assert not up, "imports that run up the layers:\n" + "\n".join(up)
 
 
-def test_no_import_cycle():
-    modules = project_modules()
+def test_no_import_cycle(project):
+    modules, imports = project
     graph = {}
     for name, path in modules.items():
-        graph[name] = {t for t, *_ in imports_of(path, modules) if t != name and not name.startswith(t + ".")}
+        graph[name] = {t for t, *_ in imports[name] if t != name and not name.startswith(t + ".")}
     # Tarjan's strongly connected components
     index, low, stack, on_stack, cycles, counter = {}, {}, [], set(), [], [0]
 
@@ -151,18 +158,18 @@ def test_no_import_cycle():
     assert not cycles, f"modules that import each other: {cycles}"
 
 
-def test_imports_inside_functions_say_why():
-    modules = project_modules()
+def test_imports_inside_functions_say_why(project):
+    modules, imports = project
     silent = []
     for name, path in sorted(modules.items()):
-        for target, line, in_function, text in imports_of(path, modules):
+        for target, line, in_function, text in imports[name]:
             if in_function and "#" not in text:
                 silent.append(f"{path.relative_to(ROOT)}:{line}: {text.strip()}")
     assert not silent, "project imports inside functions without a reason on the line:\n" + "\n".join(silent)
 
 
-def test_every_module_is_in_a_layer():
-    modules = project_modules()
+def test_every_module_is_in_a_layer(project):
+    modules, _ = project
     assert len(modules) > 100 and "steval_link.link.decoder" in modules  # the walk found the real tree
     outside = modules_outside_layers(modules)
     assert not outside, f"modules in no layer (add them to LAYERS and to docs/ARCHITECTURE.md): {outside}"
