@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -20,11 +18,6 @@ from steval_link.estimators.st_mahony import StMahony
 from steval_link.quat import quaternion_from_euler
 
 BROAD_TRIALS = ("02_undisturbed_slow_rotation_B", "24_disturbed_tapping_A")
-
-
-def _steval(*args, timeout=600):
-    return subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", *args],
-                          capture_output=True, text=True, timeout=timeout)
 
 
 def _steval_here(monkeypatch, capsys, *args):
@@ -140,10 +133,10 @@ def test_default_specs_selection():
 
 # --- the command ----------------------------------------------------------------------------------------------------
 
-@pytest.mark.slow  # a steval child over two whole BROAD trials and five estimators: ≈ 3 s
-def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path):
+@pytest.mark.slow  # two whole BROAD trials through five estimators: ≈ 2 s of CPU
+def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path, monkeypatch, capsys):
     paths = [str(shared_dir / "datasets" / "broad" / f"{name}.npz") for name in BROAD_TRIALS]
-    res = _steval("evaluate", *paths, "--json")
+    res = _steval_here(monkeypatch, capsys, "evaluate", *paths, "--json")
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)
     expected = {"st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf"}
@@ -159,11 +152,12 @@ def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path):
     assert set(report["mean_rmse_deg"]) == set(report["estimators"])
 
 
-def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path):
+def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path, monkeypatch, capsys):
     d = tmp_path / "trials"
     d.mkdir()
     _synthetic_trial(d / "98_synthetic.npz")
-    res = _steval("evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf", "--native")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf",
+                       "--native")
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     assert "st-mahony-flight" in lines[1] and "mekf" in lines[1]
@@ -186,8 +180,7 @@ def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path, monkeypatch, capsys
     assert res.returncode == 2 and "unknown estimator" in res.stderr
 
 
-@pytest.mark.slow  # the demo capture through the MEKF, then a steval child: ≈ 2.5 s
-def test_evaluate_capture_with_truth_sidecar(tmp_path):
+def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
     from steval_link.link.capture import demo_capture_path, load_telemetry
 
     cap = demo_capture_path()
@@ -201,12 +194,12 @@ def test_evaluate_capture_with_truth_sidecar(tmp_path):
     r = ev.evaluate_capture(local, ev.default_specs(161.5, only=["accel", "mekf"]))
     assert r.rmse_deg["firmware"] == pytest.approx(0.0, abs=1e-3)
     assert math.isfinite(r.rmse_deg["mekf"]) and math.isfinite(r.rmse_deg["accel"])
-    res = _steval("evaluate", str(local), "--estimators", "accel", "--json")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(local), "--estimators", "accel", "--json")
     assert res.returncode == 0, res.stderr
     rep = json.loads(res.stdout)
     assert rep["trials"][0]["rmse_deg"]["firmware"] == pytest.approx(0.0, abs=1e-3)
     (tmp_path / "other.stv").write_bytes(cap.read_bytes())
-    res = _steval("evaluate", str(tmp_path / "other.stv"))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(tmp_path / "other.stv"))
     assert res.returncode == 2 and "truth.npz" in res.stderr
 
 
