@@ -18,6 +18,17 @@ def shared_dir() -> Path:
     return SHARED_DIR.resolve()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _click_tree_built_once():
+    """In-process ``steval`` runs (``main()``) build the CLI's click command tree once per session, not once per run."""
+    import typer.main
+    from support.cli import cached_get_command
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(typer.main, "get_command", cached_get_command(typer.main.get_command))
+        yield
+
+
 @pytest.fixture(scope="session")
 def host_build(tmp_path_factory) -> Path:
     """Our host C programs (``stv_encode``, ``test_stv``) built once per test session; their folder."""
