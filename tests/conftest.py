@@ -18,6 +18,33 @@ def shared_dir() -> Path:
     return SHARED_DIR.resolve()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _click_tree_built_once():
+    """In-process ``steval`` runs (``main()``) build the CLI's click command tree once per session, not once per run."""
+    import typer.main
+    from support.cli import cached_get_command
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(typer.main, "get_command", cached_get_command(typer.main.get_command))
+        yield
+
+
+@pytest.fixture(scope="session")
+def host_build(tmp_path_factory) -> Path:
+    """Our host C programs (``stv_encode``, ``test_stv``) built once per test session; their folder."""
+    import shutil
+    import subprocess
+
+    if shutil.which("make") is None or shutil.which("gcc") is None:
+        pytest.skip("needs make and gcc for the host build")
+    build = tmp_path_factory.mktemp("fw-host")
+    subprocess.run(
+        ["make", "-s", "-C", str(Path(__file__).resolve().parents[1] / "firmware_patch"), f"BUILD_DIR={build}",
+         f"{build}/host/stv_encode", f"{build}/host/test_stv"],
+        check=True,
+        capture_output=True,
+    )
+    return build / "host"
 
 
 @pytest.fixture(scope="session")

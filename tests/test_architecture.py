@@ -11,42 +11,73 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("steval_link", "steval_viewer")
 
-#: layers from the bottom; a module belongs to the first prefix it starts with (longest first below)
+#: layers from the bottom. A name ending in ``.*`` is a package and every module under it; any other name is that one
+#: module exactly (``steval_link`` is the package's ``__init__`` only). A module named nowhere is in no layer.
 LAYERS: list[tuple[str, ...]] = [
-    ("steval_link.errors", "steval_link.constants", "steval_link.quat", "steval_link.fw_math",
-     "steval_link._st_mahony_native", "steval_link.recordings", "steval_link"),
-    ("steval_link.link",),
-    ("steval_link.estimators",),
-    ("steval_link.emulation",),
-    ("steval_link.live", "steval_link.analysis"),
-    ("steval_viewer",),
+    ("steval_link", "steval_link.errors", "steval_link.constants", "steval_link.quat", "steval_link.fw_math",
+     "steval_link._st_mahony_native", "steval_link.recordings"),
+    ("steval_link.link.*",),
+    ("steval_link.estimators.*",),
+    ("steval_link.emulation.*",),
+    ("steval_link.live.*", "steval_link.analysis.*"),
+    ("steval_viewer.*",),
     ("steval_link.api",),
-    ("steval_link.cli",),
+    ("steval_link.cli.*",),
 ]
 #: the one import that runs up: the package root lends ``steval_link.api``'s names, imported on first use
 #: (``import steval_link as sl; sl.open_capture(...)`` for notebooks, while ``import steval_link`` stays cheap)
 LAZY_FACADE = ("steval_link", "steval_link.api")
 
 
-def layer_of(module: str) -> int:
+def find_layer(module: str, layers: list[tuple[str, ...]] = LAYERS) -> int | None:
+    """The layer that names ``module`` (itself, or a ``pkg.*`` it is in or is), or None."""
     best, best_len = None, -1
-    for i, prefixes in enumerate(LAYERS):
-        for p in prefixes:
-            if (module == p or module.startswith(p + ".")) and len(p) > best_len:
-                best, best_len = i, len(p)
+    for i, names in enumerate(layers):
+        for name in names:
+            if name.endswith(".*"):
+                pkg = name[:-2]
+                hit = module == pkg or module.startswith(pkg + ".")
+            else:
+                pkg, hit = name, module == name
+            if hit and len(pkg) > best_len:
+                best, best_len = i, len(pkg)
+    return best
+
+
+def layer_of(module: str) -> int:
+    best = find_layer(module)
     assert best is not None, f"{module} is in no layer: add it to LAYERS and to docs/ARCHITECTURE.md"
     return best
 
 
-def project_modules() -> dict[str, Path]:
+def modules_outside_layers(modules, layers: list[tuple[str, ...]] = LAYERS) -> list[str]:
+    return sorted(m for m in modules if find_layer(m, layers) is None)
+
+
+def package_dir(root: Path, pkg: str) -> Path:
+    """The folder of import package ``pkg``: ``root/pkg``, or where pyproject's package-dir maps it."""
+    import tomllib
+
+    pyproject = root / "pyproject.toml"
+    if pyproject.is_file():
+        mapped = tomllib.loads(pyproject.read_text(encoding="utf-8")).get("tool", {}).get("setuptools", {}).get(
+            "package-dir", {}).get(pkg)
+        if mapped:
+            return root / mapped
+    return root / pkg
+
+
+def project_modules(root: Path = ROOT) -> dict[str, Path]:
     out = {}
     for pkg in PACKAGES:
-        for path in (ROOT / pkg).rglob("*.py"):
-            rel = path.relative_to(ROOT).with_suffix("")
-            parts = list(rel.parts)
+        base = package_dir(root, pkg)
+        for path in base.rglob("*.py"):
+            parts = [pkg, *path.relative_to(base).with_suffix("").parts]
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             out[".".join(parts)] = path
@@ -80,12 +111,19 @@ def imports_of(path: Path, modules: dict[str, Path]) -> list[tuple[str, int, boo
     return found
 
 
-def test_imports_run_down_the_layers_never_up():
+@pytest.fixture(scope="module")
+def project():
+    """(every project module and its path, every module's project imports): the tree is parsed once."""
     modules = project_modules()
+    return modules, {name: imports_of(path, modules) for name, path in modules.items()}
+
+
+def test_imports_run_down_the_layers_never_up(project):
+    modules, imports = project
     up = []
     for name, path in sorted(modules.items()):
         mine = layer_of(name)
-        for target, line, in_function, _ in imports_of(path, modules):
+        for target, line, in_function, _ in imports[name]:
             if target == name or name.startswith(target + "."):  # a package's own __init__ / parent package
                 continue
             if (name, target) == LAZY_FACADE and in_function:
@@ -95,11 +133,11 @@ def test_imports_run_down_the_layers_never_up():
     assert not up, "imports that run up the layers:\n" + "\n".join(up)
 
 
-def test_no_import_cycle():
-    modules = project_modules()
+def test_no_import_cycle(project):
+    modules, imports = project
     graph = {}
     for name, path in modules.items():
-        graph[name] = {t for t, *_ in imports_of(path, modules) if t != name and not name.startswith(t + ".")}
+        graph[name] = {t for t, *_ in imports[name] if t != name and not name.startswith(t + ".")}
     # Tarjan's strongly connected components
     index, low, stack, on_stack, cycles, counter = {}, {}, [], set(), [], [0]
 
@@ -133,16 +171,39 @@ def test_no_import_cycle():
     assert not cycles, f"modules that import each other: {cycles}"
 
 
-def test_imports_inside_functions_say_why():
-    modules = project_modules()
+def test_imports_inside_functions_say_why(project):
+    modules, imports = project
     silent = []
     for name, path in sorted(modules.items()):
-        for target, line, in_function, text in imports_of(path, modules):
+        for target, line, in_function, text in imports[name]:
             if in_function and "#" not in text:
                 silent.append(f"{path.relative_to(ROOT)}:{line}: {text.strip()}")
     assert not silent, "project imports inside functions without a reason on the line:\n" + "\n".join(silent)
 
 
-def test_every_module_is_in_a_layer():
-    for name in project_modules():
-        layer_of(name)
+def test_every_module_is_in_a_layer(project):
+    modules, _ = project
+    assert len(modules) > 100 and {"steval_link.link.decoder", "steval_viewer"} <= set(modules)  # the real tree
+    outside = modules_outside_layers(modules)
+    assert not outside, f"modules in no layer (add them to LAYERS and to docs/ARCHITECTURE.md): {outside}"
+
+
+def test_a_module_outside_every_layer_is_reported(tmp_path):
+    """The layer check fails for a new top-level module or a package next to a layer's, in a real module tree (its
+    viewer in a folder of another name, mapped by pyproject's package-dir)."""
+    for rel in ("steval_link/__init__.py", "steval_link/errors.py", "steval_link/link/__init__.py",
+                "steval_link/link/decoder.py", "steval_link/stray.py", "steval_link/linkage/__init__.py",
+                "steval_link/linkage/x.py", "viewer/__init__.py", "viewer/scene.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("")
+    (tmp_path / "pyproject.toml").write_text('[tool.setuptools.package-dir]\n"steval_viewer" = "viewer"\n')
+    modules = project_modules(tmp_path)
+    assert {"steval_link.link.decoder", "steval_viewer", "steval_viewer.scene"} <= set(modules)  # a mapped folder
+    assert modules_outside_layers(modules) == ["steval_link.linkage", "steval_link.linkage.x", "steval_link.stray"]
+    assert find_layer("steval_link.link.decoder") == 1 and find_layer("steval_link.link") == 1
+    assert find_layer("steval_link") == 0 and find_layer("steval_viewer.scene") == 5
+    assert find_layer("steval_link.cli.app") == 7 and find_layer("steval_link.api") == 6
+    assert find_layer("steval_link.api.helpers") is None  # a module's name is not a package's
+    assert find_layer("steval_link.errors_extra") is None and find_layer("steval_viewer2") is None
+    with pytest.raises(AssertionError, match="steval_link.stray is in no layer"):
+        layer_of("steval_link.stray")

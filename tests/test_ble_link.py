@@ -129,6 +129,7 @@ def test_link_errors_are_one_sentence(firmware_notifications):
         run_link(fake)
 
 
+@pytest.mark.slow  # real time: a paced BLE link with reconnects through a live session: ≈ 2.5 s
 def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifications):
     from steval_link.live.ble_session import BleLiveSession
     from steval_link.live.session import LiveOptions

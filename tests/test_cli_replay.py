@@ -128,6 +128,7 @@ def test_ports_json(capsys):
     assert isinstance(ports, list) and all({"device", "description", "vid_pid"} <= set(p) for p in ports)
 
 
+@pytest.mark.slow  # two steval children (interpreter start-up, imports): ≈ 2 s
 def test_console_script_subprocess(capture):
     """The installed entry point: exit codes as a shell sees them, no traceback."""
     r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "replay", str(capture),

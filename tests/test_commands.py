@@ -331,6 +331,7 @@ def test_console_sends_typed_lines_and_reports_mistakes():
     assert np.frombuffer(sent[1][8:12], "<f4")[0] == 0.0
 
 
+@pytest.mark.slow  # real time: a steval live child for 4 s, typed to after sleep(1.5)
 def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
     """The user's path: steval live with typed lines on stdin; the answer is printed, the capture keeps the bytes
     sent (H chunk) and the drone's ack."""

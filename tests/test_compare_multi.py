@@ -33,11 +33,32 @@ def synth(monkeypatch, capsys, out: Path, *args) -> Path:
     return out
 
 
-@pytest.fixture
-def pair(monkeypatch, capsys, tmp_path):
-    """Stock (ki 0.1) and lab exercises 4 + 5 (ki 1, no correction): the same motion, the same seed."""
-    return [synth(monkeypatch, capsys, tmp_path / "stock.stv"),
-            synth(monkeypatch, capsys, tmp_path / "lab.stv", "--ki", "1", "--no-correction")]
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    """Stock (ki 0.1) and lab exercises 4 + 5 (ki 1, no correction): the same motion, the same seed. Made once for
+    the module by ``steval synth`` (the tests only read them)."""
+    import contextlib
+    import io
+    import sys
+
+    from steval_link.cli import main
+
+    d = tmp_path_factory.mktemp("pair")
+    out = []
+    for name, extra in (("stock.stv", ()), ("lab.stv", ("--ki", "1", "--no-correction"))):
+        args = ["synth", "--scenario", "hand-tilts", "--duration", "14", "--seed", "1", "--out", str(d / name), *extra]
+        err = io.StringIO()
+        with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(err):
+            mp.setattr(sys, "argv", ["steval", *args])
+            try:
+                main()
+                code = 0
+            except SystemExit as exc:
+                code = exc.code
+        assert code in (0, None), err.getvalue()
+        out.append(d / name)
+    return out
 
 
 def test_two_flights_labelled_by_settings_and_measured(pair, monkeypatch, capsys, tmp_path):

@@ -358,6 +358,7 @@ def test_cli_emulate_stops_cleanly_on_one_signal_and_keeps_the_capture(fw_defaul
 
 # ---- the viewer paths of `steval emulate` -------------------------------------------------------------------------
 
+@pytest.mark.slow  # 5 s of emulated firmware (unicorn) logged to Rerun: 1.6 to 3.3 s here
 def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
     """`steval emulate ELF --rrd X.rrd`: the emulated stream logged as a live session is (every attitude frame, the
     flight-control entities, the blueprint)."""

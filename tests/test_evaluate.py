@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.cli import run_cli
 
 from steval_link.analysis import evaluate as ev
 from steval_link.emulation import broad
@@ -20,9 +20,10 @@ from steval_link.quat import quaternion_from_euler
 BROAD_TRIALS = ("02_undisturbed_slow_rotation_B", "24_disturbed_tapping_A")
 
 
-def _steval(*args, timeout=600):
-    return subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", *args],
-                          capture_output=True, text=True, timeout=timeout)
+def _steval_here(monkeypatch, capsys, *args):
+    """``steval ARGS`` in this process (no interpreter start-up): the same returncode, stdout and stderr."""
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
 
 
 # --- metric -------------------------------------------------------------------------------------------------------
@@ -132,9 +133,10 @@ def test_default_specs_selection():
 
 # --- the command ----------------------------------------------------------------------------------------------------
 
-def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path):
+@pytest.mark.slow  # two whole BROAD trials through five estimators: ≈ 2 s of CPU
+def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path, monkeypatch, capsys):
     paths = [str(shared_dir / "datasets" / "broad" / f"{name}.npz") for name in BROAD_TRIALS]
-    res = _steval("evaluate", *paths, "--json")
+    res = _steval_here(monkeypatch, capsys, "evaluate", *paths, "--json")
     assert res.returncode == 0, res.stderr
     report = json.loads(res.stdout)
     expected = {"st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf"}
@@ -150,11 +152,12 @@ def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path):
     assert set(report["mean_rmse_deg"]) == set(report["estimators"])
 
 
-def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path):
+def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path, monkeypatch, capsys):
     d = tmp_path / "trials"
     d.mkdir()
     _synthetic_trial(d / "98_synthetic.npz")
-    res = _steval("evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf", "--native")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf",
+                       "--native")
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     assert "st-mahony-flight" in lines[1] and "mekf" in lines[1]
@@ -162,22 +165,22 @@ def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path):
     assert len(lines[2].split()) == 4
 
 
-def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path):
-    missing = _steval("evaluate", str(tmp_path / "nope.npz"))
+def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
+    missing = _steval_here(monkeypatch, capsys, "evaluate", str(tmp_path / "nope.npz"))
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "no such file" in missing.stderr
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"garbage")
-    res = _steval("evaluate", str(bad))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(bad))
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     empty = tmp_path / "empty"
     empty.mkdir()
-    res = _steval("evaluate", str(empty))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(empty))
     assert res.returncode == 2 and "no .npz" in res.stderr
-    res = _steval("evaluate", str(bad), "--estimators", "kalman")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(bad), "--estimators", "kalman")
     assert res.returncode == 2 and "unknown estimator" in res.stderr
 
 
-def test_evaluate_capture_with_truth_sidecar(tmp_path):
+def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
     from steval_link.link.capture import demo_capture_path, load_telemetry
 
     cap = demo_capture_path()
@@ -191,12 +194,12 @@ def test_evaluate_capture_with_truth_sidecar(tmp_path):
     r = ev.evaluate_capture(local, ev.default_specs(161.5, only=["accel", "mekf"]))
     assert r.rmse_deg["firmware"] == pytest.approx(0.0, abs=1e-3)
     assert math.isfinite(r.rmse_deg["mekf"]) and math.isfinite(r.rmse_deg["accel"])
-    res = _steval("evaluate", str(local), "--estimators", "accel", "--json")
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(local), "--estimators", "accel", "--json")
     assert res.returncode == 0, res.stderr
     rep = json.loads(res.stdout)
     assert rep["trials"][0]["rmse_deg"]["firmware"] == pytest.approx(0.0, abs=1e-3)
     (tmp_path / "other.stv").write_bytes(cap.read_bytes())
-    res = _steval("evaluate", str(tmp_path / "other.stv"))
+    res = _steval_here(monkeypatch, capsys, "evaluate", str(tmp_path / "other.stv"))
     assert res.returncode == 2 and "truth.npz" in res.stderr
 
 
@@ -231,12 +234,12 @@ def test_vqf_adapter_units_frames_and_interface():
     assert 2 * np.degrees(np.arctan2(np.linalg.norm(d[1:]), d[0])) == pytest.approx(0.9, rel=1e-3)
 
 
-def test_cli_sensor_noise_is_seeded(tmp_path):
+def test_cli_sensor_noise_is_seeded(tmp_path, monkeypatch, capsys):
     trial = _synthetic_trial(tmp_path / "96_synthetic.npz")
     args = ["evaluate", str(trial), "-e", "accel", "--json"]
-    a = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
-    b = json.loads(_steval(*args, "--sensor-noise", "--seed", "4").stdout)
-    c = json.loads(_steval(*args).stdout)
+    a = json.loads(_steval_here(monkeypatch, capsys, *args, "--sensor-noise", "--seed", "4").stdout)
+    b = json.loads(_steval_here(monkeypatch, capsys, *args, "--sensor-noise", "--seed", "4").stdout)
+    c = json.loads(_steval_here(monkeypatch, capsys, *args).stdout)
     assert a["trials"][0]["rmse_deg"] == b["trials"][0]["rmse_deg"]
     assert a["sensor_noise"] and not c["sensor_noise"]
     assert a["trials"][0]["rmse_deg"]["accel"] > c["trials"][0]["rmse_deg"]["accel"]

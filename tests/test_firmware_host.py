@@ -30,17 +30,6 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-@pytest.fixture(scope="module")
-def host_build(tmp_path_factory) -> Path:
-    build = tmp_path_factory.mktemp("fw-host")
-    subprocess.run(
-        ["make", "-s", "-C", str(FW), f"BUILD_DIR={build}", f"{build}/host/stv_encode", f"{build}/host/test_stv"],
-        check=True,
-        capture_output=True,
-    )
-    return build / "host"
-
-
 # ---- helpers ----------------------------------------------------------------------------------------------
 
 

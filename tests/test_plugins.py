@@ -386,6 +386,7 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
     assert len(batch) == 1500 and np.isfinite(q[:600]).all() and np.isnan(q[-500:]).all()
 
 
+@pytest.mark.slow  # real time: 3000 BLE notifications paced at 0.5 ms through a live session: ≈ 3 s
 def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_notification_recorded(tmp_path):
     import asyncio
     import io

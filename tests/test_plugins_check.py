@@ -42,6 +42,7 @@ def test_new_writes_a_starter_and_never_overwrites_without_force(tmp_path, monke
     assert code == 2 and len(err.strip().splitlines()) == 1 and not (tmp_path / "notes.txt").exists()
 
 
+@pytest.mark.slow  # a pure-Python EKF through every check and every bundled capture: ≈ 5 s of CPU
 def test_the_starter_passes_every_check_and_is_scored_on_the_bundled_captures(tmp_path, monkeypatch, capsys):
     new_starter(tmp_path, monkeypatch, capsys)
     code, out, err = run_cli(monkeypatch, capsys, "estimator", "check", "my_ekf.py:MyEkf", "--no-broad", "--json")
@@ -166,6 +167,7 @@ def test_check_of_a_missing_file_is_one_line(tmp_path, monkeypatch, capsys):
     assert code == 2 and err.strip() == "steval: error: estimator file nothing.py not found" and out == ""
 
 
+@pytest.mark.slow  # two BROAD trials through the pipeline model and five estimators: ≈ 4 s of CPU
 @needs_broad
 def test_one_gain_changed_moves_the_broad_score(tmp_path, monkeypatch, capsys):
     f = new_starter(tmp_path, monkeypatch, capsys)

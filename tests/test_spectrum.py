@@ -192,6 +192,7 @@ def test_cli_summary_csv_and_marks(monkeypatch, capsys, vib_capture, tmp_path):
     assert {r["section"] for r in rows} == {"psd", "spectrogram", "throttle"}
 
 
+@pytest.mark.slow  # matplotlib start-up and a spectrum figure: ≈ 3 s of CPU
 def test_cli_plot(monkeypatch, capsys, vib_capture, tmp_path):
     pytest.importorskip("matplotlib")
     out = tmp_path / "s.png"
@@ -273,6 +274,7 @@ def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, t
     assert not list(tmp_path.glob("*.partial"))
 
 
+@pytest.mark.slow  # synthesises the README's 30 s capture, its spectra and a plot: ≈ 4 s of CPU
 def test_readme_example_prints_what_the_readme_says(monkeypatch, capsys, tmp_path):
     """The README's two commands, word for word (in a temporary folder), print the figures it quotes."""
     pytest.importorskip("matplotlib")  # the example draws --plot

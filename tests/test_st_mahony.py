@@ -78,21 +78,11 @@ def test_quaternion_to_euler_matches_firmware_bits(name, native):
 
 
 @needs_shared
-@needs_native
+@pytest.mark.parametrize("native", [pytest.param(True, marks=needs_native), False], ids=["native", "numpy"])
 @pytest.mark.parametrize("name", CSV_NAMES)
-def test_native_port_is_bit_exact_on_every_row(name):
+def test_port_is_bit_exact_on_every_row(name, native):
     v = vectors(name)
-    q, thx, thy, _ = run(v.acc_mg, v.gyro_mdps, v.thr, native=True)
-    assert_bits(q, v.q_wxyz, f"{name} q")
-    assert_bits(thx, v.thx_rad, f"{name} thx")
-    assert_bits(thy, v.thy_rad, f"{name} thy")
-
-
-@needs_shared
-@pytest.mark.parametrize("name", CSV_NAMES)
-def test_pure_port_is_bit_exact_on_every_row(name):
-    v = vectors(name)
-    q, thx, thy, _ = run(v.acc_mg, v.gyro_mdps, v.thr, native=False)
+    q, thx, thy, _ = run(v.acc_mg, v.gyro_mdps, v.thr, native=native)
     assert_bits(q, v.q_wxyz, f"{name} q")
     assert_bits(thx, v.thx_rad, f"{name} thx")
     assert_bits(thy, v.thy_rad, f"{name} thy")

@@ -4,7 +4,6 @@ snapshots that seed the filter port to bit-exactness; deterministic; Python and 
 from __future__ import annotations
 
 import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -267,11 +266,8 @@ def test_broad_trial(shared_dir):
 
 
 @pytest.mark.skipif(shutil.which("make") is None or shutil.which("gcc") is None, reason="needs make and gcc")
-def test_c_encoder_gives_the_python_bytes(tmp_path):
-    build = tmp_path / "build"
-    subprocess.run(["make", "-s", "-C", str(ROOT / "firmware_patch"), f"BUILD_DIR={build}",
-                    f"{build}/host/stv_encode"], check=True, capture_output=True)
-    exe = build / "host" / "stv_encode"
+def test_c_encoder_gives_the_python_bytes(tmp_path, host_build):
+    exe = host_build / "stv_encode"
     for opts in (SynthOptions("demo", duration_s=40, seed=1),
                  SynthOptions("hover", duration_s=8, join_at_s=9, drop_rate=0.05, seed=2, baud=921600)):
         py = synthesize(opts)

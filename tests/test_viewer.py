@@ -344,24 +344,22 @@ def test_simulation_logs_to_rrd(tmp_path):
     assert ent.LINK_RATE not in info.samples
 
 
-def _steval(*args: str, cwd=None):
-    import os
-    import subprocess
-    import sys
+def _steval_here(monkeypatch, capsys, *args: str):
+    """``steval ARGS`` in this process, with no display (no interpreter start-up): returncode, stdout, stderr."""
+    from support.cli import run_cli
 
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    return subprocess.run(
-        [sys.executable, "-c", "from steval_link.cli import main; main()", *args],
-        capture_output=True, text=True, env=env, cwd=cwd, timeout=300,
-    )
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
 
 
-def test_cli_replay_to_rrd_headless(tmp_path):
+def test_cli_replay_to_rrd_headless(tmp_path, monkeypatch, capsys):
     data, _ = make_stream(1200, nan_rows=(10, 11, 12))
     cap = tmp_path / "dump.bin"
     cap.write_bytes(data)
     out = tmp_path / "out.rrd"
-    r = _steval("replay", str(cap), "--rrd", str(out))
+    r = _steval_here(monkeypatch, capsys, "replay", str(cap), "--rrd", str(out))
     assert r.returncode == 0, r.stderr
     info = read_rrd(out)
     assert info.has_blueprint
@@ -371,9 +369,9 @@ def test_cli_replay_to_rrd_headless(tmp_path):
     assert ent.pitch_path("st_mahony_port") in info.samples
     assert ent.pitch_path("st_mahony") not in info.samples  # replaced by the seeded port
 
-    r = _steval("replay", str(cap), "--rrd", str(tmp_path / "missing" / "x.rrd"))
+    r = _steval_here(monkeypatch, capsys, "replay", str(cap), "--rrd", str(tmp_path / "missing" / "x.rrd"))
     assert r.returncode == 2 and "does not exist" in r.stderr and "Traceback" not in r.stderr
-    r = _steval("replay", str(cap), "--connect", "http://localhost:1")
+    r = _steval_here(monkeypatch, capsys, "replay", str(cap), "--connect", "http://localhost:1")
     assert r.returncode == 2 and "rerun+http" in r.stderr
 
 
@@ -390,13 +388,13 @@ BUNDLED = sorted(p for p in (Path(__file__).resolve().parents[1] / "recordings")
 
 @pytest.mark.skipif(not BUNDLED, reason="no bundled recordings in recordings/")
 @pytest.mark.parametrize("capture", BUNDLED, ids=[p.name for p in BUNDLED])
-def test_every_bundled_recording_replays_to_rrd(capture, tmp_path):
+def test_every_bundled_recording_replays_to_rrd(capture, tmp_path, monkeypatch, capsys):
     """CI: each bundled capture replays headlessly to an .rrd that reads back with every entity and all samples."""
     from steval_link.link.capture import load_telemetry
 
     tel = load_telemetry(capture)
     out = tmp_path / (capture.stem + ".rrd")
-    r = _steval("replay", str(capture), "--rrd", str(out))
+    r = _steval_here(monkeypatch, capsys, "replay", str(capture), "--rrd", str(out))
     assert r.returncode == 0, r.stderr
     info = read_rrd(out)
     assert info.has_blueprint
