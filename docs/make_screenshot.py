@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,10 +43,13 @@ def main(out: Path) -> None:
         sys.exit(f"make_screenshot: {why}")
     display = VirtualDisplay(width=1600, height=1000)
     port = free_port()
+    # a viewer with no remembered state (window size, panels): the picture depends on the display alone
+    state = tempfile.TemporaryDirectory(prefix="steval-screenshot-")
+    env = dict(display.env, XDG_DATA_HOME=state.name, XDG_CONFIG_HOME=state.name, XDG_CACHE_HOME=state.name)
     try:
         cmd = [sys.executable, "-c", "from steval_link.cli import main; main()", "replay",
                str(ROOT / "recordings" / "demo.stv"), "--spawn", "--grpc-port", str(port)]
-        r = subprocess.run(cmd, env=display.env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+        r = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
         if r.returncode != 0:
             sys.exit(f"make_screenshot: steval replay failed:\n{r.stderr}")
         url = f"rerun+http://127.0.0.1:{port}/proxy"
@@ -56,6 +60,7 @@ def main(out: Path) -> None:
     finally:
         kill_processes(rerun_processes(port))
         display.close()
+        state.cleanup()
 
 
 if __name__ == "__main__":
