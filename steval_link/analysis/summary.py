@@ -269,7 +269,8 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
                 f"max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
             )
     for e in s["events"]:
-        lines.append(f"event at {e['t_host_s']:.3f} s: {e['kind']}" + (f" ({e['text']})" if e["text"] else ""))
+        note = f" ({e['text']})" if e["text"] else ""
+        lines.append(f"event at {e['t_host_s']:.3f} s host time: {e['kind']}{note}")
     if f["text"]:
         shown = s["text_lines"][:max_text_lines]
         lines.append(f"text lines ({f['text']}):")
