@@ -22,8 +22,12 @@ from steval_link.emulation import broad
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", nargs="?", type=Path,
-                    default=Path(__file__).resolve().parents[1] / ".." / "shared" / "datasets" / "broad")
+    ap.add_argument(
+        "data",
+        nargs="?",
+        type=Path,
+        default=Path(__file__).resolve().parents[1] / ".." / "shared" / "datasets" / "broad",
+    )
     ap.add_argument("--native", action="store_true", help="run at the trials' own rate, without the pipeline")
     args = ap.parse_args(argv)
     paths = sorted(args.data.glob("*.npz"))

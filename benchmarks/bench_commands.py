@@ -33,6 +33,7 @@ def measure(elf: Path, *, commands: bool) -> dict[str, list[int]]:
                 returns[lr] = name
                 b.probe(lr, exit_hook(name))
             open_calls[name] = (board.instructions_now(), board.exception_instructions)
+
         return hook
 
     def exit_hook(name):
@@ -40,6 +41,7 @@ def measure(elf: Path, *, commands: bool) -> dict[str, list[int]]:
             if name in open_calls:
                 i0, x0 = open_calls.pop(name)
                 out[name].append(board.instructions_now() - i0 - (board.exception_instructions - x0))
+
         return hook
 
     for name in out:
@@ -63,17 +65,25 @@ def main() -> None:
         quiet = measure(elf, commands=False)
         busy = measure(elf, commands=True)
     q = quiet["stv_cmd_next"][5:]  # the first calls run before the dynamic return probe is in place
-    print(f"command check per AHRS step, nothing received (stv_cmd_next): min {min(q)} median "
-          f"{statistics.median(q):g} max {max(q)} instructions over {len(q)} steps")
+    print(
+        f"command check per AHRS step, nothing received (stv_cmd_next): min {min(q)} median "
+        f"{statistics.median(q):g} max {max(q)} instructions over {len(q)} steps"
+    )
     se = quiet["stv_fw_step_end"][5:]
-    print(f"stv_fw_step_end per step (attitude frame + status cadence + command check): median "
-          f"{statistics.median(se):g} instructions")
+    print(
+        f"stv_fw_step_end per step (attitude frame + status cadence + command check): median "
+        f"{statistics.median(se):g} instructions"
+    )
     ex = busy["stv_cmd_execute"]
-    print(f"one command handled (check, ack, EVENT status; the first change also a status before): "
-          f"{', '.join(map(str, ex))} instructions")
+    print(
+        f"one command handled (check, ack, EVENT status; the first change also a status before): "
+        f"{', '.join(map(str, ex))} instructions"
+    )
     at_84 = statistics.median(q) / 84e6 * 1e6
-    print(f"at 84 MHz the idle check is ≈ {at_84 * 1000:.0f} ns per 6.19 ms step "
-          f"({100 * statistics.median(q) / (84e6 * 0.00619):.4f} % of the CPU)")
+    print(
+        f"at 84 MHz the idle check is ≈ {at_84 * 1000:.0f} ns per 6.19 ms step "
+        f"({100 * statistics.median(q) / (84e6 * 0.00619):.4f} % of the CPU)"
+    )
 
 
 if __name__ == "__main__":

@@ -51,8 +51,10 @@ def main() -> None:
     t0 = time.perf_counter()
     tel = decode_bytes(data)
     t_bulk = time.perf_counter() - t0
-    print(f"decode_bytes: {t_bulk:.2f} s for {len(tel.attitude)} attitude + {len(tel.status)} status frames "
-          f"({len(tel.attitude) / t_bulk / 1e3:.0f} k frames/s)  [goal ≤ 3 s]")
+    print(
+        f"decode_bytes: {t_bulk:.2f} s for {len(tel.attitude)} attitude + {len(tel.status)} status frames "
+        f"({len(tel.attitude) / t_bulk / 1e3:.0f} k frames/s)  [goal ≤ 3 s]"
+    )
 
     n_stream = min(len(data), 4_000_000)
     sd = StreamDecoder()
@@ -61,8 +63,10 @@ def main() -> None:
         sd.feed(data[i : i + 4096])
     sd.finish()
     t_stream = time.perf_counter() - t0
-    print(f"StreamDecoder: {n_stream / t_stream / 1e6:.2f} MB/s in 4 kB chunks "
-          f"({sd.stats.attitude / t_stream / 1e3:.0f} k frames/s; the live link needs 0.01 MB/s at 115200 baud)")
+    print(
+        f"StreamDecoder: {n_stream / t_stream / 1e6:.2f} MB/s in 4 kB chunks "
+        f"({sd.stats.attitude / t_stream / 1e3:.0f} k frames/s; the live link needs 0.01 MB/s at 115200 baud)"
+    )
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.stv"
@@ -78,9 +82,11 @@ def main() -> None:
         t0 = time.perf_counter()
         tel2 = load_telemetry(path)
         t_load = time.perf_counter() - t0
-        print(f"capture: write {t_write:.2f} s ({path.stat().st_size / 1e6:.1f} MB, {len(cap.chunk_offsets)} chunks "
-              f"of {chunk} bytes), read_capture {t_read:.2f} s, load_telemetry (read + decode + host times) "
-              f"{t_load:.2f} s ({len(tel2.attitude)} attitude frames)")
+        print(
+            f"capture: write {t_write:.2f} s ({path.stat().st_size / 1e6:.1f} MB, {len(cap.chunk_offsets)} chunks "
+            f"of {chunk} bytes), read_capture {t_read:.2f} s, load_telemetry (read + decode + host times) "
+            f"{t_load:.2f} s ({len(tel2.attitude)} attitude frames)"
+        )
 
 
 if __name__ == "__main__":

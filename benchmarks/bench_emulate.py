@@ -62,25 +62,35 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
     baud = f"{CPU_HZ / brr:.0f} baud" if brr else "baud ?"
     core = "C core" if emu.board.native else "Python models (no C compiler)"
     print(f"\n{elf.name}  ({core}, {scenario}, {duration_s:g} s emulated, USART1 at {baud})")
-    print(f"  overall: {end[0] / end[1]:.2f} emulated s per wall s, {end[0] / end[2]:.2f} per CPU s "
-          f"({end[1]:.1f} s wall, {end[2]:.1f} s CPU)")
+    print(
+        f"  overall: {end[0] / end[1]:.2f} emulated s per wall s, {end[0] / end[2]:.2f} per CPU s "
+        f"({end[1]:.1f} s wall, {end[2]:.1f} s CPU)"
+    )
     if boot is not None and end[0] - boot[0] > 1:
-        print(f"  boot (to the first frame at {rep.first_attitude_s:.3f} s): {boot[0] / boot[1]:.2f} per wall s; "
-              f"streaming: {(end[0] - boot[0]) / (end[1] - boot[1]):.2f} per wall s, "
-              f"{(end[0] - boot[0]) / (end[2] - boot[2]):.2f} per CPU s")
+        print(
+            f"  boot (to the first frame at {rep.first_attitude_s:.3f} s): {boot[0] / boot[1]:.2f} per wall s; "
+            f"streaming: {(end[0] - boot[0]) / (end[1] - boot[1]):.2f} per wall s, "
+            f"{(end[0] - boot[0]) / (end[2] - boot[2]):.2f} per CPU s"
+        )
     a = np.asarray(rep.step_instructions)
     d = np.asarray(rep.dwt_windows)
     if a.size:
-        print(f"  instructions per AHRS step (emulator count, not M4 cycles): min {a.min()} mean {a.mean():.0f} "
-              f"max {a.max()} (n={a.size})" + (f"; DWT window min {d.min()} mean {d.mean():.0f} max {d.max()}"
-                                                 if d.size and d.any() else ""))
+        print(
+            f"  instructions per AHRS step (emulator count, not M4 cycles): min {a.min()} mean {a.mean():.0f} "
+            f"max {a.max()} (n={a.size})"
+            + (f"; DWT window min {d.min()} mean {d.mean():.0f} max {d.max()}" if d.size and d.any() else "")
+        )
     per_s = {k: round(v / rep.emulated_s) for k, v in rep.interrupts.items()}
     print(f"  interrupts per emulated s: {per_s} (total {sum(per_s.values())})")
-    print(f"  instructions per emulated s: {rep.instructions / rep.emulated_s / 1e6:.2f} M executed, "
-          f"{rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M idle skipped")
+    print(
+        f"  instructions per emulated s: {rep.instructions / rep.emulated_s / 1e6:.2f} M executed, "
+        f"{rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M idle skipped"
+    )
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"  frames: {dec.stats.attitude} attitude, {dec.stats.crc_failures} CRC failures, "
-          f"{dec.stats.frames_missing} missing; peak RSS {peak_mb:.0f} MB")
+    print(
+        f"  frames: {dec.stats.attitude} attitude, {dec.stats.crc_failures} CRC failures, "
+        f"{dec.stats.frames_missing} missing; peak RSS {peak_mb:.0f} MB"
+    )
 
 
 def _in_child(elf: Path, args, native: bool | None) -> None:

@@ -81,8 +81,10 @@ def main() -> None:
     q, _, _, _ = st_mahony.run(acc, gyro, thr)
     t0 = time.perf_counter()
     st_mahony.quaternion_to_euler(q)
-    print(f"{'quaternion_to_euler':<24} {n / (time.perf_counter() - t0):>12,.0f} "
-          f"{time.perf_counter() - t0:>10.2f}s  (vectorised, bit-exact)")
+    print(
+        f"{'quaternion_to_euler':<24} {n / (time.perf_counter() - t0):>12,.0f} "
+        f"{time.perf_counter() - t0:>10.2f}s  (vectorised, bit-exact)"
+    )
 
     steps = np.arange(n, dtype=np.int64)
     thx, thy = st_mahony.quaternion_to_euler(q)

@@ -41,9 +41,11 @@ def main() -> None:
         counts: dict[str, int] = {}
         write_atomic(out, lambda f: counts.update(write_mcap(tel, f, metadata={"settings": settings_of(tel)})))
         t_mcap, c_mcap = time.perf_counter() - t0, time.process_time() - c0
-        print(f".mcap: {t_mcap:.2f} s ({c_mcap:.2f} s CPU), {out.stat().st_size / 1e6:.0f} MB, "
-              f"{sum(counts.values())} messages "
-              f"({sum(counts.values()) / t_mcap / 1e3:.0f} k/s)  [goal ≤ 10 s]")
+        print(
+            f".mcap: {t_mcap:.2f} s ({c_mcap:.2f} s CPU), {out.stat().st_size / 1e6:.0f} MB, "
+            f"{sum(counts.values())} messages "
+            f"({sum(counts.values()) / t_mcap / 1e3:.0f} k/s)  [goal ≤ 10 s]"
+        )
 
 
 if __name__ == "__main__":

@@ -63,8 +63,10 @@ def main() -> None:
         per_step = [a + b for a, b in zip(link.calls["stv_link_step_begin"], link.calls["stv_link_step_end"])]
         print(f"  per AHRS step in the main loop (step_begin + step_end): {stats(per_step)}")
         mean_step = float(np.mean(per_step))
-        print(f"    = {mean_step / 84:.2f} µs at 84 MHz (~1 cycle/instruction), "
-              f"{100 * mean_step * C.AHRS_RATE_HZ / 84e6:.3f} % CPU at 161.5 Hz")
+        print(
+            f"    = {mean_step / 84:.2f} µs at 84 MHz (~1 cycle/instruction), "
+            f"{100 * mean_step * C.AHRS_RATE_HZ / 84e6:.3f} % CPU at 161.5 Hz"
+        )
 
         dec = StreamDecoder(plausibility=False)  # the harness feeds made-up values and cycle counts
         dec.feed(link.output)
@@ -74,13 +76,16 @@ def main() -> None:
         print("\nUART load of the binary stream (bytes the target code emitted, 161.5 Hz, status every 162 steps)")
         print(f"  {bytes_per_s:.0f} bytes/s")
         for baud in (115200, 230400, 460800, 921600):
-            print(f"  {baud:>7} baud 8N1: {100 * bytes_per_s / (baud / 10):5.1f} %"
-                  + ("   goal <= 85 %" if baud == 115200 else ""))
+            print(
+                f"  {baud:>7} baud 8N1: {100 * bytes_per_s / (baud / 10):5.1f} %"
+                + ("   goal <= 85 %" if baud == 115200 else "")
+            )
 
         # TX interrupt (static count of stv_fw_usart1_irq in the cross-compiled port)
         subprocess.run(["make", "-s", "-C", str(FW), "cross", f"BUILD_DIR={tmp}"], check=True, capture_output=True)
-        dis = subprocess.run(["arm-none-eabi-objdump", "-d", str(tmp / "arm" / "stv_fw.o")],
-                             check=True, capture_output=True, text=True).stdout
+        dis = subprocess.run(
+            ["arm-none-eabi-objdump", "-d", str(tmp / "arm" / "stv_fw.o")], check=True, capture_output=True, text=True
+        ).stdout
         body = dis.split("<stv_fw_usart1_irq>:")[1].split("\n\n")[0]
         n_irq = len(re.findall(r"^\s+[0-9a-f]+:\s", body, flags=re.M))
         print(f"\nUSART1 TXE interrupt: {n_irq} instructions (static, all paths) + ~12 cycles entry/exit per byte")
@@ -89,8 +94,9 @@ def main() -> None:
             print(f"  at {baud} baud: <= {100 * cyc / 84e6:.2f} % CPU for {bytes_per_s:.0f} bytes/s")
 
         # host tool throughput
-        subprocess.run(["make", "-s", "-C", str(FW), f"BUILD_DIR={tmp}", f"{tmp}/host/stv_encode"], check=True,
-                       capture_output=True)
+        subprocess.run(
+            ["make", "-s", "-C", str(FW), f"BUILD_DIR={tmp}", f"{tmp}/host/stv_encode"], check=True, capture_output=True
+        )
         big = req[: 54 * n] * 400  # 100 000 attitude requests
         t0 = time.perf_counter()
         out = subprocess.run([tmp / "host" / "stv_encode"], input=big, capture_output=True, check=True).stdout

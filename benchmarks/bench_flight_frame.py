@@ -71,8 +71,10 @@ def main() -> None:
             streaming = tel.attitude.t_fw_s[-1] - tel.attitude.t_fw_s[0]
             first = tel.attitude.offset[0]
             rate = (len(data) - first) / streaming
-            print(f"{name}: fc_every {every}, {n_fc} FC frames, {len(counts)} steps; window instructions per step: "
-                  f"mean {counts.mean():.1f} median {np.median(counts):.0f} max {counts.max()}")
+            print(
+                f"{name}: fc_every {every}, {n_fc} FC frames, {len(counts)} steps; window instructions per step: "
+                f"mean {counts.mean():.1f} median {np.median(counts):.0f} max {counts.max()}"
+            )
             print(f"  USART1 {rate:.0f} B/s = {100 * rate * 10 / baud:.1f} % of {baud} baud")
             if base is None:
                 base = counts

@@ -89,8 +89,10 @@ def main() -> None:
     print(f"recovered: {total.recovered} ({100 * total.recovered_ratio:.2f} %)")
     print(f"fake frames: {total.fake}")
     bits = 16 if args.v1 else 32
-    print(f"damaged candidates checked: {candidates}; expected false accepts of CRC-{bits} alone: "
-          f"{candidates * 2.0 ** -bits:.2g} (candidates × 2^-{bits}); the sequence/time gate stops most of those")
+    print(
+        f"damaged candidates checked: {candidates}; expected false accepts of CRC-{bits} alone: "
+        f"{candidates * 2.0**-bits:.2g} (candidates × 2^-{bits}); the sequence/time gate stops most of those"
+    )
     print(f"run time: {wall:.0f} s (decode {t_decode:.0f} s)")
     for f in fakes[:5]:
         print("  fake payload:", f.hex())

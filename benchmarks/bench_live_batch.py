@@ -46,8 +46,11 @@ def main() -> None:
 
     def send_columns(k: int) -> None:
         t = times(k)
-        idx = [rr.TimeColumn("fw_time", duration=t.t_fw_s), rr.TimeColumn("host_time", duration=t.t_host_s),
-               rr.TimeColumn("ahrs_step", sequence=t.step)]
+        idx = [
+            rr.TimeColumn("fw_time", duration=t.t_fw_s),
+            rr.TimeColumn("host_time", duration=t.t_host_s),
+            rr.TimeColumn("ahrs_step", sequence=t.step),
+        ]
         for p in paths:
             rec.send_columns(p, indexes=idx, columns=rr.Scalars.columns(scalars=rng.random(n)))
 
@@ -58,7 +61,7 @@ def main() -> None:
             t0 = time.perf_counter()
             fn(k)
             ms.append((time.perf_counter() - t0) * 1e3)
-        ms = np.array(ms[args.rounds // 10:])
+        ms = np.array(ms[args.rounds // 10 :])
         print(f"{fn.__name__:>13}: median {np.median(ms):.3f} ms, p99 {np.percentile(ms, 99):.3f} ms per round")
     rec.disconnect()
 

@@ -56,15 +56,28 @@ def synthetic_telemetry(n: int, seed: int = 1) -> SimpleNamespace:
     ns = n // 162
     si = np.arange(ns) * 162
     status = SimpleNamespace(
-        t_fw_s=t[si], t_host_s=att.t_host_s[si], step=step[si],
-        cyc_min=np.full(ns, 9000), cyc_mean=np.full(ns, 9500), cyc_max=np.full(ns, 12000), cyc_n=np.full(ns, 161),
-        tx_dropped=np.zeros(ns), queue_peak=np.full(ns, 116),
-        q_wxyz=att.q_wxyz[si], int_xyz=np.zeros((ns, 3), np.float32), kp_ground=np.full(ns, 10.0, np.float32),
-        kp_flight=np.full(ns, 0.4, np.float32), ki=np.full(ns, 0.1, np.float32), dt_s=np.full(ns, 0.00625, np.float32),
-        min_thr=np.full(ns, 200, np.int16), flags=np.zeros(ns, np.uint16),
+        t_fw_s=t[si],
+        t_host_s=att.t_host_s[si],
+        step=step[si],
+        cyc_min=np.full(ns, 9000),
+        cyc_mean=np.full(ns, 9500),
+        cyc_max=np.full(ns, 12000),
+        cyc_n=np.full(ns, 161),
+        tx_dropped=np.zeros(ns),
+        queue_peak=np.full(ns, 116),
+        q_wxyz=att.q_wxyz[si],
+        int_xyz=np.zeros((ns, 3), np.float32),
+        kp_ground=np.full(ns, 10.0, np.float32),
+        kp_flight=np.full(ns, 0.4, np.float32),
+        ki=np.full(ns, 0.1, np.float32),
+        dt_s=np.full(ns, 0.00625, np.float32),
+        min_thr=np.full(ns, 200, np.int16),
+        flags=np.zeros(ns, np.uint16),
     )
     return SimpleNamespace(
-        attitude=att, status=status, text=[(0.01, "STEVAL-FCU001V1 telemetry v1.0.0")],
+        attitude=att,
+        status=status,
+        text=[(0.01, "STEVAL-FCU001V1 telemetry v1.0.0")],
         stats=SimpleNamespace(crc_failures=0),
     )
 
@@ -129,14 +142,19 @@ def main() -> None:
     t_done = time.perf_counter()
 
     size_mb = os.path.getsize(out) / 1e6
-    print(f"frames: {args.frames} ({args.frames / RATE_HZ / 3600:.2f} h at {RATE_HZ} Hz), "
-          f"entities with samples: {len(summary.samples)}, sources: {', '.join(summary.sources)}")
-    print(f"log_replay calls: {t_logged - t0:.2f} s; flushed .rrd ({size_mb:.0f} MB): {t_done - t0:.2f} s "
-          f"(goal <= 15 s)")
+    print(
+        f"frames: {args.frames} ({args.frames / RATE_HZ / 3600:.2f} h at {RATE_HZ} Hz), "
+        f"entities with samples: {len(summary.samples)}, sources: {', '.join(summary.sources)}"
+    )
+    print(
+        f"log_replay calls: {t_logged - t0:.2f} s; flushed .rrd ({size_mb:.0f} MB): {t_done - t0:.2f} s (goal <= 15 s)"
+    )
     t1 = time.perf_counter()
     info = read_rrd(out)
-    print(f"read back: {time.perf_counter() - t1:.2f} s, "
-          f"firmware pitch samples {info.samples.get('plots/pitch_thx_deg/firmware')}, blueprint {info.has_blueprint}")
+    print(
+        f"read back: {time.perf_counter() - t1:.2f} s, "
+        f"firmware pitch samples {info.samples.get('plots/pitch_thx_deg/firmware')}, blueprint {info.has_blueprint}"
+    )
     if args.out is None:
         out.unlink()
     sys.exit(0)

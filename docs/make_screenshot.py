@@ -47,8 +47,16 @@ def main(out: Path) -> None:
     state = tempfile.TemporaryDirectory(prefix="steval-screenshot-")
     env = dict(display.env, XDG_DATA_HOME=state.name, XDG_CONFIG_HOME=state.name, XDG_CACHE_HOME=state.name)
     try:
-        cmd = [sys.executable, "-c", "from steval_link.cli import main; main()", "replay",
-               str(ROOT / "recordings" / "demo.stv"), "--spawn", "--grpc-port", str(port)]
+        cmd = [
+            sys.executable,
+            "-c",
+            "from steval_link.cli import main; main()",
+            "replay",
+            str(ROOT / "recordings" / "demo.stv"),
+            "--spawn",
+            "--grpc-port",
+            str(port),
+        ]
         r = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
         if r.returncode != 0:
             sys.exit(f"make_screenshot: steval replay failed:\n{r.stderr}")

@@ -39,8 +39,15 @@ def host_build(tmp_path_factory) -> Path:
         pytest.skip("needs make and gcc for the host build")
     build = tmp_path_factory.mktemp("fw-host")
     subprocess.run(
-        ["make", "-s", "-C", str(Path(__file__).resolve().parents[1] / "firmware_patch"), f"BUILD_DIR={build}",
-         f"{build}/host/stv_encode", f"{build}/host/test_stv"],
+        [
+            "make",
+            "-s",
+            "-C",
+            str(Path(__file__).resolve().parents[1] / "firmware_patch"),
+            f"BUILD_DIR={build}",
+            f"{build}/host/stv_encode",
+            f"{build}/host/test_stv",
+        ],
         check=True,
         capture_output=True,
     )
@@ -69,9 +76,3 @@ def stream() -> StreamBuilder:
 def make_stream():
     """Factory of :class:`StreamBuilder` with a given seed."""
     return StreamBuilder
-
-
-
-
-
-

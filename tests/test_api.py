@@ -20,8 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "demo.stv"
 BROAD = ROOT.parent / "shared" / "datasets" / "broad"
 TRIAL = BROAD / "02_undisturbed_slow_rotation_B.npz"
-needs_broad = pytest.mark.skipif(not TRIAL.is_file() and os.environ.get("CI") != "true",
-                                 reason="BROAD trials (../shared) not present")
+needs_broad = pytest.mark.skipif(
+    not TRIAL.is_file() and os.environ.get("CI") != "true", reason="BROAD trials (../shared) not present"
+)
 
 
 def readme_python_block() -> str:
@@ -46,17 +47,28 @@ def test_the_readme_exercise_9_example_runs_as_written(tmp_path, monkeypatch):
     assert png.stat().st_size > 10_000
     lines = plt.gcf().axes[0].get_lines()
     cap = sl.open_capture(DEMO)
-    assert [ln.get_label() for ln in lines] == ["roll (thy), firmware", "pitch (thx), firmware",
-                                                "roll, accelerometer only", "pitch, accelerometer only"]
+    assert [ln.get_label() for ln in lines] == [
+        "roll (thy), firmware",
+        "pitch (thx), firmware",
+        "roll, accelerometer only",
+        "pitch, accelerometer only",
+    ]
     x, y = lines[1].get_data()
     assert np.array_equal(x, cap.attitude.t_fw_s) and np.allclose(y, np.degrees(cap.attitude.thx_rad), equal_nan=True)
     plt.close("all")
 
 
 def test_import_is_cheap_and_lazy():
-    out = subprocess.run([sys.executable, "-c", "import sys, steval_link; print(sorted(m for m in sys.modules if "
-                                                "m.startswith(('numpy', 'steval_link.'))))"],
-                         capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys, steval_link; print(sorted(m for m in sys.modules if m.startswith(('numpy', 'steval_link.'))))",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert out.strip() == "[]"
     assert "open_capture" in dir(sl) and sl.__version__
 

@@ -19,8 +19,15 @@ PACKAGES = ("steval_link", "steval_viewer")
 #: layers from the bottom. A name ending in ``.*`` is a package and every module under it; any other name is that one
 #: module exactly (``steval_link`` is the package's ``__init__`` only). A module named nowhere is in no layer.
 LAYERS: list[tuple[str, ...]] = [
-    ("steval_link", "steval_link.errors", "steval_link.constants", "steval_link.quat", "steval_link.fw_math",
-     "steval_link._st_mahony_native", "steval_link.recordings"),
+    (
+        "steval_link",
+        "steval_link.errors",
+        "steval_link.constants",
+        "steval_link.quat",
+        "steval_link.fw_math",
+        "steval_link._st_mahony_native",
+        "steval_link.recordings",
+    ),
     ("steval_link.link.*",),
     ("steval_link.estimators.*",),
     ("steval_link.emulation.*",),
@@ -65,8 +72,13 @@ def package_dir(root: Path, pkg: str) -> Path:
 
     pyproject = root / "pyproject.toml"
     if pyproject.is_file():
-        mapped = tomllib.loads(pyproject.read_text(encoding="utf-8")).get("tool", {}).get("setuptools", {}).get(
-            "package-dir", {}).get(pkg)
+        mapped = (
+            tomllib.loads(pyproject.read_text(encoding="utf-8"))
+            .get("tool", {})
+            .get("setuptools", {})
+            .get("package-dir", {})
+            .get(pkg)
+        )
         if mapped:
             return root / mapped
     return root / pkg
@@ -191,9 +203,17 @@ def test_every_module_is_in_a_layer(project):
 def test_a_module_outside_every_layer_is_reported(tmp_path):
     """The layer check fails for a new top-level module or a package next to a layer's, in a real module tree (its
     viewer in a folder of another name, mapped by pyproject's package-dir)."""
-    for rel in ("steval_link/__init__.py", "steval_link/errors.py", "steval_link/link/__init__.py",
-                "steval_link/link/decoder.py", "steval_link/stray.py", "steval_link/linkage/__init__.py",
-                "steval_link/linkage/x.py", "viewer/__init__.py", "viewer/scene.py"):
+    for rel in (
+        "steval_link/__init__.py",
+        "steval_link/errors.py",
+        "steval_link/link/__init__.py",
+        "steval_link/link/decoder.py",
+        "steval_link/stray.py",
+        "steval_link/linkage/__init__.py",
+        "steval_link/linkage/x.py",
+        "viewer/__init__.py",
+        "viewer/scene.py",
+    ):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("")
     (tmp_path / "pyproject.toml").write_text('[tool.setuptools.package-dir]\n"steval_viewer" = "viewer"\n')

@@ -45,7 +45,7 @@ def skip_runs(n: int, every: int = 150, skip: int = 30, first: int = 70) -> np.n
     keep = np.ones(n, bool)
     i = first
     while i + skip + 1 < n:
-        keep[i:i + skip + 1] = False
+        keep[i : i + skip + 1] = False
         i += skip + 1 + every
     return keep
 
@@ -61,8 +61,15 @@ def arrivals(t_send: np.ndarray, rng, latency_s: float = 0.02, jitter_s: float =
     return np.maximum.accumulate(t)
 
 
-def drone_stream(rate_hz: float, *, duration_s: float = 12.0, congested: bool = False, start_ms: int = 123_456,
-                 others: bool = True, seed: int = 0):
+def drone_stream(
+    rate_hz: float,
+    *,
+    duration_s: float = 12.0,
+    congested: bool = False,
+    start_ms: int = 123_456,
+    others: bool = True,
+    seed: int = 0,
+):
     """(t_host_s, char id, payload) in arrival order, and the truth: motion samples sent, and missing."""
     rng = np.random.default_rng(seed)
     t = send_times(rate_hz, duration_s)
@@ -80,12 +87,13 @@ def drone_stream(rate_hz: float, *, duration_s: float = 12.0, congested: bool = 
             recs.append((float(hs[j]) + 2e-5, B.CHAR_ARMING, struct.pack("<HB", tick, 0)))
     recs.sort(key=lambda r: r[0])
     last = np.flatnonzero(keep)[[0, -1]]
-    missing = int((~keep[last[0]:last[1] + 1]).sum())
+    missing = int((~keep[last[0] : last[1] + 1]).sum())
     return recs, int(keep.sum()), missing
 
 
-def poller_stream(read_hz: float, *, duration_s: float = 12.0, double_every: int = 9, seed: int = 1,
-                  start_ms: int = 40_000):
+def poller_stream(
+    read_hz: float, *, duration_s: float = 12.0, double_every: int = 9, seed: int = 1, start_ms: int = 40_000
+):
     """A central that reads the motion characteristic of ST's firmware (updated every AHRS step) ``read_hz`` times a
     second at irregular host moments, reading twice in a row now and then (``double_every``): (records, distinct
     samples read, reads)."""
@@ -94,8 +102,9 @@ def poller_stream(read_hz: float, *, duration_s: float = 12.0, double_every: int
     reads = 0.2 + np.cumsum(np.clip(rng.normal(1 / read_hz, 0.004, int(duration_s * read_hz)), 0.002, None))
     reads = np.sort(np.concatenate([reads, reads[::double_every] + 0.0005]))  # a second read 0.5 ms later
     j = np.searchsorted(steps, reads - 0.010, side="right") - 1  # the value as the firmware last wrote it
-    recs = [(float(r), B.CHAR_MOTION, motion_payload(int(start_ms + steps[k] * 1000), int(k)))
-            for r, k in zip(reads, j)]
+    recs = [
+        (float(r), B.CHAR_MOTION, motion_payload(int(start_ms + steps[k] * 1000), int(k))) for r, k in zip(reads, j)
+    ]
     return recs, len(np.unique(j)), len(reads)
 
 
@@ -190,8 +199,11 @@ def write_capture(path, recs) -> None:
             w.write_chunk(CHUNK_BLE, B.ble_chunk(cid, p), t)
 
 
-@pytest.mark.parametrize("rate_hz, congested", [(50.0, False), (50.0, True), (1 / STEP_S, True)],
-                         ids=["50Hz", "50Hz-gaps", "stock-congestion"])
+@pytest.mark.parametrize(
+    "rate_hz, congested",
+    [(50.0, False), (50.0, True), (1 / STEP_S, True)],
+    ids=["50Hz", "50Hz-gaps", "stock-congestion"],
+)
 def test_replay_says_the_cadence(monkeypatch, capsys, tmp_path, rate_hz, congested):
     recs, sent, missing = drone_stream(rate_hz, congested=congested, start_ms=WRAP_MS - 5000)
     path = tmp_path / "b.stv"
@@ -240,10 +252,18 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
             pass
 
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=pace_s, drop_after=list(drop_after))
-    opts = LiveOptions(port="ble:auto", baud=0, out=tmp_path / "live.stv", view=False, rrd=tmp_path / "x.rrd",
-                       estimators=list(estimators), duration_s=None)
-    session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(),
-                             stream=sys.stderr)
+    opts = LiveOptions(
+        port="ble:auto",
+        baud=0,
+        out=tmp_path / "live.stv",
+        view=False,
+        rrd=tmp_path / "x.rrd",
+        estimators=list(estimators),
+        duration_s=None,
+    )
+    session = BleLiveSession(
+        opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
+    )
 
     async def stopper():
         while fake.finished is None or not fake.finished.is_set():
@@ -260,11 +280,15 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
     return summary, rows, session
 
 
-@pytest.mark.parametrize("rate_hz, congested", [(50.0, False), (40.0, True), (1 / STEP_S, True)],
-                         ids=["50Hz", "40Hz-gaps", "stock-congestion"])
+@pytest.mark.parametrize(
+    "rate_hz, congested",
+    [(50.0, False), (40.0, True), (1 / STEP_S, True)],
+    ids=["50Hz", "40Hz-gaps", "stock-congestion"],
+)
 def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
-    recs, sent, missing = drone_stream(rate_hz, congested=congested, duration_s=6, others=False,
-                                       start_ms=WRAP_MS - 3000)
+    recs, sent, missing = drone_stream(
+        rate_hz, congested=congested, duration_s=6, others=False, start_ms=WRAP_MS - 3000
+    )
     summary, rows, session = run_live(tmp_path, recs)
     assert summary.counts["motion"] == sent
     c = summary.cadence
@@ -279,7 +303,7 @@ def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
     assert len(u.t_s) == len(t_grid) and int(u.filled.sum()) == missing
     # the same rows at the replay's times: within half a period while the live interval is refined, then closer
     err = np.abs(t_grid - u.t_s)
-    assert err.max() < 0.5 / rate_hz and err[-len(rows[-1].t_s):].max() < 0.05 / rate_hz
+    assert err.max() < 0.5 / rate_hz and err[-len(rows[-1].t_s) :].max() < 0.05 / rate_hz
     text = summary.line()
     if congested:
         assert f"with {missing} dropped" in text
@@ -305,7 +329,7 @@ def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     is a gap of the sender's cadence."""
     recs, sent, _ = drone_stream(50.0, duration_s=6, others=False)
     lost = slice(120, 220)  # 2 s of samples never sent: the link was down
-    recs = recs[:lost.start] + recs[lost.stop:]
+    recs = recs[: lost.start] + recs[lost.stop :]
     n = len(recs)
     summary, rows, session = run_live(tmp_path, recs, drop_after=[lost.start])
     assert summary.losses == 1 and summary.counts["motion"] == n

@@ -35,8 +35,14 @@ def run_link(backend, target=None, *, stop_when=None, timeout_s=10.0, **kw):
 
     async def main():
         stop = asyncio.Event()
-        link = BleLink(backend, target, lambda cid, data, t: got.append((cid, data)),
-                       on_event=lambda k, t: events.append((k, t)), retry_max_s=0.01, **kw)
+        link = BleLink(
+            backend,
+            target,
+            lambda cid, data, t: got.append((cid, data)),
+            on_event=lambda k, t: events.append((k, t)),
+            retry_max_s=0.01,
+            **kw,
+        )
         task = asyncio.ensure_future(link.run(stop))
 
         async def watch():
@@ -53,8 +59,12 @@ def run_link(backend, target=None, *, stop_when=None, timeout_s=10.0, **kw):
 
 
 def test_pick_device_by_name_address_or_default():
-    devs = [BleDevice("Phone", "AA:AA:AA:AA:AA:AA", -40.0), BleDevice("DRN1110", "C0:00:00:00:00:01", -80.0),
-            BleDevice("DRN1120", "C0:00:00:00:00:02", -60.0), BleDevice(None, "C0:00:00:00:00:03", -30.0)]
+    devs = [
+        BleDevice("Phone", "AA:AA:AA:AA:AA:AA", -40.0),
+        BleDevice("DRN1110", "C0:00:00:00:00:01", -80.0),
+        BleDevice("DRN1120", "C0:00:00:00:00:02", -60.0),
+        BleDevice(None, "C0:00:00:00:00:03", -30.0),
+    ]
     assert pick_device(devs, None).address.endswith("02")  # strongest DRN1…
     assert pick_device(devs, "DRN1110").address.endswith("01")
     assert pick_device(devs, "c0:00:00:00:00:03").name is None
@@ -90,6 +100,7 @@ def test_link_reconnects_after_losses_and_refused_connections(firmware_notificat
         _n[0] += 1
         if _n[0] in (2, 3):
             from steval_link.link.ble_transport import BleError
+
             raise BleError("connection refused (fake)")
         await orig(address, on_disconnect)
 
@@ -105,11 +116,13 @@ def test_link_errors_are_one_sentence(firmware_notifications):
         run_link(FakeBleBackend(firmware_notifications, devices=[BleDevice("Phone", "AA:AA:AA:AA:AA:AA", -40)]))
     with pytest.raises(UserError, match="cannot connect"):
         run_link(FakeBleBackend(firmware_notifications, fail_connects=1))
-    for exc, words in ((FileNotFoundError(2, "No such file or directory"), "BlueZ"),
-                       (PermissionError("Operation not permitted"), "permission"),
-                       (Exception("org.freedesktop.DBus.Error.AccessDenied: not allowed"), "permission"),
-                       (Exception("No Bluetooth adapters found."), "no Bluetooth LE adapter"),
-                       (Exception("[org.bluez.Error.NotReady] Resource Not Ready"), "switched off")):
+    for exc, words in (
+        (FileNotFoundError(2, "No such file or directory"), "BlueZ"),
+        (PermissionError("Operation not permitted"), "permission"),
+        (Exception("org.freedesktop.DBus.Error.AccessDenied: not allowed"), "permission"),
+        (Exception("No Bluetooth adapters found."), "no Bluetooth LE adapter"),
+        (Exception("[org.bluez.Error.NotReady] Resource Not Ready"), "switched off"),
+    ):
         assert words in explain_ble_error(exc)
         with pytest.raises(UserError, match=words):
             run_link(FakeBleBackend(firmware_notifications, scan_error=exc))
@@ -149,10 +162,18 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     firmware_notifications = [(c, p) for _, c, p in recs]
     fake = FakeBleBackend(firmware_notifications, drop_after=[500, 400], pace_s=0.001)
     out = tmp_path / "ble.stv"
-    opts = LiveOptions(port="ble:auto", baud=0, out=out, view=False, rrd=tmp_path / "x.rrd",
-                       estimators=["st-mahony", "accel"], duration_s=None)
-    session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(),
-                             stream=sys.stderr)
+    opts = LiveOptions(
+        port="ble:auto",
+        baud=0,
+        out=out,
+        view=False,
+        rrd=tmp_path / "x.rrd",
+        estimators=["st-mahony", "accel"],
+        duration_s=None,
+    )
+    session = BleLiveSession(
+        opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
+    )
 
     async def stopper():
         while fake.finished is None or not fake.finished.is_set():
@@ -213,8 +234,10 @@ def test_cli_platform_failures_are_one_line(monkeypatch, capsys, tmp_path):
     from steval_link.link import ble_transport as T
 
     monkeypatch.chdir(tmp_path)
-    for exc, words in ((FileNotFoundError(2, "No such file or directory"), "BlueZ"),
-                       (PermissionError(1, "Operation not permitted"), "permission")):
+    for exc, words in (
+        (FileNotFoundError(2, "No such file or directory"), "BlueZ"),
+        (PermissionError(1, "Operation not permitted"), "permission"),
+    ):
         monkeypatch.setattr(T, "bleak_backend", lambda exc=exc: FakeBleBackend([], scan_error=exc))
         monkeypatch.setattr("steval_link.cli.ble.bleak_backend", T.bleak_backend)
         monkeypatch.setattr("steval_link.cli.live.bleak_backend", T.bleak_backend)
@@ -248,8 +271,9 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     recs = B.ble_records(read_source(DEMO).chunks)[:900]
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=0.0005)
     rrd = tmp_path / "live.rrd"
-    opts = LiveOptions(port="ble:auto", baud=0, out=tmp_path / "c.stv", view=False, rrd=rrd,
-                       estimators=["st-mahony", "ekf3"])
+    opts = LiveOptions(
+        port="ble:auto", baud=0, out=tmp_path / "c.stv", view=False, rrd=rrd, estimators=["st-mahony", "ekf3"]
+    )
     session = BleLiveSession(opts, target="DRN1110", backend=fake, viewer_factory=BleLiveLogger, stream=sys.stderr)
 
     async def stopper():

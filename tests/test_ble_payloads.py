@@ -52,8 +52,14 @@ def test_tick_unwrap_across_the_wrap_and_a_long_gap():
 
 
 def test_decode_notifications_counts_and_skips_bad_payloads():
-    recs = [(0.0, B.CHAR_MOTION, motion(1)), (0.001, B.CHAR_ENV, bytes(12)), (0.002, B.CHAR_ARMING, b"\x01\x00\x00"),
-            (0.003, B.CHAR_MOTION, motion(2)[:-1]), (0.004, 9, b"xx"), (0.005, B.CHAR_STDERR, b"Error\r\n")]
+    recs = [
+        (0.0, B.CHAR_MOTION, motion(1)),
+        (0.001, B.CHAR_ENV, bytes(12)),
+        (0.002, B.CHAR_ARMING, b"\x01\x00\x00"),
+        (0.003, B.CHAR_MOTION, motion(2)[:-1]),
+        (0.004, 9, b"xx"),
+        (0.005, B.CHAR_STDERR, b"Error\r\n"),
+    ]
     ble = B.decode_notifications(recs)
     assert len(ble) == 1 and ble.bad_payloads == 1 and ble.unknown == 1
     assert ble.counts == {"motion": 2, "environment": 1, "arming": 1, "stdout": 0, "stderr": 1}
@@ -122,10 +128,17 @@ def test_decoder_sees_notifications_dropped_on_the_way(demo):
     keep = np.ones(len(demo), bool)
     keep[100:160] = False
     # the whole sample as sent (acc, gyro, mag): two updates within one 8 ms tick differ by their sensor noise
-    records = [(float(t), B.CHAR_MOTION, motion(int(k) & 0xFFFF, tuple(map(int, a)),
-                                                tuple(int(round(v / 100)) for v in g), tuple(map(int, m))))
-               for t, k, a, g, m, ok in zip(demo.motion_t_host_s, demo.motion_tick, demo.acc_mg, demo.gyro_mdps,
-                                            demo.mag_mgauss, keep) if ok]
+    records = [
+        (
+            float(t),
+            B.CHAR_MOTION,
+            motion(int(k) & 0xFFFF, tuple(map(int, a)), tuple(int(round(v / 100)) for v in g), tuple(map(int, m))),
+        )
+        for t, k, a, g, m, ok in zip(
+            demo.motion_t_host_s, demo.motion_tick, demo.acc_mg, demo.gyro_mdps, demo.mag_mgauss, keep
+        )
+        if ok
+    ]
     dropped = B.decode_notifications(records)
     assert dropped.dropped_estimate() == 60
     u = B.uniform_inputs(dropped)

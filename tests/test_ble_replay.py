@@ -68,7 +68,7 @@ def test_chunk_b_round_trip_with_serial_bytes_and_events(tmp_path):
         assert 0 < len(got) < len(recs) and got == recs[: len(got)]
     # a damaged B chunk loses only itself
     i = raw.index(B.ble_chunk(*recs[40][1:]))
-    bad = raw[:i + 3] + bytes([raw[i + 3] ^ 0xFF]) + raw[i + 4:]
+    bad = raw[: i + 3] + bytes([raw[i + 3] ^ 0xFF]) + raw[i + 4 :]
     with pytest.warns(CaptureTruncatedWarning):
         got = B.ble_records(read_capture(path, data=bad).chunks)
     assert got == recs[:40] + recs[41:]
@@ -147,9 +147,20 @@ def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
     assert code == 0, err
     info = read_rrd(rrd)
     assert info.has_blueprint and {"fw_time", "host_time"} <= info.timelines
-    for path in ("ble/acc_mg", "ble/gyro_dps", "ble/mag_mgauss", "ble/pressure_hpa", "ble/battery_pct",
-                 "ble/rssi_dbm", "ble/armed", "ble/temperature_c", "world/drone/ble",
-                 "plots/pitch_thx_deg/st_mahony", "plots/roll_thy_deg/ekf3", "world/drone/estimate/accel"):
+    for path in (
+        "ble/acc_mg",
+        "ble/gyro_dps",
+        "ble/mag_mgauss",
+        "ble/pressure_hpa",
+        "ble/battery_pct",
+        "ble/rssi_dbm",
+        "ble/armed",
+        "ble/temperature_c",
+        "world/drone/ble",
+        "plots/pitch_thx_deg/st_mahony",
+        "plots/roll_thy_deg/ekf3",
+        "world/drone/estimate/accel",
+    ):
         assert info.samples.get(path, 0) >= 5976, path
     assert "ble/note" in info.static and "world/drone/ble/model" in info.static
     names = " ".join(blueprint_views(rrd))

@@ -15,8 +15,8 @@ from steval_link.emulation.board.native import core_library  # noqa: E402
 NOWHERE = 0x60000000  # FSMC bank 1: not on the STM32F401
 
 # Thumb code at 0x08000008 (arm-none-eabi-as -mcpu=cortex-m4)
-READ_UNMAPPED = bytes.fromhex("4ff0c040" "0168" "fbe7")  # mov.w r0, #0x60000000; ldr r1, [r0]; b .-6
-FETCH_UNMAPPED = bytes.fromhex("0048" "0047" "01000060")  # ldr r0, [pc, #0]; bx r0; .word 0x60000001
+READ_UNMAPPED = bytes.fromhex("4ff0c0400168fbe7")  # mov.w r0, #0x60000000; ldr r1, [r0]; b .-6
+FETCH_UNMAPPED = bytes.fromhex("0048004701000060")  # ldr r0, [pc, #0]; bx r0; .word 0x60000001
 
 MODES = [False] + ([True] if core_library() is not None else [])
 

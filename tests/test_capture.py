@@ -38,8 +38,9 @@ def write_capture(path, data: bytes, chunk: int = 100, events=()):
 
 def test_round_trip_bytes_times_header_events(tmp_path, stream: StreamBuilder):
     data = stream.flight(300).bytes()
-    path = write_capture(tmp_path / "a.stv", data, 100, events=[(1000, "disconnect", "USB unplugged"),
-                                                                 (1000, "reconnect", "")])
+    path = write_capture(
+        tmp_path / "a.stv", data, 100, events=[(1000, "disconnect", "USB unplugged"), (1000, "reconnect", "")]
+    )
     cap = read_capture(path)
     assert cap.data == data and not cap.truncated and cap.warning is None
     assert cap.chunk_offsets.tolist() == list(range(0, len(data), 100))
@@ -47,8 +48,10 @@ def test_round_trip_bytes_times_header_events(tmp_path, stream: StreamBuilder):
     h = cap.header
     assert h["port"] == "/dev/ttyUSB0" and h["baud"] == 115200 and h["extra"] == {"note": "test"}
     assert h["start_time_utc"].endswith("+00:00") and h["tool_version"]
-    assert [(e.kind, e.text, e.offset) for e in cap.events] == [("disconnect", "USB unplugged", 1000),
-                                                                  ("reconnect", "", 1000)]
+    assert [(e.kind, e.text, e.offset) for e in cap.events] == [
+        ("disconnect", "USB unplugged", 1000),
+        ("reconnect", "", 1000),
+    ]
     tel = load_telemetry(path)
     assert tel.source["kind"] == "stv" and len(tel.attitude) == 300
     assert [e.kind for e in tel.events] == ["disconnect", "reconnect"]
@@ -56,8 +59,10 @@ def test_round_trip_bytes_times_header_events(tmp_path, stream: StreamBuilder):
     last = tel.attitude.offset + P.ATTITUDE_FRAME_SIZE - 1
     chunk = last // 100
     end = np.minimum((chunk + 1) * 100, len(data))
-    np.testing.assert_allclose(tel.attitude.t_host_s, np.maximum((chunk + 1) * 0.01 - (end - last - 1) * 10 / 115200,
-                                                                 np.where(chunk > 0, chunk * 0.01, -np.inf)))
+    np.testing.assert_allclose(
+        tel.attitude.t_host_s,
+        np.maximum((chunk + 1) * 0.01 - (end - last - 1) * 10 / 115200, np.where(chunk > 0, chunk * 0.01, -np.inf)),
+    )
 
 
 def test_truncated_anywhere_reads_up_to_last_complete_chunk(tmp_path, stream: StreamBuilder):
@@ -219,8 +224,16 @@ def test_header_is_json_documented_fields(tmp_path):
     assert raw.startswith(MAGIC)
     n = int.from_bytes(raw[8:12], "little")
     head = json.loads(raw[12 : 12 + n])
-    assert set(head) == {"format", "format_version", "port", "baud", "start_time_utc", "start_time_unix_s",
-                         "tool_version", "extra"}
+    assert set(head) == {
+        "format",
+        "format_version",
+        "port",
+        "baud",
+        "start_time_utc",
+        "start_time_unix_s",
+        "tool_version",
+        "extra",
+    }
 
 
 def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuilder, monkeypatch, capsys):

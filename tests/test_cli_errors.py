@@ -126,6 +126,7 @@ def test_registry_names_are_what_the_messages_list():
 
 # -- issue 25: errors in the command line's order, the one capture rule, outputs, small defects ---------------
 
+
 @pytest.fixture(scope="module")
 def small_capture(tmp_path_factory):
     from steval_link.emulation.synth import SynthOptions, synthesize, write_output
@@ -175,8 +176,7 @@ def test_capture_without_attitude_frames_is_one_rule(monkeypatch, capsys, tmp_pa
     # the first 1000 bytes of a capture: its header and a few boot text frames, cut mid-chunk
     cut = tmp_path / "cut.stv"
     cut.write_bytes(small_capture.read_bytes()[:1000])
-    for args in (["export", cut, "--csv", tmp_path / "o.csv"], ["compare", cut], ["spectrum", cut],
-                 ["preflight", cut]):
+    for args in (["export", cut, "--csv", tmp_path / "o.csv"], ["compare", cut], ["spectrum", cut], ["preflight", cut]):
         code, _, err = run_cli(monkeypatch, capsys, *args)
         _one_error_line(code, err)
         assert "1000 bytes" in err and "no attitude frames" in err, err
@@ -257,8 +257,7 @@ def test_spawn_reports_a_viewer_that_dies(monkeypatch, capsys, tmp_path, small_c
     fake.write_text(FAKE_RERUN.format(listen=listen))
     monkeypatch.setattr(sinks, "rerun_command", lambda: [sys.executable, str(fake)])
     port = free_port()
-    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--spawn", "--grpc-port", port,
-                             "-e", "none")
+    code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--spawn", "--grpc-port", port, "-e", "none")
     _one_error_line(code, err)
     assert "no suitable GPU adapter" in err and "Rerun viewer exited" in err
 
@@ -274,7 +273,7 @@ def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_ca
 
     cap = read_capture(small_capture)
     bounds = [*cap.chunk_offsets.tolist(), len(cap.data)]
-    pieces = [(cap.data[bounds[i]:bounds[i + 1]], 0.05 * (i + 1)) for i in range(len(bounds) - 1)]
+    pieces = [(cap.data[bounds[i] : bounds[i + 1]], 0.05 * (i + 1)) for i in range(len(bounds) - 1)]
 
     class FakeEmulation:
         def __init__(self, options):
@@ -377,8 +376,13 @@ def test_the_readme_screenshot_is_made_by_its_script(tmp_path):
     root = Path(__file__).resolve().parents[1]
     assert "`python docs/make_screenshot.py`" in " ".join(_readme().split())
     out = tmp_path / "shot.png"
-    r = subprocess.run([sys.executable, str(root / "docs" / "make_screenshot.py"), str(out)], cwd=tmp_path,
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, str(root / "docs" / "make_screenshot.py"), str(out)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     png = out.read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 100_000  # a rendered window, not a blank one

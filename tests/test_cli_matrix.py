@@ -35,8 +35,16 @@ from steval_link.cli import app
 from steval_link.cli.outputs import OUTPUT_OPTIONS
 
 #: file name extension given to a bad output of each option
-EXTENSION = {"--rrd": ".rrd", "--csv": ".csv", "--parquet": ".parquet", "--plot": ".png", "--raw": ".bin",
-             "--out": ".stv", "--mat": ".mat", "--mcap": ".mcap"}
+EXTENSION = {
+    "--rrd": ".rrd",
+    "--csv": ".csv",
+    "--parquet": ".parquet",
+    "--plot": ".png",
+    "--raw": ".bin",
+    "--out": ".stv",
+    "--mat": ".mat",
+    "--mcap": ".mcap",
+}
 
 #: a valid call of a command, where it needs more than its path argument. {capture}: a good capture, {port}: a
 #: pseudo-terminal, {trial}: a small BROAD-like trial, {elf}: a file standing in for a firmware ELF, {tmp}: the
@@ -70,6 +78,7 @@ OUTPUT_ARGUMENTS: set[tuple[str, str]] = {("estimator new", "file")}
 
 
 # -- the commands, from the app itself ------------------------------------------------------------------------
+
 
 def _leaves(group, path=()):
     for name, cmd in sorted(group.commands.items()):
@@ -116,6 +125,7 @@ def test_the_walk_finds_every_command_and_its_files():
 
 # -- fixtures -------------------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     """A good capture, a small BROAD-like trial, a stand-in ELF and the bad inputs, made once."""
@@ -129,8 +139,14 @@ def files(tmp_path_factory) -> dict[str, Path]:
     rng = np.random.default_rng(25)
     n = 700
     t = np.arange(n) / 285.7
-    np.savez(d / "trial.npz", acc=np.tile([0.0, 0.0, 9.81], (n, 1)), gyr=np.zeros((n, 3)),
-             quat=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), movement=t > 0.5, fs=np.float64(285.7))
+    np.savez(
+        d / "trial.npz",
+        acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
+        gyr=np.zeros((n, 3)),
+        quat=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+        movement=t > 0.5,
+        fs=np.float64(285.7),
+    )
     (d / "firmware.elf").write_bytes(b"\x7fELF" + rng.bytes(2000))
     bad = {
         "missing": d / "missing.stv",
@@ -158,13 +174,18 @@ def _header_size(data: bytes) -> int:
     """Bytes of a capture's magic, header length, header and header CRC."""
     from steval_link.link.capture import MAGIC
 
-    hlen = int.from_bytes(data[len(MAGIC): len(MAGIC) + 4], "little")
+    hlen = int.from_bytes(data[len(MAGIC) : len(MAGIC) + 4], "little")
     return len(MAGIC) + 4 + hlen + 4
 
 
 def _fill(args: list[str], files: dict[str, Path], tmp: Path, port: str | None) -> list[str]:
-    values = {"capture": files["capture"], "trial": files["trial"], "elf": files["elf"], "tmp": tmp,
-              "port": port or "/dev/steval-no-port"}
+    values = {
+        "capture": files["capture"],
+        "trial": files["trial"],
+        "elf": files["elf"],
+        "tmp": tmp,
+        "port": port or "/dev/steval-no-port",
+    }
     return [a.format(**{k: str(v) for k, v in values.items()}) for a in args]
 
 
@@ -173,15 +194,19 @@ def _run(monkeypatch, capsys, *args):
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         code, out, err = run_cli(monkeypatch, capsys, *args)
-    ours = [f"{w.filename}: {w.category.__name__}: {w.message}" for w in seen
-            if any(part in ("steval_link", "viewer") for part in Path(w.filename).parts)
-            or "Capture" in w.category.__name__]
+    ours = [
+        f"{w.filename}: {w.category.__name__}: {w.message}"
+        for w in seen
+        if any(part in ("steval_link", "viewer") for part in Path(w.filename).parts) or "Capture" in w.category.__name__
+    ]
     return code, out, err, ours
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else b"<not a file>")
-            for p in sorted(folder.rglob("*"))}
+    return {
+        str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else b"<not a file>")
+        for p in sorted(folder.rglob("*"))
+    }
 
 
 def _digest(path: Path) -> str | None:
@@ -202,10 +227,24 @@ def _needs_port(args: list[str]) -> bool:
 
 # -- bad inputs -----------------------------------------------------------------------------------------------
 
-INPUT_CASES = ["missing", "empty", "folder", "junk", "truncated-in-header", "header-only", "random-bytes-appended",
-               "device", "pipe"]
-INPUT_PARAMS = [(name, arg, case) for name, c in COMMANDS.items() for arg in c["path_args"]
-                if (name, arg) not in OUTPUT_ARGUMENTS for case in INPUT_CASES]
+INPUT_CASES = [
+    "missing",
+    "empty",
+    "folder",
+    "junk",
+    "truncated-in-header",
+    "header-only",
+    "random-bytes-appended",
+    "device",
+    "pipe",
+]
+INPUT_PARAMS = [
+    (name, arg, case)
+    for name, c in COMMANDS.items()
+    for arg in c["path_args"]
+    if (name, arg) not in OUTPUT_ARGUMENTS
+    for case in INPUT_CASES
+]
 
 
 @pytest.mark.parametrize("name, arg, case", INPUT_PARAMS, ids=[f"{n}:{a}:{c}" for n, a, c in INPUT_PARAMS])
@@ -229,6 +268,7 @@ def test_bad_input(monkeypatch, capsys, tmp_path, files, name, arg, case):
 
 
 # -- bad outputs ----------------------------------------------------------------------------------------------
+
 
 def _bad_outputs(tmp: Path, option: str, folder_ok: bool) -> dict[str, Path]:
     ext = EXTENSION.get(option, ".out")
@@ -254,7 +294,7 @@ OUTPUT_PARAMS = [(name, opt, case) for name, c in COMMANDS.items() for opt in c[
 def _with_output(args: list[str], option: str, value: str) -> list[str]:
     if option in args:
         i = args.index(option)
-        return [*args[:i + 1], value, *args[i + 2:]]
+        return [*args[: i + 1], value, *args[i + 2 :]]
     return [*args, option, value]
 
 
@@ -313,7 +353,7 @@ def test_damaged_capture_with_frames_warns_once(monkeypatch, capsys, tmp_path, f
     damaged = {
         "cut-mid-chunk": data[: len(data) - 37],
         "random-bytes-appended": data + rng.bytes(1000),
-        "damaged-middle": data[: len(data) // 2] + rng.bytes(64) + data[len(data) // 2 + 64:],
+        "damaged-middle": data[: len(data) // 2] + rng.bytes(64) + data[len(data) // 2 + 64 :],
     }[damage]
     assert len(damaged) > head
     path = tmp_path / "damaged.stv"
@@ -332,6 +372,7 @@ def test_damaged_capture_with_frames_warns_once(monkeypatch, capsys, tmp_path, f
 
 # -- the matrix itself cannot miss a command that leaks a traceback -------------------------------------------
 
+
 def test_a_new_command_that_leaks_a_traceback_fails_the_matrix(monkeypatch, capsys, tmp_path, files):
     @app.command("matrix-probe")
     def matrix_probe(capture: Path = typer.Argument(...)) -> None:  # a command that forgot the rules
@@ -348,6 +389,7 @@ def test_a_new_command_that_leaks_a_traceback_fails_the_matrix(monkeypatch, caps
 
 # -- the suite as Windows sees it ------------------------------------------------------------------------------
 
+
 @pytest.mark.slow
 def test_the_suite_collects_without_the_posix_modules():
     """``.ci/run`` collects the suite with pty, tty, termios, fcntl and resource blocked for the tests (as on
@@ -359,12 +401,24 @@ def test_the_suite_collects_without_the_posix_modules():
     line = "PYTHONPATH=.ci python -m pytest -p block_posix --collect-only -q"
     assert line in (root / ".ci" / "run").read_text(encoding="utf-8").splitlines()
     env = dict(os.environ, PYTHONPATH=str(root / ".ci"))
-    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "block_posix", "--collect-only", "-q", "-rs"],
-                       cwd=root, env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "pytest", "-p", "block_posix", "--collect-only", "-q", "-rs"],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0 and "errors during collection" not in r.stdout and "ERROR " not in r.stdout, (
-        r.stdout[-3000:] + r.stderr[-2000:])
+        r.stdout[-3000:] + r.stderr[-2000:]
+    )
     assert "pseudo-terminal (POSIX only)" in r.stdout
-    probe = subprocess.run([sys.executable, "-m", "pytest", "-p", "block_posix", "-q", "-rs",
-                            "tests/test_commands.py", "-k", "param"], cwd=root, env=env, capture_output=True,
-                           text=True, timeout=600)
+    probe = subprocess.run(
+        [sys.executable, "-m", "pytest", "-p", "block_posix", "-q", "-rs", "tests/test_commands.py", "-k", "param"],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert probe.returncode == 0 and "skipped" in probe.stdout and "POSIX only" in probe.stdout, probe.stdout[-2000:]

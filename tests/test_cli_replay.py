@@ -53,8 +53,7 @@ def test_replay_json(capture, capsys):
     assert code == 0
     s = json.loads(out)
     assert s["frames"]["attitude"] == 997 and s["frames"]["status"] == 6
-    assert s["drops"] == {"seq_gaps": 1, "frames_missing": 3, "drop_ratio": 3 / 1000, "seq_resets": 0,
-                          "tx_dropped": 2}
+    assert s["drops"] == {"seq_gaps": 1, "frames_missing": 3, "drop_ratio": 3 / 1000, "seq_resets": 0, "tx_dropped": 2}
     assert s["crc_failures"] == 0 and s["source"]["kind"] == "stv" and s["source"]["baud"] == 115200
     assert s["first_step"] == 1000 and s["last_step"] == 1999
     assert s["step_rate_hz"] == pytest.approx(161.5, rel=1e-3)
@@ -131,11 +130,17 @@ def test_ports_json(capsys):
 @pytest.mark.slow  # two steval children (interpreter start-up, imports): ≈ 2 s
 def test_console_script_subprocess(capture):
     """The installed entry point: exit codes as a shell sees them, no traceback."""
-    r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "replay", str(capture),
-                        "--json"], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", "replay", str(capture), "--json"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0 and json.loads(r.stdout)["frames"]["attitude"] == 997
-    r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "replay", "/nope"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", "replay", "/nope"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and r.stderr.startswith("steval: error:") and "Traceback" not in r.stderr
 
 

@@ -30,37 +30,43 @@ from steval_link.live.pipeline import LivePipeline
 # ---- typed commands ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("line,cmd", [
-    ("set ki 1.0", Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0)),
-    ("ki 1", Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0)),
-    ("  SET kp_ground 2.5 ", Command(P.CMD_SET_PARAM, P.PARAM_KP_GROUND, 2.5)),
-    ("set kp-flight 0.25", Command(P.CMD_SET_PARAM, P.PARAM_KP_FLIGHT, 0.25)),
-    ("set min_thr 300", Command(P.CMD_SET_PARAM, P.PARAM_MIN_THR, 300.0)),
-    ("correction off", Command(P.CMD_SET_PARAM, P.PARAM_CORRECTION, 0.0)),
-    ("set correction on", Command(P.CMD_SET_PARAM, P.PARAM_CORRECTION, 1.0)),
-    ("reset", Command(P.CMD_RESET_FILTER)),
-    ("reset-filter", Command(P.CMD_RESET_FILTER)),
-    ("status", Command(P.CMD_REQUEST_STATUS)),
-    ("mode text", Command(P.CMD_SET_MODE, P.MODE_TEXT)),
-    ("mode binary", Command(P.CMD_SET_MODE, P.MODE_BINARY)),
-])
+@pytest.mark.parametrize(
+    "line,cmd",
+    [
+        ("set ki 1.0", Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0)),
+        ("ki 1", Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0)),
+        ("  SET kp_ground 2.5 ", Command(P.CMD_SET_PARAM, P.PARAM_KP_GROUND, 2.5)),
+        ("set kp-flight 0.25", Command(P.CMD_SET_PARAM, P.PARAM_KP_FLIGHT, 0.25)),
+        ("set min_thr 300", Command(P.CMD_SET_PARAM, P.PARAM_MIN_THR, 300.0)),
+        ("correction off", Command(P.CMD_SET_PARAM, P.PARAM_CORRECTION, 0.0)),
+        ("set correction on", Command(P.CMD_SET_PARAM, P.PARAM_CORRECTION, 1.0)),
+        ("reset", Command(P.CMD_RESET_FILTER)),
+        ("reset-filter", Command(P.CMD_RESET_FILTER)),
+        ("status", Command(P.CMD_REQUEST_STATUS)),
+        ("mode text", Command(P.CMD_SET_MODE, P.MODE_TEXT)),
+        ("mode binary", Command(P.CMD_SET_MODE, P.MODE_BINARY)),
+    ],
+)
 def test_typed_commands(line, cmd):
     assert parse_command(line) == cmd
     assert parse_command(cmd.describe()) == cmd  # what we print reads back
 
 
-@pytest.mark.parametrize("line,message", [
-    ("", "empty command"),
-    ("fly", "not a command"),
-    ("set kd 1", "unknown parameter 'kd'"),
-    ("set ki -1", "finite number >= 0"),
-    ("set ki nan", "finite number >= 0"),
-    ("set ki 5000", "at most 1000"),
-    ("set ki fast", "takes a number"),
-    ("set min_thr 20.5", "whole number"),
-    ("correction maybe", "on or off"),
-    ("mode fancy", "text or binary"),
-])
+@pytest.mark.parametrize(
+    "line,message",
+    [
+        ("", "empty command"),
+        ("fly", "not a command"),
+        ("set kd 1", "unknown parameter 'kd'"),
+        ("set ki -1", "finite number >= 0"),
+        ("set ki nan", "finite number >= 0"),
+        ("set ki 5000", "at most 1000"),
+        ("set ki fast", "takes a number"),
+        ("set min_thr 20.5", "whole number"),
+        ("correction maybe", "on or off"),
+        ("mode fancy", "text or binary"),
+    ],
+)
 def test_bad_commands_are_one_sentence(line, message):
     with pytest.raises(UserError) as exc:
         parse_command(line)
@@ -85,15 +91,18 @@ def test_channel_numbers_records_and_matches():
     assert sent == recorded == [a.frame, b.frame]
     frames = StreamDecoder().feed(b"".join(sent))
     assert [(f.cmd_seq, f.cmd, f.param, f.value) for f in frames if isinstance(f, CommandFrame)] == [
-        (65535, P.CMD_SET_PARAM, P.PARAM_KI, 1.0), (0, P.CMD_REQUEST_STATUS, 0, 0.0)]
+        (65535, P.CMD_SET_PARAM, P.PARAM_KI, 1.0),
+        (0, P.CMD_REQUEST_STATUS, 0, 0.0),
+    ]
     stale = AckFrame(cmd_seq=1234, cmd=1, result=0, step=9, rx_ok=1, rx_bad=0)
     assert ch.match(stale) is None
     wrong_cmd = AckFrame(cmd_seq=0, cmd=P.CMD_SET_PARAM, result=0, step=9, rx_ok=1, rx_bad=0)
     assert ch.match(wrong_cmd) is None
     ack = AckFrame(cmd_seq=65535, cmd=P.CMD_SET_PARAM, result=0, step=420, rx_ok=3, rx_bad=2)
     assert ch.match(ack) is a and ch.match(ack) is None
-    assert describe_ack(a.command, ack) == ("set ki 1: accepted, applies from step 420 "
-                                            "(commands received 3, rejected 2)")
+    assert describe_ack(a.command, ack) == (
+        "set ki 1: accepted, applies from step 420 (commands received 3, rejected 2)"
+    )
     refused = AckFrame(cmd_seq=0, cmd=P.CMD_SET_PARAM, result=P.ACK_REFUSED_ARMED, step=9, rx_ok=4, rx_bad=2)
     assert "refused: the motors may spin" in describe_ack(a.command, refused)
 
@@ -105,6 +114,7 @@ def test_text_mode_ack_lines():
 
 
 # ---- the capture's H chunks ------------------------------------------------------------------------------------
+
 
 def test_capture_keeps_what_the_host_sent(tmp_path):
     path = tmp_path / "x.stv"
@@ -128,6 +138,7 @@ def test_format_1_captures_still_read():
 
 
 # ---- the live pipeline's command log --------------------------------------------------------------------------
+
 
 class _Viewer:
     def __init__(self):
@@ -156,16 +167,16 @@ def test_pipeline_logs_commands_acks_and_settings_on_the_timeline():
     viewer = _Viewer()
     pipe = LivePipeline([], viewer)
     pipe.feed_host(Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0).encode(3), 100.0)
-    status = P.encode_status(step=41, t_us=0, q_wxyz=(1, 0, 0, 0), int_xyz=(0, 0, 0), ki=1.0, flags=P.FLAG_EVENT,
-                             param_gen=1)
+    status = P.encode_status(
+        step=41, t_us=0, q_wxyz=(1, 0, 0, 0), int_xyz=(0, 0, 0), ki=1.0, flags=P.FLAG_EVENT, param_gen=1
+    )
     data = P.encode_ack(cmd_seq=3, cmd=P.CMD_SET_PARAM, result=0, step=42, rx_ok=1) + status
     pipe.feed([(data, 100.5)])
     pipe.flush_view()
     texts = [(t, lv) for t, _, lv in viewer.events]
     assert ("sent: set ki 1", "DEBUG") in texts
     assert ("set ki 1: accepted, applies from step 42 (commands received 1, rejected 0)", "INFO") in texts
-    assert any(t.startswith("drone: kp_ground") and "ki 1," in t and t.endswith("from step 42")
-               for t, _ in texts)
+    assert any(t.startswith("drone: kp_ground") and "ki 1," in t and t.endswith("from step 42") for t, _ in texts)
     assert list(pipe.notes) == ["set ki 1: accepted, applies from step 42 (commands received 1, rejected 0)"]
     refused = P.encode_ack(cmd_seq=4, cmd=P.CMD_RESET_FILTER, result=P.ACK_REFUSED_ARMED, step=50, rx_ok=2)
     pipe.feed([(refused, 101.0)])
@@ -174,6 +185,7 @@ def test_pipeline_logs_commands_acks_and_settings_on_the_timeline():
 
 
 # ---- steval param / steval command against a fake drone on a pseudo-terminal ----------------------------------
+
 
 class FakeDrone:
     """Answers command frames on a pty like the patched firmware: an ack, then an EVENT status (accepted); it
@@ -236,8 +248,12 @@ class FakeDrone:
         if f.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER) and self.armed:
             result = P.ACK_REFUSED_ARMED
         elif f.cmd == P.CMD_SET_PARAM:
-            name = {P.PARAM_KP_GROUND: "kp_ground", P.PARAM_KP_FLIGHT: "kp_flight", P.PARAM_KI: "ki",
-                    P.PARAM_MIN_THR: "min_thr"}.get(f.param)
+            name = {
+                P.PARAM_KP_GROUND: "kp_ground",
+                P.PARAM_KP_FLIGHT: "kp_flight",
+                P.PARAM_KI: "ki",
+                P.PARAM_MIN_THR: "min_thr",
+            }.get(f.param)
             if name:
                 self.settings[name] = f.value
             else:
@@ -245,13 +261,23 @@ class FakeDrone:
             self.gen += 1
         out = b""
         if self.ack:
-            out += P.encode_ack(cmd_seq=f.cmd_seq, cmd=f.cmd, result=result, step=self.step + 1,
-                                rx_ok=len(self.received))
+            out += P.encode_ack(
+                cmd_seq=f.cmd_seq, cmd=f.cmd, result=result, step=self.step + 1, rx_ok=len(self.received)
+            )
         if result == P.ACK_ACCEPTED:
             s = self.settings
-            out += P.encode_status(step=self.step, t_us=self.step * 6190, q_wxyz=(1, 0, 0, 0), int_xyz=(0, 0, 0),
-                                   kp_ground=s["kp_ground"], kp_flight=s["kp_flight"], ki=s["ki"],
-                                   min_thr=int(s["min_thr"]), flags=s["flags"] | P.FLAG_EVENT, param_gen=self.gen)
+            out += P.encode_status(
+                step=self.step,
+                t_us=self.step * 6190,
+                q_wxyz=(1, 0, 0, 0),
+                int_xyz=(0, 0, 0),
+                kp_ground=s["kp_ground"],
+                kp_flight=s["kp_flight"],
+                ki=s["ki"],
+                min_thr=int(s["min_thr"]),
+                flags=s["flags"] | P.FLAG_EVENT,
+                param_gen=self.gen,
+            )
         os.write(self.master, b"\x00\x17" + out)
 
 
@@ -279,8 +305,9 @@ def test_param_set_and_get(drone, monkeypatch, capsys, tmp_path):
     code, out, err = run_cli(monkeypatch, capsys, "param", "get", "ki", "--port", port)
     assert code == 0, err
     assert out.startswith("ki = 1.0 (after step ")
-    code, out, err = run_cli(monkeypatch, capsys, "param", "set", "correction", "off", "--port", port,
-                             "--out", tmp_path / "p.stv")
+    code, out, err = run_cli(
+        monkeypatch, capsys, "param", "set", "correction", "off", "--port", port, "--out", tmp_path / "p.stv"
+    )
     assert code == 0, err
     code, out, err = run_cli(monkeypatch, capsys, "param", "get", "--port", port)
     assert "correction off" in out and "ki 1," in out
@@ -290,8 +317,11 @@ def test_param_set_and_get(drone, monkeypatch, capsys, tmp_path):
 
 def test_commands_reset_status_mode(drone, monkeypatch, capsys):
     d, port = drone()
-    for args, cmd in ((["reset-filter"], P.CMD_RESET_FILTER), (["status"], P.CMD_REQUEST_STATUS),
-                      (["mode", "text"], P.CMD_SET_MODE)):
+    for args, cmd in (
+        (["reset-filter"], P.CMD_RESET_FILTER),
+        (["status"], P.CMD_REQUEST_STATUS),
+        (["mode", "text"], P.CMD_SET_MODE),
+    ):
         code, out, err = run_cli(monkeypatch, capsys, "command", *args, "--port", port)
         assert code == 0, err
         assert ": accepted" in out and d.received[-1].cmd == cmd
@@ -341,13 +371,35 @@ def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
 
     data = read_capture(Path(__file__).resolve().parents[1] / "recordings" / "demo.stv").data
     dec = StreamDecoder()
-    frames = [data[f.offset:f.offset + f.nbytes] for f in dec.feed(data)[100:700] if f.nbytes == P.ATTITUDE_FRAME_SIZE]
+    frames = [
+        data[f.offset : f.offset + f.nbytes] for f in dec.feed(data)[100:700] if f.nbytes == P.ATTITUDE_FRAME_SIZE
+    ]
     d, port = drone(stream=frames)
     out = tmp_path / "live.stv"
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from steval_link.cli import main; main()", "live", "--port", port, "--no-view",
-         "--duration", "4", "--prompt", "--out", str(out), "-e", "none", "--rrd", str(tmp_path / "live.rrd")],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "from steval_link.cli import main; main()",
+            "live",
+            "--port",
+            port,
+            "--no-view",
+            "--duration",
+            "4",
+            "--prompt",
+            "--out",
+            str(out),
+            "-e",
+            "none",
+            "--rrd",
+            str(tmp_path / "live.rrd"),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     time.sleep(1.5)
     proc.stdin.write("set ki 1.0\nfly away\n")
     proc.stdin.flush()
@@ -359,7 +411,8 @@ def test_live_prompt_sends_typed_commands_and_records_them(drone, tmp_path):
     assert d.received and d.received[0].param == P.PARAM_KI
     cap = read_capture(out)
     assert len(cap.host) == 1 and cap.host[0].data == Command(P.CMD_SET_PARAM, P.PARAM_KI, 1.0).encode(
-        d.received[0].cmd_seq)
+        d.received[0].cmd_seq
+    )
     acks = [f for f in StreamDecoder().feed(cap.data) if isinstance(f, AckFrame)]
     assert [a.cmd_seq for a in acks] == [d.received[0].cmd_seq]
     from steval_viewer.rrd_check import read_rrd

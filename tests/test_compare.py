@@ -37,7 +37,7 @@ def motion(n: int, seed: int = 0, burst: tuple[int, int] | None = None):
     acc += rng.normal(0, 15, (n, 3))
     gyro = np.stack([np.degrees(dp), np.degrees(dr), 5 * np.sin(t)], 1) * 1000.0 + rng.normal(0, 300, (n, 3))
     if burst:
-        gyro[burst[0]:burst[1]] = rng.normal(0, 4e6, (burst[1] - burst[0], 3))
+        gyro[burst[0] : burst[1]] = rng.normal(0, 4e6, (burst[1] - burst[0], 3))
     thr = np.where((t > t[-1] / 3) & (t < 2 * t[-1] / 3), 450, 0).astype(np.int16)
     return acc.astype(np.float32), gyro.astype(np.float32), thr
 
@@ -51,14 +51,25 @@ def firmware_run(acc, gyro, thr, settings: MahonySettings, status_steps):
     for k in sorted(set(status_steps)) + [len(acc) - 1]:
         if k < k0:
             continue
-        q[k0:k + 1], _, _, st = run(acc[k0:k + 1], gyro[k0:k + 1], thr[k0:k + 1], settings=settings, state=st)
+        q[k0 : k + 1], _, _, st = run(acc[k0 : k + 1], gyro[k0 : k + 1], thr[k0 : k + 1], settings=settings, state=st)
         states[k] = st
         k0 = k + 1
     return q, states
 
 
-def capture_bytes(n=1500, *, seed=0, fw_settings=None, status_settings=None, status_every=161, drop=(),
-                  start=0, burst=None, tx_dropped=0, snapshot=None):
+def capture_bytes(
+    n=1500,
+    *,
+    seed=0,
+    fw_settings=None,
+    status_settings=None,
+    status_every=161,
+    drop=(),
+    start=0,
+    burst=None,
+    tx_dropped=0,
+    snapshot=None,
+):
     """Wire bytes of a capture: attitude frames of steps ``start``..n-1 (minus ``drop``), a status frame after
     every ``status_every``-th step (claiming ``status_settings``, default: the firmware's). ``snapshot``:
     "zero-integrals" reports exInt..ezInt as 0, "one-late" the state after the next step (firmware race)."""
@@ -83,13 +94,26 @@ def capture_bytes(n=1500, *, seed=0, fw_settings=None, status_settings=None, sta
             if snapshot == "zero-integrals":
                 s = MahonyState(q_wxyz=s.q_wxyz)
             elif snapshot == "one-late":
-                _, _, _, s = run(acc[k + 1:k + 2], gyro[k + 1:k + 2], thr[k + 1:k + 2], settings=fw, state=s)
-            parts.append(P.encode_status(
-                step=k, t_us=int(rec["t_us"][k]) + 300, q_wxyz=s.q_wxyz, int_xyz=s.int_xyz,
-                kp_ground=claimed.kp_ground, kp_flight=claimed.kp_flight, ki=claimed.ki, dt_s=claimed.dt_s,
-                min_thr=claimed.min_thr, flags=claimed.flags, cyc_min=4000, cyc_mean=4200, cyc_max=5000,
-                cyc_n=161, tx_dropped=tx_dropped,
-            ))
+                _, _, _, s = run(acc[k + 1 : k + 2], gyro[k + 1 : k + 2], thr[k + 1 : k + 2], settings=fw, state=s)
+            parts.append(
+                P.encode_status(
+                    step=k,
+                    t_us=int(rec["t_us"][k]) + 300,
+                    q_wxyz=s.q_wxyz,
+                    int_xyz=s.int_xyz,
+                    kp_ground=claimed.kp_ground,
+                    kp_flight=claimed.kp_flight,
+                    ki=claimed.ki,
+                    dt_s=claimed.dt_s,
+                    min_thr=claimed.min_thr,
+                    flags=claimed.flags,
+                    cyc_min=4000,
+                    cyc_mean=4200,
+                    cyc_max=5000,
+                    cyc_n=161,
+                    tx_dropped=tx_dropped,
+                )
+            )
         k0 = k + 1
     return b"".join(parts)
 
@@ -123,9 +147,13 @@ def test_accel_trace_measures_the_real_difference():
     assert 0.05 < acc.pitch.rms_deg < 5 and 0.05 < acc.roll.rms_deg < 5
     assert acc.pitch.max_abs_deg >= acc.pitch.rms_deg
     # against the firmware's own numbers
-    d = np.degrees(angle_diff_rad(np.arctan2(tel.attitude.acc_mg[:, 1].astype(float),
-                                             tel.attitude.acc_mg[:, 2].astype(float)), tel.attitude.thx_rad))
-    assert acc.pitch.rms_deg == pytest.approx(float(np.sqrt(np.mean(d ** 2))), rel=1e-9)
+    d = np.degrees(
+        angle_diff_rad(
+            np.arctan2(tel.attitude.acc_mg[:, 1].astype(float), tel.attitude.acc_mg[:, 2].astype(float)),
+            tel.attitude.thx_rad,
+        )
+    )
+    assert acc.pitch.rms_deg == pytest.approx(float(np.sqrt(np.mean(d**2))), rel=1e-9)
 
 
 def test_missing_estimators_are_reported_not_fatal():
@@ -175,8 +203,7 @@ def test_other_firmware_variants_are_named(fw, expect_key):
 
 
 def test_two_changes_at_once_are_found():
-    tel = telemetry(n=700, fw_settings=MahonySettings(ki=1.0, fresh_squares=True),
-                    status_settings=MahonySettings())
+    tel = telemetry(n=700, fw_settings=MahonySettings(ki=1.0, fresh_squares=True), status_settings=MahonySettings())
     p = compare_capture(tel, estimators=()).port
     assert p.matching_variant == {"ki": 1.0, "fresh_squares": True}
 
@@ -273,8 +300,9 @@ def test_firmware_nan_rows_are_counted_and_excluded():
 
 
 def test_firmware_restart_restarts_the_port_and_keeps_time_increasing():
-    data = capture_bytes(n=500) + capture_bytes(n=400, seed=2, fw_settings=MahonySettings(ki=1.0),
-                                                status_settings=MahonySettings())
+    data = capture_bytes(n=500) + capture_bytes(
+        n=400, seed=2, fw_settings=MahonySettings(ki=1.0), status_settings=MahonySettings()
+    )
     tel = decode_bytes(data, source={"path": "restart", "kind": "raw"})
     r = compare_capture(tel, estimators=())
     p = r.port
@@ -310,11 +338,31 @@ def text_mode_bytes(n=400):
     thx, thy = quaternion_to_euler(q)
     out = []
     for k in range(0, n, 2):
-        out.append(format_att(step=k, t_ms=int(k * 6.1919), thr=int(thr[k]), thx_mdeg=int(math.degrees(thx[k]) * 1000),
-                              thy_mdeg=int(math.degrees(thy[k]) * 1000), thz_mdeg=0,
-                              acc_mg=[int(v) for v in acc[k]], gyro_mdps=[int(v) for v in gyro[k]]))
-    out.append(format_sta(step=n - 1, t_ms=int(n * 6.19), cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=161,
-                          tx_dropped=0, flags=P.FLAG_TEXT_MODE, ki_micro=100000))
+        out.append(
+            format_att(
+                step=k,
+                t_ms=int(k * 6.1919),
+                thr=int(thr[k]),
+                thx_mdeg=int(math.degrees(thx[k]) * 1000),
+                thy_mdeg=int(math.degrees(thy[k]) * 1000),
+                thz_mdeg=0,
+                acc_mg=[int(v) for v in acc[k]],
+                gyro_mdps=[int(v) for v in gyro[k]],
+            )
+        )
+    out.append(
+        format_sta(
+            step=n - 1,
+            t_ms=int(n * 6.19),
+            cyc_min=1,
+            cyc_mean=2,
+            cyc_max=3,
+            cyc_n=161,
+            tx_dropped=0,
+            flags=P.FLAG_TEXT_MODE,
+            ki_micro=100000,
+        )
+    )
     return b"".join(out)
 
 
@@ -348,7 +396,7 @@ def stv_file(tmp_path):
     data = capture_bytes(n=900, drop=[300])
     with CaptureWriter(path, port="/dev/ttyTEST", baud=115200) as w:
         for i in range(0, len(data), 4096):
-            w.write(data[i:i + 4096], t_host_s=i / 11520.0)
+            w.write(data[i : i + 4096], t_host_s=i / 11520.0)
     return path
 
 

@@ -27,8 +27,9 @@ REC = ROOT / "recordings"
 
 
 def synth(monkeypatch, capsys, out: Path, *args) -> Path:
-    code, _, err = run_cli(monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "14", "--seed",
-                           "1", "--out", out, *args)
+    code, _, err = run_cli(
+        monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "14", "--seed", "1", "--out", out, *args
+    )
     assert code == 0, err
     return out
 
@@ -48,8 +49,11 @@ def pair(tmp_path_factory):
     for name, extra in (("stock.stv", ()), ("lab.stv", ("--ki", "1", "--no-correction"))):
         args = ["synth", "--scenario", "hand-tilts", "--duration", "14", "--seed", "1", "--out", str(d / name), *extra]
         err = io.StringIO()
-        with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()), \
-                contextlib.redirect_stderr(err):
+        with (
+            pytest.MonkeyPatch.context() as mp,
+            contextlib.redirect_stdout(io.StringIO()),
+            contextlib.redirect_stderr(err),
+        ):
             mp.setattr(sys, "argv", ["steval", *args])
             try:
                 main()
@@ -147,8 +151,9 @@ def test_mismatches_are_said_plainly(monkeypatch, capsys, tmp_path):
     cut = tmp_path / "cut.stv"
     data = a.read_bytes()
     cut.write_bytes(data[: len(data) * 2 // 3])
-    code, out, err = run_cli(monkeypatch, capsys, "compare", a, cut, REC / "midflight_drops.stv",
-                             REC / "ble_demo.stv", "--json")
+    code, out, err = run_cli(
+        monkeypatch, capsys, "compare", a, cut, REC / "midflight_drops.stv", REC / "ble_demo.stv", "--json"
+    )
     assert code == 0, err
     notes = json.loads(out)["notes"]
     assert any(n.startswith("durations differ") for n in notes)
@@ -227,8 +232,21 @@ def test_reference_firmware_stock_against_exercises_4_and_5(tmp_path, monkeypatc
     for name, options in (("stock", ()), ("lab", ("AHRS_KI=1.0f", "NO_CORRECTION=1"))):
         elf = S.build_reference(tmp_path / name, *options)
         out = tmp_path / f"{name}.stv"
-        code, _, err = run_cli(monkeypatch, capsys, "emulate", elf, "--scenario", "hand-tilts", "--duration", "20",
-                               "--seed", "1", "--out", out, "--no-view")
+        code, _, err = run_cli(
+            monkeypatch,
+            capsys,
+            "emulate",
+            elf,
+            "--scenario",
+            "hand-tilts",
+            "--duration",
+            "20",
+            "--seed",
+            "1",
+            "--out",
+            out,
+            "--no-view",
+        )
         assert code == 0, err
         captures.append(out)
     png, rrd = tmp_path / "ex45.png", tmp_path / "ex45.rrd"
@@ -269,15 +287,31 @@ def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
         port = s.getsockname()[1]
     display = VirtualDisplay()
     try:
-        r = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "compare", *pair,
-                            "--spawn", "--grpc-port", str(port)], env=display.env, capture_output=True, text=True,
-                           timeout=180)
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "from steval_link.cli import main; main()",
+                "compare",
+                *pair,
+                "--spawn",
+                "--grpc-port",
+                str(port),
+            ],
+            env=display.env,
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
         assert r.returncode == 0, r.stderr
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         held = viewer_recording(url, timeline="aligned_time", end=1)
         for k in "ab":
-            assert {f"/flights/{k}/pitch_thx_deg", f"/flights/{k}/roll_thy_deg", f"/flights/{k}/world/drone"} <= \
-                held.entities
+            assert {
+                f"/flights/{k}/pitch_thx_deg",
+                f"/flights/{k}/roll_thy_deg",
+                f"/flights/{k}/world/drone",
+            } <= held.entities
         png = screenshot(url, tmp_path / "side_by_side.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
     finally:

@@ -35,8 +35,21 @@ def assert_bulk_equals_stream(data: bytes):
     tel = decode_bytes(data)
     assert tel.stats.as_dict() == stats.as_dict()
     ref = telemetry_from_frames(frames, stats)
-    for name in ("step", "seq", "t_us", "t_fw_s", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thz_rad", "thx_rad",
-                 "thy_rad", "exact", "offset"):
+    for name in (
+        "step",
+        "seq",
+        "t_us",
+        "t_fw_s",
+        "acc_mg",
+        "gyro_mdps",
+        "thr",
+        "q_wxyz",
+        "thz_rad",
+        "thx_rad",
+        "thy_rad",
+        "exact",
+        "offset",
+    ):
         np.testing.assert_array_equal(getattr(tel.attitude, name), getattr(ref.attitude, name), err_msg=name)
     for name in ("step", "t_us", "ki", "cyc_mean", "offset", "exact", "t_fw_s"):
         np.testing.assert_array_equal(getattr(tel.status, name), getattr(ref.status, name), err_msg=name)
@@ -67,8 +80,9 @@ def test_attitude_fields_are_exact_bits():
     acc = np.array([1.5e-7, -3.25, 1000.0001], np.float32)
     gyro = np.array([np.float32(np.pi), -0.0, 12345.678], np.float32)
     q = np.array([0.99830001, 0.0123, -0.0456, 0.0789], np.float32)
-    data = P.encode_attitude(t_us=4294967295, acc_mg=acc, gyro_mdps=gyro, q_wxyz=q, thz_rad=np.float32(-1.25),
-                             seq=65535, thr=-32768)
+    data = P.encode_attitude(
+        t_us=4294967295, acc_mg=acc, gyro_mdps=gyro, q_wxyz=q, thz_rad=np.float32(-1.25), seq=65535, thr=-32768
+    )
     (f,) = StreamDecoder().feed(data)
     assert isinstance(f, AttitudeFrame) and f.exact
     assert np.array_equal(np.array(f.acc_mg, np.float32).view(np.uint32), acc.view(np.uint32))
@@ -80,13 +94,39 @@ def test_attitude_fields_are_exact_bits():
 
 
 def test_status_fields():
-    data = P.encode_status(step=123456, t_us=99, q_wxyz=[1, 0, 0, 0], int_xyz=[0.5, -0.25, 0], ki=1.0,
-                           cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=161, tx_dropped=7, baud=921600, flags=3,
-                           queue_peak=300, fw_version=(2, 1), fc_every=23, param_gen=4)
+    data = P.encode_status(
+        step=123456,
+        t_us=99,
+        q_wxyz=[1, 0, 0, 0],
+        int_xyz=[0.5, -0.25, 0],
+        ki=1.0,
+        cyc_min=1,
+        cyc_mean=2,
+        cyc_max=3,
+        cyc_n=161,
+        tx_dropped=7,
+        baud=921600,
+        flags=3,
+        queue_peak=300,
+        fw_version=(2, 1),
+        fc_every=23,
+        param_gen=4,
+    )
     (f,) = StreamDecoder().feed(data)
     assert isinstance(f, StatusFrame)
-    assert (f.step, f.t_us, f.ki, f.cyc_n, f.tx_dropped, f.baud, f.flags, f.queue_peak, f.fw_version, f.fc_every,
-            f.param_gen) == (123456, 99, 1.0, 161, 7, 921600, 3, 300, (2, 1), 23, 4)
+    assert (
+        f.step,
+        f.t_us,
+        f.ki,
+        f.cyc_n,
+        f.tx_dropped,
+        f.baud,
+        f.flags,
+        f.queue_peak,
+        f.fw_version,
+        f.fc_every,
+        f.param_gen,
+    ) == (123456, 99, 1.0, 161, 7, 921600, 3, 300, (2, 1), 23, 4)
     assert f.int_xyz == (0.5, -0.25, 0.0) and f.kp_ground == 10.0 and f.min_thr == 200
     tel = decode_bytes(data)
     assert tel.status.step[0] == 123456 and tel.status.fw_version[0].tolist() == [2, 1]

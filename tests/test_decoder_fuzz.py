@@ -31,21 +31,50 @@ def frames(draw):
     step = draw(st.integers(0, 2**32 - 1))
     if kind == "att":
         v = [draw(f32_bits) for _ in range(11)]
-        return P.encode_attitude(t_us=draw(st.integers(0, 2**32 - 1)), acc_mg=v[0:3], gyro_mdps=v[3:6],
-                                 q_wxyz=v[6:10], thz_rad=v[10], seq=step, thr=draw(st.integers(-32768, 32767)))
+        return P.encode_attitude(
+            t_us=draw(st.integers(0, 2**32 - 1)),
+            acc_mg=v[0:3],
+            gyro_mdps=v[3:6],
+            q_wxyz=v[6:10],
+            thz_rad=v[10],
+            seq=step,
+            thr=draw(st.integers(-32768, 32767)),
+        )
     if kind == "status":
-        return P.encode_status(step=step, t_us=draw(st.integers(0, 2**32 - 1)), q_wxyz=[1, 0, 0, 0],
-                               int_xyz=[draw(f32_bits), 0, 0], tx_dropped=draw(st.integers(0, 2**32 - 1)))
+        return P.encode_status(
+            step=step,
+            t_us=draw(st.integers(0, 2**32 - 1)),
+            q_wxyz=[1, 0, 0, 0],
+            int_xyz=[draw(f32_bits), 0, 0],
+            tx_dropped=draw(st.integers(0, 2**32 - 1)),
+        )
     if kind == "text":
-        return P.encode_text(draw(st.text(st.characters(min_codepoint=32, max_codepoint=0x2FF), min_size=1,
-                                          max_size=300)))
-    ints = st.integers(-10**6, 10**6)
+        return P.encode_text(
+            draw(st.text(st.characters(min_codepoint=32, max_codepoint=0x2FF), min_size=1, max_size=300))
+        )
+    ints = st.integers(-(10**6), 10**6)
     if kind == "att_line":
-        return format_att(step=step, t_ms=draw(st.integers(0, 4294967)), thr=draw(st.integers(-32768, 32767)),
-                          thx_mdeg=draw(ints), thy_mdeg=draw(ints), thz_mdeg=draw(ints),
-                          acc_mg=[draw(ints) for _ in range(3)], gyro_mdps=[draw(ints) for _ in range(3)])
-    return format_sta(step=step, t_ms=draw(st.integers(0, 4294967)), cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=4,
-                      tx_dropped=draw(st.integers(0, 1000)), flags=4, ki_micro=draw(st.integers(0, 10**7)))
+        return format_att(
+            step=step,
+            t_ms=draw(st.integers(0, 4294967)),
+            thr=draw(st.integers(-32768, 32767)),
+            thx_mdeg=draw(ints),
+            thy_mdeg=draw(ints),
+            thz_mdeg=draw(ints),
+            acc_mg=[draw(ints) for _ in range(3)],
+            gyro_mdps=[draw(ints) for _ in range(3)],
+        )
+    return format_sta(
+        step=step,
+        t_ms=draw(st.integers(0, 4294967)),
+        cyc_min=1,
+        cyc_mean=2,
+        cyc_max=3,
+        cyc_n=4,
+        tx_dropped=draw(st.integers(0, 1000)),
+        flags=4,
+        ki_micro=draw(st.integers(0, 10**7)),
+    )
 
 
 def decode(data: bytes, cuts: list[int]):

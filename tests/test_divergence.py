@@ -36,8 +36,9 @@ def _inputs(n: int = N):
     t = np.arange(n) * C.AHRS_PERIOD_S
     pitch = 0.3 * np.sin(2 * np.pi * 0.4 * t)
     acc = np.stack([np.zeros(n), 1000 * np.sin(pitch), 1000 * np.cos(pitch)], axis=1).astype(np.float32)
-    gyro = np.stack([np.degrees(np.gradient(pitch, t)) * 1000, 30 * np.ones(n), -20 * np.ones(n)],
-                    axis=1).astype(np.float32)
+    gyro = np.stack([np.degrees(np.gradient(pitch, t)) * 1000, 30 * np.ones(n), -20 * np.ones(n)], axis=1).astype(
+        np.float32
+    )
     return acc, gyro, np.zeros(n, np.int64)
 
 
@@ -49,7 +50,7 @@ def diverging_stream(version: int = P.VERSION) -> tuple[bytes, np.ndarray]:
     q, _, _, _ = st_mahony.run(acc, gyro, thr, settings=settings, state=st_mahony.MahonyState())
     q = np.array(q, dtype=np.float32)
     q[DIVERGE:] *= np.float32(1.7)  # |q| ≈ 1.7: off the unit sphere, components still within ±2
-    q[DIVERGE + 1:] *= np.float32(1.8)  # |q| ≈ 3: q_w beyond 2
+    q[DIVERGE + 1 :] *= np.float32(1.8)  # |q| ≈ 3: q_w beyond 2
     q[NAN:] = np.nan
     # the filter's state after each step, for the status snapshots (the port's integrals; the firmware's q)
     out = bytearray()
@@ -60,8 +61,9 @@ def diverging_stream(version: int = P.VERSION) -> tuple[bytes, np.ndarray]:
         rec["thz_rad"], rec["seq"], rec["thr"] = np.float32(0.01 * s), s, 0
         out += P.encode_frame(P.TYPE_ATTITUDE, rec.tobytes(), version=version)
         if s in STATUS_AT:
-            state = st_mahony.run(acc[: s + 1], gyro[: s + 1], thr[: s + 1], settings=settings,
-                                  state=st_mahony.MahonyState())[3]
+            state = st_mahony.run(
+                acc[: s + 1], gyro[: s + 1], thr[: s + 1], settings=settings, state=st_mahony.MahonyState()
+            )[3]
             sta = P.encode_status(step=s, t_us=t_us, q_wxyz=q[s], int_xyz=state.int_xyz, kp_ground=KP_GROUND)
             out += sta if version == P.VERSION else P.encode_frame(P.TYPE_STATUS, sta[4:-4], version=version)
     return bytes(out), q
@@ -76,8 +78,10 @@ def stream_decode(data: bytes, chunk: int):
     return frames, sd.stats
 
 
-SENTENCE = (f"{N - DIVERGE - 1} frames carry NaN or |q| > 2 from step {DIVERGE + 1} on (t = "
-            f"{(T0_US + int((DIVERGE + 1) * PERIOD_US)) / 1e6:.3f} s): the firmware's own filter output; check ahrs.c")
+SENTENCE = (
+    f"{N - DIVERGE - 1} frames carry NaN or |q| > 2 from step {DIVERGE + 1} on (t = "
+    f"{(T0_US + int((DIVERGE + 1) * PERIOD_US)) / 1e6:.3f} s): the firmware's own filter output; check ahrs.c"
+)
 
 
 # ------------------------------------------------------------------------------------------------ decoding
@@ -116,16 +120,19 @@ def test_v1_holds_the_same_frames_back_and_says_so():
     lines = format_summary(summarize(tel))
     held = [x for x in lines if x.startswith("held back: ")]
     assert tel.stats.held_values == N - DIVERGE + 1
-    assert held == [f"held back: {N - DIVERGE + 1} CRC-valid frames held back, not shown: {N - DIVERGE + 1} for NaN or "
-                    "out-of-range values (protocol v1: its CRC-16 cannot tell the firmware's own filter output from "
-                    "damage; if the firmware's filter diverged, check ahrs.c)"]
+    assert held == [
+        f"held back: {N - DIVERGE + 1} CRC-valid frames held back, not shown: {N - DIVERGE + 1} for NaN or "
+        "out-of-range values (protocol v1: its CRC-16 cannot tell the firmware's own filter output from "
+        "damage; if the firmware's filter diverged, check ahrs.c)"
+    ]
     assert not any(x.startswith("firmware output") for x in lines)
 
 
 def test_the_sequence_gate_still_holds_back_a_crc_valid_frame_from_nowhere_with_nan():
     data, _ = diverging_stream()
-    frame = P.encode_attitude(t_us=5, acc_mg=[np.nan] * 3, gyro_mdps=[0, 0, 0], q_wxyz=[np.nan] * 4,
-                              thz_rad=np.nan, seq=40_000, thr=0)
+    frame = P.encode_attitude(
+        t_us=5, acc_mg=[np.nan] * 3, gyro_mdps=[0, 0, 0], q_wxyz=[np.nan] * 4, thz_rad=np.nan, seq=40_000, thr=0
+    )
     cut = data.find(P.SYNC + bytes([(P.VERSION << 4) | P.TYPE_ATTITUDE]), 200 * P.ATTITUDE_FRAME_SIZE)
     tel = decode_bytes(data[:cut] + frame + data[cut:])
     assert tel.stats.implausible == 1 and len(tel.attitude) == N
@@ -148,9 +155,11 @@ def test_replay_summary_says_it_in_one_sentence_and_json_has_the_numbers():
     # |q| ≈ 1.7 at DIVERGE is within ±2 per component (not flagged) but off the unit sphere: said too
     t = (T0_US + int(DIVERGE * PERIOD_US)) / 1e6
     assert s["q_off_unit_sphere"]["first_step"] == DIVERGE and s["q_off_unit_sphere"]["frames"] == N - DIVERGE
-    assert (f"firmware filter: the firmware's q leaves the unit sphere from step {DIVERGE} on (t = {t:.3f} s, |q| = "
-            f"{s['q_off_unit_sphere']['q_norm']:.4g}; the release keeps |q| ≈ 0.9983, ±0.05), {N - DIVERGE} frames "
-            "off it: steval compare names the step and its inputs") in lines
+    assert (
+        f"firmware filter: the firmware's q leaves the unit sphere from step {DIVERGE} on (t = {t:.3f} s, |q| = "
+        f"{s['q_off_unit_sphere']['q_norm']:.4g}; the release keeps |q| ≈ 0.9983, ±0.05), {N - DIVERGE} frames "
+        "off it: steval compare names the step and its inputs"
+    ) in lines
     # the status frames are read for their settings although their snapshot is NaN
     assert s["filter"]["kp_ground"] == KP_GROUND and s["filter"]["from_step"] == STATUS_AT[-1]
 
@@ -165,8 +174,9 @@ def test_bad_inputs_are_named_as_such():
     bad = data[:k] + P.encode_frame(P.TYPE_ATTITUDE, rec.tobytes()) + data[k + P.ATTITUDE_FRAME_SIZE :]
     s = summarize(decode_bytes(bad))
     assert s["values_bad"]["first_step"] == 50 and s["values_bad"]["inputs_bad"] is True
-    assert s["values_bad"]["text"].startswith(f"{N - DIVERGE} frames carry NaN or out-of-range values from step 50 "
-                                              "on (t = ")
+    assert s["values_bad"]["text"].startswith(
+        f"{N - DIVERGE} frames carry NaN or out-of-range values from step 50 on (t = "
+    )
     assert "the filter inputs (acc, gyro) too" in s["values_bad"]["text"]
 
 
@@ -209,12 +219,44 @@ def test_live_and_emulate_summaries_carry_the_sentence():
     from steval_link.live.session import LiveSummary
 
     report = SimpleNamespace(emulated_s=15.0, lines=lambda: ["head", "TIM9 started at 1.0 s"])
-    es = EmulateSummary(Path("x.stv"), None, 10.0, report, 400, 3, 0, 0, 0, None, "end", SENTENCE,
-                        "2 CRC-valid frames held back, not shown: 2 for a sequence and time that do not continue")
+    es = EmulateSummary(
+        Path("x.stv"),
+        None,
+        10.0,
+        report,
+        400,
+        3,
+        0,
+        0,
+        0,
+        None,
+        "end",
+        SENTENCE,
+        "2 CRC-valid frames held back, not shown: 2 for a sequence and time that do not continue",
+    )
     lines = es.lines()
     assert lines[1] == SENTENCE and lines[2].startswith("2 CRC-valid frames held back")
-    ls = LiveSummary(Path("x.stv"), None, 10.0, 9.0, 1000, 400, 3, 0, 0, 0, 0, 279, 0, 0.0, 0, None, "end",
-                     implausible=2, values_sentence=SENTENCE)
+    ls = LiveSummary(
+        Path("x.stv"),
+        None,
+        10.0,
+        9.0,
+        1000,
+        400,
+        3,
+        0,
+        0,
+        0,
+        0,
+        279,
+        0,
+        0.0,
+        0,
+        None,
+        "end",
+        implausible=2,
+        values_sentence=SENTENCE,
+    )
     line = ls.line()
     assert SENTENCE in line and "2 CRC-valid frames held back, not shown: 2 for a sequence and time" in line
 
@@ -243,8 +285,9 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
     assert d["inputs"][0]["gyro_mdps"] == [float(v) for v in gyro[DIVERGE - 1]]
     assert abs(np.linalg.norm(d["port_q_wxyz"]) - 0.9983) < 0.01
     t = (T0_US + int(DIVERGE * PERIOD_US)) / 1e6
-    assert p.diagnosis[0].startswith(f"the firmware's own filter left the unit sphere at step {DIVERGE} (t = {t:.3f} "
-                                     "s): q = (")
+    assert p.diagnosis[0].startswith(
+        f"the firmware's own filter left the unit sphere at step {DIVERGE} (t = {t:.3f} s): q = ("
+    )
     assert f"non-finite from step {NAN} on" in p.diagnosis[0]
     assert p.diagnosis[1].startswith(f"inputs at step {DIVERGE - 1}: acc (")
     assert p.diagnosis[3].startswith("the bit-exact port stayed finite on the same inputs")
@@ -262,8 +305,11 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
 def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
     data, _ = diverging_stream()
     # joined at step 300: after the divergence, every snapshot NaN, no power-up
-    start = data.find(P.SYNC + bytes([(P.VERSION << 4) | P.TYPE_ATTITUDE, P.ATTITUDE_PAYLOAD_SIZE])
-                      + np.array([int(T0_US + 300 * PERIOD_US)], "<u4").tobytes())
+    start = data.find(
+        P.SYNC
+        + bytes([(P.VERSION << 4) | P.TYPE_ATTITUDE, P.ATTITUDE_PAYLOAD_SIZE])
+        + np.array([int(T0_US + 300 * PERIOD_US)], "<u4").tobytes()
+    )
     tel = decode_bytes(data[start:])
     assert tel.attitude.step[0] % P.SEQ_MODULUS == 300
     r = compare_capture(tel, estimators=())
@@ -344,15 +390,22 @@ def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
     for k in range(0, N, 50):
         att = frames[k : k + 50]
         n = len(att)
-        logger.log_batch(SimpleNamespace(
-            step=np.array([f.seq for f in att]), t_us=np.array([f.t_us for f in att]),
-            t_unix_s=np.full(n, 1.7e9 + k / 161.5),
-            acc_mg=np.array([f.acc_mg for f in att], np.float32),
-            gyro_mdps=np.array([f.gyro_mdps for f in att], np.float32),
-            q_wxyz=np.array([f.q_wxyz for f in att], np.float32),
-            thz_rad=np.array([f.thz_rad for f in att], np.float32), thr=np.zeros(n, np.int16),
-            exact=np.ones(n, bool), thx_rad=np.full(n, np.nan, np.float32), thy_rad=np.full(n, np.nan, np.float32),
-            estimates={}))
+        logger.log_batch(
+            SimpleNamespace(
+                step=np.array([f.seq for f in att]),
+                t_us=np.array([f.t_us for f in att]),
+                t_unix_s=np.full(n, 1.7e9 + k / 161.5),
+                acc_mg=np.array([f.acc_mg for f in att], np.float32),
+                gyro_mdps=np.array([f.gyro_mdps for f in att], np.float32),
+                q_wxyz=np.array([f.q_wxyz for f in att], np.float32),
+                thz_rad=np.array([f.thz_rad for f in att], np.float32),
+                thr=np.zeros(n, np.int16),
+                exact=np.ones(n, bool),
+                thx_rad=np.full(n, np.nan, np.float32),
+                thy_rad=np.full(n, np.nan, np.float32),
+                estimates={},
+            )
+        )
     logger.close()
     session.close()
     info = read_rrd(out)
@@ -381,8 +434,9 @@ def test_a_reference_firmware_that_diverges_end_to_end(tmp_path, monkeypatch, ca
         pytest.skip("tests/support/firmware.py has no build_reference (the reference firmware is not merged yet)")
     elf = S.build_reference(tmp_path, "AHRS_DIVERGE=1")
     cap = tmp_path / "div.stv"
-    code, out, err = run_cli(monkeypatch, capsys, "emulate", elf, "--scenario", "hand-tilts", "--duration", "15",
-                             "--out", cap, "--no-view")
+    code, out, err = run_cli(
+        monkeypatch, capsys, "emulate", elf, "--scenario", "hand-tilts", "--duration", "15", "--out", cap, "--no-view"
+    )
     assert code == 0, err
     sent = int(re.search(r"(\d+) attitude, \d+ status", out).group(1))
     assert sent > 1800  # 15 s from a boot: about 12 s of AHRS steps at 161.5 Hz
@@ -434,9 +488,23 @@ def test_the_row_checks_agree_with_the_frame_checks():
     acc, gyro, q, thz, thx, thy = pick(n, 3), pick(n, 3), pick(n, 4), pick(n), pick(n), pick(n)
     exact = rng.random(n) < 0.7
     rows = attitude_rows_bad(exact, acc, gyro, q, thz, thx, thy)
-    frames = [attitude_frame_bad(AttitudeFrame(0, tuple(acc[i]), tuple(gyro[i]), tuple(q[i]), float(thz[i]), 0, 0,
-                                               bool(exact[i]), thx_rad=float(thx[i]), thy_rad=float(thy[i])))
-              for i in range(n)]
+    frames = [
+        attitude_frame_bad(
+            AttitudeFrame(
+                0,
+                tuple(acc[i]),
+                tuple(gyro[i]),
+                tuple(q[i]),
+                float(thz[i]),
+                0,
+                0,
+                bool(exact[i]),
+                thx_rad=float(thx[i]),
+                thy_rad=float(thy[i]),
+            )
+        )
+        for i in range(n)
+    ]
     assert rows.tolist() == frames and 0 < rows.sum() < n
     ints, kp = pick(n, 3), pick(n, 4)
     rows = status_rows_bad(True, q, ints, kp[:, 0], kp[:, 1], kp[:, 2], kp[:, 3])

@@ -34,8 +34,9 @@ def _elf(tmp_path_factory) -> Path:
         why = "firmware_patch/Makefile has no reference target"
     if why is None:
         build = tmp_path_factory.mktemp("digest-ref")
-        r = subprocess.run(["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={build}", "-j2"],
-                           capture_output=True, text=True)
+        r = subprocess.run(
+            ["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={build}", "-j2"], capture_output=True, text=True
+        )
         elfs = sorted((build / "reference").glob("*.elf"))
         if r.returncode == 0 and elfs:
             return elfs[0]
@@ -64,8 +65,10 @@ def test_the_firmware_output_is_the_recorded_one(elf, run):
     got = D.run(elf, run)
     want = table.get(sha, {}).get("runs", {}).get(run)
     if want is None:
-        msg = (f"no digests recorded for {elf.name} (sha256 {sha}), run {run!r}: got {json.dumps(got)}. Record them "
-               f"with a reason: python tests/support/emulate_digest.py {elf} --runs {run} --record 'REASON'")
+        msg = (
+            f"no digests recorded for {elf.name} (sha256 {sha}), run {run!r}: got {json.dumps(got)}. Record them "
+            f"with a reason: python tests/support/emulate_digest.py {elf} --runs {run} --record 'REASON'"
+        )
         if os.environ.get("CI") == "true":
             pytest.fail(msg)
         pytest.skip(msg)

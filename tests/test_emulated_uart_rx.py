@@ -47,6 +47,7 @@ def model(request, tmp_path):
         board = NativeBoard(path, None)
         board.rescheduled = 1  # (the C core reschedules itself)
         return board, board.usart1
+
     return make
 
 
@@ -59,6 +60,7 @@ def _uart(model):
         u.write(BRR, 729)  # 115200 baud at 84 MHz: a bit every 729 cycles
         u.write(CR1, cr1)
         return board, u
+
     return make
 
 

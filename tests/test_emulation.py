@@ -26,8 +26,11 @@ WHY = S.missing()
 pytestmark = pytest.mark.skipif(WHY is not None, reason=WHY or "")
 
 BANNER = "steval-link reference firmware (not ST's): the STEVAL loop for tests and teaching"
-BOOT_LINES = [BANNER, "LSM6DSL ready: acc +-4 g, gyro +-2000 dps",
-              "calibrating the offsets for 2 s: keep the drone still"]
+BOOT_LINES = [
+    BANNER,
+    "LSM6DSL ready: acc +-4 g, gyro +-2000 dps",
+    "calibrating the offsets for 2 s: keep the drone still",
+]
 
 
 @pytest.fixture(scope="session")
@@ -259,8 +262,11 @@ def test_idle_skipping_changes_no_payload(fw_default, tmp_path):
     def run(elf, skip):
         emu = Emulation(EmulationOptions(elf=elf, scenario="hand-tilts", duration_s=3.3, seed=2, skip_idle=skip))
         _stats, frames = decode(list(emu.chunks()))
-        return emu.report(), [f for f in frames if isinstance(f, AttitudeFrame)], \
-            [f.text for f in frames if isinstance(f, TextFrame)]
+        return (
+            emu.report(),
+            [f for f in frames if isinstance(f, AttitudeFrame)],
+            [f.text for f in frames if isinstance(f, TextFrame)],
+        )
 
     r1, a1, t1 = run(fw_default, True)
     r2, a2, t2 = run(S.build_reference(tmp_path / "poll", "SLEEP=0"), False)
@@ -278,12 +284,12 @@ def _patched_elf(elf, tmp_path, func: str, code: bytes):
     e = Elf(elf)
     addr = e.addr(func)
     data = bytearray(elf.read_bytes())
-    phoff, = struct.unpack_from("<I", data, 28)
+    (phoff,) = struct.unpack_from("<I", data, 28)
     phentsize, phnum = struct.unpack_from("<HH", data, 42)
     for i in range(phnum):
         _t, off, _v, paddr, filesz, *_ = struct.unpack_from("<8I", data, phoff + i * phentsize)
         if paddr <= addr < paddr + filesz:
-            data[off + addr - paddr:off + addr - paddr + len(code)] = code
+            data[off + addr - paddr : off + addr - paddr + len(code)] = code
             out = tmp_path / f"{func}.elf"
             out.write_bytes(bytes(data))
             return out
@@ -317,8 +323,9 @@ def test_cli_emulate_writes_a_capture_that_compare_finds_bit_exact(fw_default, t
     from support.cli import run_cli
 
     out = tmp_path / "emu.stv"
-    code, stdout, stderr = run_cli(monkeypatch, capsys, "emulate", fw_default, "--scenario", "bench",
-                                   "--duration", "4", "--out", out, "--no-view")
+    code, stdout, stderr = run_cli(
+        monkeypatch, capsys, "emulate", fw_default, "--scenario", "bench", "--duration", "4", "--out", out, "--no-view"
+    )
     assert code == 0, stderr
     assert out.stat().st_size > 5000
     assert "instructions per AHRS step" in stdout + stderr
@@ -344,8 +351,10 @@ def test_cli_emulate_stops_cleanly_on_one_signal_and_keeps_the_capture(fw_defaul
     from support.ptyfeed import StevalProcess
 
     out = tmp_path / "emu.stv"
-    proc = StevalProcess(["emulate", str(fw_default), "--scenario", "hover", "--duration", "120", "--out", str(out),
-                          "--no-view"], cwd=tmp_path)
+    proc = StevalProcess(
+        ["emulate", str(fw_default), "--scenario", "hover", "--duration", "120", "--out", str(out), "--no-view"],
+        cwd=tmp_path,
+    )
     assert proc.wait_line("emulating ", 120) is not None, proc.stderr
     time.sleep(5.0)  # past the boot (first frame at 2.985 s of emulated time)
     rc = proc.finish(timeout_s=60, sig=sig)
@@ -358,6 +367,7 @@ def test_cli_emulate_stops_cleanly_on_one_signal_and_keeps_the_capture(fw_defaul
 
 # ---- the viewer paths of `steval emulate` -------------------------------------------------------------------------
 
+
 @pytest.mark.slow  # 5 s of emulated firmware (unicorn) logged to Rerun: 1.6 to 3.3 s here
 def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
     """`steval emulate ELF --rrd X.rrd`: the emulated stream logged as a live session is (every attitude frame, the
@@ -368,8 +378,22 @@ def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
     from steval_viewer.rrd_check import read_rrd
 
     out = tmp_path / "emu.rrd"
-    code, _stdout, stderr = run_cli(monkeypatch, capsys, "emulate", fw_default, "--scenario", "bench",
-                                    "--duration", "5", "--rrd", out, "-e", "none", "--out", tmp_path / "emu.stv")
+    code, _stdout, stderr = run_cli(
+        monkeypatch,
+        capsys,
+        "emulate",
+        fw_default,
+        "--scenario",
+        "bench",
+        "--duration",
+        "5",
+        "--rrd",
+        out,
+        "-e",
+        "none",
+        "--out",
+        tmp_path / "emu.stv",
+    )
     assert code == 0, stderr
     info = read_rrd(out)
     assert info.has_blueprint
@@ -400,10 +424,30 @@ def test_cli_emulate_spawns_the_viewer_with_the_stream(fw_default, tmp_path):
     display = VirtualDisplay()
     port = free_port()
     try:
-        done = subprocess.run([sys.executable, "-c", "from steval_link.cli import main; main()", "emulate",
-                               str(fw_default), "--scenario", "bench", "--duration", "4", "--spawn", "--grpc-port",
-                               str(port), "-e", "none"], env=display.env, cwd=tmp_path, capture_output=True,
-                              text=True, timeout=180, stdin=subprocess.DEVNULL)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "from steval_link.cli import main; main()",
+                "emulate",
+                str(fw_default),
+                "--scenario",
+                "bench",
+                "--duration",
+                "4",
+                "--spawn",
+                "--grpc-port",
+                str(port),
+                "-e",
+                "none",
+            ],
+            env=display.env,
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=180,
+            stdin=subprocess.DEVNULL,
+        )
         assert done.returncode == 0, done.stderr
         rec = viewer_recording(f"rerun+http://127.0.0.1:{port}/proxy", timeline="ahrs_step", end=160, timeout_s=60)
         assert "/" + ent.pitch_path("firmware") in rec.entities

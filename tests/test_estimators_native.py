@@ -24,8 +24,9 @@ TOL_RAD = 1e-9
 #: (the Python reference steps one sample at a time; the whole BROAD trials run in the slow tests)
 SYNTHETIC_STEPS = 3000
 
-needs_native = pytest.mark.skipif(not (ekf3.NATIVE_AVAILABLE and mekf.NATIVE_AVAILABLE),
-                                  reason="native EKF loops (_ekf_native) not built")
+needs_native = pytest.mark.skipif(
+    not (ekf3.NATIVE_AVAILABLE and mekf.NATIVE_AVAILABLE), reason="native EKF loops (_ekf_native) not built"
+)
 
 EKF3_OPTIONS = [
     {},
@@ -68,8 +69,13 @@ def _motion(n: int, seed: int = 0, rate: float = RATE, bad_samples: bool = True)
     axis = dq[:, 1:] / np.maximum(np.linalg.norm(dq[:, 1:], axis=1, keepdims=True), 1e-15)
     w = np.vstack([np.zeros((1, 3)), axis * (ang * rate)[:, None]])
     gyro = np.degrees(w) * 1000.0 + [300.0, -200.0, 150.0] + rng.normal(0, 75, (n, 3))
-    lin_earth = env[:, None] * 0.2 * np.stack([np.sin(2 * np.pi * 0.9 * t), np.cos(2 * np.pi * 0.6 * t),
-                                               0.5 * np.sin(2 * np.pi * 1.3 * t)], axis=1)
+    lin_earth = (
+        env[:, None]
+        * 0.2
+        * np.stack(
+            [np.sin(2 * np.pi * 0.9 * t), np.cos(2 * np.pi * 0.6 * t), 0.5 * np.sin(2 * np.pi * 1.3 * t)], axis=1
+        )
+    )
     f_earth = lin_earth + [0.0, 0.0, 1.0]  # specific force, g
     acc = _rotate(broad.quat_conjugate(q), f_earth) * 1000.0 + rng.normal(0, 3, (n, 3))
     if bad_samples:
@@ -175,9 +181,17 @@ def test_mekf_upside_down_start(options):
 
 
 @needs_native
-@pytest.mark.parametrize("cls, options", [(Ekf3, {}), (Ekf3, {"exact_propagation": False}), (Mekf, {}),
-                                          (Mekf, {"norm_gain": 1.0}), (Mekf, {"acc_tau_s": 0.0}),
-                                          (Mekf, {"estimate_bias": False})])
+@pytest.mark.parametrize(
+    "cls, options",
+    [
+        (Ekf3, {}),
+        (Ekf3, {"exact_propagation": False}),
+        (Mekf, {}),
+        (Mekf, {"norm_gain": 1.0}),
+        (Mekf, {"acc_tau_s": 0.0}),
+        (Mekf, {"estimate_bias": False}),
+    ],
+)
 def test_step_continues_after_native_run_and_run_after_step(cls, options):
     """run() leaves the same state as the Python steps: step() after run(), run() after step(), chunked runs."""
     acc, gyro = _motion(3000, seed=2)  # the chunks below end at 200, 2500, 2600 and the end
@@ -186,10 +200,12 @@ def test_step_continues_after_native_run_and_run_after_step(cls, options):
 
     # native run in chunks (the first inside the low-pass warm-up), then Python steps, then native again
     est = cls(**options)
-    parts = [est.run(acc[:200], gyro[:200], native=True).q_wxyz,
-             est.run(acc[200:2500], gyro[200:2500], native=True).q_wxyz,
-             np.array([est.step(a, g) for a, g in zip(acc[2500:2600], gyro[2500:2600])]),
-             est.run(acc[2600:], gyro[2600:], native=True).q_wxyz]
+    parts = [
+        est.run(acc[:200], gyro[:200], native=True).q_wxyz,
+        est.run(acc[200:2500], gyro[200:2500], native=True).q_wxyz,
+        np.array([est.step(a, g) for a, g in zip(acc[2500:2600], gyro[2500:2600])]),
+        est.run(acc[2600:], gyro[2600:], native=True).q_wxyz,
+    ]
     q = np.vstack(parts)
     ok = np.isfinite(q_ref).all(axis=1)
     np.testing.assert_array_equal(ok, np.isfinite(q).all(axis=1))
@@ -261,9 +277,15 @@ def translation_view(shared_dir):
 
 
 @needs_native
-@pytest.mark.parametrize("cls, options", [(Ekf3, {"adaptive": True}), (Ekf3, {"exact_propagation": False}),
-                                          (Mekf, {"latency_s": 0.0, "acc_tau_s": 0.0}),
-                                          (Mekf, {"norm_gain": 1.0, "reject_mg": 300.0})])
+@pytest.mark.parametrize(
+    "cls, options",
+    [
+        (Ekf3, {"adaptive": True}),
+        (Ekf3, {"exact_propagation": False}),
+        (Mekf, {"latency_s": 0.0, "acc_tau_s": 0.0}),
+        (Mekf, {"norm_gain": 1.0, "reject_mg": 300.0}),
+    ],
+)
 @pytest.mark.slow
 def test_native_equals_python_on_a_whole_broad_trial(translation_view, cls, options):
     """A whole trial with other option sets."""

@@ -28,6 +28,7 @@ def _steval_here(monkeypatch, capsys, *args):
 
 # --- metric -------------------------------------------------------------------------------------------------------
 
+
 def test_inclination_error_ignores_heading_offsets_and_measures_tilt():
     rng = np.random.default_rng(0)
     q_true = broad.quat_normalize(rng.normal(size=(500, 4)))
@@ -74,6 +75,7 @@ def test_interpolate_quat_takes_the_short_way_and_marks_outside():
 
 # --- loading ------------------------------------------------------------------------------------------------------
 
+
 def test_load_trial_errors_are_one_sentence(tmp_path):
     with pytest.raises(UserError, match="no such file"):
         broad.load_trial(tmp_path / "missing.npz")
@@ -86,8 +88,9 @@ def test_load_trial_errors_are_one_sentence(tmp_path):
     with pytest.raises(UserError, match="without quat, movement, fs"):
         broad.load_trial(partial)
     shapes = tmp_path / "shapes.npz"
-    np.savez(shapes, acc=np.zeros((5, 3)), gyr=np.zeros((5, 2)), quat=np.zeros((5, 4)), movement=np.ones(5, bool),
-             fs=100.0)
+    np.savez(
+        shapes, acc=np.zeros((5, 3)), gyr=np.zeros((5, 2)), quat=np.zeros((5, 4)), movement=np.ones(5, bool), fs=100.0
+    )
     with pytest.raises(UserError, match="malformed"):
         broad.load_trial(shapes)
 
@@ -100,8 +103,14 @@ def _synthetic_trial(path, n=3000, fs=285.714):
     wx = np.where(t > 3, 0.3 * 2 * np.pi * 0.5 * np.cos(2 * np.pi * 0.5 * (t - 3)), 0.0)
     acc = np.stack([0 * t, np.sin(thx), np.cos(thx)], axis=1) * 9.81
     gyr = np.stack([wx, 0 * t, 0 * t], axis=1)
-    np.savez(path, acc=acc.astype(np.float32), gyr=gyr.astype(np.float32), quat=q.astype(np.float32),
-             movement=t > 3, fs=np.float64(fs))
+    np.savez(
+        path,
+        acc=acc.astype(np.float32),
+        gyr=gyr.astype(np.float32),
+        quat=q.astype(np.float32),
+        movement=t > 3,
+        fs=np.float64(fs),
+    )
     return path
 
 
@@ -133,6 +142,7 @@ def test_default_specs_selection():
 
 # --- the command ----------------------------------------------------------------------------------------------------
 
+
 @pytest.mark.slow  # two whole BROAD trials through five estimators: ≈ 2 s of CPU
 def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path, monkeypatch, capsys):
     paths = [str(shared_dir / "datasets" / "broad" / f"{name}.npz") for name in BROAD_TRIALS]
@@ -156,8 +166,9 @@ def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path, monkeypat
     d = tmp_path / "trials"
     d.mkdir()
     _synthetic_trial(d / "98_synthetic.npz")
-    res = _steval_here(monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf",
-                       "--native")
+    res = _steval_here(
+        monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf", "--native"
+    )
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     assert "st-mahony-flight" in lines[1] and "mekf" in lines[1]

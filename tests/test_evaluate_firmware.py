@@ -51,6 +51,7 @@ def _trial(n: int = 2000, fs: float = 100.0) -> BroadTrial:
 
 # --- truth chunk T ------------------------------------------------------------------------------------------------
 
+
 def test_truth_chunks_round_trip_next_to_the_serial_bytes(tmp_path):
     rng = np.random.default_rng(1)
     m = TRUTH_ROWS_PER_CHUNK + 17  # two chunks
@@ -98,6 +99,7 @@ def test_unknown_chunk_type_is_kept_not_damage(tmp_path):
 
 
 # --- alignment ------------------------------------------------------------------------------------------------------
+
 
 def test_truth_at_trial_time_interpolates_inside_and_is_nan_outside():
     tr = _trial()
@@ -187,6 +189,7 @@ def test_bad_firmware_is_one_line(monkeypatch, capsys, tmp_path, shared_dir):
 
 # --- end to end with the reference firmware (slow; the toolchain builds it) -----------------------------------------
 
+
 def _reference_builds(tmp_path: Path) -> tuple[Path, Path]:
     """The reference firmware twice, under one file name in two folders: default, and KI = 1 without correction."""
     if S is None or not hasattr(S, "build_reference"):
@@ -208,8 +211,21 @@ def _reference_builds(tmp_path: Path) -> tuple[Path, Path]:
 def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path, shared_dir):
     stock, lab = _reference_builds(tmp_path)
     trial = shared_dir / "datasets" / "broad" / TRIAL
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "-e", "st-mahony-ground", "--firmware", stock,
-                             "--firmware", lab, "--max-seconds", CUT_S, trial, "--json")
+    code, out, err = run_cli(
+        monkeypatch,
+        capsys,
+        "evaluate",
+        "-e",
+        "st-mahony-ground",
+        "--firmware",
+        stock,
+        "--firmware",
+        lab,
+        "--max-seconds",
+        CUT_S,
+        trial,
+        "--json",
+    )
     assert code == 0, err
     rep = json.loads(out)
     fws = {f["firmware"]: f for f in rep["firmware"]}
@@ -229,8 +245,9 @@ def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path
     assert s["rmse_deg"] == pytest.approx(rep["trials"][0]["rmse_deg"]["st-mahony-ground"], rel=0.15)
 
     # the plain view on a terminal (no movement in 3 s yet: the lines are what counts here), with its progress bar
-    code, out, term = run_cli_tty("evaluate", "-e", "accel", "--firmware", stock, "--firmware", lab,
-                                  "--max-seconds", "3", trial)
+    code, out, term = run_cli_tty(
+        "evaluate", "-e", "accel", "--firmware", stock, "--firmware", lab, "--max-seconds", "3", trial
+    )
     assert code == 0, term
     assert "evaluate" in term and "%" in term and "(emulated)" in term
     lines = [ln for ln in out.splitlines() if ln.startswith(TRIAL[:-4]) and "fw:" in ln and "instr/step" in ln]
@@ -242,8 +259,22 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
     stock, _ = _reference_builds(tmp_path)
     trial = shared_dir / "datasets" / "broad" / TRIAL
     cap = tmp_path / "run.stv"
-    code, out, err = run_cli(monkeypatch, capsys, "emulate", stock, "--broad", trial, "--duration", CUT_S,
-                             "--out", cap, "--no-view", "-e", "none", "--no-prompt")
+    code, out, err = run_cli(
+        monkeypatch,
+        capsys,
+        "emulate",
+        stock,
+        "--broad",
+        trial,
+        "--duration",
+        CUT_S,
+        "--out",
+        cap,
+        "--no-view",
+        "-e",
+        "none",
+        "--no-prompt",
+    )
     assert code == 0, err
     tr = capture_truth(read_capture(cap).chunks)
     assert tr is not None and len(tr) > 4000 and tr.movement.any()
@@ -266,6 +297,7 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
 
 # --- compare's truth section and the evaluate table, without an ELF -------------------------------------------------
 
+
 def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path):
     """A synthesised capture (Python drone, bit-exact port) re-written with truth chunks: the truth is the firmware's
     own attitude turned 1.5° about x on the movement steps, so the firmware and the port score exactly that."""
@@ -278,8 +310,9 @@ def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path)
     att = load_telemetry(syn).attitude
     mov = (np.arange(len(att.step)) % 3) != 0
     tilt = np.where(mov, np.radians(1.5), 0.0)
-    q_true = quaternion_from_euler(np.asarray(att.thx_rad, np.float64) + tilt, np.asarray(att.thy_rad, np.float64),
-                                   0.7)  # a heading offset does not count
+    q_true = quaternion_from_euler(
+        np.asarray(att.thx_rad, np.float64) + tilt, np.asarray(att.thy_rad, np.float64), 0.7
+    )  # a heading offset does not count
     out = tmp_path / "with-truth.stv"
     with CaptureWriter(out, port="emulated:synth", baud=115200) as w:
         w.write(cap.data, 1.0)
@@ -309,9 +342,21 @@ def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
     thx, thy = 0.2 * np.sin(t) + np.radians(rmse_offset_deg), np.zeros(m)  # level in roll: the error is the offset
     err, rmse = score_euler(thx, thy, q_true, mov)
     truth = TruthRows(np.arange(m), t + 1.0, t, q_true, mov)
-    return FirmwareResult(label, f"/x/{label}", trial, "frames", truth, thx.astype(np.float32),
-                          thy.astype(np.float32), err, rmse, np.full(m, 4400), port_rmse_deg=rmse, port_bit_exact=m,
-                          port_steps=m)
+    return FirmwareResult(
+        label,
+        f"/x/{label}",
+        trial,
+        "frames",
+        truth,
+        thx.astype(np.float32),
+        thy.astype(np.float32),
+        err,
+        rmse,
+        np.full(m, 4400),
+        port_rmse_deg=rmse,
+        port_bit_exact=m,
+        port_steps=m,
+    )
 
 
 def test_table_has_a_column_and_one_line_per_firmware_per_trial(tmp_path):
@@ -319,8 +364,9 @@ def test_table_has_a_column_and_one_line_per_firmware_per_trial(tmp_path):
 
     results = []
     for name in ("02_a", "07_b"):
-        res = ev.TrialResult(name, 161.5, np.arange(10) / 161.5, np.ones(10, bool), {"ekf3": 1.0},
-                             {"ekf3": np.zeros(10)}, {"ekf3": 1e5})
+        res = ev.TrialResult(
+            name, 161.5, np.arange(10) / 161.5, np.ones(10, bool), {"ekf3": 1.0}, {"ekf3": np.zeros(10)}, {"ekf3": 1e5}
+        )
         ev.add_firmware(res, _fake_firmware("fw:stock/a.elf", name, 2.0))
         ev.add_firmware(res, _fake_firmware("fw:lab/a.elf", name, 5.0))
         results.append(res)

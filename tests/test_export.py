@@ -40,8 +40,7 @@ def test_csv_has_one_row_per_attitude_frame_exact_values(capture, tmp_path, caps
     rows = list(csv_mod.DictReader(out.open()))
     tel = decode_bytes(read_capture(capture).data)
     assert len(rows) == len(tel.attitude) == 401
-    assert list(rows[0])[:8] == ["step", "seq", "t_fw_s", "t_host_s", "acc_x_mg", "acc_y_mg", "acc_z_mg",
-                                 "gyro_x_mdps"]
+    assert list(rows[0])[:8] == ["step", "seq", "t_fw_s", "t_host_s", "acc_x_mg", "acc_y_mg", "acc_z_mg", "gyro_x_mdps"]
     assert {"q_w", "thx_pitch_rad", "thy_roll_rad", "thz_yaw_rad", "thr", "exact"} <= set(rows[0])
     # float32 values survive the text round trip bit for bit
     acc = np.array([[float(r[f"acc_{a}_mg"]) for a in "xyz"] for r in rows], np.float32)

@@ -93,8 +93,10 @@ def test_a_failed_write_leaves_nothing(monkeypatch, capsys, tmp_path):
 def test_without_scipy_one_line(monkeypatch, capsys, tmp_path):
     monkeypatch.setitem(sys.modules, "scipy.io", None)
     code, out, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mat", tmp_path / "x.mat")
-    assert code == 2 and err == 'steval: error: --mat needs scipy, which is not installed: pip install ' \
-                                '"steval-link[mat]"\n'
+    assert (
+        code == 2
+        and err == 'steval: error: --mat needs scipy, which is not installed: pip install "steval-link[mat]"\n'
+    )
     assert not (tmp_path / "x.mat").exists()
 
 

@@ -43,8 +43,13 @@ def test_counts_schemas_and_firmware_time(monkeypatch, capsys, tmp_path):
     summary, msgs = messages(out)
     counts = Counter(ch.topic for _, ch, _ in msgs)
     n = len(tel.attitude)
-    assert counts == {"/attitude/transform": n, "/attitude/pose": n, "/attitude": n, "/status": len(tel.status),
-                      "/flight_control": len(tel.fc)}
+    assert counts == {
+        "/attitude/transform": n,
+        "/attitude/pose": n,
+        "/attitude": n,
+        "/status": len(tel.status),
+        "/flight_control": len(tel.fc),
+    }
     assert f"/attitude {n}" in stdout
     names = {ch.topic: schema.name for schema, ch, _ in msgs}
     assert names == {topic: TOPICS[topic][0] for topic in counts}
@@ -78,8 +83,18 @@ def test_counts_schemas_and_firmware_time(monkeypatch, capsys, tmp_path):
 
 
 def test_text_mode_and_missing_host_times(monkeypatch, capsys, tmp_path):
-    code, _, _ = run_cli(monkeypatch, capsys, "synth", "--scenario", "bench", "--duration", "6", "--text-mode",
-                         "--out", tmp_path / "text.stv")
+    code, _, _ = run_cli(
+        monkeypatch,
+        capsys,
+        "synth",
+        "--scenario",
+        "bench",
+        "--duration",
+        "6",
+        "--text-mode",
+        "--out",
+        tmp_path / "text.stv",
+    )
     assert code == 0
     out = tmp_path / "text.mcap"
     export(monkeypatch, capsys, tmp_path / "text.stv", out)
@@ -107,8 +122,11 @@ def test_refuses_to_overwrite_and_ble(monkeypatch, capsys, tmp_path):
 def test_without_mcap_one_line(monkeypatch, capsys, tmp_path):
     monkeypatch.setitem(sys.modules, "mcap.records", None)
     code, _, err = run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--mcap", tmp_path / "x.mcap")
-    assert code == 2 and err == 'steval: error: --mcap needs the mcap package, which is not installed: pip install ' \
-                                '"steval-link[mcap]"\n'
+    assert (
+        code == 2
+        and err
+        == 'steval: error: --mcap needs the mcap package, which is not installed: pip install "steval-link[mcap]"\n'
+    )
 
 
 def test_rerun_opens_it(monkeypatch, capsys, tmp_path):
@@ -120,8 +138,9 @@ def test_rerun_opens_it(monkeypatch, capsys, tmp_path):
     out = tmp_path / "demo.mcap"
     export(monkeypatch, capsys, REC / "demo.stv", out)
     rrd = tmp_path / "demo.rrd"
-    r = subprocess.run([*rerun_command(), "mcap", "convert", str(out), "-o", str(rrd)], capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run(
+        [*rerun_command(), "mcap", "convert", str(out), "-o", str(rrd)], capture_output=True, text=True, timeout=120
+    )
     assert r.returncode == 0, r.stderr
     info = read_rrd(rrd)
     n = len(load_telemetry(REC / "demo.stv").attitude)

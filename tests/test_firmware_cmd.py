@@ -24,8 +24,9 @@ pytestmark = pytest.mark.skipif(
 @pytest.fixture(scope="module")
 def test_cmd(tmp_path_factory) -> Path:
     build = tmp_path_factory.mktemp("fw-cmd")
-    subprocess.run(["make", "-s", "-C", str(FW), f"BUILD_DIR={build}", f"{build}/host/test_cmd"], check=True,
-                   capture_output=True)
+    subprocess.run(
+        ["make", "-s", "-C", str(FW), f"BUILD_DIR={build}", f"{build}/host/test_cmd"], check=True, capture_output=True
+    )
     return build / "host" / "test_cmd"
 
 

@@ -62,8 +62,10 @@ def decode_all(data: bytes) -> tuple[list, object]:
 def random_f32_bits(rng: np.random.Generator, n: int) -> np.ndarray:
     """float32 values with arbitrary bit patterns plus the special ones (NaNs with payloads, inf, -0, denormals)."""
     bits = rng.integers(0, 1 << 32, n, dtype=np.uint64).astype(np.uint32)
-    special = np.array([0x7FC00001, 0x7F800001, 0xFFFFFFFF, 0x7F800000, 0xFF800000, 0x80000000, 0x00000001,
-                        0x007FFFFF, 0x3F800000], dtype=np.uint32)
+    special = np.array(
+        [0x7FC00001, 0x7F800001, 0xFFFFFFFF, 0x7F800000, 0xFF800000, 0x80000000, 0x00000001, 0x007FFFFF, 0x3F800000],
+        dtype=np.uint32,
+    )
     bits[: min(n, len(special))] = special[: min(n, len(special))]
     return bits.view(np.float32)
 
@@ -97,20 +99,39 @@ def make_requests(rng: np.random.Generator, n: int) -> tuple[bytes, bytes]:
             rec["thr"] = rng.integers(-32768, 32768)
             payload = rec.tobytes()
             exp += P.encode_attitude(
-                t_us=int(rec["t_us"]), acc_mg=rec["acc_mg"], gyro_mdps=rec["gyro_mdps"], q_wxyz=rec["q_wxyz"],
-                thz_rad=rec["thz_rad"], seq=int(rec["seq"]), thr=int(rec["thr"]),
+                t_us=int(rec["t_us"]),
+                acc_mg=rec["acc_mg"],
+                gyro_mdps=rec["gyro_mdps"],
+                q_wxyz=rec["q_wxyz"],
+                thz_rad=rec["thz_rad"],
+                seq=int(rec["seq"]),
+                thr=int(rec["thr"]),
             )
         elif kind == 3:
             payload = rng.integers(0, 256, P.STATUS_PAYLOAD_SIZE, dtype=np.uint8).tobytes()
             rec = np.frombuffer(payload, P.STATUS_DTYPE)[0]
             exp += P.encode_status(
-                step=int(rec["step"]), t_us=int(rec["t_us"]), q_wxyz=rec["q_wxyz"], int_xyz=rec["int_xyz"],
-                kp_ground=rec["kp_ground"], kp_flight=rec["kp_flight"], ki=rec["ki"], dt_s=rec["dt_s"],
-                cyc_min=int(rec["cyc_min"]), cyc_mean=int(rec["cyc_mean"]), cyc_max=int(rec["cyc_max"]),
-                cyc_n=int(rec["cyc_n"]), cpu_hz=int(rec["cpu_hz"]), tx_dropped=int(rec["tx_dropped"]),
-                baud=int(rec["baud"]), min_thr=int(rec["min_thr"]), flags=int(rec["flags"]),
-                queue_peak=int(rec["queue_peak"]), fw_version=tuple(int(x) for x in rec["fw_version"]),
-                fc_every=int(rec["fc_every"]), param_gen=int(rec["param_gen"]),
+                step=int(rec["step"]),
+                t_us=int(rec["t_us"]),
+                q_wxyz=rec["q_wxyz"],
+                int_xyz=rec["int_xyz"],
+                kp_ground=rec["kp_ground"],
+                kp_flight=rec["kp_flight"],
+                ki=rec["ki"],
+                dt_s=rec["dt_s"],
+                cyc_min=int(rec["cyc_min"]),
+                cyc_mean=int(rec["cyc_mean"]),
+                cyc_max=int(rec["cyc_max"]),
+                cyc_n=int(rec["cyc_n"]),
+                cpu_hz=int(rec["cpu_hz"]),
+                tx_dropped=int(rec["tx_dropped"]),
+                baud=int(rec["baud"]),
+                min_thr=int(rec["min_thr"]),
+                flags=int(rec["flags"]),
+                queue_peak=int(rec["queue_peak"]),
+                fw_version=tuple(int(x) for x in rec["fw_version"]),
+                fc_every=int(rec["fc_every"]),
+                param_gen=int(rec["param_gen"]),
             )
             req += bytes([P.TYPE_STATUS, len(payload)]) + payload
             continue
@@ -179,15 +200,30 @@ def test_stv_encode_bad_input_is_one_clear_line(host_build, req, message):
 # ---- the link core, driven like the firmware main loop ---------------------------------------------------------
 
 
-def cmd_config(*, text_mode=0, decimation=16, status_every=162, cpu_hz=84_000_000, baud=115200, ki=0.1, flags=0,
-               cyc0=0, t_us0=0, step0=0) -> bytes:
-    return b"C" + struct.pack("<BIIIIfHIII", text_mode, decimation, status_every, cpu_hz, baud, ki, flags, cyc0,
-                              t_us0, step0)
+def cmd_config(
+    *,
+    text_mode=0,
+    decimation=16,
+    status_every=162,
+    cpu_hz=84_000_000,
+    baud=115200,
+    ki=0.1,
+    flags=0,
+    cyc0=0,
+    t_us0=0,
+    step0=0,
+) -> bytes:
+    return b"C" + struct.pack(
+        "<BIIIIfHIII", text_mode, decimation, status_every, cpu_hz, baud, ki, flags, cyc0, t_us0, step0
+    )
 
 
 def cmd_step(c0, c1, thr, acc, gyro, q, eul, sq, si) -> bytes:
-    return b"S" + struct.pack("<IIh", c0 % (1 << 32), c1 % (1 << 32), thr) + np.concatenate(
-        [acc, gyro, q, eul, sq, si]).astype(np.float32).tobytes()
+    return (
+        b"S"
+        + struct.pack("<IIh", c0 % (1 << 32), c1 % (1 << 32), thr)
+        + np.concatenate([acc, gyro, q, eul, sq, si]).astype(np.float32).tobytes()
+    )
 
 
 def cmd_drain(n) -> bytes:
@@ -222,8 +258,17 @@ class Steps:
         self.end = self.begin + self.cycles
 
     def command(self, i) -> bytes:
-        return cmd_step(int(self.begin[i]), int(self.end[i]), int(self.thr[i]), self.acc[i], self.gyro[i],
-                        self.q[i], self.eul[i], self.sq[i], self.si[i])
+        return cmd_step(
+            int(self.begin[i]),
+            int(self.end[i]),
+            int(self.thr[i]),
+            self.acc[i],
+            self.gyro[i],
+            self.q[i],
+            self.eul[i],
+            self.sq[i],
+            self.si[i],
+        )
 
 
 def bits(x) -> list[int]:
@@ -262,7 +307,11 @@ def test_link_stream_wraps_seq_time_and_cycle_counter(host_build):
         assert bits(st["q_wxyz"]) == bits(s.sq[last]) and bits(st["int_xyz"]) == bits(s.si[last])
         cyc = s.cycles[last + 1 - every : last + 1]
         assert (int(st["cyc_min"]), int(st["cyc_mean"]), int(st["cyc_max"]), int(st["cyc_n"])) == (
-            cyc.min(), cyc.sum() // every, cyc.max(), every)
+            cyc.min(),
+            cyc.sum() // every,
+            cyc.max(),
+            every,
+        )
         assert (float(st["ki"]), int(st["flags"]), int(st["baud"]), int(st["cpu_hz"])) == (1.0, 1, 115200, 84_000_000)
         assert (float(st["kp_ground"]), float(st["kp_flight"]), int(st["min_thr"])) == (10.0, np.float32(0.4), 200)
         assert float(st["dt_s"]) == np.float32(0.00625) and st["fw_version"].tolist() == [2, 0]
@@ -371,8 +420,11 @@ def bundled_recordings() -> list[Path]:
     from steval_link.link.capture import read_source
 
     rec = ROOT / "recordings"
-    return sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin") and not is_ble_source(read_source(p))) \
-        if rec.is_dir() else []
+    return (
+        sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin") and not is_ble_source(read_source(p)))
+        if rec.is_dir()
+        else []
+    )
 
 
 @pytest.mark.parametrize("path", bundled_recordings() or [None], ids=lambda p: p.name if p else "none")
@@ -390,6 +442,6 @@ def test_bundled_recording_frames_are_c_encoder_output(host_build, path):
     binary = [s for s in spans if s[:2] == P.SYNC]
     if not binary:
         pytest.skip(f"{path.name} holds no binary frames (text mode)")
-    req = b"".join(bytes([s[2] & 0x0F, s[3]]) + s[4:-P.CRC_SIZE] for s in binary)
+    req = b"".join(bytes([s[2] & 0x0F, s[3]]) + s[4 : -P.CRC_SIZE] for s in binary)
     out = subprocess.run([host_build / "stv_encode"], input=req, capture_output=True, check=True).stdout
     assert out == b"".join(binary)

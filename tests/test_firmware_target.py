@@ -127,15 +127,25 @@ def test_patch_is_small_and_touches_only_hook_points():
     diffs = re.split(r"(?m)^(?=diff --git )", text)[1:]
     base = "STM32 FW Project/Official release - 170120/"
     changed = [re.match(r"diff --git a/(.+?) b/", d).group(1) for d in diffs if "\nnew file mode" not in d[:300]]
-    assert changed == [base + f for f in ("CubeIDE/STEVAL-FCU/.project", "Inc/ahrs.h", "Src/ahrs.c", "Src/debug.c",
-                                          "Src/main.c", "Src/stm32f4xx_it.c")]
+    assert changed == [
+        base + f
+        for f in (
+            "CubeIDE/STEVAL-FCU/.project",
+            "Inc/ahrs.h",
+            "Src/ahrs.c",
+            "Src/debug.c",
+            "Src/main.c",
+            "Src/stm32f4xx_it.c",
+        )
+    ]
     total_context: list[str] = []
     for d in diffs:
         if "\nnew file mode" in d[:300]:
             continue
         for hunk in re.split(r"^@@.*@@.*$", d, flags=re.M)[1:]:
-            body = [ln for ln in hunk.splitlines()
-                    if ln and not ln.startswith(("diff --git", "index ", "--- ", "+++ "))]
+            body = [
+                ln for ln in hunk.splitlines() if ln and not ln.startswith(("diff --git", "index ", "--- ", "+++ "))
+            ]
             context = [ln for ln in body if ln.startswith(" ")]
             assert len(context) <= 12, hunk  # 3 lines before and after, plus the few lines between two hooks
             total_context.extend(context)

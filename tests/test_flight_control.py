@@ -24,8 +24,11 @@ def test_motor_places_and_spin_follow_the_mixer_signs():
     # motor4 = thr - x + y - z; +x (nose up) needs the front, +y (right side down) the left side, +z (turn
     # counter-clockwise) the clockwise props
     assert [(m.position, m.spin) for m in MOTORS] == [
-        ("right rear", "clockwise"), ("right front", "counter-clockwise"),
-        ("left front", "clockwise"), ("left rear", "counter-clockwise")]
+        ("right rear", "clockwise"),
+        ("right front", "counter-clockwise"),
+        ("left front", "clockwise"),
+        ("left rear", "counter-clockwise"),
+    ]
 
 
 def test_mixer_is_the_firmwares_float32_arithmetic():
@@ -112,8 +115,11 @@ def test_flight_capture_has_fc_frames_at_the_budgeted_rate(flight):
     assert flight.stats.crc_failures == 0 and flight.stats.frames_missing == 0
     # the whole stream within 90 % of 115200 baud: bytes of the frames over the firmware time they span
     span = flight.attitude.t_fw_s[-1] - flight.attitude.t_fw_s[0]
-    nbytes = (len(flight.attitude) * P.ATTITUDE_FRAME_SIZE + len(flight.status) * P.STATUS_FRAME_SIZE
-              + len(fc) * P.FLIGHT_FRAME_SIZE)
+    nbytes = (
+        len(flight.attitude) * P.ATTITUDE_FRAME_SIZE
+        + len(flight.status) * P.STATUS_FRAME_SIZE
+        + len(fc) * P.FLIGHT_FRAME_SIZE
+    )
     assert nbytes * 10 / span / 115200 <= 0.90
     assert fc.armed.any() and (fc.rc[:, 3] >= C.MIN_THR).any()
     assert (fc.rc[:, 1] == 702).any() and (fc.rc[:, 0] == -702).any() and (fc.rc[:, 2] <= -600).any()
@@ -154,8 +160,16 @@ def test_export_has_the_flight_columns_with_units(flight, tmp_path):
 
     table = flight.attitude_table()
     table.update(flight.flight_columns())
-    for name in ("target_thx_pitch_rad", "outer_s1_y_roll_radps", "inner_s2_z_yaw_pwm", "motor4_pwm", "vbat_v",
-                 "rc_thr", "fc_armed", "fc_every"):
+    for name in (
+        "target_thx_pitch_rad",
+        "outer_s1_y_roll_radps",
+        "inner_s2_z_yaw_pwm",
+        "motor4_pwm",
+        "vbat_v",
+        "rc_thr",
+        "fc_armed",
+        "fc_every",
+    ):
         assert name in table
     rows = np.isfinite(table["motor1_pwm"])
     assert rows.sum() == len(flight.fc)
@@ -195,8 +209,14 @@ def test_replay_rrd_has_the_flight_control_view(monkeypatch, capsys, tmp_path):
     assert code == 0, err
     info = read_rrd(out)
     n = len(load_telemetry(REC / "flight.stv").fc)
-    for path in ("fc/motor_pwm", "fc/inner_s2_pwm", "fc/pitch_thx_deg/target", "fc/outer_roll_y_radps/p",
-                 "fc/outer_roll_y_radps/i", "world/drone/firmware/motors/m1"):
+    for path in (
+        "fc/motor_pwm",
+        "fc/inner_s2_pwm",
+        "fc/pitch_thx_deg/target",
+        "fc/outer_roll_y_radps/p",
+        "fc/outer_roll_y_radps/i",
+        "world/drone/firmware/motors/m1",
+    ):
         assert info.samples.get(path) == n, path
     views = blueprint_views(out)
     assert "pitch thx, about x: target vs firmware (deg, nose up +)" in views
@@ -238,7 +258,7 @@ def test_live_pipeline_hands_flight_frames_to_the_viewer():
     pipe = LivePipeline([], viewer=viewer)
     data = read_capture(REC / "flight.stv").data
     for i in range(0, len(data), 4096):
-        pipe.feed([(data[i:i + 4096], float(i))])
+        pipe.feed([(data[i : i + 4096], float(i))])
     pipe.flush_view()
     fc = load_telemetry(REC / "flight.stv").fc
     assert [f.step for f in viewer.flight] == fc.step.tolist()
@@ -246,6 +266,7 @@ def test_live_pipeline_hands_flight_frames_to_the_viewer():
 
 
 # ---- preflight --------------------------------------------------------------------------------------------------
+
 
 def test_preflight_passes_the_clean_capture():
     rep = check_preflight(load_telemetry(REC / "preflight_ok.stv"))
@@ -273,6 +294,7 @@ def test_cli_preflight_exit_codes(monkeypatch, capsys):
 
 # ---- the reference firmware under emulation: its flight control, injected faults, the baud rate's N -----------------
 
+
 def _emulated(elf, tmp_path, name, **kw):
     from steval_link.emulation.runner import Emulation, EmulationOptions
     from steval_link.link.capture import encode_capture
@@ -294,8 +316,7 @@ def fw_elf(reference_elf):
 def ref_flight(fw_elf, tmp_path_factory):
     """The flight scenario on the reference firmware (its own flight controller)."""
     _, elf = fw_elf
-    return _emulated(elf, tmp_path_factory.mktemp("flight"), "flight.stv", scenario="flight", duration_s=27.0,
-                     seed=1)
+    return _emulated(elf, tmp_path_factory.mktemp("flight"), "flight.stv", scenario="flight", duration_s=27.0, seed=1)
 
 
 @pytest.mark.slow
@@ -395,8 +416,10 @@ def test_frame_motors_are_what_tim4_drives(fw_elf):
     emu = Emulation(EmulationOptions(elf=elf, scenario="flight", duration_s=27.0, seed=1))
     addr = emu.elf.addr("motor_pwm")
     seen = []
-    emu.board.probe(emu.elf.addr("stv_fw_flight"),
-                    lambda b: seen.append((np.frombuffer(b.ram_read(addr, 16), "<f4").copy(), emu.motor_ccr())))
+    emu.board.probe(
+        emu.elf.addr("stv_fw_flight"),
+        lambda b: seen.append((np.frombuffer(b.ram_read(addr, 16), "<f4").copy(), emu.motor_ccr())),
+    )
     chunks = list(emu.chunks())
     assert len(seen) > 150
     pwm = np.array([p for p, _ in seen])

@@ -309,9 +309,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
         made.append(viewer)
         return viewer
 
-    opts = LiveOptions(
-        out=tmp_path / "cap.stv", rrd=rrd, connect=url, wait=True, estimators=["st-mahony", "accel"]
-    )
+    opts = LiveOptions(out=tmp_path / "cap.stv", rrd=rrd, connect=url, wait=True, estimators=["st-mahony", "accel"])
     err = io.StringIO()
     with PtyFeeder(data, tmp_path / "ttyUSB0", bytes_per_s=8 * REAL_BYTES_PER_S) as feeder:
         opts.port = str(feeder.link)
@@ -346,8 +344,15 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     assert entry.recording_id == viewer.session.rec.get_recording_id()
     info = read_rrd(rrd)
     assert info.has_blueprint and info.application_id == "steval-link"
-    for path in (ent.pitch_path("firmware"), ent.roll_path("firmware"), ent.PLOT_ACC, ent.PLOT_GYRO,
-                 ent.pitch_path("accel"), ent.pitch_path(ent.SOURCE_PORT), ent.DIFF_THX):
+    for path in (
+        ent.pitch_path("firmware"),
+        ent.roll_path("firmware"),
+        ent.PLOT_ACC,
+        ent.PLOT_GYRO,
+        ent.pitch_path("accel"),
+        ent.pitch_path(ent.SOURCE_PORT),
+        ent.DIFF_THX,
+    ):
         assert info.samples[path] == n_frames, path  # every frame once (nothing logged twice into the file)
     assert info.samples[ent.DRONE_FIRMWARE] >= 1
     assert info.samples[ent.LINK_CYCLES] == n_status

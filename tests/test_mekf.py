@@ -27,7 +27,7 @@ def _trajectory(n, rate=RATE, amp_rad=0.6, f_hz=0.5):
     w = np.vstack([np.zeros((1, 3)), axis * (ang * rate)[:, None]])
     # gravity in the body frame: third row of R(q)
     q0, q1, q2, q3 = q.T
-    g = np.stack([2 * (q1 * q3 - q0 * q2), 2 * (q0 * q1 + q2 * q3), q0 ** 2 - q1 ** 2 - q2 ** 2 + q3 ** 2], axis=1)
+    g = np.stack([2 * (q1 * q3 - q0 * q2), 2 * (q0 * q1 + q2 * q3), q0**2 - q1**2 - q2**2 + q3**2], axis=1)
     return q, np.degrees(w) * 1000.0, g * 1000.0
 
 
@@ -35,8 +35,13 @@ def test_static_tilt_converges_to_the_accelerometer():
     acc = np.tile([[-300.0, 200.0, 933.0]], (800, 1))
     r = Mekf(latency_s=0.0).run(acc, np.zeros_like(acc))
     q = r.q_wxyz[-1]
-    g = np.array([2 * (q[1] * q[3] - q[0] * q[2]), 2 * (q[0] * q[1] + q[2] * q[3]),
-                  q[0] ** 2 - q[1] ** 2 - q[2] ** 2 + q[3] ** 2])
+    g = np.array(
+        [
+            2 * (q[1] * q[3] - q[0] * q[2]),
+            2 * (q[0] * q[1] + q[2] * q[3]),
+            q[0] ** 2 - q[1] ** 2 - q[2] ** 2 + q[3] ** 2,
+        ]
+    )
     assert np.allclose(g, acc[0] / np.linalg.norm(acc[0]), atol=1e-3)
     assert r.valid.all()
 
@@ -51,13 +56,13 @@ def test_tracks_a_swinging_motion_with_bias_and_noise():
     est = Mekf(latency_s=0.0)
     r = est.run(acc_m, gyro_m)
     err = broad.inclination_error_rad(r.q_wxyz, q_true)
-    assert broad.rmse_deg(err[n // 2:]) < 0.5
+    assert broad.rmse_deg(err[n // 2 :]) < 0.5
     # the horizontal bias components are observable; the estimate approaches them
     assert np.linalg.norm(est.bias_mdps - bias) < np.linalg.norm(bias)
     # without the bias states the 0.3 dps bias costs far more accuracy
     no_bias = Mekf(latency_s=0.0, estimate_bias=False).run(acc_m, gyro_m)
     err_nb = broad.inclination_error_rad(no_bias.q_wxyz, q_true)
-    assert broad.rmse_deg(err_nb[n // 2:]) > 3 * broad.rmse_deg(err[n // 2:])
+    assert broad.rmse_deg(err_nb[n // 2 :]) > 3 * broad.rmse_deg(err[n // 2 :])
 
 
 def test_clean_motion_is_tracked_exactly():
@@ -74,12 +79,12 @@ def test_linear_acceleration_that_averages_out_does_not_tilt_the_estimate():
     acc[:, 0] = 500.0 * np.sign(np.sin(2 * np.pi * 1.0 * t))  # ±0.5 g shaking along x, level body
     r = Mekf(latency_s=0.0).run(acc, np.zeros((n, 3)))
     err = broad.inclination_error_rad(r.q_wxyz, np.tile([1.0, 0, 0, 0], (n, 1)))
-    assert np.degrees(err[int(4 * RATE):]).max() < 5.0  # after the start-up (warm-up mean over τ = 3 s)
-    assert np.degrees(err[n // 2:]).max() < 1.0 and np.degrees(err[-1]) < 0.3
+    assert np.degrees(err[int(4 * RATE) :]).max() < 5.0  # after the start-up (warm-up mean over τ = 3 s)
+    assert np.degrees(err[n // 2 :]).max() < 1.0 and np.degrees(err[-1]) < 0.3
     # the direct (body-frame) MEKF is pulled around by it
     r_direct = Mekf(latency_s=0.0, acc_tau_s=0.0).run(acc, np.zeros((n, 3)))
     err_d = broad.inclination_error_rad(r_direct.q_wxyz, np.tile([1.0, 0, 0, 0], (n, 1)))
-    assert np.degrees(err_d[n // 2:]).max() > 3 * np.degrees(err[n // 2:]).max()
+    assert np.degrees(err_d[n // 2 :]).max() > 3 * np.degrees(err[n // 2 :]).max()
 
 
 def test_latency_compensation_predicts_along_the_rate():

@@ -42,8 +42,9 @@ def test_comparison_figure_draws_every_trace_in_degrees(mpl):
     lp = lines_by_label(ax_p)
     assert {"firmware (drone)", "ST-Mahony port (seeded)", "accel-only tilt"} <= set(lp)
     assert np.allclose(lp["firmware (drone)"].get_ydata(), np.degrees(tel.attitude.thx_rad.astype(float)))
-    assert np.allclose(lines_by_label(ax_r)["firmware (drone)"].get_ydata(),
-                       np.degrees(tel.attitude.thy_rad.astype(float)))
+    assert np.allclose(
+        lines_by_label(ax_r)["firmware (drone)"].get_ydata(), np.degrees(tel.attitude.thy_rad.astype(float))
+    )
     # the port is bit-exact: the difference panel says so and its lines are zero
     texts = [t.get_text() for t in ax_d.texts]
     assert any("bit-exact on all 800" in t for t in texts)
@@ -57,8 +58,13 @@ def test_comparison_figure_draws_every_trace_in_degrees(mpl):
 
 
 def test_comparison_png_of_a_mismatch_with_drops_and_nan(mpl, tmp_path):
-    tel = telemetry(n=1200, drop=range(300, 320), burst=(700, 760), fw_settings=MahonySettings(ki=1.0),
-                    status_settings=MahonySettings())
+    tel = telemetry(
+        n=1200,
+        drop=range(300, 320),
+        burst=(700, 760),
+        fw_settings=MahonySettings(ki=1.0),
+        status_settings=MahonySettings(),
+    )
     r = compare_capture(tel, estimators=("accel", "st-mahony"))
     fig = plots.comparison_figure(tel, r)
     ax_d = fig.axes[2]
@@ -143,8 +149,10 @@ def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tm
         plots.require_matplotlib()
     cap = tmp_path / "c.bin"
     cap.write_bytes(capture_bytes(n=300))
-    for args in (["compare", str(cap), "--plot", str(tmp_path / "x.png")],
-                 ["simulate", "--plot", str(tmp_path / "y.png")]):
+    for args in (
+        ["compare", str(cap), "--plot", str(tmp_path / "x.png")],
+        ["simulate", "--plot", str(tmp_path / "y.png")],
+    ):
         code, out, err = run_cli(args, capsys)
         assert code == 2 and err.count("\n") == 1 and 'pip install "steval-link[plot]"' in err
         assert out == ""

@@ -59,26 +59,39 @@ def error_lines(err: str) -> list[str]:
 
 def test_split_list_keeps_commas_inside_options_and_quotes():
     assert plugins.split_list("ekf3, a.py:A(q=1, r=(2, 3)),b:B(s='x,y'),accel") == [
-        "ekf3", "a.py:A(q=1, r=(2, 3))", "b:B(s='x,y')", "accel"]
+        "ekf3",
+        "a.py:A(q=1, r=(2, 3))",
+        "b:B(s='x,y')",
+        "accel",
+    ]
 
 
-@pytest.mark.parametrize("text, kind, source, attr, options", [
-    ("my_ekf.py:MyEkf", "file", "my_ekf.py", "MyEkf", {}),
-    ("my_ekf.py:MyEkf(q_gyro=1e-4, r_acc=0.05)", "file", "my_ekf.py", "MyEkf", {"q_gyro": 1e-4, "r_acc": 0.05}),
-    ("sub/dir/f.py", "file", "sub/dir/f.py", None, {}),
-    (r"C:\course\f.py:Filt", "file", r"C:\course\f.py", "Filt", {}),
-    ("mypkg.filters:MyEkf(mode='fast', axes=(1, 2), on=True)", "module", "mypkg.filters", "MyEkf",
-     {"mode": "fast", "axes": (1, 2), "on": True}),
-    ("ekf3(acc_motion_mg=20)", "builtin", "ekf3", None, {"acc_motion_mg": 20}),
-    ("some-plugin", "builtin", "some-plugin", None, {}),
-])
+@pytest.mark.parametrize(
+    "text, kind, source, attr, options",
+    [
+        ("my_ekf.py:MyEkf", "file", "my_ekf.py", "MyEkf", {}),
+        ("my_ekf.py:MyEkf(q_gyro=1e-4, r_acc=0.05)", "file", "my_ekf.py", "MyEkf", {"q_gyro": 1e-4, "r_acc": 0.05}),
+        ("sub/dir/f.py", "file", "sub/dir/f.py", None, {}),
+        (r"C:\course\f.py:Filt", "file", r"C:\course\f.py", "Filt", {}),
+        (
+            "mypkg.filters:MyEkf(mode='fast', axes=(1, 2), on=True)",
+            "module",
+            "mypkg.filters",
+            "MyEkf",
+            {"mode": "fast", "axes": (1, 2), "on": True},
+        ),
+        ("ekf3(acc_motion_mg=20)", "builtin", "ekf3", None, {"acc_motion_mg": 20}),
+        ("some-plugin", "builtin", "some-plugin", None, {}),
+    ],
+)
 def test_references_parse(text, kind, source, attr, options):
     ref = plugins.parse_reference(text)
     assert (ref.kind, ref.source, ref.attr, ref.options) == (kind, source, attr, options)
 
 
-@pytest.mark.parametrize("text", ["f.py:A(__import__('os').system('true'))", "f.py:A(q=1+x)", "f.py:A(1, 2)",
-                                  "f.py:A(**d)", "f.py:A(q=)"])
+@pytest.mark.parametrize(
+    "text", ["f.py:A(__import__('os').system('true'))", "f.py:A(q=1+x)", "f.py:A(1, 2)", "f.py:A(**d)", "f.py:A(q=)"]
+)
 def test_options_are_keyword_literals_only(text):
     with pytest.raises(UserError, match="keyword=value|not a literal"):
         plugins.parse_reference(text)
@@ -96,8 +109,24 @@ def test_a_file_estimator_runs_everywhere_an_estimator_is_named(tmp_path, monkey
     assert rows["TiltFilter"]["available"] and rows["TiltFilter"]["pitch_thx"]["n"] > 9000
     code, out, err = run_cli(monkeypatch, capsys, "replay", str(DEMO), "-e", f"{f}", "--json")
     assert code == 0, err
-    code, out, err = run_cli(monkeypatch, capsys, "simulate", "-e", f"{f}:TiltFilter(gain=0.2)", "--gyro", "0", "0",
-                             "0", "--acc", "0", "342", "940", "-n", "200", "--json")
+    code, out, err = run_cli(
+        monkeypatch,
+        capsys,
+        "simulate",
+        "-e",
+        f"{f}:TiltFilter(gain=0.2)",
+        "--gyro",
+        "0",
+        "0",
+        "0",
+        "--acc",
+        "0",
+        "342",
+        "940",
+        "-n",
+        "200",
+        "--json",
+    )
     assert code == 0, err
     assert json.loads(out)["final"]["eax_deg"] == pytest.approx(20.0, abs=0.1)
 
@@ -151,16 +180,21 @@ def test_builtins_take_options_the_same_way():
 
 BAD = {
     "missing file": (None, "nope.py:X", "estimator file nope.py not found"),
-    "syntax error": ("class A:\n    def step(self, a, g, thr=0)\n        return a\n", "{f}:A",
-                     "line 2: syntax error"),
+    "syntax error": ("class A:\n    def step(self, a, g, thr=0)\n        return a\n", "{f}:A", "line 2: syntax error"),
     "missing class": (TILT.format(cls="Real"), "{f}:Imagined", "has no class Imagined (estimator classes there: Real)"),
     "no step": ("class A:\n    def reset(self):\n        pass\n", "{f}:A", "it has no step() method"),
     "wrong option": (TILT.format(cls="A"), "{f}:A(gian=2)", "does not take the option gian (it takes: gain, label)"),
-    "import fails": ("import a_package_nobody_has\n" + TILT.format(cls="A"), "{f}:A",
-                     "failed to load: ModuleNotFoundError: No module named 'a_package_nobody_has'"),
-    "constructor raises": ("class A:\n    def __init__(self):\n        raise RuntimeError('no calibration')\n"
-                           "    def reset(self): pass\n    def step(self, a, g, thr=0): return a\n", "{f}:A",
-                           "could not be constructed: RuntimeError: no calibration"),
+    "import fails": (
+        "import a_package_nobody_has\n" + TILT.format(cls="A"),
+        "{f}:A",
+        "failed to load: ModuleNotFoundError: No module named 'a_package_nobody_has'",
+    ),
+    "constructor raises": (
+        "class A:\n    def __init__(self):\n        raise RuntimeError('no calibration')\n"
+        "    def reset(self): pass\n    def step(self, a, g, thr=0): return a\n",
+        "{f}:A",
+        "could not be constructed: RuntimeError: no calibration",
+    ),
     "no module": (None, "coursework_missing.filters:A", "no module named coursework_missing.filters"),
     "not a literal": (TILT.format(cls="A"), "{f}:A(gain=g)", "is not a literal value"),
 }
@@ -175,11 +209,15 @@ def test_every_bad_reference_is_one_line_and_exit_2(case, command, tmp_path, mon
         write(f, source)
     monkeypatch.chdir(tmp_path)
     ref = ref.format(f=f.name)
-    args = {"compare": [str(DEMO), "-e", ref], "replay": [str(DEMO), "-e", ref], "simulate": ["-e", ref],
-            "evaluate": [str(DEMO), "-e", ref],
-            # checked before the port is opened or the firmware loaded: no capture file is made
-            "live": ["--port", str(tmp_path / "ttyUSB9"), "--no-view", "-e", ref],
-            "emulate": [str(DEMO), "--no-view", "-e", ref]}[command]
+    args = {
+        "compare": [str(DEMO), "-e", ref],
+        "replay": [str(DEMO), "-e", ref],
+        "simulate": ["-e", ref],
+        "evaluate": [str(DEMO), "-e", ref],
+        # checked before the port is opened or the firmware loaded: no capture file is made
+        "live": ["--port", str(tmp_path / "ttyUSB9"), "--no-view", "-e", ref],
+        "emulate": [str(DEMO), "--no-view", "-e", ref],
+    }[command]
     code, out, err = run_cli(monkeypatch, capsys, command, *args)
     assert code == 2, err
     assert not list(tmp_path.glob("**/*.stv"))
@@ -215,14 +253,23 @@ class Fragile:
 
 
 @pytest.mark.parametrize("command", ["compare", "replay", "evaluate", "simulate"])
-def test_a_failing_step_in_a_batch_command_is_exit_2_with_the_users_trimmed_traceback(command, tmp_path, monkeypatch,
-                                                                                       capsys):
-    f = write(tmp_path / "fragile.py", RAISES_LATE.replace(
-        "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
-        "{}['no such key']"))
+def test_a_failing_step_in_a_batch_command_is_exit_2_with_the_users_trimmed_traceback(
+    command, tmp_path, monkeypatch, capsys
+):
+    f = write(
+        tmp_path / "fragile.py",
+        RAISES_LATE.replace(
+            "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
+            "{}['no such key']",
+        ),
+    )
     ref = f"{f}:Fragile"
-    args = {"compare": [str(DEMO), "-e", ref], "replay": [str(DEMO), "-e", ref],
-            "simulate": ["-e", ref, "-n", "1000"], "evaluate": [str(DEMO), "-e", ref]}[command]
+    args = {
+        "compare": [str(DEMO), "-e", ref],
+        "replay": [str(DEMO), "-e", ref],
+        "simulate": ["-e", ref, "-n", "1000"],
+        "evaluate": [str(DEMO), "-e", ref],
+    }[command]
     if command == "evaluate":  # a capture needs ground truth to be scored against: a sidecar of zeros
         np.savez(tmp_path / "demo.stv.truth.npz", step=np.arange(20000), quat=np.tile([1.0, 0, 0, 0], (20000, 1)))
         args[0] = str(tmp_path / "demo.stv")
@@ -230,28 +277,37 @@ def test_a_failing_step_in_a_batch_command_is_exit_2_with_the_users_trimmed_trac
     code, out, err = run_cli(monkeypatch, capsys, command, *args)
     assert code == 2
     lines = err.strip().splitlines()
-    assert lines[-1] == ("steval: error: estimator Fragile failed in fragile.py, line 18, in update: KeyError: "
-                         "'no such key'"), err
+    assert lines[-1] == (
+        "steval: error: estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'"
+    ), err
     assert lines[0] == "Traceback (your code):"
     assert [line.split(",")[0] for line in lines if line.startswith("  File")] == [f'  File "{f}"'] * 2
     assert "steval_link" not in err
 
 
-@pytest.mark.parametrize("returned, message", [
-    ("None", "step() returned None"),
-    ("np.zeros(3)", "step() returned shape (3,)"),
-    ("'q'", "not the (4,) quaternion"),
-])
+@pytest.mark.parametrize(
+    "returned, message",
+    [
+        ("None", "step() returned None"),
+        ("np.zeros(3)", "step() returned shape (3,)"),
+        ("'q'", "not the (4,) quaternion"),
+    ],
+)
 def test_a_wrong_return_value_is_named(returned, message, tmp_path, monkeypatch, capsys):
-    f = write(tmp_path / "w.py", f"import numpy as np\nclass W:\n    def reset(self): pass\n"
-                                 f"    def step(self, a, g, thr=0):\n        return {returned}\n")
+    f = write(
+        tmp_path / "w.py",
+        f"import numpy as np\nclass W:\n    def reset(self): pass\n"
+        f"    def step(self, a, g, thr=0):\n        return {returned}\n",
+    )
     code, out, err = run_cli(monkeypatch, capsys, "compare", str(DEMO), "-e", f"{f}:W")
     assert code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
     assert "w.py, line 4 (W.step)" in err
 
 
 def test_the_guard_skips_nonfinite_rows_and_reads_the_users_own_run(tmp_path):
-    f = write(tmp_path / "own.py", """
+    f = write(
+        tmp_path / "own.py",
+        """
         import numpy as np
         class Batch:
             def reset(self): pass
@@ -260,7 +316,8 @@ def test_the_guard_skips_nonfinite_rows_and_reads_the_users_own_run(tmp_path):
                 assert np.isfinite(acc_mg).all() and np.isfinite(gyro_mdps).all()
                 q = np.zeros((len(acc_mg), 4)); q[:, 0] = 1
                 return q
-        """)
+        """,
+    )
     est = registry.create(f"{f}:Batch")
     acc = np.float32([[0, 0, 1000]] * 6)
     acc[2] = np.nan
@@ -278,25 +335,33 @@ def live_pipeline(tmp_path, spec: str) -> LivePipeline:
 
 def feed(pipe: LivePipeline, data: bytes, chunk: int = 997) -> None:
     for i in range(0, len(data), chunk):
-        pipe.feed([(data[i:i + chunk], 1.7e9 + i / 1e4)])
+        pipe.feed([(data[i : i + chunk], 1.7e9 + i / 1e4)])
 
 
 def test_live_a_raising_estimator_is_disabled_with_one_line_and_the_rest_goes_on(tmp_path):
-    f = write(tmp_path / "fragile.py", RAISES_LATE.replace(
-        "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
-        "{}['no such key']"))
+    f = write(
+        tmp_path / "fragile.py",
+        RAISES_LATE.replace(
+            "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
+            "{}['no such key']",
+        ),
+    )
     pipe = live_pipeline(tmp_path, f"{f}:Fragile,ekf3")
     data = flight_stream(2000)
     feed(pipe, data)
     notes = list(pipe.notes)
-    assert notes == ["estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
-                     "Fragile disabled, recording and viewing go on"]
+    assert notes == [
+        "estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
+        "Fragile disabled, recording and viewing go on"
+    ]
     assert pipe.health.attitude == 2000 and pipe.port.describe() == "port bit-exact"
     assert pipe.estimators.disabled.keys() == {"Fragile"}
 
 
 def test_live_a_nan_flood_is_disabled_with_where_its_step_is(tmp_path):
-    f = write(tmp_path / "nan_filter.py", """
+    f = write(
+        tmp_path / "nan_filter.py",
+        """
         import numpy as np
         class Drifter:
             def reset(self): self.k = 0
@@ -304,7 +369,8 @@ def test_live_a_nan_flood_is_disabled_with_where_its_step_is(tmp_path):
             def step(self, a, g, thr=0):
                 self.k += 1
                 return np.full(4, np.nan) if self.k > 100 else np.array([1.0, 0, 0, 0])
-        """)
+        """,
+    )
     pipe = live_pipeline(tmp_path, f"{f}:Drifter")
     feed(pipe, flight_stream(1200))
     flood = int(live_est.NAN_FLOOD_S * C.AHRS_RATE_HZ)
@@ -361,8 +427,12 @@ def test_live_one_call_that_stalls_disables_at_once(tmp_path, monkeypatch):
 
 
 def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_merge(tmp_path):
-    f = write(tmp_path / "fragile.py", RAISES_LATE.replace(
-        "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises", "1 / 0"))
+    f = write(
+        tmp_path / "fragile.py",
+        RAISES_LATE.replace(
+            "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises", "1 / 0"
+        ),
+    )
 
     class Collect:
         def __init__(self):
@@ -397,15 +467,26 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     from steval_link.live.ble_session import BleLiveSession
     from steval_link.live.session import LiveOptions
 
-    f = write(tmp_path / "fragile.py", RAISES_LATE.replace(
-        "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
-        "{}['no such key']"))
+    f = write(
+        tmp_path / "fragile.py",
+        RAISES_LATE.replace(
+            "np.array([1.0, 0.0, 0.0]) / (acc_mg[0] - acc_mg[0])[None][0:0].sum()  # line 18: raises",
+            "{}['no such key']",
+        ),
+    )
     recs = [(c, p) for _, c, p in B.ble_records(read_source(ROOT / "recordings" / "ble_demo.stv").chunks)[:3000]]
     fake = FakeBleBackend(recs, pace_s=0.0005)
     out = tmp_path / "ble.stv"
     stream = io.StringIO()
-    opts = LiveOptions(port="ble:auto", baud=0, out=out, view=False, rrd=None,
-                       estimators=registry.parse_names(f"{f}:Fragile,accel", ()), duration_s=None)
+    opts = LiveOptions(
+        port="ble:auto",
+        baud=0,
+        out=out,
+        view=False,
+        rrd=None,
+        estimators=registry.parse_names(f"{f}:Fragile,accel", ()),
+        duration_s=None,
+    )
     session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=None, stream=stream)
 
     async def stopper():
@@ -421,7 +502,13 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     session._main = main_with_stop
     session.run()
     notes = [line for line in stream.getvalue().splitlines() if "disabled" in line]
-    assert len(notes) == 1 and ("estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
-                                "Fragile disabled, recording and viewing go on") in notes[0]
+    assert (
+        len(notes) == 1
+        and (
+            "estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
+            "Fragile disabled, recording and viewing go on"
+        )
+        in notes[0]
+    )
     assert [(c, p) for _, c, p in B.ble_records(read_capture(out).chunks)] == recs
     assert list(session.estimators) == ["accel"]

@@ -16,8 +16,9 @@ from steval_link.analysis import estimator_check as ec
 ROOT = Path(__file__).resolve().parents[1]
 BROAD = ROOT.parent / "shared" / "datasets" / "broad"
 FAST_ROTATION = BROAD / "07_undisturbed_fast_rotation_B.npz"
-needs_broad = pytest.mark.skipif(not FAST_ROTATION.is_file() and os.environ.get("CI") != "true",
-                                 reason="BROAD trials (../shared) not present")
+needs_broad = pytest.mark.skipif(
+    not FAST_ROTATION.is_file() and os.environ.get("CI") != "true", reason="BROAD trials (../shared) not present"
+)
 
 
 def new_starter(tmp_path, monkeypatch, capsys, *extra: str) -> Path:
@@ -49,8 +50,16 @@ def test_the_starter_passes_every_check_and_is_scored_on_the_bundled_captures(tm
     assert code == 0, err
     report = json.loads(out)
     assert report["ok"] and report["estimator"] == "MyEkf"
-    assert [c["name"] for c in report["checks"]] == ["shapes", "at rest", "pitch sign", "roll sign", "turn",
-                                                       "invalid input", "determinism", "speed"]
+    assert [c["name"] for c in report["checks"]] == [
+        "shapes",
+        "at rest",
+        "pitch sign",
+        "roll sign",
+        "turn",
+        "invalid input",
+        "determinism",
+        "speed",
+    ]
     assert report["steps_per_s"] > ec.LIVE_MIN_STEPS_PER_S
     demo = next(c for c in report["captures"] if c["capture"] == "demo.stv")
     assert set(demo["vs_firmware_deg"]) >= {"MyEkf", "st-mahony", "ekf3"}
@@ -102,7 +111,9 @@ def interface(tmp_path, source: str, cls: str) -> dict:
 
 
 def test_check_finds_state_poisoned_by_invalid_input(tmp_path):
-    res = interface(tmp_path, """
+    res = interface(
+        tmp_path,
+        """
         import numpy as np
         class Poisoned:
             def reset(self): self.g = np.array([0.0, 0.0, 1.0])
@@ -110,21 +121,29 @@ def test_check_finds_state_poisoned_by_invalid_input(tmp_path):
             def step(self, a, g, thr=0):
                 self.g = 0.9 * self.g + 0.1 * np.asarray(a) / np.linalg.norm(a)  # free fall: 0 / 0 forever
                 return np.array([1.0, 0.0, 0.0, 0.0]) * np.sign(self.g.sum())
-        """, "Poisoned")
+        """,
+        "Poisoned",
+    )
     assert not res["invalid input"].ok and "NO finite estimate" in res["invalid input"].detail
     assert res["shapes"].ok
 
 
 def test_check_finds_nondeterminism_and_a_reset_that_forgets(tmp_path):
-    res = interface(tmp_path, """
+    res = interface(
+        tmp_path,
+        """
         import random
         import numpy as np
         class Dice:
             def reset(self): pass
             def step(self, a, g, thr=0): return np.array([1.0, random.random() * 1e-3, 0.0, 0.0])
-        """, "Dice")
+        """,
+        "Dice",
+    )
     assert not res["determinism"].ok and "two fresh instances" in res["determinism"].detail
-    res = interface(tmp_path, """
+    res = interface(
+        tmp_path,
+        """
         import numpy as np
         class Sticky:
             def __init__(self): self.n = 0
@@ -132,27 +151,38 @@ def test_check_finds_nondeterminism_and_a_reset_that_forgets(tmp_path):
             def step(self, a, g, thr=0):
                 self.n += 1
                 return np.array([1.0, 0.0, 0.0, 0.0]) if self.n < 500 else np.array([0.0, 1.0, 0.0, 0.0])
-        """, "Sticky")
+        """,
+        "Sticky",
+    )
     assert not res["determinism"].ok and "reset()" in res["determinism"].detail
 
 
 def test_check_finds_a_non_unit_quaternion_and_a_slow_filter(tmp_path, monkeypatch):
-    res = interface(tmp_path, """
+    res = interface(
+        tmp_path,
+        """
         import numpy as np
         class Long:
             def reset(self): pass
             def step(self, a, g, thr=0): return np.array([2.0, 0.0, 0.0, 0.0])
-        """, "Long")
+        """,
+        "Long",
+    )
     assert not res["shapes"].ok and "not a unit quaternion" in res["shapes"].detail
     monkeypatch.setattr(ec, "LIVE_MIN_STEPS_PER_S", 1e12)
-    res = interface(tmp_path, "import numpy as np\nclass Q:\n    def reset(self): pass\n"
-                              "    def step(self, a, g, thr=0): return np.array([1.0, 0, 0, 0])\n", "Q")
+    res = interface(
+        tmp_path,
+        "import numpy as np\nclass Q:\n    def reset(self): pass\n"
+        "    def step(self, a, g, thr=0): return np.array([1.0, 0, 0, 0])\n",
+        "Q",
+    )
     assert not res["speed"].ok and "steps/s" in res["speed"].detail
 
 
 def test_check_of_a_raising_estimator_shows_its_traceback_once_and_scores_nothing(tmp_path, monkeypatch, capsys):
-    (tmp_path / "boom.py").write_text("class Boom:\n    def reset(self): pass\n"
-                                      "    def step(self, a, g, thr=0):\n        return a[3]\n")
+    (tmp_path / "boom.py").write_text(
+        "class Boom:\n    def reset(self): pass\n    def step(self, a, g, thr=0):\n        return a[3]\n"
+    )
     monkeypatch.chdir(tmp_path)
     code, out, err = run_cli(monkeypatch, capsys, "estimator", "check", "boom.py:Boom", "--no-broad")
     assert code == 1
@@ -171,8 +201,8 @@ def test_check_of_a_missing_file_is_one_line(tmp_path, monkeypatch, capsys):
 @needs_broad
 def test_one_gain_changed_moves_the_broad_score(tmp_path, monkeypatch, capsys):
     f = new_starter(tmp_path, monkeypatch, capsys)
-    base, = ec.broad_scores(f"{f}:MyEkf", [FAST_ROTATION])
-    tuned, = ec.broad_scores(f"{f}:MyEkf(r_acc=1e-4)", [FAST_ROTATION])
+    (base,) = ec.broad_scores(f"{f}:MyEkf", [FAST_ROTATION])
+    (tuned,) = ec.broad_scores(f"{f}:MyEkf(r_acc=1e-4)", [FAST_ROTATION])
     # the starter beats the firmware's filter on fast rotation; a gain changed moves its score, not the others'
     assert base.rmse_deg["MyEkf"] < base.rmse_deg["st-mahony-flight"]
     assert abs(tuned.rmse_deg["MyEkf"] - base.rmse_deg["MyEkf"]) > 0.1
@@ -184,8 +214,9 @@ def test_one_gain_changed_moves_the_broad_score(tmp_path, monkeypatch, capsys):
 @pytest.mark.slow  # the BROAD pipeline model and the bundled captures: about half a minute
 def test_check_with_broad_prints_the_table_next_to_st_mahony_and_vqf(tmp_path, monkeypatch, capsys):
     new_starter(tmp_path, monkeypatch, capsys)
-    code, out, err = run_cli(monkeypatch, capsys, "estimator", "check", "my_ekf.py:MyEkf", "--broad",
-                             str(FAST_ROTATION))
+    code, out, err = run_cli(
+        monkeypatch, capsys, "estimator", "check", "my_ekf.py:MyEkf", "--broad", str(FAST_ROTATION)
+    )
     assert code == 0, err
     head = next(line for line in out.splitlines() if line.startswith("trial"))
     assert head.split()[1:] == ["MyEkf", "st-mahony-flight", "ekf3", "vqf"]

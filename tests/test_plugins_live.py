@@ -38,14 +38,30 @@ FAILS_AFTER_2_S = textwrap.dedent("""
 
 @pytest.mark.parametrize("flavour", ["raises", "nan"])
 def test_live_goes_on_recording_and_viewing_when_a_users_estimator_fails(flavour, tmp_path):
-    source = FAILS_AFTER_2_S if flavour == "raises" else FAILS_AFTER_2_S.replace(
-        'raise ZeroDivisionError("the student\'s bug")', "return np.full(4, np.nan)")
+    source = (
+        FAILS_AFTER_2_S
+        if flavour == "raises"
+        else FAILS_AFTER_2_S.replace('raise ZeroDivisionError("the student\'s bug")', "return np.full(4, np.nan)")
+    )
     (tmp_path / "brittle.py").write_text(source)
     data = flight_stream(1600)  # ~10 s at the real rate
     rrd = tmp_path / "live.rrd"
     with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
-        proc = StevalProcess(["live", "--no-view", "--port", str(feeder.link), "--out", str(tmp_path / "cap.stv"),
-                              "--rrd", str(rrd), "-e", "brittle.py:Brittle,ekf3"], cwd=tmp_path)
+        proc = StevalProcess(
+            [
+                "live",
+                "--no-view",
+                "--port",
+                str(feeder.link),
+                "--out",
+                str(tmp_path / "cap.stv"),
+                "--rrd",
+                str(rrd),
+                "-e",
+                "brittle.py:Brittle,ekf3",
+            ],
+            cwd=tmp_path,
+        )
         assert proc.wait_line("reading ", START_TIMEOUT_S) is not None, proc.stderr
         feeder.start()
         assert proc.wait_line("Brittle disabled", 30) is not None, proc.stderr
@@ -57,11 +73,15 @@ def test_live_goes_on_recording_and_viewing_when_a_users_estimator_fails(flavour
     notes = [line for line in proc.stderr.splitlines() if "disabled" in line]
     assert len(notes) == 1, proc.stderr
     if flavour == "raises":
-        assert ("estimator Brittle failed in brittle.py, line 15, in step: ZeroDivisionError: the student's bug; "
-                "Brittle disabled, recording and viewing go on") in notes[0]
+        assert (
+            "estimator Brittle failed in brittle.py, line 15, in step: ZeroDivisionError: the student's bug; "
+            "Brittle disabled, recording and viewing go on"
+        ) in notes[0]
     else:
-        assert "estimator Brittle gave no estimate (NaN) for" in notes[0] and "brittle.py, line 12 (Brittle.step)" \
-            in notes[0]
+        assert (
+            "estimator Brittle gave no estimate (NaN) for" in notes[0]
+            and "brittle.py, line 12 (Brittle.step)" in notes[0]
+        )
     # nothing lost: every byte the fake drone sent is in the capture, every frame reached the viewer's file
     cap = read_capture(tmp_path / "cap.stv")
     assert cap.data == feeder.sent_bytes()

@@ -24,9 +24,26 @@ def test_attitude_payload_offsets_match_protocol_table():
 def test_status_payload_offsets_match_protocol_table():
     offs = {name: P.STATUS_DTYPE.fields[name][1] for name in P.STATUS_DTYPE.names}
     assert offs == {
-        "step": 0, "t_us": 4, "q_wxyz": 8, "int_xyz": 24, "kp_ground": 36, "kp_flight": 40, "ki": 44, "dt_s": 48,
-        "cyc_min": 52, "cyc_mean": 56, "cyc_max": 60, "cpu_hz": 64, "tx_dropped": 68, "baud": 72, "cyc_n": 76,
-        "min_thr": 78, "flags": 80, "queue_peak": 82, "fw_version": 84, "fc_every": 86,
+        "step": 0,
+        "t_us": 4,
+        "q_wxyz": 8,
+        "int_xyz": 24,
+        "kp_ground": 36,
+        "kp_flight": 40,
+        "ki": 44,
+        "dt_s": 48,
+        "cyc_min": 52,
+        "cyc_mean": 56,
+        "cyc_max": 60,
+        "cpu_hz": 64,
+        "tx_dropped": 68,
+        "baud": 72,
+        "cyc_n": 76,
+        "min_thr": 78,
+        "flags": 80,
+        "queue_peak": 82,
+        "fw_version": 84,
+        "fc_every": 86,
         "param_gen": 87,
     }
     assert P.STATUS_FRAME_SIZE == 96 and P.STATUS_FRAME_SIZE_V1 == 94
@@ -37,8 +54,16 @@ def test_flight_ack_command_offsets_match_protocol_table():
         return {name: dt.fields[name][1] for name in dt.names}
 
     assert offs(P.FLIGHT_DTYPE) == {
-        "step": 0, "euler_rc_rad": 4, "rc": 16, "outer_s1": 24, "inner_s2": 36, "motor_pwm": 48, "vbat_v": 64,
-        "fc_flags": 68, "fc_every": 70, "reserved": 71,
+        "step": 0,
+        "euler_rc_rad": 4,
+        "rc": 16,
+        "outer_s1": 24,
+        "inner_s2": 36,
+        "motor_pwm": 48,
+        "vbat_v": 64,
+        "fc_flags": 68,
+        "fc_every": 70,
+        "reserved": 71,
     }
     assert offs(P.ACK_DTYPE) == {"cmd_seq": 0, "cmd": 2, "result": 3, "step": 4, "rx_ok": 8, "rx_bad": 10}
     assert offs(P.COMMAND_DTYPE) == {"cmd_seq": 0, "cmd": 2, "param": 3, "value": 4, "reserved": 8}
@@ -46,8 +71,9 @@ def test_flight_ack_command_offsets_match_protocol_table():
 
 
 def test_attitude_frame_bytes():
-    f = P.encode_attitude(t_us=0x01020304, acc_mg=[1, 2, 3], gyro_mdps=[4, 5, 6], q_wxyz=[1, 0, 0, 0],
-                          thz_rad=0.5, seq=0x1234, thr=-2)
+    f = P.encode_attitude(
+        t_us=0x01020304, acc_mg=[1, 2, 3], gyro_mdps=[4, 5, 6], q_wxyz=[1, 0, 0, 0], thz_rad=0.5, seq=0x1234, thr=-2
+    )
     assert f[:4] == b"\xa5\x5a\x21\x34"
     assert f[4:8] == b"\x04\x03\x02\x01"  # little-endian
     assert struct.unpack_from("<3f", f, 8) == (1.0, 2.0, 3.0)
@@ -63,8 +89,15 @@ def test_encode_attitude_block_equals_single_frames():
     rec["acc_mg"] = rng.normal(size=(50, 3))
     rec["seq"] = np.arange(50)
     single = b"".join(
-        P.encode_attitude(t_us=int(r["t_us"]), acc_mg=r["acc_mg"], gyro_mdps=r["gyro_mdps"], q_wxyz=r["q_wxyz"],
-                          thz_rad=r["thz_rad"], seq=int(r["seq"]), thr=int(r["thr"]))
+        P.encode_attitude(
+            t_us=int(r["t_us"]),
+            acc_mg=r["acc_mg"],
+            gyro_mdps=r["gyro_mdps"],
+            q_wxyz=r["q_wxyz"],
+            thz_rad=r["thz_rad"],
+            seq=int(r["seq"]),
+            thr=int(r["thr"]),
+        )
         for r in rec
     )
     assert P.encode_attitude_block(rec) == single

@@ -34,8 +34,9 @@ def stream_decode(data: bytes, chunk: int = 997):
 
 def att(seq: int, t_us: int | None = None, acc=(0.0, 0.0, 1000.0)) -> bytes:
     t_us = int(seq * PERIOD_US) if t_us is None else t_us
-    return P.encode_attitude(t_us=t_us, acc_mg=acc, gyro_mdps=[1, 2, 3], q_wxyz=[0.9983, 0, 0, 0], thz_rad=0,
-                             seq=seq, thr=0)
+    return P.encode_attitude(
+        t_us=t_us, acc_mg=acc, gyro_mdps=[1, 2, 3], q_wxyz=[0.9983, 0, 0, 0], thz_rad=0, seq=seq, thr=0
+    )
 
 
 # ---------------------------------------------------------------------------------------------- v1 as before
@@ -43,12 +44,38 @@ def att(seq: int, t_us: int | None = None, acc=(0.0, 0.0, 1000.0)) -> bytes:
 
 # Decoded by the v1 decoder (commit 012847d) before protocol v2: the stats and a hash of the attitude rows.
 V1_BEFORE = {
-    "freefall.stv": (dict(frames_ok=1160, attitude=1133, status=6, text=21, crc_failures=0, bytes_skipped=12,
-                          seq_gaps=0, frames_missing=0, seq_resets=0, unknown_frames=0, bytes_total=67157),
-                     "c84b3c4019120fe8"),
-    "midflight_drops.stv": (dict(frames_ok=3235, attitude=3215, status=20, text=0, crc_failures=0, bytes_skipped=45,
-                                 seq_gaps=10, frames_missing=14, seq_resets=0, unknown_frames=0,
-                                 bytes_total=188395), "138e273339ea531c"),
+    "freefall.stv": (
+        dict(
+            frames_ok=1160,
+            attitude=1133,
+            status=6,
+            text=21,
+            crc_failures=0,
+            bytes_skipped=12,
+            seq_gaps=0,
+            frames_missing=0,
+            seq_resets=0,
+            unknown_frames=0,
+            bytes_total=67157,
+        ),
+        "c84b3c4019120fe8",
+    ),
+    "midflight_drops.stv": (
+        dict(
+            frames_ok=3235,
+            attitude=3215,
+            status=20,
+            text=0,
+            crc_failures=0,
+            bytes_skipped=45,
+            seq_gaps=10,
+            frames_missing=14,
+            seq_resets=0,
+            unknown_frames=0,
+            bytes_total=188395,
+        ),
+        "138e273339ea531c",
+    ),
 }
 
 
@@ -60,8 +87,10 @@ def test_v1_captures_decode_exactly_as_before(name):
     assert {k: got[k] for k in stats} == stats
     assert got["v1_frames"] == stats["frames_ok"] and got["implausible"] == 0
     a = tel.attitude
-    assert hashlib.sha256(a.q_wxyz.tobytes() + a.acc_mg.tobytes() + a.step.tobytes()
-                          + a.t_us.tobytes()).hexdigest()[:16] == digest
+    assert (
+        hashlib.sha256(a.q_wxyz.tobytes() + a.acc_mg.tobytes() + a.step.tobytes() + a.t_us.tobytes()).hexdigest()[:16]
+        == digest
+    )
     # bit-exact comparisons unchanged
     port = compare_capture(tel, estimators=()).port
     assert port.all_exact and port.bit_exact == port.seeded > 0
@@ -117,9 +146,19 @@ def test_a_crc16_collision_cannot_pass_in_a_v2_stream():
 
 
 def test_impossible_values_are_held_back_on_v1_and_kept_flagged_on_v2():
-    bad = [att(10, acc=(3.3e28, 0, 1000)), att(11, acc=(np.nan, 0, 1000)),
-           P.encode_attitude(t_us=int(12 * PERIOD_US), acc_mg=[0, 0, 1000], gyro_mdps=[0, 0, 0],
-                             q_wxyz=[7.0, 0, 0, 0], thz_rad=0, seq=12, thr=0)]
+    bad = [
+        att(10, acc=(3.3e28, 0, 1000)),
+        att(11, acc=(np.nan, 0, 1000)),
+        P.encode_attitude(
+            t_us=int(12 * PERIOD_US),
+            acc_mg=[0, 0, 1000],
+            gyro_mdps=[0, 0, 0],
+            q_wxyz=[7.0, 0, 0, 0],
+            thz_rad=0,
+            seq=12,
+            thr=0,
+        ),
+    ]
     frames_v2 = [att(i) for i in range(10)] + bad + [att(i) for i in range(13, 20)]
     # protocol v1 (CRC-16): the values guard the weak check, the three frames are held back
     data = b"".join(P.encode_frame(P.TYPE_ATTITUDE, f[4:56], version=1) for f in frames_v2)
@@ -175,8 +214,17 @@ def test_gate_allows_skipped_steps_and_long_gaps_within_the_window():
 
 
 def test_flight_ack_and_command_frames_decode_in_both_decoders():
-    fc = P.encode_flight(step=77, euler_rc_rad=[0.1, -0.2, 0.3], rc=[-5, 6, 7, 400], outer_s1=[1, 2, 3],
-                         inner_s2=[4, 5, 6], motor_pwm=[700, 710, 720, 730], vbat_v=3.9, fc_flags=3, fc_every=23)
+    fc = P.encode_flight(
+        step=77,
+        euler_rc_rad=[0.1, -0.2, 0.3],
+        rc=[-5, 6, 7, 400],
+        outer_s1=[1, 2, 3],
+        inner_s2=[4, 5, 6],
+        motor_pwm=[700, 710, 720, 730],
+        vbat_v=3.9,
+        fc_flags=3,
+        fc_every=23,
+    )
     ack = P.encode_ack(cmd_seq=9, cmd=P.CMD_SET_PARAM, result=P.ACK_REFUSED_ARMED, step=78, rx_ok=4, rx_bad=2)
     cmd = P.encode_command(cmd_seq=9, cmd=P.CMD_SET_PARAM, param=P.PARAM_KI, value=1.0)
     data = att(77) + fc + ack + cmd + att(78)

@@ -37,8 +37,9 @@ def test_out_directory_means_write_inside_it(tmp_path):
     folder = tmp_path / "flights"
     folder.mkdir()
     with PtyFeeder(flight_stream(300), tmp_path / "ttyUSB0") as feeder:
-        proc = StevalProcess(["record", "--port", str(feeder.link), "--duration", "1.5", "--out", str(folder)],
-                             cwd=tmp_path)
+        proc = StevalProcess(
+            ["record", "--port", str(feeder.link), "--duration", "1.5", "--out", str(folder)], cwd=tmp_path
+        )
         assert proc.wait_line("reading ", START_TIMEOUT_S) is not None, proc.stderr
         feeder.start()
         assert proc.finish(timeout_s=60) == 0, proc.stderr

@@ -19,8 +19,16 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, FlightFrame, StatusFrame, TextFrame
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
-BINARY = ["demo.stv", "midflight_drops.stv", "freefall.stv", "broad_07.stv", "live_params.stv", "flight.stv",
-          "preflight_ok.stv", "preflight_swapped_motors.stv"]
+BINARY = [
+    "demo.stv",
+    "midflight_drops.stv",
+    "freefall.stv",
+    "broad_07.stv",
+    "live_params.stv",
+    "flight.stv",
+    "preflight_ok.stv",
+    "preflight_swapped_motors.stv",
+]
 ALL = BINARY + ["textmode.log"]
 
 
@@ -43,8 +51,14 @@ def encode(frame) -> bytes:
         names = [n for n in P.FLIGHT_DTYPE.names if n != "reserved"]
         return P.encode_flight(**{n: getattr(frame, n) for n in names})
     if isinstance(frame, AckFrame):
-        return P.encode_ack(cmd_seq=frame.cmd_seq, cmd=frame.cmd, result=frame.result, step=frame.step,
-                            rx_ok=frame.rx_ok, rx_bad=frame.rx_bad)
+        return P.encode_ack(
+            cmd_seq=frame.cmd_seq,
+            cmd=frame.cmd,
+            result=frame.result,
+            step=frame.step,
+            rx_ok=frame.rx_ok,
+            rx_bad=frame.rx_bad,
+        )
     assert isinstance(frame, TextFrame)
     return P.encode_text(frame.text)
 

@@ -105,8 +105,9 @@ def test_a_text_log_is_paced_by_its_frames_firmware_time_and_speed_divides_it():
 @pytest.mark.slow  # real time: 2 s of replay
 def test_live_session_on_a_replay_records_the_recorded_rate_and_the_same_frames(tmp_path):
     out = tmp_path / "x.stv"
-    opts = LiveOptions(port=f"replay://{DEMO}", out=out, view=False, estimators=["st-mahony"], duration_s=2.0,
-                       prompt=False)
+    opts = LiveOptions(
+        port=f"replay://{DEMO}", out=out, view=False, estimators=["st-mahony"], duration_s=2.0, prompt=False
+    )
     summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
     expect = 2.0 * C.AHRS_RATE_HZ  # 323 frames
     assert abs(summary.attitude - expect) <= 0.04 * expect, summary.line()
@@ -137,8 +138,9 @@ def test_a_replay_played_to_its_end_stops_by_itself_with_every_byte(tmp_path):
 @pytest.mark.slow  # real time: the CLI in a child process
 def test_cli_ctrl_c_on_a_replay_ends_cleanly_with_the_capture_kept(tmp_path):
     out = tmp_path / "cap.stv"
-    proc = StevalProcess(["live", "--no-view", "--port", f"replay://{DEMO}", "--out", str(out), "-e", "none"],
-                         cwd=tmp_path)
+    proc = StevalProcess(
+        ["live", "--no-view", "--port", f"replay://{DEMO}", "--out", str(out), "-e", "none"], cwd=tmp_path
+    )
     assert proc.wait_line("reading ", 60) is not None, proc.stderr
     assert proc.wait_line(" Hz | frames ", 30) is not None, proc.stderr
     time.sleep(1.0)
@@ -156,8 +158,9 @@ def test_cli_ctrl_c_on_a_replay_ends_cleanly_with_the_capture_kept(tmp_path):
 
 def test_cli_bad_replay_url_is_one_line(monkeypatch, capsys, tmp_path):
     for command in (["live", "--no-view"], ["record"]):
-        code, _, err = run_cli(monkeypatch, capsys, *command, "--port", "replay://no/such.stv",
-                               "--out", str(tmp_path / "x.stv"))
+        code, _, err = run_cli(
+            monkeypatch, capsys, *command, "--port", "replay://no/such.stv", "--out", str(tmp_path / "x.stv")
+        )
         assert code == 2 and err.startswith("steval: error: cannot replay replay://no/such.stv"), err
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "x.stv").exists()
@@ -172,9 +175,28 @@ def test_cli_prompt_on_a_replay_says_once_that_commands_go_nowhere(tmp_path):
     out = tmp_path / "cmd.stv"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     proc = subprocess.run(
-        [sys.executable, "-c", "from steval_link.cli import main; main()", "live", "--no-view", "--prompt",
-         "--port", f"replay://{DEMO}", "--out", str(out), "-e", "none", "--duration", "2"],
-        input="set ki 1.0\nstatus\n", capture_output=True, text=True, timeout=120, cwd=tmp_path, env=env,
+        [
+            sys.executable,
+            "-c",
+            "from steval_link.cli import main; main()",
+            "live",
+            "--no-view",
+            "--prompt",
+            "--port",
+            f"replay://{DEMO}",
+            "--out",
+            str(out),
+            "-e",
+            "none",
+            "--duration",
+            "2",
+        ],
+        input="set ki 1.0\nstatus\n",
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+        env=env,
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count(PROMPT_NOTE) == 1, proc.stderr
@@ -187,8 +209,9 @@ def test_cli_prompt_on_a_replay_says_once_that_commands_go_nowhere(tmp_path):
 @pytest.mark.slow  # real time: 17 s of text-mode log at 20x
 def test_a_text_mode_log_replays_live_to_its_end(tmp_path):
     out = tmp_path / "text.stv"
-    opts = LiveOptions(port=f"replay://{TEXTLOG}?speed=20", out=out, view=False, estimators=["st-mahony", "accel"],
-                       prompt=False)
+    opts = LiveOptions(
+        port=f"replay://{TEXTLOG}?speed=20", out=out, view=False, estimators=["st-mahony", "accel"], prompt=False
+    )
     summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
     src = load_telemetry(TEXTLOG)
     assert summary.stopped_by == "end of replay" and summary.attitude == len(src.attitude) == 172

@@ -12,8 +12,16 @@ F32 = np.float32
 
 def _iir_reference(x_int):
     """Independent scalar port of the ISR's IIR lines (float32 each operation, C order, state from zero)."""
-    a1, a2, b0, b1, b2 = (F32(v) for v in (0.94280904158206336, -0.33333333333333343, 0.09763107293781749,
-                                           0.19526214587563498, 0.09763107293781749))
+    a1, a2, b0, b1, b2 = (
+        F32(v)
+        for v in (
+            0.94280904158206336,
+            -0.33333333333333343,
+            0.09763107293781749,
+            0.19526214587563498,
+            0.09763107293781749,
+        )
+    )
     x1 = x2 = y1 = y2 = F32(0)
     out = []
     for v in x_int:
@@ -118,7 +126,7 @@ def test_lsm6dsl_read_is_seeded_and_noisy_as_configured():
     assert np.array_equal(a1, a2) and np.array_equal(g1, g2)
     assert np.std(a1[:, 2]) == pytest.approx(2.0, rel=0.15)
     assert np.mean(g1[:, 0]) == pytest.approx(700, abs=5)
-    assert np.std(g1[:, 1]) == pytest.approx(np.sqrt(75.0 ** 2 + 70 ** 2 / 12), rel=0.1)
+    assert np.std(g1[:, 1]) == pytest.approx(np.sqrt(75.0**2 + 70**2 / 12), rel=0.1)
     assert np.all(g1 % 70 == 0)  # 70 mdps steps
     # gyro noise held per 416 Hz sample when tick times are given
     t = np.arange(n) / sm.TICK_HZ
@@ -153,8 +161,7 @@ def test_pipeline_matches_the_conformance_vectors_inputs(shared_dir):
 
     trial = broad.load_trial(shared_dir / "datasets" / "broad" / "02_undisturbed_slow_rotation_B.npz")
     view = broad.steval_view(trial)
-    rows = np.genfromtxt(shared_dir / "conformance" / "st-fcu-170120" / "broad_02.csv", delimiter=",",
-                         skip_header=2)
+    rows = np.genfromtxt(shared_dir / "conformance" / "st-fcu-170120" / "broad_02.csv", delimiter=",", skip_header=2)
     acc_c, gyro_c = rows[:, 2:5], rows[:, 5:8]
     m = view.acc_mg.shape[0]
     lag = acc_c.shape[0] - m  # the vectors start earlier; both end with the trial

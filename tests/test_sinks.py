@@ -193,8 +193,11 @@ def test_a_viewer_that_stops_taking_data_ends_the_flush_with_one_sentence(tmp_pa
         child.send_signal(signal.SIGSTOP)
         for i in range(60):  # more than the socket buffers hold
             seq = np.arange(100_000) + i * 100_000
-            rec.send_columns("y", indexes=[rr.TimeColumn("s", sequence=seq)],
-                             columns=rr.Scalars.columns(scalars=np.random.default_rng(i).random(100_000)))
+            rec.send_columns(
+                "y",
+                indexes=[rr.TimeColumn("s", sequence=seq)],
+                columns=rr.Scalars.columns(scalars=np.random.default_rng(i).random(100_000)),
+            )
         t0 = time.monotonic()
         with pytest.raises(UserError, match=r"did not take the data within 2 s"):
             _flush_bounded(rec, 2.0, url)

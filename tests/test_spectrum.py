@@ -49,6 +49,7 @@ def vib_spectra(vib_capture):
 
 # ---- numerics ----------------------------------------------------------------------------------------------------
 
+
 def test_welch_density_integrates_to_the_variance_and_finds_a_sine():
     rng = np.random.default_rng(1)
     fs = 100.0
@@ -65,9 +66,18 @@ def test_welch_density_integrates_to_the_variance_and_finds_a_sine():
     assert peaks[0].amplitude == pytest.approx(5.0, rel=0.05)
 
 
-@pytest.mark.parametrize("f, seen", [(10.0, 10.0), (80.0, 80.0), (100.0, C.AHRS_RATE_HZ - 100.0),
-                                     (C.AHRS_RATE_HZ, 0.0), (200.0, 200.0 - C.AHRS_RATE_HZ),
-                                     (390.0, 390.0 - 2 * C.AHRS_RATE_HZ), (C.ISR_RATE_HZ, 0.0)])
+@pytest.mark.parametrize(
+    "f, seen",
+    [
+        (10.0, 10.0),
+        (80.0, 80.0),
+        (100.0, C.AHRS_RATE_HZ - 100.0),
+        (C.AHRS_RATE_HZ, 0.0),
+        (200.0, 200.0 - C.AHRS_RATE_HZ),
+        (390.0, 390.0 - 2 * C.AHRS_RATE_HZ),
+        (C.ISR_RATE_HZ, 0.0),
+    ],
+)
 def test_alias_hz_folds_into_the_ahrs_band(f, seen):
     assert S.alias_hz(f) == pytest.approx(seen, abs=1e-9)
 
@@ -112,6 +122,7 @@ def test_throttle_map_separates_what_happens_at_each_throttle():
 
 
 # ---- sinusoids through the sensor model and the ISR pipeline -----------------------------------------------------
+
 
 def test_parse_vibration():
     v = M.parse_vibration("Gyro-Z:100:3000")
@@ -173,6 +184,7 @@ def test_bundled_recordings(name):
 
 
 # ---- the command -------------------------------------------------------------------------------------------------
+
 
 def test_cli_summary_csv_and_marks(monkeypatch, capsys, vib_capture, tmp_path):
     out = tmp_path / "s.csv"
@@ -237,10 +249,16 @@ def test_cli_too_short(monkeypatch, capsys, tmp_path):
     assert "too short for a spectrum" in line
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--nperseg", "8"], "--nperseg"), (["--overlap", "1"], "--overlap"), (["--mark-hz", "0"], "--mark-hz"),
-    (["--throttle-bins", "0"], "--throttle-bins"), (["--csv", "/nonexistent/dir/x.csv"], "does not exist"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--nperseg", "8"], "--nperseg"),
+        (["--overlap", "1"], "--overlap"),
+        (["--mark-hz", "0"], "--mark-hz"),
+        (["--throttle-bins", "0"], "--throttle-bins"),
+        (["--csv", "/nonexistent/dir/x.csv"], "does not exist"),
+    ],
+)
 def test_cli_bad_options(monkeypatch, capsys, args, words):
     line = _one_error_line(*run_cli(monkeypatch, capsys, "spectrum", RECORDINGS / "freefall.stv", *args))
     assert words in line
@@ -317,17 +335,36 @@ def test_spawn_opens_the_native_viewer_with_the_spectra(tmp_path):
     url = f"rerun+http://127.0.0.1:{port}/proxy"
     try:
         done = subprocess.run(
-            [sys.executable, "-c", "from steval_link.cli import main; main()", "spectrum",
-             str(RECORDINGS / "demo.stv"), "--spawn", "--grpc-port", str(port), "--mark-hz", "390"],
-            env=display.env, cwd=tmp_path, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+            [
+                sys.executable,
+                "-c",
+                "from steval_link.cli import main; main()",
+                "spectrum",
+                str(RECORDINGS / "demo.stv"),
+                "--spawn",
+                "--grpc-port",
+                str(port),
+                "--mark-hz",
+                "390",
+            ],
+            env=display.env,
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
         )
         assert done.returncode == 0, done.stderr
         assert "Traceback" not in done.stderr
         assert rerun_processes(port), "the spawned viewer is not running after the command returned"
         rec = viewer_recording(url, timeline="ahrs_step", end=9209)
         for name, _, _ in S.SIGNALS:
-            assert {f"/spectrum/psd/{name}", f"/spectrum/window/{name}", f"/spectrum/spectrogram/{name}",
-                    f"/spectrum/throttle/{name}"} <= rec.entities
+            assert {
+                f"/spectrum/psd/{name}",
+                f"/spectrum/window/{name}",
+                f"/spectrum/spectrogram/{name}",
+                f"/spectrum/throttle/{name}",
+            } <= rec.entities
         png = screenshot(url, tmp_path / "spectrum.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
     finally:

@@ -110,8 +110,14 @@ def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
 def test_status_snapshots_seed_the_port_bit_exact_after_each(runs):
     tel = decode(runs["hover"])
     a, s = tel.attitude, tel.status
-    settings = MahonySettings.from_status(kp_ground=s.kp_ground[0], kp_flight=s.kp_flight[0], ki=s.ki[0],
-                                          dt_s=s.dt_s[0], min_thr=s.min_thr[0], flags=s.flags[0])
+    settings = MahonySettings.from_status(
+        kp_ground=s.kp_ground[0],
+        kp_flight=s.kp_flight[0],
+        ki=s.ki[0],
+        dt_s=s.dt_s[0],
+        min_thr=s.min_thr[0],
+        flags=s.flags[0],
+    )
     assert len(s) >= 15
     for j in range(len(s)):
         r0 = int(s.step[j]) + 1
@@ -268,8 +274,10 @@ def test_broad_trial(shared_dir):
 @pytest.mark.skipif(shutil.which("make") is None or shutil.which("gcc") is None, reason="needs make and gcc")
 def test_c_encoder_gives_the_python_bytes(tmp_path, host_build):
     exe = host_build / "stv_encode"
-    for opts in (SynthOptions("demo", duration_s=40, seed=1),
-                 SynthOptions("hover", duration_s=8, join_at_s=9, drop_rate=0.05, seed=2, baud=921600)):
+    for opts in (
+        SynthOptions("demo", duration_s=40, seed=1),
+        SynthOptions("hover", duration_s=8, join_at_s=9, drop_rate=0.05, seed=2, baud=921600),
+    ):
         py = synthesize(opts)
         c = synthesize(SynthOptions(**{**opts.__dict__, "encoder": "c", "c_encoder": str(exe)}))
         assert len(py.data) > 50_000 and c.data == py.data
@@ -303,19 +311,22 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
     assert code == 0 and all(name in stdout for name in M.SCENARIOS)
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--scenario", "nope"], "unknown scenario"),
-    (["--scenario", "missing_trial.npz"], "no such file"),
-    (["--scenario", "bench", "--duration", "-1"], "--duration"),
-    (["--scenario", "bench", "--duration", "1"], "at least"),
-    (["--scenario", "bench", "--drop-rate", "1.5"], "--drop-rate"),
-    (["--scenario", "bench", "--baud", "12"], "--baud"),
-    (["--scenario", "bench", "--join-at", "-3"], "--join-at"),
-    (["--scenario", "bench", "--encoder", "rust"], "--encoder"),
-    (["--scenario", "bench", "--text-mode", "--encoder", "c"], "--text-mode"),
-    (["--scenario", "bench", "--throttle", "1:2:3"], "--throttle"),
-    (["--scenario", "bench", "--ki", "nan"], "--ki"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--scenario", "nope"], "unknown scenario"),
+        (["--scenario", "missing_trial.npz"], "no such file"),
+        (["--scenario", "bench", "--duration", "-1"], "--duration"),
+        (["--scenario", "bench", "--duration", "1"], "at least"),
+        (["--scenario", "bench", "--drop-rate", "1.5"], "--drop-rate"),
+        (["--scenario", "bench", "--baud", "12"], "--baud"),
+        (["--scenario", "bench", "--join-at", "-3"], "--join-at"),
+        (["--scenario", "bench", "--encoder", "rust"], "--encoder"),
+        (["--scenario", "bench", "--text-mode", "--encoder", "c"], "--text-mode"),
+        (["--scenario", "bench", "--throttle", "1:2:3"], "--throttle"),
+        (["--scenario", "bench", "--ki", "nan"], "--ki"),
+    ],
+)
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, args, words):
     code, _, err = run_cli(["synth", *args, "--out", str(tmp_path / "y.stv")], capsys)
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1

@@ -20,8 +20,16 @@ def decode_all(data: bytes, chunk: int = 13):
     return out + sd.finish(), sd.stats
 
 
-ATT = format_att(step=70000, t_ms=433, thr=150, thx_mdeg=-1500, thy_mdeg=2250, thz_mdeg=90000,
-                 acc_mg=[12, -7, 998], gyro_mdps=[-350, 0, 70])
+ATT = format_att(
+    step=70000,
+    t_ms=433,
+    thr=150,
+    thx_mdeg=-1500,
+    thy_mdeg=2250,
+    thz_mdeg=90000,
+    acc_mg=[12, -7, 998],
+    gyro_mdps=[-350, 0, 70],
+)
 
 
 def test_checksum_and_format():
@@ -29,8 +37,9 @@ def test_checksum_and_format():
     assert ATT.startswith(b"$ATT,70000,433,150,-1500,2250,90000,12,-7,998,-350,0,70*") and ATT.endswith(b"\r\n")
     body = ATT[1 : ATT.index(b"*")]
     assert int(ATT[ATT.index(b"*") + 1 : -2], 16) == checksum(body)
-    assert format_att(step=1, t_ms=0, thr=0, thx_mdeg=-1.9, thy_mdeg=1.9, thz_mdeg=0, acc_mg=[0, 0, 0],
-                      gyro_mdps=[0, 0, 0]).startswith(b"$ATT,1,0,0,-1,1,")  # rounded toward zero
+    assert format_att(
+        step=1, t_ms=0, thr=0, thx_mdeg=-1.9, thy_mdeg=1.9, thz_mdeg=0, acc_mg=[0, 0, 0], gyro_mdps=[0, 0, 0]
+    ).startswith(b"$ATT,1,0,0,-1,1,")  # rounded toward zero
 
 
 def test_parse_att_line_units():
@@ -44,17 +53,26 @@ def test_parse_att_line_units():
 
 
 def test_parse_sta_line():
-    line = format_sta(step=5, t_ms=31, cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=161, tx_dropped=4, flags=4,
-                      ki_micro=1_000_000)
+    line = format_sta(
+        step=5, t_ms=31, cyc_min=1, cyc_mean=2, cyc_max=3, cyc_n=161, tx_dropped=4, flags=4, ki_micro=1_000_000
+    )
     f = parse_sentence(line.rstrip(b"\r\n"))
     assert isinstance(f, StatusFrame) and not f.exact
     assert (f.step, f.t_us, f.cyc_min, f.cyc_mean, f.cyc_max, f.cyc_n, f.tx_dropped, f.flags) == (
-        5, 31000, 1, 2, 3, 161, 4, 4)
+        5,
+        31000,
+        1,
+        2,
+        3,
+        161,
+        4,
+        4,
+    )
     assert f.ki == 1.0 and math.isnan(f.kp_ground)
 
 
 def test_bad_checksum_or_fields_are_crc_failures():
-    bad_sum = ATT.replace(b"*", b"*0") [:-4] + b"\r\n"
+    bad_sum = ATT.replace(b"*", b"*0")[:-4] + b"\r\n"
     flipped = ATT.replace(b"998", b"999")  # checksum no longer matches
     short = b"$ATT,1,2,3*" + b"%02X" % checksum(b"ATT,1,2,3") + b"\r\n"  # right checksum, wrong field count
     frames, stats = decode_all(b"\n" + flipped + short + bad_sum + ATT)

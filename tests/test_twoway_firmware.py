@@ -58,6 +58,7 @@ def _frames(chunks):
 
 # ---- the stock arithmetic, runtime settings ------------------------------------------------------------------
 
+
 def _through_firmware(elf, vec, rows: int, ki: float | None = None, correction: int | None = None):
     """Feed the first ``rows`` vector inputs to the firmware's own ahrs_fusion_ag (at its entry, in its RAM),
     and read back ahrs.q and the Euler angles it sends (at stv_fw_step_end's entry)."""
@@ -98,8 +99,7 @@ def _through_firmware(elf, vec, rows: int, ki: float | None = None, correction: 
     return q, eul
 
 
-@pytest.mark.parametrize("name,rows", [("throttle_switch.csv", 900), ("edge_cases.csv", 700),
-                                       ("broad_02.csv", 600)])
+@pytest.mark.parametrize("name,rows", [("throttle_switch.csv", 900), ("edge_cases.csv", 700), ("broad_02.csv", 600)])
 def test_conformance_vectors_through_the_firmware(fw, name, rows):
     """The reference's ahrs.c (settings read from stv_filter) computes exactly what ST's released binary computes."""
     if not (CONFORMANCE / name).is_file():
@@ -119,16 +119,27 @@ def test_runtime_ki_and_no_correction_are_the_port_with_those_settings(fw):
     rows = 600
     for ki, corr in ((1.0, 1), (0.1, 0)):
         q, eul = _through_firmware(fw, vec, rows, ki=ki, correction=corr)
-        pq, pthx, pthy, _ = run(vec.acc_mg[:rows], vec.gyro_mdps[:rows], vec.thr[:rows],
-                                settings=MahonySettings(ki=ki, correction=bool(corr)))
+        pq, pthx, pthy, _ = run(
+            vec.acc_mg[:rows],
+            vec.gyro_mdps[:rows],
+            vec.thr[:rows],
+            settings=MahonySettings(ki=ki, correction=bool(corr)),
+        )
         assert bits_equal(q, pq).all() and bits_equal(eul[:, 0], pthx).all() and bits_equal(eul[:, 1], pthy).all()
         assert not bits_equal(q, vec.q_wxyz[:rows]).all()  # the settings did change the result
 
 
 # ---- changes mid-stream ----------------------------------------------------------------------------------------
 
-SCRIPT = [(3.6, "status"), (4.2, "set ki 1.0"), (5.5, "correction off"), (6.6, "reset"), (7.4, "correction on"),
-          (8.0, "set kp_ground 2.5"), (8.6, "set min_thr 150")]
+SCRIPT = [
+    (3.6, "status"),
+    (4.2, "set ki 1.0"),
+    (5.5, "correction off"),
+    (6.6, "reset"),
+    (7.4, "correction on"),
+    (8.0, "set kp_ground 2.5"),
+    (8.6, "set min_thr 150"),
+]
 
 
 def _scripted_run(elf, script, duration_s, **kw):
@@ -251,8 +262,14 @@ def test_filter_changes_are_refused_while_the_motors_may_spin(fw, tmp_path):
     """Throttle at MIN_THR or above, or armed (the remote's arming bit: rc_enable_motor): a filter change or reset is
     refused (ack result 1, the ARMED flag set), a status request is still answered; once the throttle is down and
     the drone disarmed, the change applies."""
-    script = [(4.0, "set ki 1.0"), (4.3, "reset"), (4.6, "status"), (5.5, "set ki 1.0"), (5.6, "status"),
-              (6.2, "set ki 1.0")]
+    script = [
+        (4.0, "set ki 1.0"),
+        (4.3, "reset"),
+        (4.6, "status"),
+        (5.5, "set ki 1.0"),
+        (5.6, "status"),
+        (6.2, "set ki 1.0"),
+    ]
     emu = _emulation(fw, duration_s=6.8, throttle="0:0,3.7:0,3.8:300,5.0:300,5.1:0")
     joy, connected = emu.elf.addr("joydata"), emu.elf.by_name["connected"]
     armed_seen = []
@@ -274,8 +291,14 @@ def test_filter_changes_are_refused_while_the_motors_may_spin(fw, tmp_path):
     assert 1 in armed_seen  # the firmware did arm
     _dec, frames = _frames(chunks)
     acks = [f for f in frames if isinstance(f, AckFrame)]
-    assert [a.result for a in acks] == [P.ACK_REFUSED_ARMED, P.ACK_REFUSED_ARMED, P.ACK_ACCEPTED,
-                                        P.ACK_REFUSED_ARMED, P.ACK_ACCEPTED, P.ACK_ACCEPTED]
+    assert [a.result for a in acks] == [
+        P.ACK_REFUSED_ARMED,
+        P.ACK_REFUSED_ARMED,
+        P.ACK_ACCEPTED,
+        P.ACK_REFUSED_ARMED,
+        P.ACK_ACCEPTED,
+        P.ACK_ACCEPTED,
+    ]
     events = [f for f in frames if isinstance(f, StatusFrame) and f.flags & P.FLAG_EVENT]
     assert len(events) == 3
     for ev in events[:2]:  # throttle up, then armed: the motors may spin, nothing changed
@@ -310,8 +333,21 @@ def test_cli_emulate_with_a_command_script_then_compare(fw, tmp_path, monkeypatc
     script = tmp_path / "cmds.txt"
     script.write_text("# time (s) command\n3.6 set ki 1.0\n4.4 correction off\n")
     out = tmp_path / "live.stv"
-    code, stdout, stderr = run_cli(monkeypatch, capsys, "emulate", fw, "--scenario", "hand-tilts", "--duration",
-                                   "5.2", "--commands", script, "--out", out, "--no-view")
+    code, stdout, stderr = run_cli(
+        monkeypatch,
+        capsys,
+        "emulate",
+        fw,
+        "--scenario",
+        "hand-tilts",
+        "--duration",
+        "5.2",
+        "--commands",
+        script,
+        "--out",
+        out,
+        "--no-view",
+    )
     assert code == 0, stderr
     assert "set ki 1: accepted, applies from step" in stderr and "correction off: accepted" in stderr
     cap = read_capture(out)

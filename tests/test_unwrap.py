@@ -27,8 +27,11 @@ def _stream(draw_ops, start: int) -> np.ndarray:
     return np.array(out, dtype=np.int64)
 
 
-ops = st.lists(st.tuples(st.sampled_from(["run", "run", "gap", "repeat", "restart"]), st.integers(1, 30000)),
-               min_size=1, max_size=12)
+ops = st.lists(
+    st.tuples(st.sampled_from(["run", "run", "gap", "repeat", "restart"]), st.integers(1, 30000)),
+    min_size=1,
+    max_size=12,
+)
 
 
 @settings(max_examples=200, derandomize=True, database=None)

@@ -62,8 +62,16 @@ def make_stream(n: int = 900, *, nan_rows=(), first_step: int = 1000, drop=()) -
         )
         if i % 162 == 161:
             out += P.encode_status(
-                step=step, t_us=int(2_000_000 + step * 1e6 / RATE), q_wxyz=q[i], int_xyz=(0, 0, 0),
-                cyc_min=9000, cyc_mean=9400, cyc_max=12000, cyc_n=162, tx_dropped=i // 400, queue_peak=116,
+                step=step,
+                t_us=int(2_000_000 + step * 1e6 / RATE),
+                q_wxyz=q[i],
+                int_xyz=(0, 0, 0),
+                cyc_min=9000,
+                cyc_mean=9400,
+                cyc_max=12000,
+                cyc_n=162,
+                tx_dropped=i // 400,
+                queue_peak=116,
             )
     return bytes(out), q
 
@@ -333,8 +341,15 @@ def test_simulation_logs_to_rrd(tmp_path):
     from steval_viewer.simulate_log import log_simulation
 
     res = run_simulation(
-        gyro_mdps=BASELINE_GYRO_MDPS, acc_mg=BASELINE_ACC_MG, iterations=500, gyro_noise_mdps=0, acc_noise_mg=0,
-        seed=None, throttle=0, estimator="st-mahony", estimator_options={},
+        gyro_mdps=BASELINE_GYRO_MDPS,
+        acc_mg=BASELINE_ACC_MG,
+        iterations=500,
+        gyro_noise_mdps=0,
+        acc_noise_mg=0,
+        seed=None,
+        throttle=0,
+        estimator="st-mahony",
+        estimator_options={},
     )
     out = tmp_path / "sim.rrd"
     log_simulation(res, out)

@@ -55,7 +55,12 @@ def _url(port: int) -> str:
 def _steval(args: list[str], env: dict, cwd: Path, timeout: float = RETURN_S) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-c", "from steval_link.cli import main; main()", *args],
-        env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
     )
 
 
@@ -82,8 +87,13 @@ def test_readme_main_job_opens_the_viewer_with_the_data_and_returns(display, tmp
         assert not ours or pids, "the spawned viewer is not running after the command returned"
         rec = viewer_recording(_url(port), timeline="ahrs_step", end=DEMO_LAST_STEP)
         assert rec.timelines["ahrs_step"] == (0, DEMO_LAST_STEP)
-        assert {"/" + ent.pitch_path("firmware"), "/" + ent.pitch_path("st_mahony_port"), "/plots/gyro_dps",
-                "/world/drone/firmware/model", "/log/firmware"} <= rec.entities
+        assert {
+            "/" + ent.pitch_path("firmware"),
+            "/" + ent.pitch_path("st_mahony_port"),
+            "/plots/gyro_dps",
+            "/world/drone/firmware/model",
+            "/log/firmware",
+        } <= rec.entities
         png = screenshot(_url(port), tmp_path / "main_job.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000  # a rendered window, not a blank one
         print(f"main job returned in {took:.1f} s; screenshot {tmp_path / 'main_job.png'}")
@@ -110,7 +120,9 @@ def test_connect_sends_to_a_running_viewer(display, tmp_path):
     port = free_port()
     viewer = subprocess.Popen(
         rerun_command() + ["--port", str(port), "--bind", "127.0.0.1", "--hide-welcome-screen"],
-        env=dict(display.env, RERUN_APP_ONLY="true"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env=dict(display.env, RERUN_APP_ONLY="true"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     try:
         deadline = time.monotonic() + 30
@@ -131,7 +143,8 @@ def test_serve_shows_the_data_and_every_stop_signal_cleans_up_the_web_viewer(dis
     web, grpc, second = free_port(), free_port(), free_port()
     proc = StevalProcess(
         ["replay", "--serve", "--web-port", str(web), "--grpc-port", str(grpc), "-e", "none"],
-        cwd=tmp_path, env=display.env,
+        cwd=tmp_path,
+        env=display.env,
     )
     client = None
     try:
@@ -143,7 +156,9 @@ def test_serve_shows_the_data_and_every_stop_signal_cleans_up_the_web_viewer(dis
         # a second client: a native viewer connected to the web viewer's gRPC proxy gets the whole recording
         client = subprocess.Popen(
             rerun_command() + ["--port", str(second), "--bind", "127.0.0.1", _url(grpc)],
-            env=dict(display.env, RERUN_APP_ONLY="true"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            env=dict(display.env, RERUN_APP_ONLY="true"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         rec = viewer_recording(_url(second), timeline="ahrs_step", end=DEMO_LAST_STEP)
         assert "/" + ent.pitch_path("firmware") in rec.entities
@@ -170,7 +185,8 @@ def test_live_default_sink_spawns_the_viewer_and_one_ctrl_c_ends(display, tmp_pa
         with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
             proc = StevalProcess(
                 ["live", "--port", str(feeder.link), "--out", str(tmp_path / "cap.stv"), "--grpc-port", str(port)],
-                cwd=tmp_path, env=display.env,
+                cwd=tmp_path,
+                env=display.env,
             )
             assert proc.wait_line("reading ", RETURN_S) is not None, proc.stderr
             feeder.start()
@@ -215,9 +231,17 @@ def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
         assert "Traceback" not in done.stderr and "BLE capture" in done.stdout
         end_ns = int(520 * 1e9)  # the drone's clock (ticks since HAL_GetTick's start at 494.288 s) reaches ~534 s
         rec = viewer_recording(_url(port), timeline="fw_time", end=end_ns)
-        assert {"/ble/acc_mg", "/ble/battery_pct", "/ble/pressure_hpa", "/ble/rssi_dbm", "/ble/armed",
-                "/world/drone/ble", "/world/drone/ble/model", "/ble/note",
-                "/" + ent.pitch_path("st_mahony")} <= rec.entities
+        assert {
+            "/ble/acc_mg",
+            "/ble/battery_pct",
+            "/ble/pressure_hpa",
+            "/ble/rssi_dbm",
+            "/ble/armed",
+            "/world/drone/ble",
+            "/world/drone/ble/model",
+            "/ble/note",
+            "/" + ent.pitch_path("st_mahony"),
+        } <= rec.entities
         png = screenshot(_url(port), tmp_path / "ble.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
     finally:

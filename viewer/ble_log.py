@@ -26,8 +26,15 @@ from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, s
 from steval_viewer.live_adapter import viewer_sink_options
 from steval_viewer.sinks import log_whole, open_session
 
-__all__ = ["ble_blueprint", "log_ble_static", "log_ble_replay", "ble_replay_sink", "BleLiveLogger",
-           "log_ble_notifications", "log_ble_estimates"]
+__all__ = [
+    "ble_blueprint",
+    "log_ble_static",
+    "log_ble_replay",
+    "ble_replay_sink",
+    "BleLiveLogger",
+    "log_ble_notifications",
+    "log_ble_estimates",
+]
 
 Progress = Callable[[float, str], None] | None
 _XYZ = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
@@ -46,8 +53,7 @@ def ble_blueprint(sources: list[str], *, live: bool = False) -> rrb.Blueprint:
         origin=ent.WORLD,
         name=f"Attitude over BLE (solid: {label} on the BLE samples, yellow: gravity from the accelerometer)",
         overrides=overrides or None,
-        eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0),
-                                       eye_up=(0.0, 0.0, 1.0)),
+        eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
 
@@ -68,8 +74,7 @@ def ble_blueprint(sources: list[str], *, live: bool = False) -> rrb.Blueprint:
         rrb.TextLogView(origin=ent.LOG_BLE_CONSOLE, name="BLE console"),
         name="Environment",
     )
-    left = rrb.Vertical(view3d, rrb.TextDocumentView(origin=ent.BLE_NOTE, name="Note"), env,
-                        row_shares=[6, 1, 3])
+    left = rrb.Vertical(view3d, rrb.TextDocumentView(origin=ent.BLE_NOTE, name="Note"), env, row_shares=[6, 1, 3])
     right = rrb.Vertical(
         rrb.Horizontal(
             series(ent.PLOT_PITCH, "thx pitch, about x (deg, nose up +)", legend=True),
@@ -92,16 +97,26 @@ def _line(rec: rr.RecordingStream, path: str, names: list[str], colors: list) ->
 def log_ble_static(rec: rr.RecordingStream, sources: list[str]) -> None:
     """The scene, the drone models, the series styles and the note."""
     rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rec.log(ent.WORLD_AXES, rr.Arrows3D(vectors=[(0.6, 0, 0), (0, 0.6, 0), (0, 0, 0.6)], colors=_XYZ, radii=0.015),
-            static=True)
+    rec.log(
+        ent.WORLD_AXES,
+        rr.Arrows3D(vectors=[(0.6, 0, 0), (0, 0.6, 0), (0, 0, 0.6)], colors=_XYZ, radii=0.015),
+        static=True,
+    )
     mesh = drone_model.quadcopter_mesh()
-    rec.log(ent.BLE_DRONE_MODEL, rr.Mesh3D(vertex_positions=mesh.positions, vertex_normals=mesh.normals,
-                                           vertex_colors=mesh.colors, triangle_indices=mesh.triangles), static=True)
+    rec.log(
+        ent.BLE_DRONE_MODEL,
+        rr.Mesh3D(
+            vertex_positions=mesh.positions,
+            vertex_normals=mesh.normals,
+            vertex_colors=mesh.colors,
+            triangle_indices=mesh.triangles,
+        ),
+        static=True,
+    )
     strips = drone_model.quadcopter_wireframe()
     for s in sources[1:]:
         r, g, b = ent.source_color(s)
-        rec.log(ent.estimate_model_path(s), rr.LineStrips3D(strips, colors=[(r, g, b, 200)], radii=0.012),
-                static=True)
+        rec.log(ent.estimate_model_path(s), rr.LineStrips3D(strips, colors=[(r, g, b, 200)], radii=0.012), static=True)
     rec.log(ent.BLE_GRAVITY, rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03]), static=True)
     for s in sources:
         c = ent.source_color(s)
@@ -110,9 +125,14 @@ def log_ble_static(rec: rr.RecordingStream, sources: list[str]) -> None:
     _line(rec, ent.BLE_ACC, ["acc x right", "acc y forward", "acc z up"], _XYZ)
     _line(rec, ent.BLE_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], _XYZ)
     _line(rec, ent.BLE_MAG, ["mag x", "mag y", "mag z"], _XYZ)
-    for path, name in ((ent.BLE_BATTERY, "battery %"), (ent.BLE_PRESSURE, "pressure hPa"),
-                       (ent.BLE_RSSI, "RSSI dBm"), (ent.BLE_ARMED, "armed"),
-                       (ent.BLE_TEMPERATURE, "temperature °C"), (ent.BLE_RATE, "motion notifications/s")):
+    for path, name in (
+        (ent.BLE_BATTERY, "battery %"),
+        (ent.BLE_PRESSURE, "pressure hPa"),
+        (ent.BLE_RSSI, "RSSI dBm"),
+        (ent.BLE_ARMED, "armed"),
+        (ent.BLE_TEMPERATURE, "temperature °C"),
+        (ent.BLE_RATE, "motion notifications/s"),
+    ):
         _line(rec, path, [name], [(120, 200, 255)])
     rec.log(ent.BLE_NOTE, rr.TextDocument(NOT_BIT_EXACT), static=True)
 
@@ -127,52 +147,67 @@ def _rate_bins(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ends, counts.astype(np.float64)
 
 
-def log_ble_notifications(rec: rr.RecordingStream, ble: BleTelemetry, t_motion: np.ndarray,
-                          counts: dict[str, int]) -> None:
+def log_ble_notifications(
+    rec: rr.RecordingStream, ble: BleTelemetry, t_motion: np.ndarray, counts: dict[str, int]
+) -> None:
     """The notifications' values: raw sensors and gravity arrow (motion rows at ``t_motion``, drone s), environment,
     arming, console."""
     n = len(ble)
     mt = Times(t_motion, ble.motion_t_host_s)
     acc = np.asarray(ble.acc_mg, np.float64)
     if n:
-        for path, v in ((ent.BLE_ACC, acc), (ent.BLE_GYRO, np.asarray(ble.gyro_mdps, np.float64) / 1000.0),
-                        (ent.BLE_MAG, np.asarray(ble.mag_mgauss, np.float64))):
+        for path, v in (
+            (ent.BLE_ACC, acc),
+            (ent.BLE_GYRO, np.asarray(ble.gyro_mdps, np.float64) / 1000.0),
+            (ent.BLE_MAG, np.asarray(ble.mag_mgauss, np.float64)),
+        ):
             send_scalars(rec, path, mt, v)
             counts[path] = counts.get(path, 0) + n
         with np.errstate(invalid="ignore"):
             send_arrows(rec, ent.BLE_GRAVITY, mt, -acc / 1000.0)
     et = Times(ble.env_t_fw_s, ble.env_t_host_s)
-    for path, v in ((ent.BLE_PRESSURE, ble.pressure_hpa), (ent.BLE_BATTERY, ble.battery_pct),
-                    (ent.BLE_TEMPERATURE, ble.temperature_c), (ent.BLE_RSSI, ble.rssi_dbm)):
+    for path, v in (
+        (ent.BLE_PRESSURE, ble.pressure_hpa),
+        (ent.BLE_BATTERY, ble.battery_pct),
+        (ent.BLE_TEMPERATURE, ble.temperature_c),
+        (ent.BLE_RSSI, ble.rssi_dbm),
+    ):
         if len(v):
             send_scalars(rec, path, et, np.asarray(v, np.float64))
             counts[path] = counts.get(path, 0) + len(v)
     if len(ble.armed):
-        send_scalars(rec, ent.BLE_ARMED, Times(ble.arming_t_fw_s, ble.arming_t_host_s),
-                     ble.armed.astype(np.float64))
+        send_scalars(rec, ent.BLE_ARMED, Times(ble.arming_t_fw_s, ble.arming_t_host_s), ble.armed.astype(np.float64))
         counts[ent.BLE_ARMED] = counts.get(ent.BLE_ARMED, 0) + len(ble.armed)
     if ble.console:
         th = np.array([c[0] for c in ble.console], np.float64)
         tf = np.interp(th, ble.motion_t_host_s, t_motion) if n > 1 else th
         texts = [f"[{c[1]}] {c[2]}" for c in ble.console]
         levels = ["WARN" if c[1] == "stderr" else "INFO" for c in ble.console]
-        send_rows(rec, ent.LOG_BLE_CONSOLE, Times(tf, th),
-                  lambda idx: rr.TextLog.columns(text=texts if idx is None else [texts[j] for j in idx],
-                                                 level=levels if idx is None else [levels[j] for j in idx]))
+        send_rows(
+            rec,
+            ent.LOG_BLE_CONSOLE,
+            Times(tf, th),
+            lambda idx: rr.TextLog.columns(
+                text=texts if idx is None else [texts[j] for j in idx],
+                level=levels if idx is None else [levels[j] for j in idx],
+            ),
+        )
         counts[ent.LOG_BLE_CONSOLE] = counts.get(ent.LOG_BLE_CONSOLE, 0) + len(texts)
 
 
-def log_ble_estimates(rec: rr.RecordingStream, times: Times, estimates: dict[str, tuple],
-                      counts: dict[str, int]) -> None:
+def log_ble_estimates(
+    rec: rr.RecordingStream, times: Times, estimates: dict[str, tuple], counts: dict[str, int]
+) -> None:
     """Estimates on the estimators' grid: name → (q_wxyz (N,4), thx_rad, thy_rad, valid or None); the first one
     moves the solid drone, the others their ghosts."""
     for i, (name, (q, thx, thy, valid)) in enumerate(estimates.items()):
         s = ent.source_name(name)
         valid = np.ones(len(times), bool) if valid is None else np.asarray(valid, bool)
-        send_transforms(rec, ent.BLE_DRONE if i == 0 else ent.estimate_path(s), times,
-                        np.asarray(q, np.float64), valid)
-        for path, v in ((ent.pitch_path(s), np.degrees(np.asarray(thx, np.float64))),
-                        (ent.roll_path(s), np.degrees(np.asarray(thy, np.float64)))):
+        send_transforms(rec, ent.BLE_DRONE if i == 0 else ent.estimate_path(s), times, np.asarray(q, np.float64), valid)
+        for path, v in (
+            (ent.pitch_path(s), np.degrees(np.asarray(thx, np.float64))),
+            (ent.roll_path(s), np.degrees(np.asarray(thy, np.float64))),
+        ):
             send_scalars(rec, path, times, v, valid)
             counts[path] = counts.get(path, 0) + int(valid.sum())
 
@@ -184,8 +219,9 @@ def _host_of(t_s: np.ndarray, ble: BleTelemetry, t_motion: np.ndarray) -> np.nda
     return np.interp(t_s, t_motion, ble.motion_t_host_s)
 
 
-def log_ble_replay(rec: rr.RecordingStream, replay: BleReplay, *, blueprint: bool = True,
-                   progress: Progress = None) -> dict[str, int]:
+def log_ble_replay(
+    rec: rr.RecordingStream, replay: BleReplay, *, blueprint: bool = True, progress: Progress = None
+) -> dict[str, int]:
     """Log a whole BLE replay; returns samples logged per entity path."""
     ble, inp = replay.ble, replay.inputs
     sources = [ent.source_name(n) for n in replay.estimates]
@@ -205,8 +241,7 @@ def log_ble_replay(rec: rr.RecordingStream, replay: BleReplay, *, blueprint: boo
     if progress is not None:
         progress(0.5, "logging the estimators")
     gt = Times(inp.t_s, _host_of(inp.t_s, ble, t_motion))
-    ests = {name: (e.q_wxyz, e.thx_rad, e.thy_rad, getattr(e, "valid", None))
-            for name, e in replay.estimates.items()}
+    ests = {name: (e.q_wxyz, e.thx_rad, e.thy_rad, getattr(e, "valid", None)) for name, e in replay.estimates.items()}
     log_ble_estimates(rec, gt, ests, counts)
     return counts
 
@@ -229,8 +264,9 @@ class BleLiveLogger:
         log_ble_notifications(self.rec, ble, t_motion, self.counts)
         if len(rows.t_s):
             times = Times(rows.t_s, _host_of(rows.t_s, ble, t_motion))
-            log_ble_estimates(self.rec, times, {k: (q, x, y, None) for k, (q, x, y) in rows.estimates.items()},
-                              self.counts)
+            log_ble_estimates(
+                self.rec, times, {k: (q, x, y, None) for k, (q, x, y) in rows.estimates.items()}, self.counts
+            )
 
     def close(self) -> None:
         self.session.close()
@@ -245,8 +281,9 @@ def ble_replay_sink(options: Any, *, progress: Progress = None) -> Callable[[Ble
         name = f"steval replay {Path(path).name}" if path else "steval replay (BLE)"
 
         def log(rec):
-            counts = log_ble_replay(rec, replay,
-                                    progress=None if progress is None else (lambda f, s="": progress(0.6 * f, s)))
+            counts = log_ble_replay(
+                rec, replay, progress=None if progress is None else (lambda f, s="": progress(0.6 * f, s))
+            )
             if progress is not None:
                 progress(0.6, "writing to Rerun")
             return counts

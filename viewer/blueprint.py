@@ -55,8 +55,18 @@ def axis_limit(max_abs: float) -> float | None:
     return 10.0 ** (k + 1)  # pragma: no cover - the loop always returns
 
 
-def _series(origin: str, name: str, live: bool, timeline: str, contents=None, y_range=None, *,
-            legend: bool = True, legend_bottom: bool = False, legend_left: bool = False) -> rrb.TimeSeriesView:
+def _series(
+    origin: str,
+    name: str,
+    live: bool,
+    timeline: str,
+    contents=None,
+    y_range=None,
+    *,
+    legend: bool = True,
+    legend_bottom: bool = False,
+    legend_left: bool = False,
+) -> rrb.TimeSeriesView:
     """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
     kwargs = {}
     if y_range is not None:
@@ -101,9 +111,7 @@ def make_blueprint(
         origin=ent.WORLD,
         name="Attitude (solid: firmware, ghost: host estimate, yellow: gravity from the accelerometer)",
         overrides=overrides or None,
-        eye_controls=rrb.EyeControls3D(
-            position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)
-        ),
+        eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
     link = rrb.Tabs(
@@ -117,8 +125,7 @@ def make_blueprint(
                 contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
                 legend_left=True,
             ),
-            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean, min)", live, timeline,
-                    legend=False),
+            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean, min)", live, timeline, legend=False),
             _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
@@ -139,8 +146,9 @@ def make_blueprint(
         ),
         rrb.Horizontal(
             _series(ent.PLOT_ACC, "accelerometer (mg)", live, timeline, legend_bottom=True),
-            _series(ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps),
-                    legend_bottom=True),
+            _series(
+                ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps), legend_bottom=True
+            ),
             _series(ent.PLOT_THROTTLE, "throttle gTHR", live, timeline, legend=False),
             column_shares=[2, 2, 1],
         ),
@@ -170,17 +178,34 @@ def flight_view(live: bool, timeline: str) -> rrb.Vertical:
     the four motor commands, the sticks and the battery."""
     fw = ent.SOURCE_FIRMWARE
     targets = rrb.Horizontal(
-        _series("/", "pitch thx, about x: target vs firmware (deg, nose up +)", live, timeline,
-                contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"]),
-        _series("/", "roll thy, about y: target vs firmware (deg, right side down +)", live, timeline,
-                contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"]),
-        _series("/", "yaw thz: target vs firmware (deg)", live, timeline,
-                contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]),
+        _series(
+            "/",
+            "pitch thx, about x: target vs firmware (deg, nose up +)",
+            live,
+            timeline,
+            contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"],
+        ),
+        _series(
+            "/",
+            "roll thy, about y: target vs firmware (deg, right side down +)",
+            live,
+            timeline,
+            contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
+        ),
+        _series(
+            "/",
+            "yaw thz: target vs firmware (deg)",
+            live,
+            timeline,
+            contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"],
+        ),
     )
-    outer = rrb.Horizontal(*[
-        _series(path, f"outer {name}: s1, P, I (rad/s)", live, timeline)
-        for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
-    ])
+    outer = rrb.Horizontal(
+        *[
+            _series(path, f"outer {name}: s1, P, I (rad/s)", live, timeline)
+            for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
+        ]
+    )
     out = rrb.Horizontal(
         _series(ent.FC_INNER, "inner loop s2 (PWM counts)", live, timeline, legend_bottom=True),
         _series(ent.FC_MOTORS, "motors (TIM4 counts of 2000)", live, timeline, legend_bottom=True),

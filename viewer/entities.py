@@ -107,6 +107,7 @@ def motor_path(number: int) -> str:
     """The thrust arrow of motor ``number`` (1..4) on the firmware drone."""
     return f"{DRONE_MOTORS}/m{number}"
 
+
 BLE = "ble"
 BLE_DRONE = "world/drone/ble"
 BLE_DRONE_MODEL = "world/drone/ble/model"

@@ -61,15 +61,24 @@ def log_flight_static(rec: rr.RecordingStream) -> None:
             _line(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
     _line(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], _AXIS_COLORS)
     _line(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
-    _line(rec, ent.FC_STICKS, ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
-          [*_AXIS_COLORS, (127, 127, 127)])
+    _line(
+        rec,
+        ent.FC_STICKS,
+        ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
+        [*_AXIS_COLORS, (127, 127, 127)],
+    )
     _line(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
     pos = drone_model.firmware_motor_positions()
     for m, p, color in zip(MOTORS, pos, _MOTOR_COLORS):
         rec.log(
             ent.motor_path(m.number),
-            rr.Arrows3D.from_fields(origins=[p + (0.0, 0.0, drone_model.PROP_Z)], colors=[color], radii=[0.035],
-                                    labels=[f"M{m.number}"], show_labels=True),  # vectors over time
+            rr.Arrows3D.from_fields(
+                origins=[p + (0.0, 0.0, drone_model.PROP_Z)],
+                colors=[color],
+                radii=[0.035],
+                labels=[f"M{m.number}"],
+                show_labels=True,
+            ),  # vectors over time
             static=True,
         )
 
@@ -101,8 +110,12 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = 
     for k, m in enumerate(MOTORS):
         v = np.zeros((len(mp), 3), np.float32)
         v[:, 2] = frac[:, k]
-        send_rows(rec, ent.motor_path(m.number), times,
-                  lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]))
+        send_rows(
+            rec,
+            ent.motor_path(m.number),
+            times,
+            lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]),
+        )
     if summary is not None:
         summary.samples[ent.FC_MOTORS] = len(fc)
     return len(fc)

@@ -27,9 +27,7 @@ class ViewerLogger:
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
-        self.session = sinks.open_session(
-            viewer_sink_options(options), recording_name=recording_name, split_file=True
-        )
+        self.session = sinks.open_session(viewer_sink_options(options), recording_name=recording_name, split_file=True)
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:

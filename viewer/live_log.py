@@ -86,7 +86,10 @@ class LiveLogger:
         segs = list(dict.fromkeys(self.sources.values()))
         if blueprint:
             bp.send_blueprint(
-                rec, live=True, ghost_sources=segs, ghost=None if ghost is None else live_source(ghost),
+                rec,
+                live=True,
+                ghost_sources=segs,
+                ghost=None if ghost is None else live_source(ghost),
                 flight_control=True,
             )
         scene.log_static(rec, segs, with_port=ent.SOURCE_PORT in segs)
@@ -154,20 +157,32 @@ class LiveLogger:
             q = q.astype(np.float64)
             q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(batch.thz_rad)[rows])
         acc = np.asarray(batch.acc_mg, dtype=np.float64)
-        bad = attitude_rows_bad(exact if exact is not None else np.ones(n, bool), batch.acc_mg, batch.gyro_mdps,
-                                batch.q_wxyz, batch.thz_rad, getattr(batch, "thx_rad", thx),
-                                getattr(batch, "thy_rad", thy))
+        bad = attitude_rows_bad(
+            exact if exact is not None else np.ones(n, bool),
+            batch.acc_mg,
+            batch.gyro_mdps,
+            batch.q_wxyz,
+            batch.thz_rad,
+            getattr(batch, "thx_rad", thx),
+            getattr(batch, "thy_rad", thy),
+        )
         q3d = q
         if bad.any():  # the firmware's filter output is NaN or off range: the 3D drone stays where it was
             q3d = np.where(bad[:, None], np.nan, q)
             if not self._values_bad_noted:
                 self._values_bad_noted = True
                 i = int(np.argmax(bad))
-                sentence = (f"the firmware's values are NaN or out of range from step {int(step[i])} on "
-                            f"(t = {float(times.t_fw_s[i]):.3f} s), as sent")
+                sentence = (
+                    f"the firmware's values are NaN or out of range from step {int(step[i])} on "
+                    f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
+                )
                 text = values_bad_note(sentence, self._good_before(step, bad, i))
-                send_rows(rec, ent.LOG_FILTER, times.take(np.array([i])),
-                          lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]))
+                send_rows(
+                    rec,
+                    ent.LOG_FILTER,
+                    times.take(np.array([i])),
+                    lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]),
+                )
         good_rows = np.flatnonzero(~bad)
         if good_rows.size:
             self._last_good_step = int(step[good_rows[-1]])
@@ -329,7 +344,9 @@ class LiveLogger:
             return
         self._last_link_s = t_unix_s
         self._queue_row(
-            ent.LINK_CRC, float(times.t_fw_s[0]), float(times.t_host_s[0]) if times.t_host_s is not None else math.nan,
+            ent.LINK_CRC,
+            float(times.t_fw_s[0]),
+            float(times.t_host_s[0]) if times.t_host_s is not None else math.nan,
             (float(getattr(stats, "crc_failures", 0)),),
         )
 

@@ -105,8 +105,11 @@ def display_quaternions(att: Any) -> np.ndarray:
 
 def values_bad_note(sentence: str, last_good_step: int | None) -> str:
     """The viewer's note at the first row with bad values: the summary's sentence and where the 3D drone stays."""
-    where = ("at its last finite attitude (step " + str(last_good_step) + ")" if last_good_step is not None
-             else "without an attitude (no finite one before)")
+    where = (
+        "at its last finite attitude (step " + str(last_good_step) + ")"
+        if last_good_step is not None
+        else "without an attitude (no finite one before)"
+    )
     return f"{sentence}; the 3D drone stays {where}"
 
 
@@ -122,8 +125,9 @@ def log_values_bad(rec: rr.RecordingStream, times: Times, tel: Any, summary: Rep
     good = np.flatnonzero(np.isfinite(q).all(axis=1))
     last = int(np.asarray(att.step)[good[-1]]) if good.size else None
     text = values_bad_note(rep["text"], last)
-    send_rows(rec, ent.LOG_FILTER, times.take(np.array([i])),
-              lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]))
+    send_rows(
+        rec, ent.LOG_FILTER, times.take(np.array([i])), lambda sel: rr.TextLog.columns(text=[text], level=["WARN"])
+    )
     summary.samples[ent.LOG_FILTER] = 1
 
 
@@ -276,9 +280,15 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     if times.t_host_s is not None and np.isfinite(times.t_host_s).any() and np.isfinite(t_host).all():
         pairs = np.isfinite(times.t_host_s)
         t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
-        send_rows(rec, ent.LOG_COMMANDS, Times(t_fw, t_host),
-                  lambda sel: rr.TextLog.columns(text=texts if sel is None else [texts[i] for i in sel],
-                                                 level=levels if sel is None else [levels[i] for i in sel]))
+        send_rows(
+            rec,
+            ent.LOG_COMMANDS,
+            Times(t_fw, t_host),
+            lambda sel: rr.TextLog.columns(
+                text=texts if sel is None else [texts[i] for i in sel],
+                level=levels if sel is None else [levels[i] for i in sel],
+            ),
+        )
     else:
         for text, level in zip(texts, levels):
             rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))
@@ -369,8 +379,9 @@ def firmware_port(tel: Any) -> Any | None:
     return replay_firmware(tel)
 
 
-def log_telemetry(rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *,
-                  progress: Progress = None) -> ReplaySummary:
+def log_telemetry(
+    rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
+) -> ReplaySummary:
     """Replay entry point used by ``steval replay``: runs the seeded firmware port and logs it with ``estimates``.
 
     A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the port, which is the
@@ -396,8 +407,12 @@ def replay_sink(options: Any, *, recording_name: str | None = None, progress: Pr
         name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
 
         def log(rec):
-            log_telemetry(rec, tel, estimates,
-                          progress=None if progress is None else (lambda f, stage="": progress(0.6 * f, stage)))
+            log_telemetry(
+                rec,
+                tel,
+                estimates,
+                progress=None if progress is None else (lambda f, stage="": progress(0.6 * f, stage)),
+            )
             _report(progress, 0.6, "writing to Rerun")
 
         log_whole(options, name, log)

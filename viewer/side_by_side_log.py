@@ -26,8 +26,16 @@ from steval_link.analysis.side_by_side import SideBySide, difference_series, for
 from steval_viewer import drone_model
 from steval_viewer.sinks import log_whole
 
-__all__ = ["TIMELINE", "ROOT", "NOTES", "flight_key", "flight_path", "side_by_side_blueprint", "log_side_by_side",
-           "side_by_side_sink"]
+__all__ = [
+    "TIMELINE",
+    "ROOT",
+    "NOTES",
+    "flight_key",
+    "flight_path",
+    "side_by_side_blueprint",
+    "log_side_by_side",
+    "side_by_side_sink",
+]
 
 TIMELINE = "aligned_time"
 ROOT = "flights"
@@ -56,9 +64,12 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
     n = len(labels)
 
     def series(name: str, leaves: list[str]) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=ROOT, name=name,
-                                  contents=[f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves],
-                                  plot_legend=rrb.PlotLegend(visible=True))
+        return rrb.TimeSeriesView(
+            origin=ROOT,
+            name=name,
+            contents=[f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves],
+            plot_legend=rrb.PlotLegend(visible=True),
+        )
 
     plots = rrb.Vertical(
         series("pitch thx (about x, nose up +), deg", ["pitch_thx_deg", "accel_pitch_thx_deg"]),
@@ -86,8 +97,11 @@ def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarra
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if not good.any():
         return 0
-    rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])],
-                     columns=rr.Scalars.columns(scalars=v[good]))
+    rec.send_columns(
+        path,
+        indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])],
+        columns=rr.Scalars.columns(scalars=v[good]),
+    )
     return int(good.sum())
 
 
@@ -124,24 +138,36 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         counts[path] = _send(rec, path, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0)
         if i:
             t, dx, dy = difference_series(ref, f)
-            for leaf, what, values, w in (("diff_pitch_thx_deg", "pitch", dx, 2.0), ("diff_roll_thy_deg", "roll",
-                                                                                   dy, 1.0)):
+            for leaf, what, values, w in (
+                ("diff_pitch_thx_deg", "pitch", dx, 2.0),
+                ("diff_roll_thy_deg", "roll", dy, 1.0),
+            ):
                 path = flight_path(i, leaf)
                 _style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
                 counts[path] = _send(rec, path, t, values)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log(f"{world}/drone/model", rr.Mesh3D(vertex_positions=mesh.positions, vertex_normals=mesh.normals,
-                                                  vertex_colors=mesh.colors, triangle_indices=mesh.triangles),
-                static=True)
+        rec.log(
+            f"{world}/drone/model",
+            rr.Mesh3D(
+                vertex_positions=mesh.positions,
+                vertex_normals=mesh.normals,
+                vertex_colors=mesh.colors,
+                triangle_indices=mesh.triangles,
+            ),
+            static=True,
+        )
         q = np.asarray(f.q_wxyz, np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             norm = np.sqrt((q * q).sum(axis=1))
             good = np.isfinite(norm) & (norm > 1e-6)
             xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
         if good.any():
-            rec.send_columns(f"{world}/drone", indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
-                             columns=rr.Transform3D.columns(quaternion=xyzw[good]))
+            rec.send_columns(
+                f"{world}/drone",
+                indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
+                columns=rr.Transform3D.columns(quaternion=xyzw[good]),
+            )
         counts[f"{world}/drone"] = int(good.sum())
     text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)

@@ -304,8 +304,10 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
     deadline = time.monotonic() + settle_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
-            raise UserError(f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                            f"{log_path}); use --rrd FILE or --serve instead")
+            raise UserError(
+                f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
+                f"{log_path}); use --rrd FILE or --serve instead"
+            )
         time.sleep(0.05)
 
 

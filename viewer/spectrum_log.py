@@ -52,8 +52,9 @@ def _label(name: str) -> str:
 
 
 def _grid(kind: str, view, title: str) -> rrb.Grid:
-    return rrb.Grid(*(view(_path(kind, name), f"{title}: {_label(name)}") for name, _, _ in SIGNALS),
-                    grid_columns=3, name=title)
+    return rrb.Grid(
+        *(view(_path(kind, name), f"{title}: {_label(name)}") for name, _, _ in SIGNALS), grid_columns=3, name=title
+    )
 
 
 def _bars(origin: str, name: str) -> rrb.BarChartView:
@@ -62,7 +63,8 @@ def _bars(origin: str, name: str) -> rrb.BarChartView:
 
 def _heat(origin: str, name: str) -> rrb.TensorView:
     return rrb.TensorView(
-        origin=origin, name=name,
+        origin=origin,
+        name=name,
         slice_selection=rrb.TensorSliceSelection(
             width=rr.encodings.TensorDimensionSelection(dimension=1, invert=False),
             height=rr.encodings.TensorDimensionSelection(dimension=0, invert=True),
@@ -82,8 +84,9 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
         rrb.Horizontal(
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR",
-                               plot_legend=rrb.PlotLegend(visible=False)),
+            rrb.TimeSeriesView(
+                origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=rrb.PlotLegend(visible=False)
+            ),
         ),
         row_shares=[3, 1],
         name="Spectrum at the cursor",
@@ -128,8 +131,10 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     for w, t in enumerate(sp.window_t_fw_s):
         rec.set_time(ent.TIMELINE_FW, duration=float(t))
         for k, (name, _, axis) in enumerate(SIGNALS):
-            rec.log(_path("window", name), rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f,
-                                                       color=_COLOURS["xyz"[axis]]))
+            rec.log(
+                _path("window", name),
+                rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f, color=_COLOURS["xyz"[axis]]),
+            )
     rec.reset_time()
     for name, _, _ in SIGNALS:
         counts[_path("window", name)] = len(sp.window_t_fw_s)
@@ -137,18 +142,26 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
     for sensor, values in (("gyro", att.gyro_mdps), ("acc", att.acc_mg)):
         path = f"{ROOT}/signal/{sensor}"
-        rec.log(path, rr.SeriesLines(names=[f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"],
-                                     colors=[_COLOURS[a] for a in "xyz"]), static=True)
+        rec.log(
+            path,
+            rr.SeriesLines(
+                names=[f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"], colors=[_COLOURS[a] for a in "xyz"]
+            ),
+            static=True,
+        )
         send_scalars(rec, path, times, np.asarray(values, dtype=np.float64))
         counts[path] = len(times)
     send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
     text = "\n".join(f"- {line}" if i else f"**{line}**" for i, line in enumerate(notes))
     edges = sp.thr_edges
-    bins = ", ".join(f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})"
-                     for b in np.flatnonzero(sp.thr_windows))
-    text += (f"\n\nBar charts: frequency 0 … {sp.nyquist_hz:.2f} Hz (the AHRS Nyquist) along x, PSD in dB. Heat maps: "
-             f"frequency up (bin {sp.resolution_hz:.2f} Hz), windows of {sp.nperseg} rows or throttle bins to the "
-             f"right. Throttle bins holding windows (gTHR range (windows)): {bins or 'none'}.")
+    bins = ", ".join(
+        f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})" for b in np.flatnonzero(sp.thr_windows)
+    )
+    text += (
+        f"\n\nBar charts: frequency 0 … {sp.nyquist_hz:.2f} Hz (the AHRS Nyquist) along x, PSD in dB. Heat maps: "
+        f"frequency up (bin {sp.resolution_hz:.2f} Hz), windows of {sp.nperseg} rows or throttle bins to the "
+        f"right. Throttle bins holding windows (gTHR range (windows)): {bins or 'none'}."
+    )
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
     counts[NOTES] = len(notes)
     return counts

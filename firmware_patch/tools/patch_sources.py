@@ -45,8 +45,10 @@ def new_file_diff(path: str, data: bytes) -> str:
     body = "".join("+" + ln for ln in lines)
     if lines and not lines[-1].endswith("\n"):
         body += "\n\\ No newline at end of file\n"
-    return (f"diff --git a/{path} b/{path}\nnew file mode 100644\n--- /dev/null\n+++ b/{path}\n"
-            f"@@ -0,0 +1,{len(lines)} @@\n{body}")
+    return (
+        f"diff --git a/{path} b/{path}\nnew file mode 100644\n--- /dev/null\n+++ b/{path}\n"
+        f"@@ -0,0 +1,{len(lines)} @@\n{body}"
+    )
 
 
 def added(text: str) -> dict[str, bytes]:
@@ -73,8 +75,9 @@ def main(argv: list[str]) -> int:
     text = PATCH.read_text(encoding="utf-8")
     if "--check" in argv:
         if added(text) != sources():
-            print(f"{PATCH.name}: the added files differ from src/ (run: make -C firmware_patch patch)",
-                  file=sys.stderr)
+            print(
+                f"{PATCH.name}: the added files differ from src/ (run: make -C firmware_patch patch)", file=sys.stderr
+            )
             return 1
         return 0
     new = rebuild(text)

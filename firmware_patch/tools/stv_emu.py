@@ -25,8 +25,18 @@ def missing_tools() -> str | None:
         return "arm-none-eabi-gcc is not installed (Debian: apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi)"
     if shutil.which("make") is None:
         return "make is not installed"
-    libc = subprocess.run(["arm-none-eabi-gcc", "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard",
-                           "-mfpu=fpv4-sp-d16", "-print-file-name=libc_nano.a"], capture_output=True, text=True)
+    libc = subprocess.run(
+        [
+            "arm-none-eabi-gcc",
+            "-mcpu=cortex-m4",
+            "-mthumb",
+            "-mfloat-abi=hard",
+            "-mfpu=fpv4-sp-d16",
+            "-print-file-name=libc_nano.a",
+        ],
+        capture_output=True,
+        text=True,
+    )
     if "/" not in libc.stdout:
         return "newlib-nano for arm-none-eabi is not installed (Debian: apt-get install libnewlib-arm-none-eabi)"
     try:
@@ -49,7 +59,7 @@ def build_emu(build_dir: Path) -> Path:
 def _load_segments(elf: bytes) -> list[tuple[int, bytes]]:
     """(address, bytes) of each PT_LOAD segment of a 32-bit little-endian ELF, at its run (virtual) address."""
     assert elf[:4] == b"\x7fELF" and elf[4] == 1 and elf[5] == 1, "not a 32-bit little-endian ELF"
-    e_phoff, = struct.unpack_from("<I", elf, 28)
+    (e_phoff,) = struct.unpack_from("<I", elf, 28)
     e_phentsize, e_phnum = struct.unpack_from("<HH", elf, 42)
     out = []
     for i in range(e_phnum):
@@ -151,7 +161,7 @@ class TargetEncoder:
         mu.hook_add(UC_HOOK_CODE, hook)
         halt = s["emu_halt"] & ~1
         mu.emu_start(s[entry] | 1, halt, count=50_000_000)
-        n_out, = struct.unpack("<I", mu.mem_read(s["emu_out_len"], 4))
-        rc, = struct.unpack("<i", mu.mem_read(s["emu_rc"], 4))
+        (n_out,) = struct.unpack("<I", mu.mem_read(s["emu_out_len"], 4))
+        (rc,) = struct.unpack("<i", mu.mem_read(s["emu_rc"], 4))
         out = bytes(mu.mem_read(s["emu_out"], n_out))
         return EmuResult(output=out, rc=rc, instructions_total=state["total"], calls=calls)

@@ -28,14 +28,23 @@ from steval_link.link.ble_payloads import (
     uniform_inputs,
 )
 
-__all__ = ["NOT_BIT_EXACT", "BleReplay", "load_ble", "reconnect_rows", "run_ble_estimators", "summarize_ble",
-           "format_ble_summary"]
+__all__ = [
+    "NOT_BIT_EXACT",
+    "BleReplay",
+    "load_ble",
+    "reconnect_rows",
+    "run_ble_estimators",
+    "summarize_ble",
+    "format_ble_summary",
+]
 
-NOT_BIT_EXACT = ("BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
-                 "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
-                 "the 8 ms ticks, "
-                 "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
-                 "estimators' own.")
+NOT_BIT_EXACT = (
+    "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
+    "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
+    "the 8 ms ticks, "
+    "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
+    "estimators' own."
+)
 
 
 @dataclass
@@ -56,8 +65,9 @@ def load_ble(src) -> BleTelemetry:
     ble = decode_notifications(ble_records(src.chunks or {}))
     if len(ble) == 0:
         n = sum(ble.counts.values())
-        raise UserError(f"{src.path}: a BLE capture without motion notifications ({n} other notifications): "
-                        "nothing to replay.")
+        raise UserError(
+            f"{src.path}: a BLE capture without motion notifications ({n} other notifications): nothing to replay."
+        )
     ble.motion_breaks = reconnect_rows(ble, getattr(src, "events", None) or [])
     return ble
 
@@ -104,8 +114,9 @@ def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -
     cadence = inputs.cadence if inputs is not None and inputs.cadence is not None else ble.cadence()
     interval = cadence.interval_s if cadence is not None else None
     wraps = int((ble.motion_tick[-1] // TICK_WRAP) - (ble.motion_tick[0] // TICK_WRAP)) if len(ble) else 0
-    events = [{"t_host_s": round(e.t_host_s, 6), "kind": e.kind, "text": e.text}
-              for e in getattr(src, "events", []) or []]
+    events = [
+        {"t_host_s": round(e.t_host_s, 6), "kind": e.kind, "text": e.text} for e in getattr(src, "events", []) or []
+    ]
 
     def stat(v: np.ndarray, how) -> float | None:
         v = np.asarray(v, dtype=np.float64)
@@ -163,8 +174,10 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
         lines.append(f"cadence           {s['motion_cadence_text']}")
     if s["estimator_dt_ms"]:
         held = s["rows_held_over_drops"]
-        lines.append(f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the cadence; "
-                     + (f"{held} rows held over dropped notifications" if held else "no rows held (nothing dropped)"))
+        lines.append(
+            f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the cadence; "
+            + (f"{held} rows held over dropped notifications" if held else "no rows held (nothing dropped)")
+        )
     env = []
     if s["pressure_hpa_mean"] is not None:
         env.append(f"pressure {s['pressure_hpa_mean']:.2f} hPa")
@@ -176,13 +189,15 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
         env.append(f"RSSI {s['rssi_dbm_mean']:.1f} dBm")
     if env:
         lines.append("environment       " + ", ".join(env))
-    lines.append(f"arming            armed in {s['armed_notifications']} of {s['notifications']['arming']} "
-                 "notifications")
+    lines.append(
+        f"arming            armed in {s['armed_notifications']} of {s['notifications']['arming']} notifications"
+    )
     if s["bad_payloads"] or s["unknown_characteristics"]:
-        lines.append(f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
-                     "unknown-characteristic notifications")
+        lines.append(
+            f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
+            "unknown-characteristic notifications"
+        )
     for e in s["events"]:
         lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
     lines.append("note              " + s["note"])
     return lines
-

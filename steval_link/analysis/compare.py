@@ -68,8 +68,7 @@ def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "
     valid = np.asarray(valid, bool) & np.isfinite(thx) & np.isfinite(thy)
     dx = np.where(valid, angle_diff_rad(thx, fw_thx), np.nan)
     dy = np.where(valid, angle_diff_rad(thy, fw_thy), np.nan)
-    return TraceComparison(name, label, True, AngleStats.of(dx), AngleStats.of(dy), int(np.count_nonzero(~valid)),
-                           note)
+    return TraceComparison(name, label, True, AngleStats.of(dx), AngleStats.of(dy), int(np.count_nonzero(~valid)), note)
 
 
 def _unavailable(name: str, note: str) -> TraceComparison:
@@ -141,8 +140,11 @@ def compare_capture(
     nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
-        why = ("its filter output is NaN or out of range, see above" if values_bad
-               else "asin out of range at extreme rates")
+        why = (
+            "its filter output is NaN or out of range, see above"
+            if values_bad
+            else "asin out of range at extreme rates"
+        )
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
     truth = truth_section(tel, rep, prow, estimates)
@@ -201,6 +203,10 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     for name, est in estimates.items():
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)
-    return {"source": "capture chunks T", "steps_matched": int(hit.sum()), "movement_steps": int(movement.sum()),
-            "metric": "inclination RMSE over movement steps, degrees",
-            "rmse_deg": {k: json_number(v) for k, v in out.items()}}
+    return {
+        "source": "capture chunks T",
+        "steps_matched": int(hit.sum()),
+        "movement_steps": int(movement.sum()),
+        "metric": "inclination RMSE over movement steps, degrees",
+        "rmse_deg": {k: json_number(v) for k, v in out.items()},
+    }

@@ -69,17 +69,31 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     ex = np.asarray(s.exact, bool) if len(s) else np.zeros(0, bool)
     if len(s) and not ex.any():
         ki = float(s.ki[-1])
-        return {"from": "text-mode status lines", "ki": json_number(ki), "flags": int(s.flags[-1]),
-                "differs_from_defaults": {} if not math.isfinite(ki) or np.float32(ki) == np.float32(C.KI)
-                else {"ki": [json_number(ki), C.KI]}, "changes": 0}
+        return {
+            "from": "text-mode status lines",
+            "ki": json_number(ki),
+            "flags": int(s.flags[-1]),
+            "differs_from_defaults": {}
+            if not math.isfinite(ki) or np.float32(ki) == np.float32(C.KI)
+            else {"ki": [json_number(ki), C.KI]},
+            "changes": 0,
+        }
     # a snapshot holding NaN (a diverged filter) still reports the build's settings; non-finite settings do not
-    ex = ex & np.isfinite(np.asarray(s.kp_ground, np.float64)) & np.isfinite(np.asarray(s.kp_flight, np.float64)) \
-        & np.isfinite(np.asarray(s.ki, np.float64)) & np.isfinite(np.asarray(s.dt_s, np.float64))
+    ex = (
+        ex
+        & np.isfinite(np.asarray(s.kp_ground, np.float64))
+        & np.isfinite(np.asarray(s.kp_flight, np.float64))
+        & np.isfinite(np.asarray(s.ki, np.float64))
+        & np.isfinite(np.asarray(s.dt_s, np.float64))
+    )
     if not ex.any():
         return None
     rows = np.flatnonzero(ex)
-    settings = _status_settings_list(SimpleNamespace(**{k: np.asarray(getattr(s, k))[rows] for k in (
-        "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")}))
+    settings = _status_settings_list(
+        SimpleNamespace(
+            **{k: np.asarray(getattr(s, k))[rows] for k in ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")}
+        )
+    )
     last = settings[-1]
     d = _settings_dict(last)
     defaults = _settings_dict(MahonySettings())
@@ -113,8 +127,14 @@ def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[di
         if not parts and gen[i] != gen[i - 1] and flags[i] & FLAG_EVENT:
             parts = ["filter reset (q = 1, 0, 0, 0; integrals 0)"]
         if parts:
-            out.append({"step": int(steps[i]) + 1, "status_row": int(rows[i]), "event": bool(flags[i] & FLAG_EVENT),
-                        "text": ", ".join(parts)})
+            out.append(
+                {
+                    "step": int(steps[i]) + 1,
+                    "status_row": int(rows[i]),
+                    "event": bool(flags[i] & FLAG_EVENT),
+                    "text": ", ".join(parts),
+                }
+            )
     return out
 
 
@@ -123,10 +143,18 @@ def _binary_view(tel):
     a, s = tel.attitude, tel.status
     rows = np.flatnonzero(np.asarray(a.exact, bool))
     srows = np.flatnonzero(np.asarray(s.exact, bool)) if len(s) else np.zeros(0, np.int64)
-    att = SimpleNamespace(**{k: np.asarray(getattr(a, k))[rows] for k in (
-        "step", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad", "t_fw_s")})
-    sta = SimpleNamespace(**{k: np.asarray(getattr(s, k))[srows] for k in (
-        "step", "q_wxyz", "int_xyz", "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")})
+    att = SimpleNamespace(
+        **{
+            k: np.asarray(getattr(a, k))[rows]
+            for k in ("step", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad", "t_fw_s")
+        }
+    )
+    sta = SimpleNamespace(
+        **{
+            k: np.asarray(getattr(s, k))[srows]
+            for k in ("step", "q_wxyz", "int_xyz", "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")
+        }
+    )
     return SimpleNamespace(attitude=att, status=sta), rows
 
 
@@ -137,24 +165,36 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
         if k == "ki":
             parts.append(f"KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?")
         elif k == "correction":
-            parts.append("no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?"
-                         if not v else "the accelerometer correction on, though the status frames say it is off")
+            parts.append(
+                "no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?"
+                if not v
+                else "the accelerometer correction on, though the status frames say it is off"
+            )
         elif k == "fresh_squares":
-            parts.append("normalisation with the fresh squares of the updated quaternion: is this an older (2017) "
-                         "ST firmware release?" if v else
-                         "normalisation with the squares from before the update (release 170120)")
+            parts.append(
+                "normalisation with the fresh squares of the updated quaternion: is this an older (2017) "
+                "ST firmware release?"
+                if v
+                else "normalisation with the squares from before the update (release 170120)"
+            )
         elif k == "kp":
             kg, kf = v
-            parts.append(f"kp_ground={kg:g}, kp_flight={kf:g} (status/default {base.kp_ground:g}, "
-                         f"{base.kp_flight:g}): were AHRS_KP_BIG/AHRS_KP_NORM changed?")
+            parts.append(
+                f"kp_ground={kg:g}, kp_flight={kf:g} (status/default {base.kp_ground:g}, "
+                f"{base.kp_flight:g}): were AHRS_KP_BIG/AHRS_KP_NORM changed?"
+            )
         elif k == "dt_s":
-            parts.append(f"dt={v:.7g} s (status/default {base.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the "
-                         "real main-loop period?")
+            parts.append(
+                f"dt={v:.7g} s (status/default {base.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the "
+                "real main-loop period?"
+            )
         elif k == "min_thr":
             parts.append(f"MIN_THR={v} (status/default {base.min_thr}): was the gain-switch threshold changed?")
         elif k == "defaults":
-            parts.append("the firmware's default settings: the status frames report settings the filter does not "
-                         "use (or the port was given other settings)")
+            parts.append(
+                "the firmware's default settings: the status frames report settings the filter does not "
+                "use (or the port was given other settings)"
+            )
     return "; ".join(parts)
 
 
@@ -189,8 +229,12 @@ def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings
     add({"fresh_squares": not base.fresh_squares}, replace(base, fresh_squares=not base.fresh_squares))
     for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
         add({"dt_s": dt}, replace(base, dt_s=dt))
-    kps = [(base.kp_flight, base.kp_flight), (base.kp_ground, base.kp_ground), (base.kp_flight, base.kp_ground),
-           (C.KP_GROUND, C.KP_FLIGHT)]
+    kps = [
+        (base.kp_flight, base.kp_flight),
+        (base.kp_ground, base.kp_ground),
+        (base.kp_flight, base.kp_ground),
+        (C.KP_GROUND, C.KP_FLIGHT),
+    ]
     for kg, kf in kps:
         add({"kp": (kg, kf)}, replace(base, kp_ground=kg, kp_flight=kf))
     add({"min_thr": C.MIN_THR}, replace(base, min_thr=C.MIN_THR))
@@ -212,10 +256,12 @@ def _combine(a: tuple[dict, MahonySettings], b: tuple[dict, MahonySettings], bas
 def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: int, r1: int) -> int:
     """Rows from ``r0`` (the seed row) that the port reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
     a = view.attitude
-    q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings,
-                                state=seed_state)
-    ok = bits_equal(q, a.q_wxyz[r0:r1]).all(axis=1) & bits_equal(thx, a.thx_rad[r0:r1]) & bits_equal(
-        thy, a.thy_rad[r0:r1])
+    q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings, state=seed_state)
+    ok = (
+        bits_equal(q, a.q_wxyz[r0:r1]).all(axis=1)
+        & bits_equal(thx, a.thx_rad[r0:r1])
+        & bits_equal(thy, a.thy_rad[r0:r1])
+    )
     bad = np.flatnonzero(~ok)
     return int(bad[0]) if bad.size else r1 - r0
 
@@ -273,8 +319,9 @@ def _diagnose(
         if full.all_exact:
             lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
         else:
-            lines.append(f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} "
-                         f"seeded steps{how}")
+            lines.append(
+                f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
+            )
         variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
         if settings_override is not None and _same_settings(s, _status_base(view)):
             lines.append("these are the settings the status frames report: the --settings override is wrong")
@@ -285,17 +332,24 @@ def _diagnose(
     if at_restart:
         snap = int(view.status.step[seed.status_row])
         if seg_start > 0:
-            lines.append(f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
-                         f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
-                         f"{snap}, which does not reproduce the next step")
+            lines.append(
+                f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
+                f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
+                f"{snap}, which does not reproduce the next step"
+            )
         else:
-            lines.append(f"the port started from the status snapshot of step {snap}, which does not reproduce the "
-                         "next step")
-        lines.extend(_snapshot_check(view, seed.status_row) or [
-            "the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"])
+            lines.append(
+                f"the port started from the status snapshot of step {snap}, which does not reproduce the next step"
+            )
+        lines.extend(
+            _snapshot_check(view, seed.status_row)
+            or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
+        )
     if int(stats.crc_failures) > 0 or int(stats.bytes_skipped) > 0:
-        lines.append(f"the stream had {int(stats.crc_failures)} CRC failures and {int(stats.bytes_skipped)} skipped "
-                     "bytes: damaged frames are dropped, but a corrupted frame that passes its CRC would also do this")
+        lines.append(
+            f"the stream had {int(stats.crc_failures)} CRC failures and {int(stats.bytes_skipped)} skipped "
+            "bytes: damaged frames are dropped, but a corrupted frame that passes its CRC would also do this"
+        )
     # a one-off disturbance or a different filter? Restart from the next snapshot after the mismatch.
     st = view.status
     k = np.flatnonzero((st.step >= steps[m]) & (st.step < steps[seg_end - 1]))
@@ -306,15 +360,19 @@ def _diagnose(
             rr1 = min(seg_end, r0 + DIAGNOSIS_WINDOW_ROWS)
             good = _window_exact(view, MahonyState(q_wxyz=st.q_wxyz[j], int_xyz=st.int_xyz[j]), base, r0, rr1)
             if good == rr1 - r0:
-                lines.append(f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
-                             f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
-                             "than a different filter")
+                lines.append(
+                    f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
+                    f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
+                    "than a different filter"
+                )
                 return lines, None, None, None
     if not at_restart:
-        lines.append("no known setting reproduces it (tried: firmware defaults, KI 1.0/0.1/0, correction on/off, "
-                     "both normalisation variants, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
-                     "of these): unknown firmware variant — was ahrs.c or QuaternionToEuler modified, or the "
-                     "firmware built with other compiler options (FMA, -O2 reordering)?")
+        lines.append(
+            "no known setting reproduces it (tried: firmware defaults, KI 1.0/0.1/0, correction on/off, "
+            "both normalisation variants, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
+            "of these): unknown firmware variant — was ahrs.c or QuaternionToEuler modified, or the "
+            "firmware built with other compiler options (FMA, -O2 reordering)?"
+        )
     return lines, None, None, None
 
 
@@ -328,11 +386,15 @@ def _snapshot_check(view, j: int) -> list[str]:
     same_q = bool(bits_equal(st.q_wxyz[j], a.q_wxyz[r[0]]).all())
     ints = ", ".join(f"{float(v):.6g}" for v in st.int_xyz[j])
     if same_q:
-        return [f"the snapshot of step {snap} carries the same q as that step's attitude frame, so its integral "
-                f"terms exInt/eyInt/ezInt ({ints}) must be wrong: does the firmware (or the tool that wrote the "
-                "capture) report the integrals of that step?"]
-    return [f"the snapshot of step {snap} does not carry the q of that step's attitude frame: the snapshot was "
-            "taken at another step (race between the AHRS step and the status frame in the firmware)"]
+        return [
+            f"the snapshot of step {snap} carries the same q as that step's attitude frame, so its integral "
+            f"terms exInt/eyInt/ezInt ({ints}) must be wrong: does the firmware (or the tool that wrote the "
+            "capture) report the integrals of that step?"
+        ]
+    return [
+        f"the snapshot of step {snap} does not carry the q of that step's attitude frame: the snapshot was "
+        "taken at another step (race between the AHRS step and the status frame in the firmware)"
+    ]
 
 
 def _status_base(view) -> MahonySettings | None:
@@ -374,8 +436,14 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     for j in (k - 1, k):
         if j < 0 or int(a.step[j]) != step - (k - j):
             continue
-        inputs.append({"step": int(a.step[j]), "acc_mg": [json_number(x) for x in a.acc_mg[j]],
-                       "gyro_mdps": [json_number(x) for x in a.gyro_mdps[j]], "thr": int(a.thr[j])})
+        inputs.append(
+            {
+                "step": int(a.step[j]),
+                "acc_mg": [json_number(x) for x in a.acc_mg[j]],
+                "gyro_mdps": [json_number(x) for x in a.gyro_mdps[j]],
+                "thr": int(a.thr[j]),
+            }
+        )
     port_state, port_q, port_div = "unseeded", None, None
     if rep is not None and bool(rep.seeded[k]):
         port_q = [json_number(x) for x in rep.q_wxyz[k]]
@@ -388,26 +456,36 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     nonfinite = not np.isfinite(q).all()
     what = "went non-finite" if nonfinite else "left the unit sphere"
     how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
-    text = [f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
-            f"release keeps |q| ≈ 0.9983)" + (f"; non-finite from step {first_nan} on" if first_nan is not None
-                                             and first_nan != step else "")]
+    text = [
+        f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
+        f"release keeps |q| ≈ 0.9983)"
+        + (f"; non-finite from step {first_nan} on" if first_nan is not None and first_nan != step else "")
+    ]
     for inp in inputs:
-        text.append(f"inputs at step {inp['step']}: acc {_vec(inp['acc_mg'], '.5g')} mg, gyro "
-                    f"{_vec(inp['gyro_mdps'], '.5g')} mdps, thr {inp['thr']}")
+        text.append(
+            f"inputs at step {inp['step']}: acc {_vec(inp['acc_mg'], '.5g')} mg, gyro "
+            f"{_vec(inp['gyro_mdps'], '.5g')} mdps, thr {inp['thr']}"
+        )
     if len(inputs) < 2:
         text.append(f"the step before ({step - 1}) was not received")
     if port_state == "finite":
-        text.append(f"the bit-exact port stayed finite on the same inputs (q = {_vec(port_q)}, |q| = "
-                    f"{_norm(port_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
-                    "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
-                    "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
-                    "handles, so none was searched)")
+        text.append(
+            f"the bit-exact port stayed finite on the same inputs (q = {_vec(port_q)}, |q| = "
+            f"{_norm(port_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+            "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
+            "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
+            "handles, so none was searched)"
+        )
     elif port_state == "diverged":
-        text.append(f"the port diverged too on the same inputs (from step {port_div}): the inputs drive the filter "
-                    "out of range; check the sensor values and the settings")
+        text.append(
+            f"the port diverged too on the same inputs (from step {port_div}): the inputs drive the filter "
+            "out of range; check the sensor values and the settings"
+        )
     else:
-        text.append("the port had no state at that step (no power-up and no finite status snapshot before it), so "
-                    "it cannot tell whether the filter or its inputs are to blame")
+        text.append(
+            "the port had no state at that step (no power-up and no finite status snapshot before it), so "
+            "it cannot tell whether the filter or its inputs are to blame"
+        )
     return {
         "row": int(rows[k]),
         "step": step,
@@ -436,8 +514,15 @@ def compare_port(
     used = settings
     if used is None:
         used = rep.seeds[0].settings if rep.seeds else (_status_base(view) or MahonySettings())
-    seeds = [{"row": int(rows[s.row]), "step": s.step, "source": s.source,
-              "status_row": None if s.status_row is None else int(s.status_row)} for s in rep.seeds]
+    seeds = [
+        {
+            "row": int(rows[s.row]),
+            "step": s.step,
+            "source": s.source,
+            "status_row": None if s.status_row is None else int(s.status_row),
+        }
+        for s in rep.seeds
+    ]
     first = None
     diagnosis: list[str] = []
     variant = None
@@ -445,17 +530,24 @@ def compare_port(
     unseeded = None
     if rep.n_seeded == 0:
         if view.status.step.size == 0:
-            unseeded = ("the capture does not start at step 0 (power-up) and has no status frame with a filter "
-                        "snapshot, so the port has no state to start from")
+            unseeded = (
+                "the capture does not start at step 0 (power-up) and has no status frame with a filter "
+                "snapshot, so the port has no state to start from"
+            )
         else:
-            unseeded = ("no status snapshot falls inside a run of consecutive steps, so the port has no state to "
-                        "start from")
+            unseeded = (
+                "no status snapshot falls inside a run of consecutive steps, so the port has no state to start from"
+            )
     divergence = find_divergence(view, rows, rep)
     if rep.first_mismatch is not None:
         m = rep.first_mismatch
         t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
-        first = {"row": int(rows[m]), "step": int(a.step[m]), "t_fw_s": float(a.t_fw_s[m]),
-                 "t_rel_s": float(t_rel[rows[m]])}
+        first = {
+            "row": int(rows[m]),
+            "step": int(a.step[m]),
+            "t_fw_s": float(a.t_fw_s[m]),
+            "t_rel_s": float(t_rel[rows[m]]),
+        }
         if divergence is not None and divergence["port"] == "finite":
             diagnosis = list(divergence["text"])  # no setting of the release's filter explains a NaN
         else:

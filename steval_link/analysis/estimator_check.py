@@ -39,8 +39,17 @@ from steval_link.estimators.plugins import PluginError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
 
-__all__ = ["Check", "CheckReport", "interface_checks", "capture_scores", "broad_scores", "run_check",
-           "format_check", "LIVE_MIN_STEPS_PER_S", "COMPANIONS"]
+__all__ = [
+    "Check",
+    "CheckReport",
+    "interface_checks",
+    "capture_scores",
+    "broad_scores",
+    "run_check",
+    "format_check",
+    "LIVE_MIN_STEPS_PER_S",
+    "COMPANIONS",
+]
 
 #: steps per second an estimator needs to run live (the stream's rate, twice over)
 LIVE_MIN_STEPS_PER_S = 2.0 * C.AHRS_RATE_HZ
@@ -79,10 +88,15 @@ class CheckReport:
         return all(c.ok for c in self.checks)
 
     def as_dict(self) -> dict:
-        d = {"estimator": self.name, "reference": self.reference, "ok": self.ok,
-             "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
-             "steps_per_s": _num(self.steps_per_s), "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
-             "captures": self.captures}
+        d = {
+            "estimator": self.name,
+            "reference": self.reference,
+            "ok": self.ok,
+            "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
+            "steps_per_s": _num(self.steps_per_s),
+            "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
+            "captures": self.captures,
+        }
         d["broad"] = ev.summary(self.broad) if self.broad else None
         if self.broad_note:
             d["broad_note"] = self.broad_note
@@ -203,15 +217,20 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
             want_x, want_y = deg
             ok = abs(thx - want_x) < 2.0 and abs(thy - want_y) < 2.0
             what = "20° nose up (about x)" if axis == "pitch" else "20° roll (about y)"
-            return ok, (f"held {what}, acc ({acc[0][0]:+.0f}, {acc[0][1]:+.0f}, {acc[0][2]:+.0f}) mg: "
-                        f"thx {thx:+.2f}°, thy {thy:+.2f}° (expected {want_x:+.0f}°, {want_y:+.0f}°)")
+            return ok, (
+                f"held {what}, acc ({acc[0][0]:+.0f}, {acc[0][1]:+.0f}, {acc[0][2]:+.0f}) mg: "
+                f"thx {thx:+.2f}°, thy {thy:+.2f}° (expected {want_x:+.0f}°, {want_y:+.0f}°)"
+            )
+
         return fn
 
     def turn():
         (acc, gyro), want = _turn(4)
         thx, thy = _last_deg(_fresh(name).run(acc, gyro))
-        return (abs(thx - want) < 2.0 and abs(thy) < 2.0,
-                f"+20 dps about x for 0.5 s: thx {thx:+.2f}° (expected {want:+.1f}°), thy {thy:+.2f}°")
+        return (
+            abs(thx - want) < 2.0 and abs(thy) < 2.0,
+            f"+20 dps about x for 0.5 s: thx {thx:+.2f}° (expected {want:+.1f}°), thy {thy:+.2f}°",
+        )
 
     def invalid():
         acc, gyro, k = _invalid_input(5)
@@ -225,9 +244,11 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
         tail = slice(len(acc) - int(HZ), len(acc))
         finite = bool(np.isfinite(np.asarray(res.q_wxyz, np.float64)[tail]).all() and np.asarray(res.valid)[tail].all())
         thx, thy = _last_deg(res)
-        detail = (f"NaN rows {how}; after free fall and "
-                  f"saturation, 5 s at rest ends at thx {thx:+.2f}°, thy {thy:+.2f}°"
-                  + ("" if finite else ": NO finite estimate in the last second (a NaN got into the state?)"))
+        detail = (
+            f"NaN rows {how}; after free fall and "
+            f"saturation, 5 s at rest ends at thx {thx:+.2f}°, thy {thy:+.2f}°"
+            + ("" if finite else ": NO finite estimate in the last second (a NaN got into the state?)")
+        )
         return flagged and finite, detail
 
     def determinism():
@@ -266,9 +287,11 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
         est.run(acc, gyro, thr)
         elapsed = time.perf_counter() - t0
         rate = len(acc) / elapsed if elapsed > 0 else math.inf
-        return (rate >= LIVE_MIN_STEPS_PER_S,
-                f"{rate:,.0f} steps/s on {len(acc)} steps of recordings/demo.stv (live needs ≥ "
-                f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {HZ:.1f} Hz)")
+        return (
+            rate >= LIVE_MIN_STEPS_PER_S,
+            f"{rate:,.0f} steps/s on {len(acc)} steps of recordings/demo.stv (live needs ≥ "
+            f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {HZ:.1f} Hz)",
+        )
 
     attempt("speed", speed)
     return checks, rate, first_trace
@@ -337,8 +360,9 @@ def broad_scores(reference: str, paths: list[Path], progress=None) -> list:
     return results
 
 
-def run_check(reference: str, *, broad_paths: list[Path] | None = None, captures: bool = True,
-              progress=None) -> CheckReport:
+def run_check(
+    reference: str, *, broad_paths: list[Path] | None = None, captures: bool = True, progress=None
+) -> CheckReport:
     """The whole check of the estimator ``reference`` names (see the module doc). ``broad_paths``: trials to
     score on (None or empty: none). ``progress(fraction, stage)`` is told where it is."""
     progress = progress or (lambda f, s: None)
@@ -380,15 +404,26 @@ def format_check(report: CheckReport) -> list[str]:
         labels = list(report.captures[0]["vs_firmware_deg"])
         width = [max(9, len(k)) for k in labels]
         w0 = max(len("capture"), *(len(c["capture"]) for c in report.captures))
-        lines += ["", "bundled captures: RMS tilt difference in degrees, from the firmware's attitude | from "
-                      "accelerometer-only tilt",
-                  "  ".join(["capture".ljust(w0), "frames".rjust(7)] + [k.rjust(x) for k, x in zip(labels, width)]
-                            + ["|"] + [k.rjust(x) for k, x in zip(labels, width)])]
+        lines += [
+            "",
+            "bundled captures: RMS tilt difference in degrees, from the firmware's attitude | from "
+            "accelerometer-only tilt",
+            "  ".join(
+                ["capture".ljust(w0), "frames".rjust(7)]
+                + [k.rjust(x) for k, x in zip(labels, width)]
+                + ["|"]
+                + [k.rjust(x) for k, x in zip(labels, width)]
+            ),
+        ]
         for c in report.captures:
-            cells = [("—" if c["vs_firmware_deg"][k] is None else f"{c['vs_firmware_deg'][k]:.3f}").rjust(x)
-                     for k, x in zip(labels, width)]
-            cells2 = [("—" if c["vs_accel_deg"][k] is None else f"{c['vs_accel_deg'][k]:.3f}").rjust(x)
-                      for k, x in zip(labels, width)]
+            cells = [
+                ("—" if c["vs_firmware_deg"][k] is None else f"{c['vs_firmware_deg'][k]:.3f}").rjust(x)
+                for k, x in zip(labels, width)
+            ]
+            cells2 = [
+                ("—" if c["vs_accel_deg"][k] is None else f"{c['vs_accel_deg'][k]:.3f}").rjust(x)
+                for k, x in zip(labels, width)
+            ]
             lines.append("  ".join([c["capture"].ljust(w0), str(c["frames"]).rjust(7)] + cells + ["|"] + cells2))
     if report.broad:
         lines += ["", "BROAD trials against ground truth (the STEVAL sensor pipeline, 161.5 Hz):"]

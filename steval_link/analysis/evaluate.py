@@ -83,10 +83,12 @@ def default_specs(rate_hz: float, *, native: bool = False, only: Sequence[str] |
     labels; the registry name of an estimator (``st-mahony``) selects both Mahony runs.
     """
     specs = {
-        "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony",
-                                          {"dt_s": 1.0 / rate_hz} if native else {}, THR_FLIGHT),
-        "st-mahony-ground": EstimatorSpec("st-mahony-ground", "st-mahony",
-                                          {"dt_s": 1.0 / rate_hz} if native else {}, THR_GROUND),
+        "st-mahony-flight": EstimatorSpec(
+            "st-mahony-flight", "st-mahony", {"dt_s": 1.0 / rate_hz} if native else {}, THR_FLIGHT
+        ),
+        "st-mahony-ground": EstimatorSpec(
+            "st-mahony-ground", "st-mahony", {"dt_s": 1.0 / rate_hz} if native else {}, THR_GROUND
+        ),
         "accel": EstimatorSpec("accel", "accel", {}),
         "ekf3": EstimatorSpec("ekf3", "ekf3", {"rate_hz": rate_hz}),
         "mekf": EstimatorSpec("mekf", "mekf", {"rate_hz": rate_hz, **({"latency_s": 0.0} if native else {})}),
@@ -110,8 +112,10 @@ def default_specs(rate_hz: float, *, native: bool = False, only: Sequence[str] |
             except ValueError as exc:
                 raise UserError(str(exc)) from None
         if not chosen:
-            raise UserError(f"unknown estimator {item!r}; choose from: {', '.join(spec_labels())} (or st-mahony), "
-                            "FILE.py:CLASS, module:CLASS or an installed plug-in")
+            raise UserError(
+                f"unknown estimator {item!r}; choose from: {', '.join(spec_labels())} (or st-mahony), "
+                "FILE.py:CLASS, module:CLASS or an installed plug-in"
+            )
         if item == "vqf" and not registry.is_available("vqf"):
             raise UserError('estimator vqf needs the vqf package: pip install "steval-link[vqf]"')
         out.extend(s for s in chosen if s not in out)
@@ -158,16 +162,31 @@ def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
 
 def _firmware_dict(fw: FirmwareResult) -> dict:
     st = fw.settings
-    return {"trial": fw.trial, "firmware": fw.label, "elf": fw.elf, "attitude_from": fw.source,
-            "rmse_deg": _rounded(fw.rmse_deg), "steps": fw.steps,
-            "movement_steps": int(np.count_nonzero(fw.truth.movement)),
-            "instructions_per_step": fw.instructions_summary(),
-            "port_rmse_deg": _rounded(fw.port_rmse_deg), "port_bit_exact_steps": fw.port_bit_exact,
-            "port_steps": fw.port_steps,
-            "port_settings": None if st is None else {"kp_ground": st.kp_ground, "kp_flight": st.kp_flight,
-                                                      "ki": st.ki, "dt_s": st.dt_s, "min_thr": st.min_thr,
-                                                      "correction": st.correction},
-            "emulated_s": round(fw.emulated_s, 3), "notes": list(fw.notes)}
+    return {
+        "trial": fw.trial,
+        "firmware": fw.label,
+        "elf": fw.elf,
+        "attitude_from": fw.source,
+        "rmse_deg": _rounded(fw.rmse_deg),
+        "steps": fw.steps,
+        "movement_steps": int(np.count_nonzero(fw.truth.movement)),
+        "instructions_per_step": fw.instructions_summary(),
+        "port_rmse_deg": _rounded(fw.port_rmse_deg),
+        "port_bit_exact_steps": fw.port_bit_exact,
+        "port_steps": fw.port_steps,
+        "port_settings": None
+        if st is None
+        else {
+            "kp_ground": st.kp_ground,
+            "kp_flight": st.kp_flight,
+            "ki": st.ki,
+            "dt_s": st.dt_s,
+            "min_thr": st.min_thr,
+            "correction": st.correction,
+        },
+        "emulated_s": round(fw.emulated_s, 3),
+        "notes": list(fw.notes),
+    }
 
 
 def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
@@ -177,16 +196,22 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
         return []
     w0 = max(len(fw.trial) for fw in fws)
     w1 = max(len(fw.label) for fw in fws)
-    out = ["firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
-           "(emulator counts, interrupts excluded); the bit-exact ST-Mahony port on the firmware's own inputs"]
+    out = [
+        "firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
+        "(emulator counts, interrupts excluded); the bit-exact ST-Mahony port on the firmware's own inputs"
+    ]
     for fw in fws:
         ins = fw.instructions_summary()
         cost = "n/a" if ins["median"] is None else f"{ins['median']:.0f} instr/step ({ins['min']}-{ins['max']})"
-        port = ("port n/a" if fw.port_rmse_deg is None else
-                f"port {_fmt(fw.port_rmse_deg)}, bit-exact {fw.port_bit_exact}/{fw.port_steps} steps")
+        port = (
+            "port n/a"
+            if fw.port_rmse_deg is None
+            else f"port {_fmt(fw.port_rmse_deg)}, bit-exact {fw.port_bit_exact}/{fw.port_steps} steps"
+        )
         note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
-        out.append(f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; "
-                   f"{port}){note}")
+        out.append(
+            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {port}){note}"
+        )
     return out
 
 
@@ -198,8 +223,9 @@ def _fmt(x) -> str:
 Progress = Callable[[str, str], None]
 
 
-def evaluate_view(view: broad.SteValView, specs: Sequence[EstimatorSpec], name: str,
-                  progress: Progress | None = None) -> TrialResult:
+def evaluate_view(
+    view: broad.SteValView, specs: Sequence[EstimatorSpec], name: str, progress: Progress | None = None
+) -> TrialResult:
     """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth."""
     res = TrialResult(name, view.rate_hz, view.t_s, view.movement)
     for spec in specs:
@@ -223,8 +249,14 @@ def evaluate_view(view: broad.SteValView, specs: Sequence[EstimatorSpec], name: 
     return res
 
 
-def evaluate_trial(path, specs: Sequence[EstimatorSpec] | None = None, *, native: bool = False, seed: int = 0,
-                   progress: Progress | None = None) -> TrialResult:
+def evaluate_trial(
+    path,
+    specs: Sequence[EstimatorSpec] | None = None,
+    *,
+    native: bool = False,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> TrialResult:
     """Load a BROAD trial and evaluate ``specs`` (default: :func:`default_specs`) on it.
 
     Without ``native`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
@@ -262,8 +294,9 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return step, quat, np.ones(step.shape, bool) if mov is None else mov
 
 
-def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None,
-                     progress: Progress | None = None) -> TrialResult:
+def evaluate_capture(
+    path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None, progress: Progress | None = None
+) -> TrialResult:
     """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc), or,
     without one, the truth the capture keeps (chunks T of ``steval emulate --broad``).
 
@@ -275,8 +308,10 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
     try:
         tel = telemetry_of_source(src)
     except UserError:
-        raise UserError(f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "
-                        f"{len(src.data)} bytes") from None
+        raise UserError(
+            f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "
+            f"{len(src.data)} bytes"
+        ) from None
     side = Path(truth) if truth is not None else truth_sidecar_path(p)
     kept = capture_truth(src.chunks) if truth is None and not side.is_file() else None
     if kept is None and not side.is_file():
@@ -300,8 +335,9 @@ def evaluate_capture(path, specs: Sequence[EstimatorSpec] | None = None, *, trut
     t = np.asarray(att.t_fw_s, dtype=np.float64)
     dt = np.diff(t)
     rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else AHRS_HZ
-    view = broad.SteValView(np.asarray(att.acc_mg, np.float32), np.asarray(att.gyro_mdps, np.float32), t, q_true,
-                            movement, rate)
+    view = broad.SteValView(
+        np.asarray(att.acc_mg, np.float32), np.asarray(att.gyro_mdps, np.float32), t, q_true, movement, rate
+    )
     if specs is None:
         specs = default_specs(AHRS_HZ)
     res = evaluate_view(view, specs, p.stem, progress)
@@ -323,16 +359,29 @@ def summary(results: Sequence[TrialResult]) -> dict:
     labels: list[str] = []
     for r in results:
         labels.extend(k for k in r.rmse_deg if k not in labels)
-    trials = [{"trial": r.name, "rate_hz": r.rate_hz, "steps": int(r.t_s.shape[0]),
-               "rmse_deg": {k: _rounded(r.rmse_deg.get(k)) for k in labels},
-               "steps_per_s": {k: _rounded(r.steps_per_s.get(k)) for k in labels}} for r in results]
-    out = {"metric": "inclination RMSE over movement samples, degrees", "estimators": labels, "trials": trials,
-           "mean_rmse_deg": {k: _rounded(_mean([r.rmse_deg.get(k) for r in results])) for k in labels}}
+    trials = [
+        {
+            "trial": r.name,
+            "rate_hz": r.rate_hz,
+            "steps": int(r.t_s.shape[0]),
+            "rmse_deg": {k: _rounded(r.rmse_deg.get(k)) for k in labels},
+            "steps_per_s": {k: _rounded(r.steps_per_s.get(k)) for k in labels},
+        }
+        for r in results
+    ]
+    out = {
+        "metric": "inclination RMSE over movement samples, degrees",
+        "estimators": labels,
+        "trials": trials,
+        "mean_rmse_deg": {k: _rounded(_mean([r.rmse_deg.get(k) for r in results])) for k in labels},
+    }
     fws = [_firmware_dict(fw) for r in results for fw in r.firmware]
     if fws:
         out["firmware"] = fws
-        out["firmware_metric"] = ("inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
-                                  "output (the port's the same way), over movement steps, degrees")
+        out["firmware_metric"] = (
+            "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
+            "output (the port's the same way), over movement steps, degrees"
+        )
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
         out["mean_02_07_15_24_rmse_deg"] = {k: _rounded(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
@@ -356,8 +405,10 @@ def format_table(results: Sequence[TrialResult]) -> str:
     labels = s["estimators"]
     w0 = max([len("trial")] + [len(r.name) for r in results] + [len("mean 02/07/15/24")])
     widths = [max(len(k), 7) for k in labels]
-    lines = ["inclination RMSE (deg) over movement samples",
-             "  ".join(["trial".ljust(w0)] + [k.rjust(w) for k, w in zip(labels, widths)])]
+    lines = [
+        "inclination RMSE (deg) over movement samples",
+        "  ".join(["trial".ljust(w0)] + [k.rjust(w) for k, w in zip(labels, widths)]),
+    ]
 
     def row(name, values):
         cells = ["—".rjust(w) if v is None else f"{v:.3f}".rjust(w) for v, w in zip(values, widths)]

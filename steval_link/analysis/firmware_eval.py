@@ -75,8 +75,9 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
     if n >= trial.acc_mps2.shape[0]:
         return trial
     n = max(n, 2)
-    return BroadTrial(trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n],
-                      trial.movement[:n])
+    return BroadTrial(
+        trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n], trial.movement[:n]
+    )
 
 
 @dataclass
@@ -125,8 +126,12 @@ class FirmwareResult:
         a = self.instructions
         if a.size == 0:
             return {"median": None, "mean": None, "min": None, "max": None}
-        return {"median": float(np.median(a)), "mean": round(float(np.mean(a)), 1), "min": int(a.min()),
-                "max": int(a.max())}
+        return {
+            "median": float(np.median(a)),
+            "mean": round(float(np.mean(a)), 1),
+            "min": int(a.min()),
+            "max": int(a.max()),
+        }
 
 
 class _Globals:
@@ -163,8 +168,14 @@ class _Globals:
         self.outputs.append((*e, *q))
 
 
-def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None, seed: int = 0,
-                 progress: Callable[[float], None] | None = None) -> FirmwareResult:
+def run_firmware(
+    elf: Path | str,
+    trial: BroadTrial,
+    *,
+    label: str | None = None,
+    seed: int = 0,
+    progress: Callable[[float], None] | None = None,
+) -> FirmwareResult:
     """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output
     (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
     streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step."""
@@ -173,6 +184,7 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
     glob = _Globals(emu)
     label = label or "fw:" + Path(elf).name
     if progress is not None:  # every ≈ 1 s of AHRS steps (an unpatched build sends next to nothing on USART1)
+
         def on_step(board) -> None:
             if emu.n_steps % 160 == 0:
                 progress(min(board.now / C.CPU_HZ / emu.duration_s, 1.0))
@@ -188,8 +200,10 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
     n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
     if n == 0:
         if emu.elf.addr("ahrs_fusion_ag") is None and emu.elf.addr("stv_fw_step_begin") is None:
-            raise UserError(f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
-                            "told apart (an ELF with its symbols, not a stripped one)")
+            raise UserError(
+                f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
+                "told apart (an ELF with its symbols, not a stripped one)"
+            )
         raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
     truth = truth_rec.rows(0, n)
     tel = decode_bytes(bytes(data)) if data else None
@@ -212,8 +226,9 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
         if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
             inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
             if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
-                notes.append("the frames' inputs differ from acc_ahrs at the steps counted: the truth may be "
-                             "misaligned")
+                notes.append(
+                    "the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned"
+                )
         rep = st_mahony.replay_firmware(tel)
         port_thx = np.full(n, np.nan, _F32)
         port_thy = np.full(n, np.nan, _F32)
@@ -232,21 +247,39 @@ def run_firmware(elf: Path | str, trial: BroadTrial, *, label: str | None = None
         if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
             inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
             settings = MahonySettings()
-            q, px, py, _ = st_mahony.run(inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32),
-                                         inp[:, 6].astype(np.int64), settings=settings)
+            q, px, py, _ = st_mahony.run(
+                inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32), inp[:, 6].astype(np.int64), settings=settings
+            )
             port_thx = np.full(n, np.nan, _F32)
             port_thy = np.full(n, np.nan, _F32)
             port_thx[: out.shape[0]], port_thy[: out.shape[0]] = px, py
-            exact = (st_mahony.bits_equal(px, out[:, 0]) & st_mahony.bits_equal(py, out[:, 1])
-                     & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if glob.ahrs is not None else True))
+            exact = (
+                st_mahony.bits_equal(px, out[:, 0])
+                & st_mahony.bits_equal(py, out[:, 1])
+                & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if glob.ahrs is not None else True)
+            )
             port_exact, port_steps = int(np.count_nonzero(exact)), out.shape[0]
     else:
-        raise UserError(f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
-                        "(an ELF with its symbols, not a stripped .bin/.hex)")
+        raise UserError(
+            f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
+            "(an ELF with its symbols, not a stripped .bin/.hex)"
+        )
     err, rmse = score_euler(thx, thy, truth.q_wxyz, truth.movement)
-    res = FirmwareResult(label, str(elf), trial.name, source, truth, thx, thy, err, rmse,
-                         np.asarray(report.step_instructions, np.int64), settings=settings,
-                         emulated_s=report.emulated_s, notes=notes)
+    res = FirmwareResult(
+        label,
+        str(elf),
+        trial.name,
+        source,
+        truth,
+        thx,
+        thy,
+        err,
+        rmse,
+        np.asarray(report.step_instructions, np.int64),
+        settings=settings,
+        emulated_s=report.emulated_s,
+        notes=notes,
+    )
     if port_thx is not None:
         _, res.port_rmse_deg = score_euler(port_thx, port_thy, truth.q_wxyz, truth.movement)
         res.port_bit_exact, res.port_steps = port_exact, port_steps

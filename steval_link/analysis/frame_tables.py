@@ -12,8 +12,7 @@ import numpy as np
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.link import protocol as P
 
-__all__ = ["attitude_table", "status_table", "fc_table", "record_table", "frame_tables", "settings_of",
-           "header_of"]
+__all__ = ["attitude_table", "status_table", "fc_table", "record_table", "frame_tables", "settings_of", "header_of"]
 
 
 def attitude_table(tel) -> dict[str, np.ndarray]:
@@ -32,16 +31,30 @@ def status_table(tel) -> dict[str, np.ndarray]:
         cols[f"q_{c}"] = np.asarray(s.q_wxyz)[:, i] if len(s) else np.zeros(0, np.float32)
     for i, c in enumerate("xyz"):
         cols[f"int_{c}"] = np.asarray(s.int_xyz)[:, i] if len(s) else np.zeros(0, np.float32)
-    cols.update({
-        "kp_ground": s.kp_ground, "kp_flight": s.kp_flight, "ki": s.ki, "dt_s": s.dt_s,
-        "min_thr": s.min_thr, "flags": s.flags,
-        "ahrs_cycles_min": s.cyc_min, "ahrs_cycles_mean": s.cyc_mean, "ahrs_cycles_max": s.cyc_max,
-        "ahrs_cycles_n": s.cyc_n, "cpu_hz": s.cpu_hz, "tx_dropped_frames": s.tx_dropped, "baud": s.baud,
-        "queue_peak_bytes": s.queue_peak,
-        "fw_version_major": np.asarray(s.fw_version)[:, 0] if len(s) else np.zeros(0, np.uint8),
-        "fw_version_minor": np.asarray(s.fw_version)[:, 1] if len(s) else np.zeros(0, np.uint8),
-        "fc_every": s.fc_every, "param_gen": s.param_gen, "exact": s.exact, "offset": s.offset,
-    })
+    cols.update(
+        {
+            "kp_ground": s.kp_ground,
+            "kp_flight": s.kp_flight,
+            "ki": s.ki,
+            "dt_s": s.dt_s,
+            "min_thr": s.min_thr,
+            "flags": s.flags,
+            "ahrs_cycles_min": s.cyc_min,
+            "ahrs_cycles_mean": s.cyc_mean,
+            "ahrs_cycles_max": s.cyc_max,
+            "ahrs_cycles_n": s.cyc_n,
+            "cpu_hz": s.cpu_hz,
+            "tx_dropped_frames": s.tx_dropped,
+            "baud": s.baud,
+            "queue_peak_bytes": s.queue_peak,
+            "fw_version_major": np.asarray(s.fw_version)[:, 0] if len(s) else np.zeros(0, np.uint8),
+            "fw_version_minor": np.asarray(s.fw_version)[:, 1] if len(s) else np.zeros(0, np.uint8),
+            "fc_every": s.fc_every,
+            "param_gen": s.param_gen,
+            "exact": s.exact,
+            "offset": s.offset,
+        }
+    )
     return {k: np.asarray(v) for k, v in cols.items()}
 
 
@@ -103,8 +116,10 @@ def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
     if len(tel.commands):
         out["command"] = record_table(tel.commands)
     if tel.text:
-        out["text"] = {"t_host_s": np.array([t for t, _ in tel.text], np.float64),
-                       "text": np.array([s for _, s in tel.text], dtype=object)}
+        out["text"] = {
+            "t_host_s": np.array([t for t, _ in tel.text], np.float64),
+            "text": np.array([s for _, s in tel.text], dtype=object),
+        }
     return out
 
 

@@ -100,8 +100,12 @@ def link_notes(tel) -> list[str]:
     need = P.ATTITUDE_FRAME_SIZE * 10 * C.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
     dropped = int(s.tx_dropped[-1])
     if baud and baud < need:
-        return [f"the firmware's TX queue dropped {dropped} frames: at {baud} baud the link carries at most "
-                f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {C.AHRS_RATE_HZ:.1f} the AHRS "
-                f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"]
-    return [f"the firmware's TX queue dropped {dropped} frames since power-up (queue full: bursts of text or "
-            "status frames); frames dropped before the capture started count too"]
+        return [
+            f"the firmware's TX queue dropped {dropped} frames: at {baud} baud the link carries at most "
+            f"{baud / (10 * P.ATTITUDE_FRAME_SIZE):.0f} attitude frames/s of the {C.AHRS_RATE_HZ:.1f} the AHRS "
+            f"makes (≥ {need:,.0f} baud needed; the patch's default is 115200)"
+        ]
+    return [
+        f"the firmware's TX queue dropped {dropped} frames since power-up (queue full: bursts of text or "
+        "status frames); frames dropped before the capture started count too"
+    ]

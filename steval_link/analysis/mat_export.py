@@ -69,8 +69,9 @@ def _value(v: Any) -> Any:
     return v
 
 
-def write_mat(tables: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], header: dict[str, Any],
-              out: BinaryIO | str) -> None:
+def write_mat(
+    tables: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], header: dict[str, Any], out: BinaryIO | str
+) -> None:
     """Write ``tables`` (frame type → column → array, e.g. :func:`steval_link.analysis.frame_tables.frame_tables`),
     ``settings`` and ``header`` as one MATLAB (v5) file ``out`` (a path or a binary file)."""
     savemat = require_scipy()

@@ -37,27 +37,48 @@ INSTALL_HINT = 'pip install "steval-link[mcap]"'
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
 _INDEX_HEAD = struct.Struct("<BQHI")
-_MESSAGE_DTYPE = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
-                           ("log_time", "<u8"), ("publish_time", "<u8")])  # packed: 31 bytes, as _MESSAGE_HEAD
+_MESSAGE_DTYPE = np.dtype(
+    [
+        ("opcode", "u1"),
+        ("length", "<u8"),
+        ("channel", "<u2"),
+        ("seq", "<u4"),
+        ("log_time", "<u8"),
+        ("publish_time", "<u8"),
+    ]
+)  # packed: 31 bytes, as _MESSAGE_HEAD
 
-_TIME = {"type": "object", "title": "time", "properties": {"sec": {"type": "integer", "minimum": 0},
-                                                            "nsec": {"type": "integer", "minimum": 0}}}
+_TIME = {
+    "type": "object",
+    "title": "time",
+    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}},
+}
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
 
 #: foxglove.FrameTransform (https://docs.foxglove.dev/docs/visualization/message-schemas/frame-transform)
 FRAME_TRANSFORM_SCHEMA = {
-    "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
+    "title": "foxglove.FrameTransform",
+    "description": "A transform between two reference frames in 3D space",
     "type": "object",
-    "properties": {"timestamp": _TIME, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
-                   "translation": _VEC3, "rotation": _QUAT},
+    "properties": {
+        "timestamp": _TIME,
+        "parent_frame_id": {"type": "string"},
+        "child_frame_id": {"type": "string"},
+        "translation": _VEC3,
+        "rotation": _QUAT,
+    },
 }
 #: foxglove.PoseInFrame (https://docs.foxglove.dev/docs/visualization/message-schemas/pose-in-frame)
 POSE_IN_FRAME_SCHEMA = {
-    "title": "foxglove.PoseInFrame", "description": "A timestamped pose for an object or reference frame in 3D space",
+    "title": "foxglove.PoseInFrame",
+    "description": "A timestamped pose for an object or reference frame in 3D space",
     "type": "object",
-    "properties": {"timestamp": _TIME, "frame_id": {"type": "string"},
-                   "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}}},
+    "properties": {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}},
+    },
 }
 
 
@@ -66,8 +87,13 @@ def _num(description: str) -> dict[str, Any]:
 
 
 def _arr(n: int, description: str) -> dict[str, Any]:
-    return {"type": "array", "items": {"type": ["number", "null"]}, "minItems": n, "maxItems": n,
-            "description": description}
+    return {
+        "type": "array",
+        "items": {"type": ["number", "null"]},
+        "minItems": n,
+        "maxItems": n,
+        "description": description,
+    }
 
 
 def _int(description: str) -> dict[str, Any]:
@@ -78,7 +104,7 @@ def _int(description: str) -> dict[str, Any]:
 ATTITUDE_SCHEMA = {
     "title": "steval.Attitude",
     "description": "One AHRS step of the STEVAL-FCU001V1 (attitude frame): the exact inputs of ahrs_fusion_ag and "
-                   "the firmware's estimate. Axes x right, y forward, z up.",
+    "the firmware's estimate. Axes x right, y forward, z up.",
     "type": "object",
     "properties": {
         "timestamp": _TIME,
@@ -89,8 +115,9 @@ ATTITUDE_SCHEMA = {
         "acc_mg": _arr(3, "accelerometer x, y, z, mg (input of ahrs_fusion_ag)"),
         "gyro_mdps": _arr(3, "gyroscope x, y, z, mdps (input of ahrs_fusion_ag)"),
         "thr": _int("throttle gTHR"),
-        "q_wxyz": _arr(4, "ahrs.q after the step, w x y z, as the firmware holds it (|q| about 0.9983); null in "
-                          "text mode"),
+        "q_wxyz": _arr(
+            4, "ahrs.q after the step, w x y z, as the firmware holds it (|q| about 0.9983); null in text mode"
+        ),
         "thx_pitch_rad": _num("pitch: rotation about x, nose up +, rad"),
         "thy_roll_rad": _num("roll: rotation about y, rad"),
         "thz_yaw_rad": _num("yaw integrated from the gyro in the ISR, rad"),
@@ -108,16 +135,22 @@ STATUS_SCHEMA = {
         "t_fw_s": _num("firmware time, s since boot"),
         "q_wxyz": _arr(4, "filter quaternion after the step"),
         "int_xyz": _arr(3, "integral terms exInt, eyInt, ezInt"),
-        "kp_ground": _num("kp below min_thr"), "kp_flight": _num("kp at or above min_thr"),
-        "ki": _num("AHRS_KI"), "dt_s": _num("integration period assumed by the filter, s"),
+        "kp_ground": _num("kp below min_thr"),
+        "kp_flight": _num("kp at or above min_thr"),
+        "ki": _num("AHRS_KI"),
+        "dt_s": _num("integration period assumed by the filter, s"),
         "min_thr": _int("gain-switch throttle"),
         "correction": {"type": "boolean", "description": "accelerometer correction on (flag bit 0 clear)"},
         "flags": _int("bit 0 no correction, 1 fresh squares, 2 text mode, 3 event, 4 in-flight tuning, 5 armed"),
         "ahrs_cycles_min": _int("DWT cycles of ahrs_fusion_ag + QuaternionToEuler since the last status, min"),
-        "ahrs_cycles_mean": _int("... mean"), "ahrs_cycles_max": _int("... max"),
-        "ahrs_cycles_n": _int("steps counted"), "cpu_hz": _int("core clock, Hz"),
-        "tx_dropped_frames": _int("frames the TX queue could not take since boot"), "baud": _int("USART1 baud"),
-        "queue_peak_bytes": _int("TX queue peak"), "fw_version": _arr(2, "patch version major, minor"),
+        "ahrs_cycles_mean": _int("... mean"),
+        "ahrs_cycles_max": _int("... max"),
+        "ahrs_cycles_n": _int("steps counted"),
+        "cpu_hz": _int("core clock, Hz"),
+        "tx_dropped_frames": _int("frames the TX queue could not take since boot"),
+        "baud": _int("USART1 baud"),
+        "queue_peak_bytes": _int("TX queue peak"),
+        "fw_version": _arr(2, "patch version major, minor"),
         "fc_every": _int("a flight-control frame every N steps (0: none)"),
         "param_gen": _int("parameter changes and resets since boot, mod 256"),
     },
@@ -126,7 +159,7 @@ STATUS_SCHEMA = {
 FLIGHT_CONTROL_SCHEMA = {
     "title": "steval.FlightControl",
     "description": "Flight-control frame, sent after FlightControlPID_OuterLoop: targets, sticks, PID outputs, "
-                   "motors. Axes x pitch (about x), y roll (about y), z yaw.",
+    "motors. Axes x pitch (about x), y roll (about y), z yaw.",
     "type": "object",
     "properties": {
         "timestamp": _TIME,
@@ -138,7 +171,9 @@ FLIGHT_CONTROL_SCHEMA = {
         "inner_s2_pwm": _arr(3, "inner loop outputs x_s2, y_s2, z_s2, PWM counts"),
         "motor_pwm": _arr(4, "motor1..4 PWM, TIM4 counts of 2000"),
         "vbat_v": _num("battery, V"),
-        "armed": {"type": "boolean"}, "rc_connected": {"type": "boolean"}, "rc_cal": {"type": "boolean"},
+        "armed": {"type": "boolean"},
+        "rc_connected": {"type": "boolean"},
+        "rc_cal": {"type": "boolean"},
         "fc_every": _int("a frame every N steps"),
     },
 }
@@ -182,9 +217,11 @@ def _display_q(att) -> np.ndarray:
     q = np.asarray(att.q_wxyz, np.float64).copy()
     missing = ~np.isfinite(q).all(axis=1)
     if missing.any():
-        q[missing] = quaternion_from_euler(np.nan_to_num(np.asarray(att.thx_rad, np.float64)[missing]),
-                                           np.nan_to_num(np.asarray(att.thy_rad, np.float64)[missing]),
-                                           np.nan_to_num(np.asarray(att.thz_rad, np.float64)[missing]))
+        q[missing] = quaternion_from_euler(
+            np.nan_to_num(np.asarray(att.thx_rad, np.float64)[missing]),
+            np.nan_to_num(np.asarray(att.thy_rad, np.float64)[missing]),
+            np.nan_to_num(np.asarray(att.thz_rad, np.float64)[missing]),
+        )
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.sqrt((q * q).sum(axis=1))
         q = np.where((n > 1e-6)[:, None], q / n[:, None], np.array([1.0, 0, 0, 0]))
@@ -213,15 +250,33 @@ def _attitude_messages(att, q: np.ndarray):
         stamp = _stamp(nsl[i])
         w, x, y, z = qd[i]
         rot = '{"x":%.9g,"y":%.9g,"z":%.9g,"w":%.9g}' % (x, y, z, w)
-        transform = ('{"timestamp":%s,"parent_frame_id":"world","child_frame_id":"drone",'
-                     '"translation":{"x":0,"y":0,"z":0},"rotation":%s}' % (stamp, rot))
-        pose = ('{"timestamp":%s,"frame_id":"world","pose":{"position":{"x":0,"y":0,"z":0},"orientation":%s}}'
-                % (stamp, rot))
-        body = ('{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%s,"t_host_s":%s,"acc_mg":[%s],"gyro_mdps":[%s],'
-                '"thr":%d,"q_wxyz":[%s],"thx_pitch_rad":%s,"thy_roll_rad":%s,"thz_yaw_rad":%s,"exact":%s}'
-                % (stamp, step[i], seq[i], _g(tfw[i]), th[i], ",".join(map(_g, acc[i])),
-                   ",".join(map(_g, gyr[i])), thr[i], ",".join(map(_g, qf[i])), _g(ang[i][0]), _g(ang[i][1]),
-                   _g(ang[i][2]), "true" if exact[i] else "false"))
+        transform = (
+            '{"timestamp":%s,"parent_frame_id":"world","child_frame_id":"drone",'
+            '"translation":{"x":0,"y":0,"z":0},"rotation":%s}' % (stamp, rot)
+        )
+        pose = '{"timestamp":%s,"frame_id":"world","pose":{"position":{"x":0,"y":0,"z":0},"orientation":%s}}' % (
+            stamp,
+            rot,
+        )
+        body = (
+            '{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%s,"t_host_s":%s,"acc_mg":[%s],"gyro_mdps":[%s],'
+            '"thr":%d,"q_wxyz":[%s],"thx_pitch_rad":%s,"thy_roll_rad":%s,"thz_yaw_rad":%s,"exact":%s}'
+            % (
+                stamp,
+                step[i],
+                seq[i],
+                _g(tfw[i]),
+                th[i],
+                ",".join(map(_g, acc[i])),
+                ",".join(map(_g, gyr[i])),
+                thr[i],
+                ",".join(map(_g, qf[i])),
+                _g(ang[i][0]),
+                _g(ang[i][1]),
+                _g(ang[i][2]),
+                "true" if exact[i] else "false",
+            )
+        )
         yield nsl[i], transform, pose, body
 
 
@@ -250,12 +305,18 @@ def _attitude_blocks(att, rows: int = 8192):
         sl = slice(a, b)
         host = np.asarray(att.t_host_s[sl], np.float64)
         has_host = bool(np.isfinite(host).all())
-        cols = [np.asarray(att.acc_mg[sl], np.float64), np.asarray(att.gyro_mdps[sl], np.float64),
-                np.asarray(att.q_wxyz[sl], np.float64),
-                np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64),
-                np.asarray(att.t_fw_s[sl], np.float64)[:, None]]
-        fast = (bool(np.asarray(att.exact[sl], bool).all()) and (has_host or not np.isfinite(host).any())
-                and all(bool(np.isfinite(c).all()) for c in cols))
+        cols = [
+            np.asarray(att.acc_mg[sl], np.float64),
+            np.asarray(att.gyro_mdps[sl], np.float64),
+            np.asarray(att.q_wxyz[sl], np.float64),
+            np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64),
+            np.asarray(att.t_fw_s[sl], np.float64)[:, None],
+        ]
+        fast = (
+            bool(np.asarray(att.exact[sl], bool).all())
+            and (has_host or not np.isfinite(host).any())
+            and all(bool(np.isfinite(c).all()) for c in cols)
+        )
         ns = ns_all[sl]
         if not fast:
             out = []
@@ -288,9 +349,25 @@ def _rows(att, sl: slice):
     """The attitude rows ``sl`` as a plain namespace (the per-row path)."""
     from types import SimpleNamespace  # a plain record of arrays, for the rare per-row path
 
-    return SimpleNamespace(**{k: getattr(att, k)[sl] for k in (
-        "step", "seq", "t_fw_s", "t_host_s", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad",
-        "thz_rad", "exact")})
+    return SimpleNamespace(
+        **{
+            k: getattr(att, k)[sl]
+            for k in (
+                "step",
+                "seq",
+                "t_fw_s",
+                "t_host_s",
+                "acc_mg",
+                "gyro_mdps",
+                "thr",
+                "q_wxyz",
+                "thx_rad",
+                "thy_rad",
+                "thz_rad",
+                "exact",
+            )
+        }
+    )
 
 
 def _list(v) -> list:
@@ -310,16 +387,27 @@ def _status_messages(tel):
         flags = int(s.flags[i])
         msg = {
             "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(s.step[i]), "t_fw_s": _n(s.t_fw_s[i]),
+            "step": int(s.step[i]),
+            "t_fw_s": _n(s.t_fw_s[i]),
             "q_wxyz": _list(np.asarray(s.q_wxyz[i], np.float64)),
             "int_xyz": _list(np.asarray(s.int_xyz[i], np.float64)),
-            "kp_ground": _n(s.kp_ground[i]), "kp_flight": _n(s.kp_flight[i]), "ki": _n(s.ki[i]),
-            "dt_s": _n(s.dt_s[i]), "min_thr": int(s.min_thr[i]),
-            "correction": not flags & 1, "flags": flags,
-            "ahrs_cycles_min": int(s.cyc_min[i]), "ahrs_cycles_mean": int(s.cyc_mean[i]),
-            "ahrs_cycles_max": int(s.cyc_max[i]), "ahrs_cycles_n": int(s.cyc_n[i]), "cpu_hz": int(s.cpu_hz[i]),
-            "tx_dropped_frames": int(s.tx_dropped[i]), "baud": int(s.baud[i]), "queue_peak_bytes": int(s.queue_peak[i]),
-            "fw_version": [int(x) for x in s.fw_version[i]], "fc_every": int(s.fc_every[i]),
+            "kp_ground": _n(s.kp_ground[i]),
+            "kp_flight": _n(s.kp_flight[i]),
+            "ki": _n(s.ki[i]),
+            "dt_s": _n(s.dt_s[i]),
+            "min_thr": int(s.min_thr[i]),
+            "correction": not flags & 1,
+            "flags": flags,
+            "ahrs_cycles_min": int(s.cyc_min[i]),
+            "ahrs_cycles_mean": int(s.cyc_mean[i]),
+            "ahrs_cycles_max": int(s.cyc_max[i]),
+            "ahrs_cycles_n": int(s.cyc_n[i]),
+            "cpu_hz": int(s.cpu_hz[i]),
+            "tx_dropped_frames": int(s.tx_dropped[i]),
+            "baud": int(s.baud[i]),
+            "queue_peak_bytes": int(s.queue_peak[i]),
+            "fw_version": [int(x) for x in s.fw_version[i]],
+            "fc_every": int(s.fc_every[i]),
             "param_gen": int(s.param_gen[i]),
         }
         yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
@@ -332,14 +420,18 @@ def _fc_messages(tel):
         flags = int(fc.fc_flags[i])
         msg = {
             "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(fc.step[i]), "t_fw_s": _n(fc.t_fw_s[i]),
-            "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)), "rc": _list(fc.rc[i]),
+            "step": int(fc.step[i]),
+            "t_fw_s": _n(fc.t_fw_s[i]),
+            "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)),
+            "rc": _list(fc.rc[i]),
             "outer_s1_radps": _list(np.asarray(fc.outer_s1_radps[i], np.float64)),
             "inner_s2_pwm": _list(np.asarray(fc.inner_s2_pwm[i], np.float64)),
             "motor_pwm": _list(np.asarray(fc.motor_pwm[i], np.float64)),
             "vbat_v": _list(np.asarray([fc.vbat_v[i]], np.float64))[0],
-            "armed": bool(flags & P.FC_ARMED), "rc_connected": bool(flags & P.FC_RC_CONNECTED),
-            "rc_cal": bool(flags & P.FC_RC_CAL), "fc_every": int(fc.fc_every[i]),
+            "armed": bool(flags & P.FC_ARMED),
+            "rc_connected": bool(flags & P.FC_RC_CONNECTED),
+            "rc_cal": bool(flags & P.FC_RC_CAL),
+            "fc_every": int(fc.fc_every[i]),
         }
         yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
 
@@ -390,15 +482,17 @@ class _Writer:
         self.pos += len(data)
 
     def schema(self, name: str, schema: dict) -> int:
-        rec = self.r.Schema(id=len(self.schemas) + 1, name=name, encoding="jsonschema",
-                            data=json.dumps(schema).encode())
+        rec = self.r.Schema(
+            id=len(self.schemas) + 1, name=name, encoding="jsonschema", data=json.dumps(schema).encode()
+        )
         self.schemas.append(rec)
         self._out(self._bytes(rec))
         return rec.id
 
     def channel(self, topic: str, schema_id: int) -> int:
-        rec = self.r.Channel(id=len(self.channels) + 1, topic=topic, message_encoding="json", schema_id=schema_id,
-                             metadata={})
+        rec = self.r.Channel(
+            id=len(self.channels) + 1, topic=topic, message_encoding="json", schema_id=schema_id, metadata={}
+        )
         self.channels.append(rec)
         self.counts[rec.id] = 0
         self._out(self._bytes(rec))
@@ -441,7 +535,7 @@ class _Writer:
         head["publish_time"] = t_ns
         hb = head.tobytes()
         parts: list[bytes] = [b""] * (2 * m)
-        parts[0::2] = [hb[i:i + 31] for i in range(0, 31 * m, 31)]
+        parts[0::2] = [hb[i : i + 31] for i in range(0, 31 * m, 31)]
         parts[1::2] = datas
         t_ns = np.asarray(t_ns, np.int64)
         for channel in np.unique(channels).tolist():
@@ -459,9 +553,14 @@ class _Writer:
             return
         data = b"".join(self.parts)
         packed = self.zstd.compress(data)
-        chunk = self.r.Chunk(compression="zstd", data=packed, message_start_time=self.chunk_t0,
-                             message_end_time=self.chunk_t1, uncompressed_crc=zlib.crc32(data),
-                             uncompressed_size=len(data))
+        chunk = self.r.Chunk(
+            compression="zstd",
+            data=packed,
+            message_start_time=self.chunk_t0,
+            message_end_time=self.chunk_t1,
+            uncompressed_crc=zlib.crc32(data),
+            uncompressed_size=len(data),
+        )
         start = self.pos
         self._out(self._bytes(chunk))
         length = self.pos - start
@@ -471,10 +570,19 @@ class _Writer:
             pairs = np.asarray(entries, dtype="<u8").tobytes()
             offsets[channel] = self.pos
             self._out(_INDEX_HEAD.pack(0x07, 6 + len(pairs), channel, len(pairs)) + pairs)
-        self.chunk_indexes.append(self.r.ChunkIndex(
-            message_start_time=self.chunk_t0, message_end_time=self.chunk_t1, chunk_start_offset=start,
-            chunk_length=length, message_index_offsets=offsets, message_index_length=self.pos - index_start,
-            compression="zstd", compressed_size=len(packed), uncompressed_size=len(data)))
+        self.chunk_indexes.append(
+            self.r.ChunkIndex(
+                message_start_time=self.chunk_t0,
+                message_end_time=self.chunk_t1,
+                chunk_start_offset=start,
+                chunk_length=length,
+                message_index_offsets=offsets,
+                message_index_length=self.pos - index_start,
+                compression="zstd",
+                compressed_size=len(packed),
+                uncompressed_size=len(data),
+            )
+        )
         self.t_start = self.chunk_t0 if self.t_start is None else min(self.t_start, self.chunk_t0)
         self.t_end = max(self.t_end, self.chunk_t1)
         self._reset_chunk()
@@ -491,14 +599,25 @@ class _Writer:
         self._out(self._bytes(r.DataEnd(data_section_crc=0)))
         summary_start = self.pos
         stats = r.Statistics(
-            message_count=sum(self.counts.values()), schema_count=len(self.schemas),
-            channel_count=len(self.channels), attachment_count=0, metadata_count=len(self.metadata_indexes),
-            chunk_count=len(self.chunk_indexes), message_start_time=self.t_start or 0,
-            message_end_time=self.t_end, channel_message_counts=dict(self.counts))
+            message_count=sum(self.counts.values()),
+            schema_count=len(self.schemas),
+            channel_count=len(self.channels),
+            attachment_count=0,
+            metadata_count=len(self.metadata_indexes),
+            chunk_count=len(self.chunk_indexes),
+            message_start_time=self.t_start or 0,
+            message_end_time=self.t_end,
+            channel_message_counts=dict(self.counts),
+        )
         offsets = []
         op = self.opcode
-        for opcode, group in ((op.SCHEMA, self.schemas), (op.CHANNEL, self.channels), (op.STATISTICS, [stats]),
-                              (op.CHUNK_INDEX, self.chunk_indexes), (op.METADATA_INDEX, self.metadata_indexes)):
+        for opcode, group in (
+            (op.SCHEMA, self.schemas),
+            (op.CHANNEL, self.channels),
+            (op.STATISTICS, [stats]),
+            (op.CHUNK_INDEX, self.chunk_indexes),
+            (op.METADATA_INDEX, self.metadata_indexes),
+        ):
             if not group:
                 continue
             start = self.pos
@@ -508,8 +627,9 @@ class _Writer:
         summary_offset_start = self.pos
         for rec in offsets:
             self._out(self._bytes(rec))
-        self._out(self._bytes(r.Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-                                       summary_crc=0)))
+        self._out(
+            self._bytes(r.Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0))
+        )
         self._out(MCAP_MAGIC)
 
 
@@ -522,15 +642,21 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
     stream = open(out, "wb") if own else out
     try:
         w = _Writer(stream, records)
-        schemas = {"/attitude/transform": FRAME_TRANSFORM_SCHEMA, "/attitude/pose": POSE_IN_FRAME_SCHEMA,
-                   "/attitude": ATTITUDE_SCHEMA, "/status": STATUS_SCHEMA, "/flight_control": FLIGHT_CONTROL_SCHEMA}
+        schemas = {
+            "/attitude/transform": FRAME_TRANSFORM_SCHEMA,
+            "/attitude/pose": POSE_IN_FRAME_SCHEMA,
+            "/attitude": ATTITUDE_SCHEMA,
+            "/status": STATUS_SCHEMA,
+            "/flight_control": FLIGHT_CONTROL_SCHEMA,
+        }
         wanted = {"/attitude/transform", "/attitude/pose", "/attitude"}
         if len(tel.status):
             wanted.add("/status")
         if len(tel.fc):
             wanted.add("/flight_control")
-        channel = {topic: w.channel(topic, w.schema(TOPICS[topic][0], schemas[topic]))
-                   for topic in TOPICS if topic in wanted}
+        channel = {
+            topic: w.channel(topic, w.schema(TOPICS[topic][0], schemas[topic])) for topic in TOPICS if topic in wanted
+        }
         three = np.array([channel["/attitude/transform"], channel["/attitude/pose"], channel["/attitude"]], np.uint16)
         n = len(tel.attitude)
         for first, ns, datas in _attitude_blocks(tel.attitude):

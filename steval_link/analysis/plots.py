@@ -176,23 +176,46 @@ def comparison_figure(tel, report, *, title: str | None = None):
             ax.plot(*_decimate(t, port), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
         nan_rows = ~np.isfinite(fw[key])
         if nan_rows.any():
-            ax.plot(t[nan_rows], np.zeros(int(nan_rows.sum())), "x", color="crimson", ms=4, zorder=7,
-                    label="firmware NaN (its filter diverged)" if getattr(report, "values_bad", None)
-                    else "firmware NaN (asin out of range)")
+            ax.plot(
+                t[nan_rows],
+                np.zeros(int(nan_rows.sum())),
+                "x",
+                color="crimson",
+                ms=4,
+                zorder=7,
+                label="firmware NaN (its filter diverged)"
+                if getattr(report, "values_bad", None)
+                else "firmware NaN (asin out of range)",
+            )
         ax.set_ylabel(f"{what} [deg]")
         ax.set_title(what, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
     restarts = np.flatnonzero(np.diff(np.asarray(a.step, dtype=np.int64)) <= 0) + 1
     for ax in (ax_p, ax_r, ax_d):
         for k, r in enumerate(restarts):
-            ax.axvline(t[r], color="dimgray", lw=1.0, ls="-.", zorder=1,
-                       label="firmware restart" if (k == 0 and ax is ax_p) else None)
+            ax.axvline(
+                t[r],
+                color="dimgray",
+                lw=1.0,
+                ls="-.",
+                zorder=1,
+                label="firmware restart" if (k == 0 and ax is ax_p) else None,
+            )
     h, lab = ax_p.get_legend_handles_labels()
     rank = {name: i for i, name in enumerate(_ORDER)}
     order = sorted(range(len(lab)), key=lambda i: (rank.get(lab[i], len(rank)), i))
     h, lab = [h[i] for i in order], [lab[i] for i in order]
-    fig.legend(h, lab, loc="upper left", bbox_to_anchor=(0.07, 0.955), ncol=min(len(h), 7), fontsize=8,
-               frameon=False, columnspacing=1.2, handlelength=2.0)
+    fig.legend(
+        h,
+        lab,
+        loc="upper left",
+        bbox_to_anchor=(0.07, 0.955),
+        ncol=min(len(h), 7),
+        fontsize=8,
+        frameon=False,
+        columnspacing=1.2,
+        handlelength=2.0,
+    )
     plt.setp(ax_p.get_xticklabels(), visible=False)
     plt.setp(ax_r.get_xticklabels(), visible=False)
 
@@ -210,20 +233,36 @@ def comparison_figure(tel, report, *, title: str | None = None):
         exact[report.port_rows] = report.replay.bit_exact
         if p.all_exact:
             ax_d.set_ylim(-1, 1)
-            ax_d.text(0.5, 0.5, f"port bit-exact on all {p.bit_exact} seeded steps", transform=ax_d.transAxes,
-                      ha="center", va="center", fontsize=11, color="darkgreen",
-                      bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"))
+            ax_d.text(
+                0.5,
+                0.5,
+                f"port bit-exact on all {p.bit_exact} seeded steps",
+                transform=ax_d.transAxes,
+                ha="center",
+                va="center",
+                fontsize=11,
+                color="darkgreen",
+                bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"),
+            )
         else:
             fm = p.first_mismatch
             if fm is not None:
-                ax_d.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":",
-                             label=f"first difference: step {fm['step']}")
+                ax_d.axvline(
+                    fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}"
+                )
             _spans(ax_d, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
         ax_d.set_ylabel("firmware − port [deg]")
         ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
     else:
-        ax_d.text(0.5, 0.5, "text-mode capture: the bit-exact port needs binary frames", transform=ax_d.transAxes,
-                  ha="center", va="center", fontsize=10)
+        ax_d.text(
+            0.5,
+            0.5,
+            "text-mode capture: the bit-exact port needs binary frames",
+            transform=ax_d.transAxes,
+            ha="center",
+            va="center",
+            fontsize=10,
+        )
         ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
     ax_thr = ax_d.twinx()
     ax_thr.fill_between(t, thr, step="mid", color="gold", alpha=0.25, lw=0, label="throttle (gTHR)")
@@ -234,8 +273,17 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ax_d.patch.set_visible(False)
     h1, l1 = ax_d.get_legend_handles_labels()
     h2, l2 = ax_thr.get_legend_handles_labels()
-    ax_d.legend(h1 + h2, l1 + l2, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, frameon=False,
-                borderaxespad=0.1, columnspacing=1.0)
+    ax_d.legend(
+        h1 + h2,
+        l1 + l2,
+        loc="lower right",
+        bbox_to_anchor=(1.0, 1.0),
+        ncol=3,
+        fontsize=7,
+        frameon=False,
+        borderaxespad=0.1,
+        columnspacing=1.0,
+    )
     ax_d.set_xlabel("firmware time since the first frame [s]")
     ax_d.grid(True, alpha=0.3)
 
@@ -264,8 +312,9 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ax_b.set_xlabel("difference from the firmware [deg]")
     ax_b.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
     hb, lb = ax_b.get_legend_handles_labels()
-    ax_txt.legend(hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False,
-                  borderaxespad=0.0)
+    ax_txt.legend(
+        hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False, borderaxespad=0.0
+    )
     ax_b.grid(True, axis="x", alpha=0.3)
 
     # summary text
@@ -274,8 +323,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
     if p is not None:
         lines.append(f"port bit-exact: {p.bit_exact} / {p.seeded} seeded steps")
         if p.first_mismatch:
-            lines.append(f"first difference: step {p.first_mismatch['step']} "
-                         f"(t = {p.first_mismatch['t_rel_s']:.2f} s)")
+            lines.append(f"first difference: step {p.first_mismatch['step']} (t = {p.first_mismatch['t_rel_s']:.2f} s)")
             if p.matching_variant:
                 lines.append("matches: " + _variant_text(p.matching_variant))
     if rt.rate_hz:
@@ -289,12 +337,17 @@ def comparison_figure(tel, report, *, title: str | None = None):
     if div is not None:
         lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; port {div['port']}")
     wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]
-    ax_txt.text(0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace",
-                transform=ax_txt.transAxes)
+    ax_txt.text(
+        0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
+    )
 
     src = report.source.get("path") or "capture"
-    fig.suptitle(title or f"steval compare: {Path(str(src)).name} — firmware vs ST-Mahony port, EKF and accel-only "
-                 "tilt (axes: x right, y forward, z up)", fontsize=11)
+    fig.suptitle(
+        title
+        or f"steval compare: {Path(str(src)).name} — firmware vs ST-Mahony port, EKF and accel-only "
+        "tilt (axes: x right, y forward, z up)",
+        fontsize=11,
+    )
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
     return fig
 
@@ -365,8 +418,11 @@ def flight_control_figure(tel, *, title: str | None = None):
         ax.set_xlabel("firmware time since the first frame [s]")
     every = int(np.max(fc.fc_every)) if len(fc) else 0
     src = (getattr(tel, "source", None) or {}).get("path") or "capture"
-    fig.suptitle(title or f"steval compare: {Path(str(src)).name} — flight control ({len(fc)} frames, one every "
-                 f"{every} AHRS steps)", fontsize=11)
+    fig.suptitle(
+        title
+        or f"steval compare: {Path(str(src)).name} — flight control ({len(fc)} frames, one every {every} AHRS steps)",
+        fontsize=11,
+    )
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
@@ -405,8 +461,11 @@ def simulation_figure(result, *, title: str | None = None):
     res = result
     k = np.asarray(res.step, dtype=np.int64)
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.2), sharex=True)
-    names = (("eax_rad", "eax = thx: pitch (about x)", "tab:blue"), ("eay_rad", "eay = thy: roll (about y)", "tab:red"),
-             ("eaz_rad", "eaz = thz: yaw (about z)", "tab:green"))
+    names = (
+        ("eax_rad", "eax = thx: pitch (about x)", "tab:blue"),
+        ("eay_rad", "eay = thy: roll (about y)", "tab:red"),
+        ("eaz_rad", "eaz = thz: yaw (about z)", "tab:green"),
+    )
     valid = np.asarray(res.valid, bool)
     for ax, (attr, label, c) in zip(axes, names):
         v = np.degrees(np.asarray(getattr(res, attr), dtype=np.float64))
@@ -444,7 +503,8 @@ def simulation_figure(result, *, title: str | None = None):
         mg = np.mean(np.asarray(res.gyro_mdps, np.float64), axis=0)
         ma = np.mean(np.asarray(res.acc_mg, np.float64), axis=0)
         inputs = f"mean gyro {vec(np.round(mg, 1))} mdps, acc {vec(np.round(ma, 1))} mg"
-    fig.suptitle(title or f"steval simulate: {res.estimator}{opts}, {res.iterations} iterations\n{inputs}{noise}",
-                 fontsize=10)
+    fig.suptitle(
+        title or f"steval simulate: {res.estimator}{opts}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
+    )
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     return fig

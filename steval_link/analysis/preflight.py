@@ -43,11 +43,16 @@ class Move:
 
 #: the guided moves, in order
 MOVES: tuple[Move, ...] = (
-    Move("tilt right", "tilt the drone to the right (right side down) by about 25°, hold 2 s, bring it back level",
-         1, +1),
+    Move(
+        "tilt right", "tilt the drone to the right (right side down) by about 25°, hold 2 s, bring it back level", 1, +1
+    ),
     Move("nose up", "lift the nose by about 25°, hold 2 s, bring it back level", 0, +1),
-    Move("turn right", "turn the drone to the right (clockwise seen from above) by about 90°, hold 2 s, turn it "
-         "back", 2, -1),
+    Move(
+        "turn right",
+        "turn the drone to the right (clockwise seen from above) by about 90°, hold 2 s, turn it back",
+        2,
+        -1,
+    ),
 )
 
 _AXIS_NAMES = ("x (pitch)", "y (roll)", "z (yaw)")
@@ -80,8 +85,11 @@ class PreflightReport:
         return not self.problems
 
     def text(self) -> str:
-        verdict = ("PASS: every check is OK." if self.passed else
-                   f"FAIL: {len(self.problems)} problem{'s' if len(self.problems) > 1 else ''}:")
+        verdict = (
+            "PASS: every check is OK."
+            if self.passed
+            else f"FAIL: {len(self.problems)} problem{'s' if len(self.problems) > 1 else ''}:"
+        )
         out = list(self.lines) + ["", verdict] + [f"  - {p}" for p in self.problems]
         return "\n".join(out)
 
@@ -158,8 +166,10 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     if acc_rest[2] > 700:
         rep.lines.append(f"At rest: the accelerometer reads {acc_rest[2]:+.0f} mg on z (z up): OK.")
     else:
-        rep.problems.append(f"At rest the accelerometer reads {acc_rest[2]:+.0f} mg on z instead of about +1000 mg: "
-                            "the board is mounted upside down or its z axis is reversed.")
+        rep.problems.append(
+            f"At rest the accelerometer reads {acc_rest[2]:+.0f} mg on z instead of about +1000 mg: "
+            "the board is mounted upside down or its z axis is reversed."
+        )
 
     armed_any = False
     motors_on_any = False
@@ -169,25 +179,36 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
         motors_on = armed & (thr_fc >= C.MIN_THR)
         armed_any, motors_on_any = bool(armed.any()), bool(motors_on.any())
         every = int(np.max(fc.fc_every)) if len(fc.fc_every) else 0
-        state = ("armed, throttle at idle (motors running)" if motors_on_any else
-                 "armed, throttle below MIN_THR (motors off)" if armed_any else "not armed (motors off)")
+        state = (
+            "armed, throttle at idle (motors running)"
+            if motors_on_any
+            else "armed, throttle below MIN_THR (motors off)"
+            if armed_any
+            else "not armed (motors off)"
+        )
         rep.lines.append(f"Flight-control frames: {len(fc)} (one every {every} steps); the drone was {state}.")
     else:
-        rep.lines.append("No flight-control frames in this stream (a firmware before protocol v2, or fc_every 0): "
-                         "only the sensors are checked.")
+        rep.lines.append(
+            "No flight-control frames in this stream (a firmware before protocol v2, or fc_every 0): "
+            "only the sensors are checked."
+        )
 
     # -- the moves ----------------------------------------------------------------------------------------------
     bursts = _bursts(t, gyro)
     pairs = _pair_moves(bursts)
     if len(pairs) < len(MOVES):
-        rep.problems.append(f"found {len(pairs)} of the {len(MOVES)} guided moves (each: out, hold, back) in the "
-                            "gyro; make each move slowly (about 1 s), by at least 20°, and hold it 2 s")
-    axes = [int(np.argmax(np.abs(rot))) for (_, _, rot), _ in pairs[:len(MOVES)]]
+        rep.problems.append(
+            f"found {len(pairs)} of the {len(MOVES)} guided moves (each: out, hold, back) in the "
+            "gyro; make each move slowly (about 1 s), by at least 20°, and hold it 2 s"
+        )
+    axes = [int(np.argmax(np.abs(rot))) for (_, _, rot), _ in pairs[: len(MOVES)]]
     if len(axes) == len(MOVES) and len(set(axes)) < len(axes):
         names = ", ".join(_AXIS_NAMES[a] for a in axes)
-        rep.problems.append(f"the first three moves turned about {names}: not the guided sequence (tilt right, nose "
-                            "up, turn right: three different axes, even when they are swapped); record it again "
-                            "with steval preflight --port")
+        rep.problems.append(
+            f"the first three moves turned about {names}: not the guided sequence (tilt right, nose "
+            "up, turn right: three different axes, even when they are swapped); record it again "
+            "with steval preflight --port"
+        )
         return rep
     steps = att.step
     for k, mv in enumerate(MOVES):
@@ -205,9 +226,12 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     rep.lines.append("")
     if has_fc:
         _check_outputs(rep, fc, att, motors_on_any)
-    rep.lines.append("Spin directions (from the mixer's yaw signs; check by eye, props off): " + "; ".join(
-        f"{m.label} {m.spin}" for m in MOTORS) + ", seen from above. A prop on the wrong motor or upside down "
-        "makes the drone spin or flip at take-off even when this check passes.")
+    rep.lines.append(
+        "Spin directions (from the mixer's yaw signs; check by eye, props off): "
+        + "; ".join(f"{m.label} {m.spin}" for m in MOTORS)
+        + ", seen from above. A prop on the wrong motor or upside down "
+        "makes the drone spin or flip at take-off even when this check passes."
+    )
     return rep
 
 
@@ -221,14 +245,18 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
     if dom == mv.axis and np.sign(rot[dom]) == mv.sign:
         rep.lines.append(f"  gyro: OK, turned about {_AXIS_NAMES[mv.axis]} {_fmt(rot[dom])} (x/y/z: {got}).")
     elif dom == mv.axis:
-        rep.problems.append(f"{mv.name}: the gyro turned about {_AXIS_NAMES[mv.axis]} with the wrong sign "
-                            f"({_fmt(rot[dom])}, expected {exp_dir}): the sensor's {_AXIS_NAMES[mv.axis][0]} axis is "
-                            "reversed (board mounted turned, or a wrong COORDINATE_SYSTEM in config_drone.h).")
+        rep.problems.append(
+            f"{mv.name}: the gyro turned about {_AXIS_NAMES[mv.axis]} with the wrong sign "
+            f"({_fmt(rot[dom])}, expected {exp_dir}): the sensor's {_AXIS_NAMES[mv.axis][0]} axis is "
+            "reversed (board mounted turned, or a wrong COORDINATE_SYSTEM in config_drone.h)."
+        )
         rep.lines.append(f"  gyro: REVERSED {_AXIS_NAMES[mv.axis]} ({got}).")
     else:
-        rep.problems.append(f"{mv.name}: the gyro turned about {_AXIS_NAMES[dom]} ({_fmt(rot[dom])}) instead of "
-                            f"{_AXIS_NAMES[mv.axis]}: the sensor's axes are swapped (board mounted turned by 90°, "
-                            "or a wrong COORDINATE_SYSTEM in config_drone.h).")
+        rep.problems.append(
+            f"{mv.name}: the gyro turned about {_AXIS_NAMES[dom]} ({_fmt(rot[dom])}) instead of "
+            f"{_AXIS_NAMES[mv.axis]}: the sensor's axes are swapped (board mounted turned by 90°, "
+            "or a wrong COORDINATE_SYSTEM in config_drone.h)."
+        )
         rep.lines.append(f"  gyro: SWAPPED axis, turned about {_AXIS_NAMES[dom]} ({got}).")
     if mv.axis < 2:
         # the attitude (accelerometer + AHRS): before the move vs the middle of the hold
@@ -242,16 +270,22 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
         if ddom == mv.axis and np.sign(d[ddom]) == mv.sign:
             rep.lines.append(f"  attitude: OK, the firmware's {_ANGLE_NAMES[mv.axis]} moved {_fmt(d[ddom])} ({txt}).")
         elif not gyro_ok:
-            rep.lines.append(f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
-                             "drone over instead of levelling it.")
+            rep.lines.append(
+                f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
+                "drone over instead of levelling it."
+            )
         elif ddom == mv.axis:
-            rep.problems.append(f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
-                                f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "
-                                "push the drone over instead of levelling it.")
+            rep.problems.append(
+                f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
+                f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "
+                "push the drone over instead of levelling it."
+            )
             rep.lines.append(f"  attitude: REVERSED ({txt}).")
         else:
-            rep.problems.append(f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
-                                f"its {_ANGLE_NAMES[mv.axis]}: pitch and roll are swapped.")
+            rep.problems.append(
+                f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
+                f"its {_ANGLE_NAMES[mv.axis]}: pitch and roll are swapped."
+            )
             rep.lines.append(f"  attitude: SWAPPED ({txt}).")
 
 
@@ -296,16 +330,20 @@ def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int,
         rep.lines.append(line + f": OK, it asks to {back}.")
     else:
         rep.lines.append(line + ": WRONG direction.")
-        rep.problems.append(f"{mv.name}: the controller does not ask to {back} ({line.strip()}); the PID gains' "
-                            "signs or the sensor axis are wrong.")
+        rep.problems.append(
+            f"{mv.name}: the controller does not ask to {back} ({line.strip()}); the PID gains' "
+            "signs or the sensor axis are wrong."
+        )
     # motors during the hold
     mp = fc.motor_pwm
     on = armed and np.all(fc.rc[hold, 3] >= C.MIN_THR)
     mix = mixer_matrix()[:, ax] * want  # expected sign of each motor's change
     if not on:
         ups = [m.label for m, s in zip(MOTORS, mix) if s > 0]
-        rep.lines.append(f"  motors: off (the firmware zeroes them while disarmed or below MIN_THR "
-                         f"{C.MIN_THR}); the mixer would speed up {' and '.join(ups)}.")
+        rep.lines.append(
+            f"  motors: off (the firmware zeroes them while disarmed or below MIN_THR "
+            f"{C.MIN_THR}); the mixer would speed up {' and '.join(ups)}."
+        )
         return
     dm = mp[hold].mean(axis=0) - (mp[pre].mean(axis=0) if len(pre) else 0.0)
     wrong = []
@@ -331,8 +369,10 @@ def _check_outputs(rep: PreflightReport, fc, att, motors_on_any: bool) -> None:
     thr[same] = att.thr[j[same]]
     on = armed & (thr >= C.MIN_THR)
     if not motors_on_any:
-        rep.lines.append("Motor outputs: not checked, the motors were off the whole time (arm and raise the "
-                         f"throttle just above MIN_THR {C.MIN_THR}, props off, to check them).")
+        rep.lines.append(
+            "Motor outputs: not checked, the motors were off the whole time (arm and raise the "
+            f"throttle just above MIN_THR {C.MIN_THR}, props off, to check them)."
+        )
         return
     mp = fc.motor_pwm[on].astype(np.float32)
     lines = mixer_pwm(thr[on], fc.inner_s2_pwm[on])
@@ -341,8 +381,10 @@ def _check_outputs(rep: PreflightReport, fc, att, motors_on_any: bool) -> None:
     best = np.argmin(res, axis=1)
     exact = float(np.mean(np.all(mp == expected_motor_pwm(thr[on], fc.inner_s2_pwm[on], armed[on]), axis=1)))
     if np.all(best == np.arange(4)):
-        rep.lines.append(f"Motor outputs: OK, each output carries its own mixer line ({exact:.0%} of the "
-                         f"{len(mp)} frames with the motors on bit for bit).")
+        rep.lines.append(
+            f"Motor outputs: OK, each output carries its own mixer line ({exact:.0%} of the "
+            f"{len(mp)} frames with the motors on bit for bit)."
+        )
         return
     done = set()
     for i, j in enumerate(best):
@@ -360,9 +402,12 @@ def _check_outputs(rep: PreflightReport, fc, att, motors_on_any: bool) -> None:
                 f"{mi.number}, the {mi.position} motor's plug) carries the command of {mj.label} and output "
                 f"{mj.number} that of {mi.label}, so these two motors push the wrong way for pitch and yaw and the "
                 "drone flips or spins at take-off. Fix the mixer lines (motorN_pwm = ...) in flight_control.c or "
-                "the motor order of the build.")
+                "the motor order of the build."
+            )
         else:
             done.add(i)
-            rep.problems.append(f"motor order: output {mi.number} (TIM4 channel {mi.number}, the {mi.position} "
-                                f"motor's plug) carries the command of {mj.label}. Fix the mixer lines in "
-                                "flight_control.c or the motor order of the build.")
+            rep.problems.append(
+                f"motor order: output {mi.number} (TIM4 channel {mi.number}, the {mi.position} "
+                f"motor's plug) carries the command of {mj.label}. Fix the mixer lines in "
+                "flight_control.c or the motor order of the build."
+            )

@@ -59,8 +59,12 @@ class AngleStats:
         return cls(int(d.size), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(d))), float(np.mean(d)))
 
     def as_dict(self) -> dict[str, Any]:
-        return {"n": self.n, "rms_deg": json_number(self.rms_deg), "max_abs_deg": json_number(self.max_abs_deg),
-                "mean_deg": json_number(self.mean_deg)}
+        return {
+            "n": self.n,
+            "rms_deg": json_number(self.rms_deg),
+            "max_abs_deg": json_number(self.max_abs_deg),
+            "mean_deg": json_number(self.mean_deg),
+        }
 
 
 @dataclass(frozen=True)
@@ -85,9 +89,15 @@ class TraceComparison:
     note: str = ""
 
     def as_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "label": self.label, "available": self.available,
-                "pitch_thx": self.pitch.as_dict(), "roll_thy": self.roll.as_dict(),
-                "n_invalid": self.n_invalid, "note": self.note}
+        return {
+            "name": self.name,
+            "label": self.label,
+            "available": self.available,
+            "pitch_thx": self.pitch.as_dict(),
+            "roll_thy": self.roll.as_dict(),
+            "n_invalid": self.n_invalid,
+            "note": self.note,
+        }
 
 
 @dataclass(frozen=True)
@@ -194,8 +204,11 @@ class RateStats:
 
     def as_dict(self) -> dict[str, Any]:
         out = {k: (json_number(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
-        out.update(ahrs_us_min=json_number(self.ahrs_us_min), ahrs_us_mean=json_number(self.ahrs_us_mean),
-                   ahrs_us_max=json_number(self.ahrs_us_max))
+        out.update(
+            ahrs_us_min=json_number(self.ahrs_us_min),
+            ahrs_us_mean=json_number(self.ahrs_us_mean),
+            ahrs_us_max=json_number(self.ahrs_us_max),
+        )
         return out
 
 
@@ -268,36 +281,51 @@ def format_report(r: ComparisonReport) -> list[str]:
         rate += f" (AHRS steps {rt.step_rate_hz:.2f} Hz)"
     per = ""
     if rt.period_mean_ms is not None:
-        per = (f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
-               f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms")
+        per = (
+            f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
+            f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms"
+        )
     lines.append(f"rate: {rate}{per}")
     tx = "" if rt.tx_dropped is None else f", firmware TX queue dropped {rt.tx_dropped}"
-    lines.append(f"drops: {rt.frames_missing} frames missing in {rt.seq_gaps} seq gaps{tx}; "
-                 f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
-                 + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else ""))
+    lines.append(
+        f"drops: {rt.frames_missing} frames missing in {rt.seq_gaps} seq gaps{tx}; "
+        f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
+        + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else "")
+    )
     if rt.ahrs_cycles_mean is not None:
         unit = "emulated instructions (not M4 cycles)" if rt.cycles_emulated else "cycles"
-        lines.append(f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
-                     f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} {unit} at "
-                     f"{(rt.cpu_hz or 0) / 1e6:g} MHz)")
+        lines.append(
+            f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
+            f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} {unit} at "
+            f"{(rt.cpu_hz or 0) / 1e6:g} MHz)"
+        )
     fs = r.filter_settings
     if fs is None:
         lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
     elif fs["from"] == "status frames":
         norm = "fresh squares" if fs["fresh_squares"] else "squares before update (170120)"
         diff = fs["differs_from_defaults"]
+
         def val(x):
             return ("on" if x else "off") if isinstance(x, bool) else f"{x:g}"
 
-        tail = "firmware defaults" if not diff else "differs from defaults: " + ", ".join(
-            f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
-        lines.append(f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
-                     f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
-                     f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}")
+        tail = (
+            "firmware defaults"
+            if not diff
+            else "differs from defaults: "
+            + ", ".join(f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
+        )
+        lines.append(
+            f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
+            f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
+            f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}"
+        )
         changes = fs.get("change_list", [])
         if changes:
-            lines.append(f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
-                         "(settings and filter resets, as the status frames show them):")
+            lines.append(
+                f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
+                "(settings and filter resets, as the status frames show them):"
+            )
         elif fs["changes"]:
             lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
         for ch in changes:
@@ -309,27 +337,34 @@ def format_report(r: ComparisonReport) -> list[str]:
     lines.append("")
     p = r.port
     if p is None:
-        lines.append("ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
-                     "cannot be bit-exact; compare the estimators below with the firmware instead")
+        lines.append(
+            "ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
+            "cannot be bit-exact; compare the estimators below with the firmware instead"
+        )
     else:
         seeds = ", ".join(
             ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
-            for s in p.seeds[:4]) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
-        verdict = "bit-exact on every step" if p.all_exact else (
-            "NOT bit-exact" if p.seeded else "not run")
-        lines.append(f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
-                     f"({p.rows} binary rows)")
+            for s in p.seeds[:4]
+        ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
+        verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
+        lines.append(
+            f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
+            f"({p.rows} binary rows)"
+        )
         if p.seeds:
             lines.append(f"  started from: {seeds}")
         if p.seeded < p.rows and p.seeded:
-            lines.append(f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until "
-                         "the next one)")
+            lines.append(
+                f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until the next one)"
+            )
         if p.unseeded_reason:
             lines.append(f"  {p.unseeded_reason}")
         if p.first_mismatch:
             fm = p.first_mismatch
-            lines.append(f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
-                         f"the capture (firmware clock {fm['t_fw_s']:.3f} s)")
+            lines.append(
+                f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
+                f"the capture (firmware clock {fm['t_fw_s']:.3f} s)"
+            )
             for d in p.diagnosis:
                 lines.append(f"  → {d}")
         elif p.diagnosis:
@@ -346,14 +381,19 @@ def format_report(r: ComparisonReport) -> list[str]:
             lines.append(f"{t.label:<{w}}{'—':>7}  {t.note}")
             continue
         n = min(t.pitch.n, t.roll.n)
-        row = (f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
-               f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}")
+        row = (
+            f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
+            f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}"
+        )
         if t.note:
             row += f"  ({t.note})"
         lines.append(row)
     if r.truth is not None:
-        lines += ["", f"against the ground truth the capture keeps: inclination RMSE (deg) over "
-                      f"{r.truth['movement_steps']} movement steps"]
+        lines += [
+            "",
+            f"against the ground truth the capture keeps: inclination RMSE (deg) over "
+            f"{r.truth['movement_steps']} movement steps",
+        ]
         for name, v in r.truth["rmse_deg"].items():
             lines.append(f"  {name:<{w}}{_f(v, '.3f')}")
     for note in r.notes:

@@ -69,11 +69,28 @@ DURATION_TOLERANCE_S = 1.0
 MAX_LAG_FRACTION = 0.5
 
 #: Settings in label order, with their defaults (a label names a differing setting where it is not the default).
-_SETTING_KEYS = ("ki", "correction", "kp_ground", "kp_flight", "min_thr", "dt_s", "fresh_squares", "text_mode",
-                 "inflight_tuning")
-_SETTING_WORDS = {"ki": "ki", "correction": "correction", "kp_ground": "kp ground", "kp_flight": "kp flight",
-                  "min_thr": "min_thr", "dt_s": "dt", "fresh_squares": "fresh squares", "text_mode": "text mode",
-                  "inflight_tuning": "in-flight tuning"}
+_SETTING_KEYS = (
+    "ki",
+    "correction",
+    "kp_ground",
+    "kp_flight",
+    "min_thr",
+    "dt_s",
+    "fresh_squares",
+    "text_mode",
+    "inflight_tuning",
+)
+_SETTING_WORDS = {
+    "ki": "ki",
+    "correction": "correction",
+    "kp_ground": "kp ground",
+    "kp_flight": "kp flight",
+    "min_thr": "min_thr",
+    "dt_s": "dt",
+    "fresh_squares": "fresh squares",
+    "text_mode": "text mode",
+    "inflight_tuning": "in-flight tuning",
+}
 _FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
 
 
@@ -84,9 +101,17 @@ def _f32(x) -> float:
 
 def _defaults() -> dict[str, Any]:
     d = MahonySettings()
-    return {"ki": _f32(d.ki), "correction": True, "kp_ground": _f32(d.kp_ground), "kp_flight": _f32(d.kp_flight),
-            "min_thr": int(d.min_thr), "dt_s": _f32(d.dt_s), "fresh_squares": False, "text_mode": False,
-            "inflight_tuning": False}
+    return {
+        "ki": _f32(d.ki),
+        "correction": True,
+        "kp_ground": _f32(d.kp_ground),
+        "kp_flight": _f32(d.kp_flight),
+        "min_thr": int(d.min_thr),
+        "dt_s": _f32(d.dt_s),
+        "fresh_squares": False,
+        "text_mode": False,
+        "inflight_tuning": False,
+    }
 
 
 @dataclass
@@ -144,27 +169,34 @@ class SideBySide:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "align": {"method": self.align, "lags_s": [json_number(f.lag_s) for f in self.flights],
-                      "meaning": "each flight's times are s since its first frame minus its lag (the first: 0)"},
-            "flights": [{
-                "label": f.label,
-                "path": str(f.path),
-                "kind": f.kind,
-                "angles": f.angles,
-                "settings": f.settings,
-                "facts": f.facts,
-                "rows": f.rows,
-                "duration_s": json_number(f.duration_s),
-                "frames_lost": f.frames_lost,
-                "warnings": list(f.warnings),
-                "figures": f.figures,
-            } for f in self.flights],
+            "align": {
+                "method": self.align,
+                "lags_s": [json_number(f.lag_s) for f in self.flights],
+                "meaning": "each flight's times are s since its first frame minus its lag (the first: 0)",
+            },
+            "flights": [
+                {
+                    "label": f.label,
+                    "path": str(f.path),
+                    "kind": f.kind,
+                    "angles": f.angles,
+                    "settings": f.settings,
+                    "facts": f.facts,
+                    "rows": f.rows,
+                    "duration_s": json_number(f.duration_s),
+                    "frames_lost": f.frames_lost,
+                    "warnings": list(f.warnings),
+                    "figures": f.figures,
+                }
+                for f in self.flights
+            ],
             "differences": self.differences,
             "notes": list(self.notes),
         }
 
 
 # -- one flight ------------------------------------------------------------------------------------------------
+
 
 def _settings_of_status(tel) -> dict[str, Any] | None:
     s = tel.status
@@ -173,9 +205,13 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
     exact = np.asarray(s.exact, bool)
     if not exact.any():  # text-mode status lines: KI and the flags only
         flags = int(s.flags[0])
-        return {"from": "text-mode status lines", "ki": _f32(s.ki[0]),
-                "correction": not flags & P.FLAG_NO_CORRECTION, "text_mode": True,
-                "changes": int(np.count_nonzero(np.diff(np.asarray(s.ki, np.float32)) != 0))}
+        return {
+            "from": "text-mode status lines",
+            "ki": _f32(s.ki[0]),
+            "correction": not flags & P.FLAG_NO_CORRECTION,
+            "text_mode": True,
+            "changes": int(np.count_nonzero(np.diff(np.asarray(s.ki, np.float32)) != 0)),
+        }
     rows = np.flatnonzero(exact)
     first = MahonySettings.of_status(s, int(rows[0]))
     flags = int(s.flags[rows[0]])
@@ -218,12 +254,21 @@ def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
     t = relative_time_s(a.step, a.t_fw_s)
     lost = int(tel.stats.frames_missing)
     return Flight(
-        path=Path(path), label="", kind="serial", angles="firmware", t_s=t,
-        thx_rad=np.asarray(a.thx_rad, np.float64), thy_rad=np.asarray(a.thy_rad, np.float64),
-        acc_mg=np.asarray(a.acc_mg, np.float32), gyro_mdps=np.asarray(a.gyro_mdps, np.float32),
+        path=Path(path),
+        label="",
+        kind="serial",
+        angles="firmware",
+        t_s=t,
+        thx_rad=np.asarray(a.thx_rad, np.float64),
+        thy_rad=np.asarray(a.thy_rad, np.float64),
+        acc_mg=np.asarray(a.acc_mg, np.float32),
+        gyro_mdps=np.asarray(a.gyro_mdps, np.float32),
         q_wxyz=np.asarray(a.q_wxyz, np.float64),
-        settings=_settings_of_status(tel), facts=_facts((tel.source or {}).get("header"), "serial"),
-        duration_s=float(t[-1]) if len(t) else 0.0, frames_lost=lost, warnings=list(warnings),
+        settings=_settings_of_status(tel),
+        facts=_facts((tel.source or {}).get("header"), "serial"),
+        duration_s=float(t[-1]) if len(t) else 0.0,
+        frames_lost=lost,
+        warnings=list(warnings),
     )
 
 
@@ -233,13 +278,21 @@ def flight_of_ble(path, ble, inputs, port_estimate, header: dict | None, warning
     t = np.asarray(inputs.t_s, np.float64)
     t = t - t[0] if len(t) else t
     return Flight(
-        path=Path(path), label="", kind="ble", angles="st-mahony port",
-        t_s=t, thx_rad=np.asarray(port_estimate.thx_rad, np.float64),
+        path=Path(path),
+        label="",
+        kind="ble",
+        angles="st-mahony port",
+        t_s=t,
+        thx_rad=np.asarray(port_estimate.thx_rad, np.float64),
         thy_rad=np.asarray(port_estimate.thy_rad, np.float64),
-        acc_mg=np.asarray(inputs.acc_mg, np.float32), gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
+        acc_mg=np.asarray(inputs.acc_mg, np.float32),
+        gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
         q_wxyz=np.asarray(port_estimate.q_wxyz, np.float64),
-        settings=None, facts=_facts(header, "ble"), duration_s=float(t[-1]) if len(t) else 0.0,
-        frames_lost=int(ble.dropped_estimate() or 0), warnings=list(warnings),
+        settings=None,
+        facts=_facts(header, "ble"),
+        duration_s=float(t[-1]) if len(t) else 0.0,
+        frames_lost=int(ble.dropped_estimate() or 0),
+        warnings=list(warnings),
     )
 
 
@@ -250,7 +303,8 @@ def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np
     gyro = np.asarray(gyro_mdps, np.float64)
     with np.errstate(invalid="ignore"):
         quiet = (np.linalg.norm(gyro, axis=1) < STILL_GYRO_DPS * 1000.0) & (
-            np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG)
+            np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG
+        )
     if not quiet.any():
         return quiet
     d = np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]]))
@@ -280,8 +334,12 @@ def _still_figures(f: Flight) -> dict[str, Any]:
         err = np.degrees(angle_diff_rad(est, ref))
         e = err[still]
         t = f.t_s[still]
-        fig: dict[str, Any] = {"rms_still_deg": None, "mean_still_deg": None, "drift_deg": None,
-                               "drift_rate_deg_per_min": None}
+        fig: dict[str, Any] = {
+            "rms_still_deg": None,
+            "mean_still_deg": None,
+            "drift_deg": None,
+            "drift_rate_deg_per_min": None,
+        }
         if e.size:
             fig["rms_still_deg"] = json_number(np.sqrt(np.mean(e * e)))
             fig["mean_still_deg"] = json_number(np.mean(e))
@@ -295,6 +353,7 @@ def _still_figures(f: Flight) -> dict[str, Any]:
 
 # -- alignment -------------------------------------------------------------------------------------------------
 
+
 def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
     """The gyro (deg/s, zero mean per axis) resampled on a uniform grid from the flight's first frame."""
     g = np.asarray(gyro_mdps, np.float64) / 1000.0
@@ -303,8 +362,9 @@ def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
     return out - out.mean(axis=0)
 
 
-def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray,
-                 dt: float = C.AHRS_PERIOD_S) -> tuple[float, float]:
+def motion_lag_s(
+    t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray, dt: float = C.AHRS_PERIOD_S
+) -> tuple[float, float]:
     """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
     and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that
     happens 2 s later in the flight than in the reference gives +2.0; its aligned times are ``t − lag``."""
@@ -320,15 +380,16 @@ def motion_lag_s(t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: n
     # xc[m] = sum_i b[i + m] a[i]: lags m = 0 .. len(b)-1 at the start, negative lags wrapped at the end
     max_lag = int(MAX_LAG_FRACTION * min(len(a), len(b)))
     lags = np.concatenate([np.arange(0, max_lag + 1), np.arange(-max_lag, 0)])
-    vals = np.concatenate([xc[: max_lag + 1], xc[size - max_lag:]])
+    vals = np.concatenate([xc[: max_lag + 1], xc[size - max_lag :]])
     m = int(lags[int(np.argmax(vals))])
     i0, i1 = max(0, -m), min(len(a), len(b) - m)  # the rows of a that b overlaps at this lag
-    x, y = a[i0:i1].ravel(), b[i0 + m:i1 + m].ravel()
+    x, y = a[i0:i1].ravel(), b[i0 + m : i1 + m].ravel()
     norm = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y))) if x.size else 0.0
     return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
 
 
 # -- labels ----------------------------------------------------------------------------------------------------
+
 
 def _word(key: str, value) -> str:
     """How a setting reads in a label: "ki 1", "correction off", "binary", "fresh squares", ..."""
@@ -384,14 +445,17 @@ def labels_by_difference(flights: Sequence[Flight]) -> list[str]:
             labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
     names = [f.path.name for f in flights]
     clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
-    labels = [f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
-              for i in range(n)]
+    labels = [
+        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
+        for i in range(n)
+    ]
     clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
     labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
     return labels
 
 
 # -- mismatches ------------------------------------------------------------------------------------------------
+
 
 def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     notes: list[str] = []
@@ -404,24 +468,27 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     if len(kinds) > 1:
         ble = [f.label for f in flights if f.kind == "ble"]
         ser = [f.label for f in flights if f.kind == "serial"]
-        notes.append(f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
-                     "host's ST-Mahony port on raw ISR samples (dt from the 8 ms ticks), not the drone's own.")
+        notes.append(
+            f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
+            "host's ST-Mahony port on raw ISR samples (dt from the 8 ms ticks), not the drone's own."
+        )
     elif kinds == {"ble"}:
         notes.append("BLE captures: the angles are the host's ST-Mahony port on raw ISR samples, not the drone's.")
     for f in flights:
         if f.frames_lost:
-            notes.append(f"{f.label}: {f.frames_lost} frames lost on the link; its lines are interpolated across "
-                         "the gaps.")
+            notes.append(
+                f"{f.label}: {f.frames_lost} frames lost on the link; its lines are interpolated across the gaps."
+            )
         for w in f.warnings:
             notes.append(f"{f.label}: {w}")
     text = [f.label for f in flights if f.settings and f.settings.get("text_mode")]
     if text and len(text) < len(flights):
-        notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary "
-                     "frames.")
+        notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary frames.")
     return notes
 
 
 # -- all together ----------------------------------------------------------------------------------------------
+
 
 def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
     """``f − ref`` on ``ref``'s rows within the overlap, degrees (angles interpolated, wrapped to ±180°)."""
@@ -431,8 +498,10 @@ def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
     for axis, a, b in (("pitch_thx", ref.thx_rad, f.thx_rad), ("roll_thy", ref.thy_rad, f.thy_rad)):
         d = np.degrees(angle_diff_rad(np.interp(ref.t_s[rows], f.t_s, b), a[rows]))
         d = d[np.isfinite(d)]
-        out[axis] = {"rms_deg": json_number(np.sqrt(np.mean(d * d))) if d.size else None,
-                     "max_abs_deg": json_number(np.max(np.abs(d))) if d.size else None}
+        out[axis] = {
+            "rms_deg": json_number(np.sqrt(np.mean(d * d))) if d.size else None,
+            "max_abs_deg": json_number(np.max(np.abs(d))) if d.size else None,
+        }
     return out
 
 
@@ -446,8 +515,12 @@ def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, n
     return t, dx, dy
 
 
-def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None,
-                 ) -> SideBySide:
+def side_by_side(
+    flights: Sequence[Flight],
+    *,
+    align: str = "time",
+    labels: Sequence[str] | None = None,
+) -> SideBySide:
     """Put ``flights`` (two or more, from :func:`flight_of_telemetry` / :func:`flight_of_ble`) on one time axis,
     label them (``labels`` overrides, in order; missing ones are derived), measure each against its accel-only
     tilt and each later one against the first. Raises ValueError for an unknown ``align`` or an empty flight."""
@@ -470,8 +543,10 @@ def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequ
             f.t_s = f.t_s - lag
             notes.append(f"motion alignment: {f.label} lags {ref.label} by {lag:+.3f} s (gyro correlation {r:.2f})")
             if r < 0.5:
-                notes.append(f"{f.label}: the gyro correlates weakly with {ref.label} ({r:.2f}): the motions may "
-                             "not be the same, the lag may be wrong.")
+                notes.append(
+                    f"{f.label}: the gyro correlates weakly with {ref.label} ({r:.2f}): the motions may "
+                    "not be the same, the lag may be wrong."
+                )
     tilt = AccelTilt()
     for f in flights:
         est = tilt.run(f.acc_mg, f.gyro_mdps)
@@ -486,6 +561,7 @@ def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequ
 
 # -- text ------------------------------------------------------------------------------------------------------
 
+
 def _num(x, fmt: str = "+.3f") -> str:
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
@@ -495,37 +571,50 @@ def _settings_text(s: dict[str, Any] | None) -> str:
         return "settings unknown (no status frames)"
     if s.get("from") != "status frames":
         return f"ki {s['ki']:g}, correction {'on' if s['correction'] else 'off'} (text-mode status)"
-    return (f"ki {s['ki']:g}, kp {s['kp_ground']:g}/{s['kp_flight']:g}, correction "
-            f"{'on' if s['correction'] else 'off'}, min_thr {s['min_thr']}"
-            + (f", {s['changes']} changes" if s.get("changes") else ""))
+    return (
+        f"ki {s['ki']:g}, kp {s['kp_ground']:g}/{s['kp_flight']:g}, correction "
+        f"{'on' if s['correction'] else 'off'}, min_thr {s['min_thr']}"
+        + (f", {s['changes']} changes" if s.get("changes") else "")
+    )
 
 
 def format_side_by_side(r: SideBySide) -> list[str]:
     """The text form: flights, their figures against accel-only tilt, the differences, the notes."""
-    how = ("firmware time from each capture's first frame" if r.align == "time"
-           else "motion (gyro cross-correlation with the first flight)")
+    how = (
+        "firmware time from each capture's first frame"
+        if r.align == "time"
+        else "motion (gyro cross-correlation with the first flight)"
+    )
     lines = [f"{len(r.flights)} flights side by side, aligned by {how}"]
     width = max(len(f.label) for f in r.flights)
     for i, f in enumerate(r.flights):
         lag = f", lag {f.lag_s:+.3f} s" if r.align == "motion" else ""
-        lines.append(f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
-                     f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}")
-    lines.append("against accel-only tilt in still phases (deg; drift: the last still phase; rate deg/min): pitch = "
-                 "thx (about x, nose up +), "
-                 "roll = thy (about y)")
+        lines.append(
+            f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
+            f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}"
+        )
+    lines.append(
+        "against accel-only tilt in still phases (deg; drift: the last still phase; rate deg/min): pitch = "
+        "thx (about x, nose up +), "
+        "roll = thy (about y)"
+    )
     lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll")
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
-        lines.append(f"  {f.label:<{width}}  {g['still_s']:7.1f}  {_num(px['rms_still_deg'], '9.3f')}  "
-                     f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg'], '+11.3f')}  "
-                     f"{_num(ry['drift_deg'], '+10.3f')}  {_num(px['drift_rate_deg_per_min'])} / "
-                     f"{_num(ry['drift_rate_deg_per_min'])}")
+        lines.append(
+            f"  {f.label:<{width}}  {g['still_s']:7.1f}  {_num(px['rms_still_deg'], '9.3f')}  "
+            f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg'], '+11.3f')}  "
+            f"{_num(ry['drift_deg'], '+10.3f')}  {_num(px['drift_rate_deg_per_min'])} / "
+            f"{_num(ry['drift_rate_deg_per_min'])}"
+        )
     for d in r.differences:
-        lines.append(f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch RMS "
-                     f"{_num(d['pitch_thx']['rms_deg'], '.3f')} max {_num(d['pitch_thx']['max_abs_deg'], '.3f')} deg, "
-                     f"roll RMS {_num(d['roll_thy']['rms_deg'], '.3f')} max {_num(d['roll_thy']['max_abs_deg'], '.3f')}"
-                     " deg")
+        lines.append(
+            f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch RMS "
+            f"{_num(d['pitch_thx']['rms_deg'], '.3f')} max {_num(d['pitch_thx']['max_abs_deg'], '.3f')} deg, "
+            f"roll RMS {_num(d['roll_thy']['rms_deg'], '.3f')} max {_num(d['roll_thy']['max_abs_deg'], '.3f')}"
+            " deg"
+        )
     for n in r.notes:
         lines.append(f"note: {n}")
     return lines

@@ -69,26 +69,48 @@ def side_by_side_figure(r: SideBySide):
     ax_d.set_xlabel(f"time (s), aligned by {how}")
 
     ax_t.axis("off")
-    head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg)",
-            "drift roll (deg)", "drift rate p / r (deg/min)"]
+    head = [
+        "flight",
+        "still (s)",
+        "RMS pitch thx (deg)",
+        "RMS roll thy (deg)",
+        "drift pitch (deg)",
+        "drift roll (deg)",
+        "drift rate p / r (deg/min)",
+    ]
     rows = []
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
-        rows.append([f.label, f"{g['still_s']:.1f}", _cell(px["rms_still_deg"], ".3f"),
-                     _cell(ry["rms_still_deg"], ".3f"), _cell(px["drift_deg"], "+.3f"),
-                     _cell(ry["drift_deg"], "+.3f"),
-                     f"{_cell(px['drift_rate_deg_per_min'], '+.2f')} / {_cell(ry['drift_rate_deg_per_min'], '+.2f')}"])
+        rows.append(
+            [
+                f.label,
+                f"{g['still_s']:.1f}",
+                _cell(px["rms_still_deg"], ".3f"),
+                _cell(ry["rms_still_deg"], ".3f"),
+                _cell(px["drift_deg"], "+.3f"),
+                _cell(ry["drift_deg"], "+.3f"),
+                f"{_cell(px['drift_rate_deg_per_min'], '+.2f')} / {_cell(ry['drift_rate_deg_per_min'], '+.2f')}",
+            ]
+        )
     for row in rows:  # the legend above has the whole label
         row[0] = textwrap.shorten(row[0], 46, placeholder=" …")
-    table = ax_t.table(cellText=rows, colLabels=head, loc="center", cellLoc="center",
-                       colWidths=[0.26] + [0.74 / (len(head) - 1)] * (len(head) - 1))
+    table = ax_t.table(
+        cellText=rows,
+        colLabels=head,
+        loc="center",
+        cellLoc="center",
+        colWidths=[0.26] + [0.74 / (len(head) - 1)] * (len(head) - 1),
+    )
     table.auto_set_font_size(False)
     table.set_fontsize(8.5)
     table.scale(1, 1.4)
     for i in range(len(rows)):
         table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
-    ax_t.set_title("against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
-                   fontsize=10, loc="left")
+    ax_t.set_title(
+        "against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
+        fontsize=10,
+        loc="left",
+    )
     fig.suptitle(textwrap.fill(" vs ".join(f.label for f in r.flights), 150), fontsize=12)
     return fig

@@ -67,6 +67,7 @@ _TIME_TOLERANCE = 0.5
 
 # ---- aliasing ----------------------------------------------------------------------------------------------------
 
+
 def alias_hz(f_hz: float, rate_hz: float = C.AHRS_RATE_HZ) -> float:
     """Where a sinusoid at ``f_hz`` appears when sampled at ``rate_hz``: folded into [0, rate/2]."""
     r = math.fmod(abs(float(f_hz)), rate_hz)
@@ -143,8 +144,10 @@ def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_g
 
 # ---- segmentation and Welch --------------------------------------------------------------------------------------
 
-def contiguous_runs(step, t_fw_s, values, decimation: int = 1,
-                    rate_hz: float = C.AHRS_RATE_HZ) -> list[tuple[int, int]]:
+
+def contiguous_runs(
+    step, t_fw_s, values, decimation: int = 1, rate_hz: float = C.AHRS_RATE_HZ
+) -> list[tuple[int, int]]:
     """Runs ``(start, stop)`` of rows that are consecutive samples: each row ``decimation`` AHRS steps after the one
     before, its firmware time that many periods later (± half), and every value finite. A dropped frame, a
     restart (the step counter goes back), a time jump or a NaN ends a run."""
@@ -191,7 +194,7 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     frames = frames - frames.mean(axis=1, keepdims=True)
     w = _hann(nperseg)
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
-    psd = (spec.real ** 2 + spec.imag ** 2) / (fs_hz * float(np.sum(w * w)))
+    psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
     if nperseg % 2 == 0:
         psd[:, 1:-1] *= 2.0
     else:
@@ -200,6 +203,7 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
 
 
 # ---- the whole capture -------------------------------------------------------------------------------------------
+
 
 @dataclass
 class Spectra:
@@ -291,8 +295,9 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         raise UserError("the capture has no attitude frames, so there is nothing to take a spectrum of.")
     step = np.asarray(att.step, dtype=np.int64)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
-    values = np.concatenate([np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)],
-                            axis=1)
+    values = np.concatenate(
+        [np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)], axis=1
+    )
     thr = np.asarray(att.thr, dtype=np.float64)
     d = np.diff(step)
     d = d[d > 0]
@@ -305,20 +310,26 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         if longest < nperseg:
             nperseg = 1 << max(int(math.floor(math.log2(max(longest, 1)))), 0)
             if nperseg >= MIN_NPERSEG:
-                notes.append(f"short capture: windows of {nperseg} rows instead of {DEFAULT_NPERSEG} (coarser "
-                             f"frequency resolution)")
+                notes.append(
+                    f"short capture: windows of {nperseg} rows instead of {DEFAULT_NPERSEG} (coarser "
+                    f"frequency resolution)"
+                )
     if longest < max(nperseg, MIN_NPERSEG):
         rate = C.AHRS_RATE_HZ / decimation
         need = max(nperseg, MIN_NPERSEG)
-        raise UserError(f"the capture is too short for a spectrum: its longest run of consecutive attitude frames is "
-                        f"{longest} rows ({longest / rate:.2f} s), and a window needs {need} ({need / rate:.2f} s).")
+        raise UserError(
+            f"the capture is too short for a spectrum: its longest run of consecutive attitude frames is "
+            f"{longest} rows ({longest / rate:.2f} s), and a window needs {need} ({need / rate:.2f} s)."
+        )
     hop = max(1, int(round(nperseg * (1 - overlap))))
     used = [(a, b) for a, b in runs if b - a >= nperseg]
     rate = _measured_rate(step, t, used, decimation)
     nominal = C.AHRS_RATE_HZ / decimation
     if abs(rate / nominal - 1) > 0.02:
-        notes.append(f"the firmware clock gives {rate:.2f} rows/s, not the nominal {nominal:.2f}; the spectra use the "
-                     f"measured rate")
+        notes.append(
+            f"the firmware clock gives {rate:.2f} rows/s, not the nominal {nominal:.2f}; the spectra use the "
+            f"measured rate"
+        )
     if decimation > 1:
         notes.append(f"decimated rows (one per {decimation} AHRS steps, text mode): Nyquist {rate / 2:.2f} Hz")
 
@@ -342,17 +353,33 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     rows_used = sum(b - a for a, b in used)
     dropped_runs = len(runs) - len(used)
     if len(runs) > 1:
-        notes.append(f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
-                     f"{len(used)} long enough for a window" + (f", {dropped_runs} shorter ones left out"
-                                                                 if dropped_runs else ""))
+        notes.append(
+            f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
+            f"{len(used)} long enough for a window"
+            + (f", {dropped_runs} shorter ones left out" if dropped_runs else "")
+        )
     return Spectra(
-        freq_hz=freq, psd=spectrogram.mean(axis=0), window_t_fw_s=window_t, window_thr=window_thr,
-        spectrogram=spectrogram, thr_edges=edges, thr_psd=thr_psd, thr_windows=counts, rate_hz=rate,
-        decimation=decimation, nperseg=nperseg, hop=hop, runs=used, rows=n, rows_used=rows_used, notes=notes,
+        freq_hz=freq,
+        psd=spectrogram.mean(axis=0),
+        window_t_fw_s=window_t,
+        window_thr=window_thr,
+        spectrogram=spectrogram,
+        thr_edges=edges,
+        thr_psd=thr_psd,
+        thr_windows=counts,
+        rate_hz=rate,
+        decimation=decimation,
+        nperseg=nperseg,
+        hop=hop,
+        runs=used,
+        rows=n,
+        rows_used=rows_used,
+        notes=notes,
     )
 
 
 # ---- peaks -------------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Peak:
@@ -410,8 +437,14 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
                 centre += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) * df
         lo, hi = max(int(i) - 3, 0), min(int(i) + 4, len(p))
         power = max(float(np.sum(p[lo:hi]) - floor * (hi - lo)), 0.0) * df
-        out.append(Peak(centre, float(p[i]), math.sqrt(2 * power),
-                        float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf))
+        out.append(
+            Peak(
+                centre,
+                float(p[i]),
+                math.sqrt(2 * power),
+                float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf,
+            )
+        )
     return out
 
 
@@ -419,7 +452,13 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
 
 #: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
 CSV_COLUMNS = (
-    "section", "t_fw_s", "thr", "thr_lo", "thr_hi", "windows", "freq_hz",
+    "section",
+    "t_fw_s",
+    "thr",
+    "thr_lo",
+    "thr_hi",
+    "windows",
+    "freq_hz",
     *(f"{name}_psd_{UNITS[sensor]}2_per_hz" for name, sensor, _ in SIGNALS),
 )
 
@@ -464,8 +503,9 @@ def mark_lines(sp: Spectra, marks_hz) -> list[AliasLine]:
     return [line for f in marks_hz for sensor in ("gyro", "acc") for line in alias_lines(f, sensor, sp.rate_hz)]
 
 
-def format_summary(sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, min_hz: float = 1.0,
-                   source: str = "") -> list[str]:
+def format_summary(
+    sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, min_hz: float = 1.0, source: str = ""
+) -> list[str]:
     """The printed summary: what was analysed, the rates and Nyquist, the top peaks per axis, the marks' aliases."""
     secs = sp.seconds_used
     lines = [
@@ -478,25 +518,36 @@ def format_summary(sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, mi
         f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz| (--mark-hz F).",
     ]
     lines += [f"note: {n}" for n in sp.notes]
-    lines.append(f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that "
-                 f"would make it):")
+    lines.append(
+        f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that would make it):"
+    )
     for name, _, _ in SIGNALS:
         found = peaks.get(name, [])
-        text = "   ".join(f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} "
-                           f"(+{p.above_floor_db:.0f} dB)" for p in found) or "no clear peak"
+        text = (
+            "   ".join(
+                f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} (+{p.above_floor_db:.0f} dB)"
+                for p in found
+            )
+            or "no clear peak"
+        )
         lines.append(f"  {_label(name):<16} {text}")
     if len(sp.thr_edges) > 2 or sp.thr_windows.sum():
         occupied = np.flatnonzero(sp.thr_windows)
-        lines.append(f"throttle: windows' mean gTHR {sp.window_thr.min():.0f}..{sp.window_thr.max():.0f}, "
-                     f"{len(occupied)} of {len(sp.thr_edges) - 1} throttle bins hold windows")
+        lines.append(
+            f"throttle: windows' mean gTHR {sp.window_thr.min():.0f}..{sp.window_thr.max():.0f}, "
+            f"{len(occupied)} of {len(sp.thr_edges) - 1} throttle bins hold windows"
+        )
     for f in marks_hz:
         parts = []
         for sensor in ("gyro", "acc"):
             ls = alias_lines(f, sensor, sp.rate_hz)
             main, images = ls[0], ls[1:]
             s = f"{sensor} at {main.seen_hz:.2f} Hz (x{main.gain:.3g})"
-            s += "".join(f", and at {im.seen_hz:.2f} Hz (x{im.gain:.3g}) through the gyro register's 416 Hz image at "
-                         f"{im.source_hz:.1f} Hz" for im in images)
+            s += "".join(
+                f", and at {im.seen_hz:.2f} Hz (x{im.gain:.3g}) through the gyro register's 416 Hz image at "
+                f"{im.source_hz:.1f} Hz"
+                for im in images
+            )
             parts.append(s)
         where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
         lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))

@@ -56,12 +56,23 @@ def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | N
         for m, fm in enumerate(marks_hz):
             colour = _MARK_COLOURS[m % len(_MARK_COLOURS)]
             for line in alias_lines(fm, sensor, sp.rate_hz):
-                ax.axvline(line.seen_hz, color=colour, lw=1.0, ls="--" if line.what != "416 Hz ODR image" else ":",
-                           label=f"{line.source_hz:g} Hz → {line.seen_hz:.1f} Hz (×{line.gain:.2g})")
+                ax.axvline(
+                    line.seen_hz,
+                    color=colour,
+                    lw=1.0,
+                    ls="--" if line.what != "416 Hz ODR image" else ":",
+                    label=f"{line.source_hz:g} Hz → {line.seen_hz:.1f} Hz (×{line.gain:.2g})",
+                )
         for p in (peaks or {}).get(name, []):
             ax.plot([p.freq_hz], [p.psd], "o", color="tab:orange", ms=4)
-            ax.annotate(f"{p.freq_hz:.1f} Hz", (p.freq_hz, p.psd), textcoords="offset points", xytext=(3, 3),
-                        fontsize=7, color="tab:orange")
+            ax.annotate(
+                f"{p.freq_hz:.1f} Hz",
+                (p.freq_hz, p.psd),
+                textcoords="offset points",
+                xytext=(3, 3),
+                fontsize=7,
+                color="tab:orange",
+            )
         ax.set_xlim(0, nyq * 1.02)
         ax.set_title(f"{label}: PSD")
         ax.set_xlabel("frequency, Hz")
@@ -87,8 +98,12 @@ def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | N
         mesh = ax.pcolormesh(edges, f_edges, np.ma.masked_invalid(z), shading="flat", cmap="inferno", vmin=lo, vmax=hi)
         fig.colorbar(mesh, ax=ax, label=f"dB re 1 {unit}²/Hz")
         for m, fm in enumerate(marks_hz):
-            ax.axhline(alias_lines(fm, sensor, sp.rate_hz)[0].seen_hz, color=_MARK_COLOURS[m % len(_MARK_COLOURS)],
-                       lw=1.0, ls="--")
+            ax.axhline(
+                alias_lines(fm, sensor, sp.rate_hz)[0].seen_hz,
+                color=_MARK_COLOURS[m % len(_MARK_COLOURS)],
+                lw=1.0,
+                ls="--",
+            )
         ax.set_ylim(0, nyq)
         ax.set_title(f"{label}: frequency vs throttle")
         ax.set_xlabel(f"throttle gTHR (window mean; motors run from {C.MIN_THR})")

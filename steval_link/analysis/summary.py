@@ -61,8 +61,10 @@ def values_bad_report(tel) -> dict[str, Any] | None:
         text = values_bad_sentence(n, first_step, first_t, inputs=inputs)
     else:
         j = int(np.argmax(sbad))
-        text = (f"{int(sbad.sum()):,} status snapshots carry NaN or |q| > 2 from step {int(tel.status.step[j])} on: "
-                "the firmware's own filter state; check ahrs.c")
+        text = (
+            f"{int(sbad.sum()):,} status snapshots carry NaN or |q| > 2 from step {int(tel.status.step[j])} on: "
+            "the firmware's own filter state; check ahrs.c"
+        )
     return {
         "frames": n,
         "status_frames": int(sbad.sum()),
@@ -89,11 +91,18 @@ def q_norm_report(tel) -> dict[str, Any] | None:
         norm = float(np.sqrt((q * q).sum()))
     n = int(off.sum())
     how = f"|q| = {norm:.4g}" if np.isfinite(norm) else "non-finite"
-    text = (f"the firmware's q leaves the unit sphere from step {int(a.step[i])} on (t = {float(a.t_fw_s[i]):.3f} s, "
-            f"{how}; the release keeps |q| ≈ 0.9983, ±{Q_NORM_TOL:g}), {n:,} frame{'s' if n != 1 else ''} off it: "
-            "steval compare names the step and its inputs")
-    return {"frames": n, "first_step": int(a.step[i]), "first_t_fw_s": json_number(a.t_fw_s[i]),
-            "q_norm": json_number(norm), "text": text}
+    text = (
+        f"the firmware's q leaves the unit sphere from step {int(a.step[i])} on (t = {float(a.t_fw_s[i]):.3f} s, "
+        f"{how}; the release keeps |q| ≈ 0.9983, ±{Q_NORM_TOL:g}), {n:,} frame{'s' if n != 1 else ''} off it: "
+        "steval compare names the step and its inputs"
+    )
+    return {
+        "frames": n,
+        "first_step": int(a.step[i]),
+        "first_t_fw_s": json_number(a.t_fw_s[i]),
+        "q_norm": json_number(norm),
+        "text": text,
+    }
 
 
 def summarize(tel) -> dict[str, Any]:

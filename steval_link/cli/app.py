@@ -22,7 +22,6 @@ app = typer.Typer(
 
 def _print_version(value: bool) -> None:
     if value:
-
         typer.echo(f"steval-link {__version__}")
         raise typer.Exit(0)
 

@@ -15,8 +15,9 @@ from steval_link.link.ble_transport import BleBackend, BleDevice, bleak_backend,
 
 __all__ = ["ble_app", "scan_devices", "format_devices"]
 
-ble_app = typer.Typer(help="Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).",
-                      no_args_is_help=True)
+ble_app = typer.Typer(
+    help="Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).", no_args_is_help=True
+)
 app.add_typer(ble_app, name="ble")
 
 
@@ -33,6 +34,7 @@ def scan_devices(backend: BleBackend, timeout_s: float) -> list[BleDevice]:
 
 def format_devices(devices: list[BleDevice], show_all: bool) -> list[str]:
     """One line per device: name, address, RSSI; ST's drones first (strongest first)."""
+
     def key(d: BleDevice):
         drone = bool(d.name and d.name.startswith(DEVICE_NAME_PREFIX))
         return (not drone, -(d.rssi_dbm if d.rssi_dbm is not None else -1e9))
@@ -63,7 +65,10 @@ def scan_command(
     lines = format_devices(devices, show_all)
     if not lines:
         others = len(devices)
-        print(f"steval: no drone advertising {DEVICE_NAME_PREFIX}… found in {timeout:g} s ({others} other BLE "
-              "device(s); --all lists them). Is the drone on, and not connected to a phone?", file=sys.stderr)
+        print(
+            f"steval: no drone advertising {DEVICE_NAME_PREFIX}… found in {timeout:g} s ({others} other BLE "
+            "device(s); --all lists them). Is the drone on, and not connected to a phone?",
+            file=sys.stderr,
+        )
         raise typer.Exit(1)
     print("\n".join(lines))

@@ -54,6 +54,9 @@ def require_attitude(tel, purpose: str) -> None:
         size = f"{os.path.getsize(path)} bytes, "
     except (OSError, TypeError):
         size = ""
-    held = f"{len(tel.status)} status frames and {len(tel.text)} text lines" if len(tel.status) + len(tel.text) \
+    held = (
+        f"{len(tel.status)} status frames and {len(tel.text)} text lines"
+        if len(tel.status) + len(tel.text)
         else "no frames"
+    )
     raise UserError(f"{path}: {size}{held}, no attitude frames: nothing to {purpose}.")

@@ -23,10 +23,16 @@ _PORT_HELP = "Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, CO
 _TIMEOUT_HELP = "Seconds to wait for the drone's acknowledgement."
 _OUT_HELP = "Also record this exchange (bytes received and sent) to this new capture file."
 
-param_app = typer.Typer(help="Read or change a filter parameter of the drone's Mahony filter, live.",
-                        no_args_is_help=True, context_settings={"help_option_names": HELP_OPTION_NAMES})
-command_app = typer.Typer(help="Reset the drone's filter, ask it for a status frame, or switch its output mode.",
-                          no_args_is_help=True, context_settings={"help_option_names": HELP_OPTION_NAMES})
+param_app = typer.Typer(
+    help="Read or change a filter parameter of the drone's Mahony filter, live.",
+    no_args_is_help=True,
+    context_settings={"help_option_names": HELP_OPTION_NAMES},
+)
+command_app = typer.Typer(
+    help="Reset the drone's filter, ask it for a status frame, or switch its output mode.",
+    no_args_is_help=True,
+    context_settings={"help_option_names": HELP_OPTION_NAMES},
+)
 app.add_typer(param_app, name="param")
 app.add_typer(command_app, name="command")
 
@@ -119,6 +125,7 @@ def set_mode(
     key = mode.strip().lower()
     if key not in ("text", "binary"):
         raise UserError(f"mode takes text or binary, got {mode!r}")
-    (reply,) = _run(port, baud, [Command(P.CMD_SET_MODE, P.MODE_TEXT if key == "text" else P.MODE_BINARY)],
-                    timeout, out)
+    (reply,) = _run(
+        port, baud, [Command(P.CMD_SET_MODE, P.MODE_TEXT if key == "text" else P.MODE_BINARY)], timeout, out
+    )
     _finish(reply)

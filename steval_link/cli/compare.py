@@ -180,18 +180,32 @@ def compare_command(
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
     if captures and len(captures) > 1:
-        _side_by_side(captures, as_json=as_json, plot=plot, force=force, align=align, labels=label,
-                      port_options={"--estimator": estimator, "--ki": ki, "--kp-ground": kp_ground,
-                                    "--kp-flight": kp_flight, "--dt": dt, "--min-thr": min_thr,
-                                    "--correction/--no-correction": correction,
-                                    "--fresh-squares/--stale-squares": fresh_squares},
-                      viewer=dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port,
-                                  grpc_port=grpc_port))
+        _side_by_side(
+            captures,
+            as_json=as_json,
+            plot=plot,
+            force=force,
+            align=align,
+            labels=label,
+            port_options={
+                "--estimator": estimator,
+                "--ki": ki,
+                "--kp-ground": kp_ground,
+                "--kp-flight": kp_flight,
+                "--dt": dt,
+                "--min-thr": min_thr,
+                "--correction/--no-correction": correction,
+                "--fresh-squares/--stale-squares": fresh_squares,
+            },
+            viewer=dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port),
+        )
         return
     capture = captures[0] if captures else None
     if align != "time" or label or rrd is not None or spawn or serve or connect is not None:
-        raise UserError("--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
-                        "(one capture in Rerun: steval replay CAPTURE --spawn).")
+        raise UserError(
+            "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
+            "(one capture in Rerun: steval replay CAPTURE --spawn)."
+        )
 
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
     names = registry.parse_names(
@@ -256,18 +270,22 @@ def _load_flight(path: Path):
         return flight_of_ble(path, ble, inputs, estimates["st-mahony"], src.header, src.warnings)
     tel = telemetry_of_source(src)
     if len(tel.attitude) == 0:
-        raise UserError(f"{path} has no attitude frames to compare ({len(tel.status)} status frames, "
-                        f"{len(tel.text)} text lines).")
+        raise UserError(
+            f"{path} has no attitude frames to compare ({len(tel.status)} status frames, {len(tel.text)} text lines)."
+        )
     return flight_of_telemetry(path, tel, src.warnings)
 
 
-def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels,
-                  port_options, viewer) -> None:
+def _side_by_side(
+    captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, port_options, viewer
+) -> None:
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
     given = [opt for opt, v in port_options.items() if v is not None]
     if given:
-        raise UserError(f"{', '.join(given)} apply to one capture; with two or more captures the flights are "
-                        "compared with each other (run steval compare CAPTURE on each for the port).")
+        raise UserError(
+            f"{', '.join(given)} apply to one capture; with two or more captures the flights are "
+            "compared with each other (run steval compare CAPTURE on each for the port)."
+        )
     if align not in ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):

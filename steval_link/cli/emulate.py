@@ -36,24 +36,45 @@ from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 @app.command("emulate")
 def emulate_command(
-    elf: Path = typer.Argument(..., help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
-                               "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
-                               "(patched or stock, e.g. from STM32CubeIDE)."),
-    scenario: str = typer.Option("bench", "--scenario", "-s", help="Built-in motion: bench, hand-tilts, yaw-spin, "
-                                 "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
-                                 "check's hand moves)."),
-    broad: Optional[Path] = typer.Option(None, "--broad", help="Feed a BROAD trial (.npz: real IMU signals) instead "
-                                         "of a scenario, from the first TIM9 tick on; the capture keeps its "
-                                         "ground truth per AHRS step (steval compare and evaluate score "
-                                         "against it)."),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Emulated seconds from power-up (default: "
-                                             "the scenario's length; the first attitude frame comes at ≈ 2.985 s)."),
+    elf: Path = typer.Argument(
+        ...,
+        help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
+        "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
+        "(patched or stock, e.g. from STM32CubeIDE).",
+    ),
+    scenario: str = typer.Option(
+        "bench",
+        "--scenario",
+        "-s",
+        help="Built-in motion: bench, hand-tilts, yaw-spin, "
+        "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
+        "check's hand moves).",
+    ),
+    broad: Optional[Path] = typer.Option(
+        None,
+        "--broad",
+        help="Feed a BROAD trial (.npz: real IMU signals) instead "
+        "of a scenario, from the first TIM9 tick on; the capture keeps its "
+        "ground truth per AHRS step (steval compare and evaluate score "
+        "against it).",
+    ),
+    duration: Optional[float] = typer.Option(
+        None,
+        "--duration",
+        help="Emulated seconds from power-up (default: "
+        "the scenario's length; the first attitude frame comes at ≈ 2.985 s).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
-    throttle: Optional[str] = typer.Option(None, "--throttle", help="Override the remote's throttle: N or "
-                                           "'t:v,t:v,...' (s since power-up : gTHR)."),
-    mount: Optional[str] = typer.Option(None, "--mount", help="Sensor fault: the board mounted turned on the frame "
-                                        "(turned-90: x and y swapped; turned-180: x and y reversed), as a wrong "
-                                        "COORDINATE_SYSTEM would read it."),
+    throttle: Optional[str] = typer.Option(
+        None, "--throttle", help="Override the remote's throttle: N or 't:v,t:v,...' (s since power-up : gTHR)."
+    ),
+    mount: Optional[str] = typer.Option(
+        None,
+        "--mount",
+        help="Sensor fault: the board mounted turned on the frame "
+        "(turned-90: x and y swapped; turned-180: x and y reversed), as a wrong "
+        "COORDINATE_SYSTEM would read it.",
+    ),
     out: CaptureOutOption = None,
     rrd: RrdOption = None,
     no_view: NoViewOption = False,
@@ -62,23 +83,43 @@ def emulate_command(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
-    estimators: Optional[str] = typer.Option(None, "--estimators", "-e", help="Host estimators next to the "
-                                             "firmware (as for steval live), or 'none'."),
-    realtime: bool = typer.Option(False, "--realtime", help="Pace the emulation to the wall clock (default: as "
-                                  "fast as it runs)."),
-    commands: Optional[Path] = typer.Option(None, "--commands", help="Command script: lines 'TIME_S COMMAND' "
-                                            "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
-                                            "'15 reset'), sent to the firmware's USART1 RX at those times."),
-    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help="Read commands typed on stdin (set "
-                                          "ki 1.0, correction off, reset, status) and send them to the emulated "
-                                          "firmware. Default: when stdin is a terminal."),
-    ble: bool = typer.Option(False, "--ble", help="Record the BLE notifications the firmware sends to a connected "
-                             "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
-                             "instead of USART1; replay it with steval replay."),
-    ble_connect_at: float = typer.Option(0.5, "--ble-connect-at", help="With --ble: emulated s at which the central "
-                                         "connects."),
-    tick_start_ms: int = typer.Option(0, "--tick-start-ms", help="HAL_GetTick() at main, ms (e.g. 494288: the BLE "
-                                      "tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).", min=0),
+    estimators: Optional[str] = typer.Option(
+        None, "--estimators", "-e", help="Host estimators next to the firmware (as for steval live), or 'none'."
+    ),
+    realtime: bool = typer.Option(
+        False, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs)."
+    ),
+    commands: Optional[Path] = typer.Option(
+        None,
+        "--commands",
+        help="Command script: lines 'TIME_S COMMAND' "
+        "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
+        "'15 reset'), sent to the firmware's USART1 RX at those times.",
+    ),
+    prompt: Optional[bool] = typer.Option(
+        None,
+        "--prompt/--no-prompt",
+        help="Read commands typed on stdin (set "
+        "ki 1.0, correction off, reset, status) and send them to the emulated "
+        "firmware. Default: when stdin is a terminal.",
+    ),
+    ble: bool = typer.Option(
+        False,
+        "--ble",
+        help="Record the BLE notifications the firmware sends to a connected "
+        "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
+        "instead of USART1; replay it with steval replay.",
+    ),
+    ble_connect_at: float = typer.Option(
+        0.5, "--ble-connect-at", help="With --ble: emulated s at which the central connects."
+    ),
+    tick_start_ms: int = typer.Option(
+        0,
+        "--tick-start-ms",
+        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE "
+        "tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).",
+        min=0,
+    ),
 ) -> None:
     """Run a firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -95,15 +136,17 @@ def emulate_command(
         check_input(commands, what="command script")
     if ble:
         if rrd is not None or spawn or serve or connect:
-            raise UserError("--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv "
-                            "(--spawn, --rrd)")
+            raise UserError(
+                "--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv (--spawn, --rrd)"
+            )
         _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, ble_connect_at, tick_start_ms)
         return
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
-    emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
-                                   throttle=throttle, mount=mount)
+    emu_options = EmulationOptions(
+        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle, mount=mount
+    )
     if duration is not None and not duration > 0:
         raise UserError(f"--duration must be positive, got {duration}")
     script = None
@@ -113,13 +156,30 @@ def emulate_command(
         except (OSError, UnicodeDecodeError) as exc:
             raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
         script = parse_script(text, str(commands))
-    live = LiveOptions(port="emulated", baud=C.BAUD, out=None, rrd=rrd, view=not no_view,
-                       spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
-                       estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
+    live = LiveOptions(
+        port="emulated",
+        baud=C.BAUD,
+        out=None,
+        rrd=rrd,
+        view=not no_view,
+        spawn=spawn,
+        serve=serve,
+        connect=connect,
+        web_port=web_port,
+        grpc_port=grpc_port,
+        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
+        prompt=prompt,
+    )
     # the ELF first (the input, read by the session), then the capture, the .rrd and the display
-    summary = EmulateSession(emu_options, live, realtime=realtime, viewer_factory=make_viewer_logger,
-                             commands=script, commands_file=str(commands) if commands is not None else None,
-                             check_outputs=session_outputs(live, out)).run()
+    summary = EmulateSession(
+        emu_options,
+        live,
+        realtime=realtime,
+        viewer_factory=make_viewer_logger,
+        commands=script,
+        commands_file=str(commands) if commands is not None else None,
+        check_outputs=session_outputs(live, out),
+    ).run()
     print("\n".join(summary.lines()))
     sys.stdout.flush()
 
@@ -139,8 +199,9 @@ def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s:
     if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
-    emu_options = EmulationOptions(elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed,
-                                   throttle=throttle)
+    emu_options = EmulationOptions(
+        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle
+    )
     command = emu_options.command() + f" --ble --ble-connect-at {connect_s:g}"
     if tick_start_ms:
         command += f" --tick-start-ms {tick_start_ms}"

@@ -69,15 +69,27 @@ def new_command(
 
 @estimator_app.command("check")
 def check_command(
-    estimator: Annotated[str, typer.Argument(
-        help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
-             "'my_ekf.py:MyEkf(q_gyro=1e-5)'.", show_default=False)],
-    broad_path: Annotated[Optional[list[Path]], typer.Option(
-        "--broad", help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
-                        f"{DEFAULT_BROAD} when it exists.", show_default=False)] = None,
+    estimator: Annotated[
+        str,
+        typer.Argument(
+            help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
+            "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
+            show_default=False,
+        ),
+    ],
+    broad_path: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            "--broad",
+            help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
+            f"{DEFAULT_BROAD} when it exists.",
+            show_default=False,
+        ),
+    ] = None,
     no_broad: Annotated[bool, typer.Option("--no-broad", help="Do not score on BROAD trials (quicker).")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
-                                                          "stdout).")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
+    ] = False,
 ) -> None:
     """Check an estimator's interface (shapes, units and signs at rest and tilted, a turn, NaN and invalid input,
     determinism, steps per second), then score it next to ST-Mahony, the built-in EKF and VQF: tilt difference

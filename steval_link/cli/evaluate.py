@@ -53,33 +53,68 @@ _HELP = (
 
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
-    data: Annotated[list[Path], typer.Argument(help="BROAD .npz trials, directories of them, or captures with a "
-                                                    ".truth.npz sidecar.", show_default=False)],
-    estimators: Annotated[Optional[str], typer.Option(
-        "--estimators", "-e", help="Comma-separated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
-                                   "accel, ekf3, mekf, vqf, or your own (FILE.py:CLASS, "
-                                   "module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
-                                   "available.")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on "
-                                                          "stdout).")] = False,
-    native: Annotated[bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL "
-                                                          "pipeline.")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write a PNG: RMSE bars per estimator and trial, "
-                                                                "and the first trial's error over time "
-                                                                "(needs matplotlib: pip install "
-                                                                "\"steval-link\\[plot]\").",
-                                                 show_default=False)] = None,
-    sensor_noise: Annotated[bool, typer.Option("--sensor-noise", help="Add the LSM6DSL model's white noise (gyro "
-                                                                     "75 mdps, acc 2 mg RMS) on top of the trial's "
-                                                                     "own before quantisation.")] = False,
+    data: Annotated[
+        list[Path],
+        typer.Argument(
+            help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar.", show_default=False
+        ),
+    ],
+    estimators: Annotated[
+        Optional[str],
+        typer.Option(
+            "--estimators",
+            "-e",
+            help="Comma-separated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
+            "accel, ekf3, mekf, vqf, or your own (FILE.py:CLASS, "
+            "module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
+            "available.",
+        ),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
+    ] = False,
+    native: Annotated[
+        bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
+    ] = False,
+    plot: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--plot",
+            help="Write a PNG: RMSE bars per estimator and trial, "
+            "and the first trial's error over time "
+            "(needs matplotlib: pip install "
+            '"steval-link\\[plot]").',
+            show_default=False,
+        ),
+    ] = None,
+    sensor_noise: Annotated[
+        bool,
+        typer.Option(
+            "--sensor-noise",
+            help="Add the LSM6DSL model's white noise (gyro "
+            "75 mdps, acc 2 mg RMS) on top of the trial's "
+            "own before quantisation.",
+        ),
+    ] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")] = 0,
     force: ForceOption = False,
-    firmware: Annotated[Optional[list[Path]], typer.Option(
-        "--firmware", help="A firmware ELF to run on the emulated board with each BROAD trial and score "
-                           "(repeatable).", show_default=False)] = None,
-    max_seconds: Annotated[Optional[float], typer.Option(
-        "--max-seconds", help="Use only the first S seconds of each BROAD trial (every estimator and firmware; "
-                              "the trials' movement starts after 26-46 s).", show_default=False)] = None,
+    firmware: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            "--firmware",
+            help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
+            show_default=False,
+        ),
+    ] = None,
+    max_seconds: Annotated[
+        Optional[float],
+        typer.Option(
+            "--max-seconds",
+            help="Use only the first S seconds of each BROAD trial (every estimator and firmware; "
+            "the trials' movement starts after 26-46 s).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
 
     items = broad.trial_paths(data)  # the inputs first, then the output
@@ -131,7 +166,6 @@ def evaluate_command(
                     done += _FIRMWARE_WEIGHT
                 results.append(res)
             else:
-
                 specs = ev.default_specs(AHRS_HZ, only=only)
                 results.append(ev.evaluate_capture(p, specs, progress=progress))
         if plot is not None:

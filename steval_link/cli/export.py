@@ -24,9 +24,14 @@ __all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
 
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
-ANGLE_COLUMNS = {"thx_pitch_rad": "thx_pitch_deg", "thy_roll_rad": "thy_roll_deg", "thz_yaw_rad": "thz_yaw_deg",
-                 "target_thx_pitch_rad": "target_thx_pitch_deg", "target_thy_roll_rad": "target_thy_roll_deg",
-                 "target_thz_yaw_rad": "target_thz_yaw_deg"}
+ANGLE_COLUMNS = {
+    "thx_pitch_rad": "thx_pitch_deg",
+    "thy_roll_rad": "thy_roll_deg",
+    "thz_yaw_rad": "thz_yaw_deg",
+    "target_thx_pitch_rad": "target_thx_pitch_deg",
+    "target_thy_roll_rad": "target_thy_roll_deg",
+    "target_thz_yaw_rad": "target_thz_yaw_deg",
+}
 
 
 def _column_strings(col: np.ndarray) -> list[str]:
@@ -87,16 +92,29 @@ def export(
     raw: Annotated[
         Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
     ] = None,
-    mat: Annotated[Optional[Path], typer.Option(
-        "--mat", help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
-        "columns, plus settings and header (needs scipy).")] = None,
-    mcap: Annotated[Optional[Path], typer.Option(
-        "--mcap", help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
-        "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
-        "mcap).")] = None,
-    degrees: Annotated[bool, typer.Option(
-        "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
-    )] = False,
+    mat: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--mat",
+            help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
+            "columns, plus settings and header (needs scipy).",
+        ),
+    ] = None,
+    mcap: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--mcap",
+            help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
+            "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
+            "mcap).",
+        ),
+    ] = None,
+    degrees: Annotated[
+        bool,
+        typer.Option(
+            "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")] = False,
 ) -> None:
     """Export a capture as CSV / Parquet (one row per attitude frame), MATLAB (--mat), MCAP (--mcap) or as the raw
@@ -121,11 +139,15 @@ def export(
     (foxglove.FrameTransform), /attitude/pose (foxglove.PoseInFrame), /attitude (steval.Attitude), /status,
     /flight_control; JSON, log time = firmware time. Both are written to OUT.partial, then renamed.
     """
-    outputs = [(opt, p) for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw), ("--mat", mat),
-                                       ("--mcap", mcap)) if p is not None]
+    outputs = [
+        (opt, p)
+        for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw), ("--mat", mat), ("--mcap", mcap))
+        if p is not None
+    ]
     if not outputs:
-        raise UserError("nothing to export: give --csv OUT, --parquet OUT, --raw OUT.bin, --mat OUT.mat and/or "
-                        "--mcap OUT.mcap.")
+        raise UserError(
+            "nothing to export: give --csv OUT, --parquet OUT, --raw OUT.bin, --mat OUT.mat and/or --mcap OUT.mcap."
+        )
     if mat is not None:
         require_scipy()  # before any work: one line when scipy is missing
     if mcap is not None:
@@ -137,8 +159,10 @@ def export(
         progress(0.1, "decoding")
         if is_ble_source(src):
             if mcap is not None:
-                raise UserError(f"{src.path} is a BLE capture: --mcap needs a serial capture (attitude frames); "
-                                "use --csv, --parquet or --mat.")
+                raise UserError(
+                    f"{src.path} is a BLE capture: --mcap needs a serial capture (attitude frames); "
+                    "use --csv, --parquet or --mat."
+                )
             _export_ble(src, csv, parquet, raw, progress, mat)
             return
         tel = telemetry_of_source(src) if (csv or parquet or mat or mcap) else None
@@ -184,17 +208,20 @@ def _export_mcap(tel, path: Path, progress) -> None:
     """The capture as MCAP (topics and schemas: steval_link.analysis.mcap_export)."""
     counts: dict[str, int] = {}
     meta = {"settings": settings_of(tel), "header": header_of(tel)}
-    write_atomic(path, "--mcap", lambda f: counts.update(write_mcap(tel, f, metadata=meta,
-                                                           progress=scaled(progress, 0.5, 1.0))))
+    write_atomic(
+        path, "--mcap", lambda f: counts.update(write_mcap(tel, f, metadata=meta, progress=scaled(progress, 0.5, 1.0)))
+    )
     typer.echo(f"{path}: MCAP, " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
 
 
-def _export_ble(src, csv: Path | None, parquet: Path | None, raw: Path | None, progress,
-                mat: Path | None = None) -> None:
+def _export_ble(
+    src, csv: Path | None, parquet: Path | None, raw: Path | None, progress, mat: Path | None = None
+) -> None:
     """A BLE capture: one row per motion notification (env and arming values held from their last one)."""
     if raw is not None:
-        raise UserError(f"{src.path} is a BLE capture: it has notifications, no serial bytes for --raw "
-                        "(use --csv or --parquet).")
+        raise UserError(
+            f"{src.path} is a BLE capture: it has notifications, no serial bytes for --raw (use --csv or --parquet)."
+        )
     for w in src.warnings:
         typer.echo(f"steval: warning: {w}", err=True)
     ble = load_ble(src)

@@ -31,14 +31,18 @@ from steval_link.live.session import LiveOptions, LiveSession
 from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
-_PORT_HELP = ("Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
-              "replay://CAPTURE.stv[?speed=5]: a recording played at its recorded pace (no drone needed).")
+_PORT_HELP = (
+    "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
+    "replay://CAPTURE.stv[?speed=5]: a recording played at its recorded pace (no drone needed)."
+)
 _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
 _WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead of stopping with an error."
 
 
-_PROMPT_HELP = ("Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
-                "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal.")
+_PROMPT_HELP = (
+    "Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
+    "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal."
+)
 
 
 def session_outputs(options: LiveOptions, out: Path | None):
@@ -87,13 +91,15 @@ def live_command(
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
     prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
     ble: bool = typer.Option(
-        False, "--ble",
+        False,
+        "--ble",
         help="Over Bluetooth instead of the serial port, from ST's unmodified firmware: --ble alone connects to the "
         "strongest drone advertising DRN1…, --ble NAME or --ble ADDRESS to that one (see steval ble scan). Needs "
-        "bleak: pip install \"steval-link\\[ble]\".",
+        'bleak: pip install "steval-link\\[ble]".',
     ),
-    device: Optional[str] = typer.Argument(None, metavar="[NAME|ADDRESS]", show_default=False,
-                                           help="With --ble: the drone's BLE name or address."),
+    device: Optional[str] = typer.Argument(
+        None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
+    ),
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -107,8 +113,10 @@ def live_command(
     if duration is not None and duration <= 0:
         raise UserError(f"--duration must be positive, got {duration}")
     if device is not None and not ble:
-        raise UserError(f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
-                        "port is given with --port")
+        raise UserError(
+            f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
+            "port is given with --port"
+        )
     if ble:
         target = device.strip() if device and device.strip() else None
         _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration)
@@ -130,8 +138,7 @@ def live_command(
         prompt=prompt,
     )
     # the port first (the input), then the capture, the .rrd and the display
-    summary = LiveSession(options, viewer_factory=make_viewer_logger,
-                          check_outputs=session_outputs(options, out)).run()
+    summary = LiveSession(options, viewer_factory=make_viewer_logger, check_outputs=session_outputs(options, out)).run()
     print(summary.line())
     sys.stdout.flush()
 
@@ -177,9 +184,20 @@ def _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_p
         check_output(out, option="--out", overwrite="never")
     if rrd is not None:
         check_output(rrd, option="--rrd", overwrite="never")
-    options = LiveOptions(port=f"ble:{target or 'auto'}", baud=0, out=out, rrd=rrd, view=not no_view, spawn=spawn,
-                          serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port,
-                          estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration)
+    options = LiveOptions(
+        port=f"ble:{target or 'auto'}",
+        baud=0,
+        out=out,
+        rrd=rrd,
+        view=not no_view,
+        spawn=spawn,
+        serve=serve,
+        connect=connect,
+        web_port=web_port,
+        grpc_port=grpc_port,
+        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
+        duration_s=duration,
+    )
     if options.uses_rerun:
         viewer_sink_options(options)  # e.g. no display and no --rrd: say so before scanning
     summary = BleLiveSession(options, target=target, backend=backend, viewer_factory=_ble_viewer).run()

@@ -25,9 +25,12 @@ from steval_link.live.session import LiveOptions, LiveSession
 
 #: the guided sequence: (seconds after the start, what to say)
 SCRIPT: tuple[tuple[float, str], ...] = (
-    (0.0, "PROPS OFF. Put the drone level on the table. In the ST app: connect, arm, and raise the throttle just "
-          f"above idle (gTHR >= {C.MIN_THR}) so the motors idle; or leave the throttle at 0 to check with the "
-          "motors off. Keep still."),
+    (
+        0.0,
+        "PROPS OFF. Put the drone level on the table. In the ST app: connect, arm, and raise the throttle just "
+        f"above idle (gTHR >= {C.MIN_THR}) so the motors idle; or leave the throttle at 0 to check with the "
+        "motors off. Keep still.",
+    ),
     (6.0, "Pick the drone up and hold it level."),
     (8.0, f"1/3 {MOVES[0].name.upper()}: {MOVES[0].instruction}."),
     (13.5, f"2/3 {MOVES[1].name.upper()}: {MOVES[1].instruction}."),
@@ -59,13 +62,19 @@ def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> thre
 
 @app.command("preflight")
 def preflight_command(
-    capture: Optional[Path] = typer.Argument(None, help="Check a recorded capture (.stv) of the guided moves "
-                                             "instead of a live port."),
-    port: Optional[str] = typer.Option(None, "--port", "-p", help="Guide the moves live on this serial port "
-                                       "(e.g. /dev/ttyUSB0, or 'auto'), record them, then check."),
+    capture: Optional[Path] = typer.Argument(
+        None, help="Check a recorded capture (.stv) of the guided moves instead of a live port."
+    ),
+    port: Optional[str] = typer.Option(
+        None,
+        "--port",
+        "-p",
+        help="Guide the moves live on this serial port (e.g. /dev/ttyUSB0, or 'auto'), record them, then check.",
+    ),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the drone's USART1."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Live: the capture file (default "
-                                       "recordings/steval-<UTC time>.stv)."),
+    out: Optional[Path] = typer.Option(
+        None, "--out", "-o", help="Live: the capture file (default recordings/steval-<UTC time>.stv)."
+    ),
 ) -> None:
     """Preflight wiring check: tilt right, nose up, turn right with the props off, checked against the firmware.
 

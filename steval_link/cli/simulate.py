@@ -240,8 +240,13 @@ def simulate_command(
     dt: Optional[float] = typer.Option(
         None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
     ),
-    estimator: str = typer.Option("st-mahony", "--estimator", "-e", help="Estimator: a registry name or your own "
-                                  "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md)."),
+    estimator: str = typer.Option(
+        "st-mahony",
+        "--estimator",
+        "-e",
+        help="Estimator: a registry name or your own "
+        "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
+    ),
     csv_out: Optional[str] = typer.Option(
         None, "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
     ),
@@ -265,8 +270,10 @@ def simulate_command(
     check_throttle("--throttle", throttle)
     if estimator not in registry.ESTIMATORS:
         if not registry.is_known(estimator):
-            raise UserError(f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}, "
-                            "FILE.py:CLASS or module:CLASS")
+            raise UserError(
+                f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}, "
+                "FILE.py:CLASS or module:CLASS"
+            )
         estimator = registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")

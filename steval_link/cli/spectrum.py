@@ -38,29 +38,62 @@ MAX_THROTTLE_BINS = 100
 
 @app.command("spectrum")
 def spectrum_cmd(
-    capture: Annotated[Path, typer.Argument(
-        help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False)],
-    plot: Annotated[Optional[Path], typer.Option(
-        "--plot", help='Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image '
-                       '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".')] = None,
-    csv_out: Annotated[Optional[Path], typer.Option(
-        "--csv", help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
-                      "mdps²/Hz and mg²/Hz.")] = None,
-    mark_hz: Annotated[Optional[list[float]], typer.Option(
-        "--mark-hz", metavar="HZ", help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
-                                        "its alias above it (the gyro also at its 416 Hz-register images), with "
-                                        "the gain of the firmware's averaging and gyro filter; repeatable.")] = None,
-    nperseg: Annotated[Optional[int], typer.Option(
-        "--nperseg", metavar="ROWS", help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
-                                          f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-        show_default=False)] = None,
+    capture: Annotated[
+        Path,
+        typer.Argument(
+            help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
+        ),
+    ],
+    plot: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--plot",
+            help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image "
+            '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
+        ),
+    ] = None,
+    csv_out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--csv",
+            help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
+            "mdps²/Hz and mg²/Hz.",
+        ),
+    ] = None,
+    mark_hz: Annotated[
+        Optional[list[float]],
+        typer.Option(
+            "--mark-hz",
+            metavar="HZ",
+            help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
+            "its alias above it (the gyro also at its 416 Hz-register images), with "
+            "the gain of the firmware's averaging and gyro filter; repeatable.",
+        ),
+    ] = None,
+    nperseg: Annotated[
+        Optional[int],
+        typer.Option(
+            "--nperseg",
+            metavar="ROWS",
+            help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+            f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+            show_default=False,
+        ),
+    ] = None,
     overlap: Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")] = 0.5,
-    throttle_bins: Annotated[int, typer.Option(
-        "--throttle-bins", metavar="N", help="Throttle bins of the frequency-vs-throttle map, over the capture's "
-                                             "range of gTHR.")] = 10,
+    throttle_bins: Annotated[
+        int,
+        typer.Option(
+            "--throttle-bins",
+            metavar="N",
+            help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+        ),
+    ] = 10,
     peaks: Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")] = 3,
-    min_hz: Annotated[float, typer.Option(
-        "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")] = 1.0,
+    min_hz: Annotated[
+        float,
+        typer.Option("--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration)."),
+    ] = 1.0,
     rrd: RrdOption = None,
     spawn: SpawnOption = False,
     serve: ServeOption = False,
@@ -105,15 +138,17 @@ def spectrum_cmd(
     viewer = rrd is not None or spawn or serve or connect
     options = None
     if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        options = sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port,
-                               grpc_port=grpc_port)
+        options = sink_options(
+            rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
+        )
     with progress_bar("spectrum", quiet=serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
         sp = S.compute_spectra(tel, nperseg=nperseg, overlap=overlap, throttle_bins=throttle_bins)
-        found = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k], peaks, min_hz) for k, (name, _, _) in
-                 enumerate(S.SIGNALS)}
+        found = {
+            name: S.find_peaks(sp.freq_hz, sp.psd[:, k], peaks, min_hz) for k, (name, _, _) in enumerate(S.SIGNALS)
+        }
         lines = S.format_summary(sp, found, marks, min_hz=min_hz, source=capture.name)
         if csv_out is not None:
             progress(0.4, f"writing {csv_out.name}")

@@ -26,40 +26,76 @@ def _list() -> None:
 
 @app.command("synth")
 def synth_cmd(
-    scenario: Annotated[Optional[str], typer.Option(
-        "--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion).")] = None,
-    out: Annotated[Optional[Path], typer.Option(
-        "--out", "-o", help="Output: FILE.stv (capture with host times) or any other name for the plain received "
-                            "bytes (like cat /dev/ttyUSB0 > FILE).")] = None,
-    duration: Annotated[Optional[float], typer.Option(
-        "--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it).")] = None,
+    scenario: Annotated[
+        Optional[str],
+        typer.Option("--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."),
+    ] = None,
+    out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--out",
+            "-o",
+            help="Output: FILE.stv (capture with host times) or any other name for the plain received "
+            "bytes (like cat /dev/ttyUSB0 > FILE).",
+        ),
+    ] = None,
+    duration: Annotated[
+        Optional[float],
+        typer.Option("--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."),
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")] = 0,
-    baud: Annotated[int, typer.Option(
-        "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it.")]
-    = BAUD,
-    throttle: Annotated[Optional[str], typer.Option(
-        "--throttle", help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : value, "
-                           "linear in between).")] = None,
-    ki: Annotated[float, typer.Option("--ki", help="AHRS_KI of the emulated build (lab exercise 4: 1.0).")]
-    = KI,
-    no_correction: Annotated[bool, typer.Option(
-        "--no-correction", help="Build without accelerometer correction (lab exercise 5).")] = False,
-    text_mode: Annotated[bool, typer.Option(
-        "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines.")] = False,
-    join_at: Annotated[float, typer.Option(
-        "--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")] = 0.0,
-    drop_rate: Annotated[float, typer.Option(
-        "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped).")]
-    = 0.0,
-    encoder: Annotated[str, typer.Option(
-        "--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")] = "python",
-    c_encoder: Annotated[Optional[Path], typer.Option(
-        "--c-encoder", help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies "
-                            "--encoder c).")] = None,
-    vibration: Annotated[Optional[list[str]], typer.Option(
-        "--vibration", metavar="SENSOR-AXIS:HZ:AMP",
-        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
-             "repeatable. To check steval spectrum against known peaks.")] = None,
+    baud: Annotated[
+        int,
+        typer.Option(
+            "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+        ),
+    ] = BAUD,
+    throttle: Annotated[
+        Optional[str],
+        typer.Option(
+            "--throttle",
+            help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : value, "
+            "linear in between).",
+        ),
+    ] = None,
+    ki: Annotated[float, typer.Option("--ki", help="AHRS_KI of the emulated build (lab exercise 4: 1.0).")] = KI,
+    no_correction: Annotated[
+        bool, typer.Option("--no-correction", help="Build without accelerometer correction (lab exercise 5).")
+    ] = False,
+    text_mode: Annotated[
+        bool,
+        typer.Option(
+            "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."
+        ),
+    ] = False,
+    join_at: Annotated[
+        float, typer.Option("--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
+    ] = 0.0,
+    drop_rate: Annotated[
+        float,
+        typer.Option(
+            "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+        ),
+    ] = 0.0,
+    encoder: Annotated[
+        str, typer.Option("--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
+    ] = "python",
+    c_encoder: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--c-encoder",
+            help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
+        ),
+    ] = None,
+    vibration: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--vibration",
+            metavar="SENSOR-AXIS:HZ:AMP",
+            help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
+            "repeatable. To check steval spectrum against known peaks.",
+        ),
+    ] = None,
     fmt: Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")] = "auto",
     force: Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")] = False,
     list_: Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")] = False,
@@ -80,9 +116,18 @@ def synth_cmd(
         encoder = "c"
 
     opts = SynthOptions(
-        scenario=scenario, duration_s=duration, seed=seed, baud=baud, throttle=throttle, ki=ki,
-        correction=not no_correction, text_mode=text_mode, join_at_s=join_at, drop_rate=drop_rate,
-        encoder=encoder.lower(), c_encoder=None if c_encoder is None else str(c_encoder),
+        scenario=scenario,
+        duration_s=duration,
+        seed=seed,
+        baud=baud,
+        throttle=throttle,
+        ki=ki,
+        correction=not no_correction,
+        text_mode=text_mode,
+        join_at_s=join_at,
+        drop_rate=drop_rate,
+        encoder=encoder.lower(),
+        c_encoder=None if c_encoder is None else str(c_encoder),
         vibration=tuple(vibration or ()),
     )
     t0 = time.perf_counter()
@@ -91,8 +136,11 @@ def synth_cmd(
         progress(0.95, f"writing {out.name}")
         kind = write_output(res, out, fmt=fmt, force=force)
     c = res.counts
-    frames = (f"{c['att_lines']} $ATT, {c['sta_lines']} $STA, {c['log_lines']} log lines" if opts.text_mode
-              else f"{c['attitude']} attitude, {c['status']} status, {c['text']} text frames")
+    frames = (
+        f"{c['att_lines']} $ATT, {c['sta_lines']} $STA, {c['log_lines']} log lines"
+        if opts.text_mode
+        else f"{c['attitude']} attitude, {c['status']} status, {c['text']} text frames"
+    )
     typer.echo(
         f"wrote {out} ({kind}, {out.stat().st_size / 1e6:.2f} MB): {res.header['extra']['synth']['duration_s']:.1f} s "
         f"emulated, {frames}, {res.tx_dropped} dropped by the TX queue; {opts.encoder} encoder; "

@@ -42,9 +42,7 @@ GrpcPortOption = Annotated[
 ]
 
 
-NoViewOption = Annotated[
-    bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
-]
+NoViewOption = Annotated[bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")]
 CaptureOutOption = Annotated[
     Optional[Path],
     typer.Option("--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."),
@@ -64,8 +62,6 @@ def sink_options(
 ) -> SinkOptions:
     """The ``steval_viewer.sink_options.SinkOptions`` of the shared flags, checked before any work is done (a missing
     ``.rrd`` folder, a URL where nothing listens, a busy port: one UserError sentence)."""
-    options = SinkOptions(
-        spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port
-    )
+    options = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     check_sinks(options)
     return options

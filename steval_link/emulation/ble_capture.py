@@ -48,25 +48,39 @@ class BleRecording:
 
     def lines(self) -> list[str]:
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items() if v)
-        out = [f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
-               f"emulated, central connected at {self.connect_s:g} s",
-               f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}, "
-               f"refused (congestion model) {self.refused}"]
+        out = [
+            f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
+            f"emulated, central connected at {self.connect_s:g} s",
+            f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}, "
+            f"refused (congestion model) {self.refused}",
+        ]
         return out
 
 
-def record_ble(options: EmulationOptions, out: str | Path, *, connect_s: float = 0.5, tick_start_ms: int = 0,
-               bluenrg: EmulatedBlueNrg | None = None, command: str | None = None) -> BleRecording:
+def record_ble(
+    options: EmulationOptions,
+    out: str | Path,
+    *,
+    connect_s: float = 0.5,
+    tick_start_ms: int = 0,
+    bluenrg: EmulatedBlueNrg | None = None,
+    command: str | None = None,
+) -> BleRecording:
     """Run the firmware and write its BLE notifications to a new capture ``out`` (see the module docstring)."""
     nrg = bluenrg if bluenrg is not None else EmulatedBlueNrg()
     emu = Emulation(options, bluenrg=nrg, tick_start_ms=tick_start_ms, ble_connect_s=connect_s)
-    extra = {"link": "ble", "emulated": True, "firmware": Path(str(options.elf)).name,
-             "command": command or options.command() + " --ble", "device": EMULATED_NAME,
-             "address": EMULATED_ADDRESS,
-             "note": "host times are the emulated delivery times, s since power-up (no radio timing model)"}
-    rec = BleRecording(path=Path(out), emulated_s=0.0, connect_s=connect_s,
-                       counts={n: 0 for n in CHAR_NAMES.values()})
+    extra = {
+        "link": "ble",
+        "emulated": True,
+        "firmware": Path(str(options.elf)).name,
+        "command": command or options.command() + " --ble",
+        "device": EMULATED_NAME,
+        "address": EMULATED_ADDRESS,
+        "note": "host times are the emulated delivery times, s since power-up (no radio timing model)",
+    }
+    rec = BleRecording(path=Path(out), emulated_s=0.0, connect_s=connect_s, counts={n: 0 for n in CHAR_NAMES.values()})
     with CaptureWriter(out, port=f"ble:{EMULATED_NAME} {EMULATED_ADDRESS}", baud=0, extra=extra) as w:
+
         def drain() -> None:
             while nrg.notifications:
                 n = nrg.notifications.popleft()

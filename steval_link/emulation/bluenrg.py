@@ -60,8 +60,15 @@ def _uuid_str(le: bytes) -> str:
 class EmulatedBlueNrg:
     """``Board.hci_handler`` for the SPBTLE-RF module (see the module docstring)."""
 
-    def __init__(self, *, rssi_dbm: int = -62, buffers: int | None = None, per_event: int = 4,
-                 interval_s: float = 0.0125, keep: int = 1_000_000) -> None:
+    def __init__(
+        self,
+        *,
+        rssi_dbm: int = -62,
+        buffers: int | None = None,
+        per_event: int = 4,
+        interval_s: float = 0.0125,
+        keep: int = 1_000_000,
+    ) -> None:
         self.rssi_dbm = int(rssi_dbm)
         self.buffers = buffers
         self.per_event = int(per_event)
@@ -86,7 +93,7 @@ class EmulatedBlueNrg:
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_CHAR and len(params) >= 5:
             handle = self._alloc(3)  # declaration, value, CCCD
             n = 16 if params[2] == UUID_TYPE_128 else 2
-            self.uuid_of_handle[handle] = _uuid_str(params[3:3 + n])
+            self.uuid_of_handle[handle] = _uuid_str(params[3 : 3 + n])
             return struct.pack("<BH", 0, handle)
         if ogf == OGF_VENDOR and ocf == OCF_GATT_UPD_CHAR_VAL and len(params) >= 6:
             return bytes([self._update(t, params)])
@@ -96,7 +103,7 @@ class EmulatedBlueNrg:
 
     def _update(self, t: float, params: bytes) -> int:
         serv, char, off, length = struct.unpack_from("<HHBB", params)
-        value = bytes(params[6:6 + length])
+        value = bytes(params[6 : 6 + length])
         self.updates += 1
         uuid = self.uuid_of_handle.get(char)
         cid = char_id_of_uuid(uuid) if uuid else None
@@ -132,10 +139,16 @@ class FakeBleBackend:
     counts of notifications (one per connection, in order). Each notification is delivered after ``pace_s``.
     """
 
-    def __init__(self, notifications: Sequence[tuple[int, bytes]], *,
-                 devices: Sequence[BleDevice] = (BleDevice("DRN1110", "C0:11:22:33:44:55", -60.0),),
-                 fail_connects: int = 0, drop_after: Sequence[int] = (), pace_s: float = 0.0,
-                 scan_error: Exception | None = None) -> None:
+    def __init__(
+        self,
+        notifications: Sequence[tuple[int, bytes]],
+        *,
+        devices: Sequence[BleDevice] = (BleDevice("DRN1110", "C0:11:22:33:44:55", -60.0),),
+        fail_connects: int = 0,
+        drop_after: Sequence[int] = (),
+        pace_s: float = 0.0,
+        scan_error: Exception | None = None,
+    ) -> None:
         self._items = list(notifications)
         self.devices = list(devices)
         self.fail_connects = int(fail_connects)

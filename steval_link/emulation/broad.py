@@ -101,8 +101,10 @@ def load_trial(path) -> BroadTrial:
         raise UserError(f"{p}: cannot read as a BROAD .npz ({type(exc).__name__}: {exc})") from None
     n = acc.shape[0]
     if acc.ndim != 2 or acc.shape[1] != 3 or gyr.shape != acc.shape or quat.shape != (n, 4) or mov.shape != (n,):
-        raise UserError(f"{p}: malformed BROAD trial (acc {acc.shape}, gyr {gyr.shape}, quat {quat.shape}, "
-                        f"movement {mov.shape}; expected (N,3), (N,3), (N,4), (N,))")
+        raise UserError(
+            f"{p}: malformed BROAD trial (acc {acc.shape}, gyr {gyr.shape}, quat {quat.shape}, "
+            f"movement {mov.shape}; expected (N,3), (N,3), (N,4), (N,))"
+        )
     if not np.isfinite(fs) or fs <= 0 or n < 2:
         raise UserError(f"{p}: malformed BROAD trial (fs = {fs}, {n} samples)")
     return BroadTrial(p.stem, fs, acc, gyr, quat, mov)
@@ -127,6 +129,7 @@ def trial_paths(items) -> list[Path]:
 
 
 # --- quaternions (wxyz, float64) ---------------------------------------------------------------------------------
+
 
 def _error_quat(q_est, q_true) -> np.ndarray:
     return quat_multiply(quat_normalize(q_est), quat_conjugate(quat_normalize(q_true)))
@@ -157,6 +160,7 @@ def rmse_deg(err_rad, mask=None) -> float:
 
 
 # --- the trial as the estimators see it --------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class SteValView:
@@ -215,5 +219,11 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
 
 def native_view(trial: BroadTrial) -> SteValView:
     """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
-    return SteValView(trial.acc_mg.astype(np.float32), trial.gyro_mdps.astype(np.float32), trial.t_s,
-                      trial.quat_wxyz, trial.movement, trial.fs_hz)
+    return SteValView(
+        trial.acc_mg.astype(np.float32),
+        trial.gyro_mdps.astype(np.float32),
+        trial.t_s,
+        trial.quat_wxyz,
+        trial.movement,
+        trial.fs_hz,
+    )

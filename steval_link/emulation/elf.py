@@ -47,7 +47,7 @@ class Elf:
             p_type, off, vaddr, paddr, filesz, memsz, _fl, _al = struct.unpack_from("<8I", data, phoff + i * phentsize)
             if p_type == 1 and filesz:
                 # load (physical) address: .data's initial values live in flash, the startup code copies them
-                out.append((paddr, data[off:off + filesz]))
+                out.append((paddr, data[off : off + filesz]))
         return out
 
     @staticmethod
@@ -67,7 +67,7 @@ class Elf:
                 if typ not in (1, 2) or shndx == 0:  # OBJECT, FUNC
                     continue
                 end = data.index(b"\0", str_off + name_off)
-                out.append(Symbol(data[str_off + name_off:end].decode("ascii", "replace"), value, size, typ == 2))
+                out.append(Symbol(data[str_off + name_off : end].decode("ascii", "replace"), value, size, typ == 2))
         if not out:
             raise UserError("the firmware ELF has no symbols (do not strip it: the board finds its functions by name)")
         return out

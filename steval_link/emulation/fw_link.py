@@ -153,16 +153,18 @@ def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndar
     return out
 
 
-def step_timing(step_tick: np.ndarray, n_ticks: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
-                                                                                          np.ndarray]:
+def step_timing(
+    step_tick: np.ndarray, n_ticks: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
     ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
     PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
     n_steps = len(step_tick)
     tick_cycles = TIM9_START_CYCLES + (np.arange(n_ticks, dtype=np.int64) + 1) * C.TICK_CYCLES
     isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
-    loop_latency = rng.integers(0, 700, n_steps) + np.where(rng.random(n_steps) < 0.08,
-                                                            rng.integers(0, 34_000, n_steps), 0)
+    loop_latency = rng.integers(0, 700, n_steps) + np.where(
+        rng.random(n_steps) < 0.08, rng.integers(0, 34_000, n_steps), 0
+    )
     begin = tick_cycles[step_tick] + isr_cycles + loop_latency
     cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
     txe_u = rng.random(n_steps)
@@ -245,10 +247,14 @@ class LinkEmulation:
     def _att_line(self, k: int, c1: float, rows: dict) -> None:
         a = self.att[k]
         line = format_att(
-            step=k, t_ms=int(a["t_us"]) // 1000, thr=int(a["thr"]),
-            thx_mdeg=f2i(rows["thx"][k] * _RAD_TO_MDEG_F32), thy_mdeg=f2i(rows["thy"][k] * _RAD_TO_MDEG_F32),
+            step=k,
+            t_ms=int(a["t_us"]) // 1000,
+            thr=int(a["thr"]),
+            thx_mdeg=f2i(rows["thx"][k] * _RAD_TO_MDEG_F32),
+            thy_mdeg=f2i(rows["thy"][k] * _RAD_TO_MDEG_F32),
             thz_mdeg=f2i(np.float32(a["thz_rad"]) * _RAD_TO_MDEG_F32),
-            acc_mg=[f2i(v) for v in a["acc_mg"]], gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
+            acc_mg=[f2i(v) for v in a["acc_mg"]],
+            gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
         )
         if self.drop[k]:
             self.txq.dropped += 1
@@ -276,9 +282,17 @@ class LinkEmulation:
         self.status.append(rec)
         self._reset_cycles()
         if self.text_mode:
-            line = format_sta(step=k, t_ms=int(rec["t_us"]) // 1000, cyc_min=int(rec["cyc_min"]),
-                              cyc_mean=int(rec["cyc_mean"]), cyc_max=int(rec["cyc_max"]), cyc_n=int(rec["cyc_n"]),
-                              tx_dropped=int(rec["tx_dropped"]), flags=self.flags, ki_micro=ki_micro(self.ki_f32))
+            line = format_sta(
+                step=k,
+                t_ms=int(rec["t_us"]) // 1000,
+                cyc_min=int(rec["cyc_min"]),
+                cyc_mean=int(rec["cyc_mean"]),
+                cyc_max=int(rec["cyc_max"]),
+                cyc_n=int(rec["cyc_n"]),
+                tx_dropped=int(rec["tx_dropped"]),
+                flags=self.flags,
+                ki_micro=ki_micro(self.ki_f32),
+            )
             self._push("raw", line, c1, len(line), 0)
         else:
             self._push("status", rec, c1, P.STATUS_FRAME_SIZE, 0)

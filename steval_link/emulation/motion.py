@@ -100,17 +100,22 @@ def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
 
 # ---- quaternions (float64, wxyz) ---------------------------------------------------------------------------------
 
+
 def _rotmat(q) -> np.ndarray:
     """(N, 3, 3) rotation matrices body → earth of unit quaternions (N, 4)."""
     w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
 
 
 # ---- smooth building blocks -------------------------------------------------------------------------------------
+
 
 def _s(u):
     """Quintic smootherstep on [0, 1] (C² at both ends)."""
@@ -121,7 +126,7 @@ def _s(u):
 def _s_int(u):
     """∫₀ᵘ smootherstep (for u in [0, 1])."""
     u = np.clip(u, 0.0, 1.0)
-    return u ** 4 * (u * (u - 3) + 2.5)
+    return u**4 * (u * (u - 3) + 2.5)
 
 
 def _s_dd(u):
@@ -172,8 +177,9 @@ class _Steps:
         cm = np.concatenate(([0.0], np.cumsum(delta * (t0 + dur / 2))))
         done = np.where(i >= 0, t * cd[ic] - cm[ic], 0.0)
         u = (t - t0[ic]) / dur[ic]
-        active = np.where(i >= 0, np.where(u >= 1, delta[ic] * (t - t0[ic] - dur[ic] / 2),
-                                           delta[ic] * dur[ic] * _s_int(u)), 0.0)
+        active = np.where(
+            i >= 0, np.where(u >= 1, delta[ic] * (t - t0[ic] - dur[ic] / 2), delta[ic] * dur[ic] * _s_int(u)), 0.0
+        )
         return self.base * t + done + active
 
     def accel(self, t) -> np.ndarray:
@@ -279,8 +285,9 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval=None):
     return acc, gyro
 
 
-def _render(name: str, kin: _Kinematics, t: np.ndarray, rng: np.random.Generator,
-            throttle: Callable | None = None) -> MotionProfile:
+def _render(
+    name: str, kin: _Kinematics, t: np.ndarray, rng: np.random.Generator, throttle: Callable | None = None
+) -> MotionProfile:
     t = np.asarray(t, dtype=np.float64)
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
@@ -325,6 +332,7 @@ def _render(name: str, kin: _Kinematics, t: np.ndarray, rng: np.random.Generator
 
 
 # ---- scenarios ---------------------------------------------------------------------------------------------------
+
 
 def _surface_tilt(rng) -> tuple[float, float]:
     """A bench/floor is level to within about a degree."""
@@ -384,14 +392,18 @@ def _vertical_acc(steps: list[_Steps]) -> Callable:
         for z in steps:
             a[:, 2] += z.accel(t) * _MG_PER_MPS2
         return a
+
     return f
 
 
 def _bench(T: float, rng) -> _Kinematics:
     x0, y0 = _surface_tilt(rng)
     yaw0 = rng.uniform(-np.pi, np.pi)
-    return _Kinematics(thx=lambda t: np.full(np.shape(t), x0), thy=lambda t: np.full(np.shape(t), y0),
-                       yaw=lambda t: np.full(np.shape(t), yaw0))
+    return _Kinematics(
+        thx=lambda t: np.full(np.shape(t), x0),
+        thy=lambda t: np.full(np.shape(t), y0),
+        yaw=lambda t: np.full(np.shape(t), yaw0),
+    )
 
 
 def _tilts_kin(T_start: float, T_end: float, rng, pick: bool = True) -> _Kinematics:
@@ -432,7 +444,8 @@ def _yaw_spin(T: float, rng) -> _Kinematics:
         sign = -sign
     yaw0 = rng.uniform(-np.pi, np.pi)
     return _Kinematics(
-        thx=lambda t: np.full(np.shape(t), x0), thy=lambda t: np.full(np.shape(t), y0),
+        thx=lambda t: np.full(np.shape(t), x0),
+        thy=lambda t: np.full(np.shape(t), y0),
         yaw=lambda t: yaw0 + rate.integral(t),
         lever_m=np.array([rng.uniform(0.03, 0.06), rng.uniform(-0.02, 0.02), 0.0]),  # off the turntable axis
     )
@@ -442,9 +455,9 @@ def _hover_parts(t0: float, T: float, rng):
     """Throttle, airborne weight, attitude wander and altitude of a take-off at t0 and landing before T."""
     t_land = T - 6.0
     thr = _Steps()
-    thr.move(t0, 1.5, 380.0)            # arm and spool up: passes MIN_THR (200) on the ground
-    thr.move(t0 + 1.5, 1.0, 140.0)      # take-off throttle ~520
-    thr.move(t_land, 2.0, -140.0)       # descend
+    thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
+    thr.move(t0 + 1.5, 1.0, 140.0)  # take-off throttle ~520
+    thr.move(t_land, 2.0, -140.0)  # descend
     thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
     thr_wander = _Sines.random(rng, 22.0, 0.2, 1.5, 5)
     air = _Steps()
@@ -526,8 +539,12 @@ def _freefall(T: float, rng) -> _Kinematics:
         return w_hand(t) * (1 - in_fall(t))
 
     return _Kinematics(
-        thx=lambda t: sx(t) + hand(0)(t), thy=lambda t: sy(t) + hand(1)(t), yaw=lambda t: yaw0 + hand(2)(t),
-        lin_acc_mg=lin_acc, lever_m=np.array([0.0, -0.04, 0.07]), lever_weight=hand_w,
+        thx=lambda t: sx(t) + hand(0)(t),
+        thy=lambda t: sy(t) + hand(1)(t),
+        yaw=lambda t: yaw0 + hand(2)(t),
+        lin_acc_mg=lin_acc,
+        lever_m=np.array([0.0, -0.04, 0.07]),
+        lever_weight=hand_w,
     )
 
 
@@ -582,10 +599,10 @@ def _flight(T: float, rng, t0: float = 5.0) -> _Kinematics:
         stick.move(t + 0.3 + hold, 0.3, -value)
         t += 0.6 + hold + 1.2
     k = _MAX_TILT_RAD / _RC_FULLSCALE
-    resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)   # euler_rc.thx = -gELE·k
-    resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)   # euler_rc.thy = -gAIL·k
+    resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thx = -gELE·k
+    resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thy = -gAIL·k
     yaw_rate = _Steps()
-    for t_m, _, delta in rud.moves:                     # gRUD < -600: the yaw target turns right (clockwise)
+    for t_m, _, delta in rud.moves:  # gRUD < -600: the yaw target turns right (clockwise)
         yaw_rate.move(t_m + 0.15, 0.4, np.sign(delta) * _YAW_STICK_RADPS * 0.95)
     t_arm, t_disarm = t0 - 1.0, T - 1.5
 
@@ -656,19 +673,51 @@ SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
         Scenario("bench", "lying still on the bench (noise, bias, calibration only); throttle 0", 30.0, 3.0, _bench),
-        Scenario("hand-tilts", "picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put "
-                 "back; throttle 0", 40.0, 8.0, _hand_tilts),
-        Scenario("yaw-spin", "on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0",
-                 40.0, 14.0, _yaw_spin),
-        Scenario("hover", "take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and "
-                 "small attitude wander, landing", 40.0, 16.0, _hover),
-        Scenario("freefall", "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; "
-                 "every 7 s; throttle 0", 10.0, 7.5, _freefall),
+        Scenario(
+            "hand-tilts",
+            "picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0",
+            40.0,
+            8.0,
+            _hand_tilts,
+        ),
+        Scenario(
+            "yaw-spin",
+            "on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0",
+            40.0,
+            14.0,
+            _yaw_spin,
+        ),
+        Scenario(
+            "hover",
+            "take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and "
+            "small attitude wander, landing",
+            40.0,
+            16.0,
+            _hover,
+        ),
+        Scenario(
+            "freefall",
+            "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0",
+            10.0,
+            7.5,
+            _freefall,
+        ),
         Scenario("demo", "hand tilts on the bench, then a short hover", 60.0, 40.0, _demo),
-        Scenario("flight", "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), "
-                 "landing, disarmed", 30.0, 27.0, _flight),
-        Scenario("preflight", "the preflight check's hand moves: armed with the throttle at idle (props off), "
-                 "picked up, tilt right, nose up, turn right, put down, disarmed", 32.0, 30.0, _preflight),
+        Scenario(
+            "flight",
+            "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed",
+            30.0,
+            27.0,
+            _flight,
+        ),
+        Scenario(
+            "preflight",
+            "the preflight check's hand moves: armed with the throttle at idle (props off), "
+            "picked up, tilt right, nose up, turn right, put down, disarmed",
+            32.0,
+            30.0,
+            _preflight,
+        ),
     )
 }
 
@@ -701,8 +750,14 @@ def parse_throttle(spec: str) -> Callable:
     return lambda t: np.interp(t, ts, vs)
 
 
-def build_profile(name: str, t_s: np.ndarray, rng: np.random.Generator, *, throttle: Callable | None = None,
-                  total_s: float | None = None) -> MotionProfile:
+def build_profile(
+    name: str,
+    t_s: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    throttle: Callable | None = None,
+    total_s: float | None = None,
+) -> MotionProfile:
     """The built-in scenario ``name`` rendered at tick times ``t_s`` (s since power-up).
 
     ``total_s`` is the emulated length the scenario's timeline is laid out for (default: the last tick);
@@ -724,8 +779,10 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s
     if t_rel[-1] > t_trial[-1] + 1e-9:
-        raise UserError(f"BROAD trial {trial.name} lasts {t_trial[-1]:.1f} s; ask for at most that much "
-                        f"(--join-at + --duration ≤ {t_trial[-1] + first_tick_s:.1f} s)")
+        raise UserError(
+            f"BROAD trial {trial.name} lasts {t_trial[-1]:.1f} s; ask for at most that much "
+            f"(--join-at + --duration ≤ {t_trial[-1] + first_tick_s:.1f} s)"
+        )
     t_hold = np.floor(t_rel * sm.GYRO_ODR_HZ + 1e-9) / sm.GYRO_ODR_HZ
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
     gyro = np.stack([np.interp(t_hold, t_trial, trial.gyro_mdps[:, i]) for i in range(3)], axis=-1)
@@ -765,8 +822,10 @@ class Vibration:
 def parse_vibration(spec: str) -> Vibration:
     """``--vibration``: ``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg).
     Raises :class:`UserError` for anything else."""
-    bad = (f"--vibration takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
-           f"mdps), e.g. gyro-x:47:2000; got {spec!r}")
+    bad = (
+        f"--vibration takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
+        f"mdps), e.g. gyro-x:47:2000; got {spec!r}"
+    )
     parts = spec.strip().lower().split(":")
     if len(parts) != 3 or parts[0] not in {f"{s}-{a}" for s in ("acc", "gyro") for a in "xyz"}:
         raise UserError(bad)

@@ -116,8 +116,9 @@ def check_mount(mount: str | None) -> np.ndarray | None:
 class ScenarioMotion:
     """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""
 
-    def __init__(self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None,
-                 mount: str | None = None) -> None:
+    def __init__(
+        self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None, mount: str | None = None
+    ) -> None:
         self.name = name
         self._mount = check_mount(mount)
         self.total_s = total_s
@@ -130,13 +131,14 @@ class ScenarioMotion:
         if trial is None:
             sc = M.SCENARIOS.get(name)
             if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
-                                "(or --broad TRIAL.npz)")
+                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} (or --broad TRIAL.npz)")
             try:
                 self._kin = sc.build(total_s, r_motion)
             except ValueError:  # its moves do not fit in so short a run
-                raise UserError(f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
-                                f"{sc.default_duration_s:g} s), got {total_s:g}") from None
+                raise UserError(
+                    f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
+                    f"{sc.default_duration_s:g} s), got {total_s:g}"
+                ) from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
         self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
@@ -172,8 +174,10 @@ class ScenarioMotion:
         self._sticks, self._armed = prof.sticks, prof.armed
         self._window = w
         self._k0 = k0
-        self._previous, self._rendered = self._rendered, (w, k0, self._acc, self._gyro, self._thr, self._sticks,
-                                                          self._armed)
+        self._previous, self._rendered = (
+            self._rendered,
+            (w, k0, self._acc, self._gyro, self._thr, self._sticks, self._armed),
+        )
 
     def forget(self) -> None:
         """Render the windows again (their trial time changed)."""
@@ -186,8 +190,7 @@ class ScenarioMotion:
         if w != self._window:
             if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
                 self._previous, self._rendered = self._rendered, self._previous
-                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks,
-                 self._armed) = self._rendered
+                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed) = self._rendered
             else:
                 self._render(w)
         return max(k, 0) - self._k0
@@ -228,20 +231,28 @@ class EmulationReport:
     native_counter: bool = True
 
     def lines(self) -> list[str]:
-        out = [f"emulated {self.emulated_s:.3f} s of {Path(self.elf).name}: {self.usart_bytes} USART1 bytes, "
-               f"{self.ahrs_steps} AHRS steps, {self.instructions:,} instructions executed "
-               f"(+{self.skipped_instructions:,} idle skipped)"]
+        out = [
+            f"emulated {self.emulated_s:.3f} s of {Path(self.elf).name}: {self.usart_bytes} USART1 bytes, "
+            f"{self.ahrs_steps} AHRS steps, {self.instructions:,} instructions executed "
+            f"(+{self.skipped_instructions:,} idle skipped)"
+        ]
         if self.tim9_start_s is not None:
-            out.append(f"TIM9 started at {self.tim9_start_s:.4f} s; first attitude step at "
-                       + (f"{self.first_attitude_s:.4f} s" if self.first_attitude_s is not None else "-"))
+            out.append(
+                f"TIM9 started at {self.tim9_start_s:.4f} s; first attitude step at "
+                + (f"{self.first_attitude_s:.4f} s" if self.first_attitude_s is not None else "-")
+            )
         if self.step_instructions:
             a = np.asarray(self.step_instructions)
-            out.append(f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
-                       f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}")
+            out.append(
+                f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
+                f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}"
+            )
         if self.dwt_windows and any(self.dwt_windows):
             d = np.asarray(self.dwt_windows)
-            out.append(f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
-                       f"min {d.min()} median {int(np.median(d))} max {d.max()}")
+            out.append(
+                f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
+                f"min {d.min()} median {int(np.median(d))} max {d.max()}"
+            )
         irq = ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))
         out.append(f"interrupts: {irq}")
         return out
@@ -257,15 +268,17 @@ def _byte(v: float) -> int:
 def joydata_bytes(thr: int, ail: int, ele: int, rud: int, armed: bool) -> bytes:
     """``joydata[2..7]`` of ST's BLE app for these stick values (the inverse of main.c's conversion, to the
     nearest step of 13): rudder, throttle, aileron, elevator, seek bar (0), buttons (bit 2 armed)."""
-    return bytes([_byte(128 - rud / 13), _byte(thr / 13), _byte(128 - ail / 13), _byte(128 + ele / 13), 0,
-                  0x04 if armed else 0])
+    return bytes(
+        [_byte(128 - rud / 13), _byte(thr / 13), _byte(128 - ail / 13), _byte(128 + ele / 13), 0, 0x04 if armed else 0]
+    )
 
 
 class Emulation:
     """One firmware run (see the module docstring)."""
 
-    def __init__(self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0,
-                 ble_connect_s: float | None = None) -> None:
+    def __init__(
+        self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0, ble_connect_s: float | None = None
+    ) -> None:
         """``bluenrg``: an ``emulation.bluenrg.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
         RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
         before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
@@ -291,8 +304,7 @@ class Emulation:
             name = options.scenario
             sc = M.SCENARIOS.get(name)
             if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} "
-                                "(or --broad TRIAL.npz)")
+                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} (or --broad TRIAL.npz)")
             default = sc.default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
@@ -374,8 +386,11 @@ class Emulation:
             k = self.bus.tick_index(board) + 1
             thr, (ail, ele, rud), armed = self.motion.remote(k)
             central = self._connect_at is not None and board.now >= self._connect_at
-            if ((thr or armed or central or self.motion.remote_from_start) and not self._remote_connected
-                    and self._connected is not None):
+            if (
+                (thr or armed or central or self.motion.remote_from_start)
+                and not self._remote_connected
+                and self._connected is not None
+            ):
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
@@ -464,7 +479,8 @@ class Emulation:
             if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * CPU_HZ:
                 raise FirmwareStuck(
                     f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time "
-                    f"(t = {b.now / CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})")
+                    f"(t = {b.now / CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})"
+                )
 
     def run(self) -> bytes:
         """Run to the end; all USART1 bytes."""
@@ -480,13 +496,21 @@ class Emulation:
         b = self.board
         tim9 = b.tim9.first_update
         return EmulationReport(
-            elf=str(self.elf.path), emulated_s=b.now / CPU_HZ, instructions=b.stats.instructions,
+            elf=str(self.elf.path),
+            emulated_s=b.now / CPU_HZ,
+            instructions=b.stats.instructions,
             skipped_instructions=b.stats.skipped_instructions,
             interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
-            usart_bytes=self._bytes, first_byte_s=self._first_byte_s, first_attitude_s=self._first_step_s,
-            tim9_start_s=None if tim9 is None else tim9 / CPU_HZ, ahrs_steps=self.n_steps,
-            step_instructions=list(self._steps), dwt_windows=list(self._dwt), hci_requests=b.hci_requests,
-            native_counter=b.native)
+            usart_bytes=self._bytes,
+            first_byte_s=self._first_byte_s,
+            first_attitude_s=self._first_step_s,
+            tim9_start_s=None if tim9 is None else tim9 / CPU_HZ,
+            ahrs_steps=self.n_steps,
+            step_instructions=list(self._steps),
+            dwt_windows=list(self._dwt),
+            hci_requests=b.hci_requests,
+            native_counter=b.native,
+        )
 
 
 __all__ += ["EmulationError"]

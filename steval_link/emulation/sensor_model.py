@@ -177,8 +177,14 @@ class Lsm6dsl:
     acc_sensitivity_mg: float = ACC_SENSITIVITY_MG
     gyro_sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS
 
-    def read(self, acc_true_mg, gyro_true_mdps, rng: np.random.Generator | int | None = 0, t_tick_s=None,
-             gyro_odr_hz: float | None = GYRO_ODR_HZ):
+    def read(
+        self,
+        acc_true_mg,
+        gyro_true_mdps,
+        rng: np.random.Generator | int | None = 0,
+        t_tick_s=None,
+        gyro_odr_hz: float | None = GYRO_ODR_HZ,
+    ):
         """Driver readings (int32 mg, int32 mdps), each (N, 3), for true specific force and rate at each tick.
 
         Args:
@@ -329,8 +335,15 @@ class IsrOutput:
     step_tick: np.ndarray
 
 
-def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=None, gyro_offset_mdps=None,
-            iir_state: IirState | None = None) -> IsrOutput:
+def run_isr(
+    acc_mg_807,
+    gyro_mdps_807,
+    *,
+    calibrate: bool = True,
+    acc_offset_mg=None,
+    gyro_offset_mdps=None,
+    iir_state: IirState | None = None,
+) -> IsrOutput:
     """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings.
 
     Args:
@@ -367,15 +380,17 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=
     return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
 
 
-def steval_pipeline(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=None,
-                    gyro_offset_mdps=None) -> tuple[np.ndarray, np.ndarray]:
+def steval_pipeline(
+    acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=None, gyro_offset_mdps=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-tick driver readings (807.7 Hz) → the AHRS inputs (161.5 Hz): ``(acc_ahrs_mg, gyro_ahrs_mdps)``.
 
     Both (M, 3) float32, M = (T − first_tick) // 5. See :func:`run_isr` for the arguments and for the tick each
     step corresponds to.
     """
-    out = run_isr(acc_mg_807, gyro_mdps_807, calibrate=calibrate, acc_offset_mg=acc_offset_mg,
-                  gyro_offset_mdps=gyro_offset_mdps)
+    out = run_isr(
+        acc_mg_807, gyro_mdps_807, calibrate=calibrate, acc_offset_mg=acc_offset_mg, gyro_offset_mdps=gyro_offset_mdps
+    )
     return out.acc_ahrs_mg, out.gyro_ahrs_mdps
 
 
@@ -406,8 +421,7 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     return out
 
 
-def resample_to_tick(t_s, signal, rate_hz: float = TICK_HZ, t0_s: float | None = None,
-                     hold_hz: float | None = None):
+def resample_to_tick(t_s, signal, rate_hz: float = TICK_HZ, t0_s: float | None = None, hold_hz: float | None = None):
     """Linear interpolation of ``signal`` (N,) or (N, K) sampled at times ``t_s`` onto a uniform grid.
 
     Returns ``(t_tick_s, signal_tick)``: ticks at ``t0_s + k / rate_hz`` (t0 defaults to ``t_s[0]``) up to

@@ -40,9 +40,11 @@ class MotionSource(Protocol):
         ...
 
 
-def body_to_sensor_counts(acc_mg, gyro_mdps, acc_sens: float = sm.ACC_SENSITIVITY_MG,
-                          gyro_sens: float = sm.GYRO_SENSITIVITY_MDPS) -> tuple[np.ndarray, np.ndarray]:
+def body_to_sensor_counts(
+    acc_mg, gyro_mdps, acc_sens: float = sm.ACC_SENSITIVITY_MG, gyro_sens: float = sm.GYRO_SENSITIVITY_MDPS
+) -> tuple[np.ndarray, np.ndarray]:
     """Body-axis physical values (N, 3) → the LSM6DSL's int16 ADC counts in sensor axes (round, saturate)."""
+
     def counts(v, sens):
         raw = np.clip(np.rint(np.nan_to_num(np.asarray(v, np.float64) / sens)), -32768, 32767).astype(np.int16)
         # sensor x = body y, sensor y = -body x (saturating the negation like the int16 register would)
@@ -57,6 +59,7 @@ def body_to_sensor_counts(acc_mg, gyro_mdps, acc_sens: float = sm.ACC_SENSITIVIT
 
 def driver_readings(acc_counts, gyro_counts) -> tuple[np.ndarray, np.ndarray]:
     """What the firmware's ``ReadSensorRawData`` gets from sensor-axis counts: int32 mg / mdps in body axes."""
+
     def scale(raw, sens):
         v = np.trunc(np.asarray(raw).astype(np.float32) * np.float32(sens)).astype(np.int32)
         return np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1)
@@ -86,7 +89,7 @@ class _Regs:
     def read(self, reg: int, n: int, sample) -> bytes:
         self.refresh(sample)
         if reg + n <= 0x80:
-            return bytes(self.r[reg:reg + n])
+            return bytes(self.r[reg : reg + n])
         return bytes(self.r[(reg + i) & 0x7F] for i in range(n))
 
     def refresh(self, sample) -> None:  # fill the output registers
@@ -198,8 +201,9 @@ class SensorBus:
     def read(self, device: int, reg: int, n: int, board) -> bytes:
         dev = self.devices.get(device)
         if dev is None:
-            raise UnmodelledHardware(f"Sensor_IO_Read for SPI device {device} (not LSM6DSL/LIS2MDL/LPS22HB) in "
-                                     f"{board.where()}")
+            raise UnmodelledHardware(
+                f"Sensor_IO_Read for SPI device {device} (not LSM6DSL/LIS2MDL/LPS22HB) in {board.where()}"
+            )
         self.reads += 1
         sample = None
         if device == LSM6DSL:
@@ -210,8 +214,9 @@ class SensorBus:
             if reg <= 0x28 < reg + n and k != self._last_tick:
                 self._last_tick = k
                 if len(self.served) < self.log_limit:
-                    self.served.append(ServedSample(k, tuple(int(v) for v in sample[0]),
-                                                    tuple(int(v) for v in sample[1])))
+                    self.served.append(
+                        ServedSample(k, tuple(int(v) for v in sample[0]), tuple(int(v) for v in sample[1]))
+                    )
         return dev.read(reg, n, sample)
 
     def write(self, device: int, reg: int, data: bytes, board) -> None:

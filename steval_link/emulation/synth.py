@@ -67,6 +67,8 @@ EPOCH_UNIX_S = 1767225600.0
 CPU_HZ = C.CPU_HZ
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
+
+
 @dataclass(frozen=True)
 class SynthOptions:
     """What to emulate (the ``steval synth`` options).
@@ -163,6 +165,7 @@ class SynthResult:
 
 # ---- validation --------------------------------------------------------------------------------------------------
 
+
 def default_c_encoder() -> Path:
     """``firmware_patch/host/stv_encode`` of this source tree (``make -C firmware_patch host`` builds it)."""
     return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
@@ -193,16 +196,20 @@ def _check(opts: SynthOptions) -> None:
     for spec in opts.vibration:
         M.parse_vibration(spec)
     if opts.encoder == "c" and opts.text_mode:
-        raise UserError("--text-mode lines are formatted in Python; the C host encoder (stv_encode) takes binary "
-                        "frame requests only, so use --encoder python with --text-mode")
+        raise UserError(
+            "--text-mode lines are formatted in Python; the C host encoder (stv_encode) takes binary "
+            "frame requests only, so use --encoder python with --text-mode"
+        )
 
 
 # ---- firmware timing ---------------------------------------------------------------------------------------------
 
 # ---- the emulation -----------------------------------------------------------------------------------------------
 
-def _profile(opts: SynthOptions, rng_motion, n_ticks: int, first_tick_s: float, total_s: float,
-             trial=None) -> M.MotionProfile:
+
+def _profile(
+    opts: SynthOptions, rng_motion, n_ticks: int, first_tick_s: float, total_s: float, trial=None
+) -> M.MotionProfile:
     t = M.tick_times_s(n_ticks, first_tick_s)
     thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
     if trial is not None:
@@ -245,8 +252,10 @@ def _span(opts: SynthOptions):
     else:
         sc = M.SCENARIOS.get(opts.scenario)
         if sc is None:
-            raise UserError(f"unknown scenario {opts.scenario!r}; built-in: {', '.join(M.SCENARIOS)} "
-                            f"(or a BROAD trial .npz path; see steval synth --list)")
+            raise UserError(
+                f"unknown scenario {opts.scenario!r}; built-in: {', '.join(M.SCENARIOS)} "
+                f"(or a BROAD trial .npz path; see steval synth --list)"
+            )
         min_total = sc.min_duration_s
         default_duration = sc.default_duration_s
     tim9_s = fwl.TIM9_START_CYCLES / CPU_HZ
@@ -260,8 +269,10 @@ def _span(opts: SynthOptions):
         duration = default_duration
     total = opts.join_at_s + duration
     if total < min_total:
-        raise UserError(f"scenario {opts.scenario} needs at least {min_total:g} s from power-up "
-                        f"(the firmware calibrates for 2 s before the first AHRS step); got {total:g} s")
+        raise UserError(
+            f"scenario {opts.scenario} needs at least {min_total:g} s from power-up "
+            f"(the firmware calibrates for 2 s before the first AHRS step); got {total:g} s"
+        )
     return trial, duration, total
 
 
@@ -278,8 +289,9 @@ def _port_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
     for b in list(status_steps + 1) + [n_steps]:
         if b <= a:
             continue
-        q[a:b], thx[a:b], thy[a:b], state = mahony_run(isr.acc_ahrs_mg[a:b], isr.gyro_ahrs_mdps[a:b], thr_step[a:b],
-                                                       settings=settings, state=state)
+        q[a:b], thx[a:b], thy[a:b], state = mahony_run(
+            isr.acc_ahrs_mg[a:b], isr.gyro_ahrs_mdps[a:b], thr_step[a:b], settings=settings, state=state
+        )
         snapshots.append(state)
         a = b
     return q, thx, thy, snapshots
@@ -300,8 +312,10 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     first_tick_s = (fwl.TIM9_START_CYCLES + M.TICK_CYCLES) / CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * sm.TICK_HZ)) + 1
     progress(0.0, "motion profile")
-    profile = M.add_vibrations(_profile(opts, r_motion, n_ticks, first_tick_s, total, trial),
-                               [M.parse_vibration(spec) for spec in opts.vibration])
+    profile = M.add_vibrations(
+        _profile(opts, r_motion, n_ticks, first_tick_s, total, trial),
+        [M.parse_vibration(spec) for spec in opts.vibration],
+    )
     gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
@@ -315,7 +329,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     progress(0.6, "ISR pipeline")
     isr = sm.run_isr(acc_raw, gyro_raw)
     thr_tick = profile.thr.astype(np.int64)
-    yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick:])
+    yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     n_steps = len(isr.step_tick)
     thr_step = thr_tick[isr.step_tick]
     thz = yaw[isr.step_tick - isr.first_tick]
@@ -359,15 +373,17 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     starts = np.array([o[2] for o in order], dtype=np.float64)
 
     # 7: the host
-    offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, r_host,
-                                                      total)
+    offsets, chunk_offsets, chunk_times = host_chunks(
+        stream, sizes, starts, link.txq.tau, opts.join_at_s, r_host, total
+    )
     data = stream[offsets[0] : offsets[1]]
     counts = fwl.count_frames(order, offsets)
     dropped = link.txq.dropped
     header = _header(opts, profile.name, duration, counts, dropped)
     step_t_s = begin / CPU_HZ
-    return SynthResult(data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, step_t_s,
-                       counts)
+    return SynthResult(
+        data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, step_t_s, counts
+    )
 
 
 def _header(opts: SynthOptions, name: str, duration: float, counts: dict, dropped: int) -> dict:
@@ -377,13 +393,18 @@ def _header(opts: SynthOptions, name: str, duration: float, counts: dict, droppe
     params["duration_s"] = duration
     if not opts.vibration:  # headers of captures made without it stay as they were
         del params["vibration"]
-    return capture.capture_header(f"synth:{name}", opts.baud, start, {
-        "emulated": True,
-        "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact "
-                     "ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
-        "command": opts.command(),
-        "synth": params,
-    })
+    return capture.capture_header(
+        f"synth:{name}",
+        opts.baud,
+        start,
+        {
+            "emulated": True,
+            "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → "
+            "bit-exact ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
+            "command": opts.command(),
+            "synth": params,
+        },
+    )
 
 
 def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = False) -> str:

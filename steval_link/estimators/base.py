@@ -106,7 +106,7 @@ def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:
         ok = np.isfinite(an) & (an > 1e-6) & (np.abs(an - 1.0) <= reject_g)
     before = np.ones(len(ok), dtype=bool)
     if ok.any():
-        before[int(np.argmax(ok)):] = False
+        before[int(np.argmax(ok)) :] = False
     return before
 
 

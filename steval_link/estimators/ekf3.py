@@ -113,9 +113,17 @@ class Ekf3(Estimator):
 
     name = "ekf3"
 
-    def __init__(self, rate_hz: float = AHRS_RATE_HZ, gyro_noise_mdps: float = 75.0,
-                 process_noise_dps_rthz: float = 0.05, acc_noise_mg: float = 2.0, acc_motion_mg: float = 50.0,
-                 adaptive: bool = False, norm_gain: float = 2.0, exact_propagation: bool = True) -> None:
+    def __init__(
+        self,
+        rate_hz: float = AHRS_RATE_HZ,
+        gyro_noise_mdps: float = 75.0,
+        process_noise_dps_rthz: float = 0.05,
+        acc_noise_mg: float = 2.0,
+        acc_motion_mg: float = 50.0,
+        adaptive: bool = False,
+        norm_gain: float = 2.0,
+        exact_propagation: bool = True,
+    ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.rate_hz = float(rate_hz)
@@ -130,7 +138,7 @@ class Ekf3(Estimator):
 
     def reset(self) -> None:
         self.x = np.zeros(3)
-        self.P = np.diag([0.1 ** 2, 0.1 ** 2, 0.0])
+        self.P = np.diag([0.1**2, 0.1**2, 0.0])
         self._initialised = False
 
     @property
@@ -168,11 +176,13 @@ class Ekf3(Estimator):
         a = sp * q + cp * r  # appears in φ̇, ψ̇
         c = cp * q - sp * r
         f = (p + tt * a, c, a / ct)
-        F = np.array([
-            [1.0 + dt * tt * c, dt * a / (ct * ct), 0.0],
-            [-dt * a, 1.0, 0.0],
-            [dt * c / ct, dt * a * st / (ct * ct), 1.0],
-        ])
+        F = np.array(
+            [
+                [1.0 + dt * tt * c, dt * a / (ct * ct), 0.0],
+                [-dt * a, 1.0, 0.0],
+                [dt * c / ct, dt * a * st / (ct * ct), 1.0],
+            ]
+        )
         W = np.array([[1.0, sp * tt, cp * tt], [0.0, cp, -sp], [0.0, sp / ct, cp / ct]])
         if self.exact_propagation:
             self.x[:] = _propagate_exact(self.x, p * dt, q * dt, r * dt)

@@ -93,19 +93,23 @@ def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, fl
 def _qmul(a, b) -> tuple[float, float, float, float]:
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return (aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw)
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
 
 
 def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
     """R(q) of a unit quaternion (maps body vectors to the reference frame)."""
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _inv3(S: np.ndarray) -> np.ndarray:
@@ -117,9 +121,12 @@ def _inv3(S: np.ndarray) -> np.ndarray:
     B = f * g - d * i
     C = d * h - e * g
     det = a * A + b * B + c * C
-    return np.array([[A, c * h - b * i, b * f - c * e],
-                     [B, a * i - c * g, c * d - a * f],
-                     [C, b * g - a * h, a * e - b * d]]) / det
+    return (
+        np.array(
+            [[A, c * h - b * i, b * f - c * e], [B, a * i - c * g, c * d - a * f], [C, b * g - a * h, a * e - b * d]]
+        )
+        / det
+    )
 
 
 def _butter2(fc_hz: float, fs_hz: float) -> tuple[float, float, float, float, float]:
@@ -197,10 +204,19 @@ class Mekf(Estimator):
 
     name = "mekf"
 
-    def __init__(self, rate_hz: float = AHRS_RATE_HZ, acc_tau_s: float = 3.0, gyro_noise_mdps_rthz: float = 10.0,
-                 bias_rw_mdps_per_sqrt_s: float = 0.3, acc_noise_mg: float = 3.0, norm_gain: float = 0.0,
-                 reject_mg: float = math.inf, init_bias_mdps: float = 100.0, estimate_bias: bool = True,
-                 latency_s: float = GYRO_LATENCY_S) -> None:
+    def __init__(
+        self,
+        rate_hz: float = AHRS_RATE_HZ,
+        acc_tau_s: float = 3.0,
+        gyro_noise_mdps_rthz: float = 10.0,
+        bias_rw_mdps_per_sqrt_s: float = 0.3,
+        acc_noise_mg: float = 3.0,
+        norm_gain: float = 0.0,
+        reject_mg: float = math.inf,
+        init_bias_mdps: float = 100.0,
+        estimate_bias: bool = True,
+        latency_s: float = GYRO_LATENCY_S,
+    ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         if acc_tau_s < 0:
@@ -218,10 +234,11 @@ class Mekf(Estimator):
         self.init_bias = init_bias_mdps * _MDPS_TO_RADPS
         self.estimate_bias = bool(estimate_bias)
         self.latency_s = float(latency_s)
-        self._q_att = self.gyro_noise ** 2 * self.dt
-        self._q_bias = self.bias_rw ** 2 * self.dt
-        self._lp_coeffs = (_butter2(math.sqrt(2.0) / (2 * math.pi * self.acc_tau_s), self.rate_hz)
-                           if self.acc_tau_s > 0 else None)
+        self._q_att = self.gyro_noise**2 * self.dt
+        self._q_bias = self.bias_rw**2 * self.dt
+        self._lp_coeffs = (
+            _butter2(math.sqrt(2.0) / (2 * math.pi * self.acc_tau_s), self.rate_hz) if self.acc_tau_s > 0 else None
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -229,7 +246,7 @@ class Mekf(Estimator):
         self.qc = (1.0, 0.0, 0.0, 0.0)
         self.b = np.zeros(3)
         nb = 6 if self.estimate_bias else 3
-        self.P = np.diag([0.05 ** 2] * 3 + [self.init_bias ** 2] * (nb - 3))
+        self.P = np.diag([0.05**2] * 3 + [self.init_bias**2] * (nb - 3))
         warm = int(round(self.acc_tau_s * self.rate_hz))
         self._acc_lp = _LowPass(self._lp_coeffs, warm) if self._lp_coeffs else None
         self._norm_lp = _LowPass(self._lp_coeffs) if self._lp_coeffs else None
@@ -323,7 +340,7 @@ class Mekf(Estimator):
         else:
             ux, uy, uz = ax / an, ay / an, az / an
             d = dev
-        var = self.acc_noise ** 2 + (self.norm_gain * d) ** 2
+        var = self.acc_noise**2 + (self.norm_gain * d) ** 2
         w, x, y, z = self.qc
         hx = 2.0 * (x * z - w * y)
         hy = 2.0 * (w * x + y * z)
@@ -363,7 +380,7 @@ class Mekf(Estimator):
             self.b += dxs[3:]
             Pbb = self.P[3:, 3:]
             tr = Pbb[0, 0] + Pbb[1, 1] + Pbb[2, 2]
-            cap = 3 * self.init_bias ** 2
+            cap = 3 * self.init_bias**2
             if tr > cap:
                 self.P[3:, 3:] *= cap / tr
 
@@ -398,8 +415,24 @@ class Mekf(Estimator):
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
         st, ist = self._pack_state()
         b0, b1, b2, a1, a2 = self._lp_coeffs if self._lp_coeffs else (0.0,) * 5
-        params = np.array([self.dt, _MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise,
-                           self.norm_gain, self.init_bias, self.latency_s, b0, b1, b2, a1, a2])
+        params = np.array(
+            [
+                self.dt,
+                _MDPS_TO_RADPS,
+                self.reject,
+                self._q_att,
+                self._q_bias,
+                self.acc_noise,
+                self.norm_gain,
+                self.init_bias,
+                self.latency_s,
+                b0,
+                b1,
+                b2,
+                a1,
+                a2,
+            ]
+        )
         flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
         _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
         self._unpack_state(st, ist)
@@ -412,7 +445,7 @@ class Mekf(Estimator):
         st[4:8] = self.qc
         st[8:11] = self.b
         st[11:14] = self._w
-        st[14:14 + nb * nb] = self.P.ravel()
+        st[14 : 14 + nb * nb] = self.P.ravel()
         st[50:59] = self._cum_rs.ravel()
         ist[0] = self._initialised
         alp, nlp, clp = self._acc_lp, self._norm_lp, self._cum_lp
@@ -436,19 +469,19 @@ class Mekf(Estimator):
         self.qc = tuple(st[4:8].tolist())
         self.b[:] = st[8:11]
         self._w = tuple(st[11:14].tolist())
-        self.P = st[14:14 + nb * nb].reshape(nb, nb).copy()
+        self.P = st[14 : 14 + nb * nb].reshape(nb, nb).copy()
         self._cum_rs = st[50:59].reshape(3, 3).copy()
         self._initialised = bool(ist[0])
         alp, nlp, clp = self._acc_lp, self._norm_lp, self._cum_lp
         if alp is not None:
             alp.ready, alp.n = bool(ist[1]), int(ist[2])
             if alp.ready:
-                alp.x1, alp.x2, alp.y1, alp.y2 = (st[59 + 3 * i:62 + 3 * i].copy() for i in range(4))
+                alp.x1, alp.x2, alp.y1, alp.y2 = (st[59 + 3 * i : 62 + 3 * i].copy() for i in range(4))
             if alp.n > 0:
                 alp.acc = st[71:74].copy()
         if nlp is not None and ist[4]:
             nlp.ready = True
-            nlp.x1, nlp.x2, nlp.y1, nlp.y2 = (st[74 + i:75 + i].copy() for i in range(4))
+            nlp.x1, nlp.x2, nlp.y1, nlp.y2 = (st[74 + i : 75 + i].copy() for i in range(4))
         if clp is not None and ist[5]:
             clp.ready = True
-            clp.x1, clp.x2, clp.y1, clp.y2 = (st[78 + 9 * i:87 + 9 * i].copy() for i in range(4))
+            clp.x1, clp.x2, clp.y1, clp.y2 = (st[78 + 9 * i : 87 + 9 * i].copy() for i in range(4))

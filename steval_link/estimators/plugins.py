@@ -166,8 +166,9 @@ def _parse_options(text: str, ref: str) -> dict:
         try:
             options[kw.arg] = ast.literal_eval(kw.value)
         except (ValueError, SyntaxError, TypeError):
-            raise UserError(f"option {kw.arg} of {ref!r} is not a literal value ({ast.unparse(kw.value)}): "
-                            f"{hint}") from None
+            raise UserError(
+                f"option {kw.arg} of {ref!r} is not a literal value ({ast.unparse(kw.value)}): {hint}"
+            ) from None
     return options
 
 
@@ -177,7 +178,7 @@ def parse_reference(text: str) -> Reference:
     head, args = raw, ""
     if raw.endswith(")") and "(" in raw:
         i = raw.index("(")
-        head, args = raw[:i].strip(), raw[i + 1:-1]
+        head, args = raw[:i].strip(), raw[i + 1 : -1]
     if not head:
         raise UserError(f"estimator reference {raw!r} names nothing")
     options = _parse_options(args, raw)
@@ -186,8 +187,9 @@ def parse_reference(text: str) -> Reference:
         left, right = head.rsplit(":", 1)
         if _IDENT.fullmatch(right) and left:
             source, attr = left, right
-    looks_like_file = (source.endswith(".py") or "/" in source or "\\" in source
-                       or (attr is None and os.path.isfile(source)))
+    looks_like_file = (
+        source.endswith(".py") or "/" in source or "\\" in source or (attr is None and os.path.isfile(source))
+    )
     if looks_like_file:
         return Reference(raw, "file", source, attr, options)
     if attr is not None:
@@ -230,8 +232,11 @@ def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, s
         return "", ""
     last = frames[-1]
     where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
-    details = "Traceback (your code):\n" + "".join(traceback.format_list(frames)) + "".join(
-        traceback.format_exception_only(type(exc), exc))
+    details = (
+        "Traceback (your code):\n"
+        + "".join(traceback.format_list(frames))
+        + "".join(traceback.format_exception_only(type(exc), exc))
+    )
     return where, details.rstrip()
 
 
@@ -278,8 +283,9 @@ def _load_file(ref: Reference):
         where, details = _user_trace(exc, (str(resolved),))
         if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
             details = ""
-        raise PluginError(f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""),
-                          details) from None
+        raise PluginError(
+            f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
+        ) from None
     finally:
         try:
             sys.path.remove(folder)
@@ -297,24 +303,32 @@ def _load_module(ref: Reference):
     except ModuleNotFoundError as exc:
         missing = exc.name or ""
         if missing and (ref.source == missing or ref.source.startswith(missing + ".")):
-            raise UserError(f"no module named {ref.source} (not installed, and not on the path; for a file "
-                            f"write FILE.py:{ref.attr})") from None
+            raise UserError(
+                f"no module named {ref.source} (not installed, and not on the path; for a file "
+                f"write FILE.py:{ref.attr})"
+            ) from None
         raise PluginError(f"module {ref.source} failed to load: {_exc_text(exc)}") from None
     except SyntaxError as exc:
-        raise UserError(f"{Path(exc.filename or ref.source).name}, line {exc.lineno}: syntax error: {exc.msg}") \
-            from None
+        raise UserError(
+            f"{Path(exc.filename or ref.source).name}, line {exc.lineno}: syntax error: {exc.msg}"
+        ) from None
     except Exception as exc:  # noqa: BLE001
         where, details = _user_trace(exc, ())
-        raise PluginError(f"module {ref.source} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""),
-                          details) from None
+        raise PluginError(
+            f"module {ref.source} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
+        ) from None
     return module, ref.source
 
 
 def _estimator_classes(module) -> list[type]:
     out = []
     for obj in vars(module).values():
-        if (isinstance(obj, type) and obj.__module__ == module.__name__ and callable(getattr(obj, "step", None))
-                and not inspect.isabstract(obj)):
+        if (
+            isinstance(obj, type)
+            and obj.__module__ == module.__name__
+            and callable(getattr(obj, "step", None))
+            and not inspect.isabstract(obj)
+        ):
             out.append(obj)
     return out
 
@@ -326,8 +340,10 @@ def check_interface(factory, label: str) -> None:
     if isinstance(factory, type):
         missing = [m for m in ("step", "reset") if not callable(getattr(factory, m, None))]
         if missing:
-            raise UserError(f"{label} is not an estimator: it has no {' and no '.join(m + '()' for m in missing)} "
-                            "method (see docs/ESTIMATORS.md)")
+            raise UserError(
+                f"{label} is not an estimator: it has no {' and no '.join(m + '()' for m in missing)} "
+                "method (see docs/ESTIMATORS.md)"
+            )
         if inspect.isabstract(factory):
             left = ", ".join(sorted(factory.__abstractmethods__))
             raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
@@ -342,8 +358,11 @@ def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
             factory = ep.load()
         except Exception as exc:  # noqa: BLE001
             where, details = _user_trace(exc, ())
-            raise PluginError(f"plug-in {ref.source} ({ep.value}) failed to load: {_exc_text(exc)}"
-                              + (f" ({where})" if where else ""), details) from None
+            raise PluginError(
+                f"plug-in {ref.source} ({ep.value}) failed to load: {_exc_text(exc)}"
+                + (f" ({where})" if where else ""),
+                details,
+            ) from None
         label = f"plug-in {ref.source} ({ep.value})"
         check_interface(factory, label)
         return factory, label
@@ -352,8 +371,10 @@ def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
         found = _estimator_classes(module)
         if len(found) != 1:
             names = ", ".join(c.__name__ for c in found) or "none"
-            raise UserError(f"{where} defines {len(found)} estimator classes ({names}): name one, "
-                            f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}")
+            raise UserError(
+                f"{where} defines {len(found)} estimator classes ({names}): name one, "
+                f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}"
+            )
         factory = found[0]
     else:
         factory = getattr(module, ref.attr, None)
@@ -395,16 +416,18 @@ def construct(factory, label: str, options: dict):
         unknown = [k for k in options if k not in names]
         if unknown and not takes_any:
             takes = f"it takes: {', '.join(names)}" if names else "it takes none"
-            raise ValueError(f"{label} does not take the option{'s' if len(unknown) > 1 else ''} "
-                             f"{', '.join(unknown)} ({takes})")
+            raise ValueError(
+                f"{label} does not take the option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} ({takes})"
+            )
     try:
         return factory(**options)
     except Exception as exc:  # noqa: BLE001
         where, details = _user_trace(exc, _user_files(factory))
         if isinstance(exc, TypeError) and not where:
             raise ValueError(f"{label}: {exc}") from None
-        raise PluginError(f"{label} could not be constructed: {_exc_text(exc)}" + (f" ({where})" if where else ""),
-                          details) from None
+        raise PluginError(
+            f"{label} could not be constructed: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
+        ) from None
 
 
 # ---- the guard ----------------------------------------------------------------------------------------------------
@@ -438,8 +461,9 @@ class Guarded(Estimator):
 
     def _fail(self, method: str, exc: BaseException) -> PluginError:
         where, details = _user_trace(exc, self.files)
-        return PluginError(f"estimator {self.name} failed in {where or _origin(self.inner, method)}: "
-                           f"{_exc_text(exc)}", details)
+        return PluginError(
+            f"estimator {self.name} failed in {where or _origin(self.inner, method)}: {_exc_text(exc)}", details
+        )
 
     def origin(self, method: str = "step") -> str:
         """Where the user's ``method`` is defined (``my_ekf.py, line 57 (MyEkf.step)``)."""
@@ -469,8 +493,10 @@ class Guarded(Estimator):
             out = None
         if out is None or out.shape != (4,):
             shape = "None" if q is None else (f"shape {out.shape}" if out is not None else type(q).__name__)
-            raise PluginError(f"estimator {self.name}: step() returned {shape}, not the (4,) quaternion w, x, y, z "
-                              f"({self.origin('step')}; see docs/ESTIMATORS.md)")
+            raise PluginError(
+                f"estimator {self.name}: step() returned {shape}, not the (4,) quaternion w, x, y, z "
+                f"({self.origin('step')}; see docs/ESTIMATORS.md)"
+            )
         return out
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
@@ -531,21 +557,25 @@ class Guarded(Estimator):
             thy = getattr(res, "thy_rad", None)
             valid = getattr(res, "valid", None)
         else:
-            raise PluginError(f"estimator {self.name}: run() returned {type(res).__name__}, not an AttitudeEstimate "
-                              f"or (N, 4) quaternions ({where}; see docs/ESTIMATORS.md)")
+            raise PluginError(
+                f"estimator {self.name}: run() returned {type(res).__name__}, not an AttitudeEstimate "
+                f"or (N, 4) quaternions ({where}; see docs/ESTIMATORS.md)"
+            )
         if q.shape != (m, 4):
-            raise PluginError(f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
-                              f"expected ({m}, 4) ({where})")
+            raise PluginError(
+                f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
+                f"expected ({m}, 4) ({where})"
+            )
         out = []
-        for label, arr, dtype in (("thx_rad", thx, np.float64), ("thy_rad", thy, np.float64),
-                                  ("valid", valid, bool)):
+        for label, arr, dtype in (("thx_rad", thx, np.float64), ("thy_rad", thy, np.float64), ("valid", valid, bool)):
             if arr is None:
                 out.append(None)
                 continue
             arr = np.asarray(arr, dtype=dtype)
             if arr.shape != (m,):
-                raise PluginError(f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows "
-                                  f"({where})")
+                raise PluginError(
+                    f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows ({where})"
+                )
             out.append(arr)
         return (q, *out)
 

@@ -24,8 +24,23 @@ from steval_link.estimators import plugins
 from steval_link.estimators.base import Estimator
 from steval_link.estimators.plugins import PluginError, Selected
 
-__all__ = ["ESTIMATORS", "LIVE_DEFAULT", "REPLAY_DEFAULT", "COMPARE_DEFAULT", "names", "create", "is_available",
-           "available_names", "parse_names", "resolve", "is_known", "accepts", "unique_name", "PluginError", "Selected"]
+__all__ = [
+    "ESTIMATORS",
+    "LIVE_DEFAULT",
+    "REPLAY_DEFAULT",
+    "COMPARE_DEFAULT",
+    "names",
+    "create",
+    "is_available",
+    "available_names",
+    "parse_names",
+    "resolve",
+    "is_known",
+    "accepts",
+    "unique_name",
+    "PluginError",
+    "Selected",
+]
 
 
 class _lazy:
@@ -115,8 +130,10 @@ def resolve(text: str) -> Selected:
             name = ref.source + (f"({ref.options_text})" if ref.options else "")
             return Selected(name, ref, ESTIMATORS[ref.source], name)
         if ref.source not in plugins.entry_point_names():
-            raise UserError(f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
-                            "plug-in, FILE.py:CLASS or module:CLASS (or none)")
+            raise UserError(
+                f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
+                "plug-in, FILE.py:CLASS or module:CLASS (or none)"
+            )
         ref = plugins.Reference(ref.text, "entry-point", ref.source, None, ref.options)
     factory, label = plugins.load_factory(ref)
     name = plugins.display_name(factory, ref)
@@ -149,8 +166,10 @@ def _build(sel: Selected, options: dict) -> Estimator:
     inst = plugins.construct(sel.factory, sel.label, opts)
     missing = [m for m in ("step", "reset") if not callable(getattr(inst, m, None))]
     if missing:
-        raise UserError(f"{sel.label} made a {type(inst).__name__}, which has no "
-                        f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)")
+        raise UserError(
+            f"{sel.label} made a {type(inst).__name__}, which has no "
+            f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)"
+        )
     return plugins.Guarded(inst, str(sel))
 
 
@@ -205,8 +224,10 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
             continue
         sel = resolve(n)
         if sel.reference.kind == "builtin" and require_installed and not is_available(sel.reference.source):
-            raise UserError(f"estimator {sel.reference.source!r} needs an optional package: "
-                            f"pip install 'steval-link[{sel.reference.source}]'")
+            raise UserError(
+                f"estimator {sel.reference.source!r} needs an optional package: "
+                f"pip install 'steval-link[{sel.reference.source}]'"
+            )
         try:
             create(sel)  # the options and the constructor checked now, before any work
         except ValueError as exc:

@@ -64,7 +64,6 @@ from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared w
 COE_MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
 
 
-
 @dataclass(frozen=True)
 class MahonySettings:
     """Filter constants of ``ahrs_fusion_ag`` (release 170120 defaults); each is used as float32 like the firmware.
@@ -127,6 +126,7 @@ class MahonySettings:
         """The settings a status frame reports: ``status`` is one frame (``j`` None) or a table of status rows
         (``Telemetry.status`` or a structured array) and ``j`` its row. The one builder of settings from status
         frames (replay, compare, the live port and the diagnosis all use it)."""
+
         def field(name: str):
             return getattr(status, name) if j is None else _col(status, name)[j]
 
@@ -398,8 +398,15 @@ class PortFollower:
     filter or asked for it), which the port always follows: its settings and state apply from the next step.
     """
 
-    def __init__(self, settings: MahonySettings | None = None, *, initial: MahonySettings | None = None,
-                 follow_snapshots: bool = True, euler: bool = True, native: bool | None = None) -> None:
+    def __init__(
+        self,
+        settings: MahonySettings | None = None,
+        *,
+        initial: MahonySettings | None = None,
+        follow_snapshots: bool = True,
+        euler: bool = True,
+        native: bool | None = None,
+    ) -> None:
         self.fixed = settings
         self.settings = settings or initial or MahonySettings()
         self.follow_snapshots = follow_snapshots
@@ -417,8 +424,15 @@ class PortFollower:
     def seeded(self) -> bool:
         return self.state is not None
 
-    def snapshot(self, step: int, state: MahonyState, settings: MahonySettings, snapshot_id: int | None = None,
-                 *, event: bool = False) -> str:
+    def snapshot(
+        self,
+        step: int,
+        state: MahonyState,
+        settings: MahonySettings,
+        snapshot_id: int | None = None,
+        *,
+        event: bool = False,
+    ) -> str:
         """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
         command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
         snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
@@ -467,8 +481,15 @@ class PortFollower:
                 if self._pending is not None:
                     self.seed_rows.append((first_row + a, self._pending))
                     self._pending = None
-                out = run(acc_mg[a:b], gyro_mdps[a:b], thr[a:b], settings=self.settings, state=self.state,
-                          euler=self.euler, native=self.native)
+                out = run(
+                    acc_mg[a:b],
+                    gyro_mdps[a:b],
+                    thr[a:b],
+                    settings=self.settings,
+                    state=self.state,
+                    euler=self.euler,
+                    native=self.native,
+                )
                 q[a:b], self.state = out[0], out[3]
                 if self.euler:
                     thx[a:b], thy[a:b] = out[1], out[2]
@@ -589,11 +610,21 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         # that diverged still runs with the build's settings)
         has_settings = np.zeros(st_steps.shape[0], dtype=bool)
         if st_steps.size:
-            has_settings = np.all([np.isfinite(np.asarray(_col(status, k), dtype=np.float64))
-                                   for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
+            has_settings = np.all(
+                [
+                    np.isfinite(np.asarray(_col(status, k), dtype=np.float64))
+                    for k in ("kp_ground", "kp_flight", "ki", "dt_s")
+                ],
+                axis=0,
+            )
         first = np.flatnonzero(has_settings)
-        default_settings = (MahonySettings.of_status(status, int(order[0])) if order.size
-                            else MahonySettings.of_status(status, int(first[0])) if first.size else MahonySettings())
+        default_settings = (
+            MahonySettings.of_status(status, int(order[0]))
+            if order.size
+            else MahonySettings.of_status(status, int(first[0]))
+            if first.size
+            else MahonySettings()
+        )
 
     try:  # rounded text-mode rows are no exact filter inputs: never replayed
         exact_rows = np.asarray(_col(att, "exact"), dtype=bool).reshape(n)
@@ -622,12 +653,24 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
                     continue
                 end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
                 if end > cut:
-                    parts.append(port.rows(steps[cut:end], acc[cut:end], gyro[cut:end], thr[cut:end],
-                                           exact_rows[cut:end], first_row=cut))
+                    parts.append(
+                        port.rows(
+                            steps[cut:end],
+                            acc[cut:end],
+                            gyro[cut:end],
+                            thr[cut:end],
+                            exact_rows[cut:end],
+                            first_row=cut,
+                        )
+                    )
                     cut = end
-                port.snapshot(int(st_sorted[k]), MahonyState(q_wxyz=_col(status, "q_wxyz")[j],
-                                                             int_xyz=_col(status, "int_xyz")[j]),
-                              MahonySettings.of_status(status, j), snapshot_id=j, event=is_event)
+                port.snapshot(
+                    int(st_sorted[k]),
+                    MahonyState(q_wxyz=_col(status, "q_wxyz")[j], int_xyz=_col(status, "int_xyz")[j]),
+                    MahonySettings.of_status(status, j),
+                    snapshot_id=j,
+                    event=is_event,
+                )
                 seeded_run = seeded_run or port.seeded
         parts.append(port.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
     if parts:

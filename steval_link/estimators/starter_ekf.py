@@ -50,8 +50,15 @@ RATE_HZ = 84e6 / (52 * 2000) / 5
 class MyEkf:
     """3-state EKF: x = (phi, theta, psi), gyro prediction, accelerometer update."""
 
-    def __init__(self, q_gyro: float = 1e-6, r_acc: float = 1e-2, p0: float = 0.1, max_dev_g: float = 2.0,
-                 euler_step: bool = False, rate_hz: float = RATE_HZ) -> None:
+    def __init__(
+        self,
+        q_gyro: float = 1e-6,
+        r_acc: float = 1e-2,
+        p0: float = 0.1,
+        max_dev_g: float = 2.0,
+        euler_step: bool = False,
+        rate_hz: float = RATE_HZ,
+    ) -> None:
         self.q_gyro = float(q_gyro)  # process noise of the gyro, rad²/s
         self.r_acc = float(r_acc)  # measurement noise of the accelerometer direction, g²
         self.p0 = float(p0)  # initial covariance of pitch and roll, rad²
@@ -88,17 +95,21 @@ class MyEkf:
         tt = st / ct
         p, q, r = w
         # Euler-angle rates from the body rates
-        f = np.array([
-            p + sp * tt * q + cp * tt * r,  # phi dot
-            cp * q - sp * r,  # theta dot
-            (sp * q + cp * r) / ct,  # psi dot
-        ])
+        f = np.array(
+            [
+                p + sp * tt * q + cp * tt * r,  # phi dot
+                cp * q - sp * r,  # theta dot
+                (sp * q + cp * r) / ct,  # psi dot
+            ]
+        )
         # Jacobian F = I + dt·∂f/∂x
-        F = np.eye(3) + dt * np.array([
-            [tt * (cp * q - sp * r), (sp * q + cp * r) / (ct * ct), 0.0],
-            [-sp * q - cp * r, 0.0, 0.0],
-            [(cp * q - sp * r) / ct, (sp * q + cp * r) * st / (ct * ct), 0.0],
-        ])
+        F = np.eye(3) + dt * np.array(
+            [
+                [tt * (cp * q - sp * r), (sp * q + cp * r) / (ct * ct), 0.0],
+                [-sp * q - cp * r, 0.0, 0.0],
+                [(cp * q - sp * r) / ct, (sp * q + cp * r) * st / (ct * ct), 0.0],
+            ]
+        )
         Q = self.q_gyro * dt * np.eye(3)  # process noise of this step
         if self.euler_step:  # the lecture's integration as it stands
             self.x = self.x + dt * f
@@ -112,11 +123,13 @@ class MyEkf:
             phi, theta, _ = self.x
             sp, cp, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
             h = np.array([-st, sp * ct, cp * ct])  # gravity as the accelerometer should see it, g
-            H = np.array([  # ∂h/∂x
-                [0.0, -ct, 0.0],
-                [cp * ct, -sp * st, 0.0],
-                [-sp * ct, -cp * st, 0.0],
-            ])
+            H = np.array(
+                [  # ∂h/∂x
+                    [0.0, -ct, 0.0],
+                    [cp * ct, -sp * st, 0.0],
+                    [-sp * ct, -cp * st, 0.0],
+                ]
+            )
             R = self.r_acc * np.eye(3)  # measurement noise
             S = H @ self.P @ H.T + R  # innovation covariance
             K = self.P @ H.T @ np.linalg.inv(S)  # Kalman gain
@@ -132,12 +145,14 @@ class MyEkf:
         cx, sx = math.cos(self.x[0] / 2), math.sin(self.x[0] / 2)
         cy, sy = math.cos(self.x[1] / 2), math.sin(self.x[1] / 2)
         cz, sz = math.cos(self.x[2] / 2), math.sin(self.x[2] / 2)
-        return np.array([
-            cz * cy * cx + sz * sy * sx,
-            cz * cy * sx - sz * sy * cx,
-            cz * sy * cx + sz * cy * sx,
-            sz * cy * cx - cz * sy * sx,
-        ])
+        return np.array(
+            [
+                cz * cy * cx + sz * sy * sx,
+                cz * cy * sx - sz * sy * cx,
+                cz * sy * cx + sz * cy * sx,
+                sz * cy * cx - cz * sy * sx,
+            ]
+        )
 
 
 def rotate(q: np.ndarray, rv: np.ndarray) -> np.ndarray:
@@ -146,13 +161,23 @@ def rotate(q: np.ndarray, rv: np.ndarray) -> np.ndarray:
     s = math.sin(angle / 2) / angle if angle > 1e-12 else 0.5
     dw, dx, dy, dz = math.cos(angle / 2), rv[0] * s, rv[1] * s, rv[2] * s
     w, x, y, z = q
-    return np.array([w * dw - x * dx - y * dy - z * dz, w * dx + x * dw + y * dz - z * dy,
-                     w * dy - x * dz + y * dw + z * dx, w * dz + x * dy - y * dx + z * dw])
+    return np.array(
+        [
+            w * dw - x * dx - y * dy - z * dz,
+            w * dx + x * dw + y * dz - z * dy,
+            w * dy - x * dz + y * dw + z * dx,
+            w * dz + x * dy - y * dx + z * dw,
+        ]
+    )
 
 
 def euler_of(q: np.ndarray) -> np.ndarray:
     """(phi, theta, psi) of a quaternion, the firmware's QuaternionToEuler formulas (theta within ±90°)."""
     w, x, y, z = q / math.sqrt(q @ q)
-    return np.array([math.atan2(2 * (w * x + y * z), w * w - x * x - y * y + z * z),
-                     math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z)))),
-                     math.atan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z)])
+    return np.array(
+        [
+            math.atan2(2 * (w * x + y * z), w * w - x * x - y * y + z * z),
+            math.asin(max(-1.0, min(1.0, 2 * (w * y - x * z)))),
+            math.atan2(2 * (x * y + w * z), w * w + x * x - y * y - z * z),
+        ]
+    )

@@ -63,14 +63,14 @@ class VqfEstimator(Estimator):
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        out = self._vqf.updateBatch(np.ascontiguousarray(gyro * _MDPS_TO_RADPS),
-                                    np.ascontiguousarray(acc * _MG_TO_MPS2))
+        out = self._vqf.updateBatch(
+            np.ascontiguousarray(gyro * _MDPS_TO_RADPS), np.ascontiguousarray(acc * _MG_TO_MPS2)
+        )
         q = np.asarray(out["quat6D"], dtype=np.float64)
         if self.latency_s:
             q = self._predict(q, gyro * _MDPS_TO_RADPS)
         thx, thy, thz = euler_from_quaternion(q)
-        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz,
-                                valid=np.isfinite(q).all(axis=1))
+        return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=np.isfinite(q).all(axis=1))
 
     def _predict(self, q: np.ndarray, gyr_radps: np.ndarray) -> np.ndarray:
         """q ⊗ Exp(ω·latency_s) for (N, 4) q and (N, 3) ω (rad/s, bias not removed: VQF's is not exposed)."""
@@ -80,5 +80,11 @@ class VqfEstimator(Estimator):
         d = np.column_stack([np.cos(0.5 * ang), r * s[:, None]])
         w1, x1, y1, z1 = q.T
         w2, x2, y2, z2 = d.T
-        return np.column_stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+        return np.column_stack(
+            [
+                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            ]
+        )

@@ -253,9 +253,7 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
         return answering[0]
     listing = ", ".join(candidates)
     if answering:
-        raise PortChoiceError(
-            f"several ports carry steval frames ({', '.join(answering)}); pick one with --port"
-        )
+        raise PortChoiceError(f"several ports carry steval frames ({', '.join(answering)}); pick one with --port")
     raise PortChoiceError(
         f"none of the serial ports{where} sent valid frames at {baud} baud within {probe_s:.1f} s "
         f"({listing}); pick one with --port"

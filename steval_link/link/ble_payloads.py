@@ -39,12 +39,46 @@ from steval_link.constants import AHRS_PERIOD_S
 from steval_link.link.capture import CHUNK_BLE
 
 __all__ = [
-    "SERVICE_UUID", "CHAR_UUIDS", "CHAR_NAMES", "CHAR_MOTION", "CHAR_ENV", "CHAR_ARMING", "CHAR_STDOUT",
-    "CHAR_STDERR", "DEVICE_NAME_PREFIX", "TICK_S", "TICK_WRAP", "char_id_of_uuid", "MotionSample", "EnvSample",
-    "decode_motion", "decode_env", "decode_arming", "unwrap_ticks", "TickUnwrapper", "BleTelemetry",
-    "decode_notifications", "nominal_interval_s", "uniform_inputs", "UniformInputs", "BadPayload", "ble_records",
-    "is_ble_source", "ble_chunk", "sample_numbers", "STEP_PERIOD_S", "Cadence", "motion_cadence", "period_ticks",
-    "cadence_numbers", "gap_mask", "RunNumberer", "STEADY", "CONGESTION", "GAPS", "POLLED",
+    "SERVICE_UUID",
+    "CHAR_UUIDS",
+    "CHAR_NAMES",
+    "CHAR_MOTION",
+    "CHAR_ENV",
+    "CHAR_ARMING",
+    "CHAR_STDOUT",
+    "CHAR_STDERR",
+    "DEVICE_NAME_PREFIX",
+    "TICK_S",
+    "TICK_WRAP",
+    "char_id_of_uuid",
+    "MotionSample",
+    "EnvSample",
+    "decode_motion",
+    "decode_env",
+    "decode_arming",
+    "unwrap_ticks",
+    "TickUnwrapper",
+    "BleTelemetry",
+    "decode_notifications",
+    "nominal_interval_s",
+    "uniform_inputs",
+    "UniformInputs",
+    "BadPayload",
+    "ble_records",
+    "is_ble_source",
+    "ble_chunk",
+    "sample_numbers",
+    "STEP_PERIOD_S",
+    "Cadence",
+    "motion_cadence",
+    "period_ticks",
+    "cadence_numbers",
+    "gap_mask",
+    "RunNumberer",
+    "STEADY",
+    "CONGESTION",
+    "GAPS",
+    "POLLED",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -58,8 +92,13 @@ CHAR_UUIDS: dict[int, str] = {
     CHAR_STDOUT: "00000001-000e-11e1-ac36-0002a5d5c51b",
     CHAR_STDERR: "00000002-000e-11e1-ac36-0002a5d5c51b",
 }
-CHAR_NAMES: dict[int, str] = {CHAR_MOTION: "motion", CHAR_ENV: "environment", CHAR_ARMING: "arming",
-                              CHAR_STDOUT: "stdout", CHAR_STDERR: "stderr"}
+CHAR_NAMES: dict[int, str] = {
+    CHAR_MOTION: "motion",
+    CHAR_ENV: "environment",
+    CHAR_ARMING: "arming",
+    CHAR_STDOUT: "stdout",
+    CHAR_STDERR: "stderr",
+}
 #: the firmware advertises "DRN1" + its version digits (release 170120: "DRN1110")
 DEVICE_NAME_PREFIX = "DRN1"
 #: one tick of ``HAL_GetTick() >> 3``, s
@@ -221,11 +260,13 @@ class BleTelemetry:
             unit = {"acc": "mg", "gyro": "mdps", "mag": "mgauss"}[name]
             for i, ax in enumerate("xyz"):
                 tab[f"{name}_{ax}_{unit}"] = arr[:, i]
-        for key, t, v in (("pressure_hpa", self.env_t_fw_s, self.pressure_hpa),
-                          ("battery_pct", self.env_t_fw_s, self.battery_pct),
-                          ("temperature_c", self.env_t_fw_s, self.temperature_c),
-                          ("rssi_dbm", self.env_t_fw_s, self.rssi_dbm),
-                          ("armed", self.arming_t_fw_s, self.armed.astype(np.float32))):
+        for key, t, v in (
+            ("pressure_hpa", self.env_t_fw_s, self.pressure_hpa),
+            ("battery_pct", self.env_t_fw_s, self.battery_pct),
+            ("temperature_c", self.env_t_fw_s, self.temperature_c),
+            ("rssi_dbm", self.env_t_fw_s, self.rssi_dbm),
+            ("armed", self.arming_t_fw_s, self.armed.astype(np.float32)),
+        ):
             tab[key] = _held(self.motion_t_fw_s, t, v)
         return tab
 
@@ -308,14 +349,26 @@ def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTele
     mtick = ticks_of[0]
 
     return BleTelemetry(
-        motion_t_host_s=m[:, 0].copy(), motion_tick=mtick, motion_t_fw_s=mtick * TICK_S,
-        acc_mg=m[:, 2:5].astype(np.float32), gyro_mdps=(m[:, 5:8] * 100).astype(np.float32),
+        motion_t_host_s=m[:, 0].copy(),
+        motion_tick=mtick,
+        motion_t_fw_s=mtick * TICK_S,
+        acc_mg=m[:, 2:5].astype(np.float32),
+        gyro_mdps=(m[:, 5:8] * 100).astype(np.float32),
         mag_mgauss=m[:, 8:11].astype(np.float32),
-        env_t_host_s=e[:, 0].copy(), env_t_fw_s=ticks_of[1] * TICK_S, pressure_hpa=(e[:, 2] / 100).astype(np.float32),
-        battery_pct=(e[:, 3] / 10).astype(np.float32), temperature_c=(e[:, 4] / 10).astype(np.float32),
+        env_t_host_s=e[:, 0].copy(),
+        env_t_fw_s=ticks_of[1] * TICK_S,
+        pressure_hpa=(e[:, 2] / 100).astype(np.float32),
+        battery_pct=(e[:, 3] / 10).astype(np.float32),
+        temperature_c=(e[:, 4] / 10).astype(np.float32),
         rssi_dbm=(e[:, 5] / 10).astype(np.float32),
-        arming_t_host_s=a[:, 0].copy(), arming_t_fw_s=ticks_of[2] * TICK_S, armed=a[:, 2].astype(bool),
-        console=console, counts=counts, bad_payloads=bad, unknown=unknown, repeated_reads=repeated,
+        arming_t_host_s=a[:, 0].copy(),
+        arming_t_fw_s=ticks_of[2] * TICK_S,
+        armed=a[:, 2].astype(bool),
+        console=console,
+        counts=counts,
+        bad_payloads=bad,
+        unknown=unknown,
+        repeated_reads=repeated,
     )
 
 
@@ -367,13 +420,18 @@ class Cadence:
         every = f"every {ms:.{self._decimals(ms)}f} ms"
         rate = f"{hz:.{self._decimals(hz)}f} Hz"
         if self.kind == POLLED:
-            return (f"motion read {every} on average ({rate}: reads of the characteristic, {_n(self.repeats)} "
-                    f"repeated read(s) of one sample counted once), 0 dropped")
+            return (
+                f"motion read {every} on average ({rate}: reads of the characteristic, {_n(self.repeats)} "
+                f"repeated read(s) of one sample counted once), 0 dropped"
+            )
         if self.kind == STEADY:
             return f"motion {every} ({rate}, the sender's own rate), 0 dropped"
         where = f" in {_n(self.gaps)} gap(s)" if self.gaps else ""
-        why = ("congestion: ST's firmware skips motion updates while the radio is full" if self.kind == CONGESTION
-               else "gaps in the sender's own cadence")
+        why = (
+            "congestion: ST's firmware skips motion updates while the radio is full"
+            if self.kind == CONGESTION
+            else "gaps in the sender's own cadence"
+        )
         return f"motion {every} ({rate}) with {_n(self.dropped)} dropped{where} ({why})"
 
 
@@ -588,13 +646,20 @@ def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> Uniform
     c = cadence if cadence is not None else ble.cadence()
     if n == 0 or c is None:
         z = np.zeros((n, 3), np.float32)
-        return UniformInputs(ble.motion_t_fw_s.copy(), ble.acc_mg.copy() if n else z, ble.gyro_mdps.copy() if n
-                             else z, np.zeros(n, bool), 0.0, np.arange(n), c)
+        return UniformInputs(
+            ble.motion_t_fw_s.copy(),
+            ble.acc_mg.copy() if n else z,
+            ble.gyro_mdps.copy() if n else z,
+            np.zeros(n, bool),
+            0.0,
+            np.arange(n),
+            c,
+        )
     dt = c.interval_s
     k = cadence_numbers(ble.motion_tick, c)
     rows = np.ones(k[-1] + 1, bool)
     for b in np.flatnonzero(_break_mask(n, ble.motion_breaks)):
-        rows[k[b - 1] + 1:k[b]] = False  # never sent: the link was down
+        rows[k[b - 1] + 1 : k[b]] = False  # never sent: the link was down
     numbers = np.flatnonzero(rows)
     src = np.searchsorted(k, numbers, side="right") - 1  # the last sample received at or before
     filled = np.ones(len(numbers), bool)

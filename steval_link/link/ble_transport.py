@@ -26,8 +26,19 @@ from typing import Protocol
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import CHAR_NAMES, CHAR_UUIDS, DEVICE_NAME_PREFIX
 
-__all__ = ["BleDevice", "BleError", "BleBackend", "BleakBackend", "BleLink", "explain_ble_error", "is_address",
-           "pick_device", "SCAN_TIMEOUT_S", "RETRY_MAX_S", "bleak_backend"]
+__all__ = [
+    "BleDevice",
+    "BleError",
+    "BleBackend",
+    "BleakBackend",
+    "BleLink",
+    "explain_ble_error",
+    "is_address",
+    "pick_device",
+    "SCAN_TIMEOUT_S",
+    "RETRY_MAX_S",
+    "bleak_backend",
+]
 
 SCAN_TIMEOUT_S = 5.0
 #: longest wait between two reconnection attempts, s
@@ -62,19 +73,40 @@ def explain_ble_error(exc: BaseException) -> str | None:
     low = (text + " " + str(getattr(exc, "dbus_error", "") or "")).lower()
     reason = getattr(exc, "reason", None)
     reason = getattr(reason, "name", str(reason or "")).upper()
-    if "DENIED" in reason or isinstance(exc, PermissionError) or "accessdenied" in low or "not authorized" in low \
-            or "permission" in low or "unauthorized" in low or "notpermitted" in low or "notauthorized" in low:
-        return ("Bluetooth permission denied: on Linux add yourself to the 'bluetooth' group or run BlueZ's polkit "
-                "rules; on macOS/Windows allow Bluetooth for this terminal in the system's privacy settings.")
-    if reason == "POWERED_OFF" or "powered off" in low or "turned off" in low or "notready" in low \
-            or "not ready" in low or "poweredoff" in low:
+    if (
+        "DENIED" in reason
+        or isinstance(exc, PermissionError)
+        or "accessdenied" in low
+        or "not authorized" in low
+        or "permission" in low
+        or "unauthorized" in low
+        or "notpermitted" in low
+        or "notauthorized" in low
+    ):
+        return (
+            "Bluetooth permission denied: on Linux add yourself to the 'bluetooth' group or run BlueZ's polkit "
+            "rules; on macOS/Windows allow Bluetooth for this terminal in the system's privacy settings."
+        )
+    if (
+        reason == "POWERED_OFF"
+        or "powered off" in low
+        or "turned off" in low
+        or "notready" in low
+        or "not ready" in low
+        or "poweredoff" in low
+    ):
         return "the Bluetooth adapter is switched off: turn Bluetooth on (e.g. bluetoothctl power on) and retry."
-    if reason in ("NO_BLUETOOTH", "NO_BLE_CENTRAL_ROLE") or "no bluetooth adapters" in low \
-            or ("adapter" in low and ("not found" in low or "no such" in low)):
+    if (
+        reason in ("NO_BLUETOOTH", "NO_BLE_CENTRAL_ROLE")
+        or "no bluetooth adapters" in low
+        or ("adapter" in low and ("not found" in low or "no such" in low))
+    ):
         return "no Bluetooth LE adapter found on this computer (plug in a USB dongle or enable the built-in one)."
     if isinstance(exc, FileNotFoundError) or "serviceunknown" in low or ("bluez" in low and "unknown" in low):
-        return ("no Bluetooth service reachable: BlueZ (bluetoothd) and the D-Bus system bus must be running "
-                "(e.g. sudo systemctl start bluetooth), and a Bluetooth adapter present.")
+        return (
+            "no Bluetooth service reachable: BlueZ (bluetoothd) and the D-Bus system bus must be running "
+            "(e.g. sudo systemctl start bluetooth), and a Bluetooth adapter present."
+        )
     return None
 
 
@@ -171,10 +203,18 @@ class BleLink:
     """Scan, connect, subscribe, reconnect (see the module docstring). ``on_event(kind, text)`` hears "connect",
     "disconnect", "reconnect" and "missing" (a characteristic the drone lacks); ``clock`` gives Unix seconds."""
 
-    def __init__(self, backend: BleBackend, target: str | None, on_notification: Callable[[int, bytes, float], None],
-                 *, on_event: Callable[[str, str], None] | None = None, clock: Callable[[], float] = time.time,
-                 scan_timeout_s: float = SCAN_TIMEOUT_S, retry_max_s: float = RETRY_MAX_S,
-                 first_scans: int = 1) -> None:
+    def __init__(
+        self,
+        backend: BleBackend,
+        target: str | None,
+        on_notification: Callable[[int, bytes, float], None],
+        *,
+        on_event: Callable[[str, str], None] | None = None,
+        clock: Callable[[], float] = time.time,
+        scan_timeout_s: float = SCAN_TIMEOUT_S,
+        retry_max_s: float = RETRY_MAX_S,
+        first_scans: int = 1,
+    ) -> None:
         self.backend = backend
         self.target = target
         self.on_notification = on_notification
@@ -217,8 +257,9 @@ class BleLink:
             except BleError as exc:
                 if cid == 1:  # no motion characteristic: not ST's drone firmware
                     await self.backend.disconnect()
-                    raise UserError(f"{dev.name or dev.address} has no AccGyroMag characteristic ({uuid}): not "
-                                    "ST's drone firmware?") from None
+                    raise UserError(
+                        f"{dev.name or dev.address} has no AccGyroMag characteristic ({uuid}): not ST's drone firmware?"
+                    ) from None
                 self.on_event("missing", f"{CHAR_NAMES[cid]}: {exc}")
         self.device = dev
         self.connections += 1
@@ -227,14 +268,17 @@ class BleLink:
         def cb(data: bytes) -> None:
             self.notifications += 1
             self.on_notification(cid, data, self.clock())
+
         return cb
 
     async def run(self, stop: asyncio.Event) -> None:
         """Connect (UserError when the drone is not found at first) and stay connected until ``stop`` is set."""
         dev = await self.find(self.first_scans)
         if dev is None:
-            raise UserError(f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
-                            "(is the drone on, in range, and not connected to a phone?).")
+            raise UserError(
+                f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
+                "(is the drone on, in range, and not connected to a phone?)."
+            )
         try:
             await self._connect(dev)
         except UserError:

@@ -64,8 +64,13 @@ CHUNK_TRUTH = ord("T")
 #: every chunk type the reader knows (format 2 adds B, H and T); D and E are read into the byte stream and the events,
 #: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
 #: for the module that reads them. A type it does not know (a newer writer's) is kept there too when its CRC holds.
-CHUNK_TYPES: dict[int, str] = {CHUNK_DATA: "data", CHUNK_EVENT: "event", CHUNK_BLE: "ble", CHUNK_HOST: "host",
-                               CHUNK_TRUTH: "truth"}
+CHUNK_TYPES: dict[int, str] = {
+    CHUNK_DATA: "data",
+    CHUNK_EVENT: "event",
+    CHUNK_BLE: "ble",
+    CHUNK_HOST: "host",
+    CHUNK_TRUTH: "truth",
+}
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
 TRUTH_ROWS_PER_CHUNK = (1 << 20) // TRUTH_DTYPE.itemsize
@@ -150,8 +155,9 @@ def capture_header(
     }
 
 
-def encode_capture(header: dict[str, Any], chunks: Iterable[tuple[bytes, float]],
-                   typed: Iterable[tuple[int, bytes, float]] = ()) -> bytes:
+def encode_capture(
+    header: dict[str, Any], chunks: Iterable[tuple[bytes, float]], typed: Iterable[tuple[int, bytes, float]] = ()
+) -> bytes:
     """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
     ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``), then ``typed``
     chunks ``(chunk type, payload, t_host_s)`` (e.g. :data:`CHUNK_BLE`)."""
@@ -194,13 +200,14 @@ def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
 def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
     """The truth rows of a capture's T chunks (``Capture.chunks`` / ``Source.chunks``) in file order, or None when it
     has none. A payload that is not a whole number of rows keeps its whole rows."""
-    parts = [np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
-             for _, p in chunks.get(CHUNK_TRUTH, [])]
+    parts = [
+        np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
+        for _, p in chunks.get(CHUNK_TRUTH, [])
+    ]
     if not parts:
         return None
     rows = np.concatenate(parts)
-    return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(),
-                        rows["movement"] != 0)
+    return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(), rows["movement"] != 0)
 
 
 def _known_kind(kind: int) -> int:
@@ -393,8 +400,10 @@ def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out")
     parent = path.parent
     if not parent.is_dir():
         what = "is not a directory" if parent.exists() else "does not exist"
-        raise UserError(f"{option} {path}: directory {parent} {what} (create it first, or give an existing "
-                        "directory to write a capture inside it)")
+        raise UserError(
+            f"{option} {path}: directory {parent} {what} (create it first, or give an existing "
+            "directory to write a capture inside it)"
+        )
     return path
 
 
@@ -459,6 +468,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     unpack_head = _CHUNK_HEAD.unpack_from
     unpack_crc = _CRC.unpack_from
     crc32 = zlib.crc32
+
     def chunk_at(p: int) -> tuple[int, int, float, int] | str:
         """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none."""
         if p + head_size > n:
@@ -485,12 +495,17 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
                     resume = m.start()
                     break
             if resume is None:
-                cut = (f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
-                       f"data up to the last complete chunk, {n - pos} trailing bytes ignored")
+                cut = (
+                    f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
+                    f"data up to the last complete chunk, {n - pos} trailing bytes ignored"
+                )
                 break
             damaged.append((pos, resume - pos, found))
-            events.append(CaptureEvent(times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes "
-                                       "unreadable here", total))
+            events.append(
+                CaptureEvent(
+                    times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes unreadable here", total
+                )
+            )
             pos = resume
             continue
         kind, length, t, end = found
@@ -609,11 +624,15 @@ def telemetry_of_source(src: Source):
     if src.kind == "stv" and not src.data:
         size = _file_size(src.path)
         if src.chunks.get(CHUNK_BLE):
-            raise UserError(f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
-                            "serial frames): steval replay and export read it, this command needs the serial stream.")
+            raise UserError(
+                f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
+                "serial frames): steval replay and export read it, this command needs the serial stream."
+            )
         if src.warnings:  # cut short or damaged right after the header
-            raise UserError(f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
-                            "short): no frames.")
+            raise UserError(
+                f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
+                "short): no frames."
+            )
         raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
     chunk_times = None
     if src.chunk_offsets is not None and src.chunk_times_s is not None:

@@ -61,7 +61,7 @@ MODES = {"binary": P.MODE_BINARY, "text": P.MODE_TEXT}
 RESULTS = {
     P.ACK_ACCEPTED: "accepted",
     P.ACK_REFUSED_ARMED: "refused: the motors may spin (throttle at or above MIN_THR, or armed) and this firmware "
-                         "does not allow filter changes in flight",
+    "does not allow filter changes in flight",
     P.ACK_UNKNOWN: "refused: the firmware does not know this command or parameter",
     P.ACK_OUT_OF_RANGE: "refused: value out of range",
     P.ACK_NOT_IN_BUILD: "refused: not available in this firmware build",
@@ -69,8 +69,9 @@ RESULTS = {
 
 _ON = {"on", "1", "true", "yes"}
 _OFF = {"off", "0", "false", "no"}
-_SYNTAX = ("commands: set NAME VALUE (NAME: " + ", ".join(PARAMS) + "), correction on|off, reset, status, "
-           "mode text|binary")
+_SYNTAX = (
+    "commands: set NAME VALUE (NAME: " + ", ".join(PARAMS) + "), correction on|off, reset, status, mode text|binary"
+)
 
 
 @dataclass(frozen=True)
@@ -181,8 +182,10 @@ def parse_script(text: str, source: str = "commands") -> list[tuple[float, Comma
             if not math.isfinite(t) or t < 0:
                 raise ValueError
         except ValueError:
-            raise UserError(f"{source} line {i}: a line starts with the emulated time in seconds "
-                            f"(e.g. '5.0 set ki 1.0'), got {t_text!r}") from None
+            raise UserError(
+                f"{source} line {i}: a line starts with the emulated time in seconds "
+                f"(e.g. '5.0 set ki 1.0'), got {t_text!r}"
+            ) from None
         try:
             out.append((t, parse_command(rest)))
         except UserError as exc:
@@ -193,8 +196,10 @@ def parse_script(text: str, source: str = "commands") -> list[tuple[float, Comma
 def describe_settings(status) -> str:
     """The filter settings a status frame reports, in one line."""
     correction = "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
-    return (f"kp_ground {float(status.kp_ground):.9g}, kp_flight {float(status.kp_flight):.9g}, "
-            f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {correction}")
+    return (
+        f"kp_ground {float(status.kp_ground):.9g}, kp_flight {float(status.kp_flight):.9g}, "
+        f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {correction}"
+    )
 
 
 def param_of_status(status, name: str):
@@ -234,8 +239,14 @@ class CommandChannel:
     Sequence numbers start at a random value so that acks left over from another session are not taken for this
     one's."""
 
-    def __init__(self, send: Callable[[bytes], object], record: Callable[[bytes], object] | None = None, *,
-                 first_seq: int | None = None, clock: Callable[[], float] | None = None) -> None:
+    def __init__(
+        self,
+        send: Callable[[bytes], object],
+        record: Callable[[bytes], object] | None = None,
+        *,
+        first_seq: int | None = None,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
         self._send = send
         self._record = record
         self._seq = random.randrange(1 << 16) if first_seq is None else int(first_seq) % (1 << 16)
@@ -298,16 +309,43 @@ def command_log(commands, acks) -> list[dict]:
         if j is not None and j not in answered:
             answered.add(j)
             a = acks[j]
-            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
-                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
-        out.append({"t_host_s": float(c["t_host_s"]), "cmd_seq": int(c["cmd_seq"]), "command": command.describe(),
-                    "result": None if ack is None else ack.result, "step": None if ack is None else ack.step,
-                    "text": describe_ack(command, ack) if ack is not None else f"{command.describe()}: no ack"})
+            ack = AckFrame(
+                cmd_seq=int(a["cmd_seq"]),
+                cmd=int(a["cmd"]),
+                result=int(a["result"]),
+                step=int(a["step"]),
+                rx_ok=int(a["rx_ok"]),
+                rx_bad=int(a["rx_bad"]),
+            )
+        out.append(
+            {
+                "t_host_s": float(c["t_host_s"]),
+                "cmd_seq": int(c["cmd_seq"]),
+                "command": command.describe(),
+                "result": None if ack is None else ack.result,
+                "step": None if ack is None else ack.step,
+                "text": describe_ack(command, ack) if ack is not None else f"{command.describe()}: no ack",
+            }
+        )
     for j in range(len(acks)):
         if j not in answered:
             a = acks[j]
-            ack = AckFrame(cmd_seq=int(a["cmd_seq"]), cmd=int(a["cmd"]), result=int(a["result"]), step=int(a["step"]),
-                           rx_ok=int(a["rx_ok"]), rx_bad=int(a["rx_bad"]))
-            out.append({"t_host_s": float(a["t_host_s"]), "cmd_seq": ack.cmd_seq, "command": None,
-                        "result": ack.result, "step": ack.step, "text": describe_ack(None, ack)})
+            ack = AckFrame(
+                cmd_seq=int(a["cmd_seq"]),
+                cmd=int(a["cmd"]),
+                result=int(a["result"]),
+                step=int(a["step"]),
+                rx_ok=int(a["rx_ok"]),
+                rx_bad=int(a["rx_bad"]),
+            )
+            out.append(
+                {
+                    "t_host_s": float(a["t_host_s"]),
+                    "cmd_seq": ack.cmd_seq,
+                    "command": None,
+                    "result": ack.result,
+                    "step": ack.step,
+                    "text": describe_ack(None, ack),
+                }
+            )
     return sorted(out, key=lambda r: r["t_host_s"])

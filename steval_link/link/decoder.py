@@ -299,8 +299,9 @@ class StreamDecoder:
             ok = version == _V2 or attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
             released = gate.offer(KIND_ATTITUDE, frame.seq, frame.t_us, ok, frame)
         elif isinstance(frame, StatusFrame):
-            ok = version == _V2 or status_values_ok(frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight,
-                                                    frame.ki, frame.dt_s)
+            ok = version == _V2 or status_values_ok(
+                frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s
+            )
             released = gate.offer(KIND_STATUS, frame.step, frame.t_us, ok, frame)
         else:
             released = [frame]
@@ -351,8 +352,30 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     if t == P.TYPE_STATUS:
         v = _STA_STRUCT.unpack_from(buf, p + 4)
         return StatusFrame(
-            v[0], v[1], v[2:6], v[6:9], v[9], v[10], v[11], v[12], v[13], v[14], v[15], v[16], v[17], v[18],
-            v[19], v[20], v[21], v[22], v[23:25], v[25], v[26], True, offset, size,
+            v[0],
+            v[1],
+            v[2:6],
+            v[6:9],
+            v[9],
+            v[10],
+            v[11],
+            v[12],
+            v[13],
+            v[14],
+            v[15],
+            v[16],
+            v[17],
+            v[18],
+            v[19],
+            v[20],
+            v[21],
+            v[22],
+            v[23:25],
+            v[25],
+            v[26],
+            True,
+            offset,
+            size,
         )
     if t == P.TYPE_FLIGHT:
         v = _FC_STRUCT.unpack_from(buf, p + 4)

@@ -118,13 +118,14 @@ def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_ra
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
-    ok = (_within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz))
+    ok = _within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz)
     if exact.all():
         return ~(ok & _within(q_wxyz, Q_MAX, 4))
     # text-mode rows: every value finite (no q; their angles come with the row)
     ok_txt = (
         np.isfinite(np.asarray(acc_mg, np.float64)).reshape(-1, 3).all(axis=1)
-        & np.isfinite(np.asarray(gyro_mdps, np.float64)).reshape(-1, 3).all(axis=1) & np.isfinite(thz)
+        & np.isfinite(np.asarray(gyro_mdps, np.float64)).reshape(-1, 3).all(axis=1)
+        & np.isfinite(thz)
         & np.isfinite(np.broadcast_to(np.asarray(thx_rad, np.float64), (n,)))
         & np.isfinite(np.broadcast_to(np.asarray(thy_rad, np.float64), (n,)))
     )
@@ -168,8 +169,10 @@ def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None,
         where += f" (t = {first_t_s:.3f} s)"
     noun = "frame carries" if n == 1 else "frames carry"
     if inputs:
-        return (f"{_count(n)} {noun} NaN or out-of-range values{where}, the filter inputs (acc, gyro) too: the "
-                "firmware's sensor path before the filter; check the ISR, offsets and averaging")
+        return (
+            f"{_count(n)} {noun} NaN or out-of-range values{where}, the filter inputs (acc, gyro) too: the "
+            "firmware's sensor path before the filter; check the ISR, offsets and averaging"
+        )
     return f"{_count(n)} {noun} NaN or |q| > 2{where}: the firmware's own filter output; check ahrs.c"
 
 
@@ -179,11 +182,15 @@ def held_back_sentence(n: int, held_values: int = 0) -> str:
     noun = "frame" if n == 1 else "frames"
     parts = []
     if held_values:
-        parts.append(f"{_count(held_values)} for NaN or out-of-range values (protocol v1: its CRC-16 cannot tell the "
-                     "firmware's own filter output from damage; if the firmware's filter diverged, check ahrs.c)")
+        parts.append(
+            f"{_count(held_values)} for NaN or out-of-range values (protocol v1: its CRC-16 cannot tell the "
+            "firmware's own filter output from damage; if the firmware's filter diverged, check ahrs.c)"
+        )
     if n - held_values:
-        parts.append(f"{_count(n - held_values)} for a sequence and time that do not continue (a damaged or foreign "
-                     "frame that passed its CRC, or a firmware restart not confirmed)")
+        parts.append(
+            f"{_count(n - held_values)} for a sequence and time that do not continue (a damaged or foreign "
+            "frame that passed its CRC, or a firmware restart not confirmed)"
+        )
     return f"{_count(n)} CRC-valid {noun} held back, not shown: " + "; ".join(parts)
 
 
@@ -280,8 +287,9 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
         vals_a[v1_a] = ~attitude_rows_bad(True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0)
     if len(v1_s):
         b = s[v1_s]
-        vals_s[v1_s] = ~status_rows_bad(True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"],
-                                        b["dt_s"])
+        vals_s[v1_s] = ~status_rows_bad(
+            True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"], b["dt_s"]
+        )
     # fast path: every attitude row fits the previous one and every status the attitude row before it
     clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
     if clean and len(a) > 1:

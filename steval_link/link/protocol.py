@@ -163,9 +163,7 @@ ACK_DTYPE = np.dtype(
 assert ACK_DTYPE.itemsize == ACK_PAYLOAD_SIZE
 
 #: Command payload (type 8, host -> drone).
-COMMAND_DTYPE = np.dtype(
-    [("cmd_seq", "<u2"), ("cmd", "u1"), ("param", "u1"), ("value", "<f4"), ("reserved", "<u4")]
-)
+COMMAND_DTYPE = np.dtype([("cmd_seq", "<u2"), ("cmd", "u1"), ("param", "u1"), ("value", "<f4"), ("reserved", "<u4")])
 assert COMMAND_DTYPE.itemsize == COMMAND_PAYLOAD_SIZE
 
 
@@ -284,8 +282,7 @@ def encode_text(line: str, version: int = VERSION) -> bytes:
     """Text frames for one log line (UTF-8, split into 255-byte pieces; an empty line is one space)."""
     data = line.rstrip("\r\n").encode("utf-8") or b" "
     return b"".join(
-        encode_frame(TYPE_TEXT, data[i : i + TEXT_MAX_PAYLOAD], version)
-        for i in range(0, len(data), TEXT_MAX_PAYLOAD)
+        encode_frame(TYPE_TEXT, data[i : i + TEXT_MAX_PAYLOAD], version) for i in range(0, len(data), TEXT_MAX_PAYLOAD)
     )
 
 
@@ -304,9 +301,16 @@ def encode_flight(**fields) -> bytes:
 def encode_ack(*, cmd_seq: int, cmd: int, result: int, step: int, rx_ok: int = 0, rx_bad: int = 0) -> bytes:
     """An acknowledgement frame (type 5)."""
     return _encode_record(
-        TYPE_ACK, ACK_DTYPE,
-        dict(cmd_seq=cmd_seq % 65536, cmd=cmd, result=result, step=step % (1 << 32), rx_ok=rx_ok % 65536,
-             rx_bad=rx_bad % 65536),
+        TYPE_ACK,
+        ACK_DTYPE,
+        dict(
+            cmd_seq=cmd_seq % 65536,
+            cmd=cmd,
+            result=result,
+            step=step % (1 << 32),
+            rx_ok=rx_ok % 65536,
+            rx_bad=rx_bad % 65536,
+        ),
     )
 
 

@@ -64,7 +64,7 @@ def parse_replay_url(url: str) -> ReplayUrl:
     :class:`UserError` with one sentence."""
     if not is_replay_url(url):
         raise UserError(f"{url} is not a replay URL (replay://CAPTURE.stv)")
-    rest = url[len(SCHEME):]
+    rest = url[len(SCHEME) :]
     path_text, _, query = rest.partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
@@ -230,5 +230,14 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         raise UserError(f"cannot replay {url}: {str(exc).rstrip('.')}") from None
     rate = int(src.header.get("baud") or baud) if src.header else baud
     ends, t_s, how = pace_of(src, tel, rate if rate > 0 else baud)
-    return ReplayPort(src.data, ends, t_s, port=url, path=parsed.path, baudrate=rate, speed=parsed.speed,
-                      timeout=timeout, paced_by=how)
+    return ReplayPort(
+        src.data,
+        ends,
+        t_s,
+        port=url,
+        path=parsed.path,
+        baudrate=rate,
+        speed=parsed.speed,
+        timeout=timeout,
+        paced_by=how,
+    )

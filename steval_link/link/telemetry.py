@@ -43,8 +43,14 @@ from steval_link.link.frames import (
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 
-__all__ = ["AttitudeArrays", "StatusArrays", "FlightControlArrays", "Telemetry", "TelemetryParts",
-           "telemetry_from_frames"]
+__all__ = [
+    "AttitudeArrays",
+    "StatusArrays",
+    "FlightControlArrays",
+    "Telemetry",
+    "TelemetryParts",
+    "telemetry_from_frames",
+]
 
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
@@ -86,8 +92,9 @@ class AttitudeArrays:
 
     def __post_init__(self) -> None:
         if self.values_bad is None:
-            self.values_bad = attitude_rows_bad(self.exact, self.acc_mg, self.gyro_mdps, self.q_wxyz, self.thz_rad,
-                                                self.thx_rad, self.thy_rad)
+            self.values_bad = attitude_rows_bad(
+                self.exact, self.acc_mg, self.gyro_mdps, self.q_wxyz, self.thz_rad, self.thx_rad, self.thy_rad
+            )
 
     def __len__(self) -> int:
         return len(self.step)
@@ -128,8 +135,9 @@ class StatusArrays:
 
     def __post_init__(self) -> None:
         if self.values_bad is None:
-            self.values_bad = status_rows_bad(self.exact, self.q_wxyz, self.int_xyz, self.kp_ground, self.kp_flight,
-                                              self.ki, self.dt_s)
+            self.values_bad = status_rows_bad(
+                self.exact, self.q_wxyz, self.int_xyz, self.kp_ground, self.kp_flight, self.ki, self.dt_s
+            )
 
     def __len__(self) -> int:
         return len(self.step)
@@ -173,14 +181,18 @@ class FlightControlArrays:
         else:
             t = step * C.AHRS_PERIOD_S
         return cls(
-            step=step, t_fw_s=np.asarray(t, np.float64), t_host_s=rows["t_host_s"].astype(np.float64),
+            step=step,
+            t_fw_s=np.asarray(t, np.float64),
+            t_host_s=rows["t_host_s"].astype(np.float64),
             euler_rc_rad=np.ascontiguousarray(rows["euler_rc_rad"], np.float32),
             rc=np.ascontiguousarray(rows["rc"], np.int16),
             outer_s1_radps=np.ascontiguousarray(rows["outer_s1"], np.float32),
             inner_s2_pwm=np.ascontiguousarray(rows["inner_s2"], np.float32),
             motor_pwm=np.ascontiguousarray(rows["motor_pwm"], np.float32),
-            vbat_v=rows["vbat_v"].astype(np.float32), fc_flags=rows["fc_flags"].astype(np.uint16),
-            fc_every=rows["fc_every"].astype(np.uint8), offset=rows["offset"].astype(np.int64),
+            vbat_v=rows["vbat_v"].astype(np.float32),
+            fc_flags=rows["fc_flags"].astype(np.uint16),
+            fc_every=rows["fc_every"].astype(np.uint8),
+            offset=rows["offset"].astype(np.int64),
         )
 
 
@@ -228,8 +240,9 @@ class TelemetryParts:
         """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
         if len(payload_starts) == 0:
             return
-        self.sta_blocks.append(_payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE,
-                                                STA_RECORD_DTYPE, frame_sizes))
+        self.sta_blocks.append(
+            _payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE, STA_RECORD_DTYPE, frame_sizes)
+        )
 
     def add_frame(self, frame: Frame) -> None:
         if isinstance(frame, AttitudeFrame):
@@ -268,8 +281,19 @@ class TelemetryParts:
             rec = np.empty(len(self.att_frames), ATT_RECORD_DTYPE)
             rec[:] = [
                 (
-                    f.t_us, f.acc_mg, f.gyro_mdps, f.q_wxyz, f.thz_rad, f.seq, f.thr, f.offset, f.nbytes, f.exact,
-                    -1 if f.step is None else f.step, f.thx_rad, f.thy_rad,
+                    f.t_us,
+                    f.acc_mg,
+                    f.gyro_mdps,
+                    f.q_wxyz,
+                    f.thz_rad,
+                    f.seq,
+                    f.thr,
+                    f.offset,
+                    f.nbytes,
+                    f.exact,
+                    -1 if f.step is None else f.step,
+                    f.thx_rad,
+                    f.thy_rad,
                 )
                 for f in self.att_frames
             ]
@@ -283,9 +307,30 @@ class TelemetryParts:
             rec = np.empty(len(self.sta_frames), STA_RECORD_DTYPE)
             rec[:] = [
                 (
-                    f.step, f.t_us, f.q_wxyz, f.int_xyz, f.kp_ground, f.kp_flight, f.ki, f.dt_s, f.cyc_min,
-                    f.cyc_mean, f.cyc_max, f.cpu_hz, f.tx_dropped, f.baud, f.cyc_n, f.min_thr, f.flags,
-                    f.queue_peak, f.fw_version, f.fc_every, f.param_gen, f.offset, f.nbytes, f.exact,
+                    f.step,
+                    f.t_us,
+                    f.q_wxyz,
+                    f.int_xyz,
+                    f.kp_ground,
+                    f.kp_flight,
+                    f.ki,
+                    f.dt_s,
+                    f.cyc_min,
+                    f.cyc_mean,
+                    f.cyc_max,
+                    f.cpu_hz,
+                    f.tx_dropped,
+                    f.baud,
+                    f.cyc_n,
+                    f.min_thr,
+                    f.flags,
+                    f.queue_peak,
+                    f.fw_version,
+                    f.fc_every,
+                    f.param_gen,
+                    f.offset,
+                    f.nbytes,
+                    f.exact,
                 )
                 for f in self.sta_frames
             ]
@@ -433,8 +478,11 @@ class Telemetry:
         else:
             text = []
         rows = {}
-        for name, kind, dtype in (("flight", FlightFrame, FLIGHT_ROW_DTYPE), ("acks", AckFrame, ACK_ROW_DTYPE),
-                                  ("commands", CommandFrame, COMMAND_ROW_DTYPE)):
+        for name, kind, dtype in (
+            ("flight", FlightFrame, FLIGHT_ROW_DTYPE),
+            ("acks", AckFrame, ACK_ROW_DTYPE),
+            ("commands", CommandFrame, COMMAND_ROW_DTYPE),
+        ):
             rec = parts.other_rows(kind, dtype)
             if len(rec):
                 rec["t_host_s"] = _host_times(rec["offset"] + rec["nbytes"] - 1, chunk_times, baud, total)
@@ -478,8 +526,7 @@ class Telemetry:
         for i in range(4):
             cols[f"motor{i + 1}_pwm"] = col(fc.motor_pwm[:, i])
         cols["vbat_v"] = col(fc.vbat_v)
-        for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"),
-                          (P.FC_RC_CAL, "fc_rc_cal")):
+        for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"), (P.FC_RC_CAL, "fc_rc_cal")):
             cols[name] = col(((fc.fc_flags & bit) != 0).astype(np.float32))
         cols["fc_every"] = col(fc.fc_every.astype(np.float32))
         return cols

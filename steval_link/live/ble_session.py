@@ -103,18 +103,27 @@ class BleLiveSummary:
         c = self.counts
         where = "no capture (nothing received)" if self.capture_discarded else f"capture {self.capture_path}"
         what = self.cadence.describe() if self.cadence is not None else "no motion cadence (too few samples)"
-        return (f"steval: {self.seconds:.1f} s over BLE: {c.get('motion', 0)} motion, {c.get('environment', 0)} "
-                f"environment, {c.get('arming', 0)} arming notifications; {what}; {self.connections} "
-                f"connection(s), {self.losses} lost; stopped: {self.stopped_by}; {where}")
+        return (
+            f"steval: {self.seconds:.1f} s over BLE: {c.get('motion', 0)} motion, {c.get('environment', 0)} "
+            f"environment, {c.get('arming', 0)} arming notifications; {what}; {self.connections} "
+            f"connection(s), {self.losses} lost; stopped: {self.stopped_by}; {where}"
+        )
 
 
 class BleLiveSession:
     """See the module docstring. ``backend``: a ``link.ble_transport.BleBackend`` (bleak, or a fake in tests)."""
 
-    def __init__(self, options: LiveOptions, *, target: str | None, backend: BleBackend,
-                 viewer_factory: Callable[[LiveOptions, str], BleViewer] | None = None,
-                 clock: Callable[[], float] = time.time, stream: TextIO | None = None,
-                 scan_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        options: LiveOptions,
+        *,
+        target: str | None,
+        backend: BleBackend,
+        viewer_factory: Callable[[LiveOptions, str], BleViewer] | None = None,
+        clock: Callable[[], float] = time.time,
+        stream: TextIO | None = None,
+        scan_timeout_s: float = 5.0,
+    ) -> None:
         self.options = options
         self.target = target
         self.backend = backend
@@ -155,15 +164,22 @@ class BleLiveSession:
         if not path.parent.is_dir():
             path.parent.mkdir(parents=True, exist_ok=True)
         what = self.target or f"{DEVICE_NAME_PREFIX}*"
-        capture = CaptureWriter(path, port=f"ble:{what}", baud=0, extra={"link": "ble", "target": self.target},
-                                discard_empty=True)
+        capture = CaptureWriter(
+            path, port=f"ble:{what}", baud=0, extra={"link": "ble", "target": self.target}, discard_empty=True
+        )
         self._start_unix = self.clock() - capture.now()
         self._capture = capture
         viewer = None
         old = install_stop_signals(self)
         started = time.monotonic()
-        link = BleLink(self.backend, self.target, self._on_notification, on_event=self._event(capture),
-                       clock=self.clock, scan_timeout_s=self.scan_timeout_s)
+        link = BleLink(
+            self.backend,
+            self.target,
+            self._on_notification,
+            on_event=self._event(capture),
+            clock=self.clock,
+            scan_timeout_s=self.scan_timeout_s,
+        )
         try:
             if self.viewer_factory is not None and self.options.uses_rerun:
                 viewer = self.viewer_factory(self.options, f"steval live --ble {what}")
@@ -182,15 +198,27 @@ class BleLiveSession:
                 except UserError as exc:
                     self.display.note(f"viewer: {exc}")
             self.display.close()
-        return BleLiveSummary(path, time.monotonic() - started, dict(self.counts), self.rows_held,
-                              link.connections, link.losses, self._stop_reason or "end", capture.discarded,
-                              self.cadence())
+        return BleLiveSummary(
+            path,
+            time.monotonic() - started,
+            dict(self.counts),
+            self.rows_held,
+            link.connections,
+            link.losses,
+            self._stop_reason or "end",
+            capture.discarded,
+            self.cadence(),
+        )
 
     def _make_estimators(self, dt_s: float) -> None:
-        self.estimators = {n: registry.create(n, dt_s=dt_s) if n in ("st-mahony", "st_mahony")
-                           else registry.create(n, rate_hz=1.0 / dt_s)
-                           if n != "accel" and registry.accepts(n, "rate_hz")
-                           else registry.create(n) for n in self.options.estimators}
+        self.estimators = {
+            n: registry.create(n, dt_s=dt_s)
+            if n in ("st-mahony", "st_mahony")
+            else registry.create(n, rate_hz=1.0 / dt_s)
+            if n != "accel" and registry.accepts(n, "rate_hz")
+            else registry.create(n)
+            for n in self.options.estimators
+        }
 
     # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
@@ -210,6 +238,7 @@ class BleLiveSession:
                 self.display.note(f"reconnected to {text}")
             else:
                 self.display.note(f"{kind}: {text}")
+
         return on_event
 
     async def _main(self, link: BleLink, viewer: BleViewer | None, started: float) -> None:
@@ -387,14 +416,22 @@ class BleLiveSession:
             interval = span_s / (len(ticks) - 1) if len(ticks) > 1 and span_s > 0 else c.interval_s
         else:
             interval = self._period_s()
-        kind = (POLLED if c.kind == POLLED else STEADY if not self.rows_held
-                else CONGESTION if c.exact else GAPS)
-        return replace(c, kind=kind, interval_s=interval, dropped=self.rows_held,
-                       gaps=self.gaps if self.rows_held else 0, repeats=self.repeats, span_s=span_s)
+        kind = POLLED if c.kind == POLLED else STEADY if not self.rows_held else CONGESTION if c.exact else GAPS
+        return replace(
+            c,
+            kind=kind,
+            interval_s=interval,
+            dropped=self.rows_held,
+            gaps=self.gaps if self.rows_held else 0,
+            repeats=self.repeats,
+            span_s=span_s,
+        )
 
     def _health(self) -> str:
         c = self.counts
         cad = self.cadence()
         what = cad.describe() if cad is not None else "finding the motion cadence"
-        return (f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
-                f"notifications; {what}")
+        return (
+            f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
+            f"notifications; {what}"
+        )

@@ -25,8 +25,10 @@ from steval_link.link.commands import Command, CommandChannel, Sent, parse_comma
 
 __all__ = ["CommandConsole", "PROMPT_HELP"]
 
-PROMPT_HELP = ("type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
-               "set min_thr 300 | mode text")
+PROMPT_HELP = (
+    "type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
+    "set min_thr 300 | mode text"
+)
 
 
 class CommandConsole:
@@ -35,9 +37,15 @@ class CommandConsole:
     ``record(frame)`` gets each frame once it is sent (the capture and the pipeline's log). ``stream``: where the
     lines come from (default stdin); None and ``enabled=False`` read nothing (scripts still use :meth:`send`)."""
 
-    def __init__(self, send: Callable[[bytes], object], note: Callable[[str], None], *,
-                 record: Callable[[bytes], object] | None = None, stream: TextIO | None = None,
-                 enabled: bool = True) -> None:
+    def __init__(
+        self,
+        send: Callable[[bytes], object],
+        note: Callable[[str], None],
+        *,
+        record: Callable[[bytes], object] | None = None,
+        stream: TextIO | None = None,
+        enabled: bool = True,
+    ) -> None:
         self.channel = CommandChannel(send, record)
         self.note = note
         self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()

@@ -55,11 +55,13 @@ class EmulateSummary:
     def lines(self) -> list[str]:
         r = self.report
         speed = r.emulated_s / self.wall_s if self.wall_s > 0 else float("nan")
-        head = (f"emulated {r.emulated_s:.2f} s in {self.wall_s:.2f} s wall ({speed:.2f}x real time): "
-                f"{self.attitude} attitude, {self.status} status, {self.text} text frames, "
-                f"{self.frames_missing} missing, {self.crc_failures} CRC failures"
-                + (f"; {self.port_note}" if self.port_note else "")
-                + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else ""))
+        head = (
+            f"emulated {r.emulated_s:.2f} s in {self.wall_s:.2f} s wall ({speed:.2f}x real time): "
+            f"{self.attitude} attitude, {self.status} status, {self.text} text frames, "
+            f"{self.frames_missing} missing, {self.crc_failures} CRC failures"
+            + (f"; {self.port_note}" if self.port_note else "")
+            + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else "")
+        )
         out = [head] + [x for x in (self.values_sentence, self.held_back) if x] + r.lines()[1:]
         tail = f"capture {self.capture_path}"
         if self.rrd_path:
@@ -71,11 +73,19 @@ class EmulateSummary:
 class EmulateSession:
     """One ``steval emulate`` run."""
 
-    def __init__(self, emu_options: EmulationOptions, live: LiveOptions, *, realtime: bool = False,
-                 stream: TextIO | None = None, tty: bool | None = None,
-                 viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
-                 commands: list[tuple[float, Command]] | None = None, commands_file: str | None = None,
-                 check_outputs: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        emu_options: EmulationOptions,
+        live: LiveOptions,
+        *,
+        realtime: bool = False,
+        stream: TextIO | None = None,
+        tty: bool | None = None,
+        viewer_factory: Callable[[LiveOptions, str], LiveViewer] | None = None,
+        commands: list[tuple[float, Command]] | None = None,
+        commands_file: str | None = None,
+        check_outputs: Callable[[], None] | None = None,
+    ) -> None:
         """``viewer_factory``: as :class:`~steval_link.live.session.LiveSession`'s (required when ``live`` uses
         Rerun; the caller checks the sinks first). ``commands``: (emulated s, command) sent to the firmware's
         USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's command
@@ -107,13 +117,22 @@ class EmulateSession:
         if self.check_outputs is not None:
             self.check_outputs()
         capture_path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
-        extra = {"source": "steval emulate", "emulated": True, "command": self.emu_options.command(emu.duration_s),
-                 "elf": str(emu.elf.path), "scenario": emu.motion.name, "seed": self.emu_options.seed,
-                 "duration_s": emu.duration_s, "estimators": list(opts.estimators)}
+        extra = {
+            "source": "steval emulate",
+            "emulated": True,
+            "command": self.emu_options.command(emu.duration_s),
+            "elf": str(emu.elf.path),
+            "scenario": emu.motion.name,
+            "seed": self.emu_options.seed,
+            "duration_s": emu.duration_s,
+            "estimators": list(opts.estimators),
+        }
         truth = StepTruth(emu) if emu.motion.trial is not None else None  # the truth it is fed: chunks T
         if truth is not None:
-            extra["truth"] = (f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
-                              "middle tick of the step's input window, emulated time)")
+            extra["truth"] = (
+                f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
+                "middle tick of the step's input window, emulated time)"
+            )
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
             if self.commands_file:
@@ -134,8 +153,10 @@ class EmulateSession:
         t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
         last_t_s = 0.0
         try:
-            self.display.note(f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s); recording "
-                              f"to {capture_path}" + (f" and {opts.rrd}" if opts.rrd else "") + " (Ctrl-C to stop)")
+            self.display.note(
+                f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s); recording "
+                f"to {capture_path}" + (f" and {opts.rrd}" if opts.rrd else "") + " (Ctrl-C to stop)"
+            )
             if opts.uses_rerun:
                 viewer = self.viewer_factory(opts, capture_path.stem)
             pipe = LivePipeline.for_viewer(opts.estimators, viewer)
@@ -160,8 +181,11 @@ class EmulateSession:
                 now = time.monotonic()
                 for _ in range(len(pipe.texts)):
                     self.display.note("firmware: " + pipe.texts.popleft()[:200])
-                self.display.show(console.decorate(self._health(emu, pipe, t_emu_s, now - t0)), now,
-                                  force=console.take_typing_change())
+                self.display.show(
+                    console.decorate(self._health(emu, pipe, t_emu_s, now - t0)),
+                    now,
+                    force=console.take_typing_change(),
+                )
                 if self.realtime:
                     ahead = t_emu_s - (time.monotonic() - t0)
                     if ahead > 0:
@@ -186,8 +210,13 @@ class EmulateSession:
             console = getattr(self, "console", None)
             if console is not None:
                 console.close()
-            close_outputs(capture, viewer, self.display, self._stop or (type(error).__name__ if error else "end"),
-                          t_stop_s=t_emu_s)
+            close_outputs(
+                capture,
+                viewer,
+                self.display,
+                self._stop or (type(error).__name__ if error else "end"),
+                t_stop_s=t_emu_s,
+            )
             self._restore_signals(old)
         if error is not None:
             if isinstance(error, UserError):
@@ -197,9 +226,21 @@ class EmulateSession:
         h = pipe.health
         port = pipe.port.describe() if pipe.port is not None else None
         held = held_back_sentence(s.implausible, s.held_values) if s.implausible else None
-        return EmulateSummary(capture_path, opts.rrd, time.monotonic() - t0, emu.report(), h.attitude, h.status,
-                              h.text, s.crc_failures, s.frames_missing, port, self._stop or "end",
-                              h.values_sentence(), held)
+        return EmulateSummary(
+            capture_path,
+            opts.rrd,
+            time.monotonic() - t0,
+            emu.report(),
+            h.attitude,
+            h.status,
+            h.text,
+            s.crc_failures,
+            s.frames_missing,
+            port,
+            self._stop or "end",
+            h.values_sentence(),
+            held,
+        )
 
     @staticmethod
     def _write_truth(capture: CaptureWriter, truth: StepTruth, t_s: float | None) -> None:
@@ -211,8 +252,12 @@ class EmulateSession:
     def _health(emu: Emulation, pipe: LivePipeline, t_emu_s: float, wall_s: float) -> str:
         s = pipe.decoder.stats
         speed = t_emu_s / wall_s if wall_s > 0 else 0.0
-        parts = [f"emulated {t_emu_s:6.2f}/{emu.duration_s:g} s ({speed:.2f}x)", f"frames {pipe.health.attitude}",
-                 f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
+        parts = [
+            f"emulated {t_emu_s:6.2f}/{emu.duration_s:g} s ({speed:.2f}x)",
+            f"frames {pipe.health.attitude}",
+            f"missing {s.frames_missing}",
+            f"CRC {s.crc_failures}",
+        ]
         if pipe.health.values_bad:
             parts.insert(2, pipe.health.values_sentence())
         if s.implausible:

@@ -198,21 +198,30 @@ class LiveEstimators:
         flood = NAN_FLOOD_S * C.AHRS_RATE_HZ
         if w.nan_rows >= flood:
             where = est.origin("step") if hasattr(est, "origin") else name
-            self._disable(name, f"estimator {name} gave no estimate (NaN) for {w.nan_rows} frames of valid input in "
-                                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}")
+            self._disable(
+                name,
+                f"estimator {name} gave no estimate (NaN) for {w.nan_rows} frames of valid input in "
+                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}",
+            )
             return
         if elapsed_s > STALL_S:
-            self._disable(name, f"estimator {name} took {elapsed_s:.1f} s for {n} frames ({n / C.AHRS_RATE_HZ:.2f} s "
-                                "of stream): too slow to run live (steval compare runs it offline)")
+            self._disable(
+                name,
+                f"estimator {name} took {elapsed_s:.1f} s for {n} frames ({n / C.AHRS_RATE_HZ:.2f} s "
+                "of stream): too slow to run live (steval compare runs it offline)",
+            )
             return
         w.busy_s += elapsed_s
         w.stream_s += n / C.AHRS_RATE_HZ
         now = self.clock()
         if now - w.window_start_s >= SLOW_WINDOW_S:
             if w.stream_s > 0 and w.busy_s > SLOW_SHARE * w.stream_s:
-                self._disable(name, f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
-                                    f"second of stream for {now - w.window_start_s:.0f} s (at most "
-                                    f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)")
+                self._disable(
+                    name,
+                    f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
+                    f"second of stream for {now - w.window_start_s:.0f} s (at most "
+                    f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)",
+                )
                 return
             w.busy_s = w.stream_s = 0.0
             w.window_start_s = now

@@ -1,5 +1,5 @@
-"""Link health of a live session: counters (:class:`LinkHealth`) and the health line on stderr (:class:`HealthDisplay`).
-"""
+"""Link health of a live session: counters (:class:`LinkHealth`) and the health line on stderr
+(:class:`HealthDisplay`)."""
 
 from __future__ import annotations
 

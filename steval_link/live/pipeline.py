@@ -37,7 +37,6 @@ VIEW_INTERVAL_S = 0.0
 RRD_ONLY_INTERVAL_S = 30.0
 
 
-
 class LiveViewer(typing.Protocol):
     """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
 
@@ -57,6 +56,7 @@ class LiveViewer(typing.Protocol):
     def log_event(self, text: str, t_unix_s: float, level: str) -> None: ...
 
     def close(self) -> None: ...
+
 
 class StepUnwrapper:
     """Full AHRS step numbers of live attitude frames: a text-mode frame carries its step, a binary frame's u16
@@ -242,10 +242,17 @@ class LivePipeline:
                     if outlets:
                         self._event("status", frame, t_unix_s)
                     if int(frame.flags) & P.FLAG_EVENT:
-                        self._note(f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}", t_unix_s,
-                                   "INFO", show=False)
-                elif isinstance(frame, AckFrame) or (isinstance(frame, TextFrame) and frame.text.startswith("#ACK")
-                                                     and ack_of_text(frame.text) is not None):
+                        self._note(
+                            f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}",
+                            t_unix_s,
+                            "INFO",
+                            show=False,
+                        )
+                elif isinstance(frame, AckFrame) or (
+                    isinstance(frame, TextFrame)
+                    and frame.text.startswith("#ACK")
+                    and ack_of_text(frame.text) is not None
+                ):
                     self._ack(frame if isinstance(frame, AckFrame) else ack_of_text(frame.text), t_unix_s)
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
@@ -319,8 +326,10 @@ class LivePipeline:
         bad = attitude_rows_bad(exact, acc, gyro, q, thz, angles[:, 0], angles[:, 1])
         if self.health.count_bad(bad, attitude_inputs_bad(acc, gyro), step, t_us):
             i = int(np.argmax(bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
-            self.notes.append(f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
-                              "NaN or out of range, as sent (CRC-valid); the summary counts them")
+            self.notes.append(
+                f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
+                "NaN or out of range, as sent (CRC-valid); the summary counts them"
+            )
         batch = AttitudeBatch(
             step=step,
             t_us=t_us,

@@ -46,8 +46,15 @@ def _wants_status(command: Command, ack: AckFrame) -> bool:
     return int(ack.result) == P.ACK_ACCEPTED
 
 
-def run_commands(port: str, baud: int, commands: list[Command], *, timeout_s: float = DEFAULT_TIMEOUT_S,
-                 out: Path | None = None, ser: serial.Serial | None = None) -> list[Reply]:
+def run_commands(
+    port: str,
+    baud: int,
+    commands: list[Command],
+    *,
+    timeout_s: float = DEFAULT_TIMEOUT_S,
+    out: Path | None = None,
+    ser: serial.Serial | None = None,
+) -> list[Reply]:
     """Send ``commands`` one after the other and return the drone's replies (UserError on no answer).
 
     ``out``: also record the session (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
@@ -100,8 +107,9 @@ def run_commands(port: str, baud: int, commands: list[Command], *, timeout_s: fl
             pass
 
 
-def _one(ser, path: str, channel: CommandChannel, decoder: StreamDecoder, command: Command, timeout_s: float,
-         capture) -> Reply:
+def _one(
+    ser, path: str, channel: CommandChannel, decoder: StreamDecoder, command: Command, timeout_s: float, capture
+) -> Reply:
     sent = channel.send(command)
     deadline = time.monotonic() + timeout_s
     ack: AckFrame | None = None
@@ -129,11 +137,17 @@ def _one(ser, path: str, channel: CommandChannel, decoder: StreamDecoder, comman
     if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer
         return Reply(command, ack, None, describe_ack(command, ack))
     if not got_bytes:
-        raise UserError(f"no answer from the drone on {path} within {timeout_s:g} s (nothing received: is it on, and "
-                        "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)")
+        raise UserError(
+            f"no answer from the drone on {path} within {timeout_s:g} s (nothing received: is it on, and "
+            "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)"
+        )
     if not decoder.stats.frames_ok:
-        raise UserError(f"no answer from the drone on {path} within {timeout_s:g} s (no valid frames either: wrong "
-                        "--baud, or not a STEVAL with the steval-link firmware)")
-    raise UserError(f"the drone on {path} did not acknowledge '{command.describe()}' within {timeout_s:g} s (its "
-                    "frames arrive: is the adapter's TX wired to PA10 on header P7, and does the firmware have the "
-                    "two-way link, protocol v2?)")
+        raise UserError(
+            f"no answer from the drone on {path} within {timeout_s:g} s (no valid frames either: wrong "
+            "--baud, or not a STEVAL with the steval-link firmware)"
+        )
+    raise UserError(
+        f"the drone on {path} did not acknowledge '{command.describe()}' within {timeout_s:g} s (its "
+        "frames arrive: is the adapter's TX wired to PA10 on header P7, and does the firmware have the "
+        "two-way link, protocol v2?)"
+    )

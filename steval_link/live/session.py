@@ -264,8 +264,9 @@ class LiveSession:
 
         inbox = Inbox()
         proto = RecorderProtocol(capture, inbox, finder, self.clock)
-        reader = SerialReader(ser, proto, baud=ser.baudrate, clock=self.clock,
-                              find_port=finder.find if finder is not None else None)
+        reader = SerialReader(
+            ser, proto, baud=ser.baudrate, clock=self.clock, find_port=finder.find if finder is not None else None
+        )
         viewer = None
         t0 = time.monotonic()
         error: BaseException | None = None
@@ -345,8 +346,9 @@ class LiveSession:
                 if proto.connected:
                     pipe.sample.clear()
             self._check_frames(proto, now)
-            self.display.show(console.decorate(self._health_line(proto, inbox, now, reader)), now,
-                              force=console.take_typing_change())
+            self.display.show(
+                console.decorate(self._health_line(proto, inbox, now, reader)), now, force=console.take_typing_change()
+            )
             if opts.duration_s is not None and now - t0 >= opts.duration_s:
                 self.request_stop("duration")
             elif getattr(source := reader.serial, "at_end", False):  # a replay played to its end

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 def _app_key(app) -> tuple:
     """What typer builds a command tree from: every (sub-)app, callback and command, by identity."""
-    return (id(app), id(getattr(app.registered_callback, "callback", None)),
-            tuple((c.name, id(c.callback)) for c in app.registered_commands),
-            tuple((g.name, _app_key(g.typer_instance)) for g in app.registered_groups))
+    return (
+        id(app),
+        id(getattr(app.registered_callback, "callback", None)),
+        tuple((c.name, id(c.callback)) for c in app.registered_commands),
+        tuple((g.name, _app_key(g.typer_instance)) for g in app.registered_groups),
+    )
 
 
 def cached_get_command(build):
@@ -57,7 +60,10 @@ def run_cli_tty(*args, timeout: float = 120.0):
     env = dict(os.environ, TERM="xterm", COLUMNS="100", LINES="30")
     proc = subprocess.Popen(
         [sys.executable, "-c", "from steval_link.cli import main; main()", *map(str, args)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave, env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=slave,
+        env=env,
     )
     os.close(slave)
     chunks = []

@@ -99,9 +99,13 @@ def run(elf: Path, name: str) -> dict:
     frames_sha, n = _frame_digest(stream)
     rep = emu.report()
     steps = rep.step_instructions
-    return {"usart1_sha256": hashlib.sha256(stream).hexdigest(), "usart1_bytes": len(stream),
-            "frames_sha256": frames_sha, "attitude_frames": n,
-            "step_instructions_median": int(statistics.median(steps)) if steps else None}
+    return {
+        "usart1_sha256": hashlib.sha256(stream).hexdigest(),
+        "usart1_bytes": len(stream),
+        "frames_sha256": frames_sha,
+        "attitude_frames": n,
+        "step_instructions_median": int(statistics.median(steps)) if steps else None,
+    }
 
 
 def main() -> int:

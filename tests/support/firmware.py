@@ -30,8 +30,11 @@ def build_reference(build_dir: Path, *options: str) -> Path:
     why = stv_emu.missing_tools()
     if why:
         raise RuntimeError(f"cannot build the reference firmware: {why}")
-    r = subprocess.run(["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={Path(build_dir).resolve()}", "-j2",
-                        *options], capture_output=True, text=True)
+    r = subprocess.run(
+        ["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={Path(build_dir).resolve()}", "-j2", *options],
+        capture_output=True,
+        text=True,
+    )
     if r.returncode != 0:
         raise RuntimeError(f"make reference failed:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
     return Path(build_dir).resolve() / ELF

@@ -50,15 +50,29 @@ class StreamBuilder:
         r = self.rng
         t_ms = int(step * 6.1919) if t_ms is None else t_ms
         line = format_att(
-            step=step, t_ms=t_ms, thr=0, thx_mdeg=int(r.integers(-90000, 90000)),
-            thy_mdeg=int(r.integers(-90000, 90000)), thz_mdeg=int(r.integers(-180000, 180000)),
-            acc_mg=r.integers(-2000, 2000, 3), gyro_mdps=r.integers(-100000, 100000, 3),
+            step=step,
+            t_ms=t_ms,
+            thr=0,
+            thx_mdeg=int(r.integers(-90000, 90000)),
+            thy_mdeg=int(r.integers(-90000, 90000)),
+            thz_mdeg=int(r.integers(-180000, 180000)),
+            acc_mg=r.integers(-2000, 2000, 3),
+            gyro_mdps=r.integers(-100000, 100000, 3),
         )
         return self._add("att_line", line, step)
 
     def sta_line(self, step: int) -> bytes:
-        line = format_sta(step=step, t_ms=int(step * 6.1919), cyc_min=1000, cyc_mean=1100, cyc_max=1500,
-                          cyc_n=161, tx_dropped=0, flags=P.FLAG_TEXT_MODE, ki_micro=100000)
+        line = format_sta(
+            step=step,
+            t_ms=int(step * 6.1919),
+            cyc_min=1000,
+            cyc_mean=1100,
+            cyc_max=1500,
+            cyc_n=161,
+            tx_dropped=0,
+            flags=P.FLAG_TEXT_MODE,
+            ki_micro=100000,
+        )
         return self._add("sta_line", line, step)
 
     def log_line(self, text: str) -> bytes:
@@ -85,8 +99,19 @@ def frame_keys(frames) -> list[tuple]:
     out = []
     for f in frames:
         if isinstance(f, AttitudeFrame):
-            out.append(("a", f.offset, f.seq, f.t_us, f.exact, f.step, *f.acc_mg, *f.gyro_mdps,
-                        *(0.0 if math.isnan(x) else x for x in f.q_wxyz)))
+            out.append(
+                (
+                    "a",
+                    f.offset,
+                    f.seq,
+                    f.t_us,
+                    f.exact,
+                    f.step,
+                    *f.acc_mg,
+                    *f.gyro_mdps,
+                    *(0.0 if math.isnan(x) else x for x in f.q_wxyz),
+                )
+            )
         elif isinstance(f, StatusFrame):
             out.append(("s", f.offset, f.step, f.t_us, f.exact))
         else:

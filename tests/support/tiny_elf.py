@@ -27,8 +27,11 @@ def tiny_elf(code: bytes = LOOP, vectors: dict[int, int] | None = None) -> bytes
     sym_off = img_off + len(image)
     str_off = sym_off + len(symtab)
     sh_off = str_off + len(strtab)
-    header = b"\x7fELF\x01\x01\x01" + bytes(9) + struct.pack(
-        "<HHIIIIIHHHHHH", 2, 40, 1, CODE | 1, ph_off, sh_off, 0x05000400, 52, 32, 1, 40, 3, 0)
+    header = (
+        b"\x7fELF\x01\x01\x01"
+        + bytes(9)
+        + struct.pack("<HHIIIIIHHHHHH", 2, 40, 1, CODE | 1, ph_off, sh_off, 0x05000400, 52, 32, 1, 40, 3, 0)
+    )
     phdr = struct.pack("<8I", 1, img_off, FLASH, FLASH, len(image), len(image), 5, 4)
     shdrs = bytes(40) + struct.pack("<10I", 0, 2, 0, 0, sym_off, len(symtab), 2, 1, 4, 16)
     shdrs += struct.pack("<10I", 0, 3, 0, 0, str_off, len(strtab), 0, 0, 1, 0)

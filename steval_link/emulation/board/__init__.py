@@ -59,10 +59,26 @@ class Board(PythonBoard):
         if native is not False and core_library() is not None:
             return NativeBoard(elf, sensors, skip_idle=skip_idle)
         if native:
-            raise UserError("the board's C core (steval_link.emulation._core) is not built: pip install -e . with a "
-                            "C compiler")
+            raise UserError(
+                "the board's C core (steval_link.emulation._core) is not built: pip install -e . with a C compiler"
+            )
         return PythonBoard(elf, sensors, skip_idle=skip_idle)
 
 
-__all__ = ["Board", "BoardStats", "CPU_HZ", "EXC_SYSTICK", "IRQ_BASE", "IRQ_TIM2", "IRQ_TIM9", "IRQ_USART1",
-           "EmulationError", "FirmwareStuck", "UnmodelledHardware", "NativeBoard", "Nvic", "PythonBoard", "Usart"]
+__all__ = [
+    "Board",
+    "BoardStats",
+    "CPU_HZ",
+    "EXC_SYSTICK",
+    "IRQ_BASE",
+    "IRQ_TIM2",
+    "IRQ_TIM9",
+    "IRQ_USART1",
+    "EmulationError",
+    "FirmwareStuck",
+    "UnmodelledHardware",
+    "NativeBoard",
+    "Nvic",
+    "PythonBoard",
+    "Usart",
+]

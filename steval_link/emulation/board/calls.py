@@ -21,8 +21,15 @@ SPI_DEVICE_OFFSET = 3
 SPI_READ_FLAG = 0x80
 #: tHciRequest: ogf, ocf, event, cparam, clen, rparam, rlen
 HCI_REQUEST = struct.Struct("<HHiIiIi")
-FAULT_HANDLERS = ("HardFault_Handler", "MemManage_Handler", "BusFault_Handler", "UsageFault_Handler",
-                  "Default_Handler", "Error_Handler", "_Error_Handler")
+FAULT_HANDLERS = (
+    "HardFault_Handler",
+    "MemManage_Handler",
+    "BusFault_Handler",
+    "UsageFault_Handler",
+    "Default_Handler",
+    "Error_Handler",
+    "_Error_Handler",
+)
 #: the stacked PC's offset in an exception frame
 STACKED_PC = 24
 
@@ -48,8 +55,11 @@ class FirmwareCalls:
 
     def replacement_hook(self, name: str) -> Callable:
         """The code hook that runs the Python replacement of ``name`` and returns to its caller."""
-        fn = {"Sensor_IO_Read": self._sensor_read, "Sensor_IO_Write": self._sensor_write,
-              "hci_send_req": self._hci_send_req}[name]
+        fn = {
+            "Sensor_IO_Read": self._sensor_read,
+            "Sensor_IO_Write": self._sensor_write,
+            "hci_send_req": self._hci_send_req,
+        }[name]
         b = self.board
         observers = b.call_observers.setdefault(name, [])
         regs = b.regs
@@ -112,6 +122,11 @@ class FirmwareCalls:
             except Exception:  # noqa: BLE001 - best effort description
                 origin = ""
             what = {"Default_Handler": "an interrupt without a handler"}.get(name, name)
-            b.stop_with(FirmwareStuck(f"the firmware entered {what} (exception {b.nvic.current()}){origin} at "
-                                      f"t = {b.now / b.cpu_hz:.6f} s"))
+            b.stop_with(
+                FirmwareStuck(
+                    f"the firmware entered {what} (exception {b.nvic.current()}){origin} at "
+                    f"t = {b.now / b.cpu_hz:.6f} s"
+                )
+            )
+
         return hook

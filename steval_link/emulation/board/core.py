@@ -143,8 +143,10 @@ class PythonBoard:
             elif RAM_BASE <= addr and addr + len(data) <= RAM_BASE + RAM_SIZE:
                 ctypes.memmove(ctypes.addressof(self.ram) + addr - RAM_BASE, data, len(data))
             else:
-                raise UserError(f"{self.elf.path}: a segment at 0x{addr:08x} ({len(data)} B) lies outside the "
-                                "STM32F401VC's 256 KB flash / 64 KB RAM")
+                raise UserError(
+                    f"{self.elf.path}: a segment at 0x{addr:08x} ({len(data)} B) lies outside the "
+                    "STM32F401VC's 256 KB flash / 64 KB RAM"
+                )
         uc.mem_map_ptr(FLASH_BASE, FLASH_SIZE, UC_PROT_RX, flash_ptr)
         uc.mem_map_ptr(0, FLASH_SIZE, UC_PROT_RX, flash_ptr)  # boot alias
         uc.mem_map_ptr(RAM_BASE, RAM_SIZE, UC_PROT_RWX, ctypes.addressof(self.ram))
@@ -161,7 +163,7 @@ class PythonBoard:
         ctypes.memmove(ctypes.addressof(self.ram) + addr - RAM_BASE, data, len(data))
 
     def ram_read(self, addr: int, n: int) -> bytes:
-        return bytes(self._ram_mv[addr - RAM_BASE:addr - RAM_BASE + n])
+        return bytes(self._ram_mv[addr - RAM_BASE : addr - RAM_BASE + n])
 
     # -- peripherals
     def _make_peripherals(self) -> None:
@@ -179,14 +181,16 @@ class PythonBoard:
                 self._map_usart(uc, p)
             else:
                 self._map_python(uc, p, rd, wr)
-        uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write),
-                    None)
+        uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write), None)
         uc.mmio_map(SCS_BASE, SCS_SIZE, rd, self.scs, wr, self.scs)
 
     def _make_timers(self):
         P = PERIPH_BASE
-        return (Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9"), Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2"),
-                Timer(self, P + TIM4_OFF, None, "TIM4"))
+        return (
+            Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9"),
+            Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2"),
+            Timer(self, P + TIM4_OFF, None, "TIM4"),
+        )
 
     def _make_usart(self):
         return Usart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
@@ -235,9 +239,12 @@ class PythonBoard:
             p.write(reg, (old | (1 << bit)) if value & 1 else (old & ~(1 << bit)))
 
     def _unmodelled(self, addr: int, what: str = "access to") -> None:
-        self.stop_with(UnmodelledHardware(
-            f"the firmware touched hardware the emulated board does not model: {what} 0x{addr:08x} in "
-            f"{self.where()} (pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)"))
+        self.stop_with(
+            UnmodelledHardware(
+                f"the firmware touched hardware the emulated board does not model: {what} 0x{addr:08x} in "
+                f"{self.where()} (pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)"
+            )
+        )
 
     # -- the CPU
     def reg(self, reg_id: int) -> int:
@@ -273,6 +280,7 @@ class PythonBoard:
 
     def probe(self, addr: int, fn: Callable) -> None:
         """Call ``fn(board)`` whenever the CPU reaches ``addr`` (a function entry), with the clock in sync."""
+
         def hook(uc, address, size, user):
             self.sync_now()
             fn(self)
@@ -297,6 +305,7 @@ class PythonBoard:
             except Exception as exc:  # noqa: BLE001 - raised again by run_until
                 self.stop_with(exc)
                 return 0
+
         return hook
 
     def stop_with(self, exc: BaseException) -> None:
@@ -368,8 +377,10 @@ class PythonBoard:
     def _on_intr(self, uc, intno, user):
         if intno != INTNO_EXC_RETURN:
             self.sync_now()
-            self.stop_with_error(f"the CPU raised exception {intno} in {self.where()} "
-                                 f"(pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)")
+            self.stop_with_error(
+                f"the CPU raised exception {intno} in {self.where()} "
+                f"(pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)"
+            )
             return
         self.exceptions.leave()
 
@@ -386,8 +397,10 @@ class PythonBoard:
         addrs = [e.addr(n) for n in IDLE_FLAGS + ("tim",)]
         poll = e.addr(IDLE_POLL)
         if poll is not None and all(a is not None for a in addrs):
-            words = [(a - RAM_BASE, min(e.by_name[n].size, 4) if e.by_name[n].size in (1, 2, 4) else 4)
-                     for n, a in zip(IDLE_FLAGS, addrs)]
+            words = [
+                (a - RAM_BASE, min(e.by_name[n].size, 4) if e.by_name[n].size in (1, 2, 4) else 4)
+                for n, a in zip(IDLE_FLAGS, addrs)
+            ]
             words.append((addrs[-1] + TIM_EVENT_CNT - RAM_BASE, 4))
             out.append((poll, words, None))
         delay, get_tick = e.by_name.get("HAL_Delay"), e.addr("HAL_GetTick")
@@ -482,8 +495,13 @@ class PythonBoard:
 
     def _earliest(self) -> int | None:
         best = None
-        for t in (self.scs.systick_next, self.tim9.next_update, self.tim2.next_update, self.usart1.shift_done,
-                  self.usart1.rx_done):
+        for t in (
+            self.scs.systick_next,
+            self.tim9.next_update,
+            self.tim2.next_update,
+            self.usart1.shift_done,
+            self.usart1.rx_done,
+        ):
             if t is not None and (best is None or t < best):
                 best = t
         return best
@@ -529,8 +547,9 @@ class PythonBoard:
                 self.sync_now()
                 if self.fault is not None:
                     raise self.fault from None
-                raise EmulationError(f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, "
-                                     f"t = {self.now / CPU_HZ:.6f} s): {exc}") from None
+                raise EmulationError(
+                    f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s): {exc}"
+                ) from None
             executed = ic.n - 1 if ic.n >= ic.limit else ic.n
             self.stats.instructions += executed
             self.now = self._slice_start + executed + self._skip_base

@@ -165,7 +165,7 @@ def thumb_count(flash, address: int, size: int) -> int:
     off = address & (FLASH_SIZE - 1) if address < FLASH_BASE + FLASH_SIZE else None
     if off is None or address < FLASH_BASE and address >= FLASH_SIZE:
         return max(size // 2, 1)
-    raw = bytes(memoryview(flash).cast("B")[off:off + size])
+    raw = bytes(memoryview(flash).cast("B")[off : off + size])
     n = i = 0
     while i < size:
         hw = raw[i] | raw[i + 1] << 8 if i + 1 < len(raw) else 0

@@ -56,8 +56,9 @@ class Peripheral:
 
     name = "periph"
 
-    def __init__(self, board, base: int, size: int = PERIPH_PAGE, reset: dict[int, int] | None = None,
-                 name: str | None = None):
+    def __init__(
+        self, board, base: int, size: int = PERIPH_PAGE, reset: dict[int, int] | None = None, name: str | None = None
+    ):
         self.board = board
         self.base = base
         self.size = size
@@ -181,12 +182,35 @@ class Adc(Peripheral):
 
 
 #: register files with no behaviour: name → offset from PERIPH_BASE
-PLAIN = (("FLASH", 0x23C00), ("SYSCFG", 0x13800), ("EXTI", 0x13C00), ("CRC", 0x23000), ("DMA1", 0x26000),
-         ("DMA2", 0x26400), ("TIM3", 0x0400), ("TIM5", 0x0C00), ("TIM1", 0x10000), ("TIM10", 0x14400),
-         ("TIM11", 0x14800), ("IWDG", 0x3000), ("WWDG", 0x2C00), ("RTC", 0x2800), ("USART2", 0x4400),
-         ("USART6", 0x11400), ("I2C1", 0x5400), ("I2C2", 0x5800), ("I2C3", 0x5C00))
-GPIOS = (("GPIOA", 0x20000), ("GPIOB", 0x20400), ("GPIOC", 0x20800), ("GPIOD", 0x20C00), ("GPIOE", 0x21000),
-         ("GPIOH", 0x21C00))
+PLAIN = (
+    ("FLASH", 0x23C00),
+    ("SYSCFG", 0x13800),
+    ("EXTI", 0x13C00),
+    ("CRC", 0x23000),
+    ("DMA1", 0x26000),
+    ("DMA2", 0x26400),
+    ("TIM3", 0x0400),
+    ("TIM5", 0x0C00),
+    ("TIM1", 0x10000),
+    ("TIM10", 0x14400),
+    ("TIM11", 0x14800),
+    ("IWDG", 0x3000),
+    ("WWDG", 0x2C00),
+    ("RTC", 0x2800),
+    ("USART2", 0x4400),
+    ("USART6", 0x11400),
+    ("I2C1", 0x5400),
+    ("I2C2", 0x5800),
+    ("I2C3", 0x5C00),
+)
+GPIOS = (
+    ("GPIOA", 0x20000),
+    ("GPIOB", 0x20400),
+    ("GPIOC", 0x20800),
+    ("GPIOD", 0x20C00),
+    ("GPIOE", 0x21000),
+    ("GPIOH", 0x21C00),
+)
 SPIS = (("SPI1", 0x13000), ("SPI2", 0x3800), ("SPI3", 0x3C00), ("SPI4", 0x13400))
 RCC_OFF, PWR_OFF, ADC1_OFF = 0x23800, 0x7000, 0x12000
 TIM2_OFF, TIM4_OFF, TIM9_OFF = 0x0000, 0x0800, 0x14000

@@ -100,8 +100,11 @@ class NativeBoard(PythonBoard):
         st.tc = 1
         st.systick_period = 1
         st.rx_t, st.rx_b, st.rx_cap = ctypes.addressof(self.rx_t), ctypes.addressof(self.rx_b), RX_CAPACITY
-        st.rxlog_t, st.rxlog_b, st.rxlog_cap = (ctypes.addressof(self.rxlog_t), ctypes.addressof(self.rxlog_b),
-                                                RXLOG_CAPACITY)
+        st.rxlog_t, st.rxlog_b, st.rxlog_cap = (
+            ctypes.addressof(self.rxlog_t),
+            ctypes.addressof(self.rxlog_b),
+            RXLOG_CAPACITY,
+        )
         st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
@@ -110,9 +113,11 @@ class NativeBoard(PythonBoard):
         return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
 
     def _make_timers(self):
-        return (NativeTimer(self, PERIPH_BASE + TIM9_OFF, IRQ_TIM9, "TIM9", 0),
-                NativeTimer(self, PERIPH_BASE + TIM2_OFF, IRQ_TIM2, "TIM2", 1),
-                NativeTimer(self, PERIPH_BASE + TIM4_OFF, None, "TIM4", 2))
+        return (
+            NativeTimer(self, PERIPH_BASE + TIM9_OFF, IRQ_TIM9, "TIM9", 0),
+            NativeTimer(self, PERIPH_BASE + TIM2_OFF, IRQ_TIM2, "TIM2", 1),
+            NativeTimer(self, PERIPH_BASE + TIM4_OFF, None, "TIM4", 2),
+        )
 
     def _make_scs(self):
         return NativeScs(self)
@@ -121,9 +126,15 @@ class NativeBoard(PythonBoard):
         self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
 
     def _map_c(self, p, read: str, write: str, user) -> None:
-        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
-                                  ctypes.cast(getattr(self.lib, read), P), user,
-                                  ctypes.cast(getattr(self.lib, write), P), user)
+        err = uclib().uc_mmio_map(
+            self.uc._uch,
+            ctypes.c_uint64(p.base),
+            ctypes.c_size_t(p.size),
+            ctypes.cast(getattr(self.lib, read), P),
+            user,
+            ctypes.cast(getattr(self.lib, write), P),
+            user,
+        )
         if err:
             raise EmulationError(f"unicorn refused the {p.name} MMIO model (error {err})")
 
@@ -141,16 +152,29 @@ class NativeBoard(PythonBoard):
         for off in served:
             m.served[off // 4] = 1
         p.mirror = m
-        err = uclib().uc_mmio_map(self.uc._uch, ctypes.c_uint64(p.base), ctypes.c_size_t(p.size),
-                                  ctypes.cast(self.lib.mirror_mmio_read, P), ctypes.byref(m),
-                                  ctypes.cast(self.lib.mirror_mmio_write, P), ctypes.byref(m))
+        err = uclib().uc_mmio_map(
+            self.uc._uch,
+            ctypes.c_uint64(p.base),
+            ctypes.c_size_t(p.size),
+            ctypes.cast(self.lib.mirror_mmio_read, P),
+            ctypes.byref(m),
+            ctypes.cast(self.lib.mirror_mmio_write, P),
+            ctypes.byref(m),
+        )
         if err:
             raise EmulationError(f"unicorn refused the {p.name} MMIO mirror (error {err})")
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
-        err = uclib().uc_hook_add(self.uc._uch, ctypes.byref(h), kind, ctypes.cast(getattr(self.lib, fn), P),
-                                  self.st_ptr, ctypes.c_uint64(begin), ctypes.c_uint64(end))
+        err = uclib().uc_hook_add(
+            self.uc._uch,
+            ctypes.byref(h),
+            kind,
+            ctypes.cast(getattr(self.lib, fn), P),
+            self.st_ptr,
+            ctypes.c_uint64(begin),
+            ctypes.c_uint64(end),
+        )
         if err:
             raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
 
@@ -193,8 +217,9 @@ class NativeBoard(PythonBoard):
 
     def _site(self, addr: int, kind: int, arg: int = 0) -> None:
         if not self.lib.core_add_site(self.st_ptr, I64(addr), I64(kind), I64(arg)):
-            raise EmulationError(f"the C core cannot hook 0x{addr:08x} (outside the flash, or more than "
-                                 f"{MAX_SITES} hooks)")
+            raise EmulationError(
+                f"the C core cannot hook 0x{addr:08x} (outside the flash, or more than {MAX_SITES} hooks)"
+            )
 
     def code_hook(self, addr: int, fn) -> None:
         """Call ``fn(uc, address, size, user)`` before the instruction at ``addr`` (dispatched by the C core)."""
@@ -240,8 +265,9 @@ class NativeBoard(PythonBoard):
         """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
         bus, st = self.sensors, self.st
         devices = getattr(bus, "devices", None)
-        fast = devices is not None and not getattr(bus, "log_limit", 1) and not self.call_observers.get(
-            "Sensor_IO_Read")
+        fast = (
+            devices is not None and not getattr(bus, "log_limit", 1) and not self.call_observers.get("Sensor_IO_Read")
+        )
         for d in range(SENSOR_DEVICES):
             dev = devices.get(d) if devices is not None else None
             st.sensor_fast[d] = 1 if fast and dev is not None else 0
@@ -367,18 +393,22 @@ class NativeBoard(PythonBoard):
             return self.fault
         t = f"t = {self.now / CPU_HZ:.6f} s"
         if st.fault == F_STACK:
-            self.fault = EmulationError(f"stack overflow: exception {st.fault_arg >> 32} at sp "
-                                        f"0x{st.fault_arg & 0xFFFFFFFF:08x} in {self.where()}")
+            self.fault = EmulationError(
+                f"stack overflow: exception {st.fault_arg >> 32} at sp "
+                f"0x{st.fault_arg & 0xFFFFFFFF:08x} in {self.where()}"
+            )
         elif st.fault == F_RETURN:
             self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
         elif st.fault == F_CPU_EXC:
-            self.fault = EmulationError(f"the CPU raised exception {st.fault_arg} in {self.where()} "
-                                        f"(pc 0x{self.pc():08x}, {t})")
+            self.fault = EmulationError(
+                f"the CPU raised exception {st.fault_arg} in {self.where()} (pc 0x{self.pc():08x}, {t})"
+            )
         else:
             from unicorn import UcError  # reason: unicorn is optional
 
-            self.fault = EmulationError(f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): "
-                                        f"{UcError(st.fault_arg)}")
+            self.fault = EmulationError(
+                f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): {UcError(st.fault_arg)}"
+            )
         return self.fault
 
 

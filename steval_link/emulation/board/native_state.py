@@ -11,8 +11,14 @@ from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
 from steval_link.emulation.board.timer import TimReg
 from steval_link.emulation.board.usart import SR_RESET, UsartReg
 
-I64, U64, U8, U32, I32, P = ctypes.c_int64, ctypes.c_uint64, ctypes.c_uint8, ctypes.c_uint32, ctypes.c_int32, \
-    ctypes.c_void_p
+I64, U64, U8, U32, I32, P = (
+    ctypes.c_int64,
+    ctypes.c_uint64,
+    ctypes.c_uint8,
+    ctypes.c_uint32,
+    ctypes.c_int32,
+    ctypes.c_void_p,
+)
 #: "no event" in an instruction-count field
 NONE = -1
 # sizes of the C core's tables (as in _core.c)
@@ -36,36 +42,104 @@ class Mirror(ctypes.Structure):
 class CTimer(ctypes.Structure):
     """``ctimer_t``: a timer in the C core."""
 
-    _fields_ = [("core", P), ("irq", I64), ("next", I64), ("updates", I64), ("first_update", I64),
-                ("regs", U32 * 256)]
+    _fields_ = [("core", P), ("irq", I64), ("next", I64), ("updates", I64), ("first_update", I64), ("regs", U32 * 256)]
 
 
 class CoreState(ctypes.Structure):
     """``core_t`` of _core.c, field by field."""
 
-    _fields_ = [("n", U64), ("limit", U64), ("uc", P), ("emu_start", P), ("emu_stop", P), ("reg_read", P),
-                ("reg_write", P), ("reg_read_batch", P), ("reg_write_batch", P), ("py_event", P), ("ram", P),
-                ("flash", P), ("rid", I64 * 9), ("frame_ids", I32 * 26), ("wframe_ids", I32 * 24),
-                ("now", I64), ("slice_start", I64), ("skip_base", I64), ("run_end", I64), ("next_event", I64),
-                ("max_slice", I64), ("instructions", I64), ("skipped", I64), ("slices", I64), ("fault", I64),
-                ("fault_arg", I64), ("resumed_idle", I64), ("pending", U64 * 4), ("enabled", U64 * 4),
-                ("prio", U8 * 256), ("prigroup", I64), ("n_active", I64), ("active", I64 * 64),
-                ("counts", I64 * 256), ("exc_instructions", I64), ("exc_started", I64), ("vtor", I64),
-                ("systick_next", I64), ("systick_period", I64), ("systick_tickint", I64), ("countflag", I64),
-                ("tim", CTimer * 3), ("uregs", U32 * 256),
-                ("dr_full", I64), ("shift_done", I64), ("shift_byte", I64), ("tc", I64), ("rx_done", I64),
-                ("rx_line_free", I64), ("rx_dr", I64), ("rx_last", I64), ("rx_ore", I64), ("ore_sr_read", I64),
-                ("rx_received", I64), ("rx_overruns", I64), ("rx_lost", I64), ("rx_t", P), ("rx_b", P),
-                ("rx_cap", I64), ("rx_head", I64), ("rx_len", I64), ("rxlog_t", P), ("rxlog_b", P),
-                ("rxlog_cap", I64), ("rxlog_len", I64), ("out_t", P), ("out_b", P), ("out_cap", I64),
-                ("out_len", I64), ("n_idle", I64), ("idle_addr", I64 * MAX_IDLE), ("idle_n_words", I64 * MAX_IDLE),
-                ("idle_off", (I64 * MAX_IDLE_WORDS) * MAX_IDLE), ("idle_size", (I64 * MAX_IDLE_WORDS) * MAX_IDLE),
-                ("idle_lo", I64 * MAX_IDLE), ("idle_hi", I64 * MAX_IDLE),
-                ("sensor_img", (U8 * 128) * SENSOR_DEVICES), ("sensor_fast", I64 * SENSOR_DEVICES),
-                ("sensor_valid", I64), ("sensor_reads", I64), ("n_sites", I64), ("site_addr", I64 * MAX_SITES),
-                ("site_kind", I64 * MAX_SITES), ("site_arg", I64 * MAX_SITES), ("hook_addr", I64),
-                ("hook_size", I64), ("site_map", U8 * (0x40000 // 16)), ("mirror", Mirror * MAX_MIRROR),
-                ("mmio_write", I64), ("mmio_value", I64)]
+    _fields_ = [
+        ("n", U64),
+        ("limit", U64),
+        ("uc", P),
+        ("emu_start", P),
+        ("emu_stop", P),
+        ("reg_read", P),
+        ("reg_write", P),
+        ("reg_read_batch", P),
+        ("reg_write_batch", P),
+        ("py_event", P),
+        ("ram", P),
+        ("flash", P),
+        ("rid", I64 * 9),
+        ("frame_ids", I32 * 26),
+        ("wframe_ids", I32 * 24),
+        ("now", I64),
+        ("slice_start", I64),
+        ("skip_base", I64),
+        ("run_end", I64),
+        ("next_event", I64),
+        ("max_slice", I64),
+        ("instructions", I64),
+        ("skipped", I64),
+        ("slices", I64),
+        ("fault", I64),
+        ("fault_arg", I64),
+        ("resumed_idle", I64),
+        ("pending", U64 * 4),
+        ("enabled", U64 * 4),
+        ("prio", U8 * 256),
+        ("prigroup", I64),
+        ("n_active", I64),
+        ("active", I64 * 64),
+        ("counts", I64 * 256),
+        ("exc_instructions", I64),
+        ("exc_started", I64),
+        ("vtor", I64),
+        ("systick_next", I64),
+        ("systick_period", I64),
+        ("systick_tickint", I64),
+        ("countflag", I64),
+        ("tim", CTimer * 3),
+        ("uregs", U32 * 256),
+        ("dr_full", I64),
+        ("shift_done", I64),
+        ("shift_byte", I64),
+        ("tc", I64),
+        ("rx_done", I64),
+        ("rx_line_free", I64),
+        ("rx_dr", I64),
+        ("rx_last", I64),
+        ("rx_ore", I64),
+        ("ore_sr_read", I64),
+        ("rx_received", I64),
+        ("rx_overruns", I64),
+        ("rx_lost", I64),
+        ("rx_t", P),
+        ("rx_b", P),
+        ("rx_cap", I64),
+        ("rx_head", I64),
+        ("rx_len", I64),
+        ("rxlog_t", P),
+        ("rxlog_b", P),
+        ("rxlog_cap", I64),
+        ("rxlog_len", I64),
+        ("out_t", P),
+        ("out_b", P),
+        ("out_cap", I64),
+        ("out_len", I64),
+        ("n_idle", I64),
+        ("idle_addr", I64 * MAX_IDLE),
+        ("idle_n_words", I64 * MAX_IDLE),
+        ("idle_off", (I64 * MAX_IDLE_WORDS) * MAX_IDLE),
+        ("idle_size", (I64 * MAX_IDLE_WORDS) * MAX_IDLE),
+        ("idle_lo", I64 * MAX_IDLE),
+        ("idle_hi", I64 * MAX_IDLE),
+        ("sensor_img", (U8 * 128) * SENSOR_DEVICES),
+        ("sensor_fast", I64 * SENSOR_DEVICES),
+        ("sensor_valid", I64),
+        ("sensor_reads", I64),
+        ("n_sites", I64),
+        ("site_addr", I64 * MAX_SITES),
+        ("site_kind", I64 * MAX_SITES),
+        ("site_arg", I64 * MAX_SITES),
+        ("hook_addr", I64),
+        ("hook_size", I64),
+        ("site_map", U8 * (0x40000 // 16)),
+        ("mirror", Mirror * MAX_MIRROR),
+        ("mmio_write", I64),
+        ("mmio_value", I64),
+    ]
 
 
 def _opt(t: int) -> int | None:
@@ -85,15 +159,31 @@ def core_library() -> ctypes.CDLL | None:
     lib = ctypes.CDLL(_core.__file__)
     lib.core_sizeof.restype = I64
     if lib.core_sizeof() != ctypes.sizeof(CoreState):
-        raise EmulationError(f"the C core's state ({lib.core_sizeof()} B) does not match native.CoreState "
-                             f"({ctypes.sizeof(CoreState)} B): rebuild it (pip install -e .)")
+        raise EmulationError(
+            f"the C core's state ({lib.core_sizeof()} B) does not match native.CoreState "
+            f"({ctypes.sizeof(CoreState)} B): rebuild it (pip install -e .)"
+        )
     lib.timer_read.restype = U32
     for name in ("core_run", "core_next_exception", "usart_inject", "core_add_site"):
         getattr(lib, name).restype = I64
     lib.usart_read.restype = U32
-    for name in ("core_run", "core_request_stop", "core_reschedule", "core_irq_check", "core_next_exception",
-                 "usart_read", "usart_write", "usart_inject", "rx_complete", "shift_complete_now",
-                 "core_fire_events", "core_take", "core_add_site", "timer_read", "timer_write"):
+    for name in (
+        "core_run",
+        "core_request_stop",
+        "core_reschedule",
+        "core_irq_check",
+        "core_next_exception",
+        "usart_read",
+        "usart_write",
+        "usart_inject",
+        "rx_complete",
+        "shift_complete_now",
+        "core_fire_events",
+        "core_take",
+        "core_add_site",
+        "timer_read",
+        "timer_write",
+    ):
         getattr(lib, name).argtypes = None
     return lib
 
@@ -143,7 +233,7 @@ class NativeNvic:
 
     @property
     def active(self) -> list[int]:
-        return list(self.st.active[:self.st.n_active])
+        return list(self.st.active[: self.st.n_active])
 
     def current(self) -> int:
         n = self.st.n_active

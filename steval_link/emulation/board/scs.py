@@ -166,17 +166,21 @@ class Scs(Peripheral):
             if self.systick_next is None:
                 return self.regs.get(off, 0)
             return max(0, self.systick_next - self.board.now - 1) % self.systick_period()
-        for bank, start in (("enabled", ScsReg.NVIC_ISER), ("enabled", ScsReg.NVIC_ICER),
-                            ("pending", ScsReg.NVIC_ISPR), ("pending", ScsReg.NVIC_ICPR),
-                            ("active", ScsReg.NVIC_IABR)):
+        for bank, start in (
+            ("enabled", ScsReg.NVIC_ISER),
+            ("enabled", ScsReg.NVIC_ICER),
+            ("pending", ScsReg.NVIC_ISPR),
+            ("pending", ScsReg.NVIC_ICPR),
+            ("active", ScsReg.NVIC_IABR),
+        ):
             if start <= off < start + NVIC_WORDS:
                 return nvic.word(bank, (off - start) // 4)
         if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
             i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            return int.from_bytes(bytes(nvic.prio[i:i + 4]), "little")
+            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
         if ScsReg.SHPR1 <= off < SHPR_END:
             i = off - ScsReg.SHPR1 + 4
-            return int.from_bytes(bytes(nvic.prio[i:i + 4]), "little")
+            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
         if off == ScsReg.ICSR:  # VECTACTIVE, PENDSTSET
             return nvic.current() | (ICSR_PENDSTSET if nvic.is_pending(EXC_SYSTICK) else 0)
         if off == ScsReg.AIRCR:
@@ -204,8 +208,12 @@ class Scs(Peripheral):
                 self.systick_next = board.now + self.systick_period()
                 board.reschedule()
             return
-        for bank, start, on in (("enabled", ScsReg.NVIC_ISER, True), ("enabled", ScsReg.NVIC_ICER, False),
-                                ("pending", ScsReg.NVIC_ISPR, True), ("pending", ScsReg.NVIC_ICPR, False)):
+        for bank, start, on in (
+            ("enabled", ScsReg.NVIC_ISER, True),
+            ("enabled", ScsReg.NVIC_ICER, False),
+            ("pending", ScsReg.NVIC_ISPR, True),
+            ("pending", ScsReg.NVIC_ICPR, False),
+        ):
             if start <= off < start + NVIC_WORDS:
                 nvic.set_word(bank, (off - start) // 4, value, on)
                 if on:
@@ -213,11 +221,11 @@ class Scs(Peripheral):
                 return
         if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
             i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            nvic.prio[i:i + 4] = value.to_bytes(4, "little")
+            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
             return
         if ScsReg.SHPR1 <= off < SHPR_END:
             i = off - ScsReg.SHPR1 + 4
-            nvic.prio[i:i + 4] = value.to_bytes(4, "little")
+            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
             return
         if off == ScsReg.ICSR:
             if value & ICSR_PENDSTSET:
