@@ -7,13 +7,13 @@ live session (``steval live --ble``'s ``BleLiveSession``)."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import struct
 import sys
 
 import numpy as np
 import pytest
+from support.ble import run_until_played
 from support.cli import run_cli
 
 from steval_link.emulation.bluenrg import FakeBleBackend
@@ -265,18 +265,7 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
         opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
     )
 
-    async def stopper():
-        while fake.finished is None or not fake.finished.is_set():
-            await asyncio.sleep(0.01)
-        session.request_stop("test")
-
-    orig_main = session._main
-
-    async def main_with_stop(*a):
-        await asyncio.gather(orig_main(*a), stopper())
-
-    session._main = main_with_stop
-    summary = session.run()
+    summary = run_until_played(session, fake)
     return summary, rows, session
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.ble import run_until_played
 
 from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.errors import UserError
@@ -175,18 +176,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
         opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
     )
 
-    async def stopper():
-        while fake.finished is None or not fake.finished.is_set():
-            await asyncio.sleep(0.01)
-        session.request_stop("test")
-
-    orig_main = session._main
-
-    async def main_with_stop(*a):
-        await asyncio.gather(orig_main(*a), stopper())
-
-    session._main = main_with_stop
-    summary = session.run()
+    summary = run_until_played(session, fake)
     assert summary.losses == 2 and summary.connections == 3 and summary.stopped_by == "test"
     # the capture holds every notification, in order, as B chunks, with the link's events
     cap = read_capture(out)
@@ -276,18 +266,7 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     )
     session = BleLiveSession(opts, target="DRN1110", backend=fake, viewer_factory=BleLiveLogger, stream=sys.stderr)
 
-    async def stopper():
-        while fake.finished is None or not fake.finished.is_set():
-            await asyncio.sleep(0.01)
-        session.request_stop("test")
-
-    orig_main = session._main
-
-    async def main_with_stop(*a):
-        await asyncio.gather(orig_main(*a), stopper())
-
-    session._main = main_with_stop
-    summary = session.run()
+    summary = run_until_played(session, fake)
     n = summary.counts["motion"]
     assert n == 300
     info = read_rrd(rrd)

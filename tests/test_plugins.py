@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.ble import run_until_played
 from support.cli import run_cli
 from support.ptyfeed import flight_stream
 
@@ -458,7 +459,6 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
 
 @pytest.mark.slow  # real time: 3000 BLE notifications paced at 0.5 ms through a live session: ≈ 3 s
 def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_notification_recorded(tmp_path):
-    import asyncio
     import io
 
     from steval_link.emulation.bluenrg import FakeBleBackend
@@ -489,18 +489,7 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     )
     session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=None, stream=stream)
 
-    async def stopper():
-        while fake.finished is None or not fake.finished.is_set():
-            await asyncio.sleep(0.01)
-        session.request_stop("test")
-
-    orig_main = session._main
-
-    async def main_with_stop(*a):
-        await asyncio.gather(orig_main(*a), stopper())
-
-    session._main = main_with_stop
-    session.run()
+    run_until_played(session, fake)
     notes = [line for line in stream.getvalue().splitlines() if "disabled" in line]
     assert (
         len(notes) == 1
