@@ -33,13 +33,15 @@ def main() -> None:
         out = Path(tmp) / "flight.mat"
         t0, c0 = time.perf_counter(), time.process_time()
         tables = frame_tables(tel)
-        write_atomic(out, lambda f: write_mat(tables, settings_of(tel), header_of(tel), f))
+        write_atomic(out, "--mat", lambda f: write_mat(tables, settings_of(tel), header_of(tel), f))
         t_mat, c_mat = time.perf_counter() - t0, time.process_time() - c0
         print(f".mat:  {t_mat:.2f} s ({c_mat:.2f} s CPU), {out.stat().st_size / 1e6:.0f} MB  [goal ≤ 10 s]")
         out = Path(tmp) / "flight.mcap"
         t0, c0 = time.perf_counter(), time.process_time()
         counts: dict[str, int] = {}
-        write_atomic(out, lambda f: counts.update(write_mcap(tel, f, metadata={"settings": settings_of(tel)})))
+        write_atomic(
+            out, "--mcap", lambda f: counts.update(write_mcap(tel, f, metadata={"settings": settings_of(tel)}))
+        )
         t_mcap, c_mcap = time.perf_counter() - t0, time.process_time() - c0
         print(
             f".mcap: {t_mcap:.2f} s ({c_mcap:.2f} s CPU), {out.stat().st_size / 1e6:.0f} MB, "
