@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
@@ -32,7 +33,7 @@ BASELINE_ACC_MG = (0.0, 0.0, 0.0)
 TYPICAL_GYRO_NOISE_MDPS = 75.0
 TYPICAL_ACC_NOISE_MG = 2.0
 #: the firmware's assumed AHRS period, s (used for the time axis when an estimator does not say)
-DEFAULT_DT_S = 0.00625
+DEFAULT_DT_S = C.DT_S
 
 
 @dataclass(frozen=True)

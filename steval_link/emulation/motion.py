@@ -571,8 +571,8 @@ def _demo(T: float, rng) -> _Kinematics:
 
 #: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
 #: ±EULER_Z_TH turns the yaw target by 60°·SENSOR_SAMPLING_TIME per AHRS step
-_RC_FULLSCALE = 1800.0
-_MAX_TILT_RAD = 30.0 * _DEG
+_RC_FULLSCALE = float(C.RC_FULLSCALE)
+_MAX_TILT_RAD = C.MAX_TILT_DEG * _DEG
 _YAW_STICK_RADPS = 60.0 * C.DT_S * _DEG * C.AHRS_RATE_HZ
 
 

@@ -86,7 +86,7 @@ _crc32 = zlib.crc32
 
 
 def _crc16_v1(data) -> int:
-    return _crc_hqx(data, 0xFFFF)
+    return _crc_hqx(data, P.CRC_INIT)
 
 
 #: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
