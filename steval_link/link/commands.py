@@ -292,6 +292,18 @@ def ack_of_text(line: str):
     return AckFrame(cmd_seq=seq, cmd=cmd, result=result, step=step, rx_ok=ok, rx_bad=bad)
 
 
+def _ack_of_row(a) -> AckFrame:
+    """One ``Telemetry.acks`` row as an ``AckFrame``."""
+    return AckFrame(
+        cmd_seq=int(a["cmd_seq"]),
+        cmd=int(a["cmd"]),
+        result=int(a["result"]),
+        step=int(a["step"]),
+        rx_ok=int(a["rx_ok"]),
+        rx_bad=int(a["rx_bad"]),
+    )
+
+
 def command_log(commands, acks) -> list[dict]:
     """The commands of a capture with their answers, in the order sent: ``commands`` and ``acks`` are the
     ``Telemetry.commands`` / ``Telemetry.acks`` rows. Each: ``{"t_host_s", "cmd_seq", "command" (as typed),
@@ -309,14 +321,7 @@ def command_log(commands, acks) -> list[dict]:
         if j is not None and j not in answered:
             answered.add(j)
             a = acks[j]
-            ack = AckFrame(
-                cmd_seq=int(a["cmd_seq"]),
-                cmd=int(a["cmd"]),
-                result=int(a["result"]),
-                step=int(a["step"]),
-                rx_ok=int(a["rx_ok"]),
-                rx_bad=int(a["rx_bad"]),
-            )
+            ack = _ack_of_row(a)
         out.append(
             {
                 "t_host_s": float(c["t_host_s"]),
@@ -330,14 +335,7 @@ def command_log(commands, acks) -> list[dict]:
     for j in range(len(acks)):
         if j not in answered:
             a = acks[j]
-            ack = AckFrame(
-                cmd_seq=int(a["cmd_seq"]),
-                cmd=int(a["cmd"]),
-                result=int(a["result"]),
-                step=int(a["step"]),
-                rx_ok=int(a["rx_ok"]),
-                rx_bad=int(a["rx_bad"]),
-            )
+            ack = _ack_of_row(a)
             out.append(
                 {
                     "t_host_s": float(a["t_host_s"]),
