@@ -38,7 +38,7 @@ from steval_link.cli.viewer_options import (
     SpawnOption,
     WebPortOption,
     check_view_flags,
-    sink_options,
+    view_sinks,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -302,11 +302,7 @@ def _side_by_side(
             from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot
 
             require_matplotlib()
-        options = None
-        if viewer["rrd"] is not None:
-            check_output(viewer["rrd"], option="--rrd", force=force, inputs=inputs)
-        if viewer["rrd"] is not None or viewer["spawn"] or viewer["serve"] or viewer["connect"] is not None:
-            options = sink_options(**viewer)  # checked before the work: a dead URL, a busy port
+        options = view_sinks(**viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
         if plot is not None:

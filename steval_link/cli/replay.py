@@ -23,7 +23,7 @@ import typer
 from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
-from steval_link.cli.outputs import ForceOption, check_output
+from steval_link.cli.outputs import ForceOption
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -32,7 +32,7 @@ from steval_link.cli.viewer_options import (
     ServeOption,
     SpawnOption,
     WebPortOption,
-    sink_options,
+    view_sinks,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -144,13 +144,17 @@ def replay(
     viewer = rrd is not None or spawn or serve or connect
     names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
     src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
-    options = None
-    if rrd is not None:
-        check_output(rrd, option="--rrd", force=force, inputs=(src.path,))
-    if viewer:  # the sinks before the work: a dead --connect URL fails at once
-        options = sink_options(
-            rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
-        )
+    # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
+    options = view_sinks(
+        rrd=rrd,
+        spawn=spawn,
+        serve=serve,
+        connect=connect,
+        web_port=web_port,
+        grpc_port=grpc_port,
+        force=force,
+        inputs=(src.path,),
+    )
     try:
         if is_ble_source(src):
             _replay_ble(src, names, as_json, options)

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from steval_link.cli.outputs import check_output
 from steval_link.errors import UserError
 from steval_viewer.sink_options import SinkOptions, check_sinks
 
@@ -65,3 +66,24 @@ def sink_options(
     options = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     check_sinks(options)
     return options
+
+
+def view_sinks(
+    *,
+    rrd: Path | None,
+    spawn: bool,
+    serve: bool,
+    connect: str | None,
+    web_port: int,
+    grpc_port: int,
+    force: bool,
+    inputs: tuple = (),
+) -> SinkOptions | None:
+    """A batch command's Rerun outputs, checked before its work: the ``--rrd`` file as every output is
+    (:func:`steval_link.cli.outputs.check_output`), then the sinks (:func:`sink_options`). None when no Rerun output
+    was asked for."""
+    if rrd is not None:
+        check_output(rrd, option="--rrd", force=force, inputs=inputs)
+    if rrd is None and not (spawn or serve or connect is not None):
+        return None
+    return sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port)
