@@ -29,7 +29,7 @@ from support.xdisplay import (
 )
 
 from steval_viewer import entities as ent
-from steval_viewer.sink_options import free_port, port_free
+from steval_viewer.sink_options import free_port, port_free, port_open
 from steval_viewer.sinks import rerun_command
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ def test_connect_sends_to_a_running_viewer(display, tmp_path):
     )
     try:
         deadline = time.monotonic() + 30
-        while port_free(port) and time.monotonic() < deadline:
+        while not port_open("127.0.0.1", port, 0.2) and time.monotonic() < deadline:  # listening, not just bound
             time.sleep(0.1)
         done = _steval(["replay", "--connect", _url(port)], display.env, tmp_path)
         assert done.returncode == 0, done.stderr
