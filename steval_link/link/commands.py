@@ -294,14 +294,7 @@ def ack_of_text(line: str):
 
 def _ack_of_row(a) -> AckFrame:
     """One ``Telemetry.acks`` row as an ``AckFrame``."""
-    return AckFrame(
-        cmd_seq=int(a["cmd_seq"]),
-        cmd=int(a["cmd"]),
-        result=int(a["result"]),
-        step=int(a["step"]),
-        rx_ok=int(a["rx_ok"]),
-        rx_bad=int(a["rx_bad"]),
-    )
+    return AckFrame(**{name: int(a[name]) for name in P.payload_fields(P.ACK_DTYPE)})
 
 
 def command_log(commands, acks) -> list[dict]:

@@ -35,16 +35,15 @@ from __future__ import annotations
 
 import binascii
 import re
-import struct
 import zlib
 
 import numpy as np
 
 from steval_link.link import protocol as P
 from steval_link.link.frames import (
+    FRAME_OF_TYPE,
     AckFrame,
     AttitudeFrame,
-    CommandFrame,
     DecoderStats,
     FlightFrame,
     Frame,
@@ -52,8 +51,6 @@ from steval_link.link.frames import (
     TextFrame,
 )
 from steval_link.link.plausibility import (
-    KIND_ATTITUDE,
-    KIND_STATUS,
     PlausibilityGate,
     attitude_frame_bad,
     attitude_values_ok,
@@ -65,21 +62,17 @@ from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentenc
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
 
-_ATT_STRUCT = struct.Struct("<I3f3f4ffHh")
-_STA_STRUCT = struct.Struct("<II4f3f4f6IHhHH2BBB")
-_FC_STRUCT = struct.Struct("<I3f4h3f3f4ffHBB")
-_ACK_STRUCT = struct.Struct("<HBBIHH")
-_CMD_STRUCT = struct.Struct("<HBBfI")
-assert _ATT_STRUCT.size == P.ATTITUDE_PAYLOAD_SIZE and _STA_STRUCT.size == P.STATUS_PAYLOAD_SIZE
-assert _FC_STRUCT.size == P.FLIGHT_PAYLOAD_SIZE and _ACK_STRUCT.size == P.ACK_PAYLOAD_SIZE
-assert _CMD_STRUCT.size == P.COMMAND_PAYLOAD_SIZE
+#: frame type -> (frame class, unpacker of its payload's wire fields), both made from ``protocol.PAYLOAD_DTYPE``.
+_UNPACK = {t: (FRAME_OF_TYPE[t], P.payload_unpacker(dtype)) for t, dtype in P.PAYLOAD_DTYPE.items()}
 
 _V1, _V2 = P.VERSION_1, P.VERSION
+_HEAD = P.HEADER_SIZE
 #: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
-_FIXED_LEN = {(_V2 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
-_FIXED_LEN.update({(_V1 << 4) | t: n for t, n in P.FIXED_PAYLOAD_SIZE_V1.items()})
-_VT_TEXT = {(_V1 << 4) | P.TYPE_TEXT, (_V2 << 4) | P.TYPE_TEXT}
-_NEXT_START = re.compile(rb"[\xa5$\n]")
+_FIXED_LEN = {P.vt_byte(_V2, t): n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
+_FIXED_LEN.update({P.vt_byte(_V1, t): n for t, n in P.FIXED_PAYLOAD_SIZE_V1.items()})
+_VT_TEXT = {P.vt_byte(_V1, P.TYPE_TEXT), P.vt_byte(_V2, P.TYPE_TEXT)}
+_SYNC0, _SYNC1 = P.SYNC
+_NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _crc_hqx = binascii.crc_hqx
 _crc32 = zlib.crc32
@@ -163,12 +156,25 @@ class StreamDecoder:
             self.stats.held_values = self.gate.held_values
         return out
 
-    # -- internals ---------------------------------------------------------------------------------------------
-    def _restart_at(self, offset: int, boundary: bool) -> None:
-        """Continue as if the stream were positioned at ``offset`` (used by the bulk decoder; buffer must be empty)."""
-        assert not self._buf
+    @property
+    def at_line_start(self) -> bool:
+        """True when the next byte starts a line (after a frame or line handed out, or a whole printable line)."""
+        return self._boundary
+
+    def resume_at(self, offset: int, *, line_start: bool) -> None:
+        """Continue as if the stream were at byte ``offset``, the bytes before it decoded elsewhere (the bulk
+        decoder's runs of clean frames); ``line_start``: a line starts there. Only with no bytes pending."""
+        if self._buf:
+            raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
-        self._boundary = boundary
+        self._boundary = line_start
+
+    def lock_version_2(self) -> None:
+        """A version-2 frame was accepted before the current position (e.g. by the bulk decoder): version-1
+        candidates are refused from now on."""
+        self._v2_seen = True
+
+    # -- internals ---------------------------------------------------------------------------------------------
 
     def _skip(self, buf: bytearray, p: int, n: int) -> int:
         """Reject the candidate at ``p``: move to the next byte that could start something (``A5``, ``$``, or the
@@ -190,17 +196,17 @@ class StreamDecoder:
         stats = self.stats
         while p < n:
             c = buf[p]
-            if c == 0xA5:
+            if c == _SYNC0:
                 # ---- binary frame candidate
-                if n - p < 4:
-                    if not final and (n - p < 2 or buf[p + 1] == 0x5A):
+                if n - p < _HEAD:
+                    if not final and (n - p < 2 or buf[p + 1] == _SYNC1):
                         break
                     p = self._skip(buf, p, n)
                     continue
                 vt = buf[p + 2]
                 ln = buf[p + 3]
                 ver = vt >> 4
-                if buf[p + 1] != 0x5A or ver not in _CHECK or (ver == _V1 and self._v2_seen):
+                if buf[p + 1] != _SYNC1 or ver not in _CHECK or (ver == _V1 and self._v2_seen):
                     p = self._skip(buf, p, n)
                     continue
                 want = _FIXED_LEN.get(vt)
@@ -208,7 +214,7 @@ class StreamDecoder:
                 if not known and (want is not None or vt in _VT_TEXT):
                     p = self._skip(buf, p, n)  # known type, wrong length
                     continue
-                end = p + 4 + ln
+                end = p + _HEAD + ln
                 csz = _CHECK[ver][0]
                 if end + csz > n:
                     if not final:
@@ -297,12 +303,12 @@ class StreamDecoder:
         elif isinstance(frame, AttitudeFrame):
             # values gate v1 only: a v2 frame with NaN is what the firmware sent (kept, counted in values_bad)
             ok = version == _V2 or attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
-            released = gate.offer(KIND_ATTITUDE, frame.seq, frame.t_us, ok, frame)
+            released = gate.offer(P.TYPE_ATTITUDE, frame.seq, frame.t_us, ok, frame)
         elif isinstance(frame, StatusFrame):
             ok = version == _V2 or status_values_ok(
                 frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s
             )
-            released = gate.offer(KIND_STATUS, frame.step, frame.t_us, ok, frame)
+            released = gate.offer(P.TYPE_STATUS, frame.step, frame.t_us, ok, frame)
         else:
             released = [frame]
         for f in released:
@@ -344,49 +350,12 @@ class StreamDecoder:
 
 def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Frame:
     """The binary frame whose sync is at ``buf[p]`` (already validated); ``offset`` its stream offset."""
-    size = 4 + ln + crc_size
-    t = vt & 0x0F
-    if t == P.TYPE_ATTITUDE:
-        v = _ATT_STRUCT.unpack_from(buf, p + 4)
-        return AttitudeFrame(v[0], v[1:4], v[4:7], v[7:11], v[11], v[12], v[13], True, offset, size)
-    if t == P.TYPE_STATUS:
-        v = _STA_STRUCT.unpack_from(buf, p + 4)
-        return StatusFrame(
-            v[0],
-            v[1],
-            v[2:6],
-            v[6:9],
-            v[9],
-            v[10],
-            v[11],
-            v[12],
-            v[13],
-            v[14],
-            v[15],
-            v[16],
-            v[17],
-            v[18],
-            v[19],
-            v[20],
-            v[21],
-            v[22],
-            v[23:25],
-            v[25],
-            v[26],
-            True,
-            offset,
-            size,
-        )
-    if t == P.TYPE_FLIGHT:
-        v = _FC_STRUCT.unpack_from(buf, p + 4)
-        return FlightFrame(v[0], v[1:4], v[4:8], v[8:11], v[11:14], v[14:18], v[18], v[19], v[20], offset, size)
-    if t == P.TYPE_ACK:
-        v = _ACK_STRUCT.unpack_from(buf, p + 4)
-        return AckFrame(*v, offset, size)
-    if t == P.TYPE_COMMAND:
-        v = _CMD_STRUCT.unpack_from(buf, p + 4)
-        return CommandFrame(v[0], v[1], v[2], v[3], offset, size)
-    return TextFrame(bytes(buf[p + 4 : p + 4 + ln]).decode("utf-8", "replace"), offset, size)
+    size = _HEAD + ln + crc_size
+    fixed = _UNPACK.get(vt & 0x0F)
+    if fixed is not None:
+        cls, unpack = fixed
+        return cls(*unpack(buf, p + _HEAD), offset=offset, nbytes=size)
+    return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
 _LEN_LUT = np.full(256, -1, np.int64)  # VT -> payload length of a fixed-size type; -2 text; -1 unknown
@@ -401,15 +370,15 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     the version lock applied: no version-1 frame after the first valid version-2 frame; and that frame's offset
     (infinity when there is none)."""
     n = len(arr)
-    idx = np.flatnonzero((arr[:-1] == 0xA5) & (arr[1:] == 0x5A)) if n >= 2 else np.zeros(0, np.int64)
-    idx = idx[idx + 4 <= n]
+    idx = np.flatnonzero((arr[:-1] == _SYNC0) & (arr[1:] == _SYNC1)) if n >= 2 else np.zeros(0, np.int64)
+    idx = idx[idx + _HEAD <= n]
     vt = arr[idx + 2]
     ln = arr[idx + 3].astype(np.int64)
     want = _LEN_LUT[vt]
     ok = (want == ln) | ((want == -2) & (ln >= 1))
     ver = vt >> 4
     csz = np.where(ver == _V2, P.CRC_SIZE, P.CRC_SIZE_V1)
-    size = ln + 4 + csz
+    size = ln + _HEAD + csz
     ok &= idx + size <= n
     idx, size, vt, ver = idx[ok], size[ok], vt[ok], ver[ok]
     end = idx + size
@@ -474,16 +443,17 @@ def decode_bytes(
     last_fast = False
     while p < n:
         k = int(np.searchsorted(starts, p))
-        if not sd._buf and k < K and starts[k] == p:
+        if not sd.pending_bytes and k < K and starts[k] == p:
             b = int(np.searchsorted(breaks, k))
             j = int(breaks[b]) if b < len(breaks) else K - 1
             fast_idx.append(np.arange(k, j + 1))
             p = int(nxt[j])
             last_fast = True
             continue
-        if not sd._buf:
-            sd._restart_at(p, boundary=last_fast or sd._boundary if p else False)
-        sd._v2_seen = sd._v2_seen or first_v2 < p
+        if not sd.pending_bytes:
+            sd.resume_at(p, line_start=(last_fast or sd.at_line_start) if p else False)
+        if first_v2 < p:
+            sd.lock_version_2()
         last_fast = False
         end = int(nxt[k]) if k < K else n
         slow_frames.extend(sd.feed(data[p:end]))
@@ -499,7 +469,7 @@ def decode_bytes(
     other = ~(is_att | is_sta)
     for s, vt, size in zip(f_starts[other].tolist(), f_vts[other].tolist(), f_sizes[other].tolist()):
         ln = data[s + 3]
-        parts.add_frame(_frame_at(data, s, vt, ln, size - 4 - ln, s))
+        parts.add_frame(_frame_at(data, s, vt, ln, size - _HEAD - ln, s))
     for f in slow_frames:
         parts.add_frame(f)
 

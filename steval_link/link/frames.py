@@ -1,41 +1,62 @@
 """One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, and the v2 frames
 :class:`FlightFrame`, :class:`AckFrame` (drone → host) and :class:`CommandFrame` (host → drone).
 
-Field names follow the payload dtypes of :mod:`steval_link.link.protocol` (units in the names). Binary frames carry the
-firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows (``exact=False``) carry
-the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset`` is the stream byte offset
-of the frame's first byte and ``nbytes`` its length on the wire (frame or text line including the line ending).
+The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol` (names,
+order, units in the names), so a layout change is one edit there; each class adds where the frame came from.
+Binary frames carry the firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows
+(``exact=False``) carry the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset``
+is the stream byte offset of the frame's first byte and ``nbytes`` its length on the wire (frame or text line
+including the line ending).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, make_dataclass
+
+import numpy as np
+
+from steval_link.link import protocol as P
 
 NAN = math.nan
-_NAN3 = (NAN, NAN, NAN)
-_NAN4 = (NAN, NAN, NAN, NAN)
+
+
+def _python_type(dtype: np.dtype) -> type:
+    return float if dtype.kind == "f" else int
+
+
+def _wire_fields(payload: np.dtype, required: int | None = None) -> type:
+    """A slotted dataclass base holding the fields of ``payload`` (a dtype of :mod:`~steval_link.link.protocol`, the
+    one statement of the layout) in wire order, a subarray field as a tuple; ``RESERVED`` fields are left out. The
+    fields after the first ``required`` get defaults (NaN for floats, 0 for integers); all are required by default."""
+    fields = []
+    for i, name in enumerate(P.payload_fields(payload)):
+        sub = payload.fields[name][0]
+        kind = _python_type(sub.base)
+        blank = NAN if kind is float else 0
+        typ = tuple[(kind,) * sub.shape[0]] if sub.shape else kind
+        if required is not None and i >= required:
+            fields.append((name, typ, (blank,) * sub.shape[0] if sub.shape else blank))
+        else:
+            fields.append((name, typ))
+    base = make_dataclass("WireFields", fields, slots=True)
+    base.__module__ = __name__
+    return base
 
 
 @dataclass(slots=True)
-class AttitudeFrame:
+class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
     """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False).
 
-    ``t_us`` firmware time in µs mod 2³²; ``acc_mg`` (x, y, z) mg and ``gyro_mdps`` (x, y, z) mdps as passed to
-    ``ahrs_fusion_ag``; ``q_wxyz`` the filter quaternion after the step (NaN in text mode); ``thz_rad`` the
-    ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full step counter when the
-    frame itself carries it (text mode), else None (the binary frame only has ``seq``; :class:`Telemetry` unwraps
-    it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text line; NaN for binary frames,
-    whose angles are recomputed bit-exactly from ``q_wxyz`` in :class:`~steval_link.link.telemetry.Telemetry`.
+    Wire fields as ATTITUDE_DTYPE: ``t_us`` firmware time in µs mod 2³²; ``acc_mg`` (x, y, z) mg and ``gyro_mdps``
+    (x, y, z) mdps as passed to ``ahrs_fusion_ag``; ``q_wxyz`` the filter quaternion after the step (NaN in text
+    mode); ``thz_rad`` the ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full
+    step counter when the frame itself carries it (text mode), else None (the binary frame only has ``seq``;
+    :class:`Telemetry` unwraps it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text
+    line; NaN for binary frames, whose angles are recomputed bit-exactly from ``q_wxyz`` in
+    :class:`~steval_link.link.telemetry.Telemetry`.
     """
 
-    t_us: int
-    acc_mg: tuple[float, float, float]
-    gyro_mdps: tuple[float, float, float]
-    q_wxyz: tuple[float, float, float, float]
-    thz_rad: float
-    seq: int
-    thr: int
     exact: bool = True
     offset: int = 0
     nbytes: int = 0
@@ -45,34 +66,13 @@ class AttitudeFrame:
 
 
 @dataclass(slots=True)
-class StatusFrame:
+class StatusFrame(_wire_fields(P.STATUS_DTYPE, required=2)):
     """Link statistics, filter settings and filter-state snapshot, about once a second (fields as STATUS_DTYPE).
 
     Text-mode ``$STA`` rows (``exact`` False) carry only step, t_us, cycle figures, tx_dropped, flags and ki; the
     other float fields are NaN and the other integers 0.
     """
 
-    step: int
-    t_us: int
-    q_wxyz: tuple[float, float, float, float] = _NAN4
-    int_xyz: tuple[float, float, float] = _NAN3
-    kp_ground: float = NAN
-    kp_flight: float = NAN
-    ki: float = NAN
-    dt_s: float = NAN
-    cyc_min: int = 0
-    cyc_mean: int = 0
-    cyc_max: int = 0
-    cpu_hz: int = 0
-    tx_dropped: int = 0
-    baud: int = 0
-    cyc_n: int = 0
-    min_thr: int = 0
-    flags: int = 0
-    queue_peak: int = 0
-    fw_version: tuple[int, int] = (0, 0)
-    fc_every: int = 0
-    param_gen: int = 0
     exact: bool = True
     offset: int = 0
     nbytes: int = 0
@@ -88,49 +88,38 @@ class TextFrame:
 
 
 @dataclass(slots=True)
-class FlightFrame:
+class FlightFrame(_wire_fields(P.FLIGHT_DTYPE)):
     """Flight control of one AHRS step (v2 type 4; fields as FLIGHT_DTYPE). ``rc`` is (gAIL, gELE, gRUD, gTHR)."""
 
-    step: int
-    euler_rc_rad: tuple[float, float, float]
-    rc: tuple[int, int, int, int]
-    outer_s1: tuple[float, float, float]
-    inner_s2: tuple[float, float, float]
-    motor_pwm: tuple[float, float, float, float]
-    vbat_v: float
-    fc_flags: int
-    fc_every: int
     offset: int = 0
     nbytes: int = 0
 
 
 @dataclass(slots=True)
-class AckFrame:
+class AckFrame(_wire_fields(P.ACK_DTYPE)):
     """The drone's answer to one command (v2 type 5; fields as ACK_DTYPE)."""
 
-    cmd_seq: int
-    cmd: int
-    result: int
-    step: int
-    rx_ok: int
-    rx_bad: int
     offset: int = 0
     nbytes: int = 0
 
 
 @dataclass(slots=True)
-class CommandFrame:
+class CommandFrame(_wire_fields(P.COMMAND_DTYPE)):
     """One host → drone command (v2 type 8; fields as COMMAND_DTYPE)."""
 
-    cmd_seq: int
-    cmd: int
-    param: int
-    value: float
     offset: int = 0
     nbytes: int = 0
 
 
 Frame = AttitudeFrame | StatusFrame | TextFrame | FlightFrame | AckFrame | CommandFrame
+#: The frame class of each fixed-size binary frame type (its wire fields are those of ``protocol.PAYLOAD_DTYPE``).
+FRAME_OF_TYPE = {
+    P.TYPE_ATTITUDE: AttitudeFrame,
+    P.TYPE_STATUS: StatusFrame,
+    P.TYPE_FLIGHT: FlightFrame,
+    P.TYPE_ACK: AckFrame,
+    P.TYPE_COMMAND: CommandFrame,
+}
 
 
 @dataclass(slots=True)

@@ -65,9 +65,6 @@ TOL_US = 5_000.0
 CONFIRM = 3
 PERIOD_US = 1e6 / C.AHRS_RATE_HZ
 
-KIND_ATTITUDE = 0
-KIND_STATUS = 1
-
 
 def attitude_values_ok(acc_mg, gyro_mdps, q_wxyz, thz_rad) -> bool:
     """True when an attitude frame's values are ones the firmware can send."""
@@ -223,9 +220,9 @@ class PlausibilityGate:
             self.held_back += 1
             self.held_values += 1
             return []
-        seq &= 0xFFFF
+        seq %= P.SEQ_MODULUS
         anchor = self._anchor
-        if kind == KIND_STATUS:
+        if kind == P.TYPE_STATUS:
             if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0, self.window, self.tol):
                 return [item]
             self.held_back += 1
@@ -311,16 +308,16 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     # slow path: the gate row by row, in stream order
     keep_a[ea] = False
     keep_s[es] = False
-    rows = [(int(o), KIND_ATTITUDE, int(i)) for o, i in zip(a["offset"], ea)]
-    rows += [(int(o), KIND_STATUS, int(i)) for o, i in zip(s["offset"], es)]
+    rows = [(int(o), P.TYPE_ATTITUDE, int(i)) for o, i in zip(a["offset"], ea)]
+    rows += [(int(o), P.TYPE_STATUS, int(i)) for o, i in zip(s["offset"], es)]
     rows.sort()
     va = dict(zip(ea.tolist(), vals_a.tolist()))
     vs = dict(zip(es.tolist(), vals_s.tolist()))
     for _, kind, i in rows:
-        if kind == KIND_ATTITUDE:
+        if kind == P.TYPE_ATTITUDE:
             released = gate.offer(kind, int(att["seq"][i]), int(att["t_us"][i]), va[i], (kind, i))
         else:
             released = gate.offer(kind, int(sta["step"][i]), int(sta["t_us"][i]), vs[i], (kind, i))
         for k, idx in released:
-            (keep_a if k == KIND_ATTITUDE else keep_s)[idx] = True
+            (keep_a if k == P.TYPE_ATTITUDE else keep_s)[idx] = True
     return keep_a, keep_s

@@ -13,6 +13,7 @@ from __future__ import annotations
 import binascii
 import struct
 import zlib
+from operator import itemgetter
 from typing import Sequence
 
 import numpy as np
@@ -22,7 +23,7 @@ from steval_link import constants as C
 SYNC = b"\xa5\x5a"
 VERSION = 2  #: the version this tool's firmware patch sends
 VERSION_1 = 1  #: the first protocol version (CRC-16), still decoded
-HEADER_SIZE = 4  # sync (2) + VT + LEN
+HEADER_SIZE = len(SYNC) + 2  # sync, VT, LEN
 CRC_SIZE = 4  #: v2: CRC-32
 CRC_SIZE_V1 = 2  #: v1: CRC-16
 CRC_INIT = 0xFFFF  #: v1 CRC-16 initial value
@@ -37,30 +38,7 @@ TYPE_FLIGHT = 4  #: v2: flight control
 TYPE_ACK = 5  #: v2: acknowledgement of a command
 TYPE_COMMAND = 8  #: v2: host -> drone
 
-ATTITUDE_PAYLOAD_SIZE = 52
-STATUS_PAYLOAD_SIZE = 88
 TEXT_MAX_PAYLOAD = 255
-FLIGHT_PAYLOAD_SIZE = 72
-ACK_PAYLOAD_SIZE = 12
-COMMAND_PAYLOAD_SIZE = 12
-
-ATTITUDE_FRAME_SIZE = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE  # 60
-STATUS_FRAME_SIZE = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE  # 96
-FLIGHT_FRAME_SIZE = HEADER_SIZE + FLIGHT_PAYLOAD_SIZE + CRC_SIZE  # 80
-ACK_FRAME_SIZE = HEADER_SIZE + ACK_PAYLOAD_SIZE + CRC_SIZE  # 20
-COMMAND_FRAME_SIZE = HEADER_SIZE + COMMAND_PAYLOAD_SIZE + CRC_SIZE  # 20
-ATTITUDE_FRAME_SIZE_V1 = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE_V1  # 58
-STATUS_FRAME_SIZE_V1 = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE_V1  # 94
-
-#: Payload length of each fixed-size frame type, by protocol version (v1 knew attitude and status only).
-FIXED_PAYLOAD_SIZE = {
-    TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE,
-    TYPE_STATUS: STATUS_PAYLOAD_SIZE,
-    TYPE_FLIGHT: FLIGHT_PAYLOAD_SIZE,
-    TYPE_ACK: ACK_PAYLOAD_SIZE,
-    TYPE_COMMAND: COMMAND_PAYLOAD_SIZE,
-}
-FIXED_PAYLOAD_SIZE_V1 = {TYPE_ATTITUDE: ATTITUDE_PAYLOAD_SIZE, TYPE_STATUS: STATUS_PAYLOAD_SIZE}
 
 #: Status ``flags`` bits.
 FLAG_NO_CORRECTION = 1 << 0
@@ -109,7 +87,6 @@ ATTITUDE_DTYPE = np.dtype(
         ("thr", "<i2"),
     ]
 )
-assert ATTITUDE_DTYPE.itemsize == ATTITUDE_PAYLOAD_SIZE
 
 #: Status payload, field by field (offsets as in PROTOCOL.md).
 STATUS_DTYPE = np.dtype(
@@ -137,7 +114,6 @@ STATUS_DTYPE = np.dtype(
         ("param_gen", "u1"),  # v2: parameter changes and filter resets applied since boot, mod 256
     ]
 )
-assert STATUS_DTYPE.itemsize == STATUS_PAYLOAD_SIZE
 
 #: Flight-control payload (type 4), sent after ``FlightControlPID_OuterLoop`` of step ``step``.
 FLIGHT_DTYPE = np.dtype(
@@ -154,17 +130,82 @@ FLIGHT_DTYPE = np.dtype(
         ("reserved", "u1"),
     ]
 )
-assert FLIGHT_DTYPE.itemsize == FLIGHT_PAYLOAD_SIZE
 
 #: Ack payload (type 5).
 ACK_DTYPE = np.dtype(
     [("cmd_seq", "<u2"), ("cmd", "u1"), ("result", "u1"), ("step", "<u4"), ("rx_ok", "<u2"), ("rx_bad", "<u2")]
 )
-assert ACK_DTYPE.itemsize == ACK_PAYLOAD_SIZE
 
 #: Command payload (type 8, host -> drone).
 COMMAND_DTYPE = np.dtype([("cmd_seq", "<u2"), ("cmd", "u1"), ("param", "u1"), ("value", "<f4"), ("reserved", "<u4")])
-assert COMMAND_DTYPE.itemsize == COMMAND_PAYLOAD_SIZE
+
+
+#: The payload dtype of each fixed-size frame type: the one statement of the binary layout (struct formats, frame
+#: fields and sizes derive from it).
+PAYLOAD_DTYPE = {
+    TYPE_ATTITUDE: ATTITUDE_DTYPE,
+    TYPE_STATUS: STATUS_DTYPE,
+    TYPE_FLIGHT: FLIGHT_DTYPE,
+    TYPE_ACK: ACK_DTYPE,
+    TYPE_COMMAND: COMMAND_DTYPE,
+}
+#: Payload length of each fixed-size frame type, by protocol version (v1 knew attitude and status only).
+FIXED_PAYLOAD_SIZE = {t: d.itemsize for t, d in PAYLOAD_DTYPE.items()}
+FIXED_PAYLOAD_SIZE_V1 = {t: FIXED_PAYLOAD_SIZE[t] for t in (TYPE_ATTITUDE, TYPE_STATUS)}
+
+ATTITUDE_PAYLOAD_SIZE = ATTITUDE_DTYPE.itemsize  # 52
+STATUS_PAYLOAD_SIZE = STATUS_DTYPE.itemsize  # 88
+FLIGHT_PAYLOAD_SIZE = FLIGHT_DTYPE.itemsize  # 72
+ACK_PAYLOAD_SIZE = ACK_DTYPE.itemsize  # 12
+COMMAND_PAYLOAD_SIZE = COMMAND_DTYPE.itemsize  # 12
+
+ATTITUDE_FRAME_SIZE = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE  # 60
+STATUS_FRAME_SIZE = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE  # 96
+FLIGHT_FRAME_SIZE = HEADER_SIZE + FLIGHT_PAYLOAD_SIZE + CRC_SIZE  # 80
+ACK_FRAME_SIZE = HEADER_SIZE + ACK_PAYLOAD_SIZE + CRC_SIZE  # 20
+COMMAND_FRAME_SIZE = HEADER_SIZE + COMMAND_PAYLOAD_SIZE + CRC_SIZE  # 20
+ATTITUDE_FRAME_SIZE_V1 = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE_V1  # 58
+STATUS_FRAME_SIZE_V1 = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE_V1  # 94
+
+#: Payload fields that carry nothing (padding); frames and rows do not keep them.
+RESERVED = "reserved"
+_STRUCT_CHAR = {"u1": "B", "u2": "H", "i2": "h", "u4": "I", "f4": "f"}
+
+
+def payload_fields(dtype: np.dtype) -> tuple[str, ...]:
+    """The names of the fields of payload ``dtype`` that a frame keeps (all but :data:`RESERVED`), in wire order."""
+    return tuple(name for name in dtype.names if name != RESERVED)
+
+
+def payload_struct(dtype: np.dtype) -> struct.Struct:
+    """The ``struct`` layout of payload ``dtype``: one value per scalar, a subarray field as its values in order."""
+    codes = []
+    for name in dtype.names:
+        sub = dtype.fields[name][0]
+        count = sub.shape[0] if sub.shape else 1
+        codes.append(f"{count if count > 1 else ''}{_STRUCT_CHAR[sub.base.kind + str(sub.base.itemsize)]}")
+    layout = struct.Struct("<" + "".join(codes))
+    assert layout.size == dtype.itemsize, dtype
+    return layout
+
+
+def payload_unpacker(dtype: np.dtype):
+    """``unpack(buf, pos)``: the values of the :func:`payload_fields` of payload ``dtype`` at ``buf[pos:]``, a
+    subarray field as a tuple (Python ints and floats; a float32 is exact as a float)."""
+    unpack_from = payload_struct(dtype).unpack_from
+    picks, i = [], 0
+    for name in dtype.names:
+        sub = dtype.fields[name][0]
+        count = sub.shape[0] if sub.shape else 1
+        if name != RESERVED:
+            picks.append(slice(i, i + count) if sub.shape else i)
+        i += count
+    pick = itemgetter(*picks)
+
+    def unpack(buf, pos: int) -> tuple:
+        return pick(unpack_from(buf, pos))
+
+    return unpack
 
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
@@ -177,11 +218,16 @@ def crc32(data: bytes | bytearray | memoryview) -> int:
     return zlib.crc32(data)
 
 
+def vt_byte(version: int, frame_type: int) -> int:
+    """The ``VT`` byte of a frame: ``version << 4 | type``."""
+    return (version << 4) | (frame_type & 0x0F)
+
+
 def encode_frame(frame_type: int, payload: bytes, version: int = VERSION) -> bytes:
     """One complete frame of ``frame_type`` around ``payload`` (0..255 bytes); ``version`` 1 for v1 test data."""
     if not 0 <= len(payload) <= 255:
         raise ValueError(f"payload of {len(payload)} bytes does not fit one frame (0..255)")
-    body = bytes(((version << 4) | (frame_type & 0x0F), len(payload))) + payload
+    body = bytes((vt_byte(version, frame_type), len(payload))) + payload
     if version == VERSION_1:
         return SYNC + body + struct.pack("<H", crc16(body))
     return SYNC + body + struct.pack("<I", crc32(body))
@@ -218,7 +264,7 @@ def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
     out = np.empty((n, end + crc_size), dtype=np.uint8)
     out[:, 0] = SYNC[0]
     out[:, 1] = SYNC[1]
-    out[:, 2] = (version << 4) | TYPE_ATTITUDE
+    out[:, 2] = vt_byte(version, TYPE_ATTITUDE)
     out[:, 3] = ATTITUDE_PAYLOAD_SIZE
     out[:, HEADER_SIZE:end] = records.view(np.uint8).reshape(n, -1)
     check = crc16 if version == VERSION_1 else crc32

@@ -265,78 +265,33 @@ class TelemetryParts:
     def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
         """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
         frames = sorted((f for f in self.others if isinstance(f, kind)), key=lambda f: f.offset)
-        rec = np.zeros(len(frames), dtype)
-        names = [n for n in dtype.names if n not in ("offset", "nbytes", "t_host_s", "reserved")]
-        for i, f in enumerate(frames):
-            for name in names:
-                rec[i][name] = getattr(f, name)
-            rec[i]["offset"] = f.offset
-            rec[i]["nbytes"] = f.nbytes
+        rec = _frame_records(frames, dtype, skip=("t_host_s", P.RESERVED))
         rec["t_host_s"] = np.nan
         return rec
 
     def attitude_records(self) -> np.ndarray:
-        blocks = list(self.att_blocks)
-        if self.att_frames:
-            rec = np.empty(len(self.att_frames), ATT_RECORD_DTYPE)
-            rec[:] = [
-                (
-                    f.t_us,
-                    f.acc_mg,
-                    f.gyro_mdps,
-                    f.q_wxyz,
-                    f.thz_rad,
-                    f.seq,
-                    f.thr,
-                    f.offset,
-                    f.nbytes,
-                    f.exact,
-                    -1 if f.step is None else f.step,
-                    f.thx_rad,
-                    f.thy_rad,
-                )
-                for f in self.att_frames
-            ]
-            blocks.append(rec)
-        rec = np.concatenate(blocks) if blocks else np.zeros(0, ATT_RECORD_DTYPE)
-        return rec[np.argsort(rec["offset"], kind="stable")]
+        return _sorted_records(self.att_blocks, self.att_frames, ATT_RECORD_DTYPE)
 
     def status_records(self) -> np.ndarray:
-        blocks = list(self.sta_blocks)
-        if self.sta_frames:
-            rec = np.empty(len(self.sta_frames), STA_RECORD_DTYPE)
-            rec[:] = [
-                (
-                    f.step,
-                    f.t_us,
-                    f.q_wxyz,
-                    f.int_xyz,
-                    f.kp_ground,
-                    f.kp_flight,
-                    f.ki,
-                    f.dt_s,
-                    f.cyc_min,
-                    f.cyc_mean,
-                    f.cyc_max,
-                    f.cpu_hz,
-                    f.tx_dropped,
-                    f.baud,
-                    f.cyc_n,
-                    f.min_thr,
-                    f.flags,
-                    f.queue_peak,
-                    f.fw_version,
-                    f.fc_every,
-                    f.param_gen,
-                    f.offset,
-                    f.nbytes,
-                    f.exact,
-                )
-                for f in self.sta_frames
-            ]
-            blocks.append(rec)
-        rec = np.concatenate(blocks) if blocks else np.zeros(0, STA_RECORD_DTYPE)
-        return rec[np.argsort(rec["offset"], kind="stable")]
+        return _sorted_records(self.sta_blocks, self.sta_frames, STA_RECORD_DTYPE)
+
+
+def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
+    """Records of ``dtype`` from frames with attributes of the same names (``skip``: fields left 0; an attitude
+    frame's ``step`` None is -1)."""
+    rec = np.zeros(len(frames), dtype)
+    for name in dtype.names if frames else ():
+        if name not in skip:
+            values = [getattr(f, name) for f in frames]
+            rec[name] = [-1 if v is None else v for v in values] if name == "step" else values
+    return rec
+
+
+def _sorted_records(blocks: list[np.ndarray], frames: list, dtype: np.dtype) -> np.ndarray:
+    """The record blocks and the single frames together, in stream order."""
+    blocks = blocks + ([_frame_records(frames, dtype)] if frames else [])
+    rec = np.concatenate(blocks) if blocks else np.zeros(0, dtype)
+    return rec[np.argsort(rec["offset"], kind="stable")]
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -18,6 +18,7 @@ import math
 import operator
 import re
 
+from steval_link.link import protocol as P
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 
 #: Longest line accepted, in bytes, including the line ending.
@@ -98,12 +99,12 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
         if step < 0 or t_ms < 0 or not -32768 <= thr <= 32767:
             return None
         return AttitudeFrame(
-            t_us=(t_ms * 1000) % (1 << 32),
+            t_us=(t_ms * 1000) % P.T_US_MODULUS,
             acc_mg=(float(v[6]), float(v[7]), float(v[8])),
             gyro_mdps=(float(v[9]), float(v[10]), float(v[11])),
             q_wxyz=_NAN4,
             thz_rad=v[5] * _MDEG_TO_RAD,
-            seq=step % (1 << 16),
+            seq=step % P.SEQ_MODULUS,
             thr=thr,
             exact=False,
             offset=offset,
@@ -121,7 +122,7 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
             return None
         return StatusFrame(
             step=v[0] % (1 << 32),
-            t_us=(v[1] * 1000) % (1 << 32),
+            t_us=(v[1] * 1000) % P.T_US_MODULUS,
             cyc_min=v[2],
             cyc_mean=v[3],
             cyc_max=v[4],
