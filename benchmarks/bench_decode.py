@@ -15,8 +15,9 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.link import protocol as P
-from steval_link.link.capture import CaptureWriter, load_telemetry, read_capture
+from steval_link.link.capture import CaptureWriter, read_capture
 from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.load import load_telemetry
 
 
 def synthetic_stream(seconds: float, seed: int = 1) -> bytes:

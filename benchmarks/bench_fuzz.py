@@ -23,8 +23,8 @@ import numpy as np
 
 from steval_link.emulation.line_damage import FuzzScore, damage, long_stream, payload_records, score
 from steval_link.link import protocol as P
-from steval_link.link.capture import load_telemetry
 from steval_link.link.decoder import decode_bytes
+from steval_link.link.load import load_telemetry
 
 
 def to_v1(data: bytes) -> bytes:

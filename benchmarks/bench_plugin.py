@@ -27,7 +27,8 @@ from steval_link.estimators import registry
 from steval_link.estimators.base import Estimator
 from steval_link.estimators.ekf3 import Ekf3
 from steval_link.estimators.plugins import Guarded
-from steval_link.link.capture import demo_capture_path, load_telemetry
+from steval_link.link.capture import demo_capture_path
+from steval_link.link.load import load_telemetry
 
 
 class Trivial:

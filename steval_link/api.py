@@ -27,7 +27,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import plugins, registry
 from steval_link.estimators.base import AttitudeEstimate, Estimator
 from steval_link.estimators.runner import run_estimator as _run_named
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.load import read_source, telemetry_of_source
 
 __all__ = ["Capture", "Scores", "open_capture", "run_estimator", "evaluate", "require_pandas"]
 

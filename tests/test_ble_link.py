@@ -17,7 +17,8 @@ from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.errors import UserError
 from steval_link.link import ble_payloads as B
 from steval_link.link.ble_transport import BleDevice, BleLink, explain_ble_error, is_address, pick_device
-from steval_link.link.capture import read_capture, read_source
+from steval_link.link.capture import read_capture
+from steval_link.link.load import read_source
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "ble_demo.stv"

@@ -23,8 +23,8 @@ from steval_link.link.capture import (
     CaptureWriter,
     encode_capture,
     read_capture,
-    read_source,
 )
+from steval_link.link.load import read_source
 
 ROOT = Path(__file__).resolve().parents[1]
 REC = ROOT / "recordings"

@@ -16,14 +16,8 @@ from support.streams import StreamBuilder
 
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
-from steval_link.link.capture import (
-    MAGIC,
-    CaptureTruncatedWarning,
-    CaptureWriter,
-    load_telemetry,
-    read_capture,
-    read_source,
-)
+from steval_link.link.capture import MAGIC, CaptureTruncatedWarning, CaptureWriter, read_capture
+from steval_link.link.load import load_telemetry, read_source
 
 
 def write_capture(path, data: bytes, chunk: int = 100, events=()):

@@ -448,7 +448,8 @@ def test_cli_user_errors_exit_2_with_one_line(tmp_path, capsys):
 
 def test_cycle_counts_of_an_emulated_capture_are_called_instruction_counts(tmp_path):
     from steval_link.analysis.summary import format_summary, summarize
-    from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
+    from steval_link.link.capture import demo_capture_path, read_capture
+    from steval_link.link.load import load_telemetry
 
     demo = load_telemetry(demo_capture_path())  # made by steval emulate: its header says emulated
     assert "emulated instructions (not M4 cycles)" in "\n".join(format_report(compare_capture(demo)))

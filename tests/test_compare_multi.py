@@ -20,7 +20,7 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
     still_mask,
 )
-from steval_link.link.capture import load_telemetry
+from steval_link.link.load import load_telemetry
 
 ROOT = Path(__file__).resolve().parents[1]
 REC = ROOT / "recordings"

@@ -18,9 +18,10 @@ from support import firmware as S
 
 from steval_link.emulation import sensor_model as sm
 from steval_link.estimators.st_mahony import replay_firmware
-from steval_link.link.capture import encode_capture, load_telemetry
+from steval_link.link.capture import encode_capture
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.load import load_telemetry
 
 WHY = S.missing()
 pytestmark = pytest.mark.skipif(WHY is not None, reason=WHY or "")

@@ -192,7 +192,8 @@ def test_cli_evaluate_bad_input_is_one_line_exit_2(tmp_path, monkeypatch, capsys
 
 
 def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
-    from steval_link.link.capture import demo_capture_path, load_telemetry
+    from steval_link.link.capture import demo_capture_path
+    from steval_link.link.load import load_telemetry
 
     cap = demo_capture_path()
     tel = load_telemetry(cap)

@@ -305,7 +305,7 @@ def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path)
     code, _, err = run_cli(monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "12", "--out", syn)
     assert code == 0, err
     cap = read_capture(syn)
-    from steval_link.link.capture import load_telemetry
+    from steval_link.link.load import load_telemetry
 
     att = load_telemetry(syn).attitude
     mov = (np.arange(len(att.step)) % 3) != 0

@@ -105,7 +105,7 @@ def test_csv_floats_are_the_shortest_exact_decimals_for_excel(tmp_path, capsys):
     """A float32 999.4 is written 999.4 (not 999.400024), and still reads back as exactly the same float32."""
     from pathlib import Path
 
-    from steval_link.link.capture import load_telemetry
+    from steval_link.link.load import load_telemetry
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
     out = tmp_path / "demo.csv"
@@ -128,7 +128,7 @@ def test_csv_floats_are_the_shortest_exact_decimals_for_excel(tmp_path, capsys):
 def test_csv_degrees(tmp_path, capsys):
     from pathlib import Path
 
-    from steval_link.link.capture import load_telemetry
+    from steval_link.link.load import load_telemetry
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
     out = tmp_path / "deg.csv"

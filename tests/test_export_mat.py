@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support.cli import run_cli
 
-from steval_link.link.capture import load_telemetry
+from steval_link.link.load import load_telemetry
 
 sio = pytest.importorskip("scipy.io")
 

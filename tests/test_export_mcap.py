@@ -15,7 +15,7 @@ import pytest
 from support.cli import run_cli
 
 from steval_link.analysis.mcap_export import TOPICS
-from steval_link.link.capture import load_telemetry
+from steval_link.link.load import load_telemetry
 
 reader = pytest.importorskip("mcap.reader")
 

@@ -417,7 +417,7 @@ def test_link_text_mode_lines(host_build):
 def bundled_recordings() -> list[Path]:
     """The bundled serial captures (BLE captures carry ST's notifications, no frames of ours)."""
     from steval_link.link.ble_payloads import is_ble_source
-    from steval_link.link.capture import read_source
+    from steval_link.link.load import read_source
 
     rec = ROOT / "recordings"
     return (
@@ -433,7 +433,7 @@ def test_bundled_recording_frames_are_c_encoder_output(host_build, path):
     payload: the recordings double as C -> Python conformance fixtures."""
     if path is None:
         pytest.skip("no bundled captures in recordings/ yet")
-    from steval_link.link.capture import read_source
+    from steval_link.link.load import read_source
 
     data = read_source(path).data
     dec = StreamDecoder()

@@ -15,8 +15,8 @@ from steval_link.emulation import motion as M
 from steval_link.emulation.runner import MOUNTS, ScenarioMotion, joydata_bytes
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
-from steval_link.link.capture import load_telemetry
 from steval_link.link.decoder import decode_bytes
+from steval_link.link.load import load_telemetry
 
 
 def test_motor_places_and_spin_follow_the_mixer_signs():

@@ -463,7 +463,8 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
 
     from steval_link.emulation.bluenrg import FakeBleBackend
     from steval_link.link import ble_payloads as B
-    from steval_link.link.capture import read_capture, read_source
+    from steval_link.link.capture import read_capture
+    from steval_link.link.load import read_source
     from steval_link.live.ble_session import BleLiveSession
     from steval_link.live.session import LiveOptions
 

@@ -13,9 +13,9 @@ from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.emulation.line_damage import damage, long_stream, payload_records, score
 from steval_link.link import protocol as P
-from steval_link.link.capture import load_telemetry
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame
+from steval_link.link.load import load_telemetry
 from steval_link.link.plausibility import PlausibilityGate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,7 +9,8 @@ import time
 import pytest
 from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 
-from steval_link.link.capture import load_telemetry, read_capture
+from steval_link.link.capture import read_capture
+from steval_link.link.load import load_telemetry
 
 fcntl = pytest.importorskip("fcntl", reason="POSIX file control on a pseudo-terminal: not on Windows")
 

@@ -14,9 +14,10 @@ import pytest
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, replay_firmware
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
-from steval_link.link.capture import demo_capture_path, load_telemetry, read_capture
+from steval_link.link.capture import demo_capture_path, read_capture
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.load import load_telemetry
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
 BINARY = [

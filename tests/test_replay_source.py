@@ -14,7 +14,8 @@ from support.ptyfeed import StevalProcess
 
 from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link.capture import load_telemetry, read_capture
+from steval_link.link.capture import read_capture
+from steval_link.link.load import load_telemetry
 from steval_link.link.replay_source import PROMPT_NOTE, ReplayPort, open_replay, parse_replay_url
 from steval_link.live.session import LiveOptions, LiveSession
 

@@ -17,7 +17,7 @@ from steval_link.analysis import spectrum as S
 from steval_link.emulation import motion as M
 from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
-from steval_link.link.capture import load_telemetry
+from steval_link.link.load import load_telemetry
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 

@@ -391,7 +391,7 @@ def test_replay_of_encoded_frames_when_the_decoder_exists(capture):
 
 def test_replay_firmware_never_seeds_rounded_text_mode_rows():
     """Text-mode rows are rounded and $STA rows carry no snapshot: nothing is replayed, nothing crashes."""
-    from steval_link.link.capture import load_telemetry
+    from steval_link.link.load import load_telemetry
 
     tel = load_telemetry(Path(__file__).resolve().parents[1] / "recordings" / "textmode.log")
     assert len(tel.attitude.step) > 100 and not tel.attitude.exact.any()

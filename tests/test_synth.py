@@ -25,8 +25,9 @@ from steval_link.estimators.st_mahony import (
     run as mahony_run,
 )
 from steval_link.link import protocol as P
-from steval_link.link.capture import load_telemetry, read_capture
+from steval_link.link.capture import read_capture
 from steval_link.link.decoder import decode_bytes
+from steval_link.link.load import load_telemetry
 
 ROOT = Path(__file__).resolve().parents[1]
 

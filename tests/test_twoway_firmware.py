@@ -24,10 +24,11 @@ from support import firmware as S
 from steval_link.estimators.conformance import load_conformance_csv
 from steval_link.estimators.st_mahony import MahonySettings, bits_equal, replay_firmware, run
 from steval_link.link import protocol as P
-from steval_link.link.capture import encode_capture, load_telemetry, read_capture
+from steval_link.link.capture import encode_capture, read_capture
 from steval_link.link.commands import Command, CommandChannel, parse_command
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, StatusFrame
+from steval_link.link.load import load_telemetry
 
 WHY = S.missing()
 pytestmark = [pytest.mark.skipif(WHY is not None, reason=WHY or ""), pytest.mark.slow]

@@ -393,7 +393,7 @@ def test_cli_replay_to_rrd_headless(tmp_path, monkeypatch, capsys):
 def _serial_recording(p: Path) -> bool:
     """A bundled serial capture or log (BLE captures have their own layout: tests/test_ble_replay.py)."""
     from steval_link.link.ble_payloads import is_ble_source
-    from steval_link.link.capture import read_source
+    from steval_link.link.load import read_source
 
     return p.suffix in (".stv", ".log", ".bin", ".raw") and not is_ble_source(read_source(p))
 
@@ -405,7 +405,7 @@ BUNDLED = sorted(p for p in (Path(__file__).resolve().parents[1] / "recordings")
 @pytest.mark.parametrize("capture", BUNDLED, ids=[p.name for p in BUNDLED])
 def test_every_bundled_recording_replays_to_rrd(capture, tmp_path, monkeypatch, capsys):
     """CI: each bundled capture replays headlessly to an .rrd that reads back with every entity and all samples."""
-    from steval_link.link.capture import load_telemetry
+    from steval_link.link.load import load_telemetry
 
     tel = load_telemetry(capture)
     out = tmp_path / (capture.stem + ".rrd")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support.cli import run_cli
 
-from steval_link.link.capture import load_telemetry
+from steval_link.link.load import load_telemetry
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit

@@ -58,7 +58,8 @@ from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import (
     MahonySettings,
 )
-from steval_link.link.capture import capture_truth, read_source
+from steval_link.link.capture import capture_truth
+from steval_link.link.load import read_source
 from steval_link.link.plausibility import held_back_sentence
 
 

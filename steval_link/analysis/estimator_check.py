@@ -37,7 +37,8 @@ from steval_link.estimators import registry
 from steval_link.estimators.accel_tilt import accel_tilt, tilt_quaternion
 from steval_link.estimators.plugins import PluginError
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
+from steval_link.link.capture import demo_capture_path
+from steval_link.link.load import read_source, telemetry_of_source
 
 __all__ = [
     "Check",

@@ -32,7 +32,8 @@ from steval_link.emulation import broad
 from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.capture import capture_truth, read_source, telemetry_of_source
+from steval_link.link.capture import capture_truth
+from steval_link.link.load import read_source, telemetry_of_source
 
 __all__ = [
     "EstimatorSpec",

@@ -44,7 +44,8 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
+from steval_link.link.capture import demo_capture_path
+from steval_link.link.load import read_source, telemetry_of_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["compare_command"]

@@ -18,7 +18,7 @@ from steval_link.cli.outputs import atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.load import read_source, telemetry_of_source
 
 __all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
 

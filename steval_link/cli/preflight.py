@@ -20,7 +20,7 @@ from steval_link.cli.app import app
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.load import read_source, telemetry_of_source
 from steval_link.live.session import LiveOptions, LiveSession
 
 #: the guided sequence: (seconds after the start, what to say)

@@ -2,7 +2,7 @@
 
 Replay is a pipeline, one stage per step of the data flow::
 
-    load_replay(path)             bytes → Telemetry            (capture.load_telemetry)
+    load_replay(path)             bytes → Telemetry            (load.load_telemetry)
     run_estimators(tel, names)    Telemetry → {name: AttitudeEstimate}   (estimators.registry)
     sinks                         each ``sink(tel, estimates)``: summary printing, Rerun .rrd, ...
 
@@ -38,7 +38,8 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.capture import demo_capture_path, read_source, telemetry_of_source
+from steval_link.link.capture import demo_capture_path
+from steval_link.link.load import read_source, telemetry_of_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["load_replay", "run_estimators"]

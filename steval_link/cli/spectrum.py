@@ -27,7 +27,7 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
-from steval_link.link.capture import read_source
+from steval_link.link.load import read_source
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)

@@ -6,10 +6,9 @@ Raw bytes are the source of truth: a decoder fix re-decodes old captures.
 
 * :class:`CaptureWriter` appends crash-safely (each chunk goes to the OS at once; ``fsync`` at least once a second).
 * :func:`read_capture` returns a :class:`Capture` (header, bytes, chunk offsets/times, events, truncation).
-* :func:`read_source` / :func:`load_telemetry` also accept a raw byte dump (``cat /dev/ttyUSB0 > log.bin``) or a
-  text-mode log, detected by content; bad input raises :class:`~steval_link.errors.UserError` with one sentence.
 
-One module for the format (writing, reading, loading) so that its byte layout is stated in one place.
+The file format only (writing and reading), so that its byte layout is stated in one place; decoding a capture is
+:mod:`steval_link.link.load`.
 """
 
 from __future__ import annotations
@@ -32,8 +31,6 @@ import numpy as np
 
 from steval_link import __version__
 from steval_link.errors import UserError
-from steval_link.link.decoder import StreamDecoder, decode_bytes
-from steval_link.link.frames import CommandFrame
 
 __all__ = [
     "MAGIC",
@@ -45,11 +42,9 @@ __all__ = [
     "HostChunk",
     "CaptureTruncatedWarning",
     "CaptureWriter",
-    "Source",
     "demo_capture_path",
-    "load_telemetry",
     "read_capture",
-    "read_source",
+    "read_file_bytes",
     "resolve_capture_out",
 ]
 
@@ -198,7 +193,7 @@ def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
 
 
 def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
-    """The truth rows of a capture's T chunks (``Capture.chunks`` / ``Source.chunks``) in file order, or None when it
+    """The truth rows of a capture's T chunks (``Capture.chunks``) in file order, or None when it
     has none. A payload that is not a whole number of rows keeps its whole rows."""
     parts = [
         np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
@@ -407,7 +402,9 @@ def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out")
     return path
 
 
-def _read_bytes(path: Path) -> bytes:
+def read_file_bytes(path: Path) -> bytes:
+    """The whole file ``path``; :class:`~steval_link.errors.UserError` when it is missing, a directory, a device or
+    unreadable."""
     if not path.exists():
         raise UserError(f"{path}: no such file.")
     if path.is_dir():
@@ -426,7 +423,7 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     ``truncated`` is set, ``warning`` says where, and a :class:`CaptureTruncatedWarning` is issued. Raises
     :class:`~steval_link.errors.UserError` when the file is missing, unreadable or not a capture."""
     path = Path(path)
-    raw = _read_bytes(path) if data is None else data
+    raw = read_file_bytes(path) if data is None else data
     if not raw.startswith(MAGIC):
         if raw and MAGIC.startswith(raw):
             raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
@@ -555,130 +552,6 @@ def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
     places = "1 place" if len(damaged) == 1 else f"{len(damaged)} places"
     total = sum(k for _, k, _ in damaged)
     return f"{total} damaged bytes in {places} skipped (file bytes {listed}{more})"
-
-
-@dataclass
-class Source:
-    """The bytes of a capture, raw dump or text log, with whatever timing the file holds.
-
-    ``kind``: "stv" (capture file), or "bytes" until decoding tells "raw" (binary dump) from "text" (text-mode log).
-    """
-
-    path: Path
-    kind: str
-    data: bytes
-    header: dict[str, Any] = field(default_factory=dict)
-    chunk_offsets: np.ndarray | None = None
-    chunk_times_s: np.ndarray | None = None
-    events: list[CaptureEvent] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    #: typed chunks of a capture (see :attr:`Capture.chunks`)
-    chunks: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
-    #: what the host sent to the drone (capture chunks H)
-    host: list[HostChunk] = field(default_factory=list)
-
-
-def read_source(path: str | os.PathLike) -> Source:
-    """The bytes of ``path``: a ``.stv`` capture (by its magic, whatever the extension) or any other file as raw
-    serial bytes. Raises :class:`~steval_link.errors.UserError` for a missing, unreadable or empty file."""
-    path = Path(path)
-    raw = _read_bytes(path)
-    if not raw:
-        raise UserError(f"{path} is empty.")
-    if raw.startswith(MAGIC) or (path.suffix.lower() == ".stv" and MAGIC.startswith(raw[: len(MAGIC)])):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", CaptureTruncatedWarning)
-            cap = read_capture(path, data=raw)
-        return Source(
-            path=path,
-            kind="stv",
-            data=cap.data,
-            header=cap.header,
-            chunk_offsets=cap.chunk_offsets,
-            chunk_times_s=cap.chunk_times_s,
-            events=cap.events,
-            warnings=[cap.warning] if cap.warning else [],
-            chunks=cap.chunks,
-            host=cap.host,
-        )
-    return Source(path=path, kind="bytes", data=raw)
-
-
-def load_telemetry(path: str | os.PathLike):
-    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.link.telemetry.Telemetry`.
-
-    The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
-    truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
-    Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
-    damaged capture header, or a file in which no frame is found.
-    """
-    src = read_source(path)
-    for w in src.warnings:
-        warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
-    return telemetry_of_source(src)
-
-
-def telemetry_of_source(src: Source):
-    """Decode a :class:`Source` (see :func:`load_telemetry`)."""
-
-    if src.kind == "stv" and not src.data:
-        size = _file_size(src.path)
-        if src.chunks.get(CHUNK_BLE):
-            raise UserError(
-                f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
-                "serial frames): steval replay and export read it, this command needs the serial stream."
-            )
-        if src.warnings:  # cut short or damaged right after the header
-            raise UserError(
-                f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
-                "short): no frames."
-            )
-        raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
-    chunk_times = None
-    if src.chunk_offsets is not None and src.chunk_times_s is not None:
-        chunk_times = (src.chunk_offsets, src.chunk_times_s)
-    baud = src.header.get("baud") if src.header else None
-    source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
-    tel = decode_bytes(src.data, chunk_times, baud=baud, source=source, events=src.events)
-    if src.host:
-        tel.commands = _host_commands(src.host, tel.commands)
-    a = tel.attitude
-    if src.kind != "stv":
-        if len(a) + len(tel.status) == 0:
-            raise UserError(
-                f"{src.path} is not a steval capture, raw serial dump or text-mode log (no frames found in "
-                f"{len(src.data)} bytes)."
-            )
-        binary = int(a.exact.sum()) + int(tel.status.exact.sum())
-        tel.source["kind"] = "raw" if binary else "text"
-    elif tel.stats.frames_ok == 0:
-        raise UserError(
-            f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "
-            f"firmware?)."
-        )
-    return tel
-
-
-def _file_size(path: Path) -> str:
-    try:
-        return f"{Path(path).stat().st_size} bytes"
-    except OSError:
-        return "size unknown"
-
-
-def _host_commands(host: list[HostChunk], found: np.ndarray) -> np.ndarray:
-    """The command frames the host sent (chunks H), timed by their chunk, after any found in the received bytes;
-    ``offset`` is the received-stream offset at which they were sent."""
-    dec = StreamDecoder()
-    rows = []
-    for h in host:
-        for f in dec.feed(h.data):
-            if isinstance(f, CommandFrame):
-                rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
-    if not rows:
-        return found
-    sent = np.array(rows, dtype=found.dtype)
-    return np.concatenate([found, sent]) if len(found) else sent
 
 
 def demo_capture_path() -> Path:

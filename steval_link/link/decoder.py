@@ -44,6 +44,7 @@ from steval_link.link.frames import (
     FRAME_OF_TYPE,
     AckFrame,
     AttitudeFrame,
+    CommandFrame,
     DecoderStats,
     FlightFrame,
     Frame,
@@ -53,6 +54,7 @@ from steval_link.link.frames import (
 from steval_link.link.plausibility import (
     PlausibilityGate,
     attitude_frame_bad,
+    attitude_rows_bad,
     attitude_values_ok,
     gate_rows,
     status_values_ok,
@@ -411,13 +413,18 @@ def decode_bytes(
     source: dict | None = None,
     events: list | None = None,
     plausibility: bool = True,
-):
+    sent_commands: np.ndarray | None = None,
+) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
     ``chunk_times`` is ``(chunk_offsets, t_host_s)``: the stream offset where each received chunk starts and the
     host time (s since capture start) when it was received; each frame gets the time of the chunk its last byte
     arrived in, moved back by the bytes after it in that chunk at ``baud`` (10 bit times per byte) when ``baud``
     is given. Without ``chunk_times`` host times are NaN.
+
+    ``sent_commands``: rows (``COMMAND_ROW_DTYPE``, timed) of the commands the host sent, e.g. a capture's chunks H
+    (:func:`steval_link.link.load.sent_command_rows`); ``Telemetry.commands`` holds them after those found in the
+    bytes themselves.
 
     ``plausibility`` False turns the plausibility gate off (as ``StreamDecoder(plausibility=False)``; for tests of
     the framing alone).
@@ -478,8 +485,17 @@ def decode_bytes(
         parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
         gate.finish()
 
+    att, sta = parts.attitude_records(), parts.status_records()  # in stream order, kept so for from_parts
+    exact = att["exact"]
+    kinds = [type(f) for f in parts.others]
     st = sd.stats
     stats = DecoderStats(
+        attitude=len(att),
+        status=len(sta),
+        text=len(parts.texts),
+        flight=kinds.count(FlightFrame),
+        ack=kinds.count(AckFrame),
+        command=kinds.count(CommandFrame),
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,
         unknown_frames=st.unknown_frames,
@@ -487,18 +503,23 @@ def decode_bytes(
         v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
         implausible=gate.held_back,
         held_values=gate.held_values,
+        values_bad=int(
+            np.count_nonzero(
+                attitude_rows_bad(
+                    exact,
+                    att["acc_mg"],
+                    att["gyro_mdps"],
+                    att["q_wxyz"],
+                    att["thz_rad"],
+                    att["thx_rad"],
+                    att["thy_rad"],
+                )
+            )
+        ),
     )
-    tel = Telemetry.from_parts(
+    stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
+    stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
+    parts.sent_commands = sent_commands
+    return Telemetry.from_parts(
         parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n
     )
-    stats.attitude = len(tel.attitude)
-    stats.status = len(tel.status)
-    stats.text = len(tel.text)
-    stats.flight = len(tel.flight)
-    stats.ack = len(tel.acks)
-    stats.command = len(tel.commands)
-    stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
-    stats.values_bad = int(np.count_nonzero(tel.attitude.values_bad))
-    exact = tel.attitude.exact
-    stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(tel.attitude.seq[exact])
-    return tel

@@ -27,7 +27,7 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link.capture import read_source, telemetry_of_source
+from steval_link.link.load import read_source, telemetry_of_source
 
 __all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
 
@@ -86,7 +86,7 @@ def parse_replay_url(url: str) -> ReplayUrl:
 
 
 def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """When each byte of ``src`` (a :class:`~steval_link.link.capture.Source`, decoded as ``tel``) comes out.
+    """When each byte of ``src`` (a :class:`~steval_link.link.load.Source`, decoded as ``tel``) comes out.
 
     Returns ``(ends, t_s, how)``: bytes ``[0, ends[i])`` are out at ``t_s[i]`` (s since the replay started,
     non-decreasing), and ``how`` says which clock paced them (for the notes).

@@ -221,6 +221,9 @@ class TelemetryParts:
         self.sta_frames: list[StatusFrame] = []
         self.texts: list[TextFrame] = []
         self.others: list[FlightFrame | AckFrame | CommandFrame] = []
+        #: commands the host sent (``COMMAND_ROW_DTYPE`` rows, timed), kept after those found in the stream
+        self.sent_commands: np.ndarray | None = None
+        self._settled = False  # the blocks are one sorted block each (records asked for, nothing added since)
 
     def add_attitude_payloads(
         self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.ATTITUDE_FRAME_SIZE
@@ -233,6 +236,7 @@ class TelemetryParts:
         rec["thx_rad"] = np.nan
         rec["thy_rad"] = np.nan
         self.att_blocks.append(rec)
+        self._settled = False
 
     def add_status_payloads(
         self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.STATUS_FRAME_SIZE
@@ -243,12 +247,15 @@ class TelemetryParts:
         self.sta_blocks.append(
             _payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE, STA_RECORD_DTYPE, frame_sizes)
         )
+        self._settled = False
 
     def add_frame(self, frame: Frame) -> None:
         if isinstance(frame, AttitudeFrame):
             self.att_frames.append(frame)
+            self._settled = False
         elif isinstance(frame, StatusFrame):
             self.sta_frames.append(frame)
+            self._settled = False
         elif isinstance(frame, TextFrame):
             self.texts.append(frame)
         else:
@@ -259,8 +266,7 @@ class TelemetryParts:
         (e.g. :func:`steval_link.link.plausibility.gate_rows`)."""
         att, sta = self.attitude_records(), self.status_records()
         keep_a, keep_s = keep_masks(att, sta)
-        self.att_blocks, self.att_frames = [att[keep_a]], []
-        self.sta_blocks, self.sta_frames = [sta[keep_s]], []
+        self.att_blocks, self.sta_blocks = [att[keep_a]], [sta[keep_s]]
 
     def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
         """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
@@ -270,10 +276,22 @@ class TelemetryParts:
         return rec
 
     def attitude_records(self) -> np.ndarray:
-        return _sorted_records(self.att_blocks, self.att_frames, ATT_RECORD_DTYPE)
+        """Every attitude row so far, in stream order."""
+        self._settle()
+        return self.att_blocks[0]
 
     def status_records(self) -> np.ndarray:
-        return _sorted_records(self.sta_blocks, self.sta_frames, STA_RECORD_DTYPE)
+        """Every status row so far, in stream order."""
+        self._settle()
+        return self.sta_blocks[0]
+
+    def _settle(self) -> None:
+        """Blocks and single frames into one block each, in stream order (once until more rows come)."""
+        if not self._settled:
+            self.att_blocks = [_sorted_records(self.att_blocks, self.att_frames, ATT_RECORD_DTYPE)]
+            self.sta_blocks = [_sorted_records(self.sta_blocks, self.sta_frames, STA_RECORD_DTYPE)]
+            self.att_frames, self.sta_frames = [], []
+            self._settled = True
 
 
 def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
@@ -442,6 +460,8 @@ class Telemetry:
             if len(rec):
                 rec["t_host_s"] = _host_times(rec["offset"] + rec["nbytes"] - 1, chunk_times, baud, total)
             rows[name] = rec
+        if parts.sent_commands is not None and len(parts.sent_commands):
+            rows["commands"] = np.concatenate([rows["commands"], parts.sent_commands])
         return cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows)
 
     @cached_property

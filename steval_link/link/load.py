@@ -1,0 +1,138 @@
+"""Load a recording into :class:`~steval_link.link.telemetry.Telemetry`: a ``.stv`` capture, a raw byte dump
+(``cat /dev/ttyUSB0 > log.bin``) or a text-mode log, told apart by content.
+
+One pass: the file's bytes (:mod:`steval_link.link.capture` reads the format) → the decoder, with the commands the
+host sent (capture chunks H) → one ``Telemetry``. Bad input raises :class:`~steval_link.errors.UserError` with one
+sentence.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from steval_link.errors import UserError
+from steval_link.link.capture import (
+    CHUNK_BLE,
+    MAGIC,
+    Capture,
+    CaptureTruncatedWarning,
+    HostChunk,
+    read_capture,
+    read_file_bytes,
+)
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import CommandFrame
+from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
+
+__all__ = ["Source", "load_telemetry", "read_source", "sent_command_rows", "telemetry_of_source"]
+
+
+@dataclass
+class Source(Capture):
+    """The bytes of a capture, raw dump or text log, with whatever the file holds besides (a raw dump or text log:
+    no header, chunks, timing or events).
+
+    ``kind``: "stv" (capture file), or "bytes" until decoding tells "raw" (binary dump) from "text" (text-mode log).
+    """
+
+    kind: str = "stv"
+
+    @property
+    def warnings(self) -> list[str]:
+        """What was wrong with the file (a damaged or cut capture), one sentence each."""
+        return [self.warning] if self.warning else []
+
+
+def read_source(path: str | os.PathLike) -> Source:
+    """The bytes of ``path``: a ``.stv`` capture (by its magic, whatever the extension) or any other file as raw
+    serial bytes. Raises :class:`~steval_link.errors.UserError` for a missing, unreadable or empty file."""
+    path = Path(path)
+    raw = read_file_bytes(path)
+    if not raw:
+        raise UserError(f"{path} is empty.")
+    if raw.startswith(MAGIC) or (path.suffix.lower() == ".stv" and MAGIC.startswith(raw[: len(MAGIC)])):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CaptureTruncatedWarning)
+            cap = read_capture(path, data=raw)
+        return Source(**{f.name: getattr(cap, f.name) for f in fields(Capture)}, kind="stv")
+    none = np.zeros(0, np.int64)
+    return Source(path, {}, raw, none, none.astype(np.float64), [], kind="bytes")
+
+
+def load_telemetry(path: str | os.PathLike) -> Telemetry:
+    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.link.telemetry.Telemetry`.
+
+    The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
+    truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
+    Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
+    damaged capture header, or a file in which no frame is found.
+    """
+    src = read_source(path)
+    for w in src.warnings:
+        warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
+    return telemetry_of_source(src)
+
+
+def telemetry_of_source(src: Source) -> Telemetry:
+    """Decode a :class:`Source` (see :func:`load_telemetry`)."""
+    if src.kind == "stv" and not src.data:
+        size = _file_size(src.path)
+        if src.chunks.get(CHUNK_BLE):
+            raise UserError(
+                f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
+                "serial frames): steval replay and export read it, this command needs the serial stream."
+            )
+        if src.warnings:  # cut short or damaged right after the header
+            raise UserError(
+                f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
+                "short): no frames."
+            )
+        raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
+    source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
+    tel = decode_bytes(
+        src.data,
+        (src.chunk_offsets, src.chunk_times_s),
+        baud=src.header.get("baud"),
+        source=source,
+        events=src.events,
+        sent_commands=sent_command_rows(src.host),
+    )
+    a = tel.attitude
+    if src.kind != "stv":
+        if len(a) + len(tel.status) == 0:
+            raise UserError(
+                f"{src.path} is not a steval capture, raw serial dump or text-mode log (no frames found in "
+                f"{len(src.data)} bytes)."
+            )
+        binary = int(a.exact.sum()) + int(tel.status.exact.sum())
+        tel.source["kind"] = "raw" if binary else "text"
+    elif tel.stats.frames_ok == 0:
+        raise UserError(
+            f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "
+            f"firmware?)."
+        )
+    return tel
+
+
+def _file_size(path: Path) -> str:
+    try:
+        return f"{Path(path).stat().st_size} bytes"
+    except OSError:
+        return "size unknown"
+
+
+def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
+    """The command frames the host sent (capture chunks H) as ``COMMAND_ROW_DTYPE`` rows, timed by their chunk;
+    ``offset`` is the received-stream offset at which they were sent."""
+    dec = StreamDecoder()
+    rows = []
+    for h in host:
+        for f in dec.feed(h.data):
+            if isinstance(f, CommandFrame):
+                rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
+    return np.array(rows, dtype=COMMAND_ROW_DTYPE) if rows else np.zeros(0, COMMAND_ROW_DTYPE)
