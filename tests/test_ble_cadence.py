@@ -1,4 +1,4 @@
-"""The motion stream's cadence (steval_link.link.ble_payloads.motion_cadence) on streams a drone really sends: a
+"""The motion stream's cadence (steval_link.link.ble_cadence.motion_cadence) on streams a drone really sends: a
 firmware that notifies at its own rate from its main loop (40, 50, 80 Hz and ST's 161.54 Hz), the same with ST's
 congestion skips (30 motion updates after a refused one), across the 8 ms tick's wrap, with jittered host arrival
 times, and a poller reading the characteristic at 30-40 Hz (repeated reads of one sample). Each is decoded from its
@@ -17,10 +17,12 @@ from support.ble import run_until_played
 from support.cli import run_cli
 
 from steval_link.emulation.bluenrg import FakeBleBackend
+from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter, read_capture
 
-STEP_S = B.STEP_PERIOD_S
+STEP_S = BC.STEP_PERIOD_S
 WRAP_MS = 1 << 19  # HAL_GetTick() at which the u16 tick (>> 3) wraps
 
 
@@ -116,13 +118,13 @@ RATES = [40.0, 50.0, 80.0, 1 / STEP_S]
 @pytest.mark.parametrize("rate_hz", RATES, ids=["40Hz", "50Hz", "80Hz", "161.5Hz"])
 def test_a_sender_at_its_own_rate_drops_nothing(rate_hz):
     recs, sent, _ = drone_stream(rate_hz)
-    ble = B.decode_notifications(recs)
+    ble = BT.decode_notifications(recs)
     assert len(ble) == sent
     c = ble.cadence()
-    assert c.kind == B.STEADY and c.dropped == 0 and c.gaps == 0 and c.repeats == 0
+    assert c.kind == BC.STEADY and c.dropped == 0 and c.gaps == 0 and c.repeats == 0
     assert c.rate_hz == pytest.approx(rate_hz, rel=2e-3)
     assert c.exact == (rate_hz > 160)  # ST's step is known exactly; other rates are measured
-    u = B.uniform_inputs(ble)
+    u = BT.uniform_inputs(ble)
     assert u.dt_s == c.interval_s and not u.filled.any() and len(u.t_s) == sent
     assert (u.source_row == np.arange(sent)).all() and (np.diff(u.t_s) > 0).all()
     assert "the sender's own rate), 0 dropped" in c.describe()
@@ -131,13 +133,13 @@ def test_a_sender_at_its_own_rate_drops_nothing(rate_hz):
 @pytest.mark.parametrize("rate_hz", RATES, ids=["40Hz", "50Hz", "80Hz", "161.5Hz"])
 def test_congestion_gaps_count_at_the_senders_cadence(rate_hz):
     recs, sent, missing = drone_stream(rate_hz, congested=True)
-    ble = B.decode_notifications(recs)
+    ble = BT.decode_notifications(recs)
     c = ble.cadence()
     assert missing >= 60 and c.gaps == missing // 31
     assert c.rate_hz == pytest.approx(rate_hz, rel=2e-3)
     assert c.dropped == missing  # every skipped update, counted at the sender's own period
-    assert c.kind == (B.CONGESTION if rate_hz > 160 else B.GAPS)
-    u = B.uniform_inputs(ble)
+    assert c.kind == (BC.CONGESTION if rate_hz > 160 else BC.GAPS)
+    u = BT.uniform_inputs(ble)
     assert int(u.filled.sum()) == missing and len(u.t_s) == sent + missing and u.dt_s == c.interval_s
     # a held row repeats the last sample received before the gap
     i = int(np.flatnonzero(u.filled)[0])
@@ -152,7 +154,7 @@ def test_across_the_tick_wrap(rate_hz):
     # HAL_GetTick() starts 3 s before the u16 tick wraps: the wrap falls in the middle of the stream
     for congested in (False, True):
         recs, sent, missing = drone_stream(rate_hz, congested=congested, start_ms=WRAP_MS - 3000, duration_s=8)
-        ble = B.decode_notifications(recs)
+        ble = BT.decode_notifications(recs)
         assert ble.motion_tick[0] < 1 << 16 <= ble.motion_tick[-1] and (np.diff(ble.motion_tick) >= 0).all()
         c = ble.cadence()
         assert c.dropped == (missing if congested else 0) and c.rate_hz == pytest.approx(rate_hz, rel=3e-3)
@@ -161,32 +163,32 @@ def test_across_the_tick_wrap(rate_hz):
 def test_a_poller_reading_the_characteristic():
     for read_hz in (30.0, 35.0, 40.0):
         recs, distinct, reads = poller_stream(read_hz)
-        ble = B.decode_notifications(recs)
+        ble = BT.decode_notifications(recs)
         # a repeated read of one sample (same tick and values) is that sample once
         assert len(ble) == distinct and ble.repeated_reads == reads - distinct > 0
         assert ble.counts["motion"] == reads
         c = ble.cadence()
-        assert c.kind == B.POLLED and c.dropped == 0 and c.repeats == reads - distinct
+        assert c.kind == BC.POLLED and c.dropped == 0 and c.repeats == reads - distinct
         span = ble.motion_t_fw_s[-1] - ble.motion_t_fw_s[0]
         assert c.rate_hz == pytest.approx((distinct - 1) / span) and abs(c.rate_hz - read_hz) < 0.1 * read_hz
-        u = B.uniform_inputs(ble)
+        u = BT.uniform_inputs(ble)
         assert len(u.t_s) == distinct and not u.filled.any() and u.dt_s == pytest.approx(span / (distinct - 1))
         assert "reads of the characteristic" in c.describe() and c.describe().endswith("0 dropped")
     # read without repeats, the same stream is a regular cadence at the read rate: still nothing dropped
     recs, distinct, reads = poller_stream(35.0, double_every=10**9)
-    c = B.decode_notifications(recs).cadence()
+    c = BT.decode_notifications(recs).cadence()
     assert c.dropped == 0 and abs(c.rate_hz - 35.0) < 3.5
 
 
 def test_period_and_gap_rules_on_tick_deltas():
     # 50 Hz: deltas 2 and 3 ticks (2.5 on average); a jitter of one tick more is no gap, 1.5 periods + a tick is
-    assert B.period_ticks([2, 3] * 50) == 2.5
-    assert B.period_ticks([2, 3] * 50 + [40]) == pytest.approx(2.5, abs=0.03)
-    assert B.gap_mask(np.array([1, 2, 3, 4, 5, 6]), 2.5).tolist() == [False] * 4 + [True] * 2
+    assert BC.period_ticks([2, 3] * 50) == 2.5
+    assert BC.period_ticks([2, 3] * 50 + [40]) == pytest.approx(2.5, abs=0.03)
+    assert BC.gap_mask(np.array([1, 2, 3, 4, 5, 6]), 2.5).tolist() == [False] * 4 + [True] * 2
     # ST's step (0.774 tick): two ticks already mean a notification missing
-    assert B.gap_mask(np.array([0, 1, 2, 24]), 0.774).tolist() == [False, False, False, True]
-    assert B.motion_cadence([5]) is None and B.motion_cadence([5, 5, 5]) is None
-    c = B.Cadence(B.CONGESTION, STEP_S, 1212, 40, 0, 30.0, True)
+    assert BC.gap_mask(np.array([0, 1, 2, 24]), 0.774).tolist() == [False, False, False, True]
+    assert BC.motion_cadence([5]) is None and BC.motion_cadence([5, 5, 5]) is None
+    c = BC.Cadence(BC.CONGESTION, STEP_S, 1212, 40, 0, 30.0, True)
     assert c.describe().startswith("motion every 6.19 ms (161.54 Hz) with 1 212 dropped in 40 gap(s) (congestion")
 
 
@@ -214,7 +216,7 @@ def test_replay_says_the_cadence(monkeypatch, capsys, tmp_path, rate_hz, congest
     assert s["motion_dropped_estimate"] == missing and s["rows_held_over_drops"] == missing
     assert s["motion_rate_hz"] == pytest.approx(rate_hz, rel=2e-3) and s["tick_wraps"] == 1
     assert s["estimator_dt_ms"] == pytest.approx(1e3 / rate_hz, rel=2e-3)
-    assert s["motion_cadence"] == (B.STEADY if not congested else B.CONGESTION if rate_hz > 160 else B.GAPS)
+    assert s["motion_cadence"] == (BC.STEADY if not congested else BC.CONGESTION if rate_hz > 160 else BC.GAPS)
     code, out, err = run_cli(monkeypatch, capsys, "replay", path)
     line = next(x for x in out.splitlines() if x.startswith("cadence"))
     if not congested:
@@ -230,7 +232,7 @@ def test_replay_of_a_poller_capture(monkeypatch, capsys, tmp_path):
     write_capture(path, recs)
     code, out, err = run_cli(monkeypatch, capsys, "replay", path, "--json", "-e", "accel")
     s = json.loads(out)
-    assert code == 0 and s["motion_cadence"] == B.POLLED and s["motion_dropped_estimate"] == 0
+    assert code == 0 and s["motion_cadence"] == BC.POLLED and s["motion_dropped_estimate"] == 0
     assert s["motion_repeated_reads"] == reads - distinct and s["rows_held_over_drops"] == 0
     assert abs(s["motion_rate_hz"] - 35.0) < 3.5
 
@@ -282,13 +284,13 @@ def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
     assert summary.counts["motion"] == sent
     c = summary.cadence
     assert c.dropped == summary.rows_held == missing
-    assert c.kind == (B.STEADY if not congested else B.CONGESTION if rate_hz > 160 else B.GAPS)
+    assert c.kind == (BC.STEADY if not congested else BC.CONGESTION if rate_hz > 160 else BC.GAPS)
     assert c.rate_hz == pytest.approx(rate_hz, rel=5e-3)
     # the estimators' rows: one per sample sent, dt of the cadence found (the same grid as a replay's)
     t_grid = np.concatenate([r.t_s for r in rows])
     assert len(t_grid) == sent + missing
     assert session.estimators["st-mahony"].settings.dt_s == pytest.approx(1 / rate_hz, rel=5e-3)
-    u = B.uniform_inputs(B.decode_notifications(B.ble_records(read_capture(tmp_path / "live.stv").chunks)))
+    u = BT.uniform_inputs(BT.decode_notifications(B.ble_records(read_capture(tmp_path / "live.stv").chunks)))
     assert len(u.t_s) == len(t_grid) and int(u.filled.sum()) == missing
     # the same rows at the replay's times: within half a period while the live interval is refined, then closer
     err = np.abs(t_grid - u.t_s)
@@ -307,7 +309,7 @@ def test_live_session_of_a_poller(tmp_path):
     summary, rows, session = run_live(tmp_path, recs, estimators=("accel",))
     c = summary.cadence
     assert summary.counts["motion"] == reads and session.repeats == reads - distinct == c.repeats
-    assert c.kind == B.POLLED and summary.rows_held == 0 and abs(c.rate_hz - 35.0) < 3.5
+    assert c.kind == BC.POLLED and summary.rows_held == 0 and abs(c.rate_hz - 35.0) < 3.5
     assert sum(len(r.t_s) for r in rows) == sum(len(r.ble) for r in rows) == distinct
     assert "reads of the characteristic" in summary.line()
 
@@ -323,15 +325,15 @@ def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     summary, rows, session = run_live(tmp_path, recs, drop_after=[lost.start])
     assert summary.losses == 1 and summary.counts["motion"] == n
     c = summary.cadence
-    assert c.kind == B.STEADY and c.dropped == summary.rows_held == 0
+    assert c.kind == BC.STEADY and c.dropped == summary.rows_held == 0
     assert sum(len(r.t_s) for r in rows) == n  # no row over the 2 s the drone sent nothing
     t_grid = np.concatenate([r.t_s for r in rows])
     assert np.diff(t_grid).max() == pytest.approx(101 * 0.02, abs=0.01)  # the estimators step once over it
     # replayed: the capture's reconnect event says the same
     code, out, err = run_cli(monkeypatch, capsys, "replay", tmp_path / "live.stv", "--json")
     s = json.loads(out)
-    assert code == 0 and s["motion_cadence"] == B.STEADY and s["motion_dropped_estimate"] == 0
+    assert code == 0 and s["motion_cadence"] == BC.STEADY and s["motion_dropped_estimate"] == 0
     assert s["rows_held_over_drops"] == 0 and [e["kind"] for e in s["events"]].count("reconnect") == 1
     # without the reconnection the same ticks are a gap of the cadence: 100 dropped
-    c = B.decode_notifications(recs).cadence()
-    assert c.kind == B.GAPS and c.dropped == 100 and c.gaps == 1
+    c = BT.decode_notifications(recs).cadence()
+    assert c.kind == BC.GAPS and c.dropped == 100 and c.gaps == 1

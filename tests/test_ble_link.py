@@ -15,6 +15,7 @@ from support.ble import run_until_played
 
 from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.errors import UserError
+from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
 from steval_link.link.ble_transport import BleDevice, BleLink, explain_ble_error, is_address, pick_device
 from steval_link.link.capture import read_capture
@@ -197,7 +198,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     env = np.concatenate([r.ble.env_t_fw_s for r in rows])
     assert (np.diff(env) >= 0).all() and abs(env[-1] - ticks[-1] * B.TICK_S) < 0.05
     t_grid = np.concatenate([r.t_s for r in rows])
-    assert np.allclose(np.diff(t_grid), B.STEP_PERIOD_S)
+    assert np.allclose(np.diff(t_grid), BC.STEP_PERIOD_S)
     q, thx, thy = rows[-1].estimates["st-mahony"]
     assert q.shape[1] == 4 and len(thx) == len(rows[-1].t_s)
     assert "3 connection(s), 2 lost" in summary.line()

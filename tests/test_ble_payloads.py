@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import read_capture
 
 # -- hand-made payloads ---------------------------------------------------------------------------------------------
@@ -60,7 +62,7 @@ def test_decode_notifications_counts_and_skips_bad_payloads():
         (0.004, 9, b"xx"),
         (0.005, B.CHAR_STDERR, b"Error\r\n"),
     ]
-    ble = B.decode_notifications(recs)
+    ble = BT.decode_notifications(recs)
     assert len(ble) == 1 and ble.bad_payloads == 1 and ble.unknown == 1
     assert ble.counts == {"motion": 2, "environment": 1, "arming": 1, "stdout": 0, "stderr": 1}
     assert ble.console == [(0.005, "stderr", "Error\r\n")]
@@ -68,24 +70,24 @@ def test_decode_notifications_counts_and_skips_bad_payloads():
 
 def steps(n: int, t0_ms: float = 123_456.0) -> list[int]:
     """The ticks of motion notifications sent once per AHRS step (6.19 ms) starting at HAL_GetTick() = t0_ms."""
-    t_ms = t0_ms + np.arange(n) * B.STEP_PERIOD_S * 1e3
+    t_ms = t0_ms + np.arange(n) * BC.STEP_PERIOD_S * 1e3
     return [int(t) >> 3 for t in t_ms]
 
 
 def test_nominal_interval_drops_and_uniform_grid():
     ticks = steps(2000)
-    recs = [(i * B.STEP_PERIOD_S, B.CHAR_MOTION, motion(t, acc=(i % 1000, 0, 1000))) for i, t in enumerate(ticks)]
-    full = B.decode_notifications(recs)
-    assert full.interval_s == pytest.approx(B.STEP_PERIOD_S)
+    recs = [(i * BC.STEP_PERIOD_S, B.CHAR_MOTION, motion(t, acc=(i % 1000, 0, 1000))) for i, t in enumerate(ticks)]
+    full = BT.decode_notifications(recs)
+    assert full.interval_s == pytest.approx(BC.STEP_PERIOD_S)
     assert full.dropped_estimate() == 0
     # drop a block of 40 and 10 scattered notifications
     keep = np.ones(len(recs), bool)
     keep[500:540] = False
     keep[[900, 1100, 1300, 1500, 1600, 1700, 1750, 1800, 1850, 1900]] = False
-    ble = B.decode_notifications([r for r, k in zip(recs, keep) if k])
+    ble = BT.decode_notifications([r for r, k in zip(recs, keep) if k])
     assert ble.dropped_estimate() == 50
-    u = B.uniform_inputs(ble)
-    assert u.dt_s == pytest.approx(B.STEP_PERIOD_S)
+    u = BT.uniform_inputs(ble)
+    assert u.dt_s == pytest.approx(BC.STEP_PERIOD_S)
     assert abs(len(u.t_s) - 2000) <= 1 and int(u.filled.sum()) == len(u.t_s) - len(ble)
     # the block is held over: the rows after 499 repeat its sample until 540's arrives
     assert u.acc_mg[499:540, 0].tolist() == [499.0] * 40 or u.acc_mg[500, 0] == 499.0
@@ -139,9 +141,9 @@ def test_decoder_sees_notifications_dropped_on_the_way(demo):
         )
         if ok
     ]
-    dropped = B.decode_notifications(records)
+    dropped = BT.decode_notifications(records)
     assert dropped.dropped_estimate() == 60
-    u = B.uniform_inputs(dropped)
+    u = BT.uniform_inputs(dropped)
     assert int(u.filled.sum()) == 60 and abs(len(u.t_s) - len(demo)) <= 1
 
 

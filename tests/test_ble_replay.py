@@ -15,7 +15,9 @@ import pytest
 from support.cli import run_cli
 
 from steval_link.errors import UserError
+from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import (
     CHUNK_BLE,
     FORMAT_VERSION,
@@ -34,7 +36,7 @@ DEMO = REC / "ble_demo.stv"
 def notifications(n: int) -> list[tuple[float, int, bytes]]:
     out = []
     for i in range(n):
-        t = 3.0 + i * B.STEP_PERIOD_S
+        t = 3.0 + i * BC.STEP_PERIOD_S
         tick = int((495_000 + t * 1000)) >> 3
         out.append((t, B.CHAR_MOTION, struct.pack("<H3h3h3h", tick & 0xFFFF, i, -i, 1000, 5, -5, 0, 1, 2, 3)))
         out.append((t + 1e-4, B.CHAR_ENV, struct.pack("<HiHhh", tick & 0xFFFF, 101325, 461, 250, -620)))
@@ -100,7 +102,7 @@ def test_demo_is_the_stock_firmware_over_ble():
     extra = cap.header["extra"]
     assert extra["link"] == "ble" and extra["emulated"] and extra["firmware"] == "st-fcu-stock.elf"
     assert cap.data == b""  # notifications only
-    ble = B.decode_notifications(B.ble_records(cap.chunks))
+    ble = BT.decode_notifications(B.ble_records(cap.chunks))
     assert ble.counts["motion"] == ble.counts["environment"] == ble.counts["arming"] > 5000
     assert ble.bad_payloads == 0 and ble.unknown == 0
     # the 8 ms tick wraps once (HAL_GetTick started at 494288 ms: 30 s after power-up)

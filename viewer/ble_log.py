@@ -18,7 +18,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from steval_link.analysis.ble import NOT_BIT_EXACT, BleReplay
-from steval_link.link.ble_payloads import BleTelemetry
+from steval_link.link.ble_telemetry import BleTelemetry
 from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent

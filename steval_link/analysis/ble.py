@@ -1,10 +1,10 @@
 """A BLE capture (ST's stock firmware over Bluetooth) replayed: notifications → arrays → estimators → summary.
 
 The motion notifications carry one ISR sample each (after offset removal, before the gyro IIR and the boxcar),
-with an 8 ms tick. The ticks tell the stream's cadence (:func:`steval_link.link.ble_payloads.motion_cadence`: the
+with an 8 ms tick. The ticks tell the stream's cadence (:func:`steval_link.link.ble_cadence.motion_cadence`: the
 sender's own rate, ST's congestion skips, gaps of another cadence, or a poller's reads), which the summary states;
 the estimators run on a uniform grid with dt from that cadence, rows held only over notifications that were sent
-and lost (:func:`steval_link.link.ble_payloads.uniform_inputs`). The firmware's own attitude is not sent over
+and lost (:func:`steval_link.link.ble_telemetry.uniform_inputs`). The firmware's own attitude is not sent over
 BLE, and the ST-Mahony port run on these samples cannot be bit-exact with the drone (different inputs, different
 dt): the summary and the viewer say so (:data:`NOT_BIT_EXACT`).
 """
@@ -19,14 +19,8 @@ import numpy as np
 
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.ble_payloads import (
-    TICK_WRAP,
-    BleTelemetry,
-    UniformInputs,
-    ble_records,
-    decode_notifications,
-    uniform_inputs,
-)
+from steval_link.link.ble_payloads import TICK_WRAP, ble_records
+from steval_link.link.ble_telemetry import BleTelemetry, UniformInputs, decode_notifications, uniform_inputs
 
 __all__ = [
     "NOT_BIT_EXACT",
@@ -81,7 +75,7 @@ def reconnect_rows(ble: BleTelemetry, events) -> np.ndarray:
 
 def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[UniformInputs, dict[str, Any], dict]:
     """Run each named estimator over the uniform inputs (dt = the interval of the cadence found in the ticks,
-    :func:`~steval_link.link.ble_payloads.motion_cadence`; thr 0: BLE does not carry gTHR); returns (inputs,
+    :func:`~steval_link.link.ble_cadence.motion_cadence`; thr 0: BLE does not carry gTHR); returns (inputs,
     name → estimate, name → note)."""
     inputs = uniform_inputs(ble)
     dt = inputs.dt_s

@@ -27,28 +27,29 @@ import numpy as np
 
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.link.ble_cadence import (
+    CONGESTION,
+    GAPS,
+    POLLED,
+    STEADY,
+    STEP_PERIOD_S,
+    Cadence,
+    RunNumberer,
+    gap_mask,
+    motion_cadence,
+)
+from steval_link.link.ble_cadence import sender_phase as _phase
 from steval_link.link.ble_payloads import (
     CHAR_ARMING,
     CHAR_ENV,
     CHAR_MOTION,
     CHAR_NAMES,
-    CONGESTION,
     DEVICE_NAME_PREFIX,
-    GAPS,
-    POLLED,
-    STEADY,
-    STEP_PERIOD_S,
     TICK_S,
-    BleTelemetry,
-    Cadence,
-    RunNumberer,
     TickUnwrapper,
-    _phase,
     ble_chunk,
-    decode_notifications,
-    gap_mask,
-    motion_cadence,
 )
+from steval_link.link.ble_telemetry import BleTelemetry, decode_notifications
 from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
 from steval_link.live.estimators import failure_sentence

@@ -1,0 +1,286 @@
+"""The motion stream's cadence from its ticks: the sender's own rate, ST's congestion skips, gaps, or a poller's
+reads (:func:`motion_cadence`), with its dropped notifications and the sender's number of each sample.
+
+The stock firmware tries a motion notification at every AHRS step and skips 30 updates after a failed one
+(``ACC_BLUENRG_CONGESTION``); its ticks are 8 ms units (:data:`~steval_link.link.ble_payloads.TICK_S`). Pure
+functions and small classes over numpy arrays; no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from steval_link.constants import AHRS_PERIOD_S
+from steval_link.link.ble_payloads import TICK_S
+
+__all__ = [
+    "STEP_PERIOD_S",
+    "STEADY",
+    "CONGESTION",
+    "GAPS",
+    "POLLED",
+    "Cadence",
+    "motion_cadence",
+    "period_ticks",
+    "gap_mask",
+    "break_mask",
+    "RunNumberer",
+    "cadence_numbers",
+    "sample_numbers",
+    "sender_phase",
+    "nominal_interval_s",
+]
+
+
+#: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
+#: at 84 MHz: 6.190 ms) and tries at every step; a measured interval within :data:`STEP_SNAP` of it is that step
+#: (known exactly), and missing notifications are then counted from the ticks' phase (sub-tick precise)
+STEP_PERIOD_S = AHRS_PERIOD_S
+STEP_SNAP = 0.02  #: relative
+#: a tick delta is a gap (notifications missing) from 1.5 periods plus one tick (the 8 ms quantisation) on
+GAP_PERIODS = 1.5
+
+#: :attr:`Cadence.kind`: what the ticks show
+STEADY, CONGESTION, GAPS, POLLED = "steady", "congestion", "gaps", "polled"
+
+
+@dataclass(frozen=True, slots=True)
+class Cadence:
+    """The motion stream's cadence found in its ticks (:func:`motion_cadence`).
+
+    ``kind``: ``steady`` (one interval throughout: the sender's own rate, nothing dropped), ``congestion`` (ST's
+    AHRS step period with notifications missing: the stock firmware skipping updates while the radio is full),
+    ``gaps`` (another cadence with gaps of its own: only those count as dropped), ``polled`` (the same sample
+    received twice: reads of the characteristic, not notifications; nothing is dropped).
+    """
+
+    kind: str
+    interval_s: float  #: the sender's interval (polled: the mean interval between distinct samples), s
+    dropped: int  #: motion samples missing between the first and the last received
+    gaps: int  #: tick deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`), if any dropped
+    repeats: int  #: samples received again (same tick and payload), counted once
+    span_s: float  #: first to last sample, drone clock, s
+    exact: bool  #: the interval is ST's AHRS step (known exactly), not a measurement
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.interval_s
+
+    def _decimals(self, value: float) -> int:
+        """Decimals worth showing for ``value`` measured over the span (two ticks of blur), at most 2."""
+        if self.exact or not self.span_s > 0:
+            return 2
+        blur = abs(value) * 2 * TICK_S / self.span_s
+        return int(min(2, max(0, np.floor(-np.log10(blur))))) if blur > 0 else 2
+
+    def describe(self) -> str:
+        """One phrase for the summary and the health line, e.g. "motion every 20.0 ms (50.0 Hz, the sender's own
+        rate), 0 dropped" or "motion every 6.19 ms (161.54 Hz) with 1 212 dropped in 40 gaps (congestion ...)"."""
+        ms, hz = self.interval_s * 1e3, self.rate_hz
+        every = f"every {ms:.{self._decimals(ms)}f} ms"
+        rate = f"{hz:.{self._decimals(hz)}f} Hz"
+        if self.kind == POLLED:
+            return (
+                f"motion read {every} on average ({rate}: reads of the characteristic, {_n(self.repeats)} "
+                f"repeated read(s) of one sample counted once), 0 dropped"
+            )
+        if self.kind == STEADY:
+            return f"motion {every} ({rate}, the sender's own rate), 0 dropped"
+        where = f" in {_n(self.gaps)} gap(s)" if self.gaps else ""
+        why = (
+            "congestion: ST's firmware skips motion updates while the radio is full"
+            if self.kind == CONGESTION
+            else "gaps in the sender's own cadence"
+        )
+        return f"motion {every} ({rate}) with {_n(self.dropped)} dropped{where} ({why})"
+
+
+def _n(k: int) -> str:
+    """An integer with a space between thousands (1 212)."""
+    return f"{int(k):,}".replace(",", " ")
+
+
+def gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
+    """Tick deltas that are gaps: at least 1.5 periods beyond one tick of quantisation (and beyond one period's
+    own spread, a tick either side)."""
+    return (d_ticks >= GAP_PERIODS * period_ticks + 1) & (d_ticks > np.floor(period_ticks) + 1)
+
+
+def period_ticks(d_ticks) -> float | None:
+    """The sender's period in ticks from consecutive tick deltas: the mean of the deltas that are not gaps.
+
+    Start from the bulk (deltas within one tick above the median: the quantisation of one period gives its floor or
+    its ceiling), then drop the gaps (:func:`gap_mask`) and iterate. The mean of a run's deltas telescopes to the
+    run's span, so it is not biased by the 8 ms quantisation. None when every delta is 0 or there is none."""
+    d = np.maximum(np.asarray(d_ticks, dtype=np.int64), 0)
+    if d.size == 0:
+        return None
+    bulk = d[d <= np.median(d) + 1]
+    p = float(bulk.mean()) if bulk.size else 0.0
+    for _ in range(4):
+        if not p > 0:
+            break
+        keep = d[~gap_mask(d, p)]
+        q = float(keep.mean()) if keep.size else p
+        if q == p:
+            break
+        p = q
+    if not p > 0:
+        total = float(d.sum())
+        return total / d.size if total > 0 else None
+    return p
+
+
+def break_mask(n: int, breaks) -> np.ndarray:
+    """(n,) bool: True at the samples that follow a reconnection (never the first)."""
+    m = np.zeros(n, bool)
+    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
+    b = b[(b > 0) & (b < n)]
+    m[b] = True
+    return m
+
+
+def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
+    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
+    count of repeated samples already removed (:attr:`BleTelemetry.repeated_reads`) and the samples that are the
+    first after a reconnection (``breaks``, indices: the gap before them is no drop, nothing was sent). None below
+    2 samples or when all share one tick.
+
+    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact); any other
+      is refined by a least-squares fit of the ticks against the sample numbers (precise over the whole span).
+    - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
+    - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
+      interval is the mean over the whole span.
+    - At ST's step: the missing notifications from the ticks' phase (:func:`sample_numbers`, sub-tick precise, so
+      single drops count too); ``congestion`` if any, else ``steady``.
+    - Any other period: each gap's missing samples from the phases of the runs either side (:class:`RunNumberer`);
+      ``gaps`` if any, else ``steady`` (the sender's own rate: a jittered delta of a tick or two is not a drop).
+    """
+    t = np.asarray(ticks, dtype=np.int64)
+    n = len(t)
+    if n < 2 or t[-1] <= t[0]:
+        return None
+    d = np.diff(t)
+    brk = break_mask(n, breaks)
+    p = period_ticks(d[~brk[1:]]) if brk.any() else period_ticks(d)
+    if p is None:
+        return None
+    span_s = float(t[-1] - t[0]) * TICK_S
+    if repeats > 0 and p >= 1:
+        return Cadence(POLLED, span_s / (n - 1), 0, 0, int(repeats), span_s, False)
+    exact = abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S
+    if exact:
+        interval = STEP_PERIOD_S
+        k = sample_numbers(t, interval)
+    else:
+        k = _run_numbers(t, p)
+        for _ in range(2):  # the period from all samples at their numbers (least squares): precise over the span
+            fit = float(np.polyfit(k, t + 0.5, 1)[0]) if k[-1] > 1 else p
+            if not abs(fit - p) < 0.05 * p or fit == p:
+                break
+            p = fit
+            k = _run_numbers(t, p)
+        interval = p * TICK_S
+    jump = np.diff(k) - 1
+    dropped = int(jump[~brk[1:]].sum())
+    gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p) & ~brk[1:])) if dropped else 0
+    kind = STEADY if not dropped else CONGESTION if exact else GAPS
+    return Cadence(kind, interval, dropped, gaps, int(repeats), span_s, exact)
+
+
+class RunNumberer:
+    """The sender's sample numbers of a stream with gaps, in batches of ticks (the whole capture for a replay, a
+    round at a time live): the rule of :func:`cadence_numbers` for any period but ST's step.
+
+    Samples between gaps (:func:`gap_mask`) are consecutive: a run. A run's phase, the mean of tick + ½ − i·period
+    over its samples, smooths out the 8 ms quantisation and the sender's own jitter (a main loop that cannot hit the
+    period exactly); a run after a gap starts at the number the two runs' phases say, so a gap counts the periods
+    that really passed (a single tick delta is blurred by up to two ticks). Live, the run after a gap is known only
+    as far as the batch goes."""
+
+    def __init__(self, period_ticks: float) -> None:
+        self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)
+        self.k: int | None = None  #: the last number given
+        self.tick: int | None = None  #: the last tick seen
+        self._k0 = 0  # the current run's first number
+        self._sum_t = 0.0  # Σ (tick + ½) over the current run
+        self._sum_i = 0  # Σ (k − k0) over the current run
+        self._n = 0
+
+    def numbers(self, ticks) -> np.ndarray:
+        t = np.asarray(ticks, dtype=np.int64)
+        out = np.zeros(len(t), np.int64)
+        if len(t) == 0:
+            return out
+        d = np.diff(t, prepend=t[0] if self.tick is None else self.tick)
+        gap = gap_mask(np.maximum(d, 0), self.p)
+        if self.tick is None:
+            gap[0] = False
+        bounds = np.concatenate([[0], np.flatnonzero(gap), [len(t)]])
+        for s, e in zip(bounds[:-1], bounds[1:]):
+            if e <= s:
+                continue
+            i = np.arange(e - s)
+            if self.k is None:
+                k0 = 0
+                self._k0, self._sum_t, self._sum_i, self._n = 0, 0.0, 0, 0
+            elif gap[s]:  # a new run: placed by the phases of the run before and of this one
+                phase_a = (self._sum_t - self.p * self._sum_i) / self._n - self._k0 * self.p  # number 0's time
+                phase_b = float(np.mean(t[s:e] + 0.5 - i * self.p))  # this run's first sample's time
+                k0 = max(self.k + 1, int(round((phase_b - phase_a) / self.p)))
+                self._k0, self._sum_t, self._sum_i, self._n = k0, 0.0, 0, 0
+            else:  # the current run goes on
+                k0 = self.k + 1
+            out[s:e] = k0 + i
+            self._sum_t += float(np.sum(t[s:e] + 0.5))
+            self._sum_i += int(np.sum(out[s:e] - self._k0))
+            self._n += e - s
+            self.k, self.tick = int(out[e - 1]), int(t[e - 1])
+        return out
+
+
+def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
+    return RunNumberer(period_ticks).numbers(ticks)
+
+
+def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
+    """The sender's sample number of each received sample (0 for the first) under ``cadence``: consecutive for
+    reads; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise from the phase of each run between
+    gaps (:class:`RunNumberer`). (A steady stream's numbers are consecutive but across a reconnection.)"""
+    t = np.asarray(ticks, dtype=np.int64)
+    n = len(t)
+    if cadence is None or cadence.kind == POLLED or n < 2:
+        return np.arange(n, dtype=np.int64)
+    if cadence.exact:
+        return sample_numbers(t, cadence.interval_s)
+    return _run_numbers(t, cadence.interval_s / TICK_S)
+
+
+def nominal_interval_s(ticks, repeats: int = 0) -> float | None:
+    """The sender's interval between motion samples, s (:func:`motion_cadence`); None below 2 samples."""
+    c = motion_cadence(ticks, repeats)
+    return None if c is None else c.interval_s
+
+
+def sender_phase(t: np.ndarray, interval: float) -> float:
+    """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
+    consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""
+    w = min(len(t), 64)
+    i = np.arange(w)
+    lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
+    return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
+
+
+def sample_numbers(ticks, interval: float) -> np.ndarray:
+    """The sender's sample number of each received notification (0 for the first): the smallest increasing
+    numbering that the ticks allow, so a drop is placed where the ticks first prove it (within a sample or two)."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    if len(t) == 0:
+        return np.zeros(0, np.int64)
+    t0 = sender_phase(t, interval)
+    lo = np.ceil((t - t0) / interval - 1e-9).astype(np.int64)
+    lo[0] = 0
+    # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
+    return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
