@@ -15,25 +15,6 @@ import numpy as np
 from steval_link.constants import AHRS_PERIOD_S
 from steval_link.link.ble_payloads import TICK_S
 
-__all__ = [
-    "STEP_PERIOD_S",
-    "STEADY",
-    "CONGESTION",
-    "GAPS",
-    "POLLED",
-    "Cadence",
-    "motion_cadence",
-    "period_ticks",
-    "gap_mask",
-    "break_mask",
-    "RunNumberer",
-    "cadence_numbers",
-    "sample_numbers",
-    "sender_phase",
-    "nominal_interval_s",
-]
-
-
 #: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
 #: at 84 MHz: 6.190 ms) and tries at every step; a measured interval within :data:`STEP_SNAP` of it is that step
 #: (known exactly), and missing notifications are then counted from the ticks' phase (sub-tick precise)

@@ -68,6 +68,8 @@ __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
 _UNPACK = {t: (FRAME_OF_TYPE[t], P.payload_unpacker(dtype)) for t, dtype in P.PAYLOAD_DTYPE.items()}
 
 _V1, _V2 = P.VERSION_1, P.VERSION
+#: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
+_COUNTER = {StatusFrame: "status", TextFrame: "text", FlightFrame: "flight", AckFrame: "ack", CommandFrame: "command"}
 _HEAD = P.HEADER_SIZE
 #: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
 _FIXED_LEN = {P.vt_byte(_V2, t): n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
@@ -338,16 +340,9 @@ class StreamDecoder:
                     elif d != 1:
                         stats.seq_resets += 1
                 self._last_seq = seq
-        elif isinstance(frame, StatusFrame):
-            stats.status += 1
-        elif isinstance(frame, TextFrame):
-            stats.text += 1
-        elif isinstance(frame, FlightFrame):
-            stats.flight += 1
-        elif isinstance(frame, AckFrame):
-            stats.ack += 1
         else:
-            stats.command += 1
+            name = _COUNTER[type(frame)]
+            setattr(stats, name, getattr(stats, name) + 1)
 
 
 def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Frame:
@@ -487,15 +482,13 @@ def decode_bytes(
 
     att, sta = parts.attitude_records(), parts.status_records()  # in stream order, kept so for from_parts
     exact = att["exact"]
-    kinds = [type(f) for f in parts.others]
+    kinds = [_COUNTER[type(f)] for f in parts.others]
     st = sd.stats
     stats = DecoderStats(
         attitude=len(att),
         status=len(sta),
         text=len(parts.texts),
-        flight=kinds.count(FlightFrame),
-        ack=kinds.count(AckFrame),
-        command=kinds.count(CommandFrame),
+        **{name: kinds.count(name) for name in ("flight", "ack", "command")},
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,
         unknown_frames=st.unknown_frames,
@@ -503,20 +496,11 @@ def decode_bytes(
         v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
         implausible=gate.held_back,
         held_values=gate.held_values,
-        values_bad=int(
-            np.count_nonzero(
-                attitude_rows_bad(
-                    exact,
-                    att["acc_mg"],
-                    att["gyro_mdps"],
-                    att["q_wxyz"],
-                    att["thz_rad"],
-                    att["thx_rad"],
-                    att["thy_rad"],
-                )
-            )
-        ),
     )
+    bad = attitude_rows_bad(
+        exact, *(att[k] for k in ("acc_mg", "gyro_mdps", "q_wxyz", "thz_rad", "thx_rad", "thy_rad"))
+    )
+    stats.values_bad = int(np.count_nonzero(bad))
     stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
     parts.sent_commands = sent_commands

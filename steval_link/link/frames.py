@@ -25,10 +25,15 @@ def _python_type(dtype: np.dtype) -> type:
     return float if dtype.kind == "f" else int
 
 
-def _wire_fields(payload: np.dtype, required: int | None = None) -> type:
+#: where a frame came from: its stream offset and its length on the wire, bytes
+_WHERE = [("offset", int, 0), ("nbytes", int, 0)]
+
+
+def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = False) -> type:
     """A slotted dataclass base holding the fields of ``payload`` (a dtype of :mod:`~steval_link.link.protocol`, the
     one statement of the layout) in wire order, a subarray field as a tuple; ``RESERVED`` fields are left out. The
-    fields after the first ``required`` get defaults (NaN for floats, 0 for integers); all are required by default."""
+    fields after the first ``required`` get defaults (NaN for floats, 0 for integers); all are required by default.
+    ``where``: then ``offset`` and ``nbytes`` (default 0)."""
     fields = []
     for i, name in enumerate(P.payload_fields(payload)):
         sub = payload.fields[name][0]
@@ -39,7 +44,7 @@ def _wire_fields(payload: np.dtype, required: int | None = None) -> type:
             fields.append((name, typ, (blank,) * sub.shape[0] if sub.shape else blank))
         else:
             fields.append((name, typ))
-    base = make_dataclass("WireFields", fields, slots=True)
+    base = make_dataclass("WireFields", fields + (_WHERE if where else []), slots=True)
     base.__module__ = __name__
     return base
 
@@ -88,27 +93,18 @@ class TextFrame:
 
 
 @dataclass(slots=True)
-class FlightFrame(_wire_fields(P.FLIGHT_DTYPE)):
+class FlightFrame(_wire_fields(P.FLIGHT_DTYPE, where=True)):
     """Flight control of one AHRS step (v2 type 4; fields as FLIGHT_DTYPE). ``rc`` is (gAIL, gELE, gRUD, gTHR)."""
 
-    offset: int = 0
-    nbytes: int = 0
-
 
 @dataclass(slots=True)
-class AckFrame(_wire_fields(P.ACK_DTYPE)):
+class AckFrame(_wire_fields(P.ACK_DTYPE, where=True)):
     """The drone's answer to one command (v2 type 5; fields as ACK_DTYPE)."""
 
-    offset: int = 0
-    nbytes: int = 0
-
 
 @dataclass(slots=True)
-class CommandFrame(_wire_fields(P.COMMAND_DTYPE)):
+class CommandFrame(_wire_fields(P.COMMAND_DTYPE, where=True)):
     """One host → drone command (v2 type 8; fields as COMMAND_DTYPE)."""
-
-    offset: int = 0
-    nbytes: int = 0
 
 
 Frame = AttitudeFrame | StatusFrame | TextFrame | FlightFrame | AckFrame | CommandFrame

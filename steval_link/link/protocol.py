@@ -71,9 +71,10 @@ ACK_UNKNOWN = 2
 ACK_OUT_OF_RANGE = 3
 ACK_NOT_IN_BUILD = 4
 
-#: ``t_us`` wraps at 2**32 µs, ``seq`` at 2**16 steps.
+#: ``t_us`` wraps at 2**32 µs, ``seq`` at 2**16 steps, the status ``step`` at 2**32 steps.
 T_US_MODULUS = 1 << 32
 SEQ_MODULUS = 1 << 16
+STEP_MODULUS = 1 << 32
 
 #: Attitude payload, field by field (offsets as in PROTOCOL.md).
 ATTITUDE_DTYPE = np.dtype(
@@ -177,30 +178,21 @@ def payload_fields(dtype: np.dtype) -> tuple[str, ...]:
     return tuple(name for name in dtype.names if name != RESERVED)
 
 
-def payload_struct(dtype: np.dtype) -> struct.Struct:
-    """The ``struct`` layout of payload ``dtype``: one value per scalar, a subarray field as its values in order."""
-    codes = []
-    for name in dtype.names:
-        sub = dtype.fields[name][0]
-        count = sub.shape[0] if sub.shape else 1
-        codes.append(f"{count if count > 1 else ''}{_STRUCT_CHAR[sub.base.kind + str(sub.base.itemsize)]}")
-    layout = struct.Struct("<" + "".join(codes))
-    assert layout.size == dtype.itemsize, dtype
-    return layout
-
-
 def payload_unpacker(dtype: np.dtype):
     """``unpack(buf, pos)``: the values of the :func:`payload_fields` of payload ``dtype`` at ``buf[pos:]``, a
-    subarray field as a tuple (Python ints and floats; a float32 is exact as a float)."""
-    unpack_from = payload_struct(dtype).unpack_from
-    picks, i = [], 0
+    subarray field as a tuple (Python ints and floats; a float32 is exact as a float). Made from the dtype: a
+    ``struct`` layout with one value per scalar, picked into fields."""
+    codes, picks, i = [], [], 0
     for name in dtype.names:
         sub = dtype.fields[name][0]
         count = sub.shape[0] if sub.shape else 1
+        codes.append(f"{count}{_STRUCT_CHAR[sub.base.kind + str(sub.base.itemsize)]}")
         if name != RESERVED:
             picks.append(slice(i, i + count) if sub.shape else i)
         i += count
-    pick = itemgetter(*picks)
+    layout = struct.Struct("<" + "".join(codes))
+    assert layout.size == dtype.itemsize, dtype
+    unpack_from, pick = layout.unpack_from, itemgetter(*picks)
 
     def unpack(buf, pos: int) -> tuple:
         return pick(unpack_from(buf, pos))
@@ -244,15 +236,8 @@ def encode_attitude(
     thr: int,
 ) -> bytes:
     """An attitude frame (v2); floats are stored as float32 (pass float32 values to keep their exact bits)."""
-    rec = np.zeros((), dtype=ATTITUDE_DTYPE)
-    rec["t_us"] = t_us % T_US_MODULUS
-    rec["acc_mg"] = np.asarray(acc_mg, dtype=np.float32)
-    rec["gyro_mdps"] = np.asarray(gyro_mdps, dtype=np.float32)
-    rec["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float32)
-    rec["thz_rad"] = np.float32(thz_rad)
-    rec["seq"] = seq % SEQ_MODULUS
-    rec["thr"] = thr
-    return encode_frame(TYPE_ATTITUDE, rec.tobytes())
+    fields = {**locals(), "t_us": t_us % T_US_MODULUS, "seq": seq % SEQ_MODULUS}  # the arguments are the fields
+    return encode_frame(TYPE_ATTITUDE, _record(ATTITUDE_DTYPE, fields))
 
 
 def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
@@ -299,29 +284,8 @@ def encode_status(
     version: int = VERSION,
 ) -> bytes:
     """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``."""
-    rec = np.zeros((), dtype=STATUS_DTYPE)
-    rec["step"] = step % (1 << 32)
-    rec["t_us"] = t_us % T_US_MODULUS
-    rec["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float32)
-    rec["int_xyz"] = np.asarray(int_xyz, dtype=np.float32)
-    rec["kp_ground"] = kp_ground
-    rec["kp_flight"] = kp_flight
-    rec["ki"] = ki
-    rec["dt_s"] = dt_s
-    rec["cyc_min"] = cyc_min
-    rec["cyc_mean"] = cyc_mean
-    rec["cyc_max"] = cyc_max
-    rec["cyc_n"] = cyc_n
-    rec["cpu_hz"] = cpu_hz
-    rec["tx_dropped"] = tx_dropped
-    rec["baud"] = baud
-    rec["min_thr"] = min_thr
-    rec["flags"] = flags
-    rec["queue_peak"] = queue_peak
-    rec["fw_version"] = fw_version
-    rec["fc_every"] = fc_every
-    rec["param_gen"] = param_gen
-    return encode_frame(TYPE_STATUS, rec.tobytes(), version)
+    fields = {**locals(), "step": step % STEP_MODULUS, "t_us": t_us % T_US_MODULUS}  # the arguments are the fields
+    return encode_frame(TYPE_STATUS, _record(STATUS_DTYPE, fields), version)
 
 
 def encode_text(line: str, version: int = VERSION) -> bytes:
@@ -332,36 +296,28 @@ def encode_text(line: str, version: int = VERSION) -> bytes:
     )
 
 
-def _encode_record(frame_type: int, dtype: np.dtype, fields: dict) -> bytes:
+def _record(dtype: np.dtype, fields: dict) -> bytes:
+    """The payload of ``dtype`` holding the ``fields`` that are its own (others ignored; missing ones are 0)."""
     rec = np.zeros((), dtype=dtype)
-    for name, value in fields.items():
-        rec[name] = value
-    return encode_frame(frame_type, rec.tobytes())
+    for name in dtype.names:
+        if name in fields:
+            rec[name] = fields[name]
+    return rec.tobytes()
 
 
 def encode_flight(**fields) -> bytes:
     """A flight-control frame (type 4) from ``FLIGHT_DTYPE`` fields given by name (missing ones are 0)."""
-    return _encode_record(TYPE_FLIGHT, FLIGHT_DTYPE, fields)
+    return encode_frame(TYPE_FLIGHT, _record(FLIGHT_DTYPE, fields))
 
 
 def encode_ack(*, cmd_seq: int, cmd: int, result: int, step: int, rx_ok: int = 0, rx_bad: int = 0) -> bytes:
     """An acknowledgement frame (type 5)."""
-    return _encode_record(
-        TYPE_ACK,
-        ACK_DTYPE,
-        dict(
-            cmd_seq=cmd_seq % 65536,
-            cmd=cmd,
-            result=result,
-            step=step % (1 << 32),
-            rx_ok=rx_ok % 65536,
-            rx_bad=rx_bad % 65536,
-        ),
-    )
+    fields = {**locals(), "cmd_seq": cmd_seq % SEQ_MODULUS, "step": step % STEP_MODULUS}  # the arguments are the fields
+    fields.update(rx_ok=rx_ok % SEQ_MODULUS, rx_bad=rx_bad % SEQ_MODULUS)
+    return encode_frame(TYPE_ACK, _record(ACK_DTYPE, fields))
 
 
 def encode_command(*, cmd_seq: int, cmd: int, param: int = 0, value: float = 0.0) -> bytes:
     """A host -> drone command frame (type 8); ``value`` is stored as float32."""
-    return _encode_record(
-        TYPE_COMMAND, COMMAND_DTYPE, dict(cmd_seq=cmd_seq % 65536, cmd=cmd, param=param, value=np.float32(value))
-    )
+    fields = dict(cmd_seq=cmd_seq % SEQ_MODULUS, cmd=cmd, param=param, value=np.float32(value))
+    return encode_frame(TYPE_COMMAND, _record(COMMAND_DTYPE, fields))
