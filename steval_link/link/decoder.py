@@ -64,8 +64,13 @@ from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentenc
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
 
-#: frame type -> (frame class, unpacker of its payload's wire fields), both made from ``protocol.PAYLOAD_DTYPE``.
-_UNPACK = {t: (FRAME_OF_TYPE[t], P.payload_unpacker(dtype)) for t, dtype in P.PAYLOAD_DTYPE.items()}
+#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``;
+#: whether the class has ``exact`` before ``offset``).
+_UNPACK = {}
+for _t, _dtype in P.PAYLOAD_DTYPE.items():
+    _layout, _pick = P.payload_layout(_dtype)
+    _cls = FRAME_OF_TYPE[_t]
+    _UNPACK[_t] = (_cls, _layout.unpack_from, _pick, "exact" in _cls.__dataclass_fields__)
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
@@ -350,8 +355,10 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     size = _HEAD + ln + crc_size
     fixed = _UNPACK.get(vt & 0x0F)
     if fixed is not None:
-        cls, unpack = fixed
-        return cls(*unpack(buf, p + _HEAD), offset=offset, nbytes=size)
+        cls, unpack_from, pick, exact = fixed
+        if exact:
+            return cls(*pick(unpack_from(buf, p + _HEAD)), True, offset, size)
+        return cls(*pick(unpack_from(buf, p + _HEAD)), offset, size)
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 

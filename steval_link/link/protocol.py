@@ -178,10 +178,10 @@ def payload_fields(dtype: np.dtype) -> tuple[str, ...]:
     return tuple(name for name in dtype.names if name != RESERVED)
 
 
-def payload_unpacker(dtype: np.dtype):
-    """``unpack(buf, pos)``: the values of the :func:`payload_fields` of payload ``dtype`` at ``buf[pos:]``, a
-    subarray field as a tuple (Python ints and floats; a float32 is exact as a float). Made from the dtype: a
-    ``struct`` layout with one value per scalar, picked into fields."""
+def payload_layout(dtype: np.dtype) -> tuple[struct.Struct, itemgetter]:
+    """How to read payload ``dtype`` with ``struct``: ``pick(layout.unpack_from(buf, pos))`` gives the values of its
+    :func:`payload_fields` in order, a subarray field as a tuple (Python ints and floats; a float32 is exact as a
+    float). Made from the dtype: one ``struct`` value per scalar, picked into fields."""
     codes, picks, i = [], [], 0
     for name in dtype.names:
         sub = dtype.fields[name][0]
@@ -192,12 +192,7 @@ def payload_unpacker(dtype: np.dtype):
         i += count
     layout = struct.Struct("<" + "".join(codes))
     assert layout.size == dtype.itemsize, dtype
-    unpack_from, pick = layout.unpack_from, itemgetter(*picks)
-
-    def unpack(buf, pos: int) -> tuple:
-        return pick(unpack_from(buf, pos))
-
-    return unpack
+    return layout, itemgetter(*picks)
 
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
