@@ -156,7 +156,7 @@ def unwrap_ticks(ticks, t_host_s=None) -> np.ndarray:
     """u16 ticks → int64 ticks since the first wrap-free start. Consecutive ticks step forward modulo 2^16; with
     host times, a gap longer than a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock
     says passed."""
-    t = np.asarray(ticks, dtype=np.int64) & 0xFFFF
+    t = np.asarray(ticks, dtype=np.int64) % TICK_WRAP
     if t.size == 0:
         return t
     d = np.diff(t) % TICK_WRAP
@@ -178,7 +178,7 @@ class TickUnwrapper:
         self.value = 0
 
     def __call__(self, tick: int, dt_host_s: float | None = None) -> int:
-        tick &= 0xFFFF
+        tick %= TICK_WRAP
         if self.last is None:
             self.value = tick
         else:

@@ -249,7 +249,7 @@ class CommandChannel:
     ) -> None:
         self._send = send
         self._record = record
-        self._seq = random.randrange(1 << 16) if first_seq is None else int(first_seq) % (1 << 16)
+        self._seq = random.randrange(P.SEQ_MODULUS) if first_seq is None else int(first_seq) % P.SEQ_MODULUS
         self._clock = clock
         self.pending: dict[int, Sent] = {}
         self.sent = 0
@@ -257,7 +257,7 @@ class CommandChannel:
     def next_frame(self, command: Command) -> Sent:
         """Number ``command`` and encode it, without sending (scripts that send at a given time)."""
         seq = self._seq
-        self._seq = (self._seq + 1) % (1 << 16)
+        self._seq = (self._seq + 1) % P.SEQ_MODULUS
         frame = command.encode(seq)
         s = Sent(seq, command, frame, self._clock() if self._clock else math.nan)
         self.pending[seq] = s

@@ -71,7 +71,7 @@ ACK_UNKNOWN = 2
 ACK_OUT_OF_RANGE = 3
 ACK_NOT_IN_BUILD = 4
 
-#: ``t_us`` wraps at 2**32 µs, ``seq`` at 2**16 steps, the status ``step`` at 2**32 steps.
+#: ``t_us`` wraps at 2**32 µs, ``seq`` (and a command's ``cmd_seq``) at 2**16, the status ``step`` at 2**32 steps.
 T_US_MODULUS = 1 << 32
 SEQ_MODULUS = 1 << 16
 STEP_MODULUS = 1 << 32

@@ -121,7 +121,7 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
         if min(v[:8]) < 0:
             return None
         return StatusFrame(
-            step=v[0] % (1 << 32),
+            step=v[0] % P.STEP_MODULUS,
             t_us=(v[1] * 1000) % P.T_US_MODULUS,
             cyc_min=v[2],
             cyc_mean=v[3],
