@@ -42,6 +42,7 @@ from steval_link.link.frames import (
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
+from steval_link.link.unwrap import host_times as _host_times
 
 __all__ = [
     "AttitudeArrays",
@@ -98,6 +99,45 @@ class AttitudeArrays:
 
     def __len__(self) -> int:
         return len(self.step)
+
+    @classmethod
+    def from_frames(cls, frames: list, *, step, t_fw_s, t_host_s, values_bad=None) -> AttitudeArrays:
+        """Rows of these attitude frames (stream order) with their step and times given (the live path; the bulk
+        path builds them in :meth:`Telemetry.from_parts`); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        n = len(frames)
+        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
+        exact = np.array([f.exact for f in frames], dtype=bool)
+        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
+        if exact.any():
+            angles[exact, 0], angles[exact, 1] = quaternion_to_euler(q[exact])
+        return cls(
+            step=np.asarray(step, dtype=np.int64),
+            seq=np.array([f.seq for f in frames], dtype=np.uint16),
+            t_us=np.array([f.t_us for f in frames], dtype=np.uint32),
+            t_fw_s=np.asarray(t_fw_s, dtype=np.float64),
+            t_host_s=np.asarray(t_host_s, dtype=np.float64),
+            acc_mg=np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3),
+            gyro_mdps=np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3),
+            thr=np.array([f.thr for f in frames], dtype=np.int16),
+            q_wxyz=q,
+            thz_rad=np.array([f.thz_rad for f in frames], dtype=np.float32),
+            thx_rad=angles[:, 0].copy(),
+            thy_rad=angles[:, 1].copy(),
+            exact=exact,
+            offset=np.array([f.offset for f in frames], dtype=np.int64),
+            values_bad=values_bad,
+        )
+
+    @classmethod
+    def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
+        """The rows of ``parts``, in order."""
+        if len(parts) == 1:
+            return parts[0]
+        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
+
+    def take(self, rows) -> AttitudeArrays:
+        """The rows ``rows`` (indices, a slice or a boolean mask)."""
+        return type(self)(**{name: getattr(self, name)[rows] for name in self.__dataclass_fields__})
 
 
 @dataclass
@@ -375,24 +415,6 @@ def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) ->
     for a, b in zip(starts[:-1], starts[1:]):
         out[a:b] = TimeUnwrapper().seconds(t_us[a:b])
     return out
-
-
-def _host_times(
-    last_byte: np.ndarray, chunk_times: tuple[np.ndarray, np.ndarray] | None, baud: int | None, total: int
-) -> np.ndarray:
-    if chunk_times is None or len(chunk_times[0]) == 0:
-        return np.full(len(last_byte), np.nan)
-    c_off = np.asarray(chunk_times[0], dtype=np.int64)
-    c_t = np.asarray(chunk_times[1], dtype=np.float64)
-    k = np.clip(np.searchsorted(c_off, last_byte, side="right") - 1, 0, len(c_off) - 1)
-    t = c_t[k].copy()
-    if baud:
-        c_end = np.append(c_off[1:], total)
-        t -= (c_end[k] - (last_byte + 1)) * (10.0 / baud)
-        # a byte cannot have arrived before the previous chunk was received
-        prev = np.where(k > 0, c_t[np.maximum(k - 1, 0)], -np.inf)
-        t = np.maximum(t, prev)
-    return t
 
 
 @dataclass
