@@ -97,33 +97,18 @@ def bad_run_starts(good: np.ndarray) -> np.ndarray:
 
 
 def send_scalars(
-    rec: rr.RecordingStream,
-    path: str,
-    times: Times,
-    values: np.ndarray,
-    valid: np.ndarray | None = None,
-    *,
-    bad_state: dict[str, bool] | None = None,
+    rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None
 ) -> None:
-    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps.
-
-    ``bad_state`` (path -> its last row was a gap), for a series logged in pieces (live): a run of gaps that
-    goes on from the previous piece gets no second ``Clear``."""
+    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps."""
     v = np.asarray(values, dtype=np.float64)
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
-    was_bad = False
-    if bad_state is not None:
-        was_bad = bad_state.get(path, False)
-        bad_state[path] = not bool(good[-1]) if len(good) else was_bad
     if good.all():
         send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v if idx is None else v[idx]))
         return
     send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
     starts = bad_run_starts(good)
-    if was_bad and len(starts) and starts[0] == 0:
-        starts = starts[1:]
     if len(starts):
         send_rows(
             rec,

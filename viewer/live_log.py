@@ -9,8 +9,9 @@ The live session (``steval_link.live``) decodes the serial bytes and calls, in a
     logger.log_link(stats, t_unix_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
     logger.close()
 
-Attitude rows are not held back: ``log_batch`` sends them with ``send_columns``, one chunk per entity, before it
-returns (the per-call cost is per entity, not per sample, so a batch of 1 or of 50 frames costs about the same).
+Attitude rows are not held back: ``log_batch`` sends them with one Arrow record batch (one chunk per entity,
+:mod:`steval_viewer.record_batch`: measured, half the cost of ``send_columns`` per entity) before it returns (a
+batch of 1 or of 50 frames costs about the same).
 Status and link rows (about 1 Hz) are queued and sent with the next batch, one chunk per entity, and on
 ``close()``: an ``.rrd`` sink keeps memory per chunk until the file closes. The entity layout is the replay's
 (:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on ``host_time``).
@@ -35,14 +36,8 @@ from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
-from steval_viewer.columns import (
-    Times,
-    quaternion_from_euler,
-    send_arrows,
-    send_rows,
-    send_scalars,
-    send_transforms,
-)
+from steval_viewer.columns import Times, quaternion_from_euler, send_rows, send_scalars
+from steval_viewer.record_batch import RowBatch
 from steval_viewer.replay_log import values_bad_note
 
 #: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
@@ -101,6 +96,7 @@ class LiveLogger:
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
         self._last_3d_s = -math.inf  # fw time of the last 3D update
+        self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
         #: link/status rows waiting for the next batch: path -> [(fw s, host s, values)], sent as one chunk per
@@ -136,40 +132,39 @@ class LiveLogger:
 
         # 3D entities show only the latest attitude: at most LIVE_3D_MAX_HZ updates (the batch's last row)
         t_last = float(times.t_fw_s[-1])
+        rb = RowBatch(times, self._bad, self._arrow_cache)
+        sel3d = None
         if not (0.0 <= t_last - self._last_3d_s < 1.0 / LIVE_3D_MAX_HZ):
             self._last_3d_s = t_last
-            last = times.take(np.array([n - 1]))
+            sel3d = np.zeros(n, dtype=bool)
+            sel3d[-1] = True
             # the drone: the batch's last frame without bad values (the firmware's filter output is NaN or off
             # range: the 3D drone stays where it was)
-            if good_rows.size:
-                send_transforms(rec, ent.DRONE_FIRMWARE, times.take(good_rows[-1:]), q[good_rows[-1:]])
+            sel_fw = np.zeros(n, dtype=bool)
+            sel_fw[good_rows[-1:]] = True
+            rb.quaternions(ent.DRONE_FIRMWARE, q, sel_fw)
             with np.errstate(invalid="ignore"):
-                send_arrows(rec, ent.ACC_GRAVITY, last, -acc[-1:] / 1000.0)
-        else:
-            last = None
-        bad_state = self._bad
-        for path, values in (
-            (ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64))),
-            (ent.roll_path(ent.SOURCE_FIRMWARE), np.degrees(thy.astype(np.float64))),
-            (ent.yaw_path(ent.SOURCE_FIRMWARE), np.degrees(a.thz_rad.astype(np.float64))),
-            (ent.PLOT_ACC, acc),
-            (ent.PLOT_GYRO, a.gyro_mdps.astype(np.float64) / 1000.0),
-            (ent.PLOT_THROTTLE, a.thr.astype(np.float64)),
-        ):
-            send_scalars(rec, path, times, values, bad_state=bad_state)
+                rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
+        rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))
+        rb.scalars(ent.roll_path(ent.SOURCE_FIRMWARE), np.degrees(thy.astype(np.float64)))
+        rb.scalars(ent.yaw_path(ent.SOURCE_FIRMWARE), np.degrees(a.thz_rad.astype(np.float64)))
+        rb.scalars(ent.PLOT_ACC, acc)
+        rb.scalars(ent.PLOT_GYRO, a.gyro_mdps.astype(np.float64) / 1000.0)
+        rb.scalars(ent.PLOT_THROTTLE, a.thr.astype(np.float64))
 
         estimates: Mapping[str, np.ndarray] = batch.estimates or {}
         for name, eq in estimates.items():
             source = self.sources.get(name) or live_source(name)
             eq = np.asarray(eq).reshape(n, 4)
             ex, ey = quaternion_to_euler(eq.astype(np.float32))
-            if last is not None:
-                send_transforms(rec, ent.estimate_path(source), last, eq[-1:])
-            send_scalars(rec, ent.pitch_path(source), times, np.degrees(ex.astype(np.float64)), bad_state=bad_state)
-            send_scalars(rec, ent.roll_path(source), times, np.degrees(ey.astype(np.float64)), bad_state=bad_state)
+            if sel3d is not None:
+                rb.quaternions(ent.estimate_path(source), eq, sel3d)
+            rb.scalars(ent.pitch_path(source), np.degrees(ex.astype(np.float64)))
+            rb.scalars(ent.roll_path(source), np.degrees(ey.astype(np.float64)))
             if source == ent.SOURCE_PORT:
-                send_scalars(rec, ent.DIFF_THX, times, np.degrees(thx.astype(np.float64) - ex), bad_state=bad_state)
-                send_scalars(rec, ent.DIFF_THY, times, np.degrees(thy.astype(np.float64) - ey), bad_state=bad_state)
+                rb.scalars(ent.DIFF_THX, np.degrees(thx.astype(np.float64) - ex))
+                rb.scalars(ent.DIFF_THY, np.degrees(thy.astype(np.float64) - ey))
+        rb.send(rec)
 
         self.frames += n
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
