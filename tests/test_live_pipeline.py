@@ -191,8 +191,9 @@ def test_step_unwrapper_crosses_the_seq_wrap():
 
     u = StepUnwrapper()
     u.status(65533 + 65536)  # a status frame tells the full step
-    got = u.frames([F(65534), F(65535), F(0), F(2)])
+    got, restart = u.frames([F(65534), F(65535), F(0), F(2)])
     assert list(got) == [65534 + 65536, 65535 + 65536, 131072, 131074]
+    assert not restart.any()
 
 
 def test_inbox_drops_oldest_from_the_live_view_only_and_counts_it():

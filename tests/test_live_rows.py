@@ -87,19 +87,32 @@ def test_live_rows_on_the_unix_clock_are_the_capture_times_within_its_resolution
     assert np.abs(live.t_host_s - tel.attitude.t_host_s).max() < 1e-6
 
 
-def test_a_restart_and_a_stream_joined_past_the_seq_wrap(tmp_path):
-    # joined at step 70 000 (seq 4464: the high bits come with the first status frame), then a firmware restart
-    from support.ptyfeed import flight_stream
+@pytest.mark.parametrize("cut_at_restart", [False, True])
+def test_a_restart_and_a_stream_joined_past_the_seq_wrap(tmp_path, cut_at_restart):
+    # joined at step 70 000 (seq 4464: the high bits come with the first status frame) while t_us wraps (2³² µs),
+    # then a firmware restart (cut_at_restart: its first frame begins a chunk, so it may begin a processing round)
+    from support.streams import StreamBuilder
 
+    from steval_link.link import protocol as P
     from steval_link.link.capture import CaptureWriter
 
-    data = flight_stream(700, first_step=70_000) + flight_stream(500, text_lines=("STEVAL boot",))
+    b = StreamBuilder(seed=3)
+    for k in range(700):
+        step, t_us = 70_000 + k, (4_294_000_000 + k * 6192) % P.T_US_MODULUS
+        b.attitude(step % P.SEQ_MODULUS, t_us=t_us)
+        if step % 161 == 160:
+            b.status(step, t_us=t_us)
+    first = b.bytes()
+    b.text("STEVAL boot")
+    data = b.flight(500).bytes()
     path = tmp_path / "restart.stv"
     rng = np.random.default_rng(4)
     with CaptureWriter(path, port="test", baud=115200) as cap:
         pos, t = 0, 0.5
         while pos < len(data):
             n = int(rng.integers(1, 300))
+            if cut_at_restart and pos < len(first) < pos + n:
+                n = len(first) - pos
             cap.write(data[pos : pos + n], t)
             pos, t = pos + n, t + n / 11520.0 + float(rng.uniform(0, 0.01))
     tel = load_telemetry(path)
@@ -109,8 +122,8 @@ def test_a_restart_and_a_stream_joined_past_the_seq_wrap(tmp_path):
     for field in FIELDS:
         if field != "step":
             assert np.array_equal(getattr(live, field).view(np.uint8), getattr(ref, field).view(np.uint8)), field
-    # the firmware restart: steps and firmware time from 0 again, on both paths
-    assert ref.step[700] == 0 and ref.t_fw_s[700] < ref.t_fw_s[699]
+    # t_us wrapped in the first run; the firmware restart: steps and firmware time from 0 again, on both paths
+    assert ref.t_fw_s[699] > 2**32 / 1e6 and ref.step[700] == 0 and ref.t_fw_s[700] < 1.0
     # the one difference: the bulk path gives the high bits of the status frame to the rows before it too; live,
     # those rows are gone already, so they keep the seq's (one wrap, 65 536 steps, lower)
     first_status = int(np.flatnonzero(live.step != ref.step).max()) + 1

@@ -101,31 +101,29 @@ class AttitudeArrays:
         return len(self.step)
 
     @classmethod
-    def from_frames(cls, frames: list, *, step, t_fw_s, t_host_s, values_bad=None) -> AttitudeArrays:
-        """Rows of these attitude frames (stream order) with their step and times given (the live path; the bulk
-        path builds them in :meth:`Telemetry.from_parts`); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
-        n = len(frames)
-        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
-        exact = np.array([f.exact for f in frames], dtype=bool)
-        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
-        if exact.any():
-            angles[exact, 0], angles[exact, 1] = quaternion_to_euler(q[exact])
+    def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
+        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
+        and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        thx = att["thx_rad"].copy()
+        thy = att["thy_rad"].copy()
+        ex = att["exact"]
+        if ex.any():
+            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
         return cls(
             step=np.asarray(step, dtype=np.int64),
-            seq=np.array([f.seq for f in frames], dtype=np.uint16),
-            t_us=np.array([f.t_us for f in frames], dtype=np.uint32),
+            seq=att["seq"].astype(np.uint16),
+            t_us=att["t_us"].astype(np.uint32),
             t_fw_s=np.asarray(t_fw_s, dtype=np.float64),
             t_host_s=np.asarray(t_host_s, dtype=np.float64),
-            acc_mg=np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3),
-            gyro_mdps=np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3),
-            thr=np.array([f.thr for f in frames], dtype=np.int16),
-            q_wxyz=q,
-            thz_rad=np.array([f.thz_rad for f in frames], dtype=np.float32),
-            thx_rad=angles[:, 0].copy(),
-            thy_rad=angles[:, 1].copy(),
-            exact=exact,
-            offset=np.array([f.offset for f in frames], dtype=np.int64),
-            values_bad=values_bad,
+            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
+            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
+            thr=att["thr"].astype(np.int16),
+            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
+            thz_rad=att["thz_rad"].astype(np.float32),
+            thx_rad=thx.astype(np.float32),
+            thy_rad=thy.astype(np.float32),
+            exact=att["exact"].astype(bool),
+            offset=att["offset"].astype(np.int64),
         )
 
     @classmethod
@@ -134,10 +132,6 @@ class AttitudeArrays:
         if len(parts) == 1:
             return parts[0]
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
-
-    def take(self, rows) -> AttitudeArrays:
-        """The rows ``rows`` (indices, a slice or a boolean mask)."""
-        return type(self)(**{name: getattr(self, name)[rows] for name in self.__dataclass_fields__})
 
 
 @dataclass
@@ -463,27 +457,8 @@ class Telemetry:
         att_last = att["offset"] + att["nbytes"] - 1
         sta_last = sta["offset"] + sta["nbytes"] - 1
 
-        thx = att["thx_rad"].copy()
-        thy = att["thy_rad"].copy()
-        ex = att["exact"]
-        if ex.any():
-            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
-
-        attitude = AttitudeArrays(
-            step=step.astype(np.int64),
-            seq=att["seq"].astype(np.uint16),
-            t_us=att["t_us"].astype(np.uint32),
-            t_fw_s=t_all[:na],
-            t_host_s=_host_times(att_last, chunk_times, baud, total),
-            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
-            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
-            thr=att["thr"].astype(np.int16),
-            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
-            thz_rad=att["thz_rad"].astype(np.float32),
-            thx_rad=thx.astype(np.float32),
-            thy_rad=thy.astype(np.float32),
-            exact=att["exact"].astype(bool),
-            offset=att["offset"].astype(np.int64),
+        attitude = AttitudeArrays.from_records(
+            att, step=step, t_fw_s=t_all[:na], t_host_s=_host_times(att_last, chunk_times, baud, total)
         )
         st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(

@@ -1,10 +1,7 @@
-"""The times and steps of a stream's rows, one implementation for the bulk path (``Telemetry``) and the live one.
-
-Counters the firmware sends modulo a power of two, unwrapped: ``seq`` (u16) into full AHRS steps
-(:class:`SeqUnwrapper`) and ``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot
-(:class:`TimeUnwrapper`); host receive times of frames from the times of the chunks that brought their bytes
-(:func:`host_times`). The bulk decoder runs them over a whole stream; the live path keeps them across chunks
-(:class:`StreamClock`), so its rows carry the times ``load_telemetry`` gives the same capture.
+"""Steps and times of a stream's rows: ``seq`` (u16) unwrapped into full AHRS steps (:class:`SeqUnwrapper`),
+``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot (:class:`TimeUnwrapper`), host times of
+frames from their chunks' (:func:`host_times`). One implementation for both paths: ``Telemetry`` runs them over a
+whole stream, the live path across chunks (:class:`StreamClock`), so live rows carry ``load_telemetry``'s times.
 """
 
 from __future__ import annotations
@@ -126,65 +123,54 @@ def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s
 
 
 class StreamClock:
-    """Firmware and host times of a live stream's rows, by the bulk path's rules, on the capture's base.
+    """Firmware and host times of a live stream's rows by the bulk path's rules, on the capture's base.
 
-    ``t0_unix_s``: the capture's start (its header's ``start_time_unix_s``; default: the first chunk's time), so
-    ``t_host_s`` is s since capture start as in the capture's chunks; ``baud`` as in its header. Call
-    :meth:`chunk` for each chunk before decoding it, then :meth:`host_s` for frames (by their last byte) and
-    :meth:`fw_s` for attitude and status ``t_us`` in stream order; :meth:`prune` keeps the chunks still needed.
+    ``t0_unix_s``: the capture's ``start_time_unix_s`` (default: the first chunk's time), ``baud`` its header's.
+    Call :meth:`chunk` for each chunk before decoding it; :meth:`host_s` times frames by their last byte,
+    :meth:`fw_s` unwraps attitude and status ``t_us`` in stream order; :meth:`prune` forgets decoded chunks.
     """
 
     def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
-        self.t0_unix_s = t0_unix_s
-        self.baud = baud
+        self.t0_unix_s, self.baud = t0_unix_s, baud
         self.total = 0  # bytes of the stream so far
         self._offsets: list[int] = []
         self._times: list[float] = []
         self._before_s = -np.inf  # time of the chunk before the first kept one
         self.fw = TimeUnwrapper()
 
-    def chunk(self, nbytes: int, t_unix_s: float) -> float:
-        """A chunk of ``nbytes`` received at ``t_unix_s``; returns its time on the capture's base, s."""
+    def host_of(self, t_unix_s: float) -> float:
+        """A host time (s, Unix epoch) on the capture's base (as the recorder stores chunk times)."""
         if self.t0_unix_s is None:
             self.t0_unix_s = float(t_unix_s)
+        return float(t_unix_s) - self.t0_unix_s
+
+    def chunk(self, nbytes: int, t_unix_s: float) -> None:
+        """A chunk of ``nbytes`` received at ``t_unix_s`` (an empty one is not kept, as in a capture)."""
         t_s = self.host_of(t_unix_s)
-        if nbytes:  # the capture keeps no empty chunk
+        if nbytes:
             self._offsets.append(self.total)
             self._times.append(t_s)
             self.total += nbytes
-        return t_s
-
-    def host_of(self, t_unix_s: float) -> float:
-        """A host time (s, Unix epoch) on the capture's base (as the recorder stores chunk times)."""
-        return float(t_unix_s) - (self.t0_unix_s if self.t0_unix_s is not None else float(t_unix_s))
 
     def host_s(self, last_byte) -> np.ndarray:
         """Host times of frames ending at stream offsets ``last_byte`` (:func:`host_times` over the chunks)."""
-        return host_times(
-            np.asarray(last_byte, dtype=np.int64),
-            (self._offsets, self._times),
-            self.baud,
-            self.total,
-            before_s=self._before_s,
-        )
+        chunks = (self._offsets, self._times)
+        return host_times(np.asarray(last_byte), chunks, self.baud, self.total, before_s=self._before_s)
 
     def fw_s(self, t_us, restart=None) -> np.ndarray:
         """Firmware seconds of these ``t_us`` (stream order); counting starts again at each ``restart`` row."""
-        if restart is None or not np.any(restart):
-            return self.fw.seconds(t_us)
-        t_us = np.asarray(t_us)
-        out = np.empty(len(t_us), dtype=np.float64)
-        cuts = [0, *np.flatnonzero(restart).tolist(), len(t_us)]
+        restart = np.zeros(len(t_us), bool) if restart is None else np.asarray(restart, bool)
+        cuts = sorted({0, len(t_us), *np.flatnonzero(restart).tolist()})
+        out = [np.zeros(0)]
         for a, b in zip(cuts[:-1], cuts[1:]):
-            if a > 0:
+            if restart[a]:
                 self.fw = TimeUnwrapper()  # a firmware restart: its own time from boot
-            out[a:b] = self.fw.seconds(t_us[a:b])
-        return out
+            out.append(self.fw.seconds(t_us[a:b]))
+        return np.concatenate(out)
 
     def prune(self, pending_bytes: int) -> None:
-        """Forget the chunks before the one holding the first of the ``pending_bytes`` not decoded yet (the time
-        of the one before it stays: a frame's time is never before the previous chunk's)."""
+        """Forget the chunks before the one holding the first of the ``pending_bytes`` not decoded yet."""
         k = int(np.searchsorted(self._offsets, self.total - pending_bytes, side="right")) - 1
         if k > 0:
-            self._before_s = self._times[k - 1]
+            self._before_s = self._times[k - 1]  # a frame's time is never before the previous chunk's
             del self._offsets[:k], self._times[:k]

@@ -21,7 +21,7 @@ from steval_link.link.commands import Command, ack_of_text, describe_ack, descri
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
 from steval_link.link.plausibility import attitude_inputs_bad
-from steval_link.link.telemetry import AttitudeArrays
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.live.estimators import LiveEstimators, LiveMahony, LiveRows
 from steval_link.live.health import LinkHealth
@@ -43,9 +43,8 @@ RRD_ONLY_INTERVAL_S = 30.0
 
 
 class EventTime(NamedTuple):
-    """When a status, text or flight-control frame or a command note happened, on the rows' timelines: firmware s
-    since boot (NaN before the first attitude row of a text line or note, estimated from the latest row for them)
-    and host s since capture start."""
+    """When a frame or a note (not an attitude row) happened: firmware s since boot (of a text line or a note:
+    estimated from the latest row, NaN before the first) and host s since capture start."""
 
     t_fw_s: float
     t_host_s: float
@@ -54,11 +53,10 @@ class EventTime(NamedTuple):
 class LiveViewer(typing.Protocol):
     """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
 
-    Rows and events come with their times (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`);
-    ``log_link`` gets the session's host time (s, Unix epoch), only to pace itself. Optional attributes, read when
-    present: ``has_viewer`` (a viewer gets the stream, not only an ``.rrd``: then every processing round goes out
-    at once) and ``file`` (the ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows) and
-    ``log_flight(frame, at)`` (flight-control frames).
+    Rows and events come timed (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`); ``log_link``
+    gets the session's Unix time, only to pace itself. Optional attributes, read when present: ``has_viewer`` (a
+    viewer gets the stream, not only an ``.rrd``: then every processing round goes out at once) and ``file`` (the
+    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows) and ``log_flight(frame, at)``.
     """
 
     def log_batch(self, batch: LiveRows) -> None: ...
@@ -82,12 +80,9 @@ class StepUnwrapper:
     def __init__(self) -> None:
         self.seq = SeqUnwrapper()
 
-    def frames(self, frames) -> np.ndarray:
-        """(N,) int64 steps of these attitude frames, in order."""
-        return self.rows(frames)[0]
-
-    def rows(self, frames) -> tuple[np.ndarray, np.ndarray]:
-        """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these frames."""
+    def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
+        """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these attitude
+        frames, in order."""
         out = np.empty(len(frames), dtype=np.int64)
         restart = np.zeros(len(frames), dtype=bool)
         run: list[int] = []  # indexes of the current run of binary frames
@@ -156,30 +151,20 @@ class BatchOutlet:
             self.logger.log_batch(batch)
         if self._events:
             events, self._events = self._events, []
-            for kind, frame, at in events:
-                if kind == "status":
-                    self.logger.log_status(frame, at)
-                elif kind == "flight":
-                    log_flight = getattr(self.logger, "log_flight", None)  # optional (LiveViewer)
-                    if log_flight is not None:
-                        log_flight(frame, at)
-                elif kind == "text":
-                    self.logger.log_text(frame, at)
-                else:  # "event": (text, level), a command sent or answered
-                    log_event = getattr(self.logger, "log_event", None)
-                    if log_event is not None:
-                        log_event(frame[0], at, frame[1])
+            for kind, frame, at in events:  # log_status, log_text; log_flight, log_event where present
+                log = getattr(self.logger, "log_" + kind, None)
+                if log is not None:  # an "event" is (text, level): a command sent or answered
+                    log(frame[0], at, frame[1]) if kind == "event" else log(frame, at)
 
 
 class LivePipeline:
     """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
 
     ``feed([(bytes, t_unix_s), ...])`` decodes the chunks in order and, per processing round, turns the
-    attitude frames into one :class:`~steval_link.live.estimators.LiveRows` (``AttitudeArrays`` rows with
-    ``t_fw_s`` and ``t_host_s`` as ``load_telemetry`` of the capture gives them: ``t0_unix_s`` and ``baud`` are the
-    capture header's ``start_time_unix_s`` and ``baud``; default: the first chunk's time, no baud correction) that
-    goes through :class:`LiveEstimators` and then to ``viewer.log_batch`` (status and text frames are logged in
-    stream order between batches, each with its :class:`EventTime`). Counters are in
+    attitude frames into one :class:`~steval_link.live.estimators.LiveRows` (``AttitudeArrays`` with ``t_fw_s``
+    and ``t_host_s`` as ``load_telemetry`` of the capture has them: ``t0_unix_s`` and ``baud`` are its header's
+    ``start_time_unix_s`` and ``baud``) that goes through :class:`LiveEstimators` and then to ``viewer.log_batch``
+    (status and text frames are logged in stream order between batches, at their :class:`EventTime`). Counters are in
     ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
 
     ``view_interval_s``: batches are handed to the viewer at most this often, or once that much stream time
@@ -310,28 +295,21 @@ class LivePipeline:
         self.tick()
 
     def _host_of_frame(self, frame) -> float:
-        """Host time of a frame (its last byte), s since capture start."""
         return float(self.clock.host_s([frame.offset + frame.nbytes - 1])[0])
 
     def _at(self, t_host_s: float) -> EventTime:
-        """An event at host time ``t_host_s``: firmware time estimated from the latest row (the host time elapsed
-        since it, or before it), NaN before the first row."""
+        """An event at ``t_host_s``: firmware time from the latest row's and the host time since (NaN before one)."""
         if self._last_row is None:
             return EventTime(math.nan, t_host_s)
-        _, fw, host = self._last_row
-        return EventTime(max(0.0, fw + (t_host_s - host)), t_host_s)
+        return EventTime(max(0.0, self._last_row[1] + (t_host_s - self._last_row[2])), t_host_s)
 
     def _at_frame(self, frame) -> EventTime:
         return self._at(self._host_of_frame(frame))
 
     def _at_flight(self, frame) -> EventTime:
-        """A flight-control frame: the time of its step from the latest attitude row (as ``Telemetry.fc``)."""
-        step = int(frame.step)
-        if self._last_row is None:
-            t_fw_s = step * C.AHRS_PERIOD_S
-        else:
-            t_fw_s = self._last_row[1] + (step - self._last_row[0]) * C.AHRS_PERIOD_S
-        return EventTime(float(t_fw_s), self._host_of_frame(frame))
+        """A flight-control frame: the time of its step from the latest attitude row's (as ``Telemetry.fc``)."""
+        step, t_fw_s = self._last_row[:2] if self._last_row is not None else (0, 0.0)
+        return EventTime(t_fw_s + (int(frame.step) - step) * C.AHRS_PERIOD_S, self._host_of_frame(frame))
 
     def feed_host(self, data: bytes, t_unix_s: float) -> None:
         """Bytes the host sent to the drone at ``t_unix_s``: each command is logged and remembered for its ack."""
@@ -376,17 +354,15 @@ class LivePipeline:
     def _attitude(self, att: list) -> None:
         if not att:
             return
-        frames = [f for f, _ in att]
-        n = len(frames)
-        step, restart = self.step_unwrap.rows(frames)
-        clock = self.clock
-        t_us = np.array([f.t_us for f in frames], dtype=np.int64)
-        a = AttitudeArrays.from_frames(
-            frames,
-            step=step,
-            t_fw_s=clock.fw_s(t_us, restart),
-            t_host_s=clock.host_s(np.array([f.offset + f.nbytes - 1 for f in frames], dtype=np.int64)),
-        )
+        parts = TelemetryParts()  # the frames as the bulk path's records
+        for f, _ in att:
+            parts.add_frame(f)
+        rec = parts.attitude_records()
+        n = len(rec)
+        step, restart = self.step_unwrap.frames([f for f, _ in att])
+        t_us = rec["t_us"].astype(np.int64)
+        t_host_s = self.clock.host_s(rec["offset"] + rec["nbytes"] - 1)
+        a = AttitudeArrays.from_records(rec, step=step, t_fw_s=self.clock.fw_s(t_us, restart), t_host_s=t_host_s)
         rows = LiveRows(a)
         # the estimators take a row whose inputs are finite; the firmware's q may hold NaN (its filter diverged)
         all_finite = rows.finite & np.isfinite(a.thz_rad)
