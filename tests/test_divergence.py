@@ -20,7 +20,7 @@ from steval_link.estimators import st_mahony
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame
-from steval_link.link.telemetry import AttitudeArrays
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.live.estimators import LiveRows
 from steval_link.live.health import LinkHealth
 from steval_link.live.pipeline import LivePipeline
@@ -392,8 +392,11 @@ def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
     for k in range(0, N, 50):
         att = frames[k : k + 50]
         n = len(att)
-        rows = AttitudeArrays.from_frames(
-            att,
+        parts = TelemetryParts()
+        for f in att:
+            parts.add_frame(f)
+        rows = AttitudeArrays.from_records(
+            parts.attitude_records(),
             step=np.array([f.seq for f in att]),
             t_fw_s=np.array([f.t_us for f in att]) / 1e6,
             t_host_s=np.full(n, k / 161.5),

@@ -15,7 +15,7 @@ from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
-from steval_link.link.telemetry import AttitudeArrays
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.unwrap import TimeUnwrapper
 from steval_link.live.estimators import LiveRows
 from steval_link.live.pipeline import EventTime
@@ -205,8 +205,11 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
             n = len(att)
             est_q = np.array([f.q_wxyz for f in att], dtype=np.float32)
             est_q[: n // 2] = np.nan  # e.g. the port waiting for its first snapshot
-            rows = AttitudeArrays.from_frames(
-                att,
+            parts = TelemetryParts()
+            for f in att:
+                parts.add_frame(f)
+            rows = AttitudeArrays.from_records(
+                parts.attitude_records(),
                 step=np.array([65_500 + n_frames + i for i in range(n)]),
                 t_fw_s=fw.seconds([f.t_us for f in att]),
                 t_host_s=np.full(n, t_host),
