@@ -23,26 +23,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from steval_link import constants as C
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.frames import (
-    AckFrame,
-    AttitudeFrame,
-    CommandFrame,
-    DecoderStats,
-    FlightFrame,
-    Frame,
-    StatusFrame,
-    TextFrame,
-)
+from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 from steval_link.link.unwrap import host_times as _host_times
+
+if TYPE_CHECKING:  # annotations only
+    from steval_link.link.frames import DecoderStats, Frame
 
 __all__ = [
     "AttitudeArrays",
