@@ -6,7 +6,7 @@ as its bytes are written, so the reader can measure, per frame, ``logged - writt
 
 The measured path is the live session's own (``steval_link.live``): ``SerialReader`` thread with
 ``RecorderProtocol`` (each chunk to a capture file first, then the session's ``Inbox``) -> the session's main
-loop -> ``LivePipeline`` (``StreamDecoder``, ``AttitudeBatch``, ``LiveEstimators``: the default estimators, e.g.
+loop -> ``LivePipeline`` (``StreamDecoder``, ``LiveRows``, ``LiveEstimators``: the default estimators, e.g.
 the seeded ST port, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
 (``steval_link.live.pipeline.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its
 batch.
@@ -120,15 +120,15 @@ class _TimedViewer:
         self.logger.log_batch(batch)
         t_b = time.perf_counter()
         done = now_us()
-        self.lat_us += [int((done - t) % U32) for t in batch.t_us.tolist()]
+        self.lat_us += [int((done - t) % U32) for t in batch.attitude.t_us.tolist()]
         self.log_ms.append((t_b - t_a) * 1e3)
         self.batch_sizes.append(len(batch))
 
-    def log_status(self, frame, t_unix_s) -> None:
-        self.logger.log_status(frame, t_unix_s)
+    def log_status(self, frame, at) -> None:
+        self.logger.log_status(frame, at)
 
-    def log_text(self, frame, t_unix_s) -> None:
-        self.logger.log_text(frame, t_unix_s)
+    def log_text(self, frame, at) -> None:
+        self.logger.log_text(frame, at)
 
     def log_link(self, stats, t_unix_s) -> None:
         self.logger.log_link(stats, t_unix_s)

@@ -20,6 +20,8 @@ from steval_link.estimators import st_mahony
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
+from steval_link.live.estimators import LiveRows
 from steval_link.live.health import LinkHealth
 from steval_link.live.pipeline import LivePipeline
 
@@ -193,10 +195,10 @@ def test_live_pipeline_health_and_note():
     notes = list(pipe.notes)
     assert any(n.startswith(f"firmware values bad from step {DIVERGE + 1} on") for n in notes)
     # the port keeps running on the inputs (NaN snapshots seed nothing, their settings are the build's)
-    assert pipe.port.seeded and pipe.port.settings.kp_ground == KP_GROUND
+    assert pipe.mahony.seeded and pipe.mahony.settings.kp_ground == KP_GROUND
     # live, the port starts with the defaults (kp_ground 10): bit-exact at step 0 (level: no correction), re-seeded
     # by the snapshot of step 60 (kp_ground 5), then bit-exact until the firmware's q left the unit sphere
-    assert pipe.port.rows_exact == 1 + (DIVERGE - STATUS_AT[0] - 1)
+    assert pipe.mahony.rows_exact == 1 + (DIVERGE - STATUS_AT[0] - 1)
     h2 = LinkHealth()
     assert h2.values_sentence() is None
     # the health lines of steval emulate and steval live say it
@@ -390,22 +392,16 @@ def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
     for k in range(0, N, 50):
         att = frames[k : k + 50]
         n = len(att)
-        logger.log_batch(
-            SimpleNamespace(
-                step=np.array([f.seq for f in att]),
-                t_us=np.array([f.t_us for f in att]),
-                t_unix_s=np.full(n, 1.7e9 + k / 161.5),
-                acc_mg=np.array([f.acc_mg for f in att], np.float32),
-                gyro_mdps=np.array([f.gyro_mdps for f in att], np.float32),
-                q_wxyz=np.array([f.q_wxyz for f in att], np.float32),
-                thz_rad=np.array([f.thz_rad for f in att], np.float32),
-                thr=np.zeros(n, np.int16),
-                exact=np.ones(n, bool),
-                thx_rad=np.full(n, np.nan, np.float32),
-                thy_rad=np.full(n, np.nan, np.float32),
-                estimates={},
-            )
+        parts = TelemetryParts()
+        for f in att:
+            parts.add_frame(f)
+        rows = AttitudeArrays.from_records(
+            parts.attitude_records(),
+            step=np.array([f.seq for f in att]),
+            t_fw_s=np.array([f.t_us for f in att]) / 1e6,
+            t_host_s=np.full(n, k / 161.5),
         )
+        logger.log_batch(LiveRows(rows))
     logger.close()
     session.close()
     info = read_rrd(out)

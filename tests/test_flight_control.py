@@ -236,7 +236,7 @@ def test_live_pipeline_hands_flight_frames_to_the_viewer():
             self.steps, self.flight = [], []
 
         def log_batch(self, batch):
-            self.steps += [int(s) for s in batch.step]
+            self.steps += [int(s) for s in batch.attitude.step]
 
         def log_status(self, frame, t):
             pass

@@ -32,17 +32,18 @@ class BatchLog:
     def log_batch(self, batch) -> None:
         self.batches.append(batch)
 
-    def log_status(self, frame, t_unix_s) -> None:
+    def log_status(self, frame, at) -> None:
         self.status.append(frame)
 
-    def log_text(self, frame, t_unix_s) -> None:
+    def log_text(self, frame, at) -> None:
         self.text.append(frame.text)
 
     def rows(self, name: str) -> np.ndarray:
         return np.concatenate([b.estimates[name] for b in self.batches])
 
     def column(self, field: str) -> np.ndarray:
-        return np.concatenate([getattr(b, field) for b in self.batches])
+        # a field of the rows (AttitudeArrays) or ``finite`` (a property of LiveRows)
+        return np.concatenate([b.finite if field == "finite" else getattr(b.attitude, field) for b in self.batches])
 
 
 def feed_in_chunks(pipe: LivePipeline, data: bytes, seed: int = 0) -> None:
@@ -70,7 +71,7 @@ def test_port_matches_the_offline_replay_bit_for_bit(first_step):
     assert np.array_equal(seeded, replay.seeded)
     assert bits_equal(live_q[seeded], replay.q_wxyz[seeded]).all()
     assert bits_equal(live_q[seeded], log.column("q_wxyz")[seeded]).all()  # == the firmware's own q
-    port = pipe.port
+    port = pipe.mahony
     assert port.rows_mismatch == 0 and port.rows_exact == seeded.sum()
     if first_step == 0:
         assert seeded.all()
@@ -97,12 +98,12 @@ def test_status_and_text_frames_do_not_cut_a_view_batch():
             super().log_batch(batch)
             self.order.append("batch")
 
-        def log_status(self, frame, t_unix_s) -> None:
-            super().log_status(frame, t_unix_s)
+        def log_status(self, frame, at) -> None:
+            super().log_status(frame, at)
             self.order.append("status")
 
-        def log_text(self, frame, t_unix_s) -> None:
-            super().log_text(frame, t_unix_s)
+        def log_text(self, frame, at) -> None:
+            super().log_text(frame, at)
             self.order.append("text")
 
     log = Ordered()
@@ -115,7 +116,7 @@ def test_status_and_text_frames_do_not_cut_a_view_batch():
     assert log.order[0] == "batch"
     assert log.order.count("batch") == 1 and log.order.count("status") == n_status and log.order.count("text") == 1
     assert len(log.batches[0]) == 900
-    assert pipe.port.rows_mismatch == 0 and pipe.port.rows_exact > 0  # the port still saw each snapshot in order
+    assert pipe.mahony.rows_mismatch == 0 and pipe.mahony.rows_exact > 0  # the port still saw each snapshot in order
 
 
 def test_view_batches_are_bounded_in_stream_time():
@@ -140,15 +141,15 @@ def test_port_resyncs_after_lost_frames_and_follows_lab_settings():
     q = log.rows("st-mahony")
     seeded = np.isfinite(q).all(axis=1)
     fw = log.column("q_wxyz")
-    assert bits_equal(q[seeded], fw[seeded]).all() and pipe.port.rows_mismatch == 0
-    assert pipe.port.settings.ki == np.float32(1.0)
+    assert bits_equal(q[seeded], fw[seeded]).all() and pipe.mahony.rows_mismatch == 0
+    assert pipe.mahony.settings.ki == np.float32(1.0)
     # unseeded from the gap to the next snapshot, then exact again
     steps = log.column("step")
     gap_row = int(np.flatnonzero(np.diff(steps) > 1)[0]) + 1
     assert seeded[gap_row - 1] and not seeded[gap_row]
     assert seeded[gap_row:].any() and seeded[-1]
     assert pipe.decoder.stats.frames_missing == 10
-    assert pipe.port.seeds == 2
+    assert pipe.mahony.seeds == 2
 
 
 def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():
@@ -180,7 +181,7 @@ def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():
     assert np.isfinite(port[before]).all()  # from power-up
     assert np.isnan(port[(steps > 51) & (steps <= 160)]).all()  # no state to follow until the snapshot of 160
     assert np.isfinite(port[steps > 160]).all()
-    assert pipe.port.rows_mismatch == 0
+    assert pipe.mahony.rows_mismatch == 0
 
 
 def test_step_unwrapper_crosses_the_seq_wrap():
@@ -190,8 +191,9 @@ def test_step_unwrapper_crosses_the_seq_wrap():
 
     u = StepUnwrapper()
     u.status(65533 + 65536)  # a status frame tells the full step
-    got = u.frames([F(65534), F(65535), F(0), F(2)])
+    got, restart = u.frames([F(65534), F(65535), F(0), F(2)])
     assert list(got) == [65534 + 65536, 65535 + 65536, 131072, 131074]
+    assert not restart.any()
 
 
 def test_inbox_drops_oldest_from_the_live_view_only_and_counts_it():

@@ -224,7 +224,7 @@ def test_live_port_follows_every_change(changes_run):
             pipe.feed_host(host[hi][0], host[hi][1])
             hi += 1
         pipe.feed([(data, t)])
-    port = pipe.port
+    port = pipe.mahony
     assert port.describe() == "port bit-exact", port.describe()
     notes = list(pipe.notes)
     assert any(n.startswith("set ki 1: accepted, applies from step") for n in notes), notes

@@ -15,7 +15,10 @@ from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.unwrap import TimeUnwrapper
+from steval_link.live.estimators import LiveRows
+from steval_link.live.pipeline import EventTime
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent
 from steval_viewer.live_log import LiveLogger
@@ -178,10 +181,11 @@ def test_replay_rejects_mismatched_estimate_length(tmp_path):
 
 
 def _batches_from_stream(data: bytes, chunk: int):
-    """Feed the stream to a StreamDecoder in ``chunk``-byte pieces; yield what a live session hands the logger."""
+    """Feed the stream to a StreamDecoder in ``chunk``-byte pieces; yield what a live session hands the logger
+    (host times in s since capture start)."""
     dec = StreamDecoder()
     for k, off in enumerate(range(0, len(data), chunk)):
-        t_host = 1.7e9 + 0.026 * k  # 300 bytes at 115200 baud take 26 ms
+        t_host = 0.026 * k  # 300 bytes at 115200 baud take 26 ms
         att, events = [], []
         for f in dec.feed(data[off : off + chunk]):
             (att if isinstance(f, AttitudeFrame) else events).append(f)
@@ -194,30 +198,30 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
     session = open_session(SinkOptions(rrd=out))
     logger = LiveLogger(session.rec, ["st-mahony", "accel"])
     n_frames = n_batches = 0
+    fw = TimeUnwrapper()  # the pipeline's times (steval_link.live.pipeline)
     for t_host, att, events in _batches_from_stream(data, 300):
         if att:
             n_batches += 1
             n = len(att)
             est_q = np.array([f.q_wxyz for f in att], dtype=np.float32)
             est_q[: n // 2] = np.nan  # e.g. the port waiting for its first snapshot
-            batch = SimpleNamespace(
+            parts = TelemetryParts()
+            for f in att:
+                parts.add_frame(f)
+            rows = AttitudeArrays.from_records(
+                parts.attitude_records(),
                 step=np.array([65_500 + n_frames + i for i in range(n)]),
-                t_us=np.array([f.t_us for f in att]),
-                t_unix_s=np.full(n, t_host),
-                acc_mg=np.array([f.acc_mg for f in att], dtype=np.float32),
-                gyro_mdps=np.array([f.gyro_mdps for f in att], dtype=np.float32),
-                q_wxyz=np.array([f.q_wxyz for f in att], dtype=np.float32),
-                thz_rad=np.array([f.thz_rad for f in att], dtype=np.float32),
-                thr=np.array([f.thr for f in att], dtype=np.int16),
-                estimates={"st-mahony": est_q, "accel": np.array([f.q_wxyz for f in att], dtype=np.float64)},
+                t_fw_s=fw.seconds([f.t_us for f in att]),
+                t_host_s=np.full(n, t_host),
             )
+            batch = LiveRows(rows, {"st-mahony": est_q, "accel": np.array([f.q_wxyz for f in att], dtype=np.float64)})
             logger.log_batch(batch)
             n_frames += n
         for f in events:
             if isinstance(f, StatusFrame):
-                logger.log_status(f, t_host)
+                logger.log_status(f, EventTime(fw.nearest(f.t_us), t_host))
             elif isinstance(f, TextFrame):
-                logger.log_text(f, t_host)
+                logger.log_text(f, EventTime(math.nan, t_host))
         logger.log_link(SimpleNamespace(crc_failures=0), t_host)
     logger.close()
     session.close()

@@ -158,8 +158,6 @@ SOURCE_COLORS = {
 }
 _FALLBACK_COLORS = [(23, 190, 207), (188, 189, 34), (127, 127, 127), (0, 158, 115)]
 
-#: Which host estimate the 3D ghost shows by default (the others are logged too, hidden in the blueprint).
-DEFAULT_GHOST = "st_mahony_port"
 GHOST_PREFERENCE = ("st_mahony_port", "ekf3", "mekf", "st_mahony", "vqf", "accel")
 
 

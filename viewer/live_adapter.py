@@ -4,7 +4,7 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
-from steval_link.live.estimators import AttitudeBatch
+from steval_link.live.estimators import LiveRows
 from steval_link.live.session import LiveOptions
 from steval_viewer.sink_options import (
     SinkOptions,
@@ -31,17 +31,14 @@ class ViewerLogger:
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:
-            # same host-time origin as the live view, so the .rrd lines up with it when opened together
-            self.file = live_log.LiveLogger(
-                self.session.file_rec, estimator_names=options.estimators, t0_from=self.logger
-            )
+            self.file = live_log.LiveLogger(self.session.file_rec, estimator_names=options.estimators)
 
     @property
     def has_viewer(self) -> bool:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
         return self.session.has_viewer
 
-    def log_batch(self, batch: AttitudeBatch) -> None:
+    def log_batch(self, batch: LiveRows) -> None:
         self.logger.log_batch(batch)
 
     def log_status(self, frame, t_unix_s: float) -> None:

@@ -23,25 +23,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from steval_link import constants as C
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.frames import (
-    AckFrame,
-    AttitudeFrame,
-    CommandFrame,
-    DecoderStats,
-    FlightFrame,
-    Frame,
-    StatusFrame,
-    TextFrame,
-)
+from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
+from steval_link.link.unwrap import host_times as _host_times
+
+if TYPE_CHECKING:  # annotations only
+    from steval_link.link.frames import DecoderStats, Frame
 
 __all__ = [
     "AttitudeArrays",
@@ -98,6 +93,39 @@ class AttitudeArrays:
 
     def __len__(self) -> int:
         return len(self.step)
+
+    @classmethod
+    def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
+        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
+        and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        thx = att["thx_rad"].copy()
+        thy = att["thy_rad"].copy()
+        ex = att["exact"]
+        if ex.any():
+            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
+        return cls(
+            step=np.asarray(step, dtype=np.int64),
+            seq=att["seq"].astype(np.uint16),
+            t_us=att["t_us"].astype(np.uint32),
+            t_fw_s=np.asarray(t_fw_s, dtype=np.float64),
+            t_host_s=np.asarray(t_host_s, dtype=np.float64),
+            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
+            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
+            thr=att["thr"].astype(np.int16),
+            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
+            thz_rad=att["thz_rad"].astype(np.float32),
+            thx_rad=thx.astype(np.float32),
+            thy_rad=thy.astype(np.float32),
+            exact=att["exact"].astype(bool),
+            offset=att["offset"].astype(np.int64),
+        )
+
+    @classmethod
+    def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
+        """The rows of ``parts``, in order."""
+        if len(parts) == 1:
+            return parts[0]
+        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
 
 
 @dataclass
@@ -350,24 +378,6 @@ def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) ->
     return out
 
 
-def _host_times(
-    last_byte: np.ndarray, chunk_times: tuple[np.ndarray, np.ndarray] | None, baud: int | None, total: int
-) -> np.ndarray:
-    if chunk_times is None or len(chunk_times[0]) == 0:
-        return np.full(len(last_byte), np.nan)
-    c_off = np.asarray(chunk_times[0], dtype=np.int64)
-    c_t = np.asarray(chunk_times[1], dtype=np.float64)
-    k = np.clip(np.searchsorted(c_off, last_byte, side="right") - 1, 0, len(c_off) - 1)
-    t = c_t[k].copy()
-    if baud:
-        c_end = np.append(c_off[1:], total)
-        t -= (c_end[k] - (last_byte + 1)) * (10.0 / baud)
-        # a byte cannot have arrived before the previous chunk was received
-        prev = np.where(k > 0, c_t[np.maximum(k - 1, 0)], -np.inf)
-        t = np.maximum(t, prev)
-    return t
-
-
 @dataclass
 class Telemetry:
     """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
@@ -414,27 +424,8 @@ class Telemetry:
         att_last = att["offset"] + att["nbytes"] - 1
         sta_last = sta["offset"] + sta["nbytes"] - 1
 
-        thx = att["thx_rad"].copy()
-        thy = att["thy_rad"].copy()
-        ex = att["exact"]
-        if ex.any():
-            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
-
-        attitude = AttitudeArrays(
-            step=step.astype(np.int64),
-            seq=att["seq"].astype(np.uint16),
-            t_us=att["t_us"].astype(np.uint32),
-            t_fw_s=t_all[:na],
-            t_host_s=_host_times(att_last, chunk_times, baud, total),
-            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
-            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
-            thr=att["thr"].astype(np.int16),
-            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
-            thz_rad=att["thz_rad"].astype(np.float32),
-            thx_rad=thx.astype(np.float32),
-            thy_rad=thy.astype(np.float32),
-            exact=att["exact"].astype(bool),
-            offset=att["offset"].astype(np.int64),
+        attitude = AttitudeArrays.from_records(
+            att, step=step, t_fw_s=t_all[:na], t_host_s=_host_times(att_last, chunk_times, baud, total)
         )
         st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(

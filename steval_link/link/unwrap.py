@@ -1,7 +1,7 @@
-"""Counters the firmware sends modulo a power of two, unwrapped: ``seq`` (u16) into full AHRS steps
-(:class:`SeqUnwrapper`) and ``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot
-(:class:`TimeUnwrapper`). One implementation for both paths: the bulk decoder runs them over a whole stream, the
-live path keeps them across batches.
+"""Steps and times of a stream's rows: ``seq`` (u16) unwrapped into full AHRS steps (:class:`SeqUnwrapper`),
+``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot (:class:`TimeUnwrapper`), host times of
+frames from their chunks' (:func:`host_times`). One implementation for both paths: ``Telemetry`` runs them over a
+whole stream, the live path across chunks (:class:`StreamClock`), so live rows carry ``load_telemetry``'s times.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 
 from steval_link.link.protocol import SEQ_MODULUS, T_US_MODULUS
 
-__all__ = ["SeqUnwrapper", "TimeUnwrapper"]
+__all__ = ["SeqUnwrapper", "StreamClock", "TimeUnwrapper", "host_times"]
 
 _HALF = T_US_MODULUS // 2
 
@@ -97,3 +97,80 @@ class SeqUnwrapper:
         """A status frame names the full step of the attitude frame just before it: take it when it agrees."""
         if self.last is None or self.last % SEQ_MODULUS == step % SEQ_MODULUS:
             self.last = int(step)
+
+
+def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s: float = -np.inf) -> np.ndarray:
+    """(N,) float64 host receive time of each frame, s on the chunks' base, from the offset of its ``last_byte``.
+
+    ``chunk_times``: (offsets, times) of the received chunks in stream order (None: NaN times). A frame takes its
+    chunk's time; with ``baud`` the bytes after it in the chunk are taken off (10 bits each), but never before the
+    previous chunk came (``before_s``: the time of the chunk before the first one given). ``total``: the bytes of
+    the stream so far (the end of the last chunk).
+    """
+    if chunk_times is None or len(chunk_times[0]) == 0:
+        return np.full(len(last_byte), np.nan)
+    c_off = np.asarray(chunk_times[0], dtype=np.int64)
+    c_t = np.asarray(chunk_times[1], dtype=np.float64)
+    k = np.clip(np.searchsorted(c_off, last_byte, side="right") - 1, 0, len(c_off) - 1)
+    t = c_t[k].copy()
+    if baud:
+        c_end = np.append(c_off[1:], total)
+        t -= (c_end[k] - (last_byte + 1)) * (10.0 / baud)
+        # a byte cannot have arrived before the previous chunk was received
+        prev = np.where(k > 0, c_t[np.maximum(k - 1, 0)], before_s)
+        t = np.maximum(t, prev)
+    return t
+
+
+class StreamClock:
+    """Firmware and host times of a live stream's rows by the bulk path's rules, on the capture's base.
+
+    ``t0_unix_s``: the capture's ``start_time_unix_s`` (default: the first chunk's time), ``baud`` its header's.
+    Call :meth:`chunk` for each chunk before decoding it; :meth:`host_s` times frames by their last byte,
+    :meth:`fw_s` unwraps attitude and status ``t_us`` in stream order; :meth:`prune` forgets decoded chunks.
+    """
+
+    def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
+        self.t0_unix_s, self.baud = t0_unix_s, baud
+        self.total = 0  # bytes of the stream so far
+        self._offsets: list[int] = []
+        self._times: list[float] = []
+        self._before_s = -np.inf  # time of the chunk before the first kept one
+        self.fw = TimeUnwrapper()
+
+    def host_of(self, t_unix_s: float) -> float:
+        """A host time (s, Unix epoch) on the capture's base (as the recorder stores chunk times)."""
+        if self.t0_unix_s is None:
+            self.t0_unix_s = float(t_unix_s)
+        return float(t_unix_s) - self.t0_unix_s
+
+    def chunk(self, nbytes: int, t_unix_s: float) -> None:
+        """A chunk of ``nbytes`` received at ``t_unix_s`` (an empty one is not kept, as in a capture)."""
+        t_s = self.host_of(t_unix_s)
+        if nbytes:
+            self._offsets.append(self.total)
+            self._times.append(t_s)
+            self.total += nbytes
+
+    def host_s(self, last_byte) -> np.ndarray:
+        """Host times of frames ending at stream offsets ``last_byte`` (:func:`host_times` over the chunks)."""
+        chunks = (self._offsets, self._times)
+        return host_times(np.asarray(last_byte), chunks, self.baud, self.total, before_s=self._before_s)
+
+    def fw_s(self, t_us, restart=None) -> np.ndarray:
+        """Firmware seconds of these ``t_us`` (stream order); counting starts again at each ``restart`` row."""
+        restart = np.zeros(len(t_us), bool) if restart is None else np.asarray(restart, bool)
+        cuts = sorted({0, len(t_us), *np.flatnonzero(restart).tolist()})
+        out = [np.zeros(0)]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if restart[a]:
+                self.fw = TimeUnwrapper()  # a firmware restart: its own time from boot
+            out.append(self.fw.seconds(t_us[a:b]))
+        return np.concatenate(out)
+
+    def prune(self, pending_bytes: int) -> None:
+        """Forget the chunks before the one holding the first of the ``pending_bytes`` not decoded yet."""
+        k = int(np.searchsorted(self._offsets, self.total - pending_bytes, side="right")) - 1
+        if k > 0:
+            self._before_s = self._times[k - 1]  # a frame's time is never before the previous chunk's
+            del self._offsets[:k], self._times[:k]

@@ -159,7 +159,7 @@ class EmulateSession:
             )
             if opts.uses_rerun:
                 viewer = self.viewer_factory(opts, capture_path.stem)
-            pipe = LivePipeline.for_viewer(opts.estimators, viewer)
+            pipe = LivePipeline.for_viewer(opts.estimators, viewer, t0_unix_s=wall0, baud=capture.header["baud"])
             prompt = opts.prompt if opts.prompt is not None else _stdin_is_tty()
             console = self.console = CommandConsole(emu.send, self.display.note, enabled=prompt)
             if prompt:
@@ -224,7 +224,7 @@ class EmulateSession:
             raise error
         s = pipe.decoder.stats
         h = pipe.health
-        port = pipe.port.describe() if pipe.port is not None else None
+        port = pipe.mahony.describe() if pipe.mahony is not None else None
         held = held_back_sentence(s.implausible, s.held_values) if s.implausible else None
         return EmulateSummary(
             capture_path,
@@ -262,8 +262,8 @@ class EmulateSession:
             parts.insert(2, pipe.health.values_sentence())
         if s.implausible:
             parts.append(f"held back {s.implausible}")
-        if pipe.port is not None:
-            parts.append(pipe.port.describe())
+        if pipe.mahony is not None:
+            parts.append(pipe.mahony.describe())
         return " | ".join(parts)
 
     def _install_signals(self):

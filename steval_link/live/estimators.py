@@ -1,6 +1,6 @@
-"""The estimators of a live session: the ST port followed bit for bit from status snapshots (:class:`LivePort`) and
-the registry estimators and your own (:class:`LiveEstimators`, each disabled with one line when it fails, floods
-NaN or cannot keep up), run per :class:`AttitudeBatch` of frames.
+"""The estimators of a live session: the ST Mahony filter followed bit for bit from status snapshots
+(:class:`LiveMahony`) and the registry estimators and your own (:class:`LiveEstimators`, each disabled with one line
+when it fails, floods NaN or cannot keep up), run per :class:`LiveRows` of attitude rows.
 """
 
 from __future__ import annotations
@@ -12,54 +12,46 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators import registry, st_mahony
+from steval_link.link.telemetry import AttitudeArrays
 
 
 @dataclass
-class AttitudeBatch:
-    """The attitude frames of one processing round as arrays, with every estimate (units in the names).
+class LiveRows:
+    """The attitude rows of one processing round (:class:`~steval_link.link.telemetry.AttitudeArrays`, times on the
+    capture's base as ``load_telemetry`` gives them) with every live estimate.
 
     ``estimates`` maps a source name (``st-mahony``, ``accel``, ``ekf3``...) to (N, 4) q_wxyz, NaN where the
-    estimate is undefined (port not seeded yet, non-finite input): such rows must not be plotted.
+    estimate is undefined (filter not seeded yet, non-finite input): such rows must not be plotted.
     """
 
-    step: np.ndarray  # (N,) int64
-    t_us: np.ndarray  # (N,) int64 (firmware µs, as sent)
-    t_unix_s: np.ndarray  # (N,) float64, Unix epoch
-    acc_mg: np.ndarray  # (N, 3) float32
-    gyro_mdps: np.ndarray  # (N, 3) float32
-    q_wxyz: np.ndarray  # (N, 4) float32, firmware
-    thz_rad: np.ndarray  # (N,) float32
-    thr: np.ndarray  # (N,) int16
-    finite: np.ndarray  # (N,) bool, the filter inputs (acc, gyro) are finite: estimators may take the row
-    exact: np.ndarray  # (N,) bool, binary frame (bit-exact); False: rounded text-mode row without q
-    thx_rad: np.ndarray  # (N,) float32, text-mode pitch (about x); NaN for binary frames (derive from q)
-    thy_rad: np.ndarray  # (N,) float32, text-mode roll (about y); NaN for binary frames
+    attitude: AttitudeArrays
     estimates: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
-        return int(self.step.shape[0])
+        return len(self.attitude)
+
+    @property
+    def finite(self) -> np.ndarray:
+        """(N,) bool: the filter inputs (acc, gyro) are finite, so estimators may take the row."""
+        a = self.attitude
+        return np.isfinite(a.acc_mg).all(axis=1) & np.isfinite(a.gyro_mdps).all(axis=1)
 
     @classmethod
-    def concat(cls, batches: list["AttitudeBatch"]) -> "AttitudeBatch":
-        """One batch of the frames of ``batches``, in order (estimate names must agree)."""
-        if len(batches) == 1:
-            return batches[0]
-        arrays = {
-            name: np.concatenate([getattr(b, name) for b in batches])
-            for name in cls.__dataclass_fields__
-            if name != "estimates"
-        }
-        estimates = {name: np.concatenate([b.estimates[name] for b in batches]) for name in batches[0].estimates}
-        return cls(**arrays, estimates=estimates)
+    def concat(cls, parts: list[LiveRows]) -> LiveRows:
+        """One set of the rows of ``parts``, in order (estimate names must agree)."""
+        if len(parts) == 1:
+            return parts[0]
+        estimates = {name: np.concatenate([p.estimates[name] for p in parts]) for name in parts[0].estimates}
+        return cls(AttitudeArrays.concat([p.attitude for p in parts]), estimates)
 
 
-class LivePort:
-    """The bit-exact ST Mahony port run live, (re)seeded from the firmware's status snapshots.
+class LiveMahony:
+    """The bit-exact Python ST Mahony filter run live, (re)seeded from the firmware's status snapshots.
 
     The same follower as :func:`steval_link.estimators.st_mahony.replay_firmware`
     (:class:`~steval_link.estimators.st_mahony.PortFollower`): it starts from the power-up state when the stream
     starts at step 0; otherwise (joined mid-flight, frames lost, non-finite input) it is unseeded (NaN) until the
-    next status snapshot, and bit-exact from the step after it. Live, a snapshot that disagrees with the port
+    next status snapshot, and bit-exact from the step after it. Live, a snapshot that disagrees with the filter
     (a settings change, a difference) re-seeds it.
     """
 
@@ -76,7 +68,7 @@ class LivePort:
 
     @property
     def settings(self) -> st_mahony.MahonySettings:
-        """The filter settings the port runs with (the latest snapshot's)."""
+        """The filter settings it runs with (the latest snapshot's)."""
         return self.follower.settings
 
     @property
@@ -85,11 +77,11 @@ class LivePort:
 
     @property
     def snapshots_confirmed(self) -> int:
-        """Status snapshots that matched the port's own state bit for bit."""
+        """Status snapshots that matched the filter's own state bit for bit."""
         return self.follower.confirmed
 
     def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
-        """Step the port over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
+        """Step the filter over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
         q, _, _, seeded = self.follower.rows(step, acc_mg, gyro_mdps, thr, np.asarray(finite, dtype=bool))
         exact = seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)
         k = int(np.count_nonzero(exact))
@@ -101,14 +93,14 @@ class LivePort:
         return q
 
     def status(self, frame) -> None:
-        """A status frame: seed the port from its snapshot when unseeded or out of sync (else confirm it)."""
+        """A status frame: seed the filter from its snapshot when unseeded or out of sync (else confirm it)."""
         if not frame.exact:  # a text-mode $STA row has no q, integral or gains: nothing to seed from
             return
         snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
         self.follower.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
 
     def describe(self) -> str:
-        """The port's state in a few words for the health line."""
+        """The filter's state in a few words for the health line (wording kept: users and tests read it)."""
         if not self.seeded:
             return "port resyncing" if self.seeds else "port waiting for a status snapshot"
         if self.last_rows_mismatch:
@@ -142,7 +134,7 @@ class _Watch:
 
 
 class LiveEstimators:
-    """Every host estimator run on each attitude frame: the seeded ST port plus any registry estimator or your own.
+    """Every host estimator run on each attitude row: the seeded ST Mahony filter, any registry estimator, your own.
 
     Rows with a non-finite input are never fed to an estimator (one NaN would poison a filter's state for good);
     their estimates are NaN. An estimator that raises, floods NaN (:data:`NAN_FLOOD_S`) or cannot keep up
@@ -152,7 +144,7 @@ class LiveEstimators:
     """
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
-        self.port = LivePort() if "st-mahony" in names else None
+        self.mahony = LiveMahony() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
         self.names = list(names)
         self.clock = clock
@@ -163,27 +155,29 @@ class LiveEstimators:
         now = clock()
         self._watch = {name: _Watch(now) for name in self.others}
 
-    def process(self, batch: AttitudeBatch) -> None:
-        if self.port is not None:
-            batch.estimates["st-mahony"] = self.port.attitude(
-                batch.step, batch.acc_mg, batch.gyro_mdps, batch.thr, batch.q_wxyz, batch.finite & batch.exact
+    def process(self, rows: LiveRows) -> None:
+        a = rows.attitude
+        finite = rows.finite
+        if self.mahony is not None:
+            rows.estimates["st-mahony"] = self.mahony.attitude(
+                a.step, a.acc_mg, a.gyro_mdps, a.thr, a.q_wxyz, finite & a.exact
             )
-        rows = np.flatnonzero(batch.finite)
+        rows_in = np.flatnonzero(finite)
         for name, est in self.others.items():
-            q = np.full((len(batch), 4), np.nan, dtype=np.float64)
-            if rows.size and name not in self.disabled:
+            q = np.full((len(rows), 4), np.nan, dtype=np.float64)
+            if rows_in.size and name not in self.disabled:
                 t0 = self.clock()
                 try:
-                    res = est.run(batch.acc_mg[rows], batch.gyro_mdps[rows], batch.thr[rows].astype(np.int64))
+                    res = est.run(a.acc_mg[rows_in], a.gyro_mdps[rows_in], a.thr[rows_in].astype(np.int64))
                     qq = np.asarray(res.q_wxyz, dtype=np.float64)
                     valid = np.asarray(res.valid, dtype=bool)
                     qq[~valid] = np.nan
-                    q[rows] = qq
+                    q[rows_in] = qq
                 except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
                     self._disable(name, failure_sentence(name, exc))
                 else:
-                    self._account(name, est, rows.size, valid, self.clock() - t0, int(batch.step[rows[0]]))
-            batch.estimates[name] = q
+                    self._account(name, est, rows_in.size, valid, self.clock() - t0, int(a.step[rows_in[0]]))
+            rows.estimates[name] = q
 
     def _account(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float, first_step: int) -> None:
         w = self._watch[name]
@@ -241,8 +235,8 @@ class LiveEstimators:
         return out
 
     def status(self, frame) -> None:
-        if self.port is not None:
-            self.port.status(frame)
+        if self.mahony is not None:
+            self.mahony.status(frame)
 
 
 def failure_sentence(name: str, exc: BaseException) -> str:

@@ -1,5 +1,8 @@
-"""Bytes → frames → estimators → viewer for one live stream (:class:`LivePipeline`), each viewer fed merged batches at
+"""Bytes → frames → estimators → viewer for one live stream (:class:`LivePipeline`), each viewer fed merged rows at
 its own cadence (:class:`BatchOutlet`); AHRS step numbers from the 16-bit ``seq`` (:class:`StepUnwrapper`).
+
+The pipeline owns the rows' times: ``t_fw_s`` and ``t_host_s`` on the capture's base, by the rules (and the code,
+:mod:`steval_link.link.unwrap`) of ``load_telemetry``; a viewer logs the times it is given.
 """
 
 from __future__ import annotations
@@ -8,6 +11,7 @@ import collections
 import math
 import time
 import typing
+from typing import NamedTuple
 
 import numpy as np
 
@@ -16,9 +20,10 @@ from steval_link.link import protocol as P
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
-from steval_link.link.plausibility import attitude_inputs_bad, attitude_rows_bad
-from steval_link.link.unwrap import SeqUnwrapper
-from steval_link.live.estimators import AttitudeBatch, LiveEstimators, LivePort
+from steval_link.link.plausibility import attitude_inputs_bad
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
+from steval_link.link.unwrap import SeqUnwrapper, StreamClock
+from steval_link.live.estimators import LiveEstimators, LiveMahony, LiveRows
 from steval_link.live.health import LinkHealth
 
 #: Bytes kept from the start of a connection to describe a stream without frames.
@@ -37,23 +42,32 @@ VIEW_INTERVAL_S = 0.0
 RRD_ONLY_INTERVAL_S = 30.0
 
 
+class EventTime(NamedTuple):
+    """When a frame or a note (not an attitude row) happened: firmware s since boot (of a text line or a note:
+    estimated from the latest row, NaN before the first) and host s since capture start."""
+
+    t_fw_s: float
+    t_host_s: float
+
+
 class LiveViewer(typing.Protocol):
     """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
 
-    Optional attributes, read when present: ``has_viewer`` (a viewer gets the stream, not only an ``.rrd``: then
-    every processing round goes out at once) and ``file`` (the ``.rrd``'s own LiveViewer next to a live viewer,
-    fed merged batches) and ``log_flight(frame, t_unix_s)`` (flight-control frames).
+    Rows and events come timed (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`); ``log_link``
+    gets the session's Unix time, only to pace itself. Optional attributes, read when present: ``has_viewer`` (a
+    viewer gets the stream, not only an ``.rrd``: then every processing round goes out at once) and ``file`` (the
+    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows) and ``log_flight(frame, at)``.
     """
 
-    def log_batch(self, batch: AttitudeBatch) -> None: ...
+    def log_batch(self, batch: LiveRows) -> None: ...
 
-    def log_status(self, frame, t_unix_s: float) -> None: ...
+    def log_status(self, frame, at: EventTime) -> None: ...
 
-    def log_text(self, frame, t_unix_s: float) -> None: ...
+    def log_text(self, frame, at: EventTime) -> None: ...
 
     def log_link(self, stats, t_unix_s: float) -> None: ...
 
-    def log_event(self, text: str, t_unix_s: float, level: str) -> None: ...
+    def log_event(self, text: str, at: EventTime, level: str) -> None: ...
 
     def close(self) -> None: ...
 
@@ -66,23 +80,25 @@ class StepUnwrapper:
     def __init__(self) -> None:
         self.seq = SeqUnwrapper()
 
-    def frames(self, frames) -> np.ndarray:
-        """(N,) int64 steps of these attitude frames, in order."""
+    def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
+        """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these attitude
+        frames, in order."""
         out = np.empty(len(frames), dtype=np.int64)
+        restart = np.zeros(len(frames), dtype=bool)
         run: list[int] = []  # indexes of the current run of binary frames
         for i, f in enumerate(frames):
             if f.step is None:
                 run.append(i)
                 continue
-            self._binary(frames, run, out)
+            self._binary(frames, run, out, restart)
             run = []
             out[i] = self.seq.last = int(f.step)
-        self._binary(frames, run, out)
-        return out
+        self._binary(frames, run, out, restart)
+        return out, restart
 
-    def _binary(self, frames, run: list[int], out: np.ndarray) -> None:
+    def _binary(self, frames, run: list[int], out: np.ndarray, restart: np.ndarray) -> None:
         if run:
-            out[run] = self.seq.steps(np.array([int(frames[i].seq) for i in run], dtype=np.int64))[0]
+            out[run], restart[run] = self.seq.steps(np.array([int(frames[i].seq) for i in run], dtype=np.int64))
 
     def status(self, step: int) -> None:
         """A status frame describes the step of the attitude frame just before it: take its full number."""
@@ -90,9 +106,9 @@ class StepUnwrapper:
 
 
 class BatchOutlet:
-    """One logger fed merged batches at its own cadence (see :class:`LivePipeline`).
+    """One logger fed merged rows at its own cadence (see :class:`LivePipeline`).
 
-    ``logger`` takes ``log_batch(batch)``, ``log_status(frame, t_unix_s)`` and ``log_text(frame, t_unix_s)``.
+    ``logger`` takes ``log_batch(rows)``, ``log_status(frame, at)`` and ``log_text(frame, at)``.
     Batches wait at most ``interval_s`` (monotonic wall time) or ``interval_s`` × 161.5 frames of stream time (a
     stream fed faster than real time, e.g. catching up or a benchmark, still makes chunks of the same size).
     """
@@ -101,23 +117,23 @@ class BatchOutlet:
         self.logger = logger
         self.interval_s = interval_s
         self.max_rows = max(1, math.ceil(interval_s * C.AHRS_RATE_HZ))
-        self._batches: list[AttitudeBatch] = []
+        self._batches: list[LiveRows] = []
         self._rows = 0
-        self._events: list[tuple[str, object, float]] = []  # ("status" | "text", frame, t_unix_s)
+        self._events: list[tuple[str, object, EventTime]] = []  # ("status" | "text" | ..., frame, when)
         self._since = 0.0  # monotonic time the oldest pending item came
 
     def _touch(self) -> None:
         if not self._batches and not self._events:
             self._since = time.monotonic()
 
-    def add_batch(self, batch: AttitudeBatch) -> None:
+    def add_batch(self, batch: LiveRows) -> None:
         self._touch()
         self._batches.append(batch)
         self._rows += len(batch)
 
-    def add_event(self, kind: str, frame, t_unix_s: float) -> None:
+    def add_event(self, kind: str, frame, at: EventTime) -> None:
         self._touch()
-        self._events.append((kind, frame, t_unix_s))
+        self._events.append((kind, frame, at))
 
     def tick(self, now_mono: float | None = None) -> None:
         """Flush when the pending frames have waited ``interval_s`` or fill ``max_rows``."""
@@ -129,33 +145,26 @@ class BatchOutlet:
     def flush(self) -> None:
         """Log every pending frame now: one merged batch, then the status and text frames in stream order."""
         if self._batches:
-            batch = AttitudeBatch.concat(self._batches)
+            batch = LiveRows.concat(self._batches)
             self._batches = []
             self._rows = 0
             self.logger.log_batch(batch)
         if self._events:
             events, self._events = self._events, []
-            for kind, frame, t_unix_s in events:
-                if kind == "status":
-                    self.logger.log_status(frame, t_unix_s)
-                elif kind == "flight":
-                    log_flight = getattr(self.logger, "log_flight", None)  # optional (LiveViewer)
-                    if log_flight is not None:
-                        log_flight(frame, t_unix_s)
-                elif kind == "text":
-                    self.logger.log_text(frame, t_unix_s)
-                else:  # "event": (text, level), a command sent or answered
-                    log_event = getattr(self.logger, "log_event", None)
-                    if log_event is not None:
-                        log_event(frame[0], t_unix_s, frame[1])
+            for kind, frame, at in events:  # log_status, log_text; log_flight, log_event where present
+                log = getattr(self.logger, "log_" + kind, None)
+                if log is not None:  # an "event" is (text, level): a command sent or answered
+                    log(frame[0], at, frame[1]) if kind == "event" else log(frame, at)
 
 
 class LivePipeline:
     """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
 
     ``feed([(bytes, t_unix_s), ...])`` decodes the chunks in order and, per processing round, turns the
-    attitude frames into one :class:`AttitudeBatch` that goes through :class:`LiveEstimators` and then to
-    ``viewer.log_batch`` (status and text frames are logged in stream order between batches). Counters are in
+    attitude frames into one :class:`~steval_link.live.estimators.LiveRows` (``AttitudeArrays`` with ``t_fw_s``
+    and ``t_host_s`` as ``load_telemetry`` of the capture has them: ``t0_unix_s`` and ``baud`` are its header's
+    ``start_time_unix_s`` and ``baud``) that goes through :class:`LiveEstimators` and then to ``viewer.log_batch``
+    (status and text frames are logged in stream order between batches, at their :class:`EventTime`). Counters are in
     ``decoder.stats`` and ``health``. Memory is bounded: nothing per frame is kept beyond one view interval.
 
     ``view_interval_s``: batches are handed to the viewer at most this often, or once that much stream time
@@ -177,6 +186,8 @@ class LivePipeline:
         view_interval_s: float = 0.0,
         file_logger=None,
         file_interval_s: float = RRD_ONLY_INTERVAL_S,
+        t0_unix_s: float | None = None,
+        baud: int | None = None,
     ) -> None:
 
         self.view_interval_s = view_interval_s
@@ -192,6 +203,9 @@ class LivePipeline:
         self.viewer = viewer
         self.file_logger = file_logger
         self.step_unwrap = StepUnwrapper()
+        #: the rows' firmware and host times (the capture's base)
+        self.clock = StreamClock(t0_unix_s, baud)
+        self._last_row: tuple[int, float, float] | None = None  # (step, t_fw_s, t_host_s) of the latest row
         #: the first bytes of the current connection (to describe a stream without frames)
         self.sample = bytearray()
         #: firmware log lines not shown yet (the session prints them; bounded)
@@ -204,10 +218,13 @@ class LivePipeline:
         self.acks = 0
 
     @classmethod
-    def for_viewer(cls, estimator_names: list[str], viewer: LiveViewer | None) -> LivePipeline:
+    def for_viewer(
+        cls, estimator_names: list[str], viewer: LiveViewer | None, *, t0_unix_s: float | None = None, baud=None
+    ) -> LivePipeline:
         """The pipeline of a session with this viewer side: a live viewer gets every processing round at once and
         its ``.rrd`` (the viewer's ``file``) merged batches every RRD_ONLY_INTERVAL_S; a viewer side that writes
-        only an ``.rrd`` (``has_viewer`` false: headless ``--rrd X``) gets merged batches too."""
+        only an ``.rrd`` (``has_viewer`` false: headless ``--rrd X``) gets merged batches too. ``t0_unix_s``, ``baud``:
+        the capture's (see the class)."""
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
         return cls(
             estimator_names,
@@ -215,32 +232,39 @@ class LivePipeline:
             view_interval_s=VIEW_INTERVAL_S if live else RRD_ONLY_INTERVAL_S,
             file_logger=getattr(viewer, "file", None) if live else None,
             file_interval_s=RRD_ONLY_INTERVAL_S,
+            t0_unix_s=t0_unix_s,
+            baud=baud,
         )
 
     @property
-    def port(self) -> "LivePort | None":
-        return self.estimators.port if self.estimators is not None else None
+    def mahony(self) -> LiveMahony | None:
+        """The ST Mahony filter followed live (None when ``st-mahony`` is not among the estimators)."""
+        return self.estimators.mahony if self.estimators is not None else None
 
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
         """Decode and process chunks received at host times ``t_unix_s`` (s, Unix epoch), in stream order."""
 
         outlets = self.outlets
         att: list[tuple[object, float]] = []
+        clock = self.clock
         for data, t_unix_s in chunks:
             if len(self.sample) < SAMPLE_BYTES:
                 self.sample += data[: SAMPLE_BYTES - len(self.sample)]
+            clock.chunk(len(data), t_unix_s)
             for frame in self.decoder.feed(data):
                 if isinstance(frame, AttitudeFrame):
                     att.append((frame, t_unix_s))
                 elif isinstance(frame, StatusFrame):
-                    self._attitude(att)  # the port must step through the frames before the snapshot
+                    self._attitude(att)  # the filter must step through the frames before the snapshot
                     att = []
                     self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
+                    # its t_us goes through the unwrapper in stream order, as in Telemetry
+                    t_fw_s = float(clock.fw_s([int(frame.t_us)])[0])
                     if self.estimators is not None:
                         self.estimators.status(frame)
                     if outlets:
-                        self._event("status", frame, t_unix_s)
+                        self._event("status", frame, EventTime(t_fw_s, self._host_of_frame(frame)))
                     if int(frame.flags) & P.FLAG_EVENT:
                         self._note(
                             f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}",
@@ -253,7 +277,7 @@ class LivePipeline:
                     and frame.text.startswith("#ACK")
                     and ack_of_text(frame.text) is not None
                 ):
-                    self._ack(frame if isinstance(frame, AckFrame) else ack_of_text(frame.text), t_unix_s)
+                    self._ack(frame if isinstance(frame, AckFrame) else ack_of_text(frame.text), self._at_frame(frame))
                 elif isinstance(frame, TextFrame):
                     self._attitude(att)
                     att = []
@@ -261,13 +285,31 @@ class LivePipeline:
                     self.health.last_text = frame.text
                     self.texts.append(frame.text)
                     if outlets:
-                        self._event("text", frame, t_unix_s)
+                        self._event("text", frame, self._at_frame(frame))
                 elif isinstance(frame, FlightFrame) and outlets:
                     self._attitude(att)  # its step's attitude frame first
                     att = []
-                    self._event("flight", frame, t_unix_s)
+                    self._event("flight", frame, self._at_flight(frame))
         self._attitude(att)
+        clock.prune(self.decoder.pending_bytes)
         self.tick()
+
+    def _host_of_frame(self, frame) -> float:
+        return float(self.clock.host_s([frame.offset + frame.nbytes - 1])[0])
+
+    def _at(self, t_host_s: float) -> EventTime:
+        """An event at ``t_host_s``: firmware time from the latest row's and the host time since (NaN before one)."""
+        if self._last_row is None:
+            return EventTime(math.nan, t_host_s)
+        return EventTime(max(0.0, self._last_row[1] + (t_host_s - self._last_row[2])), t_host_s)
+
+    def _at_frame(self, frame) -> EventTime:
+        return self._at(self._host_of_frame(frame))
+
+    def _at_flight(self, frame) -> EventTime:
+        """A flight-control frame: the time of its step from the latest attitude row's (as ``Telemetry.fc``)."""
+        step, t_fw_s = self._last_row[:2] if self._last_row is not None else (0, 0.0)
+        return EventTime(t_fw_s + (int(frame.step) - step) * C.AHRS_PERIOD_S, self._host_of_frame(frame))
 
     def feed_host(self, data: bytes, t_unix_s: float) -> None:
         """Bytes the host sent to the drone at ``t_unix_s``: each command is logged and remembered for its ack."""
@@ -277,24 +319,27 @@ class LivePipeline:
                 self._sent[int(frame.cmd_seq)] = command
                 while len(self._sent) > 256:
                     self._sent.popitem(last=False)
-                self._note(f"sent: {command.describe()}", t_unix_s, "DEBUG", show=False)
+                self._note(f"sent: {command.describe()}", self._at_unix(t_unix_s), "DEBUG", show=False)
 
-    def _ack(self, ack, t_unix_s: float) -> None:
+    def _at_unix(self, t_unix_s: float) -> EventTime:
+        return self._at(self.clock.host_of(t_unix_s))
+
+    def _ack(self, ack, at: EventTime) -> None:
         self.acks += 1
         command = self._sent.get(int(ack.cmd_seq))
         if command is not None and command.cmd != int(ack.cmd):
             command = None
-        self._note(describe_ack(command, ack), t_unix_s, "INFO" if int(ack.result) == P.ACK_ACCEPTED else "WARN")
+        self._note(describe_ack(command, ack), at, "INFO" if int(ack.result) == P.ACK_ACCEPTED else "WARN")
 
-    def _note(self, text: str, t_unix_s: float, level: str, *, show: bool = True) -> None:
+    def _note(self, text: str, at: EventTime, level: str, *, show: bool = True) -> None:
         if show:
             self.notes.append(text)
         if self.outlets:
-            self._event("event", (text, level), t_unix_s)
+            self._event("event", (text, level), at)
 
-    def _event(self, kind: str, frame, t_unix_s: float) -> None:
+    def _event(self, kind: str, frame, at: EventTime) -> None:
         for outlet in self.outlets:
-            outlet.add_event(kind, frame, t_unix_s)
+            outlet.add_event(kind, frame, at)
 
     def tick(self, now_mono: float | None = None) -> None:
         """Hand the pending frames to each logger whose interval has passed."""
@@ -309,46 +354,34 @@ class LivePipeline:
     def _attitude(self, att: list) -> None:
         if not att:
             return
-        frames = [f for f, _ in att]
-        n = len(frames)
-        acc = np.array([f.acc_mg for f in frames], dtype=np.float32).reshape(n, 3)
-        gyro = np.array([f.gyro_mdps for f in frames], dtype=np.float32).reshape(n, 3)
-        q = np.array([f.q_wxyz for f in frames], dtype=np.float32).reshape(n, 4)
-        thz = np.array([f.thz_rad for f in frames], dtype=np.float32)
-        exact = np.array([f.exact for f in frames], dtype=bool)
-        angles = np.array([(f.thx_rad, f.thy_rad) for f in frames], dtype=np.float32).reshape(n, 2)
+        parts = TelemetryParts()  # the frames as the bulk path's records
+        for f, _ in att:
+            parts.add_frame(f)
+        rec = parts.attitude_records()
+        n = len(rec)
+        step, restart = self.step_unwrap.frames([f for f, _ in att])
+        t_us = rec["t_us"].astype(np.int64)
+        t_host_s = self.clock.host_s(rec["offset"] + rec["nbytes"] - 1)
+        a = AttitudeArrays.from_records(rec, step=step, t_fw_s=self.clock.fw_s(t_us, restart), t_host_s=t_host_s)
+        rows = LiveRows(a)
         # the estimators take a row whose inputs are finite; the firmware's q may hold NaN (its filter diverged)
-        finite = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
-        all_finite = finite & np.isfinite(thz)
-        all_finite &= np.where(exact, np.isfinite(q).all(axis=1), np.isfinite(angles).all(axis=1))
-        step = self.step_unwrap.frames(frames)
-        t_us = np.array([f.t_us for f in frames], dtype=np.int64)
-        bad = attitude_rows_bad(exact, acc, gyro, q, thz, angles[:, 0], angles[:, 1])
-        if self.health.count_bad(bad, attitude_inputs_bad(acc, gyro), step, t_us):
-            i = int(np.argmax(bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
+        all_finite = rows.finite & np.isfinite(a.thz_rad)
+        all_finite &= np.where(
+            a.exact, np.isfinite(a.q_wxyz).all(axis=1), np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad)
+        )
+        if self.health.count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
+            i = int(np.argmax(a.values_bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
             self.notes.append(
                 f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
-        batch = AttitudeBatch(
-            step=step,
-            t_us=t_us,
-            t_unix_s=np.array([t for _, t in att], dtype=np.float64),
-            acc_mg=acc,
-            gyro_mdps=gyro,
-            q_wxyz=q,
-            thz_rad=thz,
-            thr=np.array([f.thr for f in frames], dtype=np.int16),
-            finite=finite,
-            exact=exact,
-            thx_rad=angles[:, 0],
-            thy_rad=angles[:, 1],
-        )
+        self._last_row = (int(step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
         self.health.nonfinite += int(n - np.count_nonzero(all_finite))
-        self.health.count(n, float(batch.t_unix_s[0]), float(batch.t_unix_s[-1]))
+        t_last_unix = float(att[-1][1])
+        self.health.count(n, float(att[0][1]), t_last_unix)
         if self.estimators is not None:
-            self.estimators.process(batch)
+            self.estimators.process(rows)
             for why in self.estimators.take_notes():  # an estimator disabled: one line, the session goes on
-                self._note(why, float(batch.t_unix_s[-1]), "WARN")
+                self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
         for outlet in self.outlets:
-            outlet.add_batch(batch)
+            outlet.add_batch(rows)

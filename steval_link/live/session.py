@@ -317,7 +317,9 @@ class LiveSession:
 
     def _loop(self, reader: SerialReader, proto: RecorderProtocol, inbox: Inbox, viewer, t0: float) -> None:
         opts = self.options
-        pipe = self.pipeline = LivePipeline.for_viewer(opts.estimators, viewer)
+        pipe = self.pipeline = LivePipeline.for_viewer(
+            opts.estimators, viewer, t0_unix_s=self.clock.wall0_s, baud=proto.capture.header["baud"]
+        )
         self.warned_no_frames = False
         was_connected = True
         console = self.console = self._console(reader, proto, pipe)
@@ -436,8 +438,8 @@ class LiveSession:
             parts.append(f"disconnects {proto.disconnects}")
         if inbox.dropped_bytes:
             parts.append(f"live lag: {_fmt_bytes(inbox.dropped_bytes)} not shown")
-        if self.pipeline.port is not None:
-            parts.append(self.pipeline.port.describe())
+        if self.pipeline.mahony is not None:
+            parts.append(self.pipeline.mahony.describe())
         parts.append(f"rec {_fmt_bytes(proto.bytes_total)}")
         return " | ".join(parts)
 
@@ -449,7 +451,7 @@ class LiveSession:
         streaming_s = 0.0
         if h.first_frame_s is not None and h.last_frame_s is not None:
             streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - proto.offline_s)
-        p = pipe.port if pipe is not None else None
+        p = pipe.mahony if pipe is not None else None
         if p is not None:
             if p.rows_mismatch:
                 port_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
