@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link.link.capture import load_telemetry, read_capture
+from steval_link.link.capture import read_capture
+from steval_link.link.load import load_telemetry
 from steval_link.link.telemetry import AttitudeArrays
 from steval_link.live.estimators import LiveRows
 from steval_link.live.pipeline import LivePipeline
