@@ -23,7 +23,6 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
-from steval_viewer.live_adapter import viewer_sink_options
 from steval_viewer.sinks import log_whole, open_session
 
 __all__ = [
@@ -247,11 +246,11 @@ def log_ble_replay(
 
 
 class BleLiveLogger:
-    """The Rerun side of ``steval live --ble`` (``steval_link.live.ble_session.BleViewer``): the live blueprint
+    """The Rerun side of ``steval live --ble`` (``steval_link.live.ble_source.BleViewer``): the live blueprint
     (host time, scrolling), then each round's rows."""
 
     def __init__(self, options: Any, recording_name: str | None = None) -> None:
-        self.session = open_session(viewer_sink_options(options), recording_name=recording_name)
+        self.session = open_session(options.sinks, recording_name=recording_name, checked=True)  # checked by the CLI
         self.rec = self.session.rec
         sources = [ent.source_name(n) for n in options.estimators]
         self.rec.send_blueprint(ble_blueprint(sources, live=True), make_active=True, make_default=True)

@@ -6,11 +6,6 @@ from __future__ import annotations
 
 from steval_link.live.estimators import AttitudeBatch
 from steval_link.live.session import LiveOptions
-from steval_viewer.sink_options import (
-    SinkOptions,
-    check_sinks,
-    resolve_sinks,
-)
 
 
 class ViewerLogger:
@@ -25,9 +20,10 @@ class ViewerLogger:
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
+        """``options.sinks``: the sinks the CLI built and checked (``steval_viewer.sink_options.session_sinks``)."""
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
-        self.session = sinks.open_session(viewer_sink_options(options), recording_name=recording_name, split_file=True)
+        self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:
@@ -71,23 +67,6 @@ class ViewerLogger:
                     self.file.close()
         finally:
             self.session.close()
-
-
-def viewer_sink_options(options: LiveOptions) -> SinkOptions:
-    """The Rerun sinks of a session (``steval_viewer.sink_options.SinkOptions``): the chosen viewer, or the default
-    one (``--spawn`` where a display exists), and the ``.rrd``; ``--no-view``: the ``.rrd`` alone. UserError when
-    they cannot work (no display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a
-    missing ``.rrd`` folder)."""
-    chosen = SinkOptions(rrd=options.rrd)
-    if options.web_port is not None:
-        chosen.web_port = options.web_port
-    if options.grpc_port is not None:
-        chosen.grpc_port = options.grpc_port
-    if options.view:
-        chosen.spawn, chosen.serve, chosen.connect = options.spawn, options.serve, options.connect
-        chosen = resolve_sinks(chosen)
-    check_sinks(chosen)
-    return chosen
 
 
 def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:

@@ -67,6 +67,21 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
     )
 
 
+def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
+    """A live session's Rerun outputs, resolved and checked once (the CLI calls it; the viewer then trusts them):
+    the chosen viewer, or the default one (:func:`resolve_sinks`), and the ``.rrd``; ``view=False``
+    (``--no-view``): the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work (no
+    display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a missing ``.rrd`` folder)."""
+    if not view:
+        if chosen.rrd is None:
+            return None
+        chosen = SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
+    else:
+        chosen = resolve_sinks(chosen)
+    check_sinks(chosen)
+    return chosen
+
+
 def check_sinks(options: SinkOptions) -> None:
     """Check what can be checked before any work: the ``.rrd`` can be created, the ``--connect`` URL is a Rerun
     gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""

@@ -312,8 +312,8 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
-    """Start ``rerun --serve-web`` bound to 127.0.0.1; returns (process, page URL, gRPC proxy URL)."""
-    check_sinks(SinkOptions(serve=True, web_port=web_port, grpc_port=grpc_port))
+    """Start ``rerun --serve-web`` bound to 127.0.0.1 on ports checked free (:func:`check_sinks`, or
+    :func:`free_port`); returns (process, page URL, gRPC proxy URL)."""
     cmd = rerun_command() + [
         "--serve-web",
         "--bind",
@@ -341,6 +341,7 @@ def open_session(
     application_id: str = APPLICATION_ID,
     split_file: bool = False,
     atomic_rrd: bool = False,
+    checked: bool = False,
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
 
@@ -348,13 +349,15 @@ def open_session(
     (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
     caller can log to each at its own cadence; the two are one recording when opened together.
     ``atomic_rrd``: the ``.rrd`` is written next to its name (``NAME.partial``) and renamed into place by
-    ``close()``; ``close(complete=False)`` removes it: a complete file or none.
+    ``close()``; ``close(complete=False)`` removes it: a complete file or none. ``checked``: the caller checked
+    the sinks already (a live session's CLI: once, with its TCP probes), else :func:`check_sinks` runs here.
 
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
     if not options.any():
         raise UserError("no Rerun sink chosen: pass --rrd FILE, --spawn, --serve or --connect URL")
-    check_sinks(options)
+    if not checked:
+        check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     sinks: list = []

@@ -8,9 +8,8 @@ from typing import Optional
 
 import typer
 
-from steval_link import constants as C
 from steval_link.cli.app import app
-from steval_link.cli.live import session_outputs
+from steval_link.cli.live import check_duration, run_session, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -28,10 +27,10 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
-from steval_link.live.emulated import EmulateSession
-from steval_link.live.session import LiveOptions
+from steval_link.live.session import LiveOptions, LiveSession
+from steval_link.live.sources import EMULATED_SCHEME, source_for
 from steval_viewer.live_adapter import make_viewer_logger
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
 
 
 @app.command("emulate")
@@ -147,8 +146,7 @@ def emulate_command(
     emu_options = EmulationOptions(
         elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle, mount=mount
     )
-    if duration is not None and not duration > 0:
-        raise UserError(f"--duration must be positive, got {duration}")
+    check_duration(duration)
     script = None
     if commands is not None:
         try:
@@ -156,32 +154,18 @@ def emulate_command(
         except (OSError, UnicodeDecodeError) as exc:
             raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
         script = parse_script(text, str(commands))
-    live = LiveOptions(
-        port="emulated",
-        baud=C.BAUD,
-        out=None,
-        rrd=rrd,
-        view=not no_view,
-        spawn=spawn,
-        serve=serve,
-        connect=connect,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
-        prompt=prompt,
-    )
-    # the ELF first (the input, read by the session), then the capture, the .rrd and the display
-    summary = EmulateSession(
-        emu_options,
-        live,
+    source = source_for(
+        EMULATED_SCHEME,
+        emulation=emu_options,
         realtime=realtime,
-        viewer_factory=make_viewer_logger,
         commands=script,
         commands_file=str(commands) if commands is not None else None,
-        check_outputs=session_outputs(live, out),
-    ).run()
-    print("\n".join(summary.lines()))
-    sys.stdout.flush()
+    )
+    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
+    options = LiveOptions(estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
+    # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
+    check = session_outputs(options, out, sinks, view=not no_view)
+    run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
 
 
 def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s: float, tick_start_ms: int) -> None:
@@ -189,8 +173,7 @@ def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s:
 
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
-    if duration is not None and not duration > 0:
-        raise UserError(f"--duration must be positive, got {duration}")
+    check_duration(duration)
     if not connect_s >= 0:
         raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
     path = resolve_capture_out(out)
