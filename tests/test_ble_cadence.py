@@ -239,8 +239,7 @@ def test_replay_of_a_poller_capture(monkeypatch, capsys, tmp_path):
 
 
 def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), drop_after=()):
-    from steval_link.live.session import LiveOptions, LiveSession
-    from steval_link.live.sources import source_for
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.sink_options import SinkOptions
 
     rows = []

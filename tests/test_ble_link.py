@@ -145,8 +145,7 @@ def test_link_errors_are_one_sentence(firmware_notifications):
 
 @pytest.mark.slow  # real time: a paced BLE link with reconnects through a live session: ≈ 2.5 s
 def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifications):
-    from steval_link.live.session import LiveOptions, LiveSession
-    from steval_link.live.sources import source_for
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.sink_options import SinkOptions
 
     logged = []
@@ -245,8 +244,7 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
 
 def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     """steval live --ble --rrd FILE --no-view: the Rerun logger of the BLE session writes the BLE layout."""
-    from steval_link.live.session import LiveOptions, LiveSession
-    from steval_link.live.sources import source_for
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.ble_log import BleLiveLogger
     from steval_viewer.rrd_check import blueprint_views, read_rrd
     from steval_viewer.sink_options import SinkOptions

@@ -18,8 +18,7 @@ from steval_link.link.decoder import decode_bytes
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, StepUnwrapper
 from steval_link.live.recorder import Inbox
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.sources import source_for
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 
 class BatchLog:

@@ -15,9 +15,8 @@ from steval_link.link.transport import Protocol, SerialReader
 from steval_link.live.ble_source import BleSource
 from steval_link.live.emulated import EmulatedSource
 from steval_link.live.serial_source import SerialSource
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.source import CaptureFields, Source
-from steval_link.live.sources import source_for
+from steval_link.live.session import LiveOptions, LiveSession, source_for
+from steval_link.live.sources import CaptureFields, Source
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -464,8 +464,7 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     from steval_link.emulation.bluenrg import FakeBleBackend
     from steval_link.link import ble_payloads as B
     from steval_link.link.capture import read_capture, read_source
-    from steval_link.live.session import LiveOptions, LiveSession
-    from steval_link.live.sources import source_for
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
 
     f = write(
         tmp_path / "fragile.py",

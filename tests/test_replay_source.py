@@ -16,8 +16,7 @@ from steval_link import constants as C
 from steval_link.errors import UserError
 from steval_link.link.capture import load_telemetry, read_capture
 from steval_link.link.replay_source import PROMPT_NOTE, ReplayPort, open_replay, parse_replay_url
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.sources import source_for
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "demo.stv"

@@ -27,8 +27,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.sources import EMULATED_SCHEME, source_for
+from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
 

@@ -26,8 +26,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.sources import BLE_SCHEME, source_for
+from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, session_sinks
 

@@ -21,8 +21,7 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
 from steval_link.link.capture import read_source, telemetry_of_source
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_link.live.sources import source_for
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 #: the guided sequence: (seconds after the start, what to say)
 SCRIPT: tuple[tuple[float, str], ...] = (

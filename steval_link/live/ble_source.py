@@ -52,7 +52,7 @@ from steval_link.link.ble_payloads import (
 from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.link.capture import CHUNK_BLE
 from steval_link.live.estimators import failure_sentence
-from steval_link.live.source import CaptureFields, Source
+from steval_link.live.sources import CaptureFields, Source
 from steval_link.quat import euler_from_quaternion
 
 __all__ = ["BleViewer", "BleRows", "BleSource", "INBOX_MAX", "LOCK_SAMPLES"]
@@ -128,16 +128,10 @@ class BleSource(Source):
         self.counts: dict[str, int] = {}
 
     # -- the session's calls
-    def open(self, session) -> None:
-        self.session = session
-
     @property
     def what(self) -> str:
         """The drone asked for: its name or address, or any ``DRN1…``."""
         return self.target or f"{DEVICE_NAME_PREFIX}*"
-
-    def describe(self) -> str:
-        return ""  # the link says when it is connected
 
     def capture_fields(self) -> CaptureFields:
         return CaptureFields(f"ble:{self.what}", 0, {"link": "ble", "target": self.target})

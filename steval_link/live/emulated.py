@@ -24,7 +24,7 @@ from steval_link.errors import UserError
 from steval_link.link.commands import Command
 from steval_link.live.health import pipeline_health
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.source import CaptureFields, Source
+from steval_link.live.sources import CaptureFields, Source
 from steval_link.live.summary import pipeline_counts
 
 __all__ = ["EmulatedSource"]

@@ -27,7 +27,7 @@ from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.recorder import Inbox, RecorderProtocol
-from steval_link.live.source import CaptureFields, Source
+from steval_link.live.sources import CaptureFields, Source
 from steval_link.live.summary import pipeline_counts
 
 __all__ = ["LinkError", "SerialSource", "NO_FRAMES_TIMEOUT_S"]

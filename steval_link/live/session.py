@@ -1,19 +1,11 @@
-"""The live session behind ``steval live``, ``steval record``, ``steval emulate`` and ``steval live --ble``: one
-source (:mod:`steval_link.live.sources`: a serial port, a replay, the emulated board, BLE) → capture → decoder →
-estimators → viewer.
+"""The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
+(:func:`source_for`; the interface: :mod:`steval_link.live.sources`) → capture → decoder → estimators → viewer.
 
-Flow (one way)::
-
-    source (its reader thread, or its round) ──► capture.write  [always first]
-                                   │
-                                   ▼
-    main thread, every round: source.round() ──► decoder ──► estimators ──► viewer logger (optional)
-                                   └─► health line (stderr); typed commands ──► source.write (locked)
-
-The capture is written before anything is decoded (each chunk goes to the OS at once, so even ``kill -9`` loses
-nothing already received), and a slow viewer never costs bytes. The session owns, once for every source: the
-capture file (its errors are one sentence), the viewer, the command prompt, the stop requests (Ctrl-C, SIGTERM,
-SIGHUP, ``--duration``: :meth:`LiveSession.request_stop`) and the summary (:class:`LiveSummary`).
+The source writes each chunk to the capture first (in its reader thread or its round: each goes to the OS at once,
+so even ``kill -9`` loses nothing received), and a slow viewer never costs bytes. The session owns, once for every
+source: the capture file (its errors are one sentence), the viewer, the command prompt (typed commands go to the
+source's locked write), the stop requests (Ctrl-C, SIGTERM, SIGHUP, ``--duration``: :meth:`LiveSession.
+request_stop`) and the summary (:class:`LiveSummary`).
 """
 
 from __future__ import annotations
@@ -24,33 +16,46 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol, TextIO
+from typing import Any, Callable, TextIO
 
 from steval_link.errors import UserError
 from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay
-from steval_link.live.source import Source
+from steval_link.live.serial_source import SerialSource
+from steval_link.live.sources import Source
 from steval_link.live.summary import LiveSummary
 
-__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "install_stop_signals", "restore_signals"]
+__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for", "install_stop_signals", "restore_signals"]
+
+BLE_SCHEME = "ble:"
+EMULATED_SCHEME = "emulated:"
 
 
-class Sinks(Protocol):
-    """The Rerun outputs the CLI built and checked (``steval_viewer.sink_options.SinkOptions``); the session only
-    names the ``.rrd``."""
+def source_for(url: str, **settings: Any) -> Source:
+    """The source a URL names (table in :mod:`steval_link.live.sources`); ``settings`` go to its driver (``baud``,
+    ``wait`` for a serial port; ``emulation``, ``realtime``, ``commands`` for the board; ``backend`` for BLE)."""
+    if url.lower().startswith(BLE_SCHEME):
+        from steval_link.live.ble_source import BleSource  # reason: BLE loads only when a session uses it
 
-    rrd: Path | None
+        target = url[len(BLE_SCHEME) :].strip()
+        return BleSource(None if target in ("", "auto") else target, **settings)
+    if url.lower().startswith(EMULATED_SCHEME):
+        from steval_link.live.emulated import EmulatedSource  # reason: the emulator loads only when used
+
+        return EmulatedSource(**settings)
+    return SerialSource(url, **settings)
 
 
 @dataclass
 class LiveOptions:
     """What every live session configures (a source's own settings are its driver's: the baud rate, --wait, the
-    ELF...). ``sinks``: the Rerun outputs, built and checked once by the CLI (None: no Rerun at all)."""
+    ELF...). ``sinks``: the Rerun outputs (``steval_viewer.sink_options.SinkOptions``), built and checked once by
+    the CLI (None: no Rerun at all)."""
 
     out: Path | None = None
-    sinks: Sinks | None = None
+    sinks: Any = None
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     recordings_dir: Path = Path("recordings")
@@ -153,8 +158,7 @@ class LiveSession:
             finally:
                 if self.console is not None:
                     self.console.close()
-                stop = self._stop_reason or (type(error).__name__ if error else "end")
-                close_outputs(capture, self.viewer, self.display, stop, t_stop_s=src.t_stop_s())
+                self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
                 restore_signals(old_handlers)
         if error is not None:
             raise src.error_of(error)
@@ -187,6 +191,21 @@ class LiveSession:
             raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
         except OSError as exc:
             raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+
+    def _close_outputs(self, stop_reason: str) -> None:
+        """In their order of importance: the capture (its stop event at the source's time, then closed), then the
+        Rerun side (a failure there is a note: the capture is safe), then the health line."""
+        try:
+            self.capture.mark_event("stop", stop_reason, t_host_s=self.source.t_stop_s())
+        except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
+            pass
+        self.capture.close()
+        if self.viewer is not None:
+            try:
+                self.viewer.close()
+            except Exception as exc:  # noqa: BLE001 - the capture is safe; say what went wrong
+                self.display.note(f"could not finalise the Rerun output: {exc}")
+        self.display.close()
 
     def _console(self) -> CommandConsole:
         """The command prompt: each frame typed goes to the source (locked), then into the capture and the log."""
@@ -249,20 +268,3 @@ def restore_signals(old: dict | None) -> None:
             signal.signal(sig, handler)
         except (ValueError, OSError):
             pass
-
-
-def close_outputs(capture, viewer, display: HealthDisplay, stop_reason: str, t_stop_s: float | None = None) -> None:
-    """End a session's outputs in their order of importance: the capture (its stop event, then closed), then the
-    Rerun side (a failure there is a note: the capture is safe), then the health line. ``t_stop_s``: the stop
-    event's time on the capture's clock (the emulated time of an emulated session; default: the host clock now)."""
-    try:
-        capture.mark_event("stop", stop_reason, t_host_s=t_stop_s)
-    except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
-        pass
-    capture.close()
-    if viewer is not None:
-        try:
-            viewer.close()
-        except Exception as exc:  # noqa: BLE001 - the capture is safe; say what went wrong
-            display.note(f"could not finalise the Rerun output: {exc}")
-    display.close()
