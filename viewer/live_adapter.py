@@ -4,7 +4,6 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
-from steval_link.live.estimators import AttitudeBatch
 from steval_link.live.session import LiveOptions
 
 
@@ -37,20 +36,11 @@ class ViewerLogger:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
         return self.session.has_viewer
 
-    def log_batch(self, batch: AttitudeBatch) -> None:
-        self.logger.log_batch(batch)
-
-    def log_status(self, frame, t_unix_s: float) -> None:
-        self.logger.log_status(frame, t_unix_s)
-
-    def log_text(self, frame, t_unix_s: float) -> None:
-        self.logger.log_text(frame, t_unix_s)
-
-    def log_flight(self, frame, t_unix_s: float) -> None:
-        self.logger.log_flight(frame, t_unix_s)
-
-    def log_event(self, text: str, t_unix_s: float, level: str = "INFO") -> None:
-        self.logger.log_event(text, t_unix_s, level)
+    def __getattr__(self, name: str):
+        """``log_batch``, ``log_status``, ``log_text``, ``log_flight``, ``log_event``: the main stream's logger's."""
+        if name == "logger":  # not made yet (a failure in __init__)
+            raise AttributeError(name)
+        return getattr(self.logger, name)
 
     def log_link(self, stats, t_unix_s: float) -> None:
         self.logger.log_link(stats, t_unix_s)

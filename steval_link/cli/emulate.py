@@ -44,23 +44,20 @@ def emulate_command(
         "bench",
         "--scenario",
         "-s",
-        help="Built-in motion: bench, hand-tilts, yaw-spin, "
-        "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
-        "check's hand moves).",
+        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
+        "preflight (the preflight check's hand moves).",
     ),
     broad: Optional[Path] = typer.Option(
         None,
         "--broad",
-        help="Feed a BROAD trial (.npz: real IMU signals) instead "
-        "of a scenario, from the first TIM9 tick on; the capture keeps its "
-        "ground truth per AHRS step (steval compare and evaluate score "
-        "against it).",
+        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
+        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
     ),
     duration: Optional[float] = typer.Option(
         None,
         "--duration",
-        help="Emulated seconds from power-up (default: "
-        "the scenario's length; the first attitude frame comes at ≈ 2.985 s).",
+        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at "
+        "≈ 2.985 s).",
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
     throttle: Optional[str] = typer.Option(
@@ -69,9 +66,8 @@ def emulate_command(
     mount: Optional[str] = typer.Option(
         None,
         "--mount",
-        help="Sensor fault: the board mounted turned on the frame "
-        "(turned-90: x and y swapped; turned-180: x and y reversed), as a wrong "
-        "COORDINATE_SYSTEM would read it.",
+        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
+        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
     ),
     out: CaptureOutOption = None,
     rrd: RrdOption = None,
@@ -90,23 +86,20 @@ def emulate_command(
     commands: Optional[Path] = typer.Option(
         None,
         "--commands",
-        help="Command script: lines 'TIME_S COMMAND' "
-        "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
-        "'15 reset'), sent to the firmware's USART1 RX at those times.",
+        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', "
+        "'12 correction off', '15 reset'), sent to the firmware's USART1 RX at those times.",
     ),
     prompt: Optional[bool] = typer.Option(
         None,
         "--prompt/--no-prompt",
-        help="Read commands typed on stdin (set "
-        "ki 1.0, correction off, reset, status) and send them to the emulated "
-        "firmware. Default: when stdin is a terminal.",
+        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the "
+        "emulated firmware. Default: when stdin is a terminal.",
     ),
     ble: bool = typer.Option(
         False,
         "--ble",
-        help="Record the BLE notifications the firmware sends to a connected "
-        "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
-        "instead of USART1; replay it with steval replay.",
+        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
+        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
     ),
     ble_connect_at: float = typer.Option(
         0.5, "--ble-connect-at", help="With --ble: emulated s at which the central connects."
@@ -114,8 +107,8 @@ def emulate_command(
     tick_start_ms: int = typer.Option(
         0,
         "--tick-start-ms",
-        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE "
-        "tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).",
+        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after "
+        "power-up).",
         min=0,
     ),
 ) -> None:
@@ -132,6 +125,9 @@ def emulate_command(
         check_input(broad, what="BROAD trial")
     if commands is not None:
         check_input(commands, what="command script")
+    if broad is not None and scenario != "bench":
+        raise UserError("choose --scenario or --broad, not both")
+    check_duration(duration)
     if ble:
         if rrd is not None or spawn or serve or connect:
             raise UserError(
@@ -140,12 +136,9 @@ def emulate_command(
         _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, ble_connect_at, tick_start_ms)
         return
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
-    if broad is not None and scenario != "bench":
-        raise UserError("choose --scenario or --broad, not both")
     emu_options = EmulationOptions(
         elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle, mount=mount
     )
-    check_duration(duration)
     script = None
     if commands is not None:
         try:
@@ -170,15 +163,12 @@ def emulate_command(
 def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s: float, tick_start_ms: int) -> None:
     from steval_link.emulation.ble_capture import record_ble  # reason: only for --ble (loads the BlueNRG model)
 
-    if broad is not None and scenario != "bench":
-        raise UserError("choose --scenario or --broad, not both")
-    check_duration(duration)
     if not connect_s >= 0:
         raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
     path = resolve_capture_out(out)
     if path is not None:
         check_output(path, option="--out", overwrite="never")
-    if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
+    else:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
     emu_options = EmulationOptions(

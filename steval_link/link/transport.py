@@ -182,13 +182,9 @@ class SerialReader(threading.Thread):
         if self.ident is None:  # never started: close the port here
             self.serial = None
             if ser is not None:
-                _close_quietly(ser)
+                close_quietly(ser)
         elif self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
-
-    @property
-    def stopping(self) -> bool:
-        return self._stop_event.is_set()
 
     def run(self) -> None:
         try:
@@ -214,7 +210,7 @@ class SerialReader(threading.Thread):
             with self.lock:
                 ser, self.serial = self.serial, None
             if ser is not None:
-                _close_quietly(ser)
+                close_quietly(ser)
                 self.connected.clear()
                 try:
                     self.protocol.connection_lost(None)
@@ -249,7 +245,7 @@ class SerialReader(threading.Thread):
         with self.lock:
             ser, self.serial = self.serial, None
         if ser is not None:
-            _close_quietly(ser)
+            close_quietly(ser)
         self.connected.clear()
         self.protocol.connection_lost(exc)
 
@@ -289,7 +285,8 @@ def _fileno(ser) -> int | None:
     return fd if isinstance(fd, int) and fd >= 0 else None
 
 
-def _close_quietly(ser: serial.Serial) -> None:
+def close_quietly(ser: serial.Serial) -> None:
+    """Close a port that may have failed already (its errors say nothing more)."""
     try:
         ser.close()
     except (serial.SerialException, OSError):

@@ -91,9 +91,6 @@ class EmulatedSource(Source):
         self._chunks = self.emu.chunks()
         self._scheduled = False
 
-    def start(self, session) -> None:
-        pass  # the board runs in the rounds (one slice each)
-
     def round(self) -> bool:
         emu, pipe, session, capture = self.emu, self.pipeline, self.session, self.session.capture
         if not self._scheduled:  # the script, once the prompt's channel is there to number its frames

@@ -30,7 +30,7 @@ from steval_link.live.recorder import Inbox, RecorderProtocol
 from steval_link.live.sources import CaptureFields, Source
 from steval_link.live.summary import pipeline_counts
 
-__all__ = ["LinkError", "SerialSource", "NO_FRAMES_TIMEOUT_S"]
+__all__ = ["LinkError", "SerialSource", "NO_FRAMES_TIMEOUT_S", "open_port"]
 
 #: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -43,6 +43,42 @@ ROUND_WAIT_S = 0.02
 
 class LinkError(UserError):
     """The port carries no valid frames (wrong baud rate, another device, silence): one line, exit code 2."""
+
+
+def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=None) -> tuple[str, serial.Serial]:
+    """(path, open port) of ``url``: a replay URL, or the port :func:`~steval_link.link.autodetect.choose_port`
+    picks; one UserError sentence (with the ports there are) when it cannot be opened. ``wait``: until the port
+    appears (``note(text)`` says so once) or ``stopped()``."""
+    if is_replay_url(url):  # the one place a source is opened by its URL scheme
+        return url, open_replay(url, baud=baud)
+    deadline = time.monotonic() + (math.inf if wait else 0.0)
+    announced = note is None  # a waiting note is said once
+    while True:
+        try:
+            path = autodetect.choose_port(url, baud)
+        except autodetect.PortChoiceError as exc:
+            if time.monotonic() >= deadline or (stopped and stopped()):
+                raise UserError(str(exc)) from None
+            if not announced:
+                note(f"{exc}; waiting (--wait)")
+                announced = True
+            time.sleep(0.25)
+            continue
+        try:
+            return path, open_serial(path, baud)
+        except serial.SerialException as exc:
+            missing = getattr(exc, "errno", None) == 2 or not os.path.exists(path)
+            if missing and time.monotonic() < deadline and not (stopped and stopped()):
+                if not announced:
+                    note(f"{path} is not there; waiting for it (--wait)")
+                    announced = True
+                time.sleep(0.1)
+                continue
+            try:
+                available = autodetect.list_candidate_ports()
+            except Exception:  # noqa: BLE001 - the listing is only a hint in the message
+                available = []
+            raise UserError(open_error_message(path, exc, available)) from None
 
 
 class SerialSource(Source):
@@ -71,7 +107,10 @@ class SerialSource(Source):
 
     def open(self, session) -> None:
         self.session = session
-        self.path, self.ser = self._open_port(session)
+        note = session.display.note
+        self.path, self.ser = open_port(
+            self.url, self.baud, wait=self.wait, note=note, stopped=lambda: session.stop_requested
+        )
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
         else:
@@ -80,38 +119,6 @@ class SerialSource(Source):
             self.finder = autodetect.PortFinder(identity, pattern=glob)
             self._described = identity.describe()
             self._extra = {"device": identity.device, "usb": identity.describe()}
-
-    def _open_port(self, session):
-        if self.replay:  # the one place a source is opened by its URL scheme
-            return self.url, open_replay(self.url, baud=self.baud)
-        deadline = time.monotonic() + (math.inf if self.wait else 0.0)
-        announced = False
-        while True:
-            try:
-                path = autodetect.choose_port(self.url, self.baud)
-            except autodetect.PortChoiceError as exc:
-                if time.monotonic() >= deadline or session.stop_requested:
-                    raise UserError(str(exc)) from None
-                if not announced:
-                    session.display.note(f"{exc}; waiting (--wait)")
-                    announced = True
-                time.sleep(0.25)
-                continue
-            try:
-                return path, open_serial(path, self.baud)
-            except serial.SerialException as exc:
-                missing = getattr(exc, "errno", None) == 2 or not os.path.exists(path)
-                if missing and time.monotonic() < deadline and not session.stop_requested:
-                    if not announced:
-                        session.display.note(f"{path} is not there; waiting for it (--wait)")
-                        announced = True
-                    time.sleep(0.1)
-                    continue
-                try:
-                    available = autodetect.list_candidate_ports()
-                except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                    available = []
-                raise UserError(open_error_message(path, exc, available)) from None
 
     def close_input(self) -> None:
         if self.ser is not None:

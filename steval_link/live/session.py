@@ -23,6 +23,7 @@ from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay
+from steval_link.live.recorder import open_capture
 from steval_link.live.serial_source import SerialSource
 from steval_link.live.sources import Source
 from steval_link.live.summary import LiveSummary
@@ -180,17 +181,10 @@ class LiveSession:
         path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            return CaptureWriter(
-                path,
-                discard_empty=fields.discard_empty,
-                port=fields.link,
-                baud=fields.baud,
-                extra={**fields.extra, "estimators": list(opts.estimators)},
-            )
-        except FileExistsError:
-            raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
         except OSError as exc:
             raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+        extra = {**fields.extra, "estimators": list(opts.estimators)}
+        return open_capture(path, port=fields.link, baud=fields.baud, extra=extra, discard_empty=fields.discard_empty)
 
     def _close_outputs(self, stop_reason: str) -> None:
         """In their order of importance: the capture (its stop event at the source's time, then closed), then the

@@ -125,15 +125,9 @@ def pipeline_counts(pipe) -> dict[str, Any]:
     if pipe is None:
         return {}
     s, h = pipe.decoder.stats, pipe.health
+    names = ("frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
     return {
-        "attitude": h.attitude,
-        "status": h.status,
-        "text": h.text,
-        "frames_missing": stat(s, "frames_missing"),
-        "crc_failures": stat(s, "crc_failures"),
-        "bytes_skipped": stat(s, "bytes_skipped"),
-        "nonfinite": h.nonfinite,
-        "implausible": stat(s, "implausible"),
-        "held_values": stat(s, "held_values"),
+        **{name: stat(s, name) for name in names},
+        **{name: getattr(h, name) for name in ("attitude", "status", "text", "nonfinite")},
         "values_sentence": h.values_sentence(),
     }
