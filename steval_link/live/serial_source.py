@@ -85,15 +85,11 @@ class SerialSource(Source):
     """A serial port or a replay URL at ``baud``; ``wait``: wait for the port to appear and for valid frames."""
 
     def __init__(self, url: str, *, baud: int = C.BAUD, wait: bool = False) -> None:
-        self.url = url
-        self.baud = baud
-        self.wait = wait
-        self.path = url
-        self.ser = None
+        self.url, self.baud, self.wait = url, baud, wait
+        self.path, self.ser = url, None  # the port opened (a glob or auto resolved)
         self.reader: SerialReader | None = None
         self.pipeline: LivePipeline | None = None
-        self.warned_no_frames = False
-        self._was_connected = True
+        self.warned_no_frames, self._was_connected = False, True
 
     @property
     def replay(self) -> bool:
