@@ -155,4 +155,4 @@ class EmulatedSource(Source):
     def summary_fields(self) -> dict[str, Any]:
         pipe = self.pipeline
         port = pipe.port.describe() if pipe is not None and pipe.port is not None else None
-        return {**pipeline_counts(pipe), "report": self.emu.report(), "port_note": port}
+        return {**pipeline_counts(pipe), "report": self.emu.report(), "filter_note": port}

@@ -244,14 +244,14 @@ class SerialSource(Source):
         if h.first_frame_s is not None and h.last_frame_s is not None:
             streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - offline_s)
         p = pipe.port if pipe is not None else None
-        port_note = None
+        filter_note = None
         if p is not None:
             if p.rows_mismatch:
-                port_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
+                filter_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
             elif p.rows_exact:
-                port_note = f"ST port bit-exact on {p.rows_exact} frames"
+                filter_note = f"ST port bit-exact on {p.rows_exact} frames"
             else:
-                port_note = "ST port not seeded (no status snapshot)"
+                filter_note = "ST port not seeded (no status snapshot)"
         return {
             **pipeline_counts(pipe),
             "streaming_s": streaming_s,
@@ -259,5 +259,5 @@ class SerialSource(Source):
             "disconnects": proto.disconnects if proto is not None else 0,
             "offline_s": offline_s,
             "live_dropped_bytes": self.inbox.dropped_bytes if proto is not None else 0,
-            "port_note": port_note,
+            "filter_note": filter_note,
         }

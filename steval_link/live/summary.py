@@ -33,7 +33,7 @@ class LiveSummary:
     disconnects: int = 0
     offline_s: float = 0.0
     live_dropped_bytes: int = 0
-    port_note: str | None = None  # what the ST filter's Python port did
+    filter_note: str | None = None  # what the ST filter's Python port did (bit-exact, differs, not seeded)
     stopped_by: str = "end"
     capture_discarded: bool = False  # no byte came: the header-only file was removed
     implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back
@@ -91,8 +91,8 @@ class LiveSummary:
             parts.append(f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s)")
         if self.live_dropped_bytes:
             parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
-        if self.port_note:
-            parts.append(self.port_note)
+        if self.filter_note:
+            parts.append(self.filter_note)
         return "recorded " + ", ".join(parts) + "; " + self._outputs()
 
     def _emulated_lines(self) -> list[str]:
@@ -102,7 +102,7 @@ class LiveSummary:
             f"emulated {r.emulated_s:.2f} s in {self.seconds:.2f} s wall ({speed:.2f}x real time): "
             f"{self.attitude} attitude, {self.status} status, {self.text} text frames, "
             f"{self.frames_missing} missing, {self.crc_failures} CRC failures"
-            + (f"; {self.port_note}" if self.port_note else "")
+            + (f"; {self.filter_note}" if self.filter_note else "")
             + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else "")
         )
         said = [x for x in (self.values_sentence, self._held_back()) if x]
