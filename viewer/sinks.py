@@ -416,8 +416,9 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
     """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
     first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
     (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
-    completed before the error is raised. A spawned native viewer stays open."""
-    session = open_session(options, recording_name=recording_name, atomic_rrd=True)
+    completed before the error is raised. A spawned native viewer stays open. ``options``: as the CLI checked them
+    (``steval_link.cli.viewer_options``: once, before the work), so they are not probed again here."""
+    session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
         session.flush()
