@@ -58,14 +58,10 @@ class RecorderProtocol(Protocol):
     """
 
     def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock: HostClock) -> None:
-        self.capture = capture
-        self.inbox = inbox
-        self.finder = finder
-        self.clock = clock
+        self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
         self.connected = False
         self.port: str | None = None
-        self.connections = 0
-        self.disconnects = 0
+        self.connections = self.disconnects = 0
         self.lost_at_s: float | None = None  # monotonic time of the last disconnect
         self.offline_s = 0.0
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
