@@ -3,7 +3,7 @@ firmware that notifies at its own rate from its main loop (40, 50, 80 Hz and ST'
 congestion skips (30 motion updates after a refused one), across the 8 ms tick's wrap, with jittered host arrival
 times, and a poller reading the characteristic at 30-40 Hz (repeated reads of one sample). Each is decoded from its
 notification bytes, replayed from a capture (``steval replay``) and played through the fake BLE backend into the
-live session (``steval live --ble``'s ``BleLiveSession``)."""
+live session (``steval live --ble``'s ``BleSource``)."""
 
 from __future__ import annotations
 
@@ -241,8 +241,8 @@ def test_replay_of_a_poller_capture(monkeypatch, capsys, tmp_path):
 
 
 def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), drop_after=()):
-    from steval_link.live.ble_session import BleLiveSession
-    from steval_link.live.session import LiveOptions
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
+    from steval_viewer.sink_options import SinkOptions
 
     rows = []
 
@@ -255,20 +255,13 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
 
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=pace_s, drop_after=list(drop_after))
     opts = LiveOptions(
-        port="ble:auto",
-        baud=0,
-        out=tmp_path / "live.stv",
-        view=False,
-        rrd=tmp_path / "x.rrd",
-        estimators=list(estimators),
-        duration_s=None,
+        out=tmp_path / "live.stv", sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=list(estimators)
     )
-    session = BleLiveSession(
-        opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
-    )
+    source = source_for("ble:auto", backend=fake)
+    session = LiveSession(opts, source, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr)
 
     summary = run_until_played(session, fake)
-    return summary, rows, session
+    return summary, rows, source  # the BLE source holds the estimators and the repeats
 
 
 @pytest.mark.parametrize(

@@ -147,8 +147,8 @@ def test_link_errors_are_one_sentence(firmware_notifications):
 
 @pytest.mark.slow  # real time: a paced BLE link with reconnects through a live session: ≈ 2.5 s
 def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifications):
-    from steval_link.live.ble_session import BleLiveSession
-    from steval_link.live.session import LiveOptions
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
+    from steval_viewer.sink_options import SinkOptions
 
     logged = []
 
@@ -165,18 +165,9 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     firmware_notifications = [(c, p) for _, c, p in recs]
     fake = FakeBleBackend(firmware_notifications, drop_after=[500, 400], pace_s=0.001)
     out = tmp_path / "ble.stv"
-    opts = LiveOptions(
-        port="ble:auto",
-        baud=0,
-        out=out,
-        view=False,
-        rrd=tmp_path / "x.rrd",
-        estimators=["st-mahony", "accel"],
-        duration_s=None,
-    )
-    session = BleLiveSession(
-        opts, target=None, backend=fake, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr
-    )
+    opts = LiveOptions(out=out, sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=["st-mahony", "accel"])
+    source = source_for("ble:auto", backend=fake)
+    session = LiveSession(opts, source, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr)
 
     summary = run_until_played(session, fake)
     assert summary.losses == 2 and summary.connections == 3 and summary.stopped_by == "test"
@@ -255,18 +246,17 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
 
 def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     """steval live --ble --rrd FILE --no-view: the Rerun logger of the BLE session writes the BLE layout."""
-    from steval_link.live.ble_session import BleLiveSession
-    from steval_link.live.session import LiveOptions
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.ble_log import BleLiveLogger
     from steval_viewer.rrd_check import blueprint_views, read_rrd
+    from steval_viewer.sink_options import SinkOptions
 
     recs = B.ble_records(read_source(DEMO).chunks)[:900]
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=0.0005)
     rrd = tmp_path / "live.rrd"
-    opts = LiveOptions(
-        port="ble:auto", baud=0, out=tmp_path / "c.stv", view=False, rrd=rrd, estimators=["st-mahony", "ekf3"]
-    )
-    session = BleLiveSession(opts, target="DRN1110", backend=fake, viewer_factory=BleLiveLogger, stream=sys.stderr)
+    opts = LiveOptions(out=tmp_path / "c.stv", sinks=SinkOptions(rrd=rrd), estimators=["st-mahony", "ekf3"])
+    source = source_for("ble:DRN1110", backend=fake)
+    session = LiveSession(opts, source, viewer_factory=BleLiveLogger, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
     n = summary.counts["motion"]

@@ -269,7 +269,7 @@ def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_ca
     from steval_link.emulation.runner import EmulationOptions
     from steval_link.link.capture import read_capture
     from steval_link.live import emulated
-    from steval_link.live.session import LiveOptions
+    from steval_link.live.session import LiveOptions, LiveSession
 
     cap = read_capture(small_capture)
     bounds = [*cap.chunk_offsets.tolist(), len(cap.data)]
@@ -298,8 +298,8 @@ def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_ca
 
     monkeypatch.setattr(emulated, "Emulation", FakeEmulation)
     out = tmp_path / "emu.stv"
-    live = LiveOptions(port="emulated", baud=115200, out=out, rrd=None, view=False, estimators=[], prompt=False)
-    emulated.EmulateSession(EmulationOptions(elf=Path("fake.elf")), live, tty=False).run()
+    live = LiveOptions(out=out, estimators=[], prompt=False)
+    LiveSession(live, emulated.EmulatedSource(EmulationOptions(elf=Path("fake.elf"))), tty=False).run()
     got = read_capture(out)
     stop = [e for e in got.events if e.kind == "stop"]
     assert len(stop) == 1 and stop[0].t_host_s == pytest.approx(pieces[-1][1])

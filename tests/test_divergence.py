@@ -202,39 +202,37 @@ def test_live_pipeline_health_and_note():
     h2 = LinkHealth()
     assert h2.values_sentence() is None
     # the health lines of steval emulate and steval live say it
-    from steval_link.live.emulated import EmulateSession
-    from steval_link.live.session import LiveSession
+    from steval_link.live.emulated import EmulatedSource
+    from steval_link.live.serial_source import SerialSource
 
-    line = EmulateSession._health(SimpleNamespace(duration_s=15.0), pipe, 5.0, 5.0)
+    emulated = EmulatedSource.__new__(EmulatedSource)
+    emulated.emu, emulated.pipeline, emulated.t_emu_s, emulated._t0 = SimpleNamespace(duration_s=15.0), pipe, 5.0, 0.0
+    line = emulated.health(5.0)
     assert line.split(" | ")[2] == SENTENCE
-    live = LiveSession.__new__(LiveSession)
-    live.pipeline, live.clock = pipe, SimpleNamespace(now_s=lambda: t)
-    proto = SimpleNamespace(connected=True, port="/dev/ttyUSB0", disconnects=0, bytes_total=len(data))
-    line = live._health_line(proto, SimpleNamespace(dropped_bytes=0), 0.0, None)
+    live = SerialSource.__new__(SerialSource)
+    live.pipeline, live.session = pipe, SimpleNamespace(clock=SimpleNamespace(now_s=lambda: t))
+    live.proto = SimpleNamespace(connected=True, port="/dev/ttyUSB0", disconnects=0, bytes_total=len(data))
+    live.inbox, live.reader = SimpleNamespace(dropped_bytes=0), None
+    line = live.health(0.0)
     assert line.split(" | ")[2] == SENTENCE and "held back" not in line
 
 
 def test_live_and_emulate_summaries_carry_the_sentence():
     from pathlib import Path
 
-    from steval_link.live.emulated import EmulateSummary
     from steval_link.live.session import LiveSummary
 
     report = SimpleNamespace(emulated_s=15.0, lines=lambda: ["head", "TIM9 started at 1.0 s"])
-    es = EmulateSummary(
+    es = LiveSummary(
         Path("x.stv"),
         None,
         10.0,
-        report,
-        400,
-        3,
-        0,
-        0,
-        0,
-        None,
-        "end",
-        SENTENCE,
-        "2 CRC-valid frames held back, not shown: 2 for a sequence and time that do not continue",
+        kind="emulated",
+        report=report,
+        attitude=400,
+        status=3,
+        values_sentence=SENTENCE,
+        implausible=2,  # for a sequence and time that do not continue
     )
     lines = es.lines()
     assert lines[1] == SENTENCE and lines[2].startswith("2 CRC-valid frames held back")

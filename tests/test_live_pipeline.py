@@ -18,7 +18,7 @@ from steval_link.link.decoder import decode_bytes
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, StepUnwrapper
 from steval_link.live.recorder import Inbox
-from steval_link.live.session import LiveOptions, LiveSession
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 
 class BatchLog:
@@ -248,9 +248,8 @@ def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
     err = io.StringIO()
     # 3 MB/s (26x the real link) for 4 s: 12 MB that can never decode
     with PtyFeeder(garbage, tmp_path / "ttyUSB0", bytes_per_s=3e6, loop=True) as feeder:
-        session = LiveSession(
-            LiveOptions(port=str(feeder.link), out=out, view=False, wait=True, estimators=[]), stream=err, tty=False
-        )
+        source = source_for(str(feeder.link), wait=True)
+        session = LiveSession(LiveOptions(out=out, estimators=[]), source, stream=err, tty=False)
         rss = []
 
         def drive():
@@ -289,6 +288,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     from steval_viewer import entities as ent
     from steval_viewer import live_adapter
     from steval_viewer.rrd_check import read_rrd
+    from steval_viewer.sink_options import SinkOptions
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -311,11 +311,12 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
         made.append(viewer)
         return viewer
 
-    opts = LiveOptions(out=tmp_path / "cap.stv", rrd=rrd, connect=url, wait=True, estimators=["st-mahony", "accel"])
+    sinks = SinkOptions(rrd=rrd, connect=url)
+    opts = LiveOptions(out=tmp_path / "cap.stv", sinks=sinks, estimators=["st-mahony", "accel"])
     err = io.StringIO()
     with PtyFeeder(data, tmp_path / "ttyUSB0", bytes_per_s=8 * REAL_BYTES_PER_S) as feeder:
-        opts.port = str(feeder.link)
-        session = LiveSession(opts, stream=err, tty=False, viewer_factory=factory)
+        source = source_for(str(feeder.link), wait=True)
+        session = LiveSession(opts, source, stream=err, tty=False, viewer_factory=factory)
 
         def drive():
             deadline = time.monotonic() + 30

@@ -465,8 +465,7 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     from steval_link.link import ble_payloads as B
     from steval_link.link.capture import read_capture
     from steval_link.link.load import read_source
-    from steval_link.live.ble_session import BleLiveSession
-    from steval_link.live.session import LiveOptions
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
 
     f = write(
         tmp_path / "fragile.py",
@@ -479,16 +478,8 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     fake = FakeBleBackend(recs, pace_s=0.0005)
     out = tmp_path / "ble.stv"
     stream = io.StringIO()
-    opts = LiveOptions(
-        port="ble:auto",
-        baud=0,
-        out=out,
-        view=False,
-        rrd=None,
-        estimators=registry.parse_names(f"{f}:Fragile,accel", ()),
-        duration_s=None,
-    )
-    session = BleLiveSession(opts, target=None, backend=fake, viewer_factory=None, stream=stream)
+    opts = LiveOptions(out=out, estimators=registry.parse_names(f"{f}:Fragile,accel", ()))
+    session = LiveSession(opts, source_for("ble:auto", backend=fake), stream=stream)
 
     run_until_played(session, fake)
     notes = [line for line in stream.getvalue().splitlines() if "disabled" in line]
@@ -501,4 +492,4 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
         in notes[0]
     )
     assert [(c, p) for _, c, p in B.ble_records(read_capture(out).chunks)] == recs
-    assert list(session.estimators) == ["accel"]
+    assert list(session.source.estimators) == ["accel"]

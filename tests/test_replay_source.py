@@ -17,7 +17,7 @@ from steval_link.errors import UserError
 from steval_link.link.capture import read_capture
 from steval_link.link.load import load_telemetry
 from steval_link.link.replay_source import PROMPT_NOTE, ReplayPort, open_replay, parse_replay_url
-from steval_link.live.session import LiveOptions, LiveSession
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "demo.stv"
@@ -106,10 +106,8 @@ def test_a_text_log_is_paced_by_its_frames_firmware_time_and_speed_divides_it():
 @pytest.mark.slow  # real time: 2 s of replay
 def test_live_session_on_a_replay_records_the_recorded_rate_and_the_same_frames(tmp_path):
     out = tmp_path / "x.stv"
-    opts = LiveOptions(
-        port=f"replay://{DEMO}", out=out, view=False, estimators=["st-mahony"], duration_s=2.0, prompt=False
-    )
-    summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
+    opts = LiveOptions(out=out, estimators=["st-mahony"], duration_s=2.0, prompt=False)
+    summary = LiveSession(opts, source_for(f"replay://{DEMO}"), stream=open(tmp_path / "err.txt", "w")).run()
     expect = 2.0 * C.AHRS_RATE_HZ  # 323 frames
     assert abs(summary.attitude - expect) <= 0.04 * expect, summary.line()
     assert summary.frames_missing == 0 and summary.crc_failures == 0
@@ -125,9 +123,9 @@ def test_live_session_on_a_replay_records_the_recorded_rate_and_the_same_frames(
 @pytest.mark.slow  # real time: 27 s of flight at 50x
 def test_a_replay_played_to_its_end_stops_by_itself_with_every_byte(tmp_path):
     out = tmp_path / "all.stv"
-    opts = LiveOptions(port=f"replay://{FLIGHT}?speed=50", out=out, view=False, estimators=[], prompt=False)
+    opts = LiveOptions(out=out, estimators=[], prompt=False)
     t0 = time.monotonic()
-    summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
+    summary = LiveSession(opts, source_for(f"replay://{FLIGHT}?speed=50"), stream=open(tmp_path / "err.txt", "w")).run()
     assert time.monotonic() - t0 < 10
     assert summary.stopped_by == "end of replay"
     src = load_telemetry(FLIGHT)
@@ -210,10 +208,9 @@ def test_cli_prompt_on_a_replay_says_once_that_commands_go_nowhere(tmp_path):
 @pytest.mark.slow  # real time: 17 s of text-mode log at 20x
 def test_a_text_mode_log_replays_live_to_its_end(tmp_path):
     out = tmp_path / "text.stv"
-    opts = LiveOptions(
-        port=f"replay://{TEXTLOG}?speed=20", out=out, view=False, estimators=["st-mahony", "accel"], prompt=False
-    )
-    summary = LiveSession(opts, stream=open(tmp_path / "err.txt", "w")).run()
+    opts = LiveOptions(out=out, estimators=["st-mahony", "accel"], prompt=False)
+    source = source_for(f"replay://{TEXTLOG}?speed=20")
+    summary = LiveSession(opts, source, stream=open(tmp_path / "err.txt", "w")).run()
     src = load_telemetry(TEXTLOG)
     assert summary.stopped_by == "end of replay" and summary.attitude == len(src.attitude) == 172
     assert "ST port not seeded" in summary.line()  # text-mode status rows carry no state to seed it from

@@ -23,7 +23,6 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
-from steval_viewer.live_adapter import viewer_sink_options
 from steval_viewer.sinks import log_whole, open_session
 
 __all__ = [
@@ -38,6 +37,15 @@ __all__ = [
 
 Progress = Callable[[float, str], None] | None
 _XYZ = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
+#: the drone and link series: (path, the plot's name, the series' name)
+_ENV = (
+    (ent.BLE_BATTERY, "battery (%)", "battery %"),
+    (ent.BLE_PRESSURE, "pressure (hPa)", "pressure hPa"),
+    (ent.BLE_RSSI, "RSSI (dBm)", "RSSI dBm"),
+    (ent.BLE_ARMED, "armed (0/1)", "armed"),
+    (ent.BLE_TEMPERATURE, "temperature (°C)", "temperature °C"),
+    (ent.BLE_RATE, "motion notifications/s", "motion notifications/s"),
+)
 
 
 def ble_blueprint(sources: list[str], *, live: bool = False) -> rrb.Blueprint:
@@ -61,16 +69,7 @@ def ble_blueprint(sources: list[str], *, live: bool = False) -> rrb.Blueprint:
         return bp._series(origin, name, live, timeline, legend=legend, legend_bottom=bottom)
 
     env = rrb.Tabs(
-        rrb.Grid(
-            series(ent.BLE_BATTERY, "battery (%)"),
-            series(ent.BLE_PRESSURE, "pressure (hPa)"),
-            series(ent.BLE_RSSI, "RSSI (dBm)"),
-            series(ent.BLE_ARMED, "armed (0/1)"),
-            series(ent.BLE_TEMPERATURE, "temperature (°C)"),
-            series(ent.BLE_RATE, "motion notifications/s"),
-            grid_columns=3,
-            name="Drone and link",
-        ),
+        rrb.Grid(*(series(path, name) for path, name, _ in _ENV), grid_columns=3, name="Drone and link"),
         rrb.TextLogView(origin=ent.LOG_BLE_CONSOLE, name="BLE console"),
         name="Environment",
     )
@@ -125,14 +124,7 @@ def log_ble_static(rec: rr.RecordingStream, sources: list[str]) -> None:
     _line(rec, ent.BLE_ACC, ["acc x right", "acc y forward", "acc z up"], _XYZ)
     _line(rec, ent.BLE_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], _XYZ)
     _line(rec, ent.BLE_MAG, ["mag x", "mag y", "mag z"], _XYZ)
-    for path, name in (
-        (ent.BLE_BATTERY, "battery %"),
-        (ent.BLE_PRESSURE, "pressure hPa"),
-        (ent.BLE_RSSI, "RSSI dBm"),
-        (ent.BLE_ARMED, "armed"),
-        (ent.BLE_TEMPERATURE, "temperature °C"),
-        (ent.BLE_RATE, "motion notifications/s"),
-    ):
+    for path, _, name in _ENV:
         _line(rec, path, [name], [(120, 200, 255)])
     rec.log(ent.BLE_NOTE, rr.TextDocument(NOT_BIT_EXACT), static=True)
 
@@ -247,11 +239,11 @@ def log_ble_replay(
 
 
 class BleLiveLogger:
-    """The Rerun side of ``steval live --ble`` (``steval_link.live.ble_session.BleViewer``): the live blueprint
+    """The Rerun side of ``steval live --ble`` (``steval_link.live.ble_source.BleViewer``): the live blueprint
     (host time, scrolling), then each round's rows."""
 
     def __init__(self, options: Any, recording_name: str | None = None) -> None:
-        self.session = open_session(viewer_sink_options(options), recording_name=recording_name)
+        self.session = open_session(options.sinks, recording_name=recording_name, checked=True)  # checked by the CLI
         self.rec = self.session.rec
         sources = [ent.source_name(n) for n in options.estimators]
         self.rec.send_blueprint(ble_blueprint(sources, live=True), make_active=True, make_default=True)

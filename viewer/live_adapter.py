@@ -4,13 +4,7 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
-from steval_link.live.estimators import LiveRows
 from steval_link.live.session import LiveOptions
-from steval_viewer.sink_options import (
-    SinkOptions,
-    check_sinks,
-    resolve_sinks,
-)
 
 
 class ViewerLogger:
@@ -25,9 +19,10 @@ class ViewerLogger:
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
+        """``options.sinks``: the sinks the CLI built and checked (``steval_viewer.sink_options.session_sinks``)."""
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
-        self.session = sinks.open_session(viewer_sink_options(options), recording_name=recording_name, split_file=True)
+        self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:
@@ -38,20 +33,11 @@ class ViewerLogger:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
         return self.session.has_viewer
 
-    def log_batch(self, batch: LiveRows) -> None:
-        self.logger.log_batch(batch)
-
-    def log_status(self, frame, t_unix_s: float) -> None:
-        self.logger.log_status(frame, t_unix_s)
-
-    def log_text(self, frame, t_unix_s: float) -> None:
-        self.logger.log_text(frame, t_unix_s)
-
-    def log_flight(self, frame, t_unix_s: float) -> None:
-        self.logger.log_flight(frame, t_unix_s)
-
-    def log_event(self, text: str, t_unix_s: float, level: str = "INFO") -> None:
-        self.logger.log_event(text, t_unix_s, level)
+    def __getattr__(self, name: str):
+        """``log_batch``, ``log_status``, ``log_text``, ``log_flight``, ``log_event``: the main stream's logger's."""
+        if name == "logger":  # not made yet (a failure in __init__)
+            raise AttributeError(name)
+        return getattr(self.logger, name)
 
     def log_link(self, stats, t_unix_s: float) -> None:
         self.logger.log_link(stats, t_unix_s)
@@ -68,23 +54,6 @@ class ViewerLogger:
                     self.file.close()
         finally:
             self.session.close()
-
-
-def viewer_sink_options(options: LiveOptions) -> SinkOptions:
-    """The Rerun sinks of a session (``steval_viewer.sink_options.SinkOptions``): the chosen viewer, or the default
-    one (``--spawn`` where a display exists), and the ``.rrd``; ``--no-view``: the ``.rrd`` alone. UserError when
-    they cannot work (no display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a
-    missing ``.rrd`` folder)."""
-    chosen = SinkOptions(rrd=options.rrd)
-    if options.web_port is not None:
-        chosen.web_port = options.web_port
-    if options.grpc_port is not None:
-        chosen.grpc_port = options.grpc_port
-    if options.view:
-        chosen.spawn, chosen.serve, chosen.connect = options.spawn, options.serve, options.connect
-        chosen = resolve_sinks(chosen)
-    check_sinks(chosen)
-    return chosen
 
 
 def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:

@@ -67,24 +67,39 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
     )
 
 
+def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
+    """A live session's Rerun outputs, resolved and checked once (the CLI calls it; the viewer then trusts them):
+    the chosen viewer, or the default one (:func:`resolve_sinks`), and the ``.rrd``; ``view=False``
+    (``--no-view``): the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work (no
+    display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a missing ``.rrd`` folder)."""
+    if not view:
+        if chosen.rrd is None:
+            return None
+        chosen = SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
+    else:
+        chosen = resolve_sinks(chosen)
+    check_sinks(chosen)
+    return chosen
+
+
 def check_sinks(options: SinkOptions) -> None:
     """Check what can be checked before any work: the ``.rrd`` can be created, the ``--connect`` URL is a Rerun
     gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
-    for port, flag in ((options.web_port, "--web-port"), (options.grpc_port, "--grpc-port")):
-        if not 1 <= int(port) <= 65535:
-            raise UserError(f"{flag} must be a TCP port from 1 to 65535, got {port}")
+    for tcp_port, flag in ((options.web_port, "--web-port"), (options.grpc_port, "--grpc-port")):
+        if not 1 <= int(tcp_port) <= 65535:
+            raise UserError(f"{flag} must be a TCP port from 1 to 65535, got {tcp_port}")
     if options.serve:
         if options.web_port == options.grpc_port:
             raise UserError(f"--web-port and --grpc-port must differ, both are {options.web_port}")
-        for port, flag, what in (
+        for tcp_port, flag, what in (
             (options.web_port, "--web-port", "web viewer"),
             (options.grpc_port, "--grpc-port", "gRPC"),
         ):
-            if not port_free(port):
+            if not port_free(tcp_port):
                 raise UserError(
-                    f"port {port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "
+                    f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "
                     f"stop that program or pick another port with {flag} N"
                 )
     if options.spawn and not port_free(options.grpc_port) and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
@@ -93,13 +108,13 @@ def check_sinks(options: SinkOptions) -> None:
             "pick another port with --grpc-port N"
         )
     if options.connect:
-        host, port = parse_grpc_url(options.connect)
-        if not port_open(host, port, CONNECT_TIMEOUT_S):
+        host, tcp_port = parse_grpc_url(options.connect)
+        if not port_open(host, tcp_port, CONNECT_TIMEOUT_S):
             raise UserError(
                 f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use --spawn or --serve"
             )
         plain = options.connect.startswith(("rerun://", "rerun+http://"))
-        if plain and not speaks_grpc(host, port, CONNECT_TIMEOUT_S):
+        if plain and not speaks_grpc(host, tcp_port, CONNECT_TIMEOUT_S):
             raise UserError(f"something listens at {options.connect} but it is not a Rerun viewer (no gRPC answer)")
 
 
@@ -120,32 +135,32 @@ def parse_grpc_url(url: str) -> tuple[str, int]:
         raise UserError(f"--connect needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}")
     parsed = urllib.parse.urlparse(url)
     try:
-        port = parsed.port
+        tcp_port = parsed.port
     except ValueError:
-        port = None
+        tcp_port = None
     if not parsed.hostname:
         raise UserError(f"--connect URL {url!r} names no host")
     default = 443 if parsed.scheme == "rerun+https" else DEFAULT_GRPC_PORT
-    return parsed.hostname, port or default
+    return parsed.hostname, tcp_port or default
 
 
-def port_free(port: int) -> bool:
-    """Whether nothing listens on 127.0.0.1:``port`` (a server could bind it; connections of an earlier run still
+def port_free(tcp_port: int) -> bool:
+    """Whether nothing listens on 127.0.0.1:``tcp_port`` (a server could bind it; connections of an earlier run still
     in TIME_WAIT do not count, as servers bind with SO_REUSEADDR)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         if sys.platform != "win32":  # on Windows SO_REUSEADDR would let us bind over a live listener
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            s.bind(("127.0.0.1", port))
+            s.bind(("127.0.0.1", tcp_port))
         except OSError:
             return False
     return True
 
 
-def port_open(host: str, port: int, timeout_s: float) -> bool:
-    """Whether a TCP connection to ``host:port`` succeeds within ``timeout_s``."""
+def port_open(host: str, tcp_port: int, timeout_s: float) -> bool:
+    """Whether a TCP connection to ``host:tcp_port`` succeeds within ``timeout_s``."""
     try:
-        with socket.create_connection((host, port), timeout=timeout_s):
+        with socket.create_connection((host, tcp_port), timeout=timeout_s):
             return True
     except OSError:
         return False
@@ -155,12 +170,12 @@ def port_open(host: str, port: int, timeout_s: float) -> bool:
 _H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
 
 
-def speaks_grpc(host: str, port: int, timeout_s: float) -> bool:
-    """Whether ``host:port`` answers like a gRPC server (an HTTP/2 SETTINGS frame back for our connection
+def speaks_grpc(host: str, tcp_port: int, timeout_s: float) -> bool:
+    """Whether ``host:tcp_port`` answers like a gRPC server (an HTTP/2 SETTINGS frame back for our connection
     preface) within ``timeout_s``: a Rerun viewer or proxy does at once; another program on the port does not (a
     program that accepts and stays silent would make Rerun's gRPC client wait for ever)."""
     try:
-        with socket.create_connection((host, port), timeout=timeout_s) as s:
+        with socket.create_connection((host, tcp_port), timeout=timeout_s) as s:
             s.settimeout(timeout_s)
             s.sendall(_H2_PREFACE)
             head = b""

@@ -226,18 +226,18 @@ def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Pope
         return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
 
 
-def _wait_listening(child: subprocess.Popen, port: int, timeout_s: float, what: str, log_path: Path) -> None:
-    """Wait until ``child`` listens on 127.0.0.1:``port``; UserError (with the child's last words) when it exits
+def _wait_listening(child: subprocess.Popen, tcp_port: int, timeout_s: float, what: str, log_path: Path) -> None:
+    """Wait until ``child`` listens on 127.0.0.1:``tcp_port``; UserError (with the child's last words) when it exits
     or does not listen within ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
             raise UserError(f"the {what} exited at start ({_last_line(log_path)}); use --rrd FILE instead")
-        if port_open("127.0.0.1", port, 0.2):
+        if port_open("127.0.0.1", tcp_port, 0.2):
             return
         time.sleep(0.05)
     stop_child(child)
-    raise UserError(f"the {what} did not listen on port {port} within {timeout_s:.0f} s; use --rrd FILE instead")
+    raise UserError(f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use --rrd FILE instead")
 
 
 def _last_line(log_path: Path) -> str:
@@ -258,42 +258,42 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
 
 
-def _log_path(what: str, port: int) -> Path:
-    return Path(tempfile.gettempdir()) / f"steval-{what}-{port}.log"
+def _log_path(what: str, tcp_port: int) -> Path:
+    return Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
 
 
-def proxy_url(port: int) -> str:
-    """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``port``."""
-    return f"rerun+http://127.0.0.1:{port}/proxy"
+def proxy_url(tcp_port: int) -> str:
+    """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``tcp_port``."""
+    return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
 
 
-def spawn_native_viewer(port: int) -> str:
-    """Start the native viewer listening on 127.0.0.1:``port`` (or reuse one that listens there already) and return
+def spawn_native_viewer(tcp_port: int) -> str:
+    """Start the native viewer listening on 127.0.0.1:``tcp_port`` (or reuse one that listens there already) and return
     its gRPC URL. The process is detached: it stays open after we exit, and nothing here keeps it."""
-    url = proxy_url(port)
-    if not port_free(port):
+    url = proxy_url(tcp_port)
+    if not port_free(tcp_port):
         print(
-            f"steval: sending to the viewer already listening on port {port} (--grpc-port N for a new one)",
+            f"steval: sending to the viewer already listening on port {tcp_port} (--grpc-port N for a new one)",
             file=sys.stderr,
         )
         return url
     cmd = rerun_command() + [
         "--port",
-        str(port),
+        str(tcp_port),
         "--bind",
         "127.0.0.1",
         "--hide-welcome-screen",
         "--memory-limit",
         "75%",
     ]
-    log_path = _log_path("viewer", port)
+    log_path = _log_path("viewer", tcp_port)
     try:
         child = _start(cmd, detached=True, log_path=log_path)
     except OSError as exc:
         raise UserError(
             f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
         ) from None
-    _wait_listening(child, port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
+    _wait_listening(child, tcp_port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
     _wait_settled(child, VIEWER_SETTLE_S, log_path)
     return url
 
@@ -312,8 +312,8 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
-    """Start ``rerun --serve-web`` bound to 127.0.0.1; returns (process, page URL, gRPC proxy URL)."""
-    check_sinks(SinkOptions(serve=True, web_port=web_port, grpc_port=grpc_port))
+    """Start ``rerun --serve-web`` bound to 127.0.0.1 on ports checked free (:func:`check_sinks`, or
+    :func:`free_port`); returns (process, page URL, gRPC proxy URL)."""
     cmd = rerun_command() + [
         "--serve-web",
         "--bind",
@@ -341,6 +341,7 @@ def open_session(
     application_id: str = APPLICATION_ID,
     split_file: bool = False,
     atomic_rrd: bool = False,
+    checked: bool = False,
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
 
@@ -348,13 +349,15 @@ def open_session(
     (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
     caller can log to each at its own cadence; the two are one recording when opened together.
     ``atomic_rrd``: the ``.rrd`` is written next to its name (``NAME.partial``) and renamed into place by
-    ``close()``; ``close(complete=False)`` removes it: a complete file or none.
+    ``close()``; ``close(complete=False)`` removes it: a complete file or none. ``checked``: the caller checked
+    the sinks already (a live session's CLI: once, with its TCP probes), else :func:`check_sinks` runs here.
 
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
     if not options.any():
         raise UserError("no Rerun sink chosen: pass --rrd FILE, --spawn, --serve or --connect URL")
-    check_sinks(options)
+    if not checked:
+        check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     sinks: list = []
@@ -413,8 +416,9 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
     """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
     first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
     (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
-    completed before the error is raised. A spawned native viewer stays open."""
-    session = open_session(options, recording_name=recording_name, atomic_rrd=True)
+    completed before the error is raised. A spawned native viewer stays open. ``options``: as the CLI checked them
+    (``steval_link.cli.viewer_options``: once, before the work), so they are not probed again here."""
+    session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
         session.flush()

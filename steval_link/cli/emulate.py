@@ -8,9 +8,8 @@ from typing import Optional
 
 import typer
 
-from steval_link import constants as C
 from steval_link.cli.app import app
-from steval_link.cli.live import session_outputs
+from steval_link.cli.live import check_duration, run_session, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -28,10 +27,9 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
-from steval_link.live.emulated import EmulateSession
-from steval_link.live.session import LiveOptions
+from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
 
 
 @app.command("emulate")
@@ -46,23 +44,20 @@ def emulate_command(
         "bench",
         "--scenario",
         "-s",
-        help="Built-in motion: bench, hand-tilts, yaw-spin, "
-        "hover, freefall, demo, flight (armed, stick moves), preflight (the preflight "
-        "check's hand moves).",
+        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
+        "preflight (the preflight check's hand moves).",
     ),
     broad: Optional[Path] = typer.Option(
         None,
         "--broad",
-        help="Feed a BROAD trial (.npz: real IMU signals) instead "
-        "of a scenario, from the first TIM9 tick on; the capture keeps its "
-        "ground truth per AHRS step (steval compare and evaluate score "
-        "against it).",
+        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
+        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
     ),
     duration: Optional[float] = typer.Option(
         None,
         "--duration",
-        help="Emulated seconds from power-up (default: "
-        "the scenario's length; the first attitude frame comes at ≈ 2.985 s).",
+        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at "
+        "≈ 2.985 s).",
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
     throttle: Optional[str] = typer.Option(
@@ -71,9 +66,8 @@ def emulate_command(
     mount: Optional[str] = typer.Option(
         None,
         "--mount",
-        help="Sensor fault: the board mounted turned on the frame "
-        "(turned-90: x and y swapped; turned-180: x and y reversed), as a wrong "
-        "COORDINATE_SYSTEM would read it.",
+        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
+        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
     ),
     out: CaptureOutOption = None,
     rrd: RrdOption = None,
@@ -92,23 +86,20 @@ def emulate_command(
     commands: Optional[Path] = typer.Option(
         None,
         "--commands",
-        help="Command script: lines 'TIME_S COMMAND' "
-        "(emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
-        "'15 reset'), sent to the firmware's USART1 RX at those times.",
+        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', "
+        "'12 correction off', '15 reset'), sent to the firmware's USART1 RX at those times.",
     ),
     prompt: Optional[bool] = typer.Option(
         None,
         "--prompt/--no-prompt",
-        help="Read commands typed on stdin (set "
-        "ki 1.0, correction off, reset, status) and send them to the emulated "
-        "firmware. Default: when stdin is a terminal.",
+        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the "
+        "emulated firmware. Default: when stdin is a terminal.",
     ),
     ble: bool = typer.Option(
         False,
         "--ble",
-        help="Record the BLE notifications the firmware sends to a connected "
-        "central (ST's stock build: motion, environment, arming) as a BLE capture (--out), "
-        "instead of USART1; replay it with steval replay.",
+        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
+        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
     ),
     ble_connect_at: float = typer.Option(
         0.5, "--ble-connect-at", help="With --ble: emulated s at which the central connects."
@@ -116,8 +107,8 @@ def emulate_command(
     tick_start_ms: int = typer.Option(
         0,
         "--tick-start-ms",
-        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE "
-        "tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).",
+        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after "
+        "power-up).",
         min=0,
     ),
 ) -> None:
@@ -134,6 +125,9 @@ def emulate_command(
         check_input(broad, what="BROAD trial")
     if commands is not None:
         check_input(commands, what="command script")
+    if broad is not None and scenario != "bench":
+        raise UserError("choose --scenario or --broad, not both")
+    check_duration(duration)
     if ble:
         if rrd is not None or spawn or serve or connect:
             raise UserError(
@@ -142,13 +136,9 @@ def emulate_command(
         _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, ble_connect_at, tick_start_ms)
         return
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
-    if broad is not None and scenario != "bench":
-        raise UserError("choose --scenario or --broad, not both")
     emu_options = EmulationOptions(
         elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle, mount=mount
     )
-    if duration is not None and not duration > 0:
-        raise UserError(f"--duration must be positive, got {duration}")
     script = None
     if commands is not None:
         try:
@@ -156,47 +146,29 @@ def emulate_command(
         except (OSError, UnicodeDecodeError) as exc:
             raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
         script = parse_script(text, str(commands))
-    live = LiveOptions(
-        port="emulated",
-        baud=C.BAUD,
-        out=None,
-        rrd=rrd,
-        view=not no_view,
-        spawn=spawn,
-        serve=serve,
-        connect=connect,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
-        prompt=prompt,
-    )
-    # the ELF first (the input, read by the session), then the capture, the .rrd and the display
-    summary = EmulateSession(
-        emu_options,
-        live,
+    source = source_for(
+        EMULATED_SCHEME,
+        emulation=emu_options,
         realtime=realtime,
-        viewer_factory=make_viewer_logger,
         commands=script,
         commands_file=str(commands) if commands is not None else None,
-        check_outputs=session_outputs(live, out),
-    ).run()
-    print("\n".join(summary.lines()))
-    sys.stdout.flush()
+    )
+    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
+    options = LiveOptions(estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
+    # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
+    check = session_outputs(options, out, sinks, view=not no_view)
+    run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
 
 
 def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s: float, tick_start_ms: int) -> None:
     from steval_link.emulation.ble_capture import record_ble  # reason: only for --ble (loads the BlueNRG model)
 
-    if broad is not None and scenario != "bench":
-        raise UserError("choose --scenario or --broad, not both")
-    if duration is not None and not duration > 0:
-        raise UserError(f"--duration must be positive, got {duration}")
     if not connect_s >= 0:
         raise UserError(f"--ble-connect-at must be ≥ 0 s, got {connect_s}")
     path = resolve_capture_out(out)
     if path is not None:
         check_output(path, option="--out", overwrite="never")
-    if path is None:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
+    else:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
     emu_options = EmulationOptions(

@@ -26,10 +26,9 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
-from steval_link.live.ble_session import BleLiveSession
-from steval_link.live.session import LiveOptions, LiveSession
-from steval_viewer.live_adapter import make_viewer_logger, viewer_sink_options
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, source_for
+from steval_viewer.live_adapter import make_viewer_logger
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, session_sinks
 
 _PORT_HELP = (
     "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
@@ -45,21 +44,33 @@ _PROMPT_HELP = (
 )
 
 
-def session_outputs(options: LiveOptions, out: Path | None):
-    """The checks of a session's outputs, for ``LiveSession(check_outputs=...)`` (run once the port is open, so
-    that a bad port is reported first): the capture (``--out``, resolved into ``options.out``; never overwritten),
-    the ``.rrd`` (never overwritten) and a display for the viewer."""
+def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
+    """The checks of a session's outputs, for ``LiveSession(check_outputs=...)`` (run once the input is open, so
+    that a bad port or ELF is reported first): the capture (``--out``, resolved into ``options.out``; never
+    overwritten), the ``.rrd`` (never overwritten), then the Rerun sinks of the flags ``sinks``, resolved and
+    checked once into ``options.sinks`` (:func:`steval_viewer.sink_options.session_sinks`; ``view``: not
+    ``--no-view``)."""
 
     def check() -> None:
         options.out = resolve_capture_out(out)
         if options.out is not None:
             check_output(options.out, option="--out", overwrite="never")
-        if options.rrd is not None:
-            check_output(options.rrd, option="--rrd", overwrite="never")
-        if options.uses_rerun:
-            viewer_sink_options(options)  # e.g. no display and no --rrd: say so before anything is made
+        if sinks is not None and sinks.rrd is not None:
+            check_output(sinks.rrd, option="--rrd", overwrite="never")
+        options.sinks = session_sinks(sinks, view=view) if sinks is not None else None
 
     return check
+
+
+def run_session(session: LiveSession) -> None:
+    """Run ``session`` and print its summary on stdout."""
+    print(session.run().line())
+    sys.stdout.flush()
+
+
+def check_duration(duration: float | None) -> None:
+    if duration is not None and not duration > 0:
+        raise UserError(f"--duration must be positive, got {duration}")
 
 
 def _check_baud(baud: int) -> None:
@@ -110,37 +121,24 @@ def live_command(
     """
     _check_baud(baud)
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
-    if duration is not None and duration <= 0:
-        raise UserError(f"--duration must be positive, got {duration}")
+    check_duration(duration)
     if device is not None and not ble:
         raise UserError(
             f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
             "port is given with --port"
         )
-    if ble:
-        target = device.strip() if device and device.strip() else None
-        _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration)
-        return
+    if ble:  # a clear line without bleak, before anything else
+        target = device.strip() if device and device.strip() else "auto"
+        source, factory = source_for(BLE_SCHEME + target, backend=bleak_backend()), _ble_viewer
+    else:
+        source, factory = source_for(port, baud=baud, wait=wait), make_viewer_logger
+    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
-        port=port,
-        baud=baud,
-        out=None,  # resolved once the port is open (session_outputs)
-        rrd=rrd,
-        view=not no_view,
-        spawn=spawn,
-        serve=serve,
-        connect=connect,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
-        duration_s=duration,
-        wait=wait,
-        prompt=prompt,
+        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration, prompt=prompt
     )
-    # the port first (the input), then the capture, the .rrd and the display
-    summary = LiveSession(options, viewer_factory=make_viewer_logger, check_outputs=session_outputs(options, out)).run()
-    print(summary.line())
-    sys.stdout.flush()
+    # the input first (the port, or BLE), then the capture, the .rrd and the viewer
+    check = session_outputs(options, out, sinks, view=not no_view)
+    run_session(LiveSession(options, source, viewer_factory=factory, check_outputs=check))
 
 
 @app.command("record")
@@ -159,50 +157,10 @@ def record_command(
     valid frames (wrong baud rate, another device). Ctrl-C or --duration ends the recording.
     """
     _check_baud(baud)
-    if duration is not None and duration <= 0:
-        raise UserError(f"--duration must be positive, got {duration}")
-    options = LiveOptions(
-        port=port,
-        baud=baud,
-        out=None,
-        rrd=None,
-        view=False,
-        estimators=[],
-        duration_s=duration,
-        wait=wait,
-    )
-    summary = LiveSession(options, check_outputs=session_outputs(options, out)).run()  # the port first
-    print(summary.line())
-    sys.stdout.flush()
-
-
-def _live_ble(target, out, rrd, no_view, spawn, serve, connect, web_port, grpc_port, estimators, duration) -> None:
-    """``steval live --ble``: ST's stock firmware over Bluetooth (``steval_link.live.ble_session``)."""
-    backend = bleak_backend()  # a clear line without bleak, before anything else
-    out = resolve_capture_out(out)
-    if out is not None:
-        check_output(out, option="--out", overwrite="never")
-    if rrd is not None:
-        check_output(rrd, option="--rrd", overwrite="never")
-    options = LiveOptions(
-        port=f"ble:{target or 'auto'}",
-        baud=0,
-        out=out,
-        rrd=rrd,
-        view=not no_view,
-        spawn=spawn,
-        serve=serve,
-        connect=connect,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
-        duration_s=duration,
-    )
-    if options.uses_rerun:
-        viewer_sink_options(options)  # e.g. no display and no --rrd: say so before scanning
-    summary = BleLiveSession(options, target=target, backend=backend, viewer_factory=_ble_viewer).run()
-    print(summary.line())
-    sys.stdout.flush()
+    check_duration(duration)
+    options = LiveOptions(duration_s=duration)
+    source = source_for(port, baud=baud, wait=wait)
+    run_session(LiveSession(options, source, check_outputs=session_outputs(options, out)))  # the port first
 
 
 def _ble_viewer(options: LiveOptions, recording_name: str):

@@ -21,7 +21,7 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
 from steval_link.link.load import read_source, telemetry_of_source
-from steval_link.live.session import LiveOptions, LiveSession
+from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 #: the guided sequence: (seconds after the start, what to say)
 SCRIPT: tuple[tuple[float, str], ...] = (
@@ -93,11 +93,11 @@ def preflight_command(
     else:
         if baud <= 0:
             raise UserError(f"--baud must be a positive baud rate, got {baud}")
-        options = LiveOptions(port=port, baud=baud, out=None, rrd=None, view=False, estimators=[], duration_s=LIVE_S)
+        options, source = LiveOptions(duration_s=LIVE_S), source_for(port, baud=baud)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
         try:
-            summary = LiveSession(options, check_outputs=session_outputs(options, out)).run()  # the port first
+            summary = LiveSession(options, source, check_outputs=session_outputs(options, out)).run()  # the port first
         finally:
             stop.set()
             th.join(timeout=1.0)

@@ -28,7 +28,7 @@ import serial
 from steval_link.link import ports
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import TextFrame
-from steval_link.link.transport import open_serial
+from steval_link.link.transport import close_quietly, open_serial
 
 #: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
 COMMON_BAUDS = (115200, 921600, 460800, 230400, 57600, 38400, 19200, 9600)
@@ -164,7 +164,6 @@ class ProbeResult:
 
     port: str
     baud: int
-    bytes_read: bytes = b""
     frames_ok: int = 0
     error: str | None = None
     seconds: float = 0.0
@@ -201,11 +200,7 @@ def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int 
                 if result.frames_ok >= 2:
                     break
     finally:
-        try:
-            ser.close()
-        except (serial.SerialException, OSError):
-            pass
-    result.bytes_read = bytes(buf)
+        close_quietly(ser)
     result.seconds = time.monotonic() - t0
     return result
 

@@ -73,34 +73,17 @@ def explain_ble_error(exc: BaseException) -> str | None:
     low = (text + " " + str(getattr(exc, "dbus_error", "") or "")).lower()
     reason = getattr(exc, "reason", None)
     reason = getattr(reason, "name", str(reason or "")).upper()
-    if (
-        "DENIED" in reason
-        or isinstance(exc, PermissionError)
-        or "accessdenied" in low
-        or "not authorized" in low
-        or "permission" in low
-        or "unauthorized" in low
-        or "notpermitted" in low
-        or "notauthorized" in low
-    ):
+    denied = ("accessdenied", "not authorized", "permission", "unauthorized", "notpermitted", "notauthorized")
+    if "DENIED" in reason or isinstance(exc, PermissionError) or any(w in low for w in denied):
         return (
             "Bluetooth permission denied: on Linux add yourself to the 'bluetooth' group or run BlueZ's polkit "
             "rules; on macOS/Windows allow Bluetooth for this terminal in the system's privacy settings."
         )
-    if (
-        reason == "POWERED_OFF"
-        or "powered off" in low
-        or "turned off" in low
-        or "notready" in low
-        or "not ready" in low
-        or "poweredoff" in low
-    ):
+    off = ("powered off", "turned off", "notready", "not ready", "poweredoff")
+    if reason == "POWERED_OFF" or any(w in low for w in off):
         return "the Bluetooth adapter is switched off: turn Bluetooth on (e.g. bluetoothctl power on) and retry."
-    if (
-        reason in ("NO_BLUETOOTH", "NO_BLE_CENTRAL_ROLE")
-        or "no bluetooth adapters" in low
-        or ("adapter" in low and ("not found" in low or "no such" in low))
-    ):
+    no_adapter = "no bluetooth adapters" in low or ("adapter" in low and ("not found" in low or "no such" in low))
+    if reason in ("NO_BLUETOOTH", "NO_BLE_CENTRAL_ROLE") or no_adapter:
         return "no Bluetooth LE adapter found on this computer (plug in a USB dongle or enable the built-in one)."
     if isinstance(exc, FileNotFoundError) or "serviceunknown" in low or ("bluez" in low and "unknown" in low):
         return (

@@ -140,16 +140,9 @@ class ReplayPort:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
         self.t_s = np.asarray(t_s, np.float64) / speed
-        self.port = port
-        self.path = path
-        self.baudrate = baudrate
-        self.speed = speed
-        self.timeout = timeout
-        self.paced_by = paced_by
-        self.prompt_note = PROMPT_NOTE
-        self._clock = clock
-        self._t0: float | None = None
-        self._pos = 0
+        self.port, self.path, self.baudrate, self.timeout = port, path, baudrate, timeout  # as pyserial's
+        self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
+        self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
         self._cancel = threading.Event()
         self.is_open = True
 

@@ -156,7 +156,19 @@ class SerialReader(threading.Thread):
         #: While disconnected: (path, exception) of the last failed attempt to reopen the port, else ``None``.
         self.reopen_error: tuple[str, BaseException] | None = None
         self.connected = threading.Event()
+        #: held while the port is written (:meth:`write`) and while it is swapped (a loss, a reconnection, the end)
+        self.lock = threading.Lock()
         self._stop_event = threading.Event()
+
+    def write(self, data: bytes) -> int:
+        """Send ``data`` on the current port from any thread (as pyserial's ``ReaderThread.write``: under the lock
+        that a reconnection also holds, so a write never meets a port being swapped). Raises ``OSError`` (pyserial's
+        ``SerialException`` is one) when no port is open."""
+        with self.lock:
+            ser = self.serial
+            if ser is None:
+                raise serial.SerialException("the port is not connected")
+            return ser.write(data)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to finish, wait for it (up to ``timeout_s``) and close the port."""
@@ -170,13 +182,9 @@ class SerialReader(threading.Thread):
         if self.ident is None:  # never started: close the port here
             self.serial = None
             if ser is not None:
-                _close_quietly(ser)
+                close_quietly(ser)
         elif self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
-
-    @property
-    def stopping(self) -> bool:
-        return self._stop_event.is_set()
 
     def run(self) -> None:
         try:
@@ -199,9 +207,10 @@ class SerialReader(threading.Thread):
         except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
             self.error = exc
         finally:
-            ser, self.serial = self.serial, None
+            with self.lock:
+                ser, self.serial = self.serial, None
             if ser is not None:
-                _close_quietly(ser)
+                close_quietly(ser)
                 self.connected.clear()
                 try:
                     self.protocol.connection_lost(None)
@@ -233,9 +242,10 @@ class SerialReader(threading.Thread):
         return bytes(buf)
 
     def _drop(self, exc: BaseException) -> None:
-        ser, self.serial = self.serial, None
+        with self.lock:
+            ser, self.serial = self.serial, None
         if ser is not None:
-            _close_quietly(ser)
+            close_quietly(ser)
         self.connected.clear()
         self.protocol.connection_lost(exc)
 
@@ -253,8 +263,9 @@ class SerialReader(threading.Thread):
                     self.reopen_error = (path, exc)
                 if ser is not None:
                     self.reopen_error = None
-                    self.serial = ser
-                    self.port = path
+                    with self.lock:
+                        self.serial = ser
+                        self.port = path
                     self.connected.set()
                     self.protocol.connection_made(path)
                     return True
@@ -274,7 +285,8 @@ def _fileno(ser) -> int | None:
     return fd if isinstance(fd, int) and fd >= 0 else None
 
 
-def _close_quietly(ser: serial.Serial) -> None:
+def close_quietly(ser: serial.Serial) -> None:
+    """Close a port that may have failed already (its errors say nothing more)."""
     try:
         ser.close()
     except (serial.SerialException, OSError):

@@ -129,3 +129,25 @@ class HealthDisplay:
             self.stream.write("\r\x1b[2K")
             self.stream.flush()
             self._dirty = False
+
+
+def pipeline_health(head: str, pipe, *, after_crc=(), before_port=(), last=()) -> str:
+    """A health line: ``head``, the frames, bad values, missing frames and CRC failures of ``pipe`` (a
+    :class:`~steval_link.live.pipeline.LivePipeline`), ``after_crc``, the frames held back, ``before_port``, what
+    the ST filter's Python port did, ``last``."""
+    s, h = pipe.decoder.stats, pipe.health
+    parts = [head, f"frames {h.attitude}", f"missing {stat(s, 'frames_missing')}", f"CRC {stat(s, 'crc_failures')}"]
+    if h.values_bad:
+        parts.insert(2, h.values_sentence())
+    parts += after_crc
+    if stat(s, "implausible"):
+        parts.append(f"held back {stat(s, 'implausible')}")
+    parts += before_port
+    if pipe.mahony is not None:
+        parts.append(pipe.mahony.describe())
+    return " | ".join([*parts, *last])
+
+
+def stat(stats, name: str) -> int:
+    """A decoder counter (0 when there are no stats yet or the decoder has no such counter)."""
+    return int(getattr(stats, name, 0) or 0) if stats is not None else 0

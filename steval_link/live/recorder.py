@@ -8,11 +8,10 @@ import collections
 import threading
 import time
 
+from steval_link.errors import UserError
 from steval_link.link import autodetect
-from steval_link.link.transport import (
-    HostClock,
-    Protocol,
-)
+from steval_link.link.capture import CaptureWriter
+from steval_link.link.transport import HostClock, Protocol
 
 #: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
 INBOX_MAX_BYTES = 4 * 1024 * 1024
@@ -59,17 +58,12 @@ class RecorderProtocol(Protocol):
     """
 
     def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock: HostClock) -> None:
-        self.capture = capture
-        self.inbox = inbox
-        self.finder = finder
-        self.clock = clock
+        self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
         self.connected = False
         self.port: str | None = None
-        self.connections = 0
-        self.disconnects = 0
+        self.connections = self.disconnects = 0
         self.lost_at_s: float | None = None  # monotonic time of the last disconnect
         self.offline_s = 0.0
-        self.last_error: str | None = None
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self.bytes_total = 0
         self.connect_bytes = 0  # bytes since the current connection was made
@@ -104,8 +98,17 @@ class RecorderProtocol(Protocol):
             return
         self.disconnects += 1
         self.lost_at_s = time.monotonic()
-        self.last_error = str(exc)
         if self.finder is not None:
             self.finder.mark_lost()
         self.capture.mark_event("disconnect", f"{self.port}: {exc}", self._t_capture())
         self.events.append(f"disconnected from {self.port}, waiting for it to come back")
+
+
+def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
+    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
+    try:
+        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
+    except FileExistsError:
+        raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
+    except OSError as exc:
+        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None

@@ -15,13 +15,13 @@ from pathlib import Path
 import serial
 
 from steval_link.errors import UserError
-from steval_link.link import autodetect
 from steval_link.link import protocol as P
-from steval_link.link.capture import CaptureWriter
 from steval_link.link.commands import Command, CommandChannel, ack_of_text, describe_ack
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, StatusFrame, TextFrame
-from steval_link.link.transport import open_error_message, open_serial
+from steval_link.link.transport import close_quietly
+from steval_link.live.recorder import open_capture
+from steval_link.live.serial_source import open_port
 
 __all__ = ["Reply", "run_commands", "DEFAULT_TIMEOUT_S"]
 
@@ -42,10 +42,6 @@ class Reply:
         return int(self.ack.result) == P.ACK_ACCEPTED
 
 
-def _wants_status(command: Command, ack: AckFrame) -> bool:
-    return int(ack.result) == P.ACK_ACCEPTED
-
-
 def run_commands(
     port: str,
     baud: int,
@@ -61,29 +57,16 @@ def run_commands(
     path = port
     if ser is None:
         try:
-            path = autodetect.choose_port(port, baud)
-        except autodetect.PortChoiceError as exc:
-            raise UserError(str(exc)) from None
-        try:
-            ser = open_serial(path, baud, timeout_s=0.05)
-        except serial.SerialException as exc:
-            try:  # the ports there are, listed as steval live lists them
-                available = autodetect.list_candidate_ports()
-            except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                available = []
-            message = open_error_message(path, exc, available).replace(" (or use --wait)", "")
+            path, ser = open_port(port, baud)
+        except UserError as exc:
+            message = str(exc).replace(" (or use --wait)", "")
             if " is busy" in message:
                 message += " (if steval live has it, type the command at its prompt instead)"
             raise UserError(message) from None
     capture = None
     try:
         if out is not None:
-            try:
-                capture = CaptureWriter(out, port=path, baud=baud, extra={"source": "steval param/command"})
-            except FileExistsError:
-                raise UserError(f"{out} already exists; choose another --out (captures are never overwritten)")
-            except OSError as exc:
-                raise UserError(f"cannot write the capture {out}: {exc.strerror or exc}") from None
+            capture = open_capture(out, port=path, baud=baud, extra={"source": "steval param/command"})
 
         def write(frame: bytes) -> None:
             try:
@@ -101,10 +84,7 @@ def run_commands(
     finally:
         if capture is not None:
             capture.close()
-        try:
-            ser.close()
-        except (serial.SerialException, OSError):
-            pass
+        close_quietly(ser)
 
 
 def _one(
@@ -130,7 +110,7 @@ def _one(
             if ack is None and isinstance(frame, AckFrame):
                 if channel.match(frame) is sent:
                     ack = frame
-                    if not _wants_status(command, ack):
+                    if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
                         return Reply(command, ack, None, describe_ack(command, ack))
             elif ack is not None and isinstance(frame, StatusFrame) and int(frame.flags) & P.FLAG_EVENT:
                 return Reply(command, ack, frame, describe_ack(command, ack))

@@ -1,7 +1,9 @@
-"""``steval live --ble``: an unmodified drone over Bluetooth: scan, connect, record, estimate, view, reconnect.
+"""The BLE source of a live session (``steval live --ble``): an unmodified drone over Bluetooth: scan, connect,
+record, estimate, view, reconnect.
 
-The same order as the serial session: every notification goes to the capture first (a ``B`` chunk with its arrival
-time), then to a bounded inbox; the session's loop (10 Hz) decodes the inbox, runs the live estimators on the motion
+The same order as a serial port: the link runs its event loop in its own thread, where every notification goes to
+the capture first (a ``B`` chunk with its arrival time), then to a bounded inbox; each round of the session (10 Hz)
+decodes the inbox, runs the live estimators on the motion
 samples, hands the rows to the viewer (:class:`BleViewer`) and shows a health line. The motion stream's cadence is
 found from the ticks of its first :data:`LOCK_SAMPLES` samples (:func:`steval_link.link.ble_payloads.
 motion_cadence`; until then the rounds are held back, not shown), which fixes the estimators' dt: one row per sender
@@ -15,17 +17,15 @@ SIGHUP / ``--duration`` stop it; the capture is closed whole.
 from __future__ import annotations
 
 import asyncio
-import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Protocol, TextIO
+from typing import Any, Protocol
 
 import numpy as np
 
-from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_cadence import (
     CONGESTION,
@@ -51,13 +51,12 @@ from steval_link.link.ble_payloads import (
 )
 from steval_link.link.ble_telemetry import BleTelemetry, decode_notifications
 from steval_link.link.ble_transport import BleBackend, BleLink
-from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
+from steval_link.link.capture import CHUNK_BLE
 from steval_link.live.estimators import failure_sentence
-from steval_link.live.health import HealthDisplay
-from steval_link.live.session import LiveOptions, install_stop_signals, restore_signals
+from steval_link.live.sources import CaptureFields, Source
 from steval_link.quat import euler_from_quaternion
 
-__all__ = ["BleViewer", "BleRows", "BleLiveSummary", "BleLiveSession", "INBOX_MAX", "LOCK_SAMPLES"]
+__all__ = ["BleViewer", "BleRows", "BleSource", "INBOX_MAX", "LOCK_SAMPLES"]
 
 #: notifications held between two rounds at most (10 s of the three characteristics); older ones are dropped from
 #: the live view only (the capture has them all)
@@ -88,52 +87,27 @@ class BleViewer(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass
-class BleLiveSummary:
-    capture_path: Path
-    seconds: float
-    counts: dict[str, int]
-    rows_held: int
-    connections: int
-    losses: int
-    stopped_by: str
-    capture_discarded: bool = False
-    cadence: Cadence | None = None  #: as the health line last said it (dropped = rows_held)
+class BleSource(Source):
+    """See the module docstring. ``target``: a drone's name or address (None: the strongest ``DRN1…``);
+    ``backend``: a ``link.ble_transport.BleBackend`` (bleak, or a fake in tests)."""
 
-    def line(self) -> str:
-        c = self.counts
-        where = "no capture (nothing received)" if self.capture_discarded else f"capture {self.capture_path}"
-        what = self.cadence.describe() if self.cadence is not None else "no motion cadence (too few samples)"
-        return (
-            f"steval: {self.seconds:.1f} s over BLE: {c.get('motion', 0)} motion, {c.get('environment', 0)} "
-            f"environment, {c.get('arming', 0)} arming notifications; {what}; {self.connections} "
-            f"connection(s), {self.losses} lost; stopped: {self.stopped_by}; {where}"
-        )
-
-
-class BleLiveSession:
-    """See the module docstring. ``backend``: a ``link.ble_transport.BleBackend`` (bleak, or a fake in tests)."""
+    kind = "ble"
+    takes_commands = False  # ST's stock firmware takes no commands over BLE
 
     def __init__(
         self,
-        options: LiveOptions,
-        *,
         target: str | None,
+        *,
         backend: BleBackend,
-        viewer_factory: Callable[[LiveOptions, str], BleViewer] | None = None,
         clock: Callable[[], float] = time.time,
-        stream: TextIO | None = None,
         scan_timeout_s: float = 5.0,
     ) -> None:
-        self.options = options
         self.target = target
         self.backend = backend
-        self.viewer_factory = viewer_factory
         self.clock = clock
-        self.display = HealthDisplay(stream if stream is not None else sys.stderr)
         self.scan_timeout_s = scan_timeout_s
-        self._stop_reason: str | None = None
         self._inbox: deque[tuple[int, bytes, float]] = deque(maxlen=INBOX_MAX)
+        self._notes: deque[str] = deque(maxlen=64)  # the link's events, said by the session's thread
         self._unwrap = TickUnwrapper()
         self._pending: list[tuple[int, bytes, float]] = []  # notifications before the cadence is found
         self._last_motion: bytes | None = None  # the last motion payload (a repeat of it is the same sample)
@@ -145,71 +119,99 @@ class BleLiveSession:
         self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)  # the sender's number of each tick kept
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.link: BleLink | None = None
         self.estimators: dict = {}
         self.rows_held = 0
         self.gaps = 0
         self.repeats = 0
         self.counts: dict[str, int] = {}
 
-    # -- stop requests (signals, --duration)
+    # -- the session's calls
     @property
-    def stop_requested(self) -> bool:
-        return self._stop_reason is not None
+    def what(self) -> str:
+        """The drone asked for: its name or address, or any ``DRN1…``."""
+        return self.target or f"{DEVICE_NAME_PREFIX}*"
 
-    def request_stop(self, reason: str) -> None:
-        if self._stop_reason is None:
-            self._stop_reason = reason
+    def capture_fields(self) -> CaptureFields:
+        return CaptureFields(f"ble:{self.what}", 0, {"link": "ble", "target": self.target})
 
-    def run(self) -> BleLiveSummary:
-        path = self.options.out or default_capture_path(self.options.recordings_dir)
-        if not path.parent.is_dir():
-            path.parent.mkdir(parents=True, exist_ok=True)
-        what = self.target or f"{DEVICE_NAME_PREFIX}*"
-        capture = CaptureWriter(
-            path, port=f"ble:{what}", baud=0, extra={"link": "ble", "target": self.target}, discard_empty=True
-        )
-        self._start_unix = self.clock() - capture.now()
-        self._capture = capture
-        viewer = None
-        old = install_stop_signals(self)
-        started = time.monotonic()
-        link = BleLink(
+    def recording_name(self, session) -> str:
+        return f"steval live --ble {self.what}"
+
+    def start(self, session) -> None:
+        """The link runs its event loop in its own thread: notifications go to the capture there, first."""
+        self._start_unix = self.clock() - session.capture.now()
+        self.link = BleLink(
             self.backend,
             self.target,
             self._on_notification,
-            on_event=self._event(capture),
+            on_event=self._on_event,
             clock=self.clock,
             scan_timeout_s=self.scan_timeout_s,
         )
+        self._make_estimators(STEP_PERIOD_S)  # the names checked now; made again with the cadence's dt
+        self._thread = threading.Thread(target=self._run_link, name="steval-ble-link", daemon=True)
+        self._thread.start()
+
+    def _run_link(self) -> None:
+        async def main() -> None:
+            self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
+            await self.link.run(self._stop)
+
         try:
-            if self.viewer_factory is not None and self.options.uses_rerun:
-                viewer = self.viewer_factory(self.options, f"steval live --ble {what}")
-            self._make_estimators(STEP_PERIOD_S)  # the names checked now; made again with the cadence's dt
-            asyncio.run(self._main(link, viewer, started))
-        finally:
-            restore_signals(old)
+            asyncio.run(main())
+        except BaseException as exc:  # noqa: BLE001 - a UserError of the link (no adapter, drone not found...)
+            self._error = exc
+
+    def round(self) -> bool:
+        self._thread.join(ROUND_S)
+        for _ in range(len(self._notes)):
+            self.session.display.note(self._notes.popleft())
+        if self._thread.is_alive():
+            self._round(self.session.viewer)
+            return True
+        if self._error is not None:
+            raise self._error
+        self._round(self.session.viewer, final=True)
+        return False
+
+    def finish(self, error: BaseException | None) -> None:
+        if self._thread is None:
+            return
+        loop, stop = getattr(self, "_loop", None), getattr(self, "_stop", None)
+        if loop is not None and stop is not None and self._thread.is_alive():
             try:
-                capture.mark_event("stop", self._stop_reason or "end")
-            except Exception:  # noqa: BLE001 - the notifications are written already
+                loop.call_soon_threadsafe(stop.set)
+            except RuntimeError:  # the loop closed meanwhile
                 pass
-            capture.close()
-            if viewer is not None:
-                try:
-                    viewer.close()
-                except UserError as exc:
-                    self.display.note(f"viewer: {exc}")
-            self.display.close()
-        return BleLiveSummary(
-            path,
-            time.monotonic() - started,
-            dict(self.counts),
-            self.rows_held,
-            link.connections,
-            link.losses,
-            self._stop_reason or "end",
-            capture.discarded,
-            self.cadence(),
+        self._thread.join()
+        for _ in range(len(self._notes)):
+            self.session.display.note(self._notes.popleft())
+        if error is None and self._error is None:
+            self._round(self.session.viewer, final=True)
+
+    def health(self, now_mono_s: float) -> str:
+        c = self.counts
+        if not c:
+            return ""  # nothing received yet: no line
+        cad = self.cadence()
+        what = cad.describe() if cad is not None else "finding the motion cadence"
+        return (
+            f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
+            f"notifications; {what}"
         )
+
+    def summary_fields(self) -> dict[str, Any]:
+        link = self.link
+        return {
+            "counts": dict(self.counts),
+            "rows_held": self.rows_held,
+            "connections": link.connections if link is not None else 0,
+            "disconnects": link.losses if link is not None else 0,
+            "cadence": self.cadence(),
+        }
 
     def _make_estimators(self, dt_s: float) -> None:
         self.estimators = {
@@ -218,51 +220,31 @@ class BleLiveSession:
             else registry.create(n, rate_hz=1.0 / dt_s)
             if n != "accel" and registry.accepts(n, "rate_hz")
             else registry.create(n)
-            for n in self.options.estimators
+            for n in self.session.options.estimators
         }
 
     # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
         t = t_unix - self._start_unix
-        self._capture.write_chunk(CHUNK_BLE, ble_chunk(cid, data), t)
+        self.session.capture.write_chunk(CHUNK_BLE, ble_chunk(cid, data), t)
         self._inbox.append((cid, data, t))
 
-    def _event(self, capture: CaptureWriter):
-        def on_event(kind: str, text: str) -> None:
-            capture.mark_event(kind, text)
-            if kind == "connect":
-                self.display.note(f"connected to {text} over BLE")
-            elif kind == "disconnect":
-                self.display.note("BLE link lost; reconnecting (Ctrl-C stops)")
-            elif kind == "reconnect":
-                self._inbox.append((RECONNECTED, b"", 0.0))  # the next motion sample follows a lost link
-                self.display.note(f"reconnected to {text}")
-            else:
-                self.display.note(f"{kind}: {text}")
-
-        return on_event
-
-    async def _main(self, link: BleLink, viewer: BleViewer | None, started: float) -> None:
-        stop = asyncio.Event()
-        task = asyncio.ensure_future(link.run(stop))
-        try:
-            while not task.done():
-                await asyncio.wait({task}, timeout=ROUND_S)
-                d = self.options.duration_s
-                if d is not None and time.monotonic() - started >= d:
-                    self.request_stop("duration")
-                if self.stop_requested:
-                    stop.set()
-                self._round(viewer)
-            task.result()  # a UserError of the link (no adapter, drone not found...) ends the session here
-            self._round(viewer, final=True)
-        finally:
-            if not task.done():
-                task.cancel()
+    def _on_event(self, kind: str, text: str) -> None:
+        self.session.capture.mark_event(kind, text)
+        if kind == "connect":
+            self._notes.append(f"connected to {text} over BLE")
+        elif kind == "disconnect":
+            self._notes.append("BLE link lost; reconnecting (Ctrl-C stops)")
+        elif kind == "reconnect":
+            self._inbox.append((RECONNECTED, b"", 0.0))  # the next motion sample follows a lost link
+            self._notes.append(f"reconnected to {text}")
+        else:
+            self._notes.append(f"{kind}: {text}")
 
     def _round(self, viewer: BleViewer | None, final: bool = False) -> None:
-        items = list(self._inbox)
-        self._inbox.clear()
+        items = []
+        while self._inbox:  # appended by the link's thread meanwhile: taken one by one, none lost
+            items.append(self._inbox.popleft())
         for cid, data, t in items:
             if cid == RECONNECTED:
                 self._pending.append((cid, data, t))
@@ -277,14 +259,10 @@ class BleLiveSession:
                 self._last_motion = data
             self._pending.append((cid, data, t))
         if self._cadence is None and not self._ready(final):
-            if self.counts:
-                self.display.show(self._health(), time.monotonic())
             return
         items, self._pending = self._pending, []
         if items:
             self._process(items, viewer)
-        if self.counts:
-            self.display.show(self._health(), time.monotonic())
 
     def _ready(self, final: bool) -> bool:
         """Enough motion samples pending to find the cadence (or the session ends)."""
@@ -323,7 +301,8 @@ class BleLiveSession:
             try:
                 q = np.array([est.step(a, g, thr) for a, g in zip(acc, gyro)], dtype=np.float64).reshape(-1, 4)
             except Exception as exc:  # noqa: BLE001 - a failing estimator is switched off; the session goes on
-                self.display.note(f"{failure_sentence(name, exc)}; {name} disabled, recording and viewing go on")
+                why = failure_sentence(name, exc)
+                self.session.display.note(f"{why}; {name} disabled, recording and viewing go on")
                 del self.estimators[name]
                 continue
             thx, thy, _ = euler_from_quaternion(q) if len(q) else (np.zeros(0), np.zeros(0), None)
@@ -426,13 +405,4 @@ class BleLiveSession:
             gaps=self.gaps if self.rows_held else 0,
             repeats=self.repeats,
             span_s=span_s,
-        )
-
-    def _health(self) -> str:
-        c = self.counts
-        cad = self.cadence()
-        what = cad.describe() if cad is not None else "finding the motion cadence"
-        return (
-            f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
-            f"notifications; {what}"
         )

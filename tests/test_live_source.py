@@ -1,0 +1,182 @@
+"""One live session over one source interface: the URL that chooses a driver, the reader's locked write (a command
+never meets a port being swapped by a reconnection), the session's one stop mechanism and its one capture opening."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import serial
+
+from steval_link.errors import UserError
+from steval_link.link.transport import Protocol, SerialReader
+from steval_link.live.ble_source import BleSource
+from steval_link.live.emulated import EmulatedSource
+from steval_link.live.serial_source import SerialSource
+from steval_link.live.session import LiveOptions, LiveSession, source_for
+from steval_link.live.sources import CaptureFields, Source
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_url_chooses_the_driver():
+    assert isinstance(source_for("/dev/ttyUSB0"), SerialSource) and source_for("COM3", baud=460800).baud == 460800
+    assert source_for("auto", wait=True).wait and isinstance(source_for("replay://recordings/demo.stv"), SerialSource)
+    assert source_for("replay://recordings/demo.stv").replay and not source_for("/dev/ttyUSB0").replay
+    for url, target in (("ble:DRN1110", "DRN1110"), ("BLE:auto", None), ("ble:", None)):
+        ble = source_for(url, backend=object())
+        assert isinstance(ble, BleSource) and ble.target == target and not ble.takes_commands
+    emu = source_for("emulated:", emulation=object(), realtime=True)
+    assert isinstance(emu, EmulatedSource) and emu.realtime and emu.kind == "emulated"
+
+
+class FakePort:
+    """A port whose first read fails (an unplug) when ``fail_first``; remembers whether it was open at each write."""
+
+    def __init__(self, name: str, fail_first: bool = False) -> None:
+        self.port = name
+        self.is_open = True
+        self.fail_first = fail_first
+        self.writes: list[tuple[bytes, bool]] = []
+        self.in_waiting = 0
+
+    def read(self, size: int = 1) -> bytes:
+        if self.fail_first:
+            self.fail_first = False
+            raise serial.SerialException("device reports readiness to read but returned no data")
+        time.sleep(0.005)
+        return b""
+
+    def write(self, data: bytes) -> int:
+        self.writes.append((data, self.is_open))
+        return len(data)
+
+    def close(self) -> None:
+        self.is_open = False
+
+
+class Events(Protocol):
+    def __init__(self) -> None:
+        self.events: list[str] = []
+
+    def connection_made(self, port: str) -> None:
+        self.events.append(f"made {port}")
+
+    def connection_lost(self, exc) -> None:
+        self.events.append("lost" if exc is not None else "closed")
+
+
+def _wait(cond, timeout_s: float = 2.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not cond():
+        time.sleep(0.005)
+    return cond()
+
+
+def test_a_write_and_a_reconnection_hold_the_same_lock():
+    old, new = FakePort("/dev/ttyUSB0", fail_first=True), FakePort("/dev/ttyUSB1")
+    proto = Events()
+    reader = SerialReader(old, proto, baud=115200, find_port=lambda: "/dev/ttyUSB1", opener=lambda path: new)
+    reader.lock.acquire()  # as a command being written while the port fails
+    try:
+        reader.start()
+        time.sleep(0.1)
+        assert reader.serial is old and old.is_open and proto.events == ["made /dev/ttyUSB0"]  # the swap waits
+        done, outcome = threading.Event(), []
+
+        def command() -> None:
+            try:
+                outcome.append(reader.write(b"\xa5cmd"))
+            except serial.SerialException as exc:  # between the loss and the reopening: not sent, said so
+                outcome.append(str(exc))
+            done.set()
+
+        threading.Thread(target=command, daemon=True).start()
+        assert not done.wait(0.1)  # and a write waits for the lock too
+    finally:
+        reader.lock.release()
+    assert done.wait(2.0) and outcome[0] in (4, "the port is not connected")
+    assert _wait(lambda: reader.serial is new)
+    reader.write(b"\xa5next")
+    reader.stop()
+    assert proto.events == ["made /dev/ttyUSB0", "lost", "made /dev/ttyUSB1", "closed"]
+    sent = old.writes + new.writes  # never to a port closed under it
+    assert new.writes[-1] == (b"\xa5next", True) and all(was_open for _, was_open in sent)
+    assert len(sent) == (2 if outcome[0] == 4 else 1)
+    with pytest.raises(serial.SerialException, match="not connected"):  # an OSError: the prompt says "not sent"
+        reader.write(b"\xa5late")
+
+
+class ScriptedSource(Source):
+    """A source of a few rounds that counts the session's calls."""
+
+    kind = "serial"
+
+    def __init__(self, rounds: int, fail_at: int | None = None) -> None:
+        self.rounds, self.fail_at, self.calls, self.n = rounds, fail_at, [], 0
+
+    def open(self, session) -> None:
+        self.session = session
+        self.calls.append("open")
+
+    def close_input(self) -> None:
+        self.calls.append("close_input")
+
+    def describe(self) -> str:
+        return "reading a script"
+
+    def capture_fields(self) -> CaptureFields:
+        return CaptureFields("script", 115200, {"scripted": True})
+
+    def start(self, session) -> None:
+        self.calls.append("start")
+
+    def round(self) -> bool:
+        self.n += 1
+        if self.n == self.fail_at:
+            raise UserError("the script failed")
+        self.session.capture.write(b"\xa5" * 10, 0.01 * self.n)
+        return self.n < self.rounds
+
+    def health(self, now_mono_s: float) -> str:
+        return f"round {self.n}"
+
+    def finish(self, error) -> None:
+        self.calls.append(f"finish {type(error).__name__ if error else None}")
+
+    def summary_fields(self) -> dict:
+        return {"bytes_total": 10 * self.n}
+
+
+def test_one_session_drives_any_source_and_owns_the_capture_and_the_stop(tmp_path):
+    import io
+
+    from steval_link.link.capture import read_capture
+
+    src = ScriptedSource(rounds=5)
+    err = io.StringIO()
+    summary = LiveSession(LiveOptions(out=tmp_path / "a.stv", prompt=False), src, stream=err, tty=False).run()
+    assert src.calls == ["open", "start", "finish None"] and summary.bytes_total == 50
+    assert summary.stopped_by == "end" and summary.line().startswith("recorded ")
+    cap = read_capture(tmp_path / "a.stv")
+    assert cap.header["port"] == "script" and cap.header["extra"]["scripted"] is True
+    assert [(e.kind, e.text) for e in cap.events] == [("stop", "end")] and len(cap.data) == 50
+    assert "reading a script; recording to" in err.getvalue()
+    # a stop requested (Ctrl-C, --duration) ends it at the next round, the same way for every source
+    src = ScriptedSource(rounds=1000)
+    session = LiveSession(LiveOptions(out=tmp_path / "b.stv", prompt=False), src, stream=io.StringIO())
+    src.round = lambda orig=src.round: (session.request_stop("interrupted") if src.n == 2 else None, orig())[1]
+    assert session.run().stopped_by == "interrupted" and src.n == 3
+    assert [e.text for e in read_capture(tmp_path / "b.stv").events] == ["interrupted"]
+    # a source's error: the capture is closed whole first, then the error is raised
+    src = ScriptedSource(rounds=10, fail_at=3)
+    with pytest.raises(UserError, match="the script failed"):
+        LiveSession(LiveOptions(out=tmp_path / "c.stv", prompt=False), src, stream=io.StringIO()).run()
+    assert src.calls[-1] == "finish UserError" and len(read_capture(tmp_path / "c.stv").data) == 20
+    # the capture exists already: one sentence, and the input is released
+    src = ScriptedSource(rounds=1)
+    with pytest.raises(UserError, match="already exists"):
+        LiveSession(LiveOptions(out=tmp_path / "a.stv", prompt=False), src, stream=io.StringIO()).run()
+    assert src.calls == ["open", "close_input"]
