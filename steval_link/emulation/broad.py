@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
@@ -31,7 +32,7 @@ __all__ = [
     "load_trial",
     "trial_paths",
     "steval_view",
-    "native_view",
+    "own_rate_view",
     "inclination_error_rad",
     "heading_error_rad",
     "rmse_deg",
@@ -212,12 +213,12 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
         out = sm.run_isr(acc_r, gyro_r)
     except ValueError as exc:
         raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
-    t_step = t_tick[out.step_tick - (sm.FIFO_ORDER // 2)]
+    t_step = t_tick[out.step_tick - (C.FIFO_ORDER // 2)]
     q, mov = _truth_at(trial, t_step)
-    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, sm.AHRS_HZ)
+    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, C.AHRS_RATE_HZ)
 
 
-def native_view(trial: BroadTrial) -> SteValView:
+def own_rate_view(trial: BroadTrial) -> SteValView:
     """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
     return SteValView(
         trial.acc_mg.astype(np.float32),

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import broad
 from steval_link.emulation.broad import BroadTrial
-from steval_link.emulation.sensor_model import FIFO_ORDER
 from steval_link.quat import interpolate_quat, quaternion_from_euler
 
 __all__ = ["TruthRows", "StepTruth", "truth_at_trial_time", "score_euler"]
@@ -95,7 +95,7 @@ class StepTruth:
     def rows(self, start: int = 0, stop: int | None = None) -> TruthRows:
         """The truth of steps ``start`` .. ``stop`` (default: every step so far)."""
         ticks = self.last_ticks[start:stop]
-        mid = ticks - FIFO_ORDER // 2
+        mid = ticks - C.FIFO_ORDER // 2
         step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
         if ticks.shape[0] == 0:
             empty = np.zeros(0)

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import ctypes
 
+from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
 from steval_link.emulation.board.memory_map import (
-    CPU_HZ,
     IRQ_TIM2,
     IRQ_TIM9,
     IRQ_USART1,
@@ -94,7 +94,7 @@ class NativeBoard(PythonBoard):
         st.rid[:] = [r.SP, r.LR, r.PC, r.XPSR, r.PRIMASK] + r.R
         st.frame_ids[:25] = r.frame_ids
         st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
-        st.max_slice = CPU_HZ // 1000
+        st.max_slice = C.CPU_HZ // 1000
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -371,7 +371,7 @@ class NativeBoard(PythonBoard):
         s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
         s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
 
-    def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
+    def run_until(self, t_end: int, *, max_slice: int = C.CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
         st = self.st
         st.max_slice = max_slice
@@ -391,7 +391,7 @@ class NativeBoard(PythonBoard):
         st = self.st
         if self.fault is not None:
             return self.fault
-        t = f"t = {self.now / CPU_HZ:.6f} s"
+        t = f"t = {self.now / C.CPU_HZ:.6f} s"
         if st.fault == F_STACK:
             self.fault = EmulationError(
                 f"stack overflow: exception {st.fault_arg >> 32} at sp "
