@@ -32,6 +32,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
+from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import angle_diff_rad, json_number
 from steval_link.estimators.accel_tilt import AccelTilt
@@ -50,7 +51,6 @@ __all__ = [
     "side_by_side",
     "still_mask",
     "motion_lag_s",
-    "labels_by_difference",
     "format_side_by_side",
 ]
 
@@ -67,51 +67,6 @@ RATE_SPAN_S = 5.0
 DURATION_TOLERANCE_S = 1.0
 #: The motion alignment searches lags up to this fraction of the shorter flight.
 MAX_LAG_FRACTION = 0.5
-
-#: Settings in label order, with their defaults (a label names a differing setting where it is not the default).
-_SETTING_KEYS = (
-    "ki",
-    "correction",
-    "kp_ground",
-    "kp_flight",
-    "min_thr",
-    "dt_s",
-    "fresh_squares",
-    "text_mode",
-    "inflight_tuning",
-)
-_SETTING_WORDS = {
-    "ki": "ki",
-    "correction": "correction",
-    "kp_ground": "kp ground",
-    "kp_flight": "kp flight",
-    "min_thr": "min_thr",
-    "dt_s": "dt",
-    "fresh_squares": "fresh squares",
-    "text_mode": "text mode",
-    "inflight_tuning": "in-flight tuning",
-}
-_FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
-
-
-def _f32(x) -> float:
-    """A float32 setting as its shortest decimal (0.4, not 0.4000000059604645)."""
-    return float(str(np.float32(x)))
-
-
-def _defaults() -> dict[str, Any]:
-    d = MahonySettings()
-    return {
-        "ki": _f32(d.ki),
-        "correction": True,
-        "kp_ground": _f32(d.kp_ground),
-        "kp_flight": _f32(d.kp_flight),
-        "min_thr": int(d.min_thr),
-        "dt_s": _f32(d.dt_s),
-        "fresh_squares": False,
-        "text_mode": False,
-        "inflight_tuning": False,
-    }
 
 
 @dataclass
@@ -207,7 +162,7 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
         flags = int(s.flags[0])
         return {
             "from": "text-mode status lines",
-            "ki": _f32(s.ki[0]),
+            "ki": setting_f32(s.ki[0]),
             "correction": not flags & P.FLAG_NO_CORRECTION,
             "text_mode": True,
             "changes": int(np.count_nonzero(np.diff(np.asarray(s.ki, np.float32)) != 0)),
@@ -218,12 +173,12 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
     changes = int((filter_settings_report(tel) or {}).get("changes") or 0)
     return {
         "from": "status frames",
-        "ki": _f32(first.ki),
+        "ki": setting_f32(first.ki),
         "correction": bool(first.correction),
-        "kp_ground": _f32(first.kp_ground),
-        "kp_flight": _f32(first.kp_flight),
+        "kp_ground": setting_f32(first.kp_ground),
+        "kp_flight": setting_f32(first.kp_flight),
         "min_thr": int(first.min_thr),
-        "dt_s": _f32(first.dt_s),
+        "dt_s": setting_f32(first.dt_s),
         "fresh_squares": bool(first.fresh_squares),
         "text_mode": bool(flags & P.FLAG_TEXT_MODE),
         "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
@@ -386,72 +341,6 @@ def motion_lag_s(
     x, y = a[i0:i1].ravel(), b[i0 + m : i1 + m].ravel()
     norm = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y))) if x.size else 0.0
     return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
-
-
-# -- labels ----------------------------------------------------------------------------------------------------
-
-
-def _word(key: str, value) -> str:
-    """How a setting reads in a label: "ki 1", "correction off", "binary", "fresh squares", ..."""
-    name = _SETTING_WORDS[key]
-    if key == "correction":
-        return f"correction {'on' if value else 'off'}"
-    if key == "text_mode":
-        return "text mode" if value else "binary"
-    if isinstance(value, bool):
-        return name if value else f"no {name}"
-    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
-
-
-def _fact_word(key: str, value) -> str:
-    """How a header fact reads in a label: "BLE", "firmware X.elf", "scenario demo", ..."""
-    if key == "link":
-        return "BLE" if value == "ble" else "serial"
-    return f"{key.replace('_path', '')} {value}"
-
-
-def labels_by_difference(flights: Sequence[Flight]) -> list[str]:
-    """A label per flight naming what differs between them: the settings first ("ki 0.1" against "ki 1,
-    correction off": a differing setting is named where it is not the default, and the first one where nothing
-    else would be), else the header facts (link, firmware, scenario, seed, port), else the file names. Labels
-    that still collide get their file name added."""
-    n = len(flights)
-    labels = [""] * n
-    known = [f.settings for f in flights]
-    defaults = _defaults()
-    if all(s is not None for s in known):
-        differing = [k for k in _SETTING_KEYS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
-        if differing:
-            for i, s in enumerate(known):
-                words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
-                labels[i] = ", ".join(words) or _word(differing[0], s.get(differing[0], defaults[differing[0]]))
-    if not all(labels):
-        facts = [f.facts for f in flights]
-        differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
-        if "firmware" in differing:  # the ELF names tell them apart; else the paths may (other build folders)
-            differing.remove("firmware_path")
-        words: list[list[str]] = [[] for _ in flights]
-        for k in differing:  # in order of priority, until the labels tell the flights apart
-            for i, x in enumerate(facts):
-                if x.get(k) is not None:
-                    words[i].append(_fact_word(k, x[k]))
-            if len({", ".join(w) for w in words}) == n:
-                break
-        for i in range(n):
-            if not labels[i]:
-                labels[i] = ", ".join(words[i])
-    for i, f in enumerate(flights):
-        if f.settings and f.settings.get("changes"):
-            labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
-    names = [f.path.name for f in flights]
-    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
-    labels = [
-        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
-        for i in range(n)
-    ]
-    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
-    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
-    return labels
 
 
 # -- mismatches ------------------------------------------------------------------------------------------------
