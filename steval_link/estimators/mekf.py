@@ -179,7 +179,7 @@ class Mekf(Estimator):
     """Multiplicative EKF with gyro bias and inertial-frame accelerometer averaging (see the module docstring).
 
     Args:
-        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; BROAD native 285.7).
+        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; a BROAD trial at its own 285.7).
         acc_tau_s: time constant τ of the accelerometer low-pass in the strapdown frame, s (0: direct MEKF).
         gyro_noise_mdps_rthz: gyro angle random walk density σ_g, mdps/√Hz.
         bias_rw_mdps_per_sqrt_s: gyro bias random walk σ_b, mdps/√s.
