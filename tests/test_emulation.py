@@ -17,7 +17,7 @@ import pytest
 from support import firmware as S
 
 from steval_link.emulation import sensor_model as sm
-from steval_link.estimators.st_mahony import replay_firmware
+from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.link.capture import encode_capture, load_telemetry
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame

@@ -15,16 +15,9 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.scenarios import SCENARIOS
 from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
 from steval_link.errors import UserError
-from steval_link.estimators.st_mahony import (
-    MahonySettings,
-    MahonyState,
-    bits_equal,
-    quaternion_to_euler,
-    replay_firmware,
-)
-from steval_link.estimators.st_mahony import (
-    run as mahony_run,
-)
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, quaternion_to_euler
+from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import load_telemetry, read_capture
 from steval_link.link.decoder import decode_bytes
@@ -111,14 +104,7 @@ def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
 def test_status_snapshots_seed_the_port_bit_exact_after_each(runs):
     tel = decode(runs["hover"])
     a, s = tel.attitude, tel.status
-    settings = MahonySettings.from_status(
-        kp_ground=s.kp_ground[0],
-        kp_flight=s.kp_flight[0],
-        ki=s.ki[0],
-        dt_s=s.dt_s[0],
-        min_thr=s.min_thr[0],
-        flags=s.flags[0],
-    )
+    settings = MahonySettings.of_status(s, 0)
     assert len(s) >= 15
     for j in range(len(s)):
         r0 = int(s.step[j]) + 1

@@ -22,7 +22,8 @@ import pytest
 from support import firmware as S
 
 from steval_link.estimators.conformance import load_conformance_csv
-from steval_link.estimators.st_mahony import MahonySettings, bits_equal, replay_firmware, run
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, bits_equal, run
 from steval_link.link import protocol as P
 from steval_link.link.capture import encode_capture, load_telemetry, read_capture
 from steval_link.link.commands import Command, CommandChannel, parse_command

@@ -3,7 +3,8 @@
 One capture in, one :class:`ComparisonReport` out (ETH lecture 4, exercise 8 and the EKF project):
 
 * **ST-Mahony port** — the bit-exact port re-run over the capture's inputs
-  (:func:`steval_link.estimators.st_mahony.replay_firmware`): it starts at power-up (a capture from step 0) or from
+  (:func:`steval_link.estimators.firmware_replay.replay_firmware`): it starts at power-up (a capture from step 0) or
+  from
   the filter-state snapshot of a status frame, and restarts from the next snapshot after any dropped frame. The
   report counts bit-exact steps, names the first step that differs and *diagnoses* it: the port is re-run from the
   same seed with alternative settings (the other normalisation variant, KI 1.0, no correction, kp variants,
@@ -55,9 +56,7 @@ from steval_link.emulation.step_truth import score_euler
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
-from steval_link.estimators.st_mahony import (
-    MahonySettings,
-)
+from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.capture import capture_truth, read_source
 from steval_link.link.plausibility import held_back_sentence
 

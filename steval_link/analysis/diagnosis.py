@@ -22,16 +22,9 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import PortComparison, json_number
-from steval_link.estimators.st_mahony import (
-    FirmwareReplay,
-    MahonySettings,
-    MahonyState,
-    bits_equal,
-    replay_firmware,
-)
-from steval_link.estimators.st_mahony import (
-    run as mahony_run,
-)
+from steval_link.estimators.firmware_replay import FirmwareReplay, replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal
+from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link.plausibility import q_off_sphere
 from steval_link.link.protocol import FLAG_EVENT
 

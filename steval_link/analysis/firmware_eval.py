@@ -38,7 +38,7 @@ from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
 from steval_link.errors import UserError
-from steval_link.estimators import st_mahony
+from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
 
@@ -229,7 +229,7 @@ def run_firmware(
                 notes.append(
                     "the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned"
                 )
-        rep = st_mahony.replay_firmware(tel)
+        rep = firmware_replay.replay_firmware(tel)
         port_thx = np.full(n, np.nan, _F32)
         port_thy = np.full(n, np.nan, _F32)
         port_thx[steps] = rep.thx_rad[rows]

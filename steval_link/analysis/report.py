@@ -10,9 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.estimators.st_mahony import (
-    FirmwareReplay,
-)
+from steval_link.estimators.firmware_replay import FirmwareReplay
 
 #: Trace name of the seeded port (``st-mahony`` is the registry estimator run from power-up, if requested).
 PORT_TRACE = "st-mahony-port"

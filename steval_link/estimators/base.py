@@ -29,7 +29,7 @@ class AttitudeEstimate:
     """The attitude of every step of a run.
 
     Attributes:
-        q_wxyz: (N, 4) quaternion, scalar first (float64, or float32 for the bit-exact firmware port).
+        q_wxyz: (N, 4) quaternion, scalar first (float64, or float32 for the bit-exact firmware replica).
         thx_rad: (N,) rotation about x, rad (pitch, nose up +).
         thy_rad: (N,) rotation about y, rad (roll).
         thz_rad: (N,) rotation about z, rad (yaw); NaN where the estimator has none.
