@@ -63,12 +63,12 @@ def decode(chunks):
 
 def port_check(chunks, tmp_path, name="emu.stv"):
     """The capture of the run, through load_telemetry and the seeded port (what `steval compare` does)."""
-    from steval_link.analysis.compare import compare_port
+    from steval_link.analysis.compare import compare_replica
 
     path = tmp_path / name
     path.write_bytes(encode_capture({"source": "test"}, chunks))
     tel = load_telemetry(path)
-    rep, _replay, _rows = compare_port(tel)
+    rep, _replay, _rows = compare_replica(tel)
     return rep
 
 

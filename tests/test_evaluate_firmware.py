@@ -353,9 +353,9 @@ def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
         err,
         rmse,
         np.full(m, 4400),
-        port_rmse_deg=rmse,
-        port_bit_exact=m,
-        port_steps=m,
+        replica_rmse_deg=rmse,
+        replica_bit_exact=m,
+        replica_steps=m,
     )
 
 

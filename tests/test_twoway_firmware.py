@@ -207,9 +207,9 @@ def test_changes_mid_stream_are_followed_bit_exact(changes_run, tmp_path):
     rep = replay_firmware(tel)
     assert rep.all_exact and rep.n_seeded == len(tel.attitude.step), (rep.first_mismatch, rep.n_seeded)
     # without following the EVENT snapshots the port would not be bit-exact after the first change
-    from steval_link.analysis.compare import compare_port
+    from steval_link.analysis.compare import compare_replica
 
-    crep, _replay, _rows = compare_port(tel)
+    crep, _replay, _rows = compare_replica(tel)
     assert crep.bit_exact == crep.seeded == len(tel.attitude.step)
 
 

@@ -7,7 +7,7 @@ degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See
 Firmware (``--firmware ELF``): each ELF runs on the emulated board fed with the trial's motion and its own attitude
 output is scored against the same truth, aligned per step the same way (:mod:`steval_link.analysis.firmware_eval`):
 one more column of the table, and one line per firmware per trial with its instructions per AHRS step and the
-bit-exact port's score on the firmware's own inputs.
+bit-exact replica's score on the firmware's own inputs.
 
 Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
 given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
@@ -171,9 +171,9 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
-        "port_rmse_deg": _rounded(fw.port_rmse_deg),
-        "port_bit_exact_steps": fw.port_bit_exact,
-        "port_steps": fw.port_steps,
+        "port_rmse_deg": _rounded(fw.replica_rmse_deg),
+        "port_bit_exact_steps": fw.replica_bit_exact,
+        "port_steps": fw.replica_steps,
         "port_settings": None
         if st is None
         else {
@@ -190,7 +190,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
 
 
 def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
-    """One line per firmware per trial: RMSE, instructions per AHRS step, the port's RMSE on its inputs."""
+    """One line per firmware per trial: RMSE, instructions per AHRS step, the replica's RMSE on its inputs."""
     fws = [fw for r in results for fw in r.firmware]
     if not fws:
         return []
@@ -203,14 +203,14 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
     for fw in fws:
         ins = fw.instructions_summary()
         cost = "n/a" if ins["median"] is None else f"{ins['median']:.0f} instr/step ({ins['min']}-{ins['max']})"
-        port = (
+        replica = (
             "port n/a"
-            if fw.port_rmse_deg is None
-            else f"port {_fmt(fw.port_rmse_deg)}, bit-exact {fw.port_bit_exact}/{fw.port_steps} steps"
+            if fw.replica_rmse_deg is None
+            else f"port {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
         )
         note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
         out.append(
-            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {port}){note}"
+            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {replica}){note}"
         )
     return out
 

@@ -6,7 +6,7 @@ what differs between them, each measured against its own accelerometer-only tilt
   taken off its times (hand-held or real flights that did not start together).
 * **Labelled** by what differs: the filter settings of the status frames (``ki``, ``kp_ground``, ``kp_flight``,
   ``correction``, ``min_thr``, the normalisation variant, the build flags text mode and in-flight tuning), else the
-  capture headers (link, firmware ELF name, scenario, seed, port), else the file names: "ki 0.1" against
+  capture headers (link, firmware ELF name, scenario, seed, serial port), else the file names: "ki 0.1" against
   "ki 1, correction off".
 * **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
   accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
@@ -17,7 +17,7 @@ what differs between them, each measured against its own accelerometer-only tilt
 * **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
   one, frames lost on the link, a truncated capture.
 
-A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony port's, run on its raw samples
+A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony replica's, run on its raw samples
 (dt from the ticks; :mod:`steval_link.analysis.ble`), and the notes say so.
 """
 
@@ -75,15 +75,15 @@ class Flight:
 
     Attributes:
         path: the capture file. label: what the plot, the viewer and the JSON call it.
-        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE).
+        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE: the replica's).
         t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
         thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
         accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
         settings: the filter settings from the first status frame (None without status frames), with
             ``changes`` (changes announced during the capture) and ``from``.
-        facts: link, firmware, scenario, seed, port from the capture header (None where unknown).
+        facts: link, firmware, scenario, seed, serial port from the capture header (None where unknown).
         duration_s, rows, frames_lost, warnings (the reader's, e.g. a truncated capture), lag_s (motion alignment).
-        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the port's on BLE).
+        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the replica's on BLE).
     """
 
     path: Path
@@ -227,9 +227,9 @@ def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
     )
 
 
-def flight_of_ble(path, ble, inputs, port_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
+def flight_of_ble(path, ble, inputs, replica_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
     """A BLE capture: its uniform inputs (:func:`steval_link.link.ble_payloads.uniform_inputs`) and the
-    ST-Mahony port's estimate over them (no firmware angles are sent over BLE)."""
+    ST-Mahony replica's estimate over them (no firmware angles are sent over BLE)."""
     t = np.asarray(inputs.t_s, np.float64)
     t = t - t[0] if len(t) else t
     return Flight(
@@ -238,11 +238,11 @@ def flight_of_ble(path, ble, inputs, port_estimate, header: dict | None, warning
         kind="ble",
         angles="st-mahony port",
         t_s=t,
-        thx_rad=np.asarray(port_estimate.thx_rad, np.float64),
-        thy_rad=np.asarray(port_estimate.thy_rad, np.float64),
+        thx_rad=np.asarray(replica_estimate.thx_rad, np.float64),
+        thy_rad=np.asarray(replica_estimate.thy_rad, np.float64),
         acc_mg=np.asarray(inputs.acc_mg, np.float32),
         gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
-        q_wxyz=np.asarray(port_estimate.q_wxyz, np.float64),
+        q_wxyz=np.asarray(replica_estimate.q_wxyz, np.float64),
         settings=None,
         facts=_facts(header, "ble"),
         duration_s=float(t[-1]) if len(t) else 0.0,

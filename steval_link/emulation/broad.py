@@ -24,6 +24,7 @@ from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
+from steval_link.units import RAD_TO_MDPS
 
 __all__ = [
     "G_MPS2",
@@ -41,7 +42,6 @@ __all__ = [
 #: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
 #: local gravity in Berlin is 9.813), so 9.81 is the right scale to within the sensors' own 0.6 % spread.
 G_MPS2 = 9.81
-_RAD_TO_MDPS = 180.0 / np.pi * 1000.0
 _KEYS = ("acc", "gyr", "quat", "movement", "fs")
 
 
@@ -78,7 +78,7 @@ class BroadTrial:
     @property
     def gyro_mdps(self) -> np.ndarray:
         """(N, 3) gyro in mdps."""
-        return self.gyr_radps * _RAD_TO_MDPS
+        return self.gyr_radps * RAD_TO_MDPS
 
 
 def load_trial(path) -> BroadTrial:

@@ -57,7 +57,7 @@ FW_VERSION = (2, 0)
 #: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under
 #: emulation (stv_fw_init → HAL_TIM_Base_Start_IT: 84 007 128 cycles); the first attitude frame then comes at
 #: t_us ≈ 2.985 s, as the emulated firmware's does.
-TIM9_START_CYCLES = 84_007_128 - 104_000
+TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
 

@@ -37,6 +37,7 @@ from steval_link.emulation.kinematics import MG_PER_MPS2, Kinematics, rotmat
 from steval_link.emulation.scenarios import SCENARIOS
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_multiply
+from steval_link.units import RAD_TO_MDPS
 
 __all__ = [
     "MotionProfile",
@@ -145,7 +146,7 @@ def render(
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
     t_hold = sm.gyro_hold_times_s(t, t[0])
-    gyro = _body_rate_radps(kin, t_hold) * (180.0 / np.pi * 1000.0)
+    gyro = _body_rate_radps(kin, t_hold) * RAD_TO_MDPS
     # specific force
     a = np.zeros((len(t), 3))
     if kin.lin_acc_mg is not None:

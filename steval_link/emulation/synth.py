@@ -9,7 +9,7 @@ one module per link:
    quantisation;
 3. the firmware's ISR and main loop (:func:`~steval_link.emulation.sensor_model.run_isr`): power-up offset
    calibration, gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`;
-4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact port (:func:`steval_link.estimators.st_mahony.run`),
+4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact replica (:func:`steval_link.estimators.st_mahony.run`),
    with the firmware variant's settings (``--ki``, ``--no-correction``);
 5. the firmware patch's link and TX queue, step by step, and the frame bytes (:mod:`~steval_link.emulation.fw_link`);
 6. the host: a USB-UART adapter delivering the bytes in packets, with receive times
@@ -269,8 +269,8 @@ def _span(opts: SynthOptions):
     return trial, duration, total
 
 
-def _port_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
-    """The bit-exact port over every AHRS step: (q, thx, thy, the filter state after each status step)."""
+def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
+    """The bit-exact replica over every AHRS step: (q, thx, thy, the filter state after each status step)."""
     n_steps = len(isr.step_tick)
     q = np.empty((n_steps, 4), np.float32)
     thx = np.empty(n_steps, np.float32)
@@ -326,10 +326,10 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     thr_step = thr_tick[isr.step_tick]
     thz = yaw[isr.step_tick - isr.first_tick]
 
-    # 4: the port, in runs between status snapshots
+    # 4: the replica, in runs between status snapshots
     progress(0.8, "filter port")
     settings = _settings(opts)
-    q, thx, thy, snapshots = _port_with_snapshots(isr, thr_step, settings)
+    q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
     # 5: the link, step by step, with the TX queue
     begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
