@@ -18,8 +18,8 @@ from support.cli import run_cli, run_cli_tty
 from steval_link.analysis.firmware_eval import cut_trial, firmware_labels
 from steval_link.constants import TICK_PERIOD_S as TICK_S
 from steval_link.emulation import broad
-from steval_link.emulation.broad import BroadTrial
-from steval_link.emulation.step_truth import StepTruth, score_euler, truth_at_trial_time
+from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
+from steval_link.emulation.step_truth import StepTruth, score_euler
 from steval_link.errors import UserError
 from steval_link.link.capture import (
     CHUNK_TRUTH,

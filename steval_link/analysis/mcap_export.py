@@ -365,15 +365,17 @@ def _n(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _row_messages(rows, bodies):
+    """(log time ns, JSON) per row of a frame table: its time stamp, step and firmware time, then its body."""
+    for i, (ns, body) in enumerate(zip(_times_ns(rows.t_fw_s).tolist(), bodies)):
+        head = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "step": int(rows.step[i])}
+        yield ns, json.dumps({**head, "t_fw_s": _n(rows.t_fw_s[i]), **body}, separators=(",", ":"), allow_nan=False)
+
+
 def _status_messages(tel):
     s = tel.status
-    ns = _times_ns(s.t_fw_s).tolist()
-    for i in range(len(s)):
-        flags = int(s.flags[i])
-        msg = {
-            "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(s.step[i]),
-            "t_fw_s": _n(s.t_fw_s[i]),
+    bodies = (
+        {
             "q_wxyz": _list(np.asarray(s.q_wxyz[i], np.float64)),
             "int_xyz": _list(np.asarray(s.int_xyz[i], np.float64)),
             "kp_ground": _n(s.kp_ground[i]),
@@ -381,7 +383,7 @@ def _status_messages(tel):
             "ki": _n(s.ki[i]),
             "dt_s": _n(s.dt_s[i]),
             "min_thr": int(s.min_thr[i]),
-            "correction": not flags & 1,
+            "correction": not flags & P.FLAG_NO_CORRECTION,
             "flags": flags,
             "ahrs_cycles_min": int(s.cyc_min[i]),
             "ahrs_cycles_mean": int(s.cyc_mean[i]),
@@ -395,18 +397,15 @@ def _status_messages(tel):
             "fc_every": int(s.fc_every[i]),
             "param_gen": int(s.param_gen[i]),
         }
-        yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
+        for i, flags in enumerate(np.asarray(s.flags, np.int64).tolist())
+    )
+    return _row_messages(s, bodies)
 
 
 def _fc_messages(tel):
     fc = tel.fc
-    ns = _times_ns(fc.t_fw_s).tolist()
-    for i in range(len(fc)):
-        flags = int(fc.fc_flags[i])
-        msg = {
-            "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(fc.step[i]),
-            "t_fw_s": _n(fc.t_fw_s[i]),
+    bodies = (
+        {
             "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)),
             "rc": _list(fc.rc[i]),
             "outer_s1_radps": _list(np.asarray(fc.outer_s1_radps[i], np.float64)),
@@ -418,7 +417,9 @@ def _fc_messages(tel):
             "rc_cal": bool(flags & P.FC_RC_CAL),
             "fc_every": int(fc.fc_every[i]),
         }
-        yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
+        for i, flags in enumerate(np.asarray(fc.fc_flags, np.int64).tolist())
+    )
+    return _row_messages(fc, bodies)
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:

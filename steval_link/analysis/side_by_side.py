@@ -203,27 +203,34 @@ def _facts(header: dict[str, Any] | None, kind: str) -> dict[str, Any]:
     }
 
 
+def _flight(path, kind: str, angles: str, t, angles_of, inputs, settings, facts, lost: int, warnings) -> Flight:
+    """A :class:`Flight` of times ``t``, thx/thy/q of ``angles_of`` and acc/gyro of ``inputs`` (array attributes)."""
+    return Flight(
+        path=Path(path),
+        label="",
+        kind=kind,
+        angles=angles,
+        t_s=t,
+        thx_rad=np.asarray(angles_of.thx_rad, np.float64),
+        thy_rad=np.asarray(angles_of.thy_rad, np.float64),
+        acc_mg=np.asarray(inputs.acc_mg, np.float32),
+        gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
+        q_wxyz=np.asarray(angles_of.q_wxyz, np.float64),
+        settings=settings,
+        facts=facts,
+        duration_s=float(t[-1]) if len(t) else 0.0,
+        frames_lost=lost,
+        warnings=list(warnings),
+    )
+
+
 def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
     """A serial capture (a decoded :class:`~steval_link.link.telemetry.Telemetry` with attitude rows)."""
     a = tel.attitude
     t = relative_time_s(a.step, a.t_fw_s)
-    lost = int(tel.stats.frames_missing)
-    return Flight(
-        path=Path(path),
-        label="",
-        kind="serial",
-        angles="firmware",
-        t_s=t,
-        thx_rad=np.asarray(a.thx_rad, np.float64),
-        thy_rad=np.asarray(a.thy_rad, np.float64),
-        acc_mg=np.asarray(a.acc_mg, np.float32),
-        gyro_mdps=np.asarray(a.gyro_mdps, np.float32),
-        q_wxyz=np.asarray(a.q_wxyz, np.float64),
-        settings=_settings_of_status(tel),
-        facts=_facts((tel.source or {}).get("header"), "serial"),
-        duration_s=float(t[-1]) if len(t) else 0.0,
-        frames_lost=lost,
-        warnings=list(warnings),
+    facts = _facts((tel.source or {}).get("header"), "serial")
+    return _flight(
+        path, "serial", "firmware", t, a, a, _settings_of_status(tel), facts, int(tel.stats.frames_missing), warnings
     )
 
 
@@ -232,22 +239,9 @@ def flight_of_ble(path, ble, inputs, replica_estimate, header: dict | None, warn
     ST-Mahony replica's estimate over them (no firmware angles are sent over BLE)."""
     t = np.asarray(inputs.t_s, np.float64)
     t = t - t[0] if len(t) else t
-    return Flight(
-        path=Path(path),
-        label="",
-        kind="ble",
-        angles="st-mahony port",
-        t_s=t,
-        thx_rad=np.asarray(replica_estimate.thx_rad, np.float64),
-        thy_rad=np.asarray(replica_estimate.thy_rad, np.float64),
-        acc_mg=np.asarray(inputs.acc_mg, np.float32),
-        gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
-        q_wxyz=np.asarray(replica_estimate.q_wxyz, np.float64),
-        settings=None,
-        facts=_facts(header, "ble"),
-        duration_s=float(t[-1]) if len(t) else 0.0,
-        frames_lost=int(ble.dropped_estimate() or 0),
-        warnings=list(warnings),
+    lost = int(ble.dropped_estimate() or 0)
+    return _flight(
+        path, "ble", "st-mahony port", t, replica_estimate, inputs, None, _facts(header, "ble"), lost, warnings
     )
 
 

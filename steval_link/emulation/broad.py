@@ -34,6 +34,7 @@ __all__ = [
     "trial_paths",
     "steval_view",
     "own_rate_view",
+    "truth_at_trial_time",
     "inclination_error_rad",
     "heading_error_rad",
     "rmse_deg",
@@ -184,11 +185,19 @@ class SteValView:
     rate_hz: float
 
 
-def _truth_at(trial: BroadTrial, t_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t = trial.t_s
-    q = interpolate_quat(t, trial.quat_wxyz, t_new)
-    idx = np.clip(np.rint(t_new * trial.fs_hz).astype(np.int64), 0, len(t) - 1)
-    return q, trial.movement[idx]
+def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
+    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
+    interpolated, movement at the nearest sample; NaN / False outside the trial."""
+    t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
+    t_end = float(trial.t_s[-1])
+    inside = (t >= 0.0) & (t <= t_end)
+    q = np.full((t.shape[0], 4), np.nan)
+    mov = np.zeros(t.shape[0], dtype=bool)
+    if inside.any():
+        q[inside] = interpolate_quat(trial.t_s, trial.quat_wxyz, t[inside])
+        idx = np.clip(np.rint(t[inside] * trial.fs_hz).astype(np.int64), 0, len(trial.t_s) - 1)
+        mov[inside] = trial.movement[idx]
+    return q, mov
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
@@ -214,7 +223,7 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
     except ValueError as exc:
         raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
     t_step = t_tick[out.step_tick - (C.FIFO_ORDER // 2)]
-    q, mov = _truth_at(trial, t_step)
+    q, mov = truth_at_trial_time(trial, t_step)
     return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, C.AHRS_RATE_HZ)
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.kinematics import MG_PER_MPS2, Kinematics, rotmat
-from steval_link.emulation.scenarios import SCENARIOS
+from steval_link.emulation.scenarios import scenario
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
@@ -222,9 +222,7 @@ def build_profile(
     ``total_s`` is the emulated length the scenario's timeline is laid out for (default: the last tick);
     ``throttle`` overrides the scenario's throttle profile (a function of time, see :func:`parse_throttle`).
     """
-    sc = SCENARIOS.get(name)
-    if sc is None:
-        raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} (or a BROAD trial .npz)")
+    sc = scenario(name, "or a BROAD trial .npz")
     T = float(t_s[-1]) if total_s is None else float(total_s)
     kin = sc.build(T, rng)
     return render(sc.name, kin, t_s, rng, throttle)

@@ -50,7 +50,7 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
-from steval_link.emulation.scenarios import SCENARIOS
+from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import UserError
@@ -59,6 +59,7 @@ __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUN
 
 #: motion is rendered this many seconds at a time
 WINDOW_S = 10.0
+_WINDOW_TICKS = int(round(WINDOW_S / C.TICK_PERIOD_S))
 #: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
 WATCHDOG_S = 6.0
 
@@ -128,9 +129,7 @@ class ScenarioMotion:
         # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
         streams = random_streams(seed)
         if trial is None:
-            sc = SCENARIOS.get(name)
-            if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} (or --broad TRIAL.npz)")
+            sc = scenario(name, "or --broad TRIAL.npz")
             try:
                 self._kin = sc.build(total_s, streams.motion)
             except ValueError:  # its moves do not fit in so short a run
@@ -152,7 +151,7 @@ class ScenarioMotion:
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
     def _render(self, w: int) -> None:
-        n = int(round(WINDOW_S / C.TICK_PERIOD_S))
+        n = _WINDOW_TICKS
         k0 = w * n
         t = (k0 + np.arange(n)) * C.TICK_PERIOD_S
         rng = np.random.default_rng([self.seed, 3, w])
@@ -185,8 +184,7 @@ class ScenarioMotion:
         self._rendered = self._previous = None
 
     def _at(self, k: int) -> int:
-        n = int(round(WINDOW_S / C.TICK_PERIOD_S))
-        w = max(k, 0) // n
+        w = max(k, 0) // _WINDOW_TICKS
         if w != self._window:
             if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
                 self._previous, self._rendered = self._rendered, self._previous
@@ -302,10 +300,7 @@ class Emulation:
             default = float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
-            sc = SCENARIOS.get(name)
-            if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} (or --broad TRIAL.npz)")
-            default = sc.default_duration_s
+            default = scenario(name, "or --broad TRIAL.npz").default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)

@@ -14,8 +14,9 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation.kinematics import DEG, G_MPS2, MG_PER_MPS2, Kinematics, Sines, Steps
+from steval_link.errors import UserError
 
-__all__ = ["Scenario", "SCENARIOS", "PREFLIGHT_MOVES", "PREFLIGHT_IDLE_THR"]
+__all__ = ["Scenario", "SCENARIOS", "scenario", "PREFLIGHT_MOVES", "PREFLIGHT_IDLE_THR"]
 
 
 def _surface_tilt(rng) -> tuple[float, float]:
@@ -404,3 +405,11 @@ SCENARIOS: dict[str, Scenario] = {
         ),
     )
 }
+
+
+def scenario(name: str, otherwise: str) -> Scenario:
+    """The built-in scenario ``name``; :class:`UserError` naming the built-in ones and ``otherwise`` (the other
+    choice where the error is raised, e.g. "or --broad TRIAL.npz") if there is none of that name."""
+    if name not in SCENARIOS:
+        raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})")
+    return SCENARIOS[name]

@@ -133,10 +133,12 @@ def noise_rms_from_density(density_per_rthz: float, bandwidth_hz: float) -> floa
     return float(density_per_rthz) * float(np.sqrt(bandwidth_hz))
 
 
-def _driver_scale(raw: np.ndarray, sensitivity: float) -> np.ndarray:
-    """The ST driver's ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
-    prod = raw.astype(_F32) * _F32(sensitivity)
-    return np.trunc(prod).astype(np.int32)
+def _adc_and_driver(value, sensitivity: float) -> np.ndarray:
+    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0), then the ST driver's
+    ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
+    x = np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)
+    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
+    return np.trunc(raw.astype(_F32) * _F32(sensitivity)).astype(np.int32)
 
 
 def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.ndarray:
@@ -145,16 +147,12 @@ def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.nd
     ADC: ``raw = round(acc / sensitivity)`` saturated to int16 (±4 g → ±3997.7 mg at 0.122 mg/LSB); driver:
     ``(int32_t)(raw * 0.122f)``. NaN input reads as 0.
     """
-    x = np.nan_to_num(np.asarray(acc_mg, dtype=np.float64) / sensitivity_mg)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return _driver_scale(raw, sensitivity_mg)
+    return _adc_and_driver(acc_mg, sensitivity_mg)
 
 
 def quantise_gyro_mdps(gyro_mdps, sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS) -> np.ndarray:
     """What the driver returns for a physical rate: int32 mdps (N, 3), 70 mdps/LSB, saturated at int16 (±2293 dps)."""
-    x = np.nan_to_num(np.asarray(gyro_mdps, dtype=np.float64) / sensitivity_mdps)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return _driver_scale(raw, sensitivity_mdps)
+    return _adc_and_driver(gyro_mdps, sensitivity_mdps)
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,7 @@ from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
 from steval_link.emulation.fw_link import AHRS_CYCLES, STATUS_EVERY_STEPS, TEXT_DECIMATION, TXQ_SIZE, boot_lines  # noqa: F401 - re-exported
-from steval_link.emulation.scenarios import SCENARIOS
+from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.usb_adapter import host_chunks
 from steval_link.errors import UserError
@@ -243,12 +243,7 @@ def _span(opts: SynthOptions):
         min_total = 3.0
         default_duration = None
     else:
-        sc = SCENARIOS.get(opts.scenario)
-        if sc is None:
-            raise UserError(
-                f"unknown scenario {opts.scenario!r}; built-in: {', '.join(SCENARIOS)} "
-                f"(or a BROAD trial .npz path; see steval synth --list)"
-            )
+        sc = scenario(opts.scenario, "or a BROAD trial .npz path; see steval synth --list")
         min_total = sc.min_duration_s
         default_duration = sc.default_duration_s
     tim9_s = fwl.TIM9_START_CYCLES / C.CPU_HZ
