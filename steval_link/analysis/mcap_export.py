@@ -163,14 +163,16 @@ FLIGHT_CONTROL_SCHEMA = {
     },
 }
 
-#: topic → (schema name, what one message stands for)
-TOPICS = {
-    "/attitude/transform": ("foxglove.FrameTransform", "attitude frame"),
-    "/attitude/pose": ("foxglove.PoseInFrame", "attitude frame"),
-    "/attitude": ("steval.Attitude", "attitude frame"),
-    "/status": ("steval.Status", "status frame"),
-    "/flight_control": ("steval.FlightControl", "flight-control frame"),
+#: topic → (its schema, what one message stands for)
+_TOPIC_SCHEMAS = {
+    "/attitude/transform": (FRAME_TRANSFORM_SCHEMA, "attitude frame"),
+    "/attitude/pose": (POSE_IN_FRAME_SCHEMA, "attitude frame"),
+    "/attitude": (ATTITUDE_SCHEMA, "attitude frame"),
+    "/status": (STATUS_SCHEMA, "status frame"),
+    "/flight_control": (FLIGHT_CONTROL_SCHEMA, "flight-control frame"),
 }
+#: topic → (schema name, what one message stands for)
+TOPICS = {topic: (schema["title"], what) for topic, (schema, what) in _TOPIC_SCHEMAS.items()}
 
 
 def require_mcap():
@@ -431,20 +433,15 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
     stream = open(out, "wb") if own else out
     try:
         w = McapWriter(stream, records)
-        schemas = {
-            "/attitude/transform": FRAME_TRANSFORM_SCHEMA,
-            "/attitude/pose": POSE_IN_FRAME_SCHEMA,
-            "/attitude": ATTITUDE_SCHEMA,
-            "/status": STATUS_SCHEMA,
-            "/flight_control": FLIGHT_CONTROL_SCHEMA,
-        }
         wanted = {"/attitude/transform", "/attitude/pose", "/attitude"}
         if len(tel.status):
             wanted.add("/status")
         if len(tel.fc):
             wanted.add("/flight_control")
         channel = {
-            topic: w.channel(topic, w.schema(TOPICS[topic][0], schemas[topic])) for topic in TOPICS if topic in wanted
+            topic: w.channel(topic, w.schema(TOPICS[topic][0], _TOPIC_SCHEMAS[topic][0]))
+            for topic in TOPICS
+            if topic in wanted
         }
         three = np.array([channel["/attitude/transform"], channel["/attitude/pose"], channel["/attitude"]], np.uint16)
         n = len(tel.attitude)

@@ -52,7 +52,7 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, rows_before_tilt
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
 from steval_link.quat import quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
@@ -225,10 +225,7 @@ class Ekf3(Estimator):
         """
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
         n = acc.shape[0]
-        if native is None:
-            native = NATIVE_AVAILABLE and self.acc_var > 0.0
-        elif native and not NATIVE_AVAILABLE:
-            raise RuntimeError("the native EKF loop is not built (reinstall steval-link with a C compiler)")
+        native = choose_native(native, NATIVE_AVAILABLE, "EKF", NATIVE_AVAILABLE and self.acc_var > 0.0)
         x = np.empty((n, 3))
         waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc)
         if native:

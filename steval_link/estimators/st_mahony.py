@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native
 from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
@@ -191,10 +191,7 @@ def run(
     settings = MahonySettings() if settings is None else settings
     state = MahonyState() if state is None else state
     acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
-    if native is None:
-        native = NATIVE_AVAILABLE
-    elif native and not NATIVE_AVAILABLE:
-        raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+    native = choose_native(native, NATIVE_AVAILABLE, "Mahony")
     n = acc.shape[0]
     q = np.empty((n, 4), dtype=_F32)
     st = state.as_array()
@@ -331,8 +328,7 @@ class StMahony(Estimator):
         if unknown:
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         self.settings = replace(base, **setting_overrides) if setting_overrides else base
-        if native and not NATIVE_AVAILABLE:
-            raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+        choose_native(native, NATIVE_AVAILABLE, "Mahony")  # raises now when the C loop is asked for and not built
         self.native = native
         self.state = MahonyState() if state is None else state
 
