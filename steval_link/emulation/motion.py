@@ -20,8 +20,8 @@ does not see the tilt — exactly the situation the firmware's small in-flight g
 Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
 to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
 the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
-Nothing here holds module-level mutable state. The scenarios themselves are in
-:mod:`steval_link.emulation.scenarios`, their building blocks in :mod:`steval_link.emulation.kinematics`.
+Nothing here holds module-level mutable state. The scenarios and their building blocks are in
+:mod:`steval_link.emulation.scenarios`.
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.kinematics import MG_PER_MPS2, Kinematics, rotmat
-from steval_link.emulation.scenarios import scenario
+from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat, scenario
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
