@@ -215,21 +215,21 @@ def _display_q(att) -> np.ndarray:
     return q
 
 
-def _attitude_messages(att, q: np.ndarray):
-    """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row (``q``: the normalised
-    quaternions for the Foxglove messages), null for any value that is not finite."""
-    n = len(att.step)
-    ns = _times_ns(att.t_fw_s)
-    step = np.asarray(att.step).tolist()
-    seq = np.asarray(att.seq).tolist()
-    tfw = np.asarray(att.t_fw_s, np.float64).tolist()
-    th = np.asarray(att.t_host_s, np.float64).tolist()
-    acc = np.asarray(att.acc_mg, np.float64).tolist()
-    gyr = np.asarray(att.gyro_mdps, np.float64).tolist()
-    thr = np.asarray(att.thr).tolist()
-    qf = np.asarray(att.q_wxyz, np.float64).tolist()
-    ang = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1).astype(np.float64).tolist()
-    exact = np.asarray(att.exact, bool).tolist()
+def _attitude_messages(att, q: np.ndarray, sl: slice = slice(None)):
+    """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row of ``sl`` (``q``: their
+    normalised quaternions for the Foxglove messages), null for any value that is not finite."""
+    ns = _times_ns(att.t_fw_s[sl])
+    step = np.asarray(att.step[sl]).tolist()
+    n = len(step)
+    seq = np.asarray(att.seq[sl]).tolist()
+    tfw = np.asarray(att.t_fw_s[sl], np.float64).tolist()
+    th = np.asarray(att.t_host_s[sl], np.float64).tolist()
+    acc = np.asarray(att.acc_mg[sl], np.float64).tolist()
+    gyr = np.asarray(att.gyro_mdps[sl], np.float64).tolist()
+    thr = np.asarray(att.thr[sl]).tolist()
+    qf = np.asarray(att.q_wxyz[sl], np.float64).tolist()
+    ang = np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64).tolist()
+    exact = np.asarray(att.exact[sl], bool).tolist()
     qd = q.tolist()
     nsl = ns.tolist()
     th = ["%.6f" % v if v == v else "null" for v in th]
@@ -307,7 +307,7 @@ def _attitude_blocks(att, rows: int = 8192):
         ns = ns_all[sl]
         if not fast:
             out = []
-            for _, transform, pose, body in _attitude_messages(_rows(att, sl), q_all[sl]):
+            for _, transform, pose, body in _attitude_messages(att, q_all[sl], sl):
                 out += [transform.encode(), pose.encode(), body.encode()]
             yield a, ns, out
             continue
@@ -330,31 +330,6 @@ def _attitude_blocks(att, rows: int = 8192):
         table[:, 5:] = values
         text = (_ROW_TEMPLATES[has_host] * m) % tuple(table.ravel().tolist())
         yield a, ns, text.split(b"\n")[:-1]
-
-
-def _rows(att, sl: slice):
-    """The attitude rows ``sl`` as a plain namespace (the per-row path)."""
-    from types import SimpleNamespace  # a plain record of arrays, for the rare per-row path
-
-    return SimpleNamespace(
-        **{
-            k: getattr(att, k)[sl]
-            for k in (
-                "step",
-                "seq",
-                "t_fw_s",
-                "t_host_s",
-                "acc_mg",
-                "gyro_mdps",
-                "thr",
-                "q_wxyz",
-                "thx_rad",
-                "thy_rad",
-                "thz_rad",
-                "exact",
-            )
-        }
-    )
 
 
 def _list(v) -> list:
