@@ -205,12 +205,12 @@ class PythonBoard:
         uc.mmio_map(usart.base, usart.size, self._mmio_read, usart, self._mmio_write, usart)
 
     def _mmio_read(self, uc, off, size, p: Peripheral):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         word = p.read(off & ~3)
         return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
 
     def _mmio_write(self, uc, off, size, value, p: Peripheral):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         if size != 4:
             sh = (off & 3) * 8
             mask = ((1 << (8 * size)) - 1) << sh
@@ -226,12 +226,12 @@ class PythonBoard:
         return p, addr - p.base, bit
 
     def _bb_read(self, uc, off, size, user):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         t = self._bb_target(off)
         return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
 
     def _bb_write(self, uc, off, size, value, user):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         t = self._bb_target(off)
         if t is not None:
             p, reg, bit = t

@@ -125,7 +125,7 @@ class NativeBoard(PythonBoard):
     def _map_usart(self, uc, usart) -> None:
         self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
 
-    def _map_c(self, p, read: str, write: str, user) -> None:
+    def _map_c(self, p, read: str, write: str, user, what: str = "MMIO model") -> None:
         err = uclib().uc_mmio_map(
             self.uc._uch,
             ctypes.c_uint64(p.base),
@@ -136,7 +136,7 @@ class NativeBoard(PythonBoard):
             user,
         )
         if err:
-            raise EmulationError(f"unicorn refused the {p.name} MMIO model (error {err})")
+            raise EmulationError(f"unicorn refused the {p.name} {what} (error {err})")
 
     def _map_python(self, uc, p, rd, wr) -> None:
         """A Python peripheral's page: the timers are C's; GPIO IDR (inputs read 0) is read in C."""
@@ -152,17 +152,7 @@ class NativeBoard(PythonBoard):
         for off in served:
             m.served[off // 4] = 1
         p.mirror = m
-        err = uclib().uc_mmio_map(
-            self.uc._uch,
-            ctypes.c_uint64(p.base),
-            ctypes.c_size_t(p.size),
-            ctypes.cast(self.lib.mirror_mmio_read, P),
-            ctypes.byref(m),
-            ctypes.cast(self.lib.mirror_mmio_write, P),
-            ctypes.byref(m),
-        )
-        if err:
-            raise EmulationError(f"unicorn refused the {p.name} MMIO mirror (error {err})")
+        self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
@@ -305,32 +295,6 @@ class NativeBoard(PythonBoard):
         """``now`` from the counter, in Python and in the C core (a model called from Python reads it there)."""
         st = self.st
         self.now = st.now = st.slice_start + st.n + st.skip_base
-
-    def _mmio_read(self, uc, off, size, p):
-        self.sync_now()
-        word = p.read(off & ~3)
-        return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
-
-    def _mmio_write(self, uc, off, size, value, p):
-        self.sync_now()
-        if size != 4:
-            sh = (off & 3) * 8
-            mask = ((1 << (8 * size)) - 1) << sh
-            value = (p.stored(off & ~3) & ~mask) | ((value << sh) & mask)
-        p.write(off & ~3, value)
-
-    def _bb_read(self, uc, off, size, user):
-        self.sync_now()
-        t = self._bb_target(off)
-        return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
-
-    def _bb_write(self, uc, off, size, value, user):
-        self.sync_now()
-        t = self._bb_target(off)
-        if t is not None:
-            p, reg, bit = t
-            old = p.bitband_base(reg)
-            p.write(reg, (old | (1 << bit)) if value & 1 else (old & ~(1 << bit)))
 
     def instructions_now(self) -> int:
         return self.st.instructions + self.st.n
