@@ -12,8 +12,9 @@ import pytest
 from steval_link import constants as C
 from steval_link.cli import main
 from steval_link.emulation import sensor_model as sm
+from steval_link.emulation.fw_link import STATUS_EVERY_STEPS, boot_lines
 from steval_link.emulation.scenarios import SCENARIOS
-from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
+from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
 from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, quaternion_to_euler

@@ -40,7 +40,6 @@ from steval_link.emulation import fw_link as fwl
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
-from steval_link.emulation.fw_link import AHRS_CYCLES, STATUS_EVERY_STEPS, TEXT_DECIMATION, TXQ_SIZE, boot_lines  # noqa: F401 - re-exported
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.usb_adapter import host_chunks
@@ -52,16 +51,11 @@ from steval_link.link import protocol as P
 
 __all__ = [
     "EPOCH_UNIX_S",
-    "AHRS_CYCLES",
-    "STATUS_EVERY_STEPS",
-    "TEXT_DECIMATION",
-    "TXQ_SIZE",
     "SynthOptions",
     "SynthResult",
     "synthesize",
     "write_output",
     "default_c_encoder",
-    "boot_lines",
 ]
 
 #: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
