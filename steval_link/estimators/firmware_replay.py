@@ -219,37 +219,26 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         fw_thx, fw_thy = quaternion_to_euler(fw_q)
 
     status = getattr(tel, "status", None)
-    st_steps = (
-        np.zeros(0, dtype=np.int64) if status is None else np.asarray(table_column(status, "step"), dtype=np.int64)
-    )
+
+    def col(name: str, dtype=np.float64) -> np.ndarray:
+        return np.asarray(table_column(status, name), dtype=dtype)
+
+    st_steps = np.zeros(0, dtype=np.int64) if status is None else col("step", np.int64)
+    order = np.zeros(0, dtype=np.int64)
+    st_events = has_settings = np.zeros(st_steps.shape[0], dtype=bool)
     if st_steps.size:
         # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
-        usable = (
-            np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64))
-            & np.isfinite(np.asarray(table_column(status, "q_wxyz"), dtype=np.float64)).all(axis=1)
-            & np.isfinite(np.asarray(table_column(status, "int_xyz"), dtype=np.float64)).all(axis=1)
-        )
+        usable = np.isfinite(col("kp_ground")) & np.isfinite(col("q_wxyz")).all(axis=1)
+        usable &= np.isfinite(col("int_xyz")).all(axis=1)
         st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
         order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
-    else:
-        order = np.zeros(0, dtype=np.int64)
+        st_events = (col("flags", np.int64) & FLAG_EVENT) != 0
+        has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
     st_sorted = st_steps[order]
-    st_events = np.zeros(st_steps.shape[0], dtype=bool)
-    if st_steps.size:
-        st_events = (np.asarray(table_column(status, "flags"), dtype=np.int64) & FLAG_EVENT) != 0
     default_settings = settings
     if default_settings is None:
         # the build's settings: the first status frame that reports them (its snapshot may hold NaN: a filter
         # that diverged still runs with the build's settings)
-        has_settings = np.zeros(st_steps.shape[0], dtype=bool)
-        if st_steps.size:
-            has_settings = np.all(
-                [
-                    np.isfinite(np.asarray(table_column(status, k), dtype=np.float64))
-                    for k in ("kp_ground", "kp_flight", "ki", "dt_s")
-                ],
-                axis=0,
-            )
         first = np.flatnonzero(has_settings)
         default_settings = (
             MahonySettings.of_status(status, int(order[0]))
