@@ -139,11 +139,7 @@ class ScenarioMotion:
                 ) from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
-        sensor = sm.seeded_lsm6dsl(streams.sensor)
-        self.acc_bias_mg = np.asarray(sensor.acc_bias_mg)
-        self.gyro_bias_mdps = np.asarray(sensor.gyro_bias_mdps)
-        self.acc_noise_mg = sensor.acc_noise_mg
-        self.gyro_noise_mdps = sensor.gyro_noise_mdps
+        self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
         #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
         self._rendered = self._previous = None
@@ -162,10 +158,12 @@ class ScenarioMotion:
             acc, gyro = prof.acc_mg, prof.gyro_mdps
         else:
             prof = M.render(self.name, self._kin, t, rng, self._thr_fn)
-            acc = prof.acc_mg + self.acc_bias_mg + self.acc_noise_mg * rng.standard_normal((n, 3))
+            s = self.sensor
+            acc = prof.acc_mg + np.asarray(s.acc_bias_mg) + s.acc_noise_mg * rng.standard_normal((n, 3))
             hold = sm.gyro_hold_index(t)
             u, inv = np.unique(hold, return_inverse=True)
-            gyro = prof.gyro_mdps + self.gyro_bias_mdps + self.gyro_noise_mdps * rng.standard_normal((len(u), 3))[inv]
+            noise = rng.standard_normal((len(u), 3))[inv]
+            gyro = prof.gyro_mdps + np.asarray(s.gyro_bias_mdps) + s.gyro_noise_mdps * noise
         if self._mount is not None:
             acc, gyro = acc @ self._mount.T, gyro @ self._mount.T
         self._acc, self._gyro = body_to_sensor_counts(acc, gyro)

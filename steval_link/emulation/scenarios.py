@@ -175,6 +175,12 @@ class Kinematics:
 # ---- the scenarios ---------------------------------------------------------------------------------------------------
 
 
+def _at_rest(rng) -> tuple[float, float, float]:
+    """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
+    x0, y0 = _surface_tilt(rng)
+    return x0, y0, rng.uniform(-np.pi, np.pi)
+
+
 def _surface_tilt(rng) -> tuple[float, float]:
     """A bench/floor is level to within about a degree."""
     return tuple(float(v) for v in rng.normal(0.0, 0.6, 2) * DEG)
@@ -238,8 +244,7 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
 
 
 def _bench(T: float, rng) -> Kinematics:
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     return Kinematics(
         thx=lambda t: np.full(np.shape(t), x0),
         thy=lambda t: np.full(np.shape(t), y0),
@@ -248,8 +253,7 @@ def _bench(T: float, rng) -> Kinematics:
 
 
 def _tilts_kin(T_start: float, T_end: float, rng, pick: bool = True) -> Kinematics:
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     sx, sy = Steps(x0), Steps(y0)
     # picked up at T_start, tilts, put back down at the end
     last = _add_tilts(sx, sy, T_start + 1.0, T_end - 1.5, rng)
@@ -319,8 +323,7 @@ def _hover_parts(t0: float, T: float, rng):
 
 
 def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
     return Kinematics(
         thx=lambda t: x0 * (1 - fly(t)) + fly(t) * wander[0](t),
@@ -333,8 +336,7 @@ def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
 
 
 def _freefall(T: float, rng) -> Kinematics:
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     t_pick = 3.0
     drops = []
     t = 5.0
@@ -427,8 +429,7 @@ def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float,
 
 def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
     """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
     t = t0 + 5.0
@@ -468,8 +469,7 @@ PREFLIGHT_IDLE_THR = 210.0
 def _preflight(T: float, rng) -> Kinematics:
     """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
     turned right (each out, hold, back), put down, throttle 0, disarmed."""
-    x0, y0 = _surface_tilt(rng)
-    yaw0 = rng.uniform(-np.pi, np.pi)
+    x0, y0, yaw0 = _at_rest(rng)
     t_arm, t_pick = 3.5, 6.0
     axes = [Steps(x0), Steps(y0), Steps(yaw0)]
     t = t_pick + 2.0

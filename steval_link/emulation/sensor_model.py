@@ -86,8 +86,7 @@ def gyro_hold_index(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.n
 def gyro_hold_times_s(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
     """(N,) float64 time, s, at which the output register that each time ``t_s`` reads was refreshed:
     ``t0 + floor((t − t0) · odr) / odr`` (the 416 Hz sample-and-hold of :func:`gyro_hold_index`)."""
-    t = np.asarray(t_s, dtype=np.float64)
-    return t0_s + np.floor((t - t0_s) * odr_hz + 1e-9) / odr_hz
+    return t0_s + gyro_hold_index(t_s, t0_s, odr_hz) / odr_hz
 
 
 #: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
