@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import queue
+import shlex
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,8 +84,6 @@ class EmulationOptions:
 
     def command(self, duration_s: float | None = None) -> str:
         """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
-        import shlex
-
         parts = ["steval", "emulate", str(self.elf)]
         parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
         d = self.duration_s if duration_s is None else duration_s
