@@ -7,11 +7,8 @@ plus the throttle ``gTHR`` the remote control sets. Axes are the firmware's: x r
 level the specific force is (0, 0, +1000) mg. Angles follow ``QuaternionToEuler``: ``thx`` about x (pitch),
 ``thy`` about y (roll); the orientation is ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
 
-Built-in scenarios (:data:`SCENARIOS`, :func:`build_profile`): ``bench``, ``hand-tilts``, ``yaw-spin``, ``hover``,
-``freefall``, ``demo``. Each is defined by smooth functions of time (so rates and accelerations are exact
-derivatives, evaluated wherever the sensor samples), randomised by the seed (tilt amplitudes, tremor, wander,
-surface tilt), and always starts at rest so the firmware's power-up offset calibration (1–2 s after TIM9 starts)
-sees a still drone. :func:`broad_profile` turns a BROAD trial (real motion, real IMU signals) into a profile.
+:func:`build_profile` renders a built-in scenario (:mod:`steval_link.emulation.scenarios`: what each does and what
+it is built of); :func:`broad_profile` turns a BROAD trial (real motion, real IMU signals) into a profile.
 
 Physics in short: specific force ``f = Rᵀ(a + g·ẑ)`` with ``a`` the IMU's acceleration (translation plus the
 lever-arm motion of a rotation about a pivot that is not the IMU, e.g. a wrist or a turntable axis); in flight a
@@ -20,8 +17,7 @@ does not see the tilt — exactly the situation the firmware's small in-flight g
 Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
 to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
 the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
-Nothing here holds module-level mutable state. The scenarios and their building blocks are in
-:mod:`steval_link.emulation.scenarios`.
+Nothing here holds module-level mutable state.
 """
 
 from __future__ import annotations
