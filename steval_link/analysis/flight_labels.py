@@ -1,6 +1,8 @@
 """Labels for flights side by side (``steval compare``): a few words per flight naming what differs between them,
-the filter settings first ("ki 0.1" against "ki 1, correction off"), else the capture headers' facts, else the file
-names. A flight here is anything with ``settings`` (dict or None), ``facts`` (dict) and ``path`` (a Path), like
+the filter settings of the status frames first (``ki``, ``kp_ground``, ``kp_flight``, ``correction``, ``min_thr``,
+the normalisation variant, the build flags text mode and in-flight tuning: "ki 0.1" against "ki 1, correction off"),
+else the capture headers (link, firmware ELF name, scenario, seed, serial port), else the file names. A flight
+here is anything with ``settings`` (dict or None), ``facts`` (dict) and ``path`` (a Path), like
 :class:`steval_link.analysis.side_by_side.Flight`.
 """
 

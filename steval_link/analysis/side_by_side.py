@@ -4,10 +4,7 @@ what differs between them, each measured against its own accelerometer-only tilt
 * **Aligned** by firmware time from each capture's first frame (``align="time"``), or by motion
   (``align="motion"``): the gyro of each flight is cross-correlated with the first flight's and the lag found is
   taken off its times (hand-held or real flights that did not start together).
-* **Labelled** by what differs: the filter settings of the status frames (``ki``, ``kp_ground``, ``kp_flight``,
-  ``correction``, ``min_thr``, the normalisation variant, the build flags text mode and in-flight tuning), else the
-  capture headers (link, firmware ELF name, scenario, seed, serial port), else the file names: "ki 0.1" against
-  "ki 1, correction off".
+* **Labelled** by what differs (:mod:`steval_link.analysis.flight_labels`): "ki 0.1" against "ki 1, correction off".
 * **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
   accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
   :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (the mean error in the last still
