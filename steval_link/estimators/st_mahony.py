@@ -12,9 +12,7 @@ the new q0); and the final normalisation with the squares from **before** the up
 
 Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
 (≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
-:class:`StMahony` (the shared estimator interface) and :func:`replay_firmware` (a capture against the drone).
-Its size is the firmware's: the reference loop, the settings and state types and the replay against a capture
-stay together, since each of them is part of what "bit-exact" means.
+:class:`StMahony` (the shared estimator interface); a capture against the drone: :mod:`.firmware_replay`.
 """
 
 from __future__ import annotations
