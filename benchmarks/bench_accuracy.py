@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     for p in paths:
         trial = broad.load_trial(p)
         t0 = time.perf_counter()
-        view = broad.native_view(trial) if args.native else broad.steval_view(trial)
+        view = broad.own_rate_view(trial) if args.native else broad.steval_view(trial)
         t_pipe += time.perf_counter() - t0
         specs = ev.default_specs(view.rate_hz, native=args.native)
         results.append(ev.evaluate_view(view, specs, trial.name))

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from support import firmware as S  # noqa: E402
 
-from steval_link.emulation.board import CPU_HZ  # noqa: E402
+from steval_link import constants as C  # noqa: E402
 from steval_link.emulation.runner import Emulation, EmulationOptions  # noqa: E402
 from steval_link.link.decoder import StreamDecoder  # noqa: E402
 
@@ -52,14 +52,14 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
     boot = None
     for data, t in emu.chunks(slice_s=0.25):
         dec.feed(data)
-        marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))
+        marks.append((emu.board.now / C.CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))
         if boot is None and dec.stats.attitude:
             boot = marks[-1]
-    marks.append((emu.board.now / CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))  # (quiet ends)
+    marks.append((emu.board.now / C.CPU_HZ, time.perf_counter() - w0, time.process_time() - c0))  # (quiet ends)
     rep = emu.report()
     end = marks[-1]
     brr = emu.board.usart1.read(0x08)
-    baud = f"{CPU_HZ / brr:.0f} baud" if brr else "baud ?"
+    baud = f"{C.CPU_HZ / brr:.0f} baud" if brr else "baud ?"
     core = "C core" if emu.board.native else "Python models (no C compiler)"
     print(f"\n{elf.name}  ({core}, {scenario}, {duration_s:g} s emulated, USART1 at {baud})")
     print(

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators import registry, st_mahony
+from steval_link.estimators import firmware_replay, registry, st_mahony
 
 
 def flight_inputs(n: int, seed: int = 1):
@@ -90,7 +90,7 @@ def main() -> None:
     thx, thy = st_mahony.quaternion_to_euler(q)
     att = SimpleNamespace(step=steps, acc_mg=acc, gyro_mdps=gyro, thr=thr, q_wxyz=q, thx_rad=thx, thy_rad=thy)
     t0 = time.perf_counter()
-    rep = st_mahony.replay_firmware(SimpleNamespace(attitude=att, status=None))
+    rep = firmware_replay.replay_firmware(SimpleNamespace(attitude=att, status=None))
     dt = time.perf_counter() - t0
     print(f"{'replay_firmware':<24} {n / dt:>12,.0f} {dt:>10.2f}s  ({rep.n_bit_exact} of {n} rows bit-exact)")
 

@@ -115,8 +115,8 @@ def main() -> None:
     rng = np.random.default_rng(2)
     tel = synthetic_telemetry(args.frames)
     if args.run_estimators:
+        from steval_link.estimators.firmware_replay import replay_firmware
         from steval_link.estimators.registry import create
-        from steval_link.estimators.st_mahony import replay_firmware
 
         t = time.perf_counter()
         port = replay_firmware(tel)

@@ -188,18 +188,18 @@ def evaluate(trials, estimators: Sequence | None = None, *, native: bool = False
     results = []
     for p in paths:
         trial = broad.load_trial(p)
-        view = broad.native_view(trial) if native else broad.steval_view(trial, seed=seed)
+        view = broad.own_rate_view(trial) if native else broad.steval_view(trial, seed=seed)
         results.append(ev.evaluate_view(view, _specs(estimators, view.rate_hz, native), trial.name))
     return Scores(results, ev.summary(results))
 
 
 def _specs(estimators, rate_hz: float, native: bool) -> list:
     if estimators is None:
-        return ev.default_specs(rate_hz, native=native)
+        return ev.default_specs(rate_hz, own_rate=native)
     out: list = []
     for e in _as_list(estimators):
         if isinstance(e, str):
-            specs = ev.default_specs(rate_hz, native=native, only=[e])
+            specs = ev.default_specs(rate_hz, own_rate=native, only=[e])
         else:
             sel = _instance_reference(e)
             taken = {o.label for o in out}

@@ -10,12 +10,20 @@ CPU_HZ: int = 84_000_000
 TICK_CYCLES: int = 52 * 2000
 #: TIM9 interrupt rate, Hz (≈ 807.69 Hz, 1.238 ms): sensor read, offset removal, gyro IIR, FIFOs
 ISR_RATE_HZ: float = CPU_HZ / TICK_CYCLES
+#: TIM9 interrupt period, s (ticks land on exact core-clock cycle counts)
+TICK_PERIOD_S: float = TICK_CYCLES / CPU_HZ
 #: samples averaged per AHRS step (``FIFO_Order``): the main loop runs the AHRS on every 5th tick
 FIFO_ORDER: int = 5
 #: AHRS step rate, Hz (≈ 161.54 Hz, 6.19 ms)
 AHRS_RATE_HZ: float = ISR_RATE_HZ / FIFO_ORDER
 #: AHRS step period, s
 AHRS_PERIOD_S: float = 1.0 / AHRS_RATE_HZ
+#: AHRS step period, µs (the firmware's ``t_us`` advances by this much per step)
+AHRS_PERIOD_US: float = 1e6 / AHRS_RATE_HZ
+#: the ISR's offset removal keeps this much of the z offset, mg: at rest and level acc z reads +1000 mg (1 g)
+ACC_Z_KEPT_MG: int = 1000
+#: ``COE_MDPS_TO_RADPS``: mdps → rad/s as the firmware writes it (cast to float32 where it is used)
+COE_MDPS_TO_RADPS: float = 1.745329252e-5
 
 #: ``AHRS_KP_BIG``: proportional gain while on the ground (throttle below MIN_THR)
 KP_GROUND: float = 10.0

@@ -24,6 +24,7 @@ LAYERS: list[tuple[str, ...]] = [
         "steval_link.errors",
         "steval_link.constants",
         "steval_link.quat",
+        "steval_link.units",
         "steval_link.fw_math",
         "steval_link._st_mahony_native",
         "steval_link.recordings",

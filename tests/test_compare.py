@@ -128,7 +128,7 @@ def telemetry(**kw):
 def test_clean_capture_is_bit_exact_on_every_step():
     tel = telemetry(n=1500)
     r = compare_capture(tel, estimators=("accel",))
-    p = r.port
+    p = r.replica
     assert p.rows == p.seeded == p.bit_exact == 1500 and p.all_exact and p.first_mismatch is None
     assert p.seeds[0]["source"] == "power-up" and not p.diagnosis
     port = r.trace("st-mahony-port")
@@ -167,7 +167,7 @@ def test_ki_mismatch_is_diagnosed_from_the_same_seed():
     # firmware built with AHRS_KI=1 but the status frames still claim the default 0.1
     tel = telemetry(n=1200, fw_settings=MahonySettings(ki=1.0), status_settings=MahonySettings())
     r = compare_capture(tel, estimators=())
-    p = r.port
+    p = r.replica
     assert not p.all_exact and p.first_mismatch is not None
     assert p.first_mismatch["step"] == p.first_mismatch["row"] < 5
     assert p.matching_variant == {"ki": 1.0}
@@ -180,9 +180,9 @@ def test_ki_mismatch_is_diagnosed_from_the_same_seed():
 def test_settings_override_is_diagnosed_against_the_status_frames():
     tel = telemetry(n=800)
     r = compare_capture(tel, estimators=(), settings=MahonySettings(ki=1.0))
-    assert not r.port.all_exact
-    assert r.port.matching_variant in ({"ki": 0.1}, {"defaults": True})
-    assert any("status frames report" in d for d in r.port.diagnosis)
+    assert not r.replica.all_exact
+    assert r.replica.matching_variant in ({"ki": 0.1}, {"defaults": True})
+    assert any("status frames report" in d for d in r.replica.diagnosis)
 
 
 @pytest.mark.parametrize(
@@ -197,27 +197,27 @@ def test_settings_override_is_diagnosed_against_the_status_frames():
 )
 def test_other_firmware_variants_are_named(fw, expect_key):
     tel = telemetry(n=900, fw_settings=fw, status_settings=MahonySettings())
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.matching_variant is not None and expect_key in p.matching_variant, p.diagnosis
     assert p.matching_bit_exact == 900
 
 
 def test_two_changes_at_once_are_found():
     tel = telemetry(n=700, fw_settings=MahonySettings(ki=1.0, fresh_squares=True), status_settings=MahonySettings())
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.matching_variant == {"ki": 1.0, "fresh_squares": True}
 
 
 def test_unknown_variant_is_called_so():
     tel = telemetry(n=700, fw_settings=MahonySettings(ki=0.37, kp_flight=0.9), status_settings=MahonySettings())
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.matching_variant is None and any("unknown firmware variant" in d for d in p.diagnosis)
 
 
 def test_one_corrupted_input_is_a_one_off_not_a_variant():
     tel = telemetry(n=1000)
     tel.attitude.acc_mg[500, 0] += 40.0  # a frame damaged in a way its CRC did not catch
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.first_mismatch["step"] == 500 and p.matching_variant is None
     assert any("one-off disturbance around step 500" in d for d in p.diagnosis), p.diagnosis
     assert not any("unknown firmware variant" in d for d in p.diagnosis)
@@ -234,7 +234,7 @@ def test_status_settings_are_used_and_compared_with_defaults():
     s = MahonySettings(ki=1.0, correction=False)
     tel = telemetry(n=600, fw_settings=s)
     r = compare_capture(tel, estimators=())
-    assert r.port.all_exact and r.port.settings["ki"] == 1.0 and r.port.settings["correction"] is False
+    assert r.replica.all_exact and r.replica.settings["ki"] == 1.0 and r.replica.settings["correction"] is False
     fs = r.filter_settings
     assert fs["ki"] == 1.0 and fs["differs_from_defaults"]["ki"] == [1.0, pytest.approx(0.1)]
     assert "correction" in fs["differs_from_defaults"]
@@ -248,7 +248,7 @@ def test_drops_reseed_from_the_next_snapshot_and_are_reported():
     drop = list(range(400, 420)) + [1000]
     tel = telemetry(n=1500, drop=drop, tx_dropped=3)
     r = compare_capture(tel, estimators=())
-    p = r.port
+    p = r.replica
     assert p.all_exact and p.rows == 1500 - len(drop)
     assert [s["source"] for s in p.seeds] == ["power-up", "status", "status"]
     assert [s["step"] for s in p.seeds] == [0, 483, 1127]  # after the snapshots of steps 482 and 1126
@@ -261,7 +261,7 @@ def test_drops_reseed_from_the_next_snapshot_and_are_reported():
 
 def test_bad_snapshot_integrals_are_named():
     tel = telemetry(n=700, start=100, snapshot="zero-integrals")
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert not p.all_exact and p.first_mismatch["step"] == 161  # seeded after the snapshot of step 160
     assert p.matching_variant is None
     assert any("integral terms" in d for d in p.diagnosis), p.diagnosis
@@ -269,19 +269,19 @@ def test_bad_snapshot_integrals_are_named():
 
 def test_snapshot_race_after_a_gap_is_reported_as_such():
     tel = telemetry(n=900, drop=range(200, 230), snapshot="one-late")
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.seeds[0]["source"] == "power-up" and p.first_mismatch["step"] == 322  # seeded after snapshot 321
     assert any("frames were dropped before that point (seq gap at step 199→230)" in d for d in p.diagnosis)
     assert any("another step" in d for d in p.diagnosis), p.diagnosis
     # joined mid-flight: no gap to blame, the snapshot is still named
-    p = compare_capture(telemetry(n=600, start=100, snapshot="one-late"), estimators=()).port
+    p = compare_capture(telemetry(n=600, start=100, snapshot="one-late"), estimators=()).replica
     assert p.first_mismatch["step"] == 161 and not any("dropped" in d for d in p.diagnosis)
     assert any("another step" in d for d in p.diagnosis)
 
 
 def test_joined_mid_flight_without_status_cannot_seed():
     tel = telemetry(n=600, start=100, status_every=10_000)
-    p = compare_capture(tel, estimators=()).port
+    p = compare_capture(tel, estimators=()).replica
     assert p.seeded == 0 and p.unseeded_reason and "no status frame" in p.unseeded_reason
     assert "not run" in "\n".join(format_report(compare_capture(tel, estimators=())))
 
@@ -292,7 +292,7 @@ def test_firmware_nan_rows_are_counted_and_excluded():
     assert nan_rows > 0  # the violent burst drives asin out of range, as on the drone
     r = compare_capture(tel, estimators=("accel",))
     assert r.firmware_nan_roll == nan_rows
-    assert r.port.all_exact  # NaN == NaN bit-wise: the port makes the same NaNs
+    assert r.replica.all_exact  # NaN == NaN bit-wise: the port makes the same NaNs
     acc = r.trace("accel")
     assert acc.roll.n == 1200 - nan_rows and math.isfinite(acc.roll.rms_deg)
     assert "firmware NaN steps" in "\n".join(format_report(r))
@@ -305,7 +305,7 @@ def test_firmware_restart_restarts_the_port_and_keeps_time_increasing():
     )
     tel = decode_bytes(data, source={"path": "restart", "kind": "raw"})
     r = compare_capture(tel, estimators=())
-    p = r.port
+    p = r.replica
     assert [s["source"] for s in p.seeds] == ["power-up", "power-up"] and r.rates.seq_resets == 1
     assert p.bit_exact == 500 and p.first_mismatch["row"] == 500 and p.first_mismatch["step"] == 0
     assert p.matching_variant == {"ki": 1.0}  # reflashed with AHRS_KI=1 after the first run
@@ -370,7 +370,7 @@ def test_text_mode_capture_compares_estimators_only():
     tel = decode_bytes(text_mode_bytes(), source={"path": "log.txt", "kind": "text"})
     assert not tel.attitude.exact.any()
     r = compare_capture(tel, estimators=("accel",))
-    assert r.port is None and r.text_rows == len(tel.attitude)
+    assert r.replica is None and r.text_rows == len(tel.attitude)
     assert not r.trace("st-mahony-port").available
     assert r.trace("accel").available and r.trace("accel").pitch.n == len(tel.attitude)
     text = "\n".join(format_report(r))

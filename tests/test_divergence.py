@@ -273,7 +273,7 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
 
     monkeypatch.setattr(diagnosis, "_diagnose", no_search)
     r = compare_capture(tel, estimators=("accel",))
-    p = r.port
+    p = r.replica
     assert p.settings["kp_ground"] == KP_GROUND  # from the status frames, NaN snapshots and all
     assert p.first_mismatch["step"] == DIVERGE and p.bit_exact == DIVERGE
     d = p.divergence
@@ -313,10 +313,10 @@ def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
     tel = decode_bytes(data[start:])
     assert tel.attitude.step[0] % P.SEQ_MODULUS == 300
     r = compare_capture(tel, estimators=())
-    d = r.port.divergence
+    d = r.replica.divergence
     assert d["port"] == "unseeded" and d["first_nonfinite_step"] == d["step"]
     assert "the port had no state at that step" in d["text"][-1]
-    assert r.port.settings["kp_ground"] == KP_GROUND
+    assert r.replica.settings["kp_ground"] == KP_GROUND
     lines = format_report(r)  # said although the port has no step to compare
     assert f"  → {d['text'][0]}" in lines and f"  → {d['text'][-1]}" in lines
 
@@ -325,7 +325,7 @@ def test_a_healthy_capture_has_no_divergence():
     data, _ = diverging_stream()
     tel = decode_bytes(data[: 100 * P.ATTITUDE_FRAME_SIZE + P.STATUS_FRAME_SIZE])
     r = compare_capture(tel, estimators=())
-    assert r.port.divergence is None and r.values_bad is None and r.port.all_exact
+    assert r.replica.divergence is None and r.values_bad is None and r.replica.all_exact
     assert summarize(tel)["values_bad"] is None
 
 

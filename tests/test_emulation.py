@@ -17,7 +17,7 @@ import pytest
 from support import firmware as S
 
 from steval_link.emulation import sensor_model as sm
-from steval_link.estimators.st_mahony import replay_firmware
+from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.link.capture import encode_capture
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
@@ -64,12 +64,12 @@ def decode(chunks):
 
 def port_check(chunks, tmp_path, name="emu.stv"):
     """The capture of the run, through load_telemetry and the seeded port (what `steval compare` does)."""
-    from steval_link.analysis.compare import compare_port
+    from steval_link.analysis.compare import compare_replica
 
     path = tmp_path / name
     path.write_bytes(encode_capture({"source": "test"}, chunks))
     tel = load_telemetry(path)
-    rep, _replay, _rows = compare_port(tel)
+    rep, _replay, _rows = compare_replica(tel)
     return rep
 
 

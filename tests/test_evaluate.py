@@ -125,7 +125,7 @@ def test_steval_view_of_a_synthetic_trial(tmp_path):
     r = ev.evaluate_view(v, ev.default_specs(v.rate_hz, only=["mekf", "accel"]), trial.name)
     assert set(r.rmse_deg) == {"mekf", "accel"}
     assert r.rmse_deg["mekf"] < 0.5 and r.rmse_deg["accel"] < 1.0
-    nv = broad.native_view(trial)
+    nv = broad.own_rate_view(trial)
     assert nv.rate_hz == pytest.approx(285.714) and nv.acc_mg.shape == (3000, 3)
 
 
@@ -134,7 +134,7 @@ def test_default_specs_selection():
     assert labels[:5] == ["st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf"]
     both = ev.default_specs(161.5, only=["st-mahony"])
     assert [(s.label, s.thr) for s in both] == [("st-mahony-flight", 450), ("st-mahony-ground", 0)]
-    native = ev.default_specs(285.7, native=True, only=["st-mahony-flight", "mekf"])
+    native = ev.default_specs(285.7, own_rate=True, only=["st-mahony-flight", "mekf"])
     assert native[0].options == {"dt_s": 1 / 285.7} and native[1].options["latency_s"] == 0.0
     with pytest.raises(UserError, match="unknown estimator"):
         ev.default_specs(161.5, only=["kalman"])

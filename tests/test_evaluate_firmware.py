@@ -16,10 +16,10 @@ import pytest
 from support.cli import run_cli, run_cli_tty
 
 from steval_link.analysis.firmware_eval import cut_trial, firmware_labels
+from steval_link.constants import TICK_PERIOD_S as TICK_S
 from steval_link.emulation import broad
-from steval_link.emulation.broad import BroadTrial
-from steval_link.emulation.runner import TICK_S
-from steval_link.emulation.step_truth import StepTruth, score_euler, truth_at_trial_time
+from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
+from steval_link.emulation.step_truth import StepTruth, score_euler
 from steval_link.errors import UserError
 from steval_link.link.capture import (
     CHUNK_TRUTH,
@@ -353,9 +353,9 @@ def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
         err,
         rmse,
         np.full(m, 4400),
-        port_rmse_deg=rmse,
-        port_bit_exact=m,
-        port_steps=m,
+        replica_rmse_deg=rmse,
+        replica_bit_exact=m,
+        replica_steps=m,
     )
 
 

@@ -11,8 +11,8 @@ from support.cli import run_cli
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, expected_motor_pwm, mixer_pwm, motor_thr, outer_p
 from steval_link.analysis.preflight import check_preflight
-from steval_link.emulation import motion as M
 from steval_link.emulation.runner import MOUNTS, ScenarioMotion, joydata_bytes
+from steval_link.emulation.scenarios import PREFLIGHT_MOVES
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.decoder import decode_bytes
@@ -84,7 +84,7 @@ def test_mount_fault_turns_what_the_board_reads():
 
 
 def test_preflight_scenario_makes_the_guided_moves_in_order():
-    assert [m[0] for m in M.PREFLIGHT_MOVES] == ["tilt right", "nose up", "turn right"]
+    assert [m[0] for m in PREFLIGHT_MOVES] == ["tilt right", "nose up", "turn right"]
     motion = ScenarioMotion("preflight", 32.0, seed=1)
     k = int(10.0 * C.ISR_RATE_HZ)
     thr, sticks, armed = motion.remote(k)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from support.ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
 
-from steval_link.estimators.st_mahony import bits_equal, replay_firmware
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import bits_equal
 from steval_link.link import protocol
 from steval_link.link.capture import default_capture_path
 from steval_link.link.decoder import decode_bytes

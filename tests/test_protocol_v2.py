@@ -92,7 +92,7 @@ def test_v1_captures_decode_exactly_as_before(name):
         == digest
     )
     # bit-exact comparisons unchanged
-    port = compare_capture(tel, estimators=()).port
+    port = compare_capture(tel, estimators=()).replica
     assert port.all_exact and port.bit_exact == port.seeded > 0
     # the replay summary states v1's known limit; a v2 capture does not carry that line
     text = "\n".join(format_summary(summarize(tel)))
@@ -104,7 +104,7 @@ def test_bundled_recordings_are_v2_and_bit_exact():
     tel = load_telemetry(ROOT / "recordings" / "demo.stv")
     assert tel.stats.v1_frames == 0 and tel.stats.implausible == 0 and tel.stats.attitude == 9210
     assert (tel.status.fw_version == [2, 0]).all()
-    assert compare_capture(tel, estimators=()).port.all_exact
+    assert compare_capture(tel, estimators=()).replica.all_exact
 
 
 # ---------------------------------------------------------------------------------------------- fuzzing

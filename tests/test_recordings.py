@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, replay_firmware
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import demo_capture_path, read_capture

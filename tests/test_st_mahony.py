@@ -8,8 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from steval_link.estimators import registry, st_mahony
+from steval_link.estimators import firmware_replay, registry, st_mahony
 from steval_link.estimators.conformance import load_conformance_csv
+from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.estimators.st_mahony import (
     COE_MDPS_TO_RADPS_F32,
     MahonySettings,
@@ -18,7 +19,6 @@ from steval_link.estimators.st_mahony import (
     bits_equal,
     inv_sqrt,
     quaternion_to_euler,
-    replay_firmware,
     run,
 )
 from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION, STATUS_DTYPE
@@ -395,6 +395,6 @@ def test_replay_firmware_never_seeds_rounded_text_mode_rows():
 
     tel = load_telemetry(Path(__file__).resolve().parents[1] / "recordings" / "textmode.log")
     assert len(tel.attitude.step) > 100 and not tel.attitude.exact.any()
-    rep = st_mahony.replay_firmware(tel)
+    rep = firmware_replay.replay_firmware(tel)
     assert rep.n_seeded == 0 and rep.first_mismatch is None
     assert np.isnan(rep.q_wxyz).all()

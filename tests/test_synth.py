@@ -9,21 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from steval_link import constants as C
 from steval_link.cli import main
-from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.synth import STATUS_EVERY_STEPS, SynthOptions, boot_lines, synthesize, write_output
+from steval_link.emulation.fw_link import STATUS_EVERY_STEPS, boot_lines
+from steval_link.emulation.scenarios import SCENARIOS
+from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
-from steval_link.estimators.st_mahony import (
-    MahonySettings,
-    MahonyState,
-    bits_equal,
-    quaternion_to_euler,
-    replay_firmware,
-)
-from steval_link.estimators.st_mahony import (
-    run as mahony_run,
-)
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, quaternion_to_euler
+from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import protocol as P
 from steval_link.link.capture import read_capture
 from steval_link.link.decoder import decode_bytes
@@ -68,9 +63,9 @@ def test_same_seed_same_bytes_different_seed_different_bytes(tmp_path):
 # ---- every scenario ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", list(M.SCENARIOS))
+@pytest.mark.parametrize("name", list(SCENARIOS))
 def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
-    dur = M.SCENARIOS[name].min_duration_s + 2.0  # the first step comes ≈ 2.985 s after power-up
+    dur = SCENARIOS[name].min_duration_s + 2.0  # the first step comes ≈ 2.985 s after power-up
     res = synthesize(SynthOptions(name, duration_s=dur, seed=1))
     tel = decode(res)
     st = tel.stats
@@ -82,15 +77,15 @@ def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
     assert len(a) == res.counts["attitude"] and 0 <= len(res.attitude) - len(a) <= 2  # the last may be cut off
     assert 2.97 < a.t_fw_s[0] < 3.0
     dt = np.diff(a.t_fw_s)
-    assert abs(np.median(dt) - 1 / sm.AHRS_HZ) < 2e-6
+    assert abs(np.median(dt) - 1 / C.AHRS_RATE_HZ) < 2e-6
     assert dt.min() > 0.0045 and dt.max() < 0.008  # main-loop latency jitter only
-    assert abs((len(a) - 1) / (a.t_fw_s[-1] - a.t_fw_s[0]) - sm.AHRS_HZ) < 0.05
-    assert len(a) == pytest.approx((dur - (a.t_fw_s[0])) * sm.AHRS_HZ, abs=3)
+    assert abs((len(a) - 1) / (a.t_fw_s[-1] - a.t_fw_s[0]) - C.AHRS_RATE_HZ) < 0.05
+    assert len(a) == pytest.approx((dur - (a.t_fw_s[0])) * C.AHRS_RATE_HZ, abs=3)
     # status after every 162nd step (~1 Hz), right after that step's attitude frame
     s = tel.status
     assert np.array_equal(s.step, np.arange(STATUS_EVERY_STEPS - 1, a.step[-1] + 1, STATUS_EVERY_STEPS)[: len(s)])
     assert len(s) >= (len(a) // STATUS_EVERY_STEPS) - 1
-    assert np.allclose(np.diff(s.t_fw_s), STATUS_EVERY_STEPS / sm.AHRS_HZ, atol=1e-3)
+    assert np.allclose(np.diff(s.t_fw_s), STATUS_EVERY_STEPS / C.AHRS_RATE_HZ, atol=1e-3)
     assert np.all(s.cyc_n == STATUS_EVERY_STEPS) and np.all(s.cpu_hz == 84_000_000) and np.all(s.baud == 115200)
     assert np.all((s.cyc_min > 2000) & (s.cyc_min <= s.cyc_mean) & (s.cyc_mean <= s.cyc_max) & (s.cyc_max < 10000))
     for j, step in enumerate(s.step):
@@ -111,14 +106,7 @@ def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
 def test_status_snapshots_seed_the_port_bit_exact_after_each(runs):
     tel = decode(runs["hover"])
     a, s = tel.attitude, tel.status
-    settings = MahonySettings.from_status(
-        kp_ground=s.kp_ground[0],
-        kp_flight=s.kp_flight[0],
-        ki=s.ki[0],
-        dt_s=s.dt_s[0],
-        min_thr=s.min_thr[0],
-        flags=s.flags[0],
-    )
+    settings = MahonySettings.of_status(s, 0)
     assert len(s) >= 15
     for j in range(len(s)):
         r0 = int(s.step[j]) + 1
@@ -135,7 +123,7 @@ def test_hover_throttle_kp_switch_thz_and_vibration(runs):
     a = decode(res).attitude
     thr = a.thr.astype(int)
     assert thr.min() == 0 and thr[0] == 0
-    flying = thr >= sm.MIN_THR
+    flying = thr >= C.MIN_THR
     assert flying.any() and not flying[:200].any() and not flying[-100:].any()
     core = thr[np.flatnonzero(flying)[0] + 600 : np.flatnonzero(flying)[-1] - 600]
     assert 440 <= np.percentile(core, 5) and np.percentile(core, 95) <= 560
@@ -183,7 +171,7 @@ def test_join_mid_frame_seeds_from_the_first_status(runs):
     tel = decode(res)
     a = tel.attitude
     assert tel.stats.crc_failures == 0 and 0 < a.offset[0] < P.STATUS_FRAME_SIZE
-    assert a.step[0] > 12 * sm.AHRS_HZ - 3 * sm.AHRS_HZ  # mid-flight (steps start ≈ 2.985 s after power-up)
+    assert a.step[0] > 12 * C.AHRS_RATE_HZ - 3 * C.AHRS_RATE_HZ  # mid-flight (steps start ≈ 2.985 s after power-up)
     assert a.t_host_s[0] < 0.02 and np.all(np.diff(a.t_host_s) >= 0)
     rep = replay_firmware(tel)
     assert rep.seeds[0].source == "status"
@@ -309,7 +297,7 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
     code, _, err = run_cli(["synth", "-s", "bench", "--duration", "4", "-o", str(out)], capsys)
     assert code == 2 and "exists" in err and len(err.strip().splitlines()) == 1
     code, stdout, _ = run_cli(["synth", "--list"], capsys)
-    assert code == 0 and all(name in stdout for name in M.SCENARIOS)
+    assert code == 0 and all(name in stdout for name in SCENARIOS)
 
 
 @pytest.mark.parametrize(

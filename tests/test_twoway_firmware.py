@@ -22,7 +22,8 @@ import pytest
 from support import firmware as S
 
 from steval_link.estimators.conformance import load_conformance_csv
-from steval_link.estimators.st_mahony import MahonySettings, bits_equal, replay_firmware, run
+from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, bits_equal, run
 from steval_link.link import protocol as P
 from steval_link.link.capture import encode_capture, read_capture
 from steval_link.link.commands import Command, CommandChannel, parse_command
@@ -207,9 +208,9 @@ def test_changes_mid_stream_are_followed_bit_exact(changes_run, tmp_path):
     rep = replay_firmware(tel)
     assert rep.all_exact and rep.n_seeded == len(tel.attitude.step), (rep.first_mismatch, rep.n_seeded)
     # without following the EVENT snapshots the port would not be bit-exact after the first change
-    from steval_link.analysis.compare import compare_port
+    from steval_link.analysis.compare import compare_replica
 
-    crep, _replay, _rows = compare_port(tel)
+    crep, _replay, _rows = compare_replica(tel)
     assert crep.bit_exact == crep.seeded == len(tel.attitude.step)
 
 

@@ -94,7 +94,7 @@ def test_replay_rrd_reads_back_with_entities_counts_gaps_and_blueprint(tmp_path)
     assert np.isnan(tel.attitude.thy_rad).sum() == len(nan_rows)
 
     from steval_link.estimators import registry
-    from steval_link.estimators.st_mahony import replay_firmware
+    from steval_link.estimators.firmware_replay import replay_firmware
 
     att = tel.attitude
     accel = registry.create("accel").run(att.acc_mg, att.gyro_mdps, att.thr)
@@ -139,7 +139,7 @@ def test_port_difference_is_zero_where_bit_exact(tmp_path):
         for i in range(n)
     )
     tel = decode_bytes(data)
-    from steval_link.estimators.st_mahony import replay_firmware
+    from steval_link.estimators.firmware_replay import replay_firmware
 
     port = replay_firmware(tel)
     assert port.n_bit_exact == n

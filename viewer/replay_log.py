@@ -22,7 +22,7 @@ import numpy as np
 import rerun as rr
 
 from steval_link.analysis.summary import values_bad_report
-from steval_link.estimators.st_mahony import replay_firmware
+from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.link.commands import command_log
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent

@@ -5,7 +5,7 @@ with an 8 ms tick. The ticks tell the stream's cadence (:func:`steval_link.link.
 sender's own rate, ST's congestion skips, gaps of another cadence, or a poller's reads), which the summary states;
 the estimators run on a uniform grid with dt from that cadence, rows held only over notifications that were sent
 and lost (:func:`steval_link.link.ble_telemetry.uniform_inputs`). The firmware's own attitude is not sent over
-BLE, and the ST-Mahony port run on these samples cannot be bit-exact with the drone (different inputs, different
+BLE, and the ST-Mahony replica run on these samples cannot be bit-exact with the drone (different inputs, different
 dt): the summary and the viewer say so (:data:`NOT_BIT_EXACT`).
 """
 

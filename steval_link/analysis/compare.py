@@ -1,11 +1,12 @@
-"""``steval compare``: how the firmware's own angles compare with the Python port, the EKFs and accelerometer tilt.
+"""``steval compare``: how the firmware's own angles compare with the Python replica, the EKFs and accelerometer tilt.
 
 One capture in, one :class:`ComparisonReport` out (ETH lecture 4, exercise 8 and the EKF project):
 
-* **ST-Mahony port** — the bit-exact port re-run over the capture's inputs
-  (:func:`steval_link.estimators.st_mahony.replay_firmware`): it starts at power-up (a capture from step 0) or from
+* **ST-Mahony replica** — the bit-exact replica re-run over the capture's inputs
+  (:func:`steval_link.estimators.firmware_replay.replay_firmware`): it starts at power-up (a capture from step 0) or
+  from
   the filter-state snapshot of a status frame, and restarts from the next snapshot after any dropped frame. The
-  report counts bit-exact steps, names the first step that differs and *diagnoses* it: the port is re-run from the
+  report counts bit-exact steps, names the first step that differs and *diagnoses* it: the replica is re-run from the
   same seed with alternative settings (the other normalisation variant, KI 1.0, no correction, kp variants,
   dt = 1/161.5 s, the firmware defaults) and the one that reproduces the firmware is named; a mismatch right after
   dropped frames, or one nothing explains, is called out as such.
@@ -16,14 +17,14 @@ in degrees, angle differences wrapped to ±180°. Firmware NaN rows (``asin`` ou
 counted and excluded, never fatal. Rate, jitter, drop, CRC and AHRS-cycle statistics and the filter settings from
 the status frames complete the report.
 
-Text-mode captures carry rounded angles and inputs and no quaternion: the port cannot be bit-exact there, so
+Text-mode captures carry rounded angles and inputs and no quaternion: the replica cannot be bit-exact there, so
 it is not run; the firmware's angles are compared with the other estimators only.
 """
 
 from __future__ import annotations
 
 __all__ = [
-    "PORT_TRACE",
+    "REPLICA_TRACE",
     "AngleStats",
     "ComparisonReport",
     "TraceComparison",
@@ -37,10 +38,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from steval_link.analysis.diagnosis import compare_port, filter_settings_report
+from steval_link.analysis.diagnosis import compare_replica, filter_settings_report
 from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s
 from steval_link.analysis.report import (
-    PORT_TRACE,
+    REPLICA_TRACE,
     TRACE_LABELS,
     AngleStats,
     ComparisonReport,
@@ -55,9 +56,7 @@ from steval_link.emulation.step_truth import score_euler
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
-from steval_link.estimators.st_mahony import (
-    MahonySettings,
-)
+from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.capture import capture_truth
 from steval_link.link.load import read_source
 from steval_link.link.plausibility import held_back_sentence
@@ -82,14 +81,14 @@ def compare_capture(
     estimators: Sequence[str] = registry.COMPARE_DEFAULT,
     settings: MahonySettings | None = None,
 ) -> ComparisonReport:
-    """Compare a capture's firmware angles with the seeded ST-Mahony port and with ``estimators``.
+    """Compare a capture's firmware angles with the seeded ST-Mahony replica and with ``estimators``.
 
     Args:
         tel: a :class:`steval_link.link.telemetry.Telemetry` with at least one attitude row.
         estimators: registry names run from power-up over the capture's inputs (``st-mahony`` here means the
-            unseeded port from power-up; the seeded port is always compared). Names this installation lacks are
+            unseeded replica from power-up; the seeded replica is always compared). Names this installation lacks are
             reported as unavailable.
-        settings: filter settings for the port (default: those of the status frames, else the firmware's).
+        settings: filter settings for the replica (default: those of the status frames, else the firmware's).
 
     Returns:
         A :class:`ComparisonReport`; angles in the report are degrees, thx = pitch (about x), thy = roll (about y).
@@ -107,23 +106,23 @@ def compare_capture(
     notes: list[str] = []
     traces: list[TraceComparison] = []
 
-    port, rep, prow = compare_port(tel, settings)
-    if port is not None:
+    replica, rep, prow = compare_replica(tel, settings)
+    if replica is not None:
         thx = np.full(n, np.nan)
         thy = np.full(n, np.nan)
         thx[prow] = rep.thx_rad
         thy[prow] = rep.thy_rad
         valid = np.zeros(n, bool)
         valid[prow] = rep.seeded
-        note = "bit-exact" if port.all_exact else ("not seeded" if port.seeded == 0 else "")
-        traces.append(_trace(PORT_TRACE, "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
+        note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
+        traces.append(_trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
     if (~exact).any():
         notes.append(
             f"{int((~exact).sum())} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
             "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
         )
-        if port is None:
-            traces.append(_unavailable(PORT_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
+        if replica is None:
+            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
 
     estimates: dict[str, Any] = {}
     decimation = row_decimation(tel)
@@ -158,23 +157,23 @@ def compare_capture(
         firmware_nan_roll=nan_y,
         rates=rate_stats(tel),
         filter_settings=filter_settings_report(tel),
-        port=port,
+        replica=replica,
         traces=traces,
         notes=notes,
         values_bad=values_bad,
         held_back=held_back_sentence(tel.stats.implausible, tel.stats.held_values) if tel.stats.implausible else None,
         t_rel_s=relative_time_s(a.step, a.t_fw_s),
         replay=rep,
-        port_rows=prow,
+        replica_rows=prow,
         estimates=estimates,
         truth=truth,
     )
 
 
 def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] | None:
-    """Inclination RMSE (deg, movement steps) of the firmware, the port and each estimator against the ground truth
+    """Inclination RMSE (deg, movement steps) of the firmware, the replica and each estimator against the ground truth
     a capture keeps (chunks T of an emulated BROAD run, matched to the frames by AHRS step), or None without one.
-    The firmware and the port are scored from their thx/thy (``quaternion_from_euler(thx, thy, 0)``) as
+    The firmware and the replica are scored from their thx/thy (``quaternion_from_euler(thx, thy, 0)``) as
     ``steval evaluate --firmware`` scores them; the estimators from their quaternions as ``steval evaluate``."""
     src = tel.source or {}
     if src.get("kind") != "stv" or not src.get("path"):
@@ -200,7 +199,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
         thx = np.full(len(a.step), np.nan)
         thy = np.full(len(a.step), np.nan)
         thx[prow], thy[prow] = rep.thx_rad, rep.thy_rad
-        _, out[PORT_TRACE] = score_euler(thx, thy, q_true, movement)
+        _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
     for name, est in estimates.items():
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)

@@ -1,11 +1,11 @@
-"""The bit-exact ST-Mahony port against the firmware (:func:`compare_port`): steps that match bit for bit, the first
-that differs and *why*: the port is re-run from the same seed with alternative settings (normalisation variant,
+"""The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): steps that match bit for bit, the
+first that differs and *why*: the replica is re-run from the same seed with alternative settings (normalisation variant,
 KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named. Also the
 filter settings the status frames announce (:func:`filter_settings_report`).
 
 A firmware whose own filter *diverged* (:func:`find_divergence`: its q left the unit sphere, ``| |q| − 1 |`` >
 ``Q_NORM_TOL`` = 0.05, or went non-finite) is named with the step, the inputs at that step and the one before, and
-whether the port stayed finite on the same inputs. When it did, no setting of the release's filter explains the
+whether the replica stayed finite on the same inputs. When it did, no setting of the release's filter explains the
 firmware, so no settings are searched: the firmware's ``ahrs.c`` differs (a student's filter, a refactor).
 """
 
@@ -21,17 +21,10 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.report import PortComparison, json_number
-from steval_link.estimators.st_mahony import (
-    FirmwareReplay,
-    MahonySettings,
-    MahonyState,
-    bits_equal,
-    replay_firmware,
-)
-from steval_link.estimators.st_mahony import (
-    run as mahony_run,
-)
+from steval_link.analysis.report import ReplicaComparison, json_number
+from steval_link.estimators.firmware_replay import FirmwareReplay, replay_firmware
+from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal
+from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link.plausibility import q_off_sphere
 from steval_link.link.protocol import FLAG_EVENT
 
@@ -139,7 +132,7 @@ def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[di
 
 
 def _binary_view(tel):
-    """Attitude and status rows of binary frames only (what the port can be compared with bit for bit)."""
+    """Attitude and status rows of binary frames only (what the replica can be compared with bit for bit)."""
     a, s = tel.attitude, tel.status
     rows = np.flatnonzero(np.asarray(a.exact, bool))
     srows = np.flatnonzero(np.asarray(s.exact, bool)) if len(s) else np.zeros(0, np.int64)
@@ -199,7 +192,7 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
 
 
 def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
-    """``steval compare`` options that run the port with ``s`` when the status frames report ``base``."""
+    """``steval compare`` options that run the replica with ``s`` when the status frames report ``base``."""
     out = []
     for name, opt in (("ki", "--ki"), ("kp_ground", "--kp-ground"), ("kp_flight", "--kp-flight"), ("dt_s", "--dt")):
         if np.float32(getattr(s, name)) != np.float32(getattr(base, name)):
@@ -254,7 +247,7 @@ def _combine(a: tuple[dict, MahonySettings], b: tuple[dict, MahonySettings], bas
 
 
 def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: int, r1: int) -> int:
-    """Rows from ``r0`` (the seed row) that the port reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
+    """Rows from ``r0`` (the seed row) that the replica reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
     a = view.attitude
     q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings, state=seed_state)
     ok = (
@@ -276,7 +269,7 @@ def _seed_state(view, seed) -> MahonyState:
 def _diagnose(
     view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats
 ) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
-    """Why the port disagrees: (sentences, matching variant, its bit-exact rows over the capture, its settings)."""
+    """Why the replica disagrees: (sentences, matching variant, its bit-exact rows over the capture, its settings)."""
     a = view.attitude
     steps = a.step
     n = steps.size
@@ -286,7 +279,7 @@ def _diagnose(
     seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else n
     r1 = min(seg_end, m + DIAGNOSIS_WINDOW_ROWS)
     base = seed.settings
-    # candidates start from the last snapshot before the mismatch (the port was exact up to there), else the seed
+    # candidates start from the last snapshot before the mismatch (the replica was exact up to there), else the seed
     r0, state = seed.row, _seed_state(view, seed)
     st_steps = np.asarray(view.status.step, dtype=np.int64)
     k = np.flatnonzero((st_steps >= steps[seed.row]) & (st_steps < steps[m]))
@@ -418,10 +411,10 @@ def _norm(q) -> float:
 def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
     """The first binary row where the firmware's q leaves the unit sphere or goes non-finite, or None.
 
-    ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the port replayed over them (or None).
+    ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the replica replayed over them (or None).
     Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
     "gyro_mdps", "thr"} of the step before (when received) and of the step], "port": "finite" | "diverged" |
-    "unseeded", "port_q_wxyz", "port_diverged_step", "text": [sentences]}``."""
+    "unseeded", "port_q_wxyz", "port_diverged_step", "text": [sentences]}`` (the "port" keys: the replica's)."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -444,15 +437,15 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
                 "thr": int(a.thr[j]),
             }
         )
-    port_state, port_q, port_div = "unseeded", None, None
+    replica_state, replica_q, replica_div = "unseeded", None, None
     if rep is not None and bool(rep.seeded[k]):
-        port_q = [json_number(x) for x in rep.q_wxyz[k]]
+        replica_q = [json_number(x) for x in rep.q_wxyz[k]]
         seeded_after = np.flatnonzero(rep.seeded[k:]) + k
         p_off = q_off_sphere(rep.q_wxyz[seeded_after])
         if p_off.any():
-            port_state, port_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
+            replica_state, replica_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
         else:
-            port_state = "finite"
+            replica_state = "finite"
     nonfinite = not np.isfinite(q).all()
     what = "went non-finite" if nonfinite else "left the unit sphere"
     how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
@@ -468,17 +461,17 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         )
     if len(inputs) < 2:
         text.append(f"the step before ({step - 1}) was not received")
-    if port_state == "finite":
+    if replica_state == "finite":
         text.append(
-            f"the bit-exact port stayed finite on the same inputs (q = {_vec(port_q)}, |q| = "
-            f"{_norm(port_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+            f"the bit-exact port stayed finite on the same inputs (q = {_vec(replica_q)}, |q| = "
+            f"{_norm(replica_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
             "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
             "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
             "handles, so none was searched)"
         )
-    elif port_state == "diverged":
+    elif replica_state == "diverged":
         text.append(
-            f"the port diverged too on the same inputs (from step {port_div}): the inputs drive the filter "
+            f"the port diverged too on the same inputs (from step {replica_div}): the inputs drive the filter "
             "out of range; check the sensor values and the settings"
         )
     else:
@@ -494,17 +487,17 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         "q_norm": json_number(_norm(q)),
         "first_nonfinite_step": first_nan,
         "inputs": inputs,
-        "port": port_state,
-        "port_q_wxyz": port_q,
-        "port_diverged_step": port_div,
+        "port": replica_state,
+        "port_q_wxyz": replica_q,
+        "port_diverged_step": replica_div,
         "text": text,
     }
 
 
-def compare_port(
+def compare_replica(
     tel, settings: MahonySettings | None = None
-) -> tuple[PortComparison | None, FirmwareReplay | None, np.ndarray | None]:
-    """The seeded port against the firmware's binary rows: (report, replay over the binary rows, those rows'
+) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
+    """The seeded replica against the firmware's binary rows: (report, replay over the binary rows, those rows'
     indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
@@ -554,10 +547,10 @@ def compare_port(
             diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
             if divergence is not None:
                 diagnosis = list(divergence["text"]) + diagnosis
-    elif divergence is not None:  # no step to compare with (the port had no state): the divergence alone
+    elif divergence is not None:  # no step to compare with (the replica had no state): the divergence alone
         diagnosis = list(divergence["text"])
     return (
-        PortComparison(
+        ReplicaComparison(
             rows=int(rows.size),
             seeded=rep.n_seeded,
             bit_exact=rep.n_bit_exact,

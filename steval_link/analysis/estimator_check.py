@@ -58,7 +58,6 @@ LIVE_MIN_STEPS_PER_S = 2.0 * C.AHRS_RATE_HZ
 COMPANIONS = ("st-mahony", "ekf3", "vqf")
 #: BROAD labels of the companions (evaluate's table)
 BROAD_COMPANIONS = ("st-mahony-flight", "ekf3", "vqf")
-HZ = C.AHRS_RATE_HZ
 
 
 @dataclass
@@ -126,16 +125,16 @@ def _noisy(acc_mg, gyro_mdps, seed: int = 7):
 
 
 def _held(thx_deg: float, thy_deg: float, seconds: float, seed: int):
-    n = int(round(seconds * HZ))
+    n = int(round(seconds * C.AHRS_RATE_HZ))
     acc = np.repeat(_gravity_mg(math.radians(thx_deg), math.radians(thy_deg))[None], n, axis=0)
     return _noisy(acc, np.zeros((n, 3)), seed)
 
 
 def _turn(seed: int):
     """1 s level, then +20 dps about x for 0.5 s (gravity turning along): ends at thx = +10°."""
-    n0, n1 = int(HZ), int(round(0.5 * HZ))
+    n0, n1 = int(C.AHRS_RATE_HZ), int(round(0.5 * C.AHRS_RATE_HZ))
     rate = 20.0  # dps
-    thx = np.concatenate([np.zeros(n0), np.radians(rate) * np.arange(1, n1 + 1) / HZ])
+    thx = np.concatenate([np.zeros(n0), np.radians(rate) * np.arange(1, n1 + 1) / C.AHRS_RATE_HZ])
     gyro = np.zeros((n0 + n1, 3))
     gyro[n0:, 0] = rate * 1000.0
     acc = _gravity_mg(thx, np.zeros_like(thx))
@@ -148,8 +147,8 @@ def _invalid_input(seed: int):
     nan_g = rest_g[:10].copy()
     nan_g[::2] = np.nan
     nan_a[1::2] = rest_a[:5]
-    fall = np.zeros((int(0.5 * HZ), 3), np.float32), np.zeros((int(0.5 * HZ), 3), np.float32)
-    k = int(0.1 * HZ)
+    fall = np.zeros((int(0.5 * C.AHRS_RATE_HZ), 3), np.float32), np.zeros((int(0.5 * C.AHRS_RATE_HZ), 3), np.float32)
+    k = int(0.1 * C.AHRS_RATE_HZ)
     sat = np.tile(np.float32([16000.0, -16000.0, 16000.0]), (k, 1)), np.tile(np.float32([2e6, -2e6, 2e6]), (k, 1))
     after_a, after_g = _held(0.0, 0.0, 5.0, seed + 1)
     acc = np.concatenate([rest_a, nan_a, fall[0], sat[0], after_a])
@@ -242,7 +241,7 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
         # a NaN row is either flagged invalid (the guard of your estimator does it) or holds a finite estimate
         flagged = bool(np.isfinite(q_bad[valid_bad]).all())
         how = "flagged invalid" if not valid_bad.any() else "held (finite)" if flagged else "NOT flagged invalid"
-        tail = slice(len(acc) - int(HZ), len(acc))
+        tail = slice(len(acc) - int(C.AHRS_RATE_HZ), len(acc))
         finite = bool(np.isfinite(np.asarray(res.q_wxyz, np.float64)[tail]).all() and np.asarray(res.valid)[tail].all())
         thx, thy = _last_deg(res)
         detail = (
@@ -291,7 +290,7 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
         return (
             rate >= LIVE_MIN_STEPS_PER_S,
             f"{rate:,.0f} steps/s on {len(acc)} steps of recordings/demo.stv (live needs ≥ "
-            f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {HZ:.1f} Hz)",
+            f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {C.AHRS_RATE_HZ:.1f} Hz)",
         )
 
     attempt("speed", speed)
@@ -329,7 +328,7 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
         tel = telemetry_of_source(src)
         a = tel.attitude
         rows = np.asarray(a.exact, bool)
-        if rows.sum() < HZ:  # text-mode or almost empty: no firmware quaternion to compare with
+        if rows.sum() < C.AHRS_RATE_HZ:  # text-mode or almost empty: no firmware quaternion to compare with
             continue
         acc = np.asarray(a.acc_mg)[rows]
         gyro = np.asarray(a.gyro_mdps)[rows]

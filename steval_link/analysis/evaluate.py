@@ -7,7 +7,7 @@ degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See
 Firmware (``--firmware ELF``): each ELF runs on the emulated board fed with the trial's motion and its own attitude
 output is scored against the same truth, aligned per step the same way (:mod:`steval_link.analysis.firmware_eval`):
 one more column of the table, and one line per firmware per trial with its instructions per AHRS step and the
-bit-exact port's score on the firmware's own inputs.
+bit-exact replica's score on the firmware's own inputs.
 
 Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
 given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
@@ -28,8 +28,8 @@ import numpy as np
 from steval_link.analysis.firmware_eval import FirmwareResult
 from steval_link.analysis.plots import require_matplotlib
 from steval_link.analysis.report import json_number
+from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
-from steval_link.emulation.sensor_model import AHRS_HZ
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import capture_truth
@@ -74,25 +74,25 @@ def spec_labels() -> tuple[str, ...]:
     return ("st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf", "vqf")
 
 
-def default_specs(rate_hz: float, *, native: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
+def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
     """The estimators of ``steval evaluate`` for inputs at ``rate_hz``.
 
-    ``st-mahony-flight``/``-ground``: the firmware's filter with thr 450 (kp 0.4) / thr 0 (kp 10); with ``native``
+    ``st-mahony-flight``/``-ground``: the firmware's filter with thr 450 (kp 0.4) / thr 0 (kp 10); with ``own_rate``
     its dt is 1/rate (the firmware's 6.25 ms otherwise). ``accel``: accelerometer-only tilt. ``ekf3``, ``mekf``,
-    ``vqf`` at ``rate_hz`` (mekf's pipeline-latency compensation is off with ``native``). ``vqf`` is left out when
+    ``vqf`` at ``rate_hz`` (mekf's pipeline-latency compensation is off with ``own_rate``). ``vqf`` is left out when
     the package is missing (unless asked for by name in ``only``, which then raises UserError). ``only`` selects
     labels; the registry name of an estimator (``st-mahony``) selects both Mahony runs.
     """
     specs = {
         "st-mahony-flight": EstimatorSpec(
-            "st-mahony-flight", "st-mahony", {"dt_s": 1.0 / rate_hz} if native else {}, THR_FLIGHT
+            "st-mahony-flight", "st-mahony", {"dt_s": 1.0 / rate_hz} if own_rate else {}, THR_FLIGHT
         ),
         "st-mahony-ground": EstimatorSpec(
-            "st-mahony-ground", "st-mahony", {"dt_s": 1.0 / rate_hz} if native else {}, THR_GROUND
+            "st-mahony-ground", "st-mahony", {"dt_s": 1.0 / rate_hz} if own_rate else {}, THR_GROUND
         ),
         "accel": EstimatorSpec("accel", "accel", {}),
         "ekf3": EstimatorSpec("ekf3", "ekf3", {"rate_hz": rate_hz}),
-        "mekf": EstimatorSpec("mekf", "mekf", {"rate_hz": rate_hz, **({"latency_s": 0.0} if native else {})}),
+        "mekf": EstimatorSpec("mekf", "mekf", {"rate_hz": rate_hz, **({"latency_s": 0.0} if own_rate else {})}),
         "vqf": EstimatorSpec("vqf", "vqf", {"rate_hz": rate_hz}),
     }
     if only is None:
@@ -172,9 +172,9 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
-        "port_rmse_deg": _rounded(fw.port_rmse_deg),
-        "port_bit_exact_steps": fw.port_bit_exact,
-        "port_steps": fw.port_steps,
+        "port_rmse_deg": _rounded(fw.replica_rmse_deg),
+        "port_bit_exact_steps": fw.replica_bit_exact,
+        "port_steps": fw.replica_steps,
         "port_settings": None
         if st is None
         else {
@@ -191,7 +191,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
 
 
 def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
-    """One line per firmware per trial: RMSE, instructions per AHRS step, the port's RMSE on its inputs."""
+    """One line per firmware per trial: RMSE, instructions per AHRS step, the replica's RMSE on its inputs."""
     fws = [fw for r in results for fw in r.firmware]
     if not fws:
         return []
@@ -204,14 +204,14 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
     for fw in fws:
         ins = fw.instructions_summary()
         cost = "n/a" if ins["median"] is None else f"{ins['median']:.0f} instr/step ({ins['min']}-{ins['max']})"
-        port = (
+        replica = (
             "port n/a"
-            if fw.port_rmse_deg is None
-            else f"port {_fmt(fw.port_rmse_deg)}, bit-exact {fw.port_bit_exact}/{fw.port_steps} steps"
+            if fw.replica_rmse_deg is None
+            else f"port {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
         )
         note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
         out.append(
-            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {port}){note}"
+            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {replica}){note}"
         )
     return out
 
@@ -254,21 +254,20 @@ def evaluate_trial(
     path,
     specs: Sequence[EstimatorSpec] | None = None,
     *,
-    native: bool = False,
+    own_rate: bool = False,
     seed: int = 0,
     progress: Progress | None = None,
 ) -> TrialResult:
     """Load a BROAD trial and evaluate ``specs`` (default: :func:`default_specs`) on it.
 
-    Without ``native`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
-    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``native`` the
-    estimators run
-    on the trial's own samples (285.7 Hz).
+    Without ``own_rate`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
+    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``own_rate`` the
+    estimators run on the trial's own samples at its own rate (285.7 Hz).
     """
     trial = path if isinstance(path, broad.BroadTrial) else broad.load_trial(path)
-    view = broad.native_view(trial) if native else broad.steval_view(trial, seed=seed)
+    view = broad.own_rate_view(trial) if own_rate else broad.steval_view(trial, seed=seed)
     if specs is None:
-        specs = default_specs(view.rate_hz, native=native)
+        specs = default_specs(view.rate_hz, own_rate=own_rate)
     return evaluate_view(view, specs, trial.name, progress)
 
 
@@ -335,12 +334,12 @@ def evaluate_capture(
     movement[hit] = mov[idx_c[hit]]
     t = np.asarray(att.t_fw_s, dtype=np.float64)
     dt = np.diff(t)
-    rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else AHRS_HZ
+    rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else AHRS_RATE_HZ
     view = broad.SteValView(
         np.asarray(att.acc_mg, np.float32), np.asarray(att.gyro_mdps, np.float32), t, q_true, movement, rate
     )
     if specs is None:
-        specs = default_specs(AHRS_HZ)
+        specs = default_specs(AHRS_RATE_HZ)
     res = evaluate_view(view, specs, p.stem, progress)
     q_fw = np.asarray(att.q_wxyz, dtype=np.float64)
     if np.isfinite(q_fw).any():

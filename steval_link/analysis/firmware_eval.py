@@ -16,9 +16,9 @@ does not enter the inclination), RMSE in degrees over the trial's movement steps
 the Python estimators, on the ground truth aligned per step by :mod:`steval_link.emulation.step_truth` (the middle
 tick of the step's 5-tick input window, as the Python estimators' STEVAL view).
 
-The bit-exact ST-Mahony port runs over the firmware's own inputs (frames, or the globals) with the firmware's
+The bit-exact ST-Mahony replica runs over the firmware's own inputs (frames, or the globals) with the firmware's
 settings (status frames, else ST's defaults) and is scored the same way from its thx/thy: for a stock build the
-two scores agree exactly; ``port_bit_exact`` counts the steps whose q, thx and thy carry the firmware's bits.
+two scores agree exactly; ``replica_bit_exact`` counts the steps whose q, thx and thy carry the firmware's bits.
 
 Cost: instructions per AHRS step (``ahrs_fusion_ag`` to the end of the step, interrupts excluded) as the emulator
 counts them (not Cortex-M4 cycles).
@@ -38,7 +38,7 @@ from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
 from steval_link.errors import UserError
-from steval_link.estimators import st_mahony
+from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
 
@@ -95,9 +95,9 @@ class FirmwareResult:
         err_rad: (M,) inclination error, rad.
         rmse_deg: inclination RMSE over the movement steps, degrees.
         instructions: (K,) instructions per AHRS step.
-        port_rmse_deg: the bit-exact port's RMSE on the firmware's own inputs (None: inputs unknown).
-        port_bit_exact: steps where the port carries the firmware's bits, of ``port_steps``.
-        settings: the port's filter settings (status frames, else ST's defaults).
+        replica_rmse_deg: the bit-exact replica's RMSE on the firmware's own inputs (None: inputs unknown).
+        replica_bit_exact: steps where the replica carries the firmware's bits, of ``replica_steps``.
+        settings: the replica's filter settings (status frames, else ST's defaults).
         emulated_s: emulated seconds.
     """
 
@@ -111,9 +111,9 @@ class FirmwareResult:
     err_rad: np.ndarray
     rmse_deg: float
     instructions: np.ndarray
-    port_rmse_deg: float | None = None
-    port_bit_exact: int = 0
-    port_steps: int = 0
+    replica_rmse_deg: float | None = None
+    replica_bit_exact: int = 0
+    replica_steps: int = 0
     settings: MahonySettings | None = None
     emulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
@@ -229,12 +229,15 @@ def run_firmware(
                 notes.append(
                     "the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned"
                 )
-        rep = st_mahony.replay_firmware(tel)
-        port_thx = np.full(n, np.nan, _F32)
-        port_thy = np.full(n, np.nan, _F32)
-        port_thx[steps] = rep.thx_rad[rows]
-        port_thy[steps] = rep.thy_rad[rows]
-        port_exact, port_steps = int(np.count_nonzero(rep.bit_exact[rows])), int(np.count_nonzero(rep.seeded[rows]))
+        rep = firmware_replay.replay_firmware(tel)
+        replica_thx = np.full(n, np.nan, _F32)
+        replica_thy = np.full(n, np.nan, _F32)
+        replica_thx[steps] = rep.thx_rad[rows]
+        replica_thy[steps] = rep.thy_rad[rows]
+        replica_exact, replica_steps = (
+            int(np.count_nonzero(rep.bit_exact[rows])),
+            int(np.count_nonzero(rep.seeded[rows])),
+        )
         settings = rep.seeds[0].settings if rep.seeds else None
     elif glob.euler is not None:
         source = "globals"
@@ -242,23 +245,23 @@ def run_firmware(
         thx = np.full(n, np.nan, _F32)
         thy = np.full(n, np.nan, _F32)
         thx[: out.shape[0]], thy[: out.shape[0]] = out[:, 0], out[:, 1]
-        port_thx = port_thy = None
-        port_exact = port_steps = 0
+        replica_thx = replica_thy = None
+        replica_exact = replica_steps = 0
         if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
             inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
             settings = MahonySettings()
             q, px, py, _ = st_mahony.run(
                 inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32), inp[:, 6].astype(np.int64), settings=settings
             )
-            port_thx = np.full(n, np.nan, _F32)
-            port_thy = np.full(n, np.nan, _F32)
-            port_thx[: out.shape[0]], port_thy[: out.shape[0]] = px, py
+            replica_thx = np.full(n, np.nan, _F32)
+            replica_thy = np.full(n, np.nan, _F32)
+            replica_thx[: out.shape[0]], replica_thy[: out.shape[0]] = px, py
             exact = (
                 st_mahony.bits_equal(px, out[:, 0])
                 & st_mahony.bits_equal(py, out[:, 1])
                 & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if glob.ahrs is not None else True)
             )
-            port_exact, port_steps = int(np.count_nonzero(exact)), out.shape[0]
+            replica_exact, replica_steps = int(np.count_nonzero(exact)), out.shape[0]
     else:
         raise UserError(
             f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
@@ -280,7 +283,7 @@ def run_firmware(
         emulated_s=report.emulated_s,
         notes=notes,
     )
-    if port_thx is not None:
-        _, res.port_rmse_deg = score_euler(port_thx, port_thy, truth.q_wxyz, truth.movement)
-        res.port_bit_exact, res.port_steps = port_exact, port_steps
+    if replica_thx is not None:
+        _, res.replica_rmse_deg = score_euler(replica_thx, replica_thy, truth.q_wxyz, truth.movement)
+        res.replica_bit_exact, res.replica_steps = replica_exact, replica_steps
     return res

@@ -20,13 +20,12 @@ from __future__ import annotations
 
 import json
 import math
-import struct
-import zlib
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 
+from steval_link.analysis.mcap_writer import McapWriter
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.quat import quaternion_from_euler
@@ -34,20 +33,6 @@ from steval_link.quat import quaternion_from_euler
 __all__ = ["TOPICS", "ATTITUDE_SCHEMA", "STATUS_SCHEMA", "FLIGHT_CONTROL_SCHEMA", "write_mcap", "require_mcap"]
 
 INSTALL_HINT = 'pip install "steval-link[mcap]"'
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
-_INDEX_HEAD = struct.Struct("<BQHI")
-_MESSAGE_DTYPE = np.dtype(
-    [
-        ("opcode", "u1"),
-        ("length", "<u8"),
-        ("channel", "<u2"),
-        ("seq", "<u4"),
-        ("log_time", "<u8"),
-        ("publish_time", "<u8"),
-    ]
-)  # packed: 31 bytes, as _MESSAGE_HEAD
-
 _TIME = {
     "type": "object",
     "title": "time",
@@ -178,14 +163,16 @@ FLIGHT_CONTROL_SCHEMA = {
     },
 }
 
-#: topic → (schema name, what one message stands for)
-TOPICS = {
-    "/attitude/transform": ("foxglove.FrameTransform", "attitude frame"),
-    "/attitude/pose": ("foxglove.PoseInFrame", "attitude frame"),
-    "/attitude": ("steval.Attitude", "attitude frame"),
-    "/status": ("steval.Status", "status frame"),
-    "/flight_control": ("steval.FlightControl", "flight-control frame"),
+#: topic → (its schema, what one message stands for)
+_TOPIC_SCHEMAS = {
+    "/attitude/transform": (FRAME_TRANSFORM_SCHEMA, "attitude frame"),
+    "/attitude/pose": (POSE_IN_FRAME_SCHEMA, "attitude frame"),
+    "/attitude": (ATTITUDE_SCHEMA, "attitude frame"),
+    "/status": (STATUS_SCHEMA, "status frame"),
+    "/flight_control": (FLIGHT_CONTROL_SCHEMA, "flight-control frame"),
 }
+#: topic → (schema name, what one message stands for)
+TOPICS = {topic: (schema["title"], what) for topic, (schema, what) in _TOPIC_SCHEMAS.items()}
 
 
 def require_mcap():
@@ -228,21 +215,21 @@ def _display_q(att) -> np.ndarray:
     return q
 
 
-def _attitude_messages(att, q: np.ndarray):
-    """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row (``q``: the normalised
-    quaternions for the Foxglove messages), null for any value that is not finite."""
-    n = len(att.step)
-    ns = _times_ns(att.t_fw_s)
-    step = np.asarray(att.step).tolist()
-    seq = np.asarray(att.seq).tolist()
-    tfw = np.asarray(att.t_fw_s, np.float64).tolist()
-    th = np.asarray(att.t_host_s, np.float64).tolist()
-    acc = np.asarray(att.acc_mg, np.float64).tolist()
-    gyr = np.asarray(att.gyro_mdps, np.float64).tolist()
-    thr = np.asarray(att.thr).tolist()
-    qf = np.asarray(att.q_wxyz, np.float64).tolist()
-    ang = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1).astype(np.float64).tolist()
-    exact = np.asarray(att.exact, bool).tolist()
+def _attitude_messages(att, q: np.ndarray, sl: slice = slice(None)):
+    """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row of ``sl`` (``q``: their
+    normalised quaternions for the Foxglove messages), null for any value that is not finite."""
+    ns = _times_ns(att.t_fw_s[sl])
+    step = np.asarray(att.step[sl]).tolist()
+    n = len(step)
+    seq = np.asarray(att.seq[sl]).tolist()
+    tfw = np.asarray(att.t_fw_s[sl], np.float64).tolist()
+    th = np.asarray(att.t_host_s[sl], np.float64).tolist()
+    acc = np.asarray(att.acc_mg[sl], np.float64).tolist()
+    gyr = np.asarray(att.gyro_mdps[sl], np.float64).tolist()
+    thr = np.asarray(att.thr[sl]).tolist()
+    qf = np.asarray(att.q_wxyz[sl], np.float64).tolist()
+    ang = np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64).tolist()
+    exact = np.asarray(att.exact[sl], bool).tolist()
     qd = q.tolist()
     nsl = ns.tolist()
     th = ["%.6f" % v if v == v else "null" for v in th]
@@ -320,7 +307,7 @@ def _attitude_blocks(att, rows: int = 8192):
         ns = ns_all[sl]
         if not fast:
             out = []
-            for _, transform, pose, body in _attitude_messages(_rows(att, sl), q_all[sl]):
+            for _, transform, pose, body in _attitude_messages(att, q_all[sl], sl):
                 out += [transform.encode(), pose.encode(), body.encode()]
             yield a, ns, out
             continue
@@ -345,31 +332,6 @@ def _attitude_blocks(att, rows: int = 8192):
         yield a, ns, text.split(b"\n")[:-1]
 
 
-def _rows(att, sl: slice):
-    """The attitude rows ``sl`` as a plain namespace (the per-row path)."""
-    from types import SimpleNamespace  # a plain record of arrays, for the rare per-row path
-
-    return SimpleNamespace(
-        **{
-            k: getattr(att, k)[sl]
-            for k in (
-                "step",
-                "seq",
-                "t_fw_s",
-                "t_host_s",
-                "acc_mg",
-                "gyro_mdps",
-                "thr",
-                "q_wxyz",
-                "thx_rad",
-                "thy_rad",
-                "thz_rad",
-                "exact",
-            )
-        }
-    )
-
-
 def _list(v) -> list:
     return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(v).tolist()]
 
@@ -380,15 +342,17 @@ def _n(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _row_messages(rows, bodies):
+    """(log time ns, JSON) per row of a frame table: its time stamp, step and firmware time, then its body."""
+    for i, (ns, body) in enumerate(zip(_times_ns(rows.t_fw_s).tolist(), bodies)):
+        head = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "step": int(rows.step[i])}
+        yield ns, json.dumps({**head, "t_fw_s": _n(rows.t_fw_s[i]), **body}, separators=(",", ":"), allow_nan=False)
+
+
 def _status_messages(tel):
     s = tel.status
-    ns = _times_ns(s.t_fw_s).tolist()
-    for i in range(len(s)):
-        flags = int(s.flags[i])
-        msg = {
-            "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(s.step[i]),
-            "t_fw_s": _n(s.t_fw_s[i]),
+    bodies = (
+        {
             "q_wxyz": _list(np.asarray(s.q_wxyz[i], np.float64)),
             "int_xyz": _list(np.asarray(s.int_xyz[i], np.float64)),
             "kp_ground": _n(s.kp_ground[i]),
@@ -396,7 +360,7 @@ def _status_messages(tel):
             "ki": _n(s.ki[i]),
             "dt_s": _n(s.dt_s[i]),
             "min_thr": int(s.min_thr[i]),
-            "correction": not flags & 1,
+            "correction": not flags & P.FLAG_NO_CORRECTION,
             "flags": flags,
             "ahrs_cycles_min": int(s.cyc_min[i]),
             "ahrs_cycles_mean": int(s.cyc_mean[i]),
@@ -410,18 +374,15 @@ def _status_messages(tel):
             "fc_every": int(s.fc_every[i]),
             "param_gen": int(s.param_gen[i]),
         }
-        yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
+        for i, flags in enumerate(np.asarray(s.flags, np.int64).tolist())
+    )
+    return _row_messages(s, bodies)
 
 
 def _fc_messages(tel):
     fc = tel.fc
-    ns = _times_ns(fc.t_fw_s).tolist()
-    for i in range(len(fc)):
-        flags = int(fc.fc_flags[i])
-        msg = {
-            "timestamp": {"sec": ns[i] // 1_000_000_000, "nsec": ns[i] % 1_000_000_000},
-            "step": int(fc.step[i]),
-            "t_fw_s": _n(fc.t_fw_s[i]),
+    bodies = (
+        {
             "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)),
             "rc": _list(fc.rc[i]),
             "outer_s1_radps": _list(np.asarray(fc.outer_s1_radps[i], np.float64)),
@@ -433,204 +394,9 @@ def _fc_messages(tel):
             "rc_cal": bool(flags & P.FC_RC_CAL),
             "fc_every": int(fc.fc_every[i]),
         }
-        yield ns[i], json.dumps(msg, separators=(",", ":"), allow_nan=False)
-
-
-class _Writer:
-    """A chunked, indexed MCAP writer (zstd chunks, message indexes, summary with statistics and chunk indexes)
-    whose per-message cost is one ``struct.pack``: the ``mcap`` package's ``Writer`` spends about 15 µs on each
-    message, 26 s on the 1.7 million messages of a 1-hour capture. The records other than messages are the
-    ``mcap`` package's own."""
-
-    def __init__(self, stream: BinaryIO, records, chunk_bytes: int = 4 << 20) -> None:
-        import zstandard  # the mcap package's own dependency: there only when it is installed
-        from mcap.data_stream import RecordBuilder  # the optional package (extra "mcap")
-        from mcap.opcode import Opcode  # the optional package (extra "mcap")
-
-        self.builder = RecordBuilder
-        self.opcode = Opcode
-        self.r = records
-        self.f = stream
-        self.pos = 0
-        self.chunk_bytes = chunk_bytes
-        self.zstd = zstandard.ZstdCompressor(level=1)
-        self.schemas: list = []
-        self.channels: list = []
-        self.chunk_indexes: list = []
-        self.metadata_indexes: list = []
-        self.counts: dict[int, int] = {}
-        self.t_start: int | None = None
-        self.t_end = 0
-        self._reset_chunk()
-        self._out(MCAP_MAGIC)
-        self._out(self._bytes(records.Header(profile="", library="steval-link")))
-
-    def _reset_chunk(self) -> None:
-        self.parts: list[bytes] = []
-        self.size = 0
-        self.index: dict[int, list[tuple[int, int]]] = {}
-        self.chunk_t0: int | None = None
-        self.chunk_t1 = 0
-
-    def _bytes(self, record) -> bytes:
-        b = self.builder()
-        record.write(b)
-        return b.end()
-
-    def _out(self, data: bytes) -> None:
-        self.f.write(data)
-        self.pos += len(data)
-
-    def schema(self, name: str, schema: dict) -> int:
-        rec = self.r.Schema(
-            id=len(self.schemas) + 1, name=name, encoding="jsonschema", data=json.dumps(schema).encode()
-        )
-        self.schemas.append(rec)
-        self._out(self._bytes(rec))
-        return rec.id
-
-    def channel(self, topic: str, schema_id: int) -> int:
-        rec = self.r.Channel(
-            id=len(self.channels) + 1, topic=topic, message_encoding="json", schema_id=schema_id, metadata={}
-        )
-        self.channels.append(rec)
-        self.counts[rec.id] = 0
-        self._out(self._bytes(rec))
-        return rec.id
-
-    def add(self, channel: int, t_ns: int, seq: int, data: bytes) -> None:
-        """One message (log and publish time ``t_ns``)."""
-        idx = self.index.get(channel)
-        if idx is None:
-            idx = self.index[channel] = []
-        idx.append((t_ns, self.size))
-        self.parts.append(_MESSAGE_HEAD.pack(0x05, 22 + len(data), channel, seq, t_ns, t_ns))
-        self.parts.append(data)
-        self.size += 31 + len(data)
-        self.counts[channel] += 1
-        if self.chunk_t0 is None or t_ns < self.chunk_t0:
-            self.chunk_t0 = t_ns
-        if t_ns > self.chunk_t1:
-            self.chunk_t1 = t_ns
-        if self.size >= self.chunk_bytes:
-            self.flush_chunk()
-
-    def add_block(self, channels: np.ndarray, t_ns: np.ndarray, seq: np.ndarray, datas: list[bytes]) -> None:
-        """Messages ``datas`` (one per entry of ``channels``, ``t_ns``, ``seq``) as one chunk of their own, the
-        record headers packed with numpy at once."""
-        self.flush_chunk()
-        m = len(datas)
-        if m == 0:
-            return
-        lens = np.fromiter(map(len, datas), np.int64, m)
-        starts = np.zeros(m, np.int64)
-        np.cumsum(31 + lens[:-1], out=starts[1:])
-        total = int(starts[-1] + 31 + lens[-1])
-        head = np.zeros(m, _MESSAGE_DTYPE)
-        head["opcode"] = 0x05
-        head["length"] = 22 + lens
-        head["channel"] = channels
-        head["seq"] = seq
-        head["log_time"] = t_ns
-        head["publish_time"] = t_ns
-        hb = head.tobytes()
-        parts: list[bytes] = [b""] * (2 * m)
-        parts[0::2] = [hb[i : i + 31] for i in range(0, 31 * m, 31)]
-        parts[1::2] = datas
-        t_ns = np.asarray(t_ns, np.int64)
-        for channel in np.unique(channels).tolist():
-            rows = np.flatnonzero(channels == channel)
-            self.index[channel] = np.stack([t_ns[rows], starts[rows]], axis=1)
-            self.counts[channel] += len(rows)
-        self.parts = parts
-        self.size = total
-        self.chunk_t0 = int(t_ns.min())
-        self.chunk_t1 = int(t_ns.max())
-        self.flush_chunk()
-
-    def flush_chunk(self) -> None:
-        if not self.parts:
-            return
-        data = b"".join(self.parts)
-        packed = self.zstd.compress(data)
-        chunk = self.r.Chunk(
-            compression="zstd",
-            data=packed,
-            message_start_time=self.chunk_t0,
-            message_end_time=self.chunk_t1,
-            uncompressed_crc=zlib.crc32(data),
-            uncompressed_size=len(data),
-        )
-        start = self.pos
-        self._out(self._bytes(chunk))
-        length = self.pos - start
-        offsets: dict[int, int] = {}
-        index_start = self.pos
-        for channel, entries in self.index.items():
-            pairs = np.asarray(entries, dtype="<u8").tobytes()
-            offsets[channel] = self.pos
-            self._out(_INDEX_HEAD.pack(0x07, 6 + len(pairs), channel, len(pairs)) + pairs)
-        self.chunk_indexes.append(
-            self.r.ChunkIndex(
-                message_start_time=self.chunk_t0,
-                message_end_time=self.chunk_t1,
-                chunk_start_offset=start,
-                chunk_length=length,
-                message_index_offsets=offsets,
-                message_index_length=self.pos - index_start,
-                compression="zstd",
-                compressed_size=len(packed),
-                uncompressed_size=len(data),
-            )
-        )
-        self.t_start = self.chunk_t0 if self.t_start is None else min(self.t_start, self.chunk_t0)
-        self.t_end = max(self.t_end, self.chunk_t1)
-        self._reset_chunk()
-
-    def metadata(self, name: str, values: dict[str, str]) -> None:
-        self.flush_chunk()
-        start = self.pos
-        self._out(self._bytes(self.r.Metadata(name=name, metadata=values)))
-        self.metadata_indexes.append(self.r.MetadataIndex(offset=start, length=self.pos - start, name=name))
-
-    def finish(self) -> None:
-        self.flush_chunk()
-        r = self.r
-        self._out(self._bytes(r.DataEnd(data_section_crc=0)))
-        summary_start = self.pos
-        stats = r.Statistics(
-            message_count=sum(self.counts.values()),
-            schema_count=len(self.schemas),
-            channel_count=len(self.channels),
-            attachment_count=0,
-            metadata_count=len(self.metadata_indexes),
-            chunk_count=len(self.chunk_indexes),
-            message_start_time=self.t_start or 0,
-            message_end_time=self.t_end,
-            channel_message_counts=dict(self.counts),
-        )
-        offsets = []
-        op = self.opcode
-        for opcode, group in (
-            (op.SCHEMA, self.schemas),
-            (op.CHANNEL, self.channels),
-            (op.STATISTICS, [stats]),
-            (op.CHUNK_INDEX, self.chunk_indexes),
-            (op.METADATA_INDEX, self.metadata_indexes),
-        ):
-            if not group:
-                continue
-            start = self.pos
-            for rec in group:
-                self._out(self._bytes(rec))
-            offsets.append(r.SummaryOffset(group_opcode=opcode, group_start=start, group_length=self.pos - start))
-        summary_offset_start = self.pos
-        for rec in offsets:
-            self._out(self._bytes(rec))
-        self._out(
-            self._bytes(r.Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0))
-        )
-        self._out(MCAP_MAGIC)
+        for i, flags in enumerate(np.asarray(fc.fc_flags, np.int64).tolist())
+    )
+    return _row_messages(fc, bodies)
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:
@@ -641,21 +407,16 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
     own = isinstance(out, (str, Path))
     stream = open(out, "wb") if own else out
     try:
-        w = _Writer(stream, records)
-        schemas = {
-            "/attitude/transform": FRAME_TRANSFORM_SCHEMA,
-            "/attitude/pose": POSE_IN_FRAME_SCHEMA,
-            "/attitude": ATTITUDE_SCHEMA,
-            "/status": STATUS_SCHEMA,
-            "/flight_control": FLIGHT_CONTROL_SCHEMA,
-        }
+        w = McapWriter(stream, records)
         wanted = {"/attitude/transform", "/attitude/pose", "/attitude"}
         if len(tel.status):
             wanted.add("/status")
         if len(tel.fc):
             wanted.add("/flight_control")
         channel = {
-            topic: w.channel(topic, w.schema(TOPICS[topic][0], schemas[topic])) for topic in TOPICS if topic in wanted
+            topic: w.channel(topic, w.schema(TOPICS[topic][0], _TOPIC_SCHEMAS[topic][0]))
+            for topic in TOPICS
+            if topic in wanted
         }
         three = np.array([channel["/attitude/transform"], channel["/attitude/pose"], channel["/attitude"]], np.uint16)
         n = len(tel.attitude)

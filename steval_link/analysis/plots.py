@@ -40,7 +40,7 @@ _STYLE = {
     "mekf": ("tab:green", 1.0, "-.", 5),
     "vqf": ("tab:pink", 1.0, "-", 5),
 }
-#: Legend order: firmware and port first, then the estimators in this order.
+#: Legend order: firmware and replica first, then the estimators in this order.
 _ORDER = ["firmware (drone)", "ST-Mahony port (seeded)"]
 _EXTRA_COLOURS = ["tab:red", "tab:brown", "tab:olive", "tab:cyan"]
 #: Lines longer than this are reduced (min/max per bucket, so peaks stay visible).
@@ -120,8 +120,8 @@ def comparison_figure(tel, report, *, title: str | None = None):
     """Angles over time and differences per estimator, for a :class:`~steval_link.analysis.compare.ComparisonReport`.
 
     Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time with the firmware, the seeded
-    ST-Mahony port, the EKF(s) and accel-only tilt overlaid; below them firmware − port (degrees; bit-exact rows
-    marked, rows the port could not cover greyed) with the throttle. Spans at flight throttle (≥ MIN_THR, kp_flight)
+    ST-Mahony replica, the EKF(s) and accel-only tilt overlaid; below them firmware − replica (degrees; bit-exact rows
+    marked, rows the replica could not cover greyed) with the throttle. Spans at flight throttle (≥ MIN_THR, kp_flight)
     are shaded. Right: RMS and max |Δ| against the firmware per estimator, pitch and roll. Returns the
     matplotlib figure (Agg).
     """
@@ -138,12 +138,12 @@ def comparison_figure(tel, report, *, title: str | None = None):
         min_thr = fs["min_thr"]
 
     traces: list[tuple[str, str, dict[str, np.ndarray]]] = []
-    port_x = port_y = None
+    replica_x = replica_y = None
     if report.replay is not None:
-        port_x = np.full(n, np.nan)
-        port_y = np.full(n, np.nan)
-        port_x[report.port_rows] = np.degrees(report.replay.thx_rad.astype(np.float64))
-        port_y[report.port_rows] = np.degrees(report.replay.thy_rad.astype(np.float64))
+        replica_x = np.full(n, np.nan)
+        replica_y = np.full(n, np.nan)
+        replica_x[report.replica_rows] = np.degrees(report.replay.thx_rad.astype(np.float64))
+        replica_y[report.replica_rows] = np.degrees(report.replay.thy_rad.astype(np.float64))
     extra = iter(_EXTRA_COLOURS)
     for name, est in report.estimates.items():
         label = next((tr.label for tr in report.traces if tr.name == name), name)
@@ -170,10 +170,10 @@ def comparison_figure(tel, report, *, title: str | None = None):
             ax.plot(*_decimate(t, vals[key]), color=c, lw=lw, ls=ls, zorder=z, label=label)
         c, lw, ls, z = _STYLE["firmware"]
         ax.plot(*_decimate(t, fw[key]), color=c, lw=lw, ls=ls, zorder=z, label="firmware (drone)")
-        port = port_x if key == "pitch" else port_y
-        if port is not None:
+        replica = replica_x if key == "pitch" else replica_y
+        if replica is not None:
             c, lw, ls, z = _STYLE["port"]
-            ax.plot(*_decimate(t, port), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
+            ax.plot(*_decimate(t, replica), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
         nan_rows = ~np.isfinite(fw[key])
         if nan_rows.any():
             ax.plot(
@@ -219,18 +219,18 @@ def comparison_figure(tel, report, *, title: str | None = None):
     plt.setp(ax_p.get_xticklabels(), visible=False)
     plt.setp(ax_r.get_xticklabels(), visible=False)
 
-    # firmware − port
-    p = report.port
-    if port_x is not None:
-        dx = np.degrees(_wrap(np.radians(fw["pitch"] - port_x)))
-        dy = np.degrees(_wrap(np.radians(fw["roll"] - port_y)))
+    # firmware − replica
+    p = report.replica
+    if replica_x is not None:
+        dx = np.degrees(_wrap(np.radians(fw["pitch"] - replica_x)))
+        dy = np.degrees(_wrap(np.radians(fw["roll"] - replica_y)))
         ax_d.plot(*_decimate(t, dx), color="tab:blue", lw=0.9, label="pitch: firmware − port")
         ax_d.plot(*_decimate(t, dy), color="tab:red", lw=0.9, label="roll: firmware − port")
         covered = np.zeros(n, bool)
-        covered[report.port_rows] = report.replay.seeded
+        covered[report.replica_rows] = report.replay.seeded
         _spans(ax_d, t, ~covered, "port not seeded", color="lightgray", alpha=0.6)
         exact = np.zeros(n, bool)
-        exact[report.port_rows] = report.replay.bit_exact
+        exact[report.replica_rows] = report.replay.bit_exact
         if p.all_exact:
             ax_d.set_ylim(-1, 1)
             ax_d.text(
@@ -333,7 +333,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
         lines.append(f"kp {fs['kp_ground']:g}/{fs['kp_flight']:g}, ki {fs['ki']:g}, dt {fs['dt_s']:g} s")
     if report.firmware_nan_pitch or report.firmware_nan_roll:
         lines.append(f"firmware NaN: {report.firmware_nan_pitch} pitch, {report.firmware_nan_roll} roll steps")
-    div = report.port.divergence if report.port is not None else None
+    div = report.replica.divergence if report.replica is not None else None
     if div is not None:
         lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; port {div['port']}")
     wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]

@@ -10,12 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.estimators.st_mahony import (
-    FirmwareReplay,
-)
+from steval_link.estimators.firmware_replay import FirmwareReplay
 
-#: Trace name of the seeded port (``st-mahony`` is the registry estimator run from power-up, if requested).
-PORT_TRACE = "st-mahony-port"
+#: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
+REPLICA_TRACE = "st-mahony-port"
 
 
 TRACE_LABELS = {
@@ -72,11 +70,11 @@ class TraceComparison:
     """One estimator's angles against the firmware's.
 
     Attributes:
-        name: registry name (``st-mahony`` for the seeded port).
+        name: registry name (``st-mahony`` for the seeded replica).
         label: human-readable name.
         available: False when the estimator could not run here (``note`` says why); the stats are then empty.
         pitch: differences of thx (about x), degrees. roll: differences of thy (about y), degrees.
-        n_invalid: rows the estimator flagged invalid (or did not cover, e.g. port rows before a seed); excluded.
+        n_invalid: rows the estimator flagged invalid (or did not cover, e.g. replica rows before a seed); excluded.
         note: why it is unavailable, or a remark about the trace.
     """
 
@@ -101,21 +99,21 @@ class TraceComparison:
 
 
 @dataclass(frozen=True)
-class PortComparison:
-    """The bit-exact port against the firmware.
+class ReplicaComparison:
+    """The bit-exact replica against the firmware.
 
     Attributes:
-        rows: attitude rows considered (binary rows only). seeded: rows where the port had a known state.
+        rows: attitude rows considered (binary rows only). seeded: rows where the replica had a known state.
         bit_exact: seeded rows whose q, thx and thy carry the firmware's exact bits.
         seeds: every (re)start: ``{"row", "step", "source" ("power-up"|"status"), "status_row"}``.
         first_mismatch: ``{"row", "step", "t_fw_s", "t_rel_s"}`` of the first seeded row that differs, or None.
-        settings: the settings the port used (from the status frames, or overridden, or the defaults).
-        diagnosis: sentences saying why the port disagrees (empty when it agrees).
+        settings: the settings the replica used (from the status frames, or overridden, or the defaults).
+        diagnosis: sentences saying why the replica disagrees (empty when it agrees).
         matching_variant: the alternative settings that reproduce the firmware (dict of the changed fields), or None.
         matching_bit_exact: with ``matching_variant``, bit-exact rows over the whole capture.
         unseeded_reason: why no row could be seeded (None when some were).
         divergence: the first step where the firmware's q left the unit sphere or went non-finite, its inputs and
-            whether the port stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
+            whether the replica stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
     """
 
     rows: int
@@ -216,7 +214,7 @@ class RateStats:
 class ComparisonReport:
     """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json`` output).
 
-    The arrays behind the numbers (``t_rel_s``, the port replay, every estimator's estimate) are kept for plots
+    The arrays behind the numbers (``t_rel_s``, the replica replay, every estimator's estimate) are kept for plots
     (:func:`steval_link.analysis.plots.plot_comparison`) but are not part of ``as_dict()``.
     """
 
@@ -228,7 +226,7 @@ class ComparisonReport:
     firmware_nan_roll: int
     rates: RateStats
     filter_settings: dict[str, Any] | None
-    port: PortComparison | None
+    replica: ReplicaComparison | None
     traces: list[TraceComparison]
     notes: list[str] = field(default_factory=list)
     #: the rows kept with NaN or out-of-range values (:func:`steval_link.analysis.summary.values_bad_report`)
@@ -239,7 +237,7 @@ class ComparisonReport:
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
-    port_rows: np.ndarray | None = field(default=None, repr=False)
+    replica_rows: np.ndarray | None = field(default=None, repr=False)
     estimates: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def trace(self, name: str) -> TraceComparison | None:
@@ -252,7 +250,7 @@ class ComparisonReport:
             "firmware_nan_steps": {"pitch_thx": self.firmware_nan_pitch, "roll_thy": self.firmware_nan_roll},
             "rates": self.rates.as_dict(),
             "filter_settings": self.filter_settings,
-            "port": None if self.port is None else self.port.as_dict(),
+            "port": None if self.replica is None else self.replica.as_dict(),
             "traces": [t.as_dict() for t in self.traces],
             "notes": list(self.notes),
             "values_bad": self.values_bad,
@@ -335,7 +333,7 @@ def format_report(r: ComparisonReport) -> list[str]:
         lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
 
     lines.append("")
-    p = r.port
+    p = r.replica
     if p is None:
         lines.append(
             "ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "

@@ -4,10 +4,7 @@ what differs between them, each measured against its own accelerometer-only tilt
 * **Aligned** by firmware time from each capture's first frame (``align="time"``), or by motion
   (``align="motion"``): the gyro of each flight is cross-correlated with the first flight's and the lag found is
   taken off its times (hand-held or real flights that did not start together).
-* **Labelled** by what differs: the filter settings of the status frames (``ki``, ``kp_ground``, ``kp_flight``,
-  ``correction``, ``min_thr``, the normalisation variant, the build flags text mode and in-flight tuning), else the
-  capture headers (link, firmware ELF name, scenario, seed, port), else the file names: "ki 0.1" against
-  "ki 1, correction off".
+* **Labelled** by what differs (:mod:`steval_link.analysis.flight_labels`): "ki 0.1" against "ki 1, correction off".
 * **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
   accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
   :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (the mean error in the last still
@@ -17,7 +14,7 @@ what differs between them, each measured against its own accelerometer-only tilt
 * **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
   one, frames lost on the link, a truncated capture.
 
-A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony port's, run on its raw samples
+A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony replica's, run on its raw samples
 (dt from the ticks; :mod:`steval_link.analysis.ble`), and the notes say so.
 """
 
@@ -32,6 +29,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
+from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import angle_diff_rad, json_number
 from steval_link.estimators.accel_tilt import AccelTilt
@@ -50,7 +48,6 @@ __all__ = [
     "side_by_side",
     "still_mask",
     "motion_lag_s",
-    "labels_by_difference",
     "format_side_by_side",
 ]
 
@@ -68,51 +65,6 @@ DURATION_TOLERANCE_S = 1.0
 #: The motion alignment searches lags up to this fraction of the shorter flight.
 MAX_LAG_FRACTION = 0.5
 
-#: Settings in label order, with their defaults (a label names a differing setting where it is not the default).
-_SETTING_KEYS = (
-    "ki",
-    "correction",
-    "kp_ground",
-    "kp_flight",
-    "min_thr",
-    "dt_s",
-    "fresh_squares",
-    "text_mode",
-    "inflight_tuning",
-)
-_SETTING_WORDS = {
-    "ki": "ki",
-    "correction": "correction",
-    "kp_ground": "kp ground",
-    "kp_flight": "kp flight",
-    "min_thr": "min_thr",
-    "dt_s": "dt",
-    "fresh_squares": "fresh squares",
-    "text_mode": "text mode",
-    "inflight_tuning": "in-flight tuning",
-}
-_FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
-
-
-def _f32(x) -> float:
-    """A float32 setting as its shortest decimal (0.4, not 0.4000000059604645)."""
-    return float(str(np.float32(x)))
-
-
-def _defaults() -> dict[str, Any]:
-    d = MahonySettings()
-    return {
-        "ki": _f32(d.ki),
-        "correction": True,
-        "kp_ground": _f32(d.kp_ground),
-        "kp_flight": _f32(d.kp_flight),
-        "min_thr": int(d.min_thr),
-        "dt_s": _f32(d.dt_s),
-        "fresh_squares": False,
-        "text_mode": False,
-        "inflight_tuning": False,
-    }
-
 
 @dataclass
 class Flight:
@@ -120,15 +72,15 @@ class Flight:
 
     Attributes:
         path: the capture file. label: what the plot, the viewer and the JSON call it.
-        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE).
+        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE: the replica's).
         t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
         thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
         accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
         settings: the filter settings from the first status frame (None without status frames), with
             ``changes`` (changes announced during the capture) and ``from``.
-        facts: link, firmware, scenario, seed, port from the capture header (None where unknown).
+        facts: link, firmware, scenario, seed, serial port from the capture header (None where unknown).
         duration_s, rows, frames_lost, warnings (the reader's, e.g. a truncated capture), lag_s (motion alignment).
-        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the port's on BLE).
+        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the replica's on BLE).
     """
 
     path: Path
@@ -207,7 +159,7 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
         flags = int(s.flags[0])
         return {
             "from": "text-mode status lines",
-            "ki": _f32(s.ki[0]),
+            "ki": setting_f32(s.ki[0]),
             "correction": not flags & P.FLAG_NO_CORRECTION,
             "text_mode": True,
             "changes": int(np.count_nonzero(np.diff(np.asarray(s.ki, np.float32)) != 0)),
@@ -218,12 +170,12 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
     changes = int((filter_settings_report(tel) or {}).get("changes") or 0)
     return {
         "from": "status frames",
-        "ki": _f32(first.ki),
+        "ki": setting_f32(first.ki),
         "correction": bool(first.correction),
-        "kp_ground": _f32(first.kp_ground),
-        "kp_flight": _f32(first.kp_flight),
+        "kp_ground": setting_f32(first.kp_ground),
+        "kp_flight": setting_f32(first.kp_flight),
         "min_thr": int(first.min_thr),
-        "dt_s": _f32(first.dt_s),
+        "dt_s": setting_f32(first.dt_s),
         "fresh_squares": bool(first.fresh_squares),
         "text_mode": bool(flags & P.FLAG_TEXT_MODE),
         "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
@@ -248,51 +200,45 @@ def _facts(header: dict[str, Any] | None, kind: str) -> dict[str, Any]:
     }
 
 
-def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
-    """A serial capture (a decoded :class:`~steval_link.link.telemetry.Telemetry` with attitude rows)."""
-    a = tel.attitude
-    t = relative_time_s(a.step, a.t_fw_s)
-    lost = int(tel.stats.frames_missing)
+def _flight(path, kind: str, angles: str, t, angles_of, inputs, settings, facts, lost: int, warnings) -> Flight:
+    """A :class:`Flight` of times ``t``, thx/thy/q of ``angles_of`` and acc/gyro of ``inputs`` (array attributes)."""
     return Flight(
         path=Path(path),
         label="",
-        kind="serial",
-        angles="firmware",
+        kind=kind,
+        angles=angles,
         t_s=t,
-        thx_rad=np.asarray(a.thx_rad, np.float64),
-        thy_rad=np.asarray(a.thy_rad, np.float64),
-        acc_mg=np.asarray(a.acc_mg, np.float32),
-        gyro_mdps=np.asarray(a.gyro_mdps, np.float32),
-        q_wxyz=np.asarray(a.q_wxyz, np.float64),
-        settings=_settings_of_status(tel),
-        facts=_facts((tel.source or {}).get("header"), "serial"),
+        thx_rad=np.asarray(angles_of.thx_rad, np.float64),
+        thy_rad=np.asarray(angles_of.thy_rad, np.float64),
+        acc_mg=np.asarray(inputs.acc_mg, np.float32),
+        gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
+        q_wxyz=np.asarray(angles_of.q_wxyz, np.float64),
+        settings=settings,
+        facts=facts,
         duration_s=float(t[-1]) if len(t) else 0.0,
         frames_lost=lost,
         warnings=list(warnings),
     )
 
 
-def flight_of_ble(path, ble, inputs, port_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
+def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
+    """A serial capture (a decoded :class:`~steval_link.link.telemetry.Telemetry` with attitude rows)."""
+    a = tel.attitude
+    t = relative_time_s(a.step, a.t_fw_s)
+    facts = _facts((tel.source or {}).get("header"), "serial")
+    return _flight(
+        path, "serial", "firmware", t, a, a, _settings_of_status(tel), facts, int(tel.stats.frames_missing), warnings
+    )
+
+
+def flight_of_ble(path, ble, inputs, replica_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
     """A BLE capture: its uniform inputs (:func:`steval_link.link.ble_payloads.uniform_inputs`) and the
-    ST-Mahony port's estimate over them (no firmware angles are sent over BLE)."""
+    ST-Mahony replica's estimate over them (no firmware angles are sent over BLE)."""
     t = np.asarray(inputs.t_s, np.float64)
     t = t - t[0] if len(t) else t
-    return Flight(
-        path=Path(path),
-        label="",
-        kind="ble",
-        angles="st-mahony port",
-        t_s=t,
-        thx_rad=np.asarray(port_estimate.thx_rad, np.float64),
-        thy_rad=np.asarray(port_estimate.thy_rad, np.float64),
-        acc_mg=np.asarray(inputs.acc_mg, np.float32),
-        gyro_mdps=np.asarray(inputs.gyro_mdps, np.float32),
-        q_wxyz=np.asarray(port_estimate.q_wxyz, np.float64),
-        settings=None,
-        facts=_facts(header, "ble"),
-        duration_s=float(t[-1]) if len(t) else 0.0,
-        frames_lost=int(ble.dropped_estimate() or 0),
-        warnings=list(warnings),
+    lost = int(ble.dropped_estimate() or 0)
+    return _flight(
+        path, "ble", "st-mahony port", t, replica_estimate, inputs, None, _facts(header, "ble"), lost, warnings
     )
 
 
@@ -386,72 +332,6 @@ def motion_lag_s(
     x, y = a[i0:i1].ravel(), b[i0 + m : i1 + m].ravel()
     norm = math.sqrt(float(np.dot(x, x)) * float(np.dot(y, y))) if x.size else 0.0
     return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
-
-
-# -- labels ----------------------------------------------------------------------------------------------------
-
-
-def _word(key: str, value) -> str:
-    """How a setting reads in a label: "ki 1", "correction off", "binary", "fresh squares", ..."""
-    name = _SETTING_WORDS[key]
-    if key == "correction":
-        return f"correction {'on' if value else 'off'}"
-    if key == "text_mode":
-        return "text mode" if value else "binary"
-    if isinstance(value, bool):
-        return name if value else f"no {name}"
-    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
-
-
-def _fact_word(key: str, value) -> str:
-    """How a header fact reads in a label: "BLE", "firmware X.elf", "scenario demo", ..."""
-    if key == "link":
-        return "BLE" if value == "ble" else "serial"
-    return f"{key.replace('_path', '')} {value}"
-
-
-def labels_by_difference(flights: Sequence[Flight]) -> list[str]:
-    """A label per flight naming what differs between them: the settings first ("ki 0.1" against "ki 1,
-    correction off": a differing setting is named where it is not the default, and the first one where nothing
-    else would be), else the header facts (link, firmware, scenario, seed, port), else the file names. Labels
-    that still collide get their file name added."""
-    n = len(flights)
-    labels = [""] * n
-    known = [f.settings for f in flights]
-    defaults = _defaults()
-    if all(s is not None for s in known):
-        differing = [k for k in _SETTING_KEYS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
-        if differing:
-            for i, s in enumerate(known):
-                words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
-                labels[i] = ", ".join(words) or _word(differing[0], s.get(differing[0], defaults[differing[0]]))
-    if not all(labels):
-        facts = [f.facts for f in flights]
-        differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
-        if "firmware" in differing:  # the ELF names tell them apart; else the paths may (other build folders)
-            differing.remove("firmware_path")
-        words: list[list[str]] = [[] for _ in flights]
-        for k in differing:  # in order of priority, until the labels tell the flights apart
-            for i, x in enumerate(facts):
-                if x.get(k) is not None:
-                    words[i].append(_fact_word(k, x[k]))
-            if len({", ".join(w) for w in words}) == n:
-                break
-        for i in range(n):
-            if not labels[i]:
-                labels[i] = ", ".join(words[i])
-    for i, f in enumerate(flights):
-        if f.settings and f.settings.get("changes"):
-            labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
-    names = [f.path.name for f in flights]
-    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
-    labels = [
-        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
-        for i in range(n)
-    ]
-    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
-    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
-    return labels
 
 
 # -- mismatches ------------------------------------------------------------------------------------------------

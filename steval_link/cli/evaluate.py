@@ -14,9 +14,10 @@ from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
+from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
 from steval_link.emulation.elf import Elf
-from steval_link.emulation.sensor_model import AHRS_HZ, Lsm6dsl
+from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.errors import UserError
 from steval_link.estimators.plugins import split_list
 
@@ -151,10 +152,10 @@ def evaluate_command(
             if p.suffix == ".npz":
                 trial = fw.cut_trial(broad.load_trial(p), max_seconds)
                 if native:
-                    view = broad.native_view(trial)
+                    view = broad.own_rate_view(trial)
                 else:
                     view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
-                specs = ev.default_specs(view.rate_hz, native=native, only=only)
+                specs = ev.default_specs(view.rate_hz, own_rate=native, only=only)
                 res = ev.evaluate_view(view, specs, trial.name, progress)
                 for elf, label in zip(elfs, fw_labels):
                     start = done
@@ -166,7 +167,7 @@ def evaluate_command(
                     done += _FIRMWARE_WEIGHT
                 results.append(res)
             else:
-                specs = ev.default_specs(AHRS_HZ, only=only)
+                specs = ev.default_specs(AHRS_RATE_HZ, only=only)
                 results.append(ev.evaluate_capture(p, specs, progress=progress))
         if plot is not None:
             bar(1.0, f"plotting {plot.name}")

@@ -13,7 +13,7 @@ from steval_link.cli.checks import check_gain
 from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
-from steval_link.emulation.motion import SCENARIOS
+from steval_link.emulation.scenarios import SCENARIOS
 from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
 

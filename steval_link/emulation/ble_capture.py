@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from steval_link import constants as C
 from steval_link.emulation.bluenrg import EmulatedBlueNrg
-from steval_link.emulation.board import CPU_HZ
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.link.ble_payloads import CHAR_NAMES, ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
@@ -95,6 +95,6 @@ def record_ble(
         for _data, _t in emu.chunks():
             drain()
         drain()
-    rec.emulated_s = emu.board.now / CPU_HZ
+    rec.emulated_s = emu.board.now / C.CPU_HZ
     rec.updates, rec.refused = nrg.updates, nrg.refused
     return rec

@@ -22,7 +22,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from steval_link.emulation.board import CPU_HZ
+from steval_link import constants as C
 from steval_link.link.ble_payloads import CHAR_UUIDS, char_id_of_uuid
 from steval_link.link.ble_transport import BleDevice, BleError
 
@@ -87,7 +87,7 @@ class EmulatedBlueNrg:
         return h
 
     def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
-        t = board.now / CPU_HZ
+        t = board.now / C.CPU_HZ
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_SERV:
             return struct.pack("<BH", 0, self._alloc(16))
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_CHAR and len(params) >= 5:

@@ -20,9 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
+from steval_link.units import RAD_TO_MDPS
 
 __all__ = [
     "G_MPS2",
@@ -31,7 +33,8 @@ __all__ = [
     "load_trial",
     "trial_paths",
     "steval_view",
-    "native_view",
+    "own_rate_view",
+    "truth_at_trial_time",
     "inclination_error_rad",
     "heading_error_rad",
     "rmse_deg",
@@ -40,7 +43,6 @@ __all__ = [
 #: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
 #: local gravity in Berlin is 9.813), so 9.81 is the right scale to within the sensors' own 0.6 % spread.
 G_MPS2 = 9.81
-_RAD_TO_MDPS = 180.0 / np.pi * 1000.0
 _KEYS = ("acc", "gyr", "quat", "movement", "fs")
 
 
@@ -77,7 +79,7 @@ class BroadTrial:
     @property
     def gyro_mdps(self) -> np.ndarray:
         """(N, 3) gyro in mdps."""
-        return self.gyr_radps * _RAD_TO_MDPS
+        return self.gyr_radps * RAD_TO_MDPS
 
 
 def load_trial(path) -> BroadTrial:
@@ -183,11 +185,19 @@ class SteValView:
     rate_hz: float
 
 
-def _truth_at(trial: BroadTrial, t_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t = trial.t_s
-    q = interpolate_quat(t, trial.quat_wxyz, t_new)
-    idx = np.clip(np.rint(t_new * trial.fs_hz).astype(np.int64), 0, len(t) - 1)
-    return q, trial.movement[idx]
+def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
+    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
+    interpolated, movement at the nearest sample; NaN / False outside the trial."""
+    t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
+    t_end = float(trial.t_s[-1])
+    inside = (t >= 0.0) & (t <= t_end)
+    q = np.full((t.shape[0], 4), np.nan)
+    mov = np.zeros(t.shape[0], dtype=bool)
+    if inside.any():
+        q[inside] = interpolate_quat(trial.t_s, trial.quat_wxyz, t[inside])
+        idx = np.clip(np.rint(t[inside] * trial.fs_hz).astype(np.int64), 0, len(trial.t_s) - 1)
+        mov[inside] = trial.movement[idx]
+    return q, mov
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
@@ -212,12 +222,12 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
         out = sm.run_isr(acc_r, gyro_r)
     except ValueError as exc:
         raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
-    t_step = t_tick[out.step_tick - (sm.FIFO_ORDER // 2)]
-    q, mov = _truth_at(trial, t_step)
-    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, sm.AHRS_HZ)
+    t_step = t_tick[out.step_tick - (C.FIFO_ORDER // 2)]
+    q, mov = truth_at_trial_time(trial, t_step)
+    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, C.AHRS_RATE_HZ)
 
 
-def native_view(trial: BroadTrial) -> SteValView:
+def own_rate_view(trial: BroadTrial) -> SteValView:
     """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
     return SteValView(
         trial.acc_mg.astype(np.float32),

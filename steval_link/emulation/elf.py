@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,8 +80,6 @@ class Elf:
 
     def func_at(self, pc: int) -> str:
         """``name+0xoff`` of the function containing pc (or ``?``)."""
-        import bisect
-
         i = bisect.bisect_right(self._func_starts, pc & ~1) - 1
         if i >= 0:
             f = self._funcs[i]

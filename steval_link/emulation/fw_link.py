@@ -40,7 +40,6 @@ __all__ = [
     "step_timing",
 ]
 
-CPU_HZ = C.CPU_HZ
 #: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
 #: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
 #: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
@@ -58,7 +57,7 @@ FW_VERSION = (2, 0)
 #: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under
 #: emulation (stv_fw_init → HAL_TIM_Base_Start_IT: 84 007 128 cycles); the first attitude frame then comes at
 #: t_us ≈ 2.985 s, as the emulated firmware's does.
-TIM9_START_CYCLES = 84_007_128 - 104_000
+TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
 
@@ -98,14 +97,14 @@ def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
         (1026.0, "Config  Service W2ST added successfully"),
     ]
     jitter = rng.uniform(0.0, 0.03, len(ms))
-    return [(int((t + j) * CPU_HZ / 1000), text) for (t, text), j in zip(ms, jitter)]
+    return [(int((t + j) * C.CPU_HZ / 1000), text) for (t, text), j in zip(ms, jitter)]
 
 
 class TxQueue:
     """The patch's TX ring buffer drained by USART1 at ``baud`` (10 bit times per byte), in cycle time."""
 
     def __init__(self, baud: int) -> None:
-        self.tau = 10.0 * CPU_HZ / baud  # cycles per byte
+        self.tau = 10.0 * C.CPU_HZ / baud  # cycles per byte
         self.busy_until = 0.0  # cycle time the last queued byte has been shifted out
         self.dropped = 0
         self.peak = 0
@@ -272,7 +271,7 @@ class LinkEmulation:
         rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
         rec["cyc_min"], rec["cyc_mean"], rec["cyc_max"] = self.cyc_min, self.cyc_sum // self.cyc_n, self.cyc_max
         rec["cyc_n"] = min(self.cyc_n, 0xFFFF)
-        rec["cpu_hz"] = CPU_HZ
+        rec["cpu_hz"] = C.CPU_HZ
         rec["tx_dropped"] = self.txq.dropped
         rec["baud"] = self.baud
         rec["min_thr"] = s.min_thr

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
@@ -30,10 +31,8 @@ __all__ = [
 BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)
 #: LSM6DSL typical noise (Lab 5 appendix B): gyro 75 mdps, accelerometer (±4 g range) 2 mg, standard deviations
-TYPICAL_GYRO_NOISE_MDPS = 75.0
-TYPICAL_ACC_NOISE_MG = 2.0
-#: the firmware's assumed AHRS period, s (used for the time axis when an estimator does not say)
-DEFAULT_DT_S = C.DT_S
+TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps
+TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 
 
 @dataclass(frozen=True)
@@ -157,7 +156,7 @@ def run_simulation(
     else:
         eaz = np.asarray(res.thz_rad)  # NaN where the estimator has no yaw (e.g. accelerometer-only tilt)
         settings = {}
-        dt_s = float(getattr(est, "dt_s", DEFAULT_DT_S))
+        dt_s = float(getattr(est, "dt_s", C.DT_S))
     return SimulationResult(
         estimator=estimator,
         options=options,

@@ -17,8 +17,6 @@ from steval_link.link import protocol as P
 
 __all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "payload_records", "score"]
 
-PERIOD_US = 1e6 / C.AHRS_RATE_HZ
-
 
 @dataclass
 class DamageCounts:
@@ -85,7 +83,7 @@ def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int 
         a = att.copy()
         shift = r * n
         a["seq"] = (a["seq"].astype(np.int64) + shift) % P.SEQ_MODULUS
-        a["t_us"] = (a["t_us"].astype(np.int64) + int(round(shift * PERIOD_US))) % P.T_US_MODULUS
+        a["t_us"] = (a["t_us"].astype(np.int64) + int(round(shift * C.AHRS_PERIOD_US))) % P.T_US_MODULUS
         block = P.encode_attitude_block(a)
         fs = P.ATTITUDE_FRAME_SIZE
         for i in range(n):
@@ -95,7 +93,7 @@ def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int 
             if s is not None:
                 s2 = s.copy()
                 s2["step"] = (int(s["step"]) + shift) % (1 << 32)
-                s2["t_us"] = (int(s["t_us"]) + int(round(shift * PERIOD_US))) % P.T_US_MODULUS
+                s2["t_us"] = (int(s["t_us"]) + int(round(shift * C.AHRS_PERIOD_US))) % P.T_US_MODULUS
                 out += P.encode_frame(P.TYPE_STATUS, s2.tobytes())
                 payloads.append(s2.tobytes())
     return bytes(out), payloads

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import queue
+import shlex
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,18 +48,19 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.board import CPU_HZ, Board, EmulationError, FirmwareStuck
+from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
+from steval_link.emulation.scenarios import scenario
+from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import UserError
 
-__all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "TICK_S", "MOUNTS", "joydata_bytes"]
+__all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUNTS", "joydata_bytes"]
 
 #: motion is rendered this many seconds at a time
 WINDOW_S = 10.0
-TICK_CYCLES = C.TICK_CYCLES
-TICK_S = TICK_CYCLES / CPU_HZ
+_WINDOW_TICKS = int(round(WINDOW_S / C.TICK_PERIOD_S))
 #: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
 WATCHDOG_S = 6.0
 
@@ -82,8 +84,6 @@ class EmulationOptions:
 
     def command(self, duration_s: float | None = None) -> str:
         """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
-        import shlex
-
         parts = ["steval", "emulate", str(self.elf)]
         parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
         d = self.duration_s if duration_s is None else duration_s
@@ -126,14 +126,11 @@ class ScenarioMotion:
         self.trial = trial
         self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
         # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
-        root = np.random.SeedSequence([int(seed), 0x5EA1])
-        r_motion, r_sensor = (np.random.default_rng(q) for q in root.spawn(7)[:2])
+        streams = random_streams(seed)
         if trial is None:
-            sc = M.SCENARIOS.get(name)
-            if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} (or --broad TRIAL.npz)")
+            sc = scenario(name, "or --broad TRIAL.npz")
             try:
-                self._kin = sc.build(total_s, r_motion)
+                self._kin = sc.build(total_s, streams.motion)
             except ValueError:  # its moves do not fit in so short a run
                 raise UserError(
                     f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
@@ -141,10 +138,7 @@ class ScenarioMotion:
                 ) from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
-        self.acc_bias_mg = r_sensor.normal(0.0, 12.0, 3)
-        self.gyro_bias_mdps = r_sensor.normal(0.0, 600.0, 3)
-        self.acc_noise_mg = sm.Lsm6dsl().acc_noise_mg
-        self.gyro_noise_mdps = sm.Lsm6dsl().gyro_noise_mdps
+        self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
         #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
         self._rendered = self._previous = None
@@ -152,9 +146,9 @@ class ScenarioMotion:
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
     def _render(self, w: int) -> None:
-        n = int(round(WINDOW_S / TICK_S))
+        n = _WINDOW_TICKS
         k0 = w * n
-        t = (k0 + np.arange(n)) * TICK_S
+        t = (k0 + np.arange(n)) * C.TICK_PERIOD_S
         rng = np.random.default_rng([self.seed, 3, w])
         if self.trial is not None:
             t0 = self.first_tick_s if self.first_tick_s is not None else 1.0
@@ -162,11 +156,13 @@ class ScenarioMotion:
             prof = M.broad_profile(self.trial, t0 + rel, t0, self._thr_fn)
             acc, gyro = prof.acc_mg, prof.gyro_mdps
         else:
-            prof = M._render(self.name, self._kin, t, rng, self._thr_fn)
-            acc = prof.acc_mg + self.acc_bias_mg + self.acc_noise_mg * rng.standard_normal((n, 3))
-            hold = np.floor(t * sm.GYRO_ODR_HZ + 1e-9).astype(np.int64)
+            prof = M.render(self.name, self._kin, t, rng, self._thr_fn)
+            s = self.sensor
+            acc = prof.acc_mg + np.asarray(s.acc_bias_mg) + s.acc_noise_mg * rng.standard_normal((n, 3))
+            hold = sm.gyro_hold_index(t)
             u, inv = np.unique(hold, return_inverse=True)
-            gyro = prof.gyro_mdps + self.gyro_bias_mdps + self.gyro_noise_mdps * rng.standard_normal((len(u), 3))[inv]
+            noise = rng.standard_normal((len(u), 3))[inv]
+            gyro = prof.gyro_mdps + np.asarray(s.gyro_bias_mdps) + s.gyro_noise_mdps * noise
         if self._mount is not None:
             acc, gyro = acc @ self._mount.T, gyro @ self._mount.T
         self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
@@ -185,8 +181,7 @@ class ScenarioMotion:
         self._rendered = self._previous = None
 
     def _at(self, k: int) -> int:
-        n = int(round(WINDOW_S / TICK_S))
-        w = max(k, 0) // n
+        w = max(k, 0) // _WINDOW_TICKS
         if w != self._window:
             if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
                 self._previous, self._rendered = self._rendered, self._previous
@@ -284,7 +279,7 @@ class Emulation:
         before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
         stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""
         self.options = options
-        self._connect_at = None if ble_connect_s is None else int(ble_connect_s * CPU_HZ)
+        self._connect_at = None if ble_connect_s is None else int(ble_connect_s * C.CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
             raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
         self.elf = Elf(options.elf)
@@ -302,10 +297,7 @@ class Emulation:
             default = float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
-            sc = M.SCENARIOS.get(name)
-            if sc is None:
-                raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(M.SCENARIOS)} (or --broad TRIAL.npz)")
-            default = sc.default_duration_s
+            default = scenario(name, "or --broad TRIAL.npz").default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)
@@ -349,7 +341,7 @@ class Emulation:
             return
         if not math.isfinite(t_s) or t_s < 0:
             raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
-        t = max(int(round(t_s * CPU_HZ)), self.board.now)
+        t = max(int(round(t_s * C.CPU_HZ)), self.board.now)
         self.board.usart1.inject(bytes(data), t)
         self._host_order += 1
         self._host_sched.append((t, self._host_order, bytes(data)))
@@ -371,16 +363,16 @@ class Emulation:
                 data = self._live_tx.get_nowait()
             except queue.Empty:
                 break
-            self.send_at(data, self.board.now / CPU_HZ)
+            self.send_at(data, self.board.now / C.CPU_HZ)
         now = self.board.now
         while self._host_sched and self._host_sched[0][0] <= now:
             t, _, data = self._host_sched.pop(0)
-            self._host_sent.append((data, t / CPU_HZ))
+            self._host_sent.append((data, t / C.CPU_HZ))
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
         if self.motion.trial is not None and self.motion.first_tick_s is None:
-            self.motion.first_tick_s = board.now / CPU_HZ
+            self.motion.first_tick_s = board.now / C.CPU_HZ
             self.motion.forget()  # render again with trial time 0 at this tick
         if self._joy is not None:
             k = self.bus.tick_index(board) + 1
@@ -417,7 +409,7 @@ class Emulation:
         self._step_start = (board.instructions_now(), board.exception_instructions)
         self._cyc_start = board.scs.cyccnt()
         if self._first_step_s is None:
-            self._first_step_s = board.now / CPU_HZ
+            self._first_step_s = board.now / C.CPU_HZ
         for ob in self.step_start_observers:
             ob(board)
 
@@ -445,24 +437,24 @@ class Emulation:
         if first is None:
             raise ValueError("TIM9 has not started")
         k0 = self.bus.tick_index_of_update(1)
-        return (first + (np.asarray(k) - k0) * TICK_CYCLES) / CPU_HZ
+        return (first + (np.asarray(k) - k0) * C.TICK_CYCLES) / C.CPU_HZ
 
     def trial_time_s(self, k) -> np.ndarray | float:
-        """BROAD runs: trial time (s) of the sample the sensors hold at motion tick ``k``: ``k · TICK_S`` minus the
-        first TIM9 tick's emulated time. Not clipped (the sensors hold the trial's first sample before 0 and its last
-        after its end), so a caller can tell the ticks outside the trial."""
+        """BROAD runs: trial time (s) of the sample the sensors hold at motion tick ``k``: ``k · TICK_PERIOD_S`` minus
+        the first TIM9 tick's emulated time. Not clipped (the sensors hold the trial's first sample before 0 and its
+        last after its end), so a caller can tell the ticks outside the trial."""
         if self.motion.first_tick_s is None:
             raise ValueError("TIM9 has not started")
-        return np.asarray(k) * TICK_S - self.motion.first_tick_s
+        return np.asarray(k) * C.TICK_PERIOD_S - self.motion.first_tick_s
 
     # -- running
     def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:
         """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
         b = self.board
-        end = int(round(self.duration_s * CPU_HZ))
+        end = int(round(self.duration_s * C.CPU_HZ))
         last_byte_t = 0
         last_steps, last_progress_t = 0, 0
-        slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * CPU_HZ)
+        slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
         while b.now < end:
             self._host_progress()
             b.run_until(min(end, b.now + slice_cycles))
@@ -471,15 +463,15 @@ class Emulation:
             if data:
                 last_byte_t = last_t
                 if self._first_byte_s is None:
-                    self._first_byte_s = first_t / CPU_HZ
+                    self._first_byte_s = first_t / C.CPU_HZ
                 self._bytes += len(data)
-                yield data, last_byte_t / CPU_HZ
+                yield data, last_byte_t / C.CPU_HZ
             if self.n_steps != last_steps:
                 last_steps, last_progress_t = self.n_steps, b.now
-            if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * CPU_HZ:
+            if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * C.CPU_HZ:
                 raise FirmwareStuck(
                     f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time "
-                    f"(t = {b.now / CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})"
+                    f"(t = {b.now / C.CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})"
                 )
 
     def run(self) -> bytes:
@@ -497,14 +489,14 @@ class Emulation:
         tim9 = b.tim9.first_update
         return EmulationReport(
             elf=str(self.elf.path),
-            emulated_s=b.now / CPU_HZ,
+            emulated_s=b.now / C.CPU_HZ,
             instructions=b.stats.instructions,
             skipped_instructions=b.stats.skipped_instructions,
             interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
             usart_bytes=self._bytes,
             first_byte_s=self._first_byte_s,
             first_attitude_s=self._first_step_s,
-            tim9_start_s=None if tim9 is None else tim9 / CPU_HZ,
+            tim9_start_s=None if tim9 is None else tim9 / C.CPU_HZ,
             ahrs_steps=self.n_steps,
             step_instructions=list(self._steps),
             dwt_windows=list(self._dwt),

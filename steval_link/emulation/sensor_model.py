@@ -5,7 +5,7 @@ The chain the drone runs, and the functions here that model each link:
 1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise_acc_mg`, :func:`quantise_gyro_mdps`): true motion + bias + white
    noise → ADC counts (round, saturate at int16) → the ST driver's ``(int32_t)(raw * sensitivity)`` (float32
    product truncated toward zero): integer mg (0.122 mg/LSB, ±4 g) and integer mdps (70 mdps/LSB, ±2000 dps).
-2. TIM9 ISR at :data:`TICK_HZ` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
+2. TIM9 ISR at ``constants.ISR_RATE_HZ`` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
    - power-up calibration (:func:`calibrate_offsets`): ticks 1–800 ignored, ticks 801–1600 summed (int32),
      offset = ``(int32_t)(sum * 0.00125f)``; the ISR that finishes the calibration also runs the pipeline, so the
      first pipeline sample is the 1600th tick (index 1599);
@@ -15,7 +15,7 @@ The chain the drone runs, and the functions here that model each link:
      right in float32 as ``b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (state starts at 0 after calibration);
    - the acc sample (unfiltered) and the IIR output go to 5-sample FIFOs; every 5th tick they are copied for the
      main loop.
-3. Main loop every 5th tick (:data:`AHRS_HZ` ≈ 161.54 Hz, :func:`fifo_average`): float32 sum of the 5 FIFO
+3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz, :func:`fifo_average`): float32 sum of the 5 FIFO
    entries starting from 0, then ``*= (1.0/5)`` in double, stored back to float32 → ``acc_ahrs`` (mg),
    ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
@@ -34,14 +34,16 @@ import numpy as np
 from steval_link import constants as C
 
 __all__ = [
-    "TICK_HZ",
-    "AHRS_HZ",
-    "FIFO_ORDER",
     "CALIBRATION_SKIP_TICKS",
     "CALIBRATION_TICKS",
     "GyroIirCoeffs",
     "GYRO_IIR",
     "GYRO_ODR_HZ",
+    "gyro_hold_index",
+    "gyro_hold_times_s",
+    "ACC_BIAS_SIGMA_MG",
+    "GYRO_BIAS_SIGMA_MDPS",
+    "seeded_lsm6dsl",
     "ACC_ODR_HZ",
     "IirState",
     "Lsm6dsl",
@@ -63,26 +65,29 @@ __all__ = [
 
 _F32 = np.float32
 
-#: TIM9 interrupt rate, Hz, and the AHRS step rate (every ``FIFO_ORDER``-th tick): :mod:`steval_link.constants`
-TICK_HZ: float = C.ISR_RATE_HZ
-FIFO_ORDER: int = C.FIFO_ORDER
-AHRS_HZ: float = C.AHRS_RATE_HZ
 #: ticks ignored after power-up before the offset calibration starts
 CALIBRATION_SKIP_TICKS: int = 800
 #: ticks summed for the offset calibration
 CALIBRATION_TICKS: int = 800
-#: ``PID_SAMPLING_TIME``: the ISR integrates yaw with this dt, s (float32)
-ISR_DT_S = _F32(0.00125)
-#: ``COE_MDPS_TO_RADPS`` as the firmware casts it, float32
-MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
-#: ``MIN_THR``: below this throttle the ISR resets the integrated yaw
-MIN_THR: int = C.MIN_THR
 
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
 GYRO_ODR_HZ: float = 416.0
 #: accelerometer output data rate (6.66 kHz): effectively a fresh sample every tick
 ACC_ODR_HZ: float = 6660.0
+
+
+def gyro_hold_index(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
+    """(N,) int64 index of the output-register sample each time ``t_s`` (s) reads: ``floor((t − t0) · odr)``
+    (sample-and-hold at ``odr_hz``, counted from ``t0_s``; 1e-9 guards ticks that land on a refresh)."""
+    return np.floor((np.asarray(t_s, dtype=np.float64) - t0_s) * odr_hz + 1e-9).astype(np.int64)
+
+
+def gyro_hold_times_s(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
+    """(N,) float64 time, s, at which the output register that each time ``t_s`` reads was refreshed:
+    ``t0 + floor((t − t0) · odr) / odr`` (the 416 Hz sample-and-hold of :func:`gyro_hold_index`)."""
+    return t0_s + gyro_hold_index(t_s, t0_s, odr_hz) / odr_hz
+
 
 #: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
 ACC_SENSITIVITY_MG = 0.122
@@ -127,10 +132,12 @@ def noise_rms_from_density(density_per_rthz: float, bandwidth_hz: float) -> floa
     return float(density_per_rthz) * float(np.sqrt(bandwidth_hz))
 
 
-def _driver_scale(raw: np.ndarray, sensitivity: float) -> np.ndarray:
-    """The ST driver's ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
-    prod = raw.astype(_F32) * _F32(sensitivity)
-    return np.trunc(prod).astype(np.int32)
+def _adc_and_driver(value, sensitivity: float) -> np.ndarray:
+    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0), then the ST driver's
+    ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
+    x = np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)
+    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
+    return np.trunc(raw.astype(_F32) * _F32(sensitivity)).astype(np.int32)
 
 
 def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.ndarray:
@@ -139,16 +146,12 @@ def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.nd
     ADC: ``raw = round(acc / sensitivity)`` saturated to int16 (±4 g → ±3997.7 mg at 0.122 mg/LSB); driver:
     ``(int32_t)(raw * 0.122f)``. NaN input reads as 0.
     """
-    x = np.nan_to_num(np.asarray(acc_mg, dtype=np.float64) / sensitivity_mg)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return _driver_scale(raw, sensitivity_mg)
+    return _adc_and_driver(acc_mg, sensitivity_mg)
 
 
 def quantise_gyro_mdps(gyro_mdps, sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS) -> np.ndarray:
     """What the driver returns for a physical rate: int32 mdps (N, 3), 70 mdps/LSB, saturated at int16 (±2293 dps)."""
-    x = np.nan_to_num(np.asarray(gyro_mdps, dtype=np.float64) / sensitivity_mdps)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return _driver_scale(raw, sensitivity_mdps)
+    return _adc_and_driver(gyro_mdps, sensitivity_mdps)
 
 
 @dataclass(frozen=True)
@@ -204,7 +207,7 @@ class Lsm6dsl:
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
         if t_tick_s is not None and gyro_odr_hz:
             t = np.asarray(t_tick_s, dtype=np.float64)
-            idx = np.floor((t - t[0]) * gyro_odr_hz + 1e-9).astype(np.int64) if t.size else np.zeros(0, np.int64)
+            idx = gyro_hold_index(t, t[0], gyro_odr_hz) if t.size else np.zeros(0, np.int64)
             noise = rng.standard_normal((int(idx[-1]) + 1 if idx.size else 0, 3))[idx]
         else:
             noise = rng.standard_normal(gyro.shape)
@@ -213,6 +216,20 @@ class Lsm6dsl:
             quantise_acc_mg(acc_meas, self.acc_sensitivity_mg),
             quantise_gyro_mdps(gyro_meas, self.gyro_sensitivity_mdps),
         )
+
+
+#: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
+#: well inside the datasheet's ±40 mg / ±2 dps
+ACC_BIAS_SIGMA_MG: float = 12.0
+GYRO_BIAS_SIGMA_MDPS: float = 600.0
+
+
+def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
+    """The LSM6DSL of a seed's sensor stream: acc offsets drawn first, then gyro offsets; default noise."""
+    return Lsm6dsl(
+        acc_bias_mg=tuple(float(v) for v in rng.normal(0.0, ACC_BIAS_SIGMA_MG, 3)),
+        gyro_bias_mdps=tuple(float(v) for v in rng.normal(0.0, GYRO_BIAS_SIGMA_MDPS, 3)),
+    )
 
 
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
@@ -231,7 +248,7 @@ def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
 def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[np.ndarray, np.ndarray]:
     """Offset removal of the ISR (int32): ``acc − off`` with z keeping 1000 mg (``acc_z − (off_z − 1000)``)."""
     acc_off = np.asarray(acc_offset_mg, dtype=np.int32).copy()
-    acc_off[2] -= 1000
+    acc_off[2] -= C.ACC_Z_KEPT_MG
     acc = np.asarray(acc_mg, dtype=np.int32) - acc_off
     gyro = np.asarray(gyro_mdps, dtype=np.int32) - np.asarray(gyro_offset_mdps, dtype=np.int32)
     return acc.astype(np.int32), gyro.astype(np.int32)
@@ -271,7 +288,7 @@ def gyro_iir(gyro_mdps, state: IirState | None = None, coeffs: GyroIirCoeffs = G
     return y[2:]
 
 
-def iir_frequency_response(freq_hz, fs_hz: float = TICK_HZ, coeffs: GyroIirCoeffs = GYRO_IIR):
+def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ, coeffs: GyroIirCoeffs = GYRO_IIR):
     """Complex frequency response H(f) of the gyro IIR at ``fs_hz`` (ISR rate by default).
 
     Returns ``(H, gain_db, phase_rad, group_delay_s)`` for the frequencies ``freq_hz`` (array-like, Hz), from the
@@ -308,7 +325,7 @@ def fifo_average(fifo) -> np.ndarray:
     s = np.zeros((f.shape[0], f.shape[2]), dtype=_F32)
     for i in range(f.shape[1]):
         s = s + f[:, i, :]
-    return (s.astype(np.float64) * (1.0 / FIFO_ORDER)).astype(_F32)
+    return (s.astype(np.float64) * (1.0 / C.FIFO_ORDER)).astype(_F32)
 
 
 @dataclass(frozen=True)
@@ -363,20 +380,21 @@ def run_isr(
     if calibrate:
         end = CALIBRATION_SKIP_TICKS + CALIBRATION_TICKS
         if acc.shape[0] < end:
-            raise ValueError(f"calibration needs {end} ticks ({end / TICK_HZ:.2f} s), got {acc.shape[0]}")
+            raise ValueError(f"calibration needs {end} ticks ({end / C.ISR_RATE_HZ:.2f} s), got {acc.shape[0]}")
         acc_off, gyro_off = calibrate_offsets(acc[CALIBRATION_SKIP_TICKS:end], gyro[CALIBRATION_SKIP_TICKS:end])
         first = end - 1  # the calibrating ISR call also runs the pipeline on a fresh read
     else:
-        acc_off = np.array([0, 0, 1000] if acc_offset_mg is None else acc_offset_mg, dtype=np.int32)
+        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG] if acc_offset_mg is None else acc_offset_mg, dtype=np.int32)
         gyro_off = np.array([0, 0, 0] if gyro_offset_mdps is None else gyro_offset_mdps, dtype=np.int32)
         first = 0
     acc_c, gyro_c = remove_offsets(acc[first:], gyro[first:], acc_off, gyro_off)
     gyro_fil = gyro_iir(gyro_c, iir_state)
-    m = acc_c.shape[0] // FIFO_ORDER
-    n = m * FIFO_ORDER
-    acc_ahrs = fifo_average(acc_c[:n].astype(_F32).reshape(m, FIFO_ORDER, 3))
-    gyro_ahrs = fifo_average(gyro_fil[:n].reshape(m, FIFO_ORDER, 3))
-    step_tick = first + FIFO_ORDER * np.arange(m, dtype=np.int64) + (FIFO_ORDER - 1)
+    fifo = C.FIFO_ORDER
+    m = acc_c.shape[0] // fifo
+    n = m * fifo
+    acc_ahrs = fifo_average(acc_c[:n].astype(_F32).reshape(m, fifo, 3))
+    gyro_ahrs = fifo_average(gyro_fil[:n].reshape(m, fifo, 3))
+    step_tick = first + fifo * np.arange(m, dtype=np.int64) + (fifo - 1)
     return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
 
 
@@ -401,10 +419,10 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     throttle ``thr`` (per tick, or a scalar; None = 0) is below MIN_THR (200).
     """
     gz = np.asarray(gyro_fil_z_mdps, dtype=_F32)
-    inc = (gz * MDPS_TO_RADPS_F32) * ISR_DT_S
+    inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
     out = np.zeros(gz.shape[0], dtype=_F32)
-    low = thr_arr < MIN_THR
+    low = thr_arr < C.MIN_THR
     # integrate each run of ticks at flight throttle from 0, sequentially in float32 (cumsum is sequential)
     start = 0
     n = gz.shape[0]
@@ -421,7 +439,9 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     return out
 
 
-def resample_to_tick(t_s, signal, rate_hz: float = TICK_HZ, t0_s: float | None = None, hold_hz: float | None = None):
+def resample_to_tick(
+    t_s, signal, rate_hz: float = C.ISR_RATE_HZ, t0_s: float | None = None, hold_hz: float | None = None
+):
     """Linear interpolation of ``signal`` (N,) or (N, K) sampled at times ``t_s`` onto a uniform grid.
 
     Returns ``(t_tick_s, signal_tick)``: ticks at ``t0_s + k / rate_hz`` (t0 defaults to ``t_s[0]``) up to
@@ -438,7 +458,7 @@ def resample_to_tick(t_s, signal, rate_hz: float = TICK_HZ, t0_s: float | None =
     t0 = t[0] if t0_s is None else float(t0_s)
     n = int(np.floor((t[-1] - t0) * rate_hz + 1e-9)) + 1
     t_tick = t0 + np.arange(max(n, 0)) / rate_hz
-    tt = t_tick if hold_hz is None else t0 + np.floor((t_tick - t0) * hold_hz + 1e-9) / hold_hz
+    tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t0, hold_hz)
     if x.ndim == 1:
         return t_tick, np.interp(tt, t, x)
     flat = x.reshape(x.shape[0], -1)

@@ -173,8 +173,6 @@ class SensorBus:
         log_limit: keep at most this many served LSM6DSL samples in :attr:`served` (for tests; 0 = none).
     """
 
-    TICK_CYCLES = C.TICK_CYCLES
-
     def __init__(self, motion: MotionSource, *, log_limit: int = 0) -> None:
         self.motion = motion
         self.devices = {LSM6DSL: _Lsm6dsl(), LIS2MDL: _Lis2mdl(), LPS22HB: _Lps22hb()}
@@ -189,9 +187,9 @@ class SensorBus:
     def tick_index(self, board) -> int:
         tim = board.tim9
         if tim.first_update is None:
-            return board.now // self.TICK_CYCLES
+            return board.now // C.TICK_CYCLES
         if self._tick_offset is None:
-            self._tick_offset = -(-tim.first_update // self.TICK_CYCLES)  # first update → its own tick index
+            self._tick_offset = -(-tim.first_update // C.TICK_CYCLES)  # first update → its own tick index
         return self._tick_offset + tim.updates - 1
 
     def tick_index_of_update(self, update: int) -> int:

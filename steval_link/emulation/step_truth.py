@@ -26,12 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from steval_link import constants as C
 from steval_link.emulation import broad
-from steval_link.emulation.broad import BroadTrial
-from steval_link.emulation.sensor_model import FIFO_ORDER
-from steval_link.quat import interpolate_quat, quaternion_from_euler
+from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
+from steval_link.quat import quaternion_from_euler
 
-__all__ = ["TruthRows", "StepTruth", "truth_at_trial_time", "score_euler"]
+__all__ = ["TruthRows", "StepTruth", "score_euler"]
 
 
 @dataclass(frozen=True)
@@ -54,21 +54,6 @@ class TruthRows:
 
     def __len__(self) -> int:
         return int(self.step.shape[0])
-
-
-def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
-    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
-    interpolated, movement at the nearest sample; NaN / False outside the trial."""
-    t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
-    t_end = float(trial.t_s[-1])
-    inside = (t >= 0.0) & (t <= t_end)
-    q = np.full((t.shape[0], 4), np.nan)
-    mov = np.zeros(t.shape[0], dtype=bool)
-    if inside.any():
-        q[inside] = interpolate_quat(trial.t_s, trial.quat_wxyz, t[inside])
-        idx = np.clip(np.rint(t[inside] * trial.fs_hz).astype(np.int64), 0, len(trial.t_s) - 1)
-        mov[inside] = trial.movement[idx]
-    return q, mov
 
 
 class StepTruth:
@@ -95,7 +80,7 @@ class StepTruth:
     def rows(self, start: int = 0, stop: int | None = None) -> TruthRows:
         """The truth of steps ``start`` .. ``stop`` (default: every step so far)."""
         ticks = self.last_ticks[start:stop]
-        mid = ticks - FIFO_ORDER // 2
+        mid = ticks - C.FIFO_ORDER // 2
         step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
         if ticks.shape[0] == 0:
             empty = np.zeros(0)

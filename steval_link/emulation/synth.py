@@ -9,7 +9,7 @@ one module per link:
    quantisation;
 3. the firmware's ISR and main loop (:func:`~steval_link.emulation.sensor_model.run_isr`): power-up offset
    calibration, gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`;
-4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact port (:func:`steval_link.estimators.st_mahony.run`),
+4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact replica (:func:`steval_link.estimators.st_mahony.run`),
    with the firmware variant's settings (``--ki``, ``--no-correction``);
 5. the firmware patch's link and TX queue, step by step, and the frame bytes (:mod:`~steval_link.emulation.fw_link`);
 6. the host: a USB-UART adapter delivering the bytes in packets, with receive times
@@ -40,7 +40,8 @@ from steval_link.emulation import fw_link as fwl
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
-from steval_link.emulation.fw_link import AHRS_CYCLES, STATUS_EVERY_STEPS, TEXT_DECIMATION, TXQ_SIZE, boot_lines  # noqa: F401 - re-exported
+from steval_link.emulation.scenarios import scenario
+from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.usb_adapter import host_chunks
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
@@ -50,21 +51,15 @@ from steval_link.link import protocol as P
 
 __all__ = [
     "EPOCH_UNIX_S",
-    "AHRS_CYCLES",
-    "STATUS_EVERY_STEPS",
-    "TEXT_DECIMATION",
-    "TXQ_SIZE",
     "SynthOptions",
     "SynthResult",
     "synthesize",
     "write_output",
     "default_c_encoder",
-    "boot_lines",
 ]
 
 #: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
 EPOCH_UNIX_S = 1767225600.0
-CPU_HZ = C.CPU_HZ
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
 
@@ -217,14 +212,6 @@ def _profile(
     return M.build_profile(opts.scenario, t, rng_motion, throttle=thr_fn, total_s=total_s)
 
 
-def _sensor(rng: np.random.Generator) -> sm.Lsm6dsl:
-    """The LSM6DSL of this seed: zero-g and zero-rate offsets well inside the datasheet's ±40 mg / ±2 dps."""
-    return sm.Lsm6dsl(
-        acc_bias_mg=tuple(float(v) for v in rng.normal(0.0, 12.0, 3)),
-        gyro_bias_mdps=tuple(float(v) for v in rng.normal(0.0, 600.0, 3)),
-    )
-
-
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Slow zero-rate drift after the power-up calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over
     minutes, so the calibrated offset is not perfect and the filter's integral terms have work to do."""
@@ -250,15 +237,10 @@ def _span(opts: SynthOptions):
         min_total = 3.0
         default_duration = None
     else:
-        sc = M.SCENARIOS.get(opts.scenario)
-        if sc is None:
-            raise UserError(
-                f"unknown scenario {opts.scenario!r}; built-in: {', '.join(M.SCENARIOS)} "
-                f"(or a BROAD trial .npz path; see steval synth --list)"
-            )
+        sc = scenario(opts.scenario, "or a BROAD trial .npz path; see steval synth --list")
         min_total = sc.min_duration_s
         default_duration = sc.default_duration_s
-    tim9_s = fwl.TIM9_START_CYCLES / CPU_HZ
+    tim9_s = fwl.TIM9_START_CYCLES / C.CPU_HZ
     if opts.duration_s is not None:
         duration = float(opts.duration_s)
     elif trial is not None:
@@ -276,8 +258,8 @@ def _span(opts: SynthOptions):
     return trial, duration, total
 
 
-def _port_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
-    """The bit-exact port over every AHRS step: (q, thx, thy, the filter state after each status step)."""
+def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
+    """The bit-exact replica over every AHRS step: (q, thx, thy, the filter state after each status step)."""
     n_steps = len(isr.step_tick)
     q = np.empty((n_steps, 4), np.float32)
     thx = np.empty(n_steps, np.float32)
@@ -303,27 +285,26 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     _check(opts)
     if progress is None:
         progress = lambda fraction, stage="": None  # noqa: E731
-    root = np.random.SeedSequence([int(opts.seed), 0x5EA1])
-    r_motion, r_sensor, r_noise, r_fw, r_drop, r_host, r_boot = (np.random.default_rng(s) for s in root.spawn(7))
+    rs = random_streams(opts.seed)
 
     trial, duration, total = _span(opts)
 
     # 1-2: motion and sensor at every tick, from TIM9's first tick to the end of the capture
-    first_tick_s = (fwl.TIM9_START_CYCLES + M.TICK_CYCLES) / CPU_HZ
-    n_ticks = int(math.floor((total - first_tick_s) * sm.TICK_HZ)) + 1
+    first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
+    n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
     profile = M.add_vibrations(
-        _profile(opts, r_motion, n_ticks, first_tick_s, total, trial),
+        _profile(opts, rs.motion, n_ticks, first_tick_s, total, trial),
         [M.parse_vibration(spec) for spec in opts.vibration],
     )
     gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
     else:
-        sensor = _sensor(r_sensor)
-        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, r_sensor)
+        sensor = sm.seeded_lsm6dsl(rs.sensor)
+        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
     progress(0.55, "LSM6DSL model")
-    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=r_noise, t_tick_s=profile.t_s)
+    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
 
     # 3: ISR and main-loop averaging; ISR yaw
     progress(0.6, "ISR pipeline")
@@ -334,15 +315,15 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     thr_step = thr_tick[isr.step_tick]
     thz = yaw[isr.step_tick - isr.first_tick]
 
-    # 4: the port, in runs between status snapshots
+    # 4: the replica, in runs between status snapshots
     progress(0.8, "filter port")
     settings = _settings(opts)
-    q, thx, thy, snapshots = _port_with_snapshots(isr, thr_step, settings)
+    q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
     # 5: the link, step by step, with the TX queue
-    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, r_fw)
-    forced = fwl.forced_drops(n_steps, opts.drop_rate, r_drop)
-    t_us = (begin // (CPU_HZ // 1_000_000)) % P.T_US_MODULUS
+    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
+    forced = fwl.forced_drops(n_steps, opts.drop_rate, rs.drop)
+    t_us = (begin // (C.CPU_HZ // 1_000_000)) % P.T_US_MODULUS
 
     att = np.zeros(n_steps, dtype=P.ATTITUDE_DTYPE)
     att["t_us"] = t_us
@@ -354,7 +335,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     att["thr"] = thr_step.astype(np.int16)
 
     link = fwl.LinkEmulation(att, settings, opts.ki, opts.baud, opts.text_mode, snapshots, forced)
-    for cyc, line in fwl.boot_lines(r_boot):
+    for cyc, line in fwl.boot_lines(rs.boot):
         link.text(cyc, line)
     progress(0.85, "link and TX queue")
     rows = {"thx": thx, "thy": thy}
@@ -374,13 +355,13 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
 
     # 7: the host
     offsets, chunk_offsets, chunk_times = host_chunks(
-        stream, sizes, starts, link.txq.tau, opts.join_at_s, r_host, total
+        stream, sizes, starts, link.txq.tau, opts.join_at_s, rs.host, total
     )
     data = stream[offsets[0] : offsets[1]]
     counts = fwl.count_frames(order, offsets)
     dropped = link.txq.dropped
     header = _header(opts, profile.name, duration, counts, dropped)
-    step_t_s = begin / CPU_HZ
+    step_t_s = begin / C.CPU_HZ
     return SynthResult(
         data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, step_t_s, counts
     )

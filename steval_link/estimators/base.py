@@ -21,6 +21,7 @@ __all__ = [
     "AttitudeEstimate",
     "Estimator",
     "rows_before_tilt",
+    "choose_native",
 ]
 
 
@@ -29,7 +30,7 @@ class AttitudeEstimate:
     """The attitude of every step of a run.
 
     Attributes:
-        q_wxyz: (N, 4) quaternion, scalar first (float64, or float32 for the bit-exact firmware port).
+        q_wxyz: (N, 4) quaternion, scalar first (float64, or float32 for the bit-exact firmware replica).
         thx_rad: (N,) rotation about x, rad (pitch, nose up +).
         thy_rad: (N,) rotation about y, rad (roll).
         thz_rad: (N,) rotation about z, rad (yaw); NaN where the estimator has none.
@@ -94,6 +95,14 @@ class Estimator(abc.ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}>"
+
+
+def choose_native(native: bool | None, built: bool, loop: str, default: bool | None = None) -> bool:
+    """Whether to run an estimator's C loop: ``native`` True forces it (RuntimeError when it is not ``built``), False
+    the Python one, None ``default`` (by default: the C loop when built)."""
+    if native and not built:
+        raise RuntimeError(f"the native {loop} loop is not built (reinstall steval-link with a C compiler)")
+    return (built if default is None else default) if native is None else bool(native)
 
 
 def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:

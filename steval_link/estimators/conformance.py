@@ -1,4 +1,4 @@
-"""Firmware conformance vectors: load a CSV of ``ahrs_fusion_ag`` calls and check the port against it, bit for bit.
+"""Firmware conformance vectors: load a CSV of ``ahrs_fusion_ag`` calls and check the replica against it, bit for bit.
 
 A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
 ``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
@@ -57,9 +57,9 @@ class ConformanceVectors:
 
 @dataclass(frozen=True)
 class ConformanceResult:
-    """How the port compares with one vector file.
+    """How the replica compares with one vector file.
 
-    ``max_abs_dq`` / ``max_abs_dth`` are the largest |port − firmware| over rows where both are finite (0 when
+    ``max_abs_dq`` / ``max_abs_dth`` are the largest |replica − firmware| over rows where both are finite (0 when
     all equal); ``nan_mismatches`` counts values that are NaN on one side only.
     """
 
@@ -148,7 +148,7 @@ def check_conformance(
     *,
     native: bool | None = None,
 ) -> ConformanceResult:
-    """Run the port from the power-up state over the file's inputs and compare every output bit."""
+    """Run the replica from the power-up state over the file's inputs and compare every output bit."""
     q, thx, thy, _ = run(
         vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, state=MahonyState(), native=native
     )

@@ -52,8 +52,9 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, rows_before_tilt
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
 from steval_link.quat import quaternion_from_euler
+from steval_link.units import MDPS_TO_RADPS
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native
@@ -65,7 +66,6 @@ __all__ = ["Ekf3", "NATIVE_AVAILABLE", "quaternion_from_euler"]
 #: True when the compiled loop of :meth:`Ekf3.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
 
-_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
 _MIN_COS = 1e-3
 
 
@@ -128,7 +128,7 @@ class Ekf3(Estimator):
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.rate_hz = float(rate_hz)
         self.dt = 1.0 / self.rate_hz
-        self.gyro_var = (gyro_noise_mdps * _MDPS_TO_RADPS) ** 2
+        self.gyro_var = (gyro_noise_mdps * MDPS_TO_RADPS) ** 2
         self.proc_var = (math.radians(process_noise_dps_rthz)) ** 2
         self.acc_var = (acc_noise_mg * 1e-3) ** 2 + (acc_motion_mg * 1e-3) ** 2
         self.adaptive = bool(adaptive)
@@ -151,7 +151,7 @@ class Ekf3(Estimator):
 
     def _advance(self, acc_mg, gyro_mdps) -> None:
         ax, ay, az = (float(v) * 1e-3 for v in acc_mg)
-        p, q, r = (float(v) * _MDPS_TO_RADPS for v in gyro_mdps)
+        p, q, r = (float(v) * MDPS_TO_RADPS for v in gyro_mdps)
         an = math.sqrt(ax * ax + ay * ay + az * az)
         acc_ok = math.isfinite(an) and an > 1e-6
         if not self._initialised:
@@ -225,10 +225,7 @@ class Ekf3(Estimator):
         """
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
         n = acc.shape[0]
-        if native is None:
-            native = NATIVE_AVAILABLE and self.acc_var > 0.0
-        elif native and not NATIVE_AVAILABLE:
-            raise RuntimeError("the native EKF loop is not built (reinstall steval-link with a C compiler)")
+        native = choose_native(native, NATIVE_AVAILABLE, "EKF", NATIVE_AVAILABLE and self.acc_var > 0.0)
         x = np.empty((n, 3))
         waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc)
         if native:
@@ -250,7 +247,7 @@ class Ekf3(Estimator):
         st[0:3] = self.x
         st[3:12] = np.asarray(self.P, dtype=np.float64).reshape(9)
         st[12] = 1.0 if self._initialised else 0.0
-        params = np.array([self.dt, self.gyro_var, self.proc_var, self.acc_var, self.norm_gain, _MDPS_TO_RADPS])
+        params = np.array([self.dt, self.gyro_var, self.proc_var, self.acc_var, self.norm_gain, MDPS_TO_RADPS])
         flags = int(self.adaptive) | (int(self.exact_propagation) << 1)
         _native.ekf3_run(acc, gyro, x_out, st, params, flags)
         self.x[:] = st[0:3]

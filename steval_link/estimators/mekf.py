@@ -62,8 +62,9 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, rows_before_tilt
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
 from steval_link.quat import euler_from_quaternion
+from steval_link.units import MDPS_TO_RADPS
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
     from steval_link.estimators import _ekf_native as _native
@@ -74,8 +75,6 @@ __all__ = ["Mekf", "NATIVE_AVAILABLE"]
 
 #: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
-
-_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
 
 
 def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, float]:
@@ -179,7 +178,7 @@ class Mekf(Estimator):
     """Multiplicative EKF with gyro bias and inertial-frame accelerometer averaging (see the module docstring).
 
     Args:
-        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; BROAD native 285.7).
+        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; a BROAD trial at its own 285.7).
         acc_tau_s: time constant τ of the accelerometer low-pass in the strapdown frame, s (0: direct MEKF).
         gyro_noise_mdps_rthz: gyro angle random walk density σ_g, mdps/√Hz.
         bias_rw_mdps_per_sqrt_s: gyro bias random walk σ_b, mdps/√s.
@@ -226,12 +225,12 @@ class Mekf(Estimator):
         self.rate_hz = float(rate_hz)
         self.dt = 1.0 / self.rate_hz
         self.acc_tau_s = float(acc_tau_s)
-        self.gyro_noise = gyro_noise_mdps_rthz * _MDPS_TO_RADPS
-        self.bias_rw = bias_rw_mdps_per_sqrt_s * _MDPS_TO_RADPS
+        self.gyro_noise = gyro_noise_mdps_rthz * MDPS_TO_RADPS
+        self.bias_rw = bias_rw_mdps_per_sqrt_s * MDPS_TO_RADPS
         self.acc_noise = acc_noise_mg / 1000.0
         self.norm_gain = float(norm_gain)
         self.reject = reject_mg / 1000.0
-        self.init_bias = init_bias_mdps * _MDPS_TO_RADPS
+        self.init_bias = init_bias_mdps * MDPS_TO_RADPS
         self.estimate_bias = bool(estimate_bias)
         self.latency_s = float(latency_s)
         self._q_att = self.gyro_noise**2 * self.dt
@@ -264,12 +263,12 @@ class Mekf(Estimator):
     @property
     def bias_mdps(self) -> np.ndarray:
         """Current gyro bias estimate, mdps."""
-        return self.b / _MDPS_TO_RADPS
+        return self.b / MDPS_TO_RADPS
 
     # --- one step --------------------------------------------------------------------------------------------
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
         ax, ay, az = (float(v) * 1e-3 for v in acc_mg)  # g
-        gx, gy, gz = (float(v) * _MDPS_TO_RADPS for v in gyro_mdps)  # rad/s
+        gx, gy, gz = (float(v) * MDPS_TO_RADPS for v in gyro_mdps)  # rad/s
         an = math.sqrt(ax * ax + ay * ay + az * az)
         acc_ok = math.isfinite(an) and an > 1e-6 and abs(an - 1.0) <= self.reject
         if not self._initialised:
@@ -393,10 +392,7 @@ class Mekf(Estimator):
         """
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
         n = acc.shape[0]
-        if native is None:
-            native = NATIVE_AVAILABLE
-        elif native and not NATIVE_AVAILABLE:
-            raise RuntimeError("the native EKF loop is not built (reinstall steval-link with a C compiler)")
+        native = choose_native(native, NATIVE_AVAILABLE, "EKF")
         q = np.empty((n, 4))
         waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc, self.reject)
         if native:
@@ -418,7 +414,7 @@ class Mekf(Estimator):
         params = np.array(
             [
                 self.dt,
-                _MDPS_TO_RADPS,
+                MDPS_TO_RADPS,
                 self.reject,
                 self._q_att,
                 self._q_bias,

@@ -137,7 +137,7 @@ def resolve(text: str) -> Selected:
         ref = plugins.Reference(ref.text, "entry-point", ref.source, None, ref.options)
     factory, label = plugins.load_factory(ref)
     name = plugins.display_name(factory, ref)
-    if name.replace("_", "-") in ESTIMATORS:  # never taken for a built-in (st-mahony means the firmware's port live)
+    if name.replace("_", "-") in ESTIMATORS:  # never taken for a built-in (st-mahony means the firmware's replica live)
         name = f"{name} ({getattr(factory, '__name__', ref.source)})"
     return Selected(name, ref, factory, label)
 

@@ -1,4 +1,4 @@
-"""Bit-exact port of the STEVAL-FCU001V1 firmware's Mahony filter (ST release 170120).
+"""Bit-exact replica of the STEVAL-FCU001V1 firmware's Mahony filter (ST release 170120).
 
 Reproduces ``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them (Cortex-M4F,
 hard float, -O0, no FMA), rounding included. Units are the firmware's: accelerometer in mg, gyro in mdps, angles in
@@ -12,9 +12,7 @@ the new q0); and the final normalisation with the squares from **before** the up
 
 Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
 (≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
-:class:`StMahony` (the shared estimator interface) and :func:`replay_firmware` (a capture against the drone).
-Its size is the firmware's: the reference loop, the settings and state types and the replay against a capture
-stay together, since each of them is part of what "bit-exact" means.
+:class:`StMahony` (the shared estimator interface); a capture against the drone: :mod:`.firmware_replay`.
 """
 
 from __future__ import annotations
@@ -25,8 +23,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
-from steval_link.link.protocol import FLAG_EVENT, FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native
+from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
     "COE_MDPS_TO_RADPS_F32",
@@ -34,11 +32,9 @@ __all__ = [
     "MahonySettings",
     "MahonyState",
     "StMahony",
-    "FirmwareReplay",
-    "ReplaySeed",
     "run",
-    "replay_firmware",
     "bits_equal",
+    "table_column",
     "handout_yaw",
     "quaternion_to_euler",
     "inv_sqrt",
@@ -61,7 +57,7 @@ from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared w
 # ---------------------------------------------------------------------------------------------------------------
 
 #: ``(float)COE_MDPS_TO_RADPS``: the firmware's double literal 1.745329252e-5 cast to float32 (mdps → rad/s).
-COE_MDPS_TO_RADPS_F32 = _F32(1.745329252e-5)
+COE_MDPS_TO_RADPS_F32 = _F32(C.COE_MDPS_TO_RADPS)
 
 
 @dataclass(frozen=True)
@@ -108,29 +104,24 @@ class MahonySettings:
         return (0 if self.correction else FLAG_NO_CORRECTION) | (FLAG_FRESH_SQUARES if self.fresh_squares else 0)
 
     @classmethod
-    def from_status(cls, *, kp_ground, kp_flight, ki, dt_s, min_thr, flags) -> MahonySettings:
-        """Settings reported by a status frame (its float32 fields are kept exactly)."""
-        flags = int(flags)
+    def of_status(cls, status, j: int | None = None) -> MahonySettings:
+        """The settings a status frame reports (its float32 fields kept exactly): ``status`` is one frame (``j``
+        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row. The one
+        builder of settings from status frames (replay, compare, the live replica and the diagnosis all use it)."""
+
+        def field(name: str):
+            return getattr(status, name) if j is None else table_column(status, name)[j]
+
+        flags = int(field("flags"))
         return cls(
-            kp_ground=float(kp_ground),
-            kp_flight=float(kp_flight),
-            ki=float(ki),
-            dt_s=float(dt_s),
-            min_thr=int(min_thr),
+            kp_ground=float(field("kp_ground")),
+            kp_flight=float(field("kp_flight")),
+            ki=float(field("ki")),
+            dt_s=float(field("dt_s")),
+            min_thr=int(field("min_thr")),
             correction=not flags & FLAG_NO_CORRECTION,
             fresh_squares=bool(flags & FLAG_FRESH_SQUARES),
         )
-
-    @classmethod
-    def of_status(cls, status, j: int | None = None) -> MahonySettings:
-        """The settings a status frame reports: ``status`` is one frame (``j`` None) or a table of status rows
-        (``Telemetry.status`` or a structured array) and ``j`` its row. The one builder of settings from status
-        frames (replay, compare, the live port and the diagnosis all use it)."""
-
-        def field(name: str):
-            return getattr(status, name) if j is None else _col(status, name)[j]
-
-        return cls.from_status(**{name: field(name) for name in _STATUS_SETTING_FIELDS})
 
     def _params_f32(self) -> np.ndarray:
         return np.array([self.kp_ground, self.kp_flight, self.ki, self.dt_s], dtype=_F32)
@@ -141,7 +132,7 @@ class MahonyState:
     """The filter's memory between steps: the ``ahrs.c`` globals q0..q3 and exInt, eyInt, ezInt (float32).
 
     ``MahonyState()`` is the power-up state (q = 1, 0, 0, 0; integrals 0). A status frame's snapshot
-    (``q_wxyz``, ``int_xyz``) seeds the port so it is bit-exact from the next step on.
+    (``q_wxyz``, ``int_xyz``) seeds the replica so it is bit-exact from the next step on.
     """
 
     q_wxyz: tuple = (1.0, 0.0, 0.0, 0.0)
@@ -198,10 +189,7 @@ def run(
     settings = MahonySettings() if settings is None else settings
     state = MahonyState() if state is None else state
     acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
-    if native is None:
-        native = NATIVE_AVAILABLE
-    elif native and not NATIVE_AVAILABLE:
-        raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+    native = choose_native(native, NATIVE_AVAILABLE, "Mahony")
     n = acc.shape[0]
     q = np.empty((n, 4), dtype=_F32)
     st = state.as_array()
@@ -338,8 +326,7 @@ class StMahony(Estimator):
         if unknown:
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
         self.settings = replace(base, **setting_overrides) if setting_overrides else base
-        if native and not NATIVE_AVAILABLE:
-            raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
+        choose_native(native, NATIVE_AVAILABLE, "Mahony")  # raises now when the C loop is asked for and not built
         self.native = native
         self.state = MahonyState() if state is None else state
 
@@ -369,11 +356,6 @@ class StMahony(Estimator):
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=handout_yaw(q), valid=valid)
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# Replaying a capture against the firmware's own outputs
-# ---------------------------------------------------------------------------------------------------------------
-
-
 def bits_equal(a, b) -> np.ndarray:
     """Element-wise float32 identity: same bits, or both NaN (any NaN payload)."""
     a = np.asarray(a, dtype=_F32)
@@ -381,316 +363,8 @@ def bits_equal(a, b) -> np.ndarray:
     return (a.view(np.uint32) == b.view(np.uint32)) | (np.isnan(a) & np.isnan(b))
 
 
-class PortFollower:
-    """The bit-exact port followed along a stream in order: runs of attitude rows and the status frames' filter
-    snapshots. One implementation for the replay of a whole capture (:func:`replay_firmware`) and the live port
-    (``steval_link.live.estimators.LivePort``).
-
-    The port starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
-    snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not
-    usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
-
-    ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
-    ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the port runs in sync: True (live) —
-    confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
-    (replay of a capture, which measures how far the port and the firmware agree) — ignore it, unless it is an
-    event snapshot (status flag ``EVENT``: sent at once because a host command changed the settings, reset the
-    filter or asked for it), which the port always follows: its settings and state apply from the next step.
-    """
-
-    def __init__(
-        self,
-        settings: MahonySettings | None = None,
-        *,
-        initial: MahonySettings | None = None,
-        follow_snapshots: bool = True,
-        euler: bool = True,
-        native: bool | None = None,
-    ) -> None:
-        self.fixed = settings
-        self.settings = settings or initial or MahonySettings()
-        self.follow_snapshots = follow_snapshots
-        self.euler = euler
-        self.native = native
-        self.state: MahonyState | None = None
-        self.next_step: int | None = None
-        self.seed_count = 0  #: (re)starts of the port so far (power-up or snapshot)
-        self.confirmed = 0  #: snapshots that matched the port's own state and settings bit for bit
-        self._pending: tuple[str, int | None, MahonySettings] | None = None
-        #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
-        self.seed_rows: list[tuple[int, tuple[str, int | None, MahonySettings]]] = []
-
-    @property
-    def seeded(self) -> bool:
-        return self.state is not None
-
-    def snapshot(
-        self,
-        step: int,
-        state: MahonyState,
-        settings: MahonySettings,
-        snapshot_id: int | None = None,
-        *,
-        event: bool = False,
-    ) -> str:
-        """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
-        command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
-        snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
-        the port takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
-        in_sync = self.state is not None and self.next_step == step + 1
-        if in_sync and not (self.follow_snapshots or event):
-            return "ignored"
-        if in_sync and (self.fixed is not None or settings == self.settings) and self.state.bits_equal(state):
-            self.confirmed += 1
-            return "confirmed"
-        if not np.all(np.isfinite(state.as_array())):
-            if self.fixed is None and (self.follow_snapshots or event or self.state is None):
-                self.settings = settings
-            return "ignored"
-        self.state = state
-        self.settings = self.fixed or settings
-        self.next_step = step + 1
-        self._pending = ("status", snapshot_id, self.settings)
-        self.seed_count += 1
-        return "seeded"
-
-    def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
-        """Step the port over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
-        thx (N,), thy (N,) — None without ``euler`` —, seeded (N,) bool); NaN where unseeded."""
-        step = np.asarray(step, dtype=np.int64)
-        n = step.shape[0]
-        q = np.full((n, 4), np.nan, dtype=_F32)
-        thx = np.full(n, np.nan, dtype=_F32) if self.euler else None
-        thy = np.full(n, np.nan, dtype=_F32) if self.euler else None
-        seeded = np.zeros(n, dtype=bool)
-        breaks = np.flatnonzero((np.diff(step) != 1) | ~usable[1:] | ~usable[:-1]) + 1
-        for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
-            if a >= b:
-                continue
-            if not usable[a]:
-                self.state = self.next_step = None
-                continue
-            s0 = int(step[a])
-            if self.state is not None and self.next_step != s0:
-                self.state = None  # frames lost: out of sync until the next snapshot
-            if self.state is None and s0 == 0:
-                self.state = MahonyState()  # the stream starts at power-up
-                self._pending = ("power-up", None, self.settings)
-                self.seed_count += 1
-            if self.state is not None:
-                if self._pending is not None:
-                    self.seed_rows.append((first_row + a, self._pending))
-                    self._pending = None
-                out = run(
-                    acc_mg[a:b],
-                    gyro_mdps[a:b],
-                    thr[a:b],
-                    settings=self.settings,
-                    state=self.state,
-                    euler=self.euler,
-                    native=self.native,
-                )
-                q[a:b], self.state = out[0], out[3]
-                if self.euler:
-                    thx[a:b], thy[a:b] = out[1], out[2]
-                seeded[a:b] = True
-            self.next_step = int(step[b - 1]) + 1
-        return q, thx, thy, seeded
-
-
-@dataclass(frozen=True)
-class ReplaySeed:
-    """Where the port (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
-
-    ``source`` is ``"power-up"`` (capture from step 0) or ``"status"`` (snapshot of status row ``status_row``,
-    taken right after step ``step - 1``).
-    """
-
-    row: int
-    step: int
-    source: str
-    status_row: int | None
-    settings: MahonySettings
-
-
-@dataclass(frozen=True)
-class FirmwareReplay:
-    """The port re-run over a capture, row by row next to the firmware's attitude frames.
-
-    Attributes:
-        q_wxyz: (N, 4) float32, the port's ``ahrs.q`` per attitude row (NaN where not seeded).
-        thx_rad, thy_rad: (N,) float32, the port's ``QuaternionToEuler`` (pitch about x, roll about y).
-        bit_exact: (N,) bool, port q, thx and thy carry the firmware's bits (NaN == NaN).
-        seeded: (N,) bool, the port had a known state for this row (from power-up or a status snapshot).
-        first_mismatch: row index of the first seeded row that is not bit-exact, or None.
-        seeds: every (re)start of the port, in row order.
-    """
-
-    q_wxyz: np.ndarray
-    thx_rad: np.ndarray
-    thy_rad: np.ndarray
-    bit_exact: np.ndarray
-    seeded: np.ndarray
-    first_mismatch: int | None
-    seeds: tuple[ReplaySeed, ...]
-
-    @property
-    def n_seeded(self) -> int:
-        return int(np.count_nonzero(self.seeded))
-
-    @property
-    def n_bit_exact(self) -> int:
-        return int(np.count_nonzero(self.bit_exact))
-
-    @property
-    def all_exact(self) -> bool:
-        """True when every seeded row is bit-exact (and at least one row is seeded)."""
-        return self.n_seeded > 0 and self.first_mismatch is None
-
-
-#: the status-frame fields that make up a :class:`MahonySettings`
-_STATUS_SETTING_FIELDS = ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")
-
-
-def _col(table, name: str):
+def table_column(table, name: str):
     """A column of a telemetry table given as an object with array attributes or as a structured array."""
     if isinstance(table, np.ndarray) and table.dtype.names:
         return table[name]
     return getattr(table, name)
-
-
-def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
-    """Re-run the port over a capture's inputs and compare it with the firmware's outputs, bit for bit.
-
-    Args:
-        tel: a :class:`steval_link.link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
-            ``thx_rad/thy_rad`` when present, and ``status.step/q_wxyz/int_xyz/kp_ground/kp_flight/ki/dt_s/
-            min_thr/flags``).
-        settings: filter constants; default: those reported by the status frames (the seeding one, else the
-            first one), or the firmware's defaults when the capture has no status frame.
-        native: force the C or the pure loop (default: C when built).
-
-    The port starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
-    mid-flight, or after dropped frames: any step gap) it waits for the first status snapshot inside that run and
-    continues from the following step. Rows before a seed are unseeded: NaN, not bit-exact.
-    """
-    att = tel.attitude
-    steps = np.asarray(_col(att, "step"), dtype=np.int64)
-    n = steps.shape[0]
-    acc = np.ascontiguousarray(_col(att, "acc_mg"), dtype=_F32).reshape(n, 3)
-    gyro = np.ascontiguousarray(_col(att, "gyro_mdps"), dtype=_F32).reshape(n, 3)
-    thr = np.asarray(_col(att, "thr"), dtype=np.int64).reshape(n)
-    fw_q = np.asarray(_col(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
-    try:
-        fw_thx = np.asarray(_col(att, "thx_rad"), dtype=_F32).reshape(n)
-        fw_thy = np.asarray(_col(att, "thy_rad"), dtype=_F32).reshape(n)
-    except (AttributeError, KeyError, ValueError):
-        fw_thx, fw_thy = quaternion_to_euler(fw_q)
-
-    status = getattr(tel, "status", None)
-    st_steps = np.zeros(0, dtype=np.int64) if status is None else np.asarray(_col(status, "step"), dtype=np.int64)
-    if st_steps.size:
-        # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
-        usable = (
-            np.isfinite(np.asarray(_col(status, "kp_ground"), dtype=np.float64))
-            & np.isfinite(np.asarray(_col(status, "q_wxyz"), dtype=np.float64)).all(axis=1)
-            & np.isfinite(np.asarray(_col(status, "int_xyz"), dtype=np.float64)).all(axis=1)
-        )
-        st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
-        order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
-    else:
-        order = np.zeros(0, dtype=np.int64)
-    st_sorted = st_steps[order]
-    st_events = np.zeros(st_steps.shape[0], dtype=bool)
-    if st_steps.size:
-        st_events = (np.asarray(_col(status, "flags"), dtype=np.int64) & FLAG_EVENT) != 0
-    default_settings = settings
-    if default_settings is None:
-        # the build's settings: the first status frame that reports them (its snapshot may hold NaN: a filter
-        # that diverged still runs with the build's settings)
-        has_settings = np.zeros(st_steps.shape[0], dtype=bool)
-        if st_steps.size:
-            has_settings = np.all(
-                [
-                    np.isfinite(np.asarray(_col(status, k), dtype=np.float64))
-                    for k in ("kp_ground", "kp_flight", "ki", "dt_s")
-                ],
-                axis=0,
-            )
-        first = np.flatnonzero(has_settings)
-        default_settings = (
-            MahonySettings.of_status(status, int(order[0]))
-            if order.size
-            else MahonySettings.of_status(status, int(first[0]))
-            if first.size
-            else MahonySettings()
-        )
-
-    try:  # rounded text-mode rows are no exact filter inputs: never replayed
-        exact_rows = np.asarray(_col(att, "exact"), dtype=bool).reshape(n)
-    except (AttributeError, KeyError, ValueError):
-        exact_rows = np.ones(n, dtype=bool)
-
-    # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
-    port = PortFollower(settings, initial=default_settings, follow_snapshots=False, native=native)
-    parts = []
-    breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
-    for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
-        if a >= b:
-            continue
-        cut = a
-        s_first, s_last = int(steps[a]), int(steps[b - 1])
-        if exact_rows[a]:
-            # the first usable snapshot seeds a run that does not start at power-up; later ones are followed only
-            # when they announce a host command's change (EVENT), else the replay measures agreement
-            hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
-            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
-            seeded_run = steps[a] == 0
-            for k in range(lo, hi):
-                j = int(order[k])
-                is_event = bool(st_events[j])
-                if seeded_run and not is_event:
-                    continue
-                end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
-                if end > cut:
-                    parts.append(
-                        port.rows(
-                            steps[cut:end],
-                            acc[cut:end],
-                            gyro[cut:end],
-                            thr[cut:end],
-                            exact_rows[cut:end],
-                            first_row=cut,
-                        )
-                    )
-                    cut = end
-                port.snapshot(
-                    int(st_sorted[k]),
-                    MahonyState(q_wxyz=_col(status, "q_wxyz")[j], int_xyz=_col(status, "int_xyz")[j]),
-                    MahonySettings.of_status(status, j),
-                    snapshot_id=j,
-                    event=is_event,
-                )
-                seeded_run = seeded_run or port.seeded
-        parts.append(port.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
-    if parts:
-        q = np.concatenate([p[0] for p in parts])
-        thx = np.concatenate([p[1] for p in parts])
-        thy = np.concatenate([p[2] for p in parts])
-        seeded = np.concatenate([p[3] for p in parts])
-    else:
-        q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
-        seeded = np.zeros(0, dtype=bool)
-    seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in port.seed_rows]
-
-    exact = seeded & bits_equal(q, fw_q).all(axis=1) & bits_equal(thx, fw_thx) & bits_equal(thy, fw_thy)
-    bad = np.flatnonzero(seeded & ~exact)
-    return FirmwareReplay(
-        q_wxyz=q,
-        thx_rad=thx,
-        thy_rad=thy,
-        bit_exact=exact,
-        seeded=seeded,
-        first_mismatch=int(bad[0]) if bad.size else None,
-        seeds=tuple(seeds),
-    )

@@ -7,13 +7,12 @@ m/s² with g = 9.81, gyro mdps → rad/s); the axes already match (x right, y fo
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.quat import euler_from_quaternion
+from steval_link.units import MDPS_TO_RADPS
 
 INSTALL_HINT = 'the VQF estimator needs the vqf package: pip install "steval-link[vqf]"'
 
@@ -24,7 +23,6 @@ except ImportError:  # pragma: no cover - exercised only without the extra
 
 __all__ = ["VqfEstimator", "INSTALL_HINT"]
 _MG_TO_MPS2 = 9.81e-3
-_MDPS_TO_RADPS = math.pi / 180.0 / 1000.0
 
 
 class VqfEstimator(Estimator):
@@ -55,7 +53,7 @@ class VqfEstimator(Estimator):
         self._vqf = _VQF(1.0 / self.rate_hz, **self.params)
 
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
-        gyr = np.asarray(gyro_mdps, dtype=np.float64).reshape(3) * _MDPS_TO_RADPS
+        gyr = np.asarray(gyro_mdps, dtype=np.float64).reshape(3) * MDPS_TO_RADPS
         acc = np.asarray(acc_mg, dtype=np.float64).reshape(3) * _MG_TO_MPS2
         self._vqf.update(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q = np.asarray(self._vqf.getQuat6D(), dtype=np.float64)
@@ -63,12 +61,10 @@ class VqfEstimator(Estimator):
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
         acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        out = self._vqf.updateBatch(
-            np.ascontiguousarray(gyro * _MDPS_TO_RADPS), np.ascontiguousarray(acc * _MG_TO_MPS2)
-        )
+        out = self._vqf.updateBatch(np.ascontiguousarray(gyro * MDPS_TO_RADPS), np.ascontiguousarray(acc * _MG_TO_MPS2))
         q = np.asarray(out["quat6D"], dtype=np.float64)
         if self.latency_s:
-            q = self._predict(q, gyro * _MDPS_TO_RADPS)
+            q = self._predict(q, gyro * MDPS_TO_RADPS)
         thx, thy, thz = euler_from_quaternion(q)
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=np.isfinite(q).all(axis=1))
 

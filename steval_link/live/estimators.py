@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators import registry, st_mahony
+from steval_link.estimators import firmware_replay, registry, st_mahony
 from steval_link.link.telemetry import AttitudeArrays
 
 
@@ -48,15 +48,15 @@ class LiveRows:
 class LiveMahony:
     """The bit-exact Python ST Mahony filter run live, (re)seeded from the firmware's status snapshots.
 
-    The same follower as :func:`steval_link.estimators.st_mahony.replay_firmware`
-    (:class:`~steval_link.estimators.st_mahony.PortFollower`): it starts from the power-up state when the stream
+    The same follower as :func:`steval_link.estimators.firmware_replay.replay_firmware` (:class:`ReplicaFollower`
+    of :mod:`steval_link.estimators.firmware_replay`): it starts from the power-up state when the stream
     starts at step 0; otherwise (joined mid-flight, frames lost, non-finite input) it is unseeded (NaN) until the
     next status snapshot, and bit-exact from the step after it. Live, a snapshot that disagrees with the filter
     (a settings change, a difference) re-seeds it.
     """
 
     def __init__(self) -> None:
-        self.follower = st_mahony.PortFollower(follow_snapshots=True, euler=False)
+        self.follower = firmware_replay.ReplicaFollower(follow_snapshots=True, euler=False)
         self.rows_exact = 0
         self.rows_mismatch = 0
         self.rows_unseeded = 0

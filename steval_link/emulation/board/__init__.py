@@ -33,7 +33,6 @@ Anything else the firmware touches (an address outside every model) stops the ru
 
 from steval_link.emulation.board.core import BoardStats, PythonBoard
 from steval_link.emulation.board.memory_map import (
-    CPU_HZ,
     EXC_SYSTICK,
     IRQ_BASE,
     IRQ_TIM2,
@@ -68,7 +67,6 @@ class Board(PythonBoard):
 __all__ = [
     "Board",
     "BoardStats",
-    "CPU_HZ",
     "EXC_SYSTICK",
     "IRQ_BASE",
     "IRQ_TIM2",

@@ -9,6 +9,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
+from steval_link import constants as C
 from steval_link.emulation.board.calls import FirmwareCalls
 from steval_link.emulation.board.cpu import (
     Exceptions,
@@ -21,7 +22,6 @@ from steval_link.emulation.board.cpu import (
 from steval_link.emulation.board.memory_map import (
     BITBAND_PERIPH,
     BITBAND_SIZE,
-    CPU_HZ,
     FLASH_BASE,
     FLASH_SIZE,
     INTNO_EXC_RETURN,
@@ -92,7 +92,7 @@ class PythonBoard:
 
     #: the C core runs the hot path (NativeBoard)
     native = False
-    cpu_hz = CPU_HZ
+    cpu_hz = C.CPU_HZ
     hci_requests = 0
     #: ``handler(ogf, ocf, command parameters, board) -> reply bytes`` for ``hci_send_req`` (None: zeroed replies)
     hci_handler: Callable | None = None
@@ -205,12 +205,12 @@ class PythonBoard:
         uc.mmio_map(usart.base, usart.size, self._mmio_read, usart, self._mmio_write, usart)
 
     def _mmio_read(self, uc, off, size, p: Peripheral):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         word = p.read(off & ~3)
         return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
 
     def _mmio_write(self, uc, off, size, value, p: Peripheral):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         if size != 4:
             sh = (off & 3) * 8
             mask = ((1 << (8 * size)) - 1) << sh
@@ -226,12 +226,12 @@ class PythonBoard:
         return p, addr - p.base, bit
 
     def _bb_read(self, uc, off, size, user):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         t = self._bb_target(off)
         return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
 
     def _bb_write(self, uc, off, size, value, user):
-        self.now = self._slice_start + self._ic.n + self._skip_base
+        self.sync_now()
         t = self._bb_target(off)
         if t is not None:
             p, reg, bit = t
@@ -242,7 +242,7 @@ class PythonBoard:
         self.stop_with(
             UnmodelledHardware(
                 f"the firmware touched hardware the emulated board does not model: {what} 0x{addr:08x} in "
-                f"{self.where()} (pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)"
+                f"{self.where()} (pc 0x{self.pc():08x}, t = {self.now / C.CPU_HZ:.6f} s)"
             )
         )
 
@@ -379,7 +379,7 @@ class PythonBoard:
             self.sync_now()
             self.stop_with_error(
                 f"the CPU raised exception {intno} in {self.where()} "
-                f"(pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s)"
+                f"(pc 0x{self.pc():08x}, t = {self.now / C.CPU_HZ:.6f} s)"
             )
             return
         self.exceptions.leave()
@@ -519,7 +519,7 @@ class PythonBoard:
         self.out.clear()
         return data, first, last
 
-    def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
+    def run_until(self, t_end: int, *, max_slice: int = C.CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
         uc = self.uc
         ic = self._ic
@@ -548,7 +548,7 @@ class PythonBoard:
                 if self.fault is not None:
                     raise self.fault from None
                 raise EmulationError(
-                    f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, t = {self.now / CPU_HZ:.6f} s): {exc}"
+                    f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, t = {self.now / C.CPU_HZ:.6f} s): {exc}"
                 ) from None
             executed = ic.n - 1 if ic.n >= ic.limit else ic.n
             self.stats.instructions += executed

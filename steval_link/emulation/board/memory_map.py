@@ -9,10 +9,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from steval_link import constants as C
 from steval_link.errors import UserError
 
-CPU_HZ = C.CPU_HZ
 FLASH_BASE, FLASH_SIZE = 0x08000000, 256 * 1024
 RAM_BASE, RAM_SIZE = 0x20000000, 64 * 1024
 SYSMEM_BASE, SYSMEM_SIZE = 0x1FFF0000, 0x8000

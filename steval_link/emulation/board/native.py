@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import ctypes
 
+from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
 from steval_link.emulation.board.memory_map import (
-    CPU_HZ,
     IRQ_TIM2,
     IRQ_TIM9,
     IRQ_USART1,
@@ -94,7 +94,7 @@ class NativeBoard(PythonBoard):
         st.rid[:] = [r.SP, r.LR, r.PC, r.XPSR, r.PRIMASK] + r.R
         st.frame_ids[:25] = r.frame_ids
         st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
-        st.max_slice = CPU_HZ // 1000
+        st.max_slice = C.CPU_HZ // 1000
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -125,7 +125,7 @@ class NativeBoard(PythonBoard):
     def _map_usart(self, uc, usart) -> None:
         self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
 
-    def _map_c(self, p, read: str, write: str, user) -> None:
+    def _map_c(self, p, read: str, write: str, user, what: str = "MMIO model") -> None:
         err = uclib().uc_mmio_map(
             self.uc._uch,
             ctypes.c_uint64(p.base),
@@ -136,7 +136,7 @@ class NativeBoard(PythonBoard):
             user,
         )
         if err:
-            raise EmulationError(f"unicorn refused the {p.name} MMIO model (error {err})")
+            raise EmulationError(f"unicorn refused the {p.name} {what} (error {err})")
 
     def _map_python(self, uc, p, rd, wr) -> None:
         """A Python peripheral's page: the timers are C's; GPIO IDR (inputs read 0) is read in C."""
@@ -152,17 +152,7 @@ class NativeBoard(PythonBoard):
         for off in served:
             m.served[off // 4] = 1
         p.mirror = m
-        err = uclib().uc_mmio_map(
-            self.uc._uch,
-            ctypes.c_uint64(p.base),
-            ctypes.c_size_t(p.size),
-            ctypes.cast(self.lib.mirror_mmio_read, P),
-            ctypes.byref(m),
-            ctypes.cast(self.lib.mirror_mmio_write, P),
-            ctypes.byref(m),
-        )
-        if err:
-            raise EmulationError(f"unicorn refused the {p.name} MMIO mirror (error {err})")
+        self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
@@ -306,32 +296,6 @@ class NativeBoard(PythonBoard):
         st = self.st
         self.now = st.now = st.slice_start + st.n + st.skip_base
 
-    def _mmio_read(self, uc, off, size, p):
-        self.sync_now()
-        word = p.read(off & ~3)
-        return (word >> ((off & 3) * 8)) & ((1 << (8 * size)) - 1)
-
-    def _mmio_write(self, uc, off, size, value, p):
-        self.sync_now()
-        if size != 4:
-            sh = (off & 3) * 8
-            mask = ((1 << (8 * size)) - 1) << sh
-            value = (p.stored(off & ~3) & ~mask) | ((value << sh) & mask)
-        p.write(off & ~3, value)
-
-    def _bb_read(self, uc, off, size, user):
-        self.sync_now()
-        t = self._bb_target(off)
-        return 0 if t is None else (t[0].read(t[1]) >> t[2]) & 1
-
-    def _bb_write(self, uc, off, size, value, user):
-        self.sync_now()
-        t = self._bb_target(off)
-        if t is not None:
-            p, reg, bit = t
-            old = p.bitband_base(reg)
-            p.write(reg, (old | (1 << bit)) if value & 1 else (old & ~(1 << bit)))
-
     def instructions_now(self) -> int:
         return self.st.instructions + self.st.n
 
@@ -371,7 +335,7 @@ class NativeBoard(PythonBoard):
         s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
         s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
 
-    def run_until(self, t_end: int, *, max_slice: int = CPU_HZ // 1000) -> None:
+    def run_until(self, t_end: int, *, max_slice: int = C.CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
         st = self.st
         st.max_slice = max_slice
@@ -391,7 +355,7 @@ class NativeBoard(PythonBoard):
         st = self.st
         if self.fault is not None:
             return self.fault
-        t = f"t = {self.now / CPU_HZ:.6f} s"
+        t = f"t = {self.now / C.CPU_HZ:.6f} s"
         if st.fault == F_STACK:
             self.fault = EmulationError(
                 f"stack overflow: exception {st.fault_arg >> 32} at sp "

@@ -9,7 +9,7 @@ import ctypes
 from steval_link.emulation.board.memory_map import IRQ_BASE, EmulationError, Peripheral
 from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
 from steval_link.emulation.board.timer import TimReg
-from steval_link.emulation.board.usart import SR_RESET, UsartReg
+from steval_link.emulation.board.usart import BITS_PER_BYTE, BRR_DEFAULT, SR_RESET, UsartReg
 
 I64, U64, U8, U32, I32, P = (
     ctypes.c_int64,
@@ -284,7 +284,7 @@ class NativeUsart(Peripheral):
         return self.st.uregs[0] if off == UsartReg.SR else self.read(off)
 
     def byte_cycles(self) -> int:
-        return 10 * (self.st.uregs[UsartReg.BRR // 4] or 729)
+        return BITS_PER_BYTE * (self.st.uregs[UsartReg.BRR // 4] or BRR_DEFAULT)
 
     def inject(self, data: bytes, t: int) -> None:
         data = bytes(data)

@@ -1,0 +1,571 @@
+"""The built-in motion scenarios (:data:`SCENARIOS`): ``bench``, ``hand-tilts``, ``yaw-spin``, ``hover``,
+``freefall``, ``demo``, ``flight``, ``preflight``, and what they are built of: smooth functions of time (float64, s
+since power-up) — eased moves (:class:`Steps`), random wander (:class:`Sines`) — so rates and accelerations are exact
+derivatives the sensors can sample anywhere. Each scenario is a short function of the run's length and a random
+generator that returns its :class:`Kinematics`; the seed randomises tilt amplitudes, tremor, wander and surface
+tilt. Every scenario starts at rest, so the firmware's power-up offset calibration (1–2 s after TIM9 starts) sees a
+still drone. :mod:`steval_link.emulation.motion` renders them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.errors import UserError
+from steval_link.quat import quaternion_from_euler
+
+__all__ = [
+    "G_MPS2",
+    "MG_PER_MPS2",
+    "DEG",
+    "rotmat",
+    "Steps",
+    "Sines",
+    "Kinematics",
+    "Scenario",
+    "SCENARIOS",
+    "scenario",
+    "PREFLIGHT_MOVES",
+    "PREFLIGHT_IDLE_THR",
+]
+
+#: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
+G_MPS2 = 9.80665
+MG_PER_MPS2 = 1000.0 / G_MPS2
+DEG = np.pi / 180.0
+
+
+def rotmat(q) -> np.ndarray:
+    """(N, 3, 3) rotation matrices body → earth of unit quaternions (N, 4)."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+# ---- smooth building blocks -------------------------------------------------------------------------------------
+
+
+def _s(u):
+    """Quintic smootherstep on [0, 1] (C² at both ends)."""
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * u * (u * (6 * u - 15) + 10)
+
+
+def _s_int(u):
+    """∫₀ᵘ smootherstep (for u in [0, 1])."""
+    u = np.clip(u, 0.0, 1.0)
+    return u**4 * (u * (u - 3) + 2.5)
+
+
+def _s_dd(u):
+    """Second derivative of smootherstep in u (0 outside [0, 1])."""
+    inside = (u > 0) & (u < 1)
+    return np.where(inside, 60 * u * (u * (2 * u - 3) + 1), 0.0)
+
+
+class Steps:
+    """``base + Σ delta_i · S((t − t0_i) / dur_i)``: smooth moves that do not overlap (sorted by t0)."""
+
+    def __init__(self, base: float = 0.0) -> None:
+        self.base = float(base)
+        self.moves: list[tuple[float, float, float]] = []
+
+    def move(self, t0: float, dur: float, delta: float) -> None:
+        if self.moves:
+            p0, pd, _ = self.moves[-1]
+            if t0 < p0 + pd - 1e-12:
+                raise ValueError("moves on one axis must not overlap")
+        self.moves.append((float(t0), float(dur), float(delta)))
+
+    def _arrays(self):
+        m = np.array(self.moves, dtype=np.float64).reshape(-1, 3)
+        return m[:, 0], m[:, 1], m[:, 2]
+
+    def __call__(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        if not self.moves:
+            return np.full(t.shape, self.base)
+        t0, dur, delta = self._arrays()
+        i = np.searchsorted(t0, t, side="right") - 1
+        before = np.concatenate(([0.0], np.cumsum(delta)))  # sum of deltas of moves < i
+        ic = np.clip(i, 0, len(t0) - 1)
+        partial = np.where(i >= 0, delta[ic] * _s((t - t0[ic]) / dur[ic]), 0.0)
+        return self.base + np.where(i >= 0, before[ic], 0.0) + partial
+
+    def integral(self, t) -> np.ndarray:
+        """∫ from 0 to t (t ≥ 0), for angles integrated from rates."""
+        t = np.asarray(t, dtype=np.float64)
+        if not self.moves:
+            return self.base * t
+        t0, dur, delta = self._arrays()
+        i = np.searchsorted(t0, t, side="right") - 1
+        ic = np.clip(i, 0, len(t0) - 1)
+        # completed moves j < i contribute delta_j · (t − t0_j − dur_j/2)
+        cd = np.concatenate(([0.0], np.cumsum(delta)))
+        cm = np.concatenate(([0.0], np.cumsum(delta * (t0 + dur / 2))))
+        done = np.where(i >= 0, t * cd[ic] - cm[ic], 0.0)
+        u = (t - t0[ic]) / dur[ic]
+        active = np.where(
+            i >= 0, np.where(u >= 1, delta[ic] * (t - t0[ic] - dur[ic] / 2), delta[ic] * dur[ic] * _s_int(u)), 0.0
+        )
+        return self.base * t + done + active
+
+    def accel(self, t) -> np.ndarray:
+        """Second time derivative (for positions)."""
+        t = np.asarray(t, dtype=np.float64)
+        out = np.zeros(t.shape)
+        for t0, dur, delta in self.moves:
+            out += delta * _s_dd((t - t0) / dur) / (dur * dur)
+        return out
+
+
+@dataclass
+class Sines:
+    """Σ a_k sin(2π f_k t + φ_k): smooth random wander / tremor, evaluable at any time."""
+
+    amp: np.ndarray
+    freq_hz: np.ndarray
+    phase: np.ndarray
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, rms: float, f_lo: float, f_hi: float, n: int = 5) -> Sines:
+        f = rng.uniform(f_lo, f_hi, n)
+        a = rng.uniform(0.5, 1.0, n)
+        a *= rms * np.sqrt(2.0) / np.sqrt(np.sum(a * a))
+        return cls(a, f, rng.uniform(0, 2 * np.pi, n))
+
+    def __call__(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        return np.sin(2 * np.pi * self.freq_hz * t[..., None] + self.phase) @ self.amp
+
+
+def _zero(t):
+    return np.zeros(np.shape(t))
+
+
+@dataclass
+class Kinematics:
+    """A scenario as functions of time (s since power-up)."""
+
+    thx: Callable = _zero  #: rad
+    thy: Callable = _zero  #: rad
+    yaw: Callable = _zero  #: rad
+    lin_acc_mg: Callable | None = None  #: (N,) → (N, 3) earth-frame translational acceleration, mg
+    lever_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: pivot → IMU, body axes, m
+    lever_weight: Callable | None = None  #: (N,) 0..1: how much the pivot is held fixed (0 in free fall)
+    airborne: Callable | None = None  #: (N,) 0..1: thrust model weight
+    thr: Callable = _zero  #: throttle profile (float, before RC sampling)
+    sticks: Callable | None = None  #: (N,) → (N, 3) gAIL, gELE, gRUD (float, before RC sampling)
+    armed: Callable | None = None  #: (N,) → (N,) 0/1 arming switch
+
+    def q(self, t) -> np.ndarray:
+        return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
+
+
+# ---- the scenarios ---------------------------------------------------------------------------------------------------
+
+
+def _at_rest(rng) -> tuple[float, float, float]:
+    """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
+    x0, y0 = _surface_tilt(rng)
+    return x0, y0, rng.uniform(-np.pi, np.pi)
+
+
+def _surface_tilt(rng) -> tuple[float, float]:
+    """A bench/floor is level to within about a degree."""
+    return tuple(float(v) for v in rng.normal(0.0, 0.6, 2) * DEG)
+
+
+def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng) -> float:
+    """Hand tilts: pitch ±30°, roll ±30°, then both, each out-hold-back-pause; repeated until ``t_end``.
+
+    Returns the time the last move ends."""
+    t = t_start
+    pattern = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)]
+    last = t_start
+    while True:
+        for sx, sy in pattern:
+            amp = rng.uniform(26.0, 34.0) * DEG
+            move = rng.uniform(1.0, 1.5)
+            hold = rng.uniform(1.0, 2.0)
+            pause = rng.uniform(0.6, 1.2)
+            if t + 2 * move + hold > t_end:
+                return last
+            scale = 0.7 if sx and sy else 1.0  # combined tilts a bit smaller
+            for steps, s in ((kin_thx, sx), (kin_thy, sy)):
+                if s:
+                    steps.move(t, move, s * amp * scale)
+                    steps.move(t + move + hold, move, -s * amp * scale)
+            last = t + 2 * move + hold
+            t = last + pause
+
+
+def _hand_held(rng, t_pick: float, t_put: float | None):
+    """Weight 0..1 of 'in the hand' (picked up at t_pick, put down at t_put), tremor and wander per axis."""
+    w = Steps()
+    w.move(t_pick - 0.5, 1.0, 1.0)
+    if t_put is not None:
+        w.move(t_put - 0.5, 1.0, -1.0)
+    tremor = [Sines.random(rng, 0.06 * DEG, 7.0, 11.0, 4) for _ in range(3)]
+    wander = [Sines.random(rng, 0.8 * DEG, 0.1, 0.7, 4) for _ in range(3)]
+
+    def axis(i):
+        return lambda t: w(t) * (tremor[i](t) + wander[i](t))
+
+    return w, axis
+
+
+def _lift(t_up: float, height_m: float, dur: float = 1.0, t_down: float | None = None) -> Steps:
+    z = Steps()
+    z.move(t_up - dur / 2, dur, height_m)
+    if t_down is not None:
+        z.move(t_down - dur / 2, dur, -height_m)
+    return z
+
+
+def _vertical_acc(steps: list[Steps]) -> Callable:
+    def f(t):
+        a = np.zeros((len(t), 3))
+        for z in steps:
+            a[:, 2] += z.accel(t) * MG_PER_MPS2
+        return a
+
+    return f
+
+
+def _bench(T: float, rng) -> Kinematics:
+    x0, y0, yaw0 = _at_rest(rng)
+    return Kinematics(
+        thx=lambda t: np.full(np.shape(t), x0),
+        thy=lambda t: np.full(np.shape(t), y0),
+        yaw=lambda t: np.full(np.shape(t), yaw0),
+    )
+
+
+def _tilts_kin(T_start: float, T_end: float, rng, pick: bool = True) -> Kinematics:
+    x0, y0, yaw0 = _at_rest(rng)
+    sx, sy = Steps(x0), Steps(y0)
+    # picked up at T_start, tilts, put back down at the end
+    last = _add_tilts(sx, sy, T_start + 1.0, T_end - 1.5, rng)
+    t_put = max(last + 0.8, T_start + 1.5)
+    w, hand = _hand_held(rng, T_start, t_put)
+    lift = _lift(T_start, 0.12, 1.0, t_put)
+    return Kinematics(
+        thx=lambda t: sx(t) + hand(0)(t),
+        thy=lambda t: sy(t) + hand(1)(t),
+        yaw=lambda t: yaw0 + hand(2)(t),
+        lin_acc_mg=_vertical_acc([lift]),
+        lever_m=np.array([0.0, -0.04, 0.07]),  # the wrist is below and behind the board
+        lever_weight=w,
+    )
+
+
+def _hand_tilts(T: float, rng) -> Kinematics:
+    return _tilts_kin(3.0, T, rng)
+
+
+def _yaw_spin(T: float, rng) -> Kinematics:
+    x0, y0 = _surface_tilt(rng)
+    rate = Steps()
+    t = 4.0
+    sign = 1.0
+    while t + 8.0 <= T:
+        w = rng.uniform(160.0, 200.0) * DEG * sign  # a turntable at ~30 rpm
+        ramp = rng.uniform(1.2, 2.0)
+        spin = min(rng.uniform(8.0, 12.0), T - t - 2 * ramp - 1.0)
+        rate.move(t, ramp, w)
+        rate.move(t + ramp + spin, ramp, -w)
+        t += 2 * ramp + spin + rng.uniform(2.0, 3.0)
+        sign = -sign
+    yaw0 = rng.uniform(-np.pi, np.pi)
+    return Kinematics(
+        thx=lambda t: np.full(np.shape(t), x0),
+        thy=lambda t: np.full(np.shape(t), y0),
+        yaw=lambda t: yaw0 + rate.integral(t),
+        lever_m=np.array([rng.uniform(0.03, 0.06), rng.uniform(-0.02, 0.02), 0.0]),  # off the turntable axis
+    )
+
+
+def _hover_parts(t0: float, T: float, rng):
+    """Throttle, airborne weight, attitude wander and altitude of a take-off at t0 and landing before T."""
+    t_land = T - 6.0
+    thr = Steps()
+    thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
+    thr.move(t0 + 1.5, 1.0, 140.0)  # take-off throttle ~520
+    thr.move(t_land, 2.0, -140.0)  # descend
+    thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
+    thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
+    air = Steps()
+    air.move(t0 + 2.0, 0.4, 1.0)
+    air.move(t_land + 2.3, 0.3, -1.0)
+    z = _lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)
+    fly = Steps()  # the wander fades in and out slowly around take-off and landing
+    fly.move(t0 + 2.0, 2.5, 1.0)
+    fly.move(t_land, 2.3, -1.0)
+
+    def throttle(t):
+        base = thr(t)
+        return base + air(t) * thr_wander(t)
+
+    wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
+    yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
+    return throttle, air, fly, wander, yaw_w, z
+
+
+def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
+    x0, y0, yaw0 = _at_rest(rng)
+    throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
+    return Kinematics(
+        thx=lambda t: x0 * (1 - fly(t)) + fly(t) * wander[0](t),
+        thy=lambda t: y0 * (1 - fly(t)) + fly(t) * wander[1](t),
+        yaw=lambda t: yaw0 + fly(t) * yaw_w(t),
+        lin_acc_mg=_vertical_acc([z]),
+        airborne=air,
+        thr=throttle,
+    )
+
+
+def _freefall(T: float, rng) -> Kinematics:
+    x0, y0, yaw0 = _at_rest(rng)
+    t_pick = 3.0
+    drops = []
+    t = 5.0
+    while t + 2.0 <= T:
+        drops.append(t)
+        t += 7.0
+    fall_s, catch_s = 0.5, 0.25
+    v_mps = G_MPS2 * fall_s
+    peak = 2 * v_mps / catch_s * MG_PER_MPS2  # Hann pulse with area v
+    sx, sy = Steps(x0), Steps(y0)
+    heights = [_lift(t_pick, 0.4, 1.0)]
+    tumble = []
+    for td in drops:
+        # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
+        dx, dy = rng.normal(0, 12.0, 2) * DEG
+        sx.move(td, fall_s + catch_s, dx)
+        sy.move(td, fall_s + catch_s, dy)
+        sx.move(td + 1.5, 1.0, -dx)
+        sy.move(td + 1.5, 1.0, -dy)
+        heights.append(_lift(td + 3.5, 1.84, 2.0))
+        tumble.append(td)
+    drops_a = np.array(drops)
+    w_hand, hand = _hand_held(rng, t_pick, None)
+
+    def in_fall(t):
+        """1 while falling (hand off), 0 otherwise."""
+        out = np.zeros(np.shape(t))
+        for td in drops_a:
+            out = np.maximum(out, ((t >= td) & (t < td + fall_s)).astype(float))
+        return out
+
+    def lin_acc(t):
+        a = _vertical_acc(heights)(t)
+        for td in drops_a:
+            fall = (t >= td) & (t < td + fall_s)
+            a[fall, 2] = -1000.0
+            u = (t - td - fall_s) / catch_s
+            c = (u >= 0) & (u < 1)
+            a[c, 2] += peak * 0.5 * (1 - np.cos(2 * np.pi * u[c]))
+        return a
+
+    def hand_w(t):
+        return w_hand(t) * (1 - in_fall(t))
+
+    return Kinematics(
+        thx=lambda t: sx(t) + hand(0)(t),
+        thy=lambda t: sy(t) + hand(1)(t),
+        yaw=lambda t: yaw0 + hand(2)(t),
+        lin_acc_mg=lin_acc,
+        lever_m=np.array([0.0, -0.04, 0.07]),
+        lever_weight=hand_w,
+    )
+
+
+def _demo(T: float, rng) -> Kinematics:
+    t_hover = max(T * 0.5, 20.0)
+    tilts = _tilts_kin(3.0, t_hover - 1.0, rng)
+    throttle, air, fly, wander, yaw_w, z = _hover_parts(t_hover + 1.0, T, rng)
+    yaw_t = tilts.yaw
+
+    def mix(base, extra):
+        return lambda t: base(t) * (1 - fly(t)) + fly(t) * extra(t)
+
+    return Kinematics(
+        thx=mix(tilts.thx, wander[0]),
+        thy=mix(tilts.thy, wander[1]),
+        yaw=lambda t: yaw_t(t) + fly(t) * yaw_w(t),
+        lin_acc_mg=lambda t: tilts.lin_acc_mg(t) + _vertical_acc([z])(t),
+        lever_m=tilts.lever_m,
+        lever_weight=tilts.lever_weight,
+        airborne=air,
+        thr=throttle,
+    )
+
+
+#: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
+#: ±EULER_Z_TH turns the yaw target by 60°·SENSOR_SAMPLING_TIME per AHRS step
+_RC_FULLSCALE = float(C.RC_FULLSCALE)
+_MAX_TILT_RAD = C.MAX_TILT_DEG * DEG
+_YAW_STICK_RADPS = 60.0 * C.DT_S * DEG * C.AHRS_RATE_HZ
+
+
+def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float, dur_s: float) -> Steps:
+    """The drone's response to stick moves: the same moves, ``lag_s`` later, over ``dur_s``, times ``scale``."""
+    out = Steps()
+    for t0, _, delta in moves:
+        out.move(t0 + lag_s, dur_s, delta * scale)
+    return out
+
+
+def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
+    """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
+    x0, y0, yaw0 = _at_rest(rng)
+    throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
+    ele, ail, rud = Steps(), Steps(), Steps()
+    t = t0 + 5.0
+    hold = 1.6
+    for stick, value in ((ele, 700.0), (ail, -700.0), (rud, -900.0)):
+        if t + hold + 1.2 > T - 7.0:
+            break
+        stick.move(t, 0.3, value)
+        stick.move(t + 0.3 + hold, 0.3, -value)
+        t += 0.6 + hold + 1.2
+    k = _MAX_TILT_RAD / _RC_FULLSCALE
+    resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thx = -gELE·k
+    resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thy = -gAIL·k
+    yaw_rate = Steps()
+    for t_m, _, delta in rud.moves:  # gRUD < -600: the yaw target turns right (clockwise)
+        yaw_rate.move(t_m + 0.15, 0.4, np.sign(delta) * _YAW_STICK_RADPS * 0.95)
+    t_arm, t_disarm = t0 - 1.0, T - 1.5
+
+    return Kinematics(
+        thx=lambda t: x0 * (1 - fly(t)) + fly(t) * (wander[0](t) + resp_x(t)),
+        thy=lambda t: y0 * (1 - fly(t)) + fly(t) * (wander[1](t) + resp_y(t)),
+        yaw=lambda t: yaw0 + 0.1 * fly(t) * yaw_w(t) + yaw_rate.integral(t),  # holds its heading
+        lin_acc_mg=_vertical_acc([z]),
+        airborne=air,
+        thr=throttle,
+        sticks=lambda t: np.stack([ail(t), ele(t), rud(t)], axis=-1),
+        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
+    )
+
+
+#: the preflight check's guided hand moves, in order: (name, axis 0 thx / 1 thy / 2 yaw, signed angle, rad)
+PREFLIGHT_MOVES = (("tilt right", 1, 25.0 * DEG), ("nose up", 0, 25.0 * DEG), ("turn right", 2, -90.0 * DEG))
+#: the idle throttle of the preflight scenario: just above MIN_THR, so the armed firmware drives the motors
+PREFLIGHT_IDLE_THR = 210.0
+
+
+def _preflight(T: float, rng) -> Kinematics:
+    """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
+    turned right (each out, hold, back), put down, throttle 0, disarmed."""
+    x0, y0, yaw0 = _at_rest(rng)
+    t_arm, t_pick = 3.5, 6.0
+    axes = [Steps(x0), Steps(y0), Steps(yaw0)]
+    t = t_pick + 2.0
+    for _, axis, angle in PREFLIGHT_MOVES:
+        move = 1.5 if axis == 2 else 1.0
+        axes[axis].move(t, move, angle)
+        axes[axis].move(t + move + 2.0, move, -angle)
+        t += 2 * move + 2.0 + 1.5
+    t_put = t + 0.5
+    w, hand = _hand_held(rng, t_pick, t_put)
+    lift = _lift(t_pick, 0.15, 1.0, t_put)
+    thr = Steps()
+    thr.move(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR)
+    thr.move(t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)
+    t_disarm = t_put + 2.0
+    return Kinematics(
+        thx=lambda t: axes[0](t) + hand(0)(t),
+        thy=lambda t: axes[1](t) + hand(1)(t),
+        yaw=lambda t: axes[2](t) + hand(2)(t),
+        lin_acc_mg=_vertical_acc([lift]),
+        lever_m=np.array([0.0, -0.04, 0.07]),
+        lever_weight=w,
+        thr=thr,
+        sticks=lambda t: np.zeros((len(np.atleast_1d(t)), 3)),
+        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
+    )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A built-in motion scenario."""
+
+    name: str
+    summary: str
+    default_duration_s: float
+    min_duration_s: float
+    build: Callable[[float, np.random.Generator], Kinematics]
+
+
+#: Built-in scenarios by name.
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s
+    for s in (
+        Scenario("bench", "lying still on the bench (noise, bias, calibration only); throttle 0", 30.0, 3.0, _bench),
+        Scenario(
+            "hand-tilts",
+            "picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0",
+            40.0,
+            8.0,
+            _hand_tilts,
+        ),
+        Scenario(
+            "yaw-spin",
+            "on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0",
+            40.0,
+            14.0,
+            _yaw_spin,
+        ),
+        Scenario(
+            "hover",
+            "take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and "
+            "small attitude wander, landing",
+            40.0,
+            16.0,
+            _hover,
+        ),
+        Scenario(
+            "freefall",
+            "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0",
+            10.0,
+            7.5,
+            _freefall,
+        ),
+        Scenario("demo", "hand tilts on the bench, then a short hover", 60.0, 40.0, _demo),
+        Scenario(
+            "flight",
+            "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed",
+            30.0,
+            27.0,
+            _flight,
+        ),
+        Scenario(
+            "preflight",
+            "the preflight check's hand moves: armed with the throttle at idle (props off), "
+            "picked up, tilt right, nose up, turn right, put down, disarmed",
+            32.0,
+            30.0,
+            _preflight,
+        ),
+    )
+}
+
+
+def scenario(name: str, otherwise: str) -> Scenario:
+    """The built-in scenario ``name``; :class:`UserError` naming the built-in ones and ``otherwise`` (the other
+    choice where the error is raised, e.g. "or --broad TRIAL.npz") if there is none of that name."""
+    if name not in SCENARIOS:
+        raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})")
+    return SCENARIOS[name]

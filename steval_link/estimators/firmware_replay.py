@@ -1,0 +1,318 @@
+"""The firmware filter's replica followed along a stream, next to the firmware's own outputs: the one follower of
+status snapshots and attitude rows (:class:`ReplicaFollower`) that the replay of a capture
+(:func:`replay_firmware`) and the live replica share. The replica is :mod:`steval_link.estimators.st_mahony`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from steval_link.estimators.st_mahony import (
+    MahonySettings,
+    MahonyState,
+    bits_equal,
+    quaternion_to_euler,
+    run,
+    table_column,
+)
+from steval_link.fw_math import _F32
+from steval_link.link.protocol import FLAG_EVENT
+
+__all__ = ["ReplicaFollower", "ReplaySeed", "FirmwareReplay", "replay_firmware"]
+
+
+class ReplicaFollower:
+    """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter
+    snapshots. One implementation for the replay of a whole capture (:func:`replay_firmware`) and the live replica
+    (``steval_link.live.estimators.LivePort``).
+
+    The replica starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
+    snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not
+    usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
+
+    ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
+    ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the replica runs in sync: True (live) —
+    confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
+    (replay of a capture, which measures how far the replica and the firmware agree) — ignore it, unless it is an
+    event snapshot (status flag ``EVENT``: sent at once because a host command changed the settings, reset the
+    filter or asked for it), which the replica always follows: its settings and state apply from the next step.
+    """
+
+    def __init__(
+        self,
+        settings: MahonySettings | None = None,
+        *,
+        initial: MahonySettings | None = None,
+        follow_snapshots: bool = True,
+        euler: bool = True,
+        native: bool | None = None,
+    ) -> None:
+        self.fixed = settings
+        self.settings = settings or initial or MahonySettings()
+        self.follow_snapshots = follow_snapshots
+        self.euler = euler
+        self.native = native
+        self.state: MahonyState | None = None
+        self.next_step: int | None = None
+        self.seed_count = 0  #: (re)starts of the replica so far (power-up or snapshot)
+        self.confirmed = 0  #: snapshots that matched the replica's own state and settings bit for bit
+        self._pending: tuple[str, int | None, MahonySettings] | None = None
+        #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
+        self.seed_rows: list[tuple[int, tuple[str, int | None, MahonySettings]]] = []
+
+    @property
+    def seeded(self) -> bool:
+        return self.state is not None
+
+    def snapshot(
+        self,
+        step: int,
+        state: MahonyState,
+        settings: MahonySettings,
+        snapshot_id: int | None = None,
+        *,
+        event: bool = False,
+    ) -> str:
+        """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
+        command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
+        snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
+        the replica takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
+        in_sync = self.state is not None and self.next_step == step + 1
+        if in_sync and not (self.follow_snapshots or event):
+            return "ignored"
+        if in_sync and (self.fixed is not None or settings == self.settings) and self.state.bits_equal(state):
+            self.confirmed += 1
+            return "confirmed"
+        if not np.all(np.isfinite(state.as_array())):
+            if self.fixed is None and (self.follow_snapshots or event or self.state is None):
+                self.settings = settings
+            return "ignored"
+        self.state = state
+        self.settings = self.fixed or settings
+        self.next_step = step + 1
+        self._pending = ("status", snapshot_id, self.settings)
+        self.seed_count += 1
+        return "seeded"
+
+    def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
+        """Step the replica over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
+        thx (N,), thy (N,) — None without ``euler`` —, seeded (N,) bool); NaN where unseeded."""
+        step = np.asarray(step, dtype=np.int64)
+        n = step.shape[0]
+        q = np.full((n, 4), np.nan, dtype=_F32)
+        thx = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        thy = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        seeded = np.zeros(n, dtype=bool)
+        breaks = np.flatnonzero((np.diff(step) != 1) | ~usable[1:] | ~usable[:-1]) + 1
+        for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
+            if a >= b:
+                continue
+            if not usable[a]:
+                self.state = self.next_step = None
+                continue
+            s0 = int(step[a])
+            if self.state is not None and self.next_step != s0:
+                self.state = None  # frames lost: out of sync until the next snapshot
+            if self.state is None and s0 == 0:
+                self.state = MahonyState()  # the stream starts at power-up
+                self._pending = ("power-up", None, self.settings)
+                self.seed_count += 1
+            if self.state is not None:
+                if self._pending is not None:
+                    self.seed_rows.append((first_row + a, self._pending))
+                    self._pending = None
+                out = run(
+                    acc_mg[a:b],
+                    gyro_mdps[a:b],
+                    thr[a:b],
+                    settings=self.settings,
+                    state=self.state,
+                    euler=self.euler,
+                    native=self.native,
+                )
+                q[a:b], self.state = out[0], out[3]
+                if self.euler:
+                    thx[a:b], thy[a:b] = out[1], out[2]
+                seeded[a:b] = True
+            self.next_step = int(step[b - 1]) + 1
+        return q, thx, thy, seeded
+
+
+@dataclass(frozen=True)
+class ReplaySeed:
+    """Where the replica (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
+
+    ``source`` is ``"power-up"`` (capture from step 0) or ``"status"`` (snapshot of status row ``status_row``,
+    taken right after step ``step - 1``).
+    """
+
+    row: int
+    step: int
+    source: str
+    status_row: int | None
+    settings: MahonySettings
+
+
+@dataclass(frozen=True)
+class FirmwareReplay:
+    """The replica re-run over a capture, row by row next to the firmware's attitude frames.
+
+    Attributes:
+        q_wxyz: (N, 4) float32, the replica's ``ahrs.q`` per attitude row (NaN where not seeded).
+        thx_rad, thy_rad: (N,) float32, the replica's ``QuaternionToEuler`` (pitch about x, roll about y).
+        bit_exact: (N,) bool, replica q, thx and thy carry the firmware's bits (NaN == NaN).
+        seeded: (N,) bool, the replica had a known state for this row (from power-up or a status snapshot).
+        first_mismatch: row index of the first seeded row that is not bit-exact, or None.
+        seeds: every (re)start of the replica, in row order.
+    """
+
+    q_wxyz: np.ndarray
+    thx_rad: np.ndarray
+    thy_rad: np.ndarray
+    bit_exact: np.ndarray
+    seeded: np.ndarray
+    first_mismatch: int | None
+    seeds: tuple[ReplaySeed, ...]
+
+    @property
+    def n_seeded(self) -> int:
+        return int(np.count_nonzero(self.seeded))
+
+    @property
+    def n_bit_exact(self) -> int:
+        return int(np.count_nonzero(self.bit_exact))
+
+    @property
+    def all_exact(self) -> bool:
+        """True when every seeded row is bit-exact (and at least one row is seeded)."""
+        return self.n_seeded > 0 and self.first_mismatch is None
+
+
+def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
+    """Re-run the replica over a capture's inputs and compare it with the firmware's outputs, bit for bit.
+
+    Args:
+        tel: a :class:`steval_link.link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
+            ``thx_rad/thy_rad`` when present, and ``status.step/q_wxyz/int_xyz/kp_ground/kp_flight/ki/dt_s/
+            min_thr/flags``).
+        settings: filter constants; default: those reported by the status frames (the seeding one, else the
+            first one), or the firmware's defaults when the capture has no status frame.
+        native: force the C or the pure loop (default: C when built).
+
+    The replica starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
+    mid-flight, or after dropped frames: any step gap) it waits for the first status snapshot inside that run and
+    continues from the following step. Rows before a seed are unseeded: NaN, not bit-exact.
+    """
+    att = tel.attitude
+    steps = np.asarray(table_column(att, "step"), dtype=np.int64)
+    n = steps.shape[0]
+    acc = np.ascontiguousarray(table_column(att, "acc_mg"), dtype=_F32).reshape(n, 3)
+    gyro = np.ascontiguousarray(table_column(att, "gyro_mdps"), dtype=_F32).reshape(n, 3)
+    thr = np.asarray(table_column(att, "thr"), dtype=np.int64).reshape(n)
+    fw_q = np.asarray(table_column(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
+    try:
+        fw_thx = np.asarray(table_column(att, "thx_rad"), dtype=_F32).reshape(n)
+        fw_thy = np.asarray(table_column(att, "thy_rad"), dtype=_F32).reshape(n)
+    except (AttributeError, KeyError, ValueError):
+        fw_thx, fw_thy = quaternion_to_euler(fw_q)
+
+    status = getattr(tel, "status", None)
+
+    def col(name: str, dtype=np.float64) -> np.ndarray:
+        return np.asarray(table_column(status, name), dtype=dtype)
+
+    st_steps = np.zeros(0, dtype=np.int64) if status is None else col("step", np.int64)
+    order = np.zeros(0, dtype=np.int64)
+    st_events = has_settings = np.zeros(st_steps.shape[0], dtype=bool)
+    if st_steps.size:
+        # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
+        usable = np.isfinite(col("kp_ground")) & np.isfinite(col("q_wxyz")).all(axis=1)
+        usable &= np.isfinite(col("int_xyz")).all(axis=1)
+        st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
+        order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
+        st_events = (col("flags", np.int64) & FLAG_EVENT) != 0
+        has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
+    st_sorted = st_steps[order]
+    default_settings = settings
+    if default_settings is None:
+        # the build's settings: the first status frame that reports them (its snapshot may hold NaN: a filter
+        # that diverged still runs with the build's settings)
+        first = np.flatnonzero(has_settings)
+        default_settings = (
+            MahonySettings.of_status(status, int(order[0]))
+            if order.size
+            else MahonySettings.of_status(status, int(first[0]))
+            if first.size
+            else MahonySettings()
+        )
+
+    try:  # rounded text-mode rows are no exact filter inputs: never replayed
+        exact_rows = np.asarray(table_column(att, "exact"), dtype=bool).reshape(n)
+    except (AttributeError, KeyError, ValueError):
+        exact_rows = np.ones(n, dtype=bool)
+
+    # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
+    replica = ReplicaFollower(settings, initial=default_settings, follow_snapshots=False, native=native)
+    parts = []
+    breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
+    for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
+        if a >= b:
+            continue
+        cut = a
+        s_first, s_last = int(steps[a]), int(steps[b - 1])
+        if exact_rows[a]:
+            # the first usable snapshot seeds a run that does not start at power-up; later ones are followed only
+            # when they announce a host command's change (EVENT), else the replay measures agreement
+            hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
+            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
+            seeded_run = steps[a] == 0
+            for k in range(lo, hi):
+                j = int(order[k])
+                is_event = bool(st_events[j])
+                if seeded_run and not is_event:
+                    continue
+                end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
+                if end > cut:
+                    parts.append(
+                        replica.rows(
+                            steps[cut:end],
+                            acc[cut:end],
+                            gyro[cut:end],
+                            thr[cut:end],
+                            exact_rows[cut:end],
+                            first_row=cut,
+                        )
+                    )
+                    cut = end
+                replica.snapshot(
+                    int(st_sorted[k]),
+                    MahonyState(q_wxyz=table_column(status, "q_wxyz")[j], int_xyz=table_column(status, "int_xyz")[j]),
+                    MahonySettings.of_status(status, j),
+                    snapshot_id=j,
+                    event=is_event,
+                )
+                seeded_run = seeded_run or replica.seeded
+        parts.append(replica.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
+    if parts:
+        q = np.concatenate([p[0] for p in parts])
+        thx = np.concatenate([p[1] for p in parts])
+        thy = np.concatenate([p[2] for p in parts])
+        seeded = np.concatenate([p[3] for p in parts])
+    else:
+        q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
+        seeded = np.zeros(0, dtype=bool)
+    seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in replica.seed_rows]
+
+    exact = seeded & bits_equal(q, fw_q).all(axis=1) & bits_equal(thx, fw_thx) & bits_equal(thy, fw_thy)
+    bad = np.flatnonzero(seeded & ~exact)
+    return FirmwareReplay(
+        q_wxyz=q,
+        thx_rad=thx,
+        thy_rad=thy,
+        bit_exact=exact,
+        seeded=seeded,
+        first_mismatch=int(bad[0]) if bad.size else None,
+        seeds=tuple(seeds),
+    )
