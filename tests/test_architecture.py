@@ -228,3 +228,49 @@ def test_a_module_outside_every_layer_is_reported(tmp_path):
     assert find_layer("steval_link.errors_extra") is None and find_layer("steval_viewer2") is None
     with pytest.raises(AssertionError, match="steval_link.stray is in no layer"):
         layer_of("steval_link.stray")
+
+
+def documented_name(path: Path, root: Path = ROOT) -> str:
+    """How docs/ARCHITECTURE.md names a source file: ``link/decoder.py`` inside the package, ``steval_link/x.py``
+    at its top, ``viewer/x.py`` for the Rerun side."""
+    rel = path.relative_to(root).as_posix()
+    inner = rel.removeprefix("steval_link/")
+    return inner if "/" in inner else rel
+
+
+def names_in_module_table(doc: str) -> list[str]:
+    """Every back-quoted name in the first cell of the rows of the doc's module tables."""
+    section = doc.split("## Modules and their contracts", 1)[1].split("\n## ", 1)[0]
+    names = []
+    for line in section.splitlines():
+        if line.startswith("| `"):
+            names += [n for n in line.split("|")[1].split("`")[1::2]]
+    return names
+
+
+def test_every_module_is_named_once_in_the_architecture_doc():
+    """A newcomer finds each module once in docs/ARCHITECTURE.md, in the order the data passes through them."""
+    doc = (ROOT / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
+    named = names_in_module_table(doc)
+    files = [
+        p
+        for top in ("steval_link", "viewer")
+        for p in sorted((ROOT / top).rglob("*"))
+        if p.suffix in (".py", ".c") and p.name != "__init__.py" and "recordings" not in p.parts
+    ]
+    expected = {documented_name(p) for p in files}
+    missing = sorted(expected - set(named))
+    twice = sorted({n for n in named if named.count(n) > 1})
+    stale = sorted(n for n in set(named) - expected if n.endswith((".py", ".c")))
+    assert not missing, f"modules not in docs/ARCHITECTURE.md: {missing}"
+    assert not twice, f"modules named more than once: {twice}"
+    assert not stale, f"the doc names modules that do not exist: {stale}"
+
+
+def test_the_doc_check_sees_a_missing_module():
+    doc = (
+        "## Modules and their contracts\n| `link/decoder.py`, `link/frames.py` | x |\n| `viewer/a.py` | y |\n## Tests\n"
+    )
+    assert names_in_module_table(doc) == ["link/decoder.py", "link/frames.py", "viewer/a.py"]
+    assert documented_name(ROOT / "steval_link" / "link" / "decoder.py") == "link/decoder.py"
+    assert documented_name(ROOT / "steval_link" / "quat.py") == "steval_link/quat.py"
