@@ -27,7 +27,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import plugins, registry
 from steval_link.estimators.base import AttitudeEstimate, Estimator
 from steval_link.estimators.runner import run_estimator as _run_named
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["Capture", "Scores", "open_capture", "run_estimator", "evaluate", "require_pandas"]
 
@@ -86,8 +86,8 @@ class Capture:
 def open_capture(path) -> Capture:
     """Read and decode a capture (``.stv``), raw serial dump or text-mode log (UserError for a missing or
     unreadable file, or one without frames)."""
-    src = read_source(path)
-    return Capture(Path(path), telemetry_of_source(src), list(src.warnings))
+    src = read_recording(path)
+    return Capture(Path(path), telemetry_of_recording(src), list(src.warnings))
 
 
 def _instance_reference(est) -> plugins.Selected:

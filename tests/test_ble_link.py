@@ -19,7 +19,7 @@ from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
 from steval_link.link.ble_transport import BleDevice, BleLink, explain_ble_error, is_address, pick_device
 from steval_link.link.capture import read_capture
-from steval_link.link.load import read_source
+from steval_link.link.load import read_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "ble_demo.stv"
@@ -28,7 +28,7 @@ DEMO = ROOT / "recordings" / "ble_demo.stv"
 @pytest.fixture(scope="module")
 def firmware_notifications() -> list[tuple[int, bytes]]:
     """(char id, payload) of the first 3000 notifications the emulated stock firmware sent (ble_demo.stv)."""
-    recs = B.ble_records(read_source(DEMO).chunks)
+    recs = B.ble_records(read_recording(DEMO).chunks)
     assert len(recs) > 3000
     return [(cid, p) for _, cid, p in recs[:3000]]
 
@@ -161,7 +161,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
 
     # at a drone's pace (1 ms a notification): several rounds of the session, two link losses, and the 8 ms tick's
     # wrap (ble_demo's tick wraps 30 s after power-up: notifications 12500.. hold it)
-    recs = B.ble_records(read_source(DEMO).chunks)[12500:14000]
+    recs = B.ble_records(read_recording(DEMO).chunks)[12500:14000]
     firmware_notifications = [(c, p) for _, c, p in recs]
     fake = FakeBleBackend(firmware_notifications, drop_after=[500, 400], pace_s=0.001)
     out = tmp_path / "ble.stv"
@@ -251,7 +251,7 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     from steval_viewer.rrd_check import blueprint_views, read_rrd
     from steval_viewer.sink_options import SinkOptions
 
-    recs = B.ble_records(read_source(DEMO).chunks)[:900]
+    recs = B.ble_records(read_recording(DEMO).chunks)[:900]
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=0.0005)
     rrd = tmp_path / "live.rrd"
     opts = LiveOptions(out=tmp_path / "c.stv", sinks=SinkOptions(rrd=rrd), estimators=["st-mahony", "ekf3"])

@@ -26,7 +26,7 @@ from steval_link.link.capture import (
     encode_capture,
     read_capture,
 )
-from steval_link.link.load import read_source
+from steval_link.link.load import read_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 REC = ROOT / "recordings"
@@ -170,7 +170,7 @@ def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
     # the estimators see the tilts of the demo on the BLE samples (about ±30° in pitch)
     from steval_link.analysis.ble import load_ble, run_ble_estimators
 
-    inputs, est, _ = run_ble_estimators(load_ble(read_source(DEMO)), ["st-mahony"])
+    inputs, est, _ = run_ble_estimators(load_ble(read_recording(DEMO)), ["st-mahony"])
     assert 20 < np.degrees(np.nanmax(np.abs(est["st-mahony"].thx_rad))) < 45
 
 
@@ -196,4 +196,4 @@ def test_ble_capture_without_motion_is_one_line(monkeypatch, capsys, tmp_path):
         with pytest.raises(UserError):
             from steval_link.analysis.ble import load_ble
 
-            load_ble(read_source(path))
+            load_ble(read_recording(path))

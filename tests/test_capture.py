@@ -17,7 +17,7 @@ from support.streams import StreamBuilder
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.capture import MAGIC, CaptureTruncatedWarning, CaptureWriter, read_capture
-from steval_link.link.load import load_telemetry, read_source
+from steval_link.link.load import load_telemetry, read_recording
 
 
 def write_capture(path, data: bytes, chunk: int = 100, events=()):
@@ -209,7 +209,7 @@ def test_empty_capture_and_capture_without_frames(tmp_path):
 
 def test_directory_and_unreadable(tmp_path):
     with pytest.raises(UserError, match="directory"):
-        read_source(tmp_path)
+        read_recording(tmp_path)
 
 
 def test_header_is_json_documented_fields(tmp_path):

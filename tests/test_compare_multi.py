@@ -265,7 +265,7 @@ def test_reference_firmware_stock_against_exercises_4_and_5(tmp_path, monkeypatc
 
 @pytest.mark.slow
 def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
-    """`steval compare stock.stv lab.stv --spawn` on a virtual display: the native viewer holds both flights'
+    """`steval compare stock.stv lab.stv --spawn` on a virtual display: the desktop viewer holds both flights'
     subtrees on the aligned timeline (a screenshot is kept under the test's tmp path)."""
     import subprocess
     import sys

@@ -417,11 +417,11 @@ def test_link_text_mode_lines(host_build):
 def bundled_recordings() -> list[Path]:
     """The bundled serial captures (BLE captures carry ST's notifications, no frames of ours)."""
     from steval_link.link.ble_payloads import is_ble_source
-    from steval_link.link.load import read_source
+    from steval_link.link.load import read_recording
 
     rec = ROOT / "recordings"
     return (
-        sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin") and not is_ble_source(read_source(p)))
+        sorted(p for p in rec.glob("*") if p.suffix in (".stv", ".bin") and not is_ble_source(read_recording(p)))
         if rec.is_dir()
         else []
     )
@@ -433,9 +433,9 @@ def test_bundled_recording_frames_are_c_encoder_output(host_build, path):
     payload: the recordings double as C -> Python conformance fixtures."""
     if path is None:
         pytest.skip("no bundled captures in recordings/ yet")
-    from steval_link.link.load import read_source
+    from steval_link.link.load import read_recording
 
-    data = read_source(path).data
+    data = read_recording(path).data
     dec = StreamDecoder()
     frames = dec.feed(data) + dec.finish()
     spans = [data[f.offset : f.offset + f.nbytes] for f in frames if getattr(f, "exact", True) and f.nbytes]

@@ -15,7 +15,7 @@ import pytest
 from steval_link.errors import UserError
 from steval_link.link import telemetry as T
 from steval_link.link.capture import Capture, read_capture
-from steval_link.link.load import Source, load_telemetry, read_source
+from steval_link.link.load import Recording, load_telemetry, read_recording
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
 ATTITUDE = "step seq t_us t_fw_s t_host_s acc_mg gyro_mdps thr q_wxyz thz_rad thx_rad thy_rad exact offset values_bad"
@@ -130,7 +130,7 @@ def test_the_loader_builds_telemetry_once_with_its_final_counters_and_commands(m
 
 
 def test_a_source_is_a_capture_read_back_or_a_file_of_bytes(tmp_path):
-    src = read_source(REC / "live_params.stv")
+    src = read_recording(REC / "live_params.stv")
     cap = read_capture(REC / "live_params.stv")
     assert isinstance(src, Capture) and src.kind == "stv" and src.warnings == []
     for field in dataclasses.fields(Capture):
@@ -138,8 +138,8 @@ def test_a_source_is_a_capture_read_back_or_a_file_of_bytes(tmp_path):
             got, want = getattr(src, field.name), getattr(cap, field.name)
             assert np.array_equal(got, want) if isinstance(want, np.ndarray) else got == want, field.name
     dump = _file(tmp_path, "demo.bin", None)
-    raw = read_source(dump)
-    assert isinstance(raw, Source) and raw.kind == "bytes" and raw.data == dump.read_bytes()
+    raw = read_recording(dump)
+    assert isinstance(raw, Recording) and raw.kind == "bytes" and raw.data == dump.read_bytes()
     assert raw.header == {} and raw.events == [] and raw.host == [] and len(raw.chunk_offsets) == 0
-    cut = read_source(_file(tmp_path, "flight.stv", 2))
+    cut = read_recording(_file(tmp_path, "flight.stv", 2))
     assert cut.truncated and cut.warnings == [cut.warning] and "damaged" in cut.warning

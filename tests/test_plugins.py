@@ -464,7 +464,7 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
     from steval_link.emulation.bluenrg import FakeBleBackend
     from steval_link.link import ble_payloads as B
     from steval_link.link.capture import read_capture
-    from steval_link.link.load import read_source
+    from steval_link.link.load import read_recording
     from steval_link.live.session import LiveOptions, LiveSession, source_for
 
     f = write(
@@ -474,7 +474,7 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
             "{}['no such key']",
         ),
     )
-    recs = [(c, p) for _, c, p in B.ble_records(read_source(ROOT / "recordings" / "ble_demo.stv").chunks)[:3000]]
+    recs = [(c, p) for _, c, p in B.ble_records(read_recording(ROOT / "recordings" / "ble_demo.stv").chunks)[:3000]]
     fake = FakeBleBackend(recs, pace_s=0.0005)
     out = tmp_path / "ble.stv"
     stream = io.StringIO()

@@ -397,9 +397,9 @@ def test_cli_replay_to_rrd_headless(tmp_path, monkeypatch, capsys):
 def _serial_recording(p: Path) -> bool:
     """A bundled serial capture or log (BLE captures have their own layout: tests/test_ble_replay.py)."""
     from steval_link.link.ble_payloads import is_ble_source
-    from steval_link.link.load import read_source
+    from steval_link.link.load import read_recording
 
-    return p.suffix in (".stv", ".log", ".bin", ".raw") and not is_ble_source(read_source(p))
+    return p.suffix in (".stv", ".log", ".bin", ".raw") and not is_ble_source(read_recording(p))
 
 
 BUNDLED = sorted(p for p in (Path(__file__).resolve().parents[1] / "recordings").iterdir() if _serial_recording(p))

@@ -1,6 +1,6 @@
 """Every viewer path as a user walks it, on a virtual X display with the real ``rerun`` viewer binary (no mock).
 
-The README's main job word for word (``steval replay recordings/demo.stv --spawn``): the native viewer opens, gets
+The README's main job word for word (``steval replay recordings/demo.stv --spawn``): the desktop viewer opens, gets
 the whole recording and stays open, and the command returns. ``--serve`` (a web viewer, stopped on SIGINT, SIGTERM
 and SIGHUP), ``--connect`` to a running viewer, and ``steval live`` with its default sink (spawn) against a
 pseudo-terminal, ended by one Ctrl-C. What the viewer received is asked from the viewer itself (its gRPC control
@@ -153,7 +153,7 @@ def test_serve_shows_the_data_and_every_stop_signal_cleans_up_the_web_viewer(dis
         assert len(urls) == 1, proc.stderr  # the page URL printed once
         assert urls[0].endswith(f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy")
         assert urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=10).status == 200
-        # a second client: a native viewer connected to the web viewer's gRPC proxy gets the whole recording
+        # a second client: a desktop viewer connected to the web viewer's gRPC proxy gets the whole recording
         client = subprocess.Popen(
             rerun_command() + ["--port", str(second), "--bind", "127.0.0.1", _url(grpc)],
             env=dict(display.env, RERUN_APP_ONLY="true"),

@@ -400,7 +400,7 @@ def replay_sink(options: Any, *, recording_name: str | None = None, progress: Pr
     ``progress(fraction, stage)`` hears of each stage (port, logging, writing).
 
     The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
-    spawned native viewer stays open after the sink returns."""
+    spawned desktop viewer stays open after the sink returns."""
 
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}

@@ -44,7 +44,7 @@ class SinkOptions:
 
 
 def display_available() -> bool:
-    """Whether a native viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
+    """Whether a desktop viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
     if sys.platform in ("darwin", "win32"):
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -62,7 +62,7 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
     if options.rrd is not None:
         return options
     raise UserError(
-        "no display for the native viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
+        "no display for the desktop viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
         "or --connect URL for a running viewer"
     )
 

@@ -1,4 +1,4 @@
-"""Where a recording goes: native viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
+"""Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
 (``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
 
 ``open_session(...)`` returns a :class:`ViewerSession` whose ``rec`` (a ``rerun.RecordingStream``) is handed to
@@ -17,7 +17,7 @@ folder, the URL, free ports) are in :mod:`steval_viewer.sink_options`, so a comm
 
 Processes:
 
-- ``--spawn`` starts the native viewer (``rerun --port N --bind 127.0.0.1``) in its own session, so it stays open
+- ``--spawn`` starts the desktop viewer (``rerun --port N --bind 127.0.0.1``) in its own session, so it stays open
   after the command returns, as users expect. When a viewer already listens on the port (an earlier ``--spawn``),
   the recording goes to that one, as Rerun's own ``rr.spawn`` does.
 - ``--serve`` runs ``rerun --serve-web --bind 127.0.0.1`` as a child that lives as long as the command: it is
@@ -46,9 +46,9 @@ from steval_link.errors import UserError
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
 
 APPLICATION_ID = "steval-link"
-#: longest wait for a started viewer (native or web) to listen on its port
+#: longest wait for a started viewer (desktop or web) to listen on its port
 VIEWER_START_TIMEOUT_S = 20.0
-#: a spawned native viewer must still run this long after it starts listening (one that cannot open its window,
+#: a spawned desktop viewer must still run this long after it starts listening (one that cannot open its window,
 #: e.g. no usable GPU adapter, listens first and dies a moment later)
 VIEWER_SETTLE_S = 1.0
 #: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
@@ -99,7 +99,7 @@ class ViewerSession:
     def close(self, *, complete: bool = True) -> None:
         """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
         when written atomically); ``complete=False`` (interrupted) removes an atomically written ``.rrd``. A
-        spawned native viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
+        spawned desktop viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
         first to keep it up). Bounded in time; raises UserError when a viewer did not take the data."""
         error: UserError | None = None
         try:
@@ -267,8 +267,8 @@ def proxy_url(tcp_port: int) -> str:
     return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
 
 
-def spawn_native_viewer(tcp_port: int) -> str:
-    """Start the native viewer listening on 127.0.0.1:``tcp_port`` (or reuse one that listens there already) and return
+def spawn_desktop_viewer(tcp_port: int) -> str:
+    """Start the desktop viewer listening on 127.0.0.1:``tcp_port`` (or reuse one that listens there already) and return
     its gRPC URL. The process is detached: it stays open after we exit, and nothing here keeps it."""
     url = proxy_url(tcp_port)
     if not port_free(tcp_port):
@@ -370,7 +370,7 @@ def open_session(
                 path = session.rrd_partial
             (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
         if options.spawn:
-            session.viewer_url = spawn_native_viewer(options.grpc_port)
+            session.viewer_url = spawn_desktop_viewer(options.grpc_port)
             sinks.append(rr.GrpcSink(session.viewer_url))
         if options.serve:
             grpc = options.grpc_port if not options.spawn else free_port()
@@ -416,7 +416,7 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
     """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
     first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
     (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
-    completed before the error is raised. A spawned native viewer stays open. ``options``: as the CLI checked them
+    completed before the error is raised. A spawned desktop viewer stays open. ``options``: as the CLI checked them
     (``steval_link.cli.viewer_options``: once, before the work), so they are not probed again here."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:

@@ -53,7 +53,7 @@ class BleReplay:
 
 
 def load_ble(src) -> BleTelemetry:
-    """The notifications of a BLE capture (a ``link.load.Source``), with the motion rows that follow a
+    """The notifications of a BLE capture (a ``link.load.Recording``), with the motion rows that follow a
     reconnection (its ``reconnect`` events: the gap before them is the link's, not a drop); UserError without
     motion notifications."""
     ble = decode_notifications(ble_records(src.chunks or {}))

@@ -58,7 +58,7 @@ from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.capture import capture_truth
-from steval_link.link.load import read_source
+from steval_link.link.load import read_recording
 from steval_link.link.plausibility import held_back_sentence
 
 
@@ -179,7 +179,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     if src.get("kind") != "stv" or not src.get("path"):
         return None
     try:
-        truth = capture_truth(read_source(src["path"]).chunks)
+        truth = capture_truth(read_recording(src["path"]).chunks)
     except (UserError, OSError):
         return None
     if truth is None:

@@ -38,7 +38,7 @@ from steval_link.estimators.accel_tilt import accel_tilt, tilt_quaternion
 from steval_link.estimators.plugins import PluginError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = [
     "Check",
@@ -298,7 +298,7 @@ def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
 
 
 def _demo_inputs():
-    tel = telemetry_of_source(read_source(demo_capture_path()))
+    tel = telemetry_of_recording(read_recording(demo_capture_path()))
     a = tel.attitude
     return a.acc_mg, a.gyro_mdps, a.thr
 
@@ -322,10 +322,10 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
     attitude and from accelerometer-only tilt. ``names``: display name → what :func:`registry.create` takes."""
     out = []
     for p in bundled_captures() if paths is None else paths:
-        src = read_source(p)
+        src = read_recording(p)
         if is_ble_source(src):
             continue
-        tel = telemetry_of_source(src)
+        tel = telemetry_of_recording(src)
         a = tel.attitude
         rows = np.asarray(a.exact, bool)
         if rows.sum() < C.AHRS_RATE_HZ:  # text-mode or almost empty: no firmware quaternion to compare with

@@ -33,7 +33,7 @@ from steval_link.emulation import broad
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import capture_truth
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = [
     "EstimatorSpec",
@@ -304,9 +304,9 @@ def evaluate_capture(
     """
 
     p = Path(path)
-    src = read_source(p)  # missing, unreadable, empty: its own sentence
+    src = read_recording(p)  # missing, unreadable, empty: its own sentence
     try:
-        tel = telemetry_of_source(src)
+        tel = telemetry_of_recording(src)
     except UserError:
         raise UserError(
             f"{p} is not a trial or capture: not a BROAD trial (.npz), and no steval frames in its "

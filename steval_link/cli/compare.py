@@ -45,7 +45,7 @@ from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["compare_command"]
@@ -212,7 +212,7 @@ def compare_command(
     names = registry.parse_names(
         ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
     )  # a missing optional package is a row of the report
-    src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
+    src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     if plot is not None:
         check_output(plot, option="--plot", force=force, inputs=(src.path,))
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
@@ -264,12 +264,12 @@ def compare_command(
 def _load_flight(path: Path):
     """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
     with the ST-Mahony port run over them."""
-    src = read_source(path)
+    src = read_recording(path)
     if is_ble_source(src):
         ble = load_ble(src)
         inputs, estimates, _ = run_ble_estimators(ble, ["st-mahony"])
         return flight_of_ble(path, ble, inputs, estimates["st-mahony"], src.header, src.warnings)
-    tel = telemetry_of_source(src)
+    tel = telemetry_of_recording(src)
     if len(tel.attitude) == 0:
         raise UserError(
             f"{path} has no attitude frames to compare ({len(tel.status)} status frames, {len(tel.text)} text lines)."

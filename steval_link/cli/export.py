@@ -18,7 +18,7 @@ from steval_link.cli.outputs import atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
 
@@ -152,7 +152,7 @@ def export(
         require_scipy()  # before any work: one line when scipy is missing
     if mcap is not None:
         require_mcap()
-    src = read_source(capture)  # the input first, then the outputs, then the work
+    src = read_recording(capture)  # the input first, then the outputs, then the work
     for opt, p in outputs:
         check_output(p, option=opt, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
@@ -165,7 +165,7 @@ def export(
                 )
             _export_ble(src, csv, parquet, raw, progress, mat)
             return
-        tel = telemetry_of_source(src) if (csv or parquet or mat or mcap) else None
+        tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap) else None
         if tel is not None:
             require_attitude(tel, "export (--raw gives the bytes)")
         for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on

@@ -20,7 +20,7 @@ from steval_link.cli.app import app
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 #: the guided sequence: (seconds after the start, what to say)
@@ -103,8 +103,8 @@ def preflight_command(
             th.join(timeout=1.0)
         print(summary.line())
         path = summary.capture_path
-    src = read_source(path)
-    tel = telemetry_of_source(src)
+    src = read_recording(path)
+    tel = telemetry_of_recording(src)
     require_attitude(tel, "check (is it a capture of the drone's stream?)")
     for w in src.warnings:  # a damaged capture that still holds frames: one line of our own, the check goes on
         print(f"steval: warning: {w}", file=sys.stderr)

@@ -39,7 +39,7 @@ from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 __all__ = ["load_replay", "run_estimators"]
@@ -51,13 +51,13 @@ Sink = Callable[[Any, dict[str, Any]], None]
 
 def load_replay(path: Path | None, progress: Progress | None = None, *, src=None) -> tuple[Any, list[str]]:
     """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
-    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_source``)."""
+    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_recording``)."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
     progress(0.0, f"reading {path.name}")
-    src = read_source(path) if src is None else src
+    src = read_recording(path) if src is None else src
     progress(0.2, "decoding")
-    tel = telemetry_of_source(src)
+    tel = telemetry_of_recording(src)
     progress(1.0, "decoded")
     return tel, list(src.warnings)
 
@@ -139,12 +139,12 @@ def replay(
     ticks show (the sender's own rate, or drops: ST's congestion skips, gaps), battery, pressure, RSSI and arming,
     and the estimators run on its raw samples (dt from that cadence).
 
-    With --spawn the native viewer opens with the replay and stays open when the command returns; --serve keeps a
+    With --spawn the desktop viewer opens with the replay and stays open when the command returns; --serve keeps a
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
     names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
-    src = read_source(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
+    src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
     options = view_sinks(
         rrd=rrd,

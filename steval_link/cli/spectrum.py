@@ -27,7 +27,7 @@ from steval_link.cli.viewer_options import (
     sink_options,
 )
 from steval_link.errors import UserError
-from steval_link.link.load import read_source
+from steval_link.link.load import read_recording
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
@@ -122,7 +122,7 @@ def spectrum_cmd(
         raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
     if not (math.isfinite(min_hz) and min_hz >= 0):
         raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
-    src = read_source(capture)  # the input first, then the outputs, then the work
+    src = read_recording(capture)  # the input first, then the outputs, then the work
     for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
         if path is not None:
             check_output(path, option=option, force=force, inputs=(capture,))

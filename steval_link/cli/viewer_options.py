@@ -17,7 +17,7 @@ RrdOption = Annotated[
     typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."),
 ]
 SpawnOption = Annotated[
-    bool, typer.Option("--spawn", help="Show it in the native Rerun viewer (stays open when the command ends).")
+    bool, typer.Option("--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
 ]
 ServeOption = Annotated[
     bool, typer.Option("--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")

@@ -198,7 +198,7 @@ def ble_chunk(char_id: int, payload: bytes) -> bytes:
 
 
 def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[float, int, bytes]]:
-    """``(t_host_s, char id, payload)`` of a capture's ``B`` chunks (``Capture.chunks`` / ``Source.chunks``)."""
+    """``(t_host_s, char id, payload)`` of a capture's ``B`` chunks (``Capture.chunks`` / ``Recording.chunks``)."""
     return [(t, p[0], p[1:]) for t, p in chunks.get(CHUNK_BLE, []) if p]
 
 

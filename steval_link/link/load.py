@@ -29,11 +29,11 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import CommandFrame
 from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
 
-__all__ = ["Source", "load_telemetry", "read_source", "sent_command_rows", "telemetry_of_source"]
+__all__ = ["Recording", "load_telemetry", "read_recording", "sent_command_rows", "telemetry_of_recording"]
 
 
 @dataclass
-class Source(Capture):
+class Recording(Capture):
     """The bytes of a capture, raw dump or text log, with whatever the file holds besides (a raw dump or text log:
     no header, chunks, timing or events).
 
@@ -48,7 +48,7 @@ class Source(Capture):
         return [self.warning] if self.warning else []
 
 
-def read_source(path: str | os.PathLike) -> Source:
+def read_recording(path: str | os.PathLike) -> Recording:
     """The bytes of ``path``: a ``.stv`` capture (by its magic, whatever the extension) or any other file as raw
     serial bytes. Raises :class:`~steval_link.errors.UserError` for a missing, unreadable or empty file."""
     path = Path(path)
@@ -59,9 +59,9 @@ def read_source(path: str | os.PathLike) -> Source:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CaptureTruncatedWarning)
             cap = read_capture(path, data=raw)
-        return Source(**{f.name: getattr(cap, f.name) for f in fields(Capture)}, kind="stv")
+        return Recording(**{f.name: getattr(cap, f.name) for f in fields(Capture)}, kind="stv")
     none = np.zeros(0, np.int64)
-    return Source(path, {}, raw, none, none.astype(np.float64), [], kind="bytes")
+    return Recording(path, {}, raw, none, none.astype(np.float64), [], kind="bytes")
 
 
 def load_telemetry(path: str | os.PathLike) -> Telemetry:
@@ -72,14 +72,14 @@ def load_telemetry(path: str | os.PathLike) -> Telemetry:
     Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
     damaged capture header, or a file in which no frame is found.
     """
-    src = read_source(path)
+    src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
-    return telemetry_of_source(src)
+    return telemetry_of_recording(src)
 
 
-def telemetry_of_source(src: Source) -> Telemetry:
-    """Decode a :class:`Source` (see :func:`load_telemetry`)."""
+def telemetry_of_recording(src: Recording) -> Telemetry:
+    """Decode a :class:`Recording` (see :func:`load_telemetry`)."""
     if src.kind == "stv" and not src.data:
         size = _file_size(src.path)
         if src.chunks.get(CHUNK_BLE):

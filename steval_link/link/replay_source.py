@@ -27,7 +27,7 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link.load import read_source, telemetry_of_source
+from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
 
@@ -86,7 +86,7 @@ def parse_replay_url(url: str) -> ReplayUrl:
 
 
 def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """When each byte of ``src`` (a :class:`~steval_link.link.load.Source`, decoded as ``tel``) comes out.
+    """When each byte of ``src`` (a :class:`~steval_link.link.load.Recording`, decoded as ``tel``) comes out.
 
     Returns ``(ends, t_s, how)``: bytes ``[0, ends[i])`` are out at ``t_s[i]`` (s since the replay started,
     non-decreasing), and ``how`` says which clock paced them (for the notes).
@@ -215,10 +215,10 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
     file without times (a capture's own header wins)."""
     parsed = parse_replay_url(url)
     try:
-        src = read_source(parsed.path)
+        src = read_recording(parsed.path)
         if src.header.get("extra", {}).get("link") == "ble":
             raise UserError(f"{parsed.path} is a BLE capture (no serial bytes); open it with steval replay")
-        tel = telemetry_of_source(src)
+        tel = telemetry_of_recording(src)
     except UserError as exc:
         raise UserError(f"cannot replay {url}: {str(exc).rstrip('.')}") from None
     rate = int(src.header.get("baud") or baud) if src.header else baud
