@@ -266,3 +266,23 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     assert info.samples["world/drone/ble"] == n and info.samples["plots/pitch_thx_deg/ekf3"] == n
     assert {"fw_time", "host_time"} <= info.timelines and "ble/note" in info.static
     assert "Attitude over BLE" in " ".join(blueprint_views(rrd))
+
+
+def test_live_session_finds_the_drone_before_any_output(tmp_path):
+    """The input first: a platform failure or a drone not found is said before the capture or the viewer exist."""
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
+    from steval_viewer.sink_options import SinkOptions
+
+    opened = []
+    for fake, words in (
+        (FakeBleBackend([], scan_error=FileNotFoundError(2, "No such file or directory")), "BlueZ"),
+        (FakeBleBackend([], devices=[]), "no BLE device matching"),
+    ):
+        out = tmp_path / "ble.stv"
+        opts = LiveOptions(out=out, sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=["accel"])
+        session = LiveSession(
+            opts, source_for("ble:auto", backend=fake), viewer_factory=lambda o, n: opened.append(n), stream=sys.stderr
+        )
+        with pytest.raises(UserError, match=words):
+            session.run()
+        assert not opened and not out.exists() and fake.connects == 0

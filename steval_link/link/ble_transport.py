@@ -254,14 +254,20 @@ class BleLink:
 
         return cb
 
-    async def run(self, stop: asyncio.Event) -> None:
-        """Connect (UserError when the drone is not found at first) and stay connected until ``stop`` is set."""
+    async def find_first(self) -> BleDevice:
+        """The drone, found by the first scans; UserError when the platform fails or it is not found."""
         dev = await self.find(self.first_scans)
         if dev is None:
             raise UserError(
                 f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
                 "(is the drone on, in range, and not connected to a phone?)."
             )
+        return dev
+
+    async def run(self, stop: asyncio.Event, dev: BleDevice | None = None) -> None:
+        """Connect to ``dev`` (None: :meth:`find_first`) and stay connected until ``stop`` is set."""
+        if dev is None:
+            dev = await self.find_first()
         try:
             await self._connect(dev)
         except UserError:

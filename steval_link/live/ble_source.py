@@ -50,7 +50,7 @@ from steval_link.link.ble_payloads import (
     ble_chunk,
 )
 from steval_link.link.ble_telemetry import BleTelemetry, decode_notifications
-from steval_link.link.ble_transport import BleBackend, BleLink
+from steval_link.link.ble_transport import BleBackend, BleDevice, BleLink
 from steval_link.link.capture import CHUNK_BLE
 from steval_link.live.estimators import failure_sentence
 from steval_link.live.sources import CaptureFields, Source
@@ -122,6 +122,7 @@ class BleSource(Source):
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
         self.link: BleLink | None = None
+        self._device: BleDevice | None = None  # the drone found by open()
         self.estimators: dict = {}
         self.rows_held = 0
         self.gaps = 0
@@ -140,9 +141,9 @@ class BleSource(Source):
     def recording_name(self, session) -> str:
         return f"steval live --ble {self.what}"
 
-    def start(self, session) -> None:
-        """The link runs its event loop in its own thread: notifications go to the capture there, first."""
-        self._start_unix = self.clock() - session.capture.now()
+    def open(self, session) -> None:
+        """The input first: the drone is found (or the adapter's failure said) before any file or viewer."""
+        super().open(session)
         self.link = BleLink(
             self.backend,
             self.target,
@@ -151,6 +152,11 @@ class BleSource(Source):
             clock=self.clock,
             scan_timeout_s=self.scan_timeout_s,
         )
+        self._device = asyncio.run(self.link.find_first())
+
+    def start(self, session) -> None:
+        """The link runs its event loop in its own thread: notifications go to the capture there, first."""
+        self._start_unix = self.clock() - session.capture.now()
         self._make_estimators(STEP_PERIOD_S)  # the names checked now; made again with the cadence's dt
         self._thread = threading.Thread(target=self._run_link, name="steval-ble-link", daemon=True)
         self._thread.start()
@@ -158,7 +164,7 @@ class BleSource(Source):
     def _run_link(self) -> None:
         async def main() -> None:
             self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
-            await self.link.run(self._stop)
+            await self.link.run(self._stop, self._device)
 
         try:
             asyncio.run(main())
