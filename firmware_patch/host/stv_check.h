@@ -1,5 +1,5 @@
 /* The host tests' check: CHECK(cond) counts every check and reports a failed one on stderr (file:line: the
- * condition) without stopping; a test's selftest reads `failures` and `checks` at the end. One per test program. */
+ * condition) without stopping; a selftest ends with checks_failed(). One per test program. */
 #ifndef STV_CHECK_H
 #define STV_CHECK_H
 
@@ -14,5 +14,12 @@ static int checks, failures;
       fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
     }                                                                           \
   } while (0)
+
+/* At the end of a selftest: 1 after "N of M checks failed" on stderr, 0 when every check passed. */
+static inline int checks_failed(void) {
+  if (!failures) return 0;
+  fprintf(stderr, "%d of %d checks failed\n", failures, checks);
+  return 1;
+}
 
 #endif
