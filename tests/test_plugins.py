@@ -435,18 +435,14 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
         ),
     )
 
-    class Collect:
+    from support.viewers import NullViewer
+
+    class Collect(NullViewer):
         def __init__(self):
             self.batches = []
 
         def log_batch(self, b):
             self.batches.append(b)
-
-        def log_status(self, *a): ...
-        def log_text(self, *a): ...
-        def log_link(self, *a): ...
-        def log_event(self, *a): ...
-        def close(self): ...
 
     sink = Collect()
     pipe = LivePipeline(registry.parse_names(f"{f}:Fragile", ()), None, file_logger=sink, file_interval_s=1e9)
