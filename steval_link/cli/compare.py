@@ -25,7 +25,7 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain, check_throttle, require_attitude
+from steval_link.cli.checks import check_filter_options, require_attitude
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
@@ -215,9 +215,7 @@ def compare_command(
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
-    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(option, gain)
-    check_throttle("--min-thr", min_thr)
+    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src)
         require_attitude(tel, "compare")
