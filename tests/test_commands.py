@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 from support.cli import run_cli
+from support.viewers import NullViewer
 
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
@@ -140,27 +141,12 @@ def test_format_1_captures_still_read():
 # ---- the live pipeline's command log --------------------------------------------------------------------------
 
 
-class _Viewer:
+class _Viewer(NullViewer):
     def __init__(self):
         self.events = []
 
-    def log_batch(self, batch):
-        pass
-
-    def log_status(self, frame, t):
-        pass
-
-    def log_text(self, frame, t):
-        pass
-
-    def log_link(self, stats, t):
-        pass
-
     def log_event(self, text, t, level):
         self.events.append((text, t, level))
-
-    def close(self):
-        pass
 
 
 def test_pipeline_logs_commands_acks_and_settings_on_the_timeline():

@@ -267,42 +267,11 @@ def test_reference_firmware_stock_against_exercises_4_and_5(tmp_path, monkeypatc
 def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
     """`steval compare stock.stv lab.stv --spawn` on a virtual display: the desktop viewer holds both flights'
     subtrees on the aligned timeline (a screenshot is kept under the test's tmp path)."""
-    import subprocess
-    import sys
+    from support.cli import run_steval
+    from support.xdisplay import screenshot, viewer_port, viewer_recording, virtual_display
 
-    from support.xdisplay import (
-        VirtualDisplay,
-        kill_processes,
-        require_display_tools,
-        rerun_processes,
-        screenshot,
-        viewer_recording,
-    )
-
-    require_display_tools()
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    display = VirtualDisplay()
-    try:
-        r = subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                "from steval_link.cli import main; main()",
-                "compare",
-                *pair,
-                "--spawn",
-                "--grpc-port",
-                str(port),
-            ],
-            env=display.env,
-            capture_output=True,
-            text=True,
-            timeout=180,
-        )
+    with virtual_display() as display, viewer_port() as port:
+        r = run_steval(["compare", *pair, "--spawn", "--grpc-port", port], env=display.env, timeout=180)
         assert r.returncode == 0, r.stderr
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         held = viewer_recording(url, timeline="aligned_time", end=1)
@@ -314,9 +283,6 @@ def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
             } <= held.entities
         png = screenshot(url, tmp_path / "side_by_side.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    finally:
-        kill_processes(rerun_processes(port))
-        display.close()
 
 
 def test_readme_example_word_for_word(monkeypatch, capsys, tmp_path):

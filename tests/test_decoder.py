@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.streams import StreamBuilder, frame_keys
+from support.streams import StreamBuilder, frame_keys, stream_decode
 
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
@@ -12,22 +12,6 @@ from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_link.link.telemetry import telemetry_from_frames
 
 FS = P.ATTITUDE_FRAME_SIZE  # 60 bytes in protocol v2
-
-
-def stream_decode(data: bytes, chunk: int | list[int] = 4096):
-    sd = StreamDecoder()
-    frames = []
-    if isinstance(chunk, int):
-        for i in range(0, len(data), chunk):
-            frames += sd.feed(data[i : i + chunk])
-    else:
-        pos = 0
-        for c in chunk:
-            frames += sd.feed(data[pos : pos + c])
-            pos += c
-        frames += sd.feed(data[pos:])
-    frames += sd.finish()
-    return frames, sd.stats
 
 
 def assert_bulk_equals_stream(data: bytes):

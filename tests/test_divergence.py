@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support.streams import stream_decode
 
 from steval_link import constants as C
 from steval_link.analysis import diagnosis
@@ -69,15 +70,6 @@ def diverging_stream(version: int = P.VERSION) -> tuple[bytes, np.ndarray]:
             sta = P.encode_status(step=s, t_us=t_us, q_wxyz=q[s], int_xyz=state.int_xyz, kp_ground=KP_GROUND)
             out += sta if version == P.VERSION else P.encode_frame(P.TYPE_STATUS, sta[4:-4], version=version)
     return bytes(out), q
-
-
-def stream_decode(data: bytes, chunk: int):
-    sd = StreamDecoder()
-    frames = []
-    for i in range(0, len(data), chunk):
-        frames += sd.feed(data[i : i + chunk])
-    frames += sd.finish()
-    return frames, sd.stats
 
 
 SENTENCE = (

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from support.estimator_checks import assert_bad_samples_harmless, assert_run_equals_steps
 
 from steval_link.emulation import broad
 from steval_link.estimators.ekf3 import Ekf3
@@ -73,12 +74,7 @@ def test_interface_and_registry():
     assert isinstance(est, Ekf3) and est.dt == pytest.approx(0.005)
     acc = np.tile([[100.0, 0.0, 995.0]], (20, 1))
     gyro = np.zeros((20, 3))
-    run = est.run(acc, gyro).q_wxyz
-    est.reset()
-    steps = np.array([est.step(a, w) for a, w in zip(acc, gyro)])
-    assert np.allclose(run, steps)
-    est.step([0, 0, 0], [0, 0, 0])
-    est.step([np.nan, 0, 1000], [np.nan, 0, 0])
-    assert np.all(np.isfinite(est.step([0, 0, 1000], [0, 0, 0])))
+    assert_run_equals_steps(est, acc, gyro)
+    assert_bad_samples_harmless(est, [([0, 0, 0], [0, 0, 0]), ([np.nan, 0, 1000], [np.nan, 0, 0])])
     with pytest.raises(ValueError):
         Ekf3(rate_hz=-1)

@@ -407,52 +407,20 @@ def test_cli_emulate_to_rrd_headless(fw_default, tmp_path, monkeypatch, capsys):
 def test_cli_emulate_spawns_the_viewer_with_the_stream(fw_default, tmp_path):
     """`steval emulate ELF --spawn` on a virtual display: the real Rerun viewer opens, gets every attitude step,
     stays open when the emulation ends."""
-    import subprocess
-    import sys
-
-    from support.xdisplay import (
-        VirtualDisplay,
-        kill_processes,
-        require_display_tools,
-        rerun_processes,
-        viewer_recording,
-    )
+    from support.cli import run_steval
+    from support.xdisplay import rerun_processes, viewer_port, viewer_recording, virtual_display
 
     from steval_viewer import entities as ent
-    from steval_viewer.sink_options import free_port
 
-    require_display_tools()
-    display = VirtualDisplay()
-    port = free_port()
-    try:
-        done = subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                "from steval_link.cli import main; main()",
-                "emulate",
-                str(fw_default),
-                "--scenario",
-                "bench",
-                "--duration",
-                "4",
-                "--spawn",
-                "--grpc-port",
-                str(port),
-                "-e",
-                "none",
-            ],
+    with virtual_display() as display, viewer_port() as port:
+        done = run_steval(
+            ["emulate", fw_default, "--scenario", "bench", "--duration", "4", "--spawn", "--grpc-port", port]
+            + ["-e", "none"],
             env=display.env,
             cwd=tmp_path,
-            capture_output=True,
-            text=True,
             timeout=180,
-            stdin=subprocess.DEVNULL,
         )
         assert done.returncode == 0, done.stderr
         rec = viewer_recording(f"rerun+http://127.0.0.1:{port}/proxy", timeline="ahrs_step", end=160, timeout_s=60)
         assert "/" + ent.pitch_path("firmware") in rec.entities
         assert rerun_processes(port), "the spawned viewer should stay open after the emulation"
-    finally:
-        kill_processes(rerun_processes(port))
-        display.close()

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.streams import stream_decode
 
 from steval_link import constants as C
 from steval_link.link import protocol as P
@@ -51,12 +52,7 @@ def strict_split(data: bytes) -> list[tuple[int, bytes]]:
 def decode_all(data: bytes) -> tuple[list, object]:
     """The project's decoder on the C link's output. The host runs feed the link made-up cycle counts and values, not
     the AHRS rhythm, so the plausibility gate (tested on its own) is off here: this checks the framing."""
-    dec = StreamDecoder(plausibility=False)
-    frames = []
-    for i in range(0, len(data), 977):  # odd chunking: frames straddle feed() calls
-        frames += dec.feed(data[i : i + 977])
-    frames += dec.finish()
-    return frames, dec.stats
+    return stream_decode(data, 977, plausibility=False)  # odd chunking: frames straddle feed() calls
 
 
 def random_f32_bits(rng: np.random.Generator, n: int) -> np.ndarray:

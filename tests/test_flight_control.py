@@ -228,31 +228,21 @@ def test_replay_rrd_has_the_flight_control_view(monkeypatch, capsys, tmp_path):
 def test_live_pipeline_hands_flight_frames_to_the_viewer():
     """The live path (steval live / emulate): each flight-control frame reaches the viewer after its step's
     attitude frame; a viewer without log_flight (an older LiveViewer) is simply not given them."""
+    from support.viewers import NullViewer
+
     from steval_link.link.capture import read_capture
     from steval_link.live.pipeline import LivePipeline
 
-    class Viewer:
+    class Viewer(NullViewer):
         def __init__(self):
             self.steps, self.flight = [], []
 
         def log_batch(self, batch):
             self.steps += [int(s) for s in batch.attitude.step]
 
-        def log_status(self, frame, t):
-            pass
-
-        def log_text(self, frame, t):
-            pass
-
-        def log_link(self, stats, t):
-            pass
-
         def log_flight(self, frame, t):
             assert self.steps and self.steps[-1] >= frame.step  # its attitude frame came first
             self.flight.append(frame)
-
-        def close(self):
-            pass
 
     viewer = Viewer()
     pipe = LivePipeline([], viewer=viewer)

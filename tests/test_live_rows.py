@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.viewers import NullViewer
 
 from steval_link.link.capture import read_capture
 from steval_link.link.load import load_telemetry
@@ -16,7 +17,7 @@ from steval_link.live.pipeline import LivePipeline
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 
 
-class Rows:
+class Rows(NullViewer):
     """The viewer side: keeps the rows and the status times it is given."""
 
     def __init__(self) -> None:
@@ -28,12 +29,6 @@ class Rows:
 
     def log_status(self, frame, at) -> None:
         self.status.append((int(frame.step), at.t_fw_s, at.t_host_s))
-
-    def log_text(self, frame, at) -> None:
-        pass
-
-    def log_link(self, stats, t_unix_s) -> None:
-        pass
 
 
 def feed_capture(path: Path, t0_unix_s: float, seed: int = 0) -> Rows:

@@ -388,20 +388,30 @@ class FakeClock:
         return self.t
 
 
-def test_live_a_slow_estimator_is_measured_and_disabled(tmp_path, monkeypatch):
-    f = write(tmp_path / "slow.py", TILT.format(cls="Slow"))
+def slowed_pipeline(tmp_path, monkeypatch, cls: str, others: str, seconds_of_call):
+    """A live pipeline whose estimator ``cls`` (TILT, in CLS.py; ``others``: more names) takes
+    ``seconds_of_call(args)`` on the estimators' fake clock per ``run`` call. Returns (pipeline, estimators)."""
+    f = write(tmp_path / f"{cls.lower()}.py", TILT.format(cls=cls))
     clock = FakeClock()
-    ests = live_est.LiveEstimators(registry.parse_names(f"{f}:Slow,accel", ()), clock=clock)
-    inner = ests.others["Slow"]
+    ests = live_est.LiveEstimators(registry.parse_names(f"{f}:{cls}{others}", ()), clock=clock)
+    inner = ests.others[cls]
     real_run = inner.run
 
-    def run(*args):  # 0.8 s of processing per second of stream: cannot keep up
-        clock.t += 0.8 * len(args[0]) / C.AHRS_RATE_HZ
+    def run(*args):
+        clock.t += seconds_of_call(args)
         return real_run(*args)
 
     monkeypatch.setattr(inner, "run", run)
     pipe = LivePipeline([])
     pipe.estimators = ests
+    return pipe, ests
+
+
+def test_live_a_slow_estimator_is_measured_and_disabled(tmp_path, monkeypatch):
+    # 0.8 s of processing per second of stream: cannot keep up
+    pipe, ests = slowed_pipeline(
+        tmp_path, monkeypatch, "Slow", ",accel", lambda args: 0.8 * len(args[0]) / C.AHRS_RATE_HZ
+    )
     feed(pipe, flight_stream(2000), chunk=1700)
     assert ests.disabled.keys() == {"Slow"} and "accel" not in ests.disabled
     (note,) = pipe.notes
@@ -409,19 +419,7 @@ def test_live_a_slow_estimator_is_measured_and_disabled(tmp_path, monkeypatch):
 
 
 def test_live_one_call_that_stalls_disables_at_once(tmp_path, monkeypatch):
-    f = write(tmp_path / "stall.py", TILT.format(cls="Stall"))
-    clock = FakeClock()
-    ests = live_est.LiveEstimators(registry.parse_names(f"{f}:Stall", ()), clock=clock)
-    inner = ests.others["Stall"]
-    real_run = inner.run
-
-    def run(*args):
-        clock.t += 3.0
-        return real_run(*args)
-
-    monkeypatch.setattr(inner, "run", run)
-    pipe = LivePipeline([])
-    pipe.estimators = ests
+    pipe, _ = slowed_pipeline(tmp_path, monkeypatch, "Stall", "", lambda args: 3.0)
     feed(pipe, flight_stream(300), chunk=100_000)
     (note,) = pipe.notes
     assert note.startswith("estimator Stall took 3.0 s for ") and "too slow to run live" in note
@@ -435,18 +433,14 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
         ),
     )
 
-    class Collect:
+    from support.viewers import NullViewer
+
+    class Collect(NullViewer):
         def __init__(self):
             self.batches = []
 
         def log_batch(self, b):
             self.batches.append(b)
-
-        def log_status(self, *a): ...
-        def log_text(self, *a): ...
-        def log_link(self, *a): ...
-        def log_event(self, *a): ...
-        def close(self): ...
 
     sink = Collect()
     pipe = LivePipeline(registry.parse_names(f"{f}:Fragile", ()), None, file_logger=sink, file_interval_s=1e9)

@@ -8,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.streams import stream_decode
 
 from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.emulation.line_damage import damage, long_stream, payload_records, score
 from steval_link.link import protocol as P
-from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.decoder import decode_bytes
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame
 from steval_link.link.load import load_telemetry
 from steval_link.link.plausibility import PlausibilityGate
@@ -21,15 +22,6 @@ from steval_link.link.plausibility import PlausibilityGate
 ROOT = Path(__file__).resolve().parents[1]
 V1 = ROOT / "tests" / "data" / "v1"
 PERIOD_US = 6190.476
-
-
-def stream_decode(data: bytes, chunk: int = 997):
-    sd = StreamDecoder()
-    out = []
-    for i in range(0, len(data), chunk):
-        out += sd.feed(data[i : i + chunk])
-    out += sd.finish()
-    return out, sd.stats
 
 
 def att(seq: int, t_us: int | None = None, acc=(0.0, 0.0, 1000.0)) -> bytes:
@@ -127,7 +119,7 @@ def test_loose_wire_fuzz_gives_no_fake_frame_and_recovers_most(demo_payloads, se
     assert sc.fake == 0, fakes[:3]
     assert sc.recovered_ratio >= 0.93
     # the incremental decoder hands out the same frames
-    frames, stats = stream_decode(hurt)
+    frames, stats = stream_decode(hurt, 997)
     assert stats.as_dict() == tel.stats.as_dict()
     assert [f.offset for f in frames if isinstance(f, AttitudeFrame)] == tel.attitude.offset.tolist()
 

@@ -315,44 +315,16 @@ def test_readme_example_prints_what_the_readme_says(monkeypatch, capsys, tmp_pat
 def test_spawn_opens_the_native_viewer_with_the_spectra(tmp_path):
     """``steval spectrum recordings/demo.stv --spawn`` on a virtual display: the command returns, the viewer stays
     open and holds every spectrum entity; a screenshot shows a rendered window."""
-    import subprocess
-    import sys
+    from support.cli import run_steval
+    from support.xdisplay import rerun_processes, screenshot, viewer_port, viewer_recording, virtual_display
 
-    from support.xdisplay import (
-        VirtualDisplay,
-        kill_processes,
-        require_display_tools,
-        rerun_processes,
-        screenshot,
-        viewer_recording,
-    )
-
-    from steval_viewer.sink_options import free_port
-
-    require_display_tools()
-    display = VirtualDisplay()
-    port = free_port()
-    url = f"rerun+http://127.0.0.1:{port}/proxy"
-    try:
-        done = subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                "from steval_link.cli import main; main()",
-                "spectrum",
-                str(RECORDINGS / "demo.stv"),
-                "--spawn",
-                "--grpc-port",
-                str(port),
-                "--mark-hz",
-                "390",
-            ],
+    with virtual_display() as display, viewer_port() as port:
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        done = run_steval(
+            ["spectrum", RECORDINGS / "demo.stv", "--spawn", "--grpc-port", port, "--mark-hz", "390"],
             env=display.env,
             cwd=tmp_path,
-            capture_output=True,
-            text=True,
             timeout=120,
-            stdin=subprocess.DEVNULL,
         )
         assert done.returncode == 0, done.stderr
         assert "Traceback" not in done.stderr
@@ -367,6 +339,3 @@ def test_spawn_opens_the_native_viewer_with_the_spectra(tmp_path):
             } <= rec.entities
         png = screenshot(url, tmp_path / "spectrum.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
-    finally:
-        kill_processes(rerun_processes(port))
-        display.close()

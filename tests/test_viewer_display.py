@@ -12,20 +12,21 @@ from __future__ import annotations
 import re
 import signal
 import subprocess
-import sys
 import time
 import urllib.request
 from pathlib import Path
 
 import pytest
+from support.cli import run_steval
 from support.ptyfeed import PtyFeeder, StevalProcess, flight_stream
 from support.xdisplay import (
-    VirtualDisplay,
     kill_processes,
-    require_display_tools,
+    process_alive,
     rerun_processes,
     screenshot,
+    viewer_port,
     viewer_recording,
+    virtual_display,
 )
 
 from steval_viewer import entities as ent
@@ -42,10 +43,8 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def display():
-    require_display_tools()
-    d = VirtualDisplay()
-    yield d
-    d.close()
+    with virtual_display() as d:
+        yield d
 
 
 def _url(port: int) -> str:
@@ -53,15 +52,7 @@ def _url(port: int) -> str:
 
 
 def _steval(args: list[str], env: dict, cwd: Path, timeout: float = RETURN_S) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", "from steval_link.cli import main; main()", *args],
-        env=env,
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        stdin=subprocess.DEVNULL,
-    )
+    return run_steval(args, env=env, cwd=cwd, timeout=timeout)
 
 
 def _readme_main_job() -> str:
@@ -103,8 +94,7 @@ def test_readme_main_job_opens_the_viewer_with_the_data_and_returns(display, tmp
 
 
 def test_spawn_again_reuses_the_open_viewer(display, tmp_path):
-    port = free_port()
-    try:
+    with viewer_port() as port:
         first = _steval(["replay", "--spawn", "--grpc-port", str(port), "-e", "none"], display.env, tmp_path)
         assert first.returncode == 0, first.stderr
         assert len(rerun_processes(port)) == 1
@@ -112,8 +102,6 @@ def test_spawn_again_reuses_the_open_viewer(display, tmp_path):
         assert second.returncode == 0, second.stderr
         assert "already listening" in second.stderr
         assert len(rerun_processes(port)) == 1  # no second window
-    finally:
-        kill_processes(rerun_processes(port))
 
 
 def test_connect_sends_to_a_running_viewer(display, tmp_path):
@@ -169,7 +157,7 @@ def test_serve_shows_the_data_and_every_stop_signal_cleans_up_the_web_viewer(dis
         assert "Traceback" not in proc.stderr
         assert port_free(web) and port_free(grpc)  # the next run can use the same ports
         time.sleep(0.5)
-        assert not any(_running(p) for p in server_pids)
+        assert not any(process_alive(p) for p in server_pids)
     finally:
         if proc.proc.poll() is None:
             proc.proc.kill()
@@ -179,9 +167,8 @@ def test_serve_shows_the_data_and_every_stop_signal_cleans_up_the_web_viewer(dis
 
 
 def test_live_default_sink_spawns_the_viewer_and_one_ctrl_c_ends(display, tmp_path):
-    port = free_port()
     data = flight_stream(1300, first_step=500)
-    try:
+    with viewer_port() as port:
         with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
             proc = StevalProcess(
                 ["live", "--port", str(feeder.link), "--out", str(tmp_path / "cap.stv"), "--grpc-port", str(port)],
@@ -201,8 +188,6 @@ def test_live_default_sink_spawns_the_viewer_and_one_ctrl_c_ends(display, tmp_pa
         assert "Traceback" not in proc.stderr
         assert proc.stdout.startswith("recorded ") and "1300 attitude frames" in proc.stdout
         assert rerun_processes(port), "the spawned viewer should stay open after the session"
-    finally:
-        kill_processes(rerun_processes(port))
 
 
 def _children_named(pid: int, name: str) -> list[int]:
@@ -211,21 +196,11 @@ def _children_named(pid: int, name: str) -> list[int]:
     return [c.pid for c in psutil.Process(pid).children(recursive=True) if c.name().startswith(name)]
 
 
-def _running(pid: int) -> bool:
-    import psutil
-
-    try:
-        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
-    except psutil.NoSuchProcess:
-        return False
-
-
 def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
     """README's Bluetooth section: `steval replay recordings/ble_demo.stv --spawn` (on its own port here)."""
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     assert "steval replay recordings/ble_demo.stv --spawn" in text
-    port = free_port()
-    try:
+    with viewer_port() as port:
         done = _steval(["replay", "recordings/ble_demo.stv", "--spawn", "--grpc-port", str(port)], display.env, ROOT)
         assert done.returncode == 0, done.stderr
         assert "Traceback" not in done.stderr and "BLE capture" in done.stdout
@@ -244,5 +219,3 @@ def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
         } <= rec.entities
         png = screenshot(_url(port), tmp_path / "ble.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
-    finally:
-        kill_processes(rerun_processes(port))

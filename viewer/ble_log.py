@@ -22,7 +22,7 @@ from steval_link.link.ble_telemetry import BleTelemetry
 from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
-from steval_viewer.columns import Times, send_arrows, send_rows, send_scalars, send_transforms
+from steval_viewer.columns import Times, send_arrows, send_scalars, send_texts, send_transforms
 from steval_viewer.sinks import log_whole, open_session
 
 __all__ = [
@@ -101,21 +101,8 @@ def log_ble_static(rec: rr.RecordingStream, sources: list[str]) -> None:
         rr.Arrows3D(vectors=[(0.6, 0, 0), (0, 0.6, 0), (0, 0, 0.6)], colors=_XYZ, radii=0.015),
         static=True,
     )
-    mesh = drone_model.quadcopter_mesh()
-    rec.log(
-        ent.BLE_DRONE_MODEL,
-        rr.Mesh3D(
-            vertex_positions=mesh.positions,
-            vertex_normals=mesh.normals,
-            vertex_colors=mesh.colors,
-            triangle_indices=mesh.triangles,
-        ),
-        static=True,
-    )
-    strips = drone_model.quadcopter_wireframe()
-    for s in sources[1:]:
-        r, g, b = ent.source_color(s)
-        rec.log(ent.estimate_model_path(s), rr.LineStrips3D(strips, colors=[(r, g, b, 200)], radii=0.012), static=True)
+    drone_model.log_mesh(rec, ent.BLE_DRONE_MODEL)
+    drone_model.log_ghosts(rec, sources[1:])
     rec.log(ent.BLE_GRAVITY, rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03]), static=True)
     for s in sources:
         c = ent.source_color(s)
@@ -175,15 +162,7 @@ def log_ble_notifications(
         tf = np.interp(th, ble.motion_t_host_s, t_motion) if n > 1 else th
         texts = [f"[{c[1]}] {c[2]}" for c in ble.console]
         levels = ["WARN" if c[1] == "stderr" else "INFO" for c in ble.console]
-        send_rows(
-            rec,
-            ent.LOG_BLE_CONSOLE,
-            Times(tf, th),
-            lambda idx: rr.TextLog.columns(
-                text=texts if idx is None else [texts[j] for j in idx],
-                level=levels if idx is None else [levels[j] for j in idx],
-            ),
-        )
+        send_texts(rec, ent.LOG_BLE_CONSOLE, Times(tf, th), texts, levels)
         counts[ent.LOG_BLE_CONSOLE] = counts.get(ent.LOG_BLE_CONSOLE, 0) + len(texts)
 
 

@@ -89,6 +89,19 @@ def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, ro
             rec.send_columns(path, indexes=t.indexes(), columns=make_columns(part))
 
 
+def send_texts(rec: rr.RecordingStream, path: str, times: Times, texts: list[str], levels: list[str]) -> None:
+    """Log one text entry per row (``texts``, each at its ``levels`` entry: INFO, WARN)."""
+    send_rows(
+        rec,
+        path,
+        times,
+        lambda idx: rr.TextLog.columns(
+            text=texts if idx is None else [texts[j] for j in idx],
+            level=levels if idx is None else [levels[j] for j in idx],
+        ),
+    )
+
+
 def bad_run_starts(good: np.ndarray) -> np.ndarray:
     """Indices where a run of bad rows (``good`` False) begins."""
     bad = ~good

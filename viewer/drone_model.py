@@ -174,14 +174,11 @@ def quadcopter_wireframe(n_circle: int = 32) -> list[np.ndarray]:
     return [s.astype(np.float32) for s in strips]
 
 
-def log_models(rec, ghost_sources: list[str]) -> None:
-    """Log the static quadcopter under the firmware transform and a wireframe ghost per host estimate.
-
-    ``rec`` is a ``rerun.RecordingStream``; ``ghost_sources`` are source segments (see ``entities.source_name``).
-    """
-    mesh = quadcopter_mesh()
+def log_mesh(rec, path: str, mesh: Mesh | None = None) -> None:
+    """Log the solid quadcopter ``mesh`` (default :func:`quadcopter_mesh`) as static data on ``path``."""
+    mesh = quadcopter_mesh() if mesh is None else mesh
     rec.log(
-        ent.DRONE_FIRMWARE_MODEL,
+        path,
         rr.Mesh3D(
             vertex_positions=mesh.positions,
             vertex_normals=mesh.normals,
@@ -190,6 +187,10 @@ def log_models(rec, ghost_sources: list[str]) -> None:
         ),
         static=True,
     )
+
+
+def log_ghosts(rec, ghost_sources: list[str]) -> None:
+    """Log a wireframe ghost per host estimate (static, in the estimate's colour)."""
     strips = quadcopter_wireframe()
     for source in ghost_sources:
         r, g, b = ent.source_color(source)
@@ -198,3 +199,12 @@ def log_models(rec, ghost_sources: list[str]) -> None:
             rr.LineStrips3D(strips, colors=[(r, g, b, 200)], radii=0.012),
             static=True,
         )
+
+
+def log_models(rec, ghost_sources: list[str]) -> None:
+    """Log the static quadcopter under the firmware transform and a wireframe ghost per host estimate.
+
+    ``rec`` is a ``rerun.RecordingStream``; ``ghost_sources`` are source segments (see ``entities.source_name``).
+    """
+    log_mesh(rec, ent.DRONE_FIRMWARE_MODEL)
+    log_ghosts(rec, ghost_sources)

@@ -33,6 +33,7 @@ from steval_viewer.columns import (
     send_arrows,
     send_rows,
     send_scalars,
+    send_texts,
     send_transforms,
 )
 from steval_viewer.sinks import log_whole
@@ -251,15 +252,7 @@ def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplayS
         idx = np.flatnonzero(timed)
         lt = Times(t_fw[idx], t_host[idx])
         texts = [lines[i] for i in idx]
-        send_rows(
-            rec,
-            ent.LOG_FIRMWARE,
-            lt,
-            lambda sel: rr.TextLog.columns(
-                text=texts if sel is None else [texts[i] for i in sel],
-                level=["INFO"] * (len(texts) if sel is None else len(sel)),
-            ),
-        )
+        send_texts(rec, ent.LOG_FIRMWARE, lt, texts, ["INFO"] * len(texts))
         untimed = np.flatnonzero(~timed)
     else:
         untimed = np.arange(len(lines))
@@ -280,15 +273,7 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     if times.t_host_s is not None and np.isfinite(times.t_host_s).any() and np.isfinite(t_host).all():
         pairs = np.isfinite(times.t_host_s)
         t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
-        send_rows(
-            rec,
-            ent.LOG_COMMANDS,
-            Times(t_fw, t_host),
-            lambda sel: rr.TextLog.columns(
-                text=texts if sel is None else [texts[i] for i in sel],
-                level=levels if sel is None else [levels[i] for i in sel],
-            ),
-        )
+        send_texts(rec, ent.LOG_COMMANDS, Times(t_fw, t_host), texts, levels)
     else:
         for text, level in zip(texts, levels):
             rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))

@@ -147,16 +147,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
                 counts[path] = _send(rec, path, t, values)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log(
-            f"{world}/drone/model",
-            rr.Mesh3D(
-                vertex_positions=mesh.positions,
-                vertex_normals=mesh.normals,
-                vertex_colors=mesh.colors,
-                triangle_indices=mesh.triangles,
-            ),
-            static=True,
-        )
+        drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
         q = np.asarray(f.q_wxyz, np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
             norm = np.sqrt((q * q).sum(axis=1))

@@ -10,17 +10,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "stv_check.h"
 #include "stv_cmd.h"
-
-static int checks, failures;
-#define CHECK(cond)                                                              \
-  do {                                                                           \
-    checks++;                                                                    \
-    if (!(cond)) {                                                               \
-      failures++;                                                                \
-      fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond);  \
-    }                                                                            \
-  } while (0)
+#include "stv_stock_config.h"
 
 static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
 static uint32_t rnd(void) { /* xorshift64* */
@@ -310,7 +302,7 @@ static size_t drain_all(stv_txq_t *q, uint8_t *out, size_t max) {
 
 static void test_execute(void) {
   stv_link_t link;
-  stv_link_config_t cfg;
+  stv_link_config_t cfg = stv_stock_config();
   stv_cmd_t c;
   stv_filter_t f = stock_filter();
   float q[4] = {0.5f, 0.5f, 0.5f, 0.5f}, ints[3] = {1, 2, 3};
@@ -323,14 +315,6 @@ static void test_execute(void) {
   stv_status_t st;
   stv_ack_t ack;
 
-  memset(&cfg, 0, sizeof(cfg));
-  cfg.kp_ground = 10.0f;
-  cfg.kp_flight = 0.4f;
-  cfg.ki = 0.1f;
-  cfg.dt_s = 0.00625f;
-  cfg.min_thr = 200;
-  cfg.cpu_hz = 84000000u;
-  cfg.baud = 115200u;
   cfg.status_every = 1000u;
   cfg.text_decimation = 1u;
   for (i = 0; i < 4; i++) cfg.q_state[i] = &q[i];
@@ -408,10 +392,7 @@ static int selftest(void) {
   fuzz_random_bytes();
   test_handle();
   test_execute();
-  if (failures) {
-    fprintf(stderr, "%d of %d checks failed\n", failures, checks);
-    return 1;
-  }
+  if (checks_failed()) return 1;
   printf("ok %d (fuzz: %u intact commands, %u lost, %u cut frames completed by chance, each a command the host "
          "sent; nothing else)\n", checks, (unsigned)fuzz_intact, (unsigned)fuzz_lost, (unsigned)fuzz_extra);
   return 0;

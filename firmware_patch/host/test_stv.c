@@ -16,17 +16,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "stv_check.h"
 #include "stv_link.h"
-
-static int checks, failures;
-#define CHECK(cond)                                                         \
-  do {                                                                      \
-    checks++;                                                               \
-    if (!(cond)) {                                                          \
-      failures++;                                                           \
-      fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-    }                                                                       \
-  } while (0)
+#include "stv_stock_config.h"
 
 static uint32_t crc_bitwise(const uint8_t *d, size_t n) {
   uint32_t crc = 0xFFFFFFFFu;
@@ -130,24 +122,9 @@ static void test_queue(void) {
   CHECK(q.head < 0x10000u); /* has wrapped */
 }
 
-static stv_link_config_t default_cfg(void) {
-  stv_link_config_t c;
-  memset(&c, 0, sizeof(c));
-  c.kp_ground = 10.0f;
-  c.kp_flight = 0.4f;
-  c.ki = 0.1f;
-  c.dt_s = 0.00625f;
-  c.min_thr = 200;
-  c.cpu_hz = 84000000u;
-  c.baud = 115200u;
-  c.text_decimation = 16;
-  c.status_every = 162;
-  return c;
-}
-
 static void test_time(void) {
   static stv_link_t link;
-  stv_link_config_t c = default_cfg();
+  stv_link_config_t c = stv_stock_config();
   uint32_t cyc = 0xFFFFFFFFu - 5000000u, i;
   uint64_t total = 0;
   stv_link_init(&link, &c, cyc);
@@ -166,7 +143,7 @@ static void test_time(void) {
 
 static void test_log_lines(void) {
   static stv_link_t link;
-  stv_link_config_t c = default_cfg();
+  stv_link_config_t c = stv_stock_config();
   char longline[600];
   uint8_t out[4096];
   uint32_t n;
@@ -190,10 +167,7 @@ static int selftest(void) {
   test_queue();
   test_time();
   test_log_lines();
-  if (failures) {
-    fprintf(stderr, "%d of %d checks failed\n", failures, checks);
-    return 1;
-  }
+  if (checks_failed()) return 1;
   printf("ok %d\n", checks);
   return 0;
 }
@@ -221,7 +195,7 @@ static int link_driver(void) {
   uint32_t max_peak = 0;
   while ((op = getchar()) != EOF) {
     if (op == 'C') {
-      stv_link_config_t c = default_cfg();
+      stv_link_config_t c = stv_stock_config();
       uint8_t tm;
       uint32_t cyc0, t0, step0;
       if (!(rd(&tm, 1) && rd(&c.text_decimation, 4) && rd(&c.status_every, 4) && rd(&c.cpu_hz, 4) &&

@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "stv_requests.h"
+#include "stv_stock_config.h"
 
 #define EMU_IN_SIZE 16384u
 #define EMU_OUT_SIZE 32768u
@@ -44,18 +45,8 @@ void emu_run(void) {
 void emu_run_link(void) {
   static stv_link_t link;
   static const float zero = 0.0f;
-  stv_link_config_t c;
+  stv_link_config_t c = stv_stock_config();
   uint32_t i, n = emu_in_len / 40u, cyc = 1000u;
-  memset(&c, 0, sizeof(c));
-  c.kp_ground = 10.0f;
-  c.kp_flight = 0.4f;
-  c.ki = 0.1f;
-  c.dt_s = 0.00625f;
-  c.min_thr = 200;
-  c.cpu_hz = 84000000u;
-  c.baud = 115200u;
-  c.text_decimation = 16u;
-  c.status_every = 162u;
   for (i = 0; i < 4; i++) c.q_state[i] = &zero;
   for (i = 0; i < 3; i++) c.int_state[i] = &zero;
   emu_out_len = 0;

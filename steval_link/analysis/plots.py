@@ -85,10 +85,11 @@ def _decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -
     return np.asarray(tt), np.asarray(yy)
 
 
-def _save(fig, out_png) -> Path:
+def save_figure(fig, out_png, *, dpi: int = 130) -> Path:
+    """Write ``fig`` to ``out_png`` (format by extension) and close it; UserError when it cannot be written."""
     out = Path(out_png)
     try:
-        fig.savefig(out, dpi=130)
+        fig.savefig(out, dpi=dpi)
     except OSError as exc:
         raise UserError(f"cannot write the plot {out}: {exc.strerror or exc}") from None
     except ValueError as exc:  # unknown file extension
@@ -96,6 +97,7 @@ def _save(fig, out_png) -> Path:
     finally:
         import matplotlib.pyplot as plt
 
+        fig.clf()
         plt.close(fig)
     return out
 
@@ -113,7 +115,7 @@ def _spans(ax, t: np.ndarray, mask: np.ndarray, label: str | None, color: str = 
 
 def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
     """Write :func:`comparison_figure` as a PNG to ``out_png`` (returns the path; UserError when not writable)."""
-    return _save(comparison_figure(tel, report, title=title), out_png)
+    return save_figure(comparison_figure(tel, report, title=title), out_png)
 
 
 def comparison_figure(tel, report, *, title: str | None = None):
@@ -354,7 +356,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
 
 def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
     """Write :func:`flight_control_figure` as a PNG to ``out_png`` (returns the path)."""
-    return _save(flight_control_figure(tel, title=title), out_png)
+    return save_figure(flight_control_figure(tel, title=title), out_png)
 
 
 def flight_control_figure(tel, *, title: str | None = None):
@@ -450,7 +452,7 @@ def _wrap(d: np.ndarray) -> np.ndarray:
 
 def plot_simulation(result, out_png, *, title: str | None = None) -> Path:
     """Write :func:`simulation_figure` as a PNG to ``out_png`` (returns the path; UserError when not writable)."""
-    return _save(simulation_figure(result, title=title), out_png)
+    return save_figure(simulation_figure(result, title=title), out_png)
 
 
 def simulation_figure(result, *, title: str | None = None):

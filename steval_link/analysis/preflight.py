@@ -235,16 +235,25 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     return rep
 
 
+def _axis_turned(values: np.ndarray, axis: int, sign: int) -> tuple[int, str]:
+    """The axis with the largest ``values`` and how it compares with the expected ``axis`` turned by ``sign``:
+    "ok", "reversed" (that axis, the other way) or "swapped" (another axis)."""
+    dom = int(np.argmax(np.abs(values)))
+    if dom != axis:
+        return dom, "swapped"
+    return dom, "ok" if np.sign(values[dom]) == sign else "reversed"
+
+
 def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int, a1: int, b0: int) -> None:
     """The gyro's rotation during the move, then the firmware's angles during the hold (an attitude problem is
     named on its own only when the gyro was right: else it is the same fault, seen twice)."""
     n_problems = len(rep.problems)
-    dom = int(np.argmax(np.abs(rot)))
+    dom, turned = _axis_turned(rot, mv.axis, mv.sign)
     got = ", ".join(f"{n[0]} {_fmt(v)}" for n, v in zip(_AXIS_NAMES, rot))
     exp_dir = "+" if mv.sign > 0 else "-"
-    if dom == mv.axis and np.sign(rot[dom]) == mv.sign:
+    if turned == "ok":
         rep.lines.append(f"  gyro: OK, turned about {_AXIS_NAMES[mv.axis]} {_fmt(rot[dom])} (x/y/z: {got}).")
-    elif dom == mv.axis:
+    elif turned == "reversed":
         rep.problems.append(
             f"{mv.name}: the gyro turned about {_AXIS_NAMES[mv.axis]} with the wrong sign "
             f"({_fmt(rot[dom])}, expected {exp_dir}): the sensor's {_AXIS_NAMES[mv.axis][0]} axis is "
@@ -264,17 +273,17 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
         hold = slice(a1 + (b0 - a1) // 4, a1 + 3 * (b0 - a1) // 4 + 1)
         ang = np.stack([att.thx_rad, att.thy_rad], axis=1).astype(np.float64)
         d = np.degrees(ang[hold].mean(axis=0) - ang[pre].mean(axis=0))
-        ddom = int(np.argmax(np.abs(d)))
+        ddom, turned = _axis_turned(d, mv.axis, mv.sign)
         txt = f"pitch thx {_fmt(d[0])}, roll thy {_fmt(d[1])}"
         gyro_ok = len(rep.problems) == n_problems
-        if ddom == mv.axis and np.sign(d[ddom]) == mv.sign:
+        if turned == "ok":
             rep.lines.append(f"  attitude: OK, the firmware's {_ANGLE_NAMES[mv.axis]} moved {_fmt(d[ddom])} ({txt}).")
         elif not gyro_ok:
             rep.lines.append(
                 f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
                 "drone over instead of levelling it."
             )
-        elif ddom == mv.axis:
+        elif turned == "reversed":
             rep.problems.append(
                 f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
                 f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "

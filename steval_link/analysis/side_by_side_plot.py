@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.analysis.plots import _decimate, _save, _spans, require_matplotlib
+from steval_link.analysis.plots import _decimate, _spans, require_matplotlib, save_figure
 from steval_link.analysis.side_by_side import SideBySide, difference_series
 
 __all__ = ["plot_side_by_side", "side_by_side_figure"]
@@ -22,7 +22,7 @@ COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:
 
 def plot_side_by_side(r: SideBySide, out_png) -> Path:
     """Write :func:`side_by_side_figure` as a PNG to ``out_png`` (UserError when it cannot be written)."""
-    return _save(side_by_side_figure(r), out_png)
+    return save_figure(side_by_side_figure(r), out_png)
 
 
 def _cell(x, fmt: str) -> str:

@@ -10,9 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.analysis.plots import require_matplotlib
+from steval_link.analysis.plots import require_matplotlib, save_figure
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Peak, Spectra, alias_lines
-from steval_link.errors import UserError
 
 __all__ = ["spectra_figure", "plot_spectra"]
 
@@ -123,15 +122,4 @@ def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | N
 
 def plot_spectra(sp: Spectra, out_png, *, marks_hz=(), peaks=None, title: str = "") -> Path:
     """Write :func:`spectra_figure` to ``out_png`` (returns the path; UserError when it cannot be written)."""
-    fig = spectra_figure(sp, marks_hz=marks_hz, peaks=peaks, title=title)
-    out = Path(out_png)
-    try:
-        fig.savefig(out, dpi=100)
-    except OSError as exc:
-        raise UserError(f"cannot write the plot {out}: {exc.strerror or exc}") from None
-    except ValueError as exc:  # unknown file extension
-        raise UserError(f"cannot write the plot {out}: {exc}") from None
-    finally:
-        fig.clf()
-        require_matplotlib().close(fig)
-    return out
+    return save_figure(spectra_figure(sp, marks_hz=marks_hz, peaks=peaks, title=title), out_png, dpi=100)

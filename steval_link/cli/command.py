@@ -8,7 +8,7 @@ prompt instead (they are then recorded in its capture and shown on the viewer's 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import typer
 
@@ -19,9 +19,19 @@ from steval_link.link import protocol as P
 from steval_link.link.commands import PARAM_HELP, PARAMS, Command, describe_settings, param_of_status, set_param
 from steval_link.live.remote import run_commands
 
-_PORT_HELP = "Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
-_TIMEOUT_HELP = "Seconds to wait for the drone's acknowledgement."
-_OUT_HELP = "Also record this exchange (bytes received and sent) to this new capture file."
+# the four options every command here takes
+_Port = Annotated[
+    str,
+    typer.Option(
+        "--port", "-p", help="Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
+    ),
+]
+_Baud = Annotated[int, typer.Option("--baud", "-b", help="Baud rate of the firmware build.")]
+_Timeout = Annotated[float, typer.Option("--timeout", help="Seconds to wait for the drone's acknowledgement.")]
+_Out = Annotated[
+    Optional[Path],
+    typer.Option("--out", help="Also record this exchange (bytes received and sent) to this new capture file."),
+]
 
 param_app = typer.Typer(
     help="Read or change a filter parameter of the drone's Mahony filter, live.",
@@ -56,10 +66,10 @@ def _finish(reply) -> None:
 @param_app.command("get")
 def param_get(
     name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."),
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
-    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+    port: _Port = "auto",
+    baud: _Baud = C.BAUD,
+    timeout: _Timeout = 2.0,
+    out: _Out = None,
 ) -> None:
     """Print a filter parameter as the drone reports it now (asks for a status frame)."""
     if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:
@@ -78,10 +88,10 @@ def param_get(
 def param_set(
     name: str = typer.Argument(..., help=f"Parameter: {_NAMES}."),
     value: str = typer.Argument(..., help="New value (a number; correction: on or off)."),
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
-    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+    port: _Port = "auto",
+    baud: _Baud = C.BAUD,
+    timeout: _Timeout = 2.0,
+    out: _Out = None,
 ) -> None:
     """Change a filter parameter between two AHRS steps (refused while the motors may spin)."""
     command = set_param(name, value)
@@ -91,10 +101,10 @@ def param_set(
 
 @command_app.command("reset-filter")
 def reset_filter(
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
-    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+    port: _Port = "auto",
+    baud: _Baud = C.BAUD,
+    timeout: _Timeout = 2.0,
+    out: _Out = None,
 ) -> None:
     """Reset the filter state (q = 1, 0, 0, 0; integrals 0) between two AHRS steps."""
     (reply,) = _run(port, baud, [Command(P.CMD_RESET_FILTER)], timeout, out)
@@ -103,10 +113,10 @@ def reset_filter(
 
 @command_app.command("status")
 def request_status(
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
-    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+    port: _Port = "auto",
+    baud: _Baud = C.BAUD,
+    timeout: _Timeout = 2.0,
+    out: _Out = None,
 ) -> None:
     """Ask the drone for a status frame now (settings and filter state snapshot)."""
     (reply,) = _run(port, baud, [Command(P.CMD_REQUEST_STATUS)], timeout, out)
@@ -116,10 +126,10 @@ def request_status(
 @command_app.command("mode")
 def set_mode(
     mode: str = typer.Argument(..., help="text (readable lines for a serial terminal) or binary (frames)."),
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
-    baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the firmware build."),
-    timeout: float = typer.Option(2.0, "--timeout", help=_TIMEOUT_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help=_OUT_HELP),
+    port: _Port = "auto",
+    baud: _Baud = C.BAUD,
+    timeout: _Timeout = 2.0,
+    out: _Out = None,
 ) -> None:
     """Switch the drone's output between binary frames and text lines."""
     key = mode.strip().lower()

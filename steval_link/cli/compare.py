@@ -7,7 +7,6 @@ shown with its first step and a diagnosis, and ``port.all_exact`` is false in ``
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from dataclasses import replace
@@ -26,8 +25,8 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain, check_throttle, require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.checks import check_filter_options, require_attitude
+from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
@@ -100,9 +99,7 @@ def compare_command(
             metavar="CAPTURE",
         ),
     ] = None,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
-    ] = False,
+    as_json: JsonReportOption = False,
     plot: Annotated[
         Optional[Path],
         typer.Option(
@@ -218,9 +215,7 @@ def compare_command(
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
-    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(option, gain)
-    check_throttle("--min-thr", min_thr)
+    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src)
         require_attitude(tel, "compare")
@@ -245,20 +240,23 @@ def compare_command(
                     fc_plot = flight_plot_path(plot)
                     with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
+    plots = [] if plot is None else [("plot", "plot", plot)]
+    if plot is not None and len(tel.fc):
+        plots.append(("plot_flight_control", "flight-control plot", flight_plot_path(plot)))
+    _print_report(as_json, report.as_dict, lambda: format_report(report), plots)
+
+
+def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:
+    """The report on stdout: one JSON object (``as_dict()`` with each written figure under its JSON key), or its
+    lines (``format_lines()``) and a line ``LABEL: PATH`` per figure. ``plots``: (JSON key, label, path)."""
     if as_json:
-        d = report.as_dict()
-        if plot is not None:
-            d["plot"] = str(plot)
-            if len(tel.fc):
-                d["plot_flight_control"] = str(flight_plot_path(plot))
-        json.dump(d, sys.stdout, indent=2, allow_nan=False)
-        sys.stdout.write("\n")
+        d = as_dict()
+        d.update({key: str(path) for key, _, path in plots})
+        print_json(d)
     else:
-        print("\n".join(format_report(report)))
-        if plot is not None:
-            print(f"plot: {plot}")
-            if len(tel.fc):
-                print(f"flight-control plot: {flight_plot_path(plot)}")
+        print("\n".join(format_lines()))
+        for _, label, path in plots:
+            print(f"{label}: {path}")
 
 
 def _load_flight(path: Path):
@@ -312,16 +310,9 @@ def _side_by_side(
             progress(0.7, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_side_by_side(result, part)
-    if as_json:
-        d = result.as_dict()
-        if plot is not None:
-            d["plot"] = str(plot)
-        json.dump(d, sys.stdout, indent=2, allow_nan=False)
-        sys.stdout.write("\n")
-    else:
-        print("\n".join(format_side_by_side(result)))
-        if plot is not None:
-            print(f"plot: {plot}")
+    _print_report(
+        as_json, result.as_dict, lambda: format_side_by_side(result), [] if plot is None else [("plot", "plot", plot)]
+    )
     sys.stdout.flush()
     if options is not None:
         from steval_viewer.side_by_side_log import side_by_side_sink  # Rerun loads only for a viewer or an .rrd

@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain, check_throttle
+from steval_link.cli.checks import check_filter_options
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
 from steval_link.estimators.conformance import check_conformance, load_conformance_csv
@@ -41,9 +41,7 @@ def conformance_command(
 
     Exit status 0 when every step of every file is bit-exact, 1 otherwise, 2 for unreadable files.
     """
-    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(option, gain)
-    check_throttle("--min-thr", min_thr)
+    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     overrides = {
         k: v
         for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt).items()

@@ -128,17 +128,18 @@ def emulate_command(
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
     check_duration(duration)
+    emu_options = EmulationOptions(
+        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle
+    )
     if ble:
         if rrd is not None or spawn or serve or connect:
             raise UserError(
                 "--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv (--spawn, --rrd)"
             )
-        _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, ble_connect_at, tick_start_ms)
+        _emulate_ble(emu_options, out, ble_connect_at, tick_start_ms)
         return
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
-    emu_options = EmulationOptions(
-        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle, mount=mount
-    )
+    emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
     script = None
     if commands is not None:
         try:
@@ -160,7 +161,7 @@ def emulate_command(
     run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
 
 
-def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s: float, tick_start_ms: int) -> None:
+def _emulate_ble(emu_options: EmulationOptions, out, connect_s: float, tick_start_ms: int) -> None:
     from steval_link.emulation.ble_capture import record_ble  # reason: only for --ble (loads the BlueNRG model)
 
     if not connect_s >= 0:
@@ -171,9 +172,6 @@ def _emulate_ble(elf, scenario, broad, duration, seed, throttle, out, connect_s:
     else:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
-    emu_options = EmulationOptions(
-        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle
-    )
     command = emu_options.command() + f" --ble --ble-connect-at {connect_s:g}"
     if tick_start_ms:
         command += f" --tick-start-ms {tick_start_ms}"

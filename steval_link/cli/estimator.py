@@ -7,7 +7,6 @@ Exit codes of ``check``: 0 when every interface check passes, 1 when one fails (
 
 from __future__ import annotations
 
-import json
 import re
 import sys
 from pathlib import Path
@@ -17,7 +16,7 @@ import typer
 
 from steval_link.analysis.estimator_check import format_check, run_check
 from steval_link.cli.app import HELP_OPTION_NAMES, app
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.errors import UserError
@@ -87,9 +86,7 @@ def check_command(
         ),
     ] = None,
     no_broad: Annotated[bool, typer.Option("--no-broad", help="Do not score on BROAD trials (quicker).")] = False,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
-    ] = False,
+    as_json: JsonReportOption = False,
 ) -> None:
     """Check an estimator's interface (shapes, units and signs at rest and tilted, a turn, NaN and invalid input,
     determinism, steps per second), then score it next to ST-Mahony, the built-in EKF and VQF: tilt difference
@@ -117,8 +114,7 @@ def check_command(
         d = report.as_dict()
         if report.traceback:
             d["traceback"] = report.traceback
-        json.dump(d, sys.stdout, indent=2, allow_nan=False)
-        sys.stdout.write("\n")
+        print_json(d)
     else:
         print("\n".join(format_check(report)))
     if not report.ok:

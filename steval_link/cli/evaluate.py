@@ -12,7 +12,7 @@ import typer
 from steval_link.analysis import evaluate as ev
 from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
@@ -71,9 +71,7 @@ def evaluate_command(
             "available.",
         ),
     ] = None,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
-    ] = False,
+    as_json: JsonReportOption = False,
     native: Annotated[
         bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
     ] = False,

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,11 +32,13 @@ from steval_link.errors import UserError
 __all__ = [
     "OUTPUT_OPTIONS",
     "ForceOption",
+    "JsonReportOption",
     "atomic_output",
     "check_input",
     "check_output",
     "output_error",
     "partial_path",
+    "print_json",
 ]
 
 #: option names whose value is a file a command writes
@@ -43,6 +47,15 @@ OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "-
 PARTIAL = ".partial"
 
 ForceOption = Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")]
+JsonReportOption = Annotated[
+    bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
+]
+
+
+def print_json(d: dict) -> None:
+    """A report as one indented JSON object on stdout (NaN refused: it is not JSON)."""
+    json.dump(d, sys.stdout, indent=2, allow_nan=False)
+    sys.stdout.write("\n")
 
 
 def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:

@@ -12,7 +12,6 @@ the summary and, when asked, to the Rerun sink (``steval_viewer.replay_log.repla
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -23,7 +22,7 @@ import typer
 from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
-from steval_link.cli.outputs import ForceOption
+from steval_link.cli.outputs import ForceOption, print_json
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
     ConnectOption,
@@ -95,8 +94,7 @@ def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
 def _print_summary(s: dict, format_lines, as_json: bool) -> None:
     """A summary dict on stdout: one JSON object, or its lines with the warnings on stderr."""
     if as_json:
-        json.dump(s, sys.stdout, indent=2, allow_nan=False)
-        sys.stdout.write("\n")
+        print_json(s)
     else:
         for w in s["warnings"]:
             print(f"steval: warning: {w}", file=sys.stderr)

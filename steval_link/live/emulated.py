@@ -85,12 +85,7 @@ class EmulatedSource(Source):
         return CaptureFields(f"emulated:{emu.elf.path.name}", C.BAUD, extra, discard_empty=False)
 
     def attach(self, session) -> None:
-        self.pipeline = LivePipeline.for_viewer(
-            session.options.estimators,
-            session.viewer,
-            t0_unix_s=session.clock.wall0_s,
-            baud=session.capture.header["baud"],
-        )
+        self.pipeline = LivePipeline.for_session(session)
         self._wall0 = session.clock.wall0_s
         self._t0 = time.monotonic()
         self._chunks = self.emu.chunks()

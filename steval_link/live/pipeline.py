@@ -218,22 +218,22 @@ class LivePipeline:
         self.acks = 0
 
     @classmethod
-    def for_viewer(
-        cls, estimator_names: list[str], viewer: LiveViewer | None, *, t0_unix_s: float | None = None, baud=None
-    ) -> LivePipeline:
-        """The pipeline of a session with this viewer side: a live viewer gets every processing round at once and
-        its ``.rrd`` (the viewer's ``file``) merged batches every RRD_ONLY_INTERVAL_S; a viewer side that writes
-        only an ``.rrd`` (``has_viewer`` false: headless ``--rrd X``) gets merged batches too. ``t0_unix_s``, ``baud``:
-        the capture's (see the class)."""
+    def for_session(cls, session) -> LivePipeline:
+        """The pipeline of a live session (:class:`~steval_link.live.session.LiveSession`): its estimators and
+        viewer side, times on its capture's base (``t0_unix_s``, ``baud``: see the class). A live viewer gets every
+        processing round at once and its ``.rrd`` (the viewer's ``file``) merged batches every RRD_ONLY_INTERVAL_S;
+        a viewer side that writes only an ``.rrd`` (``has_viewer`` false: headless ``--rrd X``) gets merged batches
+        too."""
+        viewer = session.viewer
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
         return cls(
-            estimator_names,
+            session.options.estimators,
             viewer,
             view_interval_s=VIEW_INTERVAL_S if live else RRD_ONLY_INTERVAL_S,
             file_logger=getattr(viewer, "file", None) if live else None,
             file_interval_s=RRD_ONLY_INTERVAL_S,
-            t0_unix_s=t0_unix_s,
-            baud=baud,
+            t0_unix_s=session.clock.wall0_s,
+            baud=session.capture.header["baud"],
         )
 
     @property

@@ -136,12 +136,7 @@ class SerialSource(Source):
         self.reader.start()
 
     def attach(self, session) -> None:
-        self.pipeline = LivePipeline.for_viewer(
-            session.options.estimators,
-            session.viewer,
-            t0_unix_s=session.clock.wall0_s,
-            baud=session.capture.header["baud"],
-        )
+        self.pipeline = LivePipeline.for_session(session)
 
     def round(self) -> bool:
         reader, proto, pipe, session = self.reader, self.proto, self.pipeline, self.session

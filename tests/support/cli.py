@@ -43,6 +43,23 @@ def run_cli(monkeypatch, capsys, *args):
     return code, out, err
 
 
+def run_steval(args, *, env=None, cwd=None, timeout: float = 120.0):
+    """``steval ARGS`` in a subprocess as a user's shell runs it (stdin closed): the ``CompletedProcess`` with
+    stdout and stderr as text."""
+    import subprocess
+    import sys
+
+    return subprocess.run(
+        [sys.executable, "-c", "from steval_link.cli import main; main()", *map(str, args)],
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
+
+
 def run_cli_tty(*args, timeout: float = 120.0):
     """``steval ARGS`` in a subprocess whose stderr is a terminal (a pseudo-terminal, 100 columns), as on a user's
     screen: returns (exit code, stdout text, everything written to the terminal as text)."""

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from steval_link.link import protocol as P
+from steval_link.link.decoder import StreamDecoder
 from steval_link.link.textmode import format_att, format_sta
 
 
@@ -117,3 +118,21 @@ def frame_keys(frames) -> list[tuple]:
         else:
             out.append(("t", f.offset, f.text))
     return out
+
+
+def stream_decode(data: bytes, chunk: int | list[int] = 4096, *, plausibility: bool = True):
+    """``data`` through one :class:`StreamDecoder` as a port delivers it: in chunks of ``chunk`` bytes (a list: of
+    those sizes, then the rest), then ``finish()``. Returns (frames, stats)."""
+    sd = StreamDecoder(plausibility=plausibility)
+    frames = []
+    if isinstance(chunk, int):
+        for i in range(0, len(data), chunk):
+            frames += sd.feed(data[i : i + chunk])
+    else:
+        pos = 0
+        for c in chunk:
+            frames += sd.feed(data[pos : pos + c])
+            pos += c
+        frames += sd.feed(data[pos:])
+    frames += sd.finish()
+    return frames, sd.stats

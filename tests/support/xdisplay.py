@@ -13,6 +13,7 @@ they fail instead, since CI must walk these paths (``.ci/run`` installs both).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -144,14 +145,38 @@ def kill_processes(pids: list[int]) -> None:
         except ProcessLookupError:
             pass
     deadline = time.monotonic() + 5
-    while time.monotonic() < deadline and any(_alive(p) for p in pids):
+    while time.monotonic() < deadline and any(process_alive(p) for p in pids):
         time.sleep(0.05)
     for pid in pids:
-        if _alive(pid):
+        if process_alive(pid):
             os.kill(pid, signal.SIGKILL)
 
 
-def _alive(pid: int) -> bool:
+@contextlib.contextmanager
+def virtual_display():
+    """A :class:`VirtualDisplay` (the test skips, or fails in CI, without the tools), closed on exit."""
+    require_display_tools()
+    display = VirtualDisplay()
+    try:
+        yield display
+    finally:
+        display.close()
+
+
+@contextlib.contextmanager
+def viewer_port(port: int | None = None):
+    """A gRPC port for a spawned viewer (default: a free one); the viewers started on it are ended on exit."""
+    if port is None:
+        from steval_viewer.sink_options import free_port
+
+        port = free_port()
+    try:
+        yield port
+    finally:
+        kill_processes(rerun_processes(port))
+
+
+def process_alive(pid: int) -> bool:
     import psutil
 
     try:
