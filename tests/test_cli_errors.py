@@ -256,6 +256,7 @@ def test_spawn_reports_a_viewer_that_dies(monkeypatch, capsys, tmp_path, small_c
     fake = tmp_path / "rerun.py"
     fake.write_text(FAKE_RERUN.format(listen=listen))
     monkeypatch.setattr(sinks, "rerun_command", lambda: [sys.executable, str(fake)])
+    monkeypatch.setenv("DISPLAY", ":0")  # a display is there, the viewer still dies (its GPU)
     port = free_port()
     code, out, err = run_cli(monkeypatch, capsys, "replay", small_capture, "--spawn", "--grpc-port", port, "-e", "none")
     _one_error_line(code, err)

@@ -3,6 +3,7 @@ never meets a port being swapped by a reconnection), the session's one stop mech
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from pathlib import Path
@@ -180,3 +181,42 @@ def test_one_session_drives_any_source_and_owns_the_capture_and_the_stop(tmp_pat
     with pytest.raises(UserError, match="already exists"):
         LiveSession(LiveOptions(out=tmp_path / "a.stv", prompt=False), src, stream=io.StringIO()).run()
     assert src.calls == ["open", "close_input"]
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (
+            ["live", "--port", "ble:DRN1110", "--no-view"],
+            "--port ble:DRN1110: a BLE drone is read with steval live --ble DRN1110",
+        ),
+        (["live", "--port", "emulated:", "--no-view"], "the emulated board is run with steval emulate FIRMWARE.elf"),
+        (["record", "--port", "BLE:"], "a BLE drone is read with steval live --ble"),
+        (["preflight", "--port", "emulated:x.elf"], "steval emulate FIRMWARE.elf"),
+        (["live", "--ble", "--port", "replay://recordings/demo.stv"], "a session reads one source; drop one of them"),
+    ],
+)
+def test_a_port_option_that_names_another_source_is_one_sentence(monkeypatch, capsys, tmp_path, args, words):
+    """`--port` takes a serial port or replay://; BLE and the emulated board have their own commands."""
+    from support.cli import run_cli
+
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    assert code == 2 and err.count("\n") == 1 and words in err and "Traceback" not in err, err
+    assert not list(tmp_path.rglob("*.stv"))
+
+
+def test_spawn_without_a_display_is_said_before_the_work(monkeypatch, capsys, tmp_path):
+    """Headless, `--spawn` cannot open a window: one sentence naming the other sinks, before any summary."""
+    from support.cli import run_cli
+
+    from steval_viewer.sink_options import free_port
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    demo = str(ROOT / "recordings" / "demo.stv")
+    code, out, err = run_cli(monkeypatch, capsys, "replay", demo, "--spawn", "--grpc-port", free_port())
+    assert code == 2 and out == "" and err.count("\n") == 1 and "no display for the desktop viewer (--spawn)" in err
+    code, out, err = run_cli(monkeypatch, capsys, "live", "--port", "replay://" + demo, "--duration", "1")
+    assert code == 2 and "--no-view to record only" in err

@@ -63,7 +63,7 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
         return options
     raise UserError(
         "no display for the desktop viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
-        "or --connect URL for a running viewer"
+        "--connect URL for a running viewer, or --no-view to record only"
     )
 
 
@@ -106,6 +106,11 @@ def check_sinks(options: SinkOptions) -> None:
         raise UserError(
             f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
             "pick another port with --grpc-port N"
+        )
+    if options.spawn and not display_available() and port_free(options.grpc_port):  # none to reuse either
+        raise UserError(
+            "no display for the desktop viewer (--spawn): pass --rrd FILE to write a recording, --serve for the web "
+            "viewer, or --connect URL for a running viewer"
         )
     if options.connect:
         host, tcp_port = parse_grpc_url(options.connect)

@@ -26,7 +26,7 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
-from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, source_for
+from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, port_source, source_for
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, session_sinks
 
@@ -80,7 +80,7 @@ def _check_baud(baud: int) -> None:
 
 @app.command("live")
 def live_command(
-    port: str = typer.Option("auto", "--port", "-p", help=_PORT_HELP),
+    port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto.", show_default=False),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: CaptureOutOption = None,
     rrd: RrdOption = None,
@@ -127,11 +127,13 @@ def live_command(
             f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
             "port is given with --port"
         )
+    if ble and port is not None:
+        raise UserError(f"--ble and --port {port}: a session reads one source; drop one of them")
     if ble:  # a clear line without bleak, before anything else
         target = device.strip() if device and device.strip() else "auto"
         source, factory = source_for(BLE_SCHEME + target, backend=bleak_backend()), _ble_viewer
     else:
-        source, factory = source_for(port, baud=baud, wait=wait), make_viewer_logger
+        source, factory = port_source(port or "auto", baud=baud, wait=wait), make_viewer_logger
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
         estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration, prompt=prompt
@@ -159,7 +161,7 @@ def record_command(
     _check_baud(baud)
     check_duration(duration)
     options = LiveOptions(duration_s=duration)
-    source = source_for(port, baud=baud, wait=wait)
+    source = port_source(port, baud=baud, wait=wait)
     run_session(LiveSession(options, source, check_outputs=session_outputs(options, out)))  # the port first
 
 

@@ -21,7 +21,7 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
-from steval_link.live.session import LiveOptions, LiveSession, source_for
+from steval_link.live.session import LiveOptions, LiveSession, port_source
 
 #: the guided sequence: (seconds after the start, what to say)
 SCRIPT: tuple[tuple[float, str], ...] = (
@@ -93,7 +93,7 @@ def preflight_command(
     else:
         if baud <= 0:
             raise UserError(f"--baud must be a positive baud rate, got {baud}")
-        options, source = LiveOptions(duration_s=LIVE_S), source_for(port, baud=baud)
+        options, source = LiveOptions(duration_s=LIVE_S), port_source(port, baud=baud)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
         try:

@@ -49,6 +49,18 @@ def source_for(url: str, **settings: Any) -> Source:
     return SerialSource(url, **settings)
 
 
+def port_source(port: str, **settings: Any) -> Source:
+    """The source a ``--port`` value names: a serial port or ``replay://``; BLE and the emulated board are chosen by
+    their own commands, so their URLs here are one sentence saying which (``settings``: ``baud``, ``wait``)."""
+    low = port.lower()
+    if low.startswith(BLE_SCHEME):
+        name = port[len(BLE_SCHEME) :].strip()
+        raise UserError(f"--port {port}: a BLE drone is read with steval live --ble {name}".rstrip())
+    if low.startswith(EMULATED_SCHEME):
+        raise UserError(f"--port {port}: the emulated board is run with steval emulate FIRMWARE.elf")
+    return SerialSource(port, **settings)
+
+
 @dataclass
 class LiveOptions:
     """What every live session configures (a source's own settings are its driver's: the baud rate, --wait, the
