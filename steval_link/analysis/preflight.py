@@ -66,13 +66,6 @@ _MIN_MOTOR_DELTA = 3.0
 
 
 @dataclass
-class MoveResult:
-    move: Move
-    lines: list[str] = field(default_factory=list)
-    problems: list[str] = field(default_factory=list)
-
-
-@dataclass
 class PreflightReport:
     """What the check found: ``lines`` (plain sentences, per move, motor and axis), ``problems`` (one sentence each)."""
 

@@ -239,12 +239,6 @@ def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
     return _run_numbers(t, cadence.interval_s / TICK_S)
 
 
-def nominal_interval_s(ticks, repeats: int = 0) -> float | None:
-    """The sender's interval between motion samples, s (:func:`motion_cadence`); None below 2 samples."""
-    c = motion_cadence(ticks, repeats)
-    return None if c is None else c.interval_s
-
-
 def sender_phase(t: np.ndarray, interval: float) -> float:
     """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
     consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""

@@ -140,11 +140,6 @@ class StreamDecoder:
         self.gate = PlausibilityGate() if plausibility else None
 
     @property
-    def protocol_version(self) -> int | None:
-        """2 once a version-2 frame was accepted, 1 if only version-1 frames were, None before any binary frame."""
-        return _V2 if self._v2_seen else (_V1 if self.stats.v1_frames else None)
-
-    @property
     def pending_bytes(self) -> int:
         """Bytes held back because the candidate frame or line at the current position is not complete yet."""
         return len(self._buf)

@@ -261,10 +261,6 @@ class PythonBoard:
     def _R(self) -> list[int]:
         return self.regs.R
 
-    @property
-    def _PC(self) -> int:
-        return self.regs.PC
-
     def pc(self) -> int:
         return self.regs.get(self.regs.PC)
 

@@ -221,9 +221,6 @@ class NativeNvic:
     def unpend(self, exc: int) -> None:
         self._put(self.st.pending, exc, False)
 
-    def any_pending(self) -> bool:
-        return any(self.st.pending)
-
     def is_pending(self, exc: int) -> bool:
         return self._bit(self.st.pending, exc)
 

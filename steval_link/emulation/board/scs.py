@@ -75,9 +75,6 @@ class Nvic:
     def unpend(self, exc: int) -> None:
         self.pending.discard(exc)
 
-    def any_pending(self) -> bool:
-        return bool(self.pending)
-
     def is_pending(self, exc: int) -> bool:
         return exc in self.pending
 
