@@ -1,5 +1,5 @@
 /*
- * Native loop of the bit-exact port of the STEVAL-FCU001V1 Mahony filter (firmware release 170120).
+ * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (firmware release 170120).
  *
  * Written from scratch for steval-link (it is not ST's code): it reproduces, operation by operation and in the
  * same evaluation order, the float32 arithmetic of the firmware's ahrs_fusion_ag + QuaternionToEuler as the
@@ -21,7 +21,7 @@
  *   euler(q, thx_out, thy_out) -> None
  *     q         : float32 buffer of 4*N values; thx_out, thy_out: writable float32 buffers of N values
  *
- * Both use the C library's atan2/asin, so thx/thy of the port and of firmware quaternions converted on the host
+ * Both use the C library's atan2/asin, so thx/thy of the replica and of firmware quaternions converted on the host
  * come from the same math library.
  */
 #define PY_SSIZE_T_CLEAN
@@ -288,7 +288,7 @@ static PyMethodDef native_methods[] = {
 
 static struct PyModuleDef native_module = {
     PyModuleDef_HEAD_INIT, "_st_mahony_native",
-    "Native, bit-exact loop of the STEVAL-FCU001V1 Mahony filter port (see st_mahony.py).", -1, native_methods,
+    "Native, bit-exact loop of the STEVAL-FCU001V1 Mahony filter replica (see st_mahony.py).", -1, native_methods,
     NULL, NULL, NULL, NULL,
 };
 
