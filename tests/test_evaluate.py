@@ -255,3 +255,13 @@ def test_cli_sensor_noise_is_seeded(tmp_path, monkeypatch, capsys):
     assert a["trials"][0]["rmse_deg"] == b["trials"][0]["rmse_deg"]
     assert a["sensor_noise"] and not c["sensor_noise"]
     assert a["trials"][0]["rmse_deg"]["accel"] > c["trials"][0]["rmse_deg"]["accel"]
+
+
+def test_the_table_rounds_each_figure_once():
+    """28.308501° is 28.309 in the table (the JSON keeps 28.3085): no second rounding of a rounded value."""
+    res = ev.TrialResult(
+        "02_a", 161.5, np.arange(10) / 161.5, np.ones(10, bool), {"ekf3": 28.308501}, {"ekf3": np.zeros(10)}, {}
+    )
+    row = [ln for ln in ev.format_table([res]).splitlines() if ln.startswith("02_a")][0]
+    assert row.split()[-1] == "28.309"
+    assert ev.summary([res])["trials"][0]["rmse_deg"]["ekf3"] == 28.3085

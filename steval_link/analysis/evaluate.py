@@ -354,8 +354,12 @@ def _trial_key(name: str) -> str:
     return name.split("_", 1)[0]
 
 
-def summary(results: Sequence[TrialResult]) -> dict:
-    """JSON-ready report: per-trial RMSE and speed, the mean over all trials, and over BROAD 02/07/15/24 if present."""
+def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
+    """JSON-ready report: per-trial RMSE and speed, the mean over all trials, and over BROAD 02/07/15/24 if present.
+
+    ``number``: how each figure is written (default: to 4 decimals, for JSON; the table rounds the raw values once).
+    """
+    rnd = number or _rounded
     labels: list[str] = []
     for r in results:
         labels.extend(k for k in r.rmse_deg if k not in labels)
@@ -364,8 +368,8 @@ def summary(results: Sequence[TrialResult]) -> dict:
             "trial": r.name,
             "rate_hz": r.rate_hz,
             "steps": int(r.t_s.shape[0]),
-            "rmse_deg": {k: _rounded(r.rmse_deg.get(k)) for k in labels},
-            "steps_per_s": {k: _rounded(r.steps_per_s.get(k)) for k in labels},
+            "rmse_deg": {k: rnd(r.rmse_deg.get(k)) for k in labels},
+            "steps_per_s": {k: rnd(r.steps_per_s.get(k)) for k in labels},
         }
         for r in results
     ]
@@ -373,7 +377,7 @@ def summary(results: Sequence[TrialResult]) -> dict:
         "metric": "inclination RMSE over movement samples, degrees",
         "estimators": labels,
         "trials": trials,
-        "mean_rmse_deg": {k: _rounded(_mean([r.rmse_deg.get(k) for r in results])) for k in labels},
+        "mean_rmse_deg": {k: rnd(_mean([r.rmse_deg.get(k) for r in results])) for k in labels},
     }
     fws = [_firmware_dict(fw) for r in results for fw in r.firmware]
     if fws:
@@ -384,7 +388,7 @@ def summary(results: Sequence[TrialResult]) -> dict:
         )
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
-        out["mean_02_07_15_24_rmse_deg"] = {k: _rounded(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
+        out["mean_02_07_15_24_rmse_deg"] = {k: rnd(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
     return out
 
 
@@ -401,7 +405,7 @@ def _rounded(x) -> float | None:
 
 def format_table(results: Sequence[TrialResult]) -> str:
     """A plain-text table: one row per trial, one column per estimator (inclination RMSE, °), mean rows."""
-    s = summary(results)
+    s = summary(results, json_number)  # raw values: the table rounds once, as the firmware lines below
     labels = s["estimators"]
     w0 = max([len("trial")] + [len(r.name) for r in results] + [len("mean 02/07/15/24")])
     widths = [max(len(k), 7) for k in labels]
