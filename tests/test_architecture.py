@@ -244,7 +244,7 @@ def names_in_module_table(doc: str) -> list[str]:
     names = []
     for line in section.splitlines():
         if line.startswith("| `"):
-            names += [n for n in line.split("|")[1].split("`")[1::2]]
+            names += line.split("|")[1].split("`")[1::2]
     return names
 
 

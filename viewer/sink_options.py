@@ -61,10 +61,14 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
         return options
     if options.rrd is not None:
         return options
-    raise UserError(
-        "no display for the desktop viewer: pass --rrd FILE to write a recording, --serve for the web viewer, "
-        "--connect URL for a running viewer, or --no-view to record only"
-    )
+    raise no_display_error("", "--no-view to record only")
+
+
+def no_display_error(flag: str, *more_ways: str) -> UserError:
+    """The one sentence for a desktop viewer without a display: the other sinks, then ``more_ways``."""
+    ways = ["--rrd FILE to write a recording", "--serve for the web viewer", "--connect URL for a running viewer"]
+    ways += more_ways
+    return UserError(f"no display for the desktop viewer{flag}: pass {', '.join(ways[:-1])}, or {ways[-1]}")
 
 
 def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
@@ -102,16 +106,15 @@ def check_sinks(options: SinkOptions) -> None:
                     f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "
                     f"stop that program or pick another port with {flag} N"
                 )
-    if options.spawn and not port_free(options.grpc_port) and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
-        raise UserError(
-            f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
-            "pick another port with --grpc-port N"
-        )
-    if options.spawn and not display_available() and port_free(options.grpc_port):  # none to reuse either
-        raise UserError(
-            "no display for the desktop viewer (--spawn): pass --rrd FILE to write a recording, --serve for the web "
-            "viewer, or --connect URL for a running viewer"
-        )
+    if options.spawn:
+        free = port_free(options.grpc_port)
+        if not free and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
+            raise UserError(
+                f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
+                "pick another port with --grpc-port N"
+            )
+        if free and not display_available():  # no viewer there to reuse, and none can open
+            raise no_display_error(" (--spawn)")
     if options.connect:
         host, tcp_port = parse_grpc_url(options.connect)
         if not port_open(host, tcp_port, CONNECT_TIMEOUT_S):

@@ -58,7 +58,7 @@ def port_source(port: str, **settings: Any) -> Source:
         raise UserError(f"--port {port}: a BLE drone is read with steval live --ble {name}".rstrip())
     if low.startswith(EMULATED_SCHEME):
         raise UserError(f"--port {port}: the emulated board is run with steval emulate FIRMWARE.elf")
-    return SerialSource(port, **settings)
+    return source_for(port, **settings)
 
 
 @dataclass
