@@ -126,7 +126,14 @@ def compare_capture(
 
     estimates: dict[str, Any] = {}
     decimation = row_decimation(tel)
+    has_acc = bool(np.isfinite(a.acc_mg).all(axis=1).any())
+    has_gyro = bool(np.isfinite(a.gyro_mdps).all(axis=1).any())
+    if not (has_acc and has_gyro):
+        notes.append(_inputs_absent_note(has_acc, has_gyro))
     for name in estimators:
+        if not has_acc or (not has_gyro and name != "accel"):
+            traces.append(_unavailable(name, f"needs {'acc' if name == 'accel' else 'acc and gyro'}: absent"))
+            continue
         est, why = run_estimator(name, tel, decimation=decimation)
         if est is None:
             traces.append(_unavailable(name, why))
@@ -141,7 +148,9 @@ def compare_capture(
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
         why = (
-            "its filter output is NaN or out of range, see above"
+            "the capture carries no firmware angles, only its inputs"
+            if nan_x == n and nan_y == n and not exact.any()
+            else "its filter output is NaN or out of range, see above"
             if values_bad
             else "asin out of range at extreme rates"
         )
@@ -167,6 +176,19 @@ def compare_capture(
         replica_rows=prow,
         estimates=estimates,
         truth=truth,
+    )
+
+
+def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
+    """What can be compared when the rows carry no accelerometer or gyro (a text log of angles)."""
+    if has_acc:
+        return (
+            "no gyro in this capture: accel-only tilt is compared with the firmware's angles; the other estimators "
+            "need gyro"
+        )
+    return (
+        "no accelerometer or gyro in this capture (the firmware's angles only): the estimators need them "
+        "(accel-only tilt needs acc; the EKFs and the port need acc and gyro); print them too, or map them, to compare"
     )
 
 

@@ -18,7 +18,7 @@ from steval_link.link.plausibility import (
     values_bad_sentence,
 )
 
-__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report"]
+__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report", "text_telemetry_report"]
 
 _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
@@ -105,6 +105,37 @@ def q_norm_report(tel) -> dict[str, Any] | None:
     }
 
 
+def text_telemetry_report(tel) -> dict[str, Any] | None:
+    """The records of text telemetry (``tel.text_series``), None when there is none: ``records``, ``series``
+    (names), ``units``, ``other_lines`` (text lines that are not records), ``dropped_lines`` (printable lines that
+    did not read as text), ``time_source``, ``notes`` (ST's %f-less output...) and ``attitude`` (how series became
+    the attitude rows)."""
+    ts = getattr(tel, "text_series", None)
+    if ts is None or not len(ts):
+        return None
+    return {
+        "records": len(ts),
+        "series": list(ts.names),
+        "units": list(ts.units),
+        "other_lines": len(tel.text),
+        "dropped_lines": tel.stats.text_dropped,
+        "time_source": ts.t_source,
+        "notes": list(ts.notes),
+        "attitude": list(getattr(tel, "text_attitude_notes", [])),
+    }
+
+
+def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
+    units = [f"{n} ({u})" if u else n for n, u in zip(t["series"], t["units"])]
+    lines = [
+        f"text telemetry: {t['records']} records, {len(t['series'])} series: {', '.join(units)}; "
+        f"{t['other_lines']} other text lines; times from {t['time_source']}"
+    ]
+    lines += [f"  note: {n}" for n in t["notes"]]
+    lines += [f"  attitude: {n}" for n in t["attitude"]]
+    return lines
+
+
 def summarize(tel) -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
@@ -177,6 +208,7 @@ def summarize(tel) -> dict[str, Any]:
         "events": [{"t_host_s": e.t_host_s, "kind": e.kind, "text": e.text} for e in tel.events],
         "warnings": list(src.get("warnings") or []),
         "text_lines": [t for _, t in tel.text[:20]],
+        "text_telemetry": text_telemetry_report(tel),
         "filter": None,
     }
     if len(s):
@@ -277,6 +309,8 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
                 f"({flt['ahrs_cycles_mean']} {'emulated instructions' if flt['ahrs_cycles_emulated'] else 'cycles'}, "
                 f"max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
             )
+    if s.get("text_telemetry"):
+        lines += _text_telemetry_lines(s["text_telemetry"])
     for e in s["events"]:
         note = f" ({e['text']})" if e["text"] else ""
         lines.append(f"event at {e['t_host_s']:.3f} s host time: {e['kind']}{note}")

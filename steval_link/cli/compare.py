@@ -28,7 +28,7 @@ from steval_link.cli.app import app
 from steval_link.cli.checks import check_filter_options, require_attitude
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar, scaled
-from steval_link.cli.replay import load_replay
+from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import (
     ConnectOption,
     GrpcPortOption,
@@ -166,6 +166,7 @@ def compare_command(
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     force: ForceOption = False,
+    text_map: MapOption = None,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
@@ -217,7 +218,7 @@ def compare_command(
         require_matplotlib()
     check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
-        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src)
+        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
         if plot is not None and len(tel.fc):
             check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))

@@ -39,26 +39,60 @@ from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
+from steval_link.link.text_series import MAP_TARGETS, parse_map
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 
-__all__ = ["load_replay", "run_estimators"]
+__all__ = ["MapOption", "load_replay", "run_estimators"]
+
+#: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
+MapOption = Annotated[
+    Optional[list[str]],
+    typer.Option(
+        "--map",
+        metavar="TARGET=SERIES[:UNIT]",
+        help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
+        f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
+        "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
+        show_default=False,
+    ),
+]
 
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
 Sink = Callable[[Any, dict[str, Any]], None]
 
 
-def load_replay(path: Path | None, progress: Progress | None = None, *, src=None) -> tuple[Any, list[str]]:
+def load_replay(
+    path: Path | None, progress: Progress | None = None, *, src=None, text_map: list[str] | None = None
+) -> tuple[Any, list[str]]:
     """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
-    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_recording``)."""
+    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_recording``);
+    ``text_map``: the ``--map`` items (a text log's series as the attitude)."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
     progress(0.0, f"reading {path.name}")
     src = read_recording(path) if src is None else src
     progress(0.2, "decoding")
-    tel = telemetry_of_recording(src)
+    try:
+        tel = telemetry_of_recording(src, text_map=_text_map(text_map))
+    except UserError as exc:
+        raise _map_flag(exc) from None
     progress(1.0, "decoded")
     return tel, list(src.warnings)
+
+
+def _text_map(items: list[str] | None) -> dict | None:
+    """The ``--map`` items read (UserError naming the flag when one does not read)."""
+    try:
+        return parse_map(items) or None
+    except UserError as exc:
+        raise _map_flag(exc) from None
+
+
+def _map_flag(exc: UserError) -> UserError:
+    """The library's sentence about its ``map`` parameter, naming the flag."""
+    text = str(exc)
+    return UserError("--" + text) if text.startswith("map ") else exc
 
 
 def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) -> dict[str, Any]:
@@ -130,8 +164,12 @@ def replay(
         ),
     ] = None,
     force: ForceOption = False,
+    text_map: MapOption = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
+
+    Any serial text works too: ST's own output, your own PRINTF, Arduino plotter, Teleplot and CSV lines are read
+    as text telemetry (records, series, other lines); --map says which series is the attitude when the names do not.
 
     A BLE capture (steval live --ble, ST's unmodified firmware) gives its notifications, the motion cadence its
     ticks show (the sender's own rate, or drops: ST's congestion skips, gaps), battery, pressure, RSSI and arming,
@@ -159,7 +197,7 @@ def replay(
             _replay_ble(src, names, as_json, options)
             return
         with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
-            tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src)
+            tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map)
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
             summary_sink(as_json, seen)(tel, estimates)

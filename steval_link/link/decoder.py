@@ -50,6 +50,7 @@ from steval_link.link.frames import (
     Frame,
     StatusFrame,
     TextFrame,
+    TextRecordFrame,
 )
 from steval_link.link.plausibility import (
     PlausibilityGate,
@@ -60,6 +61,7 @@ from steval_link.link.plausibility import (
     status_values_ok,
 )
 from steval_link.link.telemetry import Telemetry, TelemetryParts
+from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
 __all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
@@ -74,7 +76,14 @@ for _t, _dtype in P.PAYLOAD_DTYPE.items():
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
-_COUNTER = {StatusFrame: "status", TextFrame: "text", FlightFrame: "flight", AckFrame: "ack", CommandFrame: "command"}
+_COUNTER = {
+    StatusFrame: "status",
+    TextFrame: "text",
+    TextRecordFrame: "text_records",
+    FlightFrame: "flight",
+    AckFrame: "ack",
+    CommandFrame: "command",
+}
 _HEAD = P.HEADER_SIZE
 #: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
 _FIXED_LEN = {P.vt_byte(_V2, t): n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
@@ -138,6 +147,9 @@ class StreamDecoder:
         self._last_seq: int | None = None
         self._v2_seen = False  # a version-2 frame was accepted: version-1 candidates are refused from now on
         self.gate = PlausibilityGate() if plausibility else None
+        self._ended_nl = False  # the bytes decoded so far end with "\n"
+        self._damaged = False  # bytes were skipped since the text reader last heard
+        self.text_reader = TextTelemetryReader()  # plain lines → records of text telemetry and text lines
 
     @property
     def pending_bytes(self) -> int:
@@ -154,6 +166,7 @@ class StreamDecoder:
         """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames.
         Frames the plausibility gate still holds are dropped (counted in ``implausible``)."""
         out = self._run(final=True)
+        self._read_text(out, "finish")
         if self.gate is not None:
             self.gate.finish()
             self.stats.implausible = self.gate.held_back
@@ -190,6 +203,7 @@ class StreamDecoder:
             q = m.start() + (buf[m.start()] == 0x0A)
         self.stats.bytes_skipped += q - p
         self._boundary = False
+        self._damaged = True
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -200,6 +214,10 @@ class StreamDecoder:
         stats = self.stats
         while p < n:
             c = buf[p]
+            if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
+                stats.bytes_skipped += 1
+                p += 1
+                continue
             if c == _SYNC0:
                 # ---- binary frame candidate
                 if n - p < _HEAD:
@@ -256,9 +274,11 @@ class StreamDecoder:
                 break  # wait for the rest of the line
             raw = bytes(buf[p:nl])
             nbytes = nl + 1 - p
-            if raw in (b"", b"\r"):  # blank line: skipped, the boundary state is kept
+            if raw in (b"", b"\r"):  # blank line: skipped, the boundary state is kept; it ends a block of lines
                 stats.bytes_skipped += nbytes
                 p = nl + 1
+                if self._boundary:
+                    self._read_text(out, "blank")
                 continue
             text = decode_line(raw)
             if text is None:
@@ -282,13 +302,18 @@ class StreamDecoder:
                     stats.bytes_skipped += nbytes
                     p = nl + 1
                     self._boundary = True
+                    self._read_text(out, "cut_line", text)
                     continue
-                frame = TextFrame(text, offset=offset, nbytes=nbytes)
+                self._read_text(out, "line", text, offset, nbytes)
+                p = nl + 1
+                self._boundary = True
+                continue
             self._count(frame)
             out.append(frame)
             p = nl + 1
             self._boundary = True
         if p:
+            self._ended_nl = buf[p - 1] == 0x0A
             del buf[:p]
             self._base += p
         if final and buf:  # cannot happen (every candidate is decided when final), kept as a guard
@@ -296,6 +321,26 @@ class StreamDecoder:
             self._base += len(buf)
             buf.clear()
         return out
+
+    def _read_text(self, out: list[Frame], method: str, *args) -> None:
+        """One call of the text reader (``line``, ``cut_line``, ``blank``, ``finish``), told first of any damage
+        since its last call; its frames into ``out``."""
+        reader = self.text_reader
+        if self._damaged:
+            self._damaged = False
+            self._text(out, reader.damage())
+        self._text(out, getattr(reader, method)(*args))
+
+    def _text(self, out: list[Frame], frames: list) -> None:
+        """Frames of the text reader: records counted and handed out; a text line only when it reads as text
+        (else dropped: ``text_dropped``, its bytes skipped)."""
+        for frame in frames:
+            if isinstance(frame, TextFrame) and not looks_like_text(frame.text):
+                self.stats.text_dropped += 1
+                self.stats.bytes_skipped += frame.nbytes
+                continue
+            self._count(frame)
+            out.append(frame)
 
     def _emit(self, out: list[Frame], frame: Frame, version: int) -> None:
         """A CRC-valid binary frame: through the plausibility gate, then counted and handed out."""
@@ -491,6 +536,8 @@ def decode_bytes(
         status=len(sta),
         text=len(parts.texts),
         **{name: kinds.count(name) for name in ("flight", "ack", "command")},
+        text_records=len(parts.records),
+        text_dropped=st.text_dropped,
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,
         unknown_frames=st.unknown_frames,
@@ -503,7 +550,9 @@ def decode_bytes(
         exact, *(att[k] for k in ("acc_mg", "gyro_mdps", "q_wxyz", "thz_rad", "thx_rad", "thy_rad"))
     )
     stats.values_bad = int(np.count_nonzero(bad))
-    stats.frames_ok = stats.attitude + stats.status + stats.text + stats.flight + stats.ack + stats.command
+    stats.frames_ok = (
+        stats.attitude + stats.status + stats.text + stats.text_records + stats.flight + stats.ack + stats.command
+    )
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
     parts.sent_commands = sent_commands
     return Telemetry.from_parts(

@@ -1,4 +1,5 @@
-"""One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, and the v2 frames
+"""One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, :class:`TextRecordFrame`
+(text telemetry), and the v2 frames
 :class:`FlightFrame`, :class:`AckFrame` (drone → host) and :class:`CommandFrame` (host → drone).
 
 The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol` (names,
@@ -93,6 +94,21 @@ class TextFrame:
 
 
 @dataclass(slots=True)
+class TextRecordFrame:
+    """One record of text telemetry (:mod:`steval_link.link.text_telemetry`): the numbers of one line or of a few
+    lines, named (``names``, from the line, a header line or ST's source; ``col1..N`` else), ``units`` as written
+    ('' when none), ``values`` (NaN for an empty field), ``kind`` of format ('table', 'labelled', 'teleplot',
+    'st-221117'); ``offset``/``nbytes`` the record's bytes in the stream (its lines and their endings)."""
+
+    names: tuple[str, ...]
+    values: tuple[float, ...]
+    units: tuple[str, ...]
+    kind: str
+    offset: int = 0
+    nbytes: int = 0
+
+
+@dataclass(slots=True)
 class FlightFrame(_wire_fields(P.FLIGHT_DTYPE, where=True)):
     """Flight control of one AHRS step (v2 type 4; fields as FLIGHT_DTYPE). ``rc`` is (gAIL, gELE, gRUD, gTHR)."""
 
@@ -107,7 +123,7 @@ class CommandFrame(_wire_fields(P.COMMAND_DTYPE, where=True)):
     """One host → drone command (v2 type 8; fields as COMMAND_DTYPE)."""
 
 
-Frame = AttitudeFrame | StatusFrame | TextFrame | FlightFrame | AckFrame | CommandFrame
+Frame = AttitudeFrame | StatusFrame | TextFrame | TextRecordFrame | FlightFrame | AckFrame | CommandFrame
 #: The frame class of each fixed-size binary frame type (its wire fields are those of ``protocol.PAYLOAD_DTYPE``).
 FRAME_OF_TYPE = {
     P.TYPE_ATTITUDE: AttitudeFrame,
@@ -140,6 +156,8 @@ class DecoderStats:
     implausible: int = 0  #: CRC-valid frames held back by the plausibility checks (never handed out)
     held_values: int = 0  #: of ``implausible``: v1 frames held back for NaN or out-of-range values
     values_bad: int = 0  #: attitude rows handed out with NaN or out-of-range values (v2: the firmware sent them)
+    text_records: int = 0  #: records of text telemetry (``TextRecordFrame``), each counted once
+    text_dropped: int = 0  #: whole printable lines dropped as not text (random bytes; their bytes are skipped)
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dict (JSON-friendly)."""

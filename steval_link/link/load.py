@@ -64,21 +64,25 @@ def read_recording(path: str | os.PathLike) -> Recording:
     return Recording(path, {}, raw, none, none.astype(np.float64), [], kind="bytes")
 
 
-def load_telemetry(path: str | os.PathLike) -> Telemetry:
+def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> Telemetry:
     """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.link.telemetry.Telemetry`.
 
     The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
     truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
     Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
     damaged capture header, or a file in which no frame is found.
+
+    Text telemetry (a log of any ``printf``: ``tel.text_series``) becomes the attitude rows when the stream has no
+    attitude frames and its series say what they are; ``text_map`` ({target: (series, unit)},
+    :func:`steval_link.link.text_series.parse_map`) says it for the others (UserError when it cannot hold).
     """
     src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
-    return telemetry_of_recording(src)
+    return telemetry_of_recording(src, text_map=text_map)
 
 
-def telemetry_of_recording(src: Recording) -> Telemetry:
+def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> Telemetry:
     """Decode a :class:`Recording` (see :func:`load_telemetry`)."""
     if src.kind == "stv" and not src.data:
         size = _file_size(src.path)
@@ -102,12 +106,16 @@ def telemetry_of_recording(src: Recording) -> Telemetry:
         events=src.events,
         sent_commands=sent_command_rows(src.host),
     )
+    if text_map:
+        if not len(tel.text_series):
+            raise UserError(f"{src.path} has no text telemetry to map (no records of numbers found).")
+        tel.map_text(text_map)
     a = tel.attitude
     if src.kind != "stv":
-        if len(a) + len(tel.status) == 0:
+        if len(a) + len(tel.status) + len(tel.text_series) == 0:
             raise UserError(
-                f"{src.path} is not a steval capture, raw serial dump or text-mode log (no frames found in "
-                f"{len(src.data)} bytes)."
+                f"{src.path} is not a steval capture, raw serial dump or text log (no frames and no records of "
+                f"numbers found in {len(src.data)} bytes{_text_lines(tel)})."
             )
         binary = int(a.exact.sum()) + int(tel.status.exact.sum())
         tel.source["kind"] = "raw" if binary else "text"
@@ -117,6 +125,11 @@ def telemetry_of_recording(src: Recording) -> Telemetry:
             f"firmware?)."
         )
     return tel
+
+
+def _text_lines(tel: Telemetry) -> str:
+    n = len(tel.text)
+    return f"; {n} text line{'s' if n != 1 else ''}" if n else ""
 
 
 def _file_size(path: Path) -> str:

@@ -30,8 +30,17 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.fw_math import quaternion_to_euler
 from steval_link.link import protocol as P
-from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.frames import (
+    AckFrame,
+    AttitudeFrame,
+    CommandFrame,
+    FlightFrame,
+    StatusFrame,
+    TextFrame,
+    TextRecordFrame,
+)
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
+from steval_link.link.text_series import TextSeries, map_attitude, text_series
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 from steval_link.link.unwrap import host_times as _host_times
 
@@ -248,6 +257,7 @@ class TelemetryParts:
         self.att_frames: list[AttitudeFrame] = []
         self.sta_frames: list[StatusFrame] = []
         self.texts: list[TextFrame] = []
+        self.records: list[TextRecordFrame] = []
         self.others: list[FlightFrame | AckFrame | CommandFrame] = []
         #: commands the host sent (``COMMAND_ROW_DTYPE`` rows, timed), kept after those found in the stream
         self.sent_commands: np.ndarray | None = None
@@ -286,6 +296,8 @@ class TelemetryParts:
             self._settled = False
         elif isinstance(frame, TextFrame):
             self.texts.append(frame)
+        elif isinstance(frame, TextRecordFrame):
+            self.records.append(frame)
         else:
             self.others.append(frame)
 
@@ -394,6 +406,10 @@ class Telemetry:
     flight: np.ndarray = field(default_factory=lambda: np.zeros(0, FLIGHT_ROW_DTYPE))
     acks: np.ndarray = field(default_factory=lambda: np.zeros(0, ACK_ROW_DTYPE))
     commands: np.ndarray = field(default_factory=lambda: np.zeros(0, COMMAND_ROW_DTYPE))
+    #: the records of text telemetry as named series (:class:`~steval_link.link.text_series.TextSeries`)
+    text_series: TextSeries = field(default_factory=TextSeries)
+    #: how the text series became the attitude rows (one note per mapped name), [] when they did not
+    text_attitude_notes: list[str] = field(default_factory=list)
 
     @classmethod
     def from_parts(
@@ -453,7 +469,50 @@ class Telemetry:
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
             rows["commands"] = np.concatenate([rows["commands"], parts.sent_commands])
-        return cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows)
+        records = sorted(parts.records, key=lambda f: f.offset)
+        t_rec = np.array([f.offset + f.nbytes - 1 for f in records], dtype=np.int64)
+        series = text_series(records, _host_times(t_rec, chunk_times, baud, total) if records else np.zeros(0))
+        tel = cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows, text_series=series)
+        if len(series) and not len(attitude):
+            tel.map_text()
+        return tel
+
+    def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
+        """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
+        names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
+        ``text_attitude_notes``. UserError for a ``user_map`` that cannot hold."""
+        if len(self.attitude) and self.attitude.exact.any():
+            return
+        cols, notes = map_attitude(self.text_series, user_map)
+        self.text_attitude_notes = notes
+        if not cols:
+            return
+        s = self.text_series
+        n = len(s)
+        t_fw = np.asarray(s.t_s, np.float64)
+        # AHRS steps from the records' times: the estimators run at the line rate (rows decimated as text mode's)
+        raw = np.round(np.nan_to_num(t_fw - (t_fw[0] if n else 0.0)) / C.AHRS_PERIOD_S).astype(np.int64)
+        idx = np.arange(n, dtype=np.int64)
+        step = np.maximum.accumulate(raw - idx) + idx if n else raw  # strictly increasing
+        bad = ~(np.isfinite(cols["thx_rad"]) | np.isfinite(cols["thy_rad"]))
+        bad &= ~np.isfinite(cols["acc_mg"]).all(axis=1)
+        self.attitude = AttitudeArrays(
+            step=step,
+            seq=(step % P.SEQ_MODULUS).astype(np.uint16),
+            t_us=(np.round(t_fw * 1e6).astype(np.int64) % P.T_US_MODULUS).astype(np.uint32),
+            t_fw_s=t_fw,
+            t_host_s=np.asarray(s.t_host_s, np.float64),
+            acc_mg=cols["acc_mg"],
+            gyro_mdps=cols["gyro_mdps"],
+            thr=cols["thr"],
+            q_wxyz=np.full((n, 4), np.nan, np.float32),
+            thz_rad=cols["thz_rad"],
+            thx_rad=cols["thx_rad"],
+            thy_rad=cols["thy_rad"],
+            exact=np.zeros(n, bool),
+            offset=np.asarray(s.offset, np.int64),
+            values_bad=bad,
+        )
 
     @cached_property
     def fc(self) -> FlightControlArrays:

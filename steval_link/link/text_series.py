@@ -1,0 +1,285 @@
+"""Records of text telemetry as named series (:class:`TextSeries`), their time, and the attitude they stand for.
+
+* :func:`text_series`: the :class:`~steval_link.link.frames.TextRecordFrame` s of a stream as one array, a column
+  per name (NaN where a record of another shape has no such name), with units and a time per record: a timestamp
+  column (``t``, ``time``, ``t_ms``, ``millis``, ``micros``, Teleplot's ``NAME_t_ms``...), else the host's receive
+  times, else ST's main-loop rate for ST's own line (161.5 Hz), else the record index (1 s apart: say so).
+* :func:`map_attitude`: which series are the firmware's attitude and inputs: ST's 221117 line (``thx``/``thy`` in
+  degrees, ``gTHR``), names (pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit) or a user's mapping
+  (``pitch=col2:deg``, :func:`parse_map`); angles in rad, acc in mg, gyro in mdps; one note per mapped name.
+
+Axes are the board's: thx is about x = pitch (nose up +), thy about y = roll. The lab handouts' textbook formula
+atan(ay/az) is called roll there, but on this board it is the angle about x, pitch: a note says so where a mapped
+name says "roll" of acc-only tilt.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.errors import UserError
+
+__all__ = ["TextSeries", "map_attitude", "parse_map", "text_series", "FLOATLESS_NOTE", "MAP_TARGETS"]
+
+#: The sentence for ST's line with empty float fields.
+FLOATLESS_NOTE = (
+    "ST's output has empty float fields (newlib nano prints no %f): in STM32CubeIDE tick Project Properties > "
+    "C/C++ Build > Settings > MCU Settings > 'Use float with printf from newlib-nano (-u _printf_float)', or "
+    "apply steval-link's firmware patch."
+)
+
+#: What a mapping may name: the angles and the sensor axes, with the units each accepts.
+MAP_TARGETS = ("pitch", "roll", "yaw", "acc_x", "acc_y", "acc_z", "gyro_x", "gyro_y", "gyro_z", "thr")
+_ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0, "mdeg": math.pi / 180_000.0, "cdeg": math.pi / 18_000.0}
+_ACC_UNITS = {"mg": 1.0, "g": 1000.0, "m/s2": 1000.0 / 9.80665, "m/s^2": 1000.0 / 9.80665, "ms2": 1000.0 / 9.80665}
+_GYRO_UNITS = {
+    "mdps": 1.0,
+    "dps": 1000.0,
+    "deg/s": 1000.0,
+    "°/s": 1000.0,
+    "rad/s": 180_000.0 / math.pi,
+    "mrad/s": 180.0 / math.pi,
+}
+_UNIT_ALIASES = {"°": "deg", "degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad", "m/s²": "m/s2"}
+_TIME_NAMES = {
+    "t": 1.0,
+    "time": 1.0,
+    "t_s": 1.0,
+    "time_s": 1.0,
+    "timestamp": 1.0,
+    "t_ms": 1e-3,
+    "time_ms": 1e-3,
+    "millis": 1e-3,
+    "ms": 1e-3,
+    "t_us": 1e-6,
+    "time_us": 1e-6,
+    "micros": 1e-6,
+    "us": 1e-6,
+}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
+
+
+@dataclass
+class TextSeries:
+    """Every record of text telemetry: ``values`` (N, M) float64, a column per name of ``names`` (``units`` as
+    written, '' when none); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (s since the capture started,
+    NaN when unknown), ``offset`` (stream byte offset), ``kind`` (the format); ``notes`` what was recognised."""
+
+    names: list[str] = field(default_factory=list)
+    units: list[str] = field(default_factory=list)
+    values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    t_host_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    kind: list[str] = field(default_factory=list)
+    t_source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def column(self, name: str) -> np.ndarray:
+        """The values of series ``name`` (KeyError naming the series there are)."""
+        try:
+            return self.values[:, self.names.index(name)]
+        except ValueError:
+            raise KeyError(f"no series {name!r}; the series are {', '.join(self.names) or 'none'}") from None
+
+    def table(self) -> dict[str, np.ndarray]:
+        """One column per series and the times (``t_s``, ``t_host_s``), units in the names where written."""
+        cols: dict[str, np.ndarray] = {"t_s": self.t_s, "t_host_s": self.t_host_s}
+        for k, (name, unit) in enumerate(zip(self.names, self.units)):
+            key = f"{name}_{_safe_unit(unit)}" if unit else name
+            cols[key if key not in cols else f"text_{key}"] = self.values[:, k]
+        return cols
+
+
+def _safe_unit(unit: str) -> str:
+    return re.sub(r"[^0-9A-Za-zµ°]+", "_", unit).strip("_") or "unit"
+
+
+def text_series(records: list, t_host_s: np.ndarray) -> TextSeries:
+    """The records (``TextRecordFrame``, stream order) as a :class:`TextSeries`; ``t_host_s`` their host times."""
+    if not records:
+        return TextSeries()
+    index: dict[str, int] = {}
+    units: list[str] = []
+    for r in records:
+        for name, unit in zip(r.names, r.units):
+            if name not in index:
+                index[name] = len(index)
+                units.append(unit)
+    values = np.full((len(records), len(index)), np.nan)
+    for shape in {r.names for r in records}:
+        rows = [i for i, r in enumerate(records) if r.names == shape]
+        cols = [index[name] for name in shape]
+        values[np.ix_(rows, cols)] = np.array([records[i].values for i in rows], np.float64)
+    names = list(index)
+    kinds = [r.kind for r in records]
+    series = TextSeries(
+        names,
+        units,
+        values,
+        np.zeros(0),
+        np.asarray(t_host_s, np.float64),
+        np.array([r.offset for r in records]),
+        kinds,
+    )
+    series.t_s, series.t_source = _record_times(series)
+    if "st-221117" in kinds:
+        st = values[np.array([k == "st-221117" for k in kinds])]
+        if np.isnan(st[:, 4:]).all():
+            series.notes.append(FLOATLESS_NOTE)
+    return series
+
+
+def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
+    """Each record's time in s and where it comes from (see the module docstring)."""
+    n = len(s.kind)
+    for k, (name, unit) in enumerate(zip(s.names, s.units)):
+        low = name.lower()
+        scale = _TIME_UNITS.get(unit) if unit else None
+        if scale is None and (low in _TIME_NAMES or low.endswith("_t_ms")):
+            scale = _TIME_NAMES.get(low, 1e-3)
+        elif scale is not None and low not in _TIME_NAMES:
+            scale = None
+        col = s.values[:, k]
+        if scale is not None and np.isfinite(col).all() and n > 1 and (np.diff(col) >= 0).all():
+            return (col - col[0]) * scale, f"the column {name}"
+    if n and np.isfinite(s.t_host_s).all():
+        return s.t_host_s.copy(), "host receive times"
+    if n and all(k == "st-221117" for k in s.kind):
+        return np.arange(n) * C.AHRS_PERIOD_S, f"ST's main-loop rate ({C.AHRS_RATE_HZ:g} Hz, one line a pass)"
+    return np.arange(n, dtype=np.float64), "the record index (no times in the log: 1 s apart)"
+
+
+def parse_map(spec: str | list[str] | None) -> dict[str, tuple[str, str]]:
+    """``pitch=col2:deg,roll=col3`` (or a list of such items) → {target: (series name, unit)}; UserError with one
+    sentence for a target that is not one of :data:`MAP_TARGETS` or an item that does not read."""
+    items = [spec] if isinstance(spec, str) else list(spec or [])
+    out: dict[str, tuple[str, str]] = {}
+    for item in (x.strip() for s in items for x in s.split(",")):
+        if not item:
+            continue
+        target, eq, rest = item.partition("=")
+        target = target.strip().lower()
+        if not eq or not rest.strip():
+            raise UserError(f"map item {item!r} does not read as TARGET=SERIES[:UNIT] (e.g. pitch=col2:deg).")
+        if target not in MAP_TARGETS:
+            raise UserError(f"map target {target!r} is not one of {', '.join(MAP_TARGETS)}.")
+        name, _, unit = rest.strip().partition(":")
+        out[target] = (name.strip(), _unit(unit))
+    return out
+
+
+def _unit(unit: str) -> str:
+    u = unit.strip()
+    return _UNIT_ALIASES.get(u.lower(), _UNIT_ALIASES.get(u, u))
+
+
+def _scale(target: str, unit: str, name: str) -> float:
+    """Factor from ``unit`` to the target's unit (rad, mg, mdps); UserError when the unit does not fit."""
+    if target in ("pitch", "roll", "yaw"):
+        table, want = _ANGLE_UNITS, "deg, rad, mdeg"
+    elif target.startswith("acc"):
+        table, want = _ACC_UNITS, "mg, g, m/s2"
+    elif target.startswith("gyro"):
+        table, want = _GYRO_UNITS, "mdps, dps, deg/s, rad/s"
+    else:
+        return 1.0
+    u = unit if unit in table else unit.lower()
+    if u not in table:
+        raise UserError(f"{name} → {target}: unit {unit or '(none)'!r} is not one of {want}.")
+    return table[u]
+
+
+def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
+    """Targets found by name (see the module docstring)."""
+    out: dict[str, tuple[str, str]] = {}
+    kinds = set(s.kind)
+    if "st-221117" in kinds:
+        out.update(pitch=("thx", "deg"), roll=("thy", "deg"), thr=("gTHR", ""))
+    for name, unit in zip(s.names, s.units):
+        low = name.lower()
+        unit_of_name = re.search(r"_(deg|rad)$", low)
+        angle_unit = _unit(unit) or (unit_of_name.group(1) if unit_of_name else "deg")
+        for target, words in (("pitch", ("pitch", "thx")), ("roll", ("roll", "thy")), ("yaw", ("yaw", "thz"))):
+            if target not in out and (low in words or any(w in low for w in words[:1])):
+                if not re.search(r"(^|_)(rc|target|set|ref|cmd)(_|$)", low):
+                    out[target] = (name, angle_unit)
+        group = re.fullmatch(r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])", low)
+        if group and unit:
+            base = "acc" if group.group(1).startswith("a") else "gyro"
+            target = f"{base}_{group.group(2)}"
+            u = _unit(unit)
+            table = _ACC_UNITS if base == "acc" else _GYRO_UNITS
+            if target not in out and (u in table or u.lower() in table):
+                out[target] = (name, u)
+    return out
+
+
+def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[dict, list[str]]:
+    """The attitude columns the series stand for (``thx_rad``, ``thy_rad``, ``thz_rad`` (N,) float32, ``acc_mg``,
+    ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped) and one note per mapped name;
+    ({}, notes) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
+    :func:`parse_map`) goes before the names; UserError for a series that is not there or a unit that does not fit."""
+    found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any()}
+    for target, (name, unit) in (user_map or {}).items():
+        if name not in s.names:
+            raise UserError(
+                f"map {target}={name}: the log has no series {name!r} (its series: {', '.join(s.names) or 'none'})."
+            )
+        found[target] = (name, unit or (s.units[s.names.index(name)] if target != "thr" else ""))
+    n = len(s)
+    has_angle = any(t in found for t in ("pitch", "roll"))
+    has_inputs = all(f"{b}_{a}" in found for b in ("acc", "gyro") for a in "xyz")
+    if not n or not (has_angle or has_inputs):
+        return {}, []
+    cols = {
+        "thx_rad": np.full(n, np.nan, np.float32),
+        "thy_rad": np.full(n, np.nan, np.float32),
+        "thz_rad": np.full(n, np.nan, np.float32),
+        "acc_mg": np.full((n, 3), np.nan, np.float32),
+        "gyro_mdps": np.full((n, 3), np.nan, np.float32),
+        "thr": np.zeros(n, np.int16),
+    }
+    notes = []
+    where = {"pitch": ("thx_rad", None), "roll": ("thy_rad", None), "yaw": ("thz_rad", None)}
+    for target, (name, unit) in found.items():
+        values = s.column(name)
+        if target == "thr":
+            cols["thr"] = np.nan_to_num(values).astype(np.int16)
+            notes.append(f"{name} → thr (gTHR)")
+            continue
+        k = _scale(target, unit, name)
+        if target in where:
+            cols[where[target][0]] = (values * k).astype(np.float32)
+            assumed = "" if s.units[s.names.index(name)] or name.lower().endswith(("_deg", "_rad")) else " (assumed)"
+            if user_map and target in user_map:
+                assumed = ""
+            notes.append(f"{name} → {target}, {_UNIT_WORDS.get(unit, unit)}{assumed}" + _axis_note(target, name))
+        else:
+            base, axis = target.split("_")
+            cols[f"{base}_{'mg' if base == 'acc' else 'mdps'}"][:, "xyz".index(axis)] = values * k
+            notes.append(f"{name} → {target}, {unit}")
+    return cols, notes
+
+
+_UNIT_WORDS = {"deg": "degrees", "rad": "radians", "mdeg": "millidegrees", "cdeg": "centidegrees"}
+
+
+def _axis_note(target: str, name: str) -> str:
+    """Where the name and the board's axes may disagree (thx is about x = pitch; thy about y = roll; the handouts'
+    textbook roll atan(ay/az) is the angle about x, so pitch on this board, and their pitch is roll)."""
+    if name in ("thx", "thy", "thz") or target == "yaw":
+        return {"thx": " (about x, nose up +)", "thy": " (about y)"}.get(name, "")
+    other = "pitch" if target == "roll" else "roll"
+    return (
+        f" (if it is the handouts' {target} formula, it is the angle about {'x' if target == 'roll' else 'y'}: "
+        f"{other} on this board; map it as {other}={name})"
+    )

@@ -1,0 +1,539 @@
+"""Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
+
+:class:`TextTelemetryReader` takes the plain lines the decoder found (printable, whole, not ``$`` sentences) and
+hands each back as a :class:`~steval_link.link.frames.TextRecordFrame` (a record) or a
+:class:`~steval_link.link.frames.TextFrame` (any other text), in the decoder's one stream of frames.
+
+Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
+
+* bare values split by tab, comma, semicolon or spaces (``%10.2f\\t%10.2f``, CSV rows, Arduino's bare values),
+  named by a header line of labels before them (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
+* labelled values: ``label:value`` / ``label = value`` pairs split by spaces, tabs or commas (Arduino's plotter,
+  ``Drone_Pitch = %f\\tDrone_Roll = %f``), a label with several values as a vector (``Accel: x y z m/s2`` gives
+  ``Accel_x/y/z``), a word after the values as their unit;
+* Teleplot lines ``>name:value`` (``>name:t_ms:value``, ``§unit`` and ``|flags`` allowed);
+* ST's release 221117 line (``%d\\t%d\\t%d\\t%d\\t%f\\t%f\\t%f\\t%f\\t%f``), named from ST's source, and its
+  ``%f``-less form (newlib nano without ``-u _printf_float``: the float fields empty, read as NaN).
+
+The record's shape is learned from the stream, never guessed from one line: a shape (the sequence of line shapes
+of one record, the line shape being the names, or the count, and the int/float/empty kind of each value) becomes a
+record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block of lines between blank
+lines, or a cycle of lines of different shapes (``Accel ... Gyro ...`` then ``Baro ... Temp ...``). Until then the
+lines wait (at most :data:`MAX_PENDING`); lines that never fit a shape go out as text lines. So a damaged line
+(garbage, a cut, a lost field) is not a record: it does not fit the shape, and is a text line.
+
+Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
+their one format inside an application; none is a library that learns a record from mixed lines.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+from steval_link.link.frames import TextFrame, TextRecordFrame
+
+__all__ = [
+    "CONFIRM",
+    "MAX_PENDING",
+    "ST_221117_NAMES",
+    "ST_221117_UNITS",
+    "ParsedLine",
+    "TextTelemetryReader",
+    "looks_like_text",
+    "parse_line",
+]
+
+#: Times a record shape must repeat in a row before its lines are records.
+CONFIRM = 3
+#: Lines held while a shape is learned; older ones go out as text lines.
+MAX_PENDING = 48
+#: Longest record, in lines.
+MAX_RECORD_LINES = 8
+
+#: ST's release 221117 main loop: ``PRINTF("%d\t%d\t%d\t%d\t%f\t%f\t%f\t%f\t%f\n", gELE, gAIL, gRUD, gTHR,
+#: motor_pwm.motor1_pwm, euler_ahrs.thx * 57.3, euler_ahrs.thy * 57.3, euler_rc.thx * 57.3, euler_rc.thy * 57.3)``.
+ST_221117_NAMES = ("gELE", "gAIL", "gRUD", "gTHR", "motor1_pwm", "thx", "thy", "rc_thx", "rc_thy")
+ST_221117_UNITS = ("", "", "", "", "", "deg", "deg", "deg", "deg")
+ST_221117 = "st-221117"
+
+_NUM = r"[-+]?(?:\d+\.?\d*(?:[eE][-+]?\d+)?|\.\d+(?:[eE][-+]?\d+)?|nan|inf|NAN|INF|NaN|Inf)"
+_NUM_RE = re.compile(_NUM)
+_INT_RE = re.compile(r"[-+]?\d+")
+_TOKEN = re.compile(rf"(?P<num>{_NUM})(?![\w.])|(?P<sep>[:=])|(?P<delim>[,;\t])|(?P<word>[^\s:=,;\t]+)|\s+")
+_TELEPLOT = re.compile(rf">([^:|§\s][^:|§]*):(?:({_NUM}):)?({_NUM})(?:§([^|]*))?(?:\|[a-z]*)?")
+_LABEL_UNIT = re.compile(r"(.+?)\s*[\(\[]([^\)\]]+)[\)\]]")
+_HEADER_WORD = re.compile(r"[A-Za-z_][\w./%\-]*(?:\s*[\(\[][^\)\]]+[\)\]])?")
+#: Characters of ordinary text lines besides letters and digits (of any script): the usual punctuation.
+_PUNCTUATION = frozenset(" \t.,:;=_-+/()%#!?'\"[]<>*@&|°µ—–")
+_SUFFIXES = {2: ("x", "y"), 3: ("x", "y", "z")}
+
+
+def _kind(field: str) -> str:
+    """'i' an integer, 'f' any other number, '-' empty."""
+    if not field:
+        return "-"
+    return "i" if _INT_RE.fullmatch(field) else "f"
+
+
+def _number(field: str) -> float:
+    return float(field) if field else math.nan
+
+
+@dataclass(frozen=True, slots=True)
+class ParsedLine:
+    """One line read as numbers: ``shape`` (what a repeat must match), ``names`` (None: bare values), ``units``,
+    ``values`` and ``kind`` ('table', 'labelled', 'teleplot', 'st-221117')."""
+
+    shape: tuple
+    names: tuple[str, ...] | None
+    units: tuple[str, ...]
+    values: tuple[float, ...]
+    kind: str
+
+
+def _split_bare(text: str) -> list[str] | None:
+    """The fields of a line of bare values (None when a field is not a number)."""
+    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
+    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    if sep and len(fields) > 1 and fields[-1] == "" and not _st_fields(fields):
+        fields.pop()  # one separator after the last value (``%f\t\n``)
+    if not fields or not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields):
+        return None
+    return fields
+
+
+def _st_fields(fields: list[str]) -> bool:
+    """ST 221117's nine fields: four integers, then five floats or (``%f``-less) five empty fields."""
+    if len(fields) != 9 or not all(_INT_RE.fullmatch(f) for f in fields[:4]):
+        return False
+    rest = fields[4:]
+    return all(f == "" for f in rest) or all(f and "." in f for f in rest)
+
+
+def _bare_line(text: str) -> ParsedLine | None:
+    fields = _split_bare(text)
+    if fields is None:
+        return None
+    kinds = tuple(_kind(f) for f in fields)
+    values = tuple(_number(f) for f in fields)
+    if "\t" in text and _st_fields(fields):
+        return ParsedLine((ST_221117, kinds), ST_221117_NAMES, ST_221117_UNITS, values, ST_221117)
+    return ParsedLine(("table", kinds), None, ("",) * len(fields), values, "table")
+
+
+def _label_and_unit(label: str) -> tuple[str, str]:
+    m = _LABEL_UNIT.fullmatch(label)
+    return (m.group(1).strip().replace(" ", "_"), m.group(2).strip()) if m else (label, "")
+
+
+def _tokens(text: str) -> list[tuple[str, str]] | None:
+    out = []
+    pos = 0
+    for m in _TOKEN.finditer(text):
+        if m.start() != pos:
+            return None
+        pos = m.end()
+        if m.lastgroup:
+            out.append((m.lastgroup, m.group(m.lastgroup)))
+    return out if pos == len(text) else None
+
+
+def _groups(tokens: list[tuple[str, str]]) -> list[list] | None:
+    """``[label, [value fields], unit]`` groups of a labelled line, or None when it does not read as one."""
+    groups: list[list] = []
+    i, n = 0, len(tokens)
+    while i < n:
+        kind, val = tokens[i]
+        if kind == "delim":
+            i += 1
+        elif kind == "num":
+            groups.append([None, [val], ""])
+            i += 1
+        elif kind == "word":
+            j = i
+            while j < n and tokens[j][0] == "word":
+                j += 1
+            words = [w for _, w in tokens[i:j]]
+            if j < n and tokens[j][0] == "sep":
+                if groups and groups[-1][0] is not None and len(words) == 2 and not groups[-1][2]:
+                    groups[-1][2] = words[0]  # "... 1013.2 hPa  Temp: 25.1"
+                    words = words[1:]
+                elif groups and len(words) > 1:
+                    return None
+                group = [" ".join(words), [], ""]
+                i = j + 1
+                while i < n and tokens[i][0] in ("num", "delim"):
+                    if tokens[i][0] == "num":
+                        group[1].append(tokens[i][1])
+                    i += 1
+                if not group[1]:
+                    return None
+                groups.append(group)
+            elif len(words) == 1 and groups and groups[-1][0] is not None and not groups[-1][2]:
+                groups[-1][2] = words[0]  # the unit after the values
+                i = j
+            else:
+                return None
+        else:
+            return None  # a ':' or '=' without a label
+    return groups if any(g[0] is not None for g in groups) else None
+
+
+def _labelled_line(text: str) -> ParsedLine | None:
+    tokens = _tokens(text)
+    if tokens is None:
+        return None
+    groups = _groups(tokens)
+    if groups is None:
+        return None
+    names: list[str] = []
+    units: list[str] = []
+    values: list[float] = []
+    kinds: list[str] = []
+    for g in groups:
+        label, fields, unit = g
+        if label is None:
+            label_names = [f"col{len(names) + 1}"]
+        else:
+            label, label_unit = _label_and_unit(label.replace(" ", "_"))
+            unit = unit or label_unit
+            suffixes = _SUFFIXES.get(len(fields)) or tuple(str(k + 1) for k in range(len(fields)))
+            label_names = [label] if len(fields) == 1 else [f"{label}_{s}" for s in suffixes]
+        names += label_names
+        units += [unit] * len(fields)
+        values += [_number(f) for f in fields]
+        kinds += [_kind(f) for f in fields]
+    if len(set(names)) != len(names):
+        return None
+    return ParsedLine(("labelled", tuple(names), tuple(kinds)), tuple(names), tuple(units), tuple(values), "labelled")
+
+
+def _teleplot_line(text: str) -> ParsedLine | None:
+    m = _TELEPLOT.fullmatch(text.strip())
+    if m is None:
+        return None
+    name, t_ms, value, unit = m.group(1).strip(), m.group(2), m.group(3), (m.group(4) or "").strip()
+    if t_ms is not None:
+        names, values = (f"{name}_t_ms", name), (float(t_ms), float(value))
+        units = ("ms", unit)
+    else:
+        names, values, units = (name,), (float(value),), (unit,)
+    return ParsedLine(("teleplot", names), names, units, values, "teleplot")
+
+
+def parse_line(text: str) -> ParsedLine | None:
+    """The numbers of one text line, or None when it is not a line of numbers (then it is text)."""
+    if text.startswith(">"):
+        return _teleplot_line(text)
+    if not any(c.isdigit() or c in "ni" for c in text):
+        return None
+    return _bare_line(text) or _labelled_line(text)
+
+
+def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """A header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, Arduino's ``a b c``): (names,
+    units), or None when the line is not one."""
+    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
+    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    if len(fields) < 2 or not all(_HEADER_WORD.fullmatch(f) for f in fields):
+        return None
+    pairs = [_label_and_unit(f) for f in fields]
+    names = tuple(p[0] for p in pairs)
+    if len(set(names)) != len(names):
+        return None
+    return names, tuple(p[1] for p in pairs)
+
+
+def looks_like_text(text: str) -> bool:
+    """True when a line reads as text a program printed (not a printable run of random bytes): at least three
+    characters, two of them letters or digits, and almost all of them ordinary text characters."""
+    if len(text) < 3 or sum(c.isalnum() for c in text) < 2:
+        return False
+    ordinary = sum(c.isalnum() or c in _PUNCTUATION for c in text)
+    return ordinary >= 0.85 * len(text)
+
+
+@dataclass(slots=True)
+class _Line:
+    """A line waiting in the reader: its parse (None for a text line or a marker), its frame and kind."""
+
+    parsed: ParsedLine | None
+    text: str
+    offset: int
+    nbytes: int
+    #: "rec" a line of numbers; "text"; "blank"; "cut" a line that may be the tail of a cut line; "break" damage
+    kind: str
+    header: tuple | None = None
+
+
+@dataclass(slots=True)
+class _Shape:
+    """A learned record: its line shapes, names and units, whether a blank line ends it."""
+
+    lines: tuple
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    kind: str
+    blank_ended: bool
+
+
+class TextTelemetryReader:
+    """Plain text lines in, records and text lines out (see the module docstring). One per stream."""
+
+    def __init__(self) -> None:
+        self._pending: list[_Line] = []
+        self._shapes: list[_Shape] = []
+        self._current: tuple[_Shape, list[_Line]] | None = None
+        self._header: tuple | None = None
+        self._block_start = True  # the next line starts a block (after a blank or text line, or at the start)
+        self.records = 0  #: records handed out
+        self.lines_cut = 0  #: lines of a record that was not completed (handed out as text)
+
+    def line(self, text: str, offset: int, nbytes: int) -> list:
+        """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
+        parsed = parse_line(text)
+        header = header_names(text) if parsed is None else None
+        item = _Line(parsed, text, offset, nbytes, "rec" if parsed else "text", header)
+        if parsed is not None:
+            out, taken = self._follow(item)
+            self._block_start = False
+            return out if taken else out + self._learn(item)
+        if header is not None:
+            self._header = header
+        out = self._cut_current() if self._current is not None else []
+        self._current = None
+        self._block_start = True
+        return out + self._learn(item)
+
+    def cut_line(self, text: str) -> list:
+        """A line that may be the tail of a cut line (the stream's first, or after damage): never a record; its
+        shape only tells where a record starts."""
+        parsed = parse_line(text)
+        self._block_start = False
+        if parsed is None:
+            header = header_names(text)
+            self._header = header or self._header
+            return []
+        return self._learn(_Line(parsed, text, -1, 0, "cut"))
+
+    def damage(self) -> list:
+        """Bytes were lost or damaged here: the lines before and after are not consecutive (a record in progress is
+        cut short, the lines learned from go no further back)."""
+        out = self._cut_current() if self._current is not None else []
+        self._current = None
+        self._block_start = False
+        if self._pending:
+            out += self._learn(_Line(None, "", -1, 0, "break"))
+        return out
+
+    def blank(self) -> list:
+        """A blank line: it ends a block of lines."""
+        out: list = []
+        self._block_start = True
+        if self._current is not None:
+            out += self._cut_current()
+            self._current = None
+        if self._pending:
+            out += self._learn(_Line(None, "", -1, 0, "blank"))
+        return out
+
+    def finish(self) -> list:
+        """End of stream: whatever waits goes out as text lines (an incomplete record is not a record)."""
+        out = self._cut_current() if self._current is not None else []
+        self._current = None
+        out += self._flush(self._pending)
+        self._pending = []
+        return out
+
+    # -- a learned shape ---------------------------------------------------------------------------------------
+
+    def _follow(self, item: _Line) -> tuple[list, bool]:
+        """The line in a learned shape: the frames it completes (or cuts short), and whether the line was taken."""
+        out: list = []
+        if self._current is not None:
+            shape, lines = self._current
+            if shape.lines[len(lines)] == item.parsed.shape:
+                lines.append(item)
+                if len(lines) == len(shape.lines):
+                    self._current = None
+                    out.append(self._record(shape, lines))
+                return out, True
+            out += self._cut_current()
+            self._current = None
+        for shape in self._shapes:
+            if shape.lines[0] == item.parsed.shape and (self._block_start or not shape.blank_ended):
+                if len(shape.lines) == 1:
+                    out.append(self._record(shape, [item]))
+                else:
+                    self._current = (shape, [item])
+                return out, True
+        return out, False
+
+    def _cut_current(self) -> list:
+        _, lines = self._current
+        self.lines_cut += len(lines)
+        return [TextFrame(x.text, x.offset, x.nbytes) for x in lines]
+
+    def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:
+        self.records += 1
+        values = tuple(v for x in lines for v in x.parsed.values)
+        first, last = lines[0], lines[-1]
+        return TextRecordFrame(
+            shape.names, values, shape.units, shape.kind, first.offset, last.offset + last.nbytes - first.offset
+        )
+
+    # -- learning ----------------------------------------------------------------------------------------------
+
+    def _learn(self, item: _Line) -> list:
+        pending = self._pending
+        pending.append(item)
+        out: list = []
+        shape, start = _find_shape(pending, self._header)
+        if shape is not None:
+            self._shapes = [s for s in self._shapes if s.lines[0] not in shape.lines] + [shape]
+            self._pending = []
+            out += self._flush(pending[:start])
+            out += self._replay(shape, pending[start:])
+            return out
+        if item.kind in ("text", "break") and not any(x.kind in ("rec", "cut") for x in pending[:-1]):
+            self._pending = []
+            return self._flush(pending)
+        if len(pending) > MAX_PENDING:
+            out += self._flush(pending[:1])
+            del pending[:1]
+        return out
+
+    def _replay(self, shape: _Shape, items: list[_Line]) -> list:
+        """The waiting lines from the start of the first record of a newly learned shape, through the shape."""
+        out: list = []
+        self._block_start = True
+        for x in items:
+            if x.kind == "rec":
+                done, taken = self._follow(x)
+                out += done if taken else done + self._flush([x])
+            elif x.kind in ("blank", "text", "break"):
+                out += self._cut_current() if self._current is not None else []
+                self._current = None
+                out += self._flush([x])
+            self._block_start = x.kind in ("blank", "text")
+        return out
+
+    @staticmethod
+    def _flush(items: list[_Line]) -> list:
+        return [TextFrame(x.text, x.offset, x.nbytes) for x in items if x.kind in ("rec", "text")]
+
+
+def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | None, int]:
+    """A record shape that the latest lines repeat :data:`CONFIRM` times in a row, and the index in ``pending`` where
+    its first record starts; (None, 0) when there is none yet."""
+    tail = []  # the latest run of lines of numbers, with blank markers, back to a text line
+    for k in range(len(pending) - 1, -1, -1):
+        if pending[k].kind in ("text", "break"):
+            break
+        tail.append(k)
+    tail.reverse()
+    if not tail:
+        return None, 0
+    blocks = _blank_blocks(pending, tail)
+    if blocks is not None:
+        return blocks
+    lines = [k for k in tail if pending[k].kind in ("rec", "cut")]
+    sizes = _block_sizes(pending, tail)
+    shapes = [pending[k].parsed.shape for k in lines]
+    n = len(shapes)
+    for period in range(1, MAX_RECORD_LINES + 1):
+        # one more line than the cycles (a blank line may still come and make them one block)
+        if n < CONFIRM * period + (0 if sizes else 1):
+            break
+        if any(period < s <= MAX_RECORD_LINES for s in sizes):
+            continue  # blocks between blank lines longer than the cycle: a block shape, not a cycle
+        cycle = shapes[n - period :]
+        if len(set(cycle)) != period:
+            continue
+        first = n - period  # back while the lines repeat the cycle: the run's first line starts the record
+        while first > 0 and shapes[first - 1] == cycle[(first - 1 - n) % period]:
+            first -= 1
+        if (n - first) // period < CONFIRM:
+            continue
+        items = [pending[lines[first + j]].parsed for j in range(period)]
+        shape = _make_shape(tuple(p.shape for p in items), items, header, blank_ended=False)
+        return shape, lines[first]
+    return None, 0
+
+
+def _block_sizes(pending: list[_Line], tail: list[int]) -> list[int]:
+    """Lines in each block between blank lines of ``tail`` (the open last one included); [] without blank lines."""
+    if not any(pending[k].kind == "blank" for k in tail):
+        return []
+    sizes, cur = [], 0
+    for k in tail:
+        if pending[k].kind == "blank":
+            if cur:
+                sizes.append(cur)
+            cur = 0
+        else:
+            cur += 1
+    return sizes + ([cur] if cur else [])
+
+
+def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] | None:
+    """A shape of blocks ended by blank lines (``Drone_Pitch = ...\\n\\n``, a matrix and an empty line), seen
+    :data:`CONFIRM` times in a row at the end of ``tail``; None when the lines are not such blocks."""
+    if pending[tail[-1]].kind != "blank":
+        return None
+    blocks: list[list[int]] = []
+    cur: list[int] = []
+    for k in tail:
+        if pending[k].kind == "blank":
+            if cur:
+                blocks.append(cur)
+            cur = []
+        else:
+            cur.append(k)
+    if len(blocks) < CONFIRM:
+        return None
+    last = [pending[k].parsed.shape for k in blocks[-1]]
+    if len(last) > MAX_RECORD_LINES or any(pending[k].kind == "cut" for k in blocks[-1]):
+        return None
+    if len(last) == 1:
+        return None  # one line per block: the lines' own repetition is the shape
+    same = 0
+    for b in reversed(blocks):
+        if [pending[k].parsed.shape for k in b] != last:
+            break
+        same += 1
+    if same < CONFIRM:
+        return None
+    first = blocks[len(blocks) - same][0]
+    items = [pending[k].parsed for k in blocks[-1]]
+    return _make_shape(tuple(last), items, None, blank_ended=True), first
+
+
+def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, blank_ended: bool) -> _Shape:
+    """Names and units of a record made of the parsed lines ``items``: the lines' own names, a header's (bare values
+    of the header's count), else ``col1..N`` over the whole record."""
+    names: list[str] = []
+    units: list[str] = []
+    bare = all(p.names is None for p in items)
+    total = sum(len(p.values) for p in items)
+    if bare and header is not None and len(header[0]) == total:
+        names, units = list(header[0]), list(header[1])
+    else:
+        for p in items:
+            if p.names is None:
+                names += [f"col{len(names) + k + 1}" for k in range(len(p.values))]
+            else:
+                names += list(p.names)
+            units += list(p.units)
+    seen: dict[str, int] = {}
+    for k, name in enumerate(names):
+        if name in seen:
+            seen[name] += 1
+            names[k] = f"{name}_{seen[name]}"
+        else:
+            seen[name] = 1
+    kinds = {p.kind for p in items}
+    kind = kinds.pop() if len(kinds) == 1 else "labelled"
+    return _Shape(lines, tuple(names), tuple(units), kind, blank_ended)
