@@ -4,6 +4,7 @@
 
     cap = sl.open_capture("recordings/demo.stv")       # any capture, raw dump or text-mode log
     cap.attitude.t_fw_s, cap.attitude.thx_rad           # numpy arrays, units in the names (pitch = thx, about x)
+    cap.text_series.column("Drone_Pitch")               # a text log's printed series (names, units, t_s)
     df = cap.to_pandas()                                # one row per attitude frame, the columns of steval export
     est = sl.run_estimator("ekf3", cap)                 # or "my_ekf.py:MyEkf(q_gyro=1e-5)", or MyEkf()
     est.thx_rad, est.thy_rad, est.valid                 # one row per attitude frame
@@ -65,6 +66,12 @@ class Capture:
     @property
     def fc(self):
         return self.telemetry.fc
+
+    @property
+    def text_series(self):
+        """The records of text telemetry (a log of any printf): ``names``, ``units``, ``values`` (N, M),
+        ``t_s``, ``column(name)``, ``table()`` (:class:`steval_link.link.text_series.TextSeries`)."""
+        return self.telemetry.text_series
 
     def __len__(self) -> int:
         return len(self.telemetry.attitude)

@@ -105,7 +105,8 @@ def record_table(rows: np.ndarray) -> dict[str, np.ndarray]:
 
 def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
     """One column table per frame type the capture holds (``attitude`` always; ``status``, ``fc``, ``ack``,
-    ``command`` when present); ``text`` lines as ``t_host_s`` and ``text``."""
+    ``command`` when present); ``text_records`` the records of text telemetry; ``text`` lines as ``t_host_s`` and
+    ``text``."""
     out = {"attitude": attitude_table(tel)}
     if len(tel.status):
         out["status"] = status_table(tel)
@@ -115,6 +116,8 @@ def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
         out["ack"] = record_table(tel.acks)
     if len(tel.commands):
         out["command"] = record_table(tel.commands)
+    if len(getattr(tel, "text_series", ())):
+        out["text_records"] = tel.text_series.table()  # a row per record of text telemetry, a column per series
     if tel.text:
         out["text"] = {
             "t_host_s": np.array([t for t, _ in tel.text], np.float64),

@@ -34,15 +34,18 @@ ANGLE_COLUMNS = {
 }
 
 
-def _column_strings(col: np.ndarray) -> list[str]:
+def _column_strings(col: np.ndarray, shortest: bool = False) -> list[str]:
     """Text of one column: integers as such; float32 as the shortest decimal that reads back as the same float32
-    (999.4, not 999.400024); float64 times with µs resolution; booleans as 0/1; NaN as an empty field."""
+    (999.4, not 999.400024); float64 times with µs resolution (``shortest``: the shortest decimal that reads back,
+    as a log printed it); booleans as 0/1; NaN as an empty field."""
     if col.dtype == bool:
         return ["1" if v else "0" for v in col.tolist()]
     if np.issubdtype(col.dtype, np.integer):
         return [str(v) for v in col.tolist()]
     if col.dtype == np.float32:
         return ["" if v != v else str(v) for v in col]  # numpy's shortest round-trip text of each float32
+    if shortest:
+        return ["" if v != v else str(int(v)) if v.is_integer() and abs(v) < 2**53 else repr(v) for v in col.tolist()]
     return ["" if v != v else "%.6f" % v for v in col.tolist()]
 
 
@@ -54,14 +57,14 @@ def in_degrees(table: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     }
 
 
-def write_csv(table: dict[str, np.ndarray], path: Path, progress=None) -> None:
+def write_csv(table: dict[str, np.ndarray], path: Path, progress=None, shortest: bool = False) -> None:
     """Write a column table as CSV (comma separated, header row, ``\\n`` line endings, UTF-8);
-    ``progress(fraction, stage)`` hears of each column formatted."""
+    ``progress(fraction, stage)`` hears of each column formatted; ``shortest``: float64 as ``_column_strings``."""
     cols = []
     for i, c in enumerate(table.values()):
         if progress is not None:
             progress(i / len(table), "formatting")
-        cols.append(_column_strings(np.asarray(c)))
+        cols.append(_column_strings(np.asarray(c), shortest))
     with open(path, "w", encoding="utf-8", newline="\n") as f:
         f.write(",".join(table) + "\n")
         f.writelines(",".join(row) + "\n" for row in zip(*cols))
@@ -85,7 +88,10 @@ def write_raw(data: bytes, path: Path) -> None:
 @app.command()
 def export(
     capture: Annotated[Path, typer.Argument(help="Capture (.stv), raw serial dump or text-mode log.")],
-    csv: Annotated[Optional[Path], typer.Option("--csv", help="Write attitude rows as CSV (Excel, MATLAB).")] = None,
+    csv: Annotated[
+        Optional[Path],
+        typer.Option("--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."),
+    ] = None,
     parquet: Annotated[
         Optional[Path], typer.Option("--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
     ] = None,
@@ -166,7 +172,8 @@ def export(
             _export_ble(src, csv, parquet, raw, progress, mat)
             return
         tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap) else None
-        if tel is not None:
+        records = tel is not None and len(tel.text_series) > 0 and not tel.has_own_attitude
+        if tel is not None and not (records and mcap is None):
             require_attitude(tel, "export (--raw gives the bytes)")
         for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
             typer.echo(f"steval: warning: {w}", err=True)
@@ -174,7 +181,10 @@ def export(
             with atomic_output(raw, option="--raw") as part:
                 write_raw(src.data, part)
             typer.echo(f"{raw}: {len(src.data)} bytes")
-        if tel is not None and (csv is not None or parquet is not None):
+        if records and (csv is not None or parquet is not None):  # a text log: a row per record
+            records_table = tel.text_series.table()
+            _write_table(records_table, csv, parquet, progress, f"{len(tel.text_series)} text records", shortest=True)
+        elif tel is not None and (csv is not None or parquet is not None):
             table = tel.attitude_table()
             table.update(tel.flight_columns())
             if degrees:
@@ -232,11 +242,11 @@ def _export_ble(
         typer.echo(f"{mat}: MATLAB struct motion ({len(ble)} rows, BLE), settings, header")
 
 
-def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str) -> None:
+def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str, shortest: bool = False) -> None:
     """The table to the CSV and/or Parquet file asked for, a line each saying how many ``rows``."""
     if csv is not None:
         with atomic_output(csv, option="--csv") as part:
-            write_csv(table, part, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0))
+            write_csv(table, part, scaled(progress, 0.3, 0.9 if parquet is not None else 1.0), shortest)
         typer.echo(f"{csv}: {rows}")
     if parquet is not None:
         progress(0.9, f"writing {parquet.name}")

@@ -477,6 +477,11 @@ class Telemetry:
             tel.map_text()
         return tel
 
+    @property
+    def has_own_attitude(self) -> bool:
+        """True when the attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
+        return len(self.attitude) > 0 and not self.text_attitude_notes
+
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
         names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
