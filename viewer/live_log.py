@@ -47,6 +47,9 @@ LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
+#: Text telemetry: its series under this entity; queued records sent at least every this many
+TEXT_ROOT = "text"
+RECORDS_PER_SEND = 64
 
 #: Estimator names of the live session that mean the bit-exact firmware port.
 PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
@@ -103,6 +106,8 @@ class LiveLogger:
         #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
         #: some memory for, so fewer calls keep a long session's memory flat
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
+        self._records_queued = 0  # text records queued since the last send
+        self._records_sent_s = -math.inf  # host time of that send, s
 
     # -- frames ----------------------------------------------------------------------------------------------
     def log_batch(self, batch: Any) -> None:
@@ -254,6 +259,20 @@ class LiveLogger:
                 self.rec.set_time(ent.TIMELINE_FW, duration=at.t_fw_s)
         self.rec.log(path, rr.TextLog(text, level=level))
         self.rec.reset_time()
+
+    def log_record(self, frame: Any, at: Any) -> None:
+        """A record of text telemetry (``TextRecordFrame``): one scalar series per name under ``text/``, on the
+        host timeline (and the firmware one: the latest row's, else the host time); sent in blocks."""
+        host = at.t_host_s
+        if not math.isfinite(host):
+            return
+        fw = at.t_fw_s if math.isfinite(at.t_fw_s) else host
+        for name, v in zip(frame.names, frame.values):
+            self._queue_row(f"{TEXT_ROOT}/{name}", fw, host, (v,))
+        self._records_queued += 1
+        if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= LINK_INTERVAL_S / 10:
+            self._records_queued, self._records_sent_s = 0, host
+            self.flush_rows()
 
     def log_flight(self, frame: Any, at: Any) -> None:
         """A flight-control frame at ``at`` (the time of its step): targets, outer s1, inner s2, motors, sticks,

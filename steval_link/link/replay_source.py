@@ -9,7 +9,8 @@ Pace: a capture's bytes come out at the host times they were recorded at (chunk 
 text-mode log has none, so its bytes come out at the firmware time of its frames (``t_fw_s``), or at the baud rate
 (10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
 silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
-URL plays X times faster. Commands go nowhere: :meth:`ReplayPort.write` raises.
+URL plays X times faster; a text log whose records carry no time comes at the baud rate, or ``?rate=N`` records
+a second. Commands go nowhere: :meth:`ReplayPort.write` raises.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ class ReplayUrl:
 
     path: Path
     speed: float = 1.0
+    rate: float | None = None  #: records per second of a text log without times (``?rate=N``)
 
 
 def parse_replay_url(url: str) -> ReplayUrl:
@@ -68,25 +70,39 @@ def parse_replay_url(url: str) -> ReplayUrl:
     path_text, _, query = rest.partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
-    speed = 1.0
+    speed, rate = 1.0, None
     try:
         params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
         raise UserError(f"{url}: cannot read the options after '?' (replay://FILE?speed=5)") from None
     for key, values in params.items():
+        if key == "rate":  # a text log without times: its records per second
+            rate = _positive(url, key, values[-1])
+            continue
         if key != "speed":
-            raise UserError(f"{url}: unknown replay option {key!r} (known: speed, e.g. ?speed=5)")
+            raise UserError(f"{url}: unknown replay option {key!r} (known: speed, rate, e.g. ?speed=5)")
         try:
             speed = float(values[-1])
         except ValueError:
             speed = math.nan
         if not (math.isfinite(speed) and speed > 0):
             raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
-    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed)
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate)
 
 
-def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
+def _positive(url: str, key: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise UserError(f"{url}: {key} must be a positive number, got {text!r}")
+    return value
+
+
+def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
     """When each byte of ``src`` (a :class:`~steval_link.link.load.Recording`, decoded as ``tel``) comes out.
+    ``rate``: records per second of a text log without times (else it comes at the baud rate).
 
     Returns ``(ends, t_s, how)``: bytes ``[0, ends[i])`` are out at ``t_s[i]`` (s since the replay started,
     non-decreasing), and ``how`` says which clock paced them (for the notes).
@@ -102,6 +118,14 @@ def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
             k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
             return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
     t_fw = np.asarray(att.t_fw_s, np.float64) if len(att) else np.zeros(0)
+    how = "the frames' firmware times"
+    series = getattr(tel, "text_series", None)
+    if series is not None and len(series) >= 2 and not tel.has_own_attitude:  # text telemetry: records paced
+        if rate is None and series.t_source.startswith("the record index"):
+            t_fw = np.zeros(0)  # no times: the baud rate below
+        else:
+            att, t_fw = series, series.t_s if rate is None else np.arange(len(series)) / rate
+            how = f"{rate:g} records/s" if rate else f"the records' times ({series.t_source})"
     if len(t_fw) >= 2 and np.isfinite(t_fw).all():
         dt = np.diff(t_fw)
         dt[(dt <= 0) | (dt > MAX_FW_GAP_S)] = C.AHRS_PERIOD_S
@@ -110,7 +134,7 @@ def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
         ends = np.append(np.asarray(att.offset[1:], np.int64), n)
         tail_s = (n - int(att.offset[-1])) * BITS_PER_BYTE / baud
         t = np.append(t[:-1], t[-1] + tail_s)
-        return ends, t, "the frames' firmware times"
+        return ends, t, how
     ends = np.append(np.arange(BAUD_BLOCK_BYTES, n, BAUD_BLOCK_BYTES, dtype=np.int64), n)
     return ends, ends * (BITS_PER_BYTE / baud), f"{baud} baud"
 
@@ -222,7 +246,7 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
     except UserError as exc:
         raise UserError(f"cannot replay {url}: {str(exc).rstrip('.')}") from None
     rate = int(src.header.get("baud") or baud) if src.header else baud
-    ends, t_s, how = pace_of(src, tel, rate if rate > 0 else baud)
+    ends, t_s, how = pace_of(src, tel, rate if rate > 0 else baud, parsed.rate)
     return ReplayPort(
         src.data,
         ends,

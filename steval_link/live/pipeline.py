@@ -19,7 +19,15 @@ from steval_link import constants as C
 from steval_link.link import protocol as P
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
+from steval_link.link.frames import (
+    AckFrame,
+    AttitudeFrame,
+    CommandFrame,
+    FlightFrame,
+    StatusFrame,
+    TextFrame,
+    TextRecordFrame,
+)
 from steval_link.link.plausibility import attitude_inputs_bad
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
@@ -56,7 +64,8 @@ class LiveViewer(typing.Protocol):
     Rows and events come timed (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`); ``log_link``
     gets the session's Unix time, only to pace itself. Optional attributes, read when present: ``has_viewer`` (a
     viewer gets the stream, not only an ``.rrd``: then every processing round goes out at once) and ``file`` (the
-    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows) and ``log_flight(frame, at)``.
+    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows), ``log_flight(frame, at)`` and
+    ``log_record(frame, at)`` (a record of text telemetry).
     """
 
     def log_batch(self, batch: LiveRows) -> None: ...
@@ -290,6 +299,8 @@ class LivePipeline:
                     self._attitude(att)  # its step's attitude frame first
                     att = []
                     self._event("flight", frame, self._at_flight(frame))
+                elif isinstance(frame, TextRecordFrame) and outlets:  # text telemetry: log_record, a series a name
+                    self._event("record", frame, self._at_frame(frame))
         self._attitude(att)
         clock.prune(self.decoder.pending_bytes)
         self.tick()

@@ -198,7 +198,7 @@ class SerialSource(Source):
     def _check_frames(self, now: float) -> None:
         """Wrong baud rate / not a STEVAL / silence: give up (or warn once with --wait) when no frame ever came."""
         proto, stats = self.proto, self.pipeline.decoder.stats
-        if stats.attitude + stats.status > 0 or self.warned_no_frames or not proto.connected:
+        if stats.attitude + stats.status + stats.text_records > 0 or self.warned_no_frames or not proto.connected:
             return
         if proto.connected_at_s is None:
             return
