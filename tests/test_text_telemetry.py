@@ -1,0 +1,350 @@
+"""Text telemetry (``link/text_telemetry.py``, ``link/text_series.py``): any serial text as records of the one
+decoder. Every log here is printed in the test from a real capture's values (``recordings/demo.stv``), in the
+formats found in the field; the tests check records, series, values, times, the attitude they map to, and that
+damage and random bytes never make a record."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from steval_link.link.decoder import StreamDecoder, decode_bytes
+from steval_link.link.frames import AttitudeFrame, TextFrame, TextRecordFrame
+from steval_link.link.load import load_telemetry, read_recording
+from steval_link.link.text_series import FLOATLESS_NOTE, parse_map
+from steval_link.link.textmode import format_att
+from tests.support.cli import run_cli
+
+REC = Path(__file__).resolve().parents[1] / "recordings"
+N = 240  # records per log
+BANNER = [
+    b"STEVAL-FCU001V1 FW rev.1.0 - Sep 2017",
+    b"LSM6DSL MEMS Accelerometer initialized and enabled",
+    b"LSM6DSL MEMS Gyroscope initialized and enabled",
+]
+
+
+@pytest.fixture(scope="module")
+def demo():
+    """The first N attitude rows of the bundled demo capture: degrees, g, rad/s as a student would print them."""
+    a = load_telemetry(REC / "demo.stv").attitude
+    rows = slice(100, 100 + N)
+    return {
+        "pitch_deg": np.degrees(a.thx_rad[rows].astype(np.float64)),
+        "roll_deg": np.degrees(a.thy_rad[rows].astype(np.float64)),
+        "acc_g": a.acc_mg[rows].astype(np.float64) / 1000.0,
+        "gyro_dps": a.gyro_mdps[rows].astype(np.float64) / 1000.0,
+        "thr": a.thr[rows].astype(int),
+        "acc_mg": a.acc_mg[rows],
+    }
+
+
+def _decode_both(data: bytes, chunk: int = 97):
+    """(frames of a StreamDecoder fed in chunks, its stats, decode_bytes' Telemetry): the one decoder both ways."""
+    dec = StreamDecoder()
+    frames = []
+    for i in range(0, len(data), chunk):
+        frames += dec.feed(data[i : i + chunk])
+    frames += dec.finish()
+    return frames, dec.stats, decode_bytes(data)
+
+
+def _records(frames) -> list[TextRecordFrame]:
+    return [f for f in frames if isinstance(f, TextRecordFrame)]
+
+
+def _st_221117(d, floats: bool = True) -> bytes:
+    """ST's release 221117 main loop: gELE, gAIL, gRUD, gTHR, motor1_pwm, thx*57.3, thy*57.3, rc thx/thy * 57.3."""
+    lines = [b"\r\n".join(BANNER) + b"\r\n"]
+    for i in range(N):
+        if floats:
+            thx, thy = math.radians(d["pitch_deg"][i]) * 57.3, math.radians(d["roll_deg"][i]) * 57.3
+            vals = (0, 0, 0, d["thr"][i], 0.0, thx, thy, 0.0, 0.0)
+            lines.append(b"%d\t%d\t%d\t%d\t%f\t%f\t%f\t%f\t%f\n" % vals)
+        else:
+            lines.append(b"%d\t%d\t%d\t%d\t\t\t\t\t\n" % (0, 0, 0, d["thr"][i]))
+    return b"".join(lines)
+
+
+def test_st_221117_lines_are_records_and_the_firmware_attitude(demo):
+    data = _st_221117(demo)
+    frames, stats, tel = _decode_both(data)
+    recs = _records(frames)
+    assert len(recs) == N and stats.text_records == N == tel.stats.text_records
+    assert recs[0].names == ("gELE", "gAIL", "gRUD", "gTHR", "motor1_pwm", "thx", "thy", "rc_thx", "rc_thy")
+    assert recs[0].kind == "st-221117" and recs[0].units[5:] == ("deg",) * 4
+    # the banner (but the stream's first line, which nothing proves whole) is text, not data
+    assert [f.text for f in frames if isinstance(f, TextFrame)] == [b.decode() for b in BANNER[1:]]
+    printed = np.array([[float(x) for x in line.split(b"\t")] for line in data.split(b"\n")[3:-1]])
+    np.testing.assert_array_equal(tel.text_series.values, printed)
+    a = tel.attitude  # ST's thx/thy in degrees: the firmware's pitch/roll
+    assert len(a) == N and not a.exact.any()
+    np.testing.assert_allclose(a.thx_rad, np.radians(printed[:, 5]).astype(np.float32))
+    np.testing.assert_allclose(a.thy_rad, np.radians(printed[:, 6]).astype(np.float32))
+    np.testing.assert_array_equal(a.thr, demo["thr"])
+    np.testing.assert_allclose(np.diff(a.t_fw_s), 1 / 161.538, rtol=1e-3)  # ST's main loop, one line a pass
+    assert any("thx → pitch, degrees" in n for n in tel.text_attitude_notes)
+
+
+def test_st_output_without_printf_float_is_recognised_and_explained(demo, tmp_path, monkeypatch, capsys):
+    data = _st_221117(demo, floats=False)
+    tel = decode_bytes(data)
+    assert tel.stats.text_records == N and tel.text_series.notes == [FLOATLESS_NOTE]
+    assert tel.stats.bytes_skipped == len(BANNER[0]) + 2  # the first line only: the empty fields are not garbage
+    np.testing.assert_array_equal(tel.text_series.column("gTHR"), demo["thr"])
+    log = tmp_path / "st_nofloat.log"
+    log.write_bytes(data)
+    code, out, err = run_cli(monkeypatch, capsys, "replay", log, "--json")
+    assert code == 0
+    t = json.loads(out)["text_telemetry"]
+    assert t["records"] == N and "-u _printf_float" in t["notes"][0]
+
+
+def _formats(d) -> dict[str, tuple[bytes, int, list[str]]]:
+    """name → (log, records, series) of each format, printed from the capture's values."""
+    p, r, acc, gyr = d["pitch_deg"], d["roll_deg"], d["acc_g"], d["gyro_dps"]
+    out = {}
+    out["drone_pitch"] = (
+        b"".join(b"Drone_Pitch = %f\tDrone_Roll = %f\n\n" % (p[i], r[i]) for i in range(N)),
+        N - 1,  # the first line of a stream is not proven whole
+        ["Drone_Pitch", "Drone_Roll"],
+    )
+    out["table_10_2f"] = (
+        b"".join(b"%10.2f\t%10.2f\t%10.2f\n" % (p[i], r[i], acc[i, 2]) for i in range(N)),
+        N - 1,
+        ["col1", "col2", "col3"],
+    )
+    ms2, rads = acc * 9.80665, np.radians(gyr)
+    out["accel_gyro_baro"] = (
+        b"".join(
+            b"Accel: %.3f %.3f %.3f m/s2  Gyro: %.4f %.4f %.4f rad/s\nBaro: %.2f hPa  Temp: %.1f C\n"
+            % (*ms2[i], *rads[i], 1013.25 - i * 0.01, 25.0 + i * 0.01)
+            for i in range(N)
+        ),
+        N - 1,
+        ["Accel_x", "Accel_y", "Accel_z", "Gyro_x", "Gyro_y", "Gyro_z", "Baro", "Temp"],
+    )
+    out["matrix_x100"] = (
+        b"".join(
+            b"%d\t%d\t%d\n\r%d\t%d\t%d\n\r%d\t%d\t%d\n\r\n\r"
+            % tuple(int(round(100 * v)) for v in _rotation(p[i], r[i]).ravel())
+            for i in range(N)
+        ),
+        N - 1,
+        [f"col{k}" for k in range(1, 10)],
+    )
+    for name, sep in (("arduino_space", b" "), ("arduino_tab", b"\t"), ("arduino_comma", b",")):
+        out[name] = (
+            b"".join(
+                sep.join([b"pitch:%.2f" % p[i], b"roll:%.2f" % r[i], b"thr:%d" % d["thr"][i]]) + b"\r\n"
+                for i in range(N)
+            ),
+            N - 1,
+            ["pitch", "roll", "thr"],
+        )
+    out["arduino_header"] = (
+        b"\r\npitch roll\r\n" + b"".join(b"%.2f %.2f\r\n" % (p[i], r[i]) for i in range(N)),
+        N,
+        ["pitch", "roll"],
+    )
+    out["bare_values"] = (b"".join(b"%.3f\n" % p[i] for i in range(N)), N - 1, ["col1"])
+    out["teleplot"] = (
+        b"".join(b">pitch:%.3f\n>roll:%.3f\n" % (p[i], r[i]) for i in range(N)),
+        N - 1,
+        ["pitch", "roll"],
+    )
+    out["csv_header"] = (
+        b"\nt_ms,pitch(deg),roll(deg)\n" + b"".join(b"%d,%.3f,%.3f\n" % (10 * i, p[i], r[i]) for i in range(N)),
+        N,
+        ["t_ms", "pitch", "roll"],
+    )
+    return out
+
+
+def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
+    a, b = math.radians(pitch_deg), math.radians(roll_deg)
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    return rx @ ry
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "drone_pitch",
+        "table_10_2f",
+        "accel_gyro_baro",
+        "matrix_x100",
+        "arduino_space",
+        "arduino_tab",
+        "arduino_comma",
+        "arduino_header",
+        "bare_values",
+        "teleplot",
+        "csv_header",
+    ],
+)
+def test_each_format_gives_its_records_and_series(demo, name):
+    data, n, series = _formats(demo)[name]
+    frames, stats, tel = _decode_both(data)
+    assert stats.text_records == n == tel.stats.text_records == len(tel.text_series)
+    assert tel.text_series.names == series
+    # the rest of the first record, whose first line is not proven whole, is text; no other line is
+    assert stats.text == {"accel_gyro_baro": 1, "matrix_x100": 2, "teleplot": 1}.get(name, 0)
+    # the values are those printed: the last record's numbers are the last lines' numbers
+    last = _records(frames)[-1]
+    tail = data.rstrip(b"\r\n").replace(b"\n\r", b"\n").split(b"\n")[-(1 if name != "teleplot" else 2) :]
+    if name in ("drone_pitch", "table_10_2f", "bare_values", "arduino_comma", "csv_header"):
+        words = tail[-1].replace(b"\t", b",").replace(b" ", b",").split(b",")
+        nums = [float(w.split(b"=")[-1].split(b":")[-1]) for w in words if w.strip(b" =") and w[-1:].isdigit()]
+        assert list(last.values) == nums
+
+
+def test_records_map_to_the_attitude_and_the_sensors(demo):
+    fm = _formats(demo)
+    tel = decode_bytes(fm["accel_gyro_baro"][0])
+    a = tel.attitude  # m/s2 and rad/s as printed, in the firmware's mg and mdps
+    np.testing.assert_allclose(a.acc_mg[:, 2], demo["acc_mg"][1:, 2], atol=0.6)
+    np.testing.assert_allclose(a.gyro_mdps, demo["gyro_dps"][1:] * 1000, atol=0.05 * 180 / math.pi)
+    assert "Accel_x → acc_x, m/s2" in tel.text_attitude_notes
+    tel = decode_bytes(fm["drone_pitch"][0])
+    np.testing.assert_allclose(np.degrees(tel.attitude.thx_rad), demo["pitch_deg"][1:], atol=1e-5)
+    notes = " ".join(tel.text_attitude_notes)
+    assert "Drone_Pitch → pitch, degrees" in notes and "pitch on this board" in notes  # the handouts' roll
+    tel = decode_bytes(fm["csv_header"][0])
+    assert tel.text_series.t_source == "the column t_ms"
+    np.testing.assert_allclose(tel.attitude.t_fw_s, np.arange(N) * 0.01)
+
+
+def test_map_option_and_its_errors(demo, tmp_path, monkeypatch, capsys):
+    log = tmp_path / "table.log"
+    log.write_bytes(_formats(demo)["table_10_2f"][0])
+    code, out, err = run_cli(monkeypatch, capsys, "replay", log, "--json", "--map", "pitch=col1:deg,roll=col2:deg")
+    assert code == 0
+    s = json.loads(out)
+    assert s["frames"]["attitude"] == N - 1 and s["text_telemetry"]["series"] == ["col1", "col2", "col3"]
+    assert any(n.startswith("col1 → pitch, degrees") for n in s["text_telemetry"]["attitude"])
+    for bad in ("pitch=col9", "elevation=col1", "pitch", "pitch=col1:furlong"):
+        code, out, err = run_cli(monkeypatch, capsys, "replay", log, "--map", bad)
+        assert code == 2 and err.count("\n") == 1 and "--map" in err or "col1" in err, (bad, err)
+    assert parse_map(["acc_x=ax:g", "thr=col3"]) == {"acc_x": ("ax", "g"), "thr": ("col3", "")}
+
+
+def test_replay_json_export_csv_and_compare_of_st_log(demo, tmp_path, monkeypatch, capsys):
+    log = tmp_path / "exercise2.log"
+    log.write_bytes(_st_221117(demo))
+    code, out, _ = run_cli(monkeypatch, capsys, "replay", log, "--json")
+    t = json.loads(out)["text_telemetry"]
+    assert code == 0 and t["records"] == N and t["other_lines"] == 2 and len(t["series"]) == 9
+    csv = tmp_path / "x.csv"
+    code, out, _ = run_cli(monkeypatch, capsys, "export", log, "--csv", csv)
+    assert code == 0
+    rows = csv.read_text().splitlines()
+    assert rows[0].split(",")[2:] == ["gELE", "gAIL", "gRUD", "gTHR", "motor1_pwm"] + [
+        f"{n}_deg" for n in ("thx", "thy", "rc_thx", "rc_thy")
+    ]
+    printed = [line.split("\t") for line in log.read_text().splitlines()[3:]]
+    assert [r.split(",")[2:] for r in rows[1:]] == [[_short(v) for v in p] for p in printed]
+    code, out, _ = run_cli(monkeypatch, capsys, "compare", log, "--json")
+    assert code == 0
+    report = json.loads(out)
+    assert any("accel-only tilt needs acc" in n for n in report["notes"])
+
+
+def _short(printed: str) -> str:
+    v = float(printed)
+    return str(int(v)) if v.is_integer() else repr(v)
+
+
+def test_mixed_log_counts_every_frame_and_record_once(demo):
+    """Binary frames, $ATT lines, a boot banner, plotter lines and garbage in one stream."""
+    src = read_recording(REC / "demo.stv")
+    full = load_telemetry(REC / "demo.stv").attitude
+    off = full.offset
+    rng = random.Random(7)
+
+    def garbage(n: int) -> bytes:
+        return bytes(b for b in rng.randbytes(4 * n) if b not in (0x0A, 0xA5, 0x24))[:n]
+
+    def binary(i: int, j: int) -> bytes:  # attitude frames i..j-1 (and whatever frames lie between them)
+        return src.data[off[i] : off[j]]
+
+    p, r = demo["pitch_deg"], demo["roll_deg"]
+    plotter = b"".join(b"pitch:%.2f,roll:%.2f\n" % (p[i], r[i]) for i in range(50))
+    teleplot = b"".join(b">thx:%.3f\n>thy:%.3f\n" % (p[i], r[i]) for i in range(40))
+    att = b"".join(
+        format_att(
+            step=5000 + 16 * i,
+            t_ms=40_000 + 100 * i,
+            thr=0,
+            thx_mdeg=1000 * p[i],
+            thy_mdeg=1000 * r[i],
+            thz_mdeg=0,
+            acc_mg=demo["acc_mg"][i],
+            gyro_mdps=(0, 0, 0),
+        )
+        for i in range(30)
+    )
+    stream = (
+        binary(0, 100)
+        + b"\r\n".join(BANNER)
+        + b"\r\n"
+        + plotter
+        + garbage(300)
+        + binary(100, 200)
+        + att
+        + garbage(200)
+        + binary(200, 300)
+        + teleplot
+        + binary(300, 400)
+    )
+    frames, stats, tel = _decode_both(stream)
+    assert tel.stats.as_dict() == stats.as_dict()
+    n_binary = sum(1 for f in frames if isinstance(f, AttitudeFrame) and f.exact)
+    assert n_binary == 400 and stats.attitude == 430  # every binary frame and $ATT line, once
+    assert stats.text_records == 50 + 40  # every plotter line and teleplot pair, once; nothing from the garbage
+    assert [f.text for f in frames if isinstance(f, TextFrame)] == [b.decode() for b in BANNER]
+    assert tel.text_series.names == ["pitch", "roll", "thx", "thy"]
+    assert tel.has_own_attitude and len(tel.attitude) == 430  # the frames stay the attitude
+    np.testing.assert_allclose(tel.text_series.column("thx")[-40:], np.round(p[:40], 3))
+
+
+def test_damaged_lines_are_never_records(demo):
+    lines = _st_221117(demo).split(b"\n")
+    # a cut (a lost field), garbage bytes inside a line, a line cut and joined to the next
+    lines[50] = lines[50].rsplit(b"\t", 1)[0]
+    lines[80] = lines[80][:6] + b"\x13\x88" + lines[80][6:]
+    lines[120] = lines[120][:15] + lines[121]
+    del lines[121]
+    data = b"\n".join(lines)
+    frames, stats, tel = _decode_both(data)
+    good = {bytes(x) for x in data.split(b"\n")[3:]} - {lines[50], lines[80], lines[120]}
+    printed = {tuple(float(v) for v in x.split(b"\t")) for x in good if x}
+    recs = _records(frames)
+    assert len(recs) == N - 4 and {r.values for r in recs} <= printed
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_random_bytes_give_no_records_and_almost_no_text(seed):
+    data = random.Random(seed).randbytes(2_000_000)
+    frames, stats, tel = _decode_both(data, chunk=4096)
+    assert stats.text_records == 0 == tel.stats.text_records
+    assert stats.text <= 1 and stats.text_dropped >= 0
+
+
+def test_live_replay_of_a_text_log_records_the_text(demo, tmp_path, monkeypatch, capsys):
+    log = tmp_path / "exercise2.log"
+    log.write_bytes(_st_221117(demo))
+    out = tmp_path / "x.stv"
+    code, _, err = run_cli(
+        monkeypatch, capsys, "live", "--port", f"replay://{log}?speed=4", "--no-view", "--duration", "1", "--out", out
+    )
+    assert code == 0, err
+    code, text, _ = run_cli(monkeypatch, capsys, "replay", out, "--json")
+    t = json.loads(text)["text_telemetry"]
+    assert code == 0 and t["records"] >= N // 2 and t["time_source"] == "host receive times"
