@@ -58,10 +58,10 @@ def _records(frames) -> list[TextRecordFrame]:
     return [f for f in frames if isinstance(f, TextRecordFrame)]
 
 
-def _st_221117(d, floats: bool = True) -> bytes:
+def _st_221117(d, floats: bool = True, n: int = N) -> bytes:
     """ST's release 221117 main loop: gELE, gAIL, gRUD, gTHR, motor1_pwm, thx*57.3, thy*57.3, rc thx/thy * 57.3."""
     lines = [b"\r\n".join(BANNER) + b"\r\n"]
-    for i in range(N):
+    for i in range(n):
         if floats:
             thx, thy = math.radians(d["pitch_deg"][i]) * 57.3, math.radians(d["roll_deg"][i]) * 57.3
             vals = (0, 0, 0, d["thr"][i], 0.0, thx, thy, 0.0, 0.0)
@@ -105,8 +105,8 @@ def test_st_output_without_printf_float_is_recognised_and_explained(demo, tmp_pa
     assert t["records"] == N and "-u _printf_float" in t["notes"][0]
 
 
-def _formats(d) -> dict[str, tuple[bytes, int, list[str]]]:
-    """name → (log, records, series) of each format, printed from the capture's values."""
+def _formats(d, N: int = N) -> dict[str, tuple[bytes, int, list[str]]]:  # noqa: N803 (the module's N)
+    """name → (log, records, series) of each format, printed from the capture's values (N records)."""
     p, r, acc, gyr = d["pitch_deg"], d["roll_deg"], d["acc_g"], d["gyro_dps"]
     out = {}
     out["drone_pitch"] = (
@@ -348,3 +348,21 @@ def test_live_replay_of_a_text_log_records_the_text(demo, tmp_path, monkeypatch,
     code, text, _ = run_cli(monkeypatch, capsys, "replay", out, "--json")
     t = json.loads(text)["text_telemetry"]
     assert code == 0 and t["records"] >= N // 2 and t["time_source"] == "host receive times"
+
+
+@pytest.mark.parametrize("name", ["st", "st_nofloat", "drone_pitch", "table_10_2f", "arduino_comma", "csv_header"])
+def test_bulk_and_stream_decoders_give_the_same_records(demo, name):
+    """decode_bytes reads long runs of fitting lines as arrays; StreamDecoder line by line: the same records."""
+    big = {k: np.tile(v, (8,) + (1,) * (np.ndim(v) - 1)) for k, v in demo.items()}
+    n = len(big["thr"])
+    st = {"st": _st_221117(big, n=n), "st_nofloat": _st_221117(big, floats=False, n=n)}
+    data = st.get(name) or _formats(big, n)[name][0]
+    # damage in the middle: a cut line and garbage, then the stream goes on
+    k = len(data) // 2
+    data = data[:k] + b"\x00\xff garbage\n" + data[k:]
+    frames, stats, tel = _decode_both(data, chunk=4096)
+    recs = _records(frames)
+    assert stats.as_dict() == tel.stats.as_dict()
+    assert len(recs) == len(tel.text_series) > 8 * 200
+    np.testing.assert_array_equal(np.array([r.values for r in recs]), tel.text_series.values)
+    np.testing.assert_array_equal([r.offset for r in recs], tel.text_series.offset)

@@ -61,6 +61,7 @@ from steval_link.link.plausibility import (
     status_values_ok,
 )
 from steval_link.link.telemetry import Telemetry, TelemetryParts
+from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
@@ -185,6 +186,25 @@ class StreamDecoder:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
         self._boundary = line_start
+
+    def text_template(self):
+        """The text reader's template for lines that would be records now (see
+        :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template`), when the decoder is at a clean
+        line start with nothing pending; else None."""
+        if self._buf or not self._boundary or self._damaged:
+            return None
+        return self.text_reader.bulk_template()
+
+    def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
+        """``count`` records up to byte ``offset`` (whole lines, ``blank_bytes`` of blank lines among them, one
+        last when ``blank_last``) were made elsewhere (the bulk decoder): counted, and the stream continues at
+        ``offset``, a line start."""
+        self.resume_at(offset, line_start=True)
+        self._ended_nl = True
+        self.text_reader.bulk_records(count, blank_last=blank_last)
+        self.stats.text_records += count
+        self.stats.frames_ok += count
+        self.stats.bytes_skipped += blank_bytes
 
     def lock_version_2(self) -> None:
         """A version-2 frame was accepted before the current position (e.g. by the bulk decoder): version-1
@@ -402,6 +422,54 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
+#: The bulk text path: bytes fed to the stream decoder between tries, and the first window of lines it reads.
+_TEXT_PROBE = 2048
+_TEXT_WINDOW = 4096
+_TEXT_WINDOW_MAX = 1 << 20
+
+
+def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[RecordBlock]) -> list[Frame]:
+    """``data[p:end]`` through ``sd``, but runs of text lines that fit a learned one-line record shape
+    (``sd.text_template()``) are read as arrays at once (one regex pass and one table parse per window of lines)
+    into ``blocks``: the same records ``sd`` would make line by line, many times faster."""
+    out: list[Frame] = []
+    window = _TEXT_WINDOW
+    while p < end:
+        tpl = sd.text_template()
+        if tpl is None:
+            nl = data.find(b"\n", min(p + _TEXT_PROBE, end - 1), end)
+            stop = end if nl < 0 else nl + 1
+            out += sd.feed(data[p:stop])
+            p = stop
+            continue
+        win_end = data.rfind(b"\n", p, min(p + window, end)) + 1
+        valid = tpl.valid_blanks if sd.text_reader.idle else tpl.valid
+        run_end = valid.match(data, p, win_end).end() if win_end else p
+        if run_end == p:  # a line that does not fit: the stream decoder decides it
+            stop = data.find(b"\n", p, end) + 1 or end
+            out += sd.feed(data[p:stop])
+            p = stop
+            window = _TEXT_WINDOW
+            continue
+        ends = np.flatnonzero(np.frombuffer(data, np.uint8, run_end - p, p) == 0x0A) + (p + 1)
+        starts = np.concatenate([[p], ends[:-1]]).astype(np.int64)
+        size = ends - starts
+        blank = (size == 1) | ((size == 2) & (np.frombuffer(data, np.uint8, run_end - p, p)[starts - p] == 0x0D))
+        count = int(len(ends) - blank.sum())
+        if count == 0 or int(size.max()) > MAX_LINE_BYTES:  # blank lines only, or a line too long: as above
+            stop = data.find(b"\n", p, end) + 1 or end
+            out += sd.feed(data[p:stop])
+            p = stop
+            window = _TEXT_WINDOW
+            continue
+        values = tpl.values(data[p:run_end], count)
+        blocks.append(RecordBlock(tpl.names, tpl.units, tpl.kind, values, starts[~blank], size[~blank]))
+        sd.skip_records(run_end, count, blank_bytes=int(size[blank].sum()), blank_last=bool(blank[-1]))
+        window = min(window * 2, _TEXT_WINDOW_MAX) if run_end == win_end else _TEXT_WINDOW
+        p = run_end
+    return out
+
+
 _LEN_LUT = np.full(256, -1, np.int64)  # VT -> payload length of a fixed-size type; -2 text; -1 unknown
 for _vt, _n in _FIXED_LEN.items():
     _LEN_LUT[_vt] = _n
@@ -505,7 +573,7 @@ def decode_bytes(
             sd.lock_version_2()
         last_fast = False
         end = int(nxt[k]) if k < K else n
-        slow_frames.extend(sd.feed(data[p:end]))
+        slow_frames.extend(_feed_region(sd, data, p, end, parts.record_blocks))
         p = end
     slow_frames.extend(sd.finish())
 
@@ -536,7 +604,7 @@ def decode_bytes(
         status=len(sta),
         text=len(parts.texts),
         **{name: kinds.count(name) for name in ("flight", "ack", "command")},
-        text_records=len(parts.records),
+        text_records=len(parts.records) + sum(len(b.offset) for b in parts.record_blocks),
         text_dropped=st.text_dropped,
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,

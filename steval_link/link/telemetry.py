@@ -40,7 +40,7 @@ from steval_link.link.frames import (
     TextRecordFrame,
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
-from steval_link.link.text_series import TextSeries, map_attitude, text_series
+from steval_link.link.text_series import RecordBlock, TextSeries, map_attitude, record_blocks, text_series
 from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
 from steval_link.link.unwrap import host_times as _host_times
 
@@ -258,6 +258,7 @@ class TelemetryParts:
         self.sta_frames: list[StatusFrame] = []
         self.texts: list[TextFrame] = []
         self.records: list[TextRecordFrame] = []
+        self.record_blocks: list[RecordBlock] = []  # records the bulk decoder made as arrays
         self.others: list[FlightFrame | AckFrame | CommandFrame] = []
         #: commands the host sent (``COMMAND_ROW_DTYPE`` rows, timed), kept after those found in the stream
         self.sent_commands: np.ndarray | None = None
@@ -469,9 +470,8 @@ class Telemetry:
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
             rows["commands"] = np.concatenate([rows["commands"], parts.sent_commands])
-        records = sorted(parts.records, key=lambda f: f.offset)
-        t_rec = np.array([f.offset + f.nbytes - 1 for f in records], dtype=np.int64)
-        series = text_series(records, _host_times(t_rec, chunk_times, baud, total) if records else np.zeros(0))
+        blocks = parts.record_blocks + record_blocks(sorted(parts.records, key=lambda f: f.offset))
+        series = text_series(blocks, lambda last: _host_times(last, chunk_times, baud, total))
         tel = cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows, text_series=series)
         if len(series) and not len(attitude):
             tel.map_text()

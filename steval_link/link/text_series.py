@@ -24,7 +24,16 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.errors import UserError
 
-__all__ = ["TextSeries", "map_attitude", "parse_map", "text_series", "FLOATLESS_NOTE", "MAP_TARGETS"]
+__all__ = [
+    "FLOATLESS_NOTE",
+    "MAP_TARGETS",
+    "RecordBlock",
+    "TextSeries",
+    "map_attitude",
+    "parse_map",
+    "record_blocks",
+    "text_series",
+]
 
 #: The sentence for ST's line with empty float fields.
 FLOATLESS_NOTE = (
@@ -76,7 +85,7 @@ class TextSeries:
     t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     t_host_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     offset: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    kind: list[str] = field(default_factory=list)
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, object))
     t_source: str = ""
     notes: list[str] = field(default_factory=list)
 
@@ -103,38 +112,72 @@ def _safe_unit(unit: str) -> str:
     return re.sub(r"[^0-9A-Za-zµ°]+", "_", unit).strip("_") or "unit"
 
 
-def text_series(records: list, t_host_s: np.ndarray) -> TextSeries:
-    """The records (``TextRecordFrame``, stream order) as a :class:`TextSeries`; ``t_host_s`` their host times."""
-    if not records:
+@dataclass
+class RecordBlock:
+    """Records of one shape, as the bulk decoder makes them: ``names``, ``units``, ``kind``; ``values`` (k, m)
+    float64, ``offset`` and ``nbytes`` (k,) int64 (each record's bytes in the stream)."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    kind: str
+    values: np.ndarray
+    offset: np.ndarray
+    nbytes: np.ndarray
+
+
+def record_blocks(records: list) -> list[RecordBlock]:
+    """``TextRecordFrame`` s as blocks: one per run of records of the same names."""
+    out: list[RecordBlock] = []
+    i = 0
+    while i < len(records):
+        j = i
+        while j < len(records) and records[j].names == records[i].names:
+            j += 1
+        run = records[i:j]
+        r = run[0]
+        out.append(
+            RecordBlock(
+                r.names,
+                r.units,
+                r.kind,
+                np.array([x.values for x in run], np.float64).reshape(len(run), len(r.names)),
+                np.array([x.offset for x in run], np.int64),
+                np.array([x.nbytes for x in run], np.int64),
+            )
+        )
+        i = j
+    return out
+
+
+def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
+    """The record blocks as one :class:`TextSeries` in stream order; ``host_times(last_byte_offsets)`` gives their
+    host times (s since the capture started, NaN when unknown)."""
+    blocks = [b for b in blocks if len(b.offset)]
+    if not blocks:
         return TextSeries()
     index: dict[str, int] = {}
     units: list[str] = []
-    for r in records:
-        for name, unit in zip(r.names, r.units):
+    for b in blocks:
+        for name, unit in zip(b.names, b.units):
             if name not in index:
                 index[name] = len(index)
                 units.append(unit)
-    values = np.full((len(records), len(index)), np.nan)
-    for shape in {r.names for r in records}:
-        rows = [i for i, r in enumerate(records) if r.names == shape]
-        cols = [index[name] for name in shape]
-        values[np.ix_(rows, cols)] = np.array([records[i].values for i in rows], np.float64)
-    names = list(index)
-    kinds = [r.kind for r in records]
-    series = TextSeries(
-        names,
-        units,
-        values,
-        np.zeros(0),
-        np.asarray(t_host_s, np.float64),
-        np.array([r.offset for r in records]),
-        kinds,
-    )
+    total = sum(len(b.offset) for b in blocks)
+    values = np.full((total, len(index)), np.nan)
+    offset = np.concatenate([b.offset for b in blocks])
+    last = np.concatenate([b.offset + b.nbytes - 1 for b in blocks])
+    kinds = np.concatenate([np.full(len(b.offset), b.kind, dtype=object) for b in blocks])
+    row = 0
+    for b in blocks:
+        values[row : row + len(b.offset), [index[name] for name in b.names]] = b.values
+        row += len(b.offset)
+    order = np.argsort(offset, kind="stable")
+    values, offset, last, kinds = values[order], offset[order], last[order], kinds[order]
+    series = TextSeries(list(index), units, values, np.zeros(0), host_times(last), offset, kinds)
     series.t_s, series.t_source = _record_times(series)
-    if "st-221117" in kinds:
-        st = values[np.array([k == "st-221117" for k in kinds])]
-        if np.isnan(st[:, 4:]).all():
-            series.notes.append(FLOATLESS_NOTE)
+    st = kinds == "st-221117"
+    if st.any() and np.isnan(values[st][:, 4:]).all():
+        series.notes.append(FLOATLESS_NOTE)
     return series
 
 
@@ -153,7 +196,7 @@ def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
             return (col - col[0]) * scale, f"the column {name}"
     if n and np.isfinite(s.t_host_s).all():
         return s.t_host_s.copy(), "host receive times"
-    if n and all(k == "st-221117" for k in s.kind):
+    if n and (s.kind == "st-221117").all():
         return np.arange(n) * C.AHRS_PERIOD_S, f"ST's main-loop rate ({C.AHRS_RATE_HZ:g} Hz, one line a pass)"
     return np.arange(n, dtype=np.float64), "the record index (no times in the log: 1 s apart)"
 
@@ -201,8 +244,7 @@ def _scale(target: str, unit: str, name: str) -> float:
 def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
     """Targets found by name (see the module docstring)."""
     out: dict[str, tuple[str, str]] = {}
-    kinds = set(s.kind)
-    if "st-221117" in kinds:
+    if (s.kind == "st-221117").any():
         out.update(pitch=("thx", "deg"), roll=("thy", "deg"), thr=("gTHR", ""))
     for name, unit in zip(s.names, s.units):
         low = name.lower()
