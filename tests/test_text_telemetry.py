@@ -366,3 +366,23 @@ def test_bulk_and_stream_decoders_give_the_same_records(demo, name):
     assert len(recs) == len(tel.text_series) > 8 * 200
     np.testing.assert_array_equal(np.array([r.values for r in recs]), tel.text_series.values)
     np.testing.assert_array_equal([r.offset for r in recs], tel.text_series.offset)
+
+
+def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, capsys):
+    """One scalar series per printed name under text/, from steval replay --rrd and from the live logger."""
+    from steval_viewer.rrd_check import read_rrd  # Rerun: only this test needs it
+
+    log = tmp_path / "ex2.log"
+    log.write_bytes(_formats(demo)["drone_pitch"][0])
+    rrd = tmp_path / "replay.rrd"
+    code, _, err = run_cli(monkeypatch, capsys, "replay", log, "--rrd", rrd)
+    assert code == 0, err
+    samples = read_rrd(rrd).samples
+    assert samples["text/Drone_Pitch"] == samples["text/Drone_Roll"] == N - 1
+    live_rrd = tmp_path / "live.rrd"
+    code, _, err = run_cli(
+        monkeypatch, capsys, "live", "--port", f"replay://{log}?rate=400", "--no-view", "--duration", "2",
+        "--out", tmp_path / "live.stv", "--rrd", live_rrd,
+    )  # fmt: skip
+    assert code == 0, err
+    assert read_rrd(live_rrd).samples["text/Drone_Roll"] == N - 1

@@ -131,6 +131,7 @@ def make_blueprint(
             name="Link health",
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
+        _series("text", "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
         name="Link",
     )
     left = rrb.Vertical(view3d, link, row_shares=[3, 2])

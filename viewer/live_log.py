@@ -48,7 +48,7 @@ LIVE_3D_MAX_HZ = 60.0
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
 #: Text telemetry: its series under this entity; queued records sent at least every this many
-TEXT_ROOT = "text"
+TEXT_ROOT = "text"  # (the blueprint's "Text telemetry" tab)
 RECORDS_PER_SEND = 64
 
 #: Estimator names of the live session that mean the bit-exact firmware port.

@@ -261,6 +261,18 @@ def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplayS
     summary.samples[ent.LOG_FIRMWARE] = len(lines)
 
 
+def log_text_series(rec: rr.RecordingStream, series: Any, summary: ReplaySummary) -> None:
+    """Text telemetry (``tel.text_series``): one scalar series per printed name under ``text/``, at each record's
+    time (``t_s``: a timestamp column, the host's times, ST's line rate or the record index) and host time."""
+    if series is None or not len(series):
+        return
+    times = Times(series.t_s, series.t_host_s)
+    for k, name in enumerate(series.names):
+        path = f"text/{name}"
+        send_scalars(rec, path, times, series.values[:, k])
+        summary.samples[path] = int(np.isfinite(series.values[:, k]).sum())
+
+
 def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
     """The commands the host sent (capture chunks H) with the drone's acks, one text entry each at the time the
     command was sent (``log/commands``; a refusal or a missing ack as a warning)."""
@@ -344,6 +356,7 @@ def log_replay(
     if link:
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
+    log_text_series(rec, getattr(tel, "text_series", None), summary)
     log_commands(rec, times, tel, summary)
     log_values_bad(rec, times, tel, summary)
     if has_fc:
