@@ -68,4 +68,11 @@ def require_attitude(tel, purpose: str) -> None:
         if len(tel.status) + len(tel.text)
         else "no frames"
     )
+    series = getattr(tel, "text_series", None)
+    if series is not None and len(series):  # text telemetry, none of it an attitude
+        why = series.notes[0].rstrip(".") if series.notes else "say which is the attitude with --map pitch=SERIES:deg"
+        raise UserError(
+            f"{path}: {len(series)} text records ({', '.join(series.names)}), none of them an attitude: "
+            f"nothing to {purpose} ({why})."
+        )
     raise UserError(f"{path}: {size}{held}, no attitude frames: nothing to {purpose}.")

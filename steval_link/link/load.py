@@ -114,8 +114,8 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> T
     if src.kind != "stv":
         if len(a) + len(tel.status) + len(tel.text_series) == 0:
             raise UserError(
-                f"{src.path} is not a steval capture, raw serial dump or text log (no frames and no records of "
-                f"numbers found in {len(src.data)} bytes{_text_lines(tel)})."
+                f"{src.path} is not a steval capture, raw serial dump or text log (no frames found, and no records "
+                f"of numbers, in {len(src.data)} bytes{_text_lines(tel)})."
             )
         binary = int(a.exact.sum()) + int(tel.status.exact.sum())
         tel.source["kind"] = "raw" if binary else "text"
