@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.cli import run_cli
 
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, TextFrame, TextRecordFrame
 from steval_link.link.load import load_telemetry, read_recording
 from steval_link.link.text_series import FLOATLESS_NOTE, parse_map
 from steval_link.link.textmode import format_att
-from tests.support.cli import run_cli
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
 N = 240  # records per log
@@ -386,3 +386,22 @@ def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, 
     )  # fmt: skip
     assert code == 0, err
     assert read_rrd(live_rrd).samples["text/Drone_Roll"] == N - 1
+
+
+def test_live_on_a_pseudo_terminal_at_115200_baud_records_the_text(demo, tmp_path):
+    """ST's output through a serial port at the pace of 115200 baud: live takes it, the capture replays it."""
+    from support.ptyfeed import PtyFeeder, StevalProcess
+
+    data = _st_221117(demo) * 3
+    with PtyFeeder(data, tmp_path / "ttyUSB0", bytes_per_s=115200 / 10) as feeder:
+        cap = tmp_path / "live.stv"
+        proc = StevalProcess(
+            ["live", "--no-view", "--port", str(feeder.link), "--out", str(cap), "--duration", "3"], cwd=tmp_path
+        )
+        assert proc.wait_line("reading ", 30) is not None, proc.stderr
+        feeder.start()
+        rc = proc.finish(timeout_s=60)
+    assert rc == 0, proc.stderr
+    tel = load_telemetry(cap)
+    assert tel.stats.text_records > 300 and tel.text_series.t_source == "host receive times"
+    assert tel.text_series.names[:4] == ["gELE", "gAIL", "gRUD", "gTHR"] and len(tel.attitude) == len(tel.text_series)
