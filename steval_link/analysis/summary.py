@@ -196,6 +196,7 @@ def summarize(tel) -> dict[str, Any]:
         },
         "crc_failures": st.crc_failures,
         "bytes_skipped": st.bytes_skipped,
+        "text_dropped": st.text_dropped,  # printable lines that did not read as text (random bytes), not kept
         "bytes_total": st.bytes_total,
         "unknown_frames": st.unknown_frames,
         "implausible": st.implausible,
@@ -269,6 +270,7 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     lines.append(
         f"link: {s['crc_failures']} CRC failures, {s['bytes_skipped']} of {s['bytes_total']} bytes skipped"
         + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
+        + (f", {s['text_dropped']} lines of garbage dropped" if s.get("text_dropped") else "")
     )
     if s.get("values_bad"):
         lines.append(f"firmware output: {s['values_bad']['text']}")
