@@ -65,7 +65,16 @@ ST_221117 = "st-221117"
 _NUM = r"[-+]?(?:\d+\.?\d*(?:[eE][-+]?\d+)?|\.\d+(?:[eE][-+]?\d+)?|nan|inf|NAN|INF|NaN|Inf)"
 _NUM_RE = re.compile(_NUM)
 _INT_RE = re.compile(r"[-+]?\d+")
-_TOKEN = re.compile(rf"(?P<num>{_NUM})(?![\w.])|(?P<sep>[:=])|(?P<delim>[,;\t])|(?P<word>[^\s:=,;\t]+)|\s+")
+#: A unit written right after its number (``3.92V``, ``25.3C``, ``12ms``, ``9.81m/s2``): a known unit only, so that
+#: ``0x1F`` or ``2nd`` are not read as numbers.
+_UNIT_SUFFIX = (
+    r"(?:%|°C?|°/s|hPa|mdps|dps|rpm|bar|deg|rad(?:/s)?|[kMmuµn]?(?:Hz|Pa|V|A|W|s|g|G|C|F|K)|mg|m/s2|m/s\^2|m/s²|m)"
+)
+_TOKEN = re.compile(
+    rf"(?P<num>{_NUM})(?![\w.°%/²^])|(?P<glued>{_NUM}{_UNIT_SUFFIX})(?![\w.])|(?P<sep>[:=])|(?P<delim>[,;\t])"
+    r"|(?P<word>[^\s:=,;\t]+)|\s+"
+)
+_GLUED = re.compile(rf"({_NUM})(.+)")
 _TELEPLOT = re.compile(rf">([^:|§\s][^:|§]*):(?:({_NUM}):)?({_NUM})(?:§([^|]*))?(?:\|[a-z]*)?")
 _LABEL_UNIT = re.compile(r"(.+?)\s*[\(\[]([^\)\]]+)[\)\]]")
 _HEADER_WORD = re.compile(r"[A-Za-z_][\w./%\-]*(?:\s*[\(\[][^\)\]]+[\)\]])?")
@@ -139,7 +148,10 @@ def _tokens(text: str) -> list[tuple[str, str]] | None:
         if m.start() != pos:
             return None
         pos = m.end()
-        if m.lastgroup:
+        if m.lastgroup == "glued":  # a number and its unit: as if a space were between them
+            number, unit = _GLUED.fullmatch(m.group(0)).groups()
+            out += [("num", number), ("word", unit)]
+        elif m.lastgroup:
             out.append((m.lastgroup, m.group(m.lastgroup)))
     return out if pos == len(text) else None
 
@@ -358,6 +370,8 @@ def _labelled_template(example: str, kinds: tuple) -> tuple[bytes | None, tuple[
     words: set[bytes] = set()
     k = 0
     for m in _TOKEN.finditer(example):
+        if m.lastgroup == "glued":
+            return None, ()  # (read line by line)
         if m.lastgroup == "num":
             if k >= len(kinds):
                 return None, ()
