@@ -18,6 +18,7 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, TextFrame, TextRecordFrame
 from steval_link.link.load import load_telemetry, read_recording
 from steval_link.link.text_series import FLOATLESS_NOTE, parse_map
+from steval_link.link.text_telemetry import parse_line
 from steval_link.link.textmode import format_att
 
 REC = Path(__file__).resolve().parents[1] / "recordings"
@@ -405,3 +406,27 @@ def test_live_on_a_pseudo_terminal_at_115200_baud_records_the_text(demo, tmp_pat
     tel = load_telemetry(cap)
     assert tel.stats.text_records > 300 and tel.text_series.t_source == "host receive times"
     assert tel.text_series.names[:4] == ["gELE", "gAIL", "gRUD", "gTHR"] and len(tel.attitude) == len(tel.text_series)
+
+
+@pytest.mark.parametrize(
+    "line, names, units, values",
+    [
+        ("Roll: 1.23, Pitch: 4.56, Yaw: 7.89", ("Roll", "Pitch", "Yaw"), ("", "", ""), (1.23, 4.56, 7.89)),
+        ("Pitch: 1.23 deg  Roll: -4.5 deg", ("Pitch", "Roll"), ("deg", "deg"), (1.23, -4.5)),
+        ("Temp: 25.3C Baro: 1013.2hPa", ("Temp", "Baro"), ("C", "hPa"), (25.3, 1013.2)),
+        ("Accel: 0.1 0.2 9.81m/s2", ("Accel_x", "Accel_y", "Accel_z"), ("m/s2",) * 3, (0.1, 0.2, 9.81)),
+        ("pitch(deg):1.5\troll(deg):-2", ("pitch", "roll"), ("deg", "deg"), (1.5, -2.0)),
+        (">thx:1234:0.5§deg|g", ("thx_t_ms", "thx"), ("ms", "deg"), (1234.0, 0.5)),
+        ("  1.50,  -2.25,3", None, ("", "", ""), (1.5, -2.25, 3.0)),
+    ],
+)
+def test_one_line_read_as_numbers(line, names, units, values):
+    p = parse_line(line)
+    assert (p.names, p.units, p.values) == (names, units, values)
+
+
+@pytest.mark.parametrize(
+    "line", ["reg 0x1F", "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017", "Calibrating 3 of 5", "OK", "a:1 a:2", "x: 1.2.3"]
+)
+def test_lines_that_are_text(line):
+    assert parse_line(line) is None
