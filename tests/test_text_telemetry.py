@@ -430,3 +430,41 @@ def test_one_line_read_as_numbers(line, names, units, values):
 )
 def test_lines_that_are_text(line):
     assert parse_line(line) is None
+
+
+def test_live_pipeline_makes_the_same_attitude_rows_of_records(demo):
+    """ST's line live: each record an attitude row (pitch = thx, roll = thy), as the bulk path's Telemetry."""
+    from steval_link.live.estimators import LiveRows
+    from steval_link.live.pipeline import LivePipeline
+
+    class Viewer:  # the LiveViewer protocol, keeping what it is given
+        def __init__(self):
+            self.rows, self.records = [], []
+
+        def log_batch(self, batch):
+            self.rows.append(batch)
+
+        def log_record(self, frame, at):
+            self.records.append(frame)
+
+        def log_status(self, frame, at): ...
+        def log_text(self, frame, at): ...
+        def log_link(self, stats, t_unix_s): ...
+        def log_event(self, text, at, level): ...
+        def close(self): ...
+
+    data = _st_221117(demo)
+    viewer = Viewer()
+    pipe = LivePipeline(["accel"], viewer)
+    for i in range(0, len(data), 200):
+        pipe.feed([(data[i : i + 200], 1000.0 + i / 5000)])
+    pipe.flush_view()
+    rows = LiveRows.concat(viewer.rows)
+    tel = decode_bytes(data)
+    assert len(rows) == len(tel.attitude) == N == len(viewer.records)
+    np.testing.assert_array_equal(rows.attitude.thx_rad, tel.attitude.thx_rad)
+    np.testing.assert_array_equal(rows.attitude.thy_rad, tel.attitude.thy_rad)
+    np.testing.assert_array_equal(rows.attitude.thr, demo["thr"])
+    assert not rows.attitude.values_bad.any() and pipe.health.nonfinite == 0
+    assert np.isnan(rows.estimates["accel"]).all()  # no accelerometer printed: no accel-only tilt, no warning
+    assert not pipe.notes

@@ -126,7 +126,7 @@ class LiveLogger:
         if not a.exact.all():
             rows = ~a.exact
             q = q.astype(np.float64)
-            q[rows] = quaternion_from_euler(thx[rows], thy[rows], a.thz_rad[rows])
+            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.nan_to_num(a.thz_rad[rows]))  # no yaw printed: 0
         acc = a.acc_mg.astype(np.float64)
         bad = a.values_bad
         if bad.any():

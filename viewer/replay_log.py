@@ -97,7 +97,7 @@ def display_quaternions(att: Any) -> np.ndarray:
         thy = np.asarray(att.thy_rad, dtype=np.float64)
         rows = missing & np.isfinite(thx) & np.isfinite(thy)
         if rows.any():
-            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.asarray(att.thz_rad)[rows])
+            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.nan_to_num(np.asarray(att.thz_rad)[rows]))
     bad = getattr(att, "values_bad", None)
     if bad is not None:
         q[np.asarray(bad, dtype=bool)] = np.nan

@@ -93,11 +93,17 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
 
 def attitude_frame_bad(frame) -> bool:
     """True when an :class:`~steval_link.link.frames.AttitudeFrame` carries bad values (what ``values_bad``
-    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with a non-finite value."""
+    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with an infinite value, or with
+    neither an angle nor the accelerometer (``$ATT`` rows are finite; rows of text telemetry NaN where not printed)."""
     if frame.exact:
         return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
     vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
-    return not all(math.isfinite(v) for v in vals)
+    if any(math.isinf(v) for v in vals):
+        return True
+    # a row of text telemetry: what was printed, NaN for the rest; an angle or the accelerometer
+    return not (
+        math.isfinite(frame.thx_rad) or math.isfinite(frame.thy_rad) or all(math.isfinite(v) for v in frame.acc_mg)
+    )
 
 
 def _within(v, limit: float, width: int) -> np.ndarray:
@@ -111,21 +117,21 @@ def _within(v, limit: float, width: int) -> np.ndarray:
 
 def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
     """(N,) bool, rows with bad values, as :func:`attitude_frame_bad` row by row: binary rows outside the limits of
-    :func:`attitude_values_ok`, text-mode rows (no q) with a non-finite value."""
+    :func:`attitude_values_ok`, text-mode rows (no q) as :func:`attitude_frame_bad` says."""
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
     ok = _within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz)
     if exact.all():
         return ~(ok & _within(q_wxyz, Q_MAX, 4))
-    # text-mode rows: every value finite (no q; their angles come with the row)
-    ok_txt = (
-        np.isfinite(np.asarray(acc_mg, np.float64)).reshape(-1, 3).all(axis=1)
-        & np.isfinite(np.asarray(gyro_mdps, np.float64)).reshape(-1, 3).all(axis=1)
-        & np.isfinite(thz)
-        & np.isfinite(np.broadcast_to(np.asarray(thx_rad, np.float64), (n,)))
-        & np.isfinite(np.broadcast_to(np.asarray(thy_rad, np.float64), (n,)))
-    )
+    # text-mode rows ($ATT: every value finite; no q, their angles come with the row). Rows of text telemetry
+    # carry what was printed, NaN for the rest: no infinity, and an angle or the accelerometer
+    acc = np.asarray(acc_mg, np.float64).reshape(-1, 3)
+    gyro = np.asarray(gyro_mdps, np.float64).reshape(-1, 3)
+    thx = np.broadcast_to(np.asarray(thx_rad, np.float64), (n,))
+    thy = np.broadcast_to(np.asarray(thy_rad, np.float64), (n,))
+    no_inf = ~(np.isinf(acc).any(axis=1) | np.isinf(gyro).any(axis=1) | np.isinf(thz) | np.isinf(thx) | np.isinf(thy))
+    ok_txt = no_inf & (np.isfinite(thx) | np.isfinite(thy) | np.isfinite(acc).all(axis=1))
     return ~np.where(exact, ok & _within(q_wxyz, Q_MAX, 4), ok_txt)
 
 

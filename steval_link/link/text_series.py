@@ -23,11 +23,16 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.errors import UserError
+from steval_link.link import protocol as P
+from steval_link.link.frames import AttitudeFrame
 
 __all__ = [
     "FLOATLESS_NOTE",
     "MAP_TARGETS",
+    "RecordAttitude",
     "RecordBlock",
+    "apply_plan",
+    "attitude_plan",
     "TextSeries",
     "map_attitude",
     "parse_map",
@@ -270,6 +275,13 @@ def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = No
     ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped) and one note per mapped name;
     ({}, notes) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
     :func:`parse_map`) goes before the names; UserError for a series that is not there or a unit that does not fit."""
+    plan, notes = attitude_plan(s, user_map)
+    return (apply_plan(plan, s.values) if plan else {}), notes
+
+
+def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[list, list[str]]:
+    """How the series become the attitude: [(target, column, factor to rad / mg / mdps)], and a note per mapped
+    name; ([], []) when neither an angle nor acc and gyro are found (see :func:`map_attitude`)."""
     found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any()}
     for target, (name, unit) in (user_map or {}).items():
         if name not in s.names:
@@ -277,11 +289,32 @@ def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = No
                 f"map {target}={name}: the log has no series {name!r} (its series: {', '.join(s.names) or 'none'})."
             )
         found[target] = (name, unit or (s.units[s.names.index(name)] if target != "thr" else ""))
-    n = len(s)
     has_angle = any(t in found for t in ("pitch", "roll"))
     has_inputs = all(f"{b}_{a}" in found for b in ("acc", "gyro") for a in "xyz")
-    if not n or not (has_angle or has_inputs):
-        return {}, []
+    if not len(s) or not (has_angle or has_inputs):
+        return [], []
+    plan, notes = [], []
+    for target, (name, unit) in found.items():
+        k = _scale(target, unit, name)
+        plan.append((target, s.names.index(name), k))
+        if target == "thr":
+            notes.append(f"{name} → thr (gTHR)")
+        elif target in _ANGLE_COLUMN:
+            assumed = "" if s.units[s.names.index(name)] or name.lower().endswith(("_deg", "_rad")) else " (assumed)"
+            if user_map and target in user_map:
+                assumed = ""
+            notes.append(f"{name} → {target}, {_UNIT_WORDS.get(unit, unit)}{assumed}" + _axis_note(target, name))
+        else:
+            notes.append(f"{name} → {target}, {unit}")
+    return plan, notes
+
+
+_ANGLE_COLUMN = {"pitch": "thx_rad", "roll": "thy_rad", "yaw": "thz_rad"}
+
+
+def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
+    """The attitude columns (see :func:`map_attitude`) of ``values`` (N, M) by ``plan`` (:func:`attitude_plan`)."""
+    n = len(values)
     cols = {
         "thx_rad": np.full(n, np.nan, np.float32),
         "thy_rad": np.full(n, np.nan, np.float32),
@@ -290,26 +323,62 @@ def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = No
         "gyro_mdps": np.full((n, 3), np.nan, np.float32),
         "thr": np.zeros(n, np.int16),
     }
-    notes = []
-    where = {"pitch": ("thx_rad", None), "roll": ("thy_rad", None), "yaw": ("thz_rad", None)}
-    for target, (name, unit) in found.items():
-        values = s.column(name)
+    for target, col, k in plan:
+        v = values[:, col]
         if target == "thr":
-            cols["thr"] = np.nan_to_num(values).astype(np.int16)
-            notes.append(f"{name} → thr (gTHR)")
-            continue
-        k = _scale(target, unit, name)
-        if target in where:
-            cols[where[target][0]] = (values * k).astype(np.float32)
-            assumed = "" if s.units[s.names.index(name)] or name.lower().endswith(("_deg", "_rad")) else " (assumed)"
-            if user_map and target in user_map:
-                assumed = ""
-            notes.append(f"{name} → {target}, {_UNIT_WORDS.get(unit, unit)}{assumed}" + _axis_note(target, name))
+            cols["thr"] = np.clip(np.nan_to_num(v), -32768, 32767).astype(np.int16)
+        elif target in _ANGLE_COLUMN:
+            cols[_ANGLE_COLUMN[target]] = (v * k).astype(np.float32)
         else:
             base, axis = target.split("_")
-            cols[f"{base}_{'mg' if base == 'acc' else 'mdps'}"][:, "xyz".index(axis)] = values * k
-            notes.append(f"{name} → {target}, {unit}")
-    return cols, notes
+            cols[f"{base}_{'mg' if base == 'acc' else 'mdps'}"][:, "xyz".index(axis)] = v * k
+    return cols
+
+
+class RecordAttitude:
+    """Records of a live stream as text-mode attitude frames (``exact`` False), mapped as :func:`map_attitude`
+    maps a whole log (the plan made once per record shape): ``frame(record, t_s)`` with the record's host time,
+    s; None for a record that is no attitude. Steps count AHRS periods from the first record (the estimators run
+    at the line rate), firmware time is the host time."""
+
+    def __init__(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
+        self.user_map = user_map
+        self._plans: dict[tuple, list] = {}
+        self._t0_s: float | None = None
+        self._step = -1
+
+    def frame(self, record, t_s: float) -> AttitudeFrame | None:
+        values = np.array([record.values], np.float64)
+        plan = self._plans.get(record.names)
+        if plan is None:
+            one = TextSeries(list(record.names), list(record.units), values, kind=np.array([record.kind], object))
+            one.t_s = np.zeros(1)
+            try:
+                plan = attitude_plan(one, self.user_map)[0]
+            except UserError:
+                plan = []
+            self._plans[record.names] = plan
+        if not plan or not math.isfinite(t_s):
+            return None
+        c = apply_plan(plan, values)
+        if self._t0_s is None:
+            self._t0_s = t_s
+        self._step = max(self._step + 1, round((t_s - self._t0_s) / C.AHRS_PERIOD_S))
+        return AttitudeFrame(
+            t_us=int(round(t_s * 1e6)) % P.T_US_MODULUS,
+            acc_mg=tuple(float(x) for x in c["acc_mg"][0]),
+            gyro_mdps=tuple(float(x) for x in c["gyro_mdps"][0]),
+            q_wxyz=(math.nan,) * 4,
+            thz_rad=float(c["thz_rad"][0]),
+            seq=self._step % P.SEQ_MODULUS,
+            thr=int(c["thr"][0]),
+            exact=False,
+            offset=record.offset,
+            nbytes=record.nbytes,
+            step=self._step,
+            thx_rad=float(c["thx_rad"][0]),
+            thy_rad=float(c["thy_rad"][0]),
+        )
 
 
 _UNIT_WORDS = {"deg": "degrees", "rad": "radians", "mdeg": "millidegrees", "cdeg": "centidegrees"}

@@ -30,6 +30,7 @@ from steval_link.link.frames import (
 )
 from steval_link.link.plausibility import attitude_inputs_bad
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
+from steval_link.link.text_series import RecordAttitude
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.live.estimators import LiveEstimators, LiveMahony, LiveRows
 from steval_link.live.health import LinkHealth
@@ -223,6 +224,9 @@ class LivePipeline:
         self.notes: collections.deque[str] = collections.deque(maxlen=32)
         #: the host's own bytes (commands it sent), decoded to log them and to match the acknowledgements
         self.host_decoder = StreamDecoder()
+        #: records of text telemetry that are an attitude (ST's line, pitch/roll, acc/gyro names) as attitude rows
+        self.text_attitude = RecordAttitude()
+        self._binary = False  # binary attitude frames came: they are the attitude, records are only series
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.acks = 0
 
@@ -263,6 +267,7 @@ class LivePipeline:
             for frame in self.decoder.feed(data):
                 if isinstance(frame, AttitudeFrame):
                     att.append((frame, t_unix_s))
+                    self._binary = self._binary or frame.exact
                 elif isinstance(frame, StatusFrame):
                     self._attitude(att)  # the filter must step through the frames before the snapshot
                     att = []
@@ -299,8 +304,12 @@ class LivePipeline:
                     self._attitude(att)  # its step's attitude frame first
                     att = []
                     self._event("flight", frame, self._at_flight(frame))
-                elif isinstance(frame, TextRecordFrame) and outlets:  # text telemetry: log_record, a series a name
-                    self._event("record", frame, self._at_frame(frame))
+                elif isinstance(frame, TextRecordFrame):  # text telemetry: a series a name; an attitude row too
+                    row = self.text_attitude.frame(frame, self._host_of_frame(frame)) if not self._binary else None
+                    if row is not None:
+                        att.append((row, t_unix_s))
+                    if outlets:
+                        self._event("record", frame, self._at_frame(frame))
         self._attitude(att)
         clock.prune(self.decoder.pending_bytes)
         self.tick()
@@ -387,7 +396,8 @@ class LivePipeline:
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
         self._last_row = (int(step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
-        self.health.nonfinite += int(n - np.count_nonzero(all_finite))
+        # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)
+        self.health.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
         t_last_unix = float(att[-1][1])
         self.health.count(n, float(att[0][1]), t_last_unix)
         if self.estimators is not None:
