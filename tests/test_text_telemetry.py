@@ -468,3 +468,41 @@ def test_live_pipeline_makes_the_same_attitude_rows_of_records(demo):
     assert not rows.attitude.values_bad.any() and pipe.health.nonfinite == 0
     assert np.isnan(rows.estimates["accel"]).all()  # no accelerometer printed: no accel-only tilt, no warning
     assert not pipe.notes
+
+
+@pytest.mark.slow
+def test_live_viewer_shows_a_printf_stream(demo, tmp_path):
+    """ST's output on a pseudo-terminal at 115200 baud, `steval live` with the desktop viewer on a virtual display:
+    the viewer gets the firmware's angles and one series per printed name; a screenshot is kept in tmp_path."""
+    import signal
+
+    from support.ptyfeed import PtyFeeder, StevalProcess
+    from support.xdisplay import (
+        kill_processes,
+        rerun_processes,
+        screenshot,
+        viewer_port,
+        viewer_recording,
+        virtual_display,
+    )
+
+    data = _st_221117(demo) * 4
+    with virtual_display() as display, viewer_port() as port:
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        try:
+            with PtyFeeder(data, tmp_path / "ttyUSB0", bytes_per_s=115200 / 10) as feeder:
+                proc = StevalProcess(
+                    ["live", "--port", str(feeder.link), "--out", str(tmp_path / "cap.stv"), "--grpc-port", str(port)],
+                    cwd=tmp_path,
+                    env=display.env,
+                )
+                assert proc.wait_line("reading ", 90) is not None, proc.stderr
+                feeder.start()
+                rec = viewer_recording(url, timeline="ahrs_step", end=300, timeout_s=90)
+                assert {"/plots/pitch_thx_deg/firmware", "/text/thx", "/text/gTHR"} <= rec.entities
+                png = screenshot(url, tmp_path / "live_printf.png")
+                assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+                rc = proc.finish(timeout_s=30, sig=signal.SIGINT)
+            assert rc == 0, proc.stderr
+        finally:
+            kill_processes(rerun_processes(port))
