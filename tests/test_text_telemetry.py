@@ -139,6 +139,13 @@ def _formats(d, N: int = N) -> dict[str, tuple[bytes, int, list[str]]]:  # noqa:
         N - 1,
         [f"col{k}" for k in range(1, 10)],
     )
+    out["matrix_rows"] = (  # the same matrix a row a line, nothing between two matrices: found by its values
+        b"".join(
+            b"%d\t%d\t%d\n\r" * 3 % tuple(int(round(100 * v)) for v in _rotation(p[i], r[i]).ravel()) for i in range(N)
+        ),
+        N - 1,
+        [f"col{k}" for k in range(1, 10)],
+    )
     for name, sep in (("arduino_space", b" "), ("arduino_tab", b"\t"), ("arduino_comma", b",")):
         out[name] = (
             b"".join(
@@ -181,6 +188,7 @@ def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
         "table_10_2f",
         "accel_gyro_baro",
         "matrix_x100",
+        "matrix_rows",
         "arduino_space",
         "arduino_tab",
         "arduino_comma",
@@ -196,7 +204,7 @@ def test_each_format_gives_its_records_and_series(demo, name):
     assert stats.text_records == n == tel.stats.text_records == len(tel.text_series)
     assert tel.text_series.names == series
     # the rest of the first record, whose first line is not proven whole, is text; no other line is
-    assert stats.text == {"accel_gyro_baro": 1, "matrix_x100": 2, "teleplot": 1}.get(name, 0)
+    assert stats.text == {"accel_gyro_baro": 1, "matrix_x100": 2, "matrix_rows": 2, "teleplot": 1}.get(name, 0)
     # the values are those printed: the last record's numbers are the last lines' numbers
     last = _records(frames)[-1]
     tail = data.rstrip(b"\r\n").replace(b"\n\r", b"\n").split(b"\n")[-(1 if name != "teleplot" else 2) :]

@@ -55,6 +55,8 @@ CONFIRM = 3
 MAX_PENDING = 48
 #: Longest record, in lines.
 MAX_RECORD_LINES = 8
+#: Lines of one table seen before its shape is decided (whether rows come back every 2..4 lines: a matrix).
+VALUE_LINES = 13
 
 #: ST's release 221117 main loop: ``PRINTF("%d\t%d\t%d\t%d\t%f\t%f\t%f\t%f\t%f\n", gELE, gAIL, gRUD, gTHR,
 #: motor_pwm.motor1_pwm, euler_ahrs.thx * 57.3, euler_ahrs.thy * 57.3, euler_rc.thx * 57.3, euler_rc.thy * 57.3)``.
@@ -542,8 +544,9 @@ class TextTelemetryReader:
             if shape.lines[len(lines)] == item.parsed.shape:
                 lines.append(item)
                 if len(lines) == len(shape.lines):
+                    whole = lines[0].kind != "cut"
+                    out += [self._record(shape, lines)] if whole else self._cut_current()
                     self._current = None
-                    out.append(self._record(shape, lines))
                 return out, True
             out += self._cut_current()
             self._current = None
@@ -559,7 +562,7 @@ class TextTelemetryReader:
     def _cut_current(self) -> list:
         _, lines = self._current
         self.lines_cut += len(lines)
-        return [TextFrame(x.text, x.offset, x.nbytes) for x in lines]
+        return [TextFrame(x.text, x.offset, x.nbytes) for x in lines if x.kind != "cut"]
 
     def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:
         self.records += 1
@@ -595,7 +598,10 @@ class TextTelemetryReader:
         out: list = []
         self._block_start = True
         for x in items:
-            if x.kind == "rec":
+            if x.kind == "cut" and len(shape.lines) > 1 and x.parsed.shape == shape.lines[0]:
+                out += self._cut_current() if self._current is not None else []
+                self._current = (shape, [x])  # it holds the first line's place: that record is not whole
+            elif x.kind == "rec":
                 done, taken = self._follow(x)
                 out += done if taken else done + self._flush([x])
             elif x.kind in ("blank", "text", "break"):
@@ -628,6 +634,17 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
     sizes = _block_sizes(pending, tail)
     shapes = [pending[k].parsed.shape for k in lines]
     n = len(shapes)
+    if not sizes and n and shapes[-1][0] == "table" and all(x == shapes[-1] for x in shapes[-VALUE_LINES:]):
+        # rows of one table: a record of several rows when their values repeat every few rows (a matrix)
+        if n < VALUE_LINES:
+            return None, 0
+        period = _value_period([pending[k].parsed.values for k in lines[-4 * VALUE_LINES :]])
+        if period > 1:
+            first = n - 1
+            while first > 0 and shapes[first - 1] == shapes[-1]:
+                first -= 1
+            items = [pending[lines[first + j]].parsed for j in range(period)]
+            return _make_shape((shapes[-1],) * period, items, header, blank_ended=False), lines[first]
     for period in range(1, MAX_RECORD_LINES + 1):
         # one more line than the cycles (a blank line may still come and make them one block)
         if n < CONFIRM * period + (0 if sizes else 1):
@@ -647,6 +664,22 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
         shape.example = pending[lines[-1]].text if period == 1 else ""
         return shape, lines[first]
     return None, 0
+
+
+def _value_period(rows: list[tuple[float, ...]]) -> int:
+    """Rows of one table whose values come back every p rows (p = 2..4) and differ from row to row: p (the rows of
+    a 3×3 matrix printed a row a line); else 1. The mean change over p rows must be under a quarter of that over
+    one row."""
+    v = np.array(rows, np.float64)
+    if len(v) < VALUE_LINES or not np.isfinite(v).all():
+        return 1
+    step1 = float(np.abs(np.diff(v, axis=0)).mean())
+    if step1 <= 0:
+        return 1
+    for p in range(2, 5):
+        if float(np.abs(v[p:] - v[:-p]).mean()) < 0.25 * step1:
+            return p
+    return 1
 
 
 def _block_sizes(pending: list[_Line], tail: list[int]) -> list[int]:
