@@ -18,9 +18,14 @@ Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``
 The record's shape is learned from the stream, never guessed from one line: a shape (the sequence of line shapes
 of one record, the line shape being the names, or the count, and the int/float/empty kind of each value) becomes a
 record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block of lines between blank
-lines, or a cycle of lines of different shapes (``Accel ... Gyro ...`` then ``Baro ... Temp ...``). Until then the
-lines wait (at most :data:`MAX_PENDING`); lines that never fit a shape go out as text lines. So a damaged line
-(garbage, a cut, a lost field) is not a record: it does not fit the shape, and is a text line.
+lines, a cycle of lines of different shapes (``Accel ... Gyro ...`` then ``Baro ... Temp ...``), or rows of one
+table whose values come back every 2..4 lines (a matrix a row a line; decided after :data:`VALUE_LINES` lines).
+Until then the lines wait (at most :data:`MAX_PENDING`); lines that never fit a shape go out as text lines. So a
+damaged line (garbage, a cut, a lost field) is not a record: it does not fit the shape, and is a text line. Damage
+between two lines (bytes the decoder skipped) ends what is being learned.
+
+For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`: a regex that matches exactly the
+lines that would be records, so long runs of them are read as arrays at once.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
