@@ -59,7 +59,16 @@ __all__ = [
     "BadPayload",
     "ble_records",
     "is_ble_source",
+    "ble_items",
     "ble_chunk",
+    "BleMotionFrame",
+    "BleEnvFrame",
+    "BleArmingFrame",
+    "BleConsoleFrame",
+    "BleDecoder",
+    "BleLayout",
+    "LAYOUTS",
+    "layout_named",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -202,8 +211,133 @@ def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[floa
     return [(t, p[0], p[1:]) for t, p in chunks.get(CHUNK_BLE, []) if p]
 
 
+def ble_items(chunks: dict, events=()) -> list[tuple[int | None, bytes, float]]:
+    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks in order, as a live link hands them over: a
+    ``(None, b"", t)`` before the first notification after each ``reconnect`` event (the link was lost)."""
+    recs = ble_records(chunks)
+    marks = sorted(e.t_host_s for e in events if e.kind == "reconnect")
+    out: list[tuple[int | None, bytes, float]] = []
+    m = 0
+    for t, cid, payload in recs:
+        while m < len(marks) and marks[m] <= t:
+            out.append((None, b"", marks[m]))
+            m += 1
+        out.append((cid, payload, t))
+    return out
+
+
 def is_ble_source(src) -> bool:
     """A capture recorded over BLE (``B`` chunks, or ``extra.link`` = "ble" in its header)."""
     chunks = getattr(src, "chunks", None) or {}
     extra = (getattr(src, "header", None) or {}).get("extra") or {}
     return bool(chunks.get(CHUNK_BLE)) or (isinstance(extra, dict) and extra.get("link") == "ble")
+
+
+@dataclass(frozen=True, slots=True)
+class BleMotionFrame:
+    """One motion notification as sent: ``tick`` unwrapped (8 ms units), the payload's fields in their units (the
+    stock layout: acc mg, gyro mdps, mag mgauss), ``t_host_s`` its arrival, ``repeat``: the same payload as the motion
+    notification before it (same tick and values)."""
+
+    tick: int
+    acc_mg: tuple[int, int, int]
+    gyro_mdps: tuple[int, int, int]
+    mag_mgauss: tuple[int, int, int]
+    t_host_s: float
+    repeat: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class BleEnvFrame:
+    tick: int
+    pressure_hpa: float
+    battery_pct: float
+    temperature_c: float
+    rssi_dbm: float
+    t_host_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class BleArmingFrame:
+    tick: int
+    armed: bool
+    t_host_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class BleConsoleFrame:
+    stream: str  #: "stdout" or "stderr"
+    text: str
+    t_host_s: float
+
+
+class BleDecoder:
+    """Notifications → typed frames, one at a time (a capture's ``B`` chunks, live or replayed): the ticks of every
+    characteristic unwrapped on one clock in arrival order (a host gap longer than a wrap adds the wraps it
+    spans); wrong-length and unknown notifications are counted and skipped, never raised."""
+
+    def __init__(self) -> None:
+        self.unwrap = TickUnwrapper()
+        self.counts = {n: 0 for n in CHAR_NAMES.values()}
+        self.bad_payloads = 0
+        self.unknown = 0
+        self._last_t: float | None = None
+        self._last_motion: bytes | None = None
+
+    def feed(self, char_id: int, payload: bytes, t_host_s: float):
+        """The frame of one notification (None: skipped)."""
+        name = CHAR_NAMES.get(char_id)
+        if name is None:
+            self.unknown += 1
+            return None
+        self.counts[name] += 1
+        if char_id in (CHAR_STDOUT, CHAR_STDERR):
+            return BleConsoleFrame(name, bytes(payload).decode("utf-8", "replace"), t_host_s)
+        try:
+            v = unpack_payload(char_id, payload)
+        except BadPayload:
+            self.bad_payloads += 1
+            return None
+        dt = None if self._last_t is None else t_host_s - self._last_t
+        self._last_t = t_host_s
+        tick = self.unwrap(v[0], dt)
+        if char_id == CHAR_MOTION:
+            repeat = bytes(payload) == self._last_motion
+            self._last_motion = bytes(payload)
+            gyro = (v[4] * 100, v[5] * 100, v[6] * 100)
+            return BleMotionFrame(tick, v[1:4], gyro, v[7:10], t_host_s, repeat)
+        if char_id == CHAR_ENV:
+            return BleEnvFrame(tick, v[1] / 100.0, v[2] / 10.0, v[3] / 10.0, v[4] / 10.0, t_host_s)
+        return BleArmingFrame(tick, bool(v[1]), t_host_s)
+
+
+@dataclass(frozen=True, slots=True)
+class BleLayout:
+    """What a motion notification's fields hold. ``stock``: ST's firmware, raw sensors (acc mg, gyro mdps/100, mag
+    mgauss). ``euler``: a modified 170120 firmware that sends its own attitude in the acc fields (thx, thy, thz,
+    rad × ``angle_scale``) and gyro-integrated odometry in the gyro fields: no sensor values, the drone's own
+    attitude."""
+
+    name: str
+    angle_scale: float = 0.0  #: payload units per radian (euler)
+
+    @property
+    def sends_attitude(self) -> bool:
+        return self.angle_scale > 0
+
+    def describe(self) -> str:
+        if not self.sends_attitude:
+            return "stock (acc mg, gyro mdps/100, mag mgauss: raw sensors)"
+        return f"euler (thx, thy, thz rad x {self.angle_scale:g} in the acc fields: the drone's own attitude)"
+
+
+#: the layouts by name (the capture header's ``ble_layout``)
+LAYOUTS = {"stock": BleLayout("stock"), "euler": BleLayout("euler", 1000.0)}
+
+
+def layout_named(name: str | None) -> BleLayout:
+    """The layout of a name (None: stock); ValueError naming the known ones."""
+    key = (name or "stock").strip().lower()
+    if key not in LAYOUTS:
+        raise ValueError(f"BLE layout {name!r}: known layouts are {', '.join(LAYOUTS)}")
+    return LAYOUTS[key]

@@ -17,6 +17,17 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.link import protocol as P
+from steval_link.link.ble_payloads import (
+    LAYOUTS,
+    BleConsoleFrame,
+    BleDecoder,
+    BleEnvFrame,
+    BleLayout,
+    BleMotionFrame,
+    layout_named,
+)
+from steval_link.link.ble_payloads import TICK_S as BLE_TICK_S
+from steval_link.link.ble_telemetry import NOT_BIT_EXACT, LiveGrid, link_notes
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, AttitudeFrame, CommandFrame, FlightFrame, StatusFrame, TextFrame
@@ -188,6 +199,7 @@ class LivePipeline:
         file_interval_s: float = RRD_ONLY_INTERVAL_S,
         t0_unix_s: float | None = None,
         baud: int | None = None,
+        ble_layout: BleLayout = LAYOUTS["stock"],
     ) -> None:
 
         self.view_interval_s = view_interval_s
@@ -216,6 +228,12 @@ class LivePipeline:
         self.host_decoder = StreamDecoder()
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.acks = 0
+        #: BLE notifications: their decoder and the grid of the sender's samples (made by the first one)
+        self.ble_layout = ble_layout
+        self.ble: BleDecoder | None = None
+        self.grid: LiveGrid | None = None
+        self._ble_dt_set = False
+        self._ble_noted = False
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
@@ -234,6 +252,7 @@ class LivePipeline:
             file_interval_s=RRD_ONLY_INTERVAL_S,
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
+            ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
         )
 
     @property
@@ -375,13 +394,66 @@ class LivePipeline:
                 f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
-        self._last_row = (int(step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
         self.health.nonfinite += int(n - np.count_nonzero(all_finite))
-        t_last_unix = float(att[-1][1])
-        self.health.count(n, float(att[0][1]), t_last_unix)
+        self._deliver(rows, float(att[0][1]), float(att[-1][1]))
+
+    def _deliver(self, rows: LiveRows, t_first_unix_s: float, t_last_unix_s: float) -> None:
+        """Rows of any link: counted, through the estimators, to every logger."""
+        a = rows.attitude
+        self._last_row = (int(a.step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
+        self.health.count(len(a), t_first_unix_s, t_last_unix_s)
         if self.estimators is not None:
             self.estimators.process(rows)
             for why in self.estimators.take_notes():  # an estimator disabled: one line, the session goes on
                 self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
         for outlet in self.outlets:
             outlet.add_batch(rows)
+
+    # -- BLE notifications --------------------------------------------------------------------------------------
+
+    def feed_ble(self, records: list, *, final: bool = False) -> None:
+        """BLE notifications ``(char id, payload, t_host_s)`` (s since the capture started; char id None: the link
+        was lost and found again) → frames (:class:`BleDecoder`) → the sender's samples on one grid
+        (:class:`LiveGrid`: dt from their cadence) → estimators → loggers; environment, arming and console frames
+        are events at their tick. ``final``: the stream ended (rows held back for the cadence go out)."""
+        if self.ble is None:
+            self.ble, self.grid = BleDecoder(), LiveGrid(self.ble_layout)
+        motion = []
+        for cid, payload, t_host_s in records:
+            frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)
+            if cid is None or isinstance(frame, BleMotionFrame):
+                motion.append(frame)
+            elif frame is not None:
+                self._ble_event(frame)
+        self.grid.add(motion)
+        a = self.grid.rows(final)
+        if a is not None and len(a):
+            if self.estimators is not None and not self._ble_dt_set:  # the cadence was just found
+                self.estimators.use_dt(self.grid.dt_s)
+                self._ble_dt_set = True
+            if not self._ble_noted:
+                self._ble_notes(a)
+            t0 = self.clock.t0_unix_s or 0.0
+            mag = self.grid.mag_mgauss if not self.ble_layout.sends_attitude else None
+            self._deliver(LiveRows(a, mag_mgauss=mag), t0 + float(a.t_host_s[0]), t0 + float(a.t_host_s[-1]))
+        self.tick()
+
+    def _ble_notes(self, a: AttitudeArrays) -> None:
+        """What the BLE rows are, once (to every logger; on the terminal too when it is not the stock note)."""
+        self._ble_noted = True
+        for text in link_notes(a.acc_mg, self.ble_layout):
+            if text != NOT_BIT_EXACT:
+                self.notes.append(text)
+            if self.outlets:
+                self._event("note", text, EventTime(float(a.t_fw_s[0]), float(a.t_host_s[0])))
+
+    def _ble_event(self, frame) -> None:
+        """An environment, arming or console frame: an event at its tick (console: at the latest row's time)."""
+        if isinstance(frame, BleConsoleFrame):
+            self.texts.append(f"[{frame.stream}] {frame.text}")
+            kind, at = "text", self._at(frame.t_host_s)
+        else:
+            kind = "environment" if isinstance(frame, BleEnvFrame) else "arming"
+            at = EventTime(frame.tick * BLE_TICK_S, frame.t_host_s)
+        if self.outlets:
+            self._event(kind, frame, at)

@@ -88,7 +88,7 @@ class LiveSession:
     """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
 
     ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, ``steval_viewer.ble_log.BleLiveLogger``); it is
+    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, whatever the link); it is
     required when ``options.sinks`` is set. ``check_outputs``: the CLI's checks of the outputs, run once the
     input is open (errors come in the command line's order, the input first) and before any file is made.
     """
