@@ -249,26 +249,28 @@ def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> Uniform
 
 
 def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
-    """One sentence when the stock layout's acc fields cannot be an accelerometer's: no sample anywhere near 1 g (a
-    raw accelerometer reads about 1000 mg at rest) and every value in an angle's range (rad x 1000, or degrees
-    x 100); None when they can, or when the layout already says what they hold."""
+    """One sentence when the stock layout's acc fields cannot be an accelerometer's: hardly a sample near 1 g (a raw
+    accelerometer reads about 1000 mg at rest, and near it most of a flight) and every value in an angle's range
+    (rad x 1000, or degrees x 100); None when they can, or when the layout already says what they hold."""
     acc = np.asarray(acc_mg, dtype=np.float64).reshape(-1, 3)
     if layout.sends_attitude or len(acc) < 2:
         return None
     norm = np.linalg.norm(acc, axis=1)
-    peak = float(np.nanmax(np.abs(acc)))
-    if float(np.nanmax(norm)) >= NOT_ONE_G_MG or peak > ANGLE_RANGE_MAX:
+    near_1g = float(np.mean(np.abs(norm - 1000.0) <= ONE_G_BAND_MG))
+    if near_1g >= NEAR_1G_SHARE or float(np.nanmax(np.abs(acc))) > ANGLE_RANGE_MAX:
         return None
     return (
-        f"the motion notifications are not raw sensors: their acc fields never come near 1 g (|acc| at most "
-        f"{float(np.nanmax(norm)):.0f} mg, where an accelerometer reads about 1000 mg at rest) and stay in an "
-        "angle's range, as a modified firmware sending its own Euler angles there does (the euler layout reads "
-        "them so)"
+        f"the motion notifications are not raw sensors: their acc fields are near 1 g in {100 * near_1g:.1f} % of "
+        f"the samples (median |acc| {float(np.median(norm)):.0f} mg, where an accelerometer reads about 1000 mg at "
+        "rest) and stay in an angle's range, as a modified firmware sending its own Euler angles there does (the "
+        "euler layout reads them so)"
     )
 
 
-#: an acc sample of this norm or more is near 1 g (a raw accelerometer somewhere in the stream), mg
-NOT_ONE_G_MG = 500.0
+#: |acc| within this of 1000 mg is near 1 g, mg
+ONE_G_BAND_MG = 250.0
+#: a stream with fewer samples near 1 g than this share has no accelerometer in its acc fields
+NEAR_1G_SHARE = 0.01
 #: the largest field an angle ×scale reaches (degrees x 100: 18000)
 ANGLE_RANGE_MAX = 18000.0
 
