@@ -62,6 +62,12 @@ class BleSource(Source):
         self._device: BleDevice | None = None  # the drone found by open()
         self.pipeline: LivePipeline | None = None
 
+    @classmethod
+    def from_url(cls, url: str, **settings: Any) -> BleSource:
+        """``ble:NAME``, ``ble:ADDRESS``, or ``ble:`` / ``ble:auto`` (the strongest ``DRN1…``)."""
+        target = url.split(":", 1)[1].strip() if ":" in url else ""
+        return cls(None if target.lower() in ("", "auto") else target, **settings)
+
     @property
     def what(self) -> str:
         """The drone asked for: its name or address, or any ``DRN1…``."""

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import shlex
 import time
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from steval_link import constants as C
@@ -52,6 +54,14 @@ class EmulatedSource(Source):
         self.pipeline: LivePipeline | None = None
         self.truth: StepTruth | None = None
         self.t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
+
+    @classmethod
+    def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
+        """``emulated:`` or ``emulated:ELF`` (then the board runs that ELF)."""
+        elf = url.split(":", 1)[1].strip() if ":" in url else ""
+        if elf and isinstance(emulation, EmulationOptions):
+            emulation = replace(emulation, elf=Path(elf))
+        return cls(emulation, **settings)
 
     def open(self, session) -> None:
         self.session = session

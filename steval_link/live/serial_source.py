@@ -91,6 +91,12 @@ class SerialSource(Source):
         self.pipeline: LivePipeline | None = None
         self.warned_no_frames, self._was_connected = False, True
 
+    @classmethod
+    def from_url(cls, url: str, **settings: Any) -> SerialSource:
+        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]``: opened as they are
+        (:func:`open_port` reads the replay URL's path and speed)."""
+        return cls(url, **settings)
+
     @property
     def replay(self) -> bool:
         return is_replay_url(self.url)

@@ -10,6 +10,7 @@ request_stop`) and the summary (:class:`LiveSummary`).
 
 from __future__ import annotations
 
+import importlib
 import signal
 import sys
 import threading
@@ -32,21 +33,23 @@ __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for", "install_s
 
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
+#: the drivers chosen by a URL scheme (loaded only when a session uses one); any other URL is a serial port's
+DRIVERS = {
+    BLE_SCHEME: ("steval_link.live.ble_source", "BleSource"),
+    EMULATED_SCHEME: ("steval_link.live.emulated", "EmulatedSource"),
+}
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`); ``settings`` go to its driver (``baud``,
-    ``wait`` for a serial port; ``emulation``, ``realtime``, ``commands`` for the board; ``backend`` for BLE)."""
-    if url.lower().startswith(BLE_SCHEME):
-        from steval_link.live.ble_source import BleSource  # reason: BLE loads only when a session uses it
-
-        target = url[len(BLE_SCHEME) :].strip()
-        return BleSource(None if target in ("", "auto") else target, **settings)
-    if url.lower().startswith(EMULATED_SCHEME):
-        from steval_link.live.emulated import EmulatedSource  # reason: the emulator loads only when used
-
-        return EmulatedSource(**settings)
-    return SerialSource(url, **settings)
+    """The source a URL names (table in :mod:`steval_link.live.sources`): the one dispatch; each driver parses its
+    own URL (``from_url``); ``settings`` go to it (``baud``, ``wait`` for a serial port; ``emulation``,
+    ``realtime``, ``commands`` for the board; ``backend``, ``layout`` for BLE)."""
+    scheme = next((s for s in DRIVERS if url.lower().startswith(s)), None)
+    if scheme is None:
+        return SerialSource.from_url(url, **settings)
+    module, name = DRIVERS[scheme]
+    driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
+    return driver.from_url(url, **settings)
 
 
 def port_source(port: str, **settings: Any) -> Source:
