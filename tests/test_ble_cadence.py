@@ -253,7 +253,7 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
     session = LiveSession(opts, source, viewer_factory=lambda o, name: viewer, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
-    return summary, viewer.batches, source.pipeline  # the one pipeline holds the estimators and the grid
+    return summary, viewer.batches, session.pipeline  # the one pipeline holds the estimators and the grid
 
 
 @pytest.mark.parametrize(

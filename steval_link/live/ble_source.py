@@ -15,14 +15,12 @@ import asyncio
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
-from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, ble_chunk, layout_named
+from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, layout_named
 from steval_link.link.ble_transport import BleBackend, BleDevice, BleLink
-from steval_link.link.capture import CHUNK_BLE
-from steval_link.live.pipeline import LivePipeline
-from steval_link.live.sources import CaptureFields, Source
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["BleSource", "INBOX_MAX"]
 
@@ -36,9 +34,6 @@ class BleSource(Source):
     """See the module docstring. ``target``: a drone's name or address (None: the strongest ``DRN1…``);
     ``backend``: a ``link.ble_transport.BleBackend`` (bleak, or a fake in tests); ``layout``: what the motion
     notifications hold (``link.ble_payloads.LAYOUTS``: ``stock``, ``euler``), kept in the capture header."""
-
-    kind = "ble"
-    takes_commands = False  # ST's stock firmware takes no commands over BLE
 
     def __init__(
         self,
@@ -54,13 +49,12 @@ class BleSource(Source):
         self.clock = clock
         self.scan_timeout_s = scan_timeout_s
         self.layout = layout_named(layout)
-        self._inbox: deque[tuple[int | None, bytes, float]] = deque(maxlen=INBOX_MAX)
-        self._notes: deque[str] = deque(maxlen=64)  # the link's events, said by the session's thread
+        self._inbox: deque[Chunk] = deque(maxlen=INBOX_MAX)
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        self._closed = False
         self.link: BleLink | None = None
         self._device: BleDevice | None = None  # the drone found by open()
-        self.pipeline: LivePipeline | None = None
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> BleSource:
@@ -73,16 +67,18 @@ class BleSource(Source):
         """The drone asked for: its name or address, or any ``DRN1…``."""
         return self.target or f"{DEVICE_NAME_PREFIX}*"
 
-    def capture_fields(self) -> CaptureFields:
-        extra = {"link": "ble", "target": self.target, "ble_layout": self.layout.name}
-        return CaptureFields(f"ble:{self.what}", 0, extra)
+    @property
+    def status(self) -> LinkStatus:
+        link = self.link
+        return LinkStatus(
+            connected=link is not None and link.connections > link.losses,
+            port=self.what,
+            connections=link.connections if link is not None else 0,
+            disconnects=link.losses if link is not None else 0,
+        )
 
-    def recording_name(self, session) -> str:
-        return f"steval live --ble {self.what}"
-
-    def open(self, session) -> None:
+    def open(self, note=None) -> None:
         """The input first: the drone is found (or the adapter's failure said) before any file or viewer."""
-        super().open(session)
         self.link = BleLink(
             self.backend,
             self.target,
@@ -93,14 +89,24 @@ class BleSource(Source):
         )
         self._device = asyncio.run(self.link.find_first())
 
-    def start(self, session) -> None:
+    def describe(self) -> LinkInfo:
+        extra = {"link": "ble", "target": self.target, "ble_layout": self.layout.name}
+        return LinkInfo(
+            f"ble:{self.what}",
+            0,
+            extra,
+            kind="ble",
+            takes_commands=False,  # ST's stock firmware takes no commands over BLE
+            recording_name=f"steval live --ble {self.what}",
+        )
+
+    def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
         """The link runs its event loop in its own thread: notifications go to the capture there, first."""
-        self._start_unix = self.clock() - session.capture.now()
+        self._record = record
+        self._start_unix = self.clock() - (clock.now_s() - clock.wall0_s)
         self._thread = threading.Thread(target=self._run_link, name="steval-ble-link", daemon=True)
         self._thread.start()
-
-    def attach(self, session) -> None:
-        self.pipeline = LivePipeline.for_session(session)
+        return self._rounds()
 
     def _run_link(self) -> None:
         async def main() -> None:
@@ -112,35 +118,23 @@ class BleSource(Source):
         except BaseException as exc:  # noqa: BLE001 - a UserError of the link (no adapter, drone not found...)
             self._error = exc
 
-    def round(self) -> bool:
-        self._thread.join(ROUND_S)
-        alive = self._thread.is_alive()
-        if not alive and self._error is not None:
-            self._say()
-            raise self._error
-        self._feed(final=not alive)
-        return alive
+    def _rounds(self) -> Iterator[list[Chunk]]:
+        while True:
+            self._thread.join(ROUND_S)
+            alive = self._thread.is_alive()
+            if not alive and self._error is not None and not self._closed:
+                raise self._error
+            out = []
+            while self._inbox:  # appended by the link's thread meanwhile: taken one by one, none lost
+                out.append(self._inbox.popleft())
+            if not alive:
+                out.append(Chunk(END, "end", None))
+                yield out
+                return
+            yield out
 
-    def _feed(self, final: bool) -> None:
-        items = []
-        while self._inbox:  # appended by the link's thread meanwhile: taken one by one, none lost
-            items.append(self._inbox.popleft())
-        self.pipeline.feed_ble(items, final=final)
-        self._say()
-
-    def _say(self) -> None:
-        """The link's events and the pipeline's notes on the terminal, in the session's thread."""
-        session = self.session
-        for _ in range(len(self._notes)):
-            session.display.note(self._notes.popleft())
-        if self.pipeline is None:
-            return
-        for _ in range(len(self.pipeline.texts)):
-            session.display.note("firmware: " + self.pipeline.texts.popleft()[:200])
-        for _ in range(len(self.pipeline.notes)):
-            session.display.note(self.pipeline.notes.popleft())
-
-    def finish(self, error: BaseException | None) -> None:
+    def close(self) -> None:
+        self._closed = True
         if self._thread is None:
             return
         loop, stop = getattr(self, "_loop", None), getattr(self, "_stop", None)
@@ -150,49 +144,20 @@ class BleSource(Source):
             except RuntimeError:  # the loop closed meanwhile
                 pass
         self._thread.join()
-        if error is None and self._error is None and self.pipeline is not None:
-            self._feed(final=True)
-            self.pipeline.flush_view()
-        else:
-            self._say()
-
-    def health(self, now_mono_s: float) -> str:
-        pipe = self.pipeline
-        c = pipe.ble.counts if pipe is not None and pipe.ble is not None else {}
-        if not any(c.values()):
-            return ""  # nothing received yet: no line
-        cad = pipe.grid.cadence()
-        what = cad.describe() if cad is not None else "finding the motion cadence"
-        return (
-            f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
-            f"notifications; {what}"
-        )
-
-    def summary_fields(self) -> dict[str, Any]:
-        link, pipe = self.link, self.pipeline
-        ble = pipe.ble if pipe is not None else None
-        return {
-            "counts": dict(ble.counts) if ble is not None else {},
-            "rows_held": pipe.grid.rows_held if ble is not None else 0,
-            "connections": link.connections if link is not None else 0,
-            "disconnects": link.losses if link is not None else 0,
-            "cadence": pipe.grid.cadence() if ble is not None else None,
-        }
 
     # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
-        t = t_unix - self._start_unix
-        self.session.capture.write_chunk(CHUNK_BLE, ble_chunk(cid, data), t)
-        self._inbox.append((cid, data, t))
+        chunk = Chunk("B", (cid, data), t_unix - self._start_unix)
+        self._record(chunk)
+        self._inbox.append(chunk)
 
     def _on_event(self, kind: str, text: str) -> None:
-        self.session.capture.mark_event(kind, text)
-        if kind == "connect":
-            self._notes.append(f"connected to {text} over BLE")
-        elif kind == "disconnect":
-            self._notes.append("BLE link lost; reconnecting (Ctrl-C stops)")
-        elif kind == "reconnect":
-            self._inbox.append((None, b"", 0.0))  # the next motion sample follows a lost link
-            self._notes.append(f"reconnected to {text}")
-        else:
-            self._notes.append(f"{kind}: {text}")
+        self._record(Chunk("E", (kind, text), self.clock() - self._start_unix))  # on the notifications' clock
+        say = {
+            "connect": f"connected to {text} over BLE",
+            "disconnect": "BLE link lost; reconnecting (Ctrl-C stops)",
+            "reconnect": f"reconnected to {text}",
+        }.get(kind, f"{kind}: {text}")
+        if kind == "reconnect":
+            self._inbox.append(Chunk(BREAK, None, None))  # the next motion sample follows a lost link
+        self._inbox.append(Chunk(NOTE, say, None))
