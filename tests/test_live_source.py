@@ -214,3 +214,26 @@ def test_spawn_without_a_display_is_said_before_the_work(monkeypatch, capsys, tm
     assert code == 2 and out == "" and err.count("\n") == 1 and "no display for the desktop viewer (--spawn)" in err
     code, out, err = run_cli(monkeypatch, capsys, "live", "--port", "replay://" + demo, "--duration", "1")
     assert code == 2 and "--no-view to record only" in err
+
+
+def test_the_link_interface_is_narrow_and_runs_one_way():
+    """Source has five public methods (open, describe, chunks, write, close), no driver adds one, and no driver
+    module names a session at all (the session reads the sources, never the reverse)."""
+    import ast
+    import inspect
+
+    from steval_link.live import ble_source, emulated, serial_source, sources
+
+    def public(cls) -> set[str]:
+        return {n for n, v in vars(cls).items() if not n.startswith("_") and inspect.isfunction(v)}
+
+    assert public(Source) == {"open", "describe", "chunks", "write", "close"}
+    for cls in (SerialSource, EmulatedSource, BleSource):
+        assert public(cls) <= public(Source), cls.__name__
+        assert inspect.ismethod(cls.from_url)  # each driver parses its own URL
+    for module in (sources, serial_source, emulated, ble_source):
+        tree = ast.parse(inspect.getsource(module))
+        names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+        names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+        names |= {a.arg for a in ast.walk(tree) if isinstance(a, ast.arg)}
+        assert not {"session", "LiveSession"} & names, module.__name__
