@@ -31,8 +31,6 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-import numpy as np
-
 from steval_link.link.capture import CHUNK_BLE
 
 __all__ = [
@@ -48,13 +46,7 @@ __all__ = [
     "TICK_S",
     "TICK_WRAP",
     "char_id_of_uuid",
-    "MotionSample",
-    "EnvSample",
     "unpack_payload",
-    "decode_motion",
-    "decode_env",
-    "decode_arming",
-    "unwrap_ticks",
     "TickUnwrapper",
     "BadPayload",
     "ble_records",
@@ -113,23 +105,6 @@ def char_id_of_uuid(uuid: str) -> int | None:
     return None
 
 
-@dataclass(frozen=True, slots=True)
-class MotionSample:
-    tick: int
-    acc_mg: tuple[int, int, int]
-    gyro_mdps: tuple[int, int, int]  #: the payload's mdps/100 × 100 (the firmware truncates toward zero)
-    mag_mgauss: tuple[int, int, int]
-
-
-@dataclass(frozen=True, slots=True)
-class EnvSample:
-    tick: int
-    pressure_hpa: float
-    battery_pct: float
-    temperature_c: float
-    rssi_dbm: float
-
-
 #: characteristic id → (name in messages, payload layout) of the fixed-size notifications
 _LAYOUTS = {CHAR_MOTION: ("motion", _MOTION), CHAR_ENV: ("environment", _ENV), CHAR_ARMING: ("arming", _ARMING)}
 
@@ -143,44 +118,10 @@ def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
     return layout.unpack(payload)
 
 
-def decode_motion(payload: bytes) -> MotionSample:
-    """One AccGyroMag notification (20 bytes)."""
-    v = unpack_payload(CHAR_MOTION, payload)
-    return MotionSample(v[0], v[1:4], (v[4] * 100, v[5] * 100, v[6] * 100), v[7:10])
-
-
-def decode_env(payload: bytes) -> EnvSample:
-    """One environment notification (12 bytes)."""
-    tick, p, b, t, r = unpack_payload(CHAR_ENV, payload)
-    return EnvSample(tick, p / 100.0, b / 10.0, t / 10.0, r / 10.0)
-
-
-def decode_arming(payload: bytes) -> tuple[int, bool]:
-    """One arming notification (3 bytes): (tick, armed)."""
-    tick, armed = unpack_payload(CHAR_ARMING, payload)
-    return tick, bool(armed)
-
-
-def unwrap_ticks(ticks, t_host_s=None) -> np.ndarray:
-    """u16 ticks → int64 ticks since the first wrap-free start. Consecutive ticks step forward modulo 2^16; with
-    host times, a gap longer than a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock
-    says passed."""
-    t = np.asarray(ticks, dtype=np.int64) % TICK_WRAP
-    if t.size == 0:
-        return t
-    d = np.diff(t) % TICK_WRAP
-    # a small step backwards (samples of the same connection event delivered out of order) stays backwards
-    d = np.where(d > TICK_WRAP - 256, d - TICK_WRAP, d)
-    if t_host_s is not None:
-        h = np.diff(np.asarray(t_host_s, dtype=np.float64))
-        period = TICK_WRAP * TICK_S
-        extra = np.round((np.nan_to_num(h, nan=0.0) - d * TICK_S) / period)
-        d = d + np.maximum(extra, 0).astype(np.int64) * TICK_WRAP
-    return t[0] + np.concatenate([[0], np.cumsum(d)])
-
-
 class TickUnwrapper:
-    """The live counterpart of :func:`unwrap_ticks`: one u16 tick at a time."""
+    """u16 ticks → int64 ticks, one at a time: consecutive ticks step forward modulo 2^16 (a small step back, samples
+    of one connection event out of order, stays back); with the host time since the tick before, a gap longer than
+    a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock says passed."""
 
     def __init__(self) -> None:
         self.last: int | None = None
