@@ -125,3 +125,36 @@ def test_euler_layout_in_rerun_is_the_firmwares_attitude(monkeypatch, capsys, tm
     assert info.samples["plots/pitch_thx_deg/firmware"] == n and info.samples["plots/roll_thy_deg/firmware"] == n
     assert info.samples["world/drone/firmware"] == n and info.samples.get("plots/acc_mg", 0) == 0  # no sensors sent
     assert "ble/note" in info.static
+
+
+def test_live_ble_with_the_euler_layout_records_it_and_replay_reads_it(monkeypatch, capsys, tmp_path):
+    """steval live --ble --ble-layout euler: the one pipeline gives the firmware's attitude rows live, the capture
+    header keeps the layout, and a later replay of that capture reads it without the option."""
+    import sys
+
+    from support.ble import RecordingViewer, run_until_played
+
+    from steval_link.emulation.bluenrg import FakeBleBackend
+    from steval_link.live.session import LiveOptions, LiveSession, source_for
+    from steval_viewer.sink_options import SinkOptions
+
+    recs, a = euler_stream()
+    fake = FakeBleBackend([(c, p) for _, c, p in recs[:600]], pace_s=0.0005)
+    viewer = RecordingViewer()
+    out = tmp_path / "fork.stv"
+    opts = LiveOptions(out=out, sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=["accel"])
+    session = LiveSession(
+        opts,
+        source_for("ble:DRN1110", backend=fake, layout="euler"),
+        viewer_factory=lambda o, n: viewer,
+        stream=sys.stderr,
+    )
+    run_until_played(session, fake)
+    rows = [r.attitude for r in viewer.batches]
+    thx = np.concatenate([r.thx_rad for r in rows])
+    assert len(thx) == 600 and np.allclose(thx, np.round(a.thx_rad[:600] * 1000) / 1000, atol=1e-6)
+    assert not np.isfinite(np.concatenate([r.acc_mg for r in rows])).any()  # no sensor values in this layout
+    assert viewer.notes and "drone's own attitude" in viewer.notes[0]
+    assert read_recording(out).header["extra"]["ble_layout"] == "euler"
+    code, text, err = run_cli(monkeypatch, capsys, "replay", out, "--json")
+    assert code == 0 and json.loads(text)["ble_layout"] == "euler"
