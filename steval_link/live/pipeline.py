@@ -1,5 +1,6 @@
-"""Bytes → frames → estimators → viewer for one live stream (:class:`LivePipeline`), each viewer fed merged rows at
-its own cadence (:class:`BatchOutlet`); AHRS step numbers from the 16-bit ``seq`` (:class:`StepUnwrapper`).
+"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`: serial
+bytes, BLE notifications), each viewer fed merged rows at its own cadence (:class:`BatchOutlet`); AHRS step numbers
+from the 16-bit ``seq`` (:class:`StepUnwrapper`).
 
 The pipeline owns the rows' times: ``t_fw_s`` and ``t_host_s`` on the capture's base, by the rules (and the code,
 :mod:`steval_link.link.unwrap`) of ``load_telemetry``; a viewer logs the times it is given.
@@ -67,7 +68,8 @@ class LiveViewer(typing.Protocol):
     Rows and events come timed (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`); ``log_link``
     gets the session's Unix time, only to pace itself. Optional attributes, read when present: ``has_viewer`` (a
     viewer gets the stream, not only an ``.rrd``: then every processing round goes out at once) and ``file`` (the
-    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows) and ``log_flight(frame, at)``.
+    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows), ``log_flight(frame, at)`` and a BLE link's
+    ``log_environment(frame, at)``, ``log_arming(frame, at)``, ``log_note(text, at)``.
     """
 
     def log_batch(self, batch: LiveRows) -> None: ...
