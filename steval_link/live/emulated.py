@@ -96,6 +96,7 @@ class EmulatedSource(Source):
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
         self.truth = StepTruth(self.emu) if self.emu.motion.trial is not None else None  # the truth it is fed
+        self._record = record
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
@@ -135,5 +136,10 @@ class EmulatedSource(Source):
 
     def close(self) -> None:
         self._closed = True
+        try:
+            if getattr(self, "_record", None) is not None:
+                self._truth(self._record)  # the steps of the last slice, whatever stopped the session
+        except Exception:  # noqa: BLE001 - the capture is closed by the session whatever happens
+            pass
         if self.emu is not None and self.status.report is None:
             self.status.report = self.emu.report()
