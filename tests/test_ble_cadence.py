@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 import pytest
-from support.ble import run_until_played
+from support.ble import RecordingViewer, run_until_played
 from support.cli import run_cli
 
 from steval_link.emulation.bluenrg import FakeBleBackend
@@ -244,24 +244,16 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
     from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.sink_options import SinkOptions
 
-    rows = []
-
-    class Viewer:
-        def log_rows(self, r):
-            rows.append(r)
-
-        def close(self):
-            pass
-
+    viewer = RecordingViewer()
     fake = FakeBleBackend([(c, p) for _, c, p in recs], pace_s=pace_s, drop_after=list(drop_after))
     opts = LiveOptions(
         out=tmp_path / "live.stv", sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=list(estimators)
     )
     source = source_for("ble:auto", backend=fake)
-    session = LiveSession(opts, source, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr)
+    session = LiveSession(opts, source, viewer_factory=lambda o, name: viewer, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
-    return summary, rows, source  # the BLE source holds the estimators and the repeats
+    return summary, viewer.batches, session.pipeline  # the one pipeline holds the estimators and the grid
 
 
 @pytest.mark.parametrize(
@@ -273,37 +265,37 @@ def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
     recs, sent, missing = drone_stream(
         rate_hz, congested=congested, duration_s=6, others=False, start_ms=WRAP_MS - 3000
     )
-    summary, rows, session = run_live(tmp_path, recs)
+    summary, rows, pipe = run_live(tmp_path, recs)
     assert summary.counts["motion"] == sent
     c = summary.cadence
     assert c.dropped == summary.rows_held == missing
     assert c.kind == (BC.STEADY if not congested else BC.CONGESTION if rate_hz > 160 else BC.GAPS)
     assert c.rate_hz == pytest.approx(rate_hz, rel=5e-3)
     # the estimators' rows: one per sample sent, dt of the cadence found (the same grid as a replay's)
-    t_grid = np.concatenate([r.t_s for r in rows])
+    t_grid = np.concatenate([r.attitude.t_fw_s for r in rows])
     assert len(t_grid) == sent + missing
-    assert session.estimators["st-mahony"].settings.dt_s == pytest.approx(1 / rate_hz, rel=5e-3)
+    assert pipe.estimators.others["st-mahony"].settings.dt_s == pytest.approx(1 / rate_hz, rel=5e-3)
     u = BT.uniform_inputs(BT.decode_notifications(B.ble_records(read_capture(tmp_path / "live.stv").chunks)))
     assert len(u.t_s) == len(t_grid) and int(u.filled.sum()) == missing
     # the same rows at the replay's times: within half a period while the live interval is refined, then closer
     err = np.abs(t_grid - u.t_s)
-    assert err.max() < 0.5 / rate_hz and err[-len(rows[-1].t_s) :].max() < 0.05 / rate_hz
+    assert err.max() < 0.5 / rate_hz and err[-len(rows[-1]) :].max() < 0.05 / rate_hz
     text = summary.line()
     if congested:
         assert f"with {missing} dropped" in text
     else:
         assert "motion every 20.0 ms (50" in text and "the sender's own rate), 0 dropped" in text
-    q, thx, thy = rows[-1].estimates["st-mahony"]
-    assert len(thx) == len(rows[-1].t_s) and np.isfinite(q).all()
+    q = rows[-1].estimates["st-mahony"]
+    assert q.shape == (len(rows[-1]), 4) and np.isfinite(q).all()
 
 
 def test_live_session_of_a_poller(tmp_path):
     recs, distinct, reads = poller_stream(35.0, duration_s=6)
-    summary, rows, session = run_live(tmp_path, recs, estimators=("accel",))
+    summary, rows, pipe = run_live(tmp_path, recs, estimators=("accel",))
     c = summary.cadence
-    assert summary.counts["motion"] == reads and session.repeats == reads - distinct == c.repeats
+    assert summary.counts["motion"] == reads and pipe.grid.repeats == reads - distinct == c.repeats
     assert c.kind == BC.POLLED and summary.rows_held == 0 and abs(c.rate_hz - 35.0) < 3.5
-    assert sum(len(r.t_s) for r in rows) == sum(len(r.ble) for r in rows) == distinct
+    assert sum(len(r) for r in rows) == distinct  # one row per distinct sample read
     assert "reads of the characteristic" in summary.line()
 
 
@@ -315,12 +307,12 @@ def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     lost = slice(120, 220)  # 2 s of samples never sent: the link was down
     recs = recs[: lost.start] + recs[lost.stop :]
     n = len(recs)
-    summary, rows, session = run_live(tmp_path, recs, drop_after=[lost.start])
+    summary, rows, pipe = run_live(tmp_path, recs, drop_after=[lost.start])
     assert summary.losses == 1 and summary.counts["motion"] == n
     c = summary.cadence
     assert c.kind == BC.STEADY and c.dropped == summary.rows_held == 0
-    assert sum(len(r.t_s) for r in rows) == n  # no row over the 2 s the drone sent nothing
-    t_grid = np.concatenate([r.t_s for r in rows])
+    assert sum(len(r) for r in rows) == n  # no row over the 2 s the drone sent nothing
+    t_grid = np.concatenate([r.attitude.t_fw_s for r in rows])
     assert np.diff(t_grid).max() == pytest.approx(101 * 0.02, abs=0.01)  # the estimators step once over it
     # replayed: the capture's reconnect event says the same
     code, out, err = run_cli(monkeypatch, capsys, "replay", tmp_path / "live.stv", "--json")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.ble import run_until_played
+from support.ble import RecordingViewer, run_until_played
 
 from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.errors import UserError
@@ -150,14 +150,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.sink_options import SinkOptions
 
-    logged = []
-
-    class Viewer:
-        def log_rows(self, rows):
-            logged.append(rows)
-
-        def close(self):
-            logged.append("closed")
+    viewer = RecordingViewer()
 
     # at a drone's pace (1 ms a notification): several rounds of the session, two link losses, and the 8 ms tick's
     # wrap (ble_demo's tick wraps 30 s after power-up: notifications 12500.. hold it)
@@ -167,7 +160,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     out = tmp_path / "ble.stv"
     opts = LiveOptions(out=out, sinks=SinkOptions(rrd=tmp_path / "x.rrd"), estimators=["st-mahony", "accel"])
     source = source_for("ble:auto", backend=fake)
-    session = LiveSession(opts, source, viewer_factory=lambda o, name: Viewer(), stream=sys.stderr)
+    session = LiveSession(opts, source, viewer_factory=lambda o, name: viewer, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
     assert summary.losses == 2 and summary.connections == 3 and summary.stopped_by == "test"
@@ -177,21 +170,27 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     kinds = [e.kind for e in cap.events]
     assert kinds == ["connect", "disconnect", "reconnect", "disconnect", "reconnect", "stop"]
     assert cap.header["extra"]["link"] == "ble" and cap.header["format_version"] == 2
-    # the viewer got the decoded rows and the estimators' attitude on the sender's grid, then was closed
-    assert logged[-1] == "closed"
-    rows = [r for r in logged if r != "closed"]
-    n_motion = sum(len(r.ble) for r in rows)
-    assert n_motion == sum(1 for c, _ in firmware_notifications if c == B.CHAR_MOTION) == summary.counts["motion"]
-    n_grid = sum(len(r.t_s) for r in rows)
+    # the one logger got the rows of the sender's samples on one grid and the estimators' attitude, then was closed
+    assert viewer.closed
+    rows = viewer.batches
+    n_motion = sum(1 for c, _ in firmware_notifications if c == B.CHAR_MOTION)
+    assert n_motion == summary.counts["motion"]
+    n_grid = sum(len(r) for r in rows)
     assert n_grid == n_motion + summary.rows_held and summary.rows_held == 0  # no notification was missing
-    ticks = np.concatenate([r.ble.motion_tick for r in rows])
-    assert (np.diff(ticks) >= 0).all() and ticks[0] < 1 << 16 <= ticks[-1]  # one clock across the wrap
-    env = np.concatenate([r.ble.env_t_fw_s for r in rows])
-    assert (np.diff(env) >= 0).all() and abs(env[-1] - ticks[-1] * B.TICK_S) < 0.05
-    t_grid = np.concatenate([r.t_s for r in rows])
+    t_grid = np.concatenate([r.attitude.t_fw_s for r in rows])
+    wrap_s = (1 << 16) * B.TICK_S
+    assert (np.diff(t_grid) > 0).all() and t_grid[0] < wrap_s <= t_grid[-1]  # one clock across the wrap
     assert np.allclose(np.diff(t_grid), BC.STEP_PERIOD_S)
-    q, thx, thy = rows[-1].estimates["st-mahony"]
-    assert q.shape[1] == 4 and len(thx) == len(rows[-1].t_s)
+    env = np.array([at.t_fw_s for _, at in viewer.env])
+    assert len(env) == summary.counts["environment"]
+    assert (np.diff(env) >= 0).all() and abs(env[-1] - t_grid[-1]) < 0.05
+    q = rows[-1].estimates["st-mahony"]
+    assert q.shape == (len(rows[-1]), 4) and np.isfinite(q).all()
+    # BLE carries no firmware attitude: its rows say so (NaN, not bit-exact), and the note says why
+    a = rows[-1].attitude
+    assert np.isnan(a.thx_rad).all() and not a.exact.any() and np.isfinite(a.acc_mg).all()
+    assert rows[-1].mag_mgauss.shape == (len(a), 3)
+    assert any("not sent over BLE" in n for n in viewer.notes)
     assert "3 connection(s), 2 lost" in summary.line()
 
 
@@ -245,9 +244,9 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
 
 
 def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
-    """steval live --ble --rrd FILE --no-view: the Rerun logger of the BLE session writes the BLE layout."""
+    """steval live --ble --rrd FILE --no-view: the one live logger writes the BLE stream's rows and values."""
     from steval_link.live.session import LiveOptions, LiveSession, source_for
-    from steval_viewer.ble_log import BleLiveLogger
+    from steval_viewer.live_adapter import make_viewer_logger
     from steval_viewer.rrd_check import blueprint_views, read_rrd
     from steval_viewer.sink_options import SinkOptions
 
@@ -256,16 +255,19 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     rrd = tmp_path / "live.rrd"
     opts = LiveOptions(out=tmp_path / "c.stv", sinks=SinkOptions(rrd=rrd), estimators=["st-mahony", "ekf3"])
     source = source_for("ble:DRN1110", backend=fake)
-    session = LiveSession(opts, source, viewer_factory=BleLiveLogger, stream=sys.stderr)
+    session = LiveSession(opts, source, viewer_factory=make_viewer_logger, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
     n = summary.counts["motion"]
     assert n == 300
     info = read_rrd(rrd)
-    assert info.samples["ble/acc_mg"] == n and info.samples["ble/pressure_hpa"] == n
-    assert info.samples["world/drone/ble"] == n and info.samples["plots/pitch_thx_deg/ekf3"] == n
+    assert info.samples["plots/acc_mg"] == n and info.samples["ble/pressure_hpa"] == n
+    assert info.samples["ble/mag_mgauss"] == n and info.samples["ble/armed"] == n
+    assert info.samples["plots/pitch_thx_deg/ekf3"] == n and info.samples["plots/roll_thy_deg/st_mahony_port"] == n
+    assert info.samples.get("world/drone/estimate/ekf3", 0) >= 1
     assert {"fw_time", "host_time"} <= info.timelines and "ble/note" in info.static
-    assert "Attitude over BLE" in " ".join(blueprint_views(rrd))
+    names = " ".join(blueprint_views(rrd))
+    assert "magnetometer" in names and "battery" in names and "RSSI" in names and "Note" in names
 
 
 def test_live_session_finds_the_drone_before_any_output(tmp_path):

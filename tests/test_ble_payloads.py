@@ -28,29 +28,38 @@ def motion(tick, acc=(0, 0, 1000), gyro_centi=(0, 0, 0), mag=(0, 0, 0)) -> bytes
 
 
 def test_layouts_and_units():
-    m = B.decode_motion(motion(7, (-12, 34, 1001), (-5, 123, -32768), (1, -2, 3)))
-    assert m.tick == 7 and m.acc_mg == (-12, 34, 1001)
+    dec = B.BleDecoder()
+    m = dec.feed(B.CHAR_MOTION, motion(7, (-12, 34, 1001), (-5, 123, -32768), (1, -2, 3)), 0.5)
+    assert isinstance(m, B.BleMotionFrame) and m.tick == 7 and m.acc_mg == (-12, 34, 1001) and m.t_host_s == 0.5
     assert m.gyro_mdps == (-500, 12300, -3276800)  # mdps/100 on the wire
-    assert m.mag_mgauss == (1, -2, 3)
-    e = B.decode_env(struct.pack("<HiHhh", 9, 101325, 1000, -55, -620))
+    assert m.mag_mgauss == (1, -2, 3) and not m.repeat
+    e = dec.feed(B.CHAR_ENV, struct.pack("<HiHhh", 9, 101325, 1000, -55, -620), 0.6)
     assert (e.tick, e.pressure_hpa, e.battery_pct, e.temperature_c, e.rssi_dbm) == (9, 1013.25, 100.0, -5.5, -62.0)
-    assert B.decode_arming(b"\x05\x00\x01") == (5, True)
-    for fn, n in ((B.decode_motion, 20), (B.decode_env, 12), (B.decode_arming, 3)):
+    a = dec.feed(B.CHAR_ARMING, b"\x0a\x00\x01", 0.7)
+    assert (a.tick, a.armed) == (10, True)
+    for cid, n in ((B.CHAR_MOTION, 20), (B.CHAR_ENV, 12), (B.CHAR_ARMING, 3)):
         with pytest.raises(B.BadPayload):
-            fn(bytes(n - 1))
+            B.unpack_payload(cid, bytes(n - 1))
+        assert dec.feed(cid, bytes(n - 1), 1.0) is None  # the decoder counts it and goes on
+    assert dec.bad_payloads == 3 and dec.feed(99, b"x", 1.0) is None and dec.unknown == 1
+    assert dec.counts["motion"] == 2 and dec.feed(B.CHAR_MOTION, motion(7), 1.1).repeat is False
+    assert dec.feed(B.CHAR_MOTION, motion(7), 1.2).repeat  # the same payload again
     assert B.char_id_of_uuid("00E00000-0001-11E1-AC36-0002A5D5C51B") == B.CHAR_MOTION
     assert B.char_id_of_uuid("00000000-0001-11e1-9ab4-0002a5d5c51b") is None  # the service, not a characteristic
 
 
 def test_tick_unwrap_across_the_wrap_and_a_long_gap():
-    ticks = np.array([65530, 65531, 65533, 65535, 0, 1, 3], dtype=np.int64)
-    assert B.unwrap_ticks(ticks).tolist() == [65530, 65531, 65533, 65535, 65536, 65537, 65539]
-    # a disconnect longer than one wrap period (524.288 s): the host clock says how many wraps passed
-    t_host = np.array([0.0, 0.008, 0.008 + 600.0])
-    u = B.unwrap_ticks(np.array([100, 101, (101 + 75000) & 0xFFFF]), t_host)
-    assert u.tolist() == [100, 101, 101 + 75000]
+    ticks = [65530, 65531, 65533, 65535, 0, 1, 3]
     unwrap = B.TickUnwrapper()
-    assert [unwrap(int(t)) for t in ticks] == B.unwrap_ticks(ticks).tolist()
+    assert [unwrap(t) for t in ticks] == [65530, 65531, 65533, 65535, 65536, 65537, 65539]
+    # a disconnect longer than one wrap period (524.288 s): the host clock says how many wraps passed
+    unwrap = B.TickUnwrapper()
+    got = [unwrap(t, dt) for t, dt in ((100, None), (101, 0.008), ((101 + 75000) & 0xFFFF, 600.0))]
+    assert got == [100, 101, 101 + 75000]
+    # the same through the decoder, on one clock for every characteristic
+    dec = B.BleDecoder()
+    frames = [dec.feed(B.CHAR_MOTION, motion(t), 0.008 * i) for i, t in enumerate(ticks)]
+    assert [f.tick for f in frames] == [65530, 65531, 65533, 65535, 65536, 65537, 65539]
 
 
 def test_decode_notifications_counts_and_skips_bad_payloads():

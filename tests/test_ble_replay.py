@@ -150,23 +150,24 @@ def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
     info = read_rrd(rrd)
     assert info.has_blueprint and {"fw_time", "host_time"} <= info.timelines
     for path in (
-        "ble/acc_mg",
-        "ble/gyro_dps",
+        "plots/acc_mg",
+        "plots/gyro_dps",
         "ble/mag_mgauss",
         "ble/pressure_hpa",
         "ble/battery_pct",
         "ble/rssi_dbm",
         "ble/armed",
         "ble/temperature_c",
-        "world/drone/ble",
-        "plots/pitch_thx_deg/st_mahony",
+        "world/drone/estimate/st_mahony_port",
+        "plots/pitch_thx_deg/st_mahony_port",
         "plots/roll_thy_deg/ekf3",
         "world/drone/estimate/accel",
     ):
         assert info.samples.get(path, 0) >= 5976, path
-    assert "ble/note" in info.static and "world/drone/ble/model" in info.static
+    # no firmware attitude over BLE: nothing plotted for it; the note says why
+    assert info.samples.get("plots/pitch_thx_deg/firmware", 0) == 0 and "ble/note" in info.static
     names = " ".join(blueprint_views(rrd))
-    assert "Attitude over BLE" in names and "battery" in names and "RSSI" in names and "Note" in names
+    assert "magnetometer" in names and "battery" in names and "RSSI" in names and "Note" in names
     # the estimators see the tilts of the demo on the BLE samples (about ±30° in pitch)
     from steval_link.analysis.ble import load_ble, run_ble_estimators
 

@@ -194,18 +194,14 @@ def test_live_pipeline_health_and_note():
     h2 = LinkHealth()
     assert h2.values_sentence() is None
     # the health lines of steval emulate and steval live say it
-    from steval_link.live.emulated import EmulatedSource
-    from steval_link.live.serial_source import SerialSource
+    from steval_link.live.health import emulated_health
+    from steval_link.live.serial_source import serial_health
+    from steval_link.live.sources import LinkStatus
 
-    emulated = EmulatedSource.__new__(EmulatedSource)
-    emulated.emu, emulated.pipeline, emulated.t_emu_s, emulated._t0 = SimpleNamespace(duration_s=15.0), pipe, 5.0, 0.0
-    line = emulated.health(5.0)
+    line = emulated_health(LinkStatus(t_link_s=5.0, duration_s=15.0), pipe, 5.0)
     assert line.split(" | ")[2] == SENTENCE
-    live = SerialSource.__new__(SerialSource)
-    live.pipeline, live.session = pipe, SimpleNamespace(clock=SimpleNamespace(now_s=lambda: t))
-    live.proto = SimpleNamespace(connected=True, port="/dev/ttyUSB0", disconnects=0, bytes_total=len(data))
-    live.inbox, live.reader = SimpleNamespace(dropped_bytes=0), None
-    line = live.health(0.0)
+    status = LinkStatus(connected=True, port="/dev/ttyUSB0", bytes_total=len(data))
+    line = serial_health(status, pipe, 0.0, t)
     assert line.split(" | ")[2] == SENTENCE and "held back" not in line
 
 

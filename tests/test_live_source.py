@@ -17,7 +17,7 @@ from steval_link.live.ble_source import BleSource
 from steval_link.live.emulated import EmulatedSource
 from steval_link.live.serial_source import SerialSource
 from steval_link.live.session import LiveOptions, LiveSession, source_for
-from steval_link.live.sources import CaptureFields, Source
+from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Source
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,9 +28,10 @@ def test_the_url_chooses_the_driver():
     assert source_for("replay://recordings/demo.stv").replay and not source_for("/dev/ttyUSB0").replay
     for url, target in (("ble:DRN1110", "DRN1110"), ("BLE:auto", None), ("ble:", None)):
         ble = source_for(url, backend=object())
-        assert isinstance(ble, BleSource) and ble.target == target and not ble.takes_commands
+        assert isinstance(ble, BleSource) and ble.target == target
+        assert not ble.describe().takes_commands and ble.describe().kind == "ble"
     emu = source_for("emulated:", emulation=object(), realtime=True)
-    assert isinstance(emu, EmulatedSource) and emu.realtime and emu.kind == "emulated"
+    assert isinstance(emu, EmulatedSource) and emu.realtime
 
 
 class FakePort:
@@ -113,42 +114,32 @@ def test_a_write_and_a_reconnection_hold_the_same_lock():
 class ScriptedSource(Source):
     """A source of a few rounds that counts the session's calls."""
 
-    kind = "serial"
-
     def __init__(self, rounds: int, fail_at: int | None = None) -> None:
         self.rounds, self.fail_at, self.calls, self.n = rounds, fail_at, [], 0
+        self.status = LinkStatus(connected=True, port="script")
 
-    def open(self, session) -> None:
-        self.session = session
+    def open(self, note) -> None:
         self.calls.append("open")
 
-    def close_input(self) -> None:
-        self.calls.append("close_input")
+    def describe(self) -> LinkInfo:
+        return LinkInfo("script", 115200, {"scripted": True}, note="reading a script")
 
-    def describe(self) -> str:
-        return "reading a script"
-
-    def capture_fields(self) -> CaptureFields:
-        return CaptureFields("script", 115200, {"scripted": True})
-
-    def start(self, session) -> None:
+    def chunks(self, record, clock):
         self.calls.append("start")
+        return self._rounds(record)
 
-    def round(self) -> bool:
-        self.n += 1
-        if self.n == self.fail_at:
-            raise UserError("the script failed")
-        self.session.capture.write(b"\xa5" * 10, 0.01 * self.n)
-        return self.n < self.rounds
+    def _rounds(self, record):
+        while self.n < self.rounds and "close" not in self.calls:
+            self.n += 1
+            if self.n == self.fail_at:
+                raise UserError("the script failed")
+            chunk = Chunk("D", b"\xa5" * 10, 0.01 * self.n)
+            record(chunk)
+            self.status.bytes_total += 10
+            yield [chunk]
 
-    def health(self, now_mono_s: float) -> str:
-        return f"round {self.n}"
-
-    def finish(self, error) -> None:
-        self.calls.append(f"finish {type(error).__name__ if error else None}")
-
-    def summary_fields(self) -> dict:
-        return {"bytes_total": 10 * self.n}
+    def close(self) -> None:
+        self.calls.append("close")
 
 
 def test_one_session_drives_any_source_and_owns_the_capture_and_the_stop(tmp_path):
@@ -159,7 +150,7 @@ def test_one_session_drives_any_source_and_owns_the_capture_and_the_stop(tmp_pat
     src = ScriptedSource(rounds=5)
     err = io.StringIO()
     summary = LiveSession(LiveOptions(out=tmp_path / "a.stv", prompt=False), src, stream=err, tty=False).run()
-    assert src.calls == ["open", "start", "finish None"] and summary.bytes_total == 50
+    assert src.calls == ["open", "start", "close"] and summary.bytes_total == 50
     assert summary.stopped_by == "end" and summary.line().startswith("recorded ")
     cap = read_capture(tmp_path / "a.stv")
     assert cap.header["port"] == "script" and cap.header["extra"]["scripted"] is True
@@ -168,19 +159,22 @@ def test_one_session_drives_any_source_and_owns_the_capture_and_the_stop(tmp_pat
     # a stop requested (Ctrl-C, --duration) ends it at the next round, the same way for every source
     src = ScriptedSource(rounds=1000)
     session = LiveSession(LiveOptions(out=tmp_path / "b.stv", prompt=False), src, stream=io.StringIO())
-    src.round = lambda orig=src.round: (session.request_stop("interrupted") if src.n == 2 else None, orig())[1]
-    assert session.run().stopped_by == "interrupted" and src.n == 3
+    rounds = src._rounds
+    src._rounds = lambda record: (
+        (session.request_stop("interrupted") if src.n == 2 else None, chunks)[1] for chunks in rounds(record)
+    )
+    assert session.run().stopped_by == "interrupted" and src.n == 2
     assert [e.text for e in read_capture(tmp_path / "b.stv").events] == ["interrupted"]
     # a source's error: the capture is closed whole first, then the error is raised
     src = ScriptedSource(rounds=10, fail_at=3)
     with pytest.raises(UserError, match="the script failed"):
         LiveSession(LiveOptions(out=tmp_path / "c.stv", prompt=False), src, stream=io.StringIO()).run()
-    assert src.calls[-1] == "finish UserError" and len(read_capture(tmp_path / "c.stv").data) == 20
+    assert src.calls[-1] == "close" and len(read_capture(tmp_path / "c.stv").data) == 20
     # the capture exists already: one sentence, and the input is released
     src = ScriptedSource(rounds=1)
     with pytest.raises(UserError, match="already exists"):
         LiveSession(LiveOptions(out=tmp_path / "a.stv", prompt=False), src, stream=io.StringIO()).run()
-    assert src.calls == ["open", "close_input"]
+    assert src.calls == ["open", "close"]
 
 
 @pytest.mark.parametrize(
@@ -220,3 +214,26 @@ def test_spawn_without_a_display_is_said_before_the_work(monkeypatch, capsys, tm
     assert code == 2 and out == "" and err.count("\n") == 1 and "no display for the desktop viewer (--spawn)" in err
     code, out, err = run_cli(monkeypatch, capsys, "live", "--port", "replay://" + demo, "--duration", "1")
     assert code == 2 and "--no-view to record only" in err
+
+
+def test_the_link_interface_is_narrow_and_runs_one_way():
+    """Source has five public methods (open, describe, chunks, write, close), no driver adds one, and no driver
+    module names a session at all (the session reads the sources, never the reverse)."""
+    import ast
+    import inspect
+
+    from steval_link.live import ble_source, emulated, serial_source, sources
+
+    def public(cls) -> set[str]:
+        return {n for n, v in vars(cls).items() if not n.startswith("_") and inspect.isfunction(v)}
+
+    assert public(Source) == {"open", "describe", "chunks", "write", "close"}
+    for cls in (SerialSource, EmulatedSource, BleSource):
+        assert public(cls) <= public(Source), cls.__name__
+        assert inspect.ismethod(cls.from_url)  # each driver parses its own URL
+    for module in (sources, serial_source, emulated, ble_source):
+        tree = ast.parse(inspect.getsource(module))
+        names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+        names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+        names |= {a.arg for a in ast.walk(tree) if isinstance(a, ast.arg)}
+        assert not {"session", "LiveSession"} & names, module.__name__

@@ -486,4 +486,5 @@ def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_noti
         in notes[0]
     )
     assert [(c, p) for _, c, p in B.ble_records(read_capture(out).chunks)] == recs
-    assert list(session.source.estimators) == ["accel"]
+    est = session.pipeline.estimators
+    assert [n for n in est.others if n not in est.disabled] == ["accel"]

@@ -89,6 +89,7 @@ def make_blueprint(
     timeline: str | None = None,
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
+    ble: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint.
 
@@ -132,6 +133,7 @@ def make_blueprint(
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
         _series("text", "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
+        *([ble_view(live, timeline)] if ble else []),
         name="Link",
     )
     left = rrb.Vertical(view3d, link, row_shares=[3, 2])
@@ -159,6 +161,24 @@ def make_blueprint(
     if flight_control:
         right = rrb.Tabs(right, flight_view(live, timeline), name="Attitude / flight control")
     return two_columns(left, right, live, timeline)
+
+
+def ble_view(live: bool, timeline: str) -> rrb.Vertical:
+    """A BLE link's own values (``ble``: a stream with BLE notifications): what its rows are, the drone's battery,
+    pressure, temperature, RSSI and arming."""
+    plots = [
+        _series(path, name, live, timeline, legend=False)
+        for path, name in (
+            (ent.BLE_BATTERY, "battery (%)"),
+            (ent.BLE_PRESSURE, "pressure (hPa)"),
+            (ent.BLE_RSSI, "RSSI (dBm)"),
+            (ent.BLE_ARMED, "armed (0/1)"),
+            (ent.BLE_TEMPERATURE, "temperature (°C)"),
+            (ent.BLE_MAG, "magnetometer (mgauss)"),
+        )
+    ]
+    note = rrb.TextDocumentView(origin=ent.BLE_NOTE, name="Note")
+    return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
 
 def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:

@@ -109,20 +109,13 @@ def motor_path(number: int) -> str:
 
 
 BLE = "ble"
-BLE_DRONE = "world/drone/ble"
-BLE_DRONE_MODEL = "world/drone/ble/model"
-BLE_GRAVITY = "world/drone/ble/acc_gravity"
-BLE_ACC = "ble/acc_mg"
-BLE_GYRO = "ble/gyro_dps"
 BLE_MAG = "ble/mag_mgauss"
 BLE_PRESSURE = "ble/pressure_hpa"
 BLE_BATTERY = "ble/battery_pct"
 BLE_TEMPERATURE = "ble/temperature_c"
 BLE_RSSI = "ble/rssi_dbm"
 BLE_ARMED = "ble/armed"
-BLE_RATE = "ble/notification_rate_hz"
 BLE_NOTE = "ble/note"
-LOG_BLE_CONSOLE = "log/ble_console"
 
 LOG_FIRMWARE = "log/firmware"
 LOG_HOST = "log/host"

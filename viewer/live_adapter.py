@@ -4,6 +4,10 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from steval_link.link.ble_payloads import ble_items, layout_named
+from steval_link.live.pipeline import RRD_ONLY_INTERVAL_S, LivePipeline
 from steval_link.live.session import LiveOptions
 
 
@@ -59,3 +63,40 @@ class ViewerLogger:
 def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:
     """The Rerun side of a live session (see :class:`ViewerLogger`)."""
     return ViewerLogger(options, recording_name)
+
+
+#: notifications fed to the pipeline at a time by :func:`recording_sink`
+REPLAY_BATCH = 4096
+
+
+def recording_sink(options, estimators: list[str], *, layout: str = "stock", progress=None):
+    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline
+    (:meth:`LivePipeline.feed_ble`) into the one logger (:class:`steval_viewer.live_log.LiveLogger`, every row's
+    attitude, the whole flight), the ``.rrd`` written whole or not at all (``sinks.log_whole``). ``options``: the
+    sinks the CLI checked; returns ``sink(recording) -> rows logged``."""
+    from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
+
+    def sink(src) -> int:
+        items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])
+
+        def log(rec) -> int:
+            logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
+            pipe = LivePipeline(
+                estimators,
+                logger,
+                view_interval_s=RRD_ONLY_INTERVAL_S,
+                t0_unix_s=0.0,
+                baud=0,
+                ble_layout=layout_named(layout),
+            )
+            for i in range(0, len(items), REPLAY_BATCH):
+                pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
+                if progress is not None:
+                    progress(min(1.0, (i + REPLAY_BATCH) / max(len(items), 1)), "logging to Rerun")
+            pipe.flush_view()
+            logger.close()
+            return logger.frames
+
+        return sinks.log_whole(options, f"steval replay {Path(str(src.path)).name}", log)
+
+    return sink

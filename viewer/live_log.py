@@ -75,18 +75,21 @@ class LiveLogger:
         *,
         ghost: str | None = None,
         blueprint: bool = True,
+        live: bool = True,
+        ble: bool = False,
     ) -> None:
         self.rec = rec
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
-        if blueprint:
-            bp.send_blueprint(
-                rec,
-                live=True,
-                ghost_sources=segs,
-                ghost=None if ghost is None else live_source(ghost),
-                flight_control=True,
-            )
+        ghost = None if ghost is None else live_source(ghost)
+        #: the 3D view's updates per second of stream time at most (a replay: every row)
+        self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
+        self._blueprint = dict(live=live, ghost_sources=segs, ghost=ghost, flight_control=True) if blueprint else None
+        self._ble_shown = False
+        if blueprint and not ble:
+            bp.send_blueprint(rec, **self._blueprint)
+        if ble:  # known to be a BLE stream from the start (a replay): its layout at once
+            self._ble_layout()
         scene.log_static(rec, segs, with_port=ent.SOURCE_PORT in segs)
         flight_log.log_flight_static(rec)
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
@@ -139,14 +142,14 @@ class LiveLogger:
         t_last = float(times.t_fw_s[-1])
         rb = RowBatch(times, self._bad, self._arrow_cache)
         sel3d = None
-        if not (0.0 <= t_last - self._last_3d_s < 1.0 / LIVE_3D_MAX_HZ):
+        if not (0.0 <= t_last - self._last_3d_s < 1.0 / self.max_3d_hz):
             self._last_3d_s = t_last
             sel3d = np.zeros(n, dtype=bool)
-            sel3d[-1] = True
+            sel3d[-1 if math.isfinite(self.max_3d_hz) else slice(None)] = True
             # the drone: the batch's last frame without bad values (the firmware's filter output is NaN or off
             # range: the 3D drone stays where it was)
             sel_fw = np.zeros(n, dtype=bool)
-            sel_fw[good_rows[-1:]] = True
+            sel_fw[good_rows[-1:] if math.isfinite(self.max_3d_hz) else good_rows] = True
             rb.quaternions(ent.DRONE_FIRMWARE, q, sel_fw)
             with np.errstate(invalid="ignore"):
                 rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
@@ -156,6 +159,9 @@ class LiveLogger:
         rb.scalars(ent.PLOT_ACC, acc)
         rb.scalars(ent.PLOT_GYRO, a.gyro_mdps.astype(np.float64) / 1000.0)
         rb.scalars(ent.PLOT_THROTTLE, a.thr.astype(np.float64))
+        if getattr(batch, "mag_mgauss", None) is not None:
+            self._ble_layout()
+            rb.scalars(ent.BLE_MAG, batch.mag_mgauss.astype(np.float64))
 
         estimates: Mapping[str, np.ndarray] = batch.estimates or {}
         for name, eq in estimates.items():
@@ -300,6 +306,37 @@ class LiveLogger:
                 frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
                 self.rec.log(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]))
             self.rec.reset_time()
+
+    def log_environment(self, frame: Any, at: Any) -> None:
+        """A BLE environment frame (``BleEnvFrame``) at its tick: pressure, battery, temperature, RSSI (queued)."""
+        self._ble_layout()
+        for path, v in (
+            (ent.BLE_PRESSURE, frame.pressure_hpa),
+            (ent.BLE_BATTERY, frame.battery_pct),
+            (ent.BLE_TEMPERATURE, frame.temperature_c),
+            (ent.BLE_RSSI, frame.rssi_dbm),
+        ):
+            self._queue_row(path, at.t_fw_s, at.t_host_s, (v,))
+
+    def log_arming(self, frame: Any, at: Any) -> None:
+        """A BLE arming frame (``BleArmingFrame``) at its tick (queued)."""
+        self._ble_layout()
+        self._queue_row(ent.BLE_ARMED, at.t_fw_s, at.t_host_s, (float(frame.armed),))
+
+    def log_note(self, text: str, at: Any) -> None:
+        """What the link's rows are (a BLE stream's note), shown beside its values."""
+        self._ble_layout()
+        self.rec.log(ent.BLE_NOTE, rr.TextDocument(text), static=True)
+
+    def _ble_layout(self) -> None:
+        """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""
+        if self._ble_shown or not self._blueprint:
+            return
+        self._ble_shown = True
+        bp.send_blueprint(self.rec, ble=True, **self._blueprint)
+        for path in (ent.BLE_PRESSURE, ent.BLE_BATTERY, ent.BLE_TEMPERATURE, ent.BLE_RSSI, ent.BLE_ARMED):
+            self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
+        self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
     def log_event(self, text: str, at: Any, level: str = "INFO") -> None:
         """A command sent to the drone, its acknowledgement or the settings it announced, at ``at``: an entry on

@@ -12,44 +12,32 @@ dt): the summary and the viewer say so (:data:`NOT_BIT_EXACT`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.link.ble_payloads import TICK_WRAP, ble_records
-from steval_link.link.ble_telemetry import BleTelemetry, UniformInputs, decode_notifications, uniform_inputs
+from steval_link.link.ble_payloads import TICK_WRAP, ble_records, layout_named
+from steval_link.link.ble_telemetry import (
+    NOT_BIT_EXACT,
+    BleTelemetry,
+    UniformInputs,
+    decode_notifications,
+    layout_rows,
+    link_notes,
+    uniform_inputs,
+)
 
 __all__ = [
     "NOT_BIT_EXACT",
-    "BleReplay",
+    "ble_layout_of",
     "load_ble",
     "reconnect_rows",
     "run_ble_estimators",
     "summarize_ble",
     "format_ble_summary",
 ]
-
-NOT_BIT_EXACT = (
-    "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
-    "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
-    "the 8 ms ticks, "
-    "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
-    "estimators' own."
-)
-
-
-@dataclass
-class BleReplay:
-    """A decoded BLE capture with its estimator inputs and estimates (name → ``AttitudeEstimate``)."""
-
-    ble: BleTelemetry
-    inputs: UniformInputs
-    estimates: dict[str, Any] = field(default_factory=dict)
-    notes: dict[str, str] = field(default_factory=dict)
-    source: dict[str, Any] = field(default_factory=dict)  #: path, header, warnings
 
 
 def load_ble(src) -> BleTelemetry:
@@ -73,13 +61,23 @@ def reconnect_rows(ble: BleTelemetry, events) -> np.ndarray:
     return np.unique(rows[(rows > 0) & (rows < len(ble))]).astype(np.int64)
 
 
-def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[UniformInputs, dict[str, Any], dict]:
+def ble_layout_of(src) -> str:
+    """The motion layout a BLE capture's header names (``extra.ble_layout``; stock when it names none)."""
+    extra = (getattr(src, "header", None) or {}).get("extra") or {}
+    return str(extra.get("ble_layout") or "stock") if isinstance(extra, dict) else "stock"
+
+
+def run_ble_estimators(
+    ble: BleTelemetry, names: Sequence[str], layout: str = "stock"
+) -> tuple[UniformInputs, dict[str, Any], dict]:
     """Run each named estimator over the uniform inputs (dt = the interval of the cadence found in the ticks,
     :func:`~steval_link.link.ble_cadence.motion_cadence`; thr 0: BLE does not carry gTHR); returns (inputs,
-    name → estimate, name → note)."""
+    name → estimate, name → note). A layout that sends the drone's attitude has no sensor values: no estimator."""
     inputs = uniform_inputs(ble)
     dt = inputs.dt_s
     out, notes = {}, {}
+    if layout_named(layout).sends_attitude:
+        return inputs, out, notes
     if names and not dt > 0:
         raise UserError("the BLE capture's motion samples all share one tick: no interval for the estimators")
     thr = np.zeros(len(inputs.t_s), dtype=np.int16)
@@ -100,8 +98,9 @@ def run_ble_estimators(ble: BleTelemetry, names: Sequence[str]) -> tuple[Uniform
     return inputs, out, notes
 
 
-def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -> dict[str, Any]:
-    """A JSON-ready summary of a BLE capture."""
+def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None, layout: str = "stock") -> dict[str, Any]:
+    """A JSON-ready summary of a BLE capture (``layout``: what its motion notifications hold)."""
+    lay = layout_named(layout)
     header = getattr(src, "header", {}) or {}
     extra = header.get("extra") or {}
     t = ble.motion_t_host_s
@@ -147,10 +146,23 @@ def summarize_ble(ble: BleTelemetry, src, inputs: UniformInputs | None = None) -
         "armed_notifications": int(ble.armed.sum()),
         "console_lines": len(ble.console),
         "events": events,
-        "note": NOT_BIT_EXACT,
+        "ble_layout": lay.name,
+        "note": " ".join(link_notes(ble.acc_mg, lay)),
+        "attitude_deg_range": _attitude_range(ble, lay),
         "warnings": list(getattr(src, "warnings", []) or []),
     }
     return s
+
+
+def _attitude_range(ble: BleTelemetry, layout) -> dict[str, list[float]] | None:
+    """The drone's own pitch and roll range, deg, when the layout sends them (None: it does not)."""
+    if not layout.sends_attitude or not len(ble):
+        return None
+    _, _, thx, thy, _ = layout_rows(ble.acc_mg, ble.gyro_mdps, layout)
+    return {
+        name: [round(float(np.degrees(v.min())), 2), round(float(np.degrees(v.max())), 2)]
+        for name, v in (("thx", thx), ("thy", thy))
+    }
 
 
 def format_ble_summary(s: dict[str, Any]) -> list[str]:
@@ -193,5 +205,11 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
         )
     for e in s["events"]:
         lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
+    rng = s.get("attitude_deg_range")
+    if rng:
+        lines.append(
+            f"firmware attitude thx pitch {rng['thx'][0]:.1f}..{rng['thx'][1]:.1f} deg, thy roll "
+            f"{rng['thy'][0]:.1f}..{rng['thy'][1]:.1f} deg (the drone's own, {s['ble_layout']} layout)"
+        )
     lines.append("note              " + s["note"])
     return lines

@@ -10,7 +10,7 @@ import typer
 
 from steval_link.cli.app import app
 from steval_link.errors import UserError
-from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX
+from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, LAYOUTS, layout_named
 from steval_link.link.ble_transport import BleBackend, BleDevice, bleak_backend, explain_ble_error
 
 __all__ = ["ble_app", "scan_devices", "format_devices"]
@@ -72,3 +72,18 @@ def scan_command(
         )
         raise typer.Exit(1)
     print("\n".join(lines))
+
+
+BLE_LAYOUT_HELP = (
+    "What the drone's motion notifications hold: stock (ST's firmware: raw acc, gyro, mag) or euler (a modified "
+    "firmware that sends its Euler angles, rad x 1000, in the acc fields and gyro-integrated odometry in the gyro "
+    "fields: its attitude is shown as the firmware's own)."
+)
+
+
+def check_ble_layout(name: str) -> str:
+    """``--ble-layout NAME``: one of the known layouts (one sentence naming them)."""
+    try:
+        return layout_named(name).name
+    except ValueError:
+        raise UserError(f"--ble-layout {name}: choose one of {', '.join(LAYOUTS)}") from None

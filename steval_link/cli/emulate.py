@@ -112,7 +112,7 @@ def emulate_command(
         min=0,
     ),
 ) -> None:
-    """Run a firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
+    """Run a real firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
     The board runs the whole ELF unchanged (boot, HAL, TIM9 ISR, AHRS, the patch's USART1 stream) with motion fed
     to its sensor registers. Its USART1 bytes go through the same capture -> decoder -> estimators -> viewer path

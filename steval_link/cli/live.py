@@ -10,6 +10,7 @@ import typer
 
 from steval_link import constants as C
 from steval_link.cli.app import app
+from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.outputs import check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -111,6 +112,7 @@ def live_command(
     device: Optional[str] = typer.Argument(
         None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
     ),
+    ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -131,16 +133,19 @@ def live_command(
         raise UserError(f"--ble and --port {port}: a session reads one source; drop one of them")
     if ble:  # a clear line without bleak, before anything else
         target = device.strip() if device and device.strip() else "auto"
-        source, factory = source_for(BLE_SCHEME + target, backend=bleak_backend()), _ble_viewer
+        layout = check_ble_layout(ble_layout)
+        source = source_for(BLE_SCHEME + target, backend=bleak_backend(), layout=layout)
     else:
-        source, factory = port_source(port or "auto", baud=baud, wait=wait), make_viewer_logger
+        if ble_layout != "stock":
+            raise UserError(f"--ble-layout {ble_layout} goes with --ble")
+        source = port_source(port or "auto", baud=baud, wait=wait)
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
         estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration, prompt=prompt
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)
-    run_session(LiveSession(options, source, viewer_factory=factory, check_outputs=check))
+    run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
 
 
 @app.command("record")
@@ -163,9 +168,3 @@ def record_command(
     options = LiveOptions(duration_s=duration)
     source = port_source(port, baud=baud, wait=wait)
     run_session(LiveSession(options, source, check_outputs=session_outputs(options, out)))  # the port first
-
-
-def _ble_viewer(options: LiveOptions, recording_name: str):
-    from steval_viewer.ble_log import BleLiveLogger  # reason: Rerun loads only when a session uses it
-
-    return BleLiveLogger(options, recording_name)

@@ -19,9 +19,10 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
+from steval_link.analysis.ble import ble_layout_of, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
+from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.outputs import ForceOption, print_json
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -165,6 +166,7 @@ def replay(
     ] = None,
     force: ForceOption = False,
     text_map: MapOption = None,
+    ble_layout: Annotated[Optional[str], typer.Option("--ble-layout", help=BLE_LAYOUT_HELP)] = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
 
@@ -194,7 +196,7 @@ def replay(
     )
     try:
         if is_ble_source(src):
-            _replay_ble(src, names, as_json, options)
+            _replay_ble(src, names, as_json, options, check_ble_layout(ble_layout) if ble_layout else None)
             return
         with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
             tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map)
@@ -211,18 +213,19 @@ def replay(
         raise
 
 
-def _replay_ble(src, names: Sequence[str], as_json: bool, options) -> None:
+def _replay_ble(src, names: Sequence[str], as_json: bool, options, layout: str | None) -> None:
     """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks' cadence), the
-    summary, and the BLE viewer layout when asked."""
+    summary, and in Rerun the one live logger fed by the one pipeline when asked (``layout``: the motion payload's;
+    None: the capture header's, else stock)."""
+    layout = layout or ble_layout_of(src)
     with progress_bar("replay", quiet=as_json or bool(options and options.serve)) as progress:
         progress(0.0, "decoding BLE notifications")
         ble = load_ble(src)
         progress(0.1, "estimators")
-        inputs, estimates, notes = run_ble_estimators(ble, names)
-        _print_summary(summarize_ble(ble, src, inputs), format_ble_summary, as_json)
+        inputs, estimates, notes = run_ble_estimators(ble, names, layout)
+        _print_summary(summarize_ble(ble, src, inputs, layout), format_ble_summary, as_json)
         sys.stdout.flush()
         if options is not None:
-            from steval_viewer.ble_log import ble_replay_sink  # Rerun loads only for a viewer or an .rrd
+            from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd
 
-            replay = BleReplay(ble, inputs, estimates, notes, {"path": str(src.path), "header": src.header})
-            ble_replay_sink(options, progress=scaled(progress, 0.5, 1.0))(replay)
+            recording_sink(options, list(names), layout=layout, progress=scaled(progress, 0.5, 1.0))(src)

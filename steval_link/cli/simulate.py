@@ -260,8 +260,9 @@ def simulate_command(
     ),
     force: ForceOption = False,
 ) -> None:
-    """UMaine Lab 5 AHRS simulator: constant gyro/acc inputs through the firmware's Mahony filter (or any
-    estimator); prints the final eax (pitch), eay (roll), eaz (yaw)."""
+    """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
+
+    The UMaine Lab 5 AHRS simulator; prints the final eax (pitch), eay (roll), eaz (yaw)."""
     check_count("--iterations", iterations, MAX_ITERATIONS)
     check_vector("--gyro", gyro, "mdps")
     check_vector("--acc", acc, "mg")

@@ -100,9 +100,11 @@ def synth_cmd(
     force: Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")] = False,
     list_: Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")] = False,
 ) -> None:
-    """Emulate the drone end to end into a capture: motion profile → LSM6DSL model → ISR pipeline at 807.7 Hz →
-    the bit-exact filter port → frames per PROTOCOL.md (status and boot text included) at the real timing →
-    USB-UART adapter. Deterministic: the same options give the same bytes. Emulated, not a real drone."""
+    """Run the modelled drone (Python, no ELF) into a capture: motion, sensors, ISR, the replica, the link.
+
+    Motion profile → LSM6DSL model → ISR pipeline at 807.7 Hz → the bit-exact replica of the filter → frames per
+    PROTOCOL.md (status and boot text included) at the real timing → USB-UART adapter. Deterministic: the same
+    options give the same bytes. Modelled, not a real drone nor a real firmware (steval emulate runs an ELF)."""
     if list_:
         _list()
         return

@@ -114,6 +114,28 @@ def period_ticks(d_ticks) -> float | None:
     return p
 
 
+def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
+    """Whether the motion notifications equal to the one before them (``repeat``: same tick and values) are reads of
+    an unchanged characteristic (a poller) rather than samples of their own. Counted as samples, the stream's mean
+    step is its span over its notifications, by the drone's ticks and by the arrival times: a sender faster than one
+    8 ms tick (ST's 161.5 Hz) puts two samples in many ticks, and a slow-changing or derived value (an angle at rest)
+    repeats there as often as a poller re-reads; so repeats are reads only when the stream counted that way is not
+    faster than a tick on both clocks."""
+    t = np.asarray(ticks, dtype=np.int64)
+    rep = np.asarray(repeat, dtype=bool)
+    n = len(t)
+    if n < 2 or not rep.any():
+        return False
+    step_ticks = float(t[-1] - t[0]) / (n - 1)
+    if step_ticks >= 1.0:
+        return True
+    if t_host_s is None:
+        return False
+    h = np.asarray(t_host_s, dtype=np.float64)
+    host_span = float(h[-1] - h[0])
+    return not (host_span > 0 and host_span / (n - 1) < 1.5 * TICK_S)
+
+
 def break_mask(n: int, breaks) -> np.ndarray:
     """(n,) bool: True at the samples that follow a reconnection (never the first)."""
     m = np.zeros(n, bool)

@@ -31,8 +31,6 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-import numpy as np
-
 from steval_link.link.capture import CHUNK_BLE
 
 __all__ = [
@@ -48,18 +46,21 @@ __all__ = [
     "TICK_S",
     "TICK_WRAP",
     "char_id_of_uuid",
-    "MotionSample",
-    "EnvSample",
     "unpack_payload",
-    "decode_motion",
-    "decode_env",
-    "decode_arming",
-    "unwrap_ticks",
     "TickUnwrapper",
     "BadPayload",
     "ble_records",
     "is_ble_source",
+    "ble_items",
     "ble_chunk",
+    "BleMotionFrame",
+    "BleEnvFrame",
+    "BleArmingFrame",
+    "BleConsoleFrame",
+    "BleDecoder",
+    "BleLayout",
+    "LAYOUTS",
+    "layout_named",
 ]
 
 #: the HW sensor service of ST's firmware (BlueST)
@@ -104,23 +105,6 @@ def char_id_of_uuid(uuid: str) -> int | None:
     return None
 
 
-@dataclass(frozen=True, slots=True)
-class MotionSample:
-    tick: int
-    acc_mg: tuple[int, int, int]
-    gyro_mdps: tuple[int, int, int]  #: the payload's mdps/100 × 100 (the firmware truncates toward zero)
-    mag_mgauss: tuple[int, int, int]
-
-
-@dataclass(frozen=True, slots=True)
-class EnvSample:
-    tick: int
-    pressure_hpa: float
-    battery_pct: float
-    temperature_c: float
-    rssi_dbm: float
-
-
 #: characteristic id → (name in messages, payload layout) of the fixed-size notifications
 _LAYOUTS = {CHAR_MOTION: ("motion", _MOTION), CHAR_ENV: ("environment", _ENV), CHAR_ARMING: ("arming", _ARMING)}
 
@@ -134,44 +118,10 @@ def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
     return layout.unpack(payload)
 
 
-def decode_motion(payload: bytes) -> MotionSample:
-    """One AccGyroMag notification (20 bytes)."""
-    v = unpack_payload(CHAR_MOTION, payload)
-    return MotionSample(v[0], v[1:4], (v[4] * 100, v[5] * 100, v[6] * 100), v[7:10])
-
-
-def decode_env(payload: bytes) -> EnvSample:
-    """One environment notification (12 bytes)."""
-    tick, p, b, t, r = unpack_payload(CHAR_ENV, payload)
-    return EnvSample(tick, p / 100.0, b / 10.0, t / 10.0, r / 10.0)
-
-
-def decode_arming(payload: bytes) -> tuple[int, bool]:
-    """One arming notification (3 bytes): (tick, armed)."""
-    tick, armed = unpack_payload(CHAR_ARMING, payload)
-    return tick, bool(armed)
-
-
-def unwrap_ticks(ticks, t_host_s=None) -> np.ndarray:
-    """u16 ticks → int64 ticks since the first wrap-free start. Consecutive ticks step forward modulo 2^16; with
-    host times, a gap longer than a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock
-    says passed."""
-    t = np.asarray(ticks, dtype=np.int64) % TICK_WRAP
-    if t.size == 0:
-        return t
-    d = np.diff(t) % TICK_WRAP
-    # a small step backwards (samples of the same connection event delivered out of order) stays backwards
-    d = np.where(d > TICK_WRAP - 256, d - TICK_WRAP, d)
-    if t_host_s is not None:
-        h = np.diff(np.asarray(t_host_s, dtype=np.float64))
-        period = TICK_WRAP * TICK_S
-        extra = np.round((np.nan_to_num(h, nan=0.0) - d * TICK_S) / period)
-        d = d + np.maximum(extra, 0).astype(np.int64) * TICK_WRAP
-    return t[0] + np.concatenate([[0], np.cumsum(d)])
-
-
 class TickUnwrapper:
-    """The live counterpart of :func:`unwrap_ticks`: one u16 tick at a time."""
+    """u16 ticks → int64 ticks, one at a time: consecutive ticks step forward modulo 2^16 (a small step back, samples
+    of one connection event out of order, stays back); with the host time since the tick before, a gap longer than
+    a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock says passed."""
 
     def __init__(self) -> None:
         self.last: int | None = None
@@ -202,8 +152,133 @@ def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[floa
     return [(t, p[0], p[1:]) for t, p in chunks.get(CHUNK_BLE, []) if p]
 
 
+def ble_items(chunks: dict, events=()) -> list[tuple[int | None, bytes, float]]:
+    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks in order, as a live link hands them over: a
+    ``(None, b"", t)`` before the first notification after each ``reconnect`` event (the link was lost)."""
+    recs = ble_records(chunks)
+    marks = sorted(e.t_host_s for e in events if e.kind == "reconnect")
+    out: list[tuple[int | None, bytes, float]] = []
+    m = 0
+    for t, cid, payload in recs:
+        while m < len(marks) and marks[m] <= t:
+            out.append((None, b"", marks[m]))
+            m += 1
+        out.append((cid, payload, t))
+    return out
+
+
 def is_ble_source(src) -> bool:
     """A capture recorded over BLE (``B`` chunks, or ``extra.link`` = "ble" in its header)."""
     chunks = getattr(src, "chunks", None) or {}
     extra = (getattr(src, "header", None) or {}).get("extra") or {}
     return bool(chunks.get(CHUNK_BLE)) or (isinstance(extra, dict) and extra.get("link") == "ble")
+
+
+@dataclass(frozen=True, slots=True)
+class BleMotionFrame:
+    """One motion notification as sent: ``tick`` unwrapped (8 ms units), the payload's fields in their units (the
+    stock layout: acc mg, gyro mdps, mag mgauss), ``t_host_s`` its arrival, ``repeat``: the same payload as the motion
+    notification before it (same tick and values)."""
+
+    tick: int
+    acc_mg: tuple[int, int, int]
+    gyro_mdps: tuple[int, int, int]
+    mag_mgauss: tuple[int, int, int]
+    t_host_s: float
+    repeat: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class BleEnvFrame:
+    tick: int
+    pressure_hpa: float
+    battery_pct: float
+    temperature_c: float
+    rssi_dbm: float
+    t_host_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class BleArmingFrame:
+    tick: int
+    armed: bool
+    t_host_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class BleConsoleFrame:
+    stream: str  #: "stdout" or "stderr"
+    text: str
+    t_host_s: float
+
+
+class BleDecoder:
+    """Notifications → typed frames, one at a time (a capture's ``B`` chunks, live or replayed): the ticks of every
+    characteristic unwrapped on one clock in arrival order (a host gap longer than a wrap adds the wraps it
+    spans); wrong-length and unknown notifications are counted and skipped, never raised."""
+
+    def __init__(self) -> None:
+        self.unwrap = TickUnwrapper()
+        self.counts = {n: 0 for n in CHAR_NAMES.values()}
+        self.bad_payloads = 0
+        self.unknown = 0
+        self._last_t: float | None = None
+        self._last_motion: bytes | None = None
+
+    def feed(self, char_id: int, payload: bytes, t_host_s: float):
+        """The frame of one notification (None: skipped)."""
+        name = CHAR_NAMES.get(char_id)
+        if name is None:
+            self.unknown += 1
+            return None
+        self.counts[name] += 1
+        if char_id in (CHAR_STDOUT, CHAR_STDERR):
+            return BleConsoleFrame(name, bytes(payload).decode("utf-8", "replace"), t_host_s)
+        try:
+            v = unpack_payload(char_id, payload)
+        except BadPayload:
+            self.bad_payloads += 1
+            return None
+        dt = None if self._last_t is None else t_host_s - self._last_t
+        self._last_t = t_host_s
+        tick = self.unwrap(v[0], dt)
+        if char_id == CHAR_MOTION:
+            repeat = bytes(payload) == self._last_motion
+            self._last_motion = bytes(payload)
+            gyro = (v[4] * 100, v[5] * 100, v[6] * 100)
+            return BleMotionFrame(tick, v[1:4], gyro, v[7:10], t_host_s, repeat)
+        if char_id == CHAR_ENV:
+            return BleEnvFrame(tick, v[1] / 100.0, v[2] / 10.0, v[3] / 10.0, v[4] / 10.0, t_host_s)
+        return BleArmingFrame(tick, bool(v[1]), t_host_s)
+
+
+@dataclass(frozen=True, slots=True)
+class BleLayout:
+    """What a motion notification's fields hold. ``stock``: ST's firmware, raw sensors (acc mg, gyro mdps/100, mag
+    mgauss). ``euler``: a modified 170120 firmware that sends its own attitude in the acc fields (thx, thy, thz,
+    rad × ``angle_scale``) and gyro-integrated odometry in the gyro fields: no sensor values, the drone's own
+    attitude."""
+
+    name: str
+    angle_scale: float = 0.0  #: payload units per radian (euler)
+
+    @property
+    def sends_attitude(self) -> bool:
+        return self.angle_scale > 0
+
+    def describe(self) -> str:
+        if not self.sends_attitude:
+            return "stock (acc mg, gyro mdps/100, mag mgauss: raw sensors)"
+        return f"euler (thx, thy, thz rad x {self.angle_scale:g} in the acc fields: the drone's own attitude)"
+
+
+#: the layouts by name (the capture header's ``ble_layout``)
+LAYOUTS = {"stock": BleLayout("stock"), "euler": BleLayout("euler", 1000.0)}
+
+
+def layout_named(name: str | None) -> BleLayout:
+    """The layout of a name (None: stock); ValueError naming the known ones."""
+    key = (name or "stock").strip().lower()
+    if key not in LAYOUTS:
+        raise ValueError(f"BLE layout {name!r}: known layouts are {', '.join(LAYOUTS)}")
+    return LAYOUTS[key]

@@ -7,31 +7,74 @@ Payloads and ticks: :mod:`steval_link.link.ble_payloads`. Pure functions and sma
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from steval_link.link.ble_cadence import (
+    CONGESTION,
+    GAPS,
     POLLED,
+    STEADY,
+    STEP_PERIOD_S,
     Cadence,
+    RunNumberer,
     break_mask,
     cadence_numbers,
+    gap_mask,
     motion_cadence,
+    repeats_are_reads,
     sender_phase,
 )
 from steval_link.link.ble_payloads import (
-    CHAR_ARMING,
-    CHAR_ENV,
-    CHAR_MOTION,
-    CHAR_NAMES,
     TICK_S,
-    BadPayload,
-    unpack_payload,
-    unwrap_ticks,
+    BleArmingFrame,
+    BleConsoleFrame,
+    BleDecoder,
+    BleEnvFrame,
+    BleLayout,
+    BleMotionFrame,
+)
+from steval_link.link.telemetry import AttitudeArrays
+
+__all__ = [
+    "NOT_BIT_EXACT",
+    "EULER_NOTE",
+    "link_notes",
+    "BleTelemetry",
+    "decode_notifications",
+    "UniformInputs",
+    "uniform_inputs",
+    "motion_payload_note",
+    "attitude_rows",
+    "layout_rows",
+    "LiveGrid",
+]
+
+
+NOT_BIT_EXACT = (
+    "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
+    "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
+    "the 8 ms ticks, "
+    "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
+    "estimators' own."
+)
+EULER_NOTE = (
+    "BLE data in the euler layout: the motion notifications carry the drone's own attitude (its Euler angles, as "
+    "its firmware sent them), shown as the firmware's; they carry no sensor values, so the host estimators have no "
+    "input."
 )
 
-__all__ = ["BleTelemetry", "decode_notifications", "UniformInputs", "uniform_inputs"]
+
+def link_notes(acc_mg, layout: BleLayout) -> list[str]:
+    """What a BLE stream's rows are, said once: the euler layout's note, or the stock layout's (the drone's attitude
+    is not sent) and, when its acc fields cannot be an accelerometer's, that sentence too."""
+    if layout.sends_attitude:
+        return [EULER_NOTE]
+    other = motion_payload_note(acc_mg, layout)
+    return [other] if other else [NOT_BIT_EXACT]
 
 
 @dataclass
@@ -109,74 +152,52 @@ def _held(t_at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTelemetry:
-    """``(t_host_s, char id, payload)`` in arrival order → :class:`BleTelemetry`. Wrong-length notifications are
-    counted and skipped (never raise); a motion payload equal to the previous one (same tick, same values: a poller
-    reading an unchanged characteristic) is one sample, counted in ``repeated_reads``."""
-    mo: list[tuple] = []
-    en: list[tuple] = []
-    ar: list[tuple] = []
-    console: list[tuple[float, str, str]] = []
-    counts = {n: 0 for n in CHAR_NAMES.values()}
-    bad = unknown = repeated = 0
-    last_motion = None
-    for t, cid, payload in records:
-        name = CHAR_NAMES.get(cid)
-        if name is None:
-            unknown += 1
-            continue
-        counts[name] += 1
-        try:
-            if cid == CHAR_MOTION:
-                row = unpack_payload(cid, payload)
-                if bytes(payload) == last_motion:  # the same sample read again (same tick and values)
-                    repeated += 1
-                    continue
-                last_motion = bytes(payload)
-                mo.append((t, *row))
-            elif cid == CHAR_ENV:
-                en.append((t, *unpack_payload(cid, payload)))
-            elif cid == CHAR_ARMING:
-                ar.append((t, *unpack_payload(cid, payload)))
-            else:
-                console.append((t, name, bytes(payload).decode("utf-8", "replace")))
-        except BadPayload:
-            bad += 1
-    m = np.array(mo, dtype=np.float64).reshape(-1, 11)
-    e = np.array(en, dtype=np.float64).reshape(-1, 6)
-    a = np.array(ar, dtype=np.float64).reshape(-1, 3)
-    # one clock for all three: the ticks of every characteristic unwrapped together, in arrival order
-    order = [(r[0], k, j) for k, rows in enumerate((mo, en, ar)) for j, r in enumerate(rows)]
-    order.sort(key=lambda x: x[0])  # stable: arrival order kept for equal host times
-    rows_of = (m, e, a)
-    all_ticks = np.array([rows_of[k][j, 1] for _, k, j in order], dtype=np.int64)
-    all_t = np.array([t for t, _, _ in order], dtype=np.float64)
-    unwrapped = unwrap_ticks(all_ticks, all_t) if len(order) else np.zeros(0, np.int64)
-    ticks_of: list[np.ndarray] = [np.zeros(len(r), np.int64) for r in rows_of]
-    for (_, k, j), u in zip(order, unwrapped):
-        ticks_of[k][j] = u
-    mtick = ticks_of[0]
+    """``(t_host_s, char id, payload)`` in arrival order → :class:`BleTelemetry`, through the one notification
+    decoder (:class:`~steval_link.link.ble_payloads.BleDecoder`). Wrong-length notifications are counted and skipped
+    (never raise); a motion payload equal to the previous one is one sample read twice (``repeated_reads``) only
+    when the stream is a poller's (:func:`~steval_link.link.ble_cadence.repeats_are_reads`), else a sample."""
+    dec = BleDecoder()
+    frames = [f for f in (dec.feed(c, p, t) for t, c, p in records) if f is not None]
+    return telemetry_of_frames(frames, dec)
 
+
+def telemetry_of_frames(frames: list, dec: BleDecoder) -> BleTelemetry:
+    """The arrays of decoded BLE frames (the counters of their decoder ``dec``)."""
+    mo = [f for f in frames if isinstance(f, BleMotionFrame)]
+    en = [f for f in frames if isinstance(f, BleEnvFrame)]
+    ar = [f for f in frames if isinstance(f, BleArmingFrame)]
+    repeat = np.array([f.repeat for f in mo], dtype=bool)
+    ticks = np.array([f.tick for f in mo], dtype=np.int64)
+    reads = repeats_are_reads(ticks, repeat, [f.t_host_s for f in mo])
+    if reads:
+        mo = [f for f in mo if not f.repeat]
+    m = np.array([(f.t_host_s, f.tick, *f.acc_mg, *f.gyro_mdps, *f.mag_mgauss) for f in mo], np.float64)
+    m = m.reshape(-1, 11)
+    e = np.array([(f.t_host_s, f.tick, f.pressure_hpa, f.battery_pct, f.temperature_c, f.rssi_dbm) for f in en])
+    e = e.reshape(-1, 6)
+    a = np.array([(f.t_host_s, f.tick, f.armed) for f in ar], np.float64).reshape(-1, 3)
+    mtick = m[:, 1].astype(np.int64)
     return BleTelemetry(
         motion_t_host_s=m[:, 0].copy(),
         motion_tick=mtick,
         motion_t_fw_s=mtick * TICK_S,
         acc_mg=m[:, 2:5].astype(np.float32),
-        gyro_mdps=(m[:, 5:8] * 100).astype(np.float32),
+        gyro_mdps=m[:, 5:8].astype(np.float32),
         mag_mgauss=m[:, 8:11].astype(np.float32),
         env_t_host_s=e[:, 0].copy(),
-        env_t_fw_s=ticks_of[1] * TICK_S,
-        pressure_hpa=(e[:, 2] / 100).astype(np.float32),
-        battery_pct=(e[:, 3] / 10).astype(np.float32),
-        temperature_c=(e[:, 4] / 10).astype(np.float32),
-        rssi_dbm=(e[:, 5] / 10).astype(np.float32),
+        env_t_fw_s=e[:, 1] * TICK_S,
+        pressure_hpa=e[:, 2].astype(np.float32),
+        battery_pct=e[:, 3].astype(np.float32),
+        temperature_c=e[:, 4].astype(np.float32),
+        rssi_dbm=e[:, 5].astype(np.float32),
         arming_t_host_s=a[:, 0].copy(),
-        arming_t_fw_s=ticks_of[2] * TICK_S,
+        arming_t_fw_s=a[:, 1] * TICK_S,
         armed=a[:, 2].astype(bool),
-        console=console,
-        counts=counts,
-        bad_payloads=bad,
-        unknown=unknown,
-        repeated_reads=repeated,
+        console=[(f.t_host_s, f.stream, f.text) for f in frames if isinstance(f, BleConsoleFrame)],
+        counts=dict(dec.counts),
+        bad_payloads=dec.bad_payloads,
+        unknown=dec.unknown,
+        repeated_reads=int(repeat.sum()) if reads else 0,
     )
 
 
@@ -225,3 +246,236 @@ def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> Uniform
     else:
         t_grid = sender_phase(ble.motion_t_fw_s, dt) + numbers * dt
     return UniformInputs(t_grid, ble.acc_mg[src], ble.gyro_mdps[src], filled, float(dt), src, c)
+
+
+def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
+    """One sentence when the stock layout's acc fields cannot be an accelerometer's: hardly a sample near 1 g (a raw
+    accelerometer reads about 1000 mg at rest, and near it most of a flight) and every value in an angle's range
+    (rad x 1000, or degrees x 100); None when they can, or when the layout already says what they hold."""
+    acc = np.asarray(acc_mg, dtype=np.float64).reshape(-1, 3)
+    if layout.sends_attitude or len(acc) < 2:
+        return None
+    norm = np.linalg.norm(acc, axis=1)
+    near_1g = float(np.mean(np.abs(norm - 1000.0) <= ONE_G_BAND_MG))
+    if near_1g >= NEAR_1G_SHARE or float(np.nanmax(np.abs(acc))) > ANGLE_RANGE_MAX:
+        return None
+    return (
+        f"the motion notifications are not raw sensors: their acc fields are near 1 g in {100 * near_1g:.1f} % of "
+        f"the samples (median |acc| {float(np.median(norm)):.0f} mg, where an accelerometer reads about 1000 mg at "
+        "rest) and stay in an angle's range, as a modified firmware sending its own Euler angles there does (the "
+        "euler layout reads them so)"
+    )
+
+
+#: |acc| within this of 1000 mg is near 1 g, mg
+ONE_G_BAND_MG = 250.0
+#: a stream with fewer samples near 1 g than this share has no accelerometer in its acc fields
+NEAR_1G_SHARE = 0.01
+#: the largest field an angle ×scale reaches (degrees x 100: 18000)
+ANGLE_RANGE_MAX = 18000.0
+
+
+def layout_rows(acc_mg, gyro_mdps, layout: BleLayout):
+    """(acc_mg, gyro_mdps, thx, thy, thz) of motion rows under ``layout``: the stock layout's sensors with no
+    attitude (NaN); the euler layout's attitude (rad) with no sensor values (NaN: the estimators skip the rows)."""
+    acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
+    n = len(acc)
+    nan = np.full(n, np.nan, np.float32)
+    if not layout.sends_attitude:
+        return acc, np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3), nan, nan.copy(), nan.copy()
+    ang = acc / np.float32(layout.angle_scale)
+    none = np.full((n, 3), np.nan, np.float32)
+    return none, none.copy(), ang[:, 0].copy(), ang[:, 1].copy(), ang[:, 2].copy()
+
+
+def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> AttitudeArrays:
+    """The motion samples on the estimators' grid as the one attitude model (:class:`AttitudeArrays`): ``k`` the
+    sender's sample numbers (``step``), no throttle, no firmware quaternion, rows not bit-exact (BLE carries no AHRS
+    input); the firmware's angles only when the layout sends them."""
+    acc, gyro, thx, thy, thz = layout_rows(acc_mg, gyro_mdps, layout)
+    n = len(acc)
+    k = np.asarray(k, dtype=np.int64)
+    t_fw_s = np.asarray(t_fw_s, dtype=np.float64)
+    return AttitudeArrays(
+        step=k,
+        seq=(k % (1 << 16)).astype(np.uint16),
+        t_us=(np.round(t_fw_s * 1e6).astype(np.int64) % (1 << 32)).astype(np.uint32),
+        t_fw_s=t_fw_s,
+        t_host_s=np.asarray(t_host_s, dtype=np.float64),
+        acc_mg=acc,
+        gyro_mdps=gyro,
+        thr=np.zeros(n, np.int16),
+        q_wxyz=np.full((n, 4), np.nan, np.float32),
+        thz_rad=thz,
+        thx_rad=thx,
+        thy_rad=thy,
+        exact=np.zeros(n, bool),
+        offset=np.full(n, -1, np.int64),
+        values_bad=np.zeros(n, bool),
+    )
+
+
+#: motion samples that fix the cadence (and the estimators' dt) live; fewer when 3 s of drone time pass or at the end
+LOCK_SAMPLES = 64
+LOCK_SPAN_S = 3.0
+#: motion ticks kept for the live interval (its precision grows with the span)
+TICKS_KEPT = 20_000
+
+
+class LiveGrid:
+    """:func:`uniform_inputs` a round at a time (``steval live --ble``): motion frames → the rows of the sender's
+    samples on one grid. The cadence is found from the first :data:`LOCK_SAMPLES` samples (until then
+    :meth:`rows` holds them back), which fixes dt and the numbering (a replay's, :func:`cadence_numbers`): one row
+    per sender sample, a row held over a notification only when the ticks show it was sent and lost; a repeat is
+    a read (one sample) or a sample of its own as :func:`repeats_are_reads` finds on the first samples."""
+
+    def __init__(self, layout: BleLayout) -> None:
+        self.layout = layout
+        self._pending: list = []  # motion frames (or None: a reconnection) before the cadence is found
+        self._cadence: Cadence | None = None
+        self._reads = False  # repeats are reads of one sample
+        self._t0_s = 0.0  # the sender's phase (drone time of sample 0), s
+        self._last_k: int | None = None
+        self._numberer: RunNumberer | None = None
+        self._last_tick = 0
+        self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
+        self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
+        self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)
+        self.rows_held = 0
+        self.gaps = 0
+        self.repeats = 0
+        #: (N, 3) magnetometer of the rows :meth:`rows` gave last, mgauss
+        self.mag_mgauss = np.zeros((0, 3), np.float32)
+
+    def add(self, frames: list) -> None:
+        """Motion frames in arrival order; None where the link was lost and found again."""
+        self._pending.extend(frames)
+
+    @property
+    def dt_s(self) -> float | None:
+        """The estimators' dt once the cadence is found."""
+        return None if self._cadence is None else self._cadence.interval_s
+
+    def rows(self, final: bool = False) -> AttitudeArrays | None:
+        """The rows of the samples pending (None: held until the cadence is found, or none)."""
+        if self._cadence is None and not self._ready(final):
+            return None
+        frames, self._pending = self._pending, []
+        if self._cadence is None:
+            self._lock(frames)
+        breaks, kept = [], []
+        for f in frames:
+            if f is None:
+                breaks.append(len(kept))
+            elif self._reads and f.repeat:
+                self.repeats += 1
+            else:
+                kept.append(f)
+        if not kept or self._cadence is None:
+            return None
+        return self._grid(kept, np.unique(np.asarray(breaks, dtype=np.int64)))
+
+    def _ready(self, final: bool) -> bool:
+        ticks = [f.tick for f in self._pending if f is not None]
+        if final or len(ticks) >= LOCK_SAMPLES:
+            return True
+        return len(ticks) >= 8 and (ticks[-1] - ticks[0]) * TICK_S >= LOCK_SPAN_S
+
+    def _lock(self, frames: list) -> None:
+        """The cadence of the first samples fixes dt and how samples are numbered."""
+        mo = [f for f in frames if f is not None]
+        if not mo:
+            return
+        rep = np.array([f.repeat for f in mo], bool)
+        ticks = np.array([f.tick for f in mo], np.int64)
+        self._reads = repeats_are_reads(ticks, rep, [f.t_host_s for f in mo])
+        keep = ~rep if self._reads else np.ones(len(mo), bool)
+        brk, i = [], 0  # the kept samples that follow a reconnection
+        for f in frames:
+            if f is None:
+                brk.append(i)
+            elif not (self._reads and f.repeat):
+                i += 1
+        c = motion_cadence(ticks[keep], int((~keep).sum()), brk)
+        if c is None:  # a single sample (or one tick): ST's step, as the stock firmware sends
+            c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, int((~keep).sum()), 0.0, True)
+        self._cadence = c
+        t = ticks[keep] * TICK_S
+        self._t0_s = sender_phase(t, c.interval_s) if c.kind != POLLED else 0.0
+        self._numberer = RunNumberer(c.interval_s / TICK_S)
+
+    def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
+        """This round's rows: one per sender sample since the last round's; a row of a notification the ticks show
+        as sent and lost holds the last sample (numbering as :func:`cadence_numbers`, a round at a time)."""
+        c, n = self._cadence, len(mo)
+        tick = np.array([f.tick for f in mo], np.int64)
+        t_fw = tick * TICK_S
+        dt = c.interval_s
+        if not c.exact and c.kind != POLLED:  # the period measured so far (its precision grows with the span)
+            dt = self._period_s()
+            self._numberer.p = dt / TICK_S
+        first = self._last_k is None
+        if c.kind == POLLED:
+            k = np.arange(n, dtype=np.int64) + (0 if first else self._last_k + 1)
+        elif c.exact:  # ST's step, known exactly: the smallest numbering the ticks' phase allows
+            lo = np.ceil((t_fw - self._t0_s) / dt - 1e-9).astype(np.int64)
+            if first:
+                lo[0] = 0
+            prev, j = -1 if first else self._last_k, np.arange(n)
+            k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
+        else:
+            k = self._numberer.numbers(tick)
+        self._ticks.extend(tick.tolist())
+        self._numbers.extend(k.tolist())
+        prev = k[0] - 1 if first else self._last_k
+        grid = np.arange(prev + 1, k[-1] + 1)
+        before = np.concatenate([[prev], k[:-1]])
+        for b in breaks[breaks < n].tolist():
+            grid = grid[(grid <= before[b]) | (grid >= k[b])]  # never sent: the link was down
+        src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
+        acc = np.array([f.acc_mg for f in mo], np.float32).reshape(-1, 3)
+        gyro = np.array([f.gyro_mdps for f in mo], np.float32).reshape(-1, 3)
+        mag = np.array([f.mag_mgauss for f in mo], np.float32).reshape(-1, 3)
+        acc_rows, gyro_rows, mag_rows = acc[np.maximum(src, 0)], gyro[np.maximum(src, 0)], mag[np.maximum(src, 0)]
+        if (src < 0).any():  # rows before this round's first sample: held from the last round's
+            acc_rows[src < 0], gyro_rows[src < 0], mag_rows[src < 0] = self._last_sample
+        self.rows_held += len(grid) - n
+        if c.kind != POLLED:
+            d = np.diff(tick, prepend=tick[0] if first else self._last_tick)
+            gap = gap_mask(np.maximum(d, 0), dt / TICK_S)
+            gap[breaks[breaks < n]] = False
+            self.gaps += int(np.count_nonzero(gap))
+        t_rows = t_fw + TICK_S / 2 if c.kind == POLLED else self._t0_s + grid * dt
+        host = np.array([f.t_host_s for f in mo], np.float64)
+        t_host = np.interp(t_rows, t_fw, host) if n > 1 else np.full(len(grid), host[0])
+        self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
+        self._last_sample = (acc[-1], gyro[-1], mag[-1])
+        self.mag_mgauss = mag_rows
+        return attitude_rows(t_rows, t_host, grid if c.kind != POLLED else k, acc_rows, gyro_rows, self.layout)
+
+    def _period_s(self) -> float:
+        """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample
+        numbers once they span more than the samples that found the cadence; until then the cadence's own."""
+        if len(self._numbers) > LOCK_SAMPLES and self._numbers[-1] - self._numbers[0] > 1:
+            k = np.asarray(self._numbers, dtype=np.float64)
+            return float(np.polyfit(k, np.asarray(self._ticks, dtype=np.float64), 1)[0]) * TICK_S
+        return self._cadence.interval_s
+
+    def cadence(self) -> Cadence | None:
+        """The cadence as found so far: the kind from the first samples and the rows held since, the interval
+        measured over the motion ticks kept (ST's step exactly when the stream runs at it; a poller's mean)."""
+        c = self._cadence
+        if c is None:
+            return None
+        ticks = self._ticks
+        span_s = (ticks[-1] - ticks[0]) * TICK_S if len(ticks) > 1 else c.span_s
+        if c.exact:
+            interval = c.interval_s
+        elif c.kind == POLLED:
+            interval = span_s / (len(ticks) - 1) if len(ticks) > 1 and span_s > 0 else c.interval_s
+        else:
+            interval = self._period_s()
+        kind = POLLED if c.kind == POLLED else STEADY if not self.rows_held else CONGESTION if c.exact else GAPS
+        gaps = self.gaps if self.rows_held else 0
+        held = self.rows_held
+        return replace(c, kind=kind, interval_s=interval, dropped=held, gaps=gaps, repeats=self.repeats, span_s=span_s)

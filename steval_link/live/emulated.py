@@ -15,26 +15,24 @@ from __future__ import annotations
 
 import shlex
 import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from steval_link import constants as C
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth
-from steval_link.errors import UserError
 from steval_link.link.commands import Command
-from steval_link.live.health import pipeline_health
-from steval_link.live.pipeline import LivePipeline
-from steval_link.live.sources import CaptureFields, Source
-from steval_link.live.summary import pipeline_counts
+from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["EmulatedSource"]
 
 
 class EmulatedSource(Source):
-    """``emulation``: the board and its motion. ``commands``: (emulated s, command) sent to the firmware's USART1
-    RX at those times (``--commands``, read from ``commands_file``, which the capture header's command names)."""
-
-    kind = "emulated"
+    """``emulation``: the board and its motion. ``commands``: (emulated s, command) the session sends to the
+    firmware's USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's
+    command names)."""
 
     def __init__(
         self,
@@ -49,19 +47,23 @@ class EmulatedSource(Source):
         self.commands = list(commands or [])
         self.commands_file = commands_file
         self.emu: Emulation | None = None
-        self.pipeline: LivePipeline | None = None
         self.truth: StepTruth | None = None
-        self.t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
+        self.status = LinkStatus()
+        self._closed = False
 
-    def open(self, session) -> None:
-        self.session = session
+    @classmethod
+    def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
+        """``emulated:`` or ``emulated:ELF`` (then the board runs that ELF)."""
+        elf = url.split(":", 1)[1].strip() if ":" in url else ""
+        if elf and isinstance(emulation, EmulationOptions):
+            emulation = replace(emulation, elf=Path(elf))
+        return cls(emulation, **settings)
+
+    def open(self, note=None) -> None:
         self.emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
+        self.status.duration_s = self.emu.duration_s
 
-    def describe(self) -> str:
-        emu = self.emu
-        return f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s)"
-
-    def capture_fields(self) -> CaptureFields:
+    def describe(self) -> LinkInfo:
         emu = self.emu
         extra = {
             "source": "steval emulate",
@@ -72,8 +74,7 @@ class EmulatedSource(Source):
             "seed": self.emu_options.seed,
             "duration_s": emu.duration_s,
         }
-        self.truth = StepTruth(emu) if emu.motion.trial is not None else None  # the truth it is fed: chunks T
-        if self.truth is not None:
+        if emu.motion.trial is not None:
             extra["truth"] = (
                 f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
                 "middle tick of the step's input window, emulated time)"
@@ -82,77 +83,63 @@ class EmulatedSource(Source):
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
             if self.commands_file:
                 extra["command"] += " " + shlex.join(["--commands", str(self.commands_file)])
-        return CaptureFields(f"emulated:{emu.elf.path.name}", C.BAUD, extra, discard_empty=False)
+        return LinkInfo(
+            f"emulated:{emu.elf.path.name}",
+            C.BAUD,
+            extra,
+            discard_empty=False,
+            kind="emulated",
+            note=f"emulating {emu.elf.path.name} ({emu.motion.name}, {emu.duration_s:g} s)",
+            own_clock=True,
+            commands=list(self.commands),
+        )
 
-    def attach(self, session) -> None:
-        self.pipeline = LivePipeline.for_session(session)
-        self._wall0 = session.clock.wall0_s
-        self._t0 = time.monotonic()
-        self._chunks = self.emu.chunks()
-        self._scheduled = False
+    def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
+        self.truth = StepTruth(self.emu) if self.emu.motion.trial is not None else None  # the truth it is fed
+        self._record = record
+        return self._rounds(record)
 
-    def round(self) -> bool:
-        emu, pipe, session, capture = self.emu, self.pipeline, self.session, self.session.capture
-        if not self._scheduled:  # the script, once the prompt's channel is there to number its frames
-            for t_s, command in self.commands:
-                emu.send_at(session.console.channel.next_frame(command).frame, t_s)
-            self._scheduled = True
-        got = next(self._chunks, None)
-        if got is None:
-            return False
-        data, self.t_emu_s = got
-        wall0 = self._wall0
-        for sent, t_sent_s in emu.take_host_bytes():  # what went on the RX line in this slice
-            capture.write_host(sent, t_sent_s)
-            pipe.feed_host(sent, wall0 + t_sent_s)
-        capture.write(data, self.t_emu_s)  # first: whatever happens next, the bytes are kept
-        self._write_truth()
-        pipe.feed([(data, wall0 + self.t_emu_s)])
-        session.console.poll(pipe.notes)
-        if session.viewer is not None:
-            session.viewer.log_link(pipe.decoder.stats, wall0 + self.t_emu_s)
-        for _ in range(len(pipe.texts)):
-            session.display.note("firmware: " + pipe.texts.popleft()[:200])
-        if self.realtime:
-            ahead = self.t_emu_s - (time.monotonic() - self._t0)
-            if ahead > 0:
-                time.sleep(ahead)
-        return True
+    def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
+        """One slice of the board per round: what went on the RX line, the USART1 bytes (to the capture first),
+        the truth of its steps."""
+        t0, slices = time.monotonic(), self.emu.chunks()
+        while not self._closed:
+            got = next(slices, None)
+            if got is None:
+                break
+            data, t_s = got
+            out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
+            out.append(Chunk("D", data, t_s))
+            for c in out:
+                record(c)  # first: whatever happens next, the bytes are kept
+            self.status.t_link_s = t_s
+            self._truth(record)
+            if self.realtime:
+                ahead = t_s - (time.monotonic() - t0)
+                if ahead > 0:
+                    time.sleep(ahead)
+            yield out
+        self._truth(record)  # the steps of the last slice
+        self.status.report = self.emu.report()
 
-    def write(self, frame: bytes) -> None:
-        self.emu.send(frame)  # queued for the next slice (thread-safe)
-
-    def _write_truth(self) -> None:
+    def _truth(self, record: Record) -> None:
         rows = self.truth.take() if self.truth is not None else ()
         if len(rows):
-            self.session.capture.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, self.t_emu_s)
+            record(Chunk("T", rows, self.status.t_link_s))
 
-    def finish(self, error: BaseException | None) -> None:
+    def write(self, frame: bytes, at_s: float | None = None) -> None:
+        """Onto the firmware's RX: at emulated time ``at_s``, or with the next slice (thread-safe)."""
+        if at_s is None:
+            self.emu.send(frame)
+        else:
+            self.emu.send_at(frame, at_s)
+
+    def close(self) -> None:
+        self._closed = True
         try:
-            self._write_truth()  # the steps of the last slice
+            if getattr(self, "_record", None) is not None:
+                self._truth(self._record)  # the steps of the last slice, whatever stopped the session
         except Exception:  # noqa: BLE001 - the capture is closed by the session whatever happens
             pass
-        try:
-            if self.pipeline is not None:
-                self.pipeline.flush_view()
-        except Exception:  # noqa: BLE001
-            pass
-
-    def t_stop_s(self) -> float | None:
-        return self.t_emu_s
-
-    def error_of(self, error: BaseException) -> BaseException:
-        if isinstance(error, UserError):
-            return UserError(f"{error} (the capture {self.session.capture.path} holds everything until then)")
-        return error
-
-    def health(self, now_mono_s: float) -> str:
-        wall_s = now_mono_s - self._t0
-        speed = self.t_emu_s / wall_s if wall_s > 0 else 0.0
-        head = f"emulated {self.t_emu_s:6.2f}/{self.emu.duration_s:g} s ({speed:.2f}x)"
-        return pipeline_health(head, self.pipeline)
-
-    def summary_fields(self) -> dict[str, Any]:
-        pipe = self.pipeline
-        port = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
-        return {**pipeline_counts(pipe), "report": self.emu.report(), "filter_note": port}
+        if self.emu is not None and self.status.report is None:
+            self.status.report = self.emu.report()

@@ -26,6 +26,8 @@ class LiveRows:
 
     attitude: AttitudeArrays
     estimates: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (N, 3) float32 magnetometer of each row, mgauss, where the link sends it (BLE); None: not sent
+    mag_mgauss: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.attitude)
@@ -42,7 +44,9 @@ class LiveRows:
         if len(parts) == 1:
             return parts[0]
         estimates = {name: np.concatenate([p.estimates[name] for p in parts]) for name in parts[0].estimates}
-        return cls(AttitudeArrays.concat([p.attitude for p in parts]), estimates)
+        mags = [p.mag_mgauss for p in parts]
+        mag = np.concatenate(mags) if all(m is not None for m in mags) else None
+        return cls(AttitudeArrays.concat([p.attitude for p in parts]), estimates, mag)
 
 
 class LiveMahony:
@@ -155,6 +159,13 @@ class LiveEstimators:
         now = clock()
         self._watch = {name: _Watch(now) for name in self.others}
 
+    def use_dt(self, dt_s: float) -> None:
+        """Run every estimator at ``dt_s`` on rows no firmware filter produced (BLE): the replica as a plain filter
+        at that dt (nothing to follow), the others at 1/dt where they take a rate."""
+        self.mahony = None
+        self.others = {name: _created(name, dt_s) for name in self.names}
+        self._watch = {name: _Watch(self.clock()) for name in self.others}
+
     def process(self, rows: LiveRows) -> None:
         a = rows.attitude
         finite = rows.finite
@@ -237,6 +248,15 @@ class LiveEstimators:
     def status(self, frame) -> None:
         if self.mahony is not None:
             self.mahony.status(frame)
+
+
+def _created(name: str, dt_s: float):
+    """A registry estimator at ``dt_s`` (the replica's own dt; others' rate where they take one)."""
+    if name in ("st-mahony", "st_mahony"):
+        return registry.create(name, dt_s=dt_s)
+    if name != "accel" and registry.accepts(name, "rate_hz"):
+        return registry.create(name, rate_hz=1.0 / dt_s)
+    return registry.create(name)
 
 
 def failure_sentence(name: str, exc: BaseException) -> str:

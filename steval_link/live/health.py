@@ -151,3 +151,36 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_port=(), last=()) -
 def stat(stats, name: str) -> int:
     """A decoder counter (0 when there are no stats yet or the decoder has no such counter)."""
     return int(getattr(stats, name, 0) or 0) if stats is not None else 0
+
+
+def emulated_health(status, pipe, wall_s: float) -> str:
+    """The health line of the emulated board: emulated time, its speed against the wall clock, the frames."""
+    speed = status.t_link_s / wall_s if wall_s > 0 else 0.0
+    head = f"emulated {status.t_link_s:6.2f}/{status.duration_s:g} s ({speed:.2f}x)"
+    return pipeline_health(head, pipe)
+
+
+def ble_health(pipe) -> str:
+    """The health line of a BLE link: the notifications of each characteristic and the motion cadence ("": none
+    yet)."""
+    c = pipe.ble.counts if pipe is not None and pipe.ble is not None else {}
+    if not any(c.values()):
+        return ""
+    cad = pipe.grid.cadence()
+    what = cad.describe() if cad is not None else "finding the motion cadence"
+    return (
+        f"BLE {c.get('motion', 0)} motion / {c.get('environment', 0)} env / {c.get('arming', 0)} arming "
+        f"notifications; {what}"
+    )
+
+
+def ble_summary(status, pipe) -> dict:
+    """The summary fields of a BLE link."""
+    ble = pipe.ble if pipe is not None else None
+    return {
+        "counts": dict(ble.counts) if ble is not None else {},
+        "rows_held": pipe.grid.rows_held if ble is not None else 0,
+        "connections": status.connections,
+        "disconnects": status.disconnects,
+        "cadence": pipe.grid.cadence() if ble is not None else None,
+    }

@@ -1,5 +1,6 @@
-"""Bytes → frames → estimators → viewer for one live stream (:class:`LivePipeline`), each viewer fed merged rows at
-its own cadence (:class:`BatchOutlet`); AHRS step numbers from the 16-bit ``seq`` (:class:`StepUnwrapper`).
+"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`: serial
+bytes, BLE notifications), each viewer fed merged rows at its own cadence (:class:`BatchOutlet`); AHRS step numbers
+from the 16-bit ``seq`` (:class:`StepUnwrapper`).
 
 The pipeline owns the rows' times: ``t_fw_s`` and ``t_host_s`` on the capture's base, by the rules (and the code,
 :mod:`steval_link.link.unwrap`) of ``load_telemetry``; a viewer logs the times it is given.
@@ -17,6 +18,17 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.link import protocol as P
+from steval_link.link.ble_payloads import (
+    LAYOUTS,
+    BleConsoleFrame,
+    BleDecoder,
+    BleEnvFrame,
+    BleLayout,
+    BleMotionFrame,
+    layout_named,
+)
+from steval_link.link.ble_payloads import TICK_S as BLE_TICK_S
+from steval_link.link.ble_telemetry import NOT_BIT_EXACT, LiveGrid, link_notes
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import (
@@ -65,8 +77,9 @@ class LiveViewer(typing.Protocol):
     Rows and events come timed (:class:`~steval_link.live.estimators.LiveRows`, :class:`EventTime`); ``log_link``
     gets the session's Unix time, only to pace itself. Optional attributes, read when present: ``has_viewer`` (a
     viewer gets the stream, not only an ``.rrd``: then every processing round goes out at once) and ``file`` (the
-    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows), ``log_flight(frame, at)`` and
-    ``log_record(frame, at)`` (a record of text telemetry).
+    ``.rrd``'s own LiveViewer next to a live viewer, fed merged rows), ``log_flight(frame, at)``,
+    ``log_record(frame, at)`` (a record of text telemetry) and a BLE link's ``log_environment(frame, at)``,
+    ``log_arming(frame, at)``, ``log_note(text, at)``.
     """
 
     def log_batch(self, batch: LiveRows) -> None: ...
@@ -198,6 +211,7 @@ class LivePipeline:
         file_interval_s: float = RRD_ONLY_INTERVAL_S,
         t0_unix_s: float | None = None,
         baud: int | None = None,
+        ble_layout: BleLayout = LAYOUTS["stock"],
     ) -> None:
 
         self.view_interval_s = view_interval_s
@@ -229,6 +243,12 @@ class LivePipeline:
         self._binary = False  # binary attitude frames came: they are the attitude, records are only series
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.acks = 0
+        #: BLE notifications: their decoder and the grid of the sender's samples (made by the first one)
+        self.ble_layout = ble_layout
+        self.ble: BleDecoder | None = None
+        self.grid: LiveGrid | None = None
+        self._ble_dt_set = False
+        self._ble_noted = False
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
@@ -247,6 +267,7 @@ class LivePipeline:
             file_interval_s=RRD_ONLY_INTERVAL_S,
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
+            ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
         )
 
     @property
@@ -378,7 +399,6 @@ class LivePipeline:
         for f, _ in att:
             parts.add_frame(f)
         rec = parts.attitude_records()
-        n = len(rec)
         step, restart = self.step_unwrap.frames([f for f, _ in att])
         t_us = rec["t_us"].astype(np.int64)
         t_host_s = self.clock.host_s(rec["offset"] + rec["nbytes"] - 1)
@@ -395,14 +415,67 @@ class LivePipeline:
                 f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
-        self._last_row = (int(step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
         # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)
         self.health.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
-        t_last_unix = float(att[-1][1])
-        self.health.count(n, float(att[0][1]), t_last_unix)
+        self._deliver(rows, float(att[0][1]), float(att[-1][1]))
+
+    def _deliver(self, rows: LiveRows, t_first_unix_s: float, t_last_unix_s: float) -> None:
+        """Rows of any link: counted, through the estimators, to every logger."""
+        a = rows.attitude
+        self._last_row = (int(a.step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
+        self.health.count(len(a), t_first_unix_s, t_last_unix_s)
         if self.estimators is not None:
             self.estimators.process(rows)
             for why in self.estimators.take_notes():  # an estimator disabled: one line, the session goes on
                 self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
         for outlet in self.outlets:
             outlet.add_batch(rows)
+
+    # -- BLE notifications --------------------------------------------------------------------------------------
+
+    def feed_ble(self, records: list, *, final: bool = False) -> None:
+        """BLE notifications ``(char id, payload, t_host_s)`` (s since the capture started; char id None: the link
+        was lost and found again) → frames (:class:`BleDecoder`) → the sender's samples on one grid
+        (:class:`LiveGrid`: dt from their cadence) → estimators → loggers; environment, arming and console frames
+        are events at their tick. ``final``: the stream ended (rows held back for the cadence go out)."""
+        if self.ble is None:
+            self.ble, self.grid = BleDecoder(), LiveGrid(self.ble_layout)
+        motion = []
+        for cid, payload, t_host_s in records:
+            frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)
+            if cid is None or isinstance(frame, BleMotionFrame):
+                motion.append(frame)
+            elif frame is not None:
+                self._ble_event(frame)
+        self.grid.add(motion)
+        a = self.grid.rows(final)
+        if a is not None and len(a):
+            if self.estimators is not None and not self._ble_dt_set:  # the cadence was just found
+                self.estimators.use_dt(self.grid.dt_s)
+                self._ble_dt_set = True
+            if not self._ble_noted:
+                self._ble_notes(a)
+            t0 = self.clock.t0_unix_s or 0.0
+            mag = self.grid.mag_mgauss if not self.ble_layout.sends_attitude else None
+            self._deliver(LiveRows(a, mag_mgauss=mag), t0 + float(a.t_host_s[0]), t0 + float(a.t_host_s[-1]))
+        self.tick()
+
+    def _ble_notes(self, a: AttitudeArrays) -> None:
+        """What the BLE rows are, once (to every logger; on the terminal too when it is not the stock note)."""
+        self._ble_noted = True
+        for text in link_notes(a.acc_mg, self.ble_layout):
+            if text != NOT_BIT_EXACT:
+                self.notes.append(text)
+            if self.outlets:
+                self._event("note", text, EventTime(float(a.t_fw_s[0]), float(a.t_host_s[0])))
+
+    def _ble_event(self, frame) -> None:
+        """An environment, arming or console frame: an event at its tick (console: at the latest row's time)."""
+        if isinstance(frame, BleConsoleFrame):
+            self.texts.append(f"[{frame.stream}] {frame.text}")
+            kind, at = "text", self._at(frame.t_host_s)
+        else:
+            kind = "environment" if isinstance(frame, BleEnvFrame) else "arming"
+            at = EventTime(frame.tick * BLE_TICK_S, frame.t_host_s)
+        if self.outlets:
+            self._event(kind, frame, at)

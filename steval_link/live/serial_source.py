@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import serial
@@ -25,12 +27,19 @@ from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import SerialReader, open_error_message, open_serial
 from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
-from steval_link.live.pipeline import LivePipeline
 from steval_link.live.recorder import Inbox, RecorderProtocol
-from steval_link.live.sources import CaptureFields, Source
+from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 from steval_link.live.summary import pipeline_counts
 
-__all__ = ["LinkError", "SerialSource", "NO_FRAMES_TIMEOUT_S", "open_port"]
+__all__ = [
+    "LinkError",
+    "SerialSource",
+    "NO_FRAMES_TIMEOUT_S",
+    "open_port",
+    "check_frames",
+    "serial_health",
+    "serial_summary",
+]
 
 #: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -88,25 +97,44 @@ class SerialSource(Source):
         self.url, self.baud, self.wait = url, baud, wait
         self.path, self.ser = url, None  # the port opened (a glob or auto resolved)
         self.reader: SerialReader | None = None
-        self.pipeline: LivePipeline | None = None
-        self.warned_no_frames, self._was_connected = False, True
+        self.proto: RecorderProtocol | None = None
+        self.inbox = Inbox()
+        self._closed = False
+        self._stopped = threading.Event()  # close() before the port appeared (--wait)
+
+    @classmethod
+    def from_url(cls, url: str, **settings: Any) -> SerialSource:
+        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]``: opened as they are
+        (:func:`open_port` reads the replay URL's path and speed)."""
+        return cls(url, **settings)
 
     @property
     def replay(self) -> bool:
         return is_replay_url(self.url)
 
     @property
-    def prompt_note(self) -> str:  # a replay says once that commands go nowhere
-        return getattr(self.ser, "prompt_note", PROMPT_HELP)
-
-    # -- opening ----------------------------------------------------------------------------------------------
-
-    def open(self, session) -> None:
-        self.session = session
-        note = session.display.note
-        self.path, self.ser = open_port(
-            self.url, self.baud, wait=self.wait, note=note, stopped=lambda: session.stop_requested
+    def status(self) -> LinkStatus:
+        proto, reader = self.proto, self.reader
+        if proto is None:
+            return LinkStatus(port=self.path, wait=self.wait)
+        return LinkStatus(
+            connected=proto.connected,
+            port=proto.port,
+            connections=proto.connections,
+            disconnects=proto.disconnects,
+            bytes_total=proto.bytes_total,
+            lost_at_s=proto.lost_at_s,
+            connected_at_s=proto.connected_at_s,
+            offline_s=proto.offline_s,
+            connect_bytes=proto.connect_bytes,
+            live_dropped_bytes=self.inbox.dropped_bytes,
+            reopen_error=reader.reopen_error if reader is not None else None,
+            wait=self.wait,
         )
+
+    def open(self, note=print) -> None:
+        """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
+        self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._stopped.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
         else:
@@ -116,148 +144,122 @@ class SerialSource(Source):
             self._described = identity.describe()
             self._extra = {"device": identity.device, "usb": identity.describe()}
 
-    def close_input(self) -> None:
-        if self.ser is not None:
-            self.ser.close()
+    def describe(self) -> LinkInfo:
+        return LinkInfo(
+            self.path,
+            self.ser.baudrate,
+            dict(self._extra),
+            note=f"reading {self._described} at {self.ser.baudrate} baud",
+            prompt_note=getattr(self.ser, "prompt_note", PROMPT_HELP),  # a replay says commands go nowhere
+        )
 
-    def describe(self) -> str:
-        return f"reading {self._described} at {self.ser.baudrate} baud"
-
-    def capture_fields(self) -> CaptureFields:
-        return CaptureFields(self.path, self.ser.baudrate, dict(self._extra))
-
-    # -- running ----------------------------------------------------------------------------------------------
-
-    def start(self, session) -> None:
-        self.inbox = Inbox()
-        self.proto = RecorderProtocol(session.capture, self.inbox, self.finder, session.clock)
+    def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
+        """The reader thread starts now: each chunk goes to the capture first (:class:`RecorderProtocol`), then to a
+        bounded inbox that each round takes."""
+        self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
         find = self.finder.find if self.finder is not None else None
-        self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=session.clock, find_port=find)
+        self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
         self.reader.start()
+        return self._rounds(clock)
 
-    def attach(self, session) -> None:
-        self.pipeline = LivePipeline.for_session(session)
+    def _rounds(self, clock) -> Iterator[list[Chunk]]:
+        reader, proto = self.reader, self.proto
+        while True:
+            if reader.error is not None and not self._closed:
+                raise reader.error  # an OSError: the capture could not be written (the session says where it is)
+            got = self.inbox.get_all(0.0 if self._closed else ROUND_WAIT_S)
+            out = [Chunk(NOTE, proto.events.popleft(), 0.0) for _ in range(len(proto.events))]
+            out += [Chunk("D", data, t_unix_s - clock.wall0_s, t_unix_s) for data, t_unix_s in got]
+            if self._closed:
+                yield out
+                return
+            if getattr(reader.serial, "at_end", False):  # a replay played to its end
+                out += [Chunk(NOTE, f"end of {reader.serial.path}", 0.0), Chunk(END, "end of replay", 0.0)]
+            yield out
 
-    def round(self) -> bool:
-        reader, proto, pipe, session = self.reader, self.proto, self.pipeline, self.session
-        if reader.error is not None:
-            if isinstance(reader.error, OSError):  # the capture could not be written (disk full, removed)
-                raise UserError(
-                    f"writing the capture failed ({reader.error.strerror or reader.error}); "
-                    f"what was received until then is in {proto.capture.path}"
-                )
-            raise reader.error
-        chunks = self.inbox.get_all(ROUND_WAIT_S)
-        now = time.monotonic()
-        if chunks:
-            pipe.feed(chunks)
-            if session.viewer is not None:
-                session.viewer.log_link(pipe.decoder.stats, session.clock.now_s())
-        pipe.tick(now)
-        for _ in range(len(proto.events)):
-            session.display.note(proto.events.popleft())
-        for _ in range(len(pipe.texts)):
-            session.display.note("firmware: " + pipe.texts.popleft()[:200])
-        session.console.poll(pipe.notes)
-        if proto.connected != self._was_connected:
-            self._was_connected = proto.connected
-            if proto.connected:
-                pipe.sample.clear()
-        self._check_frames(now)
-        if getattr(reader.serial, "at_end", False):  # a replay played to its end
-            session.display.note(f"end of {reader.serial.path}")
-            session.request_stop("end of replay")
-        return True
-
-    def write(self, frame: bytes) -> None:
+    def write(self, frame: bytes, at_s: float | None = None) -> None:
         if self.reader is None:
             raise UserError("the port is not connected")
         self.reader.write(frame)  # under the lock a reconnection holds
 
-    def record(self, frame: bytes) -> None:
-        clock = self.session.clock
-        t_unix_s = clock.now_s()
-        self.session.capture.write_host(frame, t_unix_s - clock.wall0_s)  # the capture's time base, as D chunks
-        self.pipeline.feed_host(frame, t_unix_s)
-
-    def finish(self, error: BaseException | None) -> None:
+    def close(self) -> None:
+        self._stopped.set()
+        self._closed = True
         if self.reader is not None:
             self.reader.stop()
-        # whatever is still queued goes to the live side; the capture already holds it
-        if self.pipeline is not None and (error is None or isinstance(error, LinkError)):
-            try:
-                chunks = self.inbox.get_all(0.0)
-                if chunks:
-                    self.pipeline.feed(chunks)
-                self.pipeline.flush_view()
-            except Exception:  # noqa: BLE001
-                pass
+        elif self.ser is not None:
+            self.ser.close()
 
-    # -- what it says -----------------------------------------------------------------------------------------
 
-    def _check_frames(self, now: float) -> None:
-        """Wrong baud rate / not a STEVAL / silence: give up (or warn once with --wait) when no frame ever came."""
-        proto, stats = self.proto, self.pipeline.decoder.stats
-        if stats.attitude + stats.status + stats.text_records > 0 or self.warned_no_frames or not proto.connected:
-            return
-        if proto.connected_at_s is None:
-            return
-        elapsed = now - proto.connected_at_s
-        nbytes = proto.connect_bytes
-        if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
-            return
-        message = autodetect.no_frames_message(
-            proto.port or "?", self.baud, bytes(self.pipeline.sample), elapsed, total=nbytes
-        )
-        if self.wait:
-            self.warned_no_frames = True
-            self.session.display.note(message + "; still waiting (--wait)")
-            return
-        raise LinkError(message)
+class _Capture:
+    """The capture as :class:`RecorderProtocol` writes it (bytes, events), through the session's ``record``."""
 
-    def health(self, now_mono_s: float) -> str:
-        proto, pipe, s = self.proto, self.pipeline, self.pipeline.decoder.stats
-        if not proto.connected:
-            lost = now_mono_s - (proto.lost_at_s or now_mono_s)
-            head = f"disconnected, waiting for {proto.port} ({lost:.0f} s)"
-            failed = self.reader.reopen_error
-            if failed is not None:  # it is back but cannot be opened: say why (busy, permissions)
-                head += f"; {open_error_message(failed[0], failed[1])}"
-        elif s.attitude + s.status == 0:
-            head = f"{proto.port}: waiting for frames ({_fmt_bytes(proto.connect_bytes)} received)"
+    def __init__(self, record: Record) -> None:
+        self.record = record
+
+    def write(self, data: bytes, t_s: float) -> None:
+        self.record(Chunk("D", data, t_s))
+
+    def mark_event(self, kind: str, text: str, t_s: float | None = None) -> None:
+        self.record(Chunk("E", (kind, text), t_s))
+
+
+def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> str | None:
+    """Wrong baud rate / not a STEVAL / silence: the sentence when no frame came in time on this connection (None:
+    frames came, or not yet time to say)."""
+    stats = pipe.decoder.stats
+    if stats.attitude + stats.status + stats.text_records > 0 or not status.connected or status.connected_at_s is None:
+        return None
+    elapsed = now - status.connected_at_s
+    nbytes = status.connect_bytes
+    if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
+        return None
+    return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)
+
+
+def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float) -> str:
+    """The health line of a serial port or a replay."""
+    s = pipe.decoder.stats
+    if not status.connected:
+        lost = now_mono_s - (status.lost_at_s or now_mono_s)
+        head = f"disconnected, waiting for {status.port} ({lost:.0f} s)"
+        if status.reopen_error is not None:  # it is back but cannot be opened: say why (busy, permissions)
+            head += f"; {open_error_message(status.reopen_error[0], status.reopen_error[1])}"
+    elif s.attitude + s.status == 0:
+        head = f"{status.port}: waiting for frames ({_fmt_bytes(status.connect_bytes)} received)"
+    else:
+        rate = pipe.health.rate_hz(now_unix_s)
+        head = f"{status.port} {'--' if math.isnan(rate) else f'{rate:5.1f}'} Hz"
+    more = [f"disconnects {status.disconnects}"] if status.disconnects else []
+    if status.live_dropped_bytes:
+        more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
+    skipped = f"skipped {_fmt_bytes(stat(s, 'bytes_skipped'))}"
+    return pipeline_health(
+        head, pipe, after_crc=[skipped], before_port=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
+    )
+
+
+def serial_summary(status: LinkStatus, pipe) -> dict[str, Any]:
+    """The summary fields of a serial port or a replay."""
+    h = pipe.health if pipe is not None else LinkHealth()
+    streaming_s = 0.0
+    if h.first_frame_s is not None and h.last_frame_s is not None:
+        streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - status.offline_s)
+    p = pipe.mahony if pipe is not None else None
+    filter_note = None
+    if p is not None:
+        if p.rows_mismatch:
+            filter_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
+        elif p.rows_exact:
+            filter_note = f"ST port bit-exact on {p.rows_exact} frames"
         else:
-            rate = pipe.health.rate_hz(self.session.clock.now_s())
-            head = f"{proto.port} {'--' if math.isnan(rate) else f'{rate:5.1f}'} Hz"
-        more = [f"disconnects {proto.disconnects}"] if proto.disconnects else []
-        if self.inbox.dropped_bytes:
-            more.append(f"live lag: {_fmt_bytes(self.inbox.dropped_bytes)} not shown")
-        skipped = f"skipped {_fmt_bytes(stat(s, 'bytes_skipped'))}"
-        return pipeline_health(
-            head, pipe, after_crc=[skipped], before_port=more, last=[f"rec {_fmt_bytes(proto.bytes_total)}"]
-        )
-
-    def summary_fields(self) -> dict[str, Any]:
-        pipe, proto = self.pipeline, getattr(self, "proto", None)
-        h = pipe.health if pipe is not None else LinkHealth()
-        streaming_s = 0.0
-        offline_s = proto.offline_s if proto is not None else 0.0
-        if h.first_frame_s is not None and h.last_frame_s is not None:
-            streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - offline_s)
-        p = pipe.mahony if pipe is not None else None
-        filter_note = None
-        if p is not None:
-            if p.rows_mismatch:
-                filter_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
-            elif p.rows_exact:
-                filter_note = f"ST port bit-exact on {p.rows_exact} frames"
-            else:
-                filter_note = "ST port not seeded (no status snapshot)"
-        return {
-            **pipeline_counts(pipe),
-            "streaming_s": streaming_s,
-            "bytes_total": proto.bytes_total if proto is not None else 0,
-            "disconnects": proto.disconnects if proto is not None else 0,
-            "offline_s": offline_s,
-            "live_dropped_bytes": self.inbox.dropped_bytes if proto is not None else 0,
-            "filter_note": filter_note,
-        }
+            filter_note = "ST port not seeded (no status snapshot)"
+    return {
+        **pipeline_counts(pipe),
+        "streaming_s": streaming_s,
+        "bytes_total": status.bytes_total,
+        "disconnects": status.disconnects,
+        "offline_s": status.offline_s,
+        "live_dropped_bytes": status.live_dropped_bytes,
+        "filter_note": filter_note,
+    }

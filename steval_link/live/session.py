@@ -10,6 +10,7 @@ request_stop`) and the summary (:class:`LiveSummary`).
 
 from __future__ import annotations
 
+import importlib
 import signal
 import sys
 import threading
@@ -19,34 +20,38 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from steval_link.errors import UserError
-from steval_link.link.capture import CaptureWriter, default_capture_path
+from steval_link.link.ble_payloads import ble_chunk
+from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
-from steval_link.live.health import HealthDisplay
+from steval_link.live.health import HealthDisplay, ble_health, ble_summary, emulated_health
+from steval_link.live.pipeline import LivePipeline
 from steval_link.live.recorder import open_capture
-from steval_link.live.serial_source import SerialSource
-from steval_link.live.sources import Source
-from steval_link.live.summary import LiveSummary
+from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
+from steval_link.live.summary import LiveSummary, pipeline_counts
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for", "install_stop_signals", "restore_signals"]
 
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
+#: the drivers chosen by a URL scheme (loaded only when a session uses one); any other URL is a serial port's
+DRIVERS = {
+    BLE_SCHEME: ("steval_link.live.ble_source", "BleSource"),
+    EMULATED_SCHEME: ("steval_link.live.emulated", "EmulatedSource"),
+}
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`); ``settings`` go to its driver (``baud``,
-    ``wait`` for a serial port; ``emulation``, ``realtime``, ``commands`` for the board; ``backend`` for BLE)."""
-    if url.lower().startswith(BLE_SCHEME):
-        from steval_link.live.ble_source import BleSource  # reason: BLE loads only when a session uses it
-
-        target = url[len(BLE_SCHEME) :].strip()
-        return BleSource(None if target in ("", "auto") else target, **settings)
-    if url.lower().startswith(EMULATED_SCHEME):
-        from steval_link.live.emulated import EmulatedSource  # reason: the emulator loads only when used
-
-        return EmulatedSource(**settings)
-    return SerialSource(url, **settings)
+    """The source a URL names (table in :mod:`steval_link.live.sources`): the one dispatch; each driver parses its
+    own URL (``from_url``); ``settings`` go to it (``baud``, ``wait`` for a serial port; ``emulation``,
+    ``realtime``, ``commands`` for the board; ``backend``, ``layout`` for BLE)."""
+    scheme = next((s for s in DRIVERS if url.lower().startswith(s)), None)
+    if scheme is None:
+        return SerialSource.from_url(url, **settings)
+    module, name = DRIVERS[scheme]
+    driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
+    return driver.from_url(url, **settings)
 
 
 def port_source(port: str, **settings: Any) -> Source:
@@ -88,7 +93,7 @@ class LiveSession:
     """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
 
     ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, ``steval_viewer.ble_log.BleLiveLogger``); it is
+    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, whatever the link); it is
     required when ``options.sinks`` is set. ``check_outputs``: the CLI's checks of the outputs, run once the
     input is open (errors come in the command line's order, the input first) and before any file is made.
     """
@@ -114,7 +119,13 @@ class LiveSession:
         self.capture: CaptureWriter | None = None
         self.viewer = None
         self.console: CommandConsole | None = None
+        #: the one pipeline: decoder, estimators, loggers (made once the capture and the viewer are there)
+        self.pipeline: LivePipeline | None = None
+        self.info: LinkInfo | None = None
         self._stop_reason: str | None = None
+        self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
+        self._connected = True
+        self._warned_no_frames = False
 
     # -- control ----------------------------------------------------------------------------------------------
 
@@ -127,82 +138,212 @@ class LiveSession:
     def stop_requested(self) -> bool:
         return self._stop_reason is not None
 
-    @property
-    def pipeline(self):
-        """The source's :class:`~steval_link.live.pipeline.LivePipeline` (None before it is made, and for BLE)."""
-        return getattr(self.source, "pipeline", None)
-
     # -- main -------------------------------------------------------------------------------------------------
 
     def run(self) -> LiveSummary:
         src, opts = self.source, self.options
-        src.open(self)  # the input first: a bad port, ELF or BLE backend is one line before any file is made
+        src.open(self.display.note)  # the input first: a bad port, ELF or BLE backend is one line before any file
         try:
+            self.info = src.describe()
             if self.check_outputs is not None:
                 self.check_outputs()
             capture = self.capture = self._open_capture()
         except BaseException:
-            src.close_input()
+            src.close()
             raise
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
         error: BaseException | None = None
         old_handlers = install_stop_signals(self)
+        stream = None
         try:
-            if src.describe():  # (BLE says when it is connected)
-                self.display.note(
-                    f"{src.describe()}; recording to {capture.path}"
-                    + (f" and {opts.rrd}" if opts.rrd else "")
-                    + " (Ctrl-C to stop)"
-                )
-            src.start(self)  # bytes flow into the capture from now on, while the viewer starts
+            self._opening_note()
+            stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, while the viewer starts
             if opts.uses_rerun:
-                self.viewer = self.viewer_factory(opts, src.recording_name(self))
-            src.attach(self)
+                self.viewer = self.viewer_factory(opts, self.info.recording_name or capture.path.stem)
+            self.pipeline = LivePipeline.for_session(self)
             self.console = self._console()
-            self._loop(t0)
+            self._loop(stream, t0)
         except KeyboardInterrupt:
             self.request_stop("interrupted")
         except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
             error = exc
         finally:
             try:
-                src.finish(error)
+                self._finish(stream, error)
             finally:
                 if self.console is not None:
                     self.console.close()
                 self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
                 restore_signals(old_handlers)
         if error is not None:
-            raise src.error_of(error)
+            raise self._error_of(error)
         return LiveSummary(
             capture_path=capture.path,
             rrd_path=opts.rrd,
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
             capture_discarded=capture.discarded,
-            kind=src.kind,
-            **src.summary_fields(),
+            kind=self.info.kind,
+            **self._summary_fields(),
         )
 
     # -- internals --------------------------------------------------------------------------------------------
 
+    def _opening_note(self) -> None:
+        if self.info.note:  # (BLE says when it is connected)
+            rrd = self.options.rrd
+            self.display.note(
+                f"{self.info.note}; recording to {self.capture.path}"
+                + (f" and {rrd}" if rrd else "")
+                + " (Ctrl-C to stop)"
+            )
+
+    def _record(self, chunk: Chunk) -> None:
+        """A chunk into the capture, first (any thread)."""
+        cap, kind, t = self.capture, chunk.kind, chunk.t_s
+        if kind == "D":
+            cap.write(chunk.data, t)
+        elif kind == "B":
+            cap.write_chunk(CHUNK_BLE, ble_chunk(*chunk.data), t)
+        elif kind == "H":
+            cap.write_host(chunk.data, t)
+        elif kind == "T":
+            rows = chunk.data
+            cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t)
+        elif kind == "E":
+            cap.mark_event(chunk.data[0], chunk.data[1], t)
+
+    def _take(self, chunks: list[Chunk]) -> None:
+        """One round's chunks to the pipeline, in order; notes to the terminal."""
+        pipe, wall0 = self.pipeline, self.clock.wall0_s
+        serial, ble = [], []
+        for c in chunks:
+            if c.kind == "D":
+                serial.append((c.data, c.t_unix_s if c.t_unix_s is not None else wall0 + c.t_s))
+                self._t_link_s = c.t_s
+            elif c.kind == "H":
+                self._feed_serial(serial)
+                serial = []
+                pipe.feed_host(c.data, wall0 + c.t_s)
+            elif c.kind in ("B", BREAK):
+                ble.append((None, b"", 0.0) if c.kind == BREAK else (c.data[0], c.data[1], c.t_s))
+            elif c.kind == NOTE:
+                self.display.note(c.data)
+            elif c.kind == END:
+                if self.info.kind != "ble":
+                    self.request_stop(c.data)
+        self._feed_serial(serial)
+        if ble or self.info.kind == "ble":
+            pipe.feed_ble(ble, final=any(c.kind == END for c in chunks))
+        pipe.tick(time.monotonic())
+        for _ in range(len(pipe.texts)):
+            self.display.note("firmware: " + pipe.texts.popleft()[:200])
+        self.console.poll(pipe.notes)
+
+    def _feed_serial(self, serial: list) -> None:
+        if serial:
+            self.pipeline.feed(serial)
+            if self.viewer is not None:
+                t = serial[-1][1] if self.info.own_clock else self.clock.now_s()
+                self.viewer.log_link(self.pipeline.decoder.stats, t)
+
+    def _loop(self, stream, t0: float) -> None:
+        console, duration_s = self.console, self.options.duration_s
+        for t_s, command in self.info.commands:  # a script: numbered by the prompt's channel, sent at link times
+            self.source.write(console.channel.next_frame(command).frame, at_s=t_s)
+        for chunks in stream:
+            self._take(chunks)
+            now = time.monotonic()
+            self._check_link(now)
+            line = self._health(now, t0)
+            if line:  # (a link with nothing to say yet says "")
+                self.display.show(console.decorate(line), now, force=console.take_typing_change())
+            if duration_s is not None and now - t0 >= duration_s:
+                self.request_stop("duration")
+            if self._stop_reason is not None:
+                break
+
+    def _check_link(self, now: float) -> None:
+        """A serial link: a reconnection starts a new sample; no frame ever: one sentence (a note with --wait)."""
+        if self.info.kind != "serial":
+            return
+        status = self.source.status
+        if status.connected != self._connected:
+            self._connected = status.connected
+            if status.connected:
+                self.pipeline.sample.clear()
+        if self._warned_no_frames:
+            return
+        message = check_frames(status, self.pipeline, self.info.baud, now)
+        if message is None:
+            return
+        if status.wait:
+            self._warned_no_frames = True
+            self.display.note(message + "; still waiting (--wait)")
+            return
+        raise LinkError(message)
+
+    def _health(self, now: float, t0: float) -> str:
+        kind, pipe, status = self.info.kind, self.pipeline, self.source.status
+        if kind == "ble":
+            return ble_health(pipe)
+        if kind == "emulated":
+            return emulated_health(status, pipe, now - t0)
+        return serial_health(status, pipe, now, self.clock.now_s())
+
+    def _summary_fields(self) -> dict[str, Any]:
+        kind, pipe, status = self.info.kind, self.pipeline, self.source.status
+        if kind == "ble":
+            return ble_summary(status, pipe)
+        if kind == "emulated":
+            note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
+            return {**pipeline_counts(pipe), "report": status.report, "filter_note": note}
+        return serial_summary(status, pipe)
+
+    def _finish(self, stream, error: BaseException | None) -> None:
+        """The link stopped, then what it still held to the pipeline (the capture has it already)."""
+        self.source.close()
+        if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
+            return
+        try:
+            for chunks in stream:
+                self._take(chunks + ([Chunk(END, "end", None)] if self.info.kind == "ble" else []))
+            if self.info.kind == "ble":
+                self.pipeline.feed_ble([], final=True)
+            self.pipeline.flush_view()
+        except Exception:  # noqa: BLE001 - the capture is whole whatever happens here
+            pass
+
+    def _error_of(self, error: BaseException) -> BaseException:
+        """The error raised: a capture that could not be written says where the bytes until then are; the
+        emulated board's errors say that its capture holds everything until then."""
+        path = self.capture.path
+        if isinstance(error, OSError) and not isinstance(error, UserError):
+            return UserError(
+                f"writing the capture failed ({error.strerror or error}); what was received until then is in {path}"
+            )
+        if self.info.own_clock and isinstance(error, UserError):
+            return UserError(f"{error} (the capture {path} holds everything until then)")
+        return error
+
     def _open_capture(self) -> CaptureWriter:
         """The capture file, with the source's header fields; one sentence when it cannot be made."""
-        opts, fields = self.options, self.source.capture_fields()
+        opts, info = self.options, self.info
         path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
-        extra = {**fields.extra, "estimators": list(opts.estimators)}
-        return open_capture(path, port=fields.link, baud=fields.baud, extra=extra, discard_empty=fields.discard_empty)
+        extra = {**info.extra, "estimators": list(opts.estimators)}
+        return open_capture(path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty)
 
     def _close_outputs(self, stop_reason: str) -> None:
-        """In their order of importance: the capture (its stop event at the source's time, then closed), then the
+        """In their order of importance: the capture (its stop event at the link's time, then closed), then the
         Rerun side (a failure there is a note: the capture is safe), then the health line."""
         try:
-            self.capture.mark_event("stop", stop_reason, t_host_s=self.source.t_stop_s())
+            t = self._t_link_s if self.info is not None and self.info.own_clock else None
+            self.capture.mark_event("stop", stop_reason, t_host_s=t)
         except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
             pass
         self.capture.close()
@@ -215,25 +356,21 @@ class LiveSession:
 
     def _console(self) -> CommandConsole:
         """The command prompt: each frame typed goes to the source (locked), then into the capture and the log."""
-        src = self.source
         prompt = self.options.prompt if self.options.prompt is not None else _stdin_is_tty()
-        enabled = bool(prompt) and src.takes_commands
-        console = CommandConsole(src.write, self.display.note, record=src.record, enabled=enabled)
+        enabled = bool(prompt) and self.info.takes_commands
+        console = CommandConsole(self.source.write, self.display.note, record=self._sent, enabled=enabled)
         if enabled:
-            self.display.note(src.prompt_note)
+            self.display.note(self.info.prompt_note)
         return console
 
-    def _loop(self, t0: float) -> None:
-        src, console, duration_s = self.source, self.console, self.options.duration_s
-        while self._stop_reason is None:
-            if not src.round():
-                break
-            now = time.monotonic()
-            line = src.health(now)
-            if line:  # (a source with nothing to say yet says "")
-                self.display.show(console.decorate(line), now, force=console.take_typing_change())
-            if duration_s is not None and now - t0 >= duration_s:
-                self.request_stop("duration")
+    def _sent(self, frame: bytes) -> None:
+        """A typed command as sent: into the capture (chunk H) and the pipeline (its ack is matched); the board's
+        own RX bytes come back as its chunks H."""
+        if self.info.own_clock:
+            return
+        t_unix_s = self.clock.now_s()
+        self.capture.write_host(frame, t_unix_s - self.clock.wall0_s)  # the capture's time base, as D chunks
+        self.pipeline.feed_host(frame, t_unix_s)
 
 
 def _stdin_is_tty() -> bool:

@@ -1,99 +1,126 @@
-"""The links a live session reads, behind one interface (as cflib's link drivers): :class:`Source`. A URL chooses
-the driver (:func:`steval_link.live.session.source_for`, as pyserial's ``serial_for_url``):
+"""The links a live session reads, behind one narrow interface (as pyserial's ``Protocol`` and cflib's link
+drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.session.source_for`, as pyserial's
+``serial_for_url``); each driver parses its own URL (``from_url``):
 
 ====================================  ======================================================================
 ``/dev/ttyUSB0``, ``COM3``, ``auto``  a serial port, or the one that carries frames (:mod:`.serial_source`)
 ``replay://FILE.stv[?speed=X]``       a capture played at its recorded pace, as a serial port (same driver)
-``emulated:``                         the emulated board running an ELF (:mod:`.emulated`, ``steval emulate``)
-``ble:NAME``, ``ble:ADDRESS``, ``ble:``  ST's stock firmware over Bluetooth (:mod:`.ble_source`, ``--ble``)
+``emulated:ELF``                      the emulated board running an ELF (:mod:`.emulated`, ``steval emulate``)
+``ble:NAME``, ``ble:ADDRESS``, ``ble:``  a drone over Bluetooth (:mod:`.ble_source`, ``--ble``)
 ====================================  ======================================================================
 
-A source moves bytes into the capture first (in its own thread, or in its round), decodes them for the live side
-and says how the link is doing; :class:`~steval_link.live.session.LiveSession` owns the rest once: the capture
-file, the viewer, the command prompt, the stop requests and signals, the summary. ``session`` below is that
-session (its ``capture``, ``viewer``, ``display``, ``clock``, ``console``, ``options``, ``request_stop``).
+A source has five public methods: :meth:`Source.open`, :meth:`Source.describe`, :meth:`Source.chunks`,
+:meth:`Source.write`, :meth:`Source.close`. It moves its chunks into the capture first (through the ``record``
+function it is given, in its own thread or its round) and hands them on, timestamped; it never reads the session.
+:class:`~steval_link.live.session.LiveSession` owns the rest once: the capture file, the decoder and estimators
+(the one pipeline), the viewer, the command prompt, the stop requests and signals, the health line and the summary.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from steval_link.errors import UserError
 from steval_link.live.console import PROMPT_HELP
 
-__all__ = ["CaptureFields", "Source"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source"]
+
+#: Chunk kinds besides the capture's own (D drone bytes, B BLE notification, H host bytes, T truth, E event)
+NOTE, BREAK, END = "note", "break", "end"
 
 
 @dataclass
-class CaptureFields:
-    """The capture header's ``port`` (``link``: ``/dev/ttyUSB0``, ``emulated:ref.elf``, ``ble:DRN1110``), baud rate
-    (0: none) and the source's ``extra`` fields; ``discard_empty``: a capture that got no byte is removed."""
+class Chunk:
+    """One timestamped piece of a link: ``kind`` D (bytes from the drone), B ((char id, payload): a BLE
+    notification), H (bytes the host sent), T (a BROAD trial's truth rows), E ((kind, text): a link event), ``note``
+    (a sentence for the terminal only), ``break`` (a BLE link lost and found again) or ``end`` (the link ended: the
+    stop reason); ``t_s`` on the capture's clock (s since it started; None: now)."""
+
+    kind: str
+    data: Any
+    t_s: float | None
+    t_unix_s: float | None = None  #: the host's Unix time as the link gave it, where it has one
+
+
+#: ``record(chunk)``: the session's capture, written first (thread-safe)
+Record = Callable[[Chunk], None]
+
+
+@dataclass
+class LinkInfo:
+    """What a source says about itself: the capture header's ``link`` (``/dev/ttyUSB0``, ``emulated:ref.elf``,
+    ``ble:DRN1110``), baud rate (0: none) and ``extra`` fields; ``discard_empty``: a capture that got no byte is
+    removed; ``kind`` the summary's layout (serial, emulated, ble); ``note`` the opening note's first words ("":
+    none); ``takes_commands``, ``prompt_note``; ``recording_name`` (None: the capture's name); ``own_clock``: the
+    chunks' times are the link's own (emulated), so the stop event takes the last one; ``commands``: (s, Command)
+    the session sends at those link times."""
 
     link: str
     baud: int
     extra: dict[str, Any] = field(default_factory=dict)
     discard_empty: bool = True
+    kind: str = "serial"
+    note: str = ""
+    takes_commands: bool = True
+    prompt_note: str = PROMPT_HELP
+    recording_name: str | None = None
+    own_clock: bool = False
+    commands: list = field(default_factory=list)
+
+
+@dataclass
+class LinkStatus:
+    """How a link is doing, kept up to date by its driver (the session reads it for the health line and the
+    summary): connected, ``port`` (the one opened now), connections and losses, bytes received, the monotonic
+    times of the last loss and connection, the seconds offline, the bytes of the current connection, bytes dropped
+    from the live view, ``reopen_error`` ((path, exception): it is back but cannot be opened), ``t_link_s``
+    (the link's own clock: emulated s), ``duration_s`` and ``report`` (emulated), ``wait`` (keep waiting for frames
+    instead of stopping)."""
+
+    connected: bool = False
+    port: str | None = None
+    connections: int = 0
+    disconnects: int = 0
+    bytes_total: int = 0
+    lost_at_s: float | None = None
+    connected_at_s: float | None = None
+    offline_s: float = 0.0
+    connect_bytes: int = 0
+    live_dropped_bytes: int = 0
+    reopen_error: Any = None
+    t_link_s: float = 0.0
+    duration_s: float | None = None
+    report: Any = None
+    wait: bool = False
 
 
 class Source:
-    """One link of a live session. The session calls :meth:`open` (the input: one UserError before any file is
-    made), :meth:`capture_fields` (then opens the capture; :meth:`close_input` if that fails), :meth:`start` (bytes
-    flow into the capture, before the viewer starts), :meth:`attach` (the decoder and estimators, on
-    ``session.viewer``), :meth:`round` until it returns False (the link ended) or a stop is requested, with
-    :meth:`health` after each; :meth:`finish` (threads stopped, the rest decoded), then it closes the capture and
-    the viewer and asks :meth:`summary_fields`. :meth:`write` sends a command from the prompt (any thread: a
-    driver that swaps its port holds a lock); :meth:`record` keeps what was sent."""
+    """One link of a live session; see the module docstring. The session calls :meth:`open` (the input: one
+    UserError before any file is made), :meth:`describe` (the capture header; :meth:`close` if the capture cannot
+    be made), :meth:`chunks` (bytes flow into the capture from then on, before the viewer starts; each item is the
+    list of chunks of one round, [] when none came; the iterator ends when the link ends), :meth:`write` for a
+    command (any thread: a driver that swaps its port holds a lock) and :meth:`close` (threads stopped; the
+    iterator then yields what is left, once). ``status``: a :class:`LinkStatus`."""
 
-    kind = "serial"  # the summary's layout: serial, emulated, ble
-    takes_commands = True  # False: no prompt
-    prompt_note = PROMPT_HELP
+    status: LinkStatus
 
-    def open(self, session) -> None:
-        self.session = session
-
-    def close_input(self) -> None:
-        pass
-
-    def describe(self) -> str:
-        """The opening note's first words (``reading /dev/ttyUSB0 at 115200 baud``; "": no opening note)."""
-        return ""
-
-    def capture_fields(self) -> CaptureFields:
+    def open(self, note: Callable[[str], None]) -> None:
+        """The input, or one UserError sentence (``note(text)``: a line while it waits, e.g. for a port)."""
         raise NotImplementedError
 
-    def recording_name(self, session) -> str:
-        return session.capture.path.stem
-
-    def start(self, session) -> None:
-        pass
-
-    def attach(self, session) -> None:
-        pass
-
-    def round(self) -> bool:
+    def describe(self) -> LinkInfo:
         raise NotImplementedError
 
-    def health(self, now_mono_s: float) -> str:
-        """The health line after a round ("": none yet)."""
+    def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
+        """The link's chunks, each handed to ``record`` first; ``clock``: the session's ``HostClock`` (its origin
+        is the capture's start)."""
         raise NotImplementedError
 
-    def write(self, frame: bytes) -> None:
+    def write(self, frame: bytes, at_s: float | None = None) -> None:
+        """Send a command frame (``at_s``: at that time of the link's own clock, where it has one)."""
         raise UserError("this link takes no commands")
 
-    def record(self, frame: bytes) -> None:
+    def close(self) -> None:
         pass
-
-    def finish(self, error: BaseException | None) -> None:
-        pass
-
-    def t_stop_s(self) -> float | None:
-        """The stop event's time on the capture's clock (None: the host clock now)."""
-        return None
-
-    def error_of(self, error: BaseException) -> BaseException:
-        """The error the session raises for ``error`` (a source may say where the bytes until then are)."""
-        return error
-
-    def summary_fields(self) -> dict[str, Any]:
-        raise NotImplementedError

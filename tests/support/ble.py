@@ -17,3 +17,42 @@ def run_until_played(session, fake):
 
     threading.Thread(target=stopper, daemon=True).start()
     return session.run()
+
+
+class RecordingViewer:
+    """A live session's logger (the ``LiveViewer`` protocol, whatever the link) that keeps what it is given: the
+    row batches (``LiveRows``), the BLE environment and arming frames with their times, the notes, and whether it
+    was closed."""
+
+    has_viewer = True
+
+    def __init__(self) -> None:
+        self.batches, self.env, self.arming, self.notes, self.texts = [], [], [], [], []
+        self.closed = False
+
+    def log_batch(self, batch) -> None:
+        self.batches.append(batch)
+
+    def log_environment(self, frame, at) -> None:
+        self.env.append((frame, at))
+
+    def log_arming(self, frame, at) -> None:
+        self.arming.append((frame, at))
+
+    def log_note(self, text, at) -> None:
+        self.notes.append(text)
+
+    def log_text(self, frame, at) -> None:
+        self.texts.append(frame)
+
+    def log_status(self, frame, at) -> None:
+        pass
+
+    def log_event(self, text, at, level="INFO") -> None:
+        pass
+
+    def log_link(self, stats, t_unix_s) -> None:
+        pass
+
+    def close(self) -> None:
+        self.closed = True
