@@ -27,10 +27,11 @@ class ViewerLogger:
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
-        self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators)
+        ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
+        self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
         self.file: live_log.LiveLogger | None = None
         if self.session.file_rec is not None:
-            self.file = live_log.LiveLogger(self.session.file_rec, estimator_names=options.estimators)
+            self.file = live_log.LiveLogger(self.session.file_rec, estimator_names=options.estimators, ble=ble)
 
     @property
     def has_viewer(self) -> bool:

@@ -10,6 +10,7 @@ request_stop`) and the summary (:class:`LiveSummary`).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import signal
 import sys
@@ -79,6 +80,9 @@ class LiveOptions:
     recordings_dir: Path = Path("recordings")
     #: the command prompt (lines typed on stdin → commands to the drone); None: when stdin is a terminal
     prompt: bool | None = None
+    #: the source's kind ("serial", "ble"...), set by the session from the source's description: the viewer's
+    #: layout from the start
+    link_kind: str | None = None
 
     @property
     def uses_rerun(self) -> bool:
@@ -160,7 +164,9 @@ class LiveSession:
             self._opening_note()
             stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, while the viewer starts
             if opts.uses_rerun:
-                self.viewer = self.viewer_factory(opts, self.info.recording_name or capture.path.stem)
+                self.viewer = self.viewer_factory(
+                    dataclasses.replace(opts, link_kind=self.info.kind), self.info.recording_name or capture.path.stem
+                )
             self.pipeline = LivePipeline.for_session(self)
             self.console = self._console()
             self._loop(stream, t0)
