@@ -194,18 +194,35 @@ def evaluate(trials, estimators: Sequence | None = None, *, native: bool = False
 
 
 def _specs(estimators, rate_hz: float, native: bool) -> list:
+    """The specs of ``estimators`` in their order, one label each (options included); UserError when two share
+    a label (never a silent merge)."""
     if estimators is None:
         return ev.default_specs(rate_hz, own_rate=native)
     out: list = []
     for e in _as_list(estimators):
+        taken = {o.label for o in out}
         if isinstance(e, str):
             specs = ev.default_specs(rate_hz, own_rate=native, only=[e])
         else:
             sel = _instance_reference(e)
-            taken = {o.label for o in out}
-            specs = [ev.EstimatorSpec(registry.unique_name(sel, taken, repeated=str(sel) in taken), sel, {})]
-        out.extend(s for s in specs if s.label not in {o.label for o in out})
+            sel = sel.renamed(_object_label(str(sel), e))
+            specs = [ev.EstimatorSpec(str(sel), sel, {})]
+        for spec in specs:
+            registry.unique_name(spec.label, taken)  # UserError for a label already taken
+            taken.add(spec.label)
+            out.append(spec)
     return out
+
+
+def _object_label(name: str, est) -> str:
+    """An estimator object's label: its name and its public number, text and flag attributes, as options would read
+    (``Gravity(gain=0.5)``), so two variants of one class keep two labels."""
+    attrs = [
+        f"{k}={v!r}"
+        for k, v in getattr(est, "__dict__", {}).items()
+        if not k.startswith("_") and k != "name" and isinstance(v, (bool, int, float, str))
+    ]
+    return f"{name}({', '.join(attrs[:6])})" if attrs else name
 
 
 def _as_list(estimators) -> list:

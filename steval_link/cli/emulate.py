@@ -77,8 +77,11 @@ def emulate_command(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
-    estimators: Optional[str] = typer.Option(
-        None, "--estimators", "-e", help="Host estimators next to the firmware (as for steval live), or 'none'."
+    estimators: Optional[list[str]] = typer.Option(
+        None,
+        "--estimators",
+        "-e",
+        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
     ),
     realtime: bool = typer.Option(
         False, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs)."
@@ -155,7 +158,10 @@ def emulate_command(
         commands_file=str(commands) if commands is not None else None,
     )
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
-    options = LiveOptions(estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
+    options = LiveOptions(
+        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
+        prompt=prompt,
+    )
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)
     run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))

@@ -119,12 +119,12 @@ def replay(
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Annotated[
-        Optional[str],
+        Optional[list[str]],
         typer.Option(
             "--estimators",
             "-e",
-            help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf, "
-            "your own FILE.py:CLASS or module:CLASS; "
+            help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
+            "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
             f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
             show_default=False,
         ),
@@ -141,7 +141,9 @@ def replay(
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
-    names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
+    names = registry.parse_names(
+        ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
+    )
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
     options = view_sinks(

@@ -1,0 +1,139 @@
+"""Coverage is part of every score (issue #31): an estimator that gives up half-way is marked, never ranked, and
+its mean is not a plain number; labels carry the options; ``-e A -e B`` equals ``-e A,B``; the table as CSV and
+Markdown."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+from support.cli import run_cli
+
+import steval_link as sl
+from steval_link.analysis import evaluate as ev
+from steval_link.analysis.coverage import coverage_of
+from steval_link.analysis.firmware_eval import cut_trial
+from steval_link.emulation import broad
+from steval_link.errors import UserError
+
+#: ekf3 that returns NaN from its step ``after`` on (a diverged EKF), as a student's file would hold it
+GIVES_UP = textwrap.dedent("""
+    import numpy as np
+    from steval_link.estimators.ekf3 import Ekf3
+
+    class Ekf:
+        def __init__(self, after=9000, rate_hz=161.5):
+            self.after = after
+            self.inner = Ekf3(rate_hz=rate_hz)
+            self.reset()
+
+        def reset(self):
+            self.inner.reset()
+            self.k = 0
+
+        def step(self, acc_mg, gyro_mdps, thr=0):
+            q = self.inner.step(acc_mg, gyro_mdps, thr)
+            self.k += 1
+            return np.full(4, np.nan) if self.k > self.after else q
+""")
+
+
+@pytest.fixture()
+def trial(shared_dir):
+    return shared_dir / "datasets" / "broad" / "02_undisturbed_slow_rotation_B.npz"
+
+
+@pytest.fixture()
+def mine(tmp_path):
+    p = tmp_path / "mine.py"
+    p.write_text(GIVES_UP)
+    return p
+
+
+def test_coverage_of_counts_scored_rows_and_finds_where_it_stopped():
+    ok = np.ones(10, bool)
+    ok[6:] = False
+    scored = np.ones(10, bool)
+    scored[:2] = False
+    c = coverage_of(ok, scored, np.arange(100, 110), np.linspace(0, 0.9, 10))
+    assert (c.scored_rows, c.covered_rows, c.diverged_at_step) == (8, 4, 106)
+    assert c.scored_fraction == 0.5 and c.diverged_at_s == pytest.approx(0.6)
+    assert c.cell("1.234") == "1.234 (50 %)" and not c.complete
+    # a gap in the middle is not a divergence; a non-finite tail with no scored row in it is not one either
+    ok2 = np.ones(10, bool)
+    ok2[3] = False
+    ok2[9] = False
+    scored2 = np.ones(10, bool)
+    scored2[9] = False
+    assert coverage_of(ok2, scored2).diverged_at_step is None
+    none = coverage_of(np.zeros(10, bool), np.ones(10, bool))
+    assert none.covered_rows == 0 and none.cell("—") == "no score" and "not finite on any" in none.why
+    assert coverage_of(np.ones(5, bool), np.zeros(5, bool)).why == "no movement row with ground truth"
+
+
+def test_a_filter_that_gives_up_is_marked_in_table_json_and_plot(trial, mine, tmp_path, monkeypatch, capsys):
+    quit_early, to_the_end = f"{mine}:Ekf(after=9000)", f"{mine}:Ekf(after=100000)"
+    png, csv_out, md = tmp_path / "e.png", tmp_path / "e.csv", tmp_path / "e.md"
+    args = ["evaluate", trial, "--max-seconds", "90", "-e", f"{quit_early},{to_the_end}", "-e", "accel"]
+    code, out, err = run_cli(monkeypatch, capsys, *args, "--json", "--plot", png, "--csv", csv_out, "--markdown", md)
+    assert code == 0, err
+    rep = json.loads(out)
+    a, b = "Ekf(after=9000)", "Ekf(after=100000)"
+    assert rep["estimators"] == [a, b, "accel"]  # both variants, options in the labels, and the repeated -e
+    (t,) = rep["trials"]
+    assert 0 < t["scored_fraction"][a] < 1 and t["scored_fraction"][b] == 1.0 and t["scored_fraction"]["accel"] == 1
+    assert t["diverged_at_step"][a] == 9000 and t["diverged_at_step"][b] is None
+    assert t["diverged_at_s"][a] > 0
+    assert rep["incomplete"] == [a]
+    assert rep["mean_rmse_deg"][a] is None and rep["mean_rmse_deg"][b] is not None
+    assert png.stat().st_size > 10_000
+    # the CSV and the Markdown hold the table the text prints, the incomplete cell marked
+    rows = csv_out.read_text().splitlines()
+    assert rows[0] == f"trial,{a},{b},accel" and "%)" in rows[1].split(",")[1]
+    assert "| trial |" in md.read_text() and "diverged at step 9000" in md.read_text()
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    assert code == 0, err
+    row = next(line for line in out.splitlines() if line.startswith("02_"))
+    pct = int(round(100 * t["scored_fraction"][a] - 0.5))
+    assert f"({pct} %)" in row
+    assert f"{a} on {t['trial']}: scored on {pct} % of the" in out and "diverged at step 9000" in out
+
+
+@pytest.mark.slow
+def test_the_api_keeps_both_variants_and_their_coverage(trial, mine):
+    scores = sl.evaluate(trial, [f"{mine}:Ekf(after=2000)", f"{mine}:Ekf(after=100000)"])
+    (res,) = scores.results
+    assert list(res.coverage) == ["Ekf(after=2000)", "Ekf(after=100000)"]
+    assert res.coverage["Ekf(after=2000)"].diverged_at_step == 2000
+    assert res.coverage["Ekf(after=100000)"].complete
+    assert scores.mean_rmse_deg["Ekf(after=2000)"] is None
+    with pytest.raises(UserError, match="chosen twice"):
+        sl.evaluate(trial, [f"{mine}:Ekf(after=5)", f"{mine}:Ekf(after=5)"])
+
+
+def test_two_identical_labels_exit_2(trial, mine, monkeypatch, capsys):
+    code, out, err = run_cli(
+        monkeypatch, capsys, "evaluate", trial, "-e", f"{mine}:Ekf(after=5)", "-e", f"accel,{mine}:Ekf(after=5)"
+    )
+    assert code == 2 and "chosen twice" in err and err.count("\n") == 1
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", trial, "-e", "ekf3", "-e", "ekf3")
+    assert code == 2 and "estimator ekf3 is chosen twice" in err
+
+
+def test_a_never_finite_estimator_says_why(trial, mine, monkeypatch, capsys):
+    code, out, err = run_cli(
+        monkeypatch, capsys, "evaluate", trial, "--max-seconds", "60", "-e", f"{mine}:Ekf(after=0)", "-e", "accel"
+    )
+    assert code == 0, err
+    assert "no score" in out and "Ekf(after=0) on 02_undisturbed_slow_rotation_B: no score: its estimate is" in out
+
+
+def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
+    view_specs = ev.default_specs(161.5, only=[f"{mine}:Ekf(after=5000)", "accel"])
+    r1 = ev.evaluate_trial(cut_trial(broad.load_trial(trial), 60.0), view_specs)
+    header, rows = ev.table_rows([r1, r1])
+    assert header == ["trial", "Ekf(after=5000)", "accel"]
+    mean = next(r for r in rows if r[0] == "mean")
+    assert mean[1] == "incomplete" and mean[2].replace(".", "").isdigit()
