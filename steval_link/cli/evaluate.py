@@ -107,12 +107,16 @@ def evaluate_command(
     ] = None,
     csv_out: Annotated[
         Optional[Path],
-        typer.Option("--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False),
+        typer.Option(
+            "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
+        ),
     ] = None,
     markdown_out: Annotated[
         Optional[Path],
         typer.Option(
-            "--markdown", help="Also write the table as Markdown (to paste in a report) to this file.", show_default=False
+            "--markdown",
+            help="Also write the table as Markdown (to paste in a report) to this file.",
+            show_default=False,
         ),
     ] = None,
     max_seconds: Annotated[
