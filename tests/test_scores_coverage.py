@@ -137,3 +137,32 @@ def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
     assert header == ["trial", "Ekf(after=5000)", "accel"]
     mean = next(r for r in rows if r[0] == "mean")
     assert mean[1] == "incomplete" and mean[2].replace(".", "").isdigit()
+
+
+def test_compares_truth_section_gives_each_trace_its_coverage(mine, tmp_path, monkeypatch, capsys):
+    """A synthesised capture re-written with truth chunks (the firmware's own attitude as truth): a filter that
+    gives up at step 500 is marked in compare's truth section, the firmware covers every scored row."""
+    from steval_link.link.capture import CaptureWriter, read_capture
+    from steval_link.link.load import load_telemetry
+    from steval_link.quat import quaternion_from_euler
+
+    syn = tmp_path / "syn.stv"
+    code, _, err = run_cli(monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "12", "--out", syn)
+    assert code == 0, err
+    att = load_telemetry(syn).attitude
+    q_true = quaternion_from_euler(np.asarray(att.thx_rad, np.float64), np.asarray(att.thy_rad, np.float64), 0.0)
+    out = tmp_path / "with-truth.stv"
+    with CaptureWriter(out, port="emulated:synth", baud=115200) as w:
+        w.write(read_capture(syn).data, 1.0)
+        w.write_truth(att.step, att.t_fw_s, q_true, np.ones(len(att.step), bool), 1.0)
+    code, stdout, err = run_cli(monkeypatch, capsys, "compare", out, "-e", f"{mine}:Ekf(after=500)", "--json")
+    assert code == 0, err
+    truth = json.loads(stdout)["truth"]
+    label = "Ekf(after=500)"
+    assert truth["scored_fraction"]["firmware"] == 1.0
+    assert truth["scored_fraction"][label] == pytest.approx(500 / len(att.step), abs=1e-3)
+    assert truth["diverged_at_step"][label] == int(att.step[500]) and truth["diverged_at_step"]["firmware"] is None
+    code, stdout, err = run_cli(monkeypatch, capsys, "compare", out, "-e", f"{mine}:Ekf(after=500)")
+    assert code == 0, err
+    row = next(line for line in stdout.splitlines() if line.strip().startswith(label) and "%)" in line)
+    assert f"diverged at step {int(att.step[500])}" in row

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.coverage import percent
 from steval_link.estimators.firmware_replay import FirmwareReplay
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
@@ -263,6 +264,13 @@ def _f(x, fmt: str = ".4f", none: str = "n/a") -> str:
     return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
+def _coverage_cell(rmse, fraction) -> str:
+    """``2.851 (63 %)``, or ``no score``: an RMSE with the share of the scored rows it covers."""
+    if fraction is None or not fraction or rmse is None:
+        return "no score"
+    return f"{_f(rmse, '.3f')} ({percent(fraction)})"
+
+
 def format_report(r: ComparisonReport) -> list[str]:
     """Human-readable lines of a :class:`ComparisonReport` (plain text, aligned)."""
     lines: list[str] = []
@@ -392,8 +400,13 @@ def format_report(r: ComparisonReport) -> list[str]:
             f"against the ground truth the capture keeps: inclination RMSE (deg) over "
             f"{r.truth['movement_steps']} movement steps",
         ]
+        notes = r.truth.get("coverage_notes", {})
         for name, v in r.truth["rmse_deg"].items():
-            lines.append(f"  {name:<{w}}{_f(v, '.3f')}")
+            f = r.truth.get("scored_fraction", {}).get(name)
+            cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
+            lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
+        if notes:
+            lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
     for note in r.notes:
         lines.append(f"note: {note}")
     return lines
