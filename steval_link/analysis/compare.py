@@ -51,6 +51,7 @@ from steval_link.analysis.report import (
     format_report,
     json_number,
 )
+from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
 from steval_link.emulation import broad
 from steval_link.emulation.step_truth import score_euler
@@ -149,6 +150,7 @@ def compare_capture(
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
     truth = truth_section(tel, rep, prow, estimates)
+    cost = step_cost(tel)  # the one AHRS step cost (replay --json gives the same)
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
         rows=n,
@@ -168,6 +170,8 @@ def compare_capture(
         replica_rows=prow,
         estimates=estimates,
         truth=truth,
+        ahrs_step_cost=None if cost is None else cost.to_json(),
+        ahrs_step_cost_text=None if cost is None else cost.sentence(),
     )
 
 

@@ -235,6 +235,9 @@ class ComparisonReport:
     held_back: str | None = None  #: CRC-valid frames the decoder held back, in words (None: none)
     #: ground truth the capture keeps (an emulated BROAD run's chunks T): inclination RMSE per trace, or None
     truth: dict[str, Any] | None = None
+    #: the AHRS step cost (``analysis.step_cost``: its ``to_json()`` and ``sentence()``), None without status frames
+    ahrs_step_cost: dict[str, Any] | None = None
+    ahrs_step_cost_text: str | None = None
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
@@ -256,6 +259,7 @@ class ComparisonReport:
             "notes": list(self.notes),
             "values_bad": self.values_bad,
             "held_back": self.held_back,
+            "ahrs_step_cost": self.ahrs_step_cost,
             **({"truth": self.truth} if self.truth is not None else {}),
         }
 
@@ -298,13 +302,8 @@ def format_report(r: ComparisonReport) -> list[str]:
         f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
         + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else "")
     )
-    if rt.ahrs_cycles_mean is not None:
-        unit = "emulated instructions (not M4 cycles)" if rt.cycles_emulated else "cycles"
-        lines.append(
-            f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
-            f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} {unit} at "
-            f"{(rt.cpu_hz or 0) / 1e6:g} MHz)"
-        )
+    if r.ahrs_step_cost_text:
+        lines.append(r.ahrs_step_cost_text)
     fs = r.filter_settings
     if fs is None:
         lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
