@@ -112,6 +112,7 @@ def to_json(res: SimulationResult) -> dict:
         "options": res.options,
         "settings": res.settings,
         "dt_s": res.dt_s,
+        "estimator_dt_s": res.estimator_dt_s,
         "iterations": res.iterations,
         "seed": res.seed,
         "gyro_noise_mdps": res.gyro_noise_mdps,
@@ -147,7 +148,14 @@ def _fmt_vec(v) -> str:
 
 def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     """Human-readable inputs and final angles, labelled pitch/roll/yaw with the handout's eax/eay/eaz names."""
-    lines = [f"steval simulate: {res.estimator}, {res.iterations} iterations of {res.dt_s * 1e3:g} ms"]
+    own = res.estimator_dt_s
+    integrates = (
+        f"{res.estimator} does not integrate (no dt)"
+        if own is None
+        else f"{res.estimator} integrates at {own * 1e3:.4g} ms"
+        + ("" if abs(own - res.dt_s) <= 1e-12 else " (its own period, not the simulation's)")
+    )
+    lines = [f"steval simulate: {res.estimator}, {res.iterations} iterations of {res.dt_s * 1e3:g} ms; {integrates}"]
     noise = "no noise"
     if res.seed is not None:
         noise = f"noise σ gyro {res.gyro_noise_mdps:g} mdps, acc {res.acc_noise_mg:g} mg (seed {res.seed})"
@@ -301,7 +309,6 @@ def simulate_command(
     if dt is not None:
         if not (math.isfinite(dt) and dt > 0):
             raise UserError(f"--dt must be a period > 0 s, got {dt}")
-        options["dt_s"] = dt
     try:
         res = run_simulation(
             gyro_mdps=gyro,
@@ -313,6 +320,7 @@ def simulate_command(
             throttle=throttle,
             estimator=estimator,
             estimator_options=options,
+            dt_s=dt,
         )
     except ImportError as exc:
         raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
