@@ -25,6 +25,9 @@ NAN_AFTER = 4400
 
 #: added to a copy of reference/ahrs.c, after the normalisation: q0 = NaN from step NAN_AFTER on, only under the define
 NAN_HOOK = """
+#ifdef MY_TWEAK
+  q0 = q0 * 1.00001f; /* a student's small change: the filter is no longer release 170120's */
+#endif
 #ifdef MY_NAN_AFTER
   {
     static unsigned long my_steps;
@@ -98,3 +101,18 @@ def test_a_firmware_that_goes_nan_is_marked_with_its_step(monkeypatch, capsys, t
     assert code == 0, err
     assert f"{b} on {t['trial']}: scored on" in out and f"diverged at step {NAN_AFTER}" in out
     assert "ran with kp 10 (ground: thr < 200)" in out
+
+
+@pytest.mark.slow
+def test_a_clean_capture_of_a_modified_filter_gets_no_crc_hint(monkeypatch, capsys, tmp_path):
+    """Skipped boot bytes are no damage: the hint about a corrupted frame that passes its CRC needs CRC failures."""
+    fw = _copy_with_hook(tmp_path)
+    elf = _make(fw, tmp_path / "tweak", "USER_CFLAGS=-DMY_TWEAK")
+    cap = tmp_path / "tweak.stv"
+    args = ["emulate", elf, "--scenario", "hand-tilts", "--duration", "8", "--out", cap, "--no-view", "-e", "none"]
+    code, out, err = run_cli(monkeypatch, capsys, *args)
+    assert code == 0, err
+    code, out, err = run_cli(monkeypatch, capsys, "compare", cap, "-e", "accel")
+    assert code == 0, err
+    assert "NOT bit-exact" in out and "0 CRC failures" in out
+    assert "passes its CRC" not in out
