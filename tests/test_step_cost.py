@@ -63,6 +63,10 @@ def test_emulate_summary_says_the_step_cost_replay_says(reference_elf, tmp_path,
     (cost,) = [ln for ln in stdout.splitlines() if ln.startswith("AHRS step cost:")]
     assert "emulated instructions over" in cost and "µs" not in cost
     assert not any(ln.startswith("instructions per AHRS step") for ln in stdout.splitlines())
-    code, text, err = run_cli(monkeypatch, capsys, "replay", out)
+    code, text, err = run_cli(monkeypatch, capsys, "replay", out, "-e", "accel,ekf3")
     assert code == 0, err
     assert cost in text.splitlines()
+    # each -e estimator summarised, by emulate as by replay of its capture
+    mine = [ln for ln in stdout.splitlines() if ln.startswith("estimator ")]
+    assert [ln.split(":")[0] for ln in mine] == ["estimator accel", "estimator ekf3"]
+    assert all(ln in text.splitlines() for ln in mine) and "RMS difference from the firmware: pitch" in mine[1]

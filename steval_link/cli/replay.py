@@ -20,6 +20,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
+from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
 from steval_link.cli.outputs import ForceOption, print_json
@@ -86,9 +87,15 @@ def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)
-        _print_summary(s, format_summary, as_json)
+        s["estimators"] = [estimator_summary(name, est, tel) for name, est in estimates.items()]
+        _print_summary(s, _with_estimators, as_json)
 
     return sink
+
+
+def _with_estimators(s: dict) -> list[str]:
+    """The summary's lines, then one line per host estimator (``-e``)."""
+    return format_summary(s) + [estimator_line(e) for e in s.get("estimators", [])]
 
 
 def _print_summary(s: dict, format_lines, as_json: bool) -> None:
