@@ -70,3 +70,16 @@ def test_emulate_summary_says_the_step_cost_replay_says(reference_elf, tmp_path,
     mine = [ln for ln in stdout.splitlines() if ln.startswith("estimator ")]
     assert [ln.split(":")[0] for ln in mine] == ["estimator accel", "estimator ekf3"]
     assert all(ln in text.splitlines() for ln in mine) and "RMS difference from the firmware: pitch" in mine[1]
+
+
+def test_a_live_replay_of_an_emulated_capture_keeps_its_unit(tmp_path, monkeypatch, capsys):
+    """``steval live replay://demo.stv`` records a new capture: its step cost is still emulated instructions."""
+    out = tmp_path / "again.stv"
+    url = f"replay://{demo_capture_path()}?speed=50"
+    code, text, err = run_cli(monkeypatch, capsys, "live", "-p", url, "--no-view", "--out", out, "-e", "none")
+    assert code == 0, err
+    code, again, err = run_cli(monkeypatch, capsys, "replay", out, "--json")
+    assert code == 0, err
+    code, first, err = run_cli(monkeypatch, capsys, "replay", demo_capture_path(), "--json")
+    assert json.loads(again)["ahrs_step_cost"] == json.loads(first)["ahrs_step_cost"]
+    assert json.loads(again)["ahrs_step_cost"]["unit"] == EMULATED_INSTRUCTIONS
