@@ -137,6 +137,16 @@ def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
     assert header == ["trial", "Ekf(after=5000)", "accel"]
     mean = next(r for r in rows if r[0] == "mean")
     assert mean[1] == "incomplete" and mean[2].replace(".", "").isdigit()
+    pytest.importorskip("matplotlib")
+    fig = ev.evaluation_figure([r1])
+    bars, detail = fig.axes[0], fig.axes[1]
+    labels = bars.get_legend_handles_labels()[1]
+    assert labels == ["Ekf(after=5000) (incomplete: not ranked)", "accel"]
+    f = r1.coverage["Ekf(after=5000)"].scored_fraction
+    assert f"{int(f * 100)} %" in [t.get_text() for t in bars.texts]
+    line = next(ln for ln in detail.get_lines() if ln.get_label().startswith("Ekf(after=5000)"))
+    y = np.asarray(line.get_ydata(), float)
+    assert np.isnan(y[5000:]).all() and np.isfinite(y[4000:5000]).any()  # a gap from the step it gave up, never 0
 
 
 def test_compares_truth_section_gives_each_trace_its_coverage(mine, tmp_path, monkeypatch, capsys):

@@ -49,6 +49,7 @@ __all__ = [
     "summary",
     "format_table",
     "plot_evaluation",
+    "evaluation_figure",
     "MEAN_TRIALS",
     "add_firmware",
     "firmware_lines",
@@ -554,11 +555,24 @@ def write_markdown(results: Sequence[TrialResult], path) -> Path:
 
 
 def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0) -> Path:
-    """PNG: bars of RMSE per estimator per trial (top) and inclination error over time of trial ``detail``.
+    """PNG of :func:`evaluation_figure`. Needs matplotlib (``pip install "steval-link[plot]"``; UserError
+    otherwise)."""
+    plt = require_matplotlib()
+    fig = evaluation_figure(results, detail=detail)
+    out = Path(out_png)
+    try:
+        fig.savefig(out, dpi=110)
+    except OSError as exc:
+        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+    finally:
+        plt.close(fig)
+    return out
 
-    Needs matplotlib (``pip install "steval-link[plot]"``; UserError otherwise).
-    """
 
+def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
+    """Bars of RMSE per estimator per trial (top; an incomplete score hollow, hatched, its coverage on it, "not
+    ranked" in the legend) and the inclination error over time of trial ``detail`` (NaN a gap; a dashed line where
+    an estimate diverged). Returns the matplotlib figure."""
     plt = require_matplotlib()
     s = summary(results)
     labels = s["estimators"]
@@ -599,11 +613,4 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
     ax1.legend(fontsize=8, ncol=3)
     ax1.grid(alpha=0.3)
     ax1.set_ylim(bottom=0)
-    out = Path(out_png)
-    try:
-        fig.savefig(out, dpi=110)
-    except OSError as exc:
-        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-    finally:
-        plt.close(fig)
-    return out
+    return fig
