@@ -145,7 +145,9 @@ def run_estimator(estimator, data) -> AttitudeEstimate:
 class Scores:
     """Inclination RMSE against ground truth (degrees) per trial and estimator, and their means.
 
-    ``rmse_deg``: trial → label → RMSE; ``mean_rmse_deg``: label → mean over the trials; ``results``: the
+    ``rmse_deg``: trial → label → RMSE; ``mean_rmse_deg``: label → mean over the trials (None for an incomplete
+    estimator); ``scored_fraction``: trial → label → the share of the scored rows its score covers, with
+    ``diverged_at_step`` where it stopped for good; ``incomplete``: the labels below 1 somewhere; ``results``: the
     :class:`steval_link.analysis.evaluate.TrialResult` of each trial (``t_s``, ``err_rad`` label → error per step,
     for plots); ``table()`` the text table of ``steval evaluate``; ``to_pandas()`` one row per trial.
     """
@@ -160,6 +162,18 @@ class Scores:
     @property
     def mean_rmse_deg(self) -> dict[str, float | None]:
         return dict(self.summary["mean_rmse_deg"])
+
+    @property
+    def scored_fraction(self) -> dict[str, dict[str, float | None]]:
+        return {t["trial"]: dict(t["scored_fraction"]) for t in self.summary["trials"]}
+
+    @property
+    def diverged_at_step(self) -> dict[str, dict[str, int | None]]:
+        return {t["trial"]: dict(t["diverged_at_step"]) for t in self.summary["trials"]}
+
+    @property
+    def incomplete(self) -> list[str]:
+        return list(self.summary["incomplete"])
 
     def table(self) -> str:
         return ev.format_table(self.results)

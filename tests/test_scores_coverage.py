@@ -103,12 +103,15 @@ def test_a_filter_that_gives_up_is_marked_in_table_json_and_plot(trial, mine, tm
 
 @pytest.mark.slow
 def test_the_api_keeps_both_variants_and_their_coverage(trial, mine):
-    scores = sl.evaluate(trial, [f"{mine}:Ekf(after=2000)", f"{mine}:Ekf(after=100000)"])
+    scores = sl.evaluate(trial, [f"{mine}:Ekf(after=8000)", f"{mine}:Ekf(after=100000)"])
     (res,) = scores.results
-    assert list(res.coverage) == ["Ekf(after=2000)", "Ekf(after=100000)"]
-    assert res.coverage["Ekf(after=2000)"].diverged_at_step == 2000
+    assert list(res.coverage) == ["Ekf(after=8000)", "Ekf(after=100000)"]
+    assert res.coverage["Ekf(after=8000)"].diverged_at_step == 8000
     assert res.coverage["Ekf(after=100000)"].complete
-    assert scores.mean_rmse_deg["Ekf(after=2000)"] is None
+    assert scores.mean_rmse_deg["Ekf(after=8000)"] is None and scores.incomplete == ["Ekf(after=8000)"]
+    (fractions,) = scores.scored_fraction.values()
+    assert 0 < fractions["Ekf(after=8000)"] < 1 and fractions["Ekf(after=100000)"] == 1.0
+    assert list(scores.diverged_at_step.values())[0]["Ekf(after=8000)"] == 8000
     with pytest.raises(UserError, match="chosen twice"):
         sl.evaluate(trial, [f"{mine}:Ekf(after=5)", f"{mine}:Ekf(after=5)"])
 
