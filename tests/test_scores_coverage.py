@@ -179,3 +179,9 @@ def test_compares_truth_section_gives_each_trace_its_coverage(mine, tmp_path, mo
     assert code == 0, err
     row = next(line for line in stdout.splitlines() if line.strip().startswith(label) and "%)" in line)
     assert f"diverged at step {int(att.step[500])}" in row
+    # evaluate of the same capture: the firmware's own estimate and the estimator, each with its coverage
+    code, stdout, err = run_cli(monkeypatch, capsys, "evaluate", out, "-e", f"{mine}:Ekf(after=500)", "--json")
+    assert code == 0, err
+    (t,) = json.loads(stdout)["trials"]
+    assert t["scored_fraction"]["firmware"] == 1.0 and t["diverged_at_step"][label] == int(att.step[500])
+    assert t["diverged_at_s"][label] == pytest.approx(float(att.t_fw_s[500]), abs=1e-3)
