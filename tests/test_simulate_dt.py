@@ -38,3 +38,8 @@ def test_the_default_period_is_the_firmwares(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3", "-n", "5")
     assert code == 0, err
     assert out.splitlines()[0] == "steval simulate: ekf3, 5 iterations of 6.25 ms; ekf3 integrates at 6.25 ms"
+
+
+def test_two_estimators_are_one_sentence_never_the_last_one(monkeypatch, capsys):
+    code, out, err = run_cli(monkeypatch, capsys, "simulate", "-e", "ekf3", "-e", "accel", "-n", "3")
+    assert code == 2 and "simulate runs one estimator at a time" in err and err.count("\n") == 1

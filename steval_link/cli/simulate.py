@@ -26,6 +26,7 @@ from steval_link.emulation.lab5 import (
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.estimators.plugins import split_list
 
 CSV_COLUMNS = (
     "iteration",
@@ -248,11 +249,11 @@ def simulate_command(
     dt: Optional[float] = typer.Option(
         None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
     ),
-    estimator: str = typer.Option(
-        "st-mahony",
+    estimators: Optional[list[str]] = typer.Option(
+        None,
         "--estimator",
         "-e",
-        help="Estimator: a registry name or your own "
+        help="Estimator (one; default st-mahony): a registry name or your own "
         "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
     ),
     csv_out: Optional[str] = typer.Option(
@@ -276,6 +277,10 @@ def simulate_command(
     check_gain("--ki", ki)
     check_gain("--kp", kp)
     check_throttle("--throttle", throttle)
+    chosen = split_list(",".join(estimators)) if estimators else ["st-mahony"]
+    if len(chosen) != 1:  # never one of them silently
+        raise UserError(f"simulate runs one estimator at a time; -e gave {len(chosen)}: {', '.join(chosen)}")
+    estimator = chosen[0]
     if estimator not in registry.ESTIMATORS:
         if not registry.is_known(estimator):
             raise UserError(
