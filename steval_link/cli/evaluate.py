@@ -48,7 +48,10 @@ _HELP = (
     "≈ 1 s after power-up; the first 2 s are the firmware's calibration), as for the Python estimators. An "
     "emulated trial runs at a few times real time: --max-seconds cuts every trial short.\n\n"
     "Metric: q_err = q_est ⊗ q_true⁻¹, inclination error 2·acos(√(w²+z²)), RMSE (deg) over movement samples, NaN "
-    "ignored. Exit code 2 for unreadable or malformed input."
+    "ignored. Coverage: an estimator (or firmware) whose estimate is not finite on every movement row with truth is "
+    "marked with the share it covered (2.851 (63 %)) and the step it diverged at (JSON: scored_fraction, "
+    "diverged_at_step, diverged_at_s); its mean reads 'incomplete' and it is not ranked with the complete ones "
+    "(docs/explanation/scores.md). Exit code 2 for unreadable or malformed input."
 )
 
 
