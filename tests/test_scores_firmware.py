@@ -79,13 +79,16 @@ def test_a_firmware_that_goes_nan_is_marked_with_its_step(monkeypatch, capsys, t
     fw = _copy_with_hook(tmp_path)
     whole = _make(fw, tmp_path / "whole")
     nan = _make(fw, tmp_path / "nan", f"USER_CFLAGS=-DMY_NAN_AFTER={NAN_AFTER}")
-    (tmp_path / "ok").mkdir()
-    (tmp_path / "gives-up").mkdir()
+    never = _make(fw, tmp_path / "build-never", "USER_CFLAGS=-DMY_NAN_AFTER=0")
+    for name in ("ok", "gives-up", "never"):
+        (tmp_path / name).mkdir()
     whole = shutil.copy(whole, tmp_path / "ok" / "fw.elf")
     nan = shutil.copy(nan, tmp_path / "gives-up" / "fw.elf")
+    never = shutil.copy(never, tmp_path / "never" / "fw.elf")
     trial = shared_dir / "datasets" / "broad" / TRIAL
     png = tmp_path / "fw.png"
-    args = ["evaluate", trial, "-e", "accel", "--firmware", whole, "--firmware", nan, "--max-seconds", CUT_S]
+    args = ["evaluate", trial, "-e", "accel", "--firmware", whole, "--firmware", nan, "--firmware", never]
+    args += ["--max-seconds", CUT_S]
     code, out, err = run_cli(monkeypatch, capsys, *args, "--json", "--plot", png)
     assert code == 0, err
     rep = json.loads(out)
@@ -93,7 +96,10 @@ def test_a_firmware_that_goes_nan_is_marked_with_its_step(monkeypatch, capsys, t
     (t,) = rep["trials"]
     assert t["scored_fraction"][a] == 1.0 and 0 < t["scored_fraction"][b] < 1
     assert t["diverged_at_step"][b] == NAN_AFTER and t["diverged_at_step"][a] is None
-    assert rep["incomplete"] == [b] and png.stat().st_size > 10_000
+    c = "fw:never/fw.elf"  # NaN throughout: no score, and the reason
+    assert t["scored_fraction"][c] == 0 and t["rmse_deg"][c] is None
+    assert t["no_score_reason"][c].startswith("its estimate is not finite on any of the")
+    assert rep["incomplete"] == [b, c] and png.stat().st_size > 10_000
     fws = {f["firmware"]: f for f in rep["firmware"]}
     assert fws[b]["diverged_at_step"] == NAN_AFTER and fws[b]["scored_fraction"] == t["scored_fraction"][b]
     assert fws[a]["gains"].startswith("kp 10 (ground: thr < 200), ki 0.1")  # the gain it ran with, said
@@ -101,6 +107,7 @@ def test_a_firmware_that_goes_nan_is_marked_with_its_step(monkeypatch, capsys, t
     assert code == 0, err
     assert f"{b} on {t['trial']}: scored on" in out and f"diverged at step {NAN_AFTER}" in out
     assert "ran with kp 10 (ground: thr < 200)" in out
+    assert f"{c} on {t['trial']}: no score: its estimate is not finite on any of the" in out
 
 
 @pytest.mark.slow
