@@ -152,7 +152,9 @@ def run_estimator(estimator, data) -> AttitudeEstimate:
 class Scores:
     """Inclination RMSE against ground truth (degrees) per trial and estimator, and their means.
 
-    ``rmse_deg``: trial → label → RMSE; ``mean_rmse_deg``: label → mean over the trials; ``results``: the
+    ``rmse_deg``: trial → label → RMSE; ``mean_rmse_deg``: label → mean over the trials (None for an incomplete
+    estimator); ``scored_fraction``: trial → label → the share of the scored rows its score covers, with
+    ``diverged_at_step`` where it stopped for good; ``incomplete``: the labels below 1 somewhere; ``results``: the
     :class:`steval_link.analysis.evaluate.TrialResult` of each trial (``t_s``, ``err_rad`` label → error per step,
     for plots); ``table()`` the text table of ``steval evaluate``; ``to_pandas()`` one row per trial.
     """
@@ -167,6 +169,18 @@ class Scores:
     @property
     def mean_rmse_deg(self) -> dict[str, float | None]:
         return dict(self.summary["mean_rmse_deg"])
+
+    @property
+    def scored_fraction(self) -> dict[str, dict[str, float | None]]:
+        return {t["trial"]: dict(t["scored_fraction"]) for t in self.summary["trials"]}
+
+    @property
+    def diverged_at_step(self) -> dict[str, dict[str, int | None]]:
+        return {t["trial"]: dict(t["diverged_at_step"]) for t in self.summary["trials"]}
+
+    @property
+    def incomplete(self) -> list[str]:
+        return list(self.summary["incomplete"])
 
     def table(self) -> str:
         return ev.format_table(self.results)
@@ -201,18 +215,35 @@ def evaluate(trials, estimators: Sequence | None = None, *, native: bool = False
 
 
 def _specs(estimators, rate_hz: float, native: bool) -> list:
+    """The specs of ``estimators`` in their order, one label each (options included); UserError when two share
+    a label (never a silent merge)."""
     if estimators is None:
         return ev.default_specs(rate_hz, own_rate=native)
     out: list = []
     for e in _as_list(estimators):
+        taken = {o.label for o in out}
         if isinstance(e, str):
             specs = ev.default_specs(rate_hz, own_rate=native, only=[e])
         else:
             sel = _instance_reference(e)
-            taken = {o.label for o in out}
-            specs = [ev.EstimatorSpec(registry.unique_name(sel, taken, repeated=str(sel) in taken), sel, {})]
-        out.extend(s for s in specs if s.label not in {o.label for o in out})
+            sel = sel.renamed(_object_label(str(sel), e))
+            specs = [ev.EstimatorSpec(str(sel), sel, {})]
+        for spec in specs:
+            registry.unique_name(spec.label, taken)  # UserError for a label already taken
+            taken.add(spec.label)
+            out.append(spec)
     return out
+
+
+def _object_label(name: str, est) -> str:
+    """An estimator object's label: its name and its public number, text and flag attributes, as options would read
+    (``Gravity(gain=0.5)``), so two variants of one class keep two labels."""
+    attrs = [
+        f"{k}={v!r}"
+        for k, v in getattr(est, "__dict__", {}).items()
+        if not k.startswith("_") and k != "name" and isinstance(v, (bool, int, float, str))
+    ]
+    return f"{name}({', '.join(attrs[:6])})" if attrs else name
 
 
 def _as_list(estimators) -> list:

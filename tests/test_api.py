@@ -155,8 +155,8 @@ def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_p
 
     scores = sl.evaluate(TRIAL, ["st-mahony-flight", "ekf3", Gravity(), Gravity(gain=0.5)])
     means = scores.mean_rmse_deg
-    assert list(means) == ["st-mahony-flight", "ekf3", "Gravity", "Gravity#2"]
+    assert list(means) == ["st-mahony-flight", "ekf3", "Gravity(gain=0.05)", "Gravity(gain=0.5)"]
     assert means["st-mahony-flight"] == pytest.approx(0.914, abs=0.001)  # the README's table
-    assert means["Gravity"] != means["Gravity#2"]
+    assert means["Gravity(gain=0.05)"] != means["Gravity(gain=0.5)"]
     assert scores.rmse_deg[TRIAL.stem] == means
     assert "inclination RMSE" in scores.table()

@@ -452,11 +452,11 @@ def test_cycle_counts_of_an_emulated_capture_are_called_instruction_counts(tmp_p
     from steval_link.link.load import load_telemetry
 
     demo = load_telemetry(demo_capture_path())  # made by steval emulate: its header says emulated
-    assert "emulated instructions (not M4 cycles)" in "\n".join(format_report(compare_capture(demo)))
+    assert "emulated instructions over" in "\n".join(format_report(compare_capture(demo)))
     assert "emulated instructions" in "\n".join(format_summary(summarize(demo)))
     # the same bytes recorded from a port (no such header) are a drone's own DWT cycles
     raw = tmp_path / "drone.bin"
     raw.write_bytes(read_capture(demo_capture_path()).data)
     drone = load_telemetry(raw)
     text = "\n".join(format_report(compare_capture(drone)))
-    assert "cycles at 84 MHz" in text and "emulated" not in text
+    assert "DWT cycles over" in text and "µs mean at 84 MHz" in text and "emulated" not in text

@@ -101,7 +101,7 @@ def test_options_are_keyword_literals_only(text):
 def test_a_file_estimator_runs_everywhere_an_estimator_is_named(tmp_path, monkeypatch, capsys):
     f = write(tmp_path / "tilt_filter.py", TILT.format(cls="TiltFilter"))
     names = registry.parse_names(f"ekf3,{f}:TiltFilter(gain=0.5)", ())
-    assert names == ["ekf3", "TiltFilter"] and names[1].reference.options == {"gain": 0.5}
+    assert names == ["ekf3", "TiltFilter(gain=0.5)"] and names[1].reference.options == {"gain": 0.5}
     est = registry.create(names[1])
     assert isinstance(est, plugins.Guarded) and est.inner.gain == 0.5
     code, out, err = run_cli(monkeypatch, capsys, "compare", str(DEMO), "-e", f"{f}:TiltFilter", "--json")
@@ -139,7 +139,7 @@ def test_a_module_estimator_and_the_estimators_name_attribute(tmp_path, monkeypa
     write(pkg / "filters.py", TILT.format(cls="Complementary") + "\n    name = 'compl'\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     sel = registry.resolve("coursework.filters:Complementary(gain=0.3)")
-    assert str(sel) == "compl" and sel.reference.kind == "module"
+    assert str(sel) == "compl(gain=0.3)" and sel.reference.kind == "module"
     tel_q = registry.create(sel).run(np.float32([[0, 0, 1000]] * 5), np.zeros((5, 3), np.float32))
     assert tel_q.valid.all() and np.allclose(tel_q.thx_rad, 0)
 
@@ -153,7 +153,7 @@ def test_an_installed_entry_point(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     assert "plugged-tilt" in plugins.entry_point_names()
     names = registry.parse_names("plugged-tilt(gain=0.25),accel", ())
-    assert names == ["Plugged", "accel"] and registry.create(names[0]).inner.gain == 0.25
+    assert names == ["Plugged(gain=0.25)", "accel"] and registry.create(names[0]).inner.gain == 0.25
 
 
 def test_a_plugin_named_like_a_builtin_keeps_its_own_name(tmp_path):
@@ -164,8 +164,14 @@ def test_a_plugin_named_like_a_builtin_keeps_its_own_name(tmp_path):
 
 def test_the_same_class_twice_gets_its_options_in_the_name(tmp_path):
     f = write(tmp_path / "t.py", TILT.format(cls="T"))
-    names = registry.parse_names(f"{f}:T,{f}:T(gain=0.1),{f}:T(gain=0.1)", ())
-    assert [str(n) for n in names] == ["T", "T(gain=0.1)", "T(gain=0.1)#2"]
+    names = registry.parse_names(f"{f}:T,{f}:T(gain=0.1),{f}:T(gain=0.2)", ())
+    assert [str(n) for n in names] == ["T", "T(gain=0.1)", "T(gain=0.2)"]
+
+
+def test_two_identical_labels_are_one_sentence_never_a_merge(tmp_path):
+    f = write(tmp_path / "t.py", TILT.format(cls="T"))
+    with pytest.raises(UserError, match=r"estimator T\(gain=0.1\) is chosen twice"):
+        registry.parse_names(f"{f}:T(gain=0.1),{f}:T(gain=0.1)", ())
 
 
 def test_builtins_take_options_the_same_way():

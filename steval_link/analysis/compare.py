@@ -38,6 +38,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.analysis.diagnosis import compare_replica, filter_settings_report
 from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s
 from steval_link.analysis.report import (
@@ -50,6 +51,7 @@ from steval_link.analysis.report import (
     format_report,
     json_number,
 )
+from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
 from steval_link.emulation import broad
 from steval_link.emulation.step_truth import score_euler
@@ -157,6 +159,7 @@ def compare_capture(
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
     truth = truth_section(tel, rep, prow, estimates)
+    cost = step_cost(tel)  # the one AHRS step cost (replay --json gives the same)
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
         rows=n,
@@ -176,6 +179,8 @@ def compare_capture(
         replica_rows=prow,
         estimates=estimates,
         truth=truth,
+        ahrs_step_cost=None if cost is None else cost.to_json(),
+        ahrs_step_cost_text=None if cost is None else cost.sentence(),
     )
 
 
@@ -216,19 +221,33 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     movement = np.zeros(len(a.step), bool)
     movement[hit] = truth.movement[order][idx[hit]]
     out: dict[str, float | None] = {}
+    cov: dict[str, Coverage] = {}
+    scored = movement & np.isfinite(q_true).all(axis=1)
+    t_fw = np.asarray(a.t_fw_s, np.float64)
+
+    def covered(ok) -> Coverage:
+        return coverage_of(ok, scored, a.step, t_fw)
+
     _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
+    cov["firmware"] = covered(np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad))
     if rep is not None and prow is not None:
         thx = np.full(len(a.step), np.nan)
         thy = np.full(len(a.step), np.nan)
         thx[prow], thy[prow] = rep.thx_rad, rep.thy_rad
         _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
+        cov[REPLICA_TRACE] = covered(np.isfinite(thx) & np.isfinite(thy))
     for name, est in estimates.items():
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)
+        cov[name] = covered(np.isfinite(q).all(axis=1))
     return {
         "source": "capture chunks T",
         "steps_matched": int(hit.sum()),
         "movement_steps": int(movement.sum()),
         "metric": "inclination RMSE over movement steps, degrees",
         "rmse_deg": {k: json_number(v) for k, v in out.items()},
+        "scored_fraction": {k: c.to_json()["scored_fraction"] for k, c in cov.items()},
+        "diverged_at_step": {k: c.diverged_at_step for k, c in cov.items()},
+        "diverged_at_s": {k: c.to_json()["diverged_at_s"] for k, c in cov.items()},
+        "coverage_notes": {k: c.sentence() for k, c in cov.items() if not c.complete},
     }

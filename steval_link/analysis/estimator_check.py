@@ -306,9 +306,25 @@ def _demo_inputs():
 # ---- scores --------------------------------------------------------------------------------------------------------
 
 
+#: the recordings the repository ships (``recordings/make_recordings.sh`` makes them); a user's own captures in the
+#: same folder (``steval live`` writes ``recordings/steval-<UTC>.stv``) are not among them
+BUNDLED_CAPTURES = (
+    "ble_demo.stv",
+    "broad_07.stv",
+    "demo.stv",
+    "flight.stv",
+    "freefall.stv",
+    "live_params.stv",
+    "midflight_drops.stv",
+    "preflight_ok.stv",
+    "preflight_swapped_motors.stv",
+)
+
+
 def bundled_captures() -> list[Path]:
-    """The bundled recordings (``recordings/*.stv`` next to the demo)."""
-    return sorted(demo_capture_path().parent.glob("*.stv"))
+    """The bundled recordings (:data:`BUNDLED_CAPTURES` next to the demo, those present)."""
+    folder = demo_capture_path().parent
+    return [folder / name for name in BUNDLED_CAPTURES if (folder / name).is_file()]
 
 
 def _tilt_rms_deg(q_a, q_b) -> float:

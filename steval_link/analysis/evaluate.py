@@ -17,6 +17,7 @@ bool (default: all True). Steps without a truth row are ignored.
 
 from __future__ import annotations
 
+import csv
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from steval_link.analysis.coverage import Coverage, coverage_of, percent
 from steval_link.analysis.firmware_eval import FirmwareResult
 from steval_link.analysis.plots import require_matplotlib
 from steval_link.analysis.report import json_number
@@ -47,9 +49,15 @@ __all__ = [
     "summary",
     "format_table",
     "plot_evaluation",
+    "evaluation_figure",
     "MEAN_TRIALS",
     "add_firmware",
     "firmware_lines",
+    "incomplete_labels",
+    "table_rows",
+    "coverage_lines",
+    "write_csv",
+    "write_markdown",
 ]
 
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
@@ -105,9 +113,7 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
         chosen = [s for k, s in specs.items() if k == item or s.name == item]
         if not chosen and registry.is_known(item):  # your own (FILE.py:CLASS, module:CLASS, a plug-in, options)
             sel = registry.resolve(item)
-            taken = {s.label for s in out}
-            label = registry.unique_name(sel, taken, repeated=str(sel) in taken)
-            chosen = [EstimatorSpec(label, sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
+            chosen = [EstimatorSpec(str(sel), sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
             try:
                 registry.create(sel, **chosen[0].options)  # its options and constructor checked before the work
             except ValueError as exc:
@@ -119,7 +125,10 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
             )
         if item == "vqf" and not registry.is_available("vqf"):
             raise UserError('estimator vqf needs the vqf package: pip install "steval-link[vqf]"')
-        out.extend(s for s in chosen if s not in out)
+        for s in chosen:
+            if s.label in {o.label for o in out}:
+                raise UserError(registry.duplicate_sentence(s.label))
+            out.append(s)
     if not out:
         raise UserError("--estimators selects no estimator")
     return out
@@ -139,6 +148,7 @@ class TrialResult:
         steps_per_s: label → estimator speed, steps/s.
         err_t_s: label → (K,) times of ``err_rad[label]`` when not ``t_s`` (a firmware's own steps), s.
         firmware: the firmware runs on this trial (``--firmware``).
+        coverage: label → the share of the scored rows its score covers (:mod:`steval_link.analysis.coverage`).
     """
 
     name: str
@@ -150,6 +160,7 @@ class TrialResult:
     steps_per_s: dict[str, float] = field(default_factory=dict)
     err_t_s: dict[str, np.ndarray] = field(default_factory=dict)
     firmware: list[FirmwareResult] = field(default_factory=list)
+    coverage: dict[str, Coverage] = field(default_factory=dict)
 
 
 def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
@@ -158,6 +169,7 @@ def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
     res.err_rad[fw.label] = fw.err_rad
     res.err_t_s[fw.label] = fw.truth.t_trial_s
     res.steps_per_s[fw.label] = float("nan")  # emulated: its cost is the instructions per step
+    res.coverage[fw.label] = fw.coverage
     res.firmware.append(fw)
 
 
@@ -169,6 +181,8 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "elf": fw.elf,
         "attitude_from": fw.source,
         "rmse_deg": _rounded(fw.rmse_deg),
+        **fw.coverage.to_json(),
+        "gains": fw.gains,
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
@@ -209,10 +223,15 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
             if fw.replica_rmse_deg is None
             else f"port {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
         )
-        note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
-        out.append(
-            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {replica}){note}"
-        )
+        notes = list(fw.notes)
+        cov = fw.coverage
+        if not cov.complete:
+            notes.insert(0, cov.sentence())
+        note = f"  [{'; '.join(notes)}]" if notes else ""
+        score = cov.cell(_fmt(fw.rmse_deg))
+        out.append(f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {score}  {cost}  ({fw.source}; {replica}){note}")
+        if fw.gains:
+            out.append(f"{''.ljust(w0)}  {''.ljust(w1)}  ran with {fw.gains}")
     return out
 
 
@@ -225,10 +244,19 @@ Progress = Callable[[str, str], None]
 
 
 def evaluate_view(
-    view: broad.SteValView, specs: Sequence[EstimatorSpec], name: str, progress: Progress | None = None
+    view: broad.SteValView,
+    specs: Sequence[EstimatorSpec],
+    name: str,
+    progress: Progress | None = None,
+    *,
+    steps: np.ndarray | None = None,
 ) -> TrialResult:
-    """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth."""
+    """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth.
+
+    ``steps``: the step number of each row, for ``diverged_at_step`` (default: the row index)."""
+    _check_labels(specs)
     res = TrialResult(name, view.rate_hz, view.t_s, view.movement)
+    scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
     for spec in specs:
         if progress:
             progress(name, spec.label)
@@ -246,6 +274,7 @@ def evaluate_view(
         err = broad.inclination_error_rad(q, view.quat_true_wxyz)
         res.err_rad[spec.label] = err
         res.rmse_deg[spec.label] = broad.rmse_deg(err, view.movement)
+        res.coverage[spec.label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
         res.steps_per_s[spec.label] = view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf")
     return res
 
@@ -340,13 +369,15 @@ def evaluate_capture(
     )
     if specs is None:
         specs = default_specs(AHRS_RATE_HZ)
-    res = evaluate_view(view, specs, p.stem, progress)
+    res = evaluate_view(view, specs, p.stem, progress, steps=np.asarray(att.step))
     q_fw = np.asarray(att.q_wxyz, dtype=np.float64)
-    if np.isfinite(q_fw).any():
+    if np.asarray(att.exact).any():  # binary frames carry the firmware's quaternion (text rows: NaN)
         err = broad.inclination_error_rad(q_fw, q_true)
         res.err_rad["firmware"] = err
         res.rmse_deg["firmware"] = broad.rmse_deg(err, movement)
         res.steps_per_s["firmware"] = float("nan")
+        scored = movement & np.isfinite(q_true).all(axis=1)
+        res.coverage["firmware"] = coverage_of(np.isfinite(q_fw).all(axis=1), scored, att.step, t)
     return res
 
 
@@ -354,8 +385,27 @@ def _trial_key(name: str) -> str:
     return name.split("_", 1)[0]
 
 
+def _check_labels(specs: Sequence[EstimatorSpec]) -> None:
+    """Two estimators under one label would share one column: UserError (never a silent merge)."""
+    seen: set[str] = set()
+    for s in specs:
+        if s.label in seen:
+            raise UserError(registry.duplicate_sentence(s.label))
+        seen.add(s.label)
+
+
+def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
+    """Labels whose score misses scored rows on some trial (their mean is not given, they are not ranked)."""
+    out: list[str] = []
+    for r in results:
+        out.extend(k for k, c in r.coverage.items() if not c.complete and k not in out)
+    return out
+
+
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
-    """JSON-ready report: per-trial RMSE and speed, the mean over all trials, and over BROAD 02/07/15/24 if present.
+    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials, and over BROAD 02/07/15/24
+    if present. An incomplete estimator (``scored_fraction`` < 1 on a trial) has no mean (None) and is listed
+    under ``incomplete``.
 
     ``number``: how each figure is written (default: to 4 decimals, for JSON; the table rounds the raw values once).
     """
@@ -363,21 +413,35 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
     labels: list[str] = []
     for r in results:
         labels.extend(k for k in r.rmse_deg if k not in labels)
-    trials = [
-        {
-            "trial": r.name,
-            "rate_hz": r.rate_hz,
-            "steps": int(r.t_s.shape[0]),
-            "rmse_deg": {k: rnd(r.rmse_deg.get(k)) for k in labels},
-            "steps_per_s": {k: rnd(r.steps_per_s.get(k)) for k in labels},
-        }
-        for r in results
-    ]
+    incomplete = incomplete_labels(results)
+    trials = []
+    for r in results:
+        cov = {k: r.coverage[k].to_json() for k in labels if k in r.coverage}
+        trials.append(
+            {
+                "trial": r.name,
+                "rate_hz": r.rate_hz,
+                "steps": int(r.t_s.shape[0]),
+                "rmse_deg": {k: rnd(r.rmse_deg.get(k)) for k in labels},
+                "scored_fraction": {k: c["scored_fraction"] for k, c in cov.items()},
+                "diverged_at_step": {k: c["diverged_at_step"] for k, c in cov.items()},
+                "diverged_at_s": {k: c["diverged_at_s"] for k, c in cov.items()},
+                "no_score_reason": {k: c["no_score_reason"] for k, c in cov.items() if c["no_score_reason"]},
+                "steps_per_s": {k: rnd(r.steps_per_s.get(k)) for k in labels},
+            }
+        )
+
+    def mean(rows: Sequence[TrialResult]) -> dict:
+        return {k: None if k in incomplete else rnd(_mean([r.rmse_deg.get(k) for r in rows])) for k in labels}
+
     out = {
         "metric": "inclination RMSE over movement samples, degrees",
+        "coverage": "scored_fraction: the share of the movement rows with truth the estimate covered (finite); "
+        "an incomplete estimator has no mean and is not ranked",
         "estimators": labels,
+        "incomplete": incomplete,
         "trials": trials,
-        "mean_rmse_deg": {k: rnd(_mean([r.rmse_deg.get(k) for r in results])) for k in labels},
+        "mean_rmse_deg": mean(results),
     }
     fws = [_firmware_dict(fw) for r in results for fw in r.firmware]
     if fws:
@@ -388,7 +452,7 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
         )
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
-        out["mean_02_07_15_24_rmse_deg"] = {k: rnd(_mean([r.rmse_deg.get(k) for r in sel])) for k in labels}
+        out["mean_02_07_15_24_rmse_deg"] = mean(sel)
     return out
 
 
@@ -403,64 +467,98 @@ def _rounded(x) -> float | None:
     return None if v is None else round(v, 4)
 
 
-def format_table(results: Sequence[TrialResult]) -> str:
-    """A plain-text table: one row per trial, one column per estimator (inclination RMSE, °), mean rows."""
+def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str]]]:
+    """The table as cells: the header and one row per trial (then the means), each RMSE marked with its coverage
+    (``2.851 (63 %)``, ``no score``); an incomplete estimator's mean reads ``incomplete``. Text, CSV and Markdown
+    are written from these."""
     s = summary(results, json_number)  # raw values: the table rounds once, as the firmware lines below
     labels = s["estimators"]
-    w0 = max([len("trial")] + [len(r.name) for r in results] + [len("mean 02/07/15/24")])
-    widths = [max(len(k), 7) for k in labels]
+    header = ["trial", *labels]
+    rows: list[list[str]] = []
+    for r, t in zip(results, s["trials"]):
+        cells = []
+        for k in labels:
+            v = t["rmse_deg"][k]
+            text = "—" if v is None else f"{v:.3f}"
+            cov = r.coverage.get(k)
+            cells.append(text if cov is None else cov.cell(text))
+        rows.append([t["trial"], *cells])
+
+    def mean_row(name: str, values: dict) -> list[str]:
+        return [name] + [
+            "incomplete" if k in s["incomplete"] else ("—" if values[k] is None else f"{values[k]:.3f}") for k in labels
+        ]
+
+    if len(results) > 1:
+        rows.append(mean_row("mean", s["mean_rmse_deg"]))
+    if "mean_02_07_15_24_rmse_deg" in s:
+        rows.append(mean_row("mean 02/07/15/24", s["mean_02_07_15_24_rmse_deg"]))
+    return header, rows
+
+
+def coverage_lines(results: Sequence[TrialResult]) -> list[str]:
+    """One line per incomplete score: the label, the trial and what it misses (where it diverged, or why none)."""
+    out = []
+    for r in results:
+        for k, c in r.coverage.items():
+            text = c.sentence()
+            if text:
+                out.append(f"{k} on {r.name}: {text}")
+    return out
+
+
+def format_table(results: Sequence[TrialResult]) -> str:
+    """A plain-text table: one row per trial, one column per estimator (inclination RMSE, °, marked with its
+    coverage when incomplete), mean rows, then what each incomplete score misses and the firmware lines."""
+    header, rows = table_rows(results)
+    w0 = max([len("trial")] + [len(row[0]) for row in rows])
+    widths = [max([len(header[j]), 7] + [len(row[j]) for row in rows]) for j in range(1, len(header))]
     lines = [
         "inclination RMSE (deg) over movement samples",
-        "  ".join(["trial".ljust(w0)] + [k.rjust(w) for k, w in zip(labels, widths)]),
+        "  ".join([header[0].ljust(w0)] + [k.rjust(w) for k, w in zip(header[1:], widths)]),
     ]
-
-    def row(name, values):
-        cells = ["—".rjust(w) if v is None else f"{v:.3f}".rjust(w) for v, w in zip(values, widths)]
-        return "  ".join([name.ljust(w0)] + cells)
-
-    for t in s["trials"]:
-        lines.append(row(t["trial"], [t["rmse_deg"][k] for k in labels]))
-    if len(results) > 1:
-        lines.append(row("mean", [s["mean_rmse_deg"][k] for k in labels]))
-    if "mean_02_07_15_24_rmse_deg" in s:
-        lines.append(row("mean 02/07/15/24", [s["mean_02_07_15_24_rmse_deg"][k] for k in labels]))
+    for row in rows:
+        lines.append("  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]))
+    cov = coverage_lines(results)
+    if cov:
+        lines += ["", "incomplete scores (no mean, not ranked):"] + [f"  {c}" for c in cov]
     fw = firmware_lines(results)
     if fw:
         lines += [""] + fw
     return "\n".join(lines)
 
 
+def write_csv(results: Sequence[TrialResult], path) -> Path:
+    """The table as CSV (the cells of :func:`table_rows`, coverage marks included)."""
+    header, rows = table_rows(results)
+    out = Path(path)
+    with out.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+    return out
+
+
+def write_markdown(results: Sequence[TrialResult], path) -> Path:
+    """The table as a Markdown table, with the coverage lines under it."""
+    header, rows = table_rows(results)
+    lines = ["inclination RMSE (deg) over movement samples", ""]
+    lines.append("| " + " | ".join(header) + " |")
+    lines.append("|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|")
+    lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
+    cov = coverage_lines(results)
+    if cov:
+        lines += ["", "Incomplete scores (no mean, not ranked):", ""] + [f"- {c}" for c in cov]
+    out = Path(path)
+    out.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return out
+
+
 def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0) -> Path:
-    """PNG: bars of RMSE per estimator per trial (top) and inclination error over time of trial ``detail``.
-
-    Needs matplotlib (``pip install "steval-link[plot]"``; UserError otherwise).
-    """
-
+    """PNG of :func:`evaluation_figure`. Needs matplotlib (``pip install "steval-link[plot]"``; UserError
+    otherwise)."""
     plt = require_matplotlib()
-    s = summary(results)
-    labels = s["estimators"]
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(11, 8), constrained_layout=True)
-    n = len(results)
-    width = 0.8 / max(len(labels), 1)
-    x = np.arange(n)
-    for j, k in enumerate(labels):
-        vals = [np.nan if t["rmse_deg"][k] is None else t["rmse_deg"][k] for t in s["trials"]]
-        ax0.bar(x + (j - (len(labels) - 1) / 2) * width, vals, width, label=k)
-    ax0.set_xticks(x, [r.name for r in results], rotation=15, ha="right", fontsize=8)
-    ax0.set_ylabel("inclination RMSE (deg)")
-    ax0.set_title("Inclination error against ground truth (movement samples)")
-    ax0.legend(fontsize=8, ncol=3)
-    ax0.grid(axis="y", alpha=0.3)
-    r = results[min(max(detail, 0), n - 1)]
-    for k in labels:
-        e = np.degrees(r.err_rad[k])
-        ax1.plot(r.err_t_s.get(k, r.t_s), e, lw=0.7, label=f"{k} ({r.rmse_deg[k]:.2f}°)")
-    ax1.set_xlabel("time (s)")
-    ax1.set_ylabel("inclination error (deg)")
-    ax1.set_title(f"{r.name}: inclination error over time")
-    ax1.legend(fontsize=8, ncol=3)
-    ax1.grid(alpha=0.3)
-    ax1.set_ylim(bottom=0)
+    fig = evaluation_figure(results, detail=detail)
     out = Path(out_png)
     try:
         fig.savefig(out, dpi=110)
@@ -469,3 +567,50 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
     finally:
         plt.close(fig)
     return out
+
+
+def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
+    """Bars of RMSE per estimator per trial (top; an incomplete score hollow, hatched, its coverage on it, "not
+    ranked" in the legend) and the inclination error over time of trial ``detail`` (NaN a gap; a dashed line where
+    an estimate diverged). Returns the matplotlib figure."""
+    plt = require_matplotlib()
+    s = summary(results)
+    labels = s["estimators"]
+    incomplete = set(s["incomplete"])
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(11, 8), constrained_layout=True)
+    n = len(results)
+    width = 0.8 / max(len(labels), 1)
+    x = np.arange(n)
+    for j, k in enumerate(labels):
+        vals = [np.nan if t["rmse_deg"][k] is None else t["rmse_deg"][k] for t in s["trials"]]
+        xs = x + (j - (len(labels) - 1) / 2) * width
+        if k not in incomplete:
+            ax0.bar(xs, vals, width, label=k)
+            continue
+        # an incomplete score is drawn hollow and hatched, its coverage on it: not ranked with the complete ones
+        bars = ax0.bar(xs, vals, width, label=f"{k} (incomplete: not ranked)", fill=False, hatch="//")
+        for bar, t in zip(bars, s["trials"]):
+            f = t["scored_fraction"].get(k)
+            if f is not None and f < 1:
+                h = bar.get_height() if np.isfinite(bar.get_height()) else 0.0
+                ax0.annotate(percent(f), (bar.get_x() + bar.get_width() / 2, h), ha="center", va="bottom", fontsize=7)
+    ax0.set_xticks(x, [r.name for r in results], rotation=15, ha="right", fontsize=8)
+    ax0.set_ylabel("inclination RMSE (deg)")
+    ax0.set_title("Inclination error against ground truth (movement samples)")
+    ax0.legend(fontsize=8, ncol=3)
+    ax0.grid(axis="y", alpha=0.3)
+    r = results[min(max(detail, 0), n - 1)]
+    for k in labels:
+        e = np.degrees(r.err_rad[k])  # NaN stays NaN: a gap in the line, never 0
+        cov = r.coverage.get(k)
+        mark = "" if cov is None or cov.complete else f", {percent(cov.scored_fraction)} covered"
+        (line,) = ax1.plot(r.err_t_s.get(k, r.t_s), e, lw=0.7, label=f"{k} ({_fmt(r.rmse_deg[k])}°{mark})")
+        if cov is not None and cov.diverged_at_s is not None:
+            ax1.axvline(cov.diverged_at_s, color=line.get_color(), ls="--", lw=0.8)
+    ax1.set_xlabel("time (s)")
+    ax1.set_ylabel("inclination error (deg)")
+    ax1.set_title(f"{r.name}: inclination error over time (dashed: where an estimate diverged)")
+    ax1.legend(fontsize=8, ncol=3)
+    ax1.grid(alpha=0.3)
+    ax1.set_ylim(bottom=0)
+    return fig

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
@@ -42,7 +43,7 @@ from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
 
-__all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler"]
+__all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler", "gains_text"]
 
 _F32 = np.float32
 
@@ -99,6 +100,7 @@ class FirmwareResult:
         replica_bit_exact: steps where the replica carries the firmware's bits, of ``replica_steps``.
         settings: the replica's filter settings (status frames, else ST's defaults).
         emulated_s: emulated seconds.
+        gains: the filter gains it ran with, in words (:func:`gains_text`).
     """
 
     label: str
@@ -117,10 +119,18 @@ class FirmwareResult:
     settings: MahonySettings | None = None
     emulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    gains: str = ""
 
     @property
     def steps(self) -> int:
         return len(self.truth)
+
+    @property
+    def coverage(self) -> Coverage:
+        """The share of the movement steps with truth its own attitude covered, where it diverged."""
+        ok = np.isfinite(self.thx_rad) & np.isfinite(self.thy_rad)
+        scored = np.asarray(self.truth.movement, bool) & np.isfinite(self.truth.q_wxyz).all(axis=1)
+        return coverage_of(ok, scored, self.truth.step, self.truth.t_trial_s)
 
     def instructions_summary(self) -> dict[str, float | None]:
         a = self.instructions
@@ -132,6 +142,28 @@ class FirmwareResult:
             "min": int(a.min()),
             "max": int(a.max()),
         }
+
+
+def gains_text(settings: MahonySettings | None, thr, *, from_status: bool) -> str:
+    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``.
+
+    ``thr``: the throttle of each step (which of the two kp the filter took); ``from_status``: the settings came
+    from the firmware's status frames (else ST's defaults are assumed)."""
+    st = settings or MahonySettings()
+    t = np.asarray(thr).reshape(-1)
+    ground = t < st.min_thr
+    if t.size and ground.all():
+        kp = f"kp {st.kp_ground:g} (ground: thr < {st.min_thr})"
+    elif t.size and not ground.any():
+        kp = f"kp {st.kp_flight:g} (flight: thr >= {st.min_thr})"
+    elif t.size:
+        share = 100.0 * np.count_nonzero(ground) / t.size
+        kp = f"kp {st.kp_ground:g} on {share:.0f} % of the steps (thr < {st.min_thr}), else {st.kp_flight:g}"
+    else:
+        kp = f"kp {st.kp_ground:g}/{st.kp_flight:g}"
+    where = "its status frames" if from_status and settings is not None else "ST's defaults, assumed"
+    extra = "" if st.correction else ", no accelerometer correction"
+    return f"{kp}, ki {st.ki:g}, dt {st.dt_s * 1e3:g} ms{extra} ({where})"
 
 
 class _Globals:
@@ -239,6 +271,7 @@ def run_firmware(
             int(np.count_nonzero(rep.seeded[rows])),
         )
         settings = rep.seeds[0].settings if rep.seeds else None
+        gains = gains_text(settings, np.asarray(att.thr)[rows], from_status=settings is not None)
     elif glob.euler is not None:
         source = "globals"
         out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
@@ -247,6 +280,8 @@ def run_firmware(
         thx[: out.shape[0]], thy[: out.shape[0]] = out[:, 0], out[:, 1]
         replica_thx = replica_thy = None
         replica_exact = replica_steps = 0
+        thr_in = np.asarray(glob.inputs[:n], np.float64).reshape(-1, 7)[:, 6] if glob.has_inputs else []
+        gains = gains_text(None, thr_in, from_status=False)
         if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
             inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
             settings = MahonySettings()
@@ -282,6 +317,7 @@ def run_firmware(
         settings=settings,
         emulated_s=report.emulated_s,
         notes=notes,
+        gains=gains,
     )
     if replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(replica_thx, replica_thy, truth.q_wxyz, truth.movement)

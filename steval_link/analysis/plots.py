@@ -177,18 +177,9 @@ def comparison_figure(tel, report, *, title: str | None = None):
             c, lw, ls, z = _STYLE["port"]
             ax.plot(*_decimate(t, replica), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
         nan_rows = ~np.isfinite(fw[key])
-        if nan_rows.any():
-            ax.plot(
-                t[nan_rows],
-                np.zeros(int(nan_rows.sum())),
-                "x",
-                color="crimson",
-                ms=4,
-                zorder=7,
-                label="firmware NaN (its filter diverged)"
-                if getattr(report, "values_bad", None)
-                else "firmware NaN (asin out of range)",
-            )
+        if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
+            why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
+            _spans(ax, t, nan_rows, f"firmware NaN ({why})", color="crimson", alpha=0.15)
         ax.set_ylabel(f"{what} [deg]")
         ax.set_title(what, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
@@ -302,10 +293,13 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ]
     vmax = max([v for _, vals, _, _ in series for v in vals if math.isfinite(v)] + [0.0])
     for k, (lab, vals, c, alpha) in enumerate(series):
-        vals = np.nan_to_num(np.asarray(vals, float), nan=0.0)
+        vals = np.asarray(vals, float)  # NaN: no bar and "n/a", never a bar of 0
         pos = y + (k - 1.5) * h
-        ax_b.barh(pos, vals, height=h, color=c, alpha=alpha, label=lab)
+        ax_b.barh(pos, np.where(np.isfinite(vals), vals, 0.0), height=h, color=c, alpha=alpha, label=lab)
         for yy, v, tr in zip(pos, vals, avail):
+            if not math.isfinite(v):
+                ax_b.text(vmax * 0.01, yy, "n/a", va="center", fontsize=6.5)
+                continue
             txt = "0 (bit-exact)" if v == 0 and tr.note == "bit-exact" else f"{v:.3g}"
             ax_b.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
     ax_b.set_yticks(y, labels, fontsize=8)
@@ -344,10 +338,12 @@ def comparison_figure(tel, report, *, title: str | None = None):
     )
 
     src = report.source.get("path") or "capture"
+    shown = ["ST-Mahony port"] if replica_x is not None else []
+    shown += [label for _, label, _ in traces]  # what -e chose, as drawn
     fig.suptitle(
         title
-        or f"steval compare: {Path(str(src)).name} — firmware vs ST-Mahony port, EKF and accel-only "
-        "tilt (axes: x right, y forward, z up)",
+        or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
+        "(axes: x right, y forward, z up)",
         fontsize=11,
     )
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.coverage import percent
 from steval_link.estimators.firmware_replay import FirmwareReplay
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
@@ -234,6 +235,9 @@ class ComparisonReport:
     held_back: str | None = None  #: CRC-valid frames the decoder held back, in words (None: none)
     #: ground truth the capture keeps (an emulated BROAD run's chunks T): inclination RMSE per trace, or None
     truth: dict[str, Any] | None = None
+    #: the AHRS step cost (``analysis.step_cost``: its ``to_json()`` and ``sentence()``), None without status frames
+    ahrs_step_cost: dict[str, Any] | None = None
+    ahrs_step_cost_text: str | None = None
     # arrays for plots (not serialised)
     t_rel_s: np.ndarray = field(default=None, repr=False)
     replay: FirmwareReplay | None = field(default=None, repr=False)
@@ -255,12 +259,20 @@ class ComparisonReport:
             "notes": list(self.notes),
             "values_bad": self.values_bad,
             "held_back": self.held_back,
+            "ahrs_step_cost": self.ahrs_step_cost,
             **({"truth": self.truth} if self.truth is not None else {}),
         }
 
 
 def _f(x, fmt: str = ".4f", none: str = "n/a") -> str:
     return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+
+def _coverage_cell(rmse, fraction) -> str:
+    """``2.851 (63 %)``, or ``no score``: an RMSE with the share of the scored rows it covers."""
+    if fraction is None or not fraction or rmse is None:
+        return "no score"
+    return f"{_f(rmse, '.3f')} ({percent(fraction)})"
 
 
 def format_report(r: ComparisonReport) -> list[str]:
@@ -290,13 +302,8 @@ def format_report(r: ComparisonReport) -> list[str]:
         f"{rt.crc_failures} CRC failures, {rt.bytes_skipped} bytes skipped"
         + (f"; {rt.seq_resets} firmware restarts" if rt.seq_resets else "")
     )
-    if rt.ahrs_cycles_mean is not None:
-        unit = "emulated instructions (not M4 cycles)" if rt.cycles_emulated else "cycles"
-        lines.append(
-            f"AHRS step cost: {_f(rt.ahrs_us_mean, '.1f')} µs mean (min {_f(rt.ahrs_us_min, '.1f')}, max "
-            f"{_f(rt.ahrs_us_max, '.1f')}; {rt.ahrs_cycles_mean:.0f} {unit} at "
-            f"{(rt.cpu_hz or 0) / 1e6:g} MHz)"
-        )
+    if r.ahrs_step_cost_text:
+        lines.append(r.ahrs_step_cost_text)
     fs = r.filter_settings
     if fs is None:
         lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
@@ -392,8 +399,45 @@ def format_report(r: ComparisonReport) -> list[str]:
             f"against the ground truth the capture keeps: inclination RMSE (deg) over "
             f"{r.truth['movement_steps']} movement steps",
         ]
+        notes = r.truth.get("coverage_notes", {})
         for name, v in r.truth["rmse_deg"].items():
-            lines.append(f"  {name:<{w}}{_f(v, '.3f')}")
+            f = r.truth.get("scored_fraction", {}).get(name)
+            cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
+            lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
+        if notes:
+            lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
     for note in r.notes:
         lines.append(f"note: {note}")
     return lines
+
+
+def estimator_summary(name: str, est, tel) -> dict[str, Any]:
+    """What one host estimator did over a capture (``replay -e``, ``emulate -e``): its valid rows, the first step
+    it was invalid (None: never), and its RMS difference from the firmware's pitch (thx) and roll (thy), degrees,
+    over the rows where both are finite."""
+    a = tel.attitude
+    valid = np.asarray(est.valid, bool) & np.isfinite(est.thx_rad) & np.isfinite(est.thy_rad)
+    bad = np.flatnonzero(~valid)
+    out: dict[str, Any] = {
+        "name": str(name),
+        "rows": int(valid.shape[0]),
+        "valid_rows": int(np.count_nonzero(valid)),
+        "first_invalid_step": int(a.step[bad[0]]) if bad.size else None,
+    }
+    for key, mine, fw in (("pitch", est.thx_rad, a.thx_rad), ("roll", est.thy_rad, a.thy_rad)):
+        d = np.where(valid, angle_diff_rad(mine, fw), np.nan)
+        d = d[np.isfinite(d)]
+        out[f"rms_diff_{key}_deg"] = json_number(math.degrees(math.sqrt(np.mean(d * d)))) if d.size else None
+    return out
+
+
+def estimator_line(s: dict[str, Any]) -> str:
+    """``estimator ekf3: 9210/9210 valid rows; RMS difference from the firmware: pitch 0.132°, roll 0.118°``."""
+    first = "" if s["first_invalid_step"] is None else f" (first invalid at step {s['first_invalid_step']})"
+    rms = (
+        f"pitch {_f(s['rms_diff_pitch_deg'], '.3f')}°, roll {_f(s['rms_diff_roll_deg'], '.3f')}°"
+        if s["rms_diff_pitch_deg"] is not None or s["rms_diff_roll_deg"] is not None
+        else "n/a (no row where both are finite)"
+    )
+    rows = f"{s['valid_rows']}/{s['rows']} valid rows{first}"
+    return f"estimator {s['name']}: {rows}; RMS difference from the firmware: {rms}"

@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.analysis.link_stats import cycles_are_emulated
 from steval_link.analysis.report import json_number
+from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
 from steval_link.link.commands import command_log
 from steval_link.link.plausibility import (
@@ -215,8 +215,6 @@ def summarize(tel) -> dict[str, Any]:
     if len(s):
         i = len(s) - 1
         flags = int(s.flags[i])
-        cpu = int(s.cpu_hz[i])
-        cyc_mean = int(s.cyc_mean[i])
         out["filter"] = {
             "from_step": int(s.step[i]),
             "kp_ground": json_number(s.kp_ground[i]),
@@ -228,12 +226,11 @@ def summarize(tel) -> dict[str, Any]:
             "flag_names": [name for bit, name in _FLAG_NAMES.items() if flags & bit],
             "fw_version": ".".join(str(int(v)) for v in s.fw_version[i]) if s.exact[i] else None,
             "link_baud": int(s.baud[i]) if s.exact[i] else None,
-            "ahrs_cycles_mean": cyc_mean,
-            "ahrs_time_mean_us": cyc_mean / cpu * 1e6 if cpu else None,
-            "ahrs_cycles_max": int(s.cyc_max[i]),
-            "ahrs_cycles_emulated": cycles_are_emulated(tel),
             "queue_peak_bytes": int(s.queue_peak[i]) if s.exact[i] else None,
         }
+    cost = step_cost(tel)  # the one AHRS step cost (compare --json gives the same)
+    out["ahrs_step_cost"] = None if cost is None else cost.to_json()
+    out["ahrs_step_cost_text"] = None if cost is None else cost.sentence()
     return out
 
 
@@ -305,12 +302,10 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
             f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {dt}, min_thr {g(flt['min_thr'])}, "
             f"flags {flt['flags']}" + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
         )
-        if flt["ahrs_time_mean_us"] is not None:
-            lines.append(
-                f"firmware: version {flt['fw_version']}, AHRS step {flt['ahrs_time_mean_us']:.1f} µs mean "
-                f"({flt['ahrs_cycles_mean']} {'emulated instructions' if flt['ahrs_cycles_emulated'] else 'cycles'}, "
-                f"max {flt['ahrs_cycles_max']}), link {flt['link_baud']} baud"
-            )
+        if flt["fw_version"] is not None:
+            lines.append(f"firmware: version {flt['fw_version']}, link {flt['link_baud']} baud")
+    if s.get("ahrs_step_cost_text"):
+        lines.append(s["ahrs_step_cost_text"])
     if s.get("text_telemetry"):
         lines += _text_telemetry_lines(s["text_telemetry"])
     for e in s["events"]:

@@ -8,8 +8,9 @@ from typing import Optional
 
 import typer
 
+from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app
-from steval_link.cli.live import check_duration, run_session, session_outputs
+from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -25,8 +26,10 @@ from steval_link.cli.viewer_options import (
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.estimators.runner import run_estimator
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
+from steval_link.link.load import load_telemetry
 from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
@@ -77,8 +80,11 @@ def emulate_command(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
-    estimators: Optional[str] = typer.Option(
-        None, "--estimators", "-e", help="Host estimators next to the firmware (as for steval live), or 'none'."
+    estimators: Optional[list[str]] = typer.Option(
+        None,
+        "--estimators",
+        "-e",
+        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
     ),
     realtime: bool = typer.Option(
         False, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs)."
@@ -155,10 +161,36 @@ def emulate_command(
         commands_file=str(commands) if commands is not None else None,
     )
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
-    options = LiveOptions(estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)
+    options = LiveOptions(
+        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
+        prompt=prompt,
+    )
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)
-    run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
+    summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()
+    print(summary.line())
+    for line in _estimator_lines(summary, options.estimators):
+        print(line)
+    sys.stdout.flush()
+
+
+def _estimator_lines(summary, names) -> list[str]:
+    """One line per host estimator (``-e``) over the run's capture: valid rows, the first invalid step, the RMS
+    difference from the firmware (as ``steval replay -e`` says it)."""
+    path = Path(summary.capture_path)
+    if not names or summary.capture_discarded or not path.is_file():
+        return []
+    try:
+        tel = load_telemetry(path)
+    except UserError:
+        return []
+    if not len(tel.attitude):
+        return []
+    out = []
+    for name in names:
+        est, why = run_estimator(name, tel)
+        out.append(f"estimator {name}: {why}" if est is None else estimator_line(estimator_summary(name, est, tel)))
+    return out
 
 
 def _emulate_ble(emu_options: EmulationOptions, out, connect_s: float, tick_start_ms: int) -> None:

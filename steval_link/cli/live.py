@@ -91,12 +91,12 @@ def live_command(
     connect: ConnectOption = None,
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
-    estimators: Optional[str] = typer.Option(
+    estimators: Optional[list[str]] = typer.Option(
         None,
         "--estimators",
         "-e",
-        help="Host estimators next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf, your own: "
-        "FILE.py:CLASS, module:CLASS, options in parentheses, docs/ESTIMATORS.md) or 'none'; "
+        help="Host estimators next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, mekf, vqf, "
+        "your own: FILE.py:CLASS, module:CLASS, options in parentheses, docs/ESTIMATORS.md) or 'none'; "
         "default: st-mahony,accel,ekf3 (those installed).",
     ),
     duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
@@ -141,7 +141,9 @@ def live_command(
         source = port_source(port or "auto", baud=baud, wait=wait)
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration, prompt=prompt
+        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
+        duration_s=duration,
+        prompt=prompt,
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)

@@ -19,7 +19,14 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.analysis.ble import ble_layout_of, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
+from steval_link.analysis.ble import (
+    ble_layout_of,
+    format_ble_summary,
+    load_ble,
+    run_ble_estimators,
+    summarize_ble,
+)
+from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
@@ -121,9 +128,15 @@ def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)
-        _print_summary(s, format_summary, as_json)
+        s["estimators"] = [estimator_summary(name, est, tel) for name, est in estimates.items()]
+        _print_summary(s, _with_estimators, as_json)
 
     return sink
+
+
+def _with_estimators(s: dict) -> list[str]:
+    """The summary's lines, then one line per host estimator (``-e``)."""
+    return format_summary(s) + [estimator_line(e) for e in s.get("estimators", [])]
 
 
 def _print_summary(s: dict, format_lines, as_json: bool) -> None:
@@ -154,12 +167,12 @@ def replay(
     web_port: WebPortOption = DEFAULT_WEB_PORT,
     grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Annotated[
-        Optional[str],
+        Optional[list[str]],
         typer.Option(
             "--estimators",
             "-e",
-            help="Host estimators logged next to the firmware, comma-separated (st-mahony, accel, ekf3, mekf, vqf, "
-            "your own FILE.py:CLASS or module:CLASS; "
+            help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
+            "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
             f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
             show_default=False,
         ),
@@ -181,7 +194,9 @@ def replay(
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
-    names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
+    names = registry.parse_names(
+        ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
+    )
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
     options = view_sinks(

@@ -26,6 +26,7 @@ from steval_link.emulation.lab5 import (
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.estimators.plugins import split_list
 
 CSV_COLUMNS = (
     "iteration",
@@ -112,6 +113,7 @@ def to_json(res: SimulationResult) -> dict:
         "options": res.options,
         "settings": res.settings,
         "dt_s": res.dt_s,
+        "estimator_dt_s": res.estimator_dt_s,
         "iterations": res.iterations,
         "seed": res.seed,
         "gyro_noise_mdps": res.gyro_noise_mdps,
@@ -147,7 +149,14 @@ def _fmt_vec(v) -> str:
 
 def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     """Human-readable inputs and final angles, labelled pitch/roll/yaw with the handout's eax/eay/eaz names."""
-    lines = [f"steval simulate: {res.estimator}, {res.iterations} iterations of {res.dt_s * 1e3:g} ms"]
+    own = res.estimator_dt_s
+    integrates = (
+        f"{res.estimator} does not integrate (no dt)"
+        if own is None
+        else f"{res.estimator} integrates at {own * 1e3:.4g} ms"
+        + ("" if abs(own - res.dt_s) <= 1e-12 else " (its own period, not the simulation's)")
+    )
+    lines = [f"steval simulate: {res.estimator}, {res.iterations} iterations of {res.dt_s * 1e3:g} ms; {integrates}"]
     noise = "no noise"
     if res.seed is not None:
         noise = f"noise σ gyro {res.gyro_noise_mdps:g} mdps, acc {res.acc_noise_mg:g} mg (seed {res.seed})"
@@ -240,11 +249,11 @@ def simulate_command(
     dt: Optional[float] = typer.Option(
         None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
     ),
-    estimator: str = typer.Option(
-        "st-mahony",
+    estimators: Optional[list[str]] = typer.Option(
+        None,
         "--estimator",
         "-e",
-        help="Estimator: a registry name or your own "
+        help="Estimator (one; default st-mahony): a registry name or your own "
         "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
     ),
     csv_out: Optional[str] = typer.Option(
@@ -269,6 +278,10 @@ def simulate_command(
     check_gain("--ki", ki)
     check_gain("--kp", kp)
     check_throttle("--throttle", throttle)
+    chosen = split_list(",".join(estimators)) if estimators else ["st-mahony"]
+    if len(chosen) != 1:  # never one of them silently
+        raise UserError(f"simulate runs one estimator at a time; -e gave {len(chosen)}: {', '.join(chosen)}")
+    estimator = chosen[0]
     if estimator not in registry.ESTIMATORS:
         if not registry.is_known(estimator):
             raise UserError(
@@ -302,7 +315,6 @@ def simulate_command(
     if dt is not None:
         if not (math.isfinite(dt) and dt > 0):
             raise UserError(f"--dt must be a period > 0 s, got {dt}")
-        options["dt_s"] = dt
     try:
         res = run_simulation(
             gyro_mdps=gyro,
@@ -314,6 +326,7 @@ def simulate_command(
             throttle=throttle,
             estimator=estimator,
             estimator_options=options,
+            dt_s=dt,
         )
     except ImportError as exc:
         raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None

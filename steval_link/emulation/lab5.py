@@ -42,7 +42,10 @@ class SimulationResult:
     Attributes:
         estimator: registry name of the estimator used.
         options: the estimator options passed to :func:`steval_link.estimators.registry.create`.
-        dt_s: the estimator's integration period, s (``t_s = (step + 1) * dt_s`` after each iteration).
+        dt_s: the simulation's period, s (``t_s = (step + 1) * dt_s`` after each iteration).
+        estimator_dt_s: the period the estimator integrates with, s: ``dt_s`` when it takes the simulation's
+            (``dt_s`` for st-mahony, ``rate_hz`` for the others); its own when it takes neither; None when it does
+            not integrate (accel) or does not say.
         seed: the noise generator's seed (None when no noise was added).
         gyro_noise_mdps, acc_noise_mg: noise standard deviations used.
         step: (N,) int64, 0-based iteration index.
@@ -68,6 +71,7 @@ class SimulationResult:
     eaz_rad: np.ndarray
     valid: np.ndarray
     settings: dict = field(default_factory=dict)
+    estimator_dt_s: float | None = None
 
     @property
     def iterations(self) -> int:
@@ -103,6 +107,7 @@ def run_simulation(
     throttle: int = 0,
     estimator: str = "st-mahony",
     estimator_options: dict | None = None,
+    dt_s: float | None = None,
 ) -> SimulationResult:
     """Run the Lab 5 simulator: ``iterations`` steps of constant inputs plus Gaussian noise, from power-up.
 
@@ -115,7 +120,9 @@ def run_simulation(
         seed: noise generator seed; None draws one (recorded in the result so the run can be repeated).
         throttle: ``gTHR`` for every step (st-mahony uses kp_ground below MIN_THR, kp_flight otherwise).
         estimator: registry name (:func:`steval_link.estimators.registry.names`).
-        estimator_options: keyword options for the estimator (e.g. ``ki``, ``kp``, ``correction``, ``dt_s``).
+        estimator_options: keyword options for the estimator (e.g. ``ki``, ``kp``, ``correction``).
+        dt_s: the simulation's period, s (None: the firmware's 6.25 ms); every estimator runs at it (st-mahony as
+            its ``dt_s``, the others as ``rate_hz`` = 1/dt when they take it), unless its options set their own.
 
     Raises:
         ValueError: bad inputs, unknown estimator or options it does not take.
@@ -131,7 +138,12 @@ def run_simulation(
     throttle = int(throttle)
     if not -32768 <= throttle <= 32767:
         raise ValueError(f"throttle is the firmware's int16 gTHR: −32768..32767, got {throttle}")
+    dt = C.DT_S if dt_s is None else float(dt_s)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt_s must be a period > 0 s, got {dt_s}")
     options = dict(estimator_options or {})
+    own = {} if estimator in registry.ESTIMATORS else dict(registry.resolve(estimator).reference.options)
+    options.update({k: v for k, v in _timing(estimator, dt).items() if k not in options and k not in own})
     est = registry.create(estimator, **options)
 
     noisy = gyro_noise_mdps > 0 or acc_noise_mg > 0
@@ -152,15 +164,16 @@ def run_simulation(
     if isinstance(est, StMahony):
         eaz = handout_yaw(res.q_wxyz)  # float32, as the Lab 5 simulator's QuaternionToEuler computes it
         settings = dict(est.settings.__dict__)
-        dt_s = est.settings.dt_s
+        est_dt = float(est.settings.dt_s)
     else:
         eaz = np.asarray(res.thz_rad)  # NaN where the estimator has no yaw (e.g. accelerometer-only tilt)
         settings = {}
-        dt_s = float(getattr(est, "dt_s", C.DT_S))
+        est_dt = _own_dt(est, {**own, **options})
     return SimulationResult(
         estimator=estimator,
         options=options,
-        dt_s=float(dt_s),
+        dt_s=dt,
+        estimator_dt_s=est_dt,
         seed=seed if noisy else None,
         gyro_noise_mdps=float(gyro_noise_mdps),
         acc_noise_mg=float(acc_noise_mg),
@@ -175,3 +188,30 @@ def run_simulation(
         valid=res.valid,
         settings=settings,
     )
+
+
+def _timing(estimator: str, dt_s: float) -> dict:
+    """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
+    for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
+    sel = (
+        registry.resolve(estimator) if not isinstance(estimator, str) or estimator not in registry.ESTIMATORS else None
+    )
+    base = estimator if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
+    if base == "st-mahony":
+        return {"dt_s": dt_s}
+    if registry.accepts(sel if sel is not None else estimator, "rate_hz"):
+        return {"rate_hz": 1.0 / dt_s}
+    return {}
+
+
+def _own_dt(est, options: dict) -> float | None:
+    """The period an estimator integrates with: from its ``rate_hz`` option, else its own ``dt``/``dt_s`` attribute;
+    None when it says none (accel does not integrate)."""
+    if "rate_hz" in options:
+        return 1.0 / float(options["rate_hz"])
+    inner = getattr(est, "inner", est)  # a user's estimator behind the guard
+    for name in ("dt_s", "dt"):
+        v = getattr(inner, name, None)
+        if isinstance(v, (int, float)) and v > 0:
+            return float(v)
+    return None

@@ -38,6 +38,7 @@ __all__ = [
     "is_known",
     "accepts",
     "unique_name",
+    "duplicate_sentence",
     "PluginError",
     "Selected",
 ]
@@ -139,6 +140,8 @@ def resolve(text: str) -> Selected:
     name = plugins.display_name(factory, ref)
     if name.replace("_", "-") in ESTIMATORS:  # never taken for a built-in (st-mahony means the firmware's replica live)
         name = f"{name} ({getattr(factory, '__name__', ref.source)})"
+    if ref.options:  # one label per variant: its options are part of it
+        name = f"{name}({ref.options_text})"
     return Selected(name, ref, factory, label)
 
 
@@ -206,10 +209,10 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
     ``default`` that are installed. Commas inside parentheses belong to the options.
 
     Registry names come back as they are, references as :class:`Selected` (display name: the class name or its
-    ``name`` attribute; the options are added when two share a name). Each reference is loaded and constructed
-    once here, so every mistake is one line before any work. UserError for an unknown name (the valid ones listed)
-    or, with ``require_installed``, one whose package is missing (``steval compare`` reports those in its table
-    instead)."""
+    ``name`` attribute, with the options: ``MyEkf(q=0.0001)``); two with one display name: UserError. Each
+    reference is loaded and constructed once here, so every mistake is one line before any work. UserError for an
+    unknown name (the valid ones listed) or, with ``require_installed``, one whose package is missing (``steval
+    compare`` reports those in its table instead)."""
     if spec is None:
         return [n for n in default if is_available(n) or not require_installed]
     chosen = plugins.split_list(spec)
@@ -240,27 +243,24 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
 
 
 def _unique(names: list[str]) -> list[str]:
-    """Display names made unique (:func:`unique_name`): a repeated one gets its options, else ``#2``, ``#3``..."""
-    counts: dict[str, int] = {}
+    """``names`` when no two share a display name; UserError otherwise (two variants in one column would be lost)."""
+    seen: set[str] = set()
     for n in names:
-        counts[str(n)] = counts.get(str(n), 0) + 1
-    out: list[str] = []
-    taken: set[str] = set()
-    for n in names:
-        name = unique_name(n, taken, repeated=counts[str(n)] > 1)
-        taken.add(name)
-        out.append(n.renamed(name) if isinstance(n, Selected) and name != str(n) else n)
-    return out
+        if str(n) in seen:
+            raise UserError(duplicate_sentence(str(n)))
+        seen.add(str(n))
+    return names
+
+
+def duplicate_sentence(label: str) -> str:
+    """The one sentence for two estimators under one label."""
+    return f"estimator {label} is chosen twice: give each variant its own options (labels must differ)"
 
 
 def unique_name(name: str, taken: set[str], *, repeated: bool = True) -> str:
-    """``name`` as a display name not in ``taken``: a repeated reference with options gets them added
-    (``MyEkf(r_acc=0.001)``), then ``#2``, ``#3``... (tables and plots key their columns by it)."""
+    """``name`` as a display name: UserError when it is in ``taken`` (:func:`duplicate_sentence`). Options are part
+    of a reference's name already (``MyEkf(r_acc=0.001)``); ``repeated`` is kept for callers and ignored."""
     out = str(name)
-    if repeated and isinstance(name, Selected) and name.reference.options and name.reference.kind != "builtin":
-        out = f"{out}({name.reference.options_text})"
-    base, k = out, 2
-    while out in taken:
-        out = f"{base}#{k}"
-        k += 1
+    if out in taken:
+        raise UserError(duplicate_sentence(out))
     return out

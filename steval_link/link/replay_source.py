@@ -160,12 +160,14 @@ class ReplayPort:
         timeout: float = READ_TIMEOUT_S,
         paced_by: str = "",
         clock: Callable[[], float] = time.monotonic,
+        emulated: bool = False,
     ) -> None:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
         self.t_s = np.asarray(t_s, np.float64) / speed
         self.port, self.path, self.baudrate, self.timeout = port, path, baudrate, timeout  # as pyserial's
         self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
+        self.emulated = emulated  #: the file came from an emulator (its cycle counts are instructions)
         self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
         self._cancel = threading.Event()
         self.is_open = True
@@ -257,4 +259,5 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         speed=parsed.speed,
         timeout=timeout,
         paced_by=how,
+        emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
     )

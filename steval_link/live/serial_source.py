@@ -137,6 +137,8 @@ class SerialSource(Source):
         self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._stopped.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
+            if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
+                self._extra["emulated"] = True
         else:
             identity = autodetect.PortIdentity.of(self.path)
             glob = self.url if autodetect.is_glob(self.url) else None

@@ -8,6 +8,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from steval_link.analysis.step_cost import step_cost
+from steval_link.errors import UserError
+from steval_link.link.load import load_telemetry
 from steval_link.link.plausibility import held_back_sentence
 from steval_link.live.health import _fmt_bytes, _fmt_duration, stat
 
@@ -106,7 +109,19 @@ class LiveSummary:
             + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else "")
         )
         said = [x for x in (self.values_sentence, self._held_back()) if x]
-        return [head, *said, *r.lines()[1:], self._outputs()]
+        # the AHRS step cost as replay and compare say it (the capture's status frames), not the run's own counts
+        board = [x for x in r.lines()[1:] if not x.startswith("instructions per AHRS step")]
+        cost = self._step_cost()
+        return [head, *said, *board, *([cost] if cost else []), self._outputs()]
+
+    def _step_cost(self) -> str | None:
+        if self.capture_discarded or not Path(self.capture_path).is_file():
+            return None
+        try:
+            cost = step_cost(load_telemetry(self.capture_path))
+        except (UserError, OSError):
+            return None
+        return None if cost is None else cost.sentence()
 
     def _ble_line(self) -> str:
         c = self.counts
