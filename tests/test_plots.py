@@ -157,3 +157,22 @@ def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tm
         assert code == 2 and err.count("\n") == 1 and 'pip install "steval-link[plot]"' in err
         assert out == ""
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("name, armed", [("demo", False), ("flight", True)])
+def test_cli_compare_flight_control_figure_only_when_armed(mpl, tmp_path, capsys, name, armed):
+    """demo.stv was never armed: no flight-control figure, and one line says why; flight.stv gets one."""
+    from pathlib import Path
+
+    cap = Path(__file__).resolve().parents[1] / "recordings" / f"{name}.stv"
+    out = tmp_path / "x.png"
+    code, stdout, err = run_cli(["compare", str(cap), "--plot", str(out), "-e", "accel"], capsys)
+    assert code == 0, err
+    fc = tmp_path / "x-flight-control.png"
+    assert png_size(out)[0] > 1000
+    if armed:
+        assert png_size(fc)[0] > 1000 and f"flight-control plot: {fc}" in stdout
+    else:
+        assert not fc.exists()
+        why = [ln for ln in stdout.splitlines() if ln.startswith("no flight-control plot")]
+        assert len(why) == 1 and "never armed" in why[0]
