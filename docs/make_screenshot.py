@@ -27,7 +27,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
-REC = ROOT / "recordings"
+#: the recordings as a student names them (the commands run in the project's folder)
+REC = Path("recordings")
 
 #: recordings/demo.stv: AHRS steps 0..9209
 DEMO_LAST_STEP = 9209
