@@ -280,8 +280,8 @@ def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
 
 
 def port_verdict(step, bit_exact, seeded) -> str | None:
-    """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K
-    (N of M bit-exact)"; None when no row was seeded. Arrays: one per attitude row."""
+    """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
+    None when no row was seeded. Arrays: one per attitude row."""
     seeded = np.asarray(seeded, bool)
     exact = np.asarray(bit_exact, bool) & seeded
     n = int(seeded.sum())
@@ -290,7 +290,7 @@ def port_verdict(step, bit_exact, seeded) -> str | None:
     if int(exact.sum()) == n:
         return f"bit-exact on {n} of {n} steps"
     k = int(np.flatnonzero(seeded & ~exact)[0])
-    return f"first difference at step {int(np.asarray(step)[k])} ({int(exact.sum())} of {n} bit-exact)"
+    return f"first difference at step {int(np.asarray(step)[k])}"  # short: a title at the default window size
 
 
 def legend_room(values, *, share: float, bottom: bool, floor: float | None = None) -> tuple[float, float] | None:
