@@ -50,7 +50,8 @@ def test_html_embeds_every_figure_and_loads_nothing(demo_report):
     html, _ = demo_report
     page = html.read_text(encoding="utf-8")
     srcs = re.findall(r'<img[^>]*src="([^"]+)"', page)
-    assert len(srcs) >= 2  # the attitude figure and the spectrum (demo.stv was never armed: no flight control)
+    # the attitude, the estimators against the firmware, the spectrum (demo.stv was never armed: no flight control)
+    assert len(srcs) == 3
     for src in srcs:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1])[:8] == PNG_MAGIC
@@ -74,7 +75,7 @@ def test_chromium_shows_every_figure(demo_report, tmp_path):
     m = re.search(r'data-images="(\d+)/(\d+)"', dom)
     assert m, dom[:500]
     total, ok = int(m.group(1)), int(m.group(2))
-    assert total >= 2 and ok == total
+    assert total == 3 and ok == total
     sizes = re.search(r'data-sizes="([^"]*)"', dom).group(1).split(",")
     assert all(int(s.split("x")[0]) >= 800 for s in sizes)
     # the page itself (without the probe) renders: a screenshot wider than the figures, mostly not blank
@@ -97,7 +98,7 @@ def test_markdown_links_its_images(demo_report):
     _, md = demo_report
     text = md.read_text(encoding="utf-8")
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
-    assert len(links) >= 2
+    assert len(links) == 3
     for link in links:
         assert (md.parent / link).read_bytes()[:8] == PNG_MAGIC
     assert re.search(r"^\| estimator \| steps \|", text, re.M) and "Bit-exact on 9210 of 9210 steps" in text
@@ -113,8 +114,8 @@ def test_several_captures_side_by_side(monkeypatch, capsys, tmp_path):
     assert code == 0, err
     page = out.read_text(encoding="utf-8")
     assert "the captures side by side" in page and "flight.stv" in page and "broad_07.stv" in page
-    # side-by-side, two attitude figures, two spectra, flight.stv's flight control
-    assert len(re.findall(r'<img[^>]*src="data:image/png;base64,', page)) == 6
+    # side-by-side; per capture the attitude, the estimators, the spectrum; flight.stv's flight control
+    assert len(re.findall(r'<img[^>]*src="data:image/png;base64,', page)) == 8
 
 
 @pytest.mark.parametrize(

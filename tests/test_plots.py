@@ -207,3 +207,17 @@ def test_cli_simulate_compare_with(mpl, tmp_path, capsys):
     assert f"eax {eax}°" in with_lines[0]
     code, _, err = run_cli([*args, "--force", "--compare-with", "gain=3"], capsys)
     assert code == 2 and err.count("\n") == 1 and "--compare-with" in err
+
+
+def test_differences_figure_draws_each_estimator_minus_the_firmware(mpl):
+    tel = telemetry(n=500)
+    r = compare_capture(tel, estimators=("accel",))
+    fig = plots.differences_figure(tel, r)
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("accel-only tilt")]
+    est = r.estimates["accel"]
+    want = np.degrees(est.thx_rad.astype(float) - tel.attitude.thx_rad.astype(float))
+    assert np.allclose(line.get_ydata(), want, atol=1e-9)
+    assert f"RMS {r.trace('accel').pitch.rms_deg:.2f}°" in line.get_label()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

@@ -238,7 +238,11 @@ def capture_sections(
     """The sections of one capture: summary and settings, attitude, the replica's verdict, the estimators, the
     step cost, the spectrum and (when the drone was armed) the flight control. ``spectra`` None: ``spectrum_note``
     says why there is none."""
-    from steval_link.analysis.plots import comparison_figure, flight_control_figure  # matplotlib (checked)
+    from steval_link.analysis.plots import (  # matplotlib (checked by the caller)
+        comparison_figure,
+        differences_figure,
+        flight_control_figure,
+    )
 
     summary = Section("summary and settings", lines=format_summary(summarize(tel)))
     summary.sentences += [f"Warning: {w}" for w in warnings]
@@ -260,6 +264,14 @@ def capture_sections(
     )
     verdict = Section("firmware against the replica", sentences=verdict_sentences(report))
     estimators = Section("estimators", tables=[_estimator_table(report)], sentences=list(report.notes))
+    if report.estimates:
+        estimators.figures.append(
+            Figure(
+                "estimators",
+                "each estimator minus the firmware over time, degrees (accelerometer-only tilt in grey)",
+                figure_png(differences_figure(tel, report)),
+            )
+        )
     spectrum = Section("sensor spectrum")
     if spectra is None:
         spectrum.sentences.append(spectrum_note or "no spectrum")

@@ -22,6 +22,7 @@ __all__ = [
     "require_matplotlib",
     "plot_comparison",
     "comparison_figure",
+    "differences_figure",
     "plot_simulation",
     "simulation_figure",
     "plot_flight_control",
@@ -351,6 +352,42 @@ def comparison_figure(tel, report, *, title: str | None = None):
         fontsize=11,
     )
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
+    return fig
+
+
+def differences_figure(tel, report, *, title: str | None = None):
+    """Each estimator minus the firmware over time (degrees), pitch (thx, about x) above roll (thy, about y), from a
+    :class:`~steval_link.analysis.compare.ComparisonReport`'s estimates; each line's label carries its RMS. The
+    accelerometer-only tilt is drawn thin and grey behind the others. Returns the matplotlib figure (Agg)."""
+    plt = require_matplotlib()
+    a = tel.attitude
+    t = np.asarray(report.t_rel_s, dtype=np.float64)
+    fw = {"thx_rad": np.asarray(a.thx_rad, np.float64), "thy_rad": np.asarray(a.thy_rad, np.float64)}
+    fig, axes = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
+    extra = iter(_EXTRA_COLOURS)
+    for ax, attr, what, key in (
+        (axes[0], "thx_rad", "pitch (thx, about x)", "pitch"),
+        (axes[1], "thy_rad", "roll (thy, about y)", "roll"),
+    ):
+        for name, est in report.estimates.items():
+            tr = report.trace(name)
+            label = tr.label if tr is not None else name
+            rms = getattr(tr, key).rms_deg if tr is not None else math.nan
+            c, lw, ls, z = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
+            if name == "accel":
+                c, lw, z = "0.6", 0.6, 2
+            valid = np.asarray(est.valid, bool)
+            d = np.where(valid, np.degrees(_wrap(np.asarray(getattr(est, attr), np.float64) - fw[attr])), np.nan)
+            ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
+        ax.axhline(0.0, color="black", lw=0.8)
+        ax.set_ylabel("estimator − firmware [deg]")
+        ax.set_title(f"{what}: each estimator minus the firmware", fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    axes[-1].set_xlabel("firmware time since the first frame [s]")
+    src = report.source.get("path") or "capture"
+    fig.suptitle(title or f"{Path(str(src)).name}: the estimators against the firmware's angles", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     return fig
 
 
