@@ -129,7 +129,16 @@ def make_blueprint(
         eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
-    link = rrb.Tabs(
+    left = rrb.Vertical(view3d, link_view(live, timeline, yr), row_shares=[3, 2])
+    right = attitude_view(live, timeline, yr, port_verdict, gyro_max_dps)
+    if flight_control:
+        right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
+    return two_columns(left, right, live, timeline)
+
+
+def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]]) -> rrb.Tabs:
+    """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue) and the firmware log."""
+    return rrb.Tabs(
         rrb.Grid(
             _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
             _series(
@@ -155,9 +164,15 @@ def make_blueprint(
         rrb.TextLogView(origin="log", name="Firmware log"),
         name="Link",
     )
-    left = rrb.Vertical(view3d, link, row_shares=[3, 2])
 
-    right = rrb.Vertical(
+
+def attitude_view(
+    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], port_verdict: str | None, gyro_max_dps
+) -> rrb.Vertical:
+    """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
+    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle."""
+
+    return rrb.Vertical(
         rrb.Horizontal(
             _series(
                 ent.PLOT_PITCH,
@@ -205,9 +220,6 @@ def make_blueprint(
         row_shares=[3, 2, 2],
         name="Attitude",
     )
-    if flight_control:
-        right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
-    return two_columns(left, right, live, timeline)
 
 
 def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:
