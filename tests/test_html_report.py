@@ -46,6 +46,7 @@ def demo_report(tmp_path_factory):
     return html, md
 
 
+@pytest.mark.slow  # steval report on the bundled recordings: ≈ 30 s of CPU
 def test_html_embeds_every_figure_and_loads_nothing(demo_report):
     html, _ = demo_report
     page = html.read_text(encoding="utf-8")
@@ -63,6 +64,7 @@ def test_html_embeds_every_figure_and_loads_nothing(demo_report):
     assert "No flight-control figure: the drone was never armed" in page
 
 
+@pytest.mark.slow  # steval report, then headless Chromium
 @pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="needs chromium")
 def test_chromium_shows_every_figure(demo_report, tmp_path):
     html, _ = demo_report
@@ -94,6 +96,7 @@ def test_chromium_shows_every_figure(demo_report, tmp_path):
     assert non_white > 0.05
 
 
+@pytest.mark.slow  # steval report on the bundled recordings: ≈ 30 s of CPU
 def test_markdown_links_its_images(demo_report):
     _, md = demo_report
     text = md.read_text(encoding="utf-8")
@@ -104,6 +107,7 @@ def test_markdown_links_its_images(demo_report):
     assert re.search(r"^\| estimator \| steps \|", text, re.M) and "Bit-exact on 9210 of 9210 steps" in text
 
 
+@pytest.mark.slow  # steval report on the bundled recordings: ≈ 30 s of CPU
 def test_several_captures_side_by_side(monkeypatch, capsys, tmp_path):
     pytest.importorskip("matplotlib")
     out = tmp_path / "two.html"

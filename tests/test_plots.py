@@ -159,6 +159,7 @@ def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tm
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow  # compare with figures on the bundled recordings: ≈ 15 s of CPU each
 @pytest.mark.parametrize("name, armed", [("demo", False), ("flight", True)])
 def test_cli_compare_flight_control_figure_only_when_armed(mpl, tmp_path, capsys, name, armed):
     """demo.stv was never armed: no flight-control figure, and one line says why; flight.stv gets one."""
