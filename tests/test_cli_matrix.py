@@ -53,6 +53,7 @@ BASE: dict[str, list[str]] = {
     "replay": ["{capture}"],
     "compare": ["{capture}"],
     "spectrum": ["{capture}"],
+    "report": ["{capture}", "--out", "{tmp}/report.html", "-e", "accel"],
     "export": ["{capture}", "--csv", "{tmp}/rows.csv"],
     "preflight": ["{capture}"],
     "evaluate": ["{trial}"],

@@ -219,9 +219,8 @@ def test_replay_rrd_has_the_flight_control_view(monkeypatch, capsys, tmp_path):
     ):
         assert info.samples.get(path) == n, path
     views = blueprint_views(out)
-    assert "pitch thx, about x: target vs firmware (deg, nose up +)" in views
-    assert "roll thy, about y: target vs firmware (deg, right side down +)" in views
-    assert "motors (TIM4 counts of 2000)" in views
+    assert "pitch thx vs target (deg)" in views and "roll thy vs target (deg)" in views
+    assert "motors (of 2000)" in views
     assert static_values(out, "world/drone/firmware/motors/m1")
 
 

@@ -157,3 +157,68 @@ def test_missing_matplotlib_is_one_line_with_the_install_command(monkeypatch, tm
         assert code == 2 and err.count("\n") == 1 and 'pip install "steval-link[plot]"' in err
         assert out == ""
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.slow  # compare with figures on the bundled recordings: ≈ 15 s of CPU each
+@pytest.mark.parametrize("name, armed", [("demo", False), ("flight", True)])
+def test_cli_compare_flight_control_figure_only_when_armed(mpl, tmp_path, capsys, name, armed):
+    """demo.stv was never armed: no flight-control figure, and one line says why; flight.stv gets one."""
+    from pathlib import Path
+
+    cap = Path(__file__).resolve().parents[1] / "recordings" / f"{name}.stv"
+    out = tmp_path / "x.png"
+    code, stdout, err = run_cli(["compare", str(cap), "--plot", str(out), "-e", "accel"], capsys)
+    assert code == 0, err
+    fc = tmp_path / "x-flight-control.png"
+    assert png_size(out)[0] > 1000
+    if armed:
+        assert png_size(fc)[0] > 1000 and f"flight-control plot: {fc}" in stdout
+    else:
+        assert not fc.exists()
+        why = [ln for ln in stdout.splitlines() if ln.startswith("no flight-control plot")]
+        assert len(why) == 1 and "never armed" in why[0]
+
+
+def test_simulation_figure_overlays_compare_runs(mpl):
+    from steval_link.emulation.lab5 import run_simulation
+
+    base = run_simulation(acc_mg=(0, 0, 1000), iterations=50)
+    other = run_simulation(acc_mg=(0, 0, 1000), iterations=50, estimator_options={"correction": False})
+    fig = plots.simulation_figure(base, compare=[("correction=off", other)])
+    lines = lines_by_label(fig.axes[0])
+    assert set(lines) == {"st-mahony as given", "with correction=off"}
+    assert np.allclose(lines["with correction=off"].get_ydata(), np.degrees(other.eax_rad.astype(float)))
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["st-mahony as given", "with correction=off"]
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_cli_simulate_compare_with(mpl, tmp_path, capsys):
+    out = tmp_path / "s.png"
+    args = ["simulate", "--acc", "0", "0", "1000", "--noise", "--seed", "3", "--plot", str(out)]
+    code, stdout, err = run_cli([*args, "--compare-with", "ki=1", "--compare-with", "correction=off,kp=2"], capsys)
+    assert code == 0, err
+    assert png_size(out)[0] > 800
+    with_lines = [ln for ln in stdout.splitlines() if ln.startswith("with ")]
+    assert [ln.split(":")[0] for ln in with_lines] == ["with ki=1", "with correction=off,kp=2"]
+    # the same inputs and noise: the compare run is the run with that setting given directly
+    code, alone, _ = run_cli(["simulate", "--acc", "0", "0", "1000", "--noise", "--seed", "3", "--ki", "1"], capsys)
+    eax = [ln for ln in alone.splitlines() if "eax" in ln][0].split(":")[1].split()[0]
+    assert f"eax {eax}°" in with_lines[0]
+    code, _, err = run_cli([*args, "--force", "--compare-with", "gain=3"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "--compare-with" in err
+
+
+def test_differences_figure_draws_each_estimator_minus_the_firmware(mpl):
+    tel = telemetry(n=500)
+    r = compare_capture(tel, estimators=("accel",))
+    fig = plots.differences_figure(tel, r)
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("accel-only tilt")]
+    est = r.estimates["accel"]
+    want = np.degrees(est.thx_rad.astype(float) - tel.attitude.thx_rad.astype(float))
+    assert np.allclose(line.get_ydata(), want, atol=1e-9)
+    assert f"RMS {r.trace('accel').pitch.rms_deg:.2f}°" in line.get_label()
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

@@ -339,3 +339,55 @@ def test_spawn_opens_the_native_viewer_with_the_spectra(tmp_path):
             } <= rec.entities
         png = screenshot(url, tmp_path / "spectrum.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+
+
+def _panels_and_fonts(fig):
+    import matplotlib.text
+
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    texts = [t for t in fig.findobj(matplotlib.text.Text) if t.get_visible() and t.get_text().strip()]
+    return panels, min(t.get_fontsize() for t in texts)
+
+
+def test_figure_has_at_most_nine_readable_panels_and_names_the_register_images(vib_spectra):
+    """Nine panels at most, no text under 9 pt; a 12 Hz gyro-x line's register images (36.3 Hz, 60.6 Hz) are
+    labelled as its images where they appear; a bench capture (constant throttle) has no throttle map."""
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from steval_link.analysis.spectrum_plot import spectra_figure, throttle_varied
+
+    sp = vib_spectra
+    peaks = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k], 4) for k, (name, _, _) in enumerate(S.SIGNALS)}
+    fig = spectra_figure(sp, marks_hz=(12.0,), peaks=peaks)
+    panels, smallest = _panels_and_fonts(fig)
+    assert len(panels) <= 9 and smallest >= 9
+    gyro_x = panels[0]
+    labels = [t.get_text() for t in gyro_x.texts]
+    assert any(t.startswith("36.") and "image of 12.0 Hz" in t for t in labels), labels
+    assert not any(t.startswith("12.0") and "image" in t for t in labels)
+    assert not throttle_varied(sp)
+    assert not any("throttle" in ax.get_title() for ax in panels)
+    plt.close(fig)
+
+
+def test_figure_of_a_flight_has_the_throttle_map():
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from steval_link.analysis.spectrum_plot import spectra_figure, throttle_varied
+
+    sp = S.compute_spectra(load_telemetry(RECORDINGS / "demo.stv"))
+    assert throttle_varied(sp)
+    fig = spectra_figure(sp)
+    panels, smallest = _panels_and_fonts(fig)
+    assert len(panels) == 9 and smallest >= 9
+    assert any("vs throttle" in ax.get_title() for ax in panels)
+    plt.close(fig)
+
+
+@pytest.mark.parametrize("f, seen", [(12.0, {12.31, 36.31, 36.62, 60.62})])
+def test_register_images_beat_at_24_hz(f, seen):
+    lines = S.alias_lines(f, "gyro")
+    assert {round(ln.seen_hz, 2) for ln in lines[1:]} == seen
+    assert S.REGISTER_BEAT_HZ == pytest.approx(2 * 416 - C.ISR_RATE_HZ)

@@ -10,6 +10,7 @@ import pytest
 from support.cli import run_cli
 
 from steval_link.link.load import load_telemetry
+from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit
@@ -81,3 +82,53 @@ def test_3d_labels_are_off_the_rotor_discs(demo_rrd):
         # far from every rotor disc (and beyond the arrow tip)
         assert np.linalg.norm(motors - p, axis=1).min() > drone_model.PROP_RADIUS + 0.3
         assert np.linalg.norm(p) > np.linalg.norm(axes["Arrows3D:vectors"], axis=1).max()
+
+
+def _view(views, origin):
+    return next(v for v in views.values() if v.get("ViewBlueprint:space_origin") == origin)
+
+
+def test_the_replica_is_only_in_the_difference_panel_which_states_its_verdict(demo_rrd):
+    """Bit-exact, the replica's line would hide the firmware's: the angle plots leave it out, and the difference
+    panel says in words how many steps are bit-exact."""
+    views = blueprint_views(demo_rrd)
+    for origin, path in (
+        (ent.PLOT_PITCH, ent.pitch_path(ent.SOURCE_PORT)),
+        (ent.PLOT_ROLL, ent.roll_path(ent.SOURCE_PORT)),
+    ):
+        query = str(_view(views, origin)["ViewContents:query"])
+        assert f"- {path}" in query
+    titles = [name for name, v in views.items() if v.get("ViewBlueprint:space_origin") == ent.PLOT_DIFF]
+    assert titles == ["firmware − port (deg): bit-exact on 9210 of 9210 steps"]
+    yaw = [name for name, v in views.items() if v.get("ViewBlueprint:space_origin") == ent.PLOT_YAW][0]
+    assert "gTHR ≥ 200" in yaw  # the yaw's reset to 0 below the gain-switch throttle, explained
+
+
+def test_legends_of_the_accelerometer_and_link_losses_leave_the_data_free(demo_rrd):
+    views = blueprint_views(demo_rrd)
+    a = load_telemetry(DEMO).attitude
+    acc = np.asarray(a.acc_mg, float)
+    lo, hi = _view(views, ent.PLOT_ACC)["ScalarAxis:range"]
+    assert _view(views, ent.PLOT_ACC)["PlotLegend:corner"] in (LEFT_BOTTOM, 4)
+    # the legend takes the bottom band of the plot: no sample there
+    assert acc.min() > lo + bp.LEGEND_SHARE["sensors"] * (hi - lo) and acc.max() <= hi
+    lo, hi = _view(views, ent.LINK)["ScalarAxis:range"]
+    assert lo < 0 < hi  # zero losses at the bottom, the legend (top left) above them
+
+
+def test_port_verdict_and_legend_room():
+    assert bp.port_verdict([5, 6, 7], [True, True, True], [True, True, True]) == "bit-exact on 3 of 3 steps"
+    v = bp.port_verdict([5, 6, 7, 8], [True, False, True, True], [True, True, True, False])
+    assert v == "first difference at step 6"
+    assert bp.port_verdict([1], [False], [False]) is None
+    lo, hi = bp.legend_room([-10.0, 30.0], share=0.4, bottom=False)
+    assert lo < -10 and 30 < lo + 0.6 * (hi - lo)  # the data in the lower 60 %
+    assert bp.legend_room([np.nan], share=0.4, bottom=True) is None
+
+
+def test_flight_control_tab_says_when_the_drone_was_never_armed():
+    for never_armed in (True, False):
+        right = bp.make_blueprint(flight_control=True, never_armed=never_armed).root_container.contents[1]
+        names = [str(t.name) for t in right.contents]
+        assert names[0] == "Attitude" and names[1].startswith("Flight control")
+        assert ("never armed" in names[1]) == never_armed

@@ -10,13 +10,18 @@ Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` secon
 from __future__ import annotations
 
 import math
-from typing import Iterable
+from typing import Iterable, Mapping
 
+import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from steval_link import constants as C
 from steval_viewer import entities as ent
 
+#: a legend's height over its plot's at the default window (1600×1000): the angle plots with up to five series,
+#: the accelerometer with three, the small link plots with three
+LEGEND_SHARE = {"angles": 0.32, "sensors": 0.42, "link": 0.62}
 #: Width of the scrolling window of the live blueprint, seconds.
 LIVE_WINDOW_S = 10.0
 
@@ -89,6 +94,9 @@ def make_blueprint(
     timeline: str | None = None,
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
+    never_armed: bool = False,
+    port_verdict: str | None = None,
+    y_ranges: Mapping[str, tuple[float, float]] | None = None,
     ble: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint.
@@ -100,7 +108,15 @@ def make_blueprint(
     ``host_time`` live). ``gyro_max_dps``: the largest gyro rate of the recording (a replay): the gyro plot gets a
     fixed symmetric range with labelled ends (:func:`axis_limit`); None: automatic range. ``flight_control``: the
     recording has flight-control frames: the right side gets a second tab, "Flight control" (:func:`flight_view`).
+    ``never_armed``: the flight-control frames never show the drone armed: the tab says so in its name.
+    ``port_verdict``: the replica's verdict in words (:func:`port_verdict`), shown in the difference panel's title.
+    ``y_ranges``: fixed y ranges by plot entity (a replay: :func:`legend_room`, so that a legend covers no data).
+    ``ble``: a BLE link: its own values get a tab under the link (:func:`ble_view`).
+
+    The replica (ST-Mahony port) is drawn only in the difference panel: bit-exact, it would hide the firmware's line
+    in the angle plots.
     """
+    yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     if ghost is None:
         ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
@@ -110,12 +126,22 @@ def make_blueprint(
 
     view3d = rrb.Spatial3DView(
         origin=ent.WORLD,
-        name="Attitude (solid: firmware, ghost: host estimate, yellow: gravity from the accelerometer)",
+        name="Attitude: firmware (solid, red props = front), estimate (ghost), gravity (yellow)",
         overrides=overrides or None,
         eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
-    link = rrb.Tabs(
+    left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble), row_shares=[3, 2])
+    right = attitude_view(live, timeline, yr, port_verdict, gyro_max_dps)
+    if flight_control:
+        right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
+    return two_columns(left, right, live, timeline)
+
+
+def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], ble: bool = False) -> rrb.Tabs:
+    """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue), the firmware log, the
+    text telemetry the firmware printed, and a BLE link's own values (``ble``)."""
+    return rrb.Tabs(
         rrb.Grid(
             _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
             _series(
@@ -124,9 +150,16 @@ def make_blueprint(
                 live,
                 timeline,
                 contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
+                y_range=yr.get(ent.LINK),
                 legend_left=True,
             ),
-            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean, min)", live, timeline, legend=False),
+            _series(
+                ent.LINK_CYCLES,
+                "AHRS cycles/step (max, mean)",
+                live,
+                timeline,
+                legend=False,
+            ),
             _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
@@ -136,31 +169,62 @@ def make_blueprint(
         *([ble_view(live, timeline)] if ble else []),
         name="Link",
     )
-    left = rrb.Vertical(view3d, link, row_shares=[3, 2])
 
-    right = rrb.Vertical(
+
+def attitude_view(
+    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], port_verdict: str | None, gyro_max_dps
+) -> rrb.Vertical:
+    """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
+    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle."""
+
+    return rrb.Vertical(
         rrb.Horizontal(
-            _series(ent.PLOT_PITCH, "thx pitch, about x (deg, nose up +)", live, timeline),
-            _series(ent.PLOT_ROLL, "thy roll, about y (deg)", live, timeline),
+            _series(
+                ent.PLOT_PITCH,
+                "thx pitch, about x (deg, nose up +)",
+                live,
+                timeline,
+                contents=["$origin/**", f"- {ent.pitch_path(ent.SOURCE_PORT)}"],
+                y_range=yr.get(ent.PLOT_PITCH),
+            ),
+            _series(
+                ent.PLOT_ROLL,
+                "thy roll, about y (deg, right side down +)",
+                live,
+                timeline,
+                contents=["$origin/**", f"- {ent.roll_path(ent.SOURCE_PORT)}"],
+                y_range=yr.get(ent.PLOT_ROLL),
+            ),
         ),
         rrb.Horizontal(
-            _series(ent.PLOT_YAW, "thz yaw, gyro-integrated (deg)", live, timeline, legend=False),
-            _series(ent.PLOT_DIFF, "firmware − ST-Mahony port (deg)", live, timeline),
+            _series(
+                ent.PLOT_YAW,
+                f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0",
+                live,
+                timeline,
+                legend=False,
+            ),
+            _series(
+                ent.PLOT_DIFF,
+                "firmware − port (deg)" + (f": {port_verdict}" if port_verdict else ""),
+                live,
+                timeline,
+                y_range=yr.get(ent.PLOT_DIFF),
+            ),
         ),
         rrb.Horizontal(
-            _series(ent.PLOT_ACC, "accelerometer (mg)", live, timeline, legend_bottom=True),
+            _series(
+                ent.PLOT_ACC, "accelerometer (mg)", live, timeline, y_range=yr.get(ent.PLOT_ACC), legend_bottom=True
+            ),
             _series(
                 ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps), legend_bottom=True
             ),
-            _series(ent.PLOT_THROTTLE, "throttle gTHR", live, timeline, legend=False),
+            _series(ent.PLOT_THROTTLE, "gTHR", live, timeline, legend=False),
             column_shares=[2, 2, 1],
         ),
         row_shares=[3, 2, 2],
         name="Attitude",
     )
-    if flight_control:
-        right = rrb.Tabs(right, flight_view(live, timeline), name="Attitude / flight control")
-    return two_columns(left, right, live, timeline)
 
 
 def ble_view(live: bool, timeline: str) -> rrb.Vertical:
@@ -193,7 +257,7 @@ def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:
     )
 
 
-def flight_view(live: bool, timeline: str) -> rrb.Vertical:
+def flight_view(live: bool, timeline: str, never_armed: bool = False) -> rrb.Vertical:
     """The flight-control view: per axis the remote's target against the firmware's angle (pitch = thx about x,
     roll = thy about y), the outer loop's output s1 with its P and I terms per axis, the inner loop's outputs s2,
     the four motor commands, the sticks and the battery."""
@@ -201,21 +265,21 @@ def flight_view(live: bool, timeline: str) -> rrb.Vertical:
     targets = rrb.Horizontal(
         _series(
             "/",
-            "pitch thx, about x: target vs firmware (deg, nose up +)",
+            "pitch thx vs target (deg)",
             live,
             timeline,
             contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"],
         ),
         _series(
             "/",
-            "roll thy, about y: target vs firmware (deg, right side down +)",
+            "roll thy vs target (deg)",
             live,
             timeline,
             contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
         ),
         _series(
             "/",
-            "yaw thz: target vs firmware (deg)",
+            "yaw thz vs target (deg)",
             live,
             timeline,
             contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"],
@@ -228,13 +292,14 @@ def flight_view(live: bool, timeline: str) -> rrb.Vertical:
         ]
     )
     out = rrb.Horizontal(
-        _series(ent.FC_INNER, "inner loop s2 (PWM counts)", live, timeline, legend_bottom=True),
-        _series(ent.FC_MOTORS, "motors (TIM4 counts of 2000)", live, timeline, legend_bottom=True),
-        _series(ent.FC_STICKS, "sticks gAIL, gELE, gRUD, gTHR", live, timeline, legend_bottom=True),
-        _series(ent.FC_VBAT, "battery (V)", live, timeline, legend=False),
+        _series(ent.FC_INNER, "inner loop s2 (PWM)", live, timeline, legend_bottom=True),
+        _series(ent.FC_MOTORS, "motors (of 2000)", live, timeline, legend_bottom=True),
+        _series(ent.FC_STICKS, "remote sticks", live, timeline, legend_bottom=True),
+        _series(ent.FC_VBAT, "Vbat", live, timeline, legend=False),
         column_shares=[2, 2, 2, 1],
     )
-    return rrb.Vertical(targets, outer, out, row_shares=[3, 2, 2], name="Flight control")
+    name = "Flight control (never armed: targets at rest, motors off)" if never_armed else "Flight control"
+    return rrb.Vertical(targets, outer, out, row_shares=[3, 2, 2], name=name)
 
 
 def _symmetric(max_abs: float | None) -> tuple[float, float] | None:
@@ -247,3 +312,36 @@ def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
     bp = make_blueprint(**kwargs)
     rec.send_blueprint(bp, make_active=True, make_default=True)
     return bp
+
+
+def port_verdict(step, bit_exact, seeded) -> str | None:
+    """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
+    None when no row was seeded. Arrays: one per attitude row."""
+    seeded = np.asarray(seeded, bool)
+    exact = np.asarray(bit_exact, bool) & seeded
+    n = int(seeded.sum())
+    if n == 0:
+        return None
+    if int(exact.sum()) == n:
+        return f"bit-exact on {n} of {n} steps"
+    k = int(np.flatnonzero(seeded & ~exact)[0])
+    return f"first difference at step {int(np.asarray(step)[k])}"  # short: a title at the default window size
+
+
+def legend_room(values, *, share: float, bottom: bool, floor: float | None = None) -> tuple[float, float] | None:
+    """A y range that leaves the top (or ``bottom``) ``share`` of a plot's height free for its legend and puts the
+    data in the rest; ``floor``: a lowest value the range always shows (e.g. 0 for counts). None for no finite
+    data. ``share``: the legend's height over the plot's at the default window size (:data:`LEGEND_SHARE`)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    if floor is not None:
+        lo = min(lo, floor)
+    span = hi - lo if hi > lo else max(abs(hi) * 0.1, 1.0)
+    pad = 0.04 * span
+    total = (span + 2 * pad) / (1.0 - share)
+    if bottom:
+        return (hi + pad - total, hi + pad)
+    return (lo - pad, lo - pad + total)

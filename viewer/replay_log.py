@@ -21,6 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link.analysis.flight_control import no_flight_figure_reason
 from steval_link.analysis.summary import values_bad_report
 from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.link.commands import command_log
@@ -332,6 +333,7 @@ def log_replay(
     summary = ReplaySummary(sources=names)
     has_fc = len(getattr(tel, "fc", None) or ()) > 0
     if blueprint:
+        verdict = None if port is None else bp.port_verdict(att.step, port.bit_exact, port.seeded)
         bp.send_blueprint(
             rec,
             live=live_blueprint,
@@ -339,6 +341,9 @@ def log_replay(
             ghost=None if ghost is None else ent.source_name(ghost),
             gyro_max_dps=_max_abs(np.asarray(att.gyro_mdps, dtype=np.float64)) / 1000.0,
             flight_control=has_fc,
+            never_armed=has_fc and no_flight_figure_reason(tel.fc) is not None,
+            port_verdict=verdict,
+            y_ranges=None if live_blueprint else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_PORT]),
         )
     scene.log_static(rec, names, with_port=port is not None)
     if has_fc:
@@ -362,6 +367,28 @@ def log_replay(
     if has_fc:
         flight_log.log_flight_control(rec, tel, summary)
     return summary
+
+
+def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, float]]:
+    """Fixed y ranges of a replay's plots whose legends would cover data (:func:`blueprint.legend_room`): the
+    angles (legend at the top right), the accelerometer (bottom), the link losses (top left)."""
+    att = tel.attitude
+    out: dict[str, tuple[float, float] | None] = {}
+    for path, fw, attr in ((ent.PLOT_PITCH, att.thx_rad, "thx_rad"), (ent.PLOT_ROLL, att.thy_rad, "thy_rad")):
+        vals = [_deg(fw)] + [_deg(getattr(e, attr))[estimate_mask(e, len(att.step))] for e in estimates]
+        share = bp.LEGEND_SHARE["angles"] * min(len(vals), 5) / 5
+        out[path] = bp.legend_room(np.concatenate(vals), share=share, bottom=False)
+    out[ent.PLOT_ACC] = bp.legend_room(
+        np.asarray(att.acc_mg, np.float64), share=bp.LEGEND_SHARE["sensors"], bottom=True
+    )
+    step = np.asarray(att.step, dtype=np.int64)
+    lost = [float(np.clip(np.diff(step) - 1, 0, None).sum()) if len(step) > 1 else 0.0]
+    lost.append(float(getattr(getattr(tel, "stats", None), "crc_failures", 0) or 0))
+    st = getattr(tel, "status", None)
+    if st is not None and len(getattr(st, "t_fw_s", ())):
+        lost.append(float(np.nanmax(np.asarray(st.tx_dropped, np.float64))))
+    out[ent.LINK] = bp.legend_room(np.asarray(lost), share=bp.LEGEND_SHARE["link"], bottom=False, floor=0.0)
+    return {k: v for k, v in out.items() if v is not None}
 
 
 #: Registry names that mean the firmware's own filter: replaced by the status-seeded bit-exact port.

@@ -19,10 +19,11 @@ AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
 AXIS_LABEL_LIFT = 0.3
 
 
-def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5) -> None:
+def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5, visible=None) -> None:
     names = [name] if isinstance(name, str) else list(name)
     colors = [color] if isinstance(color, tuple) else list(color)
-    rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
+    lines = rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names), visible_series=visible)
+    rec.log(path, lines, static=True)
 
 
 def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_port: bool) -> None:
@@ -83,4 +84,5 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         ent.LINK_CYCLES,
         ["cycles min", "cycles mean", "cycles max"],
         [(44, 160, 44), (127, 127, 127), (214, 39, 40)],
+        visible=[False, True, True],  # the plot's title names max and mean; min can be shown in the blueprint panel
     )

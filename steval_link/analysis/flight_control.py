@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.link.protocol import FC_ARMED
 
 __all__ = [
     "MOTORS",
@@ -37,6 +38,7 @@ __all__ = [
     "mixer_pwm",
     "expected_motor_pwm",
     "outer_p",
+    "no_flight_figure_reason",
 ]
 
 
@@ -108,3 +110,19 @@ def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
     ang = np.asarray(angles_rad, dtype=np.float32).reshape(-1, 3)
     kp = np.asarray(C.OUTER_KP, dtype=np.float32)
     return kp * (rc - ang)
+
+
+def no_flight_figure_reason(fc) -> str | None:
+    """Why a capture gets no flight-control figure (one sentence), or None when it gets one.
+
+    ``fc``: a telemetry's flight-control rows (``tel.fc``). A figure needs frames, and the drone armed in at least
+    one of them (``fc_flags`` bit 0): while disarmed the targets are the sticks' idle positions and the motors 0.
+    """
+    if len(fc) == 0:
+        return "the capture has no flight-control frames"
+    if not (np.asarray(fc.fc_flags).astype(np.int64) & FC_ARMED).any():
+        return (
+            f"the drone was never armed in its {len(fc)} flight-control frames "
+            "(targets at the sticks' rest, motors at 0)"
+        )
+    return None

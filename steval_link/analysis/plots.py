@@ -22,6 +22,7 @@ __all__ = [
     "require_matplotlib",
     "plot_comparison",
     "comparison_figure",
+    "differences_figure",
     "plot_simulation",
     "simulation_figure",
     "plot_flight_control",
@@ -350,6 +351,42 @@ def comparison_figure(tel, report, *, title: str | None = None):
     return fig
 
 
+def differences_figure(tel, report, *, title: str | None = None):
+    """Each estimator minus the firmware over time (degrees), pitch (thx, about x) above roll (thy, about y), from a
+    :class:`~steval_link.analysis.compare.ComparisonReport`'s estimates; each line's label carries its RMS. The
+    accelerometer-only tilt is drawn thin and grey behind the others. Returns the matplotlib figure (Agg)."""
+    plt = require_matplotlib()
+    a = tel.attitude
+    t = np.asarray(report.t_rel_s, dtype=np.float64)
+    fw = {"thx_rad": np.asarray(a.thx_rad, np.float64), "thy_rad": np.asarray(a.thy_rad, np.float64)}
+    fig, axes = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
+    extra = iter(_EXTRA_COLOURS)
+    for ax, attr, what, key in (
+        (axes[0], "thx_rad", "pitch (thx, about x)", "pitch"),
+        (axes[1], "thy_rad", "roll (thy, about y)", "roll"),
+    ):
+        for name, est in report.estimates.items():
+            tr = report.trace(name)
+            label = tr.label if tr is not None else name
+            rms = getattr(tr, key).rms_deg if tr is not None else math.nan
+            c, lw, ls, z = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
+            if name == "accel":
+                c, lw, z = "0.6", 0.6, 2
+            valid = np.asarray(est.valid, bool)
+            d = np.where(valid, np.degrees(_wrap(np.asarray(getattr(est, attr), np.float64) - fw[attr])), np.nan)
+            ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
+        ax.axhline(0.0, color="black", lw=0.8)
+        ax.set_ylabel("estimator − firmware [deg]")
+        ax.set_title(f"{what}: each estimator minus the firmware", fontsize=10, loc="left")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    axes[-1].set_xlabel("firmware time since the first frame [s]")
+    src = report.source.get("path") or "capture"
+    fig.suptitle(title or f"{Path(str(src)).name}: the estimators against the firmware's angles", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    return fig
+
+
 def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
     """Write :func:`flight_control_figure` as a PNG to ``out_png`` (returns the path)."""
     return save_figure(flight_control_figure(tel, title=title), out_png)
@@ -446,15 +483,25 @@ def _wrap(d: np.ndarray) -> np.ndarray:
     return (d + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def plot_simulation(result, out_png, *, title: str | None = None) -> Path:
+def plot_simulation(result, out_png, *, title: str | None = None, compare=()) -> Path:
     """Write :func:`simulation_figure` as a PNG to ``out_png`` (returns the path; UserError when not writable)."""
-    return save_figure(simulation_figure(result, title=title), out_png)
+    return save_figure(simulation_figure(result, title=title, compare=compare), out_png)
 
 
-def simulation_figure(result, *, title: str | None = None):
+#: colours of overlaid ``simulate`` runs: the run as given first
+_RUN_COLOURS = ["black", "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown", "tab:cyan"]
+
+
+def _run_label(res) -> str:
+    """The run as given, in a few words: its estimator and options."""
+    opts = ", ".join(f"{k}={v}" for k, v in (res.options or {}).items())
+    return f"{res.estimator}" + (f" ({opts})" if opts else "") + " as given"
+
+
+def simulation_figure(result, *, title: str | None = None, compare=()):
     """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    :class:`steval_link.emulation.lab5.SimulationResult` (UMaine Lab 5), with the inputs in the title. Returns the
-    matplotlib figure (Agg)."""
+    :class:`steval_link.emulation.lab5.SimulationResult` (UMaine Lab 5), with the inputs in the title. ``compare``:
+    ``(label, result)`` of other runs on the same inputs, overlaid with a legend. Returns the matplotlib figure."""
     plt = require_matplotlib()
     res = result
     k = np.asarray(res.step, dtype=np.int64)
@@ -464,21 +511,31 @@ def simulation_figure(result, *, title: str | None = None):
         ("eay_rad", "eay = thy: roll (about y)", "tab:red"),
         ("eaz_rad", "eaz = thz: yaw (about z)", "tab:green"),
     )
+    runs = [(_run_label(res), res)] + [(f"with {label}", r) for label, r in compare]
     valid = np.asarray(res.valid, bool)
     for ax, (attr, label, c) in zip(axes, names):
+        for i, (run_label, r) in enumerate(runs):
+            colour = c if not compare else _RUN_COLOURS[i % len(_RUN_COLOURS)]
+            kr = np.asarray(r.step, dtype=np.int64)
+            v = np.degrees(np.asarray(getattr(r, attr), dtype=np.float64))
+            ls = "-" if i == 0 else ("--", "-.", ":")[(i - 1) % 3]
+            ax.plot(kr, v, color=colour, lw=1.2, ls=ls, marker="." if kr.size <= 200 and not compare else None,
+                    ms=3, label=run_label if compare else label)  # fmt: skip
         v = np.degrees(np.asarray(getattr(res, attr), dtype=np.float64))
-        ax.plot(k, v, color=c, lw=1.2, marker="." if k.size <= 200 else None, ms=3, label=label)
         bad = ~valid | ~np.isfinite(v)
         if bad.any():
             ax.plot(k[bad], np.zeros(int(bad.sum())), "x", color="crimson", ms=4, label="invalid / NaN")
-        if k.size:
+        if k.size and not compare:
             final = f"final {v[-1]:+.6f}°" if np.isfinite(v[-1]) else "final: NaN"
             ax.set_title(final, fontsize=9, loc="right", color=c)
         ax.set_ylabel(f"{label.split(':')[0]} [deg]")
         ax.set_title(label, fontsize=10, loc="left")
         ax.grid(True, alpha=0.3)
-        if bad.any():
+        if bad.any() and not compare:
             ax.legend(fontsize=7, loc="upper left")
+    if compare:
+        h, lab = axes[0].get_legend_handles_labels()
+        fig.legend(h, lab, loc="upper center", bbox_to_anchor=(0.5, 0.925), ncol=min(len(h), 3), fontsize=9)
     axes[-1].set_xlabel(f"iteration (dt = {res.dt_s * 1e3:g} ms)")
     dt = float(res.dt_s)
     if dt > 0:
@@ -504,5 +561,5 @@ def simulation_figure(result, *, title: str | None = None):
     fig.suptitle(
         title or f"steval simulate: {res.estimator}{opts}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
     )
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    fig.tight_layout(rect=(0, 0, 1, 0.96 - 0.035 * ((len(runs) + 2) // 3) if compare else 0.96))
     return fig

@@ -33,6 +33,7 @@ from steval_link.errors import UserError
 __all__ = [
     "SIGNALS",
     "UNITS",
+    "REGISTER_BEAT_HZ",
     "DEFAULT_NPERSEG",
     "MIN_NPERSEG",
     "AliasLine",
@@ -51,6 +52,9 @@ __all__ = [
     "format_summary",
 ]
 
+#: the beat of the gyro's 416 Hz output register read at the ISR rate (2·416 − 807.7 ≈ 24.3 Hz): a gyro line at f
+#: also shows, weakly, at |f ± 24.3| and |f ± 48.6| Hz
+REGISTER_BEAT_HZ = 2 * GYRO_ODR_HZ - C.ISR_RATE_HZ
 #: the six signals, in column order: (name, sensor, axis index)
 SIGNALS: tuple[tuple[str, str, int], ...] = tuple(
     (f"{sensor}_{axis}", sensor, i) for sensor in ("gyro", "acc") for i, axis in enumerate("xyz")
@@ -119,18 +123,20 @@ class AliasLine:
     what: str
 
 
-def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.01) -> list[AliasLine]:
+def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.005) -> list[AliasLine]:
     """The lines a sinusoid at ``f_hz`` (Hz, at the sensor) makes in the spectrum of ``sensor``'s rows.
 
     The main line is at :func:`alias_hz` of f with :func:`chain_gain`; the gyro's 416 Hz output register adds images
-    at ``|k·416 ± f|`` (k = 1, 2) weighted by the hold, each then aliased the same way; images weaker than
-    ``min_gain`` are left out. ``rate_hz``: the rows' rate (161.54 Hz, or less for decimated text-mode rows).
+    at ``|k·416 ± f|`` (k = 1 … 4) weighted by the hold, each then aliased the same way; images weaker than
+    ``min_gain`` are left out. Read at 807.7 Hz, the register's images land at ``|f ± m·24.3 Hz|`` (m = 1, 2:
+    2·416 − 807.7 = 24.3 Hz): a 12 Hz gyro line also shows at 36.3 and 60.6 Hz, about 1 % as strong.
+    ``rate_hz``: the rows' rate (161.54 Hz, or less for decimated text-mode rows).
     """
     f = abs(float(f_hz))
     direct = f <= rate_hz / 2
     lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
     if sensor == "gyro":
-        for k in (1, 2):
+        for k in (1, 2, 3, 4):
             for image in (k * GYRO_ODR_HZ - f, k * GYRO_ODR_HZ + f):
                 image = abs(image)
                 if abs(image - f) < 1e-9:

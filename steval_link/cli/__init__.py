@@ -19,6 +19,7 @@ from steval_link.cli import live as _live  # noqa: F401
 from steval_link.cli import ports as _ports  # noqa: F401
 from steval_link.cli import preflight as _preflight  # noqa: F401
 from steval_link.cli import replay as _replay  # noqa: F401
+from steval_link.cli import report as _report  # noqa: F401
 from steval_link.cli import simulate as _simulate  # noqa: F401
 from steval_link.cli import spectrum as _spectrum  # noqa: F401
 from steval_link.cli import synth as _synth  # noqa: F401

@@ -17,6 +17,7 @@ import typer
 
 from steval_link.analysis.ble import load_ble, run_ble_estimators
 from steval_link.analysis.compare import compare_capture, format_report
+from steval_link.analysis.flight_control import no_flight_figure_reason
 from steval_link.analysis.side_by_side import (
     ALIGN_MODES,
     flight_of_ble,
@@ -106,7 +107,7 @@ def compare_command(
             "--plot",
             metavar="OUT.png",
             help="Also write a figure (angles over time, firmware − port, "
-            "differences per estimator) and, for a capture with flight-control frames, OUT-flight-control.png "
+            "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
             "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
             'side; needs matplotlib: pip install "steval-link\\[plot]".',
         ),
@@ -220,7 +221,8 @@ def compare_command(
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
-        if plot is not None and len(tel.fc):
+        no_fc_plot = no_flight_figure_reason(tel.fc)
+        if plot is not None and no_fc_plot is None:
             check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))
         for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
             print(f"steval: warning: {w}", file=sys.stderr)
@@ -235,16 +237,18 @@ def compare_command(
             progress(0.9, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_comparison(tel, report, part)
-                if len(tel.fc):
+                if no_fc_plot is None:
                     from steval_link.analysis.plots import plot_flight_control  # as above
 
                     fc_plot = flight_plot_path(plot)
                     with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
-    if plot is not None and len(tel.fc):
+    if plot is not None and no_fc_plot is None:
         plots.append(("plot_flight_control", "flight-control plot", flight_plot_path(plot)))
     _print_report(as_json, report.as_dict, lambda: format_report(report), plots)
+    if plot is not None and no_fc_plot is not None and len(tel.fc):
+        print(f"no flight-control plot: {no_fc_plot}.", file=sys.stderr if as_json else sys.stdout)
 
 
 def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:

@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 #: option names whose value is a file a command writes
-OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap"})
+OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap", "--markdown"})
 #: suffix of a file being written (renamed into place when complete)
 PARTIAL = ".partial"
 

@@ -267,6 +267,14 @@ def simulate_command(
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ),
+    compare_with: Optional[list[str]] = typer.Option(
+        None,
+        "--compare-with",
+        metavar="NAME=VALUE,...",
+        help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
+        "(repeatable): ki, kp, dt, throttle, correction=on|off, fresh-squares=on|off, estimator; e.g. "
+        "--compare-with ki=1 --compare-with correction=off.",
+    ),
     force: ForceOption = False,
 ) -> None:
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
@@ -336,15 +344,16 @@ def simulate_command(
     if rrd is not None:
         with atomic_output(rrd, option="--rrd") as part:
             _log_rrd(res, part)
+    others = _compare_runs(compare_with or [], res, gyro, acc, options, throttle, estimator)
     if plot is not None:
         from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
 
         with atomic_output(plot, option="--plot", keep_suffix=True) as part:
-            plot_simulation(res, part)
+            plot_simulation(res, part, compare=others)
     if csv_out is not None and csv_out != "-":
         with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
             write_csv(res, fh)
-    text = summary(res, gyro, acc, throttle)
+    text = summary(res, gyro, acc, throttle) + "".join(f"\n{_final_line(label, r)}" for label, r in others)
     if rrd is not None:
         text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"
     if json_out:
@@ -363,3 +372,87 @@ def _log_rrd(res: SimulationResult, path: Path) -> None:
     except ImportError:
         raise UserError("--rrd needs the viewer's steval_viewer.simulate_log, which this installation lacks") from None
     log_simulation(res, path)
+
+
+#: ``--compare-with`` names → (estimator option or run setting, value type)
+_COMPARE_NAMES = {
+    "ki": ("ki", float),
+    "kp": ("kp", float),
+    "dt": ("dt_s", float),
+    "correction": ("correction", bool),
+    "fresh-squares": ("fresh_squares", bool),
+    "throttle": ("throttle", int),
+    "estimator": ("estimator", str),
+}
+
+
+def _compare_value(name: str, text: str, kind: type):
+    """One ``--compare-with`` value as its type; UserError naming the option when it is not one."""
+    if kind is bool:
+        if text.lower() not in ("on", "off", "true", "false", "1", "0"):
+            raise UserError(f"--compare-with {name}={text}: give on or off")
+        return text.lower() in ("on", "true", "1")
+    try:
+        v = kind(text)
+    except ValueError:
+        raise UserError(f"--compare-with {name}={text}: not a {kind.__name__}") from None
+    if kind is float and not math.isfinite(v):
+        raise UserError(f"--compare-with {name}={text}: must be a finite number")
+    if name == "dt" and v <= 0:
+        raise UserError(f"--compare-with dt={text}: must be a period > 0 s")
+    return v
+
+
+def _compare_runs(specs: list[str], res: SimulationResult, gyro, acc, options: dict, throttle: int, estimator: str):
+    """Each ``--compare-with NAME=VALUE,...``: a run on the same inputs and noise (the first run's seed) with those
+    settings changed; returns [(label, result)]."""
+    out = []
+    for spec in specs:
+        opts, thr, est = dict(options), throttle, estimator
+        for item in filter(None, (p.strip() for p in spec.split(","))):
+            name, sep, text = item.partition("=")
+            name = name.strip().lower().replace("_", "-")
+            if not sep or name not in _COMPARE_NAMES:
+                raise UserError(
+                    f"--compare-with {spec!r}: give NAME=VALUE pairs, NAME one of {', '.join(_COMPARE_NAMES)}"
+                )
+            key, kind = _COMPARE_NAMES[name]
+            v = _compare_value(name, text.strip(), kind)
+            if key == "throttle":
+                check_throttle("--compare-with throttle", v)
+                thr = v
+            elif key == "estimator":
+                if not registry.is_known(v):
+                    raise UserError(f"--compare-with estimator={v}: unknown estimator")
+                est = v if v in registry.ESTIMATORS else registry.resolve(v)
+            else:
+                opts[key] = v
+        if est != "st-mahony" and est != estimator:
+            opts = {}  # another estimator: its own defaults (the filter options are the firmware filter's)
+        try:
+            r = run_simulation(
+                gyro_mdps=gyro,
+                acc_mg=acc,
+                iterations=res.iterations,
+                gyro_noise_mdps=res.gyro_noise_mdps,
+                acc_noise_mg=res.acc_noise_mg,
+                seed=res.seed,
+                throttle=thr,
+                estimator=est,
+                estimator_options=opts,
+            )
+        except (ImportError, ValueError) as exc:
+            raise UserError(f"--compare-with {spec}: {exc}") from None
+        out.append((spec, r))
+    return out
+
+
+def _final_line(label: str, r: SimulationResult) -> str:
+    """The final angles of a ``--compare-with`` run, in degrees."""
+    if not r.iterations:
+        return f"with {label}: no iterations"
+    ang = ", ".join(
+        f"{n} {math.degrees(float(getattr(r, a)[-1])):+.6f}°"
+        for n, a in (("eax", "eax_rad"), ("eay", "eay_rad"), ("eaz", "eaz_rad"))
+    )
+    return f"with {label}: final {ang}"

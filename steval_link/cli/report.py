@@ -1,0 +1,128 @@
+"""``steval report``: one or more captures as a lab report, a self-contained HTML page (``--out``) and/or Markdown
+with its figures beside it (``--markdown``); the sections and writers are in
+:mod:`steval_link.analysis.html_report`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.analysis import html_report as H
+from steval_link.analysis import spectrum as S
+from steval_link.analysis.compare import compare_capture
+from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
+from steval_link.cli.app import app
+from steval_link.cli.checks import require_attitude
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.progress import progress_bar, scaled
+from steval_link.cli.replay import load_replay
+from steval_link.errors import UserError
+from steval_link.estimators import registry
+from steval_link.link.ble_payloads import is_ble_source
+from steval_link.link.load import read_recording
+
+__all__ = ["report_command"]
+
+
+def _spectrum(tel):
+    """The spectra and peaks of ``tel``, or (None, {}, the sentence why there are none)."""
+    try:
+        sp = S.compute_spectra(tel)
+    except UserError as exc:
+        return None, {}, str(exc)
+    peaks = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k]) for k, (name, _, _) in enumerate(S.SIGNALS)}
+    return sp, peaks, None
+
+
+@app.command("report")
+def report_command(
+    captures: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
+        ),
+    ],
+    out: Annotated[
+        Optional[Path],
+        typer.Option("--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."),
+    ] = None,
+    markdown: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--markdown",
+            metavar="REPORT.md",
+            help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
+        ),
+    ] = None,
+    estimator: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--estimator",
+            "--estimators",
+            "-e",
+            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
+            "FILE.py:CLASS.",
+        ),
+    ] = None,
+    title: Annotated[Optional[str], typer.Option("--title", help="The report's title.")] = None,
+    force: ForceOption = False,
+) -> None:
+    """A lab report in one command: per capture its summary and filter settings, the attitude figure with
+    accelerometer-only tilt, the firmware-vs-replica verdict, the estimators' table (with the RMSE against the
+    ground truth when the capture keeps one), the AHRS step cost (exercise 6), the sensor spectrum and, for an armed
+    drone, the flight control; with several captures also the flights side by side. The HTML page embeds every
+    figure and loads nothing from the network: open it in any browser, hand it in or paste from it."""
+    if out is None and markdown is None:
+        raise UserError("give --out REPORT.html and/or --markdown REPORT.md: where the report goes.")
+    names = registry.parse_names(
+        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
+    )
+    sources = [read_recording(c) for c in captures]  # the inputs first, then the outputs
+    for src in sources:
+        if is_ble_source(src):
+            raise UserError(
+                f"{src.path} is a BLE capture: steval report takes serial captures (steval compare "
+                "takes BLE captures side by side)."
+            )
+    inputs = tuple(s.path for s in sources)
+    for option, path in (("--out", out), ("--markdown", markdown)):
+        if path is not None:
+            check_output(path, option=option, force=force, inputs=inputs)
+    from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only here (start-up time)
+
+    require_matplotlib()
+    per, flights = [], []
+    with progress_bar("report") as progress:
+        for i, (path, src) in enumerate(zip(captures, sources)):
+            part = scaled(progress, i / len(captures), (i + 0.9) / len(captures))
+            tel, warnings = load_replay(path, scaled(part, 0.0, 0.2), src=src)
+            require_attitude(tel, "report on")
+            part(0.2, f"{path.name}: replica and {', '.join(names)}")
+            report = compare_capture(tel, estimators=names)
+            part(0.6, f"{path.name}: spectrum and figures")
+            sp, peaks, why = _spectrum(tel)
+            per.append((path.name, H.capture_sections(tel, report, sp, peaks, warnings=warnings, spectrum_note=why)))
+            if len(captures) > 1:
+                flights.append(flight_of_telemetry(path, tel, warnings))
+        side = H.side_by_side_section(side_by_side(flights)) if len(flights) > 1 else None
+        rep = H.report_of(title or "steval report: " + ", ".join(c.name for c in captures), per, side)
+        progress(0.95, "writing")
+        _write(rep, out, markdown)
+    for label, path in (("report", out), ("markdown", markdown)):
+        if path is not None:
+            print(f"{label}: {path}")
+    sys.stdout.flush()
+
+
+def _write(rep, out: Path | None, markdown: Path | None) -> None:
+    """The HTML page and/or the Markdown with its images (each written whole or not at all)."""
+    if out is not None:
+        with atomic_output(out, option="--out", keep_suffix=True) as part:
+            part.write_text(H.render_html(rep), encoding="utf-8")
+    if markdown is not None:
+        images = markdown.with_name(f"{markdown.stem}_images")
+        with atomic_output(markdown, option="--markdown", keep_suffix=True) as part:
+            part.write_text(H.render_markdown(rep, images, images.name), encoding="utf-8")
