@@ -80,6 +80,9 @@ def compare_capture(
     tel,
     estimators: Sequence[str] = registry.COMPARE_DEFAULT,
     settings: MahonySettings | None = None,
+    *,
+    variant: str | None = None,
+    variant_source: str = "--variant",
 ) -> ComparisonReport:
     """Compare a capture's firmware angles with the seeded ST-Mahony replica and with ``estimators``.
 
@@ -89,6 +92,8 @@ def compare_capture(
             unseeded replica from power-up; the seeded replica is always compared). Names this installation lacks are
             reported as unavailable.
         settings: filter settings for the replica (default: those of the status frames, else the firmware's).
+        variant: the ST release whose filter the replica runs (named by ``variant_source``); default: recognised
+            from the data (the variant bit-exact on the most steps).
 
     Returns:
         A :class:`ComparisonReport`; angles in the report are degrees, thx = pitch (about x), thy = roll (about y).
@@ -106,7 +111,7 @@ def compare_capture(
     notes: list[str] = []
     traces: list[TraceComparison] = []
 
-    replica, rep, prow = compare_replica(tel, settings)
+    replica, rep, prow = compare_replica(tel, settings, variant=variant, variant_source=variant_source)
     if replica is not None:
         thx = np.full(n, np.nan)
         thy = np.full(n, np.nan)

@@ -5,11 +5,15 @@ status snapshots and attitude rows (:class:`ReplicaFollower`) that the replay of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from steval_link.estimators.st_mahony import (
+    DEFAULT_VARIANT as VARIANTS_DEFAULT,
+)
+from steval_link.estimators.st_mahony import (
+    VARIANTS,
     MahonySettings,
     MahonyState,
     bits_equal,
@@ -20,7 +24,7 @@ from steval_link.estimators.st_mahony import (
 from steval_link.fw_math import _F32
 from steval_link.link.protocol import FLAG_EVENT
 
-__all__ = ["ReplicaFollower", "ReplaySeed", "FirmwareReplay", "replay_firmware"]
+__all__ = ["ReplicaFollower", "ReplaySeed", "FirmwareReplay", "replay_firmware", "VariantReplay", "replay_variants"]
 
 
 class ReplicaFollower:
@@ -190,7 +194,9 @@ class FirmwareReplay:
         return self.n_seeded > 0 and self.first_mismatch is None
 
 
-def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
+def replay_firmware(
+    tel, settings: MahonySettings | None = None, *, variant: str | None = None, native: bool | None = None
+) -> FirmwareReplay:
     """Re-run the replica over a capture's inputs and compare it with the firmware's outputs, bit for bit.
 
     Args:
@@ -199,6 +205,8 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
             min_thr/flags``).
         settings: filter constants; default: those reported by the status frames (the seeding one, else the
             first one), or the firmware's defaults when the capture has no status frame.
+        variant: the release whose filter arithmetic every seed uses (a key of ``VARIANTS``); default: the
+            settings' own (the status frames': ST 170120 unless their flags say ST 221117).
         native: force the C or the pure loop (default: C when built).
 
     The replica starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
@@ -219,6 +227,13 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         fw_thx, fw_thy = quaternion_to_euler(fw_q)
 
     status = getattr(tel, "status", None)
+
+    def of_status(j: int) -> MahonySettings:
+        s = MahonySettings.of_status(status, j)
+        return s if variant is None else replace(s, variant=variant)
+
+    if settings is not None and variant is not None:
+        settings = replace(settings, variant=variant)
 
     def col(name: str, dtype=np.float64) -> np.ndarray:
         return np.asarray(table_column(status, name), dtype=dtype)
@@ -241,11 +256,11 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         # that diverged still runs with the build's settings)
         first = np.flatnonzero(has_settings)
         default_settings = (
-            MahonySettings.of_status(status, int(order[0]))
+            of_status(int(order[0]))
             if order.size
-            else MahonySettings.of_status(status, int(first[0]))
+            else of_status(int(first[0]))
             if first.size
-            else MahonySettings()
+            else MahonySettings(variant=variant or VARIANTS_DEFAULT)
         )
 
     try:  # rounded text-mode rows are no exact filter inputs: never replayed
@@ -289,7 +304,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
                 replica.snapshot(
                     int(st_sorted[k]),
                     MahonyState(q_wxyz=table_column(status, "q_wxyz")[j], int_xyz=table_column(status, "int_xyz")[j]),
-                    MahonySettings.of_status(status, j),
+                    of_status(j),
                     snapshot_id=j,
                     event=is_event,
                 )
@@ -316,3 +331,52 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         first_mismatch=int(bad[0]) if bad.size else None,
         seeds=tuple(seeds),
     )
+
+
+@dataclass(frozen=True)
+class VariantReplay:
+    """The release whose filter reproduces a capture: ``variant`` (a key of ``VARIANTS``), ``source`` (how it was
+    chosen: "--variant", "firmware ELF", "data", or "settings" when every variant is as exact), ``replay`` (the
+    replay with it) and ``bit_exact`` (bit-exact steps of each variant tried; empty when it was forced)."""
+
+    variant: str
+    source: str
+    replay: FirmwareReplay
+    bit_exact: dict
+
+    @property
+    def matches(self) -> bool:
+        """True when the chosen variant is bit-exact on every seeded step."""
+        return self.replay.all_exact
+
+
+def replay_variants(
+    tel,
+    settings: MahonySettings | None = None,
+    *,
+    variant: str | None = None,
+    source: str = "--variant",
+    native: bool | None = None,
+) -> VariantReplay:
+    """Replay the capture with the release's filter named by ``variant`` (then ``source`` says who named it), else
+    with each of ``VARIANTS`` and keep the one with the most bit-exact steps; on a tie, the settings' own (the status
+    frames', else ST 170120)."""
+    if variant is not None:
+        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
+    replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
+    preferred = settings.variant if settings is not None else _status_variant(tel)
+    counts = {v: r.n_bit_exact for v, r in replays.items()}
+    best = max(counts.values())
+    winners = [v for v, n in counts.items() if n == best]
+    chosen = preferred if preferred in winners else winners[0]
+    how = "data" if len(winners) == 1 else "settings"
+    return VariantReplay(chosen, how, replays[chosen], counts)
+
+
+def _status_variant(tel) -> str:
+    """The variant the first binary status frame's flags announce (ST 170120 without one)."""
+    status = getattr(tel, "status", None)
+    if status is None or len(np.asarray(table_column(status, "step"))) == 0:
+        return VARIANTS_DEFAULT
+    rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
+    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else VARIANTS_DEFAULT
