@@ -103,7 +103,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
 
 
 def _fmt_setting(v) -> str:
-    return ("on" if v else "off") if isinstance(v, bool) else f"{v:g}"
+    return ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
 
 
 def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[dict[str, Any]]:

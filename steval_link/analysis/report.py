@@ -332,7 +332,7 @@ def format_report(r: ComparisonReport) -> list[str]:
         diff = fs["differs_from_defaults"]
 
         def val(x):
-            return ("on" if x else "off") if isinstance(x, bool) else f"{x:g}"
+            return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
 
         tail = (
             "firmware defaults"
