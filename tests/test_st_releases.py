@@ -48,4 +48,4 @@ def test_a_forced_other_release_says_how_far_it_goes(release_capture, monkeypatc
     other = "170318" if release == "221117" else "221117"
     code, text, err = run_cli(monkeypatch, capsys, "compare", cap, "--variant", other, "-e", "accel")
     assert code == 0, err
-    assert "NOT bit-exact" in text and "filter: no ST release's filter is bit-exact on every step; closest" in text
+    assert "NOT bit-exact" in text and "(from the --variant): bit-exact on" in text and "leaves the firmware at" in text

@@ -140,6 +140,8 @@ def compare_capture(
         label = TRACE_LABELS.get(name, name)
         traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy, why))
 
+    if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
+        notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
     nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
     nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))

@@ -22,7 +22,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import ReplicaComparison, json_number
-from steval_link.estimators.firmware_replay import FirmwareReplay, replay_firmware, replay_variants
+from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence, replay_firmware, replay_variants
 from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link.plausibility import q_off_sphere
@@ -575,3 +575,30 @@ def compare_replica(
         rep,
         rows,
     )
+
+
+def recognise_release(tel, *, variant: str | None = None, source: str = "--variant") -> dict[str, Any] | None:
+    """The ST release whose filter reproduces the capture's binary rows (``variant`` forces one, named by
+    ``source``): ``{"filter", "from", "variant_bit_exact_steps", "bit_exact_steps", "seeded_steps", "text"}``, or
+    None without binary attitude rows. No settings are searched (``compare`` does that)."""
+    view, rows = _binary_view(tel)
+    if rows.size == 0:
+        return None
+    chosen = replay_variants(view, variant=variant, source=source)
+    rep = chosen.replay
+    first = None if rep.first_mismatch is None else int(view.attitude.step[rep.first_mismatch])
+    return {
+        "filter": chosen.variant,
+        "from": chosen.source,
+        "variant_bit_exact_steps": chosen.bit_exact,
+        "bit_exact_steps": rep.n_bit_exact,
+        "seeded_steps": rep.n_seeded,
+        "text": release_sentence(
+            chosen.variant,
+            chosen.source,
+            chosen.bit_exact,
+            seeded=rep.n_seeded,
+            exact=rep.n_bit_exact,
+            first_mismatch_step=first,
+        ),
+    }

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.estimators.firmware_replay import FirmwareReplay
+from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
 REPLICA_TRACE = "st-mahony-port"
@@ -140,21 +140,15 @@ class ReplicaComparison:
 
     def filter_line(self) -> str:
         """The sentence naming the release: recognised, forced, or the closest when none is bit-exact."""
-        others = "; ".join(f"{v}: {n} of {self.seeded}" for v, n in self.variant_bit_exact.items() if v != self.filter)
-        others = f"; {others}" if others else ""
-        if self.seeded == 0:
-            return f"filter: {self.filter} assumed (no seeded step to recognise the release by)"
-        if not self.all_exact:
-            step = self.first_mismatch["step"] if self.first_mismatch else "?"
-            return (
-                f"filter: no ST release's filter is bit-exact on every step; closest {self.filter} "
-                f"({self.bit_exact} of {self.seeded}; it leaves the firmware at step {step}{others})"
-            )
-        how = {
-            "data": "recognised from the data: the only variant bit-exact on every step",
-            "settings": "every variant is bit-exact on these steps: the status frames' or the default",
-        }.get(self.filter_from, f"from the {self.filter_from}")
-        return f"filter: {self.filter} ({how}{others})"
+        first = self.first_mismatch["step"] if self.first_mismatch else None
+        return release_sentence(
+            self.filter,
+            self.filter_from,
+            self.variant_bit_exact,
+            seeded=self.seeded,
+            exact=self.bit_exact,
+            first_mismatch_step=first,
+        )
 
     def as_dict(self) -> dict[str, Any]:
         return {

@@ -22,6 +22,7 @@ import typer
 from steval_link.analysis.ble import BleReplay, format_ble_summary, load_ble, run_ble_estimators, summarize_ble
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import ForceOption, print_json
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -78,11 +79,11 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     return out
 
 
-def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
-    """Sink printing the summary (text, or one JSON object) on stdout."""
+def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = None) -> Sink:
+    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter."""
 
     def sink(tel, estimates) -> None:
-        s = summarize(tel)
+        s = summarize(tel, variant=variant)
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)
@@ -129,9 +130,11 @@ def replay(
             show_default=False,
         ),
     ] = None,
+    variant: VariantOption = None,
     force: ForceOption = False,
 ) -> None:
-    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
+    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST
+    release whose filter the replica reproduces the firmware with.
 
     A BLE capture (steval live --ble, ST's unmodified firmware) gives its notifications, the motion cadence its
     ticks show (the sender's own rate, or drops: ST's congestion skips, gaps), battery, pressure, RSSI and arming,
@@ -141,6 +144,7 @@ def replay(
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
+    variant = check_variant(variant)
     names = registry.parse_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
@@ -162,7 +166,7 @@ def replay(
             tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src)
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
-            summary_sink(as_json, seen)(tel, estimates)
+            summary_sink(as_json, seen, variant)(tel, estimates)
             if options is not None:
                 from steval_viewer.replay_log import replay_sink  # Rerun loads only for a viewer or an .rrd
 

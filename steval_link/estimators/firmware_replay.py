@@ -24,7 +24,15 @@ from steval_link.estimators.st_mahony import (
 from steval_link.fw_math import _F32
 from steval_link.link.protocol import FLAG_EVENT
 
-__all__ = ["ReplicaFollower", "ReplaySeed", "FirmwareReplay", "replay_firmware", "VariantReplay", "replay_variants"]
+__all__ = [
+    "ReplicaFollower",
+    "ReplaySeed",
+    "FirmwareReplay",
+    "replay_firmware",
+    "VariantReplay",
+    "replay_variants",
+    "release_sentence",
+]
 
 
 class ReplicaFollower:
@@ -380,3 +388,36 @@ def _status_variant(tel) -> str:
         return VARIANTS_DEFAULT
     rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
     return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else VARIANTS_DEFAULT
+
+
+def release_sentence(
+    variant: str,
+    source: str,
+    bit_exact: dict,
+    *,
+    seeded: int,
+    exact: int,
+    first_mismatch_step: int | None,
+) -> str:
+    """The sentence naming the release a replay ran: recognised, forced or given, or the closest when none is
+    bit-exact (with where it leaves the firmware). ``bit_exact``: each variant's bit-exact steps (empty: forced)."""
+    others = "; ".join(f"{v}: {n} of {seeded}" for v, n in bit_exact.items() if v != variant)
+    others = f"; {others}" if others else ""
+    if seeded == 0:
+        return f"filter: {variant} assumed (no seeded step to recognise the release by)"
+    step = "?" if first_mismatch_step is None else first_mismatch_step
+    if exact < seeded and not bit_exact:
+        return (
+            f"filter: {variant} (from the {source}): bit-exact on {exact} of {seeded} steps, it leaves the firmware "
+            f"at step {step}"
+        )
+    if exact < seeded:
+        return (
+            f"filter: no ST release's filter is bit-exact on every step; closest {variant} ({exact} of {seeded}; "
+            f"it leaves the firmware at step {step}{others})"
+        )
+    how = {
+        "data": "recognised from the data: the only variant bit-exact on every step",
+        "settings": "every variant is bit-exact on these steps: the status frames' or the default",
+    }.get(source, f"from the {source}")
+    return f"filter: {variant} ({how}{others})"

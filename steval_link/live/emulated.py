@@ -8,7 +8,8 @@ Flow (one way, the same objects as ``steval live``)::
 Each round of the session runs the board for one slice. The capture's receive times are emulated times (s since
 power-up), so a replay or ``steval compare`` of the capture sees the drone's own timing; the live view runs as fast
 as the emulator (``realtime=True`` paces it to the wall clock). A BROAD trial's ground truth goes into the capture
-as ``T`` chunks, per AHRS step. Commands (``--commands`` at emulated times, or typed) reach the firmware's RX.
+as ``T`` chunks, per AHRS step; the attitude the emulator reads by symbol each step (``emulation/symbol_attitude.py``)
+as ``S`` chunks. Commands (``--commands`` at emulated times, or typed) reach the firmware's RX.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from typing import Any
 from steval_link import constants as C
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth
+from steval_link.emulation.symbol_attitude import SymbolAttitude
 from steval_link.errors import UserError
+from steval_link.link.capture import CHUNK_SYMBOLS
 from steval_link.link.commands import Command
 from steval_link.live.health import pipeline_health
 from steval_link.live.pipeline import LivePipeline
@@ -51,6 +54,7 @@ class EmulatedSource(Source):
         self.emu: Emulation | None = None
         self.pipeline: LivePipeline | None = None
         self.truth: StepTruth | None = None
+        self.symbols: SymbolAttitude | None = None
         self.t_emu_s = 0.0  # emulated time of the last chunk: the stop event is stamped with it, as the frames are
 
     def open(self, session) -> None:
@@ -77,6 +81,12 @@ class EmulatedSource(Source):
             extra["truth"] = (
                 f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
                 "middle tick of the step's input window, emulated time)"
+            )
+        self.symbols = SymbolAttitude(emu)  # what the emulator reads by symbol each step: chunks S
+        if self.symbols.available:
+            extra["symbols"] = (
+                "chunks S hold each AHRS step's inputs and outputs as the emulator read them from the firmware's "
+                "globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames the firmware sent"
             )
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
@@ -126,6 +136,9 @@ class EmulatedSource(Source):
         rows = self.truth.take() if self.truth is not None else ()
         if len(rows):
             self.session.capture.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, self.t_emu_s)
+        read = self.symbols.take() if self.symbols is not None and self.symbols.available else ()
+        for i in range(0, len(read), 4096):
+            self.session.capture.write_chunk(CHUNK_SYMBOLS, read[i : i + 4096].tobytes(), self.t_emu_s)
 
     def finish(self, error: BaseException | None) -> None:
         try:
@@ -155,4 +168,9 @@ class EmulatedSource(Source):
     def summary_fields(self) -> dict[str, Any]:
         pipe = self.pipeline
         port = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
+        read = self.symbols.count if self.symbols is not None and self.symbols.available else 0
+        if read:
+            what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
+            frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
+            port = f"{port}; {what})" if port and frames else f"{what}: steval compare shows them)"
         return {**pipeline_counts(pipe), "report": self.emu.report(), "filter_note": port}
