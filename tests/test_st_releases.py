@@ -40,7 +40,7 @@ def test_each_release_is_bit_exact_and_named(release_capture, monkeypatch, capsy
     other = next(v for v in port["variant_bit_exact_steps"] if v != f"ST {release}")
     assert port["variant_bit_exact_steps"][other] < port["rows"]
     code, text, _ = run_cli(monkeypatch, capsys, "compare", cap, "-e", "accel")
-    assert f"filter: ST {release} (recognised from the data" in text
+    assert f"filter: ST {release} (recognised from the firmware ELF's code" in text
 
 
 def test_a_forced_other_release_says_how_far_it_goes(release_capture, monkeypatch, capsys):
@@ -49,3 +49,13 @@ def test_a_forced_other_release_says_how_far_it_goes(release_capture, monkeypatc
     code, text, err = run_cli(monkeypatch, capsys, "compare", cap, "--variant", other, "-e", "accel")
     assert code == 0, err
     assert "NOT bit-exact" in text and "(from the --variant): bit-exact on" in text and "leaves the firmware at" in text
+
+
+def test_the_elf_code_names_the_release(tmp_path_factory):
+    """221117's ahrs_fusion_ag calls the double-arithmetic helpers, 170120's none."""
+    from steval_link.emulation.elf import Elf
+    from steval_link.emulation.symbol_attitude import elf_filter_variant
+
+    for release in ("170120", "221117"):
+        variant, why = elf_filter_variant(Elf(_elf(tmp_path_factory, f"AHRS_VARIANT={release}")))
+        assert variant == f"ST {release}", why

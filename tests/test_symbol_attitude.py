@@ -107,5 +107,5 @@ def test_the_reference_firmware_without_its_link_output(tmp_path, monkeypatch, c
     assert "0 attitude" in out and "by symbol" in out
     code, text, err = run_cli(monkeypatch, capsys, "compare", cap, "-e", "accel")
     assert code == 0, err
-    assert "bit-exact on every step" in text and "filter: ST 221117 (recognised from the data" in text
+    assert "bit-exact on every step" in text and "filter: ST 221117 (recognised from the firmware ELF's code" in text
     assert "not frames it sent" in text

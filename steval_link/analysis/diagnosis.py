@@ -502,7 +502,7 @@ def compare_replica(
     if rows.size == 0:
         return None, None, None
     a = view.attitude
-    chosen = replay_variants(view, settings, variant=variant, source=variant_source)
+    chosen = replay_variants(view, settings, variant=variant, source=variant_source, hint=capture_variant_hint(tel))
     rep = chosen.replay
     if settings is not None:
         settings = replace(settings, variant=chosen.variant)
@@ -584,7 +584,7 @@ def recognise_release(tel, *, variant: str | None = None, source: str = "--varia
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None
-    chosen = replay_variants(view, variant=variant, source=source)
+    chosen = replay_variants(view, variant=variant, source=source, hint=capture_variant_hint(tel))
     rep = chosen.replay
     first = None if rep.first_mismatch is None else int(view.attitude.step[rep.first_mismatch])
     return {
@@ -602,3 +602,13 @@ def recognise_release(tel, *, variant: str | None = None, source: str = "--varia
             first_mismatch_step=first,
         ),
     }
+
+
+def capture_variant_hint(tel) -> tuple[str, str] | None:
+    """The release an emulated capture's header names (``extra.filter``: from the firmware ELF's code or the
+    session's ``--variant``), as (variant, who named it); None without one."""
+    extra = ((getattr(tel, "source", None) or {}).get("header") or {}).get("extra") or {}
+    f = extra.get("filter")
+    if not isinstance(f, dict) or f.get("variant") not in VARIANTS:
+        return None
+    return f["variant"], str(f.get("from") or "capture header")

@@ -19,7 +19,7 @@ from steval_link import constants as C
 from steval_link.emulation.runner import Emulation
 from steval_link.link.capture import SYMBOL_DTYPE
 
-__all__ = ["SYMBOLS", "SymbolAttitude"]
+__all__ = ["SYMBOLS", "SymbolAttitude", "elf_filter_variant"]
 
 #: the globals read, in the order the rows hold them
 SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")
@@ -74,3 +74,41 @@ class SymbolAttitude:
         rows = np.array(self._rows, dtype=SYMBOL_DTYPE) if self._rows else np.zeros(0, SYMBOL_DTYPE)
         self._rows = []
         return rows
+
+
+#: the run-time helpers of double arithmetic on a single-precision FPU (Cortex-M4F): 221117's ahrs_fusion_ag calls
+#: them (gyro scale, integral step, halfT in double); 170120's, float throughout, calls none
+_DOUBLE_HELPERS = ("__aeabi_f2d", "__aeabi_dmul", "__aeabi_dadd", "__aeabi_d2f", "__aeabi_ddiv", "__aeabi_dsub")
+
+
+def _bl_targets(code: bytes, base: int) -> set[int]:
+    """Targets of the Thumb-2 BL instructions in ``code`` (loaded at ``base``), scanned halfword by halfword."""
+    h = np.frombuffer(code[: len(code) & ~1], "<u2").astype(np.int64)
+    out = set()
+    for i in np.flatnonzero(((h[:-1] & 0xF800) == 0xF000) & ((h[1:] & 0xD000) == 0xD000)).tolist():
+        hw1, hw2 = int(h[i]), int(h[i + 1])
+        s = (hw1 >> 10) & 1
+        i1 = 1 - (((hw2 >> 13) & 1) ^ s)
+        i2 = 1 - (((hw2 >> 11) & 1) ^ s)
+        imm = (s << 24) | (i1 << 23) | (i2 << 22) | ((hw1 & 0x3FF) << 12) | ((hw2 & 0x7FF) << 1)
+        imm -= (1 << 25) if s else 0
+        out.add(base + 2 * i + 4 + imm)
+    return out
+
+
+def elf_filter_variant(elf) -> tuple[str | None, str]:
+    """The ST release whose filter an ELF (``emulation.elf.Elf``) has, from ``ahrs_fusion_ag``'s code: (variant or
+    None, why in one sentence). 221117's calls the double-arithmetic helpers, 170120's (= 170318, 301117 beta)
+    none; None without the function's symbol and size."""
+    sym = elf.by_name.get("ahrs_fusion_ag")
+    if sym is None or sym.size <= 0:
+        return None, "no ahrs_fusion_ag symbol with a size in the ELF"
+    start = sym.addr & ~1
+    code = next((data[start - a : start - a + sym.size] for a, data in elf.segments if a <= start < a + len(data)), b"")
+    if len(code) < sym.size:
+        return None, "ahrs_fusion_ag's code is not in the ELF's load segments"
+    helpers = {elf.addr(n) & ~1: n for n in _DOUBLE_HELPERS if elf.addr(n) is not None}
+    called = sorted({helpers[t] for t in _bl_targets(code, start) if t in helpers})
+    if called:
+        return "ST 221117", f"ahrs_fusion_ag calls the double-arithmetic helpers ({', '.join(called)}): 221117's filter"
+    return "ST 170120", "ahrs_fusion_ag does float arithmetic only (no double helper called): 170120's filter"

@@ -60,9 +60,11 @@ class ReplicaFollower:
         follow_snapshots: bool = True,
         euler: bool = True,
         native: bool | None = None,
+        variant: str | None = None,
     ) -> None:
-        self.fixed = settings
-        self.settings = settings or initial or MahonySettings()
+        self.variant = variant  #: the release whose filter every settings runs with (None: the settings' own)
+        self.fixed = self._with_variant(settings)
+        self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
         self.native = native
@@ -73,6 +75,17 @@ class ReplicaFollower:
         self._pending: tuple[str, int | None, MahonySettings] | None = None
         #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
         self.seed_rows: list[tuple[int, tuple[str, int | None, MahonySettings]]] = []
+
+    def _with_variant(self, settings: MahonySettings | None) -> MahonySettings | None:
+        if settings is None or self.variant is None or settings.variant == self.variant:
+            return settings
+        return replace(settings, variant=self.variant)
+
+    def force_variant(self, variant: str | None) -> None:
+        """Run every settings with ``variant``'s filter from now on (a release named by ``--variant`` or the ELF)."""
+        self.variant = variant
+        self.fixed = self._with_variant(self.fixed)
+        self.settings = self._with_variant(self.settings)
 
     @property
     def seeded(self) -> bool:
@@ -91,6 +104,7 @@ class ReplicaFollower:
         command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
         snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
         the replica takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
+        settings = self._with_variant(settings)
         in_sync = self.state is not None and self.next_step == step + 1
         if in_sync and not (self.follow_snapshots or event):
             return "ignored"
@@ -364,11 +378,12 @@ def replay_variants(
     *,
     variant: str | None = None,
     source: str = "--variant",
+    hint: tuple[str, str] | None = None,
     native: bool | None = None,
 ) -> VariantReplay:
     """Replay the capture with the release's filter named by ``variant`` (then ``source`` says who named it), else
-    with each of ``VARIANTS`` and keep the one with the most bit-exact steps; on a tie, the settings' own (the status
-    frames', else ST 170120)."""
+    with each of ``VARIANTS`` and keep the one with the most bit-exact steps; on a tie, ``hint`` (variant, who named
+    it: "firmware ELF") when given, else the settings' own (the status frames', else ST 170120)."""
     if variant is not None:
         return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
     replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
@@ -376,6 +391,8 @@ def replay_variants(
     counts = {v: r.n_bit_exact for v, r in replays.items()}
     best = max(counts.values())
     winners = [v for v, n in counts.items() if n == best]
+    if hint is not None and hint[0] in winners:
+        return VariantReplay(hint[0], hint[1], replays[hint[0]], counts)
     chosen = preferred if preferred in winners else winners[0]
     how = "data" if len(winners) == 1 else "settings"
     return VariantReplay(chosen, how, replays[chosen], counts)
@@ -417,6 +434,7 @@ def release_sentence(
             f"it leaves the firmware at step {step}{others})"
         )
     how = {
+        "firmware ELF": "recognised from the firmware ELF's code, and bit-exact on every step",
         "data": "recognised from the data: the only variant bit-exact on every step",
         "settings": "every variant is bit-exact on these steps: the status frames' or the default",
     }.get(source, f"from the {source}")

@@ -21,7 +21,7 @@ from typing import Any
 from steval_link import constants as C
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth
-from steval_link.emulation.symbol_attitude import SymbolAttitude
+from steval_link.emulation.symbol_attitude import SymbolAttitude, elf_filter_variant
 from steval_link.errors import UserError
 from steval_link.link.capture import CHUNK_SYMBOLS
 from steval_link.link.commands import Command
@@ -46,8 +46,10 @@ class EmulatedSource(Source):
         realtime: bool = False,
         commands: list[tuple[float, Command]] | None = None,
         commands_file: str | None = None,
+        variant: str | None = None,
     ) -> None:
         self.emu_options = emulation
+        self.variant = variant  # the release's filter the replica runs (--variant; else the ELF's code says)
         self.realtime = realtime
         self.commands = list(commands or [])
         self.commands_file = commands_file
@@ -83,6 +85,13 @@ class EmulatedSource(Source):
                 "middle tick of the step's input window, emulated time)"
             )
         self.symbols = SymbolAttitude(emu)  # what the emulator reads by symbol each step: chunks S
+        if self.variant is not None:
+            extra["filter"] = {"variant": self.variant, "from": "--variant"}
+        else:
+            found, why = elf_filter_variant(emu.elf)
+            if found is not None:
+                self.variant = found
+                extra["filter"] = {"variant": found, "from": "firmware ELF", "why": why}
         if self.symbols.available:
             extra["symbols"] = (
                 "chunks S hold each AHRS step's inputs and outputs as the emulator read them from the firmware's "
@@ -96,6 +105,8 @@ class EmulatedSource(Source):
 
     def attach(self, session) -> None:
         self.pipeline = LivePipeline.for_session(session)
+        if self.pipeline.mahony is not None and self.variant is not None:
+            self.pipeline.mahony.follower.force_variant(self.variant)
         self._wall0 = session.clock.wall0_s
         self._t0 = time.monotonic()
         self._chunks = self.emu.chunks()
@@ -168,6 +179,8 @@ class EmulatedSource(Source):
     def summary_fields(self) -> dict[str, Any]:
         pipe = self.pipeline
         port = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
+        if port and self.variant is not None:
+            port = f"{port} with {self.variant}'s filter"
         read = self.symbols.count if self.symbols is not None and self.symbols.available else 0
         if read:
             what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
