@@ -109,3 +109,19 @@ def test_the_reference_firmware_without_its_link_output(tmp_path, monkeypatch, c
     assert code == 0, err
     assert "bit-exact on every step" in text and "filter: ST 221117 (recognised from the firmware ELF's code" in text
     assert "not frames it sent" in text
+
+
+def test_the_live_replica_recognises_the_release_from_the_data():
+    """ReplicaFollower.rows_recognising: a 221117 stream without status frames, followed from power-up, is
+    bit-exact after the first rows with 221117's filter; a named release stays."""
+    from steval_link.estimators.firmware_replay import ReplicaFollower
+
+    rows = symbol_rows(300)
+    args = (rows["step"].astype(np.int64), rows["acc_mg"], rows["gyro_mdps"], rows["thr"], np.ones(300, bool))
+    f = ReplicaFollower(follow_snapshots=True, euler=False)
+    out = [f.rows_recognising(*(a[k : k + 30] for a in args), rows["q_wxyz"][k : k + 30]) for k in range(0, 300, 30)]
+    q = np.concatenate([o[0] for o in out])
+    assert f.variant == "ST 221117" and np.array_equal(q.view(np.uint32), rows["q_wxyz"].view(np.uint32))
+    named = ReplicaFollower(follow_snapshots=True, euler=False, variant="ST 170120")
+    q = named.rows_recognising(*args, rows["q_wxyz"])[0]
+    assert named.variant == "ST 170120" and not np.array_equal(q.view(np.uint32), rows["q_wxyz"].view(np.uint32))

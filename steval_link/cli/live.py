@@ -10,6 +10,7 @@ import typer
 
 from steval_link import constants as C
 from steval_link.cli.app import app
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -111,6 +112,7 @@ def live_command(
     device: Optional[str] = typer.Argument(
         None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
     ),
+    variant: VariantOption = None,
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -122,6 +124,7 @@ def live_command(
     _check_baud(baud)
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     check_duration(duration)
+    variant = check_variant(variant)
     if device is not None and not ble:
         raise UserError(
             f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
@@ -136,7 +139,10 @@ def live_command(
         source, factory = port_source(port or "auto", baud=baud, wait=wait), make_viewer_logger
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
-        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), duration_s=duration, prompt=prompt
+        estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT),
+        duration_s=duration,
+        prompt=prompt,
+        variant=variant,
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)

@@ -122,6 +122,37 @@ class ReplicaFollower:
         self.seed_count += 1
         return "seeded"
 
+    def _saved(self) -> tuple:
+        return (self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count,
+                len(self.seed_rows))  # fmt: skip
+
+    def _restore(self, saved: tuple) -> None:
+        self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count, n = saved
+        del self.seed_rows[n:]
+
+    def rows_recognising(self, step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz, *, first_row: int = 0):
+        """:meth:`rows`, and when no release was named (``variant``) and the rows differ from the firmware's
+        ``fw_q_wxyz``: the same rows again from the same state with each other release's filter; the first that is
+        bit-exact on all of them is kept from then on (the release recognised from the data, live)."""
+        saved = self._saved()
+        out = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
+        if self.variant is not None or not _differs(out, fw_q_wxyz):
+            return out
+        after = self._saved()
+        running = self.settings.variant
+        for variant in (v for v in VARIANTS if v != running):
+            self._restore(saved)
+            self.settings = replace(self.settings, variant=variant)
+            self.fixed = None if self.fixed is None else replace(self.fixed, variant=variant)
+            if self._pending is not None:
+                self._pending = (*self._pending[:2], self.settings)
+            trial = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
+            if trial[3].any() and not _differs(trial, fw_q_wxyz):
+                self.variant = variant
+                return trial
+        self._restore(after)
+        return out
+
     def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
         """Step the replica over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
         thx (N,), thy (N,) — None without ``euler`` —, seeded (N,) bool); NaN where unseeded."""
@@ -164,6 +195,12 @@ class ReplicaFollower:
                 seeded[a:b] = True
             self.next_step = int(step[b - 1]) + 1
         return q, thx, thy, seeded
+
+
+def _differs(rows_out, fw_q_wxyz) -> bool:
+    """True when a seeded row of :meth:`ReplicaFollower.rows`' output differs from the firmware's q."""
+    q, _, _, seeded = rows_out
+    return bool((seeded & ~bits_equal(q, np.asarray(fw_q_wxyz, dtype=_F32)).all(axis=1)).any())
 
 
 @dataclass(frozen=True)

@@ -226,7 +226,7 @@ class LivePipeline:
         too."""
         viewer = session.viewer
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
-        return cls(
+        pipe = cls(
             session.options.estimators,
             viewer,
             view_interval_s=VIEW_INTERVAL_S if live else RRD_ONLY_INTERVAL_S,
@@ -235,6 +235,10 @@ class LivePipeline:
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
         )
+        variant = getattr(session.options, "variant", None)
+        if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status
+            pipe.mahony.follower.force_variant(variant)
+        return pipe
 
     @property
     def mahony(self) -> LiveMahony | None:

@@ -74,6 +74,8 @@ class LiveOptions:
     recordings_dir: Path = Path("recordings")
     #: the command prompt (lines typed on stdin → commands to the drone); None: when stdin is a terminal
     prompt: bool | None = None
+    #: the ST release whose filter the live replica runs ("ST 221117", ``--variant``); None: the status frames'
+    variant: str | None = None
 
     @property
     def uses_rerun(self) -> bool:
