@@ -224,7 +224,10 @@ def test_a_forced_variant_is_used_and_said():
     tel = telemetry(n=300, fw_settings=MahonySettings(variant="221117"), status_settings=MahonySettings())
     p = compare_capture(tel, estimators=(), variant="ST 170120").replica
     assert not p.all_exact and p.filter == "ST 170120" and p.variant_bit_exact == {}
-    assert p.filter_from == "--variant" and "filter: ST 170120 (from the --variant): bit-exact on" in p.filter_line()
+    assert (
+        p.filter_from == "variant setting"
+        and "filter: ST 170120 (from the variant setting): bit-exact on" in p.filter_line()
+    )
 
 
 def test_unknown_variant_is_called_so():

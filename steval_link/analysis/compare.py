@@ -82,7 +82,7 @@ def compare_capture(
     settings: MahonySettings | None = None,
     *,
     variant: str | None = None,
-    variant_source: str = "--variant",
+    variant_source: str = "variant setting",
 ) -> ComparisonReport:
     """Compare a capture's firmware angles with the seeded ST-Mahony replica and with ``estimators``.
 

@@ -491,12 +491,12 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
 
 
 def compare_replica(
-    tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "--variant"
+    tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
     """The seeded replica against the firmware's binary rows: (report, replay over the binary rows, those rows'
     indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row.
 
-    ``variant`` forces a release's filter (``variant_source`` says who named it: "--variant", "firmware ELF");
+    ``variant`` forces a release's filter (``variant_source`` says who named it, e.g. "firmware ELF");
     without it the release is the variant bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
@@ -577,7 +577,7 @@ def compare_replica(
     )
 
 
-def recognise_release(tel, *, variant: str | None = None, source: str = "--variant") -> dict[str, Any] | None:
+def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
     """The ST release whose filter reproduces the capture's binary rows (``variant`` forces one, named by
     ``source``): ``{"filter", "from", "variant_bit_exact_steps", "bit_exact_steps", "seeded_steps", "text"}``, or
     None without binary attitude rows. No settings are searched (``compare`` does that)."""

@@ -114,7 +114,7 @@ class ReplicaComparison:
         unseeded_reason: why no row could be seeded (None when some were).
         divergence: the first step where the firmware's q left the unit sphere or went non-finite, its inputs and
             whether the replica stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
-        filter: the ST release whose filter the replica ran ("ST 221117"); filter_from: who named it ("--variant",
+        filter: the ST release whose filter the replica ran ("ST 221117"); filter_from: who named it (an option,
             "firmware ELF", "data": the variant bit-exact on the most steps, "settings": every variant as exact);
             variant_bit_exact: bit-exact steps of each variant tried (empty when forced).
     """

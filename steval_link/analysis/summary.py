@@ -106,7 +106,7 @@ def q_norm_report(tel) -> dict[str, Any] | None:
     }
 
 
-def summarize(tel, *, variant: str | None = None) -> dict[str, Any]:
+def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
     ``duration_s`` is firmware time covered by the attitude rows (host time when there is none), ``rate_hz`` the
@@ -181,7 +181,7 @@ def summarize(tel, *, variant: str | None = None) -> dict[str, Any]:
         "warnings": list(src.get("warnings") or []),
         "text_lines": [t for _, t in tel.text[:20]],
         "filter": None,
-        "release": recognise_release(tel, variant=variant),
+        "release": recognise_release(tel, variant=variant, source=variant_source),
         "attitude_from": src.get("attitude_from", "frames"),
         "symbols": src.get("symbols"),
     }

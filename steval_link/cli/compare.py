@@ -217,7 +217,9 @@ def compare_command(
             print(f"steval: warning: {w}", file=sys.stderr)
         settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction)
         progress(0.4, f"port and {', '.join(names)}")
-        report = compare_capture(tel, estimators=names, settings=settings, variant=check_variant(variant))
+        report = compare_capture(
+            tel, estimators=names, settings=settings, variant=check_variant(variant), variant_source="--variant"
+        )
         if as_json:
             report.notes.extend(seen)
         if plot is not None:

@@ -159,6 +159,7 @@ def emulate_command(
         commands=script,
         commands_file=str(commands) if commands is not None else None,
         variant=variant,
+        variant_from="--variant",
     )
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(estimators=registry.parse_names(estimators, registry.LIVE_DEFAULT), prompt=prompt)

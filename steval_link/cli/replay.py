@@ -83,7 +83,7 @@ def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = 
     """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter."""
 
     def sink(tel, estimates) -> None:
-        s = summarize(tel, variant=variant)
+        s = summarize(tel, variant=variant, variant_source="--variant")
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)

@@ -395,7 +395,7 @@ def replay_firmware(
 @dataclass(frozen=True)
 class VariantReplay:
     """The release whose filter reproduces a capture: ``variant`` (a key of ``VARIANTS``), ``source`` (how it was
-    chosen: "--variant", "firmware ELF", "data", or "settings" when every variant is as exact), ``replay`` (the
+    chosen: who named it, e.g. "firmware ELF"; "data", or "settings" when every variant is as exact), ``replay`` (the
     replay with it) and ``bit_exact`` (bit-exact steps of each variant tried; empty when it was forced)."""
 
     variant: str
@@ -414,7 +414,7 @@ def replay_variants(
     settings: MahonySettings | None = None,
     *,
     variant: str | None = None,
-    source: str = "--variant",
+    source: str = "variant setting",
     hint: tuple[str, str] | None = None,
     native: bool | None = None,
 ) -> VariantReplay:

@@ -47,9 +47,11 @@ class EmulatedSource(Source):
         commands: list[tuple[float, Command]] | None = None,
         commands_file: str | None = None,
         variant: str | None = None,
+        variant_from: str = "variant setting",
     ) -> None:
         self.emu_options = emulation
-        self.variant = variant  # the release's filter the replica runs (--variant; else the ELF's code says)
+        self.variant = variant  # the release's filter the replica runs (named by variant_from; else the ELF's code)
+        self.variant_from = variant_from
         self.realtime = realtime
         self.commands = list(commands or [])
         self.commands_file = commands_file
@@ -86,7 +88,7 @@ class EmulatedSource(Source):
             )
         self.symbols = SymbolAttitude(emu)  # what the emulator reads by symbol each step: chunks S
         if self.variant is not None:
-            extra["filter"] = {"variant": self.variant, "from": "--variant"}
+            extra["filter"] = {"variant": self.variant, "from": self.variant_from}
         else:
             found, why = elf_filter_variant(emu.elf)
             if found is not None:
