@@ -92,7 +92,7 @@ class EmulatedSource(Source):
         else:
             found, why = elf_filter_variant(emu.elf)
             if found is not None:
-                self.variant = found
+                self.variant, self.variant_from = found, "firmware ELF"
                 extra["filter"] = {"variant": found, "from": "firmware ELF", "why": why}
         if self.symbols.available:
             extra["symbols"] = (
@@ -188,4 +188,6 @@ class EmulatedSource(Source):
             what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
             frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
             port = f"{port}; {what})" if port and frames else f"{what}: steval compare shows them)"
+            if not frames and self.variant is not None:
+                port += f"; {self.variant}'s filter (from the {self.variant_from})"
         return {**pipeline_counts(pipe), "report": self.emu.report(), "filter_note": port}
