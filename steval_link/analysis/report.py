@@ -337,7 +337,7 @@ def format_report(r: ComparisonReport) -> list[str]:
         lines.append(
             f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
             f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
-            f"{'on' if fs['correction'] else 'OFF'}, {fs['variant']}'s filter — {tail}"
+            f"{'on' if fs['correction'] else 'OFF'} — {tail}"
         )
         changes = fs.get("change_list", [])
         if changes:
