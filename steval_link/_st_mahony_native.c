@@ -1,5 +1,5 @@
 /*
- * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (firmware release 170120).
+ * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (ST releases 170120 and 221117).
  *
  * Written from scratch for steval-link (it is not ST's code): it reproduces, operation by operation and in the
  * same evaluation order, the float32 arithmetic of the firmware's ahrs_fusion_ag + QuaternionToEuler as the
@@ -15,8 +15,10 @@
  *     q_out     : writable float32 buffer of 4*N values (q0..q3 after each step)
  *     thx_out, thy_out : writable float32 buffers of N values (rad), or None to skip QuaternionToEuler
  *     state     : writable float32 buffer of 7 values: q0, q1, q2, q3, exInt, eyInt, ezInt (in: start, out: end)
- *     params    : float32 buffer of 4 values: kp_ground, kp_flight, ki, dt_s
- *     flags     : int: min_thr in bits 0..31 (signed), bit 32 = no correction, bit 33 = fresh squares
+ *     params    : float64 buffer of 4 values: kp_ground, kp_flight, ki, dt_s (float32 values, except ki and dt_s
+ *                 in 221117: the doubles ST's literals are)
+ *     flags     : int: min_thr in bits 0..31 (signed), bit 32 = no correction, bit 33 = ST 221117's arithmetic
+ *                 (gyro scale, integral step and halfT in double; normalisation with the updated squares)
  *
  *   euler(q, thx_out, thy_out) -> None
  *     q         : float32 buffer of 4*N values; thx_out, thy_out: writable float32 buffers of N values
@@ -40,8 +42,9 @@
 #error "float expressions must be evaluated in float (FLT_EVAL_METHOD 0) for bit-exact results"
 #endif
 
-/* COE_MDPS_TO_RADPS is the double literal 1.745329252e-5, cast to float where it is used. */
-#define COE_MDPS_TO_RADPS_F ((float)1.745329252e-5)
+/* COE_MDPS_TO_RADPS is the double literal 1.745329252e-5: cast to float where 170120 uses it, double in 221117. */
+#define COE_MDPS_TO_RADPS 1.745329252e-5
+#define COE_MDPS_TO_RADPS_F ((float)COE_MDPS_TO_RADPS)
 
 static float inv_sqrt(float x)
 {
@@ -114,7 +117,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) goto out_thx;
     }
     if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0) goto out_thy;
-    if (get_buffer(o_params, &b_params, 0, 4 * 4, "params") < 0) goto out_state;
+    if (get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0) goto out_state;
 
     {
         const float *acc = (const float *)b_acc.buf;
@@ -124,11 +127,12 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         float *thx_o = have_euler ? (float *)b_thx.buf : NULL;
         float *thy_o = have_euler ? (float *)b_thy.buf : NULL;
         float *st = (float *)b_state.buf;
-        const float *prm = (const float *)b_params.buf;
-        const float kp_ground = prm[0], kp_flight = prm[1], ki = prm[2], dt = prm[3];
+        const double *prm = (const double *)b_params.buf;
+        const float kp_ground = (float)prm[0], kp_flight = (float)prm[1], ki = (float)prm[2], dt = (float)prm[3];
+        const double ki_d = prm[2], dt_d = prm[3];
         const int64_t min_thr = (int64_t)(int32_t)(uint32_t)(flags & 0xffffffffLL);
         const int correction = !((flags >> 32) & 1);
-        const int fresh_squares = (int)((flags >> 33) & 1);
+        const int st221117 = (int)((flags >> 33) & 1);
         float q0 = st[0], q1 = st[1], q2 = st[2], q3 = st[3];
         float exInt = st[4], eyInt = st[5], ezInt = st[6];
 
@@ -142,9 +146,15 @@ static PyObject *native_run(PyObject *self, PyObject *args)
             axf = acc[3 * k + 0];
             ayf = acc[3 * k + 1];
             azf = acc[3 * k + 2];
-            gxf = gyro[3 * k + 0] * COE_MDPS_TO_RADPS_F;
-            gyf = gyro[3 * k + 1] * COE_MDPS_TO_RADPS_F;
-            gzf = gyro[3 * k + 2] * COE_MDPS_TO_RADPS_F;
+            if (st221117) { /* float * double literal: a double product, stored to float */
+                gxf = (float)((double)gyro[3 * k + 0] * COE_MDPS_TO_RADPS);
+                gyf = (float)((double)gyro[3 * k + 1] * COE_MDPS_TO_RADPS);
+                gzf = (float)((double)gyro[3 * k + 2] * COE_MDPS_TO_RADPS);
+            } else {
+                gxf = gyro[3 * k + 0] * COE_MDPS_TO_RADPS_F;
+                gyf = gyro[3 * k + 1] * COE_MDPS_TO_RADPS_F;
+                gzf = gyro[3 * k + 2] * COE_MDPS_TO_RADPS_F;
+            }
 
             q0q0 = q0 * q0;
             q0q1 = q0 * q1;
@@ -169,22 +179,28 @@ static PyObject *native_run(PyObject *self, PyObject *args)
                 ey = (azf * vx - axf * vz);
                 ez = (axf * vy - ayf * vx);
 
-                exInt = exInt + ex * ki * dt;
-                eyInt = eyInt + ey * ki * dt;
-                ezInt = ezInt + ez * ki * dt;
+                if (st221117) { /* exInt + ex * AHRS_KI * SENSOR_SAMPLING_TIME with double literals */
+                    exInt = (float)((double)exInt + (double)ex * ki_d * dt_d);
+                    eyInt = (float)((double)eyInt + (double)ey * ki_d * dt_d);
+                    ezInt = (float)((double)ezInt + (double)ez * ki_d * dt_d);
+                } else {
+                    exInt = exInt + ex * ki * dt;
+                    eyInt = eyInt + ey * ki * dt;
+                    ezInt = ezInt + ez * ki * dt;
+                }
 
                 gxf = gxf + ahrs_kp * ex + exInt;
                 gyf = gyf + ahrs_kp * ey + eyInt;
                 gzf = gzf + ahrs_kp * ez + ezInt;
             }
 
-            halfT = 0.5f * dt;
+            halfT = st221117 ? (float)(0.5 * dt_d) : 0.5f * dt;
             q0 = q0 + (-q1 * gxf - q2 * gyf - q3 * gzf) * halfT;
             q1 = q1 + (q0 * gxf + q2 * gzf - q3 * gyf) * halfT;
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * halfT;
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * halfT;
 
-            if (fresh_squares) {
+            if (st221117) {
                 norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3);
             } else {
                 norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3);

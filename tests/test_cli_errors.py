@@ -278,7 +278,7 @@ def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_ca
 
     class FakeEmulation:
         def __init__(self, options):
-            self.elf = SimpleNamespace(path=Path("fake.elf"))
+            self.elf = SimpleNamespace(path=Path("fake.elf"), by_name={}, addr=lambda name: None)  # no symbols
             self.motion = SimpleNamespace(name="bench", trial=None)  # scripted motion: no ground truth to keep
             self.duration_s = pieces[-1][1]
 

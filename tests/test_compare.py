@@ -188,7 +188,6 @@ def test_settings_override_is_diagnosed_against_the_status_frames():
 @pytest.mark.parametrize(
     "fw, expect_key",
     [
-        (MahonySettings(fresh_squares=True), "fresh_squares"),
         (MahonySettings(correction=False), "correction"),
         (MahonySettings(dt_s=1 / 161.5), "dt_s"),
         (MahonySettings(kp_ground=0.4), "kp"),
@@ -203,9 +202,32 @@ def test_other_firmware_variants_are_named(fw, expect_key):
 
 
 def test_two_changes_at_once_are_found():
-    tel = telemetry(n=700, fw_settings=MahonySettings(ki=1.0, fresh_squares=True), status_settings=MahonySettings())
+    tel = telemetry(n=700, fw_settings=MahonySettings(ki=1.0, variant="ST 221117"), status_settings=MahonySettings())
     p = compare_capture(tel, estimators=()).replica
-    assert p.matching_variant == {"ki": 1.0, "fresh_squares": True}
+    assert p.matching_variant in ({"ki": 1.0, "variant": "ST 221117"}, {"ki": 1.0}), p.diagnosis
+    assert p.matching_bit_exact == 700
+    assert "closest" in p.filter_line()
+
+
+def test_the_release_is_recognised_from_the_data():
+    """A 221117 firmware whose status frames say nothing of it: the replica runs 221117's filter, bit-exact."""
+    tel = telemetry(n=900, fw_settings=MahonySettings(variant="221117"), status_settings=MahonySettings())
+    r = compare_capture(tel, estimators=())
+    p = r.replica
+    assert p.all_exact and p.filter == "ST 221117" and p.filter_from == "data"
+    assert p.variant_bit_exact["ST 221117"] == 900 > p.variant_bit_exact["ST 170120"]
+    assert r.as_dict()["filter"] == "ST 221117"
+    assert "ST 221117 (recognised from the data" in "\n".join(format_report(r))
+
+
+def test_a_forced_variant_is_used_and_said():
+    tel = telemetry(n=300, fw_settings=MahonySettings(variant="221117"), status_settings=MahonySettings())
+    p = compare_capture(tel, estimators=(), variant="ST 170120").replica
+    assert not p.all_exact and p.filter == "ST 170120" and p.variant_bit_exact == {}
+    assert (
+        p.filter_from == "variant setting"
+        and "filter: ST 170120 (from the variant setting): bit-exact on" in p.filter_line()
+    )
 
 
 def test_unknown_variant_is_called_so():

@@ -15,6 +15,9 @@ from steval_link.estimators.st_mahony import MahonySettings, run
 CONFORMANCE_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "conformance" / "st-fcu-170120"
 CSV_FILES = sorted(CONFORMANCE_DIR.glob("*.csv")) if CONFORMANCE_DIR.is_dir() else []
 needs_shared = pytest.mark.skipif(not CSV_FILES, reason="shared conformance vectors (../shared) not present")
+DIR_221117 = CONFORMANCE_DIR.parent / "st-fcu-221117"
+CSV_221117 = sorted(DIR_221117.glob("*.csv")) if DIR_221117.is_dir() else []
+needs_221117 = pytest.mark.skipif(not CSV_221117, reason="shared 221117 vectors (../shared) not present")
 
 
 def write_vectors(path: Path, acc, gyro, thr, q, thx, thy, comment="# synthetic") -> Path:
@@ -48,6 +51,33 @@ def test_every_shared_vector_file_is_bit_exact(monkeypatch, capsys):
         assert f["max_abs_dq"] == 0.0 and f["max_abs_dth_rad"] == 0.0 and f["first_mismatch_step"] is None
 
 
+@needs_221117
+@pytest.mark.parametrize("pure", [False, True])
+def test_release_221117_is_recognised_and_bit_exact(monkeypatch, capsys, pure):
+    """ST's 221117 binary's own vectors: every step bit-exact with 221117's filter, named from the data."""
+    code, out, err = run_cli(monkeypatch, capsys, "conformance", "--json", *(["--pure"] if pure else []), DIR_221117)
+    assert code == 0, err
+    report = json.loads(out)
+    total = sum(f["steps"] for f in report["files"])
+    assert report["ok"] and report["filter"] == "ST 221117" and report["filter_from"] == "data"
+    assert report["variant_bit_exact_steps"]["ST 221117"] == total > report["variant_bit_exact_steps"]["ST 170120"]
+    assert all(f["bit_exact_steps"] == f["steps"] for f in report["files"])
+
+
+@needs_221117
+def test_a_forced_wrong_release_mismatches_and_says_so(monkeypatch, capsys):
+    code, out, _ = run_cli(monkeypatch, capsys, "conformance", "--variant", "170318", DIR_221117 / "edge_cases.csv")
+    assert code == 1 and "filter: ST 170120 (--variant)" in out
+    code, _, err = run_cli(monkeypatch, capsys, "conformance", "--variant", "9999", DIR_221117)
+    assert code == 2 and "--variant" in err and "no ST release" in err
+
+
+@needs_shared
+def test_release_170120_is_recognised(monkeypatch, capsys):
+    code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)
+    assert code == 0 and "filter: ST 170120 (recognised" in out
+
+
 @needs_shared
 def test_a_directory_means_all_its_csv_files(monkeypatch, capsys, tmp_path):
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)
@@ -75,9 +105,9 @@ def test_wrong_settings_fail_with_exit_1(monkeypatch, capsys):
 
 
 def test_a_modified_firmware_is_checked_with_its_settings(tmp_path, monkeypatch, capsys):
-    s = MahonySettings(ki=1.0, correction=False, fresh_squares=True, kp_flight=0.5, min_thr=100, dt_s=0.00619)
+    s = MahonySettings(ki=1.0, correction=False, variant="ST 221117", kp_flight=0.5, min_thr=100, dt_s=0.00619)
     path = modified_firmware_vectors(tmp_path, s)
-    args = ["--ki", "1", "--no-correction", "--fresh-squares", "--kp-flight", "0.5", "--min-thr", "100"]
+    args = ["--ki", "1", "--no-correction", "--variant", "221117", "--kp-flight", "0.5", "--min-thr", "100"]
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", *args, "--dt", "0.00619", path)
     assert code == 0 and "400 of 400 steps bit-exact" in out
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", *args, path)  # dt left at 0.00625

@@ -134,13 +134,14 @@ SETTINGS_VARIANTS = [
     MahonySettings(),
     MahonySettings(ki=1.0),
     MahonySettings(correction=False),
-    MahonySettings(fresh_squares=True),
+    MahonySettings(variant="ST 221117"),
+    MahonySettings(variant="ST 221117", ki=0.3, dt_s=0.00619),
     MahonySettings(dt_s=0.00619, kp_ground=2.5, kp_flight=0.25, min_thr=20),
 ]
 
 
 @needs_native
-@pytest.mark.parametrize("settings", SETTINGS_VARIANTS, ids=lambda s: f"ki{s.ki}-c{s.correction}-f{s.fresh_squares}")
+@pytest.mark.parametrize("settings", SETTINGS_VARIANTS, ids=lambda s: f"ki{s.ki}-c{s.correction}-{s.variant}")
 def test_native_and_pure_loops_agree_bit_for_bit(settings):
     acc, gyro, thr = random_inputs(1500, seed=7)
     state = MahonyState(q_wxyz=(0.9, 0.1, -0.2, 0.3), int_xyz=(0.01, -0.02, 0.003))
@@ -165,7 +166,7 @@ def test_loops_agree_on_extreme_inputs():
     acc[normal] = rng.normal([0, 0, 1000], 500, (normal.sum(), 3))
     gyro[normal] = rng.normal(0, 1e5, (normal.sum(), 3))
     thr = rng.integers(-300, 900, n)
-    for settings in (MahonySettings(), MahonySettings(fresh_squares=True), MahonySettings(correction=False)):
+    for settings in (MahonySettings(), MahonySettings(variant="ST 221117"), MahonySettings(correction=False)):
         for seg in range(0, n, 25):  # restart often, or the first NaN would make the rest trivially NaN
             sl = slice(seg, seg + 25)
             state = MahonyState(q_wxyz=rng.normal(size=4), int_xyz=rng.normal(size=3) * 1e-2)
@@ -230,7 +231,7 @@ def test_ki_scales_the_integral_term():
 def test_fresh_squares_keeps_the_quaternion_unit():
     gyro = np.tile(np.float32([1000, 2000, 4000]), (100, 1))
     stale = run(np.zeros((100, 3)), gyro)[0][-1].astype(np.float64)
-    fresh = run(np.zeros((100, 3)), gyro, settings=MahonySettings(fresh_squares=True))[0][-1].astype(np.float64)
+    fresh = run(np.zeros((100, 3)), gyro, settings=MahonySettings(variant="ST 221117"))[0][-1].astype(np.float64)
     assert abs(np.linalg.norm(stale) - 0.9983) < 5e-4
     assert abs(np.linalg.norm(fresh) - 1.0) < 2e-3
 
@@ -238,7 +239,7 @@ def test_fresh_squares_keeps_the_quaternion_unit():
 def test_dt_sets_the_integration_period():
     n = 200
     gyro = np.tile(np.float32([10000, 0, 0]), (n, 1))  # 10 dps about x (pitch)
-    s = MahonySettings(correction=False, fresh_squares=True)
+    s = MahonySettings(correction=False, variant="ST 221117")
     for dt in (0.00625, 0.00619):
         _, thx, _, _ = run(np.zeros((n, 3)), gyro, settings=MahonySettings(**{**s.__dict__, "dt_s": dt}))
         expected = np.radians(10.0) * n * dt
@@ -349,7 +350,7 @@ def test_replay_reports_the_first_mismatch(capture):
 
 
 def test_replay_takes_settings_from_status_frames():
-    s = MahonySettings(ki=1.0, correction=False, fresh_squares=True, kp_flight=0.3)
+    s = MahonySettings(ki=1.0, correction=False, variant="ST 221117", kp_flight=0.3)
     assert s.flags == FLAG_NO_CORRECTION | FLAG_FRESH_SQUARES
     cap = firmware_capture(600, seed=5, settings=s)
     tel = make_telemetry(cap, np.arange(600), [50], settings=s)
@@ -398,3 +399,21 @@ def test_replay_firmware_never_seeds_rounded_text_mode_rows():
     rep = firmware_replay.replay_firmware(tel)
     assert rep.n_seeded == 0 and rep.first_mismatch is None
     assert np.isnan(rep.q_wxyz).all()
+
+
+def test_release_names_map_to_their_filter():
+    assert MahonySettings(variant="170318").variant == "ST 170120"
+    assert MahonySettings(variant="st-301117 beta").variant == "ST 170120"
+    assert MahonySettings(variant="ST 221117").fresh_squares
+    with pytest.raises(ValueError, match="no ST release named"):
+        MahonySettings(variant="2211")
+
+
+def test_221117_reads_a_float32_default_as_st_double_literal():
+    """A status frame's 0.1f stands for 221117's double literal 0.1; any other value is used as it is given."""
+    acc, gyro, thr = random_inputs(600, seed=3)
+    exact = run(acc, gyro, thr, settings=MahonySettings(variant="221117"))[0]
+    from_status = MahonySettings(variant="221117", ki=float(np.float32(0.1)), dt_s=float(np.float32(0.00625)))
+    assert_bits(run(acc, gyro, thr, settings=from_status)[0], exact, "q")
+    other = run(acc, gyro, thr, settings=MahonySettings(variant="221117", ki=0.1000001))[0]
+    assert not bits_equal(other, exact).all()

@@ -21,9 +21,10 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from steval_link.analysis.diagnosis import capture_variant_hint
 from steval_link.analysis.flight_control import no_flight_figure_reason
 from steval_link.analysis.summary import values_bad_report
-from steval_link.estimators.firmware_replay import replay_firmware
+from steval_link.estimators.firmware_replay import replay_variants
 from steval_link.link.commands import command_log
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
@@ -401,7 +402,7 @@ def firmware_port(tel: Any) -> Any | None:
     exact = getattr(tel.attitude, "exact", None)
     if exact is not None and not np.asarray(exact).any():
         return None
-    return replay_firmware(tel)
+    return replay_variants(tel, hint=capture_variant_hint(tel)).replay  # the release whose filter is bit-exact
 
 
 def log_telemetry(

@@ -38,7 +38,9 @@ volatile uint32_t tim9_event_flag;
 static const float iir_a1 = 0.94280904158206336, iir_a2 = -0.33333333333333343;
 static const float iir_b0 = 0.09763107293781749, iir_b1 = 0.19526214587563498, iir_b2 = 0.09763107293781749;
 
-static void log_line(const char *s) { stv_fw_log_write(s, strlen(s)); }
+static void log_line(const char *s) {
+  if (LINK_OUTPUT) stv_fw_log_write(s, strlen(s));
+}
 
 void TIM1_BRK_TIM9_IRQHandler(void) {
   int32_t acc[3], gyro[3];
@@ -127,6 +129,7 @@ static void link_init(void) {
   cfg.cpu_hz = 84000000u;
   cfg.baud = STV_BAUD;
   cfg.flags = AHRS_NO_CORRECTION ? STV_FLAG_NO_CORRECTION : 0u;
+  if (AHRS_VARIANT == 221117) cfg.flags |= STV_FLAG_FRESH_SQUARES; /* the status frames name 221117's filter */
   cfg.text_mode = STV_TEXT_MODE;
   cfg.text_decimation = STV_TEXT_DECIMATION;
   cfg.status_every = STV_STATUS_EVERY_STEPS;
@@ -176,18 +179,22 @@ int main(void) {
     average(gyro_step, &gyro_ahrs);
     __asm__ volatile("cpsie i" ::: "memory");
 
+#if LINK_OUTPUT
     stv_fw_step_begin(gTHR);
+#endif
     ahrs_fusion_ag(&acc_ahrs, &gyro_ahrs, &ahrs);
     QuaternionToEuler(&ahrs, &euler_ahrs);
+#if LINK_OUTPUT
     stv_fw_step_end((const float *)&acc_ahrs, (const float *)&gyro_ahrs, (const float *)&ahrs,
                     (const float *)&euler_ahrs);
+#endif
 
     read_remote();
     VBAT = (float)(((hw_adc1_read() * 3.3) / 4095) * (10.0 + 20.0) / 20.0); /* 10k / 20k divider */
     GetTargetEulerAngle(&euler_rc);
     if (gTHR < MIN_THR) euler_rc.thz = euler_ahrs.thz = 0.0f;
     FlightControlPID_OuterLoop(&euler_rc, &euler_ahrs);
-#if STV_FC_EVERY > 0
+#if STV_FC_EVERY > 0 && LINK_OUTPUT
     if (stv_fw_flight_due())
       stv_fw_flight((const float *)&euler_rc, gAIL, gELE, gRUD, gTHR, (const float *)&pid, (const float *)&motor_pwm,
                     VBAT,

@@ -13,6 +13,12 @@
 #ifndef SLEEP
 #define SLEEP 1 /* 0: the main loop polls instead of sleeping with wfi */
 #endif
+#ifndef AHRS_VARIANT
+#define AHRS_VARIANT 170120 /* the filter arithmetic of ST's release 170120 (= 170318, 301117 beta) or 221117 */
+#endif
+#ifndef LINK_OUTPUT
+#define LINK_OUTPUT 1 /* 0: no frames on USART1 (an unpatched build's silence; the attitude is read by symbol) */
+#endif
 #ifndef SWAP_MOTORS
 #define SWAP_MOTORS 0 /* e.g. 34: motor outputs 3 and 4 exchanged (a mixer renumbered for another frame) */
 #endif

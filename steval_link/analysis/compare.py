@@ -82,6 +82,9 @@ def compare_capture(
     tel,
     estimators: Sequence[str] = registry.COMPARE_DEFAULT,
     settings: MahonySettings | None = None,
+    *,
+    variant: str | None = None,
+    variant_source: str = "variant setting",
 ) -> ComparisonReport:
     """Compare a capture's firmware angles with the seeded ST-Mahony replica and with ``estimators``.
 
@@ -91,6 +94,8 @@ def compare_capture(
             unseeded replica from power-up; the seeded replica is always compared). Names this installation lacks are
             reported as unavailable.
         settings: filter settings for the replica (default: those of the status frames, else the firmware's).
+        variant: the ST release whose filter the replica runs (named by ``variant_source``); default: recognised
+            from the data (the variant bit-exact on the most steps).
 
     Returns:
         A :class:`ComparisonReport`; angles in the report are degrees, thx = pitch (about x), thy = roll (about y).
@@ -108,7 +113,7 @@ def compare_capture(
     notes: list[str] = []
     traces: list[TraceComparison] = []
 
-    replica, rep, prow = compare_replica(tel, settings)
+    replica, rep, prow = compare_replica(tel, settings, variant=variant, variant_source=variant_source)
     if replica is not None:
         thx = np.full(n, np.nan)
         thy = np.full(n, np.nan)
@@ -144,6 +149,8 @@ def compare_capture(
         label = TRACE_LABELS.get(name, name)
         traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy, why))
 
+    if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
+        notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
     nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
     nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))

@@ -22,8 +22,8 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import ReplicaComparison, json_number
-from steval_link.estimators.firmware_replay import FirmwareReplay, replay_firmware
-from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal
+from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence, replay_firmware, replay_variants
+from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link.plausibility import q_off_sphere
 from steval_link.link.protocol import FLAG_EVENT
@@ -43,7 +43,7 @@ def _settings_dict(s: MahonySettings) -> dict[str, Any]:
         "dt_s": float(np.float32(s.dt_s)),
         "min_thr": s.min_thr,
         "correction": s.correction,
-        "fresh_squares": s.fresh_squares,
+        "variant": s.variant,
     }
 
 
@@ -103,7 +103,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
 
 
 def _fmt_setting(v) -> str:
-    return ("on" if v else "off") if isinstance(v, bool) else f"{v:g}"
+    return ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
 
 
 def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[dict[str, Any]]:
@@ -163,13 +163,8 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
                 if not v
                 else "the accelerometer correction on, though the status frames say it is off"
             )
-        elif k == "fresh_squares":
-            parts.append(
-                "normalisation with the fresh squares of the updated quaternion: is this an older (2017) "
-                "ST firmware release?"
-                if v
-                else "normalisation with the squares from before the update (release 170120)"
-            )
+        elif k == "variant":
+            parts.append(f"the filter of {v} ({VARIANTS[v]})")
         elif k == "kp":
             kg, kf = v
             parts.append(
@@ -201,8 +196,8 @@ def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
         out.append(f"--min-thr {s.min_thr}")
     if s.correction != base.correction:
         out.append("--correction" if s.correction else "--no-correction")
-    if s.fresh_squares != base.fresh_squares:
-        out.append("--fresh-squares" if s.fresh_squares else "--stale-squares")
+    if s.variant != base.variant:
+        out.append(f"--variant {s.variant.removeprefix('ST ')}")
     return " ".join(out)
 
 
@@ -219,7 +214,8 @@ def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings
     for ki in (1.0, C.KI, 0.0):
         add({"ki": ki}, replace(base, ki=ki))
     add({"correction": not base.correction}, replace(base, correction=not base.correction))
-    add({"fresh_squares": not base.fresh_squares}, replace(base, fresh_squares=not base.fresh_squares))
+    for variant in VARIANTS:
+        add({"variant": variant}, replace(base, variant=variant))
     for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
         add({"dt_s": dt}, replace(base, dt_s=dt))
     kps = [
@@ -362,7 +358,7 @@ def _diagnose(
     if not at_restart:
         lines.append(
             "no known setting reproduces it (tried: firmware defaults, KI 1.0/0.1/0, correction on/off, "
-            "both normalisation variants, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
+            "the filters of ST's releases, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
             "of these): unknown firmware variant — was ahrs.c or QuaternionToEuler modified, or the "
             "firmware built with other compiler options (FMA, -O2 reordering)?"
         )
@@ -495,18 +491,28 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
 
 
 def compare_replica(
-    tel, settings: MahonySettings | None = None
+    tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
     """The seeded replica against the firmware's binary rows: (report, replay over the binary rows, those rows'
-    indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row."""
+    indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row.
+
+    ``variant`` forces a release's filter (``variant_source`` says who named it, e.g. "firmware ELF");
+    without it the release is the variant bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None
     a = view.attitude
-    rep = replay_firmware(view, settings=settings)
+    chosen = replay_variants(view, settings, variant=variant, source=variant_source, hint=capture_variant_hint(tel))
+    rep = chosen.replay
+    if settings is not None:
+        settings = replace(settings, variant=chosen.variant)
     used = settings
     if used is None:
-        used = rep.seeds[0].settings if rep.seeds else (_status_base(view) or MahonySettings())
+        used = (
+            rep.seeds[0].settings
+            if rep.seeds
+            else replace(_status_base(view) or MahonySettings(), variant=chosen.variant)
+        )
     seeds = [
         {
             "row": int(rows[s.row]),
@@ -562,7 +568,47 @@ def compare_replica(
             matching_bit_exact=variant_exact,
             unseeded_reason=unseeded,
             divergence=divergence,
+            filter=chosen.variant,
+            filter_from=chosen.source,
+            variant_bit_exact=chosen.bit_exact,
         ),
         rep,
         rows,
     )
+
+
+def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
+    """The ST release whose filter reproduces the capture's binary rows (``variant`` forces one, named by
+    ``source``): ``{"filter", "from", "variant_bit_exact_steps", "bit_exact_steps", "seeded_steps", "text"}``, or
+    None without binary attitude rows. No settings are searched (``compare`` does that)."""
+    view, rows = _binary_view(tel)
+    if rows.size == 0:
+        return None
+    chosen = replay_variants(view, variant=variant, source=source, hint=capture_variant_hint(tel))
+    rep = chosen.replay
+    first = None if rep.first_mismatch is None else int(view.attitude.step[rep.first_mismatch])
+    return {
+        "filter": chosen.variant,
+        "from": chosen.source,
+        "variant_bit_exact_steps": chosen.bit_exact,
+        "bit_exact_steps": rep.n_bit_exact,
+        "seeded_steps": rep.n_seeded,
+        "text": release_sentence(
+            chosen.variant,
+            chosen.source,
+            chosen.bit_exact,
+            seeded=rep.n_seeded,
+            exact=rep.n_bit_exact,
+            first_mismatch_step=first,
+        ),
+    }
+
+
+def capture_variant_hint(tel) -> tuple[str, str] | None:
+    """The release an emulated capture's header names (``extra.filter``: from the firmware ELF's code or the
+    session's ``--variant``), as (variant, who named it); None without one."""
+    extra = ((getattr(tel, "source", None) or {}).get("header") or {}).get("extra") or {}
+    f = extra.get("filter")
+    if not isinstance(f, dict) or f.get("variant") not in VARIANTS:
+        return None
+    return f["variant"], str(f.get("from") or "capture header")

@@ -189,6 +189,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "port_rmse_deg": _rounded(fw.replica_rmse_deg),
         "port_bit_exact_steps": fw.replica_bit_exact,
         "port_steps": fw.replica_steps,
+        "filter": None if st is None else st.variant,
         "port_settings": None
         if st is None
         else {
@@ -222,6 +223,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
             "port n/a"
             if fw.replica_rmse_deg is None
             else f"port {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
+            + ("" if fw.settings is None else f" with {fw.settings.variant}'s filter")
         )
         notes = list(fw.notes)
         cov = fw.coverage

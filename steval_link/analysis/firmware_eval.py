@@ -38,6 +38,7 @@ from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
+from steval_link.emulation.symbol_attitude import elf_filter_variant
 from steval_link.errors import UserError
 from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
@@ -200,6 +201,25 @@ class _Globals:
         self.outputs.append((*e, *q))
 
 
+def _globals_replica(inp: np.ndarray, out: np.ndarray, has_q: bool, first: str | None):
+    """The replica on the inputs read by symbol, each release's filter tried (``first`` first, kept on a tie):
+    (settings, thx, thy, bit-exact per step) of the one bit-exact on the most steps."""
+    best = None
+    for v in [first] + [v for v in st_mahony.VARIANTS if v != first] if first else list(st_mahony.VARIANTS):
+        settings = MahonySettings(variant=v)
+        q, px, py, _ = st_mahony.run(
+            inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32), inp[:, 6].astype(np.int64), settings=settings
+        )
+        exact = (
+            st_mahony.bits_equal(px, out[:, 0])
+            & st_mahony.bits_equal(py, out[:, 1])
+            & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if has_q else True)
+        )
+        if best is None or exact.sum() > best[3].sum():
+            best = (settings, px, py, exact)
+    return best
+
+
 def run_firmware(
     elf: Path | str,
     trial: BroadTrial,
@@ -207,11 +227,15 @@ def run_firmware(
     label: str | None = None,
     seed: int = 0,
     progress: Callable[[float], None] | None = None,
+    variant: str | None = None,
 ) -> FirmwareResult:
     """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output
     (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
-    streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step."""
+    streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step. The replica runs the
+    filter of ``variant`` (an ST release), else of the release the ELF's code or the data shows (``settings``)."""
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
+    elf_variant, _ = elf_filter_variant(emu.elf)
+    hint = (elf_variant, "firmware ELF") if elf_variant is not None else None
     truth_rec = StepTruth(emu)
     glob = _Globals(emu)
     label = label or "fw:" + Path(elf).name
@@ -261,7 +285,7 @@ def run_firmware(
                 notes.append(
                     "the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned"
                 )
-        rep = firmware_replay.replay_firmware(tel)
+        rep = firmware_replay.replay_variants(tel, variant=variant, hint=hint).replay
         replica_thx = np.full(n, np.nan, _F32)
         replica_thy = np.full(n, np.nan, _F32)
         replica_thx[steps] = rep.thx_rad[rows]
@@ -284,18 +308,10 @@ def run_firmware(
         gains = gains_text(None, thr_in, from_status=False)
         if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
             inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
-            settings = MahonySettings()
-            q, px, py, _ = st_mahony.run(
-                inp[:, 0:3].astype(_F32), inp[:, 3:6].astype(_F32), inp[:, 6].astype(np.int64), settings=settings
-            )
+            settings, px, py, exact = _globals_replica(inp, out, glob.ahrs is not None, variant or elf_variant)
             replica_thx = np.full(n, np.nan, _F32)
             replica_thy = np.full(n, np.nan, _F32)
             replica_thx[: out.shape[0]], replica_thy[: out.shape[0]] = px, py
-            exact = (
-                st_mahony.bits_equal(px, out[:, 0])
-                & st_mahony.bits_equal(py, out[:, 1])
-                & (st_mahony.bits_equal(q, out[:, 2:6]).all(axis=1) if glob.ahrs is not None else True)
-            )
             replica_exact, replica_steps = int(np.count_nonzero(exact)), out.shape[0]
     else:
         raise UserError(

@@ -25,7 +25,7 @@ _SETTING_KEYS = (
     "kp_flight",
     "min_thr",
     "dt_s",
-    "fresh_squares",
+    "variant",
     "text_mode",
     "inflight_tuning",
 )
@@ -36,7 +36,7 @@ _SETTING_WORDS = {
     "kp_flight": "kp flight",
     "min_thr": "min_thr",
     "dt_s": "dt",
-    "fresh_squares": "fresh squares",
+    "variant": "filter",
     "text_mode": "text mode",
     "inflight_tuning": "in-flight tuning",
 }
@@ -57,15 +57,17 @@ def _defaults() -> dict[str, Any]:
         "kp_flight": setting_f32(d.kp_flight),
         "min_thr": int(d.min_thr),
         "dt_s": setting_f32(d.dt_s),
-        "fresh_squares": False,
+        "variant": d.variant,
         "text_mode": False,
         "inflight_tuning": False,
     }
 
 
 def _word(key: str, value) -> str:
-    """How a setting reads in a label: "ki 1", "correction off", "binary", "fresh squares", ..."""
+    """How a setting reads in a label: "ki 1", "correction off", "binary", "filter ST 221117", ..."""
     name = _SETTING_WORDS[key]
+    if key == "variant":
+        return f"filter {value}"
     if key == "correction":
         return f"correction {'on' if value else 'off'}"
     if key == "text_mode":

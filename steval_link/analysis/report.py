@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from steval_link.analysis.coverage import percent
-from steval_link.estimators.firmware_replay import FirmwareReplay
+from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
 REPLICA_TRACE = "st-mahony-port"
@@ -115,6 +115,9 @@ class ReplicaComparison:
         unseeded_reason: why no row could be seeded (None when some were).
         divergence: the first step where the firmware's q left the unit sphere or went non-finite, its inputs and
             whether the replica stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
+        filter: the ST release whose filter the replica ran ("ST 221117"); filter_from: who named it (an option,
+            "firmware ELF", "data": the variant bit-exact on the most steps, "settings": every variant as exact);
+            variant_bit_exact: bit-exact steps of each variant tried (empty when forced).
     """
 
     rows: int
@@ -128,10 +131,25 @@ class ReplicaComparison:
     matching_bit_exact: int | None = None
     unseeded_reason: str | None = None
     divergence: dict[str, Any] | None = None
+    filter: str = "ST 170120"
+    filter_from: str = "settings"
+    variant_bit_exact: dict[str, int] = field(default_factory=dict)
 
     @property
     def all_exact(self) -> bool:
         return self.seeded > 0 and self.first_mismatch is None
+
+    def filter_line(self) -> str:
+        """The sentence naming the release: recognised, forced, or the closest when none is bit-exact."""
+        first = self.first_mismatch["step"] if self.first_mismatch else None
+        return release_sentence(
+            self.filter,
+            self.filter_from,
+            self.variant_bit_exact,
+            seeded=self.seeded,
+            exact=self.bit_exact,
+            first_mismatch_step=first,
+        )
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -145,6 +163,9 @@ class ReplicaComparison:
             "diagnosis": self.diagnosis,
             "matching_variant": self.matching_variant,
             "matching_bit_exact_steps": self.matching_bit_exact,
+            "filter": self.filter,
+            "filter_from": self.filter_from,
+            "variant_bit_exact_steps": self.variant_bit_exact,
             "unseeded_reason": self.unseeded_reason,
             "divergence": self.divergence,
         }
@@ -253,6 +274,7 @@ class ComparisonReport:
             "rows": {"attitude": self.rows, "binary": self.binary_rows, "text_mode": self.text_rows},
             "firmware_nan_steps": {"pitch_thx": self.firmware_nan_pitch, "roll_thy": self.firmware_nan_roll},
             "rates": self.rates.as_dict(),
+            "filter": None if self.replica is None else self.replica.filter,
             "filter_settings": self.filter_settings,
             "port": None if self.replica is None else self.replica.as_dict(),
             "traces": [t.as_dict() for t in self.traces],
@@ -308,11 +330,10 @@ def format_report(r: ComparisonReport) -> list[str]:
     if fs is None:
         lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
     elif fs["from"] == "status frames":
-        norm = "fresh squares" if fs["fresh_squares"] else "squares before update (170120)"
         diff = fs["differs_from_defaults"]
 
         def val(x):
-            return ("on" if x else "off") if isinstance(x, bool) else f"{x:g}"
+            return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
 
         tail = (
             "firmware defaults"
@@ -323,7 +344,7 @@ def format_report(r: ComparisonReport) -> list[str]:
         lines.append(
             f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
             f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
-            f"{'on' if fs['correction'] else 'OFF'}, normalisation: {norm} — {tail}"
+            f"{'on' if fs['correction'] else 'OFF'} — {tail}"
         )
         changes = fs.get("change_list", [])
         if changes:
@@ -356,6 +377,7 @@ def format_report(r: ComparisonReport) -> list[str]:
             f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
             f"({p.rows} binary rows)"
         )
+        lines.append(f"  {p.filter_line()}")
         if p.seeds:
             lines.append(f"  started from: {seeds}")
         if p.seeded < p.rows and p.seeded:

@@ -176,7 +176,7 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
         "kp_flight": setting_f32(first.kp_flight),
         "min_thr": int(first.min_thr),
         "dt_s": setting_f32(first.dt_s),
-        "fresh_squares": bool(first.fresh_squares),
+        "variant": first.variant,
         "text_mode": bool(flags & P.FLAG_TEXT_MODE),
         "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
         "flags": flags,

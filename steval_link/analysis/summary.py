@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.diagnosis import recognise_release
 from steval_link.analysis.report import json_number
 from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
@@ -136,14 +137,16 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
     return lines
 
 
-def summarize(tel) -> dict[str, Any]:
+def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
     ``duration_s`` is firmware time covered by the attitude rows (host time when there is none), ``rate_hz`` the
     attitude frames per second over it, ``step_rate_hz`` the AHRS steps per second (161.5 on the drone; in text
     mode rows are decimated so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in
     ``seq_gaps`` gaps (binary stream), ``drop_ratio`` = missing / (received + missing); ``tx_dropped`` is the
-    firmware's own count of frames its TX queue could not take (last status frame).
+    firmware's own count of frames its TX queue could not take (last status frame). ``release``: the ST release
+    whose filter the replica reproduces the rows with (``variant`` forces one; see ``recognise_release``);
+    ``attitude_from``: "frames", or "symbols" (read by the emulator, ``symbols`` says so).
     """
     a, s, st = tel.attitude, tel.status, tel.stats
     n = len(a)
@@ -211,6 +214,9 @@ def summarize(tel) -> dict[str, Any]:
         "text_lines": [t for _, t in tel.text[:20]],
         "text_telemetry": text_telemetry_report(tel),
         "filter": None,
+        "release": recognise_release(tel, variant=variant, source=variant_source),
+        "attitude_from": src.get("attitude_from", "frames"),
+        "symbols": src.get("symbols"),
     }
     if len(s):
         i = len(s) - 1
@@ -259,6 +265,10 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     lines.append(f"duration: {s['duration_s']:.3f} s, attitude rate {rate}{step_rate}")
     if s["first_step"] is not None:
         lines.append(f"steps: {s['first_step']} .. {s['last_step']}")
+    if s.get("symbols"):
+        lines.append(f"attitude: {s['symbols']}")
+    if s.get("release"):
+        lines.append(s["release"]["text"])
     tx = "" if d["tx_dropped"] is None else f", firmware TX queue dropped {d['tx_dropped']}"
     lines.append(
         f"drops: {d['frames_missing']} frames missing in {d['seq_gaps']} gaps ({100 * d['drop_ratio']:.3f} %)"

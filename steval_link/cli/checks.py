@@ -7,8 +7,12 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
+from typing import Annotated, Optional
+
+import typer
 
 from steval_link.errors import UserError
+from steval_link.estimators.st_mahony import variant_name
 
 #: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
 MAX_THROTTLE = 32767
@@ -39,6 +43,29 @@ def check_filter_options(
     for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
         check_gain(option, gain)
     check_throttle("--min-thr", min_thr)
+
+
+#: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
+VariantOption = Annotated[
+    Optional[str],
+    typer.Option(
+        "--variant",
+        metavar="RELEASE",
+        help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 "
+        "beta) or 221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
+        show_default=False,
+    ),
+]
+
+
+def check_variant(value: str | None) -> str | None:
+    """``--variant``: the variant's name ("ST 221117"), None when not given; one sentence for an unknown release."""
+    if value is None:
+        return None
+    try:
+        return variant_name(value)
+    except ValueError as exc:
+        raise UserError(f"--variant: {exc}") from None
 
 
 def check_count(option: str, value: int, maximum: int) -> None:

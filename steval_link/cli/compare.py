@@ -26,7 +26,7 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_filter_options, require_attitude
+from steval_link.cli.checks import VariantOption, check_filter_options, check_variant, require_attitude
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
@@ -57,7 +57,7 @@ def flight_plot_path(out_png: Path) -> Path:
     return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
 
 
-def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares):
+def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction):
     """Port settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
 
     changes = {
@@ -69,7 +69,6 @@ def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squa
             dt_s=dt,
             min_thr=min_thr,
             correction=correction,
-            fresh_squares=fresh_squares,
         ).items()
         if v is not None
     }
@@ -139,14 +138,7 @@ def compare_command(
             "--correction/--no-correction", help="Port with/without accelerometer correction.", show_default=False
         ),
     ] = None,
-    fresh_squares: Annotated[
-        Optional[bool],
-        typer.Option(
-            "--fresh-squares/--stale-squares",
-            help="Port normalisation variant (fresh: 2017 releases; stale: 170120).",
-            show_default=False,
-        ),
-    ] = None,
+    variant: VariantOption = None,
     align: Annotated[
         str,
         typer.Option(
@@ -195,7 +187,7 @@ def compare_command(
                 "--dt": dt,
                 "--min-thr": min_thr,
                 "--correction/--no-correction": correction,
-                "--fresh-squares/--stale-squares": fresh_squares,
+                "--variant": variant,
             },
             viewer=dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port),
         )
@@ -226,9 +218,11 @@ def compare_command(
             check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))
         for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
             print(f"steval: warning: {w}", file=sys.stderr)
-        settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction, fresh_squares)
+        settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction)
         progress(0.4, f"port and {', '.join(names)}")
-        report = compare_capture(tel, estimators=names, settings=settings)
+        report = compare_capture(
+            tel, estimators=names, settings=settings, variant=check_variant(variant), variant_source="--variant"
+        )
         if as_json:
             report.notes.extend(seen)
         if plot is not None:

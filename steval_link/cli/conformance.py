@@ -1,20 +1,22 @@
-"""``steval conformance``: check the ST Mahony port (optionally with modified settings) against firmware vectors."""
+"""``steval conformance``: check the replica (optionally with modified settings) against firmware vectors, naming the
+ST release whose filter computed them."""
 
 from __future__ import annotations
 
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_filter_options
+from steval_link.cli.checks import VariantOption, check_filter_options, check_variant
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
-from steval_link.estimators.conformance import check_conformance, load_conformance_csv
+from steval_link.estimators.conformance import check_conformance, load_conformance_csv, variant_scores
 from steval_link.estimators.st_mahony import MahonySettings
 
 
@@ -34,21 +36,24 @@ def conformance_command(
     min_thr: Optional[int] = typer.Option(None, "--min-thr", help="MIN_THR throttle threshold (default 200)."),
     dt: Optional[float] = typer.Option(None, "--dt", help="SENSOR_SAMPLING_TIME in s (default 0.00625)."),
     no_correction: bool = typer.Option(False, "--no-correction", help="Firmware without accelerometer correction."),
-    fresh_squares: bool = typer.Option(False, "--fresh-squares", help="Firmware normalising with fresh squares."),
+    variant: VariantOption = None,
     pure: bool = typer.Option(False, "--pure", help="Use the pure-Python loop instead of the compiled one."),
 ) -> None:
-    """Run the bit-exact Mahony port on each file's inputs and compare every output bit with the firmware's.
+    """Run the bit-exact Mahony replica on each file's inputs and compare every output bit with the firmware's.
+
+    The ST release is named: the filter variant that is bit-exact on every step (or --variant).
 
     Exit status 0 when every step of every file is bit-exact, 1 otherwise, 2 for unreadable files.
     """
     check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
+    forced = check_variant(variant)
     overrides = {
         k: v
         for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt).items()
         if v is not None
     }
     try:
-        settings = MahonySettings(**overrides, correction=not no_correction, fresh_squares=fresh_squares)
+        settings = MahonySettings(**overrides, correction=not no_correction)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     paths: list[Path] = []
@@ -70,11 +75,22 @@ def conformance_command(
             raise UserError(f"{path}: cannot read ({exc.strerror})") from None
         except ValueError as exc:
             raise UserError(str(exc)) from None
-    results = [check_conformance(case, settings, native=False if pure else None) for case in cases]
+    native = False if pure else None
+    scores = None
+    if forced is None:
+        scores = variant_scores(cases, settings, native=native)
+        forced = max(scores, key=lambda v: scores[v])  # the first of the best: the default on a tie
+    settings = replace(settings, variant=forced)
+    results = [check_conformance(case, settings, native=native) for case in cases]
     all_ok = all(r.ok for r in results)
+    total = sum(r.steps for r in results)
+    filter_line = _filter_line(settings.variant, scores, total)
 
     if json_out:
         out = {
+            "filter": settings.variant,
+            "filter_from": "--variant" if scores is None else "data",
+            "variant_bit_exact_steps": scores,
             "settings": settings.__dict__,
             "ok": all_ok,
             "files": [
@@ -97,9 +113,19 @@ def conformance_command(
                 f"{r.name:<{width}}  {r.steps:>8}  {r.exact_steps:>9}  {r.max_abs_dq:>10.3g}  "
                 f"{r.max_abs_dth:>11.3g}  {first}"
             )
-        total = sum(r.steps for r in results)
         exact = sum(r.exact_steps for r in results)
         verdict = "all bit-exact" if all_ok else "MISMATCH"
         print(f"{len(results)} file(s), {exact} of {total} steps bit-exact: {verdict}")
+        print(filter_line)
     if not all_ok:
         raise SystemExit(1)
+
+
+def _filter_line(variant: str, scores: dict[str, int] | None, total: int) -> str:
+    """The line naming the release: forced, recognised (bit-exact) or the closest, with the others' counts."""
+    if scores is None:
+        return f"filter: {variant} (--variant)"
+    others = "; ".join(f"{v}: {n} of {total}" for v, n in scores.items() if v != variant)
+    if scores[variant] == total:
+        return f"filter: {variant} (recognised: the variant bit-exact on every step; {others})"
+    return f"filter: none of ST's releases is bit-exact; closest {variant} ({scores[variant]} of {total}; {others})"

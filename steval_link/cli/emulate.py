@@ -10,6 +10,7 @@ import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
@@ -117,6 +118,7 @@ def emulate_command(
         "power-up).",
         min=0,
     ),
+    variant: VariantOption = None,
 ) -> None:
     """Run a real firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -125,7 +127,10 @@ def emulate_command(
     as `steval live`; the capture replays and compares like a drone's (`steval compare X.stv`). At the end: the
     instructions per AHRS step and the firmware's DWT window (emulated instruction counts, not M4 cycles).
     Commands reach the firmware's USART1 RX from --commands at given times, or typed at the prompt (a terminal).
+    The firmware's attitude is read by symbol every AHRS step (capture chunks S): a build without the patch shows
+    it too. The ST release's filter is recognised from the ELF's code (or --variant) and named.
     """
+    variant = check_variant(variant)
     check_input(elf, what="firmware ELF")  # the inputs first
     if broad is not None:
         check_input(broad, what="BROAD trial")
@@ -159,6 +164,8 @@ def emulate_command(
         realtime=realtime,
         commands=script,
         commands_file=str(commands) if commands is not None else None,
+        variant=variant,
+        variant_from="--variant",
     )
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(

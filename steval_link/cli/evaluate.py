@@ -12,6 +12,7 @@ import typer
 from steval_link.analysis import evaluate as ev
 from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.constants import AHRS_RATE_HZ
@@ -131,8 +132,10 @@ def evaluate_command(
             show_default=False,
         ),
     ] = None,
+    variant: VariantOption = None,
 ) -> None:
 
+    variant = check_variant(variant)  # the release's filter of the port on a --firmware's inputs
     items = broad.trial_paths(data)  # the inputs first, then the output
     # repeatable, each value a comma-separated list (commas inside options stay)
     only = split_list(",".join(estimators)) if estimators else None
@@ -182,7 +185,9 @@ def evaluate_command(
                     def fw_progress(fraction: float, trial=trial.name, label=label, start=start) -> None:
                         bar((start + fraction * _FIRMWARE_WEIGHT) / total, f"{trial[:32]}: {label} (emulated)")
 
-                    ev.add_firmware(res, fw.run_firmware(elf, trial, label=label, seed=seed, progress=fw_progress))
+                    ev.add_firmware(
+                        res, fw.run_firmware(elf, trial, label=label, seed=seed, progress=fw_progress, variant=variant)
+                    )
                     done += _FIRMWARE_WEIGHT
                 results.append(res)
             else:

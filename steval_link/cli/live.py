@@ -11,6 +11,7 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -113,6 +114,7 @@ def live_command(
         None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
     ),
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
+    variant: VariantOption = None,
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -124,6 +126,7 @@ def live_command(
     _check_baud(baud)
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     check_duration(duration)
+    variant = check_variant(variant)
     if device is not None and not ble:
         raise UserError(
             f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
@@ -144,6 +147,7 @@ def live_command(
         estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
         duration_s=duration,
         prompt=prompt,
+        variant=variant,
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)

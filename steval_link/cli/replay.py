@@ -30,6 +30,7 @@ from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
+from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import ForceOption, print_json
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -120,11 +121,11 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     return out
 
 
-def summary_sink(as_json: bool, warnings_seen: list[str]) -> Sink:
-    """Sink printing the summary (text, or one JSON object) on stdout."""
+def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = None) -> Sink:
+    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter."""
 
     def sink(tel, estimates) -> None:
-        s = summarize(tel)
+        s = summarize(tel, variant=variant, variant_source="--variant")
         for w in warnings_seen:
             if w not in s["warnings"]:
                 s["warnings"].append(w)
@@ -177,11 +178,13 @@ def replay(
             show_default=False,
         ),
     ] = None,
+    variant: VariantOption = None,
     force: ForceOption = False,
     text_map: MapOption = None,
     ble_layout: Annotated[Optional[str], typer.Option("--ble-layout", help=BLE_LAYOUT_HELP)] = None,
 ) -> None:
-    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings.
+    """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST
+    release whose filter the replica reproduces the firmware with.
 
     Any serial text works too: ST's own output, your own PRINTF, Arduino plotter, Teleplot and CSV lines are read
     as text telemetry (records, series, other lines); --map says which series is the attitude when the names do not.
@@ -194,6 +197,7 @@ def replay(
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
     viewer = rrd is not None or spawn or serve or connect
+    variant = check_variant(variant)
     names = registry.parse_names(
         ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
     )
@@ -217,7 +221,7 @@ def replay(
             tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map)
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
-            summary_sink(as_json, seen)(tel, estimates)
+            summary_sink(as_json, seen, variant)(tel, estimates)
             if options is not None:
                 from steval_viewer.replay_log import replay_sink  # Rerun loads only for a viewer or an .rrd
 

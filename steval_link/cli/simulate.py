@@ -14,7 +14,7 @@ import typer
 
 from steval_link.analysis.report import json_number
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_count, check_gain, check_throttle, check_vector
+from steval_link.cli.checks import VariantOption, check_count, check_gain, check_throttle, check_variant, check_vector
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
@@ -164,9 +164,7 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     if res.settings:
         s = res.settings
         kp = s["kp_ground"] if throttle < s["min_thr"] else s["kp_flight"]
-        extra = ("" if s["correction"] else ", no correction (g* = g)") + (
-            ", fresh-squares normalisation" if s["fresh_squares"] else ""
-        )
+        extra = ("" if s["correction"] else ", no correction (g* = g)") + f", filter {s['variant']}"
         lines.append(
             f"  filter: kp {kp:g} (throttle {'<' if throttle < s['min_thr'] else '≥'} MIN_THR {s['min_thr']}), "
             f"KI {s['ki']:g}, dt {s['dt_s']:g} s{extra}"
@@ -243,9 +241,7 @@ def simulate_command(
     no_correction: bool = typer.Option(
         False, "--no-correction", help="Drop the accelerometer correction, g* = g (exercise 5)."
     ),
-    fresh_squares: bool = typer.Option(
-        False, "--fresh-squares", help="Normalise q with fresh squares (2017 firmware releases)."
-    ),
+    variant: VariantOption = None,
     dt: Optional[float] = typer.Option(
         None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
     ),
@@ -318,8 +314,8 @@ def simulate_command(
         options["kp"] = kp
     if no_correction:
         options["correction"] = False
-    if fresh_squares:
-        options["fresh_squares"] = True
+    if variant is not None:
+        options["variant"] = check_variant(variant)
     if dt is not None:
         if not (math.isfinite(dt) and dt > 0):
             raise UserError(f"--dt must be a period > 0 s, got {dt}")

@@ -4,19 +4,29 @@ A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` co
 ``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
 per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
 exact float32 value.
+
+Which ST release computed a set of files is found by running each filter variant over them
+(:func:`variant_scores`): the one that is bit-exact on every step is the release's.
 """
 
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from steval_link.estimators.st_mahony import MahonySettings, MahonyState, bits_equal, run
+from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal, run
 
-__all__ = ["COLUMNS", "ConformanceVectors", "ConformanceResult", "load_conformance_csv", "check_conformance"]
+__all__ = [
+    "COLUMNS",
+    "ConformanceVectors",
+    "ConformanceResult",
+    "load_conformance_csv",
+    "check_conformance",
+    "variant_scores",
+]
 
 #: the header every vector file has
 COLUMNS = (
@@ -169,3 +179,15 @@ def check_conformance(
         nan_mismatches=nan_mism,
         first_mismatch_step=int(vectors.step[bad[0]]) if bad.size else None,
     )
+
+
+def variant_scores(
+    cases: list[ConformanceVectors], settings: MahonySettings | None = None, *, native: bool | None = None
+) -> dict[str, int]:
+    """Bit-exact steps over all ``cases`` of each filter variant (``VARIANTS``, in their order) with ``settings``'
+    constants: the release that computed the files is the variant that matches every step."""
+    base = MahonySettings() if settings is None else settings
+    return {
+        variant: sum(check_conformance(c, replace(base, variant=variant), native=native).exact_steps for c in cases)
+        for variant in VARIANTS
+    }

@@ -5,11 +5,15 @@ status snapshots and attitude rows (:class:`ReplicaFollower`) that the replay of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from steval_link.estimators.st_mahony import (
+    DEFAULT_VARIANT as VARIANTS_DEFAULT,
+)
+from steval_link.estimators.st_mahony import (
+    VARIANTS,
     MahonySettings,
     MahonyState,
     bits_equal,
@@ -20,7 +24,15 @@ from steval_link.estimators.st_mahony import (
 from steval_link.fw_math import _F32
 from steval_link.link.protocol import FLAG_EVENT
 
-__all__ = ["ReplicaFollower", "ReplaySeed", "FirmwareReplay", "replay_firmware"]
+__all__ = [
+    "ReplicaFollower",
+    "ReplaySeed",
+    "FirmwareReplay",
+    "replay_firmware",
+    "VariantReplay",
+    "replay_variants",
+    "release_sentence",
+]
 
 
 class ReplicaFollower:
@@ -48,9 +60,11 @@ class ReplicaFollower:
         follow_snapshots: bool = True,
         euler: bool = True,
         native: bool | None = None,
+        variant: str | None = None,
     ) -> None:
-        self.fixed = settings
-        self.settings = settings or initial or MahonySettings()
+        self.variant = variant  #: the release whose filter every settings runs with (None: the settings' own)
+        self.fixed = self._with_variant(settings)
+        self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
         self.native = native
@@ -61,6 +75,17 @@ class ReplicaFollower:
         self._pending: tuple[str, int | None, MahonySettings] | None = None
         #: (first row of the seed in the caller's numbering, seed) of every seed, once its first row ran
         self.seed_rows: list[tuple[int, tuple[str, int | None, MahonySettings]]] = []
+
+    def _with_variant(self, settings: MahonySettings | None) -> MahonySettings | None:
+        if settings is None or self.variant is None or settings.variant == self.variant:
+            return settings
+        return replace(settings, variant=self.variant)
+
+    def force_variant(self, variant: str | None) -> None:
+        """Run every settings with ``variant``'s filter from now on (a release named by ``--variant`` or the ELF)."""
+        self.variant = variant
+        self.fixed = self._with_variant(self.fixed)
+        self.settings = self._with_variant(self.settings)
 
     @property
     def seeded(self) -> bool:
@@ -79,6 +104,7 @@ class ReplicaFollower:
         command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
         snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
         the replica takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
+        settings = self._with_variant(settings)
         in_sync = self.state is not None and self.next_step == step + 1
         if in_sync and not (self.follow_snapshots or event):
             return "ignored"
@@ -95,6 +121,37 @@ class ReplicaFollower:
         self._pending = ("status", snapshot_id, self.settings)
         self.seed_count += 1
         return "seeded"
+
+    def _saved(self) -> tuple:
+        return (self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count,
+                len(self.seed_rows))  # fmt: skip
+
+    def _restore(self, saved: tuple) -> None:
+        self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count, n = saved
+        del self.seed_rows[n:]
+
+    def rows_recognising(self, step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz, *, first_row: int = 0):
+        """:meth:`rows`, and when no release was named (``variant``) and the rows differ from the firmware's
+        ``fw_q_wxyz``: the same rows again from the same state with each other release's filter; the first that is
+        bit-exact on all of them is kept from then on (the release recognised from the data, live)."""
+        saved = self._saved()
+        out = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
+        if self.variant is not None or not _differs(out, fw_q_wxyz):
+            return out
+        after = self._saved()
+        running = self.settings.variant
+        for variant in (v for v in VARIANTS if v != running):
+            self._restore(saved)
+            self.settings = replace(self.settings, variant=variant)
+            self.fixed = None if self.fixed is None else replace(self.fixed, variant=variant)
+            if self._pending is not None:
+                self._pending = (*self._pending[:2], self.settings)
+            trial = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
+            if trial[3].any() and not _differs(trial, fw_q_wxyz):
+                self.variant = variant
+                return trial
+        self._restore(after)
+        return out
 
     def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
         """Step the replica over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
@@ -138,6 +195,12 @@ class ReplicaFollower:
                 seeded[a:b] = True
             self.next_step = int(step[b - 1]) + 1
         return q, thx, thy, seeded
+
+
+def _differs(rows_out, fw_q_wxyz) -> bool:
+    """True when a seeded row of :meth:`ReplicaFollower.rows`' output differs from the firmware's q."""
+    q, _, _, seeded = rows_out
+    return bool((seeded & ~bits_equal(q, np.asarray(fw_q_wxyz, dtype=_F32)).all(axis=1)).any())
 
 
 @dataclass(frozen=True)
@@ -190,7 +253,9 @@ class FirmwareReplay:
         return self.n_seeded > 0 and self.first_mismatch is None
 
 
-def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool | None = None) -> FirmwareReplay:
+def replay_firmware(
+    tel, settings: MahonySettings | None = None, *, variant: str | None = None, native: bool | None = None
+) -> FirmwareReplay:
     """Re-run the replica over a capture's inputs and compare it with the firmware's outputs, bit for bit.
 
     Args:
@@ -199,6 +264,8 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
             min_thr/flags``).
         settings: filter constants; default: those reported by the status frames (the seeding one, else the
             first one), or the firmware's defaults when the capture has no status frame.
+        variant: the release whose filter arithmetic every seed uses (a key of ``VARIANTS``); default: the
+            settings' own (the status frames': ST 170120 unless their flags say ST 221117).
         native: force the C or the pure loop (default: C when built).
 
     The replica starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
@@ -219,6 +286,13 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         fw_thx, fw_thy = quaternion_to_euler(fw_q)
 
     status = getattr(tel, "status", None)
+
+    def of_status(j: int) -> MahonySettings:
+        s = MahonySettings.of_status(status, j)
+        return s if variant is None else replace(s, variant=variant)
+
+    if settings is not None and variant is not None:
+        settings = replace(settings, variant=variant)
 
     def col(name: str, dtype=np.float64) -> np.ndarray:
         return np.asarray(table_column(status, name), dtype=dtype)
@@ -241,11 +315,11 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         # that diverged still runs with the build's settings)
         first = np.flatnonzero(has_settings)
         default_settings = (
-            MahonySettings.of_status(status, int(order[0]))
+            of_status(int(order[0]))
             if order.size
-            else MahonySettings.of_status(status, int(first[0]))
+            else of_status(int(first[0]))
             if first.size
-            else MahonySettings()
+            else MahonySettings(variant=variant or VARIANTS_DEFAULT)
         )
 
     try:  # rounded text-mode rows are no exact filter inputs: never replayed
@@ -289,7 +363,7 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
                 replica.snapshot(
                     int(st_sorted[k]),
                     MahonyState(q_wxyz=table_column(status, "q_wxyz")[j], int_xyz=table_column(status, "int_xyz")[j]),
-                    MahonySettings.of_status(status, j),
+                    of_status(j),
                     snapshot_id=j,
                     event=is_event,
                 )
@@ -316,3 +390,89 @@ def replay_firmware(tel, settings: MahonySettings | None = None, *, native: bool
         first_mismatch=int(bad[0]) if bad.size else None,
         seeds=tuple(seeds),
     )
+
+
+@dataclass(frozen=True)
+class VariantReplay:
+    """The release whose filter reproduces a capture: ``variant`` (a key of ``VARIANTS``), ``source`` (how it was
+    chosen: who named it, e.g. "firmware ELF"; "data", or "settings" when every variant is as exact), ``replay`` (the
+    replay with it) and ``bit_exact`` (bit-exact steps of each variant tried; empty when it was forced)."""
+
+    variant: str
+    source: str
+    replay: FirmwareReplay
+    bit_exact: dict
+
+    @property
+    def matches(self) -> bool:
+        """True when the chosen variant is bit-exact on every seeded step."""
+        return self.replay.all_exact
+
+
+def replay_variants(
+    tel,
+    settings: MahonySettings | None = None,
+    *,
+    variant: str | None = None,
+    source: str = "variant setting",
+    hint: tuple[str, str] | None = None,
+    native: bool | None = None,
+) -> VariantReplay:
+    """Replay the capture with the release's filter named by ``variant`` (then ``source`` says who named it), else
+    with each of ``VARIANTS`` and keep the one with the most bit-exact steps; on a tie, ``hint`` (variant, who named
+    it: "firmware ELF") when given, else the settings' own (the status frames', else ST 170120)."""
+    if variant is not None:
+        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
+    replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
+    preferred = settings.variant if settings is not None else _status_variant(tel)
+    counts = {v: r.n_bit_exact for v, r in replays.items()}
+    best = max(counts.values())
+    winners = [v for v, n in counts.items() if n == best]
+    if hint is not None and hint[0] in winners:
+        return VariantReplay(hint[0], hint[1], replays[hint[0]], counts)
+    chosen = preferred if preferred in winners else winners[0]
+    how = "data" if len(winners) == 1 else "settings"
+    return VariantReplay(chosen, how, replays[chosen], counts)
+
+
+def _status_variant(tel) -> str:
+    """The variant the first binary status frame's flags announce (ST 170120 without one)."""
+    status = getattr(tel, "status", None)
+    if status is None or len(np.asarray(table_column(status, "step"))) == 0:
+        return VARIANTS_DEFAULT
+    rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
+    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else VARIANTS_DEFAULT
+
+
+def release_sentence(
+    variant: str,
+    source: str,
+    bit_exact: dict,
+    *,
+    seeded: int,
+    exact: int,
+    first_mismatch_step: int | None,
+) -> str:
+    """The sentence naming the release a replay ran: recognised, forced or given, or the closest when none is
+    bit-exact (with where it leaves the firmware). ``bit_exact``: each variant's bit-exact steps (empty: forced)."""
+    others = "; ".join(f"{v}: {n} of {seeded}" for v, n in bit_exact.items() if v != variant)
+    others = f"; {others}" if others else ""
+    if seeded == 0:
+        return f"filter: {variant} assumed (no seeded step to recognise the release by)"
+    step = "?" if first_mismatch_step is None else first_mismatch_step
+    if exact < seeded and not bit_exact:
+        return (
+            f"filter: {variant} (from the {source}): bit-exact on {exact} of {seeded} steps, it leaves the firmware "
+            f"at step {step}"
+        )
+    if exact < seeded:
+        return (
+            f"filter: no ST release's filter is bit-exact on every step; closest {variant} ({exact} of {seeded}; "
+            f"it leaves the firmware at step {step}{others})"
+        )
+    how = {
+        "firmware ELF": "recognised from the firmware ELF's code, and bit-exact on every step",
+        "data": "recognised from the data: the only variant bit-exact on every step",
+        "settings": "every variant is bit-exact on these steps: the status frames' or the default",
+    }.get(source, f"from the {source}")
+    return f"filter: {variant} ({how}{others})"

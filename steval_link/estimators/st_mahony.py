@@ -1,4 +1,4 @@
-"""Bit-exact replica of the STEVAL-FCU001V1 firmware's Mahony filter (ST release 170120).
+"""Bit-exact replica of the STEVAL-FCU001V1 firmware's Mahony filter, in each of ST's releases' arithmetic.
 
 Reproduces ``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them (Cortex-M4F,
 hard float, -O0, no FMA), rounding included. Units are the firmware's: accelerometer in mg, gyro in mdps, angles in
@@ -9,6 +9,12 @@ The firmware's quirks are kept on purpose: the fast inverse square root (0x5f375
 throttle (10 below MIN_THR, else 0.4); integral ``ex*KI*dt`` in float; the in-place quaternion update (q1..q3 use
 the new q0); and the final normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and
 ``asin`` in ``QuaternionToEuler`` can return NaN near ±90° roll, as on the drone.
+
+ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 170120,
+170318 and the 301117 beta share one ``ahrs.c`` ("ST 170120", above); 221117 ("ST 221117") scales the gyro in
+double (``gyro * 1.745329252e-5``, stored to float), takes ``ex * AHRS_KI * SENSOR_SAMPLING_TIME`` in double
+(0.1 and 0.00625 are double literals there; the sum with ``exInt`` too, stored to float), computes
+``halfT = 0.5*SENSOR_SAMPLING_TIME`` in double and normalises with the squares of the updated quaternion.
 
 Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
 (≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
@@ -28,6 +34,9 @@ from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 __all__ = [
     "COE_MDPS_TO_RADPS_F32",
+    "DEFAULT_VARIANT",
+    "VARIANTS",
+    "variant_name",
     "NATIVE_AVAILABLE",
     "MahonySettings",
     "MahonyState",
@@ -59,10 +68,37 @@ from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared w
 #: ``(float)COE_MDPS_TO_RADPS``: the firmware's double literal 1.745329252e-5 cast to float32 (mdps → rad/s).
 COE_MDPS_TO_RADPS_F32 = _F32(C.COE_MDPS_TO_RADPS)
 
+#: The filter variants of ST's releases, by name: what each one's ``ahrs.c`` is shared with.
+VARIANTS = {
+    "ST 170120": "ST's 170120, 170318 and 301117 beta releases (one ahrs.c): float32 throughout, the final "
+    "normalisation with the squares from before the update",
+    "ST 221117": "ST's 221117 release: the gyro scale, the integral step and halfT in double, the final "
+    "normalisation with the squares of the updated quaternion",
+}
+DEFAULT_VARIANT = "ST 170120"
+# other spellings of the releases: each of 170318 and 301117 (beta) has 170120's ahrs.c
+_VARIANT_ALIASES = {"170120": "ST 170120", "170318": "ST 170120", "301117": "ST 170120", "221117": "ST 221117"}
+
+
+def variant_name(text: str) -> str:
+    """The variant a release's name stands for: "221117", "ST 170318", "st-301117 beta" → "ST 221117", "ST 170120"...
+
+    Raises:
+        ValueError: no release of that name (the sentence lists the known ones).
+    """
+    key = str(text).strip().lower().removesuffix("beta").strip().removeprefix("st").strip(" -_")
+    if key in _VARIANT_ALIASES:
+        return _VARIANT_ALIASES[key]
+    known = ", ".join(sorted(_VARIANT_ALIASES))
+    raise ValueError(f"no ST release named {text!r} (known: {known}; 170318 and 301117 have 170120's filter)")
+
 
 @dataclass(frozen=True)
 class MahonySettings:
-    """Filter constants of ``ahrs_fusion_ag`` (release 170120 defaults); each is used as float32 like the firmware.
+    """Filter constants of ``ahrs_fusion_ag`` (release 170120 defaults) and the release's arithmetic (``variant``).
+
+    In "ST 170120" each constant is used as float32. In "ST 221117" ``ki`` and ``dt_s`` are doubles, as ST's
+    literals; a float32 value equal to the default (a status frame's 0.1f) stands for ST's literal (0.1).
 
     Attributes:
         kp_ground: proportional gain when ``thr < min_thr`` (``AHRS_KP_BIG``, 10).
@@ -73,8 +109,8 @@ class MahonySettings:
         min_thr: ``MIN_THR`` throttle threshold for the gain switch (200).
         correction: False drops the accelerometer correction (ETH exercise 5: g* = g; the integral terms are then
             left unchanged).
-        fresh_squares: True normalises with the squares of the updated quaternion (2017 releases); False (170120)
-            with the squares from before the update, which leaves |q| ≈ 0.9983.
+        variant: the release whose arithmetic is reproduced, a key of ``VARIANTS`` ("ST 170120", "ST 221117");
+            any release name :func:`variant_name` knows is accepted.
     """
 
     kp_ground: float = C.KP_GROUND
@@ -83,7 +119,7 @@ class MahonySettings:
     dt_s: float = C.DT_S
     min_thr: int = C.MIN_THR
     correction: bool = True
-    fresh_squares: bool = False
+    variant: str = DEFAULT_VARIANT
 
     def __post_init__(self) -> None:
         for name in ("kp_ground", "kp_flight", "ki", "dt_s"):
@@ -96,11 +132,17 @@ class MahonySettings:
             raise ValueError(f"MahonySettings.min_thr must fit 32 bits, got {min_thr}")
         object.__setattr__(self, "min_thr", min_thr)
         object.__setattr__(self, "correction", bool(self.correction))
-        object.__setattr__(self, "fresh_squares", bool(self.fresh_squares))
+        object.__setattr__(self, "variant", variant_name(self.variant))
+
+    @property
+    def fresh_squares(self) -> bool:
+        """True when the final normalisation uses the squares of the updated quaternion (ST 221117)."""
+        return self.variant == "ST 221117"
 
     @property
     def flags(self) -> int:
-        """The status-frame ``flags`` bits these settings correspond to (bit 0 no correction, bit 1 fresh squares)."""
+        """The status-frame ``flags`` bits these settings correspond to (bit 0 no correction, bit 1 ST 221117's
+        filter)."""
         return (0 if self.correction else FLAG_NO_CORRECTION) | (FLAG_FRESH_SQUARES if self.fresh_squares else 0)
 
     @classmethod
@@ -120,11 +162,17 @@ class MahonySettings:
             dt_s=float(field("dt_s")),
             min_thr=int(field("min_thr")),
             correction=not flags & FLAG_NO_CORRECTION,
-            fresh_squares=bool(flags & FLAG_FRESH_SQUARES),
+            variant="ST 221117" if flags & FLAG_FRESH_SQUARES else DEFAULT_VARIANT,
         )
 
-    def _params_f32(self) -> np.ndarray:
-        return np.array([self.kp_ground, self.kp_flight, self.ki, self.dt_s], dtype=_F32)
+    def _params(self) -> np.ndarray:
+        """(4,) float64: kp_ground, kp_flight, ki, dt_s as this variant's arithmetic uses them (float32 values,
+        except ki and dt_s in ST 221117: doubles, a float32 default standing for ST's double literal)."""
+        kp_ground, kp_flight, ki, dt = (float(_F32(v)) for v in (self.kp_ground, self.kp_flight, self.ki, self.dt_s))
+        if self.variant == "ST 221117":
+            ki = C.KI if ki == float(_F32(C.KI)) else self.ki
+            dt = C.DT_S if dt == float(_F32(C.DT_S)) else self.dt_s
+        return np.array([kp_ground, kp_flight, ki, dt], dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -197,7 +245,7 @@ def run(
         thx = np.empty(n, dtype=_F32) if euler else None
         thy = np.empty(n, dtype=_F32) if euler else None
         flags = (settings.min_thr & 0xFFFFFFFF) | ((not settings.correction) << 32) | (settings.fresh_squares << 33)
-        _native.run(acc, gyro, thr_arr, q, thx, thy, st, settings._params_f32(), flags)
+        _native.run(acc, gyro, thr_arr, q, thx, thy, st, settings._params(), flags)
     else:
         st = _run_pure(acc, gyro, thr_arr, q, st, settings)
         thx, thy = quaternion_to_euler(q, native=False) if euler else (None, None)
@@ -206,13 +254,14 @@ def run(
 
 def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray:
     """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop)."""
-    kp_ground, kp_flight, ki, dt = (_F32(v) for v in settings._params_f32())
+    kp_ground, kp_flight, ki_d, dt_d = settings._params().tolist()
+    kp_ground, kp_flight, ki, dt = _F32(kp_ground), _F32(kp_flight), _F32(ki_d), _F32(dt_d)
     min_thr = settings.min_thr
     correction = settings.correction
-    fresh = settings.fresh_squares
+    st221117 = settings.variant == "ST 221117"
     coe = COE_MDPS_TO_RADPS_F32
     two = _TWO
-    half_t = _HALF * dt
+    half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, ex_int, ey_int, ez_int = (_F32(v) for v in st)
     acc_rows = acc.tolist()  # exact: float32 → Python float → float32 round-trips
     gyro_rows = gyro.tolist()
@@ -223,9 +272,14 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             ax, ay, az = acc_rows[k]
             gx, gy, gz = gyro_rows[k]
             axf, ayf, azf = _F32(ax), _F32(ay), _F32(az)
-            gxf = _F32(gx) * coe
-            gyf = _F32(gy) * coe
-            gzf = _F32(gz) * coe
+            if st221117:  # float * double literal: a double product, stored to float
+                gxf, gyf, gzf = (
+                    _F32(gx * C.COE_MDPS_TO_RADPS),
+                    _F32(gy * C.COE_MDPS_TO_RADPS),
+                    _F32(gz * C.COE_MDPS_TO_RADPS),
+                )
+            else:
+                gxf, gyf, gzf = _F32(gx) * coe, _F32(gy) * coe, _F32(gz) * coe
 
             q0q0 = q0 * q0
             q0q1 = q0 * q1
@@ -250,9 +304,14 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
                 ey = azf * vx - axf * vz
                 ez = axf * vy - ayf * vx
 
-                ex_int = ex_int + ex * ki * dt
-                ey_int = ey_int + ey * ki * dt
-                ez_int = ez_int + ez * ki * dt
+                if st221117:  # exInt + ex * AHRS_KI * SENSOR_SAMPLING_TIME in double, stored to float
+                    ex_int = _F32(float(ex_int) + float(ex) * ki_d * dt_d)
+                    ey_int = _F32(float(ey_int) + float(ey) * ki_d * dt_d)
+                    ez_int = _F32(float(ez_int) + float(ez) * ki_d * dt_d)
+                else:
+                    ex_int = ex_int + ex * ki * dt
+                    ey_int = ey_int + ey * ki * dt
+                    ez_int = ez_int + ez * ki * dt
 
                 gxf = gxf + ahrs_kp * ex + ex_int
                 gyf = gyf + ahrs_kp * ey + ey_int
@@ -263,7 +322,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * half_t
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * half_t
 
-            if fresh:
+            if st221117:
                 norm = _inv_sqrt_scalar(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
             else:
                 norm = _inv_sqrt_scalar(q0q0 + q1q1 + q2q2 + q3q3)
@@ -301,7 +360,7 @@ class StMahony(Estimator):
     """The firmware's Mahony filter as an :class:`~steval_link.estimators.base.Estimator` (bit-exact, float32).
 
     Options (all keyword): ``kp_ground``, ``kp_flight`` (or ``kp`` for both), ``ki``, ``dt_s``, ``min_thr``,
-    ``correction``, ``fresh_squares`` (see :class:`MahonySettings`), or a whole ``settings``; ``state`` seeds the
+    ``correction``, ``variant`` (see :class:`MahonySettings`), or a whole ``settings``; ``state`` seeds the
     filter (a :class:`MahonyState`, e.g. a status-frame snapshot); ``native`` forces the C or pure path.
     ``run`` returns q and thx/thy exactly as the firmware computes them (float32) and thz from the Lab 5 handout's
     yaw formula (the firmware's own thz is integrated in its ISR, not derived from q).

@@ -38,6 +38,7 @@ __all__ = [
     "CaptureEvent",
     "CaptureTruth",
     "capture_truth",
+    "capture_symbol_rows",
     "truth_payloads",
     "HostChunk",
     "CaptureTruncatedWarning",
@@ -56,6 +57,7 @@ CHUNK_EVENT = ord("E")
 CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
 CHUNK_TRUTH = ord("T")
+CHUNK_SYMBOLS = ord("S")
 #: every chunk type the reader knows (format 2 adds B, H and T); D and E are read into the byte stream and the events,
 #: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
 #: for the module that reads them. A type it does not know (a newer writer's) is kept there too when its CRC holds.
@@ -65,10 +67,25 @@ CHUNK_TYPES: dict[int, str] = {
     CHUNK_BLE: "ble",
     CHUNK_HOST: "host",
     CHUNK_TRUTH: "truth",
+    CHUNK_SYMBOLS: "symbols",
 }
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
 TRUTH_ROWS_PER_CHUNK = (1 << 20) // TRUTH_DTYPE.itemsize
+#: one row of a symbol chunk S (an AHRS step's inputs and outputs the emulator read from the firmware's globals by
+#: symbol, never sent by the firmware; CAPTURE_FORMAT.md), packed. ``read``: bit 0 inputs, 1 q, 2 Euler angles.
+SYMBOL_DTYPE = np.dtype(
+    [
+        ("step", "<u4"),
+        ("t_s", "<f8"),
+        ("acc_mg", "<f4", (3,)),
+        ("gyro_mdps", "<f4", (3,)),
+        ("thr", "<i2"),
+        ("q_wxyz", "<f4", (4,)),
+        ("euler_rad", "<f4", (3,)),
+        ("read", "u1"),
+    ]
+)
 _HEADER_LEN = struct.Struct("<I")
 _CHUNK_HEAD = struct.Struct("<BId")  # type, payload length, t_host_s
 _CRC = struct.Struct("<I")
@@ -203,6 +220,13 @@ def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth 
         return None
     rows = np.concatenate(parts)
     return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(), rows["movement"] != 0)
+
+
+def capture_symbol_rows(chunks: dict[int, list[tuple[float, bytes]]]) -> np.ndarray | None:
+    """The rows of a capture's symbol chunks S (``SYMBOL_DTYPE``, file order), or None when it has none."""
+    size = SYMBOL_DTYPE.itemsize
+    parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=SYMBOL_DTYPE) for _, p in chunks.get(CHUNK_SYMBOLS, [])]
+    return np.concatenate(parts) if parts else None
 
 
 def _known_kind(kind: int) -> int:

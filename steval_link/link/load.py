@@ -22,11 +22,13 @@ from steval_link.link.capture import (
     Capture,
     CaptureTruncatedWarning,
     HostChunk,
+    capture_symbol_rows,
     read_capture,
     read_file_bytes,
 )
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import CommandFrame
+from steval_link.link.symbol_rows import merge_symbol_attitude
 from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
 
 __all__ = ["Recording", "load_telemetry", "read_recording", "sent_command_rows", "telemetry_of_recording"]
@@ -83,8 +85,10 @@ def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> 
 
 
 def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> Telemetry:
-    """Decode a :class:`Recording` (see :func:`load_telemetry`)."""
-    if src.kind == "stv" and not src.data:
+    """Decode a :class:`Recording` (see :func:`load_telemetry`); an emulated capture's symbol chunks S join it
+    (:mod:`steval_link.link.symbol_rows`)."""
+    symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
+    if src.kind == "stv" and not src.data and symbols is None:
         size = _file_size(src.path)
         if src.chunks.get(CHUNK_BLE):
             raise UserError(
@@ -119,12 +123,12 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> T
             )
         binary = int(a.exact.sum()) + int(tel.status.exact.sum())
         tel.source["kind"] = "raw" if binary else "text"
-    elif tel.stats.frames_ok == 0:
+    elif tel.stats.frames_ok == 0 and symbols is None:
         raise UserError(
             f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "
             f"firmware?)."
         )
-    return tel
+    return merge_symbol_attitude(tel, symbols)
 
 
 def _text_lines(tel: Telemetry) -> str:

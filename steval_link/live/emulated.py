@@ -8,7 +8,8 @@ Flow (one way, the same objects as ``steval live``)::
 Each round of the session runs the board for one slice. The capture's receive times are emulated times (s since
 power-up), so a replay or ``steval compare`` of the capture sees the drone's own timing; the live view runs as fast
 as the emulator (``realtime=True`` paces it to the wall clock). A BROAD trial's ground truth goes into the capture
-as ``T`` chunks, per AHRS step. Commands (``--commands`` at emulated times, or typed) reach the firmware's RX.
+as ``T`` chunks, per AHRS step; the attitude the emulator reads by symbol each step (``emulation/symbol_attitude.py``)
+as ``S`` chunks. Commands (``--commands`` at emulated times, or typed) reach the firmware's RX.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Any
 from steval_link import constants as C
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth
+from steval_link.emulation.symbol_attitude import SymbolAttitude, elf_filter_variant
 from steval_link.link.commands import Command
 from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source
 
@@ -41,8 +43,12 @@ class EmulatedSource(Source):
         realtime: bool = False,
         commands: list[tuple[float, Command]] | None = None,
         commands_file: str | None = None,
+        variant: str | None = None,
+        variant_from: str = "variant setting",
     ) -> None:
         self.emu_options = emulation
+        self.variant = variant  # the release's filter the replica runs (named by variant_from; else the ELF's code)
+        self.variant_from = variant_from
         self.realtime = realtime
         self.commands = list(commands or [])
         self.commands_file = commands_file
@@ -50,6 +56,7 @@ class EmulatedSource(Source):
         self.truth: StepTruth | None = None
         self.status = LinkStatus()
         self._closed = False
+        self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
@@ -62,6 +69,12 @@ class EmulatedSource(Source):
     def open(self, note=None) -> None:
         self.emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
         self.status.duration_s = self.emu.duration_s
+        self.symbols = SymbolAttitude(self.emu)  # observers set before the first step
+        self._filter = {"variant": self.variant, "from": self.variant_from} if self.variant is not None else None
+        if self._filter is None:
+            found, why = elf_filter_variant(self.emu.elf)
+            if found is not None:
+                self._filter = {"variant": found, "from": "firmware ELF", "why": why}
 
     def describe(self) -> LinkInfo:
         emu = self.emu
@@ -78,6 +91,26 @@ class EmulatedSource(Source):
             extra["truth"] = (
                 f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
                 "middle tick of the step's input window, emulated time)"
+            )
+        self.symbols = SymbolAttitude(emu)  # what the emulator reads by symbol each step: chunks S
+        if self.variant is not None:
+            extra["filter"] = {"variant": self.variant, "from": self.variant_from}
+        else:
+            found, why = elf_filter_variant(emu.elf)
+            if found is not None:
+                self.variant, self.variant_from = found, "firmware ELF"
+                extra["filter"] = {"variant": found, "from": "firmware ELF", "why": why}
+        if self.symbols.available:
+            extra["symbols"] = (
+                "chunks S hold each AHRS step's inputs and outputs as the emulator read them from the firmware's "
+                "globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames the firmware sent"
+            )
+        if self._filter is not None:  # the release whose filter the replica runs
+            extra["filter"] = self._filter
+        if self.symbols.available:
+            extra["symbols"] = (
+                "chunks S hold each AHRS step's inputs and outputs as the emulator read them from the firmware's "
+                "globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames the firmware sent"
             )
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
@@ -126,6 +159,10 @@ class EmulatedSource(Source):
         rows = self.truth.take() if self.truth is not None else ()
         if len(rows):
             record(Chunk("T", rows, self.status.t_link_s))
+        read = self.symbols.take() if self.symbols is not None and self.symbols.available else ()
+        for i in range(0, len(read), 4096):
+            record(Chunk("S", read[i : i + 4096].tobytes(), self.status.t_link_s))
+        self.status.symbol_rows = self.symbols.count if self.symbols is not None and self.symbols.available else 0
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
         """Onto the firmware's RX: at emulated time ``at_s``, or with the next slice (thread-safe)."""

@@ -86,7 +86,8 @@ class LiveMahony:
 
     def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
         """Step the filter over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
-        q, _, _, seeded = self.follower.rows(step, acc_mg, gyro_mdps, thr, np.asarray(finite, dtype=bool))
+        usable = np.asarray(finite, dtype=bool)
+        q, _, _, seeded = self.follower.rows_recognising(step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz)
         exact = seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)
         k = int(np.count_nonzero(exact))
         n_seeded = int(np.count_nonzero(seeded))

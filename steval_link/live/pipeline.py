@@ -259,7 +259,7 @@ class LivePipeline:
         too."""
         viewer = session.viewer
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
-        return cls(
+        pipe = cls(
             session.options.estimators,
             viewer,
             view_interval_s=VIEW_INTERVAL_S if live else RRD_ONLY_INTERVAL_S,
@@ -269,6 +269,10 @@ class LivePipeline:
             baud=session.capture.header["baud"],
             ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
         )
+        variant = getattr(session.options, "variant", None) or (session.info.extra.get("filter") or {}).get("variant")
+        if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status
+            pipe.mahony.follower.force_variant(variant)
+        return pipe
 
     @property
     def mahony(self) -> LiveMahony | None:

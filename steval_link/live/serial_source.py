@@ -256,6 +256,8 @@ def serial_summary(status: LinkStatus, pipe) -> dict[str, Any]:
             filter_note = f"ST port bit-exact on {p.rows_exact} frames"
         else:
             filter_note = "ST port not seeded (no status snapshot)"
+        if p.rows_mismatch or p.rows_exact:
+            filter_note += f" with {p.settings.variant}'s filter"
     return {
         **pipeline_counts(pipe),
         "streaming_s": streaming_s,

@@ -22,7 +22,7 @@ from typing import Any, Callable, TextIO
 
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import ble_chunk
-from steval_link.link.capture import CHUNK_BLE, CaptureWriter, default_capture_path
+from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, ble_health, ble_summary, emulated_health
@@ -83,6 +83,8 @@ class LiveOptions:
     #: the source's kind ("serial", "ble"...), set by the session from the source's description: the viewer's
     #: layout from the start
     link_kind: str | None = None
+    #: the ST release whose filter the live replica runs ("ST 221117", ``--variant``); None: the status frames'
+    variant: str | None = None
 
     @property
     def uses_rerun(self) -> bool:
@@ -219,6 +221,8 @@ class LiveSession:
             cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t)
         elif kind == "E":
             cap.mark_event(chunk.data[0], chunk.data[1], t)
+        elif kind == "S":
+            cap.write_chunk(CHUNK_SYMBOLS, chunk.data, t)
 
     def _take(self, chunks: list[Chunk]) -> None:
         """One round's chunks to the pipeline, in order; notes to the terminal."""
@@ -303,9 +307,23 @@ class LiveSession:
         if kind == "ble":
             return ble_summary(status, pipe)
         if kind == "emulated":
-            note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
-            return {**pipeline_counts(pipe), "report": status.report, "filter_note": note}
+            return {**pipeline_counts(pipe), "report": status.report, "filter_note": self._emulated_note()}
         return serial_summary(status, pipe)
+
+    def _emulated_note(self) -> str | None:
+        """The replica's verdict, the release whose filter it ran, and the steps the emulator read by symbol."""
+        pipe, read = self.pipeline, self.source.status.symbol_rows
+        flt = self.info.extra.get("filter") or {}
+        note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
+        if note and flt:
+            note = f"{note} with {flt['variant']}'s filter"
+        if read:
+            what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
+            frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
+            note = f"{note}; {what})" if note and frames else f"{what}: steval compare shows them)"
+            if not frames and flt:
+                note += f"; {flt['variant']}'s filter (from the {flt['from']})"
+        return note
 
     def _finish(self, stream, error: BaseException | None) -> None:
         """The link stopped, then what it still held to the pipeline (the capture has it already)."""

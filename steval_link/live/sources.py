@@ -77,7 +77,7 @@ class LinkStatus:
     times of the last loss and connection, the seconds offline, the bytes of the current connection, bytes dropped
     from the live view, ``reopen_error`` ((path, exception): it is back but cannot be opened), ``t_link_s``
     (the link's own clock: emulated s), ``duration_s`` and ``report`` (emulated), ``wait`` (keep waiting for frames
-    instead of stopping)."""
+    instead of stopping), ``symbol_rows`` (emulated: AHRS steps whose attitude the emulator read by symbol)."""
 
     connected: bool = False
     port: str | None = None
@@ -94,6 +94,7 @@ class LinkStatus:
     duration_s: float | None = None
     report: Any = None
     wait: bool = False
+    symbol_rows: int = 0
 
 
 class Source:

@@ -1,0 +1,114 @@
+"""The firmware's attitude read by symbol on the emulated board, each AHRS step, as a debugger would.
+
+Any build with its symbols (ST's own, unpatched; a patched one; the reference firmware) keeps the filter's inputs
+and outputs in globals: ``acc_ahrs`` / ``gyro_ahrs`` (float x, y, z in mg / mdps) and ``gTHR`` (int16) when
+``ahrs_fusion_ag`` is entered; ``ahrs`` (q0..q3 first) and ``euler_ahrs`` (float thx, thy, thz in rad) when the step
+ends. :class:`SymbolAttitude` reads them with the emulator's per-step observers (``Emulation.step_start_observers``
+and ``step_end_observers``) and hands them out as rows of ``SYMBOL_DTYPE`` for the capture's chunks ``S``: what the
+emulator read, never frames the firmware sent. AHRS step ``i`` (from 0) is the ``i``-th call of ``ahrs_fusion_ag``,
+the step counter of the patch's frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from steval_link import constants as C
+from steval_link.emulation.runner import Emulation
+from steval_link.link.capture import SYMBOL_DTYPE
+
+__all__ = ["SYMBOLS", "SymbolAttitude", "elf_filter_variant"]
+
+#: the globals read, in the order the rows hold them
+SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")
+
+_READ_INPUTS, _READ_Q, _READ_EULER = 1, 2, 4
+
+
+class SymbolAttitude:
+    """Reads the AHRS globals of ``emu``'s firmware every step (see the module docstring).
+
+    ``available``: the ELF has ``euler_ahrs`` or ``ahrs`` (else nothing is read). ``take()`` returns the rows read
+    since the last call; ``count`` is every row so far.
+    """
+
+    def __init__(self, emu: Emulation) -> None:
+        e = emu.elf
+        self.addr = {name: e.addr(name) for name in SYMBOLS}
+        self.available = self.addr["euler_ahrs"] is not None or self.addr["ahrs"] is not None
+        self.count = 0
+        self._rows: list[tuple] = []
+        self._inputs: tuple | None = None
+        if self.available:
+            emu.step_start_observers.append(self._start)
+            emu.step_end_observers.append(self._end)
+
+    def missing(self) -> list[str]:
+        """The globals this ELF lacks (their fields stay NaN / 0 in the rows)."""
+        return [name for name, a in self.addr.items() if a is None]
+
+    def _floats(self, board, name: str, n: int) -> list[float]:
+        a = self.addr[name]
+        return [math.nan] * n if a is None else np.frombuffer(board.ram_read(a, 4 * n), "<f4").tolist()
+
+    def _start(self, board) -> None:
+        thr_addr = self.addr["gTHR"]
+        thr = int.from_bytes(board.ram_read(thr_addr, 2), "little", signed=True) if thr_addr is not None else 0
+        self._inputs = (self._floats(board, "acc_ahrs", 3), self._floats(board, "gyro_ahrs", 3), thr)
+
+    def _end(self, board) -> None:
+        acc, gyro, thr = self._inputs or ([math.nan] * 3, [math.nan] * 3, 0)
+        read = (_READ_INPUTS if self._inputs and self.addr["acc_ahrs"] and self.addr["gyro_ahrs"] else 0) | (
+            (_READ_Q if self.addr["ahrs"] is not None else 0) | (_READ_EULER if self.addr["euler_ahrs"] else 0)
+        )
+        q = self._floats(board, "ahrs", 4)
+        euler = self._floats(board, "euler_ahrs", 3)
+        self._rows.append((self.count, board.now / C.CPU_HZ, acc, gyro, thr, q, euler, read))
+        self.count += 1
+        self._inputs = None
+
+    def take(self) -> np.ndarray:
+        """The rows read since the last call (``SYMBOL_DTYPE``)."""
+        rows = np.array(self._rows, dtype=SYMBOL_DTYPE) if self._rows else np.zeros(0, SYMBOL_DTYPE)
+        self._rows = []
+        return rows
+
+
+#: the run-time helpers of double arithmetic on a single-precision FPU (Cortex-M4F): 221117's ahrs_fusion_ag calls
+#: them (gyro scale, integral step, halfT in double); 170120's, float throughout, calls none
+_DOUBLE_HELPERS = ("__aeabi_f2d", "__aeabi_dmul", "__aeabi_dadd", "__aeabi_d2f", "__aeabi_ddiv", "__aeabi_dsub")
+
+
+def _bl_targets(code: bytes, base: int) -> set[int]:
+    """Targets of the Thumb-2 BL instructions in ``code`` (loaded at ``base``), scanned halfword by halfword."""
+    h = np.frombuffer(code[: len(code) & ~1], "<u2").astype(np.int64)
+    out = set()
+    for i in np.flatnonzero(((h[:-1] & 0xF800) == 0xF000) & ((h[1:] & 0xD000) == 0xD000)).tolist():
+        hw1, hw2 = int(h[i]), int(h[i + 1])
+        s = (hw1 >> 10) & 1
+        i1 = 1 - (((hw2 >> 13) & 1) ^ s)
+        i2 = 1 - (((hw2 >> 11) & 1) ^ s)
+        imm = (s << 24) | (i1 << 23) | (i2 << 22) | ((hw1 & 0x3FF) << 12) | ((hw2 & 0x7FF) << 1)
+        imm -= (1 << 25) if s else 0
+        out.add(base + 2 * i + 4 + imm)
+    return out
+
+
+def elf_filter_variant(elf) -> tuple[str | None, str]:
+    """The ST release whose filter an ELF (``emulation.elf.Elf``) has, from ``ahrs_fusion_ag``'s code: (variant or
+    None, why in one sentence). 221117's calls the double-arithmetic helpers, 170120's (= 170318, 301117 beta)
+    none; None without the function's symbol and size."""
+    sym = elf.by_name.get("ahrs_fusion_ag")
+    if sym is None or sym.size <= 0:
+        return None, "no ahrs_fusion_ag symbol with a size in the ELF"
+    start = sym.addr & ~1
+    code = next((data[start - a : start - a + sym.size] for a, data in elf.segments if a <= start < a + len(data)), b"")
+    if len(code) < sym.size:
+        return None, "ahrs_fusion_ag's code is not in the ELF's load segments"
+    helpers = {elf.addr(n) & ~1: n for n in _DOUBLE_HELPERS if elf.addr(n) is not None}
+    called = sorted({helpers[t] for t in _bl_targets(code, start) if t in helpers})
+    if called:
+        return "ST 221117", f"ahrs_fusion_ag calls the double-arithmetic helpers ({', '.join(called)}): 221117's filter"
+    return "ST 170120", "ahrs_fusion_ag does float arithmetic only (no double helper called): 170120's filter"

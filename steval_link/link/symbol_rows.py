@@ -1,0 +1,87 @@
+"""A capture's symbol chunks ``S`` (the attitude the emulator read from the firmware's globals by symbol) in its
+``Telemetry``: :func:`merge_symbol_attitude`.
+
+Without attitude frames (a build without the patch, or its output off) the rows become ``tel.attitude``, bit-exact
+floats like a binary frame's, and ``tel.source["attitude_from"]`` says ``"symbols"``: every command then uses them
+as it uses frames. With frames the frames stay, and the two are checked step by step: ``tel.source["symbols"]``
+says whether they agree bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from steval_link.link.capture import SYMBOL_DTYPE
+from steval_link.link.telemetry import AttitudeArrays, Telemetry
+
+__all__ = ["symbol_attitude", "merge_symbol_attitude"]
+
+_F32 = np.float32
+
+
+def symbol_attitude(rows: np.ndarray) -> AttitudeArrays:
+    """``SYMBOL_DTYPE`` rows as attitude rows (step from the emulator's count, times = emulated s since power-up)."""
+    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
+    n = rows.shape[0]
+    step = rows["step"].astype(np.int64)
+    t_s = rows["t_s"].astype(np.float64)
+    euler = rows["euler_rad"].astype(_F32)
+    return AttitudeArrays(
+        step=step,
+        seq=(step & 0xFFFF).astype(np.uint16),
+        t_us=(np.round(t_s * 1e6).astype(np.int64) & 0xFFFFFFFF).astype(np.uint32),
+        t_fw_s=t_s,
+        t_host_s=t_s.copy(),
+        acc_mg=np.ascontiguousarray(rows["acc_mg"], dtype=_F32),
+        gyro_mdps=np.ascontiguousarray(rows["gyro_mdps"], dtype=_F32),
+        thr=rows["thr"].astype(np.int16),
+        q_wxyz=np.ascontiguousarray(rows["q_wxyz"], dtype=_F32),
+        thz_rad=np.ascontiguousarray(euler[:, 2]),
+        thx_rad=np.ascontiguousarray(euler[:, 0]),
+        thy_rad=np.ascontiguousarray(euler[:, 1]),
+        exact=np.ones(n, dtype=bool),
+        offset=np.full(n, -1, dtype=np.int64),
+    )
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=_F32)
+    return np.where(np.isnan(a), np.uint32(0x7FC00000), a.view(np.uint32))
+
+
+def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
+    """Put the symbol rows into ``tel`` (see the module docstring); ``rows`` None or empty: ``tel`` unchanged."""
+    if rows is None or len(rows) == 0:
+        return tel
+    read = symbol_attitude(rows)
+    if len(tel.attitude) == 0:
+        tel.attitude = read
+        tel.source["attitude_from"] = "symbols"
+        tel.source["symbols"] = (
+            f"no attitude frames: the attitude of {len(read)} AHRS steps as the emulator read it from the "
+            "firmware's globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames it sent"
+        )
+        return tel
+    a = tel.attitude
+    frames = np.flatnonzero(np.asarray(a.exact, bool))
+    common, fi, ri = np.intersect1d(np.asarray(a.step)[frames], read.step, return_indices=True)
+    fi = frames[fi]
+    fields = ("acc_mg", "gyro_mdps", "q_wxyz", "thx_rad", "thy_rad")
+    same = np.ones(common.size, dtype=bool)
+    for name in fields:
+        x, y = _bits(getattr(a, name)[fi]), _bits(getattr(read, name)[ri])
+        same &= (x == y).reshape(common.size, -1).all(axis=1)
+    same &= np.asarray(a.thr)[fi] == read.thr[ri]
+    tel.source["attitude_from"] = "frames"
+    if same.all():
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames agree with it bit for bit on all "
+            f"{common.size} steps both have"
+        )
+    else:
+        first = int(common[np.argmax(~same)])
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames differ from it on {int((~same).sum())} of "
+            f"{common.size} steps (first at step {first}): the frames do not carry the filter's globals"
+        )
+    return tel
