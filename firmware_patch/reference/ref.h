@@ -13,6 +13,12 @@
 #ifndef SLEEP
 #define SLEEP 1 /* 0: the main loop polls instead of sleeping with wfi */
 #endif
+#ifndef PRINTF_EVERY_LOOP
+#define PRINTF_EVERY_LOOP 0 /* 1: a text line per main-loop pass by blocking transmit (ST's unpatched loop), no frames */
+#endif
+#ifndef MISSING_SYSTICK
+#define MISSING_SYSTICK 0 /* 1: SysTick_Handler left out: a weak alias of Default_Handler, as in ST's startup */
+#endif
 #ifndef SWAP_MOTORS
 #define SWAP_MOTORS 0 /* e.g. 34: motor outputs 3 and 4 exchanged (a mixer renumbered for another frame) */
 #endif
