@@ -471,7 +471,7 @@ class Emulation:
             if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * C.CPU_HZ:
                 raise FirmwareStuck(
                     f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time "
-                    f"(t = {b.now / C.CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})"
+                    f"(t = {b.now / C.CPU_HZ:.3f} s); {b.describe_cpu()}"
                 )
 
     def run(self) -> bytes:

@@ -15,6 +15,7 @@ import ctypes
 from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
+from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
     IRQ_TIM2,
     IRQ_TIM9,
@@ -377,7 +378,6 @@ class NativeBoard(PythonBoard):
         st = self.st
         if self.fault is not None:
             return self.fault
-        t = f"t = {self.now / C.CPU_HZ:.6f} s"
         if st.fault == F_STACK:
             self.fault = EmulationError(
                 f"stack overflow: exception {st.fault_arg >> 32} at sp "
@@ -386,14 +386,12 @@ class NativeBoard(PythonBoard):
         elif st.fault == F_RETURN:
             self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
         elif st.fault == F_CPU_EXC:
-            self.fault = EmulationError(
-                f"the CPU raised exception {st.fault_arg} in {self.where()} (pc 0x{self.pc():08x}, {t})"
-            )
+            self.fault = EmulationError(describe_fault(self, st.fault_arg, self.now / C.CPU_HZ))
         else:
             from unicorn import UcError  # reason: unicorn is optional
 
             self.fault = EmulationError(
-                f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): {UcError(st.fault_arg)}"
+                describe_stop(self, st.fault_arg, str(UcError(st.fault_arg)), self.now / C.CPU_HZ)
             )
         return self.fault
 
