@@ -186,6 +186,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
             "correction": st.correction,
         },
         "emulated_s": round(fw.emulated_s, 3),
+        "wall_s": round(fw.wall_s, 2),
         "notes": list(fw.notes),
     }
 
@@ -211,7 +212,8 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
         )
         note = f"  [{'; '.join(fw.notes)}]" if fw.notes else ""
         out.append(
-            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {replica}){note}"
+            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {_fmt(fw.rmse_deg)}  {cost}  ({fw.source}; {replica}; "
+            f"{fw.emulated_s:.0f} s emulated in {fw.wall_s:.1f} s wall){note}"
         )
     return out
 

@@ -27,6 +27,7 @@ counts them (not Cortex-M4 cycles).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -117,6 +118,7 @@ class FirmwareResult:
     settings: MahonySettings | None = None
     emulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    wall_s: float = 0.0  # the whole run_firmware (emulation, decoding, scoring), s
 
     @property
     def steps(self) -> int:
@@ -179,6 +181,7 @@ def run_firmware(
     """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output
     (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
     streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step."""
+    t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     truth_rec = StepTruth(emu)
     glob = _Globals(emu)
@@ -282,6 +285,7 @@ def run_firmware(
         settings=settings,
         emulated_s=report.emulated_s,
         notes=notes,
+        wall_s=time.perf_counter() - t0,
     )
     if replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(replica_thx, replica_thy, truth.q_wxyz, truth.movement)

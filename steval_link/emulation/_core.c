@@ -129,7 +129,7 @@ typedef struct {
   /* mirrored pages; the access handed to Python (hook_addr: offset, hook_size: bytes) */
   mirror_t mirror[MAX_MIRROR];
   int64_t mmio_write, mmio_value;
-  /* the TXE/TC poll skip: the address of the instruction being run (the count hook's), a count of everything that
+  /* the TXE/TC poll skip: the address of the instruction reading SR, a count of everything that
    * can change what a poll loop sees (events, exceptions, MMIO, Python), the last USART1 SR read in thread mode
    * (where, when, the value, the epoch, r0-r12 sp lr xpsr, the stack's top POLL_STACK bytes), instructions skipped */
   int64_t poll_skip, last_pc, io_epoch, poll_pc, poll_now, poll_sr, poll_epoch, polled, poll_stack_len;
@@ -382,6 +382,7 @@ static void poll_check(core_t *s, uint32_t sr) {
   void *ptrs[16];
   for (int i = 0; i < 16; i++) ptrs[i] = &regs[i];
   ((reg_batch_t)s->reg_read_batch)(s->uc, s->poll_ids, ptrs, 16);
+  s->last_pc = reg_get(s, s->PC); /* (synced before each instruction's hook: the SR read's own address) */
   int64_t sp_off = (int64_t)regs[13] - RAM_BASE, len = 0;
   if (sp_off >= 0 && sp_off < (int64_t)RAM_SIZE) len = (int64_t)RAM_SIZE - sp_off < POLL_STACK ? (int64_t)RAM_SIZE - sp_off : POLL_STACK;
   if (s->poll_pc == s->last_pc && s->poll_epoch == s->io_epoch && s->poll_sr == (int64_t)sr &&
@@ -847,7 +848,6 @@ static void dispatch(core_t *s, void *uc, uint64_t address, uint32_t size) {
 /* before every instruction (UC_HOOK_CODE over all addresses): count, stop at the limit, run the sites here */
 EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *user) {
   core_t *s = (core_t *)user;
-  s->last_pc = (int64_t)address;
   if (++s->n >= s->limit) {
     ((emu_stop_t)s->emu_stop)(uc);
     return;
