@@ -98,3 +98,18 @@ def _check(elf: Path, run: str) -> None:
     assert got == {k: v for k, v in want.items() if k != "step_instructions_median"}
     if steps[1]:
         assert abs(steps[0] - steps[1]) <= 0.01 * steps[1], f"instructions per AHRS step {steps[0]} vs {steps[1]}"
+
+
+def test_the_poll_skip_changes_no_byte_and_no_instruction_count(printf_elf):
+    """The same run with the C core's TXE/TC poll skip off and on: the same bytes, the same instruction counts."""
+    from steval_link.emulation.runner import Emulation, EmulationOptions  # reason: after the C core check
+
+    out = []
+    for skip in (0, 1):
+        emu = Emulation(EmulationOptions(elf=printf_elf, scenario="hand-tilts", duration_s=4.0, seed=3))
+        emu.board.st.poll_skip = skip
+        stream = emu.run()
+        rep = emu.report()
+        out.append((stream, rep.step_instructions, rep.instructions, emu.board.st.polled))
+    assert out[0][0] and out[0][:3] == out[1][:3]
+    assert out[0][3] == 0 and out[1][3] > out[1][2] // 2  # most of the executed instructions were polling passes
