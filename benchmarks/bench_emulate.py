@@ -82,8 +82,10 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
         )
     per_s = {k: round(v / rep.emulated_s) for k, v in rep.interrupts.items()}
     print(f"  interrupts per emulated s: {per_s} (total {sum(per_s.values())})")
+    polled = getattr(getattr(emu.board, "st", None), "polled", 0)
     print(
-        f"  instructions per emulated s: {rep.instructions / rep.emulated_s / 1e6:.2f} M executed, "
+        f"  instructions per emulated s: {rep.instructions / rep.emulated_s / 1e6:.2f} M executed "
+        f"(of which {polled / rep.emulated_s / 1e6:.2f} M TXE/TC polling passes skipped), "
         f"{rep.skipped_instructions / rep.emulated_s / 1e6:.1f} M idle skipped"
     )
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

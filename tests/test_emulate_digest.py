@@ -23,9 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware_patch"
 
 
-def _elf(tmp_path_factory) -> Path:
+def _elf(tmp_path_factory, *options: str) -> Path:
     env = os.environ.get("STEVAL_DIGEST_ELF")
-    if env:
+    if env and not options:
         return Path(env)
     why = None
     if shutil.which("arm-none-eabi-gcc") is None:
@@ -35,7 +35,9 @@ def _elf(tmp_path_factory) -> Path:
     if why is None:
         build = tmp_path_factory.mktemp("digest-ref")
         r = subprocess.run(
-            ["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={build}", "-j2"], capture_output=True, text=True
+            ["make", "-s", "-C", str(FW), "reference", f"BUILD_DIR={build}", "-j2", *options],
+            capture_output=True,
+            text=True,
         )
         elfs = sorted((build / "reference").glob("*.elf"))
         if r.returncode == 0 and elfs:
@@ -46,8 +48,7 @@ def _elf(tmp_path_factory) -> Path:
     pytest.skip(f"no ELF for the digest test: {why}")
 
 
-@pytest.fixture(scope="module")
-def elf(tmp_path_factory) -> Path:
+def _need_core() -> None:
     pytest.importorskip("unicorn")
     from steval_link.emulation.board import core_library  # reason: after the unicorn check
 
@@ -55,11 +56,32 @@ def elf(tmp_path_factory) -> Path:
         if os.environ.get("CI") == "true":
             pytest.fail("the board's C core (steval_link.emulation._core) is not built")
         pytest.skip("the board's C core is not built (no C compiler at install)")
+
+
+@pytest.fixture(scope="module")
+def elf(tmp_path_factory) -> Path:
+    _need_core()
     return _elf(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def printf_elf(tmp_path_factory) -> Path:
+    """The reference firmware printing a text line per loop pass by blocking transmit (TXE/TC polling)."""
+    _need_core()
+    return _elf(tmp_path_factory, "PRINTF_EVERY_LOOP=1")
 
 
 @pytest.mark.parametrize("run", D.TEST_RUNS)
 def test_the_firmware_output_is_the_recorded_one(elf, run):
+    _check(elf, run)
+
+
+def test_a_blocking_printf_build_is_the_recorded_one(printf_elf):
+    """Its polling loops are where the board skips whole passes: the bytes and their times must not change."""
+    _check(printf_elf, "hand-tilts")
+
+
+def _check(elf: Path, run: str) -> None:
     table = json.loads(D.DIGESTS.read_text(encoding="utf-8"))
     sha = D.elf_sha256(elf)
     got = D.run(elf, run)
@@ -76,3 +98,18 @@ def test_the_firmware_output_is_the_recorded_one(elf, run):
     assert got == {k: v for k, v in want.items() if k != "step_instructions_median"}
     if steps[1]:
         assert abs(steps[0] - steps[1]) <= 0.01 * steps[1], f"instructions per AHRS step {steps[0]} vs {steps[1]}"
+
+
+def test_the_poll_skip_changes_no_byte_and_no_instruction_count(printf_elf):
+    """The same run with the C core's TXE/TC poll skip off and on: the same bytes, the same instruction counts."""
+    from steval_link.emulation.runner import Emulation, EmulationOptions  # reason: after the C core check
+
+    out = []
+    for skip in (0, 1):
+        emu = Emulation(EmulationOptions(elf=printf_elf, scenario="hand-tilts", duration_s=4.0, seed=3))
+        emu.board.st.poll_skip = skip
+        stream = emu.run()
+        rep = emu.report()
+        out.append((stream, rep.step_instructions, rep.instructions, emu.board.st.polled))
+    assert out[0][0] and out[0][:3] == out[1][:3]
+    assert out[0][3] == 0 and out[1][3] > out[1][2] // 2  # most of the executed instructions were polling passes

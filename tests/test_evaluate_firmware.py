@@ -375,6 +375,7 @@ def test_table_has_a_column_and_one_line_per_firmware_per_trial(tmp_path):
     lines = [ln for ln in text.splitlines() if "instr/step" in ln]
     assert len(lines) == 4 and lines[0].startswith("02_a") and "fw:stock/a.elf  2.000" in lines[0]
     assert "4400 instr/step" in lines[1] and "bit-exact 300/300" in lines[1]
+    assert "s wall" in lines[0] and "wall_s" in ev.summary(results)["firmware"][0]  # each firmware's wall time
     s = ev.summary(results)
     assert [f["firmware"] for f in s["firmware"]] == ["fw:stock/a.elf", "fw:lab/a.elf"] * 2
     assert s["trials"][1]["rmse_deg"]["fw:lab/a.elf"] == pytest.approx(5.0, abs=1e-3)

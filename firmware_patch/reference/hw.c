@@ -21,7 +21,9 @@ void hw_clock_init(void) {
   }
 }
 
+#if !MISSING_SYSTICK
 void SysTick_Handler(void) { uwTick++; }
+#endif
 
 /* 1 ms tick, lowest priority. */
 void hw_systick_init(void) {

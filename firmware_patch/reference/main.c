@@ -38,9 +38,45 @@ volatile uint32_t tim9_event_flag;
 static const float iir_a1 = 0.94280904158206336, iir_a2 = -0.33333333333333343;
 static const float iir_b0 = 0.09763107293781749, iir_b1 = 0.19526214587563498, iir_b2 = 0.09763107293781749;
 
+#if PRINTF_EVERY_LOOP
+#include <stdio.h>
+
+/* ST's unpatched loop: PRINTF is a blocking transmit. Each byte waits for TXE, the last for TC, polling the status
+ * register with a timeout on the ms tick (as HAL_UART_Transmit does). Our own code, not ST's. */
+#define UART_TIMEOUT_MS 100u
+
+static int uart_wait(uint32_t flag, uint32_t t0) {
+  while (!(USART1_SR & flag)) {
+    if ((uint32_t)(uwTick - t0) > UART_TIMEOUT_MS) return -1;
+  }
+  return 0;
+}
+
+static void uart_transmit(const char *s, size_t n) {
+  uint32_t t0 = uwTick;
+  for (size_t i = 0; i < n; i++) {
+    if (uart_wait(1u << 7, t0)) return; /* TXE */
+    USART1_DR = (uint8_t)s[i];
+  }
+  (void)uart_wait(1u << 6, t0); /* TC */
+}
+
+static void log_line(const char *s) { uart_transmit(s, strlen(s)); }
+
+/* One TSV line per pass, as ST's 221117 prints: with newlib-nano's printf (no _printf_float) the %f fields are
+ * empty. */
+static void print_loop_line(uint32_t pass) {
+  char line[160];
+  int n = snprintf(line, sizeof line, "%d\t%d\t%d\t%d\t%d\t%d\t%d\t%f\t%f\t%f\t%d\r\n", (int)pass,
+                   (int)acc_ahrs.x, (int)acc_ahrs.y, (int)acc_ahrs.z, (int)gyro_ahrs.x, (int)gyro_ahrs.y,
+                   (int)gyro_ahrs.z, (double)euler_ahrs.thx, (double)euler_ahrs.thy, (double)euler_ahrs.thz, (int)gTHR);
+  if (n > 0) uart_transmit(line, strlen(line)); /* (n counts what nano's printf skipped) */
+}
+#else
 static void log_line(const char *s) {
   if (LINK_OUTPUT) stv_fw_log_write(s, strlen(s));
 }
+#endif
 
 void TIM1_BRK_TIM9_IRQHandler(void) {
   int32_t acc[3], gyro[3];
@@ -118,6 +154,7 @@ static void read_remote(void) {
   }
 }
 
+#if !PRINTF_EVERY_LOOP
 static void link_init(void) {
   stv_link_config_t cfg;
   memset(&cfg, 0, sizeof cfg);
@@ -143,13 +180,16 @@ static void link_init(void) {
   cfg.int_state[2] = &ezInt;
   stv_fw_init(&cfg);
 }
+#endif
 
 int main(void) {
   hw_clock_init();
   hw_systick_init();
   hw_gpio_init();
   hw_usart1_init(STV_BAUD);
+#if !PRINTF_EVERY_LOOP
   link_init();
+#endif
   log_line("steval-link reference firmware (not ST's): the STEVAL loop for tests and teaching\n");
   hw_spi2_init();
   hw_adc1_init();
@@ -162,6 +202,9 @@ int main(void) {
   hw_delay_ms(1000u); /* let the sensors settle */
   log_line("calibrating the offsets for 2 s: keep the drone still\n");
   hw_tim9_start();
+#if PRINTF_EVERY_LOOP
+  uint32_t pass = 0u;
+#endif
 
   for (;;) {
 #if !SLEEP
@@ -187,6 +230,9 @@ int main(void) {
 #if LINK_OUTPUT
     stv_fw_step_end((const float *)&acc_ahrs, (const float *)&gyro_ahrs, (const float *)&ahrs,
                     (const float *)&euler_ahrs);
+#endif
+#if PRINTF_EVERY_LOOP
+    print_loop_line(pass++);
 #endif
 
     read_remote();

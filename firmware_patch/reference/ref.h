@@ -13,11 +13,21 @@
 #ifndef SLEEP
 #define SLEEP 1 /* 0: the main loop polls instead of sleeping with wfi */
 #endif
+#ifndef PRINTF_EVERY_LOOP
+#define PRINTF_EVERY_LOOP 0 /* 1: a text line per main-loop pass by blocking transmit (ST's unpatched loop), no frames */
+#endif
+#ifndef MISSING_SYSTICK
+#define MISSING_SYSTICK 0 /* 1: SysTick_Handler left out: a weak alias of Default_Handler, as in ST's startup */
+#endif
 #ifndef AHRS_VARIANT
 #define AHRS_VARIANT 170120 /* the filter arithmetic of ST's release 170120 (= 170318, 301117 beta) or 221117 */
 #endif
 #ifndef LINK_OUTPUT
 #define LINK_OUTPUT 1 /* 0: no frames on USART1 (an unpatched build's silence; the attitude is read by symbol) */
+#endif
+#if PRINTF_EVERY_LOOP
+#undef LINK_OUTPUT
+#define LINK_OUTPUT 0 /* the text line takes USART1: no frames */
 #endif
 #ifndef SWAP_MOTORS
 #define SWAP_MOTORS 0 /* e.g. 34: motor outputs 3 and 4 exchanged (a mixer renumbered for another frame) */

@@ -41,6 +41,7 @@
 
 /* USART1 (the link), SPI2 (the sensors), ADC1 (the battery) */
 #define USART1_SR REG(0x40011000u)
+#define USART1_DR REG(0x40011004u)
 #define USART1_BRR REG(0x40011008u)
 #define USART1_CR1 REG(0x4001100Cu)
 #define SPI2_CR1 REG(0x40003800u)

@@ -28,7 +28,18 @@ void HardFault_Handler(void) {
   }
 }
 
+#if defined(MISSING_SYSTICK) && MISSING_SYSTICK
+/* ST's startup names every vector, each a weak alias of Default_Handler until the firmware defines it */
+#define WEAK_DEFAULT __attribute__((weak, alias("Default_Handler")))
+void NMI_Handler(void) WEAK_DEFAULT;
+void SVC_Handler(void) WEAK_DEFAULT;
+void PendSV_Handler(void) WEAK_DEFAULT;
+void SysTick_Handler(void) WEAK_DEFAULT;
+void DMA1_Stream3_IRQHandler(void) WEAK_DEFAULT;
+void WWDG_IRQHandler(void) WEAK_DEFAULT;
+#else
 void SysTick_Handler(void);
+#endif
 void TIM1_BRK_TIM9_IRQHandler(void);
 void USART1_IRQHandler(void);
 

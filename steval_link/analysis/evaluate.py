@@ -201,6 +201,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
             "correction": st.correction,
         },
         "emulated_s": round(fw.emulated_s, 3),
+        "wall_s": round(fw.wall_s, 2),
         "notes": list(fw.notes),
     }
 
@@ -231,7 +232,10 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
             notes.insert(0, cov.sentence())
         note = f"  [{'; '.join(notes)}]" if notes else ""
         score = cov.cell(_fmt(fw.rmse_deg))
-        out.append(f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {score}  {cost}  ({fw.source}; {replica}){note}")
+        out.append(
+            f"{fw.trial.ljust(w0)}  {fw.label.ljust(w1)}  {score}  {cost}  ({fw.source}; {replica}; "
+            f"{fw.emulated_s:.0f} s emulated in {fw.wall_s:.1f} s wall){note}"
+        )
         if fw.gains:
             out.append(f"{''.ljust(w0)}  {''.ljust(w1)}  ran with {fw.gains}")
     return out

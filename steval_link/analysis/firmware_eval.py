@@ -27,6 +27,7 @@ counts them (not Cortex-M4 cycles).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,6 +122,7 @@ class FirmwareResult:
     emulated_s: float = 0.0
     notes: list[str] = field(default_factory=list)
     gains: str = ""
+    wall_s: float = 0.0  # the whole run_firmware (emulation, decoding, scoring), s
 
     @property
     def steps(self) -> int:
@@ -233,6 +235,7 @@ def run_firmware(
     (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
     streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step. The replica runs the
     filter of ``variant`` (an ST release), else of the release the ELF's code or the data shows (``settings``)."""
+    t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)
     hint = (elf_variant, "firmware ELF") if elf_variant is not None else None
@@ -334,6 +337,7 @@ def run_firmware(
         emulated_s=report.emulated_s,
         notes=notes,
         gains=gains,
+        wall_s=time.perf_counter() - t0,
     )
     if replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(replica_thx, replica_thy, truth.q_wxyz, truth.movement)

@@ -69,6 +69,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define MAX_IDLE 4
 #define MAX_MIRROR 8
 #define MAX_IDLE_WORDS 8
+#define POLL_STACK 256
 
 /* A Python peripheral's page with reads served in C: the words marked served hold what Python's model reads
  * (Python keeps them current); other reads and every write go to Python. */
@@ -128,12 +129,20 @@ typedef struct {
   /* mirrored pages; the access handed to Python (hook_addr: offset, hook_size: bytes) */
   mirror_t mirror[MAX_MIRROR];
   int64_t mmio_write, mmio_value;
+  /* the TXE/TC poll skip: the address of the instruction reading SR, a count of everything that
+   * can change what a poll loop sees (events, exceptions, MMIO, Python), the last USART1 SR read in thread mode
+   * (where, when, the value, the epoch, r0-r12 sp lr xpsr, the stack's top POLL_STACK bytes), instructions skipped */
+  int64_t poll_skip, last_pc, io_epoch, poll_pc, poll_now, poll_sr, poll_epoch, polled, poll_stack_len;
+  int32_t poll_ids[16];
+  uint32_t poll_regs[16];
+  uint8_t poll_stack[POLL_STACK];
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
 
 /* ---- helpers ---------------------------------------------------------------------------------------------- */
 
+static inline void touched(core_t *s) { s->io_epoch++; }
 static inline void sync_now(core_t *s) { s->now = s->slice_start + (int64_t)s->n + s->skip_base; }
 static inline int64_t instructions_now(core_t *s) { return s->instructions + (int64_t)s->n; }
 
@@ -260,6 +269,7 @@ EXPORT uint32_t usart_read(core_t *s, uint32_t off) {
 }
 
 EXPORT void usart_write(core_t *s, uint32_t off, uint32_t value) {
+  touched(s);
   if (off == 0x04) {
     value &= 0xFF;
     s->tc = 0;
@@ -289,6 +299,7 @@ static void uart_out(core_t *s, int64_t byte, int64_t t) {
 }
 
 static void shift_complete(core_t *s) {
+  touched(s);
   uart_out(s, s->shift_byte, s->shift_done);
   s->shift_done = NONE;
   if (s->dr_full != NONE) {
@@ -330,6 +341,7 @@ EXPORT int64_t usart_inject(core_t *s, const uint8_t *data, int64_t n, int64_t t
 }
 
 EXPORT void rx_complete(core_t *s) {
+  touched(s);
   int64_t t = s->rx_done;
   uint8_t byte = s->rx_b[s->rx_head];
   s->rx_head = (s->rx_head + 1) % s->rx_cap;
@@ -356,10 +368,56 @@ EXPORT void rx_complete(core_t *s) {
 EXPORT void shift_complete_now(core_t *s) { shift_complete(s); }
 
 /* MMIO callbacks of the USART1 page (uc_mmio_map) */
+/* A USART1 SR read in thread mode. When the one before it was at the same instruction, read the same value, and
+ * nothing in between could change what the CPU sees (no event, exception, other MMIO or Python call: the epoch;
+ * the same core registers and the same stack top), the loop between the two reads (L instructions) repeats
+ * unchanged until the next event: the clock moves over as many whole passes as fit before the slice ends. They
+ * count as executed instructions; the firmware sees every register, every byte at the same instruction counts. */
+static void poll_check(core_t *s, uint32_t sr) {
+  if (!s->poll_skip || s->n_active) {
+    s->poll_pc = -1;
+    return;
+  }
+  uint32_t regs[16];
+  void *ptrs[16];
+  for (int i = 0; i < 16; i++) ptrs[i] = &regs[i];
+  ((reg_batch_t)s->reg_read_batch)(s->uc, s->poll_ids, ptrs, 16);
+  s->last_pc = reg_get(s, s->PC); /* (synced before each instruction's hook: the SR read's own address) */
+  int64_t sp_off = (int64_t)regs[13] - RAM_BASE, len = 0;
+  if (sp_off >= 0 && sp_off < (int64_t)RAM_SIZE) len = (int64_t)RAM_SIZE - sp_off < POLL_STACK ? (int64_t)RAM_SIZE - sp_off : POLL_STACK;
+  if (s->poll_pc == s->last_pc && s->poll_epoch == s->io_epoch && s->poll_sr == (int64_t)sr &&
+      s->poll_stack_len == len && !memcmp(regs, s->poll_regs, sizeof regs) &&
+      (!len || !memcmp(s->ram + sp_off, s->poll_stack, (size_t)len))) {
+    int64_t period = s->now - s->poll_now;
+    int64_t k = period > 0 ? ((int64_t)s->limit - 1 - (int64_t)s->n) / period : 0;
+    if (k > 0) {
+      s->skip_base += k * period;
+      s->limit -= (uint64_t)(k * period);
+      s->instructions += k * period;
+      s->polled += k * period;
+      sync_now(s);
+    }
+  } else {
+    memcpy(s->poll_regs, regs, sizeof regs);
+    s->poll_stack_len = len;
+    if (len) memcpy(s->poll_stack, s->ram + sp_off, (size_t)len);
+    s->poll_pc = s->last_pc;
+    s->poll_sr = sr;
+    s->poll_epoch = s->io_epoch;
+  }
+  s->poll_now = s->now;
+}
+
 EXPORT uint64_t usart_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
   core_t *s = (core_t *)user;
   (void)uc;
   sync_now(s);
+  if ((off & ~3u) == 0x00) {
+    uint32_t sr = usart_sr(s);
+    poll_check(s, sr);
+  } else {
+    touched(s);
+  }
   uint32_t w = usart_read(s, (uint32_t)off & ~3u);
   uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
   return (w >> ((off & 3) * 8)) & mask;
@@ -384,6 +442,7 @@ EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *us
   mirror_t *m = (mirror_t *)user;
   core_t *s = (core_t *)m->core;
   (void)uc;
+  touched(s);
   uint64_t w = off >> 2;
   if (w < 256 && m->served[w]) {
     uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
@@ -402,6 +461,7 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
   mirror_t *m = (mirror_t *)user;
   core_t *s = (core_t *)m->core;
   (void)uc;
+  touched(s);
   sync_now(s);
   s->hook_addr = (int64_t)off;
   s->hook_size = size;
@@ -465,6 +525,7 @@ EXPORT void timer_write(core_t *s, int64_t i, uint32_t off, uint32_t value) {
 }
 
 static void timer_update(core_t *s, int64_t i) {
+  touched(s);
   ctimer_t *t = &s->tim[i];
   int64_t period = timer_period(t);
   t->updates++;
@@ -482,6 +543,7 @@ EXPORT uint64_t timer_mmio_read(void *uc, uint64_t off, unsigned size, void *use
   core_t *s = (core_t *)t->core;
   (void)uc;
   sync_now(s);
+  touched(s);
   uint32_t w = timer_read(s, t - s->tim, (uint32_t)off & ~3u);
   uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
   return (w >> ((off & 3) * 8)) & mask;
@@ -492,6 +554,7 @@ EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
   core_t *s = (core_t *)t->core;
   (void)uc;
   sync_now(s);
+  touched(s);
   uint32_t o = (uint32_t)off & ~3u, v = (uint32_t)value;
   if (size != 4) {
     uint32_t sh = (off & 3) * 8, mask = (uint32_t)(((1ull << (8 * size)) - 1) << sh);
@@ -503,6 +566,7 @@ EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
 /* ---- exceptions -------------------------------------------------------------------------------------------- */
 
 static void take(core_t *s, int exc) {
+  touched(s);
   uint32_t vals[26];
   void *ptrs[26];
   for (int i = 0; i < 26; i++) ptrs[i] = &vals[i];
@@ -535,6 +599,7 @@ static void take(core_t *s, int exc) {
 EXPORT void core_take(core_t *s, int64_t exc) { take(s, (int)exc); }
 
 static void leave(core_t *s) {
+  touched(s);
   uint32_t exc_return = reg_get(s, s->PC) | 0xF0000000u;
   if (!s->n_active) {
     s->fault = F_RETURN;
@@ -597,6 +662,7 @@ EXPORT void core_intr_hook(void *uc, uint32_t intno, void *user) {
 /* ---- events ------------------------------------------------------------------------------------------------ */
 
 static void systick_fire(core_t *s) {
+  touched(s);
   s->countflag = 1;
   s->systick_next = (s->systick_next ? s->systick_next : s->now) + s->systick_period;
   if (s->systick_tickint) pend(s, EXC_SYSTICK);
@@ -755,6 +821,7 @@ EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg)
 }
 
 static void dispatch(core_t *s, void *uc, uint64_t address, uint32_t size) {
+  touched(s);
   int64_t lo = 0, hi = s->n_sites;
   while (lo < hi) {
     int64_t mid = (lo + hi) / 2;

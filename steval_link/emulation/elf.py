@@ -16,6 +16,7 @@ class Symbol:
     addr: int
     size: int
     is_func: bool
+    weak: bool = False
 
 
 class Elf:
@@ -35,7 +36,11 @@ class Elf:
         self.segments = self._segments(data)
         self.symbols = self._symbols(data)
         self.by_name = {s.name: s for s in self.symbols}
-        funcs = sorted((s for s in self.symbols if s.is_func and s.addr), key=lambda s: s.addr & ~1)
+        # one function per address (a strong name before weak aliases: ST's ~80 handlers alias Default_Handler)
+        self._aliases: dict[int, list[Symbol]] = {}
+        for sym in sorted((s for s in self.symbols if s.is_func and s.addr), key=lambda s: (s.weak, s.name)):
+            self._aliases.setdefault(sym.addr & ~1, []).append(sym)
+        funcs = [self._aliases[a][0] for a in sorted(self._aliases)]
         self._func_starts = [s.addr & ~1 for s in funcs]
         self._funcs = funcs
 
@@ -68,7 +73,8 @@ class Elf:
                 if typ not in (1, 2) or shndx == 0:  # OBJECT, FUNC
                     continue
                 end = data.index(b"\0", str_off + name_off)
-                out.append(Symbol(data[str_off + name_off : end].decode("ascii", "replace"), value, size, typ == 2))
+                name = data[str_off + name_off : end].decode("ascii", "replace")
+                out.append(Symbol(name, value, size, typ == 2, info >> 4 == 2))  # STB_WEAK
         if not out:
             raise UserError("the firmware ELF has no symbols (do not strip it: the board finds its functions by name)")
         return out
@@ -79,11 +85,23 @@ class Elf:
         return None if s is None else (s.addr & ~1 if s.is_func else s.addr)
 
     def func_at(self, pc: int) -> str:
-        """``name+0xoff`` of the function containing pc (or ``?``)."""
+        """``name+0xoff`` of the function containing pc (or ``?``); of several names, the strong one."""
+        f = self.function_at(pc)
+        if f is None:
+            return "?"
+        off = (pc & ~1) - (f.addr & ~1)
+        return f"{f.name}+0x{off:x}" if off else f.name
+
+    def function_at(self, pc: int) -> Symbol | None:
+        """The function containing pc (its strong name), or None."""
         i = bisect.bisect_right(self._func_starts, pc & ~1) - 1
         if i >= 0:
             f = self._funcs[i]
             off = (pc & ~1) - (f.addr & ~1)
             if off < max(f.size, 1) or f.size == 0:
-                return f"{f.name}+0x{off:x}" if off else f.name
-        return "?"
+                return f
+        return None
+
+    def aliases(self, addr: int) -> list[Symbol]:
+        """Every function name at ``addr`` (strong first, then the weak aliases by name)."""
+        return list(self._aliases.get(addr & ~1, []))

@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import queue
 import shlex
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -224,6 +225,8 @@ class EmulationReport:
     dwt_windows: list[int] = field(default_factory=list)
     hci_requests: int = 0
     native_counter: bool = True
+    #: wall seconds spent in :meth:`Emulation.chunks` (the board and its Python models, not the consumer)
+    wall_s: float = 0.0
 
     def lines(self) -> list[str]:
         out = [
@@ -320,6 +323,7 @@ class Emulation:
         self._cyc_start = None
         self._first_step_s: float | None = None
         self.n_steps = 0
+        self._wall_s = 0.0
         self._bytes = 0
         self._first_byte_s: float | None = None
         self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
@@ -457,7 +461,9 @@ class Emulation:
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
         while b.now < end:
             self._host_progress()
+            t0 = time.perf_counter()
             b.run_until(min(end, b.now + slice_cycles))
+            self._wall_s += time.perf_counter() - t0
             self._host_progress()
             data, first_t, last_t = b.take_output()
             if data:
@@ -471,7 +477,7 @@ class Emulation:
             if b.now - max(last_byte_t, last_progress_t) > self.options.watchdog_s * C.CPU_HZ:
                 raise FirmwareStuck(
                     f"no USART1 output and no AHRS step for {self.options.watchdog_s:g} s of emulated time "
-                    f"(t = {b.now / C.CPU_HZ:.3f} s); the CPU is in {b.where()} (pc 0x{b.pc():08x})"
+                    f"(t = {b.now / C.CPU_HZ:.3f} s); {b.describe_cpu()}"
                 )
 
     def run(self) -> bytes:
@@ -502,6 +508,7 @@ class Emulation:
             dwt_windows=list(self._dwt),
             hci_requests=b.hci_requests,
             native_counter=b.native,
+            wall_s=self._wall_s,
         )
 
 

@@ -20,6 +20,11 @@ What is modelled, and where:
 - **Idle skipping** (:mod:`.core`): when the main loop polls with nothing to do (``isTimerEventExist`` with no flag
   set), ``HAL_Delay`` waits for the tick, or the CPU sleeps in ``wfi``, the clock jumps to the next event. No
   payload changes (the polled state only changes in interrupts).
+- **Poll skipping** (C core only): a blocking transmit's TXE/TC loop that repeats unchanged (two USART1 SR reads at
+  one instruction, same value, registers and stack top, nothing else in between) jumps whole passes to the next
+  event; the passes count as executed instructions, every byte keeps its instruction count.
+- **Fault diagnosis** (:mod:`.fault`): a hang or a fault named in one sentence (the active exception, a missing weak
+  handler behind ``Default_Handler``, the fault status registers, the last function).
 - **The C core** (``steval_link/emulation/_core.c``, optional; :mod:`.native`): the instruction counter, the event
   scheduler, USART1, SysTick, the NVIC, the timers, exception entry/return, idle skipping and the SPI sensor reads run
   inside unicorn's hooks; Python is called for TIM9's tick (the runner's remote control, the next sensor sample),

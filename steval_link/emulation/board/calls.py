@@ -14,6 +14,7 @@ import ctypes
 import struct
 from typing import Callable
 
+from steval_link.emulation.board.fault import describe_fault_handler
 from steval_link.emulation.board.memory_map import RAM_BASE, RAM_SIZE, FirmwareStuck
 
 #: DrvContextTypeDef.spiDevice: the byte that names the sensor behind a driver handle
@@ -30,8 +31,6 @@ FAULT_HANDLERS = (
     "Error_Handler",
     "_Error_Handler",
 )
-#: the stacked PC's offset in an exception frame
-STACKED_PC = 24
 
 
 class FirmwareCalls:
@@ -115,18 +114,6 @@ class FirmwareCalls:
 
         def hook(uc, address, size, user):
             b.sync_now()
-            sp = b.reg(b.regs.SP)
-            try:
-                stacked_pc = struct.unpack("<I", uc.mem_read(sp + STACKED_PC, 4))[0]
-                origin = f" (interrupted {b.elf.func_at(stacked_pc)}, pc 0x{stacked_pc:08x})"
-            except Exception:  # noqa: BLE001 - best effort description
-                origin = ""
-            what = {"Default_Handler": "an interrupt without a handler"}.get(name, name)
-            b.stop_with(
-                FirmwareStuck(
-                    f"the firmware entered {what} (exception {b.nvic.current()}){origin} at "
-                    f"t = {b.now / b.cpu_hz:.6f} s"
-                )
-            )
+            b.stop_with(FirmwareStuck(f"{describe_fault_handler(b, name)} at t = {b.now / b.cpu_hz:.6f} s"))
 
         return hook

@@ -19,6 +19,7 @@ from steval_link.emulation.board.cpu import (
     thumb_count,
     wfi_sites,
 )
+from steval_link.emulation.board.fault import describe_cpu, describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
     BITBAND_PERIPH,
     BITBAND_SIZE,
@@ -267,6 +268,10 @@ class PythonBoard:
     def where(self) -> str:
         return self.elf.func_at(self.pc())
 
+    def describe_cpu(self) -> str:
+        """Where the CPU is and why, in one sentence: the active exception, a missing handler, the last function."""
+        return describe_cpu(self)
+
     def vtor(self) -> int:
         return self.scs.regs.get(0xED08, 0) & (FLASH_SIZE - 1)
 
@@ -373,10 +378,7 @@ class PythonBoard:
     def _on_intr(self, uc, intno, user):
         if intno != INTNO_EXC_RETURN:
             self.sync_now()
-            self.stop_with_error(
-                f"the CPU raised exception {intno} in {self.where()} "
-                f"(pc 0x{self.pc():08x}, t = {self.now / C.CPU_HZ:.6f} s)"
-            )
+            self.stop_with_error(describe_fault(self, intno, self.now / C.CPU_HZ))
             return
         self.exceptions.leave()
 
@@ -543,9 +545,8 @@ class PythonBoard:
                 self.sync_now()
                 if self.fault is not None:
                     raise self.fault from None
-                raise EmulationError(
-                    f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, t = {self.now / C.CPU_HZ:.6f} s): {exc}"
-                ) from None
+                err = getattr(exc, "errno", None)
+                raise EmulationError(describe_stop(self, err, str(exc), self.now / C.CPU_HZ)) from None
             executed = ic.n - 1 if ic.n >= ic.limit else ic.n
             self.stats.instructions += executed
             self.now = self._slice_start + executed + self._skip_base

@@ -15,6 +15,7 @@ import ctypes
 from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
+from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
     IRQ_TIM2,
     IRQ_TIM9,
@@ -83,6 +84,8 @@ class NativeBoard(PythonBoard):
 
     # -- construction
     def _make_peripherals(self) -> None:
+        from unicorn import arm_const as A  # reason: unicorn is optional
+
         lib = uclib()
         st = self.st
         st.uc = self.uc._uch.value if hasattr(self.uc._uch, "value") else self.uc._uch
@@ -95,6 +98,8 @@ class NativeBoard(PythonBoard):
         st.frame_ids[:25] = r.frame_ids
         st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
         st.max_slice = C.CPU_HZ // 1000
+        st.poll_ids[:] = [getattr(A, f"UC_ARM_REG_R{i}") for i in range(13)] + [r.SP, r.LR, r.XPSR]
+        st.poll_skip, st.poll_pc = 1, NONE
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -108,6 +113,23 @@ class NativeBoard(PythonBoard):
         st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
+
+    # a Python model's access: a poll loop around it does not repeat unchanged (the C core's poll skip)
+    def _mmio_read(self, uc, off, size, p):
+        self.st.io_epoch += 1
+        return super()._mmio_read(uc, off, size, p)
+
+    def _mmio_write(self, uc, off, size, value, p):
+        self.st.io_epoch += 1
+        super()._mmio_write(uc, off, size, value, p)
+
+    def _bb_read(self, uc, off, size, user):
+        self.st.io_epoch += 1
+        return super()._bb_read(uc, off, size, user)
+
+    def _bb_write(self, uc, off, size, value, user):
+        self.st.io_epoch += 1
+        super()._bb_write(uc, off, size, value, user)
 
     def _make_usart(self):
         return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
@@ -219,6 +241,7 @@ class NativeBoard(PythonBoard):
     # -- Python called from C
     def _on_event(self, kind: int, arg: int) -> int:
         try:
+            self.st.io_epoch += 1
             self.now = self.st.now
             if kind == EV_TICK:
                 for ob in self.tick_observers:
@@ -355,7 +378,6 @@ class NativeBoard(PythonBoard):
         st = self.st
         if self.fault is not None:
             return self.fault
-        t = f"t = {self.now / C.CPU_HZ:.6f} s"
         if st.fault == F_STACK:
             self.fault = EmulationError(
                 f"stack overflow: exception {st.fault_arg >> 32} at sp "
@@ -364,14 +386,12 @@ class NativeBoard(PythonBoard):
         elif st.fault == F_RETURN:
             self.fault = EmulationError(f"exception return without an active exception in {self.where()}")
         elif st.fault == F_CPU_EXC:
-            self.fault = EmulationError(
-                f"the CPU raised exception {st.fault_arg} in {self.where()} (pc 0x{self.pc():08x}, {t})"
-            )
+            self.fault = EmulationError(describe_fault(self, st.fault_arg, self.now / C.CPU_HZ))
         else:
             from unicorn import UcError  # reason: unicorn is optional
 
             self.fault = EmulationError(
-                f"the CPU stopped in {self.where()} (pc 0x{self.pc():08x}, {t}): {UcError(st.fault_arg)}"
+                describe_stop(self, st.fault_arg, str(UcError(st.fault_arg)), self.now / C.CPU_HZ)
             )
         return self.fault
 

@@ -23,6 +23,8 @@ I64, U64, U8, U32, I32, P = (
 NONE = -1
 # sizes of the C core's tables (as in _core.c)
 MAX_IDLE, MAX_IDLE_WORDS, MAX_MIRROR, MAX_SITES, SENSOR_DEVICES = 4, 8, 8, 512, 3
+#: bytes of the stack's top the TXE/TC poll skip compares between two status reads
+POLL_STACK = 256
 #: py_event kinds: TIM9's tick, output buffer full, a sensor read for Python, a Python code hook, a mirrored access
 EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO = 1, 2, 3, 4, 5
 #: code site kinds: after cpsie, idle poll, wfi, Sensor_IO_Read, a Python hook
@@ -139,6 +141,18 @@ class CoreState(ctypes.Structure):
         ("mirror", Mirror * MAX_MIRROR),
         ("mmio_write", I64),
         ("mmio_value", I64),
+        ("poll_skip", I64),
+        ("last_pc", I64),
+        ("io_epoch", I64),
+        ("poll_pc", I64),
+        ("poll_now", I64),
+        ("poll_sr", I64),
+        ("poll_epoch", I64),
+        ("polled", I64),
+        ("poll_stack_len", I64),
+        ("poll_ids", I32 * 16),
+        ("poll_regs", U32 * 16),
+        ("poll_stack", U8 * POLL_STACK),
     ]
 
 
