@@ -12,6 +12,7 @@ import typer
 from steval_link.analysis import evaluate as ev
 from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
+from steval_link.cli.data import default_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.constants import AHRS_RATE_HZ
@@ -55,11 +56,13 @@ _HELP = (
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
     data: Annotated[
-        list[Path],
+        Optional[list[Path]],
         typer.Argument(
-            help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar.", show_default=False
+            help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the "
+            "trials of steval data broad.",
+            show_default=False,
         ),
-    ],
+    ] = None,
     estimators: Annotated[
         Optional[str],
         typer.Option(
@@ -116,7 +119,7 @@ def evaluate_command(
     ] = None,
 ) -> None:
 
-    items = broad.trial_paths(data)  # the inputs first, then the output
+    items = broad.trial_paths(data or default_broad_data())  # the inputs first, then the output
     only = split_list(estimators) if estimators is not None else None  # commas inside (options) stay
     # validate the selection once, before any work (rate does not matter for that)
     ev.default_specs(100.0, only=only)
