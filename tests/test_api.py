@@ -1,4 +1,4 @@
-"""The Python API for notebooks (``import steval_link as sl``), and the README's exercise 9 example run as written."""
+"""The Python API for notebooks (``import steval_link as sl``), and the docs' exercise 9 example run as written."""
 
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ needs_broad = pytest.mark.skipif(
 
 
 def readme_python_block() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text.split("## Python API (notebooks and scripts)", 1)[1].split("\n## ", 1)[0]
+    text = (ROOT / "docs" / "tutorials" / "eth-lecture4.md").read_text(encoding="utf-8")
+    section = text.split("## Exercise 9", 1)[1].split("\n## ", 1)[0]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
@@ -42,7 +42,7 @@ def test_the_readme_exercise_9_example_runs_as_written(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
     plt.close("all")
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "eth-lecture4.md", "exec"), {})
     png = tmp_path / "roll_pitch.png"
     assert png.stat().st_size > 10_000
     lines = plt.gcf().axes[0].get_lines()
@@ -156,7 +156,7 @@ def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_p
     scores = sl.evaluate(TRIAL, ["st-mahony-flight", "ekf3", Gravity(), Gravity(gain=0.5)])
     means = scores.mean_rmse_deg
     assert list(means) == ["st-mahony-flight", "ekf3", "Gravity", "Gravity#2"]
-    assert means["st-mahony-flight"] == pytest.approx(0.914, abs=0.001)  # the README's table
+    assert means["st-mahony-flight"] == pytest.approx(0.914, abs=0.001)  # the docs' accuracy table
     assert means["Gravity"] != means["Gravity#2"]
     assert scores.rmse_deg[TRIAL.stem] == means
     assert "inclination RMSE" in scores.table()

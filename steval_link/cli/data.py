@@ -66,15 +66,23 @@ def broad_command(
     typer.echo(bf.ATTRIBUTION)
 
 
-def default_broad_data() -> list[Path]:
-    """The trials ``steval evaluate`` scores without DATA: the cache's, else a developer's ``../shared`` beside the
-    project; none is one sentence (exit 2) saying how to get them."""
+def find_broad_data() -> Path | None:
+    """The folder of the BROAD trials to use when none is given: the cache's, else a developer's ``../shared``
+    beside the project; None when neither holds any."""
     try:
         cache = bf.cache_dir()
     except ImportError:  # platformdirs is in the data extra
         cache = None
     for folder in (cache, SHARED_BROAD):
         if folder is not None and bf.cached_trials(folder):
-            return [folder]
-    where = f" ({cache})" if cache is not None else ""
-    raise UserError(f"no BROAD trials in the data cache{where}: download them with `steval data broad`, or give DATA")
+            return folder
+    return None
+
+
+def default_broad_data() -> list[Path]:
+    """The trials ``steval evaluate`` scores without DATA (:func:`find_broad_data`); none is one sentence (exit 2)
+    saying how to get them."""
+    found = find_broad_data()
+    if found is not None:
+        return [found]
+    raise UserError("no BROAD trials in the data cache: download them with `steval data broad`, or give DATA")
