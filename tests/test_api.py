@@ -31,6 +31,7 @@ def readme_python_block() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_the_readme_exercise_9_example_runs_as_written(tmp_path, monkeypatch):
     code = readme_python_block()
     assert len(code.strip().splitlines()) <= 10  # "about eight lines"
@@ -84,6 +85,7 @@ def test_open_capture_gives_arrays_with_units_in_their_names():
         sl.open_capture("no-such.stv")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_to_pandas_has_the_export_columns_or_says_how_to_get_pandas(monkeypatch):
     cap = sl.open_capture(DEMO)
     pd = pytest.importorskip("pandas")
@@ -117,6 +119,7 @@ STUDENT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_run_estimator_takes_a_name_a_reference_or_an_object(tmp_path, monkeypatch):
     (tmp_path / "gravity.py").write_text(STUDENT)
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -147,6 +150,7 @@ def test_run_estimator_of_a_failing_object_names_its_line(tmp_path, monkeypatch)
         sl.run_estimator(object(), DEMO)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_broad
 def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_path, monkeypatch):
     (tmp_path / "gravity.py").write_text(STUDENT)

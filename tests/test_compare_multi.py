@@ -65,6 +65,7 @@ def pair(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_two_flights_labelled_by_settings_and_measured(pair, monkeypatch, capsys, tmp_path):
     a, b = pair
     png = tmp_path / "sbs.png"
@@ -285,6 +286,7 @@ def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_readme_example_word_for_word(monkeypatch, capsys, tmp_path):
     """The docs' side-by-side example (docs/howto/compare-flights.md), run as written: the output it shows is the
     output."""

@@ -48,6 +48,7 @@ def test_every_shared_vector_file_is_bit_exact(monkeypatch, capsys):
         assert f["max_abs_dq"] == 0.0 and f["max_abs_dth_rad"] == 0.0 and f["first_mismatch_step"] is None
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_shared
 def test_a_directory_means_all_its_csv_files(monkeypatch, capsys, tmp_path):
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)

@@ -276,6 +276,7 @@ def test_cli_missing_file(monkeypatch, capsys, tmp_path):
     assert "no such file" in line
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, tmp_path):
     from steval_viewer.rrd_check import read_rrd
 
