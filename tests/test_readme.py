@@ -179,3 +179,26 @@ def test_docs_pages_exist_for_the_site_nav():
     assert len(nav) >= 20
     missing = [p for p in nav if not (ROOT / "docs" / p).is_file()]
     assert not missing, missing
+
+
+def test_the_cli_reference_lists_every_option_of_every_command():
+    """docs/hooks/cli_reference.py, which writes the site's CLI page at build time, names every command, argument
+    and option of the typer app with its help."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("cli_reference", ROOT / "docs" / "hooks" / "cli_reference.py")
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    page = hook.cli_markdown()
+    for name, cmd in _commands().items():
+        if getattr(cmd, "commands", None):
+            continue  # a group: its sub-commands are listed
+        assert f"# steval {name}\n" in page, name
+        section = page.split(f"# steval {name}\n", 1)[1].split("\n#", 1)[0]
+        for p in cmd.params:
+            if getattr(p, "hidden", False):
+                continue
+            names = [p.name.upper()] if type(p).__name__.endswith("Argument") else p.opts
+            assert all(n in section for n in names), (name, p.name)
+    marker_page = doc_text("docs/reference/cli.md")
+    assert hook.MARKER in marker_page
