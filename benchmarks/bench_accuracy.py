@@ -41,7 +41,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         view = broad.own_rate_view(trial) if args.native else broad.steval_view(trial)
         t_pipe += time.perf_counter() - t0
-        specs = ev.default_specs(view.rate_hz, native=args.native)
+        specs = ev.default_specs(view.rate_hz, own_rate=args.native)
         results.append(ev.evaluate_view(view, specs, trial.name))
         print(f"  {trial.name}: {view.acc_mg.shape[0]} steps", file=sys.stderr)
     mode = "native 285.7 Hz" if args.native else "STEVAL pipeline, 161.5 Hz"

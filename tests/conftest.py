@@ -10,6 +10,25 @@ from support.streams import StreamBuilder
 SHARED_DIR = Path(__file__).resolve().parents[1] / ".." / "shared"
 
 
+def pytest_addoption(parser):
+    parser.addoption(
+        "--runslow",
+        action="store_true",
+        default=False,
+        help="also run the tests marked slow (real viewers, emulated firmware, pseudo-terminals); CI does",
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    """Without ``--runslow`` the tests marked ``slow`` are deselected: ``python -m pytest`` is the quick suite."""
+    if config.getoption("--runslow"):
+        return
+    slow = [item for item in items if item.get_closest_marker("slow") is not None]
+    if slow:
+        config.hook.pytest_deselected(items=slow)
+        items[:] = [item for item in items if item.get_closest_marker("slow") is None]
+
+
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:
     """``../shared`` next to the project (lab docs, conformance vectors, datasets); skips the test when absent."""

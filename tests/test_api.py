@@ -1,4 +1,4 @@
-"""The Python API for notebooks (``import steval_link as sl``), and the README's exercise 9 example run as written."""
+"""The Python API for notebooks (``import steval_link as sl``), and the docs' exercise 9 example run as written."""
 
 from __future__ import annotations
 
@@ -26,11 +26,12 @@ needs_broad = pytest.mark.skipif(
 
 
 def readme_python_block() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text.split("## Python API (notebooks and scripts)", 1)[1].split("\n## ", 1)[0]
+    text = (ROOT / "docs" / "tutorials" / "eth-lecture4.md").read_text(encoding="utf-8")
+    section = text.split("## Exercise 9", 1)[1].split("\n## ", 1)[0]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_the_readme_exercise_9_example_runs_as_written(tmp_path, monkeypatch):
     code = readme_python_block()
     assert len(code.strip().splitlines()) <= 10  # "about eight lines"
@@ -42,7 +43,7 @@ def test_the_readme_exercise_9_example_runs_as_written(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
     plt.close("all")
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "eth-lecture4.md", "exec"), {})
     png = tmp_path / "roll_pitch.png"
     assert png.stat().st_size > 10_000
     lines = plt.gcf().axes[0].get_lines()
@@ -84,6 +85,7 @@ def test_open_capture_gives_arrays_with_units_in_their_names():
         sl.open_capture("no-such.stv")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_to_pandas_has_the_export_columns_or_says_how_to_get_pandas(monkeypatch):
     cap = sl.open_capture(DEMO)
     pd = pytest.importorskip("pandas")
@@ -117,6 +119,7 @@ STUDENT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_run_estimator_takes_a_name_a_reference_or_an_object(tmp_path, monkeypatch):
     (tmp_path / "gravity.py").write_text(STUDENT)
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -147,6 +150,7 @@ def test_run_estimator_of_a_failing_object_names_its_line(tmp_path, monkeypatch)
         sl.run_estimator(object(), DEMO)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_broad
 def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_path, monkeypatch):
     (tmp_path / "gravity.py").write_text(STUDENT)
@@ -156,7 +160,7 @@ def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_p
     scores = sl.evaluate(TRIAL, ["st-mahony-flight", "ekf3", Gravity(), Gravity(gain=0.5)])
     means = scores.mean_rmse_deg
     assert list(means) == ["st-mahony-flight", "ekf3", "Gravity(gain=0.05)", "Gravity(gain=0.5)"]
-    assert means["st-mahony-flight"] == pytest.approx(0.914, abs=0.001)  # the README's table
+    assert means["st-mahony-flight"] == pytest.approx(0.914, abs=0.001)  # the docs' accuracy table
     assert means["Gravity(gain=0.05)"] != means["Gravity(gain=0.5)"]
     assert scores.rmse_deg[TRIAL.stem] == means
     assert "inclination RMSE" in scores.table()

@@ -144,6 +144,7 @@ def test_console_script_subprocess(capture):
     assert r.returncode == 2 and r.stderr.startswith("steval: error:") and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_replay_estimators_choose_what_the_rrd_holds(capture, tmp_path, capsys):
     from steval_viewer.rrd_check import read_rrd
 

@@ -65,6 +65,7 @@ def pair(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_two_flights_labelled_by_settings_and_measured(pair, monkeypatch, capsys, tmp_path):
     a, b = pair
     png = tmp_path / "sbs.png"
@@ -285,12 +286,14 @@ def test_spawn_shows_both_flights_in_the_viewer(pair, tmp_path):
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_readme_example_word_for_word(monkeypatch, capsys, tmp_path):
-    """The README's side-by-side example, run as written: the output it shows is the output."""
+    """The docs' side-by-side example (docs/howto/compare-flights.md), run as written: the output it shows is the
+    output."""
     import re
     import shlex
 
-    text = (ROOT / "README.md").read_text(encoding="utf-8").split("### Flights side by side", 1)[1]
+    text = (ROOT / "docs" / "howto" / "compare-flights.md").read_text(encoding="utf-8")
     commands = re.search(r"```sh\n(.*?)```", text, re.S).group(1).strip().splitlines()
     shown = re.search(r"prints\n\n```text\n(.*?)```", text, re.S).group(1)
     monkeypatch.chdir(tmp_path)

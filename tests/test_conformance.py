@@ -78,6 +78,7 @@ def test_release_170120_is_recognised(monkeypatch, capsys):
     assert code == 0 and "filter: ST 170120 (recognised" in out
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_shared
 def test_a_directory_means_all_its_csv_files(monkeypatch, capsys, tmp_path):
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)

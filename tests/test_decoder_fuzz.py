@@ -4,6 +4,7 @@ sent while every intact frame after the damage is recovered; the bulk decoder ag
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -96,6 +97,7 @@ def frame_bytes(data: bytes, frames) -> list[tuple[int, bytes]]:
     return [(f.offset, data[f.offset : f.offset + f.nbytes]) for f in frames]
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @FUZZ
 @given(st.lists(frames(), min_size=1, max_size=25), st.data())
 def test_random_chunking_gives_identical_frames(sent, data):
@@ -120,6 +122,7 @@ log_lines = (
 )
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @FUZZ
 @given(st.lists(st.one_of(frames(), log_lines), min_size=1, max_size=25), st.data())
 def test_chunking_invariance_with_plain_log_lines(sent, data):
@@ -167,6 +170,7 @@ def damaged_stream(draw):
     return sent, bytes(out), intact
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @FUZZ
 @given(damaged_stream(), st.data())
 def test_damage_never_yields_unsent_frames_and_recovers_intact_ones(case, data):
@@ -186,6 +190,7 @@ def test_damage_never_yields_unsent_frames_and_recovers_intact_ones(case, data):
     assert stats.bytes_skipped + sum(len(b) for _, b in decoded) == len(stream)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @FUZZ
 @given(damaged_stream())
 def test_bulk_decoder_equals_stream_decoder_on_damaged_input(case):

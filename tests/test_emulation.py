@@ -297,6 +297,7 @@ def _patched_elf(elf, tmp_path, func: str, code: bytes):
     raise AssertionError(f"{func} not in a loaded segment")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_unmodelled_hardware_names_function_and_address(fw_default, tmp_path):
     """A firmware that writes to the USB OTG block (not modelled): one line naming the function and address."""
     from steval_link.emulation.board import UnmodelledHardware

@@ -146,6 +146,7 @@ def test_mekf_native_equals_python_on_synthetic_motion(options):
     _assert_same_state(py, c)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_native
 def test_ekf3_through_gimbal_lock_and_upside_down():
     """A tumble about y (θ through ±90°, cos θ clamped) and a start upside down."""
@@ -180,6 +181,7 @@ def test_mekf_upside_down_start(options):
     _assert_same(r_py, r_c)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_native
 @pytest.mark.parametrize(
     "cls, options",

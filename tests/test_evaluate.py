@@ -215,6 +215,7 @@ def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
     assert res.returncode == 2 and "truth.npz" in res.stderr
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_plot_evaluation(tmp_path):
     pytest.importorskip("matplotlib")
     trial = broad.load_trial(_synthetic_trial(tmp_path / "97_synthetic.npz"))

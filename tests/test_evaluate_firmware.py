@@ -359,6 +359,7 @@ def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
     )
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_table_has_a_column_and_one_line_per_firmware_per_trial(tmp_path):
     from steval_link.analysis import evaluate as ev
 

@@ -35,6 +35,7 @@ def export(monkeypatch, capsys, capture: Path, out: Path, *extra) -> str:
     return stdout
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_counts_schemas_and_firmware_time(monkeypatch, capsys, tmp_path):
     cap = REC / "flight.stv"
     out = tmp_path / "flight.mcap"

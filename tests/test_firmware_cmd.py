@@ -30,6 +30,7 @@ def test_cmd(tmp_path_factory) -> Path:
     return build / "host" / "test_cmd"
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_c_selftest_and_fuzz(test_cmd):
     r = subprocess.run([str(test_cmd), "selftest"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr

@@ -69,6 +69,7 @@ def random_f32_bits(rng: np.random.Generator, n: int) -> np.ndarray:
 # ---- C self-test ------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_c_selftest(host_build):
     """CRC (slice-by-4 == bitwise, aligned and not), queue full/drop/wrap of 2^32 indices, µs accumulation, logs."""
     r = subprocess.run([host_build / "test_stv", "selftest"], capture_output=True, text=True)
@@ -142,6 +143,7 @@ def make_requests(rng: np.random.Generator, n: int) -> tuple[bytes, bytes]:
     return bytes(req), bytes(exp)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_stv_encode_equals_python_encoder(host_build):
     rng = np.random.default_rng(20240601)
     req, exp = make_requests(rng, 3000)  # > 64 KiB of input: requests straddle stv_encode's read buffer

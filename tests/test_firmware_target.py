@@ -28,6 +28,7 @@ NO_ARM = shutil.which("arm-none-eabi-gcc") is None or shutil.which("make") is No
 needs_arm = pytest.mark.skipif(NO_ARM, reason="arm-none-eabi-gcc (Debian: gcc-arm-none-eabi) or make not installed")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_arm
 @pytest.mark.parametrize(
     "options",
@@ -63,6 +64,7 @@ def target(tmp_path_factory):
     return stv_emu.TargetEncoder(elf)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_target_build_bytes_decode_in_python(target):
     """Requests -> target code (Thumb-2, hard-float) under unicorn -> frames identical to steval_link.link.protocol's,
     decoded by StreamDecoder back to the exact payloads (CRC, ATTITUDE_DTYPE/STATUS_DTYPE)."""
@@ -104,6 +106,7 @@ def test_target_build_bytes_decode_in_python(target):
     assert all(n > 50 for n in res.calls["stv_send_attitude"])
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_target_and_host_builds_agree(target, tmp_path):
     """The host build (stv_encode, used for the bundled recordings) and the target build emit identical bytes."""
     if shutil.which("gcc") is None:

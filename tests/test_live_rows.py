@@ -52,6 +52,7 @@ def feed_capture(path: Path, t0_unix_s: float, seed: int = 0) -> Rows:
 FIELDS = [name for name in AttitudeArrays.__dataclass_fields__]
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("name", ["demo.stv", "midflight_drops.stv", "live_params.stv", "flight.stv"])
 def test_live_rows_equal_load_telemetry_bit_for_bit(name):
     path = RECORDINGS / name
@@ -72,6 +73,7 @@ def test_live_rows_equal_load_telemetry_bit_for_bit(name):
     assert np.array_equal(st[:, 1], tel.status.t_fw_s) and np.array_equal(st[:, 2], tel.status.t_host_s)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_rows_on_the_unix_clock_are_the_capture_times_within_its_resolution():
     # a real session's clock: Unix seconds; the capture's chunk times went through (t0 + t) - t0, exact to 1 ulp
     # of 1.7e9 s (0.24 µs) here only because the test rebuilds Unix times from the stored ones

@@ -57,6 +57,7 @@ def test_comparison_figure_draws_every_trace_in_degrees(mpl):
     plt.close(fig)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_comparison_png_of_a_mismatch_with_drops_and_nan(mpl, tmp_path):
     tel = telemetry(
         n=1200,
@@ -97,6 +98,7 @@ def test_decimation_keeps_peaks():
     assert np.all(np.diff(tt[np.isfinite(yy)]) >= 0)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_simulation_figure_and_png(mpl, tmp_path):
     from steval_link.emulation.lab5 import run_simulation
 
@@ -114,6 +116,7 @@ def test_simulation_figure_and_png(mpl, tmp_path):
     assert png_size(out)[1] > 500
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_cli_compare_plot(mpl, tmp_path, capsys):
     cap = tmp_path / "c.bin"
     cap.write_bytes(capture_bytes(n=600))
@@ -126,6 +129,7 @@ def test_cli_compare_plot(mpl, tmp_path, capsys):
     assert png_size(out)[0] > 1000
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_cli_simulate_plot(mpl, tmp_path, capsys):
     out = tmp_path / "s.png"
     code, stdout, err = run_cli(["simulate", "--plot", str(out)], capsys)

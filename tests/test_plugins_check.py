@@ -94,6 +94,7 @@ class Tilt:
 """
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("case", sorted(BROKEN))
 def test_check_names_what_is_wrong_and_exits_1(case, tmp_path, monkeypatch, capsys):
     line, expected = BROKEN[case]

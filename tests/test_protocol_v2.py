@@ -107,6 +107,7 @@ def demo_payloads():
     return payload_records(load_telemetry(ROOT / "recordings" / "demo.stv"))
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_loose_wire_fuzz_gives_no_fake_frame_and_recovers_most(demo_payloads, seed):
     """The fast, derandomised version of benchmarks/bench_fuzz.py (which runs >= 10^7 frames with fresh seeds)."""

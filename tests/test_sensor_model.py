@@ -156,6 +156,7 @@ def test_isr_yaw_integrates_and_resets_below_min_thr():
     assert float(yaw[-1]) == pytest.approx(np.radians(100) * 815 * 0.00125, rel=1e-4)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_pipeline_matches_the_conformance_vectors_inputs(shared_dir):
     """broad_02.csv's inputs were made by an emulated STEVAL pipeline; ours must agree in scale, offset and lag."""
     from steval_link.emulation import broad

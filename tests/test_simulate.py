@@ -221,7 +221,7 @@ def _pitch_deg(out: str) -> float:
 
 
 def test_readme_command_shows_exercises_4_and_5():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    readme = (Path(__file__).resolve().parents[1] / "docs" / "tutorials" / "umaine-lab5.md").read_text(encoding="utf-8")
     assert "steval simulate " + " ".join(README_EXERCISE) in readme
 
 

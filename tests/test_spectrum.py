@@ -276,6 +276,7 @@ def test_cli_missing_file(monkeypatch, capsys, tmp_path):
     assert "no such file" in line
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, tmp_path):
     from steval_viewer.rrd_check import read_rrd
 
@@ -296,8 +297,7 @@ def test_cli_rrd_holds_every_spectrum_entity(monkeypatch, capsys, vib_capture, t
 def test_readme_example_prints_what_the_readme_says(monkeypatch, capsys, tmp_path):
     """The README's two commands, word for word (in a temporary folder), print the figures it quotes."""
     pytest.importorskip("matplotlib")  # the example draws --plot
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    section = text.split("### Sensor spectra", 1)[1]
+    section = (Path(__file__).resolve().parents[1] / "docs" / "howto" / "spectra.md").read_text(encoding="utf-8")
     block = section.split("```sh\n", 1)[1].split("```", 1)[0]
     synth_line, spectrum_line = [ln.split() for ln in block.strip().splitlines()]
     monkeypatch.chdir(tmp_path)

@@ -77,6 +77,7 @@ def test_quaternion_to_euler_matches_firmware_bits(name, native):
     assert_bits(thy, v.thy_rad, f"{name} thy")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_shared
 @pytest.mark.parametrize("native", [pytest.param(True, marks=needs_native), False], ids=["native", "numpy"])
 @pytest.mark.parametrize("name", CSV_NAMES)

@@ -63,6 +63,7 @@ def test_same_seed_same_bytes_different_seed_different_bytes(tmp_path):
 # ---- every scenario ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
     dur = SCENARIOS[name].min_duration_s + 2.0  # the first step comes ≈ 2.985 s after power-up
@@ -260,6 +261,7 @@ def test_broad_trial(shared_dir):
 # ---- encoders ---------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.skipif(shutil.which("make") is None or shutil.which("gcc") is None, reason="needs make and gcc")
 def test_c_encoder_gives_the_python_bytes(tmp_path, host_build):
     exe = host_build / "stv_encode"

@@ -4,6 +4,7 @@ steps and times however a stream is cut into batches."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -34,6 +35,7 @@ ops = st.lists(
 )
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @settings(max_examples=200, derandomize=True, database=None)
 @given(ops=ops, start=st.integers(0, 2**20), cuts=st.lists(st.integers(0, 10**6), max_size=6))
 def test_streaming_in_any_batches_equals_one_bulk_call(ops, start, cuts):

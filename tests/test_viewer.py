@@ -192,6 +192,7 @@ def _batches_from_stream(data: bytes, chunk: int):
         yield t_host, att, events
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
     data, q = make_stream(700, nan_rows=(50, 51), first_step=65_500)  # seq wraps at 65 536
     out = tmp_path / "live.rrd"

@@ -3,11 +3,8 @@ single ``RecordingStream.send_record_batch`` call; Rerun splits it into one chun
 
 Why not the public ``rr.send_columns`` per entity (``columns.send_scalars`` and co., as the replay logs): a live
 round logs ~22 entities for a handful of frames, and one record batch costs about half as much, which matters
-against the live latency goal (p99 ≤ 5 ms, ``benchmarks/bench_live_latency.py``). Measured on this project's 2-core
-machine, 2026-11-24, loaded: ``bench_live_latency.py`` with ``LiveLogger.log_batch`` on ``send_columns``: p50
-4.1–6.5 ms, p99 15–65 ms, log_batch p50 2.9–3.3 ms; on this module, same hour: p50 2.8–3.8 ms, p99 7–26 ms,
-log_batch p50 1.4–2.2 ms (one round of 22 entities: 0.9–1.3 against 2.6–2.8 ms; 11-23, quiet: 0.53 against
-0.96 ms). The price is that the Arrow fields carry Rerun's column
+against the live latency goal (p99 ≤ 5 ms, ``benchmarks/bench_live_latency.py``; the measurements are in
+CHANGELOG.md). The price is that the Arrow fields carry Rerun's column
 metadata keys (``rerun:kind``, ``rerun:entity_path``, ``rerun:component``, ...), which tie this module, and only
 this module, to the Rerun SDK version ``pyproject.toml`` pins; ``tests/test_viewer.py`` reads every live entity
 back from an ``.rrd`` so a change of that format fails the tests, not the users.

@@ -11,6 +11,7 @@ from steval_link.cli import ble as _ble  # noqa: F401
 from steval_link.cli import command as _command  # noqa: F401
 from steval_link.cli import compare as _compare  # noqa: F401
 from steval_link.cli import conformance as _conformance  # noqa: F401
+from steval_link.cli import data as _data  # noqa: F401
 from steval_link.cli import emulate as _emulate  # noqa: F401
 from steval_link.cli import estimator as _estimator  # noqa: F401
 from steval_link.cli import evaluate as _evaluate  # noqa: F401

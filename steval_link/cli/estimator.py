@@ -16,6 +16,7 @@ import typer
 
 from steval_link.analysis.estimator_check import format_check, run_check
 from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
@@ -101,9 +102,12 @@ def check_command(
     elif DEFAULT_BROAD.is_dir():
         paths = broad.trial_paths([DEFAULT_BROAD])
         note = ""
+    elif (cached := find_broad_data()) is not None:  # the trials of steval data broad
+        paths = broad.trial_paths([cached])
+        note = ""
     else:
         paths = []
-        note = f"no BROAD trials at {DEFAULT_BROAD} (give --broad PATH to score against ground truth)"
+        note = "no BROAD trials (steval data broad downloads them; --broad PATH scores on others)"
     with progress_bar("estimator check", quiet=as_json) as progress:
         report = run_check(estimator, broad_paths=paths, progress=progress)
     if note and not report.broad_note:

@@ -13,6 +13,7 @@ from steval_link.analysis import evaluate as ev
 from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
 from steval_link.cli.checks import VariantOption, check_variant
+from steval_link.cli.data import default_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar
 from steval_link.constants import AHRS_RATE_HZ
@@ -59,11 +60,13 @@ _HELP = (
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
     data: Annotated[
-        list[Path],
+        Optional[list[Path]],
         typer.Argument(
-            help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar.", show_default=False
+            help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the "
+            "trials of steval data broad.",
+            show_default=False,
         ),
-    ],
+    ] = None,
     estimators: Annotated[
         Optional[list[str]],
         typer.Option(
@@ -136,7 +139,7 @@ def evaluate_command(
 ) -> None:
 
     variant = check_variant(variant)  # the release's filter of the port on a --firmware's inputs
-    items = broad.trial_paths(data)  # the inputs first, then the output
+    items = broad.trial_paths(data or default_broad_data())  # the inputs first, then the output
     # repeatable, each value a comma-separated list (commas inside options stay)
     only = split_list(",".join(estimators)) if estimators else None
     # validate the selection once, before any work (rate does not matter for that)

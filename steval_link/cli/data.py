@@ -1,0 +1,88 @@
+"""``steval data broad``: BROAD trials (ground truth for ``steval evaluate``) downloaded into the user cache."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from steval_link.cli.app import app
+from steval_link.emulation import broad_fetch as bf
+from steval_link.errors import UserError
+
+#: a developer's copy of the trials: ``../shared`` beside the project (editable install)
+SHARED_BROAD = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "broad"
+
+data_app = typer.Typer(help="Data sets on demand: BROAD trials with optical ground truth.", no_args_is_help=True)
+app.add_typer(data_app, name="data")
+
+
+def _require_data_extra() -> None:
+    missing = []
+    for module in ("pooch", "h5py", "platformdirs"):
+        try:
+            __import__(module)
+        except ImportError:
+            missing.append(module)
+    if missing:
+        raise UserError(f'steval data needs {", ".join(missing)}: pip install "steval-link[data]"')
+
+
+_BROAD_HELP = (
+    "Download BROAD trials (CC BY 4.0) from the dataset's public repository, check each against its recorded hash, "
+    "convert it to the .npz that steval evaluate reads, and say where they are. Trials already there are kept."
+)
+
+
+@data_app.command("broad", help=_BROAD_HELP)
+def broad_command(
+    trials: Annotated[
+        Optional[list[str]],
+        typer.Argument(
+            metavar="TRIALS",
+            help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the "
+            "accuracy table (02 07 10 15 24 27).",
+            show_default=False,
+        ),
+    ] = None,
+    directory: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--dir",
+            help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
+            show_default=False,
+        ),
+    ] = None,
+) -> None:
+    _require_data_extra()
+    names = bf.resolve_trials(list(trials or []))
+    folder = directory if directory is not None else bf.cache_dir()
+    for name in names:
+        got = bf.fetch_trial(name, folder)
+        how = f"downloaded {got.download_bytes / 1e6:.1f} MB, hash checked" if got.downloaded else "already there"
+        typer.echo(f"{name}: {how} -> {got.path}")
+    typer.echo(f"{len(names)} BROAD trial(s) in {folder}")
+    typer.echo(bf.ATTRIBUTION)
+
+
+def find_broad_data() -> Path | None:
+    """The folder of the BROAD trials to use when none is given: the cache's, else a developer's ``../shared``
+    beside the project; None when neither holds any."""
+    try:
+        cache = bf.cache_dir()
+    except ImportError:  # platformdirs is in the data extra
+        cache = None
+    for folder in (cache, SHARED_BROAD):
+        if folder is not None and bf.cached_trials(folder):
+            return folder
+    return None
+
+
+def default_broad_data() -> list[Path]:
+    """The trials ``steval evaluate`` scores without DATA (:func:`find_broad_data`); none is one sentence (exit 2)
+    saying how to get them."""
+    found = find_broad_data()
+    if found is not None:
+        return [found]
+    raise UserError("no BROAD trials in the data cache: download them with `steval data broad`, or give DATA")
