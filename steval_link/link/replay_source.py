@@ -9,7 +9,8 @@ Pace: a capture's bytes come out at the host times they were recorded at (chunk 
 text-mode log has none, so its bytes come out at the firmware time of its frames (``t_fw_s``), or at the baud rate
 (10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
 silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
-URL plays X times faster. Commands go nowhere: :meth:`ReplayPort.write` raises.
+URL plays X times faster; ``?loop=1`` starts again at the end (a soak, a class demo: stop it with ``--duration`` or
+Ctrl-C). Commands go nowhere: :meth:`ReplayPort.write` raises.
 """
 
 from __future__ import annotations
@@ -53,10 +54,17 @@ def is_replay_url(port: str) -> bool:
 
 @dataclass(frozen=True)
 class ReplayUrl:
-    """``replay://PATH[?speed=X]``: the file to replay and how many times faster than recorded (1: as recorded)."""
+    """``replay://PATH[?speed=X&loop=1]``: the file to replay, how many times faster than recorded (1: as
+    recorded), and whether it starts again at its end (``loop``: for soaks and class demos, with ``--duration``)."""
 
     path: Path
     speed: float = 1.0
+    loop: bool = False
+
+
+#: the options a replay URL takes, in the order its errors name them
+OPTIONS = ("speed", "loop")
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
 def parse_replay_url(url: str) -> ReplayUrl:
@@ -68,21 +76,27 @@ def parse_replay_url(url: str) -> ReplayUrl:
     path_text, _, query = rest.partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
-    speed = 1.0
+    speed, loop = 1.0, False
     try:
         params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
         raise UserError(f"{url}: cannot read the options after '?' (replay://FILE?speed=5)") from None
     for key, values in params.items():
-        if key != "speed":
-            raise UserError(f"{url}: unknown replay option {key!r} (known: speed, e.g. ?speed=5)")
+        if key not in OPTIONS:
+            raise UserError(f"{url}: unknown replay option {key!r} (known: {', '.join(OPTIONS)}, e.g. ?speed=5)")
+        if key == "loop":
+            word = values[-1].strip().lower()
+            if word not in _TRUE + _FALSE:
+                raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
+            loop = word in _TRUE
+            continue
         try:
             speed = float(values[-1])
         except ValueError:
             speed = math.nan
         if not (math.isfinite(speed) and speed > 0):
             raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
-    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed)
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, loop)
 
 
 def pace_of(src, tel, baud: int) -> tuple[np.ndarray, np.ndarray, str]:
@@ -136,6 +150,7 @@ class ReplayPort:
         timeout: float = READ_TIMEOUT_S,
         paced_by: str = "",
         clock: Callable[[], float] = time.monotonic,
+        loop: bool = False,
     ) -> None:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
@@ -143,6 +158,9 @@ class ReplayPort:
         self.port, self.path, self.baudrate, self.timeout = port, path, baudrate, timeout  # as pyserial's
         self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
         self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
+        #: start again after the last byte, one AHRS period later; ``loops``: how many times it did
+        self.loop, self.loops, self._t_loop = bool(loop) and len(self.data) > 0, 0, 0.0
+        self._period_s = (float(self.t_s[-1]) if len(self.t_s) else 0.0) + C.AHRS_PERIOD_S / speed
         self._cancel = threading.Event()
         self.is_open = True
 
@@ -156,7 +174,9 @@ class ReplayPort:
 
     def _released(self) -> tuple[int, float]:
         """(bytes out by now, seconds until the next bytes come out, ``inf`` after the last)."""
-        el = self._elapsed_s()
+        if self.loop and self._pos >= len(self.data):  # every byte read: the next round starts one period on
+            self._pos, self._t_loop, self.loops = 0, self._t_loop + self._period_s, self.loops + 1
+        el = self._elapsed_s() - self._t_loop
         i = int(np.searchsorted(self.t_s, el, side="right"))
         out = int(self.ends[i - 1]) if i else 0
         wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
@@ -171,8 +191,8 @@ class ReplayPort:
 
     @property
     def at_end(self) -> bool:
-        """Every byte has been read."""
-        return self._pos >= len(self.data)
+        """Every byte has been read (never, looping)."""
+        return not self.loop and self._pos >= len(self.data)
 
     def read(self, size: int = 1) -> bytes:
         """Up to ``size`` bytes: waits until that many are out or :attr:`timeout` passed (or :meth:`cancel_read`)."""
@@ -206,7 +226,7 @@ class ReplayPort:
     def describe(self) -> str:
         """Where the bytes come from, in words (for the session's first note)."""
         pace = "the recorded pace" if self.speed == 1 else f"{self.speed:g}x the recorded pace"
-        return f"{self.path} replayed at {pace} ({self.paced_by})"
+        return f"{self.path} replayed at {pace} ({self.paced_by})" + (", in a loop" if self.loop else "")
 
 
 def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
@@ -233,4 +253,5 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         speed=parsed.speed,
         timeout=timeout,
         paced_by=how,
+        loop=parsed.loop,
     )

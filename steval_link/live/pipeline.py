@@ -36,10 +36,10 @@ VIEW_INTERVAL_S = 0.0
 
 
 #: ... and to an ``.rrd`` at most this often, or once this much stream time waits (with a live viewer too, the file
-#: has its own stream of the same recording, fed these merged batches). Rerun's file sink keeps about 1 kB per
-#: chunk for the file's footer (its manifest) until the file closes, and each batch is about one chunk per entity
-#: (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
-RRD_ONLY_INTERVAL_S = 30.0
+#: has its own stream of the same recording, fed these merged batches). The file is written as the data arrives
+#: (``steval_viewer.rrd_writer``: appended and synced within a second), so a ``kill -9`` loses at most about a
+#: second of it; each batch is about one chunk per entity (~25).
+RRD_ONLY_INTERVAL_S = 0.5
 
 
 class EventTime(NamedTuple):

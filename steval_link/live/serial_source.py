@@ -26,7 +26,7 @@ from steval_link.link.transport import SerialReader, open_error_message, open_se
 from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.recorder import Inbox, RecorderProtocol
+from steval_link.live.recorder import Inbox, RecorderProtocol, capture_failure_sentence
 from steval_link.live.sources import CaptureFields, Source
 from steval_link.live.summary import pipeline_counts
 
@@ -142,10 +142,7 @@ class SerialSource(Source):
         reader, proto, pipe, session = self.reader, self.proto, self.pipeline, self.session
         if reader.error is not None:
             if isinstance(reader.error, OSError):  # the capture could not be written (disk full, removed)
-                raise UserError(
-                    f"writing the capture failed ({reader.error.strerror or reader.error}); "
-                    f"what was received until then is in {proto.capture.path}"
-                )
+                raise UserError(capture_failure_sentence(proto.capture, reader.error))
             raise reader.error
         chunks = self.inbox.get_all(ROUND_WAIT_S)
         now = time.monotonic()
@@ -220,6 +217,8 @@ class SerialSource(Source):
         if not proto.connected:
             lost = now_mono_s - (proto.lost_at_s or now_mono_s)
             head = f"disconnected, waiting for {proto.port} ({lost:.0f} s)"
+            if proto.probing is not None:
+                head = f"disconnected ({lost:.0f} s); trying {proto.probing}: no valid frames yet"
             failed = self.reader.reopen_error
             if failed is not None:  # it is back but cannot be opened: say why (busy, permissions)
                 head += f"; {open_error_message(failed[0], failed[1])}"
@@ -239,10 +238,13 @@ class SerialSource(Source):
     def summary_fields(self) -> dict[str, Any]:
         pipe, proto = self.pipeline, getattr(self, "proto", None)
         h = pipe.health if pipe is not None else LinkHealth()
-        streaming_s = 0.0
-        offline_s = proto.offline_s if proto is not None else 0.0
-        if h.first_frame_s is not None and h.last_frame_s is not None:
-            streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - offline_s)
+        streaming_s = offline_s = 0.0
+        now_s = self.session.clock.now_s()
+        if proto is not None:  # every loss measured, one not over yet up to now
+            offline_s = proto.offline_within(-math.inf, math.inf, now_s)
+        if h.first_frame_s is not None and h.last_frame_s is not None:  # the rate's time: connected, with frames
+            within = proto.offline_within(h.first_frame_s, h.last_frame_s, now_s) if proto is not None else 0.0
+            streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - within)
         p = pipe.mahony if pipe is not None else None
         filter_note = None
         if p is not None:
@@ -258,6 +260,7 @@ class SerialSource(Source):
             "bytes_total": proto.bytes_total if proto is not None else 0,
             "disconnects": proto.disconnects if proto is not None else 0,
             "offline_s": offline_s,
+            "lost_for_good": bool(proto is not None and proto.offline and proto.offline[-1][1] is None),
             "live_dropped_bytes": self.inbox.dropped_bytes if proto is not None else 0,
             "filter_note": filter_note,
         }

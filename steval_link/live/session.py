@@ -23,7 +23,7 @@ from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay
-from steval_link.live.recorder import open_capture
+from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import SerialSource
 from steval_link.live.sources import Source
 from steval_link.live.summary import LiveSummary
@@ -115,6 +115,8 @@ class LiveSession:
         self.viewer = None
         self.console: CommandConsole | None = None
         self._stop_reason: str | None = None
+        #: outputs that failed during the run (the ``.rrd``: disk full, deleted), one sentence each
+        self.output_failures: list[str] = []
 
     # -- control ----------------------------------------------------------------------------------------------
 
@@ -147,6 +149,7 @@ class LiveSession:
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
         error: BaseException | None = None
+        started = False
         old_handlers = install_stop_signals(self)
         try:
             if src.describe():  # (BLE says when it is connected)
@@ -160,6 +163,7 @@ class LiveSession:
                 self.viewer = self.viewer_factory(opts, src.recording_name(self))
             src.attach(self)
             self.console = self._console()
+            started = True
             self._loop(t0)
         except KeyboardInterrupt:
             self.request_stop("interrupted")
@@ -173,11 +177,15 @@ class LiveSession:
                     self.console.close()
                 self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
                 restore_signals(old_handlers)
+                if error is not None and not started:  # a failed start leaves nothing half-made
+                    capture.discard()
         if error is not None:
             raise src.error_of(error)
+        self._watch_outputs()
         return LiveSummary(
             capture_path=capture.path,
-            rrd_path=opts.rrd,
+            rrd_path=opts.rrd if not self.output_failures else None,
+            failures=list(self.output_failures),
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
             capture_discarded=capture.discarded,
@@ -223,11 +231,23 @@ class LiveSession:
             self.display.note(src.prompt_note)
         return console
 
+    def _watch_outputs(self) -> None:
+        """A capture that can take no more stops the run (one sentence); an ``.rrd`` that failed is said once and
+        the run goes on without it (``output_failures``: the summary leaves it out, the exit code is not 0)."""
+        failure = self.capture.check_present()
+        if failure is not None:
+            raise UserError(capture_failure_sentence(self.capture, failure))
+        said = getattr(self.viewer, "output_failure", None)
+        if said and said not in self.output_failures:
+            self.output_failures.append(said)
+            self.display.note(said)
+
     def _loop(self, t0: float) -> None:
         src, console, duration_s = self.source, self.console, self.options.duration_s
         while self._stop_reason is None:
             if not src.round():
                 break
+            self._watch_outputs()
             now = time.monotonic()
             line = src.health(now)
             if line:  # (a source with nothing to say yet says "")
