@@ -66,9 +66,10 @@ class RecorderProtocol(Protocol):
     disk in its own thread. Connection events are written into the capture (``disconnect`` / ``reconnect`` mark
     the gap) and kept as plain attributes and messages that the main thread reads.
 
-    A port reopened after a loss is on probation: it counts as reconnected only once it sent valid frames (a
-    small decoder here reads them); one that sends none for :data:`PROBATION_S` is not the drone: it is rejected
-    (:class:`~steval_link.link.transport.PortRejected`), said once, and the search goes on. Another program that
+    A port reopened after a loss is on probation: the capture marks ``reconnect`` (its bytes follow), but the
+    session counts it as back only once it sent valid frames (a small decoder here reads them); one that sends
+    none for :data:`PROBATION_S` is not the drone: it is rejected (:class:`~steval_link.link.transport.
+    PortRejected`; the capture marks ``rejected``), said once, and the search goes on. Another program that
     reads the port (bytes announced but taken) is named once (:func:`~steval_link.link.ports.port_holders`) and the
     port is kept.
     """
@@ -106,20 +107,22 @@ class RecorderProtocol(Protocol):
         self.connected_at_s = now
         if self.connections > 1:  # back after a loss: the drone only once it sends valid frames
             self.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
-            self.capture.mark_event("probe", f"{port} opened; waiting for valid frames", self._t_capture())
+            self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
+            self.capture.mark_event(
+                "reconnect", f"{port} opened again after {now - (self.lost_at_s or now):.2f} s", self._probe_at
+            )
             return
         self.connected = True
         self._say_holders(port)
 
     def _confirm(self) -> None:
         """The port reopened sent valid frames: the drone is back."""
-        now = time.monotonic()
-        gap = now - (self.lost_at_s or now)
+        back = self.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
+        gap = max(0.0, back - (self.lost_at_s or back))
         self.offline_s += gap
         if self.offline and self.offline[-1][1] is None:
-            self.offline[-1] = (self.offline[-1][0], self.clock.now_s())
+            self.offline[-1] = (self.offline[-1][0], self._probe_at + self.clock.wall0_s)
         port, self.probing, self._probe = self.probing, None, None
-        self.capture.mark_event("reconnect", f"{port} back after {gap:.2f} s", self._t_capture())
         self.events.append(f"reconnected on {port} after {gap:.1f} s")
         self.connected = True
         self._say_holders(port)
