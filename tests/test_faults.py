@@ -31,6 +31,14 @@ ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "recordings" / "demo.stv"
 START_TIMEOUT_S = 60.0
 slow = pytest.mark.slow
+#: a second reader of a port (a serial monitor left open): waits for bytes and takes them
+MONITOR = (
+    "import os, select, sys\n"
+    "fd = os.open(sys.argv[1], os.O_RDONLY | os.O_NOCTTY)\n"
+    "while True:\n"
+    "    select.select([fd], [], [])\n"
+    "    os.read(fd, 4096)\n"
+)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -195,7 +203,8 @@ def test_a_deleted_rrd_folder_is_said_once_and_the_capture_goes_on(tmp_path):
     with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
         proc = live(tmp_path, feeder.link, "--rrd", str(folder / "x.rrd"))
         feeder.start()
-        time.sleep(2.0)
+        assert proc.wait_line(" Hz", 30) is not None, proc.stderr  # the .rrd is being written
+        time.sleep(1.0)
         subprocess.run(["rm", "-rf", str(folder)], check=True)
         assert proc.wait_line("deleted with its folder", 10) is not None, proc.stderr
         time.sleep(1.0)
@@ -270,13 +279,14 @@ def test_another_reader_on_the_port_is_named_and_is_no_disconnect(tmp_path):
         proc = live(tmp_path, feeder.link)
         feeder.start()
         time.sleep(1.5)
-        cat = subprocess.Popen(["cat", str(feeder.link)], stdout=subprocess.DEVNULL)
+        # a serial monitor left open: reads whatever comes, without the port's lock
+        monitor = subprocess.Popen([sys.executable, "-c", MONITOR, str(feeder.link)], stdout=subprocess.DEVNULL)
         try:
-            assert proc.wait_line(f"another program (PID {cat.pid}, cat) has", 15) is not None, proc.stderr
+            assert proc.wait_line(f"another program (PID {monitor.pid}, ", 15) is not None, proc.stderr
             time.sleep(2.0)
         finally:
-            cat.kill()
-            cat.wait()
+            monitor.kill()
+            monitor.wait()
         rc = proc.finish(sig=signal.SIGINT)
     assert rc == 0, proc.stderr
     assert "disconnect" not in summary_line(proc) and "disconnected" not in proc.stderr

@@ -120,7 +120,8 @@ class RrdWriter:
 
     def _fail(self, why: str) -> None:
         """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""
-        held = f"{self.bytes_written / 1e6:.1f} MB" if self.bytes_written >= 100_000 else f"{self.bytes_written} B"
+        n = self.bytes_written
+        held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
         self.failure = f"{self.option} {self.shown} {why}; nothing more is written to it (it held {held} then)"
         try:
             self._file.close()

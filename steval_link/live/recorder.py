@@ -16,6 +16,7 @@ from steval_link.link.capture import CaptureWriter
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame
 from steval_link.link.transport import HostClock, PortRejected, Protocol
+from steval_link.live.health import _fmt_bytes
 
 #: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
 INBOX_MAX_BYTES = 4 * 1024 * 1024
@@ -23,8 +24,10 @@ INBOX_MAX_BYTES = 4 * 1024 * 1024
 PROBATION_S = 3.0
 #: ... and it is the drone once it sent this many valid attitude or status frames.
 PROBATION_FRAMES = 2
-#: Other programs holding the port are looked for at most this often (at a (re)connection), s.
+#: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
+#: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
 HOLDERS_CHECK_S = 5.0
+SILENT_S = 1.0
 
 
 class Inbox:
@@ -93,6 +96,7 @@ class RecorderProtocol(Protocol):
         self.rejected = 0  # candidates that sent no valid frames
         self._holders_said: set[int] = set()
         self._holders: list[tuple[int, str]] = []
+        self._last_data_s = -math.inf  # monotonic time of the last chunk
         self._holders_checked_s = -math.inf
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
@@ -132,14 +136,18 @@ class RecorderProtocol(Protocol):
         self.bytes_total += len(data)
         self.connect_bytes += len(data)
         self.inbox.put(data, t_unix_s)
+        self._last_data_s = time.monotonic()
         if self._probe is not None:
             self._probe_frames += sum(1 for f in self._probe.feed(data) if isinstance(f, (AttitudeFrame, StatusFrame)))
             if self._probe_frames >= PROBATION_FRAMES:
                 self._confirm()
 
     def idle(self, t_unix_s: float) -> None:
-        if self.probing is not None and time.monotonic() - (self.connected_at_s or 0.0) >= PROBATION_S:
+        now = time.monotonic()
+        if self.probing is not None and now - (self.connected_at_s or 0.0) >= PROBATION_S:
             raise PortRejected(f"{self.probing} sent no valid frames in {PROBATION_S:.0f} s")
+        if self.connected and now - max(self._last_data_s, self.connected_at_s or now) >= SILENT_S:
+            self._say_holders(self.port)  # silent: another reader may take every byte (at most every few s)
 
     def shared_access(self, exc: BaseException) -> bool:
         if self.port is None or not os.path.exists(self.port):
@@ -207,8 +215,7 @@ def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool
 
 def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     """The one sentence for a capture that can take no more (disk full, deleted, replaced), naming what it holds."""
-    held = capture.bytes_written
-    amount = f"{held / 1e6:.1f} MB" if held >= 100_000 else f"{held} B"
+    amount = _fmt_bytes(capture.bytes_written)
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
