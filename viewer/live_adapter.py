@@ -36,8 +36,12 @@ class ViewerLogger:
 
     @property
     def output_failure(self) -> str | None:
-        """Why the ``.rrd`` stopped being written (disk full, deleted), one sentence; None while it is fine."""
-        return self.session.rrd_failure
+        """Why the ``.rrd`` stopped being written (disk full, deleted), one sentence; None while it is fine (read by
+        the session, which says it: closing does not raise it again)."""
+        failure = self.session.rrd_failure
+        if failure is not None:
+            self.session.rrd_failure_said = True
+        return failure
 
     def __getattr__(self, name: str):
         """``log_batch``, ``log_status``, ``log_text``, ``log_flight``, ``log_event``: the main stream's logger's."""

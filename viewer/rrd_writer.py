@@ -152,7 +152,7 @@ class RrdWriter:
         while not self._stop.wait(WRITE_INTERVAL_S):
             k += 1
             try:
-                self.pump(flush=True, sync=k % ticks == 0)
+                self.pump(sync=k % ticks == 0)
             except Exception as exc:  # noqa: BLE001 - Rerun's stream failed: one sentence, the run goes on
                 self.failure = self.failure or f"{self.option} {self.shown}: Rerun stopped encoding it ({exc})"
 

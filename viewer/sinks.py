@@ -78,6 +78,8 @@ class ViewerSession:
     file_rec: rr.RecordingStream | None = None
     rrd_partial: Path | None = None
     rrd_writer: RrdWriter | None = None
+    #: the caller said :attr:`rrd_failure` already (a live session, when it happened): close() does not raise it
+    rrd_failure_said: bool = False
 
     @property
     def rrd_failure(self) -> str | None:
@@ -125,6 +127,8 @@ class ViewerSession:
                 stop_child(child)
             self.children.clear()
             self._finish_rrd(complete and self.rrd_failure is None)
+        if error is None and self.rrd_failure is not None and not self.rrd_failure_said:
+            error = UserError(self.rrd_failure)  # (a live session said it when it happened)
         if error is not None:
             raise error
 
