@@ -343,6 +343,8 @@ class CaptureWriter:
                 self.failure = self.failure or _failed(self.path, exc)
             if self._discard_empty and self.bytes_written == 0 and self.chunks_written == 0:
                 try:
+                    if output_gone(self.path, self._identity) is not None:  # not ours any more: left alone
+                        raise FileNotFoundError(self.path)
                     self.path.unlink()
                     self.discarded = True
                 except OSError:  # e.g. removed meanwhile: nothing left behind either way
