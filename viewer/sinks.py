@@ -43,6 +43,7 @@ from typing import Callable, TypeVar
 import rerun as rr
 
 from steval_link.errors import UserError
+from steval_viewer import QUIETED_RUST_LOG
 from steval_viewer.rrd_writer import RrdWriter
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
 
@@ -232,6 +233,8 @@ def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Pope
     """Start a viewer process with its output in ``log_path``. ``detached``: it outlives this program (a native
     viewer the user closes); else it dies with it (a web viewer server)."""
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
+    if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
+        env.pop("RUST_LOG", None)
     kwargs: dict = {}
     if sys.platform == "win32":  # pragma: no cover - Windows
         flags = subprocess.CREATE_NEW_PROCESS_GROUP
