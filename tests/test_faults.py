@@ -170,6 +170,15 @@ def test_a_start_on_a_full_disk_leaves_nothing_and_a_retry_works(tmp_path, tiny_
     assert len(capture_of(tiny_disk / "x.stv").data) > 0
 
 
+@slow
+def test_a_csv_on_a_full_disk_is_one_sentence_and_leaves_nothing(tmp_path, tiny_disk):
+    proc = StevalProcess(["export", str(DEMO), "--csv", str(tiny_disk / "x.csv")], cwd=tmp_path)
+    assert proc.finish(timeout_s=120) == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(tiny_disk / "x.csv") in lines[0] and "no space left" in lines[0].lower()
+    assert list(tiny_disk.iterdir()) == []
+
+
 # ------------------------------------------------------------------------------------------------------------
 # 5: outputs that vanish
 
