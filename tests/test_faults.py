@@ -111,7 +111,8 @@ def test_rrd_is_written_as_the_data_arrives_and_opens_after_kill_9(tmp_path):
     with PtyFeeder(data, tmp_path / "ttyUSB0") as feeder:
         proc = live(tmp_path, feeder.link, "--rrd", str(rrd), "--estimators", "accel")
         feeder.start()
-        time.sleep(4.0)
+        assert proc.wait_line(" Hz", 30) is not None, proc.stderr  # the .rrd's side is up
+        time.sleep(3.0)
         proc.proc.send_signal(signal.SIGKILL)
         proc.finish()
     frames = [f for f in StreamDecoder().feed(capture_of(tmp_path / "cap.stv").data) if hasattr(f, "seq")]

@@ -30,6 +30,8 @@ __all__ = ["RrdWriter", "WRITE_INTERVAL_S", "rrd_messages"]
 WRITE_INTERVAL_S = 0.25
 #: How often the file is forced to disk, s (``fsync``).
 SYNC_INTERVAL_S = 1.0
+#: Longest wait for Rerun to encode what was logged, at each write, s (at the end: longer).
+FLUSH_TIMEOUT_S = 0.5
 #: An RRD stream starts with this magic and 8 more bytes (version, encoding options) ...
 STREAM_MAGIC = b"RRF2"
 STREAM_HEADER_BYTES = 12
@@ -129,10 +131,14 @@ class RrdWriter:
             pass
 
     def pump(self, *, flush: bool = False, sync: bool = False) -> None:
-        """Append what Rerun encoded since the last call (``flush``: Rerun's pending rows first); ``sync``: then
-        ``fsync``. After a failure the bytes are read and dropped."""
+        """Append what Rerun encoded since the last call (its pending rows first, waited for up to
+        :data:`FLUSH_TIMEOUT_S`; ``flush``: up to 30 s, at the end); ``sync``: then ``fsync``. After a failure the
+        bytes are read and dropped."""
         with self._lock:
-            data = self._stream.read(flush=flush) or b""
+            try:  # Rerun's pending rows into the stream first (bounded: a slow flush leaves them to the next pump)
+                data = self._stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S if not flush else 30.0) or b""
+            except RuntimeError:
+                data = self._stream.read(flush=False) or b""
             if self.failure is not None or self._file.closed:
                 return
             gone = output_gone(self.path, self._identity)
