@@ -138,6 +138,9 @@ def test_rrd_on_a_full_disk_is_one_sentence_the_run_goes_on_and_exits_not_0(tmp_
     assert rc != 0
     line = summary_line(proc)
     assert "rerun" not in line and str(rrd) not in line  # only complete outputs are listed
+    from steval_viewer.rrd_check import read_rrd
+
+    assert read_rrd(rrd).application_id  # what it held then still opens
     cap = capture_of(tmp_path / "cap.stv")
     assert not cap.truncated and len(cap.data) > 2 * REAL_BYTES_PER_S and cap.data == data[: len(cap.data)]
 

@@ -125,6 +125,11 @@ class RrdWriter:
         n = self.bytes_written
         held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
         self.failure = f"{self.option} {self.shown} {why}; nothing more is written to it (it held {held} then)"
+        try:  # a write cut by a full disk leaves part of a message: back to the last whole one, so the file opens
+            if output_gone(self.path, self._identity) is None:
+                os.ftruncate(self._file.fileno(), self.bytes_written)
+        except OSError:
+            pass
         try:
             self._file.close()
         except OSError:
