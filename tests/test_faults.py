@@ -130,7 +130,7 @@ def test_rrd_on_a_full_disk_is_one_sentence_the_run_goes_on_and_exits_not_0(tmp_
         proc = live(tmp_path, feeder.link, "--rrd", str(rrd))
         feeder.start()
         assert proc.wait_line("cannot be written", 30) is not None, proc.stderr
-        time.sleep(1.0)
+        time.sleep(2.5)  # the recording goes on
         rc = proc.finish(sig=signal.SIGINT)
     said = [line for _, line in proc.lines if "cannot be written" in line]
     assert len(said) == 1 and str(rrd) in said[0] and "no space left" in said[0].lower(), proc.stderr
@@ -143,6 +143,7 @@ def test_rrd_on_a_full_disk_is_one_sentence_the_run_goes_on_and_exits_not_0(tmp_
     assert read_rrd(rrd).application_id  # what it held then still opens
     cap = capture_of(tmp_path / "cap.stv")
     assert not cap.truncated and len(cap.data) > 2 * REAL_BYTES_PER_S and cap.data == data[: len(cap.data)]
+    assert cap.events[-1].kind == "stop" and cap.events[-1].text == "interrupted"
 
 
 @slow
