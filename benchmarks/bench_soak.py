@@ -1,5 +1,12 @@
 """Soak benchmark: ``steval live`` on one hour of stream, fed as fast as the link consumes it; memory must stay flat.
 
+Default (``--source replay``): the bundled ``recordings/demo.stv`` replayed in a loop, ``steval live --no-view --port
+"replay://recordings/demo.stv?loop=1&speed=40" --duration 90 --rrd ...``: one hour of stream in 90 s, the whole
+live path (capture, decoder, estimators, the ``.rrd`` written as the data arrives), and the child's RSS sampled once
+a second; printed: the least-squares slope of RSS from a quarter of the stream to its end, per hour of stream (goal
+< 10 MB/h), and whether the live side kept up (on a busy machine, a lower ``--speed``). ``--source pty``: the fake
+drone below instead.
+
 A fake drone (``tests/support/ptyfeed.py``) replays a synthetic flight (bit-exact firmware filter outputs, a status
 frame
 every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-terminal. The real CLI runs on it as a
@@ -20,7 +27,8 @@ real cadence.
 Printed: a table of stream time fed / wall time / RSS, the peak RSS, and the growth of RSS from 10 % of the stream
 to its end scaled to one hour of stream. Goal: flat memory, growth < 10 MB per hour of stream.
 
-    python benchmarks/bench_soak.py                   # 60 min of stream at 40x the real rate, with --rrd
+    python benchmarks/bench_soak.py                   # 60 min of demo.stv in a loop at 40x, with --rrd
+    python benchmarks/bench_soak.py --source pty      # 60 min of a synthetic flight on a pty at 40x
     python benchmarks/bench_soak.py --minutes 10 --no-rrd --speed 50   # 50x the real rate, no Rerun at all
     python benchmarks/bench_soak.py --viewer          # live viewer (headless gRPC server) and --rrd
     python benchmarks/bench_soak.py --default-view --minutes 2 --speed 1   # `steval live --rrd X`, no display
@@ -38,6 +46,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -85,7 +95,17 @@ def main() -> None:
     )
     ap.add_argument("--estimators", default=None, help="passed to --estimators (default: the CLI's default)")
     ap.add_argument("--keep", action="store_true", help="keep the capture and .rrd (prints the folder)")
+    ap.add_argument(
+        "--source",
+        choices=("replay", "pty"),
+        default="replay",
+        help="replay: recordings/demo.stv in a loop (replay://...?loop=1&speed=S); pty: a synthetic flight on a "
+        "pseudo-terminal",
+    )
     args = ap.parse_args()
+    if args.source == "replay":
+        soak_replay(args)
+        return
 
     n_steps = int(args.minutes * 60 * C.AHRS_RATE_HZ)
     t0 = time.perf_counter()
@@ -172,6 +192,66 @@ def main() -> None:
             f".rrd {size_mb:.1f} MB = {size_mb * 60 / args.minutes:.1f} MB per hour of stream; reads back with "
             f"{rows} of {n_steps} frames: {'complete' if rows == n_steps else 'INCOMPLETE'}"
         )
+    if args.keep:
+        print(f"files kept in {tmp}")
+    else:
+        for p in tmp.iterdir():
+            p.unlink()
+        os.rmdir(tmp)
+
+
+def soak_replay(args) -> None:
+    """``steval live`` on ``replay://recordings/demo.stv?loop=1&speed=S`` for ``minutes`` of stream."""
+    speed = 40.0 if args.speed == "max" else float(args.speed)
+    wall_s = args.minutes * 60 / speed
+    tmp = Path(tempfile.mkdtemp(prefix="steval-soak-"))
+    url = f"replay://{ROOT / 'recordings' / 'demo.stv'}?loop=1&speed={speed:g}"
+    cmd = ["live", "--no-view", "--no-prompt", "--port", url, "--duration", f"{wall_s:g}", "--out", str(tmp / "x.stv")]
+    if not args.no_rrd:
+        cmd += ["--rrd", str(tmp / "soak.rrd")]
+    if args.estimators:
+        cmd += ["--estimators", args.estimators]
+    proc = StevalProcess(cmd, cwd=tmp)
+    if proc.wait_line("reading ", 120) is None:
+        print(proc.stderr)
+        raise SystemExit("steval live did not start")
+    pid = proc.proc.pid
+    print(f"steval {' '.join(cmd)}\n{'stream min':>10} {'wall s':>8} {'RSS MB':>8} {'peak MB':>8}")
+    t0 = time.monotonic()
+    samples: list[tuple[float, float]] = []  # (stream minutes, RSS MB)
+    hwm_end = float("nan")
+    next_report = 0.0
+    while proc.proc.poll() is None:
+        time.sleep(1.0)
+        rss, hwm = proc_mem_mb(pid)
+        if rss == rss:  # not NaN: still running
+            hwm_end = hwm
+            stream_min = (time.monotonic() - t0) * speed / 60
+            samples.append((stream_min, rss))
+            if stream_min >= next_report:
+                print(f"{stream_min:10.1f} {time.monotonic() - t0:8.1f} {rss:8.1f} {hwm:8.1f}", flush=True)
+                next_report += max(1.0, args.minutes / 12)
+    rc = proc.finish(timeout_s=600)
+    # the steady state: from a quarter of the stream (start-up and Rerun's warm-up done) to its end (not the close)
+    late = [(m, r) for m, r in samples if 0.25 * args.minutes <= m <= args.minutes]
+    (m25, r25), (m_end, r_end) = late[0], late[-1]
+    slope_per_h = float(np.polyfit([m for m, _ in late], [r for _, r in late], 1)[0]) * 60 if len(late) > 2 else 0.0
+    print(proc.stdout.strip())
+    behind = "not shown live" in proc.stdout
+    print(
+        f"exit {rc}; peak RSS {hwm_end:.1f} MB; RSS {r25:.1f} MB at {m25:.1f} min of stream, {r_end:.1f} MB at "
+        f"{m_end:.1f} min\ngrowth: {r_end - r25:+.1f} MB, least-squares slope {slope_per_h:+.1f} MB per hour of stream "
+        f"(goal < 10 MB/h): {'OK' if slope_per_h < 10 else 'TOO MUCH'}"
+        + (
+            "\nthe live side fell behind the replay (frames not shown live): use a lower --speed on a busy machine"
+            if behind
+            else ""
+        )
+    )
+    rrd = tmp / "soak.rrd"
+    if rrd.exists():
+        size_mb = rrd.stat().st_size / 1e6
+        print(f".rrd {size_mb:.1f} MB ({size_mb * 60 / max(m_end, 1e-9):.0f} MB per hour of stream at {speed:g}x)")
     if args.keep:
         print(f"files kept in {tmp}")
     else:

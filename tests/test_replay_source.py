@@ -51,7 +51,7 @@ def test_url_forms_and_bad_urls_are_one_sentence():
         ("replay://", "no file to replay"),
         ("replay://x.stv?speed=0", "speed must be a positive number"),
         ("replay://x.stv?speed=fast", "speed must be a positive number"),
-        ("replay://x.stv?loop=1", "unknown replay option 'loop'"),
+        ("replay://x.stv?loops=1", "unknown replay option .loops."),
     ]:
         with pytest.raises(UserError, match=words):
             parse_replay_url(url)

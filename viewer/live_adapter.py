@@ -16,8 +16,9 @@ class ViewerLogger:
 
     ``log_batch``/``log_status``/``log_text`` go to the session's main stream (the viewer's; the ``.rrd``'s when
     there is no viewer). With a viewer *and* ``--rrd`` the file has its own stream of the same recording and its
-    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (Rerun's file
-    sink keeps ~1 kB per chunk until the file closes); ``log_link`` goes to both; ``close`` flushes and closes both.
+    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (written as
+    they come: ``steval_viewer.rrd_writer``); ``log_link`` goes to both; ``close`` flushes and closes both.
+    ``output_failure``: one sentence once the ``.rrd`` could not be written (the session says it and exits non-zero).
 
     Imported only when a viewer or an ``.rrd`` is asked for (``--no-view`` without ``--rrd``: no Rerun at all).
     """
@@ -37,6 +38,15 @@ class ViewerLogger:
     def has_viewer(self) -> bool:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
         return self.session.has_viewer
+
+    @property
+    def output_failure(self) -> str | None:
+        """Why the ``.rrd`` stopped being written (disk full, deleted), one sentence; None while it is fine (read by
+        the session, which says it: closing does not raise it again)."""
+        failure = self.session.rrd_failure
+        if failure is not None:
+            self.session.rrd_failure_said = True
+        return failure
 
     def __getattr__(self, name: str):
         """``log_batch``, ``log_status``, ``log_text``, ``log_flight``, ``log_event``: the main stream's logger's."""

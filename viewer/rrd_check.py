@@ -9,6 +9,7 @@ Used by the tests and CI to check that ``steval replay CAPTURE --rrd out.rrd`` w
 
 from __future__ import annotations
 
+import warnings
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,11 +28,19 @@ class RrdInfo:
     application_id: str | None = None
 
 
-def read_rrd(path: str | Path) -> RrdInfo:
-    """Read every chunk of the first recording in ``path`` (raises on a file Rerun cannot read)."""
+def _reader(path: str | Path):
+    """Rerun's reader of ``path``. A file written as the data arrives (``steval_viewer.rrd_writer``) has no footer:
+    Rerun reads it from its start, and its warning about that layout is not repeated here."""
     from rerun.chunk import RrdReader
 
-    reader = RrdReader(str(path))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        return RrdReader(str(path))
+
+
+def read_rrd(path: str | Path) -> RrdInfo:
+    """Read every chunk of the first recording in ``path`` (raises on a file Rerun cannot read)."""
+    reader = _reader(path)
     recordings = reader.recordings()
     if not recordings:
         raise ValueError(f"{path} holds no Rerun recording")
@@ -61,9 +70,7 @@ def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
     """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
     of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
     3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     by_id: dict[str, dict[str, object]] = defaultdict(dict)
     for store in reader.blueprints()[:1]:
         for chunk in reader.stream(store=store):
@@ -81,9 +88,7 @@ def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
 
 def static_values(path: str | Path, entity: str) -> dict[str, object]:
     """The static components logged to ``entity`` in the first recording of ``path``: {component: values}."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     out: dict[str, object] = {}
     for chunk in reader.stream(store=reader.recordings()[0]):
         if chunk.is_static and chunk.entity_path.strip("/") == entity:

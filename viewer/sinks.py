@@ -43,6 +43,8 @@ from typing import Callable, TypeVar
 import rerun as rr
 
 from steval_link.errors import UserError
+from steval_viewer import QUIETED_RUST_LOG
+from steval_viewer.rrd_writer import RrdWriter
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
 
 APPLICATION_ID = "steval-link"
@@ -76,6 +78,14 @@ class ViewerSession:
     children: list[subprocess.Popen] = field(default_factory=list)
     file_rec: rr.RecordingStream | None = None
     rrd_partial: Path | None = None
+    rrd_writer: RrdWriter | None = None
+    #: the caller said :attr:`rrd_failure` already (a live session, when it happened): close() does not raise it
+    rrd_failure_said: bool = False
+
+    @property
+    def rrd_failure(self) -> str | None:
+        """One sentence when the ``.rrd`` could not be written to the end (disk full, deleted), else None."""
+        return self.rrd_writer.failure if self.rrd_writer is not None else None
 
     @property
     def streams(self) -> list[rr.RecordingStream]:
@@ -110,14 +120,25 @@ class ViewerSession:
                 except UserError as exc:  # a viewer that went away; the file still closes whole below
                     error = error or exc
                 finally:
+                    if rec is self._rrd_rec:
+                        self.rrd_writer.close()  # the rest of the stream, then the file is closed
                     rec.disconnect()
         finally:
             for child in self.children:
                 stop_child(child)
             self.children.clear()
-            self._finish_rrd(complete)
+            self._finish_rrd(complete and self.rrd_failure is None)
+        if error is None and self.rrd_failure is not None and not self.rrd_failure_said:
+            error = UserError(self.rrd_failure)  # (a live session said it when it happened)
         if error is not None:
             raise error
+
+    @property
+    def _rrd_rec(self) -> rr.RecordingStream | None:
+        """The stream our :class:`RrdWriter` writes (None: no ``.rrd``, or Rerun's own file sink writes it)."""
+        if self.rrd_writer is None:
+            return None
+        return self.file_rec if self.file_rec is not None else self.rec
 
     def _finish_rrd(self, keep: bool) -> None:
         partial = self.rrd_partial
@@ -212,6 +233,8 @@ def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Pope
     """Start a viewer process with its output in ``log_path``. ``detached``: it outlives this program (a native
     viewer the user closes); else it dies with it (a web viewer server)."""
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
+    if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
+        env.pop("RUST_LOG", None)
     kwargs: dict = {}
     if sys.platform == "win32":  # pragma: no cover - Windows
         flags = subprocess.CREATE_NEW_PROCESS_GROUP
@@ -361,14 +384,15 @@ def open_session(
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     sinks: list = []
-    file_sinks: list = []
     try:
+        own_file = options.rrd is not None and (split_file or not options.viewer)
         if options.rrd is not None:
             path = Path(options.rrd)
             if atomic_rrd:
                 session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
                 path = session.rrd_partial
-            (file_sinks if split_file and options.viewer else sinks).append(rr.FileSink(str(path)))
+            if not own_file:  # one stream to a viewer and the file (a whole replay): Rerun's own file sink
+                sinks.append(rr.FileSink(str(path)))
         if options.spawn:
             session.viewer_url = spawn_desktop_viewer(options.grpc_port)
             sinks.append(rr.GrpcSink(session.viewer_url))
@@ -389,18 +413,24 @@ def open_session(
             session.rrd_partial.unlink(missing_ok=True)
         raise
     try:
-        rec.set_sinks(*sinks)
-        if file_sinks:
+        file_rec = rec
+        if sinks:
+            rec.set_sinks(*sinks)
+        if own_file and options.viewer:  # the file's own stream of the same recording
             file_rec = rr.RecordingStream(
                 application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
             )
-            file_rec.set_sinks(*file_sinks)
             session.file_rec = file_rec
-    except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
+        if own_file:
+            where = session.rrd_partial or Path(options.rrd)
+            session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
+    except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
         for child in session.children:
             stop_child(child)
         if session.rrd_partial is not None:
             session.rrd_partial.unlink(missing_ok=True)
+        if isinstance(exc, UserError):
+            raise
         where = f"--rrd {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
         raise UserError(f"{where} ({_first_line(exc)})") from None
     if recording_name:

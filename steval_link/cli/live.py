@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -64,10 +65,29 @@ def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions |
     return check
 
 
+#: exit code of a session that ran to its end while one of its outputs (the ``.rrd``) failed on the way
+OUTPUT_FAILED_EXIT = 1
+
+
 def run_session(session: LiveSession) -> None:
-    """Run ``session`` and print its summary on stdout."""
-    print(session.run().line())
-    sys.stdout.flush()
+    """Run ``session`` and print its summary on stdout. An output that failed on the way (said when it happened,
+    left out of the summary) makes the exit code non-zero. A reader that closed stdout (``| head``, ``| true``)
+    ends nothing but the summary line: the capture is complete, and the exit is quiet."""
+    summary = session.run()
+    try:
+        print(summary.line())
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _stdout_to_devnull()
+    if summary.failures:
+        raise typer.Exit(OUTPUT_FAILED_EXIT)
+
+
+def _stdout_to_devnull() -> None:
+    """After a closed pipe: later writes (and the interpreter's last flush) go nowhere instead of failing."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def check_duration(duration: float | None) -> None:

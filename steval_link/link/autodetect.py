@@ -4,10 +4,11 @@
 - :func:`choose_port` implements ``--port auto`` (and glob patterns such as ``/dev/ttyUSB*``).
 - :func:`describe_bytes` / :func:`no_frames_message` turn bytes without a single valid frame into one line that says
   what they look like and which ``--baud`` to try.
-- :class:`PortIdentity` / :class:`PortFinder` remember what a port was (path, USB VID:PID, serial number) and find
-  it again after an unplug, even when it comes back under another name (``/dev/ttyUSB0`` → ``/dev/ttyUSB1``).
-  Pseudo-terminals and other ports without USB identity are found again by their path or, failing that, by a
-  new name in the same family (the path with its trailing digits replaced by ``*``).
+- :class:`PortIdentity` / :class:`PortFinder` remember what a port was (path, USB VID:PID, serial number, USB
+  location) and find it again after an unplug, even when it comes back under another name (``/dev/ttyUSB0`` →
+  ``/dev/ttyUSB1``), never taking another adapter that now sits at the old name. Pseudo-terminals and other ports
+  without USB identity are found again by their path or by a new name in the same family (the path with its
+  trailing digits replaced by ``*``); a candidate that sends no valid frames is rejected and the search goes on.
 
 Plain listing of ports is :mod:`steval_link.link.ports`' job; this module only uses it.
 """
@@ -113,13 +114,18 @@ def family_glob(path: str) -> str | None:
 class PortFinder:
     """Finds a port again after it vanished (call :meth:`find` while disconnected; cheap enough to poll at 10 Hz).
 
-    Order: a USB device with the same VID:PID and serial number (any name); the same path when it exists again;
-    a name matching ``pattern`` (default :func:`family_glob` of the path) that did not exist when the port was lost.
+    A USB adapter is found by what identifies it (VID:PID, then its serial number, else its USB location),
+    whatever its new name; another device at its old path is never taken for it. A port without USB identity (a
+    pseudo-terminal, a board's UART) is found at its path when it exists again, else at a name matching ``pattern``
+    (default :func:`family_glob` of the path) that did not exist when the port was lost. A candidate that turned
+    out not to be the drone (:meth:`reject`: it sent no valid frames) is not taken again while its device node
+    stays the same.
     """
 
     identity: PortIdentity
     pattern: str | None = None
     _present_at_loss: set[str] = field(default_factory=set)
+    _rejected: dict[str, tuple] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.pattern is None:
@@ -129,29 +135,50 @@ class PortFinder:
         """Remember which sibling names exist now, so that only a name that appears later is taken for the port."""
         self._present_at_loss = set(self._siblings()) - {self.identity.path, self.identity.device}
 
+    def reject(self, path: str) -> None:
+        """``path`` (as :meth:`find` returned it) is not the drone: skip it until its device node changes."""
+        self._rejected[os.path.realpath(path)] = _node(path)
+
     def _siblings(self) -> list[str]:
         return sorted(glob.glob(self.pattern)) if self.pattern else []
 
-    def find(self) -> str | None:
-        """The path to reopen, or ``None`` when the port is not back yet."""
+    def _usable(self, path: str) -> bool:
+        if not os.path.exists(path):
+            return False
+        real = os.path.realpath(path)
+        return real not in self._rejected or self._rejected[real] != _node(path)
+
+    def candidates(self) -> list[str]:
+        """Every path that may be the port now, most likely first (rejected ones left out)."""
         ident = self.identity
         if ident.has_usb_id:
-            matches = [
-                info.device
-                for info in _comports()
-                if info.vid == ident.vid
-                and info.pid == ident.pid
-                and (ident.serial_number is None or info.serial_number == ident.serial_number)
-            ]
-            if matches:
-                # several identical adapters without serial numbers: keep the old name when it is among them
-                return ident.device if ident.device in matches else matches[0]
-        if os.path.exists(ident.path):
-            return ident.path
-        for path in self._siblings():
-            if path not in self._present_at_loss and os.path.exists(path):
-                return path
-        return None
+            return [p for p in self._usb_matches() if self._usable(p)]
+        found = [ident.path] if self._usable(ident.path) else []
+        found += [p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)]
+        return found
+
+    def _usb_matches(self) -> list[str]:
+        ident = self.identity
+        infos = [info for info in _comports() if info.vid == ident.vid and info.pid == ident.pid]
+        if ident.serial_number is not None:
+            infos = [info for info in infos if info.serial_number == ident.serial_number]
+        # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
+        infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
+        return [info.device for info in infos]
+
+    def find(self) -> str | None:
+        """The path to reopen, or ``None`` when the port is not back yet."""
+        found = self.candidates()
+        return found[0] if found else None
+
+
+def _node(path: str) -> tuple:
+    """What tells one device node from a new one at the same name (device number, inode, change time)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ()
+    return st.st_rdev, st.st_ino, st.st_ctime_ns
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -43,6 +43,8 @@ __all__ = [
     "HostChunk",
     "CaptureTruncatedWarning",
     "CaptureWriter",
+    "OutputLostError",
+    "output_gone",
     "demo_capture_path",
     "read_capture",
     "read_file_bytes",
@@ -262,15 +264,23 @@ class CaptureWriter:
         now = time.time()
         self.header: dict[str, Any] = capture_header(port, baud, now, extra, tool_version=tool_version)
         self._file = open(self.path, "xb", buffering=0)
+        self._identity = _identity(os.fstat(self._file.fileno()))
         self._lock = threading.Lock()
+        #: why the file can take no more (disk full, removed, replaced): an OSError whose text is one sentence
+        self.failure: OSError | None = None
         self._dirty = False
         self._closed = False
         self._discard_empty = bool(discard_empty)
         self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
         self.chunks_written = 0  #: typed chunks (e.g. BLE notifications) stored so far
-        self._write_all(_file_header(self.header))
-        self._sync()
+        try:
+            self._write_all(_file_header(self.header))
+            self._sync()
+        except OSError:  # a start on a full disk: nothing half-made is left
+            self._file.close()
+            self.path.unlink(missing_ok=True)
+            raise
         self._stop = threading.Event()
         self._interval = float(sync_interval_s)
         self._thread = threading.Thread(target=self._sync_loop, name="stv-fsync", daemon=True)
@@ -345,15 +355,34 @@ class CaptureWriter:
         self._stop.set()
         self._thread.join()
         with self._lock:
-            self._sync()
+            try:
+                if self.failure is None:
+                    self._sync()
+            except OSError:  # kept in ``failure`` for the caller; the file is closed all the same
+                pass
             self._closed = True
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError as exc:
+                self.failure = self.failure or _failed(self.path, exc)
             if self._discard_empty and self.bytes_written == 0 and self.chunks_written == 0:
                 try:
+                    if output_gone(self.path, self._identity) is not None:  # not ours any more: left alone
+                        raise FileNotFoundError(self.path)
                     self.path.unlink()
                     self.discarded = True
                 except OSError:  # e.g. removed meanwhile: nothing left behind either way
                     self.discarded = not self.path.exists()
+
+    def discard(self) -> None:
+        """Close and delete the file (a session that failed to start leaves nothing half-made behind)."""
+        self.close()
+        try:
+            if output_gone(self.path, self._identity) is None:  # only our own file, never one that replaced it
+                self.path.unlink()
+        except OSError:
+            pass
+        self.discarded = True
 
     def __enter__(self) -> CaptureWriter:
         return self
@@ -365,26 +394,84 @@ class CaptureWriter:
     def _check_open(self) -> None:
         if self._closed:
             raise ValueError("write to a closed CaptureWriter")
+        if self.failure is not None:
+            raise self.failure
 
     def _write_all(self, b: bytes) -> None:
         view = memoryview(b)
-        while view:
-            n = self._file.write(view)
-            view = view[n:]
+        try:
+            while view:
+                n = self._file.write(view)
+                view = view[n:]
+        except OSError as exc:
+            self.failure = self.failure or _failed(self.path, exc)
+            raise self.failure from None
 
     def _sync(self) -> None:
-        os.fsync(self._file.fileno())
+        try:
+            os.fsync(self._file.fileno())
+        except OSError as exc:
+            self.failure = self.failure or _failed(self.path, exc)
+            raise self.failure from None
         self._dirty = False
+
+    def check_present(self) -> OSError | None:
+        """The file is still where it was written (not deleted, its folder not removed, not replaced): else the
+        failure (also raised by the next write). Cheap (two ``stat`` calls): the sync thread runs it every second."""
+        if self.failure is None and not self._closed:
+            gone = output_gone(self.path, self._identity)
+            if gone is not None:
+                self.failure = OutputLostError(f"{self.path} {gone}")
+        return self.failure
 
     def _sync_loop(self) -> None:
         # fsync outside the lock: a slow disk must never hold up write() in the serial reader thread. close()
         # joins this thread before it closes the file, so the descriptor stays valid here.
         while not self._stop.wait(self._interval):
             with self._lock:
-                if not self._dirty or self._closed:
+                if self._closed or self.check_present() is not None or not self._dirty:
                     continue
                 self._dirty = False
-            os.fsync(self._file.fileno())
+            try:
+                os.fsync(self._file.fileno())
+            except OSError as exc:  # the next write raises it
+                self.failure = self.failure or _failed(self.path, exc)
+
+
+class OutputLostError(OSError):
+    """An output file that can take no more: its text is one sentence naming the file and why."""
+
+    def __init__(self, text: str, errno_: int = 0) -> None:
+        super().__init__(errno_, text)
+        self.text = text
+
+    def __str__(self) -> str:
+        return self.text
+
+
+def _identity(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino
+
+
+def _failed(path: Path, exc: OSError) -> OSError:
+    """``exc`` as an :class:`OutputLostError` naming ``path`` (disk full, I/O error)."""
+    if isinstance(exc, OutputLostError):
+        return exc
+    why = (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
+    return OutputLostError(f"{path} cannot be written ({why})", exc.errno or 0)
+
+
+def output_gone(path: str | os.PathLike, identity: tuple[int, int]) -> str | None:
+    """Why an output file open with ``identity`` (``st_dev``, ``st_ino``) is no longer at ``path``, in a few words
+    (``"was deleted"``, ``"was deleted with its folder"``, ``"was replaced by another file"``), or ``None``."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "was deleted" if path.parent.is_dir() else "was deleted with its folder"
+    except OSError as exc:
+        return f"cannot be reached ({exc.strerror or exc})"
+    return None if _identity(st) == identity else "was replaced by another file"
 
 
 def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:

@@ -1,10 +1,22 @@
-"""Serial ports: listing (``steval ports``)."""
+"""Serial ports: listing (``steval ports``) and the other programs that have a port open (:func:`port_holders`).
+
+A program that reads the port without taking its lock (``cat``, a serial monitor left open) takes bytes from our
+stream. The OS's own view finds it: Linux's ``/proc/PID/fd`` links, ``lsof`` elsewhere (macOS, BSD); Windows opens a
+port exclusively, so there is nothing to find there.
+"""
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
 from dataclasses import asdict, dataclass
 
-__all__ = ["PortInfo", "list_ports"]
+__all__ = ["PortInfo", "holders_sentence", "list_ports", "port_holders"]
+
+#: Longest wait for ``lsof``, s.
+LSOF_TIMEOUT_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,3 +44,75 @@ def list_ports() -> list[PortInfo]:
         desc = p.description if p.description and p.description != "n/a" else ""
         out.append(PortInfo(p.device, desc, vid_pid, p.serial_number, p.manufacturer, p.hwid or ""))
     return sorted(out, key=lambda x: x.device)
+
+
+def port_holders(device: str) -> list[tuple[int, str]]:
+    """(PID, program name) of every other process that has ``device`` open, sorted by PID ([] when none is found or
+    the OS cannot tell)."""
+    real = os.path.realpath(device)
+    if sys.platform.startswith("linux") and os.path.isdir("/proc/self/fd"):
+        found = _proc_holders(real)
+    elif sys.platform == "win32":  # a port is opened exclusively there
+        found = []
+    else:
+        found = _lsof_holders(real)
+    me = os.getpid()
+    return sorted((pid, name) for pid, name in found if pid != me)
+
+
+def _proc_holders(real: str) -> list[tuple[int, str]]:
+    out = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        fd_dir = f"/proc/{entry.name}/fd"
+        try:
+            fds = os.listdir(fd_dir)
+        except OSError:  # gone, or another user's process
+            continue
+        for fd in fds:
+            try:
+                target = os.readlink(f"{fd_dir}/{fd}")
+            except OSError:
+                continue
+            if target == real:
+                out.append((int(entry.name), _proc_name(entry.name)))
+                break
+    return out
+
+
+def _proc_name(pid: str) -> str:
+    try:
+        with open(f"/proc/{pid}/comm") as f:
+            return f.read().strip() or "?"
+    except OSError:
+        return "?"
+
+
+def _lsof_holders(real: str) -> list[tuple[int, str]]:
+    lsof = shutil.which("lsof")
+    if lsof is None:
+        return []
+    try:
+        done = subprocess.run([lsof, "-F", "pc", real], capture_output=True, text=True, timeout=LSOF_TIMEOUT_S)
+    except (OSError, subprocess.SubprocessError):
+        return []
+    out, pid = [], None
+    for line in done.stdout.splitlines():
+        if line.startswith("p") and line[1:].isdigit():
+            pid = int(line[1:])
+        elif line.startswith("c") and pid is not None:
+            out.append((pid, line[1:] or "?"))
+            pid = None
+    return out
+
+
+def holders_sentence(device: str, holders: list[tuple[int, str]]) -> str:
+    """The sentence for other programs that have the port open: "another program (PID 1234, cat) has /dev/ttyUSB0
+    open: it takes bytes from this stream"."""
+    who = ", ".join(f"PID {pid}, {name}" for pid, name in holders)
+    many = len(holders) > 1
+    return (
+        f"{'other programs' if many else 'another program'} ({who}) {'have' if many else 'has'} {device} open: "
+        f"{'they take' if many else 'it takes'} bytes from this stream (close {'them' if many else 'it'})"
+    )

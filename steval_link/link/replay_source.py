@@ -10,7 +10,8 @@ text-mode log has none, so its bytes come out at the firmware time of its frames
 (10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
 silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
 URL plays X times faster; a text log whose records carry no time comes at the baud rate, or ``?rate=N`` records
-a second. Commands go nowhere: :meth:`ReplayPort.write` raises.
+a second; ``?loop=1`` starts again at the end (a soak, a class demo: stop it with ``--duration`` or Ctrl-C).
+Commands go nowhere: :meth:`ReplayPort.write` raises.
 """
 
 from __future__ import annotations
@@ -54,11 +55,19 @@ def is_replay_url(port: str) -> bool:
 
 @dataclass(frozen=True)
 class ReplayUrl:
-    """``replay://PATH[?speed=X]``: the file to replay and how many times faster than recorded (1: as recorded)."""
+    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file to replay, how many times faster than recorded (1: as
+    recorded), the records per second of a text log without times, and whether it starts again at its end
+    (``loop``: for soaks and class demos, with ``--duration``)."""
 
     path: Path
     speed: float = 1.0
     rate: float | None = None  #: records per second of a text log without times (``?rate=N``)
+    loop: bool = False
+
+
+#: the options a replay URL takes, in the order its errors name them
+OPTIONS = ("speed", "rate", "loop")
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
 def parse_replay_url(url: str) -> ReplayUrl:
@@ -70,24 +79,30 @@ def parse_replay_url(url: str) -> ReplayUrl:
     path_text, _, query = rest.partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
-    speed, rate = 1.0, None
+    speed, rate, loop = 1.0, None, False
     try:
         params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
         raise UserError(f"{url}: cannot read the options after '?' (replay://FILE?speed=5)") from None
     for key, values in params.items():
+        if key not in OPTIONS:
+            raise UserError(f"{url}: unknown replay option {key!r} (known: {', '.join(OPTIONS)}, e.g. ?speed=5)")
+        if key == "loop":
+            word = values[-1].strip().lower()
+            if word not in _TRUE + _FALSE:
+                raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
+            loop = word in _TRUE
+            continue
         if key == "rate":  # a text log without times: its records per second
             rate = _positive(url, key, values[-1])
             continue
-        if key != "speed":
-            raise UserError(f"{url}: unknown replay option {key!r} (known: speed, rate, e.g. ?speed=5)")
         try:
             speed = float(values[-1])
         except ValueError:
             speed = math.nan
         if not (math.isfinite(speed) and speed > 0):
             raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
-    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate)
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate, loop)
 
 
 def _positive(url: str, key: str, text: str) -> float:
@@ -161,6 +176,7 @@ class ReplayPort:
         paced_by: str = "",
         clock: Callable[[], float] = time.monotonic,
         emulated: bool = False,
+        loop: bool = False,
     ) -> None:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
@@ -169,6 +185,9 @@ class ReplayPort:
         self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
         self.emulated = emulated  #: the file came from an emulator (its cycle counts are instructions)
         self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
+        #: start again after the last byte, one AHRS period later; ``loops``: how many times it did
+        self.loop, self.loops, self._t_loop = bool(loop) and len(self.data) > 0, 0, 0.0
+        self._period_s = (float(self.t_s[-1]) if len(self.t_s) else 0.0) + C.AHRS_PERIOD_S / speed
         self._cancel = threading.Event()
         self.is_open = True
 
@@ -182,7 +201,9 @@ class ReplayPort:
 
     def _released(self) -> tuple[int, float]:
         """(bytes out by now, seconds until the next bytes come out, ``inf`` after the last)."""
-        el = self._elapsed_s()
+        if self.loop and self._pos >= len(self.data):  # every byte read: the next round starts one period on
+            self._pos, self._t_loop, self.loops = 0, self._t_loop + self._period_s, self.loops + 1
+        el = self._elapsed_s() - self._t_loop
         i = int(np.searchsorted(self.t_s, el, side="right"))
         out = int(self.ends[i - 1]) if i else 0
         wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
@@ -197,8 +218,8 @@ class ReplayPort:
 
     @property
     def at_end(self) -> bool:
-        """Every byte has been read."""
-        return self._pos >= len(self.data)
+        """Every byte has been read (never, looping)."""
+        return not self.loop and self._pos >= len(self.data)
 
     def read(self, size: int = 1) -> bytes:
         """Up to ``size`` bytes: waits until that many are out or :attr:`timeout` passed (or :meth:`cancel_read`)."""
@@ -232,7 +253,7 @@ class ReplayPort:
     def describe(self) -> str:
         """Where the bytes come from, in words (for the session's first note)."""
         pace = "the recorded pace" if self.speed == 1 else f"{self.speed:g}x the recorded pace"
-        return f"{self.path} replayed at {pace} ({self.paced_by})"
+        return f"{self.path} replayed at {pace} ({self.paced_by})" + (", in a loop" if self.loop else "")
 
 
 def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
@@ -260,4 +281,5 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         timeout=timeout,
         paced_by=how,
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
+        loop=parsed.loop,
     )

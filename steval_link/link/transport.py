@@ -57,11 +57,22 @@ class HostClock:
         return self.wall0_s + (time.monotonic() - self.mono0_s)
 
 
+class PortRejected(Exception):
+    """Raised by a :class:`Protocol` method: the port reopened after a loss is not the device (no valid frames);
+    the reader closes it, tells :meth:`Protocol.connection_lost` (with this exception) and looks again."""
+
+
 class Protocol:
     """What the reader thread calls; every method runs in the reader thread. Subclass and override.
 
-    Exceptions raised by a method stop the thread; they are kept in :attr:`SerialReader.error`.
+    Exceptions raised by a method stop the thread (kept in :attr:`SerialReader.error`), except
+    :class:`PortRejected`.
     """
+
+    def shared_access(self, exc: BaseException) -> bool:
+        """A read found bytes announced but taken (pyserial: "returned no data ... multiple access on port?"): True
+        when another program reading the port explains it (the port is kept), False for a lost port."""
+        return False
 
     def connection_made(self, port: str) -> None:
         """The port ``port`` was (re)opened and bytes may follow."""
@@ -198,12 +209,16 @@ class SerialReader(threading.Thread):
                 try:
                     data = self._read_chunk(self.serial)
                 except (serial.SerialException, OSError) as exc:
-                    self._drop(exc)
+                    if not (_taken_by_another(exc) and self.protocol.shared_access(exc)):
+                        self._drop(exc)
                     continue
                 t_unix_s = self.clock.now_s()
-                if data:
-                    self.protocol.data_received(data, t_unix_s)
-                self.protocol.idle(t_unix_s)
+                try:
+                    if data:
+                        self.protocol.data_received(data, t_unix_s)
+                    self.protocol.idle(t_unix_s)
+                except PortRejected as exc:
+                    self._drop(exc)
         except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
             self.error = exc
         finally:
@@ -233,12 +248,14 @@ class SerialReader(threading.Thread):
                     select.select([fd], [], [], CHUNK_GAP_S)  # returns at once when bytes come
                 except (OSError, ValueError):
                     time.sleep(CHUNK_GAP_S)
-            n = ser.in_waiting
-            if n == 0 or time.monotonic() >= t_end:
+            try:
+                n = ser.in_waiting
                 if n:
                     buf += ser.read(min(n, self.read_size - len(buf)))
+            except (serial.SerialException, OSError):  # the bytes so far are handed on; the next read fails again
                 break
-            buf += ser.read(min(n, self.read_size - len(buf)))
+            if n == 0 or time.monotonic() >= t_end:
+                break
         return bytes(buf)
 
     def _drop(self, exc: BaseException) -> None:
@@ -272,6 +289,11 @@ class SerialReader(threading.Thread):
             self.protocol.idle(self.clock.now_s())
             self._stop_event.wait(self.reconnect_poll_s)
         return False
+
+
+def _taken_by_another(exc: BaseException) -> bool:
+    """pyserial's error for a read woken by bytes another reader took first (also a USB unplug's first sign)."""
+    return "multiple access" in str(exc) or "returned no data" in str(exc)
 
 
 def _fileno(ser) -> int | None:

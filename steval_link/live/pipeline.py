@@ -57,10 +57,13 @@ VIEW_INTERVAL_S = 0.0
 
 
 #: ... and to an ``.rrd`` at most this often, or once this much stream time waits (with a live viewer too, the file
-#: has its own stream of the same recording, fed these merged batches). Rerun's file sink keeps about 1 kB per
-#: chunk for the file's footer (its manifest) until the file closes, and each batch is about one chunk per entity
-#: (~25): 30 s keeps an hour's growth near 3 MB (``benchmarks/bench_soak.py``).
-RRD_ONLY_INTERVAL_S = 30.0
+#: has its own stream of the same recording, fed these merged batches). The file is written as the data arrives
+#: (``steval_viewer.rrd_writer``: appended and synced within a second), so a ``kill -9`` loses at most about a
+#: second of it; each batch is about one chunk per entity (~25).
+RRD_ONLY_INTERVAL_S = 0.5
+#: An ``.rrd``'s batch holds at most this much stream time, s: a stream fed faster than real time (a replay at
+#: ``?speed=40``, catching up) makes few large chunks, not one small batch per processing round.
+RRD_BATCH_MAX_STREAM_S = 30.0
 
 
 class EventTime(NamedTuple):
@@ -136,10 +139,10 @@ class BatchOutlet:
     stream fed faster than real time, e.g. catching up or a benchmark, still makes chunks of the same size).
     """
 
-    def __init__(self, logger, interval_s: float) -> None:
+    def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
         self.logger = logger
         self.interval_s = interval_s
-        self.max_rows = max(1, math.ceil(interval_s * C.AHRS_RATE_HZ))
+        self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
         self._rows = 0
         self._events: list[tuple[str, object, EventTime]] = []  # ("status" | "text" | ..., frame, when)
@@ -217,7 +220,7 @@ class LivePipeline:
         self.view_interval_s = view_interval_s
         #: the loggers, each with its own cadence (the viewer first)
         self.outlets = [
-            BatchOutlet(logger, interval_s)
+            BatchOutlet(logger, interval_s, RRD_BATCH_MAX_STREAM_S if interval_s == RRD_ONLY_INTERVAL_S else None)
             for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
             if logger is not None
         ]

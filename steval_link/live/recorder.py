@@ -5,16 +5,29 @@ into a bounded :class:`Inbox` for the main thread (oldest chunks dropped from th
 from __future__ import annotations
 
 import collections
+import math
+import os
 import threading
 import time
 
 from steval_link.errors import UserError
-from steval_link.link import autodetect
+from steval_link.link import autodetect, ports
 from steval_link.link.capture import CaptureWriter
-from steval_link.link.transport import HostClock, Protocol
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import AttitudeFrame, StatusFrame
+from steval_link.link.transport import HostClock, PortRejected, Protocol
+from steval_link.live.health import _fmt_bytes
 
 #: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
 INBOX_MAX_BYTES = 4 * 1024 * 1024
+#: A port reopened after a loss that sends no valid frame for this long is not the drone, s ...
+PROBATION_S = 3.0
+#: ... and it is the drone once it sent this many valid attitude or status frames.
+PROBATION_FRAMES = 2
+#: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
+#: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
+HOLDERS_CHECK_S = 5.0
+SILENT_S = 1.0
 
 
 class Inbox:
@@ -55,6 +68,13 @@ class RecorderProtocol(Protocol):
     The capture writer hands each chunk to the OS at once (a ``kill -9`` loses nothing written) and syncs it to
     disk in its own thread. Connection events are written into the capture (``disconnect`` / ``reconnect`` mark
     the gap) and kept as plain attributes and messages that the main thread reads.
+
+    A port reopened after a loss is on probation: the capture marks ``reconnect`` (its bytes follow), but the
+    session counts it as back only once it sent valid frames (a small decoder here reads them); one that sends
+    none for :data:`PROBATION_S` is not the drone: it is rejected (:class:`~steval_link.link.transport.
+    PortRejected`; the capture marks ``rejected``), said once, and the search goes on. Another program that
+    reads the port (bytes announced but taken) is named once (:func:`~steval_link.link.ports.port_holders`) and the
+    port is kept.
     """
 
     def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock: HostClock) -> None:
@@ -64,10 +84,20 @@ class RecorderProtocol(Protocol):
         self.connections = self.disconnects = 0
         self.lost_at_s: float | None = None  # monotonic time of the last disconnect
         self.offline_s = 0.0
+        #: (host s lost, host s back or None): the times without the drone, on the clock of the chunks' times
+        self.offline: list[tuple[float, float | None]] = []
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self.bytes_total = 0
         self.connect_bytes = 0  # bytes since the current connection was made
         self.connected_at_s: float | None = None  # monotonic
+        self.probing: str | None = None  # the port reopened after a loss, until it sends valid frames
+        self._probe: StreamDecoder | None = None
+        self._probe_frames = 0
+        self.rejected = 0  # candidates that sent no valid frames
+        self._holders_said: set[int] = set()
+        self._holders: list[tuple[int, str]] = []
+        self._last_data_s = -math.inf  # monotonic time of the last chunk
+        self._holders_checked_s = -math.inf
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
@@ -76,32 +106,101 @@ class RecorderProtocol(Protocol):
     def connection_made(self, port: str) -> None:
         now = time.monotonic()
         self.connections += 1
-        if self.connections > 1:
-            gap = now - (self.lost_at_s or now)
-            self.offline_s += gap
-            self.capture.mark_event("reconnect", f"{port} back after {gap:.2f} s", self._t_capture())
-            self.events.append(f"reconnected on {port} after {gap:.1f} s")
         self.port = port
         self.connect_bytes = 0
         self.connected_at_s = now
+        if self.connections > 1:  # back after a loss: the drone only once it sends valid frames
+            self.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
+            self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
+            self.capture.mark_event(
+                "reconnect", f"{port} opened again after {now - (self.lost_at_s or now):.2f} s", self._probe_at
+            )
+            return
         self.connected = True
+        self._say_holders(port)
+
+    def _confirm(self) -> None:
+        """The port reopened sent valid frames: the drone is back."""
+        back = self.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
+        gap = max(0.0, back - (self.lost_at_s or back))
+        self.offline_s += gap
+        if self.offline and self.offline[-1][1] is None:
+            self.offline[-1] = (self.offline[-1][0], self._probe_at + self.clock.wall0_s)
+        port, self.probing, self._probe = self.probing, None, None
+        self.events.append(f"reconnected on {port} after {gap:.1f} s")
+        self.connected = True
+        self._say_holders(port)
 
     def data_received(self, data: bytes, t_unix_s: float) -> None:
         self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
         self.bytes_total += len(data)
         self.connect_bytes += len(data)
         self.inbox.put(data, t_unix_s)
+        self._last_data_s = time.monotonic()
+        if self._probe is not None:
+            self._probe_frames += sum(1 for f in self._probe.feed(data) if isinstance(f, (AttitudeFrame, StatusFrame)))
+            if self._probe_frames >= PROBATION_FRAMES:
+                self._confirm()
+
+    def idle(self, t_unix_s: float) -> None:
+        now = time.monotonic()
+        if self.probing is not None and now - (self.connected_at_s or 0.0) >= PROBATION_S:
+            raise PortRejected(f"{self.probing} sent no valid frames in {PROBATION_S:.0f} s")
+        if self.connected and now - max(self._last_data_s, self.connected_at_s or now) >= SILENT_S:
+            self._say_holders(self.port)  # silent: another reader may take every byte (at most every few s)
+
+    def shared_access(self, exc: BaseException) -> bool:
+        if self.port is None or not os.path.exists(self.port):
+            return False  # the node is gone: an unplug
+        holders = self._say_holders(self.port, force=True)
+        return bool(holders)
+
+    def _say_holders(self, port: str, *, force: bool = False) -> list[tuple[int, str]]:
+        """Name the other programs that have ``port`` open, once each (looked up at most every few seconds)."""
+        now = time.monotonic()
+        if not force and now - self._holders_checked_s < HOLDERS_CHECK_S:
+            return []
+        if force and now - self._holders_checked_s < 1.0:
+            return self._holders
+        self._holders_checked_s = now
+        self._holders = ports.port_holders(port)
+        new = [h for h in self._holders if h[0] not in self._holders_said]
+        if new:
+            self._holders_said.update(pid for pid, _ in new)
+            sentence = ports.holders_sentence(port, new)
+            self.capture.mark_event("shared", sentence, self._t_capture())
+            self.events.append(sentence)
+        return self._holders
 
     def connection_lost(self, exc: BaseException | None) -> None:
-        self.connected = False
+        was_probing, self.connected = self.probing, False
+        self.probing, self._probe = None, None
         if exc is None:  # closed by stop()
+            return
+        if isinstance(exc, PortRejected):  # not the drone: keep looking (still the same disconnect)
+            self.rejected += 1
+            if self.finder is not None:
+                self.finder.reject(was_probing)
+            self.capture.mark_event("rejected", str(exc), self._t_capture())
+            self.events.append(f"{was_probing} answers but sends no valid frames: not the drone; still looking")
+            return
+        if was_probing is not None:  # lost again before it sent a frame: the same disconnect goes on
             return
         self.disconnects += 1
         self.lost_at_s = time.monotonic()
+        self.offline.append((self.clock.now_s(), None))
         if self.finder is not None:
             self.finder.mark_lost()
         self.capture.mark_event("disconnect", f"{self.port}: {exc}", self._t_capture())
         self.events.append(f"disconnected from {self.port}, waiting for it to come back")
+
+    def offline_within(self, t0_s: float, t1_s: float, now_s: float) -> float:
+        """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (a loss not over yet lasts to
+        ``now_s``)."""
+        total = 0.0
+        for lost, back in self.offline:
+            total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
+        return total
 
 
 def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
@@ -112,3 +211,11 @@ def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool
         raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
     except OSError as exc:
         raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+
+
+def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
+    """The one sentence for a capture that can take no more (disk full, deleted, replaced), naming what it holds."""
+    amount = _fmt_bytes(capture.bytes_written)
+    if "cannot be written" in str(failure) and capture.path.exists():
+        return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
+    return f"the capture {failure}; stopped: the {amount} received until then went with it"

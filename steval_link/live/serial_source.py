@@ -130,6 +130,8 @@ class SerialSource(Source):
             live_dropped_bytes=self.inbox.dropped_bytes,
             reopen_error=reader.reopen_error if reader is not None else None,
             wait=self.wait,
+            probing=proto.probing,
+            offline=list(proto.offline),
         )
 
     def open(self, note=print) -> None:
@@ -225,6 +227,8 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     if not status.connected:
         lost = now_mono_s - (status.lost_at_s or now_mono_s)
         head = f"disconnected, waiting for {status.port} ({lost:.0f} s)"
+        if status.probing is not None:
+            head = f"disconnected ({lost:.0f} s); trying {status.probing}: no valid frames yet"
         if status.reopen_error is not None:  # it is back but cannot be opened: say why (busy, permissions)
             head += f"; {open_error_message(status.reopen_error[0], status.reopen_error[1])}"
     elif s.attitude + s.status == 0:
@@ -241,12 +245,15 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     )
 
 
-def serial_summary(status: LinkStatus, pipe) -> dict[str, Any]:
-    """The summary fields of a serial port or a replay."""
+def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
+    """The summary fields of a serial port or a replay (``now_s``: the host's Unix time; a loss not over yet lasts
+    until then)."""
     h = pipe.health if pipe is not None else LinkHealth()
     streaming_s = 0.0
-    if h.first_frame_s is not None and h.last_frame_s is not None:
-        streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - status.offline_s)
+    offline_s = _offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured
+    if h.first_frame_s is not None and h.last_frame_s is not None:  # the rate's time: connected, with frames
+        within = _offline_within(status.offline, h.first_frame_s, h.last_frame_s, now_s)
+        streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - within)
     p = pipe.mahony if pipe is not None else None
     filter_note = None
     if p is not None:
@@ -263,7 +270,17 @@ def serial_summary(status: LinkStatus, pipe) -> dict[str, Any]:
         "streaming_s": streaming_s,
         "bytes_total": status.bytes_total,
         "disconnects": status.disconnects,
-        "offline_s": status.offline_s,
+        "offline_s": offline_s,
+        "lost_for_good": bool(status.offline and status.offline[-1][1] is None),
         "live_dropped_bytes": status.live_dropped_bytes,
         "filter_note": filter_note,
     }
+
+
+def _offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
+    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
+    times; a loss not over yet lasts to ``now_s``)."""
+    total = 0.0
+    for lost, back in offline:
+        total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
+    return total

@@ -27,7 +27,7 @@ from steval_link.link.transport import HostClock
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, ble_health, ble_summary, emulated_health
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.recorder import open_capture
+from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
 from steval_link.live.summary import LiveSummary, pipeline_counts
@@ -132,6 +132,8 @@ class LiveSession:
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
         self._connected = True
         self._warned_no_frames = False
+        #: outputs that failed during the run (the ``.rrd``: disk full, deleted), one sentence each
+        self.output_failures: list[str] = []
 
     # -- control ----------------------------------------------------------------------------------------------
 
@@ -160,6 +162,7 @@ class LiveSession:
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
         error: BaseException | None = None
+        started = False
         old_handlers = install_stop_signals(self)
         stream = None
         try:
@@ -171,6 +174,7 @@ class LiveSession:
                 )
             self.pipeline = LivePipeline.for_session(self)
             self.console = self._console()
+            started = True
             self._loop(stream, t0)
         except KeyboardInterrupt:
             self.request_stop("interrupted")
@@ -184,11 +188,15 @@ class LiveSession:
                     self.console.close()
                 self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
                 restore_signals(old_handlers)
+                if error is not None and not started:  # a failed start leaves nothing half-made
+                    capture.discard()
         if error is not None:
             raise self._error_of(error)
+        self._watch_outputs()
         return LiveSummary(
             capture_path=capture.path,
-            rrd_path=opts.rrd,
+            rrd_path=opts.rrd if not self.output_failures else None,
+            failures=list(self.output_failures),
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
             capture_discarded=capture.discarded,
@@ -264,6 +272,7 @@ class LiveSession:
             self.source.write(console.channel.next_frame(command).frame, at_s=t_s)
         for chunks in stream:
             self._take(chunks)
+            self._watch_outputs()
             now = time.monotonic()
             self._check_link(now)
             line = self._health(now, t0)
@@ -308,7 +317,7 @@ class LiveSession:
             return ble_summary(status, pipe)
         if kind == "emulated":
             return {**pipeline_counts(pipe), "report": status.report, "filter_note": self._emulated_note()}
-        return serial_summary(status, pipe)
+        return serial_summary(status, pipe, self.clock.now_s())
 
     def _emulated_note(self) -> str | None:
         """The replica's verdict, the release whose filter it ran, and the steps the emulator read by symbol."""
@@ -343,10 +352,8 @@ class LiveSession:
         """The error raised: a capture that could not be written says where the bytes until then are; the
         emulated board's errors say that its capture holds everything until then."""
         path = self.capture.path
-        if isinstance(error, OSError) and not isinstance(error, UserError):
-            return UserError(
-                f"writing the capture failed ({error.strerror or error}); what was received until then is in {path}"
-            )
+        if isinstance(error, OSError) and not isinstance(error, UserError):  # disk full, deleted, replaced
+            return UserError(capture_failure_sentence(self.capture, error))
         if self.info.own_clock and isinstance(error, UserError):
             return UserError(f"{error} (the capture {path} holds everything until then)")
         return error
@@ -395,6 +402,17 @@ class LiveSession:
         t_unix_s = self.clock.now_s()
         self.capture.write_host(frame, t_unix_s - self.clock.wall0_s)  # the capture's time base, as D chunks
         self.pipeline.feed_host(frame, t_unix_s)
+
+    def _watch_outputs(self) -> None:
+        """A capture that can take no more stops the run (one sentence); an ``.rrd`` that failed is said once and
+        the run goes on without it (``output_failures``: the summary leaves it out, the exit code is not 0)."""
+        failure = self.capture.check_present()
+        if failure is not None:
+            raise UserError(capture_failure_sentence(self.capture, failure))
+        said = getattr(self.viewer, "output_failure", None)
+        if said and said not in self.output_failures:
+            self.output_failures.append(said)
+            self.display.note(said)
 
 
 def _stdin_is_tty() -> bool:

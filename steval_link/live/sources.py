@@ -77,7 +77,9 @@ class LinkStatus:
     times of the last loss and connection, the seconds offline, the bytes of the current connection, bytes dropped
     from the live view, ``reopen_error`` ((path, exception): it is back but cannot be opened), ``t_link_s``
     (the link's own clock: emulated s), ``duration_s`` and ``report`` (emulated), ``wait`` (keep waiting for frames
-    instead of stopping), ``symbol_rows`` (emulated: AHRS steps whose attitude the emulator read by symbol)."""
+    instead of stopping), ``symbol_rows`` (emulated: AHRS steps whose attitude the emulator read by symbol),
+    ``probing`` (a port reopened after a loss, on probation until it sends valid frames), ``offline`` ((lost, back
+    or None) host Unix times of each loss)."""
 
     connected: bool = False
     port: str | None = None
@@ -95,6 +97,8 @@ class LinkStatus:
     report: Any = None
     wait: bool = False
     symbol_rows: int = 0
+    probing: str | None = None
+    offline: list = field(default_factory=list)
 
 
 class Source:

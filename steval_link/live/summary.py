@@ -48,6 +48,8 @@ class LiveSummary:
     rows_held: int = 0  # ble: estimator rows held over notifications sent and lost
     connections: int = 0
     cadence: Any = None  # ble: the motion cadence as the health line last said it
+    failures: list[str] = field(default_factory=list)  # outputs that failed during the run (left out of the list)
+    lost_for_good: bool = False  # the port was lost and did not come back before the end
 
     @property
     def losses(self) -> int:
@@ -91,7 +93,8 @@ class LiveSummary:
         if self.implausible:
             parts.append(self._held_back())
         if self.disconnects:
-            parts.append(f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s)")
+            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
+            parts.append(lost + ("; the port did not come back)" if self.lost_for_good else ")"))
         if self.live_dropped_bytes:
             parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
         if self.filter_note:

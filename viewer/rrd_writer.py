@@ -1,0 +1,190 @@
+"""An ``.rrd`` written by us as the data arrives (:class:`RrdWriter`): Rerun encodes, this module writes the file.
+
+Rerun's own file sink keeps its errors to itself (it prints coloured log lines, and the recording goes on as if the
+file were written) and keeps about 1 kB per chunk in memory for the file's footer until the file closes. Here the
+recording's sink is a Rerun binary stream (``RecordingStream.binary_stream``); a thread takes what it holds every
+:data:`WRITE_INTERVAL_S`, appends it to the file and ``fsync``\\s it every second, so that a ``kill -9`` loses at most
+the last second. Each read of a binary stream is a whole RRD (stream header, messages, end message and footer);
+the file gets one stream header and the messages only (:func:`rrd_messages`), no footer: Rerun reads such a file
+message by message from its start (its "legacy" layout), and a file cut after any write still opens. Nothing of the
+stream is kept here (memory stays flat however long the session).
+
+A write that fails (disk full, I/O error) and a file that vanishes (deleted, its folder removed, replaced) become
+one sentence in :attr:`RrdWriter.failure`; nothing more is written, the bytes Rerun still makes are read and
+dropped, and the run goes on with its other outputs.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+from pathlib import Path
+
+from steval_link.errors import UserError
+from steval_link.link.capture import output_gone
+
+__all__ = ["RrdWriter", "WRITE_INTERVAL_S", "rrd_messages"]
+
+#: How often the encoded bytes are appended to the file and synced to disk, s.
+WRITE_INTERVAL_S = 0.25
+#: How often the file is forced to disk, s (``fsync``).
+SYNC_INTERVAL_S = 1.0
+#: Longest wait for Rerun to encode what was logged, at each write, s (at the end: longer).
+FLUSH_TIMEOUT_S = 0.5
+#: An RRD stream starts with this magic and 8 more bytes (version, encoding options) ...
+STREAM_MAGIC = b"RRF2"
+STREAM_HEADER_BYTES = 12
+#: ... then messages, each (kind u64, length u64, payload); kind 0 ends the stream, followed by a 32-byte footer.
+_MESSAGE_HEAD = struct.Struct("<QQ")
+END_KIND, STORE_INFO_KIND = 0, 1
+FOOTER_BYTES = 32
+
+
+def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
+    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data`` (one or several in a row), the end
+    messages and footers left out. Raises ValueError on bytes that are not such streams."""
+    header, out, pos, n = b"", [], 0, len(data)
+    while pos < n:
+        if data[pos : pos + 4] != STREAM_MAGIC:
+            raise ValueError(f"no RRD stream header at byte {pos}")
+        header = header or bytes(data[pos : pos + STREAM_HEADER_BYTES])
+        pos += STREAM_HEADER_BYTES
+        while pos < n:
+            kind, length = _MESSAGE_HEAD.unpack_from(data, pos)
+            end = pos + _MESSAGE_HEAD.size + length
+            if end > n:
+                raise ValueError(f"an RRD message runs past the end ({end} > {n})")
+            if kind == END_KIND:
+                footer = data[end + 20 : end + 28] == b"RRF2FOOT"  # after (offset u64, length u64, crc u32)
+                pos = end + FOOTER_BYTES if footer else end
+                break
+            out.append((kind, bytes(data[pos:end])))
+            pos = end
+    return header, out
+
+
+class RrdWriter:
+    """Writes the stream ``rec`` to ``path`` (a new file: never overwritten) from now on, until :meth:`close`.
+
+    ``option``: the command-line option that named the file, for the sentences. Raises :class:`UserError` when the
+    file cannot be made or its first bytes cannot be written (nothing is left behind then).
+    """
+
+    def __init__(self, rec, path: str | os.PathLike, *, option: str = "--rrd", shown: str | None = None) -> None:
+        self.path = Path(path)
+        self.shown = shown or str(self.path)  # the name the user gave (a partial file is named by its final name)
+        self.option = option
+        self.failure: str | None = None
+        self.bytes_written = 0
+        try:
+            self._file = open(self.path, "xb", buffering=0)
+        except OSError as exc:
+            raise UserError(f"{option} {self.shown}: cannot write it ({_why(exc)})") from None
+        self._identity = _ident(os.fstat(self._file.fileno()))
+        self._lock = threading.Lock()
+        self._stream = rec.binary_stream()
+        self._header_done = False
+        self._store_infos: set[bytes] = set()
+        try:
+            self._write(self._stream.read(flush=True) or b"")
+            os.fsync(self._file.fileno())
+        except OSError as exc:  # a start on a full disk: nothing half-made is left
+            self._file.close()
+            self.path.unlink(missing_ok=True)
+            raise UserError(f"{option} {self.shown}: cannot write it ({_why(exc)})") from None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="rrd-writer", daemon=True)
+        self._thread.start()
+
+    def _write(self, segment: bytes) -> None:
+        """Append the messages of ``segment`` (whole RRD streams from the binary stream): the stream header once,
+        each store's info once, every other message as it is."""
+        if not segment:
+            return
+        header, messages = rrd_messages(segment)
+        parts = [] if self._header_done else [header]
+        for kind, message in messages:
+            if kind == STORE_INFO_KIND:
+                if message in self._store_infos:
+                    continue
+                self._store_infos.add(message)
+            parts.append(message)
+        self._write_bytes(b"".join(parts))
+        self._header_done = True
+
+    def _write_bytes(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            n = self._file.write(view)
+            view = view[n:]
+        self.bytes_written += len(data)
+
+    def _fail(self, why: str) -> None:
+        """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""
+        n = self.bytes_written
+        held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
+        self.failure = f"{self.option} {self.shown} {why}; nothing more is written to it (it held {held} then)"
+        try:  # a write cut by a full disk leaves part of a message: back to the last whole one, so the file opens
+            if output_gone(self.path, self._identity) is None:
+                os.ftruncate(self._file.fileno(), self.bytes_written)
+        except OSError:
+            pass
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+    def pump(self, *, flush: bool = False, sync: bool = False) -> None:
+        """Append what Rerun encoded since the last call (its pending rows first, waited for up to
+        :data:`FLUSH_TIMEOUT_S`; ``flush``: up to 30 s, at the end); ``sync``: then ``fsync``. After a failure the
+        bytes are read and dropped."""
+        with self._lock:
+            try:  # Rerun's pending rows into the stream first (bounded: a slow flush leaves them to the next pump)
+                data = self._stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S if not flush else 30.0) or b""
+            except RuntimeError:
+                data = self._stream.read(flush=False) or b""
+            if self.failure is not None or self._file.closed:
+                return
+            gone = output_gone(self.path, self._identity)
+            if gone is not None:
+                self._fail(gone)
+                return
+            try:
+                self._write(data)
+                if sync:
+                    os.fsync(self._file.fileno())
+            except OSError as exc:
+                self._fail(f"cannot be written ({_why(exc)})")
+
+    def _loop(self) -> None:
+        ticks = max(1, round(SYNC_INTERVAL_S / WRITE_INTERVAL_S))
+        k = 0
+        while not self._stop.wait(WRITE_INTERVAL_S):
+            k += 1
+            try:
+                self.pump(sync=k % ticks == 0)
+            except Exception as exc:  # noqa: BLE001 - Rerun's stream failed: one sentence, the run goes on
+                self.failure = self.failure or f"{self.option} {self.shown}: Rerun stopped encoding it ({exc})"
+
+    def close(self) -> None:
+        """Write the rest and close the file (idempotent); a failure is kept in :attr:`failure`."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join()
+        self.pump(flush=True, sync=True)
+        with self._lock:
+            if not self._file.closed:
+                try:
+                    self._file.close()
+                except OSError as exc:
+                    self._fail(f"cannot be written ({_why(exc)})")
+
+
+def _ident(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino
+
+
+def _why(exc: OSError) -> str:
+    return (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
