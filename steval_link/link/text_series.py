@@ -3,7 +3,8 @@
 * :func:`text_series`: the :class:`~steval_link.link.frames.TextRecordFrame` s of a stream as one array, a column
   per name (NaN where a record of another shape has no such name), with units and a time per record: a timestamp
   column (``t``, ``time``, ``t_ms``, ``millis``, ``micros``, Teleplot's ``NAME_t_ms``...), else the host's receive
-  times, else ST's main-loop rate for ST's own line (161.5 Hz), else the record index (1 s apart: say so).
+  times, else ST's main-loop rate for ST's own line and for printed angles (161.5 Hz, one record per AHRS step:
+  exercise 2 prints after each update), else the record index (1 s apart: say so).
 * :func:`map_attitude`: which series are the firmware's attitude and inputs: ST's 221117 line (``thx``/``thy`` in
   degrees, ``gTHR``), names (pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit) or a user's mapping
   (``pitch=col2:deg``, :func:`parse_map`); angles in rad, acc in mg, gyro in mdps; one note per mapped name.
@@ -186,6 +187,10 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
     return series
 
 
+#: words in a series name that make it an angle the firmware prints after each AHRS step
+_ATTITUDE_WORDS = ("pitch", "roll", "yaw", "thx", "thy", "thz")
+
+
 def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
     """Each record's time in s and where it comes from (see the module docstring)."""
     n = len(s.kind)
@@ -203,6 +208,11 @@ def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
         return s.t_host_s.copy(), "host receive times"
     if n and (s.kind == "st-221117").all():
         return np.arange(n) * C.AHRS_PERIOD_S, f"ST's main-loop rate ({C.AHRS_RATE_HZ:g} Hz, one line a pass)"
+    if n and any(w in name.lower() for name in s.names for w in _ATTITUDE_WORDS):  # exercise 2's print
+        return np.arange(n) * C.AHRS_PERIOD_S, (
+            f"one record per AHRS step ({C.AHRS_RATE_HZ:g} Hz), assumed: angles printed after each update, "
+            "no times in the log"
+        )
     return np.arange(n, dtype=np.float64), "the record index (no times in the log: 1 s apart)"
 
 
