@@ -12,6 +12,7 @@ Usage (Linux, with Xvfb, mesa-vulkan-drivers and chromium; the project's venv ac
     python docs/make_screenshot.py            # everything
     python docs/make_screenshot.py figures    # only the figures (no display needed)
     python docs/make_screenshot.py viewer     # only the viewer's tabs
+    python docs/make_screenshot.py viewer DIR # the viewer's tabs into DIR (docs/ untouched: a test's check)
 
 Prints each PNG it wrote and its size.
 """
@@ -116,8 +117,9 @@ def _set_tabs(client, right: str, left: str) -> None:
     client.set_blueprint(d, store_id=bp.store_id)
 
 
-def make_viewer_shots() -> None:
-    """The default viewer on demo.stv, one screenshot per tab (:data:`VIEWER_SHOTS`), and docs/screenshot.png."""
+def make_viewer_shots(images: Path = IMAGES) -> None:
+    """The default viewer on demo.stv, one screenshot per tab (:data:`VIEWER_SHOTS`) into ``images``, and (into
+    docs/images) docs/screenshot.png."""
     sys.path.insert(0, str(ROOT / "tests"))  # the display helpers the viewer tests use
     from rerun.experimental import ViewerClient
     from support.xdisplay import (
@@ -147,21 +149,25 @@ def make_viewer_shots() -> None:
         for name, (right, left) in VIEWER_SHOTS.items():
             _set_tabs(client, right, left)
             time.sleep(2.0)
-            out = IMAGES / name
+            out = images / name
             out.write_bytes(client.take_screenshot())
             _written(out)
-        shutil.copyfile(IMAGES / "viewer-attitude.png", ROOT / "docs" / "screenshot.png")
-        _written(ROOT / "docs" / "screenshot.png")
+        if images == IMAGES:
+            shutil.copyfile(IMAGES / "viewer-attitude.png", ROOT / "docs" / "screenshot.png")
+            _written(ROOT / "docs" / "screenshot.png")
     finally:
         kill_processes(rerun_processes(port))
         display.close()
         state.cleanup()
 
 
-def main(what: str) -> None:
+def main(what: str, out: str | None = None) -> None:
     IMAGES.mkdir(parents=True, exist_ok=True)
-    if what not in ("all", "figures", "viewer"):
-        sys.exit("usage: python docs/make_screenshot.py [all|figures|viewer]")
+    if what not in ("all", "figures", "viewer") or (out is not None and what != "viewer"):
+        sys.exit("usage: python docs/make_screenshot.py [all|figures|viewer [DIR]]")
+    if out is not None:
+        make_viewer_shots(Path(out))
+        return
     if what in ("all", "figures"):
         with tempfile.TemporaryDirectory(prefix="steval-figures-") as tmp:
             make_figures(Path(tmp))
@@ -170,4 +176,4 @@ def main(what: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "all")
+    main(sys.argv[1] if len(sys.argv) > 1 else "all", sys.argv[2] if len(sys.argv) > 2 else None)

@@ -322,26 +322,28 @@ def test_a_sink_that_cannot_create_its_file_is_one_sentence():
 
 @pytest.mark.slow
 def test_the_readme_screenshot_is_made_by_its_script(tmp_path):
-    """docs/make_screenshot.py: today's viewer on a virtual display, the viewer's own screenshot."""
+    """docs/make_screenshot.py: today's viewer on a virtual display, the viewer's own screenshot of each tab."""
     import subprocess
 
     from support.xdisplay import require_display_tools
 
     require_display_tools()
     root = Path(__file__).resolve().parents[1]
-    out = tmp_path / "shot.png"
     r = subprocess.run(
-        [sys.executable, str(root / "docs" / "make_screenshot.py"), str(out)],
-        cwd=tmp_path,
+        [sys.executable, str(root / "docs" / "make_screenshot.py"), "viewer", str(tmp_path)],
+        cwd=root,
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert r.returncode == 0, r.stdout + r.stderr
-    png = out.read_bytes()
-    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 100_000  # a rendered window, not a blank one
-    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
-    assert (width, height) == (1600, 1000)
+    shots = sorted(tmp_path.glob("viewer-*.png"))
+    assert len(shots) >= 3
+    for out in shots:
+        png = out.read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 100_000  # a rendered window, not a blank one
+        width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+        assert (width, height) == (1600, 1000)
 
 
 @pytest.mark.parametrize("command", ["compare", "spectrum", "preflight"])

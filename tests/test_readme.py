@@ -116,7 +116,7 @@ def _shown_outputs() -> list:
     cases = []
     for page in sorted((ROOT / "docs").rglob("*.md")):
         text = page.read_text(encoding="utf-8")
-        for m in re.finditer(r"```sh\n(.*?)```\s*\n+prints:?\n+```text\n(.*?)```", text, re.S):
+        for m in re.finditer(r"```sh\n([^`]*?)```\s*\n+prints:?\n+```text\n(.*?)```", text, re.S):
             commands = [ln for ln in m.group(1).strip().splitlines() if ln.strip()]
             if not all(ln.startswith("steval ") for ln in commands):
                 continue

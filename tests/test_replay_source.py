@@ -108,8 +108,9 @@ def test_live_session_on_a_replay_records_the_recorded_rate_and_the_same_frames(
     out = tmp_path / "x.stv"
     opts = LiveOptions(out=out, estimators=["st-mahony"], duration_s=2.0, prompt=False)
     summary = LiveSession(opts, source_for(f"replay://{DEMO}"), stream=open(tmp_path / "err.txt", "w")).run()
-    expect = 2.0 * C.AHRS_RATE_HZ  # 323 frames
-    assert abs(summary.attitude - expect) <= 0.04 * expect, summary.line()
+    # at the recorded rate; how many frames 2 s of wall time hold depends on the machine's load
+    assert summary.attitude >= 1.5 * C.AHRS_RATE_HZ, summary.line()
+    assert summary.attitude / summary.streaming_s == pytest.approx(C.AHRS_RATE_HZ, rel=0.04), summary.line()
     assert summary.frames_missing == 0 and summary.crc_failures == 0
     assert "ST port bit-exact" in summary.line() and str(out) in summary.line()
     cap = read_capture(out)

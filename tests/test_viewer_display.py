@@ -206,15 +206,13 @@ def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
         assert "Traceback" not in done.stderr and "BLE capture" in done.stdout
         end_ns = int(520 * 1e9)  # the drone's clock (ticks since HAL_GetTick's start at 494.288 s) reaches ~534 s
         rec = viewer_recording(_url(port), timeline="fw_time", end=end_ns)
-        assert {
-            "/ble/acc_mg",
-            "/ble/battery_pct",
-            "/ble/pressure_hpa",
-            "/ble/rssi_dbm",
-            "/ble/armed",
-            "/world/drone/ble",
-            "/world/drone/ble/model",
-            "/ble/note",
+        assert {  # the one live logger: the rows' plots, the BLE link's own values, the estimates
+            "/" + ent.PLOT_ACC,
+            "/" + ent.BLE_BATTERY,
+            "/" + ent.BLE_PRESSURE,
+            "/" + ent.BLE_RSSI,
+            "/" + ent.BLE_ARMED,
+            "/" + ent.BLE_NOTE,
             "/" + ent.pitch_path("st_mahony"),
         } <= rec.entities
         png = screenshot(_url(port), tmp_path / "ble.png")

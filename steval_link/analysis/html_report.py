@@ -113,7 +113,7 @@ def _settings_table(report: ComparisonReport) -> Table | None:
         ("dt_s", "dt, s"),
         ("min_thr", "min_thr (gTHR)"),
         ("correction", "accelerometer correction"),
-        ("fresh_squares", "normalisation with fresh squares (2017 releases)"),
+        ("variant", "the ST release whose filter it runs"),
     ):
         if key not in fs:
             continue

@@ -268,7 +268,7 @@ def simulate_command(
         "--compare-with",
         metavar="NAME=VALUE,...",
         help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
-        "(repeatable): ki, kp, dt, throttle, correction=on|off, fresh-squares=on|off, estimator; e.g. "
+        "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. "
         "--compare-with ki=1 --compare-with correction=off.",
     ),
     force: ForceOption = False,
@@ -376,7 +376,7 @@ _COMPARE_NAMES = {
     "kp": ("kp", float),
     "dt": ("dt_s", float),
     "correction": ("correction", bool),
-    "fresh-squares": ("fresh_squares", bool),
+    "variant": ("variant", str),
     "throttle": ("throttle", int),
     "estimator": ("estimator", str),
 }
@@ -417,6 +417,8 @@ def _compare_runs(specs: list[str], res: SimulationResult, gyro, acc, options: d
             if key == "throttle":
                 check_throttle("--compare-with throttle", v)
                 thr = v
+            elif key == "variant":
+                opts[key] = check_variant(v)
             elif key == "estimator":
                 if not registry.is_known(v):
                     raise UserError(f"--compare-with estimator={v}: unknown estimator")

@@ -41,7 +41,7 @@ class SimulationResult:
 
     Attributes:
         estimator: registry name of the estimator used.
-        options: the estimator options passed to :func:`steval_link.estimators.registry.create`.
+        options: the estimator options the user gave (the timing the simulation passes is in ``estimator_dt_s``).
         dt_s: the simulation's period, s (``t_s = (step + 1) * dt_s`` after each iteration).
         estimator_dt_s: the period the estimator integrates with, s: ``dt_s`` when it takes the simulation's
             (``dt_s`` for st-mahony, ``rate_hz`` for the others); its own when it takes neither; None when it does
@@ -141,7 +141,8 @@ def run_simulation(
     dt = C.DT_S if dt_s is None else float(dt_s)
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt_s must be a period > 0 s, got {dt_s}")
-    options = dict(estimator_options or {})
+    given = dict(estimator_options or {})  # the user's options: the run's label
+    options = dict(given)
     own = {} if estimator in registry.ESTIMATORS else dict(registry.resolve(estimator).reference.options)
     options.update({k: v for k, v in _timing(estimator, dt).items() if k not in options and k not in own})
     est = registry.create(estimator, **options)
@@ -171,7 +172,7 @@ def run_simulation(
         est_dt = _own_dt(est, {**own, **options})
     return SimulationResult(
         estimator=estimator,
-        options=options,
+        options=given,
         dt_s=dt,
         estimator_dt_s=est_dt,
         seed=seed if noisy else None,

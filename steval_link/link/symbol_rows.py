@@ -66,13 +66,19 @@ def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
     frames = np.flatnonzero(np.asarray(a.exact, bool))
     common, fi, ri = np.intersect1d(np.asarray(a.step)[frames], read.step, return_indices=True)
     fi = frames[fi]
+    tel.source["attitude_from"] = "frames"
+    if common.size == 0:  # text-mode frames (rounded) or no step in common: nothing to compare bit for bit
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude of {len(read)} AHRS steps by symbol (chunks S); no binary frame "
+            "shares a step with them, so they are not compared bit for bit"
+        )
+        return tel
     fields = ("acc_mg", "gyro_mdps", "q_wxyz", "thx_rad", "thy_rad")
     same = np.ones(common.size, dtype=bool)
     for name in fields:
         x, y = _bits(getattr(a, name)[fi]), _bits(getattr(read, name)[ri])
         same &= (x == y).reshape(common.size, -1).all(axis=1)
     same &= np.asarray(a.thr)[fi] == read.thr[ri]
-    tel.source["attitude_from"] = "frames"
     if same.all():
         tel.source["symbols"] = (
             f"the emulator also read the attitude by symbol: the frames agree with it bit for bit on all "
