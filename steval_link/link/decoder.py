@@ -154,6 +154,7 @@ class StreamDecoder:
         self.gate = PlausibilityGate() if plausibility else None
         self._ended_nl = False  # the bytes decoded so far end with "\n"
         self._damaged = False  # bytes were skipped since the text reader last heard
+        self._skipping = False  # a skip reached the end of the bytes fed: it goes on to the next possible start
         self.text_reader = TextTelemetryReader()  # plain lines → records of text telemetry and text lines
 
     @property
@@ -190,6 +191,7 @@ class StreamDecoder:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
         self._boundary = line_start
+        self._skipping = self._skipping and not line_start
 
     def text_template(self):
         """The text reader's template for lines that would be records now (see
@@ -223,11 +225,23 @@ class StreamDecoder:
         m = _NEXT_START.search(buf, p + 1)
         if m is None:
             q = n
+            self._skipping = True  # the next bytes fed go on with this skip (as if they had come with these)
         else:
             q = m.start() + (buf[m.start()] == 0x0A)
         self.stats.bytes_skipped += q - p
         self._boundary = False
         self._damaged = True
+        return q
+
+    def _go_on_skipping(self, buf: bytearray, p: int, n: int) -> int:
+        """A skip cut by the end of the bytes fed before: on to the next byte that could start something."""
+        m = _NEXT_START.search(buf, p)
+        if m is None:
+            q = n
+        else:
+            q = m.start() + (buf[m.start()] == 0x0A)
+            self._skipping = False
+        self.stats.bytes_skipped += q - p
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -237,6 +251,9 @@ class StreamDecoder:
         out: list[Frame] = []
         stats = self.stats
         while p < n:
+            if self._skipping:
+                p = self._go_on_skipping(buf, p, n)
+                continue
             c = buf[p]
             if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
                 stats.blank_bytes += 1
