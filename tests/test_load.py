@@ -51,14 +51,17 @@ def _digest(path: Path) -> str:
     for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
-    # counters added after the digests were taken (text telemetry) enter only when they are not 0
-    stats = {k: v for k, v in tel.stats.as_dict().items() if v or k not in ("text_records", "text_dropped")}
+    # counters added after the digests were taken (text telemetry, blank lines) enter only when they are not 0
+    late = ("text_records", "text_dropped", "blank_bytes")
+    stats = {k: v for k, v in tel.stats.as_dict().items() if v or k not in late}
     rest = (tel.text, sorted(stats.items()), tel.events, tel.source)
     h.update(repr(rest).replace(str(path), "<path>").encode())
     return h.hexdigest()[:16]
 
 
 #: ``_digest`` of the loader of 158eea4 (capture → decoder → telemetry → decoder → telemetry → capture → decoder).
+#: Re-recorded since: textmode.log's four, when a log file's first line became kept when whole (its banner's first
+#: line "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017" is now a text line, not 39 bytes skipped; nothing else changed).
 EXPECTED = {
     ("ble_demo.stv", None): "error:e70f8753222ddf9f",
     ("ble_demo.stv", 0): "error:6c87c474a4d80704",
@@ -96,10 +99,10 @@ EXPECTED = {
     ("preflight_swapped_motors.stv", 0): "8db7ee6251f2bed4",
     ("preflight_swapped_motors.stv", 1): "a212e08cc809df61",
     ("preflight_swapped_motors.stv", 2): "4e7cc04afdd28cc6",
-    ("textmode.log", None): "a66466b30d772ec5",
-    ("textmode.log", 0): "33628f4af2051ea7",
-    ("textmode.log", 1): "14ee8e056c59a397",
-    ("textmode.log", 2): "20d8bd32c068ab37",
+    ("textmode.log", None): "835ebf64b7d716fa",
+    ("textmode.log", 0): "a86a3a5dd75be94a",
+    ("textmode.log", 1): "5e665b60658b5656",
+    ("textmode.log", 2): "ba3391a702dae983",
     ("demo.bin", None): "f3682314c5fccc33",
     ("demo.bin", 0): "0aed68c79b0e5542",
     ("demo.bin", 1): "7123f173bf819936",

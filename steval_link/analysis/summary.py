@@ -199,6 +199,7 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
         },
         "crc_failures": st.crc_failures,
         "bytes_skipped": st.bytes_skipped,
+        "blank_bytes": st.blank_bytes,  # blank lines and the "\r" of "\n\r" endings: text, not damage
         "text_dropped": st.text_dropped,  # printable lines that did not read as text (random bytes), not kept
         "bytes_total": st.bytes_total,
         "unknown_frames": st.unknown_frames,

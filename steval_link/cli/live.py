@@ -14,6 +14,8 @@ from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import check_output
+from steval_link.cli.replay import MapOption
+from steval_link.cli.replay import _text_map as read_map_option
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
     ConnectOption,
@@ -135,6 +137,7 @@ def live_command(
     ),
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
     variant: VariantOption = None,
+    text_map: MapOption = None,
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -147,6 +150,7 @@ def live_command(
     check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
     check_duration(duration)
     variant = check_variant(variant)
+    user_map = read_map_option(text_map)
     if device is not None and not ble:
         raise UserError(
             f"{device!r}: a device name or address goes with --ble (steval live --ble {device}); a serial "
@@ -168,6 +172,7 @@ def live_command(
         duration_s=duration,
         prompt=prompt,
         variant=variant,
+        text_map=user_map,
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, sinks, view=not no_view)

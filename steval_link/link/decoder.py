@@ -17,10 +17,14 @@ Rules (position by position, from the start of the stream):
   is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``).
   A plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only at a
   clean line start: right after a frame or line that was handed out, or after a whole printable line (blank
-  lines in between are skipped). So a stream joined in the middle of a line never yields the tail of that line
+  lines in between change nothing). So a stream joined in the middle of a line never yields the tail of that line
   (the first plain line of a stream is dropped, counted as skipped), a line right after binary damage is not
   trusted, and a line holding a valid ``$`` sentence after a glitch byte yields the sentence, not a log line.
-* Every byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
+  ``line_start=True`` says the stream's first byte starts a line (a log file, which holds what the port sent
+  from its start): then its first line is kept when it is a whole printable line.
+* Blank lines (spaces and tabs only, ``\r`` at the end allowed) and the ``\r`` of ``\n\r`` endings at a line
+  start count in ``blank_bytes``: text a program printed, not damage (right after damage they are skipped).
+* Every other byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
 
 The decoder waits for more bytes only while the candidate at its position could still become valid, so its
 buffer never holds more than one frame (≤ 261 bytes) or one text line (≤ 512 bytes): memory is bounded whatever
@@ -140,16 +144,17 @@ class StreamDecoder:
     the stream (bytes fed since construction).
     """
 
-    def __init__(self, *, plausibility: bool = True) -> None:
+    def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
         self._buf = bytearray()
         self._base = 0  # stream offset of _buf[0]
-        self._boundary = False  # True when _buf[0] starts a line (after a handed-out frame/line or a "\n")
+        self._boundary = line_start  # True when _buf[0] starts a line (after a handed-out frame/line or a "\n")
         self._last_seq: int | None = None
         self._v2_seen = False  # a version-2 frame was accepted: version-1 candidates are refused from now on
         self.gate = PlausibilityGate() if plausibility else None
         self._ended_nl = False  # the bytes decoded so far end with "\n"
         self._damaged = False  # bytes were skipped since the text reader last heard
+        self._skipping = False  # a skip reached the end of the bytes fed: it goes on to the next possible start
         self.text_reader = TextTelemetryReader()  # plain lines → records of text telemetry and text lines
 
     @property
@@ -186,6 +191,7 @@ class StreamDecoder:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
         self._boundary = line_start
+        self._skipping = self._skipping and not line_start
 
     def text_template(self):
         """The text reader's template for lines that would be records now (see
@@ -204,7 +210,7 @@ class StreamDecoder:
         self.text_reader.bulk_records(count, blank_last=blank_last)
         self.stats.text_records += count
         self.stats.frames_ok += count
-        self.stats.bytes_skipped += blank_bytes
+        self.stats.blank_bytes += blank_bytes
 
     def lock_version_2(self) -> None:
         """A version-2 frame was accepted before the current position (e.g. by the bulk decoder): version-1
@@ -219,11 +225,23 @@ class StreamDecoder:
         m = _NEXT_START.search(buf, p + 1)
         if m is None:
             q = n
+            self._skipping = True  # the next bytes fed go on with this skip (as if they had come with these)
         else:
             q = m.start() + (buf[m.start()] == 0x0A)
         self.stats.bytes_skipped += q - p
         self._boundary = False
         self._damaged = True
+        return q
+
+    def _go_on_skipping(self, buf: bytearray, p: int, n: int) -> int:
+        """A skip cut by the end of the bytes fed before: on to the next byte that could start something."""
+        m = _NEXT_START.search(buf, p)
+        if m is None:
+            q = n
+        else:
+            q = m.start() + (buf[m.start()] == 0x0A)
+            self._skipping = False
+        self.stats.bytes_skipped += q - p
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -233,9 +251,12 @@ class StreamDecoder:
         out: list[Frame] = []
         stats = self.stats
         while p < n:
+            if self._skipping:
+                p = self._go_on_skipping(buf, p, n)
+                continue
             c = buf[p]
             if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
-                stats.bytes_skipped += 1
+                stats.blank_bytes += 1
                 p += 1
                 continue
             if c == _SYNC0:
@@ -294,11 +315,15 @@ class StreamDecoder:
                 break  # wait for the rest of the line
             raw = bytes(buf[p:nl])
             nbytes = nl + 1 - p
-            if raw in (b"", b"\r"):  # blank line: skipped, the boundary state is kept; it ends a block of lines
-                stats.bytes_skipped += nbytes
+            if not (raw[:-1] if raw[-1:] == b"\r" else raw).strip(b" \t"):
+                # a blank line: the boundary state is kept. At a line start it is text (it ends a block of lines);
+                # right after damage it may be the end of a damaged line
                 p = nl + 1
                 if self._boundary:
+                    stats.blank_bytes += nbytes
                     self._read_text(out, "blank")
+                else:
+                    stats.bytes_skipped += nbytes
                 continue
             text = decode_line(raw)
             if text is None:
@@ -524,6 +549,7 @@ def decode_bytes(
     events: list | None = None,
     plausibility: bool = True,
     sent_commands: np.ndarray | None = None,
+    line_start: bool = False,
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
@@ -535,6 +561,8 @@ def decode_bytes(
     ``sent_commands``: rows (``COMMAND_ROW_DTYPE``, timed) of the commands the host sent, e.g. a capture's chunks H
     (:func:`steval_link.link.load.sent_command_rows`); ``Telemetry.commands`` holds them after those found in the
     bytes themselves.
+
+    ``line_start``: the first byte starts a line (a log file; as ``StreamDecoder(line_start=True)``).
 
     ``plausibility`` False turns the plausibility gate off (as ``StreamDecoder(plausibility=False)``; for tests of
     the framing alone).
@@ -554,7 +582,7 @@ def decode_bytes(
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if K > 1 else np.zeros(0, np.int64)
     parts = TelemetryParts()
     fast_idx: list[np.ndarray] = []
-    sd = StreamDecoder(plausibility=False)
+    sd = StreamDecoder(plausibility=False, line_start=line_start)
     slow_frames: list[Frame] = []
     p = 0
     last_fast = False
@@ -568,7 +596,7 @@ def decode_bytes(
             last_fast = True
             continue
         if not sd.pending_bytes:
-            sd.resume_at(p, line_start=(last_fast or sd.at_line_start) if p else False)
+            sd.resume_at(p, line_start=(last_fast or sd.at_line_start) if p else line_start)
         if first_v2 < p:
             sd.lock_version_2()
         last_fast = False
@@ -608,6 +636,7 @@ def decode_bytes(
         text_dropped=st.text_dropped,
         crc_failures=st.crc_failures,
         bytes_skipped=st.bytes_skipped,
+        blank_bytes=st.blank_bytes,
         unknown_frames=st.unknown_frames,
         bytes_total=n,
         v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),

@@ -158,6 +158,7 @@ class DecoderStats:
     values_bad: int = 0  #: attitude rows handed out with NaN or out-of-range values (v2: the firmware sent them)
     text_records: int = 0  #: records of text telemetry (``TextRecordFrame``), each counted once
     text_dropped: int = 0  #: whole printable lines dropped as not text (random bytes; their bytes are skipped)
+    blank_bytes: int = 0  #: bytes of blank lines (spaces, tabs) and of the ``\r`` of ``\n\r`` endings: not damage
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dict (JSON-friendly)."""

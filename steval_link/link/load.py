@@ -109,6 +109,7 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> T
         source=source,
         events=src.events,
         sent_commands=sent_command_rows(src.host),
+        line_start=src.kind != "stv",  # a log file holds what the port sent from its start; a capture joined it
     )
     if text_map:
         if not len(tel.text_series):

@@ -349,13 +349,20 @@ class RecordAttitude:
     """Records of a live stream as text-mode attitude frames (``exact`` False), mapped as :func:`map_attitude`
     maps a whole log (the plan made once per record shape): ``frame(record, t_s)`` with the record's host time,
     s; None for a record that is no attitude. Steps count AHRS periods from the first record (the estimators run
-    at the line rate), firmware time is the host time."""
+    at the line rate), firmware time is the host time. :meth:`take_notes`: what each new record shape mapped to
+    ("Drone_Pitch → pitch, degrees"), or why ``user_map`` cannot hold on it, once each."""
 
     def __init__(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         self.user_map = user_map
         self._plans: dict[tuple, list] = {}
         self._t0_s: float | None = None
         self._step = -1
+        self._notes: list[str] = []
+
+    def take_notes(self) -> list[str]:
+        """The notes since the last call (one sentence each)."""
+        notes, self._notes = self._notes, []
+        return notes
 
     def frame(self, record, t_s: float) -> AttitudeFrame | None:
         values = np.array([record.values], np.float64)
@@ -364,10 +371,11 @@ class RecordAttitude:
             one = TextSeries(list(record.names), list(record.units), values, kind=np.array([record.kind], object))
             one.t_s = np.zeros(1)
             try:
-                plan = attitude_plan(one, self.user_map)[0]
-            except UserError:
-                plan = []
+                plan, notes = attitude_plan(one, self.user_map)
+            except UserError as exc:  # the map names a series these records do not have, or a unit that does not fit
+                plan, notes = [], [str(exc)]
             self._plans[record.names] = plan
+            self._notes += notes
         if not plan or not math.isfinite(t_s):
             return None
         c = apply_plan(plan, values)

@@ -17,6 +17,8 @@ HEALTH_TTY_INTERVAL_S = 0.25
 
 
 HEALTH_PLAIN_INTERVAL_S = 5.0
+#: Series names of text telemetry kept for the health line and the summary.
+MAX_SERIES_NAMES = 64
 
 
 class LinkHealth:
@@ -35,6 +37,23 @@ class LinkHealth:
         self.first_frame_s: float | None = None  # host receive time of the first attitude frame
         self.last_frame_s: float | None = None
         self.last_text: str | None = None
+        self.records = 0  # records of text telemetry
+        self.series: dict[str, None] = {}  # their series names, in the order they came (bounded)
+
+    def count_record(self, names: tuple[str, ...]) -> None:
+        """A record of text telemetry with these series."""
+        self.records += 1
+        if len(self.series) < MAX_SERIES_NAMES:
+            self.series.update(dict.fromkeys(names))
+
+    def records_part(self, most: int = 6) -> str | None:
+        """'text telemetry: N records, series a, b, c' (at most ``most`` names, then how many more); None without
+        records."""
+        if not self.records:
+            return None
+        names = list(self.series)
+        more = f" and {len(names) - most} more" if len(names) > most else ""
+        return f"text telemetry: {self.records} records, series {', '.join(names[:most])}{more}"
 
     def count(self, n_attitude: int, t_first_s: float, t_last_s: float) -> None:
         """``n_attitude`` frames received between host times ``t_first_s`` and ``t_last_s``."""
@@ -143,6 +162,9 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_port=(), last=()) -
     if stat(s, "implausible"):
         parts.append(f"held back {stat(s, 'implausible')}")
     parts += before_port
+    records = h.records_part(most=3)
+    if records:
+        parts.append(records)
     if pipe.mahony is not None:
         parts.append(pipe.mahony.describe())
     return " | ".join([*parts, *last])

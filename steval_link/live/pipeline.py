@@ -199,6 +199,9 @@ class LivePipeline:
     they never cut a batch): every Rerun log call costs a chunk per entity, and Rerun keeps some memory per chunk
     for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat.
 
+    ``text_map``: which series of text telemetry are the attitude ({target: (series, unit)},
+    :func:`~steval_link.link.text_series.parse_map`; names and ST's format are mapped without it).
+
     ``file_logger``: a second logger (the ``.rrd``'s own stream next to a live viewer) that gets the same frames
     merged at its own cadence, ``file_interval_s``. Each logger gets every frame once. Call :meth:`tick`
     regularly and :meth:`flush_view` at the end.
@@ -215,6 +218,7 @@ class LivePipeline:
         t0_unix_s: float | None = None,
         baud: int | None = None,
         ble_layout: BleLayout = LAYOUTS["stock"],
+        text_map: dict[str, tuple[str, str]] | None = None,
     ) -> None:
 
         self.view_interval_s = view_interval_s
@@ -242,7 +246,7 @@ class LivePipeline:
         #: the host's own bytes (commands it sent), decoded to log them and to match the acknowledgements
         self.host_decoder = StreamDecoder()
         #: records of text telemetry that are an attitude (ST's line, pitch/roll, acc/gyro names) as attitude rows
-        self.text_attitude = RecordAttitude()
+        self.text_attitude = RecordAttitude(text_map)
         self._binary = False  # binary attitude frames came: they are the attitude, records are only series
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.acks = 0
@@ -271,6 +275,7 @@ class LivePipeline:
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
             ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
+            text_map=getattr(session.options, "text_map", None),
         )
         variant = getattr(session.options, "variant", None) or (session.info.extra.get("filter") or {}).get("variant")
         if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status
@@ -333,7 +338,10 @@ class LivePipeline:
                     att = []
                     self._event("flight", frame, self._at_flight(frame))
                 elif isinstance(frame, TextRecordFrame):  # text telemetry: a series a name; an attitude row too
+                    self.health.count_record(frame.names)
                     row = self.text_attitude.frame(frame, self._host_of_frame(frame)) if not self._binary else None
+                    for note in self.text_attitude.take_notes():
+                        self._note(note, self._at_frame(frame), "INFO")
                     if row is not None:
                         att.append((row, t_unix_s))
                     if outlets:

@@ -85,6 +85,8 @@ class LiveOptions:
     link_kind: str | None = None
     #: the ST release whose filter the live replica runs ("ST 221117", ``--variant``); None: the status frames'
     variant: str | None = None
+    #: which series of text telemetry are the attitude ({target: (series, unit)}, ``text_series.parse_map``)
+    text_map: dict | None = None
 
     @property
     def uses_rerun(self) -> bool:

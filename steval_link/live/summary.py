@@ -50,6 +50,7 @@ class LiveSummary:
     cadence: Any = None  # ble: the motion cadence as the health line last said it
     failures: list[str] = field(default_factory=list)  # outputs that failed during the run (left out of the list)
     lost_for_good: bool = False  # the port was lost and did not come back before the end
+    records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
 
     @property
     def losses(self) -> int:
@@ -97,6 +98,8 @@ class LiveSummary:
             parts.append(lost + ("; the port did not come back)" if self.lost_for_good else ")"))
         if self.live_dropped_bytes:
             parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
+        if self.records_part:
+            parts.append(self.records_part)
         if self.filter_note:
             parts.append(self.filter_note)
         return "recorded " + ", ".join(parts) + "; " + self._outputs()
@@ -148,4 +151,5 @@ def pipeline_counts(pipe) -> dict[str, Any]:
         **{name: stat(s, name) for name in names},
         **{name: getattr(h, name) for name in ("attitude", "status", "text", "nonfinite")},
         "values_sentence": h.values_sentence(),
+        "records_part": h.records_part(),
     }
