@@ -261,6 +261,7 @@ def run_live(tmp_path, recs, pace_s=0.0002, estimators=("st-mahony", "accel"), d
     [(50.0, False), (40.0, True), (1 / STEP_S, True)],
     ids=["50Hz", "40Hz-gaps", "stock-congestion"],
 )
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
     recs, sent, missing = drone_stream(
         rate_hz, congested=congested, duration_s=6, others=False, start_ms=WRAP_MS - 3000
@@ -299,6 +300,7 @@ def test_live_session_of_a_poller(tmp_path):
     assert "reads of the characteristic" in summary.line()
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     """The drone sends nothing while no central is connected: the gap of a link loss (the capture's reconnect
     event) is not counted as dropped and gets no held rows, live and replayed; the same gap without a reconnection

@@ -57,6 +57,7 @@ def euler_stream() -> tuple[list, object]:
     return recs, a
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_values_repeating_within_a_tick_are_161_5_hz_not_reads(monkeypatch, capsys, tmp_path):
     recs, changed = repeated_within_ticks()
     assert changed > 500  # two samples in one 8 ms tick are common at 161.5 Hz
@@ -90,6 +91,7 @@ def test_a_poller_still_reads_as_reads():
     assert ble.repeated_reads == 500 and len(ble) == 500 and ble.cadence().kind == BC.POLLED
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_euler_in_the_acc_fields_is_said_and_shown_with_the_layout(monkeypatch, capsys, tmp_path):
     recs, a = euler_stream()
     path = _write(tmp_path / "fork.stv", recs)
@@ -112,6 +114,7 @@ def test_euler_in_the_acc_fields_is_said_and_shown_with_the_layout(monkeypatch, 
     assert pipe.health.attitude == len(recs) and pipe.grid.cadence().rate_hz == pytest.approx(161.54, abs=0.01)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_euler_layout_in_rerun_is_the_firmwares_attitude(monkeypatch, capsys, tmp_path):
     from steval_viewer.rrd_check import read_rrd
 
@@ -127,6 +130,7 @@ def test_euler_layout_in_rerun_is_the_firmwares_attitude(monkeypatch, capsys, tm
     assert "ble/note" in info.static
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_ble_with_the_euler_layout_records_it_and_replay_reads_it(monkeypatch, capsys, tmp_path):
     """steval live --ble --ble-layout euler: the one pipeline gives the firmware's attitude rows live, the capture
     header keeps the layout, and a later replay of that capture reads it without the option."""

@@ -243,6 +243,7 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
     assert code == 1 and "no drone advertising DRN1" in err
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     """steval live --ble --rrd FILE --no-view: the one live logger writes the BLE stream's rows and values."""
     from steval_link.live.session import LiveOptions, LiveSession, source_for

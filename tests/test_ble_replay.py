@@ -141,6 +141,7 @@ def test_replay_summary_and_json(monkeypatch, capsys):
     assert s["motion_dropped_estimate"] == 0 and s["tick_wraps"] == 1 and s["estimator_dt_ms"] == 6.19
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
     from steval_viewer.rrd_check import blueprint_views, read_rrd
 

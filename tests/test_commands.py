@@ -313,6 +313,7 @@ def test_commands_reset_status_mode(drone, monkeypatch, capsys):
         assert ": accepted" in out and d.received[-1].cmd == cmd
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_refused_and_silent_are_one_line_errors(drone, monkeypatch, capsys, tmp_path):
     d, port = drone(armed=True)
     code, out, err = run_cli(monkeypatch, capsys, "param", "set", "ki", "1", "--port", port)

@@ -101,6 +101,7 @@ def test_text_output_and_label_override(pair, monkeypatch, capsys):
     assert code == 2 and err.count("\n") == 1 and "1 --label for 2 captures" in err
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_rerun_recording_one_subtree_per_flight(pair, monkeypatch, capsys, tmp_path):
     from steval_viewer.rrd_check import blueprint_views, read_rrd
 
@@ -147,6 +148,7 @@ def test_motion_lag_of_a_shifted_signal():
     assert abs(lag - (-200 / C.AHRS_RATE_HZ)) < 1e-9 and r > 0.9
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_mismatches_are_said_plainly(monkeypatch, capsys, tmp_path):
     a = synth(monkeypatch, capsys, tmp_path / "a.stv")
     cut = tmp_path / "cut.stv"

@@ -13,6 +13,7 @@ from steval_link.link.load import load_telemetry
 pytest.importorskip("matplotlib")
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_title_names_the_chosen_estimators_and_nan_is_a_gap():
     from steval_link.analysis.plots import comparison_figure
 

@@ -38,6 +38,7 @@ def modified_firmware_vectors(tmp_path: Path, settings: MahonySettings, n=400) -
     return write_vectors(tmp_path / "modified.csv", acc, gyro, thr, q, thx, thy)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_shared
 def test_every_shared_vector_file_is_bit_exact(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "conformance", "--json", *CSV_FILES)
@@ -51,6 +52,7 @@ def test_every_shared_vector_file_is_bit_exact(monkeypatch, capsys):
         assert f["max_abs_dq"] == 0.0 and f["max_abs_dth_rad"] == 0.0 and f["first_mismatch_step"] is None
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_221117
 @pytest.mark.parametrize("pure", [False, True])
 def test_release_221117_is_recognised_and_bit_exact(monkeypatch, capsys, pure):
@@ -72,6 +74,7 @@ def test_a_forced_wrong_release_mismatches_and_says_so(monkeypatch, capsys):
     assert code == 2 and "--variant" in err and "no ST release" in err
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_shared
 def test_release_170120_is_recognised(monkeypatch, capsys):
     code, out, _ = run_cli(monkeypatch, capsys, "conformance", CONFORMANCE_DIR)

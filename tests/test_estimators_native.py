@@ -133,6 +133,7 @@ def test_ekf3_native_equals_python_on_synthetic_motion(options):
     _assert_same_state(py, c)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @needs_native
 @pytest.mark.parametrize("options", MEKF_OPTIONS, ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()) or "default")
 def test_mekf_native_equals_python_on_synthetic_motion(options):

@@ -130,6 +130,7 @@ def test_without_mcap_one_line(monkeypatch, capsys, tmp_path):
     )
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_rerun_opens_it(monkeypatch, capsys, tmp_path):
     """Rerun 0.41's MCAP loader reads the file: one entity per topic, every message on the log-time timeline
     (JSON messages are kept as raw MCAP messages; Rerun decodes Foxglove schemas only in protobuf)."""

@@ -277,6 +277,7 @@ def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
     assert max(rss) - rss[0] < 40 * 1024 * 1024
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete(tmp_path):
     # a live viewer (an in-process Rerun gRPC server, reached with --connect) and --rrd at once: the viewer gets every
     # processing round at once, the .rrd its own stream of the same recording with merged batches; stopping the

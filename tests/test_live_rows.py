@@ -85,6 +85,7 @@ def test_live_rows_on_the_unix_clock_are_the_capture_times_within_its_resolution
     assert np.abs(live.t_host_s - tel.attitude.t_host_s).max() < 1e-6
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("cut_at_restart", [False, True])
 def test_a_restart_and_a_stream_joined_past_the_seq_wrap(tmp_path, cut_at_restart):
     # joined at step 70 000 (seq 4464: the high bits come with the first status frame) while t_us wraps (2³² µs),

@@ -79,6 +79,7 @@ def test_comparison_png_of_a_mismatch_with_drops_and_nan(mpl, tmp_path):
     assert w > 1000 and h > 600
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_text_mode_comparison_png(mpl, tmp_path):
     from steval_link.link.decoder import decode_bytes
 
@@ -198,6 +199,7 @@ def test_simulation_figure_overlays_compare_runs(mpl):
     plt.close(fig)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_cli_simulate_compare_with(mpl, tmp_path, capsys):
     out = tmp_path / "s.png"
     args = ["simulate", "--acc", "0", "0", "1000", "--noise", "--seed", "3", "--plot", str(out)]

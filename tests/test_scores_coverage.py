@@ -73,6 +73,7 @@ def test_coverage_of_counts_scored_rows_and_finds_where_it_stopped():
     assert coverage_of(np.ones(5, bool), np.zeros(5, bool)).why == "no movement row with ground truth"
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_a_filter_that_gives_up_is_marked_in_table_json_and_plot(trial, mine, tmp_path, monkeypatch, capsys):
     quit_early, to_the_end = f"{mine}:Ekf(after=9000)", f"{mine}:Ekf(after=100000)"
     png, csv_out, md = tmp_path / "e.png", tmp_path / "e.csv", tmp_path / "e.md"
@@ -125,6 +126,7 @@ def test_two_identical_labels_exit_2(trial, mine, monkeypatch, capsys):
     assert code == 2 and "estimator ekf3 is chosen twice" in err
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_a_never_finite_estimator_says_why(trial, mine, monkeypatch, capsys):
     code, out, err = run_cli(
         monkeypatch, capsys, "evaluate", trial, "--max-seconds", "60", "-e", f"{mine}:Ekf(after=0)", "-e", "accel"
@@ -133,6 +135,7 @@ def test_a_never_finite_estimator_says_why(trial, mine, monkeypatch, capsys):
     assert "no score" in out and "Ekf(after=0) on 02_undisturbed_slow_rotation_B: no score: its estimate is" in out
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
     view_specs = ev.default_specs(161.5, only=[f"{mine}:Ekf(after=5000)", "accel"])
     r1 = ev.evaluate_trial(cut_trial(broad.load_trial(trial), 60.0), view_specs)
@@ -152,6 +155,7 @@ def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
     assert np.isnan(y[5000:]).all() and np.isfinite(y[4000:5000]).any()  # a gap from the step it gave up, never 0
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_compares_truth_section_gives_each_trace_its_coverage(mine, tmp_path, monkeypatch, capsys):
     """A synthesised capture re-written with truth chunks (the firmware's own attitude as truth): a filter that
     gives up at step 500 is marked in compare's truth section, the firmware covers every scored row."""

@@ -349,6 +349,7 @@ def _panels_and_fonts(fig):
     return panels, min(t.get_fontsize() for t in texts)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_figure_has_at_most_nine_readable_panels_and_names_the_register_images(vib_spectra):
     """Nine panels at most, no text under 9 pt; a 12 Hz gyro-x line's register images (36.3 Hz, 60.6 Hz) are
     labelled as its images where they appear; a bench capture (constant throttle) has no throttle map."""
@@ -371,6 +372,7 @@ def test_figure_has_at_most_nine_readable_panels_and_names_the_register_images(v
     plt.close(fig)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_figure_of_a_flight_has_the_throttle_map():
     pytest.importorskip("matplotlib")
     import matplotlib.pyplot as plt

@@ -72,6 +72,7 @@ def test_emulate_summary_says_the_step_cost_replay_says(reference_elf, tmp_path,
     assert all(ln in text.splitlines() for ln in mine) and "RMS difference from the firmware: pitch" in mine[1]
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_a_live_replay_of_an_emulated_capture_keeps_its_unit(tmp_path, monkeypatch, capsys):
     """``steval live replay://demo.stv`` records a new capture: its step cost is still emulated instructions."""
     out = tmp_path / "again.stv"

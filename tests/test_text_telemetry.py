@@ -360,6 +360,7 @@ def test_live_replay_of_a_text_log_records_the_text(demo, tmp_path, monkeypatch,
     assert code == 0 and t["records"] >= N // 2 and t["time_source"] == "host receive times"
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("name", ["st", "st_nofloat", "drone_pitch", "table_10_2f", "arduino_comma", "csv_header"])
 def test_bulk_and_stream_decoders_give_the_same_records(demo, name):
     """decode_bytes reads long runs of fitting lines as arrays; StreamDecoder line by line: the same records."""
@@ -378,6 +379,7 @@ def test_bulk_and_stream_decoders_give_the_same_records(demo, name):
     np.testing.assert_array_equal([r.offset for r in recs], tel.text_series.offset)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, capsys):
     """One scalar series per printed name under text/, from steval replay --rrd and from the live logger."""
     from steval_viewer.rrd_check import read_rrd  # Rerun: only this test needs it
@@ -398,6 +400,7 @@ def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, 
     assert read_rrd(live_rrd).samples["text/Drone_Roll"] == N - 1
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_on_a_pseudo_terminal_at_115200_baud_records_the_text(demo, tmp_path):
     """ST's output through a serial port at the pace of 115200 baud: live takes it, the capture replays it."""
     from support.ptyfeed import PtyFeeder, StevalProcess
@@ -583,6 +586,7 @@ def test_a_log_files_first_line_is_kept_when_whole_a_joined_stream_drops_it(demo
     assert stats.bytes_skipped == 3 + len(BANNER[0]) + 2 + len(BANNER[1]) + 2 == tel.stats.bytes_skipped
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_live_says_the_records_and_takes_map(demo, tmp_path, monkeypatch, capsys):
     """steval live --map: the printed table's columns as the attitude live; the summary names the records."""
     log = tmp_path / "table.log"
@@ -608,6 +612,7 @@ def test_live_says_the_records_and_takes_map(demo, tmp_path, monkeypatch, capsys
         assert code == 2 and err.count("\n") == 1 and "--map" in err, (bad, err)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("seed", [4, 5])
 def test_stats_do_not_depend_on_how_the_bytes_are_chunked(seed):
     """Text with blank lines of every kind, garbage and binary sync bytes: the same counters whatever the chunks,
