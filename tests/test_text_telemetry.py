@@ -633,3 +633,26 @@ def test_stats_do_not_depend_on_how_the_bytes_are_chunked(seed):
             ref = decode_bytes(data, line_start=line_start).stats.as_dict()
             for chunk in (1, rng.randint(2, 64), len(data)):
                 assert _decode_both_from(data, line_start, chunk)[1].as_dict() == ref, (data, chunk)
+
+
+def test_a_swap_by_map_takes_degrees_and_gives_no_advice_back(demo, tmp_path, monkeypatch, capsys):
+    """Exercise 2's names the handouts' way round: `--map pitch=Drone_Roll,roll=Drone_Pitch` (no unit) swaps them."""
+    log = tmp_path / "ex2.log"
+    lines = [f"Drone_Pitch = {r:f}\tDrone_Roll = {p:f}\n\n" for p, r in zip(demo["pitch_deg"], demo["roll_deg"])]
+    log.write_text("".join(lines))
+    code, out, err = run_cli(monkeypatch, capsys, "replay", log, "--json", "--map", "pitch=Drone_Roll,roll=Drone_Pitch")
+    assert code == 0, err
+    notes = json.loads(out)["text_telemetry"]["attitude"]
+    assert notes == ["Drone_Roll → pitch, degrees (assumed)", "Drone_Pitch → roll, degrees (assumed)"]
+    a = load_telemetry(log, text_map=parse_map("pitch=Drone_Roll,roll=Drone_Pitch")).attitude
+    np.testing.assert_allclose(np.degrees(a.thx_rad), demo["pitch_deg"], atol=1e-5)
+    np.testing.assert_allclose(np.degrees(a.thy_rad), demo["roll_deg"], atol=1e-5)
+
+
+def test_a_students_floatless_printf_is_explained(tmp_path, monkeypatch, capsys):
+    """`PRINTF("Drone_Pitch = %f\\tDrone_Roll = %f\\n", ...)` on newlib nano prints the labels only: one sentence."""
+    log = tmp_path / "nofloat.log"
+    log.write_text("Drone_Pitch = \tDrone_Roll = \n\n" * 50)
+    code, out, err = run_cli(monkeypatch, capsys, "replay", log)
+    assert code == 2 and err.count("\n") == 1
+    assert "no numbers after them" in err and "_printf_float" in err

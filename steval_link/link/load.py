@@ -9,6 +9,7 @@ sentence.
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -30,6 +31,7 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import CommandFrame
 from steval_link.link.symbol_rows import merge_symbol_attitude
 from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
+from steval_link.link.text_series import FLOATLESS_NOTE
 
 __all__ = ["Recording", "load_telemetry", "read_recording", "sent_command_rows", "telemetry_of_recording"]
 
@@ -134,7 +136,17 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> T
 
 def _text_lines(tel: Telemetry) -> str:
     n = len(tel.text)
-    return f"; {n} text line{'s' if n != 1 else ''}" if n else ""
+    if not n:
+        return ""
+    said = f"; {n} text line{'s' if n != 1 else ''}"
+    texts = [t for _, t in tel.text[:50]]
+    if sum(bool(_FLOATLESS.fullmatch(t.strip())) for t in texts) >= min(3, len(texts)):  # "Pitch = \tRoll = "
+        said += f", labels with no numbers after them: {FLOATLESS_NOTE[0].lower()}{FLOATLESS_NOTE[1:].rstrip('.')}"
+    return said
+
+
+#: a line of labels with nothing printed after them: a %f of newlib nano (``Drone_Pitch = \tDrone_Roll = ``)
+_FLOATLESS = re.compile(r"(?:[A-Za-z_][\w .()/-]*\s*[=:]\s*)+")
 
 
 def _file_size(path: Path) -> str:

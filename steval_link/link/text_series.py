@@ -43,7 +43,7 @@ __all__ = [
 
 #: The sentence for ST's line with empty float fields.
 FLOATLESS_NOTE = (
-    "ST's output has empty float fields (newlib nano prints no %f): in STM32CubeIDE tick Project Properties > "
+    "The output has empty float fields (newlib nano prints no %f): in STM32CubeIDE tick Project Properties > "
     "C/C++ Build > Settings > MCU Settings > 'Use float with printf from newlib-nano (-u _printf_float)', or "
     "apply steval-link's firmware patch."
 )
@@ -292,13 +292,19 @@ def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = No
 def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[list, list[str]]:
     """How the series become the attitude: [(target, column, factor to rad / mg / mdps)], and a note per mapped
     name; ([], []) when neither an angle nor acc and gyro are found (see :func:`map_attitude`)."""
-    found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any()}
+    mapped = {name for name, _ in (user_map or {}).values()}  # a series the user mapped is not also auto-mapped
+    found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any() and v[0] not in mapped}
+    defaulted = set()  # user-mapped angles without a unit anywhere: degrees, said as assumed
     for target, (name, unit) in (user_map or {}).items():
         if name not in s.names:
             raise UserError(
                 f"map {target}={name}: the log has no series {name!r} (its series: {', '.join(s.names) or 'none'})."
             )
-        found[target] = (name, unit or (s.units[s.names.index(name)] if target != "thr" else ""))
+        unit = unit or (s.units[s.names.index(name)] if target != "thr" else "")
+        if not unit and target in _ANGLE_COLUMN:
+            unit = "deg"
+            defaulted.add(target)
+        found[target] = (name, unit)
     has_angle = any(t in found for t in ("pitch", "roll"))
     has_inputs = all(f"{b}_{a}" in found for b in ("acc", "gyro") for a in "xyz")
     if not len(s) or not (has_angle or has_inputs):
@@ -311,9 +317,11 @@ def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = N
             notes.append(f"{name} → thr (gTHR)")
         elif target in _ANGLE_COLUMN:
             assumed = "" if s.units[s.names.index(name)] or name.lower().endswith(("_deg", "_rad")) else " (assumed)"
-            if user_map and target in user_map:
-                assumed = ""
-            notes.append(f"{name} → {target}, {_UNIT_WORDS.get(unit, unit)}{assumed}" + _axis_note(target, name))
+            by_user = bool(user_map) and target in user_map
+            if by_user:  # the user chose the axis: no advice to map it across
+                assumed = " (assumed)" if target in defaulted else ""
+            axis = "" if by_user else _axis_note(target, name)
+            notes.append(f"{name} → {target}, {_UNIT_WORDS.get(unit, unit)}{assumed}" + axis)
         else:
             notes.append(f"{name} → {target}, {unit}")
     return plan, notes
