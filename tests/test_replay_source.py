@@ -3,6 +3,7 @@ decoder, estimators, summary), on the real bytes of the bundled recordings."""
 
 from __future__ import annotations
 
+import re
 import signal
 import time
 from pathlib import Path
@@ -216,3 +217,13 @@ def test_a_text_mode_log_replays_live_to_its_end(tmp_path):
     assert summary.stopped_by == "end of replay" and summary.attitude == len(src.attitude) == 172
     assert "ST port not seeded" in summary.line()  # text-mode status rows carry no state to seed it from
     assert read_capture(out).data == TEXTLOG.read_bytes()
+
+
+@pytest.mark.slow  # real time: 1.5 s of a replay at 5x
+def test_a_faster_replay_says_the_drones_own_rate(tmp_path):
+    """replay://...?speed=5: the frames arrive at 5 × 161.5 Hz; the summary says the drone's own rate too."""
+    opts = LiveOptions(out=tmp_path / "x.stv", estimators=[], duration_s=1.5, prompt=False)
+    summary = LiveSession(opts, source_for(f"replay://{DEMO}?speed=5"), stream=open(tmp_path / "err.txt", "w")).run()
+    assert summary.pace == 5.0
+    drone_hz = float(re.search(r"5× pace: ([\d.]+) Hz in the drone's time", summary.line()).group(1))
+    assert drone_hz == pytest.approx(C.AHRS_RATE_HZ, rel=0.04), summary.line()

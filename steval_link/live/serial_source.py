@@ -131,6 +131,7 @@ class SerialSource(Source):
             reopen_error=reader.reopen_error if reader is not None else None,
             wait=self.wait,
             probing=proto.probing,
+            pace=float(getattr(self.ser, "speed", 1.0) or 1.0),  # a replay's ?speed=
             offline=list(proto.offline),
         )
 
@@ -273,6 +274,7 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
         "offline_s": offline_s,
         "lost_for_good": bool(status.offline and status.offline[-1][1] is None),
         "live_dropped_bytes": status.live_dropped_bytes,
+        "pace": status.pace,
         "filter_note": filter_note,
     }
 

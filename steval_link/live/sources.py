@@ -79,7 +79,8 @@ class LinkStatus:
     (the link's own clock: emulated s), ``duration_s`` and ``report`` (emulated), ``wait`` (keep waiting for frames
     instead of stopping), ``symbol_rows`` (emulated: AHRS steps whose attitude the emulator read by symbol),
     ``probing`` (a port reopened after a loss, on probation until it sends valid frames), ``offline`` ((lost, back
-    or None) host Unix times of each loss)."""
+    or None) host Unix times of each loss), ``pace`` (a replay's ``?speed=``: its rate is that many times the
+    drone's)."""
 
     connected: bool = False
     port: str | None = None
@@ -99,6 +100,7 @@ class LinkStatus:
     symbol_rows: int = 0
     probing: str | None = None
     offline: list = field(default_factory=list)
+    pace: float = 1.0
 
 
 class Source:

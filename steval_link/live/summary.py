@@ -51,6 +51,7 @@ class LiveSummary:
     failures: list[str] = field(default_factory=list)  # outputs that failed during the run (left out of the list)
     lost_for_good: bool = False  # the port was lost and did not come back before the end
     records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
+    pace: float = 1.0  # a replay played X times faster (replay://FILE?speed=X): its rate is X times the drone's
 
     @property
     def losses(self) -> int:
@@ -82,7 +83,7 @@ class LiveSummary:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
         parts = [
             f"{_fmt_duration(self.seconds)}",
-            f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({rate:.1f} Hz)"),
+            f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
             f"{self.frames_missing} missing",
             f"{self.crc_failures} CRC failures",
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
@@ -103,6 +104,12 @@ class LiveSummary:
         if self.filter_note:
             parts.append(self.filter_note)
         return "recorded " + ", ".join(parts) + "; " + self._outputs()
+
+    def _rate(self, rate_hz: float) -> str:
+        """The frame rate as it arrived, and the drone's own when a replay ran faster."""
+        if self.pace == 1.0:
+            return f"{rate_hz:.1f} Hz"
+        return f"{rate_hz:.1f} Hz at {self.pace:g}× pace: {rate_hz / self.pace:.1f} Hz in the drone's time"
 
     def _emulated_lines(self) -> list[str]:
         r = self.report
