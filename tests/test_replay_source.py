@@ -227,3 +227,13 @@ def test_a_faster_replay_says_the_drones_own_rate(tmp_path):
     assert summary.pace == 5.0
     drone_hz = float(re.search(r"5× pace: ([\d.]+) Hz in the drone's time", summary.line()).group(1))
     assert drone_hz == pytest.approx(C.AHRS_RATE_HZ, rel=0.04), summary.line()
+
+
+@pytest.mark.slow  # real time: 4 s, about three rounds of the demo at 40x
+def test_a_looped_replay_has_no_cut_frame_at_its_seams(tmp_path):
+    """replay://demo.stv?loop=1: each round ends after its last whole frame, so the seams are no CRC failure."""
+    opts = LiveOptions(out=tmp_path / "x.stv", estimators=[], duration_s=4.0, prompt=False)
+    url = f"replay://{DEMO}?loop=1&speed=40"
+    summary = LiveSession(opts, source_for(url), stream=open(tmp_path / "err.txt", "w")).run()
+    assert summary.attitude > 2 * len(load_telemetry(DEMO).attitude), summary.line()
+    assert summary.crc_failures == 0 and summary.frames_missing == 0, summary.line()

@@ -29,6 +29,7 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import UserError
+from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
@@ -270,8 +271,11 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         raise UserError(f"cannot replay {url}: {str(exc).rstrip('.')}") from None
     rate = int(src.header.get("baud") or baud) if src.header else baud
     ends, t_s, how = pace_of(src, tel, rate if rate > 0 else baud, parsed.rate)
+    data = src.data
+    if parsed.loop:  # each round ends after the last whole frame: no cut frame at the seam
+        data, ends, t_s = _to_whole_frames(data, ends, t_s)
     return ReplayPort(
-        src.data,
+        data,
         ends,
         t_s,
         port=url,
@@ -283,3 +287,17 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
         loop=parsed.loop,
     )
+
+
+def _to_whole_frames(data: bytes, ends: np.ndarray, t_s: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
+    """``data`` up to the end of its last whole frame or line, and its pace (``ends``, ``t_s``) cut there."""
+    dec = StreamDecoder()
+    cut = 0
+    for frame in dec.feed(data) + dec.finish():
+        cut = max(cut, getattr(frame, "offset", 0) + getattr(frame, "nbytes", 0))
+    if cut <= 0 or cut >= len(data):
+        return data, ends, t_s
+    ends, t_s = np.asarray(ends), np.asarray(t_s)
+    keep = ends < cut
+    t_cut = t_s[int(np.argmax(ends >= cut))]
+    return data[:cut], np.append(ends[keep], cut), np.append(t_s[keep], t_cut)
