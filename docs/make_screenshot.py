@@ -73,7 +73,8 @@ def steval(*args, cwd: Path = ROOT, env=None) -> subprocess.CompletedProcess:
 
 
 def _written(path: Path) -> None:
-    print(f"{path.relative_to(ROOT)}: {path.stat().st_size} bytes")
+    shown = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    print(f"{shown}: {path.stat().st_size} bytes")
 
 
 def make_figures(tmp: Path) -> None:

@@ -213,7 +213,7 @@ def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
             "/" + ent.BLE_RSSI,
             "/" + ent.BLE_ARMED,
             "/" + ent.BLE_NOTE,
-            "/" + ent.pitch_path("st_mahony"),
+            "/" + ent.pitch_path(ent.SOURCE_PORT),
         } <= rec.entities
         png = screenshot(_url(port), tmp_path / "ble.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000

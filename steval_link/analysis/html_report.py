@@ -118,13 +118,17 @@ def _settings_table(report: ComparisonReport) -> Table | None:
         if key not in fs:
             continue
         v = fs[key]
-        text = ("on" if v else "off") if isinstance(v, bool) else f"{v:g}"
         default = diff.get(key, [None, None])[1]
-        dtext = (
-            "" if default is None else (("on" if default else "off") if isinstance(default, bool) else f"{default:g}")
-        )
-        rows.append([what, text, dtext or "same"])
+        dtext = "" if default is None else _setting_text(default)
+        rows.append([what, _setting_text(v), dtext or "same"])
     return Table(f"filter settings (from {fs['status_frames']} status frames)", ["setting", "value", "default"], rows)
+
+
+def _setting_text(v) -> str:
+    """A filter setting as the table shows it: on/off, a release's name, a number."""
+    if isinstance(v, bool):
+        return "on" if v else "off"
+    return v if isinstance(v, str) else f"{v:g}"
 
 
 def verdict_sentences(report: ComparisonReport) -> list[str]:
