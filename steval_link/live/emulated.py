@@ -92,19 +92,6 @@ class EmulatedSource(Source):
                 f"BROAD trial {emu.motion.name}: chunks T hold its ground truth per AHRS step (the "
                 "middle tick of the step's input window, emulated time)"
             )
-        self.symbols = SymbolAttitude(emu)  # what the emulator reads by symbol each step: chunks S
-        if self.variant is not None:
-            extra["filter"] = {"variant": self.variant, "from": self.variant_from}
-        else:
-            found, why = elf_filter_variant(emu.elf)
-            if found is not None:
-                self.variant, self.variant_from = found, "firmware ELF"
-                extra["filter"] = {"variant": found, "from": "firmware ELF", "why": why}
-        if self.symbols.available:
-            extra["symbols"] = (
-                "chunks S hold each AHRS step's inputs and outputs as the emulator read them from the firmware's "
-                "globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames the firmware sent"
-            )
         if self._filter is not None:  # the release whose filter the replica runs
             extra["filter"] = self._filter
         if self.symbols.available:

@@ -194,14 +194,6 @@ class RecorderProtocol(Protocol):
         self.capture.mark_event("disconnect", f"{self.port}: {exc}", self._t_capture())
         self.events.append(f"disconnected from {self.port}, waiting for it to come back")
 
-    def offline_within(self, t0_s: float, t1_s: float, now_s: float) -> float:
-        """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (a loss not over yet lasts to
-        ``now_s``)."""
-        total = 0.0
-        for lost, back in self.offline:
-            total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
-        return total
-
 
 def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
     """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
@@ -211,6 +203,15 @@ def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool
         raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
     except OSError as exc:
         raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+
+
+def offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
+    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
+    times, as :class:`RecorderProtocol` keeps them; a loss not over yet lasts to ``now_s``)."""
+    total = 0.0
+    for lost, back in offline:
+        total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
+    return total
 
 
 def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:

@@ -27,7 +27,7 @@ from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import SerialReader, open_error_message, open_serial
 from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
-from steval_link.live.recorder import Inbox, RecorderProtocol
+from steval_link.live.recorder import Inbox, RecorderProtocol, offline_within
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 from steval_link.live.summary import pipeline_counts
 
@@ -251,9 +251,9 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
     until then)."""
     h = pipe.health if pipe is not None else LinkHealth()
     streaming_s = 0.0
-    offline_s = _offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured
+    offline_s = offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured
     if h.first_frame_s is not None and h.last_frame_s is not None:  # the rate's time: connected, with frames
-        within = _offline_within(status.offline, h.first_frame_s, h.last_frame_s, now_s)
+        within = offline_within(status.offline, h.first_frame_s, h.last_frame_s, now_s)
         streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - within)
     p = pipe.mahony if pipe is not None else None
     filter_note = None
@@ -277,12 +277,3 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
         "pace": status.pace,
         "filter_note": filter_note,
     }
-
-
-def _offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
-    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
-    times; a loss not over yet lasts to ``now_s``)."""
-    total = 0.0
-    for lost, back in offline:
-        total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
-    return total
