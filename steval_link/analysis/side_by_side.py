@@ -15,7 +15,7 @@ what differs between them, each measured against its own accelerometer-only tilt
   one, frames lost on the link, a truncated capture.
 
 A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony replica's, run on its raw samples
-(dt from the ticks; :mod:`steval_link.analysis.ble`), and the notes say so.
+(dt from the ticks' cadence: :mod:`steval_link.link.ble_telemetry`), and the notes say so.
 """
 
 from __future__ import annotations
@@ -231,15 +231,15 @@ def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
     )
 
 
-def flight_of_ble(path, ble, inputs, replica_estimate, header: dict | None, warnings: Sequence[str] = ()) -> Flight:
-    """A BLE capture: its uniform inputs (:func:`steval_link.link.ble_payloads.uniform_inputs`) and the
-    ST-Mahony replica's estimate over them (no firmware angles are sent over BLE)."""
-    t = np.asarray(inputs.t_s, np.float64)
-    t = t - t[0] if len(t) else t
-    lost = int(ble.dropped_estimate() or 0)
-    return _flight(
-        path, "ble", "st-mahony port", t, replica_estimate, inputs, None, _facts(header, "ble"), lost, warnings
-    )
+def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()) -> Flight:
+    """A BLE capture's telemetry (the sender's samples on one grid, ``tel.link`` its facts) and the ST-Mahony
+    replica's estimate over its rows (the stock firmware sends no angles); None: the rows' own (euler layout)."""
+    a = tel.attitude
+    t = a.t_fw_s - a.t_fw_s[0] if len(a) else a.t_fw_s
+    lost = tel.link.cadence.dropped if tel.link.cadence is not None else 0
+    facts = _facts(tel.source.get("header"), "ble")
+    angles, of = ("firmware", a) if replica_estimate is None else ("st-mahony port", replica_estimate)
+    return _flight(path, "ble", angles, t, of, a, None, facts, lost, warnings)
 
 
 def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from steval_link.analysis.ble import format_ble_summary, summarize_ble
 from steval_link.analysis.diagnosis import recognise_release
 from steval_link.analysis.report import json_number
 from steval_link.analysis.step_cost import step_cost
@@ -148,6 +149,8 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
     whose filter the replica reproduces the rows with (``variant`` forces one; see ``recognise_release``);
     ``attitude_from``: "frames", or "symbols" (read by the emulator, ``symbols`` says so).
     """
+    if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
+        return summarize_ble(tel)
     a, s, st = tel.attitude, tel.status, tel.stats
     n = len(a)
     src = tel.source or {}
@@ -244,6 +247,8 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
 def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str]:
     """Human-readable lines of a :func:`summarize` dict (the first ``max_text_lines`` firmware log lines)."""
     s = summary
+    if s.get("kind") == "ble":
+        return format_ble_summary(s)
     src = s["source"]
     f = s["frames"]
     d = s["drops"]

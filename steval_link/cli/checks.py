@@ -82,14 +82,20 @@ def check_vector(option: str, values: Sequence[float], unit: str) -> None:
 
 def require_attitude(tel, purpose: str) -> None:
     """The one rule for a capture without attitude frames (cut short, text only, status only), in every command
-    that needs them: UserError saying what the capture holds instead and what cannot be done."""
-    if len(tel.attitude):
-        return
+    that needs them: UserError saying what the capture holds instead and what cannot be done. A BLE capture's rows
+    are the sender's samples, no serial frames: these commands need the serial stream."""
     path = tel.source.get("path", "the capture")
     try:
         size = f"{os.path.getsize(path)} bytes, "
     except (OSError, TypeError):
         size = ""
+    if getattr(tel, "link", None) is not None:
+        raise UserError(
+            f"{path}: {size}a BLE capture ({sum(tel.link.counts.values())} notifications, no serial frames): steval "
+            f"replay, export and compare A B read it; nothing to {purpose} without serial frames."
+        )
+    if len(tel.attitude):
+        return
     held = (
         f"{len(tel.status)} status frames and {len(tel.text)} text lines"
         if len(tel.status) + len(tel.text)

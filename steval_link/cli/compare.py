@@ -15,7 +15,6 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.analysis.ble import load_ble, run_ble_estimators
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
 from steval_link.analysis.side_by_side import (
@@ -42,8 +41,8 @@ from steval_link.cli.viewer_options import (
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
+from steval_link.estimators.runner import run_estimator
 from steval_link.estimators.st_mahony import MahonySettings
-from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
@@ -262,11 +261,10 @@ def _load_flight(path: Path):
     """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
     with the ST-Mahony port run over them."""
     src = read_recording(path)
-    if is_ble_source(src):
-        ble = load_ble(src)
-        inputs, estimates, _ = run_ble_estimators(ble, ["st-mahony"])
-        return flight_of_ble(path, ble, inputs, estimates["st-mahony"], src.header, src.warnings)
     tel = telemetry_of_recording(src)
+    if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples
+        replica = run_estimator("st-mahony", tel)[0] if tel.link.sensors else None
+        return flight_of_ble(path, tel, replica, src.warnings)
     if len(tel.attitude) == 0:
         raise UserError(
             f"{path} has no attitude frames to compare ({len(tel.status)} status frames, {len(tel.text)} text lines)."

@@ -8,7 +8,6 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from steval_link.analysis.ble import load_ble
 from steval_link.analysis.frame_tables import frame_tables, header_of, settings_of
 from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
@@ -163,15 +162,10 @@ def export(
         check_output(p, option=opt, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
         progress(0.1, "decoding")
-        if is_ble_source(src):
-            if mcap is not None:
-                raise UserError(
-                    f"{src.path} is a BLE capture: --mcap needs a serial capture (attitude frames); "
-                    "use --csv, --parquet or --mat."
-                )
-            _export_ble(src, csv, parquet, raw, progress, mat)
+        tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap or is_ble_source(src)) else None
+        if tel is not None and tel.link is not None:
+            _export_ble(tel, csv, parquet, raw, progress, mat, mcap)
             return
-        tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap) else None
         records = tel is not None and len(tel.text_series) > 0 and not tel.has_own_attitude
         if tel is not None and not (records and mcap is None):
             require_attitude(tel, "export (--raw gives the bytes)")
@@ -225,21 +219,23 @@ def _export_mcap(tel, path: Path, progress) -> None:
 
 
 def _export_ble(
-    src, csv: Path | None, parquet: Path | None, raw: Path | None, progress, mat: Path | None = None
+    tel, csv: Path | None, parquet: Path | None, raw: Path | None, progress, mat: Path | None, mcap
 ) -> None:
-    """A BLE capture: one row per motion notification (env and arming values held from their last one)."""
-    if raw is not None:
+    """A BLE capture: one row per motion sample received (env and arming values held from their last one)."""
+    path = tel.source["path"]
+    if raw is not None or mcap is not None:
         raise UserError(
-            f"{src.path} is a BLE capture: it has notifications, no serial bytes for --raw (use --csv or --parquet)."
+            f"{path} is a BLE capture: it has notifications, no serial bytes for --raw or attitude frames for --mcap "
+            "(use --csv, --parquet or --mat)."
         )
-    for w in src.warnings:
+    for w in tel.source["warnings"]:
         typer.echo(f"steval: warning: {w}", err=True)
-    ble = load_ble(src)
-    _write_table(ble.motion_table(), csv, parquet, progress, f"{len(ble)} motion rows (BLE)")
+    table, n = tel.link.motion_table(), len(tel.link.samples)
+    _write_table(table, csv, parquet, progress, f"{n} motion rows (BLE)")
     if mat is not None:
-        header = dict(src.header or {}, path=str(src.path), kind="ble")
-        write_atomic(mat, "--mat", lambda f: write_mat({"motion": ble.motion_table()}, {"from": "none"}, header, f))
-        typer.echo(f"{mat}: MATLAB struct motion ({len(ble)} rows, BLE), settings, header")
+        header = dict(tel.source["header"] or {}, path=str(path), kind="ble")
+        write_atomic(mat, "--mat", lambda f: write_mat({"motion": table}, {"from": "none"}, header, f))
+        typer.echo(f"{mat}: MATLAB struct motion ({n} rows, BLE), settings, header")
 
 
 def _write_table(table, csv: Path | None, parquet: Path | None, progress, rows: str, shortest: bool = False) -> None:

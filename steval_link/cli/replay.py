@@ -19,13 +19,6 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from steval_link.analysis.ble import (
-    ble_layout_of,
-    format_ble_summary,
-    load_ble,
-    run_ble_estimators,
-    summarize_ble,
-)
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app
@@ -45,7 +38,6 @@ from steval_link.cli.viewer_options import (
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
-from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.text_series import MAP_TARGETS, parse_map
@@ -72,18 +64,23 @@ Sink = Callable[[Any, dict[str, Any]], None]
 
 
 def load_replay(
-    path: Path | None, progress: Progress | None = None, *, src=None, text_map: list[str] | None = None
+    path: Path | None,
+    progress: Progress | None = None,
+    *,
+    src=None,
+    text_map: list[str] | None = None,
+    ble_layout: str | None = None,
 ) -> tuple[Any, list[str]]:
     """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
     warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_recording``);
-    ``text_map``: the ``--map`` items (a text log's series as the attitude)."""
+    ``text_map``: the ``--map`` items (a text log's series as the attitude); ``ble_layout``: a BLE capture's."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
     progress(0.0, f"reading {path.name}")
     src = read_recording(path) if src is None else src
     progress(0.2, "decoding")
     try:
-        tel = telemetry_of_recording(src, text_map=_text_map(text_map))
+        tel = telemetry_of_recording(src, text_map=_text_map(text_map), ble_layout=ble_layout)
     except UserError as exc:
         raise _map_flag(exc) from None
     progress(1.0, "decoded")
@@ -112,6 +109,8 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     progress = scaled(progress, 0.0, 1.0)
     decimation = row_decimation(tel)
     out = {}
+    if tel.link is not None and not tel.link.sensors:  # BLE rows of the drone's attitude: no sensor values
+        return out
     for i, name in enumerate(names):
         progress(i / len(names), f"estimator {name}")
         estimate, why = run_estimator(name, tel, decimation=decimation)
@@ -213,16 +212,23 @@ def replay(
         force=force,
         inputs=(src.path,),
     )
+    layout = check_ble_layout(ble_layout) if ble_layout else None
     try:
-        if is_ble_source(src):
-            _replay_ble(src, names, as_json, options, check_ble_layout(ble_layout) if ble_layout else None)
-            return
         with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
-            tel, seen = load_replay(capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map)
+            tel, seen = load_replay(
+                capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map, ble_layout=layout
+            )
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
             summary_sink(as_json, seen, variant)(tel, estimates)
-            if options is not None:
+            sys.stdout.flush()
+            if options is not None and tel.link is not None:  # BLE: the live pipeline and logger, as live
+                from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd
+
+                recording_sink(options, list(names), layout=tel.link.layout.name, progress=scaled(progress, 0.5, 1.0))(
+                    src
+                )
+            elif options is not None:
                 from steval_viewer.replay_log import replay_sink  # Rerun loads only for a viewer or an .rrd
 
                 replay_sink(options, progress=scaled(progress, 0.5, 1.0))(tel, estimates)
@@ -230,21 +236,3 @@ def replay(
         if rrd is not None:  # the sink writes it whole or not at all (an earlier file there stays as it was)
             print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
         raise
-
-
-def _replay_ble(src, names: Sequence[str], as_json: bool, options, layout: str | None) -> None:
-    """``steval replay`` of a BLE capture: the notifications, the estimators on them (dt from the ticks' cadence), the
-    summary, and in Rerun the one live logger fed by the one pipeline when asked (``layout``: the motion payload's;
-    None: the capture header's, else stock)."""
-    layout = layout or ble_layout_of(src)
-    with progress_bar("replay", quiet=as_json or bool(options and options.serve)) as progress:
-        progress(0.0, "decoding BLE notifications")
-        ble = load_ble(src)
-        progress(0.1, "estimators")
-        inputs, estimates, notes = run_ble_estimators(ble, names, layout)
-        _print_summary(summarize_ble(ble, src, inputs, layout), format_ble_summary, as_json)
-        sys.stdout.flush()
-        if options is not None:
-            from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd
-
-            recording_sink(options, list(names), layout=layout, progress=scaled(progress, 0.5, 1.0))(src)

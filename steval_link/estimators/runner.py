@@ -13,7 +13,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.estimators import registry
 
-__all__ = ["MEMORYLESS", "row_decimation", "run_estimator"]
+__all__ = ["MEMORYLESS", "created_at", "row_decimation", "run_estimator"]
 
 #: estimators without state, indifferent to the row rate
 MEMORYLESS = frozenset({"accel"})
@@ -39,9 +39,12 @@ def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any
     if not registry.is_known(name):
         return None, f"not available in this installation (known: {', '.join(registry.names())})"
     note = ""
+    dt_s = getattr(getattr(tel, "link", None), "dt_s", None)  # rows at a link's own cadence (BLE)
     try:
         est = None
-        if decimation > 1 and name not in MEMORYLESS:
+        if dt_s is not None:
+            est, note = created_at(name, dt_s), f"dt {dt_s * 1e3:.3f} ms from the link's cadence"
+        elif decimation > 1 and name not in MEMORYLESS:
             try:
                 est = registry.create(name, rate_hz=C.AHRS_RATE_HZ / decimation)
                 note = f"run at {C.AHRS_RATE_HZ / decimation:.2f} Hz: one row per {decimation} steps"
@@ -53,3 +56,13 @@ def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any
         return None, f"needs a package that is not installed ({exc})"
     a = tel.attitude
     return est.run(a.acc_mg, a.gyro_mdps, a.thr), note
+
+
+def created_at(name: str, dt_s: float):
+    """A registry estimator at ``dt_s`` on rows no firmware filter produced (BLE): the replica at that dt, the others
+    at 1/dt where they take a rate."""
+    if name in ("st-mahony", "st_mahony"):
+        return registry.create(name, dt_s=dt_s)
+    if name not in MEMORYLESS and registry.accepts(name, "rate_hz"):
+        return registry.create(name, rate_hz=1.0 / dt_s)
+    return registry.create(name)

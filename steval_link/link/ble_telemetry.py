@@ -1,6 +1,7 @@
-"""A BLE capture's notifications as arrays with units in the names (:class:`BleTelemetry`,
-:func:`decode_notifications`), and its motion samples on a uniform time grid for the estimators
-(:func:`uniform_inputs`: dt from the cadence found, :mod:`steval_link.link.ble_cadence`).
+"""A BLE capture as the one model: its notifications → frames → the sender's samples on one grid
+(:class:`LiveGrid`, live and replayed alike: dt from the cadence found, :mod:`steval_link.link.ble_cadence`) →
+:class:`~steval_link.link.telemetry.Telemetry` (:func:`ble_telemetry`), the link's facts as data on it
+(:class:`BleStream`); the notes that say what BLE rows are.
 
 Payloads and ticks: :mod:`steval_link.link.ble_payloads`. Pure functions and small classes over numpy arrays; no I/O.
 """
@@ -8,11 +9,11 @@ Payloads and ticks: :mod:`steval_link.link.ble_payloads`. Pure functions and sma
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from steval_link.errors import UserError
 from steval_link.link.ble_cadence import (
     CONGESTION,
     GAPS,
@@ -21,8 +22,6 @@ from steval_link.link.ble_cadence import (
     STEP_PERIOD_S,
     Cadence,
     RunNumberer,
-    break_mask,
-    cadence_numbers,
     gap_mask,
     motion_cadence,
     repeats_are_reads,
@@ -36,17 +35,19 @@ from steval_link.link.ble_payloads import (
     BleEnvFrame,
     BleLayout,
     BleMotionFrame,
+    ble_items,
+    layout_named,
 )
-from steval_link.link.telemetry import AttitudeArrays
+from steval_link.link.frames import DecoderStats
+from steval_link.link.telemetry import AttitudeArrays, Telemetry, TelemetryParts
 
 __all__ = [
     "NOT_BIT_EXACT",
     "EULER_NOTE",
     "link_notes",
-    "BleTelemetry",
-    "decode_notifications",
-    "UniformInputs",
-    "uniform_inputs",
+    "BleStream",
+    "ble_layout_of",
+    "ble_telemetry",
     "motion_payload_note",
     "attitude_rows",
     "layout_rows",
@@ -77,67 +78,56 @@ def link_notes(acc_mg, layout: BleLayout) -> list[str]:
     return [other] if other else [NOT_BIT_EXACT]
 
 
-@dataclass
-class BleTelemetry:
-    """Every notification of a BLE capture as arrays (units in the names). ``t_fw_s`` = unwrapped tick × 8 ms
-    (the drone's clock, 8 ms resolution); ``t_host_s`` = arrival, s since the capture started."""
+#: one motion sample received: its row in the model, tick (8 ms, unwrapped), arrival and the payload's fields
+SAMPLE_DTYPE = np.dtype(
+    [("row", "<i8"), ("tick", "<i8"), ("t_host_s", "<f8"), ("acc", "<f4", 3), ("gyro", "<f4", 3), ("mag", "<f4", 3)]
+)
+ENV_DTYPE = np.dtype(
+    [("t_host_s", "<f8"), ("t_fw_s", "<f8")]
+    + [(k, "<f4") for k in ("pressure_hpa", "battery_pct", "temperature_c", "rssi_dbm")]
+)
+ARMING_DTYPE = np.dtype([("t_host_s", "<f8"), ("t_fw_s", "<f8"), ("armed", "?")])
 
-    motion_t_host_s: np.ndarray
-    motion_tick: np.ndarray  #: (N,) int64, unwrapped
-    motion_t_fw_s: np.ndarray
-    acc_mg: np.ndarray  #: (N,3) float32
-    gyro_mdps: np.ndarray  #: (N,3) float32 (payload × 100)
-    mag_mgauss: np.ndarray  #: (N,3) float32
-    env_t_host_s: np.ndarray
-    env_t_fw_s: np.ndarray
-    pressure_hpa: np.ndarray
-    battery_pct: np.ndarray
-    temperature_c: np.ndarray
-    rssi_dbm: np.ndarray
-    arming_t_host_s: np.ndarray
-    arming_t_fw_s: np.ndarray
-    armed: np.ndarray
-    console: list[tuple[float, str, str]] = field(default_factory=list)  #: (t_host_s, "stdout"/"stderr", text)
-    counts: dict[str, int] = field(default_factory=dict)  #: notifications per characteristic name
+
+@dataclass
+class BleStream:
+    """What the rows of a BLE capture come with (``Telemetry.link``): the link's own facts, as data. The rows
+    themselves are the sender's samples on one grid, as live (:class:`LiveGrid`)."""
+
+    layout: BleLayout
+    cadence: Cadence | None  #: the motion stream's cadence (None below 2 samples or on one tick)
+    dt_s: float  #: the estimators' dt: the cadence's interval (ST's step when none is found)
+    rows_held: int  #: rows that hold the last sample over a notification sent and lost
+    samples: np.ndarray  #: one SAMPLE_DTYPE record per motion sample received (a repeated read counted once)
+    environment: np.ndarray  #: ENV_DTYPE records
+    arming: np.ndarray  #: ARMING_DTYPE records
+    counts: dict[str, int]  #: notifications per characteristic name
     bad_payloads: int = 0  #: notifications of the wrong length (skipped)
     unknown: int = 0  #: notifications of an unknown characteristic id (skipped)
-    repeated_reads: int = 0  #: motion samples received again (same tick and payload: a read of an unchanged value)
-    #: motion rows that are the first after a reconnection (the link was lost before them: the samples in between
-    #: were never sent, so that gap is no drop); set from the capture's events (``analysis.ble.load_ble``)
-    motion_breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-
-    def __len__(self) -> int:
-        return len(self.motion_tick)
-
-    def cadence(self) -> Cadence | None:
-        """The motion stream's cadence (:func:`motion_cadence`), None below 2 samples."""
-        return motion_cadence(self.motion_tick, self.repeated_reads, self.motion_breaks)
+    repeated_reads: int = 0  #: motion samples received again (a poller's read of an unchanged value)
+    kind: str = "ble"
 
     @property
-    def interval_s(self) -> float | None:
-        c = self.cadence()
-        return None if c is None else c.interval_s
+    def sensors(self) -> bool:
+        """The rows carry sensor values (the euler layout sends the drone's attitude instead)."""
+        return not self.layout.sends_attitude
 
-    def dropped_estimate(self) -> int:
-        """Motion samples missing between the first and the last (:attr:`Cadence.dropped`)."""
-        c = self.cadence()
-        return 0 if c is None else c.dropped
+    def notes(self) -> list[str]:
+        """What the rows are, one sentence each (:func:`link_notes`)."""
+        return link_notes(self.samples["acc"], self.layout)
 
     def motion_table(self) -> dict[str, np.ndarray]:
-        """One row per motion notification, for CSV/Parquet (env and arming values held from their last one)."""
-        tab = {"t_host_s": self.motion_t_host_s, "tick": self.motion_tick, "t_fw_s": self.motion_t_fw_s}
-        for name, arr in (("acc", self.acc_mg), ("gyro", self.gyro_mdps), ("mag", self.mag_mgauss)):
-            unit = {"acc": "mg", "gyro": "mdps", "mag": "mgauss"}[name]
+        """One row per motion sample received, for CSV/Parquet/MAT (env and arming values held from their last)."""
+        s = self.samples
+        t_fw = s["tick"] * TICK_S
+        tab = {"t_host_s": s["t_host_s"], "tick": s["tick"], "t_fw_s": t_fw}
+        for name, unit in (("acc", "mg"), ("gyro", "mdps"), ("mag", "mgauss")):
             for i, ax in enumerate("xyz"):
-                tab[f"{name}_{ax}_{unit}"] = arr[:, i]
-        for key, t, v in (
-            ("pressure_hpa", self.env_t_fw_s, self.pressure_hpa),
-            ("battery_pct", self.env_t_fw_s, self.battery_pct),
-            ("temperature_c", self.env_t_fw_s, self.temperature_c),
-            ("rssi_dbm", self.env_t_fw_s, self.rssi_dbm),
-            ("armed", self.arming_t_fw_s, self.armed.astype(np.float32)),
-        ):
-            tab[key] = _held(self.motion_t_fw_s, t, v)
+                tab[f"{name}_{ax}_{unit}"] = s[name][:, i]
+        env, arm = self.environment, self.arming
+        for key in ("pressure_hpa", "battery_pct", "temperature_c", "rssi_dbm"):
+            tab[key] = _held(t_fw, env["t_fw_s"], env[key])
+        tab["armed"] = _held(t_fw, arm["t_fw_s"], arm["armed"])
         return tab
 
 
@@ -151,101 +141,58 @@ def _held(t_at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def decode_notifications(records: Iterable[tuple[float, int, bytes]]) -> BleTelemetry:
-    """``(t_host_s, char id, payload)`` in arrival order → :class:`BleTelemetry`, through the one notification
-    decoder (:class:`~steval_link.link.ble_payloads.BleDecoder`). Wrong-length notifications are counted and skipped
-    (never raise); a motion payload equal to the previous one is one sample read twice (``repeated_reads``) only
-    when the stream is a poller's (:func:`~steval_link.link.ble_cadence.repeats_are_reads`), else a sample."""
-    dec = BleDecoder()
-    frames = [f for f in (dec.feed(c, p, t) for t, c, p in records) if f is not None]
-    return telemetry_of_frames(frames, dec)
+def ble_layout_of(header: dict | None) -> str:
+    """The motion layout a BLE capture's header names (``extra.ble_layout``; stock when it names none)."""
+    extra = (header or {}).get("extra") or {}
+    return str(extra.get("ble_layout") or "stock") if isinstance(extra, dict) else "stock"
 
 
-def telemetry_of_frames(frames: list, dec: BleDecoder) -> BleTelemetry:
-    """The arrays of decoded BLE frames (the counters of their decoder ``dec``)."""
-    mo = [f for f in frames if isinstance(f, BleMotionFrame)]
-    en = [f for f in frames if isinstance(f, BleEnvFrame)]
-    ar = [f for f in frames if isinstance(f, BleArmingFrame)]
-    repeat = np.array([f.repeat for f in mo], dtype=bool)
-    ticks = np.array([f.tick for f in mo], dtype=np.int64)
-    reads = repeats_are_reads(ticks, repeat, [f.t_host_s for f in mo])
-    if reads:
-        mo = [f for f in mo if not f.repeat]
-    m = np.array([(f.t_host_s, f.tick, *f.acc_mg, *f.gyro_mdps, *f.mag_mgauss) for f in mo], np.float64)
-    m = m.reshape(-1, 11)
-    e = np.array([(f.t_host_s, f.tick, f.pressure_hpa, f.battery_pct, f.temperature_c, f.rssi_dbm) for f in en])
-    e = e.reshape(-1, 6)
-    a = np.array([(f.t_host_s, f.tick, f.armed) for f in ar], np.float64).reshape(-1, 3)
-    mtick = m[:, 1].astype(np.int64)
-    return BleTelemetry(
-        motion_t_host_s=m[:, 0].copy(),
-        motion_tick=mtick,
-        motion_t_fw_s=mtick * TICK_S,
-        acc_mg=m[:, 2:5].astype(np.float32),
-        gyro_mdps=m[:, 5:8].astype(np.float32),
-        mag_mgauss=m[:, 8:11].astype(np.float32),
-        env_t_host_s=e[:, 0].copy(),
-        env_t_fw_s=e[:, 1] * TICK_S,
-        pressure_hpa=e[:, 2].astype(np.float32),
-        battery_pct=e[:, 3].astype(np.float32),
-        temperature_c=e[:, 4].astype(np.float32),
-        rssi_dbm=e[:, 5].astype(np.float32),
-        arming_t_host_s=a[:, 0].copy(),
-        arming_t_fw_s=a[:, 1] * TICK_S,
-        armed=a[:, 2].astype(bool),
-        console=[(f.t_host_s, f.stream, f.text) for f in frames if isinstance(f, BleConsoleFrame)],
-        counts=dict(dec.counts),
-        bad_payloads=dec.bad_payloads,
-        unknown=dec.unknown,
-        repeated_reads=int(repeat.sum()) if reads else 0,
-    )
-
-
-@dataclass
-class UniformInputs:
-    """Motion samples on a uniform time grid for the estimators (fixed dt = ``dt_s``)."""
-
-    t_s: np.ndarray  #: (M,) firmware time of each row, s (from the ticks)
-    acc_mg: np.ndarray  #: (M,3) float32
-    gyro_mdps: np.ndarray  #: (M,3) float32
-    filled: np.ndarray  #: (M,) bool: True for rows held over a dropped notification
-    dt_s: float
-    source_row: np.ndarray  #: (M,) int64: the motion notification each row holds
-    cadence: Cadence | None = None  #: the cadence the grid follows
-
-
-def uniform_inputs(ble: BleTelemetry, cadence: Cadence | None = None) -> UniformInputs:
-    """The estimators' inputs with dt from the cadence found (:func:`motion_cadence`): one row per sender sample
-    (:func:`cadence_numbers`); a dropped notification's row holds the last sample received. A steady or polled
-    stream has one row per sample received and none held; the samples a lost link never sent
-    (:attr:`BleTelemetry.motion_breaks`) have no rows (the estimators step once over that gap)."""
-    n = len(ble)
-    c = cadence if cadence is not None else ble.cadence()
-    if n == 0 or c is None:
-        z = np.zeros((n, 3), np.float32)
-        return UniformInputs(
-            ble.motion_t_fw_s.copy(),
-            ble.acc_mg.copy() if n else z,
-            ble.gyro_mdps.copy() if n else z,
-            np.zeros(n, bool),
-            0.0,
-            np.arange(n),
-            c,
+def ble_telemetry(src, layout: str | None = None) -> Telemetry:
+    """A BLE capture (a ``link.load.Recording``: its ``B`` chunks and ``reconnect`` events) as the one model:
+    notifications → frames (:class:`BleDecoder`) → the sender's samples on one grid (:class:`LiveGrid`, as live:
+    dt from the cadence, rows held only over notifications sent and lost, none over a lost link) →
+    :class:`Telemetry` whose ``link`` is the :class:`BleStream`. ``layout``: the motion payload's (None: the
+    header's). UserError without motion notifications."""
+    lay = layout_named(layout or ble_layout_of(src.header))
+    dec, grid = BleDecoder(), LiveGrid(lay)
+    motion, env, arm, text = [], [], [], []
+    for cid, payload, t in ble_items(src.chunks or {}, src.events or []):
+        f = None if cid is None else dec.feed(cid, payload, t)
+        if cid is None or isinstance(f, BleMotionFrame):
+            motion.append(f)
+        elif isinstance(f, BleEnvFrame):
+            env.append((f.t_host_s, f.tick * TICK_S, f.pressure_hpa, f.battery_pct, f.temperature_c, f.rssi_dbm))
+        elif isinstance(f, BleArmingFrame):
+            arm.append((f.t_host_s, f.tick * TICK_S, f.armed))
+        elif isinstance(f, BleConsoleFrame):
+            text.append((f.t_host_s, f"[{f.stream}] {f.text}"))
+    grid.add(motion)
+    a = grid.rows(final=True)
+    if a is None:
+        raise UserError(
+            f"{src.path}: a BLE capture without motion notifications ({sum(dec.counts.values())} other "
+            "notifications): nothing to replay."
         )
-    dt = c.interval_s
-    k = cadence_numbers(ble.motion_tick, c)
-    rows = np.ones(k[-1] + 1, bool)
-    for b in np.flatnonzero(break_mask(n, ble.motion_breaks)):
-        rows[k[b - 1] + 1 : k[b]] = False  # never sent: the link was down
-    numbers = np.flatnonzero(rows)
-    src = np.searchsorted(k, numbers, side="right") - 1  # the last sample received at or before
-    filled = np.ones(len(numbers), bool)
-    filled[np.searchsorted(numbers, k)] = False
-    if c.kind == POLLED:  # reads at the host's moments: each row at its own tick (mid-tick)
-        t_grid = ble.motion_t_fw_s + TICK_S / 2
-    else:
-        t_grid = sender_phase(ble.motion_t_fw_s, dt) + numbers * dt
-    return UniformInputs(t_grid, ble.acc_mg[src], ble.gyro_mdps[src], filled, float(dt), src, c)
+    kept = [f for f in motion if f is not None and not (grid.reads and f.repeat)]
+    samples = np.array([(0, f.tick, f.t_host_s, f.acc_mg, f.gyro_mdps, f.mag_mgauss) for f in kept], dtype=SAMPLE_DTYPE)
+    samples["row"] = np.searchsorted(a.step, grid.numbers)
+    stream = BleStream(
+        lay,
+        grid.found,
+        float(grid.dt_s),
+        grid.rows_held,
+        samples,
+        np.array(env, dtype=ENV_DTYPE),
+        np.array(arm, dtype=ARMING_DTYPE),
+        dict(dec.counts),
+        dec.bad_payloads,
+        dec.unknown,
+        grid.repeats,
+    )
+    source = {"path": str(src.path), "kind": "stv", "link": "ble", "header": src.header, "warnings": src.warnings}
+    tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
+    tel.attitude, tel.text, tel.link = a, text, stream
+    return tel
 
 
 def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
@@ -333,7 +280,11 @@ class LiveGrid:
         self.layout = layout
         self._pending: list = []  # motion frames (or None: a reconnection) before the cadence is found
         self._cadence: Cadence | None = None
-        self._reads = False  # repeats are reads of one sample
+        self.reads = False  #: repeats are reads of one sample
+        #: the cadence the first samples show (None: too few; the grid then runs at ST's step)
+        self.found: Cadence | None = None
+        #: the sender's numbers of the samples :meth:`rows` placed last
+        self.numbers = np.zeros(0, np.int64)
         self._t0_s = 0.0  # the sender's phase (drone time of sample 0), s
         self._last_k: int | None = None
         self._numberer: RunNumberer | None = None
@@ -367,7 +318,7 @@ class LiveGrid:
         for f in frames:
             if f is None:
                 breaks.append(len(kept))
-            elif self._reads and f.repeat:
+            elif self.reads and f.repeat:
                 self.repeats += 1
             else:
                 kept.append(f)
@@ -388,15 +339,15 @@ class LiveGrid:
             return
         rep = np.array([f.repeat for f in mo], bool)
         ticks = np.array([f.tick for f in mo], np.int64)
-        self._reads = repeats_are_reads(ticks, rep, [f.t_host_s for f in mo])
-        keep = ~rep if self._reads else np.ones(len(mo), bool)
+        self.reads = repeats_are_reads(ticks, rep, [f.t_host_s for f in mo])
+        keep = ~rep if self.reads else np.ones(len(mo), bool)
         brk, i = [], 0  # the kept samples that follow a reconnection
         for f in frames:
             if f is None:
                 brk.append(i)
-            elif not (self._reads and f.repeat):
+            elif not (self.reads and f.repeat):
                 i += 1
-        c = motion_cadence(ticks[keep], int((~keep).sum()), brk)
+        c = self.found = motion_cadence(ticks[keep], int((~keep).sum()), brk)
         if c is None:  # a single sample (or one tick): ST's step, as the stock firmware sends
             c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, int((~keep).sum()), 0.0, True)
         self._cadence = c
@@ -425,6 +376,7 @@ class LiveGrid:
             k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
         else:
             k = self._numberer.numbers(tick)
+        self.numbers = k
         self._ticks.extend(tick.tolist())
         self._numbers.extend(k.tolist())
         prev = k[0] - 1 if first else self._last_k

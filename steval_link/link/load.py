@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import is_ble_source
+from steval_link.link.ble_telemetry import ble_telemetry
 from steval_link.link.capture import (
-    CHUNK_BLE,
     MAGIC,
     Capture,
     CaptureTruncatedWarning,
@@ -86,17 +87,15 @@ def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> 
     return telemetry_of_recording(src, text_map=text_map)
 
 
-def telemetry_of_recording(src: Recording, *, text_map: dict | None = None) -> Telemetry:
+def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_layout: str | None = None) -> Telemetry:
     """Decode a :class:`Recording` (see :func:`load_telemetry`); an emulated capture's symbol chunks S join it
-    (:mod:`steval_link.link.symbol_rows`)."""
+    (:mod:`steval_link.link.symbol_rows`); a BLE capture's notifications are its rows (``ble_layout``: what its
+    motion payloads hold, None: its header's; :func:`~steval_link.link.ble_telemetry.ble_telemetry`)."""
+    if is_ble_source(src):
+        return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
     if src.kind == "stv" and not src.data and symbols is None:
         size = _file_size(src.path)
-        if src.chunks.get(CHUNK_BLE):
-            raise UserError(
-                f"{src.path}: {size}, a BLE capture ({len(src.chunks[CHUNK_BLE])} notifications, no "
-                "serial frames): steval replay and export read it, this command needs the serial stream."
-            )
         if src.warnings:  # cut short or damaged right after the header
             raise UserError(
                 f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "

@@ -411,6 +411,9 @@ class Telemetry:
     text_series: TextSeries = field(default_factory=TextSeries)
     #: how the text series became the attitude rows (one note per mapped name), [] when they did not
     text_attitude_notes: list[str] = field(default_factory=list)
+    #: the link's own facts when they are not a serial stream's (a BLE capture's
+    #: :class:`~steval_link.link.ble_telemetry.BleStream`: cadence, dt, layout, environment); None for serial
+    link: Any = None
 
     @classmethod
     def from_parts(

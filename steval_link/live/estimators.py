@@ -12,6 +12,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators import firmware_replay, registry, st_mahony
+from steval_link.estimators.runner import created_at
 from steval_link.link.telemetry import AttitudeArrays
 
 
@@ -164,7 +165,7 @@ class LiveEstimators:
         """Run every estimator at ``dt_s`` on rows no firmware filter produced (BLE): the replica as a plain filter
         at that dt (nothing to follow), the others at 1/dt where they take a rate."""
         self.mahony = None
-        self.others = {name: _created(name, dt_s) for name in self.names}
+        self.others = {name: created_at(name, dt_s) for name in self.names}
         self._watch = {name: _Watch(self.clock()) for name in self.others}
 
     def process(self, rows: LiveRows) -> None:
@@ -249,15 +250,6 @@ class LiveEstimators:
     def status(self, frame) -> None:
         if self.mahony is not None:
             self.mahony.status(frame)
-
-
-def _created(name: str, dt_s: float):
-    """A registry estimator at ``dt_s`` (the replica's own dt; others' rate where they take one)."""
-    if name in ("st-mahony", "st_mahony"):
-        return registry.create(name, dt_s=dt_s)
-    if name != "accel" and registry.accepts(name, "rate_hz"):
-        return registry.create(name, rate_hz=1.0 / dt_s)
-    return registry.create(name)
 
 
 def failure_sentence(name: str, exc: BaseException) -> str:
