@@ -13,14 +13,14 @@ import sys
 
 import numpy as np
 import pytest
-from support.ble import RecordingViewer, run_until_played
+from support.ble import RecordingViewer, held_rows, run_until_played, telemetry_of_records
 from support.cli import run_cli
 
 from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
-from steval_link.link import ble_telemetry as BT
-from steval_link.link.capture import CHUNK_BLE, CaptureWriter, read_capture
+from steval_link.link.capture import CHUNK_BLE, CaptureWriter
+from steval_link.link.load import load_telemetry
 
 STEP_S = BC.STEP_PERIOD_S
 WRAP_MS = 1 << 19  # HAL_GetTick() at which the u16 tick (>> 3) wraps
@@ -118,32 +118,32 @@ RATES = [40.0, 50.0, 80.0, 1 / STEP_S]
 @pytest.mark.parametrize("rate_hz", RATES, ids=["40Hz", "50Hz", "80Hz", "161.5Hz"])
 def test_a_sender_at_its_own_rate_drops_nothing(rate_hz):
     recs, sent, _ = drone_stream(rate_hz)
-    ble = BT.decode_notifications(recs)
-    assert len(ble) == sent
-    c = ble.cadence()
+    tel = telemetry_of_records(recs)
+    assert len(tel.link.samples) == sent
+    c = tel.link.cadence
     assert c.kind == BC.STEADY and c.dropped == 0 and c.gaps == 0 and c.repeats == 0
     assert c.rate_hz == pytest.approx(rate_hz, rel=2e-3)
     assert c.exact == (rate_hz > 160)  # ST's step is known exactly; other rates are measured
-    u = BT.uniform_inputs(ble)
-    assert u.dt_s == c.interval_s and not u.filled.any() and len(u.t_s) == sent
-    assert (u.source_row == np.arange(sent)).all() and (np.diff(u.t_s) > 0).all()
+    a = tel.attitude
+    assert tel.link.dt_s == c.interval_s and not held_rows(tel).any() and len(a) == sent
+    assert (tel.link.samples["row"] == np.arange(sent)).all() and (np.diff(a.t_fw_s) > 0).all()
     assert "the sender's own rate), 0 dropped" in c.describe()
 
 
 @pytest.mark.parametrize("rate_hz", RATES, ids=["40Hz", "50Hz", "80Hz", "161.5Hz"])
 def test_congestion_gaps_count_at_the_senders_cadence(rate_hz):
     recs, sent, missing = drone_stream(rate_hz, congested=True)
-    ble = BT.decode_notifications(recs)
-    c = ble.cadence()
+    tel = telemetry_of_records(recs)
+    c = tel.link.cadence
     assert missing >= 60 and c.gaps == missing // 31
     assert c.rate_hz == pytest.approx(rate_hz, rel=2e-3)
     assert c.dropped == missing  # every skipped update, counted at the sender's own period
     assert c.kind == (BC.CONGESTION if rate_hz > 160 else BC.GAPS)
-    u = BT.uniform_inputs(ble)
-    assert int(u.filled.sum()) == missing and len(u.t_s) == sent + missing and u.dt_s == c.interval_s
+    a, held = tel.attitude, held_rows(tel)
+    assert int(held.sum()) == missing and len(a) == sent + missing and tel.link.dt_s == c.interval_s
     # a held row repeats the last sample received before the gap
-    i = int(np.flatnonzero(u.filled)[0])
-    assert (u.acc_mg[i] == u.acc_mg[i - 1]).all() and not u.filled[i - 1]
+    i = int(np.flatnonzero(held)[0])
+    assert (a.acc_mg[i] == a.acc_mg[i - 1]).all() and not held[i - 1]
     text = c.describe()
     assert f"with {missing} dropped in {c.gaps} gap(s)" in text
     assert ("congestion" in text) == (rate_hz > 160)
@@ -154,29 +154,31 @@ def test_across_the_tick_wrap(rate_hz):
     # HAL_GetTick() starts 3 s before the u16 tick wraps: the wrap falls in the middle of the stream
     for congested in (False, True):
         recs, sent, missing = drone_stream(rate_hz, congested=congested, start_ms=WRAP_MS - 3000, duration_s=8)
-        ble = BT.decode_notifications(recs)
-        assert ble.motion_tick[0] < 1 << 16 <= ble.motion_tick[-1] and (np.diff(ble.motion_tick) >= 0).all()
-        c = ble.cadence()
+        ble = telemetry_of_records(recs).link
+        tick = ble.samples["tick"]
+        assert tick[0] < 1 << 16 <= tick[-1] and (np.diff(tick) >= 0).all()
+        c = ble.cadence
         assert c.dropped == (missing if congested else 0) and c.rate_hz == pytest.approx(rate_hz, rel=3e-3)
 
 
 def test_a_poller_reading_the_characteristic():
     for read_hz in (30.0, 35.0, 40.0):
         recs, distinct, reads = poller_stream(read_hz)
-        ble = BT.decode_notifications(recs)
+        tel = telemetry_of_records(recs)
+        ble = tel.link
         # a repeated read of one sample (same tick and values) is that sample once
-        assert len(ble) == distinct and ble.repeated_reads == reads - distinct > 0
+        assert len(ble.samples) == distinct and ble.repeated_reads == reads - distinct > 0
         assert ble.counts["motion"] == reads
-        c = ble.cadence()
+        c = ble.cadence
         assert c.kind == BC.POLLED and c.dropped == 0 and c.repeats == reads - distinct
-        span = ble.motion_t_fw_s[-1] - ble.motion_t_fw_s[0]
+        span = float(ble.samples["tick"][-1] - ble.samples["tick"][0]) * B.TICK_S
         assert c.rate_hz == pytest.approx((distinct - 1) / span) and abs(c.rate_hz - read_hz) < 0.1 * read_hz
-        u = BT.uniform_inputs(ble)
-        assert len(u.t_s) == distinct and not u.filled.any() and u.dt_s == pytest.approx(span / (distinct - 1))
+        assert len(tel.attitude) == distinct and not held_rows(tel).any()
+        assert ble.dt_s == pytest.approx(span / (distinct - 1))
         assert "reads of the characteristic" in c.describe() and c.describe().endswith("0 dropped")
     # read without repeats, the same stream is a regular cadence at the read rate: still nothing dropped
     recs, distinct, reads = poller_stream(35.0, double_every=10**9)
-    c = BT.decode_notifications(recs).cadence()
+    c = telemetry_of_records(recs).link.cadence
     assert c.dropped == 0 and abs(c.rate_hz - 35.0) < 3.5
 
 
@@ -276,10 +278,10 @@ def test_live_session_says_the_cadence(tmp_path, rate_hz, congested):
     t_grid = np.concatenate([r.attitude.t_fw_s for r in rows])
     assert len(t_grid) == sent + missing
     assert pipe.estimators.others["st-mahony"].settings.dt_s == pytest.approx(1 / rate_hz, rel=5e-3)
-    u = BT.uniform_inputs(BT.decode_notifications(B.ble_records(read_capture(tmp_path / "live.stv").chunks)))
-    assert len(u.t_s) == len(t_grid) and int(u.filled.sum()) == missing
+    replayed = load_telemetry(tmp_path / "live.stv")
+    assert len(replayed.attitude) == len(t_grid) and int(held_rows(replayed).sum()) == missing
     # the same rows at the replay's times: within half a period while the live interval is refined, then closer
-    err = np.abs(t_grid - u.t_s)
+    err = np.abs(t_grid - replayed.attitude.t_fw_s)
     assert err.max() < 0.5 / rate_hz and err[-len(rows[-1]) :].max() < 0.05 / rate_hz
     text = summary.line()
     if congested:
@@ -322,5 +324,5 @@ def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     assert code == 0 and s["motion_cadence"] == BC.STEADY and s["motion_dropped_estimate"] == 0
     assert s["rows_held_over_drops"] == 0 and [e["kind"] for e in s["events"]].count("reconnect") == 1
     # without the reconnection the same ticks are a gap of the cadence: 100 dropped
-    c = BT.decode_notifications(recs).cadence()
+    c = telemetry_of_records(recs).link.cadence
     assert c.kind == BC.GAPS and c.dropped == 100 and c.gaps == 1

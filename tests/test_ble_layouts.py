@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.ble import held_rows, telemetry_of_records
 from support.cli import run_cli
 
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
-from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 from steval_link.link.load import load_telemetry, read_recording
 from steval_link.live.pipeline import LivePipeline
@@ -61,13 +61,13 @@ def euler_stream() -> tuple[list, object]:
 def test_values_repeating_within_a_tick_are_161_5_hz_not_reads(monkeypatch, capsys, tmp_path):
     recs, changed = repeated_within_ticks()
     assert changed > 500  # two samples in one 8 ms tick are common at 161.5 Hz
-    ble = BT.decode_notifications(recs)
+    tel = telemetry_of_records(recs)
+    ble = tel.link
     n_motion = sum(1 for _, c, _ in recs if c == B.CHAR_MOTION)
-    assert len(ble) == n_motion and ble.repeated_reads == 0
-    c = ble.cadence()
+    assert len(ble.samples) == len(tel.attitude) == n_motion and ble.repeated_reads == 0
+    c = ble.cadence
     assert c.kind == BC.STEADY and c.exact and c.rate_hz == pytest.approx(161.54, abs=0.01) and c.dropped == 0
-    u = BT.uniform_inputs(ble)
-    assert u.dt_s == pytest.approx(BC.STEP_PERIOD_S) and not u.filled.any()
+    assert ble.dt_s == pytest.approx(BC.STEP_PERIOD_S) and not held_rows(tel).any()
     code, out, err = run_cli(monkeypatch, capsys, "replay", _write(tmp_path / "rep.stv", recs), "--json")
     s = json.loads(out)
     assert code == 0 and s["motion_cadence"] == BC.STEADY and s["motion_rate_hz"] == 161.54
@@ -87,8 +87,8 @@ def test_a_poller_still_reads_as_reads():
     recs = B.ble_records(read_recording(REC / "ble_demo.stv").chunks)
     motion = [(t, c, p) for t, c, p in recs if c == B.CHAR_MOTION][::5]  # every 31 ms ...
     polled = [r for m in motion for r in (m, (m[0] + 0.004, m[1], m[2]))][:1000]  # ... each read twice
-    ble = BT.decode_notifications(polled)
-    assert ble.repeated_reads == 500 and len(ble) == 500 and ble.cadence().kind == BC.POLLED
+    ble = telemetry_of_records(polled).link
+    assert ble.repeated_reads == 500 and len(ble.samples) == 500 and ble.cadence.kind == BC.POLLED
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI

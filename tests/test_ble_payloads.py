@@ -14,11 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.ble import held_rows, telemetry_of_records
 
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
-from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import read_capture
+from steval_link.link.load import load_telemetry
 
 # -- hand-made payloads ---------------------------------------------------------------------------------------------
 
@@ -71,10 +72,11 @@ def test_decode_notifications_counts_and_skips_bad_payloads():
         (0.004, 9, b"xx"),
         (0.005, B.CHAR_STDERR, b"Error\r\n"),
     ]
-    ble = BT.decode_notifications(recs)
-    assert len(ble) == 1 and ble.bad_payloads == 1 and ble.unknown == 1
+    tel = telemetry_of_records(recs)
+    ble = tel.link
+    assert len(ble.samples) == len(tel.attitude) == 1 and ble.bad_payloads == 1 and ble.unknown == 1
     assert ble.counts == {"motion": 2, "environment": 1, "arming": 1, "stdout": 0, "stderr": 1}
-    assert ble.console == [(0.005, "stderr", "Error\r\n")]
+    assert tel.text == [(0.005, "[stderr] Error\r\n")]
 
 
 def steps(n: int, t0_ms: float = 123_456.0) -> list[int]:
@@ -86,21 +88,21 @@ def steps(n: int, t0_ms: float = 123_456.0) -> list[int]:
 def test_nominal_interval_drops_and_uniform_grid():
     ticks = steps(2000)
     recs = [(i * BC.STEP_PERIOD_S, B.CHAR_MOTION, motion(t, acc=(i % 1000, 0, 1000))) for i, t in enumerate(ticks)]
-    full = BT.decode_notifications(recs)
+    full = telemetry_of_records(recs).link.cadence
     assert full.interval_s == pytest.approx(BC.STEP_PERIOD_S)
-    assert full.dropped_estimate() == 0
+    assert full.dropped == 0
     # drop a block of 40 and 10 scattered notifications
     keep = np.ones(len(recs), bool)
     keep[500:540] = False
     keep[[900, 1100, 1300, 1500, 1600, 1700, 1750, 1800, 1850, 1900]] = False
-    ble = BT.decode_notifications([r for r, k in zip(recs, keep) if k])
-    assert ble.dropped_estimate() == 50
-    u = BT.uniform_inputs(ble)
-    assert u.dt_s == pytest.approx(BC.STEP_PERIOD_S)
-    assert abs(len(u.t_s) - 2000) <= 1 and int(u.filled.sum()) == len(u.t_s) - len(ble)
+    tel = telemetry_of_records([r for r, k in zip(recs, keep) if k])
+    a, held = tel.attitude, held_rows(tel)
+    assert tel.link.cadence.dropped == 50 == tel.link.rows_held
+    assert tel.link.dt_s == pytest.approx(BC.STEP_PERIOD_S)
+    assert abs(len(a) - 2000) <= 1 and int(held.sum()) == len(a) - len(tel.link.samples)
     # the block is held over: the rows after 499 repeat its sample until 540's arrives
-    assert u.acc_mg[499:540, 0].tolist() == [499.0] * 40 or u.acc_mg[500, 0] == 499.0
-    assert (np.diff(u.t_s) > 0).all()
+    assert a.acc_mg[499:540, 0].tolist() == [499.0] * 40 or a.acc_mg[500, 0] == 499.0
+    assert (np.diff(a.t_fw_s) > 0).all()
 
 
 # -- the real firmware under emulation ------------------------------------------------------------------------------
@@ -113,10 +115,8 @@ REC = Path(__file__).resolve().parents[1] / "recordings"
 
 @pytest.fixture(scope="module")
 def demo():
-    """The notifications of recordings/ble_demo.stv, decoded."""
-    from steval_link.analysis.ble import load_ble
-
-    return load_ble(read_capture(REC / "ble_demo.stv"))
+    """recordings/ble_demo.stv as the one model: its link's facts."""
+    return load_telemetry(REC / "ble_demo.stv").link
 
 
 def test_decoder_on_st_firmwares_notifications_across_the_tick_wrap(demo):
@@ -124,19 +124,21 @@ def test_decoder_on_st_firmwares_notifications_across_the_tick_wrap(demo):
     assert min(counts) > 5000 and max(counts) - min(counts) <= 1  # (the run may end between two of them)
     assert demo.bad_payloads == 0 and demo.unknown == 0
     # the u16 tick wrapped once (HAL_GetTick started at 494288 ms): unwrapped, it runs on
-    assert (np.diff(demo.motion_tick) >= 0).all() and demo.motion_tick[-1] >= 1 << 16 > demo.motion_tick[0]
+    tick, t_host = demo.samples["tick"], demo.samples["t_host_s"]
+    assert (np.diff(tick) >= 0).all() and tick[-1] >= 1 << 16 > tick[0]
     # the unwrapped tick clock runs with the (emulated) host clock, to the tick's 8 ms resolution
-    drift = (demo.motion_t_fw_s - demo.motion_t_fw_s[0]) - (demo.motion_t_host_s - demo.motion_t_host_s[0])
+    drift = (tick - tick[0]) * B.TICK_S - (t_host - t_host[0])
     assert np.abs(drift).max() <= 2 * B.TICK_S
     # one notification of each characteristic per AHRS step, none dropped
-    assert 1.0 / demo.interval_s == pytest.approx(161.54, abs=0.05)
-    assert demo.dropped_estimate() == 0
+    assert 1.0 / demo.cadence.interval_s == pytest.approx(161.54, abs=0.05)
+    assert demo.cadence.dropped == 0
     # hand tilts: the acceleration's magnitude is about 1 g
-    assert abs(float(np.median(np.linalg.norm(demo.acc_mg, axis=1))) - 1000) < 50
+    assert abs(float(np.median(np.linalg.norm(demo.samples["acc"], axis=1))) - 1000) < 50
 
 
 def test_decoder_sees_notifications_dropped_on_the_way(demo):
-    keep = np.ones(len(demo), bool)
+    s = demo.samples
+    keep = np.ones(len(s), bool)
     keep[100:160] = False
     # the whole sample as sent (acc, gyro, mag): two updates within one 8 ms tick differ by their sensor noise
     records = [
@@ -145,15 +147,12 @@ def test_decoder_sees_notifications_dropped_on_the_way(demo):
             B.CHAR_MOTION,
             motion(int(k) & 0xFFFF, tuple(map(int, a)), tuple(int(round(v / 100)) for v in g), tuple(map(int, m))),
         )
-        for t, k, a, g, m, ok in zip(
-            demo.motion_t_host_s, demo.motion_tick, demo.acc_mg, demo.gyro_mdps, demo.mag_mgauss, keep
-        )
+        for t, k, a, g, m, ok in zip(s["t_host_s"], s["tick"], s["acc"], s["gyro"], s["mag"], keep)
         if ok
     ]
-    dropped = BT.decode_notifications(records)
-    assert dropped.dropped_estimate() == 60
-    u = BT.uniform_inputs(dropped)
-    assert int(u.filled.sum()) == 60 and abs(len(u.t_s) - len(demo)) <= 1
+    dropped = telemetry_of_records(records)
+    assert dropped.link.cadence.dropped == 60
+    assert int(held_rows(dropped).sum()) == 60 and abs(len(dropped.attitude) - len(s)) <= 1
 
 
 def test_replay_of_the_ble_capture(monkeypatch, capsys):

@@ -17,7 +17,6 @@ from support.cli import run_cli
 from steval_link.errors import UserError
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
-from steval_link.link import ble_telemetry as BT
 from steval_link.link.capture import (
     CHUNK_BLE,
     FORMAT_VERSION,
@@ -26,7 +25,7 @@ from steval_link.link.capture import (
     encode_capture,
     read_capture,
 )
-from steval_link.link.load import read_recording
+from steval_link.link.load import load_telemetry
 
 ROOT = Path(__file__).resolve().parents[1]
 REC = ROOT / "recordings"
@@ -102,17 +101,18 @@ def test_demo_is_the_stock_firmware_over_ble():
     extra = cap.header["extra"]
     assert extra["link"] == "ble" and extra["emulated"] and extra["firmware"] == "st-fcu-stock.elf"
     assert cap.data == b""  # notifications only
-    ble = BT.decode_notifications(B.ble_records(cap.chunks))
+    ble = load_telemetry(DEMO).link
     assert ble.counts["motion"] == ble.counts["environment"] == ble.counts["arming"] > 5000
     assert ble.bad_payloads == 0 and ble.unknown == 0
     # the 8 ms tick wraps once (HAL_GetTick started at 494288 ms: 30 s after power-up)
-    assert ble.motion_tick[0] < 1 << 16 <= ble.motion_tick[-1] and (np.diff(ble.motion_tick) >= 0).all()
-    assert 1 / ble.interval_s == pytest.approx(161.54, abs=0.01) and ble.dropped_estimate() == 0
+    tick, acc = ble.samples["tick"], ble.samples["acc"]
+    assert tick[0] < 1 << 16 <= tick[-1] and (np.diff(tick) >= 0).all()
+    assert 1 / ble.cadence.interval_s == pytest.approx(161.54, abs=0.01) and ble.cadence.dropped == 0
     # held in the hand at first: about 1 g, mostly on +z (offset removal keeps +1000 mg); never armed
-    norm = np.linalg.norm(ble.acc_mg[:100].astype(np.float64), axis=1)
-    assert abs(float(np.median(norm)) - 1000) < 80 and float(np.median(ble.acc_mg[:100, 2])) > 900
-    assert not ble.armed.any()
-    assert ble.rssi_dbm[0] == -62.0 and ble.pressure_hpa[0] == pytest.approx(1013.25)
+    norm = np.linalg.norm(acc[:100].astype(np.float64), axis=1)
+    assert abs(float(np.median(norm)) - 1000) < 80 and float(np.median(acc[:100, 2])) > 900
+    assert not ble.arming["armed"].any()
+    assert ble.environment["rssi_dbm"][0] == -62.0 and ble.environment["pressure_hpa"][0] == pytest.approx(1013.25)
 
 
 def test_readme_and_recipe_describe_the_demo():
@@ -170,10 +170,10 @@ def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
     names = " ".join(blueprint_views(rrd))
     assert "magnetometer" in names and "battery" in names and "RSSI" in names and "Note" in names
     # the estimators see the tilts of the demo on the BLE samples (about ±30° in pitch)
-    from steval_link.analysis.ble import load_ble, run_ble_estimators
+    from steval_link.estimators.runner import run_estimator
 
-    inputs, est, _ = run_ble_estimators(load_ble(read_recording(DEMO)), ["st-mahony"])
-    assert 20 < np.degrees(np.nanmax(np.abs(est["st-mahony"].thx_rad))) < 45
+    est, _ = run_estimator("st-mahony", load_telemetry(DEMO))
+    assert 20 < np.degrees(np.nanmax(np.abs(est.thx_rad))) < 45
 
 
 def test_export_csv_and_refusals(monkeypatch, capsys, tmp_path):
@@ -196,6 +196,4 @@ def test_ble_capture_without_motion_is_one_line(monkeypatch, capsys, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(UserError):
-            from steval_link.analysis.ble import load_ble
-
-            load_ble(read_recording(path))
+            load_telemetry(path)

@@ -189,7 +189,13 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
         dec.unknown,
         grid.repeats,
     )
-    source = {"path": str(src.path), "kind": "stv", "link": "ble", "header": src.header, "warnings": src.warnings}
+    source = {
+        "path": str(src.path),
+        "kind": "stv",
+        "link": "ble",
+        "header": src.header,
+        "warnings": list(getattr(src, "warnings", [])),
+    }
     tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
     tel.attitude, tel.text, tel.link = a, text, stream
     return tel

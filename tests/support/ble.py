@@ -56,3 +56,30 @@ class RecordingViewer:
 
     def close(self) -> None:
         self.closed = True
+
+
+def telemetry_of_records(records, events=()):
+    """The one model (``Telemetry``, its ``link`` the BLE facts) of notifications ``(t_host_s, char id, payload)``,
+    as a capture holding them loads (``events``: the capture's, e.g. ``reconnect``)."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from steval_link.link.ble_payloads import ble_chunk
+    from steval_link.link.capture import CHUNK_BLE
+    from steval_link.link.load import Recording, telemetry_of_recording
+
+    none = np.zeros(0, np.int64)
+    chunks = {CHUNK_BLE: [(t, ble_chunk(c, p)) for t, c, p in records]}
+    src = Recording(Path("notifications.stv"), {"extra": {"link": "ble"}}, b"", none, none.astype(float), list(events))
+    src.chunks = chunks
+    return telemetry_of_recording(src)
+
+
+def held_rows(tel):
+    """(N,) bool over the rows: True for a row that holds the last sample over a notification sent and lost."""
+    import numpy as np
+
+    held = np.ones(len(tel.attitude), bool)
+    held[tel.link.samples["row"]] = False
+    return held
