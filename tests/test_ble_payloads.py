@@ -63,7 +63,7 @@ def test_tick_unwrap_across_the_wrap_and_a_long_gap():
     assert [f.tick for f in frames] == [65530, 65531, 65533, 65535, 65536, 65537, 65539]
 
 
-def test_decode_notifications_counts_and_skips_bad_payloads():
+def test_a_capture_counts_and_skips_bad_payloads():
     recs = [
         (0.0, B.CHAR_MOTION, motion(1)),
         (0.001, B.CHAR_ENV, bytes(12)),

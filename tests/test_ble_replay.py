@@ -197,3 +197,55 @@ def test_ble_capture_without_motion_is_one_line(monkeypatch, capsys, tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(UserError):
             load_telemetry(path)
+
+
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_ble_and_serial_captures_replay_through_the_one_model(monkeypatch, capsys):
+    """steval replay of a BLE capture and of a serial one: the same Telemetry class, the same summary and estimator
+    runner; the BLE link's cadence is data on the model, and its rows are those the live pipeline makes."""
+    from support.ble import RecordingViewer
+
+    import steval_link.cli.replay as R
+    from steval_link.link.telemetry import Telemetry
+    from steval_link.live.pipeline import LivePipeline
+
+    seen = []
+    summarize, run_estimator = R.summarize, R.run_estimator
+
+    def summary_spy(tel, **kw):
+        seen.append(("summary", type(tel), tel.link is not None))
+        return summarize(tel, **kw)
+
+    def estimator_spy(name, tel, **kw):
+        seen.append(("estimator", type(tel), len(tel.attitude)))
+        return run_estimator(name, tel, **kw)
+
+    monkeypatch.setattr(R, "summarize", summary_spy)
+    monkeypatch.setattr(R, "run_estimator", estimator_spy)
+    out = {}
+    for name, path in (("serial", REC / "demo.stv"), ("ble", DEMO)):
+        code, text, err = run_cli(monkeypatch, capsys, "replay", path, "-e", "st-mahony", "--json")
+        assert code == 0, err
+        out[name] = json.loads(text)
+    tel = load_telemetry(DEMO)
+    assert seen == [
+        ("estimator", Telemetry, len(load_telemetry(REC / "demo.stv").attitude)),
+        ("summary", Telemetry, False),
+        ("estimator", Telemetry, 5976),
+        ("summary", Telemetry, True),
+    ]
+    assert out["ble"]["motion_cadence"] == tel.link.cadence.kind == BC.STEADY and tel.link.dt_s == BC.STEP_PERIOD_S
+    replica = out["ble"]["estimators"][0]
+    assert replica["name"] == "st-mahony" and replica["valid_rows"] == replica["rows"] == 5976
+    assert replica["rms_diff_pitch_deg"] is None  # no firmware attitude over BLE: nothing to differ from
+    assert out["serial"]["estimators"][0]["rms_diff_pitch_deg"] == 0.0  # the replica is the firmware's filter
+    # the rows a capture loads are the rows the live pipeline makes of the same notifications
+    viewer = RecordingViewer()
+    pipe = LivePipeline([], viewer, t0_unix_s=0.0, baud=0)
+    items = B.ble_items(read_capture(DEMO).chunks)
+    for i in range(0, len(items), 700):
+        pipe.feed_ble(items[i : i + 700], final=i + 700 >= len(items))
+    pipe.flush_view()
+    live = np.concatenate([b.attitude.t_fw_s for b in viewer.batches])
+    assert np.array_equal(live, tel.attitude.t_fw_s)
+    assert np.array_equal(np.concatenate([b.attitude.acc_mg for b in viewer.batches]), tel.attitude.acc_mg)

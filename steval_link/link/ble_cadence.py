@@ -147,7 +147,7 @@ def break_mask(n: int, breaks) -> np.ndarray:
 
 def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
     """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
-    count of repeated samples already removed (:attr:`BleTelemetry.repeated_reads`) and the samples that are the
+    count of repeated samples already removed (a poller's repeated reads) and the samples that are the
     first after a reconnection (``breaks``, indices: the gap before them is no drop, nothing was sent). None below
     2 samples or when all share one tick.
 
@@ -195,7 +195,7 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
 
 class RunNumberer:
     """The sender's sample numbers of a stream with gaps, in batches of ticks (the whole capture for a replay, a
-    round at a time live): the rule of :func:`cadence_numbers` for any period but ST's step.
+    round at a time live), for any period but ST's step (there: :func:`sample_numbers`).
 
     Samples between gaps (:func:`gap_mask`) are consecutive: a run. A run's phase, the mean of tick + ½ − i·period
     over its samples, smooths out the 8 ms quantisation and the sender's own jitter (a main loop that cannot hit the
@@ -246,19 +246,6 @@ class RunNumberer:
 
 def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
     return RunNumberer(period_ticks).numbers(ticks)
-
-
-def cadence_numbers(ticks, cadence: Cadence | None) -> np.ndarray:
-    """The sender's sample number of each received sample (0 for the first) under ``cadence``: consecutive for
-    reads; at ST's step from the ticks' phase (:func:`sample_numbers`); otherwise from the phase of each run between
-    gaps (:class:`RunNumberer`). (A steady stream's numbers are consecutive but across a reconnection.)"""
-    t = np.asarray(ticks, dtype=np.int64)
-    n = len(t)
-    if cadence is None or cadence.kind == POLLED or n < 2:
-        return np.arange(n, dtype=np.int64)
-    if cadence.exact:
-        return sample_numbers(t, cadence.interval_s)
-    return _run_numbers(t, cadence.interval_s / TICK_S)
 
 
 def sender_phase(t: np.ndarray, interval: float) -> float:

@@ -276,11 +276,12 @@ TICKS_KEPT = 20_000
 
 
 class LiveGrid:
-    """:func:`uniform_inputs` a round at a time (``steval live --ble``): motion frames → the rows of the sender's
-    samples on one grid. The cadence is found from the first :data:`LOCK_SAMPLES` samples (until then
-    :meth:`rows` holds them back), which fixes dt and the numbering (a replay's, :func:`cadence_numbers`): one row
-    per sender sample, a row held over a notification only when the ticks show it was sent and lost; a repeat is
-    a read (one sample) or a sample of its own as :func:`repeats_are_reads` finds on the first samples."""
+    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or
+    all at once (a capture: :func:`ble_telemetry`). The cadence is found from the first :data:`LOCK_SAMPLES`
+    samples (until then :meth:`rows` holds them back; a capture's from all), which fixes dt and the numbering
+    (:func:`~steval_link.link.ble_cadence.sample_numbers`, :class:`RunNumberer`): one row per sender sample, a
+    row held over a notification only when the ticks show it was sent and lost; a repeat is a read (one sample) or a
+    sample of its own as :func:`repeats_are_reads` finds on the first samples."""
 
     def __init__(self, layout: BleLayout) -> None:
         self.layout = layout
@@ -363,7 +364,7 @@ class LiveGrid:
 
     def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
         """This round's rows: one per sender sample since the last round's; a row of a notification the ticks show
-        as sent and lost holds the last sample (numbering as :func:`cadence_numbers`, a round at a time)."""
+        as sent and lost holds the last sample (the numbering of :func:`motion_cadence`, a round at a time)."""
         c, n = self._cadence, len(mo)
         tick = np.array([f.tick for f in mo], np.int64)
         t_fw = tick * TICK_S
