@@ -50,7 +50,6 @@ __all__ = [
     "ble_telemetry",
     "motion_payload_note",
     "attitude_rows",
-    "layout_rows",
     "LiveGrid",
 ]
 
@@ -228,27 +227,19 @@ NEAR_1G_SHARE = 0.01
 ANGLE_RANGE_MAX = 18000.0
 
 
-def layout_rows(acc_mg, gyro_mdps, layout: BleLayout):
-    """(acc_mg, gyro_mdps, thx, thy, thz) of motion rows under ``layout``: the stock layout's sensors with no
-    attitude (NaN); the euler layout's attitude (rad) with no sensor values (NaN: the estimators skip the rows)."""
-    acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
-    n = len(acc)
-    nan = np.full(n, np.nan, np.float32)
-    if not layout.sends_attitude:
-        return acc, np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3), nan, nan.copy(), nan.copy()
-    ang = acc / np.float32(layout.angle_scale)
-    none = np.full((n, 3), np.nan, np.float32)
-    return none, none.copy(), ang[:, 0].copy(), ang[:, 1].copy(), ang[:, 2].copy()
-
-
 def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> AttitudeArrays:
     """The motion samples on the estimators' grid as the one attitude model (:class:`AttitudeArrays`): ``k`` the
     sender's sample numbers (``step``), no throttle, no firmware quaternion, rows not bit-exact (BLE carries no AHRS
-    input); the firmware's angles only when the layout sends them."""
-    acc, gyro, thx, thy, thz = layout_rows(acc_mg, gyro_mdps, layout)
+    input). The stock layout's rows carry the sensors and no attitude (NaN); the euler layout's the drone's
+    attitude (rad) and no sensor values (NaN: the estimators skip the rows)."""
+    acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
     n = len(acc)
     k = np.asarray(k, dtype=np.int64)
     t_fw_s = np.asarray(t_fw_s, dtype=np.float64)
+    ang = np.full((n, 3), np.nan, np.float32)
+    if layout.sends_attitude:
+        ang, acc = acc / np.float32(layout.angle_scale), ang.copy()
+    gyro = np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3) if not layout.sends_attitude else acc.copy()
     return AttitudeArrays(
         step=k,
         seq=(k % (1 << 16)).astype(np.uint16),
@@ -259,9 +250,9 @@ def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> 
         gyro_mdps=gyro,
         thr=np.zeros(n, np.int16),
         q_wxyz=np.full((n, 4), np.nan, np.float32),
-        thz_rad=thz,
-        thx_rad=thx,
-        thy_rad=thy,
+        thz_rad=ang[:, 2].copy(),
+        thx_rad=ang[:, 0].copy(),
+        thy_rad=ang[:, 1].copy(),
         exact=np.zeros(n, bool),
         offset=np.full(n, -1, np.int64),
         values_bad=np.zeros(n, bool),
