@@ -1,7 +1,7 @@
-"""The summary of a BLE capture's :class:`~steval_link.link.telemetry.Telemetry` (:func:`summarize_ble`; the one
-``summarize`` hands a telemetry whose ``link`` is BLE here): notifications, the motion cadence its ticks show, the
-estimators' dt, environment, arming, and what the rows are (:data:`NOT_BIT_EXACT`: the firmware's attitude is not
-sent, so the replica on these samples cannot be bit-exact with the drone).
+"""The summary of a BLE capture's :class:`~steval_link.link.telemetry.Telemetry` (the one ``summarize`` hands a
+telemetry whose ``link`` is BLE here): notifications, the motion cadence its ticks show, the estimators' dt,
+environment, arming, and what the rows are (the firmware's attitude is not sent, so the replica on these samples
+cannot be bit-exact with the drone).
 """
 
 from __future__ import annotations
@@ -11,9 +11,8 @@ from typing import Any
 import numpy as np
 
 from steval_link.link.ble_payloads import TICK_S, TICK_WRAP
-from steval_link.link.ble_telemetry import NOT_BIT_EXACT
 
-__all__ = ["NOT_BIT_EXACT", "summarize_ble", "format_ble_summary"]
+__all__ = ["summarize_ble", "format_ble_summary"]
 
 
 def summarize_ble(tel) -> dict[str, Any]:
@@ -97,15 +96,16 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
             f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the cadence; "
             + (f"{held} rows held over dropped notifications" if held else "no rows held (nothing dropped)")
         )
-    env = []
-    if s["pressure_hpa_mean"] is not None:
-        env.append(f"pressure {s['pressure_hpa_mean']:.2f} hPa")
-    if s["temperature_c_mean"] is not None:
-        env.append(f"temperature {s['temperature_c_mean']:.1f} °C")
-    if s["battery_pct_last"] is not None:
-        env.append(f"battery {s['battery_pct_last']:.1f} %")
-    if s["rssi_dbm_mean"] is not None:
-        env.append(f"RSSI {s['rssi_dbm_mean']:.1f} dBm")
+    env = [
+        f"{label} {s[key]:{fmt}} {unit}"
+        for label, key, fmt, unit in (
+            ("pressure", "pressure_hpa_mean", ".2f", "hPa"),
+            ("temperature", "temperature_c_mean", ".1f", "°C"),
+            ("battery", "battery_pct_last", ".1f", "%"),
+            ("RSSI", "rssi_dbm_mean", ".1f", "dBm"),
+        )
+        if s[key] is not None
+    ]
     if env:
         lines.append("environment       " + ", ".join(env))
     lines.append(

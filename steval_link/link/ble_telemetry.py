@@ -104,7 +104,6 @@ class BleStream:
     bad_payloads: int = 0  #: notifications of the wrong length (skipped)
     unknown: int = 0  #: notifications of an unknown characteristic id (skipped)
     repeated_reads: int = 0  #: motion samples received again (a poller's read of an unchanged value)
-    kind: str = "ble"
 
     @property
     def sensors(self) -> bool:
