@@ -29,6 +29,7 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
 
@@ -264,7 +265,7 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
     parsed = parse_replay_url(url)
     try:
         src = read_recording(parsed.path)
-        if src.header.get("extra", {}).get("link") == "ble":
+        if is_ble_source(src):
             raise UserError(f"{parsed.path} is a BLE capture (no serial bytes); open it with steval replay")
         tel = telemetry_of_recording(src)
     except UserError as exc:
