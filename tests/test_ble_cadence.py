@@ -13,10 +13,9 @@ import sys
 
 import numpy as np
 import pytest
-from support.ble import RecordingViewer, held_rows, run_until_played, telemetry_of_records
+from support.ble import FakeBleBackend, RecordingViewer, held_rows, run_until_played, telemetry_of_records
 from support.cli import run_cli
 
-from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter

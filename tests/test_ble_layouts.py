@@ -136,9 +136,8 @@ def test_live_ble_with_the_euler_layout_records_it_and_replay_reads_it(monkeypat
     header keeps the layout, and a later replay of that capture reads it without the option."""
     import sys
 
-    from support.ble import RecordingViewer, run_until_played
+    from support.ble import FakeBleBackend, RecordingViewer, run_until_played
 
-    from steval_link.emulation.bluenrg import FakeBleBackend
     from steval_link.live.session import LiveOptions, LiveSession, source_for
     from steval_viewer.sink_options import SinkOptions
 

@@ -1,5 +1,5 @@
 """The BLE transport's logic (steval_link.link.ble_transport) and ``steval live --ble``'s session, without a radio:
-a fake backend (steval_link.emulation.bluenrg.FakeBleBackend) plays the notifications the emulated stock firmware
+a fake backend (tests/support/ble.py FakeBleBackend) plays the notifications the emulated stock firmware
 sent (recordings/ble_demo.stv), and can refuse connections, lose the link and fail like a platform without an
 adapter or permission."""
 
@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.ble import RecordingViewer, run_until_played
+from support.ble import FakeBleBackend, RecordingViewer, run_until_played
 
-from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.errors import UserError
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from support.ble import FakeBleBackend
 from support.cli import run_cli
 
-from steval_link.emulation.bluenrg import FakeBleBackend
 from steval_link.link import ble_payloads as B
 from steval_link.link.load import read_recording
 from steval_link.live.pipeline import LivePipeline

@@ -461,7 +461,8 @@ def test_estimates_of_a_disabled_estimator_stay_nan_columns_so_batches_still_mer
 def test_ble_live_a_raising_estimator_without_rate_hz_is_disabled_and_every_notification_recorded(tmp_path):
     import io
 
-    from steval_link.emulation.bluenrg import FakeBleBackend
+    from support.ble import FakeBleBackend
+
     from steval_link.link import ble_payloads as B
     from steval_link.link.capture import read_capture
     from steval_link.link.load import read_recording

@@ -5,7 +5,7 @@ Two parts, as the serial transport keeps its protocol apart from its thread:
 * :class:`BleBackend`: the small interface to a radio (``scan``, ``connect``, ``start_notify``, ``disconnect``).
   :class:`BleakBackend` implements it with `bleak <https://pypi.org/project/bleak/>`_ (optional extra
   ``steval-link[ble]``; BlueZ on Linux, CoreBluetooth on macOS, WinRT on Windows);
-  ``steval_link.emulation.bluenrg.FakeBleBackend`` without a radio (tests).
+  ``FakeBleBackend`` of the tests (``tests/support/ble.py``) without a radio.
 * :class:`BleLink`: the logic over any backend: find the drone (by name or address, default: the first
   ``DRN1…`` advertiser), connect, subscribe to every characteristic of ``ble_payloads.CHAR_UUIDS`` it has, hand
   each notification to ``on_notification(char id, bytes, t_unix_s)``, and on a lost link mark it and reconnect
