@@ -107,53 +107,18 @@ def compare_capture(
     n = len(a)
     if n == 0:
         raise ValueError("the capture has no attitude frames")
-    fw_thx = np.asarray(a.thx_rad, dtype=np.float64)
-    fw_thy = np.asarray(a.thy_rad, dtype=np.float64)
+    fw = (np.asarray(a.thx_rad, dtype=np.float64), np.asarray(a.thy_rad, dtype=np.float64))
     exact = np.asarray(a.exact, bool)
-    notes: list[str] = []
-    traces: list[TraceComparison] = []
-
     replica, rep, prow = compare_replica(tel, settings, variant=variant, variant_source=variant_source)
-    if replica is not None:
-        thx = np.full(n, np.nan)
-        thy = np.full(n, np.nan)
-        thx[prow] = rep.thx_rad
-        thy[prow] = rep.thy_rad
-        valid = np.zeros(n, bool)
-        valid[prow] = rep.seeded
-        note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
-        traces.append(_trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
-    if (~exact).any():
-        notes.append(
-            f"{int((~exact).sum())} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
-            "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
-        )
-        if replica is None:
-            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
-
-    estimates: dict[str, Any] = {}
-    decimation = row_decimation(tel)
-    has_acc = bool(np.isfinite(a.acc_mg).all(axis=1).any())
-    has_gyro = bool(np.isfinite(a.gyro_mdps).all(axis=1).any())
-    if not (has_acc and has_gyro):
-        notes.append(_inputs_absent_note(has_acc, has_gyro))
-    for name in estimators:
-        if not has_acc or (not has_gyro and name != "accel"):
-            traces.append(_unavailable(name, f"needs {'acc' if name == 'accel' else 'acc and gyro'}: absent"))
-            continue
-        est, why = run_estimator(name, tel, decimation=decimation)
-        if est is None:
-            traces.append(_unavailable(name, why))
-            continue
-        estimates[name] = est
-        label = TRACE_LABELS.get(name, name)
-        traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy, why))
-
+    traces, notes = _replica_trace(replica, rep, prow, n, fw, int((~exact).sum()))
+    est_traces, estimates, est_notes = _estimator_traces(tel, estimators, fw)
+    traces += est_traces
+    notes += est_notes
     if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
         notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
-    nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
-    nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))
+    nan_x = int(np.count_nonzero(~np.isfinite(fw[0])))
+    nan_y = int(np.count_nonzero(~np.isfinite(fw[1])))
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
         why = (
@@ -165,7 +130,6 @@ def compare_capture(
         )
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
-    truth = truth_section(tel, rep, prow, estimates)
     cost = step_cost(tel)  # the one AHRS step cost (replay --json gives the same)
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
@@ -185,10 +149,58 @@ def compare_capture(
         replay=rep,
         replica_rows=prow,
         estimates=estimates,
-        truth=truth,
+        truth=truth_section(tel, rep, prow, estimates),
         ahrs_step_cost=None if cost is None else cost.to_json(),
         ahrs_step_cost_text=None if cost is None else cost.sentence(),
     )
+
+
+def on_rows(n: int, rows, values, fill=np.nan, dtype=np.float64) -> np.ndarray:
+    """``n`` rows of ``fill`` with ``values`` at ``rows`` (the replica's output on the capture's rows)."""
+    out = np.full(n, fill, dtype)
+    out[rows] = values
+    return out
+
+
+def _replica_trace(replica, rep, prow, n: int, fw, text_rows: int) -> tuple[list[TraceComparison], list[str]]:
+    """The seeded replica's trace (or why it did not run) and the note on text-mode rows."""
+    traces, notes = [], []
+    if replica is not None:
+        note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
+        thx, thy = on_rows(n, prow, rep.thx_rad), on_rows(n, prow, rep.thy_rad)
+        traces.append(
+            _trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, on_rows(n, prow, rep.seeded, False, bool), *fw, note)
+        )
+    if text_rows:
+        notes.append(
+            f"{text_rows} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
+            "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
+        )
+        if replica is None:
+            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
+    return traces, notes
+
+
+def _estimator_traces(tel, estimators: Sequence[str], fw) -> tuple[list[TraceComparison], dict[str, Any], list[str]]:
+    """Each estimator run from power-up and compared with the firmware (unavailable without its inputs)."""
+    a = tel.attitude
+    traces, estimates, notes = [], {}, []
+    decimation = row_decimation(tel)
+    has_acc = bool(np.isfinite(a.acc_mg).all(axis=1).any())
+    has_gyro = bool(np.isfinite(a.gyro_mdps).all(axis=1).any())
+    if not (has_acc and has_gyro):
+        notes.append(_inputs_absent_note(has_acc, has_gyro))
+    for name in estimators:
+        if not has_acc or (not has_gyro and name != "accel"):
+            traces.append(_unavailable(name, f"needs {'acc' if name == 'accel' else 'acc and gyro'}: absent"))
+            continue
+        est, why = run_estimator(name, tel, decimation=decimation)
+        if est is None:
+            traces.append(_unavailable(name, why))
+            continue
+        estimates[name] = est
+        traces.append(_trace(name, TRACE_LABELS.get(name, name), est.thx_rad, est.thy_rad, est.valid, *fw, why))
+    return traces, estimates, notes
 
 
 def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
@@ -238,9 +250,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
     cov["firmware"] = covered(np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad))
     if rep is not None and prow is not None:
-        thx = np.full(len(a.step), np.nan)
-        thy = np.full(len(a.step), np.nan)
-        thx[prow], thy[prow] = rep.thx_rad, rep.thy_rad
+        thx, thy = on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)
         _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
         cov[REPLICA_TRACE] = covered(np.isfinite(thx) & np.isfinite(thy))
     for name, est in estimates.items():

@@ -299,11 +299,19 @@ def _coverage_cell(rmse, fraction) -> str:
 
 def format_report(r: ComparisonReport) -> list[str]:
     """Human-readable lines of a :class:`ComparisonReport` (plain text, aligned)."""
-    lines: list[str] = []
+    w = max([len(t.label) for t in r.traces] + [9]) + 2
+    lines = _capture_lines(r) + _filter_lines(r.filter_settings)
+    lines += [""] + _replica_lines(r.replica)
+    lines += [""] + _angles_table(r.traces, w) + _truth_lines(r.truth, w)
+    return lines + [f"note: {note}" for note in r.notes]
+
+
+def _capture_lines(r: ComparisonReport) -> list[str]:
+    """The capture, its firmware-output warnings, rate and jitter, drops and the AHRS step cost."""
     rt = r.rates
     kind = r.source.get("kind") or "telemetry"
     rows = f"{r.rows} attitude rows" + (f" ({r.text_rows} text-mode)" if r.text_rows else "")
-    lines.append(f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time")
+    lines = [f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time"]
     if r.values_bad:
         lines.append(f"firmware output: {r.values_bad['text']}")
     if r.held_back:
@@ -326,84 +334,86 @@ def format_report(r: ComparisonReport) -> list[str]:
     )
     if r.ahrs_step_cost_text:
         lines.append(r.ahrs_step_cost_text)
-    fs = r.filter_settings
+    return lines
+
+
+def _setting_text(x) -> str:
+    return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
+
+
+def _filter_lines(fs: dict | None) -> list[str]:
+    """The filter settings the status frames (or text-mode status lines) show, and every change of them."""
     if fs is None:
-        lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
-    elif fs["from"] == "status frames":
-        diff = fs["differs_from_defaults"]
-
-        def val(x):
-            return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
-
-        tail = (
-            "firmware defaults"
-            if not diff
-            else "differs from defaults: "
-            + ", ".join(f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
+        return ["filter settings: no status frames (the port assumes the firmware defaults)"]
+    if fs["from"] != "status frames":
+        return [f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}"]
+    diff = fs["differs_from_defaults"]
+    tail = "firmware defaults"
+    if diff:
+        tail = "differs from defaults: " + ", ".join(
+            f"{k} {_setting_text(v[0])} (default {_setting_text(v[1])})" for k, v in diff.items()
         )
+    lines = [
+        f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
+        f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
+        f"{'on' if fs['correction'] else 'OFF'} — {tail}"
+    ]
+    changes = fs.get("change_list", [])
+    if changes:
         lines.append(
-            f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
-            f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
-            f"{'on' if fs['correction'] else 'OFF'} — {tail}"
+            f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
+            "(settings and filter resets, as the status frames show them):"
         )
-        changes = fs.get("change_list", [])
-        if changes:
-            lines.append(
-                f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
-                "(settings and filter resets, as the status frames show them):"
-            )
-        elif fs["changes"]:
-            lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
-        for ch in changes:
-            how = "status EVENT after a host command" if ch["event"] else "status frame"
-            lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
-    else:
-        lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
+    elif fs["changes"]:
+        lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
+    for ch in changes:
+        how = "status EVENT after a host command" if ch["event"] else "status frame"
+        lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
+    return lines
 
-    lines.append("")
-    p = r.replica
+
+def _replica_lines(p: ReplicaComparison | None) -> list[str]:
+    """The replica's verdict: bit-exact steps, its seeds, what it did not cover, the first difference and why."""
     if p is None:
-        lines.append(
+        return [
             "ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
             "cannot be bit-exact; compare the estimators below with the firmware instead"
-        )
-    else:
-        seeds = ", ".join(
-            ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
-            for s in p.seeds[:4]
-        ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
-        verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
+        ]
+    seeds = ", ".join(
+        ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
+        for s in p.seeds[:4]
+    ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
+    verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
+    lines = [
+        f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
+        f"({p.rows} binary rows)",
+        f"  {p.filter_line()}",
+    ]
+    if p.seeds:
+        lines.append(f"  started from: {seeds}")
+    if p.seeded < p.rows and p.seeded:
         lines.append(
-            f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
-            f"({p.rows} binary rows)"
+            f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until the next one)"
         )
-        lines.append(f"  {p.filter_line()}")
-        if p.seeds:
-            lines.append(f"  started from: {seeds}")
-        if p.seeded < p.rows and p.seeded:
-            lines.append(
-                f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until the next one)"
-            )
-        if p.unseeded_reason:
-            lines.append(f"  {p.unseeded_reason}")
-        if p.first_mismatch:
-            fm = p.first_mismatch
-            lines.append(
-                f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
-                f"the capture (firmware clock {fm['t_fw_s']:.3f} s)"
-            )
-            for d in p.diagnosis:
-                lines.append(f"  → {d}")
-        elif p.diagnosis:
-            lines.extend(f"  → {d}" for d in p.diagnosis)
+    if p.unseeded_reason:
+        lines.append(f"  {p.unseeded_reason}")
+    if p.first_mismatch:
+        fm = p.first_mismatch
+        lines.append(
+            f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
+            f"the capture (firmware clock {fm['t_fw_s']:.3f} s)"
+        )
+    return lines + [f"  → {d}" for d in p.diagnosis]
 
-    lines.append("")
-    lines.append("angles vs firmware, degrees (Δ = estimator − firmware)")
-    w = max([len(t.label) for t in r.traces] + [9]) + 2
-    head1 = " " * w + f"{'':>7}  {'pitch (thx, about x)':^21}  {'roll (thy, about y)':^21}"
-    head2 = f"{'estimator':<{w}}{'steps':>7}  {'RMS':>10} {'max |Δ|':>10}  {'RMS':>10} {'max |Δ|':>10}"
-    lines += [head1, head2]
-    for t in r.traces:
+
+def _angles_table(traces: list[TraceComparison], w: int) -> list[str]:
+    """Per estimator: steps, RMS and max |Δ| from the firmware's pitch and roll, in degrees."""
+    lines = [
+        "angles vs firmware, degrees (Δ = estimator − firmware)",
+        " " * w + f"{'':>7}  {'pitch (thx, about x)':^21}  {'roll (thy, about y)':^21}",
+        f"{'estimator':<{w}}{'steps':>7}  {'RMS':>10} {'max |Δ|':>10}  {'RMS':>10} {'max |Δ|':>10}",
+    ]
+    for t in traces:
         if not t.available:
             lines.append(f"{t.label:<{w}}{'—':>7}  {t.note}")
             continue
@@ -412,24 +422,26 @@ def format_report(r: ComparisonReport) -> list[str]:
             f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
             f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}"
         )
-        if t.note:
-            row += f"  ({t.note})"
-        lines.append(row)
-    if r.truth is not None:
-        lines += [
-            "",
-            f"against the ground truth the capture keeps: inclination RMSE (deg) over "
-            f"{r.truth['movement_steps']} movement steps",
-        ]
-        notes = r.truth.get("coverage_notes", {})
-        for name, v in r.truth["rmse_deg"].items():
-            f = r.truth.get("scored_fraction", {}).get(name)
-            cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
-            lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
-        if notes:
-            lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
-    for note in r.notes:
-        lines.append(f"note: {note}")
+        lines.append(row + (f"  ({t.note})" if t.note else ""))
+    return lines
+
+
+def _truth_lines(truth: dict | None, w: int) -> list[str]:
+    """Inclination RMSE against the ground truth the capture keeps (none: no lines)."""
+    if truth is None:
+        return []
+    lines = [
+        "",
+        f"against the ground truth the capture keeps: inclination RMSE (deg) over "
+        f"{truth['movement_steps']} movement steps",
+    ]
+    notes = truth.get("coverage_notes", {})
+    for name, v in truth["rmse_deg"].items():
+        f = truth.get("scored_fraction", {}).get(name)
+        cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
+        lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
+    if notes:
+        lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
     return lines
 
 
