@@ -50,6 +50,8 @@ from steval_link.analysis.report import (
     angle_diff_rad,
     format_report,
     json_number,
+    on_rows,
+    truth_on_steps,
 )
 from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
@@ -155,13 +157,6 @@ def compare_capture(
     )
 
 
-def on_rows(n: int, rows, values, fill=np.nan, dtype=np.float64) -> np.ndarray:
-    """``n`` rows of ``fill`` with ``values`` at ``rows`` (the replica's output on the capture's rows)."""
-    out = np.full(n, fill, dtype)
-    out[rows] = values
-    return out
-
-
 def _replica_trace(replica, rep, prow, n: int, fw, text_rows: int) -> tuple[list[TraceComparison], list[str]]:
     """The seeded replica's trace (or why it did not run) and the note on text-mode rows."""
     traces, notes = [], []
@@ -231,14 +226,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     if truth is None:
         return None
     a = tel.attitude
-    order = np.argsort(truth.step, kind="stable")
-    t_step = truth.step[order]
-    idx = np.clip(np.searchsorted(t_step, a.step), 0, max(len(t_step) - 1, 0))
-    hit = (t_step[idx] == a.step) if len(t_step) else np.zeros(len(a.step), bool)
-    q_true = np.full((len(a.step), 4), np.nan)
-    q_true[hit] = truth.q_wxyz[order][idx[hit]]
-    movement = np.zeros(len(a.step), bool)
-    movement[hit] = truth.movement[order][idx[hit]]
+    q_true, movement, hit = truth_on_steps(truth.step, truth.q_wxyz, truth.movement, a.step)
     out: dict[str, float | None] = {}
     cov: dict[str, Coverage] = {}
     scored = movement & np.isfinite(q_true).all(axis=1)

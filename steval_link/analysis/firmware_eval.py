@@ -36,6 +36,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.coverage import Coverage, coverage_of
+from steval_link.analysis.report import on_rows
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
@@ -48,6 +49,10 @@ from steval_link.link.decoder import decode_bytes
 __all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler", "gains_text"]
 
 _F32 = np.float32
+
+
+def _on_rows(n: int, rows, values) -> np.ndarray:
+    return on_rows(n, rows, values, dtype=_F32)
 
 
 def firmware_labels(paths: Sequence[Path | str]) -> list[str]:
@@ -322,13 +327,6 @@ class _Output:
     notes: list[str] = field(default_factory=list)
 
 
-def _on_steps(n: int, steps, values) -> np.ndarray:
-    """``n`` float32 NaN with ``values`` at ``steps``."""
-    out = np.full(n, np.nan, _F32)
-    out[steps] = values
-    return out
-
-
 def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hint) -> _Output:
     """The attitude frames' thx/thy (frame step ``i`` = AHRS step ``i``) and the replica over their inputs."""
     att = tel.attitude
@@ -348,12 +346,12 @@ def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hi
     settings = rep.seeds[0].settings if rep.seeds else None
     return _Output(
         "frames",
-        _on_steps(n, steps, np.asarray(att.thx_rad, _F32)[rows]),
-        _on_steps(n, steps, np.asarray(att.thy_rad, _F32)[rows]),
+        _on_rows(n, steps, np.asarray(att.thx_rad, _F32)[rows]),
+        _on_rows(n, steps, np.asarray(att.thy_rad, _F32)[rows]),
         gains_text(settings, np.asarray(att.thr)[rows], from_status=settings is not None),
         settings,
-        _on_steps(n, steps, rep.thx_rad[rows]),
-        _on_steps(n, steps, rep.thy_rad[rows]),
+        _on_rows(n, steps, rep.thx_rad[rows]),
+        _on_rows(n, steps, rep.thy_rad[rows]),
         int(np.count_nonzero(rep.bit_exact[rows])),
         int(np.count_nonzero(rep.seeded[rows])),
         notes,
@@ -365,11 +363,11 @@ def _output_of_globals(glob: _Globals, n: int, variant: str | None) -> _Output:
     out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
     m = out.shape[0]
     thr_in = np.asarray(glob.inputs[:n], np.float64).reshape(-1, 7)[:, 6] if glob.has_inputs else []
-    res = _Output("globals", _on_steps(n, slice(0, m), out[:, 0]), _on_steps(n, slice(0, m), out[:, 1]),
+    res = _Output("globals", _on_rows(n, slice(0, m), out[:, 0]), _on_rows(n, slice(0, m), out[:, 1]),
                   gains_text(None, thr_in, from_status=False))  # fmt: skip
     if glob.has_inputs and len(glob.inputs) >= m and m:
         inp = np.asarray(glob.inputs[:m], np.float64)
         res.settings, px, py, exact = _globals_replica(inp, out, glob.ahrs is not None, variant)
-        res.replica_thx, res.replica_thy = _on_steps(n, slice(0, m), px), _on_steps(n, slice(0, m), py)
+        res.replica_thx, res.replica_thy = _on_rows(n, slice(0, m), px), _on_rows(n, slice(0, m), py)
         res.replica_exact, res.replica_steps = int(np.count_nonzero(exact)), m
     return res

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.analysis.compare import on_rows
 from steval_link.analysis.flight_control import MOTORS, outer_p
+from steval_link.analysis.report import angle_diff_rad, on_rows
 from steval_link.errors import UserError
 
 __all__ = [
@@ -371,7 +371,7 @@ def differences_figure(tel, report, *, title: str | None = None):
             if name == "accel":
                 c, lw, z = "0.6", 0.6, 2
             valid = np.asarray(est.valid, bool)
-            d = np.where(valid, np.degrees(_wrap(np.asarray(getattr(est, attr), np.float64) - fw[attr])), np.nan)
+            d = np.where(valid, np.degrees(angle_diff_rad(getattr(est, attr), fw[attr])), np.nan)
             ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
         ax.axhline(0.0, color="black", lw=0.8)
         ax.set_ylabel("estimator − firmware [deg]")
@@ -477,13 +477,9 @@ def _variant_text(variant: dict) -> str:
     return ", ".join(out)
 
 
-def _wrap(d: np.ndarray) -> np.ndarray:
-    return (d + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def _wrap_deg(d_deg: np.ndarray) -> np.ndarray:
     """A difference in degrees wrapped to [-180, 180)."""
-    return np.degrees(_wrap(np.radians(d_deg)))
+    return np.degrees(angle_diff_rad(np.radians(d_deg), 0.0))
 
 
 def plot_simulation(result, out_png, *, title: str | None = None, compare=()) -> Path:

@@ -33,6 +33,24 @@ def angle_diff_rad(a, b) -> np.ndarray:
     return (d + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def on_rows(n: int, rows, values, fill=np.nan, dtype=np.float64) -> np.ndarray:
+    """``n`` rows of ``fill`` with ``values`` at ``rows`` (e.g. the replica's output on the capture's rows)."""
+    out = np.full(n, fill, dtype)
+    out[rows] = values
+    return out
+
+
+def truth_on_steps(truth_step, q_wxyz, movement, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground-truth rows matched to frames by AHRS step: (q_wxyz (N, 4), NaN unmatched; movement (N,); matched)."""
+    order = np.argsort(truth_step, kind="stable")
+    t_step = np.asarray(truth_step)[order]
+    idx = np.clip(np.searchsorted(t_step, steps), 0, max(len(t_step) - 1, 0))
+    hit = (t_step[idx] == steps) if len(t_step) else np.zeros(len(steps), bool)
+    q_true = np.full((len(steps), 4), np.nan)
+    q_true[hit] = np.asarray(q_wxyz)[order][idx[hit]]
+    return q_true, on_rows(len(steps), hit, np.asarray(movement)[order][idx[hit]], False, bool), hit
+
+
 def json_number(x) -> float | None:
     """JSON-friendly float: None for NaN/inf."""
     if x is None:
