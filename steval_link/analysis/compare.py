@@ -1,24 +1,16 @@
-"""``steval compare``: how the firmware's own angles compare with the Python replica, the EKFs and accelerometer tilt.
+"""``steval compare``: the firmware's own angles against the Python replica, the EKFs and accelerometer tilt.
 
 One capture in, one :class:`ComparisonReport` out (ETH lecture 4, exercise 8 and the EKF project):
 
-* **ST-Mahony replica** — the bit-exact replica re-run over the capture's inputs
-  (:func:`steval_link.estimators.firmware_replay.replay_firmware`): it starts at power-up (a capture from step 0) or
-  from
-  the filter-state snapshot of a status frame, and restarts from the next snapshot after any dropped frame. The
-  report counts bit-exact steps, names the first step that differs and *diagnoses* it: the replica is re-run from the
-  same seed with alternative settings (the other normalisation variant, KI 1.0, no correction, kp variants,
-  dt = 1/161.5 s, the firmware defaults) and the one that reproduces the firmware is named; a mismatch right after
-  dropped frames, or one nothing explains, is called out as such.
+* **ST-Mahony replica**: the bit-exact replica re-run over the capture's inputs from power-up or from a status
+  frame's filter snapshot, restarted after dropped frames. The report counts bit-exact steps and diagnoses the
+  first step that differs (:mod:`steval_link.analysis.diagnosis`).
 * **Other estimators** (``ekf3``, ``mekf``, ``accel`` by default) run from power-up over the same inputs.
 
 Every trace is compared with the firmware's ``thx`` (pitch, about x) and ``thy`` (roll, about y): RMS and max |Δ|
-in degrees, angle differences wrapped to ±180°. Firmware NaN rows (``asin`` out of range at extreme rates) are
-counted and excluded, never fatal. Rate, jitter, drop, CRC and AHRS-cycle statistics and the filter settings from
-the status frames complete the report.
-
-Text-mode captures carry rounded angles and inputs and no quaternion: the replica cannot be bit-exact there, so
-it is not run; the firmware's angles are compared with the other estimators only.
+in degrees, differences wrapped to ±180°. Firmware NaN rows (``asin`` out of range) are counted and excluded.
+Rate, jitter, drops, CRC failures, the AHRS step cost and the filter settings complete the report.
+Text-mode captures carry rounded values and no quaternion: the replica cannot be bit-exact there, so it is not run.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.report import ReplicaComparison, json_number
+from steval_link.analysis.report import ReplicaComparison, json_number, setting_text
 from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence, replay_firmware, replay_variants
 from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal
 from steval_link.estimators.st_mahony import run as mahony_run
@@ -102,10 +102,6 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     }
 
 
-def _fmt_setting(v) -> str:
-    return ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
-
-
 def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[dict[str, Any]]:
     """Each change the status frames show, in stream order: ``{"step": the first step it applies to, "status_row",
     "event": announced at once after a host command (flag EVENT), "text": "ki 0.1 → 1, correction on → off" or
@@ -116,7 +112,7 @@ def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[di
     out = []
     for i in range(1, len(settings)):
         a, b = _settings_dict(settings[i - 1]), _settings_dict(settings[i])
-        parts = [f"{k} {_fmt_setting(a[k])} → {_fmt_setting(b[k])}" for k in a if a[k] != b[k]]
+        parts = [f"{k} {setting_text(a[k])} → {setting_text(b[k])}" for k in a if a[k] != b[k]]
         if not parts and gen[i] != gen[i - 1] and flags[i] & FLAG_EVENT:
             parts = ["filter reset (q = 1, 0, 0, 0; integrals 0)"]
         if parts:

@@ -304,7 +304,8 @@ class ComparisonReport:
         }
 
 
-def _f(x, fmt: str = ".4f", none: str = "n/a") -> str:
+def fmt_number(x, fmt: str = ".4f", none: str = "n/a") -> str:
+    """``x`` formatted with ``fmt``, or ``none`` for None, NaN and inf."""
     return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
@@ -312,7 +313,7 @@ def _coverage_cell(rmse, fraction) -> str:
     """``2.851 (63 %)``, or ``no score``: an RMSE with the share of the scored rows it covers."""
     if fraction is None or not fraction or rmse is None:
         return "no score"
-    return f"{_f(rmse, '.3f')} ({percent(fraction)})"
+    return f"{fmt_number(rmse, '.3f')} ({percent(fraction)})"
 
 
 def format_report(r: ComparisonReport) -> list[str]:
@@ -340,8 +341,8 @@ def _capture_lines(r: ComparisonReport) -> list[str]:
     per = ""
     if rt.period_mean_ms is not None:
         per = (
-            f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
-            f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms"
+            f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {fmt_number(rt.period_std_ms, '.3f')} ms, "
+            f"p99 {fmt_number(rt.period_p99_ms, '.3f')} ms, max {fmt_number(rt.period_max_ms, '.3f')} ms"
         )
     lines.append(f"rate: {rate}{per}")
     tx = "" if rt.tx_dropped is None else f", firmware TX queue dropped {rt.tx_dropped}"
@@ -355,7 +356,8 @@ def _capture_lines(r: ComparisonReport) -> list[str]:
     return lines
 
 
-def _setting_text(x) -> str:
+def setting_text(x) -> str:
+    """A filter setting as text: ``on``/``off``, a string as is, a number with ``:g``."""
     return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
 
 
@@ -364,12 +366,12 @@ def _filter_lines(fs: dict | None) -> list[str]:
     if fs is None:
         return ["filter settings: no status frames (the port assumes the firmware defaults)"]
     if fs["from"] != "status frames":
-        return [f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}"]
+        return [f"filter (text-mode status lines): ki {fmt_number(fs['ki'], 'g')}, flags {fs['flags']}"]
     diff = fs["differs_from_defaults"]
     tail = "firmware defaults"
     if diff:
         tail = "differs from defaults: " + ", ".join(
-            f"{k} {_setting_text(v[0])} (default {_setting_text(v[1])})" for k, v in diff.items()
+            f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in diff.items()
         )
     lines = [
         f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
@@ -437,8 +439,8 @@ def _angles_table(traces: list[TraceComparison], w: int) -> list[str]:
             continue
         n = min(t.pitch.n, t.roll.n)
         row = (
-            f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
-            f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}"
+            f"{t.label:<{w}}{n:>7}  {fmt_number(t.pitch.rms_deg):>10} {fmt_number(t.pitch.max_abs_deg):>10}  "
+            f"{fmt_number(t.roll.rms_deg):>10} {fmt_number(t.roll.max_abs_deg):>10}"
         )
         lines.append(row + (f"  ({t.note})" if t.note else ""))
     return lines
@@ -456,7 +458,7 @@ def _truth_lines(truth: dict | None, w: int) -> list[str]:
     notes = truth.get("coverage_notes", {})
     for name, v in truth["rmse_deg"].items():
         f = truth.get("scored_fraction", {}).get(name)
-        cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
+        cell = fmt_number(v, ".3f") if name not in notes else _coverage_cell(v, f)
         lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
     if notes:
         lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
@@ -487,7 +489,7 @@ def estimator_line(s: dict[str, Any]) -> str:
     """``estimator ekf3: 9210/9210 valid rows; RMS difference from the firmware: pitch 0.132°, roll 0.118°``."""
     first = "" if s["first_invalid_step"] is None else f" (first invalid at step {s['first_invalid_step']})"
     rms = (
-        f"pitch {_f(s['rms_diff_pitch_deg'], '.3f')}°, roll {_f(s['rms_diff_roll_deg'], '.3f')}°"
+        f"pitch {fmt_number(s['rms_diff_pitch_deg'], '.3f')}°, roll {fmt_number(s['rms_diff_roll_deg'], '.3f')}°"
         if s["rms_diff_pitch_deg"] is not None or s["rms_diff_roll_deg"] is not None
         else "n/a (no row where both are finite)"
     )

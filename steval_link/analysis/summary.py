@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from steval_link.analysis.diagnosis import recognise_release
-from steval_link.analysis.report import json_number
+from steval_link.analysis.report import fmt_number, json_number
 from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
 from steval_link.link.commands import command_log
@@ -340,14 +340,12 @@ def _command_lines(cmds: list[dict], max_lines: int) -> list[str]:
 
 
 def _filter_summary_lines(flt: dict[str, Any]) -> list[str]:
-    def g(x):
-        return "n/a" if x is None else f"{x:g}"
-
+    g = {k: fmt_number(flt[k], "g") for k in ("kp_ground", "kp_flight", "ki", "min_thr")}
     dt = "n/a" if flt["dt_s"] is None else f"{flt['dt_s']:g} s"
     lines = [
-        f"filter (status at step {flt['from_step']}): kp_ground {g(flt['kp_ground'])}, kp_flight "
-        f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {dt}, min_thr {g(flt['min_thr'])}, "
-        f"flags {flt['flags']}" + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
+        f"filter (status at step {flt['from_step']}): kp_ground {g['kp_ground']}, kp_flight {g['kp_flight']}, "
+        f"ki {g['ki']}, dt {dt}, min_thr {g['min_thr']}, flags {flt['flags']}"
+        + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
     ]
     if flt["fw_version"] is not None:
         lines.append(f"firmware: version {flt['fw_version']}, link {flt['link_baud']} baud")
