@@ -28,7 +28,7 @@ import numpy as np
 
 from steval_link.analysis.coverage import Coverage, coverage_of, percent
 from steval_link.analysis.firmware_eval import FirmwareResult
-from steval_link.analysis.plots import require_matplotlib
+from steval_link.analysis.plots import require_matplotlib, save_figure
 from steval_link.analysis.report import json_number, truth_on_steps
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
@@ -553,18 +553,8 @@ def write_markdown(results: Sequence[TrialResult], path) -> Path:
 
 
 def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0) -> Path:
-    """PNG of :func:`evaluation_figure`. Needs matplotlib (``pip install "steval-link[plot]"``; UserError
-    otherwise)."""
-    plt = require_matplotlib()
-    fig = evaluation_figure(results, detail=detail)
-    out = Path(out_png)
-    try:
-        fig.savefig(out, dpi=110)
-    except OSError as exc:
-        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-    finally:
-        plt.close(fig)
-    return out
+    """PNG of :func:`evaluation_figure` (UserError without matplotlib, or when it cannot be written)."""
+    return save_figure(evaluation_figure(results, detail=detail), out_png, dpi=110)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):

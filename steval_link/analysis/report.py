@@ -76,12 +76,7 @@ class AngleStats:
         return cls(int(d.size), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(d))), float(np.mean(d)))
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "n": self.n,
-            "rms_deg": json_number(self.rms_deg),
-            "max_abs_deg": json_number(self.max_abs_deg),
-            "mean_deg": json_number(self.mean_deg),
-        }
+        return {k: json_number(v) if isinstance(v, float) else v for k, v in self.__dict__.items()}
 
 
 @dataclass(frozen=True)
