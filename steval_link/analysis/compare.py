@@ -1,24 +1,16 @@
-"""``steval compare``: how the firmware's own angles compare with the Python replica, the EKFs and accelerometer tilt.
+"""``steval compare``: the firmware's own angles against the Python replica, the EKFs and accelerometer tilt.
 
 One capture in, one :class:`ComparisonReport` out (ETH lecture 4, exercise 8 and the EKF project):
 
-* **ST-Mahony replica** — the bit-exact replica re-run over the capture's inputs
-  (:func:`steval_link.estimators.firmware_replay.replay_firmware`): it starts at power-up (a capture from step 0) or
-  from
-  the filter-state snapshot of a status frame, and restarts from the next snapshot after any dropped frame. The
-  report counts bit-exact steps, names the first step that differs and *diagnoses* it: the replica is re-run from the
-  same seed with alternative settings (the other normalisation variant, KI 1.0, no correction, kp variants,
-  dt = 1/161.5 s, the firmware defaults) and the one that reproduces the firmware is named; a mismatch right after
-  dropped frames, or one nothing explains, is called out as such.
+* **ST-Mahony replica**: the bit-exact replica re-run over the capture's inputs from power-up or from a status
+  frame's filter snapshot, restarted after dropped frames. The report counts bit-exact steps and diagnoses the
+  first step that differs (:mod:`steval_link.analysis.diagnosis`).
 * **Other estimators** (``ekf3``, ``mekf``, ``accel`` by default) run from power-up over the same inputs.
 
 Every trace is compared with the firmware's ``thx`` (pitch, about x) and ``thy`` (roll, about y): RMS and max |Δ|
-in degrees, angle differences wrapped to ±180°. Firmware NaN rows (``asin`` out of range at extreme rates) are
-counted and excluded, never fatal. Rate, jitter, drop, CRC and AHRS-cycle statistics and the filter settings from
-the status frames complete the report.
-
-Text-mode captures carry rounded angles and inputs and no quaternion: the replica cannot be bit-exact there, so
-it is not run; the firmware's angles are compared with the other estimators only.
+in degrees, differences wrapped to ±180°. Firmware NaN rows (``asin`` out of range) are counted and excluded.
+Rate, jitter, drops, CRC failures, the AHRS step cost and the filter settings complete the report.
+Text-mode captures carry rounded values and no quaternion: the replica cannot be bit-exact there, so it is not run.
 """
 
 from __future__ import annotations
@@ -50,6 +42,8 @@ from steval_link.analysis.report import (
     angle_diff_rad,
     format_report,
     json_number,
+    on_rows,
+    truth_on_steps,
 )
 from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
@@ -107,53 +101,18 @@ def compare_capture(
     n = len(a)
     if n == 0:
         raise ValueError("the capture has no attitude frames")
-    fw_thx = np.asarray(a.thx_rad, dtype=np.float64)
-    fw_thy = np.asarray(a.thy_rad, dtype=np.float64)
+    fw = (np.asarray(a.thx_rad, dtype=np.float64), np.asarray(a.thy_rad, dtype=np.float64))
     exact = np.asarray(a.exact, bool)
-    notes: list[str] = []
-    traces: list[TraceComparison] = []
-
     replica, rep, prow = compare_replica(tel, settings, variant=variant, variant_source=variant_source)
-    if replica is not None:
-        thx = np.full(n, np.nan)
-        thy = np.full(n, np.nan)
-        thx[prow] = rep.thx_rad
-        thy[prow] = rep.thy_rad
-        valid = np.zeros(n, bool)
-        valid[prow] = rep.seeded
-        note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
-        traces.append(_trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, valid, fw_thx, fw_thy, note))
-    if (~exact).any():
-        notes.append(
-            f"{int((~exact).sum())} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
-            "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
-        )
-        if replica is None:
-            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
-
-    estimates: dict[str, Any] = {}
-    decimation = row_decimation(tel)
-    has_acc = bool(np.isfinite(a.acc_mg).all(axis=1).any())
-    has_gyro = bool(np.isfinite(a.gyro_mdps).all(axis=1).any())
-    if not (has_acc and has_gyro):
-        notes.append(_inputs_absent_note(has_acc, has_gyro))
-    for name in estimators:
-        if not has_acc or (not has_gyro and name != "accel"):
-            traces.append(_unavailable(name, f"needs {'acc' if name == 'accel' else 'acc and gyro'}: absent"))
-            continue
-        est, why = run_estimator(name, tel, decimation=decimation)
-        if est is None:
-            traces.append(_unavailable(name, why))
-            continue
-        estimates[name] = est
-        label = TRACE_LABELS.get(name, name)
-        traces.append(_trace(name, label, est.thx_rad, est.thy_rad, est.valid, fw_thx, fw_thy, why))
-
+    traces, notes = _replica_trace(replica, rep, prow, n, fw, int((~exact).sum()))
+    est_traces, estimates, est_notes = _estimator_traces(tel, estimators, fw)
+    traces += est_traces
+    notes += est_notes
     if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
         notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
-    nan_x = int(np.count_nonzero(~np.isfinite(fw_thx)))
-    nan_y = int(np.count_nonzero(~np.isfinite(fw_thy)))
+    nan_x = int(np.count_nonzero(~np.isfinite(fw[0])))
+    nan_y = int(np.count_nonzero(~np.isfinite(fw[1])))
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
         why = (
@@ -165,7 +124,6 @@ def compare_capture(
         )
         notes.append(f"firmware NaN steps: {nan_x} pitch, {nan_y} roll ({why}); excluded from the statistics")
     src = tel.source or {}
-    truth = truth_section(tel, rep, prow, estimates)
     cost = step_cost(tel)  # the one AHRS step cost (replay --json gives the same)
     return ComparisonReport(
         source={"path": src.get("path"), "kind": src.get("kind")},
@@ -185,10 +143,51 @@ def compare_capture(
         replay=rep,
         replica_rows=prow,
         estimates=estimates,
-        truth=truth,
+        truth=truth_section(tel, rep, prow, estimates),
         ahrs_step_cost=None if cost is None else cost.to_json(),
         ahrs_step_cost_text=None if cost is None else cost.sentence(),
     )
+
+
+def _replica_trace(replica, rep, prow, n: int, fw, text_rows: int) -> tuple[list[TraceComparison], list[str]]:
+    """The seeded replica's trace (or why it did not run) and the note on text-mode rows."""
+    traces, notes = [], []
+    if replica is not None:
+        note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
+        thx, thy = on_rows(n, prow, rep.thx_rad), on_rows(n, prow, rep.thy_rad)
+        traces.append(
+            _trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, on_rows(n, prow, rep.seeded, False, bool), *fw, note)
+        )
+    if text_rows:
+        notes.append(
+            f"{text_rows} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
+            "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
+        )
+        if replica is None:
+            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
+    return traces, notes
+
+
+def _estimator_traces(tel, estimators: Sequence[str], fw) -> tuple[list[TraceComparison], dict[str, Any], list[str]]:
+    """Each estimator run from power-up and compared with the firmware (unavailable without its inputs)."""
+    a = tel.attitude
+    traces, estimates, notes = [], {}, []
+    decimation = row_decimation(tel)
+    has_acc = bool(np.isfinite(a.acc_mg).all(axis=1).any())
+    has_gyro = bool(np.isfinite(a.gyro_mdps).all(axis=1).any())
+    if not (has_acc and has_gyro):
+        notes.append(_inputs_absent_note(has_acc, has_gyro))
+    for name in estimators:
+        if not has_acc or (not has_gyro and name != "accel"):
+            traces.append(_unavailable(name, f"needs {'acc' if name == 'accel' else 'acc and gyro'}: absent"))
+            continue
+        est, why = run_estimator(name, tel, decimation=decimation)
+        if est is None:
+            traces.append(_unavailable(name, why))
+            continue
+        estimates[name] = est
+        traces.append(_trace(name, TRACE_LABELS.get(name, name), est.thx_rad, est.thy_rad, est.valid, *fw, why))
+    return traces, estimates, notes
 
 
 def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
@@ -219,14 +218,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     if truth is None:
         return None
     a = tel.attitude
-    order = np.argsort(truth.step, kind="stable")
-    t_step = truth.step[order]
-    idx = np.clip(np.searchsorted(t_step, a.step), 0, max(len(t_step) - 1, 0))
-    hit = (t_step[idx] == a.step) if len(t_step) else np.zeros(len(a.step), bool)
-    q_true = np.full((len(a.step), 4), np.nan)
-    q_true[hit] = truth.q_wxyz[order][idx[hit]]
-    movement = np.zeros(len(a.step), bool)
-    movement[hit] = truth.movement[order][idx[hit]]
+    q_true, movement, hit = truth_on_steps(truth.step, truth.q_wxyz, truth.movement, a.step)
     out: dict[str, float | None] = {}
     cov: dict[str, Coverage] = {}
     scored = movement & np.isfinite(q_true).all(axis=1)
@@ -238,9 +230,7 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
     cov["firmware"] = covered(np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad))
     if rep is not None and prow is not None:
-        thx = np.full(len(a.step), np.nan)
-        thy = np.full(len(a.step), np.nan)
-        thx[prow], thy[prow] = rep.thx_rad, rep.thy_rad
+        thx, thy = on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)
         _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
         cov[REPLICA_TRACE] = covered(np.isfinite(thx) & np.isfinite(thy))
     for name, est in estimates.items():

@@ -21,7 +21,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.report import ReplicaComparison, json_number
+from steval_link.analysis.report import ReplicaComparison, json_number, setting_text
 from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence, replay_firmware, replay_variants
 from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal
 from steval_link.estimators.st_mahony import run as mahony_run
@@ -102,10 +102,6 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     }
 
 
-def _fmt_setting(v) -> str:
-    return ("on" if v else "off") if isinstance(v, bool) else v if isinstance(v, str) else f"{v:g}"
-
-
 def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[dict[str, Any]]:
     """Each change the status frames show, in stream order: ``{"step": the first step it applies to, "status_row",
     "event": announced at once after a host command (flag EVENT), "text": "ki 0.1 → 1, correction on → off" or
@@ -116,7 +112,7 @@ def _change_list(s, rows: np.ndarray, settings: list[MahonySettings]) -> list[di
     out = []
     for i in range(1, len(settings)):
         a, b = _settings_dict(settings[i - 1]), _settings_dict(settings[i])
-        parts = [f"{k} {_fmt_setting(a[k])} → {_fmt_setting(b[k])}" for k in a if a[k] != b[k]]
+        parts = [f"{k} {setting_text(a[k])} → {setting_text(b[k])}" for k in a if a[k] != b[k]]
         if not parts and gen[i] != gen[i - 1] and flags[i] & FLAG_EVENT:
             parts = ["filter reset (q = 1, 0, 0, 0; integrals 0)"]
         if parts:
@@ -266,15 +262,11 @@ def _diagnose(
     view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats
 ) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
     """Why the replica disagrees: (sentences, matching variant, its bit-exact rows over the capture, its settings)."""
-    a = view.attitude
-    steps = a.step
-    n = steps.size
+    steps = view.attitude.step
     m = rep.first_mismatch
     seed = max((s for s in rep.seeds if s.row <= m), key=lambda s: s.row)
     breaks = np.flatnonzero(np.diff(steps) != 1) + 1
-    seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else n
-    r1 = min(seg_end, m + DIAGNOSIS_WINDOW_ROWS)
-    base = seed.settings
+    seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else steps.size
     # candidates start from the last snapshot before the mismatch (the replica was exact up to there), else the seed
     r0, state = seed.row, _seed_state(view, seed)
     st_steps = np.asarray(view.status.step, dtype=np.int64)
@@ -283,79 +275,21 @@ def _diagnose(
         j = int(k[np.argmax(st_steps[k])])
         r0 = seed.row + int(st_steps[j]) + 1 - int(steps[seed.row])
         state = MahonyState(q_wxyz=view.status.q_wxyz[j], int_xyz=view.status.int_xyz[j])
-    need = r1 - r0
-    lines: list[str] = []
-
-    candidates = _variants(base)
-    found = None
-    for ch, s in candidates:
-        if _window_exact(view, state, s, r0, r1) == need:
-            found = (ch, s)
-            break
-    if found is None:
-        singles = [c for c in candidates if "defaults" not in c[0]]
-        for x, y in combinations(singles, 2):
-            c = _combine(x, y, base)
-            if c is not None and _window_exact(view, state, c[1], r0, r1) == need:
-                found = c
-                break
+    found = _search_settings(view, state, seed.settings, r0, min(seg_end, m + DIAGNOSIS_WINDOW_ROWS))
     if found is not None:
-        ch, s = found
-        full = replay_firmware(view, settings=s)
-        lines.append(f"the capture matches {_describe_variant(ch, base)}")
-        flags = _cli_flags(s, _status_base(view) or MahonySettings())
-        how = f" (steval compare CAPTURE {flags})" if flags else ""
-        if full.all_exact:
-            lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
-        else:
-            lines.append(
-                f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
-            )
-        variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
-        if settings_override is not None and _same_settings(s, _status_base(view)):
-            lines.append("these are the settings the status frames report: the --settings override is wrong")
-        return lines, variant, full.n_bit_exact, s
-
+        return _explained(view, *found, seed.settings, settings_override)
     seg_start = int(breaks[np.searchsorted(breaks, seed.row, side="right") - 1]) if np.any(breaks <= seed.row) else 0
     at_restart = seed.source == "status" and m - seed.row < 2
-    if at_restart:
-        snap = int(view.status.step[seed.status_row])
-        if seg_start > 0:
-            lines.append(
-                f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
-                f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
-                f"{snap}, which does not reproduce the next step"
-            )
-        else:
-            lines.append(
-                f"the port started from the status snapshot of step {snap}, which does not reproduce the next step"
-            )
-        lines.extend(
-            _snapshot_check(view, seed.status_row)
-            or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
-        )
+    lines = _restart_lines(view, seed, seg_start) if at_restart else []
     if int(stats.crc_failures) > 0:  # damage shown (skipped bytes alone are boot text or a late start, not damage)
         lines.append(
             f"the stream had {int(stats.crc_failures)} CRC failures and {int(stats.bytes_skipped)} skipped "
             "bytes: damaged frames are dropped, but a corrupted frame that passes its CRC would also do this"
         )
-    # a one-off disturbance or a different filter? Restart from the next snapshot after the mismatch.
-    st = view.status
-    k = np.flatnonzero((st.step >= steps[m]) & (st.step < steps[seg_end - 1]))
-    if k.size:
-        j = int(k[np.argmin(st.step[k])])
-        r0 = m + int(st.step[j]) + 1 - int(steps[m])
-        if r0 < seg_end:
-            rr1 = min(seg_end, r0 + DIAGNOSIS_WINDOW_ROWS)
-            good = _window_exact(view, MahonyState(q_wxyz=st.q_wxyz[j], int_xyz=st.int_xyz[j]), base, r0, rr1)
-            if good == rr1 - r0:
-                lines.append(
-                    f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
-                    f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
-                    "than a different filter"
-                )
-                return lines, None, None, None
-    if not at_restart:
+    one_off = _one_off_line(view, m, seg_end, seed.settings)
+    if one_off is not None:
+        lines.append(one_off)
+    elif not at_restart:
         lines.append(
             "no known setting reproduces it (tried: firmware defaults, KI 1.0/0.1/0, correction on/off, "
             "the filters of ST's releases, dt 1/161.5 s and 5/807.7 s, kp variants, MIN_THR 200, and pairs "
@@ -363,6 +297,77 @@ def _diagnose(
             "firmware built with other compiler options (FMA, -O2 reordering)?"
         )
     return lines, None, None, None
+
+
+def _search_settings(view, state: MahonyState, base: MahonySettings, r0: int, r1: int):
+    """The first alternative setting (then pair of them) bit-exact on rows ``r0``..``r1``: (changes, settings)."""
+    candidates = _variants(base)
+    for ch, s in candidates:
+        if _window_exact(view, state, s, r0, r1) == r1 - r0:
+            return ch, s
+    singles = [c for c in candidates if "defaults" not in c[0]]
+    for x, y in combinations(singles, 2):
+        c = _combine(x, y, base)
+        if c is not None and _window_exact(view, state, c[1], r0, r1) == r1 - r0:
+            return c
+    return None
+
+
+def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings_override):
+    """The setting that reproduces the firmware, replayed over the whole capture: as :func:`_diagnose` returns."""
+    full = replay_firmware(view, settings=s)
+    lines = [f"the capture matches {_describe_variant(ch, base)}"]
+    flags = _cli_flags(s, _status_base(view) or MahonySettings())
+    how = f" (steval compare CAPTURE {flags})" if flags else ""
+    if full.all_exact:
+        lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
+    else:
+        lines.append(
+            f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
+        )
+    variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
+    if settings_override is not None and _same_settings(s, _status_base(view)):
+        lines.append("these are the settings the status frames report: the --settings override is wrong")
+    return lines, variant, full.n_bit_exact, s
+
+
+def _restart_lines(view, seed, seg_start: int) -> list[str]:
+    """A mismatch right after the replica restarted from a status snapshot: where, and whether the snapshot fits."""
+    steps = view.attitude.step
+    snap = int(view.status.step[seed.status_row])
+    if seg_start > 0:
+        lines = [
+            f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
+            f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
+            f"{snap}, which does not reproduce the next step"
+        ]
+    else:
+        lines = [f"the port started from the status snapshot of step {snap}, which does not reproduce the next step"]
+    return lines + (
+        _snapshot_check(view, seed.status_row)
+        or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
+    )
+
+
+def _one_off_line(view, m: int, seg_end: int, base: MahonySettings) -> str | None:
+    """Restarted from the next snapshot after row ``m``, does the replica agree again? (a one-off disturbance)"""
+    st, steps = view.status, view.attitude.step
+    k = np.flatnonzero((st.step >= steps[m]) & (st.step < steps[seg_end - 1]))
+    if not k.size:
+        return None
+    j = int(k[np.argmin(st.step[k])])
+    r0 = m + int(st.step[j]) + 1 - int(steps[m])
+    if r0 >= seg_end:
+        return None
+    r1 = min(seg_end, r0 + DIAGNOSIS_WINDOW_ROWS)
+    good = _window_exact(view, MahonyState(q_wxyz=st.q_wxyz[j], int_xyz=st.int_xyz[j]), base, r0, r1)
+    if good != r1 - r0:
+        return None
+    return (
+        f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
+        f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
+        "than a different filter"
+    )
 
 
 def _snapshot_check(view, j: int) -> list[str]:
@@ -421,18 +426,16 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     fin = ~np.isfinite(np.asarray(a.q_wxyz, dtype=np.float64)).all(axis=1)
     first_nan = int(a.step[int(np.argmax(fin))]) if fin.any() else None
     t_fw = float(a.t_fw_s[k])
-    inputs = []
-    for j in (k - 1, k):
-        if j < 0 or int(a.step[j]) != step - (k - j):
-            continue
-        inputs.append(
-            {
-                "step": int(a.step[j]),
-                "acc_mg": [json_number(x) for x in a.acc_mg[j]],
-                "gyro_mdps": [json_number(x) for x in a.gyro_mdps[j]],
-                "thr": int(a.thr[j]),
-            }
-        )
+    inputs = [
+        {
+            "step": int(a.step[j]),
+            "acc_mg": [json_number(x) for x in a.acc_mg[j]],
+            "gyro_mdps": [json_number(x) for x in a.gyro_mdps[j]],
+            "thr": int(a.thr[j]),
+        }
+        for j in (k - 1, k)
+        if j >= 0 and int(a.step[j]) == step - (k - j)
+    ]
     replica_state, replica_q, replica_div = "unseeded", None, None
     if rep is not None and bool(rep.seeded[k]):
         replica_q = [json_number(x) for x in rep.q_wxyz[k]]
@@ -450,31 +453,14 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         f"release keeps |q| ≈ 0.9983)"
         + (f"; non-finite from step {first_nan} on" if first_nan is not None and first_nan != step else "")
     ]
-    for inp in inputs:
-        text.append(
-            f"inputs at step {inp['step']}: acc {_vec(inp['acc_mg'], '.5g')} mg, gyro "
-            f"{_vec(inp['gyro_mdps'], '.5g')} mdps, thr {inp['thr']}"
-        )
+    text += [
+        f"inputs at step {inp['step']}: acc {_vec(inp['acc_mg'], '.5g')} mg, gyro "
+        f"{_vec(inp['gyro_mdps'], '.5g')} mdps, thr {inp['thr']}"
+        for inp in inputs
+    ]
     if len(inputs) < 2:
         text.append(f"the step before ({step - 1}) was not received")
-    if replica_state == "finite":
-        text.append(
-            f"the bit-exact port stayed finite on the same inputs (q = {_vec(replica_q)}, |q| = "
-            f"{_norm(replica_q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
-            "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
-            "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
-            "handles, so none was searched)"
-        )
-    elif replica_state == "diverged":
-        text.append(
-            f"the port diverged too on the same inputs (from step {replica_div}): the inputs drive the filter "
-            "out of range; check the sensor values and the settings"
-        )
-    else:
-        text.append(
-            "the port had no state at that step (no power-up and no finite status snapshot before it), so "
-            "it cannot tell whether the filter or its inputs are to blame"
-        )
+    text.append(_replica_divergence_line(replica_state, replica_q, replica_div, step))
     return {
         "row": int(rows[k]),
         "step": step,
@@ -490,6 +476,27 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     }
 
 
+def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int) -> str:
+    """What the replica did on the inputs where the firmware's filter diverged, and what that blames."""
+    if state == "finite":
+        return (
+            f"the bit-exact port stayed finite on the same inputs (q = {_vec(q)}, |q| = "
+            f"{_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+            "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
+            "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
+            "handles, so none was searched)"
+        )
+    if state == "diverged":
+        return (
+            f"the port diverged too on the same inputs (from step {diverged_step}): the inputs drive the filter "
+            "out of range; check the sensor values and the settings"
+        )
+    return (
+        "the port had no state at that step (no power-up and no finite status snapshot before it), so "
+        "it cannot tell whether the filter or its inputs are to blame"
+    )
+
+
 def compare_replica(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
@@ -501,7 +508,6 @@ def compare_replica(
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None
-    a = view.attitude
     chosen = replay_variants(view, settings, variant=variant, source=variant_source, hint=capture_variant_hint(tel))
     rep = chosen.replay
     if settings is not None:
@@ -522,59 +528,58 @@ def compare_replica(
         }
         for s in rep.seeds
     ]
-    first = None
-    diagnosis: list[str] = []
-    variant = None
-    variant_exact = None
-    unseeded = None
-    if rep.n_seeded == 0:
-        if view.status.step.size == 0:
-            unseeded = (
-                "the capture does not start at step 0 (power-up) and has no status frame with a filter "
-                "snapshot, so the port has no state to start from"
-            )
-        else:
-            unseeded = (
-                "no status snapshot falls inside a run of consecutive steps, so the port has no state to start from"
-            )
     divergence = find_divergence(view, rows, rep)
-    if rep.first_mismatch is not None:
-        m = rep.first_mismatch
-        t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
-        first = {
-            "row": int(rows[m]),
-            "step": int(a.step[m]),
-            "t_fw_s": float(a.t_fw_s[m]),
-            "t_rel_s": float(t_rel[rows[m]]),
-        }
-        if divergence is not None and divergence["port"] == "finite":
-            diagnosis = list(divergence["text"])  # no setting of the release's filter explains a NaN
-        else:
-            diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
-            if divergence is not None:
-                diagnosis = list(divergence["text"]) + diagnosis
-    elif divergence is not None:  # no step to compare with (the replica had no state): the divergence alone
-        diagnosis = list(divergence["text"])
-    return (
-        ReplicaComparison(
-            rows=int(rows.size),
-            seeded=rep.n_seeded,
-            bit_exact=rep.n_bit_exact,
-            seeds=seeds,
-            first_mismatch=first,
-            settings=_settings_dict(used),
-            diagnosis=diagnosis,
-            matching_variant=variant,
-            matching_bit_exact=variant_exact,
-            unseeded_reason=unseeded,
-            divergence=divergence,
-            filter=chosen.variant,
-            filter_from=chosen.source,
-            variant_bit_exact=chosen.bit_exact,
-        ),
-        rep,
-        rows,
+    first, diagnosis, matching, matching_exact = _first_mismatch(tel, view, rows, rep, settings, divergence)
+    comparison = ReplicaComparison(
+        rows=int(rows.size),
+        seeded=rep.n_seeded,
+        bit_exact=rep.n_bit_exact,
+        seeds=seeds,
+        first_mismatch=first,
+        settings=_settings_dict(used),
+        diagnosis=diagnosis,
+        matching_variant=matching,
+        matching_bit_exact=matching_exact,
+        unseeded_reason=_unseeded_reason(view, rep),
+        divergence=divergence,
+        filter=chosen.variant,
+        filter_from=chosen.source,
+        variant_bit_exact=chosen.bit_exact,
     )
+    return comparison, rep, rows
+
+
+def _unseeded_reason(view, rep: FirmwareReplay) -> str | None:
+    """Why the replica never started (None: it did)."""
+    if rep.n_seeded:
+        return None
+    if view.status.step.size == 0:
+        return (
+            "the capture does not start at step 0 (power-up) and has no status frame with a filter "
+            "snapshot, so the port has no state to start from"
+        )
+    return "no status snapshot falls inside a run of consecutive steps, so the port has no state to start from"
+
+
+def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
+    """The first row that differs, the diagnosis, the matching variant and its bit-exact rows."""
+    if rep.first_mismatch is None:  # no step to compare with (the replica had no state): the divergence alone
+        return None, ([] if divergence is None else list(divergence["text"])), None, None
+    a = view.attitude
+    m = rep.first_mismatch
+    t_rel = relative_time_s(tel.attitude.step, tel.attitude.t_fw_s)
+    first = {
+        "row": int(rows[m]),
+        "step": int(a.step[m]),
+        "t_fw_s": float(a.t_fw_s[m]),
+        "t_rel_s": float(t_rel[rows[m]]),
+    }
+    if divergence is not None and divergence["port"] == "finite":
+        return first, list(divergence["text"]), None, None  # no setting of the release's filter explains a NaN
+    diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
+    if divergence is not None:
+        diagnosis = list(divergence["text"]) + diagnosis
+    return first, diagnosis, variant, variant_exact
 
 
 def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -153,7 +154,7 @@ def _invalid_input(seed: int):
     after_a, after_g = _held(0.0, 0.0, 5.0, seed + 1)
     acc = np.concatenate([rest_a, nan_a, fall[0], sat[0], after_a])
     gyro = np.concatenate([rest_g, nan_g, fall[1], sat[1], after_g])
-    return acc, gyro, len(rest_a)
+    return acc, gyro
 
 
 # ---- the checks ----------------------------------------------------------------------------------------------------
@@ -163,138 +164,142 @@ def _last_deg(est) -> tuple[float, float]:
     return math.degrees(float(est.thx_rad[-1])), math.degrees(float(est.thy_rad[-1]))
 
 
-def _fresh(name):
-    return registry.create(name)
-
-
 def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
-    """Run every interface check on the estimator ``name`` names; (checks, steps per second, the user's trimmed
-    traceback of the first failure or "")."""
-    checks: list[Check] = []
-    first_trace = ""
+    """Run every interface check on the estimator ``name`` names.
 
-    def attempt(check_name: str, fn) -> None:
-        nonlocal first_trace
-        try:
-            ok, detail = fn()
-        except PluginError as exc:
-            if exc.details and not first_trace:
-                first_trace = exc.details
-            ok, detail = False, str(exc)
-        except Exception as exc:  # noqa: BLE001 - a built-in's failure is a failed check too
-            ok, detail = False, f"{type(exc).__name__}: {exc}"
-        checks.append(Check(check_name, bool(ok), detail))
-
-    def shapes():
-        est = _fresh(name)
-        acc, gyro = _held(0.0, 0.0, 0.5, 1)
-        q1 = np.asarray(est.step(acc[0], gyro[0], 0), dtype=np.float64)
-        if q1.shape != (4,):
-            return False, f"step() returned shape {q1.shape}, not (4,)"
-        est = _fresh(name)
-        res = est.run(acc, gyro, np.zeros(len(acc), np.int64))
-        q = np.asarray(res.q_wxyz, dtype=np.float64)
-        if q.shape != (len(acc), 4) or np.shape(res.valid) != (len(acc),):
-            return False, f"run() of {len(acc)} rows gave q of shape {q.shape}, valid {np.shape(res.valid)}"
-        norm = np.linalg.norm(q[np.asarray(res.valid, bool)], axis=1)
-        if norm.size == 0:
-            return False, "no valid estimate in 0.5 s at rest (every row NaN or flagged invalid)"
-        worst = float(np.max(np.abs(norm - 1.0)))
-        if worst > 0.01:
-            return False, f"not a unit quaternion: |q| differs from 1 by up to {worst:.3g} (angles come out wrong)"
-        return True, f"step() gives a (4,) quaternion, run() one row per input; |q| within {max(worst, 1e-9):.1g} of 1"
-
-    def at_rest():
-        acc, gyro = _held(0.0, 0.0, 10.0, 2)
-        thx, thy = _last_deg(_fresh(name).run(acc, gyro))
-        return abs(thx) < 1.0 and abs(thy) < 1.0, f"level and still for 10 s: thx {thx:+.2f}°, thy {thy:+.2f}°"
-
-    def held(axis: str):
-        def fn():
-            deg = (20.0, 0.0) if axis == "pitch" else (0.0, 20.0)
-            acc, gyro = _held(*deg, 10.0, 3)
-            thx, thy = _last_deg(_fresh(name).run(acc, gyro))
-            want_x, want_y = deg
-            ok = abs(thx - want_x) < 2.0 and abs(thy - want_y) < 2.0
-            what = "20° nose up (about x)" if axis == "pitch" else "20° roll (about y)"
-            return ok, (
-                f"held {what}, acc ({acc[0][0]:+.0f}, {acc[0][1]:+.0f}, {acc[0][2]:+.0f}) mg: "
-                f"thx {thx:+.2f}°, thy {thy:+.2f}° (expected {want_x:+.0f}°, {want_y:+.0f}°)"
-            )
-
-        return fn
-
-    def turn():
-        (acc, gyro), want = _turn(4)
-        thx, thy = _last_deg(_fresh(name).run(acc, gyro))
-        return (
-            abs(thx - want) < 2.0 and abs(thy) < 2.0,
-            f"+20 dps about x for 0.5 s: thx {thx:+.2f}° (expected {want:+.1f}°), thy {thy:+.2f}°",
-        )
-
-    def invalid():
-        acc, gyro, k = _invalid_input(5)
-        res = _fresh(name).run(acc, gyro)
-        bad_rows = ~(np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1))
-        q_bad = np.asarray(res.q_wxyz, np.float64)[bad_rows]
-        valid_bad = np.asarray(res.valid, bool)[bad_rows]
-        # a NaN row is either flagged invalid (the guard of your estimator does it) or holds a finite estimate
-        flagged = bool(np.isfinite(q_bad[valid_bad]).all())
-        how = "flagged invalid" if not valid_bad.any() else "held (finite)" if flagged else "NOT flagged invalid"
-        tail = slice(len(acc) - int(C.AHRS_RATE_HZ), len(acc))
-        finite = bool(np.isfinite(np.asarray(res.q_wxyz, np.float64)[tail]).all() and np.asarray(res.valid)[tail].all())
-        thx, thy = _last_deg(res)
-        detail = (
-            f"NaN rows {how}; after free fall and "
-            f"saturation, 5 s at rest ends at thx {thx:+.2f}°, thy {thy:+.2f}°"
-            + ("" if finite else ": NO finite estimate in the last second (a NaN got into the state?)")
-        )
-        return flagged and finite, detail
-
-    def determinism():
-        acc, gyro = _held(5.0, -8.0, 3.0, 6)
-        (acc2, gyro2), _ = _turn(6)
-        acc = np.concatenate([acc, acc2])
-        gyro = np.concatenate([gyro, gyro2])
-        a = _fresh(name).run(acc, gyro)
-        b = _fresh(name).run(acc, gyro)
-        est = _fresh(name)
-        est.run(acc[:100] + 30.0, gyro[:100] + 500.0)
-        est.reset()
-        c = est.run(acc, gyro)
-        qa, qb, qc = (np.asarray(x.q_wxyz, np.float64) for x in (a, b, c))
-        if not np.array_equal(qa, qb, equal_nan=True):
-            return False, "two fresh instances on the same inputs differ (random numbers? state shared between them?)"
-        if not np.array_equal(qa, qc, equal_nan=True):
-            return False, "after reset() the output differs from a fresh instance's (reset() misses some state)"
-        return True, "two fresh instances and one after reset() agree bit for bit"
-
-    attempt("shapes", shapes)
-    attempt("at rest", at_rest)
-    attempt("pitch sign", held("pitch"))
-    attempt("roll sign", held("roll"))
-    attempt("turn", turn)
-    attempt("invalid input", invalid)
-    attempt("determinism", determinism)
-
-    rate = math.nan
+    Returns the checks, steps per second, and the user's trimmed traceback of the first failure (or "").
+    """
+    rate = [math.nan]
 
     def speed():
-        nonlocal rate
-        acc, gyro, thr = demo_inputs if demo_inputs is not None else _demo_inputs()
-        est = _fresh(name)
-        t0 = time.perf_counter()
-        est.run(acc, gyro, thr)
-        elapsed = time.perf_counter() - t0
-        rate = len(acc) / elapsed if elapsed > 0 else math.inf
-        return (
-            rate >= LIVE_MIN_STEPS_PER_S,
-            f"{rate:,.0f} steps/s on {len(acc)} steps of recordings/demo.stv (live needs ≥ "
-            f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {C.AHRS_RATE_HZ:.1f} Hz)",
-        )
+        ok, detail, rate[0] = _check_speed(name, demo_inputs)
+        return ok, detail
 
-    attempt("speed", speed)
-    return checks, rate, first_trace
+    checks, first_trace = [], ""
+    for check_name, fn in (
+        ("shapes", partial(_check_shapes, name)),
+        ("at rest", partial(_check_at_rest, name)),
+        ("pitch sign", partial(_check_held, name, "pitch")),
+        ("roll sign", partial(_check_held, name, "roll")),
+        ("turn", partial(_check_turn, name)),
+        ("invalid input", partial(_check_invalid, name)),
+        ("determinism", partial(_check_determinism, name)),
+        ("speed", speed),
+    ):
+        check, trace = _attempt(check_name, fn)
+        checks.append(check)
+        first_trace = first_trace or trace
+    return checks, rate[0], first_trace
+
+
+def _attempt(check_name: str, fn) -> tuple[Check, str]:
+    """Run one check; an exception fails it. Returns the check and the plug-in's traceback (or "")."""
+    try:
+        ok, detail = fn()
+    except PluginError as exc:
+        return Check(check_name, False, str(exc)), exc.details or ""
+    except Exception as exc:  # noqa: BLE001 - a built-in's failure is a failed check too
+        return Check(check_name, False, f"{type(exc).__name__}: {exc}"), ""
+    return Check(check_name, bool(ok), detail), ""
+
+
+def _check_shapes(name):
+    est = registry.create(name)
+    acc, gyro = _held(0.0, 0.0, 0.5, 1)
+    q1 = np.asarray(est.step(acc[0], gyro[0], 0), dtype=np.float64)
+    if q1.shape != (4,):
+        return False, f"step() returned shape {q1.shape}, not (4,)"
+    est = registry.create(name)
+    res = est.run(acc, gyro, np.zeros(len(acc), np.int64))
+    q = np.asarray(res.q_wxyz, dtype=np.float64)
+    if q.shape != (len(acc), 4) or np.shape(res.valid) != (len(acc),):
+        return False, f"run() of {len(acc)} rows gave q of shape {q.shape}, valid {np.shape(res.valid)}"
+    norm = np.linalg.norm(q[np.asarray(res.valid, bool)], axis=1)
+    if norm.size == 0:
+        return False, "no valid estimate in 0.5 s at rest (every row NaN or flagged invalid)"
+    worst = float(np.max(np.abs(norm - 1.0)))
+    if worst > 0.01:
+        return False, f"not a unit quaternion: |q| differs from 1 by up to {worst:.3g} (angles come out wrong)"
+    return True, f"step() gives a (4,) quaternion, run() one row per input; |q| within {max(worst, 1e-9):.1g} of 1"
+
+
+def _check_at_rest(name):
+    acc, gyro = _held(0.0, 0.0, 10.0, 2)
+    thx, thy = _last_deg(registry.create(name).run(acc, gyro))
+    return abs(thx) < 1.0 and abs(thy) < 1.0, f"level and still for 10 s: thx {thx:+.2f}°, thy {thy:+.2f}°"
+
+
+def _check_held(name, axis: str):
+    want_x, want_y = (20.0, 0.0) if axis == "pitch" else (0.0, 20.0)
+    acc, gyro = _held(want_x, want_y, 10.0, 3)
+    thx, thy = _last_deg(registry.create(name).run(acc, gyro))
+    ok = abs(thx - want_x) < 2.0 and abs(thy - want_y) < 2.0
+    what = "20° nose up (about x)" if axis == "pitch" else "20° roll (about y)"
+    return ok, (
+        f"held {what}, acc ({acc[0][0]:+.0f}, {acc[0][1]:+.0f}, {acc[0][2]:+.0f}) mg: "
+        f"thx {thx:+.2f}°, thy {thy:+.2f}° (expected {want_x:+.0f}°, {want_y:+.0f}°)"
+    )
+
+
+def _check_turn(name):
+    (acc, gyro), want = _turn(4)
+    thx, thy = _last_deg(registry.create(name).run(acc, gyro))
+    return (
+        abs(thx - want) < 2.0 and abs(thy) < 2.0,
+        f"+20 dps about x for 0.5 s: thx {thx:+.2f}° (expected {want:+.1f}°), thy {thy:+.2f}°",
+    )
+
+
+def _check_invalid(name):
+    acc, gyro = _invalid_input(5)
+    res = registry.create(name).run(acc, gyro)
+    bad_rows = ~(np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1))
+    q_bad = np.asarray(res.q_wxyz, np.float64)[bad_rows]
+    valid_bad = np.asarray(res.valid, bool)[bad_rows]
+    # a NaN row is either flagged invalid (the guard of your estimator does it) or holds a finite estimate
+    flagged = bool(np.isfinite(q_bad[valid_bad]).all())
+    how = "flagged invalid" if not valid_bad.any() else "held (finite)" if flagged else "NOT flagged invalid"
+    tail = slice(len(acc) - int(C.AHRS_RATE_HZ), len(acc))
+    finite = bool(np.isfinite(np.asarray(res.q_wxyz, np.float64)[tail]).all() and np.asarray(res.valid)[tail].all())
+    thx, thy = _last_deg(res)
+    detail = f"NaN rows {how}; after free fall and saturation, 5 s at rest ends at thx {thx:+.2f}°, thy {thy:+.2f}°" + (
+        "" if finite else ": NO finite estimate in the last second (a NaN got into the state?)"
+    )
+    return flagged and finite, detail
+
+
+def _check_determinism(name):
+    acc, gyro = _held(5.0, -8.0, 3.0, 6)
+    (acc2, gyro2), _ = _turn(6)
+    acc = np.concatenate([acc, acc2])
+    gyro = np.concatenate([gyro, gyro2])
+    a = registry.create(name).run(acc, gyro)
+    b = registry.create(name).run(acc, gyro)
+    est = registry.create(name)
+    est.run(acc[:100] + 30.0, gyro[:100] + 500.0)
+    est.reset()
+    c = est.run(acc, gyro)
+    qa, qb, qc = (np.asarray(x.q_wxyz, np.float64) for x in (a, b, c))
+    if not np.array_equal(qa, qb, equal_nan=True):
+        return False, "two fresh instances on the same inputs differ (random numbers? state shared between them?)"
+    if not np.array_equal(qa, qc, equal_nan=True):
+        return False, "after reset() the output differs from a fresh instance's (reset() misses some state)"
+    return True, "two fresh instances and one after reset() agree bit for bit"
+
+
+def _check_speed(name, demo_inputs):
+    """Steps per second of ``run()`` on the demo capture's inputs: (ok, detail, rate)."""
+    acc, gyro, thr = demo_inputs if demo_inputs is not None else _demo_inputs()
+    est = registry.create(name)
+    t0 = time.perf_counter()
+    est.run(acc, gyro, thr)
+    elapsed = time.perf_counter() - t0
+    rate = len(acc) / elapsed if elapsed > 0 else math.inf
+    detail = (
+        f"{rate:,.0f} steps/s on {len(acc)} steps of recordings/demo.stv (live needs ≥ "
+        f"{LIVE_MIN_STEPS_PER_S:.0f}: twice the stream's {C.AHRS_RATE_HZ:.1f} Hz)"
+    )
+    return rate >= LIVE_MIN_STEPS_PER_S, detail, rate
 
 
 def _demo_inputs():

@@ -28,8 +28,8 @@ import numpy as np
 
 from steval_link.analysis.coverage import Coverage, coverage_of, percent
 from steval_link.analysis.firmware_eval import FirmwareResult
-from steval_link.analysis.plots import require_matplotlib
-from steval_link.analysis.report import json_number
+from steval_link.analysis.plots import require_matplotlib, save_figure
+from steval_link.analysis.report import json_number, truth_on_steps
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
 from steval_link.errors import UserError
@@ -358,15 +358,7 @@ def evaluate_capture(
         step, quat, mov = kept.step, kept.q_wxyz, kept.movement
     else:
         step, quat, mov = _load_sidecar(side)
-    order = np.argsort(step)
-    step, quat, mov = step[order], quat[order], mov[order]
-    idx = np.searchsorted(step, att.step)
-    idx_c = np.clip(idx, 0, len(step) - 1)
-    hit = (idx < len(step)) & (step[idx_c] == att.step)
-    q_true = np.full((len(att.step), 4), np.nan)
-    q_true[hit] = quat[idx_c[hit]]
-    movement = np.zeros(len(att.step), bool)
-    movement[hit] = mov[idx_c[hit]]
+    q_true, movement, _ = truth_on_steps(step, quat, mov, att.step)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
     dt = np.diff(t)
     rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else AHRS_RATE_HZ
@@ -561,18 +553,8 @@ def write_markdown(results: Sequence[TrialResult], path) -> Path:
 
 
 def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0) -> Path:
-    """PNG of :func:`evaluation_figure`. Needs matplotlib (``pip install "steval-link[plot]"``; UserError
-    otherwise)."""
-    plt = require_matplotlib()
-    fig = evaluation_figure(results, detail=detail)
-    out = Path(out_png)
-    try:
-        fig.savefig(out, dpi=110)
-    except OSError as exc:
-        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-    finally:
-        plt.close(fig)
-    return out
+    """PNG of :func:`evaluation_figure` (UserError without matplotlib, or when it cannot be written)."""
+    return save_figure(evaluation_figure(results, detail=detail), out_png, dpi=110)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):

@@ -36,6 +36,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.coverage import Coverage, coverage_of
+from steval_link.analysis.report import on_rows
 from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
@@ -48,6 +49,10 @@ from steval_link.link.decoder import decode_bytes
 __all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler", "gains_text"]
 
 _F32 = np.float32
+
+
+def _on_rows(n: int, rows, values) -> np.ndarray:
+    return on_rows(n, rows, values, dtype=_F32)
 
 
 def firmware_labels(paths: Sequence[Path | str]) -> list[str]:
@@ -231,17 +236,65 @@ def run_firmware(
     progress: Callable[[float], None] | None = None,
     variant: str | None = None,
 ) -> FirmwareResult:
-    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output
-    (see the module docstring). ``progress(fraction)`` is called as the emulation advances. UserError: an ELF that
-    streams no attitude frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step. The replica runs the
-    filter of ``variant`` (an ST release), else of the release the ELF's code or the data shows (``settings``)."""
+    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output.
+
+    ``progress(fraction)`` is called as the emulation advances. The replica runs the filter of ``variant`` (an ST
+    release), else of the release the ELF's code or the data shows. UserError: an ELF that streams no attitude
+    frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step.
+    """
     t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)
-    hint = (elf_variant, "firmware ELF") if elf_variant is not None else None
     truth_rec = StepTruth(emu)
     glob = _Globals(emu)
     label = label or "fw:" + Path(elf).name
+    data, report = _emulate(emu, f"{label} on {trial.name}", progress)
+    n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
+    if n == 0:
+        if emu.elf.addr("ahrs_fusion_ag") is None and emu.elf.addr("stv_fw_step_begin") is None:
+            raise UserError(
+                f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
+                "told apart (an ELF with its symbols, not a stripped one)"
+            )
+        raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
+    truth = truth_rec.rows(0, n)
+    tel = decode_bytes(bytes(data)) if data else None
+    if tel is not None and np.count_nonzero(tel.attitude.exact):
+        hint = (elf_variant, "firmware ELF") if elf_variant is not None else None
+        out = _output_of_frames(tel, glob, truth, n, variant, hint)
+    elif glob.euler is not None:
+        out = _output_of_globals(glob, n, variant or elf_variant)
+    else:
+        raise UserError(
+            f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
+            "(an ELF with its symbols, not a stripped .bin/.hex)"
+        )
+    err, rmse = score_euler(out.thx, out.thy, truth.q_wxyz, truth.movement)
+    res = FirmwareResult(
+        label,
+        str(elf),
+        trial.name,
+        out.source,
+        truth,
+        out.thx,
+        out.thy,
+        err,
+        rmse,
+        np.asarray(report.step_instructions, np.int64),
+        settings=out.settings,
+        emulated_s=report.emulated_s,
+        notes=out.notes,
+        gains=out.gains,
+        wall_s=time.perf_counter() - t0,
+    )
+    if out.replica_thx is not None:
+        _, res.replica_rmse_deg = score_euler(out.replica_thx, out.replica_thy, truth.q_wxyz, truth.movement)
+        res.replica_bit_exact, res.replica_steps = out.replica_exact, out.replica_steps
+    return res
+
+
+def _emulate(emu: Emulation, what: str, progress: Callable[[float], None] | None):
+    """Run the emulation to its end: (the USART1 bytes, the emulation's report); its UserError names ``what``."""
     if progress is not None:  # every ≈ 1 s of AHRS steps (an unpatched build sends next to nothing on USART1)
 
         def on_step(board) -> None:
@@ -254,92 +307,67 @@ def run_firmware(
         for chunk, _ in emu.chunks():
             data += chunk
     except UserError as exc:  # stuck, or hardware the emulator does not model: say which firmware
-        raise UserError(f"{label} on {trial.name}: {exc}") from None
-    report = emu.report()
-    n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
-    if n == 0:
-        if emu.elf.addr("ahrs_fusion_ag") is None and emu.elf.addr("stv_fw_step_begin") is None:
-            raise UserError(
-                f"{elf}: no ahrs_fusion_ag or stv_fw_step_begin symbol, so its AHRS steps cannot be "
-                "told apart (an ELF with its symbols, not a stripped one)"
-            )
-        raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
-    truth = truth_rec.rows(0, n)
-    tel = decode_bytes(bytes(data)) if data else None
-    att = tel.attitude if tel is not None else None
-    notes: list[str] = []
-    settings = None
-    if att is not None and np.count_nonzero(att.exact):
-        source = "frames"
-        rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
-        steps = np.asarray(att.step)[rows]
-        thx = np.full(n, np.nan, _F32)
-        thy = np.full(n, np.nan, _F32)
-        thx[steps] = np.asarray(att.thx_rad, _F32)[rows]
-        thy[steps] = np.asarray(att.thy_rad, _F32)[rows]
-        lost = np.ones(n, bool)
-        lost[steps] = False
-        lost &= truth.movement
-        if lost.any():
-            notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
-        if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
-            inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
-            if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
-                notes.append(
-                    "the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned"
-                )
-        rep = firmware_replay.replay_variants(tel, variant=variant, hint=hint).replay
-        replica_thx = np.full(n, np.nan, _F32)
-        replica_thy = np.full(n, np.nan, _F32)
-        replica_thx[steps] = rep.thx_rad[rows]
-        replica_thy[steps] = rep.thy_rad[rows]
-        replica_exact, replica_steps = (
-            int(np.count_nonzero(rep.bit_exact[rows])),
-            int(np.count_nonzero(rep.seeded[rows])),
-        )
-        settings = rep.seeds[0].settings if rep.seeds else None
-        gains = gains_text(settings, np.asarray(att.thr)[rows], from_status=settings is not None)
-    elif glob.euler is not None:
-        source = "globals"
-        out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
-        thx = np.full(n, np.nan, _F32)
-        thy = np.full(n, np.nan, _F32)
-        thx[: out.shape[0]], thy[: out.shape[0]] = out[:, 0], out[:, 1]
-        replica_thx = replica_thy = None
-        replica_exact = replica_steps = 0
-        thr_in = np.asarray(glob.inputs[:n], np.float64).reshape(-1, 7)[:, 6] if glob.has_inputs else []
-        gains = gains_text(None, thr_in, from_status=False)
-        if glob.has_inputs and len(glob.inputs) >= out.shape[0] and out.shape[0]:
-            inp = np.asarray(glob.inputs[: out.shape[0]], np.float64)
-            settings, px, py, exact = _globals_replica(inp, out, glob.ahrs is not None, variant or elf_variant)
-            replica_thx = np.full(n, np.nan, _F32)
-            replica_thy = np.full(n, np.nan, _F32)
-            replica_thx[: out.shape[0]], replica_thy[: out.shape[0]] = px, py
-            replica_exact, replica_steps = int(np.count_nonzero(exact)), out.shape[0]
-    else:
-        raise UserError(
-            f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
-            "(an ELF with its symbols, not a stripped .bin/.hex)"
-        )
-    err, rmse = score_euler(thx, thy, truth.q_wxyz, truth.movement)
-    res = FirmwareResult(
-        label,
-        str(elf),
-        trial.name,
-        source,
-        truth,
-        thx,
-        thy,
-        err,
-        rmse,
-        np.asarray(report.step_instructions, np.int64),
-        settings=settings,
-        emulated_s=report.emulated_s,
-        notes=notes,
-        gains=gains,
-        wall_s=time.perf_counter() - t0,
+        raise UserError(f"{what}: {exc}") from None
+    return data, emu.report()
+
+
+@dataclass
+class _Output:
+    """The firmware's thx/thy per AHRS step (NaN: not seen), where they came from, and the replica's."""
+
+    source: str
+    thx: np.ndarray
+    thy: np.ndarray
+    gains: str
+    settings: MahonySettings | None = None
+    replica_thx: np.ndarray | None = None
+    replica_thy: np.ndarray | None = None
+    replica_exact: int = 0
+    replica_steps: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hint) -> _Output:
+    """The attitude frames' thx/thy (frame step ``i`` = AHRS step ``i``) and the replica over their inputs."""
+    att = tel.attitude
+    rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
+    steps = np.asarray(att.step)[rows]
+    notes = []
+    lost = np.ones(n, bool)
+    lost[steps] = False
+    lost &= truth.movement
+    if lost.any():
+        notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
+    if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
+        inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
+        if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
+            notes.append("the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned")
+    rep = firmware_replay.replay_variants(tel, variant=variant, hint=hint).replay
+    settings = rep.seeds[0].settings if rep.seeds else None
+    return _Output(
+        "frames",
+        _on_rows(n, steps, np.asarray(att.thx_rad, _F32)[rows]),
+        _on_rows(n, steps, np.asarray(att.thy_rad, _F32)[rows]),
+        gains_text(settings, np.asarray(att.thr)[rows], from_status=settings is not None),
+        settings,
+        _on_rows(n, steps, rep.thx_rad[rows]),
+        _on_rows(n, steps, rep.thy_rad[rows]),
+        int(np.count_nonzero(rep.bit_exact[rows])),
+        int(np.count_nonzero(rep.seeded[rows])),
+        notes,
     )
-    if replica_thx is not None:
-        _, res.replica_rmse_deg = score_euler(replica_thx, replica_thy, truth.q_wxyz, truth.movement)
-        res.replica_bit_exact, res.replica_steps = replica_exact, replica_steps
+
+
+def _output_of_globals(glob: _Globals, n: int, variant: str | None) -> _Output:
+    """thx/thy read by symbol (``euler_ahrs``) and the replica over the inputs read by symbol, when there are any."""
+    out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
+    m = out.shape[0]
+    thr_in = np.asarray(glob.inputs[:n], np.float64).reshape(-1, 7)[:, 6] if glob.has_inputs else []
+    res = _Output("globals", _on_rows(n, slice(0, m), out[:, 0]), _on_rows(n, slice(0, m), out[:, 1]),
+                  gains_text(None, thr_in, from_status=False))  # fmt: skip
+    if glob.has_inputs and len(glob.inputs) >= m and m:
+        inp = np.asarray(glob.inputs[:m], np.float64)
+        res.settings, px, py, exact = _globals_replica(inp, out, glob.ahrs is not None, variant)
+        res.replica_thx, res.replica_thy = _on_rows(n, slice(0, m), px), _on_rows(n, slice(0, m), py)
+        res.replica_exact, res.replica_steps = int(np.count_nonzero(exact)), m
     return res

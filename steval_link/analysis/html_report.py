@@ -14,13 +14,12 @@ from __future__ import annotations
 import base64
 import html
 import io
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import no_flight_figure_reason
-from steval_link.analysis.report import ComparisonReport
+from steval_link.analysis.report import ComparisonReport, fmt_number, setting_text
 from steval_link.analysis.side_by_side import format_side_by_side
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Peak, Spectra
 from steval_link.analysis.summary import format_summary, summarize
@@ -90,12 +89,6 @@ def figure_png(fig, *, dpi: int = 100) -> bytes:
     return buf.getvalue()
 
 
-def _num(x, fmt: str = ".3f") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "n/a"
-    return format(x, fmt)
-
-
 # ---- one capture -------------------------------------------------------------------------------------------------
 
 
@@ -119,16 +112,9 @@ def _settings_table(report: ComparisonReport) -> Table | None:
             continue
         v = fs[key]
         default = diff.get(key, [None, None])[1]
-        dtext = "" if default is None else _setting_text(default)
-        rows.append([what, _setting_text(v), dtext or "same"])
+        dtext = "" if default is None else setting_text(default)
+        rows.append([what, setting_text(v), dtext or "same"])
     return Table(f"filter settings (from {fs['status_frames']} status frames)", ["setting", "value", "default"], rows)
-
-
-def _setting_text(v) -> str:
-    """A filter setting as the table shows it: on/off, a release's name, a number."""
-    if isinstance(v, bool):
-        return "on" if v else "off"
-    return v if isinstance(v, str) else f"{v:g}"
 
 
 def verdict_sentences(report: ComparisonReport) -> list[str]:
@@ -168,15 +154,17 @@ def _estimator_table(report: ComparisonReport) -> Table:
     head.append("note")
     rows = []
     if truth:
-        rows.append(["firmware (drone)", str(report.rows), "0", "0", "0", "0", _num(truth.get("firmware")), ""])
+        rows.append(
+            ["firmware (drone)", str(report.rows), "0", "0", "0", "0", fmt_number(truth.get("firmware"), ".3f"), ""]
+        )
     for t in report.traces:
         if not t.available:
             row = [t.label, "—", "", "", "", ""] + ([""] if truth else []) + [t.note]
         else:
             row = [t.label, str(min(t.pitch.n, t.roll.n))]
-            row += [_num(v, ".4f") for v in (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)]
+            row += [fmt_number(v) for v in (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)]
             if truth:
-                row.append(_num(truth.get(t.name)))
+                row.append(fmt_number(truth.get(t.name), ".3f"))
             row.append(t.note)
         rows.append(row)
     cap = "angles against the firmware, degrees (Δ = estimator − firmware; pitch = thx about x, roll = thy about y)"
@@ -198,7 +186,12 @@ def _step_cost(report: ComparisonReport) -> Section:
     unit = "emulated instructions" if rt.cycles_emulated else "CPU cycles"
     period = C.AHRS_PERIOD_US
     rows = [
-        [what, _num(us, ".1f"), _num(cyc, ".0f"), _num(100 * us / period if us is not None else None, ".1f")]
+        [
+            what,
+            fmt_number(us, ".1f"),
+            fmt_number(cyc, ".0f"),
+            fmt_number(100 * us / period if us is not None else None, ".1f"),
+        ]
         for what, us, cyc in (
             ("min", rt.ahrs_us_min, rt.ahrs_cycles_min),
             ("mean", rt.ahrs_us_mean, rt.ahrs_cycles_mean),

@@ -15,6 +15,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
+from steval_link.analysis.report import angle_diff_rad, on_rows
 from steval_link.errors import UserError
 
 __all__ = [
@@ -122,11 +123,10 @@ def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
 def comparison_figure(tel, report, *, title: str | None = None):
     """Angles over time and differences per estimator, for a :class:`~steval_link.analysis.compare.ComparisonReport`.
 
-    Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time with the firmware, the seeded
-    ST-Mahony replica, the EKF(s) and accel-only tilt overlaid; below them firmware − replica (degrees; bit-exact rows
-    marked, rows the replica could not cover greyed) with the throttle. Spans at flight throttle (≥ MIN_THR, kp_flight)
-    are shaded. Right: RMS and max |Δ| against the firmware per estimator, pitch and roll. Returns the
-    matplotlib figure (Agg).
+    Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time: the firmware, the seeded
+    replica, the estimators and accel-only tilt. Below them: firmware − replica in degrees, with the throttle.
+    Spans at flight throttle (≥ MIN_THR, kp_flight) are shaded. Right: RMS and max |Δ| against the firmware per
+    estimator. Returns the matplotlib figure (Agg).
     """
     plt = require_matplotlib()
     from matplotlib.gridspec import GridSpec
@@ -134,27 +134,10 @@ def comparison_figure(tel, report, *, title: str | None = None):
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
     fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
-    n = t.shape[0]
-    min_thr = C.MIN_THR
     fs = report.filter_settings or {}
-    if isinstance(fs.get("min_thr"), int):
-        min_thr = fs["min_thr"]
-
-    traces: list[tuple[str, str, dict[str, np.ndarray]]] = []
-    replica_x = replica_y = None
-    if report.replay is not None:
-        replica_x = np.full(n, np.nan)
-        replica_y = np.full(n, np.nan)
-        replica_x[report.replica_rows] = np.degrees(report.replay.thx_rad.astype(np.float64))
-        replica_y[report.replica_rows] = np.degrees(report.replay.thy_rad.astype(np.float64))
-    extra = iter(_EXTRA_COLOURS)
-    for name, est in report.estimates.items():
-        label = next((tr.label for tr in report.traces if tr.name == name), name)
-        valid = np.asarray(est.valid, bool)
-        x = np.where(valid, np.degrees(np.asarray(est.thx_rad, np.float64)), np.nan)
-        y = np.where(valid, np.degrees(np.asarray(est.thy_rad, np.float64)), np.nan)
-        traces.append((name, label, {"pitch": x, "roll": y}))
-    styles = {name: _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4) for name, _, _ in traces}
+    min_thr = fs["min_thr"] if isinstance(fs.get("min_thr"), int) else C.MIN_THR
+    replica = _replica_degrees(report, t.shape[0])
+    traces = _estimate_traces(report)
 
     fig = plt.figure(figsize=(13, 8.2))
     gs = GridSpec(3, 2, figure=fig, width_ratios=[3.2, 1], height_ratios=[1, 1, 0.8], hspace=0.4, wspace=0.22)
@@ -167,123 +150,152 @@ def comparison_figure(tel, report, *, title: str | None = None):
 
     thr = np.asarray(a.thr)
     for ax, key, what in ((ax_p, "pitch", "pitch (thx, about x)"), (ax_r, "roll", "roll (thy, about y)")):
-        _spans(ax, t, thr >= min_thr, f"throttle ≥ {min_thr}: kp_flight" if key == "pitch" else None)
-        for name, label, vals in traces:
-            c, lw, ls, z = styles[name]
-            ax.plot(*_decimate(t, vals[key]), color=c, lw=lw, ls=ls, zorder=z, label=label)
-        c, lw, ls, z = _STYLE["firmware"]
-        ax.plot(*_decimate(t, fw[key]), color=c, lw=lw, ls=ls, zorder=z, label="firmware (drone)")
-        replica = replica_x if key == "pitch" else replica_y
-        if replica is not None:
-            c, lw, ls, z = _STYLE["port"]
-            ax.plot(*_decimate(t, replica), color=c, lw=lw, ls=ls, zorder=z, label="ST-Mahony port (seeded)")
-        nan_rows = ~np.isfinite(fw[key])
-        if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
-            why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
-            _spans(ax, t, nan_rows, f"firmware NaN ({why})", color="crimson", alpha=0.15)
-        ax.set_ylabel(f"{what} [deg]")
-        ax.set_title(what, fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
-    restarts = np.flatnonzero(np.diff(np.asarray(a.step, dtype=np.int64)) <= 0) + 1
-    for ax in (ax_p, ax_r, ax_d):
+        flight = f"throttle ≥ {min_thr}: kp_flight" if key == "pitch" else None
+        _angle_panel(
+            ax, t, key, what, fw[key], traces, None if replica is None else replica[key], report, thr >= min_thr, flight
+        )
+    _restart_lines((ax_p, ax_r, ax_d), t, a.step)
+    _comparison_legend(fig, ax_p)
+    plt.setp(ax_p.get_xticklabels(), visible=False)
+    plt.setp(ax_r.get_xticklabels(), visible=False)
+    _replica_panel(ax_d, t, fw, replica, report)
+    _throttle_twin(ax_d, t, thr, min_thr)
+    _difference_bars(ax_b, ax_txt, report)
+    lines = _summary_lines(report, fs)
+    wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]
+    ax_txt.text(
+        0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
+    )
+    src = report.source.get("path") or "capture"
+    shown = (["ST-Mahony port"] if replica is not None else []) + [label for _, label, _, _ in traces]
+    fig.suptitle(
+        title
+        or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
+        "(axes: x right, y forward, z up)",
+        fontsize=11,
+    )
+    fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
+    return fig
+
+
+def _replica_degrees(report, n: int) -> dict[str, np.ndarray] | None:
+    """The seeded replica's pitch and roll in degrees on the capture's rows (NaN where it did not run)."""
+    if report.replay is None:
+        return None
+    rows, rep = report.replica_rows, report.replay
+    return {
+        "pitch": on_rows(n, rows, np.degrees(rep.thx_rad.astype(np.float64))),
+        "roll": on_rows(n, rows, np.degrees(rep.thy_rad.astype(np.float64))),
+    }
+
+
+def _estimate_traces(report) -> list[tuple[str, str, dict[str, np.ndarray], tuple]]:
+    """Per estimator: name, label, pitch and roll in degrees (NaN where not valid) and line style."""
+    extra = iter(_EXTRA_COLOURS)
+    traces = []
+    for name, est in report.estimates.items():
+        label = next((tr.label for tr in report.traces if tr.name == name), name)
+        valid = np.asarray(est.valid, bool)
+        x = np.where(valid, np.degrees(np.asarray(est.thx_rad, np.float64)), np.nan)
+        y = np.where(valid, np.degrees(np.asarray(est.thy_rad, np.float64)), np.nan)
+        style = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
+        traces.append((name, label, {"pitch": x, "roll": y}, style))
+    return traces
+
+
+def _styled_line(ax, t, y, style, label) -> None:
+    c, lw, ls, z = style
+    ax.plot(*_decimate(t, y), color=c, lw=lw, ls=ls, zorder=z, label=label)
+
+
+def _angle_panel(ax, t, key, what, fw_deg, traces, replica_deg, report, at_flight, flight_label) -> None:
+    """One angle over time: flight-throttle spans, the estimators, the firmware, the replica, firmware NaN gaps."""
+    _spans(ax, t, at_flight, flight_label)
+    for _name, label, vals, style in traces:
+        _styled_line(ax, t, vals[key], style, label)
+    _styled_line(ax, t, fw_deg, _STYLE["firmware"], "firmware (drone)")
+    if replica_deg is not None:
+        _styled_line(ax, t, replica_deg, _STYLE["port"], "ST-Mahony port (seeded)")
+    nan_rows = ~np.isfinite(fw_deg)
+    if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
+        why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
+        _spans(ax, t, nan_rows, f"firmware NaN ({why})", color="crimson", alpha=0.15)
+    ax.set_ylabel(f"{what} [deg]")
+    ax.set_title(what, fontsize=10, loc="left")
+    ax.grid(True, alpha=0.3)
+
+
+def _restart_lines(axes, t, step) -> None:
+    """A vertical line where the firmware's step counter goes back (a restart); the first axes carry the label."""
+    restarts = np.flatnonzero(np.diff(np.asarray(step, dtype=np.int64)) <= 0) + 1
+    for ax in axes:
         for k, r in enumerate(restarts):
-            ax.axvline(
-                t[r],
-                color="dimgray",
-                lw=1.0,
-                ls="-.",
-                zorder=1,
-                label="firmware restart" if (k == 0 and ax is ax_p) else None,
-            )
-    h, lab = ax_p.get_legend_handles_labels()
+            label = "firmware restart" if (k == 0 and ax is axes[0]) else None
+            ax.axvline(t[r], color="dimgray", lw=1.0, ls="-.", zorder=1, label=label)
+
+
+def _comparison_legend(fig, ax) -> None:
+    """The figure's legend from ``ax``: firmware and replica first."""
+    h, lab = ax.get_legend_handles_labels()
     rank = {name: i for i, name in enumerate(_ORDER)}
     order = sorted(range(len(lab)), key=lambda i: (rank.get(lab[i], len(rank)), i))
     h, lab = [h[i] for i in order], [lab[i] for i in order]
-    fig.legend(
-        h,
-        lab,
-        loc="upper left",
-        bbox_to_anchor=(0.07, 0.955),
-        ncol=min(len(h), 7),
-        fontsize=8,
-        frameon=False,
-        columnspacing=1.2,
-        handlelength=2.0,
-    )
-    plt.setp(ax_p.get_xticklabels(), visible=False)
-    plt.setp(ax_r.get_xticklabels(), visible=False)
+    fig.legend(h, lab, loc="upper left", bbox_to_anchor=(0.07, 0.955), ncol=min(len(h), 7), fontsize=8,
+               frameon=False, columnspacing=1.2, handlelength=2.0)  # fmt: skip
 
-    # firmware − replica
+
+def _centre_text(ax, text: str, **kw) -> None:
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", **kw)
+
+
+def _replica_panel(ax, t, fw, replica, report) -> None:
+    """Firmware − replica in degrees: unseeded rows greyed, bit-exact said in words, the first difference marked."""
+    if replica is None:
+        _centre_text(ax, "text-mode capture: the bit-exact port needs binary frames", fontsize=10)
+        ax.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+        return
     p = report.replica
-    if replica_x is not None:
-        dx = np.degrees(_wrap(np.radians(fw["pitch"] - replica_x)))
-        dy = np.degrees(_wrap(np.radians(fw["roll"] - replica_y)))
-        ax_d.plot(*_decimate(t, dx), color="tab:blue", lw=0.9, label="pitch: firmware − port")
-        ax_d.plot(*_decimate(t, dy), color="tab:red", lw=0.9, label="roll: firmware − port")
-        covered = np.zeros(n, bool)
-        covered[report.replica_rows] = report.replay.seeded
-        _spans(ax_d, t, ~covered, "port not seeded", color="lightgray", alpha=0.6)
-        exact = np.zeros(n, bool)
-        exact[report.replica_rows] = report.replay.bit_exact
-        if p.all_exact:
-            ax_d.set_ylim(-1, 1)
-            ax_d.text(
-                0.5,
-                0.5,
-                f"port bit-exact on all {p.bit_exact} seeded steps",
-                transform=ax_d.transAxes,
-                ha="center",
-                va="center",
-                fontsize=11,
-                color="darkgreen",
-                bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"),
-            )
-        else:
-            fm = p.first_mismatch
-            if fm is not None:
-                ax_d.axvline(
-                    fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}"
-                )
-            _spans(ax_d, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
-        ax_d.set_ylabel("firmware − port [deg]")
-        ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+    ax.plot(*_decimate(t, _wrap_deg(fw["pitch"] - replica["pitch"])), color="tab:blue", lw=0.9,
+            label="pitch: firmware − port")  # fmt: skip
+    ax.plot(*_decimate(t, _wrap_deg(fw["roll"] - replica["roll"])), color="tab:red", lw=0.9,
+            label="roll: firmware − port")  # fmt: skip
+    covered, exact = np.zeros(t.shape[0], bool), np.zeros(t.shape[0], bool)
+    covered[report.replica_rows] = report.replay.seeded
+    exact[report.replica_rows] = report.replay.bit_exact
+    _spans(ax, t, ~covered, "port not seeded", color="lightgray", alpha=0.6)
+    if p.all_exact:
+        ax.set_ylim(-1, 1)
+        _centre_text(ax, f"port bit-exact on all {p.bit_exact} seeded steps", fontsize=11, color="darkgreen",
+                     bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"))  # fmt: skip
     else:
-        ax_d.text(
-            0.5,
-            0.5,
-            "text-mode capture: the bit-exact port needs binary frames",
-            transform=ax_d.transAxes,
-            ha="center",
-            va="center",
-            fontsize=10,
-        )
-        ax_d.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
-    ax_thr = ax_d.twinx()
+        fm = p.first_mismatch
+        if fm is not None:
+            ax.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}")
+        _spans(ax, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
+    ax.set_ylabel("firmware − port [deg]")
+    ax.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+
+
+def _throttle_twin(ax, t, thr, min_thr) -> None:
+    """The throttle (gTHR) shaded on a twin axis behind ``ax``; one legend for both, above ``ax``."""
+    ax_thr = ax.twinx()
     ax_thr.fill_between(t, thr, step="mid", color="gold", alpha=0.25, lw=0, label="throttle (gTHR)")
     ax_thr.set_ylabel("throttle", fontsize=8, color="darkgoldenrod")
     ax_thr.tick_params(labelsize=7, colors="darkgoldenrod")
     ax_thr.set_ylim(0, max(float(np.max(thr)) * 1.1 if thr.size else 1.0, float(min_thr) * 1.5))
-    ax_d.set_zorder(ax_thr.get_zorder() + 1)
-    ax_d.patch.set_visible(False)
-    h1, l1 = ax_d.get_legend_handles_labels()
+    ax.set_zorder(ax_thr.get_zorder() + 1)
+    ax.patch.set_visible(False)
+    h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax_thr.get_legend_handles_labels()
-    ax_d.legend(
-        h1 + h2,
-        l1 + l2,
-        loc="lower right",
-        bbox_to_anchor=(1.0, 1.0),
-        ncol=3,
-        fontsize=7,
-        frameon=False,
-        borderaxespad=0.1,
-        columnspacing=1.0,
-    )
-    ax_d.set_xlabel("firmware time since the first frame [s]")
-    ax_d.grid(True, alpha=0.3)
+    ax.legend(h1 + h2, l1 + l2, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, frameon=False,
+              borderaxespad=0.1, columnspacing=1.0)  # fmt: skip
+    ax.set_xlabel("firmware time since the first frame [s]")
+    ax.grid(True, alpha=0.3)
 
-    # differences per estimator
+
+def _difference_bars(ax, ax_legend, report) -> None:
+    """RMS and max |Δ| from the firmware per available estimator (NaN: no bar, "n/a"); the legend in ``ax_legend``."""
     avail = [tr for tr in report.traces if tr.available and tr.pitch.n]
-    labels = [tr.label for tr in avail]
     y = np.arange(len(avail))
     h = 0.2
     series = [
@@ -294,28 +306,29 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ]
     vmax = max([v for _, vals, _, _ in series for v in vals if math.isfinite(v)] + [0.0])
     for k, (lab, vals, c, alpha) in enumerate(series):
-        vals = np.asarray(vals, float)  # NaN: no bar and "n/a", never a bar of 0
+        vals = np.asarray(vals, float)
         pos = y + (k - 1.5) * h
-        ax_b.barh(pos, np.where(np.isfinite(vals), vals, 0.0), height=h, color=c, alpha=alpha, label=lab)
+        ax.barh(pos, np.where(np.isfinite(vals), vals, 0.0), height=h, color=c, alpha=alpha, label=lab)
         for yy, v, tr in zip(pos, vals, avail):
             if not math.isfinite(v):
-                ax_b.text(vmax * 0.01, yy, "n/a", va="center", fontsize=6.5)
+                ax.text(vmax * 0.01, yy, "n/a", va="center", fontsize=6.5)
                 continue
             txt = "0 (bit-exact)" if v == 0 and tr.note == "bit-exact" else f"{v:.3g}"
-            ax_b.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
-    ax_b.set_yticks(y, labels, fontsize=8)
-    ax_b.invert_yaxis()
-    ax_b.set_xlim(0, vmax * 1.25 if vmax > 0 else 1.0)
-    ax_b.set_xlabel("difference from the firmware [deg]")
-    ax_b.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
-    hb, lb = ax_b.get_legend_handles_labels()
-    ax_txt.legend(
-        hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False, borderaxespad=0.0
-    )
-    ax_b.grid(True, axis="x", alpha=0.3)
+            ax.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
+    ax.set_yticks(y, [tr.label for tr in avail], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlim(0, vmax * 1.25 if vmax > 0 else 1.0)
+    ax.set_xlabel("difference from the firmware [deg]")
+    ax.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
+    hb, lb = ax.get_legend_handles_labels()
+    ax_legend.legend(hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False,
+                     borderaxespad=0.0)  # fmt: skip
+    ax.grid(True, axis="x", alpha=0.3)
 
-    # summary text
-    rt = report.rates
+
+def _summary_lines(report, fs: dict) -> list[str]:
+    """The figure's summary: replica agreement, rate, drops, filter settings, firmware NaN, divergence."""
+    p, rt = report.replica, report.rates
     lines = []
     if p is not None:
         lines.append(f"port bit-exact: {p.bit_exact} / {p.seeded} seeded steps")
@@ -330,25 +343,10 @@ def comparison_figure(tel, report, *, title: str | None = None):
         lines.append(f"kp {fs['kp_ground']:g}/{fs['kp_flight']:g}, ki {fs['ki']:g}, dt {fs['dt_s']:g} s")
     if report.firmware_nan_pitch or report.firmware_nan_roll:
         lines.append(f"firmware NaN: {report.firmware_nan_pitch} pitch, {report.firmware_nan_roll} roll steps")
-    div = report.replica.divergence if report.replica is not None else None
+    div = p.divergence if p is not None else None
     if div is not None:
         lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; port {div['port']}")
-    wrapped = [w for line in lines for w in textwrap.wrap(line, 44, subsequent_indent="  ")]
-    ax_txt.text(
-        0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
-    )
-
-    src = report.source.get("path") or "capture"
-    shown = ["ST-Mahony port"] if replica_x is not None else []
-    shown += [label for _, label, _ in traces]  # what -e chose, as drawn
-    fig.suptitle(
-        title
-        or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
-        "(axes: x right, y forward, z up)",
-        fontsize=11,
-    )
-    fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
-    return fig
+    return lines
 
 
 def differences_figure(tel, report, *, title: str | None = None):
@@ -373,7 +371,7 @@ def differences_figure(tel, report, *, title: str | None = None):
             if name == "accel":
                 c, lw, z = "0.6", 0.6, 2
             valid = np.asarray(est.valid, bool)
-            d = np.where(valid, np.degrees(_wrap(np.asarray(getattr(est, attr), np.float64) - fw[attr])), np.nan)
+            d = np.where(valid, np.degrees(angle_diff_rad(getattr(est, attr), fw[attr])), np.nan)
             ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
         ax.axhline(0.0, color="black", lw=0.8)
         ax.set_ylabel("estimator − firmware [deg]")
@@ -479,8 +477,9 @@ def _variant_text(variant: dict) -> str:
     return ", ".join(out)
 
 
-def _wrap(d: np.ndarray) -> np.ndarray:
-    return (d + math.pi) % (2.0 * math.pi) - math.pi
+def _wrap_deg(d_deg: np.ndarray) -> np.ndarray:
+    """A difference in degrees wrapped to [-180, 180)."""
+    return np.degrees(angle_diff_rad(np.radians(d_deg), 0.0))
 
 
 def plot_simulation(result, out_png, *, title: str | None = None, compare=()) -> Path:

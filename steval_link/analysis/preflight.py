@@ -145,14 +145,33 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
     if len(att) < 200:
         rep.problems.append("the stream holds fewer than 200 attitude frames; record the whole guided sequence")
         return rep
-    t = att.t_fw_s
     gyro = att.gyro_mdps.astype(np.float64) / 1000.0
     fc = getattr(tel, "fc", None)
     has_fc = fc is not None and len(fc) > 0
+    _check_rest(rep, att, gyro)
+    motors_on_any = _check_arming(rep, fc) if has_fc else False
+    if not has_fc:
+        rep.lines.append(
+            "No flight-control frames in this stream (a firmware before protocol v2, or fc_every 0): "
+            "only the sensors are checked."
+        )
+    if not _check_moves(rep, att, gyro, fc if has_fc else None):
+        return rep
+    rep.lines.append("")
+    if has_fc:
+        _check_outputs(rep, fc, att, motors_on_any)
+    rep.lines.append(
+        "Spin directions (from the mixer's yaw signs; check by eye, props off): "
+        + "; ".join(f"{m.label} {m.spin}" for m in MOTORS)
+        + ", seen from above. A prop on the wrong motor or upside down "
+        "makes the drone spin or flip at take-off even when this check passes."
+    )
+    return rep
 
-    # -- rest ---------------------------------------------------------------------------------------------------
-    mag = _smooth(np.linalg.norm(gyro, axis=1), 16)
-    still = mag < 3.0
+
+def _check_rest(rep: PreflightReport, att, gyro: np.ndarray) -> None:
+    """At rest (the still rows of the first quarter) the accelerometer must read about +1 g on z."""
+    still = _smooth(np.linalg.norm(gyro, axis=1), 16) < 3.0
     rest = np.flatnonzero(still[: max(len(still) // 4, 1)])
     rest = rest if len(rest) else np.arange(min(100, len(att)))
     acc_rest = att.acc_mg[rest].mean(axis=0)
@@ -164,31 +183,27 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
             "the board is mounted upside down or its z axis is reversed."
         )
 
-    armed_any = False
-    motors_on_any = False
-    if has_fc:
-        armed = (fc.fc_flags & 1).astype(bool)
-        thr_fc = fc.rc[:, 3]
-        motors_on = armed & (thr_fc >= C.MIN_THR)
-        armed_any, motors_on_any = bool(armed.any()), bool(motors_on.any())
-        every = int(np.max(fc.fc_every)) if len(fc.fc_every) else 0
-        state = (
-            "armed, throttle at idle (motors running)"
-            if motors_on_any
-            else "armed, throttle below MIN_THR (motors off)"
-            if armed_any
-            else "not armed (motors off)"
-        )
-        rep.lines.append(f"Flight-control frames: {len(fc)} (one every {every} steps); the drone was {state}.")
-    else:
-        rep.lines.append(
-            "No flight-control frames in this stream (a firmware before protocol v2, or fc_every 0): "
-            "only the sensors are checked."
-        )
 
-    # -- the moves ----------------------------------------------------------------------------------------------
-    bursts = _bursts(t, gyro)
-    pairs = _pair_moves(bursts)
+def _check_arming(rep: PreflightReport, fc) -> bool:
+    """Say whether the drone was armed and the motors ran; returns whether they ran."""
+    armed = (fc.fc_flags & 1).astype(bool)
+    motors_on = armed & (fc.rc[:, 3] >= C.MIN_THR)
+    armed_any, motors_on_any = bool(armed.any()), bool(motors_on.any())
+    every = int(np.max(fc.fc_every)) if len(fc.fc_every) else 0
+    state = (
+        "armed, throttle at idle (motors running)"
+        if motors_on_any
+        else "armed, throttle below MIN_THR (motors off)"
+        if armed_any
+        else "not armed (motors off)"
+    )
+    rep.lines.append(f"Flight-control frames: {len(fc)} (one every {every} steps); the drone was {state}.")
+    return motors_on_any
+
+
+def _check_moves(rep: PreflightReport, att, gyro: np.ndarray, fc) -> bool:
+    """Find the guided moves in the gyro and check each (sensor, then controller when ``fc``); False: not them."""
+    pairs = _pair_moves(_bursts(att.t_fw_s, gyro))
     if len(pairs) < len(MOVES):
         rep.problems.append(
             f"found {len(pairs)} of the {len(MOVES)} guided moves (each: out, hold, back) in the "
@@ -202,30 +217,17 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
             "up, turn right: three different axes, even when they are swapped); record it again "
             "with steval preflight --port"
         )
-        return rep
-    steps = att.step
+        return False
     for k, mv in enumerate(MOVES):
-        rep.lines.append("")
-        rep.lines.append(f"Move {k + 1}, {mv.name} ({mv.instruction}):")
+        rep.lines += ["", f"Move {k + 1}, {mv.name} ({mv.instruction}):"]
         if k >= len(pairs):
             rep.lines.append("  not found in the stream.")
             continue
         (a0, a1, rot), (b0, _, _) = pairs[k]
         _check_sensor(rep, mv, rot, att, a0, a1, b0)
-        if has_fc:
-            _check_controller(rep, mv, fc, att, a0, a1, b0, steps)
-
-    # -- motor outputs against the mixer ---------------------------------------------------------------------------
-    rep.lines.append("")
-    if has_fc:
-        _check_outputs(rep, fc, att, motors_on_any)
-    rep.lines.append(
-        "Spin directions (from the mixer's yaw signs; check by eye, props off): "
-        + "; ".join(f"{m.label} {m.spin}" for m in MOTORS)
-        + ", seen from above. A prop on the wrong motor or upside down "
-        "makes the drone spin or flip at take-off even when this check passes."
-    )
-    return rep
+        if fc is not None:
+            _check_controller(rep, mv, fc, att, a0, a1, b0, att.step)
+    return True
 
 
 def _axis_turned(values: np.ndarray, axis: int, sign: int) -> tuple[int, str]:

@@ -33,6 +33,24 @@ def angle_diff_rad(a, b) -> np.ndarray:
     return (d + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def on_rows(n: int, rows, values, fill=np.nan, dtype=np.float64) -> np.ndarray:
+    """``n`` rows of ``fill`` with ``values`` at ``rows`` (e.g. the replica's output on the capture's rows)."""
+    out = np.full(n, fill, dtype)
+    out[rows] = values
+    return out
+
+
+def truth_on_steps(truth_step, q_wxyz, movement, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground-truth rows matched to frames by AHRS step: (q_wxyz (N, 4), NaN unmatched; movement (N,); matched)."""
+    order = np.argsort(truth_step, kind="stable")
+    t_step = np.asarray(truth_step)[order]
+    idx = np.clip(np.searchsorted(t_step, steps), 0, max(len(t_step) - 1, 0))
+    hit = (t_step[idx] == steps) if len(t_step) else np.zeros(len(steps), bool)
+    q_true = np.full((len(steps), 4), np.nan)
+    q_true[hit] = np.asarray(q_wxyz)[order][idx[hit]]
+    return q_true, on_rows(len(steps), hit, np.asarray(movement)[order][idx[hit]], False, bool), hit
+
+
 def json_number(x) -> float | None:
     """JSON-friendly float: None for NaN/inf."""
     if x is None:
@@ -58,12 +76,7 @@ class AngleStats:
         return cls(int(d.size), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(d))), float(np.mean(d)))
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "n": self.n,
-            "rms_deg": json_number(self.rms_deg),
-            "max_abs_deg": json_number(self.max_abs_deg),
-            "mean_deg": json_number(self.mean_deg),
-        }
+        return {k: json_number(v) if isinstance(v, float) else v for k, v in self.__dict__.items()}
 
 
 @dataclass(frozen=True)
@@ -286,7 +299,8 @@ class ComparisonReport:
         }
 
 
-def _f(x, fmt: str = ".4f", none: str = "n/a") -> str:
+def fmt_number(x, fmt: str = ".4f", none: str = "n/a") -> str:
+    """``x`` formatted with ``fmt``, or ``none`` for None, NaN and inf."""
     return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
@@ -294,16 +308,24 @@ def _coverage_cell(rmse, fraction) -> str:
     """``2.851 (63 %)``, or ``no score``: an RMSE with the share of the scored rows it covers."""
     if fraction is None or not fraction or rmse is None:
         return "no score"
-    return f"{_f(rmse, '.3f')} ({percent(fraction)})"
+    return f"{fmt_number(rmse, '.3f')} ({percent(fraction)})"
 
 
 def format_report(r: ComparisonReport) -> list[str]:
     """Human-readable lines of a :class:`ComparisonReport` (plain text, aligned)."""
-    lines: list[str] = []
+    w = max([len(t.label) for t in r.traces] + [9]) + 2
+    lines = _capture_lines(r) + _filter_lines(r.filter_settings)
+    lines += [""] + _replica_lines(r.replica)
+    lines += [""] + _angles_table(r.traces, w) + _truth_lines(r.truth, w)
+    return lines + [f"note: {note}" for note in r.notes]
+
+
+def _capture_lines(r: ComparisonReport) -> list[str]:
+    """The capture, its firmware-output warnings, rate and jitter, drops and the AHRS step cost."""
     rt = r.rates
     kind = r.source.get("kind") or "telemetry"
     rows = f"{r.rows} attitude rows" + (f" ({r.text_rows} text-mode)" if r.text_rows else "")
-    lines.append(f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time")
+    lines = [f"capture: {r.source.get('path')} ({kind}), {rows}, {rt.duration_s:.2f} s of firmware time"]
     if r.values_bad:
         lines.append(f"firmware output: {r.values_bad['text']}")
     if r.held_back:
@@ -314,8 +336,8 @@ def format_report(r: ComparisonReport) -> list[str]:
     per = ""
     if rt.period_mean_ms is not None:
         per = (
-            f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {_f(rt.period_std_ms, '.3f')} ms, "
-            f"p99 {_f(rt.period_p99_ms, '.3f')} ms, max {_f(rt.period_max_ms, '.3f')} ms"
+            f", AHRS period {rt.period_mean_ms:.3f} ms, jitter σ {fmt_number(rt.period_std_ms, '.3f')} ms, "
+            f"p99 {fmt_number(rt.period_p99_ms, '.3f')} ms, max {fmt_number(rt.period_max_ms, '.3f')} ms"
         )
     lines.append(f"rate: {rate}{per}")
     tx = "" if rt.tx_dropped is None else f", firmware TX queue dropped {rt.tx_dropped}"
@@ -326,110 +348,115 @@ def format_report(r: ComparisonReport) -> list[str]:
     )
     if r.ahrs_step_cost_text:
         lines.append(r.ahrs_step_cost_text)
-    fs = r.filter_settings
+    return lines
+
+
+def setting_text(x) -> str:
+    """A filter setting as text: ``on``/``off``, a string as is, a number with ``:g``."""
+    return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
+
+
+def _filter_lines(fs: dict | None) -> list[str]:
+    """The filter settings the status frames (or text-mode status lines) show, and every change of them."""
     if fs is None:
-        lines.append("filter settings: no status frames (the port assumes the firmware defaults)")
-    elif fs["from"] == "status frames":
-        diff = fs["differs_from_defaults"]
-
-        def val(x):
-            return ("on" if x else "off") if isinstance(x, bool) else x if isinstance(x, str) else f"{x:g}"
-
-        tail = (
-            "firmware defaults"
-            if not diff
-            else "differs from defaults: "
-            + ", ".join(f"{k} {val(v[0])} (default {val(v[1])})" for k, v in diff.items())
+        return ["filter settings: no status frames (the port assumes the firmware defaults)"]
+    if fs["from"] != "status frames":
+        return [f"filter (text-mode status lines): ki {fmt_number(fs['ki'], 'g')}, flags {fs['flags']}"]
+    diff = fs["differs_from_defaults"]
+    tail = "firmware defaults"
+    if diff:
+        tail = "differs from defaults: " + ", ".join(
+            f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in diff.items()
         )
+    lines = [
+        f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
+        f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
+        f"{'on' if fs['correction'] else 'OFF'} — {tail}"
+    ]
+    changes = fs.get("change_list", [])
+    if changes:
         lines.append(
-            f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
-            f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
-            f"{'on' if fs['correction'] else 'OFF'} — {tail}"
+            f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
+            "(settings and filter resets, as the status frames show them):"
         )
-        changes = fs.get("change_list", [])
-        if changes:
-            lines.append(
-                f"  {len(changes)} change{'s' if len(changes) > 1 else ''} during the capture "
-                "(settings and filter resets, as the status frames show them):"
-            )
-        elif fs["changes"]:
-            lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
-        for ch in changes:
-            how = "status EVENT after a host command" if ch["event"] else "status frame"
-            lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
-    else:
-        lines.append(f"filter (text-mode status lines): ki {_f(fs['ki'], 'g')}, flags {fs['flags']}")
+    elif fs["changes"]:
+        lines.append(f"  note: the settings changed {fs['changes']} times during the capture")
+    for ch in changes:
+        how = "status EVENT after a host command" if ch["event"] else "status frame"
+        lines.append(f"  from step {ch['step']}: {ch['text']} ({how})")
+    return lines
 
-    lines.append("")
-    p = r.replica
+
+def _replica_lines(p: ReplicaComparison | None) -> list[str]:
+    """The replica's verdict: bit-exact steps, its seeds, what it did not cover, the first difference and why."""
     if p is None:
-        lines.append(
+        return [
             "ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
             "cannot be bit-exact; compare the estimators below with the firmware instead"
-        )
-    else:
-        seeds = ", ".join(
-            ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
-            for s in p.seeds[:4]
-        ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
-        verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
+        ]
+    seeds = ", ".join(
+        ("power-up at step 0" if s["source"] == "power-up" else f"snapshot at step {s['step'] - 1}")
+        for s in p.seeds[:4]
+    ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
+    verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
+    lines = [
+        f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
+        f"({p.rows} binary rows)",
+        f"  {p.filter_line()}",
+    ]
+    if p.seeds:
+        lines.append(f"  started from: {seeds}")
+    if p.seeded < p.rows and p.seeded:
         lines.append(
-            f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
-            f"({p.rows} binary rows)"
+            f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until the next one)"
         )
-        lines.append(f"  {p.filter_line()}")
-        if p.seeds:
-            lines.append(f"  started from: {seeds}")
-        if p.seeded < p.rows and p.seeded:
-            lines.append(
-                f"  {p.rows - p.seeded} rows not covered (before the first snapshot / after drops until the next one)"
-            )
-        if p.unseeded_reason:
-            lines.append(f"  {p.unseeded_reason}")
-        if p.first_mismatch:
-            fm = p.first_mismatch
-            lines.append(
-                f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
-                f"the capture (firmware clock {fm['t_fw_s']:.3f} s)"
-            )
-            for d in p.diagnosis:
-                lines.append(f"  → {d}")
-        elif p.diagnosis:
-            lines.extend(f"  → {d}" for d in p.diagnosis)
+    if p.unseeded_reason:
+        lines.append(f"  {p.unseeded_reason}")
+    if p.first_mismatch:
+        fm = p.first_mismatch
+        lines.append(
+            f"  first difference: row {fm['row']}, step {fm['step']}, t = {fm['t_rel_s']:.3f} s into "
+            f"the capture (firmware clock {fm['t_fw_s']:.3f} s)"
+        )
+    return lines + [f"  → {d}" for d in p.diagnosis]
 
-    lines.append("")
-    lines.append("angles vs firmware, degrees (Δ = estimator − firmware)")
-    w = max([len(t.label) for t in r.traces] + [9]) + 2
-    head1 = " " * w + f"{'':>7}  {'pitch (thx, about x)':^21}  {'roll (thy, about y)':^21}"
-    head2 = f"{'estimator':<{w}}{'steps':>7}  {'RMS':>10} {'max |Δ|':>10}  {'RMS':>10} {'max |Δ|':>10}"
-    lines += [head1, head2]
-    for t in r.traces:
+
+def _angles_table(traces: list[TraceComparison], w: int) -> list[str]:
+    """Per estimator: steps, RMS and max |Δ| from the firmware's pitch and roll, in degrees."""
+    lines = [
+        "angles vs firmware, degrees (Δ = estimator − firmware)",
+        " " * w + f"{'':>7}  {'pitch (thx, about x)':^21}  {'roll (thy, about y)':^21}",
+        f"{'estimator':<{w}}{'steps':>7}  {'RMS':>10} {'max |Δ|':>10}  {'RMS':>10} {'max |Δ|':>10}",
+    ]
+    for t in traces:
         if not t.available:
             lines.append(f"{t.label:<{w}}{'—':>7}  {t.note}")
             continue
         n = min(t.pitch.n, t.roll.n)
         row = (
-            f"{t.label:<{w}}{n:>7}  {_f(t.pitch.rms_deg):>10} {_f(t.pitch.max_abs_deg):>10}  "
-            f"{_f(t.roll.rms_deg):>10} {_f(t.roll.max_abs_deg):>10}"
+            f"{t.label:<{w}}{n:>7}  {fmt_number(t.pitch.rms_deg):>10} {fmt_number(t.pitch.max_abs_deg):>10}  "
+            f"{fmt_number(t.roll.rms_deg):>10} {fmt_number(t.roll.max_abs_deg):>10}"
         )
-        if t.note:
-            row += f"  ({t.note})"
-        lines.append(row)
-    if r.truth is not None:
-        lines += [
-            "",
-            f"against the ground truth the capture keeps: inclination RMSE (deg) over "
-            f"{r.truth['movement_steps']} movement steps",
-        ]
-        notes = r.truth.get("coverage_notes", {})
-        for name, v in r.truth["rmse_deg"].items():
-            f = r.truth.get("scored_fraction", {}).get(name)
-            cell = _f(v, ".3f") if name not in notes else _coverage_cell(v, f)
-            lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
-        if notes:
-            lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
-    for note in r.notes:
-        lines.append(f"note: {note}")
+        lines.append(row + (f"  ({t.note})" if t.note else ""))
+    return lines
+
+
+def _truth_lines(truth: dict | None, w: int) -> list[str]:
+    """Inclination RMSE against the ground truth the capture keeps (none: no lines)."""
+    if truth is None:
+        return []
+    lines = [
+        "",
+        f"against the ground truth the capture keeps: inclination RMSE (deg) over "
+        f"{truth['movement_steps']} movement steps",
+    ]
+    notes = truth.get("coverage_notes", {})
+    for name, v in truth["rmse_deg"].items():
+        f = truth.get("scored_fraction", {}).get(name)
+        cell = fmt_number(v, ".3f") if name not in notes else _coverage_cell(v, f)
+        lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
+    if notes:
+        lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
     return lines
 
 
@@ -457,7 +484,7 @@ def estimator_line(s: dict[str, Any]) -> str:
     """``estimator ekf3: 9210/9210 valid rows; RMS difference from the firmware: pitch 0.132°, roll 0.118°``."""
     first = "" if s["first_invalid_step"] is None else f" (first invalid at step {s['first_invalid_step']})"
     rms = (
-        f"pitch {_f(s['rms_diff_pitch_deg'], '.3f')}°, roll {_f(s['rms_diff_roll_deg'], '.3f')}°"
+        f"pitch {fmt_number(s['rms_diff_pitch_deg'], '.3f')}°, roll {fmt_number(s['rms_diff_roll_deg'], '.3f')}°"
         if s["rms_diff_pitch_deg"] is not None or s["rms_diff_roll_deg"] is not None
         else "n/a (no row where both are finite)"
     )

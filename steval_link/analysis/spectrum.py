@@ -304,29 +304,12 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     values = np.concatenate(
         [np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)], axis=1
     )
-    thr = np.asarray(att.thr, dtype=np.float64)
     d = np.diff(step)
     d = d[d > 0]
     decimation = int(np.median(d)) if d.size else 1
     runs = contiguous_runs(step, t, values, decimation)
-    longest = max((b - a for a, b in runs), default=0)
     notes: list[str] = []
-    if nperseg is None:
-        nperseg = DEFAULT_NPERSEG
-        if longest < nperseg:
-            nperseg = 1 << max(int(math.floor(math.log2(max(longest, 1)))), 0)
-            if nperseg >= MIN_NPERSEG:
-                notes.append(
-                    f"short capture: windows of {nperseg} rows instead of {DEFAULT_NPERSEG} (coarser "
-                    f"frequency resolution)"
-                )
-    if longest < max(nperseg, MIN_NPERSEG):
-        rate = C.AHRS_RATE_HZ / decimation
-        need = max(nperseg, MIN_NPERSEG)
-        raise UserError(
-            f"the capture is too short for a spectrum: its longest run of consecutive attitude frames is "
-            f"{longest} rows ({longest / rate:.2f} s), and a window needs {need} ({need / rate:.2f} s)."
-        )
+    nperseg = _window_rows(nperseg, max((b - a for a, b in runs), default=0), decimation, notes)
     hop = max(1, int(round(nperseg * (1 - overlap))))
     used = [(a, b) for a, b in runs if b - a >= nperseg]
     rate = _measured_rate(step, t, used, decimation)
@@ -338,27 +321,12 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         )
     if decimation > 1:
         notes.append(f"decimated rows (one per {decimation} AHRS steps, text mode): Nyquist {rate / 2:.2f} Hz")
-
-    specs, centres, thr_w = [], [], []
-    freq = np.fft.rfftfreq(nperseg, 1.0 / rate)
-    for a, b in used:
-        freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
-        specs.append(psd)
-        centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
-        csum = np.concatenate(([0.0], np.cumsum(thr[a:b])))
-        thr_w.append((csum[starts + nperseg] - csum[starts]) / nperseg)
-    spectrogram = np.concatenate(specs, axis=0)
-    window_t = np.concatenate(centres)
-    window_thr = np.concatenate(thr_w)
-    edges = _throttle_bins(window_thr, throttle_bins)
-    which = np.clip(np.searchsorted(edges, window_thr, side="right") - 1, 0, len(edges) - 2)
-    thr_psd = np.full((len(edges) - 1, len(freq), len(SIGNALS)), np.nan)
-    counts = np.bincount(which, minlength=len(edges) - 1)
-    for k in np.flatnonzero(counts):
-        thr_psd[k] = spectrogram[which == k].mean(axis=0)
-    rows_used = sum(b - a for a, b in used)
-    dropped_runs = len(runs) - len(used)
+    freq, spectrogram, window_t, window_thr = _windows(
+        values, t, np.asarray(att.thr, np.float64), used, rate, nperseg, hop
+    )
+    edges, thr_psd, counts = _by_throttle(spectrogram, window_thr, throttle_bins)
     if len(runs) > 1:
+        dropped_runs = len(runs) - len(used)
         notes.append(
             f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
             f"{len(used)} long enough for a window"
@@ -379,9 +347,54 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         hop=hop,
         runs=used,
         rows=n,
-        rows_used=rows_used,
+        rows_used=sum(b - a for a, b in used),
         notes=notes,
     )
+
+
+def _window_rows(nperseg: int | None, longest: int, decimation: int, notes: list[str]) -> int:
+    """Rows per window: ``nperseg``, else the default or the longest run's power of two; UserError when too short."""
+    if nperseg is None:
+        nperseg = DEFAULT_NPERSEG
+        if longest < nperseg:
+            nperseg = 1 << max(int(math.floor(math.log2(max(longest, 1)))), 0)
+            if nperseg >= MIN_NPERSEG:
+                notes.append(
+                    f"short capture: windows of {nperseg} rows instead of {DEFAULT_NPERSEG} (coarser "
+                    f"frequency resolution)"
+                )
+    need = max(nperseg, MIN_NPERSEG)
+    if longest < need:
+        rate = C.AHRS_RATE_HZ / decimation
+        raise UserError(
+            f"the capture is too short for a spectrum: its longest run of consecutive attitude frames is "
+            f"{longest} rows ({longest / rate:.2f} s), and a window needs {need} ({need / rate:.2f} s)."
+        )
+    return nperseg
+
+
+def _windows(values, t, thr, runs, rate: float, nperseg: int, hop: int):
+    """Every window of every run: (freq_hz, PSD per window, centre time per window, mean throttle per window)."""
+    specs, centres, thr_w = [], [], []
+    freq = np.fft.rfftfreq(nperseg, 1.0 / rate)
+    for a, b in runs:
+        freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
+        specs.append(psd)
+        centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
+        csum = np.concatenate(([0.0], np.cumsum(thr[a:b])))
+        thr_w.append((csum[starts + nperseg] - csum[starts]) / nperseg)
+    return freq, np.concatenate(specs, axis=0), np.concatenate(centres), np.concatenate(thr_w)
+
+
+def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
+    """The windows' mean PSD per throttle bin: (edges, PSD per bin (NaN: empty), windows per bin)."""
+    edges = _throttle_bins(window_thr, bins)
+    which = np.clip(np.searchsorted(edges, window_thr, side="right") - 1, 0, len(edges) - 2)
+    thr_psd = np.full((len(edges) - 1, *spectrogram.shape[1:]), np.nan)
+    counts = np.bincount(which, minlength=len(edges) - 1)
+    for k in np.flatnonzero(counts):
+        thr_psd[k] = spectrogram[which == k].mean(axis=0)
+    return edges, thr_psd, counts
 
 
 # ---- peaks -------------------------------------------------------------------------------------------------------

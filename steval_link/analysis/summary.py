@@ -8,7 +8,7 @@ import numpy as np
 
 from steval_link.analysis.ble import format_ble_summary, summarize_ble
 from steval_link.analysis.diagnosis import recognise_release
-from steval_link.analysis.report import json_number
+from steval_link.analysis.report import fmt_number, json_number
 from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
 from steval_link.link.commands import command_log
@@ -141,13 +141,12 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
 def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
-    ``duration_s`` is firmware time covered by the attitude rows (host time when there is none), ``rate_hz`` the
-    attitude frames per second over it, ``step_rate_hz`` the AHRS steps per second (161.5 on the drone; in text
-    mode rows are decimated so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in
-    ``seq_gaps`` gaps (binary stream), ``drop_ratio`` = missing / (received + missing); ``tx_dropped`` is the
-    firmware's own count of frames its TX queue could not take (last status frame). ``release``: the ST release
-    whose filter the replica reproduces the rows with (``variant`` forces one; see ``recognise_release``);
-    ``attitude_from``: "frames", or "symbols" (read by the emulator, ``symbols`` says so).
+    ``duration_s`` is firmware time covered by the attitude rows (host time when there is none). ``rate_hz`` is
+    attitude frames per second over it; ``step_rate_hz`` AHRS steps per second (161.5 on the drone; text-mode rows
+    are decimated, so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in ``seq_gaps``
+    gaps, ``drop_ratio`` = missing / (received + missing), ``tx_dropped`` the firmware's own count from the last
+    status frame. ``release``: the ST release whose filter the replica reproduces the rows with (``variant`` forces
+    one). ``attitude_from``: "frames", or "symbols" (read by the emulator).
     """
     if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
         return summarize_ble(tel)
@@ -155,36 +154,14 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
     n = len(a)
     src = tel.source or {}
     header = src.get("header") or {}
-    binary = a.exact
-    restarts = np.zeros(max(n - 1, 0), bool)
-    if n > 1:
-        d = np.diff(a.step)
-        restarts = d <= 0
-    duration = _fw_duration_s(a.t_fw_s, restarts) if n > 1 else 0.0
-    host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
-    host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
-    if duration <= 0 and host_duration:
-        duration = host_duration
-    steps = float(np.sum(np.where(restarts, 0, np.diff(a.step)))) if n > 1 else 0.0
+    duration, host_duration, steps = _durations(a)
     out: dict[str, Any] = {
         "source": {
             "path": src.get("path"),
             "kind": src.get("kind"),
-            "port": header.get("port"),
-            "baud": header.get("baud"),
-            "start_time_utc": header.get("start_time_utc"),
-            "tool_version": header.get("tool_version"),
+            **{k: header.get(k) for k in ("port", "baud", "start_time_utc", "tool_version")},
         },
-        "frames": {
-            "attitude": n,
-            "attitude_binary": int(binary.sum()),
-            "attitude_text_mode": int(n - binary.sum()),
-            "status": len(s),
-            "text": len(tel.text),
-            "flight_control": len(getattr(tel, "flight", ())),
-            "flight_control_every": int(s.fc_every[-1]) if len(s) and s.exact[-1] else None,
-            "acks": len(getattr(tel, "acks", ())),
-        },
+        "frames": _frame_counts(tel),
         "duration_s": duration,
         "host_duration_s": host_duration,
         "rate_hz": (n - 1) / duration if duration > 0 and n > 1 else None,
@@ -194,8 +171,8 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
         "drops": {
             "seq_gaps": st.seq_gaps,
             "frames_missing": st.frames_missing,
-            "drop_ratio": st.frames_missing / (int(binary.sum()) + st.frames_missing)
-            if (binary.any() or st.frames_missing)
+            "drop_ratio": st.frames_missing / (int(a.exact.sum()) + st.frames_missing)
+            if (a.exact.any() or st.frames_missing)
             else 0.0,
             "seq_resets": st.seq_resets,
             "tx_dropped": int(s.tx_dropped[-1]) if len(s) else None,
@@ -217,31 +194,61 @@ def summarize(tel, *, variant: str | None = None, variant_source: str = "variant
         "warnings": list(src.get("warnings") or []),
         "text_lines": [t for _, t in tel.text[:20]],
         "text_telemetry": text_telemetry_report(tel),
-        "filter": None,
+        "filter": _filter_of_status(s) if len(s) else None,
         "release": recognise_release(tel, variant=variant, source=variant_source),
         "attitude_from": src.get("attitude_from", "frames"),
         "symbols": src.get("symbols"),
     }
-    if len(s):
-        i = len(s) - 1
-        flags = int(s.flags[i])
-        out["filter"] = {
-            "from_step": int(s.step[i]),
-            "kp_ground": json_number(s.kp_ground[i]),
-            "kp_flight": json_number(s.kp_flight[i]),
-            "ki": json_number(s.ki[i]),
-            "dt_s": json_number(s.dt_s[i]),
-            "min_thr": int(s.min_thr[i]) if s.exact[i] else None,
-            "flags": flags,
-            "flag_names": [name for bit, name in _FLAG_NAMES.items() if flags & bit],
-            "fw_version": ".".join(str(int(v)) for v in s.fw_version[i]) if s.exact[i] else None,
-            "link_baud": int(s.baud[i]) if s.exact[i] else None,
-            "queue_peak_bytes": int(s.queue_peak[i]) if s.exact[i] else None,
-        }
     cost = step_cost(tel)  # the one AHRS step cost (compare --json gives the same)
     out["ahrs_step_cost"] = None if cost is None else cost.to_json()
     out["ahrs_step_cost_text"] = None if cost is None else cost.sentence()
     return out
+
+
+def _durations(a) -> tuple[float, float | None, float]:
+    """Firmware time the rows cover (host time when there is none), host time, and AHRS steps between restarts."""
+    n = len(a)
+    restarts = np.diff(a.step) <= 0 if n > 1 else np.zeros(0, bool)
+    duration = _fw_duration_s(a.t_fw_s, restarts) if n > 1 else 0.0
+    host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
+    host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
+    if duration <= 0 and host_duration:
+        duration = host_duration
+    steps = float(np.sum(np.where(restarts, 0, np.diff(a.step)))) if n > 1 else 0.0
+    return duration, host_duration, steps
+
+
+def _frame_counts(tel) -> dict[str, Any]:
+    a, s = tel.attitude, tel.status
+    return {
+        "attitude": len(a),
+        "attitude_binary": int(a.exact.sum()),
+        "attitude_text_mode": int(len(a) - a.exact.sum()),
+        "status": len(s),
+        "text": len(tel.text),
+        "flight_control": len(getattr(tel, "flight", ())),
+        "flight_control_every": int(s.fc_every[-1]) if len(s) and s.exact[-1] else None,
+        "acks": len(getattr(tel, "acks", ())),
+    }
+
+
+def _filter_of_status(s) -> dict[str, Any]:
+    """The filter settings of the last status frame (text-mode status lines: no version, baud or queue)."""
+    i = len(s) - 1
+    flags = int(s.flags[i])
+    return {
+        "from_step": int(s.step[i]),
+        "kp_ground": json_number(s.kp_ground[i]),
+        "kp_flight": json_number(s.kp_flight[i]),
+        "ki": json_number(s.ki[i]),
+        "dt_s": json_number(s.dt_s[i]),
+        "min_thr": int(s.min_thr[i]) if s.exact[i] else None,
+        "flags": flags,
+        "flag_names": [name for bit, name in _FLAG_NAMES.items() if flags & bit],
+        "fw_version": ".".join(str(int(v)) for v in s.fw_version[i]) if s.exact[i] else None,
+        "link_baud": int(s.baud[i]) if s.exact[i] else None,
+        "queue_peak_bytes": int(s.queue_peak[i]) if s.exact[i] else None,
+    }
 
 
 def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str]:
@@ -249,9 +256,35 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     s = summary
     if s.get("kind") == "ble":
         return format_ble_summary(s)
-    src = s["source"]
-    f = s["frames"]
-    d = s["drops"]
+    lines = _source_lines(s) + _link_lines(s) + _command_lines(s.get("commands") or [], max_text_lines)
+    if s.get("v1_frames"):
+        lines.append(
+            f"protocol v1 ({s['v1_frames']} frames, CRC-16): about 1 in 65 536 damaged frames passes its check, so a"
+            " bad cable can show a frame that was never sent; the plausibility checks catch most, not all."
+            " Firmware patch 2.0 sends protocol v2 (CRC-32)."
+        )
+    if s.get("filter"):
+        lines += _filter_summary_lines(s["filter"])
+    if s.get("ahrs_step_cost_text"):
+        lines.append(s["ahrs_step_cost_text"])
+    if s.get("text_telemetry"):
+        lines += _text_telemetry_lines(s["text_telemetry"])
+    for e in s["events"]:
+        note = f" ({e['text']})" if e["text"] else ""
+        lines.append(f"event at {e['t_host_s']:.3f} s host time: {e['kind']}{note}")
+    n_text = s["frames"]["text"]
+    if n_text:
+        shown = s["text_lines"][:max_text_lines]
+        lines.append(f"text lines ({n_text}):")
+        lines.extend(f"  | {t}" for t in shown)
+        if n_text > len(shown):
+            lines.append(f"  | ... {n_text - len(shown)} more")
+    return lines + [f"warning: {w}" for w in s["warnings"]]
+
+
+def _source_lines(s: dict[str, Any]) -> list[str]:
+    """Where the capture comes from, its frames, duration and rate, steps and the filter's release."""
+    src, f = s["source"], s["frames"]
     lines = [f"source: {src['path']} ({src['kind']})"]
     if src.get("port") or src.get("start_time_utc"):
         lines.append(
@@ -275,16 +308,20 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
         lines.append(f"attitude: {s['symbols']}")
     if s.get("release"):
         lines.append(s["release"]["text"])
+    return lines
+
+
+def _link_lines(s: dict[str, Any]) -> list[str]:
+    """Drops, link damage, and the firmware output held back or out of range."""
+    d = s["drops"]
     tx = "" if d["tx_dropped"] is None else f", firmware TX queue dropped {d['tx_dropped']}"
-    lines.append(
+    lines = [
         f"drops: {d['frames_missing']} frames missing in {d['seq_gaps']} gaps ({100 * d['drop_ratio']:.3f} %)"
-        f"{tx}" + (f", {d['seq_resets']} firmware restarts" if d["seq_resets"] else "")
-    )
-    lines.append(
+        f"{tx}" + (f", {d['seq_resets']} firmware restarts" if d["seq_resets"] else ""),
         f"link: {s['crc_failures']} CRC failures, {s['bytes_skipped']} of {s['bytes_total']} bytes skipped"
         + (f", {s['unknown_frames']} frames of unknown type" if s["unknown_frames"] else "")
-        + (f", {s['text_dropped']} lines of garbage dropped" if s.get("text_dropped") else "")
-    )
+        + (f", {s['text_dropped']} lines of garbage dropped" if s.get("text_dropped") else ""),
+    ]
     if s.get("values_bad"):
         lines.append(f"firmware output: {s['values_bad']['text']}")
     off = s.get("q_off_unit_sphere")
@@ -292,47 +329,29 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
         lines.append(f"firmware filter: {off['text']}")  # (said once when both start at the same step)
     if s.get("held_back_text"):
         lines.append(f"held back: {s['held_back_text']}")
-    cmds = s.get("commands") or []
-    if cmds:
-        acked = sum(1 for c in cmds if c["result"] is not None)
-        lines.append(f"commands: {len(cmds)} sent to the drone or answered, {acked} acknowledged")
-        for c in cmds[:max_text_lines]:
-            lines.append(f"  {c['t_host_s']:8.3f} s  {c['text']}")
-        if len(cmds) > max_text_lines:
-            lines.append(f"  … {len(cmds) - max_text_lines} more (--json lists them all)")
-    if s.get("v1_frames"):
-        lines.append(
-            f"protocol v1 ({s['v1_frames']} frames, CRC-16): about 1 in 65 536 damaged frames passes its check, so a"
-            " bad cable can show a frame that was never sent; the plausibility checks catch most, not all."
-            " Firmware patch 2.0 sends protocol v2 (CRC-32)."
-        )
-    flt = s.get("filter")
-    if flt:
+    return lines
 
-        def g(x):
-            return "n/a" if x is None else f"{x:g}"
 
-        dt = "n/a" if flt["dt_s"] is None else f"{flt['dt_s']:g} s"
-        lines.append(
-            f"filter (status at step {flt['from_step']}): kp_ground {g(flt['kp_ground'])}, kp_flight "
-            f"{g(flt['kp_flight'])}, ki {g(flt['ki'])}, dt {dt}, min_thr {g(flt['min_thr'])}, "
-            f"flags {flt['flags']}" + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
-        )
-        if flt["fw_version"] is not None:
-            lines.append(f"firmware: version {flt['fw_version']}, link {flt['link_baud']} baud")
-    if s.get("ahrs_step_cost_text"):
-        lines.append(s["ahrs_step_cost_text"])
-    if s.get("text_telemetry"):
-        lines += _text_telemetry_lines(s["text_telemetry"])
-    for e in s["events"]:
-        note = f" ({e['text']})" if e["text"] else ""
-        lines.append(f"event at {e['t_host_s']:.3f} s host time: {e['kind']}{note}")
-    if f["text"]:
-        shown = s["text_lines"][:max_text_lines]
-        lines.append(f"text lines ({f['text']}):")
-        lines.extend(f"  | {t}" for t in shown)
-        if f["text"] > len(shown):
-            lines.append(f"  | ... {f['text'] - len(shown)} more")
-    for w in s["warnings"]:
-        lines.append(f"warning: {w}")
+def _command_lines(cmds: list[dict], max_lines: int) -> list[str]:
+    """The commands sent or answered, the first ``max_lines`` of them listed."""
+    if not cmds:
+        return []
+    acked = sum(1 for c in cmds if c["result"] is not None)
+    lines = [f"commands: {len(cmds)} sent to the drone or answered, {acked} acknowledged"]
+    lines += [f"  {c['t_host_s']:8.3f} s  {c['text']}" for c in cmds[:max_lines]]
+    if len(cmds) > max_lines:
+        lines.append(f"  … {len(cmds) - max_lines} more (--json lists them all)")
+    return lines
+
+
+def _filter_summary_lines(flt: dict[str, Any]) -> list[str]:
+    g = {k: fmt_number(flt[k], "g") for k in ("kp_ground", "kp_flight", "ki", "min_thr")}
+    dt = "n/a" if flt["dt_s"] is None else f"{flt['dt_s']:g} s"
+    lines = [
+        f"filter (status at step {flt['from_step']}): kp_ground {g['kp_ground']}, kp_flight {g['kp_flight']}, "
+        f"ki {g['ki']}, dt {dt}, min_thr {g['min_thr']}, flags {flt['flags']}"
+        + (f" ({', '.join(flt['flag_names'])})" if flt["flag_names"] else "")
+    ]
+    if flt["fw_version"] is not None:
+        lines.append(f"firmware: version {flt['fw_version']}, link {flt['link_baud']} baud")
     return lines
