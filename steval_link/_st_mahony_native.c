@@ -26,8 +26,7 @@
  * Both use the C library's atan2/asin, so thx/thy of the replica and of firmware quaternions converted on the host
  * come from the same math library.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "_native_buffers.h"
 
 #include <float.h>
 #include <math.h>
@@ -73,19 +72,6 @@ static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *t
     *thy = (float)asin((double)sarg);
 }
 
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
-{
-    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) {
-        return -1;
-    }
-    if (view->len != nbytes) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
-
 static PyObject *native_run(PyObject *self, PyObject *args)
 {
     PyObject *o_acc, *o_gyro, *o_thr, *o_q, *o_thx, *o_thy, *o_state, *o_params;
@@ -99,15 +85,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
                           &flags)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_thr, &b_thr, PyBUF_C_CONTIGUOUS) < 0) {
-        return NULL;
-    }
-    n = b_thr.len / (Py_ssize_t)sizeof(int64_t);
-    if (b_thr.len != n * (Py_ssize_t)sizeof(int64_t)) {
-        PyErr_SetString(PyExc_ValueError, "thr: length is not a multiple of 8 bytes");
-        PyBuffer_Release(&b_thr);
-        return NULL;
-    }
+    if ((n = get_rows(o_thr, &b_thr, sizeof(int64_t), "thr")) < 0) return NULL;
     have_euler = (o_thx != Py_None) && (o_thy != Py_None);
     if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0) goto out_thr;
     if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0) goto out_acc;
@@ -260,15 +238,7 @@ static PyObject *native_euler(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_thx, &o_thy)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_q, &b_q, PyBUF_C_CONTIGUOUS) < 0) {
-        return NULL;
-    }
-    n = b_q.len / 16;
-    if (b_q.len != n * 16) {
-        PyErr_SetString(PyExc_ValueError, "q: length is not a multiple of 16 bytes (4 float32)");
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
+    if ((n = get_rows(o_q, &b_q, 4 * sizeof(float), "q")) < 0) return NULL;
     if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) {
         PyBuffer_Release(&b_q);
         return NULL;

@@ -28,8 +28,7 @@
  * The layouts are mirrored by the _pack/_unpack helpers in ekf3.py and mekf.py (the constants are exported as
  * module attributes and checked there).
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "../_native_buffers.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -91,19 +90,6 @@ static void qmul(const double *a, const double *b, double *out)
     out[1] = aw * bx + ax * bw + ay * bz - az * by;
     out[2] = aw * by - ax * bz + ay * bw + az * bx;
     out[3] = aw * bz + ax * by - ay * bx + az * bw;
-}
-
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
-{
-    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) {
-        return -1;
-    }
-    if (view->len != nbytes) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
 }
 
 /* ------------------------------------------------------------------------------------------------------------
@@ -314,12 +300,7 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o_acc, &o_gyro, &o_x, &o_state, &o_params, &flags)) return NULL;
-    if (PyObject_GetBuffer(o_acc, &b_acc, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    n = b_acc.len / (Py_ssize_t)(3 * sizeof(double));
-    if (b_acc.len != n * (Py_ssize_t)(3 * sizeof(double))) {
-        PyErr_SetString(PyExc_ValueError, "acc: length is not a multiple of 24 bytes (3 float64)");
-        goto out_acc;
-    }
+    if ((n = get_rows(o_acc, &b_acc, 3 * sizeof(double), "acc")) < 0) return NULL;
     if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0) goto out_acc;
     if (get_buffer(o_x, &b_x, 1, 3 * n * 8, "x_out") < 0) goto out_gyro;
     if (get_buffer(o_state, &b_state, 1, EKF3_STATE * 8, "state") < 0) goto out_x;
@@ -732,12 +713,7 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o_acc, &o_gyro, &o_q, &o_state, &o_istate, &o_params, &flags)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_acc, &b_acc, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    n = b_acc.len / (Py_ssize_t)(3 * sizeof(double));
-    if (b_acc.len != n * (Py_ssize_t)(3 * sizeof(double))) {
-        PyErr_SetString(PyExc_ValueError, "acc: length is not a multiple of 24 bytes (3 float64)");
-        goto out_acc;
-    }
+    if ((n = get_rows(o_acc, &b_acc, 3 * sizeof(double), "acc")) < 0) return NULL;
     if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0) goto out_acc;
     if (get_buffer(o_q, &b_q, 1, 4 * n * 8, "q_out") < 0) goto out_gyro;
     if (get_buffer(o_state, &b_state, 1, MEKF_STATE * 8, "state") < 0) goto out_q;
