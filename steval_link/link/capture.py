@@ -212,22 +212,23 @@ def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
 
 
 def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
-    """The truth rows of a capture's T chunks (``Capture.chunks``) in file order, or None when it
-    has none. A payload that is not a whole number of rows keeps its whole rows."""
-    parts = [
-        np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
-        for _, p in chunks.get(CHUNK_TRUTH, [])
-    ]
-    if not parts:
+    """The truth rows of a capture's T chunks (``Capture.chunks``) in file order, or None when it has none."""
+    rows = _chunk_rows(chunks, CHUNK_TRUTH, TRUTH_DTYPE)
+    if rows is None:
         return None
-    rows = np.concatenate(parts)
     return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(), rows["movement"] != 0)
 
 
 def capture_symbol_rows(chunks: dict[int, list[tuple[float, bytes]]]) -> np.ndarray | None:
     """The rows of a capture's symbol chunks S (``SYMBOL_DTYPE``, file order), or None when it has none."""
-    size = SYMBOL_DTYPE.itemsize
-    parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=SYMBOL_DTYPE) for _, p in chunks.get(CHUNK_SYMBOLS, [])]
+    return _chunk_rows(chunks, CHUNK_SYMBOLS, SYMBOL_DTYPE)
+
+
+def _chunk_rows(chunks: dict[int, list[tuple[float, bytes]]], kind: int, dtype: np.dtype) -> np.ndarray | None:
+    """The ``dtype`` rows of the chunks of type ``kind``, in file order (a payload keeps its whole rows); None
+    when there is no such chunk."""
+    size = dtype.itemsize
+    parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=dtype) for _, p in chunks.get(kind, [])]
     return np.concatenate(parts) if parts else None
 
 
