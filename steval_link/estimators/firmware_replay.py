@@ -45,11 +45,10 @@ class ReplicaFollower:
     usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
 
     ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
-    ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the replica runs in sync: True (live) —
-    confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
-    (replay of a capture, which measures how far the replica and the firmware agree) — ignore it, unless it is an
-    event snapshot (status flag ``EVENT``: sent at once because a host command changed the settings, reset the
-    filter or asked for it), which the replica always follows: its settings and state apply from the next step.
+    ``initial`` at power-up. ``follow_snapshots``: a snapshot while the replica runs in sync is confirmed when it
+    agrees bit for bit, else seeds it (True, live); or is ignored (False, a capture's replay, which measures
+    agreement). An event snapshot (status flag ``EVENT``: a host command changed the settings or the filter) is
+    always followed.
     """
 
     def __init__(
@@ -268,9 +267,7 @@ def replay_firmware(
             settings' own (the status frames': ST 170120 unless their flags say ST 221117).
         native: force the C or the pure loop (default: C when built).
 
-    The replica starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
-    mid-flight, or after dropped frames: any step gap) it waits for the first status snapshot inside that run and
-    continues from the following step. Rows before a seed are unseeded: NaN, not bit-exact.
+    Seeds as :class:`ReplicaFollower` does; rows before a seed are unseeded: NaN, not bit-exact.
     """
     rows = _AttitudeRows.of(tel.attitude)
     snaps = _Snapshots.of(getattr(tel, "status", None), variant)
