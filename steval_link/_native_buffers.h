@@ -4,6 +4,9 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+/* Every loop zero-initialises its views and releases them all on one path: releasing a view never taken is a
+ * no-op (PyBuffer_Release ignores obj == NULL, which a failed PyObject_GetBuffer leaves). */
+
 /* A C-contiguous view of exactly nbytes (writable when asked): 0, or -1 with a ValueError. */
 static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
 {

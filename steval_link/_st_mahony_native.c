@@ -76,7 +76,8 @@ static PyObject *native_run(PyObject *self, PyObject *args)
 {
     PyObject *o_acc, *o_gyro, *o_thr, *o_q, *o_thx, *o_thy, *o_state, *o_params;
     long long flags;
-    Py_buffer b_acc, b_gyro, b_thr, b_q, b_thx, b_thy, b_state, b_params;
+    Py_buffer b_acc = {0}, b_gyro = {0}, b_thr = {0}, b_q = {0}, b_thx = {0}, b_thy = {0}, b_state = {0},
+              b_params = {0};
     int have_euler, ok = 0;
     Py_ssize_t n, k;
 
@@ -87,15 +88,14 @@ static PyObject *native_run(PyObject *self, PyObject *args)
     }
     if ((n = get_rows(o_thr, &b_thr, sizeof(int64_t), "thr")) < 0) return NULL;
     have_euler = (o_thx != Py_None) && (o_thy != Py_None);
-    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0) goto out_thr;
-    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0) goto out_acc;
-    if (get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0) goto out_gyro;
-    if (have_euler) {
-        if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) goto out_q;
-        if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) goto out_thx;
-    }
-    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0) goto out_thy;
-    if (get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0) goto out_state;
+    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0 || get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0 ||
+        get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0)
+        goto out;
+    if (have_euler && (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0 ||
+                       get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0))
+        goto out;
+    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0 || get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0)
+        goto out;
 
     {
         const float *acc = (const float *)b_acc.buf;
@@ -208,21 +208,14 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         st[6] = ezInt;
     }
     ok = 1;
-
+out:
     PyBuffer_Release(&b_params);
-out_state:
     PyBuffer_Release(&b_state);
-out_thy:
-    if (have_euler) PyBuffer_Release(&b_thy);
-out_thx:
-    if (have_euler) PyBuffer_Release(&b_thx);
-out_q:
+    PyBuffer_Release(&b_thy);
+    PyBuffer_Release(&b_thx);
     PyBuffer_Release(&b_q);
-out_gyro:
     PyBuffer_Release(&b_gyro);
-out_acc:
     PyBuffer_Release(&b_acc);
-out_thr:
     PyBuffer_Release(&b_thr);
     if (!ok) return NULL;
     Py_RETURN_NONE;
@@ -231,24 +224,17 @@ out_thr:
 static PyObject *native_euler(PyObject *self, PyObject *args)
 {
     PyObject *o_q, *o_thx, *o_thy;
-    Py_buffer b_q, b_thx, b_thy;
+    Py_buffer b_q = {0}, b_thx = {0}, b_thy = {0};
     Py_ssize_t n, k;
+    int ok;
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_thx, &o_thy)) {
         return NULL;
     }
     if ((n = get_rows(o_q, &b_q, 4 * sizeof(float), "q")) < 0) return NULL;
-    if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) {
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
-    if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) {
-        PyBuffer_Release(&b_thx);
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
-    {
+    ok = get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") == 0 && get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") == 0;
+    if (ok) {
         const float *q = (const float *)b_q.buf;
         float *thx = (float *)b_thx.buf;
         float *thy = (float *)b_thy.buf;
@@ -261,6 +247,7 @@ static PyObject *native_euler(PyObject *self, PyObject *args)
     PyBuffer_Release(&b_thy);
     PyBuffer_Release(&b_thx);
     PyBuffer_Release(&b_q);
+    if (!ok) return NULL;
     Py_RETURN_NONE;
 }
 
