@@ -11,12 +11,14 @@ setup(
         Extension(
             "steval_link._st_mahony_native",
             sources=["steval_link/_st_mahony_native.c"],
+            depends=["steval_link/_native_buffers.h"],
             extra_compile_args=_FLAGS,
             optional=True,
         ),
         Extension(
             "steval_link.estimators._ekf_native",
             sources=["steval_link/estimators/_ekf_native.c"],
+            depends=["steval_link/_native_buffers.h"],
             extra_compile_args=_FLAGS,
             optional=True,
         ),

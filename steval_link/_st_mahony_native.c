@@ -26,8 +26,7 @@
  * Both use the C library's atan2/asin, so thx/thy of the replica and of firmware quaternions converted on the host
  * come from the same math library.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "_native_buffers.h"
 
 #include <float.h>
 #include <math.h>
@@ -73,24 +72,12 @@ static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *t
     *thy = (float)asin((double)sarg);
 }
 
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
-{
-    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) {
-        return -1;
-    }
-    if (view->len != nbytes) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
-
 static PyObject *native_run(PyObject *self, PyObject *args)
 {
     PyObject *o_acc, *o_gyro, *o_thr, *o_q, *o_thx, *o_thy, *o_state, *o_params;
     long long flags;
-    Py_buffer b_acc, b_gyro, b_thr, b_q, b_thx, b_thy, b_state, b_params;
+    Py_buffer b_acc = {0}, b_gyro = {0}, b_thr = {0}, b_q = {0}, b_thx = {0}, b_thy = {0}, b_state = {0},
+              b_params = {0};
     int have_euler, ok = 0;
     Py_ssize_t n, k;
 
@@ -99,25 +86,16 @@ static PyObject *native_run(PyObject *self, PyObject *args)
                           &flags)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_thr, &b_thr, PyBUF_C_CONTIGUOUS) < 0) {
-        return NULL;
-    }
-    n = b_thr.len / (Py_ssize_t)sizeof(int64_t);
-    if (b_thr.len != n * (Py_ssize_t)sizeof(int64_t)) {
-        PyErr_SetString(PyExc_ValueError, "thr: length is not a multiple of 8 bytes");
-        PyBuffer_Release(&b_thr);
-        return NULL;
-    }
+    if ((n = get_rows(o_thr, &b_thr, sizeof(int64_t), "thr")) < 0) return NULL;
     have_euler = (o_thx != Py_None) && (o_thy != Py_None);
-    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0) goto out_thr;
-    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0) goto out_acc;
-    if (get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0) goto out_gyro;
-    if (have_euler) {
-        if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) goto out_q;
-        if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) goto out_thx;
-    }
-    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0) goto out_thy;
-    if (get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0) goto out_state;
+    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0 || get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0 ||
+        get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0)
+        goto out;
+    if (have_euler && (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0 ||
+                       get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0))
+        goto out;
+    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0 || get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0)
+        goto out;
 
     {
         const float *acc = (const float *)b_acc.buf;
@@ -230,21 +208,14 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         st[6] = ezInt;
     }
     ok = 1;
-
+out:
     PyBuffer_Release(&b_params);
-out_state:
     PyBuffer_Release(&b_state);
-out_thy:
-    if (have_euler) PyBuffer_Release(&b_thy);
-out_thx:
-    if (have_euler) PyBuffer_Release(&b_thx);
-out_q:
+    PyBuffer_Release(&b_thy);
+    PyBuffer_Release(&b_thx);
     PyBuffer_Release(&b_q);
-out_gyro:
     PyBuffer_Release(&b_gyro);
-out_acc:
     PyBuffer_Release(&b_acc);
-out_thr:
     PyBuffer_Release(&b_thr);
     if (!ok) return NULL;
     Py_RETURN_NONE;
@@ -253,32 +224,17 @@ out_thr:
 static PyObject *native_euler(PyObject *self, PyObject *args)
 {
     PyObject *o_q, *o_thx, *o_thy;
-    Py_buffer b_q, b_thx, b_thy;
+    Py_buffer b_q = {0}, b_thx = {0}, b_thy = {0};
     Py_ssize_t n, k;
+    int ok;
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_thx, &o_thy)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_q, &b_q, PyBUF_C_CONTIGUOUS) < 0) {
-        return NULL;
-    }
-    n = b_q.len / 16;
-    if (b_q.len != n * 16) {
-        PyErr_SetString(PyExc_ValueError, "q: length is not a multiple of 16 bytes (4 float32)");
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
-    if (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0) {
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
-    if (get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0) {
-        PyBuffer_Release(&b_thx);
-        PyBuffer_Release(&b_q);
-        return NULL;
-    }
-    {
+    if ((n = get_rows(o_q, &b_q, 4 * sizeof(float), "q")) < 0) return NULL;
+    ok = get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") == 0 && get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") == 0;
+    if (ok) {
         const float *q = (const float *)b_q.buf;
         float *thx = (float *)b_thx.buf;
         float *thy = (float *)b_thy.buf;
@@ -291,6 +247,7 @@ static PyObject *native_euler(PyObject *self, PyObject *args)
     PyBuffer_Release(&b_thy);
     PyBuffer_Release(&b_thx);
     PyBuffer_Release(&b_q);
+    if (!ok) return NULL;
     Py_RETURN_NONE;
 }
 

@@ -127,20 +127,9 @@ def run_simulation(
     Raises:
         ValueError: bad inputs, unknown estimator or options it does not take.
     """
-    gyro = _vector3(gyro_mdps, "gyro")
-    acc = _vector3(acc_mg, "acc")
-    iterations = int(iterations)
-    if iterations < 0:
-        raise ValueError(f"iterations must be ≥ 0, got {iterations}")
-    for name, value in (("gyro noise", gyro_noise_mdps), ("acc noise", acc_noise_mg)):
-        if not (np.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a standard deviation ≥ 0, got {value}")
-    throttle = int(throttle)
-    if not -32768 <= throttle <= 32767:
-        raise ValueError(f"throttle is the firmware's int16 gTHR: −32768..32767, got {throttle}")
-    dt = C.DT_S if dt_s is None else float(dt_s)
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt_s must be a period > 0 s, got {dt_s}")
+    gyro, acc = _vector3(gyro_mdps, "gyro"), _vector3(acc_mg, "acc")
+    iterations, throttle, dt = _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s)
+    gyro, acc = np.tile(gyro, (iterations, 1)), np.tile(acc, (iterations, 1))
     given = dict(estimator_options or {})  # the user's options: the run's label
     options = dict(given)
     own = {} if estimator in registry.ESTIMATORS else dict(registry.resolve(estimator).reference.options)
@@ -150,26 +139,20 @@ def run_simulation(
     noisy = gyro_noise_mdps > 0 or acc_noise_mg > 0
     if noisy and seed is None:
         seed = int(np.random.SeedSequence().entropy % (1 << 32))
-    gyro_in = np.tile(gyro, (iterations, 1))
-    acc_in = np.tile(acc, (iterations, 1))
     if noisy:
         rng = np.random.default_rng(seed)
-        gyro_in = gyro_in + rng.normal(0.0, float(gyro_noise_mdps), size=gyro_in.shape)
-        acc_in = acc_in + rng.normal(0.0, float(acc_noise_mg), size=acc_in.shape)
-    gyro_in = gyro_in.astype(np.float32)
-    acc_in = acc_in.astype(np.float32)
+        gyro = gyro + rng.normal(0.0, float(gyro_noise_mdps), size=gyro.shape)
+        acc = acc + rng.normal(0.0, float(acc_noise_mg), size=acc.shape)
+    gyro_in, acc_in = gyro.astype(np.float32), acc.astype(np.float32)
     thr = np.full(iterations, throttle, dtype=np.int64)
-
     est.reset()
     res = est.run(acc_in, gyro_in, thr)
     if isinstance(est, StMahony):
         eaz = handout_yaw(res.q_wxyz)  # float32, as the Lab 5 simulator's QuaternionToEuler computes it
-        settings = dict(est.settings.__dict__)
-        est_dt = float(est.settings.dt_s)
+        settings, est_dt = dict(est.settings.__dict__), float(est.settings.dt_s)
     else:
         eaz = np.asarray(res.thz_rad)  # NaN where the estimator has no yaw (e.g. accelerometer-only tilt)
-        settings = {}
-        est_dt = _own_dt(est, {**own, **options})
+        settings, est_dt = {}, _own_dt(est, {**own, **options})
     return SimulationResult(
         estimator=estimator,
         options=given,
@@ -189,6 +172,23 @@ def run_simulation(
         valid=res.valid,
         settings=settings,
     )
+
+
+def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[int, int, float]:
+    """(iterations, throttle, dt in s) of a run, checked; a ValueError naming the parameter when one is off."""
+    iterations = int(iterations)
+    if iterations < 0:
+        raise ValueError(f"iterations must be ≥ 0, got {iterations}")
+    for name, value in (("gyro noise", gyro_noise_mdps), ("acc noise", acc_noise_mg)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a standard deviation ≥ 0, got {value}")
+    throttle = int(throttle)
+    if not -32768 <= throttle <= 32767:
+        raise ValueError(f"throttle is the firmware's int16 gTHR: −32768..32767, got {throttle}")
+    dt = C.DT_S if dt_s is None else float(dt_s)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt_s must be a period > 0 s, got {dt_s}")
+    return iterations, throttle, dt
 
 
 def _timing(estimator: str, dt_s: float) -> dict:

@@ -286,10 +286,45 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     if progress is None:
         progress = lambda fraction, stage="": None  # noqa: E731
     rs = random_streams(opts.seed)
-
     trial, duration, total = _span(opts)
+    profile, isr, n_ticks = _sensed(opts, rs, trial, total, progress)
+    thr_tick = profile.thr.astype(np.int64)
+    yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
+    thr_step = thr_tick[isr.step_tick]
 
-    # 1-2: motion and sensor at every tick, from TIM9's first tick to the end of the capture
+    # 4: the replica, in runs between status snapshots
+    progress(0.8, "filter port")
+    settings = _settings(opts)
+    q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
+
+    # 5: the link, step by step, with the TX queue
+    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
+    att = _attitude_rows(isr, begin, q, yaw[isr.step_tick - isr.first_tick], thr_step)
+    forced = fwl.forced_drops(len(att), opts.drop_rate, rs.drop)
+    link = fwl.LinkEmulation(att, settings, opts.ki, opts.baud, opts.text_mode, snapshots, forced)
+    for cyc, line in fwl.boot_lines(rs.boot):
+        link.text(cyc, line)
+    progress(0.85, "link and TX queue")
+    rows = {"thx": thx, "thy": thy}
+    for k in range(len(att)):
+        if k % 8192 == 0:
+            progress(0.85 + 0.1 * k / len(att), "link and TX queue")
+        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]), rows)
+    status = link.status_table()
+
+    # 6-7: the bytes in transmit order, and the host
+    progress(0.95, "encoding frames")
+    data, chunk_offsets, chunk_times, counts = _received(opts, link, att, rs.host, total)
+    dropped = link.txq.dropped
+    header = _header(opts, profile.name, duration, counts, dropped)
+    return SynthResult(
+        data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, begin / C.CPU_HZ, counts
+    )
+
+
+def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
+    """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
+    the firmware's ISR and main-loop averaging. Returns (profile, ISR result, number of ticks)."""
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
@@ -305,66 +340,34 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
         gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
     progress(0.55, "LSM6DSL model")
     acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
-
-    # 3: ISR and main-loop averaging; ISR yaw
     progress(0.6, "ISR pipeline")
-    isr = sm.run_isr(acc_raw, gyro_raw)
-    thr_tick = profile.thr.astype(np.int64)
-    yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
+    return profile, sm.run_isr(acc_raw, gyro_raw), n_ticks
+
+
+def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_step: np.ndarray) -> np.ndarray:
+    """The attitude frame of every AHRS step (``ATTITUDE_DTYPE``); ``begin``: each step's start, CPU cycles."""
     n_steps = len(isr.step_tick)
-    thr_step = thr_tick[isr.step_tick]
-    thz = yaw[isr.step_tick - isr.first_tick]
-
-    # 4: the replica, in runs between status snapshots
-    progress(0.8, "filter port")
-    settings = _settings(opts)
-    q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
-
-    # 5: the link, step by step, with the TX queue
-    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
-    forced = fwl.forced_drops(n_steps, opts.drop_rate, rs.drop)
-    t_us = (begin // (C.CPU_HZ // 1_000_000)) % P.T_US_MODULUS
-
     att = np.zeros(n_steps, dtype=P.ATTITUDE_DTYPE)
-    att["t_us"] = t_us
+    att["t_us"] = (begin // (C.CPU_HZ // 1_000_000)) % P.T_US_MODULUS
     att["acc_mg"] = isr.acc_ahrs_mg
     att["gyro_mdps"] = isr.gyro_ahrs_mdps
     att["q_wxyz"] = q
     att["thz_rad"] = thz
     att["seq"] = np.arange(n_steps) % P.SEQ_MODULUS
     att["thr"] = thr_step.astype(np.int16)
+    return att
 
-    link = fwl.LinkEmulation(att, settings, opts.ki, opts.baud, opts.text_mode, snapshots, forced)
-    for cyc, line in fwl.boot_lines(rs.boot):
-        link.text(cyc, line)
-    progress(0.85, "link and TX queue")
-    rows = {"thx": thx, "thy": thy}
-    for k in range(n_steps):
-        if k % 8192 == 0:
-            progress(0.85 + 0.1 * k / n_steps, "link and TX queue")
-        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]), rows)
-    status = link.status_table()
 
-    # 6: the bytes, in transmit order
-    progress(0.95, "encoding frames")
+def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
+    """The bytes the link sent, in transmit order, as the host receives them from the join time on: (data, chunk
+    offsets, chunk times, frame counts)."""
     order = link.order
     c_encoder = (Path(opts.c_encoder) if opts.c_encoder else default_c_encoder()) if opts.encoder == "c" else None
     stream = fwl.encode(order, att, c_encoder)
     sizes = np.array([o[3] for o in order], dtype=np.int64)
     starts = np.array([o[2] for o in order], dtype=np.float64)
-
-    # 7: the host
-    offsets, chunk_offsets, chunk_times = host_chunks(
-        stream, sizes, starts, link.txq.tau, opts.join_at_s, rs.host, total
-    )
-    data = stream[offsets[0] : offsets[1]]
-    counts = fwl.count_frames(order, offsets)
-    dropped = link.txq.dropped
-    header = _header(opts, profile.name, duration, counts, dropped)
-    step_t_s = begin / C.CPU_HZ
-    return SynthResult(
-        data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, step_t_s, counts
-    )
+    offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
+    return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
 
 
 def _header(opts: SynthOptions, name: str, duration: float, counts: dict, dropped: int) -> dict:

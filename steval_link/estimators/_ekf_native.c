@@ -28,8 +28,7 @@
  * The layouts are mirrored by the _pack/_unpack helpers in ekf3.py and mekf.py (the constants are exported as
  * module attributes and checked there).
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "../_native_buffers.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -91,19 +90,6 @@ static void qmul(const double *a, const double *b, double *out)
     out[1] = aw * bx + ax * bw + ay * bz - az * by;
     out[2] = aw * by - ax * bz + ay * bw + az * bx;
     out[3] = aw * bz + ax * by - ay * bx + az * bw;
-}
-
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
-{
-    if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) {
-        return -1;
-    }
-    if (view->len != nbytes) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
 }
 
 /* ------------------------------------------------------------------------------------------------------------
@@ -309,21 +295,17 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 {
     PyObject *o_acc, *o_gyro, *o_x, *o_state, *o_params;
     long long flags;
-    Py_buffer b_acc, b_gyro, b_x, b_state, b_params;
+    Py_buffer b_acc = {0}, b_gyro = {0}, b_x = {0}, b_state = {0}, b_params = {0};
     Py_ssize_t n, k;
+    int ok = 0;
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o_acc, &o_gyro, &o_x, &o_state, &o_params, &flags)) return NULL;
-    if (PyObject_GetBuffer(o_acc, &b_acc, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    n = b_acc.len / (Py_ssize_t)(3 * sizeof(double));
-    if (b_acc.len != n * (Py_ssize_t)(3 * sizeof(double))) {
-        PyErr_SetString(PyExc_ValueError, "acc: length is not a multiple of 24 bytes (3 float64)");
-        goto out_acc;
-    }
-    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0) goto out_acc;
-    if (get_buffer(o_x, &b_x, 1, 3 * n * 8, "x_out") < 0) goto out_gyro;
-    if (get_buffer(o_state, &b_state, 1, EKF3_STATE * 8, "state") < 0) goto out_x;
-    if (get_buffer(o_params, &b_params, 0, EKF3_NPARAMS * 8, "params") < 0) goto out_state;
+    if ((n = get_rows(o_acc, &b_acc, 3 * sizeof(double), "acc")) < 0) return NULL;
+    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0 || get_buffer(o_x, &b_x, 1, 3 * n * 8, "x_out") < 0 ||
+        get_buffer(o_state, &b_state, 1, EKF3_STATE * 8, "state") < 0 ||
+        get_buffer(o_params, &b_params, 0, EKF3_NPARAMS * 8, "params") < 0)
+        goto out;
     {
         const double *acc = (const double *)b_acc.buf;
         const double *gyro = (const double *)b_gyro.buf;
@@ -366,22 +348,15 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
         memcpy(st + EKF3_PM, P, sizeof P);
         st[EKF3_INIT] = init ? 1.0 : 0.0;
     }
+    ok = 1;
+out:
     PyBuffer_Release(&b_params);
     PyBuffer_Release(&b_state);
     PyBuffer_Release(&b_x);
     PyBuffer_Release(&b_gyro);
     PyBuffer_Release(&b_acc);
+    if (!ok) return NULL;
     Py_RETURN_NONE;
-
-out_state:
-    PyBuffer_Release(&b_state);
-out_x:
-    PyBuffer_Release(&b_x);
-out_gyro:
-    PyBuffer_Release(&b_gyro);
-out_acc:
-    PyBuffer_Release(&b_acc);
-    return NULL;
 }
 
 /* ------------------------------------------------------------------------------------------------------------
@@ -725,24 +700,20 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
 {
     PyObject *o_acc, *o_gyro, *o_q, *o_state, *o_istate, *o_params;
     long long flags;
-    Py_buffer b_acc, b_gyro, b_q, b_state, b_istate, b_params;
+    Py_buffer b_acc = {0}, b_gyro = {0}, b_q = {0}, b_state = {0}, b_istate = {0}, b_params = {0};
     Py_ssize_t n, k;
+    int ok = 0;
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o_acc, &o_gyro, &o_q, &o_state, &o_istate, &o_params, &flags)) {
         return NULL;
     }
-    if (PyObject_GetBuffer(o_acc, &b_acc, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    n = b_acc.len / (Py_ssize_t)(3 * sizeof(double));
-    if (b_acc.len != n * (Py_ssize_t)(3 * sizeof(double))) {
-        PyErr_SetString(PyExc_ValueError, "acc: length is not a multiple of 24 bytes (3 float64)");
-        goto out_acc;
-    }
-    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0) goto out_acc;
-    if (get_buffer(o_q, &b_q, 1, 4 * n * 8, "q_out") < 0) goto out_gyro;
-    if (get_buffer(o_state, &b_state, 1, MEKF_STATE * 8, "state") < 0) goto out_q;
-    if (get_buffer(o_istate, &b_istate, 1, MEKF_ISTATE * 8, "istate") < 0) goto out_state;
-    if (get_buffer(o_params, &b_params, 0, MEKF_NPARAMS * 8, "params") < 0) goto out_istate;
+    if ((n = get_rows(o_acc, &b_acc, 3 * sizeof(double), "acc")) < 0) return NULL;
+    if (get_buffer(o_gyro, &b_gyro, 0, 3 * n * 8, "gyro") < 0 || get_buffer(o_q, &b_q, 1, 4 * n * 8, "q_out") < 0 ||
+        get_buffer(o_state, &b_state, 1, MEKF_STATE * 8, "state") < 0 ||
+        get_buffer(o_istate, &b_istate, 1, MEKF_ISTATE * 8, "istate") < 0 ||
+        get_buffer(o_params, &b_params, 0, MEKF_NPARAMS * 8, "params") < 0)
+        goto out;
     {
         const double *acc = (const double *)b_acc.buf;
         const double *gyro = (const double *)b_gyro.buf;
@@ -786,25 +757,16 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
         }
         Py_END_ALLOW_THREADS
     }
+    ok = 1;
+out:
     PyBuffer_Release(&b_params);
     PyBuffer_Release(&b_istate);
     PyBuffer_Release(&b_state);
     PyBuffer_Release(&b_q);
     PyBuffer_Release(&b_gyro);
     PyBuffer_Release(&b_acc);
+    if (!ok) return NULL;
     Py_RETURN_NONE;
-
-out_istate:
-    PyBuffer_Release(&b_istate);
-out_state:
-    PyBuffer_Release(&b_state);
-out_q:
-    PyBuffer_Release(&b_q);
-out_gyro:
-    PyBuffer_Release(&b_gyro);
-out_acc:
-    PyBuffer_Release(&b_acc);
-    return NULL;
 }
 
 static PyMethodDef native_methods[] = {

@@ -104,11 +104,9 @@ class Ekf3(Estimator):
             rotation of the step; no tan θ blow-up near ±90°); False uses the forward-Euler step x + dt·f(x, ω)
             of the course. The covariance always uses the Jacobian F above.
 
-    :meth:`step` is the Python reference. :meth:`run` uses the C loop of ``_ekf_native`` when it is built (every
-    option; ≈ 100× faster; results equal to rounding, ≈ 1e-13 rad over an hour) and leaves the filter in the same
-    state, so :meth:`step` can continue after :meth:`run`. The one exception runs in Python: a zero accelerometer
-    variance (``acc_noise_mg = acc_motion_mg = 0``), where the reference's ``np.linalg.solve`` may raise on a
-    singular innovation covariance.
+    :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built (equal to
+    rounding, ≈ 1e-13 rad over an hour) and leaves the same state. A zero accelerometer variance runs in Python,
+    where ``np.linalg.solve`` may raise on a singular innovation covariance.
     """
 
     name = "ekf3"

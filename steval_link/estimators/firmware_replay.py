@@ -45,11 +45,10 @@ class ReplicaFollower:
     usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
 
     ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
-    ``initial`` at power-up. ``follow_snapshots``: what a snapshot does while the replica runs in sync: True (live) —
-    confirm it when state and settings agree bit for bit, else re-seed from it (a settings change, a difference); False
-    (replay of a capture, which measures how far the replica and the firmware agree) — ignore it, unless it is an
-    event snapshot (status flag ``EVENT``: sent at once because a host command changed the settings, reset the
-    filter or asked for it), which the replica always follows: its settings and state apply from the next step.
+    ``initial`` at power-up. ``follow_snapshots``: a snapshot while the replica runs in sync is confirmed when it
+    agrees bit for bit, else seeds it (True, live); or is ignored (False, a capture's replay, which measures
+    agreement). An event snapshot (status flag ``EVENT``: a host command changed the settings or the filter) is
+    always followed.
     """
 
     def __init__(
@@ -268,128 +267,152 @@ def replay_firmware(
             settings' own (the status frames': ST 170120 unless their flags say ST 221117).
         native: force the C or the pure loop (default: C when built).
 
-    The replica starts from the power-up state when a run of consecutive steps begins at step 0; otherwise (joined
-    mid-flight, or after dropped frames: any step gap) it waits for the first status snapshot inside that run and
-    continues from the following step. Rows before a seed are unseeded: NaN, not bit-exact.
+    Seeds as :class:`ReplicaFollower` does; rows before a seed are unseeded: NaN, not bit-exact.
     """
-    att = tel.attitude
-    steps = np.asarray(table_column(att, "step"), dtype=np.int64)
-    n = steps.shape[0]
-    acc = np.ascontiguousarray(table_column(att, "acc_mg"), dtype=_F32).reshape(n, 3)
-    gyro = np.ascontiguousarray(table_column(att, "gyro_mdps"), dtype=_F32).reshape(n, 3)
-    thr = np.asarray(table_column(att, "thr"), dtype=np.int64).reshape(n)
-    fw_q = np.asarray(table_column(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
-    try:
-        fw_thx = np.asarray(table_column(att, "thx_rad"), dtype=_F32).reshape(n)
-        fw_thy = np.asarray(table_column(att, "thy_rad"), dtype=_F32).reshape(n)
-    except (AttributeError, KeyError, ValueError):
-        fw_thx, fw_thy = quaternion_to_euler(fw_q)
-
-    status = getattr(tel, "status", None)
-
-    def of_status(j: int) -> MahonySettings:
-        s = MahonySettings.of_status(status, j)
-        return s if variant is None else replace(s, variant=variant)
-
+    rows = _AttitudeRows.of(tel.attitude)
+    snaps = _Snapshots.of(getattr(tel, "status", None), variant)
     if settings is not None and variant is not None:
         settings = replace(settings, variant=variant)
-
-    def col(name: str, dtype=np.float64) -> np.ndarray:
-        return np.asarray(table_column(status, name), dtype=dtype)
-
-    st_steps = np.zeros(0, dtype=np.int64) if status is None else col("step", np.int64)
-    order = np.zeros(0, dtype=np.int64)
-    st_events = has_settings = np.zeros(st_steps.shape[0], dtype=bool)
-    if st_steps.size:
-        # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
-        usable = np.isfinite(col("kp_ground")) & np.isfinite(col("q_wxyz")).all(axis=1)
-        usable &= np.isfinite(col("int_xyz")).all(axis=1)
-        st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
-        order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
-        st_events = (col("flags", np.int64) & FLAG_EVENT) != 0
-        has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
-    st_sorted = st_steps[order]
-    default_settings = settings
-    if default_settings is None:
-        # the build's settings: the first status frame that reports them (its snapshot may hold NaN: a filter
-        # that diverged still runs with the build's settings)
-        first = np.flatnonzero(has_settings)
-        default_settings = (
-            of_status(int(order[0]))
-            if order.size
-            else of_status(int(first[0]))
-            if first.size
-            else MahonySettings(variant=variant or VARIANTS_DEFAULT)
-        )
-
-    try:  # rounded text-mode rows are no exact filter inputs: never replayed
-        exact_rows = np.asarray(table_column(att, "exact"), dtype=bool).reshape(n)
-    except (AttributeError, KeyError, ValueError):
-        exact_rows = np.ones(n, dtype=bool)
-
-    # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
-    replica = ReplicaFollower(settings, initial=default_settings, follow_snapshots=False, native=native)
+    initial = settings or snaps.default_settings(variant)
+    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native)
+    steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
     parts = []
+    # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
     breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
     for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
-        if a >= b:
-            continue
-        cut = a
-        s_first, s_last = int(steps[a]), int(steps[b - 1])
-        if exact_rows[a]:
-            # the first usable snapshot seeds a run that does not start at power-up; later ones are followed only
-            # when they announce a host command's change (EVENT), else the replay measures agreement
-            hi = int(np.searchsorted(st_sorted, s_last - 1, side="right"))
-            lo = int(np.searchsorted(st_sorted, s_first - 1, side="left"))
-            seeded_run = steps[a] == 0
-            for k in range(lo, hi):
-                j = int(order[k])
-                is_event = bool(st_events[j])
-                if seeded_run and not is_event:
-                    continue
-                end = a + int(st_sorted[k]) + 1 - s_first  # rows up to the snapshot's step
-                if end > cut:
-                    parts.append(
-                        replica.rows(
-                            steps[cut:end],
-                            acc[cut:end],
-                            gyro[cut:end],
-                            thr[cut:end],
-                            exact_rows[cut:end],
-                            first_row=cut,
-                        )
-                    )
-                    cut = end
-                replica.snapshot(
-                    int(st_sorted[k]),
-                    MahonyState(q_wxyz=table_column(status, "q_wxyz")[j], int_xyz=table_column(status, "int_xyz")[j]),
-                    of_status(j),
-                    snapshot_id=j,
-                    event=is_event,
-                )
-                seeded_run = seeded_run or replica.seeded
-        parts.append(replica.rows(steps[cut:b], acc[cut:b], gyro[cut:b], thr[cut:b], exact_rows[cut:b], first_row=cut))
+        if a < b:
+            parts += _replay_run(replica, rows, snaps, a, b)
     if parts:
-        q = np.concatenate([p[0] for p in parts])
-        thx = np.concatenate([p[1] for p in parts])
-        thy = np.concatenate([p[2] for p in parts])
-        seeded = np.concatenate([p[3] for p in parts])
+        q, thx, thy, seeded = (np.concatenate([p[i] for p in parts]) for i in range(4))
     else:
         q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
         seeded = np.zeros(0, dtype=bool)
     seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in replica.seed_rows]
-
-    exact = seeded & bits_equal(q, fw_q).all(axis=1) & bits_equal(thx, fw_thx) & bits_equal(thy, fw_thy)
+    exact = seeded & bits_equal(q, rows.fw_q).all(axis=1) & bits_equal(thx, rows.fw_thx) & bits_equal(thy, rows.fw_thy)
     bad = np.flatnonzero(seeded & ~exact)
-    return FirmwareReplay(
-        q_wxyz=q,
-        thx_rad=thx,
-        thy_rad=thy,
-        bit_exact=exact,
-        seeded=seeded,
-        first_mismatch=int(bad[0]) if bad.size else None,
-        seeds=tuple(seeds),
-    )
+    first_mismatch = int(bad[0]) if bad.size else None
+    return FirmwareReplay(q, thx, thy, exact, seeded, first_mismatch, tuple(seeds))
+
+
+@dataclass(frozen=True)
+class _AttitudeRows:
+    """A capture's attitude rows as the replay reads them: the filter's inputs, the firmware's outputs, and which
+    rows are exact filter inputs (rounded text-mode rows are never replayed)."""
+
+    steps: np.ndarray
+    acc: np.ndarray
+    gyro: np.ndarray
+    thr: np.ndarray
+    exact: np.ndarray
+    fw_q: np.ndarray
+    fw_thx: np.ndarray
+    fw_thy: np.ndarray
+
+    @classmethod
+    def of(cls, att) -> _AttitudeRows:
+        steps = np.asarray(table_column(att, "step"), dtype=np.int64)
+        n = steps.shape[0]
+        fw_q = np.asarray(table_column(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
+        try:
+            fw_thx = np.asarray(table_column(att, "thx_rad"), dtype=_F32).reshape(n)
+            fw_thy = np.asarray(table_column(att, "thy_rad"), dtype=_F32).reshape(n)
+        except (AttributeError, KeyError, ValueError):
+            fw_thx, fw_thy = quaternion_to_euler(fw_q)
+        try:
+            exact = np.asarray(table_column(att, "exact"), dtype=bool).reshape(n)
+        except (AttributeError, KeyError, ValueError):
+            exact = np.ones(n, dtype=bool)
+        return cls(
+            steps,
+            np.ascontiguousarray(table_column(att, "acc_mg"), dtype=_F32).reshape(n, 3),
+            np.ascontiguousarray(table_column(att, "gyro_mdps"), dtype=_F32).reshape(n, 3),
+            np.asarray(table_column(att, "thr"), dtype=np.int64).reshape(n),
+            exact,
+            fw_q,
+            fw_thx,
+            fw_thy,
+        )
+
+    def run(self, replica: ReplicaFollower, a: int, b: int):
+        """The replica over rows ``a:b``."""
+        sl = slice(a, b)
+        return replica.rows(self.steps[sl], self.acc[sl], self.gyro[sl], self.thr[sl], self.exact[sl], first_row=a)
+
+
+@dataclass(frozen=True)
+class _Snapshots:
+    """The status frames that carry a filter snapshot, by step: ``order`` (their rows), ``steps`` (sorted),
+    ``events`` (per status row: sent because of a host command) and ``has_settings`` (per status row)."""
+
+    status: object
+    variant: str | None
+    order: np.ndarray
+    steps: np.ndarray
+    events: np.ndarray
+    has_settings: np.ndarray
+
+    @classmethod
+    def of(cls, status, variant: str | None) -> _Snapshots:
+        def col(name: str, dtype=np.float64) -> np.ndarray:
+            return np.asarray(table_column(status, name), dtype=dtype)
+
+        st_steps = np.zeros(0, dtype=np.int64) if status is None else col("step", np.int64)
+        order = np.zeros(0, dtype=np.int64)
+        events = has_settings = np.zeros(st_steps.shape[0], dtype=bool)
+        if st_steps.size:
+            # Only binary status frames carry a snapshot and the settings; text-mode $STA rows hold NaN there.
+            usable = np.isfinite(col("kp_ground")) & np.isfinite(col("q_wxyz")).all(axis=1)
+            usable &= np.isfinite(col("int_xyz")).all(axis=1)
+            st_steps = np.where(usable, st_steps, -1)  # -1 never matches a snapshot step
+            order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
+            events = (col("flags", np.int64) & FLAG_EVENT) != 0
+            has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
+        return cls(status, variant, order, st_steps[order], events, has_settings)
+
+    def settings(self, j: int) -> MahonySettings:
+        """The settings status row ``j`` reports."""
+        s = MahonySettings.of_status(self.status, j)
+        return s if self.variant is None else replace(s, variant=self.variant)
+
+    def default_settings(self, variant: str | None) -> MahonySettings:
+        """The build's settings: the first snapshot's, else the first status frame that reports them (its snapshot
+        may hold NaN: a filter that diverged still runs with the build's settings), else the firmware's defaults."""
+        first = np.flatnonzero(self.has_settings)
+        if self.order.size:
+            return self.settings(int(self.order[0]))
+        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or VARIANTS_DEFAULT)
+
+    def state(self, j: int) -> MahonyState:
+        """The filter snapshot of status row ``j``."""
+        return MahonyState(
+            q_wxyz=table_column(self.status, "q_wxyz")[j], int_xyz=table_column(self.status, "int_xyz")[j]
+        )
+
+
+def _replay_run(replica: ReplicaFollower, rows: _AttitudeRows, snaps: _Snapshots, a: int, b: int) -> list:
+    """The replica over one run ``a:b`` of consecutive rows, in pieces between the snapshots it takes. The first
+    usable snapshot seeds a run that does not start at power-up; later ones are followed only when they announce a
+    host command's change (EVENT), else the replay measures agreement."""
+    parts = []
+    cut = a
+    if rows.exact[a]:
+        s_first, s_last = int(rows.steps[a]), int(rows.steps[b - 1])
+        hi = int(np.searchsorted(snaps.steps, s_last - 1, side="right"))
+        lo = int(np.searchsorted(snaps.steps, s_first - 1, side="left"))
+        seeded_run = rows.steps[a] == 0
+        for k in range(lo, hi):
+            j = int(snaps.order[k])
+            is_event = bool(snaps.events[j])
+            if seeded_run and not is_event:
+                continue
+            end = a + int(snaps.steps[k]) + 1 - s_first  # rows up to the snapshot's step
+            if end > cut:
+                parts.append(rows.run(replica, cut, end))
+                cut = end
+            replica.snapshot(int(snaps.steps[k]), snaps.state(j), snaps.settings(j), snapshot_id=j, event=is_event)
+            seeded_run = seeded_run or replica.seeded
+    parts.append(rows.run(replica, cut, b))
+    return parts
 
 
 @dataclass(frozen=True)

@@ -185,20 +185,15 @@ class Mekf(Estimator):
         acc_noise_mg: σ_n, mg (≈ mrad of tilt).
         norm_gain: k_n, dimensionless.
         reject_mg: accelerometer samples with | |a| − 1000 mg | above this are ignored, mg.
-        init_bias_mdps: initial bias standard deviation (and cap), mdps. The firmware's power-up calibration
-            already removes most of the bias.
+        init_bias_mdps: initial bias standard deviation (and cap), mdps.
         estimate_bias: False freezes the bias at 0.
-        latency_s: output prediction horizon, s: the returned attitude is ``q ⊗ Exp(ω·latency_s)``, compensating
-            the delay of the gyro input behind the accelerometer input in the STEVAL pipeline
-            (:data:`steval_link.constants.GYRO_LATENCY_S`, ≈ 3.3 ms: IIR group delay + 416 Hz hold). The
-            filter state itself is not shifted. Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
+        latency_s: output prediction horizon, s: the attitude returned is ``q ⊗ Exp(ω·latency_s)`` (the state is
+            not shifted); the STEVAL pipeline's gyro lag is :data:`steval_link.constants.GYRO_LATENCY_S`.
+            Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
 
-    :meth:`step` is the Python reference. :meth:`run` uses the C loop of ``_ekf_native`` when it is built (every
-    option; ≈ 100× faster) and leaves the filter in the same state (quaternions, bias, covariance, low-pass
-    memories), so :meth:`step` can continue after :meth:`run` and vice versa. The two agree to rounding (numpy's
-    matrix products sum in another order): ≈ 1e-12 rad on the BROAD trials; over an hour of wild motion the
-    heading, which only integrates the gyro and bias, can part by ≈ 1e-7 rad, as it does when the inputs change
-    by 1e-15.
+    :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built and leaves the
+    same state, so either continues the other. They agree to rounding: ≈ 1e-12 rad on the BROAD trials, ≈ 1e-7 rad
+    of heading after an hour of wild motion (as when the inputs change by 1e-15).
     """
 
     name = "mekf"

@@ -257,9 +257,9 @@ def duplicate_sentence(label: str) -> str:
     return f"estimator {label} is chosen twice: give each variant its own options (labels must differ)"
 
 
-def unique_name(name: str, taken: set[str], *, repeated: bool = True) -> str:
+def unique_name(name: str, taken: set[str]) -> str:
     """``name`` as a display name: UserError when it is in ``taken`` (:func:`duplicate_sentence`). Options are part
-    of a reference's name already (``MyEkf(r_acc=0.001)``); ``repeated`` is kept for callers and ignored."""
+    of a reference's name already (``MyEkf(r_acc=0.001)``)."""
     out = str(name)
     if out in taken:
         raise UserError(duplicate_sentence(out))

@@ -212,22 +212,23 @@ def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
 
 
 def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
-    """The truth rows of a capture's T chunks (``Capture.chunks``) in file order, or None when it
-    has none. A payload that is not a whole number of rows keeps its whole rows."""
-    parts = [
-        np.frombuffer(p[: len(p) - len(p) % TRUTH_DTYPE.itemsize], dtype=TRUTH_DTYPE)
-        for _, p in chunks.get(CHUNK_TRUTH, [])
-    ]
-    if not parts:
+    """The truth rows of a capture's T chunks (``Capture.chunks``) in file order, or None when it has none."""
+    rows = _chunk_rows(chunks, CHUNK_TRUTH, TRUTH_DTYPE)
+    if rows is None:
         return None
-    rows = np.concatenate(parts)
     return CaptureTruth(rows["step"].astype(np.int64), rows["t_s"].copy(), rows["q_wxyz"].copy(), rows["movement"] != 0)
 
 
 def capture_symbol_rows(chunks: dict[int, list[tuple[float, bytes]]]) -> np.ndarray | None:
     """The rows of a capture's symbol chunks S (``SYMBOL_DTYPE``, file order), or None when it has none."""
-    size = SYMBOL_DTYPE.itemsize
-    parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=SYMBOL_DTYPE) for _, p in chunks.get(CHUNK_SYMBOLS, [])]
+    return _chunk_rows(chunks, CHUNK_SYMBOLS, SYMBOL_DTYPE)
+
+
+def _chunk_rows(chunks: dict[int, list[tuple[float, bytes]]], kind: int, dtype: np.dtype) -> np.ndarray | None:
+    """The ``dtype`` rows of the chunks of type ``kind``, in file order (a payload keeps its whole rows); None
+    when there is no such chunk."""
+    size = dtype.itemsize
+    parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=dtype) for _, p in chunks.get(kind, [])]
     return np.concatenate(parts) if parts else None
 
 
@@ -535,11 +536,32 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     :class:`~steval_link.errors.UserError` when the file is missing, unreadable or not a capture."""
     path = Path(path)
     raw = read_file_bytes(path) if data is None else data
+    header, pos = _read_header(path, raw)
+    body = _read_chunks(raw, pos)
+    problems = ([_damage_summary(body.damaged)] if body.damaged else []) + ([body.cut] if body.cut else [])
+    warning = f"{path}: " + "; ".join(problems) + "." if problems else None
+    if warning is not None:
+        warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
+    return Capture(
+        path=path,
+        header=header,
+        data=b"".join(body.pieces),
+        chunk_offsets=np.asarray(body.offsets, dtype=np.int64),
+        chunk_times_s=np.asarray(body.times, dtype=np.float64),
+        events=body.events,
+        truncated=warning is not None,
+        warning=warning,
+        chunks=body.typed,
+        host=body.host,
+    )
+
+
+def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
+    """The capture's JSON header and the file position after it; a :class:`UserError` when there is none."""
     if not raw.startswith(MAGIC):
         if raw and MAGIC.startswith(raw):
             raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
         raise UserError(f"{path} is not a steval capture (.stv) file.")
-    mv = memoryview(raw)
     pos = len(MAGIC)
     try:
         (hlen,) = _HEADER_LEN.unpack_from(raw, pos)
@@ -563,93 +585,97 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
             f"{path} uses capture format {header.get('format_version')}; this steval-link reads up to "
             f"{FORMAT_VERSION} (please upgrade)."
         )
-    pos += 4 + hlen + 4
-    pieces: list[memoryview] = []
-    offsets: list[int] = []
-    times: list[float] = []
-    events: list[CaptureEvent] = []
-    typed: dict[int, list[tuple[float, bytes]]] = {}
-    host: list[HostChunk] = []
-    total = 0
-    n = len(raw)
-    head_size = _CHUNK_HEAD.size
-    unpack_head = _CHUNK_HEAD.unpack_from
-    unpack_crc = _CRC.unpack_from
-    crc32 = zlib.crc32
+    return header, pos + 4 + hlen + 4
 
-    def chunk_at(p: int) -> tuple[int, int, float, int] | str:
-        """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none."""
-        if p + head_size > n:
-            return "incomplete chunk header"
-        kind, length, t = unpack_head(raw, p)
-        end = p + head_size + length
-        if length > MAX_CHUNK:  # an unknown type with a good CRC is a newer writer's chunk: kept, not damage
-            return "damaged chunk header"
-        if end + 4 > n:
-            return "incomplete chunk"
-        if crc32(mv[p:end]) != unpack_crc(raw, end)[0]:
-            return "chunk CRC mismatch"
-        return kind, length, t, end
 
-    damaged: list[tuple[int, int, str]] = []  # (file byte, length, why) of each damaged stretch skipped
+def _chunk_at(
+    raw: bytes, mv: memoryview, p: int, size=_CHUNK_HEAD.size, head=_CHUNK_HEAD.unpack_from, crc=_CRC.unpack_from
+) -> tuple[int, int, float, int] | str:
+    """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none (the defaults: bound
+    once, for speed)."""
+    if p + size > len(raw):
+        return "incomplete chunk header"
+    kind, length, t = head(raw, p)
+    end = p + size + length
+    if length > MAX_CHUNK:  # an unknown type with a good CRC is a newer writer's chunk: kept, not damage
+        return "damaged chunk header"
+    if end + 4 > len(raw):
+        return "incomplete chunk"
+    if zlib.crc32(mv[p:end]) != crc(raw, end)[0]:
+        return "chunk CRC mismatch"
+    return kind, length, t, end
+
+
+def _next_chunk(raw: bytes, mv: memoryview, p: int) -> int | None:
+    """File position of the first valid chunk after ``p``, None when there is none."""
+    for m in _CHUNK_TYPE.finditer(raw, p + 1):
+        if not isinstance(_chunk_at(raw, mv, m.start()), str):
+            return m.start()
+    return None
+
+
+@dataclass
+class _Chunks:
+    """What a capture's chunks hold: the serial bytes (``pieces``, each at stream offset ``offsets`` received at
+    ``times``), events, host and other typed chunks, the damaged stretches skipped and why the file ended early."""
+
+    pieces: list[memoryview] = field(default_factory=list)
+    offsets: list[int] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    events: list[CaptureEvent] = field(default_factory=list)
+    typed: dict[int, list[tuple[float, bytes]]] = field(default_factory=dict)
+    host: list[HostChunk] = field(default_factory=list)
+    damaged: list[tuple[int, int, str]] = field(default_factory=list)  # (file byte, length, why) of each stretch
     cut: str | None = None
+
+
+def _read_chunks(raw: bytes, pos: int) -> _Chunks:
+    """Every chunk from file position ``pos``; a damaged middle loses only itself, damage with no valid chunk after
+    it ends the file."""
+    mv = memoryview(raw)
+    n = len(raw)
+    out = _Chunks()
+    offsets, times, pieces, chunk_at, head = out.offsets, out.times, out.pieces, _chunk_at, _CHUNK_HEAD.size
+    total = 0
     while pos < n:
-        found = chunk_at(pos)
+        found = chunk_at(raw, mv, pos)
         if isinstance(found, str):
-            # damaged: look for the next valid chunk (a damaged middle loses only itself), else it is the end
-            resume = None
-            for m in _CHUNK_TYPE.finditer(raw, pos + 1):
-                if not isinstance(chunk_at(m.start()), str):
-                    resume = m.start()
-                    break
+            resume = _next_chunk(raw, mv, pos)
             if resume is None:
-                cut = (
+                out.cut = (
                     f"capture cut short or damaged at file byte {pos} ({found}); read {total} bytes of serial "
                     f"data up to the last complete chunk, {n - pos} trailing bytes ignored"
                 )
                 break
-            damaged.append((pos, resume - pos, found))
-            events.append(
-                CaptureEvent(
-                    times[-1] if times else 0.0, "damaged", f"{resume - pos} capture bytes unreadable here", total
-                )
-            )
+            out.damaged.append((pos, resume - pos, found))
+            t = times[-1] if times else 0.0
+            out.events.append(CaptureEvent(t, "damaged", f"{resume - pos} capture bytes unreadable here", total))
             pos = resume
             continue
         kind, length, t, end = found
-        payload = mv[pos + head_size : end]
+        payload = mv[pos + head : end]
         if kind == CHUNK_DATA:
             offsets.append(total)
             times.append(t)
             pieces.append(payload)
             total += length
         elif kind == CHUNK_HOST:
-            host.append(HostChunk(t, bytes(payload), total))
-        elif kind != CHUNK_EVENT:
-            typed.setdefault(kind, []).append((t, bytes(payload)))
+            out.host.append(HostChunk(t, bytes(payload), total))
+        elif kind == CHUNK_EVENT:
+            out.events.append(_event(t, payload, total))
         else:
-            try:
-                ev = json.loads(bytes(payload).decode("utf-8"))
-                events.append(CaptureEvent(t, str(ev.get("kind", "")), str(ev.get("text", "")), total))
-            except (ValueError, UnicodeDecodeError, AttributeError):
-                events.append(CaptureEvent(t, "unreadable-event", "", total))
+            out.typed.setdefault(kind, []).append((t, bytes(payload)))
         pos = end + 4
-    problems = ([_damage_summary(damaged)] if damaged else []) + ([cut] if cut else [])
-    warning = f"{path}: " + "; ".join(problems) + "." if problems else None
-    if warning is not None:
-        warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
-    return Capture(
-        path=path,
-        header=header,
-        data=b"".join(pieces),
-        chunk_offsets=np.asarray(offsets, dtype=np.int64),
-        chunk_times_s=np.asarray(times, dtype=np.float64),
-        events=events,
-        truncated=warning is not None,
-        warning=warning,
-        chunks=typed,
-        host=host,
-    )
+    return out
+
+
+def _event(t: float, payload: memoryview, offset: int) -> CaptureEvent:
+    """The event of an E chunk's JSON payload (an "unreadable-event" when it does not read)."""
+    try:
+        ev = json.loads(bytes(payload).decode("utf-8"))
+        return CaptureEvent(t, str(ev.get("kind", "")), str(ev.get("text", "")), offset)
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        return CaptureEvent(t, "unreadable-event", "", offset)
 
 
 #: Damaged stretches a warning lists by position; the rest are counted.

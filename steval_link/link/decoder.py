@@ -245,127 +245,106 @@ class StreamDecoder:
         return q
 
     def _run(self, final: bool) -> list[Frame]:
+        """Decide every candidate in the buffer that can be decided now; the rest waits for more bytes."""
         buf = self._buf
         n = len(buf)
         p = 0
         out: list[Frame] = []
-        stats = self.stats
         while p < n:
             if self._skipping:
                 p = self._go_on_skipping(buf, p, n)
                 continue
             c = buf[p]
             if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
-                stats.blank_bytes += 1
+                self.stats.blank_bytes += 1
                 p += 1
                 continue
-            if c == _SYNC0:
-                # ---- binary frame candidate
-                if n - p < _HEAD:
-                    if not final and (n - p < 2 or buf[p + 1] == _SYNC1):
-                        break
-                    p = self._skip(buf, p, n)
-                    continue
-                vt = buf[p + 2]
-                ln = buf[p + 3]
-                ver = vt >> 4
-                if buf[p + 1] != _SYNC1 or ver not in _CHECK or (ver == _V1 and self._v2_seen):
-                    p = self._skip(buf, p, n)
-                    continue
-                want = _FIXED_LEN.get(vt)
-                known = (ln == want) if want is not None else (vt in _VT_TEXT and ln >= 1)
-                if not known and (want is not None or vt in _VT_TEXT):
-                    p = self._skip(buf, p, n)  # known type, wrong length
-                    continue
-                end = p + _HEAD + ln
-                csz = _CHECK[ver][0]
-                if end + csz > n:
-                    if not final:
-                        break
-                    p = self._skip(buf, p, n)
-                    continue
-                crc_ok = _crc_ok(buf, p + 2, end, ver)
-                if not known:
-                    if crc_ok:
-                        stats.unknown_frames += 1
-                    p = self._skip(buf, p, n)
-                    continue
-                if not crc_ok:
-                    stats.crc_failures += 1
-                    p = self._skip(buf, p, n)
-                    continue
-                if ver == _V2:
-                    self._v2_seen = True
-                self._emit(out, _frame_at(buf, p, vt, ln, csz, self._base + p), ver)
-                p = end + csz
-                self._boundary = True
-                continue
-            # ---- text line candidate
-            dollar = c == 0x24
-            limit = min(n, p + MAX_LINE_BYTES)
-            nl = buf.find(b"\n", p, limit)
-            if nl < 0:
-                if final or limit - p >= MAX_LINE_BYTES:
-                    p = self._skip(buf, p, n)
-                    continue
-                # reject now if the line can no longer become valid (a control byte; "\r" not at the end)
-                if _BAD_PARTIAL.search(buf, p, limit) is not None or buf.find(b"\r", p, limit - 1) >= 0:
-                    p = self._skip(buf, p, n)
-                    continue
-                break  # wait for the rest of the line
-            raw = bytes(buf[p:nl])
-            nbytes = nl + 1 - p
-            if not (raw[:-1] if raw[-1:] == b"\r" else raw).strip(b" \t"):
-                # a blank line: the boundary state is kept. At a line start it is text (it ends a block of lines);
-                # right after damage it may be the end of a damaged line
-                p = nl + 1
-                if self._boundary:
-                    stats.blank_bytes += nbytes
-                    self._read_text(out, "blank")
-                else:
-                    stats.bytes_skipped += nbytes
-                continue
-            text = decode_line(raw)
-            if text is None:
-                p = self._skip(buf, p, n)
-                continue
-            offset = self._base + p
-            if dollar:
-                frame = parse_sentence(raw.rstrip(b"\r"), offset=offset, nbytes=nbytes)
-                if frame is None:
-                    stats.crc_failures += 1
-                    p = self._skip(buf, p, n)
-                    continue
-                if isinstance(frame, TextFrame):
-                    frame.text = text
-            else:
-                if _hides_sentence(raw):  # e.g. a glitch byte before a "$ATT" line: decode the sentence
-                    p = self._skip(buf, p, n)
-                    continue
-                if not self._boundary:
-                    # a whole printable line that may be the tail of a line cut off: skipped, the next one is clean
-                    stats.bytes_skipped += nbytes
-                    p = nl + 1
-                    self._boundary = True
-                    self._read_text(out, "cut_line", text)
-                    continue
-                self._read_text(out, "line", text, offset, nbytes)
-                p = nl + 1
-                self._boundary = True
-                continue
-            self._count(frame)
-            out.append(frame)
-            p = nl + 1
-            self._boundary = True
+            q = self._binary_at(buf, p, n, final, out) if c == _SYNC0 else self._line_at(buf, p, n, final, out)
+            if q is None:
+                break
+            p = q
         if p:
             self._ended_nl = buf[p - 1] == 0x0A
             del buf[:p]
             self._base += p
         if final and buf:  # cannot happen (every candidate is decided when final), kept as a guard
-            stats.bytes_skipped += len(buf)
+            self.stats.bytes_skipped += len(buf)
             self._base += len(buf)
             buf.clear()
         return out
+
+    def _binary_at(self, buf: bytearray, p: int, n: int, final: bool, out: list[Frame]) -> int | None:
+        """The binary frame candidate at ``p``: the position after it (handed out or skipped), None to wait."""
+        if n - p < _HEAD:
+            if not final and (n - p < 2 or buf[p + 1] == _SYNC1):
+                return None
+            return self._skip(buf, p, n)
+        vt = buf[p + 2]
+        ln = buf[p + 3]
+        ver = vt >> 4
+        if buf[p + 1] != _SYNC1 or ver not in _CHECK or (ver == _V1 and self._v2_seen):
+            return self._skip(buf, p, n)
+        want = _FIXED_LEN.get(vt)
+        known = (ln == want) if want is not None else (vt in _VT_TEXT and ln >= 1)
+        if not known and (want is not None or vt in _VT_TEXT):
+            return self._skip(buf, p, n)  # known type, wrong length
+        end = p + _HEAD + ln
+        csz = _CHECK[ver][0]
+        if end + csz > n:
+            return None if not final else self._skip(buf, p, n)
+        crc_ok = _crc_ok(buf, p + 2, end, ver)
+        if not (known and crc_ok):
+            if known:
+                self.stats.crc_failures += 1
+            elif crc_ok:
+                self.stats.unknown_frames += 1
+            return self._skip(buf, p, n)
+        if ver == _V2:
+            self._v2_seen = True
+        self._emit(out, _frame_at(buf, p, vt, ln, csz, self._base + p), ver)
+        self._boundary = True
+        return end + csz
+
+    def _line_at(self, buf: bytearray, p: int, n: int, final: bool, out: list[Frame]) -> int | None:
+        """The text line candidate at ``p``: the position after it (handed out or skipped), None to wait."""
+        limit = min(n, p + MAX_LINE_BYTES)
+        nl = buf.find(b"\n", p, limit)
+        if nl < 0:
+            # wait while the line can still become valid (no control byte; "\r" only at the end)
+            if final or limit - p >= MAX_LINE_BYTES or _BAD_PARTIAL.search(buf, p, limit) is not None:
+                return self._skip(buf, p, n)
+            return None if buf.find(b"\r", p, limit - 1) < 0 else self._skip(buf, p, n)
+        raw = bytes(buf[p:nl])
+        nbytes = nl + 1 - p
+        if not (raw[:-1] if raw[-1:] == b"\r" else raw).strip(b" \t"):
+            # a blank line keeps the boundary state: text at a line start, maybe a damaged line's end after damage
+            if self._boundary:
+                self.stats.blank_bytes += nbytes
+                self._read_text(out, "blank")
+            else:
+                self.stats.bytes_skipped += nbytes
+            return nl + 1
+        text = decode_line(raw)
+        dollar = buf[p] == 0x24
+        if text is None or (not dollar and _hides_sentence(raw)):  # e.g. a glitch byte before a "$ATT" line
+            return self._skip(buf, p, n)
+        if dollar:
+            frame = parse_sentence(raw.rstrip(b"\r"), offset=self._base + p, nbytes=nbytes)
+            if frame is None:
+                self.stats.crc_failures += 1
+                return self._skip(buf, p, n)
+            if isinstance(frame, TextFrame):
+                frame.text = text
+            self._count(frame)
+            out.append(frame)
+        elif self._boundary:
+            self._read_text(out, "line", text, self._base + p, nbytes)
+        else:
+            # a whole printable line that may be the tail of a line cut off: skipped, the next one is clean
+            self.stats.bytes_skipped += nbytes
+            self._read_text(out, "cut_line", text)
+        self._boundary = True
+        return nl + 1
 
     def _read_text(self, out: list[Frame], method: str, *args) -> None:
         """One call of the text reader (``line``, ``cut_line``, ``blank``, ``finish``), told first of any damage
@@ -553,45 +532,54 @@ def decode_bytes(
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``chunk_times`` is ``(chunk_offsets, t_host_s)``: the stream offset where each received chunk starts and the
-    host time (s since capture start) when it was received; each frame gets the time of the chunk its last byte
-    arrived in, moved back by the bytes after it in that chunk at ``baud`` (10 bit times per byte) when ``baud``
-    is given. Without ``chunk_times`` host times are NaN.
+    ``chunk_times`` is ``(chunk_offsets, t_host_s)``: where each received chunk starts in the stream and when it
+    arrived (s since capture start). A frame gets the time of the chunk its last byte came in, moved back by the
+    bytes after it at ``baud`` (10 bit times a byte) when ``baud`` is given. Without ``chunk_times`` host times
+    are NaN. ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of the commands the host sent (a capture's H
+    chunks); ``Telemetry.commands`` holds them after those found in the bytes. ``line_start`` and
+    ``plausibility`` mean what they mean for :class:`StreamDecoder`.
 
-    ``sent_commands``: rows (``COMMAND_ROW_DTYPE``, timed) of the commands the host sent, e.g. a capture's chunks H
-    (:func:`steval_link.link.load.sent_command_rows`); ``Telemetry.commands`` holds them after those found in the
-    bytes themselves.
-
-    ``line_start``: the first byte starts a line (a log file; as ``StreamDecoder(line_start=True)``).
-
-    ``plausibility`` False turns the plausibility gate off (as ``StreamDecoder(plausibility=False)``; for tests of
-    the framing alone).
-
-    Same frames and counters as :class:`StreamDecoder` on the same bytes (then :meth:`StreamDecoder.finish`): runs
-    of back-to-back valid binary frames are decoded with numpy, everything else (damage, text mode) by a
-    :class:`StreamDecoder` over just those regions.
+    Same frames and counters as :class:`StreamDecoder` on the same bytes: runs of back-to-back valid binary frames
+    are decoded with numpy, every other region by one :class:`StreamDecoder`.
     """
-
     data = bytes(data)
-    n = len(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
-    nxt = starts + sizes
-    K = len(starts)
-    # run_end[k]: last index of the run of back-to-back frames that starts at k
-    breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if K > 1 else np.zeros(0, np.int64)
     parts = TelemetryParts()
-    fast_idx: list[np.ndarray] = []
+    fast, sd, slow_frames = _decode_regions(data, starts, sizes, first_v2, line_start, parts.record_blocks)
+    _add_fast_frames(parts, arr, data, starts[fast], vts[fast], sizes[fast])
+    for f in slow_frames:
+        parts.add_frame(f)
+    gate = PlausibilityGate()
+    if plausibility:
+        parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
+        gate.finish()
+    v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
+    stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)
+    parts.sent_commands = sent_commands
+    return Telemetry.from_parts(
+        parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=len(data)
+    )
+
+
+def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: bool, blocks: list[RecordBlock]):
+    """Walk ``data``: runs of back-to-back valid frames (``starts``, ``sizes``) are left to numpy, the regions
+    between them go through one :class:`StreamDecoder`. Returns (indices of the frames in runs, that decoder after
+    :meth:`~StreamDecoder.finish`, its frames)."""
+    n, count = len(data), len(starts)
+    nxt = starts + sizes
+    breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run
+    fast: list[np.ndarray] = []
     sd = StreamDecoder(plausibility=False, line_start=line_start)
-    slow_frames: list[Frame] = []
+    frames: list[Frame] = []
     p = 0
     last_fast = False
     while p < n:
         k = int(np.searchsorted(starts, p))
-        if not sd.pending_bytes and k < K and starts[k] == p:
+        if not sd.pending_bytes and k < count and starts[k] == p:
             b = int(np.searchsorted(breaks, k))
-            j = int(breaks[b]) if b < len(breaks) else K - 1
-            fast_idx.append(np.arange(k, j + 1))
+            j = int(breaks[b]) if b < len(breaks) else count - 1
+            fast.append(np.arange(k, j + 1))
             p = int(nxt[j])
             last_fast = True
             continue
@@ -600,33 +588,30 @@ def decode_bytes(
         if first_v2 < p:
             sd.lock_version_2()
         last_fast = False
-        end = int(nxt[k]) if k < K else n
-        slow_frames.extend(_feed_region(sd, data, p, end, parts.record_blocks))
+        end = int(nxt[k]) if k < count else n
+        frames.extend(_feed_region(sd, data, p, end, blocks))
         p = end
-    slow_frames.extend(sd.finish())
+    frames.extend(sd.finish())
+    return (np.concatenate(fast) if fast else np.zeros(0, np.int64)), sd, frames
 
-    idx = np.concatenate(fast_idx) if fast_idx else np.zeros(0, np.int64)
-    f_starts, f_vts, f_sizes = starts[idx], vts[idx], sizes[idx]
-    f_types = f_vts & 0x0F
-    is_att, is_sta = f_types == P.TYPE_ATTITUDE, f_types == P.TYPE_STATUS
-    parts.add_attitude_payloads(arr, f_starts[is_att] + P.HEADER_SIZE, f_starts[is_att], f_sizes[is_att])
-    parts.add_status_payloads(arr, f_starts[is_sta] + P.HEADER_SIZE, f_starts[is_sta], f_sizes[is_sta])
+
+def _add_fast_frames(parts: TelemetryParts, arr: np.ndarray, data: bytes, starts, vts, sizes) -> None:
+    """The frames of the runs into ``parts``: attitude and status as arrays, the others one by one."""
+    types = vts & 0x0F
+    is_att, is_sta = types == P.TYPE_ATTITUDE, types == P.TYPE_STATUS
+    parts.add_attitude_payloads(arr, starts[is_att] + _HEAD, starts[is_att], sizes[is_att])
+    parts.add_status_payloads(arr, starts[is_sta] + _HEAD, starts[is_sta], sizes[is_sta])
     other = ~(is_att | is_sta)
-    for s, vt, size in zip(f_starts[other].tolist(), f_vts[other].tolist(), f_sizes[other].tolist()):
+    for s, vt, size in zip(starts[other].tolist(), vts[other].tolist(), sizes[other].tolist()):
         ln = data[s + 3]
         parts.add_frame(_frame_at(data, s, vt, ln, size - _HEAD - ln, s))
-    for f in slow_frames:
-        parts.add_frame(f)
 
-    gate = PlausibilityGate()
-    if plausibility:
-        parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
-        gate.finish()
 
+def _bulk_stats(parts: TelemetryParts, st: DecoderStats, gate: PlausibilityGate, n: int, v1_fast: int):
+    """The counters of the whole stream: the frames in ``parts`` and the stream decoder's ``st`` of the rest."""
     att, sta = parts.attitude_records(), parts.status_records()  # in stream order, kept so for from_parts
     exact = att["exact"]
     kinds = [_COUNTER[type(f)] for f in parts.others]
-    st = sd.stats
     stats = DecoderStats(
         attitude=len(att),
         status=len(sta),
@@ -639,7 +624,7 @@ def decode_bytes(
         blank_bytes=st.blank_bytes,
         unknown_frames=st.unknown_frames,
         bytes_total=n,
-        v1_frames=st.v1_frames + int(np.count_nonzero((f_vts >> 4) == _V1)),
+        v1_frames=st.v1_frames + v1_fast,
         implausible=gate.held_back,
         held_values=gate.held_values,
     )
@@ -651,7 +636,4 @@ def decode_bytes(
         stats.attitude + stats.status + stats.text + stats.text_records + stats.flight + stats.ack + stats.command
     )
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
-    parts.sent_commands = sent_commands
-    return Telemetry.from_parts(
-        parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=n
-    )
+    return stats
