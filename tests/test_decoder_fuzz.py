@@ -182,12 +182,28 @@ def test_damage_never_yields_unsent_frames_and_recovers_intact_ones(case, data):
     for f, (off, b) in zip(got, decoded):
         if isinstance(f, TextFrame) and stream[off] not in (0xA5, 0x24):
             continue  # a plain log line has no checksum (none is sent here; see test below)
-        assert b.rstrip(b"\r\n") in sent_set, f"decoded a frame that was not sent at {off}: {b!r}"
+        line = b.rstrip(b"\r\n")
+        if stream[off] == 0x24 and line not in sent_set and any(_xor_blind(line, s) for s in sent_set):
+            continue  # bytes deleted whose XOR is 0 (two equal characters): a text checksum cannot see that
+        assert line in sent_set, f"decoded a frame that was not sent at {off}: {b!r}"
     got_set = set(decoded)
     for off, b in intact:
         assert (off, b) in got_set, f"intact frame at {off} not recovered"
     assert stats.bytes_total == len(stream)
-    assert stats.bytes_skipped + sum(len(b) for _, b in decoded) == len(stream)
+    assert stats.bytes_skipped + stats.blank_bytes + sum(len(b) for _, b in decoded) == len(stream)
+
+
+def _xor_blind(line: bytes, sent: bytes) -> bool:
+    """``line`` is ``sent`` with some bytes deleted whose XOR is 0 (an XOR checksum still holds)."""
+    if len(line) >= len(sent):
+        return False
+    i, x = 0, 0
+    for c in sent:
+        if i < len(line) and line[i] == c:
+            i += 1
+        else:
+            x ^= c
+    return i == len(line) and x == 0
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
