@@ -18,6 +18,7 @@ import rerun.blueprint as rrb
 
 from steval_link import constants as C
 from steval_viewer import entities as ent
+from steval_viewer.columns import TEXT_ROOT
 
 #: a legend's height over its plot's at the default window (1600×1000): the angle plots with up to five series,
 #: the accelerometer with three, the small link plots with three
@@ -165,7 +166,7 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
             name="Link health",
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
-        _series("text", "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
+        _series(TEXT_ROOT, "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
         *([ble_view(live, timeline)] if ble else []),
         name="Link",
     )

@@ -132,6 +132,29 @@ def send_scalars(
         )
 
 
+#: Text telemetry: one entity per record shape under this root (the blueprint's "Text telemetry" tab).
+TEXT_ROOT = "text"
+
+
+def text_path(names) -> str:
+    """The entity of one record shape of text telemetry: its series' names joined by ``-``."""
+    return f"{TEXT_ROOT}/{rr.escape_entity_path_part('-'.join(names))}"
+
+
+def log_text_style(rec: rr.RecordingStream, names, units) -> None:
+    """A record shape's legend (static): a line per series, named with its unit where one was printed."""
+    labels = [f"{n} ({u})" if u else n for n, u in zip(names, units)]
+    rec.log(text_path(names), rr.SeriesLines(names=labels), static=True)
+
+
+def send_records(rec: rr.RecordingStream, names, times: Times, values: np.ndarray) -> None:
+    """Records of one shape, (N, k) values: one row of k scalars per record (one ``send_columns``); a value that
+    is not finite is NaN, a gap in its line only."""
+    v = np.asarray(values, dtype=np.float64).reshape(len(times), len(names))
+    v = np.where(np.isfinite(v), v, np.nan)
+    send_rows(rec, text_path(names), times, lambda idx: rr.Scalars.columns(scalars=v if idx is None else v[idx]))
+
+
 def send_transforms(
     rec: rr.RecordingStream, path: str, times: Times, q_wxyz: np.ndarray, valid: np.ndarray | None = None
 ) -> None:

@@ -36,7 +36,7 @@ from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
-from steval_viewer.columns import Times, quaternion_from_euler, send_rows, send_scalars
+from steval_viewer.columns import Times, log_text_style, quaternion_from_euler, send_records, send_rows, send_scalars
 from steval_viewer.record_batch import RowBatch
 from steval_viewer.replay_log import values_bad_note
 
@@ -47,8 +47,7 @@ LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
-#: Text telemetry: its series under this entity; queued records sent at least every this many
-TEXT_ROOT = "text"  # (the blueprint's "Text telemetry" tab)
+#: Text telemetry: queued records are sent at least every this many.
 RECORDS_PER_SEND = 64
 
 #: Estimator names of the live session that mean the bit-exact firmware port.
@@ -109,6 +108,8 @@ class LiveLogger:
         #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
         #: some memory for, so fewer calls keep a long session's memory flat
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
+        #: text records waiting, per record shape (its names): [(fw s, host s, values)]
+        self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
         self._records_queued = 0  # text records queued since the last send
         self._records_sent_s = -math.inf  # host time of that send, s
 
@@ -209,7 +210,13 @@ class LiveLogger:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
     def flush_rows(self) -> None:
-        """Send the queued link/status rows: one ``send_columns`` per entity (rows in time order)."""
+        """Send the queued link/status rows (one ``send_columns`` per entity, rows in time order) and text records
+        (one per record shape)."""
+        for names, rows in self._records.items():
+            if rows:
+                t = np.array([r[:2] for r in rows], dtype=np.float64)
+                send_records(self.rec, names, Times(t[:, 0], t[:, 1]), np.array([r[2] for r in rows]))
+                rows.clear()
         if not self._pending_rows:
             return
         pending, self._pending_rows = self._pending_rows, {}
@@ -267,14 +274,17 @@ class LiveLogger:
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry (``TextRecordFrame``): one scalar series per name under ``text/``, on the
-        host timeline (and the firmware one: the latest row's, else the host time); sent in blocks."""
+        """A record of text telemetry (``TextRecordFrame``): a row of its shape's entity under ``text/`` (a named
+        line per series), on the host timeline (and the firmware one: the latest row's, else the host time); sent
+        in blocks."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
         fw = at.t_fw_s if math.isfinite(at.t_fw_s) else host
-        for name, v in zip(frame.names, frame.values):
-            self._queue_row(f"{TEXT_ROOT}/{name}", fw, host, (v,))
+        if frame.names not in self._records:
+            self._records[frame.names] = []
+            log_text_style(self.rec, frame.names, frame.units)
+        self._records[frame.names].append((fw, host, frame.values))
         self._records_queued += 1
         if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= LINK_INTERVAL_S / 10:
             self._records_queued, self._records_sent_s = 0, host

@@ -31,12 +31,15 @@ from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
 from steval_viewer.columns import (
     Times,
+    log_text_style,
     quaternion_from_euler,
     send_arrows,
+    send_records,
     send_rows,
     send_scalars,
     send_texts,
     send_transforms,
+    text_path,
 )
 from steval_viewer.sinks import log_whole
 
@@ -264,15 +267,18 @@ def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplayS
 
 
 def log_text_series(rec: rr.RecordingStream, series: Any, summary: ReplaySummary) -> None:
-    """Text telemetry (``tel.text_series``): one scalar series per printed name under ``text/``, at each record's
-    time (``t_s``: a timestamp column, the host's times, ST's line rate or the record index) and host time."""
+    """Text telemetry (``tel.text_series``): an entity per record shape under ``text/``, a named line per series
+    (:func:`~steval_viewer.columns.send_records`), at each record's time (``t_s``: a timestamp column, the host's
+    times, ST's line rate or the record index) and host time."""
     if series is None or not len(series):
         return
     times = Times(series.t_s, series.t_host_s)
-    for k, name in enumerate(series.names):
-        path = f"text/{name}"
-        send_scalars(rec, path, times, series.values[:, k])
-        summary.samples[path] = int(np.isfinite(series.values[:, k]).sum())
+    for k, names in enumerate(series.shapes):
+        rows = np.flatnonzero(series.shape == k)
+        cols = [series.names.index(name) for name in names]
+        log_text_style(rec, names, [series.units[c] for c in cols])
+        send_records(rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
+        summary.samples[text_path(names)] = len(rows)
 
 
 def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:

@@ -178,6 +178,7 @@ class ReplayPort:
         clock: Callable[[], float] = time.monotonic,
         emulated: bool = False,
         loop: bool = False,
+        line_start: bool = False,
     ) -> None:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
@@ -185,6 +186,7 @@ class ReplayPort:
         self.port, self.path, self.baudrate, self.timeout = port, path, baudrate, timeout  # as pyserial's
         self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
         self.emulated = emulated  #: the file came from an emulator (its cycle counts are instructions)
+        self.line_start = line_start  #: the file's first byte starts a line (a log: its first line is whole)
         self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
         #: start again after the last byte, one AHRS period later; ``loops``: how many times it did
         self.loop, self.loops, self._t_loop = bool(loop) and len(self.data) > 0, 0, 0.0
@@ -286,6 +288,7 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         paced_by=how,
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
         loop=parsed.loop,
+        line_start=src.line_start,
     )
 
 
