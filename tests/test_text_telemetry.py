@@ -637,9 +637,9 @@ def test_live_says_the_records_and_takes_map(demo, tmp_path, monkeypatch, capsys
         "--estimators", "none", "--out", cap, "--map", "pitch=col1:deg,roll=col2:deg",
     )  # fmt: skip
     assert code == 0, err
-    # the live stream's first line is not known whole (today's rule for a port joined at any point)
-    assert f"text telemetry: {N - 1} records, series col1, col2, col3" in out
-    assert f"{N - 1} attitude frames" in out  # the mapped rows
+    # the replay of a log: its first line is whole, as offline
+    assert f"text telemetry: {N} records, series col1, col2, col3" in out
+    assert f"{N} attitude frames" in out  # the mapped rows
     assert "col1 → pitch, degrees" in err and "col2 → roll, degrees" in err
     code, out, err = run_cli(
         monkeypatch, capsys, "live", "--port", f"replay://{log}?rate=400", "--no-view", "--duration", "1",
