@@ -141,10 +141,15 @@ def text_path(names) -> str:
     return f"{TEXT_ROOT}/{rr.escape_entity_path_part('-'.join(names))}"
 
 
+#: Colours of a record shape's lines, in order (Tableau 10: ten that tell apart; Rerun's own may repeat in nine).
+TEXT_COLORS = (0x1F77B4, 0xFF7F0E, 0x2CA02C, 0xD62728, 0x9467BD, 0x8C564B, 0xE377C2, 0x7F7F7F, 0xBCBD22, 0x17BECF)
+
+
 def log_text_style(rec: rr.RecordingStream, names, units) -> None:
     """A record shape's legend (static): a line per series, named with its unit where one was printed."""
     labels = [f"{n} ({u})" if u else n for n, u in zip(names, units)]
-    rec.log(text_path(names), rr.SeriesLines(names=labels), static=True)
+    colors = [TEXT_COLORS[k % len(TEXT_COLORS)] << 8 | 0xFF for k in range(len(names))]
+    rec.log(text_path(names), rr.SeriesLines(names=labels, colors=colors), static=True)
 
 
 def send_records(rec: rr.RecordingStream, names, times: Times, values: np.ndarray) -> None:
