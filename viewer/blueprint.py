@@ -154,13 +154,7 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
                 y_range=yr.get(ent.LINK),
                 legend_left=True,
             ),
-            _series(
-                ent.LINK_CYCLES,
-                "AHRS cycles/step (max, mean)",
-                live,
-                timeline,
-                legend=False,
-            ),
+            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", live, timeline, legend=False),
             _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
@@ -199,11 +193,7 @@ def attitude_view(
         ),
         rrb.Horizontal(
             _series(
-                ent.PLOT_YAW,
-                f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0",
-                live,
-                timeline,
-                legend=False,
+                ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", live, timeline, legend=False
             ),
             _series(
                 ent.PLOT_DIFF,
@@ -279,11 +269,7 @@ def flight_view(live: bool, timeline: str, never_armed: bool = False) -> rrb.Ver
             contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
         ),
         _series(
-            "/",
-            "yaw thz vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"],
+            "/", "yaw thz vs target (deg)", live, timeline, contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]
         ),
     )
     outer = rrb.Horizontal(

@@ -123,13 +123,7 @@ def send_scalars(
     send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
     starts = bad_run_starts(good)
     if len(starts):
-        send_rows(
-            rec,
-            path,
-            times,
-            lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)),
-            starts,
-        )
+        send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
 
 
 #: Text telemetry: one entity per record shape under this root (the blueprint's "Text telemetry" tab).
@@ -176,13 +170,7 @@ def send_transforms(
             good &= np.asarray(valid, dtype=bool)
         xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
     rows = None if good.all() else np.flatnonzero(good)
-    send_rows(
-        rec,
-        path,
-        times,
-        lambda idx: rr.Transform3D.columns(quaternion=xyzw if idx is None else xyzw[idx]),
-        rows,
-    )
+    send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=xyzw if idx is None else xyzw[idx]), rows)
 
 
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> None:
