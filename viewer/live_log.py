@@ -1,25 +1,17 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-The live session (``steval_link.live``) decodes the serial bytes and calls, in arrival order::
+The live session (``steval_link.live``) calls, in arrival order, ``log_batch(rows)`` (``LiveRows``: N frames and
+their estimates), ``log_status``, ``log_text``, ``log_record`` (text telemetry) and ``log_link`` (decoder counters),
+each with its times, then ``close()``.
 
-    logger = LiveLogger(session.rec, estimator_names=["st-mahony", "accel", "ekf3"])
-    logger.log_batch(rows)               # LiveRows: AttitudeArrays of N frames + their estimates
-    logger.log_status(frame, at)         # a StatusFrame at an EventTime (t_fw_s, t_host_s)
-    logger.log_text(frame, at)           # a TextFrame
-    logger.log_link(stats, t_unix_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
-    logger.close()
+Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
+Status and link rows and text records are queued and sent with the next batch (one ``send_columns`` per entity or
+record shape) and on ``close()``: an ``.rrd`` sink keeps some memory per chunk until the file closes. The entities
+are the replay's (:mod:`steval_viewer.entities`); the blueprint is the live one (10 s window on ``host_time``).
 
-Attitude rows are not held back: ``log_batch`` sends them with one Arrow record batch (one chunk per entity,
-:mod:`steval_viewer.record_batch`: measured, half the cost of ``send_columns`` per entity) before it returns (a
-batch of 1 or of 50 frames costs about the same).
-Status and link rows (about 1 Hz) are queued and sent with the next batch, one chunk per entity, and on
-``close()``: an ``.rrd`` sink keeps memory per chunk until the file closes. The entity layout is the replay's
-(:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on ``host_time``).
-
-The logger logs the times it is given: the pipeline's (``steval_link.live.pipeline``), ``fw_time`` the firmware's
-seconds since boot and ``host_time`` seconds since the capture started, as ``steval replay`` of the capture has them.
-With a live viewer and an ``.rrd`` the session runs two loggers, one per stream of the same recording
-(``sinks.open_session(..., split_file=True)``): the viewer's gets every round, the file's merged batches.
+Times are the pipeline's (``steval_link.live.pipeline``): ``fw_time`` the firmware's s since boot, ``host_time`` s
+since the capture started, as ``steval replay`` of the capture has them. With a live viewer and an ``.rrd`` the
+session runs a logger per stream of the recording: the viewer's gets every round, the file's merged batches.
 """
 
 from __future__ import annotations
@@ -104,9 +96,7 @@ class LiveLogger:
         self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
-        #: link/status rows waiting for the next batch: path -> [(fw s, host s, values)], sent as one chunk per
-        #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
-        #: some memory for, so fewer calls keep a long session's memory flat
+        #: link/status rows waiting for the next batch (see the module docstring): path -> [(fw s, host s, values)]
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
         #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
@@ -210,24 +200,15 @@ class LiveLogger:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
     def flush_rows(self) -> None:
-        """Send the queued link/status rows (one ``send_columns`` per entity, rows in time order) and text records
-        (one per record shape)."""
+        """Send the queued rows: one ``send_columns`` per text record shape and per link/status entity."""
         for names, rows in self._records.items():
             if rows:
-                t = np.array([r[:2] for r in rows], dtype=np.float64)
-                send_records(self.rec, names, Times(t[:, 0], t[:, 1]), np.array([r[2] for r in rows]))
+                send_records(self.rec, names, *_columns(rows))
                 rows.clear()
-        if not self._pending_rows:
-            return
         pending, self._pending_rows = self._pending_rows, {}
         for path, rows in pending.items():
-            rows.sort(key=lambda r: r[0])
-            t_fw = np.array([r[0] for r in rows], dtype=np.float64)
-            t_host = np.array([r[1] for r in rows], dtype=np.float64)
-            values = np.array([r[2] for r in rows], dtype=np.float64)
-            if values.shape[1] == 1:
-                values = values[:, 0]
-            send_scalars(self.rec, path, Times(t_fw, t_host), values)
+            times, values = _columns(sorted(rows, key=lambda r: r[0]))
+            send_scalars(self.rec, path, times, values[:, 0] if values.shape[1] == 1 else values)
 
     def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
         """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
@@ -368,3 +349,9 @@ class LiveLogger:
         """Send the queued rows and flush what was logged."""
         self.flush_rows()
         self.rec.flush()
+
+
+def _columns(rows: list) -> tuple[Times, np.ndarray]:
+    """Queued rows [(fw s, host s, values)] as their times and (N, k) values."""
+    t = np.array([r[:2] for r in rows], dtype=np.float64)
+    return Times(t[:, 0], t[:, 1]), np.array([r[2] for r in rows], dtype=np.float64)

@@ -93,16 +93,10 @@ def parse_replay_url(url: str) -> ReplayUrl:
             if word not in _TRUE + _FALSE:
                 raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
             loop = word in _TRUE
-            continue
-        if key == "rate":  # a text log without times: its records per second
+        elif key == "rate":  # a text log without times: its records per second
             rate = _positive(url, key, values[-1])
-            continue
-        try:
-            speed = float(values[-1])
-        except ValueError:
-            speed = math.nan
-        if not (math.isfinite(speed) and speed > 0):
-            raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
+        else:
+            speed = _positive(url, key, values[-1])
     return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate, loop)
 
 
