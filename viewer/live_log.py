@@ -5,9 +5,10 @@ their estimates), ``log_status``, ``log_text``, ``log_record`` (text telemetry) 
 each with its times, then ``close()``.
 
 Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
-Status and link rows and text records are queued and sent with the next batch (one ``send_columns`` per entity or
-record shape) and on ``close()``: an ``.rrd`` sink keeps some memory per chunk until the file closes. The entities
-are the replay's (:mod:`steval_viewer.entities`); the blueprint is the live one (10 s window on ``host_time``).
+Status and link rows are queued and sent with the next batch, text records after it every
+:data:`RECORDS_INTERVAL_S` (one ``send_columns`` per entity or record shape), all on ``close()``: an ``.rrd`` sink
+keeps some memory per chunk until the file closes. The entities are the replay's (:mod:`steval_viewer.entities`);
+the blueprint is the live one (10 s window on ``host_time``).
 
 Times are the pipeline's (``steval_link.live.pipeline``): ``fw_time`` the firmware's s since boot, ``host_time`` s
 since the capture started, as ``steval replay`` of the capture has them. With a live viewer and an ``.rrd`` the
@@ -39,8 +40,9 @@ LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
-#: Text telemetry: queued records are sent at least every this many.
+#: Text telemetry: queued records are sent when this many wait, or RECORDS_INTERVAL_S after the last send.
 RECORDS_PER_SEND = 64
+RECORDS_INTERVAL_S = 0.05
 
 #: Estimator names of the live session that mean the bit-exact firmware port.
 PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
@@ -171,7 +173,7 @@ class LiveLogger:
         self.frames += n
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
         self._link_from_frames(times, step)
-        self.flush_rows()
+        self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
     def _note_values_bad(self, step: np.ndarray, bad: np.ndarray, times: Times) -> None:
         """The first row of the session with NaN or out-of-range values: one warning on ``log/filter``."""
@@ -199,9 +201,10 @@ class LiveLogger:
     def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
-    def flush_rows(self) -> None:
-        """Send the queued rows: one ``send_columns`` per text record shape and per link/status entity."""
-        for names, rows in self._records.items():
+    def flush_rows(self, *, records: bool = True) -> None:
+        """Send the queued rows: one ``send_columns`` per link/status entity and (``records``) per text record
+        shape."""
+        for names, rows in self._records.items() if records else ():
             if rows:
                 send_records(self.rec, names, *_columns(rows))
                 rows.clear()
@@ -257,7 +260,7 @@ class LiveLogger:
     def log_record(self, frame: Any, at: Any) -> None:
         """A record of text telemetry (``TextRecordFrame``): a row of its shape's entity under ``text/`` (a named
         line per series), on the host timeline (and the firmware one: the latest row's, else the host time); sent
-        in blocks."""
+        in blocks (:data:`RECORDS_PER_SEND`, :data:`RECORDS_INTERVAL_S`)."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
@@ -267,7 +270,7 @@ class LiveLogger:
             log_text_style(self.rec, frame.names, frame.units)
         self._records[frame.names].append((fw, host, frame.values))
         self._records_queued += 1
-        if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= LINK_INTERVAL_S / 10:
+        if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= RECORDS_INTERVAL_S:
             self._records_queued, self._records_sent_s = 0, host
             self.flush_rows()
 
