@@ -62,19 +62,9 @@ _GYRO_UNITS = {
 }
 _UNIT_ALIASES = {"°": "deg", "degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad", "m/s²": "m/s2"}
 _TIME_NAMES = {
-    "t": 1.0,
-    "time": 1.0,
-    "t_s": 1.0,
-    "time_s": 1.0,
-    "timestamp": 1.0,
-    "t_ms": 1e-3,
-    "time_ms": 1e-3,
-    "millis": 1e-3,
-    "ms": 1e-3,
-    "t_us": 1e-6,
-    "time_us": 1e-6,
-    "micros": 1e-6,
-    "us": 1e-6,
+    **dict.fromkeys(("t", "time", "t_s", "time_s", "timestamp"), 1.0),
+    **dict.fromkeys(("t_ms", "time_ms", "millis", "ms"), 1e-3),
+    **dict.fromkeys(("t_us", "time_us", "micros", "us"), 1e-6),
 }
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
 
