@@ -437,6 +437,12 @@ def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, 
     assert names[3:7] == ["gTHR", "motor1_pwm", "thx (deg)", "thy (deg)"] and values.shape == (N, 9)
     printed = [[float(v) for v in line.split(b"\t")] for line in st.read_bytes().splitlines()[3:]]
     np.testing.assert_array_equal(values, printed)
+    st.write_bytes(_st_221117(demo, floats=False))  # %f prints nothing: the integers still plotted, the rest gaps
+    code, _, err = run_cli(monkeypatch, capsys, "replay", st, "--rrd", tmp_path / "nofloat.rrd")
+    assert code == 0, err
+    _, values = _rrd_series(tmp_path / "nofloat.rrd", "text/gELE-gAIL-gRUD-gTHR-motor1_pwm-thx-thy-rc_thx-rc_thy")
+    np.testing.assert_array_equal(values[:, 3], demo["thr"])
+    assert values.shape == (N, 9) and np.isnan(values[:, 4:]).all()
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
