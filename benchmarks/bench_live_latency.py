@@ -14,14 +14,16 @@ batch.
 ``--stream text`` writes ST's release 221117 line instead (``%d\t%d\t%d\t%d\t%f\t%f\t%f\t%f\t%f``, 161.5 lines/s,
 text telemetry: :mod:`steval_link.link.text_telemetry`), its write time in µs in the first two ``%d`` fields (s, µs);
 its latency is taken when ``log_batch`` returns for the attitude row the record maps to (ST's thx, thy); ``both``
-runs the binary stream, then the text stream, and prints how much p99 text adds.
+runs the binary stream, then the text stream (each run), and prints how much text adds to p50 and p99 and to the
+main loop's CPU time per line: a figure that a loaded machine moves less than the latency.
 
 ``--reader transport`` uses ``steval_link.link.transport.SerialReader`` on the pty's slave; ``--reader own`` a minimal
-select()-based reader (hands bytes on as soon as they arrive), to tell the transport's cost apart from the rest.
+select()-based reader (hands bytes on as soon as they arrive), to tell the transport's cost apart from the rest;
+``--reader inline`` no pty: each step's bytes are fed at once and timed in CPU time (:func:`run_inline`).
 
 Goal: p99 <= 5 ms at 161.5 Hz; live text adds no more than 1 ms p99.
 
-    python benchmarks/bench_live_latency.py [--seconds 20] [--reader transport|own|both] [--stream binary|text|both]
+    python benchmarks/bench_live_latency.py [--seconds 20] [--reader transport|own|both|inline] [--stream ...]
         [--runs 3] [--estimators ...]
 """
 
@@ -53,13 +55,34 @@ def st_line(i: int, t_us: int) -> bytes:
     return b"%d\t%d\t%d\t%d\t%f\t%f\t%f\t%f\t%f\n" % (t_us // 10**6, t_us % 10**6, 0, 400, 1200.0, thx, thy, 0.0, 0.0)
 
 
-def fake_drone(master_fd: int, seconds: float, ready, stream: str = "binary") -> None:
-    """Write frames (or ST's text lines) at 161.5 Hz into the pty master; t_us = monotonic µs at write time."""
+def step_bytes(i: int, t_us: int, stream: str) -> bytes:
+    """The bytes of step ``i`` written at monotonic ``t_us``: an attitude frame (and a status frame every 162 steps),
+    or ST's text line."""
     from steval_link.link import protocol as P
 
+    if stream == "text":
+        return st_line(i, t_us)
+    q = (1.0, 0.0, 0.0, 0.0)
+    frame = P.encode_attitude(
+        t_us=t_us % U32,
+        acc_mg=(10.0, -20.0, 1000.0),
+        gyro_mdps=(100.0, 0.0, -50.0),
+        q_wxyz=q,
+        thz_rad=0.0,
+        seq=i,
+        thr=0,
+    )
+    if i % 162 == 161:
+        frame += P.encode_status(
+            step=i, t_us=t_us % U32, q_wxyz=q, int_xyz=(0.0,) * 3, cyc_n=162, cyc_min=9000, cyc_mean=9400, cyc_max=12000
+        )
+    return frame
+
+
+def fake_drone(master_fd: int, seconds: float, ready, stream: str = "binary") -> None:
+    """Write frames (or ST's text lines) at 161.5 Hz into the pty master; t_us = monotonic µs at write time."""
     n = int(seconds * RATE_HZ)
     period = 1.0 / RATE_HZ
-    q = (1.0, 0.0, 0.0, 0.0)
     ready.wait()
     t0 = time.monotonic() + 0.2
     for i in range(n):
@@ -69,32 +92,62 @@ def fake_drone(master_fd: int, seconds: float, ready, stream: str = "binary") ->
             if d <= 0:
                 break
             time.sleep(min(d, 0.002) if d > 0.0005 else 0)
-        t = now_us()
-        if stream == "text":
-            os.write(master_fd, st_line(i, t))
-            continue
-        frame = P.encode_attitude(
-            t_us=t % U32,
-            acc_mg=(10.0, -20.0, 1000.0),
-            gyro_mdps=(100.0, 0.0, -50.0),
-            q_wxyz=q,
-            thz_rad=0.0,
-            seq=i,
-            thr=0,
-        )
-        if i % 162 == 161:
-            frame += P.encode_status(
-                step=i,
-                t_us=t % U32,
-                q_wxyz=q,
-                int_xyz=(0.0, 0.0, 0.0),
-                cyc_n=162,
-                cyc_min=9000,
-                cyc_mean=9400,
-                cyc_max=12000,
-            )
-        os.write(master_fd, frame)
+        os.write(master_fd, step_bytes(i, now_us(), stream))
     time.sleep(0.3)
+
+
+def _time_estimators(pipe) -> list[float]:
+    """The wall time of each call of the pipeline's estimators, ms (filled as they run)."""
+    est_ms: list[float] = []
+    process = pipe.estimators.process if pipe.estimators is not None else None
+    if process is not None:
+
+        def timed(batch, _process=process):
+            t = time.perf_counter()
+            _process(batch)
+            est_ms.append((time.perf_counter() - t) * 1e3)
+
+        pipe.estimators.process = timed
+    return est_ms
+
+
+def run_inline(seconds: float, estimators: list[str], stream: str) -> dict:
+    """``--reader inline``: no port, no thread, no waiting; each step's bytes go through the live pipeline and its
+    logger (.rrd sink) as one chunk, and its figure is the main thread's CPU time for it (``time.thread_time``),
+    which other processes on a loaded machine move much less than a latency."""
+    from steval_link.live import pipeline
+    from steval_viewer.live_log import LiveLogger
+    from steval_viewer.sink_options import SinkOptions
+    from steval_viewer.sinks import open_session
+
+    with tempfile.TemporaryDirectory() as tmp:
+        session = open_session(SinkOptions(rrd=Path(tmp) / "inline.rrd"))
+        viewer = _TimedViewer(LiveLogger(session.rec, estimators))
+        pipe = pipeline.LivePipeline(estimators, viewer, view_interval_s=pipeline.VIEW_INTERVAL_S)
+        est_ms, cpu_ms, t0 = _time_estimators(pipe), [], time.time()
+        for i in range(int(seconds * RATE_HZ)):
+            data = step_bytes(i, int(i * 1e6 / RATE_HZ), stream)
+            t = time.thread_time()
+            pipe.feed([(data, t0 + i / RATE_HZ)])
+            pipe.tick(time.monotonic())
+            cpu_ms.append((time.thread_time() - t) * 1e3)
+        pipe.flush_view()
+        session.close()
+    cpu = np.array(cpu_ms[int(RATE_HZ) :])  # skip the first second (warm-up)
+    return {
+        "reader": "inline",
+        "stream": stream,
+        "frames": len(cpu_ms),
+        "p50": float(np.percentile(cpu, 50)),
+        "p90": float(np.percentile(cpu, 90)),
+        "p99": float(np.percentile(cpu, 99)),
+        "max": float(cpu.max()),
+        "log_p50": float(np.percentile(viewer.log_ms, 50)),
+        "log_p99": float(np.percentile(viewer.log_ms, 99)),
+        "batch_mean": float(np.mean(viewer.batch_sizes)),
+        "est_p50": float(np.percentile(est_ms, 50)) if est_ms else 0.0,
+        "cpu_ms": float(cpu.mean()),
+    }
 
 
 class _OwnInbox:
@@ -199,24 +252,18 @@ def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "
     viewer.text = stream == "text"
     # the live viewer's path: every processing round is logged at once (pipeline.VIEW_INTERVAL_S)
     pipe = pipeline.LivePipeline(estimators, viewer, view_interval_s=pipeline.VIEW_INTERVAL_S)
-    est_ms: list[float] = []
-    process = pipe.estimators.process if pipe.estimators is not None else None
-    if process is not None:
-
-        def timed(batch, _process=process):
-            t = time.perf_counter()
-            _process(batch)
-            est_ms.append((time.perf_counter() - t) * 1e3)
-
-        pipe.estimators.process = timed
+    est_ms = _time_estimators(pipe)
+    loop_cpu_s = 0.0  # the main loop's CPU time (thread time) spent decoding, estimating, logging
     ready.set()
     deadline = time.monotonic() + seconds + 1.5
     while time.monotonic() < deadline:  # the session's main loop (steval_link.live.session.LiveSession._loop)
         chunks = inbox.get_all(0.02)
+        t_cpu = time.thread_time()
         if chunks:
             pipe.feed(chunks)
             viewer.log_link(pipe.decoder.stats, clock.now_s())
         pipe.tick(time.monotonic())
+        loop_cpu_s += time.thread_time() - t_cpu
         if not writer.is_alive() and not chunks:
             break
     stop.set()
@@ -244,13 +291,14 @@ def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "
         "log_p99": float(np.percentile(viewer.log_ms, 99)),
         "batch_mean": float(np.mean(viewer.batch_sizes)),
         "est_p50": float(np.percentile(est_ms, 50)) if est_ms else 0.0,
+        "cpu_ms": loop_cpu_s * 1e3 / max(1, len(viewer.lat_us)),
     }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
-    ap.add_argument("--reader", choices=("transport", "own", "both"), default="both")
+    ap.add_argument("--reader", choices=("transport", "own", "both", "inline"), default="both")
     ap.add_argument(
         "--estimators", default=None, help="comma list (default: the live session's defaults that are installed)"
     )
@@ -270,24 +318,33 @@ def main() -> None:
             except ImportError:
                 print("transport: steval_link.link.transport not present, skipped")
                 continue
-        p99: dict[str, list[float]] = {s: [] for s in streams}
+        figs: dict[str, dict[str, list[float]]] = {s: {"p50": [], "p99": [], "cpu_ms": []} for s in streams}
         for _ in range(args.runs):
             for stream in streams:
-                res = run_once(r, args.seconds, estimators, stream)
-                p99[stream].append(res["p99"])
+                res = (
+                    run_inline(args.seconds, estimators, stream)
+                    if r == "inline"
+                    else run_once(r, args.seconds, estimators, stream)
+                )
+                for k, v in figs[stream].items():
+                    v.append(res[k])
                 what = "frames" if stream == "binary" else "ST text lines"
                 print(
-                    f"reader {res['reader']:9s} {stream:6s}: {res['frames']} {what} at {RATE_HZ} Hz, latency last "
-                    f"byte -> logged: p50 {res['p50']:.2f} ms, p90 {res['p90']:.2f} ms, p99 {res['p99']:.2f} ms, "
+                    f"reader {res['reader']:9s} {stream:6s}: {res['frames']} {what} at {RATE_HZ} Hz, "
+                    f"{'CPU per step' if r == 'inline' else 'latency last byte -> logged'}: p50 {res['p50']:.2f} ms, "
+                    f"p90 {res['p90']:.2f} ms, p99 {res['p99']:.2f} ms, "
                     f"max {res['max']:.2f} ms (goal p99 <= 5 ms); log_batch p50 {res['log_p50']:.2f} ms p99 "
                     f"{res['log_p99']:.2f} ms; estimators p50 {res['est_p50']:.2f} ms; {res['batch_mean']:.2f} "
-                    "rows/batch"
+                    f"rows/batch; main loop CPU {res['cpu_ms']:.2f} ms per {what.split()[-1].rstrip('s')}"
                 )
         if len(streams) == 2:
-            text, binary = float(np.median(p99["text"])), float(np.median(p99["binary"]))
+            med = {s: {k: float(np.median(v)) for k, v in figs[s].items()} for s in streams}
+            t, b = med["text"], med["binary"]
             print(
-                f"reader {r}: text p99 {text:.2f} ms vs binary p99 {binary:.2f} ms (medians of {args.runs} run(s)): "
-                f"live text adds {text - binary:+.2f} ms p99 (goal <= 1 ms)"
+                f"reader {r} (medians of {args.runs} run(s)): text p50 {t['p50']:.2f} / p99 {t['p99']:.2f} ms, "
+                f"binary p50 {b['p50']:.2f} / p99 {b['p99']:.2f} ms: live text adds {t['p50'] - b['p50']:+.2f} ms "
+                f"p50, {t['p99'] - b['p99']:+.2f} ms p99 (goal <= 1 ms); main loop CPU {t['cpu_ms']:.2f} ms per "
+                f"line vs {b['cpu_ms']:.2f} ms per frame ({t['cpu_ms'] - b['cpu_ms']:+.2f} ms)"
             )
 
 

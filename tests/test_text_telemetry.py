@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -347,17 +348,22 @@ def test_random_bytes_give_no_records_and_almost_no_text(seed):
     assert stats.text <= 1 and stats.text_dropped >= 0
 
 
-def test_live_replay_of_a_text_log_records_the_text(demo, tmp_path, monkeypatch, capsys):
+def test_live_replay_of_a_text_log_keeps_every_record(demo, tmp_path, monkeypatch, capsys):
+    """A log's first line is whole live too: the capture of its live replay holds every record, as the log."""
     log = tmp_path / "exercise2.log"
-    log.write_bytes(_st_221117(demo))
+    log.write_bytes(_formats(demo)["drone_pitch"][0])  # its first line is a record
     out = tmp_path / "x.stv"
-    code, _, err = run_cli(
-        monkeypatch, capsys, "live", "--port", f"replay://{log}?speed=4", "--no-view", "--duration", "1", "--out", out
+    code, said, err = run_cli(
+        monkeypatch, capsys, "live", "--port", f"replay://{log}?speed=4", "--no-view", "--duration", "3", "--out", out
     )
-    assert code == 0, err
-    code, text, _ = run_cli(monkeypatch, capsys, "replay", out, "--json")
-    t = json.loads(text)["text_telemetry"]
-    assert code == 0 and t["records"] >= N // 2 and t["time_source"] == "host receive times"
+    assert code == 0 and f"text telemetry: {N} records" in said + err, err
+    t = {}
+    for path in (out, log):
+        code, text, _ = run_cli(monkeypatch, capsys, "replay", path, "--json")
+        t[path] = json.loads(text)["text_telemetry"]
+        assert code == 0 and t[path]["records"] == N
+    assert t[out]["time_source"] == "host receive times" and t[out]["series"] == t[log]["series"]
+    np.testing.assert_array_equal(load_telemetry(out).text_series.values, load_telemetry(log).text_series.values)
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
@@ -379,25 +385,64 @@ def test_bulk_and_stream_decoders_give_the_same_records(demo, name):
     np.testing.assert_array_equal([r.offset for r in recs], tel.text_series.offset)
 
 
+def _rrd_series(path: Path, entity: str) -> tuple[list[str], np.ndarray]:
+    """(legend names, values a row per record in time order) of one entity of text telemetry in an .rrd."""
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():  # a file written as the data came has no footer: read from its start
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        reader = RrdReader(str(path))
+    names, rows = [], []
+    for chunk in reader.stream(store=reader.recordings()[0]):
+        if chunk.entity_path.strip("/") != entity:
+            continue
+        cols = chunk.to_record_batch().to_pydict()
+        if chunk.is_static:
+            names = cols["SeriesLines:names"][-1]
+        else:
+            rows += zip(cols["fw_time"], cols["Scalars:scalars"])
+    return names, np.array([v for _, v in sorted(rows, key=lambda r: r[0])], np.float64)
+
+
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_text_series_reach_rerun_replayed_and_live(demo, tmp_path, monkeypatch, capsys):
-    """One scalar series per printed name under text/, from steval replay --rrd and from the live logger."""
+    """An entity per record shape under text/, a named line per series (units where printed) holding the printed
+    values, from steval replay --rrd and from the live logger."""
     from steval_viewer.rrd_check import read_rrd  # Rerun: only this test needs it
 
     log = tmp_path / "ex2.log"
     log.write_bytes(_formats(demo)["drone_pitch"][0])
+    printed = np.array([[float(b"%f" % v) for v in row] for row in zip(demo["pitch_deg"], demo["roll_deg"])])
     rrd = tmp_path / "replay.rrd"
     code, _, err = run_cli(monkeypatch, capsys, "replay", log, "--rrd", rrd)
     assert code == 0, err
-    samples = read_rrd(rrd).samples
-    assert samples["text/Drone_Pitch"] == samples["text/Drone_Roll"] == N  # a log file's first line is whole
+    entity = "text/Drone_Pitch-Drone_Roll"
+    names, values = _rrd_series(rrd, entity)
+    assert names == ["Drone_Pitch", "Drone_Roll"] and read_rrd(rrd).samples[entity] == N
+    np.testing.assert_array_equal(values, printed)
     live_rrd = tmp_path / "live.rrd"
     code, _, err = run_cli(
         monkeypatch, capsys, "live", "--port", f"replay://{log}?rate=400", "--no-view", "--duration", "2",
         "--out", tmp_path / "live.stv", "--rrd", live_rrd,
     )  # fmt: skip
     assert code == 0, err
-    assert read_rrd(live_rrd).samples["text/Drone_Roll"] == N - 1
+    names, values = _rrd_series(live_rrd, entity)
+    assert names == ["Drone_Pitch", "Drone_Roll"]
+    np.testing.assert_array_equal(values, printed)  # every record, the first line's too
+    st = tmp_path / "st.log"
+    st.write_bytes(_st_221117(demo))
+    code, _, err = run_cli(monkeypatch, capsys, "replay", st, "--rrd", tmp_path / "st.rrd")
+    assert code == 0, err
+    names, values = _rrd_series(tmp_path / "st.rrd", "text/gELE-gAIL-gRUD-gTHR-motor1_pwm-thx-thy-rc_thx-rc_thy")
+    assert names[3:7] == ["gTHR", "motor1_pwm", "thx (deg)", "thy (deg)"] and values.shape == (N, 9)
+    printed = [[float(v) for v in line.split(b"\t")] for line in st.read_bytes().splitlines()[3:]]
+    np.testing.assert_array_equal(values, printed)
+    st.write_bytes(_st_221117(demo, floats=False))  # %f prints nothing: the integers still plotted, the rest gaps
+    code, _, err = run_cli(monkeypatch, capsys, "replay", st, "--rrd", tmp_path / "nofloat.rrd")
+    assert code == 0, err
+    _, values = _rrd_series(tmp_path / "nofloat.rrd", "text/gELE-gAIL-gRUD-gTHR-motor1_pwm-thx-thy-rc_thx-rc_thy")
+    np.testing.assert_array_equal(values[:, 3], demo["thr"])
+    assert values.shape == (N, 9) and np.isnan(values[:, 4:]).all()
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
@@ -515,7 +560,8 @@ def test_live_viewer_shows_a_printf_stream(demo, tmp_path):
                 assert proc.wait_line("reading ", 90) is not None, proc.stderr
                 feeder.start()
                 rec = viewer_recording(url, timeline="ahrs_step", end=300, timeout_s=90)
-                assert {"/plots/pitch_thx_deg/firmware", "/text/thx", "/text/gTHR"} <= rec.entities
+                st_series = "/text/gELE-gAIL-gRUD-gTHR-motor1_pwm-thx-thy-rc_thx-rc_thy"  # a line per name
+                assert {"/plots/pitch_thx_deg/firmware", st_series} <= rec.entities
                 png = screenshot(url, tmp_path / "live_printf.png")
                 assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
                 rc = proc.finish(timeout_s=30, sig=signal.SIGINT)
@@ -597,9 +643,9 @@ def test_live_says_the_records_and_takes_map(demo, tmp_path, monkeypatch, capsys
         "--estimators", "none", "--out", cap, "--map", "pitch=col1:deg,roll=col2:deg",
     )  # fmt: skip
     assert code == 0, err
-    # the live stream's first line is not known whole (today's rule for a port joined at any point)
-    assert f"text telemetry: {N - 1} records, series col1, col2, col3" in out
-    assert f"{N - 1} attitude frames" in out  # the mapped rows
+    # the replay of a log: its first line is whole, as offline
+    assert f"text telemetry: {N} records, series col1, col2, col3" in out
+    assert f"{N} attitude frames" in out  # the mapped rows
     assert "col1 → pitch, degrees" in err and "col2 → roll, degrees" in err
     code, out, err = run_cli(
         monkeypatch, capsys, "live", "--port", f"replay://{log}?rate=400", "--no-view", "--duration", "1",

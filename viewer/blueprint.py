@@ -18,6 +18,7 @@ import rerun.blueprint as rrb
 
 from steval_link import constants as C
 from steval_viewer import entities as ent
+from steval_viewer.columns import TEXT_ROOT
 
 #: a legend's height over its plot's at the default window (1600×1000): the angle plots with up to five series,
 #: the accelerometer with three, the small link plots with three
@@ -37,10 +38,9 @@ def _time_ranges(live: bool, timeline: str):
 
 
 def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
-    """Where a plot's legend sits: on the right in a replay (the end of a flight, usually calm: the demo's pitch
-    dip near 17 s stays clear of it), on the left live, where the right edge is the newest data; at the top, or at
-    the bottom for plots whose top holds data (the accelerometer's z ≈ +1000 mg); ``left``: on the left in a replay
-    too (cumulative counts, which start low)."""
+    """Where a plot's legend sits: on the right in a replay (a flight's calm end), on the left live (the right
+    edge is the newest data) or with ``left`` (cumulative counts start low); at the top, or at the ``bottom`` for
+    plots whose top holds data (the accelerometer's z ≈ +1000 mg)."""
     if live or left:
         return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
     return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
@@ -101,20 +101,13 @@ def make_blueprint(
 ) -> rrb.Blueprint:
     """The default blueprint.
 
-    ``live``: scrolling window of the last 10 s (else the whole flight). ``ghost_sources``: source segments that
-    have a ghost drone (``entities.estimate_path``); ``ghost`` is the one shown (default: the ST-Mahony port if
-    present, else the first by ``entities.GHOST_PREFERENCE``); the others stay in the view, hidden, and can be
-    switched on in the blueprint panel. ``timeline``: the active timeline (default ``fw_time`` for replays,
-    ``host_time`` live). ``gyro_max_dps``: the largest gyro rate of the recording (a replay): the gyro plot gets a
-    fixed symmetric range with labelled ends (:func:`axis_limit`); None: automatic range. ``flight_control``: the
-    recording has flight-control frames: the right side gets a second tab, "Flight control" (:func:`flight_view`).
-    ``never_armed``: the flight-control frames never show the drone armed: the tab says so in its name.
-    ``port_verdict``: the replica's verdict in words (:func:`port_verdict`), shown in the difference panel's title.
-    ``y_ranges``: fixed y ranges by plot entity (a replay: :func:`legend_room`, so that a legend covers no data).
-    ``ble``: a BLE link: its own values get a tab under the link (:func:`ble_view`).
-
-    The replica (ST-Mahony port) is drawn only in the difference panel: bit-exact, it would hide the firmware's line
-    in the angle plots.
+    ``live``: a scrolling window of the last 10 s (else the whole flight). ``ghost_sources``: the sources with a
+    ghost drone; ``ghost`` the one shown (default: the replica, else by ``entities.GHOST_PREFERENCE``), the others
+    hidden. ``timeline``: the active one (default ``fw_time``, live ``host_time``). ``gyro_max_dps``: the gyro plot's
+    symmetric range (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab
+    (:func:`flight_view`), named so when ``never_armed``. ``port_verdict``: the replica's verdict, in the difference
+    panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
+    (:func:`ble_view`). The replica is drawn only in the difference panel: bit-exact, it would hide the firmware.
     """
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
@@ -153,19 +146,13 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
                 y_range=yr.get(ent.LINK),
                 legend_left=True,
             ),
-            _series(
-                ent.LINK_CYCLES,
-                "AHRS cycles/step (max, mean)",
-                live,
-                timeline,
-                legend=False,
-            ),
+            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", live, timeline, legend=False),
             _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
             grid_columns=2,
             name="Link health",
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
-        _series("text", "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
+        _series(TEXT_ROOT, "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
         *([ble_view(live, timeline)] if ble else []),
         name="Link",
     )
@@ -198,11 +185,7 @@ def attitude_view(
         ),
         rrb.Horizontal(
             _series(
-                ent.PLOT_YAW,
-                f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0",
-                live,
-                timeline,
-                legend=False,
+                ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", live, timeline, legend=False
             ),
             _series(
                 ent.PLOT_DIFF,
@@ -278,11 +261,7 @@ def flight_view(live: bool, timeline: str, never_armed: bool = False) -> rrb.Ver
             contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
         ),
         _series(
-            "/",
-            "yaw thz vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"],
+            "/", "yaw thz vs target (deg)", live, timeline, contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]
         ),
     )
     outer = rrb.Horizontal(

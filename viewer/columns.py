@@ -123,13 +123,35 @@ def send_scalars(
     send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
     starts = bad_run_starts(good)
     if len(starts):
-        send_rows(
-            rec,
-            path,
-            times,
-            lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)),
-            starts,
-        )
+        send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
+
+
+#: Text telemetry: one entity per record shape under this root (the blueprint's "Text telemetry" tab).
+TEXT_ROOT = "text"
+
+
+def text_path(names) -> str:
+    """The entity of one record shape of text telemetry: its series' names joined by ``-``."""
+    return f"{TEXT_ROOT}/{rr.escape_entity_path_part('-'.join(names))}"
+
+
+#: Colours of a record shape's lines, in order (Tableau 10: ten that tell apart; Rerun's own may repeat in nine).
+TEXT_COLORS = (0x1F77B4, 0xFF7F0E, 0x2CA02C, 0xD62728, 0x9467BD, 0x8C564B, 0xE377C2, 0x7F7F7F, 0xBCBD22, 0x17BECF)
+
+
+def log_text_style(rec: rr.RecordingStream, names, units) -> None:
+    """A record shape's legend (static): a line per series, named with its unit where one was printed."""
+    labels = [f"{n} ({u})" if u else n for n, u in zip(names, units)]
+    colors = [TEXT_COLORS[k % len(TEXT_COLORS)] << 8 | 0xFF for k in range(len(names))]
+    rec.log(text_path(names), rr.SeriesLines(names=labels, colors=colors), static=True)
+
+
+def send_records(rec: rr.RecordingStream, names, times: Times, values: np.ndarray) -> None:
+    """Records of one shape, (N, k) values: one row of k scalars per record (one ``send_columns``); a value that
+    is not finite is NaN, a gap in its line only."""
+    v = np.asarray(values, dtype=np.float64).reshape(len(times), len(names))
+    v = np.where(np.isfinite(v), v, np.nan)
+    send_rows(rec, text_path(names), times, lambda idx: rr.Scalars.columns(scalars=v if idx is None else v[idx]))
 
 
 def send_transforms(
@@ -148,13 +170,7 @@ def send_transforms(
             good &= np.asarray(valid, dtype=bool)
         xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
     rows = None if good.all() else np.flatnonzero(good)
-    send_rows(
-        rec,
-        path,
-        times,
-        lambda idx: rr.Transform3D.columns(quaternion=xyzw if idx is None else xyzw[idx]),
-        rows,
-    )
+    send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=xyzw if idx is None else xyzw[idx]), rows)
 
 
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> None:

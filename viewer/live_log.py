@@ -1,25 +1,18 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-The live session (``steval_link.live``) decodes the serial bytes and calls, in arrival order::
+The live session (``steval_link.live``) calls, in arrival order, ``log_batch(rows)`` (``LiveRows``: N frames and
+their estimates), ``log_status``, ``log_text``, ``log_record`` (text telemetry) and ``log_link`` (decoder counters),
+each with its times, then ``close()``.
 
-    logger = LiveLogger(session.rec, estimator_names=["st-mahony", "accel", "ekf3"])
-    logger.log_batch(rows)               # LiveRows: AttitudeArrays of N frames + their estimates
-    logger.log_status(frame, at)         # a StatusFrame at an EventTime (t_fw_s, t_host_s)
-    logger.log_text(frame, at)           # a TextFrame
-    logger.log_link(stats, t_unix_s)     # DecoderStats (CRC failures), at most every LINK_INTERVAL_S is logged
-    logger.close()
+Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
+Status and link rows are queued and sent with the next batch, text records after it every
+:data:`RECORDS_INTERVAL_S` (one ``send_columns`` per entity or record shape), all on ``close()``: an ``.rrd`` sink
+keeps some memory per chunk until the file closes. The entities are the replay's (:mod:`steval_viewer.entities`);
+the blueprint is the live one (10 s window on ``host_time``).
 
-Attitude rows are not held back: ``log_batch`` sends them with one Arrow record batch (one chunk per entity,
-:mod:`steval_viewer.record_batch`: measured, half the cost of ``send_columns`` per entity) before it returns (a
-batch of 1 or of 50 frames costs about the same).
-Status and link rows (about 1 Hz) are queued and sent with the next batch, one chunk per entity, and on
-``close()``: an ``.rrd`` sink keeps memory per chunk until the file closes. The entity layout is the replay's
-(:mod:`steval_viewer.entities`), the blueprint the live one (10 s scrolling window on ``host_time``).
-
-The logger logs the times it is given: the pipeline's (``steval_link.live.pipeline``), ``fw_time`` the firmware's
-seconds since boot and ``host_time`` seconds since the capture started, as ``steval replay`` of the capture has them.
-With a live viewer and an ``.rrd`` the session runs two loggers, one per stream of the same recording
-(``sinks.open_session(..., split_file=True)``): the viewer's gets every round, the file's merged batches.
+Times are the pipeline's (``steval_link.live.pipeline``): ``fw_time`` the firmware's s since boot, ``host_time`` s
+since the capture started, as ``steval replay`` of the capture has them. With a live viewer and an ``.rrd`` the
+session runs a logger per stream of the recording: the viewer's gets every round, the file's merged batches.
 """
 
 from __future__ import annotations
@@ -36,7 +29,7 @@ from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
-from steval_viewer.columns import Times, quaternion_from_euler, send_rows, send_scalars
+from steval_viewer.columns import Times, log_text_style, quaternion_from_euler, send_records, send_rows, send_scalars
 from steval_viewer.record_batch import RowBatch
 from steval_viewer.replay_log import values_bad_note
 
@@ -47,9 +40,9 @@ LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
 LINK_INTERVAL_S = 0.5
-#: Text telemetry: its series under this entity; queued records sent at least every this many
-TEXT_ROOT = "text"  # (the blueprint's "Text telemetry" tab)
+#: Text telemetry: queued records are sent when this many wait, or RECORDS_INTERVAL_S after the last send.
 RECORDS_PER_SEND = 64
+RECORDS_INTERVAL_S = 0.05
 
 #: Estimator names of the live session that mean the bit-exact firmware port.
 PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
@@ -105,10 +98,10 @@ class LiveLogger:
         self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
-        #: link/status rows waiting for the next batch: path -> [(fw s, host s, values)], sent as one chunk per
-        #: entity with the batch (or on :meth:`close`); every Rerun log call is a chunk that an .rrd sink keeps
-        #: some memory for, so fewer calls keep a long session's memory flat
+        #: link/status rows waiting for the next batch (see the module docstring): path -> [(fw s, host s, values)]
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
+        #: text records waiting, per record shape (its names): [(fw s, host s, values)]
+        self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
         self._records_queued = 0  # text records queued since the last send
         self._records_sent_s = -math.inf  # host time of that send, s
 
@@ -180,7 +173,7 @@ class LiveLogger:
         self.frames += n
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
         self._link_from_frames(times, step)
-        self.flush_rows()
+        self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
     def _note_values_bad(self, step: np.ndarray, bad: np.ndarray, times: Times) -> None:
         """The first row of the session with NaN or out-of-range values: one warning on ``log/filter``."""
@@ -208,19 +201,17 @@ class LiveLogger:
     def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
-    def flush_rows(self) -> None:
-        """Send the queued link/status rows: one ``send_columns`` per entity (rows in time order)."""
-        if not self._pending_rows:
-            return
+    def flush_rows(self, *, records: bool = True) -> None:
+        """Send the queued rows: one ``send_columns`` per link/status entity and (``records``) per text record
+        shape."""
+        for names, rows in self._records.items() if records else ():
+            if rows:
+                send_records(self.rec, names, *_columns(rows))
+                rows.clear()
         pending, self._pending_rows = self._pending_rows, {}
         for path, rows in pending.items():
-            rows.sort(key=lambda r: r[0])
-            t_fw = np.array([r[0] for r in rows], dtype=np.float64)
-            t_host = np.array([r[1] for r in rows], dtype=np.float64)
-            values = np.array([r[2] for r in rows], dtype=np.float64)
-            if values.shape[1] == 1:
-                values = values[:, 0]
-            send_scalars(self.rec, path, Times(t_fw, t_host), values)
+            times, values = _columns(sorted(rows, key=lambda r: r[0]))
+            send_scalars(self.rec, path, times, values[:, 0] if values.shape[1] == 1 else values)
 
     def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
         """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
@@ -267,16 +258,19 @@ class LiveLogger:
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry (``TextRecordFrame``): one scalar series per name under ``text/``, on the
-        host timeline (and the firmware one: the latest row's, else the host time); sent in blocks."""
+        """A record of text telemetry (``TextRecordFrame``): a row of its shape's entity under ``text/`` (a named
+        line per series), on the host timeline (and the firmware one: the latest row's, else the host time); sent
+        in blocks (:data:`RECORDS_PER_SEND`, :data:`RECORDS_INTERVAL_S`)."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
         fw = at.t_fw_s if math.isfinite(at.t_fw_s) else host
-        for name, v in zip(frame.names, frame.values):
-            self._queue_row(f"{TEXT_ROOT}/{name}", fw, host, (v,))
+        if frame.names not in self._records:
+            self._records[frame.names] = []
+            log_text_style(self.rec, frame.names, frame.units)
+        self._records[frame.names].append((fw, host, frame.values))
         self._records_queued += 1
-        if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= LINK_INTERVAL_S / 10:
+        if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= RECORDS_INTERVAL_S:
             self._records_queued, self._records_sent_s = 0, host
             self.flush_rows()
 
@@ -358,3 +352,9 @@ class LiveLogger:
         """Send the queued rows and flush what was logged."""
         self.flush_rows()
         self.rec.flush()
+
+
+def _columns(rows: list) -> tuple[Times, np.ndarray]:
+    """Queued rows [(fw s, host s, values)] as their times and (N, k) values."""
+    t = np.array([r[:2] for r in rows], dtype=np.float64)
+    return Times(t[:, 0], t[:, 1]), np.array([r[2] for r in rows], dtype=np.float64)

@@ -86,6 +86,8 @@ class RowBatch:
     def _add(
         self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray, all_good: bool
     ) -> None:
+        if not good.any() and self.bad_state.get(path, False):
+            return  # a gap that goes on: nothing to send (its Clear was sent where it began)
         pa = self._pa
         n = self.n
         if kind is _SCALAR:

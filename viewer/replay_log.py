@@ -31,12 +31,15 @@ from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
 from steval_viewer.columns import (
     Times,
+    log_text_style,
     quaternion_from_euler,
     send_arrows,
+    send_records,
     send_rows,
     send_scalars,
     send_texts,
     send_transforms,
+    text_path,
 )
 from steval_viewer.sinks import log_whole
 
@@ -168,10 +171,7 @@ def log_estimate(
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         send_transforms(rec, ent.estimate_path(source), times, q, valid)
         summary.samples[ent.estimate_path(source)] = int((np.isfinite(q).all(axis=1) & valid).sum())
-    for path, values in (
-        (ent.pitch_path(source), _deg(est.thx_rad)),
-        (ent.roll_path(source), _deg(est.thy_rad)),
-    ):
+    for path, values in ((ent.pitch_path(source), _deg(est.thx_rad)), (ent.roll_path(source), _deg(est.thy_rad))):
         send_scalars(rec, path, times, values, valid)
         _count(summary, path, values, valid)
 
@@ -240,39 +240,41 @@ def log_link(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySum
             summary.samples[path] = len(values)
 
 
+def log_texts_at(rec: rr.RecordingStream, path: str, times: Times, t_host: np.ndarray, texts: list, levels: list):
+    """Text entries at host times ``t_host`` (s), their firmware time from the attitude rows' (host, firmware)
+    pairs; an entry without a time (or a stream without host times) is logged without a timeline."""
+    timed = np.isfinite(t_host) & (times.t_host_s is not None)
+    idx = np.flatnonzero(timed)
+    if idx.size:
+        pairs = np.isfinite(times.t_host_s)
+        t_fw = np.interp(t_host[idx], times.t_host_s[pairs], times.t_fw_s[pairs])
+        send_texts(rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
+    for i in np.flatnonzero(~timed):
+        rec.log(path, rr.TextLog(texts[i], level=levels[i]))
+
+
 def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplaySummary) -> None:
-    """Firmware text lines as a text log. Each line has a host time; firmware time is interpolated from the
-    attitude rows' (host, firmware) pairs. Lines without any time are logged without a timeline."""
+    """Firmware text lines as a text log at their host times (:func:`log_texts_at`)."""
     if not text:
         return
     t_host = np.array([float(t) if t is not None else np.nan for t, _ in text], dtype=np.float64)
-    lines = [str(s) for _, s in text]
-    timed = np.isfinite(t_host)
-    if times.t_host_s is not None and timed.any():
-        pairs = np.isfinite(times.t_host_s)
-        t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
-        idx = np.flatnonzero(timed)
-        lt = Times(t_fw[idx], t_host[idx])
-        texts = [lines[i] for i in idx]
-        send_texts(rec, ent.LOG_FIRMWARE, lt, texts, ["INFO"] * len(texts))
-        untimed = np.flatnonzero(~timed)
-    else:
-        untimed = np.arange(len(lines))
-    for i in untimed:
-        rec.log(ent.LOG_FIRMWARE, rr.TextLog(lines[i], level="INFO"))
-    summary.samples[ent.LOG_FIRMWARE] = len(lines)
+    log_texts_at(rec, ent.LOG_FIRMWARE, times, t_host, [str(s) for _, s in text], ["INFO"] * len(text))
+    summary.samples[ent.LOG_FIRMWARE] = len(text)
 
 
 def log_text_series(rec: rr.RecordingStream, series: Any, summary: ReplaySummary) -> None:
-    """Text telemetry (``tel.text_series``): one scalar series per printed name under ``text/``, at each record's
-    time (``t_s``: a timestamp column, the host's times, ST's line rate or the record index) and host time."""
+    """Text telemetry (``tel.text_series``): an entity per record shape under ``text/``, a named line per series
+    (:func:`~steval_viewer.columns.send_records`), at each record's time (``t_s``: a timestamp column, the host's
+    times, ST's line rate or the record index) and host time."""
     if series is None or not len(series):
         return
     times = Times(series.t_s, series.t_host_s)
-    for k, name in enumerate(series.names):
-        path = f"text/{name}"
-        send_scalars(rec, path, times, series.values[:, k])
-        summary.samples[path] = int(np.isfinite(series.values[:, k]).sum())
+    for k, names in enumerate(series.shapes):
+        rows = np.flatnonzero(series.shape == k)
+        cols = [series.names.index(name) for name in names]
+        log_text_style(rec, names, [series.units[c] for c in cols])
+        send_records(rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
+        summary.samples[text_path(names)] = len(rows)
 
 
 def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
@@ -282,15 +284,8 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     if not entries:
         return
     t_host = np.array([e["t_host_s"] for e in entries], dtype=np.float64)
-    texts = [e["text"] for e in entries]
     levels = ["INFO" if e["result"] == 0 else "WARN" for e in entries]
-    if times.t_host_s is not None and np.isfinite(times.t_host_s).any() and np.isfinite(t_host).all():
-        pairs = np.isfinite(times.t_host_s)
-        t_fw = np.interp(t_host, times.t_host_s[pairs], times.t_fw_s[pairs])
-        send_texts(rec, ent.LOG_COMMANDS, Times(t_fw, t_host), texts, levels)
-    else:
-        for text, level in zip(texts, levels):
-            rec.log(ent.LOG_COMMANDS, rr.TextLog(text, level=level))
+    log_texts_at(rec, ent.LOG_COMMANDS, times, t_host, [e["text"] for e in entries], levels)
     summary.samples[ent.LOG_COMMANDS] = len(entries)
 
 

@@ -48,6 +48,12 @@ class Recording(Capture):
     kind: str = "stv"
 
     @property
+    def line_start(self) -> bool:
+        """The first byte starts a line: a log file holds what the port sent from its start, and so does a capture
+        of its live replay (its header says so); any other capture joined the stream anywhere."""
+        return self.kind != "stv" or bool((self.header.get("extra") or {}).get("line_start"))
+
+    @property
     def warnings(self) -> list[str]:
         """What was wrong with the file (a damaged or cut capture), one sentence each."""
         return [self.warning] if self.warning else []
@@ -110,7 +116,7 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
         source=source,
         events=src.events,
         sent_commands=sent_command_rows(src.host),
-        line_start=src.kind != "stv",  # a log file holds what the port sent from its start; a capture joined it
+        line_start=src.line_start,
     )
     if text_map:
         if not len(tel.text_series):

@@ -94,16 +94,10 @@ def parse_replay_url(url: str) -> ReplayUrl:
             if word not in _TRUE + _FALSE:
                 raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
             loop = word in _TRUE
-            continue
-        if key == "rate":  # a text log without times: its records per second
+        elif key == "rate":  # a text log without times: its records per second
             rate = _positive(url, key, values[-1])
-            continue
-        try:
-            speed = float(values[-1])
-        except ValueError:
-            speed = math.nan
-        if not (math.isfinite(speed) and speed > 0):
-            raise UserError(f"{url}: speed must be a positive number, got {values[-1]!r}")
+        else:
+            speed = _positive(url, key, values[-1])
     return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate, loop)
 
 
@@ -179,6 +173,7 @@ class ReplayPort:
         clock: Callable[[], float] = time.monotonic,
         emulated: bool = False,
         loop: bool = False,
+        line_start: bool = False,
     ) -> None:
         self.data = bytes(data)
         self.ends = np.asarray(ends, np.int64)
@@ -186,6 +181,7 @@ class ReplayPort:
         self.port, self.path, self.baudrate, self.timeout = port, path, baudrate, timeout  # as pyserial's
         self.speed, self.paced_by, self.prompt_note = speed, paced_by, PROMPT_NOTE
         self.emulated = emulated  #: the file came from an emulator (its cycle counts are instructions)
+        self.line_start = line_start  #: the file's first byte starts a line (a log: its first line is whole)
         self._clock, self._t0, self._pos = clock, None, 0  # the replay starts at the first read
         #: start again after the last byte, one AHRS period later; ``loops``: how many times it did
         self.loop, self.loops, self._t_loop = bool(loop) and len(self.data) > 0, 0, 0.0
@@ -287,6 +283,7 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         paced_by=how,
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
         loop=parsed.loop,
+        line_start=src.line_start,
     )
 
 

@@ -62,19 +62,9 @@ _GYRO_UNITS = {
 }
 _UNIT_ALIASES = {"°": "deg", "degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad", "m/s²": "m/s2"}
 _TIME_NAMES = {
-    "t": 1.0,
-    "time": 1.0,
-    "t_s": 1.0,
-    "time_s": 1.0,
-    "timestamp": 1.0,
-    "t_ms": 1e-3,
-    "time_ms": 1e-3,
-    "millis": 1e-3,
-    "ms": 1e-3,
-    "t_us": 1e-6,
-    "time_us": 1e-6,
-    "micros": 1e-6,
-    "us": 1e-6,
+    **dict.fromkeys(("t", "time", "t_s", "time_s", "timestamp"), 1.0),
+    **dict.fromkeys(("t_ms", "time_ms", "millis", "ms"), 1e-3),
+    **dict.fromkeys(("t_us", "time_us", "micros", "us"), 1e-6),
 }
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
 
@@ -83,7 +73,8 @@ _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
 class TextSeries:
     """Every record of text telemetry: ``values`` (N, M) float64, a column per name of ``names`` (``units`` as
     written, '' when none); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (s since the capture started,
-    NaN when unknown), ``offset`` (stream byte offset), ``kind`` (the format); ``notes`` what was recognised."""
+    NaN when unknown), ``offset`` (stream byte offset), ``kind`` (the format), ``shape`` (its index in ``shapes``,
+    the names of each record shape); ``notes`` what was recognised."""
 
     names: list[str] = field(default_factory=list)
     units: list[str] = field(default_factory=list)
@@ -94,6 +85,8 @@ class TextSeries:
     kind: np.ndarray = field(default_factory=lambda: np.zeros(0, object))
     t_source: str = ""
     notes: list[str] = field(default_factory=list)
+    shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    shapes: list[tuple[str, ...]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -173,6 +166,8 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
     offset = np.concatenate([b.offset for b in blocks])
     last = np.concatenate([b.offset + b.nbytes - 1 for b in blocks])
     kinds = np.concatenate([np.full(len(b.offset), b.kind, dtype=object) for b in blocks])
+    shapes = list(dict.fromkeys(b.names for b in blocks))
+    shape = np.concatenate([np.full(len(b.offset), shapes.index(b.names)) for b in blocks])
     row = 0
     for b in blocks:
         values[row : row + len(b.offset), [index[name] for name in b.names]] = b.values
@@ -180,6 +175,7 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
     order = np.argsort(offset, kind="stable")
     values, offset, last, kinds = values[order], offset[order], last[order], kinds[order]
     series = TextSeries(list(index), units, values, np.zeros(0), host_times(last), offset, kinds)
+    series.shape, series.shapes = shape[order], shapes
     series.t_s, series.t_source = _record_times(series)
     st = kinds == "st-221117"
     if st.any() and np.isnan(values[st][:, 4:]).all():

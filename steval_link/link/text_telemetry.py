@@ -457,7 +457,6 @@ class TextTelemetryReader:
         self._block_start = True  # the next line starts a block (after a blank or text line, or at the start)
         self._template: tuple | None = None  # (shape, its compiled line template) for the bulk decoder
         self.records = 0  #: records handed out
-        self.lines_cut = 0  #: lines of a record that was not completed (handed out as text)
 
     def line(self, text: str, offset: int, nbytes: int) -> list:
         """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
@@ -566,7 +565,6 @@ class TextTelemetryReader:
 
     def _cut_current(self) -> list:
         _, lines = self._current
-        self.lines_cut += len(lines)
         return [TextFrame(x.text, x.offset, x.nbytes) for x in lines if x.kind != "cut"]
 
     def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:

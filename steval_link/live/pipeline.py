@@ -200,7 +200,8 @@ class LivePipeline:
     for the whole recording (the ``.rrd`` footer), so fewer, larger batches keep memory flat.
 
     ``text_map``: which series of text telemetry are the attitude ({target: (series, unit)},
-    :func:`~steval_link.link.text_series.parse_map`; names and ST's format are mapped without it).
+    :func:`~steval_link.link.text_series.parse_map`; names and ST's format are mapped without it). ``line_start``:
+    the stream's first byte starts a line (the replay of a log), so its first line is read whole.
 
     ``file_logger``: a second logger (the ``.rrd``'s own stream next to a live viewer) that gets the same frames
     merged at its own cadence, ``file_interval_s``. Each logger gets every frame once. Call :meth:`tick`
@@ -219,6 +220,7 @@ class LivePipeline:
         baud: int | None = None,
         ble_layout: BleLayout = LAYOUTS["stock"],
         text_map: dict[str, tuple[str, str]] | None = None,
+        line_start: bool = False,
     ) -> None:
 
         self.view_interval_s = view_interval_s
@@ -228,7 +230,7 @@ class LivePipeline:
             for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
             if logger is not None
         ]
-        self.decoder = StreamDecoder()
+        self.decoder = StreamDecoder(line_start=line_start)
         self.health = LinkHealth()
         self.estimators = LiveEstimators(estimator_names) if estimator_names else None
         self.viewer = viewer
@@ -276,6 +278,7 @@ class LivePipeline:
             baud=session.capture.header["baud"],
             ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
             text_map=getattr(session.options, "text_map", None),
+            line_start=bool(session.info.extra.get("line_start")),
         )
         variant = getattr(session.options, "variant", None) or (session.info.extra.get("filter") or {}).get("variant")
         if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status

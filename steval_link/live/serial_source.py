@@ -142,6 +142,8 @@ class SerialSource(Source):
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
             if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
                 self._extra["emulated"] = True
+            if self.ser.line_start:  # a log: its first line is whole, live and in the capture made of it
+                self._extra["line_start"] = True
         else:
             identity = autodetect.PortIdentity.of(self.path)
             glob = self.url if autodetect.is_glob(self.url) else None
