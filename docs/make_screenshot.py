@@ -167,6 +167,7 @@ def main(what: str, out: str | None = None) -> None:
     if what not in ("all", "figures", "viewer") or (out is not None and what != "viewer"):
         sys.exit("usage: python docs/make_screenshot.py [all|figures|viewer [DIR]]")
     if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
         make_viewer_shots(Path(out))
         return
     if what in ("all", "figures"):
