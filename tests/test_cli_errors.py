@@ -11,6 +11,7 @@ import pytest
 from support.cli import run_cli
 
 from steval_link import __version__
+from steval_link.cli.checks import user_message
 from steval_link.estimators import registry
 
 COMMANDS = ["replay", "live", "record", "export", "ports", "simulate", "synth", "conformance", "compare", "evaluate"]
@@ -315,9 +316,10 @@ def test_a_sink_that_cannot_create_its_file_is_one_sentence():
 
     if not Path("/proc").is_dir():
         pytest.skip("needs /proc")
-    with pytest.raises(UserError, match=r"^--rrd /proc/steval-sink\.rrd: cannot write it \(") as exc:
+    with pytest.raises(UserError, match=r"^rrd= /proc/steval-sink\.rrd: cannot write it \(") as exc:
         open_session(SinkOptions(rrd=Path("/proc/steval-sink.rrd")))
     assert "\n" not in str(exc.value)
+    assert user_message(exc.value).startswith("--rrd /proc/steval-sink.rrd: cannot write it (")  # the CLI's words
 
 
 @pytest.mark.slow

@@ -42,7 +42,7 @@ from typing import Callable, TypeVar
 
 import rerun as rr
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_viewer import QUIETED_RUST_LOG
 from steval_viewer.rrd_writer import RrdWriter
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
@@ -255,12 +255,14 @@ def _wait_listening(child: subprocess.Popen, tcp_port: int, timeout_s: float, wh
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
-            raise UserError(f"the {what} exited at start ({_last_line(log_path)}); use --rrd FILE instead")
+            raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
         if port_open("127.0.0.1", tcp_port, 0.2):
             return
         time.sleep(0.05)
     stop_child(child)
-    raise UserError(f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use --rrd FILE instead")
+    raise ParamError(
+        f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use {{rrd}} FILE instead", "rrd"
+    )
 
 
 def _last_line(log_path: Path) -> str:
@@ -296,7 +298,7 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
     url = proxy_url(tcp_port)
     if not port_free(tcp_port):
         print(
-            f"steval: sending to the viewer already listening on port {tcp_port} (--grpc-port N for a new one)",
+            f"steval: sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)",
             file=sys.stderr,
         )
         return url
@@ -313,8 +315,8 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
     try:
         child = _start(cmd, detached=True, log_path=log_path)
     except OSError as exc:
-        raise UserError(
-            f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
+        raise ParamError(
+            f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
         ) from None
     _wait_listening(child, tcp_port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
     _wait_settled(child, VIEWER_SETTLE_S, log_path)
@@ -327,9 +329,11 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
     deadline = time.monotonic() + settle_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
-            raise UserError(
+            raise ParamError(
                 f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                f"{log_path}); use --rrd FILE or --serve instead"
+                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
+                "rrd",
+                "serve",
             )
         time.sleep(0.05)
 
@@ -378,7 +382,13 @@ def open_session(
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
     if not options.any():
-        raise UserError("no Rerun sink chosen: pass --rrd FILE, --spawn, --serve or --connect URL")
+        raise ParamError(
+            "no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL",
+            "rrd",
+            "spawn",
+            "serve",
+            "connect",
+        )
     if not checked:
         check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
@@ -431,8 +441,8 @@ def open_session(
             session.rrd_partial.unlink(missing_ok=True)
         if isinstance(exc, UserError):
             raise
-        where = f"--rrd {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
-        raise UserError(f"{where} ({_first_line(exc)})") from None
+        where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
+        raise ParamError(f"{where} ({_first_line(exc)})", "rrd") from None
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)

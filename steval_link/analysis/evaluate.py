@@ -32,7 +32,7 @@ from steval_link.analysis.plots import require_matplotlib
 from steval_link.analysis.report import json_number
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators import registry
 from steval_link.link.capture import capture_truth
 from steval_link.link.load import read_recording, telemetry_of_recording
@@ -130,7 +130,7 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
                 raise UserError(registry.duplicate_sentence(s.label))
             out.append(s)
     if not out:
-        raise UserError("--estimators selects no estimator")
+        raise ParamError("{estimators} selects no estimator", "estimators")
     return out
 
 

@@ -11,11 +11,25 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import variant_name
 
 #: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
 MAX_THROTTLE = 32767
+
+
+#: the library parameters whose flag is not ``--`` and the name with dashes
+_FLAGS = {"duration_s": "--duration", "join_at_s": "--join-at", "path": "--out"}
+
+
+def flag_of(param: str) -> str:
+    """The command-line flag of a library parameter (``duration_s`` → ``--duration``)."""
+    return _FLAGS.get(param, "--" + param.replace("_", "-"))
+
+
+def user_message(exc: Exception) -> str:
+    """An error's sentence for a command-line user: a :class:`ParamError` names flags, not parameters."""
+    return exc.worded(flag_of) if isinstance(exc, ParamError) else str(exc)
 
 
 def _num(value: float) -> str:

@@ -55,7 +55,7 @@ from steval_link.emulation.elf import Elf
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUNTS", "joydata_bytes"]
 
@@ -110,7 +110,7 @@ def check_mount(mount: str | None) -> np.ndarray | None:
     if mount is None:
         return None
     if mount not in MOUNTS:
-        raise UserError(f"unknown --mount {mount!r}; one of: {', '.join(MOUNTS)}")
+        raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
     return MOUNTS[mount]
 
 
@@ -129,13 +129,14 @@ class ScenarioMotion:
         # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
         streams = random_streams(seed)
         if trial is None:
-            sc = scenario(name, "or --broad TRIAL.npz")
+            sc = scenario(name, "or {broad} TRIAL.npz")
             try:
                 self._kin = sc.build(total_s, streams.motion)
             except ValueError:  # its moves do not fit in so short a run
-                raise UserError(
-                    f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
-                    f"{sc.default_duration_s:g} s), got {total_s:g}"
+                raise ParamError(
+                    f"scenario {name!r} needs {{duration_s}} of at least {sc.min_duration_s:g} s (default "
+                    f"{sc.default_duration_s:g} s), got {total_s:g}",
+                    "duration_s",
                 ) from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
@@ -284,7 +285,9 @@ class Emulation:
         self.options = options
         self._connect_at = None if ble_connect_s is None else int(ble_connect_s * C.CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
-            raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
+            raise ParamError(
+                f"{{duration_s}} must be a positive number of seconds, got {options.duration_s}", "duration_s"
+            )
         self.elf = Elf(options.elf)
         trial = None
         if isinstance(options.broad, BroadTrial):  # already loaded (e.g. cut short by steval evaluate)
@@ -300,7 +303,7 @@ class Emulation:
             default = float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
-            default = scenario(name, "or --broad TRIAL.npz").default_duration_s
+            default = scenario(name, "or {broad} TRIAL.npz").default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)
