@@ -59,6 +59,43 @@ def check_filter_options(
     check_throttle("--min-thr", min_thr)
 
 
+# The filter's options, one definition each, shared by every command that runs the replica (None: not given).
+KiOption = Annotated[
+    Optional[float],
+    typer.Option(
+        "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).", show_default=False
+    ),
+]
+KpGroundOption = Annotated[
+    Optional[float],
+    typer.Option("--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False),
+]
+KpFlightOption = Annotated[
+    Optional[float],
+    typer.Option("--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False),
+]
+MinThrOption = Annotated[
+    Optional[int],
+    typer.Option(
+        "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).", show_default=False
+    ),
+]
+CorrectionOption = Annotated[
+    Optional[bool],
+    typer.Option(
+        "--correction/--no-correction",
+        help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
+        show_default=False,
+    ),
+]
+DtOption = Annotated[
+    Optional[float],
+    typer.Option(
+        "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).", show_default=False
+    ),
+]
+
+
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
 VariantOption = Annotated[
     Optional[str],
@@ -80,6 +117,12 @@ def check_variant(value: str | None) -> str | None:
         return variant_name(value)
     except ValueError as exc:
         raise UserError(f"--variant: {exc}") from None
+
+
+def check_period(option: str, value: float | None) -> None:
+    """An integration period: a finite number of seconds > 0 (None: not given)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UserError(f"{option} must be a period > 0 s, got {_num(value)}")
 
 
 def check_count(option: str, value: int, maximum: int) -> None:
