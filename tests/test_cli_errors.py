@@ -109,7 +109,7 @@ def test_unknown_estimator_lists_the_valid_ones(monkeypatch, capsys, args):
         (["compare", "--min-thr", "-1"], "--min-thr"),
         (["conformance", "--kp-ground", "-1", "x.csv"], "--kp-ground"),
         (["synth", "--scenario", "demo", "--out", "x.stv", "--ki", "-1"], "--ki"),
-        (["synth", "--scenario", "demo", "--out", "x.stv", "--throttle", "-5"], "--throttle"),
+        (["synth", "--scenario", "demo", "--out", "x.stv", "--throttle-schedule", "-5"], "--throttle-schedule"),
     ],
 )
 def test_range_checks(monkeypatch, capsys, tmp_path, args, option):

@@ -314,7 +314,7 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
         (["--scenario", "bench", "--join-at", "-3"], "--join-at"),
         (["--scenario", "bench", "--encoder", "rust"], "--encoder"),
         (["--scenario", "bench", "--text-mode", "--encoder", "c"], "--text-mode"),
-        (["--scenario", "bench", "--throttle", "1:2:3"], "--throttle"),
+        (["--scenario", "bench", "--throttle-schedule", "1:2:3"], "--throttle-schedule"),
         (["--scenario", "bench", "--ki", "nan"], "--ki"),
     ],
 )

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import shlex
 from collections.abc import Sequence
 from typing import Annotated, Optional
 
@@ -19,7 +20,13 @@ MAX_THROTTLE = 32767
 
 
 #: the library parameters whose flag is not ``--`` and the name with dashes
-_FLAGS = {"duration_s": "--duration", "join_at_s": "--join-at", "path": "--out"}
+_FLAGS = {
+    "throttle": "--throttle-schedule",
+    "fmt": "--format",
+    "duration_s": "--duration",
+    "join_at_s": "--join-at",
+    "path": "--out",
+}
 
 
 def flag_of(param: str) -> str:
@@ -30,6 +37,20 @@ def flag_of(param: str) -> str:
 def user_message(exc: Exception) -> str:
     """An error's sentence for a command-line user: a :class:`ParamError` names flags, not parameters."""
     return exc.worded(flag_of) if isinstance(exc, ParamError) else str(exc)
+
+
+def command_line(words: list[str], settings: dict) -> str:
+    """The command line that repeats a run: ``words``, then each setting by its flag (True: the flag alone; False:
+    its ``--no-`` form; a list: the flag repeated)."""
+    parts = list(words)
+    for name, value in settings.items():
+        flag = flag_of(name)
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, bool):
+                parts.append(flag if v else "--no-" + flag[2:])
+            else:
+                parts += [flag, f"{v:g}" if isinstance(v, float) else str(v)]
+    return shlex.join(parts)
 
 
 def _num(value: float) -> str:
@@ -92,6 +113,20 @@ DtOption = Annotated[
     Optional[float],
     typer.Option(
         "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).", show_default=False
+    ),
+]
+
+
+#: ``--throttle-schedule``: the throttle over time of an emulated or modelled drone (``--throttle`` of ``simulate``
+#: is one gTHR value for every step)
+ThrottleScheduleOption = Annotated[
+    Optional[str],
+    typer.Option(
+        "--throttle-schedule",
+        metavar="N|t:v,...",
+        help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in "
+        "between, held outside).",
+        show_default=False,
     ),
 ]
 

@@ -92,6 +92,11 @@ def _stdout_to_devnull() -> None:
     os.close(devnull)
 
 
+def live_estimators(estimators: list[str] | None) -> list[str]:
+    """The host estimators of ``-e`` (comma-separated or repeated; 'none'), default those of a live session."""
+    return registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT)
+
+
 def check_duration(duration: float | None) -> None:
     if duration is not None and not duration > 0:
         raise UserError(f"--duration must be positive, got {duration}")
@@ -168,7 +173,7 @@ def live_command(
         source = port_source(port or "auto", baud=baud, wait=wait)
     sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
-        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
+        estimators=live_estimators(estimators),
         duration_s=duration,
         prompt=prompt,
         variant=variant,

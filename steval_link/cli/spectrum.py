@@ -117,32 +117,13 @@ def spectrum_cmd(
     1, so motor vibration above the Nyquist shows at an alias: --mark-hz computes where. Prints the top peaks per
     axis; --plot, --csv and the Rerun options (--spawn, --rrd, ...) add the figure, the numbers and the viewer."""
     marks = list(mark_hz or [])
-    for f in marks:
-        if not (math.isfinite(f) and f > 0):
-            raise UserError(f"--mark-hz must be a frequency > 0 Hz, got {f:g}")
-    if nperseg is not None and not S.MIN_NPERSEG <= nperseg <= MAX_NPERSEG:
-        raise UserError(f"--nperseg must be between {S.MIN_NPERSEG} and {MAX_NPERSEG} rows, got {nperseg}")
-    if not (math.isfinite(overlap) and 0 <= overlap < 1):
-        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap:g}")
-    if not 1 <= throttle_bins <= MAX_THROTTLE_BINS:
-        raise UserError(f"--throttle-bins must be between 1 and {MAX_THROTTLE_BINS}, got {throttle_bins}")
-    if not 0 <= peaks <= 20:
-        raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
-    if not (math.isfinite(min_hz) and min_hz >= 0):
-        raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
+    _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
     for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
         if path is not None:
             check_output(path, option=option, force=force, inputs=(capture,))
     if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        plt = require_matplotlib()
-        fig = plt.figure()
-        formats = fig.canvas.get_supported_filetypes()
-        plt.close(fig)
-        if plot.suffix.lower().lstrip(".") not in formats:
-            raise UserError(f"--plot {plot}: give a file name ending in one of .{', .'.join(sorted(formats))}")
+        _check_plot_format(plot)
     viewer = rrd is not None or spawn or serve or connect
     options = None
     if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work

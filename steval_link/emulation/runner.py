@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 import queue
-import shlex
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -83,19 +82,19 @@ class EmulationOptions:
     #: the board mounted turned on the frame (a sensor fault, see the module docstring): None, or a MOUNTS key
     mount: str | None = None
 
-    def command(self, duration_s: float | None = None) -> str:
-        """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
-        parts = ["steval", "emulate", str(self.elf)]
-        parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
-        d = self.duration_s if duration_s is None else duration_s
-        if d is not None:
-            parts += ["--duration", f"{d:g}"]
-        parts += ["--seed", str(self.seed)]
-        if self.throttle is not None:
-            parts += ["--throttle", self.throttle]
-        if self.mount is not None:
-            parts += ["--mount", self.mount]
-        return shlex.join(parts)
+    #: the command line that made this run, for the capture header (the CLI's)
+    command_line: str | None = None
+
+    def settings(self) -> dict:
+        """What determines the run, by parameter name: the motion (``broad`` or ``scenario``), ``duration_s``,
+        ``seed``, ``throttle``, ``mount`` (those given)."""
+        out = {"broad": str(self.broad)} if self.broad is not None else {"scenario": self.scenario}
+        out.update(duration_s=self.duration_s, seed=self.seed, throttle=self.throttle, mount=self.mount)
+        return {k: v for k, v in out.items() if v is not None}
+
+    def command(self) -> str:
+        """The capture header's command: :attr:`command_line`, else the ELF and :meth:`settings`."""
+        return self.command_line or " ".join([str(self.elf), *(f"{k}={v}" for k, v in self.settings().items())])
 
 
 #: board mountings (sensor faults): the frame's body axes (x right, y forward, z up) → what the board reads

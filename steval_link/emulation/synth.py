@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 import os
-import shlex
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -101,29 +100,21 @@ class SynthOptions:
     c_encoder: str | None = None
     vibration: tuple[str, ...] = ()
 
+    #: the command line that made this capture, for its header (the CLI's)
+    command_line: str | None = None
+
+    def settings(self) -> dict:
+        """The settings that determine the serial bytes, by parameter name (no output path, no encoder choice)."""
+        out = dict(scenario=self.scenario, duration_s=self.duration_s, seed=self.seed)
+        out.update(baud=self.baud if self.baud != C.BAUD else None, throttle=self.throttle)
+        out.update(ki=self.ki if self.ki != C.KI else None, correction=None if self.correction else False)
+        out.update(text_mode=self.text_mode or None, join_at_s=self.join_at_s or None, drop_rate=self.drop_rate or None)
+        out["vibration"] = [M.parse_vibration(spec).spec for spec in self.vibration] or None
+        return {k: v for k, v in out.items() if v is not None}
+
     def command(self) -> str:
-        """The ``steval synth`` options that determine the serial bytes (no output path, no encoder choice)."""
-        parts = ["steval", "synth", "--scenario", self.scenario]
-        if self.duration_s is not None:
-            parts += ["--duration", f"{self.duration_s:g}"]
-        parts += ["--seed", str(self.seed)]
-        if self.baud != C.BAUD:
-            parts += ["--baud", str(self.baud)]
-        if self.throttle is not None:
-            parts += ["--throttle", self.throttle]
-        if self.ki != C.KI:
-            parts += ["--ki", f"{self.ki:g}"]
-        if not self.correction:
-            parts.append("--no-correction")
-        if self.text_mode:
-            parts.append("--text-mode")
-        if self.join_at_s:
-            parts += ["--join-at", f"{self.join_at_s:g}"]
-        if self.drop_rate:
-            parts += ["--drop-rate", f"{self.drop_rate:g}"]
-        for spec in self.vibration:
-            parts += ["--vibration", M.parse_vibration(spec).spec]
-        return " ".join(shlex.quote(p) for p in parts)
+        """The capture header's command: :attr:`command_line`, else :meth:`settings`."""
+        return self.command_line or "synth " + " ".join(f"{k}={v}" for k, v in self.settings().items())
 
 
 @dataclass
