@@ -393,34 +393,11 @@ def open_session(
         check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
-    sinks: list = []
+    own_file = options.rrd is not None and (split_file or not options.viewer)
     try:
-        own_file = options.rrd is not None and (split_file or not options.viewer)
-        if options.rrd is not None:
-            path = Path(options.rrd)
-            if atomic_rrd:
-                session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
-                path = session.rrd_partial
-            if not own_file:  # one stream to a viewer and the file (a whole replay): Rerun's own file sink
-                sinks.append(rr.FileSink(str(path)))
-        if options.spawn:
-            session.viewer_url = spawn_desktop_viewer(options.grpc_port)
-            sinks.append(rr.GrpcSink(session.viewer_url))
-        if options.serve:
-            grpc = options.grpc_port if not options.spawn else free_port()
-            child, page, proxy = start_web_viewer(options.web_port, grpc)
-            session.children.append(child)
-            session.web_url, session.viewer_url = page, proxy
-            sinks.append(rr.GrpcSink(proxy))
-            print(f"steval: web viewer at {page}", file=sys.stderr)
-        if options.connect:
-            session.viewer_url = options.connect
-            sinks.append(rr.GrpcSink(options.connect))
+        sinks = _open_sinks(session, options, own_file=own_file, atomic_rrd=atomic_rrd)
     except BaseException:
-        for child in session.children:
-            stop_child(child)
-        if session.rrd_partial is not None:
-            session.rrd_partial.unlink(missing_ok=True)
+        _abandon(session)
         raise
     try:
         file_rec = rec
@@ -435,10 +412,7 @@ def open_session(
             where = session.rrd_partial or Path(options.rrd)
             session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
     except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
-        for child in session.children:
-            stop_child(child)
-        if session.rrd_partial is not None:
-            session.rrd_partial.unlink(missing_ok=True)
+        _abandon(session)
         if isinstance(exc, UserError):
             raise
         where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
@@ -447,6 +421,41 @@ def open_session(
         for stream in session.streams:
             stream.send_recording_name(recording_name)
     return session
+
+
+def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool, atomic_rrd: bool) -> list:
+    """Start or reach the viewers of ``options`` (kept in ``session``) and return the Rerun sinks of the stream:
+    the viewers', and the ``.rrd`` when it is not written by its own stream (``own_file``)."""
+    sinks: list = []
+    if options.rrd is not None:
+        path = Path(options.rrd)
+        if atomic_rrd:
+            session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
+            path = session.rrd_partial
+        if not own_file:  # one stream to a viewer and the file (a whole replay): Rerun's own file sink
+            sinks.append(rr.FileSink(str(path)))
+    if options.spawn:
+        session.viewer_url = spawn_desktop_viewer(options.grpc_port)
+        sinks.append(rr.GrpcSink(session.viewer_url))
+    if options.serve:
+        grpc = options.grpc_port if not options.spawn else free_port()
+        child, page, proxy = start_web_viewer(options.web_port, grpc)
+        session.children.append(child)
+        session.web_url, session.viewer_url = page, proxy
+        sinks.append(rr.GrpcSink(proxy))
+        print(f"steval: web viewer at {page}", file=sys.stderr)
+    if options.connect:
+        session.viewer_url = options.connect
+        sinks.append(rr.GrpcSink(options.connect))
+    return sinks
+
+
+def _abandon(session: ViewerSession) -> None:
+    """A session that could not open: its viewer children stopped, its partial ``.rrd`` removed."""
+    for child in session.children:
+        stop_child(child)
+    if session.rrd_partial is not None:
+        session.rrd_partial.unlink(missing_ok=True)
 
 
 T = TypeVar("T")
