@@ -521,7 +521,7 @@ def format_summary(
         f"{100 * (1 - sp.hop / sp.nperseg):.0f} % overlap)",
         f"rows at {sp.rate_hz:.2f} Hz (firmware clock): Nyquist {sp.nyquist_hz:.2f} Hz, resolution "
         f"{sp.resolution_hz:.2f} Hz. The sensors are read at {C.ISR_RATE_HZ:.1f} Hz (ISR) and averaged 5 to 1, so "
-        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz| (--mark-hz F).",
+        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz|.",
     ]
     lines += [f"note: {n}" for n in sp.notes]
     lines.append(

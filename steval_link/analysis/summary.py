@@ -294,7 +294,7 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
         for c in cmds[:max_text_lines]:
             lines.append(f"  {c['t_host_s']:8.3f} s  {c['text']}")
         if len(cmds) > max_text_lines:
-            lines.append(f"  … {len(cmds) - max_text_lines} more (--json lists them all)")
+            lines.append(f"  … {len(cmds) - max_text_lines} more (the JSON summary lists them all)")
     if s.get("v1_frames"):
         lines.append(
             f"protocol v1 ({s['v1_frames']} frames, CRC-16): about 1 in 65 536 damaged frames passes its check, so a"
