@@ -200,7 +200,7 @@ def check_preflight(tel, source: str = "") -> PreflightReport:
         rep.problems.append(
             f"the first three moves turned about {names}: not the guided sequence (tilt right, nose "
             "up, turn right: three different axes, even when they are swapped); record it again "
-            "with steval preflight --port"
+            "with steval preflight, live"
         )
         return rep
     steps = att.step

@@ -99,7 +99,8 @@ _Plot = Annotated[
         'side; needs matplotlib: pip install "steval-link\\[plot]".',
     ),
 ]
-_Estimator = Annotated[
+#: ``-e`` of compare and report: the estimators compared with the firmware
+CompareEstimatorsOption = Annotated[
     Optional[list[str]],
     typer.Option(
         "--estimator",
@@ -130,7 +131,7 @@ def compare_command(
     captures: _Captures = None,
     as_json: JsonReportOption = False,
     plot: _Plot = None,
-    estimator: _Estimator = None,
+    estimator: CompareEstimatorsOption = None,
     ki: KiOption = None,
     kp_ground: KpGroundOption = None,
     kp_flight: KpFlightOption = None,
