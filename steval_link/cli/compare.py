@@ -8,7 +8,7 @@ shown with its first step and a diagnosis, and ``port.all_exact`` is false in ``
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -42,14 +42,9 @@ from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import (
-    ConnectOption,
-    GrpcPortOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     check_view_flags,
     view_sinks,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -57,7 +52,7 @@ from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import SinkOptions
 
 __all__ = ["compare_command"]
 
@@ -127,6 +122,7 @@ _Label = Annotated[
 
 
 @app.command("compare")
+@with_rerun_options
 def compare_command(
     captures: _Captures = None,
     as_json: JsonReportOption = False,
@@ -141,14 +137,9 @@ def compare_command(
     variant: VariantOption = None,
     align: _Align = "time",
     label: _Label = None,
-    rrd: RrdOption = None,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     force: ForceOption = False,
     text_map: MapOption = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
@@ -169,7 +160,7 @@ def compare_command(
         "--correction/--no-correction": correction,
         "--variant": variant,
     }
-    viewer = dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port)
+    viewer = asdict(rerun)
     if captures and len(captures) > 1:
         port_options = {"--estimator": estimator, **filter_options}
         _side_by_side(
@@ -183,7 +174,7 @@ def compare_command(
             viewer=viewer,
         )
         return
-    if align != "time" or label or rrd is not None or spawn or serve or connect is not None:
+    if align != "time" or label or rerun.any():
         raise UserError(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."

@@ -15,14 +15,9 @@ from steval_link.cli.live import check_duration, live_estimators, session_output
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
-    ConnectOption,
-    GrpcPortOption,
     NoViewOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     check_view_flags,
+    with_rerun_options,
 )
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
@@ -32,7 +27,7 @@ from steval_link.link.commands import parse_script
 from steval_link.link.load import load_telemetry
 from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
+from steval_viewer.sink_options import SinkOptions
 
 _Elf = Annotated[
     Path,
@@ -126,6 +121,7 @@ _TickStartMs = Annotated[
 
 
 @app.command("emulate")
+@with_rerun_options
 def emulate_command(
     elf: _Elf,
     scenario: _Scenario = "bench",
@@ -135,13 +131,7 @@ def emulate_command(
     throttle_schedule: ThrottleScheduleOption = None,
     mount: _Mount = None,
     out: CaptureOutOption = None,
-    rrd: RrdOption = None,
     no_view: NoViewOption = False,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: _Estimators = None,
     realtime: _Realtime = False,
     commands: _Commands = None,
@@ -150,6 +140,7 @@ def emulate_command(
     ble_connect_at: _BleConnectAt = 0.5,
     tick_start_ms: _TickStartMs = 0,
     variant: VariantOption = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Run a real firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -172,13 +163,13 @@ def emulate_command(
         elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle_schedule
     )
     if ble:
-        if rrd is not None or spawn or serve or connect:
+        if rerun.any():
             raise UserError(
                 "--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv (--spawn, --rrd)"
             )
         _emulate_ble(emu_options, out, ble_connect_at, tick_start_ms)
         return
-    check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
+    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
     emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
     emu_options.command_line = command_line(
         ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}
@@ -192,10 +183,9 @@ def emulate_command(
         variant=variant,
         variant_from="--variant",
     )
-    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
-    check = session_outputs(options, out, sinks, view=not no_view)
+    check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()
     print("\n".join([summary.line(), *_estimator_lines(summary, options.estimators)]))
     sys.stdout.flush()

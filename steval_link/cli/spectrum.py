@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -18,17 +19,12 @@ from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
-    ConnectOption,
-    GrpcPortOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     sink_options,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import SinkOptions
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -92,6 +88,7 @@ _MinHz = Annotated[
 
 
 @app.command("spectrum")
+@with_rerun_options
 def spectrum_cmd(
     capture: _Capture,
     plot: _Plot = None,
@@ -102,13 +99,8 @@ def spectrum_cmd(
     throttle_bins: _ThrottleBins = 10,
     peaks: _Peaks = 3,
     min_hz: _MinHz = 1.0,
-    rrd: RrdOption = None,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     force: ForceOption = False,
+    rerun: SinkOptions = None,
 ) -> None:
     """Gyro and accelerometer spectra per axis, like Blackbox's: Welch PSD, spectrogram over firmware time and
     frequency vs throttle, over runs of consecutive AHRS steps (dropped frames split them).
@@ -119,18 +111,16 @@ def spectrum_cmd(
     marks = list(mark_hz or [])
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
+    rrd = rerun.rrd
     for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
         if path is not None:
             check_output(path, option=option, force=force, inputs=(capture,))
     if plot is not None:
         _check_plot_format(plot)
-    viewer = rrd is not None or spawn or serve or connect
     options = None
-    if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        options = sink_options(
-            rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
-        )
-    with progress_bar("spectrum", quiet=serve) as progress:
+    if rerun.any():  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        options = sink_options(**asdict(rerun))
+    with progress_bar("spectrum", quiet=rerun.serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
