@@ -24,7 +24,7 @@ if [ -n "${FW_ELF:-}" ]; then
     # two-way link: KI and the correction changed live through the emulated USART1 RX (the commands are in the
     # capture's H chunks); a throttle pulse makes one change be refused
     "$STEVAL" emulate "$FW_ELF" --scenario hand-tilts --duration 30 --seed 6 \
-        --throttle 0:0,26.1:0,26.2:300,27.2:300,27.3:0 --commands recordings/live_params.commands --no-view \
+        --throttle-schedule 0:0,26.1:0,26.2:300,27.2:300,27.3:0 --commands recordings/live_params.commands --no-view \
         --out recordings/live_params.stv
     # flight control (the FC frames): a flight with stick moves, the preflight check's guided moves
     "$STEVAL" emulate "$FW_ELF" --scenario flight --duration 27 --seed 1 --no-view --out recordings/flight.stv

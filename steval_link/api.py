@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from steval_link.analysis import evaluate as ev
-from steval_link.emulation import broad
 from steval_link.errors import UserError
 from steval_link.estimators import plugins, registry
 from steval_link.estimators.base import AttitudeEstimate, Estimator
@@ -193,46 +192,51 @@ class Scores:
         return self.table()
 
 
-def evaluate(trials, estimators: Sequence | None = None, *, native: bool = False, seed: int = 0) -> Scores:
-    """Score estimators against the ground truth of BROAD trials (the metric and pipeline of ``steval evaluate``).
+def evaluate(
+    trials,
+    estimators: Sequence | None = None,
+    *,
+    native: bool = False,
+    seed: int = 0,
+    sensor_noise: bool = False,
+    max_seconds: float | None = None,
+    firmware: Sequence = (),
+    variant: str | None = None,
+) -> Scores:
+    """Score estimators against ground truth: the flow of ``steval evaluate``
+    (:func:`steval_link.analysis.evaluate.evaluate_data`).
 
     Args:
-        trials: a BROAD ``.npz`` trial, a directory of them, or a list of those.
+        trials: a BROAD ``.npz`` trial, a capture with ground truth, a directory of trials, or a list of those.
         estimators: labels of ``steval evaluate`` (``st-mahony-flight``, ``st-mahony-ground``, ``accel``,
             ``ekf3``, ``mekf``, ``vqf``), references (``"my_ekf.py:MyEkf"``) and estimator objects, in any mix;
             None: every built-in available.
         native: run at the trial's own 285.7 Hz instead of through the STEVAL sensor pipeline (161.5 Hz).
-        seed: seed of the pipeline model (runs are deterministic).
+        seed: seed of the pipeline model (runs are deterministic); ``sensor_noise`` adds the LSM6DSL's noise.
+        max_seconds: use only the first seconds of each trial.
+        firmware: firmware ELFs to run on the emulated board with each trial and score; ``variant`` the release of
+            the replica run on their inputs.
     """
     items = [trials] if isinstance(trials, (str, Path)) else list(trials)
-    paths = broad.trial_paths(items)
-    results = []
-    for p in paths:
-        trial = broad.load_trial(p)
-        view = broad.own_rate_view(trial) if native else broad.steval_view(trial, seed=seed)
-        results.append(ev.evaluate_view(view, _specs(estimators, view.rate_hz, native), trial.name))
+    if estimators is not None and not isinstance(estimators, str):
+        estimators = [e if isinstance(e, str) else _object_selected(e) for e in _as_list(estimators)]
+    results = ev.evaluate_data(
+        items,
+        estimators,
+        native=native,
+        seed=seed,
+        sensor_noise=sensor_noise,
+        max_seconds=max_seconds,
+        firmware=firmware,
+        variant=variant,
+    )
     return Scores(results, ev.summary(results))
 
 
-def _specs(estimators, rate_hz: float, native: bool) -> list:
-    """The specs of ``estimators`` in their order, one label each (options included); UserError when two share
-    a label (never a silent merge)."""
-    if estimators is None:
-        return ev.default_specs(rate_hz, own_rate=native)
-    out: list = []
-    for e in _as_list(estimators):
-        taken = {o.label for o in out}
-        if isinstance(e, str):
-            specs = ev.default_specs(rate_hz, own_rate=native, only=[e])
-        else:
-            sel = _instance_reference(e)
-            sel = sel.renamed(_object_label(str(sel), e))
-            specs = [ev.EstimatorSpec(str(sel), sel, {})]
-        for spec in specs:
-            registry.unique_name(spec.label, taken)  # UserError for a label already taken
-            taken.add(spec.label)
-            out.append(spec)
-    return out
+def _object_selected(est) -> plugins.Selected:
+    """An estimator object, labelled by its name and public attributes (two variants of one class: two labels)."""
+    sel = _instance_reference(est)
+    return sel.renamed(_object_label(str(sel), est))
 
 
 def _object_label(name: str, est) -> str:
@@ -247,8 +251,6 @@ def _object_label(name: str, est) -> str:
 
 
 def _as_list(estimators) -> list:
-    if isinstance(estimators, str):
-        return plugins.split_list(estimators)
     if isinstance(estimators, Iterable):
         return list(estimators)
     return [estimators]

@@ -23,3 +23,19 @@ def printable(text: str) -> str:
         else:
             out.append(f"\\u{ord(ch):04x}")
     return "".join(out)
+
+
+class ParamError(UserError):
+    """A bad value of a library parameter. ``template`` names each of ``params`` as ``{name}``: the message reads
+    ``name=`` there, and :meth:`worded` lets a caller name it its own way (the CLI names the flag)."""
+
+    def __init__(self, template: str, *params: str) -> None:
+        self.template, self.params = template, params
+        super().__init__(self.worded(lambda name: f"{name}="))
+
+    def worded(self, word) -> str:
+        """The message with ``word(name)`` for each parameter."""
+        text = self.template
+        for name in self.params:
+            text = text.replace("{" + name + "}", word(name))
+        return text

@@ -164,3 +164,18 @@ def test_evaluate_scores_names_references_and_objects_against_ground_truth(tmp_p
     assert means["Gravity(gain=0.05)"] != means["Gravity(gain=0.5)"]
     assert scores.rmse_deg[TRIAL.stem] == means
     assert "inclination RMSE" in scores.table()
+
+
+@needs_broad
+def test_a_bad_argument_names_the_parameter_in_the_api_and_the_flag_in_the_cli(monkeypatch, capsys):
+    from support.cli import run_cli
+
+    with pytest.raises(UserError) as exc:
+        sl.evaluate(TRIAL, ",")
+    assert str(exc.value) == "estimators= selects no estimator" and "--" not in str(exc.value)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", TRIAL, "--estimators", ",")
+    assert (code, out, err) == (2, "", "steval: error: --estimators selects no estimator\n")
+    with pytest.raises(UserError, match=r"^max_seconds= must be a positive number of seconds, got -1"):
+        sl.evaluate(TRIAL, "accel", max_seconds=-1)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", TRIAL, "-e", "accel", "--max-seconds", "-1")
+    assert code == 2 and err == "steval: error: --max-seconds must be a positive number of seconds, got -1.0\n"

@@ -262,6 +262,7 @@ def test_many_damaged_chunks_give_one_short_warning(tmp_path, stream: StreamBuil
 
 
 def test_resolve_capture_out_never_makes_folders(tmp_path, monkeypatch):
+    from steval_link.cli.checks import user_message
     from steval_link.link.capture import resolve_capture_out
 
     monkeypatch.chdir(tmp_path)
@@ -279,7 +280,8 @@ def test_resolve_capture_out_never_makes_folders(tmp_path, monkeypatch):
             words = "is not a directory"
         with pytest.raises(UserError, match=words) as exc:
             resolve_capture_out(bad)
-        assert str(exc.value).startswith("--out ")
+        assert str(exc.value).startswith("out= ")  # the parameter; the CLI names its flag
+        assert user_message(exc.value).startswith("--out ")
     with pytest.raises(UserError, match="already exists"):
         resolve_capture_out("flight.stv")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.stv"]  # nothing created

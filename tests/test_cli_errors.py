@@ -11,6 +11,7 @@ import pytest
 from support.cli import run_cli
 
 from steval_link import __version__
+from steval_link.cli.checks import user_message
 from steval_link.estimators import registry
 
 COMMANDS = ["replay", "live", "record", "export", "ports", "simulate", "synth", "conformance", "compare", "evaluate"]
@@ -108,7 +109,7 @@ def test_unknown_estimator_lists_the_valid_ones(monkeypatch, capsys, args):
         (["compare", "--min-thr", "-1"], "--min-thr"),
         (["conformance", "--kp-ground", "-1", "x.csv"], "--kp-ground"),
         (["synth", "--scenario", "demo", "--out", "x.stv", "--ki", "-1"], "--ki"),
-        (["synth", "--scenario", "demo", "--out", "x.stv", "--throttle", "-5"], "--throttle"),
+        (["synth", "--scenario", "demo", "--out", "x.stv", "--throttle-schedule", "-5"], "--throttle-schedule"),
     ],
 )
 def test_range_checks(monkeypatch, capsys, tmp_path, args, option):
@@ -315,9 +316,10 @@ def test_a_sink_that_cannot_create_its_file_is_one_sentence():
 
     if not Path("/proc").is_dir():
         pytest.skip("needs /proc")
-    with pytest.raises(UserError, match=r"^--rrd /proc/steval-sink\.rrd: cannot write it \(") as exc:
+    with pytest.raises(UserError, match=r"^rrd= /proc/steval-sink\.rrd: cannot write it \(") as exc:
         open_session(SinkOptions(rrd=Path("/proc/steval-sink.rrd")))
     assert "\n" not in str(exc.value)
+    assert user_message(exc.value).startswith("--rrd /proc/steval-sink.rrd: cannot write it (")  # the CLI's words
 
 
 @pytest.mark.slow

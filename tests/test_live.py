@@ -134,7 +134,7 @@ def test_live_silent_port_stops_after_3_s_unless_wait(tmp_path):
             ["live", "--no-view", "--wait", "--port", str(feeder.link), "--out", str(out), "-e", "none"], cwd=tmp_path
         )
         assert proc.wait_line("reading ", START_TIMEOUT_S) is not None
-        assert proc.wait_line("still waiting (--wait)", 10) is not None
+        assert proc.wait_line("still waiting", 10) is not None
         assert proc.proc.poll() is None
         feeder.data = memoryview(flight_stream(200))
         feeder.start()

@@ -270,7 +270,7 @@ def test_endless_garbage_keeps_memory_bounded_and_records_every_byte(tmp_path):
     cap = read_capture(out)
     assert summary.attitude == 0 and summary.bytes_total == len(cap.data) > 5_000_000
     assert cap.data[:4096] == garbage[:4096]
-    assert "no valid frames at 115200 baud" in err.getvalue() and "still waiting (--wait)" in err.getvalue()
+    assert "no valid frames at 115200 baud" in err.getvalue() and "still waiting" in err.getvalue()
     pipe = session.pipeline
     assert pipe.decoder.pending_bytes < 64 * 1024 and len(pipe.sample) <= 4096
     # several MB went through; resident memory did not follow them

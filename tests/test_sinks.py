@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from steval_link.cli.checks import user_message
 from steval_link.errors import UserError
 from steval_link.link.capture import demo_capture_path, read_capture
 from steval_viewer import entities as ent
@@ -75,8 +76,9 @@ def test_connect_to_a_program_that_is_no_viewer_is_refused_instead_of_hanging(tm
         assert done.returncode == 2
         assert "is not a Rerun viewer" in done.stderr and len(done.stderr.strip().splitlines()) == 1
         # --spawn on a port that program holds: say so and name the option that picks another
-        with pytest.raises(UserError, match="--grpc-port N"):
+        with pytest.raises(UserError, match="grpc_port= N") as exc:
             check_sinks(SinkOptions(spawn=True, grpc_port=server.port))
+        assert "pick another port with --grpc-port N" in user_message(exc.value)
     finally:
         server.close()
 
@@ -84,9 +86,10 @@ def test_connect_to_a_program_that_is_no_viewer_is_refused_instead_of_hanging(tm
 def test_serve_on_busy_ports_names_the_option_to_pick_another():
     server = SilentServer()
     try:
-        with pytest.raises(UserError, match=r"in use on 127\.0\.0\.1 .*--web-port N"):
+        with pytest.raises(UserError, match=r"in use on 127\.0\.0\.1 .*web_port= N") as exc:
             check_sinks(SinkOptions(serve=True, web_port=server.port, grpc_port=free_port()))
-        with pytest.raises(UserError, match="--grpc-port N"):
+        assert "an earlier --serve still running?" in user_message(exc.value)
+        with pytest.raises(UserError, match="grpc_port= N"):
             check_sinks(SinkOptions(serve=True, web_port=free_port(), grpc_port=server.port))
     finally:
         server.close()

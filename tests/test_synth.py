@@ -3,6 +3,7 @@ snapshots that seed the filter port to bit-exactness; deterministic; Python and 
 
 from __future__ import annotations
 
+import shlex
 import shutil
 from pathlib import Path
 
@@ -302,6 +303,31 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
     assert code == 0 and all(name in stdout for name in SCENARIOS)
 
 
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_the_capture_header_command_repeats_the_capture(tmp_path, capsys):
+    """The CLI writes the command line into the header; run again, it gives the same bytes."""
+    out = tmp_path / "a.stv"
+    args = [
+        "synth",
+        "-s",
+        "bench",
+        "--duration",
+        "4",
+        "--ki",
+        "1",
+        "--no-correction",
+        "--throttle-schedule",
+        "0:0,2:300",
+    ]
+    assert run_cli([*args, "--vibration", "gyro-x:47:2000", "--out", str(out)], capsys)[0] == 0
+    command = read_capture(out).header["extra"]["command"]
+    words = shlex.split(command)
+    assert words[:2] == ["steval", "synth"] and "--throttle-schedule" in words and "--no-correction" in words
+    again = tmp_path / "b.stv"
+    assert run_cli([*words[1:], "--out", str(again)], capsys)[0] == 0
+    assert read_capture(again).data == read_capture(out).data
+
+
 @pytest.mark.parametrize(
     "args, words",
     [
@@ -314,7 +340,7 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
         (["--scenario", "bench", "--join-at", "-3"], "--join-at"),
         (["--scenario", "bench", "--encoder", "rust"], "--encoder"),
         (["--scenario", "bench", "--text-mode", "--encoder", "c"], "--text-mode"),
-        (["--scenario", "bench", "--throttle", "1:2:3"], "--throttle"),
+        (["--scenario", "bench", "--throttle-schedule", "1:2:3"], "--throttle-schedule"),
         (["--scenario", "bench", "--ki", "nan"], "--ki"),
     ],
 )

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from steval_link import constants as C
+from steval_link.cli.checks import user_message
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link import protocol as P
@@ -296,8 +297,9 @@ def test_default_sink_without_display_is_a_clear_user_error(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr("sys.platform", "linux")
-    with pytest.raises(UserError, match="--rrd"):
+    with pytest.raises(UserError, match="rrd= FILE") as exc:
         resolve_sinks(SinkOptions())
+    assert "--rrd FILE" in user_message(exc.value) and "--no-view to record only" in user_message(exc.value)
     opts = resolve_sinks(SinkOptions(rrd=Path("x.rrd")))
     assert not opts.spawn  # headless: the file alone
     monkeypatch.setenv("DISPLAY", ":0")

@@ -21,7 +21,7 @@ import struct
 import threading
 from pathlib import Path
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError
 from steval_link.link.capture import output_gone
 
 __all__ = ["RrdWriter", "WRITE_INTERVAL_S", "rrd_messages"]
@@ -67,20 +67,19 @@ def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
 class RrdWriter:
     """Writes the stream ``rec`` to ``path`` (a new file: never overwritten) from now on, until :meth:`close`.
 
-    ``option``: the command-line option that named the file, for the sentences. Raises :class:`UserError` when the
-    file cannot be made or its first bytes cannot be written (nothing is left behind then).
+    Raises :class:`UserError` when the file cannot be made or its first bytes cannot be written (nothing is left
+    behind then).
     """
 
-    def __init__(self, rec, path: str | os.PathLike, *, option: str = "--rrd", shown: str | None = None) -> None:
+    def __init__(self, rec, path: str | os.PathLike, *, shown: str | None = None) -> None:
         self.path = Path(path)
         self.shown = shown or str(self.path)  # the name the user gave (a partial file is named by its final name)
-        self.option = option
         self.failure: str | None = None
         self.bytes_written = 0
         try:
             self._file = open(self.path, "xb", buffering=0)
         except OSError as exc:
-            raise UserError(f"{option} {self.shown}: cannot write it ({_why(exc)})") from None
+            raise ParamError(f"{{rrd}} {self.shown}: cannot write it ({_why(exc)})", "rrd") from None
         self._identity = _ident(os.fstat(self._file.fileno()))
         self._lock = threading.Lock()
         self._stream = rec.binary_stream()
@@ -92,7 +91,7 @@ class RrdWriter:
         except OSError as exc:  # a start on a full disk: nothing half-made is left
             self._file.close()
             self.path.unlink(missing_ok=True)
-            raise UserError(f"{option} {self.shown}: cannot write it ({_why(exc)})") from None
+            raise ParamError(f"{{rrd}} {self.shown}: cannot write it ({_why(exc)})", "rrd") from None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="rrd-writer", daemon=True)
         self._thread.start()
@@ -124,7 +123,7 @@ class RrdWriter:
         """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""
         n = self.bytes_written
         held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
-        self.failure = f"{self.option} {self.shown} {why}; nothing more is written to it (it held {held} then)"
+        self.failure = f"{self.shown} {why}; nothing more is written to it (it held {held} then)"
         try:  # a write cut by a full disk leaves part of a message: back to the last whole one, so the file opens
             if output_gone(self.path, self._identity) is None:
                 os.ftruncate(self._file.fileno(), self.bytes_written)
@@ -165,7 +164,7 @@ class RrdWriter:
             try:
                 self.pump(sync=k % ticks == 0)
             except Exception as exc:  # noqa: BLE001 - Rerun's stream failed: one sentence, the run goes on
-                self.failure = self.failure or f"{self.option} {self.shown}: Rerun stopped encoding it ({exc})"
+                self.failure = self.failure or f"{self.shown}: Rerun stopped encoding it ({exc})"
 
     def close(self) -> None:
         """Write the rest and close the file (idempotent); a failure is kept in :attr:`failure`."""

@@ -13,7 +13,7 @@ import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
@@ -36,7 +36,7 @@ class SinkOptions:
 
     @property
     def viewer(self) -> bool:
-        """A viewer is chosen (``--spawn``, ``--serve`` or ``--connect``), not only a file."""
+        """A viewer is chosen (``spawn``, ``serve`` or ``connect``), not only a file."""
         return bool(self.spawn or self.serve or self.connect)
 
     def any(self) -> bool:
@@ -51,8 +51,8 @@ def display_available() -> bool:
 
 
 def resolve_sinks(options: SinkOptions) -> SinkOptions:
-    """Apply the default viewer: when no viewer is chosen (``--spawn``/``--serve``/``--connect``), ``--spawn``
-    where a display exists; without a display, an ``--rrd`` alone is fine (headless), nothing at all is a
+    """Apply the default viewer: when no viewer is chosen (``spawn``/``serve``/``connect``), ``spawn``
+    where a display exists; without a display, an ``rrd`` alone is fine (headless), nothing at all is a
     UserError."""
     if options.viewer:
         return options
@@ -61,14 +61,15 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
         return options
     if options.rrd is not None:
         return options
-    raise no_display_error("", "--no-view to record only")
+    raise no_display_error("", "{no_view} to record only")
 
 
-def no_display_error(flag: str, *more_ways: str) -> UserError:
+def no_display_error(spawn: str, *more_ways: str) -> ParamError:
     """The one sentence for a desktop viewer without a display: the other sinks, then ``more_ways``."""
-    ways = ["--rrd FILE to write a recording", "--serve for the web viewer", "--connect URL for a running viewer"]
+    ways = ["{rrd} FILE to write a recording", "{serve} for the web viewer", "{connect} URL for a running viewer"]
     ways += more_ways
-    return UserError(f"no display for the desktop viewer{flag}: pass {', '.join(ways[:-1])}, or {ways[-1]}")
+    text = f"no display for the desktop viewer{spawn}: pass {', '.join(ways[:-1])}, or {ways[-1]}"
+    return ParamError(text, "rrd", "serve", "connect", "spawn", "no_view")
 
 
 def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
@@ -91,35 +92,42 @@ def check_sinks(options: SinkOptions) -> None:
     gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
-    for tcp_port, flag in ((options.web_port, "--web-port"), (options.grpc_port, "--grpc-port")):
+    for tcp_port, name in ((options.web_port, "web_port"), (options.grpc_port, "grpc_port")):
         if not 1 <= int(tcp_port) <= 65535:
-            raise UserError(f"{flag} must be a TCP port from 1 to 65535, got {tcp_port}")
+            raise ParamError(f"{{{name}}} must be a TCP port from 1 to 65535, got {tcp_port}", name)
     if options.serve:
         if options.web_port == options.grpc_port:
-            raise UserError(f"--web-port and --grpc-port must differ, both are {options.web_port}")
-        for tcp_port, flag, what in (
-            (options.web_port, "--web-port", "web viewer"),
-            (options.grpc_port, "--grpc-port", "gRPC"),
+            raise ParamError(
+                f"{{web_port}} and {{grpc_port}} must differ, both are {options.web_port}", "web_port", "grpc_port"
+            )
+        for tcp_port, name, what in (
+            (options.web_port, "web_port", "web viewer"),
+            (options.grpc_port, "grpc_port", "gRPC"),
         ):
             if not port_free(tcp_port):
-                raise UserError(
-                    f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier --serve still running?); "
-                    f"stop that program or pick another port with {flag} N"
+                raise ParamError(
+                    f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier {{serve}} still running?); "
+                    f"stop that program or pick another port with {{{name}}} N",
+                    "serve",
+                    name,
                 )
     if options.spawn:
         free = port_free(options.grpc_port)
         if not free and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
-            raise UserError(
+            raise ParamError(
                 f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
-                "pick another port with --grpc-port N"
+                "pick another port with {grpc_port} N",
+                "grpc_port",
             )
         if free and not display_available():  # no viewer there to reuse, and none can open
-            raise no_display_error(" (--spawn)")
+            raise no_display_error(" ({spawn})")
     if options.connect:
         host, tcp_port = parse_grpc_url(options.connect)
         if not port_open(host, tcp_port, CONNECT_TIMEOUT_S):
-            raise UserError(
-                f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use --spawn or --serve"
+            raise ParamError(
+                f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use {{spawn}} or {{serve}}",
+                "spawn",
+                "serve",
             )
         plain = options.connect.startswith(("rerun://", "rerun+http://"))
         if plain and not speaks_grpc(host, tcp_port, CONNECT_TIMEOUT_S):
@@ -140,14 +148,16 @@ def check_rrd_path(path: Path) -> None:
 def parse_grpc_url(url: str) -> tuple[str, int]:
     """(host, port) of a Rerun gRPC URL such as ``rerun+http://127.0.0.1:9876/proxy``; UserError otherwise."""
     if not url.startswith(("rerun://", "rerun+http://", "rerun+https://")):
-        raise UserError(f"--connect needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}")
+        raise ParamError(
+            f"{{connect}} needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}", "connect"
+        )
     parsed = urllib.parse.urlparse(url)
     try:
         tcp_port = parsed.port
     except ValueError:
         tcp_port = None
     if not parsed.hostname:
-        raise UserError(f"--connect URL {url!r} names no host")
+        raise ParamError(f"{{connect}} URL {url!r} names no host", "connect")
     default = 443 if parsed.scheme == "rerun+https" else DEFAULT_GRPC_PORT
     return parsed.hostname, tcp_port or default
 

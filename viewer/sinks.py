@@ -42,7 +42,7 @@ from typing import Callable, TypeVar
 
 import rerun as rr
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_viewer import QUIETED_RUST_LOG
 from steval_viewer.rrd_writer import RrdWriter
 from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port_free, port_open
@@ -255,12 +255,14 @@ def _wait_listening(child: subprocess.Popen, tcp_port: int, timeout_s: float, wh
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
-            raise UserError(f"the {what} exited at start ({_last_line(log_path)}); use --rrd FILE instead")
+            raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
         if port_open("127.0.0.1", tcp_port, 0.2):
             return
         time.sleep(0.05)
     stop_child(child)
-    raise UserError(f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use --rrd FILE instead")
+    raise ParamError(
+        f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use {{rrd}} FILE instead", "rrd"
+    )
 
 
 def _last_line(log_path: Path) -> str:
@@ -296,7 +298,7 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
     url = proxy_url(tcp_port)
     if not port_free(tcp_port):
         print(
-            f"steval: sending to the viewer already listening on port {tcp_port} (--grpc-port N for a new one)",
+            f"steval: sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)",
             file=sys.stderr,
         )
         return url
@@ -313,8 +315,8 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
     try:
         child = _start(cmd, detached=True, log_path=log_path)
     except OSError as exc:
-        raise UserError(
-            f"could not start the Rerun viewer ({exc.strerror or exc}); use --rrd FILE or --serve"
+        raise ParamError(
+            f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
         ) from None
     _wait_listening(child, tcp_port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
     _wait_settled(child, VIEWER_SETTLE_S, log_path)
@@ -327,9 +329,11 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
     deadline = time.monotonic() + settle_s
     while time.monotonic() < deadline:
         if child.poll() is not None:
-            raise UserError(
+            raise ParamError(
                 f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                f"{log_path}); use --rrd FILE or --serve instead"
+                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
+                "rrd",
+                "serve",
             )
         time.sleep(0.05)
 
@@ -378,39 +382,22 @@ def open_session(
     Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
     """
     if not options.any():
-        raise UserError("no Rerun sink chosen: pass --rrd FILE, --spawn, --serve or --connect URL")
+        raise ParamError(
+            "no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL",
+            "rrd",
+            "spawn",
+            "serve",
+            "connect",
+        )
     if not checked:
         check_sinks(options)
     rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
-    sinks: list = []
+    own_file = options.rrd is not None and (split_file or not options.viewer)
     try:
-        own_file = options.rrd is not None and (split_file or not options.viewer)
-        if options.rrd is not None:
-            path = Path(options.rrd)
-            if atomic_rrd:
-                session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
-                path = session.rrd_partial
-            if not own_file:  # one stream to a viewer and the file (a whole replay): Rerun's own file sink
-                sinks.append(rr.FileSink(str(path)))
-        if options.spawn:
-            session.viewer_url = spawn_desktop_viewer(options.grpc_port)
-            sinks.append(rr.GrpcSink(session.viewer_url))
-        if options.serve:
-            grpc = options.grpc_port if not options.spawn else free_port()
-            child, page, proxy = start_web_viewer(options.web_port, grpc)
-            session.children.append(child)
-            session.web_url, session.viewer_url = page, proxy
-            sinks.append(rr.GrpcSink(proxy))
-            print(f"steval: web viewer at {page}", file=sys.stderr)
-        if options.connect:
-            session.viewer_url = options.connect
-            sinks.append(rr.GrpcSink(options.connect))
+        sinks = _open_sinks(session, options, own_file=own_file, atomic_rrd=atomic_rrd)
     except BaseException:
-        for child in session.children:
-            stop_child(child)
-        if session.rrd_partial is not None:
-            session.rrd_partial.unlink(missing_ok=True)
+        _abandon(session)
         raise
     try:
         file_rec = rec
@@ -425,18 +412,50 @@ def open_session(
             where = session.rrd_partial or Path(options.rrd)
             session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
     except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
-        for child in session.children:
-            stop_child(child)
-        if session.rrd_partial is not None:
-            session.rrd_partial.unlink(missing_ok=True)
+        _abandon(session)
         if isinstance(exc, UserError):
             raise
-        where = f"--rrd {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
-        raise UserError(f"{where} ({_first_line(exc)})") from None
+        where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
+        raise ParamError(f"{where} ({_first_line(exc)})", "rrd") from None
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)
     return session
+
+
+def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool, atomic_rrd: bool) -> list:
+    """Start or reach the viewers of ``options`` (kept in ``session``) and return the Rerun sinks of the stream:
+    the viewers', and the ``.rrd`` when it is not written by its own stream (``own_file``)."""
+    sinks: list = []
+    if options.rrd is not None:
+        path = Path(options.rrd)
+        if atomic_rrd:
+            session.rrd_partial = path.with_name(path.name + PARTIAL_SUFFIX)
+            path = session.rrd_partial
+        if not own_file:  # one stream to a viewer and the file (a whole replay): Rerun's own file sink
+            sinks.append(rr.FileSink(str(path)))
+    if options.spawn:
+        session.viewer_url = spawn_desktop_viewer(options.grpc_port)
+        sinks.append(rr.GrpcSink(session.viewer_url))
+    if options.serve:
+        grpc = options.grpc_port if not options.spawn else free_port()
+        child, page, proxy = start_web_viewer(options.web_port, grpc)
+        session.children.append(child)
+        session.web_url, session.viewer_url = page, proxy
+        sinks.append(rr.GrpcSink(proxy))
+        print(f"steval: web viewer at {page}", file=sys.stderr)
+    if options.connect:
+        session.viewer_url = options.connect
+        sinks.append(rr.GrpcSink(options.connect))
+    return sinks
+
+
+def _abandon(session: ViewerSession) -> None:
+    """A session that could not open: its viewer children stopped, its partial ``.rrd`` removed."""
+    for child in session.children:
+        stop_child(child)
+    if session.rrd_partial is not None:
+        session.rrd_partial.unlink(missing_ok=True)
 
 
 T = TypeVar("T")

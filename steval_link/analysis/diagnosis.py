@@ -183,17 +183,14 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
 
 
 def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
-    """``steval compare`` options that run the replica with ``s`` when the status frames report ``base``."""
+    """The settings (``name=value``) that run the replica with ``s`` when the status frames report ``base``."""
     out = []
-    for name, opt in (("ki", "--ki"), ("kp_ground", "--kp-ground"), ("kp_flight", "--kp-flight"), ("dt_s", "--dt")):
+    for name in ("ki", "kp_ground", "kp_flight", "dt_s"):
         if np.float32(getattr(s, name)) != np.float32(getattr(base, name)):
-            out.append(f"{opt} {getattr(s, name):.9g}")
-    if s.min_thr != base.min_thr:
-        out.append(f"--min-thr {s.min_thr}")
-    if s.correction != base.correction:
-        out.append("--correction" if s.correction else "--no-correction")
-    if s.variant != base.variant:
-        out.append(f"--variant {s.variant.removeprefix('ST ')}")
+            out.append(f"{name}={getattr(s, name):.9g}")
+    for name in ("min_thr", "correction", "variant"):
+        if getattr(s, name) != getattr(base, name):
+            out.append(f"{name}={getattr(s, name)}")
     return " ".join(out)
 
 
@@ -318,7 +315,7 @@ def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings
     full = replay_firmware(view, settings=s)
     lines = [f"the capture matches {_describe_variant(ch, base)}"]
     flags = _cli_flags(s, _status_base(view) or MahonySettings())
-    how = f" (steval compare CAPTURE {flags})" if flags else ""
+    how = f" (settings {flags})" if flags else ""
     if full.all_exact:
         lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
     else:
@@ -327,7 +324,7 @@ def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings
         )
     variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
     if settings_override is not None and _same_settings(s, _status_base(view)):
-        lines.append("these are the settings the status frames report: the --settings override is wrong")
+        lines.append("these are the settings the status frames report: the settings override is wrong")
     return lines, variant, full.n_bit_exact, s
 
 

@@ -27,13 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.analysis.coverage import Coverage, coverage_of, percent
-from steval_link.analysis.firmware_eval import FirmwareResult
+from steval_link.analysis.firmware_eval import FirmwareResult, cut_trial, firmware_labels, run_firmware
 from steval_link.analysis.plots import require_matplotlib, save_figure
 from steval_link.analysis.report import json_number, truth_on_steps
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
-from steval_link.errors import UserError
+from steval_link.emulation.elf import Elf
+from steval_link.emulation.sensor_model import Lsm6dsl
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators import registry
+from steval_link.estimators.plugins import Selected, split_list
 from steval_link.link.capture import capture_truth
 from steval_link.link.load import read_recording, telemetry_of_recording
 
@@ -58,6 +61,8 @@ __all__ = [
     "coverage_lines",
     "write_csv",
     "write_markdown",
+    "estimator_specs",
+    "evaluate_data",
 ]
 
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
@@ -130,7 +135,7 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
                 raise UserError(registry.duplicate_sentence(s.label))
             out.append(s)
     if not out:
-        raise UserError("--estimators selects no estimator")
+        raise ParamError("{estimators} selects no estimator", "estimators")
     return out
 
 
@@ -602,3 +607,96 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
     ax1.grid(alpha=0.3)
     ax1.set_ylim(bottom=0)
     return fig
+
+
+# ---- the flow of ``steval evaluate`` and ``steval_link.evaluate`` ------------------------------------------------
+
+#: a firmware run counts this many estimator runs in the progress fraction (an emulation takes much longer)
+FIRMWARE_WEIGHT = 20
+
+
+def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> list[EstimatorSpec]:
+    """The specs of ``estimators`` in their order (None: :func:`default_specs`): labels and references (text, a
+    comma-separated list too) and selected objects (:class:`~steval_link.estimators.plugins.Selected`, run as
+    they are). UserError when two share a label (never a silent merge) or none is chosen."""
+    if estimators is None:
+        return default_specs(rate_hz, own_rate=own_rate)
+    items = split_list(estimators) if isinstance(estimators, str) else list(estimators)
+    out: list[EstimatorSpec] = []
+    for item in items:
+        if isinstance(item, str) and not isinstance(item, Selected):
+            specs = default_specs(rate_hz, own_rate=own_rate, only=[item]) if item.strip() else []
+        else:
+            specs = [EstimatorSpec(str(item), item, {})]
+        for spec in specs:
+            registry.unique_name(spec.label, {o.label for o in out})  # UserError for a label already taken
+            out.append(spec)
+    if not out:
+        raise ParamError("{estimators} selects no estimator", "estimators")
+    return out
+
+
+def evaluate_data(
+    paths,
+    estimators=None,
+    *,
+    native: bool = False,
+    seed: int = 0,
+    sensor_noise: bool = False,
+    max_seconds: float | None = None,
+    firmware: Sequence = (),
+    variant: str | None = None,
+    progress: Callable[[float, str], None] | None = None,
+) -> list[TrialResult]:
+    """Score ``estimators`` (:func:`estimator_specs`) on BROAD trials and captures with ground truth (``paths``:
+    files and directories of them), and each ``firmware`` ELF on the emulated board with each trial.
+
+    ``native``: BROAD trials at their own rate, not through the STEVAL pipeline model (``seed``, with
+    ``sensor_noise`` the LSM6DSL's white noise too); ``max_seconds``: the first seconds of each trial; ``variant``:
+    the release of the replica run on a firmware's inputs; ``progress(fraction, stage)``. Every input is checked
+    before the work; UserError names what is wrong."""
+    items = broad.trial_paths(paths)
+    estimator_specs(estimators, 100.0)  # the selection, checked before any work (the rate does not matter)
+    if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):
+        raise ParamError(f"{{max_seconds}} must be a positive number of seconds, got {max_seconds}", "max_seconds")
+    elfs = list(firmware)
+    labels = firmware_labels(elfs)
+    for elf in elfs:
+        Elf(elf)  # missing or not an ARM ELF: one sentence before the long run
+    n_trials = sum(p.suffix == ".npz" for p in items)
+    if elfs and not n_trials:
+        raise ParamError("{firmware} runs on BROAD trials (.npz): give at least one", "firmware")
+    n_specs = len(estimator_specs(estimators, 100.0))
+    total = max(1, len(items) * n_specs + n_trials * len(elfs) * FIRMWARE_WEIGHT)
+    done = 0
+
+    def tick(name: str, stage: str, units: float = 1.0) -> None:
+        nonlocal done
+        if progress:
+            progress(min(done / total, 1.0), f"{name[:32]}: {stage}")
+        done += units
+
+    results = []
+    for p in items:
+        tick(p.name, "loading", 0)
+        if p.suffix != ".npz":
+            results.append(evaluate_capture(p, estimator_specs(estimators, AHRS_RATE_HZ), progress=tick))
+            continue
+        trial = cut_trial(broad.load_trial(p), max_seconds)
+        if native:
+            view = broad.own_rate_view(trial)
+        else:
+            view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
+        res = evaluate_view(view, estimator_specs(estimators, view.rate_hz, own_rate=native), trial.name, tick)
+        for elf, label in zip(elfs, labels):
+            start = done
+
+            def fw_progress(fraction: float, name=trial.name, label=label, start=start) -> None:
+                if progress:
+                    progress(min((start + fraction * FIRMWARE_WEIGHT) / total, 1.0), f"{name[:32]}: {label} (emulated)")
+
+            run = run_firmware(elf, trial, label=label, seed=seed, progress=fw_progress, variant=variant)
+            add_firmware(res, run)
+            done += FIRMWARE_WEIGHT
+        results.append(res)
+    return results

@@ -41,7 +41,7 @@ from steval_link.emulation.broad import BroadTrial
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
 from steval_link.emulation.symbol_attitude import elf_filter_variant
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
@@ -62,7 +62,7 @@ def firmware_labels(paths: Sequence[Path | str]) -> list[str]:
     seen: dict[Path, str] = {}
     for p, given in zip(resolved, paths):
         if p in seen:
-            raise UserError(f"--firmware {given} is given twice (as {seen[p]})")
+            raise ParamError(f"{{firmware}} {given} is given twice (as {seen[p]})", "firmware")
         seen[p] = str(given)
     parts = [p.parts for p in resolved]
     labels = []

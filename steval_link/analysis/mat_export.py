@@ -20,7 +20,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError
 
 __all__ = ["INSTALL_HINT", "require_scipy", "mat_name", "write_mat"]
 
@@ -34,7 +34,7 @@ def require_scipy():
     try:
         from scipy.io import savemat  # optional package (extra "mat")
     except ImportError:
-        raise UserError(f"--mat needs scipy, which is not installed: {INSTALL_HINT}") from None
+        raise ParamError(f"{{mat}} needs scipy, which is not installed: {INSTALL_HINT}", "mat") from None
     return savemat
 
 

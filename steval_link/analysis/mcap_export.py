@@ -26,7 +26,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from steval_link.analysis.mcap_writer import McapWriter
-from steval_link.errors import UserError
+from steval_link.errors import ParamError
 from steval_link.link import protocol as P
 from steval_link.quat import quaternion_from_euler
 
@@ -181,7 +181,7 @@ def require_mcap():
         import mcap.records as records  # optional package (extra "mcap")
         import zstandard  # noqa: F401  (the mcap package's own dependency, for the chunks)
     except ImportError:
-        raise UserError(f"--mcap needs the mcap package, which is not installed: {INSTALL_HINT}") from None
+        raise ParamError(f"{{mcap}} needs the mcap package, which is not installed: {INSTALL_HINT}", "mcap") from None
     return records
 
 

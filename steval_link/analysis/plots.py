@@ -16,7 +16,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_link.analysis.report import angle_diff_rad, on_rows
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 __all__ = [
     "INSTALL_HINT",
@@ -57,7 +57,7 @@ def require_matplotlib():
         matplotlib.use("Agg", force=True)
         import matplotlib.pyplot as plt
     except ImportError:
-        raise UserError(f"--plot needs matplotlib, which is not installed: {INSTALL_HINT}") from None
+        raise ParamError(f"{{plot}} needs matplotlib, which is not installed: {INSTALL_HINT}", "plot") from None
     return plt
 
 

@@ -215,7 +215,7 @@ def _check_moves(rep: PreflightReport, att, gyro: np.ndarray, fc) -> bool:
         rep.problems.append(
             f"the first three moves turned about {names}: not the guided sequence (tilt right, nose "
             "up, turn right: three different axes, even when they are swapped); record it again "
-            "with steval preflight --port"
+            "with steval preflight, live"
         )
         return False
     for k, mv in enumerate(MOVES):

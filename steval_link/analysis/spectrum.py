@@ -28,7 +28,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation.sensor_model import GYRO_ODR_HZ, iir_frequency_response
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 __all__ = [
     "SIGNALS",
@@ -290,11 +290,11 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     Raises :class:`UserError` when the capture has no attitude rows or no run long enough for one window.
     """
     if not 0 <= overlap < 1:
-        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap}")
+        raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:
-        raise UserError(f"--throttle-bins must be at least 1, got {throttle_bins}")
+        raise ParamError(f"{{throttle_bins}} must be at least 1, got {throttle_bins}", "throttle_bins")
     if nperseg is not None and nperseg < MIN_NPERSEG:
-        raise UserError(f"--nperseg must be at least {MIN_NPERSEG} rows, got {nperseg}")
+        raise ParamError(f"{{nperseg}} must be at least {MIN_NPERSEG} rows, got {nperseg}", "nperseg")
     att = tel.attitude
     n = len(att.step)
     if n == 0:
@@ -534,7 +534,7 @@ def format_summary(
         f"{100 * (1 - sp.hop / sp.nperseg):.0f} % overlap)",
         f"rows at {sp.rate_hz:.2f} Hz (firmware clock): Nyquist {sp.nyquist_hz:.2f} Hz, resolution "
         f"{sp.resolution_hz:.2f} Hz. The sensors are read at {C.ISR_RATE_HZ:.1f} Hz (ISR) and averaged 5 to 1, so "
-        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz| (--mark-hz F).",
+        f"vibration above {sp.nyquist_hz:.2f} Hz shows at its alias |f - k*{sp.rate_hz:.2f} Hz|.",
     ]
     lines += [f"note: {n}" for n in sp.notes]
     lines.append(

@@ -340,7 +340,7 @@ def _command_lines(cmds: list[dict], max_lines: int) -> list[str]:
     lines = [f"commands: {len(cmds)} sent to the drone or answered, {acked} acknowledged"]
     lines += [f"  {c['t_host_s']:8.3f} s  {c['text']}" for c in cmds[:max_lines]]
     if len(cmds) > max_lines:
-        lines.append(f"  … {len(cmds) - max_lines} more (--json lists them all)")
+        lines.append(f"  … {len(cmds) - max_lines} more (the JSON summary lists them all)")
     return lines
 
 

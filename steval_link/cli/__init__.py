@@ -25,6 +25,7 @@ from steval_link.cli import simulate as _simulate  # noqa: F401
 from steval_link.cli import spectrum as _spectrum  # noqa: F401
 from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.checks import user_message
 from steval_link.cli.signals import signals_interrupt
 from steval_link.errors import UserError, printable
 
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> None:
         details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code
         if details:
             print(details, file=sys.stderr)
-        print(f"steval: error: {printable(exc)}", file=sys.stderr)
+        print(f"steval: error: {printable(user_message(exc))}", file=sys.stderr)
         sys.exit(exc.exit_code)
     except _USAGE_ERRORS as exc:
         if type(exc).__name__ == "NoArgsIsHelpError":  # `steval` alone: the help, exit 2

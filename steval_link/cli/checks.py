@@ -6,16 +6,51 @@ from __future__ import annotations
 
 import math
 import os
+import shlex
 from collections.abc import Sequence
 from typing import Annotated, Optional
 
 import typer
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import variant_name
 
 #: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
 MAX_THROTTLE = 32767
+
+
+#: the library parameters whose flag is not ``--`` and the name with dashes
+_FLAGS = {
+    "throttle": "--throttle-schedule",
+    "fmt": "--format",
+    "duration_s": "--duration",
+    "join_at_s": "--join-at",
+    "path": "--out",
+}
+
+
+def flag_of(param: str) -> str:
+    """The command-line flag of a library parameter (``duration_s`` → ``--duration``)."""
+    return _FLAGS.get(param, "--" + param.replace("_", "-"))
+
+
+def user_message(exc: Exception) -> str:
+    """An error's sentence for a command-line user: a :class:`ParamError` names flags, not parameters."""
+    return exc.worded(flag_of) if isinstance(exc, ParamError) else str(exc)
+
+
+def command_line(words: list[str], settings: dict) -> str:
+    """The command line that repeats a run: ``words``, then each setting by its flag (True: the flag alone; False:
+    its ``--no-`` form; a list: the flag repeated)."""
+    parts = list(words)
+    for name, value in settings.items():
+        flag = flag_of(name)
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, bool):
+                parts.append(flag if v else "--no-" + flag[2:])
+            else:
+                parts += [flag, f"{v:g}" if isinstance(v, float) else str(v)]
+    return shlex.join(parts)
 
 
 def _num(value: float) -> str:
@@ -45,6 +80,57 @@ def check_filter_options(
     check_throttle("--min-thr", min_thr)
 
 
+# The filter's options, one definition each, shared by every command that runs the replica (None: not given).
+KiOption = Annotated[
+    Optional[float],
+    typer.Option(
+        "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).", show_default=False
+    ),
+]
+KpGroundOption = Annotated[
+    Optional[float],
+    typer.Option("--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False),
+]
+KpFlightOption = Annotated[
+    Optional[float],
+    typer.Option("--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False),
+]
+MinThrOption = Annotated[
+    Optional[int],
+    typer.Option(
+        "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).", show_default=False
+    ),
+]
+CorrectionOption = Annotated[
+    Optional[bool],
+    typer.Option(
+        "--correction/--no-correction",
+        help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
+        show_default=False,
+    ),
+]
+DtOption = Annotated[
+    Optional[float],
+    typer.Option(
+        "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).", show_default=False
+    ),
+]
+
+
+#: ``--throttle-schedule``: the throttle over time of an emulated or modelled drone (``--throttle`` of ``simulate``
+#: is one gTHR value for every step)
+ThrottleScheduleOption = Annotated[
+    Optional[str],
+    typer.Option(
+        "--throttle-schedule",
+        metavar="N|t:v,...",
+        help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in "
+        "between, held outside).",
+        show_default=False,
+    ),
+]
+
+
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
 VariantOption = Annotated[
     Optional[str],
@@ -66,6 +152,12 @@ def check_variant(value: str | None) -> str | None:
         return variant_name(value)
     except ValueError as exc:
         raise UserError(f"--variant: {exc}") from None
+
+
+def check_period(option: str, value: float | None) -> None:
+    """An integration period: a finite number of seconds > 0 (None: not given)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UserError(f"{option} must be a period > 0 s, got {_num(value)}")
 
 
 def check_count(option: str, value: int, maximum: int) -> None:

@@ -7,9 +7,8 @@ shown with its first step and a diagnosis, and ``port.all_exact`` is false in ``
 
 from __future__ import annotations
 
-import math
 import sys
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -25,19 +24,26 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app
-from steval_link.cli.checks import VariantOption, check_filter_options, check_variant, require_attitude
+from steval_link.cli.checks import (
+    CorrectionOption,
+    DtOption,
+    KiOption,
+    KpFlightOption,
+    KpGroundOption,
+    MinThrOption,
+    VariantOption,
+    check_filter_options,
+    check_period,
+    check_variant,
+    require_attitude,
+)
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import (
-    ConnectOption,
-    GrpcPortOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     check_view_flags,
     view_sinks,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -45,7 +51,7 @@ from steval_link.estimators.runner import run_estimator
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import SinkOptions
 
 __all__ = ["compare_command"]
 
@@ -56,109 +62,83 @@ def flight_plot_path(out_png: Path) -> Path:
     return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
 
 
-def _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction):
-    """Port settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
-
-    changes = {
-        k: v
-        for k, v in dict(
-            ki=ki,
-            kp_ground=kp_ground,
-            kp_flight=kp_flight,
-            dt_s=dt,
-            min_thr=min_thr,
-            correction=correction,
-        ).items()
-        if v is not None
-    }
+def _settings(tel, changes: dict):
+    """Replica settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
+    changes = {k: v for k, v in changes.items() if v is not None}
     if not changes:
         return None
-    for k, v in changes.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            raise UserError(f"--{k.replace('_s', '').replace('_', '-')} must be a finite number, got {v}")
-    if dt is not None and dt <= 0:
-        raise UserError(f"--dt must be a period > 0 s, got {dt}")
     s = tel.status
-    base = MahonySettings()
-    ex = [j for j in range(len(s)) if s.exact[j]]
-    if ex:
-        j = ex[0]
-        base = MahonySettings.of_status(s, j)
+    exact = [j for j in range(len(s)) if s.exact[j]]
+    base = MahonySettings.of_status(s, exact[0]) if exact else MahonySettings()
     return replace(base, **changes)
 
 
+_Captures = Annotated[
+    Optional[list[Path]],
+    typer.Argument(
+        help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
+        "more: the flights side by side (see below).",
+        show_default=False,
+        metavar="CAPTURE",
+    ),
+]
+_Plot = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--plot",
+        metavar="OUT.png",
+        help="Also write a figure (angles over time, firmware − port, "
+        "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
+        "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
+        'side; needs matplotlib: pip install "steval-link\\[plot]".',
+    ),
+]
+#: ``-e`` of compare and report: the estimators compared with the firmware
+CompareEstimatorsOption = Annotated[
+    Optional[list[str]],
+    typer.Option(
+        "--estimator",
+        "--estimators",
+        "-e",
+        help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
+        "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
+        "The seeded ST-Mahony port is always compared.",
+    ),
+]
+_Align = Annotated[
+    str,
+    typer.Option(
+        "--align",
+        metavar="time|motion",
+        help="Two or more captures: align by firmware time from each first frame (time), or by "
+        "cross-correlating the gyro with the first capture's (motion; the lag found is printed).",
+    ),
+]
+_Label = Annotated[
+    Optional[list[str]],
+    typer.Option("--label", help="Two or more captures: the name of each flight, in order (repeat it)."),
+]
+
+
 @app.command("compare")
+@with_rerun_options
 def compare_command(
-    captures: Annotated[
-        Optional[list[Path]],
-        typer.Argument(
-            help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
-            "more: the flights side by side (see below).",
-            show_default=False,
-            metavar="CAPTURE",
-        ),
-    ] = None,
+    captures: _Captures = None,
     as_json: JsonReportOption = False,
-    plot: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--plot",
-            metavar="OUT.png",
-            help="Also write a figure (angles over time, firmware − port, "
-            "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
-            "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
-            'side; needs matplotlib: pip install "steval-link\\[plot]".',
-        ),
-    ] = None,
-    estimator: Annotated[
-        Optional[list[str]],
-        typer.Option(
-            "--estimator",
-            "--estimators",
-            "-e",
-            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
-            "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
-            "The seeded ST-Mahony port is always compared.",
-        ),
-    ] = None,
-    ki: Annotated[
-        Optional[float],
-        typer.Option(
-            "--ki", help="Run the port with this AHRS_KI instead of the status frames' (diagnosis of a mismatch)."
-        ),
-    ] = None,
-    kp_ground: Annotated[Optional[float], typer.Option("--kp-ground", help="Port kp below MIN_THR.")] = None,
-    kp_flight: Annotated[Optional[float], typer.Option("--kp-flight", help="Port kp at or above MIN_THR.")] = None,
-    dt: Annotated[Optional[float], typer.Option("--dt", help="Port integration period, s.")] = None,
-    min_thr: Annotated[Optional[int], typer.Option("--min-thr", help="Port gain-switch throttle.")] = None,
-    correction: Annotated[
-        Optional[bool],
-        typer.Option(
-            "--correction/--no-correction", help="Port with/without accelerometer correction.", show_default=False
-        ),
-    ] = None,
+    plot: _Plot = None,
+    estimator: CompareEstimatorsOption = None,
+    ki: KiOption = None,
+    kp_ground: KpGroundOption = None,
+    kp_flight: KpFlightOption = None,
+    dt: DtOption = None,
+    min_thr: MinThrOption = None,
+    correction: CorrectionOption = None,
     variant: VariantOption = None,
-    align: Annotated[
-        str,
-        typer.Option(
-            "--align",
-            metavar="time|motion",
-            help="Two or more captures: align by firmware time from each first frame (time), or by "
-            "cross-correlating the gyro with the first capture's (motion; the lag found is printed).",
-        ),
-    ] = "time",
-    label: Annotated[
-        Optional[list[str]],
-        typer.Option("--label", help="Two or more captures: the name of each flight, in order (repeat it)."),
-    ] = None,
-    rrd: RrdOption = None,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+    align: _Align = "time",
+    label: _Label = None,
     force: ForceOption = False,
     text_map: MapOption = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
@@ -170,7 +150,18 @@ def compare_command(
     mismatched inputs (durations, BLE against serial, lost frames, a truncated capture) are noted. --plot writes one
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
+    filter_options = {
+        "--ki": ki,
+        "--kp-ground": kp_ground,
+        "--kp-flight": kp_flight,
+        "--dt": dt,
+        "--min-thr": min_thr,
+        "--correction/--no-correction": correction,
+        "--variant": variant,
+    }
+    viewer = asdict(rerun)
     if captures and len(captures) > 1:
+        port_options = {"--estimator": estimator, **filter_options}
         _side_by_side(
             captures,
             as_json=as_json,
@@ -178,26 +169,32 @@ def compare_command(
             force=force,
             align=align,
             labels=label,
-            port_options={
-                "--estimator": estimator,
-                "--ki": ki,
-                "--kp-ground": kp_ground,
-                "--kp-flight": kp_flight,
-                "--dt": dt,
-                "--min-thr": min_thr,
-                "--correction/--no-correction": correction,
-                "--variant": variant,
-            },
-            viewer=dict(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port),
+            port_options=port_options,
+            viewer=viewer,
         )
         return
-    capture = captures[0] if captures else None
-    if align != "time" or label or rrd is not None or spawn or serve or connect is not None:
+    if align != "time" or label or rerun.any():
         raise UserError(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."
         )
+    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
+    check_period("--dt", dt)
+    changes = dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, dt_s=dt, min_thr=min_thr, correction=correction)
+    _one_capture(
+        captures[0] if captures else None,
+        estimator,
+        changes,
+        check_variant(variant),
+        as_json=as_json,
+        plot=plot,
+        force=force,
+        text_map=text_map,
+    )
 
+
+def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, plot, force: bool, text_map) -> None:
+    """``steval compare CAPTURE``: the firmware against the replica and the estimators (text or JSON, figures)."""
     # repeatable, and each value may be a comma-separated list like the other commands' --estimators
     names = registry.parse_names(
         ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
@@ -208,40 +205,40 @@ def compare_command(
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
-    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
-        if plot is not None and no_fc_plot is None:
-            check_output(flight_plot_path(plot), option="--plot", force=force, inputs=(src.path,))
+        fc_plot = flight_plot_path(plot) if plot is not None and no_fc_plot is None else None
+        if fc_plot is not None:
+            check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
             print(f"steval: warning: {w}", file=sys.stderr)
-        settings = _settings(tel, ki, kp_ground, kp_flight, dt, min_thr, correction)
         progress(0.4, f"port and {', '.join(names)}")
-        report = compare_capture(
-            tel, estimators=names, settings=settings, variant=check_variant(variant), variant_source="--variant"
-        )
+        settings = _settings(tel, changes)
+        report = compare_capture(tel, estimators=names, settings=settings, variant=variant, variant_source="--variant")
         if as_json:
             report.notes.extend(seen)
         if plot is not None:
-            from steval_link.analysis.plots import plot_comparison  # matplotlib loads only for --plot (start-up time)
-
             progress(0.9, f"plotting {plot.name}")
-            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
-                plot_comparison(tel, report, part)
-                if no_fc_plot is None:
-                    from steval_link.analysis.plots import plot_flight_control  # as above
-
-                    fc_plot = flight_plot_path(plot)
-                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
-                        plot_flight_control(tel, fc_part)
+            _plots(tel, report, plot, fc_plot)
     plots = [] if plot is None else [("plot", "plot", plot)]
-    if plot is not None and no_fc_plot is None:
-        plots.append(("plot_flight_control", "flight-control plot", flight_plot_path(plot)))
+    if fc_plot is not None:
+        plots.append(("plot_flight_control", "flight-control plot", fc_plot))
     _print_report(as_json, report.as_dict, lambda: format_report(report), plots)
     if plot is not None and no_fc_plot is not None and len(tel.fc):
         print(f"no flight-control plot: {no_fc_plot}.", file=sys.stderr if as_json else sys.stdout)
+
+
+def _plots(tel, report, plot: Path, fc_plot: Path | None) -> None:
+    """The comparison figure, and the flight-control one where the drone was armed."""
+    from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
+
+    with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+        plot_comparison(tel, report, part)
+        if fc_plot is not None:
+            with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                plot_flight_control(tel, fc_part)
 
 
 def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:

@@ -8,12 +8,22 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
 
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import VariantOption, check_filter_options, check_variant
+from steval_link.cli.checks import (
+    CorrectionOption,
+    DtOption,
+    KiOption,
+    KpFlightOption,
+    KpGroundOption,
+    MinThrOption,
+    VariantOption,
+    check_filter_options,
+    check_period,
+    check_variant,
+)
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
 from steval_link.estimators.conformance import check_conformance, load_conformance_csv, variant_scores
@@ -30,12 +40,12 @@ def conformance_command(
         ..., metavar="CSV...", help="Conformance vector files (firmware outputs), or directories of them."
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the per-file results as JSON."),
-    ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain of the checked firmware (default 0.1)."),
-    kp_ground: Optional[float] = typer.Option(None, "--kp-ground", help="kp below MIN_THR (default 10)."),
-    kp_flight: Optional[float] = typer.Option(None, "--kp-flight", help="kp at or above MIN_THR (default 0.4)."),
-    min_thr: Optional[int] = typer.Option(None, "--min-thr", help="MIN_THR throttle threshold (default 200)."),
-    dt: Optional[float] = typer.Option(None, "--dt", help="SENSOR_SAMPLING_TIME in s (default 0.00625)."),
-    no_correction: bool = typer.Option(False, "--no-correction", help="Firmware without accelerometer correction."),
+    ki: KiOption = None,
+    kp_ground: KpGroundOption = None,
+    kp_flight: KpFlightOption = None,
+    min_thr: MinThrOption = None,
+    dt: DtOption = None,
+    correction: CorrectionOption = None,
     variant: VariantOption = None,
     pure: bool = typer.Option(False, "--pure", help="Use the pure-Python loop instead of the compiled one."),
 ) -> None:
@@ -46,16 +56,33 @@ def conformance_command(
     Exit status 0 when every step of every file is bit-exact, 1 otherwise, 2 for unreadable files.
     """
     check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
+    check_period("--dt", dt)
     forced = check_variant(variant)
-    overrides = {
-        k: v
-        for k, v in dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt).items()
-        if v is not None
-    }
+    given = dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt, correction=correction)
     try:
-        settings = MahonySettings(**overrides, correction=not no_correction)
+        settings = MahonySettings(**{k: v for k, v in given.items() if v is not None})
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    cases = [_load_case(path) for path in _csv_paths(csv_files)]
+    native = False if pure else None
+    scores = None
+    if forced is None:
+        scores = variant_scores(cases, settings, native=native)
+        forced = max(scores, key=lambda v: scores[v])  # the first of the best: the default on a tie
+    settings = replace(settings, variant=forced)
+    results = [check_conformance(case, settings, native=native) for case in cases]
+    all_ok = all(r.ok for r in results)
+    if json_out:
+        _print_json(results, settings, scores, all_ok)
+    else:
+        _print_table(results, all_ok)
+        print(_filter_line(settings.variant, scores, sum(r.steps for r in results)))
+    if not all_ok:
+        raise SystemExit(1)
+
+
+def _csv_paths(csv_files: list[Path]) -> list[Path]:
+    """The files, and each directory's ``*.csv``."""
     paths: list[Path] = []
     for path in csv_files:
         if path.is_dir():
@@ -65,60 +92,51 @@ def conformance_command(
             paths.extend(found)
         else:
             paths.append(check_input(path, what="conformance file"))
-    cases = []
-    for path in paths:
-        try:
-            cases.append(load_conformance_csv(path))
-        except FileNotFoundError:
-            raise UserError(f"{path}: no such file") from None
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read ({exc.strerror})") from None
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
-    native = False if pure else None
-    scores = None
-    if forced is None:
-        scores = variant_scores(cases, settings, native=native)
-        forced = max(scores, key=lambda v: scores[v])  # the first of the best: the default on a tie
-    settings = replace(settings, variant=forced)
-    results = [check_conformance(case, settings, native=native) for case in cases]
-    all_ok = all(r.ok for r in results)
-    total = sum(r.steps for r in results)
-    filter_line = _filter_line(settings.variant, scores, total)
+    return paths
 
-    if json_out:
-        out = {
-            "filter": settings.variant,
-            "filter_from": "--variant" if scores is None else "data",
-            "variant_bit_exact_steps": scores,
-            "settings": settings.__dict__,
-            "ok": all_ok,
-            "files": [
-                {**r.as_dict(), "max_abs_dq": _json_num(r.max_abs_dq), "max_abs_dth_rad": _json_num(r.max_abs_dth)}
-                for r in results
-            ],
-        }
-        json.dump(out, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-    else:
-        width = max(len(r.name) for r in results)
+
+def _load_case(path: Path):
+    """One conformance file, or one sentence why not."""
+    try:
+        return load_conformance_csv(path)
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror})") from None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _print_json(results, settings: MahonySettings, scores: dict[str, int] | None, all_ok: bool) -> None:
+    out = {
+        "filter": settings.variant,
+        "filter_from": "--variant" if scores is None else "data",
+        "variant_bit_exact_steps": scores,
+        "settings": settings.__dict__,
+        "ok": all_ok,
+        "files": [
+            {**r.as_dict(), "max_abs_dq": _json_num(r.max_abs_dq), "max_abs_dth_rad": _json_num(r.max_abs_dth)}
+            for r in results
+        ],
+    }
+    json.dump(out, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def _print_table(results, all_ok: bool) -> None:
+    width = max(len(r.name) for r in results)
+    print(f"{'file':<{width}}  {'steps':>8}  {'bit-exact':>9}  {'max|Δq|':>10}  {'max|Δθ| rad':>11}  first mismatch")
+    for r in results:
+        first = "-" if r.first_mismatch_step is None else f"step {r.first_mismatch_step}"
+        if r.nan_mismatches:
+            first += f" ({r.nan_mismatches} NaN on one side only)"
         print(
-            f"{'file':<{width}}  {'steps':>8}  {'bit-exact':>9}  {'max|Δq|':>10}  {'max|Δθ| rad':>11}  first mismatch"
+            f"{r.name:<{width}}  {r.steps:>8}  {r.exact_steps:>9}  {r.max_abs_dq:>10.3g}  "
+            f"{r.max_abs_dth:>11.3g}  {first}"
         )
-        for r in results:
-            first = "-" if r.first_mismatch_step is None else f"step {r.first_mismatch_step}"
-            if r.nan_mismatches:
-                first += f" ({r.nan_mismatches} NaN on one side only)"
-            print(
-                f"{r.name:<{width}}  {r.steps:>8}  {r.exact_steps:>9}  {r.max_abs_dq:>10.3g}  "
-                f"{r.max_abs_dth:>11.3g}  {first}"
-            )
-        exact = sum(r.exact_steps for r in results)
-        verdict = "all bit-exact" if all_ok else "MISMATCH"
-        print(f"{len(results)} file(s), {exact} of {total} steps bit-exact: {verdict}")
-        print(filter_line)
-    if not all_ok:
-        raise SystemExit(1)
+    exact = sum(r.exact_steps for r in results)
+    total = sum(r.steps for r in results)
+    print(f"{len(results)} file(s), {exact} of {total} steps bit-exact: {'all bit-exact' if all_ok else 'MISMATCH'}")
 
 
 def _filter_line(variant: str, scores: dict[str, int] | None, total: int) -> str:

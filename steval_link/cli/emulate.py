@@ -4,121 +4,143 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app
-from steval_link.cli.checks import VariantOption, check_variant
-from steval_link.cli.live import check_duration, session_outputs
+from steval_link.cli.checks import ThrottleScheduleOption, VariantOption, check_variant, command_line
+from steval_link.cli.live import check_duration, live_estimators, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
-    ConnectOption,
-    GrpcPortOption,
     NoViewOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     check_view_flags,
+    with_rerun_options,
 )
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
-from steval_link.estimators import registry
 from steval_link.estimators.runner import run_estimator
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
 from steval_link.link.load import load_telemetry
 from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
 from steval_viewer.live_adapter import make_viewer_logger
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions
+from steval_viewer.sink_options import SinkOptions
 
-
-@app.command("emulate")
-def emulate_command(
-    elf: Path = typer.Argument(
-        ...,
+_Elf = Annotated[
+    Path,
+    typer.Argument(
         help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
         "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
         "(patched or stock, e.g. from STM32CubeIDE).",
     ),
-    scenario: str = typer.Option(
-        "bench",
+]
+_Scenario = Annotated[
+    str,
+    typer.Option(
         "--scenario",
         "-s",
         help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
         "preflight (the preflight check's hand moves).",
     ),
-    broad: Optional[Path] = typer.Option(
-        None,
+]
+_Broad = Annotated[
+    Optional[Path],
+    typer.Option(
         "--broad",
         help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
         "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
     ),
-    duration: Optional[float] = typer.Option(
-        None,
+]
+_Duration = Annotated[
+    Optional[float],
+    typer.Option(
         "--duration",
         help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at "
         "≈ 2.985 s).",
     ),
-    seed: int = typer.Option(0, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes)."),
-    throttle: Optional[str] = typer.Option(
-        None, "--throttle", help="Override the remote's throttle: N or 't:v,t:v,...' (s since power-up : gTHR)."
-    ),
-    mount: Optional[str] = typer.Option(
-        None,
+]
+_Seed = Annotated[int, typer.Option("--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).")]
+_Mount = Annotated[
+    Optional[str],
+    typer.Option(
         "--mount",
         help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
         "reversed), as a wrong COORDINATE_SYSTEM would read it.",
     ),
-    out: CaptureOutOption = None,
-    rrd: RrdOption = None,
-    no_view: NoViewOption = False,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
-    estimators: Optional[list[str]] = typer.Option(
-        None,
+]
+_Estimators = Annotated[
+    Optional[list[str]],
+    typer.Option(
         "--estimators",
         "-e",
         help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
     ),
-    realtime: bool = typer.Option(
-        False, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs)."
-    ),
-    commands: Optional[Path] = typer.Option(
-        None,
+]
+_Realtime = Annotated[
+    bool, typer.Option("--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
+]
+_Commands = Annotated[
+    Optional[Path],
+    typer.Option(
         "--commands",
         help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', "
         "'12 correction off', '15 reset'), sent to the firmware's USART1 RX at those times.",
     ),
-    prompt: Optional[bool] = typer.Option(
-        None,
+]
+_Prompt = Annotated[
+    Optional[bool],
+    typer.Option(
         "--prompt/--no-prompt",
         help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the "
         "emulated firmware. Default: when stdin is a terminal.",
     ),
-    ble: bool = typer.Option(
-        False,
+]
+_Ble = Annotated[
+    bool,
+    typer.Option(
         "--ble",
         help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
         "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
     ),
-    ble_connect_at: float = typer.Option(
-        0.5, "--ble-connect-at", help="With --ble: emulated s at which the central connects."
-    ),
-    tick_start_ms: int = typer.Option(
-        0,
+]
+_BleConnectAt = Annotated[
+    float, typer.Option("--ble-connect-at", help="With --ble: emulated s at which the central connects.")
+]
+_TickStartMs = Annotated[
+    int,
+    typer.Option(
         "--tick-start-ms",
         help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after "
         "power-up).",
         min=0,
     ),
+]
+
+
+@app.command("emulate")
+@with_rerun_options
+def emulate_command(
+    elf: _Elf,
+    scenario: _Scenario = "bench",
+    broad: _Broad = None,
+    duration: _Duration = None,
+    seed: _Seed = 0,
+    throttle_schedule: ThrottleScheduleOption = None,
+    mount: _Mount = None,
+    out: CaptureOutOption = None,
+    no_view: NoViewOption = False,
+    estimators: _Estimators = None,
+    realtime: _Realtime = False,
+    commands: _Commands = None,
+    prompt: _Prompt = None,
+    ble: _Ble = False,
+    ble_connect_at: _BleConnectAt = 0.5,
+    tick_start_ms: _TickStartMs = 0,
     variant: VariantOption = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Run a real firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
 
@@ -131,54 +153,53 @@ def emulate_command(
     it too. The ST release's filter is recognised from the ELF's code (or --variant) and named.
     """
     variant = check_variant(variant)
-    check_input(elf, what="firmware ELF")  # the inputs first
-    if broad is not None:
-        check_input(broad, what="BROAD trial")
-    if commands is not None:
-        check_input(commands, what="command script")
+    for path, what in ((elf, "firmware ELF"), (broad, "BROAD trial"), (commands, "command script")):
+        if path is not None:
+            check_input(path, what=what)  # the inputs first
     if broad is not None and scenario != "bench":
         raise UserError("choose --scenario or --broad, not both")
     check_duration(duration)
     emu_options = EmulationOptions(
-        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle
+        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle_schedule
     )
     if ble:
-        if rrd is not None or spawn or serve or connect:
+        if rerun.any():
             raise UserError(
                 "--ble records a BLE capture only; view it afterwards with steval replay CAPTURE.stv (--spawn, --rrd)"
             )
         _emulate_ble(emu_options, out, ble_connect_at, tick_start_ms)
         return
-    check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
+    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
     emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
-    script = None
-    if commands is not None:
-        try:
-            text = commands.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
-        script = parse_script(text, str(commands))
+    emu_options.command_line = command_line(
+        ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}
+    )
     source = source_for(
         EMULATED_SCHEME,
         emulation=emu_options,
         realtime=realtime,
-        commands=script,
+        commands=_script(commands),
         commands_file=str(commands) if commands is not None else None,
         variant=variant,
         variant_from="--variant",
     )
-    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
-    options = LiveOptions(
-        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
-        prompt=prompt,
-    )
+    options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
-    check = session_outputs(options, out, sinks, view=not no_view)
+    check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()
-    print(summary.line())
-    for line in _estimator_lines(summary, options.estimators):
-        print(line)
+    print("\n".join([summary.line(), *_estimator_lines(summary, options.estimators)]))
     sys.stdout.flush()
+
+
+def _script(commands: Path | None):
+    """The command script of ``--commands``, read (None without one)."""
+    if commands is None:
+        return None
+    try:
+        text = commands.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"cannot read the command script {commands}: {getattr(exc, 'strerror', None) or exc}")
+    return parse_script(text, str(commands))
 
 
 def _estimator_lines(summary, names) -> list[str]:
@@ -211,9 +232,8 @@ def _emulate_ble(emu_options: EmulationOptions, out, connect_s: float, tick_star
     else:  # the default, recordings/steval-<UTC>.stv, as steval live makes it
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
-    command = emu_options.command() + f" --ble --ble-connect-at {connect_s:g}"
-    if tick_start_ms:
-        command += f" --tick-start-ms {tick_start_ms}"
+    ble = {"ble": True, "ble_connect_at": connect_s, "tick_start_ms": tick_start_ms or None}
+    command = command_line(["steval", "emulate", str(emu_options.elf)], {**emu_options.settings(), **ble})
     rec = record_ble(emu_options, path, connect_s=connect_s, tick_start_ms=tick_start_ms, command=command)
     print("\n".join(rec.lines()))
     sys.stdout.flush()

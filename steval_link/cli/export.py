@@ -13,7 +13,7 @@ from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
 from steval_link.cli.app import app
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
@@ -84,43 +84,50 @@ def write_raw(data: bytes, path: Path) -> None:
     path.write_bytes(data)
 
 
+_Capture = Annotated[Path, typer.Argument(help="Capture (.stv), raw serial dump or text-mode log.")]
+_Csv = Annotated[
+    Optional[Path],
+    typer.Option("--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."),
+]
+_Parquet = Annotated[
+    Optional[Path], typer.Option("--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
+]
+_Raw = Annotated[Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")]
+_Mat = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--mat",
+        help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
+        "columns, plus settings and header (needs scipy).",
+    ),
+]
+_Mcap = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--mcap",
+        help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
+        "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
+        "mcap).",
+    ),
+]
+_Degrees = Annotated[
+    bool,
+    typer.Option(
+        "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
+    ),
+]
+
+
 @app.command()
 def export(
-    capture: Annotated[Path, typer.Argument(help="Capture (.stv), raw serial dump or text-mode log.")],
-    csv: Annotated[
-        Optional[Path],
-        typer.Option("--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."),
-    ] = None,
-    parquet: Annotated[
-        Optional[Path], typer.Option("--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
-    ] = None,
-    raw: Annotated[
-        Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
-    ] = None,
-    mat: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--mat",
-            help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
-            "columns, plus settings and header (needs scipy).",
-        ),
-    ] = None,
-    mcap: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--mcap",
-            help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
-            "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
-            "mcap).",
-        ),
-    ] = None,
-    degrees: Annotated[
-        bool,
-        typer.Option(
-            "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
-        ),
-    ] = False,
-    force: Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")] = False,
+    capture: _Capture,
+    csv: _Csv = None,
+    parquet: _Parquet = None,
+    raw: _Raw = None,
+    mat: _Mat = None,
+    mcap: _Mcap = None,
+    degrees: _Degrees = False,
+    force: ForceOption = False,
 ) -> None:
     """Export a capture as CSV / Parquet (one row per attitude frame), MATLAB (--mat), MCAP (--mcap) or as the raw
     serial bytes.
@@ -144,12 +151,8 @@ def export(
     (foxglove.FrameTransform), /attitude/pose (foxglove.PoseInFrame), /attitude (steval.Attitude), /status,
     /flight_control; JSON, log time = firmware time. Both are written to OUT.partial, then renamed.
     """
-    outputs = [
-        (opt, p)
-        for opt, p in (("--csv", csv), ("--parquet", parquet), ("--raw", raw), ("--mat", mat), ("--mcap", mcap))
-        if p is not None
-    ]
-    if not outputs:
+    outputs = {"--csv": csv, "--parquet": parquet, "--raw": raw, "--mat": mat, "--mcap": mcap}
+    if not any(outputs.values()):
         raise UserError(
             "nothing to export: give --csv OUT, --parquet OUT, --raw OUT.bin, --mat OUT.mat and/or --mcap OUT.mcap."
         )
@@ -158,36 +161,44 @@ def export(
     if mcap is not None:
         require_mcap()
     src = read_recording(capture)  # the input first, then the outputs, then the work
-    for opt, p in outputs:
-        check_output(p, option=opt, force=force, inputs=(capture,))
+    for opt, p in outputs.items():
+        if p is not None:
+            check_output(p, option=opt, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
         progress(0.1, "decoding")
-        tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap or is_ble_source(src)) else None
-        if tel is not None and tel.link is not None:
-            _export_ble(tel, csv, parquet, raw, progress, mat, mcap)
-            return
-        records = tel is not None and len(tel.text_series) > 0 and not tel.has_own_attitude
-        if tel is not None and not (records and mcap is None):
-            require_attitude(tel, "export (--raw gives the bytes)")
-        for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
-            typer.echo(f"steval: warning: {w}", err=True)
-        if raw is not None:
-            with atomic_output(raw, option="--raw") as part:
-                write_raw(src.data, part)
-            typer.echo(f"{raw}: {len(src.data)} bytes")
-        if records and (csv is not None or parquet is not None):  # a text log: a row per record
-            records_table = tel.text_series.table()
-            _write_table(records_table, csv, parquet, progress, f"{len(tel.text_series)} text records", shortest=True)
-        elif tel is not None and (csv is not None or parquet is not None):
-            table = tel.attitude_table()
-            table.update(tel.flight_columns())
-            if degrees:
-                table = in_degrees(table)
-            _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
-        if tel is not None and mat is not None:
-            _export_mat(tel, mat, degrees, progress)
-        if tel is not None and mcap is not None:
-            _export_mcap(tel, mcap, progress)
+        if is_ble_source(src):
+            csv, parquet, raw, mat, mcap = outputs.values()
+            _export_ble(telemetry_of_recording(src), csv, parquet, raw, progress, mat, mcap)
+        else:
+            _export_serial(src, outputs, degrees, progress)
+
+
+def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
+    """A serial capture or text log: its attitude rows (a text log's records), the bytes, MATLAB and MCAP."""
+    csv, parquet, raw, mat, mcap = outputs.values()
+    tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap) else None
+    records = tel is not None and len(tel.text_series) > 0 and not tel.has_own_attitude
+    if tel is not None and not (records and mcap is None):
+        require_attitude(tel, "export (--raw gives the bytes)")
+    for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
+        typer.echo(f"steval: warning: {w}", err=True)
+    if raw is not None:
+        with atomic_output(raw, option="--raw") as part:
+            write_raw(src.data, part)
+        typer.echo(f"{raw}: {len(src.data)} bytes")
+    if records and (csv is not None or parquet is not None):  # a text log: a row per record
+        records_table = tel.text_series.table()
+        _write_table(records_table, csv, parquet, progress, f"{len(tel.text_series)} text records", shortest=True)
+    elif tel is not None and (csv is not None or parquet is not None):
+        table = tel.attitude_table()
+        table.update(tel.flight_columns())
+        if degrees:
+            table = in_degrees(table)
+        _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
+    if tel is not None and mat is not None:
+        _export_mat(tel, mat, degrees, progress)
+    if tel is not None and mcap is not None:
+        _export_mcap(tel, mcap, progress)
 
 
 def write_atomic(path: Path, option: str, write) -> None:

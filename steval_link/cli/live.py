@@ -18,14 +18,9 @@ from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
-    ConnectOption,
-    GrpcPortOption,
     NoViewOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     check_view_flags,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -33,7 +28,7 @@ from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
 from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, port_source, source_for
 from steval_viewer.live_adapter import make_viewer_logger
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, session_sinks
+from steval_viewer.sink_options import SinkOptions, session_sinks
 
 _PORT_HELP = (
     "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
@@ -92,6 +87,11 @@ def _stdout_to_devnull() -> None:
     os.close(devnull)
 
 
+def live_estimators(estimators: list[str] | None) -> list[str]:
+    """The host estimators of ``-e`` (comma-separated or repeated; 'none'), default those of a live session."""
+    return registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT)
+
+
 def check_duration(duration: float | None) -> None:
     if duration is not None and not duration > 0:
         raise UserError(f"--duration must be positive, got {duration}")
@@ -103,17 +103,12 @@ def _check_baud(baud: int) -> None:
 
 
 @app.command("live")
+@with_rerun_options
 def live_command(
     port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto.", show_default=False),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: CaptureOutOption = None,
-    rrd: RrdOption = None,
     no_view: NoViewOption = False,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Optional[list[str]] = typer.Option(
         None,
         "--estimators",
@@ -138,6 +133,7 @@ def live_command(
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
     variant: VariantOption = None,
     text_map: MapOption = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Watch the drone live: records the raw capture, runs the estimators and shows everything in Rerun.
 
@@ -147,7 +143,7 @@ def live_command(
     1.0, correction off, reset, status, ...): each change is marked on the viewer's timeline and in the capture.
     """
     _check_baud(baud)
-    check_view_flags(no_view=no_view, spawn=spawn, serve=serve, connect=connect)
+    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
     check_duration(duration)
     variant = check_variant(variant)
     user_map = read_map_option(text_map)
@@ -166,16 +162,15 @@ def live_command(
         if ble_layout != "stock":
             raise UserError(f"--ble-layout {ble_layout} goes with --ble")
         source = port_source(port or "auto", baud=baud, wait=wait)
-    sinks = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
     options = LiveOptions(
-        estimators=registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT),
+        estimators=live_estimators(estimators),
         duration_s=duration,
         prompt=prompt,
         variant=variant,
         text_map=user_map,
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
-    check = session_outputs(options, out, sinks, view=not no_view)
+    check = session_outputs(options, out, rerun, view=not no_view)
     run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
 
 

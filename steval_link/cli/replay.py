@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -27,13 +28,8 @@ from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import ForceOption, print_json
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
-    ConnectOption,
-    GrpcPortOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     view_sinks,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -41,7 +37,7 @@ from steval_link.estimators.runner import row_decimation, run_estimator
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.text_series import MAP_TARGETS, parse_map
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import SinkOptions
 
 __all__ = ["MapOption", "load_replay", "run_estimators"]
 
@@ -150,6 +146,7 @@ def _print_summary(s: dict, format_lines, as_json: bool) -> None:
 
 
 @app.command()
+@with_rerun_options
 def replay(
     capture: Annotated[
         Optional[Path],
@@ -159,13 +156,7 @@ def replay(
             show_default=False,
         ),
     ] = None,
-    rrd: RrdOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (for scripts).")] = False,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
     estimators: Annotated[
         Optional[list[str]],
         typer.Option(
@@ -181,6 +172,7 @@ def replay(
     force: ForceOption = False,
     text_map: MapOption = None,
     ble_layout: Annotated[Optional[str], typer.Option("--ble-layout", help=BLE_LAYOUT_HELP)] = None,
+    rerun: SinkOptions = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST
     release whose filter the replica reproduces the firmware with.
@@ -195,26 +187,17 @@ def replay(
     With --spawn the desktop viewer opens with the replay and stays open when the command returns; --serve keeps a
     web viewer up until Ctrl-C; --rrd writes a complete file or, when interrupted, none (an existing one is
     replaced only with --force)."""
-    viewer = rrd is not None or spawn or serve or connect
+    viewer, rrd = rerun.any(), rerun.rrd
     variant = check_variant(variant)
     names = registry.parse_names(
         ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
     )
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
-    options = view_sinks(
-        rrd=rrd,
-        spawn=spawn,
-        serve=serve,
-        connect=connect,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        force=force,
-        inputs=(src.path,),
-    )
+    options = view_sinks(**asdict(rerun), force=force, inputs=(src.path,))
     layout = check_ble_layout(ble_layout) if ble_layout else None
     try:
-        with progress_bar("replay", quiet=as_json or serve) as progress:  # --serve waits for Ctrl-C: no bar
+        with progress_bar("replay", quiet=as_json or rerun.serve) as progress:  # --serve waits for Ctrl-C: no bar
             tel, seen = load_replay(
                 capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map, ble_layout=layout
             )

@@ -16,6 +16,7 @@ from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
 from steval_link.cli.app import app
 from steval_link.cli.checks import require_attitude
+from steval_link.cli.compare import CompareEstimatorsOption
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
@@ -57,16 +58,7 @@ def report_command(
             help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
         ),
     ] = None,
-    estimator: Annotated[
-        Optional[list[str]],
-        typer.Option(
-            "--estimator",
-            "--estimators",
-            "-e",
-            help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
-            "FILE.py:CLASS.",
-        ),
-    ] = None,
+    estimator: CompareEstimatorsOption = None,
     title: Annotated[Optional[str], typer.Option("--title", help="The report's title.")] = None,
     force: ForceOption = False,
 ) -> None:

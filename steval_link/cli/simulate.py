@@ -7,14 +7,25 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import numpy as np
 import typer
 
 from steval_link.analysis.report import json_number
 from steval_link.cli.app import app
-from steval_link.cli.checks import VariantOption, check_count, check_gain, check_throttle, check_variant, check_vector
+from steval_link.cli.checks import (
+    CorrectionOption,
+    DtOption,
+    KiOption,
+    VariantOption,
+    check_count,
+    check_gain,
+    check_period,
+    check_throttle,
+    check_variant,
+    check_vector,
+)
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
@@ -57,9 +68,10 @@ _ON_WORDS = {"on", "typical", "yes", "true"}
 _OFF_WORDS = {"off", "no", "false", "none"}
 
 
-def _noise(text: Optional[str], typical: float, what: str, unit: str) -> float:
+def _noise(text: Optional[str], typical: float, what: str, unit: str, on: bool = False) -> float:
+    """The noise σ of ``--{what}-noise`` (``on`` or a number); ``on`` (``--noise``): the typical one when not given."""
     if text is None:
-        return 0.0
+        return typical if on else 0.0
     word = text.strip().lower()
     if word in _ON_WORDS:
         return typical
@@ -214,63 +226,90 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
     return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
-@app.command("simulate")
-def simulate_command(
-    gyro: tuple[float, float, float] = typer.Option(
-        BASELINE_GYRO_MDPS, "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+_Gyro = Annotated[
+    tuple[float, float, float],
+    typer.Option("--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."),
+]
+_Acc = Annotated[
+    tuple[float, float, float],
+    typer.Option("--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."),
+]
+_Iterations = Annotated[int, typer.Option("--iterations", "-n", help="Number of AHRS steps (≥ 0).")]
+_Noise = Annotated[
+    bool,
+    typer.Option("--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."),
+]
+_GyroNoise = Annotated[
+    Optional[str],
+    typer.Option("--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."),
+]
+_AccNoise = Annotated[
+    Optional[str],
+    typer.Option(
+        "--acc-noise", metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
     ),
-    acc: tuple[float, float, float] = typer.Option(
-        BASELINE_ACC_MG, "--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."
-    ),
-    iterations: int = typer.Option(100, "--iterations", "-n", help="Number of AHRS steps (≥ 0)."),
-    noise: bool = typer.Option(
-        False, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
-    ),
-    gyro_noise: Optional[str] = typer.Option(
-        None, "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
-    ),
-    acc_noise: Optional[str] = typer.Option(
-        None, "--acc-noise", metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
-    ),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Noise seed (default: random, printed)."),
-    throttle: int = typer.Option(
-        0, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4."
-    ),
-    ki: Optional[float] = typer.Option(None, "--ki", help="Integral gain AHRS_KI (firmware 0.1; exercise 4: 1.0)."),
-    kp: Optional[float] = typer.Option(None, "--kp", help="Proportional gain, replacing both 10 and 0.4."),
-    no_correction: bool = typer.Option(
-        False, "--no-correction", help="Drop the accelerometer correction, g* = g (exercise 5)."
-    ),
-    variant: VariantOption = None,
-    dt: Optional[float] = typer.Option(
-        None, "--dt", help="Integration period in s (firmware assumes 0.00625; TIM9 gives ≈ 0.00619)."
-    ),
-    estimators: Optional[list[str]] = typer.Option(
-        None,
+]
+_Seed = Annotated[Optional[int], typer.Option("--seed", help="Noise seed (default: random, printed).")]
+_Throttle = Annotated[
+    int, typer.Option("--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.")
+]
+_Kp = Annotated[Optional[float], typer.Option("--kp", help="Proportional gain, replacing both 10 and 0.4.")]
+_Estimator = Annotated[
+    Optional[list[str]],
+    typer.Option(
         "--estimator",
         "-e",
         help="Estimator (one; default st-mahony): a registry name or your own "
         "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
     ),
-    csv_out: Optional[str] = typer.Option(
-        None, "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
-    ),
-    json_out: bool = typer.Option(False, "--json", help="Print the run (every iteration, exact values) as JSON."),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Log the run to a Rerun .rrd file for the viewer."),
-    plot: Optional[Path] = typer.Option(
-        None,
+]
+_Csv = Annotated[
+    Optional[str],
+    typer.Option("--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."),
+]
+_Json = Annotated[bool, typer.Option("--json", help="Print the run (every iteration, exact values) as JSON.")]
+_Rrd = Annotated[Optional[Path], typer.Option("--rrd", help="Log the run to a Rerun .rrd file for the viewer.")]
+_Plot = Annotated[
+    Optional[Path],
+    typer.Option(
         "--plot",
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ),
-    compare_with: Optional[list[str]] = typer.Option(
-        None,
+]
+_CompareWith = Annotated[
+    Optional[list[str]],
+    typer.Option(
         "--compare-with",
         metavar="NAME=VALUE,...",
         help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
         "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. "
         "--compare-with ki=1 --compare-with correction=off.",
     ),
+]
+
+
+@app.command("simulate")
+def simulate_command(
+    gyro: _Gyro = BASELINE_GYRO_MDPS,
+    acc: _Acc = BASELINE_ACC_MG,
+    iterations: _Iterations = 100,
+    noise: _Noise = False,
+    gyro_noise: _GyroNoise = None,
+    acc_noise: _AccNoise = None,
+    seed: _Seed = None,
+    throttle: _Throttle = 0,
+    ki: KiOption = None,
+    kp: _Kp = None,
+    correction: CorrectionOption = None,
+    variant: VariantOption = None,
+    dt: DtOption = None,
+    estimators: _Estimator = None,
+    csv_out: _Csv = None,
+    json_out: _Json = False,
+    rrd: _Rrd = None,
+    plot: _Plot = None,
+    compare_with: _CompareWith = None,
     force: ForceOption = False,
 ) -> None:
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
@@ -282,17 +321,8 @@ def simulate_command(
     check_gain("--ki", ki)
     check_gain("--kp", kp)
     check_throttle("--throttle", throttle)
-    chosen = split_list(",".join(estimators)) if estimators else ["st-mahony"]
-    if len(chosen) != 1:  # never one of them silently
-        raise UserError(f"simulate runs one estimator at a time; -e gave {len(chosen)}: {', '.join(chosen)}")
-    estimator = chosen[0]
-    if estimator not in registry.ESTIMATORS:
-        if not registry.is_known(estimator):
-            raise UserError(
-                f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}, "
-                "FILE.py:CLASS or module:CLASS"
-            )
-        estimator = registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
+    check_period("--dt", dt)
+    estimator = _estimator(estimators)
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     for option, path in (("--csv", None if csv_out == "-" else csv_out), ("--rrd", rrd), ("--plot", plot)):
@@ -302,41 +332,11 @@ def simulate_command(
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 
         require_matplotlib()
-    gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps")
-    acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg")
-    if noise:
-        gyro_sigma = gyro_sigma if gyro_noise is not None else TYPICAL_GYRO_NOISE_MDPS
-        acc_sigma = acc_sigma if acc_noise is not None else TYPICAL_ACC_NOISE_MG
-    options: dict = {}
-    if ki is not None:
-        options["ki"] = ki
-    if kp is not None:
-        options["kp"] = kp
-    if no_correction:
-        options["correction"] = False
-    if variant is not None:
-        options["variant"] = check_variant(variant)
-    if dt is not None:
-        if not (math.isfinite(dt) and dt > 0):
-            raise UserError(f"--dt must be a period > 0 s, got {dt}")
-    try:
-        res = run_simulation(
-            gyro_mdps=gyro,
-            acc_mg=acc,
-            iterations=iterations,
-            gyro_noise_mdps=gyro_sigma,
-            acc_noise_mg=acc_sigma,
-            seed=seed,
-            throttle=throttle,
-            estimator=estimator,
-            estimator_options=options,
-            dt_s=dt,
-        )
-    except ImportError as exc:
-        raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-
+    gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
+    acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
+    given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
+    options = {k: v for k, v in given.items() if v is not None}
+    res = _run(gyro, acc, iterations, gyro_sigma, acc_sigma, seed, throttle, estimator, options, dt)
     if rrd is not None:
         with atomic_output(rrd, option="--rrd") as part:
             _log_rrd(res, part)
@@ -360,6 +360,43 @@ def simulate_command(
         print(text, file=sys.stderr)
     else:
         print(text + (f"\nplot: {plot}" if plot is not None else ""))
+
+
+def _estimator(estimators: list[str] | None):
+    """The one estimator of ``-e`` (default st-mahony): a registry name, or your own resolved."""
+    chosen = split_list(",".join(estimators)) if estimators else ["st-mahony"]
+    if len(chosen) != 1:  # never one of them silently
+        raise UserError(f"simulate runs one estimator at a time; -e gave {len(chosen)}: {', '.join(chosen)}")
+    estimator = chosen[0]
+    if estimator in registry.ESTIMATORS:
+        return estimator
+    if not registry.is_known(estimator):
+        raise UserError(
+            f"unknown estimator {estimator!r}; choose one of: {', '.join(registry.names())}, "
+            "FILE.py:CLASS or module:CLASS"
+        )
+    return registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
+
+
+def _run(gyro, acc, iterations, gyro_sigma, acc_sigma, seed, throttle, estimator, options, dt) -> SimulationResult:
+    """:func:`run_simulation`, its errors as one sentence."""
+    try:
+        return run_simulation(
+            gyro_mdps=gyro,
+            acc_mg=acc,
+            iterations=iterations,
+            gyro_noise_mdps=gyro_sigma,
+            acc_noise_mg=acc_sigma,
+            seed=seed,
+            throttle=throttle,
+            estimator=estimator,
+            estimator_options=options,
+            dt_s=dt,
+        )
+    except ImportError as exc:
+        raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def _log_rrd(res: SimulationResult, path: Path) -> None:

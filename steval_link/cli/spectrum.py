@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -18,17 +19,12 @@ from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
-    ConnectOption,
-    GrpcPortOption,
-    RrdOption,
-    ServeOption,
-    SpawnOption,
-    WebPortOption,
     sink_options,
+    with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+from steval_viewer.sink_options import SinkOptions
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -36,71 +32,75 @@ MAX_NPERSEG = 65536
 MAX_THROTTLE_BINS = 100
 
 
+_Capture = Annotated[
+    Path,
+    typer.Argument(help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False),
+]
+_Plot = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--plot",
+        help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image "
+        '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
+    ),
+]
+_Csv = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--csv",
+        help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
+        "mdps²/Hz and mg²/Hz.",
+    ),
+]
+_MarkHz = Annotated[
+    Optional[list[float]],
+    typer.Option(
+        "--mark-hz",
+        metavar="HZ",
+        help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
+        "its alias above it (the gyro also at its 416 Hz-register images), with "
+        "the gain of the firmware's averaging and gyro filter; repeatable.",
+    ),
+]
+_Nperseg = Annotated[
+    Optional[int],
+    typer.Option(
+        "--nperseg",
+        metavar="ROWS",
+        help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+        f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+        show_default=False,
+    ),
+]
+_Overlap = Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")]
+_ThrottleBins = Annotated[
+    int,
+    typer.Option(
+        "--throttle-bins",
+        metavar="N",
+        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+    ),
+]
+_Peaks = Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")]
+_MinHz = Annotated[
+    float, typer.Option("--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
+]
+
+
 @app.command("spectrum")
+@with_rerun_options
 def spectrum_cmd(
-    capture: Annotated[
-        Path,
-        typer.Argument(
-            help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
-        ),
-    ],
-    plot: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--plot",
-            help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image "
-            '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
-        ),
-    ] = None,
-    csv_out: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--csv",
-            help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
-            "mdps²/Hz and mg²/Hz.",
-        ),
-    ] = None,
-    mark_hz: Annotated[
-        Optional[list[float]],
-        typer.Option(
-            "--mark-hz",
-            metavar="HZ",
-            help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
-            "its alias above it (the gyro also at its 416 Hz-register images), with "
-            "the gain of the firmware's averaging and gyro filter; repeatable.",
-        ),
-    ] = None,
-    nperseg: Annotated[
-        Optional[int],
-        typer.Option(
-            "--nperseg",
-            metavar="ROWS",
-            help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
-            f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-            show_default=False,
-        ),
-    ] = None,
-    overlap: Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")] = 0.5,
-    throttle_bins: Annotated[
-        int,
-        typer.Option(
-            "--throttle-bins",
-            metavar="N",
-            help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
-        ),
-    ] = 10,
-    peaks: Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")] = 3,
-    min_hz: Annotated[
-        float,
-        typer.Option("--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration)."),
-    ] = 1.0,
-    rrd: RrdOption = None,
-    spawn: SpawnOption = False,
-    serve: ServeOption = False,
-    connect: ConnectOption = None,
-    web_port: WebPortOption = DEFAULT_WEB_PORT,
-    grpc_port: GrpcPortOption = DEFAULT_GRPC_PORT,
+    capture: _Capture,
+    plot: _Plot = None,
+    csv_out: _Csv = None,
+    mark_hz: _MarkHz = None,
+    nperseg: _Nperseg = None,
+    overlap: _Overlap = 0.5,
+    throttle_bins: _ThrottleBins = 10,
+    peaks: _Peaks = 3,
+    min_hz: _MinHz = 1.0,
     force: ForceOption = False,
+    rerun: SinkOptions = None,
 ) -> None:
     """Gyro and accelerometer spectra per axis, like Blackbox's: Welch PSD, spectrogram over firmware time and
     frequency vs throttle, over runs of consecutive AHRS steps (dropped frames split them).
@@ -109,39 +109,18 @@ def spectrum_cmd(
     1, so motor vibration above the Nyquist shows at an alias: --mark-hz computes where. Prints the top peaks per
     axis; --plot, --csv and the Rerun options (--spawn, --rrd, ...) add the figure, the numbers and the viewer."""
     marks = list(mark_hz or [])
-    for f in marks:
-        if not (math.isfinite(f) and f > 0):
-            raise UserError(f"--mark-hz must be a frequency > 0 Hz, got {f:g}")
-    if nperseg is not None and not S.MIN_NPERSEG <= nperseg <= MAX_NPERSEG:
-        raise UserError(f"--nperseg must be between {S.MIN_NPERSEG} and {MAX_NPERSEG} rows, got {nperseg}")
-    if not (math.isfinite(overlap) and 0 <= overlap < 1):
-        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap:g}")
-    if not 1 <= throttle_bins <= MAX_THROTTLE_BINS:
-        raise UserError(f"--throttle-bins must be between 1 and {MAX_THROTTLE_BINS}, got {throttle_bins}")
-    if not 0 <= peaks <= 20:
-        raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
-    if not (math.isfinite(min_hz) and min_hz >= 0):
-        raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
+    _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
+    rrd = rerun.rrd
     for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
         if path is not None:
             check_output(path, option=option, force=force, inputs=(capture,))
     if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        plt = require_matplotlib()
-        fig = plt.figure()
-        formats = fig.canvas.get_supported_filetypes()
-        plt.close(fig)
-        if plot.suffix.lower().lstrip(".") not in formats:
-            raise UserError(f"--plot {plot}: give a file name ending in one of .{', .'.join(sorted(formats))}")
-    viewer = rrd is not None or spawn or serve or connect
+        _check_plot_format(plot)
     options = None
-    if viewer:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        options = sink_options(
-            rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port
-        )
-    with progress_bar("spectrum", quiet=serve) as progress:
+    if rerun.any():  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        options = sink_options(**asdict(rerun))
+    with progress_bar("spectrum", quiet=rerun.serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
@@ -163,10 +142,9 @@ def spectrum_cmd(
     for w in warnings_seen:
         print(f"steval: warning: {w}", file=sys.stderr)
     print("\n".join(lines))
-    if csv_out is not None:
-        print(f"csv: {csv_out}")
-    if plot is not None:
-        print(f"plot: {plot}")
+    for what, path in (("csv", csv_out), ("plot", plot)):
+        if path is not None:
+            print(f"{what}: {path}")
     if options is not None:
         from steval_viewer.spectrum_log import spectrum_sink  # Rerun loads only for a viewer or an .rrd
 
@@ -176,3 +154,32 @@ def spectrum_cmd(
             if rrd is not None:  # the sink writes it whole or not at all
                 print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
             raise
+
+
+def _check_numbers(marks: list[float], nperseg, overlap: float, throttle_bins: int, peaks: int, min_hz: float) -> None:
+    """The numeric options in range, before any work."""
+    for f in marks:
+        if not (math.isfinite(f) and f > 0):
+            raise UserError(f"--mark-hz must be a frequency > 0 Hz, got {f:g}")
+    if nperseg is not None and not S.MIN_NPERSEG <= nperseg <= MAX_NPERSEG:
+        raise UserError(f"--nperseg must be between {S.MIN_NPERSEG} and {MAX_NPERSEG} rows, got {nperseg}")
+    if not (math.isfinite(overlap) and 0 <= overlap < 1):
+        raise UserError(f"--overlap must be a fraction in [0, 1), got {overlap:g}")
+    if not 1 <= throttle_bins <= MAX_THROTTLE_BINS:
+        raise UserError(f"--throttle-bins must be between 1 and {MAX_THROTTLE_BINS}, got {throttle_bins}")
+    if not 0 <= peaks <= 20:
+        raise UserError(f"--peaks must be between 0 and 20, got {peaks}")
+    if not (math.isfinite(min_hz) and min_hz >= 0):
+        raise UserError(f"--min-hz must be ≥ 0 Hz, got {min_hz:g}")
+
+
+def _check_plot_format(plot: Path) -> None:
+    """matplotlib is there and writes the format ``plot``'s extension names."""
+    from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+    plt = require_matplotlib()
+    fig = plt.figure()
+    formats = fig.canvas.get_supported_filetypes()
+    plt.close(fig)
+    if plot.suffix.lower().lstrip(".") not in formats:
+        raise UserError(f"--plot {plot}: give a file name ending in one of .{', '.join(sorted(formats))}")

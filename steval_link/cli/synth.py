@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import check_gain
+from steval_link.cli.checks import CorrectionOption, KiOption, ThrottleScheduleOption, check_gain, command_line
 from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
@@ -24,81 +25,86 @@ def _list() -> None:
         typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
 
 
+_Scenario = Annotated[
+    Optional[str],
+    typer.Option("--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."),
+]
+_Out = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--out",
+        "-o",
+        help="Output: FILE.stv (capture with host times) or any other name for the plain received "
+        "bytes (like cat /dev/ttyUSB0 > FILE).",
+    ),
+]
+_Duration = Annotated[
+    Optional[float],
+    typer.Option("--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."),
+]
+_Seed = Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")]
+_Baud = Annotated[
+    int,
+    typer.Option(
+        "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+    ),
+]
+_TextMode = Annotated[
+    bool,
+    typer.Option("--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."),
+]
+_JoinAt = Annotated[
+    float, typer.Option("--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
+]
+_DropRate = Annotated[
+    float,
+    typer.Option(
+        "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+    ),
+]
+_Encoder = Annotated[
+    str, typer.Option("--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
+]
+_CEncoder = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--c-encoder",
+        help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
+    ),
+]
+_Vibration = Annotated[
+    Optional[list[str]],
+    typer.Option(
+        "--vibration",
+        metavar="SENSOR-AXIS:HZ:AMP",
+        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
+        "repeatable. To check steval spectrum against known peaks.",
+    ),
+]
+_Format = Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")]
+_Force = Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")]
+_List = Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")]
+
+
 @app.command("synth")
 def synth_cmd(
-    scenario: Annotated[
-        Optional[str],
-        typer.Option("--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."),
-    ] = None,
-    out: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--out",
-            "-o",
-            help="Output: FILE.stv (capture with host times) or any other name for the plain received "
-            "bytes (like cat /dev/ttyUSB0 > FILE).",
-        ),
-    ] = None,
-    duration: Annotated[
-        Optional[float],
-        typer.Option("--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."),
-    ] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")] = 0,
-    baud: Annotated[
-        int,
-        typer.Option(
-            "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
-        ),
-    ] = BAUD,
-    throttle: Annotated[
-        Optional[str],
-        typer.Option(
-            "--throttle",
-            help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : value, "
-            "linear in between).",
-        ),
-    ] = None,
-    ki: Annotated[float, typer.Option("--ki", help="AHRS_KI of the emulated build (lab exercise 4: 1.0).")] = KI,
-    no_correction: Annotated[
-        bool, typer.Option("--no-correction", help="Build without accelerometer correction (lab exercise 5).")
-    ] = False,
-    text_mode: Annotated[
-        bool,
-        typer.Option(
-            "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."
-        ),
-    ] = False,
-    join_at: Annotated[
-        float, typer.Option("--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
-    ] = 0.0,
-    drop_rate: Annotated[
-        float,
-        typer.Option(
-            "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
-        ),
-    ] = 0.0,
-    encoder: Annotated[
-        str, typer.Option("--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
-    ] = "python",
-    c_encoder: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--c-encoder",
-            help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
-        ),
-    ] = None,
-    vibration: Annotated[
-        Optional[list[str]],
-        typer.Option(
-            "--vibration",
-            metavar="SENSOR-AXIS:HZ:AMP",
-            help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
-            "repeatable. To check steval spectrum against known peaks.",
-        ),
-    ] = None,
-    fmt: Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")] = "auto",
-    force: Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")] = False,
-    list_: Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")] = False,
+    scenario: _Scenario = None,
+    out: _Out = None,
+    duration: _Duration = None,
+    seed: _Seed = 0,
+    baud: _Baud = BAUD,
+    throttle_schedule: ThrottleScheduleOption = None,
+    ki: KiOption = None,
+    correction: CorrectionOption = None,
+    text_mode: _TextMode = False,
+    join_at: _JoinAt = 0.0,
+    drop_rate: _DropRate = 0.0,
+    encoder: _Encoder = "python",
+    c_encoder: _CEncoder = None,
+    vibration: _Vibration = None,
+    fmt: _Format = "auto",
+    force: _Force = False,
+    list_: _List = False,
 ) -> None:
     """Run the modelled drone (Python, no ELF) into a capture: motion, sensors, ISR, the replica, the link.
 
@@ -114,24 +120,22 @@ def synth_cmd(
         raise UserError("--out is required (FILE.stv for a capture)")
     check_output(out, option="--out", force=force)
     check_gain("--ki", ki)
-    if c_encoder is not None:
-        encoder = "c"
-
     opts = SynthOptions(
         scenario=scenario,
         duration_s=duration,
         seed=seed,
         baud=baud,
-        throttle=throttle,
-        ki=ki,
-        correction=not no_correction,
+        throttle=throttle_schedule,
+        ki=KI if ki is None else ki,
+        correction=correction is not False,
         text_mode=text_mode,
         join_at_s=join_at,
         drop_rate=drop_rate,
-        encoder=encoder.lower(),
+        encoder="c" if c_encoder is not None else encoder.lower(),
         c_encoder=None if c_encoder is None else str(c_encoder),
         vibration=tuple(vibration or ()),
     )
+    opts = replace(opts, command_line=command_line(["steval", "synth"], opts.settings()))
     t0 = time.perf_counter()
     with progress_bar("synth") as progress:
         res = synthesize(opts, scaled(progress, 0.0, 0.95))

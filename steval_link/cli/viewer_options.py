@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -10,7 +12,7 @@ import typer
 
 from steval_link.cli.outputs import check_output
 from steval_link.errors import UserError
-from steval_viewer.sink_options import SinkOptions, check_sinks
+from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks
 
 RrdOption = Annotated[
     Optional[Path],
@@ -41,6 +43,34 @@ GrpcPortOption = Annotated[
         help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
     ),
 ]
+
+
+#: the shared Rerun options: (parameter, annotation, default)
+_RERUN_PARAMS = (
+    ("rrd", RrdOption, None),
+    ("spawn", SpawnOption, False),
+    ("serve", ServeOption, False),
+    ("connect", ConnectOption, None),
+    ("web_port", WebPortOption, DEFAULT_WEB_PORT),
+    ("grpc_port", GrpcPortOption, DEFAULT_GRPC_PORT),
+)
+
+
+def with_rerun_options(command):
+    """A typer command that takes the shared Rerun options after its own and gets them as one
+    :class:`~steval_viewer.sink_options.SinkOptions`, its keyword ``rerun`` (one definition of the six)."""
+    own = [p for p in inspect.signature(command, eval_str=True).parameters.values() if p.name != "rerun"]
+    kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+    added = [inspect.Parameter(name, kind, annotation=a, default=d) for name, a, d in _RERUN_PARAMS]
+
+    @functools.wraps(command)
+    def run(**kwargs):
+        rerun = SinkOptions(**{name: kwargs.pop(name) for name, _, _ in _RERUN_PARAMS})
+        return command(**kwargs, rerun=rerun)
+
+    run.__signature__ = inspect.Signature([*own, *added])
+    run.__annotations__ = {p.name: p.annotation for p in [*own, *added]}
+    return run
 
 
 NoViewOption = Annotated[bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")]

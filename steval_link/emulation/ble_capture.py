@@ -73,7 +73,7 @@ def record_ble(
         "link": "ble",
         "emulated": True,
         "firmware": Path(str(options.elf)).name,
-        "command": command or options.command() + " --ble",
+        "command": command or options.command(),
         "device": EMULATED_NAME,
         "address": EMULATED_ADDRESS,
         "note": "host times are the emulated delivery times, s since power-up (no radio timing model)",

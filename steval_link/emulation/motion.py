@@ -30,7 +30,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat, scenario
-from steval_link.errors import UserError
+from steval_link.errors import ParamError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
 
@@ -194,13 +194,17 @@ def parse_throttle(spec: str) -> Callable:
                 a, b = item.split(":")
                 pts.append((float(a), float(b)))
     except ValueError:
-        raise UserError(f"--throttle takes a number or 't:v,t:v,...' breakpoints, got {spec!r}") from None
+        raise ParamError(
+            f"{{throttle}} takes a number or 't:v,t:v,...' breakpoints, got {spec!r}", "throttle"
+        ) from None
     ts = np.array([p[0] for p in pts])
     vs = np.array([p[1] for p in pts])
     if not (np.all(np.isfinite(ts)) and np.all(np.isfinite(vs))) or np.any(np.diff(ts) <= 0):
-        raise UserError(f"--throttle breakpoints need finite, increasing times, got {spec!r}")
+        raise ParamError(f"{{throttle}} breakpoints need finite, increasing times, got {spec!r}", "throttle")
     if np.any(vs < 0) or np.any(vs > 32767):
-        raise UserError(f"--throttle values are the firmware's gTHR (int16, from 0): 0..32767, got {spec!r}")
+        raise ParamError(
+            f"{{throttle}} values are the firmware's gTHR (int16, from 0): 0..32767, got {spec!r}", "throttle"
+        )
     return lambda t: np.interp(t, ts, vs)
 
 
@@ -231,9 +235,11 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s
     if t_rel[-1] > t_trial[-1] + 1e-9:
-        raise UserError(
+        raise ParamError(
             f"BROAD trial {trial.name} lasts {t_trial[-1]:.1f} s; ask for at most that much "
-            f"(--join-at + --duration ≤ {t_trial[-1] + first_tick_s:.1f} s)"
+            f"({{join_at_s}} + {{duration_s}} ≤ {t_trial[-1] + first_tick_s:.1f} s)",
+            "join_at_s",
+            "duration_s",
         )
     t_hold = sm.gyro_hold_times_s(t_rel)
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
@@ -274,20 +280,21 @@ class Vibration:
 def parse_vibration(spec: str) -> Vibration:
     """``--vibration``: ``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg).
     Raises :class:`UserError` for anything else."""
-    bad = (
-        f"--vibration takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
-        f"mdps), e.g. gyro-x:47:2000; got {spec!r}"
+    bad = ParamError(
+        f"{{vibration}} takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
+        f"mdps), e.g. gyro-x:47:2000; got {spec!r}",
+        "vibration",
     )
     parts = spec.strip().lower().split(":")
     if len(parts) != 3 or parts[0] not in {f"{s}-{a}" for s in ("acc", "gyro") for a in "xyz"}:
-        raise UserError(bad)
+        raise bad
     sensor, axis = parts[0].split("-")
     try:
         freq, amp = float(parts[1]), float(parts[2])
     except ValueError:
-        raise UserError(bad) from None
+        raise bad from None
     if not (np.isfinite(freq) and freq > 0 and np.isfinite(amp) and amp >= 0):
-        raise UserError(f"--vibration needs a frequency > 0 Hz and an amplitude ≥ 0, got {spec!r}")
+        raise ParamError(f"{{vibration}} needs a frequency > 0 Hz and an amplitude ≥ 0, got {spec!r}", "vibration")
     return Vibration(sensor, "xyz".index(axis), freq, amp)
 
 

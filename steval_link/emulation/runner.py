@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 import queue
-import shlex
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -55,7 +54,7 @@ from steval_link.emulation.elf import Elf
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUNTS", "joydata_bytes"]
 
@@ -83,19 +82,19 @@ class EmulationOptions:
     #: the board mounted turned on the frame (a sensor fault, see the module docstring): None, or a MOUNTS key
     mount: str | None = None
 
-    def command(self, duration_s: float | None = None) -> str:
-        """The ``steval emulate`` command line that repeats this run (stored in the capture header)."""
-        parts = ["steval", "emulate", str(self.elf)]
-        parts += ["--broad", str(self.broad)] if self.broad is not None else ["--scenario", self.scenario]
-        d = self.duration_s if duration_s is None else duration_s
-        if d is not None:
-            parts += ["--duration", f"{d:g}"]
-        parts += ["--seed", str(self.seed)]
-        if self.throttle is not None:
-            parts += ["--throttle", self.throttle]
-        if self.mount is not None:
-            parts += ["--mount", self.mount]
-        return shlex.join(parts)
+    #: the command line that made this run, for the capture header (the CLI's)
+    command_line: str | None = None
+
+    def settings(self) -> dict:
+        """What determines the run, by parameter name: the motion (``broad`` or ``scenario``), ``duration_s``,
+        ``seed``, ``throttle``, ``mount`` (those given)."""
+        out = {"broad": str(self.broad)} if self.broad is not None else {"scenario": self.scenario}
+        out.update(duration_s=self.duration_s, seed=self.seed, throttle=self.throttle, mount=self.mount)
+        return {k: v for k, v in out.items() if v is not None}
+
+    def command(self) -> str:
+        """The capture header's command: :attr:`command_line`, else the ELF and :meth:`settings`."""
+        return self.command_line or " ".join([str(self.elf), *(f"{k}={v}" for k, v in self.settings().items())])
 
 
 #: board mountings (sensor faults): the frame's body axes (x right, y forward, z up) → what the board reads
@@ -110,7 +109,7 @@ def check_mount(mount: str | None) -> np.ndarray | None:
     if mount is None:
         return None
     if mount not in MOUNTS:
-        raise UserError(f"unknown --mount {mount!r}; one of: {', '.join(MOUNTS)}")
+        raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
     return MOUNTS[mount]
 
 
@@ -129,13 +128,14 @@ class ScenarioMotion:
         # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
         streams = random_streams(seed)
         if trial is None:
-            sc = scenario(name, "or --broad TRIAL.npz")
+            sc = scenario(name, "or {broad} TRIAL.npz")
             try:
                 self._kin = sc.build(total_s, streams.motion)
             except ValueError:  # its moves do not fit in so short a run
-                raise UserError(
-                    f"scenario {name!r} needs --duration of at least {sc.min_duration_s:g} s (default "
-                    f"{sc.default_duration_s:g} s), got {total_s:g}"
+                raise ParamError(
+                    f"scenario {name!r} needs {{duration_s}} of at least {sc.min_duration_s:g} s (default "
+                    f"{sc.default_duration_s:g} s), got {total_s:g}",
+                    "duration_s",
                 ) from None
         #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
         self.remote_from_start = trial is None and self._kin.sticks is not None
@@ -284,7 +284,9 @@ class Emulation:
         self.options = options
         self._connect_at = None if ble_connect_s is None else int(ble_connect_s * C.CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
-            raise UserError(f"--duration must be a positive number of seconds, got {options.duration_s}")
+            raise ParamError(
+                f"{{duration_s}} must be a positive number of seconds, got {options.duration_s}", "duration_s"
+            )
         self.elf = Elf(options.elf)
         trial = None
         if isinstance(options.broad, BroadTrial):  # already loaded (e.g. cut short by steval evaluate)
@@ -300,7 +302,7 @@ class Emulation:
             default = float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
-            default = scenario(name, "or --broad TRIAL.npz").default_duration_s
+            default = scenario(name, "or {broad} TRIAL.npz").default_duration_s
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)

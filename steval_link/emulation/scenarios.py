@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.errors import UserError
+from steval_link.errors import ParamError
 from steval_link.quat import quaternion_from_euler
 
 __all__ = [
@@ -565,7 +565,7 @@ SCENARIOS: dict[str, Scenario] = {
 
 def scenario(name: str, otherwise: str) -> Scenario:
     """The built-in scenario ``name``; :class:`UserError` naming the built-in ones and ``otherwise`` (the other
-    choice where the error is raised, e.g. "or --broad TRIAL.npz") if there is none of that name."""
+    choice where the error is raised, e.g. "or {broad} TRIAL.npz") if there is none of that name."""
     if name not in SCENARIOS:
-        raise UserError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})")
+        raise ParamError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})", "broad")
     return SCENARIOS[name]

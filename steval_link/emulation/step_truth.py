@@ -62,7 +62,7 @@ class StepTruth:
 
     def __init__(self, emu) -> None:
         if emu.motion.trial is None:
-            raise ValueError("ground truth needs a BROAD trial (--broad)")
+            raise ValueError("ground truth needs a BROAD trial (the emulation's broad option)")
         self.emu = emu
         self.trial: BroadTrial = emu.motion.trial
         self._last_tick: list[int] = []

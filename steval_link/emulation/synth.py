@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 import os
-import shlex
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,7 +42,7 @@ from steval_link.emulation.broad import load_trial
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
 from steval_link.emulation.usb_adapter import host_chunks
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import capture
@@ -101,29 +100,21 @@ class SynthOptions:
     c_encoder: str | None = None
     vibration: tuple[str, ...] = ()
 
+    #: the command line that made this capture, for its header (the CLI's)
+    command_line: str | None = None
+
+    def settings(self) -> dict:
+        """The settings that determine the serial bytes, by parameter name (no output path, no encoder choice)."""
+        out = dict(scenario=self.scenario, duration_s=self.duration_s, seed=self.seed)
+        out.update(baud=self.baud if self.baud != C.BAUD else None, throttle=self.throttle)
+        out.update(ki=self.ki if self.ki != C.KI else None, correction=None if self.correction else False)
+        out.update(text_mode=self.text_mode or None, join_at_s=self.join_at_s or None, drop_rate=self.drop_rate or None)
+        out["vibration"] = [M.parse_vibration(spec).spec for spec in self.vibration] or None
+        return {k: v for k, v in out.items() if v is not None}
+
     def command(self) -> str:
-        """The ``steval synth`` options that determine the serial bytes (no output path, no encoder choice)."""
-        parts = ["steval", "synth", "--scenario", self.scenario]
-        if self.duration_s is not None:
-            parts += ["--duration", f"{self.duration_s:g}"]
-        parts += ["--seed", str(self.seed)]
-        if self.baud != C.BAUD:
-            parts += ["--baud", str(self.baud)]
-        if self.throttle is not None:
-            parts += ["--throttle", self.throttle]
-        if self.ki != C.KI:
-            parts += ["--ki", f"{self.ki:g}"]
-        if not self.correction:
-            parts.append("--no-correction")
-        if self.text_mode:
-            parts.append("--text-mode")
-        if self.join_at_s:
-            parts += ["--join-at", f"{self.join_at_s:g}"]
-        if self.drop_rate:
-            parts += ["--drop-rate", f"{self.drop_rate:g}"]
-        for spec in self.vibration:
-            parts += ["--vibration", M.parse_vibration(spec).spec]
-        return " ".join(shlex.quote(p) for p in parts)
+        """The capture header's command: :attr:`command_line`, else :meth:`settings`."""
+        return self.command_line or "synth " + " ".join(f"{k}={v}" for k, v in self.settings().items())
 
 
 @dataclass
@@ -175,25 +166,29 @@ def _check(opts: SynthOptions) -> None:
         return v is not None and math.isfinite(v)
 
     if opts.duration_s is not None and not (finite(opts.duration_s) and opts.duration_s > 0):
-        raise UserError(f"--duration must be a positive number of seconds, got {opts.duration_s}")
+        raise ParamError(f"{{duration_s}} must be a positive number of seconds, got {opts.duration_s}", "duration_s")
     if not (finite(opts.join_at_s) and opts.join_at_s >= 0):
-        raise UserError(f"--join-at must be ≥ 0 seconds, got {opts.join_at_s}")
+        raise ParamError(f"{{join_at_s}} must be ≥ 0 seconds, got {opts.join_at_s}", "join_at_s")
     if not (finite(opts.drop_rate) and 0 <= opts.drop_rate < 1):
-        raise UserError(f"--drop-rate must be a fraction in [0, 1), got {opts.drop_rate}")
+        raise ParamError(f"{{drop_rate}} must be a fraction in [0, 1), got {opts.drop_rate}", "drop_rate")
     if not MIN_BAUD <= opts.baud <= MAX_BAUD:
-        raise UserError(f"--baud must be between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz), got {opts.baud}")
+        raise ParamError(
+            f"{{baud}} must be between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz), got {opts.baud}", "baud"
+        )
     if not finite(opts.ki) or not math.isfinite(float(np.float32(opts.ki))):
-        raise UserError(f"--ki must be a finite number, got {opts.ki}")
+        raise ParamError(f"{{ki}} must be a finite number, got {opts.ki}", "ki")
     if not 0 <= opts.seed < 2**63:
-        raise UserError(f"--seed must be a non-negative integer, got {opts.seed}")
+        raise ParamError(f"{{seed}} must be a non-negative integer, got {opts.seed}", "seed")
     if opts.encoder not in ("python", "c"):
-        raise UserError(f"--encoder must be 'python' or 'c', got {opts.encoder!r}")
+        raise ParamError(f"{{encoder}} must be 'python' or 'c', got {opts.encoder!r}", "encoder")
     for spec in opts.vibration:
         M.parse_vibration(spec)
     if opts.encoder == "c" and opts.text_mode:
-        raise UserError(
-            "--text-mode lines are formatted in Python; the C host encoder (stv_encode) takes binary "
-            "frame requests only, so use --encoder python with --text-mode"
+        raise ParamError(
+            "{text_mode} lines are formatted in Python; the C host encoder (stv_encode) takes binary "
+            "frame requests only, so use {encoder} python with {text_mode}",
+            "text_mode",
+            "encoder",
         )
 
 
@@ -237,7 +232,7 @@ def _span(opts: SynthOptions):
         min_total = 3.0
         default_duration = None
     else:
-        sc = scenario(opts.scenario, "or a BROAD trial .npz path; see steval synth --list")
+        sc = scenario(opts.scenario, "or a BROAD trial .npz path")
         min_total = sc.min_duration_s
         default_duration = sc.default_duration_s
     tim9_s = fwl.TIM9_START_CYCLES / C.CPU_HZ
@@ -246,7 +241,9 @@ def _span(opts: SynthOptions):
     elif trial is not None:
         duration = trial.t_s[-1] + tim9_s - opts.join_at_s - 1e-6
         if duration <= 0:
-            raise UserError(f"--join-at {opts.join_at_s:g} s is after the end of BROAD trial {trial.name}")
+            raise ParamError(
+                f"{{join_at_s}} {opts.join_at_s:g} s is after the end of BROAD trial {trial.name}", "join_at_s"
+            )
     else:
         duration = default_duration
     total = opts.join_at_s + duration
@@ -396,12 +393,12 @@ def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = 
     received bytes ("raw", or "auto" with any other name). Never overwrites unless ``force``. Returns the format."""
     path = Path(path)
     if fmt not in ("auto", "stv", "raw"):
-        raise UserError(f"--format must be auto, stv or raw, got {fmt!r}")
+        raise ParamError(f"{{fmt}} must be auto, stv or raw, got {fmt!r}", "fmt")
     kind = ("stv" if path.suffix.lower() == ".stv" else "raw") if fmt == "auto" else fmt
     if path.is_dir():
-        raise UserError(f"{path} is a directory; give a file name for --out")
+        raise ParamError(f"{path} is a directory; give a file name for {{path}}", "path")
     if path.exists() and not force:
-        raise UserError(f"{path} exists; pass --force to replace it")
+        raise ParamError(f"{path} exists; pass {{force}} to replace it", "force")
     if not path.parent.is_dir():
         raise UserError(f"{path.parent} does not exist")
     if kind == "raw":

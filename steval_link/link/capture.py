@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from steval_link import __version__
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 
 __all__ = [
     "MAGIC",
@@ -487,7 +487,7 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
     return path
 
 
-def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out") -> Path | None:
+def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
     """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
 
     None stays None (the default ``recordings/steval-<UTC>.stv``); an existing directory means "write inside it"
@@ -501,15 +501,16 @@ def resolve_capture_out(out: str | os.PathLike | None, *, option: str = "--out")
     if path.is_dir():
         return default_capture_path(path)
     if str(out).endswith(("/", os.sep)):
-        raise UserError(f"{option} {out}: directory {path} does not exist (create it first)")
+        raise ParamError(f"{{out}} {out}: directory {path} does not exist (create it first)", "out")
     if path.exists():
-        raise UserError(f"{option} {path} already exists; choose another name (captures are never overwritten)")
+        raise ParamError(f"{{out}} {path} already exists; choose another name (captures are never overwritten)", "out")
     parent = path.parent
     if not parent.is_dir():
         what = "is not a directory" if parent.exists() else "does not exist"
-        raise UserError(
-            f"{option} {path}: directory {parent} {what} (create it first, or give an existing "
-            "directory to write a capture inside it)"
+        raise ParamError(
+            f"{{out}} {path}: directory {parent} {what} (create it first, or give an existing "
+            "directory to write a capture inside it)",
+            "out",
         )
     return path
 

@@ -97,7 +97,7 @@ class BleSource(Source):
             extra,
             kind="ble",
             takes_commands=False,  # ST's stock firmware takes no commands over BLE
-            recording_name=f"steval live --ble {self.what}",
+            recording_name=f"steval live ble:{self.what}",
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:

@@ -14,7 +14,6 @@ as ``S`` chunks. Commands (``--commands`` at emulated times, or typed) reach the
 
 from __future__ import annotations
 
-import shlex
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -81,7 +80,7 @@ class EmulatedSource(Source):
         extra = {
             "source": "steval emulate",
             "emulated": True,
-            "command": self.emu_options.command(emu.duration_s),
+            "command": self.emu_options.command(),
             "elf": str(emu.elf.path),
             "scenario": emu.motion.name,
             "seed": self.emu_options.seed,
@@ -101,8 +100,6 @@ class EmulatedSource(Source):
             )
         if self.commands:
             extra["commands"] = [[t, c.describe()] for t, c in self.commands]
-            if self.commands_file:
-                extra["command"] += " " + shlex.join(["--commands", str(self.commands_file)])
         return LinkInfo(
             f"emulated:{emu.elf.path.name}",
             C.BAUD,

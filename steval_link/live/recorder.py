@@ -10,7 +10,7 @@ import os
 import threading
 import time
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link import autodetect, ports
 from steval_link.link.capture import CaptureWriter
 from steval_link.link.decoder import StreamDecoder
@@ -200,7 +200,9 @@ def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool
     try:
         return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
     except FileExistsError:
-        raise UserError(f"{path} already exists; choose another --out (captures are never overwritten)") from None
+        raise ParamError(
+            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
+        ) from None
     except OSError as exc:
         raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
 

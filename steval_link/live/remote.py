@@ -8,13 +8,14 @@ drone for longer than ``timeout_s`` per command; the drone never waits on the ho
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import serial
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link import protocol as P
 from steval_link.link.commands import Command, CommandChannel, ack_of_text, describe_ack
 from steval_link.link.decoder import StreamDecoder
@@ -59,7 +60,7 @@ def run_commands(
         try:
             path, ser = open_port(port, baud)
         except UserError as exc:
-            message = str(exc).replace(" (or use --wait)", "")
+            message = re.sub(r" \(or use [^)]*\)$", "", str(exc))  # no waiting for one command
             if " is busy" in message:
                 message += " (if steval live has it, type the command at its prompt instead)"
             raise UserError(message) from None
@@ -122,9 +123,10 @@ def _one(
             "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)"
         )
     if not decoder.stats.frames_ok:
-        raise UserError(
+        raise ParamError(
             f"no answer from the drone on {path} within {timeout_s:g} s (no valid frames either: wrong "
-            "--baud, or not a STEVAL with the steval-link firmware)"
+            "{baud}, or not a STEVAL with the steval-link firmware)",
+            "baud",
         )
     raise UserError(
         f"the drone on {path} did not acknowledge '{command.describe()}' within {timeout_s:g} s (its "

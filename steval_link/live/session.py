@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
@@ -61,9 +61,11 @@ def port_source(port: str, **settings: Any) -> Source:
     low = port.lower()
     if low.startswith(BLE_SCHEME):
         name = port[len(BLE_SCHEME) :].strip()
-        raise UserError(f"--port {port}: a BLE drone is read with steval live --ble {name}".rstrip())
+        raise ParamError(
+            f"{{port}} {port}: a BLE drone is read with steval live {{ble}} {name}".rstrip(), "port", "ble"
+        )
     if low.startswith(EMULATED_SCHEME):
-        raise UserError(f"--port {port}: the emulated board is run with steval emulate FIRMWARE.elf")
+        raise ParamError(f"{{port}} {port}: the emulated board is run with steval emulate FIRMWARE.elf", "port")
     return source_for(port, **settings)
 
 
@@ -117,7 +119,7 @@ class LiveSession:
         check_outputs: Callable[[], None] | None = None,
     ) -> None:
         if options.uses_rerun and viewer_factory is None:
-            raise ValueError("a session that uses Rerun (a view or --rrd) needs a viewer_factory")
+            raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
         self.options = options
         self.source = source
         self.check_outputs = check_outputs
@@ -301,7 +303,7 @@ class LiveSession:
             return
         if status.wait:
             self._warned_no_frames = True
-            self.display.note(message + "; still waiting (--wait)")
+            self.display.note(message + "; still waiting")
             return
         raise LinkError(message)
 
