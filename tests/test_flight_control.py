@@ -79,7 +79,7 @@ def test_mount_fault_turns_what_the_board_reads():
     a_bad, g_bad = bad.counts(k)
     assert not np.array_equal(a_ok, a_bad)
     assert set(MOUNTS) == {"turned-90", "turned-180"}
-    with pytest.raises(UserError, match="unknown --mount"):
+    with pytest.raises(UserError, match="unknown mount="):
         ScenarioMotion("bench", 5.0, seed=0, mount="sideways")
 
 
