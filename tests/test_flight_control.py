@@ -391,7 +391,7 @@ def test_cli_preflight_live_on_a_port(tmp_path):
 
 
 def test_a_scenario_too_short_for_its_moves_is_one_sentence():
-    with pytest.raises(UserError, match="needs --duration of at least 27 s"):
+    with pytest.raises(UserError, match="needs duration_s= of at least 27 s"):
         ScenarioMotion("flight", 10.0, seed=0)
 
 
