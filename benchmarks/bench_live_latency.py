@@ -7,7 +7,7 @@ as its bytes are written, so the reader can measure, per frame, ``logged - writt
 The measured path is the live session's own (``steval_link.live``): ``SerialReader`` thread with
 ``RecorderProtocol`` (each chunk to a capture file first, then the session's ``Inbox``) -> the session's main
 loop -> ``LivePipeline`` (``StreamDecoder``, ``LiveRows``, ``LiveEstimators``: the default estimators, e.g.
-the seeded ST port, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
+the seeded ST replica, accel and EKF3) -> ``LiveLogger.log_batch`` on an .rrd file sink, with the live viewer's batching
 (``steval_link.live.pipeline.VIEW_INTERVAL_S``). The latency of a frame is taken when ``log_batch`` returns for its
 batch.
 

@@ -10,7 +10,7 @@ drone below instead.
 A fake drone (``tests/support/ptyfeed.py``) replays a synthetic flight (bit-exact firmware filter outputs, a status
 frame
 every 161 steps; the 16-bit ``seq`` wraps 8 times an hour) into a pseudo-terminal. The real CLI runs on it as a
-child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST port, accel, EKF),
+child process, ``steval live --no-view --rrd ... --port <pty>`` with the default estimators (ST replica, accel, EKF),
 and the child's resident memory (VmRSS, and the peak VmHWM) is sampled once a second.
 
 With ``--default-view`` the child runs as a user on a machine without a display types it, ``steval live --rrd

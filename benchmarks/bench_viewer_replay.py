@@ -1,7 +1,7 @@
 """Benchmark: log a 1-hour capture (581 000 attitude frames at 161.5 Hz) with every series to an .rrd.
 
 Measures ``steval_viewer.replay_log.log_replay`` (all entities: firmware attitude, gravity arrow, angles, raw
-sensors, throttle, link health, and five host estimates: ST-Mahony port, EKF3, MEKF, accelerometer-only, VQF-like)
+sensors, throttle, link health, and five host estimates: ST-Mahony replica, EKF3, MEKF, accelerometer-only, VQF-like)
 from in-memory arrays to a finished .rrd file (flushed and closed). The estimators themselves are timed by their own
 benchmarks; here the estimate arrays are synthetic so only the viewer side is measured.
 
@@ -103,7 +103,7 @@ def main() -> None:
         default=None,
         metavar="NAMES",
         help="comma-separated registry names to really run (e.g. accel,vqf,ekf3,mekf) and time, plus the seeded "
-        "firmware port; default: synthetic estimate arrays (viewer side only)",
+        "firmware replica; default: synthetic estimate arrays (viewer side only)",
     )
     args = ap.parse_args()
 
@@ -119,8 +119,8 @@ def main() -> None:
         from steval_link.estimators.registry import create
 
         t = time.perf_counter()
-        port = replay_firmware(tel)
-        print(f"estimator st-mahony port (seeded replay): {time.perf_counter() - t:.2f} s")
+        replica = replay_firmware(tel)
+        print(f"estimator st-mahony replica (seeded replay): {time.perf_counter() - t:.2f} s")
         estimates = {}
         a = tel.attitude
         for name in args.run_estimators.split(","):
@@ -128,7 +128,7 @@ def main() -> None:
             estimates[name] = create(name).run(a.acc_mg, a.gyro_mdps, a.thr)
             print(f"estimator {name}: {time.perf_counter() - t:.2f} s")
     else:
-        port = estimate(tel, 1.0, rng)
+        replica = estimate(tel, 1.0, rng)
         estimates = {
             name: estimate(tel, s, rng) for name, s in (("ekf3", 0.98), ("mekf", 0.97), ("accel", 1.05), ("vqf", 0.99))
         }
@@ -136,7 +136,7 @@ def main() -> None:
 
     t0 = time.perf_counter()
     session = open_session(SinkOptions(rrd=out), recording_name="bench")
-    summary = log_replay(session.rec, tel, estimates, port=port)
+    summary = log_replay(session.rec, tel, estimates, replica=replica)
     t_logged = time.perf_counter()
     session.close()
     t_done = time.perf_counter()

@@ -1,5 +1,5 @@
 """The firmware's float32 arithmetic that more than one layer needs, bit-exact: the fast inverse square root and
-``QuaternionToEuler`` (the link layer recomputes a binary frame's angles from its q with it; the ST-Mahony port
+``QuaternionToEuler`` (the link layer recomputes a binary frame's angles from its q with it; the ST-Mahony replica
 uses both). The compiled ``steval_link._st_mahony_native`` gives the same bits faster when it is built.
 """
 

@@ -263,7 +263,7 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     info = read_rrd(rrd)
     assert info.samples["plots/acc_mg"] == n and info.samples["ble/pressure_hpa"] == n
     assert info.samples["ble/mag_mgauss"] == n and info.samples["ble/armed"] == n
-    assert info.samples["plots/pitch_thx_deg/ekf3"] == n and info.samples["plots/roll_thy_deg/st_mahony_port"] == n
+    assert info.samples["plots/pitch_thx_deg/ekf3"] == n and info.samples["plots/roll_thy_deg/st_mahony_replica"] == n
     assert info.samples.get("world/drone/estimate/ekf3", 0) >= 1
     assert {"fw_time", "host_time"} <= info.timelines and "ble/note" in info.static
     names = " ".join(blueprint_views(rrd))

@@ -159,8 +159,8 @@ def test_replay_rrd_has_the_ble_layout(monkeypatch, capsys, tmp_path):
         "ble/rssi_dbm",
         "ble/armed",
         "ble/temperature_c",
-        "world/drone/estimate/st_mahony_port",
-        "plots/pitch_thx_deg/st_mahony_port",
+        "world/drone/estimate/st_mahony_replica",
+        "plots/pitch_thx_deg/st_mahony_replica",
         "plots/roll_thy_deg/ekf3",
         "world/drone/estimate/accel",
     ):

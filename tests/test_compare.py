@@ -1,6 +1,6 @@
-"""``steval compare``: the seeded port against the firmware, diagnoses, estimator traces, rates, CLI.
+"""``steval compare``: the seeded replica against the firmware, diagnoses, estimator traces, rates, CLI.
 
-Captures are built here from real wire bytes: a "firmware" (the bit-exact port, verified against ST's binary in
+Captures are built here from real wire bytes: a "firmware" (the bit-exact replica, verified against ST's binary in
 test_st_mahony) runs over smooth synthetic motion, its outputs and status snapshots are encoded with
 ``steval_link.link.protocol`` and decoded back with ``decode_bytes`` / written as ``.stv`` files.
 """
@@ -131,8 +131,8 @@ def test_clean_capture_is_bit_exact_on_every_step():
     p = r.replica
     assert p.rows == p.seeded == p.bit_exact == 1500 and p.all_exact and p.first_mismatch is None
     assert p.seeds[0]["source"] == "power-up" and not p.diagnosis
-    port = r.trace("st-mahony-port")
-    assert port.pitch.rms_deg == 0.0 and port.roll.max_abs_deg == 0.0 and port.pitch.n == 1500
+    replica = r.trace("st-mahony-replica")
+    assert replica.pitch.rms_deg == 0.0 and replica.roll.max_abs_deg == 0.0 and replica.pitch.n == 1500
     text = "\n".join(format_report(r))
     assert "bit-exact on every step" in text and "bit-exact steps 1500 of 1500" in text
     assert "pitch (thx, about x)" in text and "roll (thy, about y)" in text
@@ -314,7 +314,7 @@ def test_firmware_nan_rows_are_counted_and_excluded():
     assert nan_rows > 0  # the violent burst drives asin out of range, as on the drone
     r = compare_capture(tel, estimators=("accel",))
     assert r.firmware_nan_roll == nan_rows
-    assert r.replica.all_exact  # NaN == NaN bit-wise: the port makes the same NaNs
+    assert r.replica.all_exact  # NaN == NaN bit-wise: the replica makes the same NaNs
     acc = r.trace("accel")
     assert acc.roll.n == 1200 - nan_rows and math.isfinite(acc.roll.rms_deg)
     assert "firmware NaN steps" in "\n".join(format_report(r))
@@ -393,7 +393,7 @@ def test_text_mode_capture_compares_estimators_only():
     assert not tel.attitude.exact.any()
     r = compare_capture(tel, estimators=("accel",))
     assert r.replica is None and r.text_rows == len(tel.attitude)
-    assert not r.trace("st-mahony-port").available
+    assert not r.trace("st-mahony-replica").available
     assert r.trace("accel").available and r.trace("accel").pitch.n == len(tel.attitude)
     text = "\n".join(format_report(r))
     assert "cannot be bit-exact" in text
@@ -441,9 +441,12 @@ def test_cli_json_is_machine_output_only(stv_file, capsys):
     code, out, err = run_cli(["compare", str(stv_file), "--json"], capsys)
     assert code == 0, err
     d = json.loads(out)
-    assert d["port"]["all_exact"] is True and d["port"]["bit_exact_steps"] == d["port"]["seeded_steps"] == 899 - 21
+    assert (
+        d["replica"]["all_exact"] is True
+        and d["replica"]["bit_exact_steps"] == d["replica"]["seeded_steps"] == 899 - 21
+    )
     assert d["rates"]["frames_missing"] == 1 and d["rows"]["attitude"] == 899
-    assert {t["name"] for t in d["traces"]} >= {"st-mahony-port", "accel", "ekf3", "mekf"}
+    assert {t["name"] for t in d["traces"]} >= {"st-mahony-replica", "accel", "ekf3", "mekf"}
 
 
 def test_cli_port_disagreement_still_exits_0(tmp_path, capsys):

@@ -1,5 +1,5 @@
 """``steval compare A.stv B.stv ...``: flights side by side (analysis/side_by_side.py, its figure, its Rerun
-recording), on captures made by ``steval synth`` (the bit-exact port of the firmware behind the sensor model) and the
+recording), on captures made by ``steval synth`` (the bit-exact replica of the firmware behind the sensor model) and the
 bundled recordings; the end-to-end check on the reference firmware under emulation is slow and needs the firmware.
 """
 
@@ -199,7 +199,7 @@ def test_one_capture_is_the_single_report(monkeypatch, capsys, tmp_path):
     demo = REC / "demo.stv"
     code, out, _ = run_cli(monkeypatch, capsys, "compare", demo, "--json")
     d = json.loads(out)
-    assert code == 0 and "port" in d and "traces" in d and "flights" not in d
+    assert code == 0 and "replica" in d and "traces" in d and "flights" not in d
     code, _, err = run_cli(monkeypatch, capsys, "compare", demo, "--rrd", tmp_path / "x.rrd")
     assert code == 2 and "for two or more captures" in err and not (tmp_path / "x.rrd").exists()
 

@@ -24,7 +24,7 @@ def test_title_names_the_chosen_estimators_and_nan_is_a_gap():
     report = compare_capture(tel, estimators=["ekf3"])
     fig = comparison_figure(tel, report)
     title = fig._suptitle.get_text()
-    assert "EKF (3-state)" in title and "accel" not in title and "ST-Mahony port" in title
+    assert "EKF (3-state)" in title and "accel" not in title and "ST-Mahony replica" in title
     ax_p = fig.axes[0]
     fw_line = next(ln for ln in ax_p.get_lines() if ln.get_label() == "firmware (drone)")
     x, y = np.asarray(fw_line.get_xdata(), float), np.asarray(fw_line.get_ydata(), float)

@@ -132,7 +132,7 @@ def test_one_flipped_bit_is_found(tmp_path):
 
 
 def test_nan_against_nan_is_exact(tmp_path):
-    # a firmware NaN (as in edge_cases.csv) must be matched by a NaN from the port
+    # a firmware NaN (as in edge_cases.csv) must be matched by a NaN from the replica
     n = 50
     acc = np.zeros((n, 3), np.float32)
     gyro = np.full((n, 3), np.nan, np.float32)

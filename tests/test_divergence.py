@@ -55,7 +55,7 @@ def diverging_stream(version: int = P.VERSION) -> tuple[bytes, np.ndarray]:
     q[DIVERGE:] *= np.float32(1.7)  # |q| ≈ 1.7: off the unit sphere, components still within ±2
     q[DIVERGE + 1 :] *= np.float32(1.8)  # |q| ≈ 3: q_w beyond 2
     q[NAN:] = np.nan
-    # the filter's state after each step, for the status snapshots (the port's integrals; the firmware's q)
+    # the filter's state after each step, for the status snapshots (the replica's integrals; the firmware's q)
     out = bytearray()
     rec = np.zeros(1, P.ATTITUDE_DTYPE)
     for s in range(N):
@@ -188,7 +188,7 @@ def test_live_pipeline_health_and_note():
     assert any(n.startswith(f"firmware values bad from step {DIVERGE + 1} on") for n in notes)
     # the port keeps running on the inputs (NaN snapshots seed nothing, their settings are the build's)
     assert pipe.mahony.seeded and pipe.mahony.settings.kp_ground == KP_GROUND
-    # live, the port starts with the defaults (kp_ground 10): bit-exact at step 0 (level: no correction), re-seeded
+    # live, the replica starts with the defaults (kp_ground 10): bit-exact at step 0 (level: no correction), re-seeded
     # by the snapshot of step 60 (kp_ground 5), then bit-exact until the firmware's q left the unit sphere
     assert pipe.mahony.rows_exact == 1 + (DIVERGE - STATUS_AT[0] - 1)
     h2 = LinkHealth()
@@ -265,20 +265,20 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
     assert p.settings["kp_ground"] == KP_GROUND  # from the status frames, NaN snapshots and all
     assert p.first_mismatch["step"] == DIVERGE and p.bit_exact == DIVERGE
     d = p.divergence
-    assert d["step"] == DIVERGE and d["first_nonfinite_step"] == NAN and d["port"] == "finite"
+    assert d["step"] == DIVERGE and d["first_nonfinite_step"] == NAN and d["replica"] == "finite"
     assert d["q_norm"] == pytest.approx(float(np.linalg.norm(q[DIVERGE].astype(np.float64))))
     acc, gyro, _ = _inputs()
     assert [x["step"] for x in d["inputs"]] == [DIVERGE - 1, DIVERGE]
     assert d["inputs"][1]["acc_mg"] == [float(v) for v in acc[DIVERGE]]
     assert d["inputs"][0]["gyro_mdps"] == [float(v) for v in gyro[DIVERGE - 1]]
-    assert abs(np.linalg.norm(d["port_q_wxyz"]) - 0.9983) < 0.01
+    assert abs(np.linalg.norm(d["replica_q_wxyz"]) - 0.9983) < 0.01
     t = (T0_US + int(DIVERGE * PERIOD_US)) / 1e6
     assert p.diagnosis[0].startswith(
         f"the firmware's own filter left the unit sphere at step {DIVERGE} (t = {t:.3f} s): q = ("
     )
     assert f"non-finite from step {NAN} on" in p.diagnosis[0]
     assert p.diagnosis[1].startswith(f"inputs at step {DIVERGE - 1}: acc (")
-    assert p.diagnosis[3].startswith("the bit-exact port stayed finite on the same inputs")
+    assert p.diagnosis[3].startswith("the bit-exact replica stayed finite on the same inputs")
     assert len(p.diagnosis) == 4
     lines = format_report(r)
     assert f"firmware output: {SENTENCE}" in lines
@@ -287,7 +287,7 @@ def test_compare_names_the_step_its_inputs_and_the_finite_port_without_a_setting
     assert "filter (status frames): kp_ground 5," in "\n".join(lines)
     out = r.as_dict()
     json.dumps(out, allow_nan=False)
-    assert out["port"]["divergence"]["step"] == DIVERGE and out["values_bad"]["text"] == SENTENCE
+    assert out["replica"]["divergence"]["step"] == DIVERGE and out["values_bad"]["text"] == SENTENCE
 
 
 def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
@@ -302,7 +302,7 @@ def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
     assert tel.attitude.step[0] % P.SEQ_MODULUS == 300
     r = compare_capture(tel, estimators=())
     d = r.replica.divergence
-    assert d["port"] == "unseeded" and d["first_nonfinite_step"] == d["step"]
+    assert d["replica"] == "unseeded" and d["first_nonfinite_step"] == d["step"]
     assert "the port had no state at that step" in d["text"][-1]
     assert r.replica.settings["kp_ground"] == KP_GROUND
     lines = format_report(r)  # said although the port has no step to compare
@@ -360,7 +360,7 @@ def test_replay_viewer_marks_the_step_and_the_drone_stops(tmp_path):
     info = read_rrd(out)
     assert info.samples[ent.LOG_FILTER] == 1
     assert info.samples[ent.pitch_path("firmware")] == int(np.isfinite(tel.attitude.thx_rad).sum())
-    assert info.samples[ent.pitch_path("st_mahony_port")] == N  # the port plots on, finite
+    assert info.samples[ent.pitch_path("st_mahony_replica")] == N  # the replica plots on, finite
 
 
 def test_live_viewer_marks_the_first_bad_frame_once(tmp_path):
@@ -439,13 +439,13 @@ def test_a_reference_firmware_that_diverges_end_to_end(tmp_path, monkeypatch, ca
     step = off["first_step"]
     assert re.search(rf"→ the firmware's own filter (left the unit sphere|went non-finite) at step {step} ", text)
     assert f"inputs at step {step}: acc (" in text
-    assert "the bit-exact port stayed finite on the same inputs" in text
+    assert "the bit-exact replica stayed finite on the same inputs" in text
     assert "no known setting reproduces it" not in text  # no settings were searched for a diverged filter
     assert "no status frames" not in text
     code, js, err = run_cli(monkeypatch, capsys, "compare", cap, "--json")
     assert code == 0, err
-    d = json.loads(js)["port"]["divergence"]
-    assert d["step"] == step and d["port"] == "finite" and len(d["inputs"]) == 2
+    d = json.loads(js)["replica"]["divergence"]
+    assert d["step"] == step and d["replica"] == "finite" and len(d["inputs"]) == 2
     csv_path = tmp_path / "div.csv"
     code, _, err = run_cli(monkeypatch, capsys, "export", cap, "--csv", csv_path)
     assert code == 0, err

@@ -1,5 +1,5 @@
 """Firmware in the loop: the reference firmware (firmware_patch/reference, ``make reference``) runs on the emulated
-STM32F401 board; its USART1 bytes are checked end to end: frames, boot lines, status cadence, the Python port
+STM32F401 board; its USART1 bytes are checked end to end: frames, boot lines, status cadence, the Python replica
 bit-exact from power-up, the sensor pipeline bit-exact with sensor_model, lab variants, and the errors a broken
 firmware gets.
 
@@ -63,7 +63,7 @@ def decode(chunks):
 
 
 def port_check(chunks, tmp_path, name="emu.stv"):
-    """The capture of the run, through load_telemetry and the seeded port (what `steval compare` does)."""
+    """The capture of the run, through load_telemetry and the seeded replica (what `steval compare` does)."""
     from steval_link.analysis.compare import compare_replica
 
     path = tmp_path / name
@@ -108,7 +108,7 @@ def test_default_build_end_to_end(default_run, tmp_path):
     assert 0.99 < rep.tim9_start_s < 1.02
     assert 2.97 < rep.first_attitude_s < 3.0
     assert abs(att[0].t_us / 1e6 - rep.first_attitude_s) < 0.01
-    # the Python port, seeded at power-up, bit-exact on every step
+    # the Python replica, seeded at power-up, bit-exact on every step
     port = port_check(chunks, tmp_path)
     assert port.seeds[0]["source"] == "power-up"
     assert port.all_exact and port.bit_exact == port.rows == len(att)
@@ -208,7 +208,7 @@ def test_text_mode_build(tmp_path):
 def test_throttle_race_frame_carries_the_throttle_the_filter_used(fw_default, tmp_path):
     """An interrupt (ST's REMOCON_PWM TIM2 capture) can change gTHR between stv_fw_step_begin and the filter's read.
     Emulate exactly that (gTHR := 520 at ahrs_fusion_ag's entry on every 3rd step, after the snapshot): the
-    frames must carry 520 there, so the port (kp 0.4 on those steps) stays bit-exact."""
+    frames must carry 520 there, so the replica (kp 0.4 on those steps) stays bit-exact."""
     from steval_link.emulation.runner import Emulation, EmulationOptions
 
     emu = Emulation(EmulationOptions(elf=fw_default, scenario="bench", duration_s=4.5))
@@ -349,7 +349,7 @@ def test_cli_emulate_bad_elf_is_one_line(tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["INT", "TERM", "HUP"])
 def test_cli_emulate_stops_cleanly_on_one_signal_and_keeps_the_capture(fw_default, tmp_path, sig):
     """Ctrl-C (or SIGTERM, SIGHUP) once during `steval emulate`: it stops at the next round, says so, and the
-    capture holds every frame emulated until then, bit-exact with the port."""
+    capture holds every frame emulated until then, bit-exact with the replica."""
     from support.ptyfeed import StevalProcess
 
     out = tmp_path / "emu.stv"

@@ -46,7 +46,7 @@ def test_inclination_error_ignores_heading_offsets_and_measures_tilt():
 
 
 def test_the_firmware_quaternion_is_body_to_earth_like_broad():
-    """A tilted drone at rest: the Mahony port's q, scored against the body → earth truth, has ~0 error."""
+    """A tilted drone at rest: the Mahony replica's q, scored against the body → earth truth, has ~0 error."""
     thx, thy = 0.4, -0.25
     g = np.array([-math.sin(thy), math.sin(thx) * math.cos(thy), math.cos(thx) * math.cos(thy)]) * 1000.0
     acc = np.tile(g, (600, 1)).astype(np.float32)
@@ -200,7 +200,7 @@ def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
     att = tel.attitude
     local = tmp_path / "demo.stv"
     local.write_bytes(cap.read_bytes())
-    # ground truth = the firmware's own estimate: its error is zero, the port (same thr) is bit-exact too
+    # ground truth = the firmware's own estimate: its error is zero, the replica (same thr) is bit-exact too
     q = broad.quat_normalize(np.asarray(att.q_wxyz, dtype=np.float64))
     np.savez(ev.truth_sidecar_path(local), step=np.asarray(att.step), quat=q)
     r = ev.evaluate_capture(local, ev.default_specs(161.5, only=["accel", "mekf"]))

@@ -238,10 +238,10 @@ def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path
         assert rep["trials"][0]["rmse_deg"][f["firmware"]] == f["rmse_deg"]
     assert abs(s["rmse_deg"] - lab_["rmse_deg"]) > 1.0  # KI 1 without correction drifts off
     assert lab_["port_settings"]["ki"] == pytest.approx(1.0) and lab_["port_settings"]["correction"] is False
-    # the default build is ST's filter: the bit-exact port on its own inputs scores the same
-    assert s["port_steps"] > 0 and s["port_bit_exact_steps"] == s["port_steps"]
-    assert s["port_rmse_deg"] == s["rmse_deg"]
-    # and near the Python port on the modelled pipeline (same trial, same alignment; inputs modelled apart)
+    # the default build is ST's filter: the bit-exact replica on its own inputs scores the same
+    assert s["replica_steps"] > 0 and s["replica_bit_exact_steps"] == s["replica_steps"]
+    assert s["replica_rmse_deg"] == s["rmse_deg"]
+    # and near the Python replica on the modelled pipeline (same trial, same alignment; inputs modelled apart)
     assert s["rmse_deg"] == pytest.approx(rep["trials"][0]["rmse_deg"]["st-mahony-ground"], rel=0.15)
 
     # the plain view on a terminal (no movement in 3 s yet: the lines are what counts here), with its progress bar
@@ -287,7 +287,7 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
     assert truth["movement_steps"] > 500
     r = truth["rmse_deg"]
     assert r["firmware"] > 0 and r["ekf3"] > 0
-    assert r["st-mahony-port"] == r["firmware"]  # the bit-exact port, scored the same way
+    assert r["st-mahony-replica"] == r["firmware"]  # the bit-exact replica, scored the same way
     # evaluate of the capture reads the same truth (no sidecar needed)
     code, out, err = run_cli(monkeypatch, capsys, "evaluate", cap, "-e", "ekf3", "--json")
     assert code == 0, err
@@ -299,8 +299,8 @@ def test_emulated_capture_keeps_its_truth_for_compare(monkeypatch, capsys, tmp_p
 
 
 def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path):
-    """A synthesised capture (Python drone, bit-exact port) re-written with truth chunks: the truth is the firmware's
-    own attitude turned 1.5° about x on the movement steps, so the firmware and the port score exactly that."""
+    """A synthesised capture (Python drone, bit-exact replica) re-written with truth chunks: the truth is the firmware's
+    own attitude turned 1.5° about x on the movement steps, so the firmware and the replica score exactly that."""
     syn = tmp_path / "syn.stv"
     code, _, err = run_cli(monkeypatch, capsys, "synth", "--scenario", "hand-tilts", "--duration", "12", "--out", syn)
     assert code == 0, err
@@ -322,7 +322,7 @@ def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path)
     truth = json.loads(stdout)["truth"]
     assert truth["steps_matched"] == len(att.step) and truth["movement_steps"] == int(mov.sum())
     r = truth["rmse_deg"]
-    assert r["firmware"] == pytest.approx(1.5, abs=0.05) and r["st-mahony-port"] == r["firmware"]
+    assert r["firmware"] == pytest.approx(1.5, abs=0.05) and r["st-mahony-replica"] == r["firmware"]
     assert r["accel"] > 0
     code, stdout, err = run_cli(monkeypatch, capsys, "compare", out, "-e", "accel")
     assert code == 0 and "against the ground truth the capture keeps" in stdout

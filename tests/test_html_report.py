@@ -59,7 +59,7 @@ def test_html_embeds_every_figure_and_loads_nothing(demo_report):
     assert not re.search(r'(src|href)="(https?:)?//', page) and "<link" not in page and "<script" not in page
     # the sections a student hands in: verdict, estimators' table, step cost, the flight-control sentence
     assert "Bit-exact on 9210 of 9210 steps" in page
-    assert page.count("<table>") >= 3 and "accel-only tilt" in page and "ST-Mahony port" in page
+    assert page.count("<table>") >= 3 and "accel-only tilt" in page and "ST-Mahony replica" in page
     assert "AHRS step cost" in page and "% of the period" in page
     assert "No flight-control figure: the drone was never armed" in page
 
@@ -144,9 +144,9 @@ def test_estimator_table_has_the_truth_column_when_the_capture_keeps_truth():
 
     r = compare_capture(telemetry(n=400), estimators=("accel",))
     assert "RMSE vs truth" not in H._estimator_table(r).head
-    r.truth = {"movement_steps": 321, "rmse_deg": {"firmware": 1.25, "st-mahony-port": 1.25, "accel": 2.5}}
+    r.truth = {"movement_steps": 321, "rmse_deg": {"firmware": 1.25, "st-mahony-replica": 1.25, "accel": 2.5}}
     t = H._estimator_table(r)
     col = t.head.index("RMSE vs truth")
     by_name = {row[0]: row[col] for row in t.rows}
-    assert by_name == {"firmware (drone)": "1.250", "ST-Mahony port": "1.250", "accel-only tilt": "2.500"}
+    assert by_name == {"firmware (drone)": "1.250", "ST-Mahony replica": "1.250", "accel-only tilt": "2.500"}
     assert "321 movement steps" in t.caption

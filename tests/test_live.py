@@ -81,10 +81,10 @@ def test_live_survives_unplug_replug_and_ctrl_c_finishes_cleanly(tmp_path):
     info = read_rrd(rrd)
     frames = [f for f in StreamDecoder().feed(cap.data) if hasattr(f, "seq")]
     assert info.samples["plots/pitch_thx_deg/firmware"] == len(frames)
-    # the ST port was seeded from a status snapshot (joined mid-flight) and again after the gap: bit-exact rows
-    port_rows = info.samples["plots/pitch_thx_deg/st_mahony_port"]
+    # the ST replica was seeded from a status snapshot (joined mid-flight) and again after the gap: bit-exact rows
+    port_rows = info.samples["plots/pitch_thx_deg/st_mahony_replica"]
     assert 0.6 * len(frames) < port_rows < len(frames)
-    assert "ST port bit-exact on" in summary[0]
+    assert "ST replica bit-exact on" in summary[0]
 
 
 def test_live_wrong_baud_says_so_in_one_line_within_3_s(tmp_path):
@@ -205,7 +205,7 @@ def test_live_counts_garbage_crc_and_shows_nan_frames(tmp_path):
     # the firmware's (finite) angles of the flagged frames are plotted; their NaN inputs reach no estimator
     assert info.samples["plots/pitch_thx_deg/firmware"] == n_good + n_nan
     assert info.samples["plots/pitch_thx_deg/accel"] == n_good
-    port = info.samples.get("plots/pitch_thx_deg/st_mahony_port", 0)
+    port = info.samples.get("plots/pitch_thx_deg/st_mahony_replica", 0)
     assert 0 < port < n_good
 
 

@@ -1,4 +1,4 @@
-"""The live pipeline in-process: the seeded ST port against the offline replay, batches, health, bounded memory."""
+"""The live pipeline in-process: the seeded ST replica against the offline replay, batches, health, bounded memory."""
 
 from __future__ import annotations
 
@@ -72,13 +72,13 @@ def test_port_matches_the_offline_replay_bit_for_bit(first_step):
     assert np.array_equal(seeded, replay.seeded)
     assert bits_equal(live_q[seeded], replay.q_wxyz[seeded]).all()
     assert bits_equal(live_q[seeded], log.column("q_wxyz")[seeded]).all()  # == the firmware's own q
-    port = pipe.mahony
-    assert port.rows_mismatch == 0 and port.rows_exact == seeded.sum()
+    replica = pipe.mahony
+    assert replica.rows_mismatch == 0 and replica.rows_exact == seeded.sum()
     if first_step == 0:
         assert seeded.all()
     else:
         assert 0 < seeded.argmax() <= 161 and not seeded[: seeded.argmax()].any()
-    assert port.snapshots_confirmed >= 4  # later snapshots agree with the port's own state
+    assert replica.snapshots_confirmed >= 4  # later snapshots agree with the replica's own state
     assert log.text == ["STEVAL boot"] and len(log.status) == len(decode_bytes(data).status)
     assert list(pipe.texts) == ["STEVAL boot"]  # shown to the user by the session
     steps = log.column("step")
@@ -117,7 +117,7 @@ def test_status_and_text_frames_do_not_cut_a_view_batch():
     assert log.order[0] == "batch"
     assert log.order.count("batch") == 1 and log.order.count("status") == n_status and log.order.count("text") == 1
     assert len(log.batches[0]) == 900
-    assert pipe.mahony.rows_mismatch == 0 and pipe.mahony.rows_exact > 0  # the port still saw each snapshot in order
+    assert pipe.mahony.rows_mismatch == 0 and pipe.mahony.rows_exact > 0  # the replica still saw each snapshot in order
 
 
 def test_view_batches_are_bounded_in_stream_time():
@@ -177,11 +177,11 @@ def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():
     assert (~finite).sum() == 3 and not finite[np.isin(steps, [50, 51, 90])].any()
     accel = log.rows("accel")
     assert np.isfinite(accel[finite]).all()
-    port = log.rows("st-mahony")
+    replica = log.rows("st-mahony")
     before = steps < 50
-    assert np.isfinite(port[before]).all()  # from power-up
-    assert np.isnan(port[(steps > 51) & (steps <= 160)]).all()  # no state to follow until the snapshot of 160
-    assert np.isfinite(port[steps > 160]).all()
+    assert np.isfinite(replica[before]).all()  # from power-up
+    assert np.isnan(replica[(steps > 51) & (steps <= 160)]).all()  # no state to follow until the snapshot of 160
+    assert np.isfinite(replica[steps > 160]).all()
     assert pipe.mahony.rows_mismatch == 0
 
 
@@ -355,7 +355,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
         ent.PLOT_ACC,
         ent.PLOT_GYRO,
         ent.pitch_path("accel"),
-        ent.pitch_path(ent.SOURCE_PORT),
+        ent.pitch_path(ent.SOURCE_REPLICA),
         ent.DIFF_THX,
     ):
         assert info.samples[path] == n_frames, path  # every frame once (nothing logged twice into the file)

@@ -40,18 +40,18 @@ def test_comparison_figure_draws_every_trace_in_degrees(mpl):
     assert "pitch (thx, about x)" in ax_p.get_title(loc="left") and "roll (thy, about y)" in ax_r.get_title(loc="left")
     assert "[deg]" in ax_p.get_ylabel()
     lp = lines_by_label(ax_p)
-    assert {"firmware (drone)", "ST-Mahony port (seeded)", "accel-only tilt"} <= set(lp)
+    assert {"firmware (drone)", "ST-Mahony replica (seeded)", "accel-only tilt"} <= set(lp)
     assert np.allclose(lp["firmware (drone)"].get_ydata(), np.degrees(tel.attitude.thx_rad.astype(float)))
     assert np.allclose(
         lines_by_label(ax_r)["firmware (drone)"].get_ydata(), np.degrees(tel.attitude.thy_rad.astype(float))
     )
-    # the port is bit-exact: the difference panel says so and its lines are zero
+    # the replica is bit-exact: the difference panel says so and its lines are zero
     texts = [t.get_text() for t in ax_d.texts]
     assert any("bit-exact on all 800" in t for t in texts)
-    assert np.all(lines_by_label(ax_d)["pitch: firmware − port"].get_ydata() == 0)
+    assert np.all(lines_by_label(ax_d)["pitch: firmware − replica"].get_ydata() == 0)
     # the bar panel has one group per available estimator
     ax_b = fig.axes[3]
-    assert [t.get_text() for t in ax_b.get_yticklabels()] == ["ST-Mahony port", "accel-only tilt"]
+    assert [t.get_text() for t in ax_b.get_yticklabels()] == ["ST-Mahony replica", "accel-only tilt"]
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -361,7 +361,7 @@ def test_live_a_raising_estimator_is_disabled_with_one_line_and_the_rest_goes_on
         "estimator Fragile failed in fragile.py, line 18, in update: KeyError: 'no such key'; "
         "Fragile disabled, recording and viewing go on"
     ]
-    assert pipe.health.attitude == 2000 and pipe.mahony.describe() == "port bit-exact"
+    assert pipe.health.attitude == 2000 and pipe.mahony.describe() == "replica bit-exact"
     assert pipe.estimators.disabled.keys() == {"Fragile"}
 
 

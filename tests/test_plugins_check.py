@@ -63,7 +63,7 @@ def test_the_starter_passes_every_check_and_is_scored_on_the_bundled_captures(tm
     assert report["steps_per_s"] > ec.LIVE_MIN_STEPS_PER_S
     demo = next(c for c in report["captures"] if c["capture"] == "demo.stv")
     assert set(demo["vs_firmware_deg"]) >= {"MyEkf", "st-mahony", "ekf3"}
-    assert demo["vs_firmware_deg"]["st-mahony"] == 0.0  # the port from power-up is the firmware
+    assert demo["vs_firmware_deg"]["st-mahony"] == 0.0  # the replica from power-up is the firmware
     assert 0.1 < demo["vs_firmware_deg"]["MyEkf"] < 10.0
     assert report["broad"] is None
 

@@ -84,8 +84,8 @@ def test_v1_captures_decode_exactly_as_before(name):
         == digest
     )
     # bit-exact comparisons unchanged
-    port = compare_capture(tel, estimators=()).replica
-    assert port.all_exact and port.bit_exact == port.seeded > 0
+    replica = compare_capture(tel, estimators=()).replica
+    assert replica.all_exact and replica.bit_exact == replica.seeded > 0
     # the replay summary states v1's known limit; a v2 capture does not carry that line
     text = "\n".join(format_summary(summarize(tel)))
     assert "protocol v1" in text and "65 536" in text

@@ -1,5 +1,5 @@
 """The bundled recordings: each decodes with 0 CRC failures, its bytes are exactly what the Python encoder makes of
-the decoded frames (they were made by the firmware's C encoder: C → Python conformance fixtures), the filter port
+the decoded frames (they were made by the firmware's C encoder: C → Python conformance fixtures), the filter replica
 is bit-exact on every step it can seed, and the README says how each file was made."""
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def test_port_is_bit_exact_on_every_seeded_step(name):
     assert (rep.seeds[0].source == "power-up") == full
     if full:
         assert rep.n_seeded == len(a)
-    # every status snapshot seeds the port bit-exact up to the next gap
+    # every status snapshot seeds the replica bit-exact up to the next gap
     row_of = {int(k): i for i, k in enumerate(a.step)}
     checked = 0
     for j in range(len(s)):
@@ -222,6 +222,6 @@ def test_live_params_recording_shows_each_change_bit_exact(monkeypatch, capsys):
     assert (tel.status.flags[ev] & P.FLAG_NO_CORRECTION).any() and not (tel.status.flags[ev[-1]] & 1)
     code, out, err = run_cli(monkeypatch, capsys, "compare", REC / "live_params.stv")
     assert code == 0, err
-    assert "port vs firmware: bit-exact on every step" in out
+    assert "replica vs firmware: bit-exact on every step" in out
     for change in ("ki 0.1 → 1", "correction on → off", "correction off → on", "filter reset", "ki 1 → 0.1"):
         assert change in out, change

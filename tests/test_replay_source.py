@@ -113,7 +113,7 @@ def test_live_session_on_a_replay_records_the_recorded_rate_and_the_same_frames(
     assert summary.attitude >= 1.5 * C.AHRS_RATE_HZ, summary.line()
     assert summary.attitude / summary.streaming_s == pytest.approx(C.AHRS_RATE_HZ, rel=0.04), summary.line()
     assert summary.frames_missing == 0 and summary.crc_failures == 0
-    assert "ST port bit-exact" in summary.line() and str(out) in summary.line()
+    assert "ST replica bit-exact" in summary.line() and str(out) in summary.line()
     cap = read_capture(out)
     assert cap.header["port"] == f"replay://{DEMO}" and cap.header["extra"]["replay_of"] == str(DEMO)
     assert cap.data == read_capture(DEMO).data[: len(cap.data)]  # byte for byte the source's beginning
@@ -215,7 +215,7 @@ def test_a_text_mode_log_replays_live_to_its_end(tmp_path):
     summary = LiveSession(opts, source, stream=open(tmp_path / "err.txt", "w")).run()
     src = load_telemetry(TEXTLOG)
     assert summary.stopped_by == "end of replay" and summary.attitude == len(src.attitude) == 172
-    assert "ST port not seeded" in summary.line()  # text-mode status rows carry no state to seed it from
+    assert "ST replica not seeded" in summary.line()  # text-mode status rows carry no state to seed it from
     assert read_capture(out).data == TEXTLOG.read_bytes()
 
 

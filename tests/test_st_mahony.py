@@ -1,4 +1,4 @@
-"""The ST Mahony port against the firmware's conformance vectors (bit for bit), both loops, and its options."""
+"""The ST Mahony replica against the firmware's conformance vectors (bit for bit), both loops, and its options."""
 
 from __future__ import annotations
 
@@ -277,7 +277,7 @@ def test_euler_helpers_agree_with_the_firmware_convention():
 
 
 def firmware_capture(n: int, seed: int, settings=None):
-    """A synthetic capture: 'firmware' outputs from the port itself (the port is verified above)."""
+    """A synthetic capture: 'firmware' outputs from the replica itself (the replica is verified above)."""
     acc, gyro, thr = random_inputs(n, seed)
     q, thx, thy, _ = run(acc, gyro, thr, settings=settings)
     # filter states after every step, as status frames would report them

@@ -34,11 +34,11 @@ def test_each_release_is_bit_exact_and_named(release_capture, monkeypatch, capsy
     code, js, err = run_cli(monkeypatch, capsys, "compare", cap, "--json", "-e", "accel")
     assert code == 0, err
     d = json.loads(js)
-    port = d["port"]
-    assert d["filter"] == f"ST {release}" and port["all_exact"], port["diagnosis"]
-    assert port["bit_exact_steps"] == port["rows"] > 400
-    other = next(v for v in port["variant_bit_exact_steps"] if v != f"ST {release}")
-    assert port["variant_bit_exact_steps"][other] < port["rows"]
+    replica = d["replica"]
+    assert d["filter"] == f"ST {release}" and replica["all_exact"], replica["diagnosis"]
+    assert replica["bit_exact_steps"] == replica["rows"] > 400
+    other = next(v for v in replica["variant_bit_exact_steps"] if v != f"ST {release}")
+    assert replica["variant_bit_exact_steps"][other] < replica["rows"]
     code, text, _ = run_cli(monkeypatch, capsys, "compare", cap, "-e", "accel")
     assert f"filter: ST {release} (recognised from the firmware ELF's code" in text
 

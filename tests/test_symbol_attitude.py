@@ -56,7 +56,7 @@ def test_a_capture_without_frames_shows_the_symbol_attitude(tmp_path, monkeypatc
     code, js, err = run_cli(monkeypatch, capsys, "compare", cap, "--json", "-e", "accel")
     assert code == 0, err
     d = json.loads(js)
-    assert d["filter"] == "ST 221117" and d["port"]["all_exact"] and d["port"]["bit_exact_steps"] == 600
+    assert d["filter"] == "ST 221117" and d["replica"]["all_exact"] and d["replica"]["bit_exact_steps"] == 600
     assert any("by symbol" in n and "not frames it sent" in n for n in d["notes"])
     code, js, err = run_cli(monkeypatch, capsys, "replay", cap, "--json")
     assert code == 0, err

@@ -1,5 +1,5 @@
 """``steval synth``: emulated captures decode cleanly, follow the firmware's timing and link rules, and carry status
-snapshots that seed the filter port to bit-exactness; deterministic; Python and C encoders give the same bytes."""
+snapshots that seed the filter replica to bit-exactness; deterministic; Python and C encoders give the same bytes."""
 
 from __future__ import annotations
 
@@ -100,7 +100,7 @@ def test_scenario_decodes_cleanly_at_the_firmware_rate(name):
     for (_, got), want in zip(tel.text, banner):
         assert got == want or (got.startswith("BoardMAC = c0:8c:") and want.startswith("BoardMAC = "))
     assert tel.text[0][1].startswith("STEVAL-FCU001V1 FW rev.1.0")
-    # the firmware port from power-up is bit-exact on every step
+    # the firmware replica from power-up is bit-exact on every step
     rep = replay_firmware(tel)
     assert rep.seeds[0].source == "power-up" and rep.n_seeded == len(a) and rep.all_exact
 

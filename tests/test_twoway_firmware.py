@@ -1,11 +1,11 @@
 """The two-way link on the reference firmware (firmware_patch/reference, our link modules) under emulation: commands
-reach it through the emulated USART1 RX, and the port follows every change bit for bit.
+reach it through the emulated USART1 RX, and the replica follows every change bit for bit.
 
 - The runtime filter settings keep the stock arithmetic: the shared conformance vectors (computed from ST's
   released binary), fed to the reference firmware's own ``ahrs_fusion_ag`` step by step, come out bit for bit
-  (and with KI 1 / no correction set in ``stv_filter``, bit for bit the port with those settings).
+  (and with KI 1 / no correction set in ``stv_filter``, bit for bit the replica with those settings).
 - KI, the correction and a filter reset changed mid-stream: every step bit-exact in ``replay_firmware``, the live
-  port and ``steval compare``; each change announced by an EVENT status naming its step; the capture holds the
+  replica and ``steval compare``; each change announced by an EVENT status naming its step; the capture holds the
   commands sent (``H`` chunks).
 - Corrupted, cut and foreign bytes on RX are ignored and counted (the acks' ``rx_bad``); nothing else is applied.
 - With the throttle up a filter change is refused, the ack says why, and nothing changes.
@@ -226,7 +226,7 @@ def test_live_port_follows_every_change(changes_run):
             hi += 1
         pipe.feed([(data, t)])
     port = pipe.mahony
-    assert port.describe() == "port bit-exact", port.describe()
+    assert port.describe() == "replica bit-exact", port.describe()
     notes = list(pipe.notes)
     assert any(n.startswith("set ki 1: accepted, applies from step") for n in notes), notes
     assert any(n.startswith("correction off: accepted") for n in notes), notes

@@ -99,10 +99,10 @@ def test_replay_rrd_reads_back_with_entities_counts_gaps_and_blueprint(tmp_path)
 
     att = tel.attitude
     accel = registry.create("accel").run(att.acc_mg, att.gyro_mdps, att.thr)
-    port = replay_firmware(tel)
+    replica = replay_firmware(tel)
     out = tmp_path / "replay.rrd"
     session = open_session(SinkOptions(rrd=out), recording_name="test")
-    summary = log_replay(session.rec, tel, {"accel": accel}, port=port)
+    summary = log_replay(session.rec, tel, {"accel": accel}, replica=replica)
     session.close()
 
     info = read_rrd(out)
@@ -118,8 +118,10 @@ def test_replay_rrd_reads_back_with_entities_counts_gaps_and_blueprint(tmp_path)
     for path in (ent.PLOT_ACC, ent.PLOT_GYRO, ent.PLOT_THROTTLE, ent.yaw_path("firmware"), ent.ACC_GRAVITY):
         assert info.samples[path] == n, path
     assert info.samples[ent.pitch_path("accel")] == int(np.asarray(accel.valid).sum())
-    assert info.samples[ent.estimate_path("st_mahony_port")] == summary.samples[ent.estimate_path("st_mahony_port")]
-    assert ent.estimate_model_path("st_mahony_port") in info.static
+    assert (
+        info.samples[ent.estimate_path("st_mahony_replica")] == summary.samples[ent.estimate_path("st_mahony_replica")]
+    )
+    assert ent.estimate_model_path("st_mahony_replica") in info.static
     assert ent.DRONE_FIRMWARE_MODEL in info.static
     assert info.samples[ent.LINK_CYCLES] == len(tel.status.step)
     assert info.samples[ent.LOG_FIRMWARE] == 2
@@ -127,7 +129,7 @@ def test_replay_rrd_reads_back_with_entities_counts_gaps_and_blueprint(tmp_path)
 
 
 def test_port_difference_is_zero_where_bit_exact(tmp_path):
-    """firmware − port is logged in degrees; on a real port replay it is exactly 0 where bit-exact."""
+    """firmware − replica is logged in degrees; on a real replica replay it is exactly 0 where bit-exact."""
     from steval_link.estimators.st_mahony import MahonyState, run
 
     n = 400
@@ -142,11 +144,11 @@ def test_port_difference_is_zero_where_bit_exact(tmp_path):
     tel = decode_bytes(data)
     from steval_link.estimators.firmware_replay import replay_firmware
 
-    port = replay_firmware(tel)
-    assert port.n_bit_exact == n
+    replica = replay_firmware(tel)
+    assert replica.n_bit_exact == n
     out = tmp_path / "diff.rrd"
     session = open_session(SinkOptions(rrd=out))
-    log_replay(session.rec, tel, {}, port=port)
+    log_replay(session.rec, tel, {}, replica=replica)
     session.close()
     from rerun.chunk import RrdReader
 
@@ -206,7 +208,7 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
             n_batches += 1
             n = len(att)
             est_q = np.array([f.q_wxyz for f in att], dtype=np.float32)
-            est_q[: n // 2] = np.nan  # e.g. the port waiting for its first snapshot
+            est_q[: n // 2] = np.nan  # e.g. the replica waiting for its first snapshot
             parts = TelemetryParts()
             for f in att:
                 parts.add_frame(f)
@@ -241,7 +243,7 @@ def test_live_logger_logs_every_frame_with_gaps_and_link(tmp_path):
     assert 0.8 * n_batches <= n3d <= min(n_batches, 700 / RATE * LIVE_3D_MAX_HZ + 1)
     assert info.samples[ent.ACC_GRAVITY] == n3d
     assert info.samples[ent.pitch_path("accel")] == 700
-    port_rows = info.samples[ent.pitch_path("st_mahony_port")]
+    port_rows = info.samples[ent.pitch_path("st_mahony_replica")]
     assert 0 < port_rows < 700
     assert info.samples[ent.LINK_CYCLES] == 4
     assert info.samples[ent.LOG_FIRMWARE] == 2
@@ -278,7 +280,7 @@ def _views(container):
 
 
 def test_blueprint_live_scrolls_and_hides_other_ghosts():
-    live = list(_views(blueprint.make_blueprint(live=True, ghost_sources=["st_mahony_port", "ekf3"]).root_container))
+    live = list(_views(blueprint.make_blueprint(live=True, ghost_sources=["st_mahony_replica", "ekf3"]).root_container))
     replay = list(_views(blueprint.make_blueprint(live=False, ghost_sources=["ekf3"]).root_container))
     for views, scrolling in ((live, True), (replay, False)):
         ts = [v for v in views if v.class_identifier == "TimeSeries"]
@@ -288,7 +290,7 @@ def test_blueprint_live_scrolls_and_hides_other_ghosts():
         assert {ent.PLOT_PITCH, ent.PLOT_ROLL, ent.PLOT_ACC, ent.PLOT_GYRO, ent.LINK_CYCLES} <= origins
         assert sum(v.class_identifier == "TextLog" for v in views) == 1
     v3d = [v for v in live if v.class_identifier == "3D"][0]
-    assert list(v3d.visualizer_overrides) == [ent.estimate_path("ekf3")]  # the port is the ghost shown
+    assert list(v3d.visualizer_overrides) == [ent.estimate_path("ekf3")]  # the replica is the ghost shown
     v3d = [v for v in replay if v.class_identifier == "3D"][0]
     assert not v3d.visualizer_overrides
 
@@ -388,8 +390,8 @@ def test_cli_replay_to_rrd_headless(tmp_path, monkeypatch, capsys):
     assert info.samples[ent.pitch_path("firmware")] == 1200
     assert info.samples[ent.roll_path("firmware")] == 1197
     assert info.samples[ent.pitch_path("accel")] == 1200
-    assert ent.pitch_path("st_mahony_port") in info.samples
-    assert ent.pitch_path("st_mahony") not in info.samples  # replaced by the seeded port
+    assert ent.pitch_path("st_mahony_replica") in info.samples
+    assert ent.pitch_path("st_mahony") not in info.samples  # replaced by the seeded replica
 
     r = _steval_here(monkeypatch, capsys, "replay", str(cap), "--rrd", str(tmp_path / "missing" / "x.rrd"))
     assert r.returncode == 2 and "does not exist" in r.stderr and "Traceback" not in r.stderr
@@ -432,7 +434,7 @@ def test_every_bundled_recording_replays_to_rrd(capture, tmp_path, monkeypatch, 
     for path in (ent.pitch_path("accel"), ent.roll_path("accel"), ent.LINK_RATE):
         assert info.samples.get(path, 0) > 0, path
     if np.asarray(att.exact).any():
-        assert info.samples.get(ent.pitch_path("st_mahony_port"), 0) > 0
+        assert info.samples.get(ent.pitch_path("st_mahony_replica"), 0) > 0
     if len(tel.status.step):
         assert info.samples.get(ent.LINK_CYCLES, 0) > 0
 

@@ -80,7 +80,7 @@ def test_readme_main_job_opens_the_viewer_with_the_data_and_returns(display, tmp
         assert rec.timelines["ahrs_step"] == (0, DEMO_LAST_STEP)
         assert {
             "/" + ent.pitch_path("firmware"),
-            "/" + ent.pitch_path("st_mahony_port"),
+            "/" + ent.pitch_path("st_mahony_replica"),
             "/plots/gyro_dps",
             "/world/drone/firmware/model",
             "/log/firmware",
@@ -213,7 +213,7 @@ def test_readme_ble_replay_opens_the_ble_layout(display, tmp_path):
             "/" + ent.BLE_RSSI,
             "/" + ent.BLE_ARMED,
             "/" + ent.BLE_NOTE,
-            "/" + ent.pitch_path(ent.SOURCE_PORT),
+            "/" + ent.pitch_path(ent.SOURCE_REPLICA),
         } <= rec.entities
         png = screenshot(_url(port), tmp_path / "ble.png")
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000

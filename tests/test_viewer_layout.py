@@ -93,13 +93,13 @@ def test_the_replica_is_only_in_the_difference_panel_which_states_its_verdict(de
     panel says in words how many steps are bit-exact."""
     views = blueprint_views(demo_rrd)
     for origin, path in (
-        (ent.PLOT_PITCH, ent.pitch_path(ent.SOURCE_PORT)),
-        (ent.PLOT_ROLL, ent.roll_path(ent.SOURCE_PORT)),
+        (ent.PLOT_PITCH, ent.pitch_path(ent.SOURCE_REPLICA)),
+        (ent.PLOT_ROLL, ent.roll_path(ent.SOURCE_REPLICA)),
     ):
         query = str(_view(views, origin)["ViewContents:query"])
         assert f"- {path}" in query
     titles = [name for name, v in views.items() if v.get("ViewBlueprint:space_origin") == ent.PLOT_DIFF]
-    assert titles == ["firmware − port (deg): bit-exact on 9210 of 9210 steps"]
+    assert titles == ["firmware − replica (deg): bit-exact on 9210 of 9210 steps"]
     yaw = [name for name, v in views.items() if v.get("ViewBlueprint:space_origin") == ent.PLOT_YAW][0]
     assert "gTHR ≥ 200" in yaw  # the yaw's reset to 0 below the gain-switch throttle, explained
 
@@ -117,10 +117,10 @@ def test_legends_of_the_accelerometer_and_link_losses_leave_the_data_free(demo_r
 
 
 def test_port_verdict_and_legend_room():
-    assert bp.port_verdict([5, 6, 7], [True, True, True], [True, True, True]) == "bit-exact on 3 of 3 steps"
-    v = bp.port_verdict([5, 6, 7, 8], [True, False, True, True], [True, True, True, False])
+    assert bp.replica_verdict([5, 6, 7], [True, True, True], [True, True, True]) == "bit-exact on 3 of 3 steps"
+    v = bp.replica_verdict([5, 6, 7, 8], [True, False, True, True], [True, True, True, False])
     assert v == "first difference at step 6"
-    assert bp.port_verdict([1], [False], [False]) is None
+    assert bp.replica_verdict([1], [False], [False]) is None
     lo, hi = bp.legend_room([-10.0, 30.0], share=0.4, bottom=False)
     assert lo < -10 and 30 < lo + 0.6 * (hi - lo)  # the data in the lower 60 %
     assert bp.legend_room([np.nan], share=0.4, bottom=True) is None

@@ -1,8 +1,8 @@
 """The default Rerun blueprint of steval-link, sent with every recording (replay, simulate, live).
 
 Left: the 3D view (firmware quadcopter, host-estimate ghost, world axes, accelerometer gravity arrow) above a
-link-health / firmware-log tab. Right: pitch (thx) and roll (thy) with firmware, ST-Mahony port, EKF and
-accelerometer-only overlaid; yaw; firmware − port; raw accelerometer (mg), gyro (dps), throttle.
+link-health / firmware-log tab. Right: pitch (thx) and roll (thy) with firmware, ST-Mahony replica, EKF and
+accelerometer-only overlaid; yaw; firmware − replica; raw accelerometer (mg), gyro (dps), throttle.
 
 Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` seconds; replays show the whole flight.
 """
@@ -95,7 +95,7 @@ def make_blueprint(
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
     never_armed: bool = False,
-    port_verdict: str | None = None,
+    replica_verdict: str | None = None,
     y_ranges: Mapping[str, tuple[float, float]] | None = None,
     ble: bool = False,
 ) -> rrb.Blueprint:
@@ -105,7 +105,7 @@ def make_blueprint(
     ghost drone; ``ghost`` the one shown (default: the replica, else by ``entities.GHOST_PREFERENCE``), the others
     hidden. ``timeline``: the active one (default ``fw_time``, live ``host_time``). ``gyro_max_dps``: the gyro plot's
     symmetric range (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab
-    (:func:`flight_view`), named so when ``never_armed``. ``port_verdict``: the replica's verdict, in the difference
+    (:func:`flight_view`), named so when ``never_armed``. ``replica_verdict``: the replica's verdict, in the difference
     panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
     (:func:`ble_view`). The replica is drawn only in the difference panel: bit-exact, it would hide the firmware.
     """
@@ -125,7 +125,7 @@ def make_blueprint(
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
     left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble), row_shares=[3, 2])
-    right = attitude_view(live, timeline, yr, port_verdict, gyro_max_dps)
+    right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps)
     if flight_control:
         right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
     return two_columns(left, right, live, timeline)
@@ -159,7 +159,7 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
 
 
 def attitude_view(
-    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], port_verdict: str | None, gyro_max_dps
+    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], replica_verdict: str | None, gyro_max_dps
 ) -> rrb.Vertical:
     """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
     reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle."""
@@ -171,7 +171,7 @@ def attitude_view(
                 "thx pitch, about x (deg, nose up +)",
                 live,
                 timeline,
-                contents=["$origin/**", f"- {ent.pitch_path(ent.SOURCE_PORT)}"],
+                contents=["$origin/**", f"- {ent.pitch_path(ent.SOURCE_REPLICA)}"],
                 y_range=yr.get(ent.PLOT_PITCH),
             ),
             _series(
@@ -179,7 +179,7 @@ def attitude_view(
                 "thy roll, about y (deg, right side down +)",
                 live,
                 timeline,
-                contents=["$origin/**", f"- {ent.roll_path(ent.SOURCE_PORT)}"],
+                contents=["$origin/**", f"- {ent.roll_path(ent.SOURCE_REPLICA)}"],
                 y_range=yr.get(ent.PLOT_ROLL),
             ),
         ),
@@ -189,7 +189,7 @@ def attitude_view(
             ),
             _series(
                 ent.PLOT_DIFF,
-                "firmware − port (deg)" + (f": {port_verdict}" if port_verdict else ""),
+                "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else ""),
                 live,
                 timeline,
                 y_range=yr.get(ent.PLOT_DIFF),
@@ -293,7 +293,7 @@ def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
     return bp
 
 
-def port_verdict(step, bit_exact, seeded) -> str | None:
+def replica_verdict(step, bit_exact, seeded) -> str | None:
     """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
     None when no row was seeded. Arrays: one per attitude row."""
     seeded = np.asarray(seeded, bool)

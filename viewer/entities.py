@@ -10,7 +10,7 @@ Layout::
     world/drone/firmware                  Transform3D: the firmware's ahrs.q (body -> earth)
     world/drone/firmware/model            the quadcopter (static mesh)
     world/drone/firmware/acc_gravity      gravity direction seen by the accelerometer (body frame, 1 g = 1 unit)
-    world/drone/estimate/<source>         Transform3D of a host estimate (ST-Mahony port, EKF, ...)
+    world/drone/estimate/<source>         Transform3D of a host estimate (ST-Mahony replica, EKF, ...)
     world/drone/estimate/<source>/model   translucent wireframe ghost (static)
     plots/pitch_thx_deg/<source>          thx = rotation about x (pitch, nose up +), degrees
     plots/roll_thy_deg/<source>           thy = rotation about y (roll), degrees
@@ -18,7 +18,7 @@ Layout::
     plots/acc_mg                          accelerometer x, y, z (mg), the inputs of ahrs_fusion_ag
     plots/gyro_dps                        gyro x, y, z (deg/s)
     plots/throttle_thr                    gTHR
-    plots/fw_minus_port_deg/thx|thy       firmware − ST-Mahony port, degrees (0 when the port is bit-exact)
+    plots/fw_minus_replica_deg/thx|thy       firmware − ST-Mahony replica, degrees (0 when the replica is bit-exact)
     fc/pitch_thx_deg/target               the remote's target thx (euler_rc), degrees (flight-control frames)
     fc/roll_thy_deg/target                target thy, degrees
     fc/yaw_thz_deg/target                 target thz, degrees
@@ -48,7 +48,7 @@ BLE captures (ST's stock firmware over Bluetooth: raw samples, no firmware attit
     ble/acc_mg, ble/gyro_dps, ble/mag_mgauss   the motion notification's samples (one ISR sample each)
     ble/pressure_hpa, ble/battery_pct, ble/temperature_c, ble/rssi_dbm, ble/armed   environment and arming
     ble/notification_rate_hz              motion notifications per second (1 s bins)
-    ble/note                              why the firmware port cannot be bit-exact on BLE data (text)
+    ble/note                              why the firmware replica cannot be bit-exact on BLE data (text)
     log/ble_console                       the console stdout/stderr characteristics
 """
 
@@ -77,7 +77,7 @@ PLOT_YAW = "plots/yaw_thz_deg"
 PLOT_ACC = "plots/acc_mg"
 PLOT_GYRO = "plots/gyro_dps"
 PLOT_THROTTLE = "plots/throttle_thr"
-PLOT_DIFF = "plots/fw_minus_port_deg"
+PLOT_DIFF = "plots/fw_minus_replica_deg"
 DIFF_THX = f"{PLOT_DIFF}/thx"
 DIFF_THY = f"{PLOT_DIFF}/thy"
 
@@ -123,15 +123,15 @@ LOG_COMMANDS = "log/commands"
 #: notes about the firmware's own filter output: the first row with NaN or out-of-range values (it diverged)
 LOG_FILTER = "log/filter"
 
-#: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_port`` the host's
-#: bit-exact port of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).
+#: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_replica`` the host's
+#: bit-exact replica of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).
 SOURCE_FIRMWARE = "firmware"
-SOURCE_PORT = "st_mahony_port"
+SOURCE_REPLICA = "st_mahony_replica"
 
 #: Human labels of the sources, used in series names ("thx pitch (firmware)").
 SOURCE_LABELS = {
     "firmware": "firmware",
-    "st_mahony_port": "ST-Mahony port",
+    "st_mahony_replica": "ST-Mahony replica",
     "st_mahony": "ST-Mahony (Python)",
     "ekf3": "EKF3",
     "mekf": "MEKF",
@@ -142,7 +142,7 @@ SOURCE_LABELS = {
 #: RGB colours of the sources (same colour in every plot and for the 3D ghost).
 SOURCE_COLORS = {
     "firmware": (214, 39, 40),
-    "st_mahony_port": (255, 187, 0),
+    "st_mahony_replica": (255, 187, 0),
     "st_mahony": (140, 86, 75),
     "ekf3": (31, 119, 180),
     "mekf": (148, 103, 189),
@@ -151,7 +151,7 @@ SOURCE_COLORS = {
 }
 _FALLBACK_COLORS = [(23, 190, 207), (188, 189, 34), (127, 127, 127), (0, 158, 115)]
 
-GHOST_PREFERENCE = ("st_mahony_port", "ekf3", "mekf", "st_mahony", "vqf", "accel")
+GHOST_PREFERENCE = ("st_mahony_replica", "ekf3", "mekf", "st_mahony", "vqf", "accel")
 
 
 def source_name(name: str) -> str:

@@ -44,13 +44,13 @@ LINK_INTERVAL_S = 0.5
 RECORDS_PER_SEND = 64
 RECORDS_INTERVAL_S = 0.05
 
-#: Estimator names of the live session that mean the bit-exact firmware port.
-PORT_NAMES = ("st-mahony", "st_mahony", "st-mahony-port", "st_mahony_port")
+#: Estimator names of the live session that mean the bit-exact firmware replica.
+REPLICA_NAMES = ("st-mahony", "st_mahony", "st-mahony-replica", "st_mahony_replica")
 
 
 def live_source(name: str) -> str:
-    """Entity segment of a live estimate name (the seeded ST port -> ``st_mahony_port``, as in replays)."""
-    return ent.SOURCE_PORT if name in PORT_NAMES else ent.source_name(name)
+    """Entity segment of a live estimate name (the seeded ST replica -> ``st_mahony_replica``, as in replays)."""
+    return ent.SOURCE_REPLICA if name in REPLICA_NAMES else ent.source_name(name)
 
 
 class LiveLogger:
@@ -58,7 +58,7 @@ class LiveLogger:
 
     ``rec``: the recording (``sinks.open_session(...).rec``). ``estimator_names``: the names the session will put
     in ``batch.estimates`` (known up front so the blueprint and the series styles are sent once). ``ghost``: which
-    estimate the 3D ghost shows (default: the ST port, else EKF3...).
+    estimate the 3D ghost shows (default: the ST replica, else EKF3...).
     """
 
     def __init__(
@@ -83,7 +83,7 @@ class LiveLogger:
             bp.send_blueprint(rec, **self._blueprint)
         if ble:  # known to be a BLE stream from the start (a replay): its layout at once
             self._ble_layout()
-        scene.log_static(rec, segs, with_port=ent.SOURCE_PORT in segs)
+        scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec)
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
         self.frames = 0
@@ -165,7 +165,7 @@ class LiveLogger:
                 rb.quaternions(ent.estimate_path(source), eq, sel3d)
             rb.scalars(ent.pitch_path(source), np.degrees(ex.astype(np.float64)))
             rb.scalars(ent.roll_path(source), np.degrees(ey.astype(np.float64)))
-            if source == ent.SOURCE_PORT:
+            if source == ent.SOURCE_REPLICA:
                 rb.scalars(ent.DIFF_THX, np.degrees(thx.astype(np.float64) - ex))
                 rb.scalars(ent.DIFF_THY, np.degrees(thy.astype(np.float64) - ey))
         rb.send(rec)

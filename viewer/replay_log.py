@@ -5,7 +5,7 @@ One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time`` (fir
 ``steval replay`` and ``steval simulate``; :func:`log_replay` is the entry point::
 
     rec = steval_viewer.sinks.open_recording("capture", rrd="out.rrd")
-    summary = log_replay(rec, tel, {"ekf3": ekf.run(acc, gyro, thr)}, port=replay_firmware(tel))
+    summary = log_replay(rec, tel, {"ekf3": ekf.run(acc, gyro, thr)}, replica=replay_firmware(tel))
 
 Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,) and optionally a
 ``valid`` (N,) bool mask works (``AttitudeEstimate``, ``FirmwareReplay``).
@@ -176,10 +176,12 @@ def log_estimate(
         _count(summary, path, values, valid)
 
 
-def log_port_difference(rec: rr.RecordingStream, times: Times, att: Any, port: Any, summary: ReplaySummary) -> None:
-    """firmware − ST-Mahony port for thx and thy, in degrees, where the port is seeded (0 when bit-exact)."""
-    valid = estimate_mask(port, len(times))
-    for path, fw, py in ((ent.DIFF_THX, att.thx_rad, port.thx_rad), (ent.DIFF_THY, att.thy_rad, port.thy_rad)):
+def log_replica_difference(
+    rec: rr.RecordingStream, times: Times, att: Any, replica: Any, summary: ReplaySummary
+) -> None:
+    """firmware − ST-Mahony replica for thx and thy, in degrees, where the replica is seeded (0 when bit-exact)."""
+    valid = estimate_mask(replica, len(times))
+    for path, fw, py in ((ent.DIFF_THX, att.thx_rad, replica.thx_rad), (ent.DIFF_THY, att.thy_rad, replica.thy_rad)):
         d = _deg(np.asarray(fw, dtype=np.float64) - np.asarray(py, dtype=np.float64))
         send_scalars(rec, path, times, d, valid)
         _count(summary, path, d, valid)
@@ -293,7 +295,7 @@ def log_replay(
     rec: rr.RecordingStream,
     tel: Any,
     estimates: Mapping[str, Any] | None = None,
-    port: Any | None = None,
+    replica: Any | None = None,
     *,
     blueprint: bool = True,
     ghost: str | None = None,
@@ -301,19 +303,19 @@ def log_replay(
     link: bool = True,
     progress: Progress = None,
 ) -> ReplaySummary:
-    """Log a whole Telemetry, the ST-Mahony port (``port``, a ``FirmwareReplay``) and host ``estimates``
+    """Log a whole Telemetry, the ST-Mahony replica (``replica``, a ``FirmwareReplay``) and host ``estimates``
     (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``.
 
     Sends the default blueprint first (unless ``blueprint`` is False); ``ghost`` picks the estimate the 3D ghost
-    shows (a source segment or estimator name; default: the port, else EKF3, ...). Returns the samples logged per
+    shows (a source segment or estimator name; default: the replica, else EKF3, ...). Returns the samples logged per
     entity path. Arrays must have one row per attitude row of ``tel``. ``link``: log the link-health series (False
     for simulations, which have no link). ``progress(fraction, stage)`` is told as each source is logged.
     """
     att = tel.attitude
     n = len(att.t_fw_s)
     sources: list[tuple[str, Any]] = []
-    if port is not None:
-        sources.append((ent.SOURCE_PORT, port))
+    if replica is not None:
+        sources.append((ent.SOURCE_REPLICA, replica))
     for name, est in (estimates or {}).items():
         sources.append((ent.source_name(name), est))
     seen = set()
@@ -329,7 +331,7 @@ def log_replay(
     summary = ReplaySummary(sources=names)
     has_fc = len(getattr(tel, "fc", None) or ()) > 0
     if blueprint:
-        verdict = None if port is None else bp.port_verdict(att.step, port.bit_exact, port.seeded)
+        verdict = None if replica is None else bp.replica_verdict(att.step, replica.bit_exact, replica.seeded)
         bp.send_blueprint(
             rec,
             live=live_blueprint,
@@ -338,10 +340,12 @@ def log_replay(
             gyro_max_dps=_max_abs(np.asarray(att.gyro_mdps, dtype=np.float64)) / 1000.0,
             flight_control=has_fc,
             never_armed=has_fc and no_flight_figure_reason(tel.fc) is not None,
-            port_verdict=verdict,
-            y_ranges=None if live_blueprint else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_PORT]),
+            replica_verdict=verdict,
+            y_ranges=None
+            if live_blueprint
+            else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
         )
-    scene.log_static(rec, names, with_port=port is not None)
+    scene.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
         flight_log.log_flight_static(rec)
 
@@ -352,8 +356,8 @@ def log_replay(
         _report(progress, (i + 1) / (len(sources) + 2), f"logging {source}")
         log_estimate(rec, times, source, est, summary, ghost=source in ghost_sources)
     _report(progress, (len(sources) + 1) / (len(sources) + 2), "logging link health and text")
-    if port is not None:
-        log_port_difference(rec, times, att, port, summary)
+    if replica is not None:
+        log_replica_difference(rec, times, att, replica, summary)
     if link:
         log_link(rec, times, tel, summary)
     log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
@@ -387,13 +391,13 @@ def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, fl
     return {k: v for k, v in out.items() if v is not None}
 
 
-#: Registry names that mean the firmware's own filter: replaced by the status-seeded bit-exact port.
-_PORT_NAMES = ("st-mahony", "st_mahony")
+#: Registry names that mean the firmware's own filter: replaced by the status-seeded bit-exact replica.
+REPLICA_NAMES = ("st-mahony", "st_mahony")
 
 
-def firmware_port(tel: Any) -> Any | None:
-    """The bit-exact ST-Mahony port re-run over ``tel`` (seeded from status snapshots), or None when the capture
-    has no bit-exact rows (text mode) or the port is unavailable."""
+def firmware_replica(tel: Any) -> Any | None:
+    """The bit-exact ST-Mahony replica re-run over ``tel`` (seeded from status snapshots), or None when the capture
+    has no bit-exact rows (text mode) or the replica is unavailable."""
     exact = getattr(tel.attitude, "exact", None)
     if exact is not None and not np.asarray(exact).any():
         return None
@@ -403,22 +407,22 @@ def firmware_port(tel: Any) -> Any | None:
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Replay entry point used by ``steval replay``: runs the seeded firmware port and logs it with ``estimates``.
+    """Replay entry point used by ``steval replay``: runs the seeded firmware replica and logs it with ``estimates``.
 
-    A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the port, which is the
+    A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the replica, which is the
     same filter followed bit for bit from the firmware's status snapshots.
     """
-    _report(progress, 0.0, "ST-Mahony port")
-    port = firmware_port(tel)
-    others = {k: v for k, v in (estimates or {}).items() if not (port is not None and k in _PORT_NAMES)}
+    _report(progress, 0.0, "ST-Mahony replica")
+    replica = firmware_replica(tel)
+    others = {k: v for k, v in (estimates or {}).items() if not (replica is not None and k in REPLICA_NAMES)}
     logged = None if progress is None else (lambda f, stage="": progress(0.1 + 0.9 * f, stage))
-    return log_replay(rec, tel, others, port=port, progress=logged)
+    return log_replay(rec, tel, others, replica=replica, progress=logged)
 
 
 def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
     """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
     ``steval_viewer.sink_options.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
-    ``progress(fraction, stage)`` hears of each stage (port, logging, writing).
+    ``progress(fraction, stage)`` hears of each stage (replica, logging, writing).
 
     The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
     spawned desktop viewer stays open after the sink returns."""

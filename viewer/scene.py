@@ -26,11 +26,11 @@ def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, widt
     rec.log(path, lines, static=True)
 
 
-def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_port: bool) -> None:
+def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_replica: bool) -> None:
     """Log the 3D scene and the styles of all series.
 
     ``estimate_sources``: source segments of the host estimates that will be logged (ghosts + pitch/roll series);
-    ``with_port``: whether the firmware − port difference series will be logged.
+    ``with_replica``: whether the firmware − replica difference series will be logged.
     """
     sources = list(estimate_sources)
     rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -66,9 +66,9 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         _line(rec, ent.pitch_path(source), ent.pitch_label(source), color, width)
         _line(rec, ent.roll_path(source), ent.roll_label(source), color, width)
     _line(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
-    if with_port:
-        _line(rec, ent.DIFF_THX, "thx pitch: firmware − port", (230, 90, 90))
-        _line(rec, ent.DIFF_THY, "thy roll: firmware − port", (90, 150, 230))
+    if with_replica:
+        _line(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
+        _line(rec, ent.DIFF_THY, "thy roll: firmware − replica", (90, 150, 230))
     xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
     # short names: the plot titles give the units, and a small legend hides less
     _line(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], xyz)

@@ -156,15 +156,15 @@ def _replica_trace(replica, rep, prow, n: int, fw, text_rows: int) -> tuple[list
         note = "bit-exact" if replica.all_exact else ("not seeded" if replica.seeded == 0 else "")
         thx, thy = on_rows(n, prow, rep.thx_rad), on_rows(n, prow, rep.thy_rad)
         traces.append(
-            _trace(REPLICA_TRACE, "ST-Mahony port", thx, thy, on_rows(n, prow, rep.seeded, False, bool), *fw, note)
+            _trace(REPLICA_TRACE, "ST-Mahony replica", thx, thy, on_rows(n, prow, rep.seeded, False, bool), *fw, note)
         )
     if text_rows:
         notes.append(
             f"{text_rows} text-mode rows: their angles and inputs are rounded and carry no quaternion, so "
-            "the port cannot be bit-exact there; firmware angles are compared with the other estimators only"
+            "the replica cannot be bit-exact there; firmware angles are compared with the other estimators only"
         )
         if replica is None:
-            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact port needs binary frames"))
+            traces.append(_unavailable(REPLICA_TRACE, "text-mode capture: the bit-exact replica needs binary frames"))
     return traces, notes
 
 

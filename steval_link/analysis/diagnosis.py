@@ -317,10 +317,10 @@ def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings
     flags = _cli_flags(s, _status_base(view) or MahonySettings())
     how = f" (settings {flags})" if flags else ""
     if full.all_exact:
-        lines.append(f"with these settings the port is bit-exact on all {full.n_seeded} seeded steps{how}")
+        lines.append(f"with these settings the replica is bit-exact on all {full.n_seeded} seeded steps{how}")
     else:
         lines.append(
-            f"with these settings the port is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
+            f"with these settings the replica is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
         )
     variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
     if settings_override is not None and _same_settings(s, _status_base(view)):
@@ -412,7 +412,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
     ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the replica replayed over them (or None).
     Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
     "gyro_mdps", "thr"} of the step before (when received) and of the step], "port": "finite" | "diverged" |
-    "unseeded", "port_q_wxyz", "port_diverged_step", "text": [sentences]}`` (the "port" keys: the replica's)."""
+    "unseeded", "replica_q_wxyz", "replica_diverged_step", "text": [sentences]}`` ."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -466,9 +466,9 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         "q_norm": json_number(_norm(q)),
         "first_nonfinite_step": first_nan,
         "inputs": inputs,
-        "port": replica_state,
-        "port_q_wxyz": replica_q,
-        "port_diverged_step": replica_div,
+        "replica": replica_state,
+        "replica_q_wxyz": replica_q,
+        "replica_diverged_step": replica_div,
         "text": text,
     }
 
@@ -477,15 +477,15 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
     """What the replica did on the inputs where the firmware's filter diverged, and what that blames."""
     if state == "finite":
         return (
-            f"the bit-exact port stayed finite on the same inputs (q = {_vec(q)}, |q| = "
+            f"the bit-exact replica stayed finite on the same inputs (q = {_vec(q)}, |q| = "
             f"{_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
             "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
-            "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the port "
+            "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the replica "
             "handles, so none was searched)"
         )
     if state == "diverged":
         return (
-            f"the port diverged too on the same inputs (from step {diverged_step}): the inputs drive the filter "
+            f"the replica diverged too on the same inputs (from step {diverged_step}): the inputs drive the filter "
             "out of range; check the sensor values and the settings"
         )
     return (
@@ -571,7 +571,7 @@ def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
         "t_fw_s": float(a.t_fw_s[m]),
         "t_rel_s": float(t_rel[rows[m]]),
     }
-    if divergence is not None and divergence["port"] == "finite":
+    if divergence is not None and divergence["replica"] == "finite":
         return first, list(divergence["text"]), None, None  # no setting of the release's filter explains a NaN
     diagnosis, variant, variant_exact, _ = _diagnose(view, rep, settings, tel.stats)
     if divergence is not None:

@@ -191,9 +191,9 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
-        "port_rmse_deg": _rounded(fw.replica_rmse_deg),
-        "port_bit_exact_steps": fw.replica_bit_exact,
-        "port_steps": fw.replica_steps,
+        "replica_rmse_deg": _rounded(fw.replica_rmse_deg),
+        "replica_bit_exact_steps": fw.replica_bit_exact,
+        "replica_steps": fw.replica_steps,
         "filter": None if st is None else st.variant,
         "port_settings": None
         if st is None
@@ -220,7 +220,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
     w1 = max(len(fw.label) for fw in fws)
     out = [
         "firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
-        "(emulator counts, interrupts excluded); the bit-exact ST-Mahony port on the firmware's own inputs"
+        "(emulator counts, interrupts excluded); the bit-exact ST-Mahony replica on the firmware's own inputs"
     ]
     for fw in fws:
         ins = fw.instructions_summary()
@@ -228,7 +228,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
         replica = (
             "port n/a"
             if fw.replica_rmse_deg is None
-            else f"port {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
+            else f"replica {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
             + ("" if fw.settings is None else f" with {fw.settings.variant}'s filter")
         )
         notes = list(fw.notes)

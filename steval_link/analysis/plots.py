@@ -35,7 +35,7 @@ INSTALL_HINT = 'pip install "steval-link[plot]"'
 #: Line styles per trace: (colour, width, linestyle, z-order).
 _STYLE = {
     "firmware": ("black", 2.2, "-", 3),
-    "port": ("tab:orange", 1.1, "--", 4),
+    "replica": ("tab:orange", 1.1, "--", 4),
     "st-mahony": ("tab:purple", 1.0, ":", 5),
     "accel": ("tab:gray", 0.6, "-", 2),
     "ekf3": ("tab:blue", 1.0, "-", 5),
@@ -43,7 +43,7 @@ _STYLE = {
     "vqf": ("tab:pink", 1.0, "-", 5),
 }
 #: Legend order: firmware and replica first, then the estimators in this order.
-_ORDER = ["firmware (drone)", "ST-Mahony port (seeded)"]
+_ORDER = ["firmware (drone)", "ST-Mahony replica (seeded)"]
 _EXTRA_COLOURS = ["tab:red", "tab:brown", "tab:olive", "tab:cyan"]
 #: Lines longer than this are reduced (min/max per bucket, so peaks stay visible).
 MAX_LINE_POINTS = 8000
@@ -167,7 +167,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
         0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
     )
     src = report.source.get("path") or "capture"
-    shown = (["ST-Mahony port"] if replica is not None else []) + [label for _, label, _, _ in traces]
+    shown = (["ST-Mahony replica"] if replica is not None else []) + [label for _, label, _, _ in traces]
     fig.suptitle(
         title
         or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
@@ -215,7 +215,7 @@ def _angle_panel(ax, t, key, what, fw_deg, traces, replica_deg, report, at_fligh
         _styled_line(ax, t, vals[key], style, label)
     _styled_line(ax, t, fw_deg, _STYLE["firmware"], "firmware (drone)")
     if replica_deg is not None:
-        _styled_line(ax, t, replica_deg, _STYLE["port"], "ST-Mahony port (seeded)")
+        _styled_line(ax, t, replica_deg, _STYLE["replica"], "ST-Mahony replica (seeded)")
     nan_rows = ~np.isfinite(fw_deg)
     if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
         why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
@@ -251,29 +251,29 @@ def _centre_text(ax, text: str, **kw) -> None:
 def _replica_panel(ax, t, fw, replica, report) -> None:
     """Firmware − replica in degrees: unseeded rows greyed, bit-exact said in words, the first difference marked."""
     if replica is None:
-        _centre_text(ax, "text-mode capture: the bit-exact port needs binary frames", fontsize=10)
-        ax.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+        _centre_text(ax, "text-mode capture: the bit-exact replica needs binary frames", fontsize=10)
+        ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
         return
     p = report.replica
     ax.plot(*_decimate(t, _wrap_deg(fw["pitch"] - replica["pitch"])), color="tab:blue", lw=0.9,
-            label="pitch: firmware − port")  # fmt: skip
+            label="pitch: firmware − replica")  # fmt: skip
     ax.plot(*_decimate(t, _wrap_deg(fw["roll"] - replica["roll"])), color="tab:red", lw=0.9,
-            label="roll: firmware − port")  # fmt: skip
+            label="roll: firmware − replica")  # fmt: skip
     covered, exact = np.zeros(t.shape[0], bool), np.zeros(t.shape[0], bool)
     covered[report.replica_rows] = report.replay.seeded
     exact[report.replica_rows] = report.replay.bit_exact
-    _spans(ax, t, ~covered, "port not seeded", color="lightgray", alpha=0.6)
+    _spans(ax, t, ~covered, "replica not seeded", color="lightgray", alpha=0.6)
     if p.all_exact:
         ax.set_ylim(-1, 1)
-        _centre_text(ax, f"port bit-exact on all {p.bit_exact} seeded steps", fontsize=11, color="darkgreen",
+        _centre_text(ax, f"replica bit-exact on all {p.bit_exact} seeded steps", fontsize=11, color="darkgreen",
                      bbox=dict(boxstyle="round", fc="honeydew", ec="darkgreen"))  # fmt: skip
     else:
         fm = p.first_mismatch
         if fm is not None:
             ax.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}")
         _spans(ax, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
-    ax.set_ylabel("firmware − port [deg]")
-    ax.set_title("firmware − ST-Mahony port", fontsize=10, loc="left")
+    ax.set_ylabel("firmware − replica [deg]")
+    ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
 
 
 def _throttle_twin(ax, t, thr, min_thr) -> None:
@@ -331,7 +331,7 @@ def _summary_lines(report, fs: dict) -> list[str]:
     p, rt = report.replica, report.rates
     lines = []
     if p is not None:
-        lines.append(f"port bit-exact: {p.bit_exact} / {p.seeded} seeded steps")
+        lines.append(f"replica bit-exact: {p.bit_exact} / {p.seeded} seeded steps")
         if p.first_mismatch:
             lines.append(f"first difference: step {p.first_mismatch['step']} (t = {p.first_mismatch['t_rel_s']:.2f} s)")
             if p.matching_variant:
@@ -345,7 +345,7 @@ def _summary_lines(report, fs: dict) -> list[str]:
         lines.append(f"firmware NaN: {report.firmware_nan_pitch} pitch, {report.firmware_nan_roll} roll steps")
     div = p.divergence if p is not None else None
     if div is not None:
-        lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; port {div['port']}")
+        lines.append(f"firmware filter left |q| ≈ 1 at step {div['step']}; replica {div['replica']}")
     return lines
 
 

@@ -14,11 +14,11 @@ from steval_link.analysis.coverage import percent
 from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
-REPLICA_TRACE = "st-mahony-port"
+REPLICA_TRACE = "st-mahony-replica"
 
 
 TRACE_LABELS = {
-    "st-mahony-port": "ST-Mahony port",
+    "st-mahony-replica": "ST-Mahony replica",
     "st-mahony": "ST-Mahony from power-up",
     "accel": "accel-only tilt",
     "ekf3": "EKF (3-state)",
@@ -289,7 +289,7 @@ class ComparisonReport:
             "rates": self.rates.as_dict(),
             "filter": None if self.replica is None else self.replica.filter,
             "filter_settings": self.filter_settings,
-            "port": None if self.replica is None else self.replica.as_dict(),
+            "replica": None if self.replica is None else self.replica.as_dict(),
             "traces": [t.as_dict() for t in self.traces],
             "notes": list(self.notes),
             "values_bad": self.values_bad,
@@ -359,7 +359,7 @@ def setting_text(x) -> str:
 def _filter_lines(fs: dict | None) -> list[str]:
     """The filter settings the status frames (or text-mode status lines) show, and every change of them."""
     if fs is None:
-        return ["filter settings: no status frames (the port assumes the firmware defaults)"]
+        return ["filter settings: no status frames (the replica assumes the firmware defaults)"]
     if fs["from"] != "status frames":
         return [f"filter (text-mode status lines): ki {fmt_number(fs['ki'], 'g')}, flags {fs['flags']}"]
     diff = fs["differs_from_defaults"]
@@ -391,7 +391,7 @@ def _replica_lines(p: ReplicaComparison | None) -> list[str]:
     """The replica's verdict: bit-exact steps, its seeds, what it did not cover, the first difference and why."""
     if p is None:
         return [
-            "ST-Mahony port: not run — text-mode capture (rounded angles, no quaternion): the port "
+            "ST-Mahony replica: not run — text-mode capture (rounded angles, no quaternion): the replica "
             "cannot be bit-exact; compare the estimators below with the firmware instead"
         ]
     seeds = ", ".join(
@@ -400,7 +400,7 @@ def _replica_lines(p: ReplicaComparison | None) -> list[str]:
     ) + (f", … ({len(p.seeds)} in all)" if len(p.seeds) > 4 else "")
     verdict = "bit-exact on every step" if p.all_exact else ("NOT bit-exact" if p.seeded else "not run")
     lines = [
-        f"ST-Mahony port vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
+        f"ST-Mahony replica vs firmware: {verdict} — bit-exact steps {p.bit_exact} of {p.seeded} seeded "
         f"({p.rows} binary rows)",
         f"  {p.filter_line()}",
     ]

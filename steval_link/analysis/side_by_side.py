@@ -72,7 +72,7 @@ class Flight:
 
     Attributes:
         path: the capture file. label: what the plot, the viewer and the JSON call it.
-        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony port" (BLE: the replica's).
+        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE: the replica's).
         t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
         thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
         accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
@@ -238,7 +238,7 @@ def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()
     t = a.t_fw_s - a.t_fw_s[0] if len(a) else a.t_fw_s
     lost = tel.link.cadence.dropped if tel.link.cadence is not None else 0
     facts = _facts(tel.source.get("header"), "ble")
-    angles, of = ("firmware", a) if replica_estimate is None else ("st-mahony port", replica_estimate)
+    angles, of = ("firmware", a) if replica_estimate is None else ("st-mahony replica", replica_estimate)
     return _flight(path, "ble", angles, t, of, a, None, facts, lost, warnings)
 
 
@@ -350,10 +350,10 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
         ser = [f.label for f in flights if f.kind == "serial"]
         notes.append(
             f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
-            "host's ST-Mahony port on raw ISR samples (dt from the 8 ms ticks), not the drone's own."
+            "host's ST-Mahony replica on raw ISR samples (dt from the 8 ms ticks), not the drone's own."
         )
     elif kinds == {"ble"}:
-        notes.append("BLE captures: the angles are the host's ST-Mahony port on raw ISR samples, not the drone's.")
+        notes.append("BLE captures: the angles are the host's ST-Mahony replica on raw ISR samples, not the drone's.")
     for f in flights:
         if f.frames_lost:
             notes.append(

@@ -74,7 +74,7 @@ def check_throttle(option: str, value: int | None) -> None:
 def check_filter_options(
     *, ki: float | None, kp_ground: float | None, kp_flight: float | None, min_thr: int | None
 ) -> None:
-    """The filter port's options where given: --ki, --kp-ground, --kp-flight (gains), then --min-thr (a throttle)."""
+    """The filter replica's options where given: --ki, --kp-ground, --kp-flight (gains), then --min-thr (a throttle)."""
     for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
         check_gain(option, gain)
     check_throttle("--min-thr", min_thr)

@@ -1,7 +1,7 @@
-"""``steval compare``: the firmware's angles against the bit-exact port, the EKFs and accelerometer-only tilt.
+"""``steval compare``: the firmware's angles against the bit-exact replica, the EKFs and accelerometer-only tilt.
 
-Exit codes: 0 when the report was produced — also when the port disagrees with the firmware (that is a finding,
-shown with its first step and a diagnosis, and ``port.all_exact`` is false in ``--json``); 2 for user errors
+Exit codes: 0 when the report was produced — also when the replica disagrees with the firmware (that is a finding,
+shown with its first step and a diagnosis, and ``replica.all_exact`` is false in ``--json``); 2 for user errors
 (missing or unreadable capture, no attitude frames, unknown estimator, matplotlib missing for ``--plot``).
 """
 
@@ -87,7 +87,7 @@ _Plot = Annotated[
     typer.Option(
         "--plot",
         metavar="OUT.png",
-        help="Also write a figure (angles over time, firmware − port, "
+        help="Also write a figure (angles over time, firmware − replica, "
         "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
         "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
         'side; needs matplotlib: pip install "steval-link\\[plot]".',
@@ -102,7 +102,7 @@ CompareEstimatorsOption = Annotated[
         "-e",
         help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
         "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
-        "The seeded ST-Mahony port is always compared.",
+        "The seeded ST-Mahony replica is always compared.",
     ),
 ]
 _Align = Annotated[
@@ -140,9 +140,9 @@ def compare_command(
     text_map: MapOption = None,
     rerun: SinkOptions = None,
 ) -> None:
-    """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony port (bit-exact steps, first
+    """Compare the firmware's pitch (thx) and roll (thy) with the bit-exact ST-Mahony replica (bit-exact steps, first
     difference and why), the EKFs and accelerometer-only tilt: RMS and max differences in degrees, rate, jitter,
-    drops and the filter settings. Exits 0 whenever the report is produced, even when the port disagrees.
+    drops and the filter settings. Exits 0 whenever the report is produced, even when the replica disagrees.
 
     Two or more captures: the flights side by side (e.g. stock against AHRS_KI=1.0f NO_CORRECTION=1), aligned by
     firmware time (or --align motion), labelled by what differs ("ki 0.1" vs "ki 1, correction off"; --label
@@ -161,7 +161,7 @@ def compare_command(
     }
     viewer = asdict(rerun)
     if captures and len(captures) > 1:
-        port_options = {"--estimator": estimator, **filter_options}
+        replica_options = {"--estimator": estimator, **filter_options}
         _side_by_side(
             captures,
             as_json=as_json,
@@ -169,7 +169,7 @@ def compare_command(
             force=force,
             align=align,
             labels=label,
-            port_options=port_options,
+            replica_options=replica_options,
             viewer=viewer,
         )
         return
@@ -214,7 +214,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
             print(f"steval: warning: {w}", file=sys.stderr)
-        progress(0.4, f"port and {', '.join(names)}")
+        progress(0.4, f"replica and {', '.join(names)}")
         settings = _settings(tel, changes)
         report = compare_capture(tel, estimators=names, settings=settings, variant=variant, variant_source="--variant")
         if as_json:
@@ -256,7 +256,7 @@ def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, s
 
 def _load_flight(path: Path):
     """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
-    with the ST-Mahony port run over them."""
+    with the ST-Mahony replica run over them."""
     src = read_recording(path)
     tel = telemetry_of_recording(src)
     if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples
@@ -270,10 +270,10 @@ def _load_flight(path: Path):
 
 
 def _side_by_side(
-    captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, port_options, viewer
+    captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, replica_options, viewer
 ) -> None:
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
-    given = [opt for opt, v in port_options.items() if v is not None]
+    given = [opt for opt, v in replica_options.items() if v is not None]
     if given:
         raise UserError(
             f"{', '.join(given)} apply to one capture; with two or more captures the flights are "

@@ -36,7 +36,7 @@ _HELP = (
     "own attitude output (thx/thy of its attitude frames; for a build without them, its euler_ahrs global read by "
     "symbol each AHRS step) is scored against the same truth, one column each, labelled by the shortest path "
     "suffix that tells the ELFs apart. Each gets one line per trial: its RMSE, instructions per AHRS step (the "
-    "emulator's counts) and the bit-exact ST-Mahony port's RMSE on the firmware's own inputs (equal for a stock "
+    "emulator's counts) and the bit-exact ST-Mahony replica's RMSE on the firmware's own inputs (equal for a stock "
     "build). Truth per step: the middle tick of the step's 5-tick input window (trial time 0 = the first TIM9 tick, "
     "≈ 1 s after power-up; the first 2 s are the firmware's calibration), as for the Python estimators. An "
     "emulated trial runs at a few times real time: --max-seconds cuts every trial short.\n\n"

@@ -1,4 +1,4 @@
-"""``steval synth``: emulated drone captures (motion → LSM6DSL → ISR → bit-exact filter port → frames → capture)."""
+"""``steval synth``: emulated drone captures (motion → LSM6DSL → ISR → bit-exact filter replica → frames → capture)."""
 
 from __future__ import annotations
 

@@ -290,7 +290,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     thr_step = thr_tick[isr.step_tick]
 
     # 4: the replica, in runs between status snapshots
-    progress(0.8, "filter port")
+    progress(0.8, "filter replica")
     settings = _settings(opts)
     q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
@@ -381,7 +381,7 @@ def _header(opts: SynthOptions, name: str, duration: float, counts: dict, droppe
         {
             "emulated": True,
             "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → "
-            "bit-exact ahrs_fusion_ag port → firmware link emulation → USB-UART adapter model",
+            "bit-exact ahrs_fusion_ag replica → firmware link emulation → USB-UART adapter model",
             "command": opts.command(),
             "synth": params,
         },

@@ -19,7 +19,7 @@ char id     characteristic (UUID)                    bytes layout (little endian
 
 The tick is ``HAL_GetTick() >> 3``: 8 ms units, wrapping every 2^16 ticks (524.288 s). The motion sample is the
 ISR's last single sample after offset removal (acc z keeps +1000 mg), *before* the gyro IIR filter and the 5-sample
-boxcar, so it is not the AHRS input: a host port of the firmware's filter cannot be bit-exact on BLE data.
+boxcar, so it is not the AHRS input: a host replica of the firmware's filter cannot be bit-exact on BLE data.
 (The ST app labels the environment's battery and RSSI as BlueST "temperature/humidity" bits; the firmware sends
 battery = VBAT·100/4.2 in ‰ clipped to 1000 and RSSI·10.)
 

@@ -58,7 +58,7 @@ NOT_BIT_EXACT = (
     "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
     "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
     "the 8 ms ticks, "
-    "so the ST-Mahony port cannot be bit-exact with the firmware here; the angles are the host "
+    "so the ST-Mahony replica cannot be bit-exact with the firmware here; the angles are the host "
     "estimators' own."
 )
 EULER_NOTE = (

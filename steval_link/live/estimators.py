@@ -108,10 +108,10 @@ class LiveMahony:
     def describe(self) -> str:
         """The filter's state in a few words for the health line (wording kept: users and tests read it)."""
         if not self.seeded:
-            return "port resyncing" if self.seeds else "port waiting for a status snapshot"
+            return "replica resyncing" if self.seeds else "replica waiting for a status snapshot"
         if self.last_rows_mismatch:
-            return f"port DIFFERS from firmware ({self.rows_mismatch} frames)"
-        return "port bit-exact" if self.rows_exact else "port seeded"
+            return f"replica DIFFERS from firmware ({self.rows_mismatch} frames)"
+        return "replica bit-exact" if self.rows_exact else "replica seeded"
 
 
 #: A live estimator that gives no estimate (NaN) on this much stream of finite input in a row is disabled, s.

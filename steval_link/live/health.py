@@ -150,10 +150,10 @@ class HealthDisplay:
             self._dirty = False
 
 
-def pipeline_health(head: str, pipe, *, after_crc=(), before_port=(), last=()) -> str:
+def pipeline_health(head: str, pipe, *, after_crc=(), before_replica=(), last=()) -> str:
     """A health line: ``head``, the frames, bad values, missing frames and CRC failures of ``pipe`` (a
-    :class:`~steval_link.live.pipeline.LivePipeline`), ``after_crc``, the frames held back, ``before_port``, what
-    the ST filter's Python port did, ``last``."""
+    :class:`~steval_link.live.pipeline.LivePipeline`), ``after_crc``, the frames held back, ``before_replica``, what
+    the ST filter's Python replica did, ``last``."""
     s, h = pipe.decoder.stats, pipe.health
     parts = [head, f"frames {h.attitude}", f"missing {stat(s, 'frames_missing')}", f"CRC {stat(s, 'crc_failures')}"]
     if h.values_bad:
@@ -161,7 +161,7 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_port=(), last=()) -
     parts += after_crc
     if stat(s, "implausible"):
         parts.append(f"held back {stat(s, 'implausible')}")
-    parts += before_port
+    parts += before_replica
     records = h.records_part(most=3)
     if records:
         parts.append(records)

@@ -244,7 +244,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
         more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
     skipped = f"skipped {_fmt_bytes(stat(s, 'bytes_skipped'))}"
     return pipeline_health(
-        head, pipe, after_crc=[skipped], before_port=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
+        head, pipe, after_crc=[skipped], before_replica=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
     )
 
 
@@ -261,11 +261,11 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
     filter_note = None
     if p is not None:
         if p.rows_mismatch:
-            filter_note = f"ST port differs from the firmware on {p.rows_mismatch} frames"
+            filter_note = f"ST replica differs from the firmware on {p.rows_mismatch} frames"
         elif p.rows_exact:
-            filter_note = f"ST port bit-exact on {p.rows_exact} frames"
+            filter_note = f"ST replica bit-exact on {p.rows_exact} frames"
         else:
-            filter_note = "ST port not seeded (no status snapshot)"
+            filter_note = "ST replica not seeded (no status snapshot)"
         if p.rows_mismatch or p.rows_exact:
             filter_note += f" with {p.settings.variant}'s filter"
     return {

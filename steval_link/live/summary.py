@@ -36,7 +36,7 @@ class LiveSummary:
     disconnects: int = 0
     offline_s: float = 0.0
     live_dropped_bytes: int = 0
-    filter_note: str | None = None  # what the ST filter's Python port did (bit-exact, differs, not seeded)
+    filter_note: str | None = None  # what the ST filter's Python replica did (bit-exact, differs, not seeded)
     stopped_by: str = "end"
     capture_discarded: bool = False  # no byte came: the header-only file was removed
     implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back

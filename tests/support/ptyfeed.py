@@ -238,7 +238,7 @@ def flight_stream(
 ) -> bytes:
     """The byte stream of a drone on the bench / in the air, as the patched firmware sends it.
 
-    Steps 0..first_step+n_steps-1 are run through the bit-exact filter port (so ``q`` is what the firmware would
+    Steps 0..first_step+n_steps-1 are run through the bit-exact filter replica (so ``q`` is what the firmware would
     send); frames from ``first_step`` on are emitted (``first_step`` > 0: the link joins mid-flight). A status frame
     with the filter snapshot follows every ``status_every``-th attitude frame (step % status_every == status_every-1).
     Inputs: gravity on a slow rocking motion plus noise, throttle ramping through MIN_THR, in float32. ``ki``: the
