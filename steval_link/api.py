@@ -196,7 +196,7 @@ def evaluate(
     trials,
     estimators: Sequence | None = None,
     *,
-    native: bool = False,
+    own_rate: bool = False,
     seed: int = 0,
     sensor_noise: bool = False,
     max_seconds: float | None = None,
@@ -211,7 +211,7 @@ def evaluate(
         estimators: labels of ``steval evaluate`` (``st-mahony-flight``, ``st-mahony-ground``, ``accel``,
             ``ekf3``, ``mekf``, ``vqf``), references (``"my_ekf.py:MyEkf"``) and estimator objects, in any mix;
             None: every built-in available.
-        native: run at the trial's own 285.7 Hz instead of through the STEVAL sensor pipeline (161.5 Hz).
+        own_rate: run at the trial's own 285.7 Hz instead of through the STEVAL sensor pipeline (161.5 Hz).
         seed: seed of the pipeline model (runs are deterministic); ``sensor_noise`` adds the LSM6DSL's noise.
         max_seconds: use only the first seconds of each trial.
         firmware: firmware ELFs to run on the emulated board with each trial and score; ``variant`` the release of
@@ -223,7 +223,7 @@ def evaluate(
     results = ev.evaluate_data(
         items,
         estimators,
-        native=native,
+        own_rate=own_rate,
         seed=seed,
         sensor_noise=sensor_noise,
         max_seconds=max_seconds,

@@ -164,6 +164,6 @@ def test_evaluate_with_an_empty_cache_says_how_to_fill_it(server, monkeypatch, c
 def test_evaluate_without_data_scores_the_cached_trials(server, monkeypatch, capsys, tmp_path):
     _serve(server, monkeypatch, tmp_path)
     assert run_cli(monkeypatch, capsys, "data", "broad", "02")[0] == 0
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "-e", "accel", "--native")
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "-e", "accel", "--own-rate")
     assert code == 0, err
     assert "02" in out and "accel" in out

@@ -134,8 +134,8 @@ def test_default_specs_selection():
     assert labels[:5] == ["st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf"]
     both = ev.default_specs(161.5, only=["st-mahony"])
     assert [(s.label, s.thr) for s in both] == [("st-mahony-flight", 450), ("st-mahony-ground", 0)]
-    native = ev.default_specs(285.7, own_rate=True, only=["st-mahony-flight", "mekf"])
-    assert native[0].options == {"dt_s": 1 / 285.7} and native[1].options["latency_s"] == 0.0
+    own = ev.default_specs(285.7, own_rate=True, only=["st-mahony-flight", "mekf"])
+    assert own[0].options == {"dt_s": 1 / 285.7} and own[1].options["latency_s"] == 0.0
     with pytest.raises(UserError, match="unknown estimator"):
         ev.default_specs(161.5, only=["kalman"])
 
@@ -162,12 +162,12 @@ def test_cli_evaluate_on_shared_broad_trials(shared_dir, tmp_path, monkeypatch, 
     assert set(report["mean_rmse_deg"]) == set(report["estimators"])
 
 
-def test_cli_evaluate_native_table_and_directory(shared_dir, tmp_path, monkeypatch, capsys):
+def test_cli_evaluate_own_rate_table_and_directory(shared_dir, tmp_path, monkeypatch, capsys):
     d = tmp_path / "trials"
     d.mkdir()
     _synthetic_trial(d / "98_synthetic.npz")
     res = _steval_here(
-        monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf", "--native"
+        monkeypatch, capsys, "evaluate", str(d), "--estimators", "st-mahony-flight,accel,mekf", "--own-rate"
     )
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()

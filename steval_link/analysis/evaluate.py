@@ -640,7 +640,7 @@ def evaluate_data(
     paths,
     estimators=None,
     *,
-    native: bool = False,
+    own_rate: bool = False,
     seed: int = 0,
     sensor_noise: bool = False,
     max_seconds: float | None = None,
@@ -651,7 +651,7 @@ def evaluate_data(
     """Score ``estimators`` (:func:`estimator_specs`) on BROAD trials and captures with ground truth (``paths``:
     files and directories of them), and each ``firmware`` ELF on the emulated board with each trial.
 
-    ``native``: BROAD trials at their own rate, not through the STEVAL pipeline model (``seed``, with
+    ``own_rate``: BROAD trials at their own rate, not through the STEVAL pipeline model (``seed``, with
     ``sensor_noise`` the LSM6DSL's white noise too); ``max_seconds``: the first seconds of each trial; ``variant``:
     the release of the replica run on a firmware's inputs; ``progress(fraction, stage)``. Every input is checked
     before the work; UserError names what is wrong."""
@@ -683,11 +683,11 @@ def evaluate_data(
             results.append(evaluate_capture(p, estimator_specs(estimators, AHRS_RATE_HZ), progress=tick))
             continue
         trial = cut_trial(broad.load_trial(p), max_seconds)
-        if native:
+        if own_rate:
             view = broad.own_rate_view(trial)
         else:
             view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
-        res = evaluate_view(view, estimator_specs(estimators, view.rate_hz, own_rate=native), trial.name, tick)
+        res = evaluate_view(view, estimator_specs(estimators, view.rate_hz, own_rate=own_rate), trial.name, tick)
         for elf, label in zip(elfs, labels):
             start = done
 

@@ -28,7 +28,7 @@ _HELP = (
     "own estimate is then scored too.\n\n"
     "A BROAD trial runs through the STEVAL sensor pipeline model (807.7 Hz tick, LSM6DSL quantisation, 416 Hz gyro "
     "hold, the firmware's 2 s offset calibration, gyro IIR, 5-sample average → 161.5 Hz AHRS steps; "
-    "deterministic); --native runs the estimators on the trial's own 285.7 Hz samples instead.\n\n"
+    "deterministic); --own-rate runs the estimators on the trial's own 285.7 Hz samples instead.\n\n"
     "Estimators: st-mahony-flight (firmware filter, thr 450, kp 0.4), st-mahony-ground (thr 0, kp 10), accel "
     "(accelerometer-only), ekf3, mekf, vqf (when installed).\n\n"
     "Firmware (--firmware ELF, repeatable): each ELF (a CubeIDE build of ST's release, patched or not, or the "
@@ -67,8 +67,8 @@ _Estimators = Annotated[
         "available.",
     ),
 ]
-_Native = Annotated[
-    bool, typer.Option("--native", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
+_OwnRate = Annotated[
+    bool, typer.Option("--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
 ]
 _Plot = Annotated[
     Optional[Path],
@@ -125,7 +125,7 @@ def evaluate_command(
     data: _Data = None,
     estimators: _Estimators = None,
     as_json: JsonReportOption = False,
-    native: _Native = False,
+    own_rate: _OwnRate = False,
     plot: _Plot = None,
     sensor_noise: _SensorNoise = False,
     seed: _Seed = 0,
@@ -152,7 +152,7 @@ def evaluate_command(
         results = ev.evaluate_data(
             data,
             only,
-            native=native,
+            own_rate=own_rate,
             seed=seed,
             sensor_noise=sensor_noise,
             max_seconds=max_seconds,
@@ -168,7 +168,7 @@ def evaluate_command(
                     writers[option](results, part)
     _print(
         results,
-        native=native,
+        own_rate=own_rate,
         sensor_noise=sensor_noise,
         seed=seed,
         max_seconds=max_seconds,
@@ -177,12 +177,12 @@ def evaluate_command(
     )
 
 
-def _print(results, *, native: bool, sensor_noise: bool, seed: int, max_seconds, as_json: bool, files: dict) -> None:
+def _print(results, *, own_rate: bool, sensor_noise: bool, seed: int, max_seconds, as_json: bool, files: dict) -> None:
     """The table and the files written, or the JSON report."""
     if as_json:
         report = ev.summary(results)
-        report["mode"] = "native" if native else "steval-pipeline"
-        report["sensor_noise"] = bool(sensor_noise and not native)
+        report["mode"] = "own-rate" if own_rate else "steval-pipeline"
+        report["sensor_noise"] = bool(sensor_noise and not own_rate)
         report["seed"] = seed
         if max_seconds is not None:
             report["max_seconds"] = max_seconds
