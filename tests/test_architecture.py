@@ -23,6 +23,7 @@ LAYERS: list[tuple[str, ...]] = [
         "steval_link",
         "steval_link.errors",
         "steval_link.constants",
+        "steval_link.stop_signals",
         "steval_link.quat",
         "steval_link.units",
         "steval_link.fw_math",

@@ -26,8 +26,8 @@ from steval_link.cli import spectrum as _spectrum  # noqa: F401
 from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.checks import user_message
-from steval_link.cli.signals import signals_interrupt
 from steval_link.errors import UserError, printable
+from steval_link.stop_signals import interrupt, on_stop_signals
 
 __all__ = ["app", "main"]
 
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
     command = typer.main.get_command(app)
     _hide_flag_metavars(command)
     try:
-        with signals_interrupt():
+        with on_stop_signals(interrupt, sigint=False):
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
         details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code

@@ -10,11 +10,11 @@ request_stop`) and the summary (:class:`LiveSummary`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,8 +31,9 @@ from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
 from steval_link.live.summary import LiveSummary, pipeline_counts
+from steval_link.stop_signals import on_stop_signals
 
-__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for", "install_stop_signals", "restore_signals"]
+__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
 
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
@@ -150,6 +151,13 @@ class LiveSession:
     def stop_requested(self) -> bool:
         return self._stop_reason is not None
 
+    def _on_signal(self, signum: int) -> None:
+        """Ctrl-C, SIGTERM, SIGHUP: stop at the next round; a second one (or one while stopping) stops now (the
+        files are flushed often)."""
+        if self.stop_requested:
+            raise KeyboardInterrupt
+        self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
+
     # -- main -------------------------------------------------------------------------------------------------
 
     def run(self) -> LiveSummary:
@@ -167,7 +175,8 @@ class LiveSession:
         t0 = time.monotonic()
         error: BaseException | None = None
         started = False
-        old_handlers = install_stop_signals(self)
+        stop_signals = contextlib.ExitStack()
+        stop_signals.enter_context(on_stop_signals(self._on_signal))
         stream = None
         try:
             self._opening_note()
@@ -191,7 +200,7 @@ class LiveSession:
                 if self.console is not None:
                     self.console.close()
                 self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
-                restore_signals(old_handlers)
+                stop_signals.close()
                 if error is not None and not started:  # a failed start leaves nothing half-made
                     capture.discard()
         if error is not None:
@@ -424,36 +433,3 @@ def _stdin_is_tty() -> bool:
         return sys.stdin is not None and sys.stdin.isatty()
     except (AttributeError, ValueError):
         return False
-
-
-def install_stop_signals(session) -> dict | None:
-    """Ctrl-C, SIGTERM and SIGHUP ask ``session`` to stop at its next round (``session.request_stop``; one that
-    comes while it is stopping already, ``session.stop_requested``, stops it at once: the files are flushed often).
-    Returns the old handlers for :func:`restore_signals` (None outside the main thread, where signals cannot be
-    handled)."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    old = {}
-
-    def on_signal(signum, _frame):
-        if session.stop_requested:  # second Ctrl-C (or one while stopping anyway): stop now
-            raise KeyboardInterrupt
-        session.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
-
-    for sig in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if sig is None:  # pragma: no cover - Windows has no SIGHUP
-            continue
-        try:
-            old[sig] = signal.signal(sig, on_signal)
-        except (ValueError, OSError):
-            pass
-    return old
-
-
-def restore_signals(old: dict | None) -> None:
-    """Put back the handlers :func:`install_stop_signals` replaced."""
-    for sig, handler in (old or {}).items():
-        try:
-            signal.signal(sig, handler)
-        except (ValueError, OSError):
-            pass
