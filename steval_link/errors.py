@@ -25,13 +25,18 @@ def printable(text: str) -> str:
     return "".join(out)
 
 
+def param_word(name: str) -> str:
+    """How the library names its parameter ``name`` in a sentence: ``name=``."""
+    return f"{name}="
+
+
 class ParamError(UserError):
     """A bad value of a library parameter. ``template`` names each of ``params`` as ``{name}``: the message reads
     ``name=`` there, and :meth:`worded` lets a caller name it its own way (the CLI names the flag)."""
 
     def __init__(self, template: str, *params: str) -> None:
         self.template, self.params = template, params
-        super().__init__(self.worded(lambda name: f"{name}="))
+        super().__init__(self.worded(param_word))
 
     def worded(self, word) -> str:
         """The message with ``word(name)`` for each parameter."""

@@ -12,6 +12,7 @@ from support.ptyfeed import PtyFeeder, flight_stream, uart_resample
 
 from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder
+from steval_link.cli.checks import user_message
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial
 
 fcntl = pytest.importorskip("fcntl", reason="POSIX file control on a pseudo-terminal: not on Windows")
@@ -148,7 +149,7 @@ def test_choose_port_probes_candidates_and_picks_the_one_with_frames(tmp_path):
         assert autodetect.choose_port(str(tmp_path / "ttyUSB*"), 115200) == str(a.link)
         with pytest.raises(autodetect.PortChoiceError, match="none of the serial ports") as info:
             autodetect.choose_port("auto", 115200, candidates=[str(b.link)] * 2, probe_s=0.4)
-        assert str(b.link) in str(info.value) and "--port" in str(info.value)
+        assert str(b.link) in user_message(info.value) and "--port" in user_message(info.value)
     with pytest.raises(autodetect.PortChoiceError, match="no serial ports found"):
         autodetect.choose_port("auto", 115200, candidates=[])
     assert autodetect.choose_port("/dev/ttyUSB9", 115200) == "/dev/ttyUSB9"  # a path is taken as is
@@ -165,9 +166,10 @@ def test_wrong_baud_message_suggests_the_right_rate(baud_tx, baud_rx, expect):
     dec = StreamDecoder()
     frames = [f for f in dec.feed(seen) if not hasattr(f, "text")]
     assert frames == []
-    msg = autodetect.no_frames_message("/dev/ttyUSB0", baud_rx, seen, seconds)
+    found = autodetect.no_frames_message("/dev/ttyUSB0", baud_rx, seen, seconds)
+    msg = user_message(found)  # the CLI names the flag; the library its parameter
     assert msg.startswith(f"no valid frames at {baud_rx} baud on /dev/ttyUSB0; bytes look like ")
-    assert expect in msg
+    assert expect in msg and expect.replace("--baud ", "baud= ") in str(found)
     assert "\n" not in msg
 
 
@@ -175,14 +177,16 @@ def test_describe_bytes_names_text_zeros_and_silence():
     assert "text" in autodetect.describe_bytes(b"Hello from another board\r\n" * 10)
     assert "0x00" in autodetect.describe_bytes(bytes(500))
     assert "0xFF" in autodetect.describe_bytes(b"\xff" * 500)
-    assert "no bytes" in autodetect.no_frames_message("/dev/x", 115200, b"", 3.0)
-    assert "flash the steval firmware" in autodetect.no_frames_message("/dev/x", 115200, b"AT+OK\r\n" * 50, 1.0)
+    assert "no bytes" in user_message(autodetect.no_frames_message("/dev/x", 115200, b"", 3.0))
+    assert "flash the steval firmware" in user_message(
+        autodetect.no_frames_message("/dev/x", 115200, b"AT+OK\r\n" * 50, 1.0)
+    )
 
 
 def test_open_errors_are_one_sentence_with_the_fix(tmp_path):
     with pytest.raises(serial.SerialException) as info:
         open_serial(str(tmp_path / "ttyUSB7"), 115200)
-    msg = open_error_message(str(tmp_path / "ttyUSB7"), info.value, ["/dev/ttyUSB0", "/dev/ttyACM0"])
+    msg = user_message(open_error_message(str(tmp_path / "ttyUSB7"), info.value, ["/dev/ttyUSB0", "/dev/ttyACM0"]))
     assert msg == (
         f"no serial port {tmp_path / 'ttyUSB7'}; available ports: /dev/ttyUSB0, /dev/ttyACM0 "
         "(pick one with --port, or --port auto)"
@@ -196,15 +200,15 @@ def test_open_errors_are_one_sentence_with_the_fix(tmp_path):
                 open_serial(str(feeder.link), 115200)
         finally:
             os.close(holder)
-        msg = open_error_message(str(feeder.link), info.value)
+        msg = user_message(open_error_message(str(feeder.link), info.value))
         assert "is busy: close the other program using it (screen, minicom, Arduino IDE" in msg
     err = serial.SerialException(13, "could not open port /dev/ttyUSB0: [Errno 13] Permission denied: '/dev/ttyUSB0'")
-    assert "sudo usermod -aG dialout $USER" in open_error_message("/dev/ttyUSB0", err)
+    assert "sudo usermod -aG dialout $USER" in user_message(open_error_message("/dev/ttyUSB0", err))
     not_tty = tmp_path / "plain.txt"
     not_tty.write_text("x")
     with pytest.raises(serial.SerialException) as info:
         open_serial(str(not_tty), 115200)
-    assert "not a serial port" in open_error_message(str(not_tty), info.value)
+    assert "not a serial port" in user_message(open_error_message(str(not_tty), info.value))
 
 
 def test_reader_keeps_trying_a_port_that_came_back_busy_and_says_why(tmp_path):
@@ -223,7 +227,7 @@ def test_reader_keeps_trying_a_port_that_came_back_busy_and_says_why(tmp_path):
         try:
             assert wait_for(lambda: reader.reopen_error is not None, 5)
             path, exc = reader.reopen_error
-            assert path == str(feeder.link) and "is busy" in open_error_message(path, exc)
+            assert path == str(feeder.link) and "is busy" in user_message(open_error_message(path, exc))
             assert not reader.connected.is_set()
         finally:
             os.close(holder)

@@ -10,7 +10,7 @@ import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app
-from steval_link.cli.checks import ThrottleScheduleOption, VariantOption, check_variant, command_line
+from steval_link.cli.checks import ThrottleScheduleOption, VariantOption, check_variant, command_line, flag_of
 from steval_link.cli.live import check_duration, live_estimators, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
@@ -183,7 +183,7 @@ def emulate_command(
         variant=variant,
         variant_from="--variant",
     )
-    options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt)
+    options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt, word=flag_of)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()

@@ -12,7 +12,7 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
-from steval_link.cli.checks import VariantOption, check_variant
+from steval_link.cli.checks import VariantOption, check_variant, flag_of
 from steval_link.cli.outputs import check_output
 from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
@@ -70,6 +70,7 @@ def run_session(session: LiveSession) -> None:
     """Run ``session`` and print its summary on stdout. An output that failed on the way (said when it happened,
     left out of the summary) makes the exit code non-zero. A reader that closed stdout (``| head``, ``| true``)
     ends nothing but the summary line: the capture is complete, and the exit is quiet."""
+    session.options.word = flag_of  # its notes name flags
     summary = session.run()
     try:
         print(summary.line())

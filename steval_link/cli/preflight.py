@@ -17,7 +17,7 @@ import typer
 from steval_link import constants as C
 from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
-from steval_link.cli.checks import require_attitude
+from steval_link.cli.checks import flag_of, require_attitude
 from steval_link.cli.live import session_outputs
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
@@ -93,7 +93,7 @@ def preflight_command(
     else:
         if baud <= 0:
             raise UserError(f"--baud must be a positive baud rate, got {baud}")
-        options, source = LiveOptions(duration_s=LIVE_S), port_source(port, baud=baud)
+        options, source = LiveOptions(duration_s=LIVE_S, word=flag_of), port_source(port, baud=baud)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
         try:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import serial
 
+from steval_link.errors import ParamError
 from steval_link.link import ports
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import TextFrame
@@ -247,7 +248,7 @@ def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[Pr
     return [r if r is not None else ProbeResult(p, baud, error="probe did not finish") for r, p in zip(results, ports)]
 
 
-class PortChoiceError(Exception):
+class PortChoiceError(ParamError):
     """``--port auto`` could not decide; the message is one sentence for the user."""
 
 
@@ -265,7 +266,9 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
     where = "" if spec == "auto" else f" matching {spec}"
     if not candidates:
         raise PortChoiceError(
-            f"no serial ports found{where}; plug in the drone's USB-UART adapter (or give --port, or --wait)"
+            f"no serial ports found{where}; plug in the drone's USB-UART adapter (or give {{port}}, or {{wait}})",
+            "port",
+            "wait",
         )
     if len(candidates) == 1:
         return candidates[0]
@@ -275,10 +278,13 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
         return answering[0]
     listing = ", ".join(candidates)
     if answering:
-        raise PortChoiceError(f"several ports carry steval frames ({', '.join(answering)}); pick one with --port")
+        raise PortChoiceError(
+            f"several ports carry steval frames ({', '.join(answering)}); pick one with {{port}}", "port"
+        )
     raise PortChoiceError(
         f"none of the serial ports{where} sent valid frames at {baud} baud within {probe_s:.1f} s "
-        f"({listing}); pick one with --port"
+        f"({listing}); pick one with {{port}}",
+        "port",
     )
 
 
@@ -355,20 +361,22 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
     return slower + faster
 
 
-def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> str:
-    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds``.
+def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> ParamError:
+    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds`` (a
+    :class:`ParamError`: its advice names the parameters ``port``, ``baud``, ``wait``).
 
     ``data``: a sample of the bytes (the first few kB); ``total``: how many arrived in all (default ``len(data)``).
     """
     if not data:
-        return (
+        return ParamError(
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "
-            "wired to the adapter's RX? (--wait keeps waiting)"
+            "wired to the adapter's RX? ({wait} keeps waiting)",
+            "wait",
         )
     tries = suggest_bauds(data, baud)
     what = describe_bytes(data, total)
     if what.startswith("text"):
-        hint = "flash the steval firmware patch (or check --port)"
+        hint = "flash the steval firmware patch (or check {port})"
     else:
-        hint = f"try --baud {tries[0]}" + (f" (or {', '.join(str(b) for b in tries[1:3])})" if len(tries) > 1 else "")
-    return f"no valid frames at {baud} baud on {port}; bytes look like {what}; {hint}"
+        hint = f"try {{baud}} {tries[0]}" + (f" (or {', '.join(str(b) for b in tries[1:3])})" if len(tries) > 1 else "")
+    return ParamError(f"no valid frames at {baud} baud on {port}; bytes look like {what}; {hint}", "port", "baud")

@@ -26,6 +26,8 @@ from typing import Callable
 
 import serial
 
+from steval_link.errors import ParamError
+
 #: How long one read waits for a first byte, s (the tick of :meth:`Protocol.idle` on a silent port).
 READ_TIMEOUT_S = 0.05
 #: A chunk ends when no more bytes came for this long, s (0.2 ms: a USB adapter delivers a frame in one or a few
@@ -99,8 +101,9 @@ def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, excl
         raise serial.SerialException(errno.EINVAL, f"cannot open {port} at {baud} baud: {exc}") from exc
 
 
-def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> str:
-    """One sentence saying why ``port`` could not be opened and what to do about it.
+def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> ParamError:
+    """One sentence saying why ``port`` could not be opened and what to do about it (a :class:`ParamError`: its
+    advice names the parameters ``port`` and ``wait``).
 
     ``available``: the serial ports that do exist, listed when ``port`` does not.
     """
@@ -111,24 +114,28 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
         code = getattr(cause, "errno", None)
     if code == errno.ENOENT or "No such file or directory" in text:
         if available:
-            return (
-                f"no serial port {port}; available ports: {', '.join(available)} (pick one with --port, or --port auto)"
+            return ParamError(
+                f"no serial port {port}; available ports: {', '.join(available)} (pick one with {{port}}, or {{port}} "
+                "auto)",
+                "port",
             )
-        return f"no serial port {port}, and no serial ports found; plug in the USB-UART adapter (or use --wait)"
+        return ParamError(
+            f"no serial port {port}, and no serial ports found; plug in the USB-UART adapter (or use {{wait}})", "wait"
+        )
     if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
-        return (
+        return ParamError(
             f"permission denied on {port}: add yourself to the dialout group: "
             "sudo usermod -aG dialout $USER, then log out and in"
         )
     if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "exclusively lock" in text or "busy" in text.lower():
-        return (
+        return ParamError(
             f"{port} is busy: close the other program using it (screen, minicom, Arduino IDE, another steval...) "
             "and try again"
         )
     if code == errno.EINVAL:
-        return f"cannot open {port}: {text.split(': ', 1)[-1]}"
+        return ParamError(f"cannot open {port}: {text.split(': ', 1)[-1]}")
     if code == errno.ENOTTY or "Inappropriate ioctl" in text:
-        return f"{port} is not a serial port"
+        return ParamError(f"{port} is not a serial port")
     return f"cannot open {port}: {text}"
 
 

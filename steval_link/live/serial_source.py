@@ -21,7 +21,7 @@ from typing import Any
 import serial
 
 from steval_link import constants as C
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link import autodetect
 from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import SerialReader, open_error_message, open_serial
@@ -50,7 +50,7 @@ NO_FRAMES_EARLY_BYTES = 2048
 ROUND_WAIT_S = 0.02
 
 
-class LinkError(UserError):
+class LinkError(ParamError):
     """The port carries no valid frames (wrong baud rate, another device, silence): one line, exit code 2."""
 
 
@@ -67,9 +67,9 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
             path = autodetect.choose_port(url, baud)
         except autodetect.PortChoiceError as exc:
             if time.monotonic() >= deadline or (stopped and stopped()):
-                raise UserError(str(exc)) from None
+                raise
             if not announced:
-                note(f"{exc}; waiting (--wait)")
+                note(f"{str(exc).split('; ')[0]}; waiting")
                 announced = True
             time.sleep(0.25)
             continue
@@ -79,7 +79,7 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
             missing = getattr(exc, "errno", None) == 2 or not os.path.exists(path)
             if missing and time.monotonic() < deadline and not (stopped and stopped()):
                 if not announced:
-                    note(f"{path} is not there; waiting for it (--wait)")
+                    note(f"{path} is not there; waiting for it")
                     announced = True
                 time.sleep(0.1)
                 continue
@@ -87,7 +87,7 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
                 available = autodetect.list_candidate_ports()
             except Exception:  # noqa: BLE001 - the listing is only a hint in the message
                 available = []
-            raise UserError(open_error_message(path, exc, available)) from None
+            raise open_error_message(path, exc, available) from None
 
 
 class SerialSource(Source):
@@ -211,7 +211,7 @@ class _Capture:
         self.record(Chunk("E", (kind, text), t_s))
 
 
-def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> str | None:
+def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError | None:
     """Wrong baud rate / not a STEVAL / silence: the sentence when no frame came in time on this connection (None:
     frames came, or not yet time to say)."""
     stats = pipe.decoder.stats
@@ -233,7 +233,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
         if status.probing is not None:
             head = f"disconnected ({lost:.0f} s); trying {status.probing}: no valid frames yet"
         if status.reopen_error is not None:  # it is back but cannot be opened: say why (busy, permissions)
-            head += f"; {open_error_message(status.reopen_error[0], status.reopen_error[1])}"
+            head += f"; {open_error_message(*status.reopen_error)}"
     elif s.attitude + s.status == 0:
         head = f"{status.port}: waiting for frames ({_fmt_bytes(status.connect_bytes)} received)"
     else:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
-from steval_link.errors import ParamError, UserError
+from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
@@ -90,6 +90,8 @@ class LiveOptions:
     variant: str | None = None
     #: which series of text telemetry are the attitude ({target: (series, unit)}, ``text_series.parse_map``)
     text_map: dict | None = None
+    #: how a note names a parameter (``port=``; the CLI gives its flag, ``--port``)
+    word: Callable[[str], str] = param_word
 
     @property
     def uses_rerun(self) -> bool:
@@ -312,9 +314,9 @@ class LiveSession:
             return
         if status.wait:
             self._warned_no_frames = True
-            self.display.note(message + "; still waiting")
+            self.display.note(message.worded(self.options.word) + "; still waiting")
             return
-        raise LinkError(message)
+        raise LinkError(message.template, *message.params)
 
     def _health(self, now: float, t0: float) -> str:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
