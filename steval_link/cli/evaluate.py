@@ -9,8 +9,6 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.analysis import evaluate as ev
-from steval_link.analysis import firmware_eval as fw
 from steval_link.cli.app import app
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.data import default_broad_data
@@ -137,6 +135,9 @@ def evaluate_command(
     ] = None,
     variant: VariantOption = None,
 ) -> None:
+
+    from steval_link.analysis import evaluate as ev  # reason: start-up time
+    from steval_link.analysis import firmware_eval as fw  # reason: start-up time
 
     variant = check_variant(variant)  # the release's filter of the port on a --firmware's inputs
     items = broad.trial_paths(data or default_broad_data())  # the inputs first, then the output
