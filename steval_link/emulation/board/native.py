@@ -28,6 +28,7 @@ from steval_link.emulation.board.memory_map import (
     TIM9_OFF,
     USART1_OFF,
     EmulationError,
+    Peripheral,
 )
 from steval_link.emulation.board.native_state import (
     EV_BITBAND,
@@ -190,17 +191,8 @@ class NativeBoard(PythonBoard):
 
     def _map_bitband(self, uc) -> None:
         """The peripheral bit-band alias: USART1's bits in C, the others in Python (EV_BITBAND)."""
-        err = uclib().uc_mmio_map(
-            self.uc._uch,
-            ctypes.c_uint64(BITBAND_PERIPH),
-            ctypes.c_size_t(BITBAND_SIZE),
-            ctypes.cast(self.lib.bb_mmio_read, P),
-            self.st_ptr,
-            ctypes.cast(self.lib.bb_mmio_write, P),
-            self.st_ptr,
-        )
-        if err:
-            raise EmulationError(f"unicorn refused the bit-band MMIO model (error {err})")
+        alias = Peripheral(self, BITBAND_PERIPH, BITBAND_SIZE, name="bit-band")
+        self._map_c(alias, "bb_mmio_read", "bb_mmio_write", self.st_ptr)
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
