@@ -907,6 +907,21 @@ EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *use
   if (off < FLASH_SIZE && (s->site_map[off >> 4] >> ((off >> 1) & 7) & 1)) dispatch(s, uc, address, size);
 }
 
+/* unicorn's virtual TLB (UC_TLB_VIRTUAL): addresses map to themselves; RAM is not executable unless fetched from
+ * (unicorn keeps stores to an executable page on its slow path). uc_tlb_entry: paddr, perms. */
+typedef struct {
+  uint64_t paddr;
+  int32_t perms;
+} tlb_entry_t;
+
+EXPORT int core_tlb_fill(void *uc, uint64_t addr, int type, tlb_entry_t *e, void *user) {
+  (void)uc;
+  (void)user;
+  e->paddr = addr;
+  e->perms = (addr >= RAM_BASE && addr < RAM_BASE + RAM_SIZE && type != 18) ? 3 : 7; /* 18: UC_MEM_FETCH */
+  return 1;
+}
+
 /* ---- the event loop ---------------------------------------------------------------------------------------- */
 
 /* Run until the clock reaches t_end. 0: done; 1: a fault (s->fault says which). */

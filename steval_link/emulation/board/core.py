@@ -58,7 +58,7 @@ IDLE_POLL = "isTimerEventExist"
 IDLE_FLAGS = ("tim9_event_flag", "HCI_ProcessEvent", "set_connectable")
 #: tUserTimer.event_cnt (interval, target_tick, flag, flag2, event_cnt) of the firmware's `tim`
 TIM_EVENT_CNT = 16
-UC_PROT_RX, UC_PROT_RW, UC_PROT_R = 5, 3, 1
+UC_PROT_RX, UC_PROT_RWX, UC_PROT_R = 5, 7, 1
 
 
 class _Counter:
@@ -148,9 +148,7 @@ class PythonBoard:
                 )
         uc.mem_map_ptr(FLASH_BASE, FLASH_SIZE, UC_PROT_RX, flash_ptr)
         uc.mem_map_ptr(0, FLASH_SIZE, UC_PROT_RX, flash_ptr)  # boot alias
-        # RAM without X: unicorn keeps every store to an executable page on its slow path (its self-modifying-code
-        # check); a fetch from RAM still runs (_on_invalid lets it)
-        uc.mem_map_ptr(RAM_BASE, RAM_SIZE, UC_PROT_RW, ctypes.addressof(self.ram))
+        uc.mem_map_ptr(RAM_BASE, RAM_SIZE, UC_PROT_RWX, ctypes.addressof(self.ram))
         self._ram_mv = memoryview(self.ram).cast("B")  # (ctypes' .raw copies the whole buffer)
         # system memory, OTP, option bytes (read only; the unique ID lives in system memory)
         self._sysmem = ctypes.create_string_buffer(SYSMEM_SIZE)
@@ -374,10 +372,6 @@ class PythonBoard:
             self.request_stop()
 
     def _on_invalid(self, uc, access, address, size, value, user):
-        from unicorn import UC_MEM_FETCH_PROT  # reason: unicorn is optional
-
-        if access == UC_MEM_FETCH_PROT and RAM_BASE <= address < RAM_BASE + RAM_SIZE:
-            return True  # code in RAM runs (RAM is mapped without X: see _map_memory)
         self.sync_now()
         self._unmodelled(address, access_kind(access))
         return False

@@ -23,6 +23,8 @@ from steval_link.emulation.board.memory_map import (
     IRQ_TIM9,
     IRQ_USART1,
     PERIPH_BASE,
+    RAM_BASE,
+    RAM_SIZE,
     TIM2_OFF,
     TIM4_OFF,
     TIM9_OFF,
@@ -209,9 +211,13 @@ class NativeBoard(PythonBoard):
             raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
 
     def _install_counter(self, native) -> None:
-        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
+        from unicorn import UC_HOOK_CODE, UC_HOOK_TLB_FILL, UC_TLB_VIRTUAL  # reason: unicorn is optional
 
         self._c_hook(UC_HOOK_CODE, "core_count_hook")
+        # unicorn's software TLB filled here: a RAM page is writable, not executable, unless code is fetched from it
+        # (unicorn keeps every store to an executable page, or to a page under a memory hook, on its slow path)
+        self.uc.ctl_set_tlb_mode(UC_TLB_VIRTUAL)
+        self._c_hook(UC_HOOK_TLB_FILL, "core_tlb_fill")
 
     def _install_hooks(self, skip_idle: bool) -> None:
         from unicorn import UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
@@ -220,7 +226,8 @@ class NativeBoard(PythonBoard):
         from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
 
         self._c_hook(UC_HOOK_INTR, "core_intr_hook")
-        self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid))
+        for lo, hi in ((0, RAM_BASE - 1), (RAM_BASE + RAM_SIZE, 0xFFFFFFFF)):  # (none over RAM: see above)
+            self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid), begin=lo, end=hi)
         calls = FirmwareCalls(self)
         sensor_read = self.elf.addr("Sensor_IO_Read")
         # a write changes the register files: the C core's copies follow
