@@ -13,13 +13,17 @@ e.g. a build of ST's release made elsewhere), then for each ELF:
 Asserts nothing.
 
 Run: ``python benchmarks/bench_emulate.py [--duration 20] [--pure] [ELF...]`` (``--pure``: also the Python models,
-as on a machine without a C compiler, to see what the C core buys).
+as on a machine without a C compiler, to see what the C core buys). Before/after in one run:
+``--python OTHER/.venv/bin/python --repeat 5`` runs the same benchmark in turn with another checkout's interpreter
+(its installed steval_link) and prints the median emulated seconds per CPU second of each.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -95,12 +99,15 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
     )
 
 
-def _in_child(elf: Path, args, native: bool | None) -> None:
-    """Run :func:`bench` in a fresh process (its own peak RSS)."""
-    cmd = [sys.executable, __file__, "--one", str(elf), "--duration", str(args.duration), "--scenario", args.scenario]
+def _in_child(elf: Path, args, native: bool | None, python: str = sys.executable) -> float | None:
+    """Run :func:`bench` in a fresh process (its own peak RSS) with ``python``; its emulated s per CPU s."""
+    cmd = [python, __file__, "--one", str(elf), "--duration", str(args.duration), "--scenario", args.scenario]
     if native is not None:
         cmd += ["--native" if native else "--pure-only"]
-    subprocess.run(cmd, check=False)
+    out = subprocess.run(cmd, check=False, capture_output=True, text=True).stdout
+    print(f"[{python}]{out}", end="", flush=True)
+    m = re.search(r"([0-9.]+) per CPU s \(", out)
+    return float(m.group(1)) if m else None
 
 
 def main() -> None:
@@ -109,6 +116,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=15.0)
     ap.add_argument("--scenario", default="hand-tilts")
     ap.add_argument("--pure", action="store_true", help="also run with the Python models (as without a C compiler)")
+    ap.add_argument("--python", action="append", default=[], help="also run with this interpreter (another checkout)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each interpreter, in turn")
     ap.add_argument("--one", type=Path, help=argparse.SUPPRESS)  # (the child process of one run)
     ap.add_argument("--native", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--pure-only", action="store_true", help=argparse.SUPPRESS)
@@ -126,10 +135,20 @@ def main() -> None:
             t = time.perf_counter()
             elfs = [S.build_reference(Path(tmp) / "b")]
             print(f"built the reference firmware in {time.perf_counter() - t:.1f} s")
+        pythons = [sys.executable, *args.python]
         for elf in elfs:
-            _in_child(elf, args, None)
+            speeds: dict[str, list[float]] = {p: [] for p in pythons}
+            for _ in range(args.repeat):
+                for python in pythons:
+                    v = _in_child(elf, args, None, python)
+                    if v is not None:
+                        speeds[python].append(v)
             if args.pure:
                 _in_child(elf, args, False)
+            if len(pythons) > 1 or args.repeat > 1:
+                for python, v in speeds.items():
+                    med = f"{statistics.median(v):.2f}" if v else "?"
+                    print(f"{elf.name} [{python}]: median {med} emulated s per CPU s over {len(v)} runs {v}")
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.commands import PARAM_HELP, PARAMS, Command, describe_settings, param_of_status, set_param
-from steval_link.live.remote import run_commands
 
 # the four options every command here takes
 _Port = Annotated[
@@ -50,6 +49,8 @@ _NAMES = ", ".join(f"{k} ({v})" for k, v in PARAM_HELP.items())
 
 
 def _run(port: str, baud: int, commands: list[Command], timeout: float, out: Optional[Path]):
+    from steval_link.live.remote import run_commands  # reason: start-up time
+
     if not (timeout > 0):
         raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
     return run_commands(port, baud, commands, timeout_s=timeout, out=out)

@@ -26,7 +26,6 @@ from steval_link.cli.checks import (
 )
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
-from steval_link.estimators.conformance import check_conformance, load_conformance_csv, variant_scores
 from steval_link.estimators.st_mahony import MahonySettings
 
 
@@ -55,6 +54,12 @@ def conformance_command(
 
     Exit status 0 when every step of every file is bit-exact, 1 otherwise, 2 for unreadable files.
     """
+    from steval_link.estimators.conformance import (  # reason: start-up time
+        check_conformance,
+        load_conformance_csv,
+        variant_scores,
+    )
+
     check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
     check_period("--dt", dt)
     forced = check_variant(variant)

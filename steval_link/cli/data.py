@@ -8,7 +8,6 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
-from steval_link.emulation import broad_fetch as bf
 from steval_link.errors import UserError
 
 #: a developer's copy of the trials: ``../shared`` beside the project (editable install)
@@ -55,6 +54,8 @@ def broad_command(
         ),
     ] = None,
 ) -> None:
+    from steval_link.emulation import broad_fetch as bf  # reason: start-up time
+
     _require_data_extra()
     names = bf.resolve_trials(list(trials or []))
     folder = directory if directory is not None else bf.cache_dir()
@@ -69,6 +70,8 @@ def broad_command(
 def find_broad_data() -> Path | None:
     """The folder of the BROAD trials to use when none is given: the cache's, else a developer's ``../shared``
     beside the project; None when neither holds any."""
+    from steval_link.emulation import broad_fetch as bf  # reason: start-up time
+
     try:
         cache = bf.cache_dir()
     except ImportError:  # platformdirs is in the data extra

@@ -14,7 +14,6 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.analysis.estimator_check import format_check, run_check
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
@@ -93,6 +92,8 @@ def check_command(
     determinism, steps per second), then score it next to ST-Mahony, the built-in EKF and VQF: tilt difference
     from the firmware and from accelerometer-only tilt on the bundled captures, inclination RMSE against ground
     truth on BROAD trials. Exit 1 when a check fails."""
+    from steval_link.analysis.estimator_check import format_check, run_check  # reason: start-up time
+
     if no_broad:
         paths = []
         note = ""

@@ -8,7 +8,6 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.analysis import evaluate as ev
 from steval_link.cli.app import app
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.data import default_broad_data
@@ -136,6 +135,8 @@ def evaluate_command(
     max_seconds: _MaxSeconds = None,
     variant: VariantOption = None,
 ) -> None:
+    from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
+
     variant = check_variant(variant)  # the release's filter of the replica on a --firmware's inputs
     data = data or default_broad_data()
     inputs = (*broad.trial_paths(data), *(firmware or []))
@@ -179,6 +180,8 @@ def evaluate_command(
 
 def _print(results, *, own_rate: bool, sensor_noise: bool, seed: int, max_seconds, as_json: bool, files: dict) -> None:
     """The table and the files written, or the JSON report."""
+    from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
+
     if as_json:
         report = ev.summary(results)
         report["mode"] = "own-rate" if own_rate else "steval-pipeline"

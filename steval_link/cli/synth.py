@@ -15,7 +15,6 @@ from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
 from steval_link.emulation.scenarios import SCENARIOS
-from steval_link.emulation.synth import SynthOptions, synthesize, write_output
 from steval_link.errors import UserError
 
 
@@ -111,6 +110,8 @@ def synth_cmd(
     Motion profile → LSM6DSL model → ISR pipeline at 807.7 Hz → the bit-exact replica of the filter → frames per
     PROTOCOL.md (status and boot text included) at the real timing → USB-UART adapter. Deterministic: the same
     options give the same bytes. Modelled, not a real drone nor a real firmware (steval emulate runs an ELF)."""
+    from steval_link.emulation.synth import SynthOptions, synthesize, write_output  # reason: start-up time
+
     if list_:
         _list()
         return

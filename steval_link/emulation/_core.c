@@ -39,6 +39,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
 #define EV_MMIO 5       /* an access to a Python peripheral's mirrored page that the mirror cannot serve */
 #define EV_CODE 4       /* a Python code hook (arg: its index; hook_addr, hook_size) */
+#define EV_BITBAND 6    /* a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
 
 /* fault codes (Python words the message) */
 #define F_PYTHON 1
@@ -67,7 +68,7 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define K_SENSOR 4
 #define K_PY 5
 #define MAX_IDLE 4
-#define MAX_MIRROR 8
+#define MAX_MIRROR 10
 #define MAX_IDLE_WORDS 8
 #define POLL_STACK 256
 
@@ -136,6 +137,10 @@ typedef struct {
   int32_t poll_ids[16];
   uint32_t poll_regs[16];
   uint8_t poll_stack[POLL_STACK];
+  /* the SCS's mirror (its page number, -1: none) and DWT CYCCNT while counting: now - cyccnt_base */
+  int64_t scs_page, cyccnt_on, cyccnt_base;
+  /* USART1's base address (bit-band accesses to it are served here) */
+  int64_t usart_base;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -443,10 +448,11 @@ EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *us
   core_t *s = (core_t *)m->core;
   (void)uc;
   touched(s);
-  uint64_t w = off >> 2;
-  if (w < 256 && m->served[w]) {
-    uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
-    return (m->vals[w] >> ((off & 3) * 8)) & mask;
+  uint64_t w = off >> 2, mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+  if (w < 256 && m->served[w]) return (m->vals[w] >> ((off & 3) * 8)) & mask;
+  if (m->page == s->scs_page && w == 0x1004 / 4 && s->cyccnt_on) { /* DWT CYCCNT: the instruction clock */
+    sync_now(s);
+    return ((uint32_t)(s->now - s->cyccnt_base) >> ((off & 3) * 8)) & mask;
   }
   sync_now(s);
   s->hook_addr = (int64_t)off;
@@ -468,6 +474,51 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
   s->mmio_write = 1;
   s->mmio_value = (int64_t)value;
   ((py_event_t)s->py_event)(EV_MMIO, m->page);
+}
+
+/* The peripheral bit-band alias: accesses to USART1's bits run here (as board/core.py's _bb_read/_bb_write on
+ * the USART1 model), the others in Python. */
+static int bb_usart(core_t *s, uint64_t off, uint32_t *reg, uint32_t *bit) {
+  uint64_t addr = 0x40000000ull + (off >> 5);
+  *bit = (uint32_t)(((off >> 2) & 7) | ((addr & 3) << 3));
+  addr &= ~3ull;
+  if (addr < (uint64_t)s->usart_base || addr >= (uint64_t)s->usart_base + 0x400) return 0;
+  *reg = (uint32_t)(addr - (uint64_t)s->usart_base);
+  return 1;
+}
+
+static uint64_t bb_python(core_t *s, uint64_t off, unsigned size, int write, uint64_t value) {
+  sync_now(s);
+  s->hook_addr = (int64_t)off;
+  s->hook_size = size;
+  s->mmio_write = write;
+  s->mmio_value = (int64_t)value;
+  ((py_event_t)s->py_event)(EV_BITBAND, 0);
+  return (uint64_t)s->mmio_value;
+}
+
+EXPORT uint64_t bb_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
+  core_t *s = (core_t *)user;
+  uint32_t reg, bit;
+  (void)uc;
+  touched(s);
+  if (!bb_usart(s, off, &reg, &bit)) return bb_python(s, off, size, 0, 0);
+  sync_now(s);
+  return (usart_read(s, reg) >> bit) & 1;
+}
+
+EXPORT void bb_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
+  core_t *s = (core_t *)user;
+  uint32_t reg, bit;
+  (void)uc;
+  touched(s);
+  if (!bb_usart(s, off, &reg, &bit)) {
+    bb_python(s, off, size, 1, value);
+    return;
+  }
+  sync_now(s);
+  uint32_t old = reg == 0 ? s->uregs[0] : usart_read(s, reg);
+  usart_write(s, reg, (value & 1) ? (old | (1u << bit)) : (old & ~(1u << bit)));
 }
 
 /* ---- timers ------------------------------------------------------------------------------------------------ */
@@ -854,6 +905,21 @@ EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *use
   }
   uint64_t off = address - FLASH_BASE;
   if (off < FLASH_SIZE && (s->site_map[off >> 4] >> ((off >> 1) & 7) & 1)) dispatch(s, uc, address, size);
+}
+
+/* unicorn's virtual TLB (UC_TLB_VIRTUAL): addresses map to themselves; RAM is not executable unless fetched from
+ * (unicorn keeps stores to an executable page on its slow path). uc_tlb_entry: paddr, perms. */
+typedef struct {
+  uint64_t paddr;
+  int32_t perms;
+} tlb_entry_t;
+
+EXPORT int core_tlb_fill(void *uc, uint64_t addr, int type, tlb_entry_t *e, void *user) {
+  (void)uc;
+  (void)user;
+  e->paddr = addr;
+  e->perms = (addr >= RAM_BASE && addr < RAM_BASE + RAM_SIZE && type != 18) ? 3 : 7; /* 18: UC_MEM_FETCH */
+  return 1;
 }
 
 /* ---- the event loop ---------------------------------------------------------------------------------------- */

@@ -33,8 +33,6 @@ from steval_link.emulation.board.memory_map import (
     PERIPH_PAGE,
     RAM_BASE,
     RAM_SIZE,
-    SCS_BASE,
-    SCS_SIZE,
     SYSMEM_BASE,
     SYSMEM_SIZE,
     TIM2_OFF,
@@ -182,8 +180,8 @@ class PythonBoard:
                 self._map_usart(uc, p)
             else:
                 self._map_python(uc, p, rd, wr)
-        uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write), None)
-        uc.mmio_map(SCS_BASE, SCS_SIZE, rd, self.scs, wr, self.scs)
+        self._map_bitband(uc)
+        self._map_python(uc, self.scs, rd, wr)
 
     def _make_timers(self):
         P = PERIPH_BASE
@@ -201,6 +199,9 @@ class PythonBoard:
 
     def _map_python(self, uc, p: Peripheral, rd, wr) -> None:
         uc.mmio_map(p.base, p.size, rd, p, wr, p)
+
+    def _map_bitband(self, uc) -> None:
+        uc.mmio_map(BITBAND_PERIPH, BITBAND_SIZE, self.guarded(self._bb_read), None, self.guarded(self._bb_write), None)
 
     def _map_usart(self, uc, usart) -> None:
         uc.mmio_map(usart.base, usart.size, self._mmio_read, usart, self._mmio_write, usart)

@@ -53,6 +53,8 @@ class Peripheral:
     """A peripheral's register file: 32-bit words by offset; subclasses model the registers that do something."""
 
     name = "periph"
+    #: words whose read has no side effect and changes only by this model's read/write (the C core serves them)
+    c_readable: tuple[int, ...] = ()
 
     def __init__(
         self, board, base: int, size: int = PERIPH_PAGE, reset: dict[int, int] | None = None, name: str | None = None
@@ -123,6 +125,7 @@ class GpioReg(IntEnum):
 
 class Gpio(Peripheral):
     name = "GPIO"
+    c_readable = (GpioReg.IDR,)
 
     def read(self, off):
         if off == GpioReg.IDR:  # inputs read low (no buttons, no RC receiver)
@@ -159,6 +162,7 @@ class Adc(Peripheral):
     """ADC1: a conversion completes at once on SWSTART; DR holds the battery divider's reading."""
 
     name = "ADC1"
+    c_readable = (AdcReg.SR, AdcReg.CR2)
     #: 12-bit reading of the battery sense divider: the firmware's VBAT = counts·3.3/4095·(10k + 20k)/20k = 3.90 V, a
     #: charged 1S LiPo
     VBAT_COUNTS = 3226

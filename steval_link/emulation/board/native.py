@@ -17,19 +17,23 @@ from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
 from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
+    BITBAND_PERIPH,
+    BITBAND_SIZE,
     IRQ_TIM2,
     IRQ_TIM9,
     IRQ_USART1,
     PERIPH_BASE,
+    RAM_BASE,
+    RAM_SIZE,
     TIM2_OFF,
     TIM4_OFF,
     TIM9_OFF,
     USART1_OFF,
     EmulationError,
-    Gpio,
-    GpioReg,
+    Peripheral,
 )
 from steval_link.emulation.board.native_state import (
+    EV_BITBAND,
     EV_CODE,
     EV_MMIO,
     EV_OUT_FULL,
@@ -100,6 +104,7 @@ class NativeBoard(PythonBoard):
         st.max_slice = C.CPU_HZ // 1000
         st.poll_ids[:] = [getattr(A, f"UC_ARM_REG_R{i}") for i in range(13)] + [r.SP, r.LR, r.XPSR]
         st.poll_skip, st.poll_pc = 1, NONE
+        st.scs_page, st.usart_base = NONE, PERIPH_BASE + USART1_OFF
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -161,20 +166,35 @@ class NativeBoard(PythonBoard):
             raise EmulationError(f"unicorn refused the {p.name} {what} (error {err})")
 
     def _map_python(self, uc, p, rd, wr) -> None:
-        """A Python peripheral's page: the timers are C's; GPIO IDR (inputs read 0) is read in C."""
+        """A Python peripheral's page: the timers are C's; its ``c_readable`` words and the SCS's DWT CYCCNT are
+        read in C (a mirror), the rest goes to Python."""
         if isinstance(p, NativeTimer):
             return self._map_c(p, "timer_mmio_read", "timer_mmio_write", ctypes.byref(p.t))
-        served = (GpioReg.IDR,) if isinstance(p, Gpio) else ()
-        if not served or len(self._mirrored) >= MAX_MIRROR:
+        scs = isinstance(p, NativeScs)
+        if not (p.c_readable or scs) or len(self._mirrored) >= MAX_MIRROR:
             return super()._map_python(uc, p, rd, wr)
         k = len(self._mirrored)
         self._mirrored.append(p)
         m = self.st.mirror[k]
         m.core, m.page = ctypes.addressof(self.st), k
-        for off in served:
+        for off in p.c_readable:
             m.served[off // 4] = 1
         p.mirror = m
+        self._refresh_mirror(p)
+        if scs:
+            self.st.scs_page = k
         self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
+
+    @staticmethod
+    def _refresh_mirror(p) -> None:
+        """The C core's copy of a mirrored page's ``c_readable`` words, after Python touched the page."""
+        for off in p.c_readable:
+            p.mirror.vals[off // 4] = p.read(off)
+
+    def _map_bitband(self, uc) -> None:
+        """The peripheral bit-band alias: USART1's bits in C, the others in Python (EV_BITBAND)."""
+        alias = Peripheral(self, BITBAND_PERIPH, BITBAND_SIZE, name="bit-band")
+        self._map_c(alias, "bb_mmio_read", "bb_mmio_write", self.st_ptr)
 
     def _c_hook(self, kind: int, fn: str, begin: int = 1, end: int = 0) -> None:
         h = ctypes.c_size_t()
@@ -191,9 +211,13 @@ class NativeBoard(PythonBoard):
             raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
 
     def _install_counter(self, native) -> None:
-        from unicorn import UC_HOOK_CODE  # reason: unicorn is optional
+        from unicorn import UC_HOOK_CODE, UC_HOOK_TLB_FILL, UC_TLB_VIRTUAL  # reason: unicorn is optional
 
         self._c_hook(UC_HOOK_CODE, "core_count_hook")
+        # unicorn's software TLB filled here: a RAM page is writable, not executable, unless code is fetched from it
+        # (unicorn keeps every store to an executable page, or to a page under a memory hook, on its slow path)
+        self.uc.ctl_set_tlb_mode(UC_TLB_VIRTUAL)
+        self._c_hook(UC_HOOK_TLB_FILL, "core_tlb_fill")
 
     def _install_hooks(self, skip_idle: bool) -> None:
         from unicorn import UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
@@ -202,7 +226,8 @@ class NativeBoard(PythonBoard):
         from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
 
         self._c_hook(UC_HOOK_INTR, "core_intr_hook")
-        self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid))
+        for lo, hi in ((0, RAM_BASE - 1), (RAM_BASE + RAM_SIZE, 0xFFFFFFFF)):  # (none over RAM: see above)
+            self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid), begin=lo, end=hi)
         calls = FirmwareCalls(self)
         sensor_read = self.elf.addr("Sensor_IO_Read")
         # a write changes the register files: the C core's copies follow
@@ -255,6 +280,15 @@ class NativeBoard(PythonBoard):
                     self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
                 else:
                     st.mmio_value = self._mmio_read(self.uc, st.hook_addr, st.hook_size, p)
+                self._refresh_mirror(p)
+            elif kind == EV_BITBAND:
+                st = self.st
+                if st.mmio_write:
+                    self._bb_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, None)
+                else:
+                    st.mmio_value = self._bb_read(self.uc, st.hook_addr, st.hook_size, None)
+                for p in self._mirrored:
+                    self._refresh_mirror(p)
             elif kind == EV_CODE:
                 self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
             elif kind == EV_SENSOR:

@@ -22,11 +22,12 @@ I64, U64, U8, U32, I32, P = (
 #: "no event" in an instruction-count field
 NONE = -1
 # sizes of the C core's tables (as in _core.c)
-MAX_IDLE, MAX_IDLE_WORDS, MAX_MIRROR, MAX_SITES, SENSOR_DEVICES = 4, 8, 8, 512, 3
+MAX_IDLE, MAX_IDLE_WORDS, MAX_MIRROR, MAX_SITES, SENSOR_DEVICES = 4, 8, 10, 512, 3
 #: bytes of the stack's top the TXE/TC poll skip compares between two status reads
 POLL_STACK = 256
-#: py_event kinds: TIM9's tick, output buffer full, a sensor read for Python, a Python code hook, a mirrored access
-EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO = 1, 2, 3, 4, 5
+#: py_event kinds: TIM9's tick, output buffer full, a sensor read for Python, a Python code hook, a mirrored access,
+#: a bit-band access outside USART1
+EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND = 1, 2, 3, 4, 5, 6
 #: code site kinds: after cpsie, idle poll, wfi, Sensor_IO_Read, a Python hook
 K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY = 1, 2, 3, 4, 5
 #: fault codes: a Python exception, stack overflow, bad exception return, CPU exception, unicorn error
@@ -153,6 +154,10 @@ class CoreState(ctypes.Structure):
         ("poll_ids", I32 * 16),
         ("poll_regs", U32 * 16),
         ("poll_stack", U8 * POLL_STACK),
+        ("scs_page", I64),
+        ("cyccnt_on", I64),
+        ("cyccnt_base", I64),
+        ("usart_base", I64),
     ]
 
 
@@ -397,3 +402,4 @@ class NativeScs(Scs):
         st.systick_period = self.systick_period()
         st.systick_tickint = 1 if self.regs.get(ScsReg.SYST_CSR, 0) & SYST_TICKINT else 0
         st.vtor = self.regs.get(ScsReg.VTOR, 0)
+        st.cyccnt_on, st.cyccnt_base = self.cyccnt_frozen is None, self.cyccnt_base
