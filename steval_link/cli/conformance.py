@@ -102,6 +102,8 @@ def _csv_paths(csv_files: list[Path]) -> list[Path]:
 
 def _load_case(path: Path):
     """One conformance file, or one sentence why not."""
+    from steval_link.estimators.conformance import load_conformance_csv  # reason: start-up time
+
     try:
         return load_conformance_csv(path)
     except FileNotFoundError:

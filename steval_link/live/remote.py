@@ -59,11 +59,11 @@ def run_commands(
     if ser is None:
         try:
             path, ser = open_port(port, baud)
-        except UserError as exc:
-            message = re.sub(r" \(or use [^)]*\)$", "", str(exc))  # no waiting for one command
+        except UserError as exc:  # the advice to wait goes: no waiting for one command
+            message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
             if " is busy" in message:
                 message += " (if steval live has it, type the command at its prompt instead)"
-            raise UserError(message) from None
+            raise ParamError(message, *getattr(exc, "params", ())) from None
     capture = None
     try:
         if out is not None:
