@@ -366,6 +366,17 @@ def test_live_replay_of_a_text_log_keeps_every_record(demo, tmp_path, monkeypatc
     np.testing.assert_array_equal(load_telemetry(out).text_series.values, load_telemetry(log).text_series.values)
 
 
+def test_estimators_asked_for_on_printed_angles_say_why_they_did_not_run(demo, tmp_path, monkeypatch, capsys):
+    """A log of printed angles has no sensor values: the estimators asked for are one line, not rows of NaN."""
+    log = tmp_path / "exercise2.log"
+    log.write_bytes(_formats(demo)["drone_pitch"][0])
+    code, said, _ = run_cli(monkeypatch, capsys, "replay", log, "-e", "ekf3,accel", "--json")
+    d = json.loads(said)
+    assert code == 0 and d["estimators"] == [] and "ekf3, accel" in d["estimators_not_run"]
+    code, said, _ = run_cli(monkeypatch, capsys, "replay", log, "-e", "accel")
+    assert code == 0 and "estimators not run (accel)" in said and "valid rows" not in said
+
+
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 @pytest.mark.parametrize("name", ["st", "st_nofloat", "drone_pitch", "table_10_2f", "arduino_comma", "csv_header"])
 def test_bulk_and_stream_decoders_give_the_same_records(demo, name):

@@ -18,6 +18,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
+import numpy as np
 import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
@@ -107,6 +108,8 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     out = {}
     if tel.link is not None and not tel.link.sensors:  # BLE rows of the drone's attitude: no sensor values
         return out
+    if not _has_sensor_rows(tel):  # a log of printed angles: nothing for an estimator to run on
+        return out
     for i, name in enumerate(names):
         progress(i / len(names), f"estimator {name}")
         estimate, why = run_estimator(name, tel, decimation=decimation)
@@ -116,8 +119,17 @@ def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) 
     return out
 
 
-def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = None) -> Sink:
-    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter."""
+def _has_sensor_rows(tel) -> bool:
+    """Some attitude row has finite accelerometer and gyro values (the estimators' inputs)."""
+    a = tel.attitude
+    return bool(len(a)) and bool((np.isfinite(a.acc_mg).all(axis=1) & np.isfinite(a.gyro_mdps).all(axis=1)).any())
+
+
+def summary_sink(
+    as_json: bool, warnings_seen: list[str], variant: str | None = None, names: Sequence[str] = ()
+) -> Sink:
+    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter;
+    ``names``: the estimators asked for (a line says why none ran on a log without sensor values)."""
 
     def sink(tel, estimates) -> None:
         s = summarize(tel, variant=variant, variant_source="--variant")
@@ -125,6 +137,11 @@ def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = 
             if w not in s["warnings"]:
                 s["warnings"].append(w)
         s["estimators"] = [estimator_summary(name, est, tel) for name, est in estimates.items()]
+        if names and not estimates and len(tel.attitude) and not _has_sensor_rows(tel):
+            s["estimators_not_run"] = (
+                f"estimators not run ({', '.join(names)}): the capture has no accelerometer and gyro values "
+                "(print them, or name them with --map)"
+            )
         _print_summary(s, _with_estimators, as_json)
 
     return sink
@@ -132,7 +149,8 @@ def summary_sink(as_json: bool, warnings_seen: list[str], variant: str | None = 
 
 def _with_estimators(s: dict) -> list[str]:
     """The summary's lines, then one line per host estimator (``-e``)."""
-    return format_summary(s) + [estimator_line(e) for e in s.get("estimators", [])]
+    lines = format_summary(s) + [estimator_line(e) for e in s.get("estimators", [])]
+    return lines + ([s["estimators_not_run"]] if s.get("estimators_not_run") else [])
 
 
 def _print_summary(s: dict, format_lines, as_json: bool) -> None:
@@ -203,7 +221,7 @@ def replay(
             )
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
-            summary_sink(as_json, seen, variant)(tel, estimates)
+            summary_sink(as_json, seen, variant, names)(tel, estimates)
             sys.stdout.flush()
             if options is not None and tel.link is not None:  # BLE: the live pipeline and logger, as live
                 from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd
