@@ -41,6 +41,8 @@ VIEWER_SHOTS = {
     "viewer-flight-control.png": ("Flight control", "Link health"),
     "viewer-firmware-log.png": ("Attitude", "Firmware log"),
 }
+#: a student's PRINTF log (ETH exercise 2) of demo.stv's angles, replayed: the text telemetry tab
+TEXT_SHOT = ("viewer-text-telemetry.png", "Text telemetry", "Link health")
 #: the figures: file name → the steval arguments that write it ({out}: the file, {tmp}: a scratch folder)
 FIGURES = {
     "compare-demo.png": ["compare", REC / "demo.stv", "--plot", "{out}"],
@@ -60,7 +62,7 @@ SIDE_FIGURES = {"compare-flight-flight-control.png": "compare-flight.png"}
 #: the lab report's page (``steval report``), photographed by Chromium
 REPORT = "report.png"
 #: every image the docs use (tests/test_docs_images.py checks each exists and is a non-empty PNG)
-ALL_IMAGES = (*VIEWER_SHOTS, *FIGURES, *SIDE_FIGURES, REPORT)
+ALL_IMAGES = (*VIEWER_SHOTS, TEXT_SHOT[0], *FIGURES, *SIDE_FIGURES, REPORT)
 
 
 def steval(*args, cwd: Path = ROOT, env=None) -> subprocess.CompletedProcess:
@@ -118,9 +120,36 @@ def _set_tabs(client, right: str, left: str) -> None:
     client.set_blueprint(d, store_id=bp.store_id)
 
 
+def write_printf_log(path: Path) -> None:
+    """demo.stv's angles as ETH exercise 2 prints them (``Drone_Pitch = %f\\tDrone_Roll = %f\\n\\n``, after a
+    banner line): pitch is thx, roll thy, in degrees."""
+    import numpy as np
+
+    from steval_link.link.load import load_telemetry
+
+    a = load_telemetry(ROOT / REC / "demo.stv").attitude
+    pitch, roll = np.degrees(a.thx_rad.astype(np.float64)), np.degrees(a.thy_rad.astype(np.float64))
+    lines = ["STEVAL-FCU001V1 exercise 2\r\n"] + [
+        f"Drone_Pitch = {p:f}\tDrone_Roll = {r:f}\n\n" for p, r in zip(pitch, roll)
+    ]
+    path.write_text("".join(lines))
+
+
 def make_viewer_shots(images: Path = IMAGES) -> None:
     """The default viewer on demo.stv, one screenshot per tab (:data:`VIEWER_SHOTS`) into ``images``, and (into
-    docs/images) docs/screenshot.png."""
+    docs/images) docs/screenshot.png; then a PRINTF log's text telemetry (:data:`TEXT_SHOT`)."""
+    with tempfile.TemporaryDirectory(prefix="steval-printf-") as tmp:
+        log = Path(tmp) / "exercise2.log"
+        write_printf_log(log)
+        _viewer_shots(REC / "demo.stv", VIEWER_SHOTS, images)
+        _viewer_shots(log, {TEXT_SHOT[0]: TEXT_SHOT[1:]}, images)
+    if images == IMAGES:
+        shutil.copyfile(IMAGES / "viewer-attitude.png", ROOT / "docs" / "screenshot.png")
+        _written(ROOT / "docs" / "screenshot.png")
+
+
+def _viewer_shots(capture: Path, shots: dict, images: Path) -> None:
+    """``steval replay CAPTURE --spawn`` on a virtual display, a screenshot per ``shots`` entry (file → tabs)."""
     sys.path.insert(0, str(ROOT / "tests"))  # the display helpers the viewer tests use
     from rerun.experimental import ViewerClient
     from support.xdisplay import (
@@ -142,20 +171,17 @@ def make_viewer_shots(images: Path = IMAGES) -> None:
     state = tempfile.TemporaryDirectory(prefix="steval-screenshot-")
     env = dict(display.env, XDG_DATA_HOME=state.name, XDG_CONFIG_HOME=state.name, XDG_CACHE_HOME=state.name)
     try:
-        steval("replay", REC / "demo.stv", "--spawn", "--grpc-port", port, env=env)
+        steval("replay", capture, "--spawn", "--grpc-port", port, env=env)
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         viewer_recording(url, timeline="ahrs_step", end=DEMO_LAST_STEP, timeout_s=120)
         time.sleep(SETTLE_S)
         client = ViewerClient.connect(url)
-        for name, (right, left) in VIEWER_SHOTS.items():
+        for name, (right, left) in shots.items():
             _set_tabs(client, right, left)
             time.sleep(2.0)
             out = images / name
             out.write_bytes(client.take_screenshot())
             _written(out)
-        if images == IMAGES:
-            shutil.copyfile(IMAGES / "viewer-attitude.png", ROOT / "docs" / "screenshot.png")
-            _written(ROOT / "docs" / "screenshot.png")
     finally:
         kill_processes(rerun_processes(port))
         display.close()
