@@ -132,3 +132,20 @@ def test_flight_control_tab_says_when_the_drone_was_never_armed():
         names = [str(t.name) for t in right.contents]
         assert names[0] == "Attitude" and names[1].startswith("Flight control")
         assert ("never armed" in names[1]) == never_armed
+
+
+def test_a_log_of_printed_angles_shows_only_the_plots_it_has_values_for(demo_rrd, tmp_path, monkeypatch, capsys):
+    """A student's PRINTF log of pitch and roll: no yaw, no sensors, no replica. Its replay leaves those panels out
+    (they would stay empty); the demo's replay has them all."""
+    a = load_telemetry(DEMO).attitude
+    log = tmp_path / "exercise2.log"
+    pitch, roll = np.degrees(a.thx_rad[:600].astype(float)), np.degrees(a.thy_rad[:600].astype(float))
+    log.write_text("".join(f"Drone_Pitch = {p:f}\tDrone_Roll = {r:f}\n\n" for p, r in zip(pitch, roll)))
+    out = tmp_path / "log.rrd"
+    code, _, err = run_cli(monkeypatch, capsys, "replay", log, "--rrd", out)
+    assert code == 0, err
+    plots = (ent.PLOT_PITCH, ent.PLOT_ROLL, ent.PLOT_YAW, ent.PLOT_DIFF, ent.PLOT_ACC, ent.PLOT_GYRO)
+    shown = {v.get("ViewBlueprint:space_origin") for v in blueprint_views(out).values()}
+    assert [p in shown for p in plots] == [True, True, False, False, False, False]
+    demo = {v.get("ViewBlueprint:space_origin") for v in blueprint_views(demo_rrd).values()}
+    assert all(p in demo for p in plots)

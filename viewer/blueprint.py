@@ -98,6 +98,7 @@ def make_blueprint(
     replica_verdict: str | None = None,
     y_ranges: Mapping[str, tuple[float, float]] | None = None,
     ble: bool = False,
+    absent: Iterable[str] = (),
 ) -> rrb.Blueprint:
     """The default blueprint.
 
@@ -107,7 +108,8 @@ def make_blueprint(
     symmetric range (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab
     (:func:`flight_view`), named so when ``never_armed``. ``replica_verdict``: the replica's verdict, in the difference
     panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
-    (:func:`ble_view`). The replica is drawn only in the difference panel: bit-exact, it would hide the firmware.
+    (:func:`ble_view`). ``absent``: plot entities the recording has no values for (a log of printed angles: yaw,
+    the sensors), left out. The replica is drawn only in the difference panel: bit-exact, it would hide the firmware.
     """
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
@@ -125,7 +127,7 @@ def make_blueprint(
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
     left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble), row_shares=[3, 2])
-    right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps)
+    right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps, frozenset(absent))
     if flight_control:
         right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
     return two_columns(left, right, live, timeline)
@@ -159,12 +161,18 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
 
 
 def attitude_view(
-    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], replica_verdict: str | None, gyro_max_dps
+    live: bool,
+    timeline: str,
+    yr: Mapping[str, tuple[float, float]],
+    replica_verdict: str | None,
+    gyro_max_dps,
+    absent: frozenset[str] = frozenset(),
 ) -> rrb.Vertical:
     """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
-    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle."""
+    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle; a row
+    whose plots are all ``absent`` is left out, and an absent plot in a row."""
 
-    return rrb.Vertical(
+    view = rrb.Vertical(
         rrb.Horizontal(
             _series(
                 ent.PLOT_PITCH,
@@ -208,6 +216,18 @@ def attitude_view(
         row_shares=[3, 2, 2],
         name="Attitude",
     )
+    return _without(view, absent) if absent else view
+
+
+def _without(view: rrb.Vertical, absent: frozenset[str]) -> rrb.Vertical:
+    """``view`` (rows of plots) without the plots whose origin is in ``absent``, nor the rows left empty."""
+    rows, shares = [], []
+    for row, share in zip(view.contents, (3, 2, 2)):
+        kept = [v for v in row.contents if str(v.origin) not in absent]
+        if kept:
+            rows.append(row if len(kept) == len(row.contents) else rrb.Horizontal(*kept))
+            shares.append(share)
+    return rrb.Vertical(*rows, row_shares=shares, name="Attitude")
 
 
 def ble_view(live: bool, timeline: str) -> rrb.Vertical:

@@ -291,6 +291,17 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     summary.samples[ent.LOG_COMMANDS] = len(entries)
 
 
+def absent_plots(att, replica) -> list[str]:
+    """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica)."""
+    values = {
+        ent.PLOT_YAW: np.isfinite(att.thz_rad).any(),
+        ent.PLOT_DIFF: replica is not None,
+        ent.PLOT_ACC: np.isfinite(att.acc_mg).any(),
+        ent.PLOT_GYRO: np.isfinite(att.gyro_mdps).any(),
+    }
+    return [plot for plot, has in values.items() if not has]
+
+
 def log_replay(
     rec: rr.RecordingStream,
     tel: Any,
@@ -344,6 +355,7 @@ def log_replay(
             y_ranges=None
             if live_blueprint
             else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
+            absent=() if live_blueprint else absent_plots(att, replica),
         )
     scene.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
