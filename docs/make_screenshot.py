@@ -174,6 +174,8 @@ def _viewer_shots(capture: Path, shots: dict, images: Path) -> None:
         steval("replay", capture, "--spawn", "--grpc-port", port, env=env)
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         viewer_recording(url, timeline="ahrs_step", end=DEMO_LAST_STEP, timeout_s=120)
+        if shutil.which("xdotool"):  # the pointer off the plots (no hover tooltip): over the 3D view's empty grid
+            subprocess.run(["xdotool", "mousemove", "60", "420"], env=env, check=False)
         time.sleep(SETTLE_S)
         client = ViewerClient.connect(url)
         for name, (right, left) in shots.items():

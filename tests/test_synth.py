@@ -304,6 +304,14 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_a_setting_not_given_is_left_out_of_the_header_command():
+    """An option the user did not give (None) is not written as ``--commands None``: the command runs again."""
+    from steval_link.cli.checks import command_line
+
+    line = command_line(["steval", "emulate", "fw.elf"], {"seed": 0, "commands": None, "tick_start_ms": None})
+    assert line == "steval emulate fw.elf --seed 0"
+
+
 def test_the_capture_header_command_repeats_the_capture(tmp_path, capsys):
     """The CLI writes the command line into the header; run again, it gives the same bytes."""
     out = tmp_path / "a.stv"

@@ -235,3 +235,15 @@ def test_reader_keeps_trying_a_port_that_came_back_busy_and_says_why(tmp_path):
         assert reader.reopen_error is None
         reader.stop()
     assert [e[0] for e in proto.events] == ["made", "lost", "made", "lost"]
+
+
+def test_an_open_error_of_another_kind_is_one_sentence_too(tmp_path, monkeypatch, capsys):
+    """A port that is a directory (or any error the known causes do not name): one line, exit 2, no traceback."""
+    from support.cli import run_cli
+
+    with pytest.raises(serial.SerialException) as info:
+        open_serial(str(tmp_path), 115200)
+    assert user_message(open_error_message(str(tmp_path), info.value)).startswith(f"cannot open {tmp_path}")
+    for args in (["live", "--port", str(tmp_path), "--no-view"], ["command", "status", "--port", str(tmp_path)]):
+        code, _, err = run_cli(monkeypatch, capsys, *args)
+        assert code == 2 and err.startswith(f"steval: error: cannot open {tmp_path}") and "Traceback" not in err, err

@@ -144,8 +144,8 @@ def test_a_log_of_printed_angles_shows_only_the_plots_it_has_values_for(demo_rrd
     out = tmp_path / "log.rrd"
     code, _, err = run_cli(monkeypatch, capsys, "replay", log, "--rrd", out)
     assert code == 0, err
-    plots = (ent.PLOT_PITCH, ent.PLOT_ROLL, ent.PLOT_YAW, ent.PLOT_DIFF, ent.PLOT_ACC, ent.PLOT_GYRO)
+    plots = (ent.PLOT_PITCH, ent.PLOT_ROLL, ent.PLOT_YAW, ent.PLOT_DIFF, ent.PLOT_ACC, ent.PLOT_GYRO, ent.PLOT_THROTTLE)
     shown = {v.get("ViewBlueprint:space_origin") for v in blueprint_views(out).values()}
-    assert [p in shown for p in plots] == [True, True, False, False, False, False]
+    assert [p in shown for p in plots] == [True, True, False, False, False, False, False]
     demo = {v.get("ViewBlueprint:space_origin") for v in blueprint_views(demo_rrd).values()}
     assert all(p in demo for p in plots)

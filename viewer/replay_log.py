@@ -291,9 +291,13 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     summary.samples[ent.LOG_COMMANDS] = len(entries)
 
 
-def absent_plots(att, replica) -> list[str]:
-    """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica)."""
+def absent_plots(tel, replica) -> list[str]:
+    """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica,
+    no throttle: a log's rows hold 0 where none was printed)."""
+    att = tel.attitude
+    printed = len(getattr(tel, "text_series", ()) or ()) > 0 and not getattr(tel, "has_own_attitude", True)
     values = {
+        ent.PLOT_THROTTLE: not printed or bool(np.any(np.asarray(att.thr) != 0)),
         ent.PLOT_YAW: np.isfinite(att.thz_rad).any(),
         ent.PLOT_DIFF: replica is not None,
         ent.PLOT_ACC: np.isfinite(att.acc_mg).any(),
@@ -355,7 +359,7 @@ def log_replay(
             y_ranges=None
             if live_blueprint
             else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
-            absent=() if live_blueprint else absent_plots(att, replica),
+            absent=() if live_blueprint else absent_plots(tel, replica),
         )
     scene.log_static(rec, names, with_replica=replica is not None)
     if has_fc:

@@ -41,9 +41,11 @@ def user_message(exc: Exception) -> str:
 
 def command_line(words: list[str], settings: dict) -> str:
     """The command line that repeats a run: ``words``, then each setting by its flag (True: the flag alone; False:
-    its ``--no-`` form; a list: the flag repeated)."""
+    its ``--no-`` form; a list: the flag repeated; None: not given, left out)."""
     parts = list(words)
     for name, value in settings.items():
+        if value is None:
+            continue
         flag = flag_of(name)
         for v in value if isinstance(value, (list, tuple)) else [value]:
             if isinstance(v, bool):

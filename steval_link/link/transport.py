@@ -122,7 +122,7 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
         return ParamError(
             f"no serial port {port}, and no serial ports found; plug in the USB-UART adapter (or use {{wait}})", "wait"
         )
-    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text or "Access is denied" in text:
         return ParamError(
             f"permission denied on {port}: add yourself to the dialout group: "
             "sudo usermod -aG dialout $USER, then log out and in"
@@ -136,7 +136,7 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
         return ParamError(f"cannot open {port}: {text.split(': ', 1)[-1]}")
     if code == errno.ENOTTY or "Inappropriate ioctl" in text:
         return ParamError(f"{port} is not a serial port")
-    return f"cannot open {port}: {text}"
+    return ParamError(f"cannot open {port}: {text}")
 
 
 class SerialReader(threading.Thread):
