@@ -177,6 +177,23 @@ def test_ki_mismatch_is_diagnosed_from_the_same_seed():
     assert "NOT bit-exact" in text and "first difference: row" in text and "KI=1" in text
 
 
+def test_the_settings_found_are_a_command_that_makes_the_replica_bit_exact(tmp_path, monkeypatch, capsys):
+    """ETH exercise 4 (AHRS_KI=1, status frames unchanged): compare prints the command with the settings it found,
+    and that command runs the replica bit-exact."""
+    import shlex
+
+    from support.cli import run_cli
+
+    raw = tmp_path / "ki1.bin"
+    raw.write_bytes(capture_bytes(n=1200, fw_settings=MahonySettings(ki=1.0), status_settings=MahonySettings()))
+    code, out, err = run_cli(monkeypatch, capsys, "compare", raw)
+    line = next(x for x in out.splitlines() if x.startswith("to run the replica with them: "))
+    args = shlex.split(line.split(": ", 1)[1])
+    assert code == 0 and args == ["steval", "compare", str(raw), "--ki", "1"], out
+    code, out, err = run_cli(monkeypatch, capsys, *args[1:])
+    assert code == 0 and "bit-exact on every step" in out and "to run the replica" not in out, out + err
+
+
 def test_settings_override_is_diagnosed_against_the_status_frames():
     tel = telemetry(n=800)
     r = compare_capture(tel, estimators=(), settings=MahonySettings(ki=1.0))

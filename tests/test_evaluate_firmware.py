@@ -237,7 +237,7 @@ def test_evaluate_two_firmwares_with_the_same_name(monkeypatch, capsys, tmp_path
         assert f["instructions_per_step"]["median"] > 500
         assert rep["trials"][0]["rmse_deg"][f["firmware"]] == f["rmse_deg"]
     assert abs(s["rmse_deg"] - lab_["rmse_deg"]) > 1.0  # KI 1 without correction drifts off
-    assert lab_["port_settings"]["ki"] == pytest.approx(1.0) and lab_["port_settings"]["correction"] is False
+    assert lab_["replica_settings"]["ki"] == pytest.approx(1.0) and lab_["replica_settings"]["correction"] is False
     # the default build is ST's filter: the bit-exact replica on its own inputs scores the same
     assert s["replica_steps"] > 0 and s["replica_bit_exact_steps"] == s["replica_steps"]
     assert s["replica_rmse_deg"] == s["rmse_deg"]

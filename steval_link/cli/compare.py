@@ -35,6 +35,7 @@ from steval_link.cli.checks import (
     check_filter_options,
     check_period,
     check_variant,
+    command_line,
     require_attitude,
 )
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
@@ -225,7 +226,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
     plots = [] if plot is None else [("plot", "plot", plot)]
     if fc_plot is not None:
         plots.append(("plot_flight_control", "flight-control plot", fc_plot))
-    _print_report(as_json, report.as_dict, lambda: format_report(report), plots)
+    _print_report(as_json, report.as_dict, lambda: format_report(report) + _rerun_line(report, src.path), plots)
     if plot is not None and no_fc_plot is not None and len(tel.fc):
         print(f"no flight-control plot: {no_fc_plot}.", file=sys.stderr if as_json else sys.stdout)
 
@@ -312,3 +313,17 @@ def _side_by_side(
         from steval_viewer.side_by_side_log import side_by_side_sink  # Rerun loads only for a viewer or an .rrd
 
         side_by_side_sink(options)(result)
+
+
+def _rerun_line(report, capture: Path) -> list[str]:
+    """The command that runs the replica with the settings the diagnosis found (none: no line)."""
+    found = dict(getattr(report.replica, "matching_variant", None) or {})
+    if not found or "defaults" in found:
+        return []
+    if "kp" in found:
+        found["kp_ground"], found["kp_flight"] = found.pop("kp")
+    if "dt_s" in found:
+        found["dt"] = found.pop("dt_s")
+    if "variant" in found:
+        found["variant"] = str(found["variant"]).removeprefix("ST ")
+    return [f"to run the replica with them: {command_line(['steval', 'compare', str(capture)], found)}"]
