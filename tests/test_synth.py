@@ -304,6 +304,15 @@ def test_cli_writes_capture_and_raw(tmp_path, capsys):
 
 
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_the_former_throttle_option_still_runs_a_recorded_command(tmp_path, capsys):
+    """Captures made before keep ``--throttle 0:0,...`` in their header command: it runs as --throttle-schedule."""
+    out = {flag: tmp_path / f"{flag.strip('-')}.stv" for flag in ("--throttle", "--throttle-schedule")}
+    for flag, path in out.items():
+        args = ["synth", "-s", "bench", "--duration", "4", flag, "0:0,2:300", "--out", str(path)]
+        assert run_cli(args, capsys)[0] == 0
+    assert read_capture(out["--throttle"]).data == read_capture(out["--throttle-schedule"]).data
+
+
 def test_a_setting_not_given_is_left_out_of_the_header_command():
     """An option the user did not give (None) is not written as ``--commands None``: the command runs again."""
     from steval_link.cli.checks import command_line

@@ -131,6 +131,8 @@ ThrottleScheduleOption = Annotated[
         show_default=False,
     ),
 ]
+#: --throttle-schedule's former name, hidden: the header commands of captures made with it still run
+ThrottleFormerOption = Annotated[Optional[str], typer.Option("--throttle", hidden=True, show_default=False)]
 
 
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.

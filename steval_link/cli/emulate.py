@@ -10,7 +10,14 @@ import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app
-from steval_link.cli.checks import ThrottleScheduleOption, VariantOption, check_variant, command_line, flag_of
+from steval_link.cli.checks import (
+    ThrottleFormerOption,
+    ThrottleScheduleOption,
+    VariantOption,
+    check_variant,
+    command_line,
+    flag_of,
+)
 from steval_link.cli.live import check_duration, live_estimators, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
@@ -129,6 +136,7 @@ def emulate_command(
     duration: _Duration = None,
     seed: _Seed = 0,
     throttle_schedule: ThrottleScheduleOption = None,
+    throttle: ThrottleFormerOption = None,
     mount: _Mount = None,
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
@@ -160,7 +168,7 @@ def emulate_command(
         raise UserError("choose --scenario or --broad, not both")
     check_duration(duration)
     emu_options = EmulationOptions(
-        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle_schedule
+        elf=elf, scenario=scenario, broad=broad, duration_s=duration, seed=seed, throttle=throttle_schedule or throttle
     )
     if ble:
         if rerun.any():

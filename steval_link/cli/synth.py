@@ -10,7 +10,14 @@ from typing import Annotated, Optional
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import CorrectionOption, KiOption, ThrottleScheduleOption, check_gain, command_line
+from steval_link.cli.checks import (
+    CorrectionOption,
+    KiOption,
+    ThrottleFormerOption,
+    ThrottleScheduleOption,
+    check_gain,
+    command_line,
+)
 from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
@@ -93,6 +100,7 @@ def synth_cmd(
     seed: _Seed = 0,
     baud: _Baud = BAUD,
     throttle_schedule: ThrottleScheduleOption = None,
+    throttle: ThrottleFormerOption = None,
     ki: KiOption = None,
     correction: CorrectionOption = None,
     text_mode: _TextMode = False,
@@ -126,7 +134,7 @@ def synth_cmd(
         duration_s=duration,
         seed=seed,
         baud=baud,
-        throttle=throttle_schedule,
+        throttle=throttle_schedule or throttle,
         ki=KI if ki is None else ki,
         correction=correction is not False,
         text_mode=text_mode,
