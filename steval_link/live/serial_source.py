@@ -21,7 +21,7 @@ from typing import Any
 import serial
 
 from steval_link import constants as C
-from steval_link.errors import ParamError, UserError
+from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link import autodetect
 from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import SerialReader, open_error_message, open_serial
@@ -224,8 +224,8 @@ def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError 
     return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)
 
 
-def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float) -> str:
-    """The health line of a serial port or a replay."""
+def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float, word=param_word) -> str:
+    """The health line of a serial port or a replay (``word``: how its advice names a parameter)."""
     s = pipe.decoder.stats
     if not status.connected:
         lost = now_mono_s - (status.lost_at_s or now_mono_s)
@@ -233,7 +233,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
         if status.probing is not None:
             head = f"disconnected ({lost:.0f} s); trying {status.probing}: no valid frames yet"
         if status.reopen_error is not None:  # it is back but cannot be opened: say why (busy, permissions)
-            head += f"; {open_error_message(*status.reopen_error)}"
+            head += f"; {open_error_message(*status.reopen_error).worded(word)}"
     elif s.attitude + s.status == 0:
         head = f"{status.port}: waiting for frames ({_fmt_bytes(status.connect_bytes)} received)"
     else:

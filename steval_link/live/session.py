@@ -324,7 +324,7 @@ class LiveSession:
             return ble_health(pipe)
         if kind == "emulated":
             return emulated_health(status, pipe, now - t0)
-        return serial_health(status, pipe, now, self.clock.now_s())
+        return serial_health(status, pipe, now, self.clock.now_s(), self.options.word)
 
     def _summary_fields(self) -> dict[str, Any]:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
