@@ -165,7 +165,7 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_replica=(), last=()
     records = h.records_part(most=3)
     if records:
         parts.append(records)
-    if pipe.mahony is not None:
+    if pipe.mahony is not None and (pipe.binary or not records):  # text alone has no bit-exact inputs
         parts.append(pipe.mahony.describe())
     return " | ".join([*parts, *last])
 

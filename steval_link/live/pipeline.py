@@ -286,6 +286,11 @@ class LivePipeline:
         return pipe
 
     @property
+    def binary(self) -> bool:
+        """Binary attitude frames came (the replica's bit-exact inputs); text rows alone are not."""
+        return self._binary
+
+    @property
     def mahony(self) -> LiveMahony | None:
         """The ST Mahony filter followed live (None when ``st-mahony`` is not among the estimators)."""
         return self.estimators.mahony if self.estimators is not None else None

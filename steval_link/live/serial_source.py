@@ -264,6 +264,8 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
             filter_note = f"ST replica differs from the firmware on {p.rows_mismatch} frames"
         elif p.rows_exact:
             filter_note = f"ST replica bit-exact on {p.rows_exact} frames"
+        elif not pipe.binary:
+            filter_note = "ST replica not run (no binary frames: text has no bit-exact inputs)"
         else:
             filter_note = "ST replica not seeded (no status snapshot)"
         if p.rows_mismatch or p.rows_exact:
