@@ -500,6 +500,33 @@ def test_lines_that_are_text(line):
     assert parse_line(line) is None
 
 
+def test_live_text_rows_start_their_firmware_time_at_zero(demo):
+    """Lines that arrive with the capture's first chunk end, by the baud rate, before the capture started: their
+    rows' firmware time is 0 there, not 2**32 µs later (the u32 wrap of a negative time)."""
+    from steval_link.live.pipeline import LivePipeline
+
+    class Viewer:
+        def __init__(self):
+            self.rows = []
+
+        def log_batch(self, batch):
+            self.rows.append(batch)
+
+        def log_status(self, frame, at): ...
+        def log_text(self, frame, at): ...
+        def log_link(self, stats, t_unix_s): ...
+        def log_event(self, text, at, level): ...
+        def close(self): ...
+
+    data, viewer = _st_221117(demo), Viewer()
+    pipe = LivePipeline([], viewer, t0_unix_s=1000.0, baud=115200)
+    for i in range(0, len(data), 600):
+        pipe.feed([(data[i : i + 600], 1000.0 + i * 10 / 115200)])
+    pipe.flush_view()
+    t_fw_s = np.concatenate([b.attitude.t_fw_s for b in viewer.rows])
+    assert len(t_fw_s) == N and 0.0 <= t_fw_s.min() and t_fw_s.max() < len(data) * 10 / 115200 + 1.0
+
+
 def test_live_pipeline_makes_the_same_attitude_rows_of_records(demo):
     """ST's line live: each record an attitude row (pitch = thx, roll = thy), as the bulk path's Telemetry."""
     from steval_link.live.estimators import LiveRows

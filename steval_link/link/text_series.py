@@ -387,7 +387,7 @@ class RecordAttitude:
             self._t0_s = t_s
         self._step = max(self._step + 1, round((t_s - self._t0_s) / C.AHRS_PERIOD_S))
         return AttitudeFrame(
-            t_us=int(round(t_s * 1e6)) % P.T_US_MODULUS,
+            t_us=int(round(max(t_s, 0.0) * 1e6)) % P.T_US_MODULUS,  # a line estimated to end before the start: 0
             acc_mg=tuple(float(x) for x in c["acc_mg"][0]),
             gyro_mdps=tuple(float(x) for x in c["gyro_mdps"][0]),
             q_wxyz=(math.nan,) * 4,
