@@ -14,7 +14,7 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit
-from steval_viewer.rrd_check import blueprint_views, static_values
+from steval_viewer.rrd_check import active_tabs, blueprint_views, static_values
 
 DEMO = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
 LEFT_BOTTOM, RIGHT_TOP = 3, 2
@@ -149,3 +149,13 @@ def test_a_log_of_printed_angles_shows_only_the_plots_it_has_values_for(demo_rrd
     assert [p in shown for p in plots] == [True, True, False, False, False, False, False]
     demo = {v.get("ViewBlueprint:space_origin") for v in blueprint_views(demo_rrd).values()}
     assert all(p in demo for p in plots)
+    # the printed series in front, replayed and live; the demo's tabs as they were
+    live = tmp_path / "live.rrd"
+    code, _, err = run_cli(
+        monkeypatch, capsys, "live", "--port", f"replay://{log}?rate=400", "--no-view", "--rrd", live,
+        "--duration", "1", "--out", tmp_path / "live.stv",
+    )  # fmt: skip
+    assert code == 0, err
+    for path in (out, live):
+        assert [t for t in active_tabs(path) if t.startswith("Text telemetry")], (path, active_tabs(path))
+    assert not [t for t in active_tabs(demo_rrd) if t.startswith("Text telemetry")]

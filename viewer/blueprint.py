@@ -99,6 +99,7 @@ def make_blueprint(
     y_ranges: Mapping[str, tuple[float, float]] | None = None,
     ble: bool = False,
     absent: Iterable[str] = (),
+    text: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint.
 
@@ -109,7 +110,8 @@ def make_blueprint(
     (:func:`flight_view`), named so when ``never_armed``. ``replica_verdict``: the replica's verdict, in the difference
     panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
     (:func:`ble_view`). ``absent``: plot entities the recording has no values for (a log of printed angles: yaw,
-    the sensors), left out. The replica is drawn only in the difference panel: bit-exact, it would hide the firmware.
+    the sensors), left out. ``text``: the text telemetry tab in front (a stream of printed lines). The replica is
+    drawn only in the difference panel: bit-exact, it would hide the firmware.
     """
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
@@ -126,16 +128,18 @@ def make_blueprint(
         eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
-    left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble), row_shares=[3, 2])
+    left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble, text), row_shares=[3, 2])
     right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps, frozenset(absent))
     if flight_control:
         right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
     return two_columns(left, right, live, timeline)
 
 
-def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], ble: bool = False) -> rrb.Tabs:
+def link_view(
+    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], ble: bool = False, text: bool = False
+) -> rrb.Tabs:
     """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue), the firmware log, the
-    text telemetry the firmware printed, and a BLE link's own values (``ble``)."""
+    text telemetry the firmware printed (in front when ``text``), and a BLE link's own values (``ble``)."""
     return rrb.Tabs(
         rrb.Grid(
             _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
@@ -156,6 +160,7 @@ def link_view(live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], 
         rrb.TextLogView(origin="log", name="Firmware log"),
         _series(TEXT_ROOT, "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
         *([ble_view(live, timeline)] if ble else []),
+        active_tab=2 if text else None,
         name="Link",
     )
 

@@ -102,6 +102,8 @@ class LiveLogger:
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
         #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
+        self._text_shown = False  # the text telemetry tab was put in front
+        self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         self._records_queued = 0  # text records queued since the last send
         self._records_sent_s = -math.inf  # host time of that send, s
 
@@ -114,6 +116,7 @@ class LiveLogger:
         n = len(a)
         if n == 0:
             return
+        self._binary_seen = self._binary_seen or bool(a.exact.any())
         rec = self.rec
         step = a.step
         times = Times(a.t_fw_s, a.t_host_s, step)
@@ -268,6 +271,7 @@ class LiveLogger:
         if frame.names not in self._records:
             self._records[frame.names] = []
             log_text_style(self.rec, frame.names, frame.units)
+            self._text_layout()
         self._records[frame.names].append((fw, host, frame.values))
         self._records_queued += 1
         if self._records_queued >= RECORDS_PER_SEND or host - self._records_sent_s >= RECORDS_INTERVAL_S:
@@ -322,12 +326,19 @@ class LiveLogger:
         self._ble_layout()
         self.rec.log(ent.BLE_NOTE, rr.TextDocument(text), static=True)
 
+    def _text_layout(self) -> None:
+        """The text telemetry tab in front, once the first record comes on a stream without binary frames."""
+        if self._text_shown or self._binary_seen or not self._blueprint:
+            return
+        self._text_shown = True
+        bp.send_blueprint(self.rec, ble=self._ble_shown, text=True, **self._blueprint)
+
     def _ble_layout(self) -> None:
         """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""
         if self._ble_shown or not self._blueprint:
             return
         self._ble_shown = True
-        bp.send_blueprint(self.rec, ble=True, **self._blueprint)
+        bp.send_blueprint(self.rec, ble=True, text=self._text_shown, **self._blueprint)
         for path in (ent.BLE_PRESSURE, ent.BLE_BATTERY, ent.BLE_TEMPERATURE, ent.BLE_RSSI, ent.BLE_ARMED):
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)

@@ -86,6 +86,29 @@ def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
     return {str(v.get("ViewBlueprint:display_name")): v for v in by_id.values()}
 
 
+def active_tabs(path: str | Path) -> list[str]:
+    """The display names of the tabs in front in the blueprints embedded in ``path`` (one per tab container that
+    names its active tab; a live session may send a second blueprint, e.g. when printed lines come)."""
+    reader = _reader(path)
+    parts: dict[str, dict[str, object]] = defaultdict(dict)
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            rb = chunk.to_record_batch()
+            for f in rb.schema:
+                if ":" in f.name:
+                    values = rb.column(f.name).to_pylist()
+                    value = values[-1] if values else None
+                    parts[chunk.entity_path.strip("/")][f.name] = (
+                        value[0] if isinstance(value, list) and value else value
+                    )
+    names = {
+        path: p.get("ViewBlueprint:display_name") or p.get("ContainerBlueprint:display_name")
+        for path, p in parts.items()
+    }
+    active = [p.get("ContainerBlueprint:active_tab") for p in parts.values()]
+    return [str(names.get(str(a).strip("/"))) for a in active if a]
+
+
 def static_values(path: str | Path, entity: str) -> dict[str, object]:
     """The static components logged to ``entity`` in the first recording of ``path``: {component: values}."""
     reader = _reader(path)
