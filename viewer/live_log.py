@@ -332,6 +332,9 @@ class LiveLogger:
             return
         self._text_shown = True
         bp.send_blueprint(self.rec, ble=self._ble_shown, text=True, **self._blueprint)
+        # printed lines give the replica no inputs: its ghost would stand level; no accelerometer arrow either
+        self.rec.log(ent.estimate_path(ent.SOURCE_REPLICA), rr.Clear(recursive=True), static=True)
+        self.rec.log(ent.ACC_GRAVITY, rr.Clear(recursive=False), static=True)
 
     def _ble_layout(self) -> None:
         """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""

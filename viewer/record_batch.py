@@ -145,6 +145,11 @@ class RowBatch:
         good = np.isfinite(v).all(axis=1)
         if select is not None:
             good &= select
+        seen = path + "?seen"  # a vector came once (a stream of printed angles has none: no column, no arrow)
+        if not self.bad_state.get(seen, False):
+            if not good.any():
+                return
+            self.bad_state[seen] = True
         self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good, bool(good.all()))
         self.bad_state[path] = False
 
