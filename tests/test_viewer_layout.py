@@ -14,7 +14,7 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import axis_limit
-from steval_viewer.rrd_check import active_tabs, blueprint_views, static_values
+from steval_viewer.rrd_check import active_tabs, blueprint_views, read_rrd, static_values
 
 DEMO = Path(__file__).resolve().parents[1] / "recordings" / "demo.stv"
 LEFT_BOTTOM, RIGHT_TOP = 3, 2
@@ -159,3 +159,5 @@ def test_a_log_of_printed_angles_shows_only_the_plots_it_has_values_for(demo_rrd
     for path in (out, live):
         assert [t for t in active_tabs(path) if t.startswith("Text telemetry")], (path, active_tabs(path))
     assert not [t for t in active_tabs(demo_rrd) if t.startswith("Text telemetry")]
+    # no accelerometer printed: no gravity arrow sent live (an all-null column is an error in the viewer)
+    assert ent.ACC_GRAVITY not in read_rrd(live).samples and ent.ACC_GRAVITY in read_rrd(demo_rrd).samples
