@@ -161,3 +161,5 @@ def test_a_log_of_printed_angles_shows_only_the_plots_it_has_values_for(demo_rrd
     assert not [t for t in active_tabs(demo_rrd) if t.startswith("Text telemetry")]
     # no accelerometer printed: no gravity arrow sent live (an all-null column is an error in the viewer)
     assert ent.ACC_GRAVITY not in read_rrd(live).samples and ent.ACC_GRAVITY in read_rrd(demo_rrd).samples
+    # nor motor arrows: they come with flight-control frames (an arrow without vectors is a viewer error)
+    assert not [p for p in read_rrd(live).static if p.startswith(ent.motor_path(1).rsplit("/", 1)[0])]

@@ -21,7 +21,7 @@ from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_rows, send_scalars
 
-__all__ = ["log_flight_static", "log_flight_control", "flight_angles"]
+__all__ = ["log_flight_static", "log_motors_static", "log_flight_control", "flight_angles"]
 
 _AXIS_COLORS = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
 _MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
@@ -50,7 +50,7 @@ def _line(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5)
     rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
 
 
-def log_flight_static(rec: rr.RecordingStream) -> None:
+def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
     """Series styles of the flight-control view and the motors' arrow origins on the 3D drone."""
     for path, label in zip(ent.FC_TARGETS, ("target thx (remote)", "target thy (remote)", "target thz (remote)")):
         _line(rec, path, label, _TARGET_COLOR, 2.0)
@@ -68,6 +68,13 @@ def log_flight_static(rec: rr.RecordingStream) -> None:
         [*_AXIS_COLORS, (127, 127, 127)],
     )
     _line(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
+    if motors:
+        log_motors_static(rec)
+
+
+def log_motors_static(rec: rr.RecordingStream) -> None:
+    """The four motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control
+    frames (logged before: an arrow without vectors is an error in the viewer)."""
     pos = drone_model.firmware_motor_positions()
     for m, p, color in zip(MOTORS, pos, _MOTOR_COLORS):
         rec.log(

@@ -84,7 +84,7 @@ class LiveLogger:
         if ble:  # known to be a BLE stream from the start (a replay): its layout at once
             self._ble_layout()
         scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
-        flight_log.log_flight_static(rec)
+        flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
         self.frames = 0
         self.frames_missing = 0
@@ -102,6 +102,7 @@ class LiveLogger:
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
         #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
+        self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
         self._text_shown = False  # the text telemetry tab was put in front
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         self._records_queued = 0  # text records queued since the last send
@@ -300,6 +301,9 @@ class LiveLogger:
             self.rec.set_time(ent.TIMELINE_FW, duration=fw)
             if math.isfinite(host):
                 self.rec.set_time(ent.TIMELINE_HOST, duration=host)
+            if not self._motors_shown:  # the arrows' fixed parts with their first vectors
+                self._motors_shown = True
+                flight_log.log_motors_static(self.rec)
             for k, v in enumerate(frame.motor_pwm):
                 frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
                 self.rec.log(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]))

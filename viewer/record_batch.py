@@ -137,19 +137,28 @@ class RowBatch:
             if select is not None:
                 good &= select
             xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
+        if self._never(path, good):
+            return
         self._add(path, _QUAT, xyzw, 4, good, bool(good.all()))
         self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
+
+    def _never(self, path: str, good: np.ndarray) -> bool:
+        """No row of ``path`` was ever good (an estimate with no inputs, printed angles without an accelerometer):
+        nothing to send, not an all-null column (the viewer rejects one)."""
+        seen = path + "?seen"
+        if not self.bad_state.get(seen, False):
+            if not good.any():
+                return True
+            self.bad_state[seen] = True
+        return False
 
     def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
         v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
         good = np.isfinite(v).all(axis=1)
         if select is not None:
             good &= select
-        seen = path + "?seen"  # a vector came once (a stream of printed angles has none: no column, no arrow)
-        if not self.bad_state.get(seen, False):
-            if not good.any():
-                return
-            self.bad_state[seen] = True
+        if self._never(path, good):
+            return
         self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good, bool(good.all()))
         self.bad_state[path] = False
 
