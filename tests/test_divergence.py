@@ -303,9 +303,9 @@ def test_compare_without_a_state_for_the_port_says_it_cannot_tell():
     r = compare_capture(tel, estimators=())
     d = r.replica.divergence
     assert d["replica"] == "unseeded" and d["first_nonfinite_step"] == d["step"]
-    assert "the port had no state at that step" in d["text"][-1]
+    assert "the replica had no state at that step" in d["text"][-1]
     assert r.replica.settings["kp_ground"] == KP_GROUND
-    lines = format_report(r)  # said although the port has no step to compare
+    lines = format_report(r)  # said although the replica has no step to compare
     assert f"  → {d['text'][0]}" in lines and f"  → {d['text'][-1]}" in lines
 
 

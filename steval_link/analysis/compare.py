@@ -199,7 +199,8 @@ def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
         )
     return (
         "no accelerometer or gyro in this capture (the firmware's angles only): the estimators need them "
-        "(accel-only tilt needs acc; the EKFs and the port need acc and gyro); print them too, or map them, to compare"
+        "(accel-only tilt needs acc; the EKFs and the replica need acc and gyro); print them too, or map them, "
+        "to compare"
     )
 
 

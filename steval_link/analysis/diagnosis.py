@@ -177,7 +177,7 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
         elif k == "defaults":
             parts.append(
                 "the firmware's default settings: the status frames report settings the filter does not "
-                "use (or the port was given other settings)"
+                "use (or the replica was given other settings)"
             )
     return "; ".join(parts)
 
@@ -335,11 +335,11 @@ def _restart_lines(view, seed, seg_start: int) -> list[str]:
     if seg_start > 0:
         lines = [
             f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
-            f"{int(steps[seg_start])}); the port restarted there from the status snapshot of step "
+            f"{int(steps[seg_start])}); the replica restarted there from the status snapshot of step "
             f"{snap}, which does not reproduce the next step"
         ]
     else:
-        lines = [f"the port started from the status snapshot of step {snap}, which does not reproduce the next step"]
+        lines = [f"the replica started from the status snapshot of step {snap}, which does not reproduce the next step"]
     return lines + (
         _snapshot_check(view, seed.status_row)
         or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
@@ -361,7 +361,7 @@ def _one_off_line(view, m: int, seg_end: int, base: MahonySettings) -> str | Non
     if good != r1 - r0:
         return None
     return (
-        f"restarted from the next status snapshot (step {int(st.step[j])}) the port agrees "
+        f"restarted from the next status snapshot (step {int(st.step[j])}) the replica agrees "
         f"again for {good} steps: a one-off disturbance around step {int(steps[m])} rather "
         "than a different filter"
     )
@@ -411,7 +411,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
 
     ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the replica replayed over them (or None).
     Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
-    "gyro_mdps", "thr"} of the step before (when received) and of the step], "port": "finite" | "diverged" |
+    "gyro_mdps", "thr"} of the step before (when received) and of the step], "replica": "finite" | "diverged" |
     "unseeded", "replica_q_wxyz", "replica_diverged_step", "text": [sentences]}`` ."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
@@ -489,7 +489,7 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
             "out of range; check the sensor values and the settings"
         )
     return (
-        "the port had no state at that step (no power-up and no finite status snapshot before it), so "
+        "the replica had no state at that step (no power-up and no finite status snapshot before it), so "
         "it cannot tell whether the filter or its inputs are to blame"
     )
 
@@ -553,9 +553,9 @@ def _unseeded_reason(view, rep: FirmwareReplay) -> str | None:
     if view.status.step.size == 0:
         return (
             "the capture does not start at step 0 (power-up) and has no status frame with a filter "
-            "snapshot, so the port has no state to start from"
+            "snapshot, so the replica has no state to start from"
         )
-    return "no status snapshot falls inside a run of consecutive steps, so the port has no state to start from"
+    return "no status snapshot falls inside a run of consecutive steps, so the replica has no state to start from"
 
 
 def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):

@@ -226,7 +226,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
         ins = fw.instructions_summary()
         cost = "n/a" if ins["median"] is None else f"{ins['median']:.0f} instr/step ({ins['min']}-{ins['max']})"
         replica = (
-            "port n/a"
+            "replica n/a"
             if fw.replica_rmse_deg is None
             else f"replica {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
             + ("" if fw.settings is None else f" with {fw.settings.variant}'s filter")
@@ -451,7 +451,7 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
         out["firmware"] = fws
         out["firmware_metric"] = (
             "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
-            "output (the port's the same way), over movement steps, degrees"
+            "output (the replica's the same way), over movement steps, degrees"
         )
     sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
     if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
