@@ -10,9 +10,9 @@ import pytest
 import serial
 from support.ptyfeed import PtyFeeder, flight_stream, uart_resample
 
+from steval_link.cli.checks import user_message
 from steval_link.link import autodetect
 from steval_link.link.decoder import StreamDecoder
-from steval_link.cli.checks import user_message
 from steval_link.link.transport import Protocol, SerialReader, open_error_message, open_serial
 
 fcntl = pytest.importorskip("fcntl", reason="POSIX file control on a pseudo-terminal: not on Windows")

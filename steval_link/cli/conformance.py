@@ -56,7 +56,6 @@ def conformance_command(
     """
     from steval_link.estimators.conformance import (  # reason: start-up time
         check_conformance,
-        load_conformance_csv,
         variant_scores,
     )
 
