@@ -206,7 +206,7 @@ def test_one_capture_is_the_single_report(monkeypatch, capsys, tmp_path):
 
 def test_port_options_are_for_one_capture(pair, monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "compare", *pair, "--ki", "1")
-    assert code == 2 and err.startswith("steval: error: --ki apply to one capture") and out == ""
+    assert code == 2 and err.startswith("steval: error: --ki applies to one capture") and out == ""
 
 
 def test_side_by_side_api_keeps_the_rows():

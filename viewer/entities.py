@@ -18,7 +18,7 @@ Layout::
     plots/acc_mg                          accelerometer x, y, z (mg), the inputs of ahrs_fusion_ag
     plots/gyro_dps                        gyro x, y, z (deg/s)
     plots/throttle_thr                    gTHR
-    plots/fw_minus_replica_deg/thx|thy       firmware − ST-Mahony replica, degrees (0 when the replica is bit-exact)
+    plots/fw_minus_replica_deg/thx|thy    firmware − ST-Mahony replica, degrees (0 when the replica is bit-exact)
     fc/pitch_thx_deg/target               the remote's target thx (euler_rc), degrees (flight-control frames)
     fc/roll_thy_deg/target                target thy, degrees
     fc/yaw_thz_deg/target                 target thz, degrees
@@ -39,6 +39,8 @@ Layout::
     log/firmware                          firmware text lines
     log/host                              host notes (decoder summary, estimator notes)
     log/commands                          commands the host sent to the drone, its acknowledgements, the settings
+    text/<series>-<series>...             text telemetry: one entity per record shape, named by its series, a line
+                                          per series (a student's PRINTF lines, ST's line, plotter formats)
 
 BLE captures (ST's stock firmware over Bluetooth: raw samples, no firmware attitude)::
 

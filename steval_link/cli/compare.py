@@ -277,8 +277,8 @@ def _side_by_side(
     given = [opt for opt, v in replica_options.items() if v is not None]
     if given:
         raise UserError(
-            f"{', '.join(given)} apply to one capture; with two or more captures the flights are "
-            "compared with each other (run steval compare CAPTURE on each for the port)."
+            f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to one capture; with two or more "
+            "captures the flights are compared with each other (run steval compare CAPTURE on each for the replica)."
         )
     if align not in ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
