@@ -740,3 +740,19 @@ def test_a_students_floatless_printf_is_explained(tmp_path, monkeypatch, capsys)
     code, out, err = run_cli(monkeypatch, capsys, "replay", log)
     assert code == 2 and err.count("\n") == 1
     assert "no numbers after them" in err and "_printf_float" in err
+
+
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_our_own_csv_export_reads_back_as_text_telemetry(tmp_path, monkeypatch, capsys):
+    """A CSV with a header and empty fields (steval export of the demo: flight-control columns empty on most rows,
+    the last one too): every column a named series, the time from t_fw_s, acc/gyro/angles/thr mapped by their
+    names, and the estimators score the same against the firmware as on the capture itself."""
+    csv = tmp_path / "demo.csv"
+    assert run_cli(monkeypatch, capsys, "export", REC / "demo.stv", "--csv", csv)[0] == 0
+    code, said, err = run_cli(monkeypatch, capsys, "replay", csv, "--json", "-e", "accel")
+    d = json.loads(said)
+    t = d["text_telemetry"]
+    header = csv.read_text().splitlines()[0].split(",")
+    assert code == 0 and t["records"] == 9210 and t["series"] == header and t["time_source"] == "the column t_fw_s"
+    code, said, _ = run_cli(monkeypatch, capsys, "replay", REC / "demo.stv", "--json", "-e", "accel")
+    assert d["estimators"] == json.loads(said)["estimators"]

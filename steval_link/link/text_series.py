@@ -67,6 +67,8 @@ _TIME_NAMES = {
     **dict.fromkeys(("t_us", "time_us", "micros", "us"), 1e-6),
 }
 _TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
+#: a time by its name's unit suffix: ``t_fw_s``, ``time_host_ms``, ``t_boot_us``
+_TIME_NAME_RE = re.compile(r"(?:t|time)(?:_[a-z0-9]+)*_(s|ms|us)")
 
 
 @dataclass
@@ -193,9 +195,12 @@ def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
     for k, (name, unit) in enumerate(zip(s.names, s.units)):
         low = name.lower()
         scale = _TIME_UNITS.get(unit) if unit else None
+        suffixed = _TIME_NAME_RE.fullmatch(low)
         if scale is None and (low in _TIME_NAMES or low.endswith("_t_ms")):
             scale = _TIME_NAMES.get(low, 1e-3)
-        elif scale is not None and low not in _TIME_NAMES:
+        elif scale is None and suffixed:
+            scale = _TIME_UNITS[suffixed.group(1)]
+        elif scale is not None and low not in _TIME_NAMES and not suffixed:
             scale = None
         col = s.values[:, k]
         if scale is not None and np.isfinite(col).all() and n > 1 and (np.diff(col) >= 0).all():
@@ -265,11 +270,16 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
             if target not in out and (low in words or any(w in low for w in words[:1])):
                 if not re.search(r"(^|_)(rc|target|set|ref|cmd)(_|$)", low):
                     out[target] = (name, angle_unit)
-        group = re.fullmatch(r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])", low)
-        if group and unit:
+        if low in ("thr", "gthr", "throttle") and "thr" not in out:
+            out["thr"] = (name, "")
+        # acc/gyro axes with a unit, written apart or as the name's suffix (acc_x_mg, gyro_z_dps)
+        group = re.fullmatch(
+            r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])(?:_(mg|g|mdps|dps))?", low
+        )
+        if group and (unit or group.group(3)):
             base = "acc" if group.group(1).startswith("a") else "gyro"
             target = f"{base}_{group.group(2)}"
-            u = _unit(unit)
+            u = _unit(unit) if unit else group.group(3)
             table = _ACC_UNITS if base == "acc" else _GYRO_UNITS
             if target not in out and (u in table or u.lower() in table):
                 out[target] = (name, u)

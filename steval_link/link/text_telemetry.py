@@ -740,8 +740,13 @@ def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, 
     units: list[str] = []
     bare = all(p.names is None for p in items)
     total = sum(len(p.values) for p in items)
-    if bare and header is not None and len(header[0]) == total:
-        names, units = list(header[0]), list(header[1])
+    if (
+        bare
+        and header is not None
+        and total <= len(header[0]) <= total + 1
+        and (len(header[0]) == total or len(items) == 1)
+    ):
+        names, units = list(header[0])[:total], list(header[1])[:total]  # one more label: its field left empty last
     else:
         for p in items:
             if p.names is None:
