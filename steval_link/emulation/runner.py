@@ -198,10 +198,6 @@ class ScenarioMotion:
         i = self._at(k)
         return self._acc[i], self._gyro[i]
 
-    def throttle(self, k: int) -> int:
-        i = self._at(k)  # (renders the window first)
-        return int(self._thr[i])
-
     def remote(self, k: int) -> tuple[int, tuple[int, int, int], bool]:
         """gTHR, (gAIL, gELE, gRUD) and the arming switch the remote sets at tick ``k``."""
         i = self._at(k)
@@ -268,21 +264,15 @@ class EmulationReport:
 _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
 
 
-def _byte(v: float) -> int:
-    return min(max(int(round(v)), 0), 255)
-
-
 def joydata_bytes(thr: int, ail: int, ele: int, rud: int, armed: bool) -> bytes:
     """``joydata[2..7]`` of ST's BLE app for these stick values (the inverse of main.c's conversion, to the
     nearest step of 13): rudder, throttle, aileron, elevator, seek bar (0), buttons (bit 2 armed)."""
-    return bytes(
-        [_byte(128 - rud / 13), _byte(thr / 13), _byte(128 - ail / 13), _byte(128 + ele / 13), 0, 0x04 if armed else 0]
-    )
+    return _joydata_table([thr], [[ail, ele, rud]], [armed])[:6]
 
 
 def _joydata_table(thr, sticks, armed) -> bytes:
-    """:func:`joydata_bytes` of every tick, vectorised: 7 bytes a tick, the six then 1 where the remote moves."""
-    thr_i = np.trunc(np.asarray(thr, np.float64))  # (int() of each value, as remote() takes it)
+    """:func:`joydata_bytes` of each tick (values as int), 7 bytes a tick: the six, then 1 where the remote moves."""
+    thr_i = np.trunc(np.asarray(thr, np.float64))
     rud = ail = ele = np.zeros(len(thr_i))
     if sticks is not None:
         ail, ele, rud = np.trunc(np.asarray(sticks, np.float64)).T
