@@ -143,7 +143,7 @@ class ScenarioMotion:
         self._window = -1
         #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
         self._rendered = self._previous = None
-        self._acc = self._gyro = self._thr = self._sticks = self._armed = None
+        self._acc = self._gyro = self._thr = self._sticks = self._armed = self._joydata = None
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
     def _render(self, w: int) -> None:
@@ -169,11 +169,12 @@ class ScenarioMotion:
         self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
         self._thr = prof.thr
         self._sticks, self._armed = prof.sticks, prof.armed
+        self._joydata = _joydata_table(self._thr, self._sticks, self._armed)
         self._window = w
         self._k0 = k0
         self._previous, self._rendered = (
             self._rendered,
-            (w, k0, self._acc, self._gyro, self._thr, self._sticks, self._armed),
+            (w, k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata),
         )
 
     def forget(self) -> None:
@@ -186,7 +187,9 @@ class ScenarioMotion:
         if w != self._window:
             if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
                 self._previous, self._rendered = self._rendered, self._previous
-                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed) = self._rendered
+                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata) = (
+                    self._rendered
+                )
             else:
                 self._render(w)
         return max(k, 0) - self._k0
@@ -195,16 +198,18 @@ class ScenarioMotion:
         i = self._at(k)
         return self._acc[i], self._gyro[i]
 
-    def throttle(self, k: int) -> int:
-        i = self._at(k)  # (renders the window first)
-        return int(self._thr[i])
-
     def remote(self, k: int) -> tuple[int, tuple[int, int, int], bool]:
         """gTHR, (gAIL, gELE, gRUD) and the arming switch the remote sets at tick ``k``."""
         i = self._at(k)
         sticks = (0, 0, 0) if self._sticks is None else tuple(int(v) for v in self._sticks[i])
         armed = False if self._armed is None else bool(self._armed[i])
         return int(self._thr[i]), sticks, armed
+
+    def remote_bytes(self, k: int) -> tuple[int, bytes]:
+        """At tick ``k``: 1 if the remote moves (a throttle or the arming switch), else 0, and its
+        ``joydata[2..7]`` (:func:`joydata_bytes`; ``[1]`` is the throttle's byte)."""
+        j = 7 * self._at(k)
+        return self._joydata[j + 6], self._joydata[j : j + 6]
 
 
 @dataclass
@@ -259,16 +264,24 @@ class EmulationReport:
 _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
 
 
-def _byte(v: float) -> int:
-    return min(max(int(round(v)), 0), 255)
-
-
 def joydata_bytes(thr: int, ail: int, ele: int, rud: int, armed: bool) -> bytes:
     """``joydata[2..7]`` of ST's BLE app for these stick values (the inverse of main.c's conversion, to the
     nearest step of 13): rudder, throttle, aileron, elevator, seek bar (0), buttons (bit 2 armed)."""
-    return bytes(
-        [_byte(128 - rud / 13), _byte(thr / 13), _byte(128 - ail / 13), _byte(128 + ele / 13), 0, 0x04 if armed else 0]
-    )
+    return _joydata_table([thr], [[ail, ele, rud]], [armed])[:6]
+
+
+def _joydata_table(thr, sticks, armed) -> bytes:
+    """:func:`joydata_bytes` of each tick (values as int), 7 bytes a tick: the six, then 1 where the remote moves."""
+    thr_i = np.trunc(np.asarray(thr, np.float64))
+    rud = ail = ele = np.zeros(len(thr_i))
+    if sticks is not None:
+        ail, ele, rud = np.trunc(np.asarray(sticks, np.float64)).T
+    on = np.zeros(len(thr_i), bool) if armed is None else np.asarray(armed, bool)
+    out = np.zeros((len(thr_i), 7), np.uint8)
+    out[:, :4] = np.clip(np.rint(np.stack([128 - rud / 13, thr_i / 13, 128 - ail / 13, 128 + ele / 13], 1)), 0, 255)
+    out[:, 5] = np.where(on, 0x04, 0)
+    out[:, 6] = (thr_i != 0) | on
+    return out.tobytes()
 
 
 class Emulation:
@@ -377,26 +390,24 @@ class Emulation:
 
     # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
-        if self.motion.trial is not None and self.motion.first_tick_s is None:
-            self.motion.first_tick_s = board.now / C.CPU_HZ
-            self.motion.forget()  # render again with trial time 0 at this tick
-        if self._joy is not None:
-            k = self.bus.tick_index(board) + 1
-            thr, (ail, ele, rud), armed = self.motion.remote(k)
+        motion = self.motion
+        if motion.trial is not None and motion.first_tick_s is None:
+            motion.first_tick_s = board.now / C.CPU_HZ
+            motion.forget()  # render again with trial time 0 at this tick
+        if self._joy is None:
+            return
+        moves, joy = motion.remote_bytes(self.bus.tick_index(board) + 1)
+        if not self._remote_connected and self._connected is not None:
             central = self._connect_at is not None and board.now >= self._connect_at
-            if (
-                (thr or armed or central or self.motion.remote_from_start)
-                and not self._remote_connected
-                and self._connected is not None
-            ):
+            if moves or central or motion.remote_from_start:
                 # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
                 # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
                 self._remote_connected = True
-            if self._remote_connected:
-                board.ram_write(self._joy + 2, joydata_bytes(thr, ail, ele, rud, armed))
-            else:
-                board.ram_write(self._joy + 3, bytes([_byte(thr / 13)]))
+        if self._remote_connected:
+            board.ram_write(self._joy + 2, joy)
+        else:
+            board.ram_write(self._joy + 3, joy[1:2])
 
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:

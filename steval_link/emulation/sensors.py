@@ -203,19 +203,27 @@ class SensorBus:
                 f"Sensor_IO_Read for SPI device {device} (not LSM6DSL/LIS2MDL/LPS22HB) in {board.where()}"
             )
         self.reads += 1
-        sample = None
-        if device == LSM6DSL:
-            k = self.tick_index(board)
-            if k != self._cached_k:
-                self._cached_k, self._cached = k, self.motion.counts(k)
-            sample = self._cached
-            if reg <= 0x28 < reg + n and k != self._last_tick:
-                self._last_tick = k
-                if len(self.served) < self.log_limit:
-                    self.served.append(
-                        ServedSample(k, tuple(int(v) for v in sample[0]), tuple(int(v) for v in sample[1]))
-                    )
+        sample = self._lsm6dsl_sample(board, reg <= 0x28 < reg + n) if device == LSM6DSL else None
         return dev.read(reg, n, sample)
+
+    def lsm6dsl_image(self, board) -> bytes:
+        """The LSM6DSL's 128 registers once a read of its outputs at this tick (as the ISR's first) filled them."""
+        self.reads += 1
+        dev = self.devices[LSM6DSL]
+        dev.refresh(self._lsm6dsl_sample(board, True))
+        return bytes(dev.r)
+
+    def _lsm6dsl_sample(self, board, outputs: bool):
+        """The motion's sample of this tick; ``outputs``: a read of the output registers (logged once per tick)."""
+        k = self.tick_index(board)
+        if k != self._cached_k:
+            self._cached_k, self._cached = k, self.motion.counts(k)
+        sample = self._cached
+        if outputs and k != self._last_tick:
+            self._last_tick = k
+            if len(self.served) < self.log_limit:
+                self.served.append(ServedSample(k, tuple(int(v) for v in sample[0]), tuple(int(v) for v in sample[1])))
+        return sample
 
     def write(self, device: int, reg: int, data: bytes, board) -> None:
         dev = self.devices.get(device)

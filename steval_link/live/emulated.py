@@ -29,6 +29,10 @@ from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["EmulatedSource"]
 
+#: emulated seconds of slices per processing round of the session when not paced to the wall clock (the board runs
+#: faster than real time: fewer, larger rounds through the decoder and the estimators; the capture gets each slice)
+ROUND_S = 0.5
+
 
 class EmulatedSource(Source):
     """``emulation``: the board and its motion. ``commands``: (emulated s, command) the session sends to the
@@ -117,9 +121,11 @@ class EmulatedSource(Source):
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
-        """One slice of the board per round: what went on the RX line, the USART1 bytes (to the capture first),
-        the truth of its steps."""
+        """One slice of the board at a time: what went on the RX line, the USART1 bytes (to the capture first),
+        the truth of its steps; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
         t0, slices = time.monotonic(), self.emu.chunks()
+        pending: list[Chunk] = []
+        t_round = 0.0
         while not self._closed:
             got = next(slices, None)
             if got is None:
@@ -131,11 +137,18 @@ class EmulatedSource(Source):
                 record(c)  # first: whatever happens next, the bytes are kept
             self.status.t_link_s = t_s
             self._truth(record)
+            pending += out
             if self.realtime:
                 ahead = t_s - (time.monotonic() - t0)
                 if ahead > 0:
                     time.sleep(ahead)
-            yield out
+            elif t_s - t_round < ROUND_S:
+                continue
+            t_round = t_s
+            yield pending
+            pending = []
+        if pending:
+            yield pending
         self._truth(record)  # the steps of the last slice
         self.status.report = self.emu.report()
 

@@ -78,6 +78,7 @@ class NativeBoard(PythonBoard):
         self.lib = core_library()
         self.st = CoreState()
         self.st_ptr = ctypes.byref(self.st)
+        self._lsm6dsl_img = ctypes.addressof(self.st.sensor_img[0])  # (the C core's copy of its registers)
         self.rx_t, self.rx_b = (I64 * RX_CAPACITY)(), (U8 * RX_CAPACITY)()
         self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
         self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
@@ -304,8 +305,7 @@ class NativeBoard(PythonBoard):
         bus, st = self.sensors, self.st
         if not st.sensor_fast[0] or self.call_observers.get("Sensor_IO_Read"):
             return
-        bus.read(0, 0x22, 12, self)
-        ctypes.memmove(ctypes.addressof(st.sensor_img[0]), bytes(bus.devices[0].r), 128)
+        ctypes.memmove(self._lsm6dsl_img, bus.lsm6dsl_image(self), 128)
         st.sensor_valid = st.tim[0].updates
 
     def _sensor_images(self) -> None:
