@@ -79,6 +79,9 @@ class LiveLogger:
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
         self._blueprint = dict(live=live, ghost_sources=segs, ghost=ghost, flight_control=True) if blueprint else None
         self._ble_shown = False
+        self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
+        self._text_shown = False  # the text telemetry tab was put in front
+        self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if blueprint and not ble:
             bp.send_blueprint(rec, **self._blueprint)
         if ble:  # known to be a BLE stream from the start (a replay): its layout at once
@@ -102,9 +105,6 @@ class LiveLogger:
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
         #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
-        self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
-        self._text_shown = False  # the text telemetry tab was put in front
-        self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         self._records_queued = 0  # text records queued since the last send
         self._records_sent_s = -math.inf  # host time of that send, s
 
