@@ -291,16 +291,11 @@ def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: Repla
     summary.samples[ent.LOG_COMMANDS] = len(entries)
 
 
-def printed_only(tel) -> bool:
-    """The recording's attitude comes from printed text telemetry alone (no frames of the drone's own)."""
-    return len(getattr(tel, "text_series", ()) or ()) > 0 and not getattr(tel, "has_own_attitude", True)
-
-
 def absent_plots(tel, replica) -> list[str]:
     """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica,
     no throttle: a log's rows hold 0 where none was printed)."""
     att = tel.attitude
-    printed = printed_only(tel)
+    printed = getattr(tel, "printed_only", False)  # a simulation logs a namespace, not a Telemetry
     values = {
         ent.PLOT_THROTTLE: not printed or bool(np.any(np.asarray(att.thr) != 0)),
         ent.PLOT_YAW: np.isfinite(att.thz_rad).any(),
@@ -365,7 +360,7 @@ def log_replay(
             if live_blueprint
             else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
             absent=() if live_blueprint else absent_plots(tel, replica),
-            text=printed_only(tel),
+            text=getattr(tel, "printed_only", False),
         )
     scene.log_static(rec, names, with_replica=replica is not None)
     if has_fc:

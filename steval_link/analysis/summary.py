@@ -59,8 +59,7 @@ def values_bad_report(tel) -> dict[str, Any] | None:
     inputs = bool(np.any(attitude_inputs_bad(a.acc_mg[bad], a.gyro_mdps[bad]))) if n else False
     first_step = int(a.step[i]) if i is not None else None
     first_t = float(a.t_fw_s[i]) if i is not None else None
-    printed = len(getattr(tel, "text_series", ()) or ()) > 0 and not getattr(tel, "has_own_attitude", True)
-    if n and printed:  # rows of printed lines: the values are as printed, nothing says where they went wrong
+    if n and tel.printed_only:  # rows of printed lines: the values are as printed, nothing says where they went wrong
         noun = "record has" if n == 1 else "records have"
         text = (
             f"{n:,} printed {noun} NaN or out-of-range values from step {first_step} on: as the lines print them "

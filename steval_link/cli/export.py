@@ -177,7 +177,7 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
     """A serial capture or text log: its attitude rows (a text log's records), the bytes, MATLAB and MCAP."""
     csv, parquet, raw, mat, mcap = outputs.values()
     tel = telemetry_of_recording(src) if (csv or parquet or mat or mcap) else None
-    records = tel is not None and len(tel.text_series) > 0 and not tel.has_own_attitude
+    records = tel is not None and tel.printed_only
     if tel is not None and not (records and mcap is None):
         require_attitude(tel, "export (--raw gives the bytes)")
     for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on

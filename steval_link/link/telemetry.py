@@ -485,6 +485,11 @@ class Telemetry:
         """True when the attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
         return len(self.attitude) > 0 and not self.text_attitude_notes
 
+    @property
+    def printed_only(self) -> bool:
+        """True when the stream is text telemetry alone: records, and no attitude frames of its own."""
+        return len(self.text_series) > 0 and not self.has_own_attitude
+
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
         names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
