@@ -66,46 +66,46 @@ def read_rrd(path: str | Path) -> RrdInfo:
     return info
 
 
-def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
-    """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
-    of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
-    3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
+def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, object]]:
+    """The blueprint components in ``path``: entity path (no leading ``/``) → {component: last value, a one-item
+    list unwrapped}; the first blueprint only, or ``every`` one."""
     reader = _reader(path)
-    by_id: dict[str, dict[str, object]] = defaultdict(dict)
-    for store in reader.blueprints()[:1]:
+    stores = reader.blueprints()
+    out: dict[str, dict[str, object]] = defaultdict(dict)
+    for store in stores if every else stores[:1]:
         for chunk in reader.stream(store=store):
-            parts = chunk.entity_path.strip("/").split("/")
-            if len(parts) < 2 or parts[0] != "view":
-                continue
             rb = chunk.to_record_batch()
             for f in rb.schema:
                 if ":" in f.name:
                     values = rb.column(f.name).to_pylist()
                     value = values[-1] if values else None
-                    by_id[parts[1]][f.name] = value[0] if isinstance(value, list) and len(value) == 1 else value
+                    out[chunk.entity_path.strip("/")][f.name] = (
+                        value[0] if isinstance(value, list) and len(value) == 1 else value
+                    )
+    return out
+
+
+def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
+    """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
+    of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
+    3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
+    by_id: dict[str, dict[str, object]] = defaultdict(dict)
+    for entity, comps in _blueprint_components(path, every=False).items():
+        parts = entity.split("/")
+        if len(parts) >= 2 and parts[0] == "view":
+            by_id[parts[1]].update(comps)
     return {str(v.get("ViewBlueprint:display_name")): v for v in by_id.values()}
 
 
 def active_tabs(path: str | Path) -> list[str]:
     """The display names of the tabs in front in the blueprints embedded in ``path`` (one per tab container that
     names its active tab; a live session may send a second blueprint, e.g. when printed lines come)."""
-    reader = _reader(path)
-    parts: dict[str, dict[str, object]] = defaultdict(dict)
-    for store in reader.blueprints():
-        for chunk in reader.stream(store=store):
-            rb = chunk.to_record_batch()
-            for f in rb.schema:
-                if ":" in f.name:
-                    values = rb.column(f.name).to_pylist()
-                    value = values[-1] if values else None
-                    parts[chunk.entity_path.strip("/")][f.name] = (
-                        value[0] if isinstance(value, list) and value else value
-                    )
+    parts = _blueprint_components(path, every=True)
     names = {
-        path: p.get("ViewBlueprint:display_name") or p.get("ContainerBlueprint:display_name")
-        for path, p in parts.items()
+        entity: comps.get("ViewBlueprint:display_name") or comps.get("ContainerBlueprint:display_name")
+        for entity, comps in parts.items()
     }
-    active = [p.get("ContainerBlueprint:active_tab") for p in parts.values()]
+    active = [comps.get("ContainerBlueprint:active_tab") for comps in parts.values()]
     return [str(names.get(str(a).strip("/"))) for a in active if a]
 
 
