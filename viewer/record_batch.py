@@ -144,13 +144,8 @@ class RowBatch:
 
     def _never(self, path: str, good: np.ndarray) -> bool:
         """No row of ``path`` was ever good (an estimate with no inputs, printed angles without an accelerometer):
-        nothing to send, not an all-null column (the viewer rejects one)."""
-        seen = path + "?seen"
-        if not self.bad_state.get(seen, False):
-            if not good.any():
-                return True
-            self.bad_state[seen] = True
-        return False
+        nothing to send, not an all-null column (the viewer rejects one). A path sent once is in ``bad_state``."""
+        return path not in self.bad_state and not good.any()
 
     def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
         v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
