@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -185,18 +186,9 @@ def require_mcap():
     return records
 
 
-def _g(v: float) -> str:
-    """A number as JSON: 9 significant digits (a float32 reads back exactly), null for NaN/inf."""
-    return "%.9g" % v if math.isfinite(v) else "null"
-
-
 def _times_ns(t_s: np.ndarray) -> np.ndarray:
     t = np.nan_to_num(np.asarray(t_s, np.float64), nan=0.0)
     return np.maximum(np.round(t * 1e9), 0).astype(np.int64)
-
-
-def _stamp(ns: int) -> str:
-    return '{"sec":%d,"nsec":%d}' % divmod(ns, 1_000_000_000)
 
 
 def _display_q(att) -> np.ndarray:
@@ -215,120 +207,51 @@ def _display_q(att) -> np.ndarray:
     return q
 
 
-def _attitude_messages(att, q: np.ndarray, sl: slice = slice(None)):
-    """Yield (log_time_ns, transform json, pose json, attitude json) per attitude row of ``sl`` (``q``: their
-    normalised quaternions for the Foxglove messages), null for any value that is not finite."""
-    ns = _times_ns(att.t_fw_s[sl])
-    step = np.asarray(att.step[sl]).tolist()
-    n = len(step)
-    seq = np.asarray(att.seq[sl]).tolist()
-    tfw = np.asarray(att.t_fw_s[sl], np.float64).tolist()
-    th = np.asarray(att.t_host_s[sl], np.float64).tolist()
-    acc = np.asarray(att.acc_mg[sl], np.float64).tolist()
-    gyr = np.asarray(att.gyro_mdps[sl], np.float64).tolist()
-    thr = np.asarray(att.thr[sl]).tolist()
-    qf = np.asarray(att.q_wxyz[sl], np.float64).tolist()
-    ang = np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64).tolist()
-    exact = np.asarray(att.exact[sl], bool).tolist()
-    qd = q.tolist()
-    nsl = ns.tolist()
-    th = ["%.6f" % v if v == v else "null" for v in th]
-    for i in range(n):
-        stamp = _stamp(nsl[i])
-        w, x, y, z = qd[i]
-        rot = '{"x":%.9g,"y":%.9g,"z":%.9g,"w":%.9g}' % (x, y, z, w)
-        transform = (
-            '{"timestamp":%s,"parent_frame_id":"world","child_frame_id":"drone",'
-            '"translation":{"x":0,"y":0,"z":0},"rotation":%s}' % (stamp, rot)
-        )
-        pose = '{"timestamp":%s,"frame_id":"world","pose":{"position":{"x":0,"y":0,"z":0},"orientation":%s}}' % (
-            stamp,
-            rot,
-        )
-        body = (
-            '{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%s,"t_host_s":%s,"acc_mg":[%s],"gyro_mdps":[%s],'
-            '"thr":%d,"q_wxyz":[%s],"thx_pitch_rad":%s,"thy_roll_rad":%s,"thz_yaw_rad":%s,"exact":%s}'
-            % (
-                stamp,
-                step[i],
-                seq[i],
-                _g(tfw[i]),
-                th[i],
-                ",".join(map(_g, acc[i])),
-                ",".join(map(_g, gyr[i])),
-                thr[i],
-                ",".join(map(_g, qf[i])),
-                _g(ang[i][0]),
-                _g(ang[i][1]),
-                _g(ang[i][2]),
-                "true" if exact[i] else "false",
-            )
-        )
-        yield nsl[i], transform, pose, body
-
-
 _STAMP_ROT = b'{"sec":%d,"nsec":%d}\n{"x":%.9g,"y":%.9g,"z":%.9g,"w":%.9g}\n'
-_ROW_FAST = (
+_ROW = (
     b'{"timestamp":%s,"parent_frame_id":"world","child_frame_id":"drone",'
     b'"translation":{"x":0,"y":0,"z":0},"rotation":%s}\n'
     b'{"timestamp":%s,"frame_id":"world","pose":{"position":{"x":0,"y":0,"z":0},"orientation":%s}}\n'
-    b'{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%.6f,"t_host_s":HOST,'
+    b'{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%.6f,"t_host_s":%.6f,'
     b'"acc_mg":[%.9g,%.9g,%.9g],"gyro_mdps":[%.9g,%.9g,%.9g],"thr":%d,"q_wxyz":[%.9g,%.9g,%.9g,%.9g],'
-    b'"thx_pitch_rad":%.9g,"thy_roll_rad":%.9g,"thz_yaw_rad":%.9g,"exact":true}\n'
+    b'"thx_pitch_rad":%.9g,"thy_roll_rad":%.9g,"thz_yaw_rad":%.9g,"exact":%s}\n'
 )
-#: one template per kind of host time: every row has one, or none has
-_ROW_TEMPLATES = {True: _ROW_FAST.replace(b"HOST", b"%.6f"), False: _ROW_FAST.replace(b"HOST", b"null")}
+#: a number ``%`` wrote for a non-finite value, to be written as JSON null
+_NON_FINITE = re.compile(rb"(?<=[:,\[])-?(?:nan|inf)(?=[,\]}])")
 
 
 def _attitude_blocks(att, rows: int = 8192):
     """Yield (first row, log times ns (m,), [transform, pose, attitude JSON bytes per row ...]) per block of
-    ``rows`` attitude rows: one ``%`` over the whole block where every value is finite (binary frames), the
-    per-row path elsewhere."""
+    ``rows`` attitude rows: one ``%`` over the whole block, then null for every value that is not finite."""
     n = len(att)
     ns_all = _times_ns(att.t_fw_s)
     q_all = _display_q(att)
     for a in range(0, n, rows):
-        b = min(n, a + rows)
-        sl = slice(a, b)
-        host = np.asarray(att.t_host_s[sl], np.float64)
-        has_host = bool(np.isfinite(host).all())
-        cols = [
-            np.asarray(att.acc_mg[sl], np.float64),
-            np.asarray(att.gyro_mdps[sl], np.float64),
-            np.asarray(att.q_wxyz[sl], np.float64),
-            np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64),
-            np.asarray(att.t_fw_s[sl], np.float64)[:, None],
-        ]
-        fast = (
-            bool(np.asarray(att.exact[sl], bool).all())
-            and (has_host or not np.isfinite(host).any())
-            and all(bool(np.isfinite(c).all()) for c in cols)
-        )
+        sl = slice(a, min(n, a + rows))
         ns = ns_all[sl]
-        if not fast:
-            out = []
-            for _, transform, pose, body in _attitude_messages(att, q_all[sl], sl):
-                out += [transform.encode(), pose.encode(), body.encode()]
-            yield a, ns, out
-            continue
-        m = b - a
-        sec = (ns // 1_000_000_000).astype(np.float64)[:, None]
-        nsec = (ns % 1_000_000_000).astype(np.float64)[:, None]
-        qd = q_all[sl][:, [1, 2, 3, 0]]
+        m = len(ns)
         # the timestamp and the rotation once per row, then placed three and two times as text
-        pieces = ((_STAMP_ROT * m) % tuple(np.concatenate([sec, nsec, qd], axis=1).ravel().tolist())).split(b"\n")
-        stamp, rot = pieces[0:-1:2], pieces[1:-1:2]
-        acc, gyro, q, ang, tfw = cols
-        numbers = [np.asarray(att.step[sl], np.float64)[:, None], np.asarray(att.seq[sl], np.float64)[:, None], tfw]
-        if has_host:
-            numbers.append(host[:, None])
-        numbers += [acc, gyro, np.asarray(att.thr[sl], np.float64)[:, None], q, ang]
-        values = np.concatenate(numbers, axis=1)
-        table = np.empty((m, 5 + values.shape[1]), dtype=object)
-        table[:, 0] = table[:, 2] = table[:, 4] = stamp
-        table[:, 1] = table[:, 3] = rot
-        table[:, 5:] = values
-        text = (_ROW_TEMPLATES[has_host] * m) % tuple(table.ravel().tolist())
+        stamp_rot = np.concatenate([np.stack(divmod(ns, 1_000_000_000), axis=1), q_all[sl][:, [1, 2, 3, 0]]], axis=1)
+        pieces = ((_STAMP_ROT * m) % tuple(stamp_rot.ravel().tolist())).split(b"\n")
+        values = np.concatenate(
+            [
+                np.stack([att.step[sl], att.seq[sl], att.t_fw_s[sl], att.t_host_s[sl]], axis=1).astype(np.float64),
+                np.asarray(att.acc_mg[sl], np.float64),
+                np.asarray(att.gyro_mdps[sl], np.float64),
+                np.asarray(att.thr[sl], np.float64)[:, None],
+                np.asarray(att.q_wxyz[sl], np.float64),
+                np.stack([att.thx_rad[sl], att.thy_rad[sl], att.thz_rad[sl]], axis=1).astype(np.float64),
+            ],
+            axis=1,
+        )
+        table = np.empty((m, 6 + values.shape[1]), dtype=object)
+        table[:, 0] = table[:, 2] = table[:, 4] = pieces[0:-1:2]
+        table[:, 1] = table[:, 3] = pieces[1:-1:2]
+        table[:, 5:-1] = values
+        table[:, -1] = [b"true" if e else b"false" for e in np.asarray(att.exact[sl], bool).tolist()]
+        text = (_ROW * m) % tuple(table.ravel().tolist())
+        if not np.isfinite(values).all():
+            text = _NON_FINITE.sub(b"null", text)
         yield a, ns, text.split(b"\n")[:-1]
 
 
@@ -342,11 +265,15 @@ def _n(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _row_messages(rows, bodies):
-    """(log time ns, JSON) per row of a frame table: its time stamp, step and firmware time, then its body."""
-    for i, (ns, body) in enumerate(zip(_times_ns(rows.t_fw_s).tolist(), bodies)):
+def _row_messages(rows, bodies) -> tuple[np.ndarray, list[bytes]]:
+    """Log times ns and JSON per row of a frame table: its time stamp, step and firmware time, then its body."""
+    ns_all = _times_ns(rows.t_fw_s)
+    datas = []
+    for i, (ns, body) in enumerate(zip(ns_all.tolist(), bodies)):
         head = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "step": int(rows.step[i])}
-        yield ns, json.dumps({**head, "t_fw_s": _n(rows.t_fw_s[i]), **body}, separators=(",", ":"), allow_nan=False)
+        msg = {**head, "t_fw_s": _n(rows.t_fw_s[i]), **body}
+        datas.append(json.dumps(msg, separators=(",", ":"), allow_nan=False).encode())
+    return ns_all, datas
 
 
 def _status_messages(tel):
@@ -408,15 +335,11 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
     stream = open(out, "wb") if own else out
     try:
         w = McapWriter(stream, records)
-        wanted = {"/attitude/transform", "/attitude/pose", "/attitude"}
-        if len(tel.status):
-            wanted.add("/status")
-        if len(tel.fc):
-            wanted.add("/flight_control")
+        present = {"/status": len(tel.status), "/flight_control": len(tel.fc)}
         channel = {
-            topic: w.channel(topic, w.schema(TOPICS[topic][0], _TOPIC_SCHEMAS[topic][0]))
-            for topic in TOPICS
-            if topic in wanted
+            topic: w.channel(topic, w.schema(TOPICS[topic][0], schema))
+            for topic, (schema, _) in _TOPIC_SCHEMAS.items()
+            if present.get(topic, 1)
         }
         three = np.array([channel["/attitude/transform"], channel["/attitude/pose"], channel["/attitude"]], np.uint16)
         n = len(tel.attitude)
@@ -425,11 +348,12 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
             w.add_block(np.tile(three, m), np.repeat(ns, 3), np.repeat(np.arange(first, first + m), 3), datas)
             if progress is not None:
                 progress((first + m) / max(n, 1), "attitude messages")
-        add = w.add
         for topic, messages in (("/status", _status_messages), ("/flight_control", _fc_messages)):
-            if topic in channel:
-                for j, (ns, body) in enumerate(messages(tel)):
-                    add(channel[topic], ns, j, body.encode())
+            ns, datas = messages(tel)
+            for a in range(0, len(datas), 8192):
+                block = slice(a, a + 8192)
+                ids = np.full(len(datas[block]), channel.get(topic, 0), np.uint16)
+                w.add_block(ids, ns[block], np.arange(len(datas))[block], datas[block])
         for name, data in (metadata or {}).items():
             w.metadata(name, {str(k): json.dumps(v) for k, v in data.items()})
         w.finish()
