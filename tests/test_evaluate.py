@@ -219,7 +219,7 @@ def test_evaluate_capture_with_truth_sidecar(tmp_path, monkeypatch, capsys):
 def test_plot_evaluation(tmp_path):
     pytest.importorskip("matplotlib")
     trial = broad.load_trial(_synthetic_trial(tmp_path / "97_synthetic.npz"))
-    r = ev.evaluate_trial(trial, ev.default_specs(161.5, only=["accel", "mekf"]))
+    r = ev.evaluate_view(broad.steval_view(trial), ev.default_specs(161.5, only=["accel", "mekf"]), trial.name)
     out = ev.plot_evaluation([r], tmp_path / "eval.png")
     assert out.stat().st_size > 10_000
     assert "97_synthetic" in ev.format_table([r])

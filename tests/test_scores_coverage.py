@@ -138,7 +138,8 @@ def test_a_never_finite_estimator_says_why(trial, mine, monkeypatch, capsys):
 @pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
 def test_table_rows_mark_means_of_incomplete_estimators(trial, mine):
     view_specs = ev.default_specs(161.5, only=[f"{mine}:Ekf(after=5000)", "accel"])
-    r1 = ev.evaluate_trial(cut_trial(broad.load_trial(trial), 60.0), view_specs)
+    cut = cut_trial(broad.load_trial(trial), 60.0)
+    r1 = ev.evaluate_view(broad.steval_view(cut), view_specs, cut.name)
     header, rows = ev.table_rows([r1, r1])
     assert header == ["trial", "Ekf(after=5000)", "accel"]
     mean = next(r for r in rows if r[0] == "mean")

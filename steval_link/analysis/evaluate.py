@@ -44,9 +44,7 @@ __all__ = [
     "EstimatorSpec",
     "TrialResult",
     "default_specs",
-    "spec_labels",
     "evaluate_view",
-    "evaluate_trial",
     "evaluate_capture",
     "truth_sidecar_path",
     "summary",
@@ -80,11 +78,6 @@ class EstimatorSpec:
     name: str
     options: dict = field(default_factory=dict)
     thr: int = 0
-
-
-def spec_labels() -> tuple[str, ...]:
-    """Every label :func:`default_specs` knows, in table order."""
-    return ("st-mahony-flight", "st-mahony-ground", "accel", "ekf3", "mekf", "vqf")
 
 
 def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
@@ -125,14 +118,13 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
                 raise UserError(str(exc)) from None
         if not chosen:
             raise UserError(
-                f"unknown estimator {item!r}; choose from: {', '.join(spec_labels())} (or st-mahony), "
+                f"unknown estimator {item!r}; choose from: {', '.join(specs)} (or st-mahony), "
                 "FILE.py:CLASS, module:CLASS or an installed plug-in"
             )
         if item == "vqf" and not registry.is_available("vqf"):
             raise UserError('estimator vqf needs the vqf package: pip install "steval-link[vqf]"')
         for s in chosen:
-            if s.label in {o.label for o in out}:
-                raise UserError(registry.duplicate_sentence(s.label))
+            registry.unique_name(s.label, {o.label for o in out})  # UserError for a label already taken
             out.append(s)
     if not out:
         raise ParamError("{estimators} selects no estimator", "estimators")
@@ -197,14 +189,7 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "filter": None if st is None else st.variant,
         "replica_settings": None
         if st is None
-        else {
-            "kp_ground": st.kp_ground,
-            "kp_flight": st.kp_flight,
-            "ki": st.ki,
-            "dt_s": st.dt_s,
-            "min_thr": st.min_thr,
-            "correction": st.correction,
-        },
+        else {k: getattr(st, k) for k in ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "correction")},
         "emulated_s": round(fw.emulated_s, 3),
         "wall_s": round(fw.wall_s, 2),
         "notes": list(fw.notes),
@@ -265,7 +250,9 @@ def evaluate_view(
     """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth.
 
     ``steps``: the step number of each row, for ``diverged_at_step`` (default: the row index)."""
-    _check_labels(specs)
+    taken: set[str] = set()
+    for spec in specs:  # two estimators under one label would share one column: never a silent merge
+        taken.add(registry.unique_name(spec.label, taken))
     res = TrialResult(name, view.rate_hz, view.t_s, view.movement)
     scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
     for spec in specs:
@@ -288,27 +275,6 @@ def evaluate_view(
         res.coverage[spec.label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
         res.steps_per_s[spec.label] = view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf")
     return res
-
-
-def evaluate_trial(
-    path,
-    specs: Sequence[EstimatorSpec] | None = None,
-    *,
-    own_rate: bool = False,
-    seed: int = 0,
-    progress: Progress | None = None,
-) -> TrialResult:
-    """Load a BROAD trial and evaluate ``specs`` (default: :func:`default_specs`) on it.
-
-    Without ``own_rate`` the trial goes through the STEVAL sensor pipeline model to 161.5 Hz AHRS steps
-    (:func:`steval_link.emulation.broad.steval_view`, deterministic for a given ``seed``); with ``own_rate`` the
-    estimators run on the trial's own samples at its own rate (285.7 Hz).
-    """
-    trial = path if isinstance(path, broad.BroadTrial) else broad.load_trial(path)
-    view = broad.own_rate_view(trial) if own_rate else broad.steval_view(trial, seed=seed)
-    if specs is None:
-        specs = default_specs(view.rate_hz, own_rate=own_rate)
-    return evaluate_view(view, specs, trial.name, progress)
 
 
 def truth_sidecar_path(capture) -> Path:
@@ -386,15 +352,6 @@ def evaluate_capture(
 
 def _trial_key(name: str) -> str:
     return name.split("_", 1)[0]
-
-
-def _check_labels(specs: Sequence[EstimatorSpec]) -> None:
-    """Two estimators under one label would share one column: UserError (never a silent merge)."""
-    seen: set[str] = set()
-    for s in specs:
-        if s.label in seen:
-            raise UserError(registry.duplicate_sentence(s.label))
-        seen.add(s.label)
 
 
 def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
@@ -656,7 +613,7 @@ def evaluate_data(
     the release of the replica run on a firmware's inputs; ``progress(fraction, stage)``. Every input is checked
     before the work; UserError names what is wrong."""
     items = broad.trial_paths(paths)
-    estimator_specs(estimators, 100.0)  # the selection, checked before any work (the rate does not matter)
+    n_specs = len(estimator_specs(estimators, 100.0))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):
         raise ParamError(f"{{max_seconds}} must be a positive number of seconds, got {max_seconds}", "max_seconds")
     elfs = list(firmware)
@@ -666,7 +623,6 @@ def evaluate_data(
     n_trials = sum(p.suffix == ".npz" for p in items)
     if elfs and not n_trials:
         raise ParamError("{firmware} runs on BROAD trials (.npz): give at least one", "firmware")
-    n_specs = len(estimator_specs(estimators, 100.0))
     total = max(1, len(items) * n_specs + n_trials * len(elfs) * FIRMWARE_WEIGHT)
     done = 0
 

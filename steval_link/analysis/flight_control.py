@@ -32,7 +32,6 @@ from steval_link.link.protocol import FC_ARMED
 __all__ = [
     "MOTORS",
     "Motor",
-    "AXES",
     "mixer_matrix",
     "motor_thr",
     "mixer_pwm",
@@ -63,9 +62,6 @@ def _position(row: tuple[int, int, int]) -> str:
 MOTORS: tuple[Motor, ...] = tuple(
     Motor(i + 1, _position(row), "clockwise" if row[2] > 0 else "counter-clockwise") for i, row in enumerate(C.MIXER)
 )
-
-#: the PID axes: (firmware variable, what it is, about which axis)
-AXES: tuple[tuple[str, str], ...] = (("x", "pitch"), ("y", "roll"), ("z", "yaw"))
 
 
 def mixer_matrix() -> np.ndarray:

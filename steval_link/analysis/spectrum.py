@@ -48,7 +48,6 @@ __all__ = [
     "welch_windows",
     "CSV_COLUMNS",
     "write_csv",
-    "mark_lines",
     "format_summary",
 ]
 
@@ -515,11 +514,6 @@ def write_csv(sp: Spectra, stream) -> int:
 def _label(name: str) -> str:
     sensor, axis = name.split("_")
     return f"{sensor} {axis} ({UNITS[sensor]})"
-
-
-def mark_lines(sp: Spectra, marks_hz) -> list[AliasLine]:
-    """:func:`alias_lines` of every ``--mark-hz`` frequency for both sensors, at the rows' measured rate."""
-    return [line for f in marks_hz for sensor in ("gyro", "acc") for line in alias_lines(f, sensor, sp.rate_hz)]
 
 
 def format_summary(
