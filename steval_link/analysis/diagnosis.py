@@ -51,8 +51,9 @@ def _same_settings(a: MahonySettings, b: MahonySettings) -> bool:
     return _settings_dict(a) == _settings_dict(b)
 
 
-def _status_settings_list(status) -> list[MahonySettings]:
-    return [MahonySettings.of_status(status, j) for j in range(len(status.ki))]
+def _pick(table, rows: np.ndarray, keys: tuple[str, ...]) -> SimpleNamespace:
+    """Columns ``keys`` of a frame table at ``rows``."""
+    return SimpleNamespace(**{k: np.asarray(getattr(table, k))[rows] for k in keys})
 
 
 def filter_settings_report(tel) -> dict[str, Any] | None:
@@ -72,21 +73,13 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
             "changes": 0,
         }
     # a snapshot holding NaN (a diverged filter) still reports the build's settings; non-finite settings do not
-    ex = (
-        ex
-        & np.isfinite(np.asarray(s.kp_ground, np.float64))
-        & np.isfinite(np.asarray(s.kp_flight, np.float64))
-        & np.isfinite(np.asarray(s.ki, np.float64))
-        & np.isfinite(np.asarray(s.dt_s, np.float64))
-    )
+    for k in ("kp_ground", "kp_flight", "ki", "dt_s"):
+        ex = ex & np.isfinite(np.asarray(getattr(s, k), np.float64))
     if not ex.any():
         return None
     rows = np.flatnonzero(ex)
-    settings = _status_settings_list(
-        SimpleNamespace(
-            **{k: np.asarray(getattr(s, k))[rows] for k in ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")}
-        )
-    )
+    picked = _pick(s, rows, ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags"))
+    settings = [MahonySettings.of_status(picked, j) for j in range(rows.size)]
     last = settings[-1]
     d = _settings_dict(last)
     defaults = _settings_dict(MahonySettings())
@@ -132,18 +125,8 @@ def _binary_view(tel):
     a, s = tel.attitude, tel.status
     rows = np.flatnonzero(np.asarray(a.exact, bool))
     srows = np.flatnonzero(np.asarray(s.exact, bool)) if len(s) else np.zeros(0, np.int64)
-    att = SimpleNamespace(
-        **{
-            k: np.asarray(getattr(a, k))[rows]
-            for k in ("step", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad", "t_fw_s")
-        }
-    )
-    sta = SimpleNamespace(
-        **{
-            k: np.asarray(getattr(s, k))[srows]
-            for k in ("step", "q_wxyz", "int_xyz", "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags")
-        }
-    )
+    att = _pick(a, rows, ("step", "acc_mg", "gyro_mdps", "thr", "q_wxyz", "thx_rad", "thy_rad", "t_fw_s"))
+    sta = _pick(s, srows, ("step", "q_wxyz", "int_xyz", "kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags"))
     return SimpleNamespace(attitude=att, status=sta), rows
 
 
