@@ -31,7 +31,7 @@ from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.report import angle_diff_rad, json_number
+from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number
 from steval_link.estimators.accel_tilt import AccelTilt
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
@@ -251,13 +251,9 @@ def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np
         quiet = (np.linalg.norm(gyro, axis=1) < STILL_GYRO_DPS * 1000.0) & (
             np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG
         )
-    if not quiet.any():
-        return quiet
-    d = np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]]))
-    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
     out = np.zeros_like(quiet)
     t = np.asarray(t_s, np.float64)
-    for a, b in zip(starts, stops):
+    for a, b in _runs(quiet):
         if t[b - 1] - t[a] >= STILL_MIN_S:
             out[a:b] = True
     return out
@@ -372,11 +368,10 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
 
 def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
     """``f − ref`` on ``ref``'s rows within the overlap, degrees (angles interpolated, wrapped to ±180°)."""
-    lo, hi = max(ref.t_s[0], f.t_s[0]), min(ref.t_s[-1], f.t_s[-1])
-    rows = (ref.t_s >= lo) & (ref.t_s <= hi)
-    out: dict[str, Any] = {"label": f.label, "against": ref.label, "overlap_s": json_number(max(0.0, hi - lo))}
-    for axis, a, b in (("pitch_thx", ref.thx_rad, f.thx_rad), ("roll_thy", ref.thy_rad, f.thy_rad)):
-        d = np.degrees(angle_diff_rad(np.interp(ref.t_s[rows], f.t_s, b), a[rows]))
+    overlap = min(ref.t_s[-1], f.t_s[-1]) - max(ref.t_s[0], f.t_s[0])
+    out: dict[str, Any] = {"label": f.label, "against": ref.label, "overlap_s": json_number(max(0.0, overlap))}
+    _, dx, dy = difference_series(ref, f)
+    for axis, d in (("pitch_thx", dx), ("roll_thy", dy)):
         d = d[np.isfinite(d)]
         out[axis] = {
             "rms_deg": json_number(np.sqrt(np.mean(d * d))) if d.size else None,
@@ -442,10 +437,6 @@ def side_by_side(
 # -- text ------------------------------------------------------------------------------------------------------
 
 
-def _num(x, fmt: str = "+.3f") -> str:
-    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
-
-
 def _settings_text(s: dict[str, Any] | None) -> str:
     if s is None:
         return "settings unknown (no status frames)"
@@ -483,17 +474,18 @@ def format_side_by_side(r: SideBySide) -> list[str]:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
         lines.append(
-            f"  {f.label:<{width}}  {g['still_s']:7.1f}  {_num(px['rms_still_deg'], '9.3f')}  "
-            f"{_num(ry['rms_still_deg'], '8.3f')}  {_num(px['drift_deg'], '+11.3f')}  "
-            f"{_num(ry['drift_deg'], '+10.3f')}  {_num(px['drift_rate_deg_per_min'])} / "
-            f"{_num(ry['drift_rate_deg_per_min'])}"
+            f"  {f.label:<{width}}  {g['still_s']:7.1f}  {fmt_number(px['rms_still_deg'], '9.3f')}  "
+            f"{fmt_number(ry['rms_still_deg'], '8.3f')}  {fmt_number(px['drift_deg'], '+11.3f')}  "
+            f"{fmt_number(ry['drift_deg'], '+10.3f')}  {fmt_number(px['drift_rate_deg_per_min'], '+.3f')} / "
+            f"{fmt_number(ry['drift_rate_deg_per_min'], '+.3f')}"
         )
     for d in r.differences:
+        pitch, roll = (
+            f"RMS {fmt_number(d[k]['rms_deg'], '.3f')} max {fmt_number(d[k]['max_abs_deg'], '.3f')} deg"
+            for k in ("pitch_thx", "roll_thy")
+        )
         lines.append(
-            f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch RMS "
-            f"{_num(d['pitch_thx']['rms_deg'], '.3f')} max {_num(d['pitch_thx']['max_abs_deg'], '.3f')} deg, "
-            f"roll RMS {_num(d['roll_thy']['rms_deg'], '.3f')} max {_num(d['roll_thy']['max_abs_deg'], '.3f')}"
-            " deg"
+            f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch {pitch}, roll {roll}"
         )
     for n in r.notes:
         lines.append(f"note: {n}")

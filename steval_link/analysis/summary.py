@@ -36,12 +36,8 @@ def _fw_duration_s(t_fw_s: np.ndarray, restarts_at: np.ndarray) -> float:
     """Sum of firmware-time spans of the stretches between firmware restarts."""
     if len(t_fw_s) < 2:
         return 0.0
-    seg = np.concatenate([[0], np.cumsum(restarts_at)])
-    total = 0.0
-    for s in np.unique(seg):
-        t = t_fw_s[seg == s]
-        total += float(t[-1] - t[0])
-    return total
+    starts = np.flatnonzero(np.concatenate([[True], restarts_at]))
+    return float(np.sum(t_fw_s[np.append(starts[1:], len(t_fw_s)) - 1] - t_fw_s[starts]))
 
 
 def values_bad_report(tel) -> dict[str, Any] | None:
