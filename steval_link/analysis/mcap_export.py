@@ -259,71 +259,41 @@ def _list(v) -> list:
     return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(v).tolist()]
 
 
-def _n(x) -> float | None:
-    """A float for JSON: None when not finite."""
-    x = float(x)
-    return x if math.isfinite(x) else None
+#: JSON names of the status and flight-control messages whose column in the frame table is named otherwise
+_COLUMNS = {
+    "ahrs_cycles_min": "cyc_min",
+    "ahrs_cycles_mean": "cyc_mean",
+    "ahrs_cycles_max": "cyc_max",
+    "ahrs_cycles_n": "cyc_n",
+    "tx_dropped_frames": "tx_dropped",
+    "queue_peak_bytes": "queue_peak",
+    "target_rad": "euler_rc_rad",
+}
+#: the messages' booleans: (flags column, bit, the value when the bit is set)
+_BITS = {
+    "correction": ("flags", P.FLAG_NO_CORRECTION, False),
+    "armed": ("fc_flags", P.FC_ARMED, True),
+    "rc_connected": ("fc_flags", P.FC_RC_CONNECTED, True),
+    "rc_cal": ("fc_flags", P.FC_RC_CAL, True),
+}
 
 
-def _row_messages(rows, bodies) -> tuple[np.ndarray, list[bytes]]:
-    """Log times ns and JSON per row of a frame table: its time stamp, step and firmware time, then its body."""
+def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
+    """Log times ns and JSON per row of a frame table: one field per property of ``schema``, in its order."""
     ns_all = _times_ns(rows.t_fw_s)
-    datas = []
-    for i, (ns, body) in enumerate(zip(ns_all.tolist(), bodies)):
-        head = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "step": int(rows.step[i])}
-        msg = {**head, "t_fw_s": _n(rows.t_fw_s[i]), **body}
-        datas.append(json.dumps(msg, separators=(",", ":"), allow_nan=False).encode())
+    columns = {"timestamp": [{"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000} for ns in ns_all.tolist()]}
+    for key, prop in schema["properties"].items():
+        if key in _BITS:
+            name, bit, when_set = _BITS[key]
+            columns[key] = (((np.asarray(getattr(rows, name), np.int64) & bit) != 0) == when_set).tolist()
+        elif key != "timestamp":
+            values = np.asarray(getattr(rows, _COLUMNS.get(key, key)))
+            columns[key] = [_list(v) for v in values] if prop["type"] == "array" else _list(values)
+    datas = [
+        json.dumps(dict(zip(columns, row)), separators=(",", ":"), allow_nan=False).encode()
+        for row in zip(*columns.values())
+    ]
     return ns_all, datas
-
-
-def _status_messages(tel):
-    s = tel.status
-    bodies = (
-        {
-            "q_wxyz": _list(np.asarray(s.q_wxyz[i], np.float64)),
-            "int_xyz": _list(np.asarray(s.int_xyz[i], np.float64)),
-            "kp_ground": _n(s.kp_ground[i]),
-            "kp_flight": _n(s.kp_flight[i]),
-            "ki": _n(s.ki[i]),
-            "dt_s": _n(s.dt_s[i]),
-            "min_thr": int(s.min_thr[i]),
-            "correction": not flags & P.FLAG_NO_CORRECTION,
-            "flags": flags,
-            "ahrs_cycles_min": int(s.cyc_min[i]),
-            "ahrs_cycles_mean": int(s.cyc_mean[i]),
-            "ahrs_cycles_max": int(s.cyc_max[i]),
-            "ahrs_cycles_n": int(s.cyc_n[i]),
-            "cpu_hz": int(s.cpu_hz[i]),
-            "tx_dropped_frames": int(s.tx_dropped[i]),
-            "baud": int(s.baud[i]),
-            "queue_peak_bytes": int(s.queue_peak[i]),
-            "fw_version": [int(x) for x in s.fw_version[i]],
-            "fc_every": int(s.fc_every[i]),
-            "param_gen": int(s.param_gen[i]),
-        }
-        for i, flags in enumerate(np.asarray(s.flags, np.int64).tolist())
-    )
-    return _row_messages(s, bodies)
-
-
-def _fc_messages(tel):
-    fc = tel.fc
-    bodies = (
-        {
-            "target_rad": _list(np.asarray(fc.euler_rc_rad[i], np.float64)),
-            "rc": _list(fc.rc[i]),
-            "outer_s1_radps": _list(np.asarray(fc.outer_s1_radps[i], np.float64)),
-            "inner_s2_pwm": _list(np.asarray(fc.inner_s2_pwm[i], np.float64)),
-            "motor_pwm": _list(np.asarray(fc.motor_pwm[i], np.float64)),
-            "vbat_v": _list(np.asarray([fc.vbat_v[i]], np.float64))[0],
-            "armed": bool(flags & P.FC_ARMED),
-            "rc_connected": bool(flags & P.FC_RC_CONNECTED),
-            "rc_cal": bool(flags & P.FC_RC_CAL),
-            "fc_every": int(fc.fc_every[i]),
-        }
-        for i, flags in enumerate(np.asarray(fc.fc_flags, np.int64).tolist())
-    )
-    return _row_messages(fc, bodies)
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:
@@ -348,8 +318,8 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
             w.add_block(np.tile(three, m), np.repeat(ns, 3), np.repeat(np.arange(first, first + m), 3), datas)
             if progress is not None:
                 progress((first + m) / max(n, 1), "attitude messages")
-        for topic, messages in (("/status", _status_messages), ("/flight_control", _fc_messages)):
-            ns, datas = messages(tel)
+        for topic, rows in (("/status", tel.status), ("/flight_control", tel.fc)):
+            ns, datas = _row_messages(rows, _TOPIC_SCHEMAS[topic][0])
             for a in range(0, len(datas), 8192):
                 block = slice(a, a + 8192)
                 ids = np.full(len(datas[block]), channel.get(topic, 0), np.uint16)
