@@ -185,19 +185,11 @@ def _step_cost(report: ComparisonReport) -> Section:
         return sec
     unit = "emulated instructions" if rt.cycles_emulated else "CPU cycles"
     period = C.AHRS_PERIOD_US
-    rows = [
-        [
-            what,
-            fmt_number(us, ".1f"),
-            fmt_number(cyc, ".0f"),
-            fmt_number(100 * us / period if us is not None else None, ".1f"),
-        ]
-        for what, us, cyc in (
-            ("min", rt.ahrs_us_min, rt.ahrs_cycles_min),
-            ("mean", rt.ahrs_us_mean, rt.ahrs_cycles_mean),
-            ("max", rt.ahrs_us_max, rt.ahrs_cycles_max),
-        )
-    ]
+    rows = []
+    for what in ("min", "mean", "max"):
+        us = getattr(rt, f"ahrs_us_{what}")
+        share = fmt_number(100 * us / period if us is not None else None, ".1f")
+        rows.append([what, fmt_number(us, ".1f"), fmt_number(getattr(rt, f"ahrs_cycles_{what}"), ".0f"), share])
     mhz = (rt.cpu_hz or 0) / 1e6
     sec.tables.append(
         Table(

@@ -237,12 +237,7 @@ class RateStats:
 
     def as_dict(self) -> dict[str, Any]:
         out = {k: (json_number(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
-        out.update(
-            ahrs_us_min=json_number(self.ahrs_us_min),
-            ahrs_us_mean=json_number(self.ahrs_us_mean),
-            ahrs_us_max=json_number(self.ahrs_us_max),
-        )
-        return out
+        return out | {f"ahrs_us_{k}": json_number(getattr(self, f"ahrs_us_{k}")) for k in ("min", "mean", "max")}
 
 
 @dataclass

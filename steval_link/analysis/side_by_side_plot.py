@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.analysis.plots import _decimate, _spans, require_matplotlib, save_figure
+from steval_link.analysis.report import fmt_number
 from steval_link.analysis.side_by_side import SideBySide, difference_series
 
 __all__ = ["plot_side_by_side", "side_by_side_figure"]
@@ -23,10 +24,6 @@ COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:
 def plot_side_by_side(r: SideBySide, out_png) -> Path:
     """Write :func:`side_by_side_figure` as a PNG to ``out_png`` (UserError when it cannot be written)."""
     return save_figure(side_by_side_figure(r), out_png)
-
-
-def _cell(x, fmt: str) -> str:
-    return "n/a" if x is None else format(x, fmt)
 
 
 def side_by_side_figure(r: SideBySide):
@@ -91,11 +88,11 @@ def _still_table(ax, r: SideBySide) -> None:
         rows.append([
             textwrap.shorten(f.label, 46, placeholder=" …"),  # the legend above has the whole label
             f"{g['still_s']:.1f}",
-            _cell(px["rms_still_deg"], ".3f"),
-            _cell(ry["rms_still_deg"], ".3f"),
-            _cell(px["drift_deg"], "+.3f"),
-            _cell(ry["drift_deg"], "+.3f"),
-            f"{_cell(px['drift_rate_deg_per_min'], '+.2f')} / {_cell(ry['drift_rate_deg_per_min'], '+.2f')}",
+            fmt_number(px["rms_still_deg"], ".3f"),
+            fmt_number(ry["rms_still_deg"], ".3f"),
+            fmt_number(px["drift_deg"], "+.3f"),
+            fmt_number(ry["drift_deg"], "+.3f"),
+            f"{fmt_number(px['drift_rate_deg_per_min'], '+.2f')} / {fmt_number(ry['drift_rate_deg_per_min'], '+.2f')}",
         ])  # fmt: skip
     widths = [0.26] + [0.74 / (len(head) - 1)] * (len(head) - 1)
     table = ax.table(cellText=rows, colLabels=head, loc="center", cellLoc="center", colWidths=widths)

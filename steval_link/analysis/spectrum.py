@@ -166,13 +166,9 @@ def contiguous_runs(
     period = decimation / rate_hz
     dt = np.diff(t)
     link = (np.diff(step) == decimation) & (np.abs(dt - period) <= _TIME_TOLERANCE * period) & good[1:] & good[:-1]
-    runs = []
-    start = 0
-    for i in np.flatnonzero(~link):
-        runs.append((start, int(i) + 1))
-        start = int(i) + 1
-    runs.append((start, n))
-    return [(a, b) for a, b in runs if b - a >= 1 and good[a]]
+    ends = np.append(np.flatnonzero(~link) + 1, n)
+    starts = np.concatenate([[0], ends[:-1]])
+    return [(int(a), int(b)) for a, b in zip(starts, ends) if good[a]]
 
 
 def _hann(n: int) -> np.ndarray:
@@ -493,22 +489,20 @@ def write_csv(sp: Spectra, stream) -> int:
     frequency: ``thr_lo`` … ``thr_hi``, ``windows`` averaged; empty bins are left out). Returns the rows written."""
     w = csv.writer(stream, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
-    rows = 0
-    f = sp.freq_hz
-    for i in range(len(f)):
-        w.writerow(["psd", "", "", "", "", len(sp.window_t_fw_s), _num(f[i]), *(_num(v) for v in sp.psd[i])])
-        rows += 1
-    for k in range(len(sp.window_t_fw_s)):
-        t, thr = _num(sp.window_t_fw_s[k]), _num(sp.window_thr[k])
-        for i in range(len(f)):
-            w.writerow(["spectrogram", t, thr, "", "", 1, _num(f[i]), *(_num(v) for v in sp.spectrogram[k, i])])
-            rows += 1
-    for b in np.flatnonzero(sp.thr_windows):
-        lo, hi, nw = _num(sp.thr_edges[b]), _num(sp.thr_edges[b + 1]), int(sp.thr_windows[b])
-        for i in range(len(f)):
-            w.writerow(["throttle", "", "", lo, hi, nw, _num(f[i]), *(_num(v) for v in sp.thr_psd[b, i])])
-            rows += 1
-    return rows
+    # (the row's first cells, its PSD (F, 6)) per section
+    blocks = [(["psd", "", "", "", "", len(sp.window_t_fw_s)], sp.psd)]
+    blocks += [
+        (["spectrogram", _num(t), _num(thr), "", "", 1], sp.spectrogram[k])
+        for k, (t, thr) in enumerate(zip(sp.window_t_fw_s, sp.window_thr))
+    ]
+    blocks += [
+        (["throttle", "", "", _num(sp.thr_edges[b]), _num(sp.thr_edges[b + 1]), int(sp.thr_windows[b])], sp.thr_psd[b])
+        for b in np.flatnonzero(sp.thr_windows)
+    ]
+    for head, psd in blocks:
+        for f, row in zip(sp.freq_hz, psd):
+            w.writerow([*head, _num(f), *map(_num, row)])
+    return len(blocks) * len(sp.freq_hz)
 
 
 def _label(name: str) -> str:
