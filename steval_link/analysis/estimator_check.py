@@ -437,15 +437,11 @@ def format_check(report: CheckReport) -> list[str]:
             ),
         ]
         for c in report.captures:
-            cells = [
-                ("—" if c["vs_firmware_deg"][k] is None else f"{c['vs_firmware_deg'][k]:.3f}").rjust(x)
-                for k, x in zip(labels, width)
-            ]
-            cells2 = [
-                ("—" if c["vs_accel_deg"][k] is None else f"{c['vs_accel_deg'][k]:.3f}").rjust(x)
-                for k, x in zip(labels, width)
-            ]
-            lines.append("  ".join([c["capture"].ljust(w0), str(c["frames"]).rjust(7)] + cells + ["|"] + cells2))
+            fw, acc = (
+                [("—" if c[key][k] is None else f"{c[key][k]:.3f}").rjust(x) for k, x in zip(labels, width)]
+                for key in ("vs_firmware_deg", "vs_accel_deg")
+            )
+            lines.append("  ".join([c["capture"].ljust(w0), str(c["frames"]).rjust(7)] + fw + ["|"] + acc))
     if report.broad:
         lines += ["", "BROAD trials against ground truth (the STEVAL sensor pipeline, 161.5 Hz):"]
         lines += ev.format_table(report.broad).splitlines()

@@ -17,18 +17,7 @@ from steval_link.estimators.st_mahony import MahonySettings
 __all__ = ["labels_by_difference", "setting_f32"]
 
 
-#: Settings in label order, with their defaults (a label names a differing setting where it is not the default).
-_SETTING_KEYS = (
-    "ki",
-    "correction",
-    "kp_ground",
-    "kp_flight",
-    "min_thr",
-    "dt_s",
-    "variant",
-    "text_mode",
-    "inflight_tuning",
-)
+#: Settings in label order, with their names in a label (a label names a setting that differs from its default).
 _SETTING_WORDS = {
     "ki": "ki",
     "correction": "correction",
@@ -94,7 +83,7 @@ def labels_by_difference(flights: Sequence) -> list[str]:
     known = [f.settings for f in flights]
     defaults = _defaults()
     if all(s is not None for s in known):
-        differing = [k for k in _SETTING_KEYS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
+        differing = [k for k in _SETTING_WORDS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
         if differing:
             for i, s in enumerate(known):
                 words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
