@@ -431,23 +431,16 @@ def flight_control_figure(tel, *, title: str | None = None):
     axes[0, 0].legend(fontsize=8, loc="upper right")
     for i in range(3):
         axes[i, 1].legend(fontsize=7, loc="upper right")
-    ax = axes[3, 0]
-    mp = np.asarray(fc.motor_pwm, np.float64)
-    for k, m in enumerate(MOTORS):
-        ax.plot(tf, mp[:, k], lw=1.0, label=m.label)
-    ax.set_ylabel("PWM [counts of 2000]")
-    ax.set_title("motors (motor_pwm)", fontsize=10, loc="left")
-    ax.legend(fontsize=7, ncol=2, loc="upper right")
-    ax.grid(True, alpha=0.3)
-    ax = axes[3, 1]
-    s2 = np.asarray(fc.inner_s2_pwm, np.float64)
-    for k, lab in enumerate(("x_s2 pitch", "y_s2 roll", "z_s2 yaw")):
-        ax.plot(tf, s2[:, k], lw=1.0, label=lab)
-    ax.set_ylabel("PWM counts")
-    ax.set_title("inner loop outputs s2", fontsize=10, loc="left")
-    ax.legend(fontsize=7, loc="upper right")
-    ax.grid(True, alpha=0.3)
-    for ax in axes[3]:
+    for ax, values, labels, unit, what in (
+        (axes[3, 0], fc.motor_pwm, [m.label for m in MOTORS], "PWM [counts of 2000]", "motors (motor_pwm)"),
+        (axes[3, 1], fc.inner_s2_pwm, ("x_s2 pitch", "y_s2 roll", "z_s2 yaw"), "PWM counts", "inner loop outputs s2"),
+    ):
+        for k, lab in enumerate(labels):
+            ax.plot(tf, np.asarray(values, np.float64)[:, k], lw=1.0, label=lab)
+        ax.set_ylabel(unit)
+        ax.set_title(what, fontsize=10, loc="left")
+        ax.legend(fontsize=7, ncol=len(labels) // 2, loc="upper right")
+        ax.grid(True, alpha=0.3)
         ax.set_xlabel("firmware time since the first frame [s]")
     every = int(np.max(fc.fc_every)) if len(fc) else 0
     src = (getattr(tel, "source", None) or {}).get("path") or "capture"

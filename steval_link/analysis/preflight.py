@@ -104,16 +104,9 @@ def _bursts(t_s: np.ndarray, gyro_dps: np.ndarray) -> list[tuple[int, int, np.nd
         return []
     dt = np.diff(t_s, prepend=t_s[0])
     dt = np.clip(dt, 0.0, 0.05)
-    runs = []
-    start = prev = idx[0]
-    for i in idx[1:]:
-        if t_s[i] - t_s[prev] > 0.25:
-            runs.append((start, prev + 1))
-            start = i
-        prev = i
-    runs.append((start, prev + 1))
     out = []
-    for a, b in runs:
+    for run in np.split(idx, np.flatnonzero(np.diff(t_s[idx]) > 0.25) + 1):
+        a, b = run[0], run[-1] + 1
         rot = (gyro_dps[a:b] * dt[a:b, None]).sum(axis=0)
         if np.linalg.norm(rot) >= _MIN_MOVE_DEG:
             out.append((a, b, rot))
