@@ -231,13 +231,6 @@ def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: i
     return int(bad[0]) if bad.size else r1 - r0
 
 
-def _seed_state(view, seed) -> MahonyState:
-    if seed.source == "status":
-        s = view.status
-        return MahonyState(q_wxyz=s.q_wxyz[seed.status_row], int_xyz=s.int_xyz[seed.status_row])
-    return MahonyState()
-
-
 def _diagnose(
     view, rep: FirmwareReplay, settings_override: MahonySettings | None, stats
 ) -> tuple[list[str], dict | None, int | None, MahonySettings | None]:
@@ -248,7 +241,9 @@ def _diagnose(
     breaks = np.flatnonzero(np.diff(steps) != 1) + 1
     seg_end = int(breaks[np.searchsorted(breaks, m, side="right")]) if np.any(breaks > m) else steps.size
     # candidates start from the last snapshot before the mismatch (the replica was exact up to there), else the seed
-    r0, state = seed.row, _seed_state(view, seed)
+    r0, state = seed.row, MahonyState()
+    if seed.source == "status":
+        state = MahonyState(q_wxyz=view.status.q_wxyz[seed.status_row], int_xyz=view.status.int_xyz[seed.status_row])
     st_steps = np.asarray(view.status.step, dtype=np.int64)
     k = np.flatnonzero((st_steps >= steps[seed.row]) & (st_steps < steps[m]))
     if k.size:

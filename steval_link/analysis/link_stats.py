@@ -13,11 +13,6 @@ from steval_link.analysis.report import RateStats
 from steval_link.link import protocol as P
 
 
-def _restart_mask(step: np.ndarray) -> np.ndarray:
-    """(N-1,) True where the step counter did not advance (firmware restart)."""
-    return np.diff(step) <= 0 if step.size > 1 else np.zeros(0, bool)
-
-
 def relative_time_s(step, t_fw_s) -> np.ndarray:
     """Firmware time since the first row, s, kept increasing across firmware restarts (each restart continues one
     AHRS period after the last row before it) so plots never run backwards."""
@@ -45,7 +40,7 @@ def rate_stats(tel) -> RateStats:
     n = len(a)
     step = np.asarray(a.step, dtype=np.int64)
     t = np.asarray(a.t_fw_s, dtype=np.float64)
-    restart = _restart_mask(step)
+    restart = np.diff(step) <= 0  # the step counter did not advance: a firmware restart
     dt = np.diff(t) if n > 1 else np.zeros(0)
     dstep = np.diff(step) if n > 1 else np.zeros(0, np.int64)
     ok = ~restart & np.isfinite(dt) & (dt >= 0)

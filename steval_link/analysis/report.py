@@ -299,13 +299,6 @@ def fmt_number(x, fmt: str = ".4f", none: str = "n/a") -> str:
     return none if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
-def _coverage_cell(rmse, fraction) -> str:
-    """``2.851 (63 %)``, or ``no score``: an RMSE with the share of the scored rows it covers."""
-    if fraction is None or not fraction or rmse is None:
-        return "no score"
-    return f"{fmt_number(rmse, '.3f')} ({percent(fraction)})"
-
-
 def format_report(r: ComparisonReport) -> list[str]:
     """Human-readable lines of a :class:`ComparisonReport` (plain text, aligned)."""
     w = max([len(t.label) for t in r.traces] + [9]) + 2
@@ -447,9 +440,12 @@ def _truth_lines(truth: dict | None, w: int) -> list[str]:
     ]
     notes = truth.get("coverage_notes", {})
     for name, v in truth["rmse_deg"].items():
-        f = truth.get("scored_fraction", {}).get(name)
-        cell = fmt_number(v, ".3f") if name not in notes else _coverage_cell(v, f)
-        lines.append(f"  {name:<{w}}{cell}" + (f"  ({notes[name]})" if name in notes else ""))
+        if name not in notes:
+            lines.append(f"  {name:<{w}}{fmt_number(v, '.3f')}")
+            continue
+        f = truth.get("scored_fraction", {}).get(name)  # an RMSE with the share of the scored rows it covers
+        cell = "no score" if not f or v is None else f"{fmt_number(v, '.3f')} ({percent(f)})"
+        lines.append(f"  {name:<{w}}{cell}  ({notes[name]})")
     if notes:
         lines.append("  an incomplete score (marked with its coverage) is not ranked with the complete ones")
     return lines

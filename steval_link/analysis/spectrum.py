@@ -171,11 +171,6 @@ def contiguous_runs(
     return [(int(a), int(b)) for a, b in zip(starts, ends) if good[a]]
 
 
-def _hann(n: int) -> np.ndarray:
-    """Periodic Hann window (scipy's ``get_window("hann", n)``, the Welch default)."""
-    return 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
-
-
 def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
 
@@ -193,7 +188,7 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     idx = starts[:, None] + np.arange(nperseg)[None, :]
     frames = a[idx]  # (W, nperseg, K)
     frames = frames - frames.mean(axis=1, keepdims=True)
-    w = _hann(nperseg)
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
     if nperseg % 2 == 0:

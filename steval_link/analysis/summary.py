@@ -32,14 +32,6 @@ _FLAG_NAMES = {
 }
 
 
-def _fw_duration_s(t_fw_s: np.ndarray, restarts_at: np.ndarray) -> float:
-    """Sum of firmware-time spans of the stretches between firmware restarts."""
-    if len(t_fw_s) < 2:
-        return 0.0
-    starts = np.flatnonzero(np.concatenate([[True], restarts_at]))
-    return float(np.sum(t_fw_s[np.append(starts[1:], len(t_fw_s)) - 1] - t_fw_s[starts]))
-
-
 def values_bad_report(tel) -> dict[str, Any] | None:
     """The rows kept with NaN or out-of-range values (the ``values_bad`` flag; protocol v2 keeps what the firmware
     sent), None when there is none: ``frames`` (attitude rows), ``status_frames``, the first such row (``first_row``,
@@ -211,7 +203,8 @@ def _durations(a) -> tuple[float, float | None, float]:
     """Firmware time the rows cover (host time when there is none), host time, and AHRS steps between restarts."""
     n = len(a)
     restarts = np.diff(a.step) <= 0 if n > 1 else np.zeros(0, bool)
-    duration = _fw_duration_s(a.t_fw_s, restarts) if n > 1 else 0.0
+    starts = np.flatnonzero(np.concatenate([[True], restarts]))  # of the stretches between firmware restarts
+    duration = float(np.sum(a.t_fw_s[np.append(starts[1:], n) - 1] - a.t_fw_s[starts])) if n > 1 else 0.0
     host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
     host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
     if duration <= 0 and host_duration:
