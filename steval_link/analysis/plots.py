@@ -356,22 +356,15 @@ def differences_figure(tel, report, *, title: str | None = None):
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
-    fw = {"thx_rad": np.asarray(a.thx_rad, np.float64), "thy_rad": np.asarray(a.thy_rad, np.float64)}
+    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
     fig, axes = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
-    extra = iter(_EXTRA_COLOURS)
-    for ax, attr, what, key in (
-        (axes[0], "thx_rad", "pitch (thx, about x)", "pitch"),
-        (axes[1], "thy_rad", "roll (thy, about y)", "roll"),
-    ):
-        for name, est in report.estimates.items():
+    for ax, what, key in ((axes[0], "pitch (thx, about x)", "pitch"), (axes[1], "roll (thy, about y)", "roll")):
+        for name, label, vals, (c, lw, ls, z) in _estimate_traces(report):
             tr = report.trace(name)
-            label = tr.label if tr is not None else name
             rms = getattr(tr, key).rms_deg if tr is not None else math.nan
-            c, lw, ls, z = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
             if name == "accel":
                 c, lw, z = "0.6", 0.6, 2
-            valid = np.asarray(est.valid, bool)
-            d = np.where(valid, np.degrees(angle_diff_rad(getattr(est, attr), fw[attr])), np.nan)
+            d = _wrap_deg(vals[key] - fw[key])
             ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
         ax.axhline(0.0, color="black", lw=0.8)
         ax.set_ylabel("estimator − firmware [deg]")
