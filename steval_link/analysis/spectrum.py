@@ -1,21 +1,15 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
 gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
 
-What the attitude rows sample. The TIM9 ISR reads the LSM6DSL at 807.7 Hz (the gyro's output register itself is
-refreshed at its 416 Hz ODR), removes the offsets, low-passes the gyro with its IIR (−3 dB near 101 Hz) and fills
-5-sample FIFOs; every 5th tick the main loop averages them (a boxcar) and runs the AHRS: ``acc_mg`` and
-``gyro_mdps`` of each row are those averages at 161.54 Hz. The spectra therefore end at the AHRS Nyquist, 80.77 Hz.
-A vibration above it (motors spin at 300–400 Hz in a hover) is not lost but *aliased*: it appears at
-``|f − k · 161.54 Hz|`` for the nearest k, scaled by the boxcar's gain at f (and, for the gyro, by the IIR's and
-the 416 Hz register's); the boxcar has zeros at multiples of 161.54 Hz, exactly the frequencies that would alias
-onto 0 Hz. :func:`alias_lines` computes where a given frequency lands and how strongly.
+The attitude rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads (the gyro low-passed by its IIR),
+at 161.54 Hz: the spectra end at 80.77 Hz, and a vibration above it is aliased, not lost (:func:`alias_lines` says
+where it lands and how strongly).
 
-Numerics: numpy only. Rows are split into runs of consecutive AHRS steps (a dropped frame, a restart or a time jump
-ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by half; each window's mean is
-removed; the one-sided PSD (unit²/Hz, scipy's ``welch(..., scaling="density")`` convention) is averaged over every
-window of every run. The spectrogram is the per-window PSD at each window's centre (firmware time); the throttle
-map averages the windows whose mean ``thr`` falls in each throttle bin. The sample rate is measured from the
-firmware's clock (``t_fw_s``) over the runs used.
+Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps (a dropped
+frame, a restart or a time jump ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by
+half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's ``welch(..., scaling="density")``
+convention) is averaged over every window of every run. The spectrogram is the PSD of each window at its centre;
+the throttle map averages the windows by mean ``thr``. The sample rate is measured on the firmware's clock.
 """
 
 from __future__ import annotations
