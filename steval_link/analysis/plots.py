@@ -15,7 +15,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
-from steval_link.analysis.report import angle_diff_rad, on_rows
+from steval_link.analysis.report import angle_diff_rad, on_rows, true_runs
 from steval_link.errors import ParamError, UserError
 
 __all__ = [
@@ -106,13 +106,8 @@ def save_figure(fig, out_png, *, dpi: int = 130) -> Path:
 
 def _spans(ax, t: np.ndarray, mask: np.ndarray, label: str | None, color: str = "gold", alpha: float = 0.18) -> None:
     """Shade every run of rows where ``mask`` is True (one legend entry)."""
-    mask = np.asarray(mask, bool)
-    if not mask.any():
-        return
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1
-    for k, (a, b) in enumerate(zip(starts, stops)):
-        ax.axvspan(t[a], t[b], color=color, alpha=alpha, lw=0, zorder=0, label=label if k == 0 else None)
+    for k, (a, b) in enumerate(true_runs(mask)):
+        ax.axvspan(t[a], t[b - 1], color=color, alpha=alpha, lw=0, zorder=0, label=label if k == 0 else None)
 
 
 def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:

@@ -40,6 +40,12 @@ def on_rows(n: int, rows, values, fill=np.nan, dtype=np.float64) -> np.ndarray:
     return out
 
 
+def true_runs(mask) -> list[tuple[int, int]]:
+    """``(start, stop)`` of every run of True rows of ``mask`` (stop exclusive)."""
+    d = np.diff(np.concatenate([[0], np.asarray(mask, bool).astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
 def truth_on_steps(truth_step, q_wxyz, movement, steps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ground-truth rows matched to frames by AHRS step: (q_wxyz (N, 4), NaN unmatched; movement (N,); matched)."""
     order = np.argsort(truth_step, kind="stable")

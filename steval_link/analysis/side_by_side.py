@@ -31,7 +31,7 @@ from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number
+from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number, true_runs
 from steval_link.estimators.accel_tilt import AccelTilt
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
@@ -253,22 +253,17 @@ def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np
         )
     out = np.zeros_like(quiet)
     t = np.asarray(t_s, np.float64)
-    for a, b in _runs(quiet):
+    for a, b in true_runs(quiet):
         if t[b - 1] - t[a] >= STILL_MIN_S:
             out[a:b] = True
     return out
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
 
 
 def _still_figures(f: Flight) -> dict[str, Any]:
     """RMS against accel-only tilt in still phases, drift (the error in the last still phase) and its rate."""
     out: dict[str, Any] = {"still_s": 0.0, "still_phases": 0}
     still = f.still & np.isfinite(f.thx_rad) & np.isfinite(f.thy_rad)
-    runs = _runs(still)
+    runs = true_runs(still)
     dt = np.diff(f.t_s, append=f.t_s[-1] + C.AHRS_PERIOD_S) if f.rows else np.zeros(0)
     out["still_s"] = round(float(np.sum(dt[still])), 3)
     out["still_phases"] = len(runs)
