@@ -472,10 +472,10 @@ def plot_simulation(result, out_png, *, title: str | None = None, compare=()) ->
 _RUN_COLOURS = ["black", "tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown", "tab:cyan"]
 
 
-def _run_label(res) -> str:
-    """The run as given, in a few words: its estimator and options."""
+def _run_name(res) -> str:
+    """The run in a few words: its estimator and options (``ekf3 (r_acc=0.001)``)."""
     opts = ", ".join(f"{k}={v}" for k, v in (res.options or {}).items())
-    return f"{res.estimator}" + (f" ({opts})" if opts else "") + " as given"
+    return f"{res.estimator}" + (f" ({opts})" if opts else "")
 
 
 def simulation_figure(result, *, title: str | None = None, compare=()):
@@ -491,7 +491,7 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
         ("eay_rad", "eay = thy: roll (about y)", "tab:red"),
         ("eaz_rad", "eaz = thz: yaw (about z)", "tab:green"),
     )
-    runs = [(_run_label(res), res)] + [(f"with {label}", r) for label, r in compare]
+    runs = [(f"{_run_name(res)} as given", res)] + [(f"with {label}", r) for label, r in compare]
     valid = np.asarray(res.valid, bool)
     for ax, (attr, label, c) in zip(axes, names):
         for i, (run_label, r) in enumerate(runs):
@@ -530,16 +530,13 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
     noise = ""
     if res.seed is not None:
         noise = f", noise σ gyro {res.gyro_noise_mdps:g} mdps, acc {res.acc_noise_mg:g} mg (seed {res.seed})"
-    opts = ""
-    if res.options:
-        opts = " (" + ", ".join(f"{k2}={v2}" for k2, v2 in res.options.items()) + ")"
     inputs = f"gyro {vec(res.gyro_mdps)} mdps, acc {vec(res.acc_mg)} mg" if res.iterations else "no iterations"
     if res.iterations and res.seed is not None:
         mg = np.mean(np.asarray(res.gyro_mdps, np.float64), axis=0)
         ma = np.mean(np.asarray(res.acc_mg, np.float64), axis=0)
         inputs = f"mean gyro {vec(np.round(mg, 1))} mdps, acc {vec(np.round(ma, 1))} mg"
     fig.suptitle(
-        title or f"steval simulate: {res.estimator}{opts}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
+        title or f"steval simulate: {_run_name(res)}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
     )
     fig.tight_layout(rect=(0, 0, 1, 0.96 - 0.035 * ((len(runs) + 2) // 3) if compare else 0.96))
     return fig
