@@ -167,13 +167,9 @@ def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
 
 def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
     """The settings (``name=value``) that run the replica with ``s`` when the status frames report ``base``."""
-    out = []
-    for name in ("ki", "kp_ground", "kp_flight", "dt_s"):
-        if np.float32(getattr(s, name)) != np.float32(getattr(base, name)):
-            out.append(f"{name}={getattr(s, name):.9g}")
-    for name in ("min_thr", "correction", "variant"):
-        if getattr(s, name) != getattr(base, name):
-            out.append(f"{name}={getattr(s, name)}")
+    floats = ("ki", "kp_ground", "kp_flight", "dt_s")
+    out = [f"{k}={getattr(s, k):.9g}" for k in floats if np.float32(getattr(s, k)) != np.float32(getattr(base, k))]
+    out += [f"{k}={getattr(s, k)}" for k in ("min_thr", "correction", "variant") if getattr(s, k) != getattr(base, k)]
     return " ".join(out)
 
 

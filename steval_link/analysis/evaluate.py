@@ -356,10 +356,7 @@ def _trial_key(name: str) -> str:
 
 def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
     """Labels whose score misses scored rows on some trial (their mean is not given, they are not ranked)."""
-    out: list[str] = []
-    for r in results:
-        out.extend(k for k, c in r.coverage.items() if not c.complete and k not in out)
-    return out
+    return list(dict.fromkeys(k for r in results for k, c in r.coverage.items() if not c.complete))
 
 
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
@@ -370,9 +367,7 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
     ``number``: how each figure is written (default: to 4 decimals, for JSON; the table rounds the raw values once).
     """
     rnd = number or _rounded
-    labels: list[str] = []
-    for r in results:
-        labels.extend(k for k in r.rmse_deg if k not in labels)
+    labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)
     trials = []
     for r in results:
@@ -458,13 +453,7 @@ def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str
 
 def coverage_lines(results: Sequence[TrialResult]) -> list[str]:
     """One line per incomplete score: the label, the trial and what it misses (where it diverged, or why none)."""
-    out = []
-    for r in results:
-        for k, c in r.coverage.items():
-            text = c.sentence()
-            if text:
-                out.append(f"{k} on {r.name}: {text}")
-    return out
+    return [f"{k} on {r.name}: {c.sentence()}" for r in results for k, c in r.coverage.items() if not c.complete]
 
 
 def format_table(results: Sequence[TrialResult]) -> str:
