@@ -536,8 +536,7 @@ def format_summary(
     for f in marks_hz:
         parts = []
         for sensor in ("gyro", "acc"):
-            ls = alias_lines(f, sensor, sp.rate_hz)
-            main, images = ls[0], ls[1:]
+            main, *images = alias_lines(f, sensor, sp.rate_hz)
             s = f"{sensor} at {main.seen_hz:.2f} Hz (x{main.gain:.3g})"
             s += "".join(
                 f", and at {im.seen_hz:.2f} Hz (x{im.gain:.3g}) through the gyro register's 416 Hz image at "
