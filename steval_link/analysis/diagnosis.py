@@ -483,13 +483,8 @@ def compare_replica(
     rep = chosen.replay
     if settings is not None:
         settings = replace(settings, variant=chosen.variant)
-    used = settings
-    if used is None:
-        used = (
-            rep.seeds[0].settings
-            if rep.seeds
-            else replace(_status_base(view) or MahonySettings(), variant=chosen.variant)
-        )
+    fallback = replace(_status_base(view) or MahonySettings(), variant=chosen.variant)
+    used = settings or (rep.seeds[0].settings if rep.seeds else fallback)
     seeds = [
         {
             "row": int(rows[s.row]),

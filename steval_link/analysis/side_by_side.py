@@ -261,12 +261,10 @@ def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np
 
 def _still_figures(f: Flight) -> dict[str, Any]:
     """RMS against accel-only tilt in still phases, drift (the error in the last still phase) and its rate."""
-    out: dict[str, Any] = {"still_s": 0.0, "still_phases": 0}
     still = f.still & np.isfinite(f.thx_rad) & np.isfinite(f.thy_rad)
     runs = true_runs(still)
     dt = np.diff(f.t_s, append=f.t_s[-1] + C.AHRS_PERIOD_S) if f.rows else np.zeros(0)
-    out["still_s"] = round(float(np.sum(dt[still])), 3)
-    out["still_phases"] = len(runs)
+    out: dict[str, Any] = {"still_s": round(float(np.sum(dt[still])), 3), "still_phases": len(runs)}
     for axis, est, ref in (("pitch_thx", f.thx_rad, f.accel_thx_rad), ("roll_thy", f.thy_rad, f.accel_thy_rad)):
         err = np.degrees(angle_diff_rad(est, ref))
         e = err[still]
