@@ -89,13 +89,10 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
     the package is missing (unless asked for by name in ``only``, which then raises UserError). ``only`` selects
     labels; the registry name of an estimator (``st-mahony``) selects both Mahony runs.
     """
+    mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
-        "st-mahony-flight": EstimatorSpec(
-            "st-mahony-flight", "st-mahony", {"dt_s": 1.0 / rate_hz} if own_rate else {}, THR_FLIGHT
-        ),
-        "st-mahony-ground": EstimatorSpec(
-            "st-mahony-ground", "st-mahony", {"dt_s": 1.0 / rate_hz} if own_rate else {}, THR_GROUND
-        ),
+        "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
+        "st-mahony-ground": EstimatorSpec("st-mahony-ground", "st-mahony", dict(mahony), THR_GROUND),
         "accel": EstimatorSpec("accel", "accel", {}),
         "ekf3": EstimatorSpec("ekf3", "ekf3", {"rate_hz": rate_hz}),
         "mekf": EstimatorSpec("mekf", "mekf", {"rate_hz": rate_hz, **({"latency_s": 0.0} if own_rate else {})}),
