@@ -27,10 +27,9 @@ def status_table(tel) -> dict[str, np.ndarray]:
     counters, the flags (bit 0 no correction, 1 fresh squares, 2 text mode, 3 event, 4 in-flight tuning, 5 armed)."""
     s = tel.status
     cols: dict[str, np.ndarray] = {"step": np.asarray(s.step, np.int64), "t_fw_s": s.t_fw_s, "t_host_s": s.t_host_s}
-    for i, c in enumerate("wxyz"):
-        cols[f"q_{c}"] = np.asarray(s.q_wxyz)[:, i] if len(s) else np.zeros(0, np.float32)
-    for i, c in enumerate("xyz"):
-        cols[f"int_{c}"] = np.asarray(s.int_xyz)[:, i] if len(s) else np.zeros(0, np.float32)
+    for name, values, axes in (("q", s.q_wxyz, "wxyz"), ("int", s.int_xyz, "xyz")):
+        for i, c in enumerate(axes):
+            cols[f"{name}_{c}"] = np.asarray(values)[:, i] if len(s) else np.zeros(0, np.float32)
     cols.update(
         {
             "kp_ground": s.kp_ground,
@@ -69,16 +68,16 @@ def fc_table(tel) -> dict[str, np.ndarray]:
         a = np.asarray(a)
         return a[:, i] if n else np.zeros(0, dtype)
 
-    for i, name in enumerate(("thx_pitch", "thy_roll", "thz_yaw")):
-        cols[f"target_{name}_rad"] = part(fc.euler_rc_rad, i)
-    for i, name in enumerate(("ail", "ele", "rud", "thr")):
-        cols[f"rc_{name}"] = part(fc.rc, i, np.int16)
-    for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-        cols[f"outer_s1_{name}_radps"] = part(fc.outer_s1_radps, i)
-    for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-        cols[f"inner_s2_{name}_pwm"] = part(fc.inner_s2_pwm, i)
-    for i in range(4):
-        cols[f"motor{i + 1}_pwm"] = part(fc.motor_pwm, i)
+    xyz = ("x_pitch", "y_roll", "z_yaw")
+    for values, pattern, names, dtype in (
+        (fc.euler_rc_rad, "target_{}_rad", ("thx_pitch", "thy_roll", "thz_yaw"), np.float32),
+        (fc.rc, "rc_{}", ("ail", "ele", "rud", "thr"), np.int16),
+        (fc.outer_s1_radps, "outer_s1_{}_radps", xyz, np.float32),
+        (fc.inner_s2_pwm, "inner_s2_{}_pwm", xyz, np.float32),
+        (fc.motor_pwm, "motor{}_pwm", "1234", np.float32),
+    ):
+        for i, name in enumerate(names):
+            cols[pattern.format(name)] = part(values, i, dtype)
     cols["vbat_v"] = fc.vbat_v
     flags = np.asarray(fc.fc_flags)
     for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"), (P.FC_RC_CAL, "fc_rc_cal")):
