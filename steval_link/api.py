@@ -98,12 +98,8 @@ def open_capture(path) -> Capture:
 
 def _instance_reference(est) -> plugins.Selected:
     """Your estimator object as a reference: each run gets a fresh copy (reset), wrapped in the guard."""
-    missing = [m for m in ("step", "reset") if not callable(getattr(est, m, None))]
-    if missing:
-        raise TypeError(
-            f"{type(est).__name__} is not an estimator: it has no "
-            f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)"
-        )
+    if lacks := plugins.missing_methods(est):
+        raise TypeError(f"{type(est).__name__} is not an estimator: it has {lacks}")
     name = getattr(est, "name", None)
     if not isinstance(name, str) or name == Estimator.name or not name:
         name = type(est).__name__

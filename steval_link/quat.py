@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -12,6 +14,8 @@ __all__ = [
     "euler_from_quaternion",
     "yaw_from_quaternion",
     "quat_multiply",
+    "qmul",
+    "qexp",
     "quat_conjugate",
     "quat_normalize",
     "interpolate_quat",
@@ -75,6 +79,27 @@ def quat_multiply(a, b) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+def qmul(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product a ⊗ b of two wxyz quaternions of Python floats (one filter step: no numpy overhead)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def qexp(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
+    """The wxyz quaternion of the rotation vector (rx, ry, rz), rad, in Python floats (first order below 1e-12)."""
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if ang > 1e-12:
+        s = math.sin(0.5 * ang) / ang
+        return math.cos(0.5 * ang), rx * s, ry * s, rz * s
+    return 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
 
 
 def quat_conjugate(q) -> np.ndarray:

@@ -36,27 +36,14 @@ static double py_clip1(double v)
 /* Python's float ** 2 (CPython calls pow) */
 static double sq_pow(double v) { return pow(v, 2.0); }
 
-/* C = A·B, A (n×m), B (m×p), all row-major, C distinct from A and B */
-static void matmul(const double *A, const double *B, double *C, int n, int m, int p)
+/* C = A·B (bt 0: B is m×p) or A·Bᵀ (bt 1: B is p×m); A n×m, all row-major, C distinct from A and B */
+static void matmul(const double *A, const double *B, double *C, int n, int m, int p, int bt)
 {
     int i, j, k;
     for (i = 0; i < n; i++) {
         for (j = 0; j < p; j++) {
             double s = 0.0;
-            for (k = 0; k < m; k++) s += A[i * m + k] * B[k * p + j];
-            C[i * p + j] = s;
-        }
-    }
-}
-
-/* C = A·Bᵀ, A (n×m), B (p×m) */
-static void matmul_bt(const double *A, const double *B, double *C, int n, int m, int p)
-{
-    int i, j, k;
-    for (i = 0; i < n; i++) {
-        for (j = 0; j < p; j++) {
-            double s = 0.0;
-            for (k = 0; k < m; k++) s += A[i * m + k] * B[j * m + k];
+            for (k = 0; k < m; k++) s += A[i * m + k] * (bt ? B[j * m + k] : B[k * p + j]);
             C[i * p + j] = s;
         }
     }
@@ -96,11 +83,11 @@ static void joseph(double *P, const double *K, const double *H, double var, int 
 {
     double KH[36], IKH[36], T[36], Pn[36], KKt[36];
     int i, j;
-    matmul(K, H, KH, nb, 3, nb);
+    matmul(K, H, KH, nb, 3, nb, 0);
     for (i = 0; i < nb * nb; i++) IKH[i] = ((i % (nb + 1) == 0) ? 1.0 : 0.0) - KH[i];
-    matmul(IKH, P, T, nb, nb, nb);
-    matmul_bt(T, IKH, Pn, nb, nb, nb);
-    matmul_bt(K, K, KKt, nb, 3, nb);
+    matmul(IKH, P, T, nb, nb, nb, 0);
+    matmul(T, IKH, Pn, nb, nb, nb, 1);
+    matmul(K, K, KKt, nb, 3, nb, 1);
     for (i = 0; i < nb * nb; i++) Pn[i] = Pn[i] + var * KKt[i];
     for (i = 0; i < nb; i++)
         for (j = 0; j < nb; j++) P[i * nb + j] = 0.5 * (Pn[i * nb + j] + Pn[j * nb + i]);
@@ -164,9 +151,9 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
                              -dt * a, 1.0, 0.0,                         /* row 1 */
                              dt * c / ct, dt * a * st / (ct * ct), 1.0};
         const double W[9] = {1.0, sp * tt, cp * tt, 0.0, cp, -sp, 0.0, sp / ct, cp / ct};
-        matmul_bt(W, W, Q, 3, 3, 3);
-        matmul(F, P, FP, 3, 3, 3);
-        matmul_bt(FP, F, P, 3, 3, 3);
+        matmul(W, W, Q, 3, 3, 3, 1);
+        matmul(F, P, FP, 3, 3, 3, 0);
+        matmul(FP, F, P, 3, 3, 3, 1);
     }
     if (exact) {
         ekf3_propagate_exact(x, p * dt, q * dt, r * dt);
@@ -184,45 +171,21 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
     }
 }
 
-/* X = S⁻¹·B for a 3×3 S and 3 right-hand sides (B 3×3), Gaussian elimination with partial pivoting */
-static void solve3(const double *S_in, const double *B_in, double *X)
+/* S⁻¹ by the adjugate (_inv3 of mekf.py) */
+static void inv3(const double *S, double *Si)
 {
-    double S[9], B[9];
-    int i, j, k;
-    memcpy(S, S_in, sizeof S);
-    memcpy(B, B_in, sizeof B);
-    for (k = 0; k < 3; k++) {
-        int piv = k;
-        double best = fabs(S[k * 3 + k]);
-        for (i = k + 1; i < 3; i++) {
-            if (fabs(S[i * 3 + k]) > best) {
-                best = fabs(S[i * 3 + k]);
-                piv = i;
-            }
-        }
-        if (piv != k) {
-            for (j = 0; j < 3; j++) {
-                double t = S[k * 3 + j];
-                S[k * 3 + j] = S[piv * 3 + j];
-                S[piv * 3 + j] = t;
-                t = B[k * 3 + j];
-                B[k * 3 + j] = B[piv * 3 + j];
-                B[piv * 3 + j] = t;
-            }
-        }
-        for (i = k + 1; i < 3; i++) {
-            double l = S[i * 3 + k] / S[k * 3 + k];
-            for (j = k; j < 3; j++) S[i * 3 + j] -= l * S[k * 3 + j];
-            for (j = 0; j < 3; j++) B[i * 3 + j] -= l * B[k * 3 + j];
-        }
-    }
-    for (k = 2; k >= 0; k--) {
-        for (j = 0; j < 3; j++) {
-            double s = B[k * 3 + j];
-            for (i = k + 1; i < 3; i++) s -= S[k * 3 + i] * X[i * 3 + j];
-            X[k * 3 + j] = s / S[k * 3 + k];
-        }
-    }
+    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
+    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
+    double det = a * A + b * B + c * C;
+    Si[0] = A / det;
+    Si[1] = (c * h - b * i) / det;
+    Si[2] = (b * f - c * e) / det;
+    Si[3] = B / det;
+    Si[4] = (a * i - c * g) / det;
+    Si[5] = (c * d - a * f) / det;
+    Si[6] = C / det;
+    Si[7] = (b * g - a * h) / det;
+    Si[8] = (a * e - b * d) / det;
 }
 
 static void ekf3_update(double *x, double *P, const double *prm, int adaptive, double ux, double uy, double uz,
@@ -232,20 +195,17 @@ static void ekf3_update(double *x, double *P, const double *prm, int adaptive, d
     double sp = sin(phi), cp = cos(phi), st = sin(th), ct = cos(th);
     double e0 = ux - (-st), e1 = uy - sp * ct, e2 = uz - cp * ct; /* y − h(x) */
     const double H[9] = {0.0, -ct, 0.0, cp * ct, -sp * st, 0.0, -sp * ct, -cp * st, 0.0};
-    double PHt[9], S[9], PHtT[9], X[9], K[9], d[3];
+    double PHt[9], S[9], Si[9], K[9], d[3];
     double var = prm[EKF3_P_ACC_VAR];
-    int i, j;
+    int i;
     if (adaptive) var += sq_pow(prm[EKF3_P_NORM_GAIN] * (an - 1.0));
-    matmul_bt(P, H, PHt, 3, 3, 3);
-    matmul(H, PHt, S, 3, 3, 3);
+    matmul(P, H, PHt, 3, 3, 3, 1);
+    matmul(H, PHt, S, 3, 3, 3, 0);
     S[0] += var;
     S[4] += var;
     S[8] += var;
-    for (i = 0; i < 3; i++)
-        for (j = 0; j < 3; j++) PHtT[i * 3 + j] = PHt[j * 3 + i];
-    solve3(S, PHtT, X); /* K = solve(S, PHtᵀ)ᵀ */
-    for (i = 0; i < 3; i++)
-        for (j = 0; j < 3; j++) K[i * 3 + j] = X[j * 3 + i];
+    inv3(S, Si);
+    matmul(PHt, Si, K, 3, 3, 3, 0); /* K = P·Hᵀ·S⁻¹ (numpy: solve(S, PHtᵀ)ᵀ, the same to rounding) */
     for (i = 0; i < 3; i++) d[i] = K[i * 3] * e0 + K[i * 3 + 1] * e1 + K[i * 3 + 2] * e2;
     for (i = 0; i < 3; i++) x[i] += d[i];
     joseph(P, K, H, var, 3);
@@ -432,10 +392,10 @@ static void mekf_predict(mekf_t *f, double wx, double wy, double wz)
                 Pbb[i * 3 + j] = P[(3 + i) * nb + 3 + j];
             }
         }
-        matmul(G, Pbb, GPbb, 3, 3, 3);
-        matmul_bt(G, Pab, T1, 3, 3, 3);    /* G·Pabᵀ */
-        matmul_bt(Pab, G, T2, 3, 3, 3);    /* Pab·Gᵀ */
-        matmul_bt(GPbb, G, T3, 3, 3, 3);   /* GPbb·Gᵀ */
+        matmul(G, Pbb, GPbb, 3, 3, 3, 0);
+        matmul(G, Pab, T1, 3, 3, 3, 1);    /* G·Pabᵀ */
+        matmul(Pab, G, T2, 3, 3, 3, 1);    /* Pab·Gᵀ */
+        matmul(GPbb, G, T3, 3, 3, 3, 1);   /* GPbb·Gᵀ */
         for (i = 0; i < 3; i++) {
             for (j = 0; j < 3; j++) {
                 P[i * nb + j] += T1[i * 3 + j] + T2[i * 3 + j] + T3[i * 3 + j];
@@ -458,23 +418,6 @@ static void mekf_predict(mekf_t *f, double wx, double wy, double wz)
         P[nb + 1] += qa;
         P[2 * nb + 2] += qa;
     }
-}
-
-/* _inv3 of mekf.py: adjugate divided by the determinant */
-static void inv3(const double *S, double *Si)
-{
-    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
-    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    double det = a * A + b * B + c * C;
-    Si[0] = A / det;
-    Si[1] = (c * h - b * i) / det;
-    Si[2] = (b * f - c * e) / det;
-    Si[3] = B / det;
-    Si[4] = (a * i - c * g) / det;
-    Si[5] = (c * d - a * f) / det;
-    Si[6] = C / det;
-    Si[7] = (b * g - a * h) / det;
-    Si[8] = (a * e - b * d) / det;
 }
 
 static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
@@ -530,17 +473,17 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
             ist[MEKF_I_CLP_READY] = ready;
             for (i = 0; i < 9; i++) D[i] = st[MEKF_CUM + i] - lpc[i];
         }
-        matmul(Hh, D, HD, 3, 3, 3);
+        matmul(Hh, D, HD, 3, 3, 3, 0);
         for (i = 0; i < 3; i++)
             for (j = 0; j < 3; j++) H[i * 6 + 3 + j] = HD[i * 3 + j];
     }
-    matmul_bt(P, H, PHt, nb, nb, 3);
-    matmul(H, PHt, S, 3, nb, 3);
+    matmul(P, H, PHt, nb, nb, 3, 1);
+    matmul(H, PHt, S, 3, nb, 3, 0);
     S[0] += var;
     S[4] += var;
     S[8] += var;
     inv3(S, Si);
-    matmul(PHt, Si, K, nb, 3, 3);
+    matmul(PHt, Si, K, nb, 3, 3, 0);
     if (f->estimate_bias && f->have_lp && warming) {
         for (i = 9; i < 18; i++) K[i] = 0.0;
     }

@@ -53,7 +53,7 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
-from steval_link.quat import quaternion_from_euler
+from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -72,17 +72,7 @@ _MIN_COS = 1e-3
 def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
     """Euler angles after rotating the body by the rotation vector (rx, ry, rz) (rad, body frame): the exact
     solution of the Euler-rate kinematics for a rate constant over the step."""
-    qw, qx, qy, qz = quaternion_from_euler(*x).tolist()
-    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if ang > 1e-12:
-        sn = math.sin(0.5 * ang) / ang
-        dw, dx, dy, dz = math.cos(0.5 * ang), rx * sn, ry * sn, rz * sn
-    else:
-        dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-    w = qw * dw - qx * dx - qy * dy - qz * dz
-    x_ = qw * dx + qx * dw + qy * dz - qz * dy
-    y = qw * dy - qx * dz + qy * dw + qz * dx
-    z = qw * dz + qx * dy - qy * dx + qz * dw
+    w, x_, y, z = qmul(quaternion_from_euler(*x).tolist(), qexp(rx, ry, rz))
     phi = math.atan2(2 * (w * x_ + y * z), w * w - x_ * x_ - y * y + z * z)
     th = math.asin(max(-1.0, min(1.0, 2 * (w * y - x_ * z))))
     psi = math.atan2(2 * (x_ * y + w * z), w * w + x_ * x_ - y * y - z * z)

@@ -21,6 +21,7 @@ output is checked ((4,) quaternion per step, N rows per run), and an exception i
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import importlib
 import importlib.metadata
@@ -156,13 +157,11 @@ def _parse_options(text: str, ref: str) -> dict:
     try:
         call = ast.parse(f"_({text})", mode="eval").body
     except SyntaxError:
-        raise UserError(f"cannot read the options of {ref!r}: {hint}") from None
-    if not isinstance(call, ast.Call) or call.args:
+        call = None
+    if not isinstance(call, ast.Call) or call.args or any(kw.arg is None for kw in call.keywords):
         raise UserError(f"cannot read the options of {ref!r}: {hint}")
     options: dict = {}
     for kw in call.keywords:
-        if kw.arg is None:
-            raise UserError(f"cannot read the options of {ref!r}: {hint}")
         try:
             options[kw.arg] = ast.literal_eval(kw.value)
         except (ValueError, SyntaxError, TypeError):
@@ -245,6 +244,18 @@ def _exc_text(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
 
 
+def _failed(what: str, exc: BaseException, files: tuple[str, ...] = ()) -> PluginError:
+    """``{what}: {exception} ({file, line})``, the user's traceback as ``details``."""
+    where, details = _user_trace(exc, files)
+    return PluginError(f"{what}: {_exc_text(exc)}" + (f" ({where})" if where else ""), details)
+
+
+def missing_methods(obj) -> str:
+    """``no step() and no reset() method (see docs/ESTIMATORS.md)``: what ``obj`` lacks of an estimator, or ""."""
+    missing = [m + "()" for m in ("step", "reset") if not callable(getattr(obj, m, None))]
+    return f"no {' and no '.join(missing)} method (see docs/ESTIMATORS.md)" if missing else ""
+
+
 def _user_files(obj) -> tuple[str, ...]:
     """The files (or package directories, ending in os.sep) that hold ``obj``'s code."""
     mod = sys.modules.get(getattr(obj, "__module__", "") or "")
@@ -280,17 +291,13 @@ def _load_file(ref: Reference):
         raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
     except Exception as exc:  # noqa: BLE001 - the user's code: any failure is theirs to see
         sys.modules.pop(name, None)
-        where, details = _user_trace(exc, (str(resolved),))
+        err = _failed(f"{path.name} failed to load", exc, (str(resolved),))
         if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
-            details = ""
-        raise PluginError(
-            f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+            err.details = ""
+        raise err from None
     finally:
-        try:
+        with contextlib.suppress(ValueError):
             sys.path.remove(folder)
-        except ValueError:
-            pass
     return module, path.name
 
 
@@ -313,24 +320,19 @@ def _load_module(ref: Reference):
             f"{Path(exc.filename or ref.source).name}, line {exc.lineno}: syntax error: {exc.msg}"
         ) from None
     except Exception as exc:  # noqa: BLE001
-        where, details = _user_trace(exc, ())
-        raise PluginError(
-            f"module {ref.source} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+        raise _failed(f"module {ref.source} failed to load", exc) from None
     return module, ref.source
 
 
 def _estimator_classes(module) -> list[type]:
-    out = []
-    for obj in vars(module).values():
-        if (
-            isinstance(obj, type)
-            and obj.__module__ == module.__name__
-            and callable(getattr(obj, "step", None))
-            and not inspect.isabstract(obj)
-        ):
-            out.append(obj)
-    return out
+    return [
+        obj
+        for obj in vars(module).values()
+        if isinstance(obj, type)
+        and obj.__module__ == module.__name__
+        and callable(getattr(obj, "step", None))
+        and not inspect.isabstract(obj)
+    ]
 
 
 def check_interface(factory, label: str) -> None:
@@ -338,12 +340,8 @@ def check_interface(factory, label: str) -> None:
     if not callable(factory):
         raise UserError(f"{label} is not a class (it is a {type(factory).__name__})")
     if isinstance(factory, type):
-        missing = [m for m in ("step", "reset") if not callable(getattr(factory, m, None))]
-        if missing:
-            raise UserError(
-                f"{label} is not an estimator: it has no {' and no '.join(m + '()' for m in missing)} "
-                "method (see docs/ESTIMATORS.md)"
-            )
+        if lacks := missing_methods(factory):
+            raise UserError(f"{label} is not an estimator: it has {lacks}")
         if inspect.isabstract(factory):
             left = ", ".join(sorted(factory.__abstractmethods__))
             raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
@@ -357,12 +355,7 @@ def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
         try:
             factory = ep.load()
         except Exception as exc:  # noqa: BLE001
-            where, details = _user_trace(exc, ())
-            raise PluginError(
-                f"plug-in {ref.source} ({ep.value}) failed to load: {_exc_text(exc)}"
-                + (f" ({where})" if where else ""),
-                details,
-            ) from None
+            raise _failed(f"plug-in {ref.source} ({ep.value}) failed to load", exc) from None
         label = f"plug-in {ref.source} ({ep.value})"
         check_interface(factory, label)
         return factory, label
@@ -422,12 +415,10 @@ def construct(factory, label: str, options: dict):
     try:
         return factory(**options)
     except Exception as exc:  # noqa: BLE001
-        where, details = _user_trace(exc, _user_files(factory))
-        if isinstance(exc, TypeError) and not where:
+        err = _failed(f"{label} could not be constructed", exc, _user_files(factory))
+        if isinstance(exc, TypeError) and not err.details:
             raise ValueError(f"{label}: {exc}") from None
-        raise PluginError(
-            f"{label} could not be constructed: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+        raise err from None
 
 
 # ---- the guard ----------------------------------------------------------------------------------------------------
@@ -527,16 +518,8 @@ class Guarded(Estimator):
                 raise
             except Exception as exc:  # noqa: BLE001
                 raise self._fail("step", exc) from None
-        if not every:
-            full = np.full((n, 4), np.nan)
-            full[rows] = q
-            q = full
-            if thx is not None:
-                thx, thy = _scatter(thx, rows, n), _scatter(thy, rows, n)
-            if valid_in is not None:
-                v = np.zeros(n, dtype=bool)
-                v[rows] = valid_in
-                valid_in = v
+        if not every:  # the skipped rows back in place: NaN, not valid
+            q, thx, thy, valid_in = (_scatter(v, rows, n) for v in (q, thx, thy, valid_in))
         ex, ey, ez = euler_from_quaternion(q)
         thx = ex if thx is None else thx
         thy = ey if thy is None else thy
@@ -583,7 +566,10 @@ class Guarded(Estimator):
         return f"<Guarded {self.name!r} {type(self.inner).__name__}>"
 
 
-def _scatter(values: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
-    out = np.full(n, math.nan)
+def _scatter(values: np.ndarray | None, rows: np.ndarray, n: int) -> np.ndarray | None:
+    """``values`` of the ``rows`` (bool, n) spread over n rows; the others NaN (False for a bool array)."""
+    if values is None:
+        return None
+    out = np.full((n, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
     out[rows] = values
     return out
