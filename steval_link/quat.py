@@ -12,7 +12,6 @@ import numpy as np
 __all__ = [
     "quaternion_from_euler",
     "euler_from_quaternion",
-    "yaw_from_quaternion",
     "quat_multiply",
     "qmul",
     "qexp",
@@ -53,15 +52,8 @@ def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     thx = np.arctan2(2.0 * (q0 * q1 + q2 * q3), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
     with np.errstate(invalid="ignore"):
         thy = np.arcsin(np.clip(2.0 * (q0 * q2 - q1 * q3), -1.0, 1.0))
-    thz = yaw_from_quaternion(q)
+    thz = np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
     return thx, thy, thz
-
-
-def yaw_from_quaternion(q_wxyz) -> np.ndarray:
-    """Yaw (about z), rad, float64: atan2(2(q1q2 + q0q3), q0² + q1² − q2² − q3²) as in the Lab 5 handout."""
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
 
 
 def quat_multiply(a, b) -> np.ndarray:

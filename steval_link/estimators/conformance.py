@@ -29,21 +29,8 @@ __all__ = [
 ]
 
 #: the header every vector file has
-COLUMNS = (
-    "step",
-    "thr",
-    "acc_x_mg",
-    "acc_y_mg",
-    "acc_z_mg",
-    "gyro_x_mdps",
-    "gyro_y_mdps",
-    "gyro_z_mdps",
-    "q0",
-    "q1",
-    "q2",
-    "q3",
-    "thx_rad",
-    "thy_rad",
+COLUMNS = tuple(
+    "step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad".split(",")
 )
 
 
@@ -165,11 +152,8 @@ def check_conformance(
     exact = bits_equal(q, vectors.q_wxyz).all(axis=1) & bits_equal(thx, vectors.thx_rad)
     exact &= bits_equal(thy, vectors.thy_rad)
     bad = np.flatnonzero(~exact)
-    nan_mism = int(
-        np.count_nonzero(np.isnan(q) != np.isnan(vectors.q_wxyz))
-        + np.count_nonzero(np.isnan(thx) != np.isnan(vectors.thx_rad))
-        + np.count_nonzero(np.isnan(thy) != np.isnan(vectors.thy_rad))
-    )
+    pairs = ((q, vectors.q_wxyz), (thx, vectors.thx_rad), (thy, vectors.thy_rad))
+    nan_mism = sum(int(np.count_nonzero(np.isnan(a) != np.isnan(b))) for a, b in pairs)
     return ConformanceResult(
         name=vectors.path.name,
         steps=len(vectors),

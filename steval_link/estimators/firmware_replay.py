@@ -10,9 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link.estimators.st_mahony import (
-    DEFAULT_VARIANT as VARIANTS_DEFAULT,
-)
-from steval_link.estimators.st_mahony import (
+    DEFAULT_VARIANT,
     VARIANTS,
     MahonySettings,
     MahonyState,
@@ -276,17 +274,13 @@ def replay_firmware(
     initial = settings or snaps.default_settings(variant)
     replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native)
     steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
-    parts = []
+    parts = [rows.run(replica, 0, 0)]  # no row yet: the empty arrays of each output
     # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
     breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
     for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
         if a < b:
             parts += _replay_run(replica, rows, snaps, a, b)
-    if parts:
-        q, thx, thy, seeded = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    else:
-        q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
-        seeded = np.zeros(0, dtype=bool)
+    q, thx, thy, seeded = (np.concatenate([p[i] for p in parts]) for i in range(4))
     seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in replica.seed_rows]
     exact = seeded & bits_equal(q, rows.fw_q).all(axis=1) & bits_equal(thx, rows.fw_thx) & bits_equal(thy, rows.fw_thy)
     bad = np.flatnonzero(seeded & ~exact)
@@ -380,7 +374,7 @@ class _Snapshots:
         first = np.flatnonzero(self.has_settings)
         if self.order.size:
             return self.settings(int(self.order[0]))
-        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or VARIANTS_DEFAULT)
+        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or DEFAULT_VARIANT)
 
     def state(self, j: int) -> MahonyState:
         """The filter snapshot of status row ``j``."""
@@ -426,11 +420,6 @@ class VariantReplay:
     replay: FirmwareReplay
     bit_exact: dict
 
-    @property
-    def matches(self) -> bool:
-        """True when the chosen variant is bit-exact on every seeded step."""
-        return self.replay.all_exact
-
 
 def replay_variants(
     tel,
@@ -462,9 +451,9 @@ def _status_variant(tel) -> str:
     """The variant the first binary status frame's flags announce (ST 170120 without one)."""
     status = getattr(tel, "status", None)
     if status is None or len(np.asarray(table_column(status, "step"))) == 0:
-        return VARIANTS_DEFAULT
+        return DEFAULT_VARIANT
     rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
-    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else VARIANTS_DEFAULT
+    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
 
 
 def release_sentence(
