@@ -102,13 +102,9 @@ static void joseph(double *P, const double *K, const double *H, double var, int 
 #define EKF3_INIT 12 /* 1.0 once initialised */
 #define EKF3_STATE 13
 
-#define EKF3_P_DT 0
-#define EKF3_P_GYRO_VAR 1
-#define EKF3_P_PROC_VAR 2
-#define EKF3_P_ACC_VAR 3
-#define EKF3_P_NORM_GAIN 4
-#define EKF3_P_MDPS_TO_RADPS 5
-#define EKF3_NPARAMS 6
+enum { /* params */
+    EKF3_P_DT, EKF3_P_GYRO_VAR, EKF3_P_PROC_VAR, EKF3_P_ACC_VAR, EKF3_P_NORM_GAIN, EKF3_P_MDPS_TO_RADPS, EKF3_NPARAMS
+};
 
 #define EKF3_MIN_COS 1e-3
 
@@ -119,13 +115,10 @@ static void ekf3_propagate_exact(double *x, double rx, double ry, double rz)
     double cx = cos(hx), sx = sin(hx), cy = cos(hy), sy = sin(hy), cz = cos(hz), sz = sin(hz);
     double q[4] = {cz * cy * cx + sz * sy * sx, cz * cy * sx - sz * sy * cx, cz * sy * cx + sz * cy * sx,
                    sz * cy * cx - cz * sy * sx};
-    double d[4], o[4], w, x_, y, z;
+    double d[4], o[4];
     quat_exp(rx, ry, rz, d);
     qmul(q, d, o);
-    w = o[0];
-    x_ = o[1];
-    y = o[2];
-    z = o[3];
+    const double w = o[0], x_ = o[1], y = o[2], z = o[3];
     x[0] = atan2(2 * (w * x_ + y * z), w * w - x_ * x_ - y * y + z * z);
     x[1] = asin(py_clip1(2 * (w * y - x_ * z)));
     x[2] = atan2(2 * (x_ * y + w * z), w * w + x_ * x_ - y * y - z * z);
@@ -228,17 +221,11 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
     {
         const double *acc = (const double *)b[0].buf;
         const double *gyro = (const double *)b[1].buf;
-        double *xo = (double *)b[2].buf;
-        double *st = (double *)b[3].buf;
-        double prm[EKF3_NPARAMS];
+        double *xo = (double *)b[2].buf, *st = (double *)b[3].buf;
+        double *x = st + EKF3_X, *P = st + EKF3_PM; /* the state, updated in place */
+        const double *prm = (const double *)b[4].buf, k_rad = prm[EKF3_P_MDPS_TO_RADPS];
         const int adaptive = (int)(flags & 1), exact = (int)((flags >> 1) & 1);
-        double x[3], P[9];
         int init = st[EKF3_INIT] != 0.0;
-        double k_rad;
-        memcpy(prm, b[4].buf, sizeof prm);
-        k_rad = prm[EKF3_P_MDPS_TO_RADPS];
-        memcpy(x, st + EKF3_X, sizeof x);
-        memcpy(P, st + EKF3_PM, sizeof P);
 
         Py_BEGIN_ALLOW_THREADS
         for (k = 0; k < n; k++) {
@@ -257,12 +244,9 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
                 if (isfinite(p) && isfinite(q) && isfinite(r)) ekf3_predict(x, P, prm, exact, p, q, r);
                 if (acc_ok) ekf3_update(x, P, prm, adaptive, ax / an, ay / an, az / an, an);
             }
-            memcpy(xo + 3 * k, x, sizeof x);
+            memcpy(xo + 3 * k, x, 3 * sizeof(double));
         }
         Py_END_ALLOW_THREADS
-
-        memcpy(st + EKF3_X, x, sizeof x);
-        memcpy(st + EKF3_PM, P, sizeof P);
         st[EKF3_INIT] = init ? 1.0 : 0.0;
     }
     release(b, 5);
@@ -284,25 +268,13 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 #define MEKF_CLP 78  /* low-pass of C: x1, x2, y1, y2 (4×9) */
 #define MEKF_STATE 114
 
-#define MEKF_I_INIT 0
-#define MEKF_I_ALP_READY 1
-#define MEKF_I_ALP_N 2
-#define MEKF_I_ALP_WARMUP 3
-#define MEKF_I_NLP_READY 4
-#define MEKF_I_CLP_READY 5
-#define MEKF_ISTATE 6
-
-#define MEKF_P_DT 0
-#define MEKF_P_MDPS_TO_RADPS 1
-#define MEKF_P_REJECT 2
-#define MEKF_P_Q_ATT 3
-#define MEKF_P_Q_BIAS 4
-#define MEKF_P_ACC_NOISE 5
-#define MEKF_P_NORM_GAIN 6
-#define MEKF_P_INIT_BIAS 7
-#define MEKF_P_LATENCY 8
-#define MEKF_P_LP 9 /* b0, b1, b2, a1, a2 */
-#define MEKF_NPARAMS 14
+enum { /* istate */
+    MEKF_I_INIT, MEKF_I_ALP_READY, MEKF_I_ALP_N, MEKF_I_ALP_WARMUP, MEKF_I_NLP_READY, MEKF_I_CLP_READY, MEKF_ISTATE
+};
+enum { /* params (MEKF_P_LP: the low-pass' b0, b1, b2, a1, a2) */
+    MEKF_P_DT, MEKF_P_MDPS_TO_RADPS, MEKF_P_REJECT, MEKF_P_Q_ATT, MEKF_P_Q_BIAS, MEKF_P_ACC_NOISE, MEKF_P_NORM_GAIN,
+    MEKF_P_INIT_BIAS, MEKF_P_LATENCY, MEKF_P_LP, MEKF_NPARAMS = MEKF_P_LP + 5
+};
 
 typedef struct {
     double *st;        /* MEKF_STATE doubles */
@@ -398,26 +370,15 @@ static void mekf_predict(mekf_t *f, double wx, double wy, double wz)
         matmul(GPbb, G, T3, 3, 3, 3, 1);   /* GPbb·Gᵀ */
         for (i = 0; i < 3; i++) {
             for (j = 0; j < 3; j++) {
-                P[i * nb + j] += T1[i * 3 + j] + T2[i * 3 + j] + T3[i * 3 + j];
-            }
-        }
-        for (i = 0; i < 3; i++) {
-            for (j = 0; j < 3; j++) {
                 double v = Pab[i * 3 + j] + GPbb[i * 3 + j];
+                P[i * nb + j] += T1[i * 3 + j] + T2[i * 3 + j] + T3[i * 3 + j];
                 P[i * nb + 3 + j] = v;
                 P[(3 + j) * nb + i] = v;
             }
         }
-        P[3 * nb + 3] += qb;
-        P[4 * nb + 4] += qb;
-        P[5 * nb + 5] += qb;
+        for (i = 3; i < 6; i++) P[i * nb + i] += qb;
     }
-    {
-        const double qa = f->prm[MEKF_P_Q_ATT];
-        P[0] += qa;
-        P[nb + 1] += qa;
-        P[2 * nb + 2] += qa;
-    }
+    for (i = 0; i < 3; i++) P[i * nb + i] += f->prm[MEKF_P_Q_ATT];
 }
 
 static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
@@ -545,18 +506,10 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
         const double *acc = (const double *)b[0].buf;
         const double *gyro = (const double *)b[1].buf;
         double *qo = (double *)b[2].buf;
-        double prm[MEKF_NPARAMS];
-        mekf_t f;
-        double k_rad, reject;
-        memcpy(prm, b[5].buf, sizeof prm);
-        f.st = (double *)b[3].buf;
-        f.ist = (int64_t *)b[4].buf;
-        f.prm = prm;
-        f.estimate_bias = (int)(flags & 1);
-        f.have_lp = (int)((flags >> 1) & 1);
-        f.nb = f.estimate_bias ? 6 : 3;
-        k_rad = prm[MEKF_P_MDPS_TO_RADPS];
-        reject = prm[MEKF_P_REJECT];
+        const double *prm = (const double *)b[5].buf;
+        const double k_rad = prm[MEKF_P_MDPS_TO_RADPS], reject = prm[MEKF_P_REJECT];
+        mekf_t f = {.st = (double *)b[3].buf, .ist = (int64_t *)b[4].buf, .prm = prm, .nb = (flags & 1) ? 6 : 3,
+                    .estimate_bias = (int)(flags & 1), .have_lp = (int)((flags >> 1) & 1)};
 
         Py_BEGIN_ALLOW_THREADS
         for (k = 0; k < n; k++) {
