@@ -253,34 +253,22 @@ def run(
 
 
 def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray:
-    """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop)."""
+    """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop). What does not
+    depend on the filter's state (gyro scale, the accelerometer's normalisation, kp) is done for all rows first."""
     kp_ground, kp_flight, ki_d, dt_d = settings._params().tolist()
-    kp_ground, kp_flight, ki, dt = _F32(kp_ground), _F32(kp_flight), _F32(ki_d), _F32(dt_d)
-    min_thr = settings.min_thr
-    correction = settings.correction
+    ki, dt = _F32(ki_d), _F32(dt_d)
     st221117 = settings.variant == "ST 221117"
-    coe = COE_MDPS_TO_RADPS_F32
     two = _TWO
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, ex_int, ey_int, ez_int = (_F32(v) for v in st)
-    acc_rows = acc.tolist()  # exact: float32 → Python float → float32 round-trips
-    gyro_rows = gyro.tolist()
-    thr_list = thr.tolist()
     with np.errstate(all="ignore"):
-        for k in range(acc.shape[0]):
-            ahrs_kp = kp_ground if thr_list[k] < min_thr else kp_flight
-            ax, ay, az = acc_rows[k]
-            gx, gy, gz = gyro_rows[k]
-            axf, ayf, azf = _F32(ax), _F32(ay), _F32(az)
-            if st221117:  # float * double literal: a double product, stored to float
-                gxf, gyf, gzf = (
-                    _F32(gx * C.COE_MDPS_TO_RADPS),
-                    _F32(gy * C.COE_MDPS_TO_RADPS),
-                    _F32(gz * C.COE_MDPS_TO_RADPS),
-                )
-            else:
-                gxf, gyf, gzf = _F32(gx) * coe, _F32(gy) * coe, _F32(gz) * coe
-
+        if st221117:  # float * double literal: a double product, stored to float
+            gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
+        else:
+            gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
+        acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
+        kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
+        for k, ((axf, ayf, azf), (gxf, gyf, gzf), ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
             q0q0 = q0 * q0
             q0q1 = q0 * q1
             q0q2 = q0 * q2
@@ -290,12 +278,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2q3 = q2 * q3
             q3q3 = q3 * q3
 
-            if correction:
-                norm = _inv_sqrt_scalar(axf * axf + ayf * ayf + azf * azf)
-                axf = axf * norm
-                ayf = ayf * norm
-                azf = azf * norm
-
+            if settings.correction:
                 vx = two * (q1q3 - q0q2)
                 vy = two * (q0q1 + q2q3)
                 vz = q0q0 - q1q1 - q2q2 + q3q3
