@@ -67,6 +67,7 @@ __all__ = ["Ekf3", "NATIVE_AVAILABLE", "quaternion_from_euler"]
 NATIVE_AVAILABLE = _native is not None
 
 _MIN_COS = 1e-3
+_DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
 
 def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
@@ -179,9 +180,7 @@ class Ekf3(Estimator):
             self.x[1] += dt * f[1]
             self.x[2] = math.remainder(self.x[2] + dt * f[2], 2 * math.pi)
         Q = (dt * dt * self.gyro_var) * (W @ W.T)
-        Q[0, 0] += dt * self.proc_var
-        Q[1, 1] += dt * self.proc_var
-        Q[2, 2] += dt * self.proc_var
+        Q[_DIAG] += dt * self.proc_var
         self.P = F @ self.P @ F.T + Q
 
     def _update(self, ux: float, uy: float, uz: float, an: float) -> None:
@@ -195,9 +194,7 @@ class Ekf3(Estimator):
         P = self.P
         PHt = P @ H.T
         S = H @ PHt
-        S[0, 0] += var
-        S[1, 1] += var
-        S[2, 2] += var
+        S[_DIAG] += var
         K = np.linalg.solve(S, PHt.T).T
         self.x += K @ np.array([ux - h[0], uy - h[1], uz - h[2]])
         IKH = np.eye(3) - K @ H

@@ -75,6 +75,7 @@ __all__ = ["Mekf", "NATIVE_AVAILABLE"]
 
 #: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
+_DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
 
 def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, float]:
@@ -293,12 +294,8 @@ class Mekf(Estimator):
             Pab = Pab + GPbb
             P[:3, 3:] = Pab
             P[3:, :3] = Pab.T
-            P[3, 3] += self._q_bias
-            P[4, 4] += self._q_bias
-            P[5, 5] += self._q_bias
-        P[0, 0] += self._q_att
-        P[1, 1] += self._q_att
-        P[2, 2] += self._q_att
+            P[3:, 3:][_DIAG] += self._q_bias
+        P[_DIAG] += self._q_att
 
     def _correct(self, ax: float, ay: float, az: float, an: float) -> None:
         dev = abs(an - 1.0)
@@ -336,9 +333,7 @@ class Mekf(Estimator):
             H = Hh
         PHt = P @ H.T
         S = H @ PHt
-        S[0, 0] += var
-        S[1, 1] += var
-        S[2, 2] += var
+        S[_DIAG] += var
         K = PHt @ _inv3(S)
         if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
             K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
