@@ -93,20 +93,15 @@ def load_conformance_csv(path) -> ConformanceVectors:
         ValueError: not a vector file (one sentence naming the file and what is wrong).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8", errors="replace")
-    lines = text.splitlines()
-    description = ""
-    k = 0
-    while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
-        if lines[k].startswith("#") and not description:
-            description = lines[k].lstrip("#").strip()
-        k += 1
-    if k >= len(lines):
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    rows = [line for line in lines if line.strip() and not line.startswith("#")]
+    if not rows:
         raise ValueError(f"{path}: no header line (expected {','.join(COLUMNS)})")
-    header = tuple(h.strip() for h in lines[k].split(","))
-    if header != COLUMNS:
-        raise ValueError(f"{path}: unexpected header {lines[k][:80]!r} (expected {','.join(COLUMNS)})")
-    body = "\n".join(line for line in lines[k + 1 :] if line.strip() and not line.startswith("#"))
+    if tuple(h.strip() for h in rows[0].split(",")) != COLUMNS:
+        raise ValueError(f"{path}: unexpected header {rows[0][:80]!r} (expected {','.join(COLUMNS)})")
+    before_header = lines[: lines.index(rows[0])]
+    description = next((line.lstrip("#").strip() for line in before_header if line.startswith("#")), "")
+    body = "\n".join(rows[1:])
     if not body:
         raise ValueError(f"{path}: no data rows")
     try:

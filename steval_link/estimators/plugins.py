@@ -531,14 +531,11 @@ class Guarded(Estimator):
     def _estimate(self, res, m: int):
         """(q, thx or None, thy or None, valid or None) of a user's run() result, shapes checked."""
         where = self.origin("run")
-        if isinstance(res, np.ndarray) or isinstance(res, (list, tuple)):
-            q = np.asarray(res, dtype=np.float64)
-            thx = thy = valid = None
+        optional = ("thx_rad", "thy_rad", "valid")
+        if isinstance(res, (np.ndarray, list, tuple)):
+            q, arrays = np.asarray(res, dtype=np.float64), (None, None, None)
         elif hasattr(res, "q_wxyz"):
-            q = np.asarray(res.q_wxyz, dtype=np.float64)
-            thx = getattr(res, "thx_rad", None)
-            thy = getattr(res, "thy_rad", None)
-            valid = getattr(res, "valid", None)
+            q, arrays = np.asarray(res.q_wxyz, dtype=np.float64), [getattr(res, k, None) for k in optional]
         else:
             raise PluginError(
                 f"estimator {self.name}: run() returned {type(res).__name__}, not an AttitudeEstimate "
@@ -549,17 +546,15 @@ class Guarded(Estimator):
                 f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
                 f"expected ({m}, 4) ({where})"
             )
-        out = []
-        for label, arr, dtype in (("thx_rad", thx, np.float64), ("thy_rad", thy, np.float64), ("valid", valid, bool)):
-            if arr is None:
-                out.append(None)
-                continue
-            arr = np.asarray(arr, dtype=dtype)
-            if arr.shape != (m,):
+        out = [
+            None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
+            for k, a in zip(optional, arrays)
+        ]
+        for label, arr in zip(optional, out):
+            if arr is not None and arr.shape != (m,):
                 raise PluginError(
                     f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows ({where})"
                 )
-            out.append(arr)
         return (q, *out)
 
     def __repr__(self) -> str:
