@@ -1,6 +1,5 @@
-"""The firmware filter's replica followed along a stream, next to the firmware's own outputs: the one follower of
-status snapshots and attitude rows (:class:`ReplicaFollower`) that the replay of a capture
-(:func:`replay_firmware`) and the live replica share. The replica is :mod:`steval_link.estimators.st_mahony`.
+"""The firmware filter's replica (:mod:`steval_link.estimators.st_mahony`) followed along a stream of status
+snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's own outputs.
 """
 
 from __future__ import annotations
@@ -35,8 +34,7 @@ __all__ = [
 
 class ReplicaFollower:
     """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter
-    snapshots. One implementation for the replay of a whole capture (:func:`replay_firmware`) and the live replica
-    (``steval_link.live.estimators.LivePort``).
+    snapshots (the replay of a capture and the live replica).
 
     The replica starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
     snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not

@@ -1,15 +1,9 @@
 """Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
 
-:data:`ESTIMATORS` is an immutable mapping of registry name → constructor. Constructors import their module only
-when called, so an estimator whose optional dependency is missing (e.g. ``vqf``) does not break the others.
-To add a built-in, add one line to ``_ENTRIES``: ``"name": _lazy("steval_link.estimators.module", "ClassName"),``.
-
-Everywhere an estimator is named (``-e`` of every command, :func:`create`), a reference also works
-(:mod:`steval_link.estimators.plugins`): ``my_ekf.py:MyEkf``, ``mypkg.filters:MyEkf``, an installed package's
-entry point (group ``steval_link.estimators``), each with options ``(q_gyro=1e-4)``, built-ins too
-(``ekf3(acc_motion_mg=20)``). :func:`parse_names` resolves them once (one line and exit 2 for a missing file, a
-syntax error, a missing class, a wrong interface or an option the class does not take) and returns
-:class:`~steval_link.estimators.plugins.Selected` names that :func:`create` builds.
+:data:`ESTIMATORS` maps registry name → constructor; a constructor imports its module only when called, so a
+missing optional dependency (e.g. ``vqf``) does not break the others. A built-in is one line of ``_ENTRIES``.
+Wherever an estimator is named, a reference (:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names`
+resolves it once and returns a :class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
 """
 
 from __future__ import annotations

@@ -10,15 +10,12 @@ throttle (10 below MIN_THR, else 0.4); integral ``ex*KI*dt`` in float; the in-pl
 the new q0); and the final normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and
 ``asin`` in ``QuaternionToEuler`` can return NaN near ±90° roll, as on the drone.
 
-ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 170120,
-170318 and the 301117 beta share one ``ahrs.c`` ("ST 170120", above); 221117 ("ST 221117") scales the gyro in
-double (``gyro * 1.745329252e-5``, stored to float), takes ``ex * AHRS_KI * SENSOR_SAMPLING_TIME`` in double
-(0.1 and 0.00625 are double literals there; the sum with ``exInt`` too, stored to float), computes
-``halfT = 0.5*SENSOR_SAMPLING_TIME`` in double and normalises with the squares of the updated quaternion.
+ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 221117
+computes the gyro scale, the integral step and halfT in double (ST's double literals), stored to float, and
+normalises with the squares of the updated quaternion.
 
-Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
-(≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
-:class:`StMahony` (the shared estimator interface); a capture against the drone: :mod:`.firmware_replay`.
+Two loops give the same bits: a C extension (``_st_mahony_native``) and a numpy-float32 loop used when the
+extension is not built. A capture against the drone: :mod:`.firmware_replay`.
 """
 
 from __future__ import annotations
@@ -148,8 +145,7 @@ class MahonySettings:
     @classmethod
     def of_status(cls, status, j: int | None = None) -> MahonySettings:
         """The settings a status frame reports (its float32 fields kept exactly): ``status`` is one frame (``j``
-        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row. The one
-        builder of settings from status frames (replay, compare, the live replica and the diagnosis all use it)."""
+        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row."""
 
         def field(name: str):
             return getattr(status, name) if j is None else table_column(status, name)[j]
