@@ -117,13 +117,11 @@ class ReplicaFollower:
         self.seed_count += 1
         return "seeded"
 
-    def _saved(self) -> tuple:
-        return (self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count,
-                len(self.seed_rows))  # fmt: skip
+    def _saved(self) -> dict:
+        return {**vars(self), "seed_rows": list(self.seed_rows)}
 
-    def _restore(self, saved: tuple) -> None:
-        self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count, n = saved
-        del self.seed_rows[n:]
+    def _restore(self, saved: dict) -> None:
+        vars(self).update(saved, seed_rows=list(saved["seed_rows"]))
 
     def rows_recognising(self, step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz, *, first_row: int = 0):
         """:meth:`rows`, and when no release was named (``variant``) and the rows differ from the firmware's
