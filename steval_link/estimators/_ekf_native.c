@@ -78,11 +78,39 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* Joseph form P ← sym((I − K·H)·P·(I − K·H)ᵀ + var·K·Kᵀ): P nb×nb, K nb×3, H 3×nb, nb ≤ 6 */
-static void joseph(double *P, const double *K, const double *H, double var, int nb)
+/* S⁻¹ by the adjugate (_inv3 of mekf.py) */
+static void inv3(const double *S, double *Si)
 {
-    double KH[36], IKH[36], T[36], Pn[36], KKt[36];
+    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
+    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
+    double det = a * A + b * B + c * C;
+    Si[0] = A / det;
+    Si[1] = (c * h - b * i) / det;
+    Si[2] = (b * f - c * e) / det;
+    Si[3] = B / det;
+    Si[4] = (a * i - c * g) / det;
+    Si[5] = (c * d - a * f) / det;
+    Si[6] = C / det;
+    Si[7] = (b * g - a * h) / det;
+    Si[8] = (a * e - b * d) / det;
+}
+
+/* The EKF measurement update with innovation e (3), in place: K = P·Hᵀ·(H·P·Hᵀ + var·I)⁻¹ (numpy's solve gives
+ * the same to rounding), dx = K·e, P ← sym((I − K·H)·P·(I − K·H)ᵀ + var·K·Kᵀ) (Joseph form). P nb×nb, H 3×nb,
+ * nb ≤ 6. Rows of K from `frozen` on are zeroed: those states are not updated (frozen = nb: none). */
+static void ekf_update(double *P, const double *H, double var, int nb, int frozen, const double *e, double *dx)
+{
+    double PHt[18], S[9], Si[9], K[18], KH[36], IKH[36], T[36], Pn[36], KKt[36];
     int i, j;
+    matmul(P, H, PHt, nb, nb, 3, 1);
+    matmul(H, PHt, S, 3, nb, 3, 0);
+    S[0] += var;
+    S[4] += var;
+    S[8] += var;
+    inv3(S, Si);
+    matmul(PHt, Si, K, nb, 3, 3, 0);
+    for (i = 3 * frozen; i < 3 * nb; i++) K[i] = 0.0;
+    for (i = 0; i < nb; i++) dx[i] = K[i * 3] * e[0] + K[i * 3 + 1] * e[1] + K[i * 3 + 2] * e[2];
     matmul(K, H, KH, nb, 3, nb, 0);
     for (i = 0; i < nb * nb; i++) IKH[i] = ((i % (nb + 1) == 0) ? 1.0 : 0.0) - KH[i];
     matmul(IKH, P, T, nb, nb, nb, 0);
@@ -164,44 +192,18 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
     }
 }
 
-/* S⁻¹ by the adjugate (_inv3 of mekf.py) */
-static void inv3(const double *S, double *Si)
-{
-    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
-    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    double det = a * A + b * B + c * C;
-    Si[0] = A / det;
-    Si[1] = (c * h - b * i) / det;
-    Si[2] = (b * f - c * e) / det;
-    Si[3] = B / det;
-    Si[4] = (a * i - c * g) / det;
-    Si[5] = (c * d - a * f) / det;
-    Si[6] = C / det;
-    Si[7] = (b * g - a * h) / det;
-    Si[8] = (a * e - b * d) / det;
-}
-
 static void ekf3_update(double *x, double *P, const double *prm, int adaptive, double ux, double uy, double uz,
                         double an)
 {
     double phi = x[0], th = x[1];
     double sp = sin(phi), cp = cos(phi), st = sin(th), ct = cos(th);
-    double e0 = ux - (-st), e1 = uy - sp * ct, e2 = uz - cp * ct; /* y − h(x) */
+    const double e[3] = {ux - (-st), uy - sp * ct, uz - cp * ct}; /* y − h(x) */
     const double H[9] = {0.0, -ct, 0.0, cp * ct, -sp * st, 0.0, -sp * ct, -cp * st, 0.0};
-    double PHt[9], S[9], Si[9], K[9], d[3];
-    double var = prm[EKF3_P_ACC_VAR];
+    double var = prm[EKF3_P_ACC_VAR], d[3];
     int i;
     if (adaptive) var += sq_pow(prm[EKF3_P_NORM_GAIN] * (an - 1.0));
-    matmul(P, H, PHt, 3, 3, 3, 1);
-    matmul(H, PHt, S, 3, 3, 3, 0);
-    S[0] += var;
-    S[4] += var;
-    S[8] += var;
-    inv3(S, Si);
-    matmul(PHt, Si, K, 3, 3, 3, 0); /* K = P·Hᵀ·S⁻¹ (numpy: solve(S, PHtᵀ)ᵀ, the same to rounding) */
-    for (i = 0; i < 3; i++) d[i] = K[i * 3] * e0 + K[i * 3 + 1] * e1 + K[i * 3 + 2] * e2;
+    ekf_update(P, H, var, 3, 3, e, d);
     for (i = 0; i < 3; i++) x[i] += d[i];
-    joseph(P, K, H, var, 3);
 }
 
 static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
@@ -392,7 +394,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
     const double hx = 2.0 * (x * z - w * y), hy = 2.0 * (w * x + y * z), hz = w * w - x * x - y * y + z * z;
     const double Hh[9] = {0.0, -hz, hy, hz, 0.0, -hx, -hy, hx, 0.0}; /* [h]× */
     double dev = fabs(an - 1.0), ux, uy, uz, d, var;
-    double H[18], PHt[18], S[9], Si[9], K[18], dxs[6];
+    double H[18], dxs[6];
     int i, j;
     int warming = 0;
     if (f->have_lp) {
@@ -438,21 +440,11 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
         for (i = 0; i < 3; i++)
             for (j = 0; j < 3; j++) H[i * 6 + 3 + j] = HD[i * 3 + j];
     }
-    matmul(P, H, PHt, nb, nb, 3, 1);
-    matmul(H, PHt, S, 3, nb, 3, 0);
-    S[0] += var;
-    S[4] += var;
-    S[8] += var;
-    inv3(S, Si);
-    matmul(PHt, Si, K, nb, 3, 3, 0);
-    if (f->estimate_bias && f->have_lp && warming) {
-        for (i = 9; i < 18; i++) K[i] = 0.0;
-    }
     {
-        double e0 = ux - hx, e1 = uy - hy, e2 = uz - hz;
-        for (i = 0; i < nb; i++) dxs[i] = K[i * 3] * e0 + K[i * 3 + 1] * e1 + K[i * 3 + 2] * e2;
+        const double e[3] = {ux - hx, uy - hy, uz - hz};
+        /* while the low-pass warms up its mean says nothing about the bias: attitude-only update */
+        ekf_update(P, H, var, nb, (f->estimate_bias && f->have_lp && warming) ? 3 : nb, e, dxs);
     }
-    joseph(P, K, H, var, nb);
     {
         double e[4] = {1.0, 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]}, o[4];
         qmul(qc, e, o);
