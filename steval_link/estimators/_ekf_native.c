@@ -295,13 +295,14 @@ static void rotmat(const double *q, double *R)
     memcpy(R, M, sizeof M);
 }
 
-/* _LowPass.__call__ for an m-vector; s = x1, x2, y1, y2 (m each), sum (m, only with warmup > 0); out (m) */
-static void lowpass(const double *c, double *s, int m, int *ready, int64_t *n, int64_t warmup, const double *x,
+/* _LowPass.__call__ for an m-vector; s = x1, x2, y1, y2 (m each), sum (m, only with a warm-up: n counts its
+ * samples, NULL for none); out (m) */
+static void lowpass(const double *c, double *s, int m, int64_t *ready, int64_t *n, int64_t warmup, const double *x,
                     double *out)
 {
     double *x1 = s, *x2 = s + m, *y1 = s + 2 * m, *y2 = s + 3 * m, *sum = s + 4 * m;
     int i;
-    if (*n < warmup) {
+    if (n != NULL && *n < warmup) {
         for (i = 0; i < m; i++) sum[i] = (*n == 0) ? x[i] : sum[i] + x[i];
         *n += 1;
         for (i = 0; i < m; i++) {
@@ -393,35 +394,26 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
     const double w = qc[0], x = qc[1], y = qc[2], z = qc[3];
     const double hx = 2.0 * (x * z - w * y), hy = 2.0 * (w * x + y * z), hz = w * w - x * x - y * y + z * z;
     const double Hh[9] = {0.0, -hz, hy, hz, 0.0, -hx, -hy, hx, 0.0}; /* [h]× */
-    double dev = fabs(an - 1.0), ux, uy, uz, d, var;
+    double dev = fabs(an - 1.0), u[3], d, var; /* u: the measured gravity direction */
     double H[18], dxs[6];
     int i, j;
     int warming = 0;
     if (f->have_lp) {
         double R[9], a_i[3], m[3], mn;
-        int ready = (int)ist[MEKF_I_ALP_READY];
+        int64_t *ready = ist + MEKF_I_ALP_READY, *n = ist + MEKF_I_ALP_N;
         rotmat(st + MEKF_QS, R);
         for (i = 0; i < 3; i++) a_i[i] = R[i * 3] * ax + R[i * 3 + 1] * ay + R[i * 3 + 2] * az;
-        lowpass(prm + MEKF_P_LP, st + MEKF_ALP, 3, &ready, &ist[MEKF_I_ALP_N], ist[MEKF_I_ALP_WARMUP], a_i, m);
-        ist[MEKF_I_ALP_READY] = ready;
-        if (ng > 0.0) {
-            int64_t n0 = 0;
-            ready = (int)ist[MEKF_I_NLP_READY];
-            lowpass(prm + MEKF_P_LP, st + MEKF_NLP, 1, &ready, &n0, 0, &dev, &d);
-            ist[MEKF_I_NLP_READY] = ready;
-        } else {
-            d = 0.0;
-        }
+        lowpass(prm + MEKF_P_LP, st + MEKF_ALP, 3, ready, n, ist[MEKF_I_ALP_WARMUP], a_i, m);
+        d = 0.0;
+        if (ng > 0.0) lowpass(prm + MEKF_P_LP, st + MEKF_NLP, 1, ist + MEKF_I_NLP_READY, NULL, 0, &dev, &d);
         mn = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
         if (mn < 1e-6) return;
-        ux = m[0] / mn;
-        uy = m[1] / mn;
-        uz = m[2] / mn;
+        for (i = 0; i < 3; i++) u[i] = m[i] / mn;
         warming = ist[MEKF_I_ALP_N] < ist[MEKF_I_ALP_WARMUP];
     } else {
-        ux = ax / an;
-        uy = ay / an;
-        uz = az / an;
+        u[0] = ax / an;
+        u[1] = ay / an;
+        u[2] = az / an;
         d = dev;
     }
     var = sq_pow(prm[MEKF_P_ACC_NOISE]) + sq_pow(ng * d);
@@ -430,10 +422,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
     if (f->estimate_bias) { /* [h]×·D, D = C − LP(C); zero for the direct MEKF and while the low-pass warms up */
         double lpc[9], D[9] = {0.0}, HD[9];
         if (f->have_lp && !warming) {
-            int ready = (int)ist[MEKF_I_CLP_READY];
-            int64_t n0 = 0;
-            lowpass(prm + MEKF_P_LP, st + MEKF_CLP, 9, &ready, &n0, 0, st + MEKF_CUM, lpc);
-            ist[MEKF_I_CLP_READY] = ready;
+            lowpass(prm + MEKF_P_LP, st + MEKF_CLP, 9, ist + MEKF_I_CLP_READY, NULL, 0, st + MEKF_CUM, lpc);
             for (i = 0; i < 9; i++) D[i] = st[MEKF_CUM + i] - lpc[i];
         }
         matmul(Hh, D, HD, 3, 3, 3, 0);
@@ -441,7 +430,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
             for (j = 0; j < 3; j++) H[i * 6 + 3 + j] = HD[i * 3 + j];
     }
     {
-        const double e[3] = {ux - hx, uy - hy, uz - hz};
+        const double e[3] = {u[0] - hx, u[1] - hy, u[2] - hz};
         /* while the low-pass warms up its mean says nothing about the bias: attitude-only update */
         ekf_update(P, H, var, nb, (f->estimate_bias && f->have_lp && warming) ? 3 : nb, e, dxs);
     }
