@@ -301,26 +301,21 @@ class _AttitudeRows:
     @classmethod
     def of(cls, att) -> _AttitudeRows:
         steps = np.asarray(table_column(att, "step"), dtype=np.int64)
-        n = steps.shape[0]
-        fw_q = np.asarray(table_column(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
+
+        def col(name: str, dtype, *shape) -> np.ndarray:
+            return np.ascontiguousarray(table_column(att, name), dtype=dtype).reshape(steps.shape[0], *shape)
+
+        fw_q = col("q_wxyz", _F32, 4)
         try:
-            fw_thx = np.asarray(table_column(att, "thx_rad"), dtype=_F32).reshape(n)
-            fw_thy = np.asarray(table_column(att, "thy_rad"), dtype=_F32).reshape(n)
+            fw_thx, fw_thy = col("thx_rad", _F32), col("thy_rad", _F32)
         except (AttributeError, KeyError, ValueError):
             fw_thx, fw_thy = quaternion_to_euler(fw_q)
         try:
-            exact = np.asarray(table_column(att, "exact"), dtype=bool).reshape(n)
+            exact = col("exact", bool)
         except (AttributeError, KeyError, ValueError):
-            exact = np.ones(n, dtype=bool)
+            exact = np.ones(steps.shape[0], dtype=bool)
         return cls(
-            steps,
-            np.ascontiguousarray(table_column(att, "acc_mg"), dtype=_F32).reshape(n, 3),
-            np.ascontiguousarray(table_column(att, "gyro_mdps"), dtype=_F32).reshape(n, 3),
-            np.asarray(table_column(att, "thr"), dtype=np.int64).reshape(n),
-            exact,
-            fw_q,
-            fw_thx,
-            fw_thy,
+            steps, col("acc_mg", _F32, 3), col("gyro_mdps", _F32, 3), col("thr", np.int64), exact, fw_q, fw_thx, fw_thy
         )
 
     def run(self, replica: ReplicaFollower, a: int, b: int):
