@@ -216,11 +216,8 @@ class Ekf3(Estimator):
         if native:
             self._run_native(acc, gyro, x)
         else:
-            acc_l = acc.tolist()
-            gyro_l = gyro.tolist()
-            advance = self._advance
-            for k in range(n):
-                advance(acc_l[k], gyro_l[k])
+            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+                self._advance(a, g)
                 x[k] = self.x
         q = quaternion_from_euler(x[:, 0], x[:, 1], x[:, 2])
         valid = np.isfinite(x).all(axis=1) & ~waiting

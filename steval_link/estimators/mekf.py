@@ -368,11 +368,8 @@ class Mekf(Estimator):
         if native:
             self._run_native(acc, gyro, q)
         else:
-            step = self.step
-            acc_l = acc.tolist()
-            gyro_l = gyro.tolist()
-            for k in range(n):
-                q[k] = step(acc_l[k], gyro_l[k])
+            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+                q[k] = self.step(a, g)
         thx, thy, thz = euler_from_quaternion(q)
         valid = np.isfinite(q).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
