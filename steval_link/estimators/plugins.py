@@ -224,19 +224,14 @@ def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, s
     """(where, details): the last frame of ``exc``'s traceback in the user's files as ``file.py, line N, in f``
     and their frames formatted like Python's traceback (with the exception line); ("", "") without such frames."""
     frames = [f for f in traceback.extract_tb(exc.__traceback__) if _is_user_frame(f.filename, user_files)]
+    line = "".join(traceback.format_exception_only(type(exc), exc))
     if isinstance(exc, SyntaxError) and exc.filename and _is_user_frame(exc.filename, user_files):
-        where = f"{Path(exc.filename).name}, line {exc.lineno}"
-        return where, "".join(traceback.format_exception_only(type(exc), exc)).rstrip()
+        return f"{Path(exc.filename).name}, line {exc.lineno}", line.rstrip()
     if not frames:
         return "", ""
     last = frames[-1]
     where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
-    details = (
-        "Traceback (your code):\n"
-        + "".join(traceback.format_list(frames))
-        + "".join(traceback.format_exception_only(type(exc), exc))
-    )
-    return where, details.rstrip()
+    return where, ("Traceback (your code):\n" + "".join(traceback.format_list(frames)) + line).rstrip()
 
 
 def _exc_text(exc: BaseException) -> str:
@@ -286,11 +281,10 @@ def _load_file(ref: Reference):
     sys.path.insert(0, folder)  # helper modules next to the file import as they would when run directly
     try:
         spec.loader.exec_module(module)
-    except SyntaxError as exc:
-        sys.modules.pop(name, None)
-        raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
     except Exception as exc:  # noqa: BLE001 - the user's code: any failure is theirs to see
         sys.modules.pop(name, None)
+        if isinstance(exc, SyntaxError):
+            raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
         err = _failed(f"{path.name} failed to load", exc, (str(resolved),))
         if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
             err.details = ""
