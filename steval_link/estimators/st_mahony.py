@@ -49,8 +49,6 @@ __all__ = [
 from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
     _F32,
     _HALF,
-    _INVSQRT_MAGIC,
-    _THREE_HALVES,
     _TWO,
     NATIVE_AVAILABLE,
     _native,
@@ -302,23 +300,15 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * half_t
 
             if st221117:
-                norm = _inv_sqrt_scalar(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
             else:
-                norm = _inv_sqrt_scalar(q0q0 + q1q1 + q2q2 + q3q3)
+                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3)
             q0 = q0 * norm
             q1 = q1 * norm
             q2 = q2 * norm
             q3 = q3 * norm
             q_out[k] = (q0, q1, q2, q3)
     return np.array([q0, q1, q2, q3, ex_int, ey_int, ez_int], dtype=_F32)
-
-
-def _inv_sqrt_scalar(x: np.float32) -> np.float32:
-    """``invSqrt`` on one float32 scalar (see :func:`inv_sqrt`)."""
-    halfx = _HALF * x
-    i = _INVSQRT_MAGIC - (np.array(x, dtype=_F32).view(np.int32) >> np.int32(1))
-    y = i.view(_F32)[()]
-    return y * (_THREE_HALVES - (halfx * y * y))
 
 
 def handout_yaw(q_wxyz) -> np.ndarray:
