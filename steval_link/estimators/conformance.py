@@ -3,10 +3,7 @@
 A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
 ``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
 per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
-exact float32 value.
-
-Which ST release computed a set of files is found by running each filter variant over them
-(:func:`variant_scores`): the one that is bit-exact on every step is the release's.
+exact float32 value. :func:`variant_scores` finds the ST release that computed a set of files.
 """
 
 from __future__ import annotations
