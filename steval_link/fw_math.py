@@ -38,8 +38,10 @@ def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarr
     """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
 
     ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``, scalar first). Products and sums are float32 in the C source's
-    order; only ``atan2``/``asin`` run in double. thx is the rotation about x (pitch), thy about y (roll); thy is NaN
-    where the (not quite unit) quaternion puts asin's argument outside [−1, 1], as on the drone. ``native=False``
+    order; only ``atan2``/``asin`` run in double. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation
+    about x (pitch, nose up +), thy = asin(2q0q2 − 2q1q3) the rotation about y (roll): the lab handouts' textbook
+    formulas name these the other way round. thy is NaN where the (not quite unit) quaternion puts asin's argument
+    outside [−1, 1], as on the drone. ``native=False``
     forces numpy's atan2/asin instead of the C library's (the default when the extension is built).
     """
     q = np.asarray(q_wxyz, dtype=_F32)
