@@ -32,4 +32,11 @@ static Py_ssize_t get_rows(PyObject *obj, Py_buffer *view, Py_ssize_t row_bytes,
     }
     return n;
 }
+/* Releases the n views of a loop; returns NULL (the error return of a loop whose arguments failed). */
+static PyObject *release(Py_buffer *views, int n)
+{
+    int i;
+    for (i = 0; i < n; i++) PyBuffer_Release(&views[i]);
+    return NULL;
+}
 #endif

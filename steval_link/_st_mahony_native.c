@@ -1,30 +1,16 @@
 /*
  * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (ST releases 170120 and 221117).
  *
- * Written from scratch for steval-link (it is not ST's code): it reproduces, operation by operation and in the
- * same evaluation order, the float32 arithmetic of the firmware's ahrs_fusion_ag + QuaternionToEuler as the
- * drone's Cortex-M4F executes it (-O0, hard float, no fused multiply-add). Only atan2/asin run in double, as in
- * the firmware. Build flags: -O2 -ffp-contract=off -fno-fast-math (setup.py); FLT_EVAL_METHOD must be 0 (SSE on
- * x86-64, any AArch64), which is checked below.
+ * Written for steval-link (not ST's code): the float32 arithmetic of the firmware's ahrs_fusion_ag and
+ * QuaternionToEuler operation by operation, in the drone's evaluation order (Cortex-M4F, -O0, hard float, no FMA);
+ * only atan2/asin run in double. Build flags: -O2 -ffp-contract=off -fno-fast-math (setup.py); FLT_EVAL_METHOD
+ * must be 0 (checked below). Called by st_mahony.py and fw_math.py, which validate shapes and dtypes:
  *
- * Python signature (called by steval_link/estimators/st_mahony.py, which validates shapes and dtypes):
- *
- *   run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags) -> None
- *     acc, gyro : float32 buffers of 3*N values (mg, mdps), C order
- *     thr       : int64 buffer of N values (gTHR)
- *     q_out     : writable float32 buffer of 4*N values (q0..q3 after each step)
- *     thx_out, thy_out : writable float32 buffers of N values (rad), or None to skip QuaternionToEuler
- *     state     : writable float32 buffer of 7 values: q0, q1, q2, q3, exInt, eyInt, ezInt (in: start, out: end)
- *     params    : float64 buffer of 4 values: kp_ground, kp_flight, ki, dt_s (float32 values, except ki and dt_s
- *                 in 221117: the doubles ST's literals are)
- *     flags     : int: min_thr in bits 0..31 (signed), bit 32 = no correction, bit 33 = ST 221117's arithmetic
- *                 (gyro scale, integral step and halfT in double; normalisation with the updated squares)
- *
- *   euler(q, thx_out, thy_out) -> None
- *     q         : float32 buffer of 4*N values; thx_out, thy_out: writable float32 buffers of N values
- *
- * Both use the C library's atan2/asin, so thx/thy of the replica and of firmware quaternions converted on the host
- * come from the same math library.
+ *   run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags): acc, gyro float32 3*N (mg, mdps); thr
+ *     int64 N; q_out float32 4*N; thx_out, thy_out float32 N (rad) or None; state float32 q0..q3, exInt, eyInt,
+ *     ezInt (in: start, out: end); params float64 kp_ground, kp_flight, ki, dt_s; flags: min_thr in bits 0..31,
+ *     bit 32 no correction, bit 33 ST 221117's arithmetic.
+ *   euler(q, thx_out, thy_out): QuaternionToEuler of 4*N float32 values.
  */
 #include "_native_buffers.h"
 
@@ -74,38 +60,34 @@ static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *t
 
 static PyObject *native_run(PyObject *self, PyObject *args)
 {
-    PyObject *o_acc, *o_gyro, *o_thr, *o_q, *o_thx, *o_thy, *o_state, *o_params;
+    PyObject *o[8]; /* acc, gyro, thr, q_out, thx_out, thy_out, state, params */
     long long flags;
-    Py_buffer b_acc = {0}, b_gyro = {0}, b_thr = {0}, b_q = {0}, b_thx = {0}, b_thy = {0}, b_state = {0},
-              b_params = {0};
-    int have_euler, ok = 0;
+    Py_buffer b[8] = {{0}};
+    int have_euler;
     Py_ssize_t n, k;
 
     (void)self;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o_acc, &o_gyro, &o_thr, &o_q, &o_thx, &o_thy, &o_state, &o_params,
-                          &flags)) {
+    if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &flags)) {
         return NULL;
     }
-    if ((n = get_rows(o_thr, &b_thr, sizeof(int64_t), "thr")) < 0) return NULL;
-    have_euler = (o_thx != Py_None) && (o_thy != Py_None);
-    if (get_buffer(o_acc, &b_acc, 0, 3 * n * 4, "acc") < 0 || get_buffer(o_gyro, &b_gyro, 0, 3 * n * 4, "gyro") < 0 ||
-        get_buffer(o_q, &b_q, 1, 4 * n * 4, "q_out") < 0)
-        goto out;
-    if (have_euler && (get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") < 0 ||
-                       get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") < 0))
-        goto out;
-    if (get_buffer(o_state, &b_state, 1, 7 * 4, "state") < 0 || get_buffer(o_params, &b_params, 0, 4 * 8, "params") < 0)
-        goto out;
+    if ((n = get_rows(o[2], &b[2], sizeof(int64_t), "thr")) < 0) return NULL;
+    have_euler = (o[4] != Py_None) && (o[5] != Py_None);
+    if (get_buffer(o[0], &b[0], 0, 3 * n * 4, "acc") < 0 || get_buffer(o[1], &b[1], 0, 3 * n * 4, "gyro") < 0 ||
+        get_buffer(o[3], &b[3], 1, 4 * n * 4, "q_out") < 0 ||
+        (have_euler &&
+         (get_buffer(o[4], &b[4], 1, n * 4, "thx_out") < 0 || get_buffer(o[5], &b[5], 1, n * 4, "thy_out") < 0)) ||
+        get_buffer(o[6], &b[6], 1, 7 * 4, "state") < 0 || get_buffer(o[7], &b[7], 0, 4 * 8, "params") < 0)
+        return release(b, 8);
 
     {
-        const float *acc = (const float *)b_acc.buf;
-        const float *gyro = (const float *)b_gyro.buf;
-        const int64_t *thr = (const int64_t *)b_thr.buf;
-        float *qo = (float *)b_q.buf;
-        float *thx_o = have_euler ? (float *)b_thx.buf : NULL;
-        float *thy_o = have_euler ? (float *)b_thy.buf : NULL;
-        float *st = (float *)b_state.buf;
-        const double *prm = (const double *)b_params.buf;
+        const float *acc = (const float *)b[0].buf;
+        const float *gyro = (const float *)b[1].buf;
+        const int64_t *thr = (const int64_t *)b[2].buf;
+        float *qo = (float *)b[3].buf;
+        float *thx_o = have_euler ? (float *)b[4].buf : NULL;
+        float *thy_o = have_euler ? (float *)b[5].buf : NULL;
+        float *st = (float *)b[6].buf;
+        const double *prm = (const double *)b[7].buf;
         const float kp_ground = (float)prm[0], kp_flight = (float)prm[1], ki = (float)prm[2], dt = (float)prm[3];
         const double ki_d = prm[2], dt_d = prm[3];
         const int64_t min_thr = (int64_t)(int32_t)(uint32_t)(flags & 0xffffffffLL);
@@ -192,62 +174,39 @@ static PyObject *native_run(PyObject *self, PyObject *args)
             qo[4 * k + 1] = q1;
             qo[4 * k + 2] = q2;
             qo[4 * k + 3] = q3;
-
-            if (have_euler) {
-                quaternion_to_euler(q0, q1, q2, q3, &thx_o[k], &thy_o[k]);
-            }
+            if (have_euler) quaternion_to_euler(q0, q1, q2, q3, &thx_o[k], &thy_o[k]);
         }
         Py_END_ALLOW_THREADS
 
-        st[0] = q0;
-        st[1] = q1;
-        st[2] = q2;
-        st[3] = q3;
-        st[4] = exInt;
-        st[5] = eyInt;
-        st[6] = ezInt;
+        {
+            const float end[7] = {q0, q1, q2, q3, exInt, eyInt, ezInt};
+            memcpy(st, end, sizeof end);
+        }
     }
-    ok = 1;
-out:
-    PyBuffer_Release(&b_params);
-    PyBuffer_Release(&b_state);
-    PyBuffer_Release(&b_thy);
-    PyBuffer_Release(&b_thx);
-    PyBuffer_Release(&b_q);
-    PyBuffer_Release(&b_gyro);
-    PyBuffer_Release(&b_acc);
-    PyBuffer_Release(&b_thr);
-    if (!ok) return NULL;
+    release(b, 8);
     Py_RETURN_NONE;
 }
 
 static PyObject *native_euler(PyObject *self, PyObject *args)
 {
-    PyObject *o_q, *o_thx, *o_thy;
-    Py_buffer b_q = {0}, b_thx = {0}, b_thy = {0};
+    PyObject *o[3]; /* q, thx_out, thy_out */
+    Py_buffer b[3] = {{0}};
     Py_ssize_t n, k;
-    int ok;
 
     (void)self;
-    if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_thx, &o_thy)) {
-        return NULL;
-    }
-    if ((n = get_rows(o_q, &b_q, 4 * sizeof(float), "q")) < 0) return NULL;
-    ok = get_buffer(o_thx, &b_thx, 1, n * 4, "thx_out") == 0 && get_buffer(o_thy, &b_thy, 1, n * 4, "thy_out") == 0;
-    if (ok) {
-        const float *q = (const float *)b_q.buf;
-        float *thx = (float *)b_thx.buf;
-        float *thy = (float *)b_thy.buf;
+    if (!PyArg_ParseTuple(args, "OOO", &o[0], &o[1], &o[2])) return NULL;
+    if ((n = get_rows(o[0], &b[0], 4 * sizeof(float), "q")) < 0) return NULL;
+    if (get_buffer(o[1], &b[1], 1, n * 4, "thx_out") < 0 || get_buffer(o[2], &b[2], 1, n * 4, "thy_out") < 0)
+        return release(b, 3);
+    {
+        const float *q = (const float *)b[0].buf;
+        float *thx = (float *)b[1].buf, *thy = (float *)b[2].buf;
         Py_BEGIN_ALLOW_THREADS
-        for (k = 0; k < n; k++) {
-            quaternion_to_euler(q[4 * k], q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], &thx[k], &thy[k]);
-        }
+        for (k = 0; k < n; k++)
+            quaternion_to_euler(q[4 * k], q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], thx + k, thy + k);
         Py_END_ALLOW_THREADS
     }
-    PyBuffer_Release(&b_thy);
-    PyBuffer_Release(&b_thx);
-    PyBuffer_Release(&b_q);
-    if (!ok) return NULL;
+    release(b, 3);
     Py_RETURN_NONE;
 }
 

@@ -98,12 +98,8 @@ def open_capture(path) -> Capture:
 
 def _instance_reference(est) -> plugins.Selected:
     """Your estimator object as a reference: each run gets a fresh copy (reset), wrapped in the guard."""
-    missing = [m for m in ("step", "reset") if not callable(getattr(est, m, None))]
-    if missing:
-        raise TypeError(
-            f"{type(est).__name__} is not an estimator: it has no "
-            f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)"
-        )
+    if lacks := plugins.missing_methods(est):
+        raise TypeError(f"{type(est).__name__} is not an estimator: it has {lacks}")
     name = getattr(est, "name", None)
     if not isinstance(name, str) or name == Estimator.name or not name:
         name = type(est).__name__
@@ -219,7 +215,8 @@ def evaluate(
     """
     items = [trials] if isinstance(trials, (str, Path)) else list(trials)
     if estimators is not None and not isinstance(estimators, str):
-        estimators = [e if isinstance(e, str) else _object_selected(e) for e in _as_list(estimators)]
+        listed = list(estimators) if isinstance(estimators, Iterable) else [estimators]
+        estimators = [e if isinstance(e, str) else _object_selected(e) for e in listed]
     results = ev.evaluate_data(
         items,
         estimators,
@@ -234,23 +231,12 @@ def evaluate(
 
 
 def _object_selected(est) -> plugins.Selected:
-    """An estimator object, labelled by its name and public attributes (two variants of one class: two labels)."""
+    """An estimator object labelled by its name and its public number, text and flag attributes, as options would
+    read (``Gravity(gain=0.5)``), so two variants of one class keep two labels."""
     sel = _instance_reference(est)
-    return sel.renamed(_object_label(str(sel), est))
-
-
-def _object_label(name: str, est) -> str:
-    """An estimator object's label: its name and its public number, text and flag attributes, as options would read
-    (``Gravity(gain=0.5)``), so two variants of one class keep two labels."""
     attrs = [
         f"{k}={v!r}"
         for k, v in getattr(est, "__dict__", {}).items()
         if not k.startswith("_") and k != "name" and isinstance(v, (bool, int, float, str))
     ]
-    return f"{name}({', '.join(attrs[:6])})" if attrs else name
-
-
-def _as_list(estimators) -> list:
-    if isinstance(estimators, Iterable):
-        return list(estimators)
-    return [estimators]
+    return sel.renamed(f"{sel}({', '.join(attrs[:6])})" if attrs else str(sel))

@@ -46,13 +46,8 @@ BAUD: int = 115_200
 GYRO_LATENCY_S: float = 0.003315483788573155
 
 # ---- flight control (flight_control.h, rc.c, motor.h; MOTOR_DC, REMOCON_BLE: the default build) ----------------
-#: outer (angle) loop gains ``ROLL/PITCH_PID_KP1``, ``KI1``, ``YAW_PID_KP1``, ``KI1`` per axis x (pitch), y (roll), z
+#: outer (angle) loop gains ``ROLL/PITCH_PID_KP1``, ``YAW_PID_KP1`` per axis x (pitch), y (roll), z
 OUTER_KP: tuple[float, float, float] = (3.0, 3.0, 4.0)
-OUTER_KI: tuple[float, float, float] = (0.0, 0.0, 0.0)
-#: inner (rate) loop gains ``KP2``, ``KI2``, ``KD2`` per axis
-INNER_KP: tuple[float, float, float] = (80.0, 80.0, 900.0)
-INNER_KI: tuple[float, float, float] = (80.0, 80.0, 3.0)
-INNER_KD: tuple[float, float, float] = (10.0, 10.0, 3.0)
 #: ``PID_SAMPLING_TIME``: the dt of both PID loops' integrators, s (the inner loop runs in the TIM9 ISR)
 PID_DT_S: float = 0.00125
 #: ``MAX_ADJ_AMOUNT``: the inner loop's output limit (PWM counts)

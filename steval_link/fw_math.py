@@ -1,6 +1,5 @@
 """The firmware's float32 arithmetic that more than one layer needs, bit-exact: the fast inverse square root and
-``QuaternionToEuler`` (the link layer recomputes a binary frame's angles from its q with it; the ST-Mahony replica
-uses both). The compiled ``steval_link._st_mahony_native`` gives the same bits faster when it is built.
+``QuaternionToEuler``. The compiled ``steval_link._st_mahony_native`` gives the same bits faster when it is built.
 """
 
 from __future__ import annotations
@@ -38,12 +37,12 @@ def inv_sqrt(x) -> np.ndarray:
 def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
 
-    ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``: q0 scalar first). Products and sums are float32 in the C
-    source's order; only ``atan2``/``asin`` run in double, and their results are stored to float32 as the firmware
-    does. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation about x (pitch), thy =
-    asin(2q0q2 − 2q1q3) the rotation about y (roll); thy is NaN where the (not quite unit) quaternion makes the
-    argument leave [−1, 1], as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's
-    (used by default when the extension is built, like the native filter loop).
+    ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``, scalar first). Products and sums are float32 in the C source's
+    order; only ``atan2``/``asin`` run in double. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation
+    about x (pitch, nose up +), thy = asin(2q0q2 − 2q1q3) the rotation about y (roll): the lab handouts' textbook
+    formulas name these the other way round. thy is NaN where the (not quite unit) quaternion puts asin's argument
+    outside [−1, 1], as on the drone. ``native=False``
+    forces numpy's atan2/asin instead of the C library's (the default when the extension is built).
     """
     q = np.asarray(q_wxyz, dtype=_F32)
     if q.shape[-1] != 4:

@@ -5,13 +5,16 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
     "quaternion_from_euler",
     "euler_from_quaternion",
-    "yaw_from_quaternion",
     "quat_multiply",
+    "qmul",
+    "qexp",
     "quat_conjugate",
     "quat_normalize",
     "interpolate_quat",
@@ -49,15 +52,8 @@ def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     thx = np.arctan2(2.0 * (q0 * q1 + q2 * q3), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
     with np.errstate(invalid="ignore"):
         thy = np.arcsin(np.clip(2.0 * (q0 * q2 - q1 * q3), -1.0, 1.0))
-    thz = yaw_from_quaternion(q)
+    thz = np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
     return thx, thy, thz
-
-
-def yaw_from_quaternion(q_wxyz) -> np.ndarray:
-    """Yaw (about z), rad, float64: atan2(2(q1q2 + q0q3), q0² + q1² − q2² − q3²) as in the Lab 5 handout."""
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (q1 * q2 + q0 * q3), q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3)
 
 
 def quat_multiply(a, b) -> np.ndarray:
@@ -75,6 +71,27 @@ def quat_multiply(a, b) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+def qmul(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product a ⊗ b of two wxyz quaternions of Python floats (one filter step: no numpy overhead)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def qexp(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
+    """The wxyz quaternion of the rotation vector (rx, ry, rz), rad, in Python floats (first order below 1e-12)."""
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if ang > 1e-12:
+        s = math.sin(0.5 * ang) / ang
+        return math.cos(0.5 * ang), rx * s, ry * s, rz * s
+    return 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
 
 
 def quat_conjugate(q) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from steval_link.estimators.base import AttitudeEstimate, Estimator
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 
 __all__ = ["accel_tilt", "tilt_quaternion", "AccelTilt"]
 
@@ -71,9 +71,7 @@ class AccelTilt(Estimator):
         return tilt_quaternion(thx, thy)
 
     def run(self, acc_mg, gyro_mdps=None, thr=None) -> AttitudeEstimate:
-        acc = np.asarray(acc_mg, dtype=np.float64)
-        if acc.ndim != 2 or acc.shape[1] != 3:
-            raise ValueError(f"acc_mg must be (N, 3), got shape {acc.shape}")
+        acc, _, _ = check_inputs(acc_mg, acc_mg, dtype=np.float64)  # the gyro is not used
         thx, thy, valid = accel_tilt(acc, max_dev_mg=self.max_dev_mg)
         return AttitudeEstimate(
             q_wxyz=tilt_quaternion(thx, thy),

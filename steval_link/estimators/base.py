@@ -113,10 +113,7 @@ def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:
     an = np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])  # the filters' own order of operations
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(an) & (an > 1e-6) & (np.abs(an - 1.0) <= reject_g)
-    before = np.ones(len(ok), dtype=bool)
-    if ok.any():
-        before[int(np.argmax(ok)) :] = False
-    return before
+    return ~np.logical_or.accumulate(ok)
 
 
 def check_inputs(acc_mg, gyro_mdps, thr=None, dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -127,13 +124,10 @@ def check_inputs(acc_mg, gyro_mdps, thr=None, dtype=np.float32) -> tuple[np.ndar
         raise ValueError(f"acc_mg must be (N, 3), got shape {acc.shape}")
     if gyro.shape != acc.shape:
         raise ValueError(f"gyro_mdps must have the shape of acc_mg {acc.shape}, got {gyro.shape}")
-    if thr is None:
-        thr_arr = np.zeros(acc.shape[0], dtype=np.int64)
-    else:
-        thr_arr = np.asarray(thr)
-        if thr_arr.ndim == 0:
-            thr_arr = np.full(acc.shape[0], int(thr_arr), dtype=np.int64)
-        thr_arr = np.ascontiguousarray(thr_arr, dtype=np.int64)
-        if thr_arr.shape != (acc.shape[0],):
-            raise ValueError(f"thr must be (N,) = ({acc.shape[0]},), got shape {thr_arr.shape}")
+    thr_arr = np.asarray(0 if thr is None else thr)
+    if thr_arr.ndim == 0:
+        thr_arr = np.full(acc.shape[0], int(thr_arr), dtype=np.int64)
+    thr_arr = np.ascontiguousarray(thr_arr, dtype=np.int64)
+    if thr_arr.shape != (acc.shape[0],):
+        raise ValueError(f"thr must be (N,) = ({acc.shape[0]},), got shape {thr_arr.shape}")
     return acc, gyro, thr_arr

@@ -3,10 +3,7 @@
 A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
 ``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
 per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
-exact float32 value.
-
-Which ST release computed a set of files is found by running each filter variant over them
-(:func:`variant_scores`): the one that is bit-exact on every step is the release's.
+exact float32 value. :func:`variant_scores` finds the ST release that computed a set of files.
 """
 
 from __future__ import annotations
@@ -29,21 +26,8 @@ __all__ = [
 ]
 
 #: the header every vector file has
-COLUMNS = (
-    "step",
-    "thr",
-    "acc_x_mg",
-    "acc_y_mg",
-    "acc_z_mg",
-    "gyro_x_mdps",
-    "gyro_y_mdps",
-    "gyro_z_mdps",
-    "q0",
-    "q1",
-    "q2",
-    "q3",
-    "thx_rad",
-    "thy_rad",
+COLUMNS = tuple(
+    "step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad".split(",")
 )
 
 
@@ -106,20 +90,15 @@ def load_conformance_csv(path) -> ConformanceVectors:
         ValueError: not a vector file (one sentence naming the file and what is wrong).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8", errors="replace")
-    lines = text.splitlines()
-    description = ""
-    k = 0
-    while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
-        if lines[k].startswith("#") and not description:
-            description = lines[k].lstrip("#").strip()
-        k += 1
-    if k >= len(lines):
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    rows = [line for line in lines if line.strip() and not line.startswith("#")]
+    if not rows:
         raise ValueError(f"{path}: no header line (expected {','.join(COLUMNS)})")
-    header = tuple(h.strip() for h in lines[k].split(","))
-    if header != COLUMNS:
-        raise ValueError(f"{path}: unexpected header {lines[k][:80]!r} (expected {','.join(COLUMNS)})")
-    body = "\n".join(line for line in lines[k + 1 :] if line.strip() and not line.startswith("#"))
+    if tuple(h.strip() for h in rows[0].split(",")) != COLUMNS:
+        raise ValueError(f"{path}: unexpected header {rows[0][:80]!r} (expected {','.join(COLUMNS)})")
+    before_header = lines[: lines.index(rows[0])]
+    description = next((line.lstrip("#").strip() for line in before_header if line.startswith("#")), "")
+    body = "\n".join(rows[1:])
     if not body:
         raise ValueError(f"{path}: no data rows")
     try:
@@ -165,11 +144,8 @@ def check_conformance(
     exact = bits_equal(q, vectors.q_wxyz).all(axis=1) & bits_equal(thx, vectors.thx_rad)
     exact &= bits_equal(thy, vectors.thy_rad)
     bad = np.flatnonzero(~exact)
-    nan_mism = int(
-        np.count_nonzero(np.isnan(q) != np.isnan(vectors.q_wxyz))
-        + np.count_nonzero(np.isnan(thx) != np.isnan(vectors.thx_rad))
-        + np.count_nonzero(np.isnan(thy) != np.isnan(vectors.thy_rad))
-    )
+    pairs = ((q, vectors.q_wxyz), (thx, vectors.thx_rad), (thy, vectors.thy_rad))
+    nan_mism = sum(int(np.count_nonzero(np.isnan(a) != np.isnan(b))) for a, b in pairs)
     return ConformanceResult(
         name=vectors.path.name,
         steps=len(vectors),

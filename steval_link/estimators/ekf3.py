@@ -53,7 +53,7 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
-from steval_link.quat import quaternion_from_euler
+from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -67,22 +67,13 @@ __all__ = ["Ekf3", "NATIVE_AVAILABLE", "quaternion_from_euler"]
 NATIVE_AVAILABLE = _native is not None
 
 _MIN_COS = 1e-3
+_DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
 
 def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
     """Euler angles after rotating the body by the rotation vector (rx, ry, rz) (rad, body frame): the exact
     solution of the Euler-rate kinematics for a rate constant over the step."""
-    qw, qx, qy, qz = quaternion_from_euler(*x).tolist()
-    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if ang > 1e-12:
-        sn = math.sin(0.5 * ang) / ang
-        dw, dx, dy, dz = math.cos(0.5 * ang), rx * sn, ry * sn, rz * sn
-    else:
-        dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-    w = qw * dw - qx * dx - qy * dy - qz * dz
-    x_ = qw * dx + qx * dw + qy * dz - qz * dy
-    y = qw * dy - qx * dz + qy * dw + qz * dx
-    z = qw * dz + qx * dy - qy * dx + qz * dw
+    w, x_, y, z = qmul(quaternion_from_euler(*x).tolist(), qexp(rx, ry, rz))
     phi = math.atan2(2 * (w * x_ + y * z), w * w - x_ * x_ - y * y + z * z)
     th = math.asin(max(-1.0, min(1.0, 2 * (w * y - x_ * z))))
     psi = math.atan2(2 * (x_ * y + w * z), w * w + x_ * x_ - y * y - z * z)
@@ -189,9 +180,7 @@ class Ekf3(Estimator):
             self.x[1] += dt * f[1]
             self.x[2] = math.remainder(self.x[2] + dt * f[2], 2 * math.pi)
         Q = (dt * dt * self.gyro_var) * (W @ W.T)
-        Q[0, 0] += dt * self.proc_var
-        Q[1, 1] += dt * self.proc_var
-        Q[2, 2] += dt * self.proc_var
+        Q[_DIAG] += dt * self.proc_var
         self.P = F @ self.P @ F.T + Q
 
     def _update(self, ux: float, uy: float, uz: float, an: float) -> None:
@@ -205,9 +194,7 @@ class Ekf3(Estimator):
         P = self.P
         PHt = P @ H.T
         S = H @ PHt
-        S[0, 0] += var
-        S[1, 1] += var
-        S[2, 2] += var
+        S[_DIAG] += var
         K = np.linalg.solve(S, PHt.T).T
         self.x += K @ np.array([ux - h[0], uy - h[1], uz - h[2]])
         IKH = np.eye(3) - K @ H
@@ -229,11 +216,8 @@ class Ekf3(Estimator):
         if native:
             self._run_native(acc, gyro, x)
         else:
-            acc_l = acc.tolist()
-            gyro_l = gyro.tolist()
-            advance = self._advance
-            for k in range(n):
-                advance(acc_l[k], gyro_l[k])
+            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+                self._advance(a, g)
                 x[k] = self.x
         q = quaternion_from_euler(x[:, 0], x[:, 1], x[:, 2])
         valid = np.isfinite(x).all(axis=1) & ~waiting

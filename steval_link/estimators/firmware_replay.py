@@ -1,6 +1,5 @@
-"""The firmware filter's replica followed along a stream, next to the firmware's own outputs: the one follower of
-status snapshots and attitude rows (:class:`ReplicaFollower`) that the replay of a capture
-(:func:`replay_firmware`) and the live replica share. The replica is :mod:`steval_link.estimators.st_mahony`.
+"""The firmware filter's replica (:mod:`steval_link.estimators.st_mahony`) followed along a stream of status
+snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's own outputs.
 """
 
 from __future__ import annotations
@@ -10,9 +9,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link.estimators.st_mahony import (
-    DEFAULT_VARIANT as VARIANTS_DEFAULT,
-)
-from steval_link.estimators.st_mahony import (
+    DEFAULT_VARIANT,
     VARIANTS,
     MahonySettings,
     MahonyState,
@@ -37,8 +34,7 @@ __all__ = [
 
 class ReplicaFollower:
     """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter
-    snapshots. One implementation for the replay of a whole capture (:func:`replay_firmware`) and the live replica
-    (``steval_link.live.estimators.LivePort``).
+    snapshots (the replay of a capture and the live replica).
 
     The replica starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
     snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not
@@ -121,13 +117,11 @@ class ReplicaFollower:
         self.seed_count += 1
         return "seeded"
 
-    def _saved(self) -> tuple:
-        return (self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count,
-                len(self.seed_rows))  # fmt: skip
+    def _saved(self) -> dict:
+        return {**vars(self), "seed_rows": list(self.seed_rows)}
 
-    def _restore(self, saved: tuple) -> None:
-        self.state, self.next_step, self.settings, self.fixed, self._pending, self.seed_count, n = saved
-        del self.seed_rows[n:]
+    def _restore(self, saved: dict) -> None:
+        vars(self).update(saved, seed_rows=list(saved["seed_rows"]))
 
     def rows_recognising(self, step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz, *, first_row: int = 0):
         """:meth:`rows`, and when no release was named (``variant``) and the rows differ from the firmware's
@@ -276,17 +270,13 @@ def replay_firmware(
     initial = settings or snaps.default_settings(variant)
     replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native)
     steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
-    parts = []
+    parts = [rows.run(replica, 0, 0)]  # no row yet: the empty arrays of each output
     # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
     breaks = np.flatnonzero((np.diff(steps) != 1) | (exact_rows[1:] != exact_rows[:-1])) + 1
     for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
         if a < b:
             parts += _replay_run(replica, rows, snaps, a, b)
-    if parts:
-        q, thx, thy, seeded = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    else:
-        q, thx, thy = np.zeros((0, 4), _F32), np.zeros(0, _F32), np.zeros(0, _F32)
-        seeded = np.zeros(0, dtype=bool)
+    q, thx, thy, seeded = (np.concatenate([p[i] for p in parts]) for i in range(4))
     seeds = [ReplaySeed(row, int(steps[row]), src, sid, st) for row, (src, sid, st) in replica.seed_rows]
     exact = seeded & bits_equal(q, rows.fw_q).all(axis=1) & bits_equal(thx, rows.fw_thx) & bits_equal(thy, rows.fw_thy)
     bad = np.flatnonzero(seeded & ~exact)
@@ -311,26 +301,21 @@ class _AttitudeRows:
     @classmethod
     def of(cls, att) -> _AttitudeRows:
         steps = np.asarray(table_column(att, "step"), dtype=np.int64)
-        n = steps.shape[0]
-        fw_q = np.asarray(table_column(att, "q_wxyz"), dtype=_F32).reshape(n, 4)
+
+        def col(name: str, dtype, *shape) -> np.ndarray:
+            return np.ascontiguousarray(table_column(att, name), dtype=dtype).reshape(steps.shape[0], *shape)
+
+        fw_q = col("q_wxyz", _F32, 4)
         try:
-            fw_thx = np.asarray(table_column(att, "thx_rad"), dtype=_F32).reshape(n)
-            fw_thy = np.asarray(table_column(att, "thy_rad"), dtype=_F32).reshape(n)
+            fw_thx, fw_thy = col("thx_rad", _F32), col("thy_rad", _F32)
         except (AttributeError, KeyError, ValueError):
             fw_thx, fw_thy = quaternion_to_euler(fw_q)
         try:
-            exact = np.asarray(table_column(att, "exact"), dtype=bool).reshape(n)
+            exact = col("exact", bool)
         except (AttributeError, KeyError, ValueError):
-            exact = np.ones(n, dtype=bool)
+            exact = np.ones(steps.shape[0], dtype=bool)
         return cls(
-            steps,
-            np.ascontiguousarray(table_column(att, "acc_mg"), dtype=_F32).reshape(n, 3),
-            np.ascontiguousarray(table_column(att, "gyro_mdps"), dtype=_F32).reshape(n, 3),
-            np.asarray(table_column(att, "thr"), dtype=np.int64).reshape(n),
-            exact,
-            fw_q,
-            fw_thx,
-            fw_thy,
+            steps, col("acc_mg", _F32, 3), col("gyro_mdps", _F32, 3), col("thr", np.int64), exact, fw_q, fw_thx, fw_thy
         )
 
     def run(self, replica: ReplicaFollower, a: int, b: int):
@@ -380,7 +365,7 @@ class _Snapshots:
         first = np.flatnonzero(self.has_settings)
         if self.order.size:
             return self.settings(int(self.order[0]))
-        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or VARIANTS_DEFAULT)
+        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or DEFAULT_VARIANT)
 
     def state(self, j: int) -> MahonyState:
         """The filter snapshot of status row ``j``."""
@@ -426,11 +411,6 @@ class VariantReplay:
     replay: FirmwareReplay
     bit_exact: dict
 
-    @property
-    def matches(self) -> bool:
-        """True when the chosen variant is bit-exact on every seeded step."""
-        return self.replay.all_exact
-
 
 def replay_variants(
     tel,
@@ -462,9 +442,9 @@ def _status_variant(tel) -> str:
     """The variant the first binary status frame's flags announce (ST 170120 without one)."""
     status = getattr(tel, "status", None)
     if status is None or len(np.asarray(table_column(status, "step"))) == 0:
-        return VARIANTS_DEFAULT
+        return DEFAULT_VARIANT
     rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
-    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else VARIANTS_DEFAULT
+    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
 
 
 def release_sentence(

@@ -63,7 +63,7 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
-from steval_link.quat import euler_from_quaternion
+from steval_link.quat import euler_from_quaternion, qexp, qmul
 from steval_link.units import MDPS_TO_RADPS
 
 try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
@@ -75,6 +75,7 @@ __all__ = ["Mekf", "NATIVE_AVAILABLE"]
 
 #: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
+_DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
 
 def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, float]:
@@ -87,17 +88,6 @@ def _tilt_quat(ax: float, ay: float, az: float) -> tuple[float, float, float, fl
     x, y = ay, -ax
     s = math.sqrt(w * w + x * x + y * y)
     return w / s, x / s, y / s, 0.0
-
-
-def _qmul(a, b) -> tuple[float, float, float, float]:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
 
 
 def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
@@ -253,7 +243,7 @@ class Mekf(Estimator):
     @property
     def q(self) -> np.ndarray:
         """Current attitude, body → earth, (4,) wxyz."""
-        return np.array(_qmul(self.qc, self.qs))
+        return np.array(qmul(self.qc, self.qs))
 
     @property
     def bias_mdps(self) -> np.ndarray:
@@ -283,22 +273,13 @@ class Mekf(Estimator):
     def _extrapolated(self) -> np.ndarray:
         """The attitude ``latency_s`` ahead: q ⊗ Exp(ω·latency_s) with the last bias-corrected rate."""
         rx, ry, rz = (v * self.latency_s for v in self._w)
-        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-        if ang < 1e-12:
+        if math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-12:
             return self.q
-        s = math.sin(0.5 * ang) / ang
-        return np.array(_qmul(_qmul(self.qc, self.qs), (math.cos(0.5 * ang), rx * s, ry * s, rz * s)))
+        return np.array(qmul(qmul(self.qc, self.qs), qexp(rx, ry, rz)))
 
     def _predict(self, wx: float, wy: float, wz: float) -> None:
         dt = self.dt
-        rx, ry, rz = wx * dt, wy * dt, wz * dt
-        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
-        if ang > 1e-12:
-            s = math.sin(0.5 * ang) / ang
-            d = (math.cos(0.5 * ang), rx * s, ry * s, rz * s)
-        else:
-            d = (1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz)
-        w, x, y, z = _qmul(self.qs, d)
+        w, x, y, z = qmul(self.qs, qexp(wx * dt, wy * dt, wz * dt))
         n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
         self.qs = (w * n, x * n, y * n, z * n)
         P = self.P
@@ -313,12 +294,8 @@ class Mekf(Estimator):
             Pab = Pab + GPbb
             P[:3, 3:] = Pab
             P[3:, :3] = Pab.T
-            P[3, 3] += self._q_bias
-            P[4, 4] += self._q_bias
-            P[5, 5] += self._q_bias
-        P[0, 0] += self._q_att
-        P[1, 1] += self._q_att
-        P[2, 2] += self._q_att
+            P[3:, 3:][_DIAG] += self._q_bias
+        P[_DIAG] += self._q_att
 
     def _correct(self, ax: float, ay: float, az: float, an: float) -> None:
         dev = abs(an - 1.0)
@@ -356,9 +333,7 @@ class Mekf(Estimator):
             H = Hh
         PHt = P @ H.T
         S = H @ PHt
-        S[0, 0] += var
-        S[1, 1] += var
-        S[2, 2] += var
+        S[_DIAG] += var
         K = PHt @ _inv3(S)
         if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
             K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
@@ -367,7 +342,7 @@ class Mekf(Estimator):
         P = IKH @ P @ IKH.T + var * (K @ K.T)
         self.P = 0.5 * (P + P.T)
         ex, ey, ez = 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]
-        w, x, y, z = _qmul(self.qc, (1.0, ex, ey, ez))
+        w, x, y, z = qmul(self.qc, (1.0, ex, ey, ez))
         n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
         self.qc = (w * n, x * n, y * n, z * n)
         if self.estimate_bias:
@@ -393,11 +368,8 @@ class Mekf(Estimator):
         if native:
             self._run_native(acc, gyro, q)
         else:
-            step = self.step
-            acc_l = acc.tolist()
-            gyro_l = gyro.tolist()
-            for k in range(n):
-                q[k] = step(acc_l[k], gyro_l[k])
+            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+                q[k] = self.step(a, g)
         thx, thy, thz = euler_from_quaternion(q)
         valid = np.isfinite(q).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
@@ -405,24 +377,9 @@ class Mekf(Estimator):
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
         st, ist = self._pack_state()
-        b0, b1, b2, a1, a2 = self._lp_coeffs if self._lp_coeffs else (0.0,) * 5
         params = np.array(
-            [
-                self.dt,
-                MDPS_TO_RADPS,
-                self.reject,
-                self._q_att,
-                self._q_bias,
-                self.acc_noise,
-                self.norm_gain,
-                self.init_bias,
-                self.latency_s,
-                b0,
-                b1,
-                b2,
-                a1,
-                a2,
-            ]
+            [self.dt, MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise, self.norm_gain]
+            + [self.init_bias, self.latency_s, *(self._lp_coeffs or (0.0,) * 5)]  # b0, b1, b2, a1, a2
         )
         flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
         _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
@@ -439,20 +396,19 @@ class Mekf(Estimator):
         st[14 : 14 + nb * nb] = self.P.ravel()
         st[50:59] = self._cum_rs.ravel()
         ist[0] = self._initialised
-        alp, nlp, clp = self._acc_lp, self._norm_lp, self._cum_lp
-        if alp is not None:
-            if alp.ready:
-                st[59:71] = np.concatenate([alp.x1, alp.x2, alp.y1, alp.y2])
-            if alp.n > 0:
-                st[71:74] = alp.acc
-            ist[1], ist[2], ist[3] = alp.ready, alp.n, alp.warmup
-        if nlp is not None and nlp.ready:
-            st[74:78] = np.concatenate([nlp.x1, nlp.x2, nlp.y1, nlp.y2])
-            ist[4] = 1
-        if clp is not None and clp.ready:
-            st[78:114] = np.concatenate([clp.x1, clp.x2, clp.y1, clp.y2])
-            ist[5] = 1
+        for lp, at, flag, _ in self._lowpass_slots():  # history x1, x2, y1, y2 at ``at``; ready flag in ist
+            if lp is not None and lp.ready:
+                st[at : at + 4 * lp.x1.size] = np.concatenate([lp.x1, lp.x2, lp.y1, lp.y2])
+                ist[flag] = 1
+        if self._acc_lp is not None:
+            if self._acc_lp.n > 0:
+                st[71:74] = self._acc_lp.acc
+            ist[2], ist[3] = self._acc_lp.n, self._acc_lp.warmup
         return st, ist
+
+    def _lowpass_slots(self) -> tuple:
+        """(low-pass, offset in the state buffer, its ready flag in ist, size) of each low-pass (_ekf_native.c)."""
+        return ((self._acc_lp, 59, 1, 3), (self._norm_lp, 74, 4, 1), (self._cum_lp, 78, 5, 9))
 
     def _unpack_state(self, st: np.ndarray, ist: np.ndarray) -> None:
         nb = self.P.shape[0]
@@ -463,16 +419,11 @@ class Mekf(Estimator):
         self.P = st[14 : 14 + nb * nb].reshape(nb, nb).copy()
         self._cum_rs = st[50:59].reshape(3, 3).copy()
         self._initialised = bool(ist[0])
-        alp, nlp, clp = self._acc_lp, self._norm_lp, self._cum_lp
-        if alp is not None:
-            alp.ready, alp.n = bool(ist[1]), int(ist[2])
-            if alp.ready:
-                alp.x1, alp.x2, alp.y1, alp.y2 = (st[59 + 3 * i : 62 + 3 * i].copy() for i in range(4))
-            if alp.n > 0:
-                alp.acc = st[71:74].copy()
-        if nlp is not None and ist[4]:
-            nlp.ready = True
-            nlp.x1, nlp.x2, nlp.y1, nlp.y2 = (st[74 + i : 75 + i].copy() for i in range(4))
-        if clp is not None and ist[5]:
-            clp.ready = True
-            clp.x1, clp.x2, clp.y1, clp.y2 = (st[78 + 9 * i : 87 + 9 * i].copy() for i in range(4))
+        for lp, at, flag, m in self._lowpass_slots():
+            if lp is not None and ist[flag]:
+                lp.ready = True
+                lp.x1, lp.x2, lp.y1, lp.y2 = (st[at + m * i : at + m * (i + 1)].copy() for i in range(4))
+        if self._acc_lp is not None:
+            self._acc_lp.ready, self._acc_lp.n = bool(ist[1]), int(ist[2])
+            if self._acc_lp.n > 0:
+                self._acc_lp.acc = st[71:74].copy()

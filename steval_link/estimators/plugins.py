@@ -21,6 +21,7 @@ output is checked ((4,) quaternion per step, N rows per run), and an exception i
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import importlib
 import importlib.metadata
@@ -156,13 +157,11 @@ def _parse_options(text: str, ref: str) -> dict:
     try:
         call = ast.parse(f"_({text})", mode="eval").body
     except SyntaxError:
-        raise UserError(f"cannot read the options of {ref!r}: {hint}") from None
-    if not isinstance(call, ast.Call) or call.args:
+        call = None
+    if not isinstance(call, ast.Call) or call.args or any(kw.arg is None for kw in call.keywords):
         raise UserError(f"cannot read the options of {ref!r}: {hint}")
     options: dict = {}
     for kw in call.keywords:
-        if kw.arg is None:
-            raise UserError(f"cannot read the options of {ref!r}: {hint}")
         try:
             options[kw.arg] = ast.literal_eval(kw.value)
         except (ValueError, SyntaxError, TypeError):
@@ -225,24 +224,31 @@ def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, s
     """(where, details): the last frame of ``exc``'s traceback in the user's files as ``file.py, line N, in f``
     and their frames formatted like Python's traceback (with the exception line); ("", "") without such frames."""
     frames = [f for f in traceback.extract_tb(exc.__traceback__) if _is_user_frame(f.filename, user_files)]
+    line = "".join(traceback.format_exception_only(type(exc), exc))
     if isinstance(exc, SyntaxError) and exc.filename and _is_user_frame(exc.filename, user_files):
-        where = f"{Path(exc.filename).name}, line {exc.lineno}"
-        return where, "".join(traceback.format_exception_only(type(exc), exc)).rstrip()
+        return f"{Path(exc.filename).name}, line {exc.lineno}", line.rstrip()
     if not frames:
         return "", ""
     last = frames[-1]
     where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
-    details = (
-        "Traceback (your code):\n"
-        + "".join(traceback.format_list(frames))
-        + "".join(traceback.format_exception_only(type(exc), exc))
-    )
-    return where, details.rstrip()
+    return where, ("Traceback (your code):\n" + "".join(traceback.format_list(frames)) + line).rstrip()
 
 
 def _exc_text(exc: BaseException) -> str:
     msg = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
+
+
+def _failed(what: str, exc: BaseException, files: tuple[str, ...] = ()) -> PluginError:
+    """``{what}: {exception} ({file, line})``, the user's traceback as ``details``."""
+    where, details = _user_trace(exc, files)
+    return PluginError(f"{what}: {_exc_text(exc)}" + (f" ({where})" if where else ""), details)
+
+
+def missing_methods(obj) -> str:
+    """``no step() and no reset() method (see docs/ESTIMATORS.md)``: what ``obj`` lacks of an estimator, or ""."""
+    missing = [m + "()" for m in ("step", "reset") if not callable(getattr(obj, m, None))]
+    return f"no {' and no '.join(missing)} method (see docs/ESTIMATORS.md)" if missing else ""
 
 
 def _user_files(obj) -> tuple[str, ...]:
@@ -275,22 +281,17 @@ def _load_file(ref: Reference):
     sys.path.insert(0, folder)  # helper modules next to the file import as they would when run directly
     try:
         spec.loader.exec_module(module)
-    except SyntaxError as exc:
-        sys.modules.pop(name, None)
-        raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
     except Exception as exc:  # noqa: BLE001 - the user's code: any failure is theirs to see
         sys.modules.pop(name, None)
-        where, details = _user_trace(exc, (str(resolved),))
+        if isinstance(exc, SyntaxError):
+            raise UserError(f"{path.name}, line {exc.lineno}: syntax error: {exc.msg}") from None
+        err = _failed(f"{path.name} failed to load", exc, (str(resolved),))
         if isinstance(exc, ImportError):  # a package it needs is missing: the line says all
-            details = ""
-        raise PluginError(
-            f"{path.name} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+            err.details = ""
+        raise err from None
     finally:
-        try:
+        with contextlib.suppress(ValueError):
             sys.path.remove(folder)
-        except ValueError:
-            pass
     return module, path.name
 
 
@@ -313,24 +314,19 @@ def _load_module(ref: Reference):
             f"{Path(exc.filename or ref.source).name}, line {exc.lineno}: syntax error: {exc.msg}"
         ) from None
     except Exception as exc:  # noqa: BLE001
-        where, details = _user_trace(exc, ())
-        raise PluginError(
-            f"module {ref.source} failed to load: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+        raise _failed(f"module {ref.source} failed to load", exc) from None
     return module, ref.source
 
 
 def _estimator_classes(module) -> list[type]:
-    out = []
-    for obj in vars(module).values():
-        if (
-            isinstance(obj, type)
-            and obj.__module__ == module.__name__
-            and callable(getattr(obj, "step", None))
-            and not inspect.isabstract(obj)
-        ):
-            out.append(obj)
-    return out
+    return [
+        obj
+        for obj in vars(module).values()
+        if isinstance(obj, type)
+        and obj.__module__ == module.__name__
+        and callable(getattr(obj, "step", None))
+        and not inspect.isabstract(obj)
+    ]
 
 
 def check_interface(factory, label: str) -> None:
@@ -338,12 +334,8 @@ def check_interface(factory, label: str) -> None:
     if not callable(factory):
         raise UserError(f"{label} is not a class (it is a {type(factory).__name__})")
     if isinstance(factory, type):
-        missing = [m for m in ("step", "reset") if not callable(getattr(factory, m, None))]
-        if missing:
-            raise UserError(
-                f"{label} is not an estimator: it has no {' and no '.join(m + '()' for m in missing)} "
-                "method (see docs/ESTIMATORS.md)"
-            )
+        if lacks := missing_methods(factory):
+            raise UserError(f"{label} is not an estimator: it has {lacks}")
         if inspect.isabstract(factory):
             left = ", ".join(sorted(factory.__abstractmethods__))
             raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
@@ -357,12 +349,7 @@ def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
         try:
             factory = ep.load()
         except Exception as exc:  # noqa: BLE001
-            where, details = _user_trace(exc, ())
-            raise PluginError(
-                f"plug-in {ref.source} ({ep.value}) failed to load: {_exc_text(exc)}"
-                + (f" ({where})" if where else ""),
-                details,
-            ) from None
+            raise _failed(f"plug-in {ref.source} ({ep.value}) failed to load", exc) from None
         label = f"plug-in {ref.source} ({ep.value})"
         check_interface(factory, label)
         return factory, label
@@ -422,12 +409,10 @@ def construct(factory, label: str, options: dict):
     try:
         return factory(**options)
     except Exception as exc:  # noqa: BLE001
-        where, details = _user_trace(exc, _user_files(factory))
-        if isinstance(exc, TypeError) and not where:
+        err = _failed(f"{label} could not be constructed", exc, _user_files(factory))
+        if isinstance(exc, TypeError) and not err.details:
             raise ValueError(f"{label}: {exc}") from None
-        raise PluginError(
-            f"{label} could not be constructed: {_exc_text(exc)}" + (f" ({where})" if where else ""), details
-        ) from None
+        raise err from None
 
 
 # ---- the guard ----------------------------------------------------------------------------------------------------
@@ -527,16 +512,8 @@ class Guarded(Estimator):
                 raise
             except Exception as exc:  # noqa: BLE001
                 raise self._fail("step", exc) from None
-        if not every:
-            full = np.full((n, 4), np.nan)
-            full[rows] = q
-            q = full
-            if thx is not None:
-                thx, thy = _scatter(thx, rows, n), _scatter(thy, rows, n)
-            if valid_in is not None:
-                v = np.zeros(n, dtype=bool)
-                v[rows] = valid_in
-                valid_in = v
+        if not every:  # the skipped rows back in place: NaN, not valid
+            q, thx, thy, valid_in = (_scatter(v, rows, n) for v in (q, thx, thy, valid_in))
         ex, ey, ez = euler_from_quaternion(q)
         thx = ex if thx is None else thx
         thy = ey if thy is None else thy
@@ -548,14 +525,11 @@ class Guarded(Estimator):
     def _estimate(self, res, m: int):
         """(q, thx or None, thy or None, valid or None) of a user's run() result, shapes checked."""
         where = self.origin("run")
-        if isinstance(res, np.ndarray) or isinstance(res, (list, tuple)):
-            q = np.asarray(res, dtype=np.float64)
-            thx = thy = valid = None
+        optional = ("thx_rad", "thy_rad", "valid")
+        if isinstance(res, (np.ndarray, list, tuple)):
+            q, arrays = np.asarray(res, dtype=np.float64), (None, None, None)
         elif hasattr(res, "q_wxyz"):
-            q = np.asarray(res.q_wxyz, dtype=np.float64)
-            thx = getattr(res, "thx_rad", None)
-            thy = getattr(res, "thy_rad", None)
-            valid = getattr(res, "valid", None)
+            q, arrays = np.asarray(res.q_wxyz, dtype=np.float64), [getattr(res, k, None) for k in optional]
         else:
             raise PluginError(
                 f"estimator {self.name}: run() returned {type(res).__name__}, not an AttitudeEstimate "
@@ -566,24 +540,25 @@ class Guarded(Estimator):
                 f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
                 f"expected ({m}, 4) ({where})"
             )
-        out = []
-        for label, arr, dtype in (("thx_rad", thx, np.float64), ("thy_rad", thy, np.float64), ("valid", valid, bool)):
-            if arr is None:
-                out.append(None)
-                continue
-            arr = np.asarray(arr, dtype=dtype)
-            if arr.shape != (m,):
+        out = [
+            None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
+            for k, a in zip(optional, arrays)
+        ]
+        for label, arr in zip(optional, out):
+            if arr is not None and arr.shape != (m,):
                 raise PluginError(
                     f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows ({where})"
                 )
-            out.append(arr)
         return (q, *out)
 
     def __repr__(self) -> str:
         return f"<Guarded {self.name!r} {type(self.inner).__name__}>"
 
 
-def _scatter(values: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
-    out = np.full(n, math.nan)
+def _scatter(values: np.ndarray | None, rows: np.ndarray, n: int) -> np.ndarray | None:
+    """``values`` of the ``rows`` (bool, n) spread over n rows; the others NaN (False for a bool array)."""
+    if values is None:
+        return None
+    out = np.full((n, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
     out[rows] = values
     return out

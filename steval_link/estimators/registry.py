@@ -1,15 +1,9 @@
 """Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
 
-:data:`ESTIMATORS` is an immutable mapping of registry name → constructor. Constructors import their module only
-when called, so an estimator whose optional dependency is missing (e.g. ``vqf``) does not break the others.
-To add a built-in, add one line to ``_ENTRIES``: ``"name": _lazy("steval_link.estimators.module", "ClassName"),``.
-
-Everywhere an estimator is named (``-e`` of every command, :func:`create`), a reference also works
-(:mod:`steval_link.estimators.plugins`): ``my_ekf.py:MyEkf``, ``mypkg.filters:MyEkf``, an installed package's
-entry point (group ``steval_link.estimators``), each with options ``(q_gyro=1e-4)``, built-ins too
-(``ekf3(acc_motion_mg=20)``). :func:`parse_names` resolves them once (one line and exit 2 for a missing file, a
-syntax error, a missing class, a wrong interface or an option the class does not take) and returns
-:class:`~steval_link.estimators.plugins.Selected` names that :func:`create` builds.
+:data:`ESTIMATORS` maps registry name → constructor; a constructor imports its module only when called, so a
+missing optional dependency (e.g. ``vqf``) does not break the others. A built-in is one line of ``_ENTRIES``.
+Wherever an estimator is named, a reference (:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names`
+resolves it once and returns a :class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
 """
 
 from __future__ import annotations
@@ -32,7 +26,6 @@ __all__ = [
     "names",
     "create",
     "is_available",
-    "available_names",
     "parse_names",
     "resolve",
     "is_known",
@@ -102,11 +95,6 @@ def is_available(name: str) -> bool:
     return True
 
 
-def available_names() -> tuple[str, ...]:
-    """Registered names whose estimator can be built on this machine."""
-    return tuple(n for n in ESTIMATORS if is_available(n))
-
-
 def is_known(name: str) -> bool:
     """True for a registry name, a resolved :class:`Selected`, or text that reads as a reference to a file,
     module, installed plug-in or a built-in with options (whether it loads is :func:`resolve`'s question)."""
@@ -167,12 +155,8 @@ def _build(sel: Selected, options: dict) -> Estimator:
     if sel.reference.kind == "builtin":
         return create(sel.reference.source, **opts)
     inst = plugins.construct(sel.factory, sel.label, opts)
-    missing = [m for m in ("step", "reset") if not callable(getattr(inst, m, None))]
-    if missing:
-        raise UserError(
-            f"{sel.label} made a {type(inst).__name__}, which has no "
-            f"{' and no '.join(m + '()' for m in missing)} method (see docs/ESTIMATORS.md)"
-        )
+    if lacks := plugins.missing_methods(inst):
+        raise UserError(f"{sel.label} made a {type(inst).__name__}, which has {lacks}")
     return plugins.Guarded(inst, str(sel))
 
 
@@ -220,17 +204,13 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
         return []
     out: list[str] = []
     for n in chosen:
-        if n in ESTIMATORS:
-            if require_installed and not is_available(n):
-                raise UserError(f"estimator {n!r} needs an optional package: pip install 'steval-link[{n}]'")
+        sel = None if n in ESTIMATORS else resolve(n)
+        builtin = n if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
+        if builtin is not None and require_installed and not is_available(builtin):
+            raise UserError(f"estimator {builtin!r} needs an optional package: pip install 'steval-link[{builtin}]'")
+        if sel is None:
             out.append(n)
             continue
-        sel = resolve(n)
-        if sel.reference.kind == "builtin" and require_installed and not is_available(sel.reference.source):
-            raise UserError(
-                f"estimator {sel.reference.source!r} needs an optional package: "
-                f"pip install 'steval-link[{sel.reference.source}]'"
-            )
         try:
             create(sel)  # the options and the constructor checked now, before any work
         except ValueError as exc:
@@ -246,9 +226,7 @@ def _unique(names: list[str]) -> list[str]:
     """``names`` when no two share a display name; UserError otherwise (two variants in one column would be lost)."""
     seen: set[str] = set()
     for n in names:
-        if str(n) in seen:
-            raise UserError(duplicate_sentence(str(n)))
-        seen.add(str(n))
+        seen.add(unique_name(n, seen))
     return names
 
 

@@ -10,15 +10,12 @@ throttle (10 below MIN_THR, else 0.4); integral ``ex*KI*dt`` in float; the in-pl
 the new q0); and the final normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and
 ``asin`` in ``QuaternionToEuler`` can return NaN near ±90° roll, as on the drone.
 
-ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 170120,
-170318 and the 301117 beta share one ``ahrs.c`` ("ST 170120", above); 221117 ("ST 221117") scales the gyro in
-double (``gyro * 1.745329252e-5``, stored to float), takes ``ex * AHRS_KI * SENSOR_SAMPLING_TIME`` in double
-(0.1 and 0.00625 are double literals there; the sum with ``exInt`` too, stored to float), computes
-``halfT = 0.5*SENSOR_SAMPLING_TIME`` in double and normalises with the squares of the updated quaternion.
+ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 221117
+computes the gyro scale, the integral step and halfT in double (ST's double literals), stored to float, and
+normalises with the squares of the updated quaternion.
 
-Two loops give the same bits: a C extension (``_st_mahony_native``, ≈ 10 M steps/s) and a numpy-float32 loop
-(≈ 70 k steps/s) used when the extension is not built. Entry points: :func:`run`, :func:`quaternion_to_euler`,
-:class:`StMahony` (the shared estimator interface); a capture against the drone: :mod:`.firmware_replay`.
+Two loops give the same bits: a C extension (``_st_mahony_native``) and a numpy-float32 loop used when the
+extension is not built. A capture against the drone: :mod:`.firmware_replay`.
 """
 
 from __future__ import annotations
@@ -52,8 +49,6 @@ __all__ = [
 from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
     _F32,
     _HALF,
-    _INVSQRT_MAGIC,
-    _THREE_HALVES,
     _TWO,
     NATIVE_AVAILABLE,
     _native,
@@ -148,8 +143,7 @@ class MahonySettings:
     @classmethod
     def of_status(cls, status, j: int | None = None) -> MahonySettings:
         """The settings a status frame reports (its float32 fields kept exactly): ``status`` is one frame (``j``
-        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row. The one
-        builder of settings from status frames (replay, compare, the live replica and the diagnosis all use it)."""
+        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row."""
 
         def field(name: str):
             return getattr(status, name) if j is None else table_column(status, name)[j]
@@ -253,34 +247,22 @@ def run(
 
 
 def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray:
-    """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop)."""
+    """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop). What does not
+    depend on the filter's state (gyro scale, the accelerometer's normalisation, kp) is done for all rows first."""
     kp_ground, kp_flight, ki_d, dt_d = settings._params().tolist()
-    kp_ground, kp_flight, ki, dt = _F32(kp_ground), _F32(kp_flight), _F32(ki_d), _F32(dt_d)
-    min_thr = settings.min_thr
-    correction = settings.correction
+    ki, dt = _F32(ki_d), _F32(dt_d)
     st221117 = settings.variant == "ST 221117"
-    coe = COE_MDPS_TO_RADPS_F32
     two = _TWO
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, ex_int, ey_int, ez_int = (_F32(v) for v in st)
-    acc_rows = acc.tolist()  # exact: float32 → Python float → float32 round-trips
-    gyro_rows = gyro.tolist()
-    thr_list = thr.tolist()
     with np.errstate(all="ignore"):
-        for k in range(acc.shape[0]):
-            ahrs_kp = kp_ground if thr_list[k] < min_thr else kp_flight
-            ax, ay, az = acc_rows[k]
-            gx, gy, gz = gyro_rows[k]
-            axf, ayf, azf = _F32(ax), _F32(ay), _F32(az)
-            if st221117:  # float * double literal: a double product, stored to float
-                gxf, gyf, gzf = (
-                    _F32(gx * C.COE_MDPS_TO_RADPS),
-                    _F32(gy * C.COE_MDPS_TO_RADPS),
-                    _F32(gz * C.COE_MDPS_TO_RADPS),
-                )
-            else:
-                gxf, gyf, gzf = _F32(gx) * coe, _F32(gy) * coe, _F32(gz) * coe
-
+        if st221117:  # float * double literal: a double product, stored to float
+            gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
+        else:
+            gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
+        acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
+        kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
+        for k, ((axf, ayf, azf), (gxf, gyf, gzf), ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
             q0q0 = q0 * q0
             q0q1 = q0 * q1
             q0q2 = q0 * q2
@@ -290,12 +272,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2q3 = q2 * q3
             q3q3 = q3 * q3
 
-            if correction:
-                norm = _inv_sqrt_scalar(axf * axf + ayf * ayf + azf * azf)
-                axf = axf * norm
-                ayf = ayf * norm
-                azf = azf * norm
-
+            if settings.correction:
                 vx = two * (q1q3 - q0q2)
                 vy = two * (q0q1 + q2q3)
                 vz = q0q0 - q1q1 - q2q2 + q3q3
@@ -323,23 +300,15 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * half_t
 
             if st221117:
-                norm = _inv_sqrt_scalar(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
             else:
-                norm = _inv_sqrt_scalar(q0q0 + q1q1 + q2q2 + q3q3)
+                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3)
             q0 = q0 * norm
             q1 = q1 * norm
             q2 = q2 * norm
             q3 = q3 * norm
             q_out[k] = (q0, q1, q2, q3)
     return np.array([q0, q1, q2, q3, ex_int, ey_int, ez_int], dtype=_F32)
-
-
-def _inv_sqrt_scalar(x: np.float32) -> np.float32:
-    """``invSqrt`` on one float32 scalar (see :func:`inv_sqrt`)."""
-    halfx = _HALF * x
-    i = _INVSQRT_MAGIC - (np.array(x, dtype=_F32).view(np.int32) >> np.int32(1))
-    y = i.view(_F32)[()]
-    return y * (_THREE_HALVES - (halfx * y * y))
 
 
 def handout_yaw(q_wxyz) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
-from steval_link.quat import euler_from_quaternion
+from steval_link.quat import euler_from_quaternion, quat_multiply
 from steval_link.units import MDPS_TO_RADPS
 
 INSTALL_HINT = 'the VQF estimator needs the vqf package: pip install "steval-link[vqf]"'
@@ -73,14 +73,4 @@ class VqfEstimator(Estimator):
         r = gyr_radps * self.latency_s
         ang = np.linalg.norm(r, axis=1)
         s = np.where(ang > 1e-12, np.sin(0.5 * ang) / np.maximum(ang, 1e-12), 0.5)
-        d = np.column_stack([np.cos(0.5 * ang), r * s[:, None]])
-        w1, x1, y1, z1 = q.T
-        w2, x2, y2, z2 = d.T
-        return np.column_stack(
-            [
-                w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-            ]
-        )
+        return quat_multiply(q, np.column_stack([np.cos(0.5 * ang), r * s[:, None]]))
