@@ -27,14 +27,27 @@ LEGEND_SHARE = {"angles": 0.32, "sensors": 0.42, "link": 0.62}
 LIVE_WINDOW_S = 10.0
 
 
-def _time_ranges(live: bool, timeline: str):
-    if not live:
-        return None
-    return rrb.VisibleTimeRange(
-        timeline,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
+class _Plots:
+    """Time-series views of one layout: ``live`` scrolls the last :data:`LIVE_WINDOW_S` of ``timeline``."""
+
+    def __init__(self, live: bool, timeline: str) -> None:
+        self.live, self.timeline = live, timeline
+
+    def __call__(self, origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
+        """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
+        window = rrb.VisibleTimeRange(
+            self.timeline,
+            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S),
+            end=rrb.TimeRangeBoundary.cursor_relative(),
+        )
+        return rrb.TimeSeriesView(
+            origin=origin,
+            contents=contents,
+            name=name,
+            time_ranges=window if self.live else None,
+            plot_legend=rrb.PlotLegend(corner=legend_corner(self.live, bottom, left), visible=legend),
+            axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
+        )
 
 
 def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
@@ -54,36 +67,7 @@ def axis_limit(max_abs: float) -> float | None:
         return None
     need = 1.6 * max_abs
     k = math.floor(math.log10(need))
-    for m in (1.0, 2.0, 5.0, 10.0):
-        if m * 10.0**k >= need:
-            return m * 10.0**k
-    return 10.0 ** (k + 1)  # pragma: no cover - the loop always returns
-
-
-def _series(
-    origin: str,
-    name: str,
-    live: bool,
-    timeline: str,
-    contents=None,
-    y_range=None,
-    *,
-    legend: bool = True,
-    legend_bottom: bool = False,
-    legend_left: bool = False,
-) -> rrb.TimeSeriesView:
-    """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
-    kwargs = {}
-    if y_range is not None:
-        kwargs["axis_y"] = rrb.ScalarAxis(range=y_range)
-    return rrb.TimeSeriesView(
-        origin=origin,
-        contents=contents if contents is not None else "$origin/**",
-        name=name,
-        time_ranges=_time_ranges(live, timeline),
-        plot_legend=rrb.PlotLegend(corner=legend_corner(live, legend_bottom, legend_left), visible=legend),
-        **kwargs,
-    )
+    return next(m * 10.0**k for m in (1.0, 2.0, 5.0, 10.0) if m * 10.0**k >= need)
 
 
 def make_blueprint(
@@ -91,7 +75,6 @@ def make_blueprint(
     live: bool = False,
     ghost_sources: Iterable[str] = (),
     ghost: str | None = None,
-    timeline: str | None = None,
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
     never_armed: bool = False,
@@ -103,24 +86,22 @@ def make_blueprint(
 ) -> rrb.Blueprint:
     """The default blueprint.
 
-    ``live``: a scrolling window of the last 10 s (else the whole flight). ``ghost_sources``: the sources with a
-    ghost drone; ``ghost`` the one shown (default: the replica, else by ``entities.GHOST_PREFERENCE``), the others
-    hidden. ``timeline``: the active one (default ``fw_time``, live ``host_time``). ``gyro_max_dps``: the gyro plot's
-    symmetric range (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab
-    (:func:`flight_view`), named so when ``never_armed``. ``replica_verdict``: the replica's verdict, in the difference
-    panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
-    (:func:`ble_view`). ``absent``: plot entities the recording has no values for (a log of printed angles: yaw,
-    the sensors), left out. ``text``: the text telemetry tab in front (a stream of printed lines). The replica is
-    drawn only in the difference panel: bit-exact, it would hide the firmware.
+    ``live``: a scrolling window of the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
+    ``ghost_sources``: the sources with a ghost drone; ``ghost`` the one shown (default: the replica, else by
+    ``entities.GHOST_PREFERENCE``), the others hidden. ``gyro_max_dps``: the gyro plot's symmetric range
+    (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab, named so when
+    ``never_armed``. ``replica_verdict``: in the difference panel's title. ``y_ranges``: fixed y ranges by plot
+    entity (:func:`legend_room`). ``ble``: a BLE tab. ``absent``: plot entities without values, left out. ``text``:
+    the text telemetry tab in front. The replica is drawn only in the difference panel: bit-exact, it would hide
+    the firmware.
     """
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     if ghost is None:
         ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
-    if timeline is None:
-        timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
+    timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
+    plot = _Plots(live, timeline)
     overrides = {ent.estimate_path(s): rrb.EntityBehavior(visible=False) for s in sources if s != ghost}
-
     view3d = rrb.Spatial3DView(
         origin=ent.WORLD,
         name="Attitude: firmware (solid, red props = front), estimate (ghost), gravity (yellow)",
@@ -128,118 +109,83 @@ def make_blueprint(
         eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
-    left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble, text), row_shares=[3, 2])
-    right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps, frozenset(absent))
+    left = rrb.Vertical(view3d, link_view(plot, yr, ble, text), row_shares=[3, 2])
+    right = attitude_view(plot, yr, replica_verdict, gyro_max_dps, frozenset(absent))
     if flight_control:
-        right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
-    return two_columns(left, right, live, timeline)
+        right = rrb.Tabs(right, flight_view(plot, never_armed), name="Attitude / flight control")
+    time_panel = rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None)
+    return window(rrb.Horizontal(left, right, column_shares=[2, 3]), time_panel)
 
 
-def link_view(
-    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], ble: bool = False, text: bool = False
-) -> rrb.Tabs:
+def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
+    """The window of every layout: ``content`` and ``time_panel``, the side panels closed."""
+    return rrb.Blueprint(
+        content,
+        time_panel,
+        rrb.BlueprintPanel(expanded=False),
+        rrb.SelectionPanel(expanded=False),
+        collapse_panels=False,
+    )
+
+
+def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
     """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue), the firmware log, the
     text telemetry the firmware printed (in front when ``text``), and a BLE link's own values (``ble``)."""
+    losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
     return rrb.Tabs(
         rrb.Grid(
-            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
-            _series(
-                ent.LINK,
-                "Link losses (count, cumulative)",
-                live,
-                timeline,
-                contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
-                y_range=yr.get(ent.LINK),
-                legend_left=True,
-            ),
-            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", live, timeline, legend=False),
-            _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
+            plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
+            plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
+            plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
+            plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
             grid_columns=2,
             name="Link health",
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
-        _series(TEXT_ROOT, "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
-        *([ble_view(live, timeline)] if ble else []),
+        plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True),
+        *([ble_view(plot)] if ble else []),
         active_tab=2 if text else None,
         name="Link",
     )
 
 
-def attitude_view(
-    live: bool,
-    timeline: str,
-    yr: Mapping[str, tuple[float, float]],
-    replica_verdict: str | None,
-    gyro_max_dps,
-    absent: frozenset[str] = frozenset(),
-) -> rrb.Vertical:
+def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_max_dps, absent: frozenset[str]) -> rrb.Vertical:
     """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
-    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle; a row
-    whose plots are all ``absent`` is left out, and an absent plot in a row."""
-
-    view = rrb.Vertical(
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_PITCH,
-                "thx pitch, about x (deg, nose up +)",
-                live,
-                timeline,
-                contents=["$origin/**", f"- {ent.pitch_path(ent.SOURCE_REPLICA)}"],
-                y_range=yr.get(ent.PLOT_PITCH),
-            ),
-            _series(
-                ent.PLOT_ROLL,
-                "thy roll, about y (deg, right side down +)",
-                live,
-                timeline,
-                contents=["$origin/**", f"- {ent.roll_path(ent.SOURCE_REPLICA)}"],
-                y_range=yr.get(ent.PLOT_ROLL),
-            ),
-        ),
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", live, timeline, legend=False
-            ),
-            _series(
-                ent.PLOT_DIFF,
-                "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else ""),
-                live,
-                timeline,
-                y_range=yr.get(ent.PLOT_DIFF),
-            ),
-        ),
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_ACC, "accelerometer (mg)", live, timeline, y_range=yr.get(ent.PLOT_ACC), legend_bottom=True
-            ),
-            _series(
-                ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps), legend_bottom=True
-            ),
-            _series(ent.PLOT_THROTTLE, "gTHR", live, timeline, legend=False),
-            column_shares=[2, 2, 1],
-        ),
-        row_shares=[3, 2, 2],
-        name="Attitude",
+    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle. The
+    ``absent`` plots are left out, and rows left empty."""
+    diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
+    titles = {
+        ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",
+        ent.PLOT_ROLL: "thy roll, about y (deg, right side down +)",
+    }
+    rows = (
+        [
+            plot(path, title, ["$origin/**", f"- {path}/{ent.SOURCE_REPLICA}"], yr.get(path))
+            for path, title in titles.items()
+        ],
+        [
+            plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False),
+            plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF)),
+        ],
+        [
+            plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
+            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=_symmetric(gyro_max_dps), bottom=True),
+            plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
+        ],
     )
-    return _without(view, absent) if absent else view
-
-
-def _without(view: rrb.Vertical, absent: frozenset[str]) -> rrb.Vertical:
-    """``view`` (rows of plots) without the plots whose origin is in ``absent``, nor the rows left empty."""
-    rows, shares = [], []
-    for row, share in zip(view.contents, (3, 2, 2)):
-        kept = [v for v in row.contents if str(v.origin) not in absent]
-        if kept:
-            rows.append(row if len(kept) == len(row.contents) else rrb.Horizontal(*kept))
+    kept, shares = [], []
+    for row, share, columns in zip(rows, (3, 2, 2), (None, None, [2, 2, 1])):
+        views = [v for v in row if str(v.origin) not in absent]
+        if views:
+            kept.append(rrb.Horizontal(*views, column_shares=columns if len(views) == len(row) else None))
             shares.append(share)
-    return rrb.Vertical(*rows, row_shares=shares, name="Attitude")
+    return rrb.Vertical(*kept, row_shares=shares, name="Attitude")
 
 
-def ble_view(live: bool, timeline: str) -> rrb.Vertical:
-    """A BLE link's own values (``ble``: a stream with BLE notifications): what its rows are, the drone's battery,
-    pressure, temperature, RSSI and arming."""
+def ble_view(plot: _Plots) -> rrb.Vertical:
+    """A BLE link's own values: what its rows are, the drone's battery, pressure, temperature, RSSI and arming."""
     plots = [
-        _series(path, name, live, timeline, legend=False)
+        plot(path, name, legend=False)
         for path, name in (
             (ent.BLE_BATTERY, "battery (%)"),
             (ent.BLE_PRESSURE, "pressure (hPa)"),
@@ -253,53 +199,29 @@ def ble_view(live: bool, timeline: str) -> rrb.Vertical:
     return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
 
-def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:
-    """The window of every layout: ``left`` (the 3D view and link) and ``right`` (the plots) side by side, the
-    time panel collapsed (following the newest data when ``live``), the side panels closed."""
-    return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[2, 3]),
-        rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
-
-
-def flight_view(live: bool, timeline: str, never_armed: bool = False) -> rrb.Vertical:
+def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
     """The flight-control view: per axis the remote's target against the firmware's angle (pitch = thx about x,
     roll = thy about y), the outer loop's output s1 with its P and I terms per axis, the inner loop's outputs s2,
     the four motor commands, the sticks and the battery."""
     fw = ent.SOURCE_FIRMWARE
+    angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
     targets = rrb.Horizontal(
-        _series(
-            "/",
-            "pitch thx vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"],
-        ),
-        _series(
-            "/",
-            "roll thy vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
-        ),
-        _series(
-            "/", "yaw thz vs target (deg)", live, timeline, contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]
-        ),
+        *[
+            plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
+            for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
+        ]
     )
     outer = rrb.Horizontal(
         *[
-            _series(path, f"outer {name}: s1, P, I (rad/s)", live, timeline)
+            plot(path, f"outer {name}: s1, P, I (rad/s)")
             for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
         ]
     )
     out = rrb.Horizontal(
-        _series(ent.FC_INNER, "inner loop s2 (PWM)", live, timeline, legend_bottom=True),
-        _series(ent.FC_MOTORS, "motors (of 2000)", live, timeline, legend_bottom=True),
-        _series(ent.FC_STICKS, "remote sticks", live, timeline, legend_bottom=True),
-        _series(ent.FC_VBAT, "Vbat", live, timeline, legend=False),
+        plot(ent.FC_INNER, "inner loop s2 (PWM)", bottom=True),
+        plot(ent.FC_MOTORS, "motors (of 2000)", bottom=True),
+        plot(ent.FC_STICKS, "remote sticks", bottom=True),
+        plot(ent.FC_VBAT, "Vbat", legend=False),
         column_shares=[2, 2, 2, 1],
     )
     name = "Flight control (never armed: targets at rest, motors off)" if never_armed else "Flight control"
@@ -311,11 +233,9 @@ def _symmetric(max_abs: float | None) -> tuple[float, float] | None:
     return None if limit is None else (-limit, limit)
 
 
-def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
+def send_blueprint(rec: rr.RecordingStream, **kwargs) -> None:
     """Build the blueprint (arguments of :func:`make_blueprint`) and send it as the recording's default."""
-    bp = make_blueprint(**kwargs)
-    rec.send_blueprint(bp, make_active=True, make_default=True)
-    return bp
+    rec.send_blueprint(make_blueprint(**kwargs), make_active=True, make_default=True)
 
 
 def replica_verdict(step, bit_exact, seeded) -> str | None:

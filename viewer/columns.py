@@ -126,6 +126,14 @@ def send_scalars(
         send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
 
 
+def series_style(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5, visible=None) -> None:
+    """A series' legend (static): ``names`` (one, or one per column) with their ``colors``, line ``width``."""
+    names = [names] if isinstance(names, str) else list(names)
+    colors = [colors] if isinstance(colors, tuple) else list(colors)
+    lines = rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names), visible_series=visible)
+    rec.log(path, lines, static=True)
+
+
 #: Text telemetry: one entity per record shape under this root (the blueprint's "Text telemetry" tab).
 TEXT_ROOT = "text"
 

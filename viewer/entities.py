@@ -70,7 +70,6 @@ WORLD_AXIS_LABELS = "world/axis_labels"  #: the axes' names, as points beyond th
 DRONE_FIRMWARE = "world/drone/firmware"
 DRONE_FIRMWARE_MODEL = "world/drone/firmware/model"
 ACC_GRAVITY = "world/drone/firmware/acc_gravity"
-DRONE_ESTIMATE_ROOT = "world/drone/estimate"
 
 PLOTS = "plots"
 PLOT_PITCH = "plots/pitch_thx_deg"
@@ -91,26 +90,20 @@ LINK_TX_DROPPED = "link/tx_dropped"
 LINK_QUEUE = "link/tx_queue_peak_bytes"
 LINK_CYCLES = "link/ahrs_cycles"
 
-FC = "fc"
-FC_PITCH = "fc/pitch_thx_deg"
-FC_ROLL = "fc/roll_thy_deg"
-FC_YAW = "fc/yaw_thz_deg"
-FC_TARGETS = (f"{FC_PITCH}/target", f"{FC_ROLL}/target", f"{FC_YAW}/target")
+FC_TARGETS = ("fc/pitch_thx_deg/target", "fc/roll_thy_deg/target", "fc/yaw_thz_deg/target")
 #: the outer loop per axis (x pitch, y roll, z yaw): s1 and its P and I terms
 FC_OUTER = ("fc/outer_pitch_x_radps", "fc/outer_roll_y_radps", "fc/outer_yaw_z_radps")
 FC_INNER = "fc/inner_s2_pwm"
 FC_MOTORS = "fc/motor_pwm"
 FC_STICKS = "fc/sticks"
 FC_VBAT = "fc/vbat_v"
-DRONE_MOTORS = "world/drone/firmware/motors"
 
 
 def motor_path(number: int) -> str:
     """The thrust arrow of motor ``number`` (1..4) on the firmware drone."""
-    return f"{DRONE_MOTORS}/m{number}"
+    return f"world/drone/firmware/motors/m{number}"
 
 
-BLE = "ble"
 BLE_MAG = "ble/mag_mgauss"
 BLE_PRESSURE = "ble/pressure_hpa"
 BLE_BATTERY = "ble/battery_pct"
@@ -130,28 +123,20 @@ LOG_FILTER = "log/filter"
 SOURCE_FIRMWARE = "firmware"
 SOURCE_REPLICA = "st_mahony_replica"
 
-#: Human labels of the sources, used in series names ("thx pitch (firmware)").
-SOURCE_LABELS = {
-    "firmware": "firmware",
-    "st_mahony_replica": "ST-Mahony replica",
-    "st_mahony": "ST-Mahony (Python)",
-    "ekf3": "EKF3",
-    "mekf": "MEKF",
-    "accel": "accelerometer only",
-    "vqf": "VQF",
-}
-
-#: RGB colours of the sources (same colour in every plot and for the 3D ghost).
-SOURCE_COLORS = {
-    "firmware": (214, 39, 40),
-    "st_mahony_replica": (255, 187, 0),
-    "st_mahony": (140, 86, 75),
-    "ekf3": (31, 119, 180),
-    "mekf": (148, 103, 189),
-    "accel": (44, 160, 44),
-    "vqf": (227, 119, 194),
+#: Series label ("firmware" in the pitch plot's legend) and RGB colour (every plot and the 3D ghost) of the sources.
+SOURCES = {
+    "firmware": ("firmware", (214, 39, 40)),
+    "st_mahony_replica": ("ST-Mahony replica", (255, 187, 0)),
+    "st_mahony": ("ST-Mahony (Python)", (140, 86, 75)),
+    "ekf3": ("EKF3", (31, 119, 180)),
+    "mekf": ("MEKF", (148, 103, 189)),
+    "accel": ("accelerometer only", (44, 160, 44)),
+    "vqf": ("VQF", (227, 119, 194)),
 }
 _FALLBACK_COLORS = [(23, 190, 207), (188, 189, 34), (127, 127, 127), (0, 158, 115)]
+
+#: RGB colours of the x, y, z axes (world arrows, three-axis series)
+XYZ_COLORS = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
 
 GHOST_PREFERENCE = ("st_mahony_replica", "ekf3", "mekf", "st_mahony", "vqf", "accel")
 
@@ -166,13 +151,13 @@ def source_name(name: str) -> str:
 
 def source_label(source: str) -> str:
     """Readable label of a source segment (``ekf3`` -> ``EKF3``)."""
-    return SOURCE_LABELS.get(source, source)
+    return SOURCES[source][0] if source in SOURCES else source
 
 
 def source_color(source: str) -> tuple[int, int, int]:
     """RGB colour of a source segment (stable for unknown names)."""
-    if source in SOURCE_COLORS:
-        return SOURCE_COLORS[source]
+    if source in SOURCES:
+        return SOURCES[source][1]
     return _FALLBACK_COLORS[sum(source.encode()) % len(_FALLBACK_COLORS)]
 
 
@@ -193,20 +178,9 @@ def yaw_path(source: str) -> str:
 
 def estimate_path(source: str) -> str:
     """3D transform of the ghost drone of ``source``."""
-    return f"{DRONE_ESTIMATE_ROOT}/{source}"
+    return f"world/drone/estimate/{source}"
 
 
 def estimate_model_path(source: str) -> str:
     """Static wireframe model of the ghost drone of ``source``."""
     return f"{estimate_path(source)}/model"
-
-
-def pitch_label(source: str) -> str:
-    """Series name of thx in the pitch plot (titled "thx pitch"): the source, e.g. ``firmware`` (short, so the
-    legend stays small)."""
-    return source_label(source)
-
-
-def roll_label(source: str) -> str:
-    """Series name of thy in the roll plot (titled "thy roll"): the source, e.g. ``EKF3``."""
-    return source_label(source)

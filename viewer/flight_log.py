@@ -19,11 +19,10 @@ from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
-from steval_viewer.columns import Times, send_rows, send_scalars
+from steval_viewer.columns import Times, send_rows, send_scalars, series_style
 
 __all__ = ["log_flight_static", "log_motors_static", "log_flight_control", "flight_angles"]
 
-_AXIS_COLORS = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
 _MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
 _TARGET_COLOR = (40, 40, 40)
 
@@ -44,30 +43,24 @@ def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
     return ang, found
 
 
-def _line(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5) -> None:
-    names = [names] if isinstance(names, str) else list(names)
-    colors = [colors] if isinstance(colors, tuple) else list(colors)
-    rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
-
-
 def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
     """Series styles of the flight-control view and the motors' arrow origins on the 3D drone."""
     for path, label in zip(ent.FC_TARGETS, ("target thx (remote)", "target thy (remote)", "target thz (remote)")):
-        _line(rec, path, label, _TARGET_COLOR, 2.0)
+        series_style(rec, path, label, _TARGET_COLOR, 2.0)
     for path, axis in zip(ent.FC_OUTER, ("x pitch", "y roll", "z yaw")):
-        _line(rec, f"{path}/s1", f"{axis[0]}_s1 (firmware)", (214, 39, 40), 2.0)
-        _line(rec, f"{path}/p", "P = kp1·(target − angle)", (31, 119, 180))
+        series_style(rec, f"{path}/s1", f"{axis[0]}_s1 (firmware)", (214, 39, 40), 2.0)
+        series_style(rec, f"{path}/p", "P = kp1·(target − angle)", (31, 119, 180))
         if path != ent.FC_OUTER[2]:
-            _line(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
-    _line(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], _AXIS_COLORS)
-    _line(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
-    _line(
+            series_style(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
+    series_style(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], ent.XYZ_COLORS)
+    series_style(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
+    series_style(
         rec,
         ent.FC_STICKS,
         ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
-        [*_AXIS_COLORS, (127, 127, 127)],
+        [*ent.XYZ_COLORS, (127, 127, 127)],
     )
-    _line(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
+    series_style(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
     if motors:
         log_motors_static(rec)
 

@@ -9,6 +9,7 @@ import rerun as rr
 
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
+from steval_viewer.columns import series_style
 
 AXIS_LENGTH = 1.6
 #: The world axes' names sit just beyond their arrow tips, clear of the drone (rotor discs reach 1.42 from the
@@ -17,13 +18,6 @@ AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
 #: ... and the horizontal axes' names a little above the ground plane, so that from the default eye they show
 #: above the front rotor discs, not on them.
 AXIS_LABEL_LIFT = 0.3
-
-
-def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5, visible=None) -> None:
-    names = [name] if isinstance(name, str) else list(name)
-    colors = [color] if isinstance(color, tuple) else list(color)
-    lines = rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names), visible_series=visible)
-    rec.log(path, lines, static=True)
 
 
 def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_replica: bool) -> None:
@@ -38,7 +32,7 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         ent.WORLD_AXES,
         rr.Arrows3D(
             vectors=[(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)],
-            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
+            colors=ent.XYZ_COLORS,
             radii=0.015,
         ),
         static=True,
@@ -47,7 +41,7 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
         ent.WORLD_AXIS_LABELS,
         rr.Points3D(
             [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)],
-            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
+            colors=ent.XYZ_COLORS,
             labels=["x right", "y forward", "z up"],
             radii=0.001,
         ),
@@ -63,23 +57,22 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     for source in [ent.SOURCE_FIRMWARE, *sources]:
         color = ent.source_color(source)
         width = 2.5 if source == ent.SOURCE_FIRMWARE else 1.5
-        _line(rec, ent.pitch_path(source), ent.pitch_label(source), color, width)
-        _line(rec, ent.roll_path(source), ent.roll_label(source), color, width)
-    _line(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
+        series_style(rec, ent.pitch_path(source), ent.source_label(source), color, width)
+        series_style(rec, ent.roll_path(source), ent.source_label(source), color, width)
+    series_style(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
     if with_replica:
-        _line(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
-        _line(rec, ent.DIFF_THY, "thy roll: firmware − replica", (90, 150, 230))
-    xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
+        series_style(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
+        series_style(rec, ent.DIFF_THY, "thy roll: firmware − replica", (90, 150, 230))
     # short names: the plot titles give the units, and a small legend hides less
-    _line(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], xyz)
-    _line(rec, ent.PLOT_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], xyz)
-    _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
-    _line(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
-    _line(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
-    _line(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
-    _line(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
-    _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
-    _line(
+    series_style(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], ent.XYZ_COLORS)
+    series_style(rec, ent.PLOT_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], ent.XYZ_COLORS)
+    series_style(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
+    series_style(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
+    series_style(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
+    series_style(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
+    series_style(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
+    series_style(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
+    series_style(
         rec,
         ent.LINK_CYCLES,
         ["cycles min", "cycles mean", "cycles max"],

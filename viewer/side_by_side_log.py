@@ -24,6 +24,8 @@ import rerun.blueprint as rrb
 
 from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
 from steval_viewer import drone_model
+from steval_viewer.blueprint import window
+from steval_viewer.columns import series_style
 from steval_viewer.sinks import log_whole
 
 __all__ = [
@@ -82,13 +84,7 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
         *(rrb.Spatial3DView(origin=f"{ROOT}/{flight_key(i)}/world", name=labels[i]) for i in range(n)),
         rrb.TextDocumentView(origin=NOTES, name="Notes"),
     )
-    return rrb.Blueprint(
-        rrb.Horizontal(plots, drones, column_shares=[3, 1]),
-        rrb.TimePanel(timeline=TIMELINE),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
+    return window(rrb.Horizontal(plots, drones, column_shares=[3, 1]), rrb.TimePanel(timeline=TIMELINE))
 
 
 def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarray) -> int:
@@ -103,12 +99,6 @@ def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarra
         columns=rr.Scalars.columns(scalars=v[good]),
     )
     return int(good.sum())
-
-
-def _style(rec: rr.RecordingStream, path: str, name, colour, width: float = 1.5) -> None:
-    names = [name] if isinstance(name, str) else list(name)
-    colours = [colour] if isinstance(colour, tuple) else list(colour)
-    rec.log(path, rr.SeriesLines(names=names, colors=colours, widths=[width] * len(names)), static=True)
 
 
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
@@ -131,10 +121,10 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         }
         for leaf, (name, colour, width, values) in leaves.items():
             path = flight_path(i, leaf)
-            _style(rec, path, name, colour, width)
+            series_style(rec, path, name, colour, width)
             counts[path] = _send(rec, path, f.t_s, values)
         path = flight_path(i, "gyro_dps")
-        _style(rec, path, [f"{f.label}: gyro {a}" for a in "xyz"], [c, light, _ACCEL_GREY], 1.0)
+        series_style(rec, path, [f"{f.label}: gyro {a}" for a in "xyz"], [c, light, _ACCEL_GREY], 1.0)
         counts[path] = _send(rec, path, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0)
         if i:
             t, dx, dy = difference_series(ref, f)
@@ -143,7 +133,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
                 ("diff_roll_thy_deg", "roll", dy, 1.0),
             ):
                 path = flight_path(i, leaf)
-                _style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
+                series_style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
                 counts[path] = _send(rec, path, t, values)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

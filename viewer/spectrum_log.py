@@ -24,6 +24,7 @@ import rerun.blueprint as rrb
 from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
 from steval_viewer import entities as ent
+from steval_viewer.blueprint import window
 from steval_viewer.columns import Times, send_scalars
 from steval_viewer.sinks import log_whole
 
@@ -99,12 +100,9 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
         name="Spectra",
         active_tab=active_tab,
     )
-    return rrb.Blueprint(
+    return window(
         rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
         rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed"),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
     )
 
 
