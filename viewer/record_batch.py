@@ -136,6 +136,4 @@ class RowBatch:
         for path, rows in self.clear_rows.items():
             if path.startswith(ent.PLOTS + "/") or path.startswith(ent.LINK + "/"):
                 sub = self.times.take(rows)
-                rec.send_columns(
-                    path, indexes=sub.indexes(), columns=rr.Clear.columns(is_recursive=[False] * len(rows))
-                )
+                rec.send_columns(path, indexes=sub.indexes, columns=rr.Clear.columns(is_recursive=[False] * len(rows)))
