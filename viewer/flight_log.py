@@ -21,8 +21,6 @@ from steval_viewer import drone_model
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, send_rows, send_scalars, series_style
 
-__all__ = ["log_flight_static", "log_motors_static", "log_flight_control", "flight_angles"]
-
 _MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
 _TARGET_COLOR = (40, 40, 40)
 

@@ -71,9 +71,8 @@ class ViewerLogger:
             self.session.close()
 
 
-def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:
-    """The Rerun side of a live session (see :class:`ViewerLogger`)."""
-    return ViewerLogger(options, recording_name)
+#: The Rerun side of a live session (see :class:`ViewerLogger`).
+make_viewer_logger = ViewerLogger
 
 
 #: notifications fed to the pipeline at a time by :func:`recording_sink`

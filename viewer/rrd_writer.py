@@ -24,8 +24,6 @@ from pathlib import Path
 from steval_link.errors import ParamError
 from steval_link.link.capture import output_gone
 
-__all__ = ["RrdWriter", "WRITE_INTERVAL_S", "rrd_messages"]
-
 #: How often the encoded bytes are appended to the file and synced to disk, s.
 WRITE_INTERVAL_S = 0.25
 #: How often the file is forced to disk, s (``fsync``).

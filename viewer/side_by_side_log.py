@@ -25,19 +25,8 @@ import rerun.blueprint as rrb
 from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
 from steval_viewer import drone_model
 from steval_viewer.blueprint import window
-from steval_viewer.columns import series_style
+from steval_viewer.columns import series_style, unit_xyzw
 from steval_viewer.sinks import log_whole
-
-__all__ = [
-    "TIMELINE",
-    "ROOT",
-    "NOTES",
-    "flight_key",
-    "flight_path",
-    "side_by_side_blueprint",
-    "log_side_by_side",
-    "side_by_side_sink",
-]
 
 TIMELINE = "aligned_time"
 ROOT = "flights"
@@ -114,35 +103,30 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
         grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
         leaves = {
-            "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, np.degrees(f.thx_rad)),
-            "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, np.degrees(f.thy_rad)),
-            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, np.degrees(f.accel_thx_rad)),
-            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, np.degrees(f.accel_thy_rad)),
+            "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, f.t_s, np.degrees(f.thx_rad)),
+            "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, f.t_s, np.degrees(f.thy_rad)),
+            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, f.t_s, np.degrees(f.accel_thx_rad)),
+            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, f.t_s, np.degrees(f.accel_thy_rad)),
+            "gyro_dps": (
+                [f"{f.label}: gyro {a}" for a in "xyz"],
+                [c, light, _ACCEL_GREY],
+                1.0,
+                f.t_s,
+                np.asarray(f.gyro_mdps, np.float64) / 1000.0,
+            ),
         }
-        for leaf, (name, colour, width, values) in leaves.items():
-            path = flight_path(i, leaf)
-            series_style(rec, path, name, colour, width)
-            counts[path] = _send(rec, path, f.t_s, values)
-        path = flight_path(i, "gyro_dps")
-        series_style(rec, path, [f"{f.label}: gyro {a}" for a in "xyz"], [c, light, _ACCEL_GREY], 1.0)
-        counts[path] = _send(rec, path, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0)
         if i:
             t, dx, dy = difference_series(ref, f)
-            for leaf, what, values, w in (
-                ("diff_pitch_thx_deg", "pitch", dx, 2.0),
-                ("diff_roll_thy_deg", "roll", dy, 1.0),
-            ):
-                path = flight_path(i, leaf)
-                series_style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
-                counts[path] = _send(rec, path, t, values)
+            leaves["diff_pitch_thx_deg"] = (f"{f.label} − {ref.label}: pitch", c, 2.0, t, dx)
+            leaves["diff_roll_thy_deg"] = (f"{f.label} − {ref.label}: roll", light, 1.0, t, dy)
+        for leaf, (name, colour, width, t, values) in leaves.items():
+            path = flight_path(i, leaf)
+            series_style(rec, path, name, colour, width)
+            counts[path] = _send(rec, path, t, values)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
-        q = np.asarray(f.q_wxyz, np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            norm = np.sqrt((q * q).sum(axis=1))
-            good = np.isfinite(norm) & (norm > 1e-6)
-            xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
+        xyzw, good = unit_xyzw(f.q_wxyz)
         if good.any():
             rec.send_columns(
                 f"{world}/drone",

@@ -1,28 +1,17 @@
 """Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
 (``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
 
-``open_session(...)`` returns a :class:`ViewerSession` whose ``rec`` (a ``rerun.RecordingStream``) is handed to
-the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With
-``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one recording (same application
-and recording id, so both open as one): ``rec`` to the viewer and ``file_rec`` to the file, each logged at its own
-cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer wants every frame at once). With no
-sink
-chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
-(headless runs, CI), and nothing at all fails with one clear sentence.
+``open_session(...)`` returns a :class:`ViewerSession`: its ``rec`` goes to the logging functions, its ``close()``
+flushes everything. With ``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one
+recording, each logged at its own cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer
+wants every frame at once). The checks that need no viewer are in :mod:`steval_viewer.sink_options`.
 
-Nothing here can hang: every wait has a bound (:data:`VIEWER_START_TIMEOUT_S` for a viewer to listen,
-:data:`CONNECT_TIMEOUT_S` to reach a ``--connect`` URL, :data:`FLUSH_TIMEOUT_S` for a viewer to take the data), and
-each ends in one :class:`UserError` sentence. The options and the checks that need no viewer (the ``.rrd``'s
-folder, the URL, free ports) are in :mod:`steval_viewer.sink_options`, so a command can fail before its work.
+Nothing here can hang: every wait has a bound and ends in one :class:`UserError` sentence.
 
-Processes:
-
-- ``--spawn`` starts the desktop viewer (``rerun --port N --bind 127.0.0.1``) in its own session, so it stays open
-  after the command returns, as users expect. When a viewer already listens on the port (an earlier ``--spawn``),
-  the recording goes to that one, as Rerun's own ``rr.spawn`` does.
-- ``--serve`` runs ``rerun --serve-web --bind 127.0.0.1`` as a child that lives as long as the command: it is
-  stopped on close, on Ctrl-C, SIGTERM and SIGHUP (the CLI turns those into KeyboardInterrupt), and on Linux also
-  when the command dies without cleaning up (the kernel's parent-death signal).
+- ``--spawn`` starts the desktop viewer in its own session: it stays open after the command returns. When a viewer
+  already listens on the port, the recording goes to that one, as Rerun's own ``rr.spawn`` does.
+- ``--serve`` runs ``rerun --serve-web`` as a child that lives as long as the command: stopped on close, Ctrl-C,
+  SIGTERM and SIGHUP, and on Linux also when the command dies without cleaning up (parent-death signal).
 """
 
 from __future__ import annotations
@@ -101,10 +90,7 @@ class ViewerSession:
         """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
         (it was closed, or the URL is no Rerun viewer)."""
         for rec in self.streams:
-            self._flush_stream(rec, timeout_s)
-
-    def _flush_stream(self, rec: rr.RecordingStream, timeout_s: float) -> None:
-        _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
+            _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
 
     def close(self, *, complete: bool = True) -> None:
         """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
@@ -112,43 +98,31 @@ class ViewerSession:
         spawned desktop viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
         first to keep it up). Bounded in time; raises UserError when a viewer did not take the data."""
         error: UserError | None = None
+        rrd_rec = None if self.rrd_writer is None else self.streams[-1]  # (else no .rrd, or Rerun's own file sink)
         try:
             for rec in self.streams:
                 try:
                     if complete:
-                        self._flush_stream(rec, FLUSH_TIMEOUT_S)
+                        _flush_bounded(rec, FLUSH_TIMEOUT_S, self.viewer_url if rec is self.rec else None)
                 except UserError as exc:  # a viewer that went away; the file still closes whole below
                     error = error or exc
                 finally:
-                    if rec is self._rrd_rec:
+                    if rec is rrd_rec:
                         self.rrd_writer.close()  # the rest of the stream, then the file is closed
                     rec.disconnect()
         finally:
             for child in self.children:
                 stop_child(child)
             self.children.clear()
-            self._finish_rrd(complete and self.rrd_failure is None)
+            partial, self.rrd_partial = self.rrd_partial, None
+            if partial is not None and complete and self.rrd_failure is None and partial.exists():
+                os.replace(partial, Path(self.options.rrd))
+            elif partial is not None:
+                partial.unlink(missing_ok=True)
         if error is None and self.rrd_failure is not None and not self.rrd_failure_said:
             error = UserError(self.rrd_failure)  # (a live session said it when it happened)
         if error is not None:
             raise error
-
-    @property
-    def _rrd_rec(self) -> rr.RecordingStream | None:
-        """The stream our :class:`RrdWriter` writes (None: no ``.rrd``, or Rerun's own file sink writes it)."""
-        if self.rrd_writer is None:
-            return None
-        return self.file_rec if self.file_rec is not None else self.rec
-
-    def _finish_rrd(self, keep: bool) -> None:
-        partial = self.rrd_partial
-        if partial is None:
-            return
-        self.rrd_partial = None
-        if keep and partial.exists():
-            os.replace(partial, Path(self.options.rrd))
-        else:
-            partial.unlink(missing_ok=True)
 
     def wait_for_viewer(self) -> None:
         """With ``--serve``: keep the web viewer up until Ctrl-C (the data is buffered in its server) or until
@@ -198,24 +172,18 @@ def rerun_command() -> list[str]:
 
 def stop_child(child: subprocess.Popen) -> None:
     """Stop a viewer process and whatever it started (its own process group on POSIX); bounded (≤ 7 s)."""
-    if child.poll() is not None:
-        return
-    try:
-        if hasattr(os, "killpg"):
-            os.killpg(child.pid, signal.SIGTERM)
-        else:  # pragma: no cover - Windows
-            child.terminate()
-        child.wait(timeout=5)
-    except (ProcessLookupError, PermissionError):
-        pass
-    except subprocess.TimeoutExpired:
-        if hasattr(os, "killpg"):
-            os.killpg(child.pid, signal.SIGKILL)
-        else:  # pragma: no cover - Windows
-            child.kill()
+    for sig, wait_s in ((signal.SIGTERM, 5), (getattr(signal, "SIGKILL", signal.SIGTERM), 2)):
+        if child.poll() is not None:
+            return
         try:
-            child.wait(timeout=2)
-        except subprocess.TimeoutExpired:  # pragma: no cover - a process that survives SIGKILL
+            if hasattr(os, "killpg"):
+                os.killpg(child.pid, sig)
+            else:  # pragma: no cover - Windows
+                child.terminate() if sig == signal.SIGTERM else child.kill()
+            child.wait(timeout=wait_s)
+        except (ProcessLookupError, PermissionError):
+            return
+        except subprocess.TimeoutExpired:  # next: SIGKILL; a process that survives it is left
             pass
 
 
@@ -229,9 +197,11 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         pass
 
 
-def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Popen:
-    """Start a viewer process with its output in ``log_path``. ``detached``: it outlives this program (a native
-    viewer the user closes); else it dies with it (a web viewer server)."""
+def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
+    """Start a viewer process (``rerun`` with ``args``) and return it with the log file of its output.
+    ``detached``: it outlives this program (a native viewer the user closes); else it dies with it (a web viewer
+    server)."""
+    log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
         env.pop("RUST_LOG", None)
@@ -246,23 +216,37 @@ def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Pope
         if not detached and sys.platform.startswith("linux"):
             kwargs["preexec_fn"] = _die_with_parent
     with open(log_path, "wb") as log:
-        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
+        cmd = rerun_command() + args
+        child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
+    return child, log_path
 
 
-def _wait_listening(child: subprocess.Popen, tcp_port: int, timeout_s: float, what: str, log_path: Path) -> None:
-    """Wait until ``child`` listens on 127.0.0.1:``tcp_port``; UserError (with the child's last words) when it exits
-    or does not listen within ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path: Path, settle_s: float = 0.0):
+    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` (within :data:`VIEWER_START_TIMEOUT_S`) and still runs
+    ``settle_s`` later (a viewer that cannot open its window dies right after it binds its port); ParamError with
+    the child's last words when it exits first or does not listen."""
+    deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+    while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
             raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
-        if port_open("127.0.0.1", tcp_port, 0.2):
-            return
+        if time.monotonic() >= deadline:
+            stop_child(child)
+            raise ParamError(
+                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
+                "FILE instead",
+                "rrd",
+            )
         time.sleep(0.05)
-    stop_child(child)
-    raise ParamError(
-        f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use {{rrd}} FILE instead", "rrd"
-    )
+    settled = time.monotonic() + settle_s
+    while time.monotonic() < settled:
+        if child.poll() is not None:
+            raise ParamError(
+                f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
+                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
+                "rrd",
+                "serve",
+            )
+        time.sleep(0.05)
 
 
 def _last_line(log_path: Path) -> str:
@@ -283,10 +267,6 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
 
 
-def _log_path(what: str, tcp_port: int) -> Path:
-    return Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
-
-
 def proxy_url(tcp_port: int) -> str:
     """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``tcp_port``."""
     return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
@@ -302,60 +282,26 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
             file=sys.stderr,
         )
         return url
-    cmd = rerun_command() + [
-        "--port",
-        str(tcp_port),
-        "--bind",
-        "127.0.0.1",
-        "--hide-welcome-screen",
-        "--memory-limit",
-        "75%",
-    ]
-    log_path = _log_path("viewer", tcp_port)
+    cmd = ["--port", str(tcp_port), "--bind", "127.0.0.1", "--hide-welcome-screen", "--memory-limit", "75%"]
     try:
-        child = _start(cmd, detached=True, log_path=log_path)
+        child, log_path = _start(cmd, "viewer", tcp_port, detached=True)
     except OSError as exc:
         raise ParamError(
             f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
         ) from None
-    _wait_listening(child, tcp_port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
-    _wait_settled(child, VIEWER_SETTLE_S, log_path)
+    _wait_listening(child, tcp_port, "Rerun viewer", log_path, VIEWER_SETTLE_S)
     return url
-
-
-def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> None:
-    """UserError when ``child`` exits within ``settle_s`` after it started listening, with the last line of its
-    log (a viewer that cannot open its window dies right after it binds its port)."""
-    deadline = time.monotonic() + settle_s
-    while time.monotonic() < deadline:
-        if child.poll() is not None:
-            raise ParamError(
-                f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
-                "rrd",
-                "serve",
-            )
-        time.sleep(0.05)
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
     """Start ``rerun --serve-web`` bound to 127.0.0.1 on ports checked free (:func:`check_sinks`, or
     :func:`free_port`); returns (process, page URL, gRPC proxy URL)."""
-    cmd = rerun_command() + [
-        "--serve-web",
-        "--bind",
-        "127.0.0.1",
-        "--web-viewer-port",
-        str(web_port),
-        "--port",
-        str(grpc_port),
-    ]
-    log_path = _log_path("web-viewer", grpc_port)
+    cmd = ["--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
     try:
-        child = _start(cmd, detached=False, log_path=log_path)
+        child, log_path = _start(cmd, "web-viewer", grpc_port, detached=False)
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
-    _wait_listening(child, grpc_port, VIEWER_START_TIMEOUT_S, "Rerun web viewer", log_path)
+    _wait_listening(child, grpc_port, "Rerun web viewer", log_path)
     proxy = proxy_url(grpc_port)
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
@@ -365,7 +311,6 @@ def open_session(
     options: SinkOptions,
     *,
     recording_name: str | None = None,
-    application_id: str = APPLICATION_ID,
     split_file: bool = False,
     atomic_rrd: bool = False,
     checked: bool = False,
@@ -391,13 +336,13 @@ def open_session(
         )
     if not checked:
         check_sinks(options)
-    rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
+    rec = rr.RecordingStream(APPLICATION_ID, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     own_file = options.rrd is not None and (split_file or not options.viewer)
     try:
         sinks = _open_sinks(session, options, own_file=own_file, atomic_rrd=atomic_rrd)
     except BaseException:
-        _abandon(session)
+        session.close(complete=False)
         raise
     try:
         file_rec = rec
@@ -405,14 +350,14 @@ def open_session(
             rec.set_sinks(*sinks)
         if own_file and options.viewer:  # the file's own stream of the same recording
             file_rec = rr.RecordingStream(
-                application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
+                APPLICATION_ID, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
             )
             session.file_rec = file_rec
         if own_file:
             where = session.rrd_partial or Path(options.rrd)
             session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
     except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
-        _abandon(session)
+        session.close(complete=False)
         if isinstance(exc, UserError):
             raise
         where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
@@ -448,14 +393,6 @@ def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool,
         session.viewer_url = options.connect
         sinks.append(rr.GrpcSink(options.connect))
     return sinks
-
-
-def _abandon(session: ViewerSession) -> None:
-    """A session that could not open: its viewer children stopped, its partial ``.rrd`` removed."""
-    for child in session.children:
-        stop_child(child)
-    if session.rrd_partial is not None:
-        session.rrd_partial.unlink(missing_ok=True)
 
 
 T = TypeVar("T")

@@ -28,8 +28,6 @@ from steval_viewer.blueprint import window
 from steval_viewer.columns import Times, send_scalars
 from steval_viewer.sinks import log_whole
 
-__all__ = ["ROOT", "spectrum_blueprint", "log_spectra", "spectrum_sink"]
-
 ROOT = "spectrum"
 NOTES = f"{ROOT}/notes"
 _COLOURS = {"x": (220, 60, 60), "y": (60, 170, 60), "z": (60, 100, 230)}
