@@ -29,15 +29,14 @@ def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
     """(angles (N, 3) float32 thx, thy, thz of the attitude row with each flight-control row's step, found (N,)
     bool): the angles the outer loop used (thz: as of the attitude frame)."""
     steps = np.asarray(att.step, dtype=np.int64)
-    order = np.argsort(steps, kind="stable")
-    s_sorted = steps[order]
     fs = np.asarray(fc.step, dtype=np.int64)
-    j = np.clip(np.searchsorted(s_sorted, fs), 0, max(len(s_sorted) - 1, 0))
-    found = (len(s_sorted) > 0) & (s_sorted[j] == fs) if len(s_sorted) else np.zeros(len(fs), bool)
-    idx = order[j] if len(s_sorted) else np.zeros(len(fs), np.int64)
     ang = np.full((len(fs), 3), np.nan, np.float32)
-    if len(s_sorted):
-        ang[found] = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1)[idx[found]]
+    if not len(steps):
+        return ang, np.zeros(len(fs), bool)
+    order = np.argsort(steps, kind="stable")
+    idx = order[np.clip(np.searchsorted(steps[order], fs), 0, len(steps) - 1)]
+    found = steps[idx] == fs
+    ang[found] = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1)[idx[found]]
     return ang, found
 
 

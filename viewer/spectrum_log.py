@@ -110,30 +110,24 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     rec.send_blueprint(spectrum_blueprint(sp.nyquist_hz), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     f = np.asarray(sp.freq_hz, dtype=np.float64)
-    for k, (name, _, axis) in enumerate(SIGNALS):
-        colour = _COLOURS["xyz"[axis]]
-        path = _path("psd", name)
-        rec.log(path, rr.BarChart(_db(sp.psd[:, k]), abscissa=f, color=colour), static=True)
-        counts[path] = len(f)
+    colours = [_COLOURS["xyz"[axis]] for _, _, axis in SIGNALS]
+    occupied = np.flatnonzero(sp.thr_windows)
+    for k, (name, _, _) in enumerate(SIGNALS):
         spec = _db(sp.spectrogram[:, :, k]).T  # (F, W)
-        path = _path("spectrogram", name)
-        rec.log(path, rr.Tensor(spec, dim_names=("frequency", "window")), static=True)
-        counts[path] = int(spec.size)
-        occupied = np.flatnonzero(sp.thr_windows)
         thr = _db(sp.thr_psd[occupied, :, k]).T if occupied.size else np.zeros((len(f), 0), np.float32)
-        path = _path("throttle", name)
-        rec.log(path, rr.Tensor(thr, dim_names=("frequency", "throttle bin")), static=True)
-        counts[path] = int(thr.size)
+        for kind, values, size in (
+            ("psd", rr.BarChart(_db(sp.psd[:, k]), abscissa=f, color=colours[k]), len(f)),
+            ("spectrogram", rr.Tensor(spec, dim_names=("frequency", "window")), spec.size),
+            ("throttle", rr.Tensor(thr, dim_names=("frequency", "throttle bin")), thr.size),
+        ):
+            rec.log(_path(kind, name), values, static=True)
+            counts[_path(kind, name)] = int(size)
+        counts[_path("window", name)] = len(sp.window_t_fw_s)
     for w, t in enumerate(sp.window_t_fw_s):
         rec.set_time(ent.TIMELINE_FW, duration=float(t))
-        for k, (name, _, axis) in enumerate(SIGNALS):
-            rec.log(
-                _path("window", name),
-                rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f, color=_COLOURS["xyz"[axis]]),
-            )
+        for k, (name, _, _) in enumerate(SIGNALS):
+            rec.log(_path("window", name), rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f, color=colours[k]))
     rec.reset_time()
-    for name, _, _ in SIGNALS:
-        counts[_path("window", name)] = len(sp.window_t_fw_s)
     att = tel.attitude
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
     for sensor, values in (("gyro", att.gyro_mdps), ("acc", att.acc_mg)):
