@@ -16,6 +16,7 @@ dropped, and the run goes on with its other outputs.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import struct
 import threading
@@ -78,7 +79,8 @@ class RrdWriter:
             self._file = open(self.path, "xb", buffering=0)
         except OSError as exc:
             raise ParamError(f"{{rrd}} {self.shown}: cannot write it ({_why(exc)})", "rrd") from None
-        self._identity = _ident(os.fstat(self._file.fileno()))
+        st = os.fstat(self._file.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         self._stream = rec.binary_stream()
         self._header_done = False
@@ -107,30 +109,23 @@ class RrdWriter:
                     continue
                 self._store_infos.add(message)
             parts.append(message)
-        self._write_bytes(b"".join(parts))
-        self._header_done = True
-
-    def _write_bytes(self, data: bytes) -> None:
+        data = b"".join(parts)
         view = memoryview(data)
         while view:
-            n = self._file.write(view)
-            view = view[n:]
-        self.bytes_written += len(data)
+            view = view[self._file.write(view) :]
+        self.bytes_written += len(data)  # after the whole write: a failed one is cut back to here
+        self._header_done = True
 
     def _fail(self, why: str) -> None:
         """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""
         n = self.bytes_written
         held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
         self.failure = f"{self.shown} {why}; nothing more is written to it (it held {held} then)"
-        try:  # a write cut by a full disk leaves part of a message: back to the last whole one, so the file opens
-            if output_gone(self.path, self._identity) is None:
+        with contextlib.suppress(OSError):  # a write cut by a full disk leaves part of a message: back to the last
+            if output_gone(self.path, self._identity) is None:  # whole one, so the file opens
                 os.ftruncate(self._file.fileno(), self.bytes_written)
-        except OSError:
-            pass
-        try:
+        with contextlib.suppress(OSError):
             self._file.close()
-        except OSError:
-            pass
 
     def pump(self, *, flush: bool = False, sync: bool = False) -> None:
         """Append what Rerun encoded since the last call (its pending rows first, waited for up to
@@ -177,10 +172,6 @@ class RrdWriter:
                     self._file.close()
                 except OSError as exc:
                     self._fail(f"cannot be written ({_why(exc)})")
-
-
-def _ident(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
 
 
 def _why(exc: OSError) -> str:

@@ -16,6 +16,7 @@ Nothing here can hang: every wait has a bound and ends in one :class:`UserError`
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -130,11 +131,9 @@ class ViewerSession:
         if not self.children:
             return
         print("steval: serving until Ctrl-C", file=sys.stderr)
-        try:
+        with contextlib.suppress(KeyboardInterrupt):
             while all(c.poll() is None for c in self.children):
                 time.sleep(0.2)
-        except KeyboardInterrupt:
-            pass
 
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
@@ -189,12 +188,10 @@ def stop_child(child: subprocess.Popen) -> None:
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
     """Linux: deliver SIGTERM to this process when the process that started it dies (prctl PR_SET_PDEATHSIG)."""
-    try:
+    with contextlib.suppress(Exception):
         import ctypes
 
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
-    except Exception:
-        pass
 
 
 def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
@@ -411,10 +408,8 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
         if options.serve:
             session.wait_for_viewer()
     except UserError:  # a viewer went away: the .rrd is still complete
-        try:
+        with contextlib.suppress(UserError):
             session.close()
-        except UserError:
-            pass
         say_rrd_written(options.rrd)
         raise
     except BaseException:  # Ctrl-C, SIGTERM: no half file
