@@ -1,10 +1,7 @@
 """The default Rerun blueprint of steval-link, sent with every recording (replay, simulate, live).
 
-Left: the 3D view (firmware quadcopter, host-estimate ghost, world axes, accelerometer gravity arrow) above a
-link-health / firmware-log tab. Right: pitch (thx) and roll (thy) with firmware, ST-Mahony replica, EKF and
-accelerometer-only overlaid; yaw; firmware − replica; raw accelerometer (mg), gyro (dps), throttle.
-
-Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` seconds; replays show the whole flight.
+Left: the 3D view above the link tabs. Right: pitch (thx) and roll (thy) of every source overlaid; yaw; firmware
+− replica; raw accelerometer (mg), gyro (dps), throttle. Live recordings scroll the last :data:`LIVE_WINDOW_S` s.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call).
 
-Both paths log the same entities through these functions, so a live recording and a replay look the same. Rows
-that are not finite (the firmware's NaN thy when asin leaves [-1, 1], an estimate's invalid rows) are never sent
-as values: the samples are skipped and a ``Clear`` is logged at the first time of each bad run, which the time
-series view draws as a gap in the line.
+Rows that are not finite (the firmware's NaN thy when asin leaves [-1, 1], an estimate's invalid rows) are never
+sent as values: a ``Clear`` at the first time of each bad run makes the time series view draw a gap.
 """
 
 from __future__ import annotations

@@ -1,57 +1,8 @@
 """Entity paths, timelines, series labels and colours of every steval-link recording, in one place.
 
 Tests, docs, the blueprint and both logging paths (replay and live) refer to these names, so a recording made by
-``steval replay`` and one made live have the same layout. Units are in the path names.
-
-Layout::
-
-    world                                 view coordinates: x right, y forward (nose), z up (RIGHT_HAND_Z_UP)
-    world/axes                            world x/y/z arrows (static)
-    world/drone/firmware                  Transform3D: the firmware's ahrs.q (body -> earth)
-    world/drone/firmware/model            the quadcopter (static mesh)
-    world/drone/firmware/acc_gravity      gravity direction seen by the accelerometer (body frame, 1 g = 1 unit)
-    world/drone/estimate/<source>         Transform3D of a host estimate (ST-Mahony replica, EKF, ...)
-    world/drone/estimate/<source>/model   translucent wireframe ghost (static)
-    plots/pitch_thx_deg/<source>          thx = rotation about x (pitch, nose up +), degrees
-    plots/roll_thy_deg/<source>           thy = rotation about y (roll), degrees
-    plots/yaw_thz_deg/firmware            thz = ISR-integrated yaw, degrees
-    plots/acc_mg                          accelerometer x, y, z (mg), the inputs of ahrs_fusion_ag
-    plots/gyro_dps                        gyro x, y, z (deg/s)
-    plots/throttle_thr                    gTHR
-    plots/fw_minus_replica_deg/thx|thy    firmware − ST-Mahony replica, degrees (0 when the replica is bit-exact)
-    fc/pitch_thx_deg/target               the remote's target thx (euler_rc), degrees (flight-control frames)
-    fc/roll_thy_deg/target                target thy, degrees
-    fc/yaw_thz_deg/target                 target thz, degrees
-    fc/outer_<axis>_radps/s1|p|i          the outer (angle) loop's output s1 (a rate setpoint, rad/s), and its P
-                                          and I terms recomputed with the firmware's gains (axis pitch_x, roll_y,
-                                          yaw_z)
-    fc/inner_s2_pwm                       the inner (rate) loop's outputs x_s2, y_s2, z_s2 (PWM counts)
-    fc/motor_pwm                          motor1..4_pwm (TIM4 counts, 2000 = 100 %)
-    fc/sticks                             gAIL, gELE, gRUD, gTHR
-    fc/vbat_v                             battery voltage, V
-    world/drone/firmware/motors/m1..m4    each motor's command as a thrust arrow on its prop (1 unit = 100 %)
-    link/frame_rate_hz                    attitude frames received per second (1 s bins)
-    link/frames_missing                   frames lost on the link (sequence gaps), cumulative
-    link/crc_failures                     frames rejected by the decoder's CRC check, cumulative
-    link/tx_dropped                       frames the firmware dropped (TX queue full), cumulative, from status
-    link/tx_queue_peak_bytes              TX queue high-water mark per status period
-    link/ahrs_cycles                      CPU cycles of one ahrs_fusion_ag + QuaternionToEuler: min, mean, max
-    log/firmware                          firmware text lines
-    log/host                              host notes (decoder summary, estimator notes)
-    log/commands                          commands the host sent to the drone, its acknowledgements, the settings
-    text/<series>-<series>...             text telemetry: one entity per record shape, named by its series, a line
-                                          per series (a student's PRINTF lines, ST's line, plotter formats)
-
-BLE captures (ST's stock firmware over Bluetooth: raw samples, no firmware attitude)::
-
-    world/drone/ble                       Transform3D: the first host estimate run on the BLE samples (solid model)
-    world/drone/ble/model                 the quadcopter (static mesh)
-    world/drone/ble/acc_gravity           gravity direction of the BLE accelerometer sample
-    ble/acc_mg, ble/gyro_dps, ble/mag_mgauss   the motion notification's samples (one ISR sample each)
-    ble/pressure_hpa, ble/battery_pct, ble/temperature_c, ble/rssi_dbm, ble/armed   environment and arming
-    ble/notification_rate_hz              motion notifications per second (1 s bins)
-    ble/note                              why the firmware replica cannot be bit-exact on BLE data (text)
-    log/ble_console                       the console stdout/stderr characteristics
+``steval replay`` and one made live have the same layout. Units are in the path names; what each entity holds is
+in ``viewer/README.md``.
 """
 
 from __future__ import annotations

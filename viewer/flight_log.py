@@ -1,11 +1,10 @@
-"""Flight-control frames (type 4) of a whole :class:`~steval_link.link.telemetry.Telemetry` to Rerun: the remote's
-targets next to the firmware's attitude, the outer loop's output with its P and I terms, the inner loop's outputs,
-the four motor commands as series and as thrust arrows on the 3D drone's props, sticks and battery.
+"""Flight-control frames (type 4) of a whole Telemetry to Rerun: the remote's targets next to the firmware's
+attitude, the outer loop's output with its P and I terms, the inner loop's outputs, the motor commands (series and
+thrust arrows on the 3D drone's props), sticks and battery.
 
-The P and I terms are recomputed with the firmware's gains (:mod:`steval_link.analysis.flight_control`): pitch and
-roll bit for bit (P = kp1·(target − angle) of the same step, I = s1 − P, which is 0 with ST's ``ki1 = 0``); yaw's
-P uses the ISR-integrated ``thz`` of the attitude frame, which the ISR may move before the outer loop runs, so
-its P is approximate and no I is drawn. Entities: :mod:`steval_viewer.entities` (``fc/...``).
+P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle) of the same
+step, I = s1 − P, 0 with ST's ``ki1 = 0``); yaw's P uses the attitude frame's ``thz``, which the ISR may move
+before the outer loop runs, so it is approximate and no I is drawn.
 """
 
 from __future__ import annotations

@@ -1,18 +1,13 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-The live session (``steval_link.live``) calls, in arrival order, ``log_batch(rows)`` (``LiveRows``: N frames and
-their estimates), ``log_status``, ``log_text``, ``log_record`` (text telemetry) and ``log_link`` (decoder counters),
-each with its times, then ``close()``.
+The session calls, in arrival order, ``log_batch(rows)``, ``log_status``, ``log_text``, ``log_record`` (text
+telemetry) and ``log_link`` (decoder counters), each with its times, then ``close()``. Attitude rows go out before
+``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`). Status and link rows are
+queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one ``send_columns`` per
+entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
 
-Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
-Status and link rows are queued and sent with the next batch, text records after it every
-:data:`RECORDS_INTERVAL_S` (one ``send_columns`` per entity or record shape), all on ``close()``: an ``.rrd`` sink
-keeps some memory per chunk until the file closes. The entities are the replay's (:mod:`steval_viewer.entities`);
-the blueprint is the live one (10 s window on ``host_time``).
-
-Times are the pipeline's (``steval_link.live.pipeline``): ``fw_time`` the firmware's s since boot, ``host_time`` s
-since the capture started, as ``steval replay`` of the capture has them. With a live viewer and an ``.rrd`` the
-session runs a logger per stream of the recording: the viewer's gets every round, the file's merged batches.
+Times are the pipeline's: ``fw_time`` the firmware's s since boot, ``host_time`` s since the capture started, as
+``steval replay`` of the capture has them.
 """
 
 from __future__ import annotations

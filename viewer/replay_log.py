@@ -1,14 +1,9 @@
 """Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun.
 
-One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time`` (firmware s since boot),
-``host_time`` (host receive s since capture start, when known) and ``ahrs_step`` timelines. Used by
-``steval replay`` and ``steval simulate``; :func:`log_replay` is the entry point::
-
-    rec = steval_viewer.sinks.open_recording("capture", rrd="out.rrd")
-    summary = log_replay(rec, tel, {"ekf3": ekf.run(acc, gyro, thr)}, replica=replay_firmware(tel))
-
-Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,) and optionally a
-``valid`` (N,) bool mask works (``AttitudeEstimate``, ``FirmwareReplay``).
+One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time``, ``host_time`` (when known) and
+``ahrs_step`` timelines (``steval replay``, ``steval simulate``). Estimates are duck-typed: ``q_wxyz`` (N, 4),
+``thx_rad`` and ``thy_rad`` (N,) and optionally a ``valid`` (N,) bool mask (``AttitudeEstimate``,
+``FirmwareReplay``).
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
-"""Read an ``.rrd`` back and summarise it: samples per entity path, timelines, whether a blueprint is embedded.
+"""Read an ``.rrd`` back and summarise it (tests and CI): samples per entity path, timelines, the blueprint::
 
-Used by the tests and CI to check that ``steval replay CAPTURE --rrd out.rrd`` wrote what the viewer needs::
-
-    info = read_rrd("out.rrd")
-    info.samples["plots/pitch_thx_deg/firmware"]   # rows with a value (gaps' Clear rows not counted)
-    info.has_blueprint
+info = read_rrd("out.rrd")
+info.samples["plots/pitch_thx_deg/firmware"]   # rows with a value (gaps' Clear rows not counted)
 """
 
 from __future__ import annotations

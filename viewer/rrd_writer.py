@@ -1,17 +1,14 @@
 """An ``.rrd`` written by us as the data arrives (:class:`RrdWriter`): Rerun encodes, this module writes the file.
 
-Rerun's own file sink keeps its errors to itself (it prints coloured log lines, and the recording goes on as if the
-file were written) and keeps about 1 kB per chunk in memory for the file's footer until the file closes. Here the
-recording's sink is a Rerun binary stream (``RecordingStream.binary_stream``); a thread takes what it holds every
-:data:`WRITE_INTERVAL_S`, appends it to the file and ``fsync``\\s it every second, so that a ``kill -9`` loses at most
-the last second. Each read of a binary stream is a whole RRD (stream header, messages, end message and footer);
-the file gets one stream header and the messages only (:func:`rrd_messages`), no footer: Rerun reads such a file
-message by message from its start (its "legacy" layout), and a file cut after any write still opens. Nothing of the
-stream is kept here (memory stays flat however long the session).
+Why not Rerun's own file sink: it keeps its errors to itself (coloured log lines, the recording goes on as if the
+file were written) and about 1 kB per chunk in memory until the file closes. Here the sink is a Rerun binary
+stream; a thread appends what it holds every :data:`WRITE_INTERVAL_S` and ``fsync``\\s every second (a ``kill -9``
+loses at most the last second). Each read of the stream is a whole RRD; the file gets one stream header and the
+messages only (:func:`rrd_messages`), no footer: Rerun reads such a file from its start (its "legacy" layout), and
+a file cut after any write still opens. Memory stays flat however long the session.
 
-A write that fails (disk full, I/O error) and a file that vanishes (deleted, its folder removed, replaced) become
-one sentence in :attr:`RrdWriter.failure`; nothing more is written, the bytes Rerun still makes are read and
-dropped, and the run goes on with its other outputs.
+A failed write (disk full, I/O error) or a vanished file becomes one sentence in :attr:`RrdWriter.failure`;
+nothing more is written and the run goes on with its other outputs.
 """
 
 from __future__ import annotations

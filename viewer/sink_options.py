@@ -1,11 +1,11 @@
 """The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
-import: the ``.rrd``'s folder, the ``--connect`` URL and whether something listens there, free ports for
-``--serve``, whether a display exists for ``--spawn``. Light on purpose: the CLI checks its options with it before
-any work and before Rerun is loaded; :mod:`steval_viewer.sinks` opens the sinks.
+import (the ``.rrd``'s folder, the ``--connect`` URL, free ports, a display), so the CLI can check its options
+before any work and before Rerun is loaded.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import sys
@@ -54,14 +54,11 @@ def resolve_sinks(options: SinkOptions) -> SinkOptions:
     """Apply the default viewer: when no viewer is chosen (``spawn``/``serve``/``connect``), ``spawn``
     where a display exists; without a display, an ``rrd`` alone is fine (headless), nothing at all is a
     UserError."""
-    if options.viewer:
-        return options
-    if display_available():
+    if not options.viewer and display_available():
         options.spawn = True
-        return options
-    if options.rrd is not None:
-        return options
-    raise no_display_error("", "{no_view} to record only")
+    elif not options.viewer and options.rrd is None:
+        raise no_display_error("", "{no_view} to record only")
+    return options
 
 
 def no_display_error(spawn: str, *more_ways: str) -> ParamError:
@@ -77,12 +74,13 @@ def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
     the chosen viewer, or the default one (:func:`resolve_sinks`), and the ``.rrd``; ``view=False``
     (``--no-view``): the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work (no
     display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a missing ``.rrd`` folder)."""
-    if not view:
-        if chosen.rrd is None:
-            return None
-        chosen = SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
-    else:
-        chosen = resolve_sinks(chosen)
+    if not view and chosen.rrd is None:
+        return None
+    chosen = (
+        resolve_sinks(chosen)
+        if view
+        else SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
+    )
     check_sinks(chosen)
     return chosen
 
@@ -152,10 +150,9 @@ def parse_grpc_url(url: str) -> tuple[str, int]:
             f"{{connect}} needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}", "connect"
         )
     parsed = urllib.parse.urlparse(url)
-    try:
+    tcp_port = None
+    with contextlib.suppress(ValueError):
         tcp_port = parsed.port
-    except ValueError:
-        tcp_port = None
     if not parsed.hostname:
         raise ParamError(f"{{connect}} URL {url!r} names no host", "connect")
     default = 443 if parsed.scheme == "rerun+https" else DEFAULT_GRPC_PORT

@@ -40,8 +40,7 @@ from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port
 APPLICATION_ID = "steval-link"
 #: longest wait for a started viewer (desktop or web) to listen on its port
 VIEWER_START_TIMEOUT_S = 20.0
-#: a spawned desktop viewer must still run this long after it starts listening (one that cannot open its window,
-#: e.g. no usable GPU adapter, listens first and dies a moment later)
+#: a spawned desktop viewer must still run this long after it listens (without a GPU it dies a moment later)
 VIEWER_SETTLE_S = 1.0
 #: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
 FLUSH_TIMEOUT_S = 120.0
@@ -53,13 +52,9 @@ PARTIAL_SUFFIX = ".partial"
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it.
-
-    ``rec``: the stream to log to (every sink; with ``open_session(split_file=True)`` and a viewer plus an
-    ``.rrd``: the viewer's sinks only). ``file_rec``: the ``.rrd``'s own stream of the same recording in that
-    split case, else None. ``viewer_url``: the gRPC URL the viewer gets the data on (None: file only).
-    ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it.
-    """
+    """An open recording and the processes serving it. ``rec``: the stream to log to (split: the viewer's);
+    ``file_rec``: the ``.rrd``'s own stream when split, else None; ``viewer_url``: the viewer's gRPC URL (None:
+    file only); ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it."""
 
     rec: rr.RecordingStream
     options: SinkOptions
@@ -94,10 +89,8 @@ class ViewerSession:
             _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
 
     def close(self, *, complete: bool = True) -> None:
-        """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
-        when written atomically); ``complete=False`` (interrupted) removes an atomically written ``.rrd``. A
-        spawned desktop viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
-        first to keep it up). Bounded in time; raises UserError when a viewer did not take the data."""
+        """Flush and finish the recording: the ``.rrd`` whole (``complete=False``, interrupted: an atomic one
+        removed); a ``--serve`` web viewer stopped. Bounded; UserError when a viewer did not take the data."""
         error: UserError | None = None
         rrd_rec = None if self.rrd_writer is None else self.streams[-1]  # (else no .rrd, or Rerun's own file sink)
         try:
@@ -137,8 +130,8 @@ class ViewerSession:
 
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
-    """``rec.flush`` with a bound, waited for in short slices so that Ctrl-C gets through at once; a viewer that
-    cannot be reached or does not keep up within ``timeout_s`` is a UserError."""
+    """``rec.flush`` waited for in short slices (Ctrl-C gets through at once); UserError when a viewer cannot be
+    reached or does not keep up within ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
@@ -195,9 +188,8 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
 
 
 def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
-    """Start a viewer process (``rerun`` with ``args``) and return it with the log file of its output.
-    ``detached``: it outlives this program (a native viewer the user closes); else it dies with it (a web viewer
-    server)."""
+    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program
+    (a native viewer the user closes); else it dies with it (a web viewer server)."""
     log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
@@ -270,8 +262,8 @@ def proxy_url(tcp_port: int) -> str:
 
 
 def spawn_desktop_viewer(tcp_port: int) -> str:
-    """Start the desktop viewer listening on 127.0.0.1:``tcp_port`` (or reuse one that listens there already) and return
-    its gRPC URL. The process is detached: it stays open after we exit, and nothing here keeps it."""
+    """Start the desktop viewer on 127.0.0.1:``tcp_port`` (or reuse one that listens there); returns its gRPC URL.
+    Detached: it stays open after we exit."""
     url = proxy_url(tcp_port)
     if not port_free(tcp_port):
         print(
@@ -291,8 +283,7 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
 
 
 def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
-    """Start ``rerun --serve-web`` bound to 127.0.0.1 on ports checked free (:func:`check_sinks`, or
-    :func:`free_port`); returns (process, page URL, gRPC proxy URL)."""
+    """Start ``rerun --serve-web`` on 127.0.0.1 (ports checked free); returns (process, page URL, gRPC URL)."""
     cmd = ["--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
     try:
         child, log_path = _start(cmd, "web-viewer", grpc_port, detached=False)
@@ -312,16 +303,12 @@ def open_session(
     atomic_rrd: bool = False,
     checked: bool = False,
 ) -> ViewerSession:
-    """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
+    """Open a RecordingStream on the sinks of ``options`` (:func:`resolve_sinks` first for the default viewer).
 
-    ``split_file``: when a viewer and an ``.rrd`` are both chosen, the file gets its own stream
-    (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
-    caller can log to each at its own cadence; the two are one recording when opened together.
-    ``atomic_rrd``: the ``.rrd`` is written next to its name (``NAME.partial``) and renamed into place by
-    ``close()``; ``close(complete=False)`` removes it: a complete file or none. ``checked``: the caller checked
-    the sinks already (a live session's CLI: once, with its TCP probes), else :func:`check_sinks` runs here.
-
-    Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
+    ``split_file``: with a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same
+    recording, logged at its own cadence. ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` and renamed
+    by ``close()`` (``close(complete=False)`` removes it). ``checked``: the caller ran :func:`check_sinks` already.
+    UserError when the ``.rrd`` cannot be written or a viewer cannot be started or reached.
     """
     if not options.any():
         raise ParamError(
@@ -338,27 +325,22 @@ def open_session(
     own_file = options.rrd is not None and (split_file or not options.viewer)
     try:
         sinks = _open_sinks(session, options, own_file=own_file, atomic_rrd=atomic_rrd)
-    except BaseException:
-        session.close(complete=False)
-        raise
-    try:
-        file_rec = rec
         if sinks:
             rec.set_sinks(*sinks)
         if own_file and options.viewer:  # the file's own stream of the same recording
-            file_rec = rr.RecordingStream(
+            session.file_rec = rr.RecordingStream(
                 APPLICATION_ID, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
             )
-            session.file_rec = file_rec
         if own_file:
             where = session.rrd_partial or Path(options.rrd)
-            session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
-    except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
+            session.rrd_writer = RrdWriter(session.streams[-1], where, shown=str(options.rrd))
+    except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
         session.close(complete=False)
-        if isinstance(exc, UserError):
-            raise
         where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
         raise ParamError(f"{where} ({_first_line(exc)})", "rrd") from None
+    except BaseException:
+        session.close(complete=False)
+        raise
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)
@@ -366,8 +348,8 @@ def open_session(
 
 
 def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool, atomic_rrd: bool) -> list:
-    """Start or reach the viewers of ``options`` (kept in ``session``) and return the Rerun sinks of the stream:
-    the viewers', and the ``.rrd`` when it is not written by its own stream (``own_file``)."""
+    """Start or reach the viewers of ``options`` (kept in ``session``); returns the stream's Rerun sinks (the
+    ``.rrd``'s too unless it has its own stream, ``own_file``)."""
     sinks: list = []
     if options.rrd is not None:
         path = Path(options.rrd)
@@ -396,11 +378,9 @@ T = TypeVar("T")
 
 
 def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
-    """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
-    first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
-    (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
-    completed before the error is raised. A spawned desktop viewer stays open. ``options``: as the CLI checked them
-    (``steval_link.cli.viewer_options``: once, before the work), so they are not probed again here."""
+    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, flush, close (``--serve``: after Ctrl-C)
+    and return what ``log`` returned. The ``.rrd`` is complete (a line on stderr says where; also when a viewer
+    went away) or, interrupted, not written at all."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
