@@ -81,17 +81,11 @@ def make_blueprint(
     absent: Iterable[str] = (),
     text: bool = False,
 ) -> rrb.Blueprint:
-    """The default blueprint.
-
-    ``live``: a scrolling window of the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
-    ``ghost_sources``: the sources with a ghost drone; ``ghost`` the one shown (default: the replica, else by
-    ``entities.GHOST_PREFERENCE``), the others hidden. ``gyro_max_dps``: the gyro plot's symmetric range
-    (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab, named so when
-    ``never_armed``. ``replica_verdict``: in the difference panel's title. ``y_ranges``: fixed y ranges by plot
-    entity (:func:`legend_room`). ``ble``: a BLE tab. ``absent``: plot entities without values, left out. ``text``:
-    the text telemetry tab in front. The replica is drawn only in the difference panel: bit-exact, it would hide
-    the firmware.
-    """
+    """The default blueprint. ``live``: the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
+    ``ghost_sources``: the sources with a ghost drone; ``ghost`` the one shown (default by
+    ``entities.GHOST_PREFERENCE``). ``gyro_max_dps``: the gyro plot's symmetric range (None: automatic).
+    ``flight_control``, ``ble``: their tabs. ``y_ranges``: fixed y ranges by plot entity. ``absent``: plots left
+    out. ``text``: the text telemetry tab in front."""
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     if ghost is None:
@@ -147,9 +141,8 @@ def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, te
 
 
 def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_max_dps, absent: frozenset[str]) -> rrb.Vertical:
-    """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
-    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle. The
-    ``absent`` plots are left out, and rows left empty."""
+    """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
+    the ``absent`` plots are left out, and rows left empty."""
     diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
     titles = {
         ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",
@@ -197,9 +190,8 @@ def ble_view(plot: _Plots) -> rrb.Vertical:
 
 
 def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
-    """The flight-control view: per axis the remote's target against the firmware's angle (pitch = thx about x,
-    roll = thy about y), the outer loop's output s1 with its P and I terms per axis, the inner loop's outputs s2,
-    the four motor commands, the sticks and the battery."""
+    """The flight-control view: per axis the remote's target against the firmware's angle, the outer loop's s1
+    with its P and I terms, the inner loop's s2, the motors, the sticks and the battery."""
     fw = ent.SOURCE_FIRMWARE
     angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
     targets = rrb.Horizontal(

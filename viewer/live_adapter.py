@@ -12,15 +12,9 @@ from steval_link.live.session import LiveOptions
 
 
 class ViewerLogger:
-    """The Rerun side of a live session: the sinks of ``options`` and a :class:`steval_viewer.live_log.LiveLogger`.
-
-    ``log_batch``/``log_status``/``log_text`` go to the session's main stream (the viewer's; the ``.rrd``'s when
-    there is no viewer). With a viewer *and* ``--rrd`` the file has its own stream of the same recording and its
-    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (written as
-    they come: ``steval_viewer.rrd_writer``); ``log_link`` goes to both; ``close`` flushes and closes both.
-    ``output_failure``: one sentence once the ``.rrd`` could not be written (the session says it and exits non-zero).
-
-    Imported only when a viewer or an ``.rrd`` is asked for (``--no-view`` without ``--rrd``: no Rerun at all).
+    """The sinks of ``options`` and a :class:`~steval_viewer.live_log.LiveLogger` on the main stream (the
+    viewer's, else the ``.rrd``'s). With a viewer *and* ``--rrd`` the file has its own stream and logger, ``file``
+    (else None), which the pipeline feeds merged batches. Imported only when a viewer or an ``.rrd`` is asked for.
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
@@ -37,12 +31,11 @@ class ViewerLogger:
     @property
     def has_viewer(self) -> bool:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
-        return self.session.has_viewer
+        return self.session.viewer_url is not None
 
     @property
     def output_failure(self) -> str | None:
-        """Why the ``.rrd`` stopped being written (disk full, deleted), one sentence; None while it is fine (read by
-        the session, which says it: closing does not raise it again)."""
+        """Why the ``.rrd`` stopped being written, one sentence (the session says it: closing does not raise it)."""
         failure = self.session.rrd_failure
         if failure is not None:
             self.session.rrd_failure_said = True
@@ -80,10 +73,8 @@ REPLAY_BATCH = 4096
 
 
 def recording_sink(options, estimators: list[str], *, layout: str = "stock", progress=None):
-    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline
-    (:meth:`LivePipeline.feed_ble`) into the one logger (:class:`steval_viewer.live_log.LiveLogger`, every row's
-    attitude, the whole flight), the ``.rrd`` written whole or not at all (``sinks.log_whole``). ``options``: the
-    sinks the CLI checked; returns ``sink(recording) -> rows logged``."""
+    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline into the one logger
+    (every row's attitude); returns ``sink(recording) -> rows logged``."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
     def sink(src) -> int:

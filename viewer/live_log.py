@@ -49,13 +49,9 @@ def live_source(name: str) -> str:
 
 
 class LiveLogger:
-    """Logs a live session to a RecordingStream, batch by batch.
-
-    ``rec``: the recording (``sinks.open_session(...).rec``). ``estimator_names``: the names the session will put
-    in ``batch.estimates`` (known up front so the blueprint and the series styles are sent once). ``live``: the
-    scrolling blueprint and at most LIVE_3D_MAX_HZ 3D updates (else every row: a replay). ``ble``: a BLE stream
-    from the start (its layout at once).
-    """
+    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``
+    (known up front: the blueprint and the series styles are sent once). ``live``: the scrolling blueprint and at
+    most LIVE_3D_MAX_HZ 3D updates (else every row: a replay). ``ble``: a BLE stream from the start."""
 
     def __init__(
         self, rec: rr.RecordingStream, estimator_names: Iterable[str] = (), *, live: bool = True, ble: bool = False
@@ -97,9 +93,8 @@ class LiveLogger:
         self._records_sent_s = -math.inf  # host time of that send, s
 
     def log_batch(self, batch: Any) -> None:
-        """Log N attitude rows that arrived together (``LiveRows``: ``attitude``, AttitudeArrays with their times,
-        and ``estimates``, name -> (N, 4) q_wxyz with NaN where undefined). Text-mode rows have no q: their
-        angles come with the row. Non-finite values are gaps, never plotted."""
+        """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
+        q_wxyz, NaN where undefined). Non-finite values are gaps, never plotted."""
         a = batch.attitude
         n = len(a)
         if n == 0:
@@ -198,9 +193,8 @@ class LiveLogger:
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
-        """A status frame at ``at`` (its own firmware time: a status frame repeats the time of the attitude frame
-        before it, so it may be logged before or after the batch holding that frame): AHRS cycles (min/mean/max),
-        firmware TX drops and queue peak. The rows are queued and sent with the next batch (or on :meth:`close`)."""
+        """A status frame at ``at`` (the time of the attitude frame before it): AHRS cycles (min/mean/max), TX drops
+        and queue peak, queued for the next batch."""
         fw, host = at.t_fw_s, at.t_host_s
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
             self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
@@ -226,9 +220,8 @@ class LiveLogger:
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry (``TextRecordFrame``): a row of its shape's entity under ``text/`` (a named
-        line per series), on the host timeline (and the firmware one: the latest row's, else the host time); sent
-        in blocks (:data:`RECORDS_PER_SEND`, :data:`RECORDS_INTERVAL_S`)."""
+        """A record of text telemetry: a row of its shape's entity under ``text/`` at the host time (firmware time:
+        the latest row's, else the host time), sent in blocks."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
@@ -244,9 +237,8 @@ class LiveLogger:
             self.flush_rows()
 
     def log_flight(self, frame: Any, at: Any) -> None:
-        """A flight-control frame at ``at`` (the time of its step): targets, outer s1, inner s2, motors, sticks,
-        battery (queued like the status rows; none before the first attitude row); the motors' arrows at most
-        every 0.1 s."""
+        """A flight-control frame at ``at`` (queued like the status rows; none before the first attitude row); the
+        motors' arrows at most every 0.1 s."""
         if self._last_times is None:
             return
         fw, host = at.t_fw_s, at.t_host_s

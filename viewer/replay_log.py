@@ -259,13 +259,9 @@ def log_replay(
     link: bool = True,
     progress: Progress = None,
 ) -> ReplaySummary:
-    """Log a whole Telemetry, the ST-Mahony replica (``replica``, a ``FirmwareReplay``) and host ``estimates``
-    (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``, after the default blueprint.
-
-    Returns the samples logged per entity path. Arrays must have one row per attitude row of ``tel``. ``link``: log
-    the link-health series (False for simulations, which have no link). ``progress(fraction, stage)`` is told as
-    each source is logged.
-    """
+    """Log a whole Telemetry, the ST-Mahony ``replica`` and host ``estimates`` (name -> ``AttitudeEstimate``, one
+    row per attitude row) to ``rec`` with the default blueprint; returns the samples logged per entity path.
+    ``link``: log the link-health series (False for simulations)."""
     att = tel.attitude
     n = len(att.t_fw_s)
     sources = [(ent.SOURCE_REPLICA, replica)] if replica is not None else []
@@ -351,11 +347,8 @@ def firmware_replica(tel: Any) -> Any | None:
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Replay entry point used by ``steval replay``: runs the seeded firmware replica and logs it with ``estimates``.
-
-    A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the replica, which is the
-    same filter followed bit for bit from the firmware's status snapshots.
-    """
+    """Run the seeded firmware replica and log it with ``estimates``; a registry ``st-mahony`` estimate (started
+    from power-up, not seeded) gives way to the replica."""
     _report(progress, 0.0, "ST-Mahony replica")
     replica = firmware_replica(tel)
     others = {k: v for k, v in (estimates or {}).items() if not (replica is not None and k in REPLICA_NAMES)}
@@ -363,12 +356,8 @@ def log_telemetry(
 
 
 def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
-    """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
-    ``steval_viewer.sink_options.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
-    ``progress(fraction, stage)`` hears of each stage (replica, logging, writing).
-
-    The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
-    spawned desktop viewer stays open after the sink returns."""
+    """A ``steval replay`` sink ``sink(tel, estimates)`` logging to the sinks of ``options``
+    (:func:`~steval_viewer.sinks.log_whole`); ``progress(fraction, stage)`` hears of each stage."""
 
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}

@@ -61,11 +61,8 @@ def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
 
 
 class RrdWriter:
-    """Writes the stream ``rec`` to ``path`` (a new file: never overwritten) from now on, until :meth:`close`.
-
-    Raises :class:`UserError` when the file cannot be made or its first bytes cannot be written (nothing is left
-    behind then).
-    """
+    """Writes the stream ``rec`` to ``path`` (a new file) until :meth:`close`; UserError (nothing left behind)
+    when the file cannot be made or its first bytes cannot be written."""
 
     def __init__(self, rec, path: str | os.PathLike, *, shown: str | None = None) -> None:
         self.path = Path(path)

@@ -21,11 +21,8 @@ AXIS_LABEL_LIFT = 0.3
 
 
 def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_replica: bool) -> None:
-    """Log the 3D scene and the styles of all series.
-
-    ``estimate_sources``: source segments of the host estimates that will be logged (ghosts + pitch/roll series);
-    ``with_replica``: whether the firmware − replica difference series will be logged.
-    """
+    """Log the 3D scene and the styles of all series: of the host estimates ``estimate_sources`` (source
+    segments) and, ``with_replica``, of firmware − replica."""
     sources = list(estimate_sources)
     rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log(

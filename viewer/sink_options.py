@@ -51,9 +51,7 @@ def display_available() -> bool:
 
 
 def resolve_sinks(options: SinkOptions) -> SinkOptions:
-    """Apply the default viewer: when no viewer is chosen (``spawn``/``serve``/``connect``), ``spawn``
-    where a display exists; without a display, an ``rrd`` alone is fine (headless), nothing at all is a
-    UserError."""
+    """With no viewer chosen: ``spawn`` where a display exists, else an ``rrd`` alone (headless), else UserError."""
     if not options.viewer and display_available():
         options.spawn = True
     elif not options.viewer and options.rrd is None:
@@ -70,10 +68,8 @@ def no_display_error(spawn: str, *more_ways: str) -> ParamError:
 
 
 def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
-    """A live session's Rerun outputs, resolved and checked once (the CLI calls it; the viewer then trusts them):
-    the chosen viewer, or the default one (:func:`resolve_sinks`), and the ``.rrd``; ``view=False``
-    (``--no-view``): the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work (no
-    display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a missing ``.rrd`` folder)."""
+    """A live session's Rerun outputs, resolved and checked once: the chosen or default viewer and the ``.rrd``;
+    ``view=False``: the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work."""
     if not view and chosen.rrd is None:
         return None
     chosen = (

@@ -77,11 +77,6 @@ class ViewerSession:
         """Every stream of the session (``rec`` first)."""
         return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
-    @property
-    def has_viewer(self) -> bool:
-        """Whether a viewer gets the data (else only an ``.rrd``)."""
-        return self.viewer_url is not None
-
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
         """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
         (it was closed, or the URL is no Rerun viewer)."""
@@ -138,8 +133,7 @@ def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | 
             rec.flush(timeout_sec=min(FLUSH_SLICE_S, max(0.01, deadline - time.monotonic())))
             return
         except RuntimeError as exc:  # Rerun raises RuntimeError for a sink that failed or a flush that timed out
-            text = str(exc)
-            timed_out = "timed out" in text.lower()
+            timed_out = "timed out" in str(exc).lower()
             if timed_out and time.monotonic() < deadline:
                 continue
         where = f"the Rerun viewer at {viewer_url}" if viewer_url else "the Rerun sink"
@@ -150,14 +144,12 @@ def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | 
 
 def rerun_command() -> list[str]:
     """The Rerun viewer binary (the ``rerun`` script is a Python wrapper around it)."""
-    try:
+    with contextlib.suppress(ImportError):  # rerun-sdk ships rerun_cli
         import rerun_cli
 
         exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
         if exe.is_file():
             return [str(exe)]
-    except ImportError:  # pragma: no cover - rerun-sdk ships rerun_cli
-        pass
     found = shutil.which("rerun")
     return [found] if found else [sys.executable, "-m", "rerun"]
 
@@ -240,15 +232,12 @@ def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path:
 
 def _last_line(log_path: Path) -> str:
     """The last meaningful line a viewer printed (ANSI colours removed), for an error message."""
-    try:
-        text = log_path.read_text(errors="replace")
-    except OSError:
-        return "no output"
-    lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in text.splitlines()]
-    lines = [ln for ln in lines if ln]
-    errors = [ln for ln in lines if "error" in ln.lower() or "panic" in ln.lower()]
-    line = (errors or lines or ["no output"])[-1]
-    return line[:200]
+    with contextlib.suppress(OSError):
+        lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in log_path.read_text(errors="replace").splitlines()]
+        lines = [ln for ln in lines if ln]
+        errors = [ln for ln in lines if "error" in ln.lower() or "panic" in ln.lower()]
+        return (errors or lines or ["no output"])[-1][:200]
+    return "no output"
 
 
 def _first_line(exc: BaseException) -> str:
