@@ -231,14 +231,12 @@ def replica_verdict(step, bit_exact, seeded) -> str | None:
     """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
     None when no row was seeded. Arrays: one per attitude row."""
     seeded = np.asarray(seeded, bool)
-    exact = np.asarray(bit_exact, bool) & seeded
-    n = int(seeded.sum())
+    n, differ = int(seeded.sum()), np.flatnonzero(seeded & ~np.asarray(bit_exact, bool))
     if n == 0:
         return None
-    if int(exact.sum()) == n:
+    if not differ.size:
         return f"bit-exact on {n} of {n} steps"
-    k = int(np.flatnonzero(seeded & ~exact)[0])
-    return f"first difference at step {int(np.asarray(step)[k])}"  # short: a title at the default window size
+    return f"first difference at step {int(np.asarray(step)[differ[0]])}"  # short: a title at the default window size
 
 
 def legend_room(values, *, share: float, bottom: bool, floor: float | None = None) -> tuple[float, float] | None:

@@ -132,11 +132,11 @@ def quadcopter_mesh() -> Mesh:
     return Mesh(positions=positions, normals=normals, colors=colors, triangles=triangles)
 
 
-def quadcopter_wireframe(n_circle: int = 32) -> list[np.ndarray]:
+def quadcopter_wireframe() -> list[np.ndarray]:
     """Line strips of the ghost: plate outline, arms, prop circles, nose arrow (body frame)."""
     hx, hy, _ = BODY_HALF
     strips = [np.array([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]], dtype=float)]
-    ang = np.linspace(0.0, 2.0 * np.pi, n_circle + 1)
+    ang = np.linspace(0.0, 2.0 * np.pi, 33)  # 32 segments, closed
     for m in motor_positions():
         strips.append(np.array([[0.0, 0.0, 0.0], m]))
         x, y = m[0] + PROP_RADIUS * np.cos(ang), m[1] + PROP_RADIUS * np.sin(ang)

@@ -61,6 +61,8 @@ BLE_BATTERY = "ble/battery_pct"
 BLE_TEMPERATURE = "ble/temperature_c"
 BLE_RSSI = "ble/rssi_dbm"
 BLE_ARMED = "ble/armed"
+#: a BLE environment notification's values, in the order of ``BleEnvFrame``'s fields below
+BLE_ENVIRONMENT = (BLE_PRESSURE, BLE_BATTERY, BLE_TEMPERATURE, BLE_RSSI)
 BLE_NOTE = "ble/note"
 
 LOG_FIRMWARE = "log/firmware"

@@ -174,8 +174,7 @@ class LiveLogger:
 
     def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
         """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
-        prev = self._last_step
-        steps = step if prev is None else np.concatenate(([prev], step))
+        steps = step if self._last_step is None else np.concatenate(([self._last_step], step))
         gaps = np.clip(np.diff(steps) - 1, 0, None)
         self.frames_missing += int(gaps[(gaps < SEQ_MODULUS)].sum())  # a firmware restart is not a loss
         self._last_step = int(step[-1])
@@ -188,8 +187,7 @@ class LiveLogger:
                 host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
                 self._queue_row(ent.LINK_RATE, fw, host_i, (self._bin_count / (h - self._bin_start),))
                 self._queue_row(ent.LINK_MISSING, fw, host_i, (float(self.frames_missing),))
-                self._bin_start = h
-                self._bin_count = 0
+                self._bin_start, self._bin_count = h, 0
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
@@ -263,12 +261,8 @@ class LiveLogger:
     def log_environment(self, frame: Any, at: Any) -> None:
         """A BLE environment frame (``BleEnvFrame``) at its tick: pressure, battery, temperature, RSSI (queued)."""
         self._ble_layout()
-        for path, v in (
-            (ent.BLE_PRESSURE, frame.pressure_hpa),
-            (ent.BLE_BATTERY, frame.battery_pct),
-            (ent.BLE_TEMPERATURE, frame.temperature_c),
-            (ent.BLE_RSSI, frame.rssi_dbm),
-        ):
+        values = (frame.pressure_hpa, frame.battery_pct, frame.temperature_c, frame.rssi_dbm)
+        for path, v in zip(ent.BLE_ENVIRONMENT, values):
             self._queue_row(path, at.t_fw_s, at.t_host_s, (v,))
 
     def log_arming(self, frame: Any, at: Any) -> None:
@@ -297,7 +291,7 @@ class LiveLogger:
             return
         self._ble_shown = True
         bp.send_blueprint(self.rec, ble=True, text=self._text_shown, **self._blueprint)
-        for path in (ent.BLE_PRESSURE, ent.BLE_BATTERY, ent.BLE_TEMPERATURE, ent.BLE_RSSI, ent.BLE_ARMED):
+        for path in (*ent.BLE_ENVIRONMENT, ent.BLE_ARMED):
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
@@ -306,12 +300,10 @@ class LiveLogger:
         the timeline (``log/commands``)."""
         self._log_line(ent.LOG_COMMANDS, text, at, level)
 
-    def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
+    def log_link(self, stats: Any, t_unix_s: float) -> None:
         """Decoder counters (``DecoderStats``): CRC failures, cumulative, at the latest row's times; at most every
         LINK_INTERVAL_S of the session's host time ``t_unix_s`` (s, any base: only its differences count)."""
-        if not force and t_unix_s - self._last_link_s < LINK_INTERVAL_S:
-            return
-        if self._last_times is None:
+        if t_unix_s - self._last_link_s < LINK_INTERVAL_S or self._last_times is None:
             return
         self._last_link_s = t_unix_s
         fw, host = self._last_times

@@ -45,10 +45,6 @@ def flight_path(i: int, leaf: str) -> str:
     return f"{ROOT}/{flight_key(i)}/{leaf}"
 
 
-def _colour(i: int) -> tuple[int, int, int]:
-    return COLOURS[i % len(COLOURS)]
-
-
 def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
     """Pitch of every flight overlaid (with their accel-only tilt), roll the same, the differences from the first
     flight, one 3D view per flight, and the notes."""
@@ -99,7 +95,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     mesh = drone_model.quadcopter_mesh()
     ref = r.flights[0]
     for i, f in enumerate(r.flights):
-        c = _colour(i)
+        c = COLOURS[i % len(COLOURS)]
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
         grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
         leaves = {
