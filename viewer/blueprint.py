@@ -32,11 +32,8 @@ class _Plots:
 
     def __call__(self, origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
         """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
-        window = rrb.VisibleTimeRange(
-            self.timeline,
-            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S),
-            end=rrb.TimeRangeBoundary.cursor_relative(),
-        )
+        start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
+        window = rrb.VisibleTimeRange(self.timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
         return rrb.TimeSeriesView(
             origin=origin,
             contents=contents,
@@ -110,13 +107,8 @@ def make_blueprint(
 
 def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
     """The window of every layout: ``content`` and ``time_panel``, the side panels closed."""
-    return rrb.Blueprint(
-        content,
-        time_panel,
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
+    closed = (rrb.BlueprintPanel(expanded=False), rrb.SelectionPanel(expanded=False))
+    return rrb.Blueprint(content, time_panel, *closed, collapse_panels=False)
 
 
 def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
@@ -194,18 +186,14 @@ def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
     with its P and I terms, the inner loop's s2, the motors, the sticks and the battery."""
     fw = ent.SOURCE_FIRMWARE
     angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
-    targets = rrb.Horizontal(
-        *[
-            plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
-            for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
-        ]
-    )
-    outer = rrb.Horizontal(
-        *[
-            plot(path, f"outer {name}: s1, P, I (rad/s)")
-            for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
-        ]
-    )
+    targets = [
+        plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
+        for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
+    ]
+    outer = [
+        plot(path, f"outer {axis}: s1, P, I (rad/s)")
+        for path, axis in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
+    ]
     out = rrb.Horizontal(
         plot(ent.FC_INNER, "inner loop s2 (PWM)", bottom=True),
         plot(ent.FC_MOTORS, "motors (of 2000)", bottom=True),
@@ -214,7 +202,7 @@ def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
         column_shares=[2, 2, 2, 1],
     )
     name = "Flight control (never armed: targets at rest, motors off)" if never_armed else "Flight control"
-    return rrb.Vertical(targets, outer, out, row_shares=[3, 2, 2], name=name)
+    return rrb.Vertical(rrb.Horizontal(*targets), rrb.Horizontal(*outer), out, row_shares=[3, 2, 2], name=name)
 
 
 def _symmetric(max_abs: float | None) -> tuple[float, float] | None:

@@ -161,9 +161,8 @@ def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.nd
     sent."""
     v = np.asarray(vectors, dtype=np.float32)
     good = np.isfinite(v).all(axis=1)
-    return send_rows(
-        rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), None if good.all() else good
-    )
+    rows = None if good.all() else good
+    return send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), rows)
 
 
 def _take(values, idx):

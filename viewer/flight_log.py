@@ -50,12 +50,8 @@ def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
             series_style(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
     series_style(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], ent.XYZ_COLORS)
     series_style(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
-    series_style(
-        rec,
-        ent.FC_STICKS,
-        ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
-        [*ent.XYZ_COLORS, (127, 127, 127)],
-    )
+    sticks = ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"]
+    series_style(rec, ent.FC_STICKS, sticks, [*ent.XYZ_COLORS, (127, 127, 127)])
     series_style(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
     if motors:
         log_motors_static(rec)
@@ -64,19 +60,11 @@ def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
 def log_motors_static(rec: rr.RecordingStream) -> None:
     """The four motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control
     frames (logged before: an arrow without vectors is an error in the viewer)."""
-    pos = drone_model.firmware_motor_positions()
-    for m, p, color in zip(MOTORS, pos, _MOTOR_COLORS):
-        rec.log(
-            ent.motor_path(m.number),
-            rr.Arrows3D.from_fields(
-                origins=[p + (0.0, 0.0, drone_model.PROP_Z)],
-                colors=[color],
-                radii=[0.035],
-                labels=[f"M{m.number}"],
-                show_labels=True,
-            ),  # vectors over time
-            static=True,
-        )
+    for m, p, color in zip(MOTORS, drone_model.firmware_motor_positions(), _MOTOR_COLORS):
+        origin = [p + (0.0, 0.0, drone_model.PROP_Z)]  # the vectors come over time
+        label = [f"M{m.number}"]
+        arrow = rr.Arrows3D.from_fields(origins=origin, colors=[color], radii=[0.035], labels=label, show_labels=True)
+        rec.log(ent.motor_path(m.number), arrow, static=True)
 
 
 def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = None) -> int:
@@ -106,12 +94,8 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = 
     for k, m in enumerate(MOTORS):
         v = np.zeros((len(mp), 3), np.float32)
         v[:, 2] = frac[:, k]
-        send_rows(
-            rec,
-            ent.motor_path(m.number),
-            times,
-            lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]),
-        )
+        path = ent.motor_path(m.number)
+        send_rows(rec, path, times, lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]))
     if summary is not None:
         summary.samples[ent.FC_MOTORS] = len(fc)
     return len(fc)

@@ -82,14 +82,8 @@ def recording_sink(options, estimators: list[str], *, layout: str = "stock", pro
 
         def log(rec) -> int:
             logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
-            pipe = LivePipeline(
-                estimators,
-                logger,
-                view_interval_s=RRD_ONLY_INTERVAL_S,
-                t0_unix_s=0.0,
-                baud=0,
-                ble_layout=layout_named(layout),
-            )
+            timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
+            pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
             for i in range(0, len(items), REPLAY_BATCH):
                 pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
                 if progress is not None:

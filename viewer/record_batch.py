@@ -73,9 +73,8 @@ class RowBatch:
             inner, step = pa.array(values.reshape(-1)), width
         else:
             inner, step = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width), 1
-        arr = pa.ListArray.from_arrays(
-            self._offsets_for(self.n, step), inner, mask=None if all_good else pa.array(~good)
-        )
+        mask = None if all_good else pa.array(~good)
+        arr = pa.ListArray.from_arrays(self._offsets_for(self.n, step), inner, mask=mask)
         comp, arch, ctype = kind
         meta = dict(kind="data", entity_path="/" + path, component=comp, archetype=arch, component_type=ctype)
         self.fields.append(_field(pa, self.cache, f"/{path}:{comp}", arr.type, **meta))

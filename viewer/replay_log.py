@@ -102,11 +102,9 @@ def display_quaternions(att: Any) -> np.ndarray:
 def send_values_bad_note(rec: rr.RecordingStream, at: Times, sentence: str, last_good_step: int | None) -> None:
     """The warning (``log/filter``) at the first row with bad values ``at``: the summary's sentence and where the 3D
     drone stays."""
-    where = (
-        "at its last finite attitude (step " + str(last_good_step) + ")"
-        if last_good_step is not None
-        else "without an attitude (no finite one before)"
-    )
+    where = "without an attitude (no finite one before)"
+    if last_good_step is not None:
+        where = f"at its last finite attitude (step {last_good_step})"
     send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
 
 
@@ -136,9 +134,8 @@ class _Replay:
     def firmware(self, att: Any) -> None:
         """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
         samples = self.summary.samples
-        samples[ent.DRONE_FIRMWARE] = send_transforms(
-            self.rec, ent.DRONE_FIRMWARE, self.times, display_quaternions(att)
-        )
+        q = display_quaternions(att)
+        samples[ent.DRONE_FIRMWARE] = send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
         with np.errstate(invalid="ignore"):  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
             gravity = -np.asarray(att.acc_mg, dtype=np.float64) / 1000.0
         samples[ent.ACC_GRAVITY] = send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
@@ -318,9 +315,8 @@ def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, fl
         vals = [_deg(fw)] + [_deg(getattr(e, attr))[estimate_mask(e, len(att.step))] for e in estimates]
         share = bp.LEGEND_SHARE["angles"] * min(len(vals), 5) / 5
         out[path] = bp.legend_room(np.concatenate(vals), share=share, bottom=False)
-    out[ent.PLOT_ACC] = bp.legend_room(
-        np.asarray(att.acc_mg, np.float64), share=bp.LEGEND_SHARE["sensors"], bottom=True
-    )
+    acc = np.asarray(att.acc_mg, np.float64)
+    out[ent.PLOT_ACC] = bp.legend_room(acc, share=bp.LEGEND_SHARE["sensors"], bottom=True)
     step = np.asarray(att.step, dtype=np.int64)
     lost = [float(np.clip(np.diff(step) - 1, 0, None).sum()) if len(step) > 1 else 0.0]
     lost.append(float(getattr(getattr(tel, "stats", None), "crc_failures", 0) or 0))

@@ -25,31 +25,14 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     segments) and, ``with_replica``, of firmware − replica."""
     sources = list(estimate_sources)
     rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rec.log(
-        ent.WORLD_AXES,
-        rr.Arrows3D(
-            vectors=[(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)],
-            colors=ent.XYZ_COLORS,
-            radii=0.015,
-        ),
-        static=True,
-    )
-    rec.log(
-        ent.WORLD_AXIS_LABELS,
-        rr.Points3D(
-            [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)],
-            colors=ent.XYZ_COLORS,
-            labels=["x right", "y forward", "z up"],
-            radii=0.001,
-        ),
-        static=True,
-    )
+    axes = [(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)]
+    rec.log(ent.WORLD_AXES, rr.Arrows3D(vectors=axes, colors=ent.XYZ_COLORS, radii=0.015), static=True)
+    at = [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)]
+    labels = rr.Points3D(at, colors=ent.XYZ_COLORS, labels=["x right", "y forward", "z up"], radii=0.001)
+    rec.log(ent.WORLD_AXIS_LABELS, labels, static=True)
     drone_model.log_models(rec, sources)
-    rec.log(
-        ent.ACC_GRAVITY,
-        rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03]),  # named in the 3D view's title
-        static=True,
-    )
+    gravity = rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03])  # named in the 3D view's title
+    rec.log(ent.ACC_GRAVITY, gravity, static=True)
 
     for source in [ent.SOURCE_FIRMWARE, *sources]:
         color = ent.source_color(source)

@@ -6,6 +6,7 @@ before any work and before Rerun is loaded.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import socket
 import sys
@@ -72,11 +73,7 @@ def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
     ``view=False``: the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work."""
     if not view and chosen.rrd is None:
         return None
-    chosen = (
-        resolve_sinks(chosen)
-        if view
-        else SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
-    )
+    chosen = resolve_sinks(chosen) if view else dataclasses.replace(chosen, spawn=False, serve=False, connect=None)
     check_sinks(chosen)
     return chosen
 

@@ -132,13 +132,8 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
     for sensor, values in (("gyro", att.gyro_mdps), ("acc", att.acc_mg)):
         path = f"{ROOT}/signal/{sensor}"
-        rec.log(
-            path,
-            rr.SeriesLines(
-                names=[f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"], colors=[_COLOURS[a] for a in "xyz"]
-            ),
-            static=True,
-        )
+        names = [f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"]
+        rec.log(path, rr.SeriesLines(names=names, colors=[_COLOURS[a] for a in "xyz"]), static=True)
         send_scalars(rec, path, times, np.asarray(values, dtype=np.float64))
         counts[path] = len(times)
     send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
