@@ -98,7 +98,8 @@ def make_blueprint(
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
     left = rrb.Vertical(view3d, link_view(plot, yr, ble, text), row_shares=[3, 2])
-    right = attitude_view(plot, yr, replica_verdict, gyro_max_dps, frozenset(absent))
+    limit = None if gyro_max_dps is None else axis_limit(gyro_max_dps)
+    right = attitude_view(plot, yr, replica_verdict, None if limit is None else (-limit, limit), frozenset(absent))
     if flight_control:
         right = rrb.Tabs(right, flight_view(plot, never_armed), name="Attitude / flight control")
     time_panel = rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None)
@@ -112,8 +113,7 @@ def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
 
 
 def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
-    """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue), the firmware log, the
-    text telemetry the firmware printed (in front when ``text``), and a BLE link's own values (``ble``)."""
+    """The link tabs under the 3D view: link health, firmware log, text telemetry (in front when ``text``), BLE."""
     losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
     return rrb.Tabs(
         rrb.Grid(
@@ -132,7 +132,7 @@ def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, te
     )
 
 
-def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_max_dps, absent: frozenset[str]) -> rrb.Vertical:
+def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
     """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
     the ``absent`` plots are left out, and rows left empty."""
     diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
@@ -151,7 +151,7 @@ def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_max_dps, a
         ],
         [
             plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
-            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=_symmetric(gyro_max_dps), bottom=True),
+            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
             plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
         ],
     )
@@ -182,8 +182,7 @@ def ble_view(plot: _Plots) -> rrb.Vertical:
 
 
 def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
-    """The flight-control view: per axis the remote's target against the firmware's angle, the outer loop's s1
-    with its P and I terms, the inner loop's s2, the motors, the sticks and the battery."""
+    """The flight-control view: per axis the remote's target against the firmware's angle, then the loops' outputs."""
     fw = ent.SOURCE_FIRMWARE
     angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
     targets = [
@@ -205,19 +204,13 @@ def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
     return rrb.Vertical(rrb.Horizontal(*targets), rrb.Horizontal(*outer), out, row_shares=[3, 2, 2], name=name)
 
 
-def _symmetric(max_abs: float | None) -> tuple[float, float] | None:
-    limit = None if max_abs is None else axis_limit(max_abs)
-    return None if limit is None else (-limit, limit)
-
-
 def send_blueprint(rec: rr.RecordingStream, **kwargs) -> None:
     """Build the blueprint (arguments of :func:`make_blueprint`) and send it as the recording's default."""
     rec.send_blueprint(make_blueprint(**kwargs), make_active=True, make_default=True)
 
 
 def replica_verdict(step, bit_exact, seeded) -> str | None:
-    """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
-    None when no row was seeded. Arrays: one per attitude row."""
+    """The replica against the firmware in words (a panel title); None when no row was seeded."""
     seeded = np.asarray(seeded, bool)
     n, differ = int(seeded.sum()), np.flatnonzero(seeded & ~np.asarray(bit_exact, bool))
     if n == 0:

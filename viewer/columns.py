@@ -26,10 +26,8 @@ class Times:
 
     def __post_init__(self) -> None:
         self.t_fw_s = np.asarray(self.t_fw_s, dtype=np.float64)
-        if self.t_host_s is not None:
-            self.t_host_s = np.asarray(self.t_host_s, dtype=np.float64)
-            if not np.isfinite(self.t_host_s).any():
-                self.t_host_s = None
+        host = None if self.t_host_s is None else np.asarray(self.t_host_s, dtype=np.float64)
+        self.t_host_s = host if host is not None and np.isfinite(host).any() else None
         if self.step is not None:
             self.step = np.asarray(self.step, dtype=np.int64)
 
@@ -57,8 +55,7 @@ class Times:
 
 
 def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, rows: np.ndarray | None = None) -> int:
-    """Send ``make_columns(idx)`` for the rows ``idx`` (all when None), split by host-time availability; returns
-    the number of rows sent."""
+    """Send ``make_columns(idx)`` for the rows ``idx`` (all when None), split by host-time availability."""
     idx = np.arange(len(times)) if rows is None else np.asarray(rows)
     if idx.dtype == bool:
         idx = np.flatnonzero(idx)
@@ -127,8 +124,7 @@ def log_text_style(rec: rr.RecordingStream, names, units) -> None:
 
 
 def send_records(rec: rr.RecordingStream, names, times: Times, values: np.ndarray) -> None:
-    """Records of one shape, (N, k) values: one row of k scalars per record (one ``send_columns``); a value that
-    is not finite is NaN, a gap in its line only."""
+    """Records of one shape, (N, k) values: one row of k scalars per record; a non-finite value is a gap."""
     v = np.asarray(values, dtype=np.float64).reshape(len(times), len(names))
     v = np.where(np.isfinite(v), v, np.nan)
     send_rows(rec, text_path(names), times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)))
@@ -146,9 +142,8 @@ def unit_xyzw(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def send_transforms(
     rec: rr.RecordingStream, path: str, times: Times, q_wxyz: np.ndarray, valid: np.ndarray | None = None
 ) -> int:
-    """Log the attitude ``q_wxyz`` as a Transform3D on ``path`` (:func:`unit_xyzw`). Rows with a non-finite or zero
-    quaternion (or ``valid`` False) are skipped: the drone keeps its last known attitude rather than a made-up one.
-    Returns the rows sent."""
+    """Log the attitude ``q_wxyz`` as a Transform3D on ``path``; rows with no quaternion (or ``valid`` False) are
+    skipped: the drone keeps its last known attitude."""
     xyzw, good = unit_xyzw(q_wxyz)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
@@ -157,8 +152,7 @@ def send_transforms(
 
 
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> int:
-    """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped. Returns the rows
-    sent."""
+    """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped."""
     v = np.asarray(vectors, dtype=np.float32)
     good = np.isfinite(v).all(axis=1)
     rows = None if good.all() else good

@@ -1,17 +1,13 @@
 """A recognisable quadcopter for the 3D view: solid mesh (firmware attitude) and wireframe ghost (host estimates).
 
-Geometry is in the drone's body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ the
-distance from the centre to a motor (the STEVAL-FCU001V1 frame is about 0.1 m motor to centre, the model is
-scaled so the 3D view reads well). The quadcopter is in X configuration: arms at ±45° from the nose, front
-propellers red, rear propellers grey, a red nose cone on +y.
-
-All functions are pure and return numpy arrays; :func:`log_models` logs them as static data.
+Body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ centre to motor (the model is scaled
+so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone.
 """
 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import rerun as rr
@@ -51,8 +47,7 @@ def firmware_motor_positions() -> np.ndarray:
     return np.stack([-np.sign(rows[:, 1]) * d, np.sign(rows[:, 0]) * d, np.zeros(4)], axis=1)
 
 
-@dataclass(frozen=True)
-class Mesh:
+class Mesh(NamedTuple):
     """Triangle soup with per-vertex colours and normals (vertices not shared, so shading is flat)."""
 
     positions: np.ndarray  # (V, 3) float32
@@ -157,8 +152,7 @@ def log_mesh(rec, path: str, mesh: Mesh | None = None) -> None:
 
 
 def log_models(rec, ghost_sources: list[str]) -> None:
-    """Log the static quadcopter under the firmware transform and a wireframe ghost per host estimate (static, in
-    the estimate's colour). ``ghost_sources``: source segments (``entities.source_name``)."""
+    """Log the quadcopter under the firmware transform and a ghost per source of ``ghost_sources`` (its colour)."""
     log_mesh(rec, ent.DRONE_FIRMWARE_MODEL)
     strips = quadcopter_wireframe()
     for source in ghost_sources:

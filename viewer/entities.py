@@ -109,9 +109,8 @@ def source_label(source: str) -> str:
 
 def source_color(source: str) -> tuple[int, int, int]:
     """RGB colour of a source segment (stable for unknown names)."""
-    if source in SOURCES:
-        return SOURCES[source][1]
-    return _FALLBACK_COLORS[sum(source.encode()) % len(_FALLBACK_COLORS)]
+    fallback = _FALLBACK_COLORS[sum(source.encode()) % len(_FALLBACK_COLORS)]
+    return SOURCES[source][1] if source in SOURCES else fallback
 
 
 def pitch_path(source: str) -> str:

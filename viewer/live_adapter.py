@@ -24,9 +24,10 @@ class ViewerLogger:
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
-        self.file: live_log.LiveLogger | None = None
-        if self.session.file_rec is not None:
-            self.file = live_log.LiveLogger(self.session.file_rec, estimator_names=options.estimators, ble=ble)
+        file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
+        self.file = (
+            None if file_rec is None else live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
+        )
 
     @property
     def has_viewer(self) -> bool:

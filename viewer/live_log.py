@@ -161,8 +161,7 @@ class LiveLogger:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
     def flush_rows(self, *, records: bool = True) -> None:
-        """Send the queued rows: one ``send_columns`` per link/status entity and (``records``) per text record
-        shape."""
+        """Send the queued rows (and, with ``records``, the text records): one ``send_columns`` per entity."""
         for names, rows in self._records.items() if records else ():
             if rows:
                 send_records(self.rec, names, *_columns(rows))
@@ -296,13 +295,11 @@ class LiveLogger:
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
     def log_event(self, text: str, at: Any, level: str = "INFO") -> None:
-        """A command sent to the drone, its acknowledgement or the settings it announced, at ``at``: an entry on
-        the timeline (``log/commands``)."""
+        """A command sent to the drone, its acknowledgement or the settings it announced (``log/commands``)."""
         self._log_line(ent.LOG_COMMANDS, text, at, level)
 
     def log_link(self, stats: Any, t_unix_s: float) -> None:
-        """Decoder counters (``DecoderStats``): CRC failures, cumulative, at the latest row's times; at most every
-        LINK_INTERVAL_S of the session's host time ``t_unix_s`` (s, any base: only its differences count)."""
+        """Decoder CRC failures (cumulative) at the latest row's times, at most every LINK_INTERVAL_S (host s)."""
         if t_unix_s - self._last_link_s < LINK_INTERVAL_S or self._last_times is None:
             return
         self._last_link_s = t_unix_s

@@ -32,10 +32,8 @@ def _field(pa, cache: dict, name: str, typ, **meta: str):
 
 
 class RowBatch:
-    """One Arrow record batch holding many entities' columns for the same N rows: sent with a single
-    ``send_record_batch`` call (Rerun splits it into one chunk per entity). A row whose value is not finite is a
-    null (no sample) in that entity's column; a ``Clear`` is sent when an entity turns bad, so plots show a gap.
-    """
+    """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
+    a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
 
     def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
         import pyarrow as pa

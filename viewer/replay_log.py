@@ -100,8 +100,7 @@ def display_quaternions(att: Any) -> np.ndarray:
 
 
 def send_values_bad_note(rec: rr.RecordingStream, at: Times, sentence: str, last_good_step: int | None) -> None:
-    """The warning (``log/filter``) at the first row with bad values ``at``: the summary's sentence and where the 3D
-    drone stays."""
+    """The warning at the first row with bad values ``at``: ``sentence`` and where the 3D drone stays."""
     where = "without an attitude (no finite one before)"
     if last_good_step is not None:
         where = f"at its last finite attitude (step {last_good_step})"
@@ -120,12 +119,11 @@ class _Replay:
     def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
         """Text entries at host times ``t_host`` (s), their firmware time from the attitude rows' (host, firmware)
         pairs; an entry without a time (or a stream without host times) is logged without a timeline."""
-        times = self.times
-        timed = np.isfinite(t_host) & (times.t_host_s is not None)
+        timed = np.isfinite(t_host) & (self.times.t_host_s is not None)
         idx = np.flatnonzero(timed)
         if idx.size:
-            pairs = np.isfinite(times.t_host_s)
-            t_fw = np.interp(t_host[idx], times.t_host_s[pairs], times.t_fw_s[pairs])
+            pairs = np.isfinite(self.times.t_host_s)
+            t_fw = np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs])
             send_texts(self.rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
         for i in np.flatnonzero(~timed):
             self.rec.log(path, rr.TextLog(texts[i], level=levels[i]))
@@ -209,8 +207,7 @@ class _Replay:
             self.texts_at(ent.LOG_COMMANDS, t_host, [e["text"] for e in entries], levels)
 
     def values_bad(self, tel: Any) -> None:
-        """The first attitude row flagged ``values_bad`` (the firmware's own filter went NaN or off the unit
-        sphere): a warning on the timeline at that step (``log/filter``). Nothing when no row is flagged."""
+        """A warning at the first row flagged ``values_bad`` (the firmware's own filter went NaN or off range)."""
         att = tel.attitude
         rep = values_bad_report(tel) if hasattr(att, "values_bad") else None
         if rep is None or rep["first_row"] is None:
@@ -307,8 +304,7 @@ def log_replay(
 
 
 def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, float]]:
-    """Fixed y ranges of a replay's plots whose legends would cover data (:func:`blueprint.legend_room`): the
-    angles (legend at the top right), the accelerometer (bottom), the link losses (top left)."""
+    """Fixed y ranges of the plots whose legends would cover data: angles, accelerometer, link losses."""
     att = tel.attitude
     out: dict[str, tuple[float, float] | None] = {}
     for path, fw, attr in ((ent.PLOT_PITCH, att.thx_rad, "thx_rad"), (ent.PLOT_ROLL, att.thy_rad, "thy_rad")):
@@ -332,10 +328,8 @@ REPLICA_NAMES = ("st-mahony", "st_mahony")
 
 
 def firmware_replica(tel: Any) -> Any | None:
-    """The bit-exact ST-Mahony replica re-run over ``tel`` (seeded from status snapshots), or None when the capture
-    has no bit-exact rows (text mode) or the replica is unavailable."""
-    exact = getattr(tel.attitude, "exact", None)
-    if exact is not None and not np.asarray(exact).any():
+    """The bit-exact ST-Mahony replica over ``tel``, or None without bit-exact rows (text mode)."""
+    if not np.asarray(getattr(tel.attitude, "exact", True)).any():
         return None
     return replay_variants(tel, hint=capture_variant_hint(tel)).replay  # the release whose filter is bit-exact
 

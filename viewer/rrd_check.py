@@ -95,8 +95,7 @@ def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
 
 
 def active_tabs(path: str | Path) -> list[str]:
-    """The display names of the tabs in front in the blueprints embedded in ``path`` (one per tab container that
-    names its active tab; a live session may send a second blueprint, e.g. when printed lines come)."""
+    """The display names of the tabs in front in every blueprint embedded in ``path``."""
     parts = _blueprint_components(path, every=True)
     names = {
         entity: comps.get("ViewBlueprint:display_name") or comps.get("ContainerBlueprint:display_name")

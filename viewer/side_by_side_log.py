@@ -1,17 +1,5 @@
-"""``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree on one timeline, and a
-blueprint that overlays them.
-
-Entities (``<k>``: ``a``, ``b``, ... in the order of the command line; times on the ``aligned_time`` timeline, s
-since each flight's first frame minus its motion lag):
-
-- ``flights/<k>/pitch_thx_deg``, ``flights/<k>/roll_thy_deg``: the flight's pitch (about x, nose up +) and roll
-  (about y), its label as the series name;
-- ``flights/<k>/accel_pitch_thx_deg``, ``flights/<k>/accel_roll_thy_deg``: its accelerometer-only tilt;
-- ``flights/<k>/gyro_dps``: its gyro (x, y, z);
-- ``flights/<k>/world/drone``: its attitude (a quadcopter in its own 3D view);
-- ``flights/<k>/diff_pitch_thx_deg``, ``flights/<k>/diff_roll_thy_deg``: the flight minus the first one (from the
-  second flight on);
-- ``notes``: the printed summary.
+"""``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree (``flights/<k>/...``) on the
+``aligned_time`` timeline, and a blueprint that overlays them. The entities are listed in ``viewer/README.md``.
 """
 
 from __future__ import annotations
@@ -78,17 +66,13 @@ def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarra
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if not good.any():
         return 0
-    rec.send_columns(
-        path,
-        indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])],
-        columns=rr.Scalars.columns(scalars=v[good]),
-    )
+    t = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])]
+    rec.send_columns(path, indexes=t, columns=rr.Scalars.columns(scalars=v[good]))
     return int(good.sum())
 
 
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
-    """Log every flight of ``r`` under its own subtree, with :func:`side_by_side_blueprint`; returns the number of
-    rows logged per entity path."""
+    """Log every flight of ``r`` under its own subtree; returns the rows logged per entity path."""
     labels = [f.label for f in r.flights]
     rec.send_blueprint(side_by_side_blueprint(labels), make_active=True, make_default=True)
     counts: dict[str, int] = {}
@@ -124,11 +108,8 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
         xyzw, good = unit_xyzw(f.q_wxyz)
         if good.any():
-            rec.send_columns(
-                f"{world}/drone",
-                indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
-                columns=rr.Transform3D.columns(quaternion=xyzw[good]),
-            )
+            t = [rr.TimeColumn(TIMELINE, duration=f.t_s[good])]
+            rec.send_columns(f"{world}/drone", indexes=t, columns=rr.Transform3D.columns(quaternion=xyzw[good]))
         counts[f"{world}/drone"] = int(good.sum())
     text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
@@ -137,8 +118,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
 
 
 def side_by_side_sink(options: Any, *, recording_name: str = "steval compare (side by side)"):
-    """A sink ``sink(side_by_side)`` writing to the Rerun sinks of ``options`` (a ``SinkOptions``): a complete
-    ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+    """A sink ``sink(side_by_side)`` writing to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
 
     def sink(r: SideBySide) -> dict[str, int]:
         return log_whole(options, recording_name, lambda rec: log_side_by_side(rec, r))

@@ -1,10 +1,7 @@
-"""Log a ``steval simulate`` run (UMaine Lab 5 simulator) to Rerun with the standard layout and blueprint.
+"""Log a ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` with the standard layout and blueprint.
 
 The simulated filter takes the place of the drone's own filter: the solid quadcopter and the ``firmware`` series
-show it, labelled ``simulated <estimator>``; ``fw_time`` is the simulated time ``(step + 1) * dt_s``. Called by
-``steval simulate --rrd FILE``::
-
-    log_simulation(result, "sim.rrd")
+show it, labelled ``simulated <estimator>``; ``fw_time`` is the simulated time ``(step + 1) * dt_s``.
 """
 
 from __future__ import annotations

@@ -46,9 +46,7 @@ class SinkOptions:
 
 def display_available() -> bool:
     """Whether a desktop viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
-    if sys.platform in ("darwin", "win32"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def resolve_sinks(options: SinkOptions) -> SinkOptions:
@@ -79,8 +77,7 @@ def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
 
 
 def check_sinks(options: SinkOptions) -> None:
-    """Check what can be checked before any work: the ``.rrd`` can be created, the ``--connect`` URL is a Rerun
-    gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""
+    """Check what can be checked before any work (the ``.rrd``'s folder, URL, ports, display); UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
     for tcp_port, name in ((options.web_port, "web_port"), (options.grpc_port, "grpc_port")):
@@ -129,11 +126,10 @@ def check_rrd_path(path: Path) -> None:
     """UserError unless ``path`` can be written as a new ``.rrd`` (existing folder, not itself a folder)."""
     if path.is_dir():
         raise UserError(f"cannot write {path}: it is a folder")
-    parent = path.parent
-    if not parent.is_dir():
-        raise UserError(f"cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"cannot write {path}: no permission to write in {parent}")
+    if not path.parent.is_dir():
+        raise UserError(f"cannot write {path}: folder {path.parent} does not exist")
+    if not os.access(path.parent, os.W_OK):
+        raise UserError(f"cannot write {path}: no permission to write in {path.parent}")
 
 
 def parse_grpc_url(url: str) -> tuple[str, int]:

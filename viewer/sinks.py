@@ -1,17 +1,10 @@
 """Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
 (``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
 
-``open_session(...)`` returns a :class:`ViewerSession`: its ``rec`` goes to the logging functions, its ``close()``
-flushes everything. With ``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one
-recording, each logged at its own cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer
-wants every frame at once). The checks that need no viewer are in :mod:`steval_viewer.sink_options`.
-
-Nothing here can hang: every wait has a bound and ends in one :class:`UserError` sentence.
-
-- ``--spawn`` starts the desktop viewer in its own session: it stays open after the command returns. When a viewer
-  already listens on the port, the recording goes to that one, as Rerun's own ``rr.spawn`` does.
-- ``--serve`` runs ``rerun --serve-web`` as a child that lives as long as the command: stopped on close, Ctrl-C,
-  SIGTERM and SIGHUP, and on Linux also when the command dies without cleaning up (parent-death signal).
+``open_session(...)`` returns a :class:`ViewerSession`. With ``split_file=True`` (the live session) a viewer and an
+``.rrd`` get two streams of one recording, each logged at its own cadence. Every wait has a bound and ends in one
+:class:`UserError` sentence. ``--spawn``'s viewer stays open after the command (one already on the port is
+reused); ``--serve``'s web viewer lives as long as the command (on Linux also when it dies: parent-death signal).
 """
 
 from __future__ import annotations
@@ -78,8 +71,7 @@ class ViewerSession:
         return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
-        """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
-        (it was closed, or the URL is no Rerun viewer)."""
+        """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``."""
         for rec in self.streams:
             _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
 
@@ -114,8 +106,7 @@ class ViewerSession:
             raise error
 
     def wait_for_viewer(self) -> None:
-        """With ``--serve``: keep the web viewer up until Ctrl-C (the data is buffered in its server) or until
-        it exits."""
+        """With ``--serve``: keep the web viewer up until Ctrl-C or until it exits."""
         if not self.children:
             return
         print("steval: serving until Ctrl-C", file=sys.stderr)
@@ -188,10 +179,7 @@ def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tupl
         env.pop("RUST_LOG", None)
     kwargs: dict = {}
     if sys.platform == "win32":  # pragma: no cover - Windows
-        flags = subprocess.CREATE_NEW_PROCESS_GROUP
-        if detached:
-            flags |= subprocess.DETACHED_PROCESS
-        kwargs["creationflags"] = flags
+        kwargs["creationflags"] = subprocess.CREATE_NEW_PROCESS_GROUP | (subprocess.DETACHED_PROCESS if detached else 0)
     else:
         kwargs["start_new_session"] = True  # its own process group: Ctrl-C in the terminal is ours to handle
         if not detached and sys.platform.startswith("linux"):
@@ -240,11 +228,6 @@ def _last_line(log_path: Path) -> str:
     return "no output"
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
-
-
 def proxy_url(tcp_port: int) -> str:
     """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``tcp_port``."""
     return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
@@ -255,10 +238,8 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
     Detached: it stays open after we exit."""
     url = proxy_url(tcp_port)
     if not port_free(tcp_port):
-        print(
-            f"steval: sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)",
-            file=sys.stderr,
-        )
+        note = f"sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)"
+        print(f"steval: {note}", file=sys.stderr)
         return url
     cmd = ["--port", str(tcp_port), "--bind", "127.0.0.1", "--hide-welcome-screen", "--memory-limit", "75%"]
     try:
@@ -326,7 +307,9 @@ def open_session(
     except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
         session.close(complete=False)
         where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
-        raise ParamError(f"{where} ({_first_line(exc)})", "rrd") from None
+        text = str(exc).strip()
+        first = text.splitlines()[0].rstrip(".") if text else type(exc).__name__
+        raise ParamError(f"{where} ({first})", "rrd") from None
     except BaseException:
         session.close(complete=False)
         raise
@@ -337,8 +320,7 @@ def open_session(
 
 
 def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool, atomic_rrd: bool) -> list:
-    """Start or reach the viewers of ``options`` (kept in ``session``); returns the stream's Rerun sinks (the
-    ``.rrd``'s too unless it has its own stream, ``own_file``)."""
+    """Start or reach the viewers of ``options``; returns the stream's sinks (the ``.rrd``'s unless ``own_file``)."""
     sinks: list = []
     if options.rrd is not None:
         path = Path(options.rrd)
@@ -374,8 +356,7 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
     try:
         result = log(session.rec)
         session.flush()
-        if options.serve:
-            session.wait_for_viewer()
+        session.wait_for_viewer()  # with --serve only (the web viewer is a child)
     except UserError:  # a viewer went away: the .rrd is still complete
         with contextlib.suppress(UserError):
             session.close()

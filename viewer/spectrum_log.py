@@ -1,16 +1,6 @@
-"""``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`), their
-entities and their blueprint.
-
-Entities, per signal ``gyro_x`` … ``acc_z`` (PSD values in dB re 1 mdps²/Hz or 1 mg²/Hz, frequency from 0 to the
-AHRS Nyquist along each bar chart's x axis):
-
-- ``spectrum/psd/<signal>``: the Welch PSD of the whole capture (bar chart, static);
-- ``spectrum/window/<signal>``: the PSD of the window around the time cursor (bar chart on ``fw_time``, one per
-  window, so scrubbing the timeline plays the spectrum), next to ``spectrum/signal/gyro`` and ``…/acc``, the rows'
-  values themselves;
-- ``spectrum/spectrogram/<signal>``: frequency (up) × window (time →) heat map (tensor, static);
-- ``spectrum/throttle/<signal>``: frequency (up) × throttle bin (→) heat map, Blackbox's frequency vs throttle;
-- ``spectrum/notes``: the printed summary (rates, Nyquist, aliases of ``--mark-hz``, peaks) as a text document.
+"""``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
+``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
+``viewer/README.md``.
 """
 
 from __future__ import annotations
@@ -105,8 +95,7 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
 
 
 def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
-    """Log ``sp`` (and the rows of ``tel`` it was computed from) to ``rec`` with :func:`spectrum_blueprint`;
-    returns the number of values logged per entity path."""
+    """Log ``sp`` and the rows of ``tel`` it came from; returns the values logged per entity path."""
     rec.send_blueprint(spectrum_blueprint(sp.nyquist_hz), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     f = np.asarray(sp.freq_hz, dtype=np.float64)
@@ -153,8 +142,7 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
 
 
 def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
-    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the Rerun sinks of ``options`` (a
-    ``SinkOptions``): a complete ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the sinks of ``options`` (``log_whole``)."""
 
     def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
         notes = format_summary(sp, peaks, marks_hz)
