@@ -1,7 +1,5 @@
-"""The default Rerun blueprint of steval-link, sent with every recording (replay, simulate, live).
-
-Left: the 3D view above the link tabs. Right: pitch (thx) and roll (thy) of every source overlaid; yaw; firmware
-− replica; raw accelerometer (mg), gyro (dps), throttle. Live recordings scroll the last :data:`LIVE_WINDOW_S` s.
+"""The default Rerun blueprint of steval-link, sent with every recording: the 3D view above the link tabs on the
+left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s.
 """
 
 from __future__ import annotations
@@ -17,8 +15,7 @@ from steval_link import constants as C
 from steval_viewer import entities as ent
 from steval_viewer.columns import TEXT_ROOT
 
-#: a legend's height over its plot's at the default window (1600×1000): the angle plots with up to five series,
-#: the accelerometer with three, the small link plots with three
+#: a legend's height over its plot's at the default window (1600×1000), by plot and series count (5, 3, 3)
 LEGEND_SHARE = {"angles": 0.32, "sensors": 0.42, "link": 0.62}
 #: Width of the scrolling window of the live blueprint, seconds.
 LIVE_WINDOW_S = 10.0
@@ -45,18 +42,16 @@ class _Plots:
 
 
 def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
-    """Where a plot's legend sits: on the right in a replay (a flight's calm end), on the left live (the right
-    edge is the newest data) or with ``left`` (cumulative counts start low); at the top, or at the ``bottom`` for
-    plots whose top holds data (the accelerometer's z ≈ +1000 mg)."""
+    """Where a plot's legend sits: right in a replay (a flight's calm end), left live (the newest data is on the
+    right) or with ``left``; at the ``bottom`` for plots whose top holds data (the accelerometer's z)."""
     if live or left:
         return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
     return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
 
 
 def axis_limit(max_abs: float) -> float | None:
-    """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks: Rerun's plots label only
-    powers of ten, so an automatic ±66 dps range shows nothing but 0; ±100 shows −100, 0, 100. 1, 2 or 5 × 10^k,
-    with room for the legend (the data fill the middle ~60 %); None for no finite data."""
+    """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks (1, 2 or 5 × 10^k: Rerun labels
+    only powers of ten), with room for the legend; None for no finite data."""
     if not (max_abs == max_abs and 0 < max_abs < float("inf")):
         return None
     need = 1.6 * max_abs
@@ -107,7 +102,7 @@ def make_blueprint(
 
 
 def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
-    """The window of every layout: ``content`` and ``time_panel``, the side panels closed."""
+    """A layout's window: ``content``, ``time_panel``, the side panels closed."""
     closed = (rrb.BlueprintPanel(expanded=False), rrb.SelectionPanel(expanded=False))
     return rrb.Blueprint(content, time_panel, *closed, collapse_panels=False)
 
@@ -221,9 +216,8 @@ def replica_verdict(step, bit_exact, seeded) -> str | None:
 
 
 def legend_room(values, *, share: float, bottom: bool, floor: float | None = None) -> tuple[float, float] | None:
-    """A y range that leaves the top (or ``bottom``) ``share`` of a plot's height free for its legend and puts the
-    data in the rest; ``floor``: a lowest value the range always shows (e.g. 0 for counts). None for no finite
-    data. ``share``: the legend's height over the plot's at the default window size (:data:`LEGEND_SHARE`)."""
+    """A y range that leaves the top (or ``bottom``) ``share`` of a plot's height free for its legend; ``floor``: a
+    value the range always shows (0 for counts). None for no finite data."""
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     if v.size == 0:

@@ -1,7 +1,5 @@
-"""NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call).
-
-Rows that are not finite (the firmware's NaN thy when asin leaves [-1, 1], an estimate's invalid rows) are never
-sent as values: a ``Clear`` at the first time of each bad run makes the time series view draw a gap.
+"""NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call): a
+non-finite row is never sent as a value; a ``Clear`` where each bad run starts makes the plot draw a gap.
 """
 
 from __future__ import annotations
@@ -40,7 +38,6 @@ class Times:
         return Times(self.t_fw_s[idx], host, step)
 
     def host_complete(self) -> bool:
-        """True when every row has a finite host time."""
         return self.t_host_s is not None and bool(np.isfinite(self.t_host_s).all())
 
     @functools.cached_property
@@ -160,5 +157,4 @@ def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.nd
 
 
 def _take(values, idx):
-    """``values`` at the rows ``idx`` (None: all)."""
     return values if idx is None else values[idx]

@@ -1,16 +1,12 @@
-"""Entity paths, timelines, series labels and colours of every steval-link recording, in one place.
-
-Tests, docs, the blueprint and both logging paths (replay and live) refer to these names, so a recording made by
-``steval replay`` and one made live have the same layout. Units are in the path names; what each entity holds is
-in ``viewer/README.md``.
+"""Entity paths, timelines, series labels and colours of every steval-link recording, in one place, so a replay and
+a live recording have the same layout. Units are in the path names; ``viewer/README.md`` says what each holds.
 """
 
 from __future__ import annotations
 
 import re
 
-#: Timelines. ``fw_time``: firmware time (s since boot, from t_us); ``host_time``: host receive time (s since
-#: capture start); ``ahrs_step``: the AHRS step counter.
+#: Timelines: firmware s since boot (from t_us), host receive s since capture start, the AHRS step counter.
 TIMELINE_FW = "fw_time"
 TIMELINE_HOST = "host_time"
 TIMELINE_STEP = "ahrs_step"
@@ -71,8 +67,7 @@ LOG_COMMANDS = "log/commands"
 #: notes about the firmware's own filter output: the first row with NaN or out-of-range values (it diverged)
 LOG_FILTER = "log/filter"
 
-#: Source names (entity path segments). ``firmware`` is what the drone computed; ``st_mahony_replica`` the host's
-#: bit-exact replica of it; other names come from the estimator registry (``ekf3``, ``mekf``, ``accel``, ``vqf``).
+#: Source names (entity path segments): the drone's output and the host's bit-exact replica of it.
 SOURCE_FIRMWARE = "firmware"
 SOURCE_REPLICA = "st_mahony_replica"
 

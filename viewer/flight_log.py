@@ -1,10 +1,8 @@
 """Flight-control frames (type 4) of a whole Telemetry to Rerun: the remote's targets next to the firmware's
-attitude, the outer loop's output with its P and I terms, the inner loop's outputs, the motor commands (series and
-thrust arrows on the 3D drone's props), sticks and battery.
+attitude, the loops' outputs, the motor commands (series and thrust arrows on the 3D drone's props), sticks, battery.
 
-P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle) of the same
-step, I = s1 − P, 0 with ST's ``ki1 = 0``); yaw's P uses the attitude frame's ``thz``, which the ISR may move
-before the outer loop runs, so it is approximate and no I is drawn.
+P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle), I = s1 − P);
+yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I.
 """
 
 from __future__ import annotations
@@ -25,8 +23,7 @@ _TARGET_COLOR = (40, 40, 40)
 
 
 def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(angles (N, 3) float32 thx, thy, thz of the attitude row with each flight-control row's step, found (N,)
-    bool): the angles the outer loop used (thz: as of the attitude frame)."""
+    """(thx, thy, thz (N, 3) float32 of the attitude row with each flight-control row's step, found (N,) bool)."""
     steps = np.asarray(att.step, dtype=np.int64)
     fs = np.asarray(fc.step, dtype=np.int64)
     ang = np.full((len(fs), 3), np.nan, np.float32)
@@ -58,8 +55,7 @@ def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
 
 
 def log_motors_static(rec: rr.RecordingStream) -> None:
-    """The four motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control
-    frames (logged before: an arrow without vectors is an error in the viewer)."""
+    """The motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control frames."""
     for m, p, color in zip(MOTORS, drone_model.firmware_motor_positions(), _MOTOR_COLORS):
         origin = [p + (0.0, 0.0, drone_model.PROP_Z)]  # the vectors come over time
         label = [f"M{m.number}"]

@@ -18,7 +18,6 @@ class ViewerLogger:
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
-        """``options.sinks``: the sinks the CLI built and checked (``steval_viewer.sink_options.session_sinks``)."""
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
@@ -54,7 +53,6 @@ class ViewerLogger:
             self.file.log_link(stats, t_unix_s)
 
     def close(self) -> None:
-        """Send what the loggers hold and finish both streams (the ``.rrd`` is complete afterwards)."""
         try:
             try:
                 self.logger.close()

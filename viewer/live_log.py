@@ -1,13 +1,9 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-The session calls, in arrival order, ``log_batch(rows)``, ``log_status``, ``log_text``, ``log_record`` (text
-telemetry) and ``log_link`` (decoder counters), each with its times, then ``close()``. Attitude rows go out before
-``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`). Status and link rows are
-queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one ``send_columns`` per
-entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
-
-Times are the pipeline's: ``fw_time`` the firmware's s since boot, ``host_time`` s since the capture started, as
-``steval replay`` of the capture has them.
+Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
+Status and link rows are queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one
+``send_columns`` per entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
+Times are the pipeline's, as ``steval replay`` of the capture has them.
 """
 
 from __future__ import annotations
@@ -28,9 +24,7 @@ from steval_viewer.columns import Times, log_text_style, send_records, send_scal
 from steval_viewer.record_batch import RowBatch
 from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
 
-#: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
-#: frame of a batch: the view shows only the latest attitude, and this keeps the per-frame cost down. Plots get
-#: every frame. (The capture keeps everything; ``steval replay`` logs every frame's attitude.)
+#: The live 3D view is updated at most this often per second (the batch's newest frame); plots get every frame.
 LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
@@ -126,8 +120,7 @@ class LiveLogger:
             every = not math.isfinite(self.max_3d_hz)
             sel3d = np.zeros(n, dtype=bool)
             sel3d[slice(None) if every else -1] = True
-            # the drone: the batch's last frame without bad values (the firmware's filter output is NaN or off
-            # range: the 3D drone stays where it was)
+            # the drone: the batch's last frame without bad values (else it stays where it was)
             sel_fw = np.zeros(n, dtype=bool)
             sel_fw[good_rows if every else good_rows[-1:]] = True
             rb.quaternions(ent.DRONE_FIRMWARE, display_quaternions(a), sel_fw)
@@ -203,7 +196,6 @@ class LiveLogger:
         self._log_line(ent.LOG_FIRMWARE, frame if isinstance(frame, str) else frame.text, at, "INFO")
 
     def _log_line(self, path: str, text: str, at: Any, level: str) -> None:
-        """One TextLog entry at ``path``, on the host timeline and (when known) the firmware one."""
         host = math.nan if at is None else at.t_host_s
         self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
 
@@ -307,7 +299,6 @@ class LiveLogger:
         self._queue_row(ent.LINK_CRC, fw, host, (float(getattr(stats, "crc_failures", 0)),))
 
     def close(self) -> None:
-        """Send the queued rows and flush what was logged."""
         self.flush_rows()
         self.rec.flush()
 

@@ -1,12 +1,10 @@
 """One Arrow record batch per live processing round for many entities at once (:class:`RowBatch`), sent with a
 single ``RecordingStream.send_record_batch`` call; Rerun splits it into one chunk per entity.
 
-Why not ``rr.send_columns`` per entity (as the replay logs): a live round logs ~22 entities for a handful of
-frames, and one record batch costs about half as much, which matters against the live latency goal (p99 ≤ 5 ms,
-``benchmarks/bench_live_latency.py``). The price: the Arrow fields carry Rerun's column metadata keys
-(``rerun:kind``, ``rerun:entity_path``, ...), which tie this module to the Rerun SDK version ``pyproject.toml``
-pins; ``tests/test_viewer.py`` reads every live entity back from an ``.rrd``, so a change of that format fails the
-tests, not the users.
+Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
+batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
+column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
+back, so a change of that format fails the tests, not the users.
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
-"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun.
-
-One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time``, ``host_time`` (when known) and
-``ahrs_step`` timelines (``steval replay``, ``steval simulate``). Estimates are duck-typed: ``q_wxyz`` (N, 4),
-``thx_rad`` and ``thy_rad`` (N,) and optionally a ``valid`` (N,) bool mask (``AttitudeEstimate``,
-``FirmwareReplay``).
+"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun: one
+``rr.send_columns`` per entity for the whole flight (``steval replay``, ``steval simulate``). Estimates are
+duck-typed: ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask.
 """
 
 from __future__ import annotations
@@ -85,9 +82,8 @@ def firmware_series(att: Any) -> list[tuple[str, np.ndarray]]:
 
 
 def display_quaternions(att: Any) -> np.ndarray:
-    """The firmware attitude for the 3D view: ``q_wxyz``; text-mode rows (no q) get it from their thx/thy/thz (no
-    yaw printed: 0). Rows flagged ``values_bad`` (NaN or ``|q|`` > 2: the firmware's filter diverged) are NaN: the
-    drone stays at its last finite attitude."""
+    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz. Rows flagged
+    ``values_bad`` are NaN: the drone stays at its last finite attitude."""
     q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
     thx, thy = np.asarray(att.thx_rad, dtype=np.float64), np.asarray(att.thy_rad, dtype=np.float64)
     rows = ~np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
@@ -117,8 +113,8 @@ class _Replay:
         self.summary.samples[path] = send_scalars(self.rec, path, times or self.times, values, valid)
 
     def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
-        """Text entries at host times ``t_host`` (s), their firmware time from the attitude rows' (host, firmware)
-        pairs; an entry without a time (or a stream without host times) is logged without a timeline."""
+        """Text entries at host times ``t_host`` (s), their firmware time interpolated from the attitude rows'; an
+        entry without a time is logged without a timeline."""
         timed = np.isfinite(t_host) & (self.times.t_host_s is not None)
         idx = np.flatnonzero(timed)
         if idx.size:
@@ -230,8 +226,7 @@ def _bins_1s(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def absent_plots(tel, replica) -> list[str]:
-    """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica,
-    no throttle: a log's rows hold 0 where none was printed)."""
+    """The attitude plots a recording has no values for (a log of printed angles: its rows hold 0 for a throttle)."""
     att = tel.attitude
     printed = getattr(tel, "printed_only", False)  # a simulation logs a namespace, not a Telemetry
     values = {

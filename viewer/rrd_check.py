@@ -1,7 +1,5 @@
-"""Read an ``.rrd`` back and summarise it (tests and CI): samples per entity path, timelines, the blueprint::
-
-info = read_rrd("out.rrd")
-info.samples["plots/pitch_thx_deg/firmware"]   # rows with a value (gaps' Clear rows not counted)
+"""Read an ``.rrd`` back (tests, benchmarks): samples per entity path (gaps' Clear rows not counted), timelines,
+the blueprint.
 """
 
 from __future__ import annotations
@@ -26,8 +24,7 @@ class RrdInfo:
 
 
 def _reader(path: str | Path):
-    """Rerun's reader of ``path``. A file written as the data arrives (``steval_viewer.rrd_writer``) has no footer:
-    Rerun reads it from its start, and its warning about that layout is not repeated here."""
+    """Rerun's reader of ``path``, without its warning about a file with no footer (ours: ``rrd_writer``)."""
     from rerun.chunk import RrdReader
 
     with warnings.catch_warnings():
@@ -64,8 +61,8 @@ def read_rrd(path: str | Path) -> RrdInfo:
 
 
 def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, object]]:
-    """The blueprint components in ``path``: entity path (no leading ``/``) → {component: last value, a one-item
-    list unwrapped}; the first blueprint only, or ``every`` one."""
+    """The blueprint components in ``path`` (the first blueprint, or ``every`` one): entity path → {component: last
+    value, a one-item list unwrapped}."""
     reader = _reader(path)
     stores = reader.blueprints()
     out: dict[str, dict[str, object]] = defaultdict(dict)
@@ -83,9 +80,8 @@ def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, 
 
 
 def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
-    """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
-    of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
-    3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
+    """The views of the blueprint embedded in ``path``: display name → {component: value} of the view and of its
+    properties, e.g. ``"PlotLegend:corner"`` (1 left top, 2 right top, 3 left bottom, 4 right bottom)."""
     by_id: dict[str, dict[str, object]] = defaultdict(dict)
     for entity, comps in _blueprint_components(path, every=False).items():
         parts = entity.split("/")

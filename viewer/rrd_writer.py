@@ -1,14 +1,10 @@
 """An ``.rrd`` written by us as the data arrives (:class:`RrdWriter`): Rerun encodes, this module writes the file.
 
-Why not Rerun's own file sink: it keeps its errors to itself (coloured log lines, the recording goes on as if the
-file were written) and about 1 kB per chunk in memory until the file closes. Here the sink is a Rerun binary
-stream; a thread appends what it holds every :data:`WRITE_INTERVAL_S` and ``fsync``\\s every second (a ``kill -9``
-loses at most the last second). Each read of the stream is a whole RRD; the file gets one stream header and the
-messages only (:func:`rrd_messages`), no footer: Rerun reads such a file from its start (its "legacy" layout), and
-a file cut after any write still opens. Memory stays flat however long the session.
-
-A failed write (disk full, I/O error) or a vanished file becomes one sentence in :attr:`RrdWriter.failure`;
-nothing more is written and the run goes on with its other outputs.
+Why not Rerun's own file sink: it keeps its errors to itself and about 1 kB per chunk in memory until the file
+closes. Here a thread appends what a Rerun binary stream holds every :data:`WRITE_INTERVAL_S` and ``fsync``\\s every
+second. The file gets one stream header and the messages (:func:`rrd_messages`), no footer: Rerun reads it from
+its start, and a file cut after any write still opens. A failed write or a vanished file becomes one sentence in
+:attr:`RrdWriter.failure`; the run goes on with its other outputs.
 """
 
 from __future__ import annotations
@@ -38,8 +34,8 @@ FOOTER_BYTES = 32
 
 
 def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
-    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data`` (one or several in a row), the end
-    messages and footers left out. Raises ValueError on bytes that are not such streams."""
+    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data``, end messages and footers left
+    out; ValueError on other bytes."""
     header, out, pos, n = b"", [], 0, len(data)
     while pos < n:
         if data[pos : pos + 4] != STREAM_MAGIC:
@@ -91,8 +87,7 @@ class RrdWriter:
         self._thread.start()
 
     def _write(self, segment: bytes) -> None:
-        """Append the messages of ``segment`` (whole RRD streams from the binary stream): the stream header once,
-        each store's info once, every other message as it is."""
+        """Append the messages of ``segment`` (whole RRD streams): the stream header and each store's info once."""
         if not segment:
             return
         header, messages = rrd_messages(segment)
@@ -122,9 +117,8 @@ class RrdWriter:
             self._file.close()
 
     def pump(self, *, flush: bool = False, sync: bool = False) -> None:
-        """Append what Rerun encoded since the last call (its pending rows first, waited for up to
-        :data:`FLUSH_TIMEOUT_S`; ``flush``: up to 30 s, at the end); ``sync``: then ``fsync``. After a failure the
-        bytes are read and dropped."""
+        """Append what Rerun encoded since the last call (``flush``: waiting up to 30 s for it, at the end);
+        ``sync``: then ``fsync``. After a failure the bytes are read and dropped."""
         with self._lock:
             try:  # Rerun's pending rows into the stream first (bounded: a slow flush leaves them to the next pump)
                 data = self._stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S if not flush else 30.0) or b""
@@ -154,7 +148,7 @@ class RrdWriter:
                 self.failure = self.failure or f"{self.shown}: Rerun stopped encoding it ({exc})"
 
     def close(self) -> None:
-        """Write the rest and close the file (idempotent); a failure is kept in :attr:`failure`."""
+        """Write the rest and close the file (idempotent)."""
         if self._stop.is_set():
             return
         self._stop.set()

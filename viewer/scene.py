@@ -12,11 +12,9 @@ from steval_viewer import entities as ent
 from steval_viewer.columns import series_style
 
 AXIS_LENGTH = 1.6
-#: The world axes' names sit just beyond their arrow tips, clear of the drone (rotor discs reach 1.42 from the
-#: centre on the diagonals); Rerun would put an arrow's label at its middle, on the rotors.
+#: The world axes' names sit just beyond their arrow tips, clear of the rotors (Rerun labels an arrow's middle).
 AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
-#: ... and the horizontal axes' names a little above the ground plane, so that from the default eye they show
-#: above the front rotor discs, not on them.
+#: ... and the horizontal axes' names a little above the ground plane (above the front rotors from the default eye).
 AXIS_LABEL_LIFT = 0.3
 
 

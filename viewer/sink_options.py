@@ -24,8 +24,7 @@ CONNECT_TIMEOUT_S = 3.0
 
 @dataclass
 class SinkOptions:
-    """The sink flags of a command. ``serve``: web viewer on localhost; ``connect``: a gRPC URL such as
-    ``rerun+http://127.0.0.1:9876/proxy``; ``rrd``: output file; ``web_port``: the web viewer's HTTP port;
+    """The sink flags of a command. ``connect``: a gRPC URL such as ``rerun+http://127.0.0.1:9876/proxy``;
     ``grpc_port``: the gRPC port of the spawned or served viewer."""
 
     spawn: bool = False
@@ -162,7 +161,6 @@ def port_free(tcp_port: int) -> bool:
 
 
 def port_open(host: str, tcp_port: int, timeout_s: float) -> bool:
-    """Whether a TCP connection to ``host:tcp_port`` succeeds within ``timeout_s``."""
     try:
         with socket.create_connection((host, tcp_port), timeout=timeout_s):
             return True
@@ -175,9 +173,8 @@ _H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x
 
 
 def speaks_grpc(host: str, tcp_port: int, timeout_s: float) -> bool:
-    """Whether ``host:tcp_port`` answers like a gRPC server (an HTTP/2 SETTINGS frame back for our connection
-    preface) within ``timeout_s``: a Rerun viewer or proxy does at once; another program on the port does not (a
-    program that accepts and stays silent would make Rerun's gRPC client wait for ever)."""
+    """Whether ``host:tcp_port`` answers our HTTP/2 preface with a SETTINGS frame within ``timeout_s``, as a Rerun
+    viewer does (a silent program would make Rerun's gRPC client wait for ever)."""
     try:
         with socket.create_connection((host, tcp_port), timeout=timeout_s) as s:
             s.settimeout(timeout_s)
@@ -189,7 +186,6 @@ def speaks_grpc(host: str, tcp_port: int, timeout_s: float) -> bool:
 
 
 def free_port() -> int:
-    """A TCP port that is free on 127.0.0.1 now."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]

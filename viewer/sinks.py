@@ -1,10 +1,8 @@
 """Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
-(``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
+(``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination, through :func:`open_session`.
 
-``open_session(...)`` returns a :class:`ViewerSession`. With ``split_file=True`` (the live session) a viewer and an
-``.rrd`` get two streams of one recording, each logged at its own cadence. Every wait has a bound and ends in one
-:class:`UserError` sentence. ``--spawn``'s viewer stays open after the command (one already on the port is
-reused); ``--serve``'s web viewer lives as long as the command (on Linux also when it dies: parent-death signal).
+Every wait has a bound and ends in one :class:`UserError` sentence. ``--spawn``'s viewer stays open after the
+command (one already on the port is reused); ``--serve``'s lives as long as the command (parent-death signal).
 """
 
 from __future__ import annotations
@@ -57,7 +55,7 @@ class ViewerSession:
     file_rec: rr.RecordingStream | None = None
     rrd_partial: Path | None = None
     rrd_writer: RrdWriter | None = None
-    #: the caller said :attr:`rrd_failure` already (a live session, when it happened): close() does not raise it
+    #: the caller said :attr:`rrd_failure` already: close() does not raise it
     rrd_failure_said: bool = False
 
     @property
@@ -67,7 +65,6 @@ class ViewerSession:
 
     @property
     def streams(self) -> list[rr.RecordingStream]:
-        """Every stream of the session (``rec`` first)."""
         return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
@@ -171,8 +168,7 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
 
 
 def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
-    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program
-    (a native viewer the user closes); else it dies with it (a web viewer server)."""
+    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program."""
     log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
@@ -191,9 +187,8 @@ def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tupl
 
 
 def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path: Path, settle_s: float = 0.0):
-    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` (within :data:`VIEWER_START_TIMEOUT_S`) and still runs
-    ``settle_s`` later (a viewer that cannot open its window dies right after it binds its port); ParamError with
-    the child's last words when it exits first or does not listen."""
+    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot
+    open its window dies right after it binds); ParamError with its last words otherwise."""
     deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
     while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
@@ -229,7 +224,6 @@ def _last_line(log_path: Path) -> str:
 
 
 def proxy_url(tcp_port: int) -> str:
-    """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``tcp_port``."""
     return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
 
 
