@@ -440,7 +440,7 @@ def test_every_bundled_recording_replays_to_rrd(capture, tmp_path, monkeypatch, 
 
 
 def test_quaternion_from_text_mode_angles_round_trips_through_the_firmware_euler():
-    from steval_viewer.columns import quaternion_from_euler
+    from steval_link.quat import quaternion_from_euler
 
     rng = np.random.default_rng(0)
     thx = rng.uniform(-3.0, 3.0, 200)

@@ -2,9 +2,8 @@
 
 import os as _os
 
-#: Rerun's own log lines (coloured ``WARN``/``ERROR`` from its sinks) never reach the user's terminal: steval says
-#: what went wrong in its own sentence. Set before Rerun is first imported (it reads ``RUST_LOG`` then); a user's
-#: own ``RUST_LOG`` wins. ``QUIETED_RUST_LOG``: whether we set it (viewers we start get their logs back).
+#: Rerun's own log lines never reach the user's terminal (steval says what went wrong in its own sentence); set
+#: before Rerun is first imported, a user's ``RUST_LOG`` wins. ``QUIETED_RUST_LOG``: whether we set it.
 QUIETED_RUST_LOG = "RUST_LOG" not in _os.environ
 if QUIETED_RUST_LOG:
     _os.environ["RUST_LOG"] = "off"

@@ -1,10 +1,5 @@
-"""The default Rerun blueprint of steval-link, sent with every recording (replay, simulate, live).
-
-Left: the 3D view (firmware quadcopter, host-estimate ghost, world axes, accelerometer gravity arrow) above a
-link-health / firmware-log tab. Right: pitch (thx) and roll (thy) with firmware, ST-Mahony replica, EKF and
-accelerometer-only overlaid; yaw; firmware − replica; raw accelerometer (mg), gyro (dps), throttle.
-
-Live recordings scroll the time series over the last :data:`LIVE_WINDOW_S` seconds; replays show the whole flight.
+"""The default Rerun blueprint of steval-link, sent with every recording: the 3D view above the link tabs on the
+left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s.
 """
 
 from __future__ import annotations
@@ -20,70 +15,48 @@ from steval_link import constants as C
 from steval_viewer import entities as ent
 from steval_viewer.columns import TEXT_ROOT
 
-#: a legend's height over its plot's at the default window (1600×1000): the angle plots with up to five series,
-#: the accelerometer with three, the small link plots with three
+#: a legend's height over its plot's at the default window (1600×1000), by plot and series count (5, 3, 3)
 LEGEND_SHARE = {"angles": 0.32, "sensors": 0.42, "link": 0.62}
 #: Width of the scrolling window of the live blueprint, seconds.
 LIVE_WINDOW_S = 10.0
 
 
-def _time_ranges(live: bool, timeline: str):
-    if not live:
-        return None
-    return rrb.VisibleTimeRange(
-        timeline,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
+class _Plots:
+    """Time-series views of one layout: ``live`` scrolls the last :data:`LIVE_WINDOW_S` of ``timeline``."""
+
+    def __init__(self, live: bool, timeline: str) -> None:
+        self.live, self.timeline = live, timeline
+
+    def __call__(self, origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
+        """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
+        start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
+        window = rrb.VisibleTimeRange(self.timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
+        return rrb.TimeSeriesView(
+            origin=origin,
+            contents=contents,
+            name=name,
+            time_ranges=window if self.live else None,
+            plot_legend=rrb.PlotLegend(corner=legend_corner(self.live, bottom, left), visible=legend),
+            axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
+        )
 
 
 def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
-    """Where a plot's legend sits: on the right in a replay (a flight's calm end), on the left live (the right
-    edge is the newest data) or with ``left`` (cumulative counts start low); at the top, or at the ``bottom`` for
-    plots whose top holds data (the accelerometer's z ≈ +1000 mg)."""
+    """Where a plot's legend sits: right in a replay (a flight's calm end), left live (the newest data is on the
+    right) or with ``left``; at the ``bottom`` for plots whose top holds data (the accelerometer's z)."""
     if live or left:
         return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
     return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
 
 
 def axis_limit(max_abs: float) -> float | None:
-    """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks: Rerun's plots label only
-    powers of ten, so an automatic ±66 dps range shows nothing but 0; ±100 shows −100, 0, 100. 1, 2 or 5 × 10^k,
-    with room for the legend (the data fill the middle ~60 %); None for no finite data."""
+    """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks (1, 2 or 5 × 10^k: Rerun labels
+    only powers of ten), with room for the legend; None for no finite data."""
     if not (max_abs == max_abs and 0 < max_abs < float("inf")):
         return None
     need = 1.6 * max_abs
     k = math.floor(math.log10(need))
-    for m in (1.0, 2.0, 5.0, 10.0):
-        if m * 10.0**k >= need:
-            return m * 10.0**k
-    return 10.0 ** (k + 1)  # pragma: no cover - the loop always returns
-
-
-def _series(
-    origin: str,
-    name: str,
-    live: bool,
-    timeline: str,
-    contents=None,
-    y_range=None,
-    *,
-    legend: bool = True,
-    legend_bottom: bool = False,
-    legend_left: bool = False,
-) -> rrb.TimeSeriesView:
-    """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
-    kwargs = {}
-    if y_range is not None:
-        kwargs["axis_y"] = rrb.ScalarAxis(range=y_range)
-    return rrb.TimeSeriesView(
-        origin=origin,
-        contents=contents if contents is not None else "$origin/**",
-        name=name,
-        time_ranges=_time_ranges(live, timeline),
-        plot_legend=rrb.PlotLegend(corner=legend_corner(live, legend_bottom, legend_left), visible=legend),
-        **kwargs,
-    )
+    return next(m * 10.0**k for m in (1.0, 2.0, 5.0, 10.0) if m * 10.0**k >= need)
 
 
 def make_blueprint(
@@ -91,7 +64,6 @@ def make_blueprint(
     live: bool = False,
     ghost_sources: Iterable[str] = (),
     ghost: str | None = None,
-    timeline: str | None = None,
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
     never_armed: bool = False,
@@ -101,26 +73,18 @@ def make_blueprint(
     absent: Iterable[str] = (),
     text: bool = False,
 ) -> rrb.Blueprint:
-    """The default blueprint.
-
-    ``live``: a scrolling window of the last 10 s (else the whole flight). ``ghost_sources``: the sources with a
-    ghost drone; ``ghost`` the one shown (default: the replica, else by ``entities.GHOST_PREFERENCE``), the others
-    hidden. ``timeline``: the active one (default ``fw_time``, live ``host_time``). ``gyro_max_dps``: the gyro plot's
-    symmetric range (:func:`axis_limit`; None: automatic). ``flight_control``: a "Flight control" tab
-    (:func:`flight_view`), named so when ``never_armed``. ``replica_verdict``: the replica's verdict, in the difference
-    panel's title. ``y_ranges``: fixed y ranges by plot entity (:func:`legend_room`). ``ble``: a BLE tab
-    (:func:`ble_view`). ``absent``: plot entities the recording has no values for (a log of printed angles: yaw,
-    the sensors), left out. ``text``: the text telemetry tab in front (a stream of printed lines). The replica is
-    drawn only in the difference panel: bit-exact, it would hide the firmware.
-    """
+    """The default blueprint. ``live``: the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
+    ``ghost_sources``: the sources with a ghost drone; ``ghost`` the one shown (default by
+    ``entities.GHOST_PREFERENCE``). ``gyro_max_dps``: the gyro plot's symmetric range (None: automatic).
+    ``flight_control``, ``ble``: their tabs. ``y_ranges``: fixed y ranges by plot entity. ``absent``: plots left
+    out. ``text``: the text telemetry tab in front."""
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     if ghost is None:
         ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
-    if timeline is None:
-        timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
+    timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
+    plot = _Plots(live, timeline)
     overrides = {ent.estimate_path(s): rrb.EntityBehavior(visible=False) for s in sources if s != ghost}
-
     view3d = rrb.Spatial3DView(
         origin=ent.WORLD,
         name="Attitude: firmware (solid, red props = front), estimate (ghost), gravity (yellow)",
@@ -128,118 +92,77 @@ def make_blueprint(
         eye_controls=rrb.EyeControls3D(position=(2.1, -2.6, 1.6), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0)),
         line_grid=rrb.LineGrid3D(visible=True, spacing=0.5),
     )
-    left = rrb.Vertical(view3d, link_view(live, timeline, yr, ble, text), row_shares=[3, 2])
-    right = attitude_view(live, timeline, yr, replica_verdict, gyro_max_dps, frozenset(absent))
+    left = rrb.Vertical(view3d, link_view(plot, yr, ble, text), row_shares=[3, 2])
+    limit = None if gyro_max_dps is None else axis_limit(gyro_max_dps)
+    right = attitude_view(plot, yr, replica_verdict, None if limit is None else (-limit, limit), frozenset(absent))
     if flight_control:
-        right = rrb.Tabs(right, flight_view(live, timeline, never_armed), name="Attitude / flight control")
-    return two_columns(left, right, live, timeline)
+        right = rrb.Tabs(right, flight_view(plot, never_armed), name="Attitude / flight control")
+    time_panel = rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None)
+    return window(rrb.Horizontal(left, right, column_shares=[2, 3]), time_panel)
 
 
-def link_view(
-    live: bool, timeline: str, yr: Mapping[str, tuple[float, float]], ble: bool = False, text: bool = False
-) -> rrb.Tabs:
-    """The link tabs under the 3D view: link health (rate, losses, AHRS cycles, TX queue), the firmware log, the
-    text telemetry the firmware printed (in front when ``text``), and a BLE link's own values (``ble``)."""
+def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
+    """A layout's window: ``content``, ``time_panel``, the side panels closed."""
+    closed = (rrb.BlueprintPanel(expanded=False), rrb.SelectionPanel(expanded=False))
+    return rrb.Blueprint(content, time_panel, *closed, collapse_panels=False)
+
+
+def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
+    """The link tabs under the 3D view: link health, firmware log, text telemetry (in front when ``text``), BLE."""
+    losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
     return rrb.Tabs(
         rrb.Grid(
-            _series(ent.LINK_RATE, "Frame rate (frames/s)", live, timeline, y_range=(0.0, 200.0), legend=False),
-            _series(
-                ent.LINK,
-                "Link losses (count, cumulative)",
-                live,
-                timeline,
-                contents=[f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"],
-                y_range=yr.get(ent.LINK),
-                legend_left=True,
-            ),
-            _series(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", live, timeline, legend=False),
-            _series(ent.LINK_QUEUE, "TX queue peak (bytes)", live, timeline, legend=False),
+            plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
+            plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
+            plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
+            plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
             grid_columns=2,
             name="Link health",
         ),
         rrb.TextLogView(origin="log", name="Firmware log"),
-        _series(TEXT_ROOT, "Text telemetry (your printed series)", live, timeline, legend_bottom=True),
-        *([ble_view(live, timeline)] if ble else []),
+        plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True),
+        *([ble_view(plot)] if ble else []),
         active_tab=2 if text else None,
         name="Link",
     )
 
 
-def attitude_view(
-    live: bool,
-    timeline: str,
-    yr: Mapping[str, tuple[float, float]],
-    replica_verdict: str | None,
-    gyro_max_dps,
-    absent: frozenset[str] = frozenset(),
-) -> rrb.Vertical:
-    """The plots on the right: pitch and roll (without the replica, which would hide the firmware), yaw with its
-    reset explained, firmware − replica with the verdict in its title, the raw sensors and the throttle; a row
-    whose plots are all ``absent`` is left out, and an absent plot in a row."""
-
-    view = rrb.Vertical(
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_PITCH,
-                "thx pitch, about x (deg, nose up +)",
-                live,
-                timeline,
-                contents=["$origin/**", f"- {ent.pitch_path(ent.SOURCE_REPLICA)}"],
-                y_range=yr.get(ent.PLOT_PITCH),
-            ),
-            _series(
-                ent.PLOT_ROLL,
-                "thy roll, about y (deg, right side down +)",
-                live,
-                timeline,
-                contents=["$origin/**", f"- {ent.roll_path(ent.SOURCE_REPLICA)}"],
-                y_range=yr.get(ent.PLOT_ROLL),
-            ),
-        ),
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", live, timeline, legend=False
-            ),
-            _series(
-                ent.PLOT_DIFF,
-                "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else ""),
-                live,
-                timeline,
-                y_range=yr.get(ent.PLOT_DIFF),
-            ),
-        ),
-        rrb.Horizontal(
-            _series(
-                ent.PLOT_ACC, "accelerometer (mg)", live, timeline, y_range=yr.get(ent.PLOT_ACC), legend_bottom=True
-            ),
-            _series(
-                ent.PLOT_GYRO, "gyro (deg/s)", live, timeline, y_range=_symmetric(gyro_max_dps), legend_bottom=True
-            ),
-            _series(ent.PLOT_THROTTLE, "gTHR", live, timeline, legend=False),
-            column_shares=[2, 2, 1],
-        ),
-        row_shares=[3, 2, 2],
-        name="Attitude",
+def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
+    """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
+    the ``absent`` plots are left out, and rows left empty."""
+    diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
+    titles = {
+        ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",
+        ent.PLOT_ROLL: "thy roll, about y (deg, right side down +)",
+    }
+    rows = (
+        [
+            plot(path, title, ["$origin/**", f"- {path}/{ent.SOURCE_REPLICA}"], yr.get(path))
+            for path, title in titles.items()
+        ],
+        [
+            plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False),
+            plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF)),
+        ],
+        [
+            plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
+            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
+            plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
+        ],
     )
-    return _without(view, absent) if absent else view
-
-
-def _without(view: rrb.Vertical, absent: frozenset[str]) -> rrb.Vertical:
-    """``view`` (rows of plots) without the plots whose origin is in ``absent``, nor the rows left empty."""
-    rows, shares = [], []
-    for row, share in zip(view.contents, (3, 2, 2)):
-        kept = [v for v in row.contents if str(v.origin) not in absent]
-        if kept:
-            rows.append(row if len(kept) == len(row.contents) else rrb.Horizontal(*kept))
+    kept, shares = [], []
+    for row, share, columns in zip(rows, (3, 2, 2), (None, None, [2, 2, 1])):
+        views = [v for v in row if str(v.origin) not in absent]
+        if views:
+            kept.append(rrb.Horizontal(*views, column_shares=columns if len(views) == len(row) else None))
             shares.append(share)
-    return rrb.Vertical(*rows, row_shares=shares, name="Attitude")
+    return rrb.Vertical(*kept, row_shares=shares, name="Attitude")
 
 
-def ble_view(live: bool, timeline: str) -> rrb.Vertical:
-    """A BLE link's own values (``ble``: a stream with BLE notifications): what its rows are, the drone's battery,
-    pressure, temperature, RSSI and arming."""
+def ble_view(plot: _Plots) -> rrb.Vertical:
+    """A BLE link's own values: what its rows are, the drone's battery, pressure, temperature, RSSI and arming."""
     plots = [
-        _series(path, name, live, timeline, legend=False)
+        plot(path, name, legend=False)
         for path, name in (
             (ent.BLE_BATTERY, "battery (%)"),
             (ent.BLE_PRESSURE, "pressure (hPa)"),
@@ -253,89 +176,48 @@ def ble_view(live: bool, timeline: str) -> rrb.Vertical:
     return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
 
-def two_columns(left, right, live: bool, timeline: str) -> rrb.Blueprint:
-    """The window of every layout: ``left`` (the 3D view and link) and ``right`` (the plots) side by side, the
-    time panel collapsed (following the newest data when ``live``), the side panels closed."""
-    return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[2, 3]),
-        rrb.TimePanel(timeline=timeline, state="collapsed", play_state="following" if live else None),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
-
-
-def flight_view(live: bool, timeline: str, never_armed: bool = False) -> rrb.Vertical:
-    """The flight-control view: per axis the remote's target against the firmware's angle (pitch = thx about x,
-    roll = thy about y), the outer loop's output s1 with its P and I terms per axis, the inner loop's outputs s2,
-    the four motor commands, the sticks and the battery."""
+def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
+    """The flight-control view: per axis the remote's target against the firmware's angle, then the loops' outputs."""
     fw = ent.SOURCE_FIRMWARE
-    targets = rrb.Horizontal(
-        _series(
-            "/",
-            "pitch thx vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[0]}", f"+ {ent.pitch_path(fw)}"],
-        ),
-        _series(
-            "/",
-            "roll thy vs target (deg)",
-            live,
-            timeline,
-            contents=[f"+ {ent.FC_TARGETS[1]}", f"+ {ent.roll_path(fw)}"],
-        ),
-        _series(
-            "/", "yaw thz vs target (deg)", live, timeline, contents=[f"+ {ent.FC_TARGETS[2]}", f"+ {ent.yaw_path(fw)}"]
-        ),
-    )
-    outer = rrb.Horizontal(
-        *[
-            _series(path, f"outer {name}: s1, P, I (rad/s)", live, timeline)
-            for path, name in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
-        ]
-    )
+    angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
+    targets = [
+        plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
+        for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
+    ]
+    outer = [
+        plot(path, f"outer {axis}: s1, P, I (rad/s)")
+        for path, axis in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
+    ]
     out = rrb.Horizontal(
-        _series(ent.FC_INNER, "inner loop s2 (PWM)", live, timeline, legend_bottom=True),
-        _series(ent.FC_MOTORS, "motors (of 2000)", live, timeline, legend_bottom=True),
-        _series(ent.FC_STICKS, "remote sticks", live, timeline, legend_bottom=True),
-        _series(ent.FC_VBAT, "Vbat", live, timeline, legend=False),
+        plot(ent.FC_INNER, "inner loop s2 (PWM)", bottom=True),
+        plot(ent.FC_MOTORS, "motors (of 2000)", bottom=True),
+        plot(ent.FC_STICKS, "remote sticks", bottom=True),
+        plot(ent.FC_VBAT, "Vbat", legend=False),
         column_shares=[2, 2, 2, 1],
     )
     name = "Flight control (never armed: targets at rest, motors off)" if never_armed else "Flight control"
-    return rrb.Vertical(targets, outer, out, row_shares=[3, 2, 2], name=name)
+    return rrb.Vertical(rrb.Horizontal(*targets), rrb.Horizontal(*outer), out, row_shares=[3, 2, 2], name=name)
 
 
-def _symmetric(max_abs: float | None) -> tuple[float, float] | None:
-    limit = None if max_abs is None else axis_limit(max_abs)
-    return None if limit is None else (-limit, limit)
-
-
-def send_blueprint(rec: rr.RecordingStream, **kwargs) -> rrb.Blueprint:
+def send_blueprint(rec: rr.RecordingStream, **kwargs) -> None:
     """Build the blueprint (arguments of :func:`make_blueprint`) and send it as the recording's default."""
-    bp = make_blueprint(**kwargs)
-    rec.send_blueprint(bp, make_active=True, make_default=True)
-    return bp
+    rec.send_blueprint(make_blueprint(**kwargs), make_active=True, make_default=True)
 
 
 def replica_verdict(step, bit_exact, seeded) -> str | None:
-    """The replica against the firmware in words: "bit-exact on N of N steps", or "first difference at step K";
-    None when no row was seeded. Arrays: one per attitude row."""
+    """The replica against the firmware in words (a panel title); None when no row was seeded."""
     seeded = np.asarray(seeded, bool)
-    exact = np.asarray(bit_exact, bool) & seeded
-    n = int(seeded.sum())
+    n, differ = int(seeded.sum()), np.flatnonzero(seeded & ~np.asarray(bit_exact, bool))
     if n == 0:
         return None
-    if int(exact.sum()) == n:
+    if not differ.size:
         return f"bit-exact on {n} of {n} steps"
-    k = int(np.flatnonzero(seeded & ~exact)[0])
-    return f"first difference at step {int(np.asarray(step)[k])}"  # short: a title at the default window size
+    return f"first difference at step {int(np.asarray(step)[differ[0]])}"  # short: a title at the default window size
 
 
 def legend_room(values, *, share: float, bottom: bool, floor: float | None = None) -> tuple[float, float] | None:
-    """A y range that leaves the top (or ``bottom``) ``share`` of a plot's height free for its legend and puts the
-    data in the rest; ``floor``: a lowest value the range always shows (e.g. 0 for counts). None for no finite
-    data. ``share``: the legend's height over the plot's at the default window size (:data:`LEGEND_SHARE`)."""
+    """A y range that leaves the top (or ``bottom``) ``share`` of a plot's height free for its legend; ``floor``: a
+    value the range always shows (0 for counts). None for no finite data."""
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     if v.size == 0:

@@ -1,26 +1,22 @@
-"""NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call).
-
-Both paths log the same entities through these functions, so a live recording and a replay look the same. Rows
-that are not finite (the firmware's NaN thy when asin leaves [-1, 1], an estimate's invalid rows) are never sent
-as values: the samples are skipped and a ``Clear`` is logged at the first time of each bad run, which the time
-series view draws as a gap in the line.
+"""NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call): a
+non-finite row is never sent as a value; a ``Clear`` where each bad run starts makes the plot draw a gap.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
 
-from steval_link.quat import quaternion_from_euler as euler_quaternion
 from steval_viewer import entities as ent
 
 
 @dataclass
 class Times:
     """The timelines of N rows: ``t_fw_s`` (firmware s since boot), ``t_host_s`` (host s, may be None or contain
-    NaN), ``step`` (AHRS step counter, may be None)."""
+    NaN; None when no row has one), ``step`` (AHRS step counter, may be None)."""
 
     t_fw_s: np.ndarray
     t_host_s: np.ndarray | None = None
@@ -28,102 +24,80 @@ class Times:
 
     def __post_init__(self) -> None:
         self.t_fw_s = np.asarray(self.t_fw_s, dtype=np.float64)
-        n = len(self.t_fw_s)
-        if self.t_host_s is not None:
-            self.t_host_s = np.asarray(self.t_host_s, dtype=np.float64)
-            if len(self.t_host_s) != n:
-                raise ValueError("t_host_s and t_fw_s differ in length")
-            if not np.isfinite(self.t_host_s).any():
-                self.t_host_s = None
+        host = None if self.t_host_s is None else np.asarray(self.t_host_s, dtype=np.float64)
+        self.t_host_s = host if host is not None and np.isfinite(host).any() else None
         if self.step is not None:
             self.step = np.asarray(self.step, dtype=np.int64)
-            if len(self.step) != n:
-                raise ValueError("step and t_fw_s differ in length")
-        self._full: list | None = None
 
     def __len__(self) -> int:
         return len(self.t_fw_s)
 
     def take(self, idx: np.ndarray) -> "Times":
         """The rows ``idx`` (integer indices or a boolean mask)."""
-        return Times(
-            self.t_fw_s[idx],
-            None if self.t_host_s is None else self.t_host_s[idx],
-            None if self.step is None else self.step[idx],
-        )
+        host, step = (None if a is None else a[idx] for a in (self.t_host_s, self.step))
+        return Times(self.t_fw_s[idx], host, step)
 
     def host_complete(self) -> bool:
-        """True when every row has a finite host time."""
         return self.t_host_s is not None and bool(np.isfinite(self.t_host_s).all())
 
+    @functools.cached_property
     def indexes(self) -> list[rr.TimeColumn]:
         """Time columns for ``send_columns`` (host time only when every row has one; see :func:`send_rows`)."""
-        if self._full is None:
-            cols = [rr.TimeColumn(ent.TIMELINE_FW, duration=self.t_fw_s)]
-            if self.host_complete():
-                cols.append(rr.TimeColumn(ent.TIMELINE_HOST, duration=self.t_host_s))
-            if self.step is not None:
-                cols.append(rr.TimeColumn(ent.TIMELINE_STEP, sequence=self.step))
-            self._full = cols
-        return self._full
+        cols = [rr.TimeColumn(ent.TIMELINE_FW, duration=self.t_fw_s)]
+        if self.host_complete():
+            cols.append(rr.TimeColumn(ent.TIMELINE_HOST, duration=self.t_host_s))
+        if self.step is not None:
+            cols.append(rr.TimeColumn(ent.TIMELINE_STEP, sequence=self.step))
+        return cols
 
 
-def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, rows: np.ndarray | None = None) -> None:
-    """Send ``make_columns(idx)`` for the rows ``idx`` (all when None), splitting by host-time availability."""
+def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, rows: np.ndarray | None = None) -> int:
+    """Send ``make_columns(idx)`` for the rows ``idx`` (all when None), split by host-time availability."""
     idx = np.arange(len(times)) if rows is None else np.asarray(rows)
     if idx.dtype == bool:
         idx = np.flatnonzero(idx)
     if len(idx) == 0:
-        return
+        return 0
     if rows is None and (times.t_host_s is None or times.host_complete()):
-        rec.send_columns(path, indexes=times.indexes(), columns=make_columns(None))
-        return
+        rec.send_columns(path, indexes=times.indexes, columns=make_columns(None))
+        return len(idx)
     sub = times.take(idx)
-    if sub.t_host_s is None or sub.host_complete():
-        rec.send_columns(path, indexes=sub.indexes(), columns=make_columns(idx))
-        return
-    has = np.isfinite(sub.t_host_s)
+    has = np.ones(len(idx), bool) if sub.t_host_s is None else np.isfinite(sub.t_host_s)
     for part in (idx[has], idx[~has]):
-        if len(part):
-            t = times.take(part)  # host times all finite, or all NaN (then dropped by Times)
-            rec.send_columns(path, indexes=t.indexes(), columns=make_columns(part))
+        if len(part):  # host times all finite, or all NaN (then dropped by Times)
+            rec.send_columns(path, indexes=times.take(part).indexes, columns=make_columns(part))
+    return len(idx)
 
 
 def send_texts(rec: rr.RecordingStream, path: str, times: Times, texts: list[str], levels: list[str]) -> None:
     """Log one text entry per row (``texts``, each at its ``levels`` entry: INFO, WARN)."""
-    send_rows(
-        rec,
-        path,
-        times,
-        lambda idx: rr.TextLog.columns(
-            text=texts if idx is None else [texts[j] for j in idx],
-            level=levels if idx is None else [levels[j] for j in idx],
-        ),
-    )
-
-
-def bad_run_starts(good: np.ndarray) -> np.ndarray:
-    """Indices where a run of bad rows (``good`` False) begins."""
-    bad = ~good
-    prev = np.concatenate(([False], bad[:-1]))
-    return np.flatnonzero(bad & ~prev)
+    texts, levels = np.array(texts, dtype=object), np.array(levels, dtype=object)
+    send_rows(rec, path, times, lambda idx: rr.TextLog.columns(text=_take(texts, idx), level=_take(levels, idx)))
 
 
 def send_scalars(
     rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None
-) -> None:
-    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps."""
+) -> int:
+    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps (a ``Clear``
+    where each run of them starts). Returns the rows with a value."""
     v = np.asarray(values, dtype=np.float64)
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
     if good.all():
-        send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v if idx is None else v[idx]))
-        return
-    send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
-    starts = bad_run_starts(good)
-    if len(starts):
-        send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
+        return send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)))
+    starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
+    sent = send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
+    send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
+    return sent
+
+
+def series_style(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5, visible=None) -> None:
+    """A series' legend (static): ``names`` (one, or one per column) with their ``colors``, line ``width``."""
+    names = [names] if isinstance(names, str) else list(names)
+    colors = [colors] if isinstance(colors, tuple) else list(colors)
+    lines = rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names), visible_series=visible)
+    rec.log(path, lines, static=True)
 
 
 #: Text telemetry: one entity per record shape under this root (the blueprint's "Text telemetry" tab).
@@ -147,44 +121,40 @@ def log_text_style(rec: rr.RecordingStream, names, units) -> None:
 
 
 def send_records(rec: rr.RecordingStream, names, times: Times, values: np.ndarray) -> None:
-    """Records of one shape, (N, k) values: one row of k scalars per record (one ``send_columns``); a value that
-    is not finite is NaN, a gap in its line only."""
+    """Records of one shape, (N, k) values: one row of k scalars per record; a non-finite value is a gap."""
     v = np.asarray(values, dtype=np.float64).reshape(len(times), len(names))
     v = np.where(np.isfinite(v), v, np.nan)
-    send_rows(rec, text_path(names), times, lambda idx: rr.Scalars.columns(scalars=v if idx is None else v[idx]))
+    send_rows(rec, text_path(names), times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)))
+
+
+def unit_xyzw(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4) xyzw float32 of ``q_wxyz`` (body -> earth, q0 scalar first) normalised for display (the firmware's |q|
+    is about 0.9983), and the rows whose quaternion is finite and not zero."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.sqrt((q * q).sum(axis=1))
+        return (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32), np.isfinite(norm) & (norm > 1e-6)
 
 
 def send_transforms(
     rec: rr.RecordingStream, path: str, times: Times, q_wxyz: np.ndarray, valid: np.ndarray | None = None
-) -> None:
-    """Log the attitude ``q_wxyz`` (body -> earth, q0 scalar first) as a Transform3D on ``path``.
-
-    The quaternion is normalised for display (the firmware's |q| is about 0.9983). Rows with a non-finite or zero
-    quaternion (or ``valid`` False) are skipped: the drone keeps its last known attitude rather than a made-up one.
-    """
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        norm = np.sqrt((q * q).sum(axis=1))
-        good = np.isfinite(norm) & (norm > 1e-6)
-        if valid is not None:
-            good &= np.asarray(valid, dtype=bool)
-        xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
-    rows = None if good.all() else np.flatnonzero(good)
-    send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=xyzw if idx is None else xyzw[idx]), rows)
+) -> int:
+    """Log the attitude ``q_wxyz`` as a Transform3D on ``path``; rows with no quaternion (or ``valid`` False) are
+    skipped: the drone keeps its last known attitude."""
+    xyzw, good = unit_xyzw(q_wxyz)
+    if valid is not None:
+        good &= np.asarray(valid, dtype=bool)
+    rows = None if good.all() else good
+    return send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=_take(xyzw, idx)), rows)
 
 
-def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> None:
+def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> int:
     """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped."""
     v = np.asarray(vectors, dtype=np.float32)
     good = np.isfinite(v).all(axis=1)
-    rows = None if good.all() else np.flatnonzero(good)
-    send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]), rows)
+    rows = None if good.all() else good
+    return send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), rows)
 
 
-def quaternion_from_euler(thx_rad, thy_rad, thz_rad=None) -> np.ndarray:
-    """(N, 4) wxyz body -> earth quaternion whose firmware ``QuaternionToEuler`` gives back (thx, thy): the
-    z-y-x rotation qz(thz) qy(thy) qx(thx). For text-mode rows, which carry angles but no q, so the 3D view can
-    still show the attitude (thz: the firmware's gyro-integrated yaw, 0 when None or NaN)."""
-    thx = np.asarray(thx_rad, dtype=np.float64)
-    thz = np.zeros_like(thx) if thz_rad is None else np.nan_to_num(np.asarray(thz_rad, dtype=np.float64))
-    return euler_quaternion(thx, thy_rad, thz)
+def _take(values, idx):
+    return values if idx is None else values[idx]

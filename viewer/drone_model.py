@@ -1,16 +1,13 @@
 """A recognisable quadcopter for the 3D view: solid mesh (firmware attitude) and wireframe ghost (host estimates).
 
-Geometry is in the drone's body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ the
-distance from the centre to a motor (the STEVAL-FCU001V1 frame is about 0.1 m motor to centre, the model is
-scaled so the 3D view reads well). The quadcopter is in X configuration: arms at ±45° from the nose, front
-propellers red, rear propellers grey, a red nose cone on +y.
-
-All functions are pure and return numpy arrays; :func:`log_models` logs them as static data.
+Body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ centre to motor (the model is scaled
+so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import itertools
+from typing import NamedTuple
 
 import numpy as np
 import rerun as rr
@@ -50,8 +47,7 @@ def firmware_motor_positions() -> np.ndarray:
     return np.stack([-np.sign(rows[:, 1]) * d, np.sign(rows[:, 0]) * d, np.zeros(4)], axis=1)
 
 
-@dataclass(frozen=True)
-class Mesh:
+class Mesh(NamedTuple):
     """Triangle soup with per-vertex colours and normals (vertices not shared, so shading is flat)."""
 
     positions: np.ndarray  # (V, 3) float32
@@ -65,41 +61,33 @@ def _rot_z(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+#: a box's faces (-x, +x, -y, +y, -z, +z) by corner index 4*ix + 2*iy + iz, outward winding
+_BOX_QUADS = np.array([(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)])
+
+
 def _box_triangles(center, half, rot=None) -> np.ndarray:
     """(12, 3, 3) triangles of a box, outward winding."""
-    hx, hy, hz = half
-    corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half
     if rot is not None:
         corners = corners @ rot.T
     corners = corners + np.asarray(center, dtype=float)
-    # corner index = 4*ix + 2*iy + iz
-    quads = [
-        (0, 1, 3, 2),  # -x
-        (4, 6, 7, 5),  # +x
-        (0, 4, 5, 1),  # -y
-        (2, 3, 7, 6),  # +y
-        (0, 2, 6, 4),  # -z
-        (1, 5, 7, 3),  # +z
-    ]
-    tris = []
-    for a, b, c, d in quads:
-        tris.append(corners[[a, b, c]])
-        tris.append(corners[[a, c, d]])
-    return np.array(tris)
+    return corners[np.stack([_BOX_QUADS[:, [0, 1, 2]], _BOX_QUADS[:, [0, 2, 3]]], axis=1).reshape(-1, 3)]
+
+
+def _pairs(first: tuple, second: tuple) -> np.ndarray:
+    """Triangles ``first[k]`` and ``second[k]`` in turn, each given by its corners ((n, 3) arrays or shared points)."""
+    a, b = (np.stack(np.broadcast_arrays(*corners), axis=1) for corners in (first, second))
+    return np.stack([a, b], axis=1).reshape(-1, 3, 3)
 
 
 def _disc_triangles(center, radius, n=32, z_thickness=0.012) -> np.ndarray:
     """A thin two-sided disc (top and bottom fans), (2n, 3, 3)."""
     ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    ring = np.stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)], axis=1)
     c = np.asarray(center, dtype=float)
-    tris = []
-    for k in range(n):
-        p, q = ring[k], ring[(k + 1) % n]
-        top = np.array([0, 0, z_thickness / 2])
-        tris.append(np.array([c + top, c + p + top, c + q + top]))
-        tris.append(np.array([c - top, c + q - top, c + p - top]))
-    return np.array(tris)
+    p = c + np.stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)], axis=1)
+    q = np.roll(p, -1, axis=0)
+    top = np.array([0, 0, z_thickness / 2])
+    return _pairs((c + top, p + top, q + top), (c - top, q - top, p - top))
 
 
 def _cone_triangles(base_center, tip, radius, n=20) -> np.ndarray:
@@ -113,21 +101,25 @@ def _cone_triangles(base_center, tip, radius, n=20) -> np.ndarray:
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
     ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    ring = base_center + radius * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
-    tris = []
-    for k in range(n):
-        p, q = ring[k], ring[(k + 1) % n]
-        tris.append(np.array([p, q, tip]))
-        tris.append(np.array([base_center, q, p]))
-    return np.array(tris)
+    p = base_center + radius * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    q = np.roll(p, -1, axis=0)
+    return _pairs((p, q, tip), (base_center, q, p))
 
 
-def _soup(parts: list[tuple[np.ndarray, tuple[int, int, int, int]]]) -> Mesh:
+def quadcopter_mesh() -> Mesh:
+    """The solid quadcopter: plate, four arms, motors, props (front red), nose cone on +y."""
+    parts = [(_box_triangles((0, 0, 0), BODY_HALF), FRAME_COLOR)]
+    for m in motor_positions():
+        arm = (ARM_LENGTH / 2, ARM_HALF_WIDTH, ARM_HALF_HEIGHT)
+        parts.append((_box_triangles(m / 2, arm, _rot_z(np.arctan2(m[1], m[0]))), ARM_COLOR))
+        parts.append((_box_triangles(m + (0, 0, 0.04), (MOTOR_RADIUS, MOTOR_RADIUS, 0.06)), MOTOR_COLOR))
+        color = PROP_FRONT_COLOR if m[1] > 0 else PROP_REAR_COLOR
+        parts.append((_disc_triangles(m + (0, 0, PROP_Z), PROP_RADIUS), color))
+    y0 = BODY_HALF[1]
+    parts.append((_cone_triangles((0, y0, 0), (0, y0 + NOSE_LENGTH, 0), 0.1), NOSE_COLOR))
     tris = np.concatenate([t for t, _ in parts])
     colors = np.concatenate([np.tile(np.array(c, dtype=np.uint8), (len(t) * 3, 1)) for t, c in parts])
-    e1 = tris[:, 1] - tris[:, 0]
-    e2 = tris[:, 2] - tris[:, 0]
-    n = np.cross(e1, e2)
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     positions = tris.reshape(-1, 3).astype(np.float32)
     normals = np.repeat(n, 3, axis=0).astype(np.float32)
@@ -135,39 +127,15 @@ def _soup(parts: list[tuple[np.ndarray, tuple[int, int, int, int]]]) -> Mesh:
     return Mesh(positions=positions, normals=normals, colors=colors, triangles=triangles)
 
 
-def quadcopter_mesh() -> Mesh:
-    """The solid quadcopter: plate, four arms, motors, props (front red), nose cone on +y."""
-    parts: list[tuple[np.ndarray, tuple[int, int, int, int]]] = []
-    parts.append((_box_triangles((0, 0, 0), BODY_HALF), FRAME_COLOR))
-    motors = motor_positions()
-    for m in motors:
-        angle = np.arctan2(m[1], m[0])
-        half_len = ARM_LENGTH / 2
-        parts.append(
-            (
-                _box_triangles(m / 2, (half_len, ARM_HALF_WIDTH, ARM_HALF_HEIGHT), _rot_z(angle)),
-                ARM_COLOR,
-            )
-        )
-        parts.append((_box_triangles(m + (0, 0, 0.04), (MOTOR_RADIUS, MOTOR_RADIUS, 0.06)), MOTOR_COLOR))
-        color = PROP_FRONT_COLOR if m[1] > 0 else PROP_REAR_COLOR
-        parts.append((_disc_triangles(m + (0, 0, PROP_Z), PROP_RADIUS), color))
-    y0 = BODY_HALF[1]
-    parts.append((_cone_triangles((0, y0, 0), (0, y0 + NOSE_LENGTH, 0), 0.1), NOSE_COLOR))
-    return _soup(parts)
-
-
-def quadcopter_wireframe(n_circle: int = 32) -> list[np.ndarray]:
+def quadcopter_wireframe() -> list[np.ndarray]:
     """Line strips of the ghost: plate outline, arms, prop circles, nose arrow (body frame)."""
     hx, hy, _ = BODY_HALF
     strips = [np.array([[-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0]], dtype=float)]
-    ang = np.linspace(0.0, 2.0 * np.pi, n_circle + 1)
+    ang = np.linspace(0.0, 2.0 * np.pi, 33)  # 32 segments, closed
     for m in motor_positions():
         strips.append(np.array([[0.0, 0.0, 0.0], m]))
-        circle = np.stack(
-            [m[0] + PROP_RADIUS * np.cos(ang), m[1] + PROP_RADIUS * np.sin(ang), np.full_like(ang, PROP_Z)], axis=1
-        )
-        strips.append(circle)
+        x, y = m[0] + PROP_RADIUS * np.cos(ang), m[1] + PROP_RADIUS * np.sin(ang)
+        strips.append(np.stack([x, y, np.full_like(ang, PROP_Z)], axis=1))
     tip = hy + NOSE_LENGTH
     strips.append(np.array([[-0.12, hy, 0], [0, tip, 0], [0.12, hy, 0]]))
     strips.append(np.array([[0, 0, 0], [0, tip, 0]]))
@@ -176,35 +144,17 @@ def quadcopter_wireframe(n_circle: int = 32) -> list[np.ndarray]:
 
 def log_mesh(rec, path: str, mesh: Mesh | None = None) -> None:
     """Log the solid quadcopter ``mesh`` (default :func:`quadcopter_mesh`) as static data on ``path``."""
-    mesh = quadcopter_mesh() if mesh is None else mesh
-    rec.log(
-        path,
-        rr.Mesh3D(
-            vertex_positions=mesh.positions,
-            vertex_normals=mesh.normals,
-            vertex_colors=mesh.colors,
-            triangle_indices=mesh.triangles,
-        ),
-        static=True,
+    m = quadcopter_mesh() if mesh is None else mesh
+    mesh3d = rr.Mesh3D(
+        vertex_positions=m.positions, vertex_normals=m.normals, vertex_colors=m.colors, triangle_indices=m.triangles
     )
-
-
-def log_ghosts(rec, ghost_sources: list[str]) -> None:
-    """Log a wireframe ghost per host estimate (static, in the estimate's colour)."""
-    strips = quadcopter_wireframe()
-    for source in ghost_sources:
-        r, g, b = ent.source_color(source)
-        rec.log(
-            ent.estimate_model_path(source),
-            rr.LineStrips3D(strips, colors=[(r, g, b, 200)], radii=0.012),
-            static=True,
-        )
+    rec.log(path, mesh3d, static=True)
 
 
 def log_models(rec, ghost_sources: list[str]) -> None:
-    """Log the static quadcopter under the firmware transform and a wireframe ghost per host estimate.
-
-    ``rec`` is a ``rerun.RecordingStream``; ``ghost_sources`` are source segments (see ``entities.source_name``).
-    """
+    """Log the quadcopter under the firmware transform and a ghost per source of ``ghost_sources`` (its colour)."""
     log_mesh(rec, ent.DRONE_FIRMWARE_MODEL)
-    log_ghosts(rec, ghost_sources)
+    strips = quadcopter_wireframe()
+    for source in ghost_sources:
+        ghost = rr.LineStrips3D(strips, colors=[(*ent.source_color(source), 200)], radii=0.012)
+        rec.log(ent.estimate_model_path(source), ghost, static=True)

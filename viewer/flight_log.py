@@ -1,11 +1,8 @@
-"""Flight-control frames (type 4) of a whole :class:`~steval_link.link.telemetry.Telemetry` to Rerun: the remote's
-targets next to the firmware's attitude, the outer loop's output with its P and I terms, the inner loop's outputs,
-the four motor commands as series and as thrust arrows on the 3D drone's props, sticks and battery.
+"""Flight-control frames (type 4) of a whole Telemetry to Rerun: the remote's targets next to the firmware's
+attitude, the loops' outputs, the motor commands (series and thrust arrows on the 3D drone's props), sticks, battery.
 
-The P and I terms are recomputed with the firmware's gains (:mod:`steval_link.analysis.flight_control`): pitch and
-roll bit for bit (P = kp1·(target − angle) of the same step, I = s1 − P, which is 0 with ST's ``ki1 = 0``); yaw's
-P uses the ISR-integrated ``thz`` of the attitude frame, which the ISR may move before the outer loop runs, so
-its P is approximate and no I is drawn. Entities: :mod:`steval_viewer.entities` (``fc/...``).
+P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle), I = s1 − P);
+yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I.
 """
 
 from __future__ import annotations
@@ -19,75 +16,51 @@ from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
-from steval_viewer.columns import Times, send_rows, send_scalars
+from steval_viewer.columns import Times, send_rows, send_scalars, series_style
 
-__all__ = ["log_flight_static", "log_motors_static", "log_flight_control", "flight_angles"]
-
-_AXIS_COLORS = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
 _MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
 _TARGET_COLOR = (40, 40, 40)
 
 
 def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(angles (N, 3) float32 thx, thy, thz of the attitude row with each flight-control row's step, found (N,)
-    bool): the angles the outer loop used (thz: as of the attitude frame)."""
+    """(thx, thy, thz (N, 3) float32 of the attitude row with each flight-control row's step, found (N,) bool)."""
     steps = np.asarray(att.step, dtype=np.int64)
-    order = np.argsort(steps, kind="stable")
-    s_sorted = steps[order]
     fs = np.asarray(fc.step, dtype=np.int64)
-    j = np.clip(np.searchsorted(s_sorted, fs), 0, max(len(s_sorted) - 1, 0))
-    found = (len(s_sorted) > 0) & (s_sorted[j] == fs) if len(s_sorted) else np.zeros(len(fs), bool)
-    idx = order[j] if len(s_sorted) else np.zeros(len(fs), np.int64)
     ang = np.full((len(fs), 3), np.nan, np.float32)
-    if len(s_sorted):
-        ang[found] = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1)[idx[found]]
+    if not len(steps):
+        return ang, np.zeros(len(fs), bool)
+    order = np.argsort(steps, kind="stable")
+    idx = order[np.clip(np.searchsorted(steps[order], fs), 0, len(steps) - 1)]
+    found = steps[idx] == fs
+    ang[found] = np.stack([att.thx_rad, att.thy_rad, att.thz_rad], axis=1)[idx[found]]
     return ang, found
-
-
-def _line(rec: rr.RecordingStream, path: str, names, colors, width: float = 1.5) -> None:
-    names = [names] if isinstance(names, str) else list(names)
-    colors = [colors] if isinstance(colors, tuple) else list(colors)
-    rec.log(path, rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names)), static=True)
 
 
 def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
     """Series styles of the flight-control view and the motors' arrow origins on the 3D drone."""
     for path, label in zip(ent.FC_TARGETS, ("target thx (remote)", "target thy (remote)", "target thz (remote)")):
-        _line(rec, path, label, _TARGET_COLOR, 2.0)
+        series_style(rec, path, label, _TARGET_COLOR, 2.0)
     for path, axis in zip(ent.FC_OUTER, ("x pitch", "y roll", "z yaw")):
-        _line(rec, f"{path}/s1", f"{axis[0]}_s1 (firmware)", (214, 39, 40), 2.0)
-        _line(rec, f"{path}/p", "P = kp1·(target − angle)", (31, 119, 180))
+        series_style(rec, f"{path}/s1", f"{axis[0]}_s1 (firmware)", (214, 39, 40), 2.0)
+        series_style(rec, f"{path}/p", "P = kp1·(target − angle)", (31, 119, 180))
         if path != ent.FC_OUTER[2]:
-            _line(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
-    _line(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], _AXIS_COLORS)
-    _line(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
-    _line(
-        rec,
-        ent.FC_STICKS,
-        ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"],
-        [*_AXIS_COLORS, (127, 127, 127)],
-    )
-    _line(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
+            series_style(rec, f"{path}/i", "I = s1 − P (ki1 = 0)", (44, 160, 44))
+    series_style(rec, ent.FC_INNER, ["x_s2 pitch", "y_s2 roll", "z_s2 yaw"], ent.XYZ_COLORS)
+    series_style(rec, ent.FC_MOTORS, [f"{m.label}" for m in MOTORS], _MOTOR_COLORS)
+    sticks = ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"]
+    series_style(rec, ent.FC_STICKS, sticks, [*ent.XYZ_COLORS, (127, 127, 127)])
+    series_style(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
     if motors:
         log_motors_static(rec)
 
 
 def log_motors_static(rec: rr.RecordingStream) -> None:
-    """The four motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control
-    frames (logged before: an arrow without vectors is an error in the viewer)."""
-    pos = drone_model.firmware_motor_positions()
-    for m, p, color in zip(MOTORS, pos, _MOTOR_COLORS):
-        rec.log(
-            ent.motor_path(m.number),
-            rr.Arrows3D.from_fields(
-                origins=[p + (0.0, 0.0, drone_model.PROP_Z)],
-                colors=[color],
-                radii=[0.035],
-                labels=[f"M{m.number}"],
-                show_labels=True,
-            ),  # vectors over time
-            static=True,
-        )
+    """The motor arrows' fixed parts (where, colour, label); their vectors come with the flight-control frames."""
+    for m, p, color in zip(MOTORS, drone_model.firmware_motor_positions(), _MOTOR_COLORS):
+        origin = [p + (0.0, 0.0, drone_model.PROP_Z)]  # the vectors come over time
+        label = [f"M{m.number}"]
+        arrow = rr.Arrows3D.from_fields(origins=origin, colors=[color], radii=[0.035], labels=label, show_labels=True)
+        rec.log(ent.motor_path(m.number), arrow, static=True)
 
 
 def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = None) -> int:
@@ -117,12 +90,8 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = 
     for k, m in enumerate(MOTORS):
         v = np.zeros((len(mp), 3), np.float32)
         v[:, 2] = frac[:, k]
-        send_rows(
-            rec,
-            ent.motor_path(m.number),
-            times,
-            lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]),
-        )
+        path = ent.motor_path(m.number)
+        send_rows(rec, path, times, lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]))
     if summary is not None:
         summary.samples[ent.FC_MOTORS] = len(fc)
     return len(fc)

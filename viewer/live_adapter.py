@@ -12,37 +12,30 @@ from steval_link.live.session import LiveOptions
 
 
 class ViewerLogger:
-    """The Rerun side of a live session: the sinks of ``options`` and a :class:`steval_viewer.live_log.LiveLogger`.
-
-    ``log_batch``/``log_status``/``log_text`` go to the session's main stream (the viewer's; the ``.rrd``'s when
-    there is no viewer). With a viewer *and* ``--rrd`` the file has its own stream of the same recording and its
-    own logger, ``file`` (else None), which the pipeline feeds merged batches every RRD_ONLY_INTERVAL_S (written as
-    they come: ``steval_viewer.rrd_writer``); ``log_link`` goes to both; ``close`` flushes and closes both.
-    ``output_failure``: one sentence once the ``.rrd`` could not be written (the session says it and exits non-zero).
-
-    Imported only when a viewer or an ``.rrd`` is asked for (``--no-view`` without ``--rrd``: no Rerun at all).
+    """The sinks of ``options`` and a :class:`~steval_viewer.live_log.LiveLogger` on the main stream (the
+    viewer's, else the ``.rrd``'s). With a viewer *and* ``--rrd`` the file has its own stream and logger, ``file``
+    (else None), which the pipeline feeds merged batches. Imported only when a viewer or an ``.rrd`` is asked for.
     """
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
-        """``options.sinks``: the sinks the CLI built and checked (``steval_viewer.sink_options.session_sinks``)."""
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
-        self.file: live_log.LiveLogger | None = None
-        if self.session.file_rec is not None:
-            self.file = live_log.LiveLogger(self.session.file_rec, estimator_names=options.estimators, ble=ble)
+        file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
+        self.file = (
+            None if file_rec is None else live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
+        )
 
     @property
     def has_viewer(self) -> bool:
         """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
-        return self.session.has_viewer
+        return self.session.viewer_url is not None
 
     @property
     def output_failure(self) -> str | None:
-        """Why the ``.rrd`` stopped being written (disk full, deleted), one sentence; None while it is fine (read by
-        the session, which says it: closing does not raise it again)."""
+        """Why the ``.rrd`` stopped being written, one sentence (the session says it: closing does not raise it)."""
         failure = self.session.rrd_failure
         if failure is not None:
             self.session.rrd_failure_said = True
@@ -60,7 +53,6 @@ class ViewerLogger:
             self.file.log_link(stats, t_unix_s)
 
     def close(self) -> None:
-        """Send what the loggers hold and finish both streams (the ``.rrd`` is complete afterwards)."""
         try:
             try:
                 self.logger.close()
@@ -71,9 +63,8 @@ class ViewerLogger:
             self.session.close()
 
 
-def make_viewer_logger(options: LiveOptions, recording_name: str | None = None) -> ViewerLogger:
-    """The Rerun side of a live session (see :class:`ViewerLogger`)."""
-    return ViewerLogger(options, recording_name)
+#: The Rerun side of a live session (see :class:`ViewerLogger`).
+make_viewer_logger = ViewerLogger
 
 
 #: notifications fed to the pipeline at a time by :func:`recording_sink`
@@ -81,10 +72,8 @@ REPLAY_BATCH = 4096
 
 
 def recording_sink(options, estimators: list[str], *, layout: str = "stock", progress=None):
-    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline
-    (:meth:`LivePipeline.feed_ble`) into the one logger (:class:`steval_viewer.live_log.LiveLogger`, every row's
-    attitude, the whole flight), the ``.rrd`` written whole or not at all (``sinks.log_whole``). ``options``: the
-    sinks the CLI checked; returns ``sink(recording) -> rows logged``."""
+    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline into the one logger
+    (every row's attitude); returns ``sink(recording) -> rows logged``."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
     def sink(src) -> int:
@@ -92,14 +81,8 @@ def recording_sink(options, estimators: list[str], *, layout: str = "stock", pro
 
         def log(rec) -> int:
             logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
-            pipe = LivePipeline(
-                estimators,
-                logger,
-                view_interval_s=RRD_ONLY_INTERVAL_S,
-                t0_unix_s=0.0,
-                baud=0,
-                ble_layout=layout_named(layout),
-            )
+            timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
+            pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
             for i in range(0, len(items), REPLAY_BATCH):
                 pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
                 if progress is not None:

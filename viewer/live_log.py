@@ -1,24 +1,15 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-The live session (``steval_link.live``) calls, in arrival order, ``log_batch(rows)`` (``LiveRows``: N frames and
-their estimates), ``log_status``, ``log_text``, ``log_record`` (text telemetry) and ``log_link`` (decoder counters),
-each with its times, then ``close()``.
-
 Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
-Status and link rows are queued and sent with the next batch, text records after it every
-:data:`RECORDS_INTERVAL_S` (one ``send_columns`` per entity or record shape), all on ``close()``: an ``.rrd`` sink
-keeps some memory per chunk until the file closes. The entities are the replay's (:mod:`steval_viewer.entities`);
-the blueprint is the live one (10 s window on ``host_time``).
-
-Times are the pipeline's (``steval_link.live.pipeline``): ``fw_time`` the firmware's s since boot, ``host_time`` s
-since the capture started, as ``steval replay`` of the capture has them. With a live viewer and an ``.rrd`` the
-session runs a logger per stream of the recording: the viewer's gets every round, the file's merged batches.
+Status and link rows are queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one
+``send_columns`` per entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
+Times are the pipeline's, as ``steval replay`` of the capture has them.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable
 
 import numpy as np
 import rerun as rr
@@ -29,13 +20,11 @@ from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
-from steval_viewer.columns import Times, log_text_style, quaternion_from_euler, send_records, send_rows, send_scalars
+from steval_viewer.columns import Times, log_text_style, send_records, send_scalars
 from steval_viewer.record_batch import RowBatch
-from steval_viewer.replay_log import values_bad_note
+from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
 
-#: The live 3D view (drone attitudes, gravity arrow) is updated at most this often per second, with the newest
-#: frame of a batch: the view shows only the latest attitude, and this keeps the per-frame cost down. Plots get
-#: every frame. (The capture keeps everything; ``steval replay`` logs every frame's attitude.)
+#: The live 3D view is updated at most this often per second (the batch's newest frame); plots get every frame.
 LIVE_3D_MAX_HZ = 60.0
 
 #: The live path logs link counters (CRC failures) at most this often, s.
@@ -54,38 +43,27 @@ def live_source(name: str) -> str:
 
 
 class LiveLogger:
-    """Logs a live session to a RecordingStream, batch by batch.
-
-    ``rec``: the recording (``sinks.open_session(...).rec``). ``estimator_names``: the names the session will put
-    in ``batch.estimates`` (known up front so the blueprint and the series styles are sent once). ``ghost``: which
-    estimate the 3D ghost shows (default: the ST replica, else EKF3...).
-    """
+    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``
+    (known up front: the blueprint and the series styles are sent once). ``live``: the scrolling blueprint and at
+    most LIVE_3D_MAX_HZ 3D updates (else every row: a replay). ``ble``: a BLE stream from the start."""
 
     def __init__(
-        self,
-        rec: rr.RecordingStream,
-        estimator_names: Iterable[str] = (),
-        *,
-        ghost: str | None = None,
-        blueprint: bool = True,
-        live: bool = True,
-        ble: bool = False,
+        self, rec: rr.RecordingStream, estimator_names: Iterable[str] = (), *, live: bool = True, ble: bool = False
     ) -> None:
         self.rec = rec
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
-        ghost = None if ghost is None else live_source(ghost)
         #: the 3D view's updates per second of stream time at most (a replay: every row)
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
-        self._blueprint = dict(live=live, ghost_sources=segs, ghost=ghost, flight_control=True) if blueprint else None
+        self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
         self._ble_shown = False
         self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
         self._text_shown = False  # the text telemetry tab was put in front
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
-        if blueprint and not ble:
-            bp.send_blueprint(rec, **self._blueprint)
-        if ble:  # known to be a BLE stream from the start (a replay): its layout at once
+        if ble:
             self._ble_layout()
+        else:
+            bp.send_blueprint(rec, **self._blueprint)
         scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
@@ -108,29 +86,27 @@ class LiveLogger:
         self._records_queued = 0  # text records queued since the last send
         self._records_sent_s = -math.inf  # host time of that send, s
 
-    # -- frames ----------------------------------------------------------------------------------------------
     def log_batch(self, batch: Any) -> None:
-        """Log N attitude rows that arrived together (``LiveRows``: ``attitude``, AttitudeArrays with their times,
-        and ``estimates``, name -> (N, 4) q_wxyz with NaN where undefined). Text-mode rows have no q: their
-        angles come with the row. Non-finite values are gaps, never plotted."""
+        """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
+        q_wxyz, NaN where undefined). Non-finite values are gaps, never plotted."""
         a = batch.attitude
         n = len(a)
         if n == 0:
             return
         self._binary_seen = self._binary_seen or bool(a.exact.any())
-        rec = self.rec
         step = a.step
         times = Times(a.t_fw_s, a.t_host_s, step)
-        q = a.q_wxyz
-        thx, thy = a.thx_rad, a.thy_rad
-        if not a.exact.all():
-            rows = ~a.exact
-            q = q.astype(np.float64)
-            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.nan_to_num(a.thz_rad[rows]))  # no yaw printed: 0
-        acc = a.acc_mg.astype(np.float64)
         bad = a.values_bad
-        if bad.any():
-            self._note_values_bad(step, bad, times)
+        if bad.any() and not self._values_bad_noted:  # the first row of the session with bad values: one warning
+            self._values_bad_noted = True
+            i = int(np.argmax(bad))
+            sentence = (
+                f"the firmware's values are NaN or out of range from step {int(step[i])} on "
+                f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
+            )
+            good = np.flatnonzero(~bad[:i])
+            last = int(step[good[-1]]) if good.size else self._last_good_step
+            send_values_bad_note(self.rec, times.take(np.array([i])), sentence, last)
         good_rows = np.flatnonzero(~bad)
         if good_rows.size:
             self._last_good_step = int(step[good_rows[-1]])
@@ -141,27 +117,22 @@ class LiveLogger:
         sel3d = None
         if not (0.0 <= t_last - self._last_3d_s < 1.0 / self.max_3d_hz):
             self._last_3d_s = t_last
+            every = not math.isfinite(self.max_3d_hz)
             sel3d = np.zeros(n, dtype=bool)
-            sel3d[-1 if math.isfinite(self.max_3d_hz) else slice(None)] = True
-            # the drone: the batch's last frame without bad values (the firmware's filter output is NaN or off
-            # range: the 3D drone stays where it was)
+            sel3d[slice(None) if every else -1] = True
+            # the drone: the batch's last frame without bad values (else it stays where it was)
             sel_fw = np.zeros(n, dtype=bool)
-            sel_fw[good_rows[-1:] if math.isfinite(self.max_3d_hz) else good_rows] = True
-            rb.quaternions(ent.DRONE_FIRMWARE, q, sel_fw)
+            sel_fw[good_rows if every else good_rows[-1:]] = True
+            rb.quaternions(ent.DRONE_FIRMWARE, display_quaternions(a), sel_fw)
             with np.errstate(invalid="ignore"):
-                rb.vectors(ent.ACC_GRAVITY, -acc / 1000.0, sel3d)
-        rb.scalars(ent.pitch_path(ent.SOURCE_FIRMWARE), np.degrees(thx.astype(np.float64)))
-        rb.scalars(ent.roll_path(ent.SOURCE_FIRMWARE), np.degrees(thy.astype(np.float64)))
-        rb.scalars(ent.yaw_path(ent.SOURCE_FIRMWARE), np.degrees(a.thz_rad.astype(np.float64)))
-        rb.scalars(ent.PLOT_ACC, acc)
-        rb.scalars(ent.PLOT_GYRO, a.gyro_mdps.astype(np.float64) / 1000.0)
-        rb.scalars(ent.PLOT_THROTTLE, a.thr.astype(np.float64))
+                rb.vectors(ent.ACC_GRAVITY, -a.acc_mg.astype(np.float64) / 1000.0, sel3d)
+        for path, values in firmware_series(a):
+            rb.scalars(path, values)
         if getattr(batch, "mag_mgauss", None) is not None:
             self._ble_layout()
             rb.scalars(ent.BLE_MAG, batch.mag_mgauss.astype(np.float64))
 
-        estimates: Mapping[str, np.ndarray] = batch.estimates or {}
-        for name, eq in estimates.items():
+        for name, eq in (batch.estimates or {}).items():
             source = self.sources.get(name) or live_source(name)
             eq = np.asarray(eq).reshape(n, 4)
             ex, ey = quaternion_to_euler(eq.astype(np.float32))
@@ -170,44 +141,20 @@ class LiveLogger:
             rb.scalars(ent.pitch_path(source), np.degrees(ex.astype(np.float64)))
             rb.scalars(ent.roll_path(source), np.degrees(ey.astype(np.float64)))
             if source == ent.SOURCE_REPLICA:
-                rb.scalars(ent.DIFF_THX, np.degrees(thx.astype(np.float64) - ex))
-                rb.scalars(ent.DIFF_THY, np.degrees(thy.astype(np.float64) - ey))
-        rb.send(rec)
+                rb.scalars(ent.DIFF_THX, np.degrees(a.thx_rad.astype(np.float64) - ex))
+                rb.scalars(ent.DIFF_THY, np.degrees(a.thy_rad.astype(np.float64) - ey))
+        rb.send(self.rec)
 
         self.frames += n
         self._last_times = (float(times.t_fw_s[-1]), float(times.t_host_s[-1]) if times.t_host_s is not None else 0.0)
         self._link_from_frames(times, step)
         self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
-    def _note_values_bad(self, step: np.ndarray, bad: np.ndarray, times: Times) -> None:
-        """The first row of the session with NaN or out-of-range values: one warning on ``log/filter``."""
-        if self._values_bad_noted:
-            return
-        self._values_bad_noted = True
-        i = int(np.argmax(bad))
-        sentence = (
-            f"the firmware's values are NaN or out of range from step {int(step[i])} on "
-            f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
-        )
-        text = values_bad_note(sentence, self._good_before(step, bad, i))
-        send_rows(
-            self.rec,
-            ent.LOG_FILTER,
-            times.take(np.array([i])),
-            lambda sel: rr.TextLog.columns(text=[text], level=["WARN"]),
-        )
-
-    def _good_before(self, step: np.ndarray, bad: np.ndarray, i: int) -> int | None:
-        """Step of the last row before row ``i`` of this batch without bad values (else of an earlier batch)."""
-        good = np.flatnonzero(~bad[:i])
-        return int(step[good[-1]]) if good.size else self._last_good_step
-
     def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
         self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
 
     def flush_rows(self, *, records: bool = True) -> None:
-        """Send the queued rows: one ``send_columns`` per link/status entity and (``records``) per text record
-        shape."""
+        """Send the queued rows (and, with ``records``, the text records): one ``send_columns`` per entity."""
         for names, rows in self._records.items() if records else ():
             if rows:
                 send_records(self.rec, names, *_columns(rows))
@@ -219,8 +166,7 @@ class LiveLogger:
 
     def _link_from_frames(self, times: Times, step: np.ndarray) -> None:
         """Frame rate (1 s bins of host time) and frames missing (sequence gaps), logged when a bin closes."""
-        prev = self._last_step
-        steps = step if prev is None else np.concatenate(([prev], step))
+        steps = step if self._last_step is None else np.concatenate(([self._last_step], step))
         gaps = np.clip(np.diff(steps) - 1, 0, None)
         self.frames_missing += int(gaps[(gaps < SEQ_MODULUS)].sum())  # a firmware restart is not a loss
         self._last_step = int(step[-1])
@@ -233,14 +179,12 @@ class LiveLogger:
                 host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
                 self._queue_row(ent.LINK_RATE, fw, host_i, (self._bin_count / (h - self._bin_start),))
                 self._queue_row(ent.LINK_MISSING, fw, host_i, (float(self.frames_missing),))
-                self._bin_start = h
-                self._bin_count = 0
+                self._bin_start, self._bin_count = h, 0
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
-        """A status frame at ``at`` (its own firmware time: a status frame repeats the time of the attitude frame
-        before it, so it may be logged before or after the batch holding that frame): AHRS cycles (min/mean/max),
-        firmware TX drops and queue peak. The rows are queued and sent with the next batch (or on :meth:`close`)."""
+        """A status frame at ``at`` (the time of the attitude frame before it): AHRS cycles (min/mean/max), TX drops
+        and queue peak, queued for the next batch."""
         fw, host = at.t_fw_s, at.t_host_s
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
             self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
@@ -252,19 +196,21 @@ class LiveLogger:
         self._log_line(ent.LOG_FIRMWARE, frame if isinstance(frame, str) else frame.text, at, "INFO")
 
     def _log_line(self, path: str, text: str, at: Any, level: str) -> None:
-        """One TextLog entry at ``path``, on the host timeline and (when known) the firmware one."""
+        host = math.nan if at is None else at.t_host_s
+        self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
+
+    def _log_at(self, path: str, archetype: Any, fw: float, host: float) -> None:
+        """Log ``archetype`` at ``path`` on the firmware and host timelines (each only when finite)."""
         self.rec.reset_time()
-        if at is not None and math.isfinite(at.t_host_s):
-            self.rec.set_time(ent.TIMELINE_HOST, duration=at.t_host_s)
-            if math.isfinite(at.t_fw_s):
-                self.rec.set_time(ent.TIMELINE_FW, duration=at.t_fw_s)
-        self.rec.log(path, rr.TextLog(text, level=level))
+        for timeline, t in ((ent.TIMELINE_FW, fw), (ent.TIMELINE_HOST, host)):
+            if math.isfinite(t):
+                self.rec.set_time(timeline, duration=t)
+        self.rec.log(path, archetype)
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry (``TextRecordFrame``): a row of its shape's entity under ``text/`` (a named
-        line per series), on the host timeline (and the firmware one: the latest row's, else the host time); sent
-        in blocks (:data:`RECORDS_PER_SEND`, :data:`RECORDS_INTERVAL_S`)."""
+        """A record of text telemetry: a row of its shape's entity under ``text/`` at the host time (firmware time:
+        the latest row's, else the host time), sent in blocks."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
@@ -280,9 +226,8 @@ class LiveLogger:
             self.flush_rows()
 
     def log_flight(self, frame: Any, at: Any) -> None:
-        """A flight-control frame at ``at`` (the time of its step): targets, outer s1, inner s2, motors, sticks,
-        battery (queued like the status rows; none before the first attitude row); the motors' arrows at most
-        every 0.1 s."""
+        """A flight-control frame at ``at`` (queued like the status rows; none before the first attitude row); the
+        motors' arrows at most every 0.1 s."""
         if self._last_times is None:
             return
         fw, host = at.t_fw_s, at.t_host_s
@@ -297,27 +242,18 @@ class LiveLogger:
         self._queue_row(ent.FC_VBAT, fw, host, (frame.vbat_v,))
         if abs(fw - self._last_motors_fw) >= 0.1:
             self._last_motors_fw = fw
-            self.rec.reset_time()
-            self.rec.set_time(ent.TIMELINE_FW, duration=fw)
-            if math.isfinite(host):
-                self.rec.set_time(ent.TIMELINE_HOST, duration=host)
             if not self._motors_shown:  # the arrows' fixed parts with their first vectors
                 self._motors_shown = True
                 flight_log.log_motors_static(self.rec)
             for k, v in enumerate(frame.motor_pwm):
                 frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
-                self.rec.log(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]))
-            self.rec.reset_time()
+                self._log_at(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]), fw, host)
 
     def log_environment(self, frame: Any, at: Any) -> None:
         """A BLE environment frame (``BleEnvFrame``) at its tick: pressure, battery, temperature, RSSI (queued)."""
         self._ble_layout()
-        for path, v in (
-            (ent.BLE_PRESSURE, frame.pressure_hpa),
-            (ent.BLE_BATTERY, frame.battery_pct),
-            (ent.BLE_TEMPERATURE, frame.temperature_c),
-            (ent.BLE_RSSI, frame.rssi_dbm),
-        ):
+        values = (frame.pressure_hpa, frame.battery_pct, frame.temperature_c, frame.rssi_dbm)
+        for path, v in zip(ent.BLE_ENVIRONMENT, values):
             self._queue_row(path, at.t_fw_s, at.t_host_s, (v,))
 
     def log_arming(self, frame: Any, at: Any) -> None:
@@ -332,7 +268,7 @@ class LiveLogger:
 
     def _text_layout(self) -> None:
         """The text telemetry tab in front, once the first record comes on a stream without binary frames."""
-        if self._text_shown or self._binary_seen or not self._blueprint:
+        if self._text_shown or self._binary_seen:
             return
         self._text_shown = True
         bp.send_blueprint(self.rec, ble=self._ble_shown, text=True, **self._blueprint)
@@ -342,32 +278,27 @@ class LiveLogger:
 
     def _ble_layout(self) -> None:
         """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""
-        if self._ble_shown or not self._blueprint:
+        if self._ble_shown:
             return
         self._ble_shown = True
         bp.send_blueprint(self.rec, ble=True, text=self._text_shown, **self._blueprint)
-        for path in (ent.BLE_PRESSURE, ent.BLE_BATTERY, ent.BLE_TEMPERATURE, ent.BLE_RSSI, ent.BLE_ARMED):
+        for path in (*ent.BLE_ENVIRONMENT, ent.BLE_ARMED):
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
     def log_event(self, text: str, at: Any, level: str = "INFO") -> None:
-        """A command sent to the drone, its acknowledgement or the settings it announced, at ``at``: an entry on
-        the timeline (``log/commands``)."""
+        """A command sent to the drone, its acknowledgement or the settings it announced (``log/commands``)."""
         self._log_line(ent.LOG_COMMANDS, text, at, level)
 
-    def log_link(self, stats: Any, t_unix_s: float, *, force: bool = False) -> None:
-        """Decoder counters (``DecoderStats``): CRC failures, cumulative, at the latest row's times; at most every
-        LINK_INTERVAL_S of the session's host time ``t_unix_s`` (s, any base: only its differences count)."""
-        if not force and t_unix_s - self._last_link_s < LINK_INTERVAL_S:
-            return
-        if self._last_times is None:
+    def log_link(self, stats: Any, t_unix_s: float) -> None:
+        """Decoder CRC failures (cumulative) at the latest row's times, at most every LINK_INTERVAL_S (host s)."""
+        if t_unix_s - self._last_link_s < LINK_INTERVAL_S or self._last_times is None:
             return
         self._last_link_s = t_unix_s
         fw, host = self._last_times
         self._queue_row(ent.LINK_CRC, fw, host, (float(getattr(stats, "crc_failures", 0)),))
 
     def close(self) -> None:
-        """Send the queued rows and flush what was logged."""
         self.flush_rows()
         self.rec.flush()
 

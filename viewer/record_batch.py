@@ -1,13 +1,10 @@
 """One Arrow record batch per live processing round for many entities at once (:class:`RowBatch`), sent with a
 single ``RecordingStream.send_record_batch`` call; Rerun splits it into one chunk per entity.
 
-Why not the public ``rr.send_columns`` per entity (``columns.send_scalars`` and co., as the replay logs): a live
-round logs ~22 entities for a handful of frames, and one record batch costs about half as much, which matters
-against the live latency goal (p99 ≤ 5 ms, ``benchmarks/bench_live_latency.py``; the measurements are in
-CHANGELOG.md). The price is that the Arrow fields carry Rerun's column
-metadata keys (``rerun:kind``, ``rerun:entity_path``, ``rerun:component``, ...), which tie this module, and only
-this module, to the Rerun SDK version ``pyproject.toml`` pins; ``tests/test_viewer.py`` reads every live entity
-back from an ``.rrd`` so a change of that format fails the tests, not the users.
+Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
+batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
+column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
+back, so a change of that format fails the tests, not the users.
 """
 
 from __future__ import annotations
@@ -24,39 +21,17 @@ _QUAT = ("Transform3D:quaternion", "rerun.archetypes.Transform3D", "rerun.compon
 _VEC = ("Arrows3D:vectors", "rerun.archetypes.Arrows3D", "rerun.components.Vector3D")
 
 
-def _field(pa, cache: dict, path: str, kind: tuple[str, str, str], typ):
-    """The Arrow field of ``path``'s component (cached in ``cache``: same path, same type)."""
-    key = (path, kind[0], str(typ))
-    f = cache.get(key)
-    if f is None:
-        comp, arch, ctype = kind
-        md = {
-            b"rerun:kind": b"data",
-            b"rerun:entity_path": ("/" + path).encode(),
-            b"rerun:component": comp.encode(),
-            b"rerun:archetype": arch.encode(),
-            b"rerun:component_type": ctype.encode(),
-        }
-        f = pa.field(f"/{path}:{comp}", typ, metadata=md)
-        cache[key] = f
-    return f
-
-
-def _index_field(pa, cache: dict, name: str):
-    """The Arrow field of a timeline column (cached in ``cache``)."""
-    f = cache.get(("index", name))
-    if f is None:
-        typ = pa.int64() if name == ent.TIMELINE_STEP else pa.duration("ns")
-        f = pa.field(name, typ, metadata={b"rerun:kind": b"index", b"rerun:index_name": name.encode()})
-        cache[("index", name)] = f
-    return f
+def _field(pa, cache: dict, name: str, typ, **meta: str):
+    """The Arrow field ``name`` with Rerun's ``rerun:<key>`` metadata ``meta`` (cached in ``cache``)."""
+    key = (name, str(typ))
+    if key not in cache:
+        cache[key] = pa.field(name, typ, metadata={f"rerun:{k}".encode(): v.encode() for k, v in meta.items()})
+    return cache[key]
 
 
 class RowBatch:
-    """One Arrow record batch holding many entities' columns for the same N rows: sent with a single
-    ``send_record_batch`` call (Rerun splits it into one chunk per entity). A row whose value is not finite is a
-    null (no sample) in that entity's column; a ``Clear`` is sent when an entity turns bad, so plots show a gap.
-    """
+    """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
+    a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
 
     def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
         import pyarrow as pa
@@ -79,7 +54,8 @@ class RowBatch:
         if t.step is not None:
             cols.append((ent.TIMELINE_STEP, t.step))
         for name, values in cols:
-            f = _index_field(pa, self.cache, name)
+            typ = pa.int64() if name == ent.TIMELINE_STEP else pa.duration("ns")
+            f = _field(pa, self.cache, name, typ, kind="index", index_name=name)
             self.fields.insert(0, f)
             self.arrays.insert(0, pa.array(values, type=f.type))
 
@@ -89,27 +65,22 @@ class RowBatch:
         if not good.any() and self.bad_state.get(path, False):
             return  # a gap that goes on: nothing to send (its Clear was sent where it began)
         pa = self._pa
-        n = self.n
         if kind is _SCALAR:
-            inner = pa.array(values.reshape(-1))
-            step = width
+            inner, step = pa.array(values.reshape(-1)), width
         else:
-            inner = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width)
-            step = 1
-        arr = pa.ListArray.from_arrays(self._offsets_for(n, step), inner, mask=None if all_good else pa.array(~good))
-        self.fields.append(_field(pa, self.cache, path, kind, arr.type))
+            inner, step = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width), 1
+        mask = None if all_good else pa.array(~good)
+        arr = pa.ListArray.from_arrays(self._offsets_for(self.n, step), inner, mask=mask)
+        comp, arch, ctype = kind
+        meta = dict(kind="data", entity_path="/" + path, component=comp, archetype=arch, component_type=ctype)
+        self.fields.append(_field(pa, self.cache, f"/{path}:{comp}", arr.type, **meta))
         self.arrays.append(arr)
         # gaps: a Clear at each row where the entity turns bad (state carried across batches)
-        was_bad = self.bad_state.get(path, False)
-        if all_good:
-            if was_bad:
-                self.bad_state[path] = False
-            return
         bad = ~good
-        prev = np.concatenate(([was_bad], bad[:-1]))
-        starts = np.flatnonzero(bad & ~prev)
-        if starts.size:
-            self.clear_rows[path] = starts
+        if not all_good:
+            starts = np.flatnonzero(bad & ~np.concatenate(([self.bad_state.get(path, False)], bad[:-1])))
+            if starts.size:
+                self.clear_rows[path] = starts
         self.bad_state[path] = bool(bad[-1])
 
     def _offsets_for(self, n: int, step: int):
@@ -134,27 +105,20 @@ class RowBatch:
         with np.errstate(invalid="ignore", divide="ignore"):
             norm = np.sqrt((q * q).sum(axis=1))
             good = np.isfinite(norm) & (norm > 1e-6)
-            if select is not None:
-                good &= select
-            xyzw = np.where(good[:, None], q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], 0.0)
-        if self._never(path, good):
-            return
-        self._add(path, _QUAT, xyzw, 4, good, bool(good.all()))
-        self.bad_state[path] = False  # a transform keeps its last attitude: never cleared
-
-    def _never(self, path: str, good: np.ndarray) -> bool:
-        """No row of ``path`` was ever good (an estimate with no inputs, printed angles without an accelerometer):
-        nothing to send, not an all-null column (the viewer rejects one). A path sent once is in ``bad_state``."""
-        return path not in self.bad_state and not good.any()
+            self._kept(path, _QUAT, q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], good, select)
 
     def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
         v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
-        good = np.isfinite(v).all(axis=1)
+        self._kept(path, _VEC, v, np.isfinite(v).all(axis=1), select)
+
+    def _kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray | None) -> None:
+        """A 3D entity's ``good`` rows (and ``select``): it keeps its last value, never cleared. A path never good is
+        not sent (the viewer rejects an all-null column); a path sent once is in ``bad_state``."""
         if select is not None:
-            good &= select
-        if self._never(path, good):
+            good = good & select
+        if path not in self.bad_state and not good.any():
             return
-        self._add(path, _VEC, np.where(good[:, None], v, 0.0), 3, good, bool(good.all()))
+        self._add(path, kind, np.where(good[:, None], values, 0.0), values.shape[1], good, bool(good.all()))
         self.bad_state[path] = False
 
     def send(self, rec: rr.RecordingStream) -> None:
@@ -166,6 +130,4 @@ class RowBatch:
         for path, rows in self.clear_rows.items():
             if path.startswith(ent.PLOTS + "/") or path.startswith(ent.LINK + "/"):
                 sub = self.times.take(rows)
-                rec.send_columns(
-                    path, indexes=sub.indexes(), columns=rr.Clear.columns(is_recursive=[False] * len(rows))
-                )
+                rec.send_columns(path, indexes=sub.indexes, columns=rr.Clear.columns(is_recursive=[False] * len(rows)))

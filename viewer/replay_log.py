@@ -1,14 +1,6 @@
-"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun.
-
-One ``rr.send_columns`` per entity for the whole flight, on the ``fw_time`` (firmware s since boot),
-``host_time`` (host receive s since capture start, when known) and ``ahrs_step`` timelines. Used by
-``steval replay`` and ``steval simulate``; :func:`log_replay` is the entry point::
-
-    rec = steval_viewer.sinks.open_recording("capture", rrd="out.rrd")
-    summary = log_replay(rec, tel, {"ekf3": ekf.run(acc, gyro, thr)}, replica=replay_firmware(tel))
-
-Estimates are duck-typed: anything with ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,) and optionally a
-``valid`` (N,) bool mask works (``AttitudeEstimate``, ``FirmwareReplay``).
+"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun: one
+``rr.send_columns`` per entity for the whole flight (``steval replay``, ``steval simulate``). Estimates are
+duck-typed: ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask.
 """
 
 from __future__ import annotations
@@ -26,16 +18,15 @@ from steval_link.analysis.flight_control import no_flight_figure_reason
 from steval_link.analysis.summary import values_bad_report
 from steval_link.estimators.firmware_replay import replay_variants
 from steval_link.link.commands import command_log
+from steval_link.quat import quaternion_from_euler
 from steval_viewer import blueprint as bp
 from steval_viewer import entities as ent
 from steval_viewer import flight_log, scene
 from steval_viewer.columns import (
     Times,
     log_text_style,
-    quaternion_from_euler,
     send_arrows,
     send_records,
-    send_rows,
     send_scalars,
     send_texts,
     send_transforms,
@@ -43,25 +34,26 @@ from steval_viewer.columns import (
 )
 from steval_viewer.sinks import log_whole
 
-_MASK_NAMES = ("valid", "mask", "seeded")
-
 #: ``progress(fraction done 0..1, stage)``, e.g. ``steval_link.cli.progress``; None: no reports
 Progress = Callable[[float, str], None] | None
 
 
-def _report(progress: Progress, fraction: float, stage: str) -> None:
+def _report(progress: Progress, fraction: float, stage: str = "") -> None:
     if progress is not None:
         progress(fraction, stage)
 
 
+def _part(progress: Progress, start: float, span: float) -> Progress:
+    """``progress`` for one part of a job: its 0..1 maps to ``start``..``start + span`` (None stays None)."""
+    return None if progress is None else (lambda f, stage="": progress(start + span * f, stage))
+
+
 def estimate_mask(est: Any, n: int) -> np.ndarray:
     """The rows of an estimate that hold a real value (its ``valid`` / ``mask`` / ``seeded`` array, else all)."""
-    for name in _MASK_NAMES:
+    for name in ("valid", "mask", "seeded"):
         m = getattr(est, name, None)
-        if m is not None:
-            m = np.asarray(m, dtype=bool)
-            if m.shape == (n,):
-                return m
+        if m is not None and np.shape(m) == (n,):
+            return np.asarray(m, dtype=bool)
     return np.ones(n, dtype=bool)
 
 
@@ -73,227 +65,168 @@ class ReplaySummary:
     sources: list[str] = field(default_factory=list)
 
 
-def _count(summary: ReplaySummary, path: str, values: np.ndarray, valid: np.ndarray | None = None) -> None:
-    v = np.asarray(values, dtype=np.float64)
-    good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
-    if valid is not None:
-        good &= valid
-    summary.samples[path] = int(good.sum())
-
-
-def _max_abs(values: np.ndarray) -> float:
-    """Largest finite |value| (NaN when there is none)."""
-    v = np.abs(values[np.isfinite(values)])
-    return float(v.max()) if v.size else float("nan")
-
-
 def _deg(rad: np.ndarray) -> np.ndarray:
     return np.degrees(np.asarray(rad, dtype=np.float64))
 
 
+def firmware_series(att: Any) -> list[tuple[str, np.ndarray]]:
+    """The firmware's plotted series of attitude rows: angles (deg), raw sensors (gyro in dps), throttle."""
+    return [
+        (ent.pitch_path(ent.SOURCE_FIRMWARE), _deg(att.thx_rad)),
+        (ent.roll_path(ent.SOURCE_FIRMWARE), _deg(att.thy_rad)),
+        (ent.yaw_path(ent.SOURCE_FIRMWARE), _deg(att.thz_rad)),
+        (ent.PLOT_ACC, np.asarray(att.acc_mg, dtype=np.float64)),
+        (ent.PLOT_GYRO, np.asarray(att.gyro_mdps, dtype=np.float64) / 1000.0),
+        (ent.PLOT_THROTTLE, np.asarray(att.thr, dtype=np.float64)),
+    ]
+
+
 def display_quaternions(att: Any) -> np.ndarray:
-    """The firmware attitude for the 3D view: ``q_wxyz``; text-mode rows (no q) get it from their thx/thy/thz.
-    Rows flagged ``values_bad`` (NaN or ``|q|`` > 2: the firmware's filter diverged) are NaN: the drone stays at
-    its last finite attitude."""
+    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz. Rows flagged
+    ``values_bad`` are NaN: the drone stays at its last finite attitude."""
     q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
-    missing = ~np.isfinite(q).all(axis=1)
-    if missing.any():
-        thx = np.asarray(att.thx_rad, dtype=np.float64)
-        thy = np.asarray(att.thy_rad, dtype=np.float64)
-        rows = missing & np.isfinite(thx) & np.isfinite(thy)
-        if rows.any():
-            q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.nan_to_num(np.asarray(att.thz_rad)[rows]))
+    thx, thy = np.asarray(att.thx_rad, dtype=np.float64), np.asarray(att.thy_rad, dtype=np.float64)
+    rows = ~np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
+    if rows.any():
+        q[rows] = quaternion_from_euler(thx[rows], thy[rows], np.nan_to_num(np.asarray(att.thz_rad)[rows]))
     bad = getattr(att, "values_bad", None)
     if bad is not None:
         q[np.asarray(bad, dtype=bool)] = np.nan
     return q
 
 
-def values_bad_note(sentence: str, last_good_step: int | None) -> str:
-    """The viewer's note at the first row with bad values: the summary's sentence and where the 3D drone stays."""
-    where = (
-        "at its last finite attitude (step " + str(last_good_step) + ")"
-        if last_good_step is not None
-        else "without an attitude (no finite one before)"
-    )
-    return f"{sentence}; the 3D drone stays {where}"
+def send_values_bad_note(rec: rr.RecordingStream, at: Times, sentence: str, last_good_step: int | None) -> None:
+    """The warning at the first row with bad values ``at``: ``sentence`` and where the 3D drone stays."""
+    where = "without an attitude (no finite one before)"
+    if last_good_step is not None:
+        where = f"at its last finite attitude (step {last_good_step})"
+    send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
 
 
-def log_values_bad(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
-    """The first attitude row flagged ``values_bad`` (the firmware's own filter went NaN or off the unit sphere):
-    a warning on the timeline at that step (``log/filter``). Nothing when no row is flagged."""
-    att = tel.attitude
-    rep = values_bad_report(tel) if hasattr(att, "values_bad") else None
-    if rep is None or rep["first_row"] is None:
-        return
-    i = int(rep["first_row"])
-    q = display_quaternions(att)[:i]
-    good = np.flatnonzero(np.isfinite(q).all(axis=1))
-    last = int(np.asarray(att.step)[good[-1]]) if good.size else None
-    text = values_bad_note(rep["text"], last)
-    send_rows(
-        rec, ent.LOG_FILTER, times.take(np.array([i])), lambda sel: rr.TextLog.columns(text=[text], level=["WARN"])
-    )
-    summary.samples[ent.LOG_FILTER] = 1
+class _Replay:
+    """One replay being logged: its recording, the attitude rows' times and the samples sent per entity path."""
 
+    def __init__(self, rec: rr.RecordingStream, times: Times, summary: ReplaySummary) -> None:
+        self.rec, self.times, self.summary = rec, times, summary
 
-def log_firmware(rec: rr.RecordingStream, times: Times, att: Any, summary: ReplaySummary) -> None:
-    """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
-    q = display_quaternions(att)
-    send_transforms(rec, ent.DRONE_FIRMWARE, times, q)
-    summary.samples[ent.DRONE_FIRMWARE] = int(np.isfinite(q).all(axis=1).sum())
+    def scalars(self, path: str, values: np.ndarray, valid: np.ndarray | None = None, times: Times | None = None):
+        self.summary.samples[path] = send_scalars(self.rec, path, times or self.times, values, valid)
 
-    acc = np.asarray(att.acc_mg, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        gravity = -acc / 1000.0  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
-    send_arrows(rec, ent.ACC_GRAVITY, times, gravity)
-    _count(summary, ent.ACC_GRAVITY, gravity)
+    def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
+        """Text entries at host times ``t_host`` (s), their firmware time interpolated from the attitude rows'; an
+        entry without a time is logged without a timeline."""
+        timed = np.isfinite(t_host) & (self.times.t_host_s is not None)
+        idx = np.flatnonzero(timed)
+        if idx.size:
+            pairs = np.isfinite(self.times.t_host_s)
+            t_fw = np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs])
+            send_texts(self.rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
+        for i in np.flatnonzero(~timed):
+            self.rec.log(path, rr.TextLog(texts[i], level=levels[i]))
+        self.summary.samples[path] = len(texts)
 
-    for path, values in (
-        (ent.pitch_path(ent.SOURCE_FIRMWARE), _deg(att.thx_rad)),
-        (ent.roll_path(ent.SOURCE_FIRMWARE), _deg(att.thy_rad)),
-        (ent.yaw_path(ent.SOURCE_FIRMWARE), _deg(att.thz_rad)),
-        (ent.PLOT_ACC, acc),
-        (ent.PLOT_GYRO, np.asarray(att.gyro_mdps, dtype=np.float64) / 1000.0),
-        (ent.PLOT_THROTTLE, np.asarray(att.thr, dtype=np.float64)),
-    ):
-        send_scalars(rec, path, times, values)
-        _count(summary, path, values)
+    def firmware(self, att: Any) -> None:
+        """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
+        samples = self.summary.samples
+        q = display_quaternions(att)
+        samples[ent.DRONE_FIRMWARE] = send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
+        with np.errstate(invalid="ignore"):  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
+            gravity = -np.asarray(att.acc_mg, dtype=np.float64) / 1000.0
+        samples[ent.ACC_GRAVITY] = send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
+        for path, values in firmware_series(att):
+            self.scalars(path, values)
 
+    def estimate(self, source: str, est: Any, ghost: bool) -> None:
+        """One host estimate: ghost drone (when ``ghost``), thx/thy series; invalid rows are gaps."""
+        valid = estimate_mask(est, len(self.times))
+        if ghost:
+            path = ent.estimate_path(source)
+            self.summary.samples[path] = send_transforms(self.rec, path, self.times, est.q_wxyz, valid)
+        self.scalars(ent.pitch_path(source), _deg(est.thx_rad), valid)
+        self.scalars(ent.roll_path(source), _deg(est.thy_rad), valid)
 
-def log_estimate(
-    rec: rr.RecordingStream, times: Times, source: str, est: Any, summary: ReplaySummary, *, ghost: bool = True
-) -> None:
-    """One host estimate: ghost drone (when ``ghost``), thx/thy series; invalid rows are gaps."""
-    n = len(times)
-    valid = estimate_mask(est, n)
-    if ghost and getattr(est, "q_wxyz", None) is not None:
-        q = np.asarray(est.q_wxyz, dtype=np.float64)
-        send_transforms(rec, ent.estimate_path(source), times, q, valid)
-        summary.samples[ent.estimate_path(source)] = int((np.isfinite(q).all(axis=1) & valid).sum())
-    for path, values in ((ent.pitch_path(source), _deg(est.thx_rad)), (ent.roll_path(source), _deg(est.thy_rad))):
-        send_scalars(rec, path, times, values, valid)
-        _count(summary, path, values, valid)
+    def replica_difference(self, att: Any, replica: Any) -> None:
+        """firmware − ST-Mahony replica for thx and thy, in degrees, where the replica is seeded (0 when bit-exact)."""
+        valid = estimate_mask(replica, len(self.times))
+        for path, fw, py in (
+            (ent.DIFF_THX, att.thx_rad, replica.thx_rad),
+            (ent.DIFF_THY, att.thy_rad, replica.thy_rad),
+        ):
+            self.scalars(path, _deg(np.asarray(fw, dtype=np.float64) - np.asarray(py, dtype=np.float64)), valid)
 
+    def link(self, tel: Any) -> None:
+        """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
+        times, n = self.times, len(self.times)
+        if n:
+            last, counts = _bins_1s(times.t_fw_s)
+            # frames per second of firmware time inside each bin (exact for partial first/last bins too)
+            span = times.t_fw_s[last] - times.t_fw_s[np.concatenate(([0], last[:-1] + 1))]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rate = np.where((counts > 1) & (span > 0), (counts - 1) / span, np.nan)
+            self.scalars(ent.LINK_RATE, rate, times=times.take(last))
+            gaps = np.clip(np.diff(np.asarray(tel.attitude.step, dtype=np.int64)) - 1, 0, None)
+            missing = np.cumsum(np.concatenate(([0], gaps)))[last].astype(np.float64)
+            self.scalars(ent.LINK_MISSING, missing, times=times.take(last))
+            crc = getattr(getattr(tel, "stats", None), "crc_failures", None)
+            if crc is not None:  # the decoder counts CRC failures for the whole stream only: one sample at the end
+                self.scalars(ent.LINK_CRC, np.array([float(crc)]), times=times.take(np.array([n - 1])))
+        st = getattr(tel, "status", None)
+        if st is not None and len(getattr(st, "t_fw_s", ())):
+            stimes = Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
+            cyc = np.stack([st.cyc_min, st.cyc_mean, st.cyc_max], axis=1).astype(np.float64)
+            self.scalars(ent.LINK_CYCLES, cyc, np.asarray(st.cyc_n) > 0, stimes)  # no steps covered: no figures
+            self.scalars(ent.LINK_TX_DROPPED, np.asarray(st.tx_dropped, dtype=np.float64), times=stimes)
+            self.scalars(ent.LINK_QUEUE, np.asarray(st.queue_peak, dtype=np.float64), times=stimes)
 
-def log_replica_difference(
-    rec: rr.RecordingStream, times: Times, att: Any, replica: Any, summary: ReplaySummary
-) -> None:
-    """firmware − ST-Mahony replica for thx and thy, in degrees, where the replica is seeded (0 when bit-exact)."""
-    valid = estimate_mask(replica, len(times))
-    for path, fw, py in ((ent.DIFF_THX, att.thx_rad, replica.thx_rad), (ent.DIFF_THY, att.thy_rad, replica.thy_rad)):
-        d = _deg(np.asarray(fw, dtype=np.float64) - np.asarray(py, dtype=np.float64))
-        send_scalars(rec, path, times, d, valid)
-        _count(summary, path, d, valid)
+    def text(self, tel: Any) -> None:
+        """Firmware text lines, text telemetry and the commands the host sent (with the drone's acks)."""
+        text = list(getattr(tel, "text", []) or [])
+        if text:
+            t_host = np.array([float(t) if t is not None else np.nan for t, _ in text], dtype=np.float64)
+            self.texts_at(ent.LOG_FIRMWARE, t_host, [str(s) for _, s in text], ["INFO"] * len(text))
+        series = getattr(tel, "text_series", None)
+        if series is not None and len(series):
+            # an entity per record shape under ``text/``, a named line per series, at each record's time (``t_s``:
+            # a timestamp column, the host's times, ST's line rate or the record index) and host time
+            times = Times(series.t_s, series.t_host_s)
+            for k, names in enumerate(series.shapes):
+                rows = np.flatnonzero(series.shape == k)
+                cols = [series.names.index(name) for name in names]
+                log_text_style(self.rec, names, [series.units[c] for c in cols])
+                send_records(self.rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
+                self.summary.samples[text_path(names)] = len(rows)
+        # one entry per command at the time it was sent; a refusal or a missing ack as a warning
+        entries = command_log(getattr(tel, "commands", ()), getattr(tel, "acks", ()))
+        if entries:
+            t_host = np.array([e["t_host_s"] for e in entries], dtype=np.float64)
+            levels = ["INFO" if e["result"] == 0 else "WARN" for e in entries]
+            self.texts_at(ent.LOG_COMMANDS, t_host, [e["text"] for e in entries], levels)
+
+    def values_bad(self, tel: Any) -> None:
+        """A warning at the first row flagged ``values_bad`` (the firmware's own filter went NaN or off range)."""
+        att = tel.attitude
+        rep = values_bad_report(tel) if hasattr(att, "values_bad") else None
+        if rep is None or rep["first_row"] is None:
+            return
+        i = int(rep["first_row"])
+        good = np.flatnonzero(np.isfinite(display_quaternions(att)[:i]).all(axis=1))
+        last = int(np.asarray(att.step)[good[-1]]) if good.size else None
+        send_values_bad_note(self.rec, self.times.take(np.array([i])), rep["text"], last)
+        self.summary.samples[ent.LOG_FILTER] = 1
 
 
 def _bins_1s(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(last row index of each 1 s bin, rows per bin) over a time array (NaN rows ignored)."""
-    finite = np.isfinite(t_s)
-    if not finite.any():
+    rows = np.flatnonzero(np.isfinite(t_s))
+    if not rows.size:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    rows = np.flatnonzero(finite)
-    k = np.floor(t_s[rows] - t_s[rows[0]]).astype(np.int64)
-    k = np.maximum.accumulate(k)  # time never goes back
+    k = np.maximum.accumulate(np.floor(t_s[rows] - t_s[rows[0]]).astype(np.int64))  # time never goes back
     ends = np.flatnonzero(np.diff(k, append=k[-1] + 1))
-    counts = np.diff(np.concatenate(([-1], ends)))
-    return rows[ends], counts
-
-
-def log_link(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
-    """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
-    att = tel.attitude
-    n = len(times)
-    if n:
-        last, counts = _bins_1s(times.t_fw_s)
-        # frames per second of firmware time inside each bin (exact for partial first/last bins too)
-        t = times.t_fw_s
-        first = np.concatenate(([0], last[:-1] + 1))
-        span = t[last] - t[first]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rate = np.where((counts > 1) & (span > 0), (counts - 1) / span, np.nan)
-        bt = times.take(last)
-        send_scalars(rec, ent.LINK_RATE, bt, rate)
-        summary.samples[ent.LINK_RATE] = len(last)
-        step = np.asarray(att.step, dtype=np.int64)
-        gaps = np.concatenate(([0], np.clip(np.diff(step) - 1, 0, None)))
-        missing = np.cumsum(gaps)[last].astype(np.float64)
-        send_scalars(rec, ent.LINK_MISSING, bt, missing)
-        summary.samples[ent.LINK_MISSING] = len(last)
-        stats = getattr(tel, "stats", None)
-        crc = getattr(stats, "crc_failures", None)
-        if crc is not None:
-            # The decoder counts CRC failures for the whole stream only: one sample at the end.
-            send_scalars(rec, ent.LINK_CRC, times.take(np.array([n - 1])), np.array([float(crc)]))
-            summary.samples[ent.LINK_CRC] = 1
-
-    st = getattr(tel, "status", None)
-    if st is not None and len(getattr(st, "t_fw_s", ())):
-        stimes = Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
-        cyc = np.stack([st.cyc_min, st.cyc_mean, st.cyc_max], axis=1).astype(np.float64)
-        has_cycles = np.asarray(st.cyc_n) > 0  # no steps covered: no cycle figures
-        send_scalars(rec, ent.LINK_CYCLES, stimes, cyc, has_cycles)
-        summary.samples[ent.LINK_CYCLES] = int(has_cycles.sum())
-        for path, values in (
-            (ent.LINK_TX_DROPPED, np.asarray(st.tx_dropped, dtype=np.float64)),
-            (ent.LINK_QUEUE, np.asarray(st.queue_peak, dtype=np.float64)),
-        ):
-            send_scalars(rec, path, stimes, values)
-            summary.samples[path] = len(values)
-
-
-def log_texts_at(rec: rr.RecordingStream, path: str, times: Times, t_host: np.ndarray, texts: list, levels: list):
-    """Text entries at host times ``t_host`` (s), their firmware time from the attitude rows' (host, firmware)
-    pairs; an entry without a time (or a stream without host times) is logged without a timeline."""
-    timed = np.isfinite(t_host) & (times.t_host_s is not None)
-    idx = np.flatnonzero(timed)
-    if idx.size:
-        pairs = np.isfinite(times.t_host_s)
-        t_fw = np.interp(t_host[idx], times.t_host_s[pairs], times.t_fw_s[pairs])
-        send_texts(rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
-    for i in np.flatnonzero(~timed):
-        rec.log(path, rr.TextLog(texts[i], level=levels[i]))
-
-
-def log_text(rec: rr.RecordingStream, times: Times, text: list, summary: ReplaySummary) -> None:
-    """Firmware text lines as a text log at their host times (:func:`log_texts_at`)."""
-    if not text:
-        return
-    t_host = np.array([float(t) if t is not None else np.nan for t, _ in text], dtype=np.float64)
-    log_texts_at(rec, ent.LOG_FIRMWARE, times, t_host, [str(s) for _, s in text], ["INFO"] * len(text))
-    summary.samples[ent.LOG_FIRMWARE] = len(text)
-
-
-def log_text_series(rec: rr.RecordingStream, series: Any, summary: ReplaySummary) -> None:
-    """Text telemetry (``tel.text_series``): an entity per record shape under ``text/``, a named line per series
-    (:func:`~steval_viewer.columns.send_records`), at each record's time (``t_s``: a timestamp column, the host's
-    times, ST's line rate or the record index) and host time."""
-    if series is None or not len(series):
-        return
-    times = Times(series.t_s, series.t_host_s)
-    for k, names in enumerate(series.shapes):
-        rows = np.flatnonzero(series.shape == k)
-        cols = [series.names.index(name) for name in names]
-        log_text_style(rec, names, [series.units[c] for c in cols])
-        send_records(rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
-        summary.samples[text_path(names)] = len(rows)
-
-
-def log_commands(rec: rr.RecordingStream, times: Times, tel: Any, summary: ReplaySummary) -> None:
-    """The commands the host sent (capture chunks H) with the drone's acks, one text entry each at the time the
-    command was sent (``log/commands``; a refusal or a missing ack as a warning)."""
-    entries = command_log(getattr(tel, "commands", ()), getattr(tel, "acks", ()))
-    if not entries:
-        return
-    t_host = np.array([e["t_host_s"] for e in entries], dtype=np.float64)
-    levels = ["INFO" if e["result"] == 0 else "WARN" for e in entries]
-    log_texts_at(rec, ent.LOG_COMMANDS, times, t_host, [e["text"] for e in entries], levels)
-    summary.samples[ent.LOG_COMMANDS] = len(entries)
+    return rows[ends], np.diff(np.concatenate(([-1], ends)))
 
 
 def absent_plots(tel, replica) -> list[str]:
-    """The attitude plots a recording has no values for (a log of printed angles: no yaw, no sensors, no replica,
-    no throttle: a log's rows hold 0 where none was printed)."""
+    """The attitude plots a recording has no values for (a log of printed angles: its rows hold 0 for a throttle)."""
     att = tel.attitude
     printed = getattr(tel, "printed_only", False)  # a simulation logs a namespace, not a Telemetry
     values = {
@@ -312,92 +245,69 @@ def log_replay(
     estimates: Mapping[str, Any] | None = None,
     replica: Any | None = None,
     *,
-    blueprint: bool = True,
-    ghost: str | None = None,
-    live_blueprint: bool = False,
     link: bool = True,
     progress: Progress = None,
 ) -> ReplaySummary:
-    """Log a whole Telemetry, the ST-Mahony replica (``replica``, a ``FirmwareReplay``) and host ``estimates``
-    (name -> ``AttitudeEstimate``, e.g. ``{"ekf3": ..., "accel": ...}``) to ``rec``.
-
-    Sends the default blueprint first (unless ``blueprint`` is False); ``ghost`` picks the estimate the 3D ghost
-    shows (a source segment or estimator name; default: the replica, else EKF3, ...). Returns the samples logged per
-    entity path. Arrays must have one row per attitude row of ``tel``. ``link``: log the link-health series (False
-    for simulations, which have no link). ``progress(fraction, stage)`` is told as each source is logged.
-    """
+    """Log a whole Telemetry, the ST-Mahony ``replica`` and host ``estimates`` (name -> ``AttitudeEstimate``, one
+    row per attitude row) to ``rec`` with the default blueprint; returns the samples logged per entity path.
+    ``link``: log the link-health series (False for simulations)."""
     att = tel.attitude
     n = len(att.t_fw_s)
-    sources: list[tuple[str, Any]] = []
-    if replica is not None:
-        sources.append((ent.SOURCE_REPLICA, replica))
-    for name, est in (estimates or {}).items():
-        sources.append((ent.source_name(name), est))
-    seen = set()
-    for source, est in sources:
-        if source in seen or source == ent.SOURCE_FIRMWARE:
+    sources = [(ent.SOURCE_REPLICA, replica)] if replica is not None else []
+    sources += [(ent.source_name(name), est) for name, est in (estimates or {}).items()]
+    names = [s for s, _ in sources]
+    for k, (source, est) in enumerate(sources):
+        if source in names[:k] or source == ent.SOURCE_FIRMWARE:
             raise ValueError(f"estimate name {source!r} is used twice or clashes with the firmware")
-        seen.add(source)
         if len(np.asarray(est.thx_rad)) != n:
             raise ValueError(f"estimate {source!r} has {len(np.asarray(est.thx_rad))} rows, telemetry has {n}")
-    names = [s for s, _ in sources]
     ghost_sources = [s for s, e in sources if getattr(e, "q_wxyz", None) is not None]
-
-    summary = ReplaySummary(sources=names)
     has_fc = len(getattr(tel, "fc", None) or ()) > 0
-    if blueprint:
-        verdict = None if replica is None else bp.replica_verdict(att.step, replica.bit_exact, replica.seeded)
-        bp.send_blueprint(
-            rec,
-            live=live_blueprint,
-            ghost_sources=ghost_sources,
-            ghost=None if ghost is None else ent.source_name(ghost),
-            gyro_max_dps=_max_abs(np.asarray(att.gyro_mdps, dtype=np.float64)) / 1000.0,
-            flight_control=has_fc,
-            never_armed=has_fc and no_flight_figure_reason(tel.fc) is not None,
-            replica_verdict=verdict,
-            y_ranges=None
-            if live_blueprint
-            else replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
-            absent=() if live_blueprint else absent_plots(tel, replica),
-            text=getattr(tel, "printed_only", False),
-        )
+    gyro = np.abs(np.asarray(att.gyro_mdps, dtype=np.float64))
+    bp.send_blueprint(
+        rec,
+        ghost_sources=ghost_sources,
+        gyro_max_dps=float(gyro[np.isfinite(gyro)].max(initial=0.0)) / 1000.0,
+        flight_control=has_fc,
+        never_armed=has_fc and no_flight_figure_reason(tel.fc) is not None,
+        replica_verdict=None if replica is None else bp.replica_verdict(att.step, replica.bit_exact, replica.seeded),
+        y_ranges=replay_y_ranges(tel, [e for s, e in sources if s != ent.SOURCE_REPLICA]),
+        absent=absent_plots(tel, replica),
+        text=getattr(tel, "printed_only", False),
+    )
     scene.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
         flight_log.log_flight_static(rec)
 
-    times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
+    summary = ReplaySummary(sources=names)
+    log = _Replay(rec, Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
     _report(progress, 0.0, "logging the firmware's series")
-    log_firmware(rec, times, att, summary)
+    log.firmware(att)
     for i, (source, est) in enumerate(sources):
         _report(progress, (i + 1) / (len(sources) + 2), f"logging {source}")
-        log_estimate(rec, times, source, est, summary, ghost=source in ghost_sources)
+        log.estimate(source, est, ghost=source in ghost_sources)
     _report(progress, (len(sources) + 1) / (len(sources) + 2), "logging link health and text")
     if replica is not None:
-        log_replica_difference(rec, times, att, replica, summary)
+        log.replica_difference(att, replica)
     if link:
-        log_link(rec, times, tel, summary)
-    log_text(rec, times, list(getattr(tel, "text", []) or []), summary)
-    log_text_series(rec, getattr(tel, "text_series", None), summary)
-    log_commands(rec, times, tel, summary)
-    log_values_bad(rec, times, tel, summary)
+        log.link(tel)
+    log.text(tel)
+    log.values_bad(tel)
     if has_fc:
         flight_log.log_flight_control(rec, tel, summary)
     return summary
 
 
 def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, float]]:
-    """Fixed y ranges of a replay's plots whose legends would cover data (:func:`blueprint.legend_room`): the
-    angles (legend at the top right), the accelerometer (bottom), the link losses (top left)."""
+    """Fixed y ranges of the plots whose legends would cover data: angles, accelerometer, link losses."""
     att = tel.attitude
     out: dict[str, tuple[float, float] | None] = {}
     for path, fw, attr in ((ent.PLOT_PITCH, att.thx_rad, "thx_rad"), (ent.PLOT_ROLL, att.thy_rad, "thy_rad")):
         vals = [_deg(fw)] + [_deg(getattr(e, attr))[estimate_mask(e, len(att.step))] for e in estimates]
         share = bp.LEGEND_SHARE["angles"] * min(len(vals), 5) / 5
         out[path] = bp.legend_room(np.concatenate(vals), share=share, bottom=False)
-    out[ent.PLOT_ACC] = bp.legend_room(
-        np.asarray(att.acc_mg, np.float64), share=bp.LEGEND_SHARE["sensors"], bottom=True
-    )
+    acc = np.asarray(att.acc_mg, np.float64)
+    out[ent.PLOT_ACC] = bp.legend_room(acc, share=bp.LEGEND_SHARE["sensors"], bottom=True)
     step = np.asarray(att.step, dtype=np.int64)
     lost = [float(np.clip(np.diff(step) - 1, 0, None).sum()) if len(step) > 1 else 0.0]
     lost.append(float(getattr(getattr(tel, "stats", None), "crc_failures", 0) or 0))
@@ -413,10 +323,8 @@ REPLICA_NAMES = ("st-mahony", "st_mahony")
 
 
 def firmware_replica(tel: Any) -> Any | None:
-    """The bit-exact ST-Mahony replica re-run over ``tel`` (seeded from status snapshots), or None when the capture
-    has no bit-exact rows (text mode) or the replica is unavailable."""
-    exact = getattr(tel.attitude, "exact", None)
-    if exact is not None and not np.asarray(exact).any():
+    """The bit-exact ST-Mahony replica over ``tel``, or None without bit-exact rows (text mode)."""
+    if not np.asarray(getattr(tel.attitude, "exact", True)).any():
         return None
     return replay_variants(tel, hint=capture_variant_hint(tel)).replay  # the release whose filter is bit-exact
 
@@ -424,37 +332,24 @@ def firmware_replica(tel: Any) -> Any | None:
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Replay entry point used by ``steval replay``: runs the seeded firmware replica and logs it with ``estimates``.
-
-    A registry ``st-mahony`` estimate (started from power-up, not seeded) is replaced by the replica, which is the
-    same filter followed bit for bit from the firmware's status snapshots.
-    """
+    """Run the seeded firmware replica and log it with ``estimates``; a registry ``st-mahony`` estimate (started
+    from power-up, not seeded) gives way to the replica."""
     _report(progress, 0.0, "ST-Mahony replica")
     replica = firmware_replica(tel)
     others = {k: v for k, v in (estimates or {}).items() if not (replica is not None and k in REPLICA_NAMES)}
-    logged = None if progress is None else (lambda f, stage="": progress(0.1 + 0.9 * f, stage))
-    return log_replay(rec, tel, others, replica=replica, progress=logged)
+    return log_replay(rec, tel, others, replica=replica, progress=_part(progress, 0.1, 0.9))
 
 
 def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
-    """A ``steval replay`` sink ``sink(tel, estimates)``: opens the Rerun sinks of ``options`` (a
-    ``steval_viewer.sink_options.SinkOptions``), logs everything, closes (with ``--serve``: waits for Ctrl-C first).
-    ``progress(fraction, stage)`` hears of each stage (replica, logging, writing).
-
-    The ``.rrd`` is written atomically: complete (a line on stderr says where), or (interrupted) not at all. A
-    spawned desktop viewer stays open after the sink returns."""
+    """A ``steval replay`` sink ``sink(tel, estimates)`` logging to the sinks of ``options``
+    (:func:`~steval_viewer.sinks.log_whole`); ``progress(fraction, stage)`` hears of each stage."""
 
     def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
         src = getattr(tel, "source", None) or {}
         name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
 
         def log(rec):
-            log_telemetry(
-                rec,
-                tel,
-                estimates,
-                progress=None if progress is None else (lambda f, stage="": progress(0.6 * f, stage)),
-            )
+            log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
             _report(progress, 0.6, "writing to Rerun")
 
         log_whole(options, name, log)

@@ -1,10 +1,5 @@
-"""Read an ``.rrd`` back and summarise it: samples per entity path, timelines, whether a blueprint is embedded.
-
-Used by the tests and CI to check that ``steval replay CAPTURE --rrd out.rrd`` wrote what the viewer needs::
-
-    info = read_rrd("out.rrd")
-    info.samples["plots/pitch_thx_deg/firmware"]   # rows with a value (gaps' Clear rows not counted)
-    info.has_blueprint
+"""Read an ``.rrd`` back (tests, benchmarks): samples per entity path (gaps' Clear rows not counted), timelines,
+the blueprint.
 """
 
 from __future__ import annotations
@@ -29,8 +24,7 @@ class RrdInfo:
 
 
 def _reader(path: str | Path):
-    """Rerun's reader of ``path``. A file written as the data arrives (``steval_viewer.rrd_writer``) has no footer:
-    Rerun reads it from its start, and its warning about that layout is not repeated here."""
+    """Rerun's reader of ``path``, without its warning about a file with no footer (ours: ``rrd_writer``)."""
     from rerun.chunk import RrdReader
 
     with warnings.catch_warnings():
@@ -67,8 +61,8 @@ def read_rrd(path: str | Path) -> RrdInfo:
 
 
 def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, object]]:
-    """The blueprint components in ``path``: entity path (no leading ``/``) → {component: last value, a one-item
-    list unwrapped}; the first blueprint only, or ``every`` one."""
+    """The blueprint components in ``path`` (the first blueprint, or ``every`` one): entity path → {component: last
+    value, a one-item list unwrapped}."""
     reader = _reader(path)
     stores = reader.blueprints()
     out: dict[str, dict[str, object]] = defaultdict(dict)
@@ -86,9 +80,8 @@ def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, 
 
 
 def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
-    """The views of the blueprint embedded in ``path``: display name → {component: first value} of the view and
-    of its properties, e.g. ``"ViewBlueprint:space_origin"``, ``"PlotLegend:corner"`` (1 left top, 2 right top,
-    3 left bottom, 4 right bottom), ``"PlotLegend:visible"``, ``"ScalarAxis:range"``."""
+    """The views of the blueprint embedded in ``path``: display name → {component: value} of the view and of its
+    properties, e.g. ``"PlotLegend:corner"`` (1 left top, 2 right top, 3 left bottom, 4 right bottom)."""
     by_id: dict[str, dict[str, object]] = defaultdict(dict)
     for entity, comps in _blueprint_components(path, every=False).items():
         parts = entity.split("/")
@@ -98,8 +91,7 @@ def blueprint_views(path: str | Path) -> dict[str, dict[str, object]]:
 
 
 def active_tabs(path: str | Path) -> list[str]:
-    """The display names of the tabs in front in the blueprints embedded in ``path`` (one per tab container that
-    names its active tab; a live session may send a second blueprint, e.g. when printed lines come)."""
+    """The display names of the tabs in front in every blueprint embedded in ``path``."""
     parts = _blueprint_components(path, every=True)
     names = {
         entity: comps.get("ViewBlueprint:display_name") or comps.get("ContainerBlueprint:display_name")

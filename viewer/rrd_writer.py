@@ -1,21 +1,15 @@
 """An ``.rrd`` written by us as the data arrives (:class:`RrdWriter`): Rerun encodes, this module writes the file.
 
-Rerun's own file sink keeps its errors to itself (it prints coloured log lines, and the recording goes on as if the
-file were written) and keeps about 1 kB per chunk in memory for the file's footer until the file closes. Here the
-recording's sink is a Rerun binary stream (``RecordingStream.binary_stream``); a thread takes what it holds every
-:data:`WRITE_INTERVAL_S`, appends it to the file and ``fsync``\\s it every second, so that a ``kill -9`` loses at most
-the last second. Each read of a binary stream is a whole RRD (stream header, messages, end message and footer);
-the file gets one stream header and the messages only (:func:`rrd_messages`), no footer: Rerun reads such a file
-message by message from its start (its "legacy" layout), and a file cut after any write still opens. Nothing of the
-stream is kept here (memory stays flat however long the session).
-
-A write that fails (disk full, I/O error) and a file that vanishes (deleted, its folder removed, replaced) become
-one sentence in :attr:`RrdWriter.failure`; nothing more is written, the bytes Rerun still makes are read and
-dropped, and the run goes on with its other outputs.
+Why not Rerun's own file sink: it keeps its errors to itself and about 1 kB per chunk in memory until the file
+closes. Here a thread appends what a Rerun binary stream holds every :data:`WRITE_INTERVAL_S` and ``fsync``\\s every
+second. The file gets one stream header and the messages (:func:`rrd_messages`), no footer: Rerun reads it from
+its start, and a file cut after any write still opens. A failed write or a vanished file becomes one sentence in
+:attr:`RrdWriter.failure`; the run goes on with its other outputs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import struct
 import threading
@@ -23,8 +17,6 @@ from pathlib import Path
 
 from steval_link.errors import ParamError
 from steval_link.link.capture import output_gone
-
-__all__ = ["RrdWriter", "WRITE_INTERVAL_S", "rrd_messages"]
 
 #: How often the encoded bytes are appended to the file and synced to disk, s.
 WRITE_INTERVAL_S = 0.25
@@ -42,8 +34,8 @@ FOOTER_BYTES = 32
 
 
 def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
-    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data`` (one or several in a row), the end
-    messages and footers left out. Raises ValueError on bytes that are not such streams."""
+    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data``, end messages and footers left
+    out; ValueError on other bytes."""
     header, out, pos, n = b"", [], 0, len(data)
     while pos < n:
         if data[pos : pos + 4] != STREAM_MAGIC:
@@ -65,11 +57,8 @@ def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
 
 
 class RrdWriter:
-    """Writes the stream ``rec`` to ``path`` (a new file: never overwritten) from now on, until :meth:`close`.
-
-    Raises :class:`UserError` when the file cannot be made or its first bytes cannot be written (nothing is left
-    behind then).
-    """
+    """Writes the stream ``rec`` to ``path`` (a new file) until :meth:`close`; UserError (nothing left behind)
+    when the file cannot be made or its first bytes cannot be written."""
 
     def __init__(self, rec, path: str | os.PathLike, *, shown: str | None = None) -> None:
         self.path = Path(path)
@@ -80,7 +69,8 @@ class RrdWriter:
             self._file = open(self.path, "xb", buffering=0)
         except OSError as exc:
             raise ParamError(f"{{rrd}} {self.shown}: cannot write it ({_why(exc)})", "rrd") from None
-        self._identity = _ident(os.fstat(self._file.fileno()))
+        st = os.fstat(self._file.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         self._stream = rec.binary_stream()
         self._header_done = False
@@ -97,8 +87,7 @@ class RrdWriter:
         self._thread.start()
 
     def _write(self, segment: bytes) -> None:
-        """Append the messages of ``segment`` (whole RRD streams from the binary stream): the stream header once,
-        each store's info once, every other message as it is."""
+        """Append the messages of ``segment`` (whole RRD streams): the stream header and each store's info once."""
         if not segment:
             return
         header, messages = rrd_messages(segment)
@@ -109,35 +98,27 @@ class RrdWriter:
                     continue
                 self._store_infos.add(message)
             parts.append(message)
-        self._write_bytes(b"".join(parts))
-        self._header_done = True
-
-    def _write_bytes(self, data: bytes) -> None:
+        data = b"".join(parts)
         view = memoryview(data)
         while view:
-            n = self._file.write(view)
-            view = view[n:]
-        self.bytes_written += len(data)
+            view = view[self._file.write(view) :]
+        self.bytes_written += len(data)  # after the whole write: a failed one is cut back to here
+        self._header_done = True
 
     def _fail(self, why: str) -> None:
         """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""
         n = self.bytes_written
         held = f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB" if n >= 1e3 else f"{n} B"
         self.failure = f"{self.shown} {why}; nothing more is written to it (it held {held} then)"
-        try:  # a write cut by a full disk leaves part of a message: back to the last whole one, so the file opens
-            if output_gone(self.path, self._identity) is None:
+        with contextlib.suppress(OSError):  # a write cut by a full disk leaves part of a message: back to the last
+            if output_gone(self.path, self._identity) is None:  # whole one, so the file opens
                 os.ftruncate(self._file.fileno(), self.bytes_written)
-        except OSError:
-            pass
-        try:
+        with contextlib.suppress(OSError):
             self._file.close()
-        except OSError:
-            pass
 
     def pump(self, *, flush: bool = False, sync: bool = False) -> None:
-        """Append what Rerun encoded since the last call (its pending rows first, waited for up to
-        :data:`FLUSH_TIMEOUT_S`; ``flush``: up to 30 s, at the end); ``sync``: then ``fsync``. After a failure the
-        bytes are read and dropped."""
+        """Append what Rerun encoded since the last call (``flush``: waiting up to 30 s for it, at the end);
+        ``sync``: then ``fsync``. After a failure the bytes are read and dropped."""
         with self._lock:
             try:  # Rerun's pending rows into the stream first (bounded: a slow flush leaves them to the next pump)
                 data = self._stream.read(flush=True, flush_timeout_sec=FLUSH_TIMEOUT_S if not flush else 30.0) or b""
@@ -167,7 +148,7 @@ class RrdWriter:
                 self.failure = self.failure or f"{self.shown}: Rerun stopped encoding it ({exc})"
 
     def close(self) -> None:
-        """Write the rest and close the file (idempotent); a failure is kept in :attr:`failure`."""
+        """Write the rest and close the file (idempotent)."""
         if self._stop.is_set():
             return
         self._stop.set()
@@ -179,10 +160,6 @@ class RrdWriter:
                     self._file.close()
                 except OSError as exc:
                     self._fail(f"cannot be written ({_why(exc)})")
-
-
-def _ident(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
 
 
 def _why(exc: OSError) -> str:

@@ -9,77 +9,48 @@ import rerun as rr
 
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
+from steval_viewer.columns import series_style
 
 AXIS_LENGTH = 1.6
-#: The world axes' names sit just beyond their arrow tips, clear of the drone (rotor discs reach 1.42 from the
-#: centre on the diagonals); Rerun would put an arrow's label at its middle, on the rotors.
+#: The world axes' names sit just beyond their arrow tips, clear of the rotors (Rerun labels an arrow's middle).
 AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
-#: ... and the horizontal axes' names a little above the ground plane, so that from the default eye they show
-#: above the front rotor discs, not on them.
+#: ... and the horizontal axes' names a little above the ground plane (above the front rotors from the default eye).
 AXIS_LABEL_LIFT = 0.3
 
 
-def _line(rec: rr.RecordingStream, path: str, name: str | list[str], color, width: float = 1.5, visible=None) -> None:
-    names = [name] if isinstance(name, str) else list(name)
-    colors = [color] if isinstance(color, tuple) else list(color)
-    lines = rr.SeriesLines(names=names, colors=colors, widths=[width] * len(names), visible_series=visible)
-    rec.log(path, lines, static=True)
-
-
 def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with_replica: bool) -> None:
-    """Log the 3D scene and the styles of all series.
-
-    ``estimate_sources``: source segments of the host estimates that will be logged (ghosts + pitch/roll series);
-    ``with_replica``: whether the firmware − replica difference series will be logged.
-    """
+    """Log the 3D scene and the styles of all series: of the host estimates ``estimate_sources`` (source
+    segments) and, ``with_replica``, of firmware − replica."""
     sources = list(estimate_sources)
     rec.log(ent.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rec.log(
-        ent.WORLD_AXES,
-        rr.Arrows3D(
-            vectors=[(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)],
-            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
-            radii=0.015,
-        ),
-        static=True,
-    )
-    rec.log(
-        ent.WORLD_AXIS_LABELS,
-        rr.Points3D(
-            [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)],
-            colors=[(230, 60, 60), (60, 200, 60), (70, 110, 240)],
-            labels=["x right", "y forward", "z up"],
-            radii=0.001,
-        ),
-        static=True,
-    )
+    axes = [(AXIS_LENGTH, 0, 0), (0, AXIS_LENGTH, 0), (0, 0, AXIS_LENGTH)]
+    rec.log(ent.WORLD_AXES, rr.Arrows3D(vectors=axes, colors=ent.XYZ_COLORS, radii=0.015), static=True)
+    at = [(AXIS_LABEL_AT, 0, AXIS_LABEL_LIFT), (0, AXIS_LABEL_AT, AXIS_LABEL_LIFT), (0, 0, AXIS_LABEL_AT)]
+    labels = rr.Points3D(at, colors=ent.XYZ_COLORS, labels=["x right", "y forward", "z up"], radii=0.001)
+    rec.log(ent.WORLD_AXIS_LABELS, labels, static=True)
     drone_model.log_models(rec, sources)
-    rec.log(
-        ent.ACC_GRAVITY,
-        rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03]),  # named in the 3D view's title
-        static=True,
-    )
+    gravity = rr.Arrows3D.from_fields(colors=[(255, 215, 0)], radii=[0.03])  # named in the 3D view's title
+    rec.log(ent.ACC_GRAVITY, gravity, static=True)
 
     for source in [ent.SOURCE_FIRMWARE, *sources]:
         color = ent.source_color(source)
         width = 2.5 if source == ent.SOURCE_FIRMWARE else 1.5
-        _line(rec, ent.pitch_path(source), ent.pitch_label(source), color, width)
-        _line(rec, ent.roll_path(source), ent.roll_label(source), color, width)
-    _line(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
+        series_style(rec, ent.pitch_path(source), ent.source_label(source), color, width)
+        series_style(rec, ent.roll_path(source), ent.source_label(source), color, width)
+    series_style(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
     if with_replica:
-        _line(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
-        _line(rec, ent.DIFF_THY, "thy roll: firmware − replica", (90, 150, 230))
-    xyz = [(230, 60, 60), (60, 200, 60), (70, 110, 240)]
+        series_style(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
+        series_style(rec, ent.DIFF_THY, "thy roll: firmware − replica", (90, 150, 230))
     # short names: the plot titles give the units, and a small legend hides less
-    _line(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], xyz)
-    _line(rec, ent.PLOT_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], xyz)
-    _line(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
-    _line(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
-    _line(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
-    _line(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
-    _line(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
-    _line(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
-    _line(
+    series_style(rec, ent.PLOT_ACC, ["acc x right", "acc y forward", "acc z up"], ent.XYZ_COLORS)
+    series_style(rec, ent.PLOT_GYRO, ["gyro x (pitch rate)", "gyro y (roll rate)", "gyro z (yaw rate)"], ent.XYZ_COLORS)
+    series_style(rec, ent.PLOT_THROTTLE, "throttle gTHR", (127, 127, 127))
+    series_style(rec, ent.LINK_RATE, "attitude frames/s", (120, 200, 255))
+    series_style(rec, ent.LINK_MISSING, "frames missing (sequence gaps)", (255, 160, 40))
+    series_style(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
+    series_style(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
+    series_style(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
+    series_style(
         rec,
         ent.LINK_CYCLES,
         ["cycles min", "cycles mean", "cycles max"],

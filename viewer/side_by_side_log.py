@@ -1,17 +1,5 @@
-"""``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree on one timeline, and a
-blueprint that overlays them.
-
-Entities (``<k>``: ``a``, ``b``, ... in the order of the command line; times on the ``aligned_time`` timeline, s
-since each flight's first frame minus its motion lag):
-
-- ``flights/<k>/pitch_thx_deg``, ``flights/<k>/roll_thy_deg``: the flight's pitch (about x, nose up +) and roll
-  (about y), its label as the series name;
-- ``flights/<k>/accel_pitch_thx_deg``, ``flights/<k>/accel_roll_thy_deg``: its accelerometer-only tilt;
-- ``flights/<k>/gyro_dps``: its gyro (x, y, z);
-- ``flights/<k>/world/drone``: its attitude (a quadcopter in its own 3D view);
-- ``flights/<k>/diff_pitch_thx_deg``, ``flights/<k>/diff_roll_thy_deg``: the flight minus the first one (from the
-  second flight on);
-- ``notes``: the printed summary.
+"""``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree (``flights/<k>/...``) on the
+``aligned_time`` timeline, and a blueprint that overlays them. The entities are listed in ``viewer/README.md``.
 """
 
 from __future__ import annotations
@@ -24,18 +12,9 @@ import rerun.blueprint as rrb
 
 from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
 from steval_viewer import drone_model
+from steval_viewer.blueprint import window
+from steval_viewer.columns import series_style, unit_xyzw
 from steval_viewer.sinks import log_whole
-
-__all__ = [
-    "TIMELINE",
-    "ROOT",
-    "NOTES",
-    "flight_key",
-    "flight_path",
-    "side_by_side_blueprint",
-    "log_side_by_side",
-    "side_by_side_sink",
-]
 
 TIMELINE = "aligned_time"
 ROOT = "flights"
@@ -52,10 +31,6 @@ def flight_key(i: int) -> str:
 
 def flight_path(i: int, leaf: str) -> str:
     return f"{ROOT}/{flight_key(i)}/{leaf}"
-
-
-def _colour(i: int) -> tuple[int, int, int]:
-    return COLOURS[i % len(COLOURS)]
 
 
 def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
@@ -82,13 +57,7 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
         *(rrb.Spatial3DView(origin=f"{ROOT}/{flight_key(i)}/world", name=labels[i]) for i in range(n)),
         rrb.TextDocumentView(origin=NOTES, name="Notes"),
     )
-    return rrb.Blueprint(
-        rrb.Horizontal(plots, drones, column_shares=[3, 1]),
-        rrb.TimePanel(timeline=TIMELINE),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
-    )
+    return window(rrb.Horizontal(plots, drones, column_shares=[3, 1]), rrb.TimePanel(timeline=TIMELINE))
 
 
 def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarray) -> int:
@@ -97,68 +66,50 @@ def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarra
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if not good.any():
         return 0
-    rec.send_columns(
-        path,
-        indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])],
-        columns=rr.Scalars.columns(scalars=v[good]),
-    )
+    t = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])]
+    rec.send_columns(path, indexes=t, columns=rr.Scalars.columns(scalars=v[good]))
     return int(good.sum())
 
 
-def _style(rec: rr.RecordingStream, path: str, name, colour, width: float = 1.5) -> None:
-    names = [name] if isinstance(name, str) else list(name)
-    colours = [colour] if isinstance(colour, tuple) else list(colour)
-    rec.log(path, rr.SeriesLines(names=names, colors=colours, widths=[width] * len(names)), static=True)
-
-
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
-    """Log every flight of ``r`` under its own subtree, with :func:`side_by_side_blueprint`; returns the number of
-    rows logged per entity path."""
+    """Log every flight of ``r`` under its own subtree; returns the rows logged per entity path."""
     labels = [f.label for f in r.flights]
     rec.send_blueprint(side_by_side_blueprint(labels), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     mesh = drone_model.quadcopter_mesh()
     ref = r.flights[0]
     for i, f in enumerate(r.flights):
-        c = _colour(i)
+        c = COLOURS[i % len(COLOURS)]
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
         grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
         leaves = {
-            "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, np.degrees(f.thx_rad)),
-            "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, np.degrees(f.thy_rad)),
-            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, np.degrees(f.accel_thx_rad)),
-            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, np.degrees(f.accel_thy_rad)),
+            "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, f.t_s, np.degrees(f.thx_rad)),
+            "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, f.t_s, np.degrees(f.thy_rad)),
+            "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, f.t_s, np.degrees(f.accel_thx_rad)),
+            "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, f.t_s, np.degrees(f.accel_thy_rad)),
+            "gyro_dps": (
+                [f"{f.label}: gyro {a}" for a in "xyz"],
+                [c, light, _ACCEL_GREY],
+                1.0,
+                f.t_s,
+                np.asarray(f.gyro_mdps, np.float64) / 1000.0,
+            ),
         }
-        for leaf, (name, colour, width, values) in leaves.items():
-            path = flight_path(i, leaf)
-            _style(rec, path, name, colour, width)
-            counts[path] = _send(rec, path, f.t_s, values)
-        path = flight_path(i, "gyro_dps")
-        _style(rec, path, [f"{f.label}: gyro {a}" for a in "xyz"], [c, light, _ACCEL_GREY], 1.0)
-        counts[path] = _send(rec, path, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0)
         if i:
             t, dx, dy = difference_series(ref, f)
-            for leaf, what, values, w in (
-                ("diff_pitch_thx_deg", "pitch", dx, 2.0),
-                ("diff_roll_thy_deg", "roll", dy, 1.0),
-            ):
-                path = flight_path(i, leaf)
-                _style(rec, path, f"{f.label} − {ref.label}: {what}", c if what == "pitch" else light, w)
-                counts[path] = _send(rec, path, t, values)
+            leaves["diff_pitch_thx_deg"] = (f"{f.label} − {ref.label}: pitch", c, 2.0, t, dx)
+            leaves["diff_roll_thy_deg"] = (f"{f.label} − {ref.label}: roll", light, 1.0, t, dy)
+        for leaf, (name, colour, width, t, values) in leaves.items():
+            path = flight_path(i, leaf)
+            series_style(rec, path, name, colour, width)
+            counts[path] = _send(rec, path, t, values)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
-        q = np.asarray(f.q_wxyz, np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            norm = np.sqrt((q * q).sum(axis=1))
-            good = np.isfinite(norm) & (norm > 1e-6)
-            xyzw = (q[:, [1, 2, 3, 0]] / norm[:, None]).astype(np.float32)
+        xyzw, good = unit_xyzw(f.q_wxyz)
         if good.any():
-            rec.send_columns(
-                f"{world}/drone",
-                indexes=[rr.TimeColumn(TIMELINE, duration=f.t_s[good])],
-                columns=rr.Transform3D.columns(quaternion=xyzw[good]),
-            )
+            t = [rr.TimeColumn(TIMELINE, duration=f.t_s[good])]
+            rec.send_columns(f"{world}/drone", indexes=t, columns=rr.Transform3D.columns(quaternion=xyzw[good]))
         counts[f"{world}/drone"] = int(good.sum())
     text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
@@ -167,8 +118,7 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
 
 
 def side_by_side_sink(options: Any, *, recording_name: str = "steval compare (side by side)"):
-    """A sink ``sink(side_by_side)`` writing to the Rerun sinks of ``options`` (a ``SinkOptions``): a complete
-    ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+    """A sink ``sink(side_by_side)`` writing to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
 
     def sink(r: SideBySide) -> dict[str, int]:
         return log_whole(options, recording_name, lambda rec: log_side_by_side(rec, r))

@@ -1,11 +1,12 @@
 """The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
-import: the ``.rrd``'s folder, the ``--connect`` URL and whether something listens there, free ports for
-``--serve``, whether a display exists for ``--spawn``. Light on purpose: the CLI checks its options with it before
-any work and before Rerun is loaded; :mod:`steval_viewer.sinks` opens the sinks.
+import (the ``.rrd``'s folder, the ``--connect`` URL, free ports, a display), so the CLI can check its options
+before any work and before Rerun is loaded.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import os
 import socket
 import sys
@@ -23,8 +24,7 @@ CONNECT_TIMEOUT_S = 3.0
 
 @dataclass
 class SinkOptions:
-    """The sink flags of a command. ``serve``: web viewer on localhost; ``connect``: a gRPC URL such as
-    ``rerun+http://127.0.0.1:9876/proxy``; ``rrd``: output file; ``web_port``: the web viewer's HTTP port;
+    """The sink flags of a command. ``connect``: a gRPC URL such as ``rerun+http://127.0.0.1:9876/proxy``;
     ``grpc_port``: the gRPC port of the spawned or served viewer."""
 
     spawn: bool = False
@@ -45,23 +45,16 @@ class SinkOptions:
 
 def display_available() -> bool:
     """Whether a desktop viewer window can open (a display on Linux/BSD; always on macOS and Windows)."""
-    if sys.platform in ("darwin", "win32"):
-        return True
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def resolve_sinks(options: SinkOptions) -> SinkOptions:
-    """Apply the default viewer: when no viewer is chosen (``spawn``/``serve``/``connect``), ``spawn``
-    where a display exists; without a display, an ``rrd`` alone is fine (headless), nothing at all is a
-    UserError."""
-    if options.viewer:
-        return options
-    if display_available():
+    """With no viewer chosen: ``spawn`` where a display exists, else an ``rrd`` alone (headless), else UserError."""
+    if not options.viewer and display_available():
         options.spawn = True
-        return options
-    if options.rrd is not None:
-        return options
-    raise no_display_error("", "{no_view} to record only")
+    elif not options.viewer and options.rrd is None:
+        raise no_display_error("", "{no_view} to record only")
+    return options
 
 
 def no_display_error(spawn: str, *more_ways: str) -> ParamError:
@@ -73,23 +66,17 @@ def no_display_error(spawn: str, *more_ways: str) -> ParamError:
 
 
 def session_sinks(chosen: SinkOptions, *, view: bool) -> SinkOptions | None:
-    """A live session's Rerun outputs, resolved and checked once (the CLI calls it; the viewer then trusts them):
-    the chosen viewer, or the default one (:func:`resolve_sinks`), and the ``.rrd``; ``view=False``
-    (``--no-view``): the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work (no
-    display and no ``--rrd``, a ``--connect`` URL where nothing listens, a busy port, a missing ``.rrd`` folder)."""
-    if not view:
-        if chosen.rrd is None:
-            return None
-        chosen = SinkOptions(rrd=chosen.rrd, web_port=chosen.web_port, grpc_port=chosen.grpc_port)
-    else:
-        chosen = resolve_sinks(chosen)
+    """A live session's Rerun outputs, resolved and checked once: the chosen or default viewer and the ``.rrd``;
+    ``view=False``: the ``.rrd`` alone, None without one (no Rerun at all). UserError when they cannot work."""
+    if not view and chosen.rrd is None:
+        return None
+    chosen = resolve_sinks(chosen) if view else dataclasses.replace(chosen, spawn=False, serve=False, connect=None)
     check_sinks(chosen)
     return chosen
 
 
 def check_sinks(options: SinkOptions) -> None:
-    """Check what can be checked before any work: the ``.rrd`` can be created, the ``--connect`` URL is a Rerun
-    gRPC URL with something listening, the ``--serve`` ports are free and valid. Raises UserError."""
+    """Check what can be checked before any work (the ``.rrd``'s folder, URL, ports, display); UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
     for tcp_port, name in ((options.web_port, "web_port"), (options.grpc_port, "grpc_port")):
@@ -138,11 +125,10 @@ def check_rrd_path(path: Path) -> None:
     """UserError unless ``path`` can be written as a new ``.rrd`` (existing folder, not itself a folder)."""
     if path.is_dir():
         raise UserError(f"cannot write {path}: it is a folder")
-    parent = path.parent
-    if not parent.is_dir():
-        raise UserError(f"cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise UserError(f"cannot write {path}: no permission to write in {parent}")
+    if not path.parent.is_dir():
+        raise UserError(f"cannot write {path}: folder {path.parent} does not exist")
+    if not os.access(path.parent, os.W_OK):
+        raise UserError(f"cannot write {path}: no permission to write in {path.parent}")
 
 
 def parse_grpc_url(url: str) -> tuple[str, int]:
@@ -152,10 +138,9 @@ def parse_grpc_url(url: str) -> tuple[str, int]:
             f"{{connect}} needs a Rerun gRPC URL such as rerun+http://127.0.0.1:9876/proxy, got {url!r}", "connect"
         )
     parsed = urllib.parse.urlparse(url)
-    try:
+    tcp_port = None
+    with contextlib.suppress(ValueError):
         tcp_port = parsed.port
-    except ValueError:
-        tcp_port = None
     if not parsed.hostname:
         raise ParamError(f"{{connect}} URL {url!r} names no host", "connect")
     default = 443 if parsed.scheme == "rerun+https" else DEFAULT_GRPC_PORT
@@ -176,7 +161,6 @@ def port_free(tcp_port: int) -> bool:
 
 
 def port_open(host: str, tcp_port: int, timeout_s: float) -> bool:
-    """Whether a TCP connection to ``host:tcp_port`` succeeds within ``timeout_s``."""
     try:
         with socket.create_connection((host, tcp_port), timeout=timeout_s):
             return True
@@ -189,26 +173,19 @@ _H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x
 
 
 def speaks_grpc(host: str, tcp_port: int, timeout_s: float) -> bool:
-    """Whether ``host:tcp_port`` answers like a gRPC server (an HTTP/2 SETTINGS frame back for our connection
-    preface) within ``timeout_s``: a Rerun viewer or proxy does at once; another program on the port does not (a
-    program that accepts and stays silent would make Rerun's gRPC client wait for ever)."""
+    """Whether ``host:tcp_port`` answers our HTTP/2 preface with a SETTINGS frame within ``timeout_s``, as a Rerun
+    viewer does (a silent program would make Rerun's gRPC client wait for ever)."""
     try:
         with socket.create_connection((host, tcp_port), timeout=timeout_s) as s:
             s.settimeout(timeout_s)
             s.sendall(_H2_PREFACE)
-            head = b""
-            while len(head) < 9:
-                part = s.recv(9 - len(head))
-                if not part:
-                    return False
-                head += part
+            head = s.makefile("rb").read(9)  # a frame header; fewer bytes: the peer closed
     except OSError:
         return False
-    return head[3] == 0x04  # frame type SETTINGS
+    return len(head) == 9 and head[3] == 0x04  # frame type SETTINGS
 
 
 def free_port() -> int:
-    """A TCP port that is free on 127.0.0.1 now."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]

@@ -1,32 +1,13 @@
 """Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
-(``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination.
+(``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination, through :func:`open_session`.
 
-``open_session(...)`` returns a :class:`ViewerSession` whose ``rec`` (a ``rerun.RecordingStream``) is handed to
-the logging functions; ``session.close()`` flushes everything (the ``.rrd`` is complete after it). With
-``split_file=True`` (the live session) a viewer and an ``.rrd`` get two streams of one recording (same application
-and recording id, so both open as one): ``rec`` to the viewer and ``file_rec`` to the file, each logged at its own
-cadence (Rerun's file sink keeps ~1 kB per chunk until the file closes, a viewer wants every frame at once). With no
-sink
-chosen, :func:`resolve_sinks` adds ``--spawn`` when a display exists; without one an ``--rrd`` alone is fine
-(headless runs, CI), and nothing at all fails with one clear sentence.
-
-Nothing here can hang: every wait has a bound (:data:`VIEWER_START_TIMEOUT_S` for a viewer to listen,
-:data:`CONNECT_TIMEOUT_S` to reach a ``--connect`` URL, :data:`FLUSH_TIMEOUT_S` for a viewer to take the data), and
-each ends in one :class:`UserError` sentence. The options and the checks that need no viewer (the ``.rrd``'s
-folder, the URL, free ports) are in :mod:`steval_viewer.sink_options`, so a command can fail before its work.
-
-Processes:
-
-- ``--spawn`` starts the desktop viewer (``rerun --port N --bind 127.0.0.1``) in its own session, so it stays open
-  after the command returns, as users expect. When a viewer already listens on the port (an earlier ``--spawn``),
-  the recording goes to that one, as Rerun's own ``rr.spawn`` does.
-- ``--serve`` runs ``rerun --serve-web --bind 127.0.0.1`` as a child that lives as long as the command: it is
-  stopped on close, on Ctrl-C, SIGTERM and SIGHUP (the CLI turns those into KeyboardInterrupt), and on Linux also
-  when the command dies without cleaning up (the kernel's parent-death signal).
+Every wait has a bound and ends in one :class:`UserError` sentence. ``--spawn``'s viewer stays open after the
+command (one already on the port is reused); ``--serve``'s lives as long as the command (parent-death signal).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -50,8 +31,7 @@ from steval_viewer.sink_options import SinkOptions, check_sinks, free_port, port
 APPLICATION_ID = "steval-link"
 #: longest wait for a started viewer (desktop or web) to listen on its port
 VIEWER_START_TIMEOUT_S = 20.0
-#: a spawned desktop viewer must still run this long after it starts listening (one that cannot open its window,
-#: e.g. no usable GPU adapter, listens first and dies a moment later)
+#: a spawned desktop viewer must still run this long after it listens (without a GPU it dies a moment later)
 VIEWER_SETTLE_S = 1.0
 #: longest wait for the viewers to take everything logged (a 1-hour replay takes ~10 s on loopback)
 FLUSH_TIMEOUT_S = 120.0
@@ -63,13 +43,9 @@ PARTIAL_SUFFIX = ".partial"
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it.
-
-    ``rec``: the stream to log to (every sink; with ``open_session(split_file=True)`` and a viewer plus an
-    ``.rrd``: the viewer's sinks only). ``file_rec``: the ``.rrd``'s own stream of the same recording in that
-    split case, else None. ``viewer_url``: the gRPC URL the viewer gets the data on (None: file only).
-    ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it.
-    """
+    """An open recording and the processes serving it. ``rec``: the stream to log to (split: the viewer's);
+    ``file_rec``: the ``.rrd``'s own stream when split, else None; ``viewer_url``: the viewer's gRPC URL (None:
+    file only); ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it."""
 
     rec: rr.RecordingStream
     options: SinkOptions
@@ -79,7 +55,7 @@ class ViewerSession:
     file_rec: rr.RecordingStream | None = None
     rrd_partial: Path | None = None
     rrd_writer: RrdWriter | None = None
-    #: the caller said :attr:`rrd_failure` already (a live session, when it happened): close() does not raise it
+    #: the caller said :attr:`rrd_failure` already: close() does not raise it
     rrd_failure_said: bool = False
 
     @property
@@ -89,91 +65,63 @@ class ViewerSession:
 
     @property
     def streams(self) -> list[rr.RecordingStream]:
-        """Every stream of the session (``rec`` first)."""
         return [self.rec] + ([self.file_rec] if self.file_rec is not None else [])
 
-    @property
-    def has_viewer(self) -> bool:
-        """Whether a viewer gets the data (else only an ``.rrd``)."""
-        return self.viewer_url is not None
-
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
-        """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``
-        (it was closed, or the URL is no Rerun viewer)."""
+        """Push everything logged so far to the sinks; UserError when a viewer does not take it in ``timeout_s``."""
         for rec in self.streams:
-            self._flush_stream(rec, timeout_s)
-
-    def _flush_stream(self, rec: rr.RecordingStream, timeout_s: float) -> None:
-        _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
+            _flush_bounded(rec, timeout_s, self.viewer_url if rec is self.rec else None)
 
     def close(self, *, complete: bool = True) -> None:
-        """Flush and finish the recording. With ``complete`` the ``.rrd`` is whole afterwards (renamed into place
-        when written atomically); ``complete=False`` (interrupted) removes an atomically written ``.rrd``. A
-        spawned desktop viewer keeps running; a ``--serve`` web viewer is stopped (call :meth:`wait_for_viewer`
-        first to keep it up). Bounded in time; raises UserError when a viewer did not take the data."""
+        """Flush and finish the recording: the ``.rrd`` whole (``complete=False``, interrupted: an atomic one
+        removed); a ``--serve`` web viewer stopped. Bounded; UserError when a viewer did not take the data."""
         error: UserError | None = None
+        rrd_rec = None if self.rrd_writer is None else self.streams[-1]  # (else no .rrd, or Rerun's own file sink)
         try:
             for rec in self.streams:
                 try:
                     if complete:
-                        self._flush_stream(rec, FLUSH_TIMEOUT_S)
+                        _flush_bounded(rec, FLUSH_TIMEOUT_S, self.viewer_url if rec is self.rec else None)
                 except UserError as exc:  # a viewer that went away; the file still closes whole below
                     error = error or exc
                 finally:
-                    if rec is self._rrd_rec:
+                    if rec is rrd_rec:
                         self.rrd_writer.close()  # the rest of the stream, then the file is closed
                     rec.disconnect()
         finally:
             for child in self.children:
                 stop_child(child)
             self.children.clear()
-            self._finish_rrd(complete and self.rrd_failure is None)
+            partial, self.rrd_partial = self.rrd_partial, None
+            if partial is not None and complete and self.rrd_failure is None and partial.exists():
+                os.replace(partial, Path(self.options.rrd))
+            elif partial is not None:
+                partial.unlink(missing_ok=True)
         if error is None and self.rrd_failure is not None and not self.rrd_failure_said:
             error = UserError(self.rrd_failure)  # (a live session said it when it happened)
         if error is not None:
             raise error
 
-    @property
-    def _rrd_rec(self) -> rr.RecordingStream | None:
-        """The stream our :class:`RrdWriter` writes (None: no ``.rrd``, or Rerun's own file sink writes it)."""
-        if self.rrd_writer is None:
-            return None
-        return self.file_rec if self.file_rec is not None else self.rec
-
-    def _finish_rrd(self, keep: bool) -> None:
-        partial = self.rrd_partial
-        if partial is None:
-            return
-        self.rrd_partial = None
-        if keep and partial.exists():
-            os.replace(partial, Path(self.options.rrd))
-        else:
-            partial.unlink(missing_ok=True)
-
     def wait_for_viewer(self) -> None:
-        """With ``--serve``: keep the web viewer up until Ctrl-C (the data is buffered in its server) or until
-        it exits."""
+        """With ``--serve``: keep the web viewer up until Ctrl-C or until it exits."""
         if not self.children:
             return
         print("steval: serving until Ctrl-C", file=sys.stderr)
-        try:
+        with contextlib.suppress(KeyboardInterrupt):
             while all(c.poll() is None for c in self.children):
                 time.sleep(0.2)
-        except KeyboardInterrupt:
-            pass
 
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
-    """``rec.flush`` with a bound, waited for in short slices so that Ctrl-C gets through at once; a viewer that
-    cannot be reached or does not keep up within ``timeout_s`` is a UserError."""
+    """``rec.flush`` waited for in short slices (Ctrl-C gets through at once); UserError when a viewer cannot be
+    reached or does not keep up within ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
             rec.flush(timeout_sec=min(FLUSH_SLICE_S, max(0.01, deadline - time.monotonic())))
             return
         except RuntimeError as exc:  # Rerun raises RuntimeError for a sink that failed or a flush that timed out
-            text = str(exc)
-            timed_out = "timed out" in text.lower()
+            timed_out = "timed out" in str(exc).lower()
             if timed_out and time.monotonic() < deadline:
                 continue
         where = f"the Rerun viewer at {viewer_url}" if viewer_url else "the Rerun sink"
@@ -184,150 +132,77 @@ def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | 
 
 def rerun_command() -> list[str]:
     """The Rerun viewer binary (the ``rerun`` script is a Python wrapper around it)."""
-    try:
+    with contextlib.suppress(ImportError):  # rerun-sdk ships rerun_cli
         import rerun_cli
 
         exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
         if exe.is_file():
             return [str(exe)]
-    except ImportError:  # pragma: no cover - rerun-sdk ships rerun_cli
-        pass
     found = shutil.which("rerun")
     return [found] if found else [sys.executable, "-m", "rerun"]
 
 
 def stop_child(child: subprocess.Popen) -> None:
     """Stop a viewer process and whatever it started (its own process group on POSIX); bounded (≤ 7 s)."""
-    if child.poll() is not None:
-        return
-    try:
-        if hasattr(os, "killpg"):
-            os.killpg(child.pid, signal.SIGTERM)
-        else:  # pragma: no cover - Windows
-            child.terminate()
-        child.wait(timeout=5)
-    except (ProcessLookupError, PermissionError):
-        pass
-    except subprocess.TimeoutExpired:
-        if hasattr(os, "killpg"):
-            os.killpg(child.pid, signal.SIGKILL)
-        else:  # pragma: no cover - Windows
-            child.kill()
+    for sig, wait_s in ((signal.SIGTERM, 5), (getattr(signal, "SIGKILL", signal.SIGTERM), 2)):
+        if child.poll() is not None:
+            return
         try:
-            child.wait(timeout=2)
-        except subprocess.TimeoutExpired:  # pragma: no cover - a process that survives SIGKILL
+            if hasattr(os, "killpg"):
+                os.killpg(child.pid, sig)
+            else:  # pragma: no cover - Windows
+                child.terminate() if sig == signal.SIGTERM else child.kill()
+            child.wait(timeout=wait_s)
+        except (ProcessLookupError, PermissionError):
+            return
+        except subprocess.TimeoutExpired:  # next: SIGKILL; a process that survives it is left
             pass
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
     """Linux: deliver SIGTERM to this process when the process that started it dies (prctl PR_SET_PDEATHSIG)."""
-    try:
+    with contextlib.suppress(Exception):
         import ctypes
 
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
-    except Exception:
-        pass
 
 
-def _start(cmd: list[str], *, detached: bool, log_path: Path) -> subprocess.Popen:
-    """Start a viewer process with its output in ``log_path``. ``detached``: it outlives this program (a native
-    viewer the user closes); else it dies with it (a web viewer server)."""
+def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
+    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program."""
+    log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
         env.pop("RUST_LOG", None)
     kwargs: dict = {}
     if sys.platform == "win32":  # pragma: no cover - Windows
-        flags = subprocess.CREATE_NEW_PROCESS_GROUP
-        if detached:
-            flags |= subprocess.DETACHED_PROCESS
-        kwargs["creationflags"] = flags
+        kwargs["creationflags"] = subprocess.CREATE_NEW_PROCESS_GROUP | (subprocess.DETACHED_PROCESS if detached else 0)
     else:
         kwargs["start_new_session"] = True  # its own process group: Ctrl-C in the terminal is ours to handle
         if not detached and sys.platform.startswith("linux"):
             kwargs["preexec_fn"] = _die_with_parent
     with open(log_path, "wb") as log:
-        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
+        cmd = rerun_command() + args
+        child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
+    return child, log_path
 
 
-def _wait_listening(child: subprocess.Popen, tcp_port: int, timeout_s: float, what: str, log_path: Path) -> None:
-    """Wait until ``child`` listens on 127.0.0.1:``tcp_port``; UserError (with the child's last words) when it exits
-    or does not listen within ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path: Path, settle_s: float = 0.0):
+    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot
+    open its window dies right after it binds); ParamError with its last words otherwise."""
+    deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
+    while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
             raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
-        if port_open("127.0.0.1", tcp_port, 0.2):
-            return
+        if time.monotonic() >= deadline:
+            stop_child(child)
+            raise ParamError(
+                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
+                "FILE instead",
+                "rrd",
+            )
         time.sleep(0.05)
-    stop_child(child)
-    raise ParamError(
-        f"the {what} did not listen on port {tcp_port} within {timeout_s:.0f} s; use {{rrd}} FILE instead", "rrd"
-    )
-
-
-def _last_line(log_path: Path) -> str:
-    """The last meaningful line a viewer printed (ANSI colours removed), for an error message."""
-    try:
-        text = log_path.read_text(errors="replace")
-    except OSError:
-        return "no output"
-    lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in text.splitlines()]
-    lines = [ln for ln in lines if ln]
-    errors = [ln for ln in lines if "error" in ln.lower() or "panic" in ln.lower()]
-    line = (errors or lines or ["no output"])[-1]
-    return line[:200]
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0].rstrip(".") if text else type(exc).__name__
-
-
-def _log_path(what: str, tcp_port: int) -> Path:
-    return Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
-
-
-def proxy_url(tcp_port: int) -> str:
-    """The gRPC URL of a viewer (or web viewer server) listening on 127.0.0.1:``tcp_port``."""
-    return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
-
-
-def spawn_desktop_viewer(tcp_port: int) -> str:
-    """Start the desktop viewer listening on 127.0.0.1:``tcp_port`` (or reuse one that listens there already) and return
-    its gRPC URL. The process is detached: it stays open after we exit, and nothing here keeps it."""
-    url = proxy_url(tcp_port)
-    if not port_free(tcp_port):
-        print(
-            f"steval: sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)",
-            file=sys.stderr,
-        )
-        return url
-    cmd = rerun_command() + [
-        "--port",
-        str(tcp_port),
-        "--bind",
-        "127.0.0.1",
-        "--hide-welcome-screen",
-        "--memory-limit",
-        "75%",
-    ]
-    log_path = _log_path("viewer", tcp_port)
-    try:
-        child = _start(cmd, detached=True, log_path=log_path)
-    except OSError as exc:
-        raise ParamError(
-            f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
-        ) from None
-    _wait_listening(child, tcp_port, VIEWER_START_TIMEOUT_S, "Rerun viewer", log_path)
-    _wait_settled(child, VIEWER_SETTLE_S, log_path)
-    return url
-
-
-def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> None:
-    """UserError when ``child`` exits within ``settle_s`` after it started listening, with the last line of its
-    log (a viewer that cannot open its window dies right after it binds its port)."""
-    deadline = time.monotonic() + settle_s
-    while time.monotonic() < deadline:
+    settled = time.monotonic() + settle_s
+    while time.monotonic() < settled:
         if child.poll() is not None:
             raise ParamError(
                 f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
@@ -338,24 +213,47 @@ def _wait_settled(child: subprocess.Popen, settle_s: float, log_path: Path) -> N
         time.sleep(0.05)
 
 
-def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
-    """Start ``rerun --serve-web`` bound to 127.0.0.1 on ports checked free (:func:`check_sinks`, or
-    :func:`free_port`); returns (process, page URL, gRPC proxy URL)."""
-    cmd = rerun_command() + [
-        "--serve-web",
-        "--bind",
-        "127.0.0.1",
-        "--web-viewer-port",
-        str(web_port),
-        "--port",
-        str(grpc_port),
-    ]
-    log_path = _log_path("web-viewer", grpc_port)
+def _last_line(log_path: Path) -> str:
+    """The last meaningful line a viewer printed (ANSI colours removed), for an error message."""
+    with contextlib.suppress(OSError):
+        lines = [re.sub(r"\x1b\[[0-9;]*m", "", ln).strip() for ln in log_path.read_text(errors="replace").splitlines()]
+        lines = [ln for ln in lines if ln]
+        errors = [ln for ln in lines if "error" in ln.lower() or "panic" in ln.lower()]
+        return (errors or lines or ["no output"])[-1][:200]
+    return "no output"
+
+
+def proxy_url(tcp_port: int) -> str:
+    return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
+
+
+def spawn_desktop_viewer(tcp_port: int) -> str:
+    """Start the desktop viewer on 127.0.0.1:``tcp_port`` (or reuse one that listens there); returns its gRPC URL.
+    Detached: it stays open after we exit."""
+    url = proxy_url(tcp_port)
+    if not port_free(tcp_port):
+        note = f"sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)"
+        print(f"steval: {note}", file=sys.stderr)
+        return url
+    cmd = ["--port", str(tcp_port), "--bind", "127.0.0.1", "--hide-welcome-screen", "--memory-limit", "75%"]
     try:
-        child = _start(cmd, detached=False, log_path=log_path)
+        child, log_path = _start(cmd, "viewer", tcp_port, detached=True)
+    except OSError as exc:
+        raise ParamError(
+            f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
+        ) from None
+    _wait_listening(child, tcp_port, "Rerun viewer", log_path, VIEWER_SETTLE_S)
+    return url
+
+
+def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, str, str]:
+    """Start ``rerun --serve-web`` on 127.0.0.1 (ports checked free); returns (process, page URL, gRPC URL)."""
+    cmd = ["--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
+    try:
+        child, log_path = _start(cmd, "web-viewer", grpc_port, detached=False)
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
-    _wait_listening(child, grpc_port, VIEWER_START_TIMEOUT_S, "Rerun web viewer", log_path)
+    _wait_listening(child, grpc_port, "Rerun web viewer", log_path)
     proxy = proxy_url(grpc_port)
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
@@ -365,21 +263,16 @@ def open_session(
     options: SinkOptions,
     *,
     recording_name: str | None = None,
-    application_id: str = APPLICATION_ID,
     split_file: bool = False,
     atomic_rrd: bool = False,
     checked: bool = False,
 ) -> ViewerSession:
-    """Open a RecordingStream on the sinks of ``options`` (call :func:`resolve_sinks` first for the default).
+    """Open a RecordingStream on the sinks of ``options`` (:func:`resolve_sinks` first for the default viewer).
 
-    ``split_file``: when a viewer and an ``.rrd`` are both chosen, the file gets its own stream
-    (``session.file_rec``) with the same application and recording id as ``session.rec`` (the viewer's), so the
-    caller can log to each at its own cadence; the two are one recording when opened together.
-    ``atomic_rrd``: the ``.rrd`` is written next to its name (``NAME.partial``) and renamed into place by
-    ``close()``; ``close(complete=False)`` removes it: a complete file or none. ``checked``: the caller checked
-    the sinks already (a live session's CLI: once, with its TCP probes), else :func:`check_sinks` runs here.
-
-    Raises UserError when the ``.rrd`` cannot be written or a viewer cannot be started/reached.
+    ``split_file``: with a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same
+    recording, logged at its own cadence. ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` and renamed
+    by ``close()`` (``close(complete=False)`` removes it). ``checked``: the caller ran :func:`check_sinks` already.
+    UserError when the ``.rrd`` cannot be written or a viewer cannot be started or reached.
     """
     if not options.any():
         raise ParamError(
@@ -391,32 +284,29 @@ def open_session(
         )
     if not checked:
         check_sinks(options)
-    rec = rr.RecordingStream(application_id, make_default=False, make_thread_default=False)
+    rec = rr.RecordingStream(APPLICATION_ID, make_default=False, make_thread_default=False)
     session = ViewerSession(rec=rec, options=options)
     own_file = options.rrd is not None and (split_file or not options.viewer)
     try:
         sinks = _open_sinks(session, options, own_file=own_file, atomic_rrd=atomic_rrd)
-    except BaseException:
-        _abandon(session)
-        raise
-    try:
-        file_rec = rec
         if sinks:
             rec.set_sinks(*sinks)
         if own_file and options.viewer:  # the file's own stream of the same recording
-            file_rec = rr.RecordingStream(
-                application_id, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
+            session.file_rec = rr.RecordingStream(
+                APPLICATION_ID, recording_id=rec.get_recording_id(), make_default=False, make_thread_default=False
             )
-            session.file_rec = file_rec
         if own_file:
             where = session.rrd_partial or Path(options.rrd)
-            session.rrd_writer = RrdWriter(file_rec, where, shown=str(options.rrd))
-    except (RuntimeError, UserError) as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
-        _abandon(session)
-        if isinstance(exc, UserError):
-            raise
+            session.rrd_writer = RrdWriter(session.streams[-1], where, shown=str(options.rrd))
+    except RuntimeError as exc:  # Rerun's "Failed to create file: ...": one sentence, not its traceback
+        session.close(complete=False)
         where = f"{{rrd}} {options.rrd}: cannot write it" if options.rrd is not None else "Rerun cannot open its sinks"
-        raise ParamError(f"{where} ({_first_line(exc)})", "rrd") from None
+        text = str(exc).strip()
+        first = text.splitlines()[0].rstrip(".") if text else type(exc).__name__
+        raise ParamError(f"{where} ({first})", "rrd") from None
+    except BaseException:
+        session.close(complete=False)
+        raise
     if recording_name:
         for stream in session.streams:
             stream.send_recording_name(recording_name)
@@ -424,8 +314,7 @@ def open_session(
 
 
 def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool, atomic_rrd: bool) -> list:
-    """Start or reach the viewers of ``options`` (kept in ``session``) and return the Rerun sinks of the stream:
-    the viewers', and the ``.rrd`` when it is not written by its own stream (``own_file``)."""
+    """Start or reach the viewers of ``options``; returns the stream's sinks (the ``.rrd``'s unless ``own_file``)."""
     sinks: list = []
     if options.rrd is not None:
         path = Path(options.rrd)
@@ -450,34 +339,21 @@ def _open_sinks(session: ViewerSession, options: SinkOptions, *, own_file: bool,
     return sinks
 
 
-def _abandon(session: ViewerSession) -> None:
-    """A session that could not open: its viewer children stopped, its partial ``.rrd`` removed."""
-    for child in session.children:
-        stop_child(child)
-    if session.rrd_partial is not None:
-        session.rrd_partial.unlink(missing_ok=True)
-
-
 T = TypeVar("T")
 
 
 def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
-    """Open the sinks of ``options``, ``log(rec)`` everything, flush, close (with ``--serve``: wait for Ctrl-C
-    first) and return what ``log`` returned. The ``.rrd`` is atomic: complete (a line on stderr says where), or
-    (interrupted by Ctrl-C or SIGTERM) not written at all; when a viewer goes away, the ``.rrd`` is still
-    completed before the error is raised. A spawned desktop viewer stays open. ``options``: as the CLI checked them
-    (``steval_link.cli.viewer_options``: once, before the work), so they are not probed again here."""
+    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, flush, close (``--serve``: after Ctrl-C)
+    and return what ``log`` returned. The ``.rrd`` is complete (a line on stderr says where; also when a viewer
+    went away) or, interrupted, not written at all."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
         session.flush()
-        if options.serve:
-            session.wait_for_viewer()
+        session.wait_for_viewer()  # with --serve only (the web viewer is a child)
     except UserError:  # a viewer went away: the .rrd is still complete
-        try:
+        with contextlib.suppress(UserError):
             session.close()
-        except UserError:
-            pass
         say_rrd_written(options.rrd)
         raise
     except BaseException:  # Ctrl-C, SIGTERM: no half file

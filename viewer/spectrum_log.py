@@ -1,16 +1,6 @@
-"""``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`), their
-entities and their blueprint.
-
-Entities, per signal ``gyro_x`` … ``acc_z`` (PSD values in dB re 1 mdps²/Hz or 1 mg²/Hz, frequency from 0 to the
-AHRS Nyquist along each bar chart's x axis):
-
-- ``spectrum/psd/<signal>``: the Welch PSD of the whole capture (bar chart, static);
-- ``spectrum/window/<signal>``: the PSD of the window around the time cursor (bar chart on ``fw_time``, one per
-  window, so scrubbing the timeline plays the spectrum), next to ``spectrum/signal/gyro`` and ``…/acc``, the rows'
-  values themselves;
-- ``spectrum/spectrogram/<signal>``: frequency (up) × window (time →) heat map (tensor, static);
-- ``spectrum/throttle/<signal>``: frequency (up) × throttle bin (→) heat map, Blackbox's frequency vs throttle;
-- ``spectrum/notes``: the printed summary (rates, Nyquist, aliases of ``--mark-hz``, peaks) as a text document.
+"""``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
+``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
+``viewer/README.md``.
 """
 
 from __future__ import annotations
@@ -24,10 +14,9 @@ import rerun.blueprint as rrb
 from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
 from steval_viewer import entities as ent
+from steval_viewer.blueprint import window
 from steval_viewer.columns import Times, send_scalars
 from steval_viewer.sinks import log_whole
-
-__all__ = ["ROOT", "spectrum_blueprint", "log_spectra", "spectrum_sink"]
 
 ROOT = "spectrum"
 NOTES = f"{ROOT}/notes"
@@ -99,56 +88,41 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
         name="Spectra",
         active_tab=active_tab,
     )
-    return rrb.Blueprint(
+    return window(
         rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
         rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed"),
-        rrb.BlueprintPanel(expanded=False),
-        rrb.SelectionPanel(expanded=False),
-        collapse_panels=False,
     )
 
 
 def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
-    """Log ``sp`` (and the rows of ``tel`` it was computed from) to ``rec`` with :func:`spectrum_blueprint`;
-    returns the number of values logged per entity path."""
+    """Log ``sp`` and the rows of ``tel`` it came from; returns the values logged per entity path."""
     rec.send_blueprint(spectrum_blueprint(sp.nyquist_hz), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     f = np.asarray(sp.freq_hz, dtype=np.float64)
-    for k, (name, _, axis) in enumerate(SIGNALS):
-        colour = _COLOURS["xyz"[axis]]
-        path = _path("psd", name)
-        rec.log(path, rr.BarChart(_db(sp.psd[:, k]), abscissa=f, color=colour), static=True)
-        counts[path] = len(f)
+    colours = [_COLOURS["xyz"[axis]] for _, _, axis in SIGNALS]
+    occupied = np.flatnonzero(sp.thr_windows)
+    for k, (name, _, _) in enumerate(SIGNALS):
         spec = _db(sp.spectrogram[:, :, k]).T  # (F, W)
-        path = _path("spectrogram", name)
-        rec.log(path, rr.Tensor(spec, dim_names=("frequency", "window")), static=True)
-        counts[path] = int(spec.size)
-        occupied = np.flatnonzero(sp.thr_windows)
         thr = _db(sp.thr_psd[occupied, :, k]).T if occupied.size else np.zeros((len(f), 0), np.float32)
-        path = _path("throttle", name)
-        rec.log(path, rr.Tensor(thr, dim_names=("frequency", "throttle bin")), static=True)
-        counts[path] = int(thr.size)
+        for kind, values, size in (
+            ("psd", rr.BarChart(_db(sp.psd[:, k]), abscissa=f, color=colours[k]), len(f)),
+            ("spectrogram", rr.Tensor(spec, dim_names=("frequency", "window")), spec.size),
+            ("throttle", rr.Tensor(thr, dim_names=("frequency", "throttle bin")), thr.size),
+        ):
+            rec.log(_path(kind, name), values, static=True)
+            counts[_path(kind, name)] = int(size)
+        counts[_path("window", name)] = len(sp.window_t_fw_s)
     for w, t in enumerate(sp.window_t_fw_s):
         rec.set_time(ent.TIMELINE_FW, duration=float(t))
-        for k, (name, _, axis) in enumerate(SIGNALS):
-            rec.log(
-                _path("window", name),
-                rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f, color=_COLOURS["xyz"[axis]]),
-            )
+        for k, (name, _, _) in enumerate(SIGNALS):
+            rec.log(_path("window", name), rr.BarChart(_db(sp.spectrogram[w, :, k]), abscissa=f, color=colours[k]))
     rec.reset_time()
-    for name, _, _ in SIGNALS:
-        counts[_path("window", name)] = len(sp.window_t_fw_s)
     att = tel.attitude
     times = Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None))
     for sensor, values in (("gyro", att.gyro_mdps), ("acc", att.acc_mg)):
         path = f"{ROOT}/signal/{sensor}"
-        rec.log(
-            path,
-            rr.SeriesLines(
-                names=[f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"], colors=[_COLOURS[a] for a in "xyz"]
-            ),
-            static=True,
-        )
+        names = [f"{sensor} {a} ({UNITS[sensor]})" for a in "xyz"]
+        rec.log(path, rr.SeriesLines(names=names, colors=[_COLOURS[a] for a in "xyz"]), static=True)
         send_scalars(rec, path, times, np.asarray(values, dtype=np.float64))
         counts[path] = len(times)
     send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
@@ -168,8 +142,7 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
 
 
 def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
-    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the Rerun sinks of ``options`` (a
-    ``SinkOptions``): a complete ``.rrd`` or none; with ``--serve`` waits for Ctrl-C; a spawned viewer stays."""
+    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the sinks of ``options`` (``log_whole``)."""
 
     def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
         notes = format_summary(sp, peaks, marks_hz)
