@@ -141,6 +141,11 @@ typedef struct {
   int64_t scs_page, cyccnt_on, cyccnt_base;
   /* USART1's base address (bit-band accesses to it are served here) */
   int64_t usart_base;
+  /* TIM9 updates plan_u0 .. plan_u0 + plan_n - 1 planned by Python (while now < plan_until): the LSM6DSL's outputs
+   * 0x22..0x2D (12 bytes an update) and plan_len bytes an update written to RAM at plan_addr; other updates call
+   * Python (EV_TICK) */
+  uint8_t *plan_img, *plan_ram;
+  int64_t plan_u0, plan_n, plan_until, plan_addr, plan_len;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -584,7 +589,16 @@ static void timer_update(core_t *s, int64_t i) {
   t->next = (t->next ? t->next : s->now) + (period > 1 ? period : 1);
   t->regs[TIM_SR >> 2] |= 1;
   timer_irq_line(s, t);
-  if (i == 0) ((py_event_t)s->py_event)(EV_TICK, 0);
+  if (i != 0) return;
+  int64_t j = t->updates - s->plan_u0;
+  if (j < 0 || j >= s->plan_n || s->now >= s->plan_until) {
+    ((py_event_t)s->py_event)(EV_TICK, 0);
+    return;
+  }
+  memcpy(s->sensor_img[0] + 0x22, s->plan_img + 12 * j, 12);
+  s->sensor_img[0][0x1E] = 0x07; /* STATUS_REG: data ready */
+  s->sensor_valid = t->updates;
+  if (s->plan_len) memcpy(s->ram + (s->plan_addr - RAM_BASE), s->plan_ram + s->plan_len * j, (size_t)s->plan_len);
 }
 
 static ctimer_t *timer_of(void *user) { return (ctimer_t *)user; }

@@ -194,6 +194,11 @@ class ScenarioMotion:
                 self._render(w)
         return max(k, 0) - self._k0
 
+    def window_row(self, k: int) -> int:
+        """Tick ``k``'s row in the window rendered last, -1 if not there."""
+        i = k - self._k0 if self._window >= 0 else -1
+        return i if i < _WINDOW_TICKS else -1
+
     def counts(self, k: int):
         i = self._at(k)
         return self._acc[i], self._gyro[i]
@@ -328,6 +333,7 @@ class Emulation:
         self._connected = self.elf.by_name.get("connected")
         self._remote_connected = False
         self.board.tick_observers.append(self._on_tick)
+        self.board.tick_planner = self.plan_ticks
         self._steps: list[int] = []
         #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry, inputs ready) and end (its
         #: Euler angles computed): a debugger's view of the step (e.g. the firmware's globals read by symbol)
@@ -408,6 +414,28 @@ class Emulation:
             board.ram_write(self._joy + 2, joy)
         else:
             board.ram_write(self._joy + 3, joy[1:2])
+
+    def plan_ticks(self, board: Board) -> tuple | None:
+        """What :meth:`_on_tick` and the sensors do at the next TIM9 updates, while the rendered window gives it:
+        (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote bytes (n, m) uint8, the instruction
+        count it holds until or None). None: the next update needs :meth:`_on_tick`."""
+        m = self.motion
+        i = m.window_row(self.bus.tick_index(board) + 1)  # the next update's sensor row; the remote reads the next
+        n = _WINDOW_TICKS - 1 - i
+        if i < 0 or n <= 0 or (self._joy is not None and not self._remote_connected and m.remote_from_start):
+            return None
+        rows, addr, until = np.frombuffer(m._joydata, np.uint8).reshape(-1, 7)[i + 1 : i + 1 + n], 0, None
+        if self._joy is not None and not self._remote_connected and self._connected is not None:
+            moves = np.flatnonzero(rows[:, 6])  # the remote connects at its first move, or a central at _connect_at
+            n, until = (int(moves[0]) if len(moves) else n), self._connect_at
+        if n <= 0:
+            return None
+        if self._joy is None:
+            rows = rows[:n, :0]
+        else:
+            addr, rows = (self._joy + 2, rows[:n, :6]) if self._remote_connected else (self._joy + 3, rows[:n, 1:2])
+        img = np.concatenate([m._gyro[i : i + n], m._acc[i : i + n]], 1).astype("<i2").view(np.uint8)
+        return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows), until
 
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:

@@ -73,6 +73,9 @@ class NativeBoard(PythonBoard):
     """:class:`PythonBoard` with the C core (see the module docstring)."""
 
     native = True
+    #: ``planner(board)``: the next TIM9 updates as tables, applied in C without the tick observers (see
+    #: ``Emulation.plan_ticks``); None: every update calls them
+    tick_planner = None
 
     def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
         self.lib = core_library()
@@ -230,7 +233,7 @@ class NativeBoard(PythonBoard):
         for lo, hi in ((0, RAM_BASE - 1), (RAM_BASE + RAM_SIZE, 0xFFFFFFFF)):  # (none over RAM: see above)
             self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid), begin=lo, end=hi)
         calls = FirmwareCalls(self)
-        sensor_read = self.elf.addr("Sensor_IO_Read")
+        sensor_read, self._sensor_write = self.elf.addr("Sensor_IO_Read"), self.elf.addr("Sensor_IO_Write")
         # a write changes the register files: the C core's copies follow
         self.call_observers.setdefault("Sensor_IO_Write", []).append(lambda board, *args: self._sensor_images())
         calls.install(skip=("Sensor_IO_Read",) if sensor_read is not None else ())
@@ -273,6 +276,7 @@ class NativeBoard(PythonBoard):
                 for ob in self.tick_observers:
                     ob(self)
                 self._sensor_tick()
+                self._plan_ticks()
             elif kind == EV_OUT_FULL:
                 self._drain()
             elif kind == EV_MMIO:
@@ -291,8 +295,11 @@ class NativeBoard(PythonBoard):
                 for p in self._mirrored:
                     self._refresh_mirror(p)
             elif kind == EV_CODE:
+                if self.st.hook_addr == self._sensor_write:
+                    self._sensor_catch_up()
                 self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
             elif kind == EV_SENSOR:
+                self._sensor_catch_up()
                 self._sensor_slow(self.uc, 0, 0, None)
                 self._sensor_images()
         except BaseException as exc:  # noqa: BLE001 - raised again by run_until
@@ -307,6 +314,24 @@ class NativeBoard(PythonBoard):
             return
         ctypes.memmove(self._lsm6dsl_img, bus.lsm6dsl_image(self), 128)
         st.sensor_valid = st.tim[0].updates
+
+    def _plan_ticks(self) -> None:
+        """The next TIM9 updates into the C core as :attr:`tick_planner` tables them (no Python call per update)."""
+        st = self.st
+        st.plan_n = 0
+        if self.tick_planner is None or len(self.tick_observers) > 1 or st.sensor_fast[0] != 1:
+            return
+        plan = None if self.call_observers.get("Sensor_IO_Read") else self.tick_planner(self)
+        if plan is not None:
+            n, img, addr, ram, until = plan
+            self._plan = img, ram  # (the C core reads them)
+            st.plan_img, st.plan_ram, st.plan_addr, st.plan_len = img.ctypes.data, ram.ctypes.data, addr, ram.shape[1]
+            st.plan_u0, st.plan_n, st.plan_until = st.tim[0].updates + 1, n, 1 << 62 if until is None else until
+
+    def _sensor_catch_up(self) -> None:
+        """After planned TIM9 updates: the LSM6DSL's Python registers with this tick's sample again."""
+        if self.st.plan_n and self.st.tim[0].updates >= self.st.plan_u0:
+            self.sensors.lsm6dsl_image(self)
 
     def _sensor_images(self) -> None:
         """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
@@ -400,6 +425,7 @@ class NativeBoard(PythonBoard):
             raise self.fault
         if self.st.sensor_valid and self.call_observers.get("Sensor_IO_Read"):
             st.sensor_fast[:] = [0] * SENSOR_DEVICES
+            st.plan_n = 0
         rc = self.lib.core_run(self.st_ptr, I64(t_end))
         self.now = st.now
         if self.out:  # (bytes already drained into out: keep the order)

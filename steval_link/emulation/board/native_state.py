@@ -158,6 +158,13 @@ class CoreState(ctypes.Structure):
         ("cyccnt_on", I64),
         ("cyccnt_base", I64),
         ("usart_base", I64),
+        ("plan_img", P),
+        ("plan_ram", P),
+        ("plan_u0", I64),
+        ("plan_n", I64),
+        ("plan_until", I64),
+        ("plan_addr", I64),
+        ("plan_len", I64),
     ]
 
 
