@@ -446,9 +446,6 @@ class Emulation:
         if start is not None and end is not None:
             b.probe(start, self._on_step_start)
             b.probe(end, self._on_step_end)
-        begin = e.addr("stv_fw_step_begin")
-        if begin is not None:
-            b.probe(begin, lambda board: None)
 
     def _on_step_start(self, board: Board) -> None:
         self._step_start = (board.instructions_now(), board.exception_instructions)

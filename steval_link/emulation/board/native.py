@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import ctypes
 
+import numpy as np
+
 from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.cpu import uclib, wfi_sites
@@ -415,7 +417,8 @@ class NativeBoard(PythonBoard):
     def _stats(self) -> None:
         st, s = self.st, self.stats
         s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
-        s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
+        counts = np.frombuffer(st.counts, np.int64)
+        s.interrupts = {int(e): int(counts[e]) for e in np.flatnonzero(counts)}
 
     def run_until(self, t_end: int, *, max_slice: int = C.CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
