@@ -146,6 +146,8 @@ typedef struct {
    * Python (EV_TICK) */
   uint8_t *plan_img, *plan_ram;
   int64_t plan_u0, plan_n, plan_until, plan_addr, plan_len;
+  /* ADC1's mirror (-1: none), whose SR and CR2 words C owns, and the reading its DR returns */
+  int64_t adc_page, adc_dr;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -447,13 +449,23 @@ EXPORT void usart_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
   usart_write(s, o, v);
 }
 
-/* MMIO callbacks of a mirrored page (user: its mirror_t) */
+#define ADC_CR2 0x08
+#define ADC_DR 0x4C
+#define ADC_EOC 0x02u
+#define ADC_STRT 0x10u
+#define ADC_SWSTART 0x40000000u
+
+/* MMIO callbacks of a mirrored page (user: its mirror_t); ADC1's conversions (memory_map.Adc) run here */
 EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
   mirror_t *m = (mirror_t *)user;
   core_t *s = (core_t *)m->core;
   (void)uc;
   touched(s);
   uint64_t w = off >> 2, mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+  if (m->page == s->adc_page && w == ADC_DR / 4) { /* a conversion's reading; clears EOC */
+    m->vals[0] &= ~ADC_EOC;
+    return ((uint32_t)s->adc_dr >> ((off & 3) * 8)) & mask;
+  }
   if (w < 256 && m->served[w]) return (m->vals[w] >> ((off & 3) * 8)) & mask;
   if (m->page == s->scs_page && w == 0x1004 / 4 && s->cyccnt_on) { /* DWT CYCCNT: the instruction clock */
     sync_now(s);
@@ -474,6 +486,16 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
   (void)uc;
   touched(s);
   sync_now(s);
+  uint32_t v = (uint32_t)value;
+  if (m->page == s->adc_page && size == 4 && off == ADC_CR2) { /* SWSTART: a conversion, done at once */
+    if (v & ADC_SWSTART) m->vals[0] |= ADC_EOC | ADC_STRT;
+    m->vals[ADC_CR2 / 4] = v & ~ADC_SWSTART;
+    return;
+  }
+  if (m->page == s->adc_page && size == 4 && off == 0) { /* SR: rc_w0 */
+    m->vals[0] &= v;
+    return;
+  }
   s->hook_addr = (int64_t)off;
   s->hook_size = size;
   s->mmio_write = 1;

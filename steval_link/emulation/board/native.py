@@ -110,7 +110,7 @@ class NativeBoard(PythonBoard):
         st.max_slice = C.CPU_HZ // 1000
         st.poll_ids[:] = [getattr(A, f"UC_ARM_REG_R{i}") for i in range(13)] + [r.SP, r.LR, r.XPSR]
         st.poll_skip, st.poll_pc = 1, NONE
-        st.scs_page, st.usart_base = NONE, PERIPH_BASE + USART1_OFF
+        st.scs_page, st.adc_page, st.usart_base = NONE, NONE, PERIPH_BASE + USART1_OFF
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -189,7 +189,15 @@ class NativeBoard(PythonBoard):
         self._refresh_mirror(p)
         if scs:
             self.st.scs_page = k
+        if p.name == "ADC1":
+            self.st.adc_page, self.st.adc_dr = k, p.VBAT_COUNTS
         self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
+
+    @staticmethod
+    def _pull_mirror(p) -> None:
+        """A mirrored page's ``c_owned`` words from the C core, before Python's model runs."""
+        for off in p.c_owned:
+            p.regs[off] = p.mirror.vals[off // 4]
 
     @staticmethod
     def _refresh_mirror(p) -> None:
@@ -283,6 +291,7 @@ class NativeBoard(PythonBoard):
                 self._drain()
             elif kind == EV_MMIO:
                 p, st = self._mirrored[arg], self.st
+                self._pull_mirror(p)
                 if st.mmio_write:
                     self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
                 else:
@@ -290,6 +299,8 @@ class NativeBoard(PythonBoard):
                 self._refresh_mirror(p)
             elif kind == EV_BITBAND:
                 st = self.st
+                for p in self._mirrored:
+                    self._pull_mirror(p)
                 if st.mmio_write:
                     self._bb_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, None)
                 else:

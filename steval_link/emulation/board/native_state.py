@@ -97,7 +97,7 @@ class CoreState(ctypes.Structure):
         ("poll_stack", U8 * POLL_STACK),
         *_same(I64, "scs_page cyccnt_on cyccnt_base usart_base"),
         *_same(P, "plan_img plan_ram"),
-        *_same(I64, "plan_u0 plan_n plan_until plan_addr plan_len"),
+        *_same(I64, "plan_u0 plan_n plan_until plan_addr plan_len adc_page adc_dr"),
     ]
 
 
