@@ -1,12 +1,8 @@
-/* The emulated board's hot path in C (steval_link.emulation.board.native): the instruction counter, the event
- * scheduler, USART1, SysTick, the NVIC, exception entry/return, idle skipping and the SPI sensor reads.
- *
- * Same model, same instruction clock as the Python models (board/usart.py, scs.py, cpu.py, core.py): for the same
- * firmware and inputs the firmware sees the same registers at the same instruction counts. Python owns the
- * state (a core_t it allocates with ctypes, mirrored field by field in native.py), registers these functions with
- * unicorn's C API (hooks, MMIO), and gives the unicorn entry points as function pointers; this file needs no
- * unicorn header. Python is called back (py_event) for the timers (TIM9/TIM2 stay in Python), a full output buffer
- * and the sensor reads the register images cannot answer. */
+/* The emulated board's hot path in C (board/native.py; the model: the board package's docstring). The Python models
+ * translated (usart.py, timer.py, scs.py, cpu.py, core.py, memory_map.py's ADC1): the same registers at the same
+ * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in native_state.py), registers
+ * these functions with unicorn's C API and hands over its entry points (no unicorn header here). Python is called
+ * back (py_event) for TIM9 updates without a plan, a full output buffer, sensor reads without an image, code sites. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <stdint.h>

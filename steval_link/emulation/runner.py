@@ -424,18 +424,16 @@ class Emulation:
         n = _WINDOW_TICKS - 1 - i
         if i < 0 or n <= 0 or (self._joy is not None and not self._remote_connected and m.remote_from_start):
             return None
-        rows, addr, until = np.frombuffer(m._joydata, np.uint8).reshape(-1, 7)[i + 1 : i + 1 + n], 0, None
+        rows, until = np.frombuffer(m._joydata, np.uint8).reshape(-1, 7)[i + 1 : i + 1 + n], None
         if self._joy is not None and not self._remote_connected and self._connected is not None:
             moves = np.flatnonzero(rows[:, 6])  # the remote connects at its first move, or a central at _connect_at
             n, until = (int(moves[0]) if len(moves) else n), self._connect_at
         if n <= 0:
             return None
-        if self._joy is None:
-            rows = rows[:n, :0]
-        else:
-            addr, rows = (self._joy + 2, rows[:n, :6]) if self._remote_connected else (self._joy + 3, rows[:n, 1:2])
+        addr = 0 if self._joy is None else self._joy + (2 if self._remote_connected else 3)
+        cols = slice(0, 0) if self._joy is None else slice(0, 6) if self._remote_connected else slice(1, 2)
         img = np.concatenate([m._gyro[i : i + n], m._acc[i : i + n]], 1).astype("<i2").view(np.uint8)
-        return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows), until
+        return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows[:n, cols]), until
 
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:

@@ -1,11 +1,6 @@
-"""The board with its hot path in C (``steval_link.emulation._core``): the instruction counter, the event scheduler,
-USART1, SysTick, the NVIC, the timers, exception entry/return, idle skipping and the sensor reads run inside unicorn's
-hooks without Python. The other peripherals, the replaced firmware calls, TIM9's tick observers and the probes stay
-in Python.
+"""The board with its hot path in C (``steval_link.emulation._core``; what runs where: the board package's docstring).
 
-The C state is a ``core_t`` allocated here (:mod:`.native_state` mirrors it; ``core_sizeof`` checks the layout).
-The models are the Python ones translated (board/usart.py, timer.py, scs.py, cpu.py, core.py): the firmware sees the
-same thing at the same instruction counts.
+Its state is a ``core_t`` allocated here (:mod:`.native_state` mirrors it; ``core_sizeof`` checks the layout).
 """
 
 from __future__ import annotations
@@ -125,23 +120,6 @@ class NativeBoard(PythonBoard):
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
 
-    # a Python model's access: a poll loop around it does not repeat unchanged (the C core's poll skip)
-    def _mmio_read(self, uc, off, size, p):
-        self.st.io_epoch += 1
-        return super()._mmio_read(uc, off, size, p)
-
-    def _mmio_write(self, uc, off, size, value, p):
-        self.st.io_epoch += 1
-        super()._mmio_write(uc, off, size, value, p)
-
-    def _bb_read(self, uc, off, size, user):
-        self.st.io_epoch += 1
-        return super()._bb_read(uc, off, size, user)
-
-    def _bb_write(self, uc, off, size, value, user):
-        self.st.io_epoch += 1
-        super()._bb_write(uc, off, size, value, user)
-
     def _make_usart(self):
         return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
 
@@ -178,7 +156,7 @@ class NativeBoard(PythonBoard):
             return self._map_c(p, "timer_mmio_read", "timer_mmio_write", ctypes.byref(p.t))
         scs = isinstance(p, NativeScs)
         if not (p.c_readable or scs) or len(self._mirrored) >= MAX_MIRROR:
-            return super()._map_python(uc, p, rd, wr)
+            return super()._map_python(uc, p, self._epoch_first(rd), self._epoch_first(wr))
         k = len(self._mirrored)
         self._mirrored.append(p)
         m = self.st.mirror[k]
@@ -192,6 +170,16 @@ class NativeBoard(PythonBoard):
         if p.name == "ADC1":
             self.st.adc_page, self.st.adc_dr = k, p.VBAT_COUNTS
         self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
+
+    def _epoch_first(self, hook):
+        """``hook`` (unicorn calls it, past the C core) after the poll skip's epoch moves: a poll loop around a
+        Python model's access does not repeat unchanged. (The C core moves it before every call into Python.)"""
+
+        def moved(*args):
+            self.st.io_epoch += 1
+            return hook(*args)
+
+        return moved
 
     @staticmethod
     def _pull_mirror(p) -> None:
@@ -280,7 +268,6 @@ class NativeBoard(PythonBoard):
     # -- Python called from C
     def _on_event(self, kind: int, arg: int) -> int:
         try:
-            self.st.io_epoch += 1
             self.now = self.st.now
             if kind == EV_TICK:
                 for ob in self.tick_observers:
