@@ -445,10 +445,7 @@ EXPORT void usart_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
   usart_write(s, o, v);
 }
 
-#define ADC_CR2 0x08
-#define ADC_DR 0x4C
-#define ADC_EOC 0x02u
-#define ADC_STRT 0x10u
+enum { ADC_CR2 = 0x08, ADC_DR = 0x4C, ADC_EOC = 0x02, ADC_STRT = 0x10 }; /* ADC1: registers, SR bits */
 #define ADC_SWSTART 0x40000000u
 
 /* MMIO callbacks of a mirrored page (user: its mirror_t); ADC1's conversions (memory_map.Adc) run here */

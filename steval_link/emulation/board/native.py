@@ -85,6 +85,7 @@ class NativeBoard(PythonBoard):
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
         self._py_hooks: list = []
         self._mirrored: list = []
+        self._sensor_update = -1  # the TIM9 update whose sample the sensors' Python registers hold
         super().__init__(elf, sensors, skip_idle=skip_idle)
 
     # -- construction
@@ -313,25 +314,24 @@ class NativeBoard(PythonBoard):
         if not st.sensor_fast[0] or self.call_observers.get("Sensor_IO_Read"):
             return
         ctypes.memmove(self._lsm6dsl_img, bus.lsm6dsl_image(self), 128)
-        st.sensor_valid = st.tim[0].updates
+        st.sensor_valid = self._sensor_update = st.tim[0].updates
 
     def _plan_ticks(self) -> None:
         """The next TIM9 updates into the C core as :attr:`tick_planner` tables them (no Python call per update)."""
         st = self.st
-        st.plan_n = 0
-        if self.tick_planner is None or len(self.tick_observers) > 1 or st.sensor_fast[0] != 1:
-            return
-        plan = None if self.call_observers.get("Sensor_IO_Read") else self.tick_planner(self)
-        if plan is not None:
+        st.plan_n = 0  # (a plan stands for the observers and the sensor path it knew)
+        plan = self.tick_planner if len(self.tick_observers) == 1 and st.sensor_fast[0] == 1 else None
+        if plan is not None and not self.call_observers.get("Sensor_IO_Read") and (plan := plan(self)) is not None:
             n, img, addr, ram, until = plan
             self._plan = img, ram  # (the C core reads them)
             st.plan_img, st.plan_ram, st.plan_addr, st.plan_len = img.ctypes.data, ram.ctypes.data, addr, ram.shape[1]
             st.plan_u0, st.plan_n, st.plan_until = st.tim[0].updates + 1, n, 1 << 62 if until is None else until
 
     def _sensor_catch_up(self) -> None:
-        """After planned TIM9 updates: the LSM6DSL's Python registers with this tick's sample again."""
-        if self.st.plan_n and self.st.tim[0].updates >= self.st.plan_u0:
+        """After TIM9 updates applied in C: the LSM6DSL's Python registers with this tick's sample again."""
+        if self.st.sensor_fast[0] == 1 and self.st.tim[0].updates != self._sensor_update:
             self.sensors.lsm6dsl_image(self)
+            self._sensor_update = self.st.tim[0].updates
 
     def _sensor_images(self) -> None:
         """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
@@ -426,6 +426,7 @@ class NativeBoard(PythonBoard):
             raise self.fault
         if self.st.sensor_valid and self.call_observers.get("Sensor_IO_Read"):
             st.sensor_fast[:] = [0] * SENSOR_DEVICES
+        if self.call_observers.get("Sensor_IO_Read") or len(self.tick_observers) != 1 or self.tick_planner is None:
             st.plan_n = 0
         rc = self.lib.core_run(self.st_ptr, I64(t_end))
         self.now = st.now
