@@ -49,6 +49,7 @@ def bench(elf: Path, duration_s: float, native: bool | None, scenario: str) -> N
     if native is not None:
         emu.board = Board(emu.elf, emu.bus, native=native)
         emu.board.tick_observers.append(emu._on_tick)
+        emu.board.tick_planner = emu.plan_ticks  # (the C core's TIM9 tables; the Python models call the observer)
         emu._install_step_probes()
     dec = StreamDecoder()
     marks = []  # (emulated s, wall s, cpu s)

@@ -113,3 +113,25 @@ def test_the_poll_skip_changes_no_byte_and_no_instruction_count(printf_elf):
         out.append((stream, rep.step_instructions, rep.instructions, emu.board.st.polled))
     assert out[0][0] and out[0][:3] == out[1][:3]
     assert out[0][3] == 0 and out[1][3] > out[1][2] // 2  # most of the executed instructions were polling passes
+
+
+@pytest.mark.parametrize("throttle", [None, "0:0,4:0,4.5:600"])
+def test_planned_ticks_change_no_byte_and_no_instruction_count(elf, throttle):
+    """TIM9 updates applied by the C core from the runner's tables, and each through Python: the same bytes, the same
+    instruction counts (with a throttle the remote connects at its first move, mid-run)."""
+    from steval_link.emulation.runner import Emulation, EmulationOptions  # reason: after the C core check
+
+    out = []
+    for planned in (False, True):
+        emu = Emulation(EmulationOptions(elf=elf, scenario="hand-tilts", duration_s=6.0, seed=3, throttle=throttle))
+        calls = []
+        emu.board.tick_observers[0] = lambda board, tick=emu._on_tick: (calls.append(1), tick(board))
+        if not planned:
+            emu.board.tick_planner = None
+        stream = emu.run()
+        rep = emu.report()
+        out.append(
+            (stream, rep.step_instructions, rep.instructions, rep.interrupts, len(calls), emu.board.tim9.updates)
+        )
+    assert out[0][0] and out[0][:4] == out[1][:4]
+    assert out[0][4] == out[0][5] > 4000 and out[1][4] < out[0][4] // 100  # planned: Python at a few updates only

@@ -1,12 +1,8 @@
-/* The emulated board's hot path in C (steval_link.emulation.board.native): the instruction counter, the event
- * scheduler, USART1, SysTick, the NVIC, exception entry/return, idle skipping and the SPI sensor reads.
- *
- * Same model, same instruction clock as the Python models (board/usart.py, scs.py, cpu.py, core.py): for the same
- * firmware and inputs the firmware sees the same registers at the same instruction counts. Python owns the
- * state (a core_t it allocates with ctypes, mirrored field by field in native.py), registers these functions with
- * unicorn's C API (hooks, MMIO), and gives the unicorn entry points as function pointers; this file needs no
- * unicorn header. Python is called back (py_event) for the timers (TIM9/TIM2 stay in Python), a full output buffer
- * and the sensor reads the register images cannot answer. */
+/* The emulated board's hot path in C (board/native.py; the model: the board package's docstring). The Python models
+ * translated (usart.py, timer.py, scs.py, cpu.py, core.py, memory_map.py's ADC1): the same registers at the same
+ * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in native_state.py), registers
+ * these functions with unicorn's C API and hands over its entry points (no unicorn header here). Python is called
+ * back (py_event) for TIM9 updates without a plan, a full output buffer, sensor reads without an image, code sites. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <stdint.h>
@@ -141,6 +137,13 @@ typedef struct {
   int64_t scs_page, cyccnt_on, cyccnt_base;
   /* USART1's base address (bit-band accesses to it are served here) */
   int64_t usart_base;
+  /* TIM9 updates plan_u0 .. plan_u0 + plan_n - 1 planned by Python (while now < plan_until): the LSM6DSL's outputs
+   * 0x22..0x2D (12 bytes an update) and plan_len bytes an update written to RAM at plan_addr; other updates call
+   * Python (EV_TICK) */
+  uint8_t *plan_img, *plan_ram;
+  int64_t plan_u0, plan_n, plan_until, plan_addr, plan_len;
+  /* ADC1's mirror (-1: none), whose SR and CR2 words C owns, and the reading its DR returns */
+  int64_t adc_page, adc_dr;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -442,13 +445,20 @@ EXPORT void usart_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
   usart_write(s, o, v);
 }
 
-/* MMIO callbacks of a mirrored page (user: its mirror_t) */
+enum { ADC_CR2 = 0x08, ADC_DR = 0x4C, ADC_EOC = 0x02, ADC_STRT = 0x10 }; /* ADC1: registers, SR bits */
+#define ADC_SWSTART 0x40000000u
+
+/* MMIO callbacks of a mirrored page (user: its mirror_t); ADC1's conversions (memory_map.Adc) run here */
 EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
   mirror_t *m = (mirror_t *)user;
   core_t *s = (core_t *)m->core;
   (void)uc;
   touched(s);
   uint64_t w = off >> 2, mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+  if (m->page == s->adc_page && w == ADC_DR / 4) { /* a conversion's reading; clears EOC */
+    m->vals[0] &= ~ADC_EOC;
+    return ((uint32_t)s->adc_dr >> ((off & 3) * 8)) & mask;
+  }
   if (w < 256 && m->served[w]) return (m->vals[w] >> ((off & 3) * 8)) & mask;
   if (m->page == s->scs_page && w == 0x1004 / 4 && s->cyccnt_on) { /* DWT CYCCNT: the instruction clock */
     sync_now(s);
@@ -469,6 +479,16 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
   (void)uc;
   touched(s);
   sync_now(s);
+  uint32_t v = (uint32_t)value;
+  if (m->page == s->adc_page && size == 4 && off == ADC_CR2) { /* SWSTART: a conversion, done at once */
+    if (v & ADC_SWSTART) m->vals[0] |= ADC_EOC | ADC_STRT;
+    m->vals[ADC_CR2 / 4] = v & ~ADC_SWSTART;
+    return;
+  }
+  if (m->page == s->adc_page && size == 4 && off == 0) { /* SR: rc_w0 */
+    m->vals[0] &= v;
+    return;
+  }
   s->hook_addr = (int64_t)off;
   s->hook_size = size;
   s->mmio_write = 1;
@@ -584,7 +604,16 @@ static void timer_update(core_t *s, int64_t i) {
   t->next = (t->next ? t->next : s->now) + (period > 1 ? period : 1);
   t->regs[TIM_SR >> 2] |= 1;
   timer_irq_line(s, t);
-  if (i == 0) ((py_event_t)s->py_event)(EV_TICK, 0);
+  if (i != 0) return;
+  int64_t j = t->updates - s->plan_u0;
+  if (j < 0 || j >= s->plan_n || s->now >= s->plan_until) {
+    ((py_event_t)s->py_event)(EV_TICK, 0);
+    return;
+  }
+  memcpy(s->sensor_img[0] + 0x22, s->plan_img + 12 * j, 12);
+  s->sensor_img[0][0x1E] = 0x07; /* STATUS_REG: data ready */
+  s->sensor_valid = t->updates;
+  if (s->plan_len) memcpy(s->ram + (s->plan_addr - RAM_BASE), s->plan_ram + s->plan_len * j, (size_t)s->plan_len);
 }
 
 static ctimer_t *timer_of(void *user) { return (ctimer_t *)user; }

@@ -194,6 +194,11 @@ class ScenarioMotion:
                 self._render(w)
         return max(k, 0) - self._k0
 
+    def window_row(self, k: int) -> int:
+        """Tick ``k``'s row in the window rendered last, -1 if not there."""
+        i = k - self._k0 if self._window >= 0 else -1
+        return i if i < _WINDOW_TICKS else -1
+
     def counts(self, k: int):
         i = self._at(k)
         return self._acc[i], self._gyro[i]
@@ -328,6 +333,7 @@ class Emulation:
         self._connected = self.elf.by_name.get("connected")
         self._remote_connected = False
         self.board.tick_observers.append(self._on_tick)
+        self.board.tick_planner = self.plan_ticks
         self._steps: list[int] = []
         #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry, inputs ready) and end (its
         #: Euler angles computed): a debugger's view of the step (e.g. the firmware's globals read by symbol)
@@ -409,6 +415,26 @@ class Emulation:
         else:
             board.ram_write(self._joy + 3, joy[1:2])
 
+    def plan_ticks(self, board: Board) -> tuple | None:
+        """What :meth:`_on_tick` and the sensors do at the next TIM9 updates, while the rendered window gives it:
+        (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote bytes (n, m) uint8, the instruction
+        count it holds until or None). None: the next update needs :meth:`_on_tick`."""
+        m = self.motion
+        i = m.window_row(self.bus.tick_index(board) + 1)  # the next update's sensor row; the remote reads the next
+        n = _WINDOW_TICKS - 1 - i
+        if i < 0 or n <= 0 or (self._joy is not None and not self._remote_connected and m.remote_from_start):
+            return None
+        rows, until = np.frombuffer(m._joydata, np.uint8).reshape(-1, 7)[i + 1 : i + 1 + n], None
+        if self._joy is not None and not self._remote_connected and self._connected is not None:
+            moves = np.flatnonzero(rows[:, 6])  # the remote connects at its first move, or a central at _connect_at
+            n, until = (int(moves[0]) if len(moves) else n), self._connect_at
+        if n <= 0:
+            return None
+        addr = 0 if self._joy is None else self._joy + (2 if self._remote_connected else 3)
+        cols = slice(0, 0) if self._joy is None else slice(0, 6) if self._remote_connected else slice(1, 2)
+        img = np.concatenate([m._gyro[i : i + n], m._acc[i : i + n]], 1).astype("<i2").view(np.uint8)
+        return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows[:n, cols]), until
+
     # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
         b, e = self.board, self.elf
@@ -418,9 +444,6 @@ class Emulation:
         if start is not None and end is not None:
             b.probe(start, self._on_step_start)
             b.probe(end, self._on_step_end)
-        begin = e.addr("stv_fw_step_begin")
-        if begin is not None:
-            b.probe(begin, lambda board: None)
 
     def _on_step_start(self, board: Board) -> None:
         self._step_start = (board.instructions_now(), board.exception_instructions)

@@ -55,6 +55,8 @@ class Peripheral:
     name = "periph"
     #: words whose read has no side effect and changes only by this model's read/write (the C core serves them)
     c_readable: tuple[int, ...] = ()
+    #: words the C core also writes (its mirror holds them; Python takes them back before its own access)
+    c_owned: tuple[int, ...] = ()
 
     def __init__(
         self, board, base: int, size: int = PERIPH_PAGE, reset: dict[int, int] | None = None, name: str | None = None
@@ -162,7 +164,7 @@ class Adc(Peripheral):
     """ADC1: a conversion completes at once on SWSTART; DR holds the battery divider's reading."""
 
     name = "ADC1"
-    c_readable = (AdcReg.SR, AdcReg.CR2)
+    c_readable = c_owned = (AdcReg.SR, AdcReg.CR2)
     #: 12-bit reading of the battery sense divider: the firmware's VBAT = counts·3.3/4095·(10k + 20k)/20k = 3.90 V, a
     #: charged 1S LiPo
     VBAT_COUNTS = 3226

@@ -1,16 +1,13 @@
-"""The board with its hot path in C (``steval_link.emulation._core``): the instruction counter, the event scheduler,
-USART1, SysTick, the NVIC, the timers, exception entry/return, idle skipping and the sensor reads run inside unicorn's
-hooks without Python. The other peripherals, the replaced firmware calls, TIM9's tick observers and the probes stay
-in Python.
+"""The board with its hot path in C (``steval_link.emulation._core``; what runs where: the board package's docstring).
 
-The C state is a ``core_t`` allocated here (:mod:`.native_state` mirrors it; ``core_sizeof`` checks the layout).
-The models are the Python ones translated (board/usart.py, timer.py, scs.py, cpu.py, core.py): the firmware sees the
-same thing at the same instruction counts.
+Its state is a ``core_t`` allocated here (:mod:`.native_state` mirrors it; ``core_sizeof`` checks the layout).
 """
 
 from __future__ import annotations
 
 import ctypes
+
+import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation.board.core import PythonBoard
@@ -73,6 +70,9 @@ class NativeBoard(PythonBoard):
     """:class:`PythonBoard` with the C core (see the module docstring)."""
 
     native = True
+    #: ``planner(board)``: the next TIM9 updates as tables, applied in C without the tick observers (see
+    #: ``Emulation.plan_ticks``); None: every update calls them
+    tick_planner = None
 
     def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
         self.lib = core_library()
@@ -85,6 +85,7 @@ class NativeBoard(PythonBoard):
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
         self._py_hooks: list = []
         self._mirrored: list = []
+        self._sensor_update = -1  # the TIM9 update whose sample the sensors' Python registers hold
         super().__init__(elf, sensors, skip_idle=skip_idle)
 
     # -- construction
@@ -105,7 +106,7 @@ class NativeBoard(PythonBoard):
         st.max_slice = C.CPU_HZ // 1000
         st.poll_ids[:] = [getattr(A, f"UC_ARM_REG_R{i}") for i in range(13)] + [r.SP, r.LR, r.XPSR]
         st.poll_skip, st.poll_pc = 1, NONE
-        st.scs_page, st.usart_base = NONE, PERIPH_BASE + USART1_OFF
+        st.scs_page, st.adc_page, st.usart_base = NONE, NONE, PERIPH_BASE + USART1_OFF
         for name in ("systick_next", "dr_full", "shift_done", "rx_done", "rx_dr"):
             setattr(st, name, NONE)
         st.tc = 1
@@ -119,23 +120,6 @@ class NativeBoard(PythonBoard):
         st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
-
-    # a Python model's access: a poll loop around it does not repeat unchanged (the C core's poll skip)
-    def _mmio_read(self, uc, off, size, p):
-        self.st.io_epoch += 1
-        return super()._mmio_read(uc, off, size, p)
-
-    def _mmio_write(self, uc, off, size, value, p):
-        self.st.io_epoch += 1
-        super()._mmio_write(uc, off, size, value, p)
-
-    def _bb_read(self, uc, off, size, user):
-        self.st.io_epoch += 1
-        return super()._bb_read(uc, off, size, user)
-
-    def _bb_write(self, uc, off, size, value, user):
-        self.st.io_epoch += 1
-        super()._bb_write(uc, off, size, value, user)
 
     def _make_usart(self):
         return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
@@ -173,7 +157,7 @@ class NativeBoard(PythonBoard):
             return self._map_c(p, "timer_mmio_read", "timer_mmio_write", ctypes.byref(p.t))
         scs = isinstance(p, NativeScs)
         if not (p.c_readable or scs) or len(self._mirrored) >= MAX_MIRROR:
-            return super()._map_python(uc, p, rd, wr)
+            return super()._map_python(uc, p, self._epoch_first(rd), self._epoch_first(wr))
         k = len(self._mirrored)
         self._mirrored.append(p)
         m = self.st.mirror[k]
@@ -184,7 +168,25 @@ class NativeBoard(PythonBoard):
         self._refresh_mirror(p)
         if scs:
             self.st.scs_page = k
+        if p.name == "ADC1":
+            self.st.adc_page, self.st.adc_dr = k, p.VBAT_COUNTS
         self._map_c(p, "mirror_mmio_read", "mirror_mmio_write", ctypes.byref(m), "MMIO mirror")
+
+    def _epoch_first(self, hook):
+        """``hook`` (unicorn calls it, past the C core) after the poll skip's epoch moves: a poll loop around a
+        Python model's access does not repeat unchanged. (The C core moves it before every call into Python.)"""
+
+        def moved(*args):
+            self.st.io_epoch += 1
+            return hook(*args)
+
+        return moved
+
+    @staticmethod
+    def _pull_mirror(p) -> None:
+        """A mirrored page's ``c_owned`` words from the C core, before Python's model runs."""
+        for off in p.c_owned:
+            p.regs[off] = p.mirror.vals[off // 4]
 
     @staticmethod
     def _refresh_mirror(p) -> None:
@@ -230,7 +232,7 @@ class NativeBoard(PythonBoard):
         for lo, hi in ((0, RAM_BASE - 1), (RAM_BASE + RAM_SIZE, 0xFFFFFFFF)):  # (none over RAM: see above)
             self.uc.hook_add(UC_HOOK_MEM_INVALID, self.guarded(self._on_invalid), begin=lo, end=hi)
         calls = FirmwareCalls(self)
-        sensor_read = self.elf.addr("Sensor_IO_Read")
+        sensor_read, self._sensor_write = self.elf.addr("Sensor_IO_Read"), self.elf.addr("Sensor_IO_Write")
         # a write changes the register files: the C core's copies follow
         self.call_observers.setdefault("Sensor_IO_Write", []).append(lambda board, *args: self._sensor_images())
         calls.install(skip=("Sensor_IO_Read",) if sensor_read is not None else ())
@@ -267,16 +269,17 @@ class NativeBoard(PythonBoard):
     # -- Python called from C
     def _on_event(self, kind: int, arg: int) -> int:
         try:
-            self.st.io_epoch += 1
             self.now = self.st.now
             if kind == EV_TICK:
                 for ob in self.tick_observers:
                     ob(self)
                 self._sensor_tick()
+                self._plan_ticks()
             elif kind == EV_OUT_FULL:
                 self._drain()
             elif kind == EV_MMIO:
                 p, st = self._mirrored[arg], self.st
+                self._pull_mirror(p)
                 if st.mmio_write:
                     self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
                 else:
@@ -284,6 +287,8 @@ class NativeBoard(PythonBoard):
                 self._refresh_mirror(p)
             elif kind == EV_BITBAND:
                 st = self.st
+                for p in self._mirrored:
+                    self._pull_mirror(p)
                 if st.mmio_write:
                     self._bb_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, None)
                 else:
@@ -291,8 +296,11 @@ class NativeBoard(PythonBoard):
                 for p in self._mirrored:
                     self._refresh_mirror(p)
             elif kind == EV_CODE:
+                if self.st.hook_addr == self._sensor_write:
+                    self._sensor_catch_up()
                 self._py_hooks[arg](self.uc, self.st.hook_addr, self.st.hook_size, None)
             elif kind == EV_SENSOR:
+                self._sensor_catch_up()
                 self._sensor_slow(self.uc, 0, 0, None)
                 self._sensor_images()
         except BaseException as exc:  # noqa: BLE001 - raised again by run_until
@@ -306,7 +314,24 @@ class NativeBoard(PythonBoard):
         if not st.sensor_fast[0] or self.call_observers.get("Sensor_IO_Read"):
             return
         ctypes.memmove(self._lsm6dsl_img, bus.lsm6dsl_image(self), 128)
-        st.sensor_valid = st.tim[0].updates
+        st.sensor_valid = self._sensor_update = st.tim[0].updates
+
+    def _plan_ticks(self) -> None:
+        """The next TIM9 updates into the C core as :attr:`tick_planner` tables them (no Python call per update)."""
+        st = self.st
+        st.plan_n = 0  # (a plan stands for the observers and the sensor path it knew)
+        plan = self.tick_planner if len(self.tick_observers) == 1 and st.sensor_fast[0] == 1 else None
+        if plan is not None and not self.call_observers.get("Sensor_IO_Read") and (plan := plan(self)) is not None:
+            n, img, addr, ram, until = plan
+            self._plan = img, ram  # (the C core reads them)
+            st.plan_img, st.plan_ram, st.plan_addr, st.plan_len = img.ctypes.data, ram.ctypes.data, addr, ram.shape[1]
+            st.plan_u0, st.plan_n, st.plan_until = st.tim[0].updates + 1, n, 1 << 62 if until is None else until
+
+    def _sensor_catch_up(self) -> None:
+        """After TIM9 updates applied in C: the LSM6DSL's Python registers with this tick's sample again."""
+        if self.st.sensor_fast[0] == 1 and self.st.tim[0].updates != self._sensor_update:
+            self.sensors.lsm6dsl_image(self)
+            self._sensor_update = self.st.tim[0].updates
 
     def _sensor_images(self) -> None:
         """The sensors' register files into the C core (the LSM6DSL's valid until the next TIM9 update)."""
@@ -390,7 +415,8 @@ class NativeBoard(PythonBoard):
     def _stats(self) -> None:
         st, s = self.st, self.stats
         s.instructions, s.skipped_instructions, s.slices = st.instructions, st.skipped, st.slices
-        s.interrupts = {e: c for e, c in enumerate(st.counts) if c}
+        counts = np.frombuffer(st.counts, np.int64)
+        s.interrupts = {int(e): int(counts[e]) for e in np.flatnonzero(counts)}
 
     def run_until(self, t_end: int, *, max_slice: int = C.CPU_HZ // 1000) -> None:
         """Run until the instruction clock reaches ``t_end`` (events and interrupts on the way)."""
@@ -400,6 +426,8 @@ class NativeBoard(PythonBoard):
             raise self.fault
         if self.st.sensor_valid and self.call_observers.get("Sensor_IO_Read"):
             st.sensor_fast[:] = [0] * SENSOR_DEVICES
+        if self.call_observers.get("Sensor_IO_Read") or len(self.tick_observers) != 1 or self.tick_planner is None:
+            st.plan_n = 0
         rc = self.lib.core_run(self.st_ptr, I64(t_end))
         self.now = st.now
         if self.out:  # (bytes already drained into out: keep the order)
