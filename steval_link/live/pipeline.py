@@ -282,7 +282,7 @@ class LivePipeline:
         )
         variant = getattr(session.options, "variant", None) or (session.info.extra.get("filter") or {}).get("variant")
         if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status
-            pipe.mahony.follower.force_variant(variant)
+            pipe.mahony.force_variant(variant)
         return pipe
 
     @property
