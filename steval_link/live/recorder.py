@@ -17,6 +17,7 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame
 from steval_link.link.transport import HostClock, PortRejected, Protocol
 from steval_link.live.health import _fmt_bytes
+from steval_link.live.sources import LinkStatus
 
 #: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
 INBOX_MAX_BYTES = 4 * 1024 * 1024
@@ -63,37 +64,21 @@ class Inbox:
 
 
 class RecorderProtocol(Protocol):
-    """Reader-thread side: every chunk goes to the capture first, then to the inbox for the main thread.
+    """Reader-thread side: every chunk to the capture first (handed to the OS at once), then to the inbox.
 
-    The capture writer hands each chunk to the OS at once (a ``kill -9`` loses nothing written) and syncs it to
-    disk in its own thread. Connection events are written into the capture (``disconnect`` / ``reconnect`` mark
-    the gap) and kept as plain attributes and messages that the main thread reads.
-
-    A port reopened after a loss is on probation: the capture marks ``reconnect`` (its bytes follow), but the
-    session counts it as back only once it sent valid frames (a small decoder here reads them); one that sends
-    none for :data:`PROBATION_S` is not the drone: it is rejected (:class:`~steval_link.link.transport.
-    PortRejected`; the capture marks ``rejected``), said once, and the search goes on. Another program that
-    reads the port (bytes announced but taken) is named once (:func:`~steval_link.link.ports.port_holders`) and the
-    port is kept.
+    Connection events go into the capture (``disconnect`` / ``reconnect`` mark the gap) and :attr:`status`.
+    A port reopened after a loss is on probation until it sends valid frames; one that sends none for
+    :data:`PROBATION_S` is rejected (:class:`~steval_link.link.transport.PortRejected`) and the search goes on.
+    Another program that reads the port is named once and the port is kept.
     """
 
     def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock: HostClock) -> None:
         self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
-        self.connected = False
-        self.port: str | None = None
-        self.connections = self.disconnects = 0
-        self.lost_at_s: float | None = None  # monotonic time of the last disconnect
-        self.offline_s = 0.0
-        #: (host s lost, host s back or None): the times without the drone, on the clock of the chunks' times
-        self.offline: list[tuple[float, float | None]] = []
+        #: the link as the session sees it (``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic)
+        self.status = LinkStatus()
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
-        self.bytes_total = 0
-        self.connect_bytes = 0  # bytes since the current connection was made
-        self.connected_at_s: float | None = None  # monotonic
-        self.probing: str | None = None  # the port reopened after a loss, until it sends valid frames
         self._probe: StreamDecoder | None = None
         self._probe_frames = 0
-        self.rejected = 0  # candidates that sent no valid frames
         self._holders_said: set[int] = set()
         self._holders: list[tuple[int, str]] = []
         self._last_data_s = -math.inf  # monotonic time of the last chunk
@@ -104,37 +89,36 @@ class RecorderProtocol(Protocol):
         return (self.clock.now_s() if t_unix_s is None else t_unix_s) - self.clock.wall0_s
 
     def connection_made(self, port: str) -> None:
-        now = time.monotonic()
-        self.connections += 1
-        self.port = port
-        self.connect_bytes = 0
-        self.connected_at_s = now
-        if self.connections > 1:  # back after a loss: the drone only once it sends valid frames
-            self.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
+        st, now = self.status, time.monotonic()
+        st.connections += 1
+        st.port, st.connect_bytes, st.connected_at_s = port, 0, now
+        if st.connections > 1:  # back after a loss: the drone only once it sends valid frames
+            st.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
             self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
             self.capture.mark_event(
-                "reconnect", f"{port} opened again after {now - (self.lost_at_s or now):.2f} s", self._probe_at
+                "reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at
             )
             return
-        self.connected = True
+        st.connected = True
         self._say_holders(port)
 
     def _confirm(self) -> None:
         """The port reopened sent valid frames: the drone is back."""
-        back = self.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
-        gap = max(0.0, back - (self.lost_at_s or back))
-        self.offline_s += gap
-        if self.offline and self.offline[-1][1] is None:
-            self.offline[-1] = (self.offline[-1][0], self._probe_at + self.clock.wall0_s)
-        port, self.probing, self._probe = self.probing, None, None
+        st = self.status
+        back = st.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
+        gap = max(0.0, back - (st.lost_at_s or back))
+        st.offline_s += gap
+        if st.offline and st.offline[-1][1] is None:
+            st.offline[-1] = (st.offline[-1][0], self._probe_at + self.clock.wall0_s)
+        port, st.probing, self._probe = st.probing, None, None
         self.events.append(f"reconnected on {port} after {gap:.1f} s")
-        self.connected = True
+        st.connected = True
         self._say_holders(port)
 
     def data_received(self, data: bytes, t_unix_s: float) -> None:
         self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
-        self.bytes_total += len(data)
-        self.connect_bytes += len(data)
+        self.status.bytes_total += len(data)
+        self.status.connect_bytes += len(data)
         self.inbox.put(data, t_unix_s)
         self._last_data_s = time.monotonic()
         if self._probe is not None:
@@ -144,16 +128,15 @@ class RecorderProtocol(Protocol):
 
     def idle(self, t_unix_s: float) -> None:
         now = time.monotonic()
-        if self.probing is not None and now - (self.connected_at_s or 0.0) >= PROBATION_S:
-            raise PortRejected(f"{self.probing} sent no valid frames in {PROBATION_S:.0f} s")
-        if self.connected and now - max(self._last_data_s, self.connected_at_s or now) >= SILENT_S:
-            self._say_holders(self.port)  # silent: another reader may take every byte (at most every few s)
+        if self.status.probing is not None and now - (self.status.connected_at_s or 0.0) >= PROBATION_S:
+            raise PortRejected(f"{self.status.probing} sent no valid frames in {PROBATION_S:.0f} s")
+        if self.status.connected and now - max(self._last_data_s, self.status.connected_at_s or now) >= SILENT_S:
+            self._say_holders(self.status.port)  # silent: another reader may take every byte (at most every few s)
 
     def shared_access(self, exc: BaseException) -> bool:
-        if self.port is None or not os.path.exists(self.port):
+        if self.status.port is None or not os.path.exists(self.status.port):
             return False  # the node is gone: an unplug
-        holders = self._say_holders(self.port, force=True)
-        return bool(holders)
+        return bool(self._say_holders(self.status.port, force=True))
 
     def _say_holders(self, port: str, *, force: bool = False) -> list[tuple[int, str]]:
         """Name the other programs that have ``port`` open, once each (looked up at most every few seconds)."""
@@ -173,12 +156,11 @@ class RecorderProtocol(Protocol):
         return self._holders
 
     def connection_lost(self, exc: BaseException | None) -> None:
-        was_probing, self.connected = self.probing, False
-        self.probing, self._probe = None, None
+        was_probing, self.status.connected = self.status.probing, False
+        self.status.probing, self._probe = None, None
         if exc is None:  # closed by stop()
             return
         if isinstance(exc, PortRejected):  # not the drone: keep looking (still the same disconnect)
-            self.rejected += 1
             if self.finder is not None:
                 self.finder.reject(was_probing)
             self.capture.mark_event("rejected", str(exc), self._t_capture())
@@ -186,13 +168,14 @@ class RecorderProtocol(Protocol):
             return
         if was_probing is not None:  # lost again before it sent a frame: the same disconnect goes on
             return
-        self.disconnects += 1
-        self.lost_at_s = time.monotonic()
-        self.offline.append((self.clock.now_s(), None))
+        st = self.status
+        st.disconnects += 1
+        st.lost_at_s = time.monotonic()
+        st.offline.append((self.clock.now_s(), None))
         if self.finder is not None:
             self.finder.mark_lost()
-        self.capture.mark_event("disconnect", f"{self.port}: {exc}", self._t_capture())
-        self.events.append(f"disconnected from {self.port}, waiting for it to come back")
+        self.capture.mark_event("disconnect", f"{self.status.port}: {exc}", self._t_capture())
+        self.events.append(f"disconnected from {self.status.port}, waiting for it to come back")
 
 
 def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:

@@ -11,6 +11,7 @@ A wrong baud rate or another device: one line and :class:`LinkError` (see
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -114,25 +115,15 @@ class SerialSource(Source):
 
     @property
     def status(self) -> LinkStatus:
-        proto, reader = self.proto, self.reader
-        if proto is None:
+        if self.proto is None:
             return LinkStatus(port=self.path, wait=self.wait)
-        return LinkStatus(
-            connected=proto.connected,
-            port=proto.port,
-            connections=proto.connections,
-            disconnects=proto.disconnects,
-            bytes_total=proto.bytes_total,
-            lost_at_s=proto.lost_at_s,
-            connected_at_s=proto.connected_at_s,
-            offline_s=proto.offline_s,
-            connect_bytes=proto.connect_bytes,
+        return dataclasses.replace(
+            self.proto.status,
             live_dropped_bytes=self.inbox.dropped_bytes,
-            reopen_error=reader.reopen_error if reader is not None else None,
+            reopen_error=self.reader.reopen_error if self.reader is not None else None,
             wait=self.wait,
-            probing=proto.probing,
             pace=float(getattr(self.ser, "speed", 1.0) or 1.0),  # a replay's ?speed=
-            offline=list(proto.offline),
+            offline=list(self.proto.status.offline),
         )
 
     def open(self, note=print) -> None:
