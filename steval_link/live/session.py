@@ -1,11 +1,8 @@
 """The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`; the interface: :mod:`steval_link.live.sources`) → capture → decoder → estimators → viewer.
+(:func:`source_for`) → capture → decoder → estimators → viewer.
 
-The source writes each chunk to the capture first (in its reader thread or its round: each goes to the OS at once,
-so even ``kill -9`` loses nothing received), and a slow viewer never costs bytes. The session owns, once for every
-source: the capture file (its errors are one sentence), the viewer, the command prompt (typed commands go to the
-source's locked write), the stop requests (Ctrl-C, SIGTERM, SIGHUP, ``--duration``: :meth:`LiveSession.
-request_stop`) and the summary (:class:`LiveSummary`).
+The source writes each chunk to the capture first, so a slow viewer never costs bytes. The session owns, once for
+every source: the capture file, the viewer, the command prompt, the stop requests and the summary.
 """
 
 from __future__ import annotations
@@ -45,9 +42,8 @@ DRIVERS = {
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`): the one dispatch; each driver parses its
-    own URL (``from_url``); ``settings`` go to it (``baud``, ``wait`` for a serial port; ``emulation``,
-    ``realtime``, ``commands`` for the board; ``backend``, ``layout`` for BLE)."""
+    """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
+    ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
     scheme = next((s for s in DRIVERS if url.lower().startswith(s)), None)
     if scheme is None:
         return SerialSource.from_url(url, **settings)
@@ -57,8 +53,8 @@ def source_for(url: str, **settings: Any) -> Source:
 
 
 def port_source(port: str, **settings: Any) -> Source:
-    """The source a ``--port`` value names: a serial port or ``replay://``; BLE and the emulated board are chosen by
-    their own commands, so their URLs here are one sentence saying which (``settings``: ``baud``, ``wait``)."""
+    """The source a ``port`` value names: a serial port or ``replay://`` (BLE and the emulated board: one sentence
+    naming their own commands)."""
     low = port.lower()
     if low.startswith(BLE_SCHEME):
         name = port[len(BLE_SCHEME) :].strip()
@@ -72,26 +68,19 @@ def port_source(port: str, **settings: Any) -> Source:
 
 @dataclass
 class LiveOptions:
-    """What every live session configures (a source's own settings are its driver's: the baud rate, --wait, the
-    ELF...). ``sinks``: the Rerun outputs (``steval_viewer.sink_options.SinkOptions``), built and checked once by
-    the CLI (None: no Rerun at all)."""
+    """What every live session configures (a source's own settings are its driver's). ``sinks``: the Rerun outputs
+    (``steval_viewer.sink_options.SinkOptions``, None: no Rerun)."""
 
     out: Path | None = None
     sinks: Any = None
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     recordings_dir: Path = Path("recordings")
-    #: the command prompt (lines typed on stdin → commands to the drone); None: when stdin is a terminal
-    prompt: bool | None = None
-    #: the source's kind ("serial", "ble"...), set by the session from the source's description: the viewer's
-    #: layout from the start
-    link_kind: str | None = None
-    #: the ST release whose filter the live replica runs ("ST 221117", ``--variant``); None: the status frames'
-    variant: str | None = None
-    #: which series of text telemetry are the attitude ({target: (series, unit)}, ``text_series.parse_map``)
-    text_map: dict | None = None
-    #: how a note names a parameter (``port=``; the CLI gives its flag, ``--port``)
-    word: Callable[[str], str] = param_word
+    prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal
+    link_kind: str | None = None  # the source's kind ("serial", "ble"...), set by the session: the viewer's layout
+    variant: str | None = None  # the ST release whose filter the replica runs ("ST 221117"); None: the status's
+    text_map: dict | None = None  # which series of text telemetry are the attitude ({target: (series, unit)})
+    word: Callable[[str], str] = param_word  # how a note names a parameter (the CLI gives its flag)
 
     @property
     def uses_rerun(self) -> bool:
@@ -106,9 +95,8 @@ class LiveSession:
     """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
 
     ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, whatever the link); it is
-    required when ``options.sinks`` is set. ``check_outputs``: the CLI's checks of the outputs, run once the
-    input is open (errors come in the command line's order, the input first) and before any file is made.
+    Rerun side (needed with ``options.sinks``). ``check_outputs``: the CLI's checks of the outputs, run once the
+    input is open and before any file is made.
     """
 
     def __init__(
@@ -132,35 +120,24 @@ class LiveSession:
         self.capture: CaptureWriter | None = None
         self.viewer = None
         self.console: CommandConsole | None = None
-        #: the one pipeline: decoder, estimators, loggers (made once the capture and the viewer are there)
-        self.pipeline: LivePipeline | None = None
+        self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
         self.info: LinkInfo | None = None
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
         self._connected = True
         self._warned_no_frames = False
-        #: outputs that failed during the run (the ``.rrd``: disk full, deleted), one sentence each
-        self.output_failures: list[str] = []
-
-    # -- control ----------------------------------------------------------------------------------------------
+        self.output_failures: list[str] = []  # outputs that failed during the run (the ``.rrd``), one sentence each
 
     def request_stop(self, reason: str = "stopped") -> None:
         """Finish cleanly at the next round (thread-safe; what Ctrl-C, SIGTERM and --duration do)."""
         if self._stop_reason is None:
             self._stop_reason = reason
 
-    @property
-    def stop_requested(self) -> bool:
-        return self._stop_reason is not None
-
     def _on_signal(self, signum: int) -> None:
-        """Ctrl-C, SIGTERM, SIGHUP: stop at the next round; a second one (or one while stopping) stops now (the
-        files are flushed often)."""
-        if self.stop_requested:
+        """Ctrl-C, SIGTERM, SIGHUP: stop at the next round; a second one (or one while stopping) stops now."""
+        if self._stop_reason is not None:
             raise KeyboardInterrupt
         self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
-
-    # -- main -------------------------------------------------------------------------------------------------
 
     def run(self) -> LiveSummary:
         src, opts = self.source, self.options
@@ -176,10 +153,9 @@ class LiveSession:
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
         error: BaseException | None = None
-        started = False
+        started, stream = False, None
         stop_signals = contextlib.ExitStack()
         stop_signals.enter_context(on_stop_signals(self._on_signal))
-        stream = None
         try:
             self._opening_note()
             stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, while the viewer starts
@@ -219,33 +195,17 @@ class LiveSession:
             **self._summary_fields(),
         )
 
-    # -- internals --------------------------------------------------------------------------------------------
-
     def _opening_note(self) -> None:
         if self.info.note:  # (BLE says when it is connected)
             rrd = self.options.rrd
-            self.display.note(
-                f"{self.info.note}; recording to {self.capture.path}"
-                + (f" and {rrd}" if rrd else "")
-                + " (Ctrl-C to stop)"
-            )
+            and_rrd = f" and {rrd}" if rrd else ""
+            self.display.note(f"{self.info.note}; recording to {self.capture.path}{and_rrd} (Ctrl-C to stop)")
 
     def _record(self, chunk: Chunk) -> None:
         """A chunk into the capture, first (any thread)."""
-        cap, kind, t = self.capture, chunk.kind, chunk.t_s
-        if kind == "D":
-            cap.write(chunk.data, t)
-        elif kind == "B":
-            cap.write_chunk(CHUNK_BLE, ble_chunk(*chunk.data), t)
-        elif kind == "H":
-            cap.write_host(chunk.data, t)
-        elif kind == "T":
-            rows = chunk.data
-            cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t)
-        elif kind == "E":
-            cap.mark_event(chunk.data[0], chunk.data[1], t)
-        elif kind == "S":
-            cap.write_chunk(CHUNK_SYMBOLS, chunk.data, t)
+        write = _WRITE.get(chunk.kind)
+        if write is not None:
+            write(self.capture, chunk.data, chunk.t_s)
 
     def _take(self, chunks: list[Chunk]) -> None:
         """One round's chunks to the pipeline, in order; notes to the terminal."""
@@ -307,10 +267,7 @@ class LiveSession:
             self._connected = status.connected
             if status.connected:
                 self.pipeline.sample.clear()
-        if self._warned_no_frames:
-            return
-        message = check_frames(status, self.pipeline, self.info.baud, now)
-        if message is None:
+        if self._warned_no_frames or (message := check_frames(status, self.pipeline, self.info.baud, now)) is None:
             return
         if status.wait:
             self._warned_no_frames = True
@@ -364,13 +321,12 @@ class LiveSession:
             pass
 
     def _error_of(self, error: BaseException) -> BaseException:
-        """The error raised: a capture that could not be written says where the bytes until then are; the
-        emulated board's errors say that its capture holds everything until then."""
-        path = self.capture.path
+        """The error raised: a capture that could not be written, or the emulated board's error, says where the
+        bytes until then are."""
         if isinstance(error, OSError) and not isinstance(error, UserError):  # disk full, deleted, replaced
             return UserError(capture_failure_sentence(self.capture, error))
         if self.info.own_clock and isinstance(error, UserError):
-            return UserError(f"{error} (the capture {path} holds everything until then)")
+            return UserError(f"{error} (the capture {self.capture.path} holds everything until then)")
         return error
 
     def _open_capture(self) -> CaptureWriter:
@@ -385,8 +341,8 @@ class LiveSession:
         return open_capture(path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty)
 
     def _close_outputs(self, stop_reason: str) -> None:
-        """In their order of importance: the capture (its stop event at the link's time, then closed), then the
-        Rerun side (a failure there is a note: the capture is safe), then the health line."""
+        """The capture (its stop event at the link's time), then the Rerun side (a failure is a note), then the
+        health line."""
         try:
             t = self._t_link_s if self.info is not None and self.info.own_clock else None
             self.capture.mark_event("stop", stop_reason, t_host_s=t)
@@ -410,8 +366,7 @@ class LiveSession:
         return console
 
     def _sent(self, frame: bytes) -> None:
-        """A typed command as sent: into the capture (chunk H) and the pipeline (its ack is matched); the board's
-        own RX bytes come back as its chunks H."""
+        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as chunks H)."""
         if self.info.own_clock:
             return
         t_unix_s = self.clock.now_s()
@@ -419,8 +374,7 @@ class LiveSession:
         self.pipeline.feed_host(frame, t_unix_s)
 
     def _watch_outputs(self) -> None:
-        """A capture that can take no more stops the run (one sentence); an ``.rrd`` that failed is said once and
-        the run goes on without it (``output_failures``: the summary leaves it out, the exit code is not 0)."""
+        """A capture that can take no more stops the run; an ``.rrd`` that failed is said once and the run goes on."""
         failure = self.capture.check_present()
         if failure is not None:
             raise UserError(capture_failure_sentence(self.capture, failure))
@@ -428,6 +382,17 @@ class LiveSession:
         if said and said not in self.output_failures:
             self.output_failures.append(said)
             self.display.note(said)
+
+
+#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
+_WRITE = {
+    "D": lambda cap, data, t_s: cap.write(data, t_s),
+    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
+    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
+    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
+    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
+    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
+}
 
 
 def _stdin_is_tty() -> bool:
