@@ -27,10 +27,9 @@ from steval_link.link import autodetect
 from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import SerialReader, open_error_message, open_serial
 from steval_link.live.console import PROMPT_HELP
-from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
+from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
 from steval_link.live.recorder import Inbox, RecorderProtocol, offline_within
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
-from steval_link.live.summary import pipeline_counts
 
 __all__ = [
     "LinkError",
@@ -233,7 +232,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     more = [f"disconnects {status.disconnects}"] if status.disconnects else []
     if status.live_dropped_bytes:
         more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
-    skipped = f"skipped {_fmt_bytes(stat(s, 'bytes_skipped'))}"
+    skipped = f"skipped {_fmt_bytes(s.bytes_skipped)}"
     return pipeline_health(
         head, pipe, after_crc=[skipped], before_replica=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
     )

@@ -21,13 +21,13 @@ from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
+from steval_link.live import health
 from steval_link.live.console import CommandConsole
-from steval_link.live.health import HealthDisplay, ble_health, ble_summary, emulated_health
+from steval_link.live.health import HealthDisplay, LiveSummary
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
-from steval_link.live.summary import LiveSummary, pipeline_counts
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -278,33 +278,18 @@ class LiveSession:
     def _health(self, now: float, t0: float) -> str:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
         if kind == "ble":
-            return ble_health(pipe)
+            return health.ble_health(pipe)
         if kind == "emulated":
-            return emulated_health(status, pipe, now - t0)
+            return health.emulated_health(status, pipe, now - t0)
         return serial_health(status, pipe, now, self.clock.now_s(), self.options.word)
 
     def _summary_fields(self) -> dict[str, Any]:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
         if kind == "ble":
-            return ble_summary(status, pipe)
+            return health.ble_summary(status, pipe)
         if kind == "emulated":
-            return {**pipeline_counts(pipe), "report": status.report, "filter_note": self._emulated_note()}
+            return health.emulated_summary(status, pipe, self.info.extra.get("filter") or {})
         return serial_summary(status, pipe, self.clock.now_s())
-
-    def _emulated_note(self) -> str | None:
-        """The replica's verdict, the release whose filter it ran, and the steps the emulator read by symbol."""
-        pipe, read = self.pipeline, self.source.status.symbol_rows
-        flt = self.info.extra.get("filter") or {}
-        note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
-        if note and flt:
-            note = f"{note} with {flt['variant']}'s filter"
-        if read:
-            what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
-            frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
-            note = f"{note}; {what})" if note and frames else f"{what}: steval compare shows them)"
-            if not frames and flt:
-                note += f"; {flt['variant']}'s filter (from the {flt['from']})"
-        return note
 
     def _finish(self, stream, error: BaseException | None) -> None:
         """The link stopped, then what it still held to the pipeline (the capture has it already)."""
