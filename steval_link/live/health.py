@@ -258,6 +258,11 @@ class LiveSummary:
     records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
     pace: float = 1.0  # a replay played X times faster (replay://FILE?speed=X): its rate is X times the drone's
 
+    @property
+    def losses(self) -> int:
+        """Links lost (BLE's word for :attr:`disconnects`)."""
+        return self.disconnects
+
     def lines(self) -> list[str]:
         if self.kind == "emulated":
             return self._emulated_lines()
