@@ -18,7 +18,7 @@ from steval_link.link.capture import default_capture_path
 from steval_link.link.decoder import decode_bytes
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, StepUnwrapper
-from steval_link.live.recorder import Inbox
+from steval_link.live.serial_source import Inbox
 from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 

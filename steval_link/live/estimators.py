@@ -113,7 +113,7 @@ class LiveEstimators:
     their estimates are NaN. An estimator that raises, floods NaN (:data:`NAN_FLOOD_S`) or cannot keep up
     (:data:`SLOW_SHARE`, :data:`STALL_S`) is disabled: one line in :attr:`notes` (naming the user's file and line),
     NaN estimates from then on, and the session goes on. The capture never depends on it: the reader thread writes
-    every byte before the main thread decodes (``live/recorder.py``).
+    every byte before the main thread decodes.
     """
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:

@@ -21,8 +21,8 @@ from steval_link.link.commands import Command, CommandChannel, ack_of_text, desc
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, StatusFrame, TextFrame
 from steval_link.link.transport import close_quietly
-from steval_link.live.recorder import open_capture
 from steval_link.live.serial_source import open_port
+from steval_link.live.session import open_capture
 
 __all__ = ["Reply", "run_commands", "DEFAULT_TIMEOUT_S"]
 

@@ -23,9 +23,8 @@ from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, de
 from steval_link.link.transport import HostClock
 from steval_link.live import health
 from steval_link.live.console import CommandConsole
-from steval_link.live.health import HealthDisplay, LiveSummary
+from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
 from steval_link.stop_signals import on_stop_signals
@@ -367,6 +366,26 @@ class LiveSession:
         if said and said not in self.output_failures:
             self.output_failures.append(said)
             self.display.note(said)
+
+
+def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
+    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
+    try:
+        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
+    except FileExistsError:
+        raise ParamError(
+            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
+        ) from None
+    except OSError as exc:
+        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+
+
+def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
+    """The one sentence for a capture that can take no more (disk full, deleted, replaced), naming what it holds."""
+    amount = _fmt_bytes(capture.bytes_written)
+    if "cannot be written" in str(failure) and capture.path.exists():
+        return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
+    return f"the capture {failure}; stopped: the {amount} received until then went with it"
 
 
 #: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
