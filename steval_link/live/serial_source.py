@@ -1,12 +1,9 @@
 """The serial driver of a live session: a port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or a replay
-(``replay://FILE.stv``, played at its recorded pace as a port: :mod:`steval_link.link.replay_source`).
+(``replay://FILE.stv``, played at its recorded pace as a port).
 
-A reader thread (:class:`~steval_link.link.transport.SerialReader`) hands each chunk to :class:`RecorderProtocol`:
-the capture first, then a bounded inbox; each round decodes the inbox (:class:`LivePipeline`). Faults it survives:
-unplug/replug (the reader reopens the port, by path or USB identity, and the capture marks the gap), garbage and
-truncated frames (counted by the decoder), non-finite values (counted, never fed to an estimator, never plotted).
-A wrong baud rate or another device: one line and :class:`LinkError` (see
-:func:`steval_link.link.autodetect.no_frames_message`). Commands go out through the reader's locked write.
+A reader thread (:class:`~steval_link.link.transport.SerialReader`, which reopens an unplugged port) hands each
+chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox` each round takes. A wrong baud
+rate or another device: one line and :class:`LinkError`. Commands go out through the reader's locked write.
 """
 
 from __future__ import annotations
@@ -33,15 +30,7 @@ from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
-__all__ = [
-    "LinkError",
-    "SerialSource",
-    "NO_FRAMES_TIMEOUT_S",
-    "open_port",
-    "check_frames",
-    "serial_health",
-    "serial_summary",
-]
+__all__ = ["LinkError", "SerialSource", "open_port", "check_frames", "serial_health", "serial_summary"]
 
 #: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -73,33 +62,30 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
     if is_replay_url(url):  # the one place a source is opened by its URL scheme
         return url, open_replay(url, baud=baud)
     deadline = time.monotonic() + (math.inf if wait else 0.0)
-    announced = note is None  # a waiting note is said once
+    said = note is None  # a waiting note is said once
     while True:
+        waiting = time.monotonic() < deadline and not (stopped and stopped())
         try:
             path = autodetect.choose_port(url, baud)
         except autodetect.PortChoiceError as exc:
-            if time.monotonic() >= deadline or (stopped and stopped()):
+            if not waiting:
                 raise
-            if not announced:
-                note(f"{str(exc).split('; ')[0]}; waiting")
-                announced = True
-            time.sleep(0.25)
-            continue
-        try:
-            return path, open_serial(path, baud)
-        except serial.SerialException as exc:
-            missing = getattr(exc, "errno", None) == 2 or not os.path.exists(path)
-            if missing and time.monotonic() < deadline and not (stopped and stopped()):
-                if not announced:
-                    note(f"{path} is not there; waiting for it")
-                    announced = True
-                time.sleep(0.1)
-                continue
+            why, pause_s = f"{str(exc).split('; ')[0]}; waiting", 0.25
+        else:
             try:
-                available = autodetect.list_candidate_ports()
-            except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                available = []
-            raise open_error_message(path, exc, available) from None
+                return path, open_serial(path, baud)
+            except serial.SerialException as exc:
+                if not (waiting and (getattr(exc, "errno", None) == 2 or not os.path.exists(path))):
+                    try:
+                        available = autodetect.list_candidate_ports()
+                    except Exception:  # noqa: BLE001 - the listing is only a hint in the message
+                        available = []
+                    raise open_error_message(path, exc, available) from None
+                why, pause_s = f"{path} is not there; waiting for it", 0.1
+        if not said:
+            note(why)
+            said = True
+        time.sleep(pause_s)
 
 
 class Inbox:
@@ -252,10 +238,7 @@ class RecorderProtocol(Protocol):
 def offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
     """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
     times, as :class:`RecorderProtocol` keeps them; a loss not over yet lasts to ``now_s``)."""
-    total = 0.0
-    for lost, back in offline:
-        total += max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost))
-    return total
+    return sum((max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost)) for lost, back in offline), 0.0)
 
 
 class SerialSource(Source):
@@ -272,8 +255,7 @@ class SerialSource(Source):
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> SerialSource:
-        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]``: opened as they are
-        (:func:`open_port` reads the replay URL's path and speed)."""
+        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]`` (:func:`open_port`)."""
         return cls(url, **settings)
 
     @property
@@ -319,8 +301,7 @@ class SerialSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The reader thread starts now: each chunk goes to the capture first (:class:`RecorderProtocol`), then to a
-        bounded inbox that each round takes."""
+        """The reader thread starts now: each chunk to the capture first, then to the inbox each round takes."""
         self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
         find = self.finder.find if self.finder is not None else None
         self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
