@@ -7,7 +7,6 @@ every source: the capture file, the viewer, the command prompt, the stop request
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import importlib
 import signal
@@ -82,10 +81,6 @@ class LiveOptions:
     word: Callable[[str], str] = param_word  # how a note names a parameter (the CLI gives its flag)
 
     @property
-    def uses_rerun(self) -> bool:
-        return self.sinks is not None
-
-    @property
     def rrd(self) -> Path | None:
         return self.sinks.rrd if self.sinks is not None else None
 
@@ -108,7 +103,7 @@ class LiveSession:
         viewer_factory: Callable | None = None,
         check_outputs: Callable[[], None] | None = None,
     ) -> None:
-        if options.uses_rerun and viewer_factory is None:
+        if options.sinks is not None and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
         self.options = options
         self.source = source
@@ -153,33 +148,30 @@ class LiveSession:
         t0 = time.monotonic()
         error: BaseException | None = None
         started, stream = False, None
-        stop_signals = contextlib.ExitStack()
-        stop_signals.enter_context(on_stop_signals(self._on_signal))
-        try:
-            self._opening_note()
-            stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, while the viewer starts
-            if opts.uses_rerun:
-                self.viewer = self.viewer_factory(
-                    dataclasses.replace(opts, link_kind=self.info.kind), self.info.recording_name or capture.path.stem
-                )
-            self.pipeline = LivePipeline.for_session(self)
-            self.console = self._console()
-            started = True
-            self._loop(stream, t0)
-        except KeyboardInterrupt:
-            self.request_stop("interrupted")
-        except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
-            error = exc
-        finally:
+        with on_stop_signals(self._on_signal):
             try:
-                self._finish(stream, error)
+                self._opening_note()
+                stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, as the viewer starts
+                if opts.sinks is not None:
+                    name = self.info.recording_name or capture.path.stem
+                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=self.info.kind), name)
+                self.pipeline = LivePipeline.for_session(self)
+                self.console = self._console()
+                started = True
+                self._loop(stream, t0)
+            except KeyboardInterrupt:
+                self.request_stop("interrupted")
+            except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
+                error = exc
             finally:
-                if self.console is not None:
-                    self.console.close()
-                self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
-                stop_signals.close()
-                if error is not None and not started:  # a failed start leaves nothing half-made
-                    capture.discard()
+                try:
+                    self._finish(stream, error)
+                finally:
+                    if self.console is not None:
+                        self.console.close()
+                    self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
+        if error is not None and not started:  # a failed start leaves nothing half-made
+            capture.discard()
         if error is not None:
             raise self._error_of(error)
         self._watch_outputs()
@@ -223,8 +215,7 @@ class LiveSession:
             elif c.kind == NOTE:
                 self.display.note(c.data)
             elif c.kind == END:
-                if self.info.kind != "ble":
-                    self.request_stop(c.data)
+                self.request_stop(c.data)
         self._feed_serial(serial)
         if ble or self.info.kind == "ble":
             pipe.feed_ble(ble, final=any(c.kind == END for c in chunks))
@@ -297,7 +288,7 @@ class LiveSession:
             return
         try:
             for chunks in stream:
-                self._take(chunks + ([Chunk(END, "end", None)] if self.info.kind == "ble" else []))
+                self._take(chunks)
             if self.info.kind == "ble":
                 self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
