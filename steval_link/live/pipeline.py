@@ -9,35 +9,17 @@ from __future__ import annotations
 import collections
 import math
 import time
-import typing
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.link import ble_payloads as B
+from steval_link.link import frames as F
 from steval_link.link import protocol as P
-from steval_link.link.ble_payloads import (
-    LAYOUTS,
-    BleConsoleFrame,
-    BleDecoder,
-    BleEnvFrame,
-    BleLayout,
-    BleMotionFrame,
-    layout_named,
-)
-from steval_link.link.ble_payloads import TICK_S as BLE_TICK_S
 from steval_link.link.ble_telemetry import NOT_BIT_EXACT, LiveGrid, link_notes
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import (
-    AckFrame,
-    AttitudeFrame,
-    CommandFrame,
-    FlightFrame,
-    StatusFrame,
-    TextFrame,
-    TextRecordFrame,
-)
 from steval_link.link.plausibility import attitude_inputs_bad
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.text_series import RecordAttitude
@@ -65,7 +47,7 @@ class EventTime(NamedTuple):
     t_host_s: float
 
 
-class LiveViewer(typing.Protocol):
+class LiveViewer(Protocol):
     """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
 
     ``log_link`` gets the session's Unix time, only to pace itself. Optional, used when present: ``has_viewer``
@@ -174,7 +156,7 @@ class LivePipeline:
         file_interval_s: float = RRD_ONLY_INTERVAL_S,
         t0_unix_s: float | None = None,
         baud: int | None = None,
-        ble_layout: BleLayout = LAYOUTS["stock"],
+        ble_layout: B.BleLayout = B.LAYOUTS["stock"],
         text_map: dict[str, tuple[str, str]] | None = None,
         line_start: bool = False,
     ) -> None:
@@ -200,7 +182,7 @@ class LivePipeline:
         self.binary = False  # binary attitude frames came (the replica's bit-exact inputs): records are only series
         #: BLE notifications: their decoder and the grid of the sender's samples (made by the first one)
         self.ble_layout = ble_layout
-        self.ble: BleDecoder | None = None
+        self.ble: B.BleDecoder | None = None
         self.grid: LiveGrid | None = None
         self._ble_dt_set = False
         self._ble_noted = False
@@ -218,7 +200,7 @@ class LivePipeline:
             file_logger=getattr(viewer, "file", None) if live else None,
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
-            ble_layout=layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
+            ble_layout=B.layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
             text_map=getattr(session.options, "text_map", None),
             line_start=bool(session.info.extra.get("line_start")),
         )
@@ -241,19 +223,19 @@ class LivePipeline:
                 self.sample += data[: SAMPLE_BYTES - len(self.sample)]
             clock.chunk(len(data), t_unix_s)
             for frame in self.decoder.feed(data):
-                if isinstance(frame, AttitudeFrame):
+                if isinstance(frame, F.AttitudeFrame):
                     att.append((frame, t_unix_s))
                     self.binary = self.binary or frame.exact
                     continue
-                ack = frame if isinstance(frame, AckFrame) else None
-                if isinstance(frame, TextFrame) and frame.text.startswith("#ACK"):
+                ack = frame if isinstance(frame, F.AckFrame) else None
+                if isinstance(frame, F.TextFrame) and frame.text.startswith("#ACK"):
                     ack = ack_of_text(frame.text)
                 if ack is not None:
                     self._ack(ack, self._at_frame(frame))
                     continue
-                if isinstance(frame, (StatusFrame, TextFrame, FlightFrame)):
+                if isinstance(frame, (F.StatusFrame, F.TextFrame, F.FlightFrame)):
                     self._attitude(att)  # the rows before it first (the filter steps before a snapshot)
-                if isinstance(frame, StatusFrame):
+                if isinstance(frame, F.StatusFrame):
                     self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
                     t_fw_s = float(clock.fw_s([int(frame.t_us)])[0])  # through the unwrapper in stream order
@@ -264,15 +246,15 @@ class LivePipeline:
                     if int(frame.flags) & P.FLAG_EVENT:
                         text = f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}"
                         self._note(text, at, "INFO", show=False)
-                elif isinstance(frame, TextFrame):
+                elif isinstance(frame, F.TextFrame):
                     self.health.text += 1
                     self.texts.append(frame.text)
                     self._event("log_text", frame, self._at_frame(frame))
-                elif isinstance(frame, FlightFrame):  # at its step, from the latest row's (as ``Telemetry.fc``)
+                elif isinstance(frame, F.FlightFrame):  # at its step, from the latest row's (as ``Telemetry.fc``)
                     step, t_fw_s = self._last_row[:2] if self._last_row is not None else (0, 0.0)
                     t_fw_s += (int(frame.step) - step) * C.AHRS_PERIOD_S
                     self._event("log_flight", frame, EventTime(t_fw_s, self._host_of_frame(frame)))
-                elif isinstance(frame, TextRecordFrame):  # text telemetry: a series a name; an attitude row too
+                elif isinstance(frame, F.TextRecordFrame):  # text telemetry: a series a name; an attitude row too
                     self.health.count_record(frame.names)
                     row = self.text_attitude.frame(frame, self._host_of_frame(frame)) if not self.binary else None
                     for note in self.text_attitude.take_notes():
@@ -299,7 +281,7 @@ class LivePipeline:
     def feed_host(self, data: bytes, t_unix_s: float) -> None:
         """Bytes the host sent to the drone at ``t_unix_s``: each command is logged and remembered for its ack."""
         for frame in self.host_decoder.feed(data):
-            if isinstance(frame, CommandFrame):
+            if isinstance(frame, F.CommandFrame):
                 command = Command(int(frame.cmd), int(frame.param), float(frame.value))
                 self._sent[int(frame.cmd_seq)] = command
                 while len(self._sent) > 256:
@@ -381,18 +363,18 @@ class LivePipeline:
         cadence) → estimators → loggers; environment, arming and console frames are events at their tick.
         ``final``: the stream ended (rows held back for the cadence go out)."""
         if self.ble is None:
-            self.ble, self.grid = BleDecoder(), LiveGrid(self.ble_layout)
+            self.ble, self.grid = B.BleDecoder(), LiveGrid(self.ble_layout)
         motion = []
         for cid, payload, t_host_s in records:
             frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)
-            if cid is None or isinstance(frame, BleMotionFrame):
+            if cid is None or isinstance(frame, B.BleMotionFrame):
                 motion.append(frame)
-            elif isinstance(frame, BleConsoleFrame):  # at the latest row's time
+            elif isinstance(frame, B.BleConsoleFrame):  # at the latest row's time
                 self.texts.append(f"[{frame.stream}] {frame.text}")
                 self._event("log_text", frame, self._at(frame.t_host_s))
             elif frame is not None:
-                kind = "log_environment" if isinstance(frame, BleEnvFrame) else "log_arming"
-                self._event(kind, frame, EventTime(frame.tick * BLE_TICK_S, frame.t_host_s))
+                kind = "log_environment" if isinstance(frame, B.BleEnvFrame) else "log_arming"
+                self._event(kind, frame, EventTime(frame.tick * B.TICK_S, frame.t_host_s))
         self.grid.add(motion)
         a = self.grid.rows(final)
         if a is not None and len(a):
