@@ -65,13 +65,8 @@ class BleSource(Source):
 
     @property
     def status(self) -> LinkStatus:
-        link = self.link
-        return LinkStatus(
-            connected=link is not None and link.connections > link.losses,
-            port=self.what,
-            connections=link.connections if link is not None else 0,
-            disconnects=link.losses if link is not None else 0,
-        )
+        made, lost = (self.link.connections, self.link.losses) if self.link is not None else (0, 0)
+        return LinkStatus(connected=made > lost, port=self.what, connections=made, disconnects=lost)
 
     def open(self, note=None) -> None:
         """The input first: the drone is found (or the adapter's failure said) before any file or viewer."""

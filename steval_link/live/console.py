@@ -80,34 +80,26 @@ class CommandConsole:
                 termios.tcsetattr(fd, termios.TCSANOW, old)
 
     def _read(self, stream: TextIO) -> None:
-        try:
+        with contextlib.suppress(OSError, ValueError):  # stdin closed
             for line in stream:
                 self._lines.put(line)
-        except (OSError, ValueError):  # stdin closed
-            pass
 
     def _read_keys(self, stream) -> None:
-        fd = stream.fileno()
-        buf = ""
-        while True:
-            try:
-                b = os.read(fd, 64)
-            except OSError:
-                return
-            if not b:
-                return
-            for ch in b.decode("utf-8", "replace"):
-                if ch in "\r\n":
-                    self._lines.put(buf + "\n")
-                    buf = ""
-                elif ch in "\x7f\b":
-                    buf = buf[:-1]
-                elif ch == "\x15":  # Ctrl-U: the whole line
-                    buf = ""
-                elif ch.isprintable():
-                    buf += ch
-            self.typing = buf
-            self.typing_changed = True
+        fd, buf = stream.fileno(), ""
+        with contextlib.suppress(OSError):
+            while b := os.read(fd, 64):
+                for ch in b.decode("utf-8", "replace"):
+                    if ch in "\r\n":
+                        self._lines.put(buf + "\n")
+                        buf = ""
+                    elif ch in "\x7f\b":
+                        buf = buf[:-1]
+                    elif ch == "\x15":  # Ctrl-U: the whole line
+                        buf = ""
+                    elif ch.isprintable():
+                        buf += ch
+                self.typing = buf
+                self.typing_changed = True
 
     def type_line(self, line: str) -> None:
         """As if ``line`` had been typed (tests, scripted sessions)."""

@@ -39,7 +39,6 @@ class LinkHealth:
         self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
         self.first_frame_s: float | None = None  # host receive time of the first attitude frame
         self.last_frame_s: float | None = None
-        self.last_text: str | None = None
         self.records = 0  # records of text telemetry
         self.series: dict[str, None] = {}  # their series names, in the order they came (bounded)
 
@@ -128,9 +127,7 @@ class HealthDisplay:
 
     def note(self, text: str) -> None:
         """A message on its own line (events: connected, disconnected...)."""
-        if self.tty and self._dirty:
-            self.stream.write("\r\x1b[2K")
-            self._dirty = False
+        self.close()
         self.stream.write(f"steval: {text}\n")
         self.stream.flush()
 
@@ -147,6 +144,7 @@ class HealthDisplay:
         self.stream.flush()
 
     def close(self) -> None:
+        """Clear the health line on a terminal."""
         if self.tty and self._dirty:
             self.stream.write("\r\x1b[2K")
             self.stream.flush()

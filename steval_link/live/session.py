@@ -80,10 +80,6 @@ class LiveOptions:
     text_map: dict | None = None  # which series of text telemetry are the attitude ({target: (series, unit)})
     word: Callable[[str], str] = param_word  # how a note names a parameter (the CLI gives its flag)
 
-    @property
-    def rrd(self) -> Path | None:
-        return self.sinks.rrd if self.sinks is not None else None
-
 
 class LiveSession:
     """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
@@ -177,7 +173,7 @@ class LiveSession:
         self._watch_outputs()
         return LiveSummary(
             capture_path=capture.path,
-            rrd_path=opts.rrd if not self.output_failures else None,
+            rrd_path=opts.sinks.rrd if opts.sinks is not None and not self.output_failures else None,
             failures=list(self.output_failures),
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
@@ -188,8 +184,8 @@ class LiveSession:
 
     def _opening_note(self) -> None:
         if self.info.note:  # (BLE says when it is connected)
-            rrd = self.options.rrd
-            and_rrd = f" and {rrd}" if rrd else ""
+            sinks = self.options.sinks
+            and_rrd = f" and {sinks.rrd}" if sinks is not None and sinks.rrd else ""
             self.display.note(f"{self.info.note}; recording to {self.capture.path}{and_rrd} (Ctrl-C to stop)")
 
     def _record(self, chunk: Chunk) -> None:
@@ -253,10 +249,9 @@ class LiveSession:
         if self.info.kind != "serial":
             return
         status = self.source.status
-        if status.connected != self._connected:
-            self._connected = status.connected
-            if status.connected:
-                self.pipeline.sample.clear()
+        if status.connected and not self._connected:  # a new connection: a new sample
+            self.pipeline.sample.clear()
+        self._connected = status.connected
         if self._warned_no_frames or (message := check_frames(status, self.pipeline, self.info.baud, now)) is None:
             return
         if status.wait:
