@@ -284,29 +284,26 @@ class LiveSummary:
 
     def _serial_line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
+        lost = dropped = None
+        if self.disconnects:
+            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
+            lost += "; the port did not come back)" if self.lost_for_good else ")"
+        if self.live_dropped_bytes:
+            dropped = f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)"
         parts = [
             f"{_fmt_duration(self.seconds)}",
             f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
             f"{self.frames_missing} missing",
             f"{self.crc_failures} CRC failures",
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
+            self.values_sentence or (f"{self.nonfinite} with NaN/inf" if self.nonfinite else None),
+            self._held_back(),
+            lost,
+            dropped,
+            self.records_part,
+            self.filter_note,
         ]
-        if self.values_sentence:
-            parts.append(self.values_sentence)
-        elif self.nonfinite:
-            parts.append(f"{self.nonfinite} with NaN/inf")
-        if self.implausible:
-            parts.append(self._held_back())
-        if self.disconnects:
-            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
-            parts.append(lost + ("; the port did not come back)" if self.lost_for_good else ")"))
-        if self.live_dropped_bytes:
-            parts.append(f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)")
-        if self.records_part:
-            parts.append(self.records_part)
-        if self.filter_note:
-            parts.append(self.filter_note)
-        return "recorded " + ", ".join(parts) + "; " + self._outputs()
+        return "recorded " + ", ".join(p for p in parts if p) + "; " + self._outputs()
 
     def _rate(self, rate_hz: float) -> str:
         """The frame rate as it arrived, and the drone's own when a replay ran faster."""

@@ -78,10 +78,7 @@ def run_commands(
 
         channel = CommandChannel(write, capture.write_host if capture is not None else None)
         decoder = StreamDecoder()
-        replies = []
-        for command in commands:
-            replies.append(_one(ser, path, channel, decoder, command, timeout_s, capture))
-        return replies
+        return [_one(ser, path, channel, decoder, command, timeout_s, capture) for command in commands]
     finally:
         if capture is not None:
             capture.close()
@@ -108,11 +105,10 @@ def _one(
         for frame in decoder.feed(data):
             if isinstance(frame, TextFrame):
                 frame = ack_of_text(frame.text) or frame
-            if ack is None and isinstance(frame, AckFrame):
-                if channel.match(frame) is sent:
-                    ack = frame
-                    if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
-                        return Reply(command, ack, None, describe_ack(command, ack))
+            if ack is None and isinstance(frame, AckFrame) and channel.match(frame) is sent:
+                ack = frame
+                if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
+                    return Reply(command, ack, None, describe_ack(command, ack))
             elif ack is not None and isinstance(frame, StatusFrame) and int(frame.flags) & P.FLAG_EVENT:
                 return Reply(command, ack, frame, describe_ack(command, ack))
     if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer

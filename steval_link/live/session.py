@@ -42,12 +42,11 @@ DRIVERS = {
 def source_for(url: str, **settings: Any) -> Source:
     """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
     ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
-    scheme = next((s for s in DRIVERS if url.lower().startswith(s)), None)
-    if scheme is None:
-        return SerialSource.from_url(url, **settings)
-    module, name = DRIVERS[scheme]
-    driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
-    return driver.from_url(url, **settings)
+    for scheme, (module, name) in DRIVERS.items():
+        if url.lower().startswith(scheme):
+            driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
+            return driver.from_url(url, **settings)
+    return SerialSource.from_url(url, **settings)
 
 
 def port_source(port: str, **settings: Any) -> Source:
