@@ -50,20 +50,17 @@ def run_commands(
     *,
     timeout_s: float = DEFAULT_TIMEOUT_S,
     out: Path | None = None,
-    ser: serial.Serial | None = None,
 ) -> list[Reply]:
     """Send ``commands`` one after the other and return the drone's replies (UserError on no answer).
 
     ``out``: also record the session (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
-    path = port
-    if ser is None:
-        try:
-            path, ser = open_port(port, baud)
-        except UserError as exc:  # the advice to wait goes: no waiting for one command
-            message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
-            if " is busy" in message:
-                message += " (if steval live has it, type the command at its prompt instead)"
-            raise ParamError(message, *getattr(exc, "params", ())) from None
+    try:
+        path, ser = open_port(port, baud)
+    except UserError as exc:  # the advice to wait goes: no waiting for one command
+        message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
+        if " is busy" in message:
+            message += " (if steval live has it, type the command at its prompt instead)"
+        raise ParamError(message, *getattr(exc, "params", ())) from None
     capture = None
     try:
         if out is not None:
