@@ -197,7 +197,7 @@ def emulated_summary(status, pipe, flt: dict) -> dict:
 def ble_health(pipe) -> str:
     """The health line of a BLE link: the notifications of each characteristic and the motion cadence ("": none
     yet)."""
-    c = pipe.ble.counts if pipe is not None and pipe.ble is not None else {}
+    c = pipe.ble.counts if pipe is not None else {}
     if not any(c.values()):
         return ""
     cad = pipe.grid.cadence()

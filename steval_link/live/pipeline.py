@@ -180,12 +180,9 @@ class LivePipeline:
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.text_attitude = RecordAttitude(text_map)  # records of text telemetry that are an attitude, as rows
         self.binary = False  # binary attitude frames came (the replica's bit-exact inputs): records are only series
-        #: BLE notifications: their decoder and the grid of the sender's samples (made by the first one)
-        self.ble_layout = ble_layout
-        self.ble: B.BleDecoder | None = None
-        self.grid: LiveGrid | None = None
-        self._ble_dt_set = False
-        self._ble_noted = False
+        #: BLE notifications: their decoder and the grid of the sender's samples
+        self.ble, self.grid = B.BleDecoder(), LiveGrid(ble_layout)
+        self._ble_rows = False  # the grid placed rows (its cadence is known)
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
@@ -362,8 +359,6 @@ class LivePipeline:
         was lost and found again) → frames → the sender's samples on one grid (:class:`LiveGrid`: dt from their
         cadence) → estimators → loggers; environment, arming and console frames are events at their tick.
         ``final``: the stream ended (rows held back for the cadence go out)."""
-        if self.ble is None:
-            self.ble, self.grid = B.BleDecoder(), LiveGrid(self.ble_layout)
         motion = []
         for cid, payload, t_host_s in records:
             frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)
@@ -378,16 +373,15 @@ class LivePipeline:
         self.grid.add(motion)
         a = self.grid.rows(final)
         if a is not None and len(a):
-            if self.estimators is not None and not self._ble_dt_set:  # the cadence was just found
-                self.estimators.use_dt(self.grid.dt_s)
-                self._ble_dt_set = True
-            if not self._ble_noted:  # what the rows are, once (on the terminal too unless the stock note)
-                self._ble_noted = True
-                for text in link_notes(a.acc_mg, self.ble_layout):
+            if not self._ble_rows:  # the cadence was just found; what the rows are, said once
+                self._ble_rows = True
+                if self.estimators is not None:
+                    self.estimators.use_dt(self.grid.dt_s)
+                for text in link_notes(a.acc_mg, self.grid.layout):  # on the terminal too unless the stock note
                     if text != NOT_BIT_EXACT:
                         self.notes.append(text)
                     self._event("log_note", text, EventTime(float(a.t_fw_s[0]), float(a.t_host_s[0])))
             t0 = self.clock.t0_unix_s or 0.0
-            mag = self.grid.mag_mgauss if not self.ble_layout.sends_attitude else None
+            mag = self.grid.mag_mgauss if not self.grid.layout.sends_attitude else None
             self._deliver(LiveRows(a, mag_mgauss=mag), t0 + float(a.t_host_s[0]), t0 + float(a.t_host_s[-1]))
         self.tick()
