@@ -191,15 +191,6 @@ class LiveEstimators:
         w.window_start_s = now
         return None
 
-    def take_notes(self) -> list[str]:
-        """The sentences not shown yet (and forget them)."""
-        out, self.notes = self.notes, []
-        return out
-
-    def status(self, frame) -> None:
-        if self.mahony is not None:
-            self.mahony.status(frame)
-
 
 def failure_sentence(name: str, exc: BaseException) -> str:
     """One sentence for an estimator that raised: a user's (PluginError) names their file and line."""

@@ -236,8 +236,8 @@ class LivePipeline:
                     self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
                     t_fw_s = float(clock.fw_s([int(frame.t_us)])[0])  # through the unwrapper in stream order
-                    if self.estimators is not None:
-                        self.estimators.status(frame)
+                    if self.mahony is not None:
+                        self.mahony.status(frame)
                     at = EventTime(t_fw_s, self._host_of_frame(frame))
                     self._event("log_status", frame, at)
                     if int(frame.flags) & P.FLAG_EVENT:
@@ -347,8 +347,9 @@ class LivePipeline:
         self.health.count(len(a), t_first_unix_s, t_last_unix_s)
         if self.estimators is not None:
             self.estimators.process(rows)
-            for why in self.estimators.take_notes():  # an estimator disabled: one line, the session goes on
+            for why in self.estimators.notes:  # an estimator disabled: one line, the session goes on
                 self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
+            self.estimators.notes.clear()
         for outlet in self.outlets:
             outlet.add(rows)
 
