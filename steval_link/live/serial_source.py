@@ -250,8 +250,7 @@ class SerialSource(Source):
         self.reader: SerialReader | None = None
         self.proto: RecorderProtocol | None = None
         self.inbox = Inbox()
-        self._closed = False
-        self._stopped = threading.Event()  # close() before the port appeared (--wait)
+        self._closed = threading.Event()  # close() (also before the port appeared: --wait)
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> SerialSource:
@@ -277,7 +276,7 @@ class SerialSource(Source):
 
     def open(self, note=print) -> None:
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
-        self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._stopped.is_set)
+        self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._closed.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
             if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
@@ -311,17 +310,17 @@ class SerialSource(Source):
     def _rounds(self, clock) -> Iterator[list[Chunk]]:
         reader, proto = self.reader, self.proto
         while True:
-            if reader.error is not None and not self._closed:
+            closed = self._closed.is_set()
+            if reader.error is not None and not closed:
                 raise reader.error  # an OSError: the capture could not be written (the session says where it is)
-            got = self.inbox.get_all(0.0 if self._closed else ROUND_WAIT_S)
+            got = self.inbox.get_all(0.0 if closed else ROUND_WAIT_S)
             out = [Chunk(NOTE, proto.events.popleft(), 0.0) for _ in range(len(proto.events))]
             out += [Chunk("D", data, t_unix_s - clock.wall0_s, t_unix_s) for data, t_unix_s in got]
-            if self._closed:
-                yield out
-                return
-            if getattr(reader.serial, "at_end", False):  # a replay played to its end
+            if not closed and getattr(reader.serial, "at_end", False):  # a replay played to its end
                 out += [Chunk(NOTE, f"end of {reader.serial.path}", 0.0), Chunk(END, "end of replay", 0.0)]
             yield out
+            if closed:
+                return
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
         if self.reader is None:
@@ -329,8 +328,7 @@ class SerialSource(Source):
         self.reader.write(frame)  # under the lock a reconnection holds
 
     def close(self) -> None:
-        self._stopped.set()
-        self._closed = True
+        self._closed.set()
         if self.reader is not None:
             self.reader.stop()
         elif self.ser is not None:
