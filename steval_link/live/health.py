@@ -69,12 +69,11 @@ class LinkHealth:
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
         """Count the frames flagged ``bad`` ((N,) bool) of a batch with these ``step`` and ``t_us``;
         ``inputs_bad`` (N,) bool marks bad acc/gyro. True when the first bad frame of the session is among them."""
-        bad = np.asarray(bad, dtype=bool)
         k = int(np.count_nonzero(bad))
         if not k:
             return False
         self.values_bad += k
-        self.inputs_bad = self.inputs_bad or bool(np.any(np.asarray(inputs_bad, dtype=bool) & bad))
+        self.inputs_bad = self.inputs_bad or bool(np.any(inputs_bad & bad))
         if self.first_bad_step is not None:
             return False
         i = int(np.argmax(bad))

@@ -7,6 +7,7 @@ every source: the capture file, the viewer, the command prompt, the stop request
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import signal
@@ -280,14 +281,12 @@ class LiveSession:
         self.source.close()
         if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
             return
-        try:
+        with contextlib.suppress(Exception):  # the capture is whole whatever happens here
             for chunks in stream:
                 self._take(chunks)
             if self.info.kind == "ble":
                 self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
-        except Exception:  # noqa: BLE001 - the capture is whole whatever happens here
-            pass
 
     def _error_of(self, error: BaseException) -> BaseException:
         """The error raised: a capture that could not be written, or the emulated board's error, says where the
@@ -312,11 +311,9 @@ class LiveSession:
     def _close_outputs(self, stop_reason: str) -> None:
         """The capture (its stop event at the link's time), then the Rerun side (a failure is a note), then the
         health line."""
-        try:
+        with contextlib.suppress(Exception):  # the capture's bytes are written already; the event is a courtesy
             t = self._t_link_s if self.info is not None and self.info.own_clock else None
             self.capture.mark_event("stop", stop_reason, t_host_s=t)
-        except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
-            pass
         self.capture.close()
         if self.viewer is not None:
             try:
@@ -385,7 +382,6 @@ _WRITE = {
 
 
 def _stdin_is_tty() -> bool:
-    try:
-        return sys.stdin is not None and sys.stdin.isatty()
-    except (AttributeError, ValueError):
-        return False
+    with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
+        return sys.stdin.isatty()
+    return False
