@@ -204,8 +204,7 @@ class RecorderProtocol(Protocol):
             return self._holders
         self._holders_checked_s = now
         self._holders = ports.port_holders(port)
-        new = [h for h in self._holders if h[0] not in self._holders_said]
-        if new:
+        if new := [h for h in self._holders if h[0] not in self._holders_said]:
             self._holders_said.update(pid for pid, _ in new)
             sentence = ports.holders_sentence(port, new)
             self.capture.mark_event("shared", sentence, self._t_capture())
@@ -354,8 +353,7 @@ def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError 
     stats = pipe.decoder.stats
     if stats.attitude + stats.status + stats.text_records > 0 or not status.connected or status.connected_at_s is None:
         return None
-    elapsed = now - status.connected_at_s
-    nbytes = status.connect_bytes
+    elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
     if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
         return None
     return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)

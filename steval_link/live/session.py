@@ -236,8 +236,7 @@ class LiveSession:
             self._watch_outputs()
             now = time.monotonic()
             self._check_link(now)
-            line = self._health(now, t0)
-            if line:  # (a link with nothing to say yet says "")
+            if line := self._health(now, t0):  # (a link with nothing to say yet says "")
                 self.display.show(console.decorate(line), now, force=console.take_typing_change())
             if duration_s is not None and now - t0 >= duration_s:
                 self.request_stop("duration")
@@ -341,8 +340,7 @@ class LiveSession:
 
     def _watch_outputs(self) -> None:
         """A capture that can take no more stops the run; an ``.rrd`` that failed is said once and the run goes on."""
-        failure = self.capture.check_present()
-        if failure is not None:
+        if (failure := self.capture.check_present()) is not None:
             raise UserError(capture_failure_sentence(self.capture, failure))
         said = getattr(self.viewer, "output_failure", None)
         if said and said not in self.output_failures:
