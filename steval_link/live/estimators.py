@@ -18,12 +18,8 @@ from steval_link.link.telemetry import AttitudeArrays
 
 @dataclass
 class LiveRows:
-    """The attitude rows of one processing round (:class:`~steval_link.link.telemetry.AttitudeArrays`, times on the
-    capture's base as ``load_telemetry`` gives them) with every live estimate.
-
-    ``estimates`` maps a source name (``st-mahony``, ``accel``, ``ekf3``...) to (N, 4) q_wxyz, NaN where the
-    estimate is undefined (filter not seeded yet, non-finite input): such rows must not be plotted.
-    """
+    """The attitude rows of one processing round (times on the capture's base) with every live estimate:
+    ``estimates`` maps a source name (``st-mahony``, ``accel``...) to (N, 4) q_wxyz, NaN where undefined."""
 
     attitude: AttitudeArrays
     estimates: dict[str, np.ndarray] = field(default_factory=dict)
@@ -109,11 +105,9 @@ class _Watch:
 class LiveEstimators:
     """Every host estimator run on each attitude row: the seeded ST Mahony filter, any registry estimator, your own.
 
-    Rows with a non-finite input are never fed to an estimator (one NaN would poison a filter's state for good);
-    their estimates are NaN. An estimator that raises, floods NaN (:data:`NAN_FLOOD_S`) or cannot keep up
-    (:data:`SLOW_SHARE`, :data:`STALL_S`) is disabled: one line in :attr:`notes` (naming the user's file and line),
-    NaN estimates from then on, and the session goes on. The capture never depends on it: the reader thread writes
-    every byte before the main thread decodes.
+    Rows with a non-finite input are never fed to an estimator (one NaN would poison its state); their estimates
+    are NaN. An estimator that raises, floods NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN
+    estimates from then on, and the session goes on.
     """
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:

@@ -133,17 +133,13 @@ class BatchOutlet:
 
 
 class LivePipeline:
-    """Bytes → frames → estimators → viewer, for one live stream (runs in the session's main thread).
+    """Bytes → frames → estimators → viewer, for one live stream (in the session's main thread): per round, the
+    attitude frames become one :class:`LiveRows` (``t0_unix_s``, ``baud``: the capture header's) through
+    :class:`LiveEstimators` to ``viewer.log_batch``; other frames are events at their :class:`EventTime`.
 
-    ``feed([(bytes, t_unix_s), ...])`` decodes the chunks and, per round, turns the attitude frames into one
-    :class:`~steval_link.live.estimators.LiveRows` (times as ``load_telemetry`` of the capture has them:
-    ``t0_unix_s`` and ``baud`` are its header's) that goes through :class:`LiveEstimators` to ``viewer.log_batch``;
-    other frames are events at their :class:`EventTime`. Memory is bounded.
-
-    ``view_interval_s``: batches go to the viewer merged at most this often (Rerun keeps memory per chunk, so fewer,
-    larger batches keep memory flat). ``file_logger``: the ``.rrd``'s own logger, at ``file_interval_s``.
-    ``text_map``: which series of text telemetry are the attitude ({target: (series, unit)}). ``line_start``: the
-    stream's first byte starts a line. Call :meth:`tick` regularly and :meth:`flush_view` at the end.
+    ``view_interval_s``: batches go to the viewer merged at most this often (fewer, larger batches keep Rerun's
+    memory flat); ``file_logger``: the ``.rrd``'s own logger, at ``file_interval_s``. ``text_map``: which series
+    of text telemetry are the attitude. Call :meth:`tick` regularly and :meth:`flush_view` at the end.
     """
 
     def __init__(

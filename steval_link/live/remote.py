@@ -1,9 +1,7 @@
 """``steval param`` / ``steval command``: send commands to the drone on a serial port and wait for its answers.
 
-Flow: open the port → for each command: write its frame (recorded first when ``--out`` is given) → read and decode
-until the acknowledgement with its sequence number comes (and, for a change, a reset, a status request or a mode
-switch, the status frame with the ``EVENT`` flag that follows it) or the timeout passes. Nothing here waits on the
-drone for longer than ``timeout_s`` per command; the drone never waits on the host.
+For each command: write its frame, then read until its acknowledgement (and the ``EVENT`` status frame that
+follows an accepted one) or ``timeout_s``.
 """
 
 from __future__ import annotations
