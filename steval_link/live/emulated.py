@@ -42,8 +42,8 @@ class EmulatedSource(Source):
         variant_from: str = "variant setting",
     ) -> None:
         self.emu_options = emulation
-        self.variant = variant  # the release's filter the replica runs (named by variant_from; else the ELF's code)
-        self.variant_from = variant_from
+        #: the release whose filter the replica runs (named by ``variant_from``; else the ELF's code: see open)
+        self._filter = {"variant": variant, "from": variant_from} if variant is not None else None
         self.realtime = realtime
         self.commands = list(commands or [])
         self.emu: Emulation | None = None
@@ -65,7 +65,6 @@ class EmulatedSource(Source):
         self.emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
         self.status.duration_s = self.emu.duration_s
         self.symbols = SymbolAttitude(self.emu)  # observers set before the first step
-        self._filter = {"variant": self.variant, "from": self.variant_from} if self.variant is not None else None
         if self._filter is None:
             found, why = elf_filter_variant(self.emu.elf)
             if found is not None:
