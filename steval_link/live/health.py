@@ -209,14 +209,10 @@ def ble_health(pipe) -> str:
 
 def ble_summary(status, pipe) -> dict:
     """The summary fields of a BLE link."""
-    ble = pipe.ble if pipe is not None else None
-    return {
-        "counts": dict(ble.counts) if ble is not None else {},
-        "rows_held": pipe.grid.rows_held if ble is not None else 0,
-        "connections": status.connections,
-        "disconnects": status.disconnects,
-        "cadence": pipe.grid.cadence() if ble is not None else None,
-    }
+    link = {"connections": status.connections, "disconnects": status.disconnects}
+    if pipe is None:
+        return link
+    return {**link, "counts": dict(pipe.ble.counts), "rows_held": pipe.grid.rows_held, "cadence": pipe.grid.cadence()}
 
 
 @dataclass
