@@ -218,7 +218,7 @@ class _TimedViewer:
 def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "binary") -> dict:
     from steval_link.link.capture import CaptureWriter
     from steval_link.link.transport import HostClock, SerialReader
-    from steval_link.live import pipeline, recorder
+    from steval_link.live import pipeline, serial_source
     from steval_viewer.live_log import LiveLogger
     from steval_viewer.sink_options import SinkOptions
     from steval_viewer.sinks import open_session
@@ -233,13 +233,13 @@ def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "
     tmp = Path(tempfile.mkdtemp())
     capture = CaptureWriter(tmp / "live_bench.stv", port=slave_name, baud=115200)
     clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
-    inbox = recorder.Inbox()
+    inbox = serial_source.Inbox()
     stop = threading.Event()
     if reader == "transport":  # the live session's reader thread: capture first, then the inbox
         import serial
 
         ser = serial.Serial(slave_name, 115200, timeout=0.05)
-        proto = recorder.RecorderProtocol(capture, inbox, None, clock)
+        proto = serial_source.RecorderProtocol(capture, inbox, None, clock)
         thread = SerialReader(ser, proto, baud=115200, clock=clock)
         thread.start()
     else:

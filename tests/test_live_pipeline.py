@@ -18,7 +18,7 @@ from steval_link.link.capture import default_capture_path
 from steval_link.link.decoder import decode_bytes
 from steval_link.live.health import HealthDisplay
 from steval_link.live.pipeline import LivePipeline, StepUnwrapper
-from steval_link.live.recorder import Inbox
+from steval_link.live.serial_source import Inbox
 from steval_link.live.session import LiveOptions, LiveSession, source_for
 
 
@@ -78,7 +78,7 @@ def test_port_matches_the_offline_replay_bit_for_bit(first_step):
         assert seeded.all()
     else:
         assert 0 < seeded.argmax() <= 161 and not seeded[: seeded.argmax()].any()
-    assert replica.snapshots_confirmed >= 4  # later snapshots agree with the replica's own state
+    assert replica.confirmed >= 4  # later snapshots agree with the replica's own state
     assert log.text == ["STEVAL boot"] and len(log.status) == len(decode_bytes(data).status)
     assert list(pipe.texts) == ["STEVAL boot"]  # shown to the user by the session
     steps = log.column("step")
@@ -150,7 +150,7 @@ def test_port_resyncs_after_lost_frames_and_follows_lab_settings():
     assert seeded[gap_row - 1] and not seeded[gap_row]
     assert seeded[gap_row:].any() and seeded[-1]
     assert pipe.decoder.stats.frames_missing == 10
-    assert pipe.mahony.seeds == 2
+    assert pipe.mahony.seed_count == 2
 
 
 def test_nonfinite_frames_are_counted_and_never_reach_an_estimator():

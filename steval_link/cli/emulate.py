@@ -187,7 +187,6 @@ def emulate_command(
         emulation=emu_options,
         realtime=realtime,
         commands=_script(commands),
-        commands_file=str(commands) if commands is not None else None,
         variant=variant,
         variant_from="--variant",
     )

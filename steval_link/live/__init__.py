@@ -1,3 +1,2 @@
-"""A live session (``steval live``, ``record``, ``emulate``, ``live --ble``): one session over one source interface
-(serial port or replay, emulated board, BLE), recorder, pipeline, estimators, health. See
+"""A live session (``steval live``, ``record``, ``emulate``, ``live --ble``) over one source interface: see
 :mod:`steval_link.live.session`."""

@@ -1,17 +1,15 @@
 """The BLE driver of a live session (``ble:NAME``, ``ble:ADDRESS``, ``ble:``; ``steval live --ble``): a drone over
 Bluetooth, found, connected, recorded and reconnected.
 
-The same order as a serial port: the link runs its event loop in its own thread, where every notification goes to
-the capture first (a ``B`` chunk with its arrival time), then to a bounded inbox; each round of the session (10 Hz)
-hands the inbox to the one :class:`~steval_link.live.pipeline.LivePipeline` (:meth:`~steval_link.live.pipeline.
-LivePipeline.feed_ble`: the notifications become frames, the motion samples rows on the sender's grid, then the
-estimators and the one live logger). The link (:class:`~steval_link.link.ble_transport.BleLink`) reconnects on
-loss; each loss and reconnection is a capture event.
+The link (:class:`~steval_link.link.ble_transport.BleLink`) runs its event loop in its own thread, where every
+notification goes to the capture first (a ``B`` chunk), then to a bounded inbox each round (10 Hz) takes; each
+loss and reconnection is a capture event.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 import time
 from collections import deque
@@ -24,16 +22,14 @@ from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStat
 
 __all__ = ["BleSource", "INBOX_MAX"]
 
-#: notifications held between two rounds at most (10 s of the three characteristics); older ones are dropped from
-#: the live view only (the capture has them all)
+#: notifications held between two rounds at most (older ones are dropped from the live view only)
 INBOX_MAX = 5000
 ROUND_S = 0.1
 
 
 class BleSource(Source):
-    """See the module docstring. ``target``: a drone's name or address (None: the strongest ``DRN1…``);
-    ``backend``: a ``link.ble_transport.BleBackend`` (bleak, or a fake in tests); ``layout``: what the motion
-    notifications hold (``link.ble_payloads.LAYOUTS``: ``stock``, ``euler``), kept in the capture header."""
+    """``target``: a drone's name or address (None: the strongest ``DRN1…``); ``backend``: a ``BleBackend`` (bleak,
+    or a fake in tests); ``layout``: what the motion notifications hold (``stock``, ``euler``)."""
 
     def __init__(
         self,
@@ -69,13 +65,8 @@ class BleSource(Source):
 
     @property
     def status(self) -> LinkStatus:
-        link = self.link
-        return LinkStatus(
-            connected=link is not None and link.connections > link.losses,
-            port=self.what,
-            connections=link.connections if link is not None else 0,
-            disconnects=link.losses if link is not None else 0,
-        )
+        made, lost = (self.link.connections, self.link.losses) if self.link is not None else (0, 0)
+        return LinkStatus(connected=made > lost, port=self.what, connections=made, disconnects=lost)
 
     def open(self, note=None) -> None:
         """The input first: the drone is found (or the adapter's failure said) before any file or viewer."""
@@ -90,11 +81,10 @@ class BleSource(Source):
         self._device = asyncio.run(self.link.find_first())
 
     def describe(self) -> LinkInfo:
-        extra = {"link": "ble", "target": self.target, "ble_layout": self.layout.name}
         return LinkInfo(
             f"ble:{self.what}",
             0,
-            extra,
+            {"link": "ble", "target": self.target, "ble_layout": self.layout.name},
             kind="ble",
             takes_commands=False,  # ST's stock firmware takes no commands over BLE
             recording_name=f"steval live ble:{self.what}",
@@ -119,19 +109,14 @@ class BleSource(Source):
             self._error = exc
 
     def _rounds(self) -> Iterator[list[Chunk]]:
-        while True:
+        alive = True
+        while alive:
             self._thread.join(ROUND_S)
             alive = self._thread.is_alive()
             if not alive and self._error is not None and not self._closed:
                 raise self._error
-            out = []
-            while self._inbox:  # appended by the link's thread meanwhile: taken one by one, none lost
-                out.append(self._inbox.popleft())
-            if not alive:
-                out.append(Chunk(END, "end", None))
-                yield out
-                return
-            yield out
+            out = [self._inbox.popleft() for _ in range(len(self._inbox))]  # the link's thread may append meanwhile
+            yield out if alive else [*out, Chunk(END, "end", None)]
 
     def close(self) -> None:
         self._closed = True
@@ -139,10 +124,8 @@ class BleSource(Source):
             return
         loop, stop = getattr(self, "_loop", None), getattr(self, "_stop", None)
         if loop is not None and stop is not None and self._thread.is_alive():
-            try:
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                 loop.call_soon_threadsafe(stop.set)
-            except RuntimeError:  # the loop closed meanwhile
-                pass
         self._thread.join()
 
     # -- the link's callbacks (the event loop's thread)

@@ -1,18 +1,14 @@
-"""The command prompt of a live session (``steval live``, ``steval emulate``): lines typed in the terminal while
-viewing become commands to the drone.
+"""The command prompt of a live session: lines typed in the terminal while viewing (``set ki 1.0``, ``reset``...:
+:func:`steval_link.link.commands.parse_command`) become commands to the drone.
 
-``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode text`` (see
-:func:`steval_link.link.commands.parse_command`). A thread reads the lines (stdin blocks); the session's loop calls
-:meth:`CommandConsole.poll` every round, which sends the commands, and prints what the pipeline noted about them
-(the acknowledgements, one sentence each). On a terminal (POSIX) the console reads key by key without the
-terminal's echo and the session shows the line being typed at the start of its health line (:attr:`typing`), so
-the health line, redrawn in place four times a second, never wipes it; :meth:`close` gives the terminal back.
-The pipeline logs every command sent and answered on the viewer's timeline (``log/commands``); the capture gets
-the bytes sent (``H`` chunks) from the session's ``record``.
+A thread reads the lines; the session's loop calls :meth:`CommandConsole.poll` every round. On a POSIX terminal the
+console reads key by key without echo and the session shows the line being typed in its health line, so the
+redrawn line never wipes it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import sys
@@ -49,9 +45,7 @@ class CommandConsole:
         self.channel = CommandChannel(send, record)
         self.note = note
         self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.enabled = enabled
-        #: the line being typed on a terminal (shown by the session after its health line), "" otherwise
-        self.typing = ""
+        self.typing = ""  # the line being typed on a terminal (shown in the health line), "" otherwise
         self.typing_changed = False
         self._restore = None
         if enabled:
@@ -63,16 +57,13 @@ class CommandConsole:
         """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
         try:
             import termios  # reason: POSIX only (Windows reads whole lines)
+            import tty
 
             fd = stream.fileno()
             if not os.isatty(fd):
                 return False
             old = termios.tcgetattr(fd)
-            new = termios.tcgetattr(fd)
-            new[3] &= ~(termios.ICANON | termios.ECHO)
-            new[6][termios.VMIN] = 1
-            new[6][termios.VTIME] = 0
-            termios.tcsetattr(fd, termios.TCSANOW, new)
+            tty.setcbreak(fd, termios.TCSANOW)
         except (ImportError, AttributeError, ValueError, OSError):
             return False
         self._restore = (fd, old)
@@ -85,40 +76,30 @@ class CommandConsole:
 
             fd, old = self._restore
             self._restore = None
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 termios.tcsetattr(fd, termios.TCSANOW, old)
-            except (OSError, ValueError):
-                pass
 
     def _read(self, stream: TextIO) -> None:
-        try:
+        with contextlib.suppress(OSError, ValueError):  # stdin closed
             for line in stream:
                 self._lines.put(line)
-        except (OSError, ValueError):  # stdin closed
-            pass
 
     def _read_keys(self, stream) -> None:
-        fd = stream.fileno()
-        buf = ""
-        while True:
-            try:
-                b = os.read(fd, 64)
-            except OSError:
-                return
-            if not b:
-                return
-            for ch in b.decode("utf-8", "replace"):
-                if ch in "\r\n":
-                    self._lines.put(buf + "\n")
-                    buf = ""
-                elif ch in "\x7f\b":
-                    buf = buf[:-1]
-                elif ch == "\x15":  # Ctrl-U: the whole line
-                    buf = ""
-                elif ch.isprintable():
-                    buf += ch
-            self.typing = buf
-            self.typing_changed = True
+        fd, buf = stream.fileno(), ""
+        with contextlib.suppress(OSError):
+            while b := os.read(fd, 64):
+                for ch in b.decode("utf-8", "replace"):
+                    if ch in "\r\n":
+                        self._lines.put(buf + "\n")
+                        buf = ""
+                    elif ch in "\x7f\b":
+                        buf = buf[:-1]
+                    elif ch == "\x15":  # Ctrl-U: the whole line
+                        buf = ""
+                    elif ch.isprintable():
+                        buf += ch
+                self.typing = buf
+                self.typing_changed = True
 
     def type_line(self, line: str) -> None:
         """As if ``line`` had been typed (tests, scripted sessions)."""
@@ -147,11 +128,8 @@ class CommandConsole:
     def poll(self, notes=()) -> int:
         """Send what was typed since the last call; print ``notes`` (the pipeline's answers). Returns commands sent."""
         n = 0
-        while True:
-            try:
-                line = self._lines.get_nowait()
-            except queue.Empty:
-                break
+        while not self._lines.empty():
+            line = self._lines.get_nowait()
             if not line.strip():
                 continue
             try:
@@ -159,8 +137,7 @@ class CommandConsole:
             except UserError as exc:
                 self.note(str(exc))
                 continue
-            if self.send(command) is not None:
-                n += 1
+            n += self.send(command) is not None
         for _ in range(len(notes)):
             self.note(notes.popleft())
         return n

@@ -1,19 +1,14 @@
 """The emulated board as a live session's source (``steval emulate``): its USART1 bytes through the live path a
-real port uses.
+real port uses, each round one slice of the board (or :data:`ROUND_S` of them).
 
-Flow (one way, the same objects as ``steval live``)::
-
-    Emulation.chunks() ──► capture.write  [first]  ──► LivePipeline.feed (decoder → estimators → viewer)
-
-Each round of the session runs the board for one slice. The capture's receive times are emulated times (s since
-power-up), so a replay or ``steval compare`` of the capture sees the drone's own timing; the live view runs as fast
-as the emulator (``realtime=True`` paces it to the wall clock). A BROAD trial's ground truth goes into the capture
-as ``T`` chunks, per AHRS step; the attitude the emulator reads by symbol each step (``emulation/symbol_attitude.py``)
-as ``S`` chunks. Commands (``--commands`` at emulated times, or typed) reach the firmware's RX.
+The capture's receive times are emulated times (s since power-up), so a replay of it sees the drone's own timing.
+A BROAD trial's ground truth goes into the capture as ``T`` chunks per AHRS step, the attitude the emulator reads
+by symbol as ``S`` chunks. Commands (scripted at emulated times, or typed) reach the firmware's RX.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -29,15 +24,13 @@ from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["EmulatedSource"]
 
-#: emulated seconds of slices per processing round of the session when not paced to the wall clock (the board runs
-#: faster than real time: fewer, larger rounds through the decoder and the estimators; the capture gets each slice)
+#: emulated seconds of slices per round when not paced to the wall clock (fewer, larger rounds)
 ROUND_S = 0.5
 
 
 class EmulatedSource(Source):
     """``emulation``: the board and its motion. ``commands``: (emulated s, command) the session sends to the
-    firmware's USART1 RX at those times (``--commands``, read from ``commands_file``, which the capture header's
-    command names)."""
+    firmware's USART1 RX at those times."""
 
     def __init__(
         self,
@@ -45,20 +38,19 @@ class EmulatedSource(Source):
         *,
         realtime: bool = False,
         commands: list[tuple[float, Command]] | None = None,
-        commands_file: str | None = None,
         variant: str | None = None,
         variant_from: str = "variant setting",
     ) -> None:
         self.emu_options = emulation
-        self.variant = variant  # the release's filter the replica runs (named by variant_from; else the ELF's code)
-        self.variant_from = variant_from
+        #: the release whose filter the replica runs (named by ``variant_from``; else the ELF's code: see open)
+        self._filter = {"variant": variant, "from": variant_from} if variant is not None else None
         self.realtime = realtime
         self.commands = list(commands or [])
-        self.commands_file = commands_file
         self.emu: Emulation | None = None
         self.truth: StepTruth | None = None
         self.status = LinkStatus()
         self._closed = False
+        self._record: Record | None = None
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
 
     @classmethod
@@ -73,7 +65,6 @@ class EmulatedSource(Source):
         self.emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
         self.status.duration_s = self.emu.duration_s
         self.symbols = SymbolAttitude(self.emu)  # observers set before the first step
-        self._filter = {"variant": self.variant, "from": self.variant_from} if self.variant is not None else None
         if self._filter is None:
             found, why = elf_filter_variant(self.emu.elf)
             if found is not None:
@@ -121,16 +112,11 @@ class EmulatedSource(Source):
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
-        """One slice of the board at a time: what went on the RX line, the USART1 bytes (to the capture first),
-        the truth of its steps; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
-        t0, slices = time.monotonic(), self.emu.chunks()
+        """One slice of the board at a time: the RX bytes, the USART1 bytes and the truth of its steps, each to the
+        capture first; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
+        t0, t_round = time.monotonic(), 0.0
         pending: list[Chunk] = []
-        t_round = 0.0
-        while not self._closed:
-            got = next(slices, None)
-            if got is None:
-                break
-            data, t_s = got
+        for data, t_s in self.emu.chunks():
             out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
             out.append(Chunk("D", data, t_s))
             for c in out:
@@ -139,14 +125,14 @@ class EmulatedSource(Source):
             self._truth(record)
             pending += out
             if self.realtime:
-                ahead = t_s - (time.monotonic() - t0)
-                if ahead > 0:
-                    time.sleep(ahead)
+                time.sleep(max(0.0, t_s - (time.monotonic() - t0)))
             elif t_s - t_round < ROUND_S:
                 continue
             t_round = t_s
             yield pending
             pending = []
+            if self._closed:
+                break
         if pending:
             yield pending
         self._truth(record)  # the steps of the last slice
@@ -156,10 +142,11 @@ class EmulatedSource(Source):
         rows = self.truth.take() if self.truth is not None else ()
         if len(rows):
             record(Chunk("T", rows, self.status.t_link_s))
-        read = self.symbols.take() if self.symbols is not None and self.symbols.available else ()
+        symbols = self.symbols.available
+        read = self.symbols.take() if symbols else ()
         for i in range(0, len(read), 4096):
             record(Chunk("S", read[i : i + 4096].tobytes(), self.status.t_link_s))
-        self.status.symbol_rows = self.symbols.count if self.symbols is not None and self.symbols.available else 0
+        self.status.symbol_rows = self.symbols.count if symbols else 0
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
         """Onto the firmware's RX: at emulated time ``at_s``, or with the next slice (thread-safe)."""
@@ -170,10 +157,8 @@ class EmulatedSource(Source):
 
     def close(self) -> None:
         self._closed = True
-        try:
-            if getattr(self, "_record", None) is not None:
+        with contextlib.suppress(Exception):  # the capture is closed by the session whatever happens
+            if self._record is not None:
                 self._truth(self._record)  # the steps of the last slice, whatever stopped the session
-        except Exception:  # noqa: BLE001 - the capture is closed by the session whatever happens
-            pass
         if self.emu is not None and self.status.report is None:
             self.status.report = self.emu.report()

@@ -18,12 +18,8 @@ from steval_link.link.telemetry import AttitudeArrays
 
 @dataclass
 class LiveRows:
-    """The attitude rows of one processing round (:class:`~steval_link.link.telemetry.AttitudeArrays`, times on the
-    capture's base as ``load_telemetry`` gives them) with every live estimate.
-
-    ``estimates`` maps a source name (``st-mahony``, ``accel``, ``ekf3``...) to (N, 4) q_wxyz, NaN where the
-    estimate is undefined (filter not seeded yet, non-finite input): such rows must not be plotted.
-    """
+    """The attitude rows of one processing round (times on the capture's base) with every live estimate:
+    ``estimates`` maps a source name (``st-mahony``, ``accel``...) to (N, 4) q_wxyz, NaN where undefined."""
 
     attitude: AttitudeArrays
     estimates: dict[str, np.ndarray] = field(default_factory=dict)
@@ -50,52 +46,24 @@ class LiveRows:
         return cls(AttitudeArrays.concat([p.attitude for p in parts]), estimates, mag)
 
 
-class LiveMahony:
-    """The bit-exact Python ST Mahony filter run live, (re)seeded from the firmware's status snapshots.
-
-    The same follower as :func:`steval_link.estimators.firmware_replay.replay_firmware` (:class:`ReplicaFollower`
-    of :mod:`steval_link.estimators.firmware_replay`): it starts from the power-up state when the stream
-    starts at step 0; otherwise (joined mid-flight, frames lost, non-finite input) it is unseeded (NaN) until the
-    next status snapshot, and bit-exact from the step after it. Live, a snapshot that disagrees with the filter
-    (a settings change, a difference) re-seeds it.
-    """
+class LiveMahony(firmware_replay.ReplicaFollower):
+    """The bit-exact ST Mahony filter run live: the follower of ``replay_firmware``, (re)seeded from the firmware's
+    status snapshots. Unseeded (NaN) until a snapshot unless the stream starts at step 0; a snapshot that disagrees
+    with the filter (a settings change, a difference) re-seeds it."""
 
     def __init__(self) -> None:
-        self.follower = firmware_replay.ReplicaFollower(follow_snapshots=True, euler=False)
+        super().__init__(follow_snapshots=True, euler=False)
         self.rows_exact = 0
         self.rows_mismatch = 0
-        self.rows_unseeded = 0
         self.last_rows_mismatch = 0  # mismatching rows of the latest call
-
-    @property
-    def seeded(self) -> bool:
-        return self.follower.seeded
-
-    @property
-    def settings(self) -> st_mahony.MahonySettings:
-        """The filter settings it runs with (the latest snapshot's)."""
-        return self.follower.settings
-
-    @property
-    def seeds(self) -> int:
-        return self.follower.seed_count
-
-    @property
-    def snapshots_confirmed(self) -> int:
-        """Status snapshots that matched the filter's own state bit for bit."""
-        return self.follower.confirmed
 
     def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
         """Step the filter over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
-        usable = np.asarray(finite, dtype=bool)
-        q, _, _, seeded = self.follower.rows_recognising(step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz)
-        exact = seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)
-        k = int(np.count_nonzero(exact))
-        n_seeded = int(np.count_nonzero(seeded))
+        q, _, _, seeded = self.rows_recognising(step, acc_mg, gyro_mdps, thr, finite, fw_q_wxyz)
+        k = int(np.count_nonzero(seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)))
         self.rows_exact += k
-        self.last_rows_mismatch = n_seeded - k
-        self.rows_mismatch += n_seeded - k
-        self.rows_unseeded += int(np.count_nonzero(np.asarray(finite, dtype=bool) & ~seeded))
+        self.last_rows_mismatch = int(np.count_nonzero(seeded)) - k
+        self.rows_mismatch += self.last_rows_mismatch
         return q
 
     def status(self, frame) -> None:
@@ -103,12 +71,12 @@ class LiveMahony:
         if not frame.exact:  # a text-mode $STA row has no q, integral or gains: nothing to seed from
             return
         snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
-        self.follower.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
+        self.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
 
     def describe(self) -> str:
         """The filter's state in a few words for the health line (wording kept: users and tests read it)."""
         if not self.seeded:
-            return "replica resyncing" if self.seeds else "replica waiting for a status snapshot"
+            return "replica resyncing" if self.seed_count else "replica waiting for a status snapshot"
         if self.last_rows_mismatch:
             return f"replica DIFFERS from firmware ({self.rows_mismatch} frames)"
         return "replica bit-exact" if self.rows_exact else "replica seeded"
@@ -124,29 +92,22 @@ SLOW_WINDOW_S = 5.0
 STALL_S = 2.0
 
 
+@dataclass
 class _Watch:
-    """One estimator's live record: NaN rows in a row, processing time against stream time in the current window."""
+    """One estimator's live record: NaN rows in a row, processing and stream time in the current window."""
 
-    __slots__ = ("nan_rows", "busy_s", "stream_s", "window_start_s", "calls", "total_s", "total_rows")
-
-    def __init__(self, now_s: float) -> None:
-        self.nan_rows = 0
-        self.busy_s = 0.0
-        self.stream_s = 0.0
-        self.window_start_s = now_s
-        self.calls = 0
-        self.total_s = 0.0
-        self.total_rows = 0
+    window_start_s: float
+    nan_rows: int = 0
+    busy_s: float = 0.0
+    stream_s: float = 0.0
 
 
 class LiveEstimators:
     """Every host estimator run on each attitude row: the seeded ST Mahony filter, any registry estimator, your own.
 
-    Rows with a non-finite input are never fed to an estimator (one NaN would poison a filter's state for good);
-    their estimates are NaN. An estimator that raises, floods NaN (:data:`NAN_FLOOD_S`) or cannot keep up
-    (:data:`SLOW_SHARE`, :data:`STALL_S`) is disabled: one line in :attr:`notes` (naming the user's file and line),
-    NaN estimates from then on, and the session goes on. The capture never depends on it: the reader thread writes
-    every byte before the main thread decodes (``live/recorder.py``).
+    Rows with a non-finite input are never fed to an estimator (one NaN would poison its state); their estimates
+    are NaN. An estimator that raises, floods NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN
+    estimates from then on, and the session goes on.
     """
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
@@ -182,74 +143,47 @@ class LiveEstimators:
                 t0 = self.clock()
                 try:
                     res = est.run(a.acc_mg[rows_in], a.gyro_mdps[rows_in], a.thr[rows_in].astype(np.int64))
-                    qq = np.asarray(res.q_wxyz, dtype=np.float64)
                     valid = np.asarray(res.valid, dtype=bool)
-                    qq[~valid] = np.nan
-                    q[rows_in] = qq
+                    q[rows_in] = np.where(valid[:, None], res.q_wxyz, np.nan)
                 except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
-                    self._disable(name, failure_sentence(name, exc))
+                    why = failure_sentence(name, exc)
                 else:
-                    self._account(name, est, rows_in.size, valid, self.clock() - t0, int(a.step[rows_in[0]]))
+                    why = self._verdict(name, est, rows_in.size, valid, self.clock() - t0)
+                if why is not None:
+                    self.disabled[name] = why
+                    self.notes.append(f"{why}; {name} disabled, recording and viewing go on")
             rows.estimates[name] = q
 
-    def _account(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float, first_step: int) -> None:
+    def _verdict(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float) -> str | None:
+        """Why ``name`` is disabled after a call of ``n`` rows (None: it keeps up)."""
         w = self._watch[name]
-        w.calls += 1
-        w.total_s += elapsed_s
-        w.total_rows += n
-        if valid.all():
-            w.nan_rows = 0
-        else:
-            last_valid = np.flatnonzero(valid)
-            w.nan_rows = n - 1 - int(last_valid[-1]) if last_valid.size else w.nan_rows + n
-        flood = NAN_FLOOD_S * C.AHRS_RATE_HZ
-        if w.nan_rows >= flood:
+        last_valid = np.flatnonzero(valid)
+        w.nan_rows = n - 1 - int(last_valid[-1]) if last_valid.size else w.nan_rows + n
+        if w.nan_rows >= NAN_FLOOD_S * C.AHRS_RATE_HZ:
             where = est.origin("step") if hasattr(est, "origin") else name
-            self._disable(
-                name,
+            return (
                 f"estimator {name} gave no estimate (NaN) for {w.nan_rows} frames of valid input in "
-                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}",
+                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}"
             )
-            return
         if elapsed_s > STALL_S:
-            self._disable(
-                name,
+            return (
                 f"estimator {name} took {elapsed_s:.1f} s for {n} frames ({n / C.AHRS_RATE_HZ:.2f} s "
-                "of stream): too slow to run live (steval compare runs it offline)",
+                "of stream): too slow to run live (steval compare runs it offline)"
             )
-            return
         w.busy_s += elapsed_s
         w.stream_s += n / C.AHRS_RATE_HZ
         now = self.clock()
-        if now - w.window_start_s >= SLOW_WINDOW_S:
-            if w.stream_s > 0 and w.busy_s > SLOW_SHARE * w.stream_s:
-                self._disable(
-                    name,
-                    f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
-                    f"second of stream for {now - w.window_start_s:.0f} s (at most "
-                    f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)",
-                )
-                return
-            w.busy_s = w.stream_s = 0.0
-            w.window_start_s = now
-
-    def _disable(self, name: str, why: str) -> None:
-        self.disabled[name] = why
-        self.notes.append(f"{why}; {name} disabled, recording and viewing go on")
-
-    def cost_us_per_frame(self, name: str) -> float:
-        """Mean processing time of ``name`` per frame so far, µs (NaN before its first call)."""
-        w = self._watch.get(name)
-        return 1e6 * w.total_s / w.total_rows if w is not None and w.total_rows else float("nan")
-
-    def take_notes(self) -> list[str]:
-        """The sentences not shown yet (and forget them)."""
-        out, self.notes = self.notes, []
-        return out
-
-    def status(self, frame) -> None:
-        if self.mahony is not None:
-            self.mahony.status(frame)
+        if now - w.window_start_s < SLOW_WINDOW_S:
+            return None
+        if w.stream_s > 0 and w.busy_s > SLOW_SHARE * w.stream_s:
+            return (
+                f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
+                f"second of stream for {now - w.window_start_s:.0f} s (at most "
+                f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)"
+            )
+        w.busy_s = w.stream_s = 0.0
+        w.window_start_s = now
+        return None
 
 
 def failure_sentence(name: str, exc: BaseException) -> str:

@@ -1,21 +1,24 @@
-"""Link health of a live session: counters (:class:`LinkHealth`) and the health line on stderr
-(:class:`HealthDisplay`)."""
+"""Link health of a live session: counters (:class:`LinkHealth`), the health line on stderr (:class:`HealthDisplay`),
+and what the session did (:class:`LiveSummary`), whatever its source."""
 
 from __future__ import annotations
 
 import collections
 import math
 import shutil
-from typing import TextIO
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
 
-from steval_link.link.plausibility import values_bad_sentence
+from steval_link.analysis.step_cost import step_cost
+from steval_link.errors import UserError
+from steval_link.link.load import load_telemetry
+from steval_link.link.plausibility import held_back_sentence, values_bad_sentence
 
 #: Health line refresh on a terminal / plain health lines otherwise, s.
 HEALTH_TTY_INTERVAL_S = 0.25
-
-
 HEALTH_PLAIN_INTERVAL_S = 5.0
 #: Series names of text telemetry kept for the health line and the summary.
 MAX_SERIES_NAMES = 64
@@ -36,7 +39,6 @@ class LinkHealth:
         self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
         self.first_frame_s: float | None = None  # host receive time of the first attitude frame
         self.last_frame_s: float | None = None
-        self.last_text: str | None = None
         self.records = 0  # records of text telemetry
         self.series: dict[str, None] = {}  # their series names, in the order they came (bounded)
 
@@ -67,12 +69,11 @@ class LinkHealth:
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
         """Count the frames flagged ``bad`` ((N,) bool) of a batch with these ``step`` and ``t_us``;
         ``inputs_bad`` (N,) bool marks bad acc/gyro. True when the first bad frame of the session is among them."""
-        bad = np.asarray(bad, dtype=bool)
         k = int(np.count_nonzero(bad))
         if not k:
             return False
         self.values_bad += k
-        self.inputs_bad = self.inputs_bad or bool(np.any(np.asarray(inputs_bad, dtype=bool) & bad))
+        self.inputs_bad = self.inputs_bad or bool(np.any(inputs_bad & bad))
         if self.first_bad_step is not None:
             return False
         i = int(np.argmax(bad))
@@ -97,8 +98,8 @@ class LinkHealth:
 
 
 def _fmt_bytes(n: float) -> str:
-    for unit in ("B", "kB", "MB", "GB"):
-        if n < 1000 or unit == "GB":
+    for unit in ("B", "kB", "MB"):
+        if n < 1000:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1000.0
     return f"{n:.1f} GB"
@@ -125,9 +126,7 @@ class HealthDisplay:
 
     def note(self, text: str) -> None:
         """A message on its own line (events: connected, disconnected...)."""
-        if self.tty and self._dirty:
-            self.stream.write("\r\x1b[2K")
-            self._dirty = False
+        self.close()
         self.stream.write(f"steval: {text}\n")
         self.stream.flush()
 
@@ -144,6 +143,7 @@ class HealthDisplay:
         self.stream.flush()
 
     def close(self) -> None:
+        """Clear the health line on a terminal."""
         if self.tty and self._dirty:
             self.stream.write("\r\x1b[2K")
             self.stream.flush()
@@ -155,12 +155,12 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_replica=(), last=()
     :class:`~steval_link.live.pipeline.LivePipeline`), ``after_crc``, the frames held back, ``before_replica``, what
     the ST filter's Python replica did, ``last``."""
     s, h = pipe.decoder.stats, pipe.health
-    parts = [head, f"frames {h.attitude}", f"missing {stat(s, 'frames_missing')}", f"CRC {stat(s, 'crc_failures')}"]
+    parts = [head, f"frames {h.attitude}", f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
     if h.values_bad:
         parts.insert(2, h.values_sentence())
     parts += after_crc
-    if stat(s, "implausible"):
-        parts.append(f"held back {stat(s, 'implausible')}")
+    if s.implausible:
+        parts.append(f"held back {s.implausible}")
     parts += before_replica
     records = h.records_part(most=3)
     if records:
@@ -170,11 +170,6 @@ def pipeline_health(head: str, pipe, *, after_crc=(), before_replica=(), last=()
     return " | ".join([*parts, *last])
 
 
-def stat(stats, name: str) -> int:
-    """A decoder counter (0 when there are no stats yet or the decoder has no such counter)."""
-    return int(getattr(stats, name, 0) or 0) if stats is not None else 0
-
-
 def emulated_health(status, pipe, wall_s: float) -> str:
     """The health line of the emulated board: emulated time, its speed against the wall clock, the frames."""
     speed = status.t_link_s / wall_s if wall_s > 0 else 0.0
@@ -182,10 +177,26 @@ def emulated_health(status, pipe, wall_s: float) -> str:
     return pipeline_health(head, pipe)
 
 
+def emulated_summary(status, pipe, flt: dict) -> dict:
+    """The summary fields of the emulated board: its report, and as the filter note the replica's verdict, the
+    release whose filter it ran (``flt``: the capture header's ``filter``) and the steps read by symbol."""
+    read = status.symbol_rows
+    note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
+    if note and flt:
+        note = f"{note} with {flt['variant']}'s filter"
+    if read:
+        what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
+        frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
+        note = f"{note}; {what})" if note and frames else f"{what}: steval compare shows them)"
+        if not frames and flt:
+            note += f"; {flt['variant']}'s filter (from the {flt['from']})"
+    return {**pipeline_counts(pipe), "report": status.report, "filter_note": note}
+
+
 def ble_health(pipe) -> str:
     """The health line of a BLE link: the notifications of each characteristic and the motion cadence ("": none
     yet)."""
-    c = pipe.ble.counts if pipe is not None and pipe.ble is not None else {}
+    c = pipe.ble.counts if pipe is not None else {}
     if not any(c.values()):
         return ""
     cad = pipe.grid.cadence()
@@ -198,11 +209,149 @@ def ble_health(pipe) -> str:
 
 def ble_summary(status, pipe) -> dict:
     """The summary fields of a BLE link."""
-    ble = pipe.ble if pipe is not None else None
+    link = {"connections": status.connections, "disconnects": status.disconnects}
+    if pipe is None:
+        return link
+    return {**link, "counts": dict(pipe.ble.counts), "rows_held": pipe.grid.rows_held, "cadence": pipe.grid.cadence()}
+
+
+@dataclass
+class LiveSummary:
+    """The summary of one session; ``kind`` says which source's fields are filled and how :meth:`lines` reads."""
+
+    capture_path: Path
+    rrd_path: Path | None
+    seconds: float  # wall time of the session
+    streaming_s: float = 0.0  # from the first to the last attitude frame, less the time disconnected
+    bytes_total: int = 0
+    attitude: int = 0
+    status: int = 0
+    text: int = 0
+    frames_missing: int = 0
+    crc_failures: int = 0
+    bytes_skipped: int = 0
+    nonfinite: int = 0
+    disconnects: int = 0
+    offline_s: float = 0.0
+    live_dropped_bytes: int = 0
+    filter_note: str | None = None  # what the ST filter's Python replica did (bit-exact, differs, not seeded)
+    stopped_by: str = "end"
+    capture_discarded: bool = False  # no byte came: the header-only file was removed
+    implausible: int = 0  # CRC-valid frames the decoder's plausibility checks held back
+    values_sentence: str | None = None  # the frames kept with NaN or out-of-range values, in words
+    held_values: int = 0  # of ``implausible``: protocol v1 frames held back for their values
+    kind: str = "serial"  # serial (a port or a replay), emulated, ble
+    report: Any = None  # emulated: the board's EmulationReport
+    counts: dict[str, int] = field(default_factory=dict)  # ble: notifications per characteristic
+    rows_held: int = 0  # ble: estimator rows held over notifications sent and lost
+    connections: int = 0
+    cadence: Any = None  # ble: the motion cadence as the health line last said it
+    failures: list[str] = field(default_factory=list)  # outputs that failed during the run (left out of the list)
+    lost_for_good: bool = False  # the port was lost and did not come back before the end
+    records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
+    pace: float = 1.0  # a replay played X times faster (replay://FILE?speed=X): its rate is X times the drone's
+
+    @property
+    def losses(self) -> int:
+        """Links lost (BLE's word for :attr:`disconnects`)."""
+        return self.disconnects
+
+    def lines(self) -> list[str]:
+        if self.kind == "emulated":
+            return self._emulated_lines()
+        if self.kind == "ble":
+            return [self._ble_line()]
+        return [self._serial_line()]
+
+    def line(self) -> str:
+        return "\n".join(self.lines())
+
+    def _held_back(self) -> str | None:
+        return held_back_sentence(self.implausible, self.held_values) if self.implausible else None
+
+    def _outputs(self) -> str:
+        out = f"capture {self.capture_path}"
+        if self.capture_discarded:
+            out = "no byte received, so no capture file was kept"
+        elif self.kind == "serial":
+            out += f" ({_fmt_bytes(self.bytes_total)})"
+        return out + (f", rerun {self.rrd_path}" if self.rrd_path else "")
+
+    def _serial_line(self) -> str:
+        rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
+        lost = dropped = None
+        if self.disconnects:
+            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
+            lost += "; the port did not come back)" if self.lost_for_good else ")"
+        if self.live_dropped_bytes:
+            dropped = f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)"
+        parts = [
+            f"{_fmt_duration(self.seconds)}",
+            f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
+            f"{self.frames_missing} missing",
+            f"{self.crc_failures} CRC failures",
+            f"{_fmt_bytes(self.bytes_skipped)} skipped",
+            self.values_sentence or (f"{self.nonfinite} with NaN/inf" if self.nonfinite else None),
+            self._held_back(),
+            lost,
+            dropped,
+            self.records_part,
+            self.filter_note,
+        ]
+        return "recorded " + ", ".join(p for p in parts if p) + "; " + self._outputs()
+
+    def _rate(self, rate_hz: float) -> str:
+        """The frame rate as it arrived, and the drone's own when a replay ran faster."""
+        if self.pace == 1.0:
+            return f"{rate_hz:.1f} Hz"
+        return f"{rate_hz:.1f} Hz at {self.pace:g}× pace: {rate_hz / self.pace:.1f} Hz in the drone's time"
+
+    def _emulated_lines(self) -> list[str]:
+        r = self.report
+        speed = r.emulated_s / self.seconds if self.seconds > 0 else float("nan")
+        head = (
+            f"emulated {r.emulated_s:.2f} s in {self.seconds:.2f} s wall ({speed:.2f}x real time): "
+            f"{self.attitude} attitude, {self.status} status, {self.text} text frames, "
+            f"{self.frames_missing} missing, {self.crc_failures} CRC failures"
+            + (f"; {self.filter_note}" if self.filter_note else "")
+            + (f" (stopped: {self.stopped_by})" if self.stopped_by != "end" else "")
+        )
+        said = [x for x in (self.values_sentence, self._held_back()) if x]
+        # the AHRS step cost as replay and compare say it (the capture's status frames), not the run's own counts
+        board = [x for x in r.lines()[1:] if not x.startswith("instructions per AHRS step")]
+        cost = self._step_cost()
+        return [head, *said, *board, *([cost] if cost else []), self._outputs()]
+
+    def _step_cost(self) -> str | None:
+        if self.capture_discarded or not Path(self.capture_path).is_file():
+            return None
+        try:
+            cost = step_cost(load_telemetry(self.capture_path))
+        except (UserError, OSError):
+            return None
+        return None if cost is None else cost.sentence()
+
+    def _ble_line(self) -> str:
+        c = self.counts
+        where = "no capture (nothing received)" if self.capture_discarded else f"capture {self.capture_path}"
+        what = self.cadence.describe() if self.cadence is not None else "no motion cadence (too few samples)"
+        return (
+            f"steval: {self.seconds:.1f} s over BLE: {c.get('motion', 0)} motion, {c.get('environment', 0)} "
+            f"environment, {c.get('arming', 0)} arming notifications; {what}; {self.connections} "
+            f"connection(s), {self.disconnects} lost; stopped: {self.stopped_by}; {where}"
+        )
+
+
+def pipeline_counts(pipe) -> dict[str, Any]:
+    """The summary's counters of a :class:`~steval_link.live.pipeline.LivePipeline` (None: a session that ended
+    before it was made: zeros)."""
+    if pipe is None:
+        return {}
+    s, h = pipe.decoder.stats, pipe.health
+    names = ("frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
     return {
-        "counts": dict(ble.counts) if ble is not None else {},
-        "rows_held": pipe.grid.rows_held if ble is not None else 0,
-        "connections": status.connections,
-        "disconnects": status.disconnects,
-        "cadence": pipe.grid.cadence() if ble is not None else None,
+        **{name: getattr(s, name) for name in names},
+        **{name: getattr(h, name) for name in ("attitude", "status", "text", "nonfinite")},
+        "values_sentence": h.values_sentence(),
+        "records_part": h.records_part(),
     }

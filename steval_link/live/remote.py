@@ -1,9 +1,7 @@
 """``steval param`` / ``steval command``: send commands to the drone on a serial port and wait for its answers.
 
-Flow: open the port → for each command: write its frame (recorded first when ``--out`` is given) → read and decode
-until the acknowledgement with its sequence number comes (and, for a change, a reset, a status request or a mode
-switch, the status frame with the ``EVENT`` flag that follows it) or the timeout passes. Nothing here waits on the
-drone for longer than ``timeout_s`` per command; the drone never waits on the host.
+For each command: write its frame, then read until its acknowledgement (and the ``EVENT`` status frame that
+follows an accepted one) or ``timeout_s``.
 """
 
 from __future__ import annotations
@@ -21,8 +19,8 @@ from steval_link.link.commands import Command, CommandChannel, ack_of_text, desc
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AckFrame, StatusFrame, TextFrame
 from steval_link.link.transport import close_quietly
-from steval_link.live.recorder import open_capture
 from steval_link.live.serial_source import open_port
+from steval_link.live.session import open_capture
 
 __all__ = ["Reply", "run_commands", "DEFAULT_TIMEOUT_S"]
 
@@ -50,20 +48,17 @@ def run_commands(
     *,
     timeout_s: float = DEFAULT_TIMEOUT_S,
     out: Path | None = None,
-    ser: serial.Serial | None = None,
 ) -> list[Reply]:
     """Send ``commands`` one after the other and return the drone's replies (UserError on no answer).
 
     ``out``: also record the session (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
-    path = port
-    if ser is None:
-        try:
-            path, ser = open_port(port, baud)
-        except UserError as exc:  # the advice to wait goes: no waiting for one command
-            message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
-            if " is busy" in message:
-                message += " (if steval live has it, type the command at its prompt instead)"
-            raise ParamError(message, *getattr(exc, "params", ())) from None
+    try:
+        path, ser = open_port(port, baud)
+    except UserError as exc:  # the advice to wait goes: no waiting for one command
+        message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
+        if " is busy" in message:
+            message += " (if steval live has it, type the command at its prompt instead)"
+        raise ParamError(message, *getattr(exc, "params", ())) from None
     capture = None
     try:
         if out is not None:
@@ -78,10 +73,7 @@ def run_commands(
 
         channel = CommandChannel(write, capture.write_host if capture is not None else None)
         decoder = StreamDecoder()
-        replies = []
-        for command in commands:
-            replies.append(_one(ser, path, channel, decoder, command, timeout_s, capture))
-        return replies
+        return [_one(ser, path, channel, decoder, command, timeout_s, capture) for command in commands]
     finally:
         if capture is not None:
             capture.close()
@@ -108,11 +100,10 @@ def _one(
         for frame in decoder.feed(data):
             if isinstance(frame, TextFrame):
                 frame = ack_of_text(frame.text) or frame
-            if ack is None and isinstance(frame, AckFrame):
-                if channel.match(frame) is sent:
-                    ack = frame
-                    if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
-                        return Reply(command, ack, None, describe_ack(command, ack))
+            if ack is None and isinstance(frame, AckFrame) and channel.match(frame) is sent:
+                ack = frame
+                if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
+                    return Reply(command, ack, None, describe_ack(command, ack))
             elif ack is not None and isinstance(frame, StatusFrame) and int(frame.flags) & P.FLAG_EVENT:
                 return Reply(command, ack, frame, describe_ack(command, ack))
     if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer

@@ -1,16 +1,15 @@
 """The serial driver of a live session: a port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or a replay
-(``replay://FILE.stv``, played at its recorded pace as a port: :mod:`steval_link.link.replay_source`).
+(``replay://FILE.stv``, played at its recorded pace as a port).
 
-A reader thread (:class:`~steval_link.link.transport.SerialReader`) hands each chunk to :class:`RecorderProtocol`:
-the capture first, then a bounded inbox; each round decodes the inbox (:class:`LivePipeline`). Faults it survives:
-unplug/replug (the reader reopens the port, by path or USB identity, and the capture marks the gap), garbage and
-truncated frames (counted by the decoder), non-finite values (counted, never fed to an estimator, never plotted).
-A wrong baud rate or another device: one line and :class:`LinkError` (see
-:func:`steval_link.link.autodetect.no_frames_message`). Commands go out through the reader's locked write.
+A reader thread (:class:`~steval_link.link.transport.SerialReader`, which reopens an unplugged port) hands each
+chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox` each round takes. A wrong baud
+rate or another device: one line and :class:`LinkError`. Commands go out through the reader's locked write.
 """
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import math
 import os
 import threading
@@ -22,24 +21,16 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import ParamError, UserError, param_word
-from steval_link.link import autodetect
+from steval_link.link import autodetect, ports
+from steval_link.link.decoder import StreamDecoder
+from steval_link.link.frames import AttitudeFrame, StatusFrame
 from steval_link.link.replay_source import is_replay_url, open_replay
-from steval_link.link.transport import SerialReader, open_error_message, open_serial
+from steval_link.link.transport import PortRejected, Protocol, SerialReader, open_error_message, open_serial
 from steval_link.live.console import PROMPT_HELP
-from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_health, stat
-from steval_link.live.recorder import Inbox, RecorderProtocol, offline_within
+from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
-from steval_link.live.summary import pipeline_counts
 
-__all__ = [
-    "LinkError",
-    "SerialSource",
-    "NO_FRAMES_TIMEOUT_S",
-    "open_port",
-    "check_frames",
-    "serial_health",
-    "serial_summary",
-]
+__all__ = ["LinkError", "SerialSource", "open_port", "check_frames", "serial_health", "serial_summary"]
 
 #: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -48,6 +39,16 @@ NO_FRAMES_EARLY_S = 1.0
 NO_FRAMES_EARLY_BYTES = 2048
 #: How long a round waits for the reader's first chunk, s.
 ROUND_WAIT_S = 0.02
+#: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
+INBOX_MAX_BYTES = 4 * 1024 * 1024
+#: A port reopened after a loss that sends no valid frame for this long is not the drone, s ...
+PROBATION_S = 3.0
+#: ... and it is the drone once it sent this many valid attitude or status frames.
+PROBATION_FRAMES = 2
+#: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
+#: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
+HOLDERS_CHECK_S = 5.0
+SILENT_S = 1.0
 
 
 class LinkError(ParamError):
@@ -61,33 +62,182 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
     if is_replay_url(url):  # the one place a source is opened by its URL scheme
         return url, open_replay(url, baud=baud)
     deadline = time.monotonic() + (math.inf if wait else 0.0)
-    announced = note is None  # a waiting note is said once
+    said = note is None  # a waiting note is said once
     while True:
+        waiting = time.monotonic() < deadline and not (stopped and stopped())
         try:
             path = autodetect.choose_port(url, baud)
         except autodetect.PortChoiceError as exc:
-            if time.monotonic() >= deadline or (stopped and stopped()):
+            if not waiting:
                 raise
-            if not announced:
-                note(f"{str(exc).split('; ')[0]}; waiting")
-                announced = True
-            time.sleep(0.25)
-            continue
-        try:
-            return path, open_serial(path, baud)
-        except serial.SerialException as exc:
-            missing = getattr(exc, "errno", None) == 2 or not os.path.exists(path)
-            if missing and time.monotonic() < deadline and not (stopped and stopped()):
-                if not announced:
-                    note(f"{path} is not there; waiting for it")
-                    announced = True
-                time.sleep(0.1)
-                continue
+            why, pause_s = f"{str(exc).split('; ')[0]}; waiting", 0.25
+        else:
             try:
-                available = autodetect.list_candidate_ports()
-            except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                available = []
-            raise open_error_message(path, exc, available) from None
+                return path, open_serial(path, baud)
+            except serial.SerialException as exc:
+                if not (waiting and (getattr(exc, "errno", None) == 2 or not os.path.exists(path))):
+                    try:
+                        available = autodetect.list_candidate_ports()
+                    except Exception:  # noqa: BLE001 - the listing is only a hint in the message
+                        available = []
+                    raise open_error_message(path, exc, available) from None
+                why, pause_s = f"{path} is not there; waiting for it", 0.1
+        if not said:
+            note(why)
+            said = True
+        time.sleep(pause_s)
+
+
+class Inbox:
+    """Chunks handed from the reader thread to the main thread; bounded by bytes (oldest dropped, counted)."""
+
+    def __init__(self, max_bytes: int = INBOX_MAX_BYTES) -> None:
+        self.max_bytes = max_bytes
+        self._chunks: collections.deque[tuple[bytes, float]] = collections.deque()
+        self._bytes = 0
+        self._cond = threading.Condition()
+        #: bytes dropped from the live view because the main thread fell behind (still in the capture)
+        self.dropped_bytes = 0
+
+    def put(self, data: bytes, t_unix_s: float) -> None:
+        with self._cond:
+            self._chunks.append((data, t_unix_s))
+            self._bytes += len(data)
+            while self._bytes > self.max_bytes and len(self._chunks) > 1:
+                old, _ = self._chunks.popleft()
+                self._bytes -= len(old)
+                self.dropped_bytes += len(old)
+            self._cond.notify()
+
+    def get_all(self, timeout_s: float) -> list[tuple[bytes, float]]:
+        """Every waiting chunk (waits up to ``timeout_s`` for the first one)."""
+        with self._cond:
+            if not self._chunks:
+                self._cond.wait(timeout_s)
+            out = list(self._chunks)
+            self._chunks.clear()
+            self._bytes = 0
+            return out
+
+
+class RecorderProtocol(Protocol):
+    """Reader-thread side: every chunk to the capture first (handed to the OS at once), then to the inbox.
+
+    Connection events go into the capture (``disconnect`` / ``reconnect`` mark the gap) and :attr:`status`.
+    A port reopened after a loss is on probation until it sends valid frames; one that sends none for
+    :data:`PROBATION_S` is rejected (:class:`~steval_link.link.transport.PortRejected`) and the search goes on.
+    Another program that reads the port is named once and the port is kept.
+    """
+
+    def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
+        self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
+        #: the link as the session sees it (``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic)
+        self.status = LinkStatus()
+        self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
+        self._probe: StreamDecoder | None = None
+        self._probe_frames = 0
+        self._holders_said: set[int] = set()
+        self._holders: list[tuple[int, str]] = []
+        self._last_data_s = -math.inf  # monotonic time of the last chunk
+        self._holders_checked_s = -math.inf
+
+    def _t_capture(self, t_unix_s: float | None = None) -> float:
+        """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
+        return (self.clock.now_s() if t_unix_s is None else t_unix_s) - self.clock.wall0_s
+
+    def connection_made(self, port: str) -> None:
+        st, now = self.status, time.monotonic()
+        st.connections += 1
+        st.port, st.connect_bytes, st.connected_at_s = port, 0, now
+        if st.connections > 1:  # back after a loss: the drone only once it sends valid frames
+            st.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
+            self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
+            self.capture.mark_event(
+                "reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at
+            )
+            return
+        st.connected = True
+        self._say_holders(port)
+
+    def _confirm(self) -> None:
+        """The port reopened sent valid frames: the drone is back."""
+        st = self.status
+        back = st.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
+        gap = max(0.0, back - (st.lost_at_s or back))
+        st.offline_s += gap
+        if st.offline and st.offline[-1][1] is None:
+            st.offline[-1] = (st.offline[-1][0], self._probe_at + self.clock.wall0_s)
+        port, st.probing, self._probe = st.probing, None, None
+        self.events.append(f"reconnected on {port} after {gap:.1f} s")
+        st.connected = True
+        self._say_holders(port)
+
+    def data_received(self, data: bytes, t_unix_s: float) -> None:
+        self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
+        self.status.bytes_total += len(data)
+        self.status.connect_bytes += len(data)
+        self.inbox.put(data, t_unix_s)
+        self._last_data_s = time.monotonic()
+        if self._probe is not None:
+            self._probe_frames += sum(1 for f in self._probe.feed(data) if isinstance(f, (AttitudeFrame, StatusFrame)))
+            if self._probe_frames >= PROBATION_FRAMES:
+                self._confirm()
+
+    def idle(self, t_unix_s: float) -> None:
+        now = time.monotonic()
+        if self.status.probing is not None and now - (self.status.connected_at_s or 0.0) >= PROBATION_S:
+            raise PortRejected(f"{self.status.probing} sent no valid frames in {PROBATION_S:.0f} s")
+        if self.status.connected and now - max(self._last_data_s, self.status.connected_at_s or now) >= SILENT_S:
+            self._say_holders(self.status.port)  # silent: another reader may take every byte (at most every few s)
+
+    def shared_access(self, exc: BaseException) -> bool:
+        if self.status.port is None or not os.path.exists(self.status.port):
+            return False  # the node is gone: an unplug
+        return bool(self._say_holders(self.status.port, force=True))
+
+    def _say_holders(self, port: str, *, force: bool = False) -> list[tuple[int, str]]:
+        """Name the other programs that have ``port`` open, once each (looked up at most every few seconds)."""
+        now = time.monotonic()
+        if not force and now - self._holders_checked_s < HOLDERS_CHECK_S:
+            return []
+        if force and now - self._holders_checked_s < 1.0:
+            return self._holders
+        self._holders_checked_s = now
+        self._holders = ports.port_holders(port)
+        if new := [h for h in self._holders if h[0] not in self._holders_said]:
+            self._holders_said.update(pid for pid, _ in new)
+            sentence = ports.holders_sentence(port, new)
+            self.capture.mark_event("shared", sentence, self._t_capture())
+            self.events.append(sentence)
+        return self._holders
+
+    def connection_lost(self, exc: BaseException | None) -> None:
+        was_probing, self.status.connected = self.status.probing, False
+        self.status.probing, self._probe = None, None
+        if exc is None:  # closed by stop()
+            return
+        if isinstance(exc, PortRejected):  # not the drone: keep looking (still the same disconnect)
+            if self.finder is not None:
+                self.finder.reject(was_probing)
+            self.capture.mark_event("rejected", str(exc), self._t_capture())
+            self.events.append(f"{was_probing} answers but sends no valid frames: not the drone; still looking")
+            return
+        if was_probing is not None:  # lost again before it sent a frame: the same disconnect goes on
+            return
+        st = self.status
+        st.disconnects += 1
+        st.lost_at_s = time.monotonic()
+        st.offline.append((self.clock.now_s(), None))
+        if self.finder is not None:
+            self.finder.mark_lost()
+        self.capture.mark_event("disconnect", f"{self.status.port}: {exc}", self._t_capture())
+        self.events.append(f"disconnected from {self.status.port}, waiting for it to come back")
+
+
+def offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
+    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
+    times, as :class:`RecorderProtocol` keeps them; a loss not over yet lasts to ``now_s``)."""
+    return sum((max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost)) for lost, back in offline), 0.0)
 
 
 class SerialSource(Source):
@@ -99,13 +249,11 @@ class SerialSource(Source):
         self.reader: SerialReader | None = None
         self.proto: RecorderProtocol | None = None
         self.inbox = Inbox()
-        self._closed = False
-        self._stopped = threading.Event()  # close() before the port appeared (--wait)
+        self._closed = threading.Event()  # close() (also before the port appeared: --wait)
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> SerialSource:
-        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]``: opened as they are
-        (:func:`open_port` reads the replay URL's path and speed)."""
+        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]`` (:func:`open_port`)."""
         return cls(url, **settings)
 
     @property
@@ -114,30 +262,20 @@ class SerialSource(Source):
 
     @property
     def status(self) -> LinkStatus:
-        proto, reader = self.proto, self.reader
-        if proto is None:
+        if self.proto is None:
             return LinkStatus(port=self.path, wait=self.wait)
-        return LinkStatus(
-            connected=proto.connected,
-            port=proto.port,
-            connections=proto.connections,
-            disconnects=proto.disconnects,
-            bytes_total=proto.bytes_total,
-            lost_at_s=proto.lost_at_s,
-            connected_at_s=proto.connected_at_s,
-            offline_s=proto.offline_s,
-            connect_bytes=proto.connect_bytes,
+        return dataclasses.replace(
+            self.proto.status,
             live_dropped_bytes=self.inbox.dropped_bytes,
-            reopen_error=reader.reopen_error if reader is not None else None,
+            reopen_error=self.reader.reopen_error if self.reader is not None else None,
             wait=self.wait,
-            probing=proto.probing,
             pace=float(getattr(self.ser, "speed", 1.0) or 1.0),  # a replay's ?speed=
-            offline=list(proto.offline),
+            offline=list(self.proto.status.offline),
         )
 
     def open(self, note=print) -> None:
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
-        self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._stopped.is_set)
+        self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._closed.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
             if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
@@ -161,8 +299,7 @@ class SerialSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The reader thread starts now: each chunk goes to the capture first (:class:`RecorderProtocol`), then to a
-        bounded inbox that each round takes."""
+        """The reader thread starts now: each chunk to the capture first, then to the inbox each round takes."""
         self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
         find = self.finder.find if self.finder is not None else None
         self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
@@ -172,17 +309,17 @@ class SerialSource(Source):
     def _rounds(self, clock) -> Iterator[list[Chunk]]:
         reader, proto = self.reader, self.proto
         while True:
-            if reader.error is not None and not self._closed:
+            closed = self._closed.is_set()
+            if reader.error is not None and not closed:
                 raise reader.error  # an OSError: the capture could not be written (the session says where it is)
-            got = self.inbox.get_all(0.0 if self._closed else ROUND_WAIT_S)
+            got = self.inbox.get_all(0.0 if closed else ROUND_WAIT_S)
             out = [Chunk(NOTE, proto.events.popleft(), 0.0) for _ in range(len(proto.events))]
             out += [Chunk("D", data, t_unix_s - clock.wall0_s, t_unix_s) for data, t_unix_s in got]
-            if self._closed:
-                yield out
-                return
-            if getattr(reader.serial, "at_end", False):  # a replay played to its end
+            if not closed and getattr(reader.serial, "at_end", False):  # a replay played to its end
                 out += [Chunk(NOTE, f"end of {reader.serial.path}", 0.0), Chunk(END, "end of replay", 0.0)]
             yield out
+            if closed:
+                return
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
         if self.reader is None:
@@ -190,8 +327,7 @@ class SerialSource(Source):
         self.reader.write(frame)  # under the lock a reconnection holds
 
     def close(self) -> None:
-        self._stopped.set()
-        self._closed = True
+        self._closed.set()
         if self.reader is not None:
             self.reader.stop()
         elif self.ser is not None:
@@ -217,8 +353,7 @@ def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError 
     stats = pipe.decoder.stats
     if stats.attitude + stats.status + stats.text_records > 0 or not status.connected or status.connected_at_s is None:
         return None
-    elapsed = now - status.connected_at_s
-    nbytes = status.connect_bytes
+    elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
     if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
         return None
     return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)
@@ -242,7 +377,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     more = [f"disconnects {status.disconnects}"] if status.disconnects else []
     if status.live_dropped_bytes:
         more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
-    skipped = f"skipped {_fmt_bytes(stat(s, 'bytes_skipped'))}"
+    skipped = f"skipped {_fmt_bytes(s.bytes_skipped)}"
     return pipeline_health(
         head, pipe, after_crc=[skipped], before_replica=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
     )

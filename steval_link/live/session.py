@@ -1,11 +1,8 @@
 """The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`; the interface: :mod:`steval_link.live.sources`) → capture → decoder → estimators → viewer.
+(:func:`source_for`) → capture → decoder → estimators → viewer.
 
-The source writes each chunk to the capture first (in its reader thread or its round: each goes to the OS at once,
-so even ``kill -9`` loses nothing received), and a slow viewer never costs bytes. The session owns, once for every
-source: the capture file (its errors are one sentence), the viewer, the command prompt (typed commands go to the
-source's locked write), the stop requests (Ctrl-C, SIGTERM, SIGHUP, ``--duration``: :meth:`LiveSession.
-request_stop`) and the summary (:class:`LiveSummary`).
+The source writes each chunk to the capture first, so a slow viewer never costs bytes. The session owns, once for
+every source: the capture file, the viewer, the command prompt, the stop requests and the summary.
 """
 
 from __future__ import annotations
@@ -24,13 +21,12 @@ from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
+from steval_link.live import health
 from steval_link.live.console import CommandConsole
-from steval_link.live.health import HealthDisplay, ble_health, ble_summary, emulated_health
+from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.recorder import capture_failure_sentence, open_capture
 from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
-from steval_link.live.summary import LiveSummary, pipeline_counts
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -45,20 +41,18 @@ DRIVERS = {
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`): the one dispatch; each driver parses its
-    own URL (``from_url``); ``settings`` go to it (``baud``, ``wait`` for a serial port; ``emulation``,
-    ``realtime``, ``commands`` for the board; ``backend``, ``layout`` for BLE)."""
-    scheme = next((s for s in DRIVERS if url.lower().startswith(s)), None)
-    if scheme is None:
-        return SerialSource.from_url(url, **settings)
-    module, name = DRIVERS[scheme]
-    driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
-    return driver.from_url(url, **settings)
+    """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
+    ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
+    for scheme, (module, name) in DRIVERS.items():
+        if url.lower().startswith(scheme):
+            driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
+            return driver.from_url(url, **settings)
+    return SerialSource.from_url(url, **settings)
 
 
 def port_source(port: str, **settings: Any) -> Source:
-    """The source a ``--port`` value names: a serial port or ``replay://``; BLE and the emulated board are chosen by
-    their own commands, so their URLs here are one sentence saying which (``settings``: ``baud``, ``wait``)."""
+    """The source a ``port`` value names: a serial port or ``replay://`` (BLE and the emulated board: one sentence
+    naming their own commands)."""
     low = port.lower()
     if low.startswith(BLE_SCHEME):
         name = port[len(BLE_SCHEME) :].strip()
@@ -72,43 +66,27 @@ def port_source(port: str, **settings: Any) -> Source:
 
 @dataclass
 class LiveOptions:
-    """What every live session configures (a source's own settings are its driver's: the baud rate, --wait, the
-    ELF...). ``sinks``: the Rerun outputs (``steval_viewer.sink_options.SinkOptions``), built and checked once by
-    the CLI (None: no Rerun at all)."""
+    """What every live session configures (a source's own settings are its driver's). ``sinks``: the Rerun outputs
+    (``steval_viewer.sink_options.SinkOptions``, None: no Rerun)."""
 
     out: Path | None = None
     sinks: Any = None
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     recordings_dir: Path = Path("recordings")
-    #: the command prompt (lines typed on stdin → commands to the drone); None: when stdin is a terminal
-    prompt: bool | None = None
-    #: the source's kind ("serial", "ble"...), set by the session from the source's description: the viewer's
-    #: layout from the start
-    link_kind: str | None = None
-    #: the ST release whose filter the live replica runs ("ST 221117", ``--variant``); None: the status frames'
-    variant: str | None = None
-    #: which series of text telemetry are the attitude ({target: (series, unit)}, ``text_series.parse_map``)
-    text_map: dict | None = None
-    #: how a note names a parameter (``port=``; the CLI gives its flag, ``--port``)
-    word: Callable[[str], str] = param_word
-
-    @property
-    def uses_rerun(self) -> bool:
-        return self.sinks is not None
-
-    @property
-    def rrd(self) -> Path | None:
-        return self.sinks.rrd if self.sinks is not None else None
+    prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal
+    link_kind: str | None = None  # the source's kind ("serial", "ble"...), set by the session: the viewer's layout
+    variant: str | None = None  # the ST release whose filter the replica runs ("ST 221117"); None: the status's
+    text_map: dict | None = None  # which series of text telemetry are the attitude ({target: (series, unit)})
+    word: Callable[[str], str] = param_word  # how a note names a parameter (the CLI gives its flag)
 
 
 class LiveSession:
     """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
 
     ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (``steval_viewer.live_adapter.make_viewer_logger``, whatever the link); it is
-    required when ``options.sinks`` is set. ``check_outputs``: the CLI's checks of the outputs, run once the
-    input is open (errors come in the command line's order, the input first) and before any file is made.
+    Rerun side (needed with ``options.sinks``). ``check_outputs``: the CLI's checks of the outputs, run once the
+    input is open and before any file is made.
     """
 
     def __init__(
@@ -121,7 +99,7 @@ class LiveSession:
         viewer_factory: Callable | None = None,
         check_outputs: Callable[[], None] | None = None,
     ) -> None:
-        if options.uses_rerun and viewer_factory is None:
+        if options.sinks is not None and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
         self.options = options
         self.source = source
@@ -132,35 +110,24 @@ class LiveSession:
         self.capture: CaptureWriter | None = None
         self.viewer = None
         self.console: CommandConsole | None = None
-        #: the one pipeline: decoder, estimators, loggers (made once the capture and the viewer are there)
-        self.pipeline: LivePipeline | None = None
+        self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
         self.info: LinkInfo | None = None
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
         self._connected = True
         self._warned_no_frames = False
-        #: outputs that failed during the run (the ``.rrd``: disk full, deleted), one sentence each
-        self.output_failures: list[str] = []
-
-    # -- control ----------------------------------------------------------------------------------------------
+        self.output_failures: list[str] = []  # outputs that failed during the run (the ``.rrd``), one sentence each
 
     def request_stop(self, reason: str = "stopped") -> None:
         """Finish cleanly at the next round (thread-safe; what Ctrl-C, SIGTERM and --duration do)."""
         if self._stop_reason is None:
             self._stop_reason = reason
 
-    @property
-    def stop_requested(self) -> bool:
-        return self._stop_reason is not None
-
     def _on_signal(self, signum: int) -> None:
-        """Ctrl-C, SIGTERM, SIGHUP: stop at the next round; a second one (or one while stopping) stops now (the
-        files are flushed often)."""
-        if self.stop_requested:
+        """Ctrl-C, SIGTERM, SIGHUP: stop at the next round; a second one (or one while stopping) stops now."""
+        if self._stop_reason is not None:
             raise KeyboardInterrupt
         self.request_stop("interrupted" if signum == signal.SIGINT else "terminated")
-
-    # -- main -------------------------------------------------------------------------------------------------
 
     def run(self) -> LiveSummary:
         src, opts = self.source, self.options
@@ -176,41 +143,37 @@ class LiveSession:
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
         error: BaseException | None = None
-        started = False
-        stop_signals = contextlib.ExitStack()
-        stop_signals.enter_context(on_stop_signals(self._on_signal))
-        stream = None
-        try:
-            self._opening_note()
-            stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, while the viewer starts
-            if opts.uses_rerun:
-                self.viewer = self.viewer_factory(
-                    dataclasses.replace(opts, link_kind=self.info.kind), self.info.recording_name or capture.path.stem
-                )
-            self.pipeline = LivePipeline.for_session(self)
-            self.console = self._console()
-            started = True
-            self._loop(stream, t0)
-        except KeyboardInterrupt:
-            self.request_stop("interrupted")
-        except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
-            error = exc
-        finally:
+        started, stream = False, None
+        with on_stop_signals(self._on_signal):
             try:
-                self._finish(stream, error)
+                self._opening_note()
+                stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, as the viewer starts
+                if opts.sinks is not None:
+                    name = self.info.recording_name or capture.path.stem
+                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=self.info.kind), name)
+                self.pipeline = LivePipeline.for_session(self)
+                self.console = self._console()
+                started = True
+                self._loop(stream, t0)
+            except KeyboardInterrupt:
+                self.request_stop("interrupted")
+            except BaseException as exc:  # noqa: BLE001 - finish the files first, then re-raise
+                error = exc
             finally:
-                if self.console is not None:
-                    self.console.close()
-                self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
-                stop_signals.close()
-                if error is not None and not started:  # a failed start leaves nothing half-made
-                    capture.discard()
+                try:
+                    self._finish(stream, error)
+                finally:
+                    if self.console is not None:
+                        self.console.close()
+                    self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
+        if error is not None and not started:  # a failed start leaves nothing half-made
+            capture.discard()
         if error is not None:
             raise self._error_of(error)
         self._watch_outputs()
         return LiveSummary(
             capture_path=capture.path,
-            rrd_path=opts.rrd if not self.output_failures else None,
+            rrd_path=opts.sinks.rrd if opts.sinks is not None and not self.output_failures else None,
             failures=list(self.output_failures),
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
@@ -219,33 +182,17 @@ class LiveSession:
             **self._summary_fields(),
         )
 
-    # -- internals --------------------------------------------------------------------------------------------
-
     def _opening_note(self) -> None:
         if self.info.note:  # (BLE says when it is connected)
-            rrd = self.options.rrd
-            self.display.note(
-                f"{self.info.note}; recording to {self.capture.path}"
-                + (f" and {rrd}" if rrd else "")
-                + " (Ctrl-C to stop)"
-            )
+            sinks = self.options.sinks
+            and_rrd = f" and {sinks.rrd}" if sinks is not None and sinks.rrd else ""
+            self.display.note(f"{self.info.note}; recording to {self.capture.path}{and_rrd} (Ctrl-C to stop)")
 
     def _record(self, chunk: Chunk) -> None:
         """A chunk into the capture, first (any thread)."""
-        cap, kind, t = self.capture, chunk.kind, chunk.t_s
-        if kind == "D":
-            cap.write(chunk.data, t)
-        elif kind == "B":
-            cap.write_chunk(CHUNK_BLE, ble_chunk(*chunk.data), t)
-        elif kind == "H":
-            cap.write_host(chunk.data, t)
-        elif kind == "T":
-            rows = chunk.data
-            cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t)
-        elif kind == "E":
-            cap.mark_event(chunk.data[0], chunk.data[1], t)
-        elif kind == "S":
-            cap.write_chunk(CHUNK_SYMBOLS, chunk.data, t)
+        write = _WRITE.get(chunk.kind)
+        if write is not None:
+            write(self.capture, chunk.data, chunk.t_s)
 
     def _take(self, chunks: list[Chunk]) -> None:
         """One round's chunks to the pipeline, in order; notes to the terminal."""
@@ -264,8 +211,7 @@ class LiveSession:
             elif c.kind == NOTE:
                 self.display.note(c.data)
             elif c.kind == END:
-                if self.info.kind != "ble":
-                    self.request_stop(c.data)
+                self.request_stop(c.data)
         self._feed_serial(serial)
         if ble or self.info.kind == "ble":
             pipe.feed_ble(ble, final=any(c.kind == END for c in chunks))
@@ -290,8 +236,7 @@ class LiveSession:
             self._watch_outputs()
             now = time.monotonic()
             self._check_link(now)
-            line = self._health(now, t0)
-            if line:  # (a link with nothing to say yet says "")
+            if line := self._health(now, t0):  # (a link with nothing to say yet says "")
                 self.display.show(console.decorate(line), now, force=console.take_typing_change())
             if duration_s is not None and now - t0 >= duration_s:
                 self.request_stop("duration")
@@ -303,14 +248,10 @@ class LiveSession:
         if self.info.kind != "serial":
             return
         status = self.source.status
-        if status.connected != self._connected:
-            self._connected = status.connected
-            if status.connected:
-                self.pipeline.sample.clear()
-        if self._warned_no_frames:
-            return
-        message = check_frames(status, self.pipeline, self.info.baud, now)
-        if message is None:
+        if status.connected and not self._connected:  # a new connection: a new sample
+            self.pipeline.sample.clear()
+        self._connected = status.connected
+        if self._warned_no_frames or (message := check_frames(status, self.pipeline, self.info.baud, now)) is None:
             return
         if status.wait:
             self._warned_no_frames = True
@@ -321,56 +262,38 @@ class LiveSession:
     def _health(self, now: float, t0: float) -> str:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
         if kind == "ble":
-            return ble_health(pipe)
+            return health.ble_health(pipe)
         if kind == "emulated":
-            return emulated_health(status, pipe, now - t0)
+            return health.emulated_health(status, pipe, now - t0)
         return serial_health(status, pipe, now, self.clock.now_s(), self.options.word)
 
     def _summary_fields(self) -> dict[str, Any]:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
         if kind == "ble":
-            return ble_summary(status, pipe)
+            return health.ble_summary(status, pipe)
         if kind == "emulated":
-            return {**pipeline_counts(pipe), "report": status.report, "filter_note": self._emulated_note()}
+            return health.emulated_summary(status, pipe, self.info.extra.get("filter") or {})
         return serial_summary(status, pipe, self.clock.now_s())
-
-    def _emulated_note(self) -> str | None:
-        """The replica's verdict, the release whose filter it ran, and the steps the emulator read by symbol."""
-        pipe, read = self.pipeline, self.source.status.symbol_rows
-        flt = self.info.extra.get("filter") or {}
-        note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
-        if note and flt:
-            note = f"{note} with {flt['variant']}'s filter"
-        if read:
-            what = f"the emulator read the attitude of {read} AHRS steps by symbol (chunks S"
-            frames = pipeline_counts(pipe).get("attitude") if pipe is not None else 0
-            note = f"{note}; {what})" if note and frames else f"{what}: steval compare shows them)"
-            if not frames and flt:
-                note += f"; {flt['variant']}'s filter (from the {flt['from']})"
-        return note
 
     def _finish(self, stream, error: BaseException | None) -> None:
         """The link stopped, then what it still held to the pipeline (the capture has it already)."""
         self.source.close()
         if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
             return
-        try:
+        with contextlib.suppress(Exception):  # the capture is whole whatever happens here
             for chunks in stream:
-                self._take(chunks + ([Chunk(END, "end", None)] if self.info.kind == "ble" else []))
+                self._take(chunks)
             if self.info.kind == "ble":
                 self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
-        except Exception:  # noqa: BLE001 - the capture is whole whatever happens here
-            pass
 
     def _error_of(self, error: BaseException) -> BaseException:
-        """The error raised: a capture that could not be written says where the bytes until then are; the
-        emulated board's errors say that its capture holds everything until then."""
-        path = self.capture.path
+        """The error raised: a capture that could not be written, or the emulated board's error, says where the
+        bytes until then are."""
         if isinstance(error, OSError) and not isinstance(error, UserError):  # disk full, deleted, replaced
             return UserError(capture_failure_sentence(self.capture, error))
         if self.info.own_clock and isinstance(error, UserError):
-            return UserError(f"{error} (the capture {path} holds everything until then)")
+            return UserError(f"{error} (the capture {self.capture.path} holds everything until then)")
         return error
 
     def _open_capture(self) -> CaptureWriter:
@@ -385,13 +308,11 @@ class LiveSession:
         return open_capture(path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty)
 
     def _close_outputs(self, stop_reason: str) -> None:
-        """In their order of importance: the capture (its stop event at the link's time, then closed), then the
-        Rerun side (a failure there is a note: the capture is safe), then the health line."""
-        try:
+        """The capture (its stop event at the link's time), then the Rerun side (a failure is a note), then the
+        health line."""
+        with contextlib.suppress(Exception):  # the capture's bytes are written already; the event is a courtesy
             t = self._t_link_s if self.info is not None and self.info.own_clock else None
             self.capture.mark_event("stop", stop_reason, t_host_s=t)
-        except Exception:  # noqa: BLE001 - the capture's bytes are written already; the event is a courtesy
-            pass
         self.capture.close()
         if self.viewer is not None:
             try:
@@ -410,8 +331,7 @@ class LiveSession:
         return console
 
     def _sent(self, frame: bytes) -> None:
-        """A typed command as sent: into the capture (chunk H) and the pipeline (its ack is matched); the board's
-        own RX bytes come back as its chunks H."""
+        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as chunks H)."""
         if self.info.own_clock:
             return
         t_unix_s = self.clock.now_s()
@@ -419,10 +339,8 @@ class LiveSession:
         self.pipeline.feed_host(frame, t_unix_s)
 
     def _watch_outputs(self) -> None:
-        """A capture that can take no more stops the run (one sentence); an ``.rrd`` that failed is said once and
-        the run goes on without it (``output_failures``: the summary leaves it out, the exit code is not 0)."""
-        failure = self.capture.check_present()
-        if failure is not None:
+        """A capture that can take no more stops the run; an ``.rrd`` that failed is said once and the run goes on."""
+        if (failure := self.capture.check_present()) is not None:
             raise UserError(capture_failure_sentence(self.capture, failure))
         said = getattr(self.viewer, "output_failure", None)
         if said and said not in self.output_failures:
@@ -430,8 +348,38 @@ class LiveSession:
             self.display.note(said)
 
 
-def _stdin_is_tty() -> bool:
+def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
+    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
     try:
-        return sys.stdin is not None and sys.stdin.isatty()
-    except (AttributeError, ValueError):
-        return False
+        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
+    except FileExistsError:
+        raise ParamError(
+            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
+        ) from None
+    except OSError as exc:
+        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+
+
+def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
+    """The one sentence for a capture that can take no more (disk full, deleted, replaced), naming what it holds."""
+    amount = _fmt_bytes(capture.bytes_written)
+    if "cannot be written" in str(failure) and capture.path.exists():
+        return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
+    return f"the capture {failure}; stopped: the {amount} received until then went with it"
+
+
+#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
+_WRITE = {
+    "D": lambda cap, data, t_s: cap.write(data, t_s),
+    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
+    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
+    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
+    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
+    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
+}
+
+
+def _stdin_is_tty() -> bool:
+    with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
+        return sys.stdin.isatty()
+    return False

@@ -9,11 +9,8 @@ drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.ses
 ``ble:NAME``, ``ble:ADDRESS``, ``ble:``  a drone over Bluetooth (:mod:`.ble_source`, ``--ble``)
 ====================================  ======================================================================
 
-A source has five public methods: :meth:`Source.open`, :meth:`Source.describe`, :meth:`Source.chunks`,
-:meth:`Source.write`, :meth:`Source.close`. It moves its chunks into the capture first (through the ``record``
-function it is given, in its own thread or its round) and hands them on, timestamped; it never reads the session.
-:class:`~steval_link.live.session.LiveSession` owns the rest once: the capture file, the decoder and estimators
-(the one pipeline), the viewer, the command prompt, the stop requests and signals, the health line and the summary.
+A source has five public methods. It hands each chunk to the ``record`` function it is given (the capture) first,
+then on, timestamped; it never reads the session, which owns the rest.
 """
 
 from __future__ import annotations
@@ -27,17 +24,17 @@ from steval_link.live.console import PROMPT_HELP
 
 __all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source"]
 
-#: Chunk kinds besides the capture's own (D drone bytes, B BLE notification, H host bytes, T truth, E event)
+#: Chunk kinds besides the capture's own
 NOTE, BREAK, END = "note", "break", "end"
 
 
 @dataclass
 class Chunk:
-    """One timestamped piece of a link: ``kind`` D (bytes from the drone), B ((char id, payload): a BLE
-    notification), H (bytes the host sent), T (a BROAD trial's truth rows), E ((kind, text): a link event), ``note``
-    (a sentence for the terminal only), ``break`` (a BLE link lost and found again) or ``end`` (the link ended: the
-    stop reason); ``t_s`` on the capture's clock (s since it started; None: now)."""
+    """One timestamped piece of a link; ``t_s`` on the capture's clock (s since it started; None: now)."""
 
+    #: D (drone bytes), B ((char id, payload): a BLE notification), H (host bytes), T (a trial's truth rows),
+    #: E ((kind, text): a link event), S (symbol rows), ``note`` (for the terminal), ``break`` (a BLE link lost
+    #: and found again) or ``end`` (the link ended: the stop reason)
     kind: str
     data: Any
     t_s: float | None
@@ -50,66 +47,50 @@ Record = Callable[[Chunk], None]
 
 @dataclass
 class LinkInfo:
-    """What a source says about itself: the capture header's ``link`` (``/dev/ttyUSB0``, ``emulated:ref.elf``,
-    ``ble:DRN1110``), baud rate (0: none) and ``extra`` fields; ``discard_empty``: a capture that got no byte is
-    removed; ``kind`` the summary's layout (serial, emulated, ble); ``note`` the opening note's first words ("":
-    none); ``takes_commands``, ``prompt_note``; ``recording_name`` (None: the capture's name); ``own_clock``: the
-    chunks' times are the link's own (emulated), so the stop event takes the last one; ``commands``: (s, Command)
-    the session sends at those link times."""
+    """What a source says about itself."""
 
-    link: str
-    baud: int
-    extra: dict[str, Any] = field(default_factory=dict)
-    discard_empty: bool = True
-    kind: str = "serial"
-    note: str = ""
+    link: str  # the capture header's ``link`` (``/dev/ttyUSB0``, ``emulated:ref.elf``, ``ble:DRN1110``)
+    baud: int  # 0: none
+    extra: dict[str, Any] = field(default_factory=dict)  # the capture header's extra fields
+    discard_empty: bool = True  # a capture that got no byte is removed
+    kind: str = "serial"  # the summary's layout (serial, emulated, ble)
+    note: str = ""  # the opening note's first words ("": none)
     takes_commands: bool = True
     prompt_note: str = PROMPT_HELP
-    recording_name: str | None = None
-    own_clock: bool = False
-    commands: list = field(default_factory=list)
+    recording_name: str | None = None  # None: the capture's name
+    own_clock: bool = False  # the chunks' times are the link's own (emulated): the stop event takes the last one
+    commands: list = field(default_factory=list)  # (s, Command) the session sends at those link times
 
 
 @dataclass
 class LinkStatus:
-    """How a link is doing, kept up to date by its driver (the session reads it for the health line and the
-    summary): connected, ``port`` (the one opened now), connections and losses, bytes received, the monotonic
-    times of the last loss and connection, the seconds offline, the bytes of the current connection, bytes dropped
-    from the live view, ``reopen_error`` ((path, exception): it is back but cannot be opened), ``t_link_s``
-    (the link's own clock: emulated s), ``duration_s`` and ``report`` (emulated), ``wait`` (keep waiting for frames
-    instead of stopping), ``symbol_rows`` (emulated: AHRS steps whose attitude the emulator read by symbol),
-    ``probing`` (a port reopened after a loss, on probation until it sends valid frames), ``offline`` ((lost, back
-    or None) host Unix times of each loss), ``pace`` (a replay's ``?speed=``: its rate is that many times the
-    drone's)."""
+    """How a link is doing, kept up to date by its driver (the session reads it for the health line and summary)."""
 
     connected: bool = False
-    port: str | None = None
+    port: str | None = None  # the one opened now
     connections: int = 0
     disconnects: int = 0
     bytes_total: int = 0
-    lost_at_s: float | None = None
-    connected_at_s: float | None = None
+    lost_at_s: float | None = None  # monotonic time of the last loss
+    connected_at_s: float | None = None  # monotonic time of the last connection
     offline_s: float = 0.0
-    connect_bytes: int = 0
-    live_dropped_bytes: int = 0
-    reopen_error: Any = None
-    t_link_s: float = 0.0
-    duration_s: float | None = None
-    report: Any = None
-    wait: bool = False
-    symbol_rows: int = 0
-    probing: str | None = None
-    offline: list = field(default_factory=list)
-    pace: float = 1.0
+    connect_bytes: int = 0  # bytes of the current connection
+    live_dropped_bytes: int = 0  # bytes dropped from the live view (in the capture)
+    reopen_error: Any = None  # (path, exception): it is back but cannot be opened
+    t_link_s: float = 0.0  # the link's own clock (emulated s)
+    duration_s: float | None = None  # emulated
+    report: Any = None  # emulated: the board's report
+    wait: bool = False  # keep waiting for frames instead of stopping
+    symbol_rows: int = 0  # emulated: AHRS steps whose attitude the emulator read by symbol
+    probing: str | None = None  # a port reopened after a loss, on probation until it sends valid frames
+    offline: list = field(default_factory=list)  # (lost, back or None) host Unix times of each loss
+    pace: float = 1.0  # a replay's ``?speed=``: its rate is that many times the drone's
 
 
 class Source:
-    """One link of a live session; see the module docstring. The session calls :meth:`open` (the input: one
-    UserError before any file is made), :meth:`describe` (the capture header; :meth:`close` if the capture cannot
-    be made), :meth:`chunks` (bytes flow into the capture from then on, before the viewer starts; each item is the
-    list of chunks of one round, [] when none came; the iterator ends when the link ends), :meth:`write` for a
-    command (any thread: a driver that swaps its port holds a lock) and :meth:`close` (threads stopped; the
-    iterator then yields what is left, once). ``status``: a :class:`LinkStatus`."""
+    """One link of a live session. The session calls :meth:`open`, :meth:`describe` (the capture header),
+    :meth:`chunks` (each item: the chunks of one round, [] when none came), :meth:`write` (any thread) and
+    :meth:`close` (the iterator then yields what is left, once)."""
 
     status: LinkStatus
 
