@@ -110,7 +110,8 @@ def test_run_isr_timeline_and_steady_state():
     assert np.array_equal(out.acc_ahrs_mg[-1], np.array([0, 0, 1000], F32))
     assert np.all(out.gyro_ahrs_mdps[-1] == 0)  # a constant rate during calibration is taken as bias
     # without calibration: default offsets (0, 0, 1000) leave the readings as they are
-    acc2, gyro2 = sm.steval_pipeline(acc[:50], gyro[:50], calibrate=False)
+    out2 = sm.run_isr(acc[:50], gyro[:50], calibrate=False)
+    acc2, gyro2 = out2.acc_ahrs_mg, out2.gyro_ahrs_mdps
     assert acc2.shape == (10, 3) and np.allclose(acc2[-1], [30, -20, 1010])
     assert np.allclose(gyro2[-1], [1400, 0, -700], rtol=1e-3)
     with pytest.raises(ValueError):

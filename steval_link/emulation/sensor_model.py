@@ -19,7 +19,7 @@ The chain the drone runs, and the functions here that model each link:
    entries starting from 0, then ``*= (1.0/5)`` in double, stored back to float32 → ``acc_ahrs`` (mg),
    ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
-:func:`steval_pipeline` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
+:func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
 another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.
 All arrays are (N, 3) with axes x right, y forward, z up (the firmware's COORDINATE_SYSTEM 3).
 Nothing in here holds module-level mutable state.
@@ -36,15 +36,12 @@ from steval_link import constants as C
 __all__ = [
     "CALIBRATION_SKIP_TICKS",
     "CALIBRATION_TICKS",
-    "GyroIirCoeffs",
-    "GYRO_IIR",
     "GYRO_ODR_HZ",
     "gyro_hold_index",
     "gyro_hold_times_s",
     "ACC_BIAS_SIGMA_MG",
     "GYRO_BIAS_SIGMA_MDPS",
     "seeded_lsm6dsl",
-    "ACC_ODR_HZ",
     "IirState",
     "Lsm6dsl",
     "IsrOutput",
@@ -57,10 +54,8 @@ __all__ = [
     "GYRO_LATENCY_S",
     "fifo_average",
     "run_isr",
-    "steval_pipeline",
     "isr_yaw_rad",
     "resample_to_tick",
-    "noise_rms_from_density",
 ]
 
 _F32 = np.float32
@@ -73,8 +68,6 @@ CALIBRATION_TICKS: int = 800
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
 GYRO_ODR_HZ: float = 416.0
-#: accelerometer output data rate (6.66 kHz): effectively a fresh sample every tick
-ACC_ODR_HZ: float = 6660.0
 
 
 def gyro_hold_index(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
@@ -95,26 +88,12 @@ ACC_SENSITIVITY_MG = 0.122
 GYRO_SENSITIVITY_MDPS = 70.0
 
 
-@dataclass(frozen=True)
-class GyroIirCoeffs:
-    """Coefficients of the ISR's gyro IIR, ``y = b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (stored as float32).
-
-    Note the sign convention: the denominator is ``1 − a1·z⁻¹ − a2·z⁻²``.
-    """
-
-    a1: float = 0.94280904158206336
-    a2: float = -0.33333333333333343
-    b0: float = 0.09763107293781749
-    b1: float = 0.19526214587563498
-    b2: float = 0.09763107293781749
-
-    def as_f32(self) -> tuple[np.float32, ...]:
-        """(a1, a2, b0, b1, b2) as the firmware's float32 values."""
-        return tuple(_F32(v) for v in (self.a1, self.a2, self.b0, self.b1, self.b2))
-
-
-#: the firmware's coefficients: Butterworth low-pass, 100 Hz cut-off designed for 800 Hz
-GYRO_IIR = GyroIirCoeffs()
+#: the ISR's gyro IIR coefficients (a1, a2, b0, b1, b2) as the firmware's float32: Butterworth low-pass, 100 Hz
+#: cut-off designed for 800 Hz; ``y = b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (denominator ``1 − a1·z⁻¹ − a2·z⁻²``)
+_IIR_F32 = tuple(
+    _F32(v)
+    for v in (0.94280904158206336, -0.33333333333333343, 0.09763107293781749, 0.19526214587563498, 0.09763107293781749)
+)
 
 
 @dataclass
@@ -127,17 +106,16 @@ class IirState:
     y2: np.ndarray = field(default_factory=lambda: np.zeros(3, _F32))
 
 
-def noise_rms_from_density(density_per_rthz: float, bandwidth_hz: float) -> float:
-    """RMS of white noise with the given density (unit/√Hz) over an equivalent noise bandwidth (Hz)."""
-    return float(density_per_rthz) * float(np.sqrt(bandwidth_hz))
+def adc_counts(value, sensitivity: float) -> np.ndarray:
+    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0)."""
+    return np.clip(np.rint(np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)), -32768, 32767).astype(
+        np.int16
+    )
 
 
-def _adc_and_driver(value, sensitivity: float) -> np.ndarray:
-    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0), then the ST driver's
-    ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
-    x = np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return np.trunc(raw.astype(_F32) * _F32(sensitivity)).astype(np.int32)
+def driver_value(raw, sensitivity: float) -> np.ndarray:
+    """The ST driver's ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
+    return np.trunc(np.asarray(raw).astype(_F32) * _F32(sensitivity)).astype(np.int32)
 
 
 def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.ndarray:
@@ -146,12 +124,12 @@ def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.nd
     ADC: ``raw = round(acc / sensitivity)`` saturated to int16 (±4 g → ±3997.7 mg at 0.122 mg/LSB); driver:
     ``(int32_t)(raw * 0.122f)``. NaN input reads as 0.
     """
-    return _adc_and_driver(acc_mg, sensitivity_mg)
+    return driver_value(adc_counts(acc_mg, sensitivity_mg), sensitivity_mg)
 
 
 def quantise_gyro_mdps(gyro_mdps, sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS) -> np.ndarray:
     """What the driver returns for a physical rate: int32 mdps (N, 3), 70 mdps/LSB, saturated at int16 (±2293 dps)."""
-    return _adc_and_driver(gyro_mdps, sensitivity_mdps)
+    return driver_value(adc_counts(gyro_mdps, sensitivity_mdps), sensitivity_mdps)
 
 
 @dataclass(frozen=True)
@@ -159,9 +137,8 @@ class Lsm6dsl:
     """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick.
 
     Noise is white per reading (the firmware reads both sensors every tick). The default RMS values are the
-    LSM6DSL datasheet's typical RMS noise that UMaine Lab 5 Appendix B quotes (gyro 75 mdps, acc 2 mg at ±4 g);
-    the datasheet's high-performance densities (gyro ≈ 4 mdps/√Hz, acc ≈ 90 µg/√Hz) give an RMS through
-    :func:`noise_rms_from_density` for a chosen bandwidth. Biases are constant offsets added before quantisation
+    LSM6DSL datasheet's typical RMS noise that UMaine Lab 5 Appendix B quotes (gyro 75 mdps, acc 2 mg at ±4 g).
+    Biases are constant offsets added before quantisation
     (the datasheet allows ±40 mg zero-g level and ±2 dps zero-rate level; defaults 0).
 
     Attributes:
@@ -254,7 +231,7 @@ def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[
     return acc.astype(np.int32), gyro.astype(np.int32)
 
 
-def gyro_iir(gyro_mdps, state: IirState | None = None, coeffs: GyroIirCoeffs = GYRO_IIR) -> np.ndarray:
+def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
     """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps.
 
     Each output is ``(((b0·x + b1·x1) + b2·x2) + a1·y1) + a2·y2`` with every product and sum rounded to float32
@@ -265,7 +242,7 @@ def gyro_iir(gyro_mdps, state: IirState | None = None, coeffs: GyroIirCoeffs = G
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"gyro_mdps must be (N, 3), got shape {x.shape}")
     st = state if state is not None else IirState()
-    a1, a2, b0, b1, b2 = coeffs.as_f32()
+    a1, a2, b0, b1, b2 = _IIR_F32
     n = x.shape[0]
     # feed-forward part, vectorised: x1/x2 are the previous inputs (from the state for the first two ticks)
     xp = np.concatenate([st.x2[None], st.x1[None], x], axis=0)
@@ -288,14 +265,14 @@ def gyro_iir(gyro_mdps, state: IirState | None = None, coeffs: GyroIirCoeffs = G
     return y[2:]
 
 
-def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ, coeffs: GyroIirCoeffs = GYRO_IIR):
+def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ):
     """Complex frequency response H(f) of the gyro IIR at ``fs_hz`` (ISR rate by default).
 
     Returns ``(H, gain_db, phase_rad, group_delay_s)`` for the frequencies ``freq_hz`` (array-like, Hz), from the
     float32 coefficients (|H(0)| = 1; −3 dB near 101 Hz at the real 807.7 Hz tick).
     """
     f = np.asarray(freq_hz, dtype=np.float64)
-    a1, a2, b0, b1, b2 = (float(c) for c in coeffs.as_f32())
+    a1, a2, b0, b1, b2 = (float(c) for c in _IIR_F32)
     z1 = np.exp(-2j * np.pi * f / fs_hz)
     num = b0 + b1 * z1 + b2 * z1 * z1
     den = 1.0 - a1 * z1 - a2 * z1 * z1
@@ -398,20 +375,6 @@ def run_isr(
     return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
 
 
-def steval_pipeline(
-    acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=None, gyro_offset_mdps=None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per-tick driver readings (807.7 Hz) → the AHRS inputs (161.5 Hz): ``(acc_ahrs_mg, gyro_ahrs_mdps)``.
-
-    Both (M, 3) float32, M = (T − first_tick) // 5. See :func:`run_isr` for the arguments and for the tick each
-    step corresponds to.
-    """
-    out = run_isr(
-        acc_mg_807, gyro_mdps_807, calibrate=calibrate, acc_offset_mg=acc_offset_mg, gyro_offset_mdps=gyro_offset_mdps
-    )
-    return out.acc_ahrs_mg, out.gyro_ahrs_mdps
-
-
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad.
 
@@ -422,20 +385,10 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
     out = np.zeros(gz.shape[0], dtype=_F32)
-    low = thr_arr < C.MIN_THR
-    # integrate each run of ticks at flight throttle from 0, sequentially in float32 (cumsum is sequential)
-    start = 0
-    n = gz.shape[0]
-    while start < n:
-        if low[start]:
-            start += 1
-            continue
-        stop = start
-        while stop < n and not low[stop]:
-            stop += 1
-        # the tick before ``start`` left thz at 0 (reset) or this is the first tick (thz 0 at power-up)
+    # each run of ticks at flight throttle integrates from 0 (thz was reset before it), sequentially in float32
+    low = np.concatenate(([True], thr_arr < C.MIN_THR, [True]))
+    for start, stop in np.flatnonzero(np.diff(low.astype(np.int8))).reshape(-1, 2):
         out[start:stop] = np.cumsum(inc[start:stop], dtype=_F32)
-        start = stop
     return out
 
 
@@ -459,10 +412,5 @@ def resample_to_tick(
     n = int(np.floor((t[-1] - t0) * rate_hz + 1e-9)) + 1
     t_tick = t0 + np.arange(max(n, 0)) / rate_hz
     tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t0, hold_hz)
-    if x.ndim == 1:
-        return t_tick, np.interp(tt, t, x)
-    flat = x.reshape(x.shape[0], -1)
-    out = np.empty((tt.shape[0], flat.shape[1]))
-    for j in range(flat.shape[1]):
-        out[:, j] = np.interp(tt, t, flat[:, j])
-    return t_tick, out.reshape((tt.shape[0],) + x.shape[1:])
+    cols = [np.interp(tt, t, col) for col in x.reshape(t.shape[0], -1).T]
+    return t_tick, np.stack(cols, axis=-1).reshape(tt.shape + x.shape[1:])

@@ -46,13 +46,11 @@ def body_to_sensor_counts(
     """Body-axis physical values (N, 3) → the LSM6DSL's int16 ADC counts in sensor axes (round, saturate)."""
 
     def counts(v, sens):
-        raw = np.clip(np.rint(np.nan_to_num(np.asarray(v, np.float64) / sens)), -32768, 32767).astype(np.int16)
+        raw = sm.adc_counts(v, sens)
         # sensor x = body y, sensor y = -body x (saturating the negation like the int16 register would)
-        out = np.empty_like(raw)
-        out[:, 0] = raw[:, 1]
-        out[:, 1] = np.clip(-raw[:, 0].astype(np.int32), -32768, 32767).astype(np.int16)
-        out[:, 2] = raw[:, 2]
-        return out
+        return np.stack([raw[:, 1], np.clip(-raw[:, 0].astype(np.int32), -32768, 32767), raw[:, 2]], -1).astype(
+            np.int16
+        )
 
     return counts(acc_mg, acc_sens), counts(gyro_mdps, gyro_sens)
 
@@ -61,7 +59,7 @@ def driver_readings(acc_counts, gyro_counts) -> tuple[np.ndarray, np.ndarray]:
     """What the firmware's ``ReadSensorRawData`` gets from sensor-axis counts: int32 mg / mdps in body axes."""
 
     def scale(raw, sens):
-        v = np.trunc(np.asarray(raw).astype(np.float32) * np.float32(sens)).astype(np.int32)
+        v = sm.driver_value(raw, sens)
         return np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1)
 
     return scale(acc_counts, sm.ACC_SENSITIVITY_MG), scale(gyro_counts, sm.GYRO_SENSITIVITY_MDPS)
