@@ -48,13 +48,12 @@ class BleRecording:
 
     def lines(self) -> list[str]:
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items() if v)
-        out = [
+        return [
             f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
             f"emulated, central connected at {self.connect_s:g} s",
             f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}, "
             f"refused (congestion model) {self.refused}",
         ]
-        return out
 
 
 def record_ble(

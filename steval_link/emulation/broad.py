@@ -217,7 +217,7 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
     if sensor is not None:
         acc_r, gyro_r = sensor.read(acc, gyro, rng=0 if seed is None else seed, t_tick_s=t_tick)
     else:
-        acc_r, gyro_r = sm.quantise_acc_mg(acc), sm.quantise_gyro_mdps(gyro)
+        acc_r, gyro_r = sm.quantise(acc, sm.ACC_SENSITIVITY_MG), sm.quantise(gyro, sm.GYRO_SENSITIVITY_MDPS)
     try:
         out = sm.run_isr(acc_r, gyro_r)
     except ValueError as exc:

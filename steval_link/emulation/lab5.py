@@ -137,9 +137,8 @@ def run_simulation(
     est = registry.create(estimator, **options)
 
     noisy = gyro_noise_mdps > 0 or acc_noise_mg > 0
-    if noisy and seed is None:
-        seed = int(np.random.SeedSequence().entropy % (1 << 32))
     if noisy:
+        seed = int(np.random.SeedSequence().entropy % (1 << 32)) if seed is None else seed
         rng = np.random.default_rng(seed)
         gyro = gyro + rng.normal(0.0, float(gyro_noise_mdps), size=gyro.shape)
         acc = acc + rng.normal(0.0, float(acc_noise_mg), size=acc.shape)
@@ -194,9 +193,7 @@ def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[i
 def _timing(estimator: str, dt_s: float) -> dict:
     """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
     for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
-    sel = (
-        registry.resolve(estimator) if not isinstance(estimator, str) or estimator not in registry.ESTIMATORS else None
-    )
+    sel = None if estimator in registry.ESTIMATORS else registry.resolve(estimator)
     base = estimator if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
     if base == "st-mahony":
         return {"dt_s": dt_s}

@@ -107,12 +107,11 @@ def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:
     return (p[0] - 2 * p[1] + p[2]) / (_H_ACC * _H_ACC)
 
 
-def _vibration(t, thr_tick, rng: np.random.Generator, t_eval=None):
+def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
     """Motor vibration (acc mg at ``t``, gyro mdps at ``t_eval``): 4 motors, harmonics 1 and 2, ∝ speed²."""
     on = thr_tick >= C.MIN_THR
     if not np.any(on):
         return None
-    t_eval = t if t_eval is None else t_eval
     thr = np.where(on, thr_tick, 0).astype(np.float64)
     f_m = np.where(on, 90.0 + 0.6 * thr, 0.0)  # motor rotation rate, Hz (≈ 390 Hz at the hover throttle)
     dt = np.diff(t, prepend=t[0])
@@ -185,20 +184,12 @@ def parse_throttle(spec: str) -> Callable:
     outside). Raises :class:`UserError` for anything else."""
     text = spec.strip()
     try:
-        if ":" not in text:
-            v = float(text)
-            pts = [(0.0, v)]
-        else:
-            pts = []
-            for item in text.split(","):
-                a, b = item.split(":")
-                pts.append((float(a), float(b)))
+        pairs = [item.split(":") for item in text.split(",")] if ":" in text else [("0", text)]
+        ts, vs = np.array([(float(a), float(b)) for a, b in pairs]).T
     except ValueError:
         raise ParamError(
             f"{{throttle}} takes a number or 't:v,t:v,...' breakpoints, got {spec!r}", "throttle"
         ) from None
-    ts = np.array([p[0] for p in pts])
-    vs = np.array([p[1] for p in pts])
     if not (np.all(np.isfinite(ts)) and np.all(np.isfinite(vs))) or np.any(np.diff(ts) <= 0):
         raise ParamError(f"{{throttle}} breakpoints need finite, increasing times, got {spec!r}", "throttle")
     if np.any(vs < 0) or np.any(vs > 32767):

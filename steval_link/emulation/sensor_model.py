@@ -2,7 +2,7 @@
 
 The chain the drone runs, and the functions here that model each link:
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise_acc_mg`, :func:`quantise_gyro_mdps`): true motion + bias + white
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white
    noise → ADC counts (round, saturate at int16) → the ST driver's ``(int32_t)(raw * sensitivity)`` (float32
    product truncated toward zero): integer mg (0.122 mg/LSB, ±4 g) and integer mdps (70 mdps/LSB, ±2000 dps).
 2. TIM9 ISR at ``constants.ISR_RATE_HZ`` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
@@ -45,8 +45,7 @@ __all__ = [
     "IirState",
     "Lsm6dsl",
     "IsrOutput",
-    "quantise_acc_mg",
-    "quantise_gyro_mdps",
+    "quantise",
     "calibrate_offsets",
     "remove_offsets",
     "gyro_iir",
@@ -108,9 +107,8 @@ class IirState:
 
 def adc_counts(value, sensitivity: float) -> np.ndarray:
     """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0)."""
-    return np.clip(np.rint(np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)), -32768, 32767).astype(
-        np.int16
-    )
+    raw = np.rint(np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity))
+    return np.clip(raw, -32768, 32767).astype(np.int16)
 
 
 def driver_value(raw, sensitivity: float) -> np.ndarray:
@@ -118,36 +116,19 @@ def driver_value(raw, sensitivity: float) -> np.ndarray:
     return np.trunc(np.asarray(raw).astype(_F32) * _F32(sensitivity)).astype(np.int32)
 
 
-def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.ndarray:
-    """What the driver returns for a physical acceleration: int32 mg (N, 3).
-
-    ADC: ``raw = round(acc / sensitivity)`` saturated to int16 (±4 g → ±3997.7 mg at 0.122 mg/LSB); driver:
-    ``(int32_t)(raw * 0.122f)``. NaN input reads as 0.
-    """
-    return driver_value(adc_counts(acc_mg, sensitivity_mg), sensitivity_mg)
-
-
-def quantise_gyro_mdps(gyro_mdps, sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS) -> np.ndarray:
-    """What the driver returns for a physical rate: int32 mdps (N, 3), 70 mdps/LSB, saturated at int16 (±2293 dps)."""
-    return driver_value(adc_counts(gyro_mdps, sensitivity_mdps), sensitivity_mdps)
+def quantise(value, sensitivity: float) -> np.ndarray:
+    """What the driver returns for a physical value (mg or mdps): int32 (N, 3), saturated at int16 counts
+    (acc: ±3997.7 mg at 0.122 mg/LSB; gyro: ±2293 dps at 70 mdps/LSB). NaN reads as 0."""
+    return driver_value(adc_counts(value, sensitivity), sensitivity)
 
 
 @dataclass(frozen=True)
 class Lsm6dsl:
     """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick.
 
-    Noise is white per reading (the firmware reads both sensors every tick). The default RMS values are the
-    LSM6DSL datasheet's typical RMS noise that UMaine Lab 5 Appendix B quotes (gyro 75 mdps, acc 2 mg at ±4 g).
-    Biases are constant offsets added before quantisation
-    (the datasheet allows ±40 mg zero-g level and ±2 dps zero-rate level; defaults 0).
-
-    Attributes:
-        acc_noise_mg: accelerometer white noise RMS per reading, mg.
-        gyro_noise_mdps: gyro white noise RMS per reading, mdps.
-        acc_bias_mg: (3,) constant accelerometer offset, mg.
-        gyro_bias_mdps: (3,) constant gyro offset, mdps.
-        acc_sensitivity_mg: mg/LSB (0.122 at ±4 g).
-        gyro_sensitivity_mdps: mdps/LSB (70 at ±2000 dps).
+    Noise: white RMS per reading, the datasheet's typical values that UMaine Lab 5 Appendix B quotes (gyro
+    75 mdps, acc 2 mg at ±4 g). Biases: constant offsets (3,) added before quantisation (the datasheet allows ±40 mg
+    and ±2 dps). Sensitivities: mg/LSB and mdps/LSB.
     """
 
     acc_noise_mg: float = 2.0
@@ -165,17 +146,9 @@ class Lsm6dsl:
         t_tick_s=None,
         gyro_odr_hz: float | None = GYRO_ODR_HZ,
     ):
-        """Driver readings (int32 mg, int32 mdps), each (N, 3), for true specific force and rate at each tick.
-
-        Args:
-            acc_true_mg: (N, 3) true specific force at each tick, mg (≈ (0, 0, +1000) at rest, level).
-            gyro_true_mdps: (N, 3) true angular rate, mdps, as the gyro's output register holds it at each tick
-                (for the 416 Hz sample-and-hold, evaluate the motion with :func:`resample_to_tick` ``hold_hz``).
-            rng: a numpy Generator, or a seed (int) for a reproducible one, or None for fresh entropy.
-            t_tick_s: (N,) tick times, s. When given (with ``gyro_odr_hz``), gyro noise is drawn once per ODR
-                sample and held like the reading; otherwise it is fresh every tick.
-            gyro_odr_hz: the gyro ODR for that noise hold (416 Hz on the STEVAL).
-        """
+        """Driver readings (int32 mg, int32 mdps), each (N, 3), for the true specific force (mg) and rate (mdps, as
+        the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
+        noise is drawn once per ``gyro_odr_hz`` sample and held like the reading; otherwise fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         acc = np.asarray(acc_true_mg, dtype=np.float64)
         gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
@@ -189,10 +162,7 @@ class Lsm6dsl:
         else:
             noise = rng.standard_normal(gyro.shape)
         gyro_meas = gyro + np.asarray(self.gyro_bias_mdps) + self.gyro_noise_mdps * noise
-        return (
-            quantise_acc_mg(acc_meas, self.acc_sensitivity_mg),
-            quantise_gyro_mdps(gyro_meas, self.gyro_sensitivity_mdps),
-        )
+        return quantise(acc_meas, self.acc_sensitivity_mg), quantise(gyro_meas, self.gyro_sensitivity_mdps)
 
 
 #: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
@@ -210,11 +180,8 @@ def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
 
 
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
-    """The ISR's offset calibration over the given readings (normally 800 ticks): (acc_offset, gyro_offset) int32.
-
-    ``sum`` is int32 (wrapping like the C accumulator), then ``(int32_t)((float)sum * 0.00125f)``: note the fixed
-    factor 1/800 regardless of how many readings are given, as in the firmware.
-    """
+    """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
+    int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
     out = []
     for x in (acc_mg, gyro_mdps):
         s = np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32)  # wraps like int32 C arithmetic
@@ -232,12 +199,9 @@ def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[
 
 
 def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
-    """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps.
-
-    Each output is ``(((b0·x + b1·x1) + b2·x2) + a1·y1) + a2·y2`` with every product and sum rounded to float32
-    (the firmware's -O0, no-FMA evaluation); ``x`` is the integer reading converted to float. ``state`` (zeros
-    when None, as after power-up) is updated in place so a stream can be filtered in chunks.
-    """
+    """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps, each product and sum rounded to
+    float32 in C order (the firmware's -O0, no-FMA evaluation). ``state`` (zeros when None, as after power-up) is
+    updated in place so a stream can be filtered in chunks."""
     x = np.asarray(gyro_mdps).astype(_F32)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"gyro_mdps must be (N, 3), got shape {x.shape}")
@@ -266,18 +230,15 @@ def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
 
 
 def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ):
-    """Complex frequency response H(f) of the gyro IIR at ``fs_hz`` (ISR rate by default).
-
-    Returns ``(H, gain_db, phase_rad, group_delay_s)`` for the frequencies ``freq_hz`` (array-like, Hz), from the
-    float32 coefficients (|H(0)| = 1; −3 dB near 101 Hz at the real 807.7 Hz tick).
-    """
+    """``(H, gain_db, phase_rad, group_delay_s)`` of the gyro IIR at ``freq_hz`` (Hz) for the sampling rate
+    ``fs_hz`` (|H(0)| = 1; −3 dB near 101 Hz at the real 807.7 Hz tick)."""
     f = np.asarray(freq_hz, dtype=np.float64)
     a1, a2, b0, b1, b2 = (float(c) for c in _IIR_F32)
     z1 = np.exp(-2j * np.pi * f / fs_hz)
     num = b0 + b1 * z1 + b2 * z1 * z1
     den = 1.0 - a1 * z1 - a2 * z1 * z1
     h = num / den
-    # group delay of a rational filter: Re( z d/dz ... ) via the standard formula  τ = Re(Σ k c_k z^-k / Σ c_k z^-k)
+    # group delay of a rational filter: τ = Re(Σ k c_k z^-k / Σ c_k z^-k)
     dnum = b1 * z1 + 2 * b2 * z1 * z1
     dden = -a1 * z1 - 2 * a2 * z1 * z1
     tau_samples = np.real(dnum / num) - np.real(dden / den)
@@ -293,11 +254,8 @@ GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_
 
 
 def fifo_average(fifo) -> np.ndarray:
-    """The main loop's boxcar average of FIFOs: (M, 5, 3) float32 → (M, 3) float32.
-
-    ``sum = 0f; sum += fifo[i]`` (float32, i = 0..4), then ``sum *= (1.0/5)`` evaluated in double and stored to
-    float32, exactly as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``.
-    """
+    """The main loop's boxcar average of FIFOs, (M, 5, 3) → (M, 3) float32: a float32 sum from 0, then
+    ``*= (1.0/5)`` in double stored to float32, as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``."""
     f = np.asarray(fifo, dtype=_F32)
     s = np.zeros((f.shape[0], f.shape[2]), dtype=_F32)
     for i in range(f.shape[1]):
@@ -307,49 +265,23 @@ def fifo_average(fifo) -> np.ndarray:
 
 @dataclass(frozen=True)
 class IsrOutput:
-    """Everything :func:`run_isr` computes.
+    """Everything :func:`run_isr` computes (float32 arrays; indices into the input ticks)."""
 
-    Attributes:
-        acc_ahrs_mg: (M, 3) float32, the main loop's ``acc_ahrs`` per AHRS step (mg).
-        gyro_ahrs_mdps: (M, 3) float32, ``gyro_ahrs`` per step (mdps).
-        gyro_fil_mdps: (T, 3) float32, the IIR output of every pipeline tick (for the ISR yaw and the PID).
-        acc_offset_mg: (3,) int32 offsets removed (z offset is the measured one; 1000 mg are kept).
-        gyro_offset_mdps: (3,) int32.
-        first_tick: index (into the input ticks) of the first pipeline tick (1599 after the power-up calibration).
-        step_tick: (M,) index (into the input ticks) of the tick whose ISR completed each step's FIFO: step k
-            averages input ticks ``step_tick[k]-4 … step_tick[k]`` and runs right after ``step_tick[k]``.
-    """
-
-    acc_ahrs_mg: np.ndarray
-    gyro_ahrs_mdps: np.ndarray
-    gyro_fil_mdps: np.ndarray
-    acc_offset_mg: np.ndarray
-    gyro_offset_mdps: np.ndarray
-    first_tick: int
+    acc_ahrs_mg: np.ndarray  #: (M, 3) the main loop's ``acc_ahrs`` per AHRS step, mg
+    gyro_ahrs_mdps: np.ndarray  #: (M, 3) ``gyro_ahrs`` per step, mdps
+    gyro_fil_mdps: np.ndarray  #: (T, 3) the IIR output of every pipeline tick (for the ISR yaw and the PID)
+    acc_offset_mg: np.ndarray  #: (3,) int32 offsets removed (the measured z offset; 1000 mg are kept)
+    gyro_offset_mdps: np.ndarray  #: (3,) int32
+    first_tick: int  #: the first pipeline tick (1599 after the power-up calibration)
+    #: (M,) the tick whose ISR completed each step's FIFO: step k averages ticks ``step_tick[k]-4 … step_tick[k]``
     step_tick: np.ndarray
 
 
-def run_isr(
-    acc_mg_807,
-    gyro_mdps_807,
-    *,
-    calibrate: bool = True,
-    acc_offset_mg=None,
-    gyro_offset_mdps=None,
-    iir_state: IirState | None = None,
-) -> IsrOutput:
-    """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings.
-
-    Args:
-        acc_mg_807: (T, 3) accelerometer readings, one per ISR tick (807.7 Hz), integer mg as the driver returns
-            them (floats are truncated toward zero like the driver's int32 cast).
-        gyro_mdps_807: (T, 3) gyro readings, integer mdps.
-        calibrate: True (power-up behaviour): the first 800 ticks are ignored, the next 800 give the offsets, and
-            the pipeline starts at tick 1599. False: the pipeline starts at tick 0 with the given offsets.
-        acc_offset_mg, gyro_offset_mdps: (3,) offsets when ``calibrate`` is False (default: acc (0, 0, 1000),
-            gyro 0 — the firmware's values before calibration).
-        iir_state: gyro IIR state to start from (default zeros, as after power-up).
-    """
+def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
+    """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps
+    (floats are truncated like the driver's int32 cast). ``calibrate``: the power-up calibration (the pipeline
+    starts at tick 1599); False: from tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000),
+    gyro 0)."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
     if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
@@ -361,11 +293,11 @@ def run_isr(
         acc_off, gyro_off = calibrate_offsets(acc[CALIBRATION_SKIP_TICKS:end], gyro[CALIBRATION_SKIP_TICKS:end])
         first = end - 1  # the calibrating ISR call also runs the pipeline on a fresh read
     else:
-        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG] if acc_offset_mg is None else acc_offset_mg, dtype=np.int32)
-        gyro_off = np.array([0, 0, 0] if gyro_offset_mdps is None else gyro_offset_mdps, dtype=np.int32)
+        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
+        gyro_off = np.zeros(3, dtype=np.int32)
         first = 0
     acc_c, gyro_c = remove_offsets(acc[first:], gyro[first:], acc_off, gyro_off)
-    gyro_fil = gyro_iir(gyro_c, iir_state)
+    gyro_fil = gyro_iir(gyro_c)
     fifo = C.FIFO_ORDER
     m = acc_c.shape[0] // fifo
     n = m * fifo
