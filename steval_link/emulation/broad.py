@@ -48,23 +48,14 @@ _KEYS = ("acc", "gyr", "quat", "movement", "fs")
 
 @dataclass(frozen=True)
 class BroadTrial:
-    """One BROAD trial in SI units, as stored.
+    """One BROAD trial in SI units (float64), as stored."""
 
-    Attributes:
-        name: file stem, e.g. ``02_undisturbed_slow_rotation_B``.
-        fs_hz: sampling rate, Hz (285.714).
-        acc_mps2: (N, 3) float64, m/s².
-        gyr_radps: (N, 3) float64, rad/s.
-        quat_wxyz: (N, 4) float64, ground truth IMU → ENU (NaN where occluded).
-        movement: (N,) bool, samples that count for the metrics.
-    """
-
-    name: str
-    fs_hz: float
-    acc_mps2: np.ndarray
-    gyr_radps: np.ndarray
-    quat_wxyz: np.ndarray
-    movement: np.ndarray
+    name: str  #: file stem, e.g. ``02_undisturbed_slow_rotation_B``
+    fs_hz: float  #: sampling rate, Hz (285.714)
+    acc_mps2: np.ndarray  #: (N, 3) m/s²
+    gyr_radps: np.ndarray  #: (N, 3) rad/s
+    quat_wxyz: np.ndarray  #: (N, 4) ground truth IMU → ENU (NaN where occluded)
+    movement: np.ndarray  #: (N,) bool, samples that count for the metrics
 
     @property
     def t_s(self) -> np.ndarray:
@@ -166,23 +157,14 @@ def rmse_deg(err_rad, mask=None) -> float:
 
 @dataclass(frozen=True)
 class SteValView:
-    """Estimator inputs and ground truth on a common step grid.
+    """Estimator inputs and ground truth on a common step grid."""
 
-    Attributes:
-        acc_mg: (M, 3) float32 accelerometer input per step, mg.
-        gyro_mdps: (M, 3) float32 gyro input per step, mdps.
-        t_s: (M,) time each step represents in trial time, s (see :func:`steval_view`).
-        quat_true_wxyz: (M, 4) float64 ground truth at ``t_s`` (NaN where occluded).
-        movement: (M,) bool, the trial's movement mask at ``t_s``.
-        rate_hz: step rate, Hz.
-    """
-
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    t_s: np.ndarray
-    quat_true_wxyz: np.ndarray
-    movement: np.ndarray
-    rate_hz: float
+    acc_mg: np.ndarray  #: (M, 3) float32 accelerometer input per step, mg
+    gyro_mdps: np.ndarray  #: (M, 3) float32 gyro input per step, mdps
+    t_s: np.ndarray  #: (M,) time each step represents in trial time, s (see :func:`steval_view`)
+    quat_true_wxyz: np.ndarray  #: (M, 4) float64 ground truth at ``t_s`` (NaN where occluded)
+    movement: np.ndarray  #: (M,) bool, the trial's movement mask at ``t_s``
+    rate_hz: float  #: step rate, Hz
 
 
 def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:

@@ -37,40 +37,26 @@ TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """Every iteration of a simulation run.
+    """Every iteration of a simulation run (N iterations)."""
 
-    Attributes:
-        estimator: registry name of the estimator used.
-        options: the estimator options the user gave (the timing the simulation passes is in ``estimator_dt_s``).
-        dt_s: the simulation's period, s (``t_s = (step + 1) * dt_s`` after each iteration).
-        estimator_dt_s: the period the estimator integrates with, s: ``dt_s`` when it takes the simulation's
-            (``dt_s`` for st-mahony, ``rate_hz`` for the others); its own when it takes neither; None when it does
-            not integrate (accel) or does not say.
-        seed: the noise generator's seed (None when no noise was added).
-        gyro_noise_mdps, acc_noise_mg: noise standard deviations used.
-        step: (N,) int64, 0-based iteration index.
-        acc_mg: (N, 3) float32 inputs, mg. gyro_mdps: (N, 3) float32 inputs, mdps. thr: (N,) int64 throttle.
-        q_wxyz: (N, 4) quaternion after each iteration (float32 for st-mahony, bit-exact).
-        eax_rad: (N,) thx, pitch about x. eay_rad: (N,) thy, roll about y. eaz_rad: (N,) thz, yaw about z.
-        valid: (N,) bool, the estimator's validity flag.
-    """
-
-    estimator: str
-    options: dict
-    dt_s: float
-    seed: int | None
-    gyro_noise_mdps: float
-    acc_noise_mg: float
-    step: np.ndarray
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    thr: np.ndarray
-    q_wxyz: np.ndarray
-    eax_rad: np.ndarray
-    eay_rad: np.ndarray
-    eaz_rad: np.ndarray
-    valid: np.ndarray
+    estimator: str  #: registry name of the estimator used
+    options: dict  #: the estimator options the user gave (the timing passed is in ``estimator_dt_s``)
+    dt_s: float  #: the simulation's period, s
+    seed: int | None  #: the noise generator's seed (None when no noise was added)
+    gyro_noise_mdps: float  #: noise standard deviation used, mdps
+    acc_noise_mg: float  #: noise standard deviation used, mg
+    step: np.ndarray  #: (N,) int64, 0-based iteration index
+    acc_mg: np.ndarray  #: (N, 3) float32 inputs, mg
+    gyro_mdps: np.ndarray  #: (N, 3) float32 inputs, mdps
+    thr: np.ndarray  #: (N,) int64 throttle
+    q_wxyz: np.ndarray  #: (N, 4) quaternion after each iteration (float32 for st-mahony, bit-exact)
+    eax_rad: np.ndarray  #: (N,) thx, pitch about x
+    eay_rad: np.ndarray  #: (N,) thy, roll about y
+    eaz_rad: np.ndarray  #: (N,) thz, yaw about z
+    valid: np.ndarray  #: (N,) bool, the estimator's validity flag
     settings: dict = field(default_factory=dict)
+    #: the period the estimator integrates with, s (the simulation's when it takes it, else its own); None when it
+    #: does not integrate (accel) or does not say
     estimator_dt_s: float | None = None
 
     @property

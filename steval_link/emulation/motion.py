@@ -49,33 +49,19 @@ __all__ = [
 
 @dataclass(frozen=True)
 class MotionProfile:
-    """The true motion at each ISR tick.
+    """The true motion at each ISR tick (body axes)."""
 
-    Attributes:
-        name: scenario name (or the BROAD trial's name).
-        t_s: (T,) tick times, s since power-up.
-        q_wxyz: (T, 4) float64 true orientation, body → earth (NaN where unknown, e.g. occluded BROAD markers).
-        acc_mg: (T, 3) float64 specific force the accelerometer senses, mg, body axes.
-        gyro_mdps: (T, 3) float64 angular rate as the gyro's output register holds it at the tick (416 Hz
-            sample-and-hold of the true rate), mdps, body axes.
-        thr: (T,) int16 throttle ``gTHR`` at the tick.
-        sticks: (T, 3) int16 the remote's other sticks as the firmware's ``gAIL, gELE, gRUD`` at the tick (None:
-            centred), in the firmware's units and signs (``euler_rc.thx = -gELE·30°/1800``, ``thy = -gAIL·30°/1800``,
-            ``gRUD`` beyond ±600 turns the yaw target).
-        armed: (T,) bool the remote's arming switch (the BLE app's ``joydata[7]`` bit 2) at the tick (None: never).
-        measured: True when acc/gyro are a real IMU's measurements (BROAD) rather than true values, so no
-            sensor noise should be added.
-    """
-
-    name: str
-    t_s: np.ndarray
-    q_wxyz: np.ndarray
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    thr: np.ndarray
+    name: str  #: scenario name (or the BROAD trial's name)
+    t_s: np.ndarray  #: (T,) tick times, s since power-up
+    q_wxyz: np.ndarray  #: (T, 4) true orientation, body → earth (NaN where unknown, e.g. occluded BROAD markers)
+    acc_mg: np.ndarray  #: (T, 3) specific force the accelerometer senses, mg
+    gyro_mdps: np.ndarray  #: (T, 3) angular rate as the gyro's 416 Hz output register holds it at the tick, mdps
+    thr: np.ndarray  #: (T,) int16 throttle ``gTHR``
+    #: acc/gyro are a real IMU's measurements (BROAD), so no sensor noise should be added
     measured: bool = False
+    #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred)
     sticks: np.ndarray | None = None
-    armed: np.ndarray | None = None
+    armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
 
 
 def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:

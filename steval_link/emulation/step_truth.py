@@ -36,21 +36,13 @@ __all__ = ["TruthRows", "StepTruth", "score_euler"]
 
 @dataclass(frozen=True)
 class TruthRows:
-    """Ground truth per AHRS step.
+    """Ground truth per AHRS step."""
 
-    Attributes:
-        step: (M,) int64 AHRS step counter (0 = the first step after power-up).
-        t_s: (M,) float64 emulated time of the step's middle input tick, s since power-up.
-        t_trial_s: (M,) float64 trial time of that tick, s (outside [0, trial end]: no truth).
-        q_wxyz: (M, 4) float64 ground truth, body → earth (NaN: occluded or outside the trial).
-        movement: (M,) bool, the step counts for the metric.
-    """
-
-    step: np.ndarray
-    t_s: np.ndarray
-    t_trial_s: np.ndarray
-    q_wxyz: np.ndarray
-    movement: np.ndarray
+    step: np.ndarray  #: (M,) int64 AHRS step counter (0 = the first step after power-up)
+    t_s: np.ndarray  #: (M,) emulated time of the step's middle input tick, s since power-up
+    t_trial_s: np.ndarray  #: (M,) trial time of that tick, s (outside [0, trial end]: no truth)
+    q_wxyz: np.ndarray  #: (M, 4) ground truth, body → earth (NaN: occluded or outside the trial)
+    movement: np.ndarray  #: (M,) bool, the step counts for the metric
 
     def __len__(self) -> int:
         return int(self.step.shape[0])

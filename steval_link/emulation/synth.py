@@ -65,39 +65,21 @@ MIN_BAUD = 1200
 
 @dataclass(frozen=True)
 class SynthOptions:
-    """What to emulate (the ``steval synth`` options).
+    """What to emulate (the ``steval synth`` options)."""
 
-    Attributes:
-        scenario: built-in scenario name (:data:`steval_link.emulation.motion.SCENARIOS`) or a BROAD trial ``.npz``
-        path.
-        duration_s: capture length, s (default: the scenario's; a BROAD trial: all of it after the join).
-        seed: seeds every random choice (motion details, sensor bias and noise, latencies, drops).
-        baud: USART1 baud rate (header, status frames, byte timing, queue drain).
-        throttle: ``--throttle`` spec overriding the scenario's throttle (see
-        :func:`steval_link.emulation.motion.parse_throttle`).
-        ki: ``AHRS_KI`` of the emulated build (float32 like the firmware).
-        correction: False: the build without accelerometer correction (lab exercise 5, status flag bit 0).
-        text_mode: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines).
-        join_at_s: the capture starts this long after power-up (mid-flight, mid-frame).
-        drop_rate: fraction of attitude frames the TX queue refuses (0 ≤ P < 1).
-        encoder: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``).
-        c_encoder: path of the host-built C encoder (default :func:`default_c_encoder`).
-        vibration: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``, :func:`~steval_link.emulation.motion.
-            parse_vibration`): pure sinusoids added to the motion, e.g. to check ``steval spectrum``.
-    """
-
-    scenario: str = "bench"
-    duration_s: float | None = None
-    seed: int = 0
-    baud: int = C.BAUD
-    throttle: str | None = None
-    ki: float = C.KI
-    correction: bool = True
-    text_mode: bool = False
-    join_at_s: float = 0.0
-    drop_rate: float = 0.0
-    encoder: str = "python"
-    c_encoder: str | None = None
+    scenario: str = "bench"  #: built-in scenario name or a BROAD trial ``.npz`` path
+    duration_s: float | None = None  #: capture length, s (default: the scenario's; a BROAD trial: all of it)
+    seed: int = 0  #: seeds every random choice (motion details, sensor bias and noise, latencies, drops)
+    baud: int = C.BAUD  #: USART1 baud rate (header, status frames, byte timing, queue drain)
+    throttle: str | None = None  #: ``--throttle`` spec (:func:`~steval_link.emulation.motion.parse_throttle`)
+    ki: float = C.KI  #: ``AHRS_KI`` of the emulated build (float32 like the firmware)
+    correction: bool = True  #: False: the build without accelerometer correction (lab exercise 5)
+    text_mode: bool = False  #: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines)
+    join_at_s: float = 0.0  #: the capture starts this long after power-up (mid-flight, mid-frame)
+    drop_rate: float = 0.0  #: fraction of attitude frames the TX queue refuses (0 ≤ P < 1)
+    encoder: str = "python"  #: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``)
+    c_encoder: str | None = None  #: path of the host-built C encoder (default :func:`default_c_encoder`)
+    #: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``): pure sinusoids added to the motion
     vibration: tuple[str, ...] = ()
 
     #: the command line that made this capture, for its header (the CLI's)
@@ -119,34 +101,19 @@ class SynthOptions:
 
 @dataclass
 class SynthResult:
-    """An emulated capture and what the firmware did to make it.
+    """An emulated capture and what the firmware did to make it."""
 
-    Attributes:
-        data: the serial bytes the host received (what a capture holds).
-        chunk_offsets: (K,) int64 stream offset of each received chunk (USB packet).
-        chunk_times_s: (K,) float64 host receive time of each chunk, s since the capture started.
-        header: the capture header (``port``, ``baud``, ``start_time_utc``, ``extra`` with the emulation's
-            parameters).
-        attitude: (M,) ``ATTITUDE_DTYPE`` records of every AHRS step the firmware made (sent or not).
-        sent: (M,) bool, the step's attitude frame (or, in text mode, its decimated line) went into the queue.
-        status: (S,) ``STATUS_DTYPE`` records of every status the firmware made.
-        tx_dropped: frames the queue refused in the whole emulation.
-        profile: the motion profile (truth) at every tick.
-        step_t_s: (M,) firmware time of each step, s since power-up.
-        counts: frames of each kind in ``data`` (``attitude``, ``status``, ``text``, ``att_lines``, ``sta_lines``).
-    """
-
-    data: bytes
-    chunk_offsets: np.ndarray
-    chunk_times_s: np.ndarray
-    header: dict
-    attitude: np.ndarray
-    sent: np.ndarray
-    status: np.ndarray
-    tx_dropped: int
-    profile: M.MotionProfile
-    step_t_s: np.ndarray
-    counts: dict = field(default_factory=dict)
+    data: bytes  #: the serial bytes the host received (what a capture holds)
+    chunk_offsets: np.ndarray  #: (K,) int64 stream offset of each received chunk (USB packet)
+    chunk_times_s: np.ndarray  #: (K,) host receive time of each chunk, s since the capture started
+    header: dict  #: the capture header (``extra`` holds the emulation's parameters)
+    attitude: np.ndarray  #: (M,) ``ATTITUDE_DTYPE`` records of every AHRS step the firmware made (sent or not)
+    sent: np.ndarray  #: (M,) bool, the step's attitude frame (or text-mode line) went into the queue
+    status: np.ndarray  #: (S,) ``STATUS_DTYPE`` records of every status the firmware made
+    tx_dropped: int  #: frames the queue refused in the whole emulation
+    profile: M.MotionProfile  #: the motion profile (truth) at every tick
+    step_t_s: np.ndarray  #: (M,) firmware time of each step, s since power-up
+    counts: dict = field(default_factory=dict)  #: frames of each kind in ``data``
 
 
 # ---- validation --------------------------------------------------------------------------------------------------
@@ -192,19 +159,7 @@ def _check(opts: SynthOptions) -> None:
         )
 
 
-# ---- firmware timing ---------------------------------------------------------------------------------------------
-
 # ---- the emulation -----------------------------------------------------------------------------------------------
-
-
-def _profile(
-    opts: SynthOptions, rng_motion, n_ticks: int, first_tick_s: float, total_s: float, trial=None
-) -> M.MotionProfile:
-    t = M.tick_times_s(n_ticks, first_tick_s)
-    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
-    if trial is not None:
-        return M.broad_profile(trial, t, first_tick_s, thr_fn)
-    return M.build_profile(opts.scenario, t, rng_motion, throttle=thr_fn, total_s=total_s)
 
 
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -325,10 +280,13 @@ def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
-    profile = M.add_vibrations(
-        _profile(opts, rs.motion, n_ticks, first_tick_s, total, trial),
-        [M.parse_vibration(spec) for spec in opts.vibration],
-    )
+    t = M.tick_times_s(n_ticks, first_tick_s)
+    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
+    if trial is not None:
+        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
+    else:
+        profile = M.build_profile(opts.scenario, t, rs.motion, throttle=thr_fn, total_s=total)
+    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
     gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
