@@ -231,21 +231,23 @@ class LinkEmulation:
         self.cyc_min, self.cyc_max = min(self.cyc_min, cyc), max(self.cyc_max, cyc)
         self.cyc_sum, self.cyc_n = self.cyc_sum + cyc, self.cyc_n + 1
         if not self.text_mode:
-            self._attitude(k, c1)
+            self._attitude(k, c1, "att", k, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE)
         elif k % TEXT_DECIMATION == 0:
-            self._att_line(k, c1, rows)
+            line = self._att_line(k, rows)
+            self._attitude(k, c1, "raw", line, len(line), TEXT_LINE_MAX)
         if k % STATUS_EVERY_STEPS == STATUS_EVERY_STEPS - 1:
             self._status(k, c1)
 
-    def _attitude(self, k: int, c1: float) -> None:
+    def _attitude(self, k: int, c1: float, kind: str, item, size: int, keep_free: int) -> None:
+        """Step k's attitude frame or line into the queue, unless ``--drop-rate`` refuses it."""
         if self.drop[k]:
             self.txq.dropped += 1
-        elif self._push("att", k, c1, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE):
+        elif self._push(kind, item, c1, size, keep_free):
             self.sent[k] = True
 
-    def _att_line(self, k: int, c1: float, rows: dict) -> None:
+    def _att_line(self, k: int, rows: dict) -> bytes:
         a = self.att[k]
-        line = format_att(
+        return format_att(
             step=k,
             t_ms=int(a["t_us"]) // 1000,
             thr=int(a["thr"]),
@@ -255,10 +257,6 @@ class LinkEmulation:
             acc_mg=[f2i(v) for v in a["acc_mg"]],
             gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
         )
-        if self.drop[k]:
-            self.txq.dropped += 1
-        elif self._push("raw", line, c1, len(line), TEXT_LINE_MAX):
-            self.sent[k] = True
 
     def _status(self, k: int, c1: float) -> None:
         snap = self.snapshots[len(self.status)]
@@ -346,15 +344,11 @@ def encode_c(order: list[Frame], att: np.ndarray, exe: Path) -> bytes:
     if not exe.is_file() or not os.access(exe, os.X_OK):
         raise UserError(f"C encoder {exe} not found or not executable; build it with: make -C firmware_patch host")
     req = []
+    types = {"att": P.TYPE_ATTITUDE, "status": P.TYPE_STATUS, "text": P.TYPE_TEXT}
     for kind, item, _, _ in order:
-        if kind == "att":
-            payload = att[item].tobytes()
-            req.append(bytes((P.TYPE_ATTITUDE, len(payload))) + payload)
-        elif kind == "status":
-            payload = item.tobytes()
-            req.append(bytes((P.TYPE_STATUS, len(payload))) + payload)
-        elif kind == "text":
-            req.append(bytes((P.TYPE_TEXT, len(item))) + item)
+        if kind in types:
+            payload = att[item].tobytes() if kind == "att" else item if kind == "text" else item.tobytes()
+            req.append(bytes((types[kind], len(payload))) + payload)
     try:
         proc = subprocess.run([str(exe)], input=b"".join(req), capture_output=True, check=False, timeout=120)
     except OSError as exc:

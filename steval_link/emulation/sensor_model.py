@@ -211,21 +211,10 @@ def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
     # feed-forward part, vectorised: x1/x2 are the previous inputs (from the state for the first two ticks)
     xp = np.concatenate([st.x2[None], st.x1[None], x], axis=0)
     ff = (b0 * xp[2:] + b1 * xp[1:-1]) + b2 * xp[:-2]
-    y = np.empty((n + 2, 3), dtype=_F32)
-    y[0] = st.y2
-    y[1] = st.y1
-    tmp = np.empty(3, _F32)
-    tmp2 = np.empty(3, _F32)
+    y = np.concatenate([st.y2[None], st.y1[None], np.empty((n, 3), _F32)])
     for k in range(n):  # the recursive part: (ff + a1*y1) + a2*y2, float32 each
-        np.multiply(a1, y[k + 1], out=tmp)
-        np.add(ff[k], tmp, out=tmp)
-        np.multiply(a2, y[k], out=tmp2)
-        np.add(tmp, tmp2, out=y[k + 2])
-    if n:
-        st.x2 = xp[-2].copy()
-        st.x1 = xp[-1].copy()
-        st.y2 = y[-2].copy()
-        st.y1 = y[-1].copy()
+        y[k + 2] = (ff[k] + a1 * y[k + 1]) + a2 * y[k]
+    st.x2, st.x1, st.y2, st.y1 = xp[-2].copy(), xp[-1].copy(), y[-2].copy(), y[-1].copy()
     return y[2:]
 
 
