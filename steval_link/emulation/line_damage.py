@@ -120,14 +120,13 @@ class FuzzScore:
 def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
     """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records (ATTITUDE_DTYPE,
     STATUS_DTYPE): what the firmware sent, field for field."""
-    a, s = tel.attitude, tel.status
-    att = np.zeros(len(a), P.ATTITUDE_DTYPE)
-    att["t_us"], att["acc_mg"], att["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
-    att["q_wxyz"], att["thz_rad"], att["seq"], att["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
-    sta = np.zeros(len(s), P.STATUS_DTYPE)
-    for name in P.STATUS_DTYPE.names:
-        sta[name] = getattr(s, name)
-    return att[a.exact], sta[s.exact]
+    out = []
+    for rows, dtype in ((tel.attitude, P.ATTITUDE_DTYPE), (tel.status, P.STATUS_DTYPE)):
+        rec = np.zeros(len(rows), dtype)
+        for name in dtype.names:
+            rec[name] = getattr(rows, name)
+        out.append(rec[rows.exact])
+    return out[0], out[1]
 
 
 def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:

@@ -128,41 +128,32 @@ class Lsm6dsl:
 
     Noise: white RMS per reading, the datasheet's typical values that UMaine Lab 5 Appendix B quotes (gyro
     75 mdps, acc 2 mg at ±4 g). Biases: constant offsets (3,) added before quantisation (the datasheet allows ±40 mg
-    and ±2 dps). Sensitivities: mg/LSB and mdps/LSB.
+    and ±2 dps).
     """
 
     acc_noise_mg: float = 2.0
     gyro_noise_mdps: float = 75.0
     acc_bias_mg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_mdps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    acc_sensitivity_mg: float = ACC_SENSITIVITY_MG
-    gyro_sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS
 
-    def read(
-        self,
-        acc_true_mg,
-        gyro_true_mdps,
-        rng: np.random.Generator | int | None = 0,
-        t_tick_s=None,
-        gyro_odr_hz: float | None = GYRO_ODR_HZ,
-    ):
+    def read(self, acc_true_mg, gyro_true_mdps, rng: np.random.Generator | int | None = 0, t_tick_s=None):
         """Driver readings (int32 mg, int32 mdps), each (N, 3), for the true specific force (mg) and rate (mdps, as
         the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
-        noise is drawn once per ``gyro_odr_hz`` sample and held like the reading; otherwise fresh every tick."""
+        noise is drawn once per 416 Hz ODR sample and held like the reading; otherwise fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         acc = np.asarray(acc_true_mg, dtype=np.float64)
         gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
         if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
             raise ValueError(f"acc_true_mg and gyro_true_mdps must both be (N, 3), got {acc.shape}, {gyro.shape}")
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
-        if t_tick_s is not None and gyro_odr_hz:
+        if t_tick_s is not None:
             t = np.asarray(t_tick_s, dtype=np.float64)
-            idx = gyro_hold_index(t, t[0], gyro_odr_hz) if t.size else np.zeros(0, np.int64)
+            idx = gyro_hold_index(t, t[0]) if t.size else np.zeros(0, np.int64)
             noise = rng.standard_normal((int(idx[-1]) + 1 if idx.size else 0, 3))[idx]
         else:
             noise = rng.standard_normal(gyro.shape)
         gyro_meas = gyro + np.asarray(self.gyro_bias_mdps) + self.gyro_noise_mdps * noise
-        return quantise(acc_meas, self.acc_sensitivity_mg), quantise(gyro_meas, self.gyro_sensitivity_mdps)
+        return quantise(acc_meas, ACC_SENSITIVITY_MG), quantise(gyro_meas, GYRO_SENSITIVITY_MDPS)
 
 
 #: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
@@ -313,25 +304,17 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     return out
 
 
-def resample_to_tick(
-    t_s, signal, rate_hz: float = C.ISR_RATE_HZ, t0_s: float | None = None, hold_hz: float | None = None
-):
-    """Linear interpolation of ``signal`` (N,) or (N, K) sampled at times ``t_s`` onto a uniform grid.
-
-    Returns ``(t_tick_s, signal_tick)``: ticks at ``t0_s + k / rate_hz`` (t0 defaults to ``t_s[0]``) up to
-    ``t_s[-1]``; float64. NaN samples propagate to the ticks next to them.
-
-    ``hold_hz`` models a sensor whose output register updates at its own ODR (the STEVAL's gyro: 416 Hz,
-    :data:`GYRO_ODR_HZ`): each tick then reads the value of the latest ODR sample, taken at
-    ``t0 + floor((t − t0) · hold_hz) / hold_hz`` (sample-and-hold, ≈ 1.2 ms mean delay at 416 Hz).
-    """
+def resample_to_tick(t_s, signal, hold_hz: float | None = None):
+    """Linear interpolation of ``signal`` (N, ...) sampled at times ``t_s`` onto the ISR ticks from ``t_s[0]`` to
+    ``t_s[-1]``: ``(t_tick_s, signal_tick)``, float64 (NaN samples propagate to the ticks next to them).
+    ``hold_hz``: each tick reads the latest sample of a sensor whose output register updates at that ODR (the
+    gyro's 416 Hz sample-and-hold, ≈ 1.2 ms mean delay)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
     if t.ndim != 1 or x.shape[0] != t.shape[0]:
         raise ValueError(f"t_s must be (N,) and signal (N, ...), got {t.shape}, {x.shape}")
-    t0 = t[0] if t0_s is None else float(t0_s)
-    n = int(np.floor((t[-1] - t0) * rate_hz + 1e-9)) + 1
-    t_tick = t0 + np.arange(max(n, 0)) / rate_hz
-    tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t0, hold_hz)
+    n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1
+    t_tick = t[0] + np.arange(max(n, 0)) / C.ISR_RATE_HZ
+    tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t[0], hold_hz)
     cols = [np.interp(tt, t, col) for col in x.reshape(t.shape[0], -1).T]
     return t_tick, np.stack(cols, axis=-1).reshape(tt.shape + x.shape[1:])

@@ -39,9 +39,7 @@ class MotionSource(Protocol):
         ...
 
 
-def body_to_sensor_counts(
-    acc_mg, gyro_mdps, acc_sens: float = sm.ACC_SENSITIVITY_MG, gyro_sens: float = sm.GYRO_SENSITIVITY_MDPS
-) -> tuple[np.ndarray, np.ndarray]:
+def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     """Body-axis physical values (N, 3) → the LSM6DSL's int16 ADC counts in sensor axes (round, saturate)."""
 
     def counts(v, sens):
@@ -51,7 +49,7 @@ def body_to_sensor_counts(
             np.int16
         )
 
-    return counts(acc_mg, acc_sens), counts(gyro_mdps, gyro_sens)
+    return counts(acc_mg, sm.ACC_SENSITIVITY_MG), counts(gyro_mdps, sm.GYRO_SENSITIVITY_MDPS)
 
 
 def driver_readings(acc_counts, gyro_counts) -> tuple[np.ndarray, np.ndarray]:

@@ -1,27 +1,17 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
-Until real drone captures exist, tests and the demo use these (``steval emulate`` runs the real firmware instead;
-synth is for what only it does: joining mid-frame, injected drops, the adapter model, text-mode logs). The chain,
-one module per link:
+``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
+drops, the adapter model, text-mode logs. The chain: motion (:mod:`~steval_link.emulation.motion`, a scenario or a
+BROAD trial) → the LSM6DSL and the ISR pipeline (:mod:`~steval_link.emulation.sensor_model`) → the bit-exact
+``ahrs_fusion_ag`` replica (:func:`steval_link.estimators.st_mahony.run`) → the patch's link and TX queue
+(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (:mod:`~steval_link.emulation.usb_adapter`) → a
+``.stv`` capture or the plain bytes.
 
-1. motion (:mod:`~steval_link.emulation.motion`): a built-in scenario or a BROAD trial, at every TIM9 tick;
-2. the LSM6DSL (:class:`~steval_link.emulation.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver
-   quantisation;
-3. the firmware's ISR and main loop (:func:`~steval_link.emulation.sensor_model.run_isr`): power-up offset
-   calibration, gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`;
-4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact replica (:func:`steval_link.estimators.st_mahony.run`),
-   with the firmware variant's settings (``--ki``, ``--no-correction``);
-5. the firmware patch's link and TX queue, step by step, and the frame bytes (:mod:`~steval_link.emulation.fw_link`);
-6. the host: a USB-UART adapter delivering the bytes in packets, with receive times
-   (:mod:`~steval_link.emulation.usb_adapter`), into a ``.stv`` capture or the plain bytes.
-
-What is emulated rather than measured (so nobody mistakes it for the drone's): the main loop's latency after each
-tick, the DWT cycle counts' noise, the slow drift of the gyro's zero-rate level after calibration, the BLE
-module's banner values, the adapter. ``--drop-rate P`` makes the queue refuse about a fraction P of the attitude
-frames (bursts of about 3, as when it is full); a baud rate too low for the stream overflows the queue by itself.
-
-Everything is deterministic for a given :class:`SynthOptions` (seeded numpy generators; capture start time
-:data:`EPOCH_UNIX_S` + the join time): the same command gives the same bytes.
+Emulated rather than measured: the main loop's latency after each tick, the DWT counts' noise, the gyro's slow
+zero-rate drift after calibration, the BLE module's banner values, the adapter. ``--drop-rate P`` makes the queue
+refuse about a fraction P of the attitude frames (bursts of about 3); a baud rate too low for the stream overflows
+the queue by itself. The same :class:`SynthOptions` give the same bytes (seeded generators; capture start time
+:data:`EPOCH_UNIX_S` + the join time).
 """
 
 from __future__ import annotations
