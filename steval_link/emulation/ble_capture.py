@@ -18,8 +18,6 @@ from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.link.ble_payloads import CHAR_NAMES, ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 
-__all__ = ["BleRecording", "record_ble", "EMULATED_ADDRESS", "EMULATED_NAME"]
-
 #: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
 #: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")
 EMULATED_NAME = "DRN1110"

@@ -16,8 +16,6 @@ from dataclasses import dataclass
 from steval_link import constants as C
 from steval_link.link.ble_payloads import char_id_of_uuid
 
-__all__ = ["EmulatedBlueNrg", "HciNotification", "OGF_VENDOR", "OCF_GATT_UPD_CHAR_VAL"]
-
 OGF_VENDOR = 0x3F
 OCF_GATT_ADD_SERV = 0x0102
 OCF_GATT_ADD_CHAR = 0x0104

@@ -26,20 +26,6 @@ from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
 from steval_link.units import RAD_TO_MDPS
 
-__all__ = [
-    "G_MPS2",
-    "BroadTrial",
-    "SteValView",
-    "load_trial",
-    "trial_paths",
-    "steval_view",
-    "own_rate_view",
-    "truth_at_trial_time",
-    "inclination_error_rad",
-    "heading_error_rad",
-    "rmse_deg",
-]
-
 #: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
 #: local gravity in Berlin is 9.813), so 9.81 is the right scale to within the sensors' own 0.6 % spread.
 G_MPS2 = 9.81

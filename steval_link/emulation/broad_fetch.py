@@ -28,21 +28,6 @@ import numpy as np
 
 from steval_link.errors import UserError, printable
 
-__all__ = [
-    "ATTRIBUTION",
-    "BROAD_COMMIT",
-    "BROAD_FILES",
-    "DEFAULT_TRIALS",
-    "FetchedTrial",
-    "base_url",
-    "cache_dir",
-    "cached_trials",
-    "convert_hdf5",
-    "fetch_trial",
-    "git_blob_sha1",
-    "resolve_trials",
-]
-
 #: the dataset repository's commit the hashes belong to
 BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"

@@ -25,21 +25,6 @@ from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.link import protocol as P
 from steval_link.link.textmode import format_att, format_sta
 
-__all__ = [
-    "AHRS_CYCLES",
-    "STATUS_EVERY_STEPS",
-    "TEXT_DECIMATION",
-    "TXQ_SIZE",
-    "TIM9_START_CYCLES",
-    "LinkEmulation",
-    "TxQueue",
-    "boot_lines",
-    "count_frames",
-    "encode",
-    "forced_drops",
-    "step_timing",
-]
-
 #: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
 #: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
 #: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.

@@ -18,15 +18,6 @@ from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
-__all__ = [
-    "BASELINE_GYRO_MDPS",
-    "BASELINE_ACC_MG",
-    "TYPICAL_GYRO_NOISE_MDPS",
-    "TYPICAL_ACC_NOISE_MG",
-    "SimulationResult",
-    "run_simulation",
-]
-
 #: Lab 5 baseline inputs
 BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)

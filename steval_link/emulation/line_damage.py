@@ -15,8 +15,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "payload_records", "score"]
-
 
 @dataclass
 class DamageCounts:

@@ -34,18 +34,6 @@ from steval_link.errors import ParamError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
 
-__all__ = [
-    "MotionProfile",
-    "render",
-    "build_profile",
-    "broad_profile",
-    "tick_times_s",
-    "parse_throttle",
-    "Vibration",
-    "parse_vibration",
-    "add_vibrations",
-]
-
 
 @dataclass(frozen=True)
 class MotionProfile:

@@ -18,21 +18,6 @@ from steval_link import constants as C
 from steval_link.errors import ParamError
 from steval_link.quat import quaternion_from_euler
 
-__all__ = [
-    "G_MPS2",
-    "MG_PER_MPS2",
-    "DEG",
-    "rotmat",
-    "Steps",
-    "Sines",
-    "Kinematics",
-    "Scenario",
-    "SCENARIOS",
-    "scenario",
-    "PREFLIGHT_MOVES",
-    "PREFLIGHT_IDLE_THR",
-]
-
 #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 G_MPS2 = 9.80665
 MG_PER_MPS2 = 1000.0 / G_MPS2

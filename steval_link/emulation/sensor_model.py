@@ -33,30 +33,6 @@ import numpy as np
 
 from steval_link import constants as C
 
-__all__ = [
-    "CALIBRATION_SKIP_TICKS",
-    "CALIBRATION_TICKS",
-    "GYRO_ODR_HZ",
-    "gyro_hold_index",
-    "gyro_hold_times_s",
-    "ACC_BIAS_SIGMA_MG",
-    "GYRO_BIAS_SIGMA_MDPS",
-    "seeded_lsm6dsl",
-    "IirState",
-    "Lsm6dsl",
-    "IsrOutput",
-    "quantise",
-    "calibrate_offsets",
-    "remove_offsets",
-    "gyro_iir",
-    "iir_frequency_response",
-    "GYRO_LATENCY_S",
-    "fifo_average",
-    "run_isr",
-    "isr_yaw_rad",
-    "resample_to_tick",
-]
-
 _F32 = np.float32
 
 #: ticks ignored after power-up before the offset calibration starts

@@ -25,8 +25,6 @@ from steval_link.emulation import broad
 from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
 from steval_link.quat import quaternion_from_euler
 
-__all__ = ["TruthRows", "StepTruth", "score_euler"]
-
 
 @dataclass(frozen=True)
 class TruthRows:

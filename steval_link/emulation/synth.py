@@ -38,15 +38,6 @@ from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import capture
 from steval_link.link import protocol as P
 
-__all__ = [
-    "EPOCH_UNIX_S",
-    "SynthOptions",
-    "SynthResult",
-    "synthesize",
-    "write_output",
-    "default_c_encoder",
-]
-
 #: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
 EPOCH_UNIX_S = 1767225600.0
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
