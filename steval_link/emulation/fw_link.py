@@ -264,17 +264,9 @@ class LinkEmulation:
         self.status.append(rec)
         self._reset_cycles()
         if self.text_mode:
-            line = format_sta(
-                step=k,
-                t_ms=int(rec["t_us"]) // 1000,
-                cyc_min=int(rec["cyc_min"]),
-                cyc_mean=int(rec["cyc_mean"]),
-                cyc_max=int(rec["cyc_max"]),
-                cyc_n=int(rec["cyc_n"]),
-                tx_dropped=int(rec["tx_dropped"]),
-                flags=self.flags,
-                ki_micro=ki_micro(self.ki_f32),
-            )
+            counters = {name: int(rec[name]) for name in ("cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped")}
+            t_ms = int(rec["t_us"]) // 1000
+            line = format_sta(step=k, t_ms=t_ms, flags=self.flags, ki_micro=ki_micro(self.ki_f32), **counters)
             self._push("raw", line, c1, len(line), 0)
         else:
             self._push("status", rec, c1, P.STATUS_FRAME_SIZE, 0)

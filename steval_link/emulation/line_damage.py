@@ -25,18 +25,11 @@ class DamageCounts:
     bursts: int = 0
 
 
-def damage(
-    data: bytes,
-    rng: np.random.Generator,
-    *,
-    every: tuple[int, int] = (200, 5000),
-    cut_max: int = 16,
-    burst_max: int = 64,
-) -> tuple[bytes, DamageCounts]:
-    """``data`` with one damage event every ``every`` bytes (uniform): a single bit flip (60 %), a cut of 1 ..
-    ``cut_max`` bytes (20 %) or a burst of 1 .. ``burst_max`` random bytes inserted (20 %)."""
+def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
+    """``data`` with one damage event every 200 .. 5000 bytes (uniform): a single bit flip (60 %), a cut of 1 .. 16
+    bytes (20 %) or a burst of 1 .. 64 random bytes inserted (20 %)."""
     n = len(data)
-    gaps = rng.integers(every[0], every[1] + 1, size=n // every[0] + 2)
+    gaps = rng.integers(200, 5000 + 1, size=n // 200 + 2)
     pos = np.cumsum(gaps)
     pos = pos[pos < n]
     kinds = rng.random(len(pos))
@@ -52,10 +45,10 @@ def damage(
             last = p + 1
             counts.flips += 1
         elif k < 0.8:
-            last = p + int(rng.integers(1, cut_max + 1))
+            last = p + int(rng.integers(1, 16 + 1))
             counts.cuts += 1
         else:
-            out += rng.integers(0, 256, int(rng.integers(1, burst_max + 1)), dtype=np.uint8).tobytes()
+            out += rng.integers(0, 256, int(rng.integers(1, 64 + 1)), dtype=np.uint8).tobytes()
             last = p
             counts.bursts += 1
     out += data[last:]

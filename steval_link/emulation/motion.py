@@ -187,8 +187,7 @@ def build_profile(
     ``throttle`` overrides the scenario's throttle profile (a function of time, see :func:`parse_throttle`).
     """
     sc = scenario(name, "or a BROAD trial .npz")
-    T = float(t_s[-1]) if total_s is None else float(total_s)
-    kin = sc.build(T, rng)
+    kin = sc.build(float(t_s[-1] if total_s is None else total_s), rng)
     return render(sc.name, kin, t_s, rng, throttle)
 
 
@@ -209,7 +208,6 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_hold = sm.gyro_hold_times_s(t_rel)
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
     gyro = np.stack([np.interp(t_hold, t_trial, trial.gyro_mdps[:, i]) for i in range(3)], axis=-1)
-
     q = interpolate_quat(t_trial, trial.quat_wxyz, t_rel)
     if throttle is None:
         thr = np.zeros(len(t_rel), dtype=np.int16)

@@ -162,26 +162,19 @@ def _settings(opts: SynthOptions) -> MahonySettings:
 def _span(opts: SynthOptions):
     """(BROAD trial or None, capture duration s, s from power-up to the capture's end) of ``opts``; UserError for
     an unknown scenario or a span too short for the firmware's 2 s calibration."""
-    trial = None
-    if _is_path(opts.scenario):
-        trial = load_trial(opts.scenario)
-        min_total = 3.0
-        default_duration = None
-    else:
-        sc = scenario(opts.scenario, "or a BROAD trial .npz path")
-        min_total = sc.min_duration_s
-        default_duration = sc.default_duration_s
-    tim9_s = fwl.TIM9_START_CYCLES / C.CPU_HZ
+    trial = load_trial(opts.scenario) if _is_path(opts.scenario) else None
+    sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
+    min_total = 3.0 if sc is None else sc.min_duration_s
     if opts.duration_s is not None:
         duration = float(opts.duration_s)
-    elif trial is not None:
-        duration = trial.t_s[-1] + tim9_s - opts.join_at_s - 1e-6
+    elif sc is not None:
+        duration = sc.default_duration_s
+    else:
+        duration = trial.t_s[-1] + fwl.TIM9_START_CYCLES / C.CPU_HZ - opts.join_at_s - 1e-6
         if duration <= 0:
             raise ParamError(
                 f"{{join_at_s}} {opts.join_at_s:g} s is after the end of BROAD trial {trial.name}", "join_at_s"
             )
-    else:
-        duration = default_duration
     total = opts.join_at_s + duration
     if total < min_total:
         raise UserError(
