@@ -69,9 +69,7 @@ def load_trial(path) -> BroadTrial:
             missing = [k for k in _KEYS if k not in z.files]
             if missing:
                 raise UserError(f"{p}: not a BROAD trial (.npz without {', '.join(missing)})")
-            acc = np.asarray(z["acc"], dtype=np.float64)
-            gyr = np.asarray(z["gyr"], dtype=np.float64)
-            quat = np.asarray(z["quat"], dtype=np.float64)
+            acc, gyr, quat = (np.asarray(z[k], dtype=np.float64) for k in ("acc", "gyr", "quat"))
             mov = np.asarray(z["movement"]).astype(bool)
             fs = float(np.asarray(z["fs"]).reshape(()))
     except UserError:
@@ -169,16 +167,11 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
-    """The trial as the STEVAL would see it at 161.5 Hz.
-
-    acc (mg) is linearly resampled to the 807.7 Hz ISR tick; the gyro (mdps) is read as a 416 Hz sample-and-hold
-    (the LSM6DSL's gyro ODR); both are quantised like the ST driver (``Lsm6dsl`` noise is added first only when
-    ``sensor`` is given — the trial's own sensor noise is already in the data); then the firmware's power-up
-    calibration (first 2 s, the trials start at rest), offset removal, gyro IIR and 5-sample boxcar give the AHRS
-    inputs. Each step's time (``t_s``, where its ground truth is taken) is the middle tick of the 5 it averages
-    (the boxcar's own centre; the gyro's 416 Hz hold and IIR delay, ≈ 3.3 ms together, stay part of every
-    estimator's error). ``seed`` seeds ``sensor``'s noise (deterministic by default).
-    """
+    """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
+    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added first only when
+    given: the trial's own noise is in the data), then the firmware's calibration, offset removal, IIR and boxcar.
+    Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it averages; the gyro's hold and
+    IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)

@@ -86,24 +86,11 @@ def run_simulation(
     estimator_options: dict | None = None,
     dt_s: float | None = None,
 ) -> SimulationResult:
-    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs plus Gaussian noise, from power-up.
-
-    Args:
-        gyro_mdps: (3,) gyro rate, mdps (firmware axes x right, y forward, z up).
-        acc_mg: (3,) acceleration, mg.
-        iterations: number of AHRS steps (≥ 0).
-        gyro_noise_mdps, acc_noise_mg: standard deviation of white Gaussian noise added to every sample (0: none;
-            typical LSM6DSL values are :data:`TYPICAL_GYRO_NOISE_MDPS` and :data:`TYPICAL_ACC_NOISE_MG`).
-        seed: noise generator seed; None draws one (recorded in the result so the run can be repeated).
-        throttle: ``gTHR`` for every step (st-mahony uses kp_ground below MIN_THR, kp_flight otherwise).
-        estimator: registry name (:func:`steval_link.estimators.registry.names`).
-        estimator_options: keyword options for the estimator (e.g. ``ki``, ``kp``, ``correction``).
-        dt_s: the simulation's period, s (None: the firmware's 6.25 ms); every estimator runs at it (st-mahony as
-            its ``dt_s``, the others as ``rate_hz`` = 1/dt when they take it), unless its options set their own.
-
-    Raises:
-        ValueError: bad inputs, unknown estimator or options it does not take.
-    """
+    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus
+    white Gaussian noise of the given standard deviations, from power-up. ``seed`` None draws one (recorded in the
+    result). ``dt_s`` (None: the firmware's 6.25 ms) is every estimator's period (st-mahony's ``dt_s``, the others'
+    ``rate_hz`` when they take it) unless its options set their own. ValueError for bad inputs, an unknown
+    estimator or options it does not take."""
     gyro, acc = _vector3(gyro_mdps, "gyro"), _vector3(acc_mg, "acc")
     iterations, throttle, dt = _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s)
     gyro, acc = np.tile(gyro, (iterations, 1)), np.tile(acc, (iterations, 1))

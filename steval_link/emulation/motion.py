@@ -220,20 +220,12 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
 @dataclass(frozen=True)
 class Vibration:
     """A pure sinusoid added to one sensor axis (``steval synth --vibration``), to check spectra against a known
-    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up.
+    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up."""
 
-    Attributes:
-        sensor: "acc" (mg, at each ISR tick) or "gyro" (mdps, as the gyro's 416 Hz output register holds it).
-        axis: 0, 1, 2 for x, y, z (the firmware's body axes).
-        freq_hz: frequency, Hz (> 0; above the 80.77 Hz AHRS Nyquist it aliases, see
-            :mod:`steval_link.analysis.spectrum`).
-        amplitude: peak amplitude in the sensor's unit (mg or mdps).
-    """
-
-    sensor: str
-    axis: int
-    freq_hz: float
-    amplitude: float
+    sensor: str  #: "acc" (mg, at each ISR tick) or "gyro" (mdps, as its 416 Hz output register holds it)
+    axis: int  #: 0, 1, 2 for x, y, z (the firmware's body axes)
+    freq_hz: float  #: Hz (> 0; above the 80.77 Hz AHRS Nyquist it aliases)
+    amplitude: float  #: peak amplitude in the sensor's unit (mg or mdps)
 
     @property
     def spec(self) -> str:

@@ -301,18 +301,14 @@ class Emulation:
                 f"{{duration_s}} must be a positive number of seconds, got {options.duration_s}", "duration_s"
             )
         self.elf = Elf(options.elf)
-        trial = None
-        if isinstance(options.broad, BroadTrial):  # already loaded (e.g. cut short by steval evaluate)
-            trial = options.broad
-            name = trial.name
-            default = float(trial.t_s[-1]) + 3.0
-        elif options.broad is not None:
+        trial = options.broad  # a path, or already loaded (e.g. cut short by steval evaluate)
+        if trial is not None and not isinstance(trial, BroadTrial):
             try:
-                trial = load_trial(options.broad)
+                trial = load_trial(trial)
             except (OSError, ValueError, KeyError) as exc:
                 raise UserError(f"cannot read BROAD trial {options.broad}: {exc}") from None
-            name = trial.name
-            default = float(trial.t_s[-1]) + 3.0
+        if trial is not None:
+            name, default = trial.name, float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
             default = scenario(name, "or {broad} TRIAL.npz").default_duration_s
