@@ -346,15 +346,8 @@ def count_frames(order: list[Frame], offsets: tuple[int, int]) -> dict:
     lo, hi = offsets
     for kind, item, _, size in order:
         if pos >= lo and pos + size <= hi:
-            if kind == "att":
-                counts["attitude"] += 1
-            elif kind in ("status", "text"):
-                counts[kind] += 1
-            elif item.startswith(b"$ATT"):
-                counts["att_lines"] += 1
-            elif item.startswith(b"$STA"):
-                counts["sta_lines"] += 1
-            else:
-                counts["log_lines"] += 1
+            if kind == "raw":
+                kind = {b"$ATT": "att_lines", b"$STA": "sta_lines"}.get(item[:4], "log_lines")
+            counts["attitude" if kind == "att" else kind] += 1
         pos += size
     return counts
