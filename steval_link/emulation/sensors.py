@@ -52,16 +52,6 @@ def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     return counts(acc_mg, sm.ACC_SENSITIVITY_MG), counts(gyro_mdps, sm.GYRO_SENSITIVITY_MDPS)
 
 
-def driver_readings(acc_counts, gyro_counts) -> tuple[np.ndarray, np.ndarray]:
-    """What the firmware's ``ReadSensorRawData`` gets from sensor-axis counts: int32 mg / mdps in body axes."""
-
-    def scale(raw, sens):
-        v = sm.driver_value(raw, sens)
-        return np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1)
-
-    return scale(acc_counts, sm.ACC_SENSITIVITY_MG), scale(gyro_counts, sm.GYRO_SENSITIVITY_MDPS)
-
-
 class _Regs:
     """A sensor's 128-byte register file; ``read``/``write`` with the auto-increment the drivers use.
 
@@ -182,9 +172,11 @@ class SensorBus:
             dev.write(reg, data)
 
     def served_driver_readings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads, in body axes."""
+        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads as the firmware's
+        ``ReadSensorRawData`` gets them: driver values in body axes."""
         ticks = np.array([s[0] for s in self.served], np.int64)
-        acc = np.array([s[1] for s in self.served], np.int16).reshape(-1, 3)
-        gyro = np.array([s[2] for s in self.served], np.int16).reshape(-1, 3)
-        a, g = driver_readings(acc, gyro)
-        return ticks, a, g
+        readings = []
+        for j, sens in ((1, sm.ACC_SENSITIVITY_MG), (2, sm.GYRO_SENSITIVITY_MDPS)):
+            v = sm.driver_value(np.array([s[j] for s in self.served], np.int16).reshape(-1, 3), sens)
+            readings.append(np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1))
+        return ticks, readings[0], readings[1]
