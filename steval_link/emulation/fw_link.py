@@ -192,11 +192,8 @@ class LinkEmulation:
 
     def text(self, cyc: float, line: str) -> None:
         """A ``PRINTF`` line at cycle time ``cyc``: text frames (binary mode) or a plain line (text mode)."""
-        if self.text_mode:
-            data = line.encode("utf-8")
-            if data.startswith(b"$"):
-                data = b"#" + data[1:]
-            data += b"\r\n"
+        if self.text_mode:  # "$" starts only $ATT/$STA lines: a log line's becomes "#"
+            data = ("#" + line[1:] if line.startswith("$") else line).encode("utf-8") + b"\r\n"
             self._push("raw", data, cyc, len(data), TEXT_LINE_MAX)
             return
         raw = line.encode("utf-8") or b" "

@@ -162,8 +162,7 @@ class Kinematics:
 
 def _at_rest(rng) -> tuple[float, float, float]:
     """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
-    x0, y0 = _surface_tilt(rng)
-    return x0, y0, rng.uniform(-np.pi, np.pi)
+    return (*_surface_tilt(rng), rng.uniform(-np.pi, np.pi))
 
 
 def _surface_tilt(rng) -> tuple[float, float]:
@@ -243,14 +242,13 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
 
 
 def _bench(T: float, rng) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
-    return Kinematics(thx=Steps(x0), thy=Steps(y0), yaw=Steps(yaw0))
+    thx, thy, yaw = (Steps(v) for v in _at_rest(rng))
+    return Kinematics(thx=thx, thy=thy, yaw=yaw)
 
 
 def _tilts_kin(T_start: float, T_end: float, rng) -> Kinematics:
     """Picked up at T_start, tilted, put back down at the end."""
-    x0, y0, yaw0 = _at_rest(rng)
-    axes = [Steps(x0), Steps(y0), Steps(yaw0)]
+    axes = [Steps(v) for v in _at_rest(rng)]
     last = _add_tilts(axes[0], axes[1], T_start + 1.0, T_end - 1.5, rng)
     t_put = max(last + 0.8, T_start + 1.5)
     w, hand = _hand_held(rng, T_start, t_put)
@@ -323,13 +321,12 @@ def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
 
 
 def _freefall(T: float, rng) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
+    axes = [Steps(v) for v in _at_rest(rng)]
     t_pick = 3.0
     drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
     fall_s, catch_s = 0.5, 0.25
     v_mps = G_MPS2 * fall_s
     peak = 2 * v_mps / catch_s * MG_PER_MPS2  # Hann pulse with area v
-    axes = [Steps(x0), Steps(y0), Steps(yaw0)]
     heights = [_lift(t_pick, 0.4, 1.0)]
     for td in drops:
         # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
@@ -414,9 +411,8 @@ PREFLIGHT_IDLE_THR = 210.0
 def _preflight(T: float, rng) -> Kinematics:
     """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
     turned right (each out, hold, back), put down, throttle 0, disarmed."""
-    x0, y0, yaw0 = _at_rest(rng)
+    axes = [Steps(v) for v in _at_rest(rng)]
     t_arm, t_pick = 3.5, 6.0
-    axes = [Steps(x0), Steps(y0), Steps(yaw0)]
     t = t_pick + 2.0
     for _, axis, angle in PREFLIGHT_MOVES:
         move = 1.5 if axis == 2 else 1.0
