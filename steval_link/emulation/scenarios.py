@@ -196,10 +196,7 @@ def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng
 
 def _hand_held(rng, t_pick: float, t_put: float | None):
     """Weight 0..1 of 'in the hand' (picked up at t_pick, put down at t_put), and tremor plus wander per axis."""
-    w = Steps()
-    w.move(t_pick - 0.5, 1.0, 1.0)
-    if t_put is not None:
-        w.move(t_put - 0.5, 1.0, -1.0)
+    w = _lift(t_pick, 1.0, 1.0, t_put)
     tremor = [Sines.random(rng, 0.06 * DEG, 7.0, 11.0, 4) for _ in range(3)]
     wander = [Sines.random(rng, 0.8 * DEG, 0.1, 0.7, 4) for _ in range(3)]
     return w, [_weighted(w, tremor[i], wander[i]) for i in range(3)]
@@ -330,31 +327,29 @@ def _freefall(T: float, rng) -> Kinematics:
     heights = [_lift(t_pick, 0.4, 1.0)]
     for td in drops:
         # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
-        dx, dy = rng.normal(0, 12.0, 2) * DEG
-        axes[0].move(td, fall_s + catch_s, dx)
-        axes[1].move(td, fall_s + catch_s, dy)
-        axes[0].move(td + 1.5, 1.0, -dx)
-        axes[1].move(td + 1.5, 1.0, -dy)
+        for axis, d in zip(axes, rng.normal(0, 12.0, 2) * DEG):
+            axis.move(td, fall_s + catch_s, d)
+            axis.move(td + 1.5, 1.0, -d)
         heights.append(_lift(td + 3.5, 1.84, 2.0))
     w_hand, hand = _hand_held(rng, t_pick, None)
 
+    def falling(t):
+        out = np.zeros(np.shape(t), bool)
+        for td in drops:
+            out |= (t >= td) & (t < td + fall_s)
+        return out
+
     def lin_acc(t):
         a = _vertical_acc(heights)(t)
-        for td in drops:
-            fall = (t >= td) & (t < td + fall_s)
-            a[fall, 2] = -1000.0
+        a[falling(t), 2] = -1000.0
+        for td in drops:  # the catch
             u = (t - td - fall_s) / catch_s
             c = (u >= 0) & (u < 1)
             a[c, 2] += peak * 0.5 * (1 - np.cos(2 * np.pi * u[c]))
         return a
 
-    def hand_w(t):  # the hand lets go while it falls
-        falling = np.zeros(np.shape(t), bool)
-        for td in drops:
-            falling |= (t >= td) & (t < td + fall_s)
-        return w_hand(t) * (1 - falling)
-
-    return _held(axes, hand, lin_acc_mg=lin_acc, lever_weight=hand_w)
+    # the hand lets go while it falls
+    return _held(axes, hand, lin_acc_mg=lin_acc, lever_weight=lambda t: w_hand(t) * (1 - falling(t)))
 
 
 def _demo(T: float, rng) -> Kinematics:
