@@ -131,9 +131,7 @@ def rmse_deg(err_rad, mask=None) -> float:
     if mask is not None:
         e = e[np.asarray(mask, dtype=bool)]
     e = e[np.isfinite(e)]
-    if e.size == 0:
-        return float("nan")
-    return float(np.degrees(np.sqrt(np.mean(e * e))))
+    return float(np.degrees(np.sqrt(np.mean(e * e)))) if e.size else float("nan")
 
 
 # --- the trial as the estimators see it --------------------------------------------------------------------------

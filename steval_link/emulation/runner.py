@@ -7,22 +7,16 @@
         ...
     print(emu.report().lines())
 
-Motion: a built-in scenario of :mod:`steval_link.emulation.motion` (rendered in windows of :data:`WINDOW_S`, so memory
-stays
-bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
-LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
-registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
-loop, while ``connected``); the emulated remote writes ``joydata`` at each TIM9 tick, so gTHR moves in steps of
-13 as with the ST app, and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a
-scenario with sticks (from then on the firmware also sends its BLE notifications through ``hci_send_req``).
-Once connected it sends every stick as ST's app does:
-``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; the firmware computes
+Motion: a built-in scenario (rendered in windows of :data:`WINDOW_S`, so memory stays bounded whatever the
+duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an LSM6DSL with this seed's
+offsets and white noise (as ``steval synth``), into the sensor's ADC registers. Throttle: the default build takes
+``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``; the emulated remote writes ``joydata`` at each
+TIM9 tick and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a scenario with
+sticks (the firmware then also sends its BLE notifications through ``hci_send_req``). Connected, it sends every
+stick as ST's app does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred;
 ``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
-the firmware reads into ``rc_enable_motor``; a scenario with sticks and arming (``flight``, ``preflight``) thereby
-makes the real firmware compute its targets ``euler_rc``, both PID loops and the motor PWM. Builds with
-``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
-
-The motor outputs: :meth:`Emulation.motor_ccr` reads TIM4's CCR1..4 as ``set_motor_pwm`` last wrote them.
+(``rc_enable_motor``): with ``flight`` and ``preflight`` the real firmware computes its targets ``euler_rc``, both
+PID loops and the motor PWM. Builds with ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
 
 Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
 ``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
