@@ -157,11 +157,10 @@ def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[i
 def _timing(estimator: str, dt_s: float) -> dict:
     """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
     for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
-    sel = None if estimator in registry.ESTIMATORS else registry.resolve(estimator)
-    base = estimator if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
-    if base == "st-mahony":
+    sel = registry.resolve(estimator)
+    if sel.reference.kind == "builtin" and sel.reference.source == "st-mahony":
         return {"dt_s": dt_s}
-    if registry.accepts(sel if sel is not None else estimator, "rate_hz"):
+    if registry.accepts(sel, "rate_hz"):
         return {"rate_hz": 1.0 / dt_s}
     return {}
 

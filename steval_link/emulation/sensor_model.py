@@ -149,20 +149,16 @@ def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
     int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
-    out = []
-    for x in (acc_mg, gyro_mdps):
-        s = np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32)  # wraps like int32 C arithmetic
-        out.append(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32))
-    return out[0], out[1]
+    sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
+    acc_off, gyro_off = (np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
+    return acc_off, gyro_off
 
 
 def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[np.ndarray, np.ndarray]:
     """Offset removal of the ISR (int32): ``acc − off`` with z keeping 1000 mg (``acc_z − (off_z − 1000)``)."""
-    acc_off = np.asarray(acc_offset_mg, dtype=np.int32).copy()
-    acc_off[2] -= C.ACC_Z_KEPT_MG
-    acc = np.asarray(acc_mg, dtype=np.int32) - acc_off
+    acc_off = np.asarray(acc_offset_mg, dtype=np.int32) - np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
     gyro = np.asarray(gyro_mdps, dtype=np.int32) - np.asarray(gyro_offset_mdps, dtype=np.int32)
-    return acc.astype(np.int32), gyro.astype(np.int32)
+    return np.asarray(acc_mg, dtype=np.int32) - acc_off, gyro
 
 
 def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
