@@ -166,16 +166,13 @@ def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
     float32 in C order (the firmware's -O0, no-FMA evaluation). ``state`` (zeros when None, as after power-up) is
     updated in place so a stream can be filtered in chunks."""
     x = np.asarray(gyro_mdps).astype(_F32)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"gyro_mdps must be (N, 3), got shape {x.shape}")
     st = state if state is not None else IirState()
     a1, a2, b0, b1, b2 = _IIR_F32
-    n = x.shape[0]
     # feed-forward part, vectorised: x1/x2 are the previous inputs (from the state for the first two ticks)
     xp = np.concatenate([st.x2[None], st.x1[None], x], axis=0)
     ff = (b0 * xp[2:] + b1 * xp[1:-1]) + b2 * xp[:-2]
-    y = np.concatenate([st.y2[None], st.y1[None], np.empty((n, 3), _F32)])
-    for k in range(n):  # the recursive part: (ff + a1*y1) + a2*y2, float32 each
+    y = np.concatenate([st.y2[None], st.y1[None], np.empty(x.shape, _F32)])
+    for k in range(len(x)):  # the recursive part: (ff + a1*y1) + a2*y2, float32 each
         y[k + 2] = (ff[k] + a1 * y[k + 1]) + a2 * y[k]
     st.x2, st.x1, st.y2, st.y1 = xp[-2].copy(), xp[-1].copy(), y[-2].copy(), y[-1].copy()
     return y[2:]
