@@ -42,6 +42,10 @@ from steval_link.link import protocol as P
 EPOCH_UNIX_S = 1767225600.0
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
+_GENERATOR = (
+    "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact ahrs_fusion_ag "
+    "replica → firmware link emulation → USB-UART adapter model"
+)
 
 
 @dataclass(frozen=True)
@@ -242,7 +246,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     progress(0.95, "encoding frames")
     data, chunk_offsets, chunk_times, counts = _received(opts, link, att, rs.host, total)
     dropped = link.txq.dropped
-    header = _header(opts, profile.name, duration, counts, dropped)
+    header = _header(opts, profile.name, duration)
     return SynthResult(
         data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, begin / C.CPU_HZ, counts
     )
@@ -299,25 +303,13 @@ def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
     return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
 
 
-def _header(opts: SynthOptions, name: str, duration: float, counts: dict, dropped: int) -> dict:
-
-    start = EPOCH_UNIX_S + opts.join_at_s
+def _header(opts: SynthOptions, name: str, duration: float) -> dict:
     params = {k: v for k, v in asdict(opts).items() if k not in ("encoder", "c_encoder")}
     params["duration_s"] = duration
     if not opts.vibration:  # headers of captures made without it stay as they were
         del params["vibration"]
-    return capture.capture_header(
-        f"synth:{name}",
-        opts.baud,
-        start,
-        {
-            "emulated": True,
-            "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → "
-            "bit-exact ahrs_fusion_ag replica → firmware link emulation → USB-UART adapter model",
-            "command": opts.command(),
-            "synth": params,
-        },
-    )
+    extra = {"emulated": True, "generator": _GENERATOR, "command": opts.command(), "synth": params}
+    return capture.capture_header(f"synth:{name}", opts.baud, EPOCH_UNIX_S + opts.join_at_s, extra)
 
 
 def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = False) -> str:
