@@ -60,11 +60,10 @@ def record_ble(
     *,
     connect_s: float = 0.5,
     tick_start_ms: int = 0,
-    bluenrg: EmulatedBlueNrg | None = None,
     command: str | None = None,
 ) -> BleRecording:
     """Run the firmware and write its BLE notifications to a new capture ``out`` (see the module docstring)."""
-    nrg = bluenrg if bluenrg is not None else EmulatedBlueNrg()
+    nrg = EmulatedBlueNrg()
     emu = Emulation(options, bluenrg=nrg, tick_start_ms=tick_start_ms, ble_connect_s=connect_s)
     extra = {
         "link": "ble",
