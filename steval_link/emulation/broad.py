@@ -105,9 +105,6 @@ def trial_paths(items) -> list[Path]:
     return out
 
 
-# --- quaternions (wxyz, float64) ---------------------------------------------------------------------------------
-
-
 def _error_quat(q_est, q_true) -> np.ndarray:
     return quat_multiply(quat_normalize(q_est), quat_conjugate(quat_normalize(q_true)))
 
@@ -132,9 +129,6 @@ def rmse_deg(err_rad, mask=None) -> float:
         e = e[np.asarray(mask, dtype=bool)]
     e = e[np.isfinite(e)]
     return float(np.degrees(np.sqrt(np.mean(e * e)))) if e.size else float("nan")
-
-
-# --- the trial as the estimators see it --------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)

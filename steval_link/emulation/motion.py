@@ -17,7 +17,6 @@ does not see the tilt — exactly the situation the firmware's small in-flight g
 Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
 to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
 the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
-Nothing here holds module-level mutable state.
 """
 
 from __future__ import annotations
@@ -56,8 +55,6 @@ def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
     """(n,) times of TIM9 ticks, s since power-up: ``first_tick_s + k · 104000 / 84 MHz``."""
     return first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
 
-
-# ---- rendering ---------------------------------------------------------------------------------------------------
 
 #: RC receiver frame rate, Hz: ``gTHR`` changes at this rate (PWM/PPM receivers: ~50 Hz)
 RC_RATE_HZ = 50.0

@@ -37,9 +37,6 @@ def rotmat(q) -> np.ndarray:
     )
 
 
-# ---- smooth building blocks -------------------------------------------------------------------------------------
-
-
 def _s(u):
     """Quintic smootherstep on [0, 1] (C² at both ends)."""
     u = np.clip(u, 0.0, 1.0)
@@ -155,9 +152,6 @@ class Kinematics:
 
     def q(self, t) -> np.ndarray:
         return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
-
-
-# ---- the scenarios ---------------------------------------------------------------------------------------------------
 
 
 def _at_rest(rng) -> tuple[float, float, float]:

@@ -22,7 +22,6 @@ The chain the drone runs, and the functions here that model each link:
 :func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
 another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.
 All arrays are (N, 3) with axes x right, y forward, z up (the firmware's COORDINATE_SYSTEM 3).
-Nothing in here holds module-level mutable state.
 """
 
 from __future__ import annotations

@@ -11,10 +11,8 @@ output registers filled from a motion source at the moment of the read:
 
 The board's body axes (COORDINATE_SYSTEM 3: x right, y forward, z up) come from the sensor's by ST's
 ``ReadSensorRawData``: body x = −sensor y, body y = sensor x, body z = sensor z. :func:`body_to_sensor_counts`
-does the inverse on ADC counts. :class:`SensorBus` logs every LSM6DSL sample it served (the *driver readings*
-``(int32_t)(raw * sensitivity)`` in body axes), so a test can run :mod:`steval_link.emulation.sensor_model`'s ISR
-pipeline on
-exactly what the firmware read.
+does the inverse on ADC counts. :class:`SensorBus` logs the LSM6DSL samples it served, so a test can run
+:mod:`steval_link.emulation.sensor_model`'s ISR pipeline on exactly what the firmware read.
 """
 
 from __future__ import annotations
@@ -110,11 +108,8 @@ class SensorBus:
 
     The LSM6DSL's outputs at a read are those of the motion source's current tick: before TIM9 runs, the tick of
     the emulated time (``now // 104000``); once it runs, the tick the ISR's update event belongs to (so each TIM9
-    tick reads one consecutive sample).
-
-    Args:
-        motion: per-tick sensor counts.
-        log_limit: keep at most this many served LSM6DSL samples in :attr:`served` (for tests; 0 = none).
+    tick reads one consecutive sample). ``log_limit``: keep at most this many served LSM6DSL samples in
+    :attr:`served` (for tests).
     """
 
     def __init__(self, motion: MotionSource, *, log_limit: int = 0) -> None:

@@ -101,9 +101,6 @@ class SynthResult:
     counts: dict = field(default_factory=dict)  #: frames of each kind in ``data``
 
 
-# ---- validation --------------------------------------------------------------------------------------------------
-
-
 def default_c_encoder() -> Path:
     """``firmware_patch/host/stv_encode`` of this source tree (``make -C firmware_patch host`` builds it)."""
     return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
@@ -142,9 +139,6 @@ def _check(opts: SynthOptions) -> None:
             "text_mode",
             "encoder",
         )
-
-
-# ---- the emulation -----------------------------------------------------------------------------------------------
 
 
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
