@@ -113,13 +113,11 @@ def render(
     t_hold = sm.gyro_hold_times_s(t, t[0])
     gyro = _body_rate_radps(kin, t_hold) * RAD_TO_MDPS
     # specific force
-    a = np.zeros((len(t), 3))
-    if kin.lin_acc_mg is not None:
-        a += kin.lin_acc_mg(t)
-    lever = _lever_acc_mps2(kin, t) * MG_PER_MPS2
+    a = _lever_acc_mps2(kin, t) * MG_PER_MPS2
     if kin.lever_weight is not None:
-        lever *= kin.lever_weight(t)[:, None]
-    a += lever
+        a *= kin.lever_weight(t)[:, None]
+    if kin.lin_acc_mg is not None:
+        a = kin.lin_acc_mg(t) + a
     rot = rotmat(q)
     g_plus_a = a + np.array([0.0, 0.0, 1000.0])
     f = np.einsum("nji,nj->ni", rot, g_plus_a)  # Rᵀ (a + g ẑ)

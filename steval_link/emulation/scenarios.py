@@ -63,24 +63,22 @@ class Steps:
         self.moves: list[tuple[float, float, float]] = []
 
     def move(self, t0: float, dur: float, delta: float) -> None:
-        if self.moves:
-            p0, pd, _ = self.moves[-1]
-            if t0 < p0 + pd - 1e-12:
-                raise ValueError("moves on one axis must not overlap")
+        if self.moves and t0 < sum(self.moves[-1][:2]) - 1e-12:
+            raise ValueError("moves on one axis must not overlap")
         self.moves.append((float(t0), float(dur), float(delta)))
 
-    def _arrays(self):
+    def _index(self, t):
+        """(t0, dur, delta of the moves; at each t the index of the last move begun (−1: none), clipped to ≥ 0)."""
         m = np.array(self.moves, dtype=np.float64).reshape(-1, 3)
-        return m[:, 0], m[:, 1], m[:, 2]
+        i = np.searchsorted(m[:, 0], t, side="right") - 1
+        return m[:, 0], m[:, 1], m[:, 2], i, np.clip(i, 0, len(m) - 1)
 
     def __call__(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=np.float64)
         if not self.moves:
             return np.full(t.shape, self.base)
-        t0, dur, delta = self._arrays()
-        i = np.searchsorted(t0, t, side="right") - 1
+        t0, dur, delta, i, ic = self._index(t)
         before = np.concatenate(([0.0], np.cumsum(delta)))  # sum of deltas of moves < i
-        ic = np.clip(i, 0, len(t0) - 1)
         partial = np.where(i >= 0, delta[ic] * _s((t - t0[ic]) / dur[ic]), 0.0)
         return self.base + np.where(i >= 0, before[ic], 0.0) + partial
 
@@ -89,9 +87,7 @@ class Steps:
         t = np.asarray(t, dtype=np.float64)
         if not self.moves:
             return self.base * t
-        t0, dur, delta = self._arrays()
-        i = np.searchsorted(t0, t, side="right") - 1
-        ic = np.clip(i, 0, len(t0) - 1)
+        t0, dur, delta, i, ic = self._index(t)
         # completed moves j < i contribute delta_j · (t − t0_j − dur_j/2)
         cd = np.concatenate(([0.0], np.cumsum(delta)))
         cm = np.concatenate(([0.0], np.cumsum(delta * (t0 + dur / 2))))
