@@ -60,7 +60,6 @@ class EmulatedBlueNrg:
         return h
 
     def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
-        t = board.now / C.CPU_HZ
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_SERV:
             return struct.pack("<BH", 0, self._alloc(16))
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_CHAR and len(params) >= 5:
@@ -69,19 +68,16 @@ class EmulatedBlueNrg:
             self.uuid_of_handle[handle] = _uuid_str(params[3 : 3 + n])
             return struct.pack("<BH", 0, handle)
         if ogf == OGF_VENDOR and ocf == OCF_GATT_UPD_CHAR_VAL and len(params) >= 6:
-            return bytes([self._update(t, params)])
+            serv, char, off, length = struct.unpack_from("<HHBB", params)
+            self.updates += 1
+            uuid = self.uuid_of_handle.get(char)
+            cid = char_id_of_uuid(uuid) if uuid else None
+            t = board.now / C.CPU_HZ
+            self.notifications.append(HciNotification(t, t, serv, char, off, bytes(params[6 : 6 + length]), uuid, cid))
+            return b"\x00"  # accepted
         if ogf == OGF_STATUS_PARAM and ocf == OCF_READ_RSSI:
             return struct.pack("<BHb", 0, 0, self.rssi_dbm)
         return b""
-
-    def _update(self, t: float, params: bytes) -> int:
-        serv, char, off, length = struct.unpack_from("<HHBB", params)
-        value = bytes(params[6 : 6 + length])
-        self.updates += 1
-        uuid = self.uuid_of_handle.get(char)
-        cid = char_id_of_uuid(uuid) if uuid else None
-        self.notifications.append(HciNotification(t, t, serv, char, off, value, uuid, cid))
-        return 0
 
     def attach(self, board) -> EmulatedBlueNrg:
         board.hci_handler = self
