@@ -110,8 +110,6 @@ def base_url() -> str:
 
 def cached_trials(directory: Path) -> list[Path]:
     """The trial ``.npz`` files in ``directory`` (none when it does not exist), sorted."""
-    if not directory.is_dir():
-        return []
     return sorted(p for p in directory.glob("*.npz") if p.is_file())
 
 

@@ -1,9 +1,7 @@
 """A loose wire on header P7, as bytes: bit flips, cut bytes and garbage bursts, and the score of a decoder on it.
 
-Used by ``benchmarks/bench_fuzz.py`` (≥ 10⁷ frames with fresh seeds) and by the test suite (a small derandomised
-run). :func:`long_stream` turns a capture into as many frames as wanted (the capture's attitude and status payloads
-repeated with the step counter and firmware time continued, so every frame is unique and plausible);
-:func:`damage` hurts it; :func:`score` tells which decoded frames were sent (recovered) and which never were (fake).
+:func:`long_stream` turns a capture into as many unique, plausible frames as wanted; :func:`damage` hurts them;
+:func:`score` tells which decoded frames were sent (recovered) and which never were (fake).
 """
 
 from __future__ import annotations

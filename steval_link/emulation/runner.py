@@ -22,10 +22,8 @@ Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``C
 ``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
 and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
 
-Host → drone bytes (the two-way link, USART1 RX): :meth:`Emulation.send_at` schedules bytes at an emulated time
-(tests, scenario scripts), :meth:`Emulation.send` queues them from any thread for the next slice (a live session);
-they arrive on the emulated RX line at the baud rate's pace. :meth:`Emulation.take_host_bytes` hands each sent
-block back with the emulated time it went on the line, for the capture's ``H`` chunks.
+Host → drone bytes (the two-way link, USART1 RX: :meth:`Emulation.send_at`, :meth:`Emulation.send`) arrive on the
+emulated RX line at the baud rate's pace; :meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
 """
 
 from __future__ import annotations
