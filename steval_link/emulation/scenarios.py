@@ -233,17 +233,13 @@ def _bench(T: float, rng) -> Kinematics:
     return Kinematics(thx=thx, thy=thy, yaw=yaw)
 
 
-def _tilts_kin(T_start: float, T_end: float, rng) -> Kinematics:
-    """Picked up at T_start, tilted, put back down at the end."""
+def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
+    """Picked up at T_start, tilted, put back down before T_end."""
     axes = [Steps(v) for v in _at_rest(rng)]
     last = _add_tilts(axes[0], axes[1], T_start + 1.0, T_end - 1.5, rng)
     t_put = max(last + 0.8, T_start + 1.5)
     w, hand = _hand_held(rng, T_start, t_put)
     return _held(axes, hand, lin_acc_mg=_vertical_acc([_lift(T_start, 0.12, 1.0, t_put)]), lever_weight=w)
-
-
-def _hand_tilts(T: float, rng) -> Kinematics:
-    return _tilts_kin(3.0, T, rng)
 
 
 def _yaw_spin(T: float, rng) -> Kinematics:
@@ -344,7 +340,7 @@ def _freefall(T: float, rng) -> Kinematics:
 
 def _demo(T: float, rng) -> Kinematics:
     t_hover = max(T * 0.5, 20.0)
-    return _take_off(_tilts_kin(3.0, t_hover - 1.0, rng), t_hover + 1.0, T, rng)
+    return _take_off(_hand_tilts(t_hover - 1.0, rng), t_hover + 1.0, T, rng)
 
 
 #: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
