@@ -81,10 +81,10 @@ def test_fifo_average_is_float32_sum_times_double_fifth():
 
 
 def test_quantisation_like_the_st_driver():
-    acc = sm.quantise_acc_mg([[1000.0, -1000.0, 5000.0], [0.05, -0.2, -5000.0]])
+    acc = sm.quantise([[1000.0, -1000.0, 5000.0], [0.05, -0.2, -5000.0]], sm.ACC_SENSITIVITY_MG)
     # 1000 mg → raw 8197 → 8197·0.122f = 1000.03 → 1000; truncation toward zero; ±4 g saturation (raw ±32767/8)
     assert acc.tolist() == [[1000, -1000, 3997], [0, 0, -3997]]
-    gyro = sm.quantise_gyro_mdps([[36.0, -106.0, 2.5e6]])  # nearest LSB, saturation at raw 32767
+    gyro = sm.quantise([[36.0, -106.0, 2.5e6]], sm.GYRO_SENSITIVITY_MDPS)  # nearest LSB, saturation at raw 32767
     assert gyro.tolist() == [[70, -140, 32767 * 70]]
     assert gyro.dtype == np.int32 and acc.dtype == np.int32
 
@@ -110,7 +110,8 @@ def test_run_isr_timeline_and_steady_state():
     assert np.array_equal(out.acc_ahrs_mg[-1], np.array([0, 0, 1000], F32))
     assert np.all(out.gyro_ahrs_mdps[-1] == 0)  # a constant rate during calibration is taken as bias
     # without calibration: default offsets (0, 0, 1000) leave the readings as they are
-    acc2, gyro2 = sm.steval_pipeline(acc[:50], gyro[:50], calibrate=False)
+    out2 = sm.run_isr(acc[:50], gyro[:50], calibrate=False)
+    acc2, gyro2 = out2.acc_ahrs_mg, out2.gyro_ahrs_mdps
     assert acc2.shape == (10, 3) and np.allclose(acc2[-1], [30, -20, 1010])
     assert np.allclose(gyro2[-1], [1400, 0, -700], rtol=1e-3)
     with pytest.raises(ValueError):

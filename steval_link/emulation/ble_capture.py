@@ -18,8 +18,6 @@ from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.link.ble_payloads import CHAR_NAMES, ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 
-__all__ = ["BleRecording", "record_ble", "EMULATED_ADDRESS", "EMULATED_NAME"]
-
 #: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
 #: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")
 EMULATED_NAME = "DRN1110"
@@ -35,7 +33,7 @@ class BleRecording:
     connect_s: float
     counts: dict[str, int] = field(default_factory=dict)  #: notifications written per characteristic
     updates: int = 0  #: aci_gatt_update_char_value requests of the firmware (all characteristics)
-    refused: int = 0  #: of those, refused by the congestion model
+    refused: int = 0  #: of those, refused by a congestion model (none is modelled: 0)
     first_s: float | None = None
     last_s: float | None = None
 
@@ -48,13 +46,12 @@ class BleRecording:
 
     def lines(self) -> list[str]:
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items() if v)
-        out = [
+        return [
             f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
             f"emulated, central connected at {self.connect_s:g} s",
             f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}, "
             f"refused (congestion model) {self.refused}",
         ]
-        return out
 
 
 def record_ble(
@@ -63,11 +60,10 @@ def record_ble(
     *,
     connect_s: float = 0.5,
     tick_start_ms: int = 0,
-    bluenrg: EmulatedBlueNrg | None = None,
     command: str | None = None,
 ) -> BleRecording:
     """Run the firmware and write its BLE notifications to a new capture ``out`` (see the module docstring)."""
-    nrg = bluenrg if bluenrg is not None else EmulatedBlueNrg()
+    nrg = EmulatedBlueNrg()
     emu = Emulation(options, bluenrg=nrg, tick_start_ms=tick_start_ms, ble_connect_s=connect_s)
     extra = {
         "link": "ble",
@@ -96,5 +92,5 @@ def record_ble(
             drain()
         drain()
     rec.emulated_s = emu.board.now / C.CPU_HZ
-    rec.updates, rec.refused = nrg.updates, nrg.refused
+    rec.updates = nrg.updates
     return rec

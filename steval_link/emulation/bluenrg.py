@@ -4,10 +4,7 @@
 ``aci_gatt_add_serv`` / ``aci_gatt_add_char`` (so each ``aci_gatt_update_char_value`` names its characteristic by
 UUID, as on the chip), an RSSI for ``hci_read_rssi``, and every ``aci_gatt_update_char_value`` the firmware issues
 recorded exactly as its HCI command parameters carry it (service handle, char handle, offset, length, value): the
-source of truth for the payload decoder. Optional congestion model: the chip holds ``buffers`` notifications and
-the link sends ``per_event`` of them every connection interval (the firmware asks for 12.5 ms); a full buffer
-refuses the update with ``BLE_STATUS_INSUFFICIENT_RESOURCES`` (0x64), which ST's code answers by skipping the next
-30 motion updates. Without it (the default) every update is accepted at once.
+source of truth for the payload decoder. Every update is accepted at once (no radio congestion is modelled).
 """
 
 from __future__ import annotations
@@ -19,8 +16,6 @@ from dataclasses import dataclass
 from steval_link import constants as C
 from steval_link.link.ble_payloads import char_id_of_uuid
 
-__all__ = ["EmulatedBlueNrg", "HciNotification", "OGF_VENDOR", "OCF_GATT_UPD_CHAR_VAL"]
-
 OGF_VENDOR = 0x3F
 OCF_GATT_ADD_SERV = 0x0102
 OCF_GATT_ADD_CHAR = 0x0104
@@ -28,7 +23,6 @@ OCF_GATT_UPD_CHAR_VAL = 0x0106
 OGF_STATUS_PARAM = 0x05
 OCF_READ_RSSI = 0x0005
 UUID_TYPE_128 = 0x02
-BLE_STATUS_INSUFFICIENT_RESOURCES = 0x64
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,7 +30,7 @@ class HciNotification:
     """One ``aci_gatt_update_char_value`` as the firmware issued it (decoded HCI command parameters)."""
 
     t_s: float  #: emulated time of the HCI request, s since reset
-    t_sent_s: float  #: when the link delivered it (= t_s without the congestion model)
+    t_sent_s: float  #: when the link delivered it (= t_s: no congestion model)
     service_handle: int
     char_handle: int
     offset: int
@@ -53,26 +47,12 @@ def _uuid_str(le: bytes) -> str:
 class EmulatedBlueNrg:
     """``Board.hci_handler`` for the SPBTLE-RF module (see the module docstring)."""
 
-    def __init__(
-        self,
-        *,
-        rssi_dbm: int = -62,
-        buffers: int | None = None,
-        per_event: int = 4,
-        interval_s: float = 0.0125,
-        keep: int = 1_000_000,
-    ) -> None:
+    def __init__(self, *, rssi_dbm: int = -62, keep: int = 1_000_000) -> None:
         self.rssi_dbm = int(rssi_dbm)
-        self.buffers = buffers
-        self.per_event = int(per_event)
-        self.interval_s = float(interval_s)
         self._next_handle = 0x0010
         self.uuid_of_handle: dict[int, str] = {}
         self.notifications: deque[HciNotification] = deque(maxlen=keep)
         self.updates = 0  #: aci_gatt_update_char_value requests
-        self.refused = 0  #: of those, refused for lack of buffers
-        self._queue: deque[float] = deque()  # request times of the notifications waiting in the chip
-        self._next_event_s = 0.0
 
     def _alloc(self, n: int) -> int:
         h = self._next_handle
@@ -80,7 +60,6 @@ class EmulatedBlueNrg:
         return h
 
     def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
-        t = board.now / C.CPU_HZ
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_SERV:
             return struct.pack("<BH", 0, self._alloc(16))
         if ogf == OGF_VENDOR and ocf == OCF_GATT_ADD_CHAR and len(params) >= 5:
@@ -89,35 +68,16 @@ class EmulatedBlueNrg:
             self.uuid_of_handle[handle] = _uuid_str(params[3 : 3 + n])
             return struct.pack("<BH", 0, handle)
         if ogf == OGF_VENDOR and ocf == OCF_GATT_UPD_CHAR_VAL and len(params) >= 6:
-            return bytes([self._update(t, params)])
+            serv, char, off, length = struct.unpack_from("<HHBB", params)
+            self.updates += 1
+            uuid = self.uuid_of_handle.get(char)
+            cid = char_id_of_uuid(uuid) if uuid else None
+            t = board.now / C.CPU_HZ
+            self.notifications.append(HciNotification(t, t, serv, char, off, bytes(params[6 : 6 + length]), uuid, cid))
+            return b"\x00"  # accepted
         if ogf == OGF_STATUS_PARAM and ocf == OCF_READ_RSSI:
             return struct.pack("<BHb", 0, 0, self.rssi_dbm)
         return b""
-
-    def _update(self, t: float, params: bytes) -> int:
-        serv, char, off, length = struct.unpack_from("<HHBB", params)
-        value = bytes(params[6 : 6 + length])
-        self.updates += 1
-        uuid = self.uuid_of_handle.get(char)
-        cid = char_id_of_uuid(uuid) if uuid else None
-        sent = t
-        if self.buffers is not None and cid is not None:
-            self._drain(t)
-            if len(self._queue) >= self.buffers:
-                self.refused += 1
-                return BLE_STATUS_INSUFFICIENT_RESOURCES
-            # it leaves at the first connection event with room after the ones already queued
-            k = len(self._queue) // self.per_event
-            sent = self._next_event_s + k * self.interval_s
-            self._queue.append(sent)
-        self.notifications.append(HciNotification(t, sent, serv, char, off, value, uuid, cid))
-        return 0
-
-    def _drain(self, t: float) -> None:
-        while self._next_event_s <= t:
-            for _ in range(min(self.per_event, len(self._queue))):
-                self._queue.popleft()
-            self._next_event_s += self.interval_s
 
     def attach(self, board) -> EmulatedBlueNrg:
         board.hci_handler = self

@@ -26,20 +26,6 @@ from steval_link.errors import UserError
 from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
 from steval_link.units import RAD_TO_MDPS
 
-__all__ = [
-    "G_MPS2",
-    "BroadTrial",
-    "SteValView",
-    "load_trial",
-    "trial_paths",
-    "steval_view",
-    "own_rate_view",
-    "truth_at_trial_time",
-    "inclination_error_rad",
-    "heading_error_rad",
-    "rmse_deg",
-]
-
 #: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
 #: local gravity in Berlin is 9.813), so 9.81 is the right scale to within the sensors' own 0.6 % spread.
 G_MPS2 = 9.81
@@ -48,23 +34,14 @@ _KEYS = ("acc", "gyr", "quat", "movement", "fs")
 
 @dataclass(frozen=True)
 class BroadTrial:
-    """One BROAD trial in SI units, as stored.
+    """One BROAD trial in SI units (float64), as stored."""
 
-    Attributes:
-        name: file stem, e.g. ``02_undisturbed_slow_rotation_B``.
-        fs_hz: sampling rate, Hz (285.714).
-        acc_mps2: (N, 3) float64, m/s².
-        gyr_radps: (N, 3) float64, rad/s.
-        quat_wxyz: (N, 4) float64, ground truth IMU → ENU (NaN where occluded).
-        movement: (N,) bool, samples that count for the metrics.
-    """
-
-    name: str
-    fs_hz: float
-    acc_mps2: np.ndarray
-    gyr_radps: np.ndarray
-    quat_wxyz: np.ndarray
-    movement: np.ndarray
+    name: str  #: file stem, e.g. ``02_undisturbed_slow_rotation_B``
+    fs_hz: float  #: sampling rate, Hz (285.714)
+    acc_mps2: np.ndarray  #: (N, 3) m/s²
+    gyr_radps: np.ndarray  #: (N, 3) rad/s
+    quat_wxyz: np.ndarray  #: (N, 4) ground truth IMU → ENU (NaN where occluded)
+    movement: np.ndarray  #: (N,) bool, samples that count for the metrics
 
     @property
     def t_s(self) -> np.ndarray:
@@ -92,9 +69,7 @@ def load_trial(path) -> BroadTrial:
             missing = [k for k in _KEYS if k not in z.files]
             if missing:
                 raise UserError(f"{p}: not a BROAD trial (.npz without {', '.join(missing)})")
-            acc = np.asarray(z["acc"], dtype=np.float64)
-            gyr = np.asarray(z["gyr"], dtype=np.float64)
-            quat = np.asarray(z["quat"], dtype=np.float64)
+            acc, gyr, quat = (np.asarray(z[k], dtype=np.float64) for k in ("acc", "gyr", "quat"))
             mov = np.asarray(z["movement"]).astype(bool)
             fs = float(np.asarray(z["fs"]).reshape(()))
     except UserError:
@@ -130,9 +105,6 @@ def trial_paths(items) -> list[Path]:
     return out
 
 
-# --- quaternions (wxyz, float64) ---------------------------------------------------------------------------------
-
-
 def _error_quat(q_est, q_true) -> np.ndarray:
     return quat_multiply(quat_normalize(q_est), quat_conjugate(quat_normalize(q_true)))
 
@@ -156,33 +128,19 @@ def rmse_deg(err_rad, mask=None) -> float:
     if mask is not None:
         e = e[np.asarray(mask, dtype=bool)]
     e = e[np.isfinite(e)]
-    if e.size == 0:
-        return float("nan")
-    return float(np.degrees(np.sqrt(np.mean(e * e))))
-
-
-# --- the trial as the estimators see it --------------------------------------------------------------------------
+    return float(np.degrees(np.sqrt(np.mean(e * e)))) if e.size else float("nan")
 
 
 @dataclass(frozen=True)
 class SteValView:
-    """Estimator inputs and ground truth on a common step grid.
+    """Estimator inputs and ground truth on a common step grid."""
 
-    Attributes:
-        acc_mg: (M, 3) float32 accelerometer input per step, mg.
-        gyro_mdps: (M, 3) float32 gyro input per step, mdps.
-        t_s: (M,) time each step represents in trial time, s (see :func:`steval_view`).
-        quat_true_wxyz: (M, 4) float64 ground truth at ``t_s`` (NaN where occluded).
-        movement: (M,) bool, the trial's movement mask at ``t_s``.
-        rate_hz: step rate, Hz.
-    """
-
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    t_s: np.ndarray
-    quat_true_wxyz: np.ndarray
-    movement: np.ndarray
-    rate_hz: float
+    acc_mg: np.ndarray  #: (M, 3) float32 accelerometer input per step, mg
+    gyro_mdps: np.ndarray  #: (M, 3) float32 gyro input per step, mdps
+    t_s: np.ndarray  #: (M,) time each step represents in trial time, s (see :func:`steval_view`)
+    quat_true_wxyz: np.ndarray  #: (M, 4) float64 ground truth at ``t_s`` (NaN where occluded)
+    movement: np.ndarray  #: (M,) bool, the trial's movement mask at ``t_s``
+    rate_hz: float  #: step rate, Hz
 
 
 def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
@@ -201,23 +159,18 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
-    """The trial as the STEVAL would see it at 161.5 Hz.
-
-    acc (mg) is linearly resampled to the 807.7 Hz ISR tick; the gyro (mdps) is read as a 416 Hz sample-and-hold
-    (the LSM6DSL's gyro ODR); both are quantised like the ST driver (``Lsm6dsl`` noise is added first only when
-    ``sensor`` is given — the trial's own sensor noise is already in the data); then the firmware's power-up
-    calibration (first 2 s, the trials start at rest), offset removal, gyro IIR and 5-sample boxcar give the AHRS
-    inputs. Each step's time (``t_s``, where its ground truth is taken) is the middle tick of the 5 it averages
-    (the boxcar's own centre; the gyro's 416 Hz hold and IIR delay, ≈ 3.3 ms together, stay part of every
-    estimator's error). ``seed`` seeds ``sensor``'s noise (deterministic by default).
-    """
+    """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
+    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added first only when
+    given: the trial's own noise is in the data), then the firmware's calibration, offset removal, IIR and boxcar.
+    Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it averages; the gyro's hold and
+    IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)
     if sensor is not None:
         acc_r, gyro_r = sensor.read(acc, gyro, rng=0 if seed is None else seed, t_tick_s=t_tick)
     else:
-        acc_r, gyro_r = sm.quantise_acc_mg(acc), sm.quantise_gyro_mdps(gyro)
+        acc_r, gyro_r = sm.quantise(acc, sm.ACC_SENSITIVITY_MG), sm.quantise(gyro, sm.GYRO_SENSITIVITY_MDPS)
     try:
         out = sm.run_isr(acc_r, gyro_r)
     except ValueError as exc:

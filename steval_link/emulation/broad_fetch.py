@@ -28,21 +28,6 @@ import numpy as np
 
 from steval_link.errors import UserError, printable
 
-__all__ = [
-    "ATTRIBUTION",
-    "BROAD_COMMIT",
-    "BROAD_FILES",
-    "DEFAULT_TRIALS",
-    "FetchedTrial",
-    "base_url",
-    "cache_dir",
-    "cached_trials",
-    "convert_hdf5",
-    "fetch_trial",
-    "git_blob_sha1",
-    "resolve_trials",
-]
-
 #: the dataset repository's commit the hashes belong to
 BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"
@@ -125,15 +110,13 @@ def base_url() -> str:
 
 def cached_trials(directory: Path) -> list[Path]:
     """The trial ``.npz`` files in ``directory`` (none when it does not exist), sorted."""
-    if not directory.is_dir():
-        return []
     return sorted(p for p in directory.glob("*.npz") if p.is_file())
 
 
-def resolve_trials(selectors: list[str], registry: dict[str, str] | None = None) -> list[str]:
+def resolve_trials(selectors: list[str]) -> list[str]:
     """Trial names for ``selectors``: a number (``2``, ``02``), a full or partial name (``fast_rotation``), or
     ``all``; none gives :data:`DEFAULT_TRIALS`. An unknown one raises UserError naming the trials."""
-    names = list(BROAD_FILES if registry is None else registry)
+    names = list(BROAD_FILES)
     chosen: list[str] = []
     for sel in selectors or list(DEFAULT_TRIALS):
         if sel.lower() == "all":
@@ -179,12 +162,12 @@ def convert_hdf5(src: Path, dst: Path) -> None:
 _H5_ARRAYS = {"acc": "imu_acc", "gyr": "imu_gyr", "quat": "opt_quat"}
 
 
-def fetch_trial(name: str, directory: Path, registry: dict[str, str] | None = None) -> FetchedTrial:
+def fetch_trial(name: str, directory: Path) -> FetchedTrial:
     """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there.
 
     Any failure (no connection, a cut or altered file, not a BROAD trial) raises UserError and leaves nothing of
     this trial in ``directory``."""
-    expected = (BROAD_FILES if registry is None else registry)[name]
+    expected = BROAD_FILES[name]
     out = directory / f"{name}.npz"
     if out.is_file():
         return FetchedTrial(name, out, False, 0)

@@ -40,9 +40,8 @@ class Elf:
         self._aliases: dict[int, list[Symbol]] = {}
         for sym in sorted((s for s in self.symbols if s.is_func and s.addr), key=lambda s: (s.weak, s.name)):
             self._aliases.setdefault(sym.addr & ~1, []).append(sym)
-        funcs = [self._aliases[a][0] for a in sorted(self._aliases)]
-        self._func_starts = [s.addr & ~1 for s in funcs]
-        self._funcs = funcs
+        self._funcs = [self._aliases[a][0] for a in sorted(self._aliases)]
+        self._func_starts = [s.addr & ~1 for s in self._funcs]
 
     @staticmethod
     def _segments(data: bytes) -> list[tuple[int, bytes]]:

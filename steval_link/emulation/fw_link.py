@@ -25,21 +25,6 @@ from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.link import protocol as P
 from steval_link.link.textmode import format_att, format_sta
 
-__all__ = [
-    "AHRS_CYCLES",
-    "STATUS_EVERY_STEPS",
-    "TEXT_DECIMATION",
-    "TXQ_SIZE",
-    "TIM9_START_CYCLES",
-    "LinkEmulation",
-    "TxQueue",
-    "boot_lines",
-    "count_frames",
-    "encode",
-    "forced_drops",
-    "step_timing",
-]
-
 #: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
 #: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
 #: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
@@ -207,11 +192,8 @@ class LinkEmulation:
 
     def text(self, cyc: float, line: str) -> None:
         """A ``PRINTF`` line at cycle time ``cyc``: text frames (binary mode) or a plain line (text mode)."""
-        if self.text_mode:
-            data = line.encode("utf-8")
-            if data.startswith(b"$"):
-                data = b"#" + data[1:]
-            data += b"\r\n"
+        if self.text_mode:  # "$" starts only $ATT/$STA lines: a log line's becomes "#"
+            data = ("#" + line[1:] if line.startswith("$") else line).encode("utf-8") + b"\r\n"
             self._push("raw", data, cyc, len(data), TEXT_LINE_MAX)
             return
         raw = line.encode("utf-8") or b" "
@@ -231,21 +213,23 @@ class LinkEmulation:
         self.cyc_min, self.cyc_max = min(self.cyc_min, cyc), max(self.cyc_max, cyc)
         self.cyc_sum, self.cyc_n = self.cyc_sum + cyc, self.cyc_n + 1
         if not self.text_mode:
-            self._attitude(k, c1)
+            self._attitude(k, c1, "att", k, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE)
         elif k % TEXT_DECIMATION == 0:
-            self._att_line(k, c1, rows)
+            line = self._att_line(k, rows)
+            self._attitude(k, c1, "raw", line, len(line), TEXT_LINE_MAX)
         if k % STATUS_EVERY_STEPS == STATUS_EVERY_STEPS - 1:
             self._status(k, c1)
 
-    def _attitude(self, k: int, c1: float) -> None:
+    def _attitude(self, k: int, c1: float, kind: str, item, size: int, keep_free: int) -> None:
+        """Step k's attitude frame or line into the queue, unless ``--drop-rate`` refuses it."""
         if self.drop[k]:
             self.txq.dropped += 1
-        elif self._push("att", k, c1, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE):
+        elif self._push(kind, item, c1, size, keep_free):
             self.sent[k] = True
 
-    def _att_line(self, k: int, c1: float, rows: dict) -> None:
+    def _att_line(self, k: int, rows: dict) -> bytes:
         a = self.att[k]
-        line = format_att(
+        return format_att(
             step=k,
             t_ms=int(a["t_us"]) // 1000,
             thr=int(a["thr"]),
@@ -255,10 +239,6 @@ class LinkEmulation:
             acc_mg=[f2i(v) for v in a["acc_mg"]],
             gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
         )
-        if self.drop[k]:
-            self.txq.dropped += 1
-        elif self._push("raw", line, c1, len(line), TEXT_LINE_MAX):
-            self.sent[k] = True
 
     def _status(self, k: int, c1: float) -> None:
         snap = self.snapshots[len(self.status)]
@@ -281,17 +261,9 @@ class LinkEmulation:
         self.status.append(rec)
         self._reset_cycles()
         if self.text_mode:
-            line = format_sta(
-                step=k,
-                t_ms=int(rec["t_us"]) // 1000,
-                cyc_min=int(rec["cyc_min"]),
-                cyc_mean=int(rec["cyc_mean"]),
-                cyc_max=int(rec["cyc_max"]),
-                cyc_n=int(rec["cyc_n"]),
-                tx_dropped=int(rec["tx_dropped"]),
-                flags=self.flags,
-                ki_micro=ki_micro(self.ki_f32),
-            )
+            counters = {name: int(rec[name]) for name in ("cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped")}
+            t_ms = int(rec["t_us"]) // 1000
+            line = format_sta(step=k, t_ms=t_ms, flags=self.flags, ki_micro=ki_micro(self.ki_f32), **counters)
             self._push("raw", line, c1, len(line), 0)
         else:
             self._push("status", rec, c1, P.STATUS_FRAME_SIZE, 0)
@@ -346,15 +318,11 @@ def encode_c(order: list[Frame], att: np.ndarray, exe: Path) -> bytes:
     if not exe.is_file() or not os.access(exe, os.X_OK):
         raise UserError(f"C encoder {exe} not found or not executable; build it with: make -C firmware_patch host")
     req = []
+    types = {"att": P.TYPE_ATTITUDE, "status": P.TYPE_STATUS, "text": P.TYPE_TEXT}
     for kind, item, _, _ in order:
-        if kind == "att":
-            payload = att[item].tobytes()
-            req.append(bytes((P.TYPE_ATTITUDE, len(payload))) + payload)
-        elif kind == "status":
-            payload = item.tobytes()
-            req.append(bytes((P.TYPE_STATUS, len(payload))) + payload)
-        elif kind == "text":
-            req.append(bytes((P.TYPE_TEXT, len(item))) + item)
+        if kind in types:
+            payload = att[item].tobytes() if kind == "att" else item if kind == "text" else item.tobytes()
+            req.append(bytes((types[kind], len(payload))) + payload)
     try:
         proc = subprocess.run([str(exe)], input=b"".join(req), capture_output=True, check=False, timeout=120)
     except OSError as exc:
@@ -375,15 +343,8 @@ def count_frames(order: list[Frame], offsets: tuple[int, int]) -> dict:
     lo, hi = offsets
     for kind, item, _, size in order:
         if pos >= lo and pos + size <= hi:
-            if kind == "att":
-                counts["attitude"] += 1
-            elif kind in ("status", "text"):
-                counts[kind] += 1
-            elif item.startswith(b"$ATT"):
-                counts["att_lines"] += 1
-            elif item.startswith(b"$STA"):
-                counts["sta_lines"] += 1
-            else:
-                counts["log_lines"] += 1
+            if kind == "raw":
+                kind = {b"$ATT": "att_lines", b"$STA": "sta_lines"}.get(item[:4], "log_lines")
+            counts["attitude" if kind == "att" else kind] += 1
         pos += size
     return counts

@@ -18,15 +18,6 @@ from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
-__all__ = [
-    "BASELINE_GYRO_MDPS",
-    "BASELINE_ACC_MG",
-    "TYPICAL_GYRO_NOISE_MDPS",
-    "TYPICAL_ACC_NOISE_MG",
-    "SimulationResult",
-    "run_simulation",
-]
-
 #: Lab 5 baseline inputs
 BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)
@@ -37,40 +28,26 @@ TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """Every iteration of a simulation run.
+    """Every iteration of a simulation run (N iterations)."""
 
-    Attributes:
-        estimator: registry name of the estimator used.
-        options: the estimator options the user gave (the timing the simulation passes is in ``estimator_dt_s``).
-        dt_s: the simulation's period, s (``t_s = (step + 1) * dt_s`` after each iteration).
-        estimator_dt_s: the period the estimator integrates with, s: ``dt_s`` when it takes the simulation's
-            (``dt_s`` for st-mahony, ``rate_hz`` for the others); its own when it takes neither; None when it does
-            not integrate (accel) or does not say.
-        seed: the noise generator's seed (None when no noise was added).
-        gyro_noise_mdps, acc_noise_mg: noise standard deviations used.
-        step: (N,) int64, 0-based iteration index.
-        acc_mg: (N, 3) float32 inputs, mg. gyro_mdps: (N, 3) float32 inputs, mdps. thr: (N,) int64 throttle.
-        q_wxyz: (N, 4) quaternion after each iteration (float32 for st-mahony, bit-exact).
-        eax_rad: (N,) thx, pitch about x. eay_rad: (N,) thy, roll about y. eaz_rad: (N,) thz, yaw about z.
-        valid: (N,) bool, the estimator's validity flag.
-    """
-
-    estimator: str
-    options: dict
-    dt_s: float
-    seed: int | None
-    gyro_noise_mdps: float
-    acc_noise_mg: float
-    step: np.ndarray
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    thr: np.ndarray
-    q_wxyz: np.ndarray
-    eax_rad: np.ndarray
-    eay_rad: np.ndarray
-    eaz_rad: np.ndarray
-    valid: np.ndarray
+    estimator: str  #: registry name of the estimator used
+    options: dict  #: the estimator options the user gave (the timing passed is in ``estimator_dt_s``)
+    dt_s: float  #: the simulation's period, s
+    seed: int | None  #: the noise generator's seed (None when no noise was added)
+    gyro_noise_mdps: float  #: noise standard deviation used, mdps
+    acc_noise_mg: float  #: noise standard deviation used, mg
+    step: np.ndarray  #: (N,) int64, 0-based iteration index
+    acc_mg: np.ndarray  #: (N, 3) float32 inputs, mg
+    gyro_mdps: np.ndarray  #: (N, 3) float32 inputs, mdps
+    thr: np.ndarray  #: (N,) int64 throttle
+    q_wxyz: np.ndarray  #: (N, 4) quaternion after each iteration (float32 for st-mahony, bit-exact)
+    eax_rad: np.ndarray  #: (N,) thx, pitch about x
+    eay_rad: np.ndarray  #: (N,) thy, roll about y
+    eaz_rad: np.ndarray  #: (N,) thz, yaw about z
+    valid: np.ndarray  #: (N,) bool, the estimator's validity flag
     settings: dict = field(default_factory=dict)
+    #: the period the estimator integrates with, s (the simulation's when it takes it, else its own); None when it
+    #: does not integrate (accel) or does not say
     estimator_dt_s: float | None = None
 
     @property
@@ -109,24 +86,11 @@ def run_simulation(
     estimator_options: dict | None = None,
     dt_s: float | None = None,
 ) -> SimulationResult:
-    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs plus Gaussian noise, from power-up.
-
-    Args:
-        gyro_mdps: (3,) gyro rate, mdps (firmware axes x right, y forward, z up).
-        acc_mg: (3,) acceleration, mg.
-        iterations: number of AHRS steps (≥ 0).
-        gyro_noise_mdps, acc_noise_mg: standard deviation of white Gaussian noise added to every sample (0: none;
-            typical LSM6DSL values are :data:`TYPICAL_GYRO_NOISE_MDPS` and :data:`TYPICAL_ACC_NOISE_MG`).
-        seed: noise generator seed; None draws one (recorded in the result so the run can be repeated).
-        throttle: ``gTHR`` for every step (st-mahony uses kp_ground below MIN_THR, kp_flight otherwise).
-        estimator: registry name (:func:`steval_link.estimators.registry.names`).
-        estimator_options: keyword options for the estimator (e.g. ``ki``, ``kp``, ``correction``).
-        dt_s: the simulation's period, s (None: the firmware's 6.25 ms); every estimator runs at it (st-mahony as
-            its ``dt_s``, the others as ``rate_hz`` = 1/dt when they take it), unless its options set their own.
-
-    Raises:
-        ValueError: bad inputs, unknown estimator or options it does not take.
-    """
+    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus
+    white Gaussian noise of the given standard deviations, from power-up. ``seed`` None draws one (recorded in the
+    result). ``dt_s`` (None: the firmware's 6.25 ms) is every estimator's period (st-mahony's ``dt_s``, the others'
+    ``rate_hz`` when they take it) unless its options set their own. ValueError for bad inputs, an unknown
+    estimator or options it does not take."""
     gyro, acc = _vector3(gyro_mdps, "gyro"), _vector3(acc_mg, "acc")
     iterations, throttle, dt = _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s)
     gyro, acc = np.tile(gyro, (iterations, 1)), np.tile(acc, (iterations, 1))
@@ -137,9 +101,8 @@ def run_simulation(
     est = registry.create(estimator, **options)
 
     noisy = gyro_noise_mdps > 0 or acc_noise_mg > 0
-    if noisy and seed is None:
-        seed = int(np.random.SeedSequence().entropy % (1 << 32))
     if noisy:
+        seed = int(np.random.SeedSequence().entropy % (1 << 32)) if seed is None else seed
         rng = np.random.default_rng(seed)
         gyro = gyro + rng.normal(0.0, float(gyro_noise_mdps), size=gyro.shape)
         acc = acc + rng.normal(0.0, float(acc_noise_mg), size=acc.shape)
@@ -194,13 +157,10 @@ def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[i
 def _timing(estimator: str, dt_s: float) -> dict:
     """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
     for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
-    sel = (
-        registry.resolve(estimator) if not isinstance(estimator, str) or estimator not in registry.ESTIMATORS else None
-    )
-    base = estimator if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
-    if base == "st-mahony":
+    sel = registry.resolve(estimator)
+    if sel.reference.kind == "builtin" and sel.reference.source == "st-mahony":
         return {"dt_s": dt_s}
-    if registry.accepts(sel if sel is not None else estimator, "rate_hz"):
+    if registry.accepts(sel, "rate_hz"):
         return {"rate_hz": 1.0 / dt_s}
     return {}
 

@@ -1,9 +1,7 @@
 """A loose wire on header P7, as bytes: bit flips, cut bytes and garbage bursts, and the score of a decoder on it.
 
-Used by ``benchmarks/bench_fuzz.py`` (≥ 10⁷ frames with fresh seeds) and by the test suite (a small derandomised
-run). :func:`long_stream` turns a capture into as many frames as wanted (the capture's attitude and status payloads
-repeated with the step counter and firmware time continued, so every frame is unique and plausible);
-:func:`damage` hurts it; :func:`score` tells which decoded frames were sent (recovered) and which never were (fake).
+:func:`long_stream` turns a capture into as many unique, plausible frames as wanted; :func:`damage` hurts them;
+:func:`score` tells which decoded frames were sent (recovered) and which never were (fake).
 """
 
 from __future__ import annotations
@@ -15,8 +13,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = ["DamageCounts", "FuzzScore", "damage", "long_stream", "payload_records", "score"]
-
 
 @dataclass
 class DamageCounts:
@@ -27,18 +23,11 @@ class DamageCounts:
     bursts: int = 0
 
 
-def damage(
-    data: bytes,
-    rng: np.random.Generator,
-    *,
-    every: tuple[int, int] = (200, 5000),
-    cut_max: int = 16,
-    burst_max: int = 64,
-) -> tuple[bytes, DamageCounts]:
-    """``data`` with one damage event every ``every`` bytes (uniform): a single bit flip (60 %), a cut of 1 ..
-    ``cut_max`` bytes (20 %) or a burst of 1 .. ``burst_max`` random bytes inserted (20 %)."""
+def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
+    """``data`` with one damage event every 200 .. 5000 bytes (uniform): a single bit flip (60 %), a cut of 1 .. 16
+    bytes (20 %) or a burst of 1 .. 64 random bytes inserted (20 %)."""
     n = len(data)
-    gaps = rng.integers(every[0], every[1] + 1, size=n // every[0] + 2)
+    gaps = rng.integers(200, 5000 + 1, size=n // 200 + 2)
     pos = np.cumsum(gaps)
     pos = pos[pos < n]
     kinds = rng.random(len(pos))
@@ -54,10 +43,10 @@ def damage(
             last = p + 1
             counts.flips += 1
         elif k < 0.8:
-            last = p + int(rng.integers(1, cut_max + 1))
+            last = p + int(rng.integers(1, 16 + 1))
             counts.cuts += 1
         else:
-            out += rng.integers(0, 256, int(rng.integers(1, burst_max + 1)), dtype=np.uint8).tobytes()
+            out += rng.integers(0, 256, int(rng.integers(1, 64 + 1)), dtype=np.uint8).tobytes()
             last = p
             counts.bursts += 1
     out += data[last:]
@@ -120,14 +109,13 @@ class FuzzScore:
 def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
     """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records (ATTITUDE_DTYPE,
     STATUS_DTYPE): what the firmware sent, field for field."""
-    a, s = tel.attitude, tel.status
-    att = np.zeros(len(a), P.ATTITUDE_DTYPE)
-    att["t_us"], att["acc_mg"], att["gyro_mdps"] = a.t_us, a.acc_mg, a.gyro_mdps
-    att["q_wxyz"], att["thz_rad"], att["seq"], att["thr"] = a.q_wxyz, a.thz_rad, a.seq, a.thr
-    sta = np.zeros(len(s), P.STATUS_DTYPE)
-    for name in P.STATUS_DTYPE.names:
-        sta[name] = getattr(s, name)
-    return att[a.exact], sta[s.exact]
+    out = []
+    for rows, dtype in ((tel.attitude, P.ATTITUDE_DTYPE), (tel.status, P.STATUS_DTYPE)):
+        rec = np.zeros(len(rows), dtype)
+        for name in dtype.names:
+            rec[name] = getattr(rows, name)
+        out.append(rec[rows.exact])
+    return out[0], out[1]
 
 
 def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:

@@ -17,7 +17,6 @@ does not see the tilt — exactly the situation the firmware's small in-flight g
 Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
 to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
 the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
-Nothing here holds module-level mutable state.
 """
 
 from __future__ import annotations
@@ -34,56 +33,28 @@ from steval_link.errors import ParamError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
 
-__all__ = [
-    "MotionProfile",
-    "render",
-    "build_profile",
-    "broad_profile",
-    "tick_times_s",
-    "parse_throttle",
-    "Vibration",
-    "parse_vibration",
-    "add_vibrations",
-]
-
 
 @dataclass(frozen=True)
 class MotionProfile:
-    """The true motion at each ISR tick.
+    """The true motion at each ISR tick (body axes)."""
 
-    Attributes:
-        name: scenario name (or the BROAD trial's name).
-        t_s: (T,) tick times, s since power-up.
-        q_wxyz: (T, 4) float64 true orientation, body → earth (NaN where unknown, e.g. occluded BROAD markers).
-        acc_mg: (T, 3) float64 specific force the accelerometer senses, mg, body axes.
-        gyro_mdps: (T, 3) float64 angular rate as the gyro's output register holds it at the tick (416 Hz
-            sample-and-hold of the true rate), mdps, body axes.
-        thr: (T,) int16 throttle ``gTHR`` at the tick.
-        sticks: (T, 3) int16 the remote's other sticks as the firmware's ``gAIL, gELE, gRUD`` at the tick (None:
-            centred), in the firmware's units and signs (``euler_rc.thx = -gELE·30°/1800``, ``thy = -gAIL·30°/1800``,
-            ``gRUD`` beyond ±600 turns the yaw target).
-        armed: (T,) bool the remote's arming switch (the BLE app's ``joydata[7]`` bit 2) at the tick (None: never).
-        measured: True when acc/gyro are a real IMU's measurements (BROAD) rather than true values, so no
-            sensor noise should be added.
-    """
-
-    name: str
-    t_s: np.ndarray
-    q_wxyz: np.ndarray
-    acc_mg: np.ndarray
-    gyro_mdps: np.ndarray
-    thr: np.ndarray
+    name: str  #: scenario name (or the BROAD trial's name)
+    t_s: np.ndarray  #: (T,) tick times, s since power-up
+    q_wxyz: np.ndarray  #: (T, 4) true orientation, body → earth (NaN where unknown, e.g. occluded BROAD markers)
+    acc_mg: np.ndarray  #: (T, 3) specific force the accelerometer senses, mg
+    gyro_mdps: np.ndarray  #: (T, 3) angular rate as the gyro's 416 Hz output register holds it at the tick, mdps
+    thr: np.ndarray  #: (T,) int16 throttle ``gTHR``
+    #: acc/gyro are a real IMU's measurements (BROAD), so no sensor noise should be added
     measured: bool = False
+    #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred)
     sticks: np.ndarray | None = None
-    armed: np.ndarray | None = None
+    armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
 
 
 def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
     """(n,) times of TIM9 ticks, s since power-up: ``first_tick_s + k · 104000 / 84 MHz``."""
     return first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
 
-
-# ---- rendering ---------------------------------------------------------------------------------------------------
 
 #: RC receiver frame rate, Hz: ``gTHR`` changes at this rate (PWM/PPM receivers: ~50 Hz)
 RC_RATE_HZ = 50.0
@@ -107,12 +78,11 @@ def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:
     return (p[0] - 2 * p[1] + p[2]) / (_H_ACC * _H_ACC)
 
 
-def _vibration(t, thr_tick, rng: np.random.Generator, t_eval=None):
+def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
     """Motor vibration (acc mg at ``t``, gyro mdps at ``t_eval``): 4 motors, harmonics 1 and 2, ∝ speed²."""
     on = thr_tick >= C.MIN_THR
     if not np.any(on):
         return None
-    t_eval = t if t_eval is None else t_eval
     thr = np.where(on, thr_tick, 0).astype(np.float64)
     f_m = np.where(on, 90.0 + 0.6 * thr, 0.0)  # motor rotation rate, Hz (≈ 390 Hz at the hover throttle)
     dt = np.diff(t, prepend=t[0])
@@ -143,13 +113,11 @@ def render(
     t_hold = sm.gyro_hold_times_s(t, t[0])
     gyro = _body_rate_radps(kin, t_hold) * RAD_TO_MDPS
     # specific force
-    a = np.zeros((len(t), 3))
-    if kin.lin_acc_mg is not None:
-        a += kin.lin_acc_mg(t)
-    lever = _lever_acc_mps2(kin, t) * MG_PER_MPS2
+    a = _lever_acc_mps2(kin, t) * MG_PER_MPS2
     if kin.lever_weight is not None:
-        lever *= kin.lever_weight(t)[:, None]
-    a += lever
+        a *= kin.lever_weight(t)[:, None]
+    if kin.lin_acc_mg is not None:
+        a = kin.lin_acc_mg(t) + a
     rot = rotmat(q)
     g_plus_a = a + np.array([0.0, 0.0, 1000.0])
     f = np.einsum("nji,nj->ni", rot, g_plus_a)  # Rᵀ (a + g ẑ)
@@ -185,20 +153,12 @@ def parse_throttle(spec: str) -> Callable:
     outside). Raises :class:`UserError` for anything else."""
     text = spec.strip()
     try:
-        if ":" not in text:
-            v = float(text)
-            pts = [(0.0, v)]
-        else:
-            pts = []
-            for item in text.split(","):
-                a, b = item.split(":")
-                pts.append((float(a), float(b)))
+        pairs = [item.split(":") for item in text.split(",")] if ":" in text else [("0", text)]
+        ts, vs = np.array([(float(a), float(b)) for a, b in pairs]).T
     except ValueError:
         raise ParamError(
             f"{{throttle}} takes a number or 't:v,t:v,...' breakpoints, got {spec!r}", "throttle"
         ) from None
-    ts = np.array([p[0] for p in pts])
-    vs = np.array([p[1] for p in pts])
     if not (np.all(np.isfinite(ts)) and np.all(np.isfinite(vs))) or np.any(np.diff(ts) <= 0):
         raise ParamError(f"{{throttle}} breakpoints need finite, increasing times, got {spec!r}", "throttle")
     if np.any(vs < 0) or np.any(vs > 32767):
@@ -222,8 +182,7 @@ def build_profile(
     ``throttle`` overrides the scenario's throttle profile (a function of time, see :func:`parse_throttle`).
     """
     sc = scenario(name, "or a BROAD trial .npz")
-    T = float(t_s[-1]) if total_s is None else float(total_s)
-    kin = sc.build(T, rng)
+    kin = sc.build(float(t_s[-1] if total_s is None else total_s), rng)
     return render(sc.name, kin, t_s, rng, throttle)
 
 
@@ -244,7 +203,6 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
     t_hold = sm.gyro_hold_times_s(t_rel)
     acc = np.stack([np.interp(t_rel, t_trial, trial.acc_mg[:, i]) for i in range(3)], axis=-1)
     gyro = np.stack([np.interp(t_hold, t_trial, trial.gyro_mdps[:, i]) for i in range(3)], axis=-1)
-
     q = interpolate_quat(t_trial, trial.quat_wxyz, t_rel)
     if throttle is None:
         thr = np.zeros(len(t_rel), dtype=np.int16)
@@ -257,20 +215,12 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
 @dataclass(frozen=True)
 class Vibration:
     """A pure sinusoid added to one sensor axis (``steval synth --vibration``), to check spectra against a known
-    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up.
+    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up."""
 
-    Attributes:
-        sensor: "acc" (mg, at each ISR tick) or "gyro" (mdps, as the gyro's 416 Hz output register holds it).
-        axis: 0, 1, 2 for x, y, z (the firmware's body axes).
-        freq_hz: frequency, Hz (> 0; above the 80.77 Hz AHRS Nyquist it aliases, see
-            :mod:`steval_link.analysis.spectrum`).
-        amplitude: peak amplitude in the sensor's unit (mg or mdps).
-    """
-
-    sensor: str
-    axis: int
-    freq_hz: float
-    amplitude: float
+    sensor: str  #: "acc" (mg, at each ISR tick) or "gyro" (mdps, as its 416 Hz output register holds it)
+    axis: int  #: 0, 1, 2 for x, y, z (the firmware's body axes)
+    freq_hz: float  #: Hz (> 0; above the 80.77 Hz AHRS Nyquist it aliases)
+    amplitude: float  #: peak amplitude in the sensor's unit (mg or mdps)
 
     @property
     def spec(self) -> str:

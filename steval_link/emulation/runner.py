@@ -7,31 +7,23 @@
         ...
     print(emu.report().lines())
 
-Motion: a built-in scenario of :mod:`steval_link.emulation.motion` (rendered in windows of :data:`WINDOW_S`, so memory
-stays
-bounded whatever the duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an
-LSM6DSL with this seed's zero-g/zero-rate offsets and white noise (as ``steval synth``), into the sensor's ADC
-registers. Throttle: the default build takes ``gTHR`` from the BLE remote (``gTHR = joydata[3] * 13`` in the main
-loop, while ``connected``); the emulated remote writes ``joydata`` at each TIM9 tick, so gTHR moves in steps of
-13 as with the ST app, and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a
-scenario with sticks (from then on the firmware also sends its BLE notifications through ``hci_send_req``).
-Once connected it sends every stick as ST's app does:
-``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; the firmware computes
+Motion: a built-in scenario (rendered in windows of :data:`WINDOW_S`, so memory stays bounded whatever the
+duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an LSM6DSL with this seed's
+offsets and white noise (as ``steval synth``), into the sensor's ADC registers. Throttle: the default build takes
+``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``; the emulated remote writes ``joydata`` at each
+TIM9 tick and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a scenario with
+sticks (the firmware then also sends its BLE notifications through ``hci_send_req``). Connected, it sends every
+stick as ST's app does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred;
 ``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
-the firmware reads into ``rc_enable_motor``; a scenario with sticks and arming (``flight``, ``preflight``) thereby
-makes the real firmware compute its targets ``euler_rc``, both PID loops and the motor PWM. Builds with
-``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
-
-The motor outputs: :meth:`Emulation.motor_ccr` reads TIM4's CCR1..4 as ``set_motor_pwm`` last wrote them.
+(``rc_enable_motor``): with ``flight`` and ``preflight`` the real firmware computes its targets ``euler_rc``, both
+PID loops and the motor PWM. Builds with ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
 
 Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
 ``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
 and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
 
-Host → drone bytes (the two-way link, USART1 RX): :meth:`Emulation.send_at` schedules bytes at an emulated time
-(tests, scenario scripts), :meth:`Emulation.send` queues them from any thread for the next slice (a live session);
-they arrive on the emulated RX line at the baud rate's pace. :meth:`Emulation.take_host_bytes` hands each sent
-block back with the emulated time it went on the line, for the capture's ``H`` chunks.
+Host → drone bytes (the two-way link, USART1 RX: :meth:`Emulation.send_at`, :meth:`Emulation.send`) arrive on the
+emulated RX line at the baud rate's pace; :meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
 """
 
 from __future__ import annotations
@@ -306,18 +298,14 @@ class Emulation:
                 f"{{duration_s}} must be a positive number of seconds, got {options.duration_s}", "duration_s"
             )
         self.elf = Elf(options.elf)
-        trial = None
-        if isinstance(options.broad, BroadTrial):  # already loaded (e.g. cut short by steval evaluate)
-            trial = options.broad
-            name = trial.name
-            default = float(trial.t_s[-1]) + 3.0
-        elif options.broad is not None:
+        trial = options.broad  # a path, or already loaded (e.g. cut short by steval evaluate)
+        if trial is not None and not isinstance(trial, BroadTrial):
             try:
-                trial = load_trial(options.broad)
+                trial = load_trial(trial)
             except (OSError, ValueError, KeyError) as exc:
                 raise UserError(f"cannot read BROAD trial {options.broad}: {exc}") from None
-            name = trial.name
-            default = float(trial.t_s[-1]) + 3.0
+        if trial is not None:
+            name, default = trial.name, float(trial.t_s[-1]) + 3.0
         else:
             name = options.scenario
             default = scenario(name, "or {broad} TRIAL.npz").default_duration_s

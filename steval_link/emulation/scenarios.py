@@ -18,21 +18,6 @@ from steval_link import constants as C
 from steval_link.errors import ParamError
 from steval_link.quat import quaternion_from_euler
 
-__all__ = [
-    "G_MPS2",
-    "MG_PER_MPS2",
-    "DEG",
-    "rotmat",
-    "Steps",
-    "Sines",
-    "Kinematics",
-    "Scenario",
-    "SCENARIOS",
-    "scenario",
-    "PREFLIGHT_MOVES",
-    "PREFLIGHT_IDLE_THR",
-]
-
 #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 G_MPS2 = 9.80665
 MG_PER_MPS2 = 1000.0 / G_MPS2
@@ -50,9 +35,6 @@ def rotmat(q) -> np.ndarray:
         ],
         axis=-2,
     )
-
-
-# ---- smooth building blocks -------------------------------------------------------------------------------------
 
 
 def _s(u):
@@ -81,24 +63,22 @@ class Steps:
         self.moves: list[tuple[float, float, float]] = []
 
     def move(self, t0: float, dur: float, delta: float) -> None:
-        if self.moves:
-            p0, pd, _ = self.moves[-1]
-            if t0 < p0 + pd - 1e-12:
-                raise ValueError("moves on one axis must not overlap")
+        if self.moves and t0 < sum(self.moves[-1][:2]) - 1e-12:
+            raise ValueError("moves on one axis must not overlap")
         self.moves.append((float(t0), float(dur), float(delta)))
 
-    def _arrays(self):
+    def _index(self, t):
+        """(t0, dur, delta of the moves; at each t the index of the last move begun (−1: none), clipped to ≥ 0)."""
         m = np.array(self.moves, dtype=np.float64).reshape(-1, 3)
-        return m[:, 0], m[:, 1], m[:, 2]
+        i = np.searchsorted(m[:, 0], t, side="right") - 1
+        return m[:, 0], m[:, 1], m[:, 2], i, np.clip(i, 0, len(m) - 1)
 
     def __call__(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=np.float64)
         if not self.moves:
             return np.full(t.shape, self.base)
-        t0, dur, delta = self._arrays()
-        i = np.searchsorted(t0, t, side="right") - 1
+        t0, dur, delta, i, ic = self._index(t)
         before = np.concatenate(([0.0], np.cumsum(delta)))  # sum of deltas of moves < i
-        ic = np.clip(i, 0, len(t0) - 1)
         partial = np.where(i >= 0, delta[ic] * _s((t - t0[ic]) / dur[ic]), 0.0)
         return self.base + np.where(i >= 0, before[ic], 0.0) + partial
 
@@ -107,9 +87,7 @@ class Steps:
         t = np.asarray(t, dtype=np.float64)
         if not self.moves:
             return self.base * t
-        t0, dur, delta = self._arrays()
-        i = np.searchsorted(t0, t, side="right") - 1
-        ic = np.clip(i, 0, len(t0) - 1)
+        t0, dur, delta, i, ic = self._index(t)
         # completed moves j < i contribute delta_j · (t − t0_j − dur_j/2)
         cd = np.concatenate(([0.0], np.cumsum(delta)))
         cm = np.concatenate(([0.0], np.cumsum(delta * (t0 + dur / 2))))
@@ -172,13 +150,9 @@ class Kinematics:
         return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
 
 
-# ---- the scenarios ---------------------------------------------------------------------------------------------------
-
-
 def _at_rest(rng) -> tuple[float, float, float]:
     """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
-    x0, y0 = _surface_tilt(rng)
-    return x0, y0, rng.uniform(-np.pi, np.pi)
+    return (*_surface_tilt(rng), rng.uniform(-np.pi, np.pi))
 
 
 def _surface_tilt(rng) -> tuple[float, float]:
@@ -211,18 +185,29 @@ def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng
 
 
 def _hand_held(rng, t_pick: float, t_put: float | None):
-    """Weight 0..1 of 'in the hand' (picked up at t_pick, put down at t_put), tremor and wander per axis."""
-    w = Steps()
-    w.move(t_pick - 0.5, 1.0, 1.0)
-    if t_put is not None:
-        w.move(t_put - 0.5, 1.0, -1.0)
+    """Weight 0..1 of 'in the hand' (picked up at t_pick, put down at t_put), and tremor plus wander per axis."""
+    w = _lift(t_pick, 1.0, 1.0, t_put)
     tremor = [Sines.random(rng, 0.06 * DEG, 7.0, 11.0, 4) for _ in range(3)]
     wander = [Sines.random(rng, 0.8 * DEG, 0.1, 0.7, 4) for _ in range(3)]
+    return w, [_weighted(w, tremor[i], wander[i]) for i in range(3)]
 
-    def axis(i):
-        return lambda t: w(t) * (tremor[i](t) + wander[i](t))
 
-    return w, axis
+def _weighted(w: Callable, a: Callable, b: Callable) -> Callable:
+    return lambda t: w(t) * (a(t) + b(t))
+
+
+def _plus(a: Callable, b: Callable) -> Callable:
+    return lambda t: a(t) + b(t)
+
+
+def _held(axes: list[Steps], hand: list[Callable], **kw) -> Kinematics:
+    """Held at the wrist (below and behind the board): each attitude axis ``axes[i]`` plus the hand's ``hand[i]``."""
+    thx, thy, yaw = (_plus(axes[i], hand[i]) for i in range(3))
+    return Kinematics(thx=thx, thy=thy, yaw=yaw, lever_m=np.array([0.0, -0.04, 0.07]), **kw)
+
+
+def _between(t_on: float, t_off: float) -> Callable:
+    return lambda t: ((t >= t_on) & (t < t_off)).astype(np.float64)
 
 
 def _lift(t_up: float, height_m: float, dur: float = 1.0, t_down: float | None = None) -> Steps:
@@ -244,34 +229,17 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
 
 
 def _bench(T: float, rng) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
-    return Kinematics(
-        thx=lambda t: np.full(np.shape(t), x0),
-        thy=lambda t: np.full(np.shape(t), y0),
-        yaw=lambda t: np.full(np.shape(t), yaw0),
-    )
+    thx, thy, yaw = (Steps(v) for v in _at_rest(rng))
+    return Kinematics(thx=thx, thy=thy, yaw=yaw)
 
 
-def _tilts_kin(T_start: float, T_end: float, rng, pick: bool = True) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
-    sx, sy = Steps(x0), Steps(y0)
-    # picked up at T_start, tilts, put back down at the end
-    last = _add_tilts(sx, sy, T_start + 1.0, T_end - 1.5, rng)
+def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
+    """Picked up at T_start, tilted, put back down before T_end."""
+    axes = [Steps(v) for v in _at_rest(rng)]
+    last = _add_tilts(axes[0], axes[1], T_start + 1.0, T_end - 1.5, rng)
     t_put = max(last + 0.8, T_start + 1.5)
     w, hand = _hand_held(rng, T_start, t_put)
-    lift = _lift(T_start, 0.12, 1.0, t_put)
-    return Kinematics(
-        thx=lambda t: sx(t) + hand(0)(t),
-        thy=lambda t: sy(t) + hand(1)(t),
-        yaw=lambda t: yaw0 + hand(2)(t),
-        lin_acc_mg=_vertical_acc([lift]),
-        lever_m=np.array([0.0, -0.04, 0.07]),  # the wrist is below and behind the board
-        lever_weight=w,
-    )
-
-
-def _hand_tilts(T: float, rng) -> Kinematics:
-    return _tilts_kin(3.0, T, rng)
+    return _held(axes, hand, lin_acc_mg=_vertical_acc([_lift(T_start, 0.12, 1.0, t_put)]), lever_weight=w)
 
 
 def _yaw_spin(T: float, rng) -> Kinematics:
@@ -289,15 +257,16 @@ def _yaw_spin(T: float, rng) -> Kinematics:
         sign = -sign
     yaw0 = rng.uniform(-np.pi, np.pi)
     return Kinematics(
-        thx=lambda t: np.full(np.shape(t), x0),
-        thy=lambda t: np.full(np.shape(t), y0),
+        thx=Steps(x0),
+        thy=Steps(y0),
         yaw=lambda t: yaw0 + rate.integral(t),
         lever_m=np.array([rng.uniform(0.03, 0.06), rng.uniform(-0.02, 0.02), 0.0]),  # off the turntable axis
     )
 
 
-def _hover_parts(t0: float, T: float, rng):
-    """Throttle, airborne weight, attitude wander and altitude of a take-off at t0 and landing before T."""
+def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero), yaw_gain=1.0, yaw_extra=_zero):
+    """``ground``'s motion until a take-off at t0, then a hover with attitude wander (plus the ``steer`` responses
+    of thx, thy), landing before T: throttle, airborne weight and altitude."""
     t_land = T - 6.0
     thr = Steps()
     thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
@@ -308,108 +277,70 @@ def _hover_parts(t0: float, T: float, rng):
     air = Steps()
     air.move(t0 + 2.0, 0.4, 1.0)
     air.move(t_land + 2.3, 0.3, -1.0)
-    z = _lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)
+    climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
     fly = Steps()  # the wander fades in and out slowly around take-off and landing
     fly.move(t0 + 2.0, 2.5, 1.0)
     fly.move(t_land, 2.3, -1.0)
-
-    def throttle(t):
-        base = thr(t)
-        return base + air(t) * thr_wander(t)
-
     wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
     yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
-    return throttle, air, fly, wander, yaw_w, z
 
+    def mix(base, i):
+        return lambda t: base(t) * (1 - fly(t)) + fly(t) * (wander[i](t) + steer[i](t))
 
-def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
-    throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
     return Kinematics(
-        thx=lambda t: x0 * (1 - fly(t)) + fly(t) * wander[0](t),
-        thy=lambda t: y0 * (1 - fly(t)) + fly(t) * wander[1](t),
-        yaw=lambda t: yaw0 + fly(t) * yaw_w(t),
-        lin_acc_mg=_vertical_acc([z]),
+        thx=mix(ground.thx, 0),
+        thy=mix(ground.thy, 1),
+        yaw=lambda t: ground.yaw(t) + yaw_gain * fly(t) * yaw_w(t) + yaw_extra(t),
+        lin_acc_mg=climb if ground.lin_acc_mg is None else _plus(ground.lin_acc_mg, climb),
+        lever_m=ground.lever_m,
+        lever_weight=ground.lever_weight,
         airborne=air,
-        thr=throttle,
+        thr=lambda t: thr(t) + air(t) * thr_wander(t),
     )
 
 
+def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
+    return _take_off(_bench(T, rng), t0, T, rng)
+
+
 def _freefall(T: float, rng) -> Kinematics:
-    x0, y0, yaw0 = _at_rest(rng)
+    axes = [Steps(v) for v in _at_rest(rng)]
     t_pick = 3.0
-    drops = []
-    t = 5.0
-    while t + 2.0 <= T:
-        drops.append(t)
-        t += 7.0
+    drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
     fall_s, catch_s = 0.5, 0.25
     v_mps = G_MPS2 * fall_s
     peak = 2 * v_mps / catch_s * MG_PER_MPS2  # Hann pulse with area v
-    sx, sy = Steps(x0), Steps(y0)
     heights = [_lift(t_pick, 0.4, 1.0)]
-    tumble = []
     for td in drops:
         # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
-        dx, dy = rng.normal(0, 12.0, 2) * DEG
-        sx.move(td, fall_s + catch_s, dx)
-        sy.move(td, fall_s + catch_s, dy)
-        sx.move(td + 1.5, 1.0, -dx)
-        sy.move(td + 1.5, 1.0, -dy)
+        for axis, d in zip(axes, rng.normal(0, 12.0, 2) * DEG):
+            axis.move(td, fall_s + catch_s, d)
+            axis.move(td + 1.5, 1.0, -d)
         heights.append(_lift(td + 3.5, 1.84, 2.0))
-        tumble.append(td)
-    drops_a = np.array(drops)
     w_hand, hand = _hand_held(rng, t_pick, None)
 
-    def in_fall(t):
-        """1 while falling (hand off), 0 otherwise."""
-        out = np.zeros(np.shape(t))
-        for td in drops_a:
-            out = np.maximum(out, ((t >= td) & (t < td + fall_s)).astype(float))
+    def falling(t):
+        out = np.zeros(np.shape(t), bool)
+        for td in drops:
+            out |= (t >= td) & (t < td + fall_s)
         return out
 
     def lin_acc(t):
         a = _vertical_acc(heights)(t)
-        for td in drops_a:
-            fall = (t >= td) & (t < td + fall_s)
-            a[fall, 2] = -1000.0
+        a[falling(t), 2] = -1000.0
+        for td in drops:  # the catch
             u = (t - td - fall_s) / catch_s
             c = (u >= 0) & (u < 1)
             a[c, 2] += peak * 0.5 * (1 - np.cos(2 * np.pi * u[c]))
         return a
 
-    def hand_w(t):
-        return w_hand(t) * (1 - in_fall(t))
-
-    return Kinematics(
-        thx=lambda t: sx(t) + hand(0)(t),
-        thy=lambda t: sy(t) + hand(1)(t),
-        yaw=lambda t: yaw0 + hand(2)(t),
-        lin_acc_mg=lin_acc,
-        lever_m=np.array([0.0, -0.04, 0.07]),
-        lever_weight=hand_w,
-    )
+    # the hand lets go while it falls
+    return _held(axes, hand, lin_acc_mg=lin_acc, lever_weight=lambda t: w_hand(t) * (1 - falling(t)))
 
 
 def _demo(T: float, rng) -> Kinematics:
     t_hover = max(T * 0.5, 20.0)
-    tilts = _tilts_kin(3.0, t_hover - 1.0, rng)
-    throttle, air, fly, wander, yaw_w, z = _hover_parts(t_hover + 1.0, T, rng)
-    yaw_t = tilts.yaw
-
-    def mix(base, extra):
-        return lambda t: base(t) * (1 - fly(t)) + fly(t) * extra(t)
-
-    return Kinematics(
-        thx=mix(tilts.thx, wander[0]),
-        thy=mix(tilts.thy, wander[1]),
-        yaw=lambda t: yaw_t(t) + fly(t) * yaw_w(t),
-        lin_acc_mg=lambda t: tilts.lin_acc_mg(t) + _vertical_acc([z])(t),
-        lever_m=tilts.lever_m,
-        lever_weight=tilts.lever_weight,
-        airborne=air,
-        thr=throttle,
-    )
+    return _take_off(_hand_tilts(t_hover - 1.0, rng), t_hover + 1.0, T, rng)
 
 
 #: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
@@ -429,8 +360,7 @@ def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float,
 
 def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
     """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
-    x0, y0, yaw0 = _at_rest(rng)
-    throttle, air, fly, wander, yaw_w, z = _hover_parts(t0, T, rng)
+    ground = _bench(T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
     t = t0 + 5.0
     hold = 1.6
@@ -446,18 +376,11 @@ def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
     yaw_rate = Steps()
     for t_m, _, delta in rud.moves:  # gRUD < -600: the yaw target turns right (clockwise)
         yaw_rate.move(t_m + 0.15, 0.4, np.sign(delta) * _YAW_STICK_RADPS * 0.95)
-    t_arm, t_disarm = t0 - 1.0, T - 1.5
-
-    return Kinematics(
-        thx=lambda t: x0 * (1 - fly(t)) + fly(t) * (wander[0](t) + resp_x(t)),
-        thy=lambda t: y0 * (1 - fly(t)) + fly(t) * (wander[1](t) + resp_y(t)),
-        yaw=lambda t: yaw0 + 0.1 * fly(t) * yaw_w(t) + yaw_rate.integral(t),  # holds its heading
-        lin_acc_mg=_vertical_acc([z]),
-        airborne=air,
-        thr=throttle,
-        sticks=lambda t: np.stack([ail(t), ele(t), rud(t)], axis=-1),
-        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
-    )
+    # it holds its heading: the yaw wander is a tenth of a hover's
+    kin = _take_off(ground, t0, T, rng, (resp_x, resp_y), 0.1, yaw_rate.integral)
+    kin.sticks = lambda t: np.stack([ail(t), ele(t), rud(t)], axis=-1)
+    kin.armed = _between(t0 - 1.0, T - 1.5)
+    return kin
 
 
 #: the preflight check's guided hand moves, in order: (name, axis 0 thx / 1 thy / 2 yaw, signed angle, rad)
@@ -469,9 +392,8 @@ PREFLIGHT_IDLE_THR = 210.0
 def _preflight(T: float, rng) -> Kinematics:
     """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
     turned right (each out, hold, back), put down, throttle 0, disarmed."""
-    x0, y0, yaw0 = _at_rest(rng)
+    axes = [Steps(v) for v in _at_rest(rng)]
     t_arm, t_pick = 3.5, 6.0
-    axes = [Steps(x0), Steps(y0), Steps(yaw0)]
     t = t_pick + 2.0
     for _, axis, angle in PREFLIGHT_MOVES:
         move = 1.5 if axis == 2 else 1.0
@@ -480,21 +402,17 @@ def _preflight(T: float, rng) -> Kinematics:
         t += 2 * move + 2.0 + 1.5
     t_put = t + 0.5
     w, hand = _hand_held(rng, t_pick, t_put)
-    lift = _lift(t_pick, 0.15, 1.0, t_put)
     thr = Steps()
     thr.move(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR)
     thr.move(t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)
-    t_disarm = t_put + 2.0
-    return Kinematics(
-        thx=lambda t: axes[0](t) + hand(0)(t),
-        thy=lambda t: axes[1](t) + hand(1)(t),
-        yaw=lambda t: axes[2](t) + hand(2)(t),
-        lin_acc_mg=_vertical_acc([lift]),
-        lever_m=np.array([0.0, -0.04, 0.07]),
+    return _held(
+        axes,
+        hand,
+        lin_acc_mg=_vertical_acc([_lift(t_pick, 0.15, 1.0, t_put)]),
         lever_weight=w,
         thr=thr,
         sticks=lambda t: np.zeros((len(np.atleast_1d(t)), 3)),
-        armed=lambda t: ((t >= t_arm) & (t < t_disarm)).astype(np.float64),
+        armed=_between(t_arm, t_put + 2.0),
     )
 
 

@@ -7,8 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SEED_SALT", "RandomStreams", "random_streams"]
-
 #: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
 SEED_SALT = 0x5EA1
 

@@ -2,7 +2,7 @@
 
 The chain the drone runs, and the functions here that model each link:
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise_acc_mg`, :func:`quantise_gyro_mdps`): true motion + bias + white
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white
    noise → ADC counts (round, saturate at int16) → the ST driver's ``(int32_t)(raw * sensitivity)`` (float32
    product truncated toward zero): integer mg (0.122 mg/LSB, ±4 g) and integer mdps (70 mdps/LSB, ±2000 dps).
 2. TIM9 ISR at ``constants.ISR_RATE_HZ`` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
@@ -19,10 +19,9 @@ The chain the drone runs, and the functions here that model each link:
    entries starting from 0, then ``*= (1.0/5)`` in double, stored back to float32 → ``acc_ahrs`` (mg),
    ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
-:func:`steval_pipeline` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
+:func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
 another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.
 All arrays are (N, 3) with axes x right, y forward, z up (the firmware's COORDINATE_SYSTEM 3).
-Nothing in here holds module-level mutable state.
 """
 
 from __future__ import annotations
@@ -32,36 +31,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from steval_link import constants as C
-
-__all__ = [
-    "CALIBRATION_SKIP_TICKS",
-    "CALIBRATION_TICKS",
-    "GyroIirCoeffs",
-    "GYRO_IIR",
-    "GYRO_ODR_HZ",
-    "gyro_hold_index",
-    "gyro_hold_times_s",
-    "ACC_BIAS_SIGMA_MG",
-    "GYRO_BIAS_SIGMA_MDPS",
-    "seeded_lsm6dsl",
-    "ACC_ODR_HZ",
-    "IirState",
-    "Lsm6dsl",
-    "IsrOutput",
-    "quantise_acc_mg",
-    "quantise_gyro_mdps",
-    "calibrate_offsets",
-    "remove_offsets",
-    "gyro_iir",
-    "iir_frequency_response",
-    "GYRO_LATENCY_S",
-    "fifo_average",
-    "run_isr",
-    "steval_pipeline",
-    "isr_yaw_rad",
-    "resample_to_tick",
-    "noise_rms_from_density",
-]
 
 _F32 = np.float32
 
@@ -73,8 +42,6 @@ CALIBRATION_TICKS: int = 800
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
 GYRO_ODR_HZ: float = 416.0
-#: accelerometer output data rate (6.66 kHz): effectively a fresh sample every tick
-ACC_ODR_HZ: float = 6660.0
 
 
 def gyro_hold_index(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
@@ -95,26 +62,12 @@ ACC_SENSITIVITY_MG = 0.122
 GYRO_SENSITIVITY_MDPS = 70.0
 
 
-@dataclass(frozen=True)
-class GyroIirCoeffs:
-    """Coefficients of the ISR's gyro IIR, ``y = b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (stored as float32).
-
-    Note the sign convention: the denominator is ``1 − a1·z⁻¹ − a2·z⁻²``.
-    """
-
-    a1: float = 0.94280904158206336
-    a2: float = -0.33333333333333343
-    b0: float = 0.09763107293781749
-    b1: float = 0.19526214587563498
-    b2: float = 0.09763107293781749
-
-    def as_f32(self) -> tuple[np.float32, ...]:
-        """(a1, a2, b0, b1, b2) as the firmware's float32 values."""
-        return tuple(_F32(v) for v in (self.a1, self.a2, self.b0, self.b1, self.b2))
-
-
-#: the firmware's coefficients: Butterworth low-pass, 100 Hz cut-off designed for 800 Hz
-GYRO_IIR = GyroIirCoeffs()
+#: the ISR's gyro IIR coefficients (a1, a2, b0, b1, b2) as the firmware's float32: Butterworth low-pass, 100 Hz
+#: cut-off designed for 800 Hz; ``y = b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (denominator ``1 − a1·z⁻¹ − a2·z⁻²``)
+_IIR_F32 = tuple(
+    _F32(v)
+    for v in (0.94280904158206336, -0.33333333333333343, 0.09763107293781749, 0.19526214587563498, 0.09763107293781749)
+)
 
 
 @dataclass
@@ -127,95 +80,55 @@ class IirState:
     y2: np.ndarray = field(default_factory=lambda: np.zeros(3, _F32))
 
 
-def noise_rms_from_density(density_per_rthz: float, bandwidth_hz: float) -> float:
-    """RMS of white noise with the given density (unit/√Hz) over an equivalent noise bandwidth (Hz)."""
-    return float(density_per_rthz) * float(np.sqrt(bandwidth_hz))
+def adc_counts(value, sensitivity: float) -> np.ndarray:
+    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0)."""
+    raw = np.rint(np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity))
+    return np.clip(raw, -32768, 32767).astype(np.int16)
 
 
-def _adc_and_driver(value, sensitivity: float) -> np.ndarray:
-    """ADC ``raw = round(value / sensitivity)`` saturated to int16 (NaN reads 0), then the ST driver's
-    ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
-    x = np.nan_to_num(np.asarray(value, dtype=np.float64) / sensitivity)
-    raw = np.clip(np.rint(x), -32768, 32767).astype(np.int16)
-    return np.trunc(raw.astype(_F32) * _F32(sensitivity)).astype(np.int32)
+def driver_value(raw, sensitivity: float) -> np.ndarray:
+    """The ST driver's ``(int32_t)(raw * sensitivity)``: int16 raw × float32 sensitivity, truncated toward 0."""
+    return np.trunc(np.asarray(raw).astype(_F32) * _F32(sensitivity)).astype(np.int32)
 
 
-def quantise_acc_mg(acc_mg, sensitivity_mg: float = ACC_SENSITIVITY_MG) -> np.ndarray:
-    """What the driver returns for a physical acceleration: int32 mg (N, 3).
-
-    ADC: ``raw = round(acc / sensitivity)`` saturated to int16 (±4 g → ±3997.7 mg at 0.122 mg/LSB); driver:
-    ``(int32_t)(raw * 0.122f)``. NaN input reads as 0.
-    """
-    return _adc_and_driver(acc_mg, sensitivity_mg)
-
-
-def quantise_gyro_mdps(gyro_mdps, sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS) -> np.ndarray:
-    """What the driver returns for a physical rate: int32 mdps (N, 3), 70 mdps/LSB, saturated at int16 (±2293 dps)."""
-    return _adc_and_driver(gyro_mdps, sensitivity_mdps)
+def quantise(value, sensitivity: float) -> np.ndarray:
+    """What the driver returns for a physical value (mg or mdps): int32 (N, 3), saturated at int16 counts
+    (acc: ±3997.7 mg at 0.122 mg/LSB; gyro: ±2293 dps at 70 mdps/LSB). NaN reads as 0."""
+    return driver_value(adc_counts(value, sensitivity), sensitivity)
 
 
 @dataclass(frozen=True)
 class Lsm6dsl:
     """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick.
 
-    Noise is white per reading (the firmware reads both sensors every tick). The default RMS values are the
-    LSM6DSL datasheet's typical RMS noise that UMaine Lab 5 Appendix B quotes (gyro 75 mdps, acc 2 mg at ±4 g);
-    the datasheet's high-performance densities (gyro ≈ 4 mdps/√Hz, acc ≈ 90 µg/√Hz) give an RMS through
-    :func:`noise_rms_from_density` for a chosen bandwidth. Biases are constant offsets added before quantisation
-    (the datasheet allows ±40 mg zero-g level and ±2 dps zero-rate level; defaults 0).
-
-    Attributes:
-        acc_noise_mg: accelerometer white noise RMS per reading, mg.
-        gyro_noise_mdps: gyro white noise RMS per reading, mdps.
-        acc_bias_mg: (3,) constant accelerometer offset, mg.
-        gyro_bias_mdps: (3,) constant gyro offset, mdps.
-        acc_sensitivity_mg: mg/LSB (0.122 at ±4 g).
-        gyro_sensitivity_mdps: mdps/LSB (70 at ±2000 dps).
+    Noise: white RMS per reading, the datasheet's typical values that UMaine Lab 5 Appendix B quotes (gyro
+    75 mdps, acc 2 mg at ±4 g). Biases: constant offsets (3,) added before quantisation (the datasheet allows ±40 mg
+    and ±2 dps).
     """
 
     acc_noise_mg: float = 2.0
     gyro_noise_mdps: float = 75.0
     acc_bias_mg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_mdps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    acc_sensitivity_mg: float = ACC_SENSITIVITY_MG
-    gyro_sensitivity_mdps: float = GYRO_SENSITIVITY_MDPS
 
-    def read(
-        self,
-        acc_true_mg,
-        gyro_true_mdps,
-        rng: np.random.Generator | int | None = 0,
-        t_tick_s=None,
-        gyro_odr_hz: float | None = GYRO_ODR_HZ,
-    ):
-        """Driver readings (int32 mg, int32 mdps), each (N, 3), for true specific force and rate at each tick.
-
-        Args:
-            acc_true_mg: (N, 3) true specific force at each tick, mg (≈ (0, 0, +1000) at rest, level).
-            gyro_true_mdps: (N, 3) true angular rate, mdps, as the gyro's output register holds it at each tick
-                (for the 416 Hz sample-and-hold, evaluate the motion with :func:`resample_to_tick` ``hold_hz``).
-            rng: a numpy Generator, or a seed (int) for a reproducible one, or None for fresh entropy.
-            t_tick_s: (N,) tick times, s. When given (with ``gyro_odr_hz``), gyro noise is drawn once per ODR
-                sample and held like the reading; otherwise it is fresh every tick.
-            gyro_odr_hz: the gyro ODR for that noise hold (416 Hz on the STEVAL).
-        """
+    def read(self, acc_true_mg, gyro_true_mdps, rng: np.random.Generator | int | None = 0, t_tick_s=None):
+        """Driver readings (int32 mg, int32 mdps), each (N, 3), for the true specific force (mg) and rate (mdps, as
+        the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
+        noise is drawn once per 416 Hz ODR sample and held like the reading; otherwise fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         acc = np.asarray(acc_true_mg, dtype=np.float64)
         gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
         if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
             raise ValueError(f"acc_true_mg and gyro_true_mdps must both be (N, 3), got {acc.shape}, {gyro.shape}")
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
-        if t_tick_s is not None and gyro_odr_hz:
+        if t_tick_s is not None:
             t = np.asarray(t_tick_s, dtype=np.float64)
-            idx = gyro_hold_index(t, t[0], gyro_odr_hz) if t.size else np.zeros(0, np.int64)
+            idx = gyro_hold_index(t, t[0]) if t.size else np.zeros(0, np.int64)
             noise = rng.standard_normal((int(idx[-1]) + 1 if idx.size else 0, 3))[idx]
         else:
             noise = rng.standard_normal(gyro.shape)
         gyro_meas = gyro + np.asarray(self.gyro_bias_mdps) + self.gyro_noise_mdps * noise
-        return (
-            quantise_acc_mg(acc_meas, self.acc_sensitivity_mg),
-            quantise_gyro_mdps(gyro_meas, self.gyro_sensitivity_mdps),
-        )
+        return quantise(acc_meas, ACC_SENSITIVITY_MG), quantise(gyro_meas, GYRO_SENSITIVITY_MDPS)
 
 
 #: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
@@ -233,74 +146,47 @@ def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
 
 
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
-    """The ISR's offset calibration over the given readings (normally 800 ticks): (acc_offset, gyro_offset) int32.
-
-    ``sum`` is int32 (wrapping like the C accumulator), then ``(int32_t)((float)sum * 0.00125f)``: note the fixed
-    factor 1/800 regardless of how many readings are given, as in the firmware.
-    """
-    out = []
-    for x in (acc_mg, gyro_mdps):
-        s = np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32)  # wraps like int32 C arithmetic
-        out.append(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32))
-    return out[0], out[1]
+    """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
+    int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
+    sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
+    acc_off, gyro_off = (np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
+    return acc_off, gyro_off
 
 
 def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[np.ndarray, np.ndarray]:
     """Offset removal of the ISR (int32): ``acc − off`` with z keeping 1000 mg (``acc_z − (off_z − 1000)``)."""
-    acc_off = np.asarray(acc_offset_mg, dtype=np.int32).copy()
-    acc_off[2] -= C.ACC_Z_KEPT_MG
-    acc = np.asarray(acc_mg, dtype=np.int32) - acc_off
+    acc_off = np.asarray(acc_offset_mg, dtype=np.int32) - np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
     gyro = np.asarray(gyro_mdps, dtype=np.int32) - np.asarray(gyro_offset_mdps, dtype=np.int32)
-    return acc.astype(np.int32), gyro.astype(np.int32)
+    return np.asarray(acc_mg, dtype=np.int32) - acc_off, gyro
 
 
-def gyro_iir(gyro_mdps, state: IirState | None = None, coeffs: GyroIirCoeffs = GYRO_IIR) -> np.ndarray:
-    """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps.
-
-    Each output is ``(((b0·x + b1·x1) + b2·x2) + a1·y1) + a2·y2`` with every product and sum rounded to float32
-    (the firmware's -O0, no-FMA evaluation); ``x`` is the integer reading converted to float. ``state`` (zeros
-    when None, as after power-up) is updated in place so a stream can be filtered in chunks.
-    """
+def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
+    """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps, each product and sum rounded to
+    float32 in C order (the firmware's -O0, no-FMA evaluation). ``state`` (zeros when None, as after power-up) is
+    updated in place so a stream can be filtered in chunks."""
     x = np.asarray(gyro_mdps).astype(_F32)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"gyro_mdps must be (N, 3), got shape {x.shape}")
     st = state if state is not None else IirState()
-    a1, a2, b0, b1, b2 = coeffs.as_f32()
-    n = x.shape[0]
+    a1, a2, b0, b1, b2 = _IIR_F32
     # feed-forward part, vectorised: x1/x2 are the previous inputs (from the state for the first two ticks)
     xp = np.concatenate([st.x2[None], st.x1[None], x], axis=0)
     ff = (b0 * xp[2:] + b1 * xp[1:-1]) + b2 * xp[:-2]
-    y = np.empty((n + 2, 3), dtype=_F32)
-    y[0] = st.y2
-    y[1] = st.y1
-    tmp = np.empty(3, _F32)
-    tmp2 = np.empty(3, _F32)
-    for k in range(n):  # the recursive part: (ff + a1*y1) + a2*y2, float32 each
-        np.multiply(a1, y[k + 1], out=tmp)
-        np.add(ff[k], tmp, out=tmp)
-        np.multiply(a2, y[k], out=tmp2)
-        np.add(tmp, tmp2, out=y[k + 2])
-    if n:
-        st.x2 = xp[-2].copy()
-        st.x1 = xp[-1].copy()
-        st.y2 = y[-2].copy()
-        st.y1 = y[-1].copy()
+    y = np.concatenate([st.y2[None], st.y1[None], np.empty(x.shape, _F32)])
+    for k in range(len(x)):  # the recursive part: (ff + a1*y1) + a2*y2, float32 each
+        y[k + 2] = (ff[k] + a1 * y[k + 1]) + a2 * y[k]
+    st.x2, st.x1, st.y2, st.y1 = xp[-2].copy(), xp[-1].copy(), y[-2].copy(), y[-1].copy()
     return y[2:]
 
 
-def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ, coeffs: GyroIirCoeffs = GYRO_IIR):
-    """Complex frequency response H(f) of the gyro IIR at ``fs_hz`` (ISR rate by default).
-
-    Returns ``(H, gain_db, phase_rad, group_delay_s)`` for the frequencies ``freq_hz`` (array-like, Hz), from the
-    float32 coefficients (|H(0)| = 1; −3 dB near 101 Hz at the real 807.7 Hz tick).
-    """
+def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ):
+    """``(H, gain_db, phase_rad, group_delay_s)`` of the gyro IIR at ``freq_hz`` (Hz) for the sampling rate
+    ``fs_hz`` (|H(0)| = 1; −3 dB near 101 Hz at the real 807.7 Hz tick)."""
     f = np.asarray(freq_hz, dtype=np.float64)
-    a1, a2, b0, b1, b2 = (float(c) for c in coeffs.as_f32())
+    a1, a2, b0, b1, b2 = (float(c) for c in _IIR_F32)
     z1 = np.exp(-2j * np.pi * f / fs_hz)
     num = b0 + b1 * z1 + b2 * z1 * z1
     den = 1.0 - a1 * z1 - a2 * z1 * z1
     h = num / den
-    # group delay of a rational filter: Re( z d/dz ... ) via the standard formula  τ = Re(Σ k c_k z^-k / Σ c_k z^-k)
+    # group delay of a rational filter: τ = Re(Σ k c_k z^-k / Σ c_k z^-k)
     dnum = b1 * z1 + 2 * b2 * z1 * z1
     dden = -a1 * z1 - 2 * a2 * z1 * z1
     tau_samples = np.real(dnum / num) - np.real(dden / den)
@@ -316,11 +202,8 @@ GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_
 
 
 def fifo_average(fifo) -> np.ndarray:
-    """The main loop's boxcar average of FIFOs: (M, 5, 3) float32 → (M, 3) float32.
-
-    ``sum = 0f; sum += fifo[i]`` (float32, i = 0..4), then ``sum *= (1.0/5)`` evaluated in double and stored to
-    float32, exactly as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``.
-    """
+    """The main loop's boxcar average of FIFOs, (M, 5, 3) → (M, 3) float32: a float32 sum from 0, then
+    ``*= (1.0/5)`` in double stored to float32, as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``."""
     f = np.asarray(fifo, dtype=_F32)
     s = np.zeros((f.shape[0], f.shape[2]), dtype=_F32)
     for i in range(f.shape[1]):
@@ -330,49 +213,23 @@ def fifo_average(fifo) -> np.ndarray:
 
 @dataclass(frozen=True)
 class IsrOutput:
-    """Everything :func:`run_isr` computes.
+    """Everything :func:`run_isr` computes (float32 arrays; indices into the input ticks)."""
 
-    Attributes:
-        acc_ahrs_mg: (M, 3) float32, the main loop's ``acc_ahrs`` per AHRS step (mg).
-        gyro_ahrs_mdps: (M, 3) float32, ``gyro_ahrs`` per step (mdps).
-        gyro_fil_mdps: (T, 3) float32, the IIR output of every pipeline tick (for the ISR yaw and the PID).
-        acc_offset_mg: (3,) int32 offsets removed (z offset is the measured one; 1000 mg are kept).
-        gyro_offset_mdps: (3,) int32.
-        first_tick: index (into the input ticks) of the first pipeline tick (1599 after the power-up calibration).
-        step_tick: (M,) index (into the input ticks) of the tick whose ISR completed each step's FIFO: step k
-            averages input ticks ``step_tick[k]-4 … step_tick[k]`` and runs right after ``step_tick[k]``.
-    """
-
-    acc_ahrs_mg: np.ndarray
-    gyro_ahrs_mdps: np.ndarray
-    gyro_fil_mdps: np.ndarray
-    acc_offset_mg: np.ndarray
-    gyro_offset_mdps: np.ndarray
-    first_tick: int
+    acc_ahrs_mg: np.ndarray  #: (M, 3) the main loop's ``acc_ahrs`` per AHRS step, mg
+    gyro_ahrs_mdps: np.ndarray  #: (M, 3) ``gyro_ahrs`` per step, mdps
+    gyro_fil_mdps: np.ndarray  #: (T, 3) the IIR output of every pipeline tick (for the ISR yaw and the PID)
+    acc_offset_mg: np.ndarray  #: (3,) int32 offsets removed (the measured z offset; 1000 mg are kept)
+    gyro_offset_mdps: np.ndarray  #: (3,) int32
+    first_tick: int  #: the first pipeline tick (1599 after the power-up calibration)
+    #: (M,) the tick whose ISR completed each step's FIFO: step k averages ticks ``step_tick[k]-4 … step_tick[k]``
     step_tick: np.ndarray
 
 
-def run_isr(
-    acc_mg_807,
-    gyro_mdps_807,
-    *,
-    calibrate: bool = True,
-    acc_offset_mg=None,
-    gyro_offset_mdps=None,
-    iir_state: IirState | None = None,
-) -> IsrOutput:
-    """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings.
-
-    Args:
-        acc_mg_807: (T, 3) accelerometer readings, one per ISR tick (807.7 Hz), integer mg as the driver returns
-            them (floats are truncated toward zero like the driver's int32 cast).
-        gyro_mdps_807: (T, 3) gyro readings, integer mdps.
-        calibrate: True (power-up behaviour): the first 800 ticks are ignored, the next 800 give the offsets, and
-            the pipeline starts at tick 1599. False: the pipeline starts at tick 0 with the given offsets.
-        acc_offset_mg, gyro_offset_mdps: (3,) offsets when ``calibrate`` is False (default: acc (0, 0, 1000),
-            gyro 0 — the firmware's values before calibration).
-        iir_state: gyro IIR state to start from (default zeros, as after power-up).
-    """
+def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
+    """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps
+    (floats are truncated like the driver's int32 cast). ``calibrate``: the power-up calibration (the pipeline
+    starts at tick 1599); False: from tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000),
+    gyro 0)."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
     if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
@@ -384,11 +241,11 @@ def run_isr(
         acc_off, gyro_off = calibrate_offsets(acc[CALIBRATION_SKIP_TICKS:end], gyro[CALIBRATION_SKIP_TICKS:end])
         first = end - 1  # the calibrating ISR call also runs the pipeline on a fresh read
     else:
-        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG] if acc_offset_mg is None else acc_offset_mg, dtype=np.int32)
-        gyro_off = np.array([0, 0, 0] if gyro_offset_mdps is None else gyro_offset_mdps, dtype=np.int32)
+        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
+        gyro_off = np.zeros(3, dtype=np.int32)
         first = 0
     acc_c, gyro_c = remove_offsets(acc[first:], gyro[first:], acc_off, gyro_off)
-    gyro_fil = gyro_iir(gyro_c, iir_state)
+    gyro_fil = gyro_iir(gyro_c)
     fifo = C.FIFO_ORDER
     m = acc_c.shape[0] // fifo
     n = m * fifo
@@ -396,20 +253,6 @@ def run_isr(
     gyro_ahrs = fifo_average(gyro_fil[:n].reshape(m, fifo, 3))
     step_tick = first + fifo * np.arange(m, dtype=np.int64) + (fifo - 1)
     return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
-
-
-def steval_pipeline(
-    acc_mg_807, gyro_mdps_807, *, calibrate: bool = True, acc_offset_mg=None, gyro_offset_mdps=None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per-tick driver readings (807.7 Hz) → the AHRS inputs (161.5 Hz): ``(acc_ahrs_mg, gyro_ahrs_mdps)``.
-
-    Both (M, 3) float32, M = (T − first_tick) // 5. See :func:`run_isr` for the arguments and for the tick each
-    step corresponds to.
-    """
-    out = run_isr(
-        acc_mg_807, gyro_mdps_807, calibrate=calibrate, acc_offset_mg=acc_offset_mg, gyro_offset_mdps=gyro_offset_mdps
-    )
-    return out.acc_ahrs_mg, out.gyro_ahrs_mdps
 
 
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
@@ -422,47 +265,24 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
     out = np.zeros(gz.shape[0], dtype=_F32)
-    low = thr_arr < C.MIN_THR
-    # integrate each run of ticks at flight throttle from 0, sequentially in float32 (cumsum is sequential)
-    start = 0
-    n = gz.shape[0]
-    while start < n:
-        if low[start]:
-            start += 1
-            continue
-        stop = start
-        while stop < n and not low[stop]:
-            stop += 1
-        # the tick before ``start`` left thz at 0 (reset) or this is the first tick (thz 0 at power-up)
+    # each run of ticks at flight throttle integrates from 0 (thz was reset before it), sequentially in float32
+    low = np.concatenate(([True], thr_arr < C.MIN_THR, [True]))
+    for start, stop in np.flatnonzero(np.diff(low.astype(np.int8))).reshape(-1, 2):
         out[start:stop] = np.cumsum(inc[start:stop], dtype=_F32)
-        start = stop
     return out
 
 
-def resample_to_tick(
-    t_s, signal, rate_hz: float = C.ISR_RATE_HZ, t0_s: float | None = None, hold_hz: float | None = None
-):
-    """Linear interpolation of ``signal`` (N,) or (N, K) sampled at times ``t_s`` onto a uniform grid.
-
-    Returns ``(t_tick_s, signal_tick)``: ticks at ``t0_s + k / rate_hz`` (t0 defaults to ``t_s[0]``) up to
-    ``t_s[-1]``; float64. NaN samples propagate to the ticks next to them.
-
-    ``hold_hz`` models a sensor whose output register updates at its own ODR (the STEVAL's gyro: 416 Hz,
-    :data:`GYRO_ODR_HZ`): each tick then reads the value of the latest ODR sample, taken at
-    ``t0 + floor((t − t0) · hold_hz) / hold_hz`` (sample-and-hold, ≈ 1.2 ms mean delay at 416 Hz).
-    """
+def resample_to_tick(t_s, signal, hold_hz: float | None = None):
+    """Linear interpolation of ``signal`` (N, ...) sampled at times ``t_s`` onto the ISR ticks from ``t_s[0]`` to
+    ``t_s[-1]``: ``(t_tick_s, signal_tick)``, float64 (NaN samples propagate to the ticks next to them).
+    ``hold_hz``: each tick reads the latest sample of a sensor whose output register updates at that ODR (the
+    gyro's 416 Hz sample-and-hold, ≈ 1.2 ms mean delay)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
     if t.ndim != 1 or x.shape[0] != t.shape[0]:
         raise ValueError(f"t_s must be (N,) and signal (N, ...), got {t.shape}, {x.shape}")
-    t0 = t[0] if t0_s is None else float(t0_s)
-    n = int(np.floor((t[-1] - t0) * rate_hz + 1e-9)) + 1
-    t_tick = t0 + np.arange(max(n, 0)) / rate_hz
-    tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t0, hold_hz)
-    if x.ndim == 1:
-        return t_tick, np.interp(tt, t, x)
-    flat = x.reshape(x.shape[0], -1)
-    out = np.empty((tt.shape[0], flat.shape[1]))
-    for j in range(flat.shape[1]):
-        out[:, j] = np.interp(tt, t, flat[:, j])
-    return t_tick, out.reshape((tt.shape[0],) + x.shape[1:])
+    n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1
+    t_tick = t[0] + np.arange(max(n, 0)) / C.ISR_RATE_HZ
+    tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t[0], hold_hz)
+    cols = [np.interp(tt, t, col) for col in x.reshape(t.shape[0], -1).T]
+    return t_tick, np.stack(cols, axis=-1).reshape(tt.shape + x.shape[1:])

@@ -11,15 +11,12 @@ output registers filled from a motion source at the moment of the read:
 
 The board's body axes (COORDINATE_SYSTEM 3: x right, y forward, z up) come from the sensor's by ST's
 ``ReadSensorRawData``: body x = −sensor y, body y = sensor x, body z = sensor z. :func:`body_to_sensor_counts`
-does the inverse on ADC counts. :class:`SensorBus` logs every LSM6DSL sample it served (the *driver readings*
-``(int32_t)(raw * sensitivity)`` in body axes), so a test can run :mod:`steval_link.emulation.sensor_model`'s ISR
-pipeline on
-exactly what the firmware read.
+does the inverse on ADC counts. :class:`SensorBus` logs the LSM6DSL samples it served, so a test can run
+:mod:`steval_link.emulation.sensor_model`'s ISR pipeline on exactly what the firmware read.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -40,51 +37,38 @@ class MotionSource(Protocol):
         ...
 
 
-def body_to_sensor_counts(
-    acc_mg, gyro_mdps, acc_sens: float = sm.ACC_SENSITIVITY_MG, gyro_sens: float = sm.GYRO_SENSITIVITY_MDPS
-) -> tuple[np.ndarray, np.ndarray]:
+def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     """Body-axis physical values (N, 3) → the LSM6DSL's int16 ADC counts in sensor axes (round, saturate)."""
 
     def counts(v, sens):
-        raw = np.clip(np.rint(np.nan_to_num(np.asarray(v, np.float64) / sens)), -32768, 32767).astype(np.int16)
+        raw = sm.adc_counts(v, sens)
         # sensor x = body y, sensor y = -body x (saturating the negation like the int16 register would)
-        out = np.empty_like(raw)
-        out[:, 0] = raw[:, 1]
-        out[:, 1] = np.clip(-raw[:, 0].astype(np.int32), -32768, 32767).astype(np.int16)
-        out[:, 2] = raw[:, 2]
-        return out
+        return np.stack([raw[:, 1], np.clip(-raw[:, 0].astype(np.int32), -32768, 32767), raw[:, 2]], -1).astype(
+            np.int16
+        )
 
-    return counts(acc_mg, acc_sens), counts(gyro_mdps, gyro_sens)
-
-
-def driver_readings(acc_counts, gyro_counts) -> tuple[np.ndarray, np.ndarray]:
-    """What the firmware's ``ReadSensorRawData`` gets from sensor-axis counts: int32 mg / mdps in body axes."""
-
-    def scale(raw, sens):
-        v = np.trunc(np.asarray(raw).astype(np.float32) * np.float32(sens)).astype(np.int32)
-        return np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1)
-
-    return scale(acc_counts, sm.ACC_SENSITIVITY_MG), scale(gyro_counts, sm.GYRO_SENSITIVITY_MDPS)
+    return counts(acc_mg, sm.ACC_SENSITIVITY_MG), counts(gyro_mdps, sm.GYRO_SENSITIVITY_MDPS)
 
 
 class _Regs:
-    """A sensor's register file; ``read``/``write`` with the auto-increment the drivers use."""
+    """A sensor's 128-byte register file; ``read``/``write`` with the auto-increment the drivers use.
 
-    who_am_i_reg = 0x0F
-    who_am_i = 0
+    ``init``: register → its bytes at reset; ``self_clearing``: register → the bits that clear themselves (reset,
+    reboot)."""
 
-    def __init__(self) -> None:
+    def __init__(self, who_am_i_reg: int, who_am_i: int, init: dict[int, bytes], self_clearing: dict[int, int]):
         self.r = bytearray(128)
-        self.r[self.who_am_i_reg] = self.who_am_i
+        for reg, data in {who_am_i_reg: bytes([who_am_i]), **init}.items():
+            self.r[reg : reg + len(data)] = data
+        self.who_am_i_reg = who_am_i_reg
+        self.self_clearing = self_clearing
+        self._last = None
 
     def write(self, reg: int, data: bytes) -> None:
         for i, b in enumerate(data):
             a = (reg + i) & 0x7F
             if a != self.who_am_i_reg:
-                self.r[a] = self.on_write(a, b)
-
-    def on_write(self, reg: int, value: int) -> int:
-        return value
+                self.r[a] = b & ~self.self_clearing.get(a, 0)
 
     def read(self, reg: int, n: int, sample) -> bytes:
         self.refresh(sample)
@@ -92,25 +76,9 @@ class _Regs:
             return bytes(self.r[reg : reg + n])
         return bytes(self.r[(reg + i) & 0x7F] for i in range(n))
 
-    def refresh(self, sample) -> None:  # fill the output registers
-        pass
-
-
-class _Lsm6dsl(_Regs):
-    who_am_i = 0x6A
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.r[0x12] = 0x04  # CTRL3_C: IF_INC
-        self.r[0x1E] = 0x07  # STATUS_REG: XLDA, GDA, TDA
-
-    def on_write(self, reg, value):
-        if reg == 0x12:
-            return value & ~0x81  # SW_RESET and BOOT clear themselves
-        return value
-
     def refresh(self, sample) -> None:
-        if sample is self._last:
+        """The LSM6DSL's output registers from ``sample`` (acc, gyro counts): gyro OUTX_L_G, acc OUTX_L_XL."""
+        if sample is None or sample is self._last:
             return
         self._last = sample
         acc, gyro = sample
@@ -118,47 +86,21 @@ class _Lsm6dsl(_Regs):
         self.r[0x28:0x2E] = np.asarray(acc, "<i2").tobytes()
         self.r[0x1E] = 0x07
 
-    _last = None
 
-
-class _Lis2mdl(_Regs):
-    who_am_i_reg = 0x4F
-    who_am_i = 0x40
-    #: a plausible field, LSB (1.5 mG/LSB): ~ (200, 0, -400) mG
-    FIELD = (133, 0, -267)
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.r[0x60] = 0x03  # CFG_REG_A: idle
-        self.r[0x67] = 0x0F  # STATUS_REG: data ready
-        self.r[0x68:0x6E] = np.asarray(self.FIELD, "<i2").tobytes()
-
-    def on_write(self, reg, value):
-        return value & ~0x60 if reg == 0x60 else value  # SOFT_RST, REBOOT clear themselves
-
-
-class _Lps22hb(_Regs):
-    who_am_i = 0xB1
-    PRESSURE_HPA = 1013.25
-    TEMPERATURE_C = 25.0
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.r[0x11] = 0x10  # CTRL_REG2: IF_ADD_INC
-        self.r[0x27] = 0x03  # STATUS: P_DA, T_DA
-        p = int(round(self.PRESSURE_HPA * 4096))
-        self.r[0x28:0x2B] = p.to_bytes(3, "little")
-        self.r[0x2B:0x2D] = int(round(self.TEMPERATURE_C * 100)).to_bytes(2, "little", signed=True)
-
-    def on_write(self, reg, value):
-        return value & ~0x84 if reg == 0x11 else value  # BOOT, SWRESET clear themselves
-
-
-@dataclass
-class ServedSample:
-    tick: int
-    acc_counts: tuple[int, int, int]
-    gyro_counts: tuple[int, int, int]
+def _devices() -> dict[int, _Regs]:
+    """The three sensors at reset. LIS2MDL: a plausible field, ~ (200, 0, -400) mG at 1.5 mG/LSB; LPS22HB:
+    1013.25 hPa (4096 LSB/hPa) and 25 °C (100 LSB/°C)."""
+    pressure = int(round(1013.25 * 4096)).to_bytes(3, "little")
+    temperature = int(round(25.0 * 100)).to_bytes(2, "little", signed=True)
+    field = np.asarray((133, 0, -267), "<i2").tobytes()
+    return {
+        # CTRL3_C: IF_INC; STATUS_REG: XLDA, GDA, TDA; SW_RESET and BOOT clear themselves
+        LSM6DSL: _Regs(0x0F, 0x6A, {0x12: b"\x04", 0x1E: b"\x07"}, {0x12: 0x81}),
+        # CFG_REG_A: idle; STATUS_REG: data ready; SOFT_RST, REBOOT clear themselves
+        LIS2MDL: _Regs(0x4F, 0x40, {0x60: b"\x03", 0x67: b"\x0f", 0x68: field}, {0x60: 0x60}),
+        # CTRL_REG2: IF_ADD_INC; STATUS: P_DA, T_DA; BOOT, SWRESET clear themselves
+        LPS22HB: _Regs(0x0F, 0xB1, {0x11: b"\x10", 0x27: b"\x03", 0x28: pressure, 0x2B: temperature}, {0x11: 0x84}),
+    }
 
 
 class SensorBus:
@@ -166,19 +108,15 @@ class SensorBus:
 
     The LSM6DSL's outputs at a read are those of the motion source's current tick: before TIM9 runs, the tick of
     the emulated time (``now // 104000``); once it runs, the tick the ISR's update event belongs to (so each TIM9
-    tick reads one consecutive sample).
-
-    Args:
-        motion: per-tick sensor counts.
-        log_limit: keep at most this many served LSM6DSL samples in :attr:`served` (for tests; 0 = none).
+    tick reads one consecutive sample). ``log_limit``: keep at most this many served LSM6DSL samples in
+    :attr:`served` (for tests).
     """
 
     def __init__(self, motion: MotionSource, *, log_limit: int = 0) -> None:
         self.motion = motion
-        self.devices = {LSM6DSL: _Lsm6dsl(), LIS2MDL: _Lis2mdl(), LPS22HB: _Lps22hb()}
+        self.devices = _devices()
         self.log_limit = log_limit
-        self.served: list[ServedSample] = []
-        self.reads = 0
+        self.served: list[tuple] = []  #: (tick, acc counts, gyro counts)
         self._tick_offset: int | None = None
         self._last_tick = -1
         self._cached_k = None
@@ -202,13 +140,11 @@ class SensorBus:
             raise UnmodelledHardware(
                 f"Sensor_IO_Read for SPI device {device} (not LSM6DSL/LIS2MDL/LPS22HB) in {board.where()}"
             )
-        self.reads += 1
         sample = self._lsm6dsl_sample(board, reg <= 0x28 < reg + n) if device == LSM6DSL else None
         return dev.read(reg, n, sample)
 
     def lsm6dsl_image(self, board) -> bytes:
         """The LSM6DSL's 128 registers once a read of its outputs at this tick (as the ISR's first) filled them."""
-        self.reads += 1
         dev = self.devices[LSM6DSL]
         dev.refresh(self._lsm6dsl_sample(board, True))
         return bytes(dev.r)
@@ -222,7 +158,7 @@ class SensorBus:
         if outputs and k != self._last_tick:
             self._last_tick = k
             if len(self.served) < self.log_limit:
-                self.served.append(ServedSample(k, tuple(int(v) for v in sample[0]), tuple(int(v) for v in sample[1])))
+                self.served.append((k, np.array(sample[0], np.int16), np.array(sample[1], np.int16)))
         return sample
 
     def write(self, device: int, reg: int, data: bytes, board) -> None:
@@ -231,9 +167,11 @@ class SensorBus:
             dev.write(reg, data)
 
     def served_driver_readings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads, in body axes."""
-        ticks = np.array([s.tick for s in self.served], np.int64)
-        acc = np.array([s.acc_counts for s in self.served], np.int16).reshape(-1, 3)
-        gyro = np.array([s.gyro_counts for s in self.served], np.int16).reshape(-1, 3)
-        a, g = driver_readings(acc, gyro)
-        return ticks, a, g
+        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads as the firmware's
+        ``ReadSensorRawData`` gets them: driver values in body axes."""
+        ticks = np.array([s[0] for s in self.served], np.int64)
+        readings = []
+        for j, sens in ((1, sm.ACC_SENSITIVITY_MG), (2, sm.GYRO_SENSITIVITY_MDPS)):
+            v = sm.driver_value(np.array([s[j] for s in self.served], np.int16).reshape(-1, 3), sens)
+            readings.append(np.stack([-v[:, 1], v[:, 0], v[:, 2]], axis=-1))
+        return ticks, readings[0], readings[1]

@@ -1,23 +1,17 @@
 """The ground truth each AHRS step of an emulated BROAD run saw, on the emulated board's time base.
 
-Alignment (the same as :func:`steval_link.emulation.broad.steval_view` for the Python estimators):
+Alignment, as :func:`steval_link.emulation.broad.steval_view` does it for the Python estimators:
 
-* The emulated sensors hold, at motion tick ``k``, the trial sample of trial time ``k · TICK_S − t_first`` (trial
-  time 0 is the first TIM9 tick, ``t_first`` ≈ 1 s after power-up: the firmware's start-up delay); each TIM9 ISR
-  reads the sample of its own tick.
-* The firmware's first 1600 ticks (2 s) are its offset calibration, so the first AHRS step comes ≈ 3 s after
-  power-up, its inputs averaging trial time ≈ 1.98 s .. 2.0 s. The calibration takes the trial's pose during the
-  second of those seconds as level (acc offset removal keeps only +1000 mg on z): the Python estimators' pipeline
-  does the same, and the truth is not corrected for it on either side (the trials start at rest, near level).
-* A step's inputs are the average of the 5 ISR samples in the firmware's FIFO when ``ahrs_fusion_ag`` is entered:
-  the last of them is the latest TIM9 tick at that moment, ``k_last``. The step's truth is taken at the middle of
-  that window, tick ``k_last − 2`` (the boxcar's centre), interpolated from the trial's quaternions (NaN where the
-  markers were occluded); ``movement`` is the trial's mask at the nearest sample.
-* Steps whose middle tick lies outside the trial (the emulation runs a little past its end) get NaN truth and
-  ``movement`` False.
+* At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is
+  the first TIM9 tick, ≈ 1 s after power-up). The firmware's first 2 s of ticks are its offset calibration (it
+  takes the trial's pose then as level; the truth is not corrected for it, the trials start at rest).
+* A step averages the 5 ISR samples in the FIFO when ``ahrs_fusion_ag`` is entered, the last being tick
+  ``k_last``; its truth is taken at the window's centre, tick ``k_last − 2``, interpolated from the trial's
+  quaternions (NaN where occluded or outside the trial); ``movement`` is the mask at the nearest sample (False
+  outside the trial).
 
-:class:`StepTruth` records ``k_last`` with a probe at ``ahrs_fusion_ag`` (``Emulation.step_start_observers``); AHRS
-step ``i`` (from 0) is the ``i``-th call, the step counter of the patch's frames.
+:class:`StepTruth` records ``k_last`` with a probe at ``ahrs_fusion_ag``; AHRS step ``i`` (from 0) is its ``i``-th
+call, the step counter of the patch's frames.
 """
 
 from __future__ import annotations
@@ -31,26 +25,16 @@ from steval_link.emulation import broad
 from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
 from steval_link.quat import quaternion_from_euler
 
-__all__ = ["TruthRows", "StepTruth", "score_euler"]
-
 
 @dataclass(frozen=True)
 class TruthRows:
-    """Ground truth per AHRS step.
+    """Ground truth per AHRS step."""
 
-    Attributes:
-        step: (M,) int64 AHRS step counter (0 = the first step after power-up).
-        t_s: (M,) float64 emulated time of the step's middle input tick, s since power-up.
-        t_trial_s: (M,) float64 trial time of that tick, s (outside [0, trial end]: no truth).
-        q_wxyz: (M, 4) float64 ground truth, body → earth (NaN: occluded or outside the trial).
-        movement: (M,) bool, the step counts for the metric.
-    """
-
-    step: np.ndarray
-    t_s: np.ndarray
-    t_trial_s: np.ndarray
-    q_wxyz: np.ndarray
-    movement: np.ndarray
+    step: np.ndarray  #: (M,) int64 AHRS step counter (0 = the first step after power-up)
+    t_s: np.ndarray  #: (M,) emulated time of the step's middle input tick, s since power-up
+    t_trial_s: np.ndarray  #: (M,) trial time of that tick, s (outside [0, trial end]: no truth)
+    q_wxyz: np.ndarray  #: (M, 4) ground truth, body → earth (NaN: occluded or outside the trial)
+    movement: np.ndarray  #: (M,) bool, the step counts for the metric
 
     def __len__(self) -> int:
         return int(self.step.shape[0])

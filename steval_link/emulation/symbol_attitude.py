@@ -19,8 +19,6 @@ from steval_link import constants as C
 from steval_link.emulation.runner import Emulation
 from steval_link.link.capture import SYMBOL_DTYPE
 
-__all__ = ["SYMBOLS", "SymbolAttitude", "elf_filter_variant"]
-
 #: the globals read, in the order the rows hold them
 SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")
 

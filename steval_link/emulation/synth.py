@@ -1,27 +1,17 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
-Until real drone captures exist, tests and the demo use these (``steval emulate`` runs the real firmware instead;
-synth is for what only it does: joining mid-frame, injected drops, the adapter model, text-mode logs). The chain,
-one module per link:
+``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
+drops, the adapter model, text-mode logs. The chain: motion (:mod:`~steval_link.emulation.motion`, a scenario or a
+BROAD trial) → the LSM6DSL and the ISR pipeline (:mod:`~steval_link.emulation.sensor_model`) → the bit-exact
+``ahrs_fusion_ag`` replica (:func:`steval_link.estimators.st_mahony.run`) → the patch's link and TX queue
+(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (:mod:`~steval_link.emulation.usb_adapter`) → a
+``.stv`` capture or the plain bytes.
 
-1. motion (:mod:`~steval_link.emulation.motion`): a built-in scenario or a BROAD trial, at every TIM9 tick;
-2. the LSM6DSL (:class:`~steval_link.emulation.sensor_model.Lsm6dsl`): bias, white noise, ranges, ADC and driver
-   quantisation;
-3. the firmware's ISR and main loop (:func:`~steval_link.emulation.sensor_model.run_isr`): power-up offset
-   calibration, gyro IIR, 5-sample boxcar; ``thz`` from :func:`~steval_link.emulation.sensor_model.isr_yaw_rad`;
-4. ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the bit-exact replica (:func:`steval_link.estimators.st_mahony.run`),
-   with the firmware variant's settings (``--ki``, ``--no-correction``);
-5. the firmware patch's link and TX queue, step by step, and the frame bytes (:mod:`~steval_link.emulation.fw_link`);
-6. the host: a USB-UART adapter delivering the bytes in packets, with receive times
-   (:mod:`~steval_link.emulation.usb_adapter`), into a ``.stv`` capture or the plain bytes.
-
-What is emulated rather than measured (so nobody mistakes it for the drone's): the main loop's latency after each
-tick, the DWT cycle counts' noise, the slow drift of the gyro's zero-rate level after calibration, the BLE
-module's banner values, the adapter. ``--drop-rate P`` makes the queue refuse about a fraction P of the attitude
-frames (bursts of about 3, as when it is full); a baud rate too low for the stream overflows the queue by itself.
-
-Everything is deterministic for a given :class:`SynthOptions` (seeded numpy generators; capture start time
-:data:`EPOCH_UNIX_S` + the join time): the same command gives the same bytes.
+Emulated rather than measured: the main loop's latency after each tick, the DWT counts' noise, the gyro's slow
+zero-rate drift after calibration, the BLE module's banner values, the adapter. ``--drop-rate P`` makes the queue
+refuse about a fraction P of the attitude frames (bursts of about 3); a baud rate too low for the stream overflows
+the queue by itself. The same :class:`SynthOptions` give the same bytes (seeded generators; capture start time
+:data:`EPOCH_UNIX_S` + the join time).
 """
 
 from __future__ import annotations
@@ -48,56 +38,33 @@ from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import capture
 from steval_link.link import protocol as P
 
-__all__ = [
-    "EPOCH_UNIX_S",
-    "SynthOptions",
-    "SynthResult",
-    "synthesize",
-    "write_output",
-    "default_c_encoder",
-]
-
 #: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
 EPOCH_UNIX_S = 1767225600.0
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
+_GENERATOR = (
+    "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → bit-exact ahrs_fusion_ag "
+    "replica → firmware link emulation → USB-UART adapter model"
+)
 
 
 @dataclass(frozen=True)
 class SynthOptions:
-    """What to emulate (the ``steval synth`` options).
+    """What to emulate (the ``steval synth`` options)."""
 
-    Attributes:
-        scenario: built-in scenario name (:data:`steval_link.emulation.motion.SCENARIOS`) or a BROAD trial ``.npz``
-        path.
-        duration_s: capture length, s (default: the scenario's; a BROAD trial: all of it after the join).
-        seed: seeds every random choice (motion details, sensor bias and noise, latencies, drops).
-        baud: USART1 baud rate (header, status frames, byte timing, queue drain).
-        throttle: ``--throttle`` spec overriding the scenario's throttle (see
-        :func:`steval_link.emulation.motion.parse_throttle`).
-        ki: ``AHRS_KI`` of the emulated build (float32 like the firmware).
-        correction: False: the build without accelerometer correction (lab exercise 5, status flag bit 0).
-        text_mode: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines).
-        join_at_s: the capture starts this long after power-up (mid-flight, mid-frame).
-        drop_rate: fraction of attitude frames the TX queue refuses (0 ≤ P < 1).
-        encoder: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``).
-        c_encoder: path of the host-built C encoder (default :func:`default_c_encoder`).
-        vibration: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``, :func:`~steval_link.emulation.motion.
-            parse_vibration`): pure sinusoids added to the motion, e.g. to check ``steval spectrum``.
-    """
-
-    scenario: str = "bench"
-    duration_s: float | None = None
-    seed: int = 0
-    baud: int = C.BAUD
-    throttle: str | None = None
-    ki: float = C.KI
-    correction: bool = True
-    text_mode: bool = False
-    join_at_s: float = 0.0
-    drop_rate: float = 0.0
-    encoder: str = "python"
-    c_encoder: str | None = None
+    scenario: str = "bench"  #: built-in scenario name or a BROAD trial ``.npz`` path
+    duration_s: float | None = None  #: capture length, s (default: the scenario's; a BROAD trial: all of it)
+    seed: int = 0  #: seeds every random choice (motion details, sensor bias and noise, latencies, drops)
+    baud: int = C.BAUD  #: USART1 baud rate (header, status frames, byte timing, queue drain)
+    throttle: str | None = None  #: ``--throttle`` spec (:func:`~steval_link.emulation.motion.parse_throttle`)
+    ki: float = C.KI  #: ``AHRS_KI`` of the emulated build (float32 like the firmware)
+    correction: bool = True  #: False: the build without accelerometer correction (lab exercise 5)
+    text_mode: bool = False  #: the text-mode build (``$ATT`` every 16th step, ``$STA``, plain log lines)
+    join_at_s: float = 0.0  #: the capture starts this long after power-up (mid-flight, mid-frame)
+    drop_rate: float = 0.0  #: fraction of attitude frames the TX queue refuses (0 ≤ P < 1)
+    encoder: str = "python"  #: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``)
+    c_encoder: str | None = None  #: path of the host-built C encoder (default :func:`default_c_encoder`)
+    #: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``): pure sinusoids added to the motion
     vibration: tuple[str, ...] = ()
 
     #: the command line that made this capture, for its header (the CLI's)
@@ -119,37 +86,19 @@ class SynthOptions:
 
 @dataclass
 class SynthResult:
-    """An emulated capture and what the firmware did to make it.
+    """An emulated capture and what the firmware did to make it."""
 
-    Attributes:
-        data: the serial bytes the host received (what a capture holds).
-        chunk_offsets: (K,) int64 stream offset of each received chunk (USB packet).
-        chunk_times_s: (K,) float64 host receive time of each chunk, s since the capture started.
-        header: the capture header (``port``, ``baud``, ``start_time_utc``, ``extra`` with the emulation's
-            parameters).
-        attitude: (M,) ``ATTITUDE_DTYPE`` records of every AHRS step the firmware made (sent or not).
-        sent: (M,) bool, the step's attitude frame (or, in text mode, its decimated line) went into the queue.
-        status: (S,) ``STATUS_DTYPE`` records of every status the firmware made.
-        tx_dropped: frames the queue refused in the whole emulation.
-        profile: the motion profile (truth) at every tick.
-        step_t_s: (M,) firmware time of each step, s since power-up.
-        counts: frames of each kind in ``data`` (``attitude``, ``status``, ``text``, ``att_lines``, ``sta_lines``).
-    """
-
-    data: bytes
-    chunk_offsets: np.ndarray
-    chunk_times_s: np.ndarray
-    header: dict
-    attitude: np.ndarray
-    sent: np.ndarray
-    status: np.ndarray
-    tx_dropped: int
-    profile: M.MotionProfile
-    step_t_s: np.ndarray
-    counts: dict = field(default_factory=dict)
-
-
-# ---- validation --------------------------------------------------------------------------------------------------
+    data: bytes  #: the serial bytes the host received (what a capture holds)
+    chunk_offsets: np.ndarray  #: (K,) int64 stream offset of each received chunk (USB packet)
+    chunk_times_s: np.ndarray  #: (K,) host receive time of each chunk, s since the capture started
+    header: dict  #: the capture header (``extra`` holds the emulation's parameters)
+    attitude: np.ndarray  #: (M,) ``ATTITUDE_DTYPE`` records of every AHRS step the firmware made (sent or not)
+    sent: np.ndarray  #: (M,) bool, the step's attitude frame (or text-mode line) went into the queue
+    status: np.ndarray  #: (S,) ``STATUS_DTYPE`` records of every status the firmware made
+    tx_dropped: int  #: frames the queue refused in the whole emulation
+    profile: M.MotionProfile  #: the motion profile (truth) at every tick
+    step_t_s: np.ndarray  #: (M,) firmware time of each step, s since power-up
+    counts: dict = field(default_factory=dict)  #: frames of each kind in ``data``
 
 
 def default_c_encoder() -> Path:
@@ -192,21 +141,6 @@ def _check(opts: SynthOptions) -> None:
         )
 
 
-# ---- firmware timing ---------------------------------------------------------------------------------------------
-
-# ---- the emulation -----------------------------------------------------------------------------------------------
-
-
-def _profile(
-    opts: SynthOptions, rng_motion, n_ticks: int, first_tick_s: float, total_s: float, trial=None
-) -> M.MotionProfile:
-    t = M.tick_times_s(n_ticks, first_tick_s)
-    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
-    if trial is not None:
-        return M.broad_profile(trial, t, first_tick_s, thr_fn)
-    return M.build_profile(opts.scenario, t, rng_motion, throttle=thr_fn, total_s=total_s)
-
-
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Slow zero-rate drift after the power-up calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over
     minutes, so the calibrated offset is not perfect and the filter's integral terms have work to do."""
@@ -226,26 +160,19 @@ def _settings(opts: SynthOptions) -> MahonySettings:
 def _span(opts: SynthOptions):
     """(BROAD trial or None, capture duration s, s from power-up to the capture's end) of ``opts``; UserError for
     an unknown scenario or a span too short for the firmware's 2 s calibration."""
-    trial = None
-    if _is_path(opts.scenario):
-        trial = load_trial(opts.scenario)
-        min_total = 3.0
-        default_duration = None
-    else:
-        sc = scenario(opts.scenario, "or a BROAD trial .npz path")
-        min_total = sc.min_duration_s
-        default_duration = sc.default_duration_s
-    tim9_s = fwl.TIM9_START_CYCLES / C.CPU_HZ
+    trial = load_trial(opts.scenario) if _is_path(opts.scenario) else None
+    sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
+    min_total = 3.0 if sc is None else sc.min_duration_s
     if opts.duration_s is not None:
         duration = float(opts.duration_s)
-    elif trial is not None:
-        duration = trial.t_s[-1] + tim9_s - opts.join_at_s - 1e-6
+    elif sc is not None:
+        duration = sc.default_duration_s
+    else:
+        duration = trial.t_s[-1] + fwl.TIM9_START_CYCLES / C.CPU_HZ - opts.join_at_s - 1e-6
         if duration <= 0:
             raise ParamError(
                 f"{{join_at_s}} {opts.join_at_s:g} s is after the end of BROAD trial {trial.name}", "join_at_s"
             )
-    else:
-        duration = default_duration
     total = opts.join_at_s + duration
     if total < min_total:
         raise UserError(
@@ -313,7 +240,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     progress(0.95, "encoding frames")
     data, chunk_offsets, chunk_times, counts = _received(opts, link, att, rs.host, total)
     dropped = link.txq.dropped
-    header = _header(opts, profile.name, duration, counts, dropped)
+    header = _header(opts, profile.name, duration)
     return SynthResult(
         data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, begin / C.CPU_HZ, counts
     )
@@ -325,10 +252,13 @@ def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
-    profile = M.add_vibrations(
-        _profile(opts, rs.motion, n_ticks, first_tick_s, total, trial),
-        [M.parse_vibration(spec) for spec in opts.vibration],
-    )
+    t = M.tick_times_s(n_ticks, first_tick_s)
+    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
+    if trial is not None:
+        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
+    else:
+        profile = M.build_profile(opts.scenario, t, rs.motion, throttle=thr_fn, total_s=total)
+    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
     gyro_true = profile.gyro_mdps
     if profile.measured:
         sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
@@ -367,25 +297,13 @@ def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
     return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
 
 
-def _header(opts: SynthOptions, name: str, duration: float, counts: dict, dropped: int) -> dict:
-
-    start = EPOCH_UNIX_S + opts.join_at_s
+def _header(opts: SynthOptions, name: str, duration: float) -> dict:
     params = {k: v for k, v in asdict(opts).items() if k not in ("encoder", "c_encoder")}
     params["duration_s"] = duration
     if not opts.vibration:  # headers of captures made without it stay as they were
         del params["vibration"]
-    return capture.capture_header(
-        f"synth:{name}",
-        opts.baud,
-        start,
-        {
-            "emulated": True,
-            "generator": "steval synth (steval_link.emulation.synth): motion → LSM6DSL model → ISR pipeline → "
-            "bit-exact ahrs_fusion_ag replica → firmware link emulation → USB-UART adapter model",
-            "command": opts.command(),
-            "synth": params,
-        },
-    )
+    extra = {"emulated": True, "generator": _GENERATOR, "command": opts.command(), "synth": params}
+    return capture.capture_header(f"synth:{name}", opts.baud, EPOCH_UNIX_S + opts.join_at_s, extra)
 
 
 def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = False) -> str:

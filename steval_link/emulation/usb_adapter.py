@@ -9,8 +9,6 @@ import numpy as np
 
 from steval_link import constants as C
 
-__all__ = ["ADAPTER_PACKET_BYTES", "ADAPTER_LATENCY_S", "USB_FRAME_S", "host_chunks"]
-
 #: data bytes per USB packet, latency timer, USB frame
 ADAPTER_PACKET_BYTES = 62
 ADAPTER_LATENCY_S = 0.016
