@@ -33,7 +33,6 @@ class BleRecording:
     connect_s: float
     counts: dict[str, int] = field(default_factory=dict)  #: notifications written per characteristic
     updates: int = 0  #: aci_gatt_update_char_value requests of the firmware (all characteristics)
-    refused: int = 0  #: of those, refused by a congestion model (none is modelled: 0)
     first_s: float | None = None
     last_s: float | None = None
 
@@ -49,8 +48,7 @@ class BleRecording:
         return [
             f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
             f"emulated, central connected at {self.connect_s:g} s",
-            f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}, "
-            f"refused (congestion model) {self.refused}",
+            f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}",
         ]
 
 
