@@ -104,6 +104,10 @@ def test_text_mode_and_missing_host_times(monkeypatch, capsys, tmp_path):
     att = [json.loads(m.data) for _, ch, m in msgs if ch.topic == "/attitude"]
     assert len(att) == len(tel.attitude) > 0
     assert att[0]["q_wxyz"] == [None] * 4 and att[0]["exact"] is False  # text mode: no q, null not NaN
+    # a row that is not a binary frame keeps its firmware time to 9 significant digits, not to the µs
+    raw = [m.data for _, ch, m in msgs if ch.topic == "/attitude"]
+    t_fw = np.asarray(tel.attitude.t_fw_s, np.float64)
+    assert all(b'"t_fw_s":%.9g,' % t in r for t, r in zip(t_fw[:50].tolist(), raw))
     tf = [json.loads(m.data) for _, ch, m in msgs if ch.topic == "/attitude/transform"]
     assert len(tf) == len(att) and all(isinstance(t["rotation"]["w"], (int, float)) for t in tf)
 

@@ -212,10 +212,12 @@ _ROW = (
     b'{"timestamp":%s,"parent_frame_id":"world","child_frame_id":"drone",'
     b'"translation":{"x":0,"y":0,"z":0},"rotation":%s}\n'
     b'{"timestamp":%s,"frame_id":"world","pose":{"position":{"x":0,"y":0,"z":0},"orientation":%s}}\n'
-    b'{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":%.6f,"t_host_s":%.6f,'
+    b'{"timestamp":%s,"step":%d,"seq":%d,"t_fw_s":TFW,"t_host_s":%.6f,'
     b'"acc_mg":[%.9g,%.9g,%.9g],"gyro_mdps":[%.9g,%.9g,%.9g],"thr":%d,"q_wxyz":[%.9g,%.9g,%.9g,%.9g],'
     b'"thx_pitch_rad":%.9g,"thy_roll_rad":%.9g,"thz_yaw_rad":%.9g,"exact":%s}\n'
 )
+#: t_fw_s in µs for a block of binary frames (exact, finite, host times all known or all unknown), else 9 digits
+_ROWS = {True: _ROW.replace(b"TFW", b"%.6f"), False: _ROW.replace(b"TFW", b"%.9g")}
 #: a number ``%`` wrote for a non-finite value, to be written as JSON null
 _NON_FINITE = re.compile(rb"(?<=[:,\[])-?(?:nan|inf)(?=[,\]}])")
 
@@ -249,8 +251,11 @@ def _attitude_blocks(att, rows: int = 8192):
         table[:, 1] = table[:, 3] = pieces[1:-1:2]
         table[:, 5:-1] = values
         table[:, -1] = [b"true" if e else b"false" for e in np.asarray(att.exact[sl], bool).tolist()]
-        text = (_ROW * m) % tuple(table.ravel().tolist())
-        if not np.isfinite(values).all():
+        finite = bool(np.isfinite(np.delete(values, 3, axis=1)).all())
+        host = np.isfinite(values[:, 3])
+        binary = finite and bool(np.asarray(att.exact[sl], bool).all()) and (host.all() or not host.any())
+        text = (_ROWS[binary] * m) % tuple(table.ravel().tolist())
+        if not (finite and host.all()):
             text = _NON_FINITE.sub(b"null", text)
         yield a, ns, text.split(b"\n")[:-1]
 
