@@ -1,9 +1,10 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
 gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
 
-The attitude rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads (the gyro low-passed by its IIR),
-at 161.54 Hz: the spectra end at 80.77 Hz, and a vibration above it is aliased, not lost (:func:`alias_lines` says
-where it lands and how strongly).
+The attitude rows hold the main loop's 5-sample averages (a boxcar) of the 807.7 Hz ISR reads, at 161.54 Hz; the
+gyro register refreshes at 416 Hz and its IIR is −3 dB near 101 Hz. The spectra end at 80.77 Hz. A vibration above
+it is aliased, not lost: it lands at ``|f − k · 161.54 Hz|``, scaled by the boxcar (zeros at multiples of
+161.54 Hz), the IIR and the 416 Hz register (:func:`alias_lines`).
 
 Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps (a dropped
 frame, a restart or a time jump ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by

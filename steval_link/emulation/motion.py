@@ -46,7 +46,8 @@ class MotionProfile:
     thr: np.ndarray  #: (T,) int16 throttle ``gTHR``
     #: acc/gyro are a real IMU's measurements (BROAD), so no sensor noise should be added
     measured: bool = False
-    #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred)
+    #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred):
+    #: ``euler_rc.thx = -gELE·30°/1800`` (pitch), ``thy = -gAIL·30°/1800`` (roll), ``|gRUD| > 600`` turns the yaw target
     sticks: np.ndarray | None = None
     armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
 
