@@ -232,30 +232,11 @@ def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> 
     input). The stock layout's rows carry the sensors and no attitude (NaN); the euler layout's the drone's
     attitude (rad) and no sensor values (NaN: the estimators skip the rows)."""
     acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
-    n = len(acc)
-    k = np.asarray(k, dtype=np.int64)
-    t_fw_s = np.asarray(t_fw_s, dtype=np.float64)
-    ang = np.full((n, 3), np.nan, np.float32)
+    ang = np.full(acc.shape, np.nan, np.float32)
     if layout.sends_attitude:
         ang, acc = acc / np.float32(layout.angle_scale), ang.copy()
     gyro = np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3) if not layout.sends_attitude else acc.copy()
-    return AttitudeArrays(
-        step=k,
-        seq=(k % (1 << 16)).astype(np.uint16),
-        t_us=(np.round(t_fw_s * 1e6).astype(np.int64) % (1 << 32)).astype(np.uint32),
-        t_fw_s=t_fw_s,
-        t_host_s=np.asarray(t_host_s, dtype=np.float64),
-        acc_mg=acc,
-        gyro_mdps=gyro,
-        thr=np.zeros(n, np.int16),
-        q_wxyz=np.full((n, 4), np.nan, np.float32),
-        thz_rad=ang[:, 2].copy(),
-        thx_rad=ang[:, 0].copy(),
-        thy_rad=ang[:, 1].copy(),
-        exact=np.zeros(n, bool),
-        offset=np.full(n, -1, np.int64),
-        values_bad=np.zeros(n, bool),
-    )
+    return AttitudeArrays.of(k, t_fw_s, t_host_s, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 
 
 #: motion samples that fix the cadence (and the estimators' dt) live; fewer when 3 s of drone time pass or at the end

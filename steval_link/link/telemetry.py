@@ -104,6 +104,31 @@ class AttitudeArrays:
         return len(self.step)
 
     @classmethod
+    def of(cls, step, t_fw_s, t_host_s, acc_mg, gyro_mdps, euler_rad, *, thr=None, q_wxyz=None, offset=None, **kw):
+        """Rows that are not binary frames (``exact`` False unless given): ``seq`` and ``t_us`` from ``step`` and
+        ``t_fw_s``; ``euler_rad`` (N, 3) thx, thy, thz; throttle 0, quaternion NaN and offset -1 unless given."""
+        step, t_fw_s = np.asarray(step, np.int64), np.asarray(t_fw_s, np.float64)
+        n = len(step)
+        euler = np.asarray(euler_rad, np.float32).reshape(n, 3)
+        return cls(
+            step=step,
+            seq=(step % P.SEQ_MODULUS).astype(np.uint16),
+            t_us=(np.round(t_fw_s * 1e6).astype(np.int64) % P.T_US_MODULUS).astype(np.uint32),
+            t_fw_s=t_fw_s,
+            t_host_s=np.asarray(t_host_s, np.float64),
+            acc_mg=np.ascontiguousarray(acc_mg, np.float32),
+            gyro_mdps=np.ascontiguousarray(gyro_mdps, np.float32),
+            thr=np.zeros(n, np.int16) if thr is None else np.asarray(thr, np.int16),
+            q_wxyz=np.full((n, 4), np.nan, np.float32) if q_wxyz is None else np.ascontiguousarray(q_wxyz, np.float32),
+            thz_rad=np.ascontiguousarray(euler[:, 2]),
+            thx_rad=np.ascontiguousarray(euler[:, 0]),
+            thy_rad=np.ascontiguousarray(euler[:, 1]),
+            exact=np.full(n, kw.pop("exact", False), bool),
+            offset=np.full(n, -1, np.int64) if offset is None else np.asarray(offset, np.int64),
+            **kw,
+        )
+
+    @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
         """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
         and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
@@ -509,22 +534,10 @@ class Telemetry:
         step = np.maximum.accumulate(raw - idx) + idx if n else raw  # strictly increasing
         bad = ~(np.isfinite(cols["thx_rad"]) | np.isfinite(cols["thy_rad"]))
         bad &= ~np.isfinite(cols["acc_mg"]).all(axis=1)
-        self.attitude = AttitudeArrays(
-            step=step,
-            seq=(step % P.SEQ_MODULUS).astype(np.uint16),
-            t_us=(np.round(t_fw * 1e6).astype(np.int64) % P.T_US_MODULUS).astype(np.uint32),
-            t_fw_s=t_fw,
-            t_host_s=np.asarray(s.t_host_s, np.float64),
-            acc_mg=cols["acc_mg"],
-            gyro_mdps=cols["gyro_mdps"],
-            thr=cols["thr"],
-            q_wxyz=np.full((n, 4), np.nan, np.float32),
-            thz_rad=cols["thz_rad"],
-            thx_rad=cols["thx_rad"],
-            thy_rad=cols["thy_rad"],
-            exact=np.zeros(n, bool),
-            offset=np.asarray(s.offset, np.int64),
-            values_bad=bad,
+        euler = np.stack([cols["thx_rad"], cols["thy_rad"], cols["thz_rad"]], axis=1)
+        acc, gyro = cols["acc_mg"], cols["gyro_mdps"]
+        self.attitude = AttitudeArrays.of(
+            step, t_fw, s.t_host_s, acc, gyro, euler, thr=cols["thr"], offset=s.offset, values_bad=bad
         )
 
     @cached_property
@@ -553,16 +566,16 @@ class Telemetry:
             out[has] = np.asarray(values)[row[has]]
             return out
 
-        for i, name in enumerate(("thx_pitch", "thy_roll", "thz_yaw")):
-            cols[f"target_{name}_rad"] = col(fc.euler_rc_rad[:, i])
-        for i, name in enumerate(("ail", "ele", "rud", "thr")):
-            cols[f"rc_{name}"] = col(fc.rc[:, i].astype(np.float32))
-        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-            cols[f"outer_s1_{name}_radps"] = col(fc.outer_s1_radps[:, i])
-        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-            cols[f"inner_s2_{name}_pwm"] = col(fc.inner_s2_pwm[:, i])
-        for i in range(4):
-            cols[f"motor{i + 1}_pwm"] = col(fc.motor_pwm[:, i])
+        xyz = ("x_pitch", "y_roll", "z_yaw")
+        for key, values, names in (
+            ("target_{}_rad", fc.euler_rc_rad, ("thx_pitch", "thy_roll", "thz_yaw")),
+            ("rc_{}", fc.rc.astype(np.float32), ("ail", "ele", "rud", "thr")),
+            ("outer_s1_{}_radps", fc.outer_s1_radps, xyz),
+            ("inner_s2_{}_pwm", fc.inner_s2_pwm, xyz),
+            ("motor{}_pwm", fc.motor_pwm, "1234"),
+        ):
+            for i, name in enumerate(names):
+                cols[key.format(name)] = col(values[:, i])
         cols["vbat_v"] = col(fc.vbat_v)
         for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"), (P.FC_RC_CAL, "fc_rc_cal")):
             cols[name] = col(((fc.fc_flags & bit) != 0).astype(np.float32))
@@ -572,25 +585,16 @@ class Telemetry:
     def attitude_table(self) -> dict[str, np.ndarray]:
         """One 1-D column per attitude field, units in the names (``pandas.DataFrame(tel.attitude_table())``)."""
         a = self.attitude
-        cols: dict[str, np.ndarray] = {
-            "step": a.step,
-            "seq": a.seq,
-            "t_fw_s": a.t_fw_s,
-            "t_host_s": a.t_host_s,
-        }
-        for i, ax in enumerate("xyz"):
-            cols[f"acc_{ax}_mg"] = a.acc_mg[:, i]
-        for i, ax in enumerate("xyz"):
-            cols[f"gyro_{ax}_mdps"] = a.gyro_mdps[:, i]
-        for i, c in enumerate("wxyz"):
-            cols[f"q_{c}"] = a.q_wxyz[:, i]
-        cols["thx_pitch_rad"] = a.thx_rad
-        cols["thy_roll_rad"] = a.thy_rad
-        cols["thz_yaw_rad"] = a.thz_rad
-        cols["thr"] = a.thr
-        cols["exact"] = a.exact
-        cols["offset"] = a.offset
-        cols["values_bad"] = a.values_bad
+        cols: dict[str, np.ndarray] = {"step": a.step, "seq": a.seq, "t_fw_s": a.t_fw_s, "t_host_s": a.t_host_s}
+        for key, values, axes in (
+            ("acc_{}_mg", a.acc_mg, "xyz"),
+            ("gyro_{}_mdps", a.gyro_mdps, "xyz"),
+            ("q_{}", a.q_wxyz, "wxyz"),
+        ):
+            for i, ax in enumerate(axes):
+                cols[key.format(ax)] = values[:, i]
+        cols.update(thx_pitch_rad=a.thx_rad, thy_roll_rad=a.thy_rad, thz_yaw_rad=a.thz_rad, thr=a.thr)
+        cols.update(exact=a.exact, offset=a.offset, values_bad=a.values_bad)
         return cols
 
 
