@@ -598,10 +598,10 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
 def _add_fast_frames(parts: TelemetryParts, arr: np.ndarray, data: bytes, starts, vts, sizes) -> None:
     """The frames of the runs into ``parts``: attitude and status as arrays, the others one by one."""
     types = vts & 0x0F
-    is_att, is_sta = types == P.TYPE_ATTITUDE, types == P.TYPE_STATUS
-    parts.add_attitude_payloads(arr, starts[is_att] + _HEAD, starts[is_att], sizes[is_att])
-    parts.add_status_payloads(arr, starts[is_sta] + _HEAD, starts[is_sta], sizes[is_sta])
-    other = ~(is_att | is_sta)
+    for kind in (P.TYPE_ATTITUDE, P.TYPE_STATUS):
+        sel = types == kind
+        parts.add_payloads(kind, arr, starts[sel] + _HEAD, starts[sel], sizes[sel])
+    other = (types != P.TYPE_ATTITUDE) & (types != P.TYPE_STATUS)
     for s, vt, size in zip(starts[other].tolist(), vts[other].tolist(), sizes[other].tolist()):
         ln = data[s + 3]
         parts.add_frame(_frame_at(data, s, vt, ln, size - _HEAD - ln, s))

@@ -21,7 +21,7 @@ Derived fields:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -162,37 +162,15 @@ class AttitudeArrays:
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
 
 
+_STATUS_COLUMNS = (*P.STATUS_DTYPE.names, "t_fw_s", "t_host_s", "exact", "offset")
+
+
 @dataclass
-class StatusArrays:
+class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name in _STATUS_COLUMNS])):
     """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
     (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact``, ``offset`` and ``values_bad`` (a snapshot holding NaN or
     ``|q|`` > 2: its settings are still the firmware's) as in :class:`AttitudeArrays`."""
 
-    step: np.ndarray
-    t_us: np.ndarray
-    q_wxyz: np.ndarray
-    int_xyz: np.ndarray
-    kp_ground: np.ndarray
-    kp_flight: np.ndarray
-    ki: np.ndarray
-    dt_s: np.ndarray
-    cyc_min: np.ndarray
-    cyc_mean: np.ndarray
-    cyc_max: np.ndarray
-    cpu_hz: np.ndarray
-    tx_dropped: np.ndarray
-    baud: np.ndarray
-    cyc_n: np.ndarray
-    min_thr: np.ndarray
-    flags: np.ndarray
-    queue_peak: np.ndarray
-    fw_version: np.ndarray
-    fc_every: np.ndarray
-    param_gen: np.ndarray
-    t_fw_s: np.ndarray
-    t_host_s: np.ndarray
-    exact: np.ndarray
-    offset: np.ndarray
     values_bad: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -289,28 +267,17 @@ class TelemetryParts:
         self.sent_commands: np.ndarray | None = None
         self._settled = False  # the blocks are one sorted block each (records asked for, nothing added since)
 
-    def add_attitude_payloads(
-        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.ATTITUDE_FRAME_SIZE
-    ) -> None:
-        """Binary attitude frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
+    def add_payloads(self, kind: int, arr: np.ndarray, payload_starts, frame_starts, frame_sizes) -> None:
+        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in the byte array
+        ``arr``."""
         if len(payload_starts) == 0:
             return
-        rec = _payload_records(arr, payload_starts, frame_starts, P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE, frame_sizes)
-        rec["step"] = -1
-        rec["thx_rad"] = np.nan
-        rec["thy_rad"] = np.nan
-        self.att_blocks.append(rec)
-        self._settled = False
-
-    def add_status_payloads(
-        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.STATUS_FRAME_SIZE
-    ) -> None:
-        """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
-        if len(payload_starts) == 0:
-            return
-        self.sta_blocks.append(
-            _payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE, STA_RECORD_DTYPE, frame_sizes)
-        )
+        attitude = kind == P.TYPE_ATTITUDE
+        dtypes = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
+        rec = _payload_records(arr, payload_starts, frame_starts, *dtypes, frame_sizes)
+        if attitude:
+            rec["step"], rec["thx_rad"], rec["thy_rad"] = -1, np.nan, np.nan
+        (self.att_blocks if attitude else self.sta_blocks).append(rec)
         self._settled = False
 
     def add_frame(self, frame: Frame) -> None:
@@ -457,6 +424,9 @@ class Telemetry:
         texts = sorted(parts.texts, key=lambda f: f.offset)
         total = int(total_bytes if total_bytes is not None else stats.bytes_total)
 
+        def host_s(last_byte) -> np.ndarray:
+            return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
+
         step, restarts = _unwrap_steps(att, sta)
         # firmware time over attitude and status rows together, in stream order
         off_all = np.concatenate([att["offset"], sta["offset"]])
@@ -466,26 +436,19 @@ class Telemetry:
             np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order], off_all[order], restarts
         )
         na = len(att)
-        att_last = att["offset"] + att["nbytes"] - 1
-        sta_last = sta["offset"] + sta["nbytes"] - 1
-
         attitude = AttitudeArrays.from_records(
-            att, step=step, t_fw_s=t_all[:na], t_host_s=_host_times(att_last, chunk_times, baud, total)
+            att, step=step, t_fw_s=t_all[:na], t_host_s=host_s(att["offset"] + att["nbytes"] - 1)
         )
         st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(
             **st_fields,
             t_fw_s=t_all[na:],
-            t_host_s=_host_times(sta_last, chunk_times, baud, total),
+            t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
             exact=sta["exact"].astype(bool),
             offset=sta["offset"].astype(np.int64),
         )
-        if texts:
-            t_last = np.array([f.offset + f.nbytes - 1 for f in texts], dtype=np.int64)
-            t_text = _host_times(t_last, chunk_times, baud, total)
-            text = [(float(t), f.text) for t, f in zip(t_text, texts)]
-        else:
-            text = []
+        t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
+        text = [(float(t), f.text) for t, f in zip(t_text, texts)]
         rows = {}
         for name, kind, dtype in (
             ("flight", FlightFrame, FLIGHT_ROW_DTYPE),
@@ -493,13 +456,12 @@ class Telemetry:
             ("commands", CommandFrame, COMMAND_ROW_DTYPE),
         ):
             rec = parts.other_rows(kind, dtype)
-            if len(rec):
-                rec["t_host_s"] = _host_times(rec["offset"] + rec["nbytes"] - 1, chunk_times, baud, total)
+            rec["t_host_s"] = host_s(rec["offset"] + rec["nbytes"] - 1)
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
             rows["commands"] = np.concatenate([rows["commands"], parts.sent_commands])
         blocks = parts.record_blocks + record_blocks(sorted(parts.records, key=lambda f: f.offset))
-        series = text_series(blocks, lambda last: _host_times(last, chunk_times, baud, total))
+        series = text_series(blocks, host_s)
         tel = cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows, text_series=series)
         if len(series) and not len(attitude):
             tel.map_text()
