@@ -37,7 +37,6 @@ step backwards) is a firmware restart (``seq_resets``). Text-mode rows are decim
 
 from __future__ import annotations
 
-import binascii
 import re
 import zlib
 
@@ -97,16 +96,8 @@ _VT_TEXT = {P.vt_byte(_V1, P.TYPE_TEXT), P.vt_byte(_V2, P.TYPE_TEXT)}
 _SYNC0, _SYNC1 = P.SYNC
 _NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
-_crc_hqx = binascii.crc_hqx
-_crc32 = zlib.crc32
-
-
-def _crc16_v1(data) -> int:
-    return _crc_hqx(data, P.CRC_INIT)
-
-
 #: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
-_CHECK = {_V1: (P.CRC_SIZE_V1, _crc16_v1), _V2: (P.CRC_SIZE, _crc32)}
+_CHECK = {_V1: (P.CRC_SIZE_V1, P.crc16), _V2: (P.CRC_SIZE, zlib.crc32)}
 
 
 def _crc_ok(buf, start: int, end: int, version: int) -> bool:
@@ -219,29 +210,15 @@ class StreamDecoder:
 
     # -- internals ---------------------------------------------------------------------------------------------
 
-    def _skip(self, buf: bytearray, p: int, n: int) -> int:
-        """Reject the candidate at ``p``: move to the next byte that could start something (``A5``, ``$``, or the
-        byte after a ``\\n``); the bytes in between cannot."""
-        m = _NEXT_START.search(buf, p + 1)
-        if m is None:
-            q = n
-            self._skipping = True  # the next bytes fed go on with this skip (as if they had come with these)
-        else:
-            q = m.start() + (buf[m.start()] == 0x0A)
+    def _skip(self, buf: bytearray, p: int, n: int, first: int = 1) -> int:
+        """Reject the candidate at ``p`` (``first`` 0: go on with a skip cut by the end of the bytes fed before):
+        move to the next byte that could start something (``A5``, ``$``, or the byte after a ``\\n``)."""
+        m = _NEXT_START.search(buf, p + first)
+        q = n if m is None else m.start() + (buf[m.start()] == 0x0A)
+        self._skipping = m is None  # the next bytes fed go on with this skip (as if they had come with these)
         self.stats.bytes_skipped += q - p
         self._boundary = False
         self._damaged = True
-        return q
-
-    def _go_on_skipping(self, buf: bytearray, p: int, n: int) -> int:
-        """A skip cut by the end of the bytes fed before: on to the next byte that could start something."""
-        m = _NEXT_START.search(buf, p)
-        if m is None:
-            q = n
-        else:
-            q = m.start() + (buf[m.start()] == 0x0A)
-            self._skipping = False
-        self.stats.bytes_skipped += q - p
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -252,7 +229,7 @@ class StreamDecoder:
         out: list[Frame] = []
         while p < n:
             if self._skipping:
-                p = self._go_on_skipping(buf, p, n)
+                p = self._skip(buf, p, n, 0)
                 continue
             c = buf[p]
             if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
@@ -267,10 +244,6 @@ class StreamDecoder:
             self._ended_nl = buf[p - 1] == 0x0A
             del buf[:p]
             self._base += p
-        if final and buf:  # cannot happen (every candidate is decided when final), kept as a guard
-            self.stats.bytes_skipped += len(buf)
-            self._base += len(buf)
-            buf.clear()
         return out
 
     def _binary_at(self, buf: bytearray, p: int, n: int, final: bool, out: list[Frame]) -> int | None:
@@ -449,18 +422,14 @@ def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[
         win_end = data.rfind(b"\n", p, min(p + window, end)) + 1
         valid = tpl.valid_blanks if sd.text_reader.idle else tpl.valid
         run_end = valid.match(data, p, win_end).end() if win_end else p
-        if run_end == p:  # a line that does not fit: the stream decoder decides it
-            stop = data.find(b"\n", p, end) + 1 or end
-            out += sd.feed(data[p:stop])
-            p = stop
-            window = _TEXT_WINDOW
-            continue
-        ends = np.flatnonzero(np.frombuffer(data, np.uint8, run_end - p, p) == 0x0A) + (p + 1)
-        starts = np.concatenate([[p], ends[:-1]]).astype(np.int64)
-        size = ends - starts
-        blank = (size == 1) | ((size == 2) & (np.frombuffer(data, np.uint8, run_end - p, p)[starts - p] == 0x0D))
-        count = int(len(ends) - blank.sum())
-        if count == 0 or int(size.max()) > MAX_LINE_BYTES:  # blank lines only, or a line too long: as above
+        if run_end > p:
+            ends = np.flatnonzero(np.frombuffer(data, np.uint8, run_end - p, p) == 0x0A) + (p + 1)
+            starts = np.concatenate([[p], ends[:-1]]).astype(np.int64)
+            size = ends - starts
+            blank = (size == 1) | ((size == 2) & (np.frombuffer(data, np.uint8, run_end - p, p)[starts - p] == 0x0D))
+            count = int(len(ends) - blank.sum())
+        if run_end == p or count == 0 or int(size.max()) > MAX_LINE_BYTES:
+            # a line that does not fit, blank lines only, or a line too long: the stream decoder decides it
             stop = data.find(b"\n", p, end) + 1 or end
             out += sd.feed(data[p:stop])
             p = stop
