@@ -66,29 +66,19 @@ CONFIRM = 3
 PERIOD_US = 1e6 / C.AHRS_RATE_HZ
 
 
+def _all_within(values, limit: float) -> bool:
+    return all(-limit <= v <= limit for v in values)  # also False for NaN
+
+
 def attitude_values_ok(acc_mg, gyro_mdps, q_wxyz, thz_rad) -> bool:
     """True when an attitude frame's values are ones the firmware can send."""
-    for v in acc_mg:
-        if not (-ACC_MAX_MG <= v <= ACC_MAX_MG):  # also False for NaN
-            return False
-    for v in gyro_mdps:
-        if not (-GYRO_MAX_MDPS <= v <= GYRO_MAX_MDPS):
-            return False
-    for v in q_wxyz:
-        if not (-Q_MAX <= v <= Q_MAX):
-            return False
-    return math.isfinite(thz_rad)
+    inputs_ok = _all_within(acc_mg, ACC_MAX_MG) and _all_within(gyro_mdps, GYRO_MAX_MDPS)
+    return inputs_ok and _all_within(q_wxyz, Q_MAX) and math.isfinite(thz_rad)
 
 
 def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
     """True when a status frame's filter snapshot and settings are finite (and q within ±2)."""
-    for v in q_wxyz:
-        if not (-Q_MAX <= v <= Q_MAX):
-            return False
-    for v in (*int_xyz, kp_ground, kp_flight, ki, dt_s):
-        if not math.isfinite(v):
-            return False
-    return True
+    return _all_within(q_wxyz, Q_MAX) and all(math.isfinite(v) for v in (*int_xyz, kp_ground, kp_flight, ki, dt_s))
 
 
 def attitude_frame_bad(frame) -> bool:
@@ -281,18 +271,15 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     a = att[ea]
     s = sta[es]
     # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
-    v1_a = np.flatnonzero(a["nbytes"] != P.ATTITUDE_FRAME_SIZE)
-    v1_s = np.flatnonzero(s["nbytes"] != P.STATUS_FRAME_SIZE)
-    vals_a = np.ones(len(a), bool)
-    vals_s = np.ones(len(s), bool)
-    if len(v1_a):
-        b = a[v1_a]
-        vals_a[v1_a] = ~attitude_rows_bad(True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0)
-    if len(v1_s):
-        b = s[v1_s]
-        vals_s[v1_s] = ~status_rows_bad(
-            True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"], b["dt_s"]
-        )
+    vals_a, vals_s = np.ones(len(a), bool), np.ones(len(s), bool)
+    b = a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE]
+    vals_a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE] = ~attitude_rows_bad(
+        True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0
+    )
+    b = s[s["nbytes"] != P.STATUS_FRAME_SIZE]
+    vals_s[s["nbytes"] != P.STATUS_FRAME_SIZE] = ~status_rows_bad(
+        True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"], b["dt_s"]
+    )
     # fast path: every attitude row fits the previous one and every status the attitude row before it
     clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
     if clean and len(a) > 1:
