@@ -18,6 +18,7 @@ never a traceback.
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -93,17 +94,17 @@ def explain_ble_error(exc: BaseException) -> str | None:
     return None
 
 
+def _raise_explained(exc: BaseException) -> None:
+    """Raise the :func:`explain_ble_error` sentence of ``exc`` as a UserError, when it has one."""
+    why = explain_ble_error(exc)
+    if why:
+        raise UserError(why) from None
+
+
 def is_address(text: str) -> bool:
     """A BLE address (``C0:11:22:33:44:55``) or a macOS CoreBluetooth UUID, rather than a name."""
     t = text.strip()
-    parts = t.split(":")
-    if len(parts) == 6 and all(len(p) == 2 for p in parts):
-        try:
-            [int(p, 16) for p in parts]
-            return True
-        except ValueError:
-            return False
-    return len(t) == 36 and t.count("-") == 4
+    return bool(re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", t)) or (len(t) == 36 and t.count("-") == 4)
 
 
 def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | None:
@@ -114,10 +115,9 @@ def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | Non
         if is_address(t):
             return next((d for d in devices if d.address.lower() == t.lower()), None)
         exact = [d for d in devices if d.name == t]
-        if exact:
-            return exact[0]
-        pref = [d for d in devices if d.name and d.name.lower().startswith(t.lower())]
-        return _strongest(pref)
+        return (
+            exact[0] if exact else _strongest([d for d in devices if d.name and d.name.lower().startswith(t.lower())])
+        )
     return _strongest([d for d in devices if d.name and d.name.startswith(DEVICE_NAME_PREFIX)])
 
 
@@ -221,9 +221,7 @@ class BleLink:
             try:
                 devices = await self.backend.scan(self.scan_timeout_s)
             except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
-                why = explain_ble_error(exc)
-                if why:
-                    raise UserError(why) from None
+                _raise_explained(exc)
                 raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
             dev = pick_device(devices, self.target)
             if dev is not None:
@@ -273,9 +271,7 @@ class BleLink:
         except UserError:
             raise
         except Exception as exc:  # noqa: BLE001 - BleError, or the platform's own (no permission, adapter off...)
-            why = explain_ble_error(exc)
-            if why:
-                raise UserError(why) from None
+            _raise_explained(exc)
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
         first_delay = min(0.5, self.retry_max_s)
@@ -300,9 +296,7 @@ class BleLink:
                 except UserError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - retried unless the platform itself failed
-                    why = explain_ble_error(exc)
-                    if why:
-                        raise UserError(why) from None
+                    _raise_explained(exc)
                 delay = min(delay * 2, self.retry_max_s)
         await self.backend.disconnect()
 
