@@ -301,13 +301,10 @@ def describe_bytes(data: bytes, total: int | None = None) -> str:
     if n == 0:
         return "no bytes at all"
     sample = data[:4096]
-    counts = [0] * 256
-    for b in sample:
-        counts[b] += 1
+    counts = np.bincount(np.frombuffer(sample, np.uint8), minlength=256).tolist()
     m = len(sample)
-    printable = sum(counts[b] for b in range(32, 127)) + counts[9] + counts[10] + counts[13]
-    zeros = counts[0]
-    ffs = counts[0xFF]
+    printable = sum(counts[32:127]) + counts[9] + counts[10] + counts[13]
+    zeros, ffs = counts[0], counts[0xFF]
     distinct = sum(1 for c in counts if c)
     if zeros / m > 0.9:
         return f"all 0x00 ({n} bytes: a line held low, or a much slower baud rate)"

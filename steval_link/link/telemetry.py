@@ -41,7 +41,7 @@ from steval_link.link.frames import (
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.text_series import RecordBlock, TextSeries, map_attitude, record_blocks, text_series
-from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
+from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.link.unwrap import host_times as _host_times
 
 if TYPE_CHECKING:  # annotations only
@@ -372,17 +372,6 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
     return step, restarts
 
 
-def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) -> np.ndarray:
-    """Firmware time in s: ``t_us`` (rows in stream order) unwrapped mod 2³², from 0 again at each firmware restart
-    (one :class:`~steval_link.link.unwrap.TimeUnwrapper` per firmware run, as the live path uses)."""
-    out = np.zeros(len(t_us), np.float64)
-    seg = np.searchsorted(restarts, offsets, side="right")
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(seg)) + 1, [len(t_us)]])
-    for a, b in zip(starts[:-1], starts[1:]):
-        out[a:b] = TimeUnwrapper().seconds(t_us[a:b])
-    return out
-
-
 @dataclass
 class Telemetry:
     """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
@@ -428,13 +417,13 @@ class Telemetry:
             return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
 
         step, restarts = _unwrap_steps(att, sta)
-        # firmware time over attitude and status rows together, in stream order
+        # firmware time over attitude and status rows together, in stream order, from 0 again at each restart
         off_all = np.concatenate([att["offset"], sta["offset"]])
         order = np.argsort(off_all, kind="stable")
         t_all = np.empty(len(off_all))
-        t_all[order] = _unwrap_time(
-            np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order], off_all[order], restarts
-        )
+        run = np.searchsorted(restarts, off_all[order], side="right")
+        t_us = np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order]
+        t_all[order] = StreamClock().fw_s(t_us, np.diff(run, prepend=0) > 0)
         na = len(att)
         attitude = AttitudeArrays.from_records(
             att, step=step, t_fw_s=t_all[:na], t_host_s=host_s(att["offset"] + att["nbytes"] - 1)
