@@ -136,15 +136,6 @@ def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
     return not (host_span > 0 and host_span / (n - 1) < 1.5 * TICK_S)
 
 
-def break_mask(n: int, breaks) -> np.ndarray:
-    """(n,) bool: True at the samples that follow a reconnection (never the first)."""
-    m = np.zeros(n, bool)
-    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
-    b = b[(b > 0) & (b < n)]
-    m[b] = True
-    return m
-
-
 def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
     """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
     count of repeated samples already removed (a poller's repeated reads) and the samples that are the
@@ -166,7 +157,9 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
     if n < 2 or t[-1] <= t[0]:
         return None
     d = np.diff(t)
-    brk = break_mask(n, breaks)
+    brk = np.zeros(n, bool)  # the samples that follow a reconnection (never the first)
+    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
+    brk[b[(b > 0) & (b < n)]] = True
     p = period_ticks(d[~brk[1:]]) if brk.any() else period_ticks(d)
     if p is None:
         return None
@@ -178,13 +171,13 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
         interval = STEP_PERIOD_S
         k = sample_numbers(t, interval)
     else:
-        k = _run_numbers(t, p)
+        k = RunNumberer(p).numbers(t)
         for _ in range(2):  # the period from all samples at their numbers (least squares): precise over the span
             fit = float(np.polyfit(k, t + 0.5, 1)[0]) if k[-1] > 1 else p
             if not abs(fit - p) < 0.05 * p or fit == p:
                 break
             p = fit
-            k = _run_numbers(t, p)
+            k = RunNumberer(p).numbers(t)
         interval = p * TICK_S
     jump = np.diff(k) - 1
     dropped = int(jump[~brk[1:]].sum())
@@ -242,10 +235,6 @@ class RunNumberer:
             self._n += e - s
             self.k, self.tick = int(out[e - 1]), int(t[e - 1])
         return out
-
-
-def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
-    return RunNumberer(period_ticks).numbers(ticks)
 
 
 def sender_phase(t: np.ndarray, interval: float) -> float:

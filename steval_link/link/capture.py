@@ -559,26 +559,22 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
 
 def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
     """The capture's JSON header and the file position after it; a :class:`UserError` when there is none."""
+    truncated = UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
     if not raw.startswith(MAGIC):
         if raw and MAGIC.startswith(raw):
-            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
+            raise truncated
         raise UserError(f"{path} is not a steval capture (.stv) file.")
     pos = len(MAGIC)
+    hlen = _HEADER_LEN.unpack_from(raw, pos)[0] if len(raw) >= pos + 4 else None
+    if hlen is None or (hlen <= MAX_HEADER and pos + 4 + hlen + 4 > len(raw)):
+        raise truncated
     try:
-        (hlen,) = _HEADER_LEN.unpack_from(raw, pos)
-        if hlen <= MAX_HEADER and pos + 4 + hlen + 4 > len(raw):
-            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
-        if hlen > MAX_HEADER:
-            raise ValueError
         head = raw[pos + 4 : pos + 4 + hlen]
-        (crc,) = _CRC.unpack_from(raw, pos + 4 + hlen)
-        if zlib.crc32(head) != crc:
+        if hlen > MAX_HEADER or zlib.crc32(head) != _CRC.unpack_from(raw, pos + 4 + hlen)[0]:
             raise ValueError
         header = json.loads(head.decode("utf-8"))
         if not isinstance(header, dict):
             raise ValueError
-    except struct.error:
-        raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.") from None
     except (ValueError, UnicodeDecodeError):
         raise UserError(f"{path}: {len(raw)} bytes, capture header damaged: no frames.") from None
     if int(header.get("format_version", 0)) > FORMAT_VERSION:

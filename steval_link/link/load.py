@@ -101,7 +101,10 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
         return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
     if src.kind == "stv" and not src.data and symbols is None:
-        size = _file_size(src.path)
+        try:
+            size = f"{Path(src.path).stat().st_size} bytes"
+        except OSError:
+            size = "size unknown"
         if src.warnings:  # cut short or damaged right after the header
             raise UserError(
                 f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
@@ -152,13 +155,6 @@ def _text_lines(tel: Telemetry) -> str:
 
 #: a line of labels with nothing printed after them: a %f of newlib nano (``Drone_Pitch = \tDrone_Roll = ``)
 _FLOATLESS = re.compile(r"(?:[A-Za-z_][\w .()/-]*\s*[=:]\s*)+")
-
-
-def _file_size(path: Path) -> str:
-    try:
-        return f"{Path(path).stat().st_size} bytes"
-    except OSError:
-        return "size unknown"
 
 
 def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
