@@ -301,16 +301,11 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     # slow path: the gate row by row, in stream order
     keep_a[ea] = False
     keep_s[es] = False
-    rows = [(int(o), P.TYPE_ATTITUDE, int(i)) for o, i in zip(a["offset"], ea)]
-    rows += [(int(o), P.TYPE_STATUS, int(i)) for o, i in zip(s["offset"], es)]
-    rows.sort()
-    va = dict(zip(ea.tolist(), vals_a.tolist()))
-    vs = dict(zip(es.tolist(), vals_s.tolist()))
-    for _, kind, i in rows:
-        if kind == P.TYPE_ATTITUDE:
-            released = gate.offer(kind, int(att["seq"][i]), int(att["t_us"][i]), va[i], (kind, i))
-        else:
-            released = gate.offer(kind, int(sta["step"][i]), int(sta["t_us"][i]), vs[i], (kind, i))
-        for k, idx in released:
-            (keep_a if k == P.TYPE_ATTITUDE else keep_s)[idx] = True
+    rows = [(o, P.TYPE_ATTITUDE, j) for j, o in enumerate(a["offset"].tolist())]
+    rows += [(o, P.TYPE_STATUS, j) for j, o in enumerate(s["offset"].tolist())]
+    for _, kind, j in sorted(rows):
+        r, idx, vals, key = (a, ea, vals_a, "seq") if kind == P.TYPE_ATTITUDE else (s, es, vals_s, "step")
+        released = gate.offer(kind, int(r[key][j]), int(r["t_us"][j]), bool(vals[j]), (kind, int(idx[j])))
+        for k, i in released:
+            (keep_a if k == P.TYPE_ATTITUDE else keep_s)[i] = True
     return keep_a, keep_s
