@@ -267,7 +267,7 @@ class LiveGrid:
         self._last_k: int | None = None
         self._numberer: RunNumberer | None = None
         self._last_tick = 0
-        self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
+        self._last_sample: np.ndarray | None = None  # acc, gyro and mag of the last sample
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)
         self.rows_held = 0
@@ -363,12 +363,9 @@ class LiveGrid:
         for b in breaks[breaks < n].tolist():
             grid = grid[(grid <= before[b]) | (grid >= k[b])]  # never sent: the link was down
         src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
-        acc = np.array([f.acc_mg for f in mo], np.float32).reshape(-1, 3)
-        gyro = np.array([f.gyro_mdps for f in mo], np.float32).reshape(-1, 3)
-        mag = np.array([f.mag_mgauss for f in mo], np.float32).reshape(-1, 3)
-        acc_rows, gyro_rows, mag_rows = acc[np.maximum(src, 0)], gyro[np.maximum(src, 0)], mag[np.maximum(src, 0)]
-        if (src < 0).any():  # rows before this round's first sample: held from the last round's
-            acc_rows[src < 0], gyro_rows[src < 0], mag_rows[src < 0] = self._last_sample
+        sensors = np.array([(*f.acc_mg, *f.gyro_mdps, *f.mag_mgauss) for f in mo], np.float32).reshape(-1, 9)
+        rows = sensors[np.maximum(src, 0)]  # acc, gyro, mag
+        rows[src < 0] = self._last_sample  # rows before this round's first sample: held from the last round's
         self.rows_held += len(grid) - n
         if c.kind != POLLED:
             d = np.diff(tick, prepend=tick[0] if first else self._last_tick)
@@ -379,9 +376,10 @@ class LiveGrid:
         host = np.array([f.t_host_s for f in mo], np.float64)
         t_host = np.interp(t_rows, t_fw, host) if n > 1 else np.full(len(grid), host[0])
         self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
-        self._last_sample = (acc[-1], gyro[-1], mag[-1])
-        self.mag_mgauss = mag_rows
-        return attitude_rows(t_rows, t_host, grid if c.kind != POLLED else k, acc_rows, gyro_rows, self.layout)
+        self._last_sample = sensors[-1]
+        self.mag_mgauss = rows[:, 6:]
+        k_rows = grid if c.kind != POLLED else k
+        return attitude_rows(t_rows, t_host, k_rows, rows[:, :3], rows[:, 3:6], self.layout)
 
     def _period_s(self) -> float:
         """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample

@@ -32,9 +32,7 @@ class TimeUnwrapper:
         raw = np.asarray(t_us, dtype=np.int64) % T_US_MODULUS
         if raw.size == 0:
             return np.zeros(0, dtype=np.float64)
-        prev = np.empty_like(raw)
-        prev[0] = raw[0] if self.last is None else self.last
-        prev[1:] = raw[:-1]
+        prev = np.concatenate([[raw[0] if self.last is None else self.last], raw[:-1]])
         wraps = self.wraps + np.cumsum((prev - raw) > _HALF)
         self.wraps = int(wraps[-1])
         self.last = int(raw[-1])
@@ -75,9 +73,7 @@ class SeqUnwrapper:
         n = raw.size
         if n == 0:
             return np.zeros(0, np.int64), np.zeros(0, bool)
-        prev = np.empty_like(raw)
-        prev[0] = raw[0] if self.last is None else self.last % SEQ_MODULUS
-        prev[1:] = raw[:-1]
+        prev = np.concatenate([[raw[0] if self.last is None else self.last % SEQ_MODULUS], raw[:-1]])
         advance = (raw - prev) % SEQ_MODULUS
         restart = advance >= SEQ_MODULUS // 2
         inc = np.where(restart, 0, advance)
