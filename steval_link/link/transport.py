@@ -229,11 +229,7 @@ class SerialReader(threading.Thread):
         except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
             self.error = exc
         finally:
-            with self.lock:
-                ser, self.serial = self.serial, None
-            if ser is not None:
-                close_quietly(ser)
-                self.connected.clear()
+            if self._release():
                 try:
                     self.protocol.connection_lost(None)
                 except BaseException as exc:  # noqa: BLE001
@@ -265,12 +261,17 @@ class SerialReader(threading.Thread):
                 break
         return bytes(buf)
 
-    def _drop(self, exc: BaseException) -> None:
+    def _release(self) -> bool:
+        """Close the port (under the lock); False when none was open."""
         with self.lock:
             ser, self.serial = self.serial, None
         if ser is not None:
             close_quietly(ser)
         self.connected.clear()
+        return ser is not None
+
+    def _drop(self, exc: BaseException) -> None:
+        self._release()
         self.protocol.connection_lost(exc)
 
     def _reconnect(self) -> bool:
