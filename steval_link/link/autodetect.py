@@ -1,16 +1,10 @@
 """Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again.
 
-- :func:`probe_port` reads a port briefly and says whether it carries valid steval frames.
-- :func:`choose_port` implements ``--port auto`` (and glob patterns such as ``/dev/ttyUSB*``).
-- :func:`describe_bytes` / :func:`no_frames_message` turn bytes without a single valid frame into one line that says
-  what they look like and which ``--baud`` to try.
-- :class:`PortIdentity` / :class:`PortFinder` remember what a port was (path, USB VID:PID, serial number, USB
-  location) and find it again after an unplug, even when it comes back under another name (``/dev/ttyUSB0`` →
-  ``/dev/ttyUSB1``), never taking another adapter that now sits at the old name. Pseudo-terminals and other ports
-  without USB identity are found again by their path or by a new name in the same family (the path with its
-  trailing digits replaced by ``*``); a candidate that sends no valid frames is rejected and the search goes on.
-
-Plain listing of ports is :mod:`steval_link.link.ports`' job; this module only uses it.
+- :func:`probe_port` reads a port briefly and says whether it carries valid frames; :func:`choose_port` implements
+  ``--port auto`` and glob patterns.
+- :func:`no_frames_message` says what bytes without a valid frame look like and which ``--baud`` to try.
+- :class:`PortFinder` finds a port again after an unplug by its USB identity, even under another name, never
+  taking another adapter now at the old name; a port without USB identity by its path or a new sibling name.
 """
 
 from __future__ import annotations

@@ -1,18 +1,12 @@
 """The BLE transport: scan, connect, subscribe to the drone's notifications, reconnect when the link is lost.
 
-Two parts, as the serial transport keeps its protocol apart from its thread:
+* :class:`BleBackend`: the small interface to a radio; :class:`BleakBackend` implements it with bleak (optional
+  extra ``steval-link[ble]``), ``tests/support/ble.py`` without a radio.
+* :class:`BleLink`: find the drone (by name or address, default the strongest ``DRN1…`` advertiser), connect,
+  subscribe to each characteristic of ``ble_payloads.CHAR_UUIDS``, hand each notification to
+  ``on_notification(char id, bytes, t_unix_s)``, and on a lost link reconnect (back off up to :data:`RETRY_MAX_S`).
 
-* :class:`BleBackend`: the small interface to a radio (``scan``, ``connect``, ``start_notify``, ``disconnect``).
-  :class:`BleakBackend` implements it with `bleak <https://pypi.org/project/bleak/>`_ (optional extra
-  ``steval-link[ble]``; BlueZ on Linux, CoreBluetooth on macOS, WinRT on Windows);
-  ``FakeBleBackend`` of the tests (``tests/support/ble.py``) without a radio.
-* :class:`BleLink`: the logic over any backend: find the drone (by name or address, default: the first
-  ``DRN1…`` advertiser), connect, subscribe to every characteristic of ``ble_payloads.CHAR_UUIDS`` it has, hand
-  each notification to ``on_notification(char id, bytes, t_unix_s)``, and on a lost link mark it and reconnect
-  (scan again, back off up to :data:`RETRY_MAX_S`) until stopped.
-
-Radio and permission failures become :class:`~steval_link.errors.UserError` sentences (:func:`explain_ble_error`),
-never a traceback.
+Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """Capture files (``.stv``): the raw serial bytes exactly as received, with host receive times, plus events.
 
-Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then chunks that are each
-self-checking (CRC-32), so a file cut anywhere (power cut, ``kill -9``) reads back up to its last complete chunk.
-Raw bytes are the source of truth: a decoder fix re-decodes old captures.
-
-* :class:`CaptureWriter` appends crash-safely (each chunk goes to the OS at once; ``fsync`` at least once a second).
-* :func:`read_capture` returns a :class:`Capture` (header, bytes, chunk offsets/times, events, truncation).
-
-The file format only (writing and reading), so that its byte layout is stated in one place; decoding a capture is
-:mod:`steval_link.link.load`.
+Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then self-checking chunks (CRC-32),
+so a file cut anywhere reads back up to its last complete chunk. Raw bytes are the source of truth: a decoder fix
+re-decodes old captures. :class:`CaptureWriter` appends crash-safely; :func:`read_capture` reads a
+:class:`Capture`. Decoding a capture is :mod:`steval_link.link.load`.
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """Host → drone commands (protocol v2, frame type 8) and the drone's acknowledgements (type 5).
 
-One place for what a command is called and how it reads: :func:`parse_command` turns a typed line (``set ki 1.0``,
-``correction off``, ``reset``, ``status``, ``mode text``) into a :class:`Command`; :class:`CommandChannel` numbers
-and sends commands through any byte sink (a serial port, the emulated board), records every byte sent (the
-capture's ``H`` chunks) and matches the acknowledgements to what was sent; :func:`describe_ack` says in one
-sentence what the drone did. ``steval param``/``steval command``, the ``steval live`` prompt and ``steval emulate
---commands`` all go through here.
+:func:`parse_command` turns a typed line (``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode
+text``) into a :class:`Command`; :class:`CommandChannel` numbers and sends commands through any byte sink, records
+the bytes sent (the capture's ``H`` chunks) and matches acknowledgements; :func:`describe_ack` says what the drone
+did.
 """
 
 from __future__ import annotations

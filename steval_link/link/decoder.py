@@ -1,38 +1,29 @@
 """Wire-protocol decoder: :class:`StreamDecoder` (incremental, bounded memory) and :func:`decode_bytes` (bulk, fast).
 
-Both implement ``firmware_patch/PROTOCOL.md`` and give exactly the same frames and counters on the same bytes.
+Both implement ``firmware_patch/PROTOCOL.md`` and give the same frames and counters on the same bytes.
 
 Rules (position by position, from the start of the stream):
 
-* ``A5 5A``: a binary frame candidate. Valid (version 2 with CRC-32, or version 1 with CRC-16; known type, the
-  type's ``LEN``, CRC) → the whole frame consumed and handed to the plausibility gate
-  (:mod:`steval_link.link.plausibility`), which hands it out or holds it back (``implausible``: sequence and time
-  that do not continue; on version 1 also NaN or out-of-range values. A version-2 frame with such values is handed
-  out and counted in ``values_bad``: the firmware sent it); otherwise only the
-  ``A5`` is discarded and the search resumes at the next byte. A known header whose CRC fails counts in
-  ``crc_failures``; a frame of unknown type whose CRC matches counts in ``unknown_frames`` (skipped the same way).
-  Once a version-2 frame was accepted, version-1 candidates are no longer taken (a damaged v2 stream cannot
-  yield a v1 frame that passed only the weaker CRC-16).
-* Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
-  is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``).
-  A plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only at a
-  clean line start: right after a frame or line that was handed out, or after a whole printable line (blank
-  lines in between change nothing). So a stream joined in the middle of a line never yields the tail of that line
-  (the first plain line of a stream is dropped, counted as skipped), a line right after binary damage is not
-  trusted, and a line holding a valid ``$`` sentence after a glitch byte yields the sentence, not a log line.
-  ``line_start=True`` says the stream's first byte starts a line (a log file, which holds what the port sent
-  from its start): then its first line is kept when it is a whole printable line.
-* Blank lines (spaces and tabs only, ``\r`` at the end allowed) and the ``\r`` of ``\n\r`` endings at a line
-  start count in ``blank_bytes``: text a program printed, not damage (right after damage they are skipped).
-* Every other byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
+* ``A5 5A``: a binary frame candidate. Valid (v2 with CRC-32 or v1 with CRC-16, known type, the type's ``LEN``,
+  CRC) → consumed and handed to the plausibility gate (:mod:`steval_link.link.plausibility`); otherwise only the
+  ``A5`` is discarded. A known header whose CRC fails counts in ``crc_failures``; an unknown type whose CRC matches
+  in ``unknown_frames``. Once a v2 frame was accepted, v1 candidates are refused (a damaged v2 stream cannot yield
+  a v1 frame that passed only the weaker CRC-16).
+* Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$``
+  line is accepted wherever it starts when its checksum and fields are right (else ``crc_failures``). A plain line
+  has no checksum, so it is accepted only at a clean line start: after a frame or line handed out, or after a whole
+  printable line. So a stream joined mid-line never yields that line's tail (the first plain line is skipped), and
+  a glitch byte before a ``$ATT`` line yields the sentence, not a log line. ``line_start=True``: the stream's first
+  byte starts a line (a log file), so its first line is kept.
+* Blank lines and the ``\\r`` of ``\\n\\r`` endings at a line start count in ``blank_bytes`` (text, not damage).
+* Every other byte not in a handed-out frame or line counts in ``bytes_skipped``.
 
 The decoder waits for more bytes only while the candidate at its position could still become valid, so its
-buffer never holds more than one frame (≤ 261 bytes) or one text line (≤ 512 bytes): memory is bounded whatever
-the input, and the frames do not depend on how the bytes are chunked.
+buffer never holds more than one frame (≤ 261 bytes) or line (≤ 512 bytes), and the frames do not depend on how
+the bytes are chunked.
 
-Sequence counters: between consecutive binary attitude frames, ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
-normal, ``2 ≤ d < 2¹⁵`` is a gap (``seq_gaps`` += 1, ``frames_missing`` += d − 1), ``d = 0`` or ``d ≥ 2¹⁵`` (a
-step backwards) is a firmware restart (``seq_resets``). Text-mode rows are decimated by design and not counted.
+Sequence counters between consecutive binary attitude frames: ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
+normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1), else a firmware restart (``seq_resets``).
 """
 
 from __future__ import annotations

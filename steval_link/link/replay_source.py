@@ -1,17 +1,12 @@
 """A recorded stream played back as a live serial port: ``--port replay://recordings/demo.stv``.
 
-In the spirit of pyserial's URL handlers (``loop://``, ``spy://``): :class:`ReplayPort` has the surface the reader
-thread (:class:`~steval_link.link.transport.SerialReader`) uses of a ``serial.Serial`` (``read``, ``in_waiting``,
-``cancel_read``, ``write``, ``close``, ``port``, ``baudrate``, ``timeout``), so a replay walks the whole live path:
-capture, decoder, estimators, viewer, summary.
+As pyserial's URL handlers (``loop://``), :class:`ReplayPort` has the surface of ``serial.Serial`` the reader
+thread uses, so a replay walks the whole live path.
 
-Pace: a capture's bytes come out at the host times they were recorded at (chunk ``D`` times); a raw dump or a
-text-mode log has none, so its bytes come out at the firmware time of its frames (``t_fw_s``), or at the baud rate
-(10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
-silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
-URL plays X times faster; a text log whose records carry no time comes at the baud rate, or ``?rate=N`` records
-a second; ``?loop=1`` starts again at the end (a soak, a class demo: stop it with ``--duration`` or Ctrl-C).
-Commands go nowhere: :meth:`ReplayPort.write` raises.
+Pace: a capture's bytes come out at their recorded host times; a raw dump or text log at its frames' firmware
+times, else at the baud rate (10 bit times a byte). The lead-in before the first attitude frame comes out at once.
+``?speed=X`` plays X times faster, ``?rate=N`` paces a text log without times at N records a second, ``?loop=1``
+starts again at the end. Commands go nowhere: :meth:`ReplayPort.write` raises.
 """
 
 from __future__ import annotations

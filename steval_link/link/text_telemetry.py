@@ -1,31 +1,25 @@
 """Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
 
-:class:`TextTelemetryReader` takes the plain lines the decoder found (printable, whole, not ``$`` sentences) and
-hands each back as a :class:`~steval_link.link.frames.TextRecordFrame` (a record) or a
-:class:`~steval_link.link.frames.TextFrame` (any other text), in the decoder's one stream of frames.
+:class:`TextTelemetryReader` takes the plain lines the decoder found and hands each back as a
+:class:`~steval_link.link.frames.TextRecordFrame` (a record) or a :class:`~steval_link.link.frames.TextFrame`.
 
 Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
-* bare values split by tab, comma, semicolon or spaces (``%10.2f\\t%10.2f``, CSV rows, Arduino's bare values),
-  named by a header line of labels before them (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
-* labelled values: ``label:value`` / ``label = value`` pairs split by spaces, tabs or commas (Arduino's plotter,
-  ``Drone_Pitch = %f\\tDrone_Roll = %f``), a label with several values as a vector (``Accel: x y z m/s2`` gives
-  ``Accel_x/y/z``), a word after the values as their unit;
+* bare values split by tab, comma, semicolon or spaces, named by a header line of labels before them
+  (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
+* labelled values: ``label:value`` / ``label = value`` pairs (Arduino's plotter, ``Drone_Pitch = %f``), a label
+  with several values as a vector (``Accel: x y z m/s2`` gives ``Accel_x/y/z``), a word after the values as unit;
 * Teleplot lines ``>name:value`` (``>name:t_ms:value``, ``§unit`` and ``|flags`` allowed);
-* ST's release 221117 line (``%d\\t%d\\t%d\\t%d\\t%f\\t%f\\t%f\\t%f\\t%f``), named from ST's source, and its
-  ``%f``-less form (newlib nano without ``-u _printf_float``: the float fields empty, read as NaN).
+* ST's release 221117 line, named from ST's source, and its ``%f``-less form (the float fields empty: NaN).
 
-The record's shape is learned from the stream, never guessed from one line: a shape (the sequence of line shapes
-of one record, the line shape being the names, or the count, and the int/float/empty kind of each value) becomes a
-record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block of lines between blank
-lines, a cycle of lines of different shapes (``Accel ... Gyro ...`` then ``Baro ... Temp ...``), or rows of one
-table whose values come back every 2..4 lines (a matrix a row a line; decided after :data:`VALUE_LINES` lines).
-Until then the lines wait (at most :data:`MAX_PENDING`); lines that never fit a shape go out as text lines. So a
-damaged line (garbage, a cut, a lost field) is not a record: it does not fit the shape, and is a text line. Damage
-between two lines (bytes the decoder skipped) ends what is being learned.
+A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
+stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
+between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
+lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines, so a
+damaged line is not a record. Bytes the decoder skipped end what is being learned.
 
-For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`: a regex that matches exactly the
-lines that would be records, so long runs of them are read as arrays at once.
+For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`, a regex matching exactly the lines
+that would be records, so long runs of them are read as arrays at once.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.

@@ -1,18 +1,13 @@
 """Serial transport: a reader thread that hands raw byte chunks with host times to a protocol object.
 
-The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until no more
-bytes came for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
-and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding,
-estimation and logging live in
-the protocol (``steval_link.live``), never here.
+The thread only moves bytes (as pyserial's ``serial.threaded``): it gathers a burst (until no byte came for
+:data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps it with its host time and calls
+:meth:`Protocol.data_received`. Decoding and estimation live in the protocol (``steval_link.live``).
 
-When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
-tells the protocol (:meth:`Protocol.connection_lost`), then polls ``find_port`` every ``reconnect_poll_s`` for the
-device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.link.autodetect`), reopens it and
-calls
-:meth:`Protocol.connection_made` again. Only :meth:`SerialReader.stop` ends the thread.
-
-Errors when opening a port are turned into one sentence with the fix by :func:`open_error_message`.
+When the port fails (adapter unplugged, pty closed) the thread calls :meth:`Protocol.connection_lost`, polls
+``find_port`` for the device to come back (:mod:`steval_link.link.autodetect`), reopens it and calls
+:meth:`Protocol.connection_made` again; only :meth:`SerialReader.stop` ends it. :func:`open_error_message` turns
+an open error into one sentence with the fix.
 """
 
 from __future__ import annotations
