@@ -260,7 +260,8 @@ class CaptureWriter:
         now = time.time()
         self.header: dict[str, Any] = capture_header(port, baud, now, extra, tool_version=tool_version)
         self._file = open(self.path, "xb", buffering=0)
-        self._identity = _identity(os.fstat(self._file.fileno()))
+        st = os.fstat(self._file.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         #: why the file can take no more (disk full, removed, replaced): an OSError whose text is one sentence
         self.failure: OSError | None = None
@@ -445,10 +446,6 @@ class OutputLostError(OSError):
         return self.text
 
 
-def _identity(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
-
-
 def _failed(path: Path, exc: OSError) -> OSError:
     """``exc`` as an :class:`OutputLostError` naming ``path`` (disk full, I/O error)."""
     if isinstance(exc, OutputLostError):
@@ -467,7 +464,7 @@ def output_gone(path: str | os.PathLike, identity: tuple[int, int]) -> str | Non
         return "was deleted" if path.parent.is_dir() else "was deleted with its folder"
     except OSError as exc:
         return f"cannot be reached ({exc.strerror or exc})"
-    return None if _identity(st) == identity else "was replaced by another file"
+    return None if (st.st_dev, st.st_ino) == identity else "was replaced by another file"
 
 
 def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:

@@ -22,10 +22,6 @@ from steval_link.link import protocol as P
 NAN = math.nan
 
 
-def _python_type(dtype: np.dtype) -> type:
-    return float if dtype.kind == "f" else int
-
-
 #: where a frame came from: its stream offset and its length on the wire, bytes
 _WHERE = [("offset", int, 0), ("nbytes", int, 0)]
 
@@ -38,7 +34,7 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
     fields = []
     for i, name in enumerate(P.payload_fields(payload)):
         sub = payload.fields[name][0]
-        kind = _python_type(sub.base)
+        kind = float if sub.base.kind == "f" else int
         blank = NAN if kind is float else 0
         typ = tuple[(kind,) * sub.shape[0]] if sub.shape else kind
         if required is not None and i >= required:

@@ -479,19 +479,16 @@ class TextTelemetryReader:
     def damage(self) -> list:
         """Bytes were lost or damaged here: the lines before and after are not consecutive (a record in progress is
         cut short, the lines learned from go no further back)."""
-        out = self._cut_current()
-        self._block_start = False
-        if self._pending:
-            out += self._learn(_Line(None, "", -1, 0, "break"))
-        return out
+        return self._end_block("break")
 
     def blank(self) -> list:
         """A blank line: it ends a block of lines."""
+        return self._end_block("blank")
+
+    def _end_block(self, kind: str) -> list:
         out = self._cut_current()
-        self._block_start = True
-        if self._pending:
-            out += self._learn(_Line(None, "", -1, 0, "blank"))
-        return out
+        self._block_start = kind == "blank"
+        return out + (self._learn(_Line(None, "", -1, 0, kind)) if self._pending else [])
 
     def finish(self) -> list:
         """End of stream: whatever waits goes out as text lines (an incomplete record is not a record)."""

@@ -211,7 +211,9 @@ class SerialReader(threading.Thread):
                 try:
                     data = self._read_chunk(self.serial)
                 except (serial.SerialException, OSError) as exc:
-                    if not (_taken_by_another(exc) and self.protocol.shared_access(exc)):
+                    # pyserial's error for a read woken by bytes another reader took first (or a USB unplug)
+                    taken = "multiple access" in str(exc) or "returned no data" in str(exc)
+                    if not (taken and self.protocol.shared_access(exc)):
                         self._drop(exc)
                     continue
                 t_unix_s = self.clock.now_s()
@@ -292,11 +294,6 @@ class SerialReader(threading.Thread):
             self.protocol.idle(self.clock.now_s())
             self._stop_event.wait(self.reconnect_poll_s)
         return False
-
-
-def _taken_by_another(exc: BaseException) -> bool:
-    """pyserial's error for a read woken by bytes another reader took first (also a USB unplug's first sign)."""
-    return "multiple access" in str(exc) or "returned no data" in str(exc)
 
 
 def _fileno(ser) -> int | None:
