@@ -246,14 +246,16 @@ def sender_phase(t: np.ndarray, interval: float) -> float:
     return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
 
 
-def sample_numbers(ticks, interval: float) -> np.ndarray:
-    """The sender's sample number of each received notification (0 for the first): the smallest increasing
-    numbering that the ticks allow, so a drop is placed where the ticks first prove it (within a sample or two)."""
+def sample_numbers(ticks, interval: float, t0: float | None = None, prev: int | None = None) -> np.ndarray:
+    """The sender's sample number of each received notification: the smallest increasing numbering that the ticks
+    allow, so a drop is placed where the ticks first prove it (within a sample or two). ``t0``: the sender's phase
+    (None: from these ticks); ``prev``: the number of the sample before (None: the first is 0)."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     if len(t) == 0:
         return np.zeros(0, np.int64)
-    t0 = sender_phase(t, interval)
-    lo = np.ceil((t - t0) / interval - 1e-9).astype(np.int64)
-    lo[0] = 0
+    lo = np.ceil((t - (sender_phase(t, interval) if t0 is None else t0)) / interval - 1e-9).astype(np.int64)
+    if prev is None:
+        lo[0], prev = 0, -1
     # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
-    return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
+    j = np.arange(len(t))
+    return np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j

@@ -25,6 +25,7 @@ from steval_link.link.ble_cadence import (
     gap_mask,
     motion_cadence,
     repeats_are_reads,
+    sample_numbers,
     sender_phase,
 )
 from steval_link.link.ble_payloads import (
@@ -347,11 +348,7 @@ class LiveGrid:
         if c.kind == POLLED:
             k = np.arange(n, dtype=np.int64) + (0 if first else self._last_k + 1)
         elif c.exact:  # ST's step, known exactly: the smallest numbering the ticks' phase allows
-            lo = np.ceil((t_fw - self._t0_s) / dt - 1e-9).astype(np.int64)
-            if first:
-                lo[0] = 0
-            prev, j = -1 if first else self._last_k, np.arange(n)
-            k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
+            k = sample_numbers(tick, dt, self._t0_s, None if first else self._last_k)
         else:
             k = self._numberer.numbers(tick)
         self.numbers = k
