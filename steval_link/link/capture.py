@@ -297,18 +297,23 @@ class CaptureWriter:
         self._write_stream(CHUNK_HOST, data, t_host_s)
 
     def _write_stream(self, kind: int, data: bytes | bytearray | memoryview, t_host_s: float | None) -> None:
-        """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes; received bytes count in
-        ``bytes_written`` (under the lock, so an event's offset is never stale)."""
-        if not data:
-            return
+        """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes."""
+        if data:
+            data = bytes(data)
+            self._append(kind, [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)], t_host_s)
+
+    def _append(self, kind: int, payloads: list, t_host_s: float | None) -> None:
+        """Chunks of type ``kind`` received at ``t_host_s`` (None: now), written under the lock: received bytes count
+        in ``bytes_written`` there, so an event's offset (a dict payload given it there) is never stale."""
         t = self.now() if t_host_s is None else float(t_host_s)
-        data = bytes(data)
         with self._lock:
             self._check_open()
-            for i in range(0, len(data), MAX_CHUNK):
-                self._write_all(_chunk(kind, data[i : i + MAX_CHUNK], t))
-            if kind == CHUNK_DATA:
-                self.bytes_written += len(data)
+            for payload in payloads:
+                if kind == CHUNK_EVENT:
+                    payload = json.dumps({**payload, "offset": self.bytes_written}).encode()
+                self._write_all(_chunk(kind, payload, t))
+                self.bytes_written += len(payload) if kind == CHUNK_DATA else 0
+            self.chunks_written += kind not in (CHUNK_DATA, CHUNK_HOST, CHUNK_EVENT)
             self._dirty = True
 
     def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
@@ -318,12 +323,7 @@ class CaptureWriter:
         payload = bytes(payload)
         if len(payload) > MAX_CHUNK:
             raise ValueError(f"typed chunk of {len(payload)} bytes (at most {MAX_CHUNK})")
-        t = self.now() if t_host_s is None else float(t_host_s)
-        with self._lock:
-            self._check_open()
-            self._write_all(_chunk(kind, payload, t))
-            self.chunks_written += 1
-            self._dirty = True
+        self._append(kind, [payload], t_host_s)
 
     def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
         """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks at ``t_host_s``."""
@@ -332,12 +332,7 @@ class CaptureWriter:
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
         """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
-        t = self.now() if t_host_s is None else float(t_host_s)
-        with self._lock:
-            self._check_open()
-            payload = json.dumps({"kind": str(kind), "text": str(text), "offset": self.bytes_written}).encode()
-            self._write_all(_chunk(CHUNK_EVENT, payload, t))
-            self._dirty = True
+        self._append(CHUNK_EVENT, [{"kind": str(kind), "text": str(text)}], t_host_s)
 
     def flush(self) -> None:
         """Force everything written so far to disk (``fsync``)."""
