@@ -281,18 +281,10 @@ class TelemetryParts:
         self._settled = False
 
     def add_frame(self, frame: Frame) -> None:
-        if isinstance(frame, AttitudeFrame):
-            self.att_frames.append(frame)
-            self._settled = False
-        elif isinstance(frame, StatusFrame):
-            self.sta_frames.append(frame)
-            self._settled = False
-        elif isinstance(frame, TextFrame):
-            self.texts.append(frame)
-        elif isinstance(frame, TextRecordFrame):
-            self.records.append(frame)
-        else:
-            self.others.append(frame)
+        kind = type(frame)
+        lists = {AttitudeFrame: self.att_frames, StatusFrame: self.sta_frames, TextFrame: self.texts}
+        lists.get(kind, self.records if kind is TextRecordFrame else self.others).append(frame)
+        self._settled = self._settled and kind not in (AttitudeFrame, StatusFrame)
 
     def apply_gate(self, keep_masks) -> None:
         """Filter the attitude and status rows: ``keep_masks(att_records, sta_records)`` returns two boolean masks

@@ -200,17 +200,14 @@ def _groups(tokens: list[tuple[str, str]]) -> list[list] | None:
 
 def _labelled_line(text: str) -> ParsedLine | None:
     tokens = _tokens(text)
-    if tokens is None:
-        return None
-    groups = _groups(tokens)
+    groups = None if tokens is None else _groups(tokens)
     if groups is None:
         return None
     names: list[str] = []
     units: list[str] = []
     values: list[float] = []
     kinds: list[str] = []
-    for g in groups:
-        label, fields, unit = g
+    for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
         else:
