@@ -109,13 +109,9 @@ def family_glob(path: str) -> str | None:
 class PortFinder:
     """Finds a port again after it vanished (call :meth:`find` while disconnected; cheap enough to poll at 10 Hz).
 
-    A USB adapter is found by what identifies it (VID:PID, then its serial number, else its USB location),
-    whatever its new name; another device at its old path is never taken for it. A port without USB identity (a
-    pseudo-terminal, a board's UART) is found at its path when it exists again, else at a name matching ``pattern``
-    (default :func:`family_glob` of the path) that did not exist when the port was lost. A candidate that turned
-    out not to be the drone (:meth:`reject`: it sent no valid frames) is not taken again while its device node
-    stays the same.
-    """
+    A USB adapter by its VID:PID, serial number or USB location, whatever its new name; never another device at its
+    old path. A port without USB identity at its path, else at a new name matching ``pattern`` (default
+    :func:`family_glob`). A candidate :meth:`reject` ed is skipped while its device node stays the same."""
 
     identity: PortIdentity
     pattern: str | None = None

@@ -137,21 +137,16 @@ def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
 
 
 def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
-    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
-    count of repeated samples already removed (a poller's repeated reads) and the samples that are the
-    first after a reconnection (``breaks``, indices: the gap before them is no drop, nothing was sent). None below
+    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample), the count of
+    repeated samples removed and the samples first after a reconnection (``breaks``: no drop before them). None below
     2 samples or when all share one tick.
 
-    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact); any other
-      is refined by a least-squares fit of the ticks against the sample numbers (precise over the whole span).
-    - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
-    - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
-      interval is the mean over the whole span.
-    - At ST's step: the missing notifications from the ticks' phase (:func:`sample_numbers`, sub-tick precise, so
-      single drops count too); ``congestion`` if any, else ``steady``.
-    - Any other period: each gap's missing samples from the phases of the runs either side (:class:`RunNumberer`);
-      ``gaps`` if any, else ``steady`` (the sender's own rate: a jittered delta of a tick or two is not a drop).
-    """
+    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact), else refined
+      by a least-squares fit of the ticks against the sample numbers.
+    - ``polled`` when samples came twice and the period is at least a tick: reads, nothing dropped.
+    - At ST's step the missing notifications come from the ticks' phase (:func:`sample_numbers`): ``congestion`` or
+      ``steady``; at any other period from the phases of the runs around each gap (:class:`RunNumberer`): ``gaps`` or
+      ``steady``."""
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
     if n < 2 or t[-1] <= t[0]:

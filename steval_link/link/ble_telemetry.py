@@ -1,9 +1,6 @@
-"""A BLE capture as the one model: its notifications → frames → the sender's samples on one grid
-(:class:`LiveGrid`, live and replayed alike: dt from the cadence found, :mod:`steval_link.link.ble_cadence`) →
-:class:`~steval_link.link.telemetry.Telemetry` (:func:`ble_telemetry`), the link's facts as data on it
-(:class:`BleStream`); the notes that say what BLE rows are.
-
-Payloads and ticks: :mod:`steval_link.link.ble_payloads`. Pure functions and small classes over numpy arrays; no I/O.
+"""A BLE capture as the one model: notifications → frames → the sender's samples on one grid (:class:`LiveGrid`,
+live and replayed alike, dt from the cadence) → :class:`~steval_link.link.telemetry.Telemetry`
+(:func:`ble_telemetry`), the link's facts on it (:class:`BleStream`), and the notes that say what BLE rows are.
 """
 
 from __future__ import annotations

@@ -236,13 +236,9 @@ def _known_kind(kind: int) -> int:
 class CaptureWriter:
     """Append-only ``.stv`` writer; use as a context manager.
 
-    ``write(data, t_host_s)`` stores one received chunk (``t_host_s``: host time when it was received, s since
-    the capture started; default: now on ``time.monotonic``). ``mark_event(kind, text)`` stores an event (e.g.
-    "disconnect"/"reconnect"). Every chunk is handed to the OS immediately (nothing is lost on ``kill -9``); a
-    background thread ``fsync``\\s pending data at least every :data:`SYNC_INTERVAL_S` (power cuts). An existing
-    file is never overwritten (``FileExistsError``). ``discard_empty``: a capture that got no serial bytes at all
-    is deleted on :meth:`close` (it would hold only its header); ``discarded`` then says so.
-    """
+    Every chunk goes to the OS at once (nothing is lost on ``kill -9``); a background thread ``fsync``\\s at least
+    every :data:`SYNC_INTERVAL_S` (power cuts). ``t_host_s``: s since the capture started (default: now). An existing
+    file is never overwritten; ``discard_empty``: a capture without serial bytes is deleted on :meth:`close`."""
 
     def __init__(
         self,

@@ -492,16 +492,11 @@ def decode_bytes(
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``chunk_times`` is ``(chunk_offsets, t_host_s)``: where each received chunk starts in the stream and when it
-    arrived (s since capture start). A frame gets the time of the chunk its last byte came in, moved back by the
-    bytes after it at ``baud`` (10 bit times a byte) when ``baud`` is given. Without ``chunk_times`` host times
-    are NaN. ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of the commands the host sent (a capture's H
-    chunks); ``Telemetry.commands`` holds them after those found in the bytes. ``line_start`` and
-    ``plausibility`` mean what they mean for :class:`StreamDecoder`.
-
-    Same frames and counters as :class:`StreamDecoder` on the same bytes: runs of back-to-back valid binary frames
-    are decoded with numpy, every other region by one :class:`StreamDecoder`.
-    """
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (s since capture start; None: NaN host
+    times). A frame takes the time of the chunk of its last byte, less the bytes after it at ``baud`` (10 bit times a
+    byte). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks, kept after the commands in the
+    bytes. ``line_start`` and ``plausibility`` as for :class:`StreamDecoder`, whose frames and counters it gives: runs
+    of back-to-back valid binary frames are decoded with numpy, every other region by one :class:`StreamDecoder`."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)

@@ -50,14 +50,10 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
 class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
     """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False).
 
-    Wire fields as ATTITUDE_DTYPE: ``t_us`` firmware time in µs mod 2³²; ``acc_mg`` (x, y, z) mg and ``gyro_mdps``
-    (x, y, z) mdps as passed to ``ahrs_fusion_ag``; ``q_wxyz`` the filter quaternion after the step (NaN in text
-    mode); ``thz_rad`` the ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full
-    step counter when the frame itself carries it (text mode), else None (the binary frame only has ``seq``;
-    :class:`Telemetry` unwraps it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text
-    line; NaN for binary frames, whose angles are recomputed bit-exactly from ``q_wxyz`` in
-    :class:`~steval_link.link.telemetry.Telemetry`.
-    """
+    Wire fields as ATTITUDE_DTYPE: ``t_us`` µs mod 2³²; ``acc_mg`` and ``gyro_mdps`` (x, y, z) as passed to
+    ``ahrs_fusion_ag``; ``q_wxyz`` the quaternion after the step (NaN in text mode); ``thz_rad`` the ISR-integrated yaw;
+    ``seq`` the step mod 2¹⁶; ``thr`` gTHR. ``step``: the full step when the frame carries it (text mode), else None.
+    ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames (Telemetry computes them from q)."""
 
     exact: bool = True
     offset: int = 0

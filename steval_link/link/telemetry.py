@@ -1,22 +1,16 @@
-"""``Telemetry``: every field of a decoded stream as numpy arrays, with units in the names.
+"""``Telemetry``: every field of a decoded stream as numpy arrays in stream order, with units in the names.
 
-Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames` (frames of a
-:class:`~steval_link.link.decoder.StreamDecoder`). Rows are in stream order.
+Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames`. Derived fields:
 
-Derived fields:
-
-* ``step`` (int64): binary rows unwrap ``seq`` (u16) by consecutive differences mod 2¹⁶, starting at the first
-  ``seq``; a status frame, which carries the full u32 step of the attitude frame just before it, anchors the
-  absolute step (the first anchor of each stretch without a firmware restart wins). Text-mode rows carry the full
-  step themselves.
-* ``t_fw_s`` (float64): firmware time, ``t_us`` unwrapped mod 2³² (restarting after a firmware restart) / 10⁶.
+* ``step`` (int64): binary rows unwrap ``seq`` (u16); a status frame, which carries the full u32 step of the
+  attitude frame before it, anchors the absolute step (the first of each firmware run wins). Text-mode rows carry
+  the full step.
+* ``t_fw_s`` (float64): ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
 * ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
-* ``thx_rad``/``thy_rad`` of binary rows: ``QuaternionToEuler`` of ``q_wxyz``, bit-exact
-  (:func:`steval_link.estimators.st_mahony.quaternion_to_euler`); of text-mode rows: the line's values.
-* ``values_bad`` (bool, attitude and status rows): the row carries NaN/inf or values out of range (``|q|``
-  component > 2, ``|acc_mg|`` > 10⁵, ``|gyro_mdps|`` > 2·10⁷; :mod:`steval_link.link.plausibility`). Protocol v2
-  keeps such frames when their CRC-32, sequence and time are right: the firmware sent them, typically because its
-  own filter diverged. The column ``values_bad`` of :meth:`Telemetry.attitude_table` (CSV, Parquet) carries it.
+* ``thx_rad``/``thy_rad``: of binary rows ``QuaternionToEuler`` of ``q_wxyz``, bit-exact; of text rows the line's.
+* ``values_bad`` (bool): the row carries NaN/inf or values out of range (:mod:`steval_link.link.plausibility`).
+  Protocol v2 keeps such frames when CRC, sequence and time are right: the firmware sent them (its filter
+  diverged). It is a column of :meth:`Telemetry.attitude_table` (CSV, Parquet).
 """
 
 from __future__ import annotations

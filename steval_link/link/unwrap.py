@@ -1,7 +1,6 @@
-"""Steps and times of a stream's rows: ``seq`` (u16) unwrapped into full AHRS steps (:class:`SeqUnwrapper`),
-``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot (:class:`TimeUnwrapper`), host times of
-frames from their chunks' (:func:`host_times`). One implementation for both paths: ``Telemetry`` runs them over a
-whole stream, the live path across chunks (:class:`StreamClock`), so live rows carry ``load_telemetry``'s times.
+"""Steps and times of a stream's rows: ``seq`` (u16) into full AHRS steps (:class:`SeqUnwrapper`), ``t_us`` (u32
+µs, wraps every 71.6 min) into firmware seconds (:class:`TimeUnwrapper`), host times from the chunks'
+(:func:`host_times`). One implementation for the whole stream (``Telemetry``) and the live path (:class:`StreamClock`).
 """
 
 from __future__ import annotations
