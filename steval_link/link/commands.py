@@ -193,10 +193,9 @@ def parse_script(text: str, source: str = "commands") -> list[tuple[float, Comma
 
 def describe_settings(status) -> str:
     """The filter settings a status frame reports, in one line."""
-    correction = "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
     return (
         f"kp_ground {float(status.kp_ground):.9g}, kp_flight {float(status.kp_flight):.9g}, "
-        f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {correction}"
+        f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {param_of_status(status, 'correction')}"
     )
 
 

@@ -161,11 +161,6 @@ class StreamDecoder:
             self.stats.held_values = self.gate.held_values
         return out
 
-    @property
-    def at_line_start(self) -> bool:
-        """True when the next byte starts a line (after a frame or line handed out, or a whole printable line)."""
-        return self._boundary
-
     def resume_at(self, offset: int, *, line_start: bool) -> None:
         """Continue as if the stream were at byte ``offset``, the bytes before it decoded elsewhere (the bulk
         decoder's runs of clean frames); ``line_start``: a line starts there. Only with no bytes pending."""
@@ -539,7 +534,7 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
             last_fast = True
             continue
         if not sd.pending_bytes:
-            sd.resume_at(p, line_start=(last_fast or sd.at_line_start) if p else line_start)
+            sd.resume_at(p, line_start=(last_fast or sd._boundary) if p else line_start)
         if first_v2 < p:
             sd.lock_version_2()
         last_fast = False

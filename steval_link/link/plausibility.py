@@ -205,7 +205,6 @@ class PlausibilityGate:
         self.confirm = int(confirm)
         self.held_back = 0  #: frames dropped for good
         self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
-        self.reanchors = 0  #: times a confirmed run became the new anchor
         self._anchor: tuple[int, int] | None = None
         self._pending: list[tuple[int, int, Any]] = []
 
@@ -237,23 +236,15 @@ class PlausibilityGate:
             pend[:] = [(seq, t_us, item)]
         if len(pend) >= self.confirm:
             self._anchor = (pend[-1][0], pend[-1][1])
-            self.reanchors += 1
             items = [x[2] for x in pend]
             pend.clear()
             return items
         return []
 
-    def finish(self) -> int:
-        """End of stream: frames still held are dropped (counted). Returns how many."""
-        n = len(self._pending)
-        self.held_back += n
+    def finish(self) -> None:
+        """End of stream: frames still held are dropped (counted)."""
+        self.held_back += len(self._pending)
         self._pending = []
-        return n
-
-    @property
-    def pending(self) -> int:
-        """Frames held now, waiting for confirmation."""
-        return len(self._pending)
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:

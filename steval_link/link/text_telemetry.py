@@ -451,14 +451,12 @@ class TextTelemetryReader:
     def line(self, text: str, offset: int, nbytes: int) -> list:
         """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
         parsed = parse_line(text)
-        header = header_names(text) if parsed is None else None
         item = _Line(parsed, text, offset, nbytes, "rec" if parsed else "text")
         if parsed is not None:
             out, taken = self._follow(item)
             self._block_start = False
             return out if taken else out + self._learn(item)
-        if header is not None:
-            self._header = header
+        self._header = header_names(text) or self._header
         self._block_start = True
         return self._cut_current() + self._learn(item)
 
@@ -468,8 +466,7 @@ class TextTelemetryReader:
         parsed = parse_line(text)
         self._block_start = False
         if parsed is None:
-            header = header_names(text)
-            self._header = header or self._header
+            self._header = header_names(text) or self._header
             return []
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
