@@ -115,12 +115,10 @@ def period_ticks(d_ticks) -> float | None:
 
 
 def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
-    """Whether the motion notifications equal to the one before them (``repeat``: same tick and values) are reads of
-    an unchanged characteristic (a poller) rather than samples of their own. Counted as samples, the stream's mean
-    step is its span over its notifications, by the drone's ticks and by the arrival times: a sender faster than one
-    8 ms tick (ST's 161.5 Hz) puts two samples in many ticks, and a slow-changing or derived value (an angle at rest)
-    repeats there as often as a poller re-reads; so repeats are reads only when the stream counted that way is not
-    faster than a tick on both clocks."""
+    """Whether motion notifications equal to the one before them (``repeat``) are reads of an unchanged
+    characteristic (a poller) rather than samples of their own: true when, counted as samples, the stream is not
+    faster than one 8 ms tick on both the drone's ticks and the arrival times (ST's 161.5 Hz sender puts two samples in
+    many ticks, and a value at rest repeats there as often as a poller re-reads)."""
     t = np.asarray(ticks, dtype=np.int64)
     rep = np.asarray(repeat, dtype=bool)
     n = len(t)
@@ -182,14 +180,11 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
 
 
 class RunNumberer:
-    """The sender's sample numbers of a stream with gaps, in batches of ticks (the whole capture for a replay, a
-    round at a time live), for any period but ST's step (there: :func:`sample_numbers`).
+    """The sender's sample numbers of a stream with gaps, in batches of ticks, for any period but ST's step.
 
-    Samples between gaps (:func:`gap_mask`) are consecutive: a run. A run's phase, the mean of tick + ½ − i·period
-    over its samples, smooths out the 8 ms quantisation and the sender's own jitter (a main loop that cannot hit the
-    period exactly); a run after a gap starts at the number the two runs' phases say, so a gap counts the periods
-    that really passed (a single tick delta is blurred by up to two ticks). Live, the run after a gap is known only
-    as far as the batch goes."""
+    Samples between gaps (:func:`gap_mask`) are a run. A run's phase, the mean of tick + ½ − i·period over its
+    samples, smooths out the 8 ms quantisation and the sender's jitter; a run after a gap starts at the number the
+    two runs' phases say, so a gap counts the periods that really passed."""
 
     def __init__(self, period_ticks: float) -> None:
         self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)

@@ -245,12 +245,10 @@ TICKS_KEPT = 20_000
 
 
 class LiveGrid:
-    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or
-    all at once (a capture: :func:`ble_telemetry`). The cadence is found from the first :data:`LOCK_SAMPLES`
-    samples (until then :meth:`rows` holds them back; a capture's from all), which fixes dt and the numbering
-    (:func:`~steval_link.link.ble_cadence.sample_numbers`, :class:`RunNumberer`): one row per sender sample, a
-    row held over a notification only when the ticks show it was sent and lost; a repeat is a read (one sample) or a
-    sample of its own as :func:`repeats_are_reads` finds on the first samples."""
+    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or all
+    at once (:func:`ble_telemetry`). The first :data:`LOCK_SAMPLES` samples fix the cadence, dt and the numbering
+    (:meth:`rows` holds them back until then): one row per sender sample, a row held over a notification only when
+    the ticks show it was sent and lost; repeats are reads or samples as :func:`repeats_are_reads` finds."""
 
     def __init__(self, layout: BleLayout) -> None:
         self.layout = layout

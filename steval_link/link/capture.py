@@ -473,11 +473,9 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
 def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
     """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
 
-    None stays None (the default ``recordings/steval-<UTC>.stv``); an existing directory means "write inside it"
-    (``DIR/steval-<UTC>.stv``); a file name must be in an existing directory (no folders are created at random
-    places: a typo stays a typo) and must not exist yet (captures are never overwritten). Raises
-    :class:`~steval_link.errors.UserError` otherwise.
-    """
+    None stays None (the default path); an existing directory: a new file inside it; a file name must be in an
+    existing directory (no folders are created) and must not exist yet (captures are never overwritten). Else a
+    :class:`~steval_link.errors.UserError`."""
     if out is None:
         return None
     path = Path(out).expanduser()

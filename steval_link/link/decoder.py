@@ -119,12 +119,9 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them.
-
-    Call :meth:`finish` at the end of the stream to decide the last incomplete candidate (its bytes are counted
-    as skipped). ``stats`` holds the counters (:class:`DecoderStats`). ``offset`` of each frame is its position in
-    the stream (bytes fed since construction).
-    """
+    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them;
+    :meth:`finish` decides the last incomplete candidate. ``stats``: the counters (:class:`DecoderStats`); a frame's
+    ``offset``: its position in the stream."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()

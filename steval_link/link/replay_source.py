@@ -146,12 +146,9 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
 
 
 class ReplayPort:
-    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc).
-
-    ``data``: the byte stream; bytes ``[0, ends[i])`` are readable from ``t_s[i] / speed`` seconds after the first
-    read (or :attr:`in_waiting`). ``read`` waits like pyserial's (until ``size`` bytes or ``timeout``). After the
-    last byte :attr:`at_end` is True and reads return ``b""`` after the timeout.
-    """
+    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc): bytes
+    ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first read. ``read`` waits like pyserial's; after the
+    last byte :attr:`at_end` is True."""
 
     def __init__(
         self,

@@ -38,12 +38,8 @@ RECONNECT_POLL_S = 0.1
 
 
 class HostClock:
-    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock.
-
-    ``time.time()`` may jump (NTP, suspend); chunk times must not. The wall time is read once, at construction, and
-    every later time is that plus the monotonic time elapsed since, so times are ordered and spaced correctly.
-    ``wall0_s`` sets that origin (e.g. a capture file's start time), else ``time.time()`` now.
-    """
+    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock, so that they never
+    jump (NTP, suspend). ``wall0_s``: the origin (e.g. a capture's start time), else ``time.time()`` now."""
 
     def __init__(self, wall0_s: float | None = None) -> None:
         self.mono0_s = time.monotonic()
