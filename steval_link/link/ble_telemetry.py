@@ -302,9 +302,8 @@ class LiveGrid:
 
     def _ready(self, final: bool) -> bool:
         ticks = [f.tick for f in self._pending if f is not None]
-        if final or len(ticks) >= LOCK_SAMPLES:
-            return True
-        return len(ticks) >= 8 and (ticks[-1] - ticks[0]) * TICK_S >= LOCK_SPAN_S
+        span_s = (ticks[-1] - ticks[0]) * TICK_S if len(ticks) >= 8 else 0.0
+        return final or len(ticks) >= LOCK_SAMPLES or span_s >= LOCK_SPAN_S
 
     def _lock(self, frames: list) -> None:
         """The cadence of the first samples fixes dt and how samples are numbered."""

@@ -27,12 +27,11 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
+from steval_link.link.transport import READ_TIMEOUT_S
 
 __all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
 
 SCHEME = "replay://"
-#: How long one read waits for bytes by default, s (as :data:`~steval_link.link.transport.READ_TIMEOUT_S`).
-READ_TIMEOUT_S = 0.05
 #: Bytes released together when pacing at the baud rate.
 BAUD_BLOCK_BYTES = 32
 #: Bit times per byte on the wire (8N1).

@@ -189,9 +189,7 @@ class SerialReader(threading.Thread):
             except (serial.SerialException, OSError, AttributeError):
                 pass
         if self.ident is None:  # never started: close the port here
-            self.serial = None
-            if ser is not None:
-                close_quietly(ser)
+            self._release()
         elif self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
 
