@@ -142,13 +142,12 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
     blocks = [b for b in blocks if len(b.offset)]
     if not blocks:
         return TextSeries()
-    index: dict[str, int] = {}
-    units: list[str] = []
+    unit_of: dict[str, str] = {}  # each name's unit where it first comes
     for b in blocks:
         for name, unit in zip(b.names, b.units):
-            if name not in index:
-                index[name] = len(index)
-                units.append(unit)
+            unit_of.setdefault(name, unit)
+    index = {name: k for k, name in enumerate(unit_of)}
+    units = list(unit_of.values())
     total = sum(len(b.offset) for b in blocks)
     values = np.full((total, len(index)), np.nan)
     offset = np.concatenate([b.offset for b in blocks])
