@@ -1,13 +1,10 @@
 """One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, :class:`TextRecordFrame`
-(text telemetry), and the v2 frames
-:class:`FlightFrame`, :class:`AckFrame` (drone → host) and :class:`CommandFrame` (host → drone).
+(text telemetry), and the v2 :class:`FlightFrame`, :class:`AckFrame` (drone → host), :class:`CommandFrame`.
 
-The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol` (names,
-order, units in the names), so a layout change is one edit there; each class adds where the frame came from.
-Binary frames carry the firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows
-(``exact=False``) carry the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset``
-is the stream byte offset of the frame's first byte and ``nbytes`` its length on the wire (frame or text line
-including the line ending).
+The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol`, so a
+layout change is one edit there. Binary frames carry the firmware's exact float32 values; text-mode rows
+(``exact=False``) the rounded integers of ``$ATT``/``$STA`` lines in the same units. ``offset``: the stream byte
+offset of the frame's first byte; ``nbytes``: its length on the wire (a line with its ending).
 """
 
 from __future__ import annotations

@@ -3,29 +3,21 @@
 A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
 about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
 
-* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤
-  10⁵ and ``|gyro_mdps|`` ≤ 2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so
-  that no real reading, offset or filter overshoot comes near; quaternion components within ±2 (the filter keeps
-  ``|q|`` ≈ 1).
-* **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
-  ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
-  ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
-  A status frame must fit its anchor the same way with ``d ≥ 0`` (it follows the attitude frame of its step).
-  This holds for both protocol versions.
+* **Values** (binary frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
+  2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps); quaternion components within ±2.
+* **Sequence and time** (both versions): against the last accepted attitude frame (the anchor), the step
+  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and ``d·P − tol ≤ Δt_us ≤ 3·d·P +
+  0.5 s`` (P the AHRS period; the upper side allows skipped steps). A status frame must fit with ``d ≥ 0``.
 
 Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
-time is what the firmware sent, and a firmware whose own filter diverged sends NaN or ``|q|`` > 2 (a student's
-``ahrs.c``). Such rows are kept and flagged (``values_bad`` in :class:`~steval_link.link.telemetry.Telemetry`,
-counted in ``DecoderStats.values_bad``); :func:`values_bad_sentence` says it in words for every summary. Rows
-with bad values still anchor the sequence and time (``seq`` and ``t_us`` are integers, never NaN).
+time is what the firmware sent (its own filter diverged). Such rows are kept and flagged (``values_bad``,
+:func:`values_bad_sentence`), and still anchor the sequence and time.
 
 An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
-(the firmware restarted, or the link was away longer than the window), they are released together and become the
-new anchor; otherwise held frames are dropped and counted in ``held_back``. Frames of other kinds, text-mode rows
-and the first attitude frame of a stream pass through.
-
-:class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frame by frame, the bulk
-decoder feeds it rows (after a vectorised pass that finds nothing to check on a clean stream).
+(a firmware restart, or the link away longer than the window), they are released and become the new anchor;
+otherwise they are dropped and counted in ``held_back``. Other frames, text-mode rows and the first attitude frame
+pass through. :class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frames, the
+bulk decoder rows (after a vectorised pass that finds nothing to check on a clean stream).
 """
 
 from __future__ import annotations
