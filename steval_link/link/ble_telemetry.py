@@ -286,9 +286,10 @@ class LiveGrid:
         if self._cadence is None and not self._ready(final):
             return None
         frames, self._pending = self._pending, []
-        if self._cadence is None:
-            self._lock(frames)
-        breaks, kept = [], []
+        mo = [f for f in frames if f is not None]
+        if self._cadence is None and mo:  # the first samples tell whether repeats are reads
+            self.reads = repeats_are_reads([f.tick for f in mo], [f.repeat for f in mo], [f.t_host_s for f in mo])
+        breaks, kept = [], []  # breaks: the kept samples that follow a reconnection
         for f in frames:
             if f is None:
                 breaks.append(len(kept))
@@ -296,6 +297,8 @@ class LiveGrid:
                 self.repeats += 1
             else:
                 kept.append(f)
+        if self._cadence is None and kept:
+            self._lock(kept, breaks, len(mo) - len(kept))
         if not kept or self._cadence is None:
             return None
         return self._grid(kept, np.unique(np.asarray(breaks, dtype=np.int64)))
@@ -305,27 +308,14 @@ class LiveGrid:
         span_s = (ticks[-1] - ticks[0]) * TICK_S if len(ticks) >= 8 else 0.0
         return final or len(ticks) >= LOCK_SAMPLES or span_s >= LOCK_SPAN_S
 
-    def _lock(self, frames: list) -> None:
-        """The cadence of the first samples fixes dt and how samples are numbered."""
-        mo = [f for f in frames if f is not None]
-        if not mo:
-            return
-        rep = np.array([f.repeat for f in mo], bool)
-        ticks = np.array([f.tick for f in mo], np.int64)
-        self.reads = repeats_are_reads(ticks, rep, [f.t_host_s for f in mo])
-        keep = ~rep if self.reads else np.ones(len(mo), bool)
-        brk, i = [], 0  # the kept samples that follow a reconnection
-        for f in frames:
-            if f is None:
-                brk.append(i)
-            elif not (self.reads and f.repeat):
-                i += 1
-        c = self.found = motion_cadence(ticks[keep], int((~keep).sum()), brk)
+    def _lock(self, kept: list, breaks: list[int], repeats: int) -> None:
+        """The cadence of the first samples (``repeats`` reads left out) fixes dt and how samples are numbered."""
+        ticks = np.array([f.tick for f in kept], np.int64)
+        c = self.found = motion_cadence(ticks, repeats, breaks)
         if c is None:  # a single sample (or one tick): ST's step, as the stock firmware sends
-            c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, int((~keep).sum()), 0.0, True)
+            c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, repeats, 0.0, True)
         self._cadence = c
-        t = ticks[keep] * TICK_S
-        self._t0_s = sender_phase(t, c.interval_s) if c.kind != POLLED else 0.0
+        self._t0_s = sender_phase(ticks * TICK_S, c.interval_s) if c.kind != POLLED else 0.0
         self._numberer = RunNumberer(c.interval_s / TICK_S)
 
     def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
