@@ -1,16 +1,10 @@
 """Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again.
 
-- :func:`probe_port` reads a port briefly and says whether it carries valid steval frames.
-- :func:`choose_port` implements ``--port auto`` (and glob patterns such as ``/dev/ttyUSB*``).
-- :func:`describe_bytes` / :func:`no_frames_message` turn bytes without a single valid frame into one line that says
-  what they look like and which ``--baud`` to try.
-- :class:`PortIdentity` / :class:`PortFinder` remember what a port was (path, USB VID:PID, serial number, USB
-  location) and find it again after an unplug, even when it comes back under another name (``/dev/ttyUSB0`` →
-  ``/dev/ttyUSB1``), never taking another adapter that now sits at the old name. Pseudo-terminals and other ports
-  without USB identity are found again by their path or by a new name in the same family (the path with its
-  trailing digits replaced by ``*``); a candidate that sends no valid frames is rejected and the search goes on.
-
-Plain listing of ports is :mod:`steval_link.link.ports`' job; this module only uses it.
+- :func:`probe_port` reads a port briefly and says whether it carries valid frames; :func:`choose_port` implements
+  ``--port auto`` and glob patterns.
+- :func:`no_frames_message` says what bytes without a valid frame look like and which ``--baud`` to try.
+- :class:`PortFinder` finds a port again after an unplug by its USB identity, even under another name, never
+  taking another adapter now at the old name; a port without USB identity by its path or a new sibling name.
 """
 
 from __future__ import annotations
@@ -115,13 +109,9 @@ def family_glob(path: str) -> str | None:
 class PortFinder:
     """Finds a port again after it vanished (call :meth:`find` while disconnected; cheap enough to poll at 10 Hz).
 
-    A USB adapter is found by what identifies it (VID:PID, then its serial number, else its USB location),
-    whatever its new name; another device at its old path is never taken for it. A port without USB identity (a
-    pseudo-terminal, a board's UART) is found at its path when it exists again, else at a name matching ``pattern``
-    (default :func:`family_glob` of the path) that did not exist when the port was lost. A candidate that turned
-    out not to be the drone (:meth:`reject`: it sent no valid frames) is not taken again while its device node
-    stays the same.
-    """
+    A USB adapter by its VID:PID, serial number or USB location, whatever its new name; never another device at its
+    old path. A port without USB identity at its path, else at a new name matching ``pattern`` (default
+    :func:`family_glob`). A candidate :meth:`reject` ed is skipped while its device node stays the same."""
 
     identity: PortIdentity
     pattern: str | None = None
@@ -301,13 +291,10 @@ def describe_bytes(data: bytes, total: int | None = None) -> str:
     if n == 0:
         return "no bytes at all"
     sample = data[:4096]
-    counts = [0] * 256
-    for b in sample:
-        counts[b] += 1
+    counts = np.bincount(np.frombuffer(sample, np.uint8), minlength=256).tolist()
     m = len(sample)
-    printable = sum(counts[b] for b in range(32, 127)) + counts[9] + counts[10] + counts[13]
-    zeros = counts[0]
-    ffs = counts[0xFF]
+    printable = sum(counts[32:127]) + counts[9] + counts[10] + counts[13]
+    zeros, ffs = counts[0], counts[0xFF]
     distinct = sum(1 for c in counts if c)
     if zeros / m > 0.9:
         return f"all 0x00 ({n} bytes: a line held low, or a much slower baud rate)"

@@ -115,12 +115,10 @@ def period_ticks(d_ticks) -> float | None:
 
 
 def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
-    """Whether the motion notifications equal to the one before them (``repeat``: same tick and values) are reads of
-    an unchanged characteristic (a poller) rather than samples of their own. Counted as samples, the stream's mean
-    step is its span over its notifications, by the drone's ticks and by the arrival times: a sender faster than one
-    8 ms tick (ST's 161.5 Hz) puts two samples in many ticks, and a slow-changing or derived value (an angle at rest)
-    repeats there as often as a poller re-reads; so repeats are reads only when the stream counted that way is not
-    faster than a tick on both clocks."""
+    """Whether motion notifications equal to the one before them (``repeat``) are reads of an unchanged
+    characteristic (a poller) rather than samples of their own: true when, counted as samples, the stream is not
+    faster than one 8 ms tick on both the drone's ticks and the arrival times (ST's 161.5 Hz sender puts two samples in
+    many ticks, and a value at rest repeats there as often as a poller re-reads)."""
     t = np.asarray(ticks, dtype=np.int64)
     rep = np.asarray(repeat, dtype=bool)
     n = len(t)
@@ -136,37 +134,25 @@ def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
     return not (host_span > 0 and host_span / (n - 1) < 1.5 * TICK_S)
 
 
-def break_mask(n: int, breaks) -> np.ndarray:
-    """(n,) bool: True at the samples that follow a reconnection (never the first)."""
-    m = np.zeros(n, bool)
-    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
-    b = b[(b > 0) & (b < n)]
-    m[b] = True
-    return m
-
-
 def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
-    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample, in order), the
-    count of repeated samples already removed (a poller's repeated reads) and the samples that are the
-    first after a reconnection (``breaks``, indices: the gap before them is no drop, nothing was sent). None below
+    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample), the count of
+    repeated samples removed and the samples first after a reconnection (``breaks``: no drop before them). None below
     2 samples or when all share one tick.
 
-    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact); any other
-      is refined by a least-squares fit of the ticks against the sample numbers (precise over the whole span).
-    - Gaps: deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`).
-    - ``polled`` when samples came twice (repeats) and the period is at least a tick: reads, nothing dropped; the
-      interval is the mean over the whole span.
-    - At ST's step: the missing notifications from the ticks' phase (:func:`sample_numbers`, sub-tick precise, so
-      single drops count too); ``congestion`` if any, else ``steady``.
-    - Any other period: each gap's missing samples from the phases of the runs either side (:class:`RunNumberer`);
-      ``gaps`` if any, else ``steady`` (the sender's own rate: a jittered delta of a tick or two is not a drop).
-    """
+    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact), else refined
+      by a least-squares fit of the ticks against the sample numbers.
+    - ``polled`` when samples came twice and the period is at least a tick: reads, nothing dropped.
+    - At ST's step the missing notifications come from the ticks' phase (:func:`sample_numbers`): ``congestion`` or
+      ``steady``; at any other period from the phases of the runs around each gap (:class:`RunNumberer`): ``gaps`` or
+      ``steady``."""
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
     if n < 2 or t[-1] <= t[0]:
         return None
     d = np.diff(t)
-    brk = break_mask(n, breaks)
+    brk = np.zeros(n, bool)  # the samples that follow a reconnection (never the first)
+    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
+    brk[b[(b > 0) & (b < n)]] = True
     p = period_ticks(d[~brk[1:]]) if brk.any() else period_ticks(d)
     if p is None:
         return None
@@ -178,13 +164,13 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
         interval = STEP_PERIOD_S
         k = sample_numbers(t, interval)
     else:
-        k = _run_numbers(t, p)
+        k = RunNumberer(p).numbers(t)
         for _ in range(2):  # the period from all samples at their numbers (least squares): precise over the span
             fit = float(np.polyfit(k, t + 0.5, 1)[0]) if k[-1] > 1 else p
             if not abs(fit - p) < 0.05 * p or fit == p:
                 break
             p = fit
-            k = _run_numbers(t, p)
+            k = RunNumberer(p).numbers(t)
         interval = p * TICK_S
     jump = np.diff(k) - 1
     dropped = int(jump[~brk[1:]].sum())
@@ -194,14 +180,11 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
 
 
 class RunNumberer:
-    """The sender's sample numbers of a stream with gaps, in batches of ticks (the whole capture for a replay, a
-    round at a time live), for any period but ST's step (there: :func:`sample_numbers`).
+    """The sender's sample numbers of a stream with gaps, in batches of ticks, for any period but ST's step.
 
-    Samples between gaps (:func:`gap_mask`) are consecutive: a run. A run's phase, the mean of tick + ½ − i·period
-    over its samples, smooths out the 8 ms quantisation and the sender's own jitter (a main loop that cannot hit the
-    period exactly); a run after a gap starts at the number the two runs' phases say, so a gap counts the periods
-    that really passed (a single tick delta is blurred by up to two ticks). Live, the run after a gap is known only
-    as far as the batch goes."""
+    Samples between gaps (:func:`gap_mask`) are a run. A run's phase, the mean of tick + ½ − i·period over its
+    samples, smooths out the 8 ms quantisation and the sender's jitter; a run after a gap starts at the number the
+    two runs' phases say, so a gap counts the periods that really passed."""
 
     def __init__(self, period_ticks: float) -> None:
         self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)
@@ -244,10 +227,6 @@ class RunNumberer:
         return out
 
 
-def _run_numbers(ticks, period_ticks: float) -> np.ndarray:
-    return RunNumberer(period_ticks).numbers(ticks)
-
-
 def sender_phase(t: np.ndarray, interval: float) -> float:
     """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
     consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""
@@ -257,14 +236,16 @@ def sender_phase(t: np.ndarray, interval: float) -> float:
     return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
 
 
-def sample_numbers(ticks, interval: float) -> np.ndarray:
-    """The sender's sample number of each received notification (0 for the first): the smallest increasing
-    numbering that the ticks allow, so a drop is placed where the ticks first prove it (within a sample or two)."""
+def sample_numbers(ticks, interval: float, t0: float | None = None, prev: int | None = None) -> np.ndarray:
+    """The sender's sample number of each received notification: the smallest increasing numbering that the ticks
+    allow, so a drop is placed where the ticks first prove it (within a sample or two). ``t0``: the sender's phase
+    (None: from these ticks); ``prev``: the number of the sample before (None: the first is 0)."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     if len(t) == 0:
         return np.zeros(0, np.int64)
-    t0 = sender_phase(t, interval)
-    lo = np.ceil((t - t0) / interval - 1e-9).astype(np.int64)
-    lo[0] = 0
+    lo = np.ceil((t - (sender_phase(t, interval) if t0 is None else t0)) / interval - 1e-9).astype(np.int64)
+    if prev is None:
+        lo[0], prev = 0, -1
     # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
-    return np.maximum.accumulate(lo - np.arange(len(t))) + np.arange(len(t))
+    j = np.arange(len(t))
+    return np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j

@@ -98,23 +98,19 @@ class BadPayload(ValueError):
 
 def char_id_of_uuid(uuid: str) -> int | None:
     """The characteristic id of a UUID (any case), None for one this tool does not read."""
-    u = str(uuid).lower()
-    for k, v in CHAR_UUIDS.items():
-        if v == u:
-            return k
-    return None
+    return next((k for k, v in CHAR_UUIDS.items() if v == str(uuid).lower()), None)
 
 
-#: characteristic id → (name in messages, payload layout) of the fixed-size notifications
-_LAYOUTS = {CHAR_MOTION: ("motion", _MOTION), CHAR_ENV: ("environment", _ENV), CHAR_ARMING: ("arming", _ARMING)}
+#: characteristic id → payload layout of the fixed-size notifications
+_LAYOUTS = {CHAR_MOTION: _MOTION, CHAR_ENV: _ENV, CHAR_ARMING: _ARMING}
 
 
 def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
     """The raw fields of a motion, environment or arming notification in payload order (the table above);
     :class:`BadPayload` when its length does not match."""
-    what, layout = _LAYOUTS[char_id]
+    layout = _LAYOUTS[char_id]
     if len(payload) != layout.size:
-        raise BadPayload(f"{what} notification of {len(payload)} bytes (expected {layout.size})")
+        raise BadPayload(f"{CHAR_NAMES[char_id]} notification of {len(payload)} bytes (expected {layout.size})")
     return layout.unpack(payload)
 
 
@@ -155,11 +151,10 @@ def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[floa
 def ble_items(chunks: dict, events=()) -> list[tuple[int | None, bytes, float]]:
     """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks in order, as a live link hands them over: a
     ``(None, b"", t)`` before the first notification after each ``reconnect`` event (the link was lost)."""
-    recs = ble_records(chunks)
     marks = sorted(e.t_host_s for e in events if e.kind == "reconnect")
     out: list[tuple[int | None, bytes, float]] = []
     m = 0
-    for t, cid, payload in recs:
+    for t, cid, payload in ble_records(chunks):
         while m < len(marks) and marks[m] <= t:
             out.append((None, b"", marks[m]))
             m += 1

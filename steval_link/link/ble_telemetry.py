@@ -1,9 +1,6 @@
-"""A BLE capture as the one model: its notifications → frames → the sender's samples on one grid
-(:class:`LiveGrid`, live and replayed alike: dt from the cadence found, :mod:`steval_link.link.ble_cadence`) →
-:class:`~steval_link.link.telemetry.Telemetry` (:func:`ble_telemetry`), the link's facts as data on it
-(:class:`BleStream`); the notes that say what BLE rows are.
-
-Payloads and ticks: :mod:`steval_link.link.ble_payloads`. Pure functions and small classes over numpy arrays; no I/O.
+"""A BLE capture as the one model: notifications → frames → the sender's samples on one grid (:class:`LiveGrid`,
+live and replayed alike, dt from the cadence) → :class:`~steval_link.link.telemetry.Telemetry`
+(:func:`ble_telemetry`), the link's facts on it (:class:`BleStream`), and the notes that say what BLE rows are.
 """
 
 from __future__ import annotations
@@ -25,6 +22,7 @@ from steval_link.link.ble_cadence import (
     gap_mask,
     motion_cadence,
     repeats_are_reads,
+    sample_numbers,
     sender_phase,
 )
 from steval_link.link.ble_payloads import (
@@ -232,30 +230,11 @@ def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> 
     input). The stock layout's rows carry the sensors and no attitude (NaN); the euler layout's the drone's
     attitude (rad) and no sensor values (NaN: the estimators skip the rows)."""
     acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
-    n = len(acc)
-    k = np.asarray(k, dtype=np.int64)
-    t_fw_s = np.asarray(t_fw_s, dtype=np.float64)
-    ang = np.full((n, 3), np.nan, np.float32)
+    ang = np.full(acc.shape, np.nan, np.float32)
     if layout.sends_attitude:
         ang, acc = acc / np.float32(layout.angle_scale), ang.copy()
     gyro = np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3) if not layout.sends_attitude else acc.copy()
-    return AttitudeArrays(
-        step=k,
-        seq=(k % (1 << 16)).astype(np.uint16),
-        t_us=(np.round(t_fw_s * 1e6).astype(np.int64) % (1 << 32)).astype(np.uint32),
-        t_fw_s=t_fw_s,
-        t_host_s=np.asarray(t_host_s, dtype=np.float64),
-        acc_mg=acc,
-        gyro_mdps=gyro,
-        thr=np.zeros(n, np.int16),
-        q_wxyz=np.full((n, 4), np.nan, np.float32),
-        thz_rad=ang[:, 2].copy(),
-        thx_rad=ang[:, 0].copy(),
-        thy_rad=ang[:, 1].copy(),
-        exact=np.zeros(n, bool),
-        offset=np.full(n, -1, np.int64),
-        values_bad=np.zeros(n, bool),
-    )
+    return AttitudeArrays.of(k, t_fw_s, t_host_s, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 
 
 #: motion samples that fix the cadence (and the estimators' dt) live; fewer when 3 s of drone time pass or at the end
@@ -266,12 +245,10 @@ TICKS_KEPT = 20_000
 
 
 class LiveGrid:
-    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or
-    all at once (a capture: :func:`ble_telemetry`). The cadence is found from the first :data:`LOCK_SAMPLES`
-    samples (until then :meth:`rows` holds them back; a capture's from all), which fixes dt and the numbering
-    (:func:`~steval_link.link.ble_cadence.sample_numbers`, :class:`RunNumberer`): one row per sender sample, a
-    row held over a notification only when the ticks show it was sent and lost; a repeat is a read (one sample) or a
-    sample of its own as :func:`repeats_are_reads` finds on the first samples."""
+    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or all
+    at once (:func:`ble_telemetry`). The first :data:`LOCK_SAMPLES` samples fix the cadence, dt and the numbering
+    (:meth:`rows` holds them back until then): one row per sender sample, a row held over a notification only when
+    the ticks show it was sent and lost; repeats are reads or samples as :func:`repeats_are_reads` finds."""
 
     def __init__(self, layout: BleLayout) -> None:
         self.layout = layout
@@ -286,7 +263,7 @@ class LiveGrid:
         self._last_k: int | None = None
         self._numberer: RunNumberer | None = None
         self._last_tick = 0
-        self._last_sample: tuple[np.ndarray, np.ndarray] | None = None
+        self._last_sample: np.ndarray | None = None  # acc, gyro and mag of the last sample
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)
         self.rows_held = 0
@@ -309,9 +286,10 @@ class LiveGrid:
         if self._cadence is None and not self._ready(final):
             return None
         frames, self._pending = self._pending, []
-        if self._cadence is None:
-            self._lock(frames)
-        breaks, kept = [], []
+        mo = [f for f in frames if f is not None]
+        if self._cadence is None and mo:  # the first samples tell whether repeats are reads
+            self.reads = repeats_are_reads([f.tick for f in mo], [f.repeat for f in mo], [f.t_host_s for f in mo])
+        breaks, kept = [], []  # breaks: the kept samples that follow a reconnection
         for f in frames:
             if f is None:
                 breaks.append(len(kept))
@@ -319,37 +297,25 @@ class LiveGrid:
                 self.repeats += 1
             else:
                 kept.append(f)
+        if self._cadence is None and kept:
+            self._lock(kept, breaks, len(mo) - len(kept))
         if not kept or self._cadence is None:
             return None
         return self._grid(kept, np.unique(np.asarray(breaks, dtype=np.int64)))
 
     def _ready(self, final: bool) -> bool:
         ticks = [f.tick for f in self._pending if f is not None]
-        if final or len(ticks) >= LOCK_SAMPLES:
-            return True
-        return len(ticks) >= 8 and (ticks[-1] - ticks[0]) * TICK_S >= LOCK_SPAN_S
+        span_s = (ticks[-1] - ticks[0]) * TICK_S if len(ticks) >= 8 else 0.0
+        return final or len(ticks) >= LOCK_SAMPLES or span_s >= LOCK_SPAN_S
 
-    def _lock(self, frames: list) -> None:
-        """The cadence of the first samples fixes dt and how samples are numbered."""
-        mo = [f for f in frames if f is not None]
-        if not mo:
-            return
-        rep = np.array([f.repeat for f in mo], bool)
-        ticks = np.array([f.tick for f in mo], np.int64)
-        self.reads = repeats_are_reads(ticks, rep, [f.t_host_s for f in mo])
-        keep = ~rep if self.reads else np.ones(len(mo), bool)
-        brk, i = [], 0  # the kept samples that follow a reconnection
-        for f in frames:
-            if f is None:
-                brk.append(i)
-            elif not (self.reads and f.repeat):
-                i += 1
-        c = self.found = motion_cadence(ticks[keep], int((~keep).sum()), brk)
+    def _lock(self, kept: list, breaks: list[int], repeats: int) -> None:
+        """The cadence of the first samples (``repeats`` reads left out) fixes dt and how samples are numbered."""
+        ticks = np.array([f.tick for f in kept], np.int64)
+        c = self.found = motion_cadence(ticks, repeats, breaks)
         if c is None:  # a single sample (or one tick): ST's step, as the stock firmware sends
-            c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, int((~keep).sum()), 0.0, True)
+            c = Cadence(STEADY, STEP_PERIOD_S, 0, 0, repeats, 0.0, True)
         self._cadence = c
-        t = ticks[keep] * TICK_S
-        self._t0_s = sender_phase(t, c.interval_s) if c.kind != POLLED else 0.0
+        self._t0_s = sender_phase(ticks * TICK_S, c.interval_s) if c.kind != POLLED else 0.0
         self._numberer = RunNumberer(c.interval_s / TICK_S)
 
     def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
@@ -366,11 +332,7 @@ class LiveGrid:
         if c.kind == POLLED:
             k = np.arange(n, dtype=np.int64) + (0 if first else self._last_k + 1)
         elif c.exact:  # ST's step, known exactly: the smallest numbering the ticks' phase allows
-            lo = np.ceil((t_fw - self._t0_s) / dt - 1e-9).astype(np.int64)
-            if first:
-                lo[0] = 0
-            prev, j = -1 if first else self._last_k, np.arange(n)
-            k = np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
+            k = sample_numbers(tick, dt, self._t0_s, None if first else self._last_k)
         else:
             k = self._numberer.numbers(tick)
         self.numbers = k
@@ -382,12 +344,9 @@ class LiveGrid:
         for b in breaks[breaks < n].tolist():
             grid = grid[(grid <= before[b]) | (grid >= k[b])]  # never sent: the link was down
         src = np.searchsorted(k, grid, side="right") - 1  # the last sample received at or before each row
-        acc = np.array([f.acc_mg for f in mo], np.float32).reshape(-1, 3)
-        gyro = np.array([f.gyro_mdps for f in mo], np.float32).reshape(-1, 3)
-        mag = np.array([f.mag_mgauss for f in mo], np.float32).reshape(-1, 3)
-        acc_rows, gyro_rows, mag_rows = acc[np.maximum(src, 0)], gyro[np.maximum(src, 0)], mag[np.maximum(src, 0)]
-        if (src < 0).any():  # rows before this round's first sample: held from the last round's
-            acc_rows[src < 0], gyro_rows[src < 0], mag_rows[src < 0] = self._last_sample
+        sensors = np.array([(*f.acc_mg, *f.gyro_mdps, *f.mag_mgauss) for f in mo], np.float32).reshape(-1, 9)
+        rows = sensors[np.maximum(src, 0)]  # acc, gyro, mag
+        rows[src < 0] = self._last_sample  # rows before this round's first sample: held from the last round's
         self.rows_held += len(grid) - n
         if c.kind != POLLED:
             d = np.diff(tick, prepend=tick[0] if first else self._last_tick)
@@ -398,9 +357,10 @@ class LiveGrid:
         host = np.array([f.t_host_s for f in mo], np.float64)
         t_host = np.interp(t_rows, t_fw, host) if n > 1 else np.full(len(grid), host[0])
         self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
-        self._last_sample = (acc[-1], gyro[-1], mag[-1])
-        self.mag_mgauss = mag_rows
-        return attitude_rows(t_rows, t_host, grid if c.kind != POLLED else k, acc_rows, gyro_rows, self.layout)
+        self._last_sample = sensors[-1]
+        self.mag_mgauss = rows[:, 6:]
+        k_rows = grid if c.kind != POLLED else k
+        return attitude_rows(t_rows, t_host, k_rows, rows[:, :3], rows[:, 3:6], self.layout)
 
     def _period_s(self) -> float:
         """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample

@@ -1,23 +1,18 @@
 """The BLE transport: scan, connect, subscribe to the drone's notifications, reconnect when the link is lost.
 
-Two parts, as the serial transport keeps its protocol apart from its thread:
+* :class:`BleBackend`: the small interface to a radio; :class:`BleakBackend` implements it with bleak (optional
+  extra ``steval-link[ble]``), ``tests/support/ble.py`` without a radio.
+* :class:`BleLink`: find the drone (by name or address, default the strongest ``DRN1…`` advertiser), connect,
+  subscribe to each characteristic of ``ble_payloads.CHAR_UUIDS``, hand each notification to
+  ``on_notification(char id, bytes, t_unix_s)``, and on a lost link reconnect (back off up to :data:`RETRY_MAX_S`).
 
-* :class:`BleBackend`: the small interface to a radio (``scan``, ``connect``, ``start_notify``, ``disconnect``).
-  :class:`BleakBackend` implements it with `bleak <https://pypi.org/project/bleak/>`_ (optional extra
-  ``steval-link[ble]``; BlueZ on Linux, CoreBluetooth on macOS, WinRT on Windows);
-  ``FakeBleBackend`` of the tests (``tests/support/ble.py``) without a radio.
-* :class:`BleLink`: the logic over any backend: find the drone (by name or address, default: the first
-  ``DRN1…`` advertiser), connect, subscribe to every characteristic of ``ble_payloads.CHAR_UUIDS`` it has, hand
-  each notification to ``on_notification(char id, bytes, t_unix_s)``, and on a lost link mark it and reconnect
-  (scan again, back off up to :data:`RETRY_MAX_S`) until stopped.
-
-Radio and permission failures become :class:`~steval_link.errors.UserError` sentences (:func:`explain_ble_error`),
-never a traceback.
+Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -93,17 +88,17 @@ def explain_ble_error(exc: BaseException) -> str | None:
     return None
 
 
+def _raise_explained(exc: BaseException) -> None:
+    """Raise the :func:`explain_ble_error` sentence of ``exc`` as a UserError, when it has one."""
+    why = explain_ble_error(exc)
+    if why:
+        raise UserError(why) from None
+
+
 def is_address(text: str) -> bool:
     """A BLE address (``C0:11:22:33:44:55``) or a macOS CoreBluetooth UUID, rather than a name."""
     t = text.strip()
-    parts = t.split(":")
-    if len(parts) == 6 and all(len(p) == 2 for p in parts):
-        try:
-            [int(p, 16) for p in parts]
-            return True
-        except ValueError:
-            return False
-    return len(t) == 36 and t.count("-") == 4
+    return bool(re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", t)) or (len(t) == 36 and t.count("-") == 4)
 
 
 def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | None:
@@ -114,10 +109,9 @@ def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | Non
         if is_address(t):
             return next((d for d in devices if d.address.lower() == t.lower()), None)
         exact = [d for d in devices if d.name == t]
-        if exact:
-            return exact[0]
-        pref = [d for d in devices if d.name and d.name.lower().startswith(t.lower())]
-        return _strongest(pref)
+        return (
+            exact[0] if exact else _strongest([d for d in devices if d.name and d.name.lower().startswith(t.lower())])
+        )
     return _strongest([d for d in devices if d.name and d.name.startswith(DEVICE_NAME_PREFIX)])
 
 
@@ -221,9 +215,7 @@ class BleLink:
             try:
                 devices = await self.backend.scan(self.scan_timeout_s)
             except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
-                why = explain_ble_error(exc)
-                if why:
-                    raise UserError(why) from None
+                _raise_explained(exc)
                 raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
             dev = pick_device(devices, self.target)
             if dev is not None:
@@ -273,9 +265,7 @@ class BleLink:
         except UserError:
             raise
         except Exception as exc:  # noqa: BLE001 - BleError, or the platform's own (no permission, adapter off...)
-            why = explain_ble_error(exc)
-            if why:
-                raise UserError(why) from None
+            _raise_explained(exc)
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
         first_delay = min(0.5, self.retry_max_s)
@@ -300,9 +290,7 @@ class BleLink:
                 except UserError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - retried unless the platform itself failed
-                    why = explain_ble_error(exc)
-                    if why:
-                        raise UserError(why) from None
+                    _raise_explained(exc)
                 delay = min(delay * 2, self.retry_max_s)
         await self.backend.disconnect()
 

@@ -1,14 +1,9 @@
 """Capture files (``.stv``): the raw serial bytes exactly as received, with host receive times, plus events.
 
-Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then chunks that are each
-self-checking (CRC-32), so a file cut anywhere (power cut, ``kill -9``) reads back up to its last complete chunk.
-Raw bytes are the source of truth: a decoder fix re-decodes old captures.
-
-* :class:`CaptureWriter` appends crash-safely (each chunk goes to the OS at once; ``fsync`` at least once a second).
-* :func:`read_capture` returns a :class:`Capture` (header, bytes, chunk offsets/times, events, truncation).
-
-The file format only (writing and reading), so that its byte layout is stated in one place; decoding a capture is
-:mod:`steval_link.link.load`.
+Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then self-checking chunks (CRC-32),
+so a file cut anywhere reads back up to its last complete chunk. Raw bytes are the source of truth: a decoder fix
+re-decodes old captures. :class:`CaptureWriter` appends crash-safely; :func:`read_capture` reads a
+:class:`Capture`. Decoding a capture is :mod:`steval_link.link.load`.
 """
 
 from __future__ import annotations
@@ -241,13 +236,9 @@ def _known_kind(kind: int) -> int:
 class CaptureWriter:
     """Append-only ``.stv`` writer; use as a context manager.
 
-    ``write(data, t_host_s)`` stores one received chunk (``t_host_s``: host time when it was received, s since
-    the capture started; default: now on ``time.monotonic``). ``mark_event(kind, text)`` stores an event (e.g.
-    "disconnect"/"reconnect"). Every chunk is handed to the OS immediately (nothing is lost on ``kill -9``); a
-    background thread ``fsync``\\s pending data at least every :data:`SYNC_INTERVAL_S` (power cuts). An existing
-    file is never overwritten (``FileExistsError``). ``discard_empty``: a capture that got no serial bytes at all
-    is deleted on :meth:`close` (it would hold only its header); ``discarded`` then says so.
-    """
+    Every chunk goes to the OS at once (nothing is lost on ``kill -9``); a background thread ``fsync``\\s at least
+    every :data:`SYNC_INTERVAL_S` (power cuts). ``t_host_s``: s since the capture started (default: now). An existing
+    file is never overwritten; ``discard_empty``: a capture without serial bytes is deleted on :meth:`close`."""
 
     def __init__(
         self,
@@ -265,7 +256,8 @@ class CaptureWriter:
         now = time.time()
         self.header: dict[str, Any] = capture_header(port, baud, now, extra, tool_version=tool_version)
         self._file = open(self.path, "xb", buffering=0)
-        self._identity = _identity(os.fstat(self._file.fileno()))
+        st = os.fstat(self._file.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         #: why the file can take no more (disk full, removed, replaced): an OSError whose text is one sentence
         self.failure: OSError | None = None
@@ -301,18 +293,23 @@ class CaptureWriter:
         self._write_stream(CHUNK_HOST, data, t_host_s)
 
     def _write_stream(self, kind: int, data: bytes | bytearray | memoryview, t_host_s: float | None) -> None:
-        """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes; received bytes count in
-        ``bytes_written`` (under the lock, so an event's offset is never stale)."""
-        if not data:
-            return
+        """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes."""
+        if data:
+            data = bytes(data)
+            self._append(kind, [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)], t_host_s)
+
+    def _append(self, kind: int, payloads: list, t_host_s: float | None) -> None:
+        """Chunks of type ``kind`` received at ``t_host_s`` (None: now), written under the lock: received bytes count
+        in ``bytes_written`` there, so an event's offset (a dict payload given it there) is never stale."""
         t = self.now() if t_host_s is None else float(t_host_s)
-        data = bytes(data)
         with self._lock:
             self._check_open()
-            for i in range(0, len(data), MAX_CHUNK):
-                self._write_all(_chunk(kind, data[i : i + MAX_CHUNK], t))
-            if kind == CHUNK_DATA:
-                self.bytes_written += len(data)
+            for payload in payloads:
+                if kind == CHUNK_EVENT:
+                    payload = json.dumps({**payload, "offset": self.bytes_written}).encode()
+                self._write_all(_chunk(kind, payload, t))
+                self.bytes_written += len(payload) if kind == CHUNK_DATA else 0
+            self.chunks_written += kind not in (CHUNK_DATA, CHUNK_HOST, CHUNK_EVENT)
             self._dirty = True
 
     def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
@@ -322,12 +319,7 @@ class CaptureWriter:
         payload = bytes(payload)
         if len(payload) > MAX_CHUNK:
             raise ValueError(f"typed chunk of {len(payload)} bytes (at most {MAX_CHUNK})")
-        t = self.now() if t_host_s is None else float(t_host_s)
-        with self._lock:
-            self._check_open()
-            self._write_all(_chunk(kind, payload, t))
-            self.chunks_written += 1
-            self._dirty = True
+        self._append(kind, [payload], t_host_s)
 
     def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
         """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks at ``t_host_s``."""
@@ -336,12 +328,7 @@ class CaptureWriter:
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
         """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
-        t = self.now() if t_host_s is None else float(t_host_s)
-        with self._lock:
-            self._check_open()
-            payload = json.dumps({"kind": str(kind), "text": str(text), "offset": self.bytes_written}).encode()
-            self._write_all(_chunk(CHUNK_EVENT, payload, t))
-            self._dirty = True
+        self._append(CHUNK_EVENT, [{"kind": str(kind), "text": str(text)}], t_host_s)
 
     def flush(self) -> None:
         """Force everything written so far to disk (``fsync``)."""
@@ -450,10 +437,6 @@ class OutputLostError(OSError):
         return self.text
 
 
-def _identity(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
-
-
 def _failed(path: Path, exc: OSError) -> OSError:
     """``exc`` as an :class:`OutputLostError` naming ``path`` (disk full, I/O error)."""
     if isinstance(exc, OutputLostError):
@@ -472,7 +455,7 @@ def output_gone(path: str | os.PathLike, identity: tuple[int, int]) -> str | Non
         return "was deleted" if path.parent.is_dir() else "was deleted with its folder"
     except OSError as exc:
         return f"cannot be reached ({exc.strerror or exc})"
-    return None if _identity(st) == identity else "was replaced by another file"
+    return None if (st.st_dev, st.st_ino) == identity else "was replaced by another file"
 
 
 def default_capture_path(directory: str | os.PathLike = "recordings", now: datetime | None = None) -> Path:
@@ -490,11 +473,9 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
 def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
     """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
 
-    None stays None (the default ``recordings/steval-<UTC>.stv``); an existing directory means "write inside it"
-    (``DIR/steval-<UTC>.stv``); a file name must be in an existing directory (no folders are created at random
-    places: a typo stays a typo) and must not exist yet (captures are never overwritten). Raises
-    :class:`~steval_link.errors.UserError` otherwise.
-    """
+    None stays None (the default path); an existing directory: a new file inside it; a file name must be in an
+    existing directory (no folders are created) and must not exist yet (captures are never overwritten). Else a
+    :class:`~steval_link.errors.UserError`."""
     if out is None:
         return None
     path = Path(out).expanduser()
@@ -559,26 +540,22 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
 
 def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
     """The capture's JSON header and the file position after it; a :class:`UserError` when there is none."""
+    truncated = UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
     if not raw.startswith(MAGIC):
         if raw and MAGIC.startswith(raw):
-            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
+            raise truncated
         raise UserError(f"{path} is not a steval capture (.stv) file.")
     pos = len(MAGIC)
+    hlen = _HEADER_LEN.unpack_from(raw, pos)[0] if len(raw) >= pos + 4 else None
+    if hlen is None or (hlen <= MAX_HEADER and pos + 4 + hlen + 4 > len(raw)):
+        raise truncated
     try:
-        (hlen,) = _HEADER_LEN.unpack_from(raw, pos)
-        if hlen <= MAX_HEADER and pos + 4 + hlen + 4 > len(raw):
-            raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.")
-        if hlen > MAX_HEADER:
-            raise ValueError
         head = raw[pos + 4 : pos + 4 + hlen]
-        (crc,) = _CRC.unpack_from(raw, pos + 4 + hlen)
-        if zlib.crc32(head) != crc:
+        if hlen > MAX_HEADER or zlib.crc32(head) != _CRC.unpack_from(raw, pos + 4 + hlen)[0]:
             raise ValueError
         header = json.loads(head.decode("utf-8"))
         if not isinstance(header, dict):
             raise ValueError
-    except struct.error:
-        raise UserError(f"{path}: {len(raw)} bytes, capture truncated in its header: no frames.") from None
     except (ValueError, UnicodeDecodeError):
         raise UserError(f"{path}: {len(raw)} bytes, capture header damaged: no frames.") from None
     if int(header.get("format_version", 0)) > FORMAT_VERSION:

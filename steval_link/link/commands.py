@@ -1,11 +1,9 @@
 """Host → drone commands (protocol v2, frame type 8) and the drone's acknowledgements (type 5).
 
-One place for what a command is called and how it reads: :func:`parse_command` turns a typed line (``set ki 1.0``,
-``correction off``, ``reset``, ``status``, ``mode text``) into a :class:`Command`; :class:`CommandChannel` numbers
-and sends commands through any byte sink (a serial port, the emulated board), records every byte sent (the
-capture's ``H`` chunks) and matches the acknowledgements to what was sent; :func:`describe_ack` says in one
-sentence what the drone did. ``steval param``/``steval command``, the ``steval live`` prompt and ``steval emulate
---commands`` all go through here.
+:func:`parse_command` turns a typed line (``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode
+text``) into a :class:`Command`; :class:`CommandChannel` numbers and sends commands through any byte sink, records
+the bytes sent (the capture's ``H`` chunks) and matches acknowledgements; :func:`describe_ack` says what the drone
+did.
 """
 
 from __future__ import annotations
@@ -195,10 +193,9 @@ def parse_script(text: str, source: str = "commands") -> list[tuple[float, Comma
 
 def describe_settings(status) -> str:
     """The filter settings a status frame reports, in one line."""
-    correction = "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
     return (
         f"kp_ground {float(status.kp_ground):.9g}, kp_flight {float(status.kp_flight):.9g}, "
-        f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {correction}"
+        f"ki {float(status.ki):.9g}, min_thr {int(status.min_thr)}, correction {param_of_status(status, 'correction')}"
     )
 
 
@@ -303,40 +300,31 @@ def command_log(commands, acks) -> list[dict]:
     "result" (None when no ack came), "step", "text" (one sentence)}``; acks for commands not in the capture are
     listed too (``command`` None)."""
     out = []
+    first: dict[tuple[int, int], int] = {}  # (cmd_seq, cmd) -> its first ack row
+    for j, a in enumerate(acks):
+        first.setdefault((int(a["cmd_seq"]), int(a["cmd"])), j)
     answered = set()
-    by_seq: dict[tuple[int, int], int] = {}
-    for i in range(len(acks)):
-        by_seq.setdefault((int(acks["cmd_seq"][i]), int(acks["cmd"][i])), i)
     for c in commands:
         command = Command(int(c["cmd"]), int(c["param"]), float(c["value"]))
-        j = by_seq.get((int(c["cmd_seq"]), int(c["cmd"])))
-        ack = None
-        if j is not None and j not in answered:
-            answered.add(j)
-            a = acks[j]
-            ack = _ack_of_row(a)
-        out.append(
-            {
-                "t_host_s": float(c["t_host_s"]),
-                "cmd_seq": int(c["cmd_seq"]),
-                "command": command.describe(),
-                "result": None if ack is None else ack.result,
-                "step": None if ack is None else ack.step,
-                "text": describe_ack(command, ack) if ack is not None else f"{command.describe()}: no ack",
-            }
-        )
-    for j in range(len(acks)):
-        if j not in answered:
-            a = acks[j]
-            ack = _ack_of_row(a)
-            out.append(
-                {
-                    "t_host_s": float(a["t_host_s"]),
-                    "cmd_seq": ack.cmd_seq,
-                    "command": None,
-                    "result": ack.result,
-                    "step": ack.step,
-                    "text": describe_ack(None, ack),
-                }
-            )
+        j = first.get((int(c["cmd_seq"]), int(c["cmd"])))
+        ack = None if j is None or j in answered else _ack_of_row(acks[j])
+        answered.add(j)
+        out.append(_log_row(c["t_host_s"], int(c["cmd_seq"]), command, ack))
+    out += [
+        _log_row(a["t_host_s"], int(a["cmd_seq"]), None, _ack_of_row(a))
+        for j, a in enumerate(acks)
+        if j not in answered
+    ]
     return sorted(out, key=lambda r: r["t_host_s"])
+
+
+def _log_row(t_host_s, cmd_seq: int, command: Command | None, ack: AckFrame | None) -> dict:
+    """One entry of :func:`command_log`: a command sent (``command``) or an ack of one not in the capture."""
+    return {
+        "t_host_s": float(t_host_s),
+        "cmd_seq": cmd_seq,
+        "command": None if command is None else command.describe(),
+        "result": None if ack is None else ack.result,
+        "step": None if ack is None else ack.step,
+        "text": f"{command.describe()}: no ack" if ack is None else describe_ack(command, ack),
+    }

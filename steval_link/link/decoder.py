@@ -1,43 +1,33 @@
 """Wire-protocol decoder: :class:`StreamDecoder` (incremental, bounded memory) and :func:`decode_bytes` (bulk, fast).
 
-Both implement ``firmware_patch/PROTOCOL.md`` and give exactly the same frames and counters on the same bytes.
+Both implement ``firmware_patch/PROTOCOL.md`` and give the same frames and counters on the same bytes.
 
 Rules (position by position, from the start of the stream):
 
-* ``A5 5A``: a binary frame candidate. Valid (version 2 with CRC-32, or version 1 with CRC-16; known type, the
-  type's ``LEN``, CRC) → the whole frame consumed and handed to the plausibility gate
-  (:mod:`steval_link.link.plausibility`), which hands it out or holds it back (``implausible``: sequence and time
-  that do not continue; on version 1 also NaN or out-of-range values. A version-2 frame with such values is handed
-  out and counted in ``values_bad``: the firmware sent it); otherwise only the
-  ``A5`` is discarded and the search resumes at the next byte. A known header whose CRC fails counts in
-  ``crc_failures``; a frame of unknown type whose CRC matches counts in ``unknown_frames`` (skipped the same way).
-  Once a version-2 frame was accepted, version-1 candidates are no longer taken (a damaged v2 stream cannot
-  yield a v1 frame that passed only the weaker CRC-16).
-* Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$`` line
-  is accepted wherever it starts when its checksum and fields are right (else it counts in ``crc_failures``).
-  A plain line (firmware log, handed out as a :class:`TextFrame`) has no checksum, so it is accepted only at a
-  clean line start: right after a frame or line that was handed out, or after a whole printable line (blank
-  lines in between change nothing). So a stream joined in the middle of a line never yields the tail of that line
-  (the first plain line of a stream is dropped, counted as skipped), a line right after binary damage is not
-  trusted, and a line holding a valid ``$`` sentence after a glitch byte yields the sentence, not a log line.
-  ``line_start=True`` says the stream's first byte starts a line (a log file, which holds what the port sent
-  from its start): then its first line is kept when it is a whole printable line.
-* Blank lines (spaces and tabs only, ``\r`` at the end allowed) and the ``\r`` of ``\n\r`` endings at a line
-  start count in ``blank_bytes``: text a program printed, not damage (right after damage they are skipped).
-* Every other byte that is not part of a handed-out frame or line counts in ``bytes_skipped``.
+* ``A5 5A``: a binary frame candidate. Valid (v2 with CRC-32 or v1 with CRC-16, known type, the type's ``LEN``,
+  CRC) → consumed and handed to the plausibility gate (:mod:`steval_link.link.plausibility`); otherwise only the
+  ``A5`` is discarded. A known header whose CRC fails counts in ``crc_failures``; an unknown type whose CRC matches
+  in ``unknown_frames``. Once a v2 frame was accepted, v1 candidates are refused (a damaged v2 stream cannot yield
+  a v1 frame that passed only the weaker CRC-16).
+* Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$``
+  line is accepted wherever it starts when its checksum and fields are right (else ``crc_failures``). A plain line
+  has no checksum, so it is accepted only at a clean line start: after a frame or line handed out, or after a whole
+  printable line. So a stream joined mid-line never yields that line's tail (the first plain line is skipped), and
+  a glitch byte before a ``$ATT`` line yields the sentence, not a log line. ``line_start=True``: the stream's first
+  byte starts a line (a log file), so its first line is kept.
+* Blank lines and the ``\\r`` of ``\\n\\r`` endings at a line start count in ``blank_bytes`` (text, not damage).
+* Every other byte not in a handed-out frame or line counts in ``bytes_skipped``.
 
 The decoder waits for more bytes only while the candidate at its position could still become valid, so its
-buffer never holds more than one frame (≤ 261 bytes) or one text line (≤ 512 bytes): memory is bounded whatever
-the input, and the frames do not depend on how the bytes are chunked.
+buffer never holds more than one frame (≤ 261 bytes) or line (≤ 512 bytes), and the frames do not depend on how
+the bytes are chunked.
 
-Sequence counters: between consecutive binary attitude frames, ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
-normal, ``2 ≤ d < 2¹⁵`` is a gap (``seq_gaps`` += 1, ``frames_missing`` += d − 1), ``d = 0`` or ``d ≥ 2¹⁵`` (a
-step backwards) is a firmware restart (``seq_resets``). Text-mode rows are decimated by design and not counted.
+Sequence counters between consecutive binary attitude frames: ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
+normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1), else a firmware restart (``seq_resets``).
 """
 
 from __future__ import annotations
 
-import binascii
 import re
 import zlib
 
@@ -97,16 +87,8 @@ _VT_TEXT = {P.vt_byte(_V1, P.TYPE_TEXT), P.vt_byte(_V2, P.TYPE_TEXT)}
 _SYNC0, _SYNC1 = P.SYNC
 _NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
-_crc_hqx = binascii.crc_hqx
-_crc32 = zlib.crc32
-
-
-def _crc16_v1(data) -> int:
-    return _crc_hqx(data, P.CRC_INIT)
-
-
 #: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
-_CHECK = {_V1: (P.CRC_SIZE_V1, _crc16_v1), _V2: (P.CRC_SIZE, _crc32)}
+_CHECK = {_V1: (P.CRC_SIZE_V1, P.crc16), _V2: (P.CRC_SIZE, zlib.crc32)}
 
 
 def _crc_ok(buf, start: int, end: int, version: int) -> bool:
@@ -137,12 +119,9 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them.
-
-    Call :meth:`finish` at the end of the stream to decide the last incomplete candidate (its bytes are counted
-    as skipped). ``stats`` holds the counters (:class:`DecoderStats`). ``offset`` of each frame is its position in
-    the stream (bytes fed since construction).
-    """
+    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them;
+    :meth:`finish` decides the last incomplete candidate. ``stats``: the counters (:class:`DecoderStats`); a frame's
+    ``offset``: its position in the stream."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
@@ -179,11 +158,6 @@ class StreamDecoder:
             self.stats.held_values = self.gate.held_values
         return out
 
-    @property
-    def at_line_start(self) -> bool:
-        """True when the next byte starts a line (after a frame or line handed out, or a whole printable line)."""
-        return self._boundary
-
     def resume_at(self, offset: int, *, line_start: bool) -> None:
         """Continue as if the stream were at byte ``offset``, the bytes before it decoded elsewhere (the bulk
         decoder's runs of clean frames); ``line_start``: a line starts there. Only with no bytes pending."""
@@ -219,29 +193,15 @@ class StreamDecoder:
 
     # -- internals ---------------------------------------------------------------------------------------------
 
-    def _skip(self, buf: bytearray, p: int, n: int) -> int:
-        """Reject the candidate at ``p``: move to the next byte that could start something (``A5``, ``$``, or the
-        byte after a ``\\n``); the bytes in between cannot."""
-        m = _NEXT_START.search(buf, p + 1)
-        if m is None:
-            q = n
-            self._skipping = True  # the next bytes fed go on with this skip (as if they had come with these)
-        else:
-            q = m.start() + (buf[m.start()] == 0x0A)
+    def _skip(self, buf: bytearray, p: int, n: int, first: int = 1) -> int:
+        """Reject the candidate at ``p`` (``first`` 0: go on with a skip cut by the end of the bytes fed before):
+        move to the next byte that could start something (``A5``, ``$``, or the byte after a ``\\n``)."""
+        m = _NEXT_START.search(buf, p + first)
+        q = n if m is None else m.start() + (buf[m.start()] == 0x0A)
+        self._skipping = m is None  # the next bytes fed go on with this skip (as if they had come with these)
         self.stats.bytes_skipped += q - p
         self._boundary = False
         self._damaged = True
-        return q
-
-    def _go_on_skipping(self, buf: bytearray, p: int, n: int) -> int:
-        """A skip cut by the end of the bytes fed before: on to the next byte that could start something."""
-        m = _NEXT_START.search(buf, p)
-        if m is None:
-            q = n
-        else:
-            q = m.start() + (buf[m.start()] == 0x0A)
-            self._skipping = False
-        self.stats.bytes_skipped += q - p
         return q
 
     def _run(self, final: bool) -> list[Frame]:
@@ -252,7 +212,7 @@ class StreamDecoder:
         out: list[Frame] = []
         while p < n:
             if self._skipping:
-                p = self._go_on_skipping(buf, p, n)
+                p = self._skip(buf, p, n, 0)
                 continue
             c = buf[p]
             if c == 0x0D and self._boundary and (buf[p - 1] == 0x0A if p else self._ended_nl):  # "\n\r" endings
@@ -267,10 +227,6 @@ class StreamDecoder:
             self._ended_nl = buf[p - 1] == 0x0A
             del buf[:p]
             self._base += p
-        if final and buf:  # cannot happen (every candidate is decided when final), kept as a guard
-            self.stats.bytes_skipped += len(buf)
-            self._base += len(buf)
-            buf.clear()
         return out
 
     def _binary_at(self, buf: bytearray, p: int, n: int, final: bool, out: list[Frame]) -> int | None:
@@ -449,18 +405,14 @@ def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[
         win_end = data.rfind(b"\n", p, min(p + window, end)) + 1
         valid = tpl.valid_blanks if sd.text_reader.idle else tpl.valid
         run_end = valid.match(data, p, win_end).end() if win_end else p
-        if run_end == p:  # a line that does not fit: the stream decoder decides it
-            stop = data.find(b"\n", p, end) + 1 or end
-            out += sd.feed(data[p:stop])
-            p = stop
-            window = _TEXT_WINDOW
-            continue
-        ends = np.flatnonzero(np.frombuffer(data, np.uint8, run_end - p, p) == 0x0A) + (p + 1)
-        starts = np.concatenate([[p], ends[:-1]]).astype(np.int64)
-        size = ends - starts
-        blank = (size == 1) | ((size == 2) & (np.frombuffer(data, np.uint8, run_end - p, p)[starts - p] == 0x0D))
-        count = int(len(ends) - blank.sum())
-        if count == 0 or int(size.max()) > MAX_LINE_BYTES:  # blank lines only, or a line too long: as above
+        if run_end > p:
+            ends = np.flatnonzero(np.frombuffer(data, np.uint8, run_end - p, p) == 0x0A) + (p + 1)
+            starts = np.concatenate([[p], ends[:-1]]).astype(np.int64)
+            size = ends - starts
+            blank = (size == 1) | ((size == 2) & (np.frombuffer(data, np.uint8, run_end - p, p)[starts - p] == 0x0D))
+            count = int(len(ends) - blank.sum())
+        if run_end == p or count == 0 or int(size.max()) > MAX_LINE_BYTES:
+            # a line that does not fit, blank lines only, or a line too long: the stream decoder decides it
             stop = data.find(b"\n", p, end) + 1 or end
             out += sd.feed(data[p:stop])
             p = stop
@@ -532,16 +484,11 @@ def decode_bytes(
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``chunk_times`` is ``(chunk_offsets, t_host_s)``: where each received chunk starts in the stream and when it
-    arrived (s since capture start). A frame gets the time of the chunk its last byte came in, moved back by the
-    bytes after it at ``baud`` (10 bit times a byte) when ``baud`` is given. Without ``chunk_times`` host times
-    are NaN. ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of the commands the host sent (a capture's H
-    chunks); ``Telemetry.commands`` holds them after those found in the bytes. ``line_start`` and
-    ``plausibility`` mean what they mean for :class:`StreamDecoder`.
-
-    Same frames and counters as :class:`StreamDecoder` on the same bytes: runs of back-to-back valid binary frames
-    are decoded with numpy, every other region by one :class:`StreamDecoder`.
-    """
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (s since capture start; None: NaN host
+    times). A frame takes the time of the chunk of its last byte, less the bytes after it at ``baud`` (10 bit times a
+    byte). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks, kept after the commands in the
+    bytes. ``line_start`` and ``plausibility`` as for :class:`StreamDecoder`, whose frames and counters it gives: runs
+    of back-to-back valid binary frames are decoded with numpy, every other region by one :class:`StreamDecoder`."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
@@ -584,7 +531,7 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
             last_fast = True
             continue
         if not sd.pending_bytes:
-            sd.resume_at(p, line_start=(last_fast or sd.at_line_start) if p else line_start)
+            sd.resume_at(p, line_start=(last_fast or sd._boundary) if p else line_start)
         if first_v2 < p:
             sd.lock_version_2()
         last_fast = False
@@ -598,10 +545,10 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
 def _add_fast_frames(parts: TelemetryParts, arr: np.ndarray, data: bytes, starts, vts, sizes) -> None:
     """The frames of the runs into ``parts``: attitude and status as arrays, the others one by one."""
     types = vts & 0x0F
-    is_att, is_sta = types == P.TYPE_ATTITUDE, types == P.TYPE_STATUS
-    parts.add_attitude_payloads(arr, starts[is_att] + _HEAD, starts[is_att], sizes[is_att])
-    parts.add_status_payloads(arr, starts[is_sta] + _HEAD, starts[is_sta], sizes[is_sta])
-    other = ~(is_att | is_sta)
+    for kind in (P.TYPE_ATTITUDE, P.TYPE_STATUS):
+        sel = types == kind
+        parts.add_payloads(kind, arr, starts[sel] + _HEAD, starts[sel], sizes[sel])
+    other = (types != P.TYPE_ATTITUDE) & (types != P.TYPE_STATUS)
     for s, vt, size in zip(starts[other].tolist(), vts[other].tolist(), sizes[other].tolist()):
         ln = data[s + 3]
         parts.add_frame(_frame_at(data, s, vt, ln, size - _HEAD - ln, s))

@@ -1,13 +1,10 @@
 """One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, :class:`TextRecordFrame`
-(text telemetry), and the v2 frames
-:class:`FlightFrame`, :class:`AckFrame` (drone → host) and :class:`CommandFrame` (host → drone).
+(text telemetry), and the v2 :class:`FlightFrame`, :class:`AckFrame` (drone → host), :class:`CommandFrame`.
 
-The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol` (names,
-order, units in the names), so a layout change is one edit there; each class adds where the frame came from.
-Binary frames carry the firmware's exact float32 values (as Python floats, which hold them exactly); text-mode rows
-(``exact=False``) carry the rounded integers of the ``$ATT``/``$STA`` lines converted to the same units. ``offset``
-is the stream byte offset of the frame's first byte and ``nbytes`` its length on the wire (frame or text line
-including the line ending).
+The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol`, so a
+layout change is one edit there. Binary frames carry the firmware's exact float32 values; text-mode rows
+(``exact=False``) the rounded integers of ``$ATT``/``$STA`` lines in the same units. ``offset``: the stream byte
+offset of the frame's first byte; ``nbytes``: its length on the wire (a line with its ending).
 """
 
 from __future__ import annotations
@@ -22,10 +19,6 @@ from steval_link.link import protocol as P
 NAN = math.nan
 
 
-def _python_type(dtype: np.dtype) -> type:
-    return float if dtype.kind == "f" else int
-
-
 #: where a frame came from: its stream offset and its length on the wire, bytes
 _WHERE = [("offset", int, 0), ("nbytes", int, 0)]
 
@@ -38,7 +31,7 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
     fields = []
     for i, name in enumerate(P.payload_fields(payload)):
         sub = payload.fields[name][0]
-        kind = _python_type(sub.base)
+        kind = float if sub.base.kind == "f" else int
         blank = NAN if kind is float else 0
         typ = tuple[(kind,) * sub.shape[0]] if sub.shape else kind
         if required is not None and i >= required:
@@ -54,14 +47,10 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
 class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
     """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False).
 
-    Wire fields as ATTITUDE_DTYPE: ``t_us`` firmware time in µs mod 2³²; ``acc_mg`` (x, y, z) mg and ``gyro_mdps``
-    (x, y, z) mdps as passed to ``ahrs_fusion_ag``; ``q_wxyz`` the filter quaternion after the step (NaN in text
-    mode); ``thz_rad`` the ISR-integrated yaw, rad; ``seq`` step counter mod 2¹⁶; ``thr`` gTHR. ``step`` is the full
-    step counter when the frame itself carries it (text mode), else None (the binary frame only has ``seq``;
-    :class:`Telemetry` unwraps it). ``thx_rad`` (pitch, about x) / ``thy_rad`` (roll, about y) come from the text
-    line; NaN for binary frames, whose angles are recomputed bit-exactly from ``q_wxyz`` in
-    :class:`~steval_link.link.telemetry.Telemetry`.
-    """
+    Wire fields as ATTITUDE_DTYPE: ``t_us`` µs mod 2³²; ``acc_mg`` and ``gyro_mdps`` (x, y, z) as passed to
+    ``ahrs_fusion_ag``; ``q_wxyz`` the quaternion after the step (NaN in text mode); ``thz_rad`` the ISR-integrated yaw;
+    ``seq`` the step mod 2¹⁶; ``thr`` gTHR. ``step``: the full step when the frame carries it (text mode), else None.
+    ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames (Telemetry computes them from q)."""
 
     exact: bool = True
     offset: int = 0

@@ -1,9 +1,5 @@
 """Load a recording into :class:`~steval_link.link.telemetry.Telemetry`: a ``.stv`` capture, a raw byte dump
-(``cat /dev/ttyUSB0 > log.bin``) or a text-mode log, told apart by content.
-
-One pass: the file's bytes (:mod:`steval_link.link.capture` reads the format) → the decoder, with the commands the
-host sent (capture chunks H) → one ``Telemetry``. Bad input raises :class:`~steval_link.errors.UserError` with one
-sentence.
+(``cat /dev/ttyUSB0 > log.bin``) or a text-mode log, told apart by content. Bad input is a one-sentence UserError.
 """
 
 from __future__ import annotations
@@ -76,17 +72,11 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> Telemetry:
-    """Decode a capture, raw byte dump or text-mode log into a :class:`~steval_link.link.telemetry.Telemetry`.
-
-    The kind is detected from the content (``source["kind"]``: 'stv', 'raw' or 'text'). Warnings about a
-    truncated capture are issued as :class:`CaptureTruncatedWarning` and kept in ``source["warnings"]``.
-    Raises :class:`~steval_link.errors.UserError` with one sentence for a missing, unreadable, empty file, a
-    damaged capture header, or a file in which no frame is found.
-
-    Text telemetry (a log of any ``printf``: ``tel.text_series``) becomes the attitude rows when the stream has no
-    attitude frames and its series say what they are; ``text_map`` ({target: (series, unit)},
-    :func:`steval_link.link.text_series.parse_map`) says it for the others (UserError when it cannot hold).
-    """
+    """Decode a capture, raw byte dump or text-mode log (told apart by content: ``source["kind"]`` 'stv', 'raw' or
+    'text') into a :class:`~steval_link.link.telemetry.Telemetry`. A truncated capture's warning is issued
+    (:class:`CaptureTruncatedWarning`) and kept in ``source["warnings"]``; a file without frames is a one-sentence
+    UserError. Text telemetry becomes the attitude rows when the stream has none and its series say what they are, or
+    as ``text_map`` ({target: (series, unit)}, :func:`~steval_link.link.text_series.parse_map`) says."""
     src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
@@ -101,7 +91,10 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
         return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
     if src.kind == "stv" and not src.data and symbols is None:
-        size = _file_size(src.path)
+        try:
+            size = f"{Path(src.path).stat().st_size} bytes"
+        except OSError:
+            size = "size unknown"
         if src.warnings:  # cut short or damaged right after the header
             raise UserError(
                 f"{src.path}: {size}, a capture header and no readable chunk after it (damaged or cut "
@@ -152,13 +145,6 @@ def _text_lines(tel: Telemetry) -> str:
 
 #: a line of labels with nothing printed after them: a %f of newlib nano (``Drone_Pitch = \tDrone_Roll = ``)
 _FLOATLESS = re.compile(r"(?:[A-Za-z_][\w .()/-]*\s*[=:]\s*)+")
-
-
-def _file_size(path: Path) -> str:
-    try:
-        return f"{Path(path).stat().st_size} bytes"
-    except OSError:
-        return "size unknown"
 
 
 def sent_command_rows(host: list[HostChunk]) -> np.ndarray:

@@ -3,29 +3,21 @@
 A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
 about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
 
-* **Values** (binary attitude and status frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤
-  10⁵ and ``|gyro_mdps|`` ≤ 2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps = 2.3·10⁶ mdps) so
-  that no real reading, offset or filter overshoot comes near; quaternion components within ±2 (the filter keeps
-  ``|q|`` ≈ 1).
-* **Sequence and time** (attitude): against the last accepted attitude frame (the anchor), the step difference
-  ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and the firmware time went forward by
-  ``d`` AHRS periods: ``d·P − tol ≤ Δt_us ≤ 3·d·P + 0.5 s`` (the upper side allows steps the main loop skipped).
-  A status frame must fit its anchor the same way with ``d ≥ 0`` (it follows the attitude frame of its step).
-  This holds for both protocol versions.
+* **Values** (binary frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
+  2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps); quaternion components within ±2.
+* **Sequence and time** (both versions): against the last accepted attitude frame (the anchor), the step
+  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and ``d·P − tol ≤ Δt_us ≤ 3·d·P +
+  0.5 s`` (P the AHRS period; the upper side allows skipped steps). A status frame must fit with ``d ≥ 0``.
 
 Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
-time is what the firmware sent, and a firmware whose own filter diverged sends NaN or ``|q|`` > 2 (a student's
-``ahrs.c``). Such rows are kept and flagged (``values_bad`` in :class:`~steval_link.link.telemetry.Telemetry`,
-counted in ``DecoderStats.values_bad``); :func:`values_bad_sentence` says it in words for every summary. Rows
-with bad values still anchor the sequence and time (``seq`` and ``t_us`` are integers, never NaN).
+time is what the firmware sent (its own filter diverged). Such rows are kept and flagged (``values_bad``,
+:func:`values_bad_sentence`), and still anchor the sequence and time.
 
 An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
-(the firmware restarted, or the link was away longer than the window), they are released together and become the
-new anchor; otherwise held frames are dropped and counted in ``held_back``. Frames of other kinds, text-mode rows
-and the first attitude frame of a stream pass through.
-
-:class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frame by frame, the bulk
-decoder feeds it rows (after a vectorised pass that finds nothing to check on a clean stream).
+(a firmware restart, or the link away longer than the window), they are released and become the new anchor;
+otherwise they are dropped and counted in ``held_back``. Other frames, text-mode rows and the first attitude frame
+pass through. :class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frames, the
+bulk decoder rows (after a vectorised pass that finds nothing to check on a clean stream).
 """
 
 from __future__ import annotations
@@ -66,29 +58,19 @@ CONFIRM = 3
 PERIOD_US = 1e6 / C.AHRS_RATE_HZ
 
 
+def _all_within(values, limit: float) -> bool:
+    return all(-limit <= v <= limit for v in values)  # also False for NaN
+
+
 def attitude_values_ok(acc_mg, gyro_mdps, q_wxyz, thz_rad) -> bool:
     """True when an attitude frame's values are ones the firmware can send."""
-    for v in acc_mg:
-        if not (-ACC_MAX_MG <= v <= ACC_MAX_MG):  # also False for NaN
-            return False
-    for v in gyro_mdps:
-        if not (-GYRO_MAX_MDPS <= v <= GYRO_MAX_MDPS):
-            return False
-    for v in q_wxyz:
-        if not (-Q_MAX <= v <= Q_MAX):
-            return False
-    return math.isfinite(thz_rad)
+    inputs_ok = _all_within(acc_mg, ACC_MAX_MG) and _all_within(gyro_mdps, GYRO_MAX_MDPS)
+    return inputs_ok and _all_within(q_wxyz, Q_MAX) and math.isfinite(thz_rad)
 
 
 def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
     """True when a status frame's filter snapshot and settings are finite (and q within ±2)."""
-    for v in q_wxyz:
-        if not (-Q_MAX <= v <= Q_MAX):
-            return False
-    for v in (*int_xyz, kp_ground, kp_flight, ki, dt_s):
-        if not math.isfinite(v):
-            return False
-    return True
+    return _all_within(q_wxyz, Q_MAX) and all(math.isfinite(v) for v in (*int_xyz, kp_ground, kp_flight, ki, dt_s))
 
 
 def attitude_frame_bad(frame) -> bool:
@@ -215,7 +197,6 @@ class PlausibilityGate:
         self.confirm = int(confirm)
         self.held_back = 0  #: frames dropped for good
         self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
-        self.reanchors = 0  #: times a confirmed run became the new anchor
         self._anchor: tuple[int, int] | None = None
         self._pending: list[tuple[int, int, Any]] = []
 
@@ -247,23 +228,15 @@ class PlausibilityGate:
             pend[:] = [(seq, t_us, item)]
         if len(pend) >= self.confirm:
             self._anchor = (pend[-1][0], pend[-1][1])
-            self.reanchors += 1
             items = [x[2] for x in pend]
             pend.clear()
             return items
         return []
 
-    def finish(self) -> int:
-        """End of stream: frames still held are dropped (counted). Returns how many."""
-        n = len(self._pending)
-        self.held_back += n
+    def finish(self) -> None:
+        """End of stream: frames still held are dropped (counted)."""
+        self.held_back += len(self._pending)
         self._pending = []
-        return n
-
-    @property
-    def pending(self) -> int:
-        """Frames held now, waiting for confirmation."""
-        return len(self._pending)
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -281,18 +254,15 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     a = att[ea]
     s = sta[es]
     # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
-    v1_a = np.flatnonzero(a["nbytes"] != P.ATTITUDE_FRAME_SIZE)
-    v1_s = np.flatnonzero(s["nbytes"] != P.STATUS_FRAME_SIZE)
-    vals_a = np.ones(len(a), bool)
-    vals_s = np.ones(len(s), bool)
-    if len(v1_a):
-        b = a[v1_a]
-        vals_a[v1_a] = ~attitude_rows_bad(True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0)
-    if len(v1_s):
-        b = s[v1_s]
-        vals_s[v1_s] = ~status_rows_bad(
-            True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"], b["dt_s"]
-        )
+    vals_a, vals_s = np.ones(len(a), bool), np.ones(len(s), bool)
+    b = a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE]
+    vals_a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE] = ~attitude_rows_bad(
+        True, b["acc_mg"], b["gyro_mdps"], b["q_wxyz"], b["thz_rad"], 0.0, 0.0
+    )
+    b = s[s["nbytes"] != P.STATUS_FRAME_SIZE]
+    vals_s[s["nbytes"] != P.STATUS_FRAME_SIZE] = ~status_rows_bad(
+        True, b["q_wxyz"], b["int_xyz"], b["kp_ground"], b["kp_flight"], b["ki"], b["dt_s"]
+    )
     # fast path: every attitude row fits the previous one and every status the attitude row before it
     clean = bool(vals_a.all() and vals_s.all()) and gate._anchor is None and not gate._pending
     if clean and len(a) > 1:
@@ -314,16 +284,11 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     # slow path: the gate row by row, in stream order
     keep_a[ea] = False
     keep_s[es] = False
-    rows = [(int(o), P.TYPE_ATTITUDE, int(i)) for o, i in zip(a["offset"], ea)]
-    rows += [(int(o), P.TYPE_STATUS, int(i)) for o, i in zip(s["offset"], es)]
-    rows.sort()
-    va = dict(zip(ea.tolist(), vals_a.tolist()))
-    vs = dict(zip(es.tolist(), vals_s.tolist()))
-    for _, kind, i in rows:
-        if kind == P.TYPE_ATTITUDE:
-            released = gate.offer(kind, int(att["seq"][i]), int(att["t_us"][i]), va[i], (kind, i))
-        else:
-            released = gate.offer(kind, int(sta["step"][i]), int(sta["t_us"][i]), vs[i], (kind, i))
-        for k, idx in released:
-            (keep_a if k == P.TYPE_ATTITUDE else keep_s)[idx] = True
+    rows = [(o, P.TYPE_ATTITUDE, j) for j, o in enumerate(a["offset"].tolist())]
+    rows += [(o, P.TYPE_STATUS, j) for j, o in enumerate(s["offset"].tolist())]
+    for _, kind, j in sorted(rows):
+        r, idx, vals, key = (a, ea, vals_a, "seq") if kind == P.TYPE_ATTITUDE else (s, es, vals_s, "step")
+        released = gate.offer(kind, int(r[key][j]), int(r["t_us"][j]), bool(vals[j]), (kind, int(idx[j])))
+        for k, i in released:
+            (keep_a if k == P.TYPE_ATTITUDE else keep_s)[i] = True
     return keep_a, keep_s

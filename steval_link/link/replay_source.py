@@ -1,17 +1,12 @@
 """A recorded stream played back as a live serial port: ``--port replay://recordings/demo.stv``.
 
-In the spirit of pyserial's URL handlers (``loop://``, ``spy://``): :class:`ReplayPort` has the surface the reader
-thread (:class:`~steval_link.link.transport.SerialReader`) uses of a ``serial.Serial`` (``read``, ``in_waiting``,
-``cancel_read``, ``write``, ``close``, ``port``, ``baudrate``, ``timeout``), so a replay walks the whole live path:
-capture, decoder, estimators, viewer, summary.
+As pyserial's URL handlers (``loop://``), :class:`ReplayPort` has the surface of ``serial.Serial`` the reader
+thread uses, so a replay walks the whole live path.
 
-Pace: a capture's bytes come out at the host times they were recorded at (chunk ``D`` times); a raw dump or a
-text-mode log has none, so its bytes come out at the firmware time of its frames (``t_fw_s``), or at the baud rate
-(10 bit times per byte) when no frame has a time. The lead-in before the first attitude frame (boot banner, start-up
-silence) comes out at once, as when the drone was already running before the session started. ``?speed=X`` in the
-URL plays X times faster; a text log whose records carry no time comes at the baud rate, or ``?rate=N`` records
-a second; ``?loop=1`` starts again at the end (a soak, a class demo: stop it with ``--duration`` or Ctrl-C).
-Commands go nowhere: :meth:`ReplayPort.write` raises.
+Pace: a capture's bytes come out at their recorded host times; a raw dump or text log at its frames' firmware
+times, else at the baud rate (10 bit times a byte). The lead-in before the first attitude frame comes out at once.
+``?speed=X`` plays X times faster, ``?rate=N`` paces a text log without times at N records a second, ``?loop=1``
+starts again at the end. Commands go nowhere: :meth:`ReplayPort.write` raises.
 """
 
 from __future__ import annotations
@@ -32,12 +27,11 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
+from steval_link.link.transport import READ_TIMEOUT_S
 
 __all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
 
 SCHEME = "replay://"
-#: How long one read waits for bytes by default, s (as :data:`~steval_link.link.transport.READ_TIMEOUT_S`).
-READ_TIMEOUT_S = 0.05
 #: Bytes released together when pacing at the baud rate.
 BAUD_BLOCK_BYTES = 32
 #: Bit times per byte on the wire (8N1).
@@ -151,12 +145,9 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
 
 
 class ReplayPort:
-    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc).
-
-    ``data``: the byte stream; bytes ``[0, ends[i])`` are readable from ``t_s[i] / speed`` seconds after the first
-    read (or :attr:`in_waiting`). ``read`` waits like pyserial's (until ``size`` bytes or ``timeout``). After the
-    last byte :attr:`at_end` is True and reads return ``b""`` after the timeout.
-    """
+    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc): bytes
+    ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first read. ``read`` waits like pyserial's; after the
+    last byte :attr:`at_end` is True."""
 
     def __init__(
         self,

@@ -22,25 +22,17 @@ _F32 = np.float32
 def symbol_attitude(rows: np.ndarray) -> AttitudeArrays:
     """``SYMBOL_DTYPE`` rows as attitude rows (step from the emulator's count, times = emulated s since power-up)."""
     rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
-    n = rows.shape[0]
-    step = rows["step"].astype(np.int64)
     t_s = rows["t_s"].astype(np.float64)
-    euler = rows["euler_rad"].astype(_F32)
-    return AttitudeArrays(
-        step=step,
-        seq=(step & 0xFFFF).astype(np.uint16),
-        t_us=(np.round(t_s * 1e6).astype(np.int64) & 0xFFFFFFFF).astype(np.uint32),
-        t_fw_s=t_s,
-        t_host_s=t_s.copy(),
-        acc_mg=np.ascontiguousarray(rows["acc_mg"], dtype=_F32),
-        gyro_mdps=np.ascontiguousarray(rows["gyro_mdps"], dtype=_F32),
-        thr=rows["thr"].astype(np.int16),
-        q_wxyz=np.ascontiguousarray(rows["q_wxyz"], dtype=_F32),
-        thz_rad=np.ascontiguousarray(euler[:, 2]),
-        thx_rad=np.ascontiguousarray(euler[:, 0]),
-        thy_rad=np.ascontiguousarray(euler[:, 1]),
-        exact=np.ones(n, dtype=bool),
-        offset=np.full(n, -1, dtype=np.int64),
+    return AttitudeArrays.of(
+        rows["step"],
+        t_s,
+        t_s.copy(),
+        rows["acc_mg"],
+        rows["gyro_mdps"],
+        rows["euler_rad"],
+        thr=rows["thr"],
+        q_wxyz=rows["q_wxyz"],
+        exact=True,
     )
 
 

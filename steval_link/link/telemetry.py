@@ -1,27 +1,21 @@
-"""``Telemetry``: every field of a decoded stream as numpy arrays, with units in the names.
+"""``Telemetry``: every field of a decoded stream as numpy arrays in stream order, with units in the names.
 
-Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames` (frames of a
-:class:`~steval_link.link.decoder.StreamDecoder`). Rows are in stream order.
+Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames`. Derived fields:
 
-Derived fields:
-
-* ``step`` (int64): binary rows unwrap ``seq`` (u16) by consecutive differences mod 2¹⁶, starting at the first
-  ``seq``; a status frame, which carries the full u32 step of the attitude frame just before it, anchors the
-  absolute step (the first anchor of each stretch without a firmware restart wins). Text-mode rows carry the full
-  step themselves.
-* ``t_fw_s`` (float64): firmware time, ``t_us`` unwrapped mod 2³² (restarting after a firmware restart) / 10⁶.
+* ``step`` (int64): binary rows unwrap ``seq`` (u16); a status frame, which carries the full u32 step of the
+  attitude frame before it, anchors the absolute step (the first of each firmware run wins). Text-mode rows carry
+  the full step.
+* ``t_fw_s`` (float64): ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
 * ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
-* ``thx_rad``/``thy_rad`` of binary rows: ``QuaternionToEuler`` of ``q_wxyz``, bit-exact
-  (:func:`steval_link.estimators.st_mahony.quaternion_to_euler`); of text-mode rows: the line's values.
-* ``values_bad`` (bool, attitude and status rows): the row carries NaN/inf or values out of range (``|q|``
-  component > 2, ``|acc_mg|`` > 10⁵, ``|gyro_mdps|`` > 2·10⁷; :mod:`steval_link.link.plausibility`). Protocol v2
-  keeps such frames when their CRC-32, sequence and time are right: the firmware sent them, typically because its
-  own filter diverged. The column ``values_bad`` of :meth:`Telemetry.attitude_table` (CSV, Parquet) carries it.
+* ``thx_rad``/``thy_rad``: of binary rows ``QuaternionToEuler`` of ``q_wxyz``, bit-exact; of text rows the line's.
+* ``values_bad`` (bool): the row carries NaN/inf or values out of range (:mod:`steval_link.link.plausibility`).
+  Protocol v2 keeps such frames when CRC, sequence and time are right: the firmware sent them (its filter
+  diverged). It is a column of :meth:`Telemetry.attitude_table` (CSV, Parquet).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -41,7 +35,7 @@ from steval_link.link.frames import (
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.text_series import RecordBlock, TextSeries, map_attitude, record_blocks, text_series
-from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
+from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.link.unwrap import host_times as _host_times
 
 if TYPE_CHECKING:  # annotations only
@@ -104,6 +98,31 @@ class AttitudeArrays:
         return len(self.step)
 
     @classmethod
+    def of(cls, step, t_fw_s, t_host_s, acc_mg, gyro_mdps, euler_rad, *, thr=None, q_wxyz=None, offset=None, **kw):
+        """Rows that are not binary frames (``exact`` False unless given): ``seq`` and ``t_us`` from ``step`` and
+        ``t_fw_s``; ``euler_rad`` (N, 3) thx, thy, thz; throttle 0, quaternion NaN and offset -1 unless given."""
+        step, t_fw_s = np.asarray(step, np.int64), np.asarray(t_fw_s, np.float64)
+        n = len(step)
+        euler = np.asarray(euler_rad, np.float32).reshape(n, 3)
+        return cls(
+            step=step,
+            seq=(step % P.SEQ_MODULUS).astype(np.uint16),
+            t_us=(np.round(t_fw_s * 1e6).astype(np.int64) % P.T_US_MODULUS).astype(np.uint32),
+            t_fw_s=t_fw_s,
+            t_host_s=np.asarray(t_host_s, np.float64),
+            acc_mg=np.ascontiguousarray(acc_mg, np.float32),
+            gyro_mdps=np.ascontiguousarray(gyro_mdps, np.float32),
+            thr=np.zeros(n, np.int16) if thr is None else np.asarray(thr, np.int16),
+            q_wxyz=np.full((n, 4), np.nan, np.float32) if q_wxyz is None else np.ascontiguousarray(q_wxyz, np.float32),
+            thz_rad=np.ascontiguousarray(euler[:, 2]),
+            thx_rad=np.ascontiguousarray(euler[:, 0]),
+            thy_rad=np.ascontiguousarray(euler[:, 1]),
+            exact=np.full(n, kw.pop("exact", False), bool),
+            offset=np.full(n, -1, np.int64) if offset is None else np.asarray(offset, np.int64),
+            **kw,
+        )
+
+    @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
         """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
         and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
@@ -137,37 +156,15 @@ class AttitudeArrays:
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
 
 
+_STATUS_COLUMNS = (*P.STATUS_DTYPE.names, "t_fw_s", "t_host_s", "exact", "offset")
+
+
 @dataclass
-class StatusArrays:
+class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name in _STATUS_COLUMNS])):
     """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
     (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact``, ``offset`` and ``values_bad`` (a snapshot holding NaN or
     ``|q|`` > 2: its settings are still the firmware's) as in :class:`AttitudeArrays`."""
 
-    step: np.ndarray
-    t_us: np.ndarray
-    q_wxyz: np.ndarray
-    int_xyz: np.ndarray
-    kp_ground: np.ndarray
-    kp_flight: np.ndarray
-    ki: np.ndarray
-    dt_s: np.ndarray
-    cyc_min: np.ndarray
-    cyc_mean: np.ndarray
-    cyc_max: np.ndarray
-    cpu_hz: np.ndarray
-    tx_dropped: np.ndarray
-    baud: np.ndarray
-    cyc_n: np.ndarray
-    min_thr: np.ndarray
-    flags: np.ndarray
-    queue_peak: np.ndarray
-    fw_version: np.ndarray
-    fc_every: np.ndarray
-    param_gen: np.ndarray
-    t_fw_s: np.ndarray
-    t_host_s: np.ndarray
-    exact: np.ndarray
-    offset: np.ndarray
     values_bad: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -264,43 +261,24 @@ class TelemetryParts:
         self.sent_commands: np.ndarray | None = None
         self._settled = False  # the blocks are one sorted block each (records asked for, nothing added since)
 
-    def add_attitude_payloads(
-        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.ATTITUDE_FRAME_SIZE
-    ) -> None:
-        """Binary attitude frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
+    def add_payloads(self, kind: int, arr: np.ndarray, payload_starts, frame_starts, frame_sizes) -> None:
+        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in the byte array
+        ``arr``."""
         if len(payload_starts) == 0:
             return
-        rec = _payload_records(arr, payload_starts, frame_starts, P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE, frame_sizes)
-        rec["step"] = -1
-        rec["thx_rad"] = np.nan
-        rec["thy_rad"] = np.nan
-        self.att_blocks.append(rec)
-        self._settled = False
-
-    def add_status_payloads(
-        self, arr: np.ndarray, payload_starts: np.ndarray, frame_starts: np.ndarray, frame_sizes=P.STATUS_FRAME_SIZE
-    ) -> None:
-        """Binary status frames whose payloads start at ``payload_starts`` in the byte array ``arr``."""
-        if len(payload_starts) == 0:
-            return
-        self.sta_blocks.append(
-            _payload_records(arr, payload_starts, frame_starts, P.STATUS_DTYPE, STA_RECORD_DTYPE, frame_sizes)
-        )
+        attitude = kind == P.TYPE_ATTITUDE
+        dtypes = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
+        rec = _payload_records(arr, payload_starts, frame_starts, *dtypes, frame_sizes)
+        if attitude:
+            rec["step"], rec["thx_rad"], rec["thy_rad"] = -1, np.nan, np.nan
+        (self.att_blocks if attitude else self.sta_blocks).append(rec)
         self._settled = False
 
     def add_frame(self, frame: Frame) -> None:
-        if isinstance(frame, AttitudeFrame):
-            self.att_frames.append(frame)
-            self._settled = False
-        elif isinstance(frame, StatusFrame):
-            self.sta_frames.append(frame)
-            self._settled = False
-        elif isinstance(frame, TextFrame):
-            self.texts.append(frame)
-        elif isinstance(frame, TextRecordFrame):
-            self.records.append(frame)
-        else:
-            self.others.append(frame)
+        kind = type(frame)
+        lists = {AttitudeFrame: self.att_frames, StatusFrame: self.sta_frames, TextFrame: self.texts}
+        lists.get(kind, self.records if kind is TextRecordFrame else self.others).append(frame)
+        self._settled = self._settled and kind not in (AttitudeFrame, StatusFrame)
 
     def apply_gate(self, keep_masks) -> None:
         """Filter the attitude and status rows: ``keep_masks(att_records, sta_records)`` returns two boolean masks
@@ -380,17 +358,6 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
     return step, restarts
 
 
-def _unwrap_time(t_us: np.ndarray, offsets: np.ndarray, restarts: np.ndarray) -> np.ndarray:
-    """Firmware time in s: ``t_us`` (rows in stream order) unwrapped mod 2³², from 0 again at each firmware restart
-    (one :class:`~steval_link.link.unwrap.TimeUnwrapper` per firmware run, as the live path uses)."""
-    out = np.zeros(len(t_us), np.float64)
-    seg = np.searchsorted(restarts, offsets, side="right")
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(seg)) + 1, [len(t_us)]])
-    for a, b in zip(starts[:-1], starts[1:]):
-        out[a:b] = TimeUnwrapper().seconds(t_us[a:b])
-    return out
-
-
 @dataclass
 class Telemetry:
     """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
@@ -432,35 +399,31 @@ class Telemetry:
         texts = sorted(parts.texts, key=lambda f: f.offset)
         total = int(total_bytes if total_bytes is not None else stats.bytes_total)
 
+        def host_s(last_byte) -> np.ndarray:
+            return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
+
         step, restarts = _unwrap_steps(att, sta)
-        # firmware time over attitude and status rows together, in stream order
+        # firmware time over attitude and status rows together, in stream order, from 0 again at each restart
         off_all = np.concatenate([att["offset"], sta["offset"]])
         order = np.argsort(off_all, kind="stable")
         t_all = np.empty(len(off_all))
-        t_all[order] = _unwrap_time(
-            np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order], off_all[order], restarts
-        )
+        run = np.searchsorted(restarts, off_all[order], side="right")
+        t_us = np.concatenate([att["t_us"], sta["t_us"]]).astype(np.int64)[order]
+        t_all[order] = StreamClock().fw_s(t_us, np.diff(run, prepend=0) > 0)
         na = len(att)
-        att_last = att["offset"] + att["nbytes"] - 1
-        sta_last = sta["offset"] + sta["nbytes"] - 1
-
         attitude = AttitudeArrays.from_records(
-            att, step=step, t_fw_s=t_all[:na], t_host_s=_host_times(att_last, chunk_times, baud, total)
+            att, step=step, t_fw_s=t_all[:na], t_host_s=host_s(att["offset"] + att["nbytes"] - 1)
         )
         st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(
             **st_fields,
             t_fw_s=t_all[na:],
-            t_host_s=_host_times(sta_last, chunk_times, baud, total),
+            t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
             exact=sta["exact"].astype(bool),
             offset=sta["offset"].astype(np.int64),
         )
-        if texts:
-            t_last = np.array([f.offset + f.nbytes - 1 for f in texts], dtype=np.int64)
-            t_text = _host_times(t_last, chunk_times, baud, total)
-            text = [(float(t), f.text) for t, f in zip(t_text, texts)]
-        else:
-            text = []
+        t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
+        text = [(float(t), f.text) for t, f in zip(t_text, texts)]
         rows = {}
         for name, kind, dtype in (
             ("flight", FlightFrame, FLIGHT_ROW_DTYPE),
@@ -468,13 +431,12 @@ class Telemetry:
             ("commands", CommandFrame, COMMAND_ROW_DTYPE),
         ):
             rec = parts.other_rows(kind, dtype)
-            if len(rec):
-                rec["t_host_s"] = _host_times(rec["offset"] + rec["nbytes"] - 1, chunk_times, baud, total)
+            rec["t_host_s"] = host_s(rec["offset"] + rec["nbytes"] - 1)
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
             rows["commands"] = np.concatenate([rows["commands"], parts.sent_commands])
         blocks = parts.record_blocks + record_blocks(sorted(parts.records, key=lambda f: f.offset))
-        series = text_series(blocks, lambda last: _host_times(last, chunk_times, baud, total))
+        series = text_series(blocks, host_s)
         tel = cls(attitude, status, text, stats, list(events or []), dict(source or {}), **rows, text_series=series)
         if len(series) and not len(attitude):
             tel.map_text()
@@ -509,22 +471,10 @@ class Telemetry:
         step = np.maximum.accumulate(raw - idx) + idx if n else raw  # strictly increasing
         bad = ~(np.isfinite(cols["thx_rad"]) | np.isfinite(cols["thy_rad"]))
         bad &= ~np.isfinite(cols["acc_mg"]).all(axis=1)
-        self.attitude = AttitudeArrays(
-            step=step,
-            seq=(step % P.SEQ_MODULUS).astype(np.uint16),
-            t_us=(np.round(t_fw * 1e6).astype(np.int64) % P.T_US_MODULUS).astype(np.uint32),
-            t_fw_s=t_fw,
-            t_host_s=np.asarray(s.t_host_s, np.float64),
-            acc_mg=cols["acc_mg"],
-            gyro_mdps=cols["gyro_mdps"],
-            thr=cols["thr"],
-            q_wxyz=np.full((n, 4), np.nan, np.float32),
-            thz_rad=cols["thz_rad"],
-            thx_rad=cols["thx_rad"],
-            thy_rad=cols["thy_rad"],
-            exact=np.zeros(n, bool),
-            offset=np.asarray(s.offset, np.int64),
-            values_bad=bad,
+        euler = np.stack([cols["thx_rad"], cols["thy_rad"], cols["thz_rad"]], axis=1)
+        acc, gyro = cols["acc_mg"], cols["gyro_mdps"]
+        self.attitude = AttitudeArrays.of(
+            step, t_fw, s.t_host_s, acc, gyro, euler, thr=cols["thr"], offset=s.offset, values_bad=bad
         )
 
     @cached_property
@@ -553,16 +503,16 @@ class Telemetry:
             out[has] = np.asarray(values)[row[has]]
             return out
 
-        for i, name in enumerate(("thx_pitch", "thy_roll", "thz_yaw")):
-            cols[f"target_{name}_rad"] = col(fc.euler_rc_rad[:, i])
-        for i, name in enumerate(("ail", "ele", "rud", "thr")):
-            cols[f"rc_{name}"] = col(fc.rc[:, i].astype(np.float32))
-        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-            cols[f"outer_s1_{name}_radps"] = col(fc.outer_s1_radps[:, i])
-        for i, name in enumerate(("x_pitch", "y_roll", "z_yaw")):
-            cols[f"inner_s2_{name}_pwm"] = col(fc.inner_s2_pwm[:, i])
-        for i in range(4):
-            cols[f"motor{i + 1}_pwm"] = col(fc.motor_pwm[:, i])
+        xyz = ("x_pitch", "y_roll", "z_yaw")
+        for key, values, names in (
+            ("target_{}_rad", fc.euler_rc_rad, ("thx_pitch", "thy_roll", "thz_yaw")),
+            ("rc_{}", fc.rc.astype(np.float32), ("ail", "ele", "rud", "thr")),
+            ("outer_s1_{}_radps", fc.outer_s1_radps, xyz),
+            ("inner_s2_{}_pwm", fc.inner_s2_pwm, xyz),
+            ("motor{}_pwm", fc.motor_pwm, "1234"),
+        ):
+            for i, name in enumerate(names):
+                cols[key.format(name)] = col(values[:, i])
         cols["vbat_v"] = col(fc.vbat_v)
         for bit, name in ((P.FC_ARMED, "fc_armed"), (P.FC_RC_CONNECTED, "fc_rc_connected"), (P.FC_RC_CAL, "fc_rc_cal")):
             cols[name] = col(((fc.fc_flags & bit) != 0).astype(np.float32))
@@ -572,25 +522,16 @@ class Telemetry:
     def attitude_table(self) -> dict[str, np.ndarray]:
         """One 1-D column per attitude field, units in the names (``pandas.DataFrame(tel.attitude_table())``)."""
         a = self.attitude
-        cols: dict[str, np.ndarray] = {
-            "step": a.step,
-            "seq": a.seq,
-            "t_fw_s": a.t_fw_s,
-            "t_host_s": a.t_host_s,
-        }
-        for i, ax in enumerate("xyz"):
-            cols[f"acc_{ax}_mg"] = a.acc_mg[:, i]
-        for i, ax in enumerate("xyz"):
-            cols[f"gyro_{ax}_mdps"] = a.gyro_mdps[:, i]
-        for i, c in enumerate("wxyz"):
-            cols[f"q_{c}"] = a.q_wxyz[:, i]
-        cols["thx_pitch_rad"] = a.thx_rad
-        cols["thy_roll_rad"] = a.thy_rad
-        cols["thz_yaw_rad"] = a.thz_rad
-        cols["thr"] = a.thr
-        cols["exact"] = a.exact
-        cols["offset"] = a.offset
-        cols["values_bad"] = a.values_bad
+        cols: dict[str, np.ndarray] = {"step": a.step, "seq": a.seq, "t_fw_s": a.t_fw_s, "t_host_s": a.t_host_s}
+        for key, values, axes in (
+            ("acc_{}_mg", a.acc_mg, "xyz"),
+            ("gyro_{}_mdps", a.gyro_mdps, "xyz"),
+            ("q_{}", a.q_wxyz, "wxyz"),
+        ):
+            for i, ax in enumerate(axes):
+                cols[key.format(ax)] = values[:, i]
+        cols.update(thx_pitch_rad=a.thx_rad, thy_roll_rad=a.thy_rad, thz_yaw_rad=a.thz_rad, thr=a.thr)
+        cols.update(exact=a.exact, offset=a.offset, values_bad=a.values_bad)
         return cols
 
 

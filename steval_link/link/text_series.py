@@ -1,21 +1,19 @@
 """Records of text telemetry as named series (:class:`TextSeries`), their time, and the attitude they stand for.
 
-* :func:`text_series`: the :class:`~steval_link.link.frames.TextRecordFrame` s of a stream as one array, a column
-  per name (NaN where a record of another shape has no such name), with units and a time per record: a timestamp
-  column (``t``, ``time``, ``t_ms``, ``millis``, ``micros``, Teleplot's ``NAME_t_ms``...), else the host's receive
-  times, else ST's main-loop rate for ST's own line and for printed angles (161.5 Hz, one record per AHRS step:
-  exercise 2 prints after each update), else the record index (1 s apart: say so).
-* :func:`map_attitude`: which series are the firmware's attitude and inputs: ST's 221117 line (``thx``/``thy`` in
-  degrees, ``gTHR``), names (pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit) or a user's mapping
-  (``pitch=col2:deg``, :func:`parse_map`); angles in rad, acc in mg, gyro in mdps; one note per mapped name.
+* :func:`text_series`: the records of a stream as one array, a column per name (NaN where a record has no such
+  name), with units and a time per record: a timestamp column (``t``, ``t_ms``, ``millis``, Teleplot's
+  ``NAME_t_ms``...), else the host's receive times, else ST's main-loop rate (161.5 Hz) for ST's line and printed
+  angles, else the record index (1 s apart).
+* :func:`map_attitude`: which series are the attitude and inputs: ST's 221117 line, names (pitch/roll/yaw,
+  thx/thy/thz, acc/gyro with a unit) or a user's mapping (``pitch=col2:deg``); angles in rad, acc in mg, gyro in mdps.
 
-Axes are the board's: thx is about x = pitch (nose up +), thy about y = roll. The lab handouts' textbook formula
-atan(ay/az) is called roll there, but on this board it is the angle about x, pitch: a note says so where a mapped
-name says "roll" of acc-only tilt.
+Axes are the board's: thx is about x = pitch (nose up +), thy about y = roll. The handouts' atan(ay/az), called roll
+there, is the angle about x on this board: a note says so.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -59,6 +57,11 @@ _GYRO_UNITS = {
     "°/s": 1000.0,
     "rad/s": 180_000.0 / math.pi,
     "mrad/s": 180.0 / math.pi,
+}
+_TARGET_UNITS = {
+    **dict.fromkeys(("pitch", "roll", "yaw"), (_ANGLE_UNITS, "deg, rad, mdeg")),
+    "acc": (_ACC_UNITS, "mg, g, m/s2"),
+    "gyro": (_GYRO_UNITS, "mdps, dps, deg/s, rad/s"),
 }
 _UNIT_ALIASES = {"°": "deg", "degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad", "m/s²": "m/s2"}
 _TIME_NAMES = {
@@ -104,13 +107,9 @@ class TextSeries:
         """One column per series and the times (``t_s``, ``t_host_s``), units in the names where written."""
         cols: dict[str, np.ndarray] = {"t_s": self.t_s, "t_host_s": self.t_host_s}
         for k, (name, unit) in enumerate(zip(self.names, self.units)):
-            key = f"{name}_{_safe_unit(unit)}" if unit else name
+            key = f"{name}_{re.sub(r'[^0-9A-Za-zµ°]+', '_', unit).strip('_') or 'unit'}" if unit else name
             cols[key if key not in cols else f"text_{key}"] = self.values[:, k]
         return cols
-
-
-def _safe_unit(unit: str) -> str:
-    return re.sub(r"[^0-9A-Za-zµ°]+", "_", unit).strip("_") or "unit"
 
 
 @dataclass
@@ -129,24 +128,11 @@ class RecordBlock:
 def record_blocks(records: list) -> list[RecordBlock]:
     """``TextRecordFrame`` s as blocks: one per run of records of the same names."""
     out: list[RecordBlock] = []
-    i = 0
-    while i < len(records):
-        j = i
-        while j < len(records) and records[j].names == records[i].names:
-            j += 1
-        run = records[i:j]
-        r = run[0]
-        out.append(
-            RecordBlock(
-                r.names,
-                r.units,
-                r.kind,
-                np.array([x.values for x in run], np.float64).reshape(len(run), len(r.names)),
-                np.array([x.offset for x in run], np.int64),
-                np.array([x.nbytes for x in run], np.int64),
-            )
-        )
-        i = j
+    for names, group in itertools.groupby(records, key=lambda r: r.names):
+        run = list(group)
+        values = np.array([x.values for x in run], np.float64).reshape(len(run), len(names))
+        offset, nbytes = (np.array([getattr(x, k) for x in run], np.int64) for k in ("offset", "nbytes"))
+        out.append(RecordBlock(names, run[0].units, run[0].kind, values, offset, nbytes))
     return out
 
 
@@ -156,13 +142,12 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
     blocks = [b for b in blocks if len(b.offset)]
     if not blocks:
         return TextSeries()
-    index: dict[str, int] = {}
-    units: list[str] = []
+    unit_of: dict[str, str] = {}  # each name's unit where it first comes
     for b in blocks:
         for name, unit in zip(b.names, b.units):
-            if name not in index:
-                index[name] = len(index)
-                units.append(unit)
+            unit_of.setdefault(name, unit)
+    index = {name: k for k, name in enumerate(unit_of)}
+    units = list(unit_of.values())
     total = sum(len(b.offset) for b in blocks)
     values = np.full((total, len(index)), np.nan)
     offset = np.concatenate([b.offset for b in blocks])
@@ -243,14 +228,9 @@ def _unit(unit: str) -> str:
 
 def _scale(target: str, unit: str, name: str) -> float:
     """Factor from ``unit`` to the target's unit (rad, mg, mdps); UserError when the unit does not fit."""
-    if target in ("pitch", "roll", "yaw"):
-        table, want = _ANGLE_UNITS, "deg, rad, mdeg"
-    elif target.startswith("acc"):
-        table, want = _ACC_UNITS, "mg, g, m/s2"
-    elif target.startswith("gyro"):
-        table, want = _GYRO_UNITS, "mdps, dps, deg/s, rad/s"
-    else:
+    if target == "thr":
         return 1.0
+    table, want = _TARGET_UNITS[target.split("_")[0]]
     u = unit if unit in table else unit.lower()
     if u not in table:
         raise UserError(f"{name} → {target}: unit {unit or '(none)'!r} is not one of {want}.")
@@ -339,14 +319,9 @@ _ANGLE_COLUMN = {"pitch": "thx_rad", "roll": "thy_rad", "yaw": "thz_rad"}
 def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
     """The attitude columns (see :func:`map_attitude`) of ``values`` (N, M) by ``plan`` (:func:`attitude_plan`)."""
     n = len(values)
-    cols = {
-        "thx_rad": np.full(n, np.nan, np.float32),
-        "thy_rad": np.full(n, np.nan, np.float32),
-        "thz_rad": np.full(n, np.nan, np.float32),
-        "acc_mg": np.full((n, 3), np.nan, np.float32),
-        "gyro_mdps": np.full((n, 3), np.nan, np.float32),
-        "thr": np.zeros(n, np.int16),
-    }
+    cols = {name: np.full(n, np.nan, np.float32) for name in _ANGLE_COLUMN.values()}
+    cols |= {name: np.full((n, 3), np.nan, np.float32) for name in ("acc_mg", "gyro_mdps")}
+    cols["thr"] = np.zeros(n, np.int16)
     for target, col, k in plan:
         v = values[:, col]
         if target == "thr":

@@ -1,31 +1,25 @@
 """Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
 
-:class:`TextTelemetryReader` takes the plain lines the decoder found (printable, whole, not ``$`` sentences) and
-hands each back as a :class:`~steval_link.link.frames.TextRecordFrame` (a record) or a
-:class:`~steval_link.link.frames.TextFrame` (any other text), in the decoder's one stream of frames.
+:class:`TextTelemetryReader` takes the plain lines the decoder found and hands each back as a
+:class:`~steval_link.link.frames.TextRecordFrame` (a record) or a :class:`~steval_link.link.frames.TextFrame`.
 
 Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
-* bare values split by tab, comma, semicolon or spaces (``%10.2f\\t%10.2f``, CSV rows, Arduino's bare values),
-  named by a header line of labels before them (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
-* labelled values: ``label:value`` / ``label = value`` pairs split by spaces, tabs or commas (Arduino's plotter,
-  ``Drone_Pitch = %f\\tDrone_Roll = %f``), a label with several values as a vector (``Accel: x y z m/s2`` gives
-  ``Accel_x/y/z``), a word after the values as their unit;
+* bare values split by tab, comma, semicolon or spaces, named by a header line of labels before them
+  (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
+* labelled values: ``label:value`` / ``label = value`` pairs (Arduino's plotter, ``Drone_Pitch = %f``), a label
+  with several values as a vector (``Accel: x y z m/s2`` gives ``Accel_x/y/z``), a word after the values as unit;
 * Teleplot lines ``>name:value`` (``>name:t_ms:value``, ``§unit`` and ``|flags`` allowed);
-* ST's release 221117 line (``%d\\t%d\\t%d\\t%d\\t%f\\t%f\\t%f\\t%f\\t%f``), named from ST's source, and its
-  ``%f``-less form (newlib nano without ``-u _printf_float``: the float fields empty, read as NaN).
+* ST's release 221117 line, named from ST's source, and its ``%f``-less form (the float fields empty: NaN).
 
-The record's shape is learned from the stream, never guessed from one line: a shape (the sequence of line shapes
-of one record, the line shape being the names, or the count, and the int/float/empty kind of each value) becomes a
-record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block of lines between blank
-lines, a cycle of lines of different shapes (``Accel ... Gyro ...`` then ``Baro ... Temp ...``), or rows of one
-table whose values come back every 2..4 lines (a matrix a row a line; decided after :data:`VALUE_LINES` lines).
-Until then the lines wait (at most :data:`MAX_PENDING`); lines that never fit a shape go out as text lines. So a
-damaged line (garbage, a cut, a lost field) is not a record: it does not fit the shape, and is a text line. Damage
-between two lines (bytes the decoder skipped) ends what is being learned.
+A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
+stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
+between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
+lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines, so a
+damaged line is not a record. Bytes the decoder skipped end what is being learned.
 
-For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`: a regex that matches exactly the
-lines that would be records, so long runs of them are read as arrays at once.
+For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`, a regex matching exactly the lines
+that would be records, so long runs of them are read as arrays at once.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
@@ -206,17 +200,14 @@ def _groups(tokens: list[tuple[str, str]]) -> list[list] | None:
 
 def _labelled_line(text: str) -> ParsedLine | None:
     tokens = _tokens(text)
-    if tokens is None:
-        return None
-    groups = _groups(tokens)
+    groups = None if tokens is None else _groups(tokens)
     if groups is None:
         return None
     names: list[str] = []
     units: list[str] = []
     values: list[float] = []
     kinds: list[str] = []
-    for g in groups:
-        label, fields, unit = g
+    for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
         else:
@@ -431,7 +422,6 @@ class _Line:
     nbytes: int
     #: "rec" a line of numbers; "text"; "blank"; "cut" a line that may be the tail of a cut line; "break" damage
     kind: str
-    header: tuple | None = None
 
 
 @dataclass(slots=True)
@@ -461,18 +451,14 @@ class TextTelemetryReader:
     def line(self, text: str, offset: int, nbytes: int) -> list:
         """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
         parsed = parse_line(text)
-        header = header_names(text) if parsed is None else None
-        item = _Line(parsed, text, offset, nbytes, "rec" if parsed else "text", header)
+        item = _Line(parsed, text, offset, nbytes, "rec" if parsed else "text")
         if parsed is not None:
             out, taken = self._follow(item)
             self._block_start = False
             return out if taken else out + self._learn(item)
-        if header is not None:
-            self._header = header
-        out = self._cut_current() if self._current is not None else []
-        self._current = None
+        self._header = header_names(text) or self._header
         self._block_start = True
-        return out + self._learn(item)
+        return self._cut_current() + self._learn(item)
 
     def cut_line(self, text: str) -> list:
         """A line that may be the tail of a cut line (the stream's first, or after damage): never a record; its
@@ -480,37 +466,27 @@ class TextTelemetryReader:
         parsed = parse_line(text)
         self._block_start = False
         if parsed is None:
-            header = header_names(text)
-            self._header = header or self._header
+            self._header = header_names(text) or self._header
             return []
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
     def damage(self) -> list:
         """Bytes were lost or damaged here: the lines before and after are not consecutive (a record in progress is
         cut short, the lines learned from go no further back)."""
-        out = self._cut_current() if self._current is not None else []
-        self._current = None
-        self._block_start = False
-        if self._pending:
-            out += self._learn(_Line(None, "", -1, 0, "break"))
-        return out
+        return self._end_block("break")
 
     def blank(self) -> list:
         """A blank line: it ends a block of lines."""
-        out: list = []
-        self._block_start = True
-        if self._current is not None:
-            out += self._cut_current()
-            self._current = None
-        if self._pending:
-            out += self._learn(_Line(None, "", -1, 0, "blank"))
-        return out
+        return self._end_block("blank")
+
+    def _end_block(self, kind: str) -> list:
+        out = self._cut_current()
+        self._block_start = kind == "blank"
+        return out + (self._learn(_Line(None, "", -1, 0, kind)) if self._pending else [])
 
     def finish(self) -> list:
         """End of stream: whatever waits goes out as text lines (an incomplete record is not a record)."""
-        out = self._cut_current() if self._current is not None else []
-        self._current = None
-        out += self._flush(self._pending)
+        out = self._cut_current() + self._flush(self._pending)
         self._pending = []
         return out
 
@@ -548,12 +524,10 @@ class TextTelemetryReader:
             if shape.lines[len(lines)] == item.parsed.shape:
                 lines.append(item)
                 if len(lines) == len(shape.lines):
-                    whole = lines[0].kind != "cut"
-                    out += [self._record(shape, lines)] if whole else self._cut_current()
+                    out += [self._record(shape, lines)] if lines[0].kind != "cut" else self._cut_current()
                     self._current = None
                 return out, True
             out += self._cut_current()
-            self._current = None
         for shape in self._shapes:
             if shape.lines[0] == item.parsed.shape and (self._block_start or not shape.blank_ended):
                 if len(shape.lines) == 1:
@@ -564,8 +538,9 @@ class TextTelemetryReader:
         return out, False
 
     def _cut_current(self) -> list:
-        _, lines = self._current
-        return [TextFrame(x.text, x.offset, x.nbytes) for x in lines if x.kind != "cut"]
+        """The lines of the record in progress as text lines (it ends unfinished); [] when there is none."""
+        current, self._current = self._current, None
+        return [TextFrame(x.text, x.offset, x.nbytes) for x in current[1] if x.kind != "cut"] if current else []
 
     def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:
         self.records += 1
@@ -602,15 +577,13 @@ class TextTelemetryReader:
         self._block_start = True
         for x in items:
             if x.kind == "cut" and len(shape.lines) > 1 and x.parsed.shape == shape.lines[0]:
-                out += self._cut_current() if self._current is not None else []
+                out += self._cut_current()
                 self._current = (shape, [x])  # it holds the first line's place: that record is not whole
             elif x.kind == "rec":
                 done, taken = self._follow(x)
                 out += done if taken else done + self._flush([x])
             elif x.kind in ("blank", "text", "break"):
-                out += self._cut_current() if self._current is not None else []
-                self._current = None
-                out += self._flush([x])
+                out += self._cut_current() + self._flush([x])
             self._block_start = x.kind in ("blank", "text")
         return out
 
@@ -622,19 +595,17 @@ class TextTelemetryReader:
 def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | None, int]:
     """A record shape that the latest lines repeat :data:`CONFIRM` times in a row, and the index in ``pending`` where
     its first record starts; (None, 0) when there is none yet."""
-    tail = []  # the latest run of lines of numbers, with blank markers, back to a text line
-    for k in range(len(pending) - 1, -1, -1):
-        if pending[k].kind in ("text", "break"):
-            break
-        tail.append(k)
-    tail.reverse()
+    # the latest run of lines of numbers, with blank markers, back to a text line
+    start = next((k + 1 for k in range(len(pending) - 1, -1, -1) if pending[k].kind in ("text", "break")), 0)
+    tail = list(range(start, len(pending)))
     if not tail:
         return None, 0
     blocks = _blank_blocks(pending, tail)
     if blocks is not None:
         return blocks
     lines = [k for k in tail if pending[k].kind in ("rec", "cut")]
-    sizes = _block_sizes(pending, tail)
+    has_blank = any(pending[k].kind == "blank" for k in tail)
+    sizes = [len(b) for b in _blocks(pending, tail)] if has_blank else []
     shapes = [pending[k].parsed.shape for k in lines]
     n = len(shapes)
     if not sizes and n and shapes[-1][0] == "table" and all(x == shapes[-1] for x in shapes[-VALUE_LINES:]):
@@ -685,19 +656,15 @@ def _value_period(rows: list[tuple[float, ...]]) -> int:
     return 1
 
 
-def _block_sizes(pending: list[_Line], tail: list[int]) -> list[int]:
-    """Lines in each block between blank lines of ``tail`` (the open last one included); [] without blank lines."""
-    if not any(pending[k].kind == "blank" for k in tail):
-        return []
-    sizes, cur = [], 0
+def _blocks(pending: list[_Line], tail: list[int]) -> list[list[int]]:
+    """The lines of each block between blank lines of ``tail`` (the open last one included)."""
+    blocks: list[list[int]] = [[]]
     for k in tail:
-        if pending[k].kind == "blank":
-            if cur:
-                sizes.append(cur)
-            cur = 0
-        else:
-            cur += 1
-    return sizes + ([cur] if cur else [])
+        if pending[k].kind != "blank":
+            blocks[-1].append(k)
+        elif blocks[-1]:
+            blocks.append([])
+    return [b for b in blocks if b]
 
 
 def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] | None:
@@ -705,15 +672,7 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
     :data:`CONFIRM` times in a row at the end of ``tail``; None when the lines are not such blocks."""
     if pending[tail[-1]].kind != "blank":
         return None
-    blocks: list[list[int]] = []
-    cur: list[int] = []
-    for k in tail:
-        if pending[k].kind == "blank":
-            if cur:
-                blocks.append(cur)
-            cur = []
-        else:
-            cur.append(k)
+    blocks = _blocks(pending, tail)
     if len(blocks) < CONFIRM:
         return None
     last = [pending[k].parsed.shape for k in blocks[-1]]
@@ -754,13 +713,10 @@ def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, 
             else:
                 names += list(p.names)
             units += list(p.units)
-    seen: dict[str, int] = {}
-    for k, name in enumerate(names):
-        if name in seen:
-            seen[name] += 1
-            names[k] = f"{name}_{seen[name]}"
-        else:
-            seen[name] = 1
+    given = list(names)  # a name given again gets _2, _3...
+    for k, name in enumerate(given):
+        if name in given[:k]:
+            names[k] = f"{name}_{given[:k].count(name) + 1}"
     kinds = {p.kind for p in items}
     kind = kinds.pop() if len(kinds) == 1 else "labelled"
     return _Shape(lines, tuple(names), tuple(units), kind, blank_ended)

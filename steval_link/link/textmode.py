@@ -14,6 +14,7 @@ See ``firmware_patch/PROTOCOL.md``.
 
 from __future__ import annotations
 
+import functools
 import math
 import operator
 import re
@@ -37,10 +38,7 @@ _NAN4 = (math.nan,) * 4
 
 def checksum(body: bytes) -> int:
     """XOR of the bytes of ``body`` (the text between ``$`` and ``*``)."""
-    value = 0
-    for b in body:
-        value ^= b
-    return value
+    return functools.reduce(operator.xor, body, 0)
 
 
 def _sentence(body: str) -> bytes:

@@ -1,18 +1,13 @@
 """Serial transport: a reader thread that hands raw byte chunks with host times to a protocol object.
 
-The thread only moves bytes (as pyserial's ``serial.threaded``): it waits for bytes, gathers a burst (until no more
-bytes came for :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps the chunk with the host time it arrived,
-and calls :meth:`Protocol.data_received`: low latency for the live view, few chunks for the capture. Decoding,
-estimation and logging live in
-the protocol (``steval_link.live``), never here.
+The thread only moves bytes (as pyserial's ``serial.threaded``): it gathers a burst (until no byte came for
+:data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps it with its host time and calls
+:meth:`Protocol.data_received`. Decoding and estimation live in the protocol (``steval_link.live``).
 
-When the port fails (USB adapter unplugged, pseudo-terminal closed: ``SerialException`` / ``OSError``) the thread
-tells the protocol (:meth:`Protocol.connection_lost`), then polls ``find_port`` every ``reconnect_poll_s`` for the
-device to come back (by path, VID:PID/serial number or glob: see :mod:`steval_link.link.autodetect`), reopens it and
-calls
-:meth:`Protocol.connection_made` again. Only :meth:`SerialReader.stop` ends the thread.
-
-Errors when opening a port are turned into one sentence with the fix by :func:`open_error_message`.
+When the port fails (adapter unplugged, pty closed) the thread calls :meth:`Protocol.connection_lost`, polls
+``find_port`` for the device to come back (:mod:`steval_link.link.autodetect`), reopens it and calls
+:meth:`Protocol.connection_made` again; only :meth:`SerialReader.stop` ends it. :func:`open_error_message` turns
+an open error into one sentence with the fix.
 """
 
 from __future__ import annotations
@@ -43,12 +38,8 @@ RECONNECT_POLL_S = 0.1
 
 
 class HostClock:
-    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock.
-
-    ``time.time()`` may jump (NTP, suspend); chunk times must not. The wall time is read once, at construction, and
-    every later time is that plus the monotonic time elapsed since, so times are ordered and spaced correctly.
-    ``wall0_s`` sets that origin (e.g. a capture file's start time), else ``time.time()`` now.
-    """
+    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock, so that they never
+    jump (NTP, suspend). ``wall0_s``: the origin (e.g. a capture's start time), else ``time.time()`` now."""
 
     def __init__(self, wall0_s: float | None = None) -> None:
         self.mono0_s = time.monotonic()
@@ -198,9 +189,7 @@ class SerialReader(threading.Thread):
             except (serial.SerialException, OSError, AttributeError):
                 pass
         if self.ident is None:  # never started: close the port here
-            self.serial = None
-            if ser is not None:
-                close_quietly(ser)
+            self._release()
         elif self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
 
@@ -216,7 +205,9 @@ class SerialReader(threading.Thread):
                 try:
                     data = self._read_chunk(self.serial)
                 except (serial.SerialException, OSError) as exc:
-                    if not (_taken_by_another(exc) and self.protocol.shared_access(exc)):
+                    # pyserial's error for a read woken by bytes another reader took first (or a USB unplug)
+                    taken = "multiple access" in str(exc) or "returned no data" in str(exc)
+                    if not (taken and self.protocol.shared_access(exc)):
                         self._drop(exc)
                     continue
                 t_unix_s = self.clock.now_s()
@@ -229,11 +220,7 @@ class SerialReader(threading.Thread):
         except BaseException as exc:  # noqa: BLE001 - kept for the owner of the thread to re-raise
             self.error = exc
         finally:
-            with self.lock:
-                ser, self.serial = self.serial, None
-            if ser is not None:
-                close_quietly(ser)
-                self.connected.clear()
+            if self._release():
                 try:
                     self.protocol.connection_lost(None)
                 except BaseException as exc:  # noqa: BLE001
@@ -265,12 +252,17 @@ class SerialReader(threading.Thread):
                 break
         return bytes(buf)
 
-    def _drop(self, exc: BaseException) -> None:
+    def _release(self) -> bool:
+        """Close the port (under the lock); False when none was open."""
         with self.lock:
             ser, self.serial = self.serial, None
         if ser is not None:
             close_quietly(ser)
         self.connected.clear()
+        return ser is not None
+
+    def _drop(self, exc: BaseException) -> None:
+        self._release()
         self.protocol.connection_lost(exc)
 
     def _reconnect(self) -> bool:
@@ -296,11 +288,6 @@ class SerialReader(threading.Thread):
             self.protocol.idle(self.clock.now_s())
             self._stop_event.wait(self.reconnect_poll_s)
         return False
-
-
-def _taken_by_another(exc: BaseException) -> bool:
-    """pyserial's error for a read woken by bytes another reader took first (also a USB unplug's first sign)."""
-    return "multiple access" in str(exc) or "returned no data" in str(exc)
 
 
 def _fileno(ser) -> int | None:

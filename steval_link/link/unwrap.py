@@ -1,7 +1,6 @@
-"""Steps and times of a stream's rows: ``seq`` (u16) unwrapped into full AHRS steps (:class:`SeqUnwrapper`),
-``t_us`` (u32 µs, wraps every 71.6 min) into firmware seconds since boot (:class:`TimeUnwrapper`), host times of
-frames from their chunks' (:func:`host_times`). One implementation for both paths: ``Telemetry`` runs them over a
-whole stream, the live path across chunks (:class:`StreamClock`), so live rows carry ``load_telemetry``'s times.
+"""Steps and times of a stream's rows: ``seq`` (u16) into full AHRS steps (:class:`SeqUnwrapper`), ``t_us`` (u32
+µs, wraps every 71.6 min) into firmware seconds (:class:`TimeUnwrapper`), host times from the chunks'
+(:func:`host_times`). One implementation for the whole stream (``Telemetry``) and the live path (:class:`StreamClock`).
 """
 
 from __future__ import annotations
@@ -18,10 +17,8 @@ _HALF = T_US_MODULUS // 2
 class TimeUnwrapper:
     """Firmware seconds since boot from ``t_us`` values in stream order, across calls.
 
-    A value below the previous one by more than half the range is the counter wrapping (``t_us`` only grows while
-    the firmware runs); a smaller step back is taken as it comes (a repeated or slightly earlier time), never as
-    71.6 minutes gone.
-    """
+    A drop by more than half the range is the counter wrapping; a smaller step back is taken as it comes (a repeated
+    or slightly earlier time), never as 71.6 minutes gone."""
 
     def __init__(self) -> None:
         self.wraps = 0
@@ -32,9 +29,7 @@ class TimeUnwrapper:
         raw = np.asarray(t_us, dtype=np.int64) % T_US_MODULUS
         if raw.size == 0:
             return np.zeros(0, dtype=np.float64)
-        prev = np.empty_like(raw)
-        prev[0] = raw[0] if self.last is None else self.last
-        prev[1:] = raw[:-1]
+        prev = np.concatenate([[raw[0] if self.last is None else self.last], raw[:-1]])
         wraps = self.wraps + np.cumsum((prev - raw) > _HALF)
         self.wraps = int(wraps[-1])
         self.last = int(raw[-1])
@@ -59,11 +54,8 @@ class SeqUnwrapper:
     """Full AHRS step numbers from the u16 ``seq`` of binary attitude frames, in stream order, across calls.
 
     A step forward of less than half the range is frames passing (gaps included); a repeated ``seq`` is the same
-    step; a step back (or forward by half the range or more) is a firmware restart: counting starts again from the
-    frame's ``seq``. A status frame names its step in full (:meth:`status`), which gives back the high bits the
-    ``seq`` lacks (a stream joined mid-flight, after a restart). The bulk decoder also corrects the rows before the
-    status frame; the live path can only correct from there on.
-    """
+    step; a step back (or forward by half the range or more) is a firmware restart, counted again from its ``seq``. A
+    status frame's full step (:meth:`status`) gives back the high bits ``seq`` lacks, from there on."""
 
     def __init__(self) -> None:
         #: full step of the latest binary frame (None before the first)
@@ -75,9 +67,7 @@ class SeqUnwrapper:
         n = raw.size
         if n == 0:
             return np.zeros(0, np.int64), np.zeros(0, bool)
-        prev = np.empty_like(raw)
-        prev[0] = raw[0] if self.last is None else self.last % SEQ_MODULUS
-        prev[1:] = raw[:-1]
+        prev = np.concatenate([[raw[0] if self.last is None else self.last % SEQ_MODULUS], raw[:-1]])
         advance = (raw - prev) % SEQ_MODULUS
         restart = advance >= SEQ_MODULUS // 2
         inc = np.where(restart, 0, advance)
@@ -102,11 +92,9 @@ class SeqUnwrapper:
 def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s: float = -np.inf) -> np.ndarray:
     """(N,) float64 host receive time of each frame, s on the chunks' base, from the offset of its ``last_byte``.
 
-    ``chunk_times``: (offsets, times) of the received chunks in stream order (None: NaN times). A frame takes its
-    chunk's time; with ``baud`` the bytes after it in the chunk are taken off (10 bits each), but never before the
-    previous chunk came (``before_s``: the time of the chunk before the first one given). ``total``: the bytes of
-    the stream so far (the end of the last chunk).
-    """
+    ``chunk_times``: (offsets, times) of the received chunks (None: NaN). A frame takes its chunk's time, less the
+    bytes after it at ``baud`` (10 bits each), never before the previous chunk came (``before_s`` for the first).
+    ``total``: the bytes of the stream so far."""
     if chunk_times is None or len(chunk_times[0]) == 0:
         return np.full(len(last_byte), np.nan)
     c_off = np.asarray(chunk_times[0], dtype=np.int64)
