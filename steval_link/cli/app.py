@@ -1,7 +1,7 @@
 """The typer application object that every ``steval`` sub-command registers on, with the top-level options
 (``--version``; ``-h`` as well as ``--help`` everywhere)."""
 
-from typing import Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -9,6 +9,17 @@ from steval_link import __version__
 
 #: ``-h`` as well as ``--help``, on every command
 HELP_OPTION_NAMES = ["-h", "--help"]
+
+
+def option(kind: Any, *flags: str, **kw: Any) -> Any:
+    """A typer option declared once, as a parameter's type: ``Annotated[kind, typer.Option(*flags, **kw)]``."""
+    return Annotated[kind, typer.Option(*flags, **kw)]
+
+
+def argument(kind: Any, **kw: Any) -> Any:
+    """A typer argument declared once, as a parameter's type: ``Annotated[kind, typer.Argument(**kw)]``."""
+    return Annotated[kind, typer.Argument(**kw)]
+
 
 app = typer.Typer(
     name="steval",

@@ -8,10 +8,9 @@ import math
 import os
 import shlex
 from collections.abc import Sequence
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
-
+from steval_link.cli.app import option
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import variant_name
 
@@ -77,75 +76,67 @@ def check_filter_options(
     *, ki: float | None, kp_ground: float | None, kp_flight: float | None, min_thr: int | None
 ) -> None:
     """The filter replica's options where given: --ki, --kp-ground, --kp-flight (gains), then --min-thr (a throttle)."""
-    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(option, gain)
+    for flag, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
+        check_gain(flag, gain)
     check_throttle("--min-thr", min_thr)
 
 
 # The filter's options, one definition each, shared by every command that runs the replica (None: not given).
-KiOption = Annotated[
+KiOption = option(
     Optional[float],
-    typer.Option(
-        "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).", show_default=False
-    ),
-]
-KpGroundOption = Annotated[
-    Optional[float],
-    typer.Option("--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False),
-]
-KpFlightOption = Annotated[
-    Optional[float],
-    typer.Option("--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False),
-]
-MinThrOption = Annotated[
+    "--ki",
+    help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).",
+    show_default=False,
+)
+KpGroundOption = option(
+    Optional[float], "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False
+)
+KpFlightOption = option(
+    Optional[float], "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False
+)
+MinThrOption = option(
     Optional[int],
-    typer.Option(
-        "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).", show_default=False
-    ),
-]
-CorrectionOption = Annotated[
+    "--min-thr",
+    help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).",
+    show_default=False,
+)
+CorrectionOption = option(
     Optional[bool],
-    typer.Option(
-        "--correction/--no-correction",
-        help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
-        show_default=False,
-    ),
-]
-DtOption = Annotated[
+    "--correction/--no-correction",
+    help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
+    show_default=False,
+)
+DtOption = option(
     Optional[float],
-    typer.Option(
-        "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).", show_default=False
-    ),
-]
+    "--dt",
+    help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).",
+    show_default=False,
+)
 
 
 #: ``--throttle-schedule``: the throttle over time of an emulated or modelled drone (``--throttle`` of ``simulate``
 #: is one gTHR value for every step)
-ThrottleScheduleOption = Annotated[
+ThrottleScheduleOption = option(
     Optional[str],
-    typer.Option(
-        "--throttle-schedule",
-        metavar="N|t:v,...",
-        help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in "
-        "between, held outside).",
-        show_default=False,
-    ),
-]
+    "--throttle-schedule",
+    metavar="N|t:v,...",
+    help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in between, held "
+    "outside).",
+    show_default=False,
+)
 #: --throttle-schedule's former name, hidden: the header commands of captures made with it still run
-ThrottleFormerOption = Annotated[Optional[str], typer.Option("--throttle", hidden=True, show_default=False)]
+ThrottleFormerOption = option(Optional[str], "--throttle", hidden=True, show_default=False)
 
 
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
-VariantOption = Annotated[
+VariantOption = option(
     Optional[str],
-    typer.Option(
-        "--variant",
-        metavar="RELEASE",
-        help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 "
-        "beta) or 221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
-        show_default=False,
-    ),
-]
+    "--variant",
+    metavar="RELEASE",
+    help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 beta) or "
+    "221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
+    show_default=False,
+)
 
 
 def check_variant(value: str | None) -> str | None:

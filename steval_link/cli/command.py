@@ -8,29 +8,25 @@ prompt instead (they are then recorded in its capture and shown on the viewer's 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
 from steval_link import constants as C
-from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.app import HELP_OPTION_NAMES, app, option
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.commands import PARAM_HELP, PARAMS, Command, describe_settings, param_of_status, set_param
 
 # the four options every command here takes
-_Port = Annotated[
-    str,
-    typer.Option(
-        "--port", "-p", help="Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
-    ),
-]
-_Baud = Annotated[int, typer.Option("--baud", "-b", help="Baud rate of the firmware build.")]
-_Timeout = Annotated[float, typer.Option("--timeout", help="Seconds to wait for the drone's acknowledgement.")]
-_Out = Annotated[
-    Optional[Path],
-    typer.Option("--out", help="Also record this exchange (bytes received and sent) to this new capture file."),
-]
+_Port = option(
+    str, "--port", "-p", help="Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
+)
+_Baud = option(int, "--baud", "-b", help="Baud rate of the firmware build.")
+_Timeout = option(float, "--timeout", help="Seconds to wait for the drone's acknowledgement.")
+_Out = option(
+    Optional[Path], "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
+)
 
 param_app = typer.Typer(
     help="Read or change a filter parameter of the drone's Mahony filter, live.",

@@ -10,9 +10,7 @@ from __future__ import annotations
 import sys
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
@@ -23,7 +21,7 @@ from steval_link.analysis.side_by_side import (
     format_side_by_side,
     side_by_side,
 )
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import (
     CorrectionOption,
     DtOption,
@@ -74,51 +72,40 @@ def _settings(tel, changes: dict):
     return replace(base, **changes)
 
 
-_Captures = Annotated[
+_Captures = argument(
     Optional[list[Path]],
-    typer.Argument(
-        help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
-        "more: the flights side by side (see below).",
-        show_default=False,
-        metavar="CAPTURE",
-    ),
-]
-_Plot = Annotated[
+    help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
+    "flights side by side (see below).",
+    show_default=False,
+    metavar="CAPTURE",
+)
+_Plot = option(
     Optional[Path],
-    typer.Option(
-        "--plot",
-        metavar="OUT.png",
-        help="Also write a figure (angles over time, firmware − replica, "
-        "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
-        "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
-        'side; needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
+    "--plot",
+    metavar="OUT.png",
+    help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
+    "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more captures "
+    'one figure of the flights side by side; needs matplotlib: pip install "steval-link\\[plot]".',
+)
 #: ``-e`` of compare and report: the estimators compared with the firmware
-CompareEstimatorsOption = Annotated[
+CompareEstimatorsOption = option(
     Optional[list[str]],
-    typer.Option(
-        "--estimator",
-        "--estimators",
-        "-e",
-        help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
-        "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
-        "The seeded ST-Mahony replica is always compared.",
-    ),
-]
-_Align = Annotated[
+    "--estimator",
+    "--estimators",
+    "-e",
+    help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as FILE.py:CLASS "
+    "or module:CLASS (docs/ESTIMATORS.md). The seeded ST-Mahony replica is always compared.",
+)
+_Align = option(
     str,
-    typer.Option(
-        "--align",
-        metavar="time|motion",
-        help="Two or more captures: align by firmware time from each first frame (time), or by "
-        "cross-correlating the gyro with the first capture's (motion; the lag found is printed).",
-    ),
-]
-_Label = Annotated[
-    Optional[list[str]],
-    typer.Option("--label", help="Two or more captures: the name of each flight, in order (repeat it)."),
-]
+    "--align",
+    metavar="time|motion",
+    help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the gyro "
+    "with the first capture's (motion; the lag found is printed).",
+)
+_Label = option(
+    Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
+)
 
 
 @app.command("compare")

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis.report import estimator_line, estimator_summary
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import (
     ThrottleFormerOption,
     ThrottleScheduleOption,
@@ -36,95 +34,70 @@ from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, 
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import SinkOptions
 
-_Elf = Annotated[
+_Elf = argument(
     Path,
-    typer.Argument(
-        help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
-        "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
-        "(patched or stock, e.g. from STM32CubeIDE).",
-    ),
-]
-_Scenario = Annotated[
+    help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
+    "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release (patched or stock, e.g. from "
+    "STM32CubeIDE).",
+)
+_Scenario = option(
     str,
-    typer.Option(
-        "--scenario",
-        "-s",
-        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
-        "preflight (the preflight check's hand moves).",
-    ),
-]
-_Broad = Annotated[
+    "--scenario",
+    "-s",
+    help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), preflight "
+    "(the preflight check's hand moves).",
+)
+_Broad = option(
     Optional[Path],
-    typer.Option(
-        "--broad",
-        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
-        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
-    ),
-]
-_Duration = Annotated[
+    "--broad",
+    help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the capture "
+    "keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
+)
+_Duration = option(
     Optional[float],
-    typer.Option(
-        "--duration",
-        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at "
-        "≈ 2.985 s).",
-    ),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).")]
-_Mount = Annotated[
+    "--duration",
+    help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ 2.985 "
+    "s).",
+)
+_Seed = option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).")
+_Mount = option(
     Optional[str],
-    typer.Option(
-        "--mount",
-        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
-        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
-    ),
-]
-_Estimators = Annotated[
+    "--mount",
+    help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
+    "reversed), as a wrong COORDINATE_SYSTEM would read it.",
+)
+_Estimators = option(
     Optional[list[str]],
-    typer.Option(
-        "--estimators",
-        "-e",
-        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
-    ),
-]
-_Realtime = Annotated[
-    bool, typer.Option("--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
-]
-_Commands = Annotated[
+    "--estimators",
+    "-e",
+    help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
+)
+_Realtime = option(bool, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
+_Commands = option(
     Optional[Path],
-    typer.Option(
-        "--commands",
-        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', "
-        "'12 correction off', '15 reset'), sent to the firmware's USART1 RX at those times.",
-    ),
-]
-_Prompt = Annotated[
+    "--commands",
+    help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
+    "'15 reset'), sent to the firmware's USART1 RX at those times.",
+)
+_Prompt = option(
     Optional[bool],
-    typer.Option(
-        "--prompt/--no-prompt",
-        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the "
-        "emulated firmware. Default: when stdin is a terminal.",
-    ),
-]
-_Ble = Annotated[
+    "--prompt/--no-prompt",
+    help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the emulated "
+    "firmware. Default: when stdin is a terminal.",
+)
+_Ble = option(
     bool,
-    typer.Option(
-        "--ble",
-        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
-        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
-    ),
-]
-_BleConnectAt = Annotated[
-    float, typer.Option("--ble-connect-at", help="With --ble: emulated s at which the central connects.")
-]
-_TickStartMs = Annotated[
+    "--ble",
+    help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
+    "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
+)
+_BleConnectAt = option(float, "--ble-connect-at", help="With --ble: emulated s at which the central connects.")
+_TickStartMs = option(
     int,
-    typer.Option(
-        "--tick-start-ms",
-        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after "
-        "power-up).",
-        min=0,
-    ),
-]
+    "--tick-start-ms",
+    help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).",
+    min=0,
+)
 
 
 @app.command("emulate")

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.data import default_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
@@ -47,76 +47,57 @@ _HELP = (
 )
 
 
-_Data = Annotated[
+_Data = argument(
     Optional[list[Path]],
-    typer.Argument(
-        help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the "
-        "trials of steval data broad.",
-        show_default=False,
-    ),
-]
-_Estimators = Annotated[
+    help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of steval "
+    "data broad.",
+    show_default=False,
+)
+_Estimators = option(
     Optional[list[str]],
-    typer.Option(
-        "--estimators",
-        "-e",
-        help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
-        "accel, ekf3, mekf, vqf, or your own (FILE.py:CLASS, "
-        "module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
-        "available.",
-    ),
-]
-_OwnRate = Annotated[
-    bool, typer.Option("--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-]
-_Plot = Annotated[
+    "--estimators",
+    "-e",
+    help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, mekf, "
+    "vqf, or your own (FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
+    "available.",
+)
+_OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
+_Plot = option(
     Optional[Path],
-    typer.Option(
-        "--plot",
-        help="Write a PNG: RMSE bars per estimator and trial, "
-        "and the first trial's error over time "
-        "(needs matplotlib: pip install "
-        '"steval-link\\[plot]").',
-        show_default=False,
-    ),
-]
-_SensorNoise = Annotated[
+    "--plot",
+    help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: pip "
+    'install "steval-link\\[plot]").',
+    show_default=False,
+)
+_SensorNoise = option(
     bool,
-    typer.Option(
-        "--sensor-noise",
-        help="Add the LSM6DSL model's white noise (gyro "
-        "75 mdps, acc 2 mg RMS) on top of the trial's "
-        "own before quantisation.",
-    ),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")]
-_Firmware = Annotated[
+    "--sensor-noise",
+    help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
+    "quantisation.",
+)
+_Seed = option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).")
+_Firmware = option(
     Optional[list[Path]],
-    typer.Option(
-        "--firmware",
-        help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
-        show_default=False,
-    ),
-]
-_Csv = Annotated[
+    "--firmware",
+    help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
+    show_default=False,
+)
+_Csv = option(
+    Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
+)
+_Markdown = option(
     Optional[Path],
-    typer.Option("--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False),
-]
-_Markdown = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--markdown", help="Also write the table as Markdown (to paste in a report) to this file.", show_default=False
-    ),
-]
-_MaxSeconds = Annotated[
+    "--markdown",
+    help="Also write the table as Markdown (to paste in a report) to this file.",
+    show_default=False,
+)
+_MaxSeconds = option(
     Optional[float],
-    typer.Option(
-        "--max-seconds",
-        help="Use only the first S seconds of each BROAD trial (every estimator and firmware; "
-        "the trials' movement starts after 26-46 s).",
-        show_default=False,
-    ),
-]
+    "--max-seconds",
+    help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement starts "
+    "after 26-46 s).",
+    show_default=False,
+)
 
 
 @app.command("evaluate", help=_HELP)
@@ -141,9 +122,9 @@ def evaluate_command(
     data = data or default_broad_data()
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
-    for option, out in outputs.items():
+    for flag, out in outputs.items():
         if out is not None:
-            check_output(out, option=option, force=force, inputs=inputs)
+            check_output(out, option=flag, force=force, inputs=inputs)
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import numpy as np
 import typer
@@ -11,7 +11,7 @@ import typer
 from steval_link.analysis.frame_tables import frame_tables, header_of, settings_of
 from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
@@ -84,38 +84,27 @@ def write_raw(data: bytes, path: Path) -> None:
     path.write_bytes(data)
 
 
-_Capture = Annotated[Path, typer.Argument(help="Capture (.stv), raw serial dump or text-mode log.")]
-_Csv = Annotated[
+_Capture = argument(Path, help="Capture (.stv), raw serial dump or text-mode log.")
+_Csv = option(
+    Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
+)
+_Parquet = option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
+_Raw = option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
+_Mat = option(
     Optional[Path],
-    typer.Option("--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."),
-]
-_Parquet = Annotated[
-    Optional[Path], typer.Option("--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
-]
-_Raw = Annotated[Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")]
-_Mat = Annotated[
+    "--mat",
+    help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
+    "settings and header (needs scipy).",
+)
+_Mcap = option(
     Optional[Path],
-    typer.Option(
-        "--mat",
-        help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
-        "columns, plus settings and header (needs scipy).",
-    ),
-]
-_Mcap = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--mcap",
-        help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
-        "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
-        "mcap).",
-    ),
-]
-_Degrees = Annotated[
-    bool,
-    typer.Option(
-        "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
-    ),
-]
+    "--mcap",
+    help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
+    "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
+)
+_Degrees = option(
+    bool, "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
+)
 
 
 @app.command()

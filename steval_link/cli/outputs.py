@@ -23,10 +23,8 @@ import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
 
-import typer
-
+from steval_link.cli.app import option
 from steval_link.errors import UserError
 
 __all__ = [
@@ -46,10 +44,8 @@ OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "-
 #: suffix of a file being written (renamed into place when complete)
 PARTIAL = ".partial"
 
-ForceOption = Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")]
-JsonReportOption = Annotated[
-    bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
-]
+ForceOption = option(bool, "--force", "-f", help="Overwrite existing output files.")
+JsonReportOption = option(bool, "--json", help="Print the report as one JSON object (nothing else on stdout).")
 
 
 def print_json(d: dict) -> None:

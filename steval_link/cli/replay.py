@@ -23,7 +23,7 @@ import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.outputs import ForceOption, print_json
@@ -43,17 +43,15 @@ from steval_viewer.sink_options import SinkOptions
 __all__ = ["MapOption", "load_replay", "run_estimators"]
 
 #: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
-MapOption = Annotated[
+MapOption = option(
     Optional[list[str]],
-    typer.Option(
-        "--map",
-        metavar="TARGET=SERIES[:UNIT]",
-        help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
-        f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
-        "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
-        show_default=False,
-    ),
-]
+    "--map",
+    metavar="TARGET=SERIES[:UNIT]",
+    help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
+    f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
+    "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
+    show_default=False,
+)
 
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.

@@ -7,13 +7,12 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import numpy as np
-import typer
 
 from steval_link.analysis.report import json_number
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.cli.checks import (
     CorrectionOption,
     DtOption,
@@ -226,67 +225,57 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
     return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
-_Gyro = Annotated[
+_Gyro = option(
+    tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+)
+_Acc = option(
     tuple[float, float, float],
-    typer.Option("--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."),
-]
-_Acc = Annotated[
-    tuple[float, float, float],
-    typer.Option("--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."),
-]
-_Iterations = Annotated[int, typer.Option("--iterations", "-n", help="Number of AHRS steps (≥ 0).")]
-_Noise = Annotated[
-    bool,
-    typer.Option("--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."),
-]
-_GyroNoise = Annotated[
+    "--acc",
+    metavar="X Y Z",
+    help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
+)
+_Iterations = option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).")
+_Noise = option(
+    bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
+)
+_GyroNoise = option(
+    Optional[str], "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
+)
+_AccNoise = option(
     Optional[str],
-    typer.Option("--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."),
-]
-_AccNoise = Annotated[
-    Optional[str],
-    typer.Option(
-        "--acc-noise", metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
-    ),
-]
-_Seed = Annotated[Optional[int], typer.Option("--seed", help="Noise seed (default: random, printed).")]
-_Throttle = Annotated[
-    int, typer.Option("--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.")
-]
-_Kp = Annotated[Optional[float], typer.Option("--kp", help="Proportional gain, replacing both 10 and 0.4.")]
-_Estimator = Annotated[
+    "--acc-noise",
+    metavar="MG|on",
+    help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
+)
+_Seed = option(Optional[int], "--seed", help="Noise seed (default: random, printed).")
+_Throttle = option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.")
+_Kp = option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.")
+_Estimator = option(
     Optional[list[str]],
-    typer.Option(
-        "--estimator",
-        "-e",
-        help="Estimator (one; default st-mahony): a registry name or your own "
-        "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
-    ),
-]
-_Csv = Annotated[
-    Optional[str],
-    typer.Option("--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."),
-]
-_Json = Annotated[bool, typer.Option("--json", help="Print the run (every iteration, exact values) as JSON.")]
-_Rrd = Annotated[Optional[Path], typer.Option("--rrd", help="Log the run to a Rerun .rrd file for the viewer.")]
-_Plot = Annotated[
+    "--estimator",
+    "-e",
+    help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
+    "parentheses: docs/ESTIMATORS.md).",
+)
+_Csv = option(
+    Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+)
+_Json = option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.")
+_Rrd = option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.")
+_Plot = option(
     Optional[Path],
-    typer.Option(
-        "--plot",
-        metavar="OUT.png",
-        help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
-_CompareWith = Annotated[
+    "--plot",
+    metavar="OUT.png",
+    help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
+)
+_CompareWith = option(
     Optional[list[str]],
-    typer.Option(
-        "--compare-with",
-        metavar="NAME=VALUE,...",
-        help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
-        "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. "
-        "--compare-with ki=1 --compare-with correction=off.",
-    ),
-]
+    "--compare-with",
+    metavar="NAME=VALUE,...",
+    help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
+    "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with ki=1 "
+    "--compare-with correction=off.",
+)
 
 
 @app.command("simulate")
@@ -325,9 +314,9 @@ def simulate_command(
     estimator = _estimator(estimators)
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
-    for option, path in (("--csv", None if csv_out == "-" else csv_out), ("--rrd", rrd), ("--plot", plot)):
+    for flag, path in (("--csv", None if csv_out == "-" else csv_out), ("--rrd", rrd), ("--plot", plot)):
         if path is not None:
-            check_output(path, option=option, force=force)
+            check_output(path, option=flag, force=force)
     if plot is not None:
         from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
 

@@ -8,12 +8,10 @@ import math
 import sys
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis import spectrum as S
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.outputs import ForceOption, atomic_output, check_output
 from steval_link.cli.progress import progress_bar, scaled
@@ -32,59 +30,44 @@ MAX_NPERSEG = 65536
 MAX_THROTTLE_BINS = 100
 
 
-_Capture = Annotated[
-    Path,
-    typer.Argument(help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False),
-]
-_Plot = Annotated[
+_Capture = argument(
+    Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
+)
+_Plot = option(
     Optional[Path],
-    typer.Option(
-        "--plot",
-        help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image "
-        '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
-_Csv = Annotated[
+    "--plot",
+    help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, .pdf, "
+    '...); needs matplotlib: pip install "steval-link\\[plot]".',
+)
+_Csv = option(
     Optional[Path],
-    typer.Option(
-        "--csv",
-        help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
-        "mdps²/Hz and mg²/Hz.",
-    ),
-]
-_MarkHz = Annotated[
+    "--csv",
+    help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in mdps²/Hz and mg²/Hz.",
+)
+_MarkHz = option(
     Optional[list[float]],
-    typer.Option(
-        "--mark-hz",
-        metavar="HZ",
-        help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
-        "its alias above it (the gyro also at its 416 Hz-register images), with "
-        "the gain of the firmware's averaging and gyro filter; repeatable.",
-    ),
-]
-_Nperseg = Annotated[
+    "--mark-hz",
+    metavar="HZ",
+    help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro also "
+    "at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
+)
+_Nperseg = option(
     Optional[int],
-    typer.Option(
-        "--nperseg",
-        metavar="ROWS",
-        help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
-        f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-        show_default=False,
-    ),
-]
-_Overlap = Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")]
-_ThrottleBins = Annotated[
+    "--nperseg",
+    metavar="ROWS",
+    help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+    f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+    show_default=False,
+)
+_Overlap = option(float, "--overlap", help="Fraction of a window the next one overlaps.")
+_ThrottleBins = option(
     int,
-    typer.Option(
-        "--throttle-bins",
-        metavar="N",
-        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
-    ),
-]
-_Peaks = Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")]
-_MinHz = Annotated[
-    float, typer.Option("--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
-]
+    "--throttle-bins",
+    metavar="N",
+    help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+)
+_Peaks = option(int, "--peaks", metavar="N", help="Peaks printed per axis.")
+_MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
 
 
 @app.command("spectrum")
@@ -112,9 +95,9 @@ def spectrum_cmd(
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
     rrd = rerun.rrd
-    for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
+    for flag, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
         if path is not None:
-            check_output(path, option=option, force=force, inputs=(capture,))
+            check_output(path, option=flag, force=force, inputs=(capture,))
     if plot is not None:
         _check_plot_format(plot)
     options = None

@@ -5,11 +5,11 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.cli.checks import (
     CorrectionOption,
     KiOption,
@@ -31,65 +31,46 @@ def _list() -> None:
         typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
 
 
-_Scenario = Annotated[
-    Optional[str],
-    typer.Option("--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."),
-]
-_Out = Annotated[
+_Scenario = option(
+    Optional[str], "--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."
+)
+_Out = option(
     Optional[Path],
-    typer.Option(
-        "--out",
-        "-o",
-        help="Output: FILE.stv (capture with host times) or any other name for the plain received "
-        "bytes (like cat /dev/ttyUSB0 > FILE).",
-    ),
-]
-_Duration = Annotated[
-    Optional[float],
-    typer.Option("--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")]
-_Baud = Annotated[
-    int,
-    typer.Option(
-        "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
-    ),
-]
-_TextMode = Annotated[
-    bool,
-    typer.Option("--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."),
-]
-_JoinAt = Annotated[
-    float, typer.Option("--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
-]
-_DropRate = Annotated[
-    float,
-    typer.Option(
-        "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
-    ),
-]
-_Encoder = Annotated[
-    str, typer.Option("--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
-]
-_CEncoder = Annotated[
+    "--out",
+    "-o",
+    help="Output: FILE.stv (capture with host times) or any other name for the plain received bytes (like cat "
+    "/dev/ttyUSB0 > FILE).",
+)
+_Duration = option(
+    Optional[float], "--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
+)
+_Seed = option(int, "--seed", help="Seed of every random choice; same seed, same bytes.")
+_Baud = option(
+    int, "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+)
+_TextMode = option(
+    bool, "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."
+)
+_JoinAt = option(float, "--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
+_DropRate = option(
+    float, "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+)
+_Encoder = option(str, "--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
+_CEncoder = option(
     Optional[Path],
-    typer.Option(
-        "--c-encoder",
-        help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
-    ),
-]
-_Vibration = Annotated[
+    "--c-encoder",
+    help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
+)
+_Vibration = option(
     Optional[list[str]],
-    typer.Option(
-        "--vibration",
-        metavar="SENSOR-AXIS:HZ:AMP",
-        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
-        "repeatable. To check steval spectrum against known peaks.",
-    ),
-]
-_Format = Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")]
-_Force = Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")]
-_List = Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")]
+    "--vibration",
+    metavar="SENSOR-AXIS:HZ:AMP",
+    help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); repeatable. To "
+    "check steval spectrum against known peaks.",
+)
+_Format = option(str, "--format", help="auto (by the --out extension), stv or raw.")
+_Force = option(bool, "--force", help="Replace --out if it exists.")
+_List = option(bool, "--list", help="List the built-in scenarios and exit.")
 
 
 @app.command("synth")

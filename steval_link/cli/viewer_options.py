@@ -6,43 +6,31 @@ from __future__ import annotations
 import functools
 import inspect
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
-
+from steval_link.cli.app import option
 from steval_link.cli.outputs import check_output
 from steval_link.errors import UserError
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks
 
-RrdOption = Annotated[
-    Optional[Path],
-    typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."),
-]
-SpawnOption = Annotated[
-    bool, typer.Option("--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
-]
-ServeOption = Annotated[
-    bool, typer.Option("--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
-]
-ConnectOption = Annotated[
+RrdOption = option(
+    Optional[Path], "--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."
+)
+SpawnOption = option(bool, "--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
+ServeOption = option(bool, "--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
+ConnectOption = option(
     Optional[str],
-    typer.Option(
-        "--connect",
-        metavar="URL",
-        help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
-    ),
-]
-WebPortOption = Annotated[
-    int, typer.Option("--web-port", metavar="PORT", help="HTTP port of the --serve web viewer (127.0.0.1).")
-]
-GrpcPortOption = Annotated[
+    "--connect",
+    metavar="URL",
+    help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
+)
+WebPortOption = option(int, "--web-port", metavar="PORT", help="HTTP port of the --serve web viewer (127.0.0.1).")
+GrpcPortOption = option(
     int,
-    typer.Option(
-        "--grpc-port",
-        metavar="PORT",
-        help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
-    ),
-]
+    "--grpc-port",
+    metavar="PORT",
+    help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
+)
 
 
 #: the shared Rerun options: (parameter, annotation, default)
@@ -73,11 +61,10 @@ def with_rerun_options(command):
     return run
 
 
-NoViewOption = Annotated[bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")]
-CaptureOutOption = Annotated[
-    Optional[Path],
-    typer.Option("--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."),
-]
+NoViewOption = option(bool, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
+CaptureOutOption = option(
+    Optional[Path], "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
+)
 
 
 def check_view_flags(*, no_view: bool, spawn: bool, serve: bool, connect: str | None) -> None:
