@@ -2,34 +2,25 @@
 
 from __future__ import annotations
 
+import importlib
 import sys
 
 import typer
 
-# Each import registers its sub-command(s) on ``app`` (one per line, in the order of ``steval --help``).
-from steval_link.cli import ble as _ble  # noqa: F401
-from steval_link.cli import command as _command  # noqa: F401
-from steval_link.cli import compare as _compare  # noqa: F401
-from steval_link.cli import conformance as _conformance  # noqa: F401
-from steval_link.cli import data as _data  # noqa: F401
-from steval_link.cli import emulate as _emulate  # noqa: F401
-from steval_link.cli import estimator as _estimator  # noqa: F401
-from steval_link.cli import evaluate as _evaluate  # noqa: F401
-from steval_link.cli import export as _export  # noqa: F401
-from steval_link.cli import live as _live  # noqa: F401
-from steval_link.cli import ports as _ports  # noqa: F401
-from steval_link.cli import preflight as _preflight  # noqa: F401
-from steval_link.cli import replay as _replay  # noqa: F401
-from steval_link.cli import report as _report  # noqa: F401
-from steval_link.cli import simulate as _simulate  # noqa: F401
-from steval_link.cli import spectrum as _spectrum  # noqa: F401
-from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.checks import user_message
 from steval_link.errors import UserError, printable
 from steval_link.stop_signals import interrupt, on_stop_signals
 
 __all__ = ["app", "main"]
+
+#: the sub-command modules: importing one registers its command(s) on ``app``
+COMMANDS = (
+    "ble command compare conformance data emulate estimator evaluate export live ports preflight replay report "
+    "simulate spectrum synth"
+).split()
+for _name in COMMANDS:
+    importlib.import_module(f"steval_link.cli.{_name}")
 
 
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
