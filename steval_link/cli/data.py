@@ -7,14 +7,13 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import sub_app
 from steval_link.errors import UserError
 
 #: a developer's copy of the trials: ``../shared`` beside the project (editable install)
 SHARED_BROAD = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "broad"
 
-data_app = typer.Typer(help="Data sets on demand: BROAD trials with optical ground truth.", no_args_is_help=True)
-app.add_typer(data_app, name="data")
+data_app = sub_app("data", "Data sets on demand: BROAD trials with optical ground truth.")
 
 
 def _require_data_extra() -> None:

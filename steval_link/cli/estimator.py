@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.app import sub_app
 from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar
@@ -23,12 +23,9 @@ from steval_link.errors import UserError
 
 __all__ = ["estimator_app", "STARTER_CLASS", "DEFAULT_BROAD"]
 
-estimator_app = typer.Typer(
-    help="Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md.",
-    no_args_is_help=True,
-    context_settings={"help_option_names": HELP_OPTION_NAMES},
+estimator_app = sub_app(
+    "estimator", "Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md."
 )
-app.add_typer(estimator_app, name="estimator")
 
 #: the class name in the starter file
 STARTER_CLASS = "MyEkf"

@@ -3,12 +3,10 @@
 
 from __future__ import annotations
 
-import functools
-import inspect
 from pathlib import Path
 from typing import Optional
 
-from steval_link.cli.app import option
+from steval_link.cli.app import option, with_options
 from steval_link.cli.outputs import check_output
 from steval_link.errors import UserError
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks
@@ -44,21 +42,9 @@ _RERUN_PARAMS = (
 )
 
 
-def with_rerun_options(command):
-    """A typer command that takes the shared Rerun options after its own and gets them as one
-    :class:`~steval_viewer.sink_options.SinkOptions`, its keyword ``rerun`` (one definition of the six)."""
-    own = [p for p in inspect.signature(command, eval_str=True).parameters.values() if p.name != "rerun"]
-    kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
-    added = [inspect.Parameter(name, kind, annotation=a, default=d) for name, a, d in _RERUN_PARAMS]
-
-    @functools.wraps(command)
-    def run(**kwargs):
-        rerun = SinkOptions(**{name: kwargs.pop(name) for name, _, _ in _RERUN_PARAMS})
-        return command(**kwargs, rerun=rerun)
-
-    run.__signature__ = inspect.Signature([*own, *added])
-    run.__annotations__ = {p.name: p.annotation for p in [*own, *added]}
-    return run
+#: a typer command that takes the shared Rerun options where its parameter ``rerun`` stands, as one
+#: :class:`~steval_viewer.sink_options.SinkOptions`
+with_rerun_options = with_options("rerun", _RERUN_PARAMS, SinkOptions)
 
 
 NoViewOption = option(bool, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
