@@ -13,7 +13,7 @@ from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_output, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
@@ -188,13 +188,6 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
         _export_mat(tel, mat, degrees, progress)
     if tel is not None and mcap is not None:
         _export_mcap(tel, mcap, progress)
-
-
-def write_atomic(path: Path, option: str, write) -> None:
-    """``write(file)`` into ``PATH.partial``, renamed to ``path`` when complete (:func:`atomic_output`): the one
-    place the --mat and --mcap exports write."""
-    with atomic_output(path, option=option) as part, open(part, "wb") as f:
-        write(f)
 
 
 def _export_mat(tel, path: Path, degrees: bool, progress) -> None:

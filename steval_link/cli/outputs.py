@@ -34,9 +34,11 @@ __all__ = [
     "atomic_output",
     "check_input",
     "check_output",
+    "check_outputs",
     "output_error",
     "partial_path",
     "print_json",
+    "write_atomic",
 ]
 
 #: option names whose value is a file a command writes
@@ -124,6 +126,17 @@ def check_output(
     return p
 
 
+def check_outputs(outputs: dict, *, force: bool = False, inputs: tuple = ()) -> None:
+    """:func:`check_output` of each given ``{option: path}``; with a ``--plot``, matplotlib must be there too."""
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, option=flag, force=force, inputs=inputs)
+    if outputs.get("--plot") is not None:
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+        require_matplotlib()
+
+
 def _same(a: Path, b: Path) -> bool:
     try:
         if a.exists() and b.exists():
@@ -173,6 +186,13 @@ def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = F
     except BaseException:
         _remove(partial)
         raise
+
+
+def write_atomic(path: Path, option: str, write, *, text: bool = False) -> None:
+    """``write(file)`` into ``PATH.partial`` (binary, or UTF-8 ``text``), renamed to ``path`` when complete."""
+    with atomic_output(path, option=option) as part:
+        with open(part, "w", newline="", encoding="utf-8") if text else open(part, "wb") as f:
+            write(f)
 
 
 def _remove(path: Path) -> None:
