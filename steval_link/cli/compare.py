@@ -36,7 +36,15 @@ from steval_link.cli.checks import (
     command_line,
     require_attitude,
 )
-from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
+from steval_link.cli.outputs import (
+    ForceOption,
+    JsonReportOption,
+    atomic_output,
+    check_output,
+    check_outputs,
+    print_json,
+    print_warnings,
+)
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import (
@@ -188,11 +196,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
     )  # a missing optional package is a row of the report
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
-    if plot is not None:
-        check_output(plot, option="--plot", force=force, inputs=(src.path,))
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()
+    check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
@@ -200,8 +204,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         fc_plot = flight_plot_path(plot) if plot is not None and no_fc_plot is None else None
         if fc_plot is not None:
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
-        for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
-            print(f"steval: warning: {w}", file=sys.stderr)
+        print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")
         settings = _settings(tel, changes)
         report = compare_capture(tel, estimators=names, settings=settings, variant=variant, variant_source="--variant")
@@ -278,11 +281,7 @@ def _side_by_side(
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
         inputs = tuple(captures)
-        if plot is not None:
-            check_output(plot, option="--plot", force=force, inputs=inputs)
-            from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot
-
-            require_matplotlib()
+        check_outputs({"--plot": plot}, force=force, inputs=inputs)
         options = view_sinks(**viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)

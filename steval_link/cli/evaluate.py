@@ -11,7 +11,7 @@ import typer
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.data import default_broad_data
-from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.estimators.plugins import split_list
@@ -122,13 +122,7 @@ def evaluate_command(
     data = data or default_broad_data()
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
-    for flag, out in outputs.items():
-        if out is not None:
-            check_output(out, option=flag, force=force, inputs=inputs)
-    if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()  # fail before the long run
+    check_outputs(outputs, force=force, inputs=inputs)  # and matplotlib for --plot: before the long run
     only = split_list(",".join(estimators)) if estimators else None  # repeatable, each a comma-separated list
     with progress_bar("evaluate", quiet=as_json) as bar:
         results = ev.evaluate_data(

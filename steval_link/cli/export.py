@@ -13,7 +13,7 @@ from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output, write_atomic
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
@@ -150,9 +150,7 @@ def export(
     if mcap is not None:
         require_mcap()
     src = read_recording(capture)  # the input first, then the outputs, then the work
-    for opt, p in outputs.items():
-        if p is not None:
-            check_output(p, option=opt, force=force, inputs=(capture,))
+    check_outputs(outputs, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
         progress(0.1, "decoding")
         if is_ble_source(src):
@@ -169,8 +167,7 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
     records = tel is not None and tel.printed_only
     if tel is not None and not (records and mcap is None):
         require_attitude(tel, "export (--raw gives the bytes)")
-    for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
-        typer.echo(f"steval: warning: {w}", err=True)
+    print_warnings(src.warnings)  # damaged but with frames: the export goes on
     if raw is not None:
         with atomic_output(raw, option="--raw") as part:
             write_raw(src.data, part)
@@ -221,8 +218,7 @@ def _export_ble(
             f"{path} is a BLE capture: it has notifications, no serial bytes for --raw or attitude frames for --mcap "
             "(use --csv, --parquet or --mat)."
         )
-    for w in tel.source["warnings"]:
-        typer.echo(f"steval: warning: {w}", err=True)
+    print_warnings(tel.source["warnings"])
     table, n = tel.link.motion_table(), len(tel.link.samples)
     _write_table(table, csv, parquet, progress, f"{n} motion rows (BLE)")
     if mat is not None:

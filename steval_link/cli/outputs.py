@@ -38,6 +38,7 @@ __all__ = [
     "output_error",
     "partial_path",
     "print_json",
+    "print_warnings",
     "write_atomic",
 ]
 
@@ -54,6 +55,12 @@ def print_json(d: dict) -> None:
     """A report as one indented JSON object on stdout (NaN refused: it is not JSON)."""
     json.dump(d, sys.stdout, indent=2, allow_nan=False)
     sys.stdout.write("\n")
+
+
+def print_warnings(warnings) -> None:
+    """Each warning met on the way (e.g. a damaged capture), one ``steval: warning:`` line on stderr."""
+    for w in warnings:
+        print(f"steval: warning: {w}", file=sys.stderr)
 
 
 def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:

@@ -19,6 +19,7 @@ from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
 from steval_link.cli.checks import flag_of, require_attitude
 from steval_link.cli.live import session_outputs
+from steval_link.cli.outputs import print_warnings
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.live.session import LiveOptions, LiveSession, port_source
@@ -106,8 +107,7 @@ def preflight_command(
     src = read_recording(path)
     tel = telemetry_of_recording(src)
     require_attitude(tel, "check (is it a capture of the drone's stream?)")
-    for w in src.warnings:  # a damaged capture that still holds frames: one line of our own, the check goes on
-        print(f"steval: warning: {w}", file=sys.stderr)
+    print_warnings(src.warnings)  # a damaged capture that still holds frames: the check goes on
     report = check_preflight(tel, str(path))
     print(f"steval preflight: {path}")
     print(report.text())

@@ -26,7 +26,7 @@ from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app, option
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant
-from steval_link.cli.outputs import ForceOption, print_json
+from steval_link.cli.outputs import ForceOption, print_json, print_warnings
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
     view_sinks,
@@ -156,8 +156,7 @@ def _print_summary(s: dict, format_lines, as_json: bool) -> None:
     if as_json:
         print_json(s)
     else:
-        for w in s["warnings"]:
-            print(f"steval: warning: {w}", file=sys.stderr)
+        print_warnings(s["warnings"])
         print("\n".join(format_lines(dict(s, warnings=[]))))
 
 

@@ -17,7 +17,7 @@ from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
 from steval_link.cli.app import app
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.compare import CompareEstimatorsOption
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.errors import UserError
@@ -80,9 +80,7 @@ def report_command(
                 "takes BLE captures side by side)."
             )
     inputs = tuple(s.path for s in sources)
-    for option, path in (("--out", out), ("--markdown", markdown)):
-        if path is not None:
-            check_output(path, option=option, force=force, inputs=inputs)
+    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=inputs)
     from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only here (start-up time)
 
     require_matplotlib()

@@ -13,7 +13,7 @@ from typing import Optional
 from steval_link.analysis import spectrum as S
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
@@ -95,9 +95,7 @@ def spectrum_cmd(
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
     rrd = rerun.rrd
-    for flag, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
-        if path is not None:
-            check_output(path, option=flag, force=force, inputs=(capture,))
+    check_outputs({"--plot": plot, "--csv": csv_out, "--rrd": rrd}, force=force, inputs=(capture,))
     if plot is not None:
         _check_plot_format(plot)
     options = None
@@ -114,16 +112,14 @@ def spectrum_cmd(
         lines = S.format_summary(sp, found, marks, min_hz=min_hz, source=capture.name)
         if csv_out is not None:
             progress(0.4, f"writing {csv_out.name}")
-            with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
-                S.write_csv(sp, fh)
+            write_atomic(csv_out, "--csv", lambda fh: S.write_csv(sp, fh), text=True)
         if plot is not None:
             from steval_link.analysis.spectrum_plot import plot_spectra  # matplotlib loads only for --plot
 
             progress(0.5, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_spectra(sp, part, marks_hz=marks, peaks=found, title=f"steval spectrum {capture.name}")
-    for w in warnings_seen:
-        print(f"steval: warning: {w}", file=sys.stderr)
+    print_warnings(warnings_seen)
     print("\n".join(lines))
     for what, path in (("csv", csv_out), ("plot", plot)):
         if path is not None:
