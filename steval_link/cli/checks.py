@@ -10,7 +10,7 @@ import shlex
 from collections.abc import Sequence
 from typing import Optional
 
-from steval_link.cli.app import option
+from steval_link.cli.app import option, with_options
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import variant_name
 
@@ -70,15 +70,6 @@ def check_throttle(option: str, value: int | None) -> None:
         raise UserError(
             f"{option} is the firmware's gTHR (int16, from 0; MIN_THR is 200): 0..{MAX_THROTTLE}, got {value}"
         )
-
-
-def check_filter_options(
-    *, ki: float | None, kp_ground: float | None, kp_flight: float | None, min_thr: int | None
-) -> None:
-    """The filter replica's options where given: --ki, --kp-ground, --kp-flight (gains), then --min-thr (a throttle)."""
-    for flag, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(flag, gain)
-    check_throttle("--min-thr", min_thr)
 
 
 # The filter's options, one definition each, shared by every command that runs the replica (None: not given).
@@ -147,6 +138,27 @@ def check_variant(value: str | None) -> str | None:
         return variant_name(value)
     except ValueError as exc:
         raise UserError(f"--variant: {exc}") from None
+
+
+#: the filter replica's options of compare and conformance, by parameter
+_FILTER_OPTIONS = {"ki": KiOption, "kp_ground": KpGroundOption, "kp_flight": KpFlightOption, "dt": DtOption}
+_FILTER_OPTIONS |= {"min_thr": MinThrOption, "correction": CorrectionOption, "variant": VariantOption}
+
+
+def with_filter_options(order: str):
+    """A command takes the filter replica's options (parameter names in ``order``) where its parameter ``filters``
+    stands, and gets them as that one dict."""
+    return with_options("filters", tuple((name, _FILTER_OPTIONS[name], None) for name in order.split()), dict)
+
+
+def filter_settings(filters: dict) -> tuple[dict, str | None]:
+    """The filter options given, checked (``dt`` as ``dt_s``), and the variant's name (None: not given)."""
+    for name in ("ki", "kp_ground", "kp_flight"):
+        check_gain(flag_of(name), filters[name])
+    check_throttle("--min-thr", filters["min_thr"])
+    check_period("--dt", filters["dt"])
+    changes = {("dt_s" if k == "dt" else k): v for k, v in filters.items() if v is not None and k != "variant"}
+    return changes, check_variant(filters["variant"])
 
 
 def check_period(option: str, value: float | None) -> None:

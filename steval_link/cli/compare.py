@@ -22,20 +22,7 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import (
-    CorrectionOption,
-    DtOption,
-    KiOption,
-    KpFlightOption,
-    KpGroundOption,
-    MinThrOption,
-    VariantOption,
-    check_filter_options,
-    check_period,
-    check_variant,
-    command_line,
-    require_attitude,
-)
+from steval_link.cli.checks import command_line, filter_settings, flag_of, require_attitude, with_filter_options
 from steval_link.cli.outputs import (
     ForceOption,
     JsonReportOption,
@@ -71,7 +58,6 @@ def flight_plot_path(out_png: Path) -> Path:
 
 def _settings(tel, changes: dict):
     """Replica settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
-    changes = {k: v for k, v in changes.items() if v is not None}
     if not changes:
         return None
     s = tel.status
@@ -118,18 +104,13 @@ _Label = option(
 
 @app.command("compare")
 @with_rerun_options
+@with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
     captures: _Captures = None,
     as_json: JsonReportOption = False,
     plot: _Plot = None,
     estimator: CompareEstimatorsOption = None,
-    ki: KiOption = None,
-    kp_ground: KpGroundOption = None,
-    kp_flight: KpFlightOption = None,
-    dt: DtOption = None,
-    min_thr: MinThrOption = None,
-    correction: CorrectionOption = None,
-    variant: VariantOption = None,
+    filters: dict = None,
     align: _Align = "time",
     label: _Label = None,
     force: ForceOption = False,
@@ -146,18 +127,10 @@ def compare_command(
     mismatched inputs (durations, BLE against serial, lost frames, a truncated capture) are noted. --plot writes one
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
-    filter_options = {
-        "--ki": ki,
-        "--kp-ground": kp_ground,
-        "--kp-flight": kp_flight,
-        "--dt": dt,
-        "--min-thr": min_thr,
-        "--correction/--no-correction": correction,
-        "--variant": variant,
-    }
     viewer = asdict(rerun)
     if captures and len(captures) > 1:
-        replica_options = {"--estimator": estimator, **filter_options}
+        flags = {"--estimator": estimator}
+        flags |= {("--correction/--no-correction" if k == "correction" else flag_of(k)): v for k, v in filters.items()}
         _side_by_side(
             captures,
             as_json=as_json,
@@ -165,7 +138,7 @@ def compare_command(
             force=force,
             align=align,
             labels=label,
-            replica_options=replica_options,
+            replica_options=flags,
             viewer=viewer,
         )
         return
@@ -174,14 +147,12 @@ def compare_command(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."
         )
-    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
-    check_period("--dt", dt)
-    changes = dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, dt_s=dt, min_thr=min_thr, correction=correction)
+    changes, variant = filter_settings(filters)
     _one_capture(
         captures[0] if captures else None,
         estimator,
         changes,
-        check_variant(variant),
+        variant,
         as_json=as_json,
         plot=plot,
         force=force,
