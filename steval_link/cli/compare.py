@@ -8,7 +8,7 @@ shown with its first step and a diagnosis, and ``replica.all_exact`` is false in
 from __future__ import annotations
 
 import sys
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -127,7 +127,6 @@ def compare_command(
     mismatched inputs (durations, BLE against serial, lost frames, a truncated capture) are noted. --plot writes one
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
-    viewer = asdict(rerun)
     if captures and len(captures) > 1:
         flags = {"--estimator": estimator}
         flags |= {("--correction/--no-correction" if k == "correction" else flag_of(k)): v for k, v in filters.items()}
@@ -139,7 +138,7 @@ def compare_command(
             align=align,
             labels=label,
             replica_options=flags,
-            viewer=viewer,
+            viewer=rerun,
         )
         return
     if align != "time" or label or rerun.any():
@@ -245,15 +244,15 @@ def _side_by_side(
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):
         raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
-    check_view_flags(no_view=False, spawn=viewer["spawn"], serve=viewer["serve"], connect=viewer["connect"])
-    with progress_bar("compare", quiet=as_json or viewer["serve"]) as progress:
+    check_view_flags(viewer)
+    with progress_bar("compare", quiet=as_json or viewer.serve) as progress:
         flights = []
         for i, path in enumerate(captures):  # the inputs first, then the outputs
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
         inputs = tuple(captures)
         check_outputs({"--plot": plot}, force=force, inputs=inputs)
-        options = view_sinks(**viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
+        options = view_sinks(viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
         if plot is not None:

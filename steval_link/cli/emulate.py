@@ -150,7 +150,7 @@ def emulate_command(
             )
         _emulate_ble(emu_options, out, ble_connect_at, tick_start_ms)
         return
-    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
+    check_view_flags(rerun, no_view=no_view)
     emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
     emu_options.command_line = command_line(
         ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}

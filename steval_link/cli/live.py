@@ -144,7 +144,7 @@ def live_command(
     1.0, correction off, reset, status, ...): each change is marked on the viewer's timeline and in the capture.
     """
     _check_baud(baud)
-    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
+    check_view_flags(rerun, no_view=no_view)
     check_duration(duration)
     variant = check_variant(variant)
     user_map = read_map_option(text_map)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -209,7 +208,7 @@ def replay(
     )
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
-    options = view_sinks(**asdict(rerun), force=force, inputs=(src.path,))
+    options = view_sinks(rerun, force=force, inputs=(src.path,))
     layout = check_ble_layout(ble_layout) if ble_layout else None
     try:
         with progress_bar("replay", quiet=as_json or rerun.serve) as progress:  # --serve waits for Ctrl-C: no bar

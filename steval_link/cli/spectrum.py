@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import Optional
 
@@ -17,12 +16,11 @@ from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, p
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
-    sink_options,
     with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import SinkOptions
+from steval_viewer.sink_options import SinkOptions, check_sinks
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -98,9 +96,9 @@ def spectrum_cmd(
     check_outputs({"--plot": plot, "--csv": csv_out, "--rrd": rrd}, force=force, inputs=(capture,))
     if plot is not None:
         _check_plot_format(plot)
-    options = None
-    if rerun.any():  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        options = sink_options(**asdict(rerun))
+    options = rerun if rerun.any() else None
+    if options is not None:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        check_sinks(options)
     with progress_bar("spectrum", quiet=rerun.serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")

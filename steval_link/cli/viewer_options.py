@@ -53,40 +53,21 @@ CaptureOutOption = option(
 )
 
 
-def check_view_flags(*, no_view: bool, spawn: bool, serve: bool, connect: str | None) -> None:
+def check_view_flags(rerun: SinkOptions, *, no_view: bool = False) -> None:
     """A session shows one viewer at most, and none with ``--no-view``: UserError otherwise."""
-    if sum([spawn, serve, connect is not None]) > 1:
+    if sum([rerun.spawn, rerun.serve, rerun.connect is not None]) > 1:
         raise UserError("choose one of --spawn, --serve and --connect")
-    if no_view and (spawn or serve or connect):
+    if no_view and (rerun.spawn or rerun.serve or rerun.connect):
         raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
 
 
-def sink_options(
-    *, rrd: Path | None, spawn: bool, serve: bool, connect: str | None, web_port: int, grpc_port: int
-) -> SinkOptions:
-    """The ``steval_viewer.sink_options.SinkOptions`` of the shared flags, checked before any work is done (a missing
-    ``.rrd`` folder, a URL where nothing listens, a busy port: one UserError sentence)."""
-    options = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
-    check_sinks(options)
-    return options
-
-
-def view_sinks(
-    *,
-    rrd: Path | None,
-    spawn: bool,
-    serve: bool,
-    connect: str | None,
-    web_port: int,
-    grpc_port: int,
-    force: bool,
-    inputs: tuple = (),
-) -> SinkOptions | None:
-    """A batch command's Rerun outputs, checked before its work: the ``--rrd`` file as every output is
-    (:func:`steval_link.cli.outputs.check_output`), then the sinks (:func:`sink_options`). None when no Rerun output
-    was asked for."""
-    if rrd is not None:
-        check_output(rrd, option="--rrd", force=force, inputs=inputs)
-    if rrd is None and not (spawn or serve or connect is not None):
+def view_sinks(rerun: SinkOptions, *, force: bool, inputs: tuple = ()) -> SinkOptions | None:
+    """A batch command's Rerun outputs, checked before its work: the ``--rrd`` file as every output is, then the
+    sinks (a missing ``.rrd`` folder, a URL where nothing listens, a busy port: one
+    UserError sentence). None when no Rerun output was asked for."""
+    if rerun.rrd is not None:
+        check_output(rerun.rrd, option="--rrd", force=force, inputs=inputs)
+    if rerun.rrd is None and not (rerun.spawn or rerun.serve or rerun.connect is not None):
         return None
-    return sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port)
+    check_sinks(rerun)
+    return rerun
