@@ -19,18 +19,11 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
+__all__ = ["write_csv", "write_parquet", "write_atomic"]
 
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
-ANGLE_COLUMNS = {
-    "thx_pitch_rad": "thx_pitch_deg",
-    "thy_roll_rad": "thy_roll_deg",
-    "thz_yaw_rad": "thz_yaw_deg",
-    "target_thx_pitch_rad": "target_thx_pitch_deg",
-    "target_thy_roll_rad": "target_thy_roll_deg",
-    "target_thz_yaw_rad": "target_thz_yaw_deg",
-}
+ANGLE_COLUMNS = {f"{p}{a}_rad": f"{p}{a}_deg" for p in ("", "target_") for a in ("thx_pitch", "thy_roll", "thz_yaw")}
 
 
 def _column_strings(col: np.ndarray, shortest: bool = False) -> list[str]:
@@ -77,11 +70,6 @@ def write_parquet(table: dict[str, np.ndarray], path: Path) -> None:
     except ImportError:
         raise UserError("--parquet needs pyarrow (pip install pyarrow); --csv works without it.") from None
     pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), str(path))
-
-
-def write_raw(data: bytes, path: Path) -> None:
-    """Write the exact serial bytes."""
-    path.write_bytes(data)
 
 
 _Capture = argument(Path, help="Capture (.stv), raw serial dump or text-mode log.")
@@ -154,8 +142,7 @@ def export(
     with progress_bar("export") as progress:
         progress(0.1, "decoding")
         if is_ble_source(src):
-            csv, parquet, raw, mat, mcap = outputs.values()
-            _export_ble(telemetry_of_recording(src), csv, parquet, raw, progress, mat, mcap)
+            _export_ble(telemetry_of_recording(src), outputs, progress)
         else:
             _export_serial(src, outputs, degrees, progress)
 
@@ -169,12 +156,11 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
         require_attitude(tel, "export (--raw gives the bytes)")
     print_warnings(src.warnings)  # damaged but with frames: the export goes on
     if raw is not None:
-        with atomic_output(raw, option="--raw") as part:
-            write_raw(src.data, part)
+        write_atomic(raw, "--raw", lambda f: f.write(src.data))
         typer.echo(f"{raw}: {len(src.data)} bytes")
     if records and (csv is not None or parquet is not None):  # a text log: a row per record
-        records_table = tel.text_series.table()
-        _write_table(records_table, csv, parquet, progress, f"{len(tel.text_series)} text records", shortest=True)
+        rows = f"{len(tel.text_series)} text records"
+        _write_table(tel.text_series.table(), csv, parquet, progress, rows, shortest=True)
     elif tel is not None and (csv is not None or parquet is not None):
         table = tel.attitude_table()
         table.update(tel.flight_columns())
@@ -208,10 +194,9 @@ def _export_mcap(tel, path: Path, progress) -> None:
     typer.echo(f"{path}: MCAP, " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
 
 
-def _export_ble(
-    tel, csv: Path | None, parquet: Path | None, raw: Path | None, progress, mat: Path | None, mcap
-) -> None:
+def _export_ble(tel, outputs: dict, progress) -> None:
     """A BLE capture: one row per motion sample received (env and arming values held from their last one)."""
+    csv, parquet, raw, mat, mcap = outputs.values()
     path = tel.source["path"]
     if raw is not None or mcap is not None:
         raise UserError(
