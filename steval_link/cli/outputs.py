@@ -1,17 +1,5 @@
-"""Every output file of every command, one rule: checked before any work, written whole or not at all.
-
-- :func:`check_output` runs for each output option after the inputs are read and before the work starts: the
-  folder exists and takes a new file (tried for real: a probe file is created and removed, so a read-only mount,
-  ``/proc`` or ``/sys`` fail here even for root), the path is not a folder, not the input itself, and an existing
-  file is refused unless the command has ``--force`` and it was given (captures are never overwritten).
-- :func:`atomic_output` writes to ``NAME.partial`` (``NAME.partial.EXT`` where the writer picks its format from
-  the extension) and renames it into place when the writer returns; a failure or Ctrl-C removes it. Nothing
-  half-written is left that looks complete, and an earlier file of that name stays as it was until the rename.
-- :func:`output_error` turns what a writer raises (``OSError``, Rerun's ``RuntimeError: Failed to create file``)
-  into one :class:`~steval_link.errors.UserError` sentence naming the option and the file.
-
-:data:`OUTPUT_OPTIONS` names the options that are output files (the CLI matrix test finds them by it).
-"""
+"""Every output file of every command, one rule: checked before any work (:func:`check_output`), written whole or
+not at all (:func:`atomic_output`: ``NAME.partial``, renamed into place when complete, removed on failure)."""
 
 from __future__ import annotations
 
@@ -74,11 +62,11 @@ def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
 
 def _why(exc: BaseException) -> str:
     if isinstance(exc, OSError):
-        if exc.errno in (errno.EROFS,):
+        if exc.errno == errno.EROFS:
             return "read-only file system"
-        return (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
-    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    return text.rstrip(".")
+        return exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
+    text = str(exc).strip()
+    return (text.splitlines()[0] if text else type(exc).__name__).rstrip(".")
 
 
 def _probe(folder: Path) -> OSError | None:
@@ -181,17 +169,13 @@ def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = F
     partial = partial_path(final, keep_suffix=keep_suffix)
     try:
         yield partial
-        if not partial.exists():  # the writer wrote nothing there (e.g. a plot it had nothing for)
-            return
-        os.replace(partial, final)
-    except UserError:
-        _remove(partial)
-        raise
-    except (OSError, RuntimeError) as exc:
-        _remove(partial)
-        raise output_error(option, final, exc) from None
-    except BaseException:
-        _remove(partial)
+        if partial.exists():  # else the writer wrote nothing there (e.g. a plot it had nothing for)
+            os.replace(partial, final)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            partial.unlink()
+        if isinstance(exc, (OSError, RuntimeError)):
+            raise output_error(option, final, exc) from None
         raise
 
 
@@ -200,8 +184,3 @@ def write_atomic(path: Path, option: str, write, *, text: bool = False) -> None:
     with atomic_output(path, option=option) as part:
         with open(part, "w", newline="", encoding="utf-8") if text else open(part, "wb") as f:
             write(f)
-
-
-def _remove(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        path.unlink()

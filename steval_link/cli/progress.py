@@ -1,14 +1,5 @@
-"""The one progress bar of the ``steval`` commands: rich, on stderr, only when stderr is a terminal.
-
-Library functions take a plain callback ``progress(fraction, stage)`` (fraction of the job done, 0..1, and what it
-is doing now) and never print; the commands open a bar with :func:`progress_bar` and pass its callback down::
-
-    with progress_bar("replay", quiet=as_json) as progress:
-        tel = load(path, progress=scaled(progress, 0.0, 0.4))
-
-Nothing is drawn when stderr is not a terminal (pipes, CI, tests), with ``quiet`` (``--json``), or for a job that
-ends within :data:`SHOW_AFTER_S`; the bar is erased when the job ends, so the command's own output stays clean.
-"""
+"""The one progress bar of the ``steval`` commands: rich, on stderr, only when stderr is a terminal. Library
+functions take a callback ``progress(fraction 0..1, stage)`` and never print; :func:`progress_bar` draws it."""
 
 from __future__ import annotations
 

@@ -1,14 +1,5 @@
-"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it.
-
-Replay is a pipeline, one stage per step of the data flow::
-
-    load_replay(path)             bytes → Telemetry            (load.load_telemetry)
-    run_estimators(tel, names)    Telemetry → {name: AttitudeEstimate}   (estimators.registry)
-    sinks                         each ``sink(tel, estimates)``: summary printing, Rerun .rrd, ...
-
-``steval replay`` checks its Rerun options first (before the work), then runs the stages and hands the result to
-the summary and, when asked, to the Rerun sink (``steval_viewer.replay_log.replay_sink``).
-"""
+"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it: :func:`load_replay`
+(bytes → Telemetry), :func:`run_estimators` (→ {name: AttitudeEstimate}), then the sinks (summary, Rerun)."""
 
 from __future__ import annotations
 
