@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import sub_app
+from steval_link.cli.app import argument, option, sub_app
 from steval_link.errors import UserError
 
 #: a developer's copy of the trials: ``../shared`` beside the project (editable install)
@@ -35,23 +35,19 @@ _BROAD_HELP = (
 
 @data_app.command("broad", help=_BROAD_HELP)
 def broad_command(
-    trials: Annotated[
+    trials: argument(
         Optional[list[str]],
-        typer.Argument(
-            metavar="TRIALS",
-            help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the "
-            "accuracy table (02 07 10 15 24 27).",
-            show_default=False,
-        ),
-    ] = None,
-    directory: Annotated[
+        metavar="TRIALS",
+        help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the accuracy table "
+        "(02 07 10 15 24 27).",
+        show_default=False,
+    ) = None,
+    directory: option(
         Optional[Path],
-        typer.Option(
-            "--dir",
-            help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
-            show_default=False,
-        ),
-    ] = None,
+        "--dir",
+        help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
+        show_default=False,
+    ) = None,
 ) -> None:
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time
 

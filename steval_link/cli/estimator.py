@@ -10,11 +10,11 @@ from __future__ import annotations
 import re
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import sub_app
+from steval_link.cli.app import argument, option, sub_app
 from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar
@@ -43,8 +43,8 @@ def starter_source(class_name: str = STARTER_CLASS) -> str:
 
 @estimator_app.command("new")
 def new_command(
-    file: Annotated[Path, typer.Argument(help="The Python file to write, e.g. my_ekf.py.", show_default=False)],
-    class_name: Annotated[str, typer.Option("--class", help="Name of the estimator class in it.")] = STARTER_CLASS,
+    file: argument(Path, help="The Python file to write, e.g. my_ekf.py.", show_default=False),
+    class_name: option(str, "--class", help="Name of the estimator class in it.") = STARTER_CLASS,
     force: ForceOption = False,
 ) -> None:
     """Write a starter estimator that works as it is: a 3-state EKF (Euler angles; prediction from the gyro,
@@ -65,24 +65,20 @@ def new_command(
 
 @estimator_app.command("check")
 def check_command(
-    estimator: Annotated[
+    estimator: argument(
         str,
-        typer.Argument(
-            help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
-            "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
-            show_default=False,
-        ),
-    ],
-    broad_path: Annotated[
+        help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
+        "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
+        show_default=False,
+    ),
+    broad_path: option(
         Optional[list[Path]],
-        typer.Option(
-            "--broad",
-            help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
-            f"{DEFAULT_BROAD} when it exists.",
-            show_default=False,
-        ),
-    ] = None,
-    no_broad: Annotated[bool, typer.Option("--no-broad", help="Do not score on BROAD trials (quicker).")] = False,
+        "--broad",
+        help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
+        f"{DEFAULT_BROAD} when it exists.",
+        show_default=False,
+    ) = None,
+    no_broad: option(bool, "--no-broad", help="Do not score on BROAD trials (quicker).") = False,
     as_json: JsonReportOption = False,
 ) -> None:
     """Check an estimator's interface (shapes, units and signs at rest and tilted, a turn, NaN and invalid input,

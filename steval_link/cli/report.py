@@ -6,15 +6,13 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis import html_report as H
 from steval_link.analysis import spectrum as S
 from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
 from steval_link.cli.compare import CompareEstimatorsOption
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs
@@ -40,26 +38,20 @@ def _spectrum(tel):
 
 @app.command("report")
 def report_command(
-    captures: Annotated[
-        list[Path],
-        typer.Argument(
-            help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
-        ),
-    ],
-    out: Annotated[
+    captures: argument(
+        list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
+    ),
+    out: option(
+        Optional[Path], "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
+    ) = None,
+    markdown: option(
         Optional[Path],
-        typer.Option("--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."),
-    ] = None,
-    markdown: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--markdown",
-            metavar="REPORT.md",
-            help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
-        ),
-    ] = None,
+        "--markdown",
+        metavar="REPORT.md",
+        help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
+    ) = None,
     estimator: CompareEstimatorsOption = None,
-    title: Annotated[Optional[str], typer.Option("--title", help="The report's title.")] = None,
+    title: option(Optional[str], "--title", help="The report's title.") = None,
     force: ForceOption = False,
 ) -> None:
     """A lab report in one command: per capture its summary and filter settings, the attitude figure with
