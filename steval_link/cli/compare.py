@@ -66,21 +66,6 @@ def _settings(tel, changes: dict):
     return replace(base, **changes)
 
 
-_Captures = argument(
-    Optional[list[Path]],
-    help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
-    "flights side by side (see below).",
-    show_default=False,
-    metavar="CAPTURE",
-)
-_Plot = option(
-    Optional[Path],
-    "--plot",
-    metavar="OUT.png",
-    help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
-    "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more captures "
-    'one figure of the flights side by side; needs matplotlib: pip install "steval-link\\[plot]".',
-)
 #: ``-e`` of compare and report: the estimators compared with the firmware
 CompareEstimatorsOption = option(
     Optional[list[str]],
@@ -90,29 +75,40 @@ CompareEstimatorsOption = option(
     help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as FILE.py:CLASS "
     "or module:CLASS (docs/ESTIMATORS.md). The seeded ST-Mahony replica is always compared.",
 )
-_Align = option(
-    str,
-    "--align",
-    metavar="time|motion",
-    help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the gyro "
-    "with the first capture's (motion; the lag found is printed).",
-)
-_Label = option(
-    Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
-)
 
 
 @app.command("compare")
 @with_rerun_options
 @with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
-    captures: _Captures = None,
+    captures: argument(
+        Optional[list[Path]],
+        help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
+        "flights side by side (see below).",
+        show_default=False,
+        metavar="CAPTURE",
+    ) = None,
     as_json: JsonReportOption = False,
-    plot: _Plot = None,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        metavar="OUT.png",
+        help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
+        "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more "
+        'captures one figure of the flights side by side; needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
     estimator: CompareEstimatorsOption = None,
     filters: dict = None,
-    align: _Align = "time",
-    label: _Label = None,
+    align: option(
+        str,
+        "--align",
+        metavar="time|motion",
+        help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the "
+        "gyro with the first capture's (motion; the lag found is printed).",
+    ) = "time",
+    label: option(
+        Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
+    ) = None,
     force: ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,

@@ -34,63 +34,7 @@ from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, 
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import SinkOptions
 
-_Elf = argument(
-    Path,
-    help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
-    "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release (patched or stock, e.g. from "
-    "STM32CubeIDE).",
-)
-_Scenario = option(
-    str,
-    "--scenario",
-    "-s",
-    help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), preflight "
-    "(the preflight check's hand moves).",
-)
-_Broad = option(
-    Optional[Path],
-    "--broad",
-    help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the capture "
-    "keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
-)
-_Duration = option(
-    Optional[float],
-    "--duration",
-    help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ 2.985 "
-    "s).",
-)
-_Seed = option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).")
-_Mount = option(
-    Optional[str],
-    "--mount",
-    help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
-    "reversed), as a wrong COORDINATE_SYSTEM would read it.",
-)
-_Estimators = option(
-    Optional[list[str]],
-    "--estimators",
-    "-e",
-    help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
-)
 _Realtime = option(bool, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
-_Commands = option(
-    Optional[Path],
-    "--commands",
-    help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction off', "
-    "'15 reset'), sent to the firmware's USART1 RX at those times.",
-)
-_Prompt = option(
-    Optional[bool],
-    "--prompt/--no-prompt",
-    help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the emulated "
-    "firmware. Default: when stdin is a terminal.",
-)
-_Ble = option(
-    bool,
-    "--ble",
-    help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
-    "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
-)
 _BleConnectAt = option(float, "--ble-connect-at", help="With --ble: emulated s at which the central connects.")
 _TickStartMs = option(
     int,
@@ -103,21 +47,67 @@ _TickStartMs = option(
 @app.command("emulate")
 @with_rerun_options
 def emulate_command(
-    elf: _Elf,
-    scenario: _Scenario = "bench",
-    broad: _Broad = None,
-    duration: _Duration = None,
-    seed: _Seed = 0,
+    elf: argument(
+        Path,
+        help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
+        "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release (patched or stock, e.g. from "
+        "STM32CubeIDE).",
+    ),
+    scenario: option(
+        str,
+        "--scenario",
+        "-s",
+        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
+        "preflight (the preflight check's hand moves).",
+    ) = "bench",
+    broad: option(
+        Optional[Path],
+        "--broad",
+        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
+        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
+    ) = None,
+    duration: option(
+        Optional[float],
+        "--duration",
+        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ "
+        "2.985 s).",
+    ) = None,
+    seed: option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
-    mount: _Mount = None,
+    mount: option(
+        Optional[str],
+        "--mount",
+        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
+        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
+    ) = None,
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
-    estimators: _Estimators = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimators",
+        "-e",
+        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
+    ) = None,
     realtime: _Realtime = False,
-    commands: _Commands = None,
-    prompt: _Prompt = None,
-    ble: _Ble = False,
+    commands: option(
+        Optional[Path],
+        "--commands",
+        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction "
+        "off', '15 reset'), sent to the firmware's USART1 RX at those times.",
+    ) = None,
+    prompt: option(
+        Optional[bool],
+        "--prompt/--no-prompt",
+        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the emulated "
+        "firmware. Default: when stdin is a terminal.",
+    ) = None,
+    ble: option(
+        bool,
+        "--ble",
+        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
+        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
+    ) = False,
     ble_connect_at: _BleConnectAt = 0.5,
     tick_start_ms: _TickStartMs = 0,
     variant: VariantOption = None,

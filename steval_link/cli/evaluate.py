@@ -47,73 +47,65 @@ _HELP = (
 )
 
 
-_Data = argument(
-    Optional[list[Path]],
-    help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of steval "
-    "data broad.",
-    show_default=False,
-)
-_Estimators = option(
-    Optional[list[str]],
-    "--estimators",
-    "-e",
-    help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, mekf, "
-    "vqf, or your own (FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
-    "available.",
-)
 _OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-_Plot = option(
-    Optional[Path],
-    "--plot",
-    help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: pip "
-    'install "steval-link\\[plot]").',
-    show_default=False,
-)
-_SensorNoise = option(
-    bool,
-    "--sensor-noise",
-    help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
-    "quantisation.",
-)
-_Seed = option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).")
-_Firmware = option(
-    Optional[list[Path]],
-    "--firmware",
-    help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
-    show_default=False,
-)
 _Csv = option(
     Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
-)
-_Markdown = option(
-    Optional[Path],
-    "--markdown",
-    help="Also write the table as Markdown (to paste in a report) to this file.",
-    show_default=False,
-)
-_MaxSeconds = option(
-    Optional[float],
-    "--max-seconds",
-    help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement starts "
-    "after 26-46 s).",
-    show_default=False,
 )
 
 
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
-    data: _Data = None,
-    estimators: _Estimators = None,
+    data: argument(
+        Optional[list[Path]],
+        help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of "
+        "steval data broad.",
+        show_default=False,
+    ) = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimators",
+        "-e",
+        help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, "
+        "mekf, vqf, or your own (FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: "
+        "all available.",
+    ) = None,
     as_json: JsonReportOption = False,
     own_rate: _OwnRate = False,
-    plot: _Plot = None,
-    sensor_noise: _SensorNoise = False,
-    seed: _Seed = 0,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
+        'pip install "steval-link\\[plot]").',
+        show_default=False,
+    ) = None,
+    sensor_noise: option(
+        bool,
+        "--sensor-noise",
+        help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
+        "quantisation.",
+    ) = False,
+    seed: option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).") = 0,
     force: ForceOption = False,
-    firmware: _Firmware = None,
+    firmware: option(
+        Optional[list[Path]],
+        "--firmware",
+        help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
+        show_default=False,
+    ) = None,
     csv_out: _Csv = None,
-    markdown_out: _Markdown = None,
-    max_seconds: _MaxSeconds = None,
+    markdown_out: option(
+        Optional[Path],
+        "--markdown",
+        help="Also write the table as Markdown (to paste in a report) to this file.",
+        show_default=False,
+    ) = None,
+    max_seconds: option(
+        Optional[float],
+        "--max-seconds",
+        help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
+        "starts after 26-46 s).",
+        show_default=False,
+    ) = None,
     variant: VariantOption = None,
 ) -> None:
     from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands

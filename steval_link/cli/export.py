@@ -72,24 +72,6 @@ def write_parquet(table: dict[str, np.ndarray], path: Path) -> None:
     pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), str(path))
 
 
-_Capture = argument(Path, help="Capture (.stv), raw serial dump or text-mode log.")
-_Csv = option(
-    Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
-)
-_Parquet = option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
-_Raw = option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")
-_Mat = option(
-    Optional[Path],
-    "--mat",
-    help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
-    "settings and header (needs scipy).",
-)
-_Mcap = option(
-    Optional[Path],
-    "--mcap",
-    help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
-    "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
-)
 _Degrees = option(
     bool, "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
 )
@@ -97,12 +79,24 @@ _Degrees = option(
 
 @app.command()
 def export(
-    capture: _Capture,
-    csv: _Csv = None,
-    parquet: _Parquet = None,
-    raw: _Raw = None,
-    mat: _Mat = None,
-    mcap: _Mcap = None,
+    capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log."),
+    csv: option(
+        Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
+    ) = None,
+    parquet: option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
+    raw: option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
+    mat: option(
+        Optional[Path],
+        "--mat",
+        help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
+        "settings and header (needs scipy).",
+    ) = None,
+    mcap: option(
+        Optional[Path],
+        "--mcap",
+        help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
+        "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
+    ) = None,
     degrees: _Degrees = False,
     force: ForceOption = False,
 ) -> None:

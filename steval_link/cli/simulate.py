@@ -195,80 +195,66 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
     return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
-_Gyro = option(
-    tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
-)
-_Acc = option(
-    tuple[float, float, float],
-    "--acc",
-    metavar="X Y Z",
-    help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
-)
-_Iterations = option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).")
-_Noise = option(
-    bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
-)
 _GyroNoise = option(
     Optional[str], "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
-)
-_AccNoise = option(
-    Optional[str],
-    "--acc-noise",
-    metavar="MG|on",
-    help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
-)
-_Seed = option(Optional[int], "--seed", help="Noise seed (default: random, printed).")
-_Throttle = option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.")
-_Kp = option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.")
-_Estimator = option(
-    Optional[list[str]],
-    "--estimator",
-    "-e",
-    help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
-    "parentheses: docs/ESTIMATORS.md).",
-)
-_Csv = option(
-    Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
-)
-_Json = option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.")
-_Rrd = option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.")
-_Plot = option(
-    Optional[Path],
-    "--plot",
-    metavar="OUT.png",
-    help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
-)
-_CompareWith = option(
-    Optional[list[str]],
-    "--compare-with",
-    metavar="NAME=VALUE,...",
-    help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
-    "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with ki=1 "
-    "--compare-with correction=off.",
 )
 
 
 @app.command("simulate")
 def simulate_command(
-    gyro: _Gyro = BASELINE_GYRO_MDPS,
-    acc: _Acc = BASELINE_ACC_MG,
-    iterations: _Iterations = 100,
-    noise: _Noise = False,
+    gyro: option(
+        tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+    ) = BASELINE_GYRO_MDPS,
+    acc: option(
+        tuple[float, float, float],
+        "--acc",
+        metavar="X Y Z",
+        help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
+    ) = BASELINE_ACC_MG,
+    iterations: option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).") = 100,
+    noise: option(
+        bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
+    ) = False,
     gyro_noise: _GyroNoise = None,
-    acc_noise: _AccNoise = None,
-    seed: _Seed = None,
-    throttle: _Throttle = 0,
+    acc_noise: option(
+        Optional[str],
+        "--acc-noise",
+        metavar="MG|on",
+        help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
+    ) = None,
+    seed: option(Optional[int], "--seed", help="Noise seed (default: random, printed).") = None,
+    throttle: option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
     ki: KiOption = None,
-    kp: _Kp = None,
+    kp: option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.") = None,
     correction: CorrectionOption = None,
     variant: VariantOption = None,
     dt: DtOption = None,
-    estimators: _Estimator = None,
-    csv_out: _Csv = None,
-    json_out: _Json = False,
-    rrd: _Rrd = None,
-    plot: _Plot = None,
-    compare_with: _CompareWith = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimator",
+        "-e",
+        help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
+        "parentheses: docs/ESTIMATORS.md).",
+    ) = None,
+    csv_out: option(
+        Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+    ) = None,
+    json_out: option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.") = False,
+    rrd: option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.") = None,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        metavar="OUT.png",
+        help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
+    compare_with: option(
+        Optional[list[str]],
+        "--compare-with",
+        metavar="NAME=VALUE,...",
+        help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
+        "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with "
+        "ki=1 --compare-with correction=off.",
+    ) = None,
     force: ForceOption = False,
 ) -> None:
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).

@@ -28,57 +28,50 @@ MAX_NPERSEG = 65536
 MAX_THROTTLE_BINS = 100
 
 
-_Capture = argument(
-    Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
-)
-_Plot = option(
-    Optional[Path],
-    "--plot",
-    help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, .pdf, "
-    '...); needs matplotlib: pip install "steval-link\\[plot]".',
-)
 _Csv = option(
     Optional[Path],
     "--csv",
     help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in mdps²/Hz and mg²/Hz.",
 )
-_MarkHz = option(
-    Optional[list[float]],
-    "--mark-hz",
-    metavar="HZ",
-    help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro also "
-    "at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
-)
-_Nperseg = option(
-    Optional[int],
-    "--nperseg",
-    metavar="ROWS",
-    help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
-    f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-    show_default=False,
-)
-_Overlap = option(float, "--overlap", help="Fraction of a window the next one overlaps.")
-_ThrottleBins = option(
-    int,
-    "--throttle-bins",
-    metavar="N",
-    help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
-)
-_Peaks = option(int, "--peaks", metavar="N", help="Peaks printed per axis.")
 _MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
 
 
 @app.command("spectrum")
 @with_rerun_options
 def spectrum_cmd(
-    capture: _Capture,
-    plot: _Plot = None,
+    capture: argument(
+        Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
+    ),
+    plot: option(
+        Optional[Path],
+        "--plot",
+        help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, "
+        '.pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
     csv_out: _Csv = None,
-    mark_hz: _MarkHz = None,
-    nperseg: _Nperseg = None,
-    overlap: _Overlap = 0.5,
-    throttle_bins: _ThrottleBins = 10,
-    peaks: _Peaks = 3,
+    mark_hz: option(
+        Optional[list[float]],
+        "--mark-hz",
+        metavar="HZ",
+        help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro "
+        "also at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
+    ) = None,
+    nperseg: option(
+        Optional[int],
+        "--nperseg",
+        metavar="ROWS",
+        help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+        f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+        show_default=False,
+    ) = None,
+    overlap: option(float, "--overlap", help="Fraction of a window the next one overlaps.") = 0.5,
+    throttle_bins: option(
+        int,
+        "--throttle-bins",
+        metavar="N",
+        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+    ) = 10,
+    peaks: option(int, "--peaks", metavar="N", help="Peaks printed per axis.") = 3,
     min_hz: _MinHz = 1.0,
     force: ForceOption = False,
     rerun: SinkOptions = None,
