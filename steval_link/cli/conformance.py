@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -106,8 +105,7 @@ def _print_json(results, settings: MahonySettings, scores: dict[str, int] | None
             for r in results
         ],
     }
-    json.dump(out, sys.stdout, indent=2)
-    sys.stdout.write("\n")
+    print(json.dumps(out, indent=2))
 
 
 def _print_table(results, all_ok: bool) -> None:

@@ -87,33 +87,18 @@ def check_command(
     truth on BROAD trials. Exit 1 when a check fails."""
     from steval_link.analysis.estimator_check import format_check, run_check  # reason: start-up time
 
-    if no_broad:
-        paths = []
-        note = ""
-    elif broad_path:
-        paths = broad.trial_paths(broad_path)
-        note = ""
-    elif DEFAULT_BROAD.is_dir():
-        paths = broad.trial_paths([DEFAULT_BROAD])
-        note = ""
-    elif (cached := find_broad_data()) is not None:  # the trials of steval data broad
-        paths = broad.trial_paths([cached])
-        note = ""
-    else:
-        paths = []
-        note = "no BROAD trials (steval data broad downloads them; --broad PATH scores on others)"
+    folders = [] if no_broad else broad_path or ([DEFAULT_BROAD] if DEFAULT_BROAD.is_dir() else [])
+    if not (no_broad or folders) and (cached := find_broad_data()) is not None:  # the trials of steval data broad
+        folders = [cached]
     with progress_bar("estimator check", quiet=as_json) as progress:
-        report = run_check(estimator, broad_paths=paths, progress=progress)
-    if note and not report.broad_note:
-        report.broad_note = note
-    if report.traceback and not as_json:
-        print(report.traceback, file=sys.stderr)
+        report = run_check(estimator, broad_paths=broad.trial_paths(folders) if folders else [], progress=progress)
+    if not (no_broad or folders or report.broad_note):
+        report.broad_note = "no BROAD trials (steval data broad downloads them; --broad PATH scores on others)"
     if as_json:
-        d = report.as_dict()
-        if report.traceback:
-            d["traceback"] = report.traceback
-        print_json(d)
+        print_json(report.as_dict() | ({"traceback": report.traceback} if report.traceback else {}))
     else:
+        if report.traceback:
+            print(report.traceback, file=sys.stderr)
         print("\n".join(format_check(report)))
     if not report.ok:
         raise typer.Exit(1)
