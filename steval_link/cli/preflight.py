@@ -18,7 +18,7 @@ from steval_link import constants as C
 from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
 from steval_link.cli.checks import flag_of, require_attitude
-from steval_link.cli.live import session_outputs
+from steval_link.cli.live import check_baud, session_outputs
 from steval_link.cli.outputs import print_warnings
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
@@ -92,8 +92,7 @@ def preflight_command(
             raise UserError("--out is for the live check (--port); a capture is only read.")
         path = capture
     else:
-        if baud <= 0:
-            raise UserError(f"--baud must be a positive baud rate, got {baud}")
+        check_baud(baud)
         options, source = LiveOptions(duration_s=LIVE_S, word=flag_of), port_source(port, baud=baud)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
