@@ -55,14 +55,12 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]
         redirect_stderr=True,
     )
     task = bar.add_task(description, total=1.0, stage="")
-    lock = threading.Lock()
-    state = {"shown": False, "done": False}
+    lock, done = threading.Lock(), threading.Event()
 
     def show() -> None:  # after SHOW_AFTER_S, whether or not the job reported meanwhile
         with lock:
-            if not state["done"]:
+            if not done.is_set():
                 bar.start()
-                state["shown"] = True
 
     def update(fraction: float, stage: str = "") -> None:
         bar.update(task, completed=min(max(float(fraction), 0.0), 1.0), stage=stage)
@@ -75,6 +73,5 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]
     finally:
         timer.cancel()
         with lock:
-            state["done"] = True
-            if state["shown"]:
-                bar.stop()
+            done.set()
+            bar.stop()  # nothing when it never started
