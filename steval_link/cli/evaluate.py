@@ -134,32 +134,17 @@ def evaluate_command(
                 bar(1.0, f"writing {out.name}")
                 with atomic_output(out, option=option, keep_suffix=True) as part:
                     writers[option](results, part)
-    _print(
-        results,
-        own_rate=own_rate,
-        sensor_noise=sensor_noise,
-        seed=seed,
-        max_seconds=max_seconds,
-        as_json=as_json,
-        files={"plot": plot, "csv": csv_out, "markdown": markdown_out},
-    )
-
-
-def _print(results, *, own_rate: bool, sensor_noise: bool, seed: int, max_seconds, as_json: bool, files: dict) -> None:
-    """The table and the files written, or the JSON report."""
-    from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
-
-    if as_json:
-        report = ev.summary(results)
-        report["mode"] = "own-rate" if own_rate else "steval-pipeline"
-        report["sensor_noise"] = bool(sensor_noise and not own_rate)
-        report["seed"] = seed
-        if max_seconds is not None:
-            report["max_seconds"] = max_seconds
-        report.update({key: str(out) for key, out in files.items() if out is not None})
-        typer.echo(json.dumps(report, allow_nan=False))
+    if not as_json:  # the table and the files written
+        typer.echo(ev.format_table(results))
+        for out, what in zip(outputs.values(), ("plot", "CSV table", "Markdown table")):
+            if out is not None:
+                typer.echo(f"{what} written to {out}")
         return
-    typer.echo(ev.format_table(results))
-    for (key, out), what in zip(files.items(), ("plot", "CSV table", "Markdown table")):
-        if out is not None:
-            typer.echo(f"{what} written to {out}")
+    report = ev.summary(results)
+    report["mode"] = "own-rate" if own_rate else "steval-pipeline"
+    report["sensor_noise"] = bool(sensor_noise and not own_rate)
+    report["seed"] = seed
+    if max_seconds is not None:
+        report["max_seconds"] = max_seconds
+    report.update({flag[2:]: str(out) for flag, out in outputs.items() if out is not None})
+    typer.echo(json.dumps(report, allow_nan=False))
