@@ -12,6 +12,7 @@ from typing import Optional
 
 from steval_link.cli.app import option, with_options
 from steval_link.errors import ParamError, UserError
+from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import variant_name
 
 #: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
@@ -31,6 +32,11 @@ _FLAGS = {
 def flag_of(param: str) -> str:
     """The command-line flag of a library parameter (``duration_s`` → ``--duration``)."""
     return _FLAGS.get(param, "--" + param.replace("_", "-"))
+
+
+def estimator_names(given: list[str] | None, default, **kwargs) -> list[str]:
+    """The estimators of a repeatable ``-e`` whose values may be comma-separated lists (``default`` when none)."""
+    return registry.parse_names(",".join(given) if given else None, default, **kwargs)
 
 
 def user_message(exc: Exception) -> str:

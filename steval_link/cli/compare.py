@@ -22,7 +22,14 @@ from steval_link.analysis.side_by_side import (
     side_by_side,
 )
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import command_line, filter_settings, flag_of, require_attitude, with_filter_options
+from steval_link.cli.checks import (
+    command_line,
+    estimator_names,
+    filter_settings,
+    flag_of,
+    require_attitude,
+    with_filter_options,
+)
 from steval_link.cli.outputs import (
     ForceOption,
     JsonReportOption,
@@ -54,16 +61,6 @@ def flight_plot_path(out_png: Path) -> Path:
     """Where ``--plot OUT.png`` puts the flight-control figure of a capture with flight-control frames:
     ``OUT-flight-control.png``."""
     return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
-
-
-def _settings(tel, changes: dict):
-    """Replica settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
-    if not changes:
-        return None
-    s = tel.status
-    exact = [j for j in range(len(s)) if s.exact[j]]
-    base = MahonySettings.of_status(s, exact[0]) if exact else MahonySettings()
-    return replace(base, **changes)
 
 
 #: ``-e`` of compare and report: the estimators compared with the firmware
@@ -157,10 +154,8 @@ def compare_command(
 
 def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, plot, force: bool, text_map) -> None:
     """``steval compare CAPTURE``: the firmware against the replica and the estimators (text or JSON, figures)."""
-    # repeatable, and each value may be a comma-separated list like the other commands' --estimators
-    names = registry.parse_names(
-        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
-    )  # a missing optional package is a row of the report
+    # a missing optional package is a row of the report
+    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
@@ -172,30 +167,28 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")
-        settings = _settings(tel, changes)
+        settings = None
+        if changes:  # the status frames' settings (or the defaults) with the given ones replaced
+            exact = [j for j in range(len(tel.status)) if tel.status.exact[j]]
+            settings = replace(MahonySettings.of_status(tel.status, exact[0]) if exact else MahonySettings(), **changes)
         report = compare_capture(tel, estimators=names, settings=settings, variant=variant, variant_source="--variant")
         if as_json:
             report.notes.extend(seen)
         if plot is not None:
+            from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
+
             progress(0.9, f"plotting {plot.name}")
-            _plots(tel, report, plot, fc_plot)
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_comparison(tel, report, part)
+                if fc_plot is not None:  # the flight-control figure, where the drone was armed
+                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                        plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
     if fc_plot is not None:
         plots.append(("plot_flight_control", "flight-control plot", fc_plot))
     _print_report(as_json, report.as_dict, lambda: format_report(report) + _rerun_line(report, src.path), plots)
     if plot is not None and no_fc_plot is not None and len(tel.fc):
         print(f"no flight-control plot: {no_fc_plot}.", file=sys.stderr if as_json else sys.stdout)
-
-
-def _plots(tel, report, plot: Path, fc_plot: Path | None) -> None:
-    """The comparison figure, and the flight-control one where the drone was armed."""
-    from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
-
-    with atomic_output(plot, option="--plot", keep_suffix=True) as part:
-        plot_comparison(tel, report, part)
-        if fc_plot is not None:
-            with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
-                plot_flight_control(tel, fc_part)
 
 
 def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:

@@ -14,9 +14,10 @@ from steval_link.cli.checks import (
     VariantOption,
     check_variant,
     command_line,
+    estimator_names,
     flag_of,
 )
-from steval_link.cli.live import check_duration, live_estimators, session_outputs
+from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -26,6 +27,7 @@ from steval_link.cli.viewer_options import (
 )
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
+from steval_link.estimators import registry
 from steval_link.estimators.runner import run_estimator
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
@@ -154,7 +156,7 @@ def emulate_command(
         variant=variant,
         variant_from="--variant",
     )
-    options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt, word=flag_of)
+    options = LiveOptions(estimators=estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=flag_of)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()

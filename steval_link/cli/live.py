@@ -12,7 +12,7 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
-from steval_link.cli.checks import VariantOption, check_variant, flag_of
+from steval_link.cli.checks import VariantOption, check_variant, estimator_names, flag_of
 from steval_link.cli.outputs import check_output
 from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
@@ -76,11 +76,6 @@ def run_session(session: LiveSession) -> None:
         os.close(devnull)
     if summary.failures:
         raise typer.Exit(OUTPUT_FAILED_EXIT)
-
-
-def live_estimators(estimators: list[str] | None) -> list[str]:
-    """The host estimators of ``-e`` (comma-separated or repeated; 'none'), default those of a live session."""
-    return registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT)
 
 
 def check_duration(duration: float | None) -> None:
@@ -154,7 +149,7 @@ def live_command(
             raise UserError(f"--ble-layout {ble_layout} goes with --ble")
         source = port_source(port or "auto", baud=baud, wait=wait)
     options = LiveOptions(
-        estimators=live_estimators(estimators),
+        estimators=estimator_names(estimators, registry.LIVE_DEFAULT),
         duration_s=duration,
         prompt=prompt,
         variant=variant,

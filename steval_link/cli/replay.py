@@ -14,7 +14,7 @@ from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
-from steval_link.cli.checks import VariantOption, check_variant
+from steval_link.cli.checks import VariantOption, check_variant, estimator_names
 from steval_link.cli.outputs import ForceOption, print_json, print_warnings
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
@@ -174,9 +174,7 @@ def replay(
     replaced only with --force)."""
     viewer, rrd = rerun.any(), rerun.rrd
     variant = check_variant(variant)
-    names = registry.parse_names(
-        ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
-    )
+    names = estimator_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
     options = view_sinks(rerun, force=force, inputs=(src.path,))

@@ -13,7 +13,7 @@ from steval_link.analysis import spectrum as S
 from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import require_attitude
+from steval_link.cli.checks import estimator_names, require_attitude
 from steval_link.cli.compare import CompareEstimatorsOption
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar, scaled
@@ -61,9 +61,7 @@ def report_command(
     figure and loads nothing from the network: open it in any browser, hand it in or paste from it."""
     if out is None and markdown is None:
         raise UserError("give --out REPORT.html and/or --markdown REPORT.md: where the report goes.")
-    names = registry.parse_names(
-        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
-    )
+    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
     sources = [read_recording(c) for c in captures]  # the inputs first, then the outputs
     for src in sources:
         if is_ble_source(src):
