@@ -51,8 +51,7 @@ _INTERRUPTED = 130
 
 
 def _hide_flag_metavars(command) -> None:
-    """Boolean flags take no value: show no ``<bool>`` for them in ``--help`` (on every sub-command; the help
-    option itself is made here, as click would make it for a context with :data:`HELP_OPTION_NAMES`)."""
+    """Boolean flags (the help option too) show no ``<bool>`` in ``--help``, on every sub-command."""
     help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
     for param in [*getattr(command, "params", ()), help_option]:
         if getattr(param, "is_flag", False) and param.metavar is None:
@@ -71,13 +70,8 @@ def _usage_line(exc) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``steval`` console script.
-
-    User errors (:class:`UserError`) and usage errors (unknown option, bad value) become one line
-    ``steval: error: ...`` on stderr and exit code 2; ``--help``/``-h`` and ``--version`` exit 0; Ctrl-C exits 130,
-    and SIGTERM/SIGHUP end it the same way (its cleanup runs). Never a traceback for bad input, never a raw
-    control character from the input echoed to the terminal.
-    """
+    """The ``steval`` console script: user and usage errors are one ``steval: error:`` line (exit 2), never a
+    traceback; Ctrl-C, SIGTERM and SIGHUP exit 130 after the cleanup."""
     command = typer.main.get_command(app)
     _hide_flag_metavars(command)
     try:

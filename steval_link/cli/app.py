@@ -1,5 +1,4 @@
-"""The typer application object that every ``steval`` sub-command registers on, with the top-level options
-(``--version``; ``-h`` as well as ``--help`` everywhere)."""
+"""The typer ``app`` every ``steval`` sub-command registers on (``--version``; ``-h`` as well as ``--help``)."""
 
 import functools
 import inspect

@@ -1,5 +1,4 @@
-"""``steval ble scan``: the BLE devices in range, ST's drones (``DRN1…``) first. ``steval live --ble`` is in
-:mod:`steval_link.cli.live`."""
+"""``steval ble scan``: the BLE devices in range, ST's drones (``DRN1…``) first."""
 
 from __future__ import annotations
 

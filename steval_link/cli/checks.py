@@ -1,6 +1,4 @@
-"""Range checks of command-line values shared by the sub-commands: each raises a one-line
-:class:`~steval_link.errors.UserError` naming the option, before any work is done; and the one rule for a capture
-without attitude frames (:func:`require_attitude`)."""
+"""Checks of command-line values shared by the sub-commands, each a one-line UserError naming the option."""
 
 from __future__ import annotations
 
@@ -186,9 +184,7 @@ def check_vector(option: str, values: Sequence[float], unit: str) -> None:
 
 
 def require_attitude(tel, purpose: str) -> None:
-    """The one rule for a capture without attitude frames (cut short, text only, status only), in every command
-    that needs them: UserError saying what the capture holds instead and what cannot be done. A BLE capture's rows
-    are the sender's samples, no serial frames: these commands need the serial stream."""
+    """A capture without attitude frames (or a BLE one): UserError saying what it holds and what cannot be done."""
     path = tel.source.get("path", "the capture")
     try:
         size = f"{os.path.getsize(path)} bytes, "

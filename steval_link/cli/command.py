@@ -1,9 +1,5 @@
-"""``steval param get|set`` and ``steval command reset-filter|status|mode``: commands to the drone over USART1 RX.
-
-Each sends one command frame, waits for the acknowledgement (``--timeout``) and prints one sentence; a refusal or no
-answer is one ``steval: error:`` line (exit 2). While ``steval live`` holds the port, type the same commands at its
-prompt instead (they are then recorded in its capture and shown on the viewer's timeline).
-"""
+"""``steval param get|set`` and ``steval command reset-filter|status|mode``: one command frame to the drone over
+USART1 RX, its acknowledgement printed (a refusal or no answer: one ``steval: error:`` line)."""
 
 from __future__ import annotations
 

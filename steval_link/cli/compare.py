@@ -1,9 +1,4 @@
-"""``steval compare``: the firmware's angles against the bit-exact replica, the EKFs and accelerometer-only tilt.
-
-Exit codes: 0 when the report was produced — also when the replica disagrees with the firmware (that is a finding,
-shown with its first step and a diagnosis, and ``replica.all_exact`` is false in ``--json``); 2 for user errors
-(missing or unreadable capture, no attitude frames, unknown estimator, matplotlib missing for ``--plot``).
-"""
+"""``steval compare``: the firmware's angles against the bit-exact replica, the EKFs and accelerometer-only tilt."""
 
 from __future__ import annotations
 
@@ -58,8 +53,7 @@ __all__ = ["compare_command"]
 
 
 def flight_plot_path(out_png: Path) -> Path:
-    """Where ``--plot OUT.png`` puts the flight-control figure of a capture with flight-control frames:
-    ``OUT-flight-control.png``."""
+    """Where ``--plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
     return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
 
 
@@ -192,8 +186,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
 
 
 def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:
-    """The report on stdout: one JSON object (``as_dict()`` with each written figure under its JSON key), or its
-    lines (``format_lines()``) and a line ``LABEL: PATH`` per figure. ``plots``: (JSON key, label, path)."""
+    """The report as JSON or lines, with each figure written; ``plots``: (JSON key, label, path)."""
     if as_json:
         d = as_dict()
         d.update({key: str(path) for key, _, path in plots})
@@ -205,8 +198,7 @@ def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, s
 
 
 def _load_flight(path: Path):
-    """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
-    with the ST-Mahony replica run over them."""
+    """One capture as a side-by-side ``Flight`` (a BLE capture's: the ST-Mahony replica over its samples)."""
     src = read_recording(path)
     tel = telemetry_of_recording(src)
     if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples

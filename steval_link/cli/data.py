@@ -63,8 +63,7 @@ def broad_command(
 
 
 def find_broad_data() -> Path | None:
-    """The folder of the BROAD trials to use when none is given: the cache's, else a developer's ``../shared``
-    beside the project; None when neither holds any."""
+    """The folder of BROAD trials when none is given: the cache's, else ``../shared``'s; None when neither has any."""
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time
 
     try:
@@ -78,8 +77,7 @@ def find_broad_data() -> Path | None:
 
 
 def default_broad_data() -> list[Path]:
-    """The trials ``steval evaluate`` scores without DATA (:func:`find_broad_data`); none is one sentence (exit 2)
-    saying how to get them."""
+    """The trials ``steval evaluate`` scores without DATA; none: a UserError saying how to get them."""
     found = find_broad_data()
     if found is not None:
         return [found]

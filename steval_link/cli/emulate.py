@@ -176,8 +176,7 @@ def _script(commands: Path | None):
 
 
 def _estimator_lines(summary, names) -> list[str]:
-    """One line per host estimator (``-e``) over the run's capture: valid rows, the first invalid step, the RMS
-    difference from the firmware (as ``steval replay -e`` says it)."""
+    """One line per host estimator (``-e``) over the run's capture, as ``steval replay -e`` says it."""
     path = Path(summary.capture_path)
     if not names or summary.capture_discarded or not path.is_file():
         return []

@@ -1,9 +1,5 @@
 """``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (interface checks,
-then its scores next to ST-Mahony and VQF on the bundled captures and on BROAD trials).
-
-Exit codes of ``check``: 0 when every interface check passes, 1 when one fails (the report says which and why),
-2 for user errors (the file, class or options cannot be loaded: one line).
-"""
+then scores)."""
 
 from __future__ import annotations
 

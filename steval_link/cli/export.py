@@ -50,8 +50,7 @@ def in_degrees(table: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def write_csv(table: dict[str, np.ndarray], path: Path, progress=None, shortest: bool = False) -> None:
-    """Write a column table as CSV (comma separated, header row, ``\\n`` line endings, UTF-8);
-    ``progress(fraction, stage)`` hears of each column formatted; ``shortest``: float64 as ``_column_strings``."""
+    """Write a column table as CSV (header row, ``\\n`` line endings, UTF-8); ``shortest``: see ``_column_strings``."""
     cols = []
     for i, c in enumerate(table.values()):
         if progress is not None:

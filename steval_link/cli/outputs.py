@@ -90,13 +90,8 @@ def check_output(
     overwrite: str = "force",
     inputs: tuple[str | os.PathLike | None, ...] = (),
 ) -> Path:
-    """Check one output file before any work; returns it as a Path. Raises UserError, one sentence naming
-    ``option``, when: it is a folder; its folder is missing or not a folder; its folder takes no new file
-    (read-only, ``/proc``, no permission); it is one of ``inputs``; or it exists and may not be replaced.
-
-    ``overwrite``: ``"force"`` (replaced only with ``--force``: ``force`` true), ``"never"`` (captures: never
-    replaced), ``"always"`` (the command documents that it replaces the file).
-    """
+    """One output file, checked before any work (UserError naming ``option``); returns it as a Path. ``overwrite``:
+    ``"force"`` (an existing file replaced only with ``force``), ``"never"`` (captures) or ``"always"``."""
     p = Path(path).expanduser()
     label = f"{option} {p}".lstrip()  # option "": a path argument, named by itself
     if p.is_dir():
@@ -155,16 +150,14 @@ def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
 
 
 def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:
-    """One sentence for a writer that failed on ``path`` (disk full, folder removed, a sink that cannot create
-    its file)."""
+    """One sentence for a writer that failed on ``path`` (disk full, folder removed, ...)."""
     return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there".lstrip())
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
-    """Yield the partial path to write ``path`` to; on a normal exit rename it into place (replacing an earlier
-    file), on any exception (Ctrl-C included) remove it. ``OSError`` and ``RuntimeError`` from the writer become
-    one UserError sentence (:func:`output_error`); a UserError passes unchanged."""
+    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception
+    (a writer's ``OSError`` or ``RuntimeError`` becomes :func:`output_error`)."""
     final = Path(path)
     partial = partial_path(final, keep_suffix=keep_suffix)
     try:

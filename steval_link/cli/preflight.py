@@ -1,9 +1,5 @@
-"""``steval preflight``: the guided wiring check, live on the drone's port or on a capture.
-
-Live: records the port (as ``steval record``) while telling the user, move by move, what to do; then checks the
-capture. On a capture: checks it. The check itself is :mod:`steval_link.analysis.preflight`. Exit 0 when every
-check passes, 1 when the check names a problem, 2 for bad input (as every command).
-"""
+"""``steval preflight``: the guided wiring check, live on the drone's port (recorded, move by move) or on a
+capture."""
 
 from __future__ import annotations
 

@@ -31,8 +31,7 @@ def scaled(progress: Progress | None, start: float, end: float) -> Progress:
 
 @contextmanager
 def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]:
-    """A progress callback drawing a bar on stderr (description, bar, %, stage, elapsed time) while the block
-    runs; a no-op callback when ``quiet`` or when stderr is not a terminal."""
+    """A progress callback drawing a bar on stderr while the block runs (a no-op when ``quiet`` or not a tty)."""
     stream = sys.stderr
     if quiet or not getattr(stream, "isatty", lambda: False)():
         yield _nothing

@@ -110,8 +110,7 @@ def _has_sensor_rows(tel) -> bool:
 def summary_sink(
     as_json: bool, warnings_seen: list[str], variant: str | None = None, names: Sequence[str] = ()
 ) -> Sink:
-    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter;
-    ``names``: the estimators asked for (a line says why none ran on a log without sensor values)."""
+    """Sink printing the summary (text or JSON); ``names``: the estimators asked for."""
 
     def sink(tel, estimates) -> None:
         s = summarize(tel, variant=variant, variant_source="--variant")

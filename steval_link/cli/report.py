@@ -1,6 +1,4 @@
-"""``steval report``: one or more captures as a lab report, a self-contained HTML page (``--out``) and/or Markdown
-with its figures beside it (``--markdown``); the sections and writers are in
-:mod:`steval_link.analysis.html_report`."""
+"""``steval report``: one or more captures as a lab report (HTML and/or Markdown)."""
 
 from __future__ import annotations
 

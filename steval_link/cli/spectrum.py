@@ -1,6 +1,4 @@
-"""``steval spectrum``: PSD, spectrogram and frequency-vs-throttle map of the gyro and accelerometer of a capture
-(numerics in :mod:`steval_link.analysis.spectrum`; the figure in :mod:`steval_link.analysis.spectrum_plot`; the
-Rerun side in :mod:`steval_viewer.spectrum_log`)."""
+"""``steval spectrum``: PSD, spectrogram and frequency-vs-throttle map of a capture's gyro and accelerometer."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The Rerun sink options every viewing command shares (``--rrd``, ``--spawn``, ``--serve``, ``--connect``,
-``--web-port``, ``--grpc-port``): one definition, so their names and help read the same everywhere."""
+"""The Rerun sink options every viewing command shares, defined once."""
 
 from __future__ import annotations
 
@@ -62,9 +61,7 @@ def check_view_flags(rerun: SinkOptions, *, no_view: bool = False) -> None:
 
 
 def view_sinks(rerun: SinkOptions, *, force: bool, inputs: tuple = ()) -> SinkOptions | None:
-    """A batch command's Rerun outputs, checked before its work: the ``--rrd`` file as every output is, then the
-    sinks (a missing ``.rrd`` folder, a URL where nothing listens, a busy port: one
-    UserError sentence). None when no Rerun output was asked for."""
+    """A batch command's Rerun outputs, checked before its work (None when none was asked for)."""
     if rerun.rrd is not None:
         check_output(rerun.rrd, option="--rrd", force=force, inputs=inputs)
     if rerun.rrd is None and not (rerun.spawn or rerun.serve or rerun.connect is not None):
