@@ -184,10 +184,8 @@ def _estimator_lines(summary, names) -> list[str]:
         tel = load_telemetry(path)
     except UserError:
         return []
-    if not len(tel.attitude):
-        return []
     out = []
-    for name in names:
+    for name in names if len(tel.attitude) else []:
         est, why = run_estimator(name, tel)
         out.append(f"estimator {name}: {why}" if est is None else estimator_line(estimator_summary(name, est, tel)))
     return out

@@ -24,13 +24,6 @@ from steval_link.constants import BAUD, KI
 from steval_link.emulation.scenarios import SCENARIOS
 from steval_link.errors import UserError
 
-
-def _list() -> None:
-    typer.echo("Built-in scenarios (steval synth --scenario NAME; or --scenario path/to/BROAD_trial.npz):")
-    for sc in SCENARIOS.values():
-        typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
-
-
 _JoinAt = option(float, "--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
 _Encoder = option(str, "--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
 
@@ -90,7 +83,9 @@ def synth_cmd(
     from steval_link.emulation.synth import SynthOptions, synthesize, write_output  # reason: start-up time
 
     if list_:
-        _list()
+        typer.echo("Built-in scenarios (steval synth --scenario NAME; or --scenario path/to/BROAD_trial.npz):")
+        for sc in SCENARIOS.values():
+            typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
         return
     if scenario is None:
         raise UserError("--scenario is required (see steval synth --list)")
