@@ -2,34 +2,25 @@
 
 from __future__ import annotations
 
+import importlib
 import sys
 
 import typer
 
-# Each import registers its sub-command(s) on ``app`` (one per line, in the order of ``steval --help``).
-from steval_link.cli import ble as _ble  # noqa: F401
-from steval_link.cli import command as _command  # noqa: F401
-from steval_link.cli import compare as _compare  # noqa: F401
-from steval_link.cli import conformance as _conformance  # noqa: F401
-from steval_link.cli import data as _data  # noqa: F401
-from steval_link.cli import emulate as _emulate  # noqa: F401
-from steval_link.cli import estimator as _estimator  # noqa: F401
-from steval_link.cli import evaluate as _evaluate  # noqa: F401
-from steval_link.cli import export as _export  # noqa: F401
-from steval_link.cli import live as _live  # noqa: F401
-from steval_link.cli import ports as _ports  # noqa: F401
-from steval_link.cli import preflight as _preflight  # noqa: F401
-from steval_link.cli import replay as _replay  # noqa: F401
-from steval_link.cli import report as _report  # noqa: F401
-from steval_link.cli import simulate as _simulate  # noqa: F401
-from steval_link.cli import spectrum as _spectrum  # noqa: F401
-from steval_link.cli import synth as _synth  # noqa: F401
 from steval_link.cli.app import HELP_OPTION_NAMES, app
 from steval_link.cli.checks import user_message
 from steval_link.errors import UserError, printable
 from steval_link.stop_signals import interrupt, on_stop_signals
 
 __all__ = ["app", "main"]
+
+#: the sub-command modules: importing one registers its command(s) on ``app``
+COMMANDS = (
+    "ble command compare conformance data emulate estimator evaluate export live ports preflight replay report "
+    "simulate spectrum synth"
+).split()
+for _name in COMMANDS:
+    importlib.import_module(f"steval_link.cli.{_name}")
 
 
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
@@ -60,8 +51,7 @@ _INTERRUPTED = 130
 
 
 def _hide_flag_metavars(command) -> None:
-    """Boolean flags take no value: show no ``<bool>`` for them in ``--help`` (on every sub-command; the help
-    option itself is made here, as click would make it for a context with :data:`HELP_OPTION_NAMES`)."""
+    """Boolean flags (the help option too) show no ``<bool>`` in ``--help``, on every sub-command."""
     help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
     for param in [*getattr(command, "params", ()), help_option]:
         if getattr(param, "is_flag", False) and param.metavar is None:
@@ -80,13 +70,8 @@ def _usage_line(exc) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``steval`` console script.
-
-    User errors (:class:`UserError`) and usage errors (unknown option, bad value) become one line
-    ``steval: error: ...`` on stderr and exit code 2; ``--help``/``-h`` and ``--version`` exit 0; Ctrl-C exits 130,
-    and SIGTERM/SIGHUP end it the same way (its cleanup runs). Never a traceback for bad input, never a raw
-    control character from the input echoed to the terminal.
-    """
+    """The ``steval`` console script: user and usage errors are one ``steval: error:`` line (exit 2), never a
+    traceback; Ctrl-C, SIGTERM and SIGHUP exit 130 after the cleanup."""
     command = typer.main.get_command(app)
     _hide_flag_metavars(command)
     try:

@@ -1,7 +1,8 @@
-"""The typer application object that every ``steval`` sub-command registers on, with the top-level options
-(``--version``; ``-h`` as well as ``--help`` everywhere)."""
+"""The typer ``app`` every ``steval`` sub-command registers on (``--version``; ``-h`` as well as ``--help``)."""
 
-from typing import Optional
+import functools
+import inspect
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -9,6 +10,40 @@ from steval_link import __version__
 
 #: ``-h`` as well as ``--help``, on every command
 HELP_OPTION_NAMES = ["-h", "--help"]
+
+
+def option(kind: Any, *flags: str, **kw: Any) -> Any:
+    """A typer option declared once, as a parameter's type: ``Annotated[kind, typer.Option(*flags, **kw)]``."""
+    return Annotated[kind, typer.Option(*flags, **kw)]
+
+
+def argument(kind: Any, **kw: Any) -> Any:
+    """A typer argument declared once, as a parameter's type: ``Annotated[kind, typer.Argument(**kw)]``."""
+    return Annotated[kind, typer.Argument(**kw)]
+
+
+def with_options(keyword: str, params: tuple, build) -> Any:
+    """A decorator: the typer command takes ``params`` ((parameter, annotation, default), ...) where its parameter
+    ``keyword`` stands, and gets them as that one keyword, ``build(**their values)``."""
+
+    def decorate(command):
+        own = list(inspect.signature(command, eval_str=True).parameters.values())
+        at = [p.name for p in own].index(keyword)
+        kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+        added = [inspect.Parameter(name, kind, annotation=a, default=d) for name, a, d in params]
+
+        @functools.wraps(command)
+        def run(**kwargs):
+            bundle = build(**{name: kwargs.pop(name) for name, _, _ in params})
+            return command(**kwargs, **{keyword: bundle})
+
+        signature = [*own[:at], *added, *own[at + 1 :]]
+        run.__signature__ = inspect.Signature(signature)
+        run.__annotations__ = {p.name: p.annotation for p in signature}
+        return run
+
+    return decorate
+
 
 app = typer.Typer(
     name="steval",
@@ -33,3 +68,10 @@ def _top_level(
     ),
 ) -> None:
     """steval-link: live telemetry, capture, replay and attitude estimation for the ST STEVAL-FCU001V1 drone."""
+
+
+def sub_app(name: str, help: str) -> typer.Typer:
+    """A command group ``steval NAME ...`` (e.g. ``steval param get``), registered on :data:`app`."""
+    group = typer.Typer(help=help, no_args_is_help=True)
+    app.add_typer(group, name=name)
+    return group

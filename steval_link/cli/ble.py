@@ -1,5 +1,4 @@
-"""``steval ble scan``: the BLE devices in range, ST's drones (``DRN1…``) first. ``steval live --ble`` is in
-:mod:`steval_link.cli.live`."""
+"""``steval ble scan``: the BLE devices in range, ST's drones (``DRN1…``) first."""
 
 from __future__ import annotations
 
@@ -8,17 +7,14 @@ import sys
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import sub_app
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, LAYOUTS, layout_named
 from steval_link.link.ble_transport import BleBackend, BleDevice, bleak_backend, explain_ble_error
 
 __all__ = ["ble_app", "scan_devices", "format_devices"]
 
-ble_app = typer.Typer(
-    help="Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).", no_args_is_help=True
-)
-app.add_typer(ble_app, name="ble")
+ble_app = sub_app("ble", "Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).")
 
 
 def scan_devices(backend: BleBackend, timeout_s: float) -> list[BleDevice]:

@@ -1,6 +1,4 @@
-"""Range checks of command-line values shared by the sub-commands: each raises a one-line
-:class:`~steval_link.errors.UserError` naming the option, before any work is done; and the one rule for a capture
-without attitude frames (:func:`require_attitude`)."""
+"""Checks of command-line values shared by the sub-commands, each a one-line UserError naming the option."""
 
 from __future__ import annotations
 
@@ -8,11 +6,11 @@ import math
 import os
 import shlex
 from collections.abc import Sequence
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
-
+from steval_link.cli.app import option, with_options
 from steval_link.errors import ParamError, UserError
+from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import variant_name
 
 #: Largest gTHR the firmware can hold (int16; the remote gives 0 .. 255·13).
@@ -32,6 +30,11 @@ _FLAGS = {
 def flag_of(param: str) -> str:
     """The command-line flag of a library parameter (``duration_s`` → ``--duration``)."""
     return _FLAGS.get(param, "--" + param.replace("_", "-"))
+
+
+def estimator_names(given: list[str] | None, default, **kwargs) -> list[str]:
+    """The estimators of a repeatable ``-e`` whose values may be comma-separated lists (``default`` when none)."""
+    return registry.parse_names(",".join(given) if given else None, default, **kwargs)
 
 
 def user_message(exc: Exception) -> str:
@@ -73,79 +76,62 @@ def check_throttle(option: str, value: int | None) -> None:
         )
 
 
-def check_filter_options(
-    *, ki: float | None, kp_ground: float | None, kp_flight: float | None, min_thr: int | None
-) -> None:
-    """The filter replica's options where given: --ki, --kp-ground, --kp-flight (gains), then --min-thr (a throttle)."""
-    for option, gain in (("--ki", ki), ("--kp-ground", kp_ground), ("--kp-flight", kp_flight)):
-        check_gain(option, gain)
-    check_throttle("--min-thr", min_thr)
-
-
 # The filter's options, one definition each, shared by every command that runs the replica (None: not given).
-KiOption = Annotated[
+KiOption = option(
     Optional[float],
-    typer.Option(
-        "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).", show_default=False
-    ),
-]
-KpGroundOption = Annotated[
-    Optional[float],
-    typer.Option("--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False),
-]
-KpFlightOption = Annotated[
-    Optional[float],
-    typer.Option("--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False),
-]
-MinThrOption = Annotated[
+    "--ki",
+    help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).",
+    show_default=False,
+)
+KpGroundOption = option(
+    Optional[float], "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False
+)
+KpFlightOption = option(
+    Optional[float], "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False
+)
+MinThrOption = option(
     Optional[int],
-    typer.Option(
-        "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).", show_default=False
-    ),
-]
-CorrectionOption = Annotated[
+    "--min-thr",
+    help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).",
+    show_default=False,
+)
+CorrectionOption = option(
     Optional[bool],
-    typer.Option(
-        "--correction/--no-correction",
-        help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
-        show_default=False,
-    ),
-]
-DtOption = Annotated[
+    "--correction/--no-correction",
+    help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
+    show_default=False,
+)
+DtOption = option(
     Optional[float],
-    typer.Option(
-        "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).", show_default=False
-    ),
-]
+    "--dt",
+    help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).",
+    show_default=False,
+)
 
 
 #: ``--throttle-schedule``: the throttle over time of an emulated or modelled drone (``--throttle`` of ``simulate``
 #: is one gTHR value for every step)
-ThrottleScheduleOption = Annotated[
+ThrottleScheduleOption = option(
     Optional[str],
-    typer.Option(
-        "--throttle-schedule",
-        metavar="N|t:v,...",
-        help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in "
-        "between, held outside).",
-        show_default=False,
-    ),
-]
+    "--throttle-schedule",
+    metavar="N|t:v,...",
+    help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in between, held "
+    "outside).",
+    show_default=False,
+)
 #: --throttle-schedule's former name, hidden: the header commands of captures made with it still run
-ThrottleFormerOption = Annotated[Optional[str], typer.Option("--throttle", hidden=True, show_default=False)]
+ThrottleFormerOption = option(Optional[str], "--throttle", hidden=True, show_default=False)
 
 
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
-VariantOption = Annotated[
+VariantOption = option(
     Optional[str],
-    typer.Option(
-        "--variant",
-        metavar="RELEASE",
-        help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 "
-        "beta) or 221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
-        show_default=False,
-    ),
-]
+    "--variant",
+    metavar="RELEASE",
+    help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 beta) or "
+    "221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
+    show_default=False,
+)
 
 
 def check_variant(value: str | None) -> str | None:
@@ -156,6 +142,27 @@ def check_variant(value: str | None) -> str | None:
         return variant_name(value)
     except ValueError as exc:
         raise UserError(f"--variant: {exc}") from None
+
+
+#: the filter replica's options of compare and conformance, by parameter
+_FILTER_OPTIONS = {"ki": KiOption, "kp_ground": KpGroundOption, "kp_flight": KpFlightOption, "dt": DtOption}
+_FILTER_OPTIONS |= {"min_thr": MinThrOption, "correction": CorrectionOption, "variant": VariantOption}
+
+
+def with_filter_options(order: str):
+    """A command takes the filter replica's options (parameter names in ``order``) where its parameter ``filters``
+    stands, and gets them as that one dict."""
+    return with_options("filters", tuple((name, _FILTER_OPTIONS[name], None) for name in order.split()), dict)
+
+
+def filter_settings(filters: dict) -> tuple[dict, str | None]:
+    """The filter options given, checked (``dt`` as ``dt_s``), and the variant's name (None: not given)."""
+    for name in ("ki", "kp_ground", "kp_flight"):
+        check_gain(flag_of(name), filters[name])
+    check_throttle("--min-thr", filters["min_thr"])
+    check_period("--dt", filters["dt"])
+    changes = {("dt_s" if k == "dt" else k): v for k, v in filters.items() if v is not None and k != "variant"}
+    return changes, check_variant(filters["variant"])
 
 
 def check_period(option: str, value: float | None) -> None:
@@ -177,9 +184,7 @@ def check_vector(option: str, values: Sequence[float], unit: str) -> None:
 
 
 def require_attitude(tel, purpose: str) -> None:
-    """The one rule for a capture without attitude frames (cut short, text only, status only), in every command
-    that needs them: UserError saying what the capture holds instead and what cannot be done. A BLE capture's rows
-    are the sender's samples, no serial frames: these commands need the serial stream."""
+    """A capture without attitude frames (or a BLE one): UserError saying what it holds and what cannot be done."""
     path = tel.source.get("path", "the capture")
     try:
         size = f"{os.path.getsize(path)} bytes, "

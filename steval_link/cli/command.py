@@ -1,59 +1,52 @@
-"""``steval param get|set`` and ``steval command reset-filter|status|mode``: commands to the drone over USART1 RX.
-
-Each sends one command frame, waits for the acknowledgement (``--timeout``) and prints one sentence; a refusal or no
-answer is one ``steval: error:`` line (exit 2). While ``steval live`` holds the port, type the same commands at its
-prompt instead (they are then recorded in its capture and shown on the viewer's timeline).
-"""
+"""``steval param get|set`` and ``steval command reset-filter|status|mode``: one command frame to the drone over
+USART1 RX, its acknowledgement printed (a refusal or no answer: one ``steval: error:`` line)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
 from steval_link import constants as C
-from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.app import option, sub_app, with_options
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.commands import PARAM_HELP, PARAMS, Command, describe_settings, param_of_status, set_param
 
-# the four options every command here takes
-_Port = Annotated[
-    str,
-    typer.Option(
-        "--port", "-p", help="Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
-    ),
-]
-_Baud = Annotated[int, typer.Option("--baud", "-b", help="Baud rate of the firmware build.")]
-_Timeout = Annotated[float, typer.Option("--timeout", help="Seconds to wait for the drone's acknowledgement.")]
-_Out = Annotated[
-    Optional[Path],
-    typer.Option("--out", help="Also record this exchange (bytes received and sent) to this new capture file."),
-]
+_Port = option(
+    str, "--port", "-p", help="Serial port of the drone's USB-UART adapter (e.g. /dev/ttyUSB0, COM3), or auto."
+)
+_Baud = option(int, "--baud", "-b", help="Baud rate of the firmware build.")
+_Timeout = option(float, "--timeout", help="Seconds to wait for the drone's acknowledgement.")
+_Out = option(
+    Optional[Path], "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
+)
+#: the four options every command here takes: (parameter, annotation, default)
+_LINK_PARAMS = (("port", _Port, "auto"), ("baud", _Baud, C.BAUD), ("timeout", _Timeout, 2.0), ("out", _Out, None))
 
-param_app = typer.Typer(
-    help="Read or change a filter parameter of the drone's Mahony filter, live.",
-    no_args_is_help=True,
-    context_settings={"help_option_names": HELP_OPTION_NAMES},
-)
-command_app = typer.Typer(
-    help="Reset the drone's filter, ask it for a status frame, or switch its output mode.",
-    no_args_is_help=True,
-    context_settings={"help_option_names": HELP_OPTION_NAMES},
-)
-app.add_typer(param_app, name="param")
-app.add_typer(command_app, name="command")
+
+def _exchange(port: str, baud: int, timeout: float, out: Optional[Path]):
+    """The link options as one function: ``send(command)`` sends it and returns the drone's reply."""
+
+    def send(command: Command):
+        from steval_link.live.remote import run_commands  # reason: start-up time
+
+        if not (timeout > 0):
+            raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
+        (reply,) = run_commands(port, baud, [command], timeout_s=timeout, out=out)
+        return reply
+
+    return send
+
+
+#: a command here takes the link options last and gets them as ``send``: :func:`_exchange`
+_with_link = with_options("send", _LINK_PARAMS, _exchange)
+
+param_app = sub_app("param", "Read or change a filter parameter of the drone's Mahony filter, live.")
+command_app = sub_app("command", "Reset the drone's filter, ask it for a status frame, or switch its output mode.")
 
 _NAMES = ", ".join(f"{k} ({v})" for k, v in PARAM_HELP.items())
-
-
-def _run(port: str, baud: int, commands: list[Command], timeout: float, out: Optional[Path]):
-    from steval_link.live.remote import run_commands  # reason: start-up time
-
-    if not (timeout > 0):
-        raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
-    return run_commands(port, baud, commands, timeout_s=timeout, out=out)
 
 
 def _finish(reply) -> None:
@@ -65,17 +58,14 @@ def _finish(reply) -> None:
 
 
 @param_app.command("get")
+@_with_link
 def param_get(
-    name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."),
-    port: _Port = "auto",
-    baud: _Baud = C.BAUD,
-    timeout: _Timeout = 2.0,
-    out: _Out = None,
+    name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
 ) -> None:
     """Print a filter parameter as the drone reports it now (asks for a status frame)."""
     if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:
         raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
-    (reply,) = _run(port, baud, [Command(P.CMD_REQUEST_STATUS)], timeout, out)
+    reply = send(Command(P.CMD_REQUEST_STATUS))
     if reply.status is None:
         raise UserError("the drone acknowledged the status request but its status frame did not arrive; try again")
     if name is None:
@@ -86,57 +76,37 @@ def param_get(
 
 
 @param_app.command("set")
+@_with_link
 def param_set(
     name: str = typer.Argument(..., help=f"Parameter: {_NAMES}."),
     value: str = typer.Argument(..., help="New value (a number; correction: on or off)."),
-    port: _Port = "auto",
-    baud: _Baud = C.BAUD,
-    timeout: _Timeout = 2.0,
-    out: _Out = None,
+    send=None,
 ) -> None:
     """Change a filter parameter between two AHRS steps (refused while the motors may spin)."""
-    command = set_param(name, value)
-    (reply,) = _run(port, baud, [command], timeout, out)
-    _finish(reply)
+    _finish(send(set_param(name, value)))
 
 
 @command_app.command("reset-filter")
-def reset_filter(
-    port: _Port = "auto",
-    baud: _Baud = C.BAUD,
-    timeout: _Timeout = 2.0,
-    out: _Out = None,
-) -> None:
+@_with_link
+def reset_filter(send=None) -> None:
     """Reset the filter state (q = 1, 0, 0, 0; integrals 0) between two AHRS steps."""
-    (reply,) = _run(port, baud, [Command(P.CMD_RESET_FILTER)], timeout, out)
-    _finish(reply)
+    _finish(send(Command(P.CMD_RESET_FILTER)))
 
 
 @command_app.command("status")
-def request_status(
-    port: _Port = "auto",
-    baud: _Baud = C.BAUD,
-    timeout: _Timeout = 2.0,
-    out: _Out = None,
-) -> None:
+@_with_link
+def request_status(send=None) -> None:
     """Ask the drone for a status frame now (settings and filter state snapshot)."""
-    (reply,) = _run(port, baud, [Command(P.CMD_REQUEST_STATUS)], timeout, out)
-    _finish(reply)
+    _finish(send(Command(P.CMD_REQUEST_STATUS)))
 
 
 @command_app.command("mode")
+@_with_link
 def set_mode(
-    mode: str = typer.Argument(..., help="text (readable lines for a serial terminal) or binary (frames)."),
-    port: _Port = "auto",
-    baud: _Baud = C.BAUD,
-    timeout: _Timeout = 2.0,
-    out: _Out = None,
+    mode: str = typer.Argument(..., help="text (readable lines for a serial terminal) or binary (frames)."), send=None
 ) -> None:
     """Switch the drone's output between binary frames and text lines."""
     key = mode.strip().lower()
     if key not in ("text", "binary"):
         raise UserError(f"mode takes text or binary, got {mode!r}")
-    (reply,) = _run(
-        port, baud, [Command(P.CMD_SET_MODE, P.MODE_TEXT if key == "text" else P.MODE_BINARY)], timeout, out
-    )
-    _finish(reply)
+    _finish(send(Command(P.CMD_SET_MODE, P.MODE_TEXT if key == "text" else P.MODE_BINARY)))

@@ -1,18 +1,11 @@
-"""``steval compare``: the firmware's angles against the bit-exact replica, the EKFs and accelerometer-only tilt.
-
-Exit codes: 0 when the report was produced — also when the replica disagrees with the firmware (that is a finding,
-shown with its first step and a diagnosis, and ``replica.all_exact`` is false in ``--json``); 2 for user errors
-(missing or unreadable capture, no attitude frames, unknown estimator, matplotlib missing for ``--plot``).
-"""
+"""``steval compare``: the firmware's angles against the bit-exact replica, the EKFs and accelerometer-only tilt."""
 
 from __future__ import annotations
 
 import sys
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
@@ -23,22 +16,24 @@ from steval_link.analysis.side_by_side import (
     format_side_by_side,
     side_by_side,
 )
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import (
-    CorrectionOption,
-    DtOption,
-    KiOption,
-    KpFlightOption,
-    KpGroundOption,
-    MinThrOption,
-    VariantOption,
-    check_filter_options,
-    check_period,
-    check_variant,
     command_line,
+    estimator_names,
+    filter_settings,
+    flag_of,
     require_attitude,
+    with_filter_options,
 )
-from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
+from steval_link.cli.outputs import (
+    ForceOption,
+    JsonReportOption,
+    atomic_output,
+    check_output,
+    check_outputs,
+    print_json,
+    print_warnings,
+)
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import (
@@ -58,85 +53,53 @@ __all__ = ["compare_command"]
 
 
 def flight_plot_path(out_png: Path) -> Path:
-    """Where ``--plot OUT.png`` puts the flight-control figure of a capture with flight-control frames:
-    ``OUT-flight-control.png``."""
+    """Where ``--plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
     return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
 
 
-def _settings(tel, changes: dict):
-    """Replica settings: the status frames' (or the defaults) with the given fields replaced; None when none given."""
-    changes = {k: v for k, v in changes.items() if v is not None}
-    if not changes:
-        return None
-    s = tel.status
-    exact = [j for j in range(len(s)) if s.exact[j]]
-    base = MahonySettings.of_status(s, exact[0]) if exact else MahonySettings()
-    return replace(base, **changes)
-
-
-_Captures = Annotated[
-    Optional[list[Path]],
-    typer.Argument(
-        help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or "
-        "more: the flights side by side (see below).",
-        show_default=False,
-        metavar="CAPTURE",
-    ),
-]
-_Plot = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--plot",
-        metavar="OUT.png",
-        help="Also write a figure (angles over time, firmware − replica, "
-        "differences per estimator) and, for a capture whose drone was armed, OUT-flight-control.png "
-        "(targets vs angles, PID terms, motors); with two or more captures one figure of the flights side by "
-        'side; needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
 #: ``-e`` of compare and report: the estimators compared with the firmware
-CompareEstimatorsOption = Annotated[
+CompareEstimatorsOption = option(
     Optional[list[str]],
-    typer.Option(
-        "--estimator",
-        "--estimators",
-        "-e",
-        help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as "
-        "FILE.py:CLASS or module:CLASS (docs/ESTIMATORS.md). "
-        "The seeded ST-Mahony replica is always compared.",
-    ),
-]
-_Align = Annotated[
-    str,
-    typer.Option(
-        "--align",
-        metavar="time|motion",
-        help="Two or more captures: align by firmware time from each first frame (time), or by "
-        "cross-correlating the gyro with the first capture's (motion; the lag found is printed).",
-    ),
-]
-_Label = Annotated[
-    Optional[list[str]],
-    typer.Option("--label", help="Two or more captures: the name of each flight, in order (repeat it)."),
-]
+    "--estimator",
+    "--estimators",
+    "-e",
+    help="Estimators to compare, comma-separated or repeated (default: ekf3, mekf, accel); your own as FILE.py:CLASS "
+    "or module:CLASS (docs/ESTIMATORS.md). The seeded ST-Mahony replica is always compared.",
+)
 
 
 @app.command("compare")
 @with_rerun_options
+@with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
-    captures: _Captures = None,
+    captures: argument(
+        Optional[list[Path]],
+        help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
+        "flights side by side (see below).",
+        show_default=False,
+        metavar="CAPTURE",
+    ) = None,
     as_json: JsonReportOption = False,
-    plot: _Plot = None,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        metavar="OUT.png",
+        help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
+        "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more "
+        'captures one figure of the flights side by side; needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
     estimator: CompareEstimatorsOption = None,
-    ki: KiOption = None,
-    kp_ground: KpGroundOption = None,
-    kp_flight: KpFlightOption = None,
-    dt: DtOption = None,
-    min_thr: MinThrOption = None,
-    correction: CorrectionOption = None,
-    variant: VariantOption = None,
-    align: _Align = "time",
-    label: _Label = None,
+    filters: dict = None,
+    align: option(
+        str,
+        "--align",
+        metavar="time|motion",
+        help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the "
+        "gyro with the first capture's (motion; the lag found is printed).",
+    ) = "time",
+    label: option(
+        Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
+    ) = None,
     force: ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,
@@ -151,18 +114,9 @@ def compare_command(
     mismatched inputs (durations, BLE against serial, lost frames, a truncated capture) are noted. --plot writes one
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
-    filter_options = {
-        "--ki": ki,
-        "--kp-ground": kp_ground,
-        "--kp-flight": kp_flight,
-        "--dt": dt,
-        "--min-thr": min_thr,
-        "--correction/--no-correction": correction,
-        "--variant": variant,
-    }
-    viewer = asdict(rerun)
     if captures and len(captures) > 1:
-        replica_options = {"--estimator": estimator, **filter_options}
+        flags = {"--estimator": estimator}
+        flags |= {("--correction/--no-correction" if k == "correction" else flag_of(k)): v for k, v in filters.items()}
         _side_by_side(
             captures,
             as_json=as_json,
@@ -170,8 +124,8 @@ def compare_command(
             force=force,
             align=align,
             labels=label,
-            replica_options=replica_options,
-            viewer=viewer,
+            replica_options=flags,
+            viewer=rerun,
         )
         return
     if align != "time" or label or rerun.any():
@@ -179,14 +133,12 @@ def compare_command(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."
         )
-    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
-    check_period("--dt", dt)
-    changes = dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, dt_s=dt, min_thr=min_thr, correction=correction)
+    changes, variant = filter_settings(filters)
     _one_capture(
         captures[0] if captures else None,
         estimator,
         changes,
-        check_variant(variant),
+        variant,
         as_json=as_json,
         plot=plot,
         force=force,
@@ -196,16 +148,10 @@ def compare_command(
 
 def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, plot, force: bool, text_map) -> None:
     """``steval compare CAPTURE``: the firmware against the replica and the estimators (text or JSON, figures)."""
-    # repeatable, and each value may be a comma-separated list like the other commands' --estimators
-    names = registry.parse_names(
-        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
-    )  # a missing optional package is a row of the report
+    # a missing optional package is a row of the report
+    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
-    if plot is not None:
-        check_output(plot, option="--plot", force=force, inputs=(src.path,))
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()
+    check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
@@ -213,16 +159,24 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         fc_plot = flight_plot_path(plot) if plot is not None and no_fc_plot is None else None
         if fc_plot is not None:
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
-        for w in seen:  # the capture's damage: one line of our own on stderr (and a note in --json)
-            print(f"steval: warning: {w}", file=sys.stderr)
+        print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")
-        settings = _settings(tel, changes)
+        settings = None
+        if changes:  # the status frames' settings (or the defaults) with the given ones replaced
+            exact = [j for j in range(len(tel.status)) if tel.status.exact[j]]
+            settings = replace(MahonySettings.of_status(tel.status, exact[0]) if exact else MahonySettings(), **changes)
         report = compare_capture(tel, estimators=names, settings=settings, variant=variant, variant_source="--variant")
         if as_json:
             report.notes.extend(seen)
         if plot is not None:
+            from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
+
             progress(0.9, f"plotting {plot.name}")
-            _plots(tel, report, plot, fc_plot)
+            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                plot_comparison(tel, report, part)
+                if fc_plot is not None:  # the flight-control figure, where the drone was armed
+                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                        plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
     if fc_plot is not None:
         plots.append(("plot_flight_control", "flight-control plot", fc_plot))
@@ -231,20 +185,8 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         print(f"no flight-control plot: {no_fc_plot}.", file=sys.stderr if as_json else sys.stdout)
 
 
-def _plots(tel, report, plot: Path, fc_plot: Path | None) -> None:
-    """The comparison figure, and the flight-control one where the drone was armed."""
-    from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
-
-    with atomic_output(plot, option="--plot", keep_suffix=True) as part:
-        plot_comparison(tel, report, part)
-        if fc_plot is not None:
-            with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
-                plot_flight_control(tel, fc_part)
-
-
 def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, str, Path]]) -> None:
-    """The report on stdout: one JSON object (``as_dict()`` with each written figure under its JSON key), or its
-    lines (``format_lines()``) and a line ``LABEL: PATH`` per figure. ``plots``: (JSON key, label, path)."""
+    """The report as JSON or lines, with each figure written; ``plots``: (JSON key, label, path)."""
     if as_json:
         d = as_dict()
         d.update({key: str(path) for key, _, path in plots})
@@ -256,8 +198,7 @@ def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, s
 
 
 def _load_flight(path: Path):
-    """One capture as a side-by-side ``Flight``: a serial capture's firmware angles, or a BLE capture's samples
-    with the ST-Mahony replica run over them."""
+    """One capture as a side-by-side ``Flight`` (a BLE capture's: the ST-Mahony replica over its samples)."""
     src = read_recording(path)
     tel = telemetry_of_recording(src)
     if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples
@@ -284,19 +225,15 @@ def _side_by_side(
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):
         raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
-    check_view_flags(no_view=False, spawn=viewer["spawn"], serve=viewer["serve"], connect=viewer["connect"])
-    with progress_bar("compare", quiet=as_json or viewer["serve"]) as progress:
+    check_view_flags(viewer)
+    with progress_bar("compare", quiet=as_json or viewer.serve) as progress:
         flights = []
         for i, path in enumerate(captures):  # the inputs first, then the outputs
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
         inputs = tuple(captures)
-        if plot is not None:
-            check_output(plot, option="--plot", force=force, inputs=inputs)
-            from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot
-
-            require_matplotlib()
-        options = view_sinks(**viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
+        check_outputs({"--plot": plot}, force=force, inputs=inputs)
+        options = view_sinks(viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
         if plot is not None:

@@ -5,25 +5,13 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import typer
 
 from steval_link.cli.app import app
-from steval_link.cli.checks import (
-    CorrectionOption,
-    DtOption,
-    KiOption,
-    KpFlightOption,
-    KpGroundOption,
-    MinThrOption,
-    VariantOption,
-    check_filter_options,
-    check_period,
-    check_variant,
-)
+from steval_link.cli.checks import filter_settings, with_filter_options
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import MahonySettings
@@ -34,18 +22,13 @@ def _json_num(x: float):
 
 
 @app.command("conformance")
+@with_filter_options("ki kp_ground kp_flight min_thr dt correction variant")
 def conformance_command(
     csv_files: list[Path] = typer.Argument(
         ..., metavar="CSV...", help="Conformance vector files (firmware outputs), or directories of them."
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the per-file results as JSON."),
-    ki: KiOption = None,
-    kp_ground: KpGroundOption = None,
-    kp_flight: KpFlightOption = None,
-    min_thr: MinThrOption = None,
-    dt: DtOption = None,
-    correction: CorrectionOption = None,
-    variant: VariantOption = None,
+    filters: dict = None,
     pure: bool = typer.Option(False, "--pure", help="Use the pure-Python loop instead of the compiled one."),
 ) -> None:
     """Run the bit-exact Mahony replica on each file's inputs and compare every output bit with the firmware's.
@@ -59,12 +42,9 @@ def conformance_command(
         variant_scores,
     )
 
-    check_filter_options(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr)
-    check_period("--dt", dt)
-    forced = check_variant(variant)
-    given = dict(ki=ki, kp_ground=kp_ground, kp_flight=kp_flight, min_thr=min_thr, dt_s=dt, correction=correction)
+    changes, forced = filter_settings(filters)
     try:
-        settings = MahonySettings(**{k: v for k, v in given.items() if v is not None})
+        settings = MahonySettings(**changes)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     cases = [_load_case(path) for path in _csv_paths(csv_files)]
@@ -125,8 +105,7 @@ def _print_json(results, settings: MahonySettings, scores: dict[str, int] | None
             for r in results
         ],
     }
-    json.dump(out, sys.stdout, indent=2)
-    sys.stdout.write("\n")
+    print(json.dumps(out, indent=2))
 
 
 def _print_table(results, all_ok: bool) -> None:

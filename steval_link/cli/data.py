@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import argument, option, sub_app
 from steval_link.errors import UserError
 
 #: a developer's copy of the trials: ``../shared`` beside the project (editable install)
 SHARED_BROAD = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "broad"
 
-data_app = typer.Typer(help="Data sets on demand: BROAD trials with optical ground truth.", no_args_is_help=True)
-app.add_typer(data_app, name="data")
+data_app = sub_app("data", "Data sets on demand: BROAD trials with optical ground truth.")
 
 
 def _require_data_extra() -> None:
@@ -36,23 +35,19 @@ _BROAD_HELP = (
 
 @data_app.command("broad", help=_BROAD_HELP)
 def broad_command(
-    trials: Annotated[
+    trials: argument(
         Optional[list[str]],
-        typer.Argument(
-            metavar="TRIALS",
-            help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the "
-            "accuracy table (02 07 10 15 24 27).",
-            show_default=False,
-        ),
-    ] = None,
-    directory: Annotated[
+        metavar="TRIALS",
+        help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the accuracy table "
+        "(02 07 10 15 24 27).",
+        show_default=False,
+    ) = None,
+    directory: option(
         Optional[Path],
-        typer.Option(
-            "--dir",
-            help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
-            show_default=False,
-        ),
-    ] = None,
+        "--dir",
+        help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
+        show_default=False,
+    ) = None,
 ) -> None:
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time
 
@@ -68,8 +63,7 @@ def broad_command(
 
 
 def find_broad_data() -> Path | None:
-    """The folder of the BROAD trials to use when none is given: the cache's, else a developer's ``../shared``
-    beside the project; None when neither holds any."""
+    """The folder of BROAD trials when none is given: the cache's, else ``../shared``'s; None when neither has any."""
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time
 
     try:
@@ -83,8 +77,7 @@ def find_broad_data() -> Path | None:
 
 
 def default_broad_data() -> list[Path]:
-    """The trials ``steval evaluate`` scores without DATA (:func:`find_broad_data`); none is one sentence (exit 2)
-    saying how to get them."""
+    """The trials ``steval evaluate`` scores without DATA; none: a UserError saying how to get them."""
     found = find_broad_data()
     if found is not None:
         return [found]

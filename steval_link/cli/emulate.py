@@ -4,21 +4,20 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis.report import estimator_line, estimator_summary
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import (
     ThrottleFormerOption,
     ThrottleScheduleOption,
     VariantOption,
     check_variant,
     command_line,
+    estimator_names,
     flag_of,
 )
-from steval_link.cli.live import check_duration, live_estimators, session_outputs
+from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import (
     CaptureOutOption,
@@ -28,6 +27,7 @@ from steval_link.cli.viewer_options import (
 )
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
+from steval_link.estimators import registry
 from steval_link.estimators.runner import run_estimator
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
@@ -36,115 +36,80 @@ from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, 
 from steval_viewer.live_adapter import make_viewer_logger
 from steval_viewer.sink_options import SinkOptions
 
-_Elf = Annotated[
-    Path,
-    typer.Argument(
-        help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
-        "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release "
-        "(patched or stock, e.g. from STM32CubeIDE).",
-    ),
-]
-_Scenario = Annotated[
-    str,
-    typer.Option(
-        "--scenario",
-        "-s",
-        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
-        "preflight (the preflight check's hand moves).",
-    ),
-]
-_Broad = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--broad",
-        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
-        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
-    ),
-]
-_Duration = Annotated[
-    Optional[float],
-    typer.Option(
-        "--duration",
-        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at "
-        "≈ 2.985 s).",
-    ),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).")]
-_Mount = Annotated[
-    Optional[str],
-    typer.Option(
-        "--mount",
-        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
-        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
-    ),
-]
-_Estimators = Annotated[
-    Optional[list[str]],
-    typer.Option(
-        "--estimators",
-        "-e",
-        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
-    ),
-]
-_Realtime = Annotated[
-    bool, typer.Option("--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
-]
-_Commands = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--commands",
-        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', "
-        "'12 correction off', '15 reset'), sent to the firmware's USART1 RX at those times.",
-    ),
-]
-_Prompt = Annotated[
-    Optional[bool],
-    typer.Option(
-        "--prompt/--no-prompt",
-        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the "
-        "emulated firmware. Default: when stdin is a terminal.",
-    ),
-]
-_Ble = Annotated[
-    bool,
-    typer.Option(
-        "--ble",
-        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
-        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
-    ),
-]
-_BleConnectAt = Annotated[
-    float, typer.Option("--ble-connect-at", help="With --ble: emulated s at which the central connects.")
-]
-_TickStartMs = Annotated[
+_Realtime = option(bool, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
+_BleConnectAt = option(float, "--ble-connect-at", help="With --ble: emulated s at which the central connects.")
+_TickStartMs = option(
     int,
-    typer.Option(
-        "--tick-start-ms",
-        help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after "
-        "power-up).",
-        min=0,
-    ),
-]
+    "--tick-start-ms",
+    help="HAL_GetTick() at main, ms (e.g. 494288: the BLE tick, HAL_GetTick()>>3 in u16, wraps 30 s after power-up).",
+    min=0,
+)
 
 
 @app.command("emulate")
 @with_rerun_options
 def emulate_command(
-    elf: _Elf,
-    scenario: _Scenario = "bench",
-    broad: _Broad = None,
-    duration: _Duration = None,
-    seed: _Seed = 0,
+    elf: argument(
+        Path,
+        help="Firmware ELF: the reference firmware (make -C firmware_patch reference: "
+        "firmware_patch/build/reference/steval-reference.elf) or a build of ST's release (patched or stock, e.g. from "
+        "STM32CubeIDE).",
+    ),
+    scenario: option(
+        str,
+        "--scenario",
+        "-s",
+        help="Built-in motion: bench, hand-tilts, yaw-spin, hover, freefall, demo, flight (armed, stick moves), "
+        "preflight (the preflight check's hand moves).",
+    ) = "bench",
+    broad: option(
+        Optional[Path],
+        "--broad",
+        help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
+        "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
+    ) = None,
+    duration: option(
+        Optional[float],
+        "--duration",
+        help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ "
+        "2.985 s).",
+    ) = None,
+    seed: option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
-    mount: _Mount = None,
+    mount: option(
+        Optional[str],
+        "--mount",
+        help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
+        "reversed), as a wrong COORDINATE_SYSTEM would read it.",
+    ) = None,
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
-    estimators: _Estimators = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimators",
+        "-e",
+        help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
+    ) = None,
     realtime: _Realtime = False,
-    commands: _Commands = None,
-    prompt: _Prompt = None,
-    ble: _Ble = False,
+    commands: option(
+        Optional[Path],
+        "--commands",
+        help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction "
+        "off', '15 reset'), sent to the firmware's USART1 RX at those times.",
+    ) = None,
+    prompt: option(
+        Optional[bool],
+        "--prompt/--no-prompt",
+        help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the emulated "
+        "firmware. Default: when stdin is a terminal.",
+    ) = None,
+    ble: option(
+        bool,
+        "--ble",
+        help="Record the BLE notifications the firmware sends to a connected central (ST's stock build: motion, "
+        "environment, arming) as a BLE capture (--out), instead of USART1; replay it with steval replay.",
+    ) = False,
     ble_connect_at: _BleConnectAt = 0.5,
     tick_start_ms: _TickStartMs = 0,
     variant: VariantOption = None,
@@ -177,7 +142,7 @@ def emulate_command(
             )
         _emulate_ble(emu_options, out, ble_connect_at, tick_start_ms)
         return
-    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
+    check_view_flags(rerun, no_view=no_view)
     emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
     emu_options.command_line = command_line(
         ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}
@@ -190,7 +155,7 @@ def emulate_command(
         variant=variant,
         variant_from="--variant",
     )
-    options = LiveOptions(estimators=live_estimators(estimators), prompt=prompt, word=flag_of)
+    options = LiveOptions(estimators=estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=flag_of)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()
@@ -210,8 +175,7 @@ def _script(commands: Path | None):
 
 
 def _estimator_lines(summary, names) -> list[str]:
-    """One line per host estimator (``-e``) over the run's capture: valid rows, the first invalid step, the RMS
-    difference from the firmware (as ``steval replay -e`` says it)."""
+    """One line per host estimator (``-e``) over the run's capture, as ``steval replay -e`` says it."""
     path = Path(summary.capture_path)
     if not names or summary.capture_discarded or not path.is_file():
         return []
@@ -219,10 +183,8 @@ def _estimator_lines(summary, names) -> list[str]:
         tel = load_telemetry(path)
     except UserError:
         return []
-    if not len(tel.attitude):
-        return []
     out = []
-    for name in names:
+    for name in names if len(tel.attitude) else []:
         est, why = run_estimator(name, tel)
         out.append(f"estimator {name}: {why}" if est is None else estimator_line(estimator_summary(name, est, tel)))
     return out

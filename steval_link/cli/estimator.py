@@ -1,20 +1,16 @@
 """``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (interface checks,
-then its scores next to ST-Mahony and VQF on the bundled captures and on BROAD trials).
-
-Exit codes of ``check``: 0 when every interface check passes, 1 when one fails (the report says which and why),
-2 for user errors (the file, class or options cannot be loaded: one line).
-"""
+then scores)."""
 
 from __future__ import annotations
 
 import re
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import HELP_OPTION_NAMES, app
+from steval_link.cli.app import argument, option, sub_app
 from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output, print_json
 from steval_link.cli.progress import progress_bar
@@ -23,12 +19,9 @@ from steval_link.errors import UserError
 
 __all__ = ["estimator_app", "STARTER_CLASS", "DEFAULT_BROAD"]
 
-estimator_app = typer.Typer(
-    help="Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md.",
-    no_args_is_help=True,
-    context_settings={"help_option_names": HELP_OPTION_NAMES},
+estimator_app = sub_app(
+    "estimator", "Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md."
 )
-app.add_typer(estimator_app, name="estimator")
 
 #: the class name in the starter file
 STARTER_CLASS = "MyEkf"
@@ -46,8 +39,8 @@ def starter_source(class_name: str = STARTER_CLASS) -> str:
 
 @estimator_app.command("new")
 def new_command(
-    file: Annotated[Path, typer.Argument(help="The Python file to write, e.g. my_ekf.py.", show_default=False)],
-    class_name: Annotated[str, typer.Option("--class", help="Name of the estimator class in it.")] = STARTER_CLASS,
+    file: argument(Path, help="The Python file to write, e.g. my_ekf.py.", show_default=False),
+    class_name: option(str, "--class", help="Name of the estimator class in it.") = STARTER_CLASS,
     force: ForceOption = False,
 ) -> None:
     """Write a starter estimator that works as it is: a 3-state EKF (Euler angles; prediction from the gyro,
@@ -68,24 +61,20 @@ def new_command(
 
 @estimator_app.command("check")
 def check_command(
-    estimator: Annotated[
+    estimator: argument(
         str,
-        typer.Argument(
-            help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
-            "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
-            show_default=False,
-        ),
-    ],
-    broad_path: Annotated[
+        help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
+        "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
+        show_default=False,
+    ),
+    broad_path: option(
         Optional[list[Path]],
-        typer.Option(
-            "--broad",
-            help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
-            f"{DEFAULT_BROAD} when it exists.",
-            show_default=False,
-        ),
-    ] = None,
-    no_broad: Annotated[bool, typer.Option("--no-broad", help="Do not score on BROAD trials (quicker).")] = False,
+        "--broad",
+        help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
+        f"{DEFAULT_BROAD} when it exists.",
+        show_default=False,
+    ) = None,
+    no_broad: option(bool, "--no-broad", help="Do not score on BROAD trials (quicker).") = False,
     as_json: JsonReportOption = False,
 ) -> None:
     """Check an estimator's interface (shapes, units and signs at rest and tilted, a turn, NaN and invalid input,
@@ -94,33 +83,18 @@ def check_command(
     truth on BROAD trials. Exit 1 when a check fails."""
     from steval_link.analysis.estimator_check import format_check, run_check  # reason: start-up time
 
-    if no_broad:
-        paths = []
-        note = ""
-    elif broad_path:
-        paths = broad.trial_paths(broad_path)
-        note = ""
-    elif DEFAULT_BROAD.is_dir():
-        paths = broad.trial_paths([DEFAULT_BROAD])
-        note = ""
-    elif (cached := find_broad_data()) is not None:  # the trials of steval data broad
-        paths = broad.trial_paths([cached])
-        note = ""
-    else:
-        paths = []
-        note = "no BROAD trials (steval data broad downloads them; --broad PATH scores on others)"
+    folders = [] if no_broad else broad_path or ([DEFAULT_BROAD] if DEFAULT_BROAD.is_dir() else [])
+    if not (no_broad or folders) and (cached := find_broad_data()) is not None:  # the trials of steval data broad
+        folders = [cached]
     with progress_bar("estimator check", quiet=as_json) as progress:
-        report = run_check(estimator, broad_paths=paths, progress=progress)
-    if note and not report.broad_note:
-        report.broad_note = note
-    if report.traceback and not as_json:
-        print(report.traceback, file=sys.stderr)
+        report = run_check(estimator, broad_paths=broad.trial_paths(folders) if folders else [], progress=progress)
+    if not (no_broad or folders or report.broad_note):
+        report.broad_note = "no BROAD trials (steval data broad downloads them; --broad PATH scores on others)"
     if as_json:
-        d = report.as_dict()
-        if report.traceback:
-            d["traceback"] = report.traceback
-        print_json(d)
+        print_json(report.as_dict() | ({"traceback": report.traceback} if report.traceback else {}))
     else:
+        if report.traceback:
+            print(report.traceback, file=sys.stderr)
         print("\n".join(format_check(report)))
     if not report.ok:
         raise typer.Exit(1)

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import VariantOption, check_variant
 from steval_link.cli.data import default_broad_data
-from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.estimators.plugins import split_list
@@ -47,92 +47,65 @@ _HELP = (
 )
 
 
-_Data = Annotated[
-    Optional[list[Path]],
-    typer.Argument(
-        help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the "
-        "trials of steval data broad.",
-        show_default=False,
-    ),
-]
-_Estimators = Annotated[
-    Optional[list[str]],
-    typer.Option(
-        "--estimators",
-        "-e",
-        help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), "
-        "accel, ekf3, mekf, vqf, or your own (FILE.py:CLASS, "
-        "module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: all "
-        "available.",
-    ),
-]
-_OwnRate = Annotated[
-    bool, typer.Option("--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-]
-_Plot = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--plot",
-        help="Write a PNG: RMSE bars per estimator and trial, "
-        "and the first trial's error over time "
-        "(needs matplotlib: pip install "
-        '"steval-link\\[plot]").',
-        show_default=False,
-    ),
-]
-_SensorNoise = Annotated[
-    bool,
-    typer.Option(
-        "--sensor-noise",
-        help="Add the LSM6DSL model's white noise (gyro "
-        "75 mdps, acc 2 mg RMS) on top of the trial's "
-        "own before quantisation.",
-    ),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of --sensor-noise (runs are deterministic).")]
-_Firmware = Annotated[
-    Optional[list[Path]],
-    typer.Option(
-        "--firmware",
-        help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
-        show_default=False,
-    ),
-]
-_Csv = Annotated[
-    Optional[Path],
-    typer.Option("--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False),
-]
-_Markdown = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--markdown", help="Also write the table as Markdown (to paste in a report) to this file.", show_default=False
-    ),
-]
-_MaxSeconds = Annotated[
-    Optional[float],
-    typer.Option(
-        "--max-seconds",
-        help="Use only the first S seconds of each BROAD trial (every estimator and firmware; "
-        "the trials' movement starts after 26-46 s).",
-        show_default=False,
-    ),
-]
+_OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
+_Csv = option(
+    Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
+)
 
 
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
-    data: _Data = None,
-    estimators: _Estimators = None,
+    data: argument(
+        Optional[list[Path]],
+        help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of "
+        "steval data broad.",
+        show_default=False,
+    ) = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimators",
+        "-e",
+        help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, "
+        "mekf, vqf, or your own (FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md). Default: "
+        "all available.",
+    ) = None,
     as_json: JsonReportOption = False,
     own_rate: _OwnRate = False,
-    plot: _Plot = None,
-    sensor_noise: _SensorNoise = False,
-    seed: _Seed = 0,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
+        'pip install "steval-link\\[plot]").',
+        show_default=False,
+    ) = None,
+    sensor_noise: option(
+        bool,
+        "--sensor-noise",
+        help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
+        "quantisation.",
+    ) = False,
+    seed: option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).") = 0,
     force: ForceOption = False,
-    firmware: _Firmware = None,
+    firmware: option(
+        Optional[list[Path]],
+        "--firmware",
+        help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
+        show_default=False,
+    ) = None,
     csv_out: _Csv = None,
-    markdown_out: _Markdown = None,
-    max_seconds: _MaxSeconds = None,
+    markdown_out: option(
+        Optional[Path],
+        "--markdown",
+        help="Also write the table as Markdown (to paste in a report) to this file.",
+        show_default=False,
+    ) = None,
+    max_seconds: option(
+        Optional[float],
+        "--max-seconds",
+        help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
+        "starts after 26-46 s).",
+        show_default=False,
+    ) = None,
     variant: VariantOption = None,
 ) -> None:
     from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
@@ -141,13 +114,7 @@ def evaluate_command(
     data = data or default_broad_data()
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
-    for option, out in outputs.items():
-        if out is not None:
-            check_output(out, option=option, force=force, inputs=inputs)
-    if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()  # fail before the long run
+    check_outputs(outputs, force=force, inputs=inputs)  # and matplotlib for --plot: before the long run
     only = split_list(",".join(estimators)) if estimators else None  # repeatable, each a comma-separated list
     with progress_bar("evaluate", quiet=as_json) as bar:
         results = ev.evaluate_data(
@@ -167,32 +134,17 @@ def evaluate_command(
                 bar(1.0, f"writing {out.name}")
                 with atomic_output(out, option=option, keep_suffix=True) as part:
                     writers[option](results, part)
-    _print(
-        results,
-        own_rate=own_rate,
-        sensor_noise=sensor_noise,
-        seed=seed,
-        max_seconds=max_seconds,
-        as_json=as_json,
-        files={"plot": plot, "csv": csv_out, "markdown": markdown_out},
-    )
-
-
-def _print(results, *, own_rate: bool, sensor_noise: bool, seed: int, max_seconds, as_json: bool, files: dict) -> None:
-    """The table and the files written, or the JSON report."""
-    from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
-
-    if as_json:
-        report = ev.summary(results)
-        report["mode"] = "own-rate" if own_rate else "steval-pipeline"
-        report["sensor_noise"] = bool(sensor_noise and not own_rate)
-        report["seed"] = seed
-        if max_seconds is not None:
-            report["max_seconds"] = max_seconds
-        report.update({key: str(out) for key, out in files.items() if out is not None})
-        typer.echo(json.dumps(report, allow_nan=False))
+    if not as_json:  # the table and the files written
+        typer.echo(ev.format_table(results))
+        for out, what in zip(outputs.values(), ("plot", "CSV table", "Markdown table")):
+            if out is not None:
+                typer.echo(f"{what} written to {out}")
         return
-    typer.echo(ev.format_table(results))
-    for (key, out), what in zip(files.items(), ("plot", "CSV table", "Markdown table")):
-        if out is not None:
-            typer.echo(f"{what} written to {out}")
+    report = ev.summary(results)
+    report["mode"] = "own-rate" if own_rate else "steval-pipeline"
+    report["sensor_noise"] = bool(sensor_noise and not own_rate)
+    report["seed"] = seed
+    if max_seconds is not None:
+        report["max_seconds"] = max_seconds
+    report.update({flag[2:]: str(out) for flag, out in outputs.items() if out is not None})
+    typer.echo(json.dumps(report, allow_nan=False))

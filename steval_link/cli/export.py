@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import numpy as np
 import typer
@@ -11,26 +11,19 @@ import typer
 from steval_link.analysis.frame_tables import frame_tables, header_of, settings_of
 from steval_link.analysis.mat_export import require_scipy, write_mat
 from steval_link.analysis.mcap_export import require_mcap, write_mcap
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = ["write_csv", "write_parquet", "write_raw", "write_atomic"]
+__all__ = ["write_csv", "write_parquet", "write_atomic"]
 
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
-ANGLE_COLUMNS = {
-    "thx_pitch_rad": "thx_pitch_deg",
-    "thy_roll_rad": "thy_roll_deg",
-    "thz_yaw_rad": "thz_yaw_deg",
-    "target_thx_pitch_rad": "target_thx_pitch_deg",
-    "target_thy_roll_rad": "target_thy_roll_deg",
-    "target_thz_yaw_rad": "target_thz_yaw_deg",
-}
+ANGLE_COLUMNS = {f"{p}{a}_rad": f"{p}{a}_deg" for p in ("", "target_") for a in ("thx_pitch", "thy_roll", "thz_yaw")}
 
 
 def _column_strings(col: np.ndarray, shortest: bool = False) -> list[str]:
@@ -57,8 +50,7 @@ def in_degrees(table: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def write_csv(table: dict[str, np.ndarray], path: Path, progress=None, shortest: bool = False) -> None:
-    """Write a column table as CSV (comma separated, header row, ``\\n`` line endings, UTF-8);
-    ``progress(fraction, stage)`` hears of each column formatted; ``shortest``: float64 as ``_column_strings``."""
+    """Write a column table as CSV (header row, ``\\n`` line endings, UTF-8); ``shortest``: see ``_column_strings``."""
     cols = []
     for i, c in enumerate(table.values()):
         if progress is not None:
@@ -79,53 +71,31 @@ def write_parquet(table: dict[str, np.ndarray], path: Path) -> None:
     pq.write_table(pa.table({k: np.asarray(v) for k, v in table.items()}), str(path))
 
 
-def write_raw(data: bytes, path: Path) -> None:
-    """Write the exact serial bytes."""
-    path.write_bytes(data)
-
-
-_Capture = Annotated[Path, typer.Argument(help="Capture (.stv), raw serial dump or text-mode log.")]
-_Csv = Annotated[
-    Optional[Path],
-    typer.Option("--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."),
-]
-_Parquet = Annotated[
-    Optional[Path], typer.Option("--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).")
-]
-_Raw = Annotated[Optional[Path], typer.Option("--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).")]
-_Mat = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--mat",
-        help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's "
-        "columns, plus settings and header (needs scipy).",
-    ),
-]
-_Mcap = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--mcap",
-        help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform "
-        "and PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs "
-        "mcap).",
-    ),
-]
-_Degrees = Annotated[
-    bool,
-    typer.Option(
-        "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
-    ),
-]
+_Degrees = option(
+    bool, "--degrees", help="Angles in degrees: thx_pitch_deg, thy_roll_deg, thz_yaw_deg instead of the _rad columns."
+)
 
 
 @app.command()
 def export(
-    capture: _Capture,
-    csv: _Csv = None,
-    parquet: _Parquet = None,
-    raw: _Raw = None,
-    mat: _Mat = None,
-    mcap: _Mcap = None,
+    capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log."),
+    csv: option(
+        Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
+    ) = None,
+    parquet: option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
+    raw: option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
+    mat: option(
+        Optional[Path],
+        "--mat",
+        help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
+        "settings and header (needs scipy).",
+    ) = None,
+    mcap: option(
+        Optional[Path],
+        "--mcap",
+        help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
+        "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
+    ) = None,
     degrees: _Degrees = False,
     force: ForceOption = False,
 ) -> None:
@@ -161,14 +131,11 @@ def export(
     if mcap is not None:
         require_mcap()
     src = read_recording(capture)  # the input first, then the outputs, then the work
-    for opt, p in outputs.items():
-        if p is not None:
-            check_output(p, option=opt, force=force, inputs=(capture,))
+    check_outputs(outputs, force=force, inputs=(capture,))
     with progress_bar("export") as progress:
         progress(0.1, "decoding")
         if is_ble_source(src):
-            csv, parquet, raw, mat, mcap = outputs.values()
-            _export_ble(telemetry_of_recording(src), csv, parquet, raw, progress, mat, mcap)
+            _export_ble(telemetry_of_recording(src), outputs, progress)
         else:
             _export_serial(src, outputs, degrees, progress)
 
@@ -180,15 +147,13 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
     records = tel is not None and tel.printed_only
     if tel is not None and not (records and mcap is None):
         require_attitude(tel, "export (--raw gives the bytes)")
-    for w in src.warnings:  # damaged but with frames: one line of our own, the export goes on
-        typer.echo(f"steval: warning: {w}", err=True)
+    print_warnings(src.warnings)  # damaged but with frames: the export goes on
     if raw is not None:
-        with atomic_output(raw, option="--raw") as part:
-            write_raw(src.data, part)
+        write_atomic(raw, "--raw", lambda f: f.write(src.data))
         typer.echo(f"{raw}: {len(src.data)} bytes")
     if records and (csv is not None or parquet is not None):  # a text log: a row per record
-        records_table = tel.text_series.table()
-        _write_table(records_table, csv, parquet, progress, f"{len(tel.text_series)} text records", shortest=True)
+        rows = f"{len(tel.text_series)} text records"
+        _write_table(tel.text_series.table(), csv, parquet, progress, rows, shortest=True)
     elif tel is not None and (csv is not None or parquet is not None):
         table = tel.attitude_table()
         table.update(tel.flight_columns())
@@ -199,13 +164,6 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
         _export_mat(tel, mat, degrees, progress)
     if tel is not None and mcap is not None:
         _export_mcap(tel, mcap, progress)
-
-
-def write_atomic(path: Path, option: str, write) -> None:
-    """``write(file)`` into ``PATH.partial``, renamed to ``path`` when complete (:func:`atomic_output`): the one
-    place the --mat and --mcap exports write."""
-    with atomic_output(path, option=option) as part, open(part, "wb") as f:
-        write(f)
 
 
 def _export_mat(tel, path: Path, degrees: bool, progress) -> None:
@@ -229,18 +187,16 @@ def _export_mcap(tel, path: Path, progress) -> None:
     typer.echo(f"{path}: MCAP, " + ", ".join(f"{topic} {n}" for topic, n in counts.items()))
 
 
-def _export_ble(
-    tel, csv: Path | None, parquet: Path | None, raw: Path | None, progress, mat: Path | None, mcap
-) -> None:
+def _export_ble(tel, outputs: dict, progress) -> None:
     """A BLE capture: one row per motion sample received (env and arming values held from their last one)."""
+    csv, parquet, raw, mat, mcap = outputs.values()
     path = tel.source["path"]
     if raw is not None or mcap is not None:
         raise UserError(
             f"{path} is a BLE capture: it has notifications, no serial bytes for --raw or attitude frames for --mcap "
             "(use --csv, --parquet or --mat)."
         )
-    for w in tel.source["warnings"]:
-        typer.echo(f"steval: warning: {w}", err=True)
+    print_warnings(tel.source["warnings"])
     table, n = tel.link.motion_table(), len(tel.link.samples)
     _write_table(table, csv, parquet, progress, f"{n} motion rows (BLE)")
     if mat is not None:

@@ -12,7 +12,7 @@ import typer
 from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
-from steval_link.cli.checks import VariantOption, check_variant, flag_of
+from steval_link.cli.checks import VariantOption, check_variant, estimator_names, flag_of
 from steval_link.cli.outputs import check_output
 from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
@@ -36,8 +36,6 @@ _PORT_HELP = (
 )
 _BAUD_HELP = "Baud rate of the drone's USART1 (the firmware patch's default is 115200)."
 _WAIT_HELP = "Keep waiting for the port to appear and for valid frames instead of stopping with an error."
-
-
 _PROMPT_HELP = (
     "Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
     "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal."
@@ -45,10 +43,8 @@ _PROMPT_HELP = (
 
 
 def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
-    """The checks of a session's outputs, for ``LiveSession(check_outputs=...)`` (run once the input is open, so
-    that a bad port or ELF is reported first): the capture (``--out``, resolved into ``options.out``; never
-    overwritten), the ``.rrd`` (never overwritten), then the Rerun sinks of the flags ``sinks``, resolved and
-    checked once into ``options.sinks`` (:func:`steval_viewer.sink_options.session_sinks`; ``view``: not
+    """The checks of a session's outputs, run once its input is open: the capture (``--out``, into ``options.out``)
+    and the ``.rrd`` (neither ever overwritten), then the Rerun sinks into ``options.sinks`` (``view``: not
     ``--no-view``)."""
 
     def check() -> None:
@@ -67,30 +63,19 @@ OUTPUT_FAILED_EXIT = 1
 
 
 def run_session(session: LiveSession) -> None:
-    """Run ``session`` and print its summary on stdout. An output that failed on the way (said when it happened,
-    left out of the summary) makes the exit code non-zero. A reader that closed stdout (``| head``, ``| true``)
-    ends nothing but the summary line: the capture is complete, and the exit is quiet."""
+    """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero. A
+    closed stdout (``| head``) loses only the summary line."""
     session.options.word = flag_of  # its notes name flags
     summary = session.run()
     try:
         print(summary.line())
         sys.stdout.flush()
-    except BrokenPipeError:
-        _stdout_to_devnull()
+    except BrokenPipeError:  # later writes (and the interpreter's last flush) go nowhere instead of failing
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
     if summary.failures:
         raise typer.Exit(OUTPUT_FAILED_EXIT)
-
-
-def _stdout_to_devnull() -> None:
-    """After a closed pipe: later writes (and the interpreter's last flush) go nowhere instead of failing."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
-    os.close(devnull)
-
-
-def live_estimators(estimators: list[str] | None) -> list[str]:
-    """The host estimators of ``-e`` (comma-separated or repeated; 'none'), default those of a live session."""
-    return registry.parse_names(",".join(estimators) if estimators else None, registry.LIVE_DEFAULT)
 
 
 def check_duration(duration: float | None) -> None:
@@ -98,7 +83,7 @@ def check_duration(duration: float | None) -> None:
         raise UserError(f"--duration must be positive, got {duration}")
 
 
-def _check_baud(baud: int) -> None:
+def check_baud(baud: int) -> None:
     if baud <= 0:
         raise UserError(f"--baud must be a positive baud rate, got {baud}")
 
@@ -143,8 +128,8 @@ def live_command(
     session waits and resumes when the port comes back. Commands typed in the terminal go to the drone (set ki
     1.0, correction off, reset, status, ...): each change is marked on the viewer's timeline and in the capture.
     """
-    _check_baud(baud)
-    check_view_flags(no_view=no_view, spawn=rerun.spawn, serve=rerun.serve, connect=rerun.connect)
+    check_baud(baud)
+    check_view_flags(rerun, no_view=no_view)
     check_duration(duration)
     variant = check_variant(variant)
     user_map = read_map_option(text_map)
@@ -164,7 +149,7 @@ def live_command(
             raise UserError(f"--ble-layout {ble_layout} goes with --ble")
         source = port_source(port or "auto", baud=baud, wait=wait)
     options = LiveOptions(
-        estimators=live_estimators(estimators),
+        estimators=estimator_names(estimators, registry.LIVE_DEFAULT),
         duration_s=duration,
         prompt=prompt,
         variant=variant,
@@ -190,7 +175,7 @@ def record_command(
     The stream is still decoded to show the link health and to stop with a clear message when the port carries no
     valid frames (wrong baud rate, another device). Ctrl-C or --duration ends the recording.
     """
-    _check_baud(baud)
+    check_baud(baud)
     check_duration(duration)
     options = LiveOptions(duration_s=duration)
     source = port_source(port, baud=baud, wait=wait)

@@ -1,17 +1,5 @@
-"""Every output file of every command, one rule: checked before any work, written whole or not at all.
-
-- :func:`check_output` runs for each output option after the inputs are read and before the work starts: the
-  folder exists and takes a new file (tried for real: a probe file is created and removed, so a read-only mount,
-  ``/proc`` or ``/sys`` fail here even for root), the path is not a folder, not the input itself, and an existing
-  file is refused unless the command has ``--force`` and it was given (captures are never overwritten).
-- :func:`atomic_output` writes to ``NAME.partial`` (``NAME.partial.EXT`` where the writer picks its format from
-  the extension) and renames it into place when the writer returns; a failure or Ctrl-C removes it. Nothing
-  half-written is left that looks complete, and an earlier file of that name stays as it was until the rename.
-- :func:`output_error` turns what a writer raises (``OSError``, Rerun's ``RuntimeError: Failed to create file``)
-  into one :class:`~steval_link.errors.UserError` sentence naming the option and the file.
-
-:data:`OUTPUT_OPTIONS` names the options that are output files (the CLI matrix test finds them by it).
-"""
+"""Every output file of every command, one rule: checked before any work (:func:`check_output`), written whole or
+not at all (:func:`atomic_output`: ``NAME.partial``, renamed into place when complete, removed on failure)."""
 
 from __future__ import annotations
 
@@ -23,10 +11,8 @@ import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
 
-import typer
-
+from steval_link.cli.app import option
 from steval_link.errors import UserError
 
 __all__ = [
@@ -36,9 +22,12 @@ __all__ = [
     "atomic_output",
     "check_input",
     "check_output",
+    "check_outputs",
     "output_error",
     "partial_path",
     "print_json",
+    "print_warnings",
+    "write_atomic",
 ]
 
 #: option names whose value is a file a command writes
@@ -46,16 +35,20 @@ OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "-
 #: suffix of a file being written (renamed into place when complete)
 PARTIAL = ".partial"
 
-ForceOption = Annotated[bool, typer.Option("--force", "-f", help="Overwrite existing output files.")]
-JsonReportOption = Annotated[
-    bool, typer.Option("--json", help="Print the report as one JSON object (nothing else on stdout).")
-]
+ForceOption = option(bool, "--force", "-f", help="Overwrite existing output files.")
+JsonReportOption = option(bool, "--json", help="Print the report as one JSON object (nothing else on stdout).")
 
 
 def print_json(d: dict) -> None:
     """A report as one indented JSON object on stdout (NaN refused: it is not JSON)."""
     json.dump(d, sys.stdout, indent=2, allow_nan=False)
     sys.stdout.write("\n")
+
+
+def print_warnings(warnings) -> None:
+    """Each warning met on the way (e.g. a damaged capture), one ``steval: warning:`` line on stderr."""
+    for w in warnings:
+        print(f"steval: warning: {w}", file=sys.stderr)
 
 
 def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
@@ -69,11 +62,11 @@ def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
 
 def _why(exc: BaseException) -> str:
     if isinstance(exc, OSError):
-        if exc.errno in (errno.EROFS,):
+        if exc.errno == errno.EROFS:
             return "read-only file system"
-        return (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
-    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    return text.rstrip(".")
+        return exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
+    text = str(exc).strip()
+    return (text.splitlines()[0] if text else type(exc).__name__).rstrip(".")
 
 
 def _probe(folder: Path) -> OSError | None:
@@ -97,13 +90,8 @@ def check_output(
     overwrite: str = "force",
     inputs: tuple[str | os.PathLike | None, ...] = (),
 ) -> Path:
-    """Check one output file before any work; returns it as a Path. Raises UserError, one sentence naming
-    ``option``, when: it is a folder; its folder is missing or not a folder; its folder takes no new file
-    (read-only, ``/proc``, no permission); it is one of ``inputs``; or it exists and may not be replaced.
-
-    ``overwrite``: ``"force"`` (replaced only with ``--force``: ``force`` true), ``"never"`` (captures: never
-    replaced), ``"always"`` (the command documents that it replaces the file).
-    """
+    """One output file, checked before any work (UserError naming ``option``); returns it as a Path. ``overwrite``:
+    ``"force"`` (an existing file replaced only with ``force``), ``"never"`` (captures) or ``"always"``."""
     p = Path(path).expanduser()
     label = f"{option} {p}".lstrip()  # option "": a path argument, named by itself
     if p.is_dir():
@@ -126,6 +114,17 @@ def check_output(
     if failed is not None:
         raise UserError(f"{label}: cannot write it, folder {parent} takes no new file ({_why(failed)})")
     return p
+
+
+def check_outputs(outputs: dict, *, force: bool = False, inputs: tuple = ()) -> None:
+    """:func:`check_output` of each given ``{option: path}``; with a ``--plot``, matplotlib must be there too."""
+    for flag, path in outputs.items():
+        if path is not None:
+            check_output(path, option=flag, force=force, inputs=inputs)
+    if outputs.get("--plot") is not None:
+        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
+
+        require_matplotlib()
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -151,34 +150,30 @@ def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
 
 
 def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:
-    """One sentence for a writer that failed on ``path`` (disk full, folder removed, a sink that cannot create
-    its file)."""
+    """One sentence for a writer that failed on ``path`` (disk full, folder removed, ...)."""
     return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there".lstrip())
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
-    """Yield the partial path to write ``path`` to; on a normal exit rename it into place (replacing an earlier
-    file), on any exception (Ctrl-C included) remove it. ``OSError`` and ``RuntimeError`` from the writer become
-    one UserError sentence (:func:`output_error`); a UserError passes unchanged."""
+    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception
+    (a writer's ``OSError`` or ``RuntimeError`` becomes :func:`output_error`)."""
     final = Path(path)
     partial = partial_path(final, keep_suffix=keep_suffix)
     try:
         yield partial
-        if not partial.exists():  # the writer wrote nothing there (e.g. a plot it had nothing for)
-            return
-        os.replace(partial, final)
-    except UserError:
-        _remove(partial)
-        raise
-    except (OSError, RuntimeError) as exc:
-        _remove(partial)
-        raise output_error(option, final, exc) from None
-    except BaseException:
-        _remove(partial)
+        if partial.exists():  # else the writer wrote nothing there (e.g. a plot it had nothing for)
+            os.replace(partial, final)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            partial.unlink()
+        if isinstance(exc, (OSError, RuntimeError)):
+            raise output_error(option, final, exc) from None
         raise
 
 
-def _remove(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        path.unlink()
+def write_atomic(path: Path, option: str, write, *, text: bool = False) -> None:
+    """``write(file)`` into ``PATH.partial`` (binary, or UTF-8 ``text``), renamed to ``path`` when complete."""
+    with atomic_output(path, option=option) as part:
+        with open(part, "w", newline="", encoding="utf-8") if text else open(part, "wb") as f:
+            write(f)

@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.link.ports import list_ports
 
 
 @app.command()
 def ports(
-    as_json: Annotated[bool, typer.Option("--json", help="Print the list as JSON (for scripts).")] = False,
+    as_json: option(bool, "--json", help="Print the list as JSON (for scripts).") = False,
 ) -> None:
     """List serial ports (device, description, VID:PID) to find the drone's USB-serial adapter."""
     found = list_ports()

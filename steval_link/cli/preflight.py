@@ -1,9 +1,5 @@
-"""``steval preflight``: the guided wiring check, live on the drone's port or on a capture.
-
-Live: records the port (as ``steval record``) while telling the user, move by move, what to do; then checks the
-capture. On a capture: checks it. The check itself is :mod:`steval_link.analysis.preflight`. Exit 0 when every
-check passes, 1 when the check names a problem, 2 for bad input (as every command).
-"""
+"""``steval preflight``: the guided wiring check, live on the drone's port (recorded, move by move) or on a
+capture."""
 
 from __future__ import annotations
 
@@ -18,7 +14,8 @@ from steval_link import constants as C
 from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
 from steval_link.cli.checks import flag_of, require_attitude
-from steval_link.cli.live import session_outputs
+from steval_link.cli.live import check_baud, session_outputs
+from steval_link.cli.outputs import print_warnings
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.live.session import LiveOptions, LiveSession, port_source
@@ -91,8 +88,7 @@ def preflight_command(
             raise UserError("--out is for the live check (--port); a capture is only read.")
         path = capture
     else:
-        if baud <= 0:
-            raise UserError(f"--baud must be a positive baud rate, got {baud}")
+        check_baud(baud)
         options, source = LiveOptions(duration_s=LIVE_S, word=flag_of), port_source(port, baud=baud)
         stop = threading.Event()
         th = _prompter(stop, sys.stderr)
@@ -106,8 +102,7 @@ def preflight_command(
     src = read_recording(path)
     tel = telemetry_of_recording(src)
     require_attitude(tel, "check (is it a capture of the drone's stream?)")
-    for w in src.warnings:  # a damaged capture that still holds frames: one line of our own, the check goes on
-        print(f"steval: warning: {w}", file=sys.stderr)
+    print_warnings(src.warnings)  # a damaged capture that still holds frames: the check goes on
     report = check_preflight(tel, str(path))
     print(f"steval preflight: {path}")
     print(report.text())

@@ -1,14 +1,5 @@
-"""The one progress bar of the ``steval`` commands: rich, on stderr, only when stderr is a terminal.
-
-Library functions take a plain callback ``progress(fraction, stage)`` (fraction of the job done, 0..1, and what it
-is doing now) and never print; the commands open a bar with :func:`progress_bar` and pass its callback down::
-
-    with progress_bar("replay", quiet=as_json) as progress:
-        tel = load(path, progress=scaled(progress, 0.0, 0.4))
-
-Nothing is drawn when stderr is not a terminal (pipes, CI, tests), with ``quiet`` (``--json``), or for a job that
-ends within :data:`SHOW_AFTER_S`; the bar is erased when the job ends, so the command's own output stays clean.
-"""
+"""The one progress bar of the ``steval`` commands: rich, on stderr, only when stderr is a terminal. Library
+functions take a callback ``progress(fraction 0..1, stage)`` and never print; :func:`progress_bar` draws it."""
 
 from __future__ import annotations
 
@@ -40,8 +31,7 @@ def scaled(progress: Progress | None, start: float, end: float) -> Progress:
 
 @contextmanager
 def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]:
-    """A progress callback drawing a bar on stderr (description, bar, %, stage, elapsed time) while the block
-    runs; a no-op callback when ``quiet`` or when stderr is not a terminal."""
+    """A progress callback drawing a bar on stderr while the block runs (a no-op when ``quiet`` or not a tty)."""
     stream = sys.stderr
     if quiet or not getattr(stream, "isatty", lambda: False)():
         yield _nothing
@@ -64,14 +54,12 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]
         redirect_stderr=True,
     )
     task = bar.add_task(description, total=1.0, stage="")
-    lock = threading.Lock()
-    state = {"shown": False, "done": False}
+    lock, done = threading.Lock(), threading.Event()
 
     def show() -> None:  # after SHOW_AFTER_S, whether or not the job reported meanwhile
         with lock:
-            if not state["done"]:
+            if not done.is_set():
                 bar.start()
-                state["shown"] = True
 
     def update(fraction: float, stage: str = "") -> None:
         bar.update(task, completed=min(max(float(fraction), 0.0), 1.0), stage=stage)
@@ -84,6 +72,5 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]
     finally:
         timer.cancel()
         with lock:
-            state["done"] = True
-            if state["shown"]:
-                bar.stop()
+            done.set()
+            bar.stop()  # nothing when it never started

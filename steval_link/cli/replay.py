@@ -1,32 +1,21 @@
-"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it.
-
-Replay is a pipeline, one stage per step of the data flow::
-
-    load_replay(path)             bytes → Telemetry            (load.load_telemetry)
-    run_estimators(tel, names)    Telemetry → {name: AttitudeEstimate}   (estimators.registry)
-    sinks                         each ``sink(tel, estimates)``: summary printing, Rerun .rrd, ...
-
-``steval replay`` checks its Rerun options first (before the work), then runs the stages and hands the result to
-the summary and, when asked, to the Rerun sink (``steval_viewer.replay_log.replay_sink``).
-"""
+"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it: :func:`load_replay`
+(bytes → Telemetry), :func:`run_estimators` (→ {name: AttitudeEstimate}), then the sinks (summary, Rerun)."""
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Any, Optional
 
 import numpy as np
-import typer
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.analysis.summary import format_summary, summarize
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
-from steval_link.cli.checks import VariantOption, check_variant
-from steval_link.cli.outputs import ForceOption, print_json
+from steval_link.cli.checks import VariantOption, check_variant, estimator_names
+from steval_link.cli.outputs import ForceOption, print_json, print_warnings
 from steval_link.cli.progress import Progress, progress_bar, scaled
 from steval_link.cli.viewer_options import (
     view_sinks,
@@ -43,17 +32,15 @@ from steval_viewer.sink_options import SinkOptions
 __all__ = ["MapOption", "load_replay", "run_estimators"]
 
 #: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
-MapOption = Annotated[
+MapOption = option(
     Optional[list[str]],
-    typer.Option(
-        "--map",
-        metavar="TARGET=SERIES[:UNIT]",
-        help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
-        f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
-        "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
-        show_default=False,
-    ),
-]
+    "--map",
+    metavar="TARGET=SERIES[:UNIT]",
+    help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
+    f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
+    "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
+    show_default=False,
+)
 
 
 #: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
@@ -68,9 +55,8 @@ def load_replay(
     text_map: list[str] | None = None,
     ble_layout: str | None = None,
 ) -> tuple[Any, list[str]]:
-    """Stage 1: the :class:`~steval_link.link.telemetry.Telemetry` of ``path`` (the demo recording when None), and the
-    warnings met while reading it (e.g. a capture cut short). ``src``: the file already read (``read_recording``);
-    ``text_map``: the ``--map`` items (a text log's series as the attitude); ``ble_layout``: a BLE capture's."""
+    """The Telemetry of ``path`` (the demo recording when None) and the warnings met reading it. ``src``: the file
+    already read; ``text_map``: the ``--map`` items; ``ble_layout``: a BLE capture's."""
     progress = scaled(progress, 0.0, 1.0)
     path = demo_capture_path() if path is None else Path(path)
     progress(0.0, f"reading {path.name}")
@@ -99,16 +85,12 @@ def _map_flag(exc: UserError) -> UserError:
 
 
 def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) -> dict[str, Any]:
-    """Stage 2: run each named estimator (``steval_link.estimators.registry``) from power-up over every attitude
-    row's inputs (``acc_mg``, ``gyro_mdps``, ``thr``; decimated text-mode rows at their row rate); returns
-    name → ``AttitudeEstimate``. Raises UserError for an unknown or uninstalled estimator."""
-
+    """Each named estimator run from power-up over the attitude rows' inputs: name → ``AttitudeEstimate``."""
     progress = scaled(progress, 0.0, 1.0)
     decimation = row_decimation(tel)
     out = {}
-    if tel.link is not None and not tel.link.sensors:  # BLE rows of the drone's attitude: no sensor values
-        return out
-    if not _has_sensor_rows(tel):  # a log of printed angles: nothing for an estimator to run on
+    # BLE rows of the drone's attitude, or a log of printed angles: no sensor values for an estimator to run on
+    if (tel.link is not None and not tel.link.sensors) or not _has_sensor_rows(tel):
         return out
     for i, name in enumerate(names):
         progress(i / len(names), f"estimator {name}")
@@ -128,8 +110,7 @@ def _has_sensor_rows(tel) -> bool:
 def summary_sink(
     as_json: bool, warnings_seen: list[str], variant: str | None = None, names: Sequence[str] = ()
 ) -> Sink:
-    """Sink printing the summary (text, or one JSON object) on stdout; ``variant`` forces the release's filter;
-    ``names``: the estimators asked for (a line says why none ran on a log without sensor values)."""
+    """Sink printing the summary (text or JSON); ``names``: the estimators asked for."""
 
     def sink(tel, estimates) -> None:
         s = summarize(tel, variant=variant, variant_source="--variant")
@@ -142,54 +123,39 @@ def summary_sink(
                 f"estimators not run ({', '.join(names)}): the capture has no accelerometer and gyro values "
                 "(print them, or name them with --map)"
             )
-        _print_summary(s, _with_estimators, as_json)
+        if as_json:
+            print_json(s)
+            return
+        print_warnings(s["warnings"])  # then the summary's lines and one per host estimator (``-e``)
+        lines = format_summary(dict(s, warnings=[])) + [estimator_line(e) for e in s["estimators"]]
+        print("\n".join(lines + ([s["estimators_not_run"]] if "estimators_not_run" in s else [])))
 
     return sink
-
-
-def _with_estimators(s: dict) -> list[str]:
-    """The summary's lines, then one line per host estimator (``-e``)."""
-    lines = format_summary(s) + [estimator_line(e) for e in s.get("estimators", [])]
-    return lines + ([s["estimators_not_run"]] if s.get("estimators_not_run") else [])
-
-
-def _print_summary(s: dict, format_lines, as_json: bool) -> None:
-    """A summary dict on stdout: one JSON object, or its lines with the warnings on stderr."""
-    if as_json:
-        print_json(s)
-    else:
-        for w in s["warnings"]:
-            print(f"steval: warning: {w}", file=sys.stderr)
-        print("\n".join(format_lines(dict(s, warnings=[]))))
 
 
 @app.command()
 @with_rerun_options
 def replay(
-    capture: Annotated[
+    capture: argument(
         Optional[Path],
-        typer.Argument(
-            help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled "
-            "demo recording.",
-            show_default=False,
-        ),
-    ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON (for scripts).")] = False,
-    estimators: Annotated[
+        help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled demo "
+        "recording.",
+        show_default=False,
+    ) = None,
+    as_json: option(bool, "--json", help="Print the summary as JSON (for scripts).") = False,
+    estimators: option(
         Optional[list[str]],
-        typer.Option(
-            "--estimators",
-            "-e",
-            help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
-            "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
-            f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
-            show_default=False,
-        ),
-    ] = None,
+        "--estimators",
+        "-e",
+        help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
+        "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
+        f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
+        show_default=False,
+    ) = None,
     variant: VariantOption = None,
     force: ForceOption = False,
     text_map: MapOption = None,
-    ble_layout: Annotated[Optional[str], typer.Option("--ble-layout", help=BLE_LAYOUT_HELP)] = None,
+    ble_layout: option(Optional[str], "--ble-layout", help=BLE_LAYOUT_HELP) = None,
     rerun: SinkOptions = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST
@@ -207,12 +173,10 @@ def replay(
     replaced only with --force)."""
     viewer, rrd = rerun.any(), rerun.rrd
     variant = check_variant(variant)
-    names = registry.parse_names(
-        ",".join(estimators) if estimators else None, registry.REPLAY_DEFAULT if viewer else ()
-    )
+    names = estimator_names(estimators, registry.REPLAY_DEFAULT if viewer else ())
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     # the sinks before the work: a bad --rrd, a dead --connect URL fails at once
-    options = view_sinks(**asdict(rerun), force=force, inputs=(src.path,))
+    options = view_sinks(rerun, force=force, inputs=(src.path,))
     layout = check_ble_layout(ble_layout) if ble_layout else None
     try:
         with progress_bar("replay", quiet=as_json or rerun.serve) as progress:  # --serve waits for Ctrl-C: no bar

@@ -1,23 +1,19 @@
-"""``steval report``: one or more captures as a lab report, a self-contained HTML page (``--out``) and/or Markdown
-with its figures beside it (``--markdown``); the sections and writers are in
-:mod:`steval_link.analysis.html_report`."""
+"""``steval report``: one or more captures as a lab report (HTML and/or Markdown)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis import html_report as H
 from steval_link.analysis import spectrum as S
 from steval_link.analysis.compare import compare_capture
 from steval_link.analysis.side_by_side import flight_of_telemetry, side_by_side
-from steval_link.cli.app import app
-from steval_link.cli.checks import require_attitude
+from steval_link.cli.app import app, argument, option
+from steval_link.cli.checks import estimator_names, require_attitude
 from steval_link.cli.compare import CompareEstimatorsOption
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.errors import UserError
@@ -40,26 +36,20 @@ def _spectrum(tel):
 
 @app.command("report")
 def report_command(
-    captures: Annotated[
-        list[Path],
-        typer.Argument(
-            help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
-        ),
-    ],
-    out: Annotated[
+    captures: argument(
+        list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
+    ),
+    out: option(
+        Optional[Path], "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
+    ) = None,
+    markdown: option(
         Optional[Path],
-        typer.Option("--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."),
-    ] = None,
-    markdown: Annotated[
-        Optional[Path],
-        typer.Option(
-            "--markdown",
-            metavar="REPORT.md",
-            help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
-        ),
-    ] = None,
+        "--markdown",
+        metavar="REPORT.md",
+        help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
+    ) = None,
     estimator: CompareEstimatorsOption = None,
-    title: Annotated[Optional[str], typer.Option("--title", help="The report's title.")] = None,
+    title: option(Optional[str], "--title", help="The report's title.") = None,
     force: ForceOption = False,
 ) -> None:
     """A lab report in one command: per capture its summary and filter settings, the attitude figure with
@@ -69,9 +59,7 @@ def report_command(
     figure and loads nothing from the network: open it in any browser, hand it in or paste from it."""
     if out is None and markdown is None:
         raise UserError("give --out REPORT.html and/or --markdown REPORT.md: where the report goes.")
-    names = registry.parse_names(
-        ",".join(estimator) if estimator else None, registry.COMPARE_DEFAULT, require_installed=False
-    )
+    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
     sources = [read_recording(c) for c in captures]  # the inputs first, then the outputs
     for src in sources:
         if is_ble_source(src):
@@ -80,9 +68,7 @@ def report_command(
                 "takes BLE captures side by side)."
             )
     inputs = tuple(s.path for s in sources)
-    for option, path in (("--out", out), ("--markdown", markdown)):
-        if path is not None:
-            check_output(path, option=option, force=force, inputs=inputs)
+    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=inputs)
     from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only here (start-up time)
 
     require_matplotlib()

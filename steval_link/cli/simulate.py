@@ -7,13 +7,12 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import numpy as np
-import typer
 
 from steval_link.analysis.report import json_number
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.cli.checks import (
     CorrectionOption,
     DtOption,
@@ -26,7 +25,7 @@ from steval_link.cli.checks import (
     check_variant,
     check_vector,
 )
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, write_atomic
 from steval_link.emulation.lab5 import (
     BASELINE_ACC_MG,
     BASELINE_GYRO_MDPS,
@@ -39,26 +38,9 @@ from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.plugins import split_list
 
-CSV_COLUMNS = (
-    "iteration",
-    "acc_x_mg",
-    "acc_y_mg",
-    "acc_z_mg",
-    "gyro_x_mdps",
-    "gyro_y_mdps",
-    "gyro_z_mdps",
-    "thr",
-    "q0",
-    "q1",
-    "q2",
-    "q3",
-    "eax_rad",
-    "eay_rad",
-    "eaz_rad",
-    "eax_deg",
-    "eay_deg",
-    "eaz_deg",
-    "valid",
+CSV_COLUMNS = tuple(
+    "iteration acc_x_mg acc_y_mg acc_z_mg gyro_x_mdps gyro_y_mdps gyro_z_mdps thr q0 q1 q2 q3 eax_rad eay_rad eaz_rad "
+    "eax_deg eay_deg eaz_deg valid".split()
 )
 
 #: Most AHRS steps one run takes (≈ 17 h of firmware time; every iteration is kept in memory).
@@ -94,18 +76,12 @@ def _text(value) -> str:
 
 
 def _rows(res: SimulationResult):
-    deg = [np.degrees(np.asarray(a, dtype=np.float64)) for a in (res.eax_rad, res.eay_rad, res.eaz_rad)]
+    rad = np.column_stack([res.eax_rad, res.eay_rad, res.eaz_rad]).astype(np.float64)
     for k in range(res.iterations):
-        yield (
-            [str(int(res.step[k]))]
-            + [_text(v) for v in res.acc_mg[k]]
-            + [_text(v) for v in res.gyro_mdps[k]]
-            + [str(int(res.thr[k]))]
-            + [_text(v) for v in res.q_wxyz[k]]
-            + [_text(res.eax_rad[k]), _text(res.eay_rad[k]), _text(res.eaz_rad[k])]
-            + [_text(d[k]) for d in deg]
-            + ["1" if res.valid[k] else "0"]
-        )
+        floats = [*res.q_wxyz[k], *rad[k], *np.degrees(rad[k])]
+        acc_gyro = [_text(v) for v in [*res.acc_mg[k], *res.gyro_mdps[k]]]
+        valid = "1" if res.valid[k] else "0"
+        yield [str(int(res.step[k])), *acc_gyro, str(int(res.thr[k])), *[_text(v) for v in floats], valid]
 
 
 def write_csv(res: SimulationResult, stream) -> None:
@@ -115,28 +91,21 @@ def write_csv(res: SimulationResult, stream) -> None:
     writer.writerows(_rows(res))
 
 
+#: the run's fields in ``--json``, before its final angles and rows
+_JSON_FIELDS = "estimator options settings dt_s estimator_dt_s iterations seed gyro_noise_mdps acc_noise_mg".split()
+
+
 def to_json(res: SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
     eax, eay, eaz = res.final_angles_rad()
     if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
         eax = eay = eaz = math.nan
+    final = {"eax": eax, "eay": eay, "eaz": eaz}
     return {
-        "estimator": res.estimator,
-        "options": res.options,
-        "settings": res.settings,
-        "dt_s": res.dt_s,
-        "estimator_dt_s": res.estimator_dt_s,
-        "iterations": res.iterations,
-        "seed": res.seed,
-        "gyro_noise_mdps": res.gyro_noise_mdps,
-        "acc_noise_mg": res.acc_noise_mg,
+        **{key: getattr(res, key) for key in _JSON_FIELDS},
         "final": {
-            "eax_rad": json_number(eax),
-            "eay_rad": json_number(eay),
-            "eaz_rad": json_number(eaz),
-            "eax_deg": json_number(math.degrees(eax)),
-            "eay_deg": json_number(math.degrees(eay)),
-            "eaz_deg": json_number(math.degrees(eaz)),
+            **{f"{n}_rad": json_number(v) for n, v in final.items()},
+            **{f"{n}_deg": json_number(math.degrees(v)) for n, v in final.items()},
         },
         "rows": [
             {
@@ -226,90 +195,66 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
     return [f"  acc is 0{where}: no accelerometer correction in those iterations"]
 
 
-_Gyro = Annotated[
-    tuple[float, float, float],
-    typer.Option("--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."),
-]
-_Acc = Annotated[
-    tuple[float, float, float],
-    typer.Option("--acc", metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."),
-]
-_Iterations = Annotated[int, typer.Option("--iterations", "-n", help="Number of AHRS steps (≥ 0).")]
-_Noise = Annotated[
-    bool,
-    typer.Option("--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."),
-]
-_GyroNoise = Annotated[
-    Optional[str],
-    typer.Option("--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."),
-]
-_AccNoise = Annotated[
-    Optional[str],
-    typer.Option(
-        "--acc-noise", metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
-    ),
-]
-_Seed = Annotated[Optional[int], typer.Option("--seed", help="Noise seed (default: random, printed).")]
-_Throttle = Annotated[
-    int, typer.Option("--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.")
-]
-_Kp = Annotated[Optional[float], typer.Option("--kp", help="Proportional gain, replacing both 10 and 0.4.")]
-_Estimator = Annotated[
-    Optional[list[str]],
-    typer.Option(
-        "--estimator",
-        "-e",
-        help="Estimator (one; default st-mahony): a registry name or your own "
-        "(FILE.py:CLASS, module:CLASS, options in parentheses: docs/ESTIMATORS.md).",
-    ),
-]
-_Csv = Annotated[
-    Optional[str],
-    typer.Option("--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."),
-]
-_Json = Annotated[bool, typer.Option("--json", help="Print the run (every iteration, exact values) as JSON.")]
-_Rrd = Annotated[Optional[Path], typer.Option("--rrd", help="Log the run to a Rerun .rrd file for the viewer.")]
-_Plot = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--plot",
-        metavar="OUT.png",
-        help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
-_CompareWith = Annotated[
-    Optional[list[str]],
-    typer.Option(
-        "--compare-with",
-        metavar="NAME=VALUE,...",
-        help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
-        "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. "
-        "--compare-with ki=1 --compare-with correction=off.",
-    ),
-]
+_GyroNoise = option(
+    Optional[str], "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
+)
 
 
 @app.command("simulate")
 def simulate_command(
-    gyro: _Gyro = BASELINE_GYRO_MDPS,
-    acc: _Acc = BASELINE_ACC_MG,
-    iterations: _Iterations = 100,
-    noise: _Noise = False,
+    gyro: option(
+        tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+    ) = BASELINE_GYRO_MDPS,
+    acc: option(
+        tuple[float, float, float],
+        "--acc",
+        metavar="X Y Z",
+        help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
+    ) = BASELINE_ACC_MG,
+    iterations: option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).") = 100,
+    noise: option(
+        bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
+    ) = False,
     gyro_noise: _GyroNoise = None,
-    acc_noise: _AccNoise = None,
-    seed: _Seed = None,
-    throttle: _Throttle = 0,
+    acc_noise: option(
+        Optional[str],
+        "--acc-noise",
+        metavar="MG|on",
+        help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
+    ) = None,
+    seed: option(Optional[int], "--seed", help="Noise seed (default: random, printed).") = None,
+    throttle: option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
     ki: KiOption = None,
-    kp: _Kp = None,
+    kp: option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.") = None,
     correction: CorrectionOption = None,
     variant: VariantOption = None,
     dt: DtOption = None,
-    estimators: _Estimator = None,
-    csv_out: _Csv = None,
-    json_out: _Json = False,
-    rrd: _Rrd = None,
-    plot: _Plot = None,
-    compare_with: _CompareWith = None,
+    estimators: option(
+        Optional[list[str]],
+        "--estimator",
+        "-e",
+        help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
+        "parentheses: docs/ESTIMATORS.md).",
+    ) = None,
+    csv_out: option(
+        Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+    ) = None,
+    json_out: option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.") = False,
+    rrd: option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.") = None,
+    plot: option(
+        Optional[Path],
+        "--plot",
+        metavar="OUT.png",
+        help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
+    compare_with: option(
+        Optional[list[str]],
+        "--compare-with",
+        metavar="NAME=VALUE,...",
+        help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
+        "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with "
+        "ki=1 --compare-with correction=off.",
+    ) = None,
     force: ForceOption = False,
 ) -> None:
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
@@ -325,30 +270,24 @@ def simulate_command(
     estimator = _estimator(estimators)
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
-    for option, path in (("--csv", None if csv_out == "-" else csv_out), ("--rrd", rrd), ("--plot", plot)):
-        if path is not None:
-            check_output(path, option=option, force=force)
-    if plot is not None:
-        from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only for --plot (start-up time)
-
-        require_matplotlib()
+    check_outputs({"--csv": None if csv_out == "-" else csv_out, "--rrd": rrd, "--plot": plot}, force=force)
     gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
     acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
     given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
     options = {k: v for k, v in given.items() if v is not None}
-    res = _run(gyro, acc, iterations, gyro_sigma, acc_sigma, seed, throttle, estimator, options, dt)
+    inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
+    res = _run("", **inputs, seed=seed, throttle=throttle, estimator=estimator, estimator_options=options, dt_s=dt)
     if rrd is not None:
         with atomic_output(rrd, option="--rrd") as part:
             _log_rrd(res, part)
-    others = _compare_runs(compare_with or [], res, gyro, acc, options, throttle, estimator)
+    others = _compare_runs(compare_with or [], dict(inputs, seed=res.seed), options, throttle, estimator)
     if plot is not None:
         from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
 
         with atomic_output(plot, option="--plot", keep_suffix=True) as part:
             plot_simulation(res, part, compare=others)
     if csv_out is not None and csv_out != "-":
-        with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
-            write_csv(res, fh)
+        write_atomic(csv_out, "--csv", lambda fh: write_csv(res, fh), text=True)
     text = summary(res, gyro, acc, throttle) + "".join(f"\n{_final_line(label, r)}" for label, r in others)
     if rrd is not None:
         text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"
@@ -378,24 +317,16 @@ def _estimator(estimators: list[str] | None):
     return registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
 
 
-def _run(gyro, acc, iterations, gyro_sigma, acc_sigma, seed, throttle, estimator, options, dt) -> SimulationResult:
-    """:func:`run_simulation`, its errors as one sentence."""
+def _run(what: str, **kwargs) -> SimulationResult:
+    """:func:`run_simulation`, its errors as one sentence (after ``what``: a --compare-with run)."""
     try:
-        return run_simulation(
-            gyro_mdps=gyro,
-            acc_mg=acc,
-            iterations=iterations,
-            gyro_noise_mdps=gyro_sigma,
-            acc_noise_mg=acc_sigma,
-            seed=seed,
-            throttle=throttle,
-            estimator=estimator,
-            estimator_options=options,
-            dt_s=dt,
-        )
-    except ImportError as exc:
-        raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
-    except ValueError as exc:
+        return run_simulation(**kwargs)
+    except (ImportError, ValueError) as exc:
+        if what:
+            raise UserError(f"{what}: {exc}") from None
+        if isinstance(exc, ImportError):
+            estimator = kwargs["estimator"]
+            raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
         raise UserError(str(exc)) from None
 
 
@@ -436,9 +367,9 @@ def _compare_value(name: str, text: str, kind: type):
     return v
 
 
-def _compare_runs(specs: list[str], res: SimulationResult, gyro, acc, options: dict, throttle: int, estimator: str):
-    """Each ``--compare-with NAME=VALUE,...``: a run on the same inputs and noise (the first run's seed) with those
-    settings changed; returns [(label, result)]."""
+def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, estimator: str):
+    """Each ``--compare-with NAME=VALUE,...``: a run on the same ``inputs`` and noise (the first run's seed) with
+    those settings changed; returns [(label, result)]."""
     out = []
     for spec in specs:
         opts, thr, est = dict(options), throttle, estimator
@@ -464,20 +395,7 @@ def _compare_runs(specs: list[str], res: SimulationResult, gyro, acc, options: d
                 opts[key] = v
         if est != "st-mahony" and est != estimator:
             opts = {}  # another estimator: its own defaults (the filter options are the firmware filter's)
-        try:
-            r = run_simulation(
-                gyro_mdps=gyro,
-                acc_mg=acc,
-                iterations=res.iterations,
-                gyro_noise_mdps=res.gyro_noise_mdps,
-                acc_noise_mg=res.acc_noise_mg,
-                seed=res.seed,
-                throttle=thr,
-                estimator=est,
-                estimator_options=opts,
-            )
-        except (ImportError, ValueError) as exc:
-            raise UserError(f"--compare-with {spec}: {exc}") from None
+        r = _run(f"--compare-with {spec}", **inputs, throttle=thr, estimator=est, estimator_options=opts)
         out.append((spec, r))
     return out
 

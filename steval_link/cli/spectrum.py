@@ -1,30 +1,24 @@
-"""``steval spectrum``: PSD, spectrogram and frequency-vs-throttle map of the gyro and accelerometer of a capture
-(numerics in :mod:`steval_link.analysis.spectrum`; the figure in :mod:`steval_link.analysis.spectrum_plot`; the
-Rerun side in :mod:`steval_viewer.spectrum_log`)."""
+"""``steval spectrum``: PSD, spectrogram and frequency-vs-throttle map of a capture's gyro and accelerometer."""
 
 from __future__ import annotations
 
 import math
 import sys
-from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated, Optional
-
-import typer
+from typing import Optional
 
 from steval_link.analysis import spectrum as S
-from steval_link.cli.app import app
+from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import require_attitude
-from steval_link.cli.outputs import ForceOption, atomic_output, check_output
+from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
 from steval_link.cli.viewer_options import (
-    sink_options,
     with_rerun_options,
 )
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import SinkOptions
+from steval_viewer.sink_options import SinkOptions, check_sinks
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -32,72 +26,50 @@ MAX_NPERSEG = 65536
 MAX_THROTTLE_BINS = 100
 
 
-_Capture = Annotated[
-    Path,
-    typer.Argument(help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False),
-]
-_Plot = Annotated[
+_Csv = option(
     Optional[Path],
-    typer.Option(
-        "--plot",
-        help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image "
-        '(.png, .svg, .pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
-    ),
-]
-_Csv = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--csv",
-        help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in "
-        "mdps²/Hz and mg²/Hz.",
-    ),
-]
-_MarkHz = Annotated[
-    Optional[list[float]],
-    typer.Option(
-        "--mark-hz",
-        metavar="HZ",
-        help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at "
-        "its alias above it (the gyro also at its 416 Hz-register images), with "
-        "the gain of the firmware's averaging and gyro filter; repeatable.",
-    ),
-]
-_Nperseg = Annotated[
-    Optional[int],
-    typer.Option(
-        "--nperseg",
-        metavar="ROWS",
-        help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
-        f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-        show_default=False,
-    ),
-]
-_Overlap = Annotated[float, typer.Option("--overlap", help="Fraction of a window the next one overlaps.")]
-_ThrottleBins = Annotated[
-    int,
-    typer.Option(
-        "--throttle-bins",
-        metavar="N",
-        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
-    ),
-]
-_Peaks = Annotated[int, typer.Option("--peaks", metavar="N", help="Peaks printed per axis.")]
-_MinHz = Annotated[
-    float, typer.Option("--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
-]
+    "--csv",
+    help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in mdps²/Hz and mg²/Hz.",
+)
+_MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not printed (slow motion, not vibration).")
 
 
 @app.command("spectrum")
 @with_rerun_options
 def spectrum_cmd(
-    capture: _Capture,
-    plot: _Plot = None,
+    capture: argument(
+        Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
+    ),
+    plot: option(
+        Optional[Path],
+        "--plot",
+        help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, "
+        '.pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
+    ) = None,
     csv_out: _Csv = None,
-    mark_hz: _MarkHz = None,
-    nperseg: _Nperseg = None,
-    overlap: _Overlap = 0.5,
-    throttle_bins: _ThrottleBins = 10,
-    peaks: _Peaks = 3,
+    mark_hz: option(
+        Optional[list[float]],
+        "--mark-hz",
+        metavar="HZ",
+        help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro "
+        "also at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
+    ) = None,
+    nperseg: option(
+        Optional[int],
+        "--nperseg",
+        metavar="ROWS",
+        help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
+        f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
+        show_default=False,
+    ) = None,
+    overlap: option(float, "--overlap", help="Fraction of a window the next one overlaps.") = 0.5,
+    throttle_bins: option(
+        int,
+        "--throttle-bins",
+        metavar="N",
+        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+    ) = 10,
+    peaks: option(int, "--peaks", metavar="N", help="Peaks printed per axis.") = 3,
     min_hz: _MinHz = 1.0,
     force: ForceOption = False,
     rerun: SinkOptions = None,
@@ -112,14 +84,12 @@ def spectrum_cmd(
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
     rrd = rerun.rrd
-    for option, path in (("--plot", plot), ("--csv", csv_out), ("--rrd", rrd)):
-        if path is not None:
-            check_output(path, option=option, force=force, inputs=(capture,))
+    check_outputs({"--plot": plot, "--csv": csv_out, "--rrd": rrd}, force=force, inputs=(capture,))
     if plot is not None:
         _check_plot_format(plot)
-    options = None
-    if rerun.any():  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        options = sink_options(**asdict(rerun))
+    options = rerun if rerun.any() else None
+    if options is not None:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
+        check_sinks(options)
     with progress_bar("spectrum", quiet=rerun.serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")
@@ -131,16 +101,14 @@ def spectrum_cmd(
         lines = S.format_summary(sp, found, marks, min_hz=min_hz, source=capture.name)
         if csv_out is not None:
             progress(0.4, f"writing {csv_out.name}")
-            with atomic_output(csv_out, option="--csv") as part, open(part, "w", newline="", encoding="utf-8") as fh:
-                S.write_csv(sp, fh)
+            write_atomic(csv_out, "--csv", lambda fh: S.write_csv(sp, fh), text=True)
         if plot is not None:
             from steval_link.analysis.spectrum_plot import plot_spectra  # matplotlib loads only for --plot
 
             progress(0.5, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_spectra(sp, part, marks_hz=marks, peaks=found, title=f"steval spectrum {capture.name}")
-    for w in warnings_seen:
-        print(f"steval: warning: {w}", file=sys.stderr)
+    print_warnings(warnings_seen)
     print("\n".join(lines))
     for what, path in (("csv", csv_out), ("plot", plot)):
         if path is not None:

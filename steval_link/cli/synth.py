@@ -5,11 +5,11 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
 import typer
 
-from steval_link.cli.app import app
+from steval_link.cli.app import app, option
 from steval_link.cli.checks import (
     CorrectionOption,
     KiOption,
@@ -24,94 +24,56 @@ from steval_link.constants import BAUD, KI
 from steval_link.emulation.scenarios import SCENARIOS
 from steval_link.errors import UserError
 
-
-def _list() -> None:
-    typer.echo("Built-in scenarios (steval synth --scenario NAME; or --scenario path/to/BROAD_trial.npz):")
-    for sc in SCENARIOS.values():
-        typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
-
-
-_Scenario = Annotated[
-    Optional[str],
-    typer.Option("--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."),
-]
-_Out = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--out",
-        "-o",
-        help="Output: FILE.stv (capture with host times) or any other name for the plain received "
-        "bytes (like cat /dev/ttyUSB0 > FILE).",
-    ),
-]
-_Duration = Annotated[
-    Optional[float],
-    typer.Option("--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."),
-]
-_Seed = Annotated[int, typer.Option("--seed", help="Seed of every random choice; same seed, same bytes.")]
-_Baud = Annotated[
-    int,
-    typer.Option(
-        "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
-    ),
-]
-_TextMode = Annotated[
-    bool,
-    typer.Option("--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."),
-]
-_JoinAt = Annotated[
-    float, typer.Option("--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
-]
-_DropRate = Annotated[
-    float,
-    typer.Option(
-        "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
-    ),
-]
-_Encoder = Annotated[
-    str, typer.Option("--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
-]
-_CEncoder = Annotated[
-    Optional[Path],
-    typer.Option(
-        "--c-encoder",
-        help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
-    ),
-]
-_Vibration = Annotated[
-    Optional[list[str]],
-    typer.Option(
-        "--vibration",
-        metavar="SENSOR-AXIS:HZ:AMP",
-        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); "
-        "repeatable. To check steval spectrum against known peaks.",
-    ),
-]
-_Format = Annotated[str, typer.Option("--format", help="auto (by the --out extension), stv or raw.")]
-_Force = Annotated[bool, typer.Option("--force", help="Replace --out if it exists.")]
-_List = Annotated[bool, typer.Option("--list", help="List the built-in scenarios and exit.")]
+_JoinAt = option(float, "--join-at", help="Start the capture this many s after power-up (mid-flight, mid-frame).")
+_Encoder = option(str, "--encoder", help="Frame encoder: python, or c (the firmware's C encoder, host build).")
 
 
 @app.command("synth")
 def synth_cmd(
-    scenario: _Scenario = None,
-    out: _Out = None,
-    duration: _Duration = None,
-    seed: _Seed = 0,
-    baud: _Baud = BAUD,
+    scenario: option(
+        Optional[str], "--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."
+    ) = None,
+    out: option(
+        Optional[Path],
+        "--out",
+        "-o",
+        help="Output: FILE.stv (capture with host times) or any other name for the plain received bytes (like cat "
+        "/dev/ttyUSB0 > FILE).",
+    ) = None,
+    duration: option(
+        Optional[float], "--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
+    ) = None,
+    seed: option(int, "--seed", help="Seed of every random choice; same seed, same bytes.") = 0,
+    baud: option(
+        int, "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+    ) = BAUD,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
     ki: KiOption = None,
     correction: CorrectionOption = None,
-    text_mode: _TextMode = False,
+    text_mode: option(
+        bool, "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."
+    ) = False,
     join_at: _JoinAt = 0.0,
-    drop_rate: _DropRate = 0.0,
+    drop_rate: option(
+        float, "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+    ) = 0.0,
     encoder: _Encoder = "python",
-    c_encoder: _CEncoder = None,
-    vibration: _Vibration = None,
-    fmt: _Format = "auto",
-    force: _Force = False,
-    list_: _List = False,
+    c_encoder: option(
+        Optional[Path],
+        "--c-encoder",
+        help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
+    ) = None,
+    vibration: option(
+        Optional[list[str]],
+        "--vibration",
+        metavar="SENSOR-AXIS:HZ:AMP",
+        help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); repeatable. To "
+        "check steval spectrum against known peaks.",
+    ) = None,
+    fmt: option(str, "--format", help="auto (by the --out extension), stv or raw.") = "auto",
+    force: option(bool, "--force", help="Replace --out if it exists.") = False,
+    list_: option(bool, "--list", help="List the built-in scenarios and exit.") = False,
 ) -> None:
     """Run the modelled drone (Python, no ELF) into a capture: motion, sensors, ISR, the replica, the link.
 
@@ -121,7 +83,9 @@ def synth_cmd(
     from steval_link.emulation.synth import SynthOptions, synthesize, write_output  # reason: start-up time
 
     if list_:
-        _list()
+        typer.echo("Built-in scenarios (steval synth --scenario NAME; or --scenario path/to/BROAD_trial.npz):")
+        for sc in SCENARIOS.values():
+            typer.echo(f"  {sc.name:<11} {sc.default_duration_s:>4.0f} s  {sc.summary}")
         return
     if scenario is None:
         raise UserError("--scenario is required (see steval synth --list)")

@@ -1,48 +1,33 @@
-"""The Rerun sink options every viewing command shares (``--rrd``, ``--spawn``, ``--serve``, ``--connect``,
-``--web-port``, ``--grpc-port``): one definition, so their names and help read the same everywhere."""
+"""The Rerun sink options every viewing command shares, defined once."""
 
 from __future__ import annotations
 
-import functools
-import inspect
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Optional
 
-import typer
-
+from steval_link.cli.app import option, with_options
 from steval_link.cli.outputs import check_output
 from steval_link.errors import UserError
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks
 
-RrdOption = Annotated[
-    Optional[Path],
-    typer.Option("--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."),
-]
-SpawnOption = Annotated[
-    bool, typer.Option("--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
-]
-ServeOption = Annotated[
-    bool, typer.Option("--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
-]
-ConnectOption = Annotated[
+RrdOption = option(
+    Optional[Path], "--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."
+)
+SpawnOption = option(bool, "--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
+ServeOption = option(bool, "--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
+ConnectOption = option(
     Optional[str],
-    typer.Option(
-        "--connect",
-        metavar="URL",
-        help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
-    ),
-]
-WebPortOption = Annotated[
-    int, typer.Option("--web-port", metavar="PORT", help="HTTP port of the --serve web viewer (127.0.0.1).")
-]
-GrpcPortOption = Annotated[
+    "--connect",
+    metavar="URL",
+    help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
+)
+WebPortOption = option(int, "--web-port", metavar="PORT", help="HTTP port of the --serve web viewer (127.0.0.1).")
+GrpcPortOption = option(
     int,
-    typer.Option(
-        "--grpc-port",
-        metavar="PORT",
-        help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
-    ),
-]
+    "--grpc-port",
+    metavar="PORT",
+    help="gRPC port of the --spawn or --serve viewer (127.0.0.1); a --spawn viewer already on it is reused.",
+)
 
 
 #: the shared Rerun options: (parameter, annotation, default)
@@ -56,64 +41,30 @@ _RERUN_PARAMS = (
 )
 
 
-def with_rerun_options(command):
-    """A typer command that takes the shared Rerun options after its own and gets them as one
-    :class:`~steval_viewer.sink_options.SinkOptions`, its keyword ``rerun`` (one definition of the six)."""
-    own = [p for p in inspect.signature(command, eval_str=True).parameters.values() if p.name != "rerun"]
-    kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
-    added = [inspect.Parameter(name, kind, annotation=a, default=d) for name, a, d in _RERUN_PARAMS]
-
-    @functools.wraps(command)
-    def run(**kwargs):
-        rerun = SinkOptions(**{name: kwargs.pop(name) for name, _, _ in _RERUN_PARAMS})
-        return command(**kwargs, rerun=rerun)
-
-    run.__signature__ = inspect.Signature([*own, *added])
-    run.__annotations__ = {p.name: p.annotation for p in [*own, *added]}
-    return run
+#: a typer command that takes the shared Rerun options where its parameter ``rerun`` stands, as one
+#: :class:`~steval_viewer.sink_options.SinkOptions`
+with_rerun_options = with_options("rerun", _RERUN_PARAMS, SinkOptions)
 
 
-NoViewOption = Annotated[bool, typer.Option("--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")]
-CaptureOutOption = Annotated[
-    Optional[Path],
-    typer.Option("--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."),
-]
+NoViewOption = option(bool, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
+CaptureOutOption = option(
+    Optional[Path], "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
+)
 
 
-def check_view_flags(*, no_view: bool, spawn: bool, serve: bool, connect: str | None) -> None:
+def check_view_flags(rerun: SinkOptions, *, no_view: bool = False) -> None:
     """A session shows one viewer at most, and none with ``--no-view``: UserError otherwise."""
-    if sum([spawn, serve, connect is not None]) > 1:
+    if sum([rerun.spawn, rerun.serve, rerun.connect is not None]) > 1:
         raise UserError("choose one of --spawn, --serve and --connect")
-    if no_view and (spawn or serve or connect):
+    if no_view and (rerun.spawn or rerun.serve or rerun.connect):
         raise UserError("--no-view cannot be combined with --spawn, --serve or --connect")
 
 
-def sink_options(
-    *, rrd: Path | None, spawn: bool, serve: bool, connect: str | None, web_port: int, grpc_port: int
-) -> SinkOptions:
-    """The ``steval_viewer.sink_options.SinkOptions`` of the shared flags, checked before any work is done (a missing
-    ``.rrd`` folder, a URL where nothing listens, a busy port: one UserError sentence)."""
-    options = SinkOptions(spawn=spawn, serve=serve, connect=connect, rrd=rrd, web_port=web_port, grpc_port=grpc_port)
-    check_sinks(options)
-    return options
-
-
-def view_sinks(
-    *,
-    rrd: Path | None,
-    spawn: bool,
-    serve: bool,
-    connect: str | None,
-    web_port: int,
-    grpc_port: int,
-    force: bool,
-    inputs: tuple = (),
-) -> SinkOptions | None:
-    """A batch command's Rerun outputs, checked before its work: the ``--rrd`` file as every output is
-    (:func:`steval_link.cli.outputs.check_output`), then the sinks (:func:`sink_options`). None when no Rerun output
-    was asked for."""
-    if rrd is not None:
-        check_output(rrd, option="--rrd", force=force, inputs=inputs)
-    if rrd is None and not (spawn or serve or connect is not None):
+def view_sinks(rerun: SinkOptions, *, force: bool, inputs: tuple = ()) -> SinkOptions | None:
+    """A batch command's Rerun outputs, checked before its work (None when none was asked for)."""
+    if rerun.rrd is not None:
+        check_output(rerun.rrd, option="--rrd", force=force, inputs=inputs)
+    if rerun.rrd is None and not (rerun.spawn or rerun.serve or rerun.connect is not None):
         return None
-    return sink_options(rrd=rrd, spawn=spawn, serve=serve, connect=connect, web_port=web_port, grpc_port=grpc_port)
+    check_sinks(rerun)
+    return rerun
