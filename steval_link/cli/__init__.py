@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib
+import inspect
+import re
 import sys
 
 import typer
@@ -50,14 +52,17 @@ _USAGE_ERRORS, _EXITS, _ABORTS = _exception_classes()
 _INTERRUPTED = 130
 
 
-def _hide_flag_metavars(command) -> None:
-    """Boolean flags (the help option too) show no ``<bool>`` in ``--help``, on every sub-command."""
+def _tidy_help(command) -> None:
+    """``--help`` of every sub-command: boolean flags (the help option too) show no ``<bool>``, and a paragraph's
+    lines are one line that the terminal wraps (typer keeps the docstring's line breaks); list items keep theirs."""
     help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
     for param in [*getattr(command, "params", ()), help_option]:
         if getattr(param, "is_flag", False) and param.metavar is None:
             param.metavar = ""
+    if command.help:
+        command.help = re.sub(r"(?<=\S)\n(?!\n|\s*(?:[-*•]|\d+\.) )", " ", inspect.cleandoc(command.help))
     for sub in getattr(command, "commands", {}).values():
-        _hide_flag_metavars(sub)
+        _tidy_help(sub)
 
 
 def _usage_line(exc) -> str:
@@ -73,7 +78,7 @@ def main(argv: list[str] | None = None) -> None:
     """The ``steval`` console script: user and usage errors are one ``steval: error:`` line (exit 2), never a
     traceback; Ctrl-C, SIGTERM and SIGHUP exit 130 after the cleanup."""
     command = typer.main.get_command(app)
-    _hide_flag_metavars(command)
+    _tidy_help(command)
     try:
         with on_stop_signals(interrupt, sigint=False):
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
