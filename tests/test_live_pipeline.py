@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from support.ptyfeed import REAL_BYTES_PER_S, PtyFeeder, flight_stream
 
+from steval_link import constants as C
 from steval_link.estimators.firmware_replay import replay_firmware
 from steval_link.estimators.st_mahony import bits_equal
 from steval_link.link import protocol
@@ -362,3 +363,28 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     assert info.samples[ent.DRONE_FIRMWARE] >= 1
     assert info.samples[ent.LINK_CYCLES] == n_status
     assert info.samples[ent.LOG_FIRMWARE] == 1
+
+
+def test_a_settings_change_is_noted_at_its_status_frames_time():
+    """A status frame sent because of a command (FLAG_EVENT) reaches the loggers as a note at that frame's firmware
+    and host time (the viewer places it on both timelines)."""
+
+    class EventLog(BatchLog):
+        def __init__(self) -> None:
+            super().__init__()
+            self.events = []
+
+        def log_event(self, text, at, level="INFO") -> None:
+            self.events.append((text, at.t_fw_s, at.t_host_s, level))
+
+    log = EventLog()
+    pipe = LivePipeline(["st-mahony"], log, view_interval_s=3600.0)
+    t_us = 1_234_567 + round(299 * C.AHRS_PERIOD_S * 1e6)  # flight_stream's clock at step 299
+    event = protocol.encode_status(
+        step=299, t_us=t_us, q_wxyz=(1, 0, 0, 0), int_xyz=(0, 0, 0), ki=1.0, flags=protocol.FLAG_EVENT
+    )
+    pipe.feed([(flight_stream(300) + event + protocol.encode_text("ok"), 1.7e9 + 5.0)])
+    pipe.flush_view()
+    notes = [e for e in log.events if e[0].startswith("drone:")]
+    assert len(notes) == 1 and "ki 1, " in notes[0][0] and "from step 300" in notes[0][0]
+    assert notes[0][1] == pytest.approx(t_us / 1e6, abs=1e-6) and np.isfinite(notes[0][2])

@@ -116,6 +116,8 @@ class EmulatedSource(Source):
         capture first; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
         t0, t_round = time.monotonic(), 0.0
         pending: list[Chunk] = []
+        if self._closed:
+            return
         for data, t_s in self.emu.chunks():
             out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
             out.append(Chunk("D", data, t_s))

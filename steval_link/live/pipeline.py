@@ -91,7 +91,7 @@ class StepUnwrapper(SeqUnwrapper):
 
 class BatchOutlet:
     """One logger fed merged rows at its own cadence: batches wait at most ``interval_s`` (monotonic) or
-    ``interval_s`` (else ``max_stream_s``) × 161.5 rows of stream; events follow the merged batch in stream order."""
+    ``max_stream_s`` (else ``interval_s``) × 161.5 rows of stream; events follow the merged batch in stream order."""
 
     def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
         self.logger = logger
@@ -169,8 +169,9 @@ class LivePipeline:
         self.clock = StreamClock(t0_unix_s, baud)  # the rows' firmware and host times (the capture's base)
         self._last_row: tuple[int, float, float] | None = None  # (step, t_fw_s, t_host_s) of the latest row
         self.sample = bytearray()  # the first bytes of the current connection (to describe a stream without frames)
-        #: firmware log lines, and sentences about commands and the stream, not shown yet (the session prints them)
+        #: firmware log lines not shown yet (the session prints them)
         self.texts: collections.deque[str] = collections.deque(maxlen=32)
+        #: sentences not shown yet: command answers, estimator and link notes
         self.notes: collections.deque[str] = collections.deque(maxlen=32)
         self.host_decoder = StreamDecoder()  # the commands the host sent: logged, and matched to their acks
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()

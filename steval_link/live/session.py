@@ -166,8 +166,8 @@ class LiveSession:
                     if self.console is not None:
                         self.console.close()
                     self._close_outputs(self._stop_reason or (type(error).__name__ if error else "end"))
-        if error is not None and not started:  # a failed start leaves nothing half-made
-            capture.discard()
+                    if error is not None and not started:  # a failed start leaves nothing half-made
+                        capture.discard()
         if error is not None:
             raise self._error_of(error)
         self._watch_outputs()
