@@ -17,6 +17,7 @@ from support.cli import run_cli
 
 from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link.ble_telemetry import EULER_NOTE, link_notes
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 from steval_link.link.load import load_telemetry, read_recording
 from steval_link.live.pipeline import LivePipeline
@@ -161,3 +162,13 @@ def test_live_ble_with_the_euler_layout_records_it_and_replay_reads_it(monkeypat
     assert read_recording(out).header["extra"]["ble_layout"] == "euler"
     code, text, err = run_cli(monkeypatch, capsys, "replay", out, "--json")
     assert code == 0 and json.loads(text)["ble_layout"] == "euler"
+
+
+def test_the_euler_layout_on_sensor_notifications_says_they_look_like_sensors(monkeypatch, capsys):
+    """ST's unmodified firmware's notifications read with --ble-layout euler: the note says the acc fields look like
+    an accelerometer's; a fork's real angles in that layout get no such sentence."""
+    code, out, _ = run_cli(monkeypatch, capsys, "replay", REC / "ble_demo.stv", "--ble-layout", "euler", "--json")
+    s = json.loads(out)
+    assert code == 0 and "drone's own attitude" in s["note"] and "look like raw sensors" in s["note"]
+    fork_acc = telemetry_of_records(euler_stream()[0]).link.samples["acc"]  # the fork's angles, x 1000
+    assert link_notes(fork_acc, B.layout_named("euler")) == [EULER_NOTE]

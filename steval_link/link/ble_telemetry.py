@@ -69,9 +69,9 @@ EULER_NOTE = (
 def link_notes(acc_mg, layout: BleLayout) -> list[str]:
     """What a BLE stream's rows are, said once: the euler layout's note, or the stock layout's (the drone's attitude
     is not sent) and, when its acc fields cannot be an accelerometer's, that sentence too."""
-    if layout.sends_attitude:
-        return [EULER_NOTE]
     other = motion_payload_note(acc_mg, layout)
+    if layout.sends_attitude:
+        return [EULER_NOTE, other] if other else [EULER_NOTE]
     return [other] if other else [NOT_BIT_EXACT]
 
 
@@ -198,14 +198,25 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
 
 
 def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
-    """One sentence when the stock layout's acc fields cannot be an accelerometer's: hardly a sample near 1 g (a raw
-    accelerometer reads about 1000 mg at rest, and near it most of a flight) and every value in an angle's range
-    (rad x 1000, or degrees x 100); None when they can, or when the layout already says what they hold."""
+    """One sentence when the acc fields contradict the layout; None when they fit it.
+
+    Stock layout: they cannot be an accelerometer's when hardly a sample is near 1 g (a raw accelerometer reads
+    about 1000 mg at rest, and near it most of a flight) and every value is in an angle's range (rad x 1000, or
+    degrees x 100). Euler layout: they look like an accelerometer's when nearly every sample is near 1 g."""
     acc = np.asarray(acc_mg, dtype=np.float64).reshape(-1, 3)
-    if layout.sends_attitude or len(acc) < 2:
+    if len(acc) < 2:
         return None
     norm = np.linalg.norm(acc, axis=1)
     near_1g = float(np.mean(np.abs(norm - 1000.0) <= ONE_G_BAND_MG))
+    if layout.sends_attitude:
+        if near_1g < SENSOR_1G_SHARE:
+            return None
+        return (
+            f"The motion notifications look like raw sensors, not angles: their acc fields are near 1 g in "
+            f"{100 * near_1g:.1f} % of the samples (median |acc| {float(np.median(norm)):.0f} mg, as an accelerometer "
+            "reads), so the euler layout may be reading an accelerometer as angles (ST's unmodified firmware sends "
+            "the stock layout)."
+        )
     if near_1g >= NEAR_1G_SHARE or float(np.nanmax(np.abs(acc))) > ANGLE_RANGE_MAX:
         return None
     return (
@@ -220,6 +231,8 @@ def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
 ONE_G_BAND_MG = 250.0
 #: a stream with fewer samples near 1 g than this share has no accelerometer in its acc fields
 NEAR_1G_SHARE = 0.01
+#: a stream with at least this share of samples near 1 g has an accelerometer in its acc fields
+SENSOR_1G_SHARE = 0.9
 #: the largest field an angle ×scale reaches (degrees x 100: 18000)
 ANGLE_RANGE_MAX = 18000.0
 
