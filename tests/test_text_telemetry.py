@@ -226,6 +226,9 @@ def test_records_map_to_the_attitude_and_the_sensors(demo):
     np.testing.assert_allclose(np.degrees(tel.attitude.thx_rad), demo["pitch_deg"][1:], atol=1e-5)
     notes = " ".join(tel.text_attitude_notes)
     assert "Drone_Pitch → pitch, degrees" in notes and "pitch on this board" in notes  # the handouts' roll
+    tel = decode_bytes(b"t_s,thx_pitch_rad,thy_roll_rad\n" + b"".join(b"%d,0.1,-0.2\n" % i for i in range(20)))
+    notes = " ".join(tel.text_attitude_notes)  # the firmware's axis names: no handouts' hedge
+    assert "thx_pitch_rad → pitch, radians (about x, nose up +)" in notes and "handouts'" not in notes
     tel = decode_bytes(fm["csv_header"][0])
     assert tel.text_series.t_source == "the column t_ms"
     np.testing.assert_allclose(tel.attitude.t_fw_s, np.arange(N) * 0.01)

@@ -394,8 +394,9 @@ _UNIT_WORDS = {"deg": "degrees", "rad": "radians", "mdeg": "millidegrees", "cdeg
 def _axis_note(target: str, name: str) -> str:
     """Where the name and the board's axes may disagree (thx is about x = pitch; thy about y = roll; the handouts'
     textbook roll atan(ay/az) is the angle about x, so pitch on this board, and their pitch is roll)."""
-    if name in ("thx", "thy", "thz") or target == "yaw":
-        return {"thx": " (about x, nose up +)", "thy": " (about y)"}.get(name, "")
+    axis = name[:3].lower()
+    if axis in ("thx", "thy", "thz") or target == "yaw":  # thx, thx_pitch_rad ...: the firmware's own axis name
+        return {"thx": " (about x, nose up +)", "thy": " (about y)"}.get(axis, "")
     other = "pitch" if target == "roll" else "roll"
     return (
         f" (if it is the handouts' {target} formula, it is the angle about {'x' if target == 'roll' else 'y'}: "
