@@ -46,6 +46,9 @@ def test_help_shows_no_bool_metavar(monkeypatch, capsys, command):
         (["no-such-command"], ["no-such-command"]),
         (["record"], ["--port"]),
         (["simulate", "--acc", "1", "2"], ["--acc"]),
+        (["compare", "recordings/demo.stv", "--plot"], ["--plot", "see 'steval compare --help'"]),
+        (["param", "get", "--port"], ["--port", "see 'steval param get --help'"]),
+        (["--bogus"], ["--bogus", "see 'steval --help'"]),
     ],
 )
 def test_usage_errors_are_one_line(monkeypatch, capsys, args, words):

@@ -65,13 +65,19 @@ def _tidy_help(command) -> None:
         _tidy_help(sub)
 
 
-def _usage_line(exc) -> str:
-    """One ``steval: error:`` line for a typer/click usage error, with where to find help."""
+def _usage_line(exc, command, args: list[str]) -> str:
+    """One ``steval: error:`` line for a typer/click usage error, with where to find help: the sub-command's
+    (from the error, else from the words of ``args`` that name sub-commands of ``command``)."""
     message = exc.format_message().strip()
     message = message[:1].lower() + message[1:].rstrip(".")
     ctx = getattr(exc, "ctx", None)
-    command = ctx.command_path if ctx is not None else "steval"
-    return f"steval: error: {printable(message)} (see '{command} --help')"
+    path = [ctx.command_path] if ctx is not None else ["steval"]
+    for word in args if ctx is None else ():
+        command = getattr(command, "commands", {}).get(word)
+        if command is None:
+            break
+        path.append(word)
+    return f"steval: error: {printable(message)} (see '{' '.join(path)} --help')"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -92,7 +98,7 @@ def main(argv: list[str] | None = None) -> None:
         if type(exc).__name__ == "NoArgsIsHelpError":  # `steval` alone: the help, exit 2
             exc.show()
         elif hasattr(exc, "ctx"):  # usage errors, bad option values: one line, exit 2
-            print(_usage_line(exc), file=sys.stderr)
+            print(_usage_line(exc, command, sys.argv[1:] if argv is None else argv), file=sys.stderr)
         else:  # other click exceptions (e.g. a file error)
             print(f"steval: error: {printable(exc.format_message())}", file=sys.stderr)
         sys.exit(getattr(exc, "exit_code", 2))
