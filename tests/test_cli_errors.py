@@ -32,6 +32,18 @@ def test_version_and_short_help(monkeypatch, capsys):
     assert code == 0 and "Usage: steval simulate" in out
 
 
+@pytest.mark.parametrize("columns", ["80", "120"])
+def test_help_at_80_and_120_columns_keeps_every_option_name_and_word(monkeypatch, capsys, columns):
+    """A command's help fits the terminal without cutting an option name or a sentence short with '…'."""
+    monkeypatch.setenv("COLUMNS", columns)
+    code, out, _ = run_cli(monkeypatch, capsys, "compare", "--help")
+    lines = out.splitlines()
+    assert code == 0 and "…" not in out and max(map(len, lines)) <= int(columns)
+    assert "--estimators" in out and "--throttle" not in out and "steval-link[plot]" in out.replace("\\[", "[")
+    words = " ".join(line.strip(" │") for line in lines).split()
+    assert "OUT-flight-control.png" in words and "comma-separated" in words
+
+
 @pytest.mark.parametrize("command", COMMANDS)
 def test_help_shows_no_bool_metavar(monkeypatch, capsys, command):
     code, out, _ = run_cli(monkeypatch, capsys, command, "--help")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import re
+import shutil
 import sys
 
 import typer
@@ -52,17 +53,30 @@ _USAGE_ERRORS, _EXITS, _ABORTS = _exception_classes()
 _INTERRUPTED = 130
 
 
-def _tidy_help(command) -> None:
+#: below this many columns ``--help`` is click's plain layout: typer's option tables leave the help ~17 columns
+HELP_TABLE_MIN_COLUMNS = 100
+
+
+def _tidy_help(command, plain: bool) -> None:
     """``--help`` of every sub-command: boolean flags (the help option too) show no ``<bool>``, and a paragraph's
-    lines are one line that the terminal wraps (typer keeps the docstring's line breaks); list items keep theirs."""
+    lines are one line that the terminal wraps (typer keeps the docstring's line breaks); list items keep theirs.
+    ``plain``: a command's options in click's layout (each with its help beside it, wrapped), without rich's
+    markup escapes; groups keep typer's panels (their lists of commands read well at any width)."""
+    subs = getattr(command, "commands", {})
+    plain_here = plain and not subs
     help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
     for param in [*getattr(command, "params", ()), help_option]:
         if getattr(param, "is_flag", False) and param.metavar is None:
             param.metavar = ""
+        if plain_here and getattr(param, "help", None):
+            param.help = param.help.replace("\\[", "[")
     if command.help:
         command.help = re.sub(r"(?<=\S)\n(?!\n|\s*(?:[-*•]|\d+\.) )", " ", inspect.cleandoc(command.help))
-    for sub in getattr(command, "commands", {}).values():
-        _tidy_help(sub)
+        command.help = command.help.replace("\\[", "[") if plain_here else command.help
+    if plain_here:
+        command.rich_markup_mode = None
+    for sub in subs.values():
+        _tidy_help(sub, plain)
 
 
 def _usage_line(exc, command, args: list[str]) -> str:
@@ -84,7 +98,7 @@ def main(argv: list[str] | None = None) -> None:
     """The ``steval`` console script: user and usage errors are one ``steval: error:`` line (exit 2), never a
     traceback; Ctrl-C, SIGTERM and SIGHUP exit 130 after the cleanup."""
     command = typer.main.get_command(app)
-    _tidy_help(command)
+    _tidy_help(command, plain=shutil.get_terminal_size().columns < HELP_TABLE_MIN_COLUMNS)
     try:
         with on_stop_signals(interrupt, sigint=False):
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
