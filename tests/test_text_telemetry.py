@@ -759,3 +759,8 @@ def test_our_own_csv_export_reads_back_as_text_telemetry(tmp_path, monkeypatch, 
     assert code == 0 and t["records"] == 9210 and t["series"] == header and t["time_source"] == "the column t_fw_s"
     code, said, _ = run_cli(monkeypatch, capsys, "replay", REC / "demo.stv", "--json", "-e", "accel")
     assert d["estimators"] == json.loads(said)["estimators"]
+    # its step, exact and q columns carry the frames' own float32 values: the replica is bit-exact on them too
+    code, said, _ = run_cli(monkeypatch, capsys, "compare", csv, "--json", "-e", "accel")
+    replica = json.loads(said)["replica"]
+    assert code == 0 and replica["rows"] == replica["bit_exact_steps"] == 9210 and replica["all_exact"]
+    assert replica["filter"] == "ST 170120" and replica["seeds"][0]["source"] == "power-up"

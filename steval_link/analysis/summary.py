@@ -215,10 +215,11 @@ def _durations(a) -> tuple[float, float | None, float]:
 
 def _frame_counts(tel) -> dict[str, Any]:
     a, s = tel.attitude, tel.status
+    binary = 0 if tel.printed_only else int(a.exact.sum())  # printed rows, even with exact values, are not frames
     return {
         "attitude": len(a),
-        "attitude_binary": int(a.exact.sum()),
-        "attitude_text_mode": int(len(a) - a.exact.sum()),
+        "attitude_binary": binary,
+        "attitude_text_mode": len(a) - binary,
         "status": len(s),
         "text": len(tel.text),
         "flight_control": len(getattr(tel, "flight", ())),

@@ -245,6 +245,11 @@ def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dt
     return rec
 
 
+#: the columns of ``steval export --csv`` that make its rows the frames' own (each float32 written so that it reads
+#: back as the same float32): the replica runs on them bit-exact
+EXPORT_EXACT_COLUMNS = ("step", "exact", "q_w", "q_x", "q_y", "q_z")
+
+
 class TelemetryParts:
     """Accumulates decoded rows (numpy blocks or single frames) before :meth:`Telemetry.from_parts`."""
 
@@ -473,8 +478,23 @@ class Telemetry:
         bad &= ~np.isfinite(cols["acc_mg"]).all(axis=1)
         euler = np.stack([cols["thx_rad"], cols["thy_rad"], cols["thz_rad"]], axis=1)
         acc, gyro = cols["acc_mg"], cols["gyro_mdps"]
+        q, exact = None, False
+        if set(EXPORT_EXACT_COLUMNS) <= set(s.names):  # steval export --csv: the frames' own values, float32-exact
+            step = s.column("step").astype(np.int64)
+            q = np.stack([s.column(f"q_{c}") for c in "wxyz"], axis=1).astype(np.float32)
+            exact = (s.column("exact") == 1) & np.isfinite(q).all(axis=1) & np.isfinite(acc).all(axis=1)
         self.attitude = AttitudeArrays.of(
-            step, t_fw, s.t_host_s, acc, gyro, euler, thr=cols["thr"], offset=s.offset, values_bad=bad
+            step,
+            t_fw,
+            s.t_host_s,
+            acc,
+            gyro,
+            euler,
+            thr=cols["thr"],
+            q_wxyz=q,
+            offset=s.offset,
+            values_bad=bad,
+            exact=exact,
         )
 
     @cached_property
