@@ -215,7 +215,7 @@ def _durations(a) -> tuple[float, float | None, float]:
 
 def _frame_counts(tel) -> dict[str, Any]:
     a, s = tel.attitude, tel.status
-    binary = 0 if tel.printed_only else int(a.exact.sum())  # printed rows, even with exact values, are not frames
+    binary = tel.binary_rows
     return {
         "attitude": len(a),
         "attitude_binary": binary,

@@ -122,7 +122,7 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
                 f"{src.path} is not a steval capture, raw serial dump or text log (no frames found, and no records "
                 f"of numbers, in {len(src.data)} bytes{_text_lines(tel)})."
             )
-        binary = 0 if tel.printed_only else int(a.exact.sum()) + int(tel.status.exact.sum())
+        binary = tel.binary_rows + int(tel.status.exact.sum())
         tel.source["kind"] = "raw" if binary else "text"
     elif tel.stats.frames_ok == 0 and symbols is None:
         raise UserError(

@@ -457,6 +457,11 @@ class Telemetry:
         """True when the stream is text telemetry alone: records, and no attitude frames of its own."""
         return len(self.text_series) > 0 and not self.has_own_attitude
 
+    @property
+    def binary_rows(self) -> int:
+        """Attitude rows that are the stream's binary frames; printed rows are not, even float32-exact ones."""
+        return 0 if self.printed_only else int(self.attitude.exact.sum())
+
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
         names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
