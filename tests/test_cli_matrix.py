@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import subprocess
+import sys
 import typing
 import warnings
 from pathlib import Path
@@ -122,6 +124,26 @@ def test_the_walk_finds_every_command_and_its_files():
     assert COMMANDS["replay"]["path_args"] == ["capture"] and COMMANDS["replay"]["outputs"] == ["--rrd"]
     assert set(COMMANDS["spectrum"]["outputs"]) == {"--csv", "--plot", "--rrd"}
     assert COMMANDS["ports"] == {"path_args": [], "outputs": [], "has_force": False}
+
+
+def test_each_command_word_starts_with_its_own_module_only():
+    # `steval WORD ...` imports WORD's module, not every command's (start-up time): in a fresh process, that module
+    # registers WORD, and the modules of commands it does not use stay unloaded
+    code = (
+        "import sys, typer\n"
+        "from steval_link.cli import COMMANDS, register\n"
+        "word = sys.argv[1]\n"
+        "names = set(typer.main.get_command(register([word, '--help'])).commands)\n"
+        "print(word in names, 'steval_link.cli.simulate' in sys.modules, 'steval_link.cli.evaluate' in sys.modules)\n"
+    )
+    from steval_link.cli import COMMANDS
+
+    for word in ("emulate", "record", "param", "data"):
+        out = subprocess.run([sys.executable, "-c", code, word], capture_output=True, text=True, check=True).stdout
+        assert out.split() == ["True", "False", "False"], (word, COMMANDS[word], out)
+    # a word that is no command: every command is registered (click then suggests the right one)
+    every = set(typer.main.get_command(app).commands)
+    assert set(COMMANDS) == every
 
 
 # -- fixtures -------------------------------------------------------------------------------------------------

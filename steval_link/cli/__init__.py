@@ -10,20 +10,52 @@ import sys
 
 import typer
 
-from steval_link.cli.app import HELP_OPTION_NAMES, app
-from steval_link.cli.checks import user_message
+from steval_link.cli.app import HELP_OPTION_NAMES
+from steval_link.cli.app import app as _app
 from steval_link.errors import UserError, printable
 from steval_link.stop_signals import interrupt, on_stop_signals
 
-__all__ = ["app", "main"]
+__all__ = ["app", "main", "register"]
 
-#: the sub-command modules: importing one registers its command(s) on ``app``
-COMMANDS = (
-    "ble command compare conformance data emulate estimator evaluate export live ports preflight replay report "
-    "simulate spectrum synth"
-).split()
-for _name in COMMANDS:
-    importlib.import_module(f"steval_link.cli.{_name}")
+#: the sub-command modules by the command words they register (importing a module registers its commands)
+COMMANDS = {
+    "ble": "ble",
+    "param": "command",
+    "command": "command",
+    "compare": "compare",
+    "conformance": "conformance",
+    "data": "data",
+    "emulate": "emulate",
+    "estimator": "estimator",
+    "evaluate": "evaluate",
+    "export": "export",
+    "live": "live",
+    "record": "live",
+    "ports": "ports",
+    "preflight": "preflight",
+    "replay": "replay",
+    "report": "report",
+    "simulate": "simulate",
+    "spectrum": "spectrum",
+    "synth": "synth",
+}
+# the name ``app`` here is the typer app with every command (see __getattr__), not the submodule import bound
+globals().pop("app")
+
+
+def register(args: list[str] | None = None) -> typer.Typer:
+    """The typer app with the sub-command that ``args`` start with registered (only its module is imported: a
+    command starts without the others' imports), or with every sub-command."""
+    word = args[0] if args else None
+    for module in [COMMANDS[word]] if word in COMMANDS else dict.fromkeys(COMMANDS.values()):
+        importlib.import_module(f"steval_link.cli.{module}")
+    return _app
+
+
+def __getattr__(name: str):
+    if name == "app":
+        return register()
+    raise AttributeError(f"module 'steval_link.cli' has no attribute {name!r}")
 
 
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
@@ -97,7 +129,8 @@ def _usage_line(exc, command, args: list[str]) -> str:
 def main(argv: list[str] | None = None) -> None:
     """The ``steval`` console script: user and usage errors are one ``steval: error:`` line (exit 2), never a
     traceback; Ctrl-C, SIGTERM and SIGHUP exit 130 after the cleanup."""
-    command = typer.main.get_command(app)
+    args = sys.argv[1:] if argv is None else list(argv)
+    command = typer.main.get_command(register(args))
     _tidy_help(command, plain=shutil.get_terminal_size().columns < HELP_TABLE_MIN_COLUMNS)
     try:
         with on_stop_signals(interrupt, sigint=False):
@@ -106,13 +139,15 @@ def main(argv: list[str] | None = None) -> None:
         details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code
         if details:
             print(details, file=sys.stderr)
+        from steval_link.cli.checks import user_message  # reason: imports the estimators (only on an error)
+
         print(f"steval: error: {printable(user_message(exc))}", file=sys.stderr)
         sys.exit(exc.exit_code)
     except _USAGE_ERRORS as exc:
         if type(exc).__name__ == "NoArgsIsHelpError":  # `steval` alone: the help, exit 2
             exc.show()
         elif hasattr(exc, "ctx"):  # usage errors, bad option values: one line, exit 2
-            print(_usage_line(exc, command, sys.argv[1:] if argv is None else argv), file=sys.stderr)
+            print(_usage_line(exc, command, args), file=sys.stderr)
         else:  # other click exceptions (e.g. a file error)
             print(f"steval: error: {printable(exc.format_message())}", file=sys.stderr)
         sys.exit(getattr(exc, "exit_code", 2))
