@@ -57,20 +57,9 @@ def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarr
         return thx, thy
     with np.errstate(invalid="ignore", over="ignore"):
         q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-        q0q0 = q0 * q0
-        q1q1 = q1 * q1
-        q2q2 = q2 * q2
-        q3q3 = q3 * q3
-        dq0 = _TWO * q0
-        dq1 = _TWO * q1
-        dq2 = _TWO * q2
-        dq1q3 = dq1 * q3
-        dq0q2 = dq0 * q2
-        dq0q1 = dq0 * q1
-        dq2q3 = dq2 * q3
-        num_x = dq0q1 + dq2q3
-        den_x = ((q0q0 + q3q3) - q1q1) - q2q2
-        arg_y = dq0q2 - dq1q3
+        num_x = (_TWO * q0) * q1 + (_TWO * q2) * q3  # float32 products and sums in the C source's order
+        den_x = ((q0 * q0 + q3 * q3) - q1 * q1) - q2 * q2
+        arg_y = (_TWO * q0) * q2 - (_TWO * q1) * q3
         thx = np.arctan2(num_x.astype(np.float64), den_x.astype(np.float64)).astype(_F32)
         thy = np.arcsin(arg_y.astype(np.float64)).astype(_F32)
     return thx, thy

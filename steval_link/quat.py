@@ -9,17 +9,6 @@ import math
 
 import numpy as np
 
-__all__ = [
-    "quaternion_from_euler",
-    "euler_from_quaternion",
-    "quat_multiply",
-    "qmul",
-    "qexp",
-    "quat_conjugate",
-    "quat_normalize",
-    "interpolate_quat",
-]
-
 
 def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
     """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``), float64: the
@@ -56,25 +45,8 @@ def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return thx, thy, thz
 
 
-def quat_multiply(a, b) -> np.ndarray:
-    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
 def qmul(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a ⊗ b of two wxyz quaternions of Python floats (one filter step: no numpy overhead)."""
+    """Hamilton product a ⊗ b of two wxyz quaternions (Python floats in a filter step: no numpy overhead)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
     return (
@@ -83,6 +55,13 @@ def qmul(a, b) -> tuple[float, float, float, float]:
         aw * by - ax * bz + ay * bw + az * bx,
         aw * bz + ax * by - ay * bx + az * bw,
     )
+
+
+def quat_multiply(a, b) -> np.ndarray:
+    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions, float64."""
+    a = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    b = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack(qmul(a, b), axis=-1)
 
 
 def qexp(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:

@@ -13,8 +13,6 @@ import numpy as np
 
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 
-__all__ = ["accel_tilt", "tilt_quaternion", "AccelTilt"]
-
 
 def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pitch and roll from accelerometer samples.

@@ -17,13 +17,6 @@ import numpy as np
 
 from steval_link.quat import euler_from_quaternion
 
-__all__ = [
-    "AttitudeEstimate",
-    "Estimator",
-    "rows_before_tilt",
-    "choose_native",
-]
-
 
 @dataclass(frozen=True)
 class AttitudeEstimate:

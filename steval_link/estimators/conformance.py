@@ -16,15 +16,6 @@ import numpy as np
 
 from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal, run
 
-__all__ = [
-    "COLUMNS",
-    "ConformanceVectors",
-    "ConformanceResult",
-    "load_conformance_csv",
-    "check_conformance",
-    "variant_scores",
-]
-
 #: the header every vector file has
 COLUMNS = tuple(
     "step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad".split(",")

@@ -61,8 +61,6 @@ try:  # the C loop of run() (built by setup.py, optional); the Python step below
 except ImportError:  # pragma: no cover - depends on the build
     _native = None
 
-__all__ = ["Ekf3", "NATIVE_AVAILABLE", "quaternion_from_euler"]
-
 #: True when the compiled loop of :meth:`Ekf3.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
 

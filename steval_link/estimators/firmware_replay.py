@@ -21,16 +21,6 @@ from steval_link.estimators.st_mahony import (
 from steval_link.fw_math import _F32
 from steval_link.link.protocol import FLAG_EVENT
 
-__all__ = [
-    "ReplicaFollower",
-    "ReplaySeed",
-    "FirmwareReplay",
-    "replay_firmware",
-    "VariantReplay",
-    "replay_variants",
-    "release_sentence",
-]
-
 
 class ReplicaFollower:
     """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter

@@ -71,8 +71,6 @@ try:  # the C loop of run() (built by setup.py, optional); the Python step below
 except ImportError:  # pragma: no cover - depends on the build
     _native = None
 
-__all__ = ["Mekf", "NATIVE_AVAILABLE"]
-
 #: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
 _DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix

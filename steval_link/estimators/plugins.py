@@ -42,19 +42,6 @@ from steval_link.errors import UserError
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.quat import euler_from_quaternion
 
-__all__ = [
-    "ENTRY_POINT_GROUP",
-    "Reference",
-    "Selected",
-    "PluginError",
-    "Guarded",
-    "split_list",
-    "parse_reference",
-    "entry_point_names",
-    "load_factory",
-    "display_name",
-]
-
 #: entry-point group under which installed packages register estimator classes (``name = "pkg.module:Class"``)
 ENTRY_POINT_GROUP = "steval_link.estimators"
 

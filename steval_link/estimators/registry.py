@@ -16,25 +16,8 @@ from types import MappingProxyType
 from steval_link.errors import UserError
 from steval_link.estimators import plugins
 from steval_link.estimators.base import Estimator
-from steval_link.estimators.plugins import PluginError, Selected
-
-__all__ = [
-    "ESTIMATORS",
-    "LIVE_DEFAULT",
-    "REPLAY_DEFAULT",
-    "COMPARE_DEFAULT",
-    "names",
-    "create",
-    "is_available",
-    "parse_names",
-    "resolve",
-    "is_known",
-    "accepts",
-    "unique_name",
-    "duplicate_sentence",
-    "PluginError",
-    "Selected",
-]
+from steval_link.estimators.plugins import PluginError as PluginError  # re-exported
+from steval_link.estimators.plugins import Selected
 
 
 class _lazy:

@@ -13,8 +13,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.estimators import registry
 
-__all__ = ["MEMORYLESS", "created_at", "row_decimation", "run_estimator"]
-
 #: estimators without state, indifferent to the row rate
 MEMORYLESS = frozenset({"accel"})
 

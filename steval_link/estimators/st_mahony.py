@@ -27,25 +27,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native
-from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
-
-__all__ = [
-    "COE_MDPS_TO_RADPS_F32",
-    "DEFAULT_VARIANT",
-    "VARIANTS",
-    "variant_name",
-    "NATIVE_AVAILABLE",
-    "MahonySettings",
-    "MahonyState",
-    "StMahony",
-    "run",
-    "bits_equal",
-    "table_column",
-    "handout_yaw",
-    "quaternion_to_euler",
-    "inv_sqrt",
-]
-
 from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
     _F32,
     _HALF,
@@ -55,6 +36,7 @@ from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared w
     inv_sqrt,
     quaternion_to_euler,
 )
+from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 # ---------------------------------------------------------------------------------------------------------------
 # ahrs_fusion_ag

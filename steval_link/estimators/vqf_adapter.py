@@ -21,7 +21,6 @@ try:  # optional dependency: importing this module without it fails with the ins
 except ImportError:  # pragma: no cover - exercised only without the extra
     raise ImportError(INSTALL_HINT) from None
 
-__all__ = ["VqfEstimator", "INSTALL_HINT"]
 _MG_TO_MPS2 = 9.81e-3
 
 
