@@ -1,13 +1,14 @@
 """Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
 
-:data:`ESTIMATORS` maps registry name → constructor; a constructor imports its module only when called, so a
-missing optional dependency (e.g. ``vqf``) does not break the others. A built-in is one line of ``_ENTRIES``.
-Wherever an estimator is named, a reference (:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names`
-resolves it once and returns a :class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
+:data:`ESTIMATORS` maps registry name → ``module:Class``, imported only when needed, so a missing optional
+dependency (e.g. ``vqf``) does not break the others. Wherever an estimator is named, a reference
+(:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names` resolves it once and returns a
+:class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Callable, Mapping
@@ -19,36 +20,23 @@ from steval_link.estimators.base import Estimator
 from steval_link.estimators.plugins import PluginError as PluginError  # re-exported
 from steval_link.estimators.plugins import Selected
 
-
-class _lazy:
-    """A constructor that imports ``module.attr`` on first call (keeps optional dependencies optional)."""
-
-    __slots__ = ("module", "attr")
-
-    def __init__(self, module: str, attr: str) -> None:
-        self.module = module
-        self.attr = attr
-
-    def load(self) -> Callable[..., Estimator]:
-        return getattr(importlib.import_module(self.module), self.attr)
-
-    def __call__(self, **options) -> Estimator:
-        return self.load()(**options)
-
-    def __repr__(self) -> str:
-        return f"{self.module}:{self.attr}"
+#: registry name → ``module:Class`` of each built-in, read-only
+ESTIMATORS: Mapping[str, str] = MappingProxyType(
+    {
+        "st-mahony": "steval_link.estimators.st_mahony:StMahony",
+        "accel": "steval_link.estimators.accel_tilt:AccelTilt",
+        "ekf3": "steval_link.estimators.ekf3:Ekf3",
+        "mekf": "steval_link.estimators.mekf:Mekf",
+        "vqf": "steval_link.estimators.vqf_adapter:VqfEstimator",
+    }
+)
 
 
-_ENTRIES: dict[str, Callable[..., Estimator]] = {
-    "st-mahony": _lazy("steval_link.estimators.st_mahony", "StMahony"),
-    "accel": _lazy("steval_link.estimators.accel_tilt", "AccelTilt"),
-    "ekf3": _lazy("steval_link.estimators.ekf3", "Ekf3"),
-    "mekf": _lazy("steval_link.estimators.mekf", "Mekf"),
-    "vqf": _lazy("steval_link.estimators.vqf_adapter", "VqfEstimator"),
-}
+def _class(name: str) -> Callable[..., Estimator]:
+    """The class of built-in ``name``, its module imported now (ImportError: an optional package is missing)."""
+    module, attr = ESTIMATORS[name].split(":")
+    return getattr(importlib.import_module(module), attr)
 
-#: registry name → constructor (keyword options only), read-only
-ESTIMATORS: Mapping[str, Callable[..., Estimator]] = MappingProxyType(_ENTRIES)
 
 #: what each command runs next to the firmware when ``--estimators`` is not given (uninstalled ones skipped):
 #: ``steval live`` (every frame as it comes), ``steval replay`` with a viewer or ``--rrd``, ``steval compare``
@@ -67,15 +55,10 @@ def is_available(name: str) -> bool:
     :class:`Selected` reference always is)."""
     if isinstance(name, Selected):
         return True
-    ctor = ESTIMATORS.get(name)
-    if ctor is None:
+    try:
+        return name in ESTIMATORS and bool(_class(name))
+    except ImportError:
         return False
-    if isinstance(ctor, _lazy):
-        try:
-            ctor.load()
-        except ImportError:
-            return False
-    return True
 
 
 def is_known(name: str) -> bool:
@@ -100,7 +83,7 @@ def resolve(text: str) -> Selected:
     if ref.kind == "builtin":
         if ref.source in ESTIMATORS:
             name = ref.source + (f"({ref.options_text})" if ref.options else "")
-            return Selected(name, ref, ESTIMATORS[ref.source], name)
+            return Selected(name, ref, functools.partial(create, ref.source), name)
         if ref.source not in plugins.entry_point_names():
             raise UserError(
                 f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
@@ -120,15 +103,10 @@ def accepts(name: str, option: str) -> bool:
     """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``: commands pass the
     step rate only to estimators that take it)."""
     sel = name if isinstance(name, Selected) else resolve(name)
-    ctor = sel.factory
-    if isinstance(ctor, _lazy):
-        try:
-            ctor = ctor.load()
-        except ImportError:
-            return False
     try:
+        ctor = _class(sel.reference.source) if sel.reference.kind == "builtin" else sel.factory
         params = inspect.signature(ctor).parameters
-    except (TypeError, ValueError):
+    except (ImportError, TypeError, ValueError):
         return False
     return option in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
@@ -157,13 +135,12 @@ def create(name: str, **options) -> Estimator:
     """
     if isinstance(name, Selected):
         return _build(name, options)
-    ctor = ESTIMATORS.get(name)
-    if ctor is None:
+    if name not in ESTIMATORS:
         if is_known(name):
             return _build(resolve(name), options)
         raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
     try:
-        return ctor(**options)
+        return _class(name)(**options)
     except TypeError as exc:
         if "unexpected keyword" in str(exc) or "positional argument" in str(exc):
             raise ValueError(f"estimator {name!r} does not take these options: {exc}") from None
@@ -202,26 +179,14 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
             if require_installed:
                 raise UserError(f"estimator {sel.label} needs a package that is not installed ({exc})") from None
         out.append(sel)
-    return _unique(out)
-
-
-def _unique(names: list[str]) -> list[str]:
-    """``names`` when no two share a display name; UserError otherwise (two variants in one column would be lost)."""
     seen: set[str] = set()
-    for n in names:
+    for n in out:  # two variants under one display name would share one column
         seen.add(unique_name(n, seen))
-    return names
-
-
-def duplicate_sentence(label: str) -> str:
-    """The one sentence for two estimators under one label."""
-    return f"estimator {label} is chosen twice: give each variant its own options (labels must differ)"
+    return out
 
 
 def unique_name(name: str, taken: set[str]) -> str:
-    """``name`` as a display name: UserError when it is in ``taken`` (:func:`duplicate_sentence`). Options are part
-    of a reference's name already (``MyEkf(r_acc=0.001)``)."""
-    out = str(name)
-    if out in taken:
-        raise UserError(duplicate_sentence(out))
-    return out
+    """``name`` as a display name (a reference's options are part of it); UserError when it is in ``taken``."""
+    if str(name) in taken:
+        raise UserError(f"estimator {name} is chosen twice: give each variant its own options (labels must differ)")
+    return str(name)
