@@ -98,6 +98,21 @@ def choose_native(native: bool | None, built: bool, loop: str, default: bool | N
     return (built if default is None else default) if native is None else bool(native)
 
 
+def filter_rows(est, acc_mg, gyro_mdps, thr, native, built: bool, width: int, *, reject_g=np.inf, default=None):
+    """The run() of a filter with a C loop and a Python reference (ekf3, mekf): its (N, width) output rows from
+    ``est._run_native`` or ``est._row`` per step (``native``, ``built``, ``default``: :func:`choose_native`), and
+    (N,) valid: finite, and not before the first tilt it accepts."""
+    acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+    out = np.empty((acc.shape[0], width))
+    waiting = np.zeros(acc.shape[0], dtype=bool) if est._initialised else rows_before_tilt(acc, reject_g)
+    if choose_native(native, built, "EKF", default):
+        est._run_native(acc, gyro, out)
+    else:
+        for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+            out[k] = est._row(a, g)
+    return out, np.isfinite(out).all(axis=1) & ~waiting
+
+
 def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:
     """(N,) bool: the rows before the first accelerometer sample a filter that takes its initial tilt from gravity
     accepts (|a| finite, > 1e-6 g, and within ``reject_g`` of 1 g; all rows when there is none). Such a filter

@@ -362,17 +362,10 @@ def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
 
 
 def display_name(factory, ref: Reference) -> str:
-    """A plug-in's name in tables, plots and the viewer: its ``name`` attribute when the class sets one, else
-    the class name; built-ins keep their registry name."""
-    if ref.kind == "builtin":
-        return ref.source
-    own = None
-    for klass in getattr(factory, "__mro__", ())[:-1]:
-        if klass is Estimator:
-            break
-        if "name" in vars(klass) and isinstance(vars(klass)["name"], str):
-            own = vars(klass)["name"]
-            break
+    """A plug-in's name in tables, plots and the viewer: the ``name`` its class sets, else the class name."""
+    mro = getattr(factory, "__mro__", (object,))[:-1]
+    mro = mro[: mro.index(Estimator)] if Estimator in mro else mro
+    own = next((vars(k)["name"] for k in mro if isinstance(vars(k).get("name"), str)), None)
     return own or getattr(factory, "__name__", None) or ref.source
 
 
@@ -405,15 +398,6 @@ def construct(factory, label: str, options: dict):
 # ---- the guard ----------------------------------------------------------------------------------------------------
 
 
-def _origin(obj, method: str) -> str:
-    """``my_ekf.py, line 57 (MyEkf.step)``: where a method is defined (for messages without a traceback)."""
-    fn = getattr(type(obj), method, None)
-    code = getattr(fn, "__code__", None)
-    if code is None:
-        return f"{type(obj).__name__}.{method}"
-    return f"{Path(code.co_filename).name}, line {code.co_firstlineno} ({type(obj).__name__}.{method})"
-
-
 class Guarded(Estimator):
     """A user's estimator behind checks: non-finite input rows skipped (invalid), output shapes checked, every
     exception turned into :class:`PluginError` (message naming their file and line; ``details``: their traceback).
@@ -429,17 +413,19 @@ class Guarded(Estimator):
         self.files = _user_files(type(inner))
         own_run = getattr(type(inner), "run", None)
         self.own_run = callable(own_run) and own_run is not Estimator.run
-        self.rate_hz = getattr(inner, "rate_hz", None)
 
     def _fail(self, method: str, exc: BaseException) -> PluginError:
         where, details = _user_trace(exc, self.files)
-        return PluginError(
-            f"estimator {self.name} failed in {where or _origin(self.inner, method)}: {_exc_text(exc)}", details
-        )
+        return PluginError(f"estimator {self.name} failed in {where or self.origin(method)}: {_exc_text(exc)}", details)
 
     def origin(self, method: str = "step") -> str:
-        """Where the user's ``method`` is defined (``my_ekf.py, line 57 (MyEkf.step)``)."""
-        return _origin(self.inner, method if hasattr(type(self.inner), method) else "step")
+        """``my_ekf.py, line 57 (MyEkf.step)``: where the user's ``method`` (else ``step``) is defined."""
+        cls = type(self.inner)
+        method = method if hasattr(cls, method) else "step"
+        code = getattr(getattr(cls, method, None), "__code__", None)
+        if code is None:
+            return f"{cls.__name__}.{method}"
+        return f"{Path(code.co_filename).name}, line {code.co_firstlineno} ({cls.__name__}.{method})"
 
     def reset(self) -> None:
         try:
@@ -473,10 +459,8 @@ class Guarded(Estimator):
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        n = acc.shape[0]
         rows = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
-        every = bool(rows.all())
-        a, g, t = (acc, gyro, thr_arr) if every else (acc[rows], gyro[rows], thr_arr[rows])
+        a, g, t = acc[rows], gyro[rows], thr_arr[rows]
         m = a.shape[0]
         thx = thy = valid_in = None
         if m == 0:  # nothing to feed (no row, or none finite): the estimator is not called
@@ -499,8 +483,7 @@ class Guarded(Estimator):
                 raise
             except Exception as exc:  # noqa: BLE001
                 raise self._fail("step", exc) from None
-        if not every:  # the skipped rows back in place: NaN, not valid
-            q, thx, thy, valid_in = (_scatter(v, rows, n) for v in (q, thx, thy, valid_in))
+        q, thx, thy, valid_in = (_scatter(v, rows) for v in (q, thx, thy, valid_in))  # skipped rows: NaN, invalid
         ex, ey, ez = euler_from_quaternion(q)
         thx = ex if thx is None else thx
         thy = ey if thy is None else thy
@@ -542,10 +525,10 @@ class Guarded(Estimator):
         return f"<Guarded {self.name!r} {type(self.inner).__name__}>"
 
 
-def _scatter(values: np.ndarray | None, rows: np.ndarray, n: int) -> np.ndarray | None:
+def _scatter(values: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     """``values`` of the ``rows`` (bool, n) spread over n rows; the others NaN (False for a bool array)."""
     if values is None:
         return None
-    out = np.full((n, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
+    out = np.full((rows.size, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
     out[rows] = values
     return out
