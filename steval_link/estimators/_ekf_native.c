@@ -1,10 +1,7 @@
 /*
- * Native per-step loops of steval-link's two Kalman filters: the Euler-angle EKF (ekf3.py) and the MEKF (mekf.py).
- *
- * Each loop follows the Python reference (Ekf3._advance, Mekf.step) statement by statement in double precision, so
- * the two agree to rounding (numpy's small matrix products go through BLAS: ~1e-15, not bit for bit). Build flags:
- * -O2 -ffp-contract=off -fno-fast-math -std=c99 (setup.py). The Python classes pack their state into the buffers
- * below (layouts EKF3_* and MEKF_*, state sizes exported as module constants), call run_*, and unpack the final state.
+ * Native per-step loops of the Euler-angle EKF (ekf3.py) and the MEKF (mekf.py): the Python reference (Ekf3._row,
+ * Mekf.step) statement by statement in double, equal to rounding (numpy's matrix products go through BLAS). The
+ * Python classes pack their state into the buffers below (layouts EKF3_*, MEKF_*), call *_run and unpack it.
  *
  *   ekf3_run(acc, gyro, x_out, state, params, flags): acc, gyro float64 3*N (mg, mdps); x_out 3*N (phi, theta,
  *     psi after each step, rad); state EKF3_STATE (in: start, out: end); params EKF3_NPARAMS; flags bit 0
@@ -78,21 +75,19 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* S⁻¹ by the adjugate (_inv3 of mekf.py) */
+/* S⁻¹ by the adjugate (_inv3 of mekf.py): column j holds rows j+1 × j+2 of S, over det */
 static void inv3(const double *S, double *Si)
 {
-    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
-    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    double det = a * A + b * B + c * C;
-    Si[0] = A / det;
-    Si[1] = (c * h - b * i) / det;
-    Si[2] = (b * f - c * e) / det;
-    Si[3] = B / det;
-    Si[4] = (a * i - c * g) / det;
-    Si[5] = (c * d - a * f) / det;
-    Si[6] = C / det;
-    Si[7] = (b * g - a * h) / det;
-    Si[8] = (a * e - b * d) / det;
+    double c[9], det;
+    int i, j;
+    for (j = 0; j < 3; j++) {
+        const double *r = S + 3 * ((j + 1) % 3), *s = S + 3 * ((j + 2) % 3);
+        c[3 * j] = r[1] * s[2] - r[2] * s[1];
+        c[3 * j + 1] = r[2] * s[0] - r[0] * s[2];
+        c[3 * j + 2] = r[0] * s[1] - r[1] * s[0];
+    }
+    det = S[0] * c[0] + S[1] * c[1] + S[2] * c[2];
+    for (i = 0; i < 9; i++) Si[i] = c[3 * (i % 3) + i / 3] / det;
 }
 
 /* The EKF measurement update with innovation e (3), in place: K = P·Hᵀ·(H·P·Hᵀ + var·I)⁻¹ (numpy's solve gives
@@ -215,7 +210,7 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &flags)) return NULL;
-    if ((n = get_rows(o[0], &b[0], 3 * sizeof(double), "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 3 * n * 8, "x_out") < 0 ||
         get_buffer(o[3], &b[3], 1, EKF3_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 0, EKF3_NPARAMS * 8, "params") < 0)
@@ -477,7 +472,7 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &flags)) return NULL;
-    if ((n = get_rows(o[0], &b[0], 3 * sizeof(double), "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 4 * n * 8, "q_out") < 0 ||
         get_buffer(o[3], &b[3], 1, MEKF_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 1, MEKF_ISTATE * 8, "istate") < 0 ||
