@@ -34,6 +34,14 @@ def inv_sqrt(x) -> np.ndarray:
     return y * (_THREE_HALVES - (halfx * y * y))
 
 
+def choose_native(native: bool | None, built: bool, loop: str, default: bool | None = None) -> bool:
+    """Whether to run a C loop: ``native`` True forces it (RuntimeError when it is not ``built``), False the Python
+    one, None ``default`` (by default: the C loop when built)."""
+    if native and not built:
+        raise RuntimeError(f"the native {loop} loop is not built (reinstall steval-link with a C compiler)")
+    return (built if default is None else default) if native is None else bool(native)
+
+
 def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
 
@@ -41,15 +49,12 @@ def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarr
     order; only ``atan2``/``asin`` run in double. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation
     about x (pitch, nose up +), thy = asin(2q0q2 − 2q1q3) the rotation about y (roll): the lab handouts' textbook
     formulas name these the other way round. thy is NaN where the (not quite unit) quaternion puts asin's argument
-    outside [−1, 1], as on the drone. ``native=False``
-    forces numpy's atan2/asin instead of the C library's (the default when the extension is built).
+    outside [−1, 1], as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's.
     """
     q = np.asarray(q_wxyz, dtype=_F32)
     if q.shape[-1] != 4:
         raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
-    if native and _native is None:
-        raise RuntimeError("the native Mahony loop is not built (reinstall steval-link with a C compiler)")
-    if _native is not None and native is not False:
+    if choose_native(native, NATIVE_AVAILABLE, "Mahony"):
         qc = np.ascontiguousarray(q)
         thx = np.empty(q.shape[:-1], dtype=_F32)
         thy = np.empty(q.shape[:-1], dtype=_F32)

@@ -22,13 +22,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
     _F32,
     _HALF,
     _TWO,
     NATIVE_AVAILABLE,
     _native,
+    choose_native,
     inv_sqrt,
     quaternion_to_euler,
 )
