@@ -338,26 +338,20 @@ class _Snapshots:
 
 
 def _replay_run(replica: ReplicaFollower, rows: _AttitudeRows, snaps: _Snapshots, a: int, b: int) -> list:
-    """The replica over one run ``a:b`` of consecutive rows, in pieces between the snapshots it takes: the first
-    seeds a run that does not start at power-up, later ones only when they are EVENTs."""
+    """The replica over one run ``a:b`` of consecutive rows, in pieces between the snapshots inside it (the replica
+    takes one when unseeded or an EVENT, and ignores the others)."""
     parts = []
     cut = a
     if rows.exact[a]:
         s_first, s_last = int(rows.steps[a]), int(rows.steps[b - 1])
-        hi = int(np.searchsorted(snaps.steps, s_last - 1, side="right"))
         lo = int(np.searchsorted(snaps.steps, s_first - 1, side="left"))
-        seeded_run = rows.steps[a] == 0
-        for k in range(lo, hi):
-            j = int(snaps.order[k])
-            is_event = bool(snaps.events[j])
-            if seeded_run and not is_event:
-                continue
-            end = a + int(snaps.steps[k]) + 1 - s_first  # rows up to the snapshot's step
+        for k in range(lo, int(np.searchsorted(snaps.steps, s_last - 1, side="right"))):
+            j, step = int(snaps.order[k]), int(snaps.steps[k])
+            end = a + step + 1 - s_first  # rows up to the snapshot's step
             if end > cut:
                 parts.append(rows.run(replica, cut, end))
                 cut = end
-            replica.snapshot(int(snaps.steps[k]), snaps.state(j), snaps.settings(j), snapshot_id=j, event=is_event)
-            seeded_run = seeded_run or replica.seeded
+            replica.snapshot(step, snaps.state(j), snaps.settings(j), snapshot_id=j, event=bool(snaps.events[j]))
     parts.append(rows.run(replica, cut, b))
     return parts
 
