@@ -62,15 +62,8 @@ class PluginError(UserError):
 
 @dataclass(frozen=True)
 class Reference:
-    """One parsed estimator reference.
-
-    Attributes:
-        text: the reference as given.
-        kind: ``builtin``, ``file``, ``module`` or ``entry-point``.
-        source: registry name, file path, module name or entry-point name.
-        attr: class (or factory) name in the file or module; None: the file's only estimator class.
-        options: constructor keyword options.
-    """
+    """One parsed estimator reference: ``kind`` ``builtin``, ``file``, ``module`` or ``entry-point``; ``source`` the
+    registry name, file path, module or entry point; ``attr`` the class in it (None: the file's only one)."""
 
     text: str
     kind: str
@@ -80,7 +73,7 @@ class Reference:
 
     @property
     def options_text(self) -> str:
-        """``q_gyro=0.0001, r_acc=0.05`` (canonical, for display names)."""
+        """``q_gyro=0.0001, r_acc=0.05``: the options in display names."""
         return ", ".join(f"{k}={v!r}" for k, v in self.options.items())
 
 
@@ -239,15 +232,12 @@ def missing_methods(obj) -> str:
 
 
 def _user_files(obj) -> tuple[str, ...]:
-    """The files (or package directories, ending in os.sep) that hold ``obj``'s code."""
-    mod = sys.modules.get(getattr(obj, "__module__", "") or "")
-    f = getattr(mod, "__file__", None)
+    """The file (or package directory, ending in os.sep) that holds ``obj``'s code."""
+    f = getattr(sys.modules.get(getattr(obj, "__module__", "") or ""), "__file__", None)
     if not f:
         return ()
     p = Path(f).resolve()
-    if p.name == "__init__.py":
-        return (str(p.parent) + os.sep,)
-    return (str(p),)
+    return (str(p.parent) + os.sep,) if p.name == "__init__.py" else (str(p),)
 
 
 def _load_file(ref: Reference):
@@ -329,8 +319,7 @@ def check_interface(factory, label: str) -> None:
 
 
 def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
-    """The constructor a file, module or entry-point reference names, and a label for messages
-    (``MyEkf in my_ekf.py``). UserError / PluginError for every way it can fail (one line each)."""
+    """The constructor a file, module or entry-point reference names, and its label (``MyEkf in my_ekf.py``)."""
     if ref.kind == "entry-point":
         ep = entry_point_names()[ref.source]
         try:
@@ -370,8 +359,7 @@ def display_name(factory, ref: Reference) -> str:
 
 
 def construct(factory, label: str, options: dict):
-    """``factory(**options)``: ValueError for options it does not take (naming the ones it does), PluginError
-    when the user's constructor raises."""
+    """``factory(**options)``: ValueError for options it does not take, PluginError when it raises."""
     try:
         sig = inspect.signature(factory)
     except (TypeError, ValueError):
@@ -400,12 +388,8 @@ def construct(factory, label: str, options: dict):
 
 class Guarded(Estimator):
     """A user's estimator behind checks: non-finite input rows skipped (invalid), output shapes checked, every
-    exception turned into :class:`PluginError` (message naming their file and line; ``details``: their traceback).
-
-    ``run()`` uses the estimator's own ``run(acc_mg, gyro_mdps, thr)`` when it defines one (returning an
-    :class:`AttitudeEstimate`, or any object with ``q_wxyz`` and optionally ``thx_rad``, ``thy_rad``, ``valid``,
-    or an (N, 4) array), else calls ``step()`` row by row.
-    """
+    exception a :class:`PluginError` naming their file and line. ``run()`` uses the estimator's own ``run()`` when it
+    has one (an :class:`AttitudeEstimate`, an object with ``q_wxyz``, or (N, 4) quaternions), else ``step()``."""
 
     def __init__(self, inner, name: str) -> None:
         self.inner = inner

@@ -51,8 +51,7 @@ def names() -> tuple[str, ...]:
 
 
 def is_available(name: str) -> bool:
-    """True when ``name`` is registered and its module (and optional dependencies) can be imported (a resolved
-    :class:`Selected` reference always is)."""
+    """True when ``name`` is registered and its module and optional packages import (a :class:`Selected`: always)."""
     if isinstance(name, Selected):
         return True
     try:
@@ -62,8 +61,8 @@ def is_available(name: str) -> bool:
 
 
 def is_known(name: str) -> bool:
-    """True for a registry name, a resolved :class:`Selected`, or text that reads as a reference to a file,
-    module, installed plug-in or a built-in with options (whether it loads is :func:`resolve`'s question)."""
+    """True for a registry name, a :class:`Selected`, or text that reads as a reference (whether it loads is
+    :func:`resolve`'s question)."""
     if isinstance(name, Selected) or name in ESTIMATORS:
         return True
     try:
@@ -74,9 +73,8 @@ def is_known(name: str) -> bool:
 
 
 def resolve(text: str) -> Selected:
-    """Load what ``text`` names (see the module doc) and check it: a :class:`Selected` whose ``str`` is the
-    display name. UserError (one line) for every way it can fail; PluginError (with the user's traceback) when
-    their module or constructor raises. Nothing is constructed here."""
+    """Load and check what ``text`` names, constructing nothing: a :class:`Selected` whose ``str`` is the display
+    name. UserError (one line) for every way it can fail; PluginError when the user's module raises."""
     if isinstance(text, Selected):
         return text
     ref = plugins.parse_reference(text)
@@ -100,8 +98,7 @@ def resolve(text: str) -> Selected:
 
 
 def accepts(name: str, option: str) -> bool:
-    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``: commands pass the
-    step rate only to estimators that take it)."""
+    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``)."""
     sel = name if isinstance(name, Selected) else resolve(name)
     try:
         ctor = _class(sel.reference.source) if sel.reference.kind == "builtin" else sel.factory
@@ -111,34 +108,28 @@ def accepts(name: str, option: str) -> bool:
     return option in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _build(sel: Selected, options: dict) -> Estimator:
-    opts = {**sel.reference.options, **options}
-    if sel.reference.kind == "builtin":
-        return create(sel.reference.source, **opts)
-    inst = plugins.construct(sel.factory, sel.label, opts)
-    if lacks := plugins.missing_methods(inst):
-        raise UserError(f"{sel.label} made a {type(inst).__name__}, which has {lacks}")
-    return plugins.Guarded(inst, str(sel))
-
-
 def create(name: str, **options) -> Estimator:
-    """Build the estimator ``name`` names with keyword ``options`` (on top of the reference's own).
-
-    ``name``: a registry name, a :class:`Selected` from :func:`parse_names` / :func:`resolve`, or a reference
-    (``my_ekf.py:MyEkf(q=1)``). A user's estimator comes wrapped in
-    :class:`~steval_link.estimators.plugins.Guarded` (checked output, its failures as :class:`PluginError`).
+    """Build the estimator ``name`` names (a registry name, a :class:`Selected` or a reference) with keyword
+    ``options`` on top of the reference's own; a user's estimator comes behind
+    :class:`~steval_link.estimators.plugins.Guarded`.
 
     Raises:
         ValueError: unknown name (the message lists the known ones), or options the estimator does not take.
         ImportError: the estimator's optional dependency is not installed.
         UserError: a reference that cannot be loaded (PluginError when the user's code raised).
     """
+    if not isinstance(name, Selected) and name not in ESTIMATORS:
+        if not is_known(name):
+            raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
+        name = resolve(name)
     if isinstance(name, Selected):
-        return _build(name, options)
-    if name not in ESTIMATORS:
-        if is_known(name):
-            return _build(resolve(name), options)
-        raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
+        opts = {**name.reference.options, **options}
+        if name.reference.kind == "builtin":
+            return create(name.reference.source, **opts)
+        inst = plugins.construct(name.factory, name.label, opts)
+        if lacks := plugins.missing_methods(inst):
+            raise UserError(f"{name.label} made a {type(inst).__name__}, which has {lacks}")
+        return plugins.Guarded(inst, str(name))
     try:
         return _class(name)(**options)
     except TypeError as exc:
@@ -148,15 +139,10 @@ def create(name: str, **options) -> Estimator:
 
 
 def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed: bool = True) -> list[str]:
-    """``--estimators``: a comma-separated list of registry names, references (``my_ekf.py:MyEkf(q=1e-4)``,
-    ``mypkg.filters:MyEkf``, an installed plug-in, ``ekf3(acc_motion_mg=20)``) or ``none``; None gives those of
-    ``default`` that are installed. Commas inside parentheses belong to the options.
-
-    Registry names come back as they are, references as :class:`Selected` (display name: the class name or its
-    ``name`` attribute, with the options: ``MyEkf(q=0.0001)``); two with one display name: UserError. Each
-    reference is loaded and constructed once here, so every mistake is one line before any work. UserError for an
-    unknown name (the valid ones listed) or, with ``require_installed``, one whose package is missing (``steval
-    compare`` reports those in its table instead)."""
+    """A comma-separated list of registry names, references or ``none``; None gives the installed ones of
+    ``default``. Registry names come back as they are, references as :class:`Selected`, each loaded and constructed
+    once here so that every mistake is one line before any work. UserError for two with one display name, an
+    unknown name, or (with ``require_installed``) one whose package is missing."""
     if spec is None:
         return [n for n in default if is_available(n) or not require_installed]
     chosen = plugins.split_list(spec)
