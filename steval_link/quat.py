@@ -27,13 +27,8 @@ def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
 
 
 def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euler angles in the firmware's convention, in float64: (thx_rad, thy_rad, thz_rad).
-
-    thx = atan2(2(q0q1 + q2q3), q0² − q1² − q2² + q3²) (about x, pitch), thy = asin(2(q0q2 − q1q3)) (about y,
-    roll; the argument is clipped to [−1, 1] so a unit quaternion never yields NaN), thz = atan2(2(q1q2 + q0q3),
-    q0² + q1² − q2² − q3²) (about z, yaw, the Lab 5 handout's formula). ``q_wxyz`` is (..., 4), scalar first.
-    For the firmware's own float32 result use :func:`steval_link.estimators.st_mahony.quaternion_to_euler`.
-    """
+    """(thx_rad, thy_rad, thz_rad) in float64 of (..., 4) wxyz quaternions: ``QuaternionToEuler``'s thx (about x,
+    pitch) and thy (about y, roll; asin's argument clipped: no NaN), and the Lab 5 handout's thz (about z, yaw)."""
     q = np.asarray(q_wxyz, dtype=np.float64)
     if q.shape[-1] != 4:
         raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
@@ -87,10 +82,7 @@ def quat_normalize(q) -> np.ndarray:
 
 
 def interpolate_quat(t_s, q_wxyz, t_new_s) -> np.ndarray:
-    """Normalised linear interpolation (nlerp, sign-consistent) of quaternions to new times; NaN stays NaN nearby.
-
-    Times outside ``t_s`` get NaN.
-    """
+    """Normalised linear interpolation (nlerp, sign-consistent) to new times; NaN near NaN input and outside ``t_s``."""
     t = np.asarray(t_s, dtype=np.float64)
     q = np.asarray(q_wxyz, dtype=np.float64).copy()
     tn = np.asarray(t_new_s, dtype=np.float64)

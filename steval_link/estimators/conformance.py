@@ -1,9 +1,7 @@
 """Firmware conformance vectors: load a CSV of ``ahrs_fusion_ag`` calls and check the replica against it, bit for bit.
 
-A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
-``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
-per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
-exact float32 value. :func:`variant_scores` finds the ST release that computed a set of files.
+A vector file has one ``#`` comment line, the header :data:`COLUMNS` and one row per AHRS step from power-up; every
+number parses (as a double, cast to float32) to the firmware's exact value. :func:`variant_scores` finds the release.
 """
 
 from __future__ import annotations
@@ -42,11 +40,8 @@ class ConformanceVectors:
 
 @dataclass(frozen=True)
 class ConformanceResult:
-    """How the replica compares with one vector file.
-
-    ``max_abs_dq`` / ``max_abs_dth`` are the largest |replica − firmware| over rows where both are finite (0 when
-    all equal); ``nan_mismatches`` counts values that are NaN on one side only.
-    """
+    """How the replica compares with one vector file: ``max_abs_dq`` / ``max_abs_dth`` the largest |replica −
+    firmware| where both are finite; ``nan_mismatches`` the values NaN on one side only."""
 
     name: str
     steps: int
@@ -74,12 +69,7 @@ class ConformanceResult:
 
 
 def load_conformance_csv(path) -> ConformanceVectors:
-    """Read a vector file.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not a vector file (one sentence naming the file and what is wrong).
-    """
+    """Read a vector file; ValueError (one sentence naming the file) when it is not one."""
     path = Path(path)
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     rows = [line for line in lines if line.strip() and not line.startswith("#")]
@@ -151,8 +141,7 @@ def check_conformance(
 def variant_scores(
     cases: list[ConformanceVectors], settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> dict[str, int]:
-    """Bit-exact steps over all ``cases`` of each filter variant (``VARIANTS``, in their order) with ``settings``'
-    constants: the release that computed the files is the variant that matches every step."""
+    """Bit-exact steps over all ``cases`` of each of ``VARIANTS`` with ``settings``' constants."""
     base = MahonySettings() if settings is None else settings
     return {
         variant: sum(check_conformance(c, replace(base, variant=variant), native=native).exact_steps for c in cases)

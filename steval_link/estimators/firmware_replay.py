@@ -182,11 +182,8 @@ def _differs(rows_out, fw_q_wxyz) -> bool:
 
 @dataclass(frozen=True)
 class ReplaySeed:
-    """Where the replica (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
-
-    ``source`` is ``"power-up"`` (capture from step 0) or ``"status"`` (snapshot of status row ``status_row``,
-    taken right after step ``step - 1``).
-    """
+    """Where the replica (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards, from
+    ``source`` "power-up" or "status" (the snapshot of status row ``status_row``, taken after step ``step - 1``)."""
 
     row: int
     step: int
@@ -197,16 +194,9 @@ class ReplaySeed:
 
 @dataclass(frozen=True)
 class FirmwareReplay:
-    """The replica re-run over a capture, row by row next to the firmware's attitude frames.
-
-    Attributes:
-        q_wxyz: (N, 4) float32, the replica's ``ahrs.q`` per attitude row (NaN where not seeded).
-        thx_rad, thy_rad: (N,) float32, the replica's ``QuaternionToEuler`` (pitch about x, roll about y).
-        bit_exact: (N,) bool, replica q, thx and thy carry the firmware's bits (NaN == NaN).
-        seeded: (N,) bool, the replica had a known state for this row (from power-up or a status snapshot).
-        first_mismatch: row index of the first seeded row that is not bit-exact, or None.
-        seeds: every (re)start of the replica, in row order.
-    """
+    """The replica re-run over a capture, per attitude row: its float32 ``q_wxyz``, ``thx_rad`` (pitch, about x) and
+    ``thy_rad`` (roll, about y), NaN where not ``seeded``; ``bit_exact`` where all carry the firmware's bits (NaN ==
+    NaN); ``first_mismatch`` the first seeded row that is not (or None); ``seeds`` every (re)start, in row order."""
 
     q_wxyz: np.ndarray
     thx_rad: np.ndarray

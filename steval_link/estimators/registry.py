@@ -1,9 +1,6 @@
-"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
-
-:data:`ESTIMATORS` maps registry name → ``module:Class``, imported only when needed, so a missing optional
-dependency (e.g. ``vqf``) does not break the others. Wherever an estimator is named, a reference
-(:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names` resolves it once and returns a
-:class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
+"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference
+(:mod:`~steval_link.estimators.plugins`): :func:`parse_names` resolves it once into a ``Selected`` that :func:`create`
+builds. A built-in's module is imported only when needed: a missing optional package breaks only that one.
 """
 
 from __future__ import annotations
