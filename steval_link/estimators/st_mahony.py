@@ -194,7 +194,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
     st221117 = settings.variant == "ST 221117"
     two = _TWO
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
-    q0, q1, q2, q3, ex_int, ey_int, ez_int = (_F32(v) for v in st)
+    q0, q1, q2, q3, *integral = (_F32(v) for v in st)  # q, then exInt, eyInt, ezInt
     with np.errstate(all="ignore"):
         if st221117:  # float * double literal: a double product, stored to float
             gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
@@ -202,7 +202,8 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
         kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
-        for k, ((axf, ayf, azf), (gxf, gyf, gzf), ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
+        for k, (a, g, ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
+            g = list(g)  # float32 scalars, as a, v and e
             q0q0 = q0 * q0
             q0q1 = q0 * q1
             q0q2 = q0 * q2
@@ -212,28 +213,18 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2q3 = q2 * q3
             q3q3 = q3 * q3
 
-            if settings.correction:
-                vx = two * (q1q3 - q0q2)
-                vy = two * (q0q1 + q2q3)
-                vz = q0q0 - q1q1 - q2q2 + q3q3
-
-                ex = ayf * vz - azf * vy
-                ey = azf * vx - axf * vz
-                ez = axf * vy - ayf * vx
-
-                if st221117:  # exInt + ex * AHRS_KI * SENSOR_SAMPLING_TIME in double, stored to float
-                    ex_int = _F32(float(ex_int) + float(ex) * ki_d * dt_d)
-                    ey_int = _F32(float(ey_int) + float(ey) * ki_d * dt_d)
-                    ez_int = _F32(float(ez_int) + float(ez) * ki_d * dt_d)
-                else:
-                    ex_int = ex_int + ex * ki * dt
-                    ey_int = ey_int + ey * ki * dt
-                    ez_int = ez_int + ez * ki * dt
-
-                gxf = gxf + ahrs_kp * ex + ex_int
-                gyf = gyf + ahrs_kp * ey + ey_int
-                gzf = gzf + ahrs_kp * ez + ez_int
-
+            if (
+                settings.correction
+            ):  # as the C loop: e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
+                v = (two * (q1q3 - q0q2), two * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
+                for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+                    e = a[j] * v[m] - a[m] * v[j]
+                    if st221117:  # in double, stored to float
+                        integral[i] = _F32(float(integral[i]) + float(e) * ki_d * dt_d)
+                    else:
+                        integral[i] = integral[i] + e * ki * dt
+                    g[i] = g[i] + ahrs_kp * e + integral[i]
+            gxf, gyf, gzf = g
             q0 = q0 + (-q1 * gxf - q2 * gyf - q3 * gzf) * half_t
             q1 = q1 + (q0 * gxf + q2 * gzf - q3 * gyf) * half_t
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * half_t
@@ -248,7 +239,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2 = q2 * norm
             q3 = q3 * norm
             q_out[k] = (q0, q1, q2, q3)
-    return np.array([q0, q1, q2, q3, ex_int, ey_int, ez_int], dtype=_F32)
+    return np.array([q0, q1, q2, q3, *integral], dtype=_F32)
 
 
 def handout_yaw(q_wxyz) -> np.ndarray:
