@@ -143,7 +143,6 @@ class Ekf3(Estimator):
         tt = st / ct
         a = sp * q + cp * r  # appears in φ̇, ψ̇
         c = cp * q - sp * r
-        f = (p + tt * a, c, a / ct)
         F = np.array(
             [
                 [1.0 + dt * tt * c, dt * a / (ct * ct), 0.0],
@@ -155,9 +154,9 @@ class Ekf3(Estimator):
         if self.exact_propagation:
             self.x[:] = _propagate_exact(self.x, p * dt, q * dt, r * dt)
         else:
-            self.x[0] = math.remainder(self.x[0] + dt * f[0], 2 * math.pi)
-            self.x[1] += dt * f[1]
-            self.x[2] = math.remainder(self.x[2] + dt * f[2], 2 * math.pi)
+            self.x[0] = math.remainder(self.x[0] + dt * (p + tt * a), 2 * math.pi)
+            self.x[1] += dt * c
+            self.x[2] = math.remainder(self.x[2] + dt * (a / ct), 2 * math.pi)
         Q = (dt * dt * self.gyro_var) * (W @ W.T)
         Q[_DIAG] += dt * self.proc_var
         self.P = F @ self.P @ F.T + Q
