@@ -4,6 +4,7 @@ snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -51,7 +52,7 @@ class ReplicaFollower:
         self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
-        self.native = native
+        self._run = functools.partial(run, euler=euler, native=native)
         self.state: MahonyState | None = None
         self.next_step: int | None = None
         self.seed_count = 0  #: (re)starts of the replica so far (power-up or snapshot)
@@ -157,15 +158,7 @@ class ReplicaFollower:
                 if self._pending is not None:
                     self.seed_rows.append((first_row + a, self._pending))
                     self._pending = None
-                out = run(
-                    acc_mg[a:b],
-                    gyro_mdps[a:b],
-                    thr[a:b],
-                    settings=self.settings,
-                    state=self.state,
-                    euler=self.euler,
-                    native=self.native,
-                )
+                out = self._run(acc_mg[a:b], gyro_mdps[a:b], thr[a:b], settings=self.settings, state=self.state)
                 q[a:b], self.state = out[0], out[3]
                 if self.euler:
                     thx[a:b], thy[a:b] = out[1], out[2]

@@ -151,17 +151,15 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
         builtin = n if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
         if builtin is not None and require_installed and not is_available(builtin):
             raise UserError(f"estimator {builtin!r} needs an optional package: pip install 'steval-link[{builtin}]'")
-        if sel is None:
-            out.append(n)
-            continue
         try:
-            create(sel)  # the options and the constructor checked now, before any work
+            if sel is not None:
+                create(sel)  # the options and the constructor checked now, before any work
         except ValueError as exc:
             raise UserError(str(exc)) from None
         except ImportError as exc:
             if require_installed:
                 raise UserError(f"estimator {sel.label} needs a package that is not installed ({exc})") from None
-        out.append(sel)
+        out.append(n if sel is None else sel)
     seen: set[str] = set()
     for n in out:  # two variants under one display name would share one column
         seen.add(unique_name(n, seen))

@@ -273,8 +273,7 @@ class StMahony(Estimator):
     ) -> None:
         base = MahonySettings() if settings is None else settings
         if kp is not None:
-            setting_overrides.setdefault("kp_ground", kp)
-            setting_overrides.setdefault("kp_flight", kp)
+            setting_overrides = {"kp_ground": kp, "kp_flight": kp, **setting_overrides}
         unknown = set(setting_overrides) - set(MahonySettings.__dataclass_fields__)
         if unknown:
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
