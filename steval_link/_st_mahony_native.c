@@ -45,14 +45,9 @@ static float inv_sqrt(float x)
 /* QuaternionToEuler: float products and sums in the C source's order, double atan2/asin, stored to float. */
 static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *thx, float *thy)
 {
-    float e00 = q0 * q0, e11 = q1 * q1, e22 = q2 * q2, e33 = q3 * q3;
-    float d0 = 2.0f * q0, d1 = 2.0f * q1, d2 = 2.0f * q2;
-    float d1q3 = d1 * q3, d0q2 = d0 * q2, d0q1 = d0 * q1, d2q3 = d2 * q3;
-    float num = d0q1 + d2q3;
-    float den = e00 + e33 - e11 - e22;
-    float sarg = d0q2 - d1q3;
+    const float num = (2.0f * q0) * q1 + (2.0f * q2) * q3, den = q0 * q0 + q3 * q3 - q1 * q1 - q2 * q2;
     *thx = (float)atan2((double)num, (double)den);
-    *thy = (float)asin((double)sarg);
+    *thy = (float)asin((double)((2.0f * q0) * q2 - (2.0f * q1) * q3));
 }
 
 static PyObject *native_run(PyObject *self, PyObject *args)
