@@ -166,10 +166,7 @@ def parse_reference(text: str) -> Reference:
         left, right = head.rsplit(":", 1)
         if _IDENT.fullmatch(right) and left:
             source, attr = left, right
-    looks_like_file = (
-        source.endswith(".py") or "/" in source or "\\" in source or (attr is None and os.path.isfile(source))
-    )
-    if looks_like_file:
+    if source.endswith(".py") or "/" in source or "\\" in source or (attr is None and os.path.isfile(source)):
         return Reference(raw, "file", source, attr, options)
     if attr is not None:
         if not _DOTTED.fullmatch(source):
@@ -306,8 +303,30 @@ def _estimator_classes(module) -> list[type]:
     ]
 
 
-def check_interface(factory, label: str) -> None:
-    """UserError when ``factory`` (a class) lacks ``step()`` or ``reset()``, or cannot be constructed."""
+def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
+    """The constructor a file, module or entry-point reference names, and its label (``MyEkf in my_ekf.py``); UserError
+    when it is not a class with ``step()`` and ``reset()`` that can be constructed."""
+    if ref.kind == "entry-point":
+        ep = entry_point_names()[ref.source]
+        label = f"plug-in {ref.source} ({ep.value})"
+        try:
+            factory = ep.load()
+        except Exception as exc:  # noqa: BLE001
+            raise _failed(f"{label} failed to load", exc) from None
+    else:
+        module, where = _load_file(ref) if ref.kind == "file" else _load_module(ref)
+        found = _estimator_classes(module)
+        if ref.attr is None and len(found) != 1:
+            names = ", ".join(c.__name__ for c in found) or "none"
+            raise UserError(
+                f"{where} defines {len(found)} estimator classes ({names}): name one, "
+                f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}"
+            )
+        factory = found[0] if ref.attr is None else getattr(module, ref.attr, None)
+        if factory is None:
+            hint = f" (estimator classes there: {', '.join(c.__name__ for c in found)})" if found else ""
+            raise UserError(f"{where} has no class {ref.attr}{hint}")
+        label = f"{getattr(factory, '__name__', ref.attr)} in {where}"
     if not callable(factory):
         raise UserError(f"{label} is not a class (it is a {type(factory).__name__})")
     if isinstance(factory, type):
@@ -316,37 +335,6 @@ def check_interface(factory, label: str) -> None:
         if inspect.isabstract(factory):
             left = ", ".join(sorted(factory.__abstractmethods__))
             raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
-
-
-def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
-    """The constructor a file, module or entry-point reference names, and its label (``MyEkf in my_ekf.py``)."""
-    if ref.kind == "entry-point":
-        ep = entry_point_names()[ref.source]
-        try:
-            factory = ep.load()
-        except Exception as exc:  # noqa: BLE001
-            raise _failed(f"plug-in {ref.source} ({ep.value}) failed to load", exc) from None
-        label = f"plug-in {ref.source} ({ep.value})"
-        check_interface(factory, label)
-        return factory, label
-    module, where = _load_file(ref) if ref.kind == "file" else _load_module(ref)
-    if ref.attr is None:
-        found = _estimator_classes(module)
-        if len(found) != 1:
-            names = ", ".join(c.__name__ for c in found) or "none"
-            raise UserError(
-                f"{where} defines {len(found)} estimator classes ({names}): name one, "
-                f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}"
-            )
-        factory = found[0]
-    else:
-        factory = getattr(module, ref.attr, None)
-        if factory is None:
-            classes = [c.__name__ for c in _estimator_classes(module)]
-            hint = f" (estimator classes there: {', '.join(classes)})" if classes else ""
-            raise UserError(f"{where} has no class {ref.attr}{hint}")
-    label = f"{getattr(factory, '__name__', ref.attr)} in {where}"
-    check_interface(factory, label)
     return factory, label
 
 
