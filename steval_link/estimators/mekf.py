@@ -219,16 +219,10 @@ class Mekf(Estimator):
             self._predict(*self._w)
         if acc_ok:
             self._correct(ax, ay, az, an)
-        if self.latency_s > 0.0:
-            return self._extrapolated()
+        rx, ry, rz = (v * self.latency_s for v in self._w)  # the attitude latency_s ahead at the last rate
+        if self.latency_s > 0.0 and not math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-12:
+            return np.array(qmul(qmul(self.qc, self.qs), qexp(rx, ry, rz)))
         return self.q
-
-    def _extrapolated(self) -> np.ndarray:
-        """The attitude ``latency_s`` ahead: q ⊗ Exp(ω·latency_s) with the last bias-corrected rate."""
-        rx, ry, rz = (v * self.latency_s for v in self._w)
-        if math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-12:
-            return self.q
-        return np.array(qmul(qmul(self.qc, self.qs), qexp(rx, ry, rz)))
 
     def _predict(self, wx: float, wy: float, wz: float) -> None:
         dt = self.dt
@@ -316,16 +310,6 @@ class Mekf(Estimator):
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
-        st, ist = self._pack_state()
-        params = np.array(
-            [self.dt, MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise, self.norm_gain]
-            + [self.init_bias, self.latency_s, *(self._lp_coeffs or (0.0,) * 5)]  # b0, b1, b2, a1, a2
-        )
-        flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
-        _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
-        self._unpack_state(st, ist)
-
-    def _pack_state(self) -> tuple[np.ndarray, np.ndarray]:
         st = np.zeros(_native.MEKF_STATE)
         ist = np.zeros(_native.MEKF_ISTATE, dtype=np.int64)
         nb = self.P.shape[0]
@@ -333,7 +317,9 @@ class Mekf(Estimator):
         st[14 : 14 + nb * nb] = self.P.ravel()
         st[50:59] = self._cum_rs.ravel()
         ist[0] = self._initialised
-        for lp, at, flag, _ in self._lowpass_slots():  # history x1, x2, y1, y2 at ``at``; ready flag in ist
+        # each low-pass: its history x1, x2, y1, y2 at ``at`` (``m`` each), its ready flag at ``flag`` in ist
+        slots = ((self._acc_lp, 59, 1, 3), (self._norm_lp, 74, 4, 1), (self._cum_lp, 78, 5, 9))
+        for lp, at, flag, _ in slots:
             if lp is not None and lp.ready:
                 st[at : at + 4 * lp.x1.size] = np.concatenate([lp.x1, lp.x2, lp.y1, lp.y2])
                 ist[flag] = 1
@@ -341,20 +327,18 @@ class Mekf(Estimator):
             if self._acc_lp.n > 0:
                 st[71:74] = self._acc_lp.acc
             ist[2], ist[3] = self._acc_lp.n, self._acc_lp.warmup
-        return st, ist
-
-    def _lowpass_slots(self) -> tuple:
-        """(low-pass, offset in the state buffer, its ready flag in ist, size) of each low-pass (_ekf_native.c)."""
-        return ((self._acc_lp, 59, 1, 3), (self._norm_lp, 74, 4, 1), (self._cum_lp, 78, 5, 9))
-
-    def _unpack_state(self, st: np.ndarray, ist: np.ndarray) -> None:
-        nb = self.P.shape[0]
+        params = np.array(
+            [self.dt, MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise, self.norm_gain]
+            + [self.init_bias, self.latency_s, *(self._lp_coeffs or (0.0,) * 5)]  # b0, b1, b2, a1, a2
+        )
+        flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
+        _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
         self.qs, self.qc, self._w = tuple(st[0:4].tolist()), tuple(st[4:8].tolist()), tuple(st[11:14].tolist())
         self.b[:] = st[8:11]
         self.P = st[14 : 14 + nb * nb].reshape(nb, nb).copy()
         self._cum_rs = st[50:59].reshape(3, 3).copy()
         self._initialised = bool(ist[0])
-        for lp, at, flag, m in self._lowpass_slots():
+        for lp, at, flag, m in slots:
             if lp is not None and ist[flag]:
                 lp.ready = True
                 lp.x1, lp.x2, lp.y1, lp.y2 = (st[at + m * i : at + m * (i + 1)].copy() for i in range(4))
