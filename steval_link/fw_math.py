@@ -22,10 +22,7 @@ _INVSQRT_MAGIC = np.int32(0x5F3759DF)
 
 
 def inv_sqrt(x) -> np.ndarray:
-    """The firmware's ``invSqrt``: 0x5f3759df guess and one Newton step, all float32 (finite for 0).
-
-    ``x`` is any float32 array (or scalar); returns float32 of the same shape.
-    """
+    """The firmware's ``invSqrt`` of float32 ``x``: 0x5f3759df guess and one Newton step, all float32 (finite for 0)."""
     x = np.asarray(x, dtype=_F32)
     halfx = _HALF * x
     i = x.view(np.int32)
@@ -45,11 +42,10 @@ def choose_native(native: bool | None, built: bool, loop: str, default: bool | N
 def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The firmware's ``QuaternionToEuler``: (thx_rad, thy_rad) as float32 arrays, bit-exact.
 
-    ``q_wxyz`` is (N, 4) or (4,) float32 (``ahrs.q``, scalar first). Products and sums are float32 in the C source's
-    order; only ``atan2``/``asin`` run in double. thx = atan2(2q0q1 + 2q2q3, q0² + q3² − q1² − q2²) is the rotation
-    about x (pitch, nose up +), thy = asin(2q0q2 − 2q1q3) the rotation about y (roll): the lab handouts' textbook
-    formulas name these the other way round. thy is NaN where the (not quite unit) quaternion puts asin's argument
-    outside [−1, 1], as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's.
+    ``q_wxyz`` is (..., 4) float32 ``ahrs.q``; only ``atan2``/``asin`` run in double. thx = atan2(2q0q1 + 2q2q3,
+    q0² + q3² − q1² − q2²) is the rotation about x (pitch, nose up +), thy = asin(2q0q2 − 2q1q3) about y (roll): the
+    lab handouts' textbook formulas name these the other way round. thy is NaN where asin's argument leaves [−1, 1],
+    as on the drone. ``native=False`` forces numpy's atan2/asin instead of the C library's.
     """
     q = np.asarray(q_wxyz, dtype=_F32)
     if q.shape[-1] != 4:

@@ -1,10 +1,8 @@
 """Accelerometer-only tilt (ETH lecture 4, exercise 8): pitch and roll from the direction of gravity alone.
 
-Firmware axes (x right, y forward, z up; at rest acc ≈ (0, 0, +1000) mg), angles named like ``QuaternionToEuler``
-so they line up with the firmware's: ``thx_rad`` = atan2(ay, az) is the rotation about x (pitch, nose up +),
-``thy_rad`` = atan2(−ax, √(ay² + az²)) the rotation about y (roll). Yaw is unobservable from gravity (NaN).
-Exact only when the drone is not accelerating; under linear acceleration the tilt is wrong, which is what the
-exercise shows next to the Mahony filter.
+Firmware axes and ``QuaternionToEuler``'s names: ``thx_rad`` = atan2(ay, az) is the rotation about x (pitch, nose
+up +), ``thy_rad`` = atan2(−ax, √(ay² + az²)) about y (roll); yaw is unobservable (NaN). Exact only when the drone
+is not accelerating, which is what the exercise shows next to the Mahony filter.
 """
 
 from __future__ import annotations

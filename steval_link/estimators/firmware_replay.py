@@ -24,12 +24,9 @@ from steval_link.link.protocol import FLAG_EVENT
 
 
 class ReplicaFollower:
-    """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter
-    snapshots (a capture's replay and the live replica).
-
-    It starts at power-up when a run of consecutive steps begins at step 0, or from a status snapshot (then with
-    the step after the snapshot's). A step gap or a row marked not usable (text mode, non-finite) leaves it unseeded
-    (NaN) until the next snapshot or power-up.
+    """The bit-exact replica followed along a stream of attitude rows and status snapshots (replay and live). It
+    starts at power-up when a run of consecutive steps begins at step 0, or from a status snapshot; a step gap or a
+    row marked not usable (text mode, non-finite) leaves it unseeded (NaN) until the next one.
 
     ``settings``: fixed for every seed (a what-if replay); None takes each snapshot's own and ``initial`` at
     power-up. ``follow_snapshots``: a snapshot while in sync is confirmed when it agrees bit for bit, else seeds

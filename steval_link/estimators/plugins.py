@@ -11,11 +11,7 @@ One reference names one estimator (``-e`` of every command, ``registry.create``,
 
 Options are keyword arguments whose values are Python literals (numbers, strings, True/False/None, tuples,
 lists, dicts), read with :func:`ast.literal_eval`: nothing in them is executed. A list of references is
-comma-separated; commas inside the parentheses belong to the options.
-
-Plug-ins run behind :class:`Guarded`: rows with a non-finite input are never fed to them (flagged invalid), their
-output is checked ((4,) quaternion per step, N rows per run), and an exception in them becomes a
-:class:`PluginError`: one line naming the user's file and line, plus their own traceback trimmed to their frames.
+comma-separated; commas inside the parentheses belong to the options. Plug-ins run behind :class:`Guarded`.
 """
 
 from __future__ import annotations

@@ -1,17 +1,15 @@
 """Bit-exact replica of the STEVAL-FCU001V1 firmware's Mahony filter, in each of ST's releases' arithmetic.
 
-Reproduces ``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them (Cortex-M4F,
-hard float, -O0, no FMA), rounding included. Units are the firmware's: accelerometer in mg, gyro in mdps, angles in
-rad; axes x right, y forward, z up; ``thx`` is the rotation about x (pitch, nose up +), ``thy`` about y (roll).
+``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them, rounding included. Units
+are the firmware's (acc mg, gyro mdps, angles rad; x right, y forward, z up); ``thx`` is the rotation about x (pitch,
+nose up +), ``thy`` about y (roll).
 
 The firmware's quirks are kept on purpose: the fast inverse square root (finite for 0: free fall gives no
 correction, not NaN); kp switched by throttle; the in-place quaternion update (q1..q3 use the new q0); the final
 normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and ``asin`` can return NaN near ±90°
 roll, as on the drone. ST 221117 (``VARIANTS``) computes the gyro scale, the integral step and halfT in double and
 normalises with the fresh squares.
-
-Two loops give the same bits: a C extension (``_st_mahony_native``) and a numpy-float32 loop used when the
-extension is not built.
+Two loops give the same bits: the C extension ``_st_mahony_native`` and a numpy-float32 loop without it.
 """
 
 from __future__ import annotations
