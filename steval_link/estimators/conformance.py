@@ -113,10 +113,7 @@ def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def check_conformance(
-    vectors: ConformanceVectors,
-    settings: MahonySettings | None = None,
-    *,
-    native: bool | None = None,
+    vectors: ConformanceVectors, settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> ConformanceResult:
     """Run the replica from the power-up state over the file's inputs and compare every output bit."""
     q, thx, thy, _ = run(

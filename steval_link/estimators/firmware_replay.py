@@ -382,13 +382,7 @@ def _status_variant(tel) -> str:
 
 
 def release_sentence(
-    variant: str,
-    source: str,
-    bit_exact: dict,
-    *,
-    seeded: int,
-    exact: int,
-    first_mismatch_step: int | None,
+    variant: str, source: str, bit_exact: dict, *, seeded: int, exact: int, first_mismatch_step: int | None
 ) -> str:
     """The sentence naming the release a replay ran: recognised, forced or given, or the closest when none is
     bit-exact. ``bit_exact``: each variant's bit-exact steps (empty: forced)."""
