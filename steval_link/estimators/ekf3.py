@@ -188,10 +188,7 @@ class Ekf3(Estimator):
 
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, x_out: np.ndarray) -> None:
         """The C loop over float64 (N, 3) inputs; writes (N, 3) angles and carries the state in and out."""
-        st = np.empty(_native.EKF3_STATE)
-        st[0:3] = self.x
-        st[3:12] = np.asarray(self.P, dtype=np.float64).reshape(9)
-        st[12] = 1.0 if self._initialised else 0.0
+        st = np.concatenate([self.x, np.ravel(self.P), [float(self._initialised)]])  # the layout EKF3_* of the C file
         params = np.array([self.dt, self.gyro_var, self.proc_var, self.acc_var, self.norm_gain, MDPS_TO_RADPS])
         flags = int(self.adaptive) | (int(self.exact_propagation) << 1)
         _native.ekf3_run(acc, gyro, x_out, st, params, flags)

@@ -112,17 +112,14 @@ class _LowPass:
         self.n = 0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        if self.n < self.warmup:
-            self.acc = x.copy() if self.n == 0 else self.acc + x
-            self.n += 1
-            mean = self.acc / self.n
-            self.x1 = self.x2 = self.y1 = self.y2 = mean
+        if self.n < self.warmup or not self.ready:  # warming up (the running mean), or the first sample
+            if self.n < self.warmup:
+                self.acc = x.copy() if self.n == 0 else self.acc + x
+                self.n += 1
+            start = self.acc / self.n if self.n else x.copy()
+            self.x1 = self.x2 = self.y1 = self.y2 = start
             self.ready = True
-            return mean
-        if not self.ready:
-            self.x1 = self.x2 = self.y1 = self.y2 = x.copy()
-            self.ready = True
-            return x.copy()
+            return start
         b0, b1, b2, a1, a2 = self.c
         y = b0 * x + b1 * self.x1 + b2 * self.x2 - a1 * self.y1 - a2 * self.y2
         self.x2, self.x1 = self.x1, x.copy()
