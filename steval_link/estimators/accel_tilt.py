@@ -54,10 +54,5 @@ class AccelTilt(Estimator):
     def run(self, acc_mg, gyro_mdps=None, thr=None) -> AttitudeEstimate:
         acc, _, _ = check_inputs(acc_mg, acc_mg, dtype=np.float64)  # the gyro is not used
         thx, thy, valid = accel_tilt(acc, max_dev_mg=self.max_dev_mg)
-        return AttitudeEstimate(
-            q_wxyz=tilt_quaternion(thx, thy),
-            thx_rad=thx,
-            thy_rad=thy,
-            thz_rad=np.full(acc.shape[0], np.nan),
-            valid=valid,
-        )
+        thz = np.full(acc.shape[0], np.nan)  # yaw is unobservable from gravity
+        return AttitudeEstimate(q_wxyz=tilt_quaternion(thx, thy), thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)

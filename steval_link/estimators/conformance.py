@@ -7,12 +7,12 @@ number parses (as a double, cast to float32) to the firmware's exact value. :fun
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass, replace
+from dataclasses import astuple, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal, run
+from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, bits_equal, run
 
 #: the header every vector file has
 COLUMNS = tuple(
@@ -56,16 +56,9 @@ class ConformanceResult:
         return self.exact_steps == self.steps
 
     def as_dict(self) -> dict:
-        return {
-            "file": self.name,
-            "steps": self.steps,
-            "bit_exact_steps": self.exact_steps,
-            "max_abs_dq": self.max_abs_dq,
-            "max_abs_dth_rad": self.max_abs_dth,
-            "nan_mismatches": self.nan_mismatches,
-            "first_mismatch_step": self.first_mismatch_step,
-            "ok": self.ok,
-        }
+        """The fields under their JSON names, and ``ok``."""
+        keys = "file steps bit_exact_steps max_abs_dq max_abs_dth_rad nan_mismatches first_mismatch_step".split()
+        return {**dict(zip(keys, astuple(self))), "ok": self.ok}
 
 
 def load_conformance_csv(path) -> ConformanceVectors:
@@ -91,18 +84,9 @@ def load_conformance_csv(path) -> ConformanceVectors:
     step_thr = data[:, :2]
     if not np.all(np.isfinite(step_thr)) or np.any(step_thr != np.round(step_thr)):
         raise ValueError(f"{path}: the step and thr columns must hold integers")
-    f32 = data.astype(np.float32)
-    return ConformanceVectors(
-        path=path,
-        description=description,
-        step=data[:, 0].astype(np.int64),
-        thr=data[:, 1].astype(np.int64),
-        acc_mg=np.ascontiguousarray(f32[:, 2:5]),
-        gyro_mdps=np.ascontiguousarray(f32[:, 5:8]),
-        q_wxyz=np.ascontiguousarray(f32[:, 8:12]),
-        thx_rad=np.ascontiguousarray(f32[:, 12]),
-        thy_rad=np.ascontiguousarray(f32[:, 13]),
-    )
+    f32 = data.astype(np.float32)  # acc_mg, gyro_mdps, q_wxyz, thx_rad, thy_rad: the columns after step and thr
+    floats = [np.ascontiguousarray(f32[:, cols]) for cols in (slice(2, 5), slice(5, 8), slice(8, 12), 12, 13)]
+    return ConformanceVectors(path, description, data[:, 0].astype(np.int64), data[:, 1].astype(np.int64), *floats)
 
 
 def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
@@ -116,9 +100,7 @@ def check_conformance(
     vectors: ConformanceVectors, settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> ConformanceResult:
     """Run the replica from the power-up state over the file's inputs and compare every output bit."""
-    q, thx, thy, _ = run(
-        vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, state=MahonyState(), native=native
-    )
+    q, thx, thy, _ = run(vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, native=native)
     exact = bits_equal(q, vectors.q_wxyz).all(axis=1) & bits_equal(thx, vectors.thx_rad)
     exact &= bits_equal(thy, vectors.thy_rad)
     bad = np.flatnonzero(~exact)
