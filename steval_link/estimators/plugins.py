@@ -345,19 +345,16 @@ def display_name(factory, ref: Reference) -> str:
 def construct(factory, label: str, options: dict):
     """``factory(**options)``: ValueError for options it does not take, PluginError when it raises."""
     try:
-        sig = inspect.signature(factory)
-    except (TypeError, ValueError):
-        sig = None
-    if sig is not None:
-        params = sig.parameters
-        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
-        names = [n for n, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
-        unknown = [k for k in options if k not in names]
-        if unknown and not takes_any:
-            takes = f"it takes: {', '.join(names)}" if names else "it takes none"
-            raise ValueError(
-                f"{label} does not take the option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} ({takes})"
-            )
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):  # no signature to check the options against
+        params = None
+    names = [n for n, p in (params or {}).items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    unknown = [k for k in options if k not in names]
+    if params is not None and unknown and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        takes = f"it takes: {', '.join(names)}" if names else "it takes none"
+        raise ValueError(
+            f"{label} does not take the option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} ({takes})"
+        )
     try:
         return factory(**options)
     except Exception as exc:  # noqa: BLE001
