@@ -200,7 +200,6 @@ class Mekf(Estimator):
         """Current gyro bias estimate, mdps."""
         return self.b / MDPS_TO_RADPS
 
-    # --- one step --------------------------------------------------------------------------------------------
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
         ax, ay, az = (float(v) * 1e-3 for v in acc_mg)  # g
         gx, gy, gz = (float(v) * MDPS_TO_RADPS for v in gyro_mdps)  # rad/s
@@ -266,9 +265,8 @@ class Mekf(Estimator):
             H = np.empty((3, 6))
             H[:, :3] = Hh
             if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
-                # the low-passed measurement lags: a bias error shows up as the drift of the last ≈ τ seconds,
-                # D = C − LP(C) (zero for the direct MEKF), LP the same 2nd-order Butterworth as the measurement's
-                # (_LowPass copies the view of _cum_rs it is given, which _predict later updates in place)
+                # the low-passed measurement lags: a bias error shows as the drift of the last ≈ τ s, D = C − LP(C)
+                # (LP the measurement's low-pass; it copies the view of _cum_rs, which _predict updates in place)
                 d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
                 H[:, 3:] = Hh @ d
             else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)

@@ -180,9 +180,6 @@ def entry_point_names() -> dict[str, importlib.metadata.EntryPoint]:
     return {ep.name: ep for ep in eps}
 
 
-# ---- loading ------------------------------------------------------------------------------------------------------
-
-
 def _is_user_frame(filename: str, user_files: tuple[str, ...]) -> bool:
     try:
         f = str(Path(filename).resolve())
@@ -362,9 +359,6 @@ def construct(factory, label: str, options: dict):
         if isinstance(exc, TypeError) and not err.details:
             raise ValueError(f"{label}: {exc}") from None
         raise err from None
-
-
-# ---- the guard ----------------------------------------------------------------------------------------------------
 
 
 class Guarded(Estimator):
