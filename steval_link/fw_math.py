@@ -17,8 +17,6 @@ NATIVE_AVAILABLE = _native is not None
 _F32 = np.float32
 _TWO = _F32(2.0)
 _HALF = _F32(0.5)
-_THREE_HALVES = _F32(1.5)
-_INVSQRT_MAGIC = np.int32(0x5F3759DF)
 
 
 def inv_sqrt(x) -> np.ndarray:
@@ -26,9 +24,9 @@ def inv_sqrt(x) -> np.ndarray:
     x = np.asarray(x, dtype=_F32)
     halfx = _HALF * x
     i = x.view(np.int32)
-    i = _INVSQRT_MAGIC - (i >> 1)  # arithmetic shift, as ``long`` on the Cortex-M4
+    i = np.int32(0x5F3759DF) - (i >> 1)  # arithmetic shift, as ``long`` on the Cortex-M4
     y = i.view(_F32)
-    return y * (_THREE_HALVES - (halfx * y * y))
+    return y * (_F32(1.5) - (halfx * y * y))
 
 
 def choose_native(native: bool | None, built: bool, loop: str, default: bool | None = None) -> bool:

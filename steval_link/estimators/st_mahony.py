@@ -190,7 +190,6 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
     kp_ground, kp_flight, ki_d, dt_d = settings._params().tolist()
     ki, dt = _F32(ki_d), _F32(dt_d)
     st221117 = settings.variant == "ST 221117"
-    two = _TWO
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, *integral = (_F32(v) for v in st)  # q, then exInt, eyInt, ezInt
     with np.errstate(all="ignore"):
@@ -214,7 +213,7 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             if (
                 settings.correction
             ):  # as the C loop: e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
-                v = (two * (q1q3 - q0q2), two * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
+                v = (_TWO * (q1q3 - q0q2), _TWO * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
                 for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
                     e = a[j] * v[m] - a[m] * v[j]
                     if st221117:  # in double, stored to float
