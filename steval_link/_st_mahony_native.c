@@ -146,10 +146,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         }
         Py_END_ALLOW_THREADS
 
-        {
-            const float end[7] = {q0, q1, q2, q3, in[0], in[1], in[2]};
-            memcpy(st, end, sizeof end);
-        }
+        memcpy(st, (const float[7]){q0, q1, q2, q3, in[0], in[1], in[2]}, 7 * sizeof(float)); /* the end state */
     }
     release(b, 8);
     Py_RETURN_NONE;
