@@ -7,31 +7,24 @@
 /* Every loop zero-initialises its views and releases them all on one path: releasing a view never taken is a
  * no-op (PyBuffer_Release ignores obj == NULL, which a failed PyObject_GetBuffer leaves). */
 
-/* A C-contiguous view of exactly nbytes (writable when asked): 0, or -1 with a ValueError. */
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
+/* A C-contiguous view (writable when asked) of exactly nbytes, or of whole rows of -nbytes when nbytes < 0: the
+ * number of rows (1 for exactly nbytes), or -1 with a ValueError. */
+static Py_ssize_t get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
 {
+    Py_ssize_t n = 1;
     if (PyObject_GetBuffer(obj, view, (writable ? PyBUF_WRITABLE : 0) | PyBUF_C_CONTIGUOUS) < 0) return -1;
-    if (view->len != nbytes) {
-        PyErr_Format(PyExc_ValueError, "%s: expected %zd bytes, got %zd", what, nbytes, view->len);
-        PyBuffer_Release(view);
-        return -1;
+    if (nbytes < 0) {
+        n = view->len / -nbytes;
+        nbytes = -nbytes * n;
     }
-    return 0;
-}
-
-/* A C-contiguous view of whole rows of row_bytes: the number of rows, or -1 with a ValueError. */
-static Py_ssize_t get_rows(PyObject *obj, Py_buffer *view, Py_ssize_t row_bytes, const char *what)
-{
-    Py_ssize_t n;
-    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS) < 0) return -1;
-    n = view->len / row_bytes;
-    if (view->len != n * row_bytes) {
-        PyErr_Format(PyExc_ValueError, "%s: length is not a multiple of %zd bytes", what, row_bytes);
+    if (view->len != nbytes) {
+        PyErr_Format(PyExc_ValueError, "%s: %zd bytes, expected %zd", what, view->len, nbytes);
         PyBuffer_Release(view);
         return -1;
     }
     return n;
 }
+
 /* Releases the n views of a loop; returns NULL (the error return of a loop whose arguments failed). */
 static PyObject *release(Py_buffer *views, int n)
 {

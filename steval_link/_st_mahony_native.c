@@ -1,10 +1,7 @@
 /*
- * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (ST releases 170120 and 221117).
- *
- * Written for steval-link (not ST's code): the float32 arithmetic of the firmware's ahrs_fusion_ag and
- * QuaternionToEuler operation by operation, in the drone's evaluation order (Cortex-M4F, -O0, hard float, no FMA);
- * only atan2/asin run in double. Build flags: -O2 -ffp-contract=off -fno-fast-math (setup.py); FLT_EVAL_METHOD
- * must be 0 (checked below). Called by st_mahony.py and fw_math.py, which validate shapes and dtypes:
+ * Native loop of the bit-exact replica of the STEVAL-FCU001V1 Mahony filter (ST releases 170120 and 221117),
+ * written for steval-link: ahrs_fusion_ag and QuaternionToEuler in float32, operation by operation in the drone's
+ * order (-O0, hard float, no FMA); only atan2/asin run in double. Build: -O2 -ffp-contract=off -fno-fast-math.
  *
  *   run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags): acc, gyro float32 3*N (mg, mdps); thr
  *     int64 N; q_out float32 4*N; thx_out, thy_out float32 N (rad) or None; state float32 q0..q3, exInt, eyInt,
@@ -48,14 +45,9 @@ static float inv_sqrt(float x)
 /* QuaternionToEuler: float products and sums in the C source's order, double atan2/asin, stored to float. */
 static void quaternion_to_euler(float q0, float q1, float q2, float q3, float *thx, float *thy)
 {
-    float e00 = q0 * q0, e11 = q1 * q1, e22 = q2 * q2, e33 = q3 * q3;
-    float d0 = 2.0f * q0, d1 = 2.0f * q1, d2 = 2.0f * q2;
-    float d1q3 = d1 * q3, d0q2 = d0 * q2, d0q1 = d0 * q1, d2q3 = d2 * q3;
-    float num = d0q1 + d2q3;
-    float den = e00 + e33 - e11 - e22;
-    float sarg = d0q2 - d1q3;
+    const float num = (2.0f * q0) * q1 + (2.0f * q2) * q3, den = q0 * q0 + q3 * q3 - q1 * q1 - q2 * q2;
     *thx = (float)atan2((double)num, (double)den);
-    *thy = (float)asin((double)sarg);
+    *thy = (float)asin((double)((2.0f * q0) * q2 - (2.0f * q1) * q3));
 }
 
 static PyObject *native_run(PyObject *self, PyObject *args)
@@ -70,7 +62,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &flags)) {
         return NULL;
     }
-    if ((n = get_rows(o[2], &b[2], sizeof(int64_t), "thr")) < 0) return NULL;
+    if ((n = get_buffer(o[2], &b[2], 0, -8, "thr")) < 0) return NULL;
     have_euler = (o[4] != Py_None) && (o[5] != Py_None);
     if (get_buffer(o[0], &b[0], 0, 3 * n * 4, "acc") < 0 || get_buffer(o[1], &b[1], 0, 3 * n * 4, "gyro") < 0 ||
         get_buffer(o[3], &b[3], 1, 4 * n * 4, "q_out") < 0 ||
@@ -94,26 +86,18 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         const int correction = !((flags >> 32) & 1);
         const int st221117 = (int)((flags >> 33) & 1);
         float q0 = st[0], q1 = st[1], q2 = st[2], q3 = st[3];
-        float exInt = st[4], eyInt = st[5], ezInt = st[6];
+        float in[3] = {st[4], st[5], st[6]}; /* exInt, eyInt, ezInt */
 
         Py_BEGIN_ALLOW_THREADS
         for (k = 0; k < n; k++) {
-            float axf, ayf, azf, gxf, gyf, gzf, norm, vx, vy, vz, ex, ey, ez;
-            float q0q0, q0q1, q0q2, q1q1, q1q3, q2q2, q2q3, q3q3, halfT, ahrs_kp;
+            float a[3], g[3], v[3], e[3], norm, q0q0, q0q1, q0q2, q1q1, q1q3, q2q2, q2q3, q3q3, halfT;
+            const float ahrs_kp = (thr[k] < min_thr) ? kp_ground : kp_flight;
+            int i;
 
-            ahrs_kp = (thr[k] < min_thr) ? kp_ground : kp_flight;
-
-            axf = acc[3 * k + 0];
-            ayf = acc[3 * k + 1];
-            azf = acc[3 * k + 2];
-            if (st221117) { /* float * double literal: a double product, stored to float */
-                gxf = (float)((double)gyro[3 * k + 0] * COE_MDPS_TO_RADPS);
-                gyf = (float)((double)gyro[3 * k + 1] * COE_MDPS_TO_RADPS);
-                gzf = (float)((double)gyro[3 * k + 2] * COE_MDPS_TO_RADPS);
-            } else {
-                gxf = gyro[3 * k + 0] * COE_MDPS_TO_RADPS_F;
-                gyf = gyro[3 * k + 1] * COE_MDPS_TO_RADPS_F;
-                gzf = gyro[3 * k + 2] * COE_MDPS_TO_RADPS_F;
+            for (i = 0; i < 3; i++) { /* 221117: float * double literal, a double product stored to float */
+                a[i] = acc[3 * k + i];
+                g[i] = st221117 ? (float)((double)gyro[3 * k + i] * COE_MDPS_TO_RADPS)
+                                : gyro[3 * k + i] * COE_MDPS_TO_RADPS_F;
             }
 
             q0q0 = q0 * q0;
@@ -126,39 +110,23 @@ static PyObject *native_run(PyObject *self, PyObject *args)
             q3q3 = q3 * q3;
 
             if (correction) {
-                norm = inv_sqrt(axf * axf + ayf * ayf + azf * azf);
-                axf = axf * norm;
-                ayf = ayf * norm;
-                azf = azf * norm;
-
-                vx = 2.0f * (q1q3 - q0q2);
-                vy = 2.0f * (q0q1 + q2q3);
-                vz = q0q0 - q1q1 - q2q2 + q3q3;
-
-                ex = (ayf * vz - azf * vy);
-                ey = (azf * vx - axf * vz);
-                ez = (axf * vy - ayf * vx);
-
-                if (st221117) { /* exInt + ex * AHRS_KI * SENSOR_SAMPLING_TIME with double literals */
-                    exInt = (float)((double)exInt + (double)ex * ki_d * dt_d);
-                    eyInt = (float)((double)eyInt + (double)ey * ki_d * dt_d);
-                    ezInt = (float)((double)ezInt + (double)ez * ki_d * dt_d);
-                } else {
-                    exInt = exInt + ex * ki * dt;
-                    eyInt = eyInt + ey * ki * dt;
-                    ezInt = ezInt + ez * ki * dt;
+                norm = inv_sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+                v[0] = 2.0f * (q1q3 - q0q2);
+                v[1] = 2.0f * (q0q1 + q2q3);
+                v[2] = q0q0 - q1q1 - q2q2 + q3q3;
+                for (i = 0; i < 3; i++) a[i] = a[i] * norm;
+                for (i = 0; i < 3; i++) { /* e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int */
+                    e[i] = a[(i + 1) % 3] * v[(i + 2) % 3] - a[(i + 2) % 3] * v[(i + 1) % 3];
+                    in[i] = st221117 ? (float)((double)in[i] + (double)e[i] * ki_d * dt_d) : in[i] + e[i] * ki * dt;
+                    g[i] = g[i] + ahrs_kp * e[i] + in[i];
                 }
-
-                gxf = gxf + ahrs_kp * ex + exInt;
-                gyf = gyf + ahrs_kp * ey + eyInt;
-                gzf = gzf + ahrs_kp * ez + ezInt;
             }
 
             halfT = st221117 ? (float)(0.5 * dt_d) : 0.5f * dt;
-            q0 = q0 + (-q1 * gxf - q2 * gyf - q3 * gzf) * halfT;
-            q1 = q1 + (q0 * gxf + q2 * gzf - q3 * gyf) * halfT;
-            q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * halfT;
-            q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * halfT;
+            q0 = q0 + (-q1 * g[0] - q2 * g[1] - q3 * g[2]) * halfT;
+            q1 = q1 + (q0 * g[0] + q2 * g[2] - q3 * g[1]) * halfT;
+            q2 = q2 + (q0 * g[1] - q1 * g[2] + q3 * g[0]) * halfT;
+            q3 = q3 + (q0 * g[2] + q1 * g[1] - q2 * g[0]) * halfT;
 
             if (st221117) {
                 norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3);
@@ -178,10 +146,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
         }
         Py_END_ALLOW_THREADS
 
-        {
-            const float end[7] = {q0, q1, q2, q3, exInt, eyInt, ezInt};
-            memcpy(st, end, sizeof end);
-        }
+        memcpy(st, (const float[7]){q0, q1, q2, q3, in[0], in[1], in[2]}, 7 * sizeof(float)); /* the end state */
     }
     release(b, 8);
     Py_RETURN_NONE;
@@ -195,7 +160,7 @@ static PyObject *native_euler(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOO", &o[0], &o[1], &o[2])) return NULL;
-    if ((n = get_rows(o[0], &b[0], 4 * sizeof(float), "q")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, -16, "q")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 1, n * 4, "thx_out") < 0 || get_buffer(o[2], &b[2], 1, n * 4, "thy_out") < 0)
         return release(b, 3);
     {

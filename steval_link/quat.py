@@ -9,17 +9,6 @@ import math
 
 import numpy as np
 
-__all__ = [
-    "quaternion_from_euler",
-    "euler_from_quaternion",
-    "quat_multiply",
-    "qmul",
-    "qexp",
-    "quat_conjugate",
-    "quat_normalize",
-    "interpolate_quat",
-]
-
 
 def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
     """Body → earth quaternion (..., 4) wxyz of ZYX Euler angles (``R = Rz(thz)·Ry(thy)·Rx(thx)``), float64: the
@@ -38,13 +27,8 @@ def quaternion_from_euler(thx_rad, thy_rad, thz_rad) -> np.ndarray:
 
 
 def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euler angles in the firmware's convention, in float64: (thx_rad, thy_rad, thz_rad).
-
-    thx = atan2(2(q0q1 + q2q3), q0² − q1² − q2² + q3²) (about x, pitch), thy = asin(2(q0q2 − q1q3)) (about y,
-    roll; the argument is clipped to [−1, 1] so a unit quaternion never yields NaN), thz = atan2(2(q1q2 + q0q3),
-    q0² + q1² − q2² − q3²) (about z, yaw, the Lab 5 handout's formula). ``q_wxyz`` is (..., 4), scalar first.
-    For the firmware's own float32 result use :func:`steval_link.estimators.st_mahony.quaternion_to_euler`.
-    """
+    """(thx_rad, thy_rad, thz_rad) in float64 of (..., 4) wxyz quaternions: ``QuaternionToEuler``'s thx (about x,
+    pitch) and thy (about y, roll; asin's argument clipped: no NaN), and the Lab 5 handout's thz (about z, yaw)."""
     q = np.asarray(q_wxyz, dtype=np.float64)
     if q.shape[-1] != 4:
         raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
@@ -56,25 +40,8 @@ def euler_from_quaternion(q_wxyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return thx, thy, thz
 
 
-def quat_multiply(a, b) -> np.ndarray:
-    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
 def qmul(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a ⊗ b of two wxyz quaternions of Python floats (one filter step: no numpy overhead)."""
+    """Hamilton product a ⊗ b of two wxyz quaternions (Python floats in a filter step: no numpy overhead)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
     return (
@@ -83,6 +50,13 @@ def qmul(a, b) -> tuple[float, float, float, float]:
         aw * by - ax * bz + ay * bw + az * bx,
         aw * bz + ax * by - ay * bx + az * bw,
     )
+
+
+def quat_multiply(a, b) -> np.ndarray:
+    """Hamilton product a ⊗ b of (..., 4) wxyz quaternions, float64."""
+    a = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    b = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack(qmul(a, b), axis=-1)
 
 
 def qexp(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
@@ -108,10 +82,7 @@ def quat_normalize(q) -> np.ndarray:
 
 
 def interpolate_quat(t_s, q_wxyz, t_new_s) -> np.ndarray:
-    """Normalised linear interpolation (nlerp, sign-consistent) of quaternions to new times; NaN stays NaN nearby.
-
-    Times outside ``t_s`` get NaN.
-    """
+    """Normalised linear interpolation (nlerp, sign-consistent) to new times; NaN near NaN input and outside ``t_s``."""
     t = np.asarray(t_s, dtype=np.float64)
     q = np.asarray(q_wxyz, dtype=np.float64).copy()
     tn = np.asarray(t_new_s, dtype=np.float64)

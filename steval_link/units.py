@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["MDPS_TO_RADPS", "RAD_TO_MDPS"]
-
 #: millidegrees per second → rad/s (float64; the firmware's own float32 literal is ``constants.COE_MDPS_TO_RADPS``)
 MDPS_TO_RADPS: float = math.pi / 180.0 / 1000.0
 #: rad (or rad/s) → millidegrees (mdps)

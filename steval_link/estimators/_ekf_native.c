@@ -1,10 +1,7 @@
 /*
- * Native per-step loops of steval-link's two Kalman filters: the Euler-angle EKF (ekf3.py) and the MEKF (mekf.py).
- *
- * Each loop follows the Python reference (Ekf3._advance, Mekf.step) statement by statement in double precision, so
- * the two agree to rounding (numpy's small matrix products go through BLAS: ~1e-15, not bit for bit). Build flags:
- * -O2 -ffp-contract=off -fno-fast-math -std=c99 (setup.py). The Python classes pack their state into the buffers
- * below (layouts EKF3_* and MEKF_*, state sizes exported as module constants), call run_*, and unpack the final state.
+ * Native per-step loops of the Euler-angle EKF (ekf3.py) and the MEKF (mekf.py): the Python reference (Ekf3._row,
+ * Mekf.step) statement by statement in double, equal to rounding (numpy's matrix products go through BLAS). The
+ * Python classes pack their state into the buffers below (layouts EKF3_*, MEKF_*), call *_run and unpack it.
  *
  *   ekf3_run(acc, gyro, x_out, state, params, flags): acc, gyro float64 3*N (mg, mdps); x_out 3*N (phi, theta,
  *     psi after each step, rad); state EKF3_STATE (in: start, out: end); params EKF3_NPARAMS; flags bit 0
@@ -78,21 +75,19 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* S⁻¹ by the adjugate (_inv3 of mekf.py) */
+/* S⁻¹ by the adjugate (_inv3 of mekf.py): column j holds rows j+1 × j+2 of S, over det */
 static void inv3(const double *S, double *Si)
 {
-    double a = S[0], b = S[1], c = S[2], d = S[3], e = S[4], f = S[5], g = S[6], h = S[7], i = S[8];
-    double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    double det = a * A + b * B + c * C;
-    Si[0] = A / det;
-    Si[1] = (c * h - b * i) / det;
-    Si[2] = (b * f - c * e) / det;
-    Si[3] = B / det;
-    Si[4] = (a * i - c * g) / det;
-    Si[5] = (c * d - a * f) / det;
-    Si[6] = C / det;
-    Si[7] = (b * g - a * h) / det;
-    Si[8] = (a * e - b * d) / det;
+    double c[9], det;
+    int i, j;
+    for (j = 0; j < 3; j++) {
+        const double *r = S + 3 * ((j + 1) % 3), *s = S + 3 * ((j + 2) % 3);
+        c[3 * j] = r[1] * s[2] - r[2] * s[1];
+        c[3 * j + 1] = r[2] * s[0] - r[0] * s[2];
+        c[3 * j + 2] = r[0] * s[1] - r[1] * s[0];
+    }
+    det = S[0] * c[0] + S[1] * c[1] + S[2] * c[2];
+    for (i = 0; i < 9; i++) Si[i] = c[3 * (i % 3) + i / 3] / det;
 }
 
 /* The EKF measurement update with innovation e (3), in place: K = P·Hᵀ·(H·P·Hᵀ + var·I)⁻¹ (numpy's solve gives
@@ -104,9 +99,7 @@ static void ekf_update(double *P, const double *H, double var, int nb, int froze
     int i, j;
     matmul(P, H, PHt, nb, nb, 3, 1);
     matmul(H, PHt, S, 3, nb, 3, 0);
-    S[0] += var;
-    S[4] += var;
-    S[8] += var;
+    for (i = 0; i < 9; i += 4) S[i] += var;
     inv3(S, Si);
     matmul(PHt, Si, K, nb, 3, 3, 0);
     for (i = 3 * frozen; i < 3 * nb; i++) K[i] = 0.0;
@@ -121,9 +114,7 @@ static void ekf_update(double *P, const double *H, double var, int nb, int froze
         for (j = 0; j < nb; j++) P[i * nb + j] = 0.5 * (Pn[i * nb + j] + Pn[j * nb + i]);
 }
 
-/* ------------------------------------------------------------------------------------------------------------
- * ekf3
- * ------------------------------------------------------------------------------------------------------------ */
+/* ---- ekf3 ---------------------------------------------------------------------------------------------------- */
 
 #define EKF3_X 0     /* x: phi, theta, psi (3) */
 #define EKF3_PM 3    /* P (3×3, row-major) */
@@ -156,7 +147,7 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
 {
     const double dt = prm[EKF3_P_DT];
     double phi = x[0], th = x[1];
-    double sp = sin(phi), cp = cos(phi), ct = cos(th), st, tt, a, c, f0, f1, f2, gq, pq;
+    double sp = sin(phi), cp = cos(phi), ct = cos(th), st, tt, a, c, gq, pq;
     double Q[9], FP[9];
     int i;
     if (fabs(ct) < EKF3_MIN_COS) ct = copysign(EKF3_MIN_COS, ct);
@@ -164,9 +155,6 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
     tt = st / ct;
     a = sp * q + cp * r;
     c = cp * q - sp * r;
-    f0 = p + tt * a;
-    f1 = c;
-    f2 = a / ct;
     {
         const double F[9] = {1.0 + dt * tt * c, dt * a / (ct * ct), 0.0, /* row 0 */
                              -dt * a, 1.0, 0.0,                         /* row 1 */
@@ -179,9 +167,9 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
     if (exact) {
         ekf3_propagate_exact(x, p * dt, q * dt, r * dt);
     } else {
-        x[0] = remainder(x[0] + dt * f0, 2 * M_PI);
-        x[1] += dt * f1;
-        x[2] = remainder(x[2] + dt * f2, 2 * M_PI);
+        x[0] = remainder(x[0] + dt * (p + tt * a), 2 * M_PI);
+        x[1] += dt * c;
+        x[2] = remainder(x[2] + dt * (a / ct), 2 * M_PI);
     }
     gq = dt * dt * prm[EKF3_P_GYRO_VAR];
     pq = dt * prm[EKF3_P_PROC_VAR];
@@ -215,7 +203,7 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &flags)) return NULL;
-    if ((n = get_rows(o[0], &b[0], 3 * sizeof(double), "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 3 * n * 8, "x_out") < 0 ||
         get_buffer(o[3], &b[3], 1, EKF3_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 0, EKF3_NPARAMS * 8, "params") < 0)
@@ -255,9 +243,7 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
-/* ------------------------------------------------------------------------------------------------------------
- * mekf
- * ------------------------------------------------------------------------------------------------------------ */
+/* ---- mekf ---------------------------------------------------------------------------------------------------- */
 
 #define MEKF_QS 0    /* strapdown quaternion q_s (4) */
 #define MEKF_QC 4    /* correction quaternion q_c (4) */
@@ -328,14 +314,8 @@ static void lowpass(const double *c, double *s, int m, int64_t *ready, int64_t *
 
 static void tilt_quat(double ax, double ay, double az, double *q)
 {
-    double n = sqrt(ax * ax + ay * ay + az * az), w, x, y, s;
-    ax = ax / n;
-    ay = ay / n;
-    az = az / n;
-    w = 1.0 + az;
-    x = ay;
-    y = -ax;
-    s = sqrt(w * w + x * x + y * y);
+    const double n = sqrt(ax * ax + ay * ay + az * az);
+    const double w = 1.0 + az / n, x = ay / n, y = -(ax / n), s = sqrt(w * w + x * x + y * y);
     q[0] = (w < 1e-9) ? 0.0 : w / s; /* upside down: (0, 1, 0, 0) */
     q[1] = (w < 1e-9) ? 1.0 : x / s;
     q[2] = (w < 1e-9) ? 0.0 : y / s;
@@ -361,11 +341,9 @@ static void mekf_predict(mekf_t *f, double wx, double wy, double wz)
             cum[i] += dt * rs[i];
             G[i] = -dt * rs[i];
         }
-        for (i = 0; i < 3; i++) {
-            for (j = 0; j < 3; j++) {
-                Pab[i * 3 + j] = P[i * nb + 3 + j];
-                Pbb[i * 3 + j] = P[(3 + i) * nb + 3 + j];
-            }
+        for (i = 0; i < 9; i++) {
+            Pab[i] = P[(i / 3) * nb + 3 + i % 3];
+            Pbb[i] = P[(3 + i / 3) * nb + 3 + i % 3];
         }
         matmul(G, Pbb, GPbb, 3, 3, 3, 0);
         matmul(G, Pab, T1, 3, 3, 3, 1);    /* G·Pabᵀ */
@@ -396,7 +374,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
     const double Hh[9] = {0.0, -hz, hy, hz, 0.0, -hx, -hy, hx, 0.0}; /* [h]× */
     double dev = fabs(an - 1.0), u[3], d, var; /* u: the measured gravity direction */
     double H[18], dxs[6];
-    int i, j;
+    int i;
     int warming = 0;
     if (f->have_lp) {
         double R[9], a_i[3], m[3], mn;
@@ -417,8 +395,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
         d = dev;
     }
     var = sq_pow(prm[MEKF_P_ACC_NOISE]) + sq_pow(ng * d);
-    for (i = 0; i < 3; i++)
-        for (j = 0; j < 3; j++) H[i * nb + j] = Hh[i * 3 + j];
+    for (i = 0; i < 9; i++) H[(i / 3) * nb + i % 3] = Hh[i];
     if (f->estimate_bias) { /* [h]×·D, D = C − LP(C); zero for the direct MEKF and while the low-pass warms up */
         double lpc[9], D[9] = {0.0}, HD[9];
         if (f->have_lp && !warming) {
@@ -426,8 +403,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
             for (i = 0; i < 9; i++) D[i] = st[MEKF_CUM + i] - lpc[i];
         }
         matmul(Hh, D, HD, 3, 3, 3, 0);
-        for (i = 0; i < 3; i++)
-            for (j = 0; j < 3; j++) H[i * 6 + 3 + j] = HD[i * 3 + j];
+        for (i = 0; i < 9; i++) H[(i / 3) * 6 + 3 + i % 3] = HD[i];
     }
     {
         const double e[3] = {u[0] - hx, u[1] - hy, u[2] - hz};
@@ -446,8 +422,7 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
         cap = 3 * sq_pow(prm[MEKF_P_INIT_BIAS]);
         if (tr > cap) {
             double sc = cap / tr;
-            for (i = 3; i < 6; i++)
-                for (j = 3; j < 6; j++) P[i * 6 + j] *= sc;
+            for (i = 0; i < 9; i++) P[(3 + i / 3) * 6 + 3 + i % 3] *= sc;
         }
     }
 }
@@ -477,7 +452,7 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &flags)) return NULL;
-    if ((n = get_rows(o[0], &b[0], 3 * sizeof(double), "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 4 * n * 8, "q_out") < 0 ||
         get_buffer(o[3], &b[3], 1, MEKF_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 1, MEKF_ISTATE * 8, "istate") < 0 ||

@@ -1,10 +1,8 @@
 """Accelerometer-only tilt (ETH lecture 4, exercise 8): pitch and roll from the direction of gravity alone.
 
-Firmware axes (x right, y forward, z up; at rest acc ≈ (0, 0, +1000) mg), angles named like ``QuaternionToEuler``
-so they line up with the firmware's: ``thx_rad`` = atan2(ay, az) is the rotation about x (pitch, nose up +),
-``thy_rad`` = atan2(−ax, √(ay² + az²)) the rotation about y (roll). Yaw is unobservable from gravity (NaN).
-Exact only when the drone is not accelerating; under linear acceleration the tilt is wrong, which is what the
-exercise shows next to the Mahony filter.
+Firmware axes and ``QuaternionToEuler``'s names: ``thx_rad`` = atan2(ay, az) is the rotation about x (pitch, nose
+up +), ``thy_rad`` = atan2(−ax, √(ay² + az²)) about y (roll); yaw is unobservable (NaN). Exact only when the drone
+is not accelerating, which is what the exercise shows next to the Mahony filter.
 """
 
 from __future__ import annotations
@@ -13,21 +11,10 @@ import numpy as np
 
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 
-__all__ = ["accel_tilt", "tilt_quaternion", "AccelTilt"]
-
 
 def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pitch and roll from accelerometer samples.
-
-    Args:
-        acc_mg: (N, 3) or (3,) accelerometer, mg (any consistent unit works; only the direction matters).
-        max_dev_mg: when given, samples whose magnitude differs from 1000 mg by more than this are also flagged
-            invalid (the drone is accelerating, so gravity is not what the accelerometer sees).
-
-    Returns:
-        ``(thx_rad, thy_rad, valid)``, float64 and bool, shaped like the input without its last axis. A zero
-        vector gives thx = thy = 0 with ``valid`` False; non-finite input gives NaN with ``valid`` False.
-    """
+    """``(thx_rad, thy_rad, valid)`` of (..., 3) accelerometer samples, mg. ``valid`` is False for a zero vector (thx =
+    thy = 0) or non-finite input (NaN), and with ``max_dev_mg`` where |a| is that far from 1000 mg (accelerating)."""
     a = np.asarray(acc_mg, dtype=np.float64)
     if a.shape[-1] != 3:
         raise ValueError(f"acc_mg must have 3 components in its last axis, got shape {a.shape}")
@@ -42,10 +29,7 @@ def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, 
 
 
 def tilt_quaternion(thx_rad, thy_rad) -> np.ndarray:
-    """Quaternion (scalar first, float64) with the given pitch (about x) and roll (about y) and zero yaw.
-
-    ``euler_from_quaternion`` of the result returns the same thx and thy (Z-Y-X convention, yaw 0).
-    """
+    """Quaternion (wxyz, float64) of pitch ``thx_rad`` (about x), roll ``thy_rad`` (about y) and zero yaw."""
     hx = 0.5 * np.asarray(thx_rad, dtype=np.float64)
     hy = 0.5 * np.asarray(thy_rad, dtype=np.float64)
     cx, sx, cy, sy = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy)
@@ -53,10 +37,7 @@ def tilt_quaternion(thx_rad, thy_rad) -> np.ndarray:
 
 
 class AccelTilt(Estimator):
-    """Accelerometer-only tilt as an estimator (registry name ``accel``): memoryless, gyro ignored.
-
-    Options: ``max_dev_mg`` (see :func:`accel_tilt`). ``valid`` is False for a zero or non-finite acceleration.
-    """
+    """Accelerometer-only tilt as an estimator (``accel``): memoryless, gyro ignored; options: :func:`accel_tilt`."""
 
     name = "accel"
 
@@ -64,7 +45,7 @@ class AccelTilt(Estimator):
         self.max_dev_mg = max_dev_mg
 
     def reset(self) -> None:
-        """Nothing to reset: every step depends on its own sample only."""
+        """Nothing to reset: memoryless."""
 
     def step(self, acc_mg, gyro_mdps=None, thr: int = 0) -> np.ndarray:
         thx, thy, _ = accel_tilt(np.asarray(acc_mg, dtype=np.float64).reshape(3), max_dev_mg=self.max_dev_mg)
@@ -73,10 +54,5 @@ class AccelTilt(Estimator):
     def run(self, acc_mg, gyro_mdps=None, thr=None) -> AttitudeEstimate:
         acc, _, _ = check_inputs(acc_mg, acc_mg, dtype=np.float64)  # the gyro is not used
         thx, thy, valid = accel_tilt(acc, max_dev_mg=self.max_dev_mg)
-        return AttitudeEstimate(
-            q_wxyz=tilt_quaternion(thx, thy),
-            thx_rad=thx,
-            thy_rad=thy,
-            thz_rad=np.full(acc.shape[0], np.nan),
-            valid=valid,
-        )
+        thz = np.full(acc.shape[0], np.nan)  # yaw is unobservable from gravity
+        return AttitudeEstimate(q_wxyz=tilt_quaternion(thx, thy), thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)

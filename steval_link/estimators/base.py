@@ -15,14 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from steval_link.fw_math import choose_native
 from steval_link.quat import euler_from_quaternion
-
-__all__ = [
-    "AttitudeEstimate",
-    "Estimator",
-    "rows_before_tilt",
-    "choose_native",
-]
 
 
 @dataclass(frozen=True)
@@ -49,10 +43,7 @@ class AttitudeEstimate:
 
 class Estimator(abc.ABC):
     """An attitude estimator fed with the firmware's inputs, one AHRS step at a time or a whole run at once.
-
-    Subclasses set :attr:`name` (the registry name) and implement :meth:`reset` and :meth:`step`; :meth:`run` has a
-    generic implementation over :meth:`step` that fast estimators override.
-    """
+    Subclasses set :attr:`name` and implement :meth:`reset` and :meth:`step`; fast ones override :meth:`run`."""
 
     #: registry name, e.g. ``"st-mahony"``
     name: str = "estimator"
@@ -63,27 +54,13 @@ class Estimator(abc.ABC):
 
     @abc.abstractmethod
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
-        """Advance one AHRS step.
-
-        Args:
-            acc_mg: (3,) accelerometer, mg.
-            gyro_mdps: (3,) gyro rate, mdps.
-            thr: throttle ``gTHR`` of the step (only estimators that switch gains on it use it).
-
-        Returns:
-            (4,) quaternion after the step, scalar first.
-        """
+        """Advance one AHRS step: (3,) ``acc_mg``, (3,) ``gyro_mdps``, throttle ``gTHR`` (for estimators that switch
+        gains on it) → (4,) quaternion after the step, scalar first."""
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
-        """Run :meth:`step` over N steps (continuing from the current state, no reset) and return every step's
-        attitude: ``q_wxyz`` as step() returned it, the angles derived from it (``QuaternionToEuler``'s formulas in
-        float64), ``valid`` where q is finite (a step with no estimate returns NaN).
-
-        Args:
-            acc_mg: (N, 3) accelerometer, mg.
-            gyro_mdps: (N, 3) gyro, mdps.
-            thr: (N,) throttle, or None for 0 throughout.
-        """
+        """:meth:`step` over N rows of (N, 3) ``acc_mg``, (N, 3) ``gyro_mdps`` and (N,) ``thr`` (None: 0), from the
+        current state: ``q_wxyz`` as step() returned it, the angles by ``QuaternionToEuler``'s formulas in float64,
+        ``valid`` where q is finite (a step with no estimate returns NaN)."""
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
         n = acc.shape[0]
         q = np.empty((n, 4), dtype=np.float64)
@@ -97,23 +74,24 @@ class Estimator(abc.ABC):
         return f"<{type(self).__name__} {self.name!r}>"
 
 
-def choose_native(native: bool | None, built: bool, loop: str, default: bool | None = None) -> bool:
-    """Whether to run an estimator's C loop: ``native`` True forces it (RuntimeError when it is not ``built``), False
-    the Python one, None ``default`` (by default: the C loop when built)."""
-    if native and not built:
-        raise RuntimeError(f"the native {loop} loop is not built (reinstall steval-link with a C compiler)")
-    return (built if default is None else default) if native is None else bool(native)
-
-
-def rows_before_tilt(acc_mg, reject_g: float = float("inf")) -> np.ndarray:
-    """(N,) bool: the rows before the first accelerometer sample a filter that takes its initial tilt from gravity
-    accepts (|a| finite, > 1e-6 g, and within ``reject_g`` of 1 g; all rows when there is none). Such a filter
-    (ekf3, mekf) has no attitude before it and does not integrate the gyro there: those rows are not valid."""
-    a = np.asarray(acc_mg, dtype=np.float64) * 1e-3
+def filter_rows(est, acc_mg, gyro_mdps, thr, native, built: bool, width: int, *, reject_g=np.inf, default=None):
+    """The run() of a filter with a C loop and a Python reference (ekf3, mekf): its (N, width) output rows from
+    ``est._run_native`` or ``est._row`` per step (``native``, ``built``, ``default``: :func:`choose_native`), and
+    (N,) valid: finite, and not before the first tilt it accepts (|a| finite, > 1e-6 g, within ``reject_g`` of
+    1 g): until then it has no attitude and does not integrate the gyro."""
+    acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
+    out = np.empty((acc.shape[0], width))
+    a = acc * 1e-3
     an = np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])  # the filters' own order of operations
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(an) & (an > 1e-6) & (np.abs(an - 1.0) <= reject_g)
-    return ~np.logical_or.accumulate(ok)
+        tilt = np.isfinite(an) & (an > 1e-6) & (np.abs(an - 1.0) <= reject_g)
+    waiting = ~np.logical_or.accumulate(tilt) & (not est._initialised)
+    if choose_native(native, built, "EKF", default):
+        est._run_native(acc, gyro, out)
+    else:
+        for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
+            out[k] = est._row(a, g)
+    return out, np.isfinite(out).all(axis=1) & ~waiting
 
 
 def check_inputs(acc_mg, gyro_mdps, thr=None, dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,29 +1,18 @@
 """Firmware conformance vectors: load a CSV of ``ahrs_fusion_ag`` calls and check the replica against it, bit for bit.
 
-A vector file (e.g. ``shared/conformance/st-fcu-170120/*.csv``) has one ``#`` comment line, a header
-``step,thr,acc_x_mg,acc_y_mg,acc_z_mg,gyro_x_mdps,gyro_y_mdps,gyro_z_mdps,q0,q1,q2,q3,thx_rad,thy_rad`` and one row
-per AHRS step from the power-up state. Every number parses (as a double, then cast to float32) to the firmware's
-exact float32 value. :func:`variant_scores` finds the ST release that computed a set of files.
+A vector file has one ``#`` comment line, the header :data:`COLUMNS` and one row per AHRS step from power-up; every
+number parses (as a double, cast to float32) to the firmware's exact value. :func:`variant_scores` finds the release.
 """
 
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass, replace
+from dataclasses import astuple, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, MahonyState, bits_equal, run
-
-__all__ = [
-    "COLUMNS",
-    "ConformanceVectors",
-    "ConformanceResult",
-    "load_conformance_csv",
-    "check_conformance",
-    "variant_scores",
-]
+from steval_link.estimators.st_mahony import VARIANTS, MahonySettings, bits_equal, run
 
 #: the header every vector file has
 COLUMNS = tuple(
@@ -51,11 +40,8 @@ class ConformanceVectors:
 
 @dataclass(frozen=True)
 class ConformanceResult:
-    """How the replica compares with one vector file.
-
-    ``max_abs_dq`` / ``max_abs_dth`` are the largest |replica − firmware| over rows where both are finite (0 when
-    all equal); ``nan_mismatches`` counts values that are NaN on one side only.
-    """
+    """How the replica compares with one vector file: ``max_abs_dq`` / ``max_abs_dth`` the largest |replica −
+    firmware| where both are finite; ``nan_mismatches`` the values NaN on one side only."""
 
     name: str
     steps: int
@@ -70,25 +56,13 @@ class ConformanceResult:
         return self.exact_steps == self.steps
 
     def as_dict(self) -> dict:
-        return {
-            "file": self.name,
-            "steps": self.steps,
-            "bit_exact_steps": self.exact_steps,
-            "max_abs_dq": self.max_abs_dq,
-            "max_abs_dth_rad": self.max_abs_dth,
-            "nan_mismatches": self.nan_mismatches,
-            "first_mismatch_step": self.first_mismatch_step,
-            "ok": self.ok,
-        }
+        """The fields under their JSON names, and ``ok``."""
+        keys = "file steps bit_exact_steps max_abs_dq max_abs_dth_rad nan_mismatches first_mismatch_step".split()
+        return {**dict(zip(keys, astuple(self))), "ok": self.ok}
 
 
 def load_conformance_csv(path) -> ConformanceVectors:
-    """Read a vector file.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not a vector file (one sentence naming the file and what is wrong).
-    """
+    """Read a vector file; ValueError (one sentence naming the file) when it is not one."""
     path = Path(path)
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     rows = [line for line in lines if line.strip() and not line.startswith("#")]
@@ -110,18 +84,9 @@ def load_conformance_csv(path) -> ConformanceVectors:
     step_thr = data[:, :2]
     if not np.all(np.isfinite(step_thr)) or np.any(step_thr != np.round(step_thr)):
         raise ValueError(f"{path}: the step and thr columns must hold integers")
-    f32 = data.astype(np.float32)
-    return ConformanceVectors(
-        path=path,
-        description=description,
-        step=data[:, 0].astype(np.int64),
-        thr=data[:, 1].astype(np.int64),
-        acc_mg=np.ascontiguousarray(f32[:, 2:5]),
-        gyro_mdps=np.ascontiguousarray(f32[:, 5:8]),
-        q_wxyz=np.ascontiguousarray(f32[:, 8:12]),
-        thx_rad=np.ascontiguousarray(f32[:, 12]),
-        thy_rad=np.ascontiguousarray(f32[:, 13]),
-    )
+    f32 = data.astype(np.float32)  # acc_mg, gyro_mdps, q_wxyz, thx_rad, thy_rad: the columns after step and thr
+    floats = [np.ascontiguousarray(f32[:, cols]) for cols in (slice(2, 5), slice(5, 8), slice(8, 12), 12, 13)]
+    return ConformanceVectors(path, description, data[:, 0].astype(np.int64), data[:, 1].astype(np.int64), *floats)
 
 
 def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
@@ -132,15 +97,10 @@ def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def check_conformance(
-    vectors: ConformanceVectors,
-    settings: MahonySettings | None = None,
-    *,
-    native: bool | None = None,
+    vectors: ConformanceVectors, settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> ConformanceResult:
     """Run the replica from the power-up state over the file's inputs and compare every output bit."""
-    q, thx, thy, _ = run(
-        vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, state=MahonyState(), native=native
-    )
+    q, thx, thy, _ = run(vectors.acc_mg, vectors.gyro_mdps, vectors.thr, settings=settings, native=native)
     exact = bits_equal(q, vectors.q_wxyz).all(axis=1) & bits_equal(thx, vectors.thx_rad)
     exact &= bits_equal(thy, vectors.thy_rad)
     bad = np.flatnonzero(~exact)
@@ -160,8 +120,7 @@ def check_conformance(
 def variant_scores(
     cases: list[ConformanceVectors], settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> dict[str, int]:
-    """Bit-exact steps over all ``cases`` of each filter variant (``VARIANTS``, in their order) with ``settings``'
-    constants: the release that computed the files is the variant that matches every step."""
+    """Bit-exact steps over all ``cases`` of each of ``VARIANTS`` with ``settings``' constants."""
     base = MahonySettings() if settings is None else settings
     return {
         variant: sum(check_conformance(c, replace(base, variant=variant), native=native).exact_steps for c in cases)

@@ -12,9 +12,8 @@ Prediction with the body rates ``ω = (p, q, r)`` (gyro, rad/s) and the Euler-ra
 
     x ← x + dt·f(x, ω),   F = I + dt·∂f/∂x,   P ← F P Fᵀ + Q
 
-(by default the mean is propagated with the exact solution for a rate constant over the step — the same
-kinematics without forward-Euler error and without the tan θ blow-up near θ = ±90°; ``exact_propagation=False``
-gives the plain forward-Euler step)
+(by default the mean takes the exact solution for a rate constant over the step: no forward-Euler error, no
+tan θ blow-up near ±90°; ``exact_propagation=False`` gives the course's forward-Euler step)
 
     ∂φ̇/∂φ = tanθ·(cosφ·q − sinφ·r)       ∂φ̇/∂θ = (sinφ·q + cosφ·r) / cos²θ
     ∂θ̇/∂φ = −sinφ·q − cosφ·r              ∂θ̇/∂θ = 0
@@ -22,25 +21,18 @@ gives the plain forward-Euler step)
 
     Q = dt²·W·(σ_ω²·I)·Wᵀ + dt·σ_p²·I     (W: the matrix of the Euler-rate equations above, f = W·ω)
 
-σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS; the LSM6DSL's ≈ 75 mdps) and σ_p the process
-noise for everything the gyro model leaves out — bias residue, scale errors, the pipeline's filtering
-(``process_noise_dps_rthz``, dps/√Hz).
-
-Update with the accelerometer direction ``y = a / |a|`` against the predicted gravity direction in the body frame
-(the third row of R, as in the firmware's Mahony filter)::
+σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS), σ_p what the gyro model leaves out
+(``process_noise_dps_rthz``, dps/√Hz). Update with ``y = a / |a|`` against the gravity direction in the body frame
+(the third row of R, as in the firmware)::
 
     h(x) = (−sinθ, sinφ·cosθ, cosφ·cosθ)
     H = ∂h/∂x = [[0, −cosθ, 0], [cosφ·cosθ, −sinφ·sinθ, 0], [−sinφ·cosθ, −cosφ·sinθ, 0]]
     K = P Hᵀ (H P Hᵀ + R)⁻¹,   x ← x + K (y − h(x)),   P ← (I − K H) P
 
-with ``R = σ_a²·I``, σ_a the accelerometer noise in g (``acc_noise_mg``; LSM6DSL ≈ 2 mg) plus, as for any body
-that also translates, the unmodelled linear acceleration (``acc_motion_mg``). With ``adaptive=True`` σ_a
-also grows with the deviation of |a| from 1 g: ``σ_a² = σ_n² + σ_m² + (k·| |a| − 1 g |)²`` (``norm_gain`` k), so
-shakes and taps are trusted less. It is off by default: it discounts exactly the strongest accelerations, which
-biases the tilt during back-and-forth translation (BROAD trial 15: 5.8° without, 11.8° with). ψ is unobservable (no
-magnetometer) and only integrates the gyro.
-The filter starts from the first accelerometer sample's tilt (ψ = 0). cos θ is kept away from 0 (gimbal lock
-at θ = ±90°, a limitation of the Euler-angle state).
+with ``R = σ_a²·I``, ``σ_a² = σ_n² + σ_m²`` in g²: sensor noise (``acc_noise_mg``) and unmodelled linear acceleration
+(``acc_motion_mg``); ``adaptive=True`` adds ``(k·| |a| − 1 g |)²`` (``norm_gain`` k; off: it biases the tilt in
+back-and-forth translation). ψ only integrates the gyro (no magnetometer). The filter starts from the first
+accelerometer sample's tilt (ψ = 0); cos θ is kept away from 0 (gimbal lock at θ = ±90°).
 
 Units at the interface are the firmware's: acc in mg, gyro in mdps, axes x right, y forward, z up.
 """
@@ -52,7 +44,7 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
+from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
 from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
@@ -60,8 +52,6 @@ try:  # the C loop of run() (built by setup.py, optional); the Python step below
     from steval_link.estimators import _ekf_native as _native
 except ImportError:  # pragma: no cover - depends on the build
     _native = None
-
-__all__ = ["Ekf3", "NATIVE_AVAILABLE", "quaternion_from_euler"]
 
 #: True when the compiled loop of :meth:`Ekf3.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
@@ -71,8 +61,7 @@ _DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
 
 def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, float]:
-    """Euler angles after rotating the body by the rotation vector (rx, ry, rz) (rad, body frame): the exact
-    solution of the Euler-rate kinematics for a rate constant over the step."""
+    """Euler angles after rotating the body by the rotation vector (rx, ry, rz), rad, body frame."""
     w, x_, y, z = qmul(quaternion_from_euler(*x).tolist(), qexp(rx, ry, rz))
     phi = math.atan2(2 * (w * x_ + y * z), w * w - x_ * x_ - y * y + z * z)
     th = math.asin(max(-1.0, min(1.0, 2 * (w * y - x_ * z))))
@@ -81,23 +70,11 @@ def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, 
 
 
 class Ekf3(Estimator):
-    """3-state Euler-angle EKF (see the module docstring for the equations).
-
-    Args:
-        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
-        gyro_noise_mdps: gyro noise σ_ω, mdps RMS per sample.
-        process_noise_dps_rthz: σ_p, dps/√Hz.
-        acc_noise_mg: σ_n, mg.
-        acc_motion_mg: σ_m, mg.
-        adaptive: add ``(norm_gain·| |a| − 1 g |)²`` to the accelerometer variance.
-        norm_gain: k, dimensionless.
-        exact_propagation: True integrates the Euler-rate kinematics exactly over each step (through the
-            rotation of the step; no tan θ blow-up near ±90°); False uses the forward-Euler step x + dt·f(x, ω)
-            of the course. The covariance always uses the Jacobian F above.
+    """3-state Euler-angle EKF; its options are the module docstring's symbols, in their units.
 
     :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built (equal to
-    rounding, ≈ 1e-13 rad over an hour) and leaves the same state. A zero accelerometer variance runs in Python,
-    where ``np.linalg.solve`` may raise on a singular innovation covariance.
+    rounding) and leaves the same state. A zero accelerometer variance runs in Python, where ``np.linalg.solve`` may
+    raise on a singular innovation covariance.
     """
 
     name = "ekf3"
@@ -135,10 +112,11 @@ class Ekf3(Estimator):
         return quaternion_from_euler(*self.x)
 
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
-        self._advance(acc_mg, gyro_mdps)
+        self._row(acc_mg, gyro_mdps)
         return self.q
 
-    def _advance(self, acc_mg, gyro_mdps) -> None:
+    def _row(self, acc_mg, gyro_mdps) -> np.ndarray:
+        """One step of the Python reference; returns the state x (φ, θ, ψ)."""
         ax, ay, az = (float(v) * 1e-3 for v in acc_mg)
         p, q, r = (float(v) * MDPS_TO_RADPS for v in gyro_mdps)
         an = math.sqrt(ax * ax + ay * ay + az * az)
@@ -147,11 +125,12 @@ class Ekf3(Estimator):
             if acc_ok:
                 self.x[:] = (math.atan2(ay, az), math.asin(max(-1.0, min(1.0, -ax / an))), 0.0)
                 self._initialised = True
-            return
+            return self.x
         if math.isfinite(p) and math.isfinite(q) and math.isfinite(r):
             self._predict(p, q, r)
         if acc_ok:
             self._update(ax / an, ay / an, az / an, an)
+        return self.x
 
     def _predict(self, p: float, q: float, r: float) -> None:
         dt = self.dt
@@ -164,7 +143,6 @@ class Ekf3(Estimator):
         tt = st / ct
         a = sp * q + cp * r  # appears in φ̇, ψ̇
         c = cp * q - sp * r
-        f = (p + tt * a, c, a / ct)
         F = np.array(
             [
                 [1.0 + dt * tt * c, dt * a / (ct * ct), 0.0],
@@ -176,9 +154,9 @@ class Ekf3(Estimator):
         if self.exact_propagation:
             self.x[:] = _propagate_exact(self.x, p * dt, q * dt, r * dt)
         else:
-            self.x[0] = math.remainder(self.x[0] + dt * f[0], 2 * math.pi)
-            self.x[1] += dt * f[1]
-            self.x[2] = math.remainder(self.x[2] + dt * f[2], 2 * math.pi)
+            self.x[0] = math.remainder(self.x[0] + dt * (p + tt * a), 2 * math.pi)
+            self.x[1] += dt * c
+            self.x[2] = math.remainder(self.x[2] + dt * (a / ct), 2 * math.pi)
         Q = (dt * dt * self.gyro_var) * (W @ W.T)
         Q[_DIAG] += dt * self.proc_var
         self.P = F @ self.P @ F.T + Q
@@ -202,33 +180,15 @@ class Ekf3(Estimator):
         self.P = 0.5 * (P + P.T)
 
     def run(self, acc_mg, gyro_mdps, thr=None, *, native: bool | None = None) -> AttitudeEstimate:
-        """Run N steps from the current state (see :meth:`Estimator.run`); thr is ignored.
-
-        Args:
-            native: True forces the C loop (RuntimeError when it is not built), False the Python reference;
-                default: C when built (and applicable, see the class docstring).
-        """
-        acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        n = acc.shape[0]
-        native = choose_native(native, NATIVE_AVAILABLE, "EKF", NATIVE_AVAILABLE and self.acc_var > 0.0)
-        x = np.empty((n, 3))
-        waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc)
-        if native:
-            self._run_native(acc, gyro, x)
-        else:
-            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
-                self._advance(a, g)
-                x[k] = self.x
+        """N steps from the current state; ``native`` True/False forces the C loop or the Python reference."""
+        default = NATIVE_AVAILABLE and self.acc_var > 0.0
+        x, valid = filter_rows(self, acc_mg, gyro_mdps, thr, native, NATIVE_AVAILABLE, 3, default=default)
         q = quaternion_from_euler(x[:, 0], x[:, 1], x[:, 2])
-        valid = np.isfinite(x).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=x[:, 0], thy_rad=x[:, 1], thz_rad=x[:, 2], valid=valid)
 
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, x_out: np.ndarray) -> None:
         """The C loop over float64 (N, 3) inputs; writes (N, 3) angles and carries the state in and out."""
-        st = np.empty(_native.EKF3_STATE)
-        st[0:3] = self.x
-        st[3:12] = np.asarray(self.P, dtype=np.float64).reshape(9)
-        st[12] = 1.0 if self._initialised else 0.0
+        st = np.concatenate([self.x, np.ravel(self.P), [float(self._initialised)]])  # the layout EKF3_* of the C file
         params = np.array([self.dt, self.gyro_var, self.proc_var, self.acc_var, self.norm_gain, MDPS_TO_RADPS])
         flags = int(self.adaptive) | (int(self.exact_propagation) << 1)
         _native.ekf3_run(acc, gyro, x_out, st, params, flags)

@@ -4,6 +4,7 @@ snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -21,30 +22,16 @@ from steval_link.estimators.st_mahony import (
 from steval_link.fw_math import _F32
 from steval_link.link.protocol import FLAG_EVENT
 
-__all__ = [
-    "ReplicaFollower",
-    "ReplaySeed",
-    "FirmwareReplay",
-    "replay_firmware",
-    "VariantReplay",
-    "replay_variants",
-    "release_sentence",
-]
-
 
 class ReplicaFollower:
-    """The bit-exact replica followed along a stream in order: runs of attitude rows and the status frames' filter
-    snapshots (the replay of a capture and the live replica).
+    """The bit-exact replica followed along a stream of attitude rows and status snapshots (replay and live). It
+    starts at power-up when a run of consecutive steps begins at step 0, or from a status snapshot; a step gap or a
+    row marked not usable (text mode, non-finite) leaves it unseeded (NaN) until the next one.
 
-    The replica starts from the power-up state when a run of consecutive steps begins at step 0, or from a status
-    snapshot (it then continues with the step after the snapshot's). Any step gap, or a row the caller marks as not
-    usable (text-mode rows, non-finite inputs), leaves it unseeded (NaN) until the next snapshot or power-up.
-
-    ``settings``: fixed filter settings for every seed (a what-if replay); None takes each snapshot's own and
-    ``initial`` at power-up. ``follow_snapshots``: a snapshot while the replica runs in sync is confirmed when it
-    agrees bit for bit, else seeds it (True, live); or is ignored (False, a capture's replay, which measures
-    agreement). An event snapshot (status flag ``EVENT``: a host command changed the settings or the filter) is
-    always followed.
+    ``settings``: fixed for every seed (a what-if replay); None takes each snapshot's own and ``initial`` at
+    power-up. ``follow_snapshots``: a snapshot while in sync is confirmed when it agrees bit for bit, else seeds
+    (True, live), or is ignored (False, a replay, which measures agreement). An EVENT snapshot (a host command
+    changed the filter) is always followed. ``variant``: the release every settings runs with (None: their own).
     """
 
     def __init__(
@@ -57,12 +44,12 @@ class ReplicaFollower:
         native: bool | None = None,
         variant: str | None = None,
     ) -> None:
-        self.variant = variant  #: the release whose filter every settings runs with (None: the settings' own)
+        self.variant = variant
         self.fixed = self._with_variant(settings)
         self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
-        self.native = native
+        self._run = functools.partial(run, euler=euler, native=native)
         self.state: MahonyState | None = None
         self.next_step: int | None = None
         self.seed_count = 0  #: (re)starts of the replica so far (power-up or snapshot)
@@ -77,7 +64,7 @@ class ReplicaFollower:
         return replace(settings, variant=self.variant)
 
     def force_variant(self, variant: str | None) -> None:
-        """Run every settings with ``variant``'s filter from now on (a release named by ``--variant`` or the ELF)."""
+        """Run every settings with ``variant``'s filter from now on."""
         self.variant = variant
         self.fixed = self._with_variant(self.fixed)
         self.settings = self._with_variant(self.settings)
@@ -95,10 +82,8 @@ class ReplicaFollower:
         *,
         event: bool = False,
     ) -> str:
-        """The firmware's filter state right after step ``step`` (``event``: a status sent because of a host
-        command, see the class docstring). Returns what it did: "confirmed", "seeded" or "ignored". A non-finite
-        snapshot (the firmware's own filter holds NaN: it diverged) seeds nothing, but its settings are the build's:
-        the replica takes them (unless fixed) and, when it runs in sync, keeps running on the inputs."""
+        """The firmware's filter state right after step ``step``: "confirmed", "seeded" or "ignored". A non-finite
+        snapshot (the firmware's filter diverged) seeds nothing, but the replica takes its settings (unless fixed)."""
         settings = self._with_variant(settings)
         in_sync = self.state is not None and self.next_step == step + 1
         if in_sync and not (self.follow_snapshots or event):
@@ -124,9 +109,8 @@ class ReplicaFollower:
         vars(self).update(saved, seed_rows=list(saved["seed_rows"]))
 
     def rows_recognising(self, step, acc_mg, gyro_mdps, thr, usable, fw_q_wxyz, *, first_row: int = 0):
-        """:meth:`rows`, and when no release was named (``variant``) and the rows differ from the firmware's
-        ``fw_q_wxyz``: the same rows again from the same state with each other release's filter; the first that is
-        bit-exact on all of them is kept from then on (the release recognised from the data, live)."""
+        """:meth:`rows`; when no ``variant`` is named and they differ from the firmware's ``fw_q_wxyz``, the same rows
+        again with each other release's filter: the first bit-exact on all of them is kept from then on."""
         saved = self._saved()
         out = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
         if self.variant is not None or not _differs(out, fw_q_wxyz):
@@ -135,20 +119,18 @@ class ReplicaFollower:
         running = self.settings.variant
         for variant in (v for v in VARIANTS if v != running):
             self._restore(saved)
-            self.settings = replace(self.settings, variant=variant)
-            self.fixed = None if self.fixed is None else replace(self.fixed, variant=variant)
+            self.force_variant(variant)
             if self._pending is not None:
                 self._pending = (*self._pending[:2], self.settings)
             trial = self.rows(step, acc_mg, gyro_mdps, thr, usable, first_row=first_row)
             if trial[3].any() and not _differs(trial, fw_q_wxyz):
-                self.variant = variant
                 return trial
         self._restore(after)
         return out
 
     def rows(self, step, acc_mg, gyro_mdps, thr, usable, *, first_row: int = 0):
-        """Step the replica over these attitude rows (in stream order; ``usable``: (N,) bool). Returns (q (N, 4),
-        thx (N,), thy (N,) — None without ``euler`` —, seeded (N,) bool); NaN where unseeded."""
+        """Step the replica over these attitude rows, in stream order: q (N, 4), thx, thy (None without ``euler``),
+        seeded (N,) bool; NaN where unseeded."""
         step = np.asarray(step, dtype=np.int64)
         n = step.shape[0]
         q = np.full((n, 4), np.nan, dtype=_F32)
@@ -173,15 +155,7 @@ class ReplicaFollower:
                 if self._pending is not None:
                     self.seed_rows.append((first_row + a, self._pending))
                     self._pending = None
-                out = run(
-                    acc_mg[a:b],
-                    gyro_mdps[a:b],
-                    thr[a:b],
-                    settings=self.settings,
-                    state=self.state,
-                    euler=self.euler,
-                    native=self.native,
-                )
+                out = self._run(acc_mg[a:b], gyro_mdps[a:b], thr[a:b], settings=self.settings, state=self.state)
                 q[a:b], self.state = out[0], out[3]
                 if self.euler:
                     thx[a:b], thy[a:b] = out[1], out[2]
@@ -198,11 +172,8 @@ def _differs(rows_out, fw_q_wxyz) -> bool:
 
 @dataclass(frozen=True)
 class ReplaySeed:
-    """Where the replica (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards.
-
-    ``source`` is ``"power-up"`` (capture from step 0) or ``"status"`` (snapshot of status row ``status_row``,
-    taken right after step ``step - 1``).
-    """
+    """Where the replica (re)started during a replay: attitude row ``row`` (AHRS step ``step``) onwards, from
+    ``source`` "power-up" or "status" (the snapshot of status row ``status_row``, taken after step ``step - 1``)."""
 
     row: int
     step: int
@@ -213,16 +184,9 @@ class ReplaySeed:
 
 @dataclass(frozen=True)
 class FirmwareReplay:
-    """The replica re-run over a capture, row by row next to the firmware's attitude frames.
-
-    Attributes:
-        q_wxyz: (N, 4) float32, the replica's ``ahrs.q`` per attitude row (NaN where not seeded).
-        thx_rad, thy_rad: (N,) float32, the replica's ``QuaternionToEuler`` (pitch about x, roll about y).
-        bit_exact: (N,) bool, replica q, thx and thy carry the firmware's bits (NaN == NaN).
-        seeded: (N,) bool, the replica had a known state for this row (from power-up or a status snapshot).
-        first_mismatch: row index of the first seeded row that is not bit-exact, or None.
-        seeds: every (re)start of the replica, in row order.
-    """
+    """The replica re-run over a capture, per attitude row: its float32 ``q_wxyz``, ``thx_rad`` (pitch, about x) and
+    ``thy_rad`` (roll, about y), NaN where not ``seeded``; ``bit_exact`` where all carry the firmware's bits (NaN ==
+    NaN); ``first_mismatch`` the first seeded row that is not (or None); ``seeds`` every (re)start, in row order."""
 
     q_wxyz: np.ndarray
     thx_rad: np.ndarray
@@ -249,26 +213,13 @@ class FirmwareReplay:
 def replay_firmware(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, native: bool | None = None
 ) -> FirmwareReplay:
-    """Re-run the replica over a capture's inputs and compare it with the firmware's outputs, bit for bit.
-
-    Args:
-        tel: a :class:`steval_link.link.telemetry.Telemetry` (uses ``attitude.step/acc_mg/gyro_mdps/thr/q_wxyz`` and
-            ``thx_rad/thy_rad`` when present, and ``status.step/q_wxyz/int_xyz/kp_ground/kp_flight/ki/dt_s/
-            min_thr/flags``).
-        settings: filter constants; default: those reported by the status frames (the seeding one, else the
-            first one), or the firmware's defaults when the capture has no status frame.
-        variant: the release whose filter arithmetic every seed uses (a key of ``VARIANTS``); default: the
-            settings' own (the status frames': ST 170120 unless their flags say ST 221117).
-        native: force the C or the pure loop (default: C when built).
-
-    Seeds as :class:`ReplicaFollower` does; rows before a seed are unseeded: NaN, not bit-exact.
-    """
+    """Re-run the replica over a capture (a :class:`~steval_link.link.telemetry.Telemetry`) and compare it with the
+    firmware's outputs, bit for bit. ``settings`` default: the status frames' (else the firmware's defaults);
+    ``variant`` default: the settings' own. Seeds as :class:`ReplicaFollower`; rows before a seed are NaN."""
     rows = _AttitudeRows.of(tel.attitude)
-    snaps = _Snapshots.of(getattr(tel, "status", None), variant)
-    if settings is not None and variant is not None:
-        settings = replace(settings, variant=variant)
-    initial = settings or snaps.default_settings(variant)
-    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native)
+    snaps = _Snapshots.of(getattr(tel, "status", None))
+    initial = settings or snaps.default_settings()
+    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native, variant=variant)
     steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
     parts = [rows.run(replica, 0, 0)]  # no row yet: the empty arrays of each output
     # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
@@ -330,14 +281,13 @@ class _Snapshots:
     ``events`` (per status row: sent because of a host command) and ``has_settings`` (per status row)."""
 
     status: object
-    variant: str | None
     order: np.ndarray
     steps: np.ndarray
     events: np.ndarray
     has_settings: np.ndarray
 
     @classmethod
-    def of(cls, status, variant: str | None) -> _Snapshots:
+    def of(cls, status) -> _Snapshots:
         def col(name: str, dtype=np.float64) -> np.ndarray:
             return np.asarray(table_column(status, name), dtype=dtype)
 
@@ -352,59 +302,44 @@ class _Snapshots:
             order = np.flatnonzero(usable)[np.argsort(st_steps[usable], kind="stable")]
             events = (col("flags", np.int64) & FLAG_EVENT) != 0
             has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
-        return cls(status, variant, order, st_steps[order], events, has_settings)
+        return cls(status, order, st_steps[order], events, has_settings)
 
     def settings(self, j: int) -> MahonySettings:
-        """The settings status row ``j`` reports."""
-        s = MahonySettings.of_status(self.status, j)
-        return s if self.variant is None else replace(s, variant=self.variant)
+        return MahonySettings.of_status(self.status, j)
 
-    def default_settings(self, variant: str | None) -> MahonySettings:
-        """The build's settings: the first snapshot's, else the first status frame that reports them (its snapshot
-        may hold NaN: a filter that diverged still runs with the build's settings), else the firmware's defaults."""
-        first = np.flatnonzero(self.has_settings)
-        if self.order.size:
-            return self.settings(int(self.order[0]))
-        return self.settings(int(first[0])) if first.size else MahonySettings(variant=variant or DEFAULT_VARIANT)
+    def default_settings(self) -> MahonySettings:
+        """The build's settings: the first snapshot's, else the first status frame's that reports them (a diverged
+        filter's snapshot holds NaN), else the firmware's defaults."""
+        first = np.concatenate([self.order[:1], np.flatnonzero(self.has_settings)[:1]])
+        return self.settings(int(first[0])) if first.size else MahonySettings()
 
     def state(self, j: int) -> MahonyState:
-        """The filter snapshot of status row ``j``."""
-        return MahonyState(
-            q_wxyz=table_column(self.status, "q_wxyz")[j], int_xyz=table_column(self.status, "int_xyz")[j]
-        )
+        return MahonyState(table_column(self.status, "q_wxyz")[j], table_column(self.status, "int_xyz")[j])
 
 
 def _replay_run(replica: ReplicaFollower, rows: _AttitudeRows, snaps: _Snapshots, a: int, b: int) -> list:
-    """The replica over one run ``a:b`` of consecutive rows, in pieces between the snapshots it takes. The first
-    usable snapshot seeds a run that does not start at power-up; later ones are followed only when they announce a
-    host command's change (EVENT), else the replay measures agreement."""
+    """The replica over one run ``a:b`` of consecutive rows, in pieces between the snapshots inside it (the replica
+    takes one when unseeded or an EVENT, and ignores the others)."""
     parts = []
     cut = a
     if rows.exact[a]:
         s_first, s_last = int(rows.steps[a]), int(rows.steps[b - 1])
-        hi = int(np.searchsorted(snaps.steps, s_last - 1, side="right"))
         lo = int(np.searchsorted(snaps.steps, s_first - 1, side="left"))
-        seeded_run = rows.steps[a] == 0
-        for k in range(lo, hi):
-            j = int(snaps.order[k])
-            is_event = bool(snaps.events[j])
-            if seeded_run and not is_event:
-                continue
-            end = a + int(snaps.steps[k]) + 1 - s_first  # rows up to the snapshot's step
+        for k in range(lo, int(np.searchsorted(snaps.steps, s_last - 1, side="right"))):
+            j, step = int(snaps.order[k]), int(snaps.steps[k])
+            end = a + step + 1 - s_first  # rows up to the snapshot's step
             if end > cut:
                 parts.append(rows.run(replica, cut, end))
                 cut = end
-            replica.snapshot(int(snaps.steps[k]), snaps.state(j), snaps.settings(j), snapshot_id=j, event=is_event)
-            seeded_run = seeded_run or replica.seeded
+            replica.snapshot(step, snaps.state(j), snaps.settings(j), snapshot_id=j, event=bool(snaps.events[j]))
     parts.append(rows.run(replica, cut, b))
     return parts
 
 
 @dataclass(frozen=True)
 class VariantReplay:
-    """The release whose filter reproduces a capture: ``variant`` (a key of ``VARIANTS``), ``source`` (how it was
-    chosen: who named it, e.g. "firmware ELF"; "data", or "settings" when every variant is as exact), ``replay`` (the
-    replay with it) and ``bit_exact`` (bit-exact steps of each variant tried; empty when it was forced)."""
+    """The release whose filter reproduces a capture, ``source`` how it was chosen (who named it, "data", or
+    "settings" when every variant is as exact), and ``bit_exact`` the steps of each variant tried (empty: forced)."""
 
     variant: str
     source: str
@@ -421,9 +356,8 @@ def replay_variants(
     hint: tuple[str, str] | None = None,
     native: bool | None = None,
 ) -> VariantReplay:
-    """Replay the capture with the release's filter named by ``variant`` (then ``source`` says who named it), else
-    with each of ``VARIANTS`` and keep the one with the most bit-exact steps; on a tie, ``hint`` (variant, who named
-    it: "firmware ELF") when given, else the settings' own (the status frames', else ST 170120)."""
+    """Replay the capture with ``variant`` (named by ``source``), else with each of ``VARIANTS``, keeping the most
+    bit-exact; on a tie ``hint`` (variant, who named it) when given, else the settings' own."""
     if variant is not None:
         return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
     replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
@@ -448,16 +382,10 @@ def _status_variant(tel) -> str:
 
 
 def release_sentence(
-    variant: str,
-    source: str,
-    bit_exact: dict,
-    *,
-    seeded: int,
-    exact: int,
-    first_mismatch_step: int | None,
+    variant: str, source: str, bit_exact: dict, *, seeded: int, exact: int, first_mismatch_step: int | None
 ) -> str:
     """The sentence naming the release a replay ran: recognised, forced or given, or the closest when none is
-    bit-exact (with where it leaves the firmware). ``bit_exact``: each variant's bit-exact steps (empty: forced)."""
+    bit-exact. ``bit_exact``: each variant's bit-exact steps (empty: forced)."""
     others = "; ".join(f"{v}: {n} of {seeded}" for v, n in bit_exact.items() if v != variant)
     others = f"; {others}" if others else ""
     if seeded == 0:

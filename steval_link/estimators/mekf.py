@@ -1,56 +1,31 @@
-"""Multiplicative quaternion EKF (MEKF) with gyro-bias states and inertial-frame accelerometer averaging —
+"""Multiplicative quaternion EKF (MEKF) with gyro-bias states and inertial-frame accelerometer averaging:
 steval-link's most accurate 6-axis estimator.
 
-Why inertial-frame averaging: a hand-held or flying body's linear acceleration is large (tenths of a g) but it
-averages out over seconds *in the earth frame* (the velocity stays bounded), while in the body frame it does not
-(it rotates with the body). So, like VQF (Laidig & Seel 2023), the accelerometer is rotated into a strapdown
-("inertial", I) frame integrated from the gyro alone, low-pass filtered there, and only that filtered gravity
-direction corrects the attitude. The correction itself is a textbook MEKF.
+Why: linear acceleration averages out over seconds in the earth frame (the velocity stays bounded), not in the body
+frame. So, like VQF (Laidig & Seel 2023), the accelerometer is rotated into a strapdown ("inertial", I) frame
+integrated from the gyro alone, low-pass filtered there, and only that gravity direction corrects the attitude.
 
-Attitude: ``q = q_c ⊗ q_s`` (body → earth, scalar first, like the firmware's ``ahrs.q``):
+Attitude ``q = q_c ⊗ q_s`` (body → earth, wxyz): ``q_s`` (body → I) ``← q_s ⊗ Exp((gyro − b)·dt)``, never corrected;
+``q_c`` (I → earth) and the gyro bias ``b`` (rad/s) are the EKF's. Error state ``δx = (δθ, δb)``, with
+``q_c,true = q_c ⊗ Exp(δθ)`` (δθ in the I frame)::
 
-- ``q_s`` (body → I): ``q_s ← q_s ⊗ Exp((gyro − b)·dt)`` every step, never corrected by the accelerometer;
-- ``q_c`` (I → earth): slowly varying, estimated by the EKF;
-- ``b``: gyro bias, rad/s, estimated by the EKF.
+    δθ ← δθ − dt·R(q_s)·δb,   P ← F P Fᵀ + diag(σ_g²·dt·I, σ_b²·dt·I),   F = [[I, −dt·R(q_s)], [0, I]]
 
-Error state ``δx = (δθ, δb)`` (6), with ``q_c,true = q_c ⊗ Exp(δθ)`` (δθ in the I frame) and ``b_true = b + δb``.
-Per step (``dt = 1 / rate_hz``)::
+``a_I = R(q_s)·a`` (g) goes through a 2nd-order Butterworth low-pass of time constant τ (``acc_tau_s``, cut-off
+√2 / (2πτ); the running mean during the first τ seconds, as VQF), giving ``ā_I``. Measurement ``y = ā_I / |ā_I|``,
+prediction ``h = R(q_c)ᵀ·e_z``::
 
-    δθ ← δθ − dt·R(q_s)·δb            (a bias error makes the strapdown frame drift)
-    P  ← F P Fᵀ + diag(σ_g²·dt·I, σ_b²·dt·I),   F = [[I, −dt·R(q_s)], [0, I]]
+    H = [[h]×, [h]×·D],   D = C − LP(C),   C = Σ dt·R(q_s),   R = σ_a²·I,   σ_a² = σ_n² + (k_n·d)²
 
-Accelerometer: ``a_I = R(q_s)·a`` (g) goes through a 2nd-order Butterworth low-pass with time constant τ
-(``acc_tau_s``; cut-off √2 / (2πτ); during the first τ seconds it outputs the running mean, as VQF does), giving
-``ā_I``. Measurement ``y = ā_I / |ā_I|``, prediction ``h = R(q_c)ᵀ·e_z`` (gravity direction in the I frame; for
-the whole chain it is the third row of R(q), as in the firmware)::
+D models the low-pass' delay (the drift a bias error caused over the last ≈ τ s); without it the bias loop
+oscillates. While the low-pass warms up the bias is not updated. σ_n is ``acc_noise_mg``; k_n (``norm_gain``,
+off: it hurt on the BROAD trials) scales d, the low-passed | |a| − 1 g |. Samples with | |a| − 1 g | above
+``reject_mg`` (default: none; dropping biases the average) or zero are skipped. Joseph-form update; the bias
+variance is capped at its initial value (the bias about the vertical is unobservable without a magnetometer). The
+first valid accelerometer sample sets the tilt (heading 0). ``acc_tau_s = 0`` is the direct MEKF (``H = [[h]×, 0]``).
 
-    H = [[h]×, [h]×·D],   D = C − LP(C),   C = Σ dt·R(q_s)
-
-The bias block models the low-pass' delay: ``ā_I`` reflects the attitude error of the last ≈ τ seconds, which
-differs from the current one by the drift a bias error caused meanwhile (D: that drift per unit bias, through the
-same low-pass). Without it the bias loop, closed through a τ-second delay, oscillates. While the low-pass warms
-up the bias is not updated. Noise ``R = σ_a²·I`` (g²)::
-
-    σ_a² = σ_n² + (k_n·d)²,   d = low-passed | |a| − 1 g |
-
-- σ_n (``acc_noise_mg``): error of the averaged gravity direction (the averaging already removes most linear
-  acceleration, so a few mg),
-- k_n (``norm_gain``, default 0): optional acceleration-aware inflation from the recent deviation of |a| from
-  1 g. Measured on the BROAD trials it does not help once the accelerometer is averaged in the I frame (it even
-  hurts fast translation, where the strongest accelerations must stay in the average to cancel), so it is off.
-
-Samples with ``| |a| − 1 g | > reject_mg`` (default: none) or a zero vector are skipped: dropping large
-accelerations biases the average (e.g. when the ±4 g range saturates), so nothing is dropped by default.
-The error state is folded back (``q_c ← q_c ⊗ Exp(δθ)``, ``b ← b + δb``, Joseph-form covariance). The bias
-variance is capped at its initial value because the bias about the earth's vertical is unobservable without a
-magnetometer. The first valid accelerometer sample sets the initial tilt (heading 0).
-
-``acc_tau_s = 0`` gives the classic direct MEKF (the raw accelerometer direction each step, ``H = [[h]×, 0]``,
-noise ``σ_a² = σ_n² + (k_n·| |a| − 1 g |)²``), kept for comparison: it is pulled around by linear acceleration.
-
-Latency: in the STEVAL pipeline the gyro input lags the accelerometer input by the IIR's group delay and the gyro's
-416 Hz sample-and-hold (``sensor_model.GYRO_LATENCY_S`` ≈ 3.3 ms). By default the returned attitude is predicted
-that far ahead with the current rate (``latency_s``), which matters during fast rotation (≈ 1° on BROAD trial 07).
+Latency: the STEVAL pipeline's gyro lags its accelerometer by ``constants.GYRO_LATENCY_S`` (≈ 3.3 ms); the output is
+predicted that far ahead (``latency_s``; ≈ 1° in fast rotation).
 
 Units at the interface are the firmware's: acc in mg, gyro in mdps, axes x right, y forward, z up.
 """
@@ -62,7 +37,7 @@ import math
 import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native, rows_before_tilt
+from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
 from steval_link.quat import euler_from_quaternion, qexp, qmul
 from steval_link.units import MDPS_TO_RADPS
 
@@ -70,8 +45,6 @@ try:  # the C loop of run() (built by setup.py, optional); the Python step below
     from steval_link.estimators import _ekf_native as _native
 except ImportError:  # pragma: no cover - depends on the build
     _native = None
-
-__all__ = ["Mekf", "NATIVE_AVAILABLE"]
 
 #: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
 NATIVE_AVAILABLE = _native is not None
@@ -127,15 +100,8 @@ def _butter2(fc_hz: float, fs_hz: float) -> tuple[float, float, float, float, fl
 
 
 class _LowPass:
-    """Vector 2nd-order Butterworth low-pass (direct form I).
-
-    Like VQF's, it starts with the running mean of its inputs for ``warmup`` samples (≈ τ) and then continues
-    from that mean in steady state, so a single first sample taken during motion does not linger.
-
-    It keeps copies of its inputs as the history x1, x2, so the caller may pass a view of an array it later
-    updates in place (Mekf passes ``_cum_rs.ravel()``). The returned array is the filter's own y1: do not modify
-    it in place.
-    """
+    """Vector 2nd-order Butterworth low-pass (direct form I), started like VQF's with the running mean of its first
+    ``warmup`` inputs. It copies its inputs (a caller may pass a view it updates later); do not modify its output."""
 
     __slots__ = ("c", "x1", "x2", "y1", "y2", "ready", "warmup", "n", "acc")
 
@@ -146,17 +112,14 @@ class _LowPass:
         self.n = 0
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        if self.n < self.warmup:
-            self.acc = x.copy() if self.n == 0 else self.acc + x
-            self.n += 1
-            mean = self.acc / self.n
-            self.x1 = self.x2 = self.y1 = self.y2 = mean
+        if self.n < self.warmup or not self.ready:  # warming up (the running mean), or the first sample
+            if self.n < self.warmup:
+                self.acc = x.copy() if self.n == 0 else self.acc + x
+                self.n += 1
+            start = self.acc / self.n if self.n else x.copy()
+            self.x1 = self.x2 = self.y1 = self.y2 = start
             self.ready = True
-            return mean
-        if not self.ready:
-            self.x1 = self.x2 = self.y1 = self.y2 = x.copy()
-            self.ready = True
-            return x.copy()
+            return start
         b0, b1, b2, a1, a2 = self.c
         y = b0 * x + b1 * self.x1 + b2 * self.x2 - a1 * self.y1 - a2 * self.y2
         self.x2, self.x1 = self.x1, x.copy()
@@ -165,25 +128,12 @@ class _LowPass:
 
 
 class Mekf(Estimator):
-    """Multiplicative EKF with gyro bias and inertial-frame accelerometer averaging (see the module docstring).
-
-    Args:
-        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps; a BROAD trial at its own 285.7).
-        acc_tau_s: time constant τ of the accelerometer low-pass in the strapdown frame, s (0: direct MEKF).
-        gyro_noise_mdps_rthz: gyro angle random walk density σ_g, mdps/√Hz.
-        bias_rw_mdps_per_sqrt_s: gyro bias random walk σ_b, mdps/√s.
-        acc_noise_mg: σ_n, mg (≈ mrad of tilt).
-        norm_gain: k_n, dimensionless.
-        reject_mg: accelerometer samples with | |a| − 1000 mg | above this are ignored, mg.
-        init_bias_mdps: initial bias standard deviation (and cap), mdps.
-        estimate_bias: False freezes the bias at 0.
-        latency_s: output prediction horizon, s: the attitude returned is ``q ⊗ Exp(ω·latency_s)`` (the state is
-            not shifted); the STEVAL pipeline's gyro lag is :data:`steval_link.constants.GYRO_LATENCY_S`.
-            Use 0 for data without that pipeline (e.g. BROAD at 285.7 Hz).
+    """MEKF with gyro bias and inertial-frame accelerometer averaging; its options are the module docstring's
+    symbols in their units (σ_g ``gyro_noise_mdps_rthz``, σ_b ``bias_rw_mdps_per_sqrt_s``); ``init_bias_mdps`` is the
+    initial bias σ (and cap); ``latency_s`` 0 for data without the STEVAL pipeline (BROAD).
 
     :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built and leaves the
-    same state, so either continues the other. They agree to rounding: ≈ 1e-12 rad on the BROAD trials, ≈ 1e-7 rad
-    of heading after an hour of wild motion (as when the inputs change by 1e-15).
+    same state. They agree to rounding (≈ 1e-12 rad on the BROAD trials).
     """
 
     name = "mekf"
@@ -250,7 +200,6 @@ class Mekf(Estimator):
         """Current gyro bias estimate, mdps."""
         return self.b / MDPS_TO_RADPS
 
-    # --- one step --------------------------------------------------------------------------------------------
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
         ax, ay, az = (float(v) * 1e-3 for v in acc_mg)  # g
         gx, gy, gz = (float(v) * MDPS_TO_RADPS for v in gyro_mdps)  # rad/s
@@ -266,16 +215,10 @@ class Mekf(Estimator):
             self._predict(*self._w)
         if acc_ok:
             self._correct(ax, ay, az, an)
-        if self.latency_s > 0.0:
-            return self._extrapolated()
+        rx, ry, rz = (v * self.latency_s for v in self._w)  # the attitude latency_s ahead at the last rate
+        if self.latency_s > 0.0 and not math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-12:
+            return np.array(qmul(qmul(self.qc, self.qs), qexp(rx, ry, rz)))
         return self.q
-
-    def _extrapolated(self) -> np.ndarray:
-        """The attitude ``latency_s`` ahead: q ⊗ Exp(ω·latency_s) with the last bias-corrected rate."""
-        rx, ry, rz = (v * self.latency_s for v in self._w)
-        if math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-12:
-            return self.q
-        return np.array(qmul(qmul(self.qc, self.qs), qexp(rx, ry, rz)))
 
     def _predict(self, wx: float, wy: float, wz: float) -> None:
         dt = self.dt
@@ -322,9 +265,8 @@ class Mekf(Estimator):
             H = np.empty((3, 6))
             H[:, :3] = Hh
             if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
-                # the low-passed measurement lags: a bias error shows up as the drift of the last ≈ τ seconds,
-                # D = C − LP(C) (zero for the direct MEKF), LP the same 2nd-order Butterworth as the measurement's
-                # (_LowPass copies the view of _cum_rs it is given, which _predict later updates in place)
+                # the low-passed measurement lags: a bias error shows as the drift of the last ≈ τ s, D = C − LP(C)
+                # (LP the measurement's low-pass; it copies the view of _cum_rs, which _predict updates in place)
                 d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
                 H[:, 3:] = Hh @ d
             else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)
@@ -354,49 +296,25 @@ class Mekf(Estimator):
                 self.P[3:, 3:] *= cap / tr
 
     def run(self, acc_mg, gyro_mdps, thr=None, *, native: bool | None = None) -> AttitudeEstimate:
-        """Run N steps from the current state (see :meth:`Estimator.run`); thr is ignored.
-
-        Args:
-            native: True forces the C loop (RuntimeError when it is not built), False the Python reference;
-                default: C when built.
-        """
-        acc, gyro, _ = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        n = acc.shape[0]
-        native = choose_native(native, NATIVE_AVAILABLE, "EKF")
-        q = np.empty((n, 4))
-        waiting = np.zeros(n, dtype=bool) if self._initialised else rows_before_tilt(acc, self.reject)
-        if native:
-            self._run_native(acc, gyro, q)
-        else:
-            for k, (a, g) in enumerate(zip(acc.tolist(), gyro.tolist())):
-                q[k] = self.step(a, g)
+        """N steps from the current state; ``native`` True/False forces the C loop or the Python reference."""
+        q, valid = filter_rows(self, acc_mg, gyro_mdps, thr, native, NATIVE_AVAILABLE, 4, reject_g=self.reject)
         thx, thy, thz = euler_from_quaternion(q)
-        valid = np.isfinite(q).all(axis=1) & ~waiting
         return AttitudeEstimate(q_wxyz=q, thx_rad=thx, thy_rad=thy, thz_rad=thz, valid=valid)
+
+    _row = step  # the Python reference's step, for filter_rows
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
-        st, ist = self._pack_state()
-        params = np.array(
-            [self.dt, MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise, self.norm_gain]
-            + [self.init_bias, self.latency_s, *(self._lp_coeffs or (0.0,) * 5)]  # b0, b1, b2, a1, a2
-        )
-        flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
-        _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
-        self._unpack_state(st, ist)
-
-    def _pack_state(self) -> tuple[np.ndarray, np.ndarray]:
         st = np.zeros(_native.MEKF_STATE)
         ist = np.zeros(_native.MEKF_ISTATE, dtype=np.int64)
         nb = self.P.shape[0]
-        st[0:4] = self.qs
-        st[4:8] = self.qc
-        st[8:11] = self.b
-        st[11:14] = self._w
+        st[0:14] = (*self.qs, *self.qc, *self.b, *self._w)
         st[14 : 14 + nb * nb] = self.P.ravel()
         st[50:59] = self._cum_rs.ravel()
         ist[0] = self._initialised
-        for lp, at, flag, _ in self._lowpass_slots():  # history x1, x2, y1, y2 at ``at``; ready flag in ist
+        # each low-pass: its history x1, x2, y1, y2 at ``at`` (``m`` each), its ready flag at ``flag`` in ist
+        slots = ((self._acc_lp, 59, 1, 3), (self._norm_lp, 74, 4, 1), (self._cum_lp, 78, 5, 9))
+        for lp, at, flag, _ in slots:
             if lp is not None and lp.ready:
                 st[at : at + 4 * lp.x1.size] = np.concatenate([lp.x1, lp.x2, lp.y1, lp.y2])
                 ist[flag] = 1
@@ -404,22 +322,18 @@ class Mekf(Estimator):
             if self._acc_lp.n > 0:
                 st[71:74] = self._acc_lp.acc
             ist[2], ist[3] = self._acc_lp.n, self._acc_lp.warmup
-        return st, ist
-
-    def _lowpass_slots(self) -> tuple:
-        """(low-pass, offset in the state buffer, its ready flag in ist, size) of each low-pass (_ekf_native.c)."""
-        return ((self._acc_lp, 59, 1, 3), (self._norm_lp, 74, 4, 1), (self._cum_lp, 78, 5, 9))
-
-    def _unpack_state(self, st: np.ndarray, ist: np.ndarray) -> None:
-        nb = self.P.shape[0]
-        self.qs = tuple(st[0:4].tolist())
-        self.qc = tuple(st[4:8].tolist())
+        params = np.array(
+            [self.dt, MDPS_TO_RADPS, self.reject, self._q_att, self._q_bias, self.acc_noise, self.norm_gain]
+            + [self.init_bias, self.latency_s, *(self._lp_coeffs or (0.0,) * 5)]  # b0, b1, b2, a1, a2
+        )
+        flags = int(self.estimate_bias) | (int(self._acc_lp is not None) << 1)
+        _native.mekf_run(acc, gyro, q_out, st, ist, params, flags)
+        self.qs, self.qc, self._w = tuple(st[0:4].tolist()), tuple(st[4:8].tolist()), tuple(st[11:14].tolist())
         self.b[:] = st[8:11]
-        self._w = tuple(st[11:14].tolist())
         self.P = st[14 : 14 + nb * nb].reshape(nb, nb).copy()
         self._cum_rs = st[50:59].reshape(3, 3).copy()
         self._initialised = bool(ist[0])
-        for lp, at, flag, m in self._lowpass_slots():
+        for lp, at, flag, m in slots:
             if lp is not None and ist[flag]:
                 lp.ready = True
                 lp.x1, lp.x2, lp.y1, lp.y2 = (st[at + m * i : at + m * (i + 1)].copy() for i in range(4))

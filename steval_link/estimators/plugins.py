@@ -11,11 +11,7 @@ One reference names one estimator (``-e`` of every command, ``registry.create``,
 
 Options are keyword arguments whose values are Python literals (numbers, strings, True/False/None, tuples,
 lists, dicts), read with :func:`ast.literal_eval`: nothing in them is executed. A list of references is
-comma-separated; commas inside the parentheses belong to the options.
-
-Plug-ins run behind :class:`Guarded`: rows with a non-finite input are never fed to them (flagged invalid), their
-output is checked ((4,) quaternion per step, N rows per run), and an exception in them becomes a
-:class:`PluginError`: one line naming the user's file and line, plus their own traceback trimmed to their frames.
+comma-separated; commas inside the parentheses belong to the options. Plug-ins run behind :class:`Guarded`.
 """
 
 from __future__ import annotations
@@ -42,19 +38,6 @@ from steval_link.errors import UserError
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.quat import euler_from_quaternion
 
-__all__ = [
-    "ENTRY_POINT_GROUP",
-    "Reference",
-    "Selected",
-    "PluginError",
-    "Guarded",
-    "split_list",
-    "parse_reference",
-    "entry_point_names",
-    "load_factory",
-    "display_name",
-]
-
 #: entry-point group under which installed packages register estimator classes (``name = "pkg.module:Class"``)
 ENTRY_POINT_GROUP = "steval_link.estimators"
 
@@ -75,15 +58,8 @@ class PluginError(UserError):
 
 @dataclass(frozen=True)
 class Reference:
-    """One parsed estimator reference.
-
-    Attributes:
-        text: the reference as given.
-        kind: ``builtin``, ``file``, ``module`` or ``entry-point``.
-        source: registry name, file path, module name or entry-point name.
-        attr: class (or factory) name in the file or module; None: the file's only estimator class.
-        options: constructor keyword options.
-    """
+    """One parsed estimator reference: ``kind`` ``builtin``, ``file``, ``module`` or ``entry-point``; ``source`` the
+    registry name, file path, module or entry point; ``attr`` the class in it (None: the file's only one)."""
 
     text: str
     kind: str
@@ -93,7 +69,7 @@ class Reference:
 
     @property
     def options_text(self) -> str:
-        """``q_gyro=0.0001, r_acc=0.05`` (canonical, for display names)."""
+        """``q_gyro=0.0001, r_acc=0.05``: the options in display names."""
         return ", ".join(f"{k}={v!r}" for k, v in self.options.items())
 
 
@@ -186,10 +162,7 @@ def parse_reference(text: str) -> Reference:
         left, right = head.rsplit(":", 1)
         if _IDENT.fullmatch(right) and left:
             source, attr = left, right
-    looks_like_file = (
-        source.endswith(".py") or "/" in source or "\\" in source or (attr is None and os.path.isfile(source))
-    )
-    if looks_like_file:
+    if source.endswith(".py") or "/" in source or "\\" in source or (attr is None and os.path.isfile(source)):
         return Reference(raw, "file", source, attr, options)
     if attr is not None:
         if not _DOTTED.fullmatch(source):
@@ -205,9 +178,6 @@ def entry_point_names() -> dict[str, importlib.metadata.EntryPoint]:
     except Exception:  # noqa: BLE001 - a broken distribution's metadata must not break the built-ins
         return {}
     return {ep.name: ep for ep in eps}
-
-
-# ---- loading ------------------------------------------------------------------------------------------------------
 
 
 def _is_user_frame(filename: str, user_files: tuple[str, ...]) -> bool:
@@ -252,15 +222,12 @@ def missing_methods(obj) -> str:
 
 
 def _user_files(obj) -> tuple[str, ...]:
-    """The files (or package directories, ending in os.sep) that hold ``obj``'s code."""
-    mod = sys.modules.get(getattr(obj, "__module__", "") or "")
-    f = getattr(mod, "__file__", None)
+    """The file (or package directory, ending in os.sep) that holds ``obj``'s code."""
+    f = getattr(sys.modules.get(getattr(obj, "__module__", "") or ""), "__file__", None)
     if not f:
         return ()
     p = Path(f).resolve()
-    if p.name == "__init__.py":
-        return (str(p.parent) + os.sep,)
-    return (str(p),)
+    return (str(p.parent) + os.sep,) if p.name == "__init__.py" else (str(p),)
 
 
 def _load_file(ref: Reference):
@@ -329,8 +296,30 @@ def _estimator_classes(module) -> list[type]:
     ]
 
 
-def check_interface(factory, label: str) -> None:
-    """UserError when ``factory`` (a class) lacks ``step()`` or ``reset()``, or cannot be constructed."""
+def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
+    """The constructor a file, module or entry-point reference names, and its label (``MyEkf in my_ekf.py``); UserError
+    when it is not a class with ``step()`` and ``reset()`` that can be constructed."""
+    if ref.kind == "entry-point":
+        ep = entry_point_names()[ref.source]
+        label = f"plug-in {ref.source} ({ep.value})"
+        try:
+            factory = ep.load()
+        except Exception as exc:  # noqa: BLE001
+            raise _failed(f"{label} failed to load", exc) from None
+    else:
+        module, where = _load_file(ref) if ref.kind == "file" else _load_module(ref)
+        found = _estimator_classes(module)
+        if ref.attr is None and len(found) != 1:
+            names = ", ".join(c.__name__ for c in found) or "none"
+            raise UserError(
+                f"{where} defines {len(found)} estimator classes ({names}): name one, "
+                f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}"
+            )
+        factory = found[0] if ref.attr is None else getattr(module, ref.attr, None)
+        if factory is None:
+            hint = f" (estimator classes there: {', '.join(c.__name__ for c in found)})" if found else ""
+            raise UserError(f"{where} has no class {ref.attr}{hint}")
+        label = f"{getattr(factory, '__name__', ref.attr)} in {where}"
     if not callable(factory):
         raise UserError(f"{label} is not a class (it is a {type(factory).__name__})")
     if isinstance(factory, type):
@@ -339,73 +328,30 @@ def check_interface(factory, label: str) -> None:
         if inspect.isabstract(factory):
             left = ", ".join(sorted(factory.__abstractmethods__))
             raise UserError(f"{label} is not an estimator yet: it leaves {left} abstract")
-
-
-def load_factory(ref: Reference) -> tuple[Callable[..., Any], str]:
-    """The constructor a file, module or entry-point reference names, and a label for messages
-    (``MyEkf in my_ekf.py``). UserError / PluginError for every way it can fail (one line each)."""
-    if ref.kind == "entry-point":
-        ep = entry_point_names()[ref.source]
-        try:
-            factory = ep.load()
-        except Exception as exc:  # noqa: BLE001
-            raise _failed(f"plug-in {ref.source} ({ep.value}) failed to load", exc) from None
-        label = f"plug-in {ref.source} ({ep.value})"
-        check_interface(factory, label)
-        return factory, label
-    module, where = _load_file(ref) if ref.kind == "file" else _load_module(ref)
-    if ref.attr is None:
-        found = _estimator_classes(module)
-        if len(found) != 1:
-            names = ", ".join(c.__name__ for c in found) or "none"
-            raise UserError(
-                f"{where} defines {len(found)} estimator classes ({names}): name one, "
-                f"e.g. {ref.source}:{found[0].__name__ if found else 'MyEstimator'}"
-            )
-        factory = found[0]
-    else:
-        factory = getattr(module, ref.attr, None)
-        if factory is None:
-            classes = [c.__name__ for c in _estimator_classes(module)]
-            hint = f" (estimator classes there: {', '.join(classes)})" if classes else ""
-            raise UserError(f"{where} has no class {ref.attr}{hint}")
-    label = f"{getattr(factory, '__name__', ref.attr)} in {where}"
-    check_interface(factory, label)
     return factory, label
 
 
 def display_name(factory, ref: Reference) -> str:
-    """A plug-in's name in tables, plots and the viewer: its ``name`` attribute when the class sets one, else
-    the class name; built-ins keep their registry name."""
-    if ref.kind == "builtin":
-        return ref.source
-    own = None
-    for klass in getattr(factory, "__mro__", ())[:-1]:
-        if klass is Estimator:
-            break
-        if "name" in vars(klass) and isinstance(vars(klass)["name"], str):
-            own = vars(klass)["name"]
-            break
+    """A plug-in's name in tables, plots and the viewer: the ``name`` its class sets, else the class name."""
+    mro = getattr(factory, "__mro__", (object,))[:-1]
+    mro = mro[: mro.index(Estimator)] if Estimator in mro else mro
+    own = next((vars(k)["name"] for k in mro if isinstance(vars(k).get("name"), str)), None)
     return own or getattr(factory, "__name__", None) or ref.source
 
 
 def construct(factory, label: str, options: dict):
-    """``factory(**options)``: ValueError for options it does not take (naming the ones it does), PluginError
-    when the user's constructor raises."""
+    """``factory(**options)``: ValueError for options it does not take, PluginError when it raises."""
     try:
-        sig = inspect.signature(factory)
-    except (TypeError, ValueError):
-        sig = None
-    if sig is not None:
-        params = sig.parameters
-        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
-        names = [n for n, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
-        unknown = [k for k in options if k not in names]
-        if unknown and not takes_any:
-            takes = f"it takes: {', '.join(names)}" if names else "it takes none"
-            raise ValueError(
-                f"{label} does not take the option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} ({takes})"
-            )
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):  # no signature to check the options against
+        params = None
+    names = [n for n, p in (params or {}).items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    unknown = [k for k in options if k not in names]
+    if params is not None and unknown and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        takes = f"it takes: {', '.join(names)}" if names else "it takes none"
+        raise ValueError(
+            f"{label} does not take the option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} ({takes})"
+        )
     try:
         return factory(**options)
     except Exception as exc:  # noqa: BLE001
@@ -415,26 +361,10 @@ def construct(factory, label: str, options: dict):
         raise err from None
 
 
-# ---- the guard ----------------------------------------------------------------------------------------------------
-
-
-def _origin(obj, method: str) -> str:
-    """``my_ekf.py, line 57 (MyEkf.step)``: where a method is defined (for messages without a traceback)."""
-    fn = getattr(type(obj), method, None)
-    code = getattr(fn, "__code__", None)
-    if code is None:
-        return f"{type(obj).__name__}.{method}"
-    return f"{Path(code.co_filename).name}, line {code.co_firstlineno} ({type(obj).__name__}.{method})"
-
-
 class Guarded(Estimator):
     """A user's estimator behind checks: non-finite input rows skipped (invalid), output shapes checked, every
-    exception turned into :class:`PluginError` (message naming their file and line; ``details``: their traceback).
-
-    ``run()`` uses the estimator's own ``run(acc_mg, gyro_mdps, thr)`` when it defines one (returning an
-    :class:`AttitudeEstimate`, or any object with ``q_wxyz`` and optionally ``thx_rad``, ``thy_rad``, ``valid``,
-    or an (N, 4) array), else calls ``step()`` row by row.
-    """
+    exception a :class:`PluginError` naming their file and line. ``run()`` uses the estimator's own ``run()`` when it
+    has one (an :class:`AttitudeEstimate`, an object with ``q_wxyz``, or (N, 4) quaternions), else ``step()``."""
 
     def __init__(self, inner, name: str) -> None:
         self.inner = inner
@@ -442,17 +372,19 @@ class Guarded(Estimator):
         self.files = _user_files(type(inner))
         own_run = getattr(type(inner), "run", None)
         self.own_run = callable(own_run) and own_run is not Estimator.run
-        self.rate_hz = getattr(inner, "rate_hz", None)
 
     def _fail(self, method: str, exc: BaseException) -> PluginError:
         where, details = _user_trace(exc, self.files)
-        return PluginError(
-            f"estimator {self.name} failed in {where or _origin(self.inner, method)}: {_exc_text(exc)}", details
-        )
+        return PluginError(f"estimator {self.name} failed in {where or self.origin(method)}: {_exc_text(exc)}", details)
 
     def origin(self, method: str = "step") -> str:
-        """Where the user's ``method`` is defined (``my_ekf.py, line 57 (MyEkf.step)``)."""
-        return _origin(self.inner, method if hasattr(type(self.inner), method) else "step")
+        """``my_ekf.py, line 57 (MyEkf.step)``: where the user's ``method`` (else ``step``) is defined."""
+        cls = type(self.inner)
+        method = method if hasattr(cls, method) else "step"
+        code = getattr(getattr(cls, method, None), "__code__", None)
+        if code is None:
+            return f"{cls.__name__}.{method}"
+        return f"{Path(code.co_filename).name}, line {code.co_firstlineno} ({cls.__name__}.{method})"
 
     def reset(self) -> None:
         try:
@@ -486,10 +418,8 @@ class Guarded(Estimator):
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr, dtype=np.float64)
-        n = acc.shape[0]
         rows = np.isfinite(acc).all(axis=1) & np.isfinite(gyro).all(axis=1)
-        every = bool(rows.all())
-        a, g, t = (acc, gyro, thr_arr) if every else (acc[rows], gyro[rows], thr_arr[rows])
+        a, g, t = acc[rows], gyro[rows], thr_arr[rows]
         m = a.shape[0]
         thx = thy = valid_in = None
         if m == 0:  # nothing to feed (no row, or none finite): the estimator is not called
@@ -512,8 +442,7 @@ class Guarded(Estimator):
                 raise
             except Exception as exc:  # noqa: BLE001
                 raise self._fail("step", exc) from None
-        if not every:  # the skipped rows back in place: NaN, not valid
-            q, thx, thy, valid_in = (_scatter(v, rows, n) for v in (q, thx, thy, valid_in))
+        q, thx, thy, valid_in = (_scatter(v, rows) for v in (q, thx, thy, valid_in))  # skipped rows: NaN, invalid
         ex, ey, ez = euler_from_quaternion(q)
         thx = ex if thx is None else thx
         thy = ey if thy is None else thy
@@ -555,10 +484,10 @@ class Guarded(Estimator):
         return f"<Guarded {self.name!r} {type(self.inner).__name__}>"
 
 
-def _scatter(values: np.ndarray | None, rows: np.ndarray, n: int) -> np.ndarray | None:
+def _scatter(values: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     """``values`` of the ``rows`` (bool, n) spread over n rows; the others NaN (False for a bool array)."""
     if values is None:
         return None
-    out = np.full((n, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
+    out = np.full((rows.size, *values.shape[1:]), False if values.dtype == bool else math.nan, dtype=values.dtype)
     out[rows] = values
     return out

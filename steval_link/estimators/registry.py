@@ -1,13 +1,11 @@
-"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference.
-
-:data:`ESTIMATORS` maps registry name → constructor; a constructor imports its module only when called, so a
-missing optional dependency (e.g. ``vqf``) does not break the others. A built-in is one line of ``_ENTRIES``.
-Wherever an estimator is named, a reference (:mod:`steval_link.estimators.plugins`) also works: :func:`parse_names`
-resolves it once and returns a :class:`~steval_link.estimators.plugins.Selected` that :func:`create` builds.
+"""Estimators by name: ``create("st-mahony", ki=1.0)``, ``names()``, and your own by reference
+(:mod:`~steval_link.estimators.plugins`): :func:`parse_names` resolves it once into a ``Selected`` that :func:`create`
+builds. A built-in's module is imported only when needed: a missing optional package breaks only that one.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Callable, Mapping
@@ -16,56 +14,26 @@ from types import MappingProxyType
 from steval_link.errors import UserError
 from steval_link.estimators import plugins
 from steval_link.estimators.base import Estimator
-from steval_link.estimators.plugins import PluginError, Selected
+from steval_link.estimators.plugins import PluginError as PluginError  # re-exported
+from steval_link.estimators.plugins import Selected
 
-__all__ = [
-    "ESTIMATORS",
-    "LIVE_DEFAULT",
-    "REPLAY_DEFAULT",
-    "COMPARE_DEFAULT",
-    "names",
-    "create",
-    "is_available",
-    "parse_names",
-    "resolve",
-    "is_known",
-    "accepts",
-    "unique_name",
-    "duplicate_sentence",
-    "PluginError",
-    "Selected",
-]
+#: registry name → ``module:Class`` of each built-in, read-only
+ESTIMATORS: Mapping[str, str] = MappingProxyType(
+    {
+        "st-mahony": "steval_link.estimators.st_mahony:StMahony",
+        "accel": "steval_link.estimators.accel_tilt:AccelTilt",
+        "ekf3": "steval_link.estimators.ekf3:Ekf3",
+        "mekf": "steval_link.estimators.mekf:Mekf",
+        "vqf": "steval_link.estimators.vqf_adapter:VqfEstimator",
+    }
+)
 
 
-class _lazy:
-    """A constructor that imports ``module.attr`` on first call (keeps optional dependencies optional)."""
+def _class(name: str) -> Callable[..., Estimator]:
+    """The class of built-in ``name``, its module imported now (ImportError: an optional package is missing)."""
+    module, attr = ESTIMATORS[name].split(":")
+    return getattr(importlib.import_module(module), attr)
 
-    __slots__ = ("module", "attr")
-
-    def __init__(self, module: str, attr: str) -> None:
-        self.module = module
-        self.attr = attr
-
-    def load(self) -> Callable[..., Estimator]:
-        return getattr(importlib.import_module(self.module), self.attr)
-
-    def __call__(self, **options) -> Estimator:
-        return self.load()(**options)
-
-    def __repr__(self) -> str:
-        return f"{self.module}:{self.attr}"
-
-
-_ENTRIES: dict[str, Callable[..., Estimator]] = {
-    "st-mahony": _lazy("steval_link.estimators.st_mahony", "StMahony"),
-    "accel": _lazy("steval_link.estimators.accel_tilt", "AccelTilt"),
-    "ekf3": _lazy("steval_link.estimators.ekf3", "Ekf3"),
-    "mekf": _lazy("steval_link.estimators.mekf", "Mekf"),
-    "vqf": _lazy("steval_link.estimators.vqf_adapter", "VqfEstimator"),
-}
-
-#: registry name → constructor (keyword options only), read-only
-ESTIMATORS: Mapping[str, Callable[..., Estimator]] = MappingProxyType(_ENTRIES)
 
 #: what each command runs next to the firmware when ``--estimators`` is not given (uninstalled ones skipped):
 #: ``steval live`` (every frame as it comes), ``steval replay`` with a viewer or ``--rrd``, ``steval compare``
@@ -80,24 +48,18 @@ def names() -> tuple[str, ...]:
 
 
 def is_available(name: str) -> bool:
-    """True when ``name`` is registered and its module (and optional dependencies) can be imported (a resolved
-    :class:`Selected` reference always is)."""
+    """True when ``name`` is registered and its module and optional packages import (a :class:`Selected`: always)."""
     if isinstance(name, Selected):
         return True
-    ctor = ESTIMATORS.get(name)
-    if ctor is None:
+    try:
+        return name in ESTIMATORS and bool(_class(name))
+    except ImportError:
         return False
-    if isinstance(ctor, _lazy):
-        try:
-            ctor.load()
-        except ImportError:
-            return False
-    return True
 
 
 def is_known(name: str) -> bool:
-    """True for a registry name, a resolved :class:`Selected`, or text that reads as a reference to a file,
-    module, installed plug-in or a built-in with options (whether it loads is :func:`resolve`'s question)."""
+    """True for a registry name, a :class:`Selected`, or text that reads as a reference (whether it loads is
+    :func:`resolve`'s question)."""
     if isinstance(name, Selected) or name in ESTIMATORS:
         return True
     try:
@@ -108,16 +70,15 @@ def is_known(name: str) -> bool:
 
 
 def resolve(text: str) -> Selected:
-    """Load what ``text`` names (see the module doc) and check it: a :class:`Selected` whose ``str`` is the
-    display name. UserError (one line) for every way it can fail; PluginError (with the user's traceback) when
-    their module or constructor raises. Nothing is constructed here."""
+    """Load and check what ``text`` names, constructing nothing: a :class:`Selected` whose ``str`` is the display
+    name. UserError (one line) for every way it can fail; PluginError when the user's module raises."""
     if isinstance(text, Selected):
         return text
     ref = plugins.parse_reference(text)
     if ref.kind == "builtin":
         if ref.source in ESTIMATORS:
             name = ref.source + (f"({ref.options_text})" if ref.options else "")
-            return Selected(name, ref, ESTIMATORS[ref.source], name)
+            return Selected(name, ref, functools.partial(create, ref.source), name)
         if ref.source not in plugins.entry_point_names():
             raise UserError(
                 f"unknown estimator {ref.source!r}; choose from: {', '.join(ESTIMATORS)}, an installed "
@@ -134,53 +95,40 @@ def resolve(text: str) -> Selected:
 
 
 def accepts(name: str, option: str) -> bool:
-    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``: commands pass the
-    step rate only to estimators that take it)."""
+    """True when the estimator ``name`` names takes the keyword ``option`` (e.g. ``rate_hz``)."""
     sel = name if isinstance(name, Selected) else resolve(name)
-    ctor = sel.factory
-    if isinstance(ctor, _lazy):
-        try:
-            ctor = ctor.load()
-        except ImportError:
-            return False
     try:
+        ctor = _class(sel.reference.source) if sel.reference.kind == "builtin" else sel.factory
         params = inspect.signature(ctor).parameters
-    except (TypeError, ValueError):
+    except (ImportError, TypeError, ValueError):
         return False
     return option in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _build(sel: Selected, options: dict) -> Estimator:
-    opts = {**sel.reference.options, **options}
-    if sel.reference.kind == "builtin":
-        return create(sel.reference.source, **opts)
-    inst = plugins.construct(sel.factory, sel.label, opts)
-    if lacks := plugins.missing_methods(inst):
-        raise UserError(f"{sel.label} made a {type(inst).__name__}, which has {lacks}")
-    return plugins.Guarded(inst, str(sel))
-
-
 def create(name: str, **options) -> Estimator:
-    """Build the estimator ``name`` names with keyword ``options`` (on top of the reference's own).
-
-    ``name``: a registry name, a :class:`Selected` from :func:`parse_names` / :func:`resolve`, or a reference
-    (``my_ekf.py:MyEkf(q=1)``). A user's estimator comes wrapped in
-    :class:`~steval_link.estimators.plugins.Guarded` (checked output, its failures as :class:`PluginError`).
+    """Build the estimator ``name`` names (a registry name, a :class:`Selected` or a reference) with keyword
+    ``options`` on top of the reference's own; a user's estimator comes behind
+    :class:`~steval_link.estimators.plugins.Guarded`.
 
     Raises:
         ValueError: unknown name (the message lists the known ones), or options the estimator does not take.
         ImportError: the estimator's optional dependency is not installed.
         UserError: a reference that cannot be loaded (PluginError when the user's code raised).
     """
+    if not isinstance(name, Selected) and name not in ESTIMATORS:
+        if not is_known(name):
+            raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
+        name = resolve(name)
     if isinstance(name, Selected):
-        return _build(name, options)
-    ctor = ESTIMATORS.get(name)
-    if ctor is None:
-        if is_known(name):
-            return _build(resolve(name), options)
-        raise ValueError(f"unknown estimator {name!r}; choose one of: {', '.join(ESTIMATORS)}")
+        opts = {**name.reference.options, **options}
+        if name.reference.kind == "builtin":
+            return create(name.reference.source, **opts)
+        inst = plugins.construct(name.factory, name.label, opts)
+        if lacks := plugins.missing_methods(inst):
+            raise UserError(f"{name.label} made a {type(inst).__name__}, which has {lacks}")
+        return plugins.Guarded(inst, str(name))
     try:
-        return ctor(**options)
+        return _class(name)(**options)
     except TypeError as exc:
         if "unexpected keyword" in str(exc) or "positional argument" in str(exc):
             raise ValueError(f"estimator {name!r} does not take these options: {exc}") from None
@@ -188,15 +136,10 @@ def create(name: str, **options) -> Estimator:
 
 
 def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed: bool = True) -> list[str]:
-    """``--estimators``: a comma-separated list of registry names, references (``my_ekf.py:MyEkf(q=1e-4)``,
-    ``mypkg.filters:MyEkf``, an installed plug-in, ``ekf3(acc_motion_mg=20)``) or ``none``; None gives those of
-    ``default`` that are installed. Commas inside parentheses belong to the options.
-
-    Registry names come back as they are, references as :class:`Selected` (display name: the class name or its
-    ``name`` attribute, with the options: ``MyEkf(q=0.0001)``); two with one display name: UserError. Each
-    reference is loaded and constructed once here, so every mistake is one line before any work. UserError for an
-    unknown name (the valid ones listed) or, with ``require_installed``, one whose package is missing (``steval
-    compare`` reports those in its table instead)."""
+    """A comma-separated list of registry names, references or ``none``; None gives the installed ones of
+    ``default``. Registry names come back as they are, references as :class:`Selected`, each loaded and constructed
+    once here so that every mistake is one line before any work. UserError for two with one display name, an
+    unknown name, or (with ``require_installed``) one whose package is missing."""
     if spec is None:
         return [n for n in default if is_available(n) or not require_installed]
     chosen = plugins.split_list(spec)
@@ -208,37 +151,23 @@ def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed
         builtin = n if sel is None else (sel.reference.source if sel.reference.kind == "builtin" else None)
         if builtin is not None and require_installed and not is_available(builtin):
             raise UserError(f"estimator {builtin!r} needs an optional package: pip install 'steval-link[{builtin}]'")
-        if sel is None:
-            out.append(n)
-            continue
         try:
-            create(sel)  # the options and the constructor checked now, before any work
+            if sel is not None:
+                create(sel)  # the options and the constructor checked now, before any work
         except ValueError as exc:
             raise UserError(str(exc)) from None
         except ImportError as exc:
             if require_installed:
                 raise UserError(f"estimator {sel.label} needs a package that is not installed ({exc})") from None
-        out.append(sel)
-    return _unique(out)
-
-
-def _unique(names: list[str]) -> list[str]:
-    """``names`` when no two share a display name; UserError otherwise (two variants in one column would be lost)."""
+        out.append(n if sel is None else sel)
     seen: set[str] = set()
-    for n in names:
+    for n in out:  # two variants under one display name would share one column
         seen.add(unique_name(n, seen))
-    return names
-
-
-def duplicate_sentence(label: str) -> str:
-    """The one sentence for two estimators under one label."""
-    return f"estimator {label} is chosen twice: give each variant its own options (labels must differ)"
+    return out
 
 
 def unique_name(name: str, taken: set[str]) -> str:
-    """``name`` as a display name: UserError when it is in ``taken`` (:func:`duplicate_sentence`). Options are part
-    of a reference's name already (``MyEkf(r_acc=0.001)``)."""
-    out = str(name)
-    if out in taken:
-        raise UserError(duplicate_sentence(out))
-    return out
+    """``name`` as a display name (a reference's options are part of it); UserError when it is in ``taken``."""
+    if str(name) in taken:
+        raise UserError(f"estimator {name} is chosen twice: give each variant its own options (labels must differ)")
+    return str(name)

@@ -1,8 +1,5 @@
-"""Run registry estimators over a whole :class:`~steval_link.link.telemetry.Telemetry` (replay, compare, the viewer).
-
-Binary captures have one attitude row per AHRS step; the text-mode build's ``$ATT`` rows are decimated (16 steps
-per row by default), so estimators that take ``rate_hz`` run at the row rate there.
-"""
+"""Run registry estimators over a whole :class:`~steval_link.link.telemetry.Telemetry` (replay, compare, the viewer),
+at the row rate where rows are decimated (text mode) or at the link's cadence (BLE)."""
 
 from __future__ import annotations
 
@@ -12,8 +9,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.estimators import registry
-
-__all__ = ["MEMORYLESS", "created_at", "row_decimation", "run_estimator"]
 
 #: estimators without state, indifferent to the row rate
 MEMORYLESS = frozenset({"accel"})
@@ -27,13 +22,9 @@ def row_decimation(tel) -> int:
 
 
 def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any | None, str]:
-    """Run estimator ``name`` (a registry name or a reference, see :func:`registry.create`) from power-up over every
-    attitude row; (estimate, note) or (None, why not). A user's estimator that fails raises
-    :class:`~steval_link.estimators.plugins.PluginError`.
-
-    With decimated rows (``decimation`` steps per row, text mode; default: :func:`row_decimation`) estimators that
-    take ``rate_hz`` run at the row rate (the note says so); the others assume every row is one AHRS step.
-    """
+    """Run estimator ``name`` (see :func:`registry.create`) from power-up over every attitude row: (estimate, note)
+    or (None, why not). With ``decimation`` steps per row (default: :func:`row_decimation`) those that take
+    ``rate_hz`` run at the row rate; the others assume one AHRS step per row (the note says which)."""
     if decimation is None:
         decimation = row_decimation(tel)
     if not registry.is_known(name):

@@ -1,21 +1,15 @@
 """Bit-exact replica of the STEVAL-FCU001V1 firmware's Mahony filter, in each of ST's releases' arithmetic.
 
-Reproduces ``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them (Cortex-M4F,
-hard float, -O0, no FMA), rounding included. Units are the firmware's: accelerometer in mg, gyro in mdps, angles in
-rad; axes x right, y forward, z up; ``thx`` is the rotation about x (pitch, nose up +), ``thy`` about y (roll).
+``ahrs_fusion_ag`` and ``QuaternionToEuler`` in float32 exactly as the drone computes them, rounding included. Units
+are the firmware's (acc mg, gyro mdps, angles rad; x right, y forward, z up); ``thx`` is the rotation about x (pitch,
+nose up +), ``thy`` about y (roll).
 
-The firmware's quirks are kept on purpose: the fast inverse square root (0x5f3759df, one Newton step; finite for
-0, so free fall gives no correction instead of NaN); gyro scaled by ``(float)1.745329252e-5``; kp switched by
-throttle (10 below MIN_THR, else 0.4); integral ``ex*KI*dt`` in float; the in-place quaternion update (q1..q3 use
-the new q0); and the final normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and
-``asin`` in ``QuaternionToEuler`` can return NaN near ±90° roll, as on the drone.
-
-ST's releases differ in the filter's arithmetic (``VARIANTS``, the setting ``MahonySettings.variant``): 221117
-computes the gyro scale, the integral step and halfT in double (ST's double literals), stored to float, and
-normalises with the squares of the updated quaternion.
-
-Two loops give the same bits: a C extension (``_st_mahony_native``) and a numpy-float32 loop used when the
-extension is not built. A capture against the drone: :mod:`.firmware_replay`.
+The firmware's quirks are kept on purpose: the fast inverse square root (finite for 0: free fall gives no
+correction, not NaN); kp switched by throttle; the in-place quaternion update (q1..q3 use the new q0); the final
+normalisation with the squares from **before** the update, so |q| ≈ 0.9983 and ``asin`` can return NaN near ±90°
+roll, as on the drone. ST 221117 (``VARIANTS``) computes the gyro scale, the integral step and halfT in double and
+normalises with the fresh squares.
+Two loops give the same bits: the C extension ``_st_mahony_native`` and a numpy-float32 loop without it.
 """
 
 from __future__ import annotations
@@ -26,39 +20,18 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs, choose_native
-from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
-
-__all__ = [
-    "COE_MDPS_TO_RADPS_F32",
-    "DEFAULT_VARIANT",
-    "VARIANTS",
-    "variant_name",
-    "NATIVE_AVAILABLE",
-    "MahonySettings",
-    "MahonyState",
-    "StMahony",
-    "run",
-    "bits_equal",
-    "table_column",
-    "handout_yaw",
-    "quaternion_to_euler",
-    "inv_sqrt",
-]
-
+from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
 from steval_link.fw_math import (  # the firmware's float32 arithmetic, shared with the link layer
     _F32,
     _HALF,
     _TWO,
     NATIVE_AVAILABLE,
     _native,
+    choose_native,
     inv_sqrt,
     quaternion_to_euler,
 )
-
-# ---------------------------------------------------------------------------------------------------------------
-# ahrs_fusion_ag
-# ---------------------------------------------------------------------------------------------------------------
+from steval_link.link.protocol import FLAG_FRESH_SQUARES, FLAG_NO_CORRECTION
 
 #: ``(float)COE_MDPS_TO_RADPS``: the firmware's double literal 1.745329252e-5 cast to float32 (mdps → rad/s).
 COE_MDPS_TO_RADPS_F32 = _F32(C.COE_MDPS_TO_RADPS)
@@ -76,11 +49,7 @@ _VARIANT_ALIASES = {"170120": "ST 170120", "170318": "ST 170120", "301117": "ST 
 
 
 def variant_name(text: str) -> str:
-    """The variant a release's name stands for: "221117", "ST 170318", "st-301117 beta" → "ST 221117", "ST 170120"...
-
-    Raises:
-        ValueError: no release of that name (the sentence lists the known ones).
-    """
+    """The variant a release's name stands for ("221117", "st-301117 beta"...); ValueError for an unknown one."""
     key = str(text).strip().lower().removesuffix("beta").strip().removeprefix("st").strip(" -_")
     if key in _VARIANT_ALIASES:
         return _VARIANT_ALIASES[key]
@@ -90,22 +59,12 @@ def variant_name(text: str) -> str:
 
 @dataclass(frozen=True)
 class MahonySettings:
-    """Filter constants of ``ahrs_fusion_ag`` (release 170120 defaults) and the release's arithmetic (``variant``).
+    """Filter constants of ``ahrs_fusion_ag`` (defaults: :mod:`steval_link.constants`) and the release whose
+    arithmetic is reproduced (``variant``, any name :func:`variant_name` knows).
 
-    In "ST 170120" each constant is used as float32. In "ST 221117" ``ki`` and ``dt_s`` are doubles, as ST's
-    literals; a float32 value equal to the default (a status frame's 0.1f) stands for ST's literal (0.1).
-
-    Attributes:
-        kp_ground: proportional gain when ``thr < min_thr`` (``AHRS_KP_BIG``, 10).
-        kp_flight: proportional gain otherwise (``AHRS_KP_NORM``, 0.4).
-        ki: integral gain ``AHRS_KI`` (0.1; ETH exercise 4 sets 1.0).
-        dt_s: integration period ``SENSOR_SAMPLING_TIME`` assumed by the filter, s (0.00625; the real main-loop
-            period set by TIM9 is ≈ 0.00619 s).
-        min_thr: ``MIN_THR`` throttle threshold for the gain switch (200).
-        correction: False drops the accelerometer correction (ETH exercise 5: g* = g; the integral terms are then
-            left unchanged).
-        variant: the release whose arithmetic is reproduced, a key of ``VARIANTS`` ("ST 170120", "ST 221117");
-            any release name :func:`variant_name` knows is accepted.
+    ``kp_ground`` is the gain below ``min_thr``; ``dt_s`` is the filter's assumed period, s, not the real 6.19 ms;
+    ``correction`` False drops the accelerometer correction (ETH exercise 5). In "ST 170120" each constant is used
+    as float32; in "ST 221117" ``ki`` and ``dt_s`` are doubles, a float32 default standing for ST's literal.
     """
 
     kp_ground: float = C.KP_GROUND
@@ -131,37 +90,33 @@ class MahonySettings:
 
     @property
     def fresh_squares(self) -> bool:
-        """True when the final normalisation uses the squares of the updated quaternion (ST 221117)."""
+        """True when the final normalisation uses the updated quaternion's squares (ST 221117)."""
         return self.variant == "ST 221117"
 
     @property
     def flags(self) -> int:
-        """The status-frame ``flags`` bits these settings correspond to (bit 0 no correction, bit 1 ST 221117's
-        filter)."""
+        """The status-frame ``flags`` bits of these settings."""
         return (0 if self.correction else FLAG_NO_CORRECTION) | (FLAG_FRESH_SQUARES if self.fresh_squares else 0)
 
     @classmethod
     def of_status(cls, status, j: int | None = None) -> MahonySettings:
-        """The settings a status frame reports (its float32 fields kept exactly): ``status`` is one frame (``j``
-        None) or a table of status rows (``Telemetry.status`` or a structured array) and ``j`` its row."""
+        """The settings a status frame reports, float32 fields kept exactly: one frame (``j`` None) or row ``j`` of a
+        table of status rows (``Telemetry.status`` or a structured array)."""
 
         def field(name: str):
             return getattr(status, name) if j is None else table_column(status, name)[j]
 
         flags = int(field("flags"))
+        gains = {k: float(field(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")}
         return cls(
-            kp_ground=float(field("kp_ground")),
-            kp_flight=float(field("kp_flight")),
-            ki=float(field("ki")),
-            dt_s=float(field("dt_s")),
+            **gains,
             min_thr=int(field("min_thr")),
             correction=not flags & FLAG_NO_CORRECTION,
             variant="ST 221117" if flags & FLAG_FRESH_SQUARES else DEFAULT_VARIANT,
         )
 
     def _params(self) -> np.ndarray:
-        """(4,) float64: kp_ground, kp_flight, ki, dt_s as this variant's arithmetic uses them (float32 values,
-        except ki and dt_s in ST 221117: doubles, a float32 default standing for ST's double literal)."""
+        """(4,) float64: kp_ground, kp_flight, ki, dt_s as this variant's arithmetic uses them."""
         kp_ground, kp_flight, ki, dt = (float(_F32(v)) for v in (self.kp_ground, self.kp_flight, self.ki, self.dt_s))
         if self.variant == "ST 221117":
             ki = C.KI if ki == float(_F32(C.KI)) else self.ki
@@ -171,11 +126,8 @@ class MahonySettings:
 
 @dataclass(frozen=True)
 class MahonyState:
-    """The filter's memory between steps: the ``ahrs.c`` globals q0..q3 and exInt, eyInt, ezInt (float32).
-
-    ``MahonyState()`` is the power-up state (q = 1, 0, 0, 0; integrals 0). A status frame's snapshot
-    (``q_wxyz``, ``int_xyz``) seeds the replica so it is bit-exact from the next step on.
-    """
+    """The filter's memory between steps, float32: the ``ahrs.c`` globals q0..q3 and exInt, eyInt, ezInt.
+    ``MahonyState()`` is the power-up state; a status frame's snapshot seeds the replica bit-exact."""
 
     q_wxyz: tuple = (1.0, 0.0, 0.0, 0.0)
     int_xyz: tuple = (0.0, 0.0, 0.0)
@@ -192,13 +144,8 @@ class MahonyState:
         """(7,) float32: q0, q1, q2, q3, exInt, eyInt, ezInt."""
         return np.array(self.q_wxyz + self.int_xyz, dtype=_F32)
 
-    @classmethod
-    def from_array(cls, values) -> MahonyState:
-        v = np.asarray(values, dtype=_F32).reshape(7)
-        return cls(q_wxyz=tuple(v[:4]), int_xyz=tuple(v[4:]))
-
     def bits_equal(self, other: MahonyState) -> bool:
-        """True when both states hold the same float32 bits (any NaN equals any NaN, as in :func:`bits_equal`)."""
+        """True when both states hold the same float32 bits (any NaN equals any NaN)."""
         return bool(bits_equal(self.as_array(), other.as_array()).all())
 
 
@@ -214,19 +161,10 @@ def run(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, MahonyState]:
     """Run ``ahrs_fusion_ag`` + ``QuaternionToEuler`` over N steps, bit-exact with the firmware.
 
-    Args:
-        acc_mg: (N, 3) accelerometer ``acc_ahrs``, mg (converted to float32).
-        gyro_mdps: (N, 3) gyro ``gyro_ahrs``, mdps (converted to float32).
-        thr: (N,) throttle ``gTHR`` (or a scalar, or None for 0): selects kp_ground below ``min_thr``.
-        settings: filter constants; default: the firmware's.
-        state: starting state; default: power-up (q = 1, 0, 0, 0; integrals 0).
-        euler: False skips ``QuaternionToEuler`` (thx, thy are then None).
-        native: force the C loop (True) or the pure-numpy loop (False); default: C when built.
-
-    Returns:
-        ``(q_wxyz (N, 4) float32, thx_rad (N,) float32, thy_rad (N,) float32, final_state)``: ``ahrs.q`` after
-        each step, ``euler_ahrs.thx`` (about x, pitch) and ``thy`` (about y, roll); NaN where the firmware gives
-        NaN.
+    ``acc_mg`` (N, 3) mg, ``gyro_mdps`` (N, 3) mdps (as float32); ``thr`` (N,) ``gTHR``, a scalar or None for 0.
+    ``state`` default: power-up; ``euler`` False skips ``QuaternionToEuler``; ``native`` True/False forces the C or
+    numpy loop. Returns ``ahrs.q`` (N, 4), thx (about x, pitch) and thy (about y, roll) after each step (float32,
+    NaN where the firmware gives NaN; None without ``euler``) and the final state.
     """
     settings = MahonySettings() if settings is None else settings
     state = MahonyState() if state is None else state
@@ -243,18 +181,17 @@ def run(
     else:
         st = _run_pure(acc, gyro, thr_arr, q, st, settings)
         thx, thy = quaternion_to_euler(q, native=False) if euler else (None, None)
-    return q, thx, thy, MahonyState.from_array(st)
+    return q, thx, thy, MahonyState(q_wxyz=st[:4], int_xyz=st[4:])
 
 
 def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray:
-    """The firmware's loop with numpy float32 scalars, statement by statement (same bits as the C loop). What does not
-    depend on the filter's state (gyro scale, the accelerometer's normalisation, kp) is done for all rows first."""
+    """The firmware's loop in numpy float32 scalars, statement by statement (the C loop's bits); what does not
+    depend on the state (gyro scale, the accelerometer's normalisation, kp) is done for all rows first."""
     kp_ground, kp_flight, ki_d, dt_d = settings._params().tolist()
     ki, dt = _F32(ki_d), _F32(dt_d)
     st221117 = settings.variant == "ST 221117"
-    two = _TWO
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
-    q0, q1, q2, q3, ex_int, ey_int, ez_int = (_F32(v) for v in st)
+    q0, q1, q2, q3, *integral = (_F32(v) for v in st)  # q, then exInt, eyInt, ezInt
     with np.errstate(all="ignore"):
         if st221117:  # float * double literal: a double product, stored to float
             gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
@@ -262,7 +199,8 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
         kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
-        for k, ((axf, ayf, azf), (gxf, gyf, gzf), ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
+        for k, (a, g, ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
+            g = list(g)  # float32 scalars, as a, v and e
             q0q0 = q0 * q0
             q0q1 = q0 * q1
             q0q2 = q0 * q2
@@ -272,28 +210,18 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2q3 = q2 * q3
             q3q3 = q3 * q3
 
-            if settings.correction:
-                vx = two * (q1q3 - q0q2)
-                vy = two * (q0q1 + q2q3)
-                vz = q0q0 - q1q1 - q2q2 + q3q3
-
-                ex = ayf * vz - azf * vy
-                ey = azf * vx - axf * vz
-                ez = axf * vy - ayf * vx
-
-                if st221117:  # exInt + ex * AHRS_KI * SENSOR_SAMPLING_TIME in double, stored to float
-                    ex_int = _F32(float(ex_int) + float(ex) * ki_d * dt_d)
-                    ey_int = _F32(float(ey_int) + float(ey) * ki_d * dt_d)
-                    ez_int = _F32(float(ez_int) + float(ez) * ki_d * dt_d)
-                else:
-                    ex_int = ex_int + ex * ki * dt
-                    ey_int = ey_int + ey * ki * dt
-                    ez_int = ez_int + ez * ki * dt
-
-                gxf = gxf + ahrs_kp * ex + ex_int
-                gyf = gyf + ahrs_kp * ey + ey_int
-                gzf = gzf + ahrs_kp * ez + ez_int
-
+            if (
+                settings.correction
+            ):  # as the C loop: e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
+                v = (_TWO * (q1q3 - q0q2), _TWO * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
+                for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+                    e = a[j] * v[m] - a[m] * v[j]
+                    if st221117:  # in double, stored to float
+                        integral[i] = _F32(float(integral[i]) + float(e) * ki_d * dt_d)
+                    else:
+                        integral[i] = integral[i] + e * ki * dt
+                    g[i] = g[i] + ahrs_kp * e + integral[i]
+            gxf, gyf, gzf = g
             q0 = q0 + (-q1 * gxf - q2 * gyf - q3 * gzf) * half_t
             q1 = q1 + (q0 * gxf + q2 * gzf - q3 * gyf) * half_t
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * half_t
@@ -308,15 +236,12 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2 = q2 * norm
             q3 = q3 * norm
             q_out[k] = (q0, q1, q2, q3)
-    return np.array([q0, q1, q2, q3, ex_int, ey_int, ez_int], dtype=_F32)
+    return np.array([q0, q1, q2, q3, *integral], dtype=_F32)
 
 
 def handout_yaw(q_wxyz) -> np.ndarray:
-    """Yaw (about z), rad, float32: the Lab 5 handout's ``thz = atan2(2*q1*q2+2*q0*q3, q0*q0+q1*q1-q2*q2-q3*q3)``.
-
-    Evaluated like the handout's C (float32 products and sums, double ``atan2``, stored to float32). The 170120
-    firmware does not compute this (its thz is the gyro yaw integrated in the ISR); the Lab 5 simulator does.
-    """
+    """Yaw (about z), rad, float32, as the Lab 5 handout's C computes it (float32 products, double ``atan2``); the
+    firmware's own thz is the gyro yaw integrated in the ISR."""
     q = np.asarray(q_wxyz, dtype=_F32)
     with np.errstate(invalid="ignore", over="ignore"):
         q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -328,11 +253,8 @@ def handout_yaw(q_wxyz) -> np.ndarray:
 class StMahony(Estimator):
     """The firmware's Mahony filter as an :class:`~steval_link.estimators.base.Estimator` (bit-exact, float32).
 
-    Options (all keyword): ``kp_ground``, ``kp_flight`` (or ``kp`` for both), ``ki``, ``dt_s``, ``min_thr``,
-    ``correction``, ``variant`` (see :class:`MahonySettings`), or a whole ``settings``; ``state`` seeds the
-    filter (a :class:`MahonyState`, e.g. a status-frame snapshot); ``native`` forces the C or pure path.
-    ``run`` returns q and thx/thy exactly as the firmware computes them (float32) and thz from the Lab 5 handout's
-    yaw formula (the firmware's own thz is integrated in its ISR, not derived from q).
+    Options: the fields of :class:`MahonySettings` (``kp`` sets both gains) or a whole ``settings``; ``state``
+    seeds the filter; ``native`` forces the C or pure loop. thz is :func:`handout_yaw`.
     """
 
     name = "st-mahony"
@@ -348,8 +270,7 @@ class StMahony(Estimator):
     ) -> None:
         base = MahonySettings() if settings is None else settings
         if kp is not None:
-            setting_overrides.setdefault("kp_ground", kp)
-            setting_overrides.setdefault("kp_flight", kp)
+            setting_overrides = {"kp_ground": kp, "kp_flight": kp, **setting_overrides}
         unknown = set(setting_overrides) - set(MahonySettings.__dataclass_fields__)
         if unknown:
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
@@ -359,11 +280,10 @@ class StMahony(Estimator):
         self.state = MahonyState() if state is None else state
 
     def reset(self) -> None:
-        """Back to the power-up state (q = 1, 0, 0, 0; integrals 0)."""
         self.state = MahonyState()
 
     def seed(self, state: MahonyState) -> None:
-        """Continue from ``state`` (e.g. a status frame's ``q_wxyz``/``int_xyz`` snapshot)."""
+        """Continue from ``state`` (e.g. a status frame's snapshot)."""
         self.state = state
 
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
@@ -376,7 +296,6 @@ class StMahony(Estimator):
         return q[0]
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
-        """N steps from the current state; q, thx, thy float32 bit-exact, thz float32 (handout formula)."""
         q, thx, thy, self.state = run(
             acc_mg, gyro_mdps, thr, settings=self.settings, state=self.state, native=self.native
         )

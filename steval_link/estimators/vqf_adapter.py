@@ -21,23 +21,12 @@ try:  # optional dependency: importing this module without it fails with the ins
 except ImportError:  # pragma: no cover - exercised only without the extra
     raise ImportError(INSTALL_HINT) from None
 
-__all__ = ["VqfEstimator", "INSTALL_HINT"]
 _MG_TO_MPS2 = 9.81e-3
 
 
 class VqfEstimator(Estimator):
-    """VQF's 6D orientation at the step rate.
-
-    Args:
-        rate_hz: step rate, Hz (161.5 for the STEVAL's AHRS steps).
-        latency_s: output prediction horizon, s (default 0: VQF untouched, the reference). With
-            ``steval_link.constants.GYRO_LATENCY_S`` the output is ``q ⊗ Exp(ω·latency_s)`` like ``mekf``'s,
-            compensating the STEVAL pipeline's gyro delay.
-        **params: VQF parameters by name (e.g. ``tauAcc=3.0``, ``motionBiasEstEnabled=True``), passed to ``VQF``.
-
-    Importing this module raises ImportError with the install hint when ``vqf`` is missing; use
-    ``registry.is_available("vqf")`` to check.
-    """
+    """VQF's 6D orientation at ``rate_hz``. ``latency_s`` > 0 predicts the output ahead like ``mekf``'s (default 0:
+    VQF untouched); ``params`` go to ``VQF`` by name (e.g. ``tauAcc=3.0``)."""
 
     name = "vqf"
 
