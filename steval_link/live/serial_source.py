@@ -1,10 +1,6 @@
 """The serial driver of a live session: a port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or a replay
-(``replay://FILE.stv``, played at its recorded pace as a port).
-
-A reader thread (:class:`~steval_link.link.transport.SerialReader`, which reopens an unplugged port) hands each
-chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox` each round takes. A wrong baud
-rate or another device: one line and :class:`LinkError`. Commands go out through the reader's locked write.
-"""
+(``replay://FILE.stv``, played at its recorded pace as a port). A reader thread (``SerialReader``, which reopens an
+unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox`."""
 
 from __future__ import annotations
 
@@ -30,20 +26,12 @@ from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
-__all__ = ["LinkError", "SerialSource", "open_port", "check_frames", "serial_health", "serial_summary"]
+__all__ = ["LinkError", "SerialSource", "open_port", "serial_health", "serial_summary"]
 
-#: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
-NO_FRAMES_TIMEOUT_S = 2.5
-#: ... or after this long once at least NO_FRAMES_EARLY_BYTES arrived without a valid frame.
-NO_FRAMES_EARLY_S = 1.0
-NO_FRAMES_EARLY_BYTES = 2048
-#: How long a round waits for the reader's first chunk, s.
-ROUND_WAIT_S = 0.02
-#: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
-INBOX_MAX_BYTES = 4 * 1024 * 1024
-#: A port reopened after a loss that sends no valid frame for this long is not the drone, s ...
+ROUND_WAIT_S = 0.02  # how long a round waits for the reader's first chunk, s
+INBOX_MAX_BYTES = 4 * 1024 * 1024  # bytes held for the decoder before the oldest leave the live view
+#: A port reopened after a loss is the drone once it sent PROBATION_FRAMES valid frames; none in PROBATION_S: not
 PROBATION_S = 3.0
-#: ... and it is the drone once it sent this many valid attitude or status frames.
 PROBATION_FRAMES = 2
 #: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
 #: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
@@ -56,9 +44,8 @@ class LinkError(ParamError):
 
 
 def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=None) -> tuple[str, serial.Serial]:
-    """(path, open port) of ``url``: a replay URL, or the port :func:`~steval_link.link.autodetect.choose_port`
-    picks; one UserError sentence (with the ports there are) when it cannot be opened. ``wait``: until the port
-    appears (``note(text)`` says so once) or ``stopped()``."""
+    """(path, open port) of a replay URL or the port ``choose_port`` picks; one UserError sentence (with the ports
+    there are) when it cannot be opened. ``wait``: until it appears (``note(text)`` says so once) or ``stopped()``."""
     if is_replay_url(url):  # the one place a source is opened by its URL scheme
         return url, open_replay(url, baud=baud)
     deadline = time.monotonic() + (math.inf if wait else 0.0)
@@ -96,8 +83,7 @@ class Inbox:
         self._chunks: collections.deque[tuple[bytes, float]] = collections.deque()
         self._bytes = 0
         self._cond = threading.Condition()
-        #: bytes dropped from the live view because the main thread fell behind (still in the capture)
-        self.dropped_bytes = 0
+        self.dropped_bytes = 0  # dropped from the live view as the main thread fell behind (still in the capture)
 
     def put(self, data: bytes, t_unix_s: float) -> None:
         with self._cond:
@@ -121,18 +107,13 @@ class Inbox:
 
 
 class RecorderProtocol(Protocol):
-    """Reader-thread side: every chunk to the capture first (handed to the OS at once), then to the inbox.
-
-    Connection events go into the capture (``disconnect`` / ``reconnect`` mark the gap) and :attr:`status`.
-    A port reopened after a loss is on probation until it sends valid frames; one that sends none for
-    :data:`PROBATION_S` is rejected (:class:`~steval_link.link.transport.PortRejected`) and the search goes on.
-    Another program that reads the port is named once and the port is kept.
-    """
+    """Reader-thread side: every chunk to the capture first, then to the inbox; connection events to the capture
+    and :attr:`status`. A port reopened after a loss that sends no valid frame on probation is rejected and the
+    search goes on. Another program that reads the port is named once and the port is kept."""
 
     def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
         self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
-        #: the link as the session sees it (``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic)
-        self.status = LinkStatus()
+        self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self._probe: StreamDecoder | None = None
         self._probe_frames = 0
@@ -164,7 +145,6 @@ class RecorderProtocol(Protocol):
         st = self.status
         back = st.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
         gap = max(0.0, back - (st.lost_at_s or back))
-        st.offline_s += gap
         if st.offline and st.offline[-1][1] is None:
             st.offline[-1] = (st.offline[-1][0], self._probe_at + self.clock.wall0_s)
         port, st.probing, self._probe = st.probing, None, None
@@ -253,7 +233,6 @@ class SerialSource(Source):
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> SerialSource:
-        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]`` (:func:`open_port`)."""
         return cls(url, **settings)
 
     @property
@@ -345,18 +324,6 @@ class _Capture:
 
     def mark_event(self, kind: str, text: str, t_s: float | None = None) -> None:
         self.record(Chunk("E", (kind, text), t_s))
-
-
-def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError | None:
-    """Wrong baud rate / not a STEVAL / silence: the sentence when no frame came in time on this connection (None:
-    frames came, or not yet time to say)."""
-    stats = pipe.decoder.stats
-    if stats.attitude + stats.status + stats.text_records > 0 or not status.connected or status.connected_at_s is None:
-        return None
-    elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
-    if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
-        return None
-    return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)
 
 
 def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float, word=param_word) -> str:

@@ -1,9 +1,6 @@
 """The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`) → capture → decoder → estimators → viewer.
-
-The source writes each chunk to the capture first, so a slow viewer never costs bytes. The session owns, once for
-every source: the capture file, the viewer, the command prompt, the stop requests and the summary.
-"""
+(:func:`source_for`) → capture → decoder → estimators → viewer. Each chunk goes to the capture first, so a slow
+viewer never costs bytes; the session owns the capture, viewer, prompt, stop requests and summary."""
 
 from __future__ import annotations
 
@@ -18,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from steval_link.errors import ParamError, UserError, param_word
+from steval_link.link.autodetect import no_frames_message
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
@@ -25,11 +23,17 @@ from steval_link.live import health
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
+from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
+
+#: A serial link with bytes but no valid frame (wrong baud, not a STEVAL): one sentence after this long, s ...
+NO_FRAMES_TIMEOUT_S = 2.5
+#: ... or after this long once at least NO_FRAMES_EARLY_BYTES came.
+NO_FRAMES_EARLY_S = 1.0
+NO_FRAMES_EARLY_BYTES = 2048
 
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
@@ -82,12 +86,9 @@ class LiveOptions:
 
 
 class LiveSession:
-    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
-
-    ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (needed with ``options.sinks``). ``check_outputs``: the CLI's checks of the outputs, run once the
-    input is open and before any file is made.
-    """
+    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`. ``stream``: where
+    the health line and notes go (stderr); ``viewer_factory(options, recording_name)``: the Rerun side (needed with
+    ``options.sinks``); ``check_outputs``: the CLI's output checks, run once the input is open, before any file."""
 
     def __init__(
         self,
@@ -146,7 +147,9 @@ class LiveSession:
         started, stream = False, None
         with on_stop_signals(self._on_signal):
             try:
-                self._opening_note()
+                if self.info.note:  # (BLE says when it is connected)
+                    rrd = f" and {opts.sinks.rrd}" if opts.sinks is not None and opts.sinks.rrd else ""
+                    self.display.note(f"{self.info.note}; recording to {capture.path}{rrd} (Ctrl-C to stop)")
                 stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, as the viewer starts
                 if opts.sinks is not None:
                     name = self.info.recording_name or capture.path.stem
@@ -181,12 +184,6 @@ class LiveSession:
             kind=self.info.kind,
             **self._summary_fields(),
         )
-
-    def _opening_note(self) -> None:
-        if self.info.note:  # (BLE says when it is connected)
-            sinks = self.options.sinks
-            and_rrd = f" and {sinks.rrd}" if sinks is not None and sinks.rrd else ""
-            self.display.note(f"{self.info.note}; recording to {self.capture.path}{and_rrd} (Ctrl-C to stop)")
 
     def _record(self, chunk: Chunk) -> None:
         """A chunk into the capture, first (any thread)."""
@@ -244,20 +241,25 @@ class LiveSession:
                 break
 
     def _check_link(self, now: float) -> None:
-        """A serial link: a reconnection starts a new sample; no frame ever: one sentence (a note with --wait)."""
+        """A serial link: a reconnection starts a new sample; no valid frame in time on a connection: one sentence
+        (a note with ``wait``)."""
         if self.info.kind != "serial":
             return
-        status = self.source.status
+        status, stats, sample = self.source.status, self.pipeline.decoder.stats, self.pipeline.sample
         if status.connected and not self._connected:  # a new connection: a new sample
-            self.pipeline.sample.clear()
+            sample.clear()
         self._connected = status.connected
-        if self._warned_no_frames or (message := check_frames(status, self.pipeline, self.info.baud, now)) is None:
+        frames = stats.attitude + stats.status + stats.text_records
+        if self._warned_no_frames or frames or not status.connected or status.connected_at_s is None:
             return
-        if status.wait:
-            self._warned_no_frames = True
-            self.display.note(message.worded(self.options.word) + "; still waiting")
+        elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
+        if elapsed < NO_FRAMES_TIMEOUT_S and (elapsed < NO_FRAMES_EARLY_S or nbytes < NO_FRAMES_EARLY_BYTES):
             return
-        raise LinkError(message.template, *message.params)
+        message = no_frames_message(status.port or "?", self.info.baud, bytes(sample), elapsed, total=nbytes)
+        if not status.wait:
+            raise LinkError(message.template, *message.params)
+        self._warned_no_frames = True
+        self.display.note(message.worded(self.options.word) + "; still waiting")
 
     def _health(self, now: float, t0: float) -> str:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
