@@ -9,8 +9,7 @@ drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.ses
 ``ble:NAME``, ``ble:ADDRESS``, ``ble:``  a drone over Bluetooth (:mod:`.ble_source`, ``--ble``)
 ====================================  ======================================================================
 
-A source has five public methods. It hands each chunk to the ``record`` function it is given (the capture) first,
-then on, timestamped; it never reads the session, which owns the rest.
+A source hands each chunk to the ``record`` function it is given (the capture) first; it never reads the session.
 """
 
 from __future__ import annotations
@@ -73,7 +72,6 @@ class LinkStatus:
     bytes_total: int = 0
     lost_at_s: float | None = None  # monotonic time of the last loss
     connected_at_s: float | None = None  # monotonic time of the last connection
-    offline_s: float = 0.0
     connect_bytes: int = 0  # bytes of the current connection
     live_dropped_bytes: int = 0  # bytes dropped from the live view (in the capture)
     reopen_error: Any = None  # (path, exception): it is back but cannot be opened
@@ -88,9 +86,8 @@ class LinkStatus:
 
 
 class Source:
-    """One link of a live session. The session calls :meth:`open`, :meth:`describe` (the capture header),
-    :meth:`chunks` (each item: the chunks of one round, [] when none came), :meth:`write` (any thread) and
-    :meth:`close` (the iterator then yields what is left, once)."""
+    """One link of a live session: :meth:`open`, :meth:`describe` (the capture header), :meth:`chunks` (each item:
+    one round's chunks, [] when none came), :meth:`write` (any thread), :meth:`close` (then what is left, once)."""
 
     status: LinkStatus
 
@@ -102,8 +99,7 @@ class Source:
         raise NotImplementedError
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The link's chunks, each handed to ``record`` first; ``clock``: the session's ``HostClock`` (its origin
-        is the capture's start)."""
+        """The link's chunks, each handed to ``record`` first; ``clock``: the session's ``HostClock``."""
         raise NotImplementedError
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
