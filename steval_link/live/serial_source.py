@@ -341,13 +341,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     else:
         rate = pipe.health.rate_hz(now_unix_s)
         head = f"{status.port} {'--' if math.isnan(rate) else f'{rate:5.1f}'} Hz"
-    more = [f"disconnects {status.disconnects}"] if status.disconnects else []
-    if status.live_dropped_bytes:
-        more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
-    skipped = f"skipped {_fmt_bytes(s.bytes_skipped)}"
-    return pipeline_health(
-        head, pipe, after_crc=[skipped], before_replica=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
-    )
+    return pipeline_health(head, pipe, status)
 
 
 def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
