@@ -1,10 +1,6 @@
-"""The BLE driver of a live session (``ble:NAME``, ``ble:ADDRESS``, ``ble:``; ``steval live --ble``): a drone over
-Bluetooth, found, connected, recorded and reconnected.
-
-The link (:class:`~steval_link.link.ble_transport.BleLink`) runs its event loop in its own thread, where every
-notification goes to the capture first (a ``B`` chunk), then to a bounded inbox each round (10 Hz) takes; each
-loss and reconnection is a capture event.
-"""
+"""The BLE driver of a live session (``ble:NAME``, ``ble:ADDRESS``, ``ble:``; ``steval live --ble``). The link
+(``BleLink``) runs its event loop in its own thread, where every notification goes to the capture first (a ``B``
+chunk), then to a bounded inbox each round (10 Hz) takes; each loss and reconnection is a capture event."""
 
 from __future__ import annotations
 
@@ -22,8 +18,7 @@ from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStat
 
 __all__ = ["BleSource", "INBOX_MAX"]
 
-#: notifications held between two rounds at most (older ones are dropped from the live view only)
-INBOX_MAX = 5000
+INBOX_MAX = 5000  # notifications held between two rounds at most (older ones leave the live view only)
 ROUND_S = 0.1
 
 
@@ -72,7 +67,6 @@ class BleSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The link runs its event loop in its own thread: notifications go to the capture there, first."""
         self._record = record
         self._start_unix = time.time() - (clock.now_s() - clock.wall0_s)
         self._thread = threading.Thread(target=self._run_link, name="steval-ble-link", daemon=True)
@@ -108,7 +102,6 @@ class BleSource(Source):
                 self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join()
 
-    # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
         chunk = Chunk("B", (cid, data), t_unix - self._start_unix)
         self._record(chunk)

@@ -175,8 +175,8 @@ def emulated_health(status, pipe, wall_s: float) -> str:
 
 
 def emulated_summary(status, pipe, flt: dict) -> dict:
-    """The summary fields of the emulated board: its report, and as the filter note the replica's verdict, the
-    release whose filter it ran (``flt``: the capture header's ``filter``) and the steps read by symbol."""
+    """The summary fields of the emulated board: its report; the replica's verdict, its release (``flt``: the
+    capture header's ``filter``) and the steps read by symbol as the filter note."""
     read = status.symbol_rows
     note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
     if note and flt:
@@ -249,7 +249,6 @@ class LiveSummary:
 
     @property
     def losses(self) -> int:
-        """Links lost (BLE's word for :attr:`disconnects`)."""
         return self.disconnects
 
     def lines(self) -> list[str]:
@@ -297,7 +296,6 @@ class LiveSummary:
         return "recorded " + ", ".join(p for p in parts if p) + "; " + self._outputs()
 
     def _rate(self, rate_hz: float) -> str:
-        """The frame rate as it arrived, and the drone's own when a replay ran faster."""
         if self.pace == 1.0:
             return f"{rate_hz:.1f} Hz"
         return f"{rate_hz:.1f} Hz at {self.pace:g}× pace: {rate_hz / self.pace:.1f} Hz in the drone's time"

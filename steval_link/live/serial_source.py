@@ -5,7 +5,6 @@ unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first
 from __future__ import annotations
 
 import collections
-import dataclasses
 import math
 import os
 import threading
@@ -215,8 +214,7 @@ class RecorderProtocol(Protocol):
 
 
 def offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
-    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
-    times, as :class:`RecorderProtocol` keeps them; a loss not over yet lasts to ``now_s``)."""
+    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (a loss not over yet lasts to ``now_s``)."""
     return sum((max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost)) for lost, back in offline), 0.0)
 
 
@@ -243,24 +241,17 @@ class SerialSource(Source):
     def status(self) -> LinkStatus:
         if self.proto is None:
             return LinkStatus(port=self.path, wait=self.wait)
-        return dataclasses.replace(
-            self.proto.status,
-            live_dropped_bytes=self.inbox.dropped_bytes,
-            reopen_error=self.reader.reopen_error if self.reader is not None else None,
-            wait=self.wait,
-            pace=float(getattr(self.ser, "speed", 1.0) or 1.0),  # a replay's ?speed=
-            offline=list(self.proto.status.offline),
-        )
+        st = self.proto.status  # the reader thread's, kept up to date
+        st.live_dropped_bytes, st.reopen_error = self.inbox.dropped_bytes, self.reader.reopen_error
+        return st
 
     def open(self, note=print) -> None:
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
         self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._closed.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
-            if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
-                self._extra["emulated"] = True
-            if self.ser.line_start:  # a log: its first line is whole, live and in the capture made of it
-                self._extra["line_start"] = True
+            # an emulator's file (its status frames count instructions); a log (its first line is whole)
+            self._extra.update({flag: True for flag in ("emulated", "line_start") if getattr(self.ser, flag)})
         else:
             identity = autodetect.PortIdentity.of(self.path)
             glob = self.url if autodetect.is_glob(self.url) else None
@@ -278,8 +269,8 @@ class SerialSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The reader thread starts now: each chunk to the capture first, then to the inbox each round takes."""
         self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
+        self.proto.status.wait, self.proto.status.pace = self.wait, float(getattr(self.ser, "speed", 1.0) or 1.0)
         find = self.finder.find if self.finder is not None else None
         self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
         self.reader.start()
@@ -314,7 +305,7 @@ class SerialSource(Source):
 
 
 class _Capture:
-    """The capture as :class:`RecorderProtocol` writes it (bytes, events), through the session's ``record``."""
+    """The capture as :class:`RecorderProtocol` writes it, through the session's ``record``."""
 
     def __init__(self, record: Record) -> None:
         self.record = record
@@ -345,8 +336,7 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
 
 
 def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
-    """The summary fields of a serial port or a replay (``now_s``: the host's Unix time; a loss not over yet lasts
-    until then)."""
+    """The summary fields of a serial port or a replay (``now_s``: the host's Unix time)."""
     h = pipe.health if pipe is not None else LinkHealth()
     streaming_s = 0.0
     offline_s = offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured

@@ -55,8 +55,7 @@ def source_for(url: str, **settings: Any) -> Source:
 
 
 def port_source(port: str, **settings: Any) -> Source:
-    """The source a ``port`` value names: a serial port or ``replay://`` (BLE and the emulated board: one sentence
-    naming their own commands)."""
+    """A serial port or ``replay://`` (BLE and the emulated board: one sentence naming their own commands)."""
     low = port.lower()
     if low.startswith(BLE_SCHEME):
         name = port[len(BLE_SCHEME) :].strip()
@@ -137,7 +136,15 @@ class LiveSession:
             self.info = src.describe()
             if self.check_outputs is not None:
                 self.check_outputs()
-            capture = self.capture = self._open_capture()
+            path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+            extra, info = {**self.info.extra, "estimators": list(opts.estimators)}, self.info
+            capture = self.capture = open_capture(
+                path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty
+            )
         except BaseException:
             src.close()
             raise
@@ -186,7 +193,6 @@ class LiveSession:
         )
 
     def _record(self, chunk: Chunk) -> None:
-        """A chunk into the capture, first (any thread)."""
         write = _WRITE.get(chunk.kind)
         if write is not None:
             write(self.capture, chunk.data, chunk.t_s)
@@ -290,28 +296,15 @@ class LiveSession:
             self.pipeline.flush_view()
 
     def _error_of(self, error: BaseException) -> BaseException:
-        """The error raised: a capture that could not be written, or the emulated board's error, says where the
-        bytes until then are."""
+        """The error raised: a capture that failed, or the emulated board's error, says where the bytes are."""
         if isinstance(error, OSError) and not isinstance(error, UserError):  # disk full, deleted, replaced
             return UserError(capture_failure_sentence(self.capture, error))
         if self.info.own_clock and isinstance(error, UserError):
             return UserError(f"{error} (the capture {self.capture.path} holds everything until then)")
         return error
 
-    def _open_capture(self) -> CaptureWriter:
-        """The capture file, with the source's header fields; one sentence when it cannot be made."""
-        opts, info = self.options, self.info
-        path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
-        extra = {**info.extra, "estimators": list(opts.estimators)}
-        return open_capture(path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty)
-
     def _close_outputs(self, stop_reason: str) -> None:
-        """The capture (its stop event at the link's time), then the Rerun side (a failure is a note), then the
-        health line."""
+        """The capture (its stop event at the link's time), the Rerun side (a failure is a note), the health line."""
         with contextlib.suppress(Exception):  # the capture's bytes are written already; the event is a courtesy
             t = self._t_link_s if self.info is not None and self.info.own_clock else None
             self.capture.mark_event("stop", stop_reason, t_host_s=t)
@@ -333,7 +326,7 @@ class LiveSession:
         return console
 
     def _sent(self, frame: bytes) -> None:
-        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as chunks H)."""
+        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as H chunks)."""
         if self.info.own_clock:
             return
         t_unix_s = self.clock.now_s()
