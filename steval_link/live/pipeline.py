@@ -92,7 +92,6 @@ class BatchOutlet:
         self.interval_s = interval_s
         self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
-        self._rows = 0
         self._events: list[tuple[str, tuple]] = []  # (logger method, its arguments)
         self._since = 0.0  # monotonic time the oldest pending item came
 
@@ -101,20 +100,20 @@ class BatchOutlet:
             self._since = time.monotonic()
         if batch is not None:
             self._batches.append(batch)
-            self._rows += len(batch)
         else:
             self._events.append(event)
 
     def tick(self, now_mono: float | None = None) -> None:
         if not (self._batches or self._events):
             return
-        if self._rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+        rows = sum(map(len, self._batches))
+        if rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
             self.flush()
 
     def flush(self) -> None:
         if self._batches:
             batch = LiveRows.concat(self._batches)
-            self._batches, self._rows = [], 0
+            self._batches = []
             self.logger.log_batch(batch)
         events, self._events = self._events, []
         for name, args in events:
@@ -305,10 +304,9 @@ class LivePipeline:
         all_finite &= np.where(
             a.exact, np.isfinite(a.q_wxyz).all(axis=1), np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad)
         )
-        if self.health.count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
-            i = int(np.argmax(a.values_bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
-            self.notes.append(
-                f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
+        if (h := self.health).count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
+            self.notes.append(  # the session's first bad frame; the viewer marks the step itself (log/filter)
+                f"firmware values bad from step {h.first_bad_step} on (t = {h.first_bad_t_s:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
         # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)

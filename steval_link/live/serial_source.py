@@ -47,10 +47,9 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
     there are) when it cannot be opened. ``wait``: until it appears (``note(text)`` says so once) or ``stopped()``."""
     if is_replay_url(url):  # the one place a source is opened by its URL scheme
         return url, open_replay(url, baud=baud)
-    deadline = time.monotonic() + (math.inf if wait else 0.0)
     said = note is None  # a waiting note is said once
     while True:
-        waiting = time.monotonic() < deadline and not (stopped and stopped())
+        waiting = wait and not (stopped and stopped())
         try:
             path = autodetect.choose_port(url, baud)
         except autodetect.PortChoiceError as exc:
@@ -110,8 +109,8 @@ class RecorderProtocol(Protocol):
     and :attr:`status`. A port reopened after a loss that sends no valid frame on probation is rejected and the
     search goes on. Another program that reads the port is named once and the port is kept."""
 
-    def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
-        self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
+    def __init__(self, record: Record, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
+        self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock
         self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self._probe: StreamDecoder | None = None
@@ -125,6 +124,10 @@ class RecorderProtocol(Protocol):
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
         return (self.clock.now_s() if t_unix_s is None else t_unix_s) - self.clock.wall0_s
 
+    def _mark(self, kind: str, text: str, t_s: float | None = None) -> None:
+        """A link event into the capture (``t_s``: on its time base; None: now)."""
+        self.record(Chunk("E", (kind, text), self._t_capture() if t_s is None else t_s))
+
     def connection_made(self, port: str) -> None:
         st, now = self.status, time.monotonic()
         st.connections += 1
@@ -132,9 +135,7 @@ class RecorderProtocol(Protocol):
         if st.connections > 1:  # back after a loss: the drone only once it sends valid frames
             st.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
             self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
-            self.capture.mark_event(
-                "reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at
-            )
+            self._mark("reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at)
             return
         st.connected = True
         self._say_holders(port)
@@ -152,7 +153,7 @@ class RecorderProtocol(Protocol):
         self._say_holders(port)
 
     def data_received(self, data: bytes, t_unix_s: float) -> None:
-        self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
+        self.record(Chunk("D", data, self._t_capture(t_unix_s)))  # first: whatever happens next, the bytes are kept
         self.status.bytes_total += len(data)
         self.status.connect_bytes += len(data)
         self.inbox.put(data, t_unix_s)
@@ -186,7 +187,7 @@ class RecorderProtocol(Protocol):
         if new := [h for h in self._holders if h[0] not in self._holders_said]:
             self._holders_said.update(pid for pid, _ in new)
             sentence = ports.holders_sentence(port, new)
-            self.capture.mark_event("shared", sentence, self._t_capture())
+            self._mark("shared", sentence)
             self.events.append(sentence)
         return self._holders
 
@@ -198,7 +199,7 @@ class RecorderProtocol(Protocol):
         if isinstance(exc, PortRejected):  # not the drone: keep looking (still the same disconnect)
             if self.finder is not None:
                 self.finder.reject(was_probing)
-            self.capture.mark_event("rejected", str(exc), self._t_capture())
+            self._mark("rejected", str(exc))
             self.events.append(f"{was_probing} answers but sends no valid frames: not the drone; still looking")
             return
         if was_probing is not None:  # lost again before it sent a frame: the same disconnect goes on
@@ -209,7 +210,7 @@ class RecorderProtocol(Protocol):
         st.offline.append((self.clock.now_s(), None))
         if self.finder is not None:
             self.finder.mark_lost()
-        self.capture.mark_event("disconnect", f"{self.status.port}: {exc}", self._t_capture())
+        self._mark("disconnect", f"{self.status.port}: {exc}")
         self.events.append(f"disconnected from {self.status.port}, waiting for it to come back")
 
 
@@ -269,7 +270,7 @@ class SerialSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
+        self.proto = RecorderProtocol(record, self.inbox, self.finder, clock)
         self.proto.status.wait, self.proto.status.pace = self.wait, float(getattr(self.ser, "speed", 1.0) or 1.0)
         find = self.finder.find if self.finder is not None else None
         self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
@@ -302,19 +303,6 @@ class SerialSource(Source):
             self.reader.stop()
         elif self.ser is not None:
             self.ser.close()
-
-
-class _Capture:
-    """The capture as :class:`RecorderProtocol` writes it, through the session's ``record``."""
-
-    def __init__(self, record: Record) -> None:
-        self.record = record
-
-    def write(self, data: bytes, t_s: float) -> None:
-        self.record(Chunk("D", data, t_s))
-
-    def mark_event(self, kind: str, text: str, t_s: float | None = None) -> None:
-        self.record(Chunk("E", (kind, text), t_s))
 
 
 def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float, word=param_word) -> str:

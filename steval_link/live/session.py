@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import importlib
 import signal
 import sys
@@ -16,15 +17,14 @@ from typing import Any, Callable, TextIO
 
 from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.autodetect import no_frames_message
-from steval_link.link.ble_payloads import ble_chunk
-from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
+from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live import health
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -157,7 +157,9 @@ class LiveSession:
                 if self.info.note:  # (BLE says when it is connected)
                     rrd = f" and {opts.sinks.rrd}" if opts.sinks is not None and opts.sinks.rrd else ""
                     self.display.note(f"{self.info.note}; recording to {capture.path}{rrd} (Ctrl-C to stop)")
-                stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, as the viewer starts
+                stream = src.chunks(
+                    functools.partial(record_chunk, capture), self.clock
+                )  # bytes flow into the capture now, as the viewer starts
                 if opts.sinks is not None:
                     name = self.info.recording_name or capture.path.stem
                     self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=self.info.kind), name)
@@ -191,11 +193,6 @@ class LiveSession:
             kind=self.info.kind,
             **self._summary_fields(),
         )
-
-    def _record(self, chunk: Chunk) -> None:
-        write = _WRITE.get(chunk.kind)
-        if write is not None:
-            write(self.capture, chunk.data, chunk.t_s)
 
     def _take(self, chunks: list[Chunk]) -> None:
         """One round's chunks to the pipeline, in order; notes to the terminal."""
@@ -361,17 +358,6 @@ def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
-
-
-#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
-_WRITE = {
-    "D": lambda cap, data, t_s: cap.write(data, t_s),
-    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
-    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
-    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
-    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
-    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
-}
 
 
 def _stdin_is_tty() -> bool:

@@ -19,9 +19,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import ble_chunk
+from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
 from steval_link.live.console import PROMPT_HELP
 
-__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source", "record_chunk"]
 
 #: Chunk kinds besides the capture's own
 NOTE, BREAK, END = "note", "break", "end"
@@ -42,6 +44,22 @@ class Chunk:
 
 #: ``record(chunk)``: the session's capture, written first (thread-safe)
 Record = Callable[[Chunk], None]
+
+#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
+_WRITE = {
+    "D": lambda cap, data, t_s: cap.write(data, t_s),
+    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
+    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
+    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
+    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
+    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
+}
+
+
+def record_chunk(capture: CaptureWriter, chunk: Chunk) -> None:
+    """A chunk into ``capture`` as its kind is written (notes, breaks and ends are not recorded)."""
+    if (write := _WRITE.get(chunk.kind)) is not None:
+        write(capture, chunk.data, chunk.t_s)
 
 
 @dataclass
