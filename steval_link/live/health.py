@@ -29,7 +29,6 @@ class LinkHealth:
     """Counters and rates of the live link, for the health line and the summary (times: host s, Unix epoch)."""
 
     attitude: int = 0
-    status: int = 0
     text: int = 0
     nonfinite: int = 0  # attitude frames with a non-finite value
     values_bad: int = 0  # attitude frames with NaN or out-of-range values (the ``values_bad`` flag)
@@ -67,16 +66,14 @@ class LinkHealth:
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
         """Count the frames flagged ``bad`` ((N,) bool; ``inputs_bad``: bad acc/gyro) of a batch; True when the
         session's first bad frame is among them."""
-        k = int(np.count_nonzero(bad))
-        if not k:
+        if not (k := int(np.count_nonzero(bad))):
             return False
         self.values_bad += k
         self.inputs_bad = self.inputs_bad or bool(np.any(inputs_bad & bad))
         if self.first_bad_step is not None:
             return False
         i = int(np.argmax(bad))
-        self.first_bad_step = int(step[i])
-        self.first_bad_t_s = int(t_us[i]) / 1e6
+        self.first_bad_step, self.first_bad_t_s = int(step[i]), int(t_us[i]) / 1e6
         return True
 
     def values_sentence(self) -> str | None:
@@ -274,12 +271,8 @@ class LiveSummary:
 
     def _serial_line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
-        lost = dropped = None
-        if self.disconnects:
-            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
-            lost += "; the port did not come back)" if self.lost_for_good else ")"
-        if self.live_dropped_bytes:
-            dropped = f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)"
+        n, gone = self.disconnects, "; the port did not come back" if self.lost_for_good else ""
+        dropped = _fmt_bytes(self.live_dropped_bytes)
         parts = [
             f"{_fmt_duration(self.seconds)}",
             f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
@@ -288,8 +281,8 @@ class LiveSummary:
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
             self.values_sentence or (f"{self.nonfinite} with NaN/inf" if self.nonfinite else None),
             self._held_back(),
-            lost,
-            dropped,
+            f"{n} disconnect{'s' if n > 1 else ''} ({self.offline_s:.1f} s{gone})" if n else None,
+            f"{dropped} not shown live (in the capture)" if self.live_dropped_bytes else None,
             self.records_part,
             self.filter_note,
         ]
@@ -341,10 +334,10 @@ def pipeline_counts(pipe) -> dict[str, Any]:
     if pipe is None:
         return {}
     s, h = pipe.decoder.stats, pipe.health
-    names = ("frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
+    names = ("status", "frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
     return {
         **{name: getattr(s, name) for name in names},
-        **{name: getattr(h, name) for name in ("attitude", "status", "text", "nonfinite")},
+        **{name: getattr(h, name) for name in ("attitude", "text", "nonfinite")},
         "values_sentence": h.values_sentence(),
         "records_part": h.records_part(),
     }

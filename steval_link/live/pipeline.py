@@ -202,21 +202,17 @@ class LivePipeline:
                     att.append((frame, t_unix_s))
                     self.binary = self.binary or frame.exact
                     continue
-                ack = frame if isinstance(frame, F.AckFrame) else None
-                if isinstance(frame, F.TextFrame) and frame.text.startswith("#ACK"):
-                    ack = ack_of_text(frame.text)
-                if ack is not None:
+                ack = ack_of_text(frame.text) if isinstance(frame, F.TextFrame) else frame  # "#ACK ..." in text mode
+                if isinstance(ack, F.AckFrame):
                     self._ack(ack, self._at_frame(frame))
                     continue
                 if isinstance(frame, (F.StatusFrame, F.TextFrame, F.FlightFrame)):
                     self._attitude(att)  # the rows before it first (the filter steps before a snapshot)
                 if isinstance(frame, F.StatusFrame):
-                    self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
-                    t_fw_s = float(clock.fw_s([int(frame.t_us)])[0])  # through the unwrapper in stream order
                     if self.mahony is not None:
                         self.mahony.status(frame)
-                    at = EventTime(t_fw_s, self._host_of_frame(frame))
+                    at = EventTime(float(clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
                     self._event("log_status", frame, at)
                     if int(frame.flags) & P.FLAG_EVENT:
                         text = f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}"
