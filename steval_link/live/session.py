@@ -286,10 +286,8 @@ class LiveSession:
         if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
             return
         with contextlib.suppress(Exception):  # the capture is whole whatever happens here
-            for chunks in stream:
+            for chunks in stream:  # (a BLE link's last round ends it: its held rows go out)
                 self._take(chunks)
-            if self.info.kind == "ble":
-                self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
 
     def _error_of(self, error: BaseException) -> BaseException:
