@@ -261,8 +261,7 @@ class LivePipeline:
 
     def _ack(self, ack, at: EventTime) -> None:
         command = self._sent.get(int(ack.cmd_seq))
-        if command is not None and command.cmd != int(ack.cmd):
-            command = None
+        command = command if command is not None and command.cmd == int(ack.cmd) else None
         self._note(describe_ack(command, ack), at, "INFO" if int(ack.result) == P.ACK_ACCEPTED else "WARN")
 
     def _note(self, text: str, at: EventTime, level: str, *, show: bool = True) -> None:

@@ -327,29 +327,24 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
     """The summary fields of a serial port or a replay (``now_s``: the host's Unix time)."""
     h = pipe.health if pipe is not None else LinkHealth()
     streaming_s = 0.0
-    offline_s = offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured
-    if h.first_frame_s is not None and h.last_frame_s is not None:  # the rate's time: connected, with frames
+    if h.first_frame_s is not None:  # the rate's time: connected, with frames
         within = offline_within(status.offline, h.first_frame_s, h.last_frame_s, now_s)
         streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - within)
-    p = pipe.mahony if pipe is not None else None
-    filter_note = None
-    if p is not None:
-        if p.rows_mismatch:
-            filter_note = f"ST replica differs from the firmware on {p.rows_mismatch} frames"
-        elif p.rows_exact:
-            filter_note = f"ST replica bit-exact on {p.rows_exact} frames"
-        elif not pipe.binary:
-            filter_note = "ST replica not run (no binary frames: text has no bit-exact inputs)"
-        else:
-            filter_note = "ST replica not seeded (no status snapshot)"
-        if p.rows_mismatch or p.rows_exact:
-            filter_note += f" with {p.settings.variant}'s filter"
+    p, filter_note = (pipe.mahony if pipe is not None else None), None
+    if p is not None and (p.rows_mismatch or p.rows_exact):
+        what = f"differs from the firmware on {p.rows_mismatch}" if p.rows_mismatch else f"bit-exact on {p.rows_exact}"
+        filter_note = f"ST replica {what} frames with {p.settings.variant}'s filter"
+    elif p is not None:
+        why = (
+            "run (no binary frames: text has no bit-exact inputs)" if not pipe.binary else "seeded (no status snapshot)"
+        )
+        filter_note = f"ST replica not {why}"
     return {
         **pipeline_counts(pipe),
         "streaming_s": streaming_s,
         "bytes_total": status.bytes_total,
         "disconnects": status.disconnects,
-        "offline_s": offline_s,
+        "offline_s": offline_within(status.offline, -math.inf, math.inf, now_s),  # every loss measured
         "lost_for_good": bool(status.offline and status.offline[-1][1] is None),
         "live_dropped_bytes": status.live_dropped_bytes,
         "pace": status.pace,
