@@ -37,8 +37,7 @@ class BleSource(Source):
         self._closed = False
         self.link: BleLink | None = None
         self._device: BleDevice | None = None  # the drone found by open()
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Event | None = None
+        self._loop = self._stop = None  # the link's event loop and its stop event, once its thread runs
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> BleSource:
@@ -97,7 +96,7 @@ class BleSource(Source):
         self._closed = True
         if self._thread is None:
             return
-        if self._loop is not None and self._stop is not None and self._thread.is_alive():
+        if self._stop is not None and self._thread.is_alive():
             with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                 self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join()

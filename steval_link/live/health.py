@@ -306,8 +306,7 @@ class LiveSummary:
         said = [x for x in (self.values_sentence, self._held_back()) if x]
         # the AHRS step cost as replay and compare say it (the capture's status frames), not the run's own counts
         board = [x for x in r.lines()[1:] if not x.startswith("instructions per AHRS step")]
-        cost = self._step_cost()
-        return [head, *said, *board, *([cost] if cost else []), self._outputs()]
+        return [head, *said, *board, *filter(None, [self._step_cost()]), self._outputs()]
 
     def _step_cost(self) -> str | None:
         if self.capture_discarded or not Path(self.capture_path).is_file():
