@@ -68,8 +68,7 @@ class CommandConsole:
         if self._restore is not None:
             import termios  # reason: only set on POSIX
 
-            fd, old = self._restore
-            self._restore = None
+            (fd, old), self._restore = self._restore, None
             with contextlib.suppress(OSError, ValueError):
                 termios.tcsetattr(fd, termios.TCSANOW, old)
 

@@ -178,10 +178,8 @@ class RecorderProtocol(Protocol):
     def _say_holders(self, port: str, *, force: bool = False) -> list[tuple[int, str]]:
         """Name the other programs that have ``port`` open, once each (looked up at most every few seconds)."""
         now = time.monotonic()
-        if not force and now - self._holders_checked_s < HOLDERS_CHECK_S:
-            return []
-        if force and now - self._holders_checked_s < 1.0:
-            return self._holders
+        if now - self._holders_checked_s < (1.0 if force else HOLDERS_CHECK_S):
+            return self._holders if force else []
         self._holders_checked_s = now
         self._holders = ports.port_holders(port)
         if new := [h for h in self._holders if h[0] not in self._holders_said]:

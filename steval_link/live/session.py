@@ -133,7 +133,7 @@ class LiveSession:
         src, opts = self.source, self.options
         src.open(self.display.note)  # the input first: a bad port, ELF or BLE backend is one line before any file
         try:
-            self.info = src.describe()
+            self.info = info = src.describe()
             if self.check_outputs is not None:
                 self.check_outputs()
             path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
@@ -141,7 +141,7 @@ class LiveSession:
                 path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
                 raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
-            extra, info = {**self.info.extra, "estimators": list(opts.estimators)}, self.info
+            extra = {**info.extra, "estimators": list(opts.estimators)}
             capture = self.capture = open_capture(
                 path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty
             )
@@ -154,15 +154,14 @@ class LiveSession:
         started, stream = False, None
         with on_stop_signals(self._on_signal):
             try:
-                if self.info.note:  # (BLE says when it is connected)
+                if info.note:  # (BLE says when it is connected)
                     rrd = f" and {opts.sinks.rrd}" if opts.sinks is not None and opts.sinks.rrd else ""
-                    self.display.note(f"{self.info.note}; recording to {capture.path}{rrd} (Ctrl-C to stop)")
-                stream = src.chunks(
-                    functools.partial(record_chunk, capture), self.clock
-                )  # bytes flow into the capture now, as the viewer starts
+                    self.display.note(f"{info.note}; recording to {capture.path}{rrd} (Ctrl-C to stop)")
+                # bytes flow into the capture now, as the viewer starts
+                stream = src.chunks(functools.partial(record_chunk, capture), self.clock)
                 if opts.sinks is not None:
-                    name = self.info.recording_name or capture.path.stem
-                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=self.info.kind), name)
+                    name = info.recording_name or capture.path.stem
+                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=info.kind), name)
                 self.pipeline = LivePipeline.for_session(self)
                 self.console = self._console()
                 started = True
@@ -190,7 +189,7 @@ class LiveSession:
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
             capture_discarded=capture.discarded,
-            kind=self.info.kind,
+            kind=info.kind,
             **self._summary_fields(),
         )
 
