@@ -76,7 +76,6 @@ class LiveOptions:
     sinks: Any = None
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
-    recordings_dir: Path = Path("recordings")
     prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal
     link_kind: str | None = None  # the source's kind ("serial", "ble"...), set by the session: the viewer's layout
     variant: str | None = None  # the ST release whose filter the replica runs ("ST 221117"); None: the status's
@@ -136,7 +135,7 @@ class LiveSession:
             self.info = info = src.describe()
             if self.check_outputs is not None:
                 self.check_outputs()
-            path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
+            path = Path(opts.out) if opts.out else default_capture_path()
             try:
                 path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
