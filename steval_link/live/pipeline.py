@@ -37,8 +37,8 @@ RRD_BATCH_MAX_STREAM_S = 30.0
 
 
 class EventTime(NamedTuple):
-    """When a frame or a note (not an attitude row) happened: firmware s since boot (of a text line or a note:
-    estimated from the latest row, NaN before the first) and host s since capture start."""
+    """When a frame or a note happened: firmware s since boot (a line or a note's: from the latest row's, NaN before
+    one) and host s since capture start."""
 
     t_fw_s: float
     t_host_s: float

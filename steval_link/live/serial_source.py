@@ -223,8 +223,7 @@ class SerialSource(Source):
     def __init__(self, url: str, *, baud: int = C.BAUD, wait: bool = False) -> None:
         self.url, self.baud, self.wait = url, baud, wait
         self.path, self.ser = url, None  # the port opened (a glob or auto resolved)
-        self.reader: SerialReader | None = None
-        self.proto: RecorderProtocol | None = None
+        self.reader = self.proto = None  # the reader thread and its protocol, once chunks() starts them
         self.inbox = Inbox()
         self._closed = threading.Event()  # close() (also before the port appeared: --wait)
 
