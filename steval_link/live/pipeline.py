@@ -161,7 +161,6 @@ class LivePipeline:
         self.text_attitude = RecordAttitude(text_map)  # records of text telemetry that are an attitude, as rows
         self.binary = False  # binary attitude frames came (the replica's bit-exact inputs): records are only series
         self.ble, self.grid = B.BleDecoder(), LiveGrid(ble_layout)  # BLE notifications → the sender's sample grid
-        self._ble_rows = False  # the grid placed rows (its cadence is known)
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
@@ -340,8 +339,7 @@ class LivePipeline:
         self.grid.add(motion)
         a = self.grid.rows(final)
         if a is not None and len(a):
-            if not self._ble_rows:  # the cadence was just found; what the rows are, said once
-                self._ble_rows = True
+            if not self.health.attitude:  # the grid's first rows: its cadence was just found; what they are, once
                 if self.estimators is not None:
                     self.estimators.use_dt(self.grid.dt_s)
                 for text in link_notes(a.acc_mg, self.grid.layout):  # on the terminal too unless the stock note

@@ -311,7 +311,10 @@ class LiveSession:
 
     def _console(self) -> CommandConsole:
         """The command prompt: each frame typed goes to the source (locked), then into the capture and the log."""
-        prompt = self.options.prompt if self.options.prompt is not None else _stdin_is_tty()
+        prompt = self.options.prompt
+        if prompt is None:  # when stdin is a terminal
+            with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
+                prompt = sys.stdin.isatty()
         enabled = bool(prompt) and self.info.takes_commands
         console = CommandConsole(self.source.write, self.display.note, record=self._sent, enabled=enabled)
         if enabled:
@@ -354,9 +357,3 @@ def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
-
-
-def _stdin_is_tty() -> bool:
-    with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
-        return sys.stdin.isatty()
-    return False
