@@ -64,8 +64,7 @@ class LinkHealth:
             self._times.append((t_last_s, self.attitude))
 
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
-        """Count the frames flagged ``bad`` ((N,) bool; ``inputs_bad``: bad acc/gyro) of a batch; True when the
-        session's first bad frame is among them."""
+        """Count the frames flagged ``bad`` (``inputs_bad``: bad acc/gyro); True if the session's first bad is here."""
         if not (k := int(np.count_nonzero(bad))):
             return False
         self.values_bad += k

@@ -37,8 +37,7 @@ RRD_BATCH_MAX_STREAM_S = 30.0
 
 
 class EventTime(NamedTuple):
-    """When a frame or a note happened: firmware s since boot (a line or a note's: from the latest row's, NaN before
-    one) and host s since capture start."""
+    """When a frame or a note happened: firmware s since boot (NaN before the first row), host s since capture start."""
 
     t_fw_s: float
     t_host_s: float
@@ -63,8 +62,7 @@ class LiveViewer(Protocol):
 
 
 class StepUnwrapper(SeqUnwrapper):
-    """Full AHRS step numbers of live attitude frames: a text-mode frame carries its step, a binary frame's u16
-    ``seq`` is unwrapped."""
+    """Full AHRS steps of live attitude frames: a text-mode frame's own, a binary frame's u16 ``seq`` unwrapped."""
 
     def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these frames."""
@@ -164,8 +162,7 @@ class LivePipeline:
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
-        """A live session's: a live viewer gets every round at once, an ``.rrd`` (the viewer's ``file``, or the
-        viewer side alone) merged batches."""
+        """A live session's: a live viewer gets every round at once, an ``.rrd`` merged batches."""
         viewer = session.viewer
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
         pipe = cls(

@@ -242,8 +242,7 @@ class LiveSession:
                 break
 
     def _check_link(self, now: float) -> None:
-        """A serial link: a reconnection starts a new sample; no valid frame in time on a connection: one sentence
-        (a note with ``wait``)."""
+        """A serial link: new connection, new sample; no valid frame in time: one sentence (a note with ``wait``)."""
         if self.info.kind != "serial":
             return
         status, stats, sample = self.source.status, self.pipeline.decoder.stats, self.pipeline.sample
