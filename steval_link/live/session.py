@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import importlib
 import signal
 import sys
 import time
@@ -37,21 +36,20 @@ NO_FRAMES_EARLY_BYTES = 2048
 
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
-#: the drivers chosen by a URL scheme (loaded only when a session uses one); any other URL is a serial port's
-DRIVERS = {
-    BLE_SCHEME: ("steval_link.live.ble_source", "BleSource"),
-    EMULATED_SCHEME: ("steval_link.live.emulated", "EmulatedSource"),
-}
 
 
 def source_for(url: str, **settings: Any) -> Source:
     """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
     ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
-    for scheme, (module, name) in DRIVERS.items():
-        if url.lower().startswith(scheme):
-            driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
-            return driver.from_url(url, **settings)
-    return SerialSource.from_url(url, **settings)
+    if url.lower().startswith(BLE_SCHEME):
+        from steval_link.live.ble_source import BleSource  # reason: BLE loads only when used
+
+        return BleSource.from_url(url, **settings)
+    if url.lower().startswith(EMULATED_SCHEME):
+        from steval_link.live.emulated import EmulatedSource  # reason: the emulator loads only when used
+
+        return EmulatedSource.from_url(url, **settings)
+    return SerialSource.from_url(url, **settings)  # any other URL is a serial port's
 
 
 def port_source(port: str, **settings: Any) -> Source:
