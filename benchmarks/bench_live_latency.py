@@ -30,6 +30,7 @@ Goal: p99 <= 5 ms at 161.5 Hz; live text adds no more than 1 ms p99.
 from __future__ import annotations
 
 import argparse
+import functools
 import multiprocessing as mp
 import os
 import select
@@ -219,6 +220,7 @@ def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "
     from steval_link.link.capture import CaptureWriter
     from steval_link.link.transport import HostClock, SerialReader
     from steval_link.live import pipeline, serial_source
+    from steval_link.live.sources import record_chunk
     from steval_viewer.live_log import LiveLogger
     from steval_viewer.sink_options import SinkOptions
     from steval_viewer.sinks import open_session
@@ -239,7 +241,7 @@ def run_once(reader: str, seconds: float, estimators: list[str], stream: str = "
         import serial
 
         ser = serial.Serial(slave_name, 115200, timeout=0.05)
-        proto = serial_source.RecorderProtocol(capture, inbox, None, clock)
+        proto = serial_source.RecorderProtocol(functools.partial(record_chunk, capture), inbox, None, clock)
         thread = SerialReader(ser, proto, baud=115200, clock=clock)
         thread.start()
     else:

@@ -30,12 +30,11 @@ def _exchange(port: str, baud: int, timeout: float, out: Optional[Path]):
     """The link options as one function: ``send(command)`` sends it and returns the drone's reply."""
 
     def send(command: Command):
-        from steval_link.live.remote import run_commands  # reason: start-up time
+        from steval_link.live.remote import run_command  # reason: start-up time
 
         if not (timeout > 0):
             raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
-        (reply,) = run_commands(port, baud, [command], timeout_s=timeout, out=out)
-        return reply
+        return run_command(port, baud, command, timeout_s=timeout, out=out)
 
     return send
 

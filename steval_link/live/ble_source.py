@@ -1,10 +1,6 @@
-"""The BLE driver of a live session (``ble:NAME``, ``ble:ADDRESS``, ``ble:``; ``steval live --ble``): a drone over
-Bluetooth, found, connected, recorded and reconnected.
-
-The link (:class:`~steval_link.link.ble_transport.BleLink`) runs its event loop in its own thread, where every
-notification goes to the capture first (a ``B`` chunk), then to a bounded inbox each round (10 Hz) takes; each
-loss and reconnection is a capture event.
-"""
+"""The BLE driver of a live session (``ble:NAME``, ``ble:ADDRESS``, ``ble:``; ``steval live --ble``). The link
+(``BleLink``) runs its event loop in its own thread, where every notification goes to the capture first (a ``B``
+chunk), then to a bounded inbox each round (10 Hz) takes; each loss and reconnection is a capture event."""
 
 from __future__ import annotations
 
@@ -13,7 +9,7 @@ import contextlib
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, layout_named
@@ -22,8 +18,7 @@ from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStat
 
 __all__ = ["BleSource", "INBOX_MAX"]
 
-#: notifications held between two rounds at most (older ones are dropped from the live view only)
-INBOX_MAX = 5000
+INBOX_MAX = 5000  # notifications held between two rounds at most (older ones leave the live view only)
 ROUND_S = 0.1
 
 
@@ -31,19 +26,10 @@ class BleSource(Source):
     """``target``: a drone's name or address (None: the strongest ``DRN1…``); ``backend``: a ``BleBackend`` (bleak,
     or a fake in tests); ``layout``: what the motion notifications hold (``stock``, ``euler``)."""
 
-    def __init__(
-        self,
-        target: str | None,
-        *,
-        backend: BleBackend,
-        clock: Callable[[], float] = time.time,
-        scan_timeout_s: float = 5.0,
-        layout: str = "stock",
-    ) -> None:
+    def __init__(self, target: str | None, *, backend: BleBackend, layout: str = "stock") -> None:
         self.target = target
+        self.what = target or f"{DEVICE_NAME_PREFIX}*"  # the drone asked for: its name or address, or any DRN1…
         self.backend = backend
-        self.clock = clock
-        self.scan_timeout_s = scan_timeout_s
         self.layout = layout_named(layout)
         self._inbox: deque[Chunk] = deque(maxlen=INBOX_MAX)
         self._thread: threading.Thread | None = None
@@ -51,6 +37,7 @@ class BleSource(Source):
         self._closed = False
         self.link: BleLink | None = None
         self._device: BleDevice | None = None  # the drone found by open()
+        self._loop = self._stop = None  # the link's event loop and its stop event, once its thread runs
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> BleSource:
@@ -59,25 +46,13 @@ class BleSource(Source):
         return cls(None if target.lower() in ("", "auto") else target, **settings)
 
     @property
-    def what(self) -> str:
-        """The drone asked for: its name or address, or any ``DRN1…``."""
-        return self.target or f"{DEVICE_NAME_PREFIX}*"
-
-    @property
     def status(self) -> LinkStatus:
         made, lost = (self.link.connections, self.link.losses) if self.link is not None else (0, 0)
         return LinkStatus(connected=made > lost, port=self.what, connections=made, disconnects=lost)
 
     def open(self, note=None) -> None:
         """The input first: the drone is found (or the adapter's failure said) before any file or viewer."""
-        self.link = BleLink(
-            self.backend,
-            self.target,
-            self._on_notification,
-            on_event=self._on_event,
-            clock=self.clock,
-            scan_timeout_s=self.scan_timeout_s,
-        )
+        self.link = BleLink(self.backend, self.target, self._on_notification, on_event=self._on_event)
         self._device = asyncio.run(self.link.find_first())
 
     def describe(self) -> LinkInfo:
@@ -91,9 +66,8 @@ class BleSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The link runs its event loop in its own thread: notifications go to the capture there, first."""
         self._record = record
-        self._start_unix = self.clock() - (clock.now_s() - clock.wall0_s)
+        self._start_unix = time.time() - (clock.now_s() - clock.wall0_s)
         self._thread = threading.Thread(target=self._run_link, name="steval-ble-link", daemon=True)
         self._thread.start()
         return self._rounds()
@@ -122,20 +96,18 @@ class BleSource(Source):
         self._closed = True
         if self._thread is None:
             return
-        loop, stop = getattr(self, "_loop", None), getattr(self, "_stop", None)
-        if loop is not None and stop is not None and self._thread.is_alive():
+        if self._stop is not None and self._thread.is_alive():
             with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
-                loop.call_soon_threadsafe(stop.set)
+                self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join()
 
-    # -- the link's callbacks (the event loop's thread)
     def _on_notification(self, cid: int, data: bytes, t_unix: float) -> None:
         chunk = Chunk("B", (cid, data), t_unix - self._start_unix)
         self._record(chunk)
         self._inbox.append(chunk)
 
     def _on_event(self, kind: str, text: str) -> None:
-        self._record(Chunk("E", (kind, text), self.clock() - self._start_unix))  # on the notifications' clock
+        self._record(Chunk("E", (kind, text), time.time() - self._start_unix))  # on the notifications' clock
         say = {
             "connect": f"connected to {text} over BLE",
             "disconnect": "BLE link lost; reconnecting (Ctrl-C stops)",

@@ -1,10 +1,6 @@
-"""The command prompt of a live session: lines typed in the terminal while viewing (``set ki 1.0``, ``reset``...:
-:func:`steval_link.link.commands.parse_command`) become commands to the drone.
-
-A thread reads the lines; the session's loop calls :meth:`CommandConsole.poll` every round. On a POSIX terminal the
-console reads key by key without echo and the session shows the line being typed in its health line, so the
-redrawn line never wipes it.
-"""
+"""The command prompt of a live session: lines typed while viewing (``set ki 1.0``, ``reset``...) become commands
+to the drone. A thread reads them; on a POSIX terminal key by key without echo, and the session shows the line being
+typed in its health line, so the redrawn line never wipes it."""
 
 from __future__ import annotations
 
@@ -17,7 +13,7 @@ from collections.abc import Callable
 from typing import TextIO
 
 from steval_link.errors import UserError
-from steval_link.link.commands import Command, CommandChannel, Sent, parse_command
+from steval_link.link.commands import CommandChannel, parse_command
 
 __all__ = ["CommandConsole", "PROMPT_HELP"]
 
@@ -28,10 +24,8 @@ PROMPT_HELP = (
 
 
 class CommandConsole:
-    """Typed lines → :class:`~steval_link.link.commands.Command` → ``send(frame)``.
-
-    ``record(frame)`` gets each frame once it is sent (the capture and the pipeline's log). ``stream``: where the
-    lines come from (default stdin); None and ``enabled=False`` read nothing (scripts still use :meth:`send`)."""
+    """Typed lines → commands → ``send(frame)``; ``record(frame)`` gets each frame once sent. ``stream``: where the
+    lines come from (default stdin); ``enabled=False`` reads nothing."""
 
     def __init__(
         self,
@@ -74,8 +68,7 @@ class CommandConsole:
         if self._restore is not None:
             import termios  # reason: only set on POSIX
 
-            fd, old = self._restore
-            self._restore = None
+            (fd, old), self._restore = self._restore, None
             with contextlib.suppress(OSError, ValueError):
                 termios.tcsetattr(fd, termios.TCSANOW, old)
 
@@ -102,20 +95,10 @@ class CommandConsole:
                 self.typing_changed = True
 
     def type_line(self, line: str) -> None:
-        """As if ``line`` had been typed (tests, scripted sessions)."""
         self._lines.put(line)
 
-    def send(self, command: Command) -> Sent | None:
-        try:
-            sent = self.channel.send(command)
-        except (OSError, UserError) as exc:
-            self.note(f"{command.describe()}: not sent ({exc})")
-            return None
-        self.note(f"sent: {command.describe()}")
-        return sent
-
     def decorate(self, health_line: str) -> str:
-        """The health line with the command being typed after it (on a terminal)."""
+        """The health line after the command being typed (on a terminal)."""
         if self._restore is None:
             return health_line
         return f"> {self.typing}_  | {health_line}"
@@ -137,7 +120,13 @@ class CommandConsole:
             except UserError as exc:
                 self.note(str(exc))
                 continue
-            n += self.send(command) is not None
+            try:
+                self.channel.send(command)
+            except (OSError, UserError) as exc:
+                self.note(f"{command.describe()}: not sent ({exc})")
+                continue
+            self.note(f"sent: {command.describe()}")
+            n += 1
         for _ in range(len(notes)):
             self.note(notes.popleft())
         return n

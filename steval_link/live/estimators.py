@@ -1,7 +1,5 @@
-"""The estimators of a live session: the ST Mahony filter followed bit for bit from status snapshots
-(:class:`LiveMahony`) and the registry estimators and your own (:class:`LiveEstimators`, each disabled with one line
-when it fails, floods NaN or cannot keep up), run per :class:`LiveRows` of attitude rows.
-"""
+"""The estimators of a live session, run per :class:`LiveRows`: the ST Mahony filter followed bit for bit from
+status snapshots (:class:`LiveMahony`), the registry's and your own (:class:`LiveEstimators`)."""
 
 from __future__ import annotations
 
@@ -47,12 +45,11 @@ class LiveRows:
 
 
 class LiveMahony(firmware_replay.ReplicaFollower):
-    """The bit-exact ST Mahony filter run live: the follower of ``replay_firmware``, (re)seeded from the firmware's
-    status snapshots. Unseeded (NaN) until a snapshot unless the stream starts at step 0; a snapshot that disagrees
-    with the filter (a settings change, a difference) re-seeds it."""
+    """The bit-exact ST Mahony filter run live (``replay_firmware``'s follower), (re)seeded from the firmware's status
+    snapshots: NaN until one unless the stream starts at step 0; a snapshot that disagrees re-seeds it."""
 
     def __init__(self) -> None:
-        super().__init__(follow_snapshots=True, euler=False)
+        super().__init__(euler=False)
         self.rows_exact = 0
         self.rows_mismatch = 0
         self.last_rows_mismatch = 0  # mismatching rows of the latest call
@@ -67,14 +64,13 @@ class LiveMahony(firmware_replay.ReplicaFollower):
         return q
 
     def status(self, frame) -> None:
-        """A status frame: seed the filter from its snapshot when unseeded or out of sync (else confirm it)."""
         if not frame.exact:  # a text-mode $STA row has no q, integral or gains: nothing to seed from
             return
         snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
         self.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
 
     def describe(self) -> str:
-        """The filter's state in a few words for the health line (wording kept: users and tests read it)."""
+        """The filter's state in a few words for the health line."""
         if not self.seeded:
             return "replica resyncing" if self.seed_count else "replica waiting for a status snapshot"
         if self.last_rows_mismatch:
@@ -82,19 +78,17 @@ class LiveMahony(firmware_replay.ReplicaFollower):
         return "replica bit-exact" if self.rows_exact else "replica seeded"
 
 
-#: A live estimator that gives no estimate (NaN) on this much stream of finite input in a row is disabled, s.
+#: A live estimator is disabled when it gives NaN on NAN_FLOOD_S of finite input in a row, needs more than SLOW_SHARE
+#: of the stream time it is fed over SLOW_WINDOW_S of wall time, or stalls the view in one call over STALL_S, s.
 NAN_FLOOD_S = 3.0
-#: A live estimator that needs more than this share of the stream time it is fed (it could not keep up with a
-#: stream at twice the real rate) over SLOW_WINDOW_S of wall time is disabled ...
 SLOW_SHARE = 0.5
 SLOW_WINDOW_S = 5.0
-#: ... and so is one whose single call took longer than this, s (the live view stood still meanwhile).
 STALL_S = 2.0
 
 
 @dataclass
 class _Watch:
-    """One estimator's live record: NaN rows in a row, processing and stream time in the current window."""
+    """One estimator's NaN rows in a row and its processing and stream time in the current window."""
 
     window_start_s: float
     nan_rows: int = 0
@@ -103,22 +97,17 @@ class _Watch:
 
 
 class LiveEstimators:
-    """Every host estimator run on each attitude row: the seeded ST Mahony filter, any registry estimator, your own.
-
-    Rows with a non-finite input are never fed to an estimator (one NaN would poison its state); their estimates
-    are NaN. An estimator that raises, floods NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN
-    estimates from then on, and the session goes on.
-    """
+    """Every host estimator on each attitude row. A row with a non-finite input is fed to none (one NaN would poison
+    its state). An estimator that raises, floods NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN
+    estimates from then on, and the session goes on."""
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.mahony = LiveMahony() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
         self.names = list(names)
         self.clock = clock
-        #: name → why it was disabled (one sentence)
-        self.disabled: dict[str, str] = {}
-        #: sentences not shown yet (the pipeline hands them to the session's display and the viewer's log)
-        self.notes: list[str] = []
+        self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
+        self.notes: list[str] = []  # sentences not shown yet (the pipeline hands them on)
         now = clock()
         self._watch = {name: _Watch(now) for name in self.others}
 
@@ -145,8 +134,11 @@ class LiveEstimators:
                     res = est.run(a.acc_mg[rows_in], a.gyro_mdps[rows_in], a.thr[rows_in].astype(np.int64))
                     valid = np.asarray(res.valid, dtype=bool)
                     q[rows_in] = np.where(valid[:, None], res.q_wxyz, np.nan)
+                except registry.PluginError as exc:  # a user's estimator: names their file and line
+                    why = str(exc)
                 except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
-                    why = failure_sentence(name, exc)
+                    text = str(exc).strip().splitlines()
+                    why = f"estimator {name} failed: {type(exc).__name__}" + (f": {text[0]}" if text else "")
                 else:
                     why = self._verdict(name, est, rows_in.size, valid, self.clock() - t0)
                 if why is not None:
@@ -184,11 +176,3 @@ class LiveEstimators:
         w.busy_s = w.stream_s = 0.0
         w.window_start_s = now
         return None
-
-
-def failure_sentence(name: str, exc: BaseException) -> str:
-    """One sentence for an estimator that raised: a user's (PluginError) names their file and line."""
-    if isinstance(exc, registry.PluginError):
-        return str(exc)
-    text = str(exc).strip().splitlines()
-    return f"estimator {name} failed: {type(exc).__name__}" + (f": {text[0]}" if text else "")

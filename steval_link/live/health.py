@@ -24,33 +24,30 @@ HEALTH_PLAIN_INTERVAL_S = 5.0
 MAX_SERIES_NAMES = 64
 
 
+@dataclass
 class LinkHealth:
     """Counters and rates of the live link, for the health line and the summary (times: host s, Unix epoch)."""
 
-    def __init__(self) -> None:
-        self.attitude = 0
-        self.status = 0
-        self.text = 0
-        self.nonfinite = 0  # attitude frames with a non-finite value
-        self.values_bad = 0  # attitude frames with NaN or out-of-range values (the ``values_bad`` flag)
-        self.inputs_bad = False  # some of those have bad filter inputs (acc, gyro) too
-        self.first_bad_step: int | None = None  # AHRS step of the first of them
-        self.first_bad_t_s: float | None = None  # its firmware time, s (t_us / 10⁶, mod 2³² µs)
-        self._times: collections.deque[tuple[float, int]] = collections.deque(maxlen=512)
-        self.first_frame_s: float | None = None  # host receive time of the first attitude frame
-        self.last_frame_s: float | None = None
-        self.records = 0  # records of text telemetry
-        self.series: dict[str, None] = {}  # their series names, in the order they came (bounded)
+    attitude: int = 0
+    text: int = 0
+    nonfinite: int = 0  # attitude frames with a non-finite value
+    values_bad: int = 0  # attitude frames with NaN or out-of-range values (the ``values_bad`` flag)
+    inputs_bad: bool = False  # some of those have bad filter inputs (acc, gyro) too
+    first_bad_step: int | None = None  # AHRS step of the first of them
+    first_bad_t_s: float | None = None  # its firmware time, s (t_us / 10⁶, mod 2³² µs)
+    first_frame_s: float | None = None  # host receive time of the first attitude frame
+    last_frame_s: float | None = None
+    records: int = 0  # records of text telemetry
+    series: dict[str, None] = field(default_factory=dict)  # their series names, in the order they came (bounded)
+    _times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=512))  # (t, frames so far)
 
     def count_record(self, names: tuple[str, ...]) -> None:
-        """A record of text telemetry with these series."""
         self.records += 1
         if len(self.series) < MAX_SERIES_NAMES:
             self.series.update(dict.fromkeys(names))
 
     def records_part(self, most: int = 6) -> str | None:
-        """'text telemetry: N records, series a, b, c' (at most ``most`` names, then how many more); None without
-        records."""
+        """'text telemetry: N records, series a, b, c' (at most ``most`` names); None without records."""
         if not self.records:
             return None
         names = list(self.series)
@@ -67,22 +64,19 @@ class LinkHealth:
             self._times.append((t_last_s, self.attitude))
 
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
-        """Count the frames flagged ``bad`` ((N,) bool) of a batch with these ``step`` and ``t_us``;
-        ``inputs_bad`` (N,) bool marks bad acc/gyro. True when the first bad frame of the session is among them."""
-        k = int(np.count_nonzero(bad))
-        if not k:
+        """Count the frames flagged ``bad`` (``inputs_bad``: bad acc/gyro); True if the session's first bad is here."""
+        if not (k := int(np.count_nonzero(bad))):
             return False
         self.values_bad += k
         self.inputs_bad = self.inputs_bad or bool(np.any(inputs_bad & bad))
         if self.first_bad_step is not None:
             return False
         i = int(np.argmax(bad))
-        self.first_bad_step = int(step[i])
-        self.first_bad_t_s = int(t_us[i]) / 1e6
+        self.first_bad_step, self.first_bad_t_s = int(step[i]), int(t_us[i]) / 1e6
         return True
 
     def values_sentence(self) -> str | None:
-        """The sentence about the frames with bad values (None when there is none), as every summary says it."""
+        """The sentence about the frames with bad values (None: none), as every summary says it."""
         if not self.values_bad:
             return None
         return values_bad_sentence(self.values_bad, self.first_bad_step, self.first_bad_t_s, inputs=self.inputs_bad)
@@ -150,36 +144,35 @@ class HealthDisplay:
             self._dirty = False
 
 
-def pipeline_health(head: str, pipe, *, after_crc=(), before_replica=(), last=()) -> str:
-    """A health line: ``head``, the frames, bad values, missing frames and CRC failures of ``pipe`` (a
-    :class:`~steval_link.live.pipeline.LivePipeline`), ``after_crc``, the frames held back, ``before_replica``, what
-    the ST filter's Python replica did, ``last``."""
+def pipeline_health(head: str, pipe, serial=None) -> str:
+    """A health line: ``head``, what ``pipe`` (a ``LivePipeline``) counted and what the ST filter's replica did;
+    with a serial link's status ``serial``, the bytes skipped, disconnects, live lag and bytes recorded too."""
     s, h = pipe.decoder.stats, pipe.health
-    parts = [head, f"frames {h.attitude}", f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
-    if h.values_bad:
-        parts.insert(2, h.values_sentence())
-    parts += after_crc
-    if s.implausible:
-        parts.append(f"held back {s.implausible}")
-    parts += before_replica
-    records = h.records_part(most=3)
-    if records:
-        parts.append(records)
+    parts = [head, f"frames {h.attitude}", h.values_sentence(), f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
+    if serial is not None:
+        parts.append(f"skipped {_fmt_bytes(s.bytes_skipped)}")
+    parts.append(f"held back {s.implausible}" if s.implausible else None)
+    if serial is not None:
+        parts.append(f"disconnects {serial.disconnects}" if serial.disconnects else None)
+        lag = serial.live_dropped_bytes
+        parts.append(f"live lag: {_fmt_bytes(lag)} not shown" if lag else None)
+    parts.append(records := h.records_part(most=3))
     if pipe.mahony is not None and (pipe.binary or not records):  # text alone has no bit-exact inputs
         parts.append(pipe.mahony.describe())
-    return " | ".join([*parts, *last])
+    if serial is not None:
+        parts.append(f"rec {_fmt_bytes(serial.bytes_total)}")
+    return " | ".join(p for p in parts if p)
 
 
 def emulated_health(status, pipe, wall_s: float) -> str:
     """The health line of the emulated board: emulated time, its speed against the wall clock, the frames."""
     speed = status.t_link_s / wall_s if wall_s > 0 else 0.0
-    head = f"emulated {status.t_link_s:6.2f}/{status.duration_s:g} s ({speed:.2f}x)"
-    return pipeline_health(head, pipe)
+    return pipeline_health(f"emulated {status.t_link_s:6.2f}/{status.duration_s:g} s ({speed:.2f}x)", pipe)
 
 
 def emulated_summary(status, pipe, flt: dict) -> dict:
-    """The summary fields of the emulated board: its report, and as the filter note the replica's verdict, the
-    release whose filter it ran (``flt``: the capture header's ``filter``) and the steps read by symbol."""
+    """The summary fields of the emulated board: its report; the replica's verdict, its release (``flt``: the
+    capture header's ``filter``) and the steps read by symbol as the filter note."""
     read = status.symbol_rows
     note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
     if note and flt:
@@ -194,8 +187,7 @@ def emulated_summary(status, pipe, flt: dict) -> dict:
 
 
 def ble_health(pipe) -> str:
-    """The health line of a BLE link: the notifications of each characteristic and the motion cadence ("": none
-    yet)."""
+    """The health line of a BLE link: notifications per characteristic and the motion cadence ("": none yet)."""
     c = pipe.ble.counts if pipe is not None else {}
     if not any(c.values()):
         return ""
@@ -253,7 +245,6 @@ class LiveSummary:
 
     @property
     def losses(self) -> int:
-        """Links lost (BLE's word for :attr:`disconnects`)."""
         return self.disconnects
 
     def lines(self) -> list[str]:
@@ -279,12 +270,8 @@ class LiveSummary:
 
     def _serial_line(self) -> str:
         rate = self.attitude / self.streaming_s if self.streaming_s > 0.5 else float("nan")
-        lost = dropped = None
-        if self.disconnects:
-            lost = f"{self.disconnects} disconnect{'s' if self.disconnects > 1 else ''} ({self.offline_s:.1f} s"
-            lost += "; the port did not come back)" if self.lost_for_good else ")"
-        if self.live_dropped_bytes:
-            dropped = f"{_fmt_bytes(self.live_dropped_bytes)} not shown live (in the capture)"
+        n, gone = self.disconnects, "; the port did not come back" if self.lost_for_good else ""
+        dropped = _fmt_bytes(self.live_dropped_bytes)
         parts = [
             f"{_fmt_duration(self.seconds)}",
             f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
@@ -293,15 +280,14 @@ class LiveSummary:
             f"{_fmt_bytes(self.bytes_skipped)} skipped",
             self.values_sentence or (f"{self.nonfinite} with NaN/inf" if self.nonfinite else None),
             self._held_back(),
-            lost,
-            dropped,
+            f"{n} disconnect{'s' if n > 1 else ''} ({self.offline_s:.1f} s{gone})" if n else None,
+            f"{dropped} not shown live (in the capture)" if self.live_dropped_bytes else None,
             self.records_part,
             self.filter_note,
         ]
         return "recorded " + ", ".join(p for p in parts if p) + "; " + self._outputs()
 
     def _rate(self, rate_hz: float) -> str:
-        """The frame rate as it arrived, and the drone's own when a replay ran faster."""
         if self.pace == 1.0:
             return f"{rate_hz:.1f} Hz"
         return f"{rate_hz:.1f} Hz at {self.pace:g}× pace: {rate_hz / self.pace:.1f} Hz in the drone's time"
@@ -319,8 +305,7 @@ class LiveSummary:
         said = [x for x in (self.values_sentence, self._held_back()) if x]
         # the AHRS step cost as replay and compare say it (the capture's status frames), not the run's own counts
         board = [x for x in r.lines()[1:] if not x.startswith("instructions per AHRS step")]
-        cost = self._step_cost()
-        return [head, *said, *board, *([cost] if cost else []), self._outputs()]
+        return [head, *said, *board, *filter(None, [self._step_cost()]), self._outputs()]
 
     def _step_cost(self) -> str | None:
         if self.capture_discarded or not Path(self.capture_path).is_file():
@@ -343,15 +328,14 @@ class LiveSummary:
 
 
 def pipeline_counts(pipe) -> dict[str, Any]:
-    """The summary's counters of a :class:`~steval_link.live.pipeline.LivePipeline` (None: a session that ended
-    before it was made: zeros)."""
+    """The summary's counters of a ``LivePipeline`` (None: a session that ended before it was made: zeros)."""
     if pipe is None:
         return {}
     s, h = pipe.decoder.stats, pipe.health
-    names = ("frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
+    names = ("status", "frames_missing", "crc_failures", "bytes_skipped", "implausible", "held_values")
     return {
         **{name: getattr(s, name) for name in names},
-        **{name: getattr(h, name) for name in ("attitude", "status", "text", "nonfinite")},
+        **{name: getattr(h, name) for name in ("attitude", "text", "nonfinite")},
         "values_sentence": h.values_sentence(),
         "records_part": h.records_part(),
     }

@@ -1,8 +1,5 @@
 """Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`).
-
-The pipeline owns the rows' times (``t_fw_s``, ``t_host_s`` on the capture's base, by ``load_telemetry``'s rules);
-a viewer logs the times it is given.
-"""
+The pipeline times the rows (``t_fw_s``, ``t_host_s`` on the capture's base, by ``load_telemetry``'s rules)."""
 
 from __future__ import annotations
 
@@ -40,20 +37,16 @@ RRD_BATCH_MAX_STREAM_S = 30.0
 
 
 class EventTime(NamedTuple):
-    """When a frame or a note (not an attitude row) happened: firmware s since boot (of a text line or a note:
-    estimated from the latest row, NaN before the first) and host s since capture start."""
+    """When a frame or a note happened: firmware s since boot (NaN before the first row), host s since capture start."""
 
     t_fw_s: float
     t_host_s: float
 
 
 class LiveViewer(Protocol):
-    """What a live session logs to: the Rerun side (``steval_viewer.live_adapter.ViewerLogger``) or a test's fake.
-
-    ``log_link`` gets the session's Unix time, only to pace itself. Optional, used when present: ``has_viewer``
-    (every round goes out at once), ``file`` (the ``.rrd``'s own LiveViewer), ``log_flight``, ``log_record``,
-    ``log_environment``, ``log_arming`` and ``log_note`` (each ``(frame, at)``).
-    """
+    """What a live session logs to (``steval_viewer.live_adapter.ViewerLogger``, a test's fake). Optional, used when
+    present: ``has_viewer``, ``file`` (the ``.rrd``'s own LiveViewer), ``log_flight``, ``log_record``,
+    ``log_environment``, ``log_arming`` and ``log_note`` (each ``(frame, at)``)."""
 
     def log_batch(self, batch: LiveRows) -> None: ...
 
@@ -69,8 +62,7 @@ class LiveViewer(Protocol):
 
 
 class StepUnwrapper(SeqUnwrapper):
-    """Full AHRS step numbers of live attitude frames: a text-mode frame carries its step, a binary frame's u16
-    ``seq`` is unwrapped (a repeated seq is the same step, a step back a firmware restart)."""
+    """Full AHRS steps of live attitude frames: a text-mode frame's own, a binary frame's u16 ``seq`` unwrapped."""
 
     def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these frames."""
@@ -98,32 +90,28 @@ class BatchOutlet:
         self.interval_s = interval_s
         self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
-        self._rows = 0
         self._events: list[tuple[str, tuple]] = []  # (logger method, its arguments)
         self._since = 0.0  # monotonic time the oldest pending item came
 
     def add(self, batch: LiveRows | None = None, event: tuple[str, tuple] | None = None) -> None:
-        """A batch of rows or an event (``("log_status", (frame, at))``...)."""
         if not self._batches and not self._events:
             self._since = time.monotonic()
         if batch is not None:
             self._batches.append(batch)
-            self._rows += len(batch)
         else:
             self._events.append(event)
 
     def tick(self, now_mono: float | None = None) -> None:
-        """Flush when the pending frames have waited ``interval_s`` or fill ``max_rows``."""
         if not (self._batches or self._events):
             return
-        if self._rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+        rows = sum(map(len, self._batches))
+        if rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
             self.flush()
 
     def flush(self) -> None:
-        """Log every pending frame now: one merged batch, then the events in stream order."""
         if self._batches:
             batch = LiveRows.concat(self._batches)
-            self._batches, self._rows = [], 0
+            self._batches = []
             self.logger.log_batch(batch)
         events, self._events = self._events, []
         for name, args in events:
@@ -133,14 +121,10 @@ class BatchOutlet:
 
 
 class LivePipeline:
-    """Bytes → frames → estimators → viewer, for one live stream (in the session's main thread): per round, the
-    attitude frames become one :class:`LiveRows` (``t0_unix_s``, ``baud``: the capture header's) through
-    :class:`LiveEstimators` to ``viewer.log_batch``; other frames are events at their :class:`EventTime`.
-
-    ``view_interval_s``: batches go to the viewer merged at most this often (fewer, larger batches keep Rerun's
-    memory flat); ``file_logger``: the ``.rrd``'s own logger, at ``file_interval_s``. ``text_map``: which series
-    of text telemetry are the attitude. Call :meth:`tick` regularly and :meth:`flush_view` at the end.
-    """
+    """Bytes → frames → estimators → viewer, in the session's main thread: each round's attitude frames become one
+    :class:`LiveRows`; other frames are events at their :class:`EventTime`. ``view_interval_s``: batches go to the
+    viewer merged at most this often (fewer, larger batches keep Rerun's memory flat); ``file_logger``: the
+    ``.rrd``'s own, at ``file_interval_s``. Call :meth:`tick` regularly and :meth:`flush_view` at the end."""
 
     def __init__(
         self,
@@ -156,8 +140,7 @@ class LivePipeline:
         text_map: dict[str, tuple[str, str]] | None = None,
         line_start: bool = False,
     ) -> None:
-        #: the loggers, each with its own cadence (the viewer first)
-        self.outlets = [
+        self.outlets = [  # each logger at its own cadence
             BatchOutlet(logger, interval_s, RRD_BATCH_MAX_STREAM_S if interval_s == RRD_ONLY_INTERVAL_S else None)
             for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
             if logger is not None
@@ -169,22 +152,17 @@ class LivePipeline:
         self.clock = StreamClock(t0_unix_s, baud)  # the rows' firmware and host times (the capture's base)
         self._last_row: tuple[int, float, float] | None = None  # (step, t_fw_s, t_host_s) of the latest row
         self.sample = bytearray()  # the first bytes of the current connection (to describe a stream without frames)
-        #: firmware log lines not shown yet (the session prints them)
-        self.texts: collections.deque[str] = collections.deque(maxlen=32)
-        #: sentences not shown yet: command answers, estimator and link notes
-        self.notes: collections.deque[str] = collections.deque(maxlen=32)
+        self.texts: collections.deque[str] = collections.deque(maxlen=32)  # firmware log lines not shown yet
+        self.notes: collections.deque[str] = collections.deque(maxlen=32)  # command answers, estimator, link notes
         self.host_decoder = StreamDecoder()  # the commands the host sent: logged, and matched to their acks
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.text_attitude = RecordAttitude(text_map)  # records of text telemetry that are an attitude, as rows
         self.binary = False  # binary attitude frames came (the replica's bit-exact inputs): records are only series
-        #: BLE notifications: their decoder and the grid of the sender's samples
-        self.ble, self.grid = B.BleDecoder(), LiveGrid(ble_layout)
-        self._ble_rows = False  # the grid placed rows (its cadence is known)
+        self.ble, self.grid = B.BleDecoder(), LiveGrid(ble_layout)  # BLE notifications → the sender's sample grid
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:
-        """The pipeline of a :class:`~steval_link.live.session.LiveSession`: a live viewer gets every round at once
-        and its ``.rrd`` (the viewer's ``file``) merged batches; a viewer side with only an ``.rrd`` merged too."""
+        """A live session's: a live viewer gets every round at once, an ``.rrd`` merged batches."""
         viewer = session.viewer
         live = viewer is not None and bool(getattr(viewer, "has_viewer", True))
         pipe = cls(
@@ -195,17 +173,16 @@ class LivePipeline:
             t0_unix_s=session.clock.wall0_s,
             baud=session.capture.header["baud"],
             ble_layout=B.layout_named((session.capture.header.get("extra") or {}).get("ble_layout")),
-            text_map=getattr(session.options, "text_map", None),
+            text_map=session.options.text_map,
             line_start=bool(session.info.extra.get("line_start")),
         )
-        variant = getattr(session.options, "variant", None) or (session.info.extra.get("filter") or {}).get("variant")
+        variant = session.options.variant or (session.info.extra.get("filter") or {}).get("variant")
         if variant is not None and pipe.mahony is not None:  # --variant: the release's filter, whatever the status
             pipe.mahony.force_variant(variant)
         return pipe
 
     @property
     def mahony(self) -> LiveMahony | None:
-        """The ST Mahony filter followed live (None when ``st-mahony`` is not among the estimators)."""
         return self.estimators.mahony if self.estimators is not None else None
 
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
@@ -221,21 +198,17 @@ class LivePipeline:
                     att.append((frame, t_unix_s))
                     self.binary = self.binary or frame.exact
                     continue
-                ack = frame if isinstance(frame, F.AckFrame) else None
-                if isinstance(frame, F.TextFrame) and frame.text.startswith("#ACK"):
-                    ack = ack_of_text(frame.text)
-                if ack is not None:
+                ack = ack_of_text(frame.text) if isinstance(frame, F.TextFrame) else frame  # "#ACK ..." in text mode
+                if isinstance(ack, F.AckFrame):
                     self._ack(ack, self._at_frame(frame))
                     continue
                 if isinstance(frame, (F.StatusFrame, F.TextFrame, F.FlightFrame)):
                     self._attitude(att)  # the rows before it first (the filter steps before a snapshot)
                 if isinstance(frame, F.StatusFrame):
-                    self.health.status += 1
                     self.step_unwrap.status(int(frame.step))
-                    t_fw_s = float(clock.fw_s([int(frame.t_us)])[0])  # through the unwrapper in stream order
                     if self.mahony is not None:
                         self.mahony.status(frame)
-                    at = EventTime(t_fw_s, self._host_of_frame(frame))
+                    at = EventTime(float(clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
                     self._event("log_status", frame, at)
                     if int(frame.flags) & P.FLAG_EVENT:
                         text = f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}"
@@ -284,8 +257,7 @@ class LivePipeline:
 
     def _ack(self, ack, at: EventTime) -> None:
         command = self._sent.get(int(ack.cmd_seq))
-        if command is not None and command.cmd != int(ack.cmd):
-            command = None
+        command = command if command is not None and command.cmd == int(ack.cmd) else None
         self._note(describe_ack(command, ack), at, "INFO" if int(ack.result) == P.ACK_ACCEPTED else "WARN")
 
     def _note(self, text: str, at: EventTime, level: str, *, show: bool = True) -> None:
@@ -294,17 +266,14 @@ class LivePipeline:
         self._event("log_event", text, at, level)
 
     def _event(self, name: str, *args) -> None:
-        """An event to every logger: ``name`` is its method (``log_status``...), ``args`` its arguments."""
         for outlet in self.outlets:
             outlet.add(event=(name, args))
 
     def tick(self, now_mono: float | None = None) -> None:
-        """Hand the pending frames to each logger whose interval has passed."""
         for outlet in self.outlets:
             outlet.tick(now_mono)
 
     def flush_view(self) -> None:
-        """Hand every pending frame to every logger now: one merged batch each, then the events."""
         for outlet in self.outlets:
             outlet.flush()
 
@@ -326,10 +295,9 @@ class LivePipeline:
         all_finite &= np.where(
             a.exact, np.isfinite(a.q_wxyz).all(axis=1), np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad)
         )
-        if self.health.count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
-            i = int(np.argmax(a.values_bad))  # a note on the terminal; the viewer marks the step itself (log/filter)
-            self.notes.append(
-                f"firmware values bad from step {int(step[i])} on (t = {int(t_us[i]) / 1e6:.3f} s): "
+        if (h := self.health).count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
+            self.notes.append(  # the session's first bad frame; the viewer marks the step itself (log/filter)
+                f"firmware values bad from step {h.first_bad_step} on (t = {h.first_bad_t_s:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
         # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)
@@ -350,12 +318,9 @@ class LivePipeline:
         for outlet in self.outlets:
             outlet.add(rows)
 
-    # -- BLE notifications --------------------------------------------------------------------------------------
-
     def feed_ble(self, records: list, *, final: bool = False) -> None:
-        """BLE notifications ``(char id, payload, t_host_s)`` (s since the capture started; char id None: the link
-        was lost and found again) → frames → the sender's samples on one grid (:class:`LiveGrid`: dt from their
-        cadence) → estimators → loggers; environment, arming and console frames are events at their tick.
+        """BLE notifications ``(char id, payload, t_host_s)`` (char id None: the link was lost and found again) →
+        the sender's samples on one grid (dt from their cadence) → estimators → loggers; other frames are events.
         ``final``: the stream ended (rows held back for the cadence go out)."""
         motion = []
         for cid, payload, t_host_s in records:
@@ -371,8 +336,7 @@ class LivePipeline:
         self.grid.add(motion)
         a = self.grid.rows(final)
         if a is not None and len(a):
-            if not self._ble_rows:  # the cadence was just found; what the rows are, said once
-                self._ble_rows = True
+            if not self.health.attitude:  # the grid's first rows: its cadence was just found; what they are, once
                 if self.estimators is not None:
                     self.estimators.use_dt(self.grid.dt_s)
                 for text in link_notes(a.acc_mg, self.grid.layout):  # on the terminal too unless the stock note

@@ -1,8 +1,5 @@
-"""``steval param`` / ``steval command``: send commands to the drone on a serial port and wait for its answers.
-
-For each command: write its frame, then read until its acknowledgement (and the ``EVENT`` status frame that
-follows an accepted one) or ``timeout_s``.
-"""
+"""``steval param`` / ``steval command``: send a command to the drone on a serial port, then read until its
+acknowledgement (and the ``EVENT`` status frame that follows an accepted one) or ``timeout_s``."""
 
 from __future__ import annotations
 
@@ -22,9 +19,7 @@ from steval_link.link.transport import close_quietly
 from steval_link.live.serial_source import open_port
 from steval_link.live.session import open_capture
 
-__all__ = ["Reply", "run_commands", "DEFAULT_TIMEOUT_S"]
-
-DEFAULT_TIMEOUT_S = 2.0
+__all__ = ["Reply", "run_command"]
 
 
 @dataclass
@@ -41,17 +36,9 @@ class Reply:
         return int(self.ack.result) == P.ACK_ACCEPTED
 
 
-def run_commands(
-    port: str,
-    baud: int,
-    commands: list[Command],
-    *,
-    timeout_s: float = DEFAULT_TIMEOUT_S,
-    out: Path | None = None,
-) -> list[Reply]:
-    """Send ``commands`` one after the other and return the drone's replies (UserError on no answer).
-
-    ``out``: also record the session (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
+def run_command(port: str, baud: int, command: Command, *, timeout_s: float = 2.0, out: Path | None = None) -> Reply:
+    """Send ``command`` and return the drone's reply (UserError on no answer). ``out``: also record the exchange
+    (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
     try:
         path, ser = open_port(port, baud)
     except UserError as exc:  # the advice to wait goes: no waiting for one command
@@ -72,18 +59,16 @@ def run_commands(
                 raise UserError(f"cannot write to {path}: {exc}") from None
 
         channel = CommandChannel(write, capture.write_host if capture is not None else None)
-        decoder = StreamDecoder()
-        return [_one(ser, path, channel, decoder, command, timeout_s, capture) for command in commands]
+        return _answer(ser, path, channel, command, timeout_s, capture)
     finally:
         if capture is not None:
             capture.close()
         close_quietly(ser)
 
 
-def _one(
-    ser, path: str, channel: CommandChannel, decoder: StreamDecoder, command: Command, timeout_s: float, capture
-) -> Reply:
+def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s: float, capture) -> Reply:
     sent = channel.send(command)
+    decoder = StreamDecoder()
     deadline = time.monotonic() + timeout_s
     ack: AckFrame | None = None
     got_bytes = False

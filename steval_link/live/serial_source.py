@@ -1,15 +1,10 @@
 """The serial driver of a live session: a port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or a replay
-(``replay://FILE.stv``, played at its recorded pace as a port).
-
-A reader thread (:class:`~steval_link.link.transport.SerialReader`, which reopens an unplugged port) hands each
-chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox` each round takes. A wrong baud
-rate or another device: one line and :class:`LinkError`. Commands go out through the reader's locked write.
-"""
+(``replay://FILE.stv``, played at its recorded pace as a port). A reader thread (``SerialReader``, which reopens an
+unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox`."""
 
 from __future__ import annotations
 
 import collections
-import dataclasses
 import math
 import os
 import threading
@@ -30,20 +25,12 @@ from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
 from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
-__all__ = ["LinkError", "SerialSource", "open_port", "check_frames", "serial_health", "serial_summary"]
+__all__ = ["LinkError", "SerialSource", "open_port", "serial_health", "serial_summary"]
 
-#: Wrong baud / not a STEVAL: give up after this long with bytes but no valid frame, s (sooner with many bytes) ...
-NO_FRAMES_TIMEOUT_S = 2.5
-#: ... or after this long once at least NO_FRAMES_EARLY_BYTES arrived without a valid frame.
-NO_FRAMES_EARLY_S = 1.0
-NO_FRAMES_EARLY_BYTES = 2048
-#: How long a round waits for the reader's first chunk, s.
-ROUND_WAIT_S = 0.02
-#: Most bytes waiting between the reader thread and the decoder before the oldest are dropped from the live view.
-INBOX_MAX_BYTES = 4 * 1024 * 1024
-#: A port reopened after a loss that sends no valid frame for this long is not the drone, s ...
+ROUND_WAIT_S = 0.02  # how long a round waits for the reader's first chunk, s
+INBOX_MAX_BYTES = 4 * 1024 * 1024  # bytes held for the decoder before the oldest leave the live view
+#: A port reopened after a loss is the drone once it sent PROBATION_FRAMES valid frames; none in PROBATION_S: not
 PROBATION_S = 3.0
-#: ... and it is the drone once it sent this many valid attitude or status frames.
 PROBATION_FRAMES = 2
 #: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
 #: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
@@ -56,15 +43,13 @@ class LinkError(ParamError):
 
 
 def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=None) -> tuple[str, serial.Serial]:
-    """(path, open port) of ``url``: a replay URL, or the port :func:`~steval_link.link.autodetect.choose_port`
-    picks; one UserError sentence (with the ports there are) when it cannot be opened. ``wait``: until the port
-    appears (``note(text)`` says so once) or ``stopped()``."""
+    """(path, open port) of a replay URL or the port ``choose_port`` picks; one UserError sentence (with the ports
+    there are) when it cannot be opened. ``wait``: until it appears (``note(text)`` says so once) or ``stopped()``."""
     if is_replay_url(url):  # the one place a source is opened by its URL scheme
         return url, open_replay(url, baud=baud)
-    deadline = time.monotonic() + (math.inf if wait else 0.0)
     said = note is None  # a waiting note is said once
     while True:
-        waiting = time.monotonic() < deadline and not (stopped and stopped())
+        waiting = wait and not (stopped and stopped())
         try:
             path = autodetect.choose_port(url, baud)
         except autodetect.PortChoiceError as exc:
@@ -96,8 +81,7 @@ class Inbox:
         self._chunks: collections.deque[tuple[bytes, float]] = collections.deque()
         self._bytes = 0
         self._cond = threading.Condition()
-        #: bytes dropped from the live view because the main thread fell behind (still in the capture)
-        self.dropped_bytes = 0
+        self.dropped_bytes = 0  # dropped from the live view as the main thread fell behind (still in the capture)
 
     def put(self, data: bytes, t_unix_s: float) -> None:
         with self._cond:
@@ -121,18 +105,13 @@ class Inbox:
 
 
 class RecorderProtocol(Protocol):
-    """Reader-thread side: every chunk to the capture first (handed to the OS at once), then to the inbox.
+    """Reader-thread side: every chunk to the capture first, then to the inbox; connection events to the capture
+    and :attr:`status`. A port reopened after a loss that sends no valid frame on probation is rejected and the
+    search goes on. Another program that reads the port is named once and the port is kept."""
 
-    Connection events go into the capture (``disconnect`` / ``reconnect`` mark the gap) and :attr:`status`.
-    A port reopened after a loss is on probation until it sends valid frames; one that sends none for
-    :data:`PROBATION_S` is rejected (:class:`~steval_link.link.transport.PortRejected`) and the search goes on.
-    Another program that reads the port is named once and the port is kept.
-    """
-
-    def __init__(self, capture, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
-        self.capture, self.inbox, self.finder, self.clock = capture, inbox, finder, clock
-        #: the link as the session sees it (``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic)
-        self.status = LinkStatus()
+    def __init__(self, record: Record, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
+        self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock
+        self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self._probe: StreamDecoder | None = None
         self._probe_frames = 0
@@ -145,6 +124,10 @@ class RecorderProtocol(Protocol):
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
         return (self.clock.now_s() if t_unix_s is None else t_unix_s) - self.clock.wall0_s
 
+    def _mark(self, kind: str, text: str, t_s: float | None = None) -> None:
+        """A link event into the capture (``t_s``: on its time base; None: now)."""
+        self.record(Chunk("E", (kind, text), self._t_capture() if t_s is None else t_s))
+
     def connection_made(self, port: str) -> None:
         st, now = self.status, time.monotonic()
         st.connections += 1
@@ -152,9 +135,7 @@ class RecorderProtocol(Protocol):
         if st.connections > 1:  # back after a loss: the drone only once it sends valid frames
             st.probing, self._probe, self._probe_frames = port, StreamDecoder(), 0
             self._probe_at = self._t_capture()  # its bytes flow from now on (the capture marks where)
-            self.capture.mark_event(
-                "reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at
-            )
+            self._mark("reconnect", f"{port} opened again after {now - (st.lost_at_s or now):.2f} s", self._probe_at)
             return
         st.connected = True
         self._say_holders(port)
@@ -164,7 +145,6 @@ class RecorderProtocol(Protocol):
         st = self.status
         back = st.connected_at_s or time.monotonic()  # its bytes flowed from the reopening on
         gap = max(0.0, back - (st.lost_at_s or back))
-        st.offline_s += gap
         if st.offline and st.offline[-1][1] is None:
             st.offline[-1] = (st.offline[-1][0], self._probe_at + self.clock.wall0_s)
         port, st.probing, self._probe = st.probing, None, None
@@ -173,7 +153,7 @@ class RecorderProtocol(Protocol):
         self._say_holders(port)
 
     def data_received(self, data: bytes, t_unix_s: float) -> None:
-        self.capture.write(data, self._t_capture(t_unix_s))  # first: whatever happens next, the bytes are kept
+        self.record(Chunk("D", data, self._t_capture(t_unix_s)))  # first: whatever happens next, the bytes are kept
         self.status.bytes_total += len(data)
         self.status.connect_bytes += len(data)
         self.inbox.put(data, t_unix_s)
@@ -198,16 +178,14 @@ class RecorderProtocol(Protocol):
     def _say_holders(self, port: str, *, force: bool = False) -> list[tuple[int, str]]:
         """Name the other programs that have ``port`` open, once each (looked up at most every few seconds)."""
         now = time.monotonic()
-        if not force and now - self._holders_checked_s < HOLDERS_CHECK_S:
-            return []
-        if force and now - self._holders_checked_s < 1.0:
-            return self._holders
+        if now - self._holders_checked_s < (1.0 if force else HOLDERS_CHECK_S):
+            return self._holders if force else []
         self._holders_checked_s = now
         self._holders = ports.port_holders(port)
         if new := [h for h in self._holders if h[0] not in self._holders_said]:
             self._holders_said.update(pid for pid, _ in new)
             sentence = ports.holders_sentence(port, new)
-            self.capture.mark_event("shared", sentence, self._t_capture())
+            self._mark("shared", sentence)
             self.events.append(sentence)
         return self._holders
 
@@ -219,7 +197,7 @@ class RecorderProtocol(Protocol):
         if isinstance(exc, PortRejected):  # not the drone: keep looking (still the same disconnect)
             if self.finder is not None:
                 self.finder.reject(was_probing)
-            self.capture.mark_event("rejected", str(exc), self._t_capture())
+            self._mark("rejected", str(exc))
             self.events.append(f"{was_probing} answers but sends no valid frames: not the drone; still looking")
             return
         if was_probing is not None:  # lost again before it sent a frame: the same disconnect goes on
@@ -230,13 +208,12 @@ class RecorderProtocol(Protocol):
         st.offline.append((self.clock.now_s(), None))
         if self.finder is not None:
             self.finder.mark_lost()
-        self.capture.mark_event("disconnect", f"{self.status.port}: {exc}", self._t_capture())
+        self._mark("disconnect", f"{self.status.port}: {exc}")
         self.events.append(f"disconnected from {self.status.port}, waiting for it to come back")
 
 
 def offline_within(offline: list, t0_s: float, t1_s: float, now_s: float) -> float:
-    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (``offline``: (lost, back or None) host
-    times, as :class:`RecorderProtocol` keeps them; a loss not over yet lasts to ``now_s``)."""
+    """Seconds without the drone between host times ``t0_s`` and ``t1_s`` (a loss not over yet lasts to ``now_s``)."""
     return sum((max(0.0, min(t1_s, now_s if back is None else back) - max(t0_s, lost)) for lost, back in offline), 0.0)
 
 
@@ -246,14 +223,12 @@ class SerialSource(Source):
     def __init__(self, url: str, *, baud: int = C.BAUD, wait: bool = False) -> None:
         self.url, self.baud, self.wait = url, baud, wait
         self.path, self.ser = url, None  # the port opened (a glob or auto resolved)
-        self.reader: SerialReader | None = None
-        self.proto: RecorderProtocol | None = None
+        self.reader = self.proto = None  # the reader thread and its protocol, once chunks() starts them
         self.inbox = Inbox()
         self._closed = threading.Event()  # close() (also before the port appeared: --wait)
 
     @classmethod
     def from_url(cls, url: str, **settings: Any) -> SerialSource:
-        """A port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or ``replay://FILE[?speed=X]`` (:func:`open_port`)."""
         return cls(url, **settings)
 
     @property
@@ -264,24 +239,17 @@ class SerialSource(Source):
     def status(self) -> LinkStatus:
         if self.proto is None:
             return LinkStatus(port=self.path, wait=self.wait)
-        return dataclasses.replace(
-            self.proto.status,
-            live_dropped_bytes=self.inbox.dropped_bytes,
-            reopen_error=self.reader.reopen_error if self.reader is not None else None,
-            wait=self.wait,
-            pace=float(getattr(self.ser, "speed", 1.0) or 1.0),  # a replay's ?speed=
-            offline=list(self.proto.status.offline),
-        )
+        st = self.proto.status  # the reader thread's, kept up to date
+        st.live_dropped_bytes, st.reopen_error = self.inbox.dropped_bytes, self.reader.reopen_error
+        return st
 
     def open(self, note=print) -> None:
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
         self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._closed.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
             self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
-            if getattr(self.ser, "emulated", False):  # its status frames count emulated instructions, not cycles
-                self._extra["emulated"] = True
-            if self.ser.line_start:  # a log: its first line is whole, live and in the capture made of it
-                self._extra["line_start"] = True
+            # an emulator's file (its status frames count instructions); a log (its first line is whole)
+            self._extra.update({flag: True for flag in ("emulated", "line_start") if getattr(self.ser, flag)})
         else:
             identity = autodetect.PortIdentity.of(self.path)
             glob = self.url if autodetect.is_glob(self.url) else None
@@ -299,8 +267,8 @@ class SerialSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The reader thread starts now: each chunk to the capture first, then to the inbox each round takes."""
-        self.proto = RecorderProtocol(_Capture(record), self.inbox, self.finder, clock)
+        self.proto = RecorderProtocol(record, self.inbox, self.finder, clock)
+        self.proto.status.wait, self.proto.status.pace = self.wait, float(getattr(self.ser, "speed", 1.0) or 1.0)
         find = self.finder.find if self.finder is not None else None
         self.reader = SerialReader(self.ser, self.proto, baud=self.ser.baudrate, clock=clock, find_port=find)
         self.reader.start()
@@ -334,31 +302,6 @@ class SerialSource(Source):
             self.ser.close()
 
 
-class _Capture:
-    """The capture as :class:`RecorderProtocol` writes it (bytes, events), through the session's ``record``."""
-
-    def __init__(self, record: Record) -> None:
-        self.record = record
-
-    def write(self, data: bytes, t_s: float) -> None:
-        self.record(Chunk("D", data, t_s))
-
-    def mark_event(self, kind: str, text: str, t_s: float | None = None) -> None:
-        self.record(Chunk("E", (kind, text), t_s))
-
-
-def check_frames(status: LinkStatus, pipe, baud: int, now: float) -> ParamError | None:
-    """Wrong baud rate / not a STEVAL / silence: the sentence when no frame came in time on this connection (None:
-    frames came, or not yet time to say)."""
-    stats = pipe.decoder.stats
-    if stats.attitude + stats.status + stats.text_records > 0 or not status.connected or status.connected_at_s is None:
-        return None
-    elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
-    if not (elapsed >= NO_FRAMES_TIMEOUT_S or (elapsed >= NO_FRAMES_EARLY_S and nbytes >= NO_FRAMES_EARLY_BYTES)):
-        return None
-    return autodetect.no_frames_message(status.port or "?", baud, bytes(pipe.sample), elapsed, total=nbytes)
-
-
 def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float, word=param_word) -> str:
     """The health line of a serial port or a replay (``word``: how its advice names a parameter)."""
     s = pipe.decoder.stats
@@ -374,43 +317,31 @@ def serial_health(status: LinkStatus, pipe, now_mono_s: float, now_unix_s: float
     else:
         rate = pipe.health.rate_hz(now_unix_s)
         head = f"{status.port} {'--' if math.isnan(rate) else f'{rate:5.1f}'} Hz"
-    more = [f"disconnects {status.disconnects}"] if status.disconnects else []
-    if status.live_dropped_bytes:
-        more.append(f"live lag: {_fmt_bytes(status.live_dropped_bytes)} not shown")
-    skipped = f"skipped {_fmt_bytes(s.bytes_skipped)}"
-    return pipeline_health(
-        head, pipe, after_crc=[skipped], before_replica=more, last=[f"rec {_fmt_bytes(status.bytes_total)}"]
-    )
+    return pipeline_health(head, pipe, status)
 
 
 def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
-    """The summary fields of a serial port or a replay (``now_s``: the host's Unix time; a loss not over yet lasts
-    until then)."""
+    """The summary fields of a serial port or a replay (``now_s``: the host's Unix time)."""
     h = pipe.health if pipe is not None else LinkHealth()
     streaming_s = 0.0
-    offline_s = offline_within(status.offline, -math.inf, math.inf, now_s)  # every loss measured
-    if h.first_frame_s is not None and h.last_frame_s is not None:  # the rate's time: connected, with frames
+    if h.first_frame_s is not None:  # the rate's time: connected, with frames
         within = offline_within(status.offline, h.first_frame_s, h.last_frame_s, now_s)
         streaming_s = max(0.0, h.last_frame_s - h.first_frame_s - within)
-    p = pipe.mahony if pipe is not None else None
-    filter_note = None
-    if p is not None:
-        if p.rows_mismatch:
-            filter_note = f"ST replica differs from the firmware on {p.rows_mismatch} frames"
-        elif p.rows_exact:
-            filter_note = f"ST replica bit-exact on {p.rows_exact} frames"
-        elif not pipe.binary:
-            filter_note = "ST replica not run (no binary frames: text has no bit-exact inputs)"
-        else:
-            filter_note = "ST replica not seeded (no status snapshot)"
-        if p.rows_mismatch or p.rows_exact:
-            filter_note += f" with {p.settings.variant}'s filter"
+    p, filter_note = (pipe.mahony if pipe is not None else None), None
+    if p is not None and (p.rows_mismatch or p.rows_exact):
+        what = f"differs from the firmware on {p.rows_mismatch}" if p.rows_mismatch else f"bit-exact on {p.rows_exact}"
+        filter_note = f"ST replica {what} frames with {p.settings.variant}'s filter"
+    elif p is not None:
+        why = (
+            "run (no binary frames: text has no bit-exact inputs)" if not pipe.binary else "seeded (no status snapshot)"
+        )
+        filter_note = f"ST replica not {why}"
     return {
         **pipeline_counts(pipe),
         "streaming_s": streaming_s,
         "bytes_total": status.bytes_total,
         "disconnects": status.disconnects,
-        "offline_s": offline_s,
+        "offline_s": offline_within(status.offline, -math.inf, math.inf, now_s),  # every loss measured
         "lost_for_good": bool(status.offline and status.offline[-1][1] is None),
         "live_dropped_bytes": status.live_dropped_bytes,
         "pace": status.pace,

@@ -1,15 +1,12 @@
 """The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`) → capture → decoder → estimators → viewer.
-
-The source writes each chunk to the capture first, so a slow viewer never costs bytes. The session owns, once for
-every source: the capture file, the viewer, the command prompt, the stop requests and the summary.
-"""
+(:func:`source_for`) → capture → decoder → estimators → viewer. Each chunk goes to the capture first, so a slow
+viewer never costs bytes; the session owns the capture, viewer, prompt, stop requests and summary."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib
+import functools
 import signal
 import sys
 import time
@@ -18,41 +15,45 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from steval_link.errors import ParamError, UserError, param_word
-from steval_link.link.ble_payloads import ble_chunk
-from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter, default_capture_path
+from steval_link.link.autodetect import no_frames_message
+from steval_link.link.capture import CaptureWriter, default_capture_path
 from steval_link.link.transport import HostClock
 from steval_link.live import health
 from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
-from steval_link.live.serial_source import LinkError, SerialSource, check_frames, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source
+from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
 
+#: A serial link with bytes but no valid frame (wrong baud, not a STEVAL): one sentence after this long, s ...
+NO_FRAMES_TIMEOUT_S = 2.5
+#: ... or after this long once at least NO_FRAMES_EARLY_BYTES came.
+NO_FRAMES_EARLY_S = 1.0
+NO_FRAMES_EARLY_BYTES = 2048
+
 BLE_SCHEME = "ble:"
 EMULATED_SCHEME = "emulated:"
-#: the drivers chosen by a URL scheme (loaded only when a session uses one); any other URL is a serial port's
-DRIVERS = {
-    BLE_SCHEME: ("steval_link.live.ble_source", "BleSource"),
-    EMULATED_SCHEME: ("steval_link.live.emulated", "EmulatedSource"),
-}
 
 
 def source_for(url: str, **settings: Any) -> Source:
     """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
     ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
-    for scheme, (module, name) in DRIVERS.items():
-        if url.lower().startswith(scheme):
-            driver = getattr(importlib.import_module(module), name)  # reason: BLE and the emulator load only when used
-            return driver.from_url(url, **settings)
-    return SerialSource.from_url(url, **settings)
+    if url.lower().startswith(BLE_SCHEME):
+        from steval_link.live.ble_source import BleSource  # reason: BLE loads only when used
+
+        return BleSource.from_url(url, **settings)
+    if url.lower().startswith(EMULATED_SCHEME):
+        from steval_link.live.emulated import EmulatedSource  # reason: the emulator loads only when used
+
+        return EmulatedSource.from_url(url, **settings)
+    return SerialSource.from_url(url, **settings)  # any other URL is a serial port's
 
 
 def port_source(port: str, **settings: Any) -> Source:
-    """The source a ``port`` value names: a serial port or ``replay://`` (BLE and the emulated board: one sentence
-    naming their own commands)."""
+    """A serial port or ``replay://`` (BLE and the emulated board: one sentence naming their own commands)."""
     low = port.lower()
     if low.startswith(BLE_SCHEME):
         name = port[len(BLE_SCHEME) :].strip()
@@ -73,7 +74,6 @@ class LiveOptions:
     sinks: Any = None
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
-    recordings_dir: Path = Path("recordings")
     prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal
     link_kind: str | None = None  # the source's kind ("serial", "ble"...), set by the session: the viewer's layout
     variant: str | None = None  # the ST release whose filter the replica runs ("ST 221117"); None: the status's
@@ -82,12 +82,9 @@ class LiveOptions:
 
 
 class LiveSession:
-    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`.
-
-    ``stream``: where the health line and notes go (stderr). ``viewer_factory(options, recording_name)`` makes the
-    Rerun side (needed with ``options.sinks``). ``check_outputs``: the CLI's checks of the outputs, run once the
-    input is open and before any file is made.
-    """
+    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`. ``stream``: where
+    the health line and notes go (stderr); ``viewer_factory(options, recording_name)``: the Rerun side (needed with
+    ``options.sinks``); ``check_outputs``: the CLI's output checks, run once the input is open, before any file."""
 
     def __init__(
         self,
@@ -133,10 +130,18 @@ class LiveSession:
         src, opts = self.source, self.options
         src.open(self.display.note)  # the input first: a bad port, ELF or BLE backend is one line before any file
         try:
-            self.info = src.describe()
+            self.info = info = src.describe()
             if self.check_outputs is not None:
                 self.check_outputs()
-            capture = self.capture = self._open_capture()
+            path = Path(opts.out) if opts.out else default_capture_path()
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
+            extra = {**info.extra, "estimators": list(opts.estimators)}
+            capture = self.capture = open_capture(
+                path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty
+            )
         except BaseException:
             src.close()
             raise
@@ -146,11 +151,14 @@ class LiveSession:
         started, stream = False, None
         with on_stop_signals(self._on_signal):
             try:
-                self._opening_note()
-                stream = src.chunks(self._record, self.clock)  # bytes flow into the capture now, as the viewer starts
+                if info.note:  # (BLE says when it is connected)
+                    rrd = f" and {opts.sinks.rrd}" if opts.sinks is not None and opts.sinks.rrd else ""
+                    self.display.note(f"{info.note}; recording to {capture.path}{rrd} (Ctrl-C to stop)")
+                # bytes flow into the capture now, as the viewer starts
+                stream = src.chunks(functools.partial(record_chunk, capture), self.clock)
                 if opts.sinks is not None:
-                    name = self.info.recording_name or capture.path.stem
-                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=self.info.kind), name)
+                    name = info.recording_name or capture.path.stem
+                    self.viewer = self.viewer_factory(dataclasses.replace(opts, link_kind=info.kind), name)
                 self.pipeline = LivePipeline.for_session(self)
                 self.console = self._console()
                 started = True
@@ -178,21 +186,9 @@ class LiveSession:
             seconds=time.monotonic() - t0,
             stopped_by=self._stop_reason or "end",
             capture_discarded=capture.discarded,
-            kind=self.info.kind,
+            kind=info.kind,
             **self._summary_fields(),
         )
-
-    def _opening_note(self) -> None:
-        if self.info.note:  # (BLE says when it is connected)
-            sinks = self.options.sinks
-            and_rrd = f" and {sinks.rrd}" if sinks is not None and sinks.rrd else ""
-            self.display.note(f"{self.info.note}; recording to {self.capture.path}{and_rrd} (Ctrl-C to stop)")
-
-    def _record(self, chunk: Chunk) -> None:
-        """A chunk into the capture, first (any thread)."""
-        write = _WRITE.get(chunk.kind)
-        if write is not None:
-            write(self.capture, chunk.data, chunk.t_s)
 
     def _take(self, chunks: list[Chunk]) -> None:
         """One round's chunks to the pipeline, in order; notes to the terminal."""
@@ -244,20 +240,24 @@ class LiveSession:
                 break
 
     def _check_link(self, now: float) -> None:
-        """A serial link: a reconnection starts a new sample; no frame ever: one sentence (a note with --wait)."""
+        """A serial link: new connection, new sample; no valid frame in time: one sentence (a note with ``wait``)."""
         if self.info.kind != "serial":
             return
-        status = self.source.status
+        status, stats, sample = self.source.status, self.pipeline.decoder.stats, self.pipeline.sample
         if status.connected and not self._connected:  # a new connection: a new sample
-            self.pipeline.sample.clear()
+            sample.clear()
         self._connected = status.connected
-        if self._warned_no_frames or (message := check_frames(status, self.pipeline, self.info.baud, now)) is None:
+        frames = stats.attitude + stats.status + stats.text_records
+        if self._warned_no_frames or frames or not status.connected or status.connected_at_s is None:
             return
-        if status.wait:
-            self._warned_no_frames = True
-            self.display.note(message.worded(self.options.word) + "; still waiting")
+        elapsed, nbytes = now - status.connected_at_s, status.connect_bytes
+        if elapsed < NO_FRAMES_TIMEOUT_S and (elapsed < NO_FRAMES_EARLY_S or nbytes < NO_FRAMES_EARLY_BYTES):
             return
-        raise LinkError(message.template, *message.params)
+        message = no_frames_message(status.port or "?", self.info.baud, bytes(sample), elapsed, total=nbytes)
+        if not status.wait:
+            raise LinkError(message.template, *message.params)
+        self._warned_no_frames = True
+        self.display.note(message.worded(self.options.word) + "; still waiting")
 
     def _health(self, now: float, t0: float) -> str:
         kind, pipe, status = self.info.kind, self.pipeline, self.source.status
@@ -281,35 +281,20 @@ class LiveSession:
         if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
             return
         with contextlib.suppress(Exception):  # the capture is whole whatever happens here
-            for chunks in stream:
+            for chunks in stream:  # (a BLE link's last round ends it: its held rows go out)
                 self._take(chunks)
-            if self.info.kind == "ble":
-                self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
 
     def _error_of(self, error: BaseException) -> BaseException:
-        """The error raised: a capture that could not be written, or the emulated board's error, says where the
-        bytes until then are."""
+        """The error raised: a capture that failed, or the emulated board's error, says where the bytes are."""
         if isinstance(error, OSError) and not isinstance(error, UserError):  # disk full, deleted, replaced
             return UserError(capture_failure_sentence(self.capture, error))
         if self.info.own_clock and isinstance(error, UserError):
             return UserError(f"{error} (the capture {self.capture.path} holds everything until then)")
         return error
 
-    def _open_capture(self) -> CaptureWriter:
-        """The capture file, with the source's header fields; one sentence when it cannot be made."""
-        opts, info = self.options, self.info
-        path = Path(opts.out) if opts.out else default_capture_path(opts.recordings_dir)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
-        extra = {**info.extra, "estimators": list(opts.estimators)}
-        return open_capture(path, port=info.link, baud=info.baud, extra=extra, discard_empty=info.discard_empty)
-
     def _close_outputs(self, stop_reason: str) -> None:
-        """The capture (its stop event at the link's time), then the Rerun side (a failure is a note), then the
-        health line."""
+        """The capture (its stop event at the link's time), the Rerun side (a failure is a note), the health line."""
         with contextlib.suppress(Exception):  # the capture's bytes are written already; the event is a courtesy
             t = self._t_link_s if self.info is not None and self.info.own_clock else None
             self.capture.mark_event("stop", stop_reason, t_host_s=t)
@@ -323,7 +308,10 @@ class LiveSession:
 
     def _console(self) -> CommandConsole:
         """The command prompt: each frame typed goes to the source (locked), then into the capture and the log."""
-        prompt = self.options.prompt if self.options.prompt is not None else _stdin_is_tty()
+        prompt = self.options.prompt
+        if prompt is None:  # when stdin is a terminal
+            with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
+                prompt = sys.stdin.isatty()
         enabled = bool(prompt) and self.info.takes_commands
         console = CommandConsole(self.source.write, self.display.note, record=self._sent, enabled=enabled)
         if enabled:
@@ -331,7 +319,7 @@ class LiveSession:
         return console
 
     def _sent(self, frame: bytes) -> None:
-        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as chunks H)."""
+        """A typed command as sent: into the capture (chunk H) and the pipeline (the board's come back as H chunks)."""
         if self.info.own_clock:
             return
         t_unix_s = self.clock.now_s()
@@ -366,20 +354,3 @@ def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
-
-
-#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
-_WRITE = {
-    "D": lambda cap, data, t_s: cap.write(data, t_s),
-    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
-    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
-    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
-    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
-    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
-}
-
-
-def _stdin_is_tty() -> bool:
-    with contextlib.suppress(AttributeError, ValueError):  # no stdin, or a closed one
-        return sys.stdin.isatty()
-    return False

@@ -9,8 +9,7 @@ drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.ses
 ``ble:NAME``, ``ble:ADDRESS``, ``ble:``  a drone over Bluetooth (:mod:`.ble_source`, ``--ble``)
 ====================================  ======================================================================
 
-A source has five public methods. It hands each chunk to the ``record`` function it is given (the capture) first,
-then on, timestamped; it never reads the session, which owns the rest.
+A source hands each chunk to the ``record`` function it is given (the capture) first; it never reads the session.
 """
 
 from __future__ import annotations
@@ -20,9 +19,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from steval_link.errors import UserError
+from steval_link.link.ble_payloads import ble_chunk
+from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
 from steval_link.live.console import PROMPT_HELP
 
-__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source", "record_chunk"]
 
 #: Chunk kinds besides the capture's own
 NOTE, BREAK, END = "note", "break", "end"
@@ -43,6 +44,22 @@ class Chunk:
 
 #: ``record(chunk)``: the session's capture, written first (thread-safe)
 Record = Callable[[Chunk], None]
+
+#: how each kind of chunk goes into the capture (``data``, ``t_s`` of a :class:`Chunk`)
+_WRITE = {
+    "D": lambda cap, data, t_s: cap.write(data, t_s),
+    "B": lambda cap, data, t_s: cap.write_chunk(CHUNK_BLE, ble_chunk(*data), t_s),
+    "H": lambda cap, data, t_s: cap.write_host(data, t_s),
+    "T": lambda cap, rows, t_s: cap.write_truth(rows.step, rows.t_s, rows.q_wxyz, rows.movement, t_s),
+    "E": lambda cap, data, t_s: cap.mark_event(*data, t_s),
+    "S": lambda cap, data, t_s: cap.write_chunk(CHUNK_SYMBOLS, data, t_s),
+}
+
+
+def record_chunk(capture: CaptureWriter, chunk: Chunk) -> None:
+    """A chunk into ``capture`` as its kind is written (notes, breaks and ends are not recorded)."""
+    if (write := _WRITE.get(chunk.kind)) is not None:
+        write(capture, chunk.data, chunk.t_s)
 
 
 @dataclass
@@ -73,7 +90,6 @@ class LinkStatus:
     bytes_total: int = 0
     lost_at_s: float | None = None  # monotonic time of the last loss
     connected_at_s: float | None = None  # monotonic time of the last connection
-    offline_s: float = 0.0
     connect_bytes: int = 0  # bytes of the current connection
     live_dropped_bytes: int = 0  # bytes dropped from the live view (in the capture)
     reopen_error: Any = None  # (path, exception): it is back but cannot be opened
@@ -88,9 +104,8 @@ class LinkStatus:
 
 
 class Source:
-    """One link of a live session. The session calls :meth:`open`, :meth:`describe` (the capture header),
-    :meth:`chunks` (each item: the chunks of one round, [] when none came), :meth:`write` (any thread) and
-    :meth:`close` (the iterator then yields what is left, once)."""
+    """One link of a live session: :meth:`open`, :meth:`describe` (the capture header), :meth:`chunks` (each item:
+    one round's chunks, [] when none came), :meth:`write` (any thread), :meth:`close` (then what is left, once)."""
 
     status: LinkStatus
 
@@ -102,8 +117,7 @@ class Source:
         raise NotImplementedError
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        """The link's chunks, each handed to ``record`` first; ``clock``: the session's ``HostClock`` (its origin
-        is the capture's start)."""
+        """The link's chunks, each handed to ``record`` first; ``clock``: the session's ``HostClock``."""
         raise NotImplementedError
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
