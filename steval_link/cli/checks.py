@@ -81,31 +81,23 @@ KiOption = option(
     Optional[float],
     "--ki",
     help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).",
-    show_default=False,
 )
-KpGroundOption = option(
-    Optional[float], "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False
-)
-KpFlightOption = option(
-    Optional[float], "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False
-)
+KpGroundOption = option(Optional[float], "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).")
+KpFlightOption = option(Optional[float], "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).")
 MinThrOption = option(
     Optional[int],
     "--min-thr",
     help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).",
-    show_default=False,
 )
 CorrectionOption = option(
     Optional[bool],
     "--correction/--no-correction",
     help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
-    show_default=False,
 )
 DtOption = option(
     Optional[float],
     "--dt",
     help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).",
-    show_default=False,
 )
 
 
@@ -117,10 +109,9 @@ ThrottleScheduleOption = option(
     metavar="N|t:v,...",
     help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in between, held "
     "outside).",
-    show_default=False,
 )
 #: --throttle-schedule's former name, hidden: the header commands of captures made with it still run
-ThrottleFormerOption = option(Optional[str], "--throttle", hidden=True, show_default=False)
+ThrottleFormerOption = option(Optional[str], "--throttle", hidden=True)
 
 
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
@@ -130,7 +121,6 @@ VariantOption = option(
     metavar="RELEASE",
     help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 beta) or "
     "221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
-    show_default=False,
 )
 
 

@@ -76,7 +76,6 @@ def compare_command(
         Optional[list[Path]],
         help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
         "flights side by side (see below).",
-        show_default=False,
         metavar="CAPTURE",
     ) = None,
     as_json: JsonReportOption = False,

@@ -40,13 +40,11 @@ def broad_command(
         metavar="TRIALS",
         help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the accuracy table "
         "(02 07 10 15 24 27).",
-        show_default=False,
     ) = None,
     directory: option(
         Optional[Path],
         "--dir",
         help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
-        show_default=False,
     ) = None,
 ) -> None:
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time

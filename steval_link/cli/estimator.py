@@ -39,7 +39,7 @@ def starter_source(class_name: str = STARTER_CLASS) -> str:
 
 @estimator_app.command("new")
 def new_command(
-    file: argument(Path, help="The Python file to write, e.g. my_ekf.py.", show_default=False),
+    file: argument(Path, help="The Python file to write, e.g. my_ekf.py."),
     class_name: option(str, "--class", help="Name of the estimator class in it.") = STARTER_CLASS,
     force: ForceOption = False,
 ) -> None:
@@ -65,14 +65,12 @@ def check_command(
         str,
         help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
         "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
-        show_default=False,
     ),
     broad_path: option(
         Optional[list[Path]],
         "--broad",
         help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
         f"{DEFAULT_BROAD} when it exists.",
-        show_default=False,
     ) = None,
     no_broad: option(bool, "--no-broad", help="Do not score on BROAD trials (quicker).") = False,
     as_json: JsonReportOption = False,

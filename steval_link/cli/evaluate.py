@@ -48,9 +48,7 @@ _HELP = (
 
 
 _OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-_Csv = option(
-    Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
-)
+_Csv = option(Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.")
 
 
 @app.command("evaluate", help=_HELP)
@@ -59,7 +57,6 @@ def evaluate_command(
         Optional[list[Path]],
         help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of "
         "steval data broad.",
-        show_default=False,
     ) = None,
     estimators: option(
         Optional[list[str]],
@@ -76,7 +73,6 @@ def evaluate_command(
         "--plot",
         help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
         'pip install "steval-link\\[plot]").',
-        show_default=False,
     ) = None,
     sensor_noise: option(
         bool,
@@ -90,21 +86,18 @@ def evaluate_command(
         Optional[list[Path]],
         "--firmware",
         help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
-        show_default=False,
     ) = None,
     csv_out: _Csv = None,
     markdown_out: option(
         Optional[Path],
         "--markdown",
         help="Also write the table as Markdown (to paste in a report) to this file.",
-        show_default=False,
     ) = None,
     max_seconds: option(
         Optional[float],
         "--max-seconds",
         help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
         "starts after 26-46 s).",
-        show_default=False,
     ) = None,
     variant: VariantOption = None,
 ) -> None:

@@ -91,7 +91,7 @@ def check_baud(baud: int) -> None:
 @app.command("live")
 @with_rerun_options
 def live_command(
-    port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto.", show_default=False),
+    port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto."),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
@@ -114,7 +114,7 @@ def live_command(
         'bleak: pip install "steval-link\\[ble]".',
     ),
     device: Optional[str] = typer.Argument(
-        None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
+        None, metavar="[NAME|ADDRESS]", help="With --ble: the drone's BLE name or address."
     ),
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
     variant: VariantOption = None,

@@ -39,7 +39,6 @@ MapOption = option(
     help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
     f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
     "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
-    show_default=False,
 )
 
 
@@ -140,7 +139,6 @@ def replay(
         Optional[Path],
         help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled demo "
         "recording.",
-        show_default=False,
     ) = None,
     as_json: option(bool, "--json", help="Print the summary as JSON (for scripts).") = False,
     estimators: option(
@@ -150,7 +148,6 @@ def replay(
         help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
         "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
         f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
-        show_default=False,
     ) = None,
     variant: VariantOption = None,
     force: ForceOption = False,

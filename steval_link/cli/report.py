@@ -36,9 +36,7 @@ def _spectrum(tel):
 
 @app.command("report")
 def report_command(
-    captures: argument(
-        list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
-    ),
+    captures: argument(list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", metavar="CAPTURE"),
     out: option(
         Optional[Path], "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
     ) = None,

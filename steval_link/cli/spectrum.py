@@ -37,9 +37,7 @@ _MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not 
 @app.command("spectrum")
 @with_rerun_options
 def spectrum_cmd(
-    capture: argument(
-        Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
-    ),
+    capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content."),
     plot: option(
         Optional[Path],
         "--plot",
@@ -60,7 +58,6 @@ def spectrum_cmd(
         metavar="ROWS",
         help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
         f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-        show_default=False,
     ) = None,
     overlap: option(float, "--overlap", help="Fraction of a window the next one overlaps.") = 0.5,
     throttle_bins: option(
