@@ -81,7 +81,6 @@ def compare_command(
     as_json: JsonReportOption = False,
     plot: option(
         Optional[Path],
-        "--plot",
         metavar="OUT.png",
         help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
         "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more "
@@ -91,13 +90,12 @@ def compare_command(
     filters: dict = None,
     align: option(
         str,
-        "--align",
         metavar="time|motion",
         help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the "
         "gyro with the first capture's (motion; the lag found is printed).",
     ) = "time",
     label: option(
-        Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
+        Optional[list[str]], help="Two or more captures: the name of each flight, in order (repeat it)."
     ) = None,
     force: ForceOption = False,
     text_map: MapOption = None,

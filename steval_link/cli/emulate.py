@@ -64,22 +64,19 @@ def emulate_command(
     ) = "bench",
     broad: option(
         Optional[Path],
-        "--broad",
         help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
         "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
     ) = None,
     duration: option(
         Optional[float],
-        "--duration",
         help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ "
         "2.985 s).",
     ) = None,
-    seed: option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
+    seed: option(int, help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
     mount: option(
         Optional[str],
-        "--mount",
         help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
         "reversed), as a wrong COORDINATE_SYSTEM would read it.",
     ) = None,
@@ -94,7 +91,6 @@ def emulate_command(
     realtime: _Realtime = False,
     commands: option(
         Optional[Path],
-        "--commands",
         help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction "
         "off', '15 reset'), sent to the firmware's USART1 RX at those times.",
     ) = None,

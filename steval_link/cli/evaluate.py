@@ -70,7 +70,6 @@ def evaluate_command(
     own_rate: _OwnRate = False,
     plot: option(
         Optional[Path],
-        "--plot",
         help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
         'pip install "steval-link\\[plot]").',
     ) = None,
@@ -80,11 +79,10 @@ def evaluate_command(
         help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
         "quantisation.",
     ) = False,
-    seed: option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).") = 0,
+    seed: option(int, help="Seed of --sensor-noise (runs are deterministic).") = 0,
     force: ForceOption = False,
     firmware: option(
         Optional[list[Path]],
-        "--firmware",
         help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
     ) = None,
     csv_out: _Csv = None,
@@ -95,7 +93,6 @@ def evaluate_command(
     ) = None,
     max_seconds: option(
         Optional[float],
-        "--max-seconds",
         help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
         "starts after 26-46 s).",
     ) = None,

@@ -80,19 +80,17 @@ _Degrees = option(
 def export(
     capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log."),
     csv: option(
-        Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
+        Optional[Path], help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
     ) = None,
-    parquet: option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
-    raw: option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
+    parquet: option(Optional[Path], help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
+    raw: option(Optional[Path], help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
     mat: option(
         Optional[Path],
-        "--mat",
         help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
         "settings and header (needs scipy).",
     ) = None,
     mcap: option(
         Optional[Path],
-        "--mcap",
         help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
         "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
     ) = None,

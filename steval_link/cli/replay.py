@@ -152,7 +152,7 @@ def replay(
     variant: VariantOption = None,
     force: ForceOption = False,
     text_map: MapOption = None,
-    ble_layout: option(Optional[str], "--ble-layout", help=BLE_LAYOUT_HELP) = None,
+    ble_layout: option(Optional[str], help=BLE_LAYOUT_HELP) = None,
     rerun: SinkOptions = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST

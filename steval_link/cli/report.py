@@ -42,12 +42,11 @@ def report_command(
     ) = None,
     markdown: option(
         Optional[Path],
-        "--markdown",
         metavar="REPORT.md",
         help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
     ) = None,
     estimator: CompareEstimatorsOption = None,
-    title: option(Optional[str], "--title", help="The report's title.") = None,
+    title: option(Optional[str], help="The report's title.") = None,
     force: ForceOption = False,
 ) -> None:
     """A lab report in one command: per capture its summary and filter settings, the attitude figure with

@@ -203,11 +203,10 @@ _GyroNoise = option(
 @app.command("simulate")
 def simulate_command(
     gyro: option(
-        tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+        tuple[float, float, float], metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
     ) = BASELINE_GYRO_MDPS,
     acc: option(
         tuple[float, float, float],
-        "--acc",
         metavar="X Y Z",
         help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
     ) = BASELINE_ACC_MG,
@@ -218,14 +217,13 @@ def simulate_command(
     gyro_noise: _GyroNoise = None,
     acc_noise: option(
         Optional[str],
-        "--acc-noise",
         metavar="MG|on",
         help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
     ) = None,
-    seed: option(Optional[int], "--seed", help="Noise seed (default: random, printed).") = None,
-    throttle: option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
+    seed: option(Optional[int], help="Noise seed (default: random, printed).") = None,
+    throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
     ki: KiOption = None,
-    kp: option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.") = None,
+    kp: option(Optional[float], help="Proportional gain, replacing both 10 and 0.4.") = None,
     correction: CorrectionOption = None,
     variant: VariantOption = None,
     dt: DtOption = None,
@@ -240,16 +238,14 @@ def simulate_command(
         Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
     ) = None,
     json_out: option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.") = False,
-    rrd: option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.") = None,
+    rrd: option(Optional[Path], help="Log the run to a Rerun .rrd file for the viewer.") = None,
     plot: option(
         Optional[Path],
-        "--plot",
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     compare_with: option(
         Optional[list[str]],
-        "--compare-with",
         metavar="NAME=VALUE,...",
         help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
         "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with "

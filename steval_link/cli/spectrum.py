@@ -40,33 +40,29 @@ def spectrum_cmd(
     capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content."),
     plot: option(
         Optional[Path],
-        "--plot",
         help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, "
         '.pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     csv_out: _Csv = None,
     mark_hz: option(
         Optional[list[float]],
-        "--mark-hz",
         metavar="HZ",
         help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro "
         "also at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
     ) = None,
     nperseg: option(
         Optional[int],
-        "--nperseg",
         metavar="ROWS",
         help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
         f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
     ) = None,
-    overlap: option(float, "--overlap", help="Fraction of a window the next one overlaps.") = 0.5,
+    overlap: option(float, help="Fraction of a window the next one overlaps.") = 0.5,
     throttle_bins: option(
         int,
-        "--throttle-bins",
         metavar="N",
         help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
     ) = 10,
-    peaks: option(int, "--peaks", metavar="N", help="Peaks printed per axis.") = 3,
+    peaks: option(int, metavar="N", help="Peaks printed per axis.") = 3,
     min_hz: _MinHz = 1.0,
     force: ForceOption = False,
     rerun: SinkOptions = None,

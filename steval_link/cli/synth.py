@@ -41,11 +41,11 @@ def synth_cmd(
         "/dev/ttyUSB0 > FILE).",
     ) = None,
     duration: option(
-        Optional[float], "--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
+        Optional[float], help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
     ) = None,
-    seed: option(int, "--seed", help="Seed of every random choice; same seed, same bytes.") = 0,
+    seed: option(int, help="Seed of every random choice; same seed, same bytes.") = 0,
     baud: option(
-        int, "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+        int, help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
     ) = BAUD,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
@@ -56,17 +56,15 @@ def synth_cmd(
     ) = False,
     join_at: _JoinAt = 0.0,
     drop_rate: option(
-        float, "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+        float, help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
     ) = 0.0,
     encoder: _Encoder = "python",
     c_encoder: option(
         Optional[Path],
-        "--c-encoder",
         help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
     ) = None,
     vibration: option(
         Optional[list[str]],
-        "--vibration",
         metavar="SENSOR-AXIS:HZ:AMP",
         help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); repeatable. To "
         "check steval spectrum against known peaks.",
