@@ -12,8 +12,6 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, LAYOUTS, layout_named
 from steval_link.link.ble_transport import BleBackend, BleDevice, bleak_backend, explain_ble_error
 
-__all__ = ["ble_app", "scan_devices", "format_devices"]
-
 ble_app = sub_app("ble", "Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).")
 
 

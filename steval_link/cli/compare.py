@@ -49,8 +49,6 @@ from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import SinkOptions
 
-__all__ = ["compare_command"]
-
 
 def flight_plot_path(out_png: Path) -> Path:
     """Where ``--plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""

@@ -17,8 +17,6 @@ from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.errors import UserError
 
-__all__ = ["estimator_app", "STARTER_CLASS", "DEFAULT_BROAD"]
-
 estimator_app = sub_app(
     "estimator", "Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md."
 )

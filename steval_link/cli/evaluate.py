@@ -16,8 +16,6 @@ from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.estimators.plugins import split_list
 
-__all__ = ["evaluate_command"]
-
 _HELP = (
     "Inclination accuracy of the estimators against ground truth.\n\n"
     "DATA are BROAD trial .npz files (acc m/s², gyr rad/s, quat wxyz IMU→ENU, movement, fs), directories (their "

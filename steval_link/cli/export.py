@@ -19,9 +19,6 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = ["write_csv", "write_parquet", "write_atomic"]
-
-
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
 ANGLE_COLUMNS = {f"{p}{a}_rad": f"{p}{a}_deg" for p in ("", "target_") for a in ("thx_pitch", "thy_roll", "thz_yaw")}
 

@@ -15,21 +15,6 @@ from pathlib import Path
 from steval_link.cli.app import option
 from steval_link.errors import UserError
 
-__all__ = [
-    "OUTPUT_OPTIONS",
-    "ForceOption",
-    "JsonReportOption",
-    "atomic_output",
-    "check_input",
-    "check_output",
-    "check_outputs",
-    "output_error",
-    "partial_path",
-    "print_json",
-    "print_warnings",
-    "write_atomic",
-]
-
 #: option names whose value is a file a command writes
 OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap", "--markdown"})
 #: suffix of a file being written (renamed into place when complete)

@@ -8,8 +8,6 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["Progress", "progress_bar", "scaled", "SHOW_AFTER_S"]
-
 #: progress(fraction done 0..1, stage) — what library functions call; the stage is a few words
 Progress = Callable[[float, str], None]
 

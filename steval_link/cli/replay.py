@@ -29,8 +29,6 @@ from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.text_series import MAP_TARGETS, parse_map
 from steval_viewer.sink_options import SinkOptions
 
-__all__ = ["MapOption", "load_replay", "run_estimators"]
-
 #: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
 MapOption = option(
     Optional[list[str]],

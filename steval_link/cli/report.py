@@ -21,8 +21,6 @@ from steval_link.estimators import registry
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording
 
-__all__ = ["report_command"]
-
 
 def _spectrum(tel):
     """The spectra and peaks of ``tel``, or (None, {}, the sentence why there are none)."""
