@@ -31,15 +31,15 @@ from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["Capture", "Scores", "open_capture", "run_estimator", "evaluate", "require_pandas"]
 
-PANDAS_HINT = 'to_pandas() needs pandas, which is not installed: pip install pandas (or "steval-link[pandas]")'
-
 
 def require_pandas():
     """The pandas module, or ImportError with the install hint."""
     try:
         import pandas  # optional: only to_pandas() needs it
     except ImportError:
-        raise ImportError(PANDAS_HINT) from None
+        raise ImportError(
+            'to_pandas() needs pandas, which is not installed: pip install pandas (or "steval-link[pandas]")'
+        ) from None
     return pandas
 
 
@@ -107,12 +107,6 @@ def _instance_reference(est) -> plugins.Selected:
     return plugins.Selected(name, ref, lambda: copy.deepcopy(est), type(est).__name__)
 
 
-def _selected(estimator) -> str:
-    if isinstance(estimator, str):
-        return estimator if estimator in registry.ESTIMATORS else registry.resolve(estimator)
-    return _instance_reference(estimator)
-
-
 def run_estimator(estimator, data) -> AttitudeEstimate:
     """Run an estimator from power-up over a capture's attitude rows.
 
@@ -131,13 +125,11 @@ def run_estimator(estimator, data) -> AttitudeEstimate:
     if isinstance(data, (str, Path)):
         data = open_capture(data)
     tel = data.telemetry if isinstance(data, Capture) else data
-    sel = _selected(estimator)
-    if isinstance(sel, plugins.Selected) and sel.reference.kind == "object":
-        est = registry.create(sel)  # a fresh copy, guarded
+    if not isinstance(estimator, str):
+        est = registry.create(_instance_reference(estimator))  # a fresh copy, guarded
         est.reset()
-        a = tel.attitude
-        return est.run(a.acc_mg, a.gyro_mdps, a.thr)
-    out, why = _run_named(sel, tel)
+        return est.run(tel.attitude.acc_mg, tel.attitude.gyro_mdps, tel.attitude.thr)
+    out, why = _run_named(estimator if estimator in registry.ESTIMATORS else registry.resolve(estimator), tel)
     if out is None:
         raise UserError(f"estimator {estimator!r} is {why}")
     return out
