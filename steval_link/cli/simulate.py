@@ -70,25 +70,15 @@ def _noise(text: Optional[str], typical: float, what: str, unit: str, on: bool =
     return value
 
 
-def _text(value) -> str:
-    """Shortest decimal that parses (as a double) back to exactly the value; 'nan' for NaN."""
-    return repr(float(value))
-
-
-def _rows(res: SimulationResult):
-    rad = np.column_stack([res.eax_rad, res.eay_rad, res.eaz_rad]).astype(np.float64)
-    for k in range(res.iterations):
-        floats = [*res.q_wxyz[k], *rad[k], *np.degrees(rad[k])]
-        acc_gyro = [_text(v) for v in [*res.acc_mg[k], *res.gyro_mdps[k]]]
-        valid = "1" if res.valid[k] else "0"
-        yield [str(int(res.step[k])), *acc_gyro, str(int(res.thr[k])), *[_text(v) for v in floats], valid]
-
-
 def write_csv(res: SimulationResult, stream) -> None:
-    """Every iteration as CSV (header :data:`CSV_COLUMNS`); floats round-trip exactly."""
+    """Every iteration as CSV (header :data:`CSV_COLUMNS`); each float as the shortest decimal that reads back."""
     writer = csv.writer(stream, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
-    writer.writerows(_rows(res))
+    rad = np.column_stack([res.eax_rad, res.eay_rad, res.eaz_rad]).astype(np.float64)
+    for k in range(res.iterations):
+        acc_gyro = [repr(float(v)) for v in [*res.acc_mg[k], *res.gyro_mdps[k]]]
+        floats = [repr(float(v)) for v in [*res.q_wxyz[k], *rad[k], *np.degrees(rad[k])]]
+        writer.writerow([str(int(res.step[k])), *acc_gyro, str(int(res.thr[k])), *floats, "1" if res.valid[k] else "0"])
 
 
 #: the run's fields in ``--json``, before its final angles and rows
@@ -274,8 +264,10 @@ def simulate_command(
     inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
     res = _run("", **inputs, seed=seed, throttle=throttle, estimator=estimator, estimator_options=options, dt_s=dt)
     if rrd is not None:
+        from steval_viewer.simulate_log import log_simulation  # Rerun loads only for --rrd (start-up time)
+
         with atomic_output(rrd, option="--rrd") as part:
-            _log_rrd(res, part)
+            log_simulation(res, part)
     others = _compare_runs(compare_with or [], dict(inputs, seed=res.seed), options, throttle, estimator)
     if plot is not None:
         from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
@@ -326,24 +318,8 @@ def _run(what: str, **kwargs) -> SimulationResult:
         raise UserError(str(exc)) from None
 
 
-def _log_rrd(res: SimulationResult, path: Path) -> None:
-    try:
-        from steval_viewer.simulate_log import log_simulation  # Rerun loads only for --rrd (start-up time)
-    except ImportError:
-        raise UserError("--rrd needs the viewer's steval_viewer.simulate_log, which this installation lacks") from None
-    log_simulation(res, path)
-
-
-#: ``--compare-with`` names → (estimator option or run setting, value type)
-_COMPARE_NAMES = {
-    "ki": ("ki", float),
-    "kp": ("kp", float),
-    "dt": ("dt_s", float),
-    "correction": ("correction", bool),
-    "variant": ("variant", str),
-    "throttle": ("throttle", int),
-    "estimator": ("estimator", str),
-}
+#: ``--compare-with`` names → value type (each an estimator option, ``dt`` as ``dt_s``, or a run setting)
+_COMPARE_NAMES = dict(ki=float, kp=float, dt=float, correction=bool, variant=str, throttle=int, estimator=str)
 
 
 def _compare_value(name: str, text: str, kind: type):
@@ -376,19 +352,18 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
                 raise UserError(
                     f"--compare-with {spec!r}: give NAME=VALUE pairs, NAME one of {', '.join(_COMPARE_NAMES)}"
                 )
-            key, kind = _COMPARE_NAMES[name]
-            v = _compare_value(name, text.strip(), kind)
-            if key == "throttle":
+            v = _compare_value(name, text.strip(), _COMPARE_NAMES[name])
+            if name == "throttle":
                 check_throttle("--compare-with throttle", v)
                 thr = v
-            elif key == "variant":
-                opts[key] = check_variant(v)
-            elif key == "estimator":
+            elif name == "variant":
+                opts[name] = check_variant(v)
+            elif name == "estimator":
                 if not registry.is_known(v):
                     raise UserError(f"--compare-with estimator={v}: unknown estimator")
                 est = v if v in registry.ESTIMATORS else registry.resolve(v)
             else:
-                opts[key] = v
+                opts["dt_s" if name == "dt" else name] = v
         if est != "st-mahony" and est != estimator:
             opts = {}  # another estimator: its own defaults (the filter options are the firmware filter's)
         r = _run(f"--compare-with {spec}", **inputs, throttle=thr, estimator=est, estimator_options=opts)
