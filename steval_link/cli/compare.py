@@ -36,11 +36,7 @@ from steval_link.cli.outputs import (
 )
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
-from steval_link.cli.viewer_options import (
-    check_view_flags,
-    view_sinks,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import check_view_flags, view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import run_estimator
@@ -48,12 +44,6 @@ from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import SinkOptions
-
-
-def flight_plot_path(out_png: Path) -> Path:
-    """Where ``--plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
-    return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
-
 
 #: ``-e`` of compare and report: the estimators compared with the firmware
 CompareEstimatorsOption = option(
@@ -110,18 +100,15 @@ def compare_command(
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
     if captures and len(captures) > 1:
-        flags = {"--estimator": estimator}
-        flags |= {("--correction/--no-correction" if k == "correction" else flag_of(k)): v for k, v in filters.items()}
-        _side_by_side(
-            captures,
-            as_json=as_json,
-            plot=plot,
-            force=force,
-            align=align,
-            labels=label,
-            replica_options=flags,
-            viewer=rerun,
-        )
+        given = [k for k, v in {"estimator": estimator, **filters}.items() if v is not None]
+        if given:
+            flags = [("--correction/--no-correction" if k == "correction" else flag_of(k)) for k in given]
+            verb = "applies" if len(flags) == 1 else "apply"
+            raise UserError(
+                f"{', '.join(flags)} {verb} to one capture; with two or more captures the flights are compared with "
+                "each other (run steval compare CAPTURE on each for the replica)."
+            )
+        _side_by_side(captures, as_json=as_json, plot=plot, force=force, align=align, labels=label, viewer=rerun)
         return
     if align != "time" or label or rerun.any():
         raise UserError(
@@ -151,7 +138,9 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
         require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
-        fc_plot = flight_plot_path(plot) if plot is not None and no_fc_plot is None else None
+        fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png
+        if plot is not None and no_fc_plot is None:
+            fc_plot = plot.with_name(f"{plot.stem}-flight-control{plot.suffix or '.png'}")
         if fc_plot is not None:
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         print_warnings(seen)  # the capture's damage (and a note in --json)
@@ -169,7 +158,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
             progress(0.9, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_comparison(tel, report, part)
-                if fc_plot is not None:  # the flight-control figure, where the drone was armed
+                if fc_plot is not None:
                     with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
@@ -206,16 +195,8 @@ def _load_flight(path: Path):
     return flight_of_telemetry(path, tel, src.warnings)
 
 
-def _side_by_side(
-    captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, replica_options, viewer
-) -> None:
+def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, viewer):
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
-    given = [opt for opt, v in replica_options.items() if v is not None]
-    if given:
-        raise UserError(
-            f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to one capture; with two or more "
-            "captures the flights are compared with each other (run steval compare CAPTURE on each for the replica)."
-        )
     if align not in ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):

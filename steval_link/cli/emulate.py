@@ -19,12 +19,7 @@ from steval_link.cli.checks import (
 )
 from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
-from steval_link.cli.viewer_options import (
-    CaptureOutOption,
-    NoViewOption,
-    check_view_flags,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry

@@ -16,12 +16,7 @@ from steval_link.cli.checks import VariantOption, check_variant, estimator_names
 from steval_link.cli.outputs import check_output
 from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
-from steval_link.cli.viewer_options import (
-    CaptureOutOption,
-    NoViewOption,
-    check_view_flags,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend

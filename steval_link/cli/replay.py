@@ -17,10 +17,7 @@ from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant, estimator_names
 from steval_link.cli.outputs import ForceOption, print_json, print_warnings
 from steval_link.cli.progress import Progress, progress_bar, scaled
-from steval_link.cli.viewer_options import (
-    view_sinks,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator

@@ -13,9 +13,7 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
-from steval_link.cli.viewer_options import (
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import with_rerun_options
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
 from steval_viewer.sink_options import SinkOptions, check_sinks
