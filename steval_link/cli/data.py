@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Optional
 
@@ -17,12 +18,7 @@ data_app = sub_app("data", "Data sets on demand: BROAD trials with optical groun
 
 
 def _require_data_extra() -> None:
-    missing = []
-    for module in ("pooch", "h5py", "platformdirs"):
-        try:
-            __import__(module)
-        except ImportError:
-            missing.append(module)
+    missing = [module for module in ("pooch", "h5py", "platformdirs") if importlib.util.find_spec(module) is None]
     if missing:
         raise UserError(f'steval data needs {", ".join(missing)}: pip install "steval-link[data]"')
 
