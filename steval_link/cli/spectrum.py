@@ -13,10 +13,10 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
-from steval_link.cli.viewer_options import with_rerun_options
+from steval_link.cli.viewer_options import view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import SinkOptions, check_sinks
+from steval_viewer.sink_options import SinkOptions
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -74,13 +74,10 @@ def spectrum_cmd(
     marks = list(mark_hz or [])
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
-    rrd = rerun.rrd
-    check_outputs({"--plot": plot, "--csv": csv_out, "--rrd": rrd}, force=force, inputs=(capture,))
+    check_outputs({"--plot": plot, "--csv": csv_out}, force=force, inputs=(capture,))
+    options = view_sinks(rerun, force=force, inputs=(capture,))  # a bad --rrd or a dead --connect URL: before the work
     if plot is not None:
         _check_plot_format(plot)
-    options = rerun if rerun.any() else None
-    if options is not None:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        check_sinks(options)
     with progress_bar("spectrum", quiet=rerun.serve) as progress:
         tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
         require_attitude(tel, "take a spectrum of")
@@ -110,8 +107,8 @@ def spectrum_cmd(
         try:
             spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
         except KeyboardInterrupt:
-            if rrd is not None:  # the sink writes it whole or not at all
-                print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
+            if rerun.rrd is not None:  # the sink writes it whole or not at all
+                print(f"steval: {rerun.rrd} not written (interrupted before it was complete)", file=sys.stderr)
             raise
 
 
