@@ -2,7 +2,7 @@
 
 import functools
 import inspect
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 
@@ -63,7 +63,7 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _top_level(
-    version: Optional[bool] = typer.Option(
+    version: bool | None = typer.Option(
         None, "--version", is_eager=True, callback=_print_version, help="Print the version and exit."
     ),
 ) -> None:

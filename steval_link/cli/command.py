@@ -4,7 +4,6 @@ USART1 RX, its acknowledgement printed (a refusal or no answer: one ``steval: er
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -20,13 +19,13 @@ _Port = option(
 _Baud = option(int, "--baud", "-b", help="Baud rate of the firmware build.")
 _Timeout = option(float, "--timeout", help="Seconds to wait for the drone's acknowledgement.")
 _Out = option(
-    Optional[Path], "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
+    Path | None, "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
 )
 #: the four options every command here takes: (parameter, annotation, default)
 _LINK_PARAMS = (("port", _Port, "auto"), ("baud", _Baud, C.BAUD), ("timeout", _Timeout, 2.0), ("out", _Out, None))
 
 
-def _exchange(port: str, baud: int, timeout: float, out: Optional[Path]):
+def _exchange(port: str, baud: int, timeout: float, out: Path | None):
     """The link options as one function: ``send(command)`` sends it and returns the drone's reply."""
 
     def send(command: Command):
@@ -60,7 +59,7 @@ def _finish(reply) -> None:
 @param_app.command("get")
 @_with_link
 def param_get(
-    name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
+    name: str | None = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
 ) -> None:
     """Print a filter parameter as the drone reports it now (asks for a status frame)."""
     if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
@@ -47,7 +46,7 @@ from steval_viewer.sink_options import SinkOptions
 
 #: ``-e`` of compare and report: the estimators compared with the firmware
 CompareEstimatorsOption = option(
-    Optional[list[str]],
+    list[str] | None,
     "--estimator",
     "--estimators",
     "-e",
@@ -61,14 +60,14 @@ CompareEstimatorsOption = option(
 @with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
     captures: argument(
-        Optional[list[Path]],
+        list[Path] | None,
         help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
         "flights side by side (see below).",
         metavar="CAPTURE",
     ) = None,
     as_json: JsonReportOption = False,
     plot: option(
-        Optional[Path],
+        Path | None,
         metavar="OUT.png",
         help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
         "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more "
@@ -82,9 +81,7 @@ def compare_command(
         help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the "
         "gyro with the first capture's (motion; the lag found is printed).",
     ) = "time",
-    label: option(
-        Optional[list[str]], help="Two or more captures: the name of each flight, in order (repeat it)."
-    ) = None,
+    label: option(list[str] | None, help="Two or more captures: the name of each flight, in order (repeat it).") = None,
     force: ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -32,13 +31,13 @@ _BROAD_HELP = (
 @data_app.command("broad", help=_BROAD_HELP)
 def broad_command(
     trials: argument(
-        Optional[list[str]],
+        list[str] | None,
         metavar="TRIALS",
         help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the accuracy table "
         "(02 07 10 15 24 27).",
     ) = None,
     directory: option(
-        Optional[Path],
+        Path | None,
         "--dir",
         help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
     ) = None,

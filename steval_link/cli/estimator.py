@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -65,7 +64,7 @@ def check_command(
         "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
     ),
     broad_path: option(
-        Optional[list[Path]],
+        list[Path] | None,
         "--broad",
         help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
         f"{DEFAULT_BROAD} when it exists.",

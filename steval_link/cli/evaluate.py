@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -46,18 +45,18 @@ _HELP = (
 
 
 _OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-_Csv = option(Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.")
+_Csv = option(Path | None, "--csv", help="Also write the table (coverage marks included) to this CSV file.")
 
 
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
     data: argument(
-        Optional[list[Path]],
+        list[Path] | None,
         help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of "
         "steval data broad.",
     ) = None,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimators",
         "-e",
         help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, "
@@ -67,7 +66,7 @@ def evaluate_command(
     as_json: JsonReportOption = False,
     own_rate: _OwnRate = False,
     plot: option(
-        Optional[Path],
+        Path | None,
         help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
         'pip install "steval-link\\[plot]").',
     ) = None,
@@ -80,17 +79,17 @@ def evaluate_command(
     seed: option(int, help="Seed of --sensor-noise (runs are deterministic).") = 0,
     force: ForceOption = False,
     firmware: option(
-        Optional[list[Path]],
+        list[Path] | None,
         help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
     ) = None,
     csv_out: _Csv = None,
     markdown_out: option(
-        Optional[Path],
+        Path | None,
         "--markdown",
         help="Also write the table as Markdown (to paste in a report) to this file.",
     ) = None,
     max_seconds: option(
-        Optional[float],
+        float | None,
         help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
         "starts after 26-46 s).",
     ) = None,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -76,18 +75,16 @@ _Degrees = option(
 @app.command()
 def export(
     capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log."),
-    csv: option(
-        Optional[Path], help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
-    ) = None,
-    parquet: option(Optional[Path], help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
-    raw: option(Optional[Path], help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
+    csv: option(Path | None, help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB).") = None,
+    parquet: option(Path | None, help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
+    raw: option(Path | None, help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
     mat: option(
-        Optional[Path],
+        Path | None,
         help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
         "settings and header (needs scipy).",
     ) = None,
     mcap: option(
-        Optional[Path],
+        Path | None,
         help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
         "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
     ) = None,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -86,11 +85,11 @@ def check_baud(baud: int) -> None:
 @app.command("live")
 @with_rerun_options
 def live_command(
-    port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto."),
+    port: str | None = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto."),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
-    estimators: Optional[list[str]] = typer.Option(
+    estimators: list[str] | None = typer.Option(
         None,
         "--estimators",
         "-e",
@@ -98,9 +97,9 @@ def live_command(
         "your own: FILE.py:CLASS, module:CLASS, options in parentheses, docs/ESTIMATORS.md) or 'none'; "
         "default: st-mahony,accel,ekf3 (those installed).",
     ),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    duration: float | None = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
-    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
+    prompt: bool | None = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
     ble: bool = typer.Option(
         False,
         "--ble",
@@ -108,7 +107,7 @@ def live_command(
         "strongest drone advertising DRN1…, --ble NAME or --ble ADDRESS to that one (see steval ble scan). Needs "
         'bleak: pip install "steval-link\\[ble]".',
     ),
-    device: Optional[str] = typer.Argument(
+    device: str | None = typer.Argument(
         None, metavar="[NAME|ADDRESS]", help="With --ble: the drone's BLE name or address."
     ),
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
@@ -158,11 +157,11 @@ def live_command(
 @app.command("record")
 def record_command(
     port: str = typer.Option(..., "--port", "-p", help=_PORT_HELP),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv."
     ),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    duration: float | None = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
 ) -> None:
     """Record the raw stream to a capture file, no viewer (field use, scripts).

@@ -6,7 +6,6 @@ from __future__ import annotations
 import sys
 import threading
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -59,17 +58,17 @@ def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> thre
 
 @app.command("preflight")
 def preflight_command(
-    capture: Optional[Path] = typer.Argument(
+    capture: Path | None = typer.Argument(
         None, help="Check a recorded capture (.stv) of the guided moves instead of a live port."
     ),
-    port: Optional[str] = typer.Option(
+    port: str | None = typer.Option(
         None,
         "--port",
         "-p",
         help="Guide the moves live on this serial port (e.g. /dev/ttyUSB0, or 'auto'), record them, then check.",
     ),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the drone's USART1."),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None, "--out", "-o", help="Live: the capture file (default recordings/steval-<UTC time>.stv)."
     ),
 ) -> None:

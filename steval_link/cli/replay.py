@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from steval_viewer.sink_options import SinkOptions
 
 #: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
 MapOption = option(
-    Optional[list[str]],
+    list[str] | None,
     "--map",
     metavar="TARGET=SERIES[:UNIT]",
     help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
@@ -131,13 +131,13 @@ def summary_sink(
 @with_rerun_options
 def replay(
     capture: argument(
-        Optional[Path],
+        Path | None,
         help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled demo "
         "recording.",
     ) = None,
     as_json: option(bool, "--json", help="Print the summary as JSON (for scripts).") = False,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimators",
         "-e",
         help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
@@ -147,7 +147,7 @@ def replay(
     variant: VariantOption = None,
     force: ForceOption = False,
     text_map: MapOption = None,
-    ble_layout: option(Optional[str], help=BLE_LAYOUT_HELP) = None,
+    ble_layout: option(str | None, help=BLE_LAYOUT_HELP) = None,
     rerun: SinkOptions = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis import html_report as H
 from steval_link.analysis import spectrum as S
@@ -36,15 +35,15 @@ def _spectrum(tel):
 def report_command(
     captures: argument(list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", metavar="CAPTURE"),
     out: option(
-        Optional[Path], "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
+        Path | None, "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
     ) = None,
     markdown: option(
-        Optional[Path],
+        Path | None,
         metavar="REPORT.md",
         help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
     ) = None,
     estimator: CompareEstimatorsOption = None,
-    title: option(Optional[str], help="The report's title.") = None,
+    title: option(str | None, help="The report's title.") = None,
     force: ForceOption = False,
 ) -> None:
     """A lab report in one command: per capture its summary and filter settings, the attitude figure with

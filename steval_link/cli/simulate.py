@@ -7,7 +7,6 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
@@ -50,7 +49,7 @@ _ON_WORDS = {"on", "typical", "yes", "true"}
 _OFF_WORDS = {"off", "no", "false", "none"}
 
 
-def _noise(text: Optional[str], typical: float, what: str, unit: str, on: bool = False) -> float:
+def _noise(text: str | None, typical: float, what: str, unit: str, on: bool = False) -> float:
     """The noise σ of ``--{what}-noise`` (``on`` or a number); ``on`` (``--noise``): the typical one when not given."""
     if text is None:
         return typical if on else 0.0
@@ -186,7 +185,7 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
 
 
 _GyroNoise = option(
-    Optional[str], "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
+    str | None, "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
 )
 
 
@@ -206,36 +205,36 @@ def simulate_command(
     ) = False,
     gyro_noise: _GyroNoise = None,
     acc_noise: option(
-        Optional[str],
+        str | None,
         metavar="MG|on",
         help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
     ) = None,
-    seed: option(Optional[int], help="Noise seed (default: random, printed).") = None,
+    seed: option(int | None, help="Noise seed (default: random, printed).") = None,
     throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
     ki: KiOption = None,
-    kp: option(Optional[float], help="Proportional gain, replacing both 10 and 0.4.") = None,
+    kp: option(float | None, help="Proportional gain, replacing both 10 and 0.4.") = None,
     correction: CorrectionOption = None,
     variant: VariantOption = None,
     dt: DtOption = None,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimator",
         "-e",
         help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
         "parentheses: docs/ESTIMATORS.md).",
     ) = None,
     csv_out: option(
-        Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+        str | None, "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
     ) = None,
     json_out: option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.") = False,
-    rrd: option(Optional[Path], help="Log the run to a Rerun .rrd file for the viewer.") = None,
+    rrd: option(Path | None, help="Log the run to a Rerun .rrd file for the viewer.") = None,
     plot: option(
-        Optional[Path],
+        Path | None,
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     compare_with: option(
-        Optional[list[str]],
+        list[str] | None,
         metavar="NAME=VALUE,...",
         help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
         "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with "

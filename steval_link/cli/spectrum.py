@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis import spectrum as S
 from steval_link.cli.app import app, argument, option
@@ -25,7 +24,7 @@ MAX_THROTTLE_BINS = 100
 
 
 _Csv = option(
-    Optional[Path],
+    Path | None,
     "--csv",
     help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in mdps²/Hz and mg²/Hz.",
 )
@@ -37,19 +36,19 @@ _MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not 
 def spectrum_cmd(
     capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content."),
     plot: option(
-        Optional[Path],
+        Path | None,
         help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, "
         '.pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     csv_out: _Csv = None,
     mark_hz: option(
-        Optional[list[float]],
+        list[float] | None,
         metavar="HZ",
         help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro "
         "also at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
     ) = None,
     nperseg: option(
-        Optional[int],
+        int | None,
         metavar="ROWS",
         help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
         f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
