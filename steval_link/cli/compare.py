@@ -132,7 +132,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
-        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
+        tel, seen = load_replay(src, scaled(progress, 0.0, 0.4), text_map=text_map)
         require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
         fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png

@@ -70,7 +70,7 @@ def report_command(
     with progress_bar("report") as progress:
         for i, (path, src) in enumerate(zip(captures, sources)):
             part = scaled(progress, i / len(captures), (i + 0.9) / len(captures))
-            tel, warnings = load_replay(path, scaled(part, 0.0, 0.2), src=src)
+            tel, warnings = load_replay(src, scaled(part, 0.0, 0.2))
             require_attitude(tel, "report on")
             part(0.2, f"{path.name}: replica and {', '.join(names)}")
             report = compare_capture(tel, estimators=names)

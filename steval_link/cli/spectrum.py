@@ -78,7 +78,7 @@ def spectrum_cmd(
     if plot is not None:
         _check_plot_format(plot)
     with progress_bar("spectrum", quiet=rerun.serve) as progress:
-        tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
+        tel, warnings_seen = load_replay(src, scaled(progress, 0.0, 0.3))
         require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
         sp = S.compute_spectra(tel, nperseg=nperseg, overlap=overlap, throttle_bins=throttle_bins)
