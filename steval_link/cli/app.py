@@ -23,8 +23,7 @@ def argument(kind: Any, **kw: Any) -> Any:
 
 
 def with_options(keyword: str, params: tuple, build) -> Any:
-    """A decorator: the typer command takes ``params`` ((parameter, annotation, default), ...) where its parameter
-    ``keyword`` stands, and gets them as that one keyword, ``build(**their values)``."""
+    """The command takes ``params`` ((name, annotation, default), ...) in place of ``keyword``, as ``build(...)``."""
 
     def decorate(command):
         own = list(inspect.signature(command, eval_str=True).parameters.values())

@@ -139,8 +139,7 @@ _FILTER_OPTIONS |= {"min_thr": MinThrOption, "correction": CorrectionOption, "va
 
 
 def with_filter_options(order: str):
-    """A command takes the filter replica's options (parameter names in ``order``) where its parameter ``filters``
-    stands, and gets them as that one dict."""
+    """The command takes the filter options named in ``order`` in place of its parameter ``filters``, as a dict."""
     return with_options("filters", tuple((name, _FILTER_OPTIONS[name], None) for name in order.split()), dict)
 
 

@@ -1,5 +1,4 @@
-"""``steval param get|set`` and ``steval command reset-filter|status|mode``: one command frame to the drone over
-USART1 RX, its acknowledgement printed (a refusal or no answer: one ``steval: error:`` line)."""
+"""``steval param get|set`` and ``steval command ...``: one command frame to the drone, its acknowledgement printed."""
 
 from __future__ import annotations
 

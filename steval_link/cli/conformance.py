@@ -1,5 +1,4 @@
-"""``steval conformance``: check the replica (optionally with modified settings) against firmware vectors, naming the
-ST release whose filter computed them."""
+"""``steval conformance``: the replica against firmware vectors, naming the ST release whose filter computed them."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (interface checks,
-then scores)."""
+"""``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (checks, scores)."""
 
 from __future__ import annotations
 

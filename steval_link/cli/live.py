@@ -37,9 +37,8 @@ _PROMPT_HELP = (
 
 
 def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
-    """The checks of a session's outputs, run once its input is open: the capture (``--out``, into ``options.out``)
-    and the ``.rrd`` (neither ever overwritten), then the Rerun sinks into ``options.sinks`` (``view``: not
-    ``--no-view``)."""
+    """The checks of a session's outputs, run once its input is open: the capture and the ``.rrd`` (neither ever
+    overwritten), then the Rerun sinks (``view``: not ``--no-view``)."""
 
     def check() -> None:
         options.out = resolve_capture_out(out)
@@ -57,8 +56,7 @@ OUTPUT_FAILED_EXIT = 1
 
 
 def run_session(session: LiveSession) -> None:
-    """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero. A
-    closed stdout (``| head``) loses only the summary line."""
+    """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero."""
     session.options.word = flag_of  # its notes name flags
     summary = session.run()
     try:

@@ -122,8 +122,7 @@ def _same(a: Path, b: Path) -> bool:
 
 
 def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
-    """An input file, checked before it is read: it exists, is not a folder, and is a regular file (a device such as
-    ``/dev/zero`` or a pipe may never end). Raises UserError; returns it as a Path."""
+    """An input file that exists and is a regular file (a device such as ``/dev/zero`` or a pipe may never end)."""
     p = Path(path).expanduser()
     if not p.exists():
         raise UserError(f"{p}: no such file ({what})")
@@ -141,8 +140,7 @@ def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> Us
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
-    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception
-    (a writer's ``OSError`` or ``RuntimeError`` becomes :func:`output_error`)."""
+    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception."""
     final = Path(path)
     partial = partial_path(final, keep_suffix=keep_suffix)
     try:

@@ -1,5 +1,4 @@
-"""``steval preflight``: the guided wiring check, live on the drone's port (recorded, move by move) or on a
-capture."""
+"""``steval preflight``: the guided wiring check, live on the drone's port (recorded) or on a capture."""
 
 from __future__ import annotations
 
@@ -38,8 +37,7 @@ LIVE_S = 30.0
 
 
 def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> threading.Thread:
-    """Prints the guided moves on ``stream`` at their times. The first waits ``first_after_s``, so that a port that
-    cannot be opened gives its one error line without a move prompt before it."""
+    """Prints the guided moves on ``stream`` at their times; none before ``first_after_s`` (a port's error first)."""
 
     def run() -> None:
         if stop.wait(first_after_s):

@@ -1,5 +1,4 @@
-"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it: :func:`load_replay`
-(bytes → Telemetry), :func:`run_estimators` (→ {name: AttitudeEstimate}), then the sinks (summary, Rerun)."""
+"""``steval replay``: decode a capture (or raw dump / text-mode log), run the estimators, print a summary, view it."""
 
 from __future__ import annotations
 
@@ -38,8 +37,7 @@ MapOption = option(
 
 
 def load_replay(src, progress: Progress, *, text_map: list[str] | None = None, ble_layout: str | None = None):
-    """The Telemetry of a file ``read_recording`` read and the warnings met reading it (``text_map``: the ``--map``
-    items; ``ble_layout``: a BLE capture's)."""
+    """The Telemetry of a file ``read_recording`` read, and the warnings met reading it."""
     progress(0.2, "decoding")
     try:
         tel = telemetry_of_recording(src, text_map=parse_map(text_map) or None, ble_layout=ble_layout)

@@ -339,8 +339,7 @@ def _compare_value(name: str, text: str, kind: type):
 
 
 def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, estimator: str):
-    """Each ``--compare-with NAME=VALUE,...``: a run on the same ``inputs`` and noise (the first run's seed) with
-    those settings changed; returns [(label, result)]."""
+    """Each ``--compare-with NAME=VALUE,...``: a run on the same inputs and noise with those settings changed."""
     out = []
     for spec in specs:
         opts, thr, est = dict(options), throttle, estimator
