@@ -25,14 +25,7 @@ from steval_link.cli.checks import (
     check_vector,
 )
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, write_atomic
-from steval_link.emulation.lab5 import (
-    BASELINE_ACC_MG,
-    BASELINE_GYRO_MDPS,
-    TYPICAL_ACC_NOISE_MG,
-    TYPICAL_GYRO_NOISE_MDPS,
-    SimulationResult,
-    run_simulation,
-)
+from steval_link.emulation import lab5
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.plugins import split_list
@@ -69,7 +62,7 @@ def _noise(text: str | None, typical: float, what: str, unit: str, on: bool = Fa
     return value
 
 
-def write_csv(res: SimulationResult, stream) -> None:
+def write_csv(res: lab5.SimulationResult, stream) -> None:
     """Every iteration as CSV (header :data:`CSV_COLUMNS`); each float as the shortest decimal that reads back."""
     writer = csv.writer(stream, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
@@ -84,7 +77,7 @@ def write_csv(res: SimulationResult, stream) -> None:
 _JSON_FIELDS = "estimator options settings dt_s estimator_dt_s iterations seed gyro_noise_mdps acc_noise_mg".split()
 
 
-def to_json(res: SimulationResult) -> dict:
+def to_json(res: lab5.SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
     eax, eay, eaz = res.final_angles_rad()
     if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
@@ -117,7 +110,7 @@ def _fmt_vec(v) -> str:
     return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
 
 
-def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
+def summary(res: lab5.SimulationResult, gyro, acc, throttle: int) -> str:
     """Human-readable inputs and final angles, labelled pitch/roll/yaw with the handout's eax/eay/eaz names."""
     own = res.estimator_dt_s
     integrates = (
@@ -159,7 +152,7 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     return "\n".join(lines)
 
 
-def _zero_acc_notes(res: SimulationResult) -> list[str]:
+def _zero_acc_notes(res: lab5.SimulationResult) -> list[str]:
     """What a zero accelerometer input (the Lab 5 baseline) does to the estimator: the firmware's error terms are
     0, so its correction and KI do nothing; the EKFs wait for a first accelerometer sample to set their tilt."""
     zero = ~np.asarray(res.acc_mg, dtype=np.float64).any(axis=1)
@@ -193,12 +186,12 @@ _GyroNoise = option(
 def simulate_command(
     gyro: option(
         tuple[float, float, float], metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
-    ) = BASELINE_GYRO_MDPS,
+    ) = lab5.BASELINE_GYRO_MDPS,
     acc: option(
         tuple[float, float, float],
         metavar="X Y Z",
         help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
-    ) = BASELINE_ACC_MG,
+    ) = lab5.BASELINE_ACC_MG,
     iterations: option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).") = 100,
     noise: option(
         bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
@@ -256,8 +249,8 @@ def simulate_command(
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     check_outputs({"--csv": None if csv_out == "-" else csv_out, "--rrd": rrd, "--plot": plot}, force=force)
-    gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
-    acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
+    gyro_sigma = _noise(gyro_noise, lab5.TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
+    acc_sigma = _noise(acc_noise, lab5.TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
     given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
     options = {k: v for k, v in given.items() if v is not None}
     inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
@@ -304,10 +297,10 @@ def _estimator(estimators: list[str] | None):
     return registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
 
 
-def _run(what: str, **kwargs) -> SimulationResult:
-    """:func:`run_simulation`, its errors as one sentence (after ``what``: a --compare-with run)."""
+def _run(what: str, **kwargs) -> lab5.SimulationResult:
+    """:func:`lab5.run_simulation`, its errors as one sentence (after ``what``: a --compare-with run)."""
     try:
-        return run_simulation(**kwargs)
+        return lab5.run_simulation(**kwargs)
     except (ImportError, ValueError) as exc:
         if what:
             raise UserError(f"{what}: {exc}") from None
@@ -369,7 +362,7 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
     return out
 
 
-def _final_line(label: str, r: SimulationResult) -> str:
+def _final_line(label: str, r: lab5.SimulationResult) -> str:
     """The final angles of a ``--compare-with`` run, in degrees."""
     if not r.iterations:
         return f"with {label}: no iterations"
