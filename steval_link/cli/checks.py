@@ -76,27 +76,17 @@ def check_throttle(option: str, value: int | None) -> None:
 
 
 # The filter's options, one definition each, shared by every command that runs the replica (None: not given).
-KiOption = option(
-    float | None,
-    "--ki",
-    help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).",
-)
+KiOption = option(float | None, "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).")
 KpGroundOption = option(float | None, "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).")
 KpFlightOption = option(float | None, "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).")
-MinThrOption = option(
-    int | None,
-    "--min-thr",
-    help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).",
-)
+MinThrOption = option(int | None, "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).")
 CorrectionOption = option(
     bool | None,
     "--correction/--no-correction",
     help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
 )
 DtOption = option(
-    float | None,
-    "--dt",
-    help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).",
+    float | None, "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619)."
 )
 
 

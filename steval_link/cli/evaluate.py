@@ -84,9 +84,7 @@ def evaluate_command(
     ) = None,
     csv_out: _Csv = None,
     markdown_out: option(
-        Path | None,
-        "--markdown",
-        help="Also write the table as Markdown (to paste in a report) to this file.",
+        Path | None, "--markdown", help="Also write the table as Markdown (to paste in a report) to this file."
     ) = None,
     max_seconds: option(
         float | None,

@@ -11,9 +11,7 @@ from steval_link.link.ports import list_ports
 
 
 @app.command()
-def ports(
-    as_json: option(bool, "--json", help="Print the list as JSON (for scripts).") = False,
-) -> None:
+def ports(as_json: option(bool, "--json", help="Print the list as JSON (for scripts).") = False) -> None:
     """List serial ports (device, description, VID:PID) to find the drone's USB-serial adapter."""
     found = list_ports()
     if as_json:

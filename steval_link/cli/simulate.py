@@ -188,9 +188,7 @@ def simulate_command(
         tuple[float, float, float], metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
     ) = lab5.BASELINE_GYRO_MDPS,
     acc: option(
-        tuple[float, float, float],
-        metavar="X Y Z",
-        help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
+        tuple[float, float, float], metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."
     ) = lab5.BASELINE_ACC_MG,
     iterations: option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).") = 100,
     noise: option(
@@ -198,9 +196,7 @@ def simulate_command(
     ) = False,
     gyro_noise: _GyroNoise = None,
     acc_noise: option(
-        str | None,
-        metavar="MG|on",
-        help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
+        str | None, metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
     ) = None,
     seed: option(int | None, help="Noise seed (default: random, printed).") = None,
     throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,

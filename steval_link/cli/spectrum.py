@@ -55,9 +55,7 @@ def spectrum_cmd(
     ) = None,
     overlap: option(float, help="Fraction of a window the next one overlaps.") = 0.5,
     throttle_bins: option(
-        int,
-        metavar="N",
-        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+        int, metavar="N", help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR."
     ) = 10,
     peaks: option(int, metavar="N", help="Peaks printed per axis.") = 3,
     min_hz: _MinHz = 1.0,
