@@ -117,10 +117,9 @@ def run_estimator(estimator, data) -> AttitudeEstimate:
         data: a :class:`Capture` (:func:`open_capture`), a path to one, or a ``Telemetry``.
 
     Returns:
-        An :class:`~steval_link.estimators.base.AttitudeEstimate` with one row per attitude frame of the capture
-        (``q_wxyz``, ``thx_rad``, ``thy_rad``, ``thz_rad``, ``valid``), to plot against ``cap.attitude.t_fw_s``.
-        A user's estimator that raises gives :class:`~steval_link.estimators.plugins.PluginError` (the message
-        names the file and line; ``details`` holds the traceback trimmed to the user's code).
+        An :class:`~steval_link.estimators.base.AttitudeEstimate`, one row per attitude frame (``q_wxyz``,
+        ``thx_rad``, ``thy_rad``, ``thz_rad``, ``valid``). A user's estimator that raises gives
+        :class:`~steval_link.estimators.plugins.PluginError` (its file and line; ``details``: the traceback).
     """
     if isinstance(data, (str, Path)):
         data = open_capture(data)
@@ -148,26 +147,17 @@ class Scores:
 
     results: list
     summary: dict
+    rmse_deg: dict[str, dict[str, float | None]] = field(init=False)
+    mean_rmse_deg: dict[str, float | None] = field(init=False)
+    scored_fraction: dict[str, dict[str, float | None]] = field(init=False)
+    diverged_at_step: dict[str, dict[str, int | None]] = field(init=False)
+    incomplete: list[str] = field(init=False)
 
-    @property
-    def rmse_deg(self) -> dict[str, dict[str, float | None]]:
-        return {t["trial"]: dict(t["rmse_deg"]) for t in self.summary["trials"]}
-
-    @property
-    def mean_rmse_deg(self) -> dict[str, float | None]:
-        return dict(self.summary["mean_rmse_deg"])
-
-    @property
-    def scored_fraction(self) -> dict[str, dict[str, float | None]]:
-        return {t["trial"]: dict(t["scored_fraction"]) for t in self.summary["trials"]}
-
-    @property
-    def diverged_at_step(self) -> dict[str, dict[str, int | None]]:
-        return {t["trial"]: dict(t["diverged_at_step"]) for t in self.summary["trials"]}
-
-    @property
-    def incomplete(self) -> list[str]:
-        return list(self.summary["incomplete"])
+    def __post_init__(self) -> None:
+        for key in ("rmse_deg", "scored_fraction", "diverged_at_step"):  # trial → label → value
+            setattr(self, key, {t["trial"]: dict(t[key]) for t in self.summary["trials"]})
+        self.mean_rmse_deg = dict(self.summary["mean_rmse_deg"])
+        self.incomplete = list(self.summary["incomplete"])
 
     def table(self) -> str:
         return ev.format_table(self.results)
