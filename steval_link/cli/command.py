@@ -61,15 +61,15 @@ def param_get(
     name: str | None = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
 ) -> None:
     """Print a filter parameter as the drone reports it now (asks for a status frame)."""
-    if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:
+    key = None if name is None else name.strip().lower().replace("-", "_")
+    if key is not None and key not in PARAMS:
         raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
     reply = send(Command(P.CMD_REQUEST_STATUS))
     if reply.status is None:
         raise UserError("the drone acknowledged the status request but its status frame did not arrive; try again")
-    if name is None:
+    if key is None:
         typer.echo(f"{describe_settings(reply.status)} (after step {int(reply.status.step)})")
     else:
-        key = name.strip().lower().replace("-", "_")
         typer.echo(f"{key} = {param_of_status(reply.status, key)} (after step {int(reply.status.step)})")
 
 
