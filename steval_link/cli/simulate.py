@@ -268,8 +268,7 @@ def simulate_command(
     if rrd is not None:
         text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"
     if json_out:
-        json.dump(to_json(res), sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        print(json.dumps(to_json(res), allow_nan=False))
     elif csv_out == "-":
         write_csv(res, sys.stdout)
         print(text, file=sys.stderr)
@@ -362,8 +361,5 @@ def _final_line(label: str, r: lab5.SimulationResult) -> str:
     """The final angles of a ``--compare-with`` run, in degrees."""
     if not r.iterations:
         return f"with {label}: no iterations"
-    ang = ", ".join(
-        f"{n} {math.degrees(float(getattr(r, a)[-1])):+.6f}°"
-        for n, a in (("eax", "eax_rad"), ("eay", "eay_rad"), ("eaz", "eaz_rad"))
-    )
+    ang = ", ".join(f"{n} {math.degrees(v):+.6f}°" for n, v in zip(("eax", "eay", "eaz"), r.final_angles_rad()))
     return f"with {label}: final {ang}"
