@@ -17,13 +17,9 @@ MAX_THROTTLE = 32767
 
 
 #: the library parameters whose flag is not ``--`` and the name with dashes
-_FLAGS = {
-    "throttle": "--throttle-schedule",
-    "fmt": "--format",
-    "duration_s": "--duration",
-    "join_at_s": "--join-at",
-    "path": "--out",
-}
+_FLAGS = dict(
+    throttle="--throttle-schedule", fmt="--format", duration_s="--duration", join_at_s="--join-at", path="--out"
+)
 
 
 def flag_of(param: str) -> str:
