@@ -4,7 +4,6 @@ not at all (:func:`atomic_output`: ``NAME.partial``, renamed into place when com
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import os
 import sys
@@ -46,9 +45,7 @@ def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
 
 
 def _why(exc: BaseException) -> str:
-    if isinstance(exc, OSError):
-        if exc.errno == errno.EROFS:
-            return "read-only file system"
+    if isinstance(exc, OSError):  # e.g. "read-only file system"
         return exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
     text = str(exc).strip()
     return (text.splitlines()[0] if text else type(exc).__name__).rstrip(".")
