@@ -22,7 +22,5 @@ def ports(as_json: option(bool, "--json", help="Print the list as JSON (for scri
         return
     width = max(len(p.device) for p in found)
     for p in found:
-        vid_pid = p.vid_pid or "-"
-        desc = p.description or "-"
         extra = f"  serial {p.serial_number}" if p.serial_number else ""
-        typer.echo(f"{p.device:<{width}}  {vid_pid:<9}  {desc}{extra}")
+        typer.echo(f"{p.device:<{width}}  {p.vid_pid or '-':<9}  {p.description or '-'}{extra}")
