@@ -31,15 +31,15 @@ from steval_link.link.load import read_recording, telemetry_of_recording
 
 __all__ = ["Capture", "Scores", "open_capture", "run_estimator", "evaluate", "require_pandas"]
 
-PANDAS_HINT = 'to_pandas() needs pandas, which is not installed: pip install pandas (or "steval-link[pandas]")'
-
 
 def require_pandas():
     """The pandas module, or ImportError with the install hint."""
     try:
         import pandas  # optional: only to_pandas() needs it
     except ImportError:
-        raise ImportError(PANDAS_HINT) from None
+        raise ImportError(
+            'to_pandas() needs pandas, which is not installed: pip install pandas (or "steval-link[pandas]")'
+        ) from None
     return pandas
 
 
@@ -107,12 +107,6 @@ def _instance_reference(est) -> plugins.Selected:
     return plugins.Selected(name, ref, lambda: copy.deepcopy(est), type(est).__name__)
 
 
-def _selected(estimator) -> str:
-    if isinstance(estimator, str):
-        return estimator if estimator in registry.ESTIMATORS else registry.resolve(estimator)
-    return _instance_reference(estimator)
-
-
 def run_estimator(estimator, data) -> AttitudeEstimate:
     """Run an estimator from power-up over a capture's attitude rows.
 
@@ -123,21 +117,18 @@ def run_estimator(estimator, data) -> AttitudeEstimate:
         data: a :class:`Capture` (:func:`open_capture`), a path to one, or a ``Telemetry``.
 
     Returns:
-        An :class:`~steval_link.estimators.base.AttitudeEstimate` with one row per attitude frame of the capture
-        (``q_wxyz``, ``thx_rad``, ``thy_rad``, ``thz_rad``, ``valid``), to plot against ``cap.attitude.t_fw_s``.
-        A user's estimator that raises gives :class:`~steval_link.estimators.plugins.PluginError` (the message
-        names the file and line; ``details`` holds the traceback trimmed to the user's code).
+        An :class:`~steval_link.estimators.base.AttitudeEstimate`, one row per attitude frame (``q_wxyz``,
+        ``thx_rad``, ``thy_rad``, ``thz_rad``, ``valid``). A user's estimator that raises gives
+        :class:`~steval_link.estimators.plugins.PluginError` (its file and line; ``details``: the traceback).
     """
     if isinstance(data, (str, Path)):
         data = open_capture(data)
     tel = data.telemetry if isinstance(data, Capture) else data
-    sel = _selected(estimator)
-    if isinstance(sel, plugins.Selected) and sel.reference.kind == "object":
-        est = registry.create(sel)  # a fresh copy, guarded
+    if not isinstance(estimator, str):
+        est = registry.create(_instance_reference(estimator))  # a fresh copy, guarded
         est.reset()
-        a = tel.attitude
-        return est.run(a.acc_mg, a.gyro_mdps, a.thr)
-    out, why = _run_named(sel, tel)
+        return est.run(tel.attitude.acc_mg, tel.attitude.gyro_mdps, tel.attitude.thr)
+    out, why = _run_named(estimator if estimator in registry.ESTIMATORS else registry.resolve(estimator), tel)
     if out is None:
         raise UserError(f"estimator {estimator!r} is {why}")
     return out
@@ -156,26 +147,17 @@ class Scores:
 
     results: list
     summary: dict
+    rmse_deg: dict[str, dict[str, float | None]] = field(init=False)
+    mean_rmse_deg: dict[str, float | None] = field(init=False)
+    scored_fraction: dict[str, dict[str, float | None]] = field(init=False)
+    diverged_at_step: dict[str, dict[str, int | None]] = field(init=False)
+    incomplete: list[str] = field(init=False)
 
-    @property
-    def rmse_deg(self) -> dict[str, dict[str, float | None]]:
-        return {t["trial"]: dict(t["rmse_deg"]) for t in self.summary["trials"]}
-
-    @property
-    def mean_rmse_deg(self) -> dict[str, float | None]:
-        return dict(self.summary["mean_rmse_deg"])
-
-    @property
-    def scored_fraction(self) -> dict[str, dict[str, float | None]]:
-        return {t["trial"]: dict(t["scored_fraction"]) for t in self.summary["trials"]}
-
-    @property
-    def diverged_at_step(self) -> dict[str, dict[str, int | None]]:
-        return {t["trial"]: dict(t["diverged_at_step"]) for t in self.summary["trials"]}
-
-    @property
-    def incomplete(self) -> list[str]:
-        return list(self.summary["incomplete"])
+    def __post_init__(self) -> None:
+        for key in ("rmse_deg", "scored_fraction", "diverged_at_step"):  # trial → label → value
+            setattr(self, key, {t["trial"]: dict(t[key]) for t in self.summary["trials"]})
+        self.mean_rmse_deg = dict(self.summary["mean_rmse_deg"])
+        self.incomplete = list(self.summary["incomplete"])
 
     def table(self) -> str:
         return ev.format_table(self.results)

@@ -2,7 +2,7 @@
 
 import functools
 import inspect
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 
@@ -23,8 +23,7 @@ def argument(kind: Any, **kw: Any) -> Any:
 
 
 def with_options(keyword: str, params: tuple, build) -> Any:
-    """A decorator: the typer command takes ``params`` ((parameter, annotation, default), ...) where its parameter
-    ``keyword`` stands, and gets them as that one keyword, ``build(**their values)``."""
+    """The command takes ``params`` ((name, annotation, default), ...) in place of ``keyword``, as ``build(...)``."""
 
     def decorate(command):
         own = list(inspect.signature(command, eval_str=True).parameters.values())
@@ -63,7 +62,7 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _top_level(
-    version: Optional[bool] = typer.Option(
+    version: bool | None = typer.Option(
         None, "--version", is_eager=True, callback=_print_version, help="Print the version and exit."
     ),
 ) -> None:

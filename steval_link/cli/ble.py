@@ -12,8 +12,6 @@ from steval_link.errors import UserError
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, LAYOUTS, layout_named
 from steval_link.link.ble_transport import BleBackend, BleDevice, bleak_backend, explain_ble_error
 
-__all__ = ["ble_app", "scan_devices", "format_devices"]
-
 ble_app = sub_app("ble", "Bluetooth LE: find drones running ST's unmodified firmware (then: steval live --ble).")
 
 
@@ -31,19 +29,18 @@ def scan_devices(backend: BleBackend, timeout_s: float) -> list[BleDevice]:
 def format_devices(devices: list[BleDevice], show_all: bool) -> list[str]:
     """One line per device: name, address, RSSI; ST's drones first (strongest first)."""
 
-    def key(d: BleDevice):
-        drone = bool(d.name and d.name.startswith(DEVICE_NAME_PREFIX))
-        return (not drone, -(d.rssi_dbm if d.rssi_dbm is not None else -1e9))
-
     out = []
-    for d in sorted(devices, key=key):
-        drone = bool(d.name and d.name.startswith(DEVICE_NAME_PREFIX))
-        if not drone and not show_all:
+    for d in sorted(devices, key=lambda d: (not _is_drone(d), -(d.rssi_dbm if d.rssi_dbm is not None else -1e9))):
+        if not (_is_drone(d) or show_all):
             continue
         rssi = f"{d.rssi_dbm:.0f} dBm" if d.rssi_dbm is not None else "? dBm"
-        note = "  STEVAL drone (ST firmware)" if drone else ""
+        note = "  STEVAL drone (ST firmware)" if _is_drone(d) else ""
         out.append(f"{d.name or '(no name)':<20} {d.address:<38} {rssi:>8}{note}")
     return out
+
+
+def _is_drone(d: BleDevice) -> bool:
+    return bool(d.name and d.name.startswith(DEVICE_NAME_PREFIX))
 
 
 @ble_app.command("scan")

@@ -6,7 +6,6 @@ import math
 import os
 import shlex
 from collections.abc import Sequence
-from typing import Optional
 
 from steval_link.cli.app import option, with_options
 from steval_link.errors import ParamError, UserError
@@ -18,13 +17,9 @@ MAX_THROTTLE = 32767
 
 
 #: the library parameters whose flag is not ``--`` and the name with dashes
-_FLAGS = {
-    "throttle": "--throttle-schedule",
-    "fmt": "--format",
-    "duration_s": "--duration",
-    "join_at_s": "--join-at",
-    "path": "--out",
-}
+_FLAGS = dict(
+    throttle="--throttle-schedule", fmt="--format", duration_s="--duration", join_at_s="--join-at", path="--out"
+)
 
 
 def flag_of(param: str) -> str:
@@ -77,60 +72,40 @@ def check_throttle(option: str, value: int | None) -> None:
 
 
 # The filter's options, one definition each, shared by every command that runs the replica (None: not given).
-KiOption = option(
-    Optional[float],
-    "--ki",
-    help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).",
-    show_default=False,
-)
-KpGroundOption = option(
-    Optional[float], "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).", show_default=False
-)
-KpFlightOption = option(
-    Optional[float], "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).", show_default=False
-)
-MinThrOption = option(
-    Optional[int],
-    "--min-thr",
-    help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).",
-    show_default=False,
-)
+KiOption = option(float | None, "--ki", help="The filter's integral gain AHRS_KI (firmware 0.1; lab exercise 4: 1.0).")
+KpGroundOption = option(float | None, "--kp-ground", help="The filter's kp below MIN_THR (firmware 10).")
+KpFlightOption = option(float | None, "--kp-flight", help="The filter's kp at or above MIN_THR (firmware 0.4).")
+MinThrOption = option(int | None, "--min-thr", help="MIN_THR, the gTHR from which kp is the flight one (firmware 200).")
 CorrectionOption = option(
-    Optional[bool],
+    bool | None,
     "--correction/--no-correction",
     help="With or without the accelerometer correction (without: g* = g, lab exercise 5). Default: with.",
-    show_default=False,
 )
 DtOption = option(
-    Optional[float],
-    "--dt",
-    help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619).",
-    show_default=False,
+    float | None, "--dt", help="The filter's integration period, s (firmware 0.00625; TIM9 gives ≈ 0.00619)."
 )
 
 
 #: ``--throttle-schedule``: the throttle over time of an emulated or modelled drone (``--throttle`` of ``simulate``
 #: is one gTHR value for every step)
 ThrottleScheduleOption = option(
-    Optional[str],
+    str | None,
     "--throttle-schedule",
     metavar="N|t:v,...",
     help="Override the throttle gTHR: N (constant) or 't:v,t:v,...' (s since power-up : gTHR, linear in between, held "
     "outside).",
-    show_default=False,
 )
 #: --throttle-schedule's former name, hidden: the header commands of captures made with it still run
-ThrottleFormerOption = option(Optional[str], "--throttle", hidden=True, show_default=False)
+ThrottleFormerOption = option(str | None, "--throttle", hidden=True)
 
 
 #: ``--variant RELEASE``: the one option, shared by every command that runs the replica, forcing a release's filter.
 VariantOption = option(
-    Optional[str],
+    str | None,
     "--variant",
     metavar="RELEASE",
     help="The ST release whose filter arithmetic the replica reproduces: 170120 (also 170318 and the 301117 beta) or "
     "221117. Default: recognised from the firmware ELF or from the data (the bit-exact one).",
-    show_default=False,
 )
 
 
@@ -150,8 +125,7 @@ _FILTER_OPTIONS |= {"min_thr": MinThrOption, "correction": CorrectionOption, "va
 
 
 def with_filter_options(order: str):
-    """A command takes the filter replica's options (parameter names in ``order``) where its parameter ``filters``
-    stands, and gets them as that one dict."""
+    """The command takes the filter options named in ``order`` in place of its parameter ``filters``, as a dict."""
     return with_options("filters", tuple((name, _FILTER_OPTIONS[name], None) for name in order.split()), dict)
 
 

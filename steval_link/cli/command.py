@@ -1,10 +1,8 @@
-"""``steval param get|set`` and ``steval command reset-filter|status|mode``: one command frame to the drone over
-USART1 RX, its acknowledgement printed (a refusal or no answer: one ``steval: error:`` line)."""
+"""``steval param get|set`` and ``steval command ...``: one command frame to the drone, its acknowledgement printed."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -20,13 +18,13 @@ _Port = option(
 _Baud = option(int, "--baud", "-b", help="Baud rate of the firmware build.")
 _Timeout = option(float, "--timeout", help="Seconds to wait for the drone's acknowledgement.")
 _Out = option(
-    Optional[Path], "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
+    Path | None, "--out", help="Also record this exchange (bytes received and sent) to this new capture file."
 )
 #: the four options every command here takes: (parameter, annotation, default)
 _LINK_PARAMS = (("port", _Port, "auto"), ("baud", _Baud, C.BAUD), ("timeout", _Timeout, 2.0), ("out", _Out, None))
 
 
-def _exchange(port: str, baud: int, timeout: float, out: Optional[Path]):
+def _exchange(port: str, baud: int, timeout: float, out: Path | None):
     """The link options as one function: ``send(command)`` sends it and returns the drone's reply."""
 
     def send(command: Command):
@@ -59,18 +57,18 @@ def _finish(reply) -> None:
 @param_app.command("get")
 @_with_link
 def param_get(
-    name: Optional[str] = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
+    name: str | None = typer.Argument(None, help=f"Parameter: {_NAMES}. Default: all of them."), send=None
 ) -> None:
     """Print a filter parameter as the drone reports it now (asks for a status frame)."""
-    if name is not None and name.strip().lower().replace("-", "_") not in PARAMS:
+    key = None if name is None else name.strip().lower().replace("-", "_")
+    if key is not None and key not in PARAMS:
         raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
     reply = send(Command(P.CMD_REQUEST_STATUS))
     if reply.status is None:
         raise UserError("the drone acknowledged the status request but its status frame did not arrive; try again")
-    if name is None:
+    if key is None:
         typer.echo(f"{describe_settings(reply.status)} (after step {int(reply.status.step)})")
     else:
-        key = name.strip().lower().replace("-", "_")
         typer.echo(f"{key} = {param_of_status(reply.status, key)} (after step {int(reply.status.step)})")
 
 

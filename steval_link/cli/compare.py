@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
@@ -36,11 +35,7 @@ from steval_link.cli.outputs import (
 )
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
-from steval_link.cli.viewer_options import (
-    check_view_flags,
-    view_sinks,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import check_view_flags, view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import run_estimator
@@ -49,17 +44,9 @@ from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_viewer.sink_options import SinkOptions
 
-__all__ = ["compare_command"]
-
-
-def flight_plot_path(out_png: Path) -> Path:
-    """Where ``--plot OUT.png`` puts the flight-control figure: ``OUT-flight-control.png``."""
-    return out_png.with_name(f"{out_png.stem}-flight-control{out_png.suffix or '.png'}")
-
-
 #: ``-e`` of compare and report: the estimators compared with the firmware
 CompareEstimatorsOption = option(
-    Optional[list[str]],
+    list[str] | None,
     "--estimator",
     "--estimators",
     "-e",
@@ -73,16 +60,14 @@ CompareEstimatorsOption = option(
 @with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
     captures: argument(
-        Optional[list[Path]],
+        list[Path] | None,
         help="Capture (.stv), raw serial dump or text-mode log. Default: the bundled demo recording. Two or more: the "
         "flights side by side (see below).",
-        show_default=False,
         metavar="CAPTURE",
     ) = None,
     as_json: JsonReportOption = False,
     plot: option(
-        Optional[Path],
-        "--plot",
+        Path | None,
         metavar="OUT.png",
         help="Also write a figure (angles over time, firmware − replica, differences per estimator) and, for a capture "
         "whose drone was armed, OUT-flight-control.png (targets vs angles, PID terms, motors); with two or more "
@@ -92,14 +77,11 @@ def compare_command(
     filters: dict = None,
     align: option(
         str,
-        "--align",
         metavar="time|motion",
         help="Two or more captures: align by firmware time from each first frame (time), or by cross-correlating the "
         "gyro with the first capture's (motion; the lag found is printed).",
     ) = "time",
-    label: option(
-        Optional[list[str]], "--label", help="Two or more captures: the name of each flight, in order (repeat it)."
-    ) = None,
+    label: option(list[str] | None, help="Two or more captures: the name of each flight, in order (repeat it).") = None,
     force: ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,
@@ -115,18 +97,15 @@ def compare_command(
     figure, --json the settings and figures of each flight, --spawn/--serve/--connect/--rrd one Rerun recording
     with every flight in its own entity subtree, overlaid."""
     if captures and len(captures) > 1:
-        flags = {"--estimator": estimator}
-        flags |= {("--correction/--no-correction" if k == "correction" else flag_of(k)): v for k, v in filters.items()}
-        _side_by_side(
-            captures,
-            as_json=as_json,
-            plot=plot,
-            force=force,
-            align=align,
-            labels=label,
-            replica_options=flags,
-            viewer=rerun,
-        )
+        given = [k for k, v in {"estimator": estimator, **filters}.items() if v is not None]
+        if given:
+            flags = [("--correction/--no-correction" if k == "correction" else flag_of(k)) for k in given]
+            verb = "applies" if len(flags) == 1 else "apply"
+            raise UserError(
+                f"{', '.join(flags)} {verb} to one capture; with two or more captures the flights are compared with "
+                "each other (run steval compare CAPTURE on each for the replica)."
+            )
+        _side_by_side(captures, as_json=as_json, plot=plot, force=force, align=align, labels=label, viewer=rerun)
         return
     if align != "time" or label or rerun.any():
         raise UserError(
@@ -153,10 +132,12 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
     src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
     check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
-        tel, seen = load_replay(capture, scaled(progress, 0.0, 0.4), src=src, text_map=text_map)
+        tel, seen = load_replay(src, scaled(progress, 0.0, 0.4), text_map=text_map)
         require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
-        fc_plot = flight_plot_path(plot) if plot is not None and no_fc_plot is None else None
+        fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png
+        if plot is not None and no_fc_plot is None:
+            fc_plot = plot.with_name(f"{plot.stem}-flight-control{plot.suffix or '.png'}")
         if fc_plot is not None:
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         print_warnings(seen)  # the capture's damage (and a note in --json)
@@ -174,7 +155,7 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
             progress(0.9, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_comparison(tel, report, part)
-                if fc_plot is not None:  # the flight-control figure, where the drone was armed
+                if fc_plot is not None:
                     with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
@@ -211,16 +192,8 @@ def _load_flight(path: Path):
     return flight_of_telemetry(path, tel, src.warnings)
 
 
-def _side_by_side(
-    captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, replica_options, viewer
-) -> None:
+def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, viewer):
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
-    given = [opt for opt, v in replica_options.items() if v is not None]
-    if given:
-        raise UserError(
-            f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to one capture; with two or more "
-            "captures the flights are compared with each other (run steval compare CAPTURE on each for the replica)."
-        )
     if align not in ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):

@@ -1,24 +1,19 @@
-"""``steval conformance``: check the replica (optionally with modified settings) against firmware vectors, naming the
-ST release whose filter computed them."""
+"""``steval conformance``: the replica against firmware vectors, naming the ST release whose filter computed them."""
 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import replace
 from pathlib import Path
 
 import typer
 
+from steval_link.analysis.report import json_number
 from steval_link.cli.app import app
 from steval_link.cli.checks import filter_settings, with_filter_options
 from steval_link.cli.outputs import check_input
 from steval_link.errors import UserError
 from steval_link.estimators.st_mahony import MahonySettings
-
-
-def _json_num(x: float):
-    return x if math.isfinite(x) else None
 
 
 @app.command("conformance")
@@ -43,10 +38,7 @@ def conformance_command(
     )
 
     changes, forced = filter_settings(filters)
-    try:
-        settings = MahonySettings(**changes)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    settings = MahonySettings(**changes)  # filter_settings checked each value
     cases = [_load_case(path) for path in _csv_paths(csv_files)]
     native = False if pure else None
     scores = None
@@ -85,8 +77,6 @@ def _load_case(path: Path):
 
     try:
         return load_conformance_csv(path)
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such file") from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror})") from None
     except ValueError as exc:
@@ -101,7 +91,7 @@ def _print_json(results, settings: MahonySettings, scores: dict[str, int] | None
         "settings": settings.__dict__,
         "ok": all_ok,
         "files": [
-            {**r.as_dict(), "max_abs_dq": _json_num(r.max_abs_dq), "max_abs_dth_rad": _json_num(r.max_abs_dth)}
+            {**r.as_dict(), "max_abs_dq": json_number(r.max_abs_dq), "max_abs_dth_rad": json_number(r.max_abs_dth)}
             for r in results
         ],
     }

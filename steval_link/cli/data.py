@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,12 +17,7 @@ data_app = sub_app("data", "Data sets on demand: BROAD trials with optical groun
 
 
 def _require_data_extra() -> None:
-    missing = []
-    for module in ("pooch", "h5py", "platformdirs"):
-        try:
-            __import__(module)
-        except ImportError:
-            missing.append(module)
+    missing = [module for module in ("pooch", "h5py", "platformdirs") if importlib.util.find_spec(module) is None]
     if missing:
         raise UserError(f'steval data needs {", ".join(missing)}: pip install "steval-link[data]"')
 
@@ -36,17 +31,15 @@ _BROAD_HELP = (
 @data_app.command("broad", help=_BROAD_HELP)
 def broad_command(
     trials: argument(
-        Optional[list[str]],
+        list[str] | None,
         metavar="TRIALS",
         help="Trials by number (02 7), part of a name (fast_rotation), or all. Default: the six of the accuracy table "
         "(02 07 10 15 24 27).",
-        show_default=False,
     ) = None,
     directory: option(
-        Optional[Path],
+        Path | None,
         "--dir",
         help="Folder for the .npz trials. Default: the user cache (steval evaluate reads it without DATA).",
-        show_default=False,
     ) = None,
 ) -> None:
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time

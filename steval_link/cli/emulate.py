@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli.app import app, argument, option
@@ -19,12 +18,7 @@ from steval_link.cli.checks import (
 )
 from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
-from steval_link.cli.viewer_options import (
-    CaptureOutOption,
-    NoViewOption,
-    check_view_flags,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -63,43 +57,39 @@ def emulate_command(
         "preflight (the preflight check's hand moves).",
     ) = "bench",
     broad: option(
-        Optional[Path],
-        "--broad",
+        Path | None,
         help="Feed a BROAD trial (.npz: real IMU signals) instead of a scenario, from the first TIM9 tick on; the "
         "capture keeps its ground truth per AHRS step (steval compare and evaluate score against it).",
     ) = None,
     duration: option(
-        Optional[float],
-        "--duration",
+        float | None,
         help="Emulated seconds from power-up (default: the scenario's length; the first attitude frame comes at ≈ "
         "2.985 s).",
     ) = None,
-    seed: option(int, "--seed", help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
+    seed: option(int, help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
     mount: option(
-        Optional[str],
-        "--mount",
+        str | None,
         help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
         "reversed), as a wrong COORDINATE_SYSTEM would read it.",
     ) = None,
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimators",
         "-e",
         help="Host estimators next to the firmware (as for steval live; comma-separated or repeated), or 'none'.",
     ) = None,
     realtime: _Realtime = False,
     commands: option(
-        Optional[Path],
-        "--commands",
+        Path | None,
         help="Command script: lines 'TIME_S COMMAND' (emulated s since power-up; e.g. '6 set ki 1.0', '12 correction "
         "off', '15 reset'), sent to the firmware's USART1 RX at those times.",
     ) = None,
     prompt: option(
-        Optional[bool],
+        bool | None,
         "--prompt/--no-prompt",
         help="Read commands typed on stdin (set ki 1.0, correction off, reset, status) and send them to the emulated "
         "firmware. Default: when stdin is a terminal.",

@@ -1,12 +1,10 @@
-"""``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (interface checks,
-then scores)."""
+"""``steval estimator new`` (a working 3-state EKF to start from) and ``steval estimator check`` (checks, scores)."""
 
 from __future__ import annotations
 
 import re
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,8 +14,6 @@ from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.errors import UserError
-
-__all__ = ["estimator_app", "STARTER_CLASS", "DEFAULT_BROAD"]
 
 estimator_app = sub_app(
     "estimator", "Your own estimator: write a starter (new), check it and score it (check). See docs/ESTIMATORS.md."
@@ -39,7 +35,7 @@ def starter_source(class_name: str = STARTER_CLASS) -> str:
 
 @estimator_app.command("new")
 def new_command(
-    file: argument(Path, help="The Python file to write, e.g. my_ekf.py.", show_default=False),
+    file: argument(Path, help="The Python file to write, e.g. my_ekf.py."),
     class_name: option(str, "--class", help="Name of the estimator class in it.") = STARTER_CLASS,
     force: ForceOption = False,
 ) -> None:
@@ -65,14 +61,12 @@ def check_command(
         str,
         help="FILE.py:CLASS (or module:CLASS, an installed plug-in, a built-in), options in parentheses: "
         "'my_ekf.py:MyEkf(q_gyro=1e-5)'.",
-        show_default=False,
     ),
     broad_path: option(
-        Optional[list[Path]],
+        list[Path] | None,
         "--broad",
         help="BROAD trials (.npz) or directories of them to score on (repeatable). Default: "
         f"{DEFAULT_BROAD} when it exists.",
-        show_default=False,
     ) = None,
     no_broad: option(bool, "--no-broad", help="Do not score on BROAD trials (quicker).") = False,
     as_json: JsonReportOption = False,

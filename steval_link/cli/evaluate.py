@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -15,8 +14,6 @@ from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
 from steval_link.estimators.plugins import split_list
-
-__all__ = ["evaluate_command"]
 
 _HELP = (
     "Inclination accuracy of the estimators against ground truth.\n\n"
@@ -48,21 +45,18 @@ _HELP = (
 
 
 _OwnRate = option(bool, "--own-rate", help="Run BROAD trials at their own rate, without the STEVAL pipeline.")
-_Csv = option(
-    Optional[Path], "--csv", help="Also write the table (coverage marks included) to this CSV file.", show_default=False
-)
+_Csv = option(Path | None, "--csv", help="Also write the table (coverage marks included) to this CSV file.")
 
 
 @app.command("evaluate", help=_HELP)
 def evaluate_command(
     data: argument(
-        Optional[list[Path]],
+        list[Path] | None,
         help="BROAD .npz trials, directories of them, or captures with a .truth.npz sidecar. Default: the trials of "
         "steval data broad.",
-        show_default=False,
     ) = None,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimators",
         "-e",
         help="Comma-separated or repeated labels: st-mahony-flight, st-mahony-ground (st-mahony: both), accel, ekf3, "
@@ -72,11 +66,9 @@ def evaluate_command(
     as_json: JsonReportOption = False,
     own_rate: _OwnRate = False,
     plot: option(
-        Optional[Path],
-        "--plot",
+        Path | None,
         help="Write a PNG: RMSE bars per estimator and trial, and the first trial's error over time (needs matplotlib: "
         'pip install "steval-link\\[plot]").',
-        show_default=False,
     ) = None,
     sensor_noise: option(
         bool,
@@ -84,27 +76,20 @@ def evaluate_command(
         help="Add the LSM6DSL model's white noise (gyro 75 mdps, acc 2 mg RMS) on top of the trial's own before "
         "quantisation.",
     ) = False,
-    seed: option(int, "--seed", help="Seed of --sensor-noise (runs are deterministic).") = 0,
+    seed: option(int, help="Seed of --sensor-noise (runs are deterministic).") = 0,
     force: ForceOption = False,
     firmware: option(
-        Optional[list[Path]],
-        "--firmware",
+        list[Path] | None,
         help="A firmware ELF to run on the emulated board with each BROAD trial and score (repeatable).",
-        show_default=False,
     ) = None,
     csv_out: _Csv = None,
     markdown_out: option(
-        Optional[Path],
-        "--markdown",
-        help="Also write the table as Markdown (to paste in a report) to this file.",
-        show_default=False,
+        Path | None, "--markdown", help="Also write the table as Markdown (to paste in a report) to this file."
     ) = None,
     max_seconds: option(
-        Optional[float],
-        "--max-seconds",
+        float | None,
         help="Use only the first S seconds of each BROAD trial (every estimator and firmware; the trials' movement "
         "starts after 26-46 s).",
-        show_default=False,
     ) = None,
     variant: VariantOption = None,
 ) -> None:

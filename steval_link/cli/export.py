@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -18,9 +17,6 @@ from steval_link.cli.progress import progress_bar, scaled
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording, telemetry_of_recording
-
-__all__ = ["write_csv", "write_parquet", "write_atomic"]
-
 
 #: Angle columns of the attitude table and their names in degrees (``--degrees``).
 ANGLE_COLUMNS = {f"{p}{a}_rad": f"{p}{a}_deg" for p in ("", "target_") for a in ("thx_pitch", "thy_roll", "thz_yaw")}
@@ -79,20 +75,16 @@ _Degrees = option(
 @app.command()
 def export(
     capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log."),
-    csv: option(
-        Optional[Path], "--csv", help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB)."
-    ) = None,
-    parquet: option(Optional[Path], "--parquet", help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
-    raw: option(Optional[Path], "--raw", help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
+    csv: option(Path | None, help="Write attitude rows (a text log: a row per record) as CSV (Excel, MATLAB).") = None,
+    parquet: option(Path | None, help="Write attitude rows as Parquet (pandas; needs pyarrow).") = None,
+    raw: option(Path | None, help="Write the exact serial bytes as received (e.g. OUT.bin).") = None,
     mat: option(
-        Optional[Path],
-        "--mat",
+        Path | None,
         help="Write a MATLAB file: one struct per frame type (attitude, status, fc, ...) with the CSV's columns, plus "
         "settings and header (needs scipy).",
     ) = None,
     mcap: option(
-        Optional[Path],
-        "--mcap",
+        Path | None,
         help="Write an MCAP file (Foxglove, PlotJuggler, ROS 2, Rerun): attitude as foxglove.FrameTransform and "
         "PoseInFrame, steval.Attitude, steval.Status, steval.FlightControl, JSON, on the firmware clock (needs mcap).",
     ) = None,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,12 +15,7 @@ from steval_link.cli.checks import VariantOption, check_variant, estimator_names
 from steval_link.cli.outputs import check_output
 from steval_link.cli.replay import MapOption
 from steval_link.cli.replay import _text_map as read_map_option
-from steval_link.cli.viewer_options import (
-    CaptureOutOption,
-    NoViewOption,
-    check_view_flags,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
@@ -43,9 +37,8 @@ _PROMPT_HELP = (
 
 
 def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
-    """The checks of a session's outputs, run once its input is open: the capture (``--out``, into ``options.out``)
-    and the ``.rrd`` (neither ever overwritten), then the Rerun sinks into ``options.sinks`` (``view``: not
-    ``--no-view``)."""
+    """The checks of a session's outputs, run once its input is open: the capture and the ``.rrd`` (neither ever
+    overwritten), then the Rerun sinks (``view``: not ``--no-view``)."""
 
     def check() -> None:
         options.out = resolve_capture_out(out)
@@ -63,8 +56,7 @@ OUTPUT_FAILED_EXIT = 1
 
 
 def run_session(session: LiveSession) -> None:
-    """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero. A
-    closed stdout (``| head``) loses only the summary line."""
+    """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero."""
     session.options.word = flag_of  # its notes name flags
     summary = session.run()
     try:
@@ -91,11 +83,11 @@ def check_baud(baud: int) -> None:
 @app.command("live")
 @with_rerun_options
 def live_command(
-    port: Optional[str] = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto.", show_default=False),
+    port: str | None = typer.Option(None, "--port", "-p", help=_PORT_HELP + " Default: auto."),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
     out: CaptureOutOption = None,
     no_view: NoViewOption = False,
-    estimators: Optional[list[str]] = typer.Option(
+    estimators: list[str] | None = typer.Option(
         None,
         "--estimators",
         "-e",
@@ -103,9 +95,9 @@ def live_command(
         "your own: FILE.py:CLASS, module:CLASS, options in parentheses, docs/ESTIMATORS.md) or 'none'; "
         "default: st-mahony,accel,ekf3 (those installed).",
     ),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    duration: float | None = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
-    prompt: Optional[bool] = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
+    prompt: bool | None = typer.Option(None, "--prompt/--no-prompt", help=_PROMPT_HELP),
     ble: bool = typer.Option(
         False,
         "--ble",
@@ -113,8 +105,8 @@ def live_command(
         "strongest drone advertising DRN1…, --ble NAME or --ble ADDRESS to that one (see steval ble scan). Needs "
         'bleak: pip install "steval-link\\[ble]".',
     ),
-    device: Optional[str] = typer.Argument(
-        None, metavar="[NAME|ADDRESS]", show_default=False, help="With --ble: the drone's BLE name or address."
+    device: str | None = typer.Argument(
+        None, metavar="[NAME|ADDRESS]", help="With --ble: the drone's BLE name or address."
     ),
     ble_layout: str = typer.Option("stock", "--ble-layout", help=BLE_LAYOUT_HELP),
     variant: VariantOption = None,
@@ -163,11 +155,11 @@ def live_command(
 @app.command("record")
 def record_command(
     port: str = typer.Option(..., "--port", "-p", help=_PORT_HELP),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv."
     ),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help=_BAUD_HELP),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    duration: float | None = typer.Option(None, "--duration", help="Stop after this many seconds."),
     wait: bool = typer.Option(False, "--wait", help=_WAIT_HELP),
 ) -> None:
     """Record the raw stream to a capture file, no viewer (field use, scripts).

@@ -4,7 +4,6 @@ not at all (:func:`atomic_output`: ``NAME.partial``, renamed into place when com
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import os
 import sys
@@ -14,21 +13,6 @@ from pathlib import Path
 
 from steval_link.cli.app import option
 from steval_link.errors import UserError
-
-__all__ = [
-    "OUTPUT_OPTIONS",
-    "ForceOption",
-    "JsonReportOption",
-    "atomic_output",
-    "check_input",
-    "check_output",
-    "check_outputs",
-    "output_error",
-    "partial_path",
-    "print_json",
-    "print_warnings",
-    "write_atomic",
-]
 
 #: option names whose value is a file a command writes
 OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap", "--markdown"})
@@ -61,9 +45,7 @@ def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
 
 
 def _why(exc: BaseException) -> str:
-    if isinstance(exc, OSError):
-        if exc.errno == errno.EROFS:
-            return "read-only file system"
+    if isinstance(exc, OSError):  # e.g. "read-only file system"
         return exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
     text = str(exc).strip()
     return (text.splitlines()[0] if text else type(exc).__name__).rstrip(".")
@@ -137,8 +119,7 @@ def _same(a: Path, b: Path) -> bool:
 
 
 def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
-    """An input file, checked before it is read: it exists, is not a folder, and is a regular file (a device such as
-    ``/dev/zero`` or a pipe may never end). Raises UserError; returns it as a Path."""
+    """An input file that exists and is a regular file (a device such as ``/dev/zero`` or a pipe may never end)."""
     p = Path(path).expanduser()
     if not p.exists():
         raise UserError(f"{p}: no such file ({what})")
@@ -156,8 +137,7 @@ def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> Us
 
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
-    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception
-    (a writer's ``OSError`` or ``RuntimeError`` becomes :func:`output_error`)."""
+    """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception."""
     final = Path(path)
     partial = partial_path(final, keep_suffix=keep_suffix)
     try:

@@ -11,9 +11,7 @@ from steval_link.link.ports import list_ports
 
 
 @app.command()
-def ports(
-    as_json: option(bool, "--json", help="Print the list as JSON (for scripts).") = False,
-) -> None:
+def ports(as_json: option(bool, "--json", help="Print the list as JSON (for scripts).") = False) -> None:
     """List serial ports (device, description, VID:PID) to find the drone's USB-serial adapter."""
     found = list_ports()
     if as_json:
@@ -24,7 +22,5 @@ def ports(
         return
     width = max(len(p.device) for p in found)
     for p in found:
-        vid_pid = p.vid_pid or "-"
-        desc = p.description or "-"
         extra = f"  serial {p.serial_number}" if p.serial_number else ""
-        typer.echo(f"{p.device:<{width}}  {vid_pid:<9}  {desc}{extra}")
+        typer.echo(f"{p.device:<{width}}  {p.vid_pid or '-':<9}  {p.description or '-'}{extra}")

@@ -1,12 +1,10 @@
-"""``steval preflight``: the guided wiring check, live on the drone's port (recorded, move by move) or on a
-capture."""
+"""``steval preflight``: the guided wiring check, live on the drone's port (recorded) or on a capture."""
 
 from __future__ import annotations
 
 import sys
 import threading
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -39,8 +37,7 @@ LIVE_S = 30.0
 
 
 def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> threading.Thread:
-    """Prints the guided moves on ``stream`` at their times. The first waits ``first_after_s``, so that a port that
-    cannot be opened gives its one error line without a move prompt before it."""
+    """Prints the guided moves on ``stream`` at their times; none before ``first_after_s`` (a port's error first)."""
 
     def run() -> None:
         if stop.wait(first_after_s):
@@ -59,17 +56,17 @@ def _prompter(stop: threading.Event, stream, first_after_s: float = 0.8) -> thre
 
 @app.command("preflight")
 def preflight_command(
-    capture: Optional[Path] = typer.Argument(
+    capture: Path | None = typer.Argument(
         None, help="Check a recorded capture (.stv) of the guided moves instead of a live port."
     ),
-    port: Optional[str] = typer.Option(
+    port: str | None = typer.Option(
         None,
         "--port",
         "-p",
         help="Guide the moves live on this serial port (e.g. /dev/ttyUSB0, or 'auto'), record them, then check.",
     ),
     baud: int = typer.Option(C.BAUD, "--baud", "-b", help="Baud rate of the drone's USART1."),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None, "--out", "-o", help="Live: the capture file (default recordings/steval-<UTC time>.stv)."
     ),
 ) -> None:

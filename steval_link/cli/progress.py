@@ -8,8 +8,6 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["Progress", "progress_bar", "scaled", "SHOW_AFTER_S"]
-
 #: progress(fraction done 0..1, stage) — what library functions call; the stage is a few words
 Progress = Callable[[float, str], None]
 
@@ -21,12 +19,9 @@ def _nothing(fraction: float, stage: str = "") -> None:
     return None
 
 
-def scaled(progress: Progress | None, start: float, end: float) -> Progress:
-    """``progress`` for one part of a job: its 0..1 maps to ``start``..``end`` of the whole (no-op for None)."""
-    if progress is None:
-        return _nothing
-    span = end - start
-    return lambda fraction, stage="": progress(start + span * min(max(fraction, 0.0), 1.0), stage)
+def scaled(progress: Progress, start: float, end: float) -> Progress:
+    """``progress`` for one part of a job: its 0..1 maps to ``start``..``end`` of the whole."""
+    return lambda fraction, stage="": progress(start + (end - start) * min(max(fraction, 0.0), 1.0), stage)
 
 
 @contextmanager

@@ -1,12 +1,11 @@
-"""``steval replay``: decode a capture (or raw dump / text-mode log) and summarise it: :func:`load_replay`
-(bytes → Telemetry), :func:`run_estimators` (→ {name: AttitudeEstimate}), then the sinks (summary, Rerun)."""
+"""``steval replay``: decode a capture (or raw dump / text-mode log), run the estimators, print a summary, view it."""
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -17,10 +16,7 @@ from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant, estimator_names
 from steval_link.cli.outputs import ForceOption, print_json, print_warnings
 from steval_link.cli.progress import Progress, progress_bar, scaled
-from steval_link.cli.viewer_options import (
-    view_sinks,
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator
@@ -29,41 +25,22 @@ from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.text_series import MAP_TARGETS, parse_map
 from steval_viewer.sink_options import SinkOptions
 
-__all__ = ["MapOption", "load_replay", "run_estimators"]
-
 #: ``--map``: which series of a text log are the attitude (the CLI's flag; ``parse_map`` reads it).
 MapOption = option(
-    Optional[list[str]],
+    list[str] | None,
     "--map",
     metavar="TARGET=SERIES[:UNIT]",
     help="Text logs: which printed series is the attitude or a sensor axis, comma-separated or repeated, "
     f"e.g. pitch=col2:deg (targets: {', '.join(MAP_TARGETS)}; units deg, rad, mg, g, m/s2, dps, rad/s). "
     "pitch/roll/yaw, thx/thy/thz, acc/gyro groups with a unit and ST's own output are mapped without it.",
-    show_default=False,
 )
 
 
-#: A sink consumes the telemetry and the estimates (name → AttitudeEstimate) of one replay.
-Sink = Callable[[Any, dict[str, Any]], None]
-
-
-def load_replay(
-    path: Path | None,
-    progress: Progress | None = None,
-    *,
-    src=None,
-    text_map: list[str] | None = None,
-    ble_layout: str | None = None,
-) -> tuple[Any, list[str]]:
-    """The Telemetry of ``path`` (the demo recording when None) and the warnings met reading it. ``src``: the file
-    already read; ``text_map``: the ``--map`` items; ``ble_layout``: a BLE capture's."""
-    progress = scaled(progress, 0.0, 1.0)
-    path = demo_capture_path() if path is None else Path(path)
-    progress(0.0, f"reading {path.name}")
-    src = read_recording(path) if src is None else src
+def load_replay(src, progress: Progress, *, text_map: list[str] | None = None, ble_layout: str | None = None):
+    """The Telemetry of a file ``read_recording`` read, and the warnings met reading it."""
     progress(0.2, "decoding")
     try:
-        tel = telemetry_of_recording(src, text_map=_text_map(text_map), ble_layout=ble_layout)
+        tel = telemetry_of_recording(src, text_map=parse_map(text_map) or None, ble_layout=ble_layout)
     except UserError as exc:
         raise _map_flag(exc) from None
     progress(1.0, "decoded")
@@ -84,9 +61,8 @@ def _map_flag(exc: UserError) -> UserError:
     return UserError("--" + text) if text.startswith("map ") else exc
 
 
-def run_estimators(tel, names: Sequence[str], progress: Progress | None = None) -> dict[str, Any]:
+def run_estimators(tel, names: Sequence[str], progress: Progress) -> dict[str, Any]:
     """Each named estimator run from power-up over the attitude rows' inputs: name → ``AttitudeEstimate``."""
-    progress = scaled(progress, 0.0, 1.0)
     decimation = row_decimation(tel)
     out = {}
     # BLE rows of the drone's attitude, or a log of printed angles: no sensor values for an estimator to run on
@@ -107,55 +83,45 @@ def _has_sensor_rows(tel) -> bool:
     return bool(len(a)) and bool((np.isfinite(a.acc_mg).all(axis=1) & np.isfinite(a.gyro_mdps).all(axis=1)).any())
 
 
-def summary_sink(
-    as_json: bool, warnings_seen: list[str], variant: str | None = None, names: Sequence[str] = ()
-) -> Sink:
-    """Sink printing the summary (text or JSON); ``names``: the estimators asked for."""
-
-    def sink(tel, estimates) -> None:
-        s = summarize(tel, variant=variant, variant_source="--variant")
-        for w in warnings_seen:
-            if w not in s["warnings"]:
-                s["warnings"].append(w)
-        s["estimators"] = [estimator_summary(name, est, tel) for name, est in estimates.items()]
-        if names and not estimates and len(tel.attitude) and not _has_sensor_rows(tel):
-            s["estimators_not_run"] = (
-                f"estimators not run ({', '.join(names)}): the capture has no accelerometer and gyro values "
-                "(print them, or name them with --map)"
-            )
-        if as_json:
-            print_json(s)
-            return
-        print_warnings(s["warnings"])  # then the summary's lines and one per host estimator (``-e``)
-        lines = format_summary(dict(s, warnings=[])) + [estimator_line(e) for e in s["estimators"]]
-        print("\n".join(lines + ([s["estimators_not_run"]] if "estimators_not_run" in s else [])))
-
-    return sink
+def print_summary(tel, estimates: dict, as_json: bool, warnings_seen: list[str], variant, names: Sequence[str]):
+    """The summary (text or JSON) of the telemetry and the estimates; ``names``: the estimators asked for."""
+    s = summarize(tel, variant=variant, variant_source="--variant")
+    s["warnings"] += [w for w in warnings_seen if w not in s["warnings"]]
+    s["estimators"] = [estimator_summary(name, est, tel) for name, est in estimates.items()]
+    if names and not estimates and len(tel.attitude) and not _has_sensor_rows(tel):
+        s["estimators_not_run"] = (
+            f"estimators not run ({', '.join(names)}): the capture has no accelerometer and gyro values "
+            "(print them, or name them with --map)"
+        )
+    if as_json:
+        print_json(s)
+        return
+    print_warnings(s["warnings"])  # then the summary's lines and one per host estimator (``-e``)
+    lines = format_summary(dict(s, warnings=[])) + [estimator_line(e) for e in s["estimators"]]
+    print("\n".join(lines + ([s["estimators_not_run"]] if "estimators_not_run" in s else [])))
 
 
 @app.command()
 @with_rerun_options
 def replay(
     capture: argument(
-        Optional[Path],
+        Path | None,
         help="Capture (.stv), raw serial dump or text-mode log; detected by content. Default: the bundled demo "
         "recording.",
-        show_default=False,
     ) = None,
     as_json: option(bool, "--json", help="Print the summary as JSON (for scripts).") = False,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimators",
         "-e",
         help="Host estimators logged next to the firmware, comma-separated or repeated (st-mahony, accel, ekf3, "
         "mekf, vqf, your own FILE.py:CLASS or module:CLASS; "
         f"'none' for none). Default with a viewer or --rrd: {','.join(registry.REPLAY_DEFAULT)}.",
-        show_default=False,
     ) = None,
     variant: VariantOption = None,
     force: ForceOption = False,
     text_map: MapOption = None,
-    ble_layout: option(Optional[str], "--ble-layout", help=BLE_LAYOUT_HELP) = None,
+    ble_layout: option(str | None, help=BLE_LAYOUT_HELP) = None,
     rerun: SinkOptions = None,
 ) -> None:
     """Decode a capture and print a summary: frames, duration, rate, drops, CRC failures, filter settings, the ST
@@ -181,11 +147,11 @@ def replay(
     try:
         with progress_bar("replay", quiet=as_json or rerun.serve) as progress:  # --serve waits for Ctrl-C: no bar
             tel, seen = load_replay(
-                capture, scaled(progress, 0.0, 0.3 if viewer else 1.0), src=src, text_map=text_map, ble_layout=layout
+                src, scaled(progress, 0.0, 0.3 if viewer else 1.0), text_map=text_map, ble_layout=layout
             )
             estimates = run_estimators(tel, names, scaled(progress, 0.3, 0.5))
             # the summary first: a --serve viewer keeps running until Ctrl-C
-            summary_sink(as_json, seen, variant, names)(tel, estimates)
+            print_summary(tel, estimates, as_json, seen, variant, names)
             sys.stdout.flush()
             if options is not None and tel.link is not None:  # BLE: the live pipeline and logger, as live
                 from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd

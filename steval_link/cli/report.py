@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis import html_report as H
 from steval_link.analysis import spectrum as S
@@ -21,8 +20,6 @@ from steval_link.estimators import registry
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.load import read_recording
 
-__all__ = ["report_command"]
-
 
 def _spectrum(tel):
     """The spectra and peaks of ``tel``, or (None, {}, the sentence why there are none)."""
@@ -36,20 +33,17 @@ def _spectrum(tel):
 
 @app.command("report")
 def report_command(
-    captures: argument(
-        list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", show_default=False, metavar="CAPTURE"
-    ),
+    captures: argument(list[Path], help="Captures (.stv), raw serial dumps or text-mode logs.", metavar="CAPTURE"),
     out: option(
-        Optional[Path], "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
+        Path | None, "--out", "-o", metavar="REPORT.html", help="Write the report as one self-contained HTML page."
     ) = None,
     markdown: option(
-        Optional[Path],
-        "--markdown",
+        Path | None,
         metavar="REPORT.md",
         help="Write the report as Markdown; its figures go to REPORT_images/ beside it.",
     ) = None,
     estimator: CompareEstimatorsOption = None,
-    title: option(Optional[str], "--title", help="The report's title.") = None,
+    title: option(str | None, help="The report's title.") = None,
     force: ForceOption = False,
 ) -> None:
     """A lab report in one command: per capture its summary and filter settings, the attitude figure with
@@ -76,7 +70,7 @@ def report_command(
     with progress_bar("report") as progress:
         for i, (path, src) in enumerate(zip(captures, sources)):
             part = scaled(progress, i / len(captures), (i + 0.9) / len(captures))
-            tel, warnings = load_replay(path, scaled(part, 0.0, 0.2), src=src)
+            tel, warnings = load_replay(src, scaled(part, 0.0, 0.2))
             require_attitude(tel, "report on")
             part(0.2, f"{path.name}: replica and {', '.join(names)}")
             report = compare_capture(tel, estimators=names)

@@ -7,7 +7,6 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
@@ -26,14 +25,7 @@ from steval_link.cli.checks import (
     check_vector,
 )
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, write_atomic
-from steval_link.emulation.lab5 import (
-    BASELINE_ACC_MG,
-    BASELINE_GYRO_MDPS,
-    TYPICAL_ACC_NOISE_MG,
-    TYPICAL_GYRO_NOISE_MDPS,
-    SimulationResult,
-    run_simulation,
-)
+from steval_link.emulation import lab5
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.plugins import split_list
@@ -50,7 +42,7 @@ _ON_WORDS = {"on", "typical", "yes", "true"}
 _OFF_WORDS = {"off", "no", "false", "none"}
 
 
-def _noise(text: Optional[str], typical: float, what: str, unit: str, on: bool = False) -> float:
+def _noise(text: str | None, typical: float, what: str, unit: str, on: bool = False) -> float:
     """The noise σ of ``--{what}-noise`` (``on`` or a number); ``on`` (``--noise``): the typical one when not given."""
     if text is None:
         return typical if on else 0.0
@@ -70,32 +62,22 @@ def _noise(text: Optional[str], typical: float, what: str, unit: str, on: bool =
     return value
 
 
-def _text(value) -> str:
-    """Shortest decimal that parses (as a double) back to exactly the value; 'nan' for NaN."""
-    return repr(float(value))
-
-
-def _rows(res: SimulationResult):
-    rad = np.column_stack([res.eax_rad, res.eay_rad, res.eaz_rad]).astype(np.float64)
-    for k in range(res.iterations):
-        floats = [*res.q_wxyz[k], *rad[k], *np.degrees(rad[k])]
-        acc_gyro = [_text(v) for v in [*res.acc_mg[k], *res.gyro_mdps[k]]]
-        valid = "1" if res.valid[k] else "0"
-        yield [str(int(res.step[k])), *acc_gyro, str(int(res.thr[k])), *[_text(v) for v in floats], valid]
-
-
-def write_csv(res: SimulationResult, stream) -> None:
-    """Every iteration as CSV (header :data:`CSV_COLUMNS`); floats round-trip exactly."""
+def write_csv(res: lab5.SimulationResult, stream) -> None:
+    """Every iteration as CSV (header :data:`CSV_COLUMNS`); each float as the shortest decimal that reads back."""
     writer = csv.writer(stream, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
-    writer.writerows(_rows(res))
+    rad = np.column_stack([res.eax_rad, res.eay_rad, res.eaz_rad]).astype(np.float64)
+    for k in range(res.iterations):
+        acc_gyro = [repr(float(v)) for v in [*res.acc_mg[k], *res.gyro_mdps[k]]]
+        floats = [repr(float(v)) for v in [*res.q_wxyz[k], *rad[k], *np.degrees(rad[k])]]
+        writer.writerow([str(int(res.step[k])), *acc_gyro, str(int(res.thr[k])), *floats, "1" if res.valid[k] else "0"])
 
 
 #: the run's fields in ``--json``, before its final angles and rows
 _JSON_FIELDS = "estimator options settings dt_s estimator_dt_s iterations seed gyro_noise_mdps acc_noise_mg".split()
 
 
-def to_json(res: SimulationResult) -> dict:
+def to_json(res: lab5.SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
     eax, eay, eaz = res.final_angles_rad()
     if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
@@ -128,7 +110,7 @@ def _fmt_vec(v) -> str:
     return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
 
 
-def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
+def summary(res: lab5.SimulationResult, gyro, acc, throttle: int) -> str:
     """Human-readable inputs and final angles, labelled pitch/roll/yaw with the handout's eax/eay/eaz names."""
     own = res.estimator_dt_s
     integrates = (
@@ -170,7 +152,7 @@ def summary(res: SimulationResult, gyro, acc, throttle: int) -> str:
     return "\n".join(lines)
 
 
-def _zero_acc_notes(res: SimulationResult) -> list[str]:
+def _zero_acc_notes(res: lab5.SimulationResult) -> list[str]:
     """What a zero accelerometer input (the Lab 5 baseline) does to the estimator: the firmware's error terms are
     0, so its correction and KI do nothing; the EKFs wait for a first accelerometer sample to set their tilt."""
     zero = ~np.asarray(res.acc_mg, dtype=np.float64).any(axis=1)
@@ -196,60 +178,52 @@ def _zero_acc_notes(res: SimulationResult) -> list[str]:
 
 
 _GyroNoise = option(
-    Optional[str], "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
+    str | None, "--gyro-noise", metavar="MDPS|on", help="Gyro noise standard deviation in mdps, or 'on' for 75 mdps."
 )
 
 
 @app.command("simulate")
 def simulate_command(
     gyro: option(
-        tuple[float, float, float], "--gyro", metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
-    ) = BASELINE_GYRO_MDPS,
+        tuple[float, float, float], metavar="X Y Z", help="Gyro rate, mdps (Lab 5 baseline: 1000 2000 4000)."
+    ) = lab5.BASELINE_GYRO_MDPS,
     acc: option(
-        tuple[float, float, float],
-        "--acc",
-        metavar="X Y Z",
-        help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000).",
-    ) = BASELINE_ACC_MG,
+        tuple[float, float, float], metavar="X Y Z", help="Acceleration, mg (Lab 5 baseline: 0 0 0; at rest 0 0 1000)."
+    ) = lab5.BASELINE_ACC_MG,
     iterations: option(int, "--iterations", "-n", help="Number of AHRS steps (≥ 0).") = 100,
     noise: option(
         bool, "--noise", help="Add typical LSM6DSL noise to both sensors (gyro 75 mdps, acc 2 mg; Lab 5 part 3)."
     ) = False,
     gyro_noise: _GyroNoise = None,
     acc_noise: option(
-        Optional[str],
-        "--acc-noise",
-        metavar="MG|on",
-        help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg.",
+        str | None, metavar="MG|on", help="Accelerometer noise standard deviation in mg, or 'on' for 2 mg."
     ) = None,
-    seed: option(Optional[int], "--seed", help="Noise seed (default: random, printed).") = None,
-    throttle: option(int, "--throttle", help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
+    seed: option(int | None, help="Noise seed (default: random, printed).") = None,
+    throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
     ki: KiOption = None,
-    kp: option(Optional[float], "--kp", help="Proportional gain, replacing both 10 and 0.4.") = None,
+    kp: option(float | None, help="Proportional gain, replacing both 10 and 0.4.") = None,
     correction: CorrectionOption = None,
     variant: VariantOption = None,
     dt: DtOption = None,
     estimators: option(
-        Optional[list[str]],
+        list[str] | None,
         "--estimator",
         "-e",
         help="Estimator (one; default st-mahony): a registry name or your own (FILE.py:CLASS, module:CLASS, options in "
         "parentheses: docs/ESTIMATORS.md).",
     ) = None,
     csv_out: option(
-        Optional[str], "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
+        str | None, "--csv", metavar="FILE|-", help="Write every iteration as CSV to FILE, or to stdout with '-'."
     ) = None,
     json_out: option(bool, "--json", help="Print the run (every iteration, exact values) as JSON.") = False,
-    rrd: option(Optional[Path], "--rrd", help="Log the run to a Rerun .rrd file for the viewer.") = None,
+    rrd: option(Path | None, help="Log the run to a Rerun .rrd file for the viewer.") = None,
     plot: option(
-        Optional[Path],
-        "--plot",
+        Path | None,
         metavar="OUT.png",
         help='Write a PNG of eax/eay/eaz over the iterations; needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     compare_with: option(
-        Optional[list[str]],
-        "--compare-with",
+        list[str] | None,
         metavar="NAME=VALUE,...",
         help="Also run with these settings changed, on the same inputs and noise, and overlay the runs in --plot "
         "(repeatable): ki, kp, dt, throttle, correction=on|off, variant=170120|221117, estimator; e.g. --compare-with "
@@ -271,15 +245,17 @@ def simulate_command(
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     check_outputs({"--csv": None if csv_out == "-" else csv_out, "--rrd": rrd, "--plot": plot}, force=force)
-    gyro_sigma = _noise(gyro_noise, TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
-    acc_sigma = _noise(acc_noise, TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
+    gyro_sigma = _noise(gyro_noise, lab5.TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
+    acc_sigma = _noise(acc_noise, lab5.TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
     given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
     options = {k: v for k, v in given.items() if v is not None}
     inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
     res = _run("", **inputs, seed=seed, throttle=throttle, estimator=estimator, estimator_options=options, dt_s=dt)
     if rrd is not None:
+        from steval_viewer.simulate_log import log_simulation  # Rerun loads only for --rrd (start-up time)
+
         with atomic_output(rrd, option="--rrd") as part:
-            _log_rrd(res, part)
+            log_simulation(res, part)
     others = _compare_runs(compare_with or [], dict(inputs, seed=res.seed), options, throttle, estimator)
     if plot is not None:
         from steval_link.analysis.plots import plot_simulation  # matplotlib loads only for --plot (start-up time)
@@ -292,8 +268,7 @@ def simulate_command(
     if rrd is not None:
         text += f"\nRerun recording written to {rrd} (open it with: rerun {rrd})"
     if json_out:
-        json.dump(to_json(res), sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        print(json.dumps(to_json(res), allow_nan=False))
     elif csv_out == "-":
         write_csv(res, sys.stdout)
         print(text, file=sys.stderr)
@@ -317,10 +292,10 @@ def _estimator(estimators: list[str] | None):
     return registry.resolve(estimator)  # your own: FILE.py:CLASS, module:CLASS, a plug-in, options
 
 
-def _run(what: str, **kwargs) -> SimulationResult:
-    """:func:`run_simulation`, its errors as one sentence (after ``what``: a --compare-with run)."""
+def _run(what: str, **kwargs) -> lab5.SimulationResult:
+    """:func:`lab5.run_simulation`, its errors as one sentence (after ``what``: a --compare-with run)."""
     try:
-        return run_simulation(**kwargs)
+        return lab5.run_simulation(**kwargs)
     except (ImportError, ValueError) as exc:
         if what:
             raise UserError(f"{what}: {exc}") from None
@@ -330,24 +305,8 @@ def _run(what: str, **kwargs) -> SimulationResult:
         raise UserError(str(exc)) from None
 
 
-def _log_rrd(res: SimulationResult, path: Path) -> None:
-    try:
-        from steval_viewer.simulate_log import log_simulation  # Rerun loads only for --rrd (start-up time)
-    except ImportError:
-        raise UserError("--rrd needs the viewer's steval_viewer.simulate_log, which this installation lacks") from None
-    log_simulation(res, path)
-
-
-#: ``--compare-with`` names → (estimator option or run setting, value type)
-_COMPARE_NAMES = {
-    "ki": ("ki", float),
-    "kp": ("kp", float),
-    "dt": ("dt_s", float),
-    "correction": ("correction", bool),
-    "variant": ("variant", str),
-    "throttle": ("throttle", int),
-    "estimator": ("estimator", str),
-}
+#: ``--compare-with`` names → value type (each an estimator option, ``dt`` as ``dt_s``, or a run setting)
+_COMPARE_NAMES = dict(ki=float, kp=float, dt=float, correction=bool, variant=str, throttle=int, estimator=str)
 
 
 def _compare_value(name: str, text: str, kind: type):
@@ -368,8 +327,7 @@ def _compare_value(name: str, text: str, kind: type):
 
 
 def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, estimator: str):
-    """Each ``--compare-with NAME=VALUE,...``: a run on the same ``inputs`` and noise (the first run's seed) with
-    those settings changed; returns [(label, result)]."""
+    """Each ``--compare-with NAME=VALUE,...``: a run on the same inputs and noise with those settings changed."""
     out = []
     for spec in specs:
         opts, thr, est = dict(options), throttle, estimator
@@ -380,19 +338,18 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
                 raise UserError(
                     f"--compare-with {spec!r}: give NAME=VALUE pairs, NAME one of {', '.join(_COMPARE_NAMES)}"
                 )
-            key, kind = _COMPARE_NAMES[name]
-            v = _compare_value(name, text.strip(), kind)
-            if key == "throttle":
+            v = _compare_value(name, text.strip(), _COMPARE_NAMES[name])
+            if name == "throttle":
                 check_throttle("--compare-with throttle", v)
                 thr = v
-            elif key == "variant":
-                opts[key] = check_variant(v)
-            elif key == "estimator":
+            elif name == "variant":
+                opts[name] = check_variant(v)
+            elif name == "estimator":
                 if not registry.is_known(v):
                     raise UserError(f"--compare-with estimator={v}: unknown estimator")
                 est = v if v in registry.ESTIMATORS else registry.resolve(v)
             else:
-                opts[key] = v
+                opts["dt_s" if name == "dt" else name] = v
         if est != "st-mahony" and est != estimator:
             opts = {}  # another estimator: its own defaults (the filter options are the firmware filter's)
         r = _run(f"--compare-with {spec}", **inputs, throttle=thr, estimator=est, estimator_options=opts)
@@ -400,12 +357,9 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
     return out
 
 
-def _final_line(label: str, r: SimulationResult) -> str:
+def _final_line(label: str, r: lab5.SimulationResult) -> str:
     """The final angles of a ``--compare-with`` run, in degrees."""
     if not r.iterations:
         return f"with {label}: no iterations"
-    ang = ", ".join(
-        f"{n} {math.degrees(float(getattr(r, a)[-1])):+.6f}°"
-        for n, a in (("eax", "eax_rad"), ("eay", "eay_rad"), ("eaz", "eaz_rad"))
-    )
+    ang = ", ".join(f"{n} {math.degrees(v):+.6f}°" for n, v in zip(("eax", "eay", "eaz"), r.final_angles_rad()))
     return f"with {label}: final {ang}"

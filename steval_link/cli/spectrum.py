@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import Optional
 
 from steval_link.analysis import spectrum as S
 from steval_link.cli.app import app, argument, option
@@ -13,12 +12,10 @@ from steval_link.cli.checks import require_attitude
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, print_warnings, write_atomic
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import load_replay
-from steval_link.cli.viewer_options import (
-    with_rerun_options,
-)
+from steval_link.cli.viewer_options import view_sinks, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording
-from steval_viewer.sink_options import SinkOptions, check_sinks
+from steval_viewer.sink_options import SinkOptions
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
@@ -27,7 +24,7 @@ MAX_THROTTLE_BINS = 100
 
 
 _Csv = option(
-    Optional[Path],
+    Path | None,
     "--csv",
     help="Write the numbers to this CSV: sections psd, spectrogram and throttle, PSD columns in mdps²/Hz and mg²/Hz.",
 )
@@ -37,39 +34,30 @@ _MinHz = option(float, "--min-hz", metavar="HZ", help="Peaks below this are not 
 @app.command("spectrum")
 @with_rerun_options
 def spectrum_cmd(
-    capture: argument(
-        Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content.", show_default=False
-    ),
+    capture: argument(Path, help="Capture (.stv), raw serial dump or text-mode log; detected by content."),
     plot: option(
-        Optional[Path],
-        "--plot",
+        Path | None,
         help="Write the figure (PSD, spectrogram and frequency-vs-throttle map per axis) to this image (.png, .svg, "
         '.pdf, ...); needs matplotlib: pip install "steval-link\\[plot]".',
     ) = None,
     csv_out: _Csv = None,
     mark_hz: option(
-        Optional[list[float]],
-        "--mark-hz",
+        list[float] | None,
         metavar="HZ",
         help="Mark where a vibration at HZ shows: at HZ below the 80.77 Hz Nyquist, at its alias above it (the gyro "
         "also at its 416 Hz-register images), with the gain of the firmware's averaging and gyro filter; repeatable.",
     ) = None,
     nperseg: option(
-        Optional[int],
-        "--nperseg",
+        int | None,
         metavar="ROWS",
         help=f"Rows per FFT window (default {S.DEFAULT_NPERSEG}: 1.58 s, 0.63 Hz "
         f"resolution; less for a shorter capture; at least {S.MIN_NPERSEG}).",
-        show_default=False,
     ) = None,
-    overlap: option(float, "--overlap", help="Fraction of a window the next one overlaps.") = 0.5,
+    overlap: option(float, help="Fraction of a window the next one overlaps.") = 0.5,
     throttle_bins: option(
-        int,
-        "--throttle-bins",
-        metavar="N",
-        help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR.",
+        int, metavar="N", help="Throttle bins of the frequency-vs-throttle map, over the capture's range of gTHR."
     ) = 10,
-    peaks: option(int, "--peaks", metavar="N", help="Peaks printed per axis.") = 3,
+    peaks: option(int, metavar="N", help="Peaks printed per axis.") = 3,
     min_hz: _MinHz = 1.0,
     force: ForceOption = False,
     rerun: SinkOptions = None,
@@ -83,15 +71,12 @@ def spectrum_cmd(
     marks = list(mark_hz or [])
     _check_numbers(marks, nperseg, overlap, throttle_bins, peaks, min_hz)
     src = read_recording(capture)  # the input first, then the outputs, then the work
-    rrd = rerun.rrd
-    check_outputs({"--plot": plot, "--csv": csv_out, "--rrd": rrd}, force=force, inputs=(capture,))
+    check_outputs({"--plot": plot, "--csv": csv_out}, force=force, inputs=(capture,))
+    options = view_sinks(rerun, force=force, inputs=(capture,))  # a bad --rrd or a dead --connect URL: before the work
     if plot is not None:
         _check_plot_format(plot)
-    options = rerun if rerun.any() else None
-    if options is not None:  # the sinks first: a bad --rrd folder or a dead --connect URL fails before the work
-        check_sinks(options)
     with progress_bar("spectrum", quiet=rerun.serve) as progress:
-        tel, warnings_seen = load_replay(capture, scaled(progress, 0.0, 0.3), src=src)
+        tel, warnings_seen = load_replay(src, scaled(progress, 0.0, 0.3))
         require_attitude(tel, "take a spectrum of")
         progress(0.3, "spectra")
         sp = S.compute_spectra(tel, nperseg=nperseg, overlap=overlap, throttle_bins=throttle_bins)
@@ -119,8 +104,8 @@ def spectrum_cmd(
         try:
             spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
         except KeyboardInterrupt:
-            if rrd is not None:  # the sink writes it whole or not at all
-                print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)
+            if rerun.rrd is not None:  # the sink writes it whole or not at all
+                print(f"steval: {rerun.rrd} not written (interrupted before it was complete)", file=sys.stderr)
             raise
 
 

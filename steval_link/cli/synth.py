@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -31,21 +30,21 @@ _Encoder = option(str, "--encoder", help="Frame encoder: python, or c (the firmw
 @app.command("synth")
 def synth_cmd(
     scenario: option(
-        Optional[str], "--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."
+        str | None, "--scenario", "-s", help="Built-in scenario (see --list) or a BROAD trial .npz (real motion)."
     ) = None,
     out: option(
-        Optional[Path],
+        Path | None,
         "--out",
         "-o",
         help="Output: FILE.stv (capture with host times) or any other name for the plain received bytes (like cat "
         "/dev/ttyUSB0 > FILE).",
     ) = None,
     duration: option(
-        Optional[float], "--duration", help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
+        float | None, help="Capture length, s (default: the scenario's; a BROAD trial: all of it)."
     ) = None,
-    seed: option(int, "--seed", help="Seed of every random choice; same seed, same bytes.") = 0,
+    seed: option(int, help="Seed of every random choice; same seed, same bytes.") = 0,
     baud: option(
-        int, "--baud", help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
+        int, help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
     ) = BAUD,
     throttle_schedule: ThrottleScheduleOption = None,
     throttle: ThrottleFormerOption = None,
@@ -56,17 +55,15 @@ def synth_cmd(
     ) = False,
     join_at: _JoinAt = 0.0,
     drop_rate: option(
-        float, "--drop-rate", help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
+        float, help="Fraction of attitude frames the firmware's TX queue drops (seq gaps, tx_dropped)."
     ) = 0.0,
     encoder: _Encoder = "python",
     c_encoder: option(
-        Optional[Path],
-        "--c-encoder",
+        Path | None,
         help="Path of the host-built C encoder (default firmware_patch/host/stv_encode; implies --encoder c).",
     ) = None,
     vibration: option(
-        Optional[list[str]],
-        "--vibration",
+        list[str] | None,
         metavar="SENSOR-AXIS:HZ:AMP",
         help="Add a pure sinusoid to one sensor axis, e.g. gyro-x:47:2000 (mdps) or acc-z:130:200 (mg); repeatable. To "
         "check steval spectrum against known peaks.",

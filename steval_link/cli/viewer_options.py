@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 from steval_link.cli.app import option, with_options
 from steval_link.cli.outputs import check_output
@@ -11,12 +10,12 @@ from steval_link.errors import UserError
 from steval_viewer.sink_options import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT, SinkOptions, check_sinks
 
 RrdOption = option(
-    Optional[Path], "--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."
+    Path | None, "--rrd", help="Also write a Rerun recording to this .rrd file (open it later with: rerun FILE)."
 )
 SpawnOption = option(bool, "--spawn", help="Show it in the desktop Rerun viewer (stays open when the command ends).")
 ServeOption = option(bool, "--serve", help="Show it in the Rerun web viewer on 127.0.0.1 (until Ctrl-C).")
 ConnectOption = option(
-    Optional[str],
+    str | None,
     "--connect",
     metavar="URL",
     help="Send it to a running Rerun viewer at this gRPC URL, e.g. rerun+http://127.0.0.1:9876/proxy.",
@@ -48,7 +47,7 @@ with_rerun_options = with_options("rerun", _RERUN_PARAMS, SinkOptions)
 
 NoViewOption = option(bool, "--no-view", help="No Rerun viewer (with no --rrd: no Rerun at all).")
 CaptureOutOption = option(
-    Optional[Path], "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
+    Path | None, "--out", "-o", help="Capture file (.stv); default recordings/steval-<UTC time>.stv. Always written."
 )
 
 
