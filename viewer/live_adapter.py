@@ -71,26 +71,23 @@ make_viewer_logger = ViewerLogger
 REPLAY_BATCH = 4096
 
 
-def recording_sink(options, estimators: list[str], *, layout: str = "stock", progress=None):
-    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline into the one logger
-    (every row's attitude); returns ``sink(recording) -> rows logged``."""
+def recording_sink(options, estimators: list[str], src, *, layout: str = "stock", progress=None) -> int:
+    """``steval replay`` of a BLE capture ``src`` in Rerun: its notifications through the one pipeline into the one
+    logger (every row's attitude); returns the rows logged."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
-    def sink(src) -> int:
-        items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])
+    items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])
 
-        def log(rec) -> int:
-            logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
-            timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
-            pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
-            for i in range(0, len(items), REPLAY_BATCH):
-                pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
-                if progress is not None:
-                    progress(min(1.0, (i + REPLAY_BATCH) / max(len(items), 1)), "logging to Rerun")
-            pipe.flush_view()
-            logger.close()
-            return logger.frames
+    def log(rec) -> int:
+        logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
+        timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
+        pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
+        for i in range(0, len(items), REPLAY_BATCH):
+            pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
+            if progress is not None:
+                progress(min(1.0, (i + REPLAY_BATCH) / max(len(items), 1)), "logging to Rerun")
+        pipe.flush_view()
+        logger.close()
+        return logger.frames
 
-        return sinks.log_whole(options, f"steval replay {Path(str(src.path)).name}", log)
-
-    return sink
+    return sinks.log_whole(options, f"steval replay {Path(str(src.path)).name}", log)

@@ -1,9 +1,7 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
-Status and link rows are queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one
-``send_columns`` per entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
-Times are the pipeline's, as ``steval replay`` of the capture has them.
+Attitude rows go out before ``log_batch`` returns, in one Arrow record batch. Status and link rows are queued for
+the next batch, text records every :data:`RECORDS_INTERVAL_S`: an ``.rrd`` sink keeps some memory per chunk.
 """
 
 from __future__ import annotations
@@ -56,14 +54,11 @@ class LiveLogger:
         #: the 3D view's updates per second of stream time at most (a replay: every row)
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
         self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
-        self._ble_shown = False
+        self._tabs = dict(ble=False, text=False)  # the tabs the blueprint sent last has
         self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
-        self._text_shown = False  # the text telemetry tab was put in front
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
-        if ble:
-            self._ble_layout()
-        else:
-            bp.send_blueprint(rec, **self._blueprint)
+        if not self._show("ble" if ble else None):
+            bp.send_blueprint(rec, **self._tabs, **self._blueprint)
         scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
@@ -266,22 +261,26 @@ class LiveLogger:
         self._ble_layout()
         self.rec.log(ent.BLE_NOTE, rr.TextDocument(text), static=True)
 
+    def _show(self, tab: str | None) -> bool:
+        """Send the blueprint with ``tab`` (``ble``, ``text``) added the first time; whether it was sent."""
+        if tab is None or self._tabs[tab]:
+            return False
+        self._tabs[tab] = True
+        bp.send_blueprint(self.rec, **self._tabs, **self._blueprint)
+        return True
+
     def _text_layout(self) -> None:
         """The text telemetry tab in front, once the first record comes on a stream without binary frames."""
-        if self._text_shown or self._binary_seen:
+        if self._binary_seen or not self._show("text"):
             return
-        self._text_shown = True
-        bp.send_blueprint(self.rec, ble=self._ble_shown, text=True, **self._blueprint)
         # printed lines give the replica no inputs: its ghost would stand level; no accelerometer arrow either
         self.rec.log(ent.estimate_path(ent.SOURCE_REPLICA), rr.Clear(recursive=True), static=True)
         self.rec.log(ent.ACC_GRAVITY, rr.Clear(recursive=False), static=True)
 
     def _ble_layout(self) -> None:
         """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""
-        if self._ble_shown:
+        if not self._show("ble"):
             return
-        self._ble_shown = True
-        bp.send_blueprint(self.rec, ble=True, text=self._text_shown, **self._blueprint)
         for path in (*ent.BLE_ENVIRONMENT, ent.BLE_ARMED):
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)

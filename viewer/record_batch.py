@@ -13,7 +13,7 @@ import numpy as np
 import rerun as rr
 
 from steval_viewer import entities as ent
-from steval_viewer.columns import Times
+from steval_viewer.columns import Times, unit_xyzw
 
 #: (column name, archetype, component type) of each component kind a live round logs
 _SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
@@ -101,11 +101,7 @@ class RowBatch:
         self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
 
     def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
-        q = np.asarray(q_wxyz, dtype=np.float64).reshape(self.n, 4)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            norm = np.sqrt((q * q).sum(axis=1))
-            good = np.isfinite(norm) & (norm > 1e-6)
-            self._kept(path, _QUAT, q[:, [1, 2, 3, 0]] / np.where(good, norm, 1.0)[:, None], good, select)
+        self._kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
 
     def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
         v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)

@@ -340,18 +340,13 @@ def log_telemetry(
     return log_replay(rec, tel, others, replica=replica, progress=_part(progress, 0.1, 0.9))
 
 
-def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
-    """A ``steval replay`` sink ``sink(tel, estimates)`` logging to the sinks of ``options``
-    (:func:`~steval_viewer.sinks.log_whole`); ``progress(fraction, stage)`` hears of each stage."""
+def replay_sink(options: Any, tel: Any, estimates: Mapping[str, Any], *, progress: Progress = None) -> None:
+    """``steval replay`` to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
+    src = getattr(tel, "source", None) or {}
+    name = f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay"
 
-    def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
-        src = getattr(tel, "source", None) or {}
-        name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
+    def log(rec):
+        log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
+        _report(progress, 0.6, "writing to Rerun")
 
-        def log(rec):
-            log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
-            _report(progress, 0.6, "writing to Rerun")
-
-        log_whole(options, name, log)
-
-    return sink
+    log_whole(options, name, log)

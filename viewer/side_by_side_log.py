@@ -117,10 +117,6 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     return counts
 
 
-def side_by_side_sink(options: Any, *, recording_name: str = "steval compare (side by side)"):
-    """A sink ``sink(side_by_side)`` writing to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
-
-    def sink(r: SideBySide) -> dict[str, int]:
-        return log_whole(options, recording_name, lambda rec: log_side_by_side(rec, r))
-
-    return sink
+def side_by_side_sink(options: Any, r: SideBySide) -> dict[str, int]:
+    """``steval compare`` of several flights to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
+    return log_whole(options, "steval compare (side by side)", lambda rec: log_side_by_side(rec, r))

@@ -43,9 +43,8 @@ PARTIAL_SUFFIX = ".partial"
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it. ``rec``: the stream to log to (split: the viewer's);
-    ``file_rec``: the ``.rrd``'s own stream when split, else None; ``viewer_url``: the viewer's gRPC URL (None:
-    file only); ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it."""
+    """An open recording and the processes serving it. ``file_rec``: the ``.rrd``'s own stream when split;
+    ``viewer_url``: the viewer's gRPC URL (None: file only); ``rrd_partial``: where an atomic ``.rrd`` is written."""
 
     rec: rr.RecordingStream
     options: SinkOptions

@@ -141,11 +141,7 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     return counts
 
 
-def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
-    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the sinks of ``options`` (``log_whole``)."""
-
-    def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
-        notes = format_summary(sp, peaks, marks_hz)
-        log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, notes))
-
-    return sink
+def spectrum_sink(options: Any, recording_name: str, tel: Any, sp: Spectra, marks_hz, peaks) -> None:
+    """``steval spectrum`` to the sinks of ``options`` (``log_whole``)."""
+    notes = format_summary(sp, peaks, marks_hz)
+    log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, notes))

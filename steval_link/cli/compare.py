@@ -249,7 +249,7 @@ def _side_by_side(
     if options is not None:
         from steval_viewer.side_by_side_log import side_by_side_sink  # Rerun loads only for a viewer or an .rrd
 
-        side_by_side_sink(options)(result)
+        side_by_side_sink(options, result)
 
 
 def _rerun_line(report, capture: Path) -> list[str]:
