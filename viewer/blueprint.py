@@ -27,9 +27,8 @@ def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
     scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
 
     def plot(origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
-        """A time-series view; ``legend``: False for one-series plots (the title names the series). The legend sits
-        right in a replay (a flight's calm end), left live (the newest data is on the right) or with ``left``; at
-        the ``bottom`` for plots whose top holds data (the accelerometer's z)."""
+        """A time-series view; ``legend``: False for one-series plots. The legend sits right in a replay (a flight's
+        calm end), left live (the newest data is on the right) or with ``left``; ``bottom`` for data at the top."""
         corner = ("Left" if live or left else "Right") + ("Bottom" if bottom else "Top")
         return rrb.TimeSeriesView(
             origin=origin,

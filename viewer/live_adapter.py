@@ -12,26 +12,19 @@ from steval_link.live.session import LiveOptions
 
 
 class ViewerLogger:
-    """The sinks of ``options`` and a :class:`~steval_viewer.live_log.LiveLogger` on the main stream (the
-    viewer's, else the ``.rrd``'s). With a viewer *and* ``--rrd`` the file has its own stream and logger, ``file``
-    (else None), which the pipeline feeds merged batches. Imported only when a viewer or an ``.rrd`` is asked for.
-    """
+    """The sinks of ``options`` and a LiveLogger on the main stream (the viewer's, else the ``.rrd``'s). With a
+    viewer *and* an ``.rrd`` the file has its own stream and logger, ``file``, fed merged batches."""
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
+        #: whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)
+        self.has_viewer = self.session.viewer_url is not None
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
         file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
-        self.file = (
-            None if file_rec is None else live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
-        )
-
-    @property
-    def has_viewer(self) -> bool:
-        """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
-        return self.session.viewer_url is not None
+        self.file = file_rec and live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
 
     @property
     def output_failure(self) -> str | None:
@@ -61,10 +54,6 @@ class ViewerLogger:
                     self.file.close()
         finally:
             self.session.close()
-
-
-#: The Rerun side of a live session (see :class:`ViewerLogger`).
-make_viewer_logger = ViewerLogger
 
 
 #: notifications fed to the pipeline at a time by :func:`recording_sink`

@@ -16,8 +16,8 @@ from steval_link import constants as C
 from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
+from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
-from steval_viewer import flight_log, scene
 from steval_viewer.columns import Times, log_text_style, send_records, send_scalars
 from steval_viewer.record_batch import RowBatch
 from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
@@ -41,9 +41,8 @@ def live_source(name: str) -> str:
 
 
 class LiveLogger:
-    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``
-    (known up front: the blueprint and the series styles are sent once). ``live``: the scrolling blueprint and at
-    most LIVE_3D_MAX_HZ 3D updates (else every row: a replay). ``ble``: a BLE stream from the start."""
+    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``.
+    ``live``: the scrolling blueprint and at most LIVE_3D_MAX_HZ 3D updates (else every row). ``ble``: a BLE link."""
 
     def __init__(
         self, rec: rr.RecordingStream, estimator_names: Iterable[str] = (), *, live: bool = True, ble: bool = False
@@ -59,7 +58,7 @@ class LiveLogger:
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if not self._show("ble" if ble else None):
             bp.send_blueprint(rec, **self._tabs, **self._blueprint)
-        scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
+        drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
         self.frames = 0

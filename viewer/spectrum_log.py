@@ -11,7 +11,6 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import window
@@ -63,10 +62,10 @@ def _heat(origin: str, name: str) -> rrb.TensorView:
     )
 
 
-def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int = 0) -> rrb.Blueprint:
-    """Tabs (``active_tab`` shown first): the capture's PSD, the spectrum at the time cursor (with the signals), the
-    spectrograms, frequency vs throttle; the notes (rates, Nyquist, aliases, peaks) on the right. ``nyquist_hz``:
-    the top of the frequency axes, named in the bar charts' titles (Rerun labels few ticks)."""
+def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
+    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), the spectrograms, frequency vs
+    throttle; the notes on the right. ``nyquist_hz``: the top of the frequency axes, named in the bar charts' titles
+    (Rerun labels few ticks)."""
     span = f"0–{nyquist_hz:.2f} Hz →"
     cursor = rrb.Vertical(
         _grid("window", _bars, f"at the cursor, {span}"),
@@ -86,7 +85,7 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
         _grid("spectrogram", _heat, "spectrogram (time →, frequency ↑)"),
         _grid("throttle", _heat, "frequency ↑ vs throttle →"),
         name="Spectra",
-        active_tab=active_tab,
+        active_tab=0,
     )
     return window(
         rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
