@@ -1,6 +1,5 @@
 """The default Rerun blueprint of steval-link, sent with every recording: the 3D view above the link tabs on the
-left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s.
-"""
+left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s."""
 
 from __future__ import annotations
 

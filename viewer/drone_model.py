@@ -2,8 +2,7 @@
 estimates) and the series styles.
 
 Body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ centre to motor (the model is scaled
-so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone.
-"""
+so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Flight-control frames (type 4) to Rerun: targets, loop outputs, motor commands (also as thrust arrows), sticks.
 
 P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle), I = s1 − P);
-yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I.
-"""
+yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I."""
 
 from __future__ import annotations
 

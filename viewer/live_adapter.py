@@ -1,6 +1,5 @@
 """The Rerun side of a live session (:class:`ViewerLogger`): the sinks a session chose and the loggers that write
-to them; the session knows it only through the :class:`steval_link.live.pipeline.LiveViewer` protocol.
-"""
+to them; the session knows it only through the :class:`steval_link.live.pipeline.LiveViewer` protocol."""
 
 from __future__ import annotations
 

@@ -7,8 +7,7 @@ next batch, text records every :data:`RECORDS_INTERVAL_S`: an ``.rrd`` sink keep
 Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
 batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
 column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
-back, so a change of that format fails the tests, not the users.
-"""
+back, so a change of that format fails the tests, not the users."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """A whole Telemetry and its host estimates to Rerun, one ``rr.send_columns`` per entity. Estimates are duck-typed:
-``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask.
-"""
+``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask."""
 
 from __future__ import annotations
 

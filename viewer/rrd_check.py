@@ -1,6 +1,5 @@
 """Read an ``.rrd`` back (tests, benchmarks): samples per entity path (gaps' Clear rows not counted), timelines,
-the blueprint.
-"""
+the blueprint."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """Where a recording goes: the desktop viewer, a web viewer on localhost, a running viewer and/or an ``.rrd`` file,
-any combination, through :func:`open_session`. Every wait has a bound and ends in one :class:`UserError` sentence.
-"""
+any combination, through :func:`open_session`. Every wait has a bound and ends in one :class:`UserError` sentence."""
 
 from __future__ import annotations
 

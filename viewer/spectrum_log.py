@@ -1,7 +1,6 @@
 """``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
 ``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
-``viewer/README.md``.
-"""
+``viewer/README.md``."""
 
 from __future__ import annotations
 
@@ -142,5 +141,4 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
 
 def spectrum_sink(options: Any, recording_name: str, tel: Any, sp: Spectra, marks_hz, peaks) -> None:
     """``steval spectrum`` to the sinks of ``options`` (``log_whole``)."""
-    notes = format_summary(sp, peaks, marks_hz)
-    log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, notes))
+    log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, format_summary(sp, peaks, marks_hz)))
