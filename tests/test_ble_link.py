@@ -246,7 +246,7 @@ def test_ble_scan_lists_drones_first(monkeypatch, capsys):
 def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     """steval live --ble --rrd FILE --no-view: the one live logger writes the BLE stream's rows and values."""
     from steval_link.live.session import LiveOptions, LiveSession, source_for
-    from steval_viewer.live_adapter import make_viewer_logger
+    from steval_viewer.live_adapter import ViewerLogger
     from steval_viewer.rrd_check import blueprint_views, read_rrd
     from steval_viewer.sink_options import SinkOptions
 
@@ -255,7 +255,7 @@ def test_live_session_to_rrd_with_the_ble_layout(tmp_path):
     rrd = tmp_path / "live.rrd"
     opts = LiveOptions(out=tmp_path / "c.stv", sinks=SinkOptions(rrd=rrd), estimators=["st-mahony", "ekf3"])
     source = source_for("ble:DRN1110", backend=fake)
-    session = LiveSession(opts, source, viewer_factory=make_viewer_logger, stream=sys.stderr)
+    session = LiveSession(opts, source, viewer_factory=ViewerLogger, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
     n = summary.counts["motion"]

@@ -188,7 +188,7 @@ def test_viewer_logs_the_firmwares_values(flight, monkeypatch):
 
     sent = {}
     monkeypatch.setattr(flight_log, "send_scalars", lambda rec, path, times, v, valid=None: sent.update({path: v}))
-    monkeypatch.setattr(flight_log, "send_rows", lambda *a, **k: None)
+    monkeypatch.setattr(flight_log, "send_arrows", lambda *a, **k: None)
     n = flight_log.log_flight_control(None, flight)
     fc = flight.fc
     assert n == len(fc)

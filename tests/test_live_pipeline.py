@@ -307,7 +307,7 @@ def test_viewer_and_rrd_get_two_streams_of_one_recording_and_the_rrd_is_complete
     received: dict[str, list[int]] = {"live": [], "file": []}
 
     def factory(options, name):
-        viewer = live_adapter.make_viewer_logger(options, name)
+        viewer = live_adapter.ViewerLogger(options, name)
         for key, logger in (("live", viewer.logger), ("file", viewer.file)):
             orig = logger.log_batch
             logger.log_batch = lambda batch, orig=orig, key=key: (received[key].append(len(batch)), orig(batch))

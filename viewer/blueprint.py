@@ -1,11 +1,10 @@
 """The default Rerun blueprint of steval-link, sent with every recording: the 3D view above the link tabs on the
-left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s.
-"""
+left, the attitude plots on the right; live recordings scroll the last :data:`LIVE_WINDOW_S` s."""
 
 from __future__ import annotations
 
 import math
-from typing import Iterable, Mapping
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 import rerun as rr
@@ -21,32 +20,25 @@ LEGEND_SHARE = {"angles": 0.32, "sensors": 0.42, "link": 0.62}
 LIVE_WINDOW_S = 10.0
 
 
-class _Plots:
+def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
     """Time-series views of one layout: ``live`` scrolls the last :data:`LIVE_WINDOW_S` of ``timeline``."""
+    start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
+    scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
 
-    def __init__(self, live: bool, timeline: str) -> None:
-        self.live, self.timeline = live, timeline
-
-    def __call__(self, origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
-        """A time-series view; ``legend``: False for one-series plots (the title names the series)."""
-        start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
-        window = rrb.VisibleTimeRange(self.timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
+    def plot(origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
+        """A time-series view; ``legend``: False for one-series plots. The legend sits right in a replay (a flight's
+        calm end), left live (the newest data is on the right) or with ``left``; ``bottom`` for data at the top."""
+        corner = ("Left" if live or left else "Right") + ("Bottom" if bottom else "Top")
         return rrb.TimeSeriesView(
             origin=origin,
             contents=contents,
             name=name,
-            time_ranges=window if self.live else None,
-            plot_legend=rrb.PlotLegend(corner=legend_corner(self.live, bottom, left), visible=legend),
+            time_ranges=scroll if live else None,
+            plot_legend=rrb.PlotLegend(corner=getattr(rrb.Corner2D, corner), visible=legend),
             axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
         )
 
-
-def legend_corner(live: bool, bottom: bool = False, left: bool = False) -> rrb.Corner2D:
-    """Where a plot's legend sits: right in a replay (a flight's calm end), left live (the newest data is on the
-    right) or with ``left``; at the ``bottom`` for plots whose top holds data (the accelerometer's z)."""
-    if live or left:
-        return rrb.Corner2D.LeftBottom if bottom else rrb.Corner2D.LeftTop
-    return rrb.Corner2D.RightBottom if bottom else rrb.Corner2D.RightTop
+    return plot
 
 
 def axis_limit(max_abs: float) -> float | None:
@@ -63,7 +55,6 @@ def make_blueprint(
     *,
     live: bool = False,
     ghost_sources: Iterable[str] = (),
-    ghost: str | None = None,
     gyro_max_dps: float | None = None,
     flight_control: bool = False,
     never_armed: bool = False,
@@ -74,16 +65,14 @@ def make_blueprint(
     text: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint. ``live``: the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
-    ``ghost_sources``: the sources with a ghost drone; ``ghost`` the one shown (default by
-    ``entities.GHOST_PREFERENCE``). ``gyro_max_dps``: the gyro plot's symmetric range (None: automatic).
-    ``flight_control``, ``ble``: their tabs. ``y_ranges``: fixed y ranges by plot entity. ``absent``: plots left
-    out. ``text``: the text telemetry tab in front."""
+    ``ghost_sources``: the sources with a ghost drone (one shown, by ``entities.GHOST_PREFERENCE``).
+    ``gyro_max_dps``: the gyro plot's symmetric range. ``y_ranges``: fixed y ranges by plot entity. ``absent``:
+    plots left out. ``text``: the text telemetry tab in front."""
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
-    if ghost is None:
-        ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
+    ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
     timeline = ent.TIMELINE_HOST if live else ent.TIMELINE_FW
-    plot = _Plots(live, timeline)
+    plot = _plotter(live, timeline)
     overrides = {ent.estimate_path(s): rrb.EntityBehavior(visible=False) for s in sources if s != ghost}
     view3d = rrb.Spatial3DView(
         origin=ent.WORLD,
@@ -107,7 +96,7 @@ def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
     return rrb.Blueprint(content, time_panel, *closed, collapse_panels=False)
 
 
-def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
+def link_view(plot: Callable, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
     """The link tabs under the 3D view: link health, firmware log, text telemetry (in front when ``text``), BLE."""
     losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
     return rrb.Tabs(
@@ -127,7 +116,7 @@ def link_view(plot: _Plots, yr: Mapping[str, tuple[float, float]], ble: bool, te
     )
 
 
-def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
+def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
     """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
     the ``absent`` plots are left out, and rows left empty."""
     diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
@@ -159,7 +148,7 @@ def attitude_view(plot: _Plots, yr, replica_verdict: str | None, gyro_range, abs
     return rrb.Vertical(*kept, row_shares=shares, name="Attitude")
 
 
-def ble_view(plot: _Plots) -> rrb.Vertical:
+def ble_view(plot: Callable) -> rrb.Vertical:
     """A BLE link's own values: what its rows are, the drone's battery, pressure, temperature, RSSI and arming."""
     plots = [
         plot(path, name, legend=False)
@@ -176,7 +165,7 @@ def ble_view(plot: _Plots) -> rrb.Vertical:
     return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
 
-def flight_view(plot: _Plots, never_armed: bool = False) -> rrb.Vertical:
+def flight_view(plot: Callable, never_armed: bool = False) -> rrb.Vertical:
     """The flight-control view: per axis the remote's target against the firmware's angle, then the loops' outputs."""
     fw = ent.SOURCE_FIRMWARE
     angles = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))

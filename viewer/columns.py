@@ -1,6 +1,5 @@
 """NaN-safe columnar logging shared by the replay and live paths (one ``rr.send_columns`` per entity and call): a
-non-finite row is never sent as a value; a ``Clear`` where each bad run starts makes the plot draw a gap.
-"""
+non-finite row is never sent as a value; a ``Clear`` where each bad run starts makes the plot draw a gap."""
 
 from __future__ import annotations
 
@@ -52,9 +51,10 @@ class Times:
 
 
 def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, rows: np.ndarray | None = None) -> int:
-    """Send ``make_columns(idx)`` for the rows ``idx`` (all when None), split by host-time availability."""
+    """Send ``make_columns(idx)`` for the rows (indices or a mask; all when None), split by host-time availability."""
     idx = np.arange(len(times)) if rows is None else np.asarray(rows)
     if idx.dtype == bool:
+        rows = None if idx.all() else rows
         idx = np.flatnonzero(idx)
     if len(idx) == 0:
         return 0
@@ -84,10 +84,8 @@ def send_scalars(
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
-    if good.all():
-        return send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)))
+    sent = send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)), good)
     starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
-    sent = send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=v[idx]), np.flatnonzero(good))
     send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
     return sent
 
@@ -144,16 +142,15 @@ def send_transforms(
     xyzw, good = unit_xyzw(q_wxyz)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
-    rows = None if good.all() else good
-    return send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=_take(xyzw, idx)), rows)
+    return send_rows(rec, path, times, lambda idx: rr.Transform3D.columns(quaternion=_take(xyzw, idx)), good)
 
 
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> int:
     """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped."""
     v = np.asarray(vectors, dtype=np.float32)
-    good = np.isfinite(v).all(axis=1)
-    rows = None if good.all() else good
-    return send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), rows)
+    return send_rows(
+        rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), np.isfinite(v).all(axis=1)
+    )
 
 
 def _take(values, idx):

@@ -1,6 +1,5 @@
 """Entity paths, timelines, series labels and colours of every steval-link recording, in one place, so a replay and
-a live recording have the same layout. Units are in the path names; ``viewer/README.md`` says what each holds.
-"""
+a live recording have the same layout. Units are in the path names; ``viewer/README.md`` says what each holds."""
 
 from __future__ import annotations
 

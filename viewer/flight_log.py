@@ -1,9 +1,7 @@
-"""Flight-control frames (type 4) of a whole Telemetry to Rerun: the remote's targets next to the firmware's
-attitude, the loops' outputs, the motor commands (series and thrust arrows on the 3D drone's props), sticks, battery.
+"""Flight-control frames (type 4) to Rerun: targets, loop outputs, motor commands (also as thrust arrows), sticks.
 
 P and I are recomputed with the firmware's gains: pitch and roll bit for bit (P = kp1·(target − angle), I = s1 − P);
-yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I.
-"""
+yaw's P uses the attitude frame's ``thz``, which the ISR may move before the outer loop runs: approximate, no I."""
 
 from __future__ import annotations
 
@@ -16,7 +14,7 @@ from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_viewer import drone_model
 from steval_viewer import entities as ent
-from steval_viewer.columns import Times, send_rows, send_scalars, series_style
+from steval_viewer.columns import Times, send_arrows, send_scalars, series_style
 
 _MOTOR_COLORS = [(214, 39, 40), (255, 127, 14), (44, 160, 44), (31, 119, 180)]
 _TARGET_COLOR = (40, 40, 40)
@@ -76,22 +74,20 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = 
     p = outer_p(fc.euler_rc_rad, ang)
     s1 = np.asarray(fc.outer_s1_radps, dtype=np.float32)
     for i, path in enumerate(ent.FC_OUTER):
-        send_scalars(rec, f"{path}/s1", times, s1[:, i].astype(np.float64))
-        send_scalars(rec, f"{path}/p", times, p[:, i].astype(np.float64), found)
+        send_scalars(rec, f"{path}/s1", times, s1[:, i])
+        send_scalars(rec, f"{path}/p", times, p[:, i], found)
         if i < 2:
-            send_scalars(rec, f"{path}/i", times, (s1[:, i] - p[:, i]).astype(np.float64), found)
-    send_scalars(rec, ent.FC_INNER, times, np.asarray(fc.inner_s2_pwm, dtype=np.float64))
+            send_scalars(rec, f"{path}/i", times, s1[:, i] - p[:, i], found)
     mp = np.asarray(fc.motor_pwm, dtype=np.float64)
-    send_scalars(rec, ent.FC_MOTORS, times, mp)
-    send_scalars(rec, ent.FC_STICKS, times, np.asarray(fc.rc, dtype=np.float64))
-    send_scalars(rec, ent.FC_VBAT, times, np.asarray(fc.vbat_v, dtype=np.float64))
+    for path, values in ((ent.FC_INNER, fc.inner_s2_pwm), (ent.FC_MOTORS, mp), (ent.FC_STICKS, fc.rc)):
+        send_scalars(rec, path, times, values)
+    send_scalars(rec, ent.FC_VBAT, times, fc.vbat_v)
     # thrust arrows: the command TIM4 gets (clamped to 0..MOTOR_MAX_PWM), 1 unit = 100 % duty
     frac = np.clip(mp, 0.0, C.MOTOR_MAX_PWM) / C.PWM_PERIOD
     for k, m in enumerate(MOTORS):
         v = np.zeros((len(mp), 3), np.float32)
         v[:, 2] = frac[:, k]
-        path = ent.motor_path(m.number)
-        send_rows(rec, path, times, lambda idx, v=v: rr.Arrows3D.columns(vectors=v if idx is None else v[idx]))
+        send_arrows(rec, ent.motor_path(m.number), times, v)
     if summary is not None:
         summary.samples[ent.FC_MOTORS] = len(fc)
     return len(fc)

@@ -1,6 +1,5 @@
 """The Rerun side of a live session (:class:`ViewerLogger`): the sinks a session chose and the loggers that write
-to them; the session knows it only through the :class:`steval_link.live.pipeline.LiveViewer` protocol.
-"""
+to them; the session knows it only through the :class:`steval_link.live.pipeline.LiveViewer` protocol."""
 
 from __future__ import annotations
 
@@ -12,26 +11,19 @@ from steval_link.live.session import LiveOptions
 
 
 class ViewerLogger:
-    """The sinks of ``options`` and a :class:`~steval_viewer.live_log.LiveLogger` on the main stream (the
-    viewer's, else the ``.rrd``'s). With a viewer *and* ``--rrd`` the file has its own stream and logger, ``file``
-    (else None), which the pipeline feeds merged batches. Imported only when a viewer or an ``.rrd`` is asked for.
-    """
+    """The sinks of ``options`` and a LiveLogger on the main stream (the viewer's, else the ``.rrd``'s). With a
+    viewer *and* an ``.rrd`` the file has its own stream and logger, ``file``, fed merged batches."""
 
     def __init__(self, options: LiveOptions, recording_name: str | None = None) -> None:
         from steval_viewer import live_log, sinks  # Rerun loads only when a session uses it (start-up time)
 
         self.session = sinks.open_session(options.sinks, recording_name=recording_name, split_file=True, checked=True)
+        #: whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)
+        self.has_viewer = self.session.viewer_url is not None
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
         file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
-        self.file = (
-            None if file_rec is None else live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
-        )
-
-    @property
-    def has_viewer(self) -> bool:
-        """Whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)."""
-        return self.session.viewer_url is not None
+        self.file = file_rec and live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
 
     @property
     def output_failure(self) -> str | None:
@@ -63,34 +55,27 @@ class ViewerLogger:
             self.session.close()
 
 
-#: The Rerun side of a live session (see :class:`ViewerLogger`).
-make_viewer_logger = ViewerLogger
-
-
 #: notifications fed to the pipeline at a time by :func:`recording_sink`
 REPLAY_BATCH = 4096
 
 
-def recording_sink(options, estimators: list[str], *, layout: str = "stock", progress=None):
-    """``steval replay`` of a BLE capture in Rerun: its notifications through the one pipeline into the one logger
-    (every row's attitude); returns ``sink(recording) -> rows logged``."""
+def recording_sink(options, estimators: list[str], src, *, layout: str = "stock", progress=None) -> int:
+    """``steval replay`` of a BLE capture ``src`` in Rerun: its notifications through the one pipeline into the one
+    logger (every row's attitude); returns the rows logged."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
-    def sink(src) -> int:
-        items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])
+    items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])
 
-        def log(rec) -> int:
-            logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
-            timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
-            pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
-            for i in range(0, len(items), REPLAY_BATCH):
-                pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
-                if progress is not None:
-                    progress(min(1.0, (i + REPLAY_BATCH) / max(len(items), 1)), "logging to Rerun")
-            pipe.flush_view()
-            logger.close()
-            return logger.frames
+    def log(rec) -> int:
+        logger = live_log.LiveLogger(rec, estimator_names=estimators, live=False, ble=True)
+        timing = dict(view_interval_s=RRD_ONLY_INTERVAL_S, t0_unix_s=0.0, baud=0)
+        pipe = LivePipeline(estimators, logger, **timing, ble_layout=layout_named(layout))
+        for i in range(0, len(items), REPLAY_BATCH):
+            pipe.feed_ble(items[i : i + REPLAY_BATCH], final=i + REPLAY_BATCH >= len(items))
+            if progress is not None:
+                progress(min(1.0, (i + REPLAY_BATCH) / max(len(items), 1)), "logging to Rerun")
+        pipe.flush_view()
+        logger.close()
+        return logger.frames
 
-        return sinks.log_whole(options, f"steval replay {Path(str(src.path)).name}", log)
-
-    return sink
+    return sinks.log_whole(options, f"steval replay {Path(str(src.path)).name}", log)

@@ -1,10 +1,13 @@
 """Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
 
-Attitude rows go out before ``log_batch`` returns, as one Arrow record batch (:mod:`steval_viewer.record_batch`).
-Status and link rows are queued and sent with the next batch, text records every :data:`RECORDS_INTERVAL_S` (one
-``send_columns`` per entity or record shape): an ``.rrd`` sink keeps some memory per chunk until the file closes.
-Times are the pipeline's, as ``steval replay`` of the capture has them.
-"""
+Attitude rows go out before ``log_batch`` returns, in one Arrow record batch for every entity (:class:`RowBatch`,
+one ``send_record_batch`` call; Rerun splits it into one chunk per entity). Status and link rows are queued for the
+next batch, text records every :data:`RECORDS_INTERVAL_S`: an ``.rrd`` sink keeps some memory per chunk.
+
+Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
+batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
+column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
+back, so a change of that format fails the tests, not the users."""
 
 from __future__ import annotations
 
@@ -18,11 +21,124 @@ from steval_link import constants as C
 from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link.protocol import SEQ_MODULUS
 from steval_viewer import blueprint as bp
+from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
-from steval_viewer import flight_log, scene
-from steval_viewer.columns import Times, log_text_style, send_records, send_scalars
-from steval_viewer.record_batch import RowBatch
+from steval_viewer.columns import Times, log_text_style, send_records, send_scalars, unit_xyzw
 from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
+
+#: (column name, archetype, component type) of each component kind a live round logs
+_SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
+_QUAT = ("Transform3D:quaternion", "rerun.archetypes.Transform3D", "rerun.components.RotationQuat")
+_VEC = ("Arrows3D:vectors", "rerun.archetypes.Arrows3D", "rerun.components.Vector3D")
+
+
+def _field(pa, cache: dict, name: str, typ, **meta: str):
+    """The Arrow field ``name`` with Rerun's ``rerun:<key>`` metadata ``meta`` (cached in ``cache``)."""
+    key = (name, str(typ))
+    if key not in cache:
+        cache[key] = pa.field(name, typ, metadata={f"rerun:{k}".encode(): v.encode() for k, v in meta.items()})
+    return cache[key]
+
+
+class RowBatch:
+    """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
+    a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
+
+    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
+        import pyarrow as pa
+
+        self._pa = pa
+        self.times = times
+        self.n = len(times)
+        self.fields: list = []
+        self.arrays: list = []
+        self.bad_state = bad_state
+        self.clear_rows: dict[str, np.ndarray] = {}
+        self.cache = {} if cache is None else cache  # Arrow fields and offsets, reused across batches
+
+    def _index(self) -> None:
+        pa = self._pa
+        t = self.times
+        cols = [(ent.TIMELINE_FW, np.round(t.t_fw_s * 1e9).astype(np.int64))]
+        if t.host_complete():
+            cols.append((ent.TIMELINE_HOST, np.round(t.t_host_s * 1e9).astype(np.int64)))
+        if t.step is not None:
+            cols.append((ent.TIMELINE_STEP, t.step))
+        for name, values in cols:
+            typ = pa.int64() if name == ent.TIMELINE_STEP else pa.duration("ns")
+            f = _field(pa, self.cache, name, typ, kind="index", index_name=name)
+            self.fields.insert(0, f)
+            self.arrays.insert(0, pa.array(values, type=f.type))
+
+    def _add(
+        self, path: str, kind: tuple[str, str, str], values: np.ndarray, width: int, good: np.ndarray, all_good: bool
+    ) -> None:
+        if not good.any() and self.bad_state.get(path, False):
+            return  # a gap that goes on: nothing to send (its Clear was sent where it began)
+        pa = self._pa
+        if kind is _SCALAR:
+            inner, step = pa.array(values.reshape(-1)), width
+        else:
+            inner, step = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1).astype(np.float32)), width), 1
+        mask = None if all_good else pa.array(~good)
+        arr = pa.ListArray.from_arrays(self._offsets_for(self.n, step), inner, mask=mask)
+        comp, arch, ctype = kind
+        meta = dict(kind="data", entity_path="/" + path, component=comp, archetype=arch, component_type=ctype)
+        self.fields.append(_field(pa, self.cache, f"/{path}:{comp}", arr.type, **meta))
+        self.arrays.append(arr)
+        # gaps: a Clear at each row where the entity turns bad (state carried across batches)
+        bad = ~good
+        if not all_good:
+            starts = np.flatnonzero(bad & ~np.concatenate(([self.bad_state.get(path, False)], bad[:-1])))
+            if starts.size:
+                self.clear_rows[path] = starts
+        self.bad_state[path] = bool(bad[-1])
+
+    def _offsets_for(self, n: int, step: int):
+        key = ("offsets", n, step)
+        off = self.cache.get(key)
+        if off is None:
+            off = self._pa.array(np.arange(0, n * step + 1, step, dtype=np.int32))
+            if n <= 64:
+                self.cache[key] = off
+        return off
+
+    def scalars(self, path: str, values: np.ndarray) -> None:
+        v2 = np.asarray(values, dtype=np.float64).reshape(self.n, -1)
+        good = np.isfinite(v2).all(axis=1)
+        all_good = bool(good.all())
+        if not all_good:
+            v2 = np.where(good[:, None], v2, 0.0)
+        self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
+
+    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
+        self._kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
+
+    def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
+        v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
+        self._kept(path, _VEC, v, np.isfinite(v).all(axis=1), select)
+
+    def _kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray | None) -> None:
+        """A 3D entity's ``good`` rows (and ``select``): it keeps its last value, never cleared. A path never good is
+        not sent (the viewer rejects an all-null column); a path sent once is in ``bad_state``."""
+        if select is not None:
+            good = good & select
+        if path not in self.bad_state and not good.any():
+            return
+        self._add(path, kind, np.where(good[:, None], values, 0.0), values.shape[1], good, bool(good.all()))
+        self.bad_state[path] = False
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        if not self.arrays:
+            return
+        self._index()
+        pa = self._pa
+        rec.send_record_batch(pa.RecordBatch.from_arrays(self.arrays, schema=pa.schema(self.fields)))
+        for path, rows in self.clear_rows.items():
+            if path.startswith(ent.PLOTS + "/") or path.startswith(ent.LINK + "/"):
+                sub = self.times.take(rows)
+                rec.send_columns(path, indexes=sub.indexes, columns=rr.Clear.columns(is_recursive=[False] * len(rows)))
+
 
 #: The live 3D view is updated at most this often per second (the batch's newest frame); plots get every frame.
 LIVE_3D_MAX_HZ = 60.0
@@ -43,9 +159,8 @@ def live_source(name: str) -> str:
 
 
 class LiveLogger:
-    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``
-    (known up front: the blueprint and the series styles are sent once). ``live``: the scrolling blueprint and at
-    most LIVE_3D_MAX_HZ 3D updates (else every row: a replay). ``ble``: a BLE stream from the start."""
+    """Logs a live session to ``rec``, batch by batch. ``estimator_names``: the names of ``batch.estimates``.
+    ``live``: the scrolling blueprint and at most LIVE_3D_MAX_HZ 3D updates (else every row). ``ble``: a BLE link."""
 
     def __init__(
         self, rec: rr.RecordingStream, estimator_names: Iterable[str] = (), *, live: bool = True, ble: bool = False
@@ -56,15 +171,14 @@ class LiveLogger:
         #: the 3D view's updates per second of stream time at most (a replay: every row)
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
         self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
-        self._ble_shown = False
+        self._tabs = dict(ble=False, text=False)  # the tabs the blueprint sent last has
         self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
-        self._text_shown = False  # the text telemetry tab was put in front
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if ble:
             self._ble_layout()
         else:
-            bp.send_blueprint(rec, **self._blueprint)
-        scene.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
+            bp.send_blueprint(rec, **self._tabs, **self._blueprint)
+        drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
         self.frames = 0
@@ -266,22 +380,26 @@ class LiveLogger:
         self._ble_layout()
         self.rec.log(ent.BLE_NOTE, rr.TextDocument(text), static=True)
 
+    def _show(self, tab: str) -> bool:
+        """Send the blueprint with ``tab`` (``ble``, ``text``) added the first time; whether it was sent."""
+        if self._tabs[tab]:
+            return False
+        self._tabs[tab] = True
+        bp.send_blueprint(self.rec, **self._tabs, **self._blueprint)
+        return True
+
     def _text_layout(self) -> None:
         """The text telemetry tab in front, once the first record comes on a stream without binary frames."""
-        if self._text_shown or self._binary_seen:
+        if self._binary_seen or not self._show("text"):
             return
-        self._text_shown = True
-        bp.send_blueprint(self.rec, ble=self._ble_shown, text=True, **self._blueprint)
         # printed lines give the replica no inputs: its ghost would stand level; no accelerometer arrow either
         self.rec.log(ent.estimate_path(ent.SOURCE_REPLICA), rr.Clear(recursive=True), static=True)
         self.rec.log(ent.ACC_GRAVITY, rr.Clear(recursive=False), static=True)
 
     def _ble_layout(self) -> None:
         """The blueprint with the BLE tab, once a BLE value comes (a stream says what it is by its frames)."""
-        if self._ble_shown:
+        if not self._show("ble"):
             return
-        self._ble_shown = True
-        bp.send_blueprint(self.rec, ble=True, text=self._text_shown, **self._blueprint)
         for path in (*ent.BLE_ENVIRONMENT, ent.BLE_ARMED):
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)

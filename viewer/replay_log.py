@@ -1,7 +1,5 @@
-"""Columnar logging of a whole :class:`~steval_link.link.telemetry.Telemetry` and its host estimates to Rerun: one
-``rr.send_columns`` per entity for the whole flight (``steval replay``, ``steval simulate``). Estimates are
-duck-typed: ``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask.
-"""
+"""A whole Telemetry and its host estimates to Rerun, one ``rr.send_columns`` per entity. Estimates are duck-typed:
+``q_wxyz`` (N, 4), ``thx_rad`` and ``thy_rad`` (N,), optionally a ``valid`` (N,) bool mask."""
 
 from __future__ import annotations
 
@@ -20,8 +18,8 @@ from steval_link.estimators.firmware_replay import replay_variants
 from steval_link.link.commands import command_log
 from steval_link.quat import quaternion_from_euler
 from steval_viewer import blueprint as bp
+from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
-from steval_viewer import flight_log, scene
 from steval_viewer.columns import (
     Times,
     log_text_style,
@@ -148,11 +146,9 @@ class _Replay:
     def replica_difference(self, att: Any, replica: Any) -> None:
         """firmware − ST-Mahony replica for thx and thy, in degrees, where the replica is seeded (0 when bit-exact)."""
         valid = estimate_mask(replica, len(self.times))
-        for path, fw, py in (
-            (ent.DIFF_THX, att.thx_rad, replica.thx_rad),
-            (ent.DIFF_THY, att.thy_rad, replica.thy_rad),
-        ):
-            self.scalars(path, _deg(np.asarray(fw, dtype=np.float64) - np.asarray(py, dtype=np.float64)), valid)
+        for path, angle in ((ent.DIFF_THX, "thx_rad"), (ent.DIFF_THY, "thy_rad")):
+            diff = np.asarray(getattr(att, angle), np.float64) - np.asarray(getattr(replica, angle), np.float64)
+            self.scalars(path, _deg(diff), valid)
 
     def link(self, tel: Any) -> None:
         """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
@@ -248,9 +244,8 @@ def log_replay(
     link: bool = True,
     progress: Progress = None,
 ) -> ReplaySummary:
-    """Log a whole Telemetry, the ST-Mahony ``replica`` and host ``estimates`` (name -> ``AttitudeEstimate``, one
-    row per attitude row) to ``rec`` with the default blueprint; returns the samples logged per entity path.
-    ``link``: log the link-health series (False for simulations)."""
+    """Log a whole Telemetry, the ST-Mahony ``replica`` and host ``estimates`` (name -> one row per attitude row)
+    with the default blueprint; returns the samples logged per entity path. ``link``: the link-health series."""
     att = tel.attitude
     n = len(att.t_fw_s)
     sources = [(ent.SOURCE_REPLICA, replica)] if replica is not None else []
@@ -275,7 +270,7 @@ def log_replay(
         absent=absent_plots(tel, replica),
         text=getattr(tel, "printed_only", False),
     )
-    scene.log_static(rec, names, with_replica=replica is not None)
+    drone_model.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
         flight_log.log_flight_static(rec)
 
@@ -322,36 +317,26 @@ def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, fl
 REPLICA_NAMES = ("st-mahony", "st_mahony")
 
 
-def firmware_replica(tel: Any) -> Any | None:
-    """The bit-exact ST-Mahony replica over ``tel``, or None without bit-exact rows (text mode)."""
-    if not np.asarray(getattr(tel.attitude, "exact", True)).any():
-        return None
-    return replay_variants(tel, hint=capture_variant_hint(tel)).replay  # the release whose filter is bit-exact
-
-
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Run the seeded firmware replica and log it with ``estimates``; a registry ``st-mahony`` estimate (started
-    from power-up, not seeded) gives way to the replica."""
+    """Run the seeded firmware replica (the release whose filter is bit-exact; none without bit-exact rows: text
+    mode) and log it with ``estimates``; a registry ``st-mahony`` estimate (not seeded) gives way to the replica."""
     _report(progress, 0.0, "ST-Mahony replica")
-    replica = firmware_replica(tel)
+    replica = None
+    if np.asarray(getattr(tel.attitude, "exact", True)).any():
+        replica = replay_variants(tel, hint=capture_variant_hint(tel)).replay
     others = {k: v for k, v in (estimates or {}).items() if not (replica is not None and k in REPLICA_NAMES)}
     return log_replay(rec, tel, others, replica=replica, progress=_part(progress, 0.1, 0.9))
 
 
-def replay_sink(options: Any, *, recording_name: str | None = None, progress: Progress = None):
-    """A ``steval replay`` sink ``sink(tel, estimates)`` logging to the sinks of ``options``
-    (:func:`~steval_viewer.sinks.log_whole`); ``progress(fraction, stage)`` hears of each stage."""
+def replay_sink(options: Any, tel: Any, estimates: Mapping[str, Any], *, progress: Progress = None) -> None:
+    """``steval replay`` to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
+    src = getattr(tel, "source", None) or {}
+    name = f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay"
 
-    def sink(tel: Any, estimates: Mapping[str, Any]) -> None:
-        src = getattr(tel, "source", None) or {}
-        name = recording_name or (f"steval replay {Path(src['path']).name}" if src.get("path") else "steval replay")
+    def log(rec):
+        log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
+        _report(progress, 0.6, "writing to Rerun")
 
-        def log(rec):
-            log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
-            _report(progress, 0.6, "writing to Rerun")
-
-        log_whole(options, name, log)
-
-    return sink
+    log_whole(options, name, log)

@@ -1,6 +1,5 @@
 """Read an ``.rrd`` back (tests, benchmarks): samples per entity path (gaps' Clear rows not counted), timelines,
-the blueprint.
-"""
+the blueprint."""
 
 from __future__ import annotations
 
@@ -60,6 +59,13 @@ def read_rrd(path: str | Path) -> RrdInfo:
     return info
 
 
+def _last_values(chunk) -> dict[str, object]:
+    """{component: its last value} of a chunk."""
+    rb = chunk.to_record_batch()
+    columns = {f.name: rb.column(f.name).to_pylist() for f in rb.schema if ":" in f.name}
+    return {name: values[-1] if values else None for name, values in columns.items()}
+
+
 def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, object]]:
     """The blueprint components in ``path`` (the first blueprint, or ``every`` one): entity path → {component: last
     value, a one-item list unwrapped}."""
@@ -68,14 +74,9 @@ def _blueprint_components(path: str | Path, every: bool) -> dict[str, dict[str, 
     out: dict[str, dict[str, object]] = defaultdict(dict)
     for store in stores if every else stores[:1]:
         for chunk in reader.stream(store=store):
-            rb = chunk.to_record_batch()
-            for f in rb.schema:
-                if ":" in f.name:
-                    values = rb.column(f.name).to_pylist()
-                    value = values[-1] if values else None
-                    out[chunk.entity_path.strip("/")][f.name] = (
-                        value[0] if isinstance(value, list) and len(value) == 1 else value
-                    )
+            for name, value in _last_values(chunk).items():
+                one = isinstance(value, list) and len(value) == 1
+                out[chunk.entity_path.strip("/")][name] = value[0] if one else value
     return out
 
 
@@ -107,9 +108,5 @@ def static_values(path: str | Path, entity: str) -> dict[str, object]:
     out: dict[str, object] = {}
     for chunk in reader.stream(store=reader.recordings()[0]):
         if chunk.is_static and chunk.entity_path.strip("/") == entity:
-            rb = chunk.to_record_batch()
-            for f in rb.schema:
-                if ":" in f.name:
-                    values = rb.column(f.name).to_pylist()
-                    out[f.name] = values[-1] if values else None
+            out.update(_last_values(chunk))
     return out

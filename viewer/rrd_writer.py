@@ -4,8 +4,7 @@ Why not Rerun's own file sink: it keeps its errors to itself and about 1 kB per 
 closes. Here a thread appends what a Rerun binary stream holds every :data:`WRITE_INTERVAL_S` and ``fsync``\\s every
 second. The file gets one stream header and the messages (:func:`rrd_messages`), no footer: Rerun reads it from
 its start, and a file cut after any write still opens. A failed write or a vanished file becomes one sentence in
-:attr:`RrdWriter.failure`; the run goes on with its other outputs.
-"""
+:attr:`RrdWriter.failure`; the run goes on with its other outputs."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """``steval compare A.stv B.stv ...`` in Rerun: each flight its own entity subtree (``flights/<k>/...``) on the
-``aligned_time`` timeline, and a blueprint that overlays them. The entities are listed in ``viewer/README.md``.
-"""
+``aligned_time`` timeline, and a blueprint that overlays them. The entities are listed in ``viewer/README.md``."""
 
 from __future__ import annotations
 
@@ -73,8 +72,7 @@ def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarra
 
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     """Log every flight of ``r`` under its own subtree; returns the rows logged per entity path."""
-    labels = [f.label for f in r.flights]
-    rec.send_blueprint(side_by_side_blueprint(labels), make_active=True, make_default=True)
+    rec.send_blueprint(side_by_side_blueprint([f.label for f in r.flights]), make_active=True, make_default=True)
     counts: dict[str, int] = {}
     mesh = drone_model.quadcopter_mesh()
     ref = r.flights[0]
@@ -117,10 +115,6 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     return counts
 
 
-def side_by_side_sink(options: Any, *, recording_name: str = "steval compare (side by side)"):
-    """A sink ``sink(side_by_side)`` writing to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
-
-    def sink(r: SideBySide) -> dict[str, int]:
-        return log_whole(options, recording_name, lambda rec: log_side_by_side(rec, r))
-
-    return sink
+def side_by_side_sink(options: Any, r: SideBySide) -> dict[str, int]:
+    """``steval compare`` of several flights to the sinks of ``options`` (:func:`~steval_viewer.sinks.log_whole`)."""
+    return log_whole(options, "steval compare (side by side)", lambda rec: log_side_by_side(rec, r))

@@ -1,8 +1,6 @@
 """Log a ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` with the standard layout and blueprint.
-
-The simulated filter takes the place of the drone's own filter: the solid quadcopter and the ``firmware`` series
-show it, labelled ``simulated <estimator>``; ``fw_time`` is the simulated time ``(step + 1) * dt_s``.
-"""
+The simulated filter takes the place of the drone's own (the ``firmware`` series, labelled ``simulated <name>``);
+``fw_time`` is the simulated time ``(step + 1) * dt_s``."""
 
 from __future__ import annotations
 
@@ -49,12 +47,9 @@ def log_simulation(res: Any, path: str | Path) -> ReplaySummary:
         summary = log_replay(rec, tel, {}, None, link=False)
         label = f"simulated {res.estimator}"
         fw = ent.SOURCE_FIRMWARE
-        for path, name in (
-            (ent.pitch_path(fw), f"thx pitch ({label})"),
-            (ent.roll_path(fw), f"thy roll ({label})"),
-            (ent.yaw_path(fw), f"thz yaw ({label})"),
-        ):
-            series_style(rec, path, name, ent.source_color(fw), 2.5)
+        paths = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
+        for path, angle in zip(paths, ("thx pitch", "thy roll", "thz yaw")):
+            series_style(rec, path, f"{angle} ({label})", ent.source_color(fw), 2.5)
         noise = ""
         if getattr(res, "gyro_noise_mdps", 0) or getattr(res, "acc_noise_mg", 0):
             noise = f", noise gyro {res.gyro_noise_mdps:g} mdps / acc {res.acc_noise_mg:g} mg (seed {res.seed})"

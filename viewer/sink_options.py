@@ -1,7 +1,6 @@
 """The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
 import (the ``.rrd``'s folder, the ``--connect`` URL, free ports, a display), so the CLI can check its options
-before any work and before Rerun is loaded.
-"""
+before any work and before Rerun is loaded."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Where a recording goes: desktop viewer (``--spawn``), web viewer on localhost (``--serve``), a running viewer
-(``--connect URL``) and/or an ``.rrd`` file (``--rrd FILE``), any combination, through :func:`open_session`.
-
-Every wait has a bound and ends in one :class:`UserError` sentence. ``--spawn``'s viewer stays open after the
-command (one already on the port is reused); ``--serve``'s lives as long as the command (parent-death signal).
-"""
+"""Where a recording goes: the desktop viewer, a web viewer on localhost, a running viewer and/or an ``.rrd`` file,
+any combination, through :func:`open_session`. Every wait has a bound and ends in one :class:`UserError` sentence."""
 
 from __future__ import annotations
 
@@ -43,9 +39,8 @@ PARTIAL_SUFFIX = ".partial"
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it. ``rec``: the stream to log to (split: the viewer's);
-    ``file_rec``: the ``.rrd``'s own stream when split, else None; ``viewer_url``: the viewer's gRPC URL (None:
-    file only); ``rrd_partial``: with ``atomic_rrd``, where the file is written until :meth:`close` renames it."""
+    """An open recording and the processes serving it. ``file_rec``: the ``.rrd``'s own stream when split;
+    ``viewer_url``: the viewer's gRPC URL (None: file only); ``rrd_partial``: where an atomic ``.rrd`` is written."""
 
     rec: rr.RecordingStream
     options: SinkOptions
@@ -223,14 +218,10 @@ def _last_line(log_path: Path) -> str:
     return "no output"
 
 
-def proxy_url(tcp_port: int) -> str:
-    return f"rerun+http://127.0.0.1:{tcp_port}/proxy"
-
-
 def spawn_desktop_viewer(tcp_port: int) -> str:
     """Start the desktop viewer on 127.0.0.1:``tcp_port`` (or reuse one that listens there); returns its gRPC URL.
     Detached: it stays open after we exit."""
-    url = proxy_url(tcp_port)
+    url = f"rerun+http://127.0.0.1:{tcp_port}/proxy"
     if not port_free(tcp_port):
         note = f"sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)"
         print(f"steval: {note}", file=sys.stderr)
@@ -254,7 +245,7 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
     _wait_listening(child, grpc_port, "Rerun web viewer", log_path)
-    proxy = proxy_url(grpc_port)
+    proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
 
@@ -267,12 +258,9 @@ def open_session(
     atomic_rrd: bool = False,
     checked: bool = False,
 ) -> ViewerSession:
-    """Open a RecordingStream on the sinks of ``options`` (:func:`resolve_sinks` first for the default viewer).
-
-    ``split_file``: with a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same
-    recording, logged at its own cadence. ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` and renamed
-    by ``close()`` (``close(complete=False)`` removes it). ``checked``: the caller ran :func:`check_sinks` already.
-    UserError when the ``.rrd`` cannot be written or a viewer cannot be started or reached.
+    """Open a RecordingStream on the sinks of ``options``; UserError when one cannot be opened. ``split_file``: with
+    a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same recording.
+    ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`.
     """
     if not options.any():
         raise ParamError(
@@ -343,9 +331,8 @@ T = TypeVar("T")
 
 
 def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
-    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, flush, close (``--serve``: after Ctrl-C)
-    and return what ``log`` returned. The ``.rrd`` is complete (a line on stderr says where; also when a viewer
-    went away) or, interrupted, not written at all."""
+    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, close and return what ``log`` returned. The
+    ``.rrd`` is complete (a line on stderr says where) or, interrupted, not written at all."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)

@@ -1,7 +1,6 @@
 """``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
 ``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
-``viewer/README.md``.
-"""
+``viewer/README.md``."""
 
 from __future__ import annotations
 
@@ -11,7 +10,6 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from steval_link import constants as C
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Spectra, format_summary
 from steval_viewer import entities as ent
 from steval_viewer.blueprint import window
@@ -63,10 +61,10 @@ def _heat(origin: str, name: str) -> rrb.TensorView:
     )
 
 
-def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int = 0) -> rrb.Blueprint:
-    """Tabs (``active_tab`` shown first): the capture's PSD, the spectrum at the time cursor (with the signals), the
-    spectrograms, frequency vs throttle; the notes (rates, Nyquist, aliases, peaks) on the right. ``nyquist_hz``:
-    the top of the frequency axes, named in the bar charts' titles (Rerun labels few ticks)."""
+def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
+    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), the spectrograms, frequency vs
+    throttle; the notes on the right. ``nyquist_hz``: the top of the frequency axes, named in the bar charts' titles
+    (Rerun labels few ticks)."""
     span = f"0–{nyquist_hz:.2f} Hz →"
     cursor = rrb.Vertical(
         _grid("window", _bars, f"at the cursor, {span}"),
@@ -86,7 +84,7 @@ def spectrum_blueprint(nyquist_hz: float = C.AHRS_RATE_HZ / 2, active_tab: int =
         _grid("spectrogram", _heat, "spectrogram (time →, frequency ↑)"),
         _grid("throttle", _heat, "frequency ↑ vs throttle →"),
         name="Spectra",
-        active_tab=active_tab,
+        active_tab=0,
     )
     return window(
         rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
@@ -141,11 +139,6 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     return counts
 
 
-def spectrum_sink(options: Any, *, recording_name: str = "steval spectrum"):
-    """A sink ``sink(tel, spectra, marks_hz, peaks)`` writing to the sinks of ``options`` (``log_whole``)."""
-
-    def sink(tel: Any, sp: Spectra, marks_hz, peaks) -> None:
-        notes = format_summary(sp, peaks, marks_hz)
-        log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, notes))
-
-    return sink
+def spectrum_sink(options: Any, recording_name: str, tel: Any, sp: Spectra, marks_hz, peaks) -> None:
+    """``steval spectrum`` to the sinks of ``options`` (``log_whole``)."""
+    log_whole(options, recording_name, lambda rec: log_spectra(rec, tel, sp, format_summary(sp, peaks, marks_hz)))

@@ -222,7 +222,7 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
     if options is not None:
         from steval_viewer.side_by_side_log import side_by_side_sink  # Rerun loads only for a viewer or an .rrd
 
-        side_by_side_sink(options)(result)
+        side_by_side_sink(options, result)
 
 
 def _rerun_line(report, capture: Path) -> list[str]:

@@ -27,7 +27,7 @@ from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
 from steval_link.link.load import load_telemetry
 from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
-from steval_viewer.live_adapter import make_viewer_logger
+from steval_viewer.live_adapter import ViewerLogger
 from steval_viewer.sink_options import SinkOptions
 
 _Realtime = option(bool, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
@@ -148,7 +148,7 @@ def emulate_command(
     options = LiveOptions(estimators=estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=flag_of)
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
-    summary = LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check).run()
+    summary = LiveSession(options, source, viewer_factory=ViewerLogger, check_outputs=check).run()
     print("\n".join([summary.line(), *_estimator_lines(summary, options.estimators)]))
     sys.stdout.flush()
 

@@ -21,7 +21,7 @@ from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
 from steval_link.link.capture import resolve_capture_out
 from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, port_source, source_for
-from steval_viewer.live_adapter import make_viewer_logger
+from steval_viewer.live_adapter import ViewerLogger
 from steval_viewer.sink_options import SinkOptions, session_sinks
 
 _PORT_HELP = (
@@ -149,7 +149,7 @@ def live_command(
     )
     # the input first (the port, or BLE), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
-    run_session(LiveSession(options, source, viewer_factory=make_viewer_logger, check_outputs=check))
+    run_session(LiveSession(options, source, viewer_factory=ViewerLogger, check_outputs=check))
 
 
 @app.command("record")

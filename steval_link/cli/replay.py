@@ -156,13 +156,13 @@ def replay(
             if options is not None and tel.link is not None:  # BLE: the live pipeline and logger, as live
                 from steval_viewer.live_adapter import recording_sink  # Rerun loads only for a viewer or an .rrd
 
-                recording_sink(options, list(names), layout=tel.link.layout.name, progress=scaled(progress, 0.5, 1.0))(
-                    src
+                recording_sink(
+                    options, list(names), src, layout=tel.link.layout.name, progress=scaled(progress, 0.5, 1.0)
                 )
             elif options is not None:
                 from steval_viewer.replay_log import replay_sink  # Rerun loads only for a viewer or an .rrd
 
-                replay_sink(options, progress=scaled(progress, 0.5, 1.0))(tel, estimates)
+                replay_sink(options, tel, estimates, progress=scaled(progress, 0.5, 1.0))
     except KeyboardInterrupt:
         if rrd is not None:  # the sink writes it whole or not at all (an earlier file there stays as it was)
             print(f"steval: {rrd} not written (interrupted before it was complete)", file=sys.stderr)

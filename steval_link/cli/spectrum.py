@@ -102,7 +102,7 @@ def spectrum_cmd(
         from steval_viewer.spectrum_log import spectrum_sink  # Rerun loads only for a viewer or an .rrd
 
         try:
-            spectrum_sink(options, recording_name=f"steval spectrum {capture.name}")(tel, sp, marks, found)
+            spectrum_sink(options, f"steval spectrum {capture.name}", tel, sp, marks, found)
         except KeyboardInterrupt:
             if rerun.rrd is not None:  # the sink writes it whole or not at all
                 print(f"steval: {rerun.rrd} not written (interrupted before it was complete)", file=sys.stderr)
