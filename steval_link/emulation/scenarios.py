@@ -150,6 +150,32 @@ class Kinematics:
         return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
 
 
+@dataclass(frozen=True)
+class Scenario:
+    """A built-in motion scenario; ``summary`` is its builder's docstring."""
+
+    name: str
+    summary: str
+    default_duration_s: float
+    min_duration_s: float
+    build: Callable[[float, np.random.Generator], Kinematics]
+
+
+#: Built-in scenarios by name, in the order they are defined below.
+SCENARIOS: dict[str, Scenario] = {}
+
+
+def _scenario(name: str, default_duration_s: float, min_duration_s: float):
+    """Registers the decorated builder ``(T, rng) -> Kinematics`` as the built-in scenario ``name``."""
+
+    def register(build):
+        summary = " ".join(build.__doc__.split())
+        SCENARIOS[name] = Scenario(name, summary, default_duration_s, min_duration_s, build)
+        return build
+
+    return register
+
+
 def _at_rest(rng) -> tuple[float, float, float]:
     """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
     return (*_surface_tilt(rng), rng.uniform(-np.pi, np.pi))
@@ -228,13 +254,16 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
     return f
 
 
+@_scenario("bench", 30.0, 3.0)
 def _bench(T: float, rng) -> Kinematics:
+    """lying still on the bench (noise, bias, calibration only); throttle 0"""
     thx, thy, yaw = (Steps(v) for v in _at_rest(rng))
     return Kinematics(thx=thx, thy=thy, yaw=yaw)
 
 
+@_scenario("hand-tilts", 40.0, 8.0)
 def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
-    """Picked up at T_start, tilted, put back down before T_end."""
+    """picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0"""
     axes = [Steps(v) for v in _at_rest(rng)]
     last = _add_tilts(axes[0], axes[1], T_start + 1.0, T_end - 1.5, rng)
     t_put = max(last + 0.8, T_start + 1.5)
@@ -242,7 +271,9 @@ def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
     return _held(axes, hand, lin_acc_mg=_vertical_acc([_lift(T_start, 0.12, 1.0, t_put)]), lever_weight=w)
 
 
+@_scenario("yaw-spin", 40.0, 14.0)
 def _yaw_spin(T: float, rng) -> Kinematics:
+    """on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0"""
     x0, y0 = _surface_tilt(rng)
     rate = Steps()
     t = 4.0
@@ -299,11 +330,16 @@ def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero)
     )
 
 
+@_scenario("hover", 40.0, 16.0)
 def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
+    """take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and small attitude wander,
+    landing"""
     return _take_off(_bench(T, rng), t0, T, rng)
 
 
+@_scenario("freefall", 10.0, 7.5)
 def _freefall(T: float, rng) -> Kinematics:
+    """held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0"""
     axes = [Steps(v) for v in _at_rest(rng)]
     t_pick = 3.0
     drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
@@ -338,7 +374,9 @@ def _freefall(T: float, rng) -> Kinematics:
     return _held(axes, hand, lin_acc_mg=lin_acc, lever_weight=lambda t: w_hand(t) * (1 - falling(t)))
 
 
+@_scenario("demo", 60.0, 40.0)
 def _demo(T: float, rng) -> Kinematics:
+    """hand tilts on the bench, then a short hover"""
     t_hover = max(T * 0.5, 20.0)
     return _take_off(_hand_tilts(t_hover - 1.0, rng), t_hover + 1.0, T, rng)
 
@@ -358,8 +396,9 @@ def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float,
     return out
 
 
+@_scenario("flight", 30.0, 27.0)
 def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
-    """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
+    """armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed"""
     ground = _bench(T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
     t = t0 + 5.0
@@ -389,9 +428,10 @@ PREFLIGHT_MOVES = (("tilt right", 1, 25.0 * DEG), ("nose up", 0, 25.0 * DEG), ("
 PREFLIGHT_IDLE_THR = 210.0
 
 
+@_scenario("preflight", 32.0, 30.0)
 def _preflight(T: float, rng) -> Kinematics:
-    """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
-    turned right (each out, hold, back), put down, throttle 0, disarmed."""
+    """the preflight check's hand moves: armed with the throttle at idle (props off), picked up, tilt right, nose up,
+    turn right, put down, disarmed"""
     axes = [Steps(v) for v in _at_rest(rng)]
     t_arm, t_pick = 3.5, 6.0
     t = t_pick + 2.0
@@ -414,71 +454,6 @@ def _preflight(T: float, rng) -> Kinematics:
         sticks=lambda t: np.zeros((len(np.atleast_1d(t)), 3)),
         armed=_between(t_arm, t_put + 2.0),
     )
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """A built-in motion scenario."""
-
-    name: str
-    summary: str
-    default_duration_s: float
-    min_duration_s: float
-    build: Callable[[float, np.random.Generator], Kinematics]
-
-
-#: Built-in scenarios by name.
-SCENARIOS: dict[str, Scenario] = {
-    s.name: s
-    for s in (
-        Scenario("bench", "lying still on the bench (noise, bias, calibration only); throttle 0", 30.0, 3.0, _bench),
-        Scenario(
-            "hand-tilts",
-            "picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0",
-            40.0,
-            8.0,
-            _hand_tilts,
-        ),
-        Scenario(
-            "yaw-spin",
-            "on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0",
-            40.0,
-            14.0,
-            _yaw_spin,
-        ),
-        Scenario(
-            "hover",
-            "take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and "
-            "small attitude wander, landing",
-            40.0,
-            16.0,
-            _hover,
-        ),
-        Scenario(
-            "freefall",
-            "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0",
-            10.0,
-            7.5,
-            _freefall,
-        ),
-        Scenario("demo", "hand tilts on the bench, then a short hover", 60.0, 40.0, _demo),
-        Scenario(
-            "flight",
-            "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed",
-            30.0,
-            27.0,
-            _flight,
-        ),
-        Scenario(
-            "preflight",
-            "the preflight check's hand moves: armed with the throttle at idle (props off), "
-            "picked up, tilt right, nose up, turn right, put down, disarmed",
-            32.0,
-            30.0,
-            _preflight,
-        ),
-    )
-}
 
 
 def scenario(name: str, otherwise: str) -> Scenario:
