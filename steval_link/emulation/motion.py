@@ -7,7 +7,7 @@ plus the throttle ``gTHR`` the remote control sets. Axes are the firmware's: x r
 level the specific force is (0, 0, +1000) mg. Angles follow ``QuaternionToEuler``: ``thx`` about x (pitch),
 ``thy`` about y (roll); the orientation is ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
 
-:func:`build_profile` renders a built-in scenario (:mod:`steval_link.emulation.scenarios`: what each does and what
+:func:`render` renders a built-in scenario (:mod:`steval_link.emulation.scenarios`: what each does and what
 it is built of); :func:`broad_profile` turns a BROAD trial (real motion, real IMU signals) into a profile.
 
 Physics in short: specific force ``f = Rᵀ(a + g·ẑ)`` with ``a`` the IMU's acceleration (translation plus the
@@ -28,7 +28,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat, scenario
+from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat
 from steval_link.errors import ParamError
 from steval_link.quat import interpolate_quat, quat_multiply
 from steval_link.units import RAD_TO_MDPS
@@ -50,11 +50,6 @@ class MotionProfile:
     #: ``euler_rc.thx = -gELE·30°/1800`` (pitch), ``thy = -gAIL·30°/1800`` (roll), ``|gRUD| > 600`` turns the yaw target
     sticks: np.ndarray | None = None
     armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
-
-
-def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
-    """(n,) times of TIM9 ticks, s since power-up: ``first_tick_s + k · 104000 / 84 MHz``."""
-    return first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
 
 
 #: RC receiver frame rate, Hz: ``gTHR`` changes at this rate (PWM/PPM receivers: ~50 Hz)
@@ -108,6 +103,8 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
 def render(
     name: str, kin: Kinematics, t: np.ndarray, rng: np.random.Generator, throttle: Callable | None = None
 ) -> MotionProfile:
+    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` (a function of time, see
+    :func:`parse_throttle`) overrides the scenario's."""
     t = np.asarray(t, dtype=np.float64)
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
@@ -167,24 +164,6 @@ def parse_throttle(spec: str) -> Callable:
             f"{{throttle}} values are the firmware's gTHR (int16, from 0): 0..32767, got {spec!r}", "throttle"
         )
     return lambda t: np.interp(t, ts, vs)
-
-
-def build_profile(
-    name: str,
-    t_s: np.ndarray,
-    rng: np.random.Generator,
-    *,
-    throttle: Callable | None = None,
-    total_s: float | None = None,
-) -> MotionProfile:
-    """The built-in scenario ``name`` rendered at tick times ``t_s`` (s since power-up).
-
-    ``total_s`` is the emulated length the scenario's timeline is laid out for (default: the last tick);
-    ``throttle`` overrides the scenario's throttle profile (a function of time, see :func:`parse_throttle`).
-    """
-    sc = scenario(name, "or a BROAD trial .npz")
-    kin = sc.build(float(t_s[-1] if total_s is None else total_s), rng)
-    return render(sc.name, kin, t_s, rng, throttle)
 
 
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:

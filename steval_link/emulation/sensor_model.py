@@ -1,23 +1,14 @@
 """LSM6DSL sensor model and the STEVAL-FCU001V1 firmware's sensor pipeline (ST release 170120), as numpy functions.
 
-The chain the drone runs, and the functions here that model each link:
+The chain the drone runs, one function per link:
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white
-   noise → ADC counts (round, saturate at int16) → the ST driver's ``(int32_t)(raw * sensitivity)`` (float32
-   product truncated toward zero): integer mg (0.122 mg/LSB, ±4 g) and integer mdps (70 mdps/LSB, ±2000 dps).
-2. TIM9 ISR at ``constants.ISR_RATE_HZ`` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
-   - power-up calibration (:func:`calibrate_offsets`): ticks 1–800 ignored, ticks 801–1600 summed (int32),
-     offset = ``(int32_t)(sum * 0.00125f)``; the ISR that finishes the calibration also runs the pipeline, so the
-     first pipeline sample is the 1600th tick (index 1599);
-   - offset removal (:func:`remove_offsets`): ``acc -= off``, except ``acc_z -= (off_z − 1000)`` so z keeps
-     +1000 mg of gravity; ``gyro -= off`` (integer arithmetic);
-   - gyro IIR (:func:`gyro_iir`): 2nd-order Butterworth, 100 Hz at 800 Hz, float32 coefficients, evaluated left to
-     right in float32 as ``b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (state starts at 0 after calibration);
-   - the acc sample (unfiltered) and the IIR output go to 5-sample FIFOs; every 5th tick they are copied for the
-     main loop.
-3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz, :func:`fifo_average`): float32 sum of the 5 FIFO
-   entries starting from 0, then ``*= (1.0/5)`` in double, stored back to float32 → ``acc_ahrs`` (mg),
-   ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white noise → int16 ADC counts → the ST
+   driver's integer mg (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
+2. TIM9 ISR at ``constants.ISR_RATE_HZ`` ≈ 807.69 Hz: power-up calibration (:func:`calibrate_offsets`), offset
+   removal (:func:`remove_offsets`), gyro IIR (:func:`gyro_iir`); the acc sample and the IIR output go to 5-sample
+   FIFOs.
+3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz): the boxcar average (:func:`fifo_average`) →
+   ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
 :func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
 another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.

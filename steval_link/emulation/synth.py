@@ -4,8 +4,8 @@
 drops, the adapter model, text-mode logs. The chain: motion (:mod:`~steval_link.emulation.motion`, a scenario or a
 BROAD trial) → the LSM6DSL and the ISR pipeline (:mod:`~steval_link.emulation.sensor_model`) → the bit-exact
 ``ahrs_fusion_ag`` replica (:func:`steval_link.estimators.st_mahony.run`) → the patch's link and TX queue
-(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (:mod:`~steval_link.emulation.usb_adapter`) → a
-``.stv`` capture or the plain bytes.
+(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (FTDI FT232R-like: :func:`host_chunks`) → a ``.stv``
+capture or the plain bytes.
 
 Emulated rather than measured: the main loop's latency after each tick, the DWT counts' noise, the gyro's slow
 zero-rate drift after calibration, the BLE module's banner values, the adapter. ``--drop-rate P`` makes the queue
@@ -16,6 +16,7 @@ the queue by itself. The same :class:`SynthOptions` give the same bytes (seeded 
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections.abc import Callable
@@ -31,7 +32,6 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
-from steval_link.emulation.usb_adapter import host_chunks
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.estimators.st_mahony import run as mahony_run
@@ -153,12 +153,8 @@ def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def _settings(opts: SynthOptions) -> MahonySettings:
-    return MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
-
-
 def _span(opts: SynthOptions):
-    """(BROAD trial or None, capture duration s, s from power-up to the capture's end) of ``opts``; UserError for
+    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end); UserError for
     an unknown scenario or a span too short for the firmware's 2 s calibration."""
     trial = load_trial(opts.scenario) if _is_path(opts.scenario) else None
     sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
@@ -179,27 +175,20 @@ def _span(opts: SynthOptions):
             f"scenario {opts.scenario} needs at least {min_total:g} s from power-up "
             f"(the firmware calibrates for 2 s before the first AHRS step); got {total:g} s"
         )
-    return trial, duration, total
+    return trial, sc, duration, total
 
 
 def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
     """The bit-exact replica over every AHRS step: (q, thx, thy, the filter state after each status step)."""
     n_steps = len(isr.step_tick)
     q = np.empty((n_steps, 4), np.float32)
-    thx = np.empty(n_steps, np.float32)
-    thy = np.empty(n_steps, np.float32)
-    status_steps = np.arange(fwl.STATUS_EVERY_STEPS - 1, n_steps, fwl.STATUS_EVERY_STEPS)
-    snapshots = []
-    state = MahonyState()
-    a = 0
-    for b in list(status_steps + 1) + [n_steps]:
-        if b <= a:
-            continue
+    thx, thy = np.empty(n_steps, np.float32), np.empty(n_steps, np.float32)
+    snapshots, state = [], MahonyState()
+    for a, b in itertools.pairwise([*range(0, n_steps, fwl.STATUS_EVERY_STEPS), n_steps]):
         q[a:b], thx[a:b], thy[a:b], state = mahony_run(
             isr.acc_ahrs_mg[a:b], isr.gyro_ahrs_mdps[a:b], thr_step[a:b], settings=settings, state=state
         )
         snapshots.append(state)
-        a = b
     return q, thx, thy, snapshots
 
 
@@ -210,15 +199,15 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     if progress is None:
         progress = lambda fraction, stage="": None  # noqa: E731
     rs = random_streams(opts.seed)
-    trial, duration, total = _span(opts)
-    profile, isr, n_ticks = _sensed(opts, rs, trial, total, progress)
+    trial, sc, duration, total = _span(opts)
+    profile, isr, n_ticks = _sensed(opts, rs, trial, sc, total, progress)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     thr_step = thr_tick[isr.step_tick]
 
     # 4: the replica, in runs between status snapshots
     progress(0.8, "filter replica")
-    settings = _settings(opts)
+    settings = MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
     q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
     # 5: the link, step by step, with the TX queue
@@ -246,18 +235,18 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     )
 
 
-def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
+def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
     """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
     the firmware's ISR and main-loop averaging. Returns (profile, ISR result, number of ticks)."""
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
-    t = M.tick_times_s(n_ticks, first_tick_s)
+    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
     thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
     if trial is not None:
         profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
     else:
-        profile = M.build_profile(opts.scenario, t, rs.motion, throttle=thr_fn, total_s=total)
+        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
     profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
     gyro_true = profile.gyro_mdps
     if profile.measured:
@@ -295,6 +284,59 @@ def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
     starts = np.array([o[2] for o in order], dtype=np.float64)
     offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
     return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
+
+
+#: data bytes per USB packet, latency timer, USB frame
+ADAPTER_PACKET_BYTES = 62
+ADAPTER_LATENCY_S = 0.016
+USB_FRAME_S = 0.001
+
+
+def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng, total_s: float):
+    """Bytes the host receives in [join, join + duration] and the receive times of their USB packets (a USB-UART
+    adapter, FTDI FT232R-like: a packet when 62 bytes are in or when its latency timer expires).
+
+    Returns ``((first, end) stream offsets of the captured bytes, chunk offsets, chunk times s since start)``.
+    """
+    n = len(stream)
+    if n == 0:
+        return (0, 0), np.zeros(0, np.int64), np.zeros(0)
+    frame_off = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    rep_start = np.repeat(starts, sizes)
+    idx = np.arange(n, dtype=np.float64) - np.repeat(frame_off, sizes)
+    end_s = (rep_start + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
+    join = float(join_at_s)
+    first = int(np.searchsorted(end_s, join, side="right")) if join > 0 else 0
+    e = end_s[first:]
+    # adapter: a packet when 62 bytes are in, or when the latency timer expires with data waiting
+    sof_phase = rng.uniform(0.0, USB_FRAME_S)
+    t_last = (e[0] if len(e) else 0.0) - rng.uniform(0.0, ADAPTER_LATENCY_S)
+    flush_t, flush_end = [], []
+    i, m = 0, len(e)
+    while i < m:
+        k = max(1, math.ceil((e[i] - t_last) / ADAPTER_LATENCY_S - 1e-12))
+        expiry = t_last + k * ADAPTER_LATENCY_S
+        j_full = i + ADAPTER_PACKET_BYTES - 1
+        if j_full < m and e[j_full] <= expiry:
+            t_f, j = e[j_full], j_full
+        else:
+            j = int(np.searchsorted(e, expiry, side="right")) - 1
+            t_f = expiry
+        flush_t.append(t_f)
+        flush_end.append(j + 1)
+        t_last = t_f
+        i = j + 1
+    flush_t = np.array(flush_t)
+    # USB: the host controller picks the packet up at the next 1 ms frame; the OS hands it to the reader later
+    arrive = sof_phase + np.ceil((flush_t - sof_phase) / USB_FRAME_S) * USB_FRAME_S
+    arrive = arrive + rng.exponential(0.00015, len(arrive))
+    arrive = np.maximum.accumulate(arrive)
+    keep = arrive <= total_s
+    flush_end = np.array(flush_end, dtype=np.int64)[keep]
+    arrive = arrive[keep]
+    n_cap = int(flush_end[-1]) if len(flush_end) else 0
+    chunk_offsets = np.concatenate(([0], flush_end[:-1])) if len(flush_end) else np.zeros(0, np.int64)
+    return (first, first + n_cap), chunk_offsets.astype(np.int64), arrive - join
 
 
 def _header(opts: SynthOptions, name: str, duration: float) -> dict:
