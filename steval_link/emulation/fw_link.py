@@ -160,29 +160,28 @@ class LinkEmulation:
     """``stv_link.c`` of one firmware run: feed it the boot lines (:meth:`text`) and every AHRS step
     (:meth:`step`); it keeps the transmit ``order``, which attitude rows were ``sent`` and the ``status`` records.
 
-    ``att``: the attitude payload rows (``ATTITUDE_DTYPE``) of every step; ``snapshots``: the filter state after
-    each status step, in order; ``drop``: attitude frames the queue refuses on purpose (``--drop-rate``).
+    ``att``: the attitude payload rows (``ATTITUDE_DTYPE``) of every step; ``thx``, ``thy``: each step's angles, rad
+    (for ``$ATT`` lines); ``snapshots``: the filter state after each status step, in order; ``drop``: attitude
+    frames the queue refuses on purpose (``--drop-rate``).
     """
 
     att: np.ndarray
+    thx: np.ndarray
+    thy: np.ndarray
     settings: MahonySettings
-    ki: float
     baud: int
     text_mode: bool
     snapshots: list[MahonyState]
     drop: np.ndarray
     order: list[Frame] = field(default_factory=list)
     status: list[np.ndarray] = field(default_factory=list)
+    cycles: list[int] = field(default_factory=list)  #: DWT counts of the steps since the last status frame
 
     def __post_init__(self) -> None:
         self.txq = TxQueue(self.baud)
         self.sent = np.zeros(len(self.att), dtype=bool)
         self.flags = self.settings.flags | (P.FLAG_TEXT_MODE if self.text_mode else 0)
-        self.ki_f32 = np.float32(self.ki)
-        self._reset_cycles()
-
-    def _reset_cycles(self) -> None:
-        self.cyc_min, self.cyc_max, self.cyc_sum, self.cyc_n = 2**32 - 1, 0, 0, 0
+        self.ki_f32 = np.float32(self.settings.ki)
 
     def _push(self, kind: str, item, cyc: float, size: int, keep_free: int) -> bool:
         start = self.txq.push(cyc, size, keep_free)
@@ -201,21 +200,19 @@ class LinkEmulation:
             piece = raw[i : i + P.TEXT_MAX_PAYLOAD]
             self._push("text", piece, cyc, P.HEADER_SIZE + len(piece) + P.CRC_SIZE, P.STATUS_FRAME_SIZE)
 
-    def step(self, k: int, c0: float, cyc_noise: int, txe_u: float, rows: dict) -> None:
+    def step(self, k: int, c0: float, cyc_noise: int, txe_u: float) -> None:
         """AHRS step ``k`` beginning at cycle ``c0``: its DWT count (the filter plus the TXE interrupts landing in
-        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step. ``rows`` holds the
-        text-mode line's values (``thx``, ``thy``, ``thz`` rad, ``thr``) of every step."""
+        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step."""
         base = AHRS_CYCLES + int(cyc_noise)
         irqs = self.txq.busy_overlap(c0, c0 + base)
         n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)
         cyc = base + n_irq * TXE_IRQ_CYCLES
         c1 = c0 + cyc
-        self.cyc_min, self.cyc_max = min(self.cyc_min, cyc), max(self.cyc_max, cyc)
-        self.cyc_sum, self.cyc_n = self.cyc_sum + cyc, self.cyc_n + 1
+        self.cycles.append(cyc)
         if not self.text_mode:
             self._attitude(k, c1, "att", k, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE)
         elif k % TEXT_DECIMATION == 0:
-            line = self._att_line(k, rows)
+            line = self._att_line(k)
             self._attitude(k, c1, "raw", line, len(line), TEXT_LINE_MAX)
         if k % STATUS_EVERY_STEPS == STATUS_EVERY_STEPS - 1:
             self._status(k, c1)
@@ -227,14 +224,14 @@ class LinkEmulation:
         elif self._push(kind, item, c1, size, keep_free):
             self.sent[k] = True
 
-    def _att_line(self, k: int, rows: dict) -> bytes:
+    def _att_line(self, k: int) -> bytes:
         a = self.att[k]
         return format_att(
             step=k,
             t_ms=int(a["t_us"]) // 1000,
             thr=int(a["thr"]),
-            thx_mdeg=f2i(rows["thx"][k] * _RAD_TO_MDEG_F32),
-            thy_mdeg=f2i(rows["thy"][k] * _RAD_TO_MDEG_F32),
+            thx_mdeg=f2i(self.thx[k] * _RAD_TO_MDEG_F32),
+            thy_mdeg=f2i(self.thy[k] * _RAD_TO_MDEG_F32),
             thz_mdeg=f2i(np.float32(a["thz_rad"]) * _RAD_TO_MDEG_F32),
             acc_mg=[f2i(v) for v in a["acc_mg"]],
             gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
@@ -249,8 +246,9 @@ class LinkEmulation:
         rec["q_wxyz"] = snap.q_wxyz
         rec["int_xyz"] = snap.int_xyz
         rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
-        rec["cyc_min"], rec["cyc_mean"], rec["cyc_max"] = self.cyc_min, self.cyc_sum // self.cyc_n, self.cyc_max
-        rec["cyc_n"] = min(self.cyc_n, 0xFFFF)
+        cyc = self.cycles
+        rec["cyc_min"], rec["cyc_max"], rec["cyc_n"] = min(cyc), max(cyc), min(len(cyc), 0xFFFF)
+        rec["cyc_mean"] = sum(cyc) // len(cyc)
         rec["cpu_hz"] = C.CPU_HZ
         rec["tx_dropped"] = self.txq.dropped
         rec["baud"] = self.baud
@@ -259,7 +257,7 @@ class LinkEmulation:
         rec["queue_peak"] = min(self.txq.take_peak(c1), 0xFFFF)
         rec["fw_version"] = FW_VERSION
         self.status.append(rec)
-        self._reset_cycles()
+        self.cycles = []
         if self.text_mode:
             counters = {name: int(rec[name]) for name in ("cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped")}
             t_ms = int(rec["t_us"]) // 1000

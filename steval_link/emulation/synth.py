@@ -214,15 +214,14 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
     att = _attitude_rows(isr, begin, q, yaw[isr.step_tick - isr.first_tick], thr_step)
     forced = fwl.forced_drops(len(att), opts.drop_rate, rs.drop)
-    link = fwl.LinkEmulation(att, settings, opts.ki, opts.baud, opts.text_mode, snapshots, forced)
+    link = fwl.LinkEmulation(att, thx, thy, settings, opts.baud, opts.text_mode, snapshots, forced)
     for cyc, line in fwl.boot_lines(rs.boot):
         link.text(cyc, line)
     progress(0.85, "link and TX queue")
-    rows = {"thx": thx, "thy": thy}
     for k in range(len(att)):
         if k % 8192 == 0:
             progress(0.85 + 0.1 * k / len(att), "link and TX queue")
-        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]), rows)
+        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]))
     status = link.status_table()
 
     # 6-7: the bytes in transmit order, and the host
