@@ -1,12 +1,9 @@
 """The firmware patch's link (``firmware_patch/src/stv_link.c`` and ``stv_txq.c``) emulated step by step, for
-``steval synth``: the AHRS step timing of the main loop, an attitude frame per step (``$ATT`` lines every 16th step
-in text mode), a status frame after every 162nd step with the filter-state snapshot and the DWT cycle statistics,
-the boot log as text frames, and the 2048-byte TX queue drained by USART1 at the baud rate (a frame that does not
-fit is dropped and counted in ``tx_dropped``; attitude and text frames leave room for a status frame). Then the
-frames as bytes, by the Python encoder or the firmware's own C encoder.
-
-The timing figures are the real firmware's under emulation (``steval emulate``), where it can be measured; the
-rest (main-loop latency after a tick, the TIM9 ISR's length, BLE traffic) are models, documented where they stand.
+``steval synth``: the AHRS step timing, an attitude frame per step (``$ATT`` lines every 16th step in text mode), a
+status frame after every 162nd step (filter-state snapshot, DWT cycle statistics), the boot log as text frames, and
+the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted in ``tx_dropped``;
+attitude and text frames leave room for a status frame). Then the frames as bytes, by the Python encoder or the
+firmware's own C encoder. Timings are the real firmware's under ``steval emulate`` where measurable, else models.
 """
 
 from __future__ import annotations
@@ -25,9 +22,8 @@ from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.link import protocol as P
 from steval_link.link.textmode import format_att, format_sta
 
-#: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
-#: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
-#: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
+#: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the real firmware's median at rest under ``steval
+#: emulate``, where CYCCNT counts instructions (4050-6600 when tilted or flying; a real M4 needs somewhat more).
 AHRS_CYCLES = 4420
 #: USART1 TXE interrupt (stv_fw_usart1_irq, -O2) including entry and exit, cycles.
 TXE_IRQ_CYCLES = 62
@@ -37,11 +33,8 @@ TEXT_DECIMATION = 16
 TXQ_SIZE = 2048
 TEXT_LINE_MAX = 192
 FW_VERSION = (2, 0)
-#: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period: the sensor set-up in main()
-#: includes ST's ``HAL_Delay(1000)`` in the LPS22HB init, then HAL_TIM_Base_Start_IT's first interrupt comes at
-#: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under
-#: emulation (stv_fw_init → HAL_TIM_Base_Start_IT: 84 007 128 cycles); the first attitude frame then comes at
-#: t_us ≈ 2.985 s, as the emulated firmware's does.
+#: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period (measured under ``steval
+#: emulate``: main()'s sensor set-up includes ST's ``HAL_Delay(1000)``); the first attitude frame is at ≈ 2.985 s.
 TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
@@ -137,19 +130,16 @@ def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndar
     return out
 
 
-def step_timing(
-    step_tick: np.ndarray, n_ticks: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
     ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
     PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
     n_steps = len(step_tick)
-    tick_cycles = TIM9_START_CYCLES + (np.arange(n_ticks, dtype=np.int64) + 1) * C.TICK_CYCLES
     isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
     loop_latency = rng.integers(0, 700, n_steps) + np.where(
         rng.random(n_steps) < 0.08, rng.integers(0, 34_000, n_steps), 0
     )
-    begin = tick_cycles[step_tick] + isr_cycles + loop_latency
+    begin = TIM9_START_CYCLES + (np.asarray(step_tick, np.int64) + 1) * C.TICK_CYCLES + isr_cycles + loop_latency
     cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
     txe_u = rng.random(n_steps)
     return begin, cyc_noise, txe_u

@@ -1,17 +1,13 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
 ``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
-drops, the adapter model, text-mode logs. The chain: motion (:mod:`~steval_link.emulation.motion`, a scenario or a
-BROAD trial) → the LSM6DSL and the ISR pipeline (:mod:`~steval_link.emulation.sensor_model`) → the bit-exact
-``ahrs_fusion_ag`` replica (:func:`steval_link.estimators.st_mahony.run`) → the patch's link and TX queue
-(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (FTDI FT232R-like: :func:`host_chunks`) → a ``.stv``
-capture or the plain bytes.
+drops, the adapter model, text-mode logs. The chain: motion (a scenario or a BROAD trial) → the LSM6DSL and the
+ISR pipeline → the bit-exact ``ahrs_fusion_ag`` replica → the patch's link and TX queue (:mod:`.fw_link`) → a
+USB-UART adapter (:func:`host_chunks`) → a ``.stv`` capture or the plain bytes.
 
-Emulated rather than measured: the main loop's latency after each tick, the DWT counts' noise, the gyro's slow
-zero-rate drift after calibration, the BLE module's banner values, the adapter. ``--drop-rate P`` makes the queue
-refuse about a fraction P of the attitude frames (bursts of about 3); a baud rate too low for the stream overflows
-the queue by itself. The same :class:`SynthOptions` give the same bytes (seeded generators; capture start time
-:data:`EPOCH_UNIX_S` + the join time).
+Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's zero-rate drift after
+calibration, the BLE module's banner values, the adapter. The same :class:`SynthOptions` give the same bytes
+(seeded generators; capture start time :data:`EPOCH_UNIX_S` + the join time).
 """
 
 from __future__ import annotations
@@ -64,11 +60,8 @@ class SynthOptions:
     drop_rate: float = 0.0  #: fraction of attitude frames the TX queue refuses (0 ≤ P < 1)
     encoder: str = "python"  #: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``)
     c_encoder: str | None = None  #: path of the host-built C encoder (default :func:`default_c_encoder`)
-    #: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``): pure sinusoids added to the motion
-    vibration: tuple[str, ...] = ()
-
-    #: the command line that made this capture, for its header (the CLI's)
-    command_line: str | None = None
+    vibration: tuple[str, ...] = ()  #: ``SENSOR-AXIS:HZ:AMPLITUDE`` specs: pure sinusoids added to the motion
+    command_line: str | None = None  #: the command line that made this capture, for its header (the CLI's)
 
     def settings(self) -> dict:
         """The settings that determine the serial bytes, by parameter name (no output path, no encoder choice)."""
@@ -104,10 +97,6 @@ class SynthResult:
 def default_c_encoder() -> Path:
     """``firmware_patch/host/stv_encode`` of this source tree (``make -C firmware_patch host`` builds it)."""
     return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
-
-
-def _is_path(scenario: str) -> bool:
-    return scenario.endswith(".npz") or os.sep in scenario or "/" in scenario
 
 
 def _check(opts: SynthOptions) -> None:
@@ -156,7 +145,8 @@ def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 def _span(opts: SynthOptions):
     """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end); UserError for
     an unknown scenario or a span too short for the firmware's 2 s calibration."""
-    trial = load_trial(opts.scenario) if _is_path(opts.scenario) else None
+    is_path = opts.scenario.endswith(".npz") or os.sep in opts.scenario or "/" in opts.scenario
+    trial = load_trial(opts.scenario) if is_path else None
     sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
     min_total = 3.0 if sc is None else sc.min_duration_s
     if opts.duration_s is not None:
@@ -200,7 +190,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
         progress = lambda fraction, stage="": None  # noqa: E731
     rs = random_streams(opts.seed)
     trial, sc, duration, total = _span(opts)
-    profile, isr, n_ticks = _sensed(opts, rs, trial, sc, total, progress)
+    profile, isr = _sensed(opts, rs, trial, sc, total, progress)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     thr_step = thr_tick[isr.step_tick]
@@ -211,7 +201,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
     # 5: the link, step by step, with the TX queue
-    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
+    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, rs.fw)
     att = _attitude_rows(isr, begin, q, yaw[isr.step_tick - isr.first_tick], thr_step)
     forced = fwl.forced_drops(len(att), opts.drop_rate, rs.drop)
     link = fwl.LinkEmulation(att, thx, thy, settings, opts.baud, opts.text_mode, snapshots, forced)
@@ -236,7 +226,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
 
 def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
     """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
-    the firmware's ISR and main-loop averaging. Returns (profile, ISR result, number of ticks)."""
+    the firmware's ISR and main-loop averaging. Returns (profile, ISR result)."""
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
@@ -256,7 +246,7 @@ def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
     progress(0.55, "LSM6DSL model")
     acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
     progress(0.6, "ISR pipeline")
-    return profile, sm.run_isr(acc_raw, gyro_raw), n_ticks
+    return profile, sm.run_isr(acc_raw, gyro_raw)
 
 
 def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_step: np.ndarray) -> np.ndarray:
