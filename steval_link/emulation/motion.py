@@ -1,22 +1,17 @@
 """Motion profiles for emulated captures: what the drone's body does at every TIM9 tick (807.7 Hz).
 
-A profile (:class:`MotionProfile`) holds, per ISR tick, the true orientation (body → earth quaternion, the same
-direction as the firmware's ``ahrs.q``), the true specific force the accelerometer senses (mg, body axes) and the
-true angular rate as the gyro's output register holds it (mdps, body axes, refreshed at the gyro's 416 Hz ODR),
-plus the throttle ``gTHR`` the remote control sets. Axes are the firmware's: x right, y forward, z up; at rest and
-level the specific force is (0, 0, +1000) mg. Angles follow ``QuaternionToEuler``: ``thx`` about x (pitch),
-``thy`` about y (roll); the orientation is ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
-
-:func:`render` renders a built-in scenario (:mod:`steval_link.emulation.scenarios`: what each does and what
-it is built of); :func:`broad_profile` turns a BROAD trial (real motion, real IMU signals) into a profile.
+A profile (:class:`MotionProfile`) holds the true motion and the remote's inputs per ISR tick, in the firmware's
+axes (x right, y forward, z up; level at rest: specific force (0, 0, +1000) mg). Angles follow
+``QuaternionToEuler``: ``thx`` about x (pitch), ``thy`` about y (roll); ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
+:func:`render` renders a scenario's kinematics (:mod:`steval_link.emulation.scenarios`); :func:`broad_profile`
+turns a BROAD trial (real motion, real IMU signals) into a profile.
 
 Physics in short: specific force ``f = Rᵀ(a + g·ẑ)`` with ``a`` the IMU's acceleration (translation plus the
 lever-arm motion of a rotation about a pivot that is not the IMU, e.g. a wrist or a turntable axis); in flight a
 quadrotor's specific force is its thrust, along body z (``f = (0, 0, (g + a_z)/R₃₃)``), so the accelerometer
-does not see the tilt — exactly the situation the firmware's small in-flight gain ``kp = 0.4`` is made for.
-Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
-to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
-the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
+does not see the tilt: the case the firmware's small in-flight gain ``kp = 0.4`` is made for. Motor vibration
+(4 motors at slightly different speeds, harmonics 1 and 2, amplitude ∝ speed²) is added to both sensors whenever
+``gTHR ≥ MIN_THR``, with the amplitudes of the sensor *output* (after the LSM6DSL's own low-pass filters).
 """
 
 from __future__ import annotations
@@ -44,8 +39,7 @@ class MotionProfile:
     acc_mg: np.ndarray  #: (T, 3) specific force the accelerometer senses, mg
     gyro_mdps: np.ndarray  #: (T, 3) angular rate as the gyro's 416 Hz output register holds it at the tick, mdps
     thr: np.ndarray  #: (T,) int16 throttle ``gTHR``
-    #: acc/gyro are a real IMU's measurements (BROAD), so no sensor noise should be added
-    measured: bool = False
+    measured: bool = False  #: acc/gyro are a real IMU's measurements (BROAD): add no sensor noise
     #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred):
     #: ``euler_rc.thx = -gELE·30°/1800`` (pitch), ``thy = -gAIL·30°/1800`` (roll), ``|gRUD| > 600`` turns the yaw target
     sticks: np.ndarray | None = None
