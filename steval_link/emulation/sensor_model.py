@@ -109,8 +109,6 @@ class Lsm6dsl:
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         acc = np.asarray(acc_true_mg, dtype=np.float64)
         gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
-        if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
-            raise ValueError(f"acc_true_mg and gyro_true_mdps must both be (N, 3), got {acc.shape}, {gyro.shape}")
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
         if t_tick_s is not None:
             t = np.asarray(t_tick_s, dtype=np.float64)
@@ -223,8 +221,6 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
     gyro 0)."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
-    if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
-        raise ValueError(f"acc_mg_807 and gyro_mdps_807 must both be (T, 3), got {acc.shape}, {gyro.shape}")
     if calibrate:
         end = CALIBRATION_SKIP_TICKS + CALIBRATION_TICKS
         if acc.shape[0] < end:
@@ -270,8 +266,6 @@ def resample_to_tick(t_s, signal, hold_hz: float | None = None):
     gyro's 416 Hz sample-and-hold, ≈ 1.2 ms mean delay)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
-    if t.ndim != 1 or x.shape[0] != t.shape[0]:
-        raise ValueError(f"t_s must be (N,) and signal (N, ...), got {t.shape}, {x.shape}")
     n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1
     t_tick = t[0] + np.arange(max(n, 0)) / C.ISR_RATE_HZ
     tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t[0], hold_hz)
