@@ -1,17 +1,11 @@
 """The ground truth each AHRS step of an emulated BROAD run saw, on the emulated board's time base.
 
-Alignment, as :func:`steval_link.emulation.broad.steval_view` does it for the Python estimators:
-
-* At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is
-  the first TIM9 tick, ≈ 1 s after power-up). The firmware's first 2 s of ticks are its offset calibration (it
-  takes the trial's pose then as level; the truth is not corrected for it, the trials start at rest).
-* A step averages the 5 ISR samples in the FIFO when ``ahrs_fusion_ag`` is entered, the last being tick
-  ``k_last``; its truth is taken at the window's centre, tick ``k_last − 2``, interpolated from the trial's
-  quaternions (NaN where occluded or outside the trial); ``movement`` is the mask at the nearest sample (False
-  outside the trial).
-
-:class:`StepTruth` records ``k_last`` with a probe at ``ahrs_fusion_ag``; AHRS step ``i`` (from 0) is its ``i``-th
-call, the step counter of the patch's frames.
+At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is the
+first TIM9 tick, ≈ 1 s after power-up; the firmware takes the trial's pose during its 2 s offset calibration as
+level, and the trials start at rest, so the truth is not corrected for it). A step averages the 5 ISR samples up to
+tick ``k_last`` (a probe at ``ahrs_fusion_ag`` records it): its truth is taken at the window's centre, tick
+``k_last − 2``, as :func:`steval_link.emulation.broad.steval_view` does. AHRS step ``i`` (from 0) is the ``i``-th
+call of ``ahrs_fusion_ag``, the step counter of the patch's frames.
 """
 
 from __future__ import annotations
