@@ -3,14 +3,12 @@ and the ground-truth error metrics.
 
 A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN rows where the
 markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz). The IMU axes match the firmware's (x right,
-y forward, z up; ≈ +9.81 m/s² on z when level).
+y forward, z up).
 
-Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``,
-heading error ``2·atan(|z / w|)``; RMSE over ``movement`` samples ignoring NaN. Estimates must be body → earth
-quaternions, like the firmware's: ``ahrs_fusion_ag`` integrates ``q̇ = ½ q ⊗ (0, ω)`` and takes its gravity estimate
-``(vx, vy, vz)`` from the third row of R(q), i.e. R(q)ᵀ·e_z, so its q maps body vectors to the earth frame (the
-same direction as BROAD's IMU → ENU). A constant heading offset (a rotation about the earth z axis, left-multiplied)
-leaves the inclination error unchanged, so 6-axis estimators are compared on inclination only.
+Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame); RMSE over ``movement`` samples ignoring NaN.
+Estimates are body → earth quaternions, like the firmware's (its gravity estimate is the third row of R(q), so its
+q maps body vectors to the earth frame, as BROAD's IMU → ENU). A constant heading offset leaves the inclination
+error unchanged, so 6-axis estimators are compared on inclination only.
 """
 
 from __future__ import annotations

@@ -32,7 +32,6 @@ class Elf:
             raise UserError(f"{self.path} is not an ELF file (e.g. `make -C firmware_patch reference`)")
         if data[4] != 1 or data[5] != 1 or struct.unpack_from("<H", data, 18)[0] != 40:
             raise UserError(f"{self.path} is not a 32-bit little-endian ARM ELF (the STM32F401 firmware)")
-        self.entry = struct.unpack_from("<I", data, 24)[0]
         self.segments = self._segments(data)
         self.symbols = self._symbols(data)
         self.by_name = {s.name: s for s in self.symbols}
