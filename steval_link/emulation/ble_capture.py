@@ -50,9 +50,8 @@ class EmulatedBlueNrg:
         self.updates = 0  #: aci_gatt_update_char_value requests
 
     def _alloc(self, n: int) -> int:
-        h = self._next_handle
         self._next_handle += n
-        return h
+        return self._next_handle - n
 
     def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
         if (ogf, ocf) == GATT_ADD_SERV:

@@ -105,8 +105,7 @@ class TxQueue:
         return start
 
     def take_peak(self, t: float) -> int:
-        p = self.peak
-        self.peak = self.used(t)
+        p, self.peak = self.peak, self.used(t)
         return p
 
     def busy_overlap(self, t0: float, t1: float) -> float:

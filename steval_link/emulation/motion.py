@@ -25,7 +25,7 @@ from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat
 from steval_link.errors import ParamError
-from steval_link.quat import interpolate_quat, quat_multiply
+from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply
 from steval_link.units import RAD_TO_MDPS
 
 
@@ -54,10 +54,8 @@ _H_ACC = 2e-3
 
 def _body_rate_radps(kin: Kinematics, t) -> np.ndarray:
     """ω in body axes: 2·vec(q* ⊗ q̇), q̇ by a central difference of the analytic orientation."""
-    q = kin.q(t)
     dq = (kin.q(t + _H_RATE) - kin.q(t - _H_RATE)) / (2 * _H_RATE)
-    qc = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return 2.0 * quat_multiply(qc, dq)[:, 1:]
+    return 2.0 * quat_multiply(quat_conjugate(kin.q(t)), dq)[:, 1:]
 
 
 def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:

@@ -1,9 +1,7 @@
-"""The built-in motion scenarios (:data:`SCENARIOS`): ``bench``, ``hand-tilts``, ``yaw-spin``, ``hover``,
-``freefall``, ``demo``, ``flight``, ``preflight``, and what they are built of: smooth functions of time (float64, s
-since power-up) — eased moves (:class:`Steps`), random wander (:class:`Sines`) — so rates and accelerations are exact
-derivatives the sensors can sample anywhere. Each scenario is a short function of the run's length and a random
-generator that returns its :class:`Kinematics`; the seed randomises tilt amplitudes, tremor, wander and surface
-tilt. Every scenario starts at rest, so the firmware's power-up offset calibration (1–2 s after TIM9 starts) sees a
+"""The built-in motion scenarios (:data:`SCENARIOS`) and what they are built of: smooth functions of time (float64,
+s since power-up), eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are
+exact derivatives the sensors can sample anywhere. A scenario is a function of the run's length and a random
+generator that returns its :class:`Kinematics`; each starts at rest, so the firmware's offset calibration sees a
 still drone. :mod:`steval_link.emulation.motion` renders them.
 """
 
@@ -169,15 +167,14 @@ def _scenario(name: str, default_duration_s: float, min_duration_s: float):
     """Registers the decorated builder ``(T, rng) -> Kinematics`` as the built-in scenario ``name``."""
 
     def register(build):
-        summary = " ".join(build.__doc__.split())
-        SCENARIOS[name] = Scenario(name, summary, default_duration_s, min_duration_s, build)
+        SCENARIOS[name] = Scenario(name, " ".join(build.__doc__.split()), default_duration_s, min_duration_s, build)
         return build
 
     return register
 
 
 def _at_rest(rng) -> tuple[float, float, float]:
-    """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
+    """(thx, thy, yaw) of a drone put down anywhere."""
     return (*_surface_tilt(rng), rng.uniform(-np.pi, np.pi))
 
 
@@ -187,9 +184,7 @@ def _surface_tilt(rng) -> tuple[float, float]:
 
 
 def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng) -> float:
-    """Hand tilts: pitch ±30°, roll ±30°, then both, each out-hold-back-pause; repeated until ``t_end``.
-
-    Returns the time the last move ends."""
+    """Hand tilts (pitch ±30°, roll ±30°, then both; each out, hold, back, pause) until ``t_end``; when they end."""
     t = t_start
     pattern = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)]
     last = t_start
@@ -228,8 +223,7 @@ def _plus(a: Callable, b: Callable) -> Callable:
 
 def _held(axes: list[Steps], hand: list[Callable], **kw) -> Kinematics:
     """Held at the wrist (below and behind the board): each attitude axis ``axes[i]`` plus the hand's ``hand[i]``."""
-    thx, thy, yaw = (_plus(axes[i], hand[i]) for i in range(3))
-    return Kinematics(thx=thx, thy=thy, yaw=yaw, lever_m=np.array([0.0, -0.04, 0.07]), **kw)
+    return Kinematics(*(_plus(axes[i], hand[i]) for i in range(3)), lever_m=np.array([0.0, -0.04, 0.07]), **kw)
 
 
 def _between(t_on: float, t_off: float) -> Callable:
@@ -257,8 +251,7 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
 @_scenario("bench", 30.0, 3.0)
 def _bench(T: float, rng) -> Kinematics:
     """lying still on the bench (noise, bias, calibration only); throttle 0"""
-    thx, thy, yaw = (Steps(v) for v in _at_rest(rng))
-    return Kinematics(thx=thx, thy=thy, yaw=yaw)
+    return Kinematics(*(Steps(v) for v in _at_rest(rng)))
 
 
 @_scenario("hand-tilts", 40.0, 8.0)

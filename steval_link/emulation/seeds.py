@@ -26,5 +26,4 @@ class RandomStreams:
 
 def random_streams(seed: int) -> RandomStreams:
     """The streams of ``seed``: ``SeedSequence([seed, SEED_SALT])`` spawned into seven generators."""
-    root = np.random.SeedSequence([int(seed), SEED_SALT])
-    return RandomStreams(*(np.random.default_rng(s) for s in root.spawn(7)))
+    return RandomStreams(*(np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), SEED_SALT]).spawn(7)))

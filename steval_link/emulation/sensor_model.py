@@ -138,8 +138,7 @@ def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
     int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
     sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
-    acc_off, gyro_off = (np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
-    return acc_off, gyro_off
+    return tuple(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
 
 
 def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[np.ndarray, np.ndarray]:

@@ -27,19 +27,15 @@ def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
 
     def counts(v, sens):
         raw = sm.adc_counts(v, sens)
-        # sensor x = body y, sensor y = -body x (saturating the negation like the int16 register would)
-        return np.stack([raw[:, 1], np.clip(-raw[:, 0].astype(np.int32), -32768, 32767), raw[:, 2]], -1).astype(
-            np.int16
-        )
+        minus_x = np.clip(-raw[:, 0].astype(np.int32), -32768, 32767)  # saturating, as the int16 register would
+        return np.stack([raw[:, 1], minus_x, raw[:, 2]], -1).astype(np.int16)  # sensor x = body y, y = −body x
 
     return counts(acc_mg, sm.ACC_SENSITIVITY_MG), counts(gyro_mdps, sm.GYRO_SENSITIVITY_MDPS)
 
 
 class _Regs:
-    """A sensor's 128-byte register file; ``read``/``write`` with the auto-increment the drivers use.
-
-    ``init``: register → its bytes at reset; ``self_clearing``: register → the bits that clear themselves (reset,
-    reboot)."""
+    """A sensor's 128-byte register file with the drivers' auto-increment. ``init``: register → its bytes at reset;
+    ``self_clearing``: register → the bits that clear themselves (reset, reboot)."""
 
     def __init__(self, who_am_i_reg: int, who_am_i: int, init: dict[int, bytes], self_clearing: dict[int, int]):
         self.r = bytearray(128)

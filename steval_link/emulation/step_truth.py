@@ -70,10 +70,8 @@ class StepTruth:
 
     def take(self) -> TruthRows:
         """The truth of the steps recorded since the last call (for a capture's truth chunks as it grows)."""
-        n = len(self._last_tick)
-        out = self.rows(self._taken, n)
-        self._taken = n
-        return out
+        start, self._taken = self._taken, len(self._last_tick)
+        return self.rows(start, self._taken)
 
 
 def score_euler(thx_rad, thy_rad, q_true_wxyz, movement) -> tuple[np.ndarray, float]:

@@ -60,9 +60,8 @@ class SymbolAttitude:
 
     def take(self) -> np.ndarray:
         """The rows read since the last call (``SYMBOL_DTYPE``)."""
-        rows = np.array(self._rows, dtype=SYMBOL_DTYPE) if self._rows else np.zeros(0, SYMBOL_DTYPE)
-        self._rows = []
-        return rows
+        rows, self._rows = self._rows, []
+        return np.array(rows, dtype=SYMBOL_DTYPE)
 
 
 #: the run-time helpers of double arithmetic on a single-precision FPU (Cortex-M4F): 221117's ahrs_fusion_ag calls
