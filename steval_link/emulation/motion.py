@@ -129,12 +129,8 @@ def render(
     if vib is not None:
         f = f + vib[0]
         gyro = gyro + vib[1]
-    sticks = armed = None
-    if kin.sticks is not None:
-        sticks = np.clip(np.rint(np.asarray(kin.sticks(uniq), dtype=np.float64)), -32768, 32767)[inv]
-        sticks = sticks.astype(np.int16)
-    if kin.armed is not None:
-        armed = (np.asarray(kin.armed(uniq)) > 0.5)[inv]
+    sticks = None if kin.sticks is None else np.clip(np.rint(kin.sticks(uniq)), -32768, 32767)[inv].astype(np.int16)
+    armed = None if kin.armed is None else (np.asarray(kin.armed(uniq)) > 0.5)[inv]
     return MotionProfile(name, t, q, f, gyro, thr_tick, sticks=sticks, armed=armed)
 
 

@@ -206,8 +206,6 @@ class IsrOutput:
     acc_ahrs_mg: np.ndarray  #: (M, 3) the main loop's ``acc_ahrs`` per AHRS step, mg
     gyro_ahrs_mdps: np.ndarray  #: (M, 3) ``gyro_ahrs`` per step, mdps
     gyro_fil_mdps: np.ndarray  #: (T, 3) the IIR output of every pipeline tick (for the ISR yaw and the PID)
-    acc_offset_mg: np.ndarray  #: (3,) int32 offsets removed (the measured z offset; 1000 mg are kept)
-    gyro_offset_mdps: np.ndarray  #: (3,) int32
     first_tick: int  #: the first pipeline tick (1599 after the power-up calibration)
     #: (M,) the tick whose ISR completed each step's FIFO: step k averages ticks ``step_tick[k]-4 … step_tick[k]``
     step_tick: np.ndarray
@@ -227,9 +225,7 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
         acc_off, gyro_off = calibrate_offsets(acc[CALIBRATION_SKIP_TICKS:end], gyro[CALIBRATION_SKIP_TICKS:end])
         first = end - 1  # the calibrating ISR call also runs the pipeline on a fresh read
     else:
-        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
-        gyro_off = np.zeros(3, dtype=np.int32)
-        first = 0
+        acc_off, gyro_off, first = np.array([0, 0, C.ACC_Z_KEPT_MG], np.int32), np.zeros(3, np.int32), 0
     acc_c, gyro_c = remove_offsets(acc[first:], gyro[first:], acc_off, gyro_off)
     gyro_fil = gyro_iir(gyro_c)
     fifo = C.FIFO_ORDER
@@ -238,7 +234,7 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
     acc_ahrs = fifo_average(acc_c[:n].astype(_F32).reshape(m, fifo, 3))
     gyro_ahrs = fifo_average(gyro_fil[:n].reshape(m, fifo, 3))
     step_tick = first + fifo * np.arange(m, dtype=np.int64) + (fifo - 1)
-    return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
+    return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, first, step_tick)
 
 
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
