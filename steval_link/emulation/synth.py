@@ -99,24 +99,25 @@ def default_c_encoder() -> Path:
     return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
 
 
-def _check(opts: SynthOptions) -> None:
-    def finite(v):
-        return v is not None and math.isfinite(v)
+def _finite(v) -> bool:
+    return v is not None and math.isfinite(v)
 
-    if opts.duration_s is not None and not (finite(opts.duration_s) and opts.duration_s > 0):
-        raise ParamError(f"{{duration_s}} must be a positive number of seconds, got {opts.duration_s}", "duration_s")
-    if not (finite(opts.join_at_s) and opts.join_at_s >= 0):
-        raise ParamError(f"{{join_at_s}} must be ≥ 0 seconds, got {opts.join_at_s}", "join_at_s")
-    if not (finite(opts.drop_rate) and 0 <= opts.drop_rate < 1):
-        raise ParamError(f"{{drop_rate}} must be a fraction in [0, 1), got {opts.drop_rate}", "drop_rate")
-    if not MIN_BAUD <= opts.baud <= MAX_BAUD:
-        raise ParamError(
-            f"{{baud}} must be between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz), got {opts.baud}", "baud"
-        )
-    if not finite(opts.ki) or not math.isfinite(float(np.float32(opts.ki))):
-        raise ParamError(f"{{ki}} must be a finite number, got {opts.ki}", "ki")
-    if not 0 <= opts.seed < 2**63:
-        raise ParamError(f"{{seed}} must be a non-negative integer, got {opts.seed}", "seed")
+
+#: the numeric options: (parameter, test, what it must be)
+_LIMITS = (
+    ("duration_s", lambda v: v is None or (_finite(v) and v > 0), "a positive number of seconds"),
+    ("join_at_s", lambda v: _finite(v) and v >= 0, "≥ 0 seconds"),
+    ("drop_rate", lambda v: _finite(v) and 0 <= v < 1, "a fraction in [0, 1)"),
+    ("baud", lambda v: MIN_BAUD <= v <= MAX_BAUD, f"between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz)"),
+    ("ki", lambda v: _finite(v) and math.isfinite(float(np.float32(v))), "a finite number"),
+    ("seed", lambda v: 0 <= v < 2**63, "a non-negative integer"),
+)
+
+
+def _check(opts: SynthOptions) -> None:
+    for name, ok, what in _LIMITS:
+        if not ok(getattr(opts, name)):
+            raise ParamError(f"{{{name}}} must be {what}, got {getattr(opts, name)}", name)
     if opts.encoder not in ("python", "c"):
         raise ParamError(f"{{encoder}} must be 'python' or 'c', got {opts.encoder!r}", "encoder")
     for spec in opts.vibration:
