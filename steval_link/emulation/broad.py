@@ -180,11 +180,5 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
 
 def own_rate_view(trial: BroadTrial) -> SteValView:
     """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
-    return SteValView(
-        trial.acc_mg.astype(np.float32),
-        trial.gyro_mdps.astype(np.float32),
-        trial.t_s,
-        trial.quat_wxyz,
-        trial.movement,
-        trial.fs_hz,
-    )
+    acc, gyro = trial.acc_mg.astype(np.float32), trial.gyro_mdps.astype(np.float32)
+    return SteValView(acc, gyro, trial.t_s, trial.quat_wxyz, trial.movement, trial.fs_hz)

@@ -122,7 +122,6 @@ def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
     """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
     and the fake payloads (for a report)."""
     sent = set(sent_payloads)
-    att, sta = payload_records(tel)
-    got = [r.tobytes() for r in att] + [r.tobytes() for r in sta]
+    got = [r.tobytes() for rows in payload_records(tel) for r in rows]
     fakes = [g for g in got if g not in sent]
     return FuzzScore(sent=len(sent_payloads), recovered=len(got) - len(fakes), fake=len(fakes)), fakes

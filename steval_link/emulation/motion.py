@@ -216,10 +216,9 @@ def parse_vibration(spec: str) -> Vibration:
     return Vibration(sensor, "xyz".index(axis), freq, amp)
 
 
-def add_vibrations(profile: MotionProfile, vibrations) -> MotionProfile:
+def add_vibrations(profile: MotionProfile, vibrations: list[Vibration]) -> MotionProfile:
     """``profile`` with the sinusoids ``vibrations`` (:class:`Vibration`) added: acc at each tick time, gyro at the
     time its 416 Hz output register was last refreshed (as the motion's own gyro values)."""
-    vibrations = list(vibrations)
     if not vibrations:
         return profile
     t = np.asarray(profile.t_s, dtype=np.float64)

@@ -314,8 +314,7 @@ def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng,
             t_f = expiry
         flush_t.append(t_f)
         flush_end.append(j + 1)
-        t_last = t_f
-        i = j + 1
+        t_last, i = t_f, j + 1
     flush_t = np.array(flush_t)
     # USB: the host controller picks the packet up at the next 1 ms frame; the OS hands it to the reader later
     arrive = sof_phase + np.ceil((flush_t - sof_phase) / USB_FRAME_S) * USB_FRAME_S
