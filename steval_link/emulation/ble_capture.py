@@ -1,15 +1,10 @@
 """A BLE capture from the real firmware under emulation (``steval emulate ELF --ble``, ``recordings/ble_demo.stv``).
 
-:class:`EmulatedBlueNrg`, the board's BlueNRG-MS at the HCI level, answers the firmware's ``hci_send_req``
-(``Board.hci_handler``): distinct GATT handles for ``aci_gatt_add_serv`` / ``aci_gatt_add_char`` (so each
-``aci_gatt_update_char_value`` names its characteristic by UUID, as on the chip), an RSSI for ``hci_read_rssi``, and
-every ``aci_gatt_update_char_value`` recorded and accepted at once (no radio congestion is modelled).
-
-:func:`record_ble` runs the firmware with it; a central connects at ``connect_s`` (the stock firmware then sends its
-motion, environment and arming notifications from the main loop, once per AHRS step each). Every notification of
-steval's characteristics is written as a capture ``B`` chunk, with the emulated time at which the link delivered it
-(s since power-up) as its host time: what ``steval live --ble`` would record from this drone, minus the radio's
-own timing.
+:class:`EmulatedBlueNrg`, the board's BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT
+handles (so each ``aci_gatt_update_char_value`` names its characteristic by UUID, as on the chip), an RSSI, and
+records every update, accepted at once (no radio congestion is modelled). :func:`record_ble` connects a central
+at ``connect_s`` and writes each notification of steval's characteristics as a capture ``B`` chunk, its host time
+the emulated delivery time (s since power-up): what ``steval live --ble`` would record, minus the radio's timing.
 """
 
 from __future__ import annotations

@@ -25,8 +25,7 @@ import numpy as np
 
 from steval_link.errors import UserError, printable
 
-#: the dataset repository's commit the hashes belong to
-BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"
+BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"  #: the dataset repository's commit the hashes belong to
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"
 #: the trials `steval evaluate`'s table and the course project use
 DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")

@@ -46,8 +46,7 @@ class MotionProfile:
     armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
 
 
-#: RC receiver frame rate, Hz: ``gTHR`` changes at this rate (PWM/PPM receivers: ~50 Hz)
-RC_RATE_HZ = 50.0
+RC_RATE_HZ = 50.0  #: RC receiver frame rate, Hz: ``gTHR`` changes at this rate
 _H_RATE = 1e-4
 _H_ACC = 2e-3
 

@@ -16,8 +16,7 @@ from steval_link import constants as C
 from steval_link.errors import ParamError
 from steval_link.quat import quaternion_from_euler
 
-#: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
-G_MPS2 = 9.80665
+G_MPS2 = 9.80665  #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 MG_PER_MPS2 = 1000.0 / G_MPS2
 DEG = np.pi / 180.0
 

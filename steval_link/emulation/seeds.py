@@ -7,8 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
-SEED_SALT = 0x5EA1
+SEED_SALT = 0x5EA1  #: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
 
 
 @dataclass(frozen=True)

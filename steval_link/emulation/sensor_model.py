@@ -25,10 +25,8 @@ from steval_link import constants as C
 
 _F32 = np.float32
 
-#: ticks ignored after power-up before the offset calibration starts
-CALIBRATION_SKIP_TICKS: int = 800
-#: ticks summed for the offset calibration
-CALIBRATION_TICKS: int = 800
+CALIBRATION_SKIP_TICKS: int = 800  #: ticks ignored after power-up before the offset calibration starts
+CALIBRATION_TICKS: int = 800  #: ticks summed for the offset calibration
 
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
@@ -47,10 +45,8 @@ def gyro_hold_times_s(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np
     return t0_s + gyro_hold_index(t_s, t0_s, odr_hz) / odr_hz
 
 
-#: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
-ACC_SENSITIVITY_MG = 0.122
-#: LSM6DSL ±2000 dps sensitivity, mdps/LSB
-GYRO_SENSITIVITY_MDPS = 70.0
+ACC_SENSITIVITY_MG = 0.122  #: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
+GYRO_SENSITIVITY_MDPS = 70.0  #: LSM6DSL ±2000 dps sensitivity, mdps/LSB
 
 
 #: the ISR's gyro IIR coefficients (a1, a2, b0, b1, b2) as the firmware's float32: Butterworth low-pass, 100 Hz
@@ -120,8 +116,7 @@ class Lsm6dsl:
         return quantise(acc_meas, ACC_SENSITIVITY_MG), quantise(gyro_meas, GYRO_SENSITIVITY_MDPS)
 
 
-#: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
-#: well inside the datasheet's ±40 mg / ±2 dps
+#: sigmas (mg, mdps) of the zero-g and zero-rate offsets drawn per seed: well inside the datasheet's ±40 mg / ±2 dps
 ACC_BIAS_SIGMA_MG: float = 12.0
 GYRO_BIAS_SIGMA_MDPS: float = 600.0
 
@@ -183,9 +178,8 @@ def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ):
     return h, gain_db, np.angle(h), tau_samples / fs_hz
 
 
-#: delay of the gyro input of an AHRS step relative to its accelerometer input, s (≈ 3.3 ms): the IIR's group
-#: delay at low frequency (≈ 2.1 ms at the 807.7 Hz tick) plus the mean age of a 416 Hz sample-and-hold read
-#: (half an ODR period, 1.2 ms). Both inputs share the boxcar, whose centre lies 2 ticks before the step.
+#: delay of an AHRS step's gyro input relative to its accelerometer input, s (≈ 3.3 ms): the IIR's group delay at low
+#: frequency (≈ 2.1 ms) plus the mean age of a 416 Hz sample-and-hold read (1.2 ms); both share the boxcar.
 GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_ODR_HZ
 
 

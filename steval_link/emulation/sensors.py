@@ -1,14 +1,9 @@
 """Register models of the STEVAL-FCU001V1's SPI sensors, answering the firmware's ``Sensor_IO_Read/Write``.
 
-Each sensor is a 128-byte register file with the identity, status and reset behaviour ST's drivers check:
-
-- LSM6DSL (``spiDevice`` 0): WHO_AM_I 0x6A; gyro ``OUTX_L_G`` 0x22..0x27 and acc ``OUTX_L_XL`` 0x28..0x2D as int16
-  ADC counts in the *sensor's* axes, from the motion at the moment of the read (ST's driver scales them).
-- LIS2MDL (1): WHO_AM_I 0x40, a constant field (the AHRS does not use it).
-- LPS22HB (2): WHO_AM_I 0xB1, a constant 1013.25 hPa and 25 °C.
-
-ST's ``ReadSensorRawData`` maps sensor to body axes (COORDINATE_SYSTEM 3: x right, y forward, z up): body x =
-−sensor y, body y = sensor x, body z = sensor z; :func:`body_to_sensor_counts` does the inverse.
+Each is a 128-byte register file with the identity, status and reset behaviour ST's drivers check. The LSM6DSL
+(``spiDevice`` 0) holds the motion's int16 ADC counts in the *sensor's* axes at the moment of the read (ST's driver
+scales them); the LIS2MDL (1) a constant field, the LPS22HB (2) a constant 1013.25 hPa and 25 °C. ST's
+``ReadSensorRawData`` maps them to body axes (x right, y forward, z up): body x = −sensor y, body y = sensor x.
 """
 
 from __future__ import annotations

@@ -34,8 +34,7 @@ from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import capture
 from steval_link.link import protocol as P
 
-#: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
-EPOCH_UNIX_S = 1767225600.0
+EPOCH_UNIX_S = 1767225600.0  #: capture start time: 2026-01-01T00:00:00Z (+ the join time), never the wall clock
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
 _GENERATOR = (
