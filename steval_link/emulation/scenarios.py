@@ -55,9 +55,11 @@ def _s_dd(u):
 class Steps:
     """``base + Σ delta_i · S((t − t0_i) / dur_i)``: smooth moves that do not overlap (sorted by t0)."""
 
-    def __init__(self, base: float = 0.0) -> None:
+    def __init__(self, base: float = 0.0, moves=()) -> None:
         self.base = float(base)
         self.moves: list[tuple[float, float, float]] = []
+        for t0, dur, delta in moves:
+            self.move(t0, dur, delta)
 
     def move(self, t0: float, dur: float, delta: float) -> None:
         if self.moves and t0 < sum(self.moves[-1][:2]) - 1e-12:
@@ -230,11 +232,8 @@ def _between(t_on: float, t_off: float) -> Callable:
 
 
 def _lift(t_up: float, height_m: float, dur: float = 1.0, t_down: float | None = None) -> Steps:
-    z = Steps()
-    z.move(t_up - dur / 2, dur, height_m)
-    if t_down is not None:
-        z.move(t_down - dur / 2, dur, -height_m)
-    return z
+    down = [] if t_down is None else [(t_down - dur / 2, dur, -height_m)]
+    return Steps(0.0, [(t_up - dur / 2, dur, height_m), *down])
 
 
 def _vertical_acc(steps: list[Steps]) -> Callable:
@@ -297,13 +296,11 @@ def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero)
     thr.move(t_land, 2.0, -140.0)  # descend
     thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
     thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
-    air = Steps()
-    air.move(t0 + 2.0, 0.4, 1.0)
-    air.move(t_land + 2.3, 0.3, -1.0)
+    air = Steps(0.0, [(t0 + 2.0, 0.4, 1.0), (t_land + 2.3, 0.3, -1.0)])
     climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
-    fly = Steps()  # the wander fades in and out slowly around take-off and landing
-    fly.move(t0 + 2.0, 2.5, 1.0)
-    fly.move(t_land, 2.3, -1.0)
+    fly = Steps(
+        0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)]
+    )  # the wander fades in and out around take-off, landing
     wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
     yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
 
@@ -434,9 +431,7 @@ def _preflight(T: float, rng) -> Kinematics:
         t += 2 * move + 2.0 + 1.5
     t_put = t + 0.5
     w, hand = _hand_held(rng, t_pick, t_put)
-    thr = Steps()
-    thr.move(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR)
-    thr.move(t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)
+    thr = Steps(0.0, [(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR), (t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)])
     return _held(
         axes,
         hand,
