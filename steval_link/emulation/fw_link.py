@@ -284,8 +284,7 @@ def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -
         return encode_c(order, att, c_encoder)
     att_idx = [o[1] for o in order if o[0] == "att"]
     block = P.encode_attitude_block(att[att_idx]) if att_idx else b""
-    out = []
-    j = 0
+    out, j = [], 0
     for kind, item, _, size in order:
         if kind == "att":
             out.append(block[j : j + size])

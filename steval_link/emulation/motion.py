@@ -75,17 +75,14 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
     dt = np.diff(t, prepend=t[0])
     phase = 2 * np.pi * np.cumsum(f_m * dt)
     scale = np.where(on, (thr / 500.0) ** 2, 0.0)
-    acc = np.zeros((len(t), 3))
-    gyro = np.zeros((len(t_eval), 3))
-    phase_e = np.interp(t_eval, t, phase)
-    scale_e = np.interp(t_eval, t, scale)
+    acc, gyro = np.zeros((len(t), 3)), np.zeros((len(t_eval), 3))
+    phase_e, scale_e = np.interp(t_eval, t, phase), np.interp(t_eval, t, scale)
     acc_amp = np.array([30.0, 30.0, 55.0])  # mg per motor-harmonic-1 at hover speed
     gyro_amp = np.array([500.0, 500.0, 250.0])  # mdps
     for _ in range(4):
         ratio = 1.0 + rng.normal(0.0, 0.015)
         for h, (ka, kg) in enumerate(((0.5, 0.5), (0.25, 0.2)), start=1):
-            ph = rng.uniform(0, 2 * np.pi, 3)
-            pg = rng.uniform(0, 2 * np.pi, 3)
+            ph, pg = rng.uniform(0, 2 * np.pi, 3), rng.uniform(0, 2 * np.pi, 3)  # acc's, then gyro's
             acc += ka * acc_amp * scale[:, None] * np.sin(h * ratio * phase[:, None] + ph)
             gyro += kg * gyro_amp * scale_e[:, None] * np.sin(h * ratio * phase_e[:, None] + pg)
     return acc, gyro

@@ -103,8 +103,7 @@ class Lsm6dsl:
         the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
         noise is drawn once per 416 Hz ODR sample and held like the reading; otherwise fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        acc = np.asarray(acc_true_mg, dtype=np.float64)
-        gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
+        acc, gyro = np.asarray(acc_true_mg, dtype=np.float64), np.asarray(gyro_true_mdps, dtype=np.float64)
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
         if t_tick_s is not None:
             t = np.asarray(t_tick_s, dtype=np.float64)
