@@ -277,11 +277,8 @@ def ki_micro(ki: np.float32) -> int:
     return f2i(np.float32(ki * np.float32(1e6)) + half)
 
 
-def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -> bytes:
-    """The frames of ``order`` as bytes: by the Python encoder, or by the firmware's own C encoder (the host build
-    ``c_encoder``, fed with frame requests)."""
-    if c_encoder is not None:
-        return encode_c(order, att, c_encoder)
+def encode(order: list[Frame], att: np.ndarray) -> bytes:
+    """The frames of ``order`` as bytes, by the Python encoder."""
     att_idx = [o[1] for o in order if o[0] == "att"]
     block = P.encode_attitude_block(att[att_idx]) if att_idx else b""
     out, j = [], 0
@@ -299,8 +296,7 @@ def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -
 
 
 def encode_c(order: list[Frame], att: np.ndarray, exe: Path) -> bytes:
-    """The frames of ``order`` through the C host encoder ``exe`` (``firmware_patch/host/stv_encode``)."""
-    exe = Path(exe)
+    """The frames of ``order`` through the firmware's own C encoder ``exe`` (the host build, fed frame requests)."""
     if not exe.is_file() or not os.access(exe, os.X_OK):
         raise UserError(f"C encoder {exe} not found or not executable; build it with: make -C firmware_patch host")
     req = []

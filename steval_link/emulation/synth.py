@@ -267,8 +267,10 @@ def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
     """The bytes the link sent, in transmit order, as the host receives them from the join time on: (data, chunk
     offsets, chunk times, frame counts)."""
     order = link.order
-    c_encoder = (Path(opts.c_encoder) if opts.c_encoder else default_c_encoder()) if opts.encoder == "c" else None
-    stream = fwl.encode(order, att, c_encoder)
+    if opts.encoder == "c":
+        stream = fwl.encode_c(order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
+    else:
+        stream = fwl.encode(order, att)
     sizes = np.array([o[3] for o in order], dtype=np.int64)
     starts = np.array([o[2] for o in order], dtype=np.float64)
     offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
