@@ -158,10 +158,9 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
     """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
-    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added first only when
-    given: the trial's own noise is in the data), then the firmware's calibration, offset removal, IIR and boxcar.
-    Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it averages; the gyro's hold and
-    IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
+    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added only when given),
+    then the firmware's ISR pipeline. Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it
+    averages; the gyro's hold and IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)

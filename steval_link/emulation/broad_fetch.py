@@ -6,7 +6,6 @@ the ``.npz`` the tools read (:func:`steval_link.emulation.broad.load_trial`).
 - Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), the one published fingerprint of every file.
 - Download with pooch; the check and the conversion happen in a private folder of the cache, and only a complete
   ``.npz`` is renamed into place, so nothing half-written is ever left.
-- Cache: ``platformdirs.user_cache_dir("steval-link")/broad``, or ``STEVAL_DATA_DIR/broad``.
 
 The conversion keeps the values as float32: ``acc`` = ``imu_acc`` (m/s²), ``gyr`` = ``imu_gyr`` (rad/s), ``quat`` =
 ``opt_quat`` (wxyz, IMU → ENU, NaN where occluded), ``movement`` (bool), ``fs`` = ``sampling_rate`` (Hz).

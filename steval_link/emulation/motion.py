@@ -151,9 +151,8 @@ def parse_throttle(spec: str) -> Callable:
 
 
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:
-    """A BROAD trial (:class:`steval_link.emulation.broad.BroadTrial`) at tick times ``t_s``: trial time 0 is the first
-    TIM9 tick ``first_tick_s``. acc is linearly resampled, the gyro read as a 416 Hz sample-and-hold; values are
-    the trial's measurements (its IMU's noise and bias included), so ``measured`` is True. Throttle 0 (hand-held)
+    """A BROAD trial at tick times ``t_s``, trial time 0 at the first TIM9 tick ``first_tick_s``: acc linearly
+    resampled, the gyro a 416 Hz sample-and-hold of the trial's measurements (``measured``). Throttle 0 (hand-held)
     unless ``throttle`` is given."""
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s

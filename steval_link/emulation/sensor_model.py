@@ -1,7 +1,5 @@
 """LSM6DSL sensor model and the STEVAL-FCU001V1 firmware's sensor pipeline (ST release 170120), as numpy functions.
 
-The chain the drone runs, one function per link:
-
 1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white noise → int16 ADC counts → the ST
    driver's integer mg (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
 2. TIM9 ISR at ``constants.ISR_RATE_HZ`` ≈ 807.69 Hz: power-up calibration (:func:`calibrate_offsets`), offset
@@ -10,9 +8,7 @@ The chain the drone runs, one function per link:
 3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz): the boxcar average (:func:`fifo_average`) →
    ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
-:func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
-another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.
-All arrays are (N, 3) with axes x right, y forward, z up (the firmware's COORDINATE_SYSTEM 3).
+:func:`run_isr` runs 2–3. Arrays are (N, 3) in the firmware's axes: x right, y forward, z up.
 """
 
 from __future__ import annotations
@@ -86,12 +82,9 @@ def quantise(value, sensitivity: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Lsm6dsl:
-    """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick.
-
-    Noise: white RMS per reading, the datasheet's typical values that UMaine Lab 5 Appendix B quotes (gyro
-    75 mdps, acc 2 mg at ±4 g). Biases: constant offsets (3,) added before quantisation (the datasheet allows ±40 mg
-    and ±2 dps).
-    """
+    """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick. Noise: white, RMS
+    per reading (the datasheet's typical values, as UMaine Lab 5 Appendix B quotes). Biases: constant offsets (3,)
+    added before quantisation."""
 
     acc_noise_mg: float = 2.0
     gyro_noise_mdps: float = 75.0
@@ -206,9 +199,8 @@ class IsrOutput:
 
 def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
     """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps
-    (floats are truncated like the driver's int32 cast). ``calibrate``: the power-up calibration (the pipeline
-    starts at tick 1599); False: from tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000),
-    gyro 0)."""
+    (floats truncated). ``calibrate``: the power-up calibration (the pipeline starts at tick 1599); False: from
+    tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000), gyro 0)."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
     if calibrate:
@@ -231,11 +223,9 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
 
 
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
-    """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad.
-
-    ``thz += ((float)gyro_fil.z * (float)COE_MDPS_TO_RADPS) * 0.00125f`` every tick; reset to 0 on ticks where the
-    throttle ``thr`` (per tick, or a scalar; None = 0) is below MIN_THR (200).
-    """
+    """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad: ``thz += ((float)gyro_fil.z *
+    (float)COE_MDPS_TO_RADPS) * 0.00125f``, reset to 0 while the throttle ``thr`` (per tick, a scalar or None = 0)
+    is below MIN_THR."""
     gz = np.asarray(gyro_fil_z_mdps, dtype=_F32)
     inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
@@ -248,10 +238,9 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
 
 
 def resample_to_tick(t_s, signal, hold_hz: float | None = None):
-    """Linear interpolation of ``signal`` (N, ...) sampled at times ``t_s`` onto the ISR ticks from ``t_s[0]`` to
-    ``t_s[-1]``: ``(t_tick_s, signal_tick)``, float64 (NaN samples propagate to the ticks next to them).
-    ``hold_hz``: each tick reads the latest sample of a sensor whose output register updates at that ODR (the
-    gyro's 416 Hz sample-and-hold, ≈ 1.2 ms mean delay)."""
+    """``signal`` (N, ...) sampled at ``t_s`` linearly interpolated onto the ISR ticks from ``t_s[0]`` to ``t_s[-1]``:
+    ``(t_tick_s, signal_tick)``, float64. ``hold_hz``: each tick reads the latest sample of an output register
+    refreshed at that ODR (the gyro's 416 Hz sample-and-hold)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
     n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1
