@@ -123,8 +123,7 @@ def render(
     thr_tick = thr_rc[inv].astype(np.int16)
     vib = _vibration(t, thr_tick, rng, t_hold)
     if vib is not None:
-        f = f + vib[0]
-        gyro = gyro + vib[1]
+        f, gyro = f + vib[0], gyro + vib[1]
     sticks = None if kin.sticks is None else np.clip(np.rint(kin.sticks(uniq)), -32768, 32767)[inv].astype(np.int16)
     armed = None if kin.armed is None else (np.asarray(kin.armed(uniq)) > 0.5)[inv]
     return MotionProfile(name, t, q, f, gyro, thr_tick, sticks=sticks, armed=armed)
