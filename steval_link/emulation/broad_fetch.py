@@ -153,10 +153,8 @@ _H5_ARRAYS = {"acc": "imu_acc", "gyr": "imu_gyr", "quat": "opt_quat"}
 
 
 def fetch_trial(name: str, directory: Path) -> FetchedTrial:
-    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there.
-
-    Any failure (no connection, a cut or altered file, not a BROAD trial) raises UserError and leaves nothing of
-    this trial in ``directory``."""
+    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there; any
+    failure raises UserError and leaves nothing of this trial in ``directory``."""
     expected = BROAD_FILES[name]
     out = directory / f"{name}.npz"
     if out.is_file():

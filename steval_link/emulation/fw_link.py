@@ -146,13 +146,10 @@ def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
 
 @dataclass
 class LinkEmulation:
-    """``stv_link.c`` of one firmware run: feed it the boot lines (:meth:`text`) and every AHRS step
-    (:meth:`step`); it keeps the transmit ``order``, which attitude rows were ``sent`` and the ``status`` records.
-
-    ``att``: the attitude payload rows (``ATTITUDE_DTYPE``) of every step; ``thx``, ``thy``: each step's angles, rad
-    (for ``$ATT`` lines); ``snapshots``: the filter state after each status step, in order; ``drop``: attitude
-    frames the queue refuses on purpose (``--drop-rate``).
-    """
+    """``stv_link.c`` of one firmware run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`):
+    ``att`` holds every step's attitude payload, ``thx``/``thy`` its angles (rad, for ``$ATT`` lines), ``snapshots``
+    the filter state after each status step, ``drop`` the frames refused on purpose. It keeps the transmit
+    ``order``, which steps were ``sent`` and the ``status`` records."""
 
     att: np.ndarray
     thx: np.ndarray

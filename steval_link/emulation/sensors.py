@@ -81,12 +81,9 @@ def _devices() -> dict[int, _Regs]:
 
 class SensorBus:
     """The SPI2 sensors as ``Sensor_IO_Read/Write`` see them, fed by ``motion.counts(k)``: the LSM6DSL's (acc, gyro)
-    int16 sensor-axis counts of TIM9 tick ``k`` (0 = the first tick after power-up).
-
-    A read sees the current tick: before TIM9 runs, the tick of the emulated time (``now // 104000``); once it runs,
-    the tick the ISR's update event belongs to (each TIM9 tick reads one consecutive sample). ``log_limit``: keep at
-    most this many served LSM6DSL samples in :attr:`served` (for tests).
-    """
+    int16 sensor-axis counts of TIM9 tick ``k`` (0 = the first tick after power-up). Before TIM9 runs a read sees
+    the tick of the emulated time; then the tick of the ISR's update event (one consecutive sample per tick).
+    ``log_limit``: keep at most this many served LSM6DSL samples in :attr:`served` (for tests)."""
 
     def __init__(self, motion, *, log_limit: int = 0) -> None:
         self.motion = motion

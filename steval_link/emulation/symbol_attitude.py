@@ -85,9 +85,8 @@ def _bl_targets(code: bytes, base: int) -> set[int]:
 
 
 def elf_filter_variant(elf) -> tuple[str | None, str]:
-    """The ST release whose filter an ELF (``emulation.elf.Elf``) has, from ``ahrs_fusion_ag``'s code: (variant or
-    None, why in one sentence). 221117's calls the double-arithmetic helpers, 170120's (= 170318, 301117 beta)
-    none; None without the function's symbol and size."""
+    """(The ST release whose filter an ``Elf`` has, or None; why, in one sentence), from the helpers that
+    ``ahrs_fusion_ag`` calls (:data:`_DOUBLE_HELPERS`; 170120 = 170318 = 301117 beta)."""
     sym = elf.by_name.get("ahrs_fusion_ag")
     if sym is None or sym.size <= 0:
         return None, "no ahrs_fusion_ag symbol with a size in the ELF"

@@ -284,11 +284,8 @@ USB_FRAME_S = 0.001
 
 
 def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng, total_s: float):
-    """Bytes the host receives in [join, join + duration] and the receive times of their USB packets (a USB-UART
-    adapter, FTDI FT232R-like: a packet when 62 bytes are in or when its latency timer expires).
-
-    Returns ``((first, end) stream offsets of the captured bytes, chunk offsets, chunk times s since start)``.
-    """
+    """What the host receives through a USB-UART adapter (FTDI FT232R-like) in [join, join + duration]: ``((first,
+    end) stream offsets of the captured bytes, USB packet offsets, their receive times s since the join)``."""
     n = len(stream)
     if n == 0:
         return (0, 0), np.zeros(0, np.int64), np.zeros(0)
