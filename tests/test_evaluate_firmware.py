@@ -18,8 +18,7 @@ from support.cli import run_cli, run_cli_tty
 from steval_link.analysis.firmware_eval import cut_trial, firmware_labels
 from steval_link.constants import TICK_PERIOD_S as TICK_S
 from steval_link.emulation import broad
-from steval_link.emulation.broad import BroadTrial, truth_at_trial_time
-from steval_link.emulation.step_truth import StepTruth, score_euler
+from steval_link.emulation.broad import BroadTrial, StepTruth, score_euler, truth_at_trial_time
 from steval_link.errors import UserError
 from steval_link.link.capture import (
     CHUNK_TRUTH,
@@ -333,7 +332,7 @@ def test_compare_scores_the_truth_a_capture_keeps(monkeypatch, capsys, tmp_path)
 
 def _fake_firmware(label: str, trial: str, rmse_offset_deg: float):
     from steval_link.analysis.firmware_eval import FirmwareResult
-    from steval_link.emulation.step_truth import TruthRows
+    from steval_link.emulation.broad import TruthRows
 
     m = 300
     t = 2.0 + np.arange(m) / 161.5

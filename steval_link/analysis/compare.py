@@ -48,7 +48,7 @@ from steval_link.analysis.report import (
 from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
 from steval_link.emulation import broad
-from steval_link.emulation.step_truth import score_euler
+from steval_link.emulation.broad import score_euler
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.estimators.runner import row_decimation, run_estimator

@@ -13,8 +13,8 @@ The firmware's output is ``thx``/``thy`` (pitch about x, roll about y) per AHRS 
 Metric: the inclination error of the quaternion ``quaternion_from_euler(thx, thy, 0)`` against the truth (yaw
 does not enter the inclination), RMSE in degrees over the trial's movement steps: the same
 :func:`~steval_link.emulation.broad.inclination_error_rad` and :func:`~steval_link.emulation.broad.rmse_deg` as
-the Python estimators, on the ground truth aligned per step by :mod:`steval_link.emulation.step_truth` (the middle
-tick of the step's 5-tick input window, as the Python estimators' STEVAL view).
+the Python estimators, on the ground truth aligned per step by :class:`~steval_link.emulation.broad.StepTruth` (the
+middle tick of the step's 5-tick input window, as the Python estimators' STEVAL view).
 
 The bit-exact ST-Mahony replica runs over the firmware's own inputs (frames, or the globals) with the firmware's
 settings (status frames, else ST's defaults) and is scored the same way from its thx/thy: for a stock build the
@@ -37,9 +37,8 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.analysis.report import on_rows
-from steval_link.emulation.broad import BroadTrial
+from steval_link.emulation.broad import BroadTrial, StepTruth, TruthRows, score_euler
 from steval_link.emulation.runner import Emulation, EmulationOptions
-from steval_link.emulation.step_truth import StepTruth, TruthRows, score_euler
 from steval_link.emulation.symbol_attitude import elf_filter_variant
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators import firmware_replay, st_mahony
@@ -98,7 +97,7 @@ class FirmwareResult:
         trial: trial name.
         source: where the attitude came from: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by
             symbol).
-        truth: per-step ground truth (:class:`~steval_link.emulation.step_truth.TruthRows`).
+        truth: per-step ground truth (:class:`~steval_link.emulation.broad.TruthRows`).
         thx_rad, thy_rad: (M,) float32 the firmware's output per step (NaN: no frame for that step).
         err_rad: (M,) inclination error, rad.
         rmse_deg: inclination RMSE over the movement steps, degrees.

@@ -1,22 +1,77 @@
 """A BLE capture from the real firmware under emulation (``steval emulate ELF --ble``, ``recordings/ble_demo.stv``).
 
-The firmware runs on the emulated board with :class:`~steval_link.emulation.bluenrg.EmulatedBlueNrg` as its radio;
-a central connects at ``connect_s`` (the stock firmware then sends its motion, environment and arming notifications
-from the main loop, once per AHRS step each). Every notification the emulated chip accepted is written as a capture
-``B`` chunk, with the emulated time at which the link delivered it (s since power-up) as its host time: what
-``steval live --ble`` would record from this drone, minus the radio's own timing.
+:class:`EmulatedBlueNrg`, the board's BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT
+handles (so each ``aci_gatt_update_char_value`` names its characteristic by UUID, as on the chip), an RSSI, and
+records every update, accepted at once (no radio congestion is modelled). :func:`record_ble` connects a central
+at ``connect_s`` and writes each notification of steval's characteristics as a capture ``B`` chunk, its host time
+the emulated delivery time (s since power-up): what ``steval live --ble`` would record, minus the radio's timing.
 """
 
 from __future__ import annotations
 
+import itertools
+import struct
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from steval_link import constants as C
-from steval_link.emulation.bluenrg import EmulatedBlueNrg
 from steval_link.emulation.runner import Emulation, EmulationOptions
-from steval_link.link.ble_payloads import CHAR_NAMES, ble_chunk
+from steval_link.link.ble_payloads import CHAR_MOTION, CHAR_NAMES, ble_chunk, char_id_of_uuid
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
+
+#: HCI (OGF, OCF) of the requests answered
+GATT_ADD_SERV, GATT_ADD_CHAR, GATT_UPD_CHAR_VAL, READ_RSSI = (0x3F, 0x0102), (0x3F, 0x0104), (0x3F, 0x0106), (5, 5)
+UUID_TYPE_128 = 0x02
+
+
+@dataclass(frozen=True, slots=True)
+class HciNotification:
+    """One ``aci_gatt_update_char_value`` as the firmware issued it."""
+
+    t_sent_s: float  #: emulated time of the HCI request, s since reset (the link delivers it at once)
+    char_id: int | None  #: steval's id of the characteristic (ble_payloads), None for others (e.g. device name)
+    value: bytes
+
+
+class EmulatedBlueNrg:
+    """``Board.hci_handler`` for the SPBTLE-RF module (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.rssi_dbm = -62
+        self._next_handle = 0x0010
+        self.char_id_of_handle: dict[int, int | None] = {}
+        self.notifications: deque[HciNotification] = deque()
+        self.updates = 0  #: aci_gatt_update_char_value requests
+
+    def _alloc(self, n: int) -> int:
+        self._next_handle += n
+        return self._next_handle - n
+
+    def __call__(self, ogf: int, ocf: int, params: bytes, board) -> bytes:
+        if (ogf, ocf) == GATT_ADD_SERV:
+            return struct.pack("<BH", 0, self._alloc(16))
+        if (ogf, ocf) == GATT_ADD_CHAR and len(params) >= 5:
+            handle = self._alloc(3)  # declaration, value, CCCD
+            uuid = params[3 : 3 + (16 if params[2] == UUID_TYPE_128 else 2)][::-1].hex()
+            self.char_id_of_handle[handle] = char_id_of_uuid(
+                f"{uuid[:8]}-{uuid[8:12]}-{uuid[12:16]}-{uuid[16:20]}-{uuid[20:]}"
+            )
+            return struct.pack("<BH", 0, handle)
+        if (ogf, ocf) == GATT_UPD_CHAR_VAL and len(params) >= 6:
+            _serv, char, _off, length = struct.unpack_from("<HHBB", params)
+            self.updates += 1
+            cid = self.char_id_of_handle.get(char)
+            self.notifications.append(HciNotification(board.now / C.CPU_HZ, cid, bytes(params[6 : 6 + length])))
+            return b"\x00"  # accepted
+        if (ogf, ocf) == READ_RSSI:
+            return struct.pack("<BHb", 0, 0, self.rssi_dbm)
+        return b""
+
+    def attach(self, board) -> EmulatedBlueNrg:
+        board.hci_handler = self
+        return self
+
 
 #: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
 #: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")
@@ -29,26 +84,20 @@ class BleRecording:
     """What :func:`record_ble` wrote and measured."""
 
     path: Path
-    emulated_s: float
     connect_s: float
-    counts: dict[str, int] = field(default_factory=dict)  #: notifications written per characteristic
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(CHAR_NAMES.values(), 0))  #: per characteristic
+    emulated_s: float = 0.0
     updates: int = 0  #: aci_gatt_update_char_value requests of the firmware (all characteristics)
-    first_s: float | None = None
-    last_s: float | None = None
-
-    def rate_hz(self, name: str = "motion") -> float:
-        """Notifications per emulated second of one characteristic, first to last notification."""
-        n = self.counts.get(name, 0)
-        if n < 2 or self.first_s is None or self.last_s is None or self.last_s <= self.first_s:
-            return 0.0
-        return (n - 1) / (self.last_s - self.first_s)
+    motion_s: list[float] = field(default_factory=list)  #: emulated time of each motion notification, s
 
     def lines(self) -> list[str]:
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items() if v)
+        span = self.motion_s[-1] - self.motion_s[0] if self.motion_s else 0.0
+        rate = (len(self.motion_s) - 1) / span if span > 0 else 0.0  # first to last motion notification
         return [
             f"{self.path}: {sum(self.counts.values())} BLE notifications ({counts}) in {self.emulated_s:.1f} s "
             f"emulated, central connected at {self.connect_s:g} s",
-            f"motion notifications: {self.rate_hz('motion'):.2f} Hz; firmware update requests {self.updates}",
+            f"motion notifications: {rate:.2f} Hz; firmware update requests {self.updates}",
         ]
 
 
@@ -72,23 +121,16 @@ def record_ble(
         "address": EMULATED_ADDRESS,
         "note": "host times are the emulated delivery times, s since power-up (no radio timing model)",
     }
-    rec = BleRecording(path=Path(out), emulated_s=0.0, connect_s=connect_s, counts={n: 0 for n in CHAR_NAMES.values()})
+    rec = BleRecording(Path(out), connect_s)
     with CaptureWriter(out, port=f"ble:{EMULATED_NAME} {EMULATED_ADDRESS}", baud=0, extra=extra) as w:
-
-        def drain() -> None:
+        for _ in itertools.chain(emu.chunks(), [None]):  # after each chunk of emulated time, and once at the end
             while nrg.notifications:
                 n = nrg.notifications.popleft()
-                if n.char_id is None:
-                    continue
-                w.write_chunk(CHUNK_BLE, ble_chunk(n.char_id, n.value), n.t_sent_s)
-                rec.counts[CHAR_NAMES[n.char_id]] += 1
-                if n.char_id == 1:
-                    rec.first_s = n.t_sent_s if rec.first_s is None else rec.first_s
-                    rec.last_s = n.t_sent_s
-
-        for _data, _t in emu.chunks():
-            drain()
-        drain()
+                if n.char_id is not None:
+                    w.write_chunk(CHUNK_BLE, ble_chunk(n.char_id, n.value), n.t_sent_s)
+                    rec.counts[CHAR_NAMES[n.char_id]] += 1
+                    if n.char_id == CHAR_MOTION:
+                        rec.motion_s.append(n.t_sent_s)
     rec.emulated_s = emu.board.now / C.CPU_HZ
     rec.updates = nrg.updates
     return rec

@@ -1,16 +1,14 @@
 """BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, conversion to firmware units, the STEVAL view of a trial,
-and the ground-truth error metrics.
+the ground-truth error metrics, and the truth each AHRS step of an emulated run saw (:class:`StepTruth`).
 
 A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN rows where the
 markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz). The IMU axes match the firmware's (x right,
-y forward, z up; ≈ +9.81 m/s² on z when level).
+y forward, z up).
 
-Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``,
-heading error ``2·atan(|z / w|)``; RMSE over ``movement`` samples ignoring NaN. Estimates must be body → earth
-quaternions, like the firmware's: ``ahrs_fusion_ag`` integrates ``q̇ = ½ q ⊗ (0, ω)`` and takes its gravity estimate
-``(vx, vy, vz)`` from the third row of R(q), i.e. R(q)ᵀ·e_z, so its q maps body vectors to the earth frame (the
-same direction as BROAD's IMU → ENU). A constant heading offset (a rotation about the earth z axis, left-multiplied)
-leaves the inclination error unchanged, so 6-axis estimators are compared on inclination only.
+Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame); RMSE over ``movement`` samples ignoring NaN.
+Estimates are body → earth quaternions, like the firmware's (its gravity estimate is the third row of R(q), so its
+q maps body vectors to the earth frame, as BROAD's IMU → ENU). A constant heading offset leaves the inclination
+error unchanged, so 6-axis estimators are compared on inclination only.
 """
 
 from __future__ import annotations
@@ -23,7 +21,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
 from steval_link.errors import UserError
-from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize
+from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply, quat_normalize, quaternion_from_euler
 from steval_link.units import RAD_TO_MDPS
 
 #: m/s² per g for the conversion to mg. The trials' resting |acc| is 9.81–9.87 m/s² (IMU-dependent calibration;
@@ -160,10 +158,9 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
     """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
-    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added first only when
-    given: the trial's own noise is in the data), then the firmware's calibration, offset removal, IIR and boxcar.
-    Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it averages; the gyro's hold and
-    IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
+    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added only when given),
+    then the firmware's ISR pipeline. Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it
+    averages; the gyro's hold and IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)
@@ -182,11 +179,72 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
 
 def own_rate_view(trial: BroadTrial) -> SteValView:
     """The trial at its own rate (285.7 Hz) in firmware units, without the STEVAL pipeline (float32 mg / mdps)."""
-    return SteValView(
-        trial.acc_mg.astype(np.float32),
-        trial.gyro_mdps.astype(np.float32),
-        trial.t_s,
-        trial.quat_wxyz,
-        trial.movement,
-        trial.fs_hz,
-    )
+    acc, gyro = trial.acc_mg.astype(np.float32), trial.gyro_mdps.astype(np.float32)
+    return SteValView(acc, gyro, trial.t_s, trial.quat_wxyz, trial.movement, trial.fs_hz)
+
+
+@dataclass(frozen=True)
+class TruthRows:
+    """Ground truth per AHRS step."""
+
+    step: np.ndarray  #: (M,) int64 AHRS step counter (0 = the first step after power-up)
+    t_s: np.ndarray  #: (M,) emulated time of the step's middle input tick, s since power-up
+    t_trial_s: np.ndarray  #: (M,) trial time of that tick, s (outside [0, trial end]: no truth)
+    q_wxyz: np.ndarray  #: (M, 4) ground truth, body → earth (NaN: occluded or outside the trial)
+    movement: np.ndarray  #: (M,) bool, the step counts for the metric
+
+    def __len__(self) -> int:
+        return int(self.step.shape[0])
+
+
+class StepTruth:
+    """The ground truth each AHRS step of an ``Emulation`` of a BROAD trial saw; attach before running.
+
+    At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is the
+    first TIM9 tick; the trials start at rest, so the firmware's 2 s offset calibration takes a level pose). A step
+    averages the 5 ISR samples up to tick ``k_last`` (a probe at ``ahrs_fusion_ag`` records it): its truth is taken
+    at the window's centre, tick ``k_last − 2``, as :func:`steval_view` does. AHRS step ``i`` (from 0) is the
+    ``i``-th call of ``ahrs_fusion_ag``, the step counter of the patch's frames.
+    """
+
+    def __init__(self, emu) -> None:
+        if emu.motion.trial is None:
+            raise ValueError("ground truth needs a BROAD trial (the emulation's broad option)")
+        self.emu = emu
+        self.trial: BroadTrial = emu.motion.trial
+        self._last_tick: list[int] = []
+        self._taken = 0
+        emu.step_start_observers.append(self._on_step_start)
+
+    def _on_step_start(self, board) -> None:
+        self._last_tick.append(self.emu.tick_index())
+
+    @property
+    def last_ticks(self) -> np.ndarray:
+        """(M,) int64 motion tick of the newest sample in each step's FIFO window."""
+        return np.asarray(self._last_tick, dtype=np.int64)
+
+    def rows(self, start: int = 0, stop: int | None = None) -> TruthRows:
+        """The truth of steps ``start`` .. ``stop`` (default: every step so far)."""
+        ticks = self.last_ticks[start:stop]
+        mid = ticks - C.FIFO_ORDER // 2
+        step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
+        if ticks.shape[0] == 0:
+            empty = np.zeros(0)
+            return TruthRows(step, empty, empty, np.zeros((0, 4)), np.zeros(0, dtype=bool))
+        t_trial = np.asarray(self.emu.trial_time_s(mid), dtype=np.float64)
+        t_emu = np.asarray(self.emu.tick_time_s(mid), dtype=np.float64)
+        q, mov = truth_at_trial_time(self.trial, t_trial)
+        return TruthRows(step, t_emu, t_trial, q, mov)
+
+    def take(self) -> TruthRows:
+        """The truth of the steps recorded since the last call (for a capture's truth chunks as it grows)."""
+        start, self._taken = self._taken, len(self._last_tick)
+        return self.rows(start, self._taken)
+
+
+def score_euler(thx_rad, thy_rad, q_true_wxyz, movement) -> tuple[np.ndarray, float]:
+    """(inclination error (M,) rad, RMSE deg over ``movement``) of the attitude thx/thy against the truth."""
+    q = quaternion_from_euler(np.asarray(thx_rad, np.float64), np.asarray(thy_rad, np.float64), 0.0)
+    err = inclination_error_rad(q, q_true_wxyz)
+    return err, rmse_deg(err, movement)

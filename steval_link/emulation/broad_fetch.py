@@ -1,18 +1,14 @@
 """BROAD trials on demand: download from the dataset's public repository into a user cache, check, convert to
 the ``.npz`` the tools read (:func:`steval_link.emulation.broad.load_trial`).
 
-- Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (BROAD, D. Laidig et al., *Data*
-  6(7), 2021, CC BY 4.0). ``STEVAL_BROAD_URL`` replaces the base URL (a mirror, or the tests' loopback server).
-- Hashes: the repository's git blob ids (SHA-1 of ``b"blob <size>\\0" + content``) at that commit, one per file
-  (:data:`BROAD_FILES`). They are the one published fingerprint of every file; a download must match its own.
-- Download: pooch (a temporary file, renamed when complete). The check, the HDF5 structure check and the
-  conversion happen in a private folder of the cache; only a complete ``.npz`` is renamed into place, so nothing
-  half-written is ever left in the cache.
-- Cache: ``platformdirs.user_cache_dir("steval-link")/broad``, or ``STEVAL_DATA_DIR/broad``.
+- Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (CC BY 4.0); ``STEVAL_BROAD_URL``
+  replaces the base URL (a mirror, or the tests' loopback server).
+- Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), the one published fingerprint of every file.
+- Download with pooch; the check and the conversion happen in a private folder of the cache, and only a complete
+  ``.npz`` is renamed into place, so nothing half-written is ever left.
 
-The conversion keeps the values and makes them float32: ``acc`` = ``imu_acc`` (m/s²), ``gyr`` = ``imu_gyr`` (rad/s),
-``quat`` = ``opt_quat`` (w, x, y, z, IMU → ENU, NaN where occluded), ``movement`` (bool), ``fs`` = the
-``sampling_rate`` attribute (Hz).
+The conversion keeps the values as float32: ``acc`` = ``imu_acc`` (m/s²), ``gyr`` = ``imu_gyr`` (rad/s), ``quat`` =
+``opt_quat`` (wxyz, IMU → ENU, NaN where occluded), ``movement`` (bool), ``fs`` = ``sampling_rate`` (Hz).
 """
 
 from __future__ import annotations
@@ -28,8 +24,7 @@ import numpy as np
 
 from steval_link.errors import UserError, printable
 
-#: the dataset repository's commit the hashes belong to
-BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"
+BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"  #: the dataset repository's commit the hashes belong to
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"
 #: the trials `steval evaluate`'s table and the course project use
 DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")
@@ -103,11 +98,6 @@ def cache_dir() -> Path:
     return Path(platformdirs.user_cache_dir("steval-link", appauthor=False)) / "broad"
 
 
-def base_url() -> str:
-    """The folder URL of the HDF5 files (``STEVAL_BROAD_URL`` or the dataset repository at :data:`BROAD_COMMIT`)."""
-    return os.environ.get("STEVAL_BROAD_URL", _DEFAULT_URL).rstrip("/")
-
-
 def cached_trials(directory: Path) -> list[Path]:
     """The trial ``.npz`` files in ``directory`` (none when it does not exist), sorted."""
     return sorted(p for p in directory.glob("*.npz") if p.is_file())
@@ -163,10 +153,8 @@ _H5_ARRAYS = {"acc": "imu_acc", "gyr": "imu_gyr", "quat": "opt_quat"}
 
 
 def fetch_trial(name: str, directory: Path) -> FetchedTrial:
-    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there.
-
-    Any failure (no connection, a cut or altered file, not a BROAD trial) raises UserError and leaves nothing of
-    this trial in ``directory``."""
+    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there; any
+    failure raises UserError and leaves nothing of this trial in ``directory``."""
     expected = BROAD_FILES[name]
     out = directory / f"{name}.npz"
     if out.is_file():
@@ -177,7 +165,7 @@ def fetch_trial(name: str, directory: Path) -> FetchedTrial:
     except OSError as exc:
         raise UserError(f"cannot write the data folder {directory} ({exc.strerror or exc})") from None
     try:
-        hdf5 = _download(f"{base_url()}/{name}.hdf5", work)
+        hdf5 = _download(f"{os.environ.get('STEVAL_BROAD_URL', _DEFAULT_URL).rstrip('/')}/{name}.hdf5", work)
         data = hdf5.read_bytes()
         got = git_blob_sha1(data)
         if got != expected:
@@ -201,8 +189,7 @@ def _download(url: str, folder: Path) -> Path:
     try:
         return Path(pooch.retrieve(url, known_hash=None, fname=url.rsplit("/", 1)[-1], path=folder, progressbar=False))
     except Exception as exc:  # noqa: BLE001 - requests' and urllib3's many transfer errors: one sentence
-        reason = _reason(exc)
-        raise UserError(f"cannot download {url} ({reason}); nothing was kept") from None
+        raise UserError(f"cannot download {url} ({_reason(exc)}); nothing was kept") from None
 
 
 def _reason(exc: BaseException) -> str:

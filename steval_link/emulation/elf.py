@@ -32,7 +32,6 @@ class Elf:
             raise UserError(f"{self.path} is not an ELF file (e.g. `make -C firmware_patch reference`)")
         if data[4] != 1 or data[5] != 1 or struct.unpack_from("<H", data, 18)[0] != 40:
             raise UserError(f"{self.path} is not a 32-bit little-endian ARM ELF (the STM32F401 firmware)")
-        self.entry = struct.unpack_from("<I", data, 24)[0]
         self.segments = self._segments(data)
         self.symbols = self._symbols(data)
         self.by_name = {s.name: s for s in self.symbols}
@@ -61,18 +60,15 @@ class Elf:
         shentsize, shnum = struct.unpack_from("<HH", data, 46)
         secs = [struct.unpack_from("<10I", data, shoff + i * shentsize) for i in range(shnum)]
         out: list[Symbol] = []
-        for sh in secs:
-            if sh[1] != 2:  # SHT_SYMTAB
-                continue
-            strtab = secs[sh[6]]
-            str_off = strtab[4]
+        for sh in (sh for sh in secs if sh[1] == 2):  # SHT_SYMTAB
+            str_off = secs[sh[6]][4]  # its string table's file offset
             for k in range(sh[5] // 16):
                 name_off, value, size, info, _other, shndx = struct.unpack_from("<IIIBBH", data, sh[4] + k * 16)
                 typ = info & 0xF
                 if typ not in (1, 2) or shndx == 0:  # OBJECT, FUNC
                     continue
-                end = data.index(b"\0", str_off + name_off)
-                name = data[str_off + name_off : end].decode("ascii", "replace")
+                start = str_off + name_off
+                name = data[start : data.index(b"\0", start)].decode("ascii", "replace")
                 out.append(Symbol(name, value, size, typ == 2, info >> 4 == 2))  # STB_WEAK
         if not out:
             raise UserError("the firmware ELF has no symbols (do not strip it: the board finds its functions by name)")

@@ -1,12 +1,9 @@
 """The firmware patch's link (``firmware_patch/src/stv_link.c`` and ``stv_txq.c``) emulated step by step, for
-``steval synth``: the AHRS step timing of the main loop, an attitude frame per step (``$ATT`` lines every 16th step
-in text mode), a status frame after every 162nd step with the filter-state snapshot and the DWT cycle statistics,
-the boot log as text frames, and the 2048-byte TX queue drained by USART1 at the baud rate (a frame that does not
-fit is dropped and counted in ``tx_dropped``; attitude and text frames leave room for a status frame). Then the
-frames as bytes, by the Python encoder or the firmware's own C encoder.
-
-The timing figures are the real firmware's under emulation (``steval emulate``), where it can be measured; the
-rest (main-loop latency after a tick, the TIM9 ISR's length, BLE traffic) are models, documented where they stand.
+``steval synth``: the AHRS step timing, an attitude frame per step (``$ATT`` lines every 16th step in text mode), a
+status frame after every 162nd step (filter-state snapshot, DWT cycle statistics), the boot log as text frames, and
+the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted in ``tx_dropped``;
+attitude and text frames leave room for a status frame). Then the frames as bytes, by the Python encoder or the
+firmware's own C encoder. Timings are the real firmware's under ``steval emulate`` where measurable, else models.
 """
 
 from __future__ import annotations
@@ -25,9 +22,8 @@ from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.link import protocol as P
 from steval_link.link.textmode import format_att, format_sta
 
-#: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` (-O0, hard float, software double atan2/asin): the
-#: median the real firmware (gcc 12.2 build) shows under firmware-in-the-loop emulation at rest, where CYCCNT counts
-#: instructions (``steval emulate``; 4050-6600 when tilted or flying). A real M4 needs somewhat more cycles.
+#: DWT window of ``ahrs_fusion_ag`` + ``QuaternionToEuler``: the real firmware's median at rest under ``steval
+#: emulate``, where CYCCNT counts instructions (4050-6600 when tilted or flying; a real M4 needs somewhat more).
 AHRS_CYCLES = 4420
 #: USART1 TXE interrupt (stv_fw_usart1_irq, -O2) including entry and exit, cycles.
 TXE_IRQ_CYCLES = 62
@@ -37,11 +33,8 @@ TEXT_DECIMATION = 16
 TXQ_SIZE = 2048
 TEXT_LINE_MAX = 192
 FW_VERSION = (2, 0)
-#: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period: the sensor set-up in main()
-#: includes ST's ``HAL_Delay(1000)`` in the LPS22HB init, then HAL_TIM_Base_Start_IT's first interrupt comes at
-#: once (the update flag HAL's UG left set) and then every 104000 cycles. Measured on the real firmware under
-#: emulation (stv_fw_init → HAL_TIM_Base_Start_IT: 84 007 128 cycles); the first attitude frame then comes at
-#: t_us ≈ 2.985 s, as the emulated firmware's does.
+#: TIM9's tick 0 comes this long after the link starts (≈ power-up) less one tick period (measured under ``steval
+#: emulate``: main()'s sensor set-up includes ST's ``HAL_Delay(1000)``); the first attitude frame is at ≈ 2.985 s.
 TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
@@ -112,8 +105,7 @@ class TxQueue:
         return start
 
     def take_peak(self, t: float) -> int:
-        p = self.peak
-        self.peak = self.used(t)
+        p, self.peak = self.peak, self.used(t)
         return p
 
     def busy_overlap(self, t0: float, t1: float) -> float:
@@ -137,19 +129,16 @@ def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndar
     return out
 
 
-def step_timing(
-    step_tick: np.ndarray, n_ticks: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
     ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
     PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
     n_steps = len(step_tick)
-    tick_cycles = TIM9_START_CYCLES + (np.arange(n_ticks, dtype=np.int64) + 1) * C.TICK_CYCLES
     isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
     loop_latency = rng.integers(0, 700, n_steps) + np.where(
         rng.random(n_steps) < 0.08, rng.integers(0, 34_000, n_steps), 0
     )
-    begin = tick_cycles[step_tick] + isr_cycles + loop_latency
+    begin = TIM9_START_CYCLES + (np.asarray(step_tick, np.int64) + 1) * C.TICK_CYCLES + isr_cycles + loop_latency
     cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
     txe_u = rng.random(n_steps)
     return begin, cyc_noise, txe_u
@@ -157,32 +146,28 @@ def step_timing(
 
 @dataclass
 class LinkEmulation:
-    """``stv_link.c`` of one firmware run: feed it the boot lines (:meth:`text`) and every AHRS step
-    (:meth:`step`); it keeps the transmit ``order``, which attitude rows were ``sent`` and the ``status`` records.
-
-    ``att``: the attitude payload rows (``ATTITUDE_DTYPE``) of every step; ``snapshots``: the filter state after
-    each status step, in order; ``drop``: attitude frames the queue refuses on purpose (``--drop-rate``).
-    """
+    """``stv_link.c`` of one firmware run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`):
+    ``att`` holds every step's attitude payload, ``thx``/``thy`` its angles (rad, for ``$ATT`` lines), ``snapshots``
+    the filter state after each status step, ``drop`` the frames refused on purpose. It keeps the transmit
+    ``order``, which steps were ``sent`` and the ``status`` records."""
 
     att: np.ndarray
+    thx: np.ndarray
+    thy: np.ndarray
     settings: MahonySettings
-    ki: float
     baud: int
     text_mode: bool
     snapshots: list[MahonyState]
     drop: np.ndarray
     order: list[Frame] = field(default_factory=list)
     status: list[np.ndarray] = field(default_factory=list)
+    cycles: list[int] = field(default_factory=list)  #: DWT counts of the steps since the last status frame
 
     def __post_init__(self) -> None:
         self.txq = TxQueue(self.baud)
         self.sent = np.zeros(len(self.att), dtype=bool)
         self.flags = self.settings.flags | (P.FLAG_TEXT_MODE if self.text_mode else 0)
-        self.ki_f32 = np.float32(self.ki)
-        self._reset_cycles()
-
-    def _reset_cycles(self) -> None:
-        self.cyc_min, self.cyc_max, self.cyc_sum, self.cyc_n = 2**32 - 1, 0, 0, 0
+        self.ki_f32 = np.float32(self.settings.ki)
 
     def _push(self, kind: str, item, cyc: float, size: int, keep_free: int) -> bool:
         start = self.txq.push(cyc, size, keep_free)
@@ -201,21 +186,19 @@ class LinkEmulation:
             piece = raw[i : i + P.TEXT_MAX_PAYLOAD]
             self._push("text", piece, cyc, P.HEADER_SIZE + len(piece) + P.CRC_SIZE, P.STATUS_FRAME_SIZE)
 
-    def step(self, k: int, c0: float, cyc_noise: int, txe_u: float, rows: dict) -> None:
+    def step(self, k: int, c0: float, cyc_noise: int, txe_u: float) -> None:
         """AHRS step ``k`` beginning at cycle ``c0``: its DWT count (the filter plus the TXE interrupts landing in
-        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step. ``rows`` holds the
-        text-mode line's values (``thx``, ``thy``, ``thz`` rad, ``thr``) of every step."""
+        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step."""
         base = AHRS_CYCLES + int(cyc_noise)
         irqs = self.txq.busy_overlap(c0, c0 + base)
         n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)
         cyc = base + n_irq * TXE_IRQ_CYCLES
         c1 = c0 + cyc
-        self.cyc_min, self.cyc_max = min(self.cyc_min, cyc), max(self.cyc_max, cyc)
-        self.cyc_sum, self.cyc_n = self.cyc_sum + cyc, self.cyc_n + 1
+        self.cycles.append(cyc)
         if not self.text_mode:
             self._attitude(k, c1, "att", k, P.ATTITUDE_FRAME_SIZE, P.STATUS_FRAME_SIZE)
         elif k % TEXT_DECIMATION == 0:
-            line = self._att_line(k, rows)
+            line = self._att_line(k)
             self._attitude(k, c1, "raw", line, len(line), TEXT_LINE_MAX)
         if k % STATUS_EVERY_STEPS == STATUS_EVERY_STEPS - 1:
             self._status(k, c1)
@@ -227,14 +210,14 @@ class LinkEmulation:
         elif self._push(kind, item, c1, size, keep_free):
             self.sent[k] = True
 
-    def _att_line(self, k: int, rows: dict) -> bytes:
+    def _att_line(self, k: int) -> bytes:
         a = self.att[k]
         return format_att(
             step=k,
             t_ms=int(a["t_us"]) // 1000,
             thr=int(a["thr"]),
-            thx_mdeg=f2i(rows["thx"][k] * _RAD_TO_MDEG_F32),
-            thy_mdeg=f2i(rows["thy"][k] * _RAD_TO_MDEG_F32),
+            thx_mdeg=f2i(self.thx[k] * _RAD_TO_MDEG_F32),
+            thy_mdeg=f2i(self.thy[k] * _RAD_TO_MDEG_F32),
             thz_mdeg=f2i(np.float32(a["thz_rad"]) * _RAD_TO_MDEG_F32),
             acc_mg=[f2i(v) for v in a["acc_mg"]],
             gyro_mdps=[f2i(v) for v in a["gyro_mdps"]],
@@ -249,8 +232,9 @@ class LinkEmulation:
         rec["q_wxyz"] = snap.q_wxyz
         rec["int_xyz"] = snap.int_xyz
         rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
-        rec["cyc_min"], rec["cyc_mean"], rec["cyc_max"] = self.cyc_min, self.cyc_sum // self.cyc_n, self.cyc_max
-        rec["cyc_n"] = min(self.cyc_n, 0xFFFF)
+        cyc = self.cycles
+        rec["cyc_min"], rec["cyc_max"], rec["cyc_n"] = min(cyc), max(cyc), min(len(cyc), 0xFFFF)
+        rec["cyc_mean"] = sum(cyc) // len(cyc)
         rec["cpu_hz"] = C.CPU_HZ
         rec["tx_dropped"] = self.txq.dropped
         rec["baud"] = self.baud
@@ -259,7 +243,7 @@ class LinkEmulation:
         rec["queue_peak"] = min(self.txq.take_peak(c1), 0xFFFF)
         rec["fw_version"] = FW_VERSION
         self.status.append(rec)
-        self._reset_cycles()
+        self.cycles = []
         if self.text_mode:
             counters = {name: int(rec[name]) for name in ("cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped")}
             t_ms = int(rec["t_us"]) // 1000
@@ -290,15 +274,11 @@ def ki_micro(ki: np.float32) -> int:
     return f2i(np.float32(ki * np.float32(1e6)) + half)
 
 
-def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -> bytes:
-    """The frames of ``order`` as bytes: by the Python encoder, or by the firmware's own C encoder (the host build
-    ``c_encoder``, fed with frame requests)."""
-    if c_encoder is not None:
-        return encode_c(order, att, c_encoder)
+def encode(order: list[Frame], att: np.ndarray) -> bytes:
+    """The frames of ``order`` as bytes, by the Python encoder."""
     att_idx = [o[1] for o in order if o[0] == "att"]
     block = P.encode_attitude_block(att[att_idx]) if att_idx else b""
-    out = []
-    j = 0
+    out, j = [], 0
     for kind, item, _, size in order:
         if kind == "att":
             out.append(block[j : j + size])
@@ -313,8 +293,7 @@ def encode(order: list[Frame], att: np.ndarray, c_encoder: Path | None = None) -
 
 
 def encode_c(order: list[Frame], att: np.ndarray, exe: Path) -> bytes:
-    """The frames of ``order`` through the C host encoder ``exe`` (``firmware_patch/host/stv_encode``)."""
-    exe = Path(exe)
+    """The frames of ``order`` through the firmware's own C encoder ``exe`` (the host build, fed frame requests)."""
     if not exe.is_file() or not os.access(exe, os.X_OK):
         raise UserError(f"C encoder {exe} not found or not executable; build it with: make -C firmware_patch host")
     req = []

@@ -1,10 +1,8 @@
 """The UMaine Lab 5 AHRS simulator: constant (optionally noisy) gyro and accelerometer inputs through an estimator.
 
-The handout's baseline is gyro [1000, 2000, 4000] mdps, acc [0, 0, 0] mg, 100 iterations; with the default
-``st-mahony`` estimator every iteration is bit-exact with the firmware (``lab5_baseline`` conformance vectors).
-Angles use the handout's names: ``eax`` = thx (pitch, about x), ``eay`` = thy (roll, about y), ``eaz`` = thz
-(yaw, about z, from the handout's ``atan2(2q1q2 + 2q0q3, q0² + q1² − q2² − q3²)``). Firmware axes: x right,
-y forward, z up.
+With the default ``st-mahony`` estimator every iteration is bit-exact with the firmware (``lab5_baseline``
+conformance vectors). Angles use the handout's names: ``eax`` = thx (pitch, about x), ``eay`` = thy (roll, about y),
+``eaz`` = thz (yaw, the handout's ``atan2(2q1q2 + 2q0q3, q0² + q1² − q2² − q3²)``). Axes: x right, y forward, z up.
 """
 
 from __future__ import annotations
@@ -21,7 +19,7 @@ from steval_link.estimators.st_mahony import StMahony, handout_yaw
 #: Lab 5 baseline inputs
 BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)
-#: LSM6DSL typical noise (Lab 5 appendix B): gyro 75 mdps, accelerometer (±4 g range) 2 mg, standard deviations
+#: LSM6DSL typical noise (Lab 5 appendix B), standard deviations
 TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps
 TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 

@@ -59,7 +59,6 @@ def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int 
     and ``t_us`` continued; repetition numbers start at ``start_rep`` (so consecutive blocks continue each other).
     Returns the bytes and the list of the frames' payloads (what a perfect decoder hands out)."""
     n = len(att)
-    reps = -(-n_frames // n)
     out = bytearray()
     payloads: list[bytes] = []
     row_of_seq = {int(q): i for i, q in enumerate(att["seq"])}
@@ -68,7 +67,7 @@ def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int 
         i = row_of_seq.get(int(s["step"]) % P.SEQ_MODULUS)
         if i is not None:
             sta_after[i] = s
-    for r in range(start_rep, start_rep + reps):
+    for r in range(start_rep, start_rep - (-n_frames // n)):  # ⌈n_frames / n⌉ repetitions
         a = att.copy()
         shift = r * n
         a["seq"] = (a["seq"].astype(np.int64) + shift) % P.SEQ_MODULUS
@@ -122,7 +121,6 @@ def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
     """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
     and the fake payloads (for a report)."""
     sent = set(sent_payloads)
-    att, sta = payload_records(tel)
-    got = [r.tobytes() for r in att] + [r.tobytes() for r in sta]
+    got = [r.tobytes() for rows in payload_records(tel) for r in rows]
     fakes = [g for g in got if g not in sent]
     return FuzzScore(sent=len(sent_payloads), recovered=len(got) - len(fakes), fake=len(fakes)), fakes

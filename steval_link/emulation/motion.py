@@ -1,22 +1,17 @@
 """Motion profiles for emulated captures: what the drone's body does at every TIM9 tick (807.7 Hz).
 
-A profile (:class:`MotionProfile`) holds, per ISR tick, the true orientation (body → earth quaternion, the same
-direction as the firmware's ``ahrs.q``), the true specific force the accelerometer senses (mg, body axes) and the
-true angular rate as the gyro's output register holds it (mdps, body axes, refreshed at the gyro's 416 Hz ODR),
-plus the throttle ``gTHR`` the remote control sets. Axes are the firmware's: x right, y forward, z up; at rest and
-level the specific force is (0, 0, +1000) mg. Angles follow ``QuaternionToEuler``: ``thx`` about x (pitch),
-``thy`` about y (roll); the orientation is ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
-
-:func:`build_profile` renders a built-in scenario (:mod:`steval_link.emulation.scenarios`: what each does and what
-it is built of); :func:`broad_profile` turns a BROAD trial (real motion, real IMU signals) into a profile.
+A profile (:class:`MotionProfile`) holds the true motion and the remote's inputs per ISR tick, in the firmware's
+axes (x right, y forward, z up; level at rest: specific force (0, 0, +1000) mg). Angles follow
+``QuaternionToEuler``: ``thx`` about x (pitch), ``thy`` about y (roll); ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
+:func:`render` renders a scenario's kinematics (:mod:`steval_link.emulation.scenarios`); :func:`broad_profile`
+turns a BROAD trial (real motion, real IMU signals) into a profile.
 
 Physics in short: specific force ``f = Rᵀ(a + g·ẑ)`` with ``a`` the IMU's acceleration (translation plus the
 lever-arm motion of a rotation about a pivot that is not the IMU, e.g. a wrist or a turntable axis); in flight a
 quadrotor's specific force is its thrust, along body z (``f = (0, 0, (g + a_z)/R₃₃)``), so the accelerometer
-does not see the tilt — exactly the situation the firmware's small in-flight gain ``kp = 0.4`` is made for.
-Motor vibration (4 motors at slightly different speeds, first and second harmonic, amplitude ∝ speed²) is added
-to both sensors whenever ``gTHR ≥ MIN_THR`` (the firmware stops the motors below). Its amplitudes are those of
-the sensor *output* (after the LSM6DSL's own low-pass filters, which are not modelled separately).
+does not see the tilt: the case the firmware's small in-flight gain ``kp = 0.4`` is made for. Motor vibration
+(4 motors at slightly different speeds, harmonics 1 and 2, amplitude ∝ speed²) is added to both sensors whenever
+``gTHR ≥ MIN_THR``, with the amplitudes of the sensor *output* (after the LSM6DSL's own low-pass filters).
 """
 
 from __future__ import annotations
@@ -28,9 +23,9 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation import sensor_model as sm
-from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat, scenario
+from steval_link.emulation.scenarios import MG_PER_MPS2, Kinematics, rotmat
 from steval_link.errors import ParamError
-from steval_link.quat import interpolate_quat, quat_multiply
+from steval_link.quat import interpolate_quat, quat_conjugate, quat_multiply
 from steval_link.units import RAD_TO_MDPS
 
 
@@ -44,31 +39,22 @@ class MotionProfile:
     acc_mg: np.ndarray  #: (T, 3) specific force the accelerometer senses, mg
     gyro_mdps: np.ndarray  #: (T, 3) angular rate as the gyro's 416 Hz output register holds it at the tick, mdps
     thr: np.ndarray  #: (T,) int16 throttle ``gTHR``
-    #: acc/gyro are a real IMU's measurements (BROAD), so no sensor noise should be added
-    measured: bool = False
+    measured: bool = False  #: acc/gyro are a real IMU's measurements (BROAD): add no sensor noise
     #: (T, 3) int16 the remote's ``gAIL, gELE, gRUD`` in the firmware's units and signs (None: centred):
     #: ``euler_rc.thx = -gELE·30°/1800`` (pitch), ``thy = -gAIL·30°/1800`` (roll), ``|gRUD| > 600`` turns the yaw target
     sticks: np.ndarray | None = None
     armed: np.ndarray | None = None  #: (T,) bool the remote's arming switch (``joydata[7]`` bit 2; None: never)
 
 
-def tick_times_s(n_ticks: int, first_tick_s: float) -> np.ndarray:
-    """(n,) times of TIM9 ticks, s since power-up: ``first_tick_s + k · 104000 / 84 MHz``."""
-    return first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
-
-
-#: RC receiver frame rate, Hz: ``gTHR`` changes at this rate (PWM/PPM receivers: ~50 Hz)
-RC_RATE_HZ = 50.0
+RC_RATE_HZ = 50.0  #: RC receiver frame rate, Hz: ``gTHR`` changes at this rate
 _H_RATE = 1e-4
 _H_ACC = 2e-3
 
 
 def _body_rate_radps(kin: Kinematics, t) -> np.ndarray:
     """ω in body axes: 2·vec(q* ⊗ q̇), q̇ by a central difference of the analytic orientation."""
-    q = kin.q(t)
     dq = (kin.q(t + _H_RATE) - kin.q(t - _H_RATE)) / (2 * _H_RATE)
-    qc = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return 2.0 * quat_multiply(qc, dq)[:, 1:]
+    return 2.0 * quat_multiply(quat_conjugate(kin.q(t)), dq)[:, 1:]
 
 
 def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:
@@ -89,17 +75,14 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
     dt = np.diff(t, prepend=t[0])
     phase = 2 * np.pi * np.cumsum(f_m * dt)
     scale = np.where(on, (thr / 500.0) ** 2, 0.0)
-    acc = np.zeros((len(t), 3))
-    gyro = np.zeros((len(t_eval), 3))
-    phase_e = np.interp(t_eval, t, phase)
-    scale_e = np.interp(t_eval, t, scale)
+    acc, gyro = np.zeros((len(t), 3)), np.zeros((len(t_eval), 3))
+    phase_e, scale_e = np.interp(t_eval, t, phase), np.interp(t_eval, t, scale)
     acc_amp = np.array([30.0, 30.0, 55.0])  # mg per motor-harmonic-1 at hover speed
     gyro_amp = np.array([500.0, 500.0, 250.0])  # mdps
     for _ in range(4):
         ratio = 1.0 + rng.normal(0.0, 0.015)
         for h, (ka, kg) in enumerate(((0.5, 0.5), (0.25, 0.2)), start=1):
-            ph = rng.uniform(0, 2 * np.pi, 3)
-            pg = rng.uniform(0, 2 * np.pi, 3)
+            ph, pg = rng.uniform(0, 2 * np.pi, 3), rng.uniform(0, 2 * np.pi, 3)  # acc's, then gyro's
             acc += ka * acc_amp * scale[:, None] * np.sin(h * ratio * phase[:, None] + ph)
             gyro += kg * gyro_amp * scale_e[:, None] * np.sin(h * ratio * phase_e[:, None] + pg)
     return acc, gyro
@@ -108,6 +91,8 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
 def render(
     name: str, kin: Kinematics, t: np.ndarray, rng: np.random.Generator, throttle: Callable | None = None
 ) -> MotionProfile:
+    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` (a function of time, see
+    :func:`parse_throttle`) overrides the scenario's."""
     t = np.asarray(t, dtype=np.float64)
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
@@ -138,14 +123,9 @@ def render(
     thr_tick = thr_rc[inv].astype(np.int16)
     vib = _vibration(t, thr_tick, rng, t_hold)
     if vib is not None:
-        f = f + vib[0]
-        gyro = gyro + vib[1]
-    sticks = armed = None
-    if kin.sticks is not None:
-        sticks = np.clip(np.rint(np.asarray(kin.sticks(uniq), dtype=np.float64)), -32768, 32767)[inv]
-        sticks = sticks.astype(np.int16)
-    if kin.armed is not None:
-        armed = (np.asarray(kin.armed(uniq)) > 0.5)[inv]
+        f, gyro = f + vib[0], gyro + vib[1]
+    sticks = None if kin.sticks is None else np.clip(np.rint(kin.sticks(uniq)), -32768, 32767)[inv].astype(np.int16)
+    armed = None if kin.armed is None else (np.asarray(kin.armed(uniq)) > 0.5)[inv]
     return MotionProfile(name, t, q, f, gyro, thr_tick, sticks=sticks, armed=armed)
 
 
@@ -169,28 +149,9 @@ def parse_throttle(spec: str) -> Callable:
     return lambda t: np.interp(t, ts, vs)
 
 
-def build_profile(
-    name: str,
-    t_s: np.ndarray,
-    rng: np.random.Generator,
-    *,
-    throttle: Callable | None = None,
-    total_s: float | None = None,
-) -> MotionProfile:
-    """The built-in scenario ``name`` rendered at tick times ``t_s`` (s since power-up).
-
-    ``total_s`` is the emulated length the scenario's timeline is laid out for (default: the last tick);
-    ``throttle`` overrides the scenario's throttle profile (a function of time, see :func:`parse_throttle`).
-    """
-    sc = scenario(name, "or a BROAD trial .npz")
-    kin = sc.build(float(t_s[-1] if total_s is None else total_s), rng)
-    return render(sc.name, kin, t_s, rng, throttle)
-
-
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:
-    """A BROAD trial (:class:`steval_link.emulation.broad.BroadTrial`) at tick times ``t_s``: trial time 0 is the first
-    TIM9 tick ``first_tick_s``. acc is linearly resampled, the gyro read as a 416 Hz sample-and-hold; values are
-    the trial's measurements (its IMU's noise and bias included), so ``measured`` is True. Throttle 0 (hand-held)
+    """A BROAD trial at tick times ``t_s``, trial time 0 at the first TIM9 tick ``first_tick_s``: acc linearly
+    resampled, the gyro a 416 Hz sample-and-hold of the trial's measurements (``measured``). Throttle 0 (hand-held)
     unless ``throttle`` is given."""
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s
@@ -249,10 +210,9 @@ def parse_vibration(spec: str) -> Vibration:
     return Vibration(sensor, "xyz".index(axis), freq, amp)
 
 
-def add_vibrations(profile: MotionProfile, vibrations) -> MotionProfile:
+def add_vibrations(profile: MotionProfile, vibrations: list[Vibration]) -> MotionProfile:
     """``profile`` with the sinusoids ``vibrations`` (:class:`Vibration`) added: acc at each tick time, gyro at the
     time its 416 Hz output register was last refreshed (as the motion's own gyro values)."""
-    vibrations = list(vibrations)
     if not vibrations:
         return profile
     t = np.asarray(profile.t_s, dtype=np.float64)

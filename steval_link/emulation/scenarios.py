@@ -1,9 +1,7 @@
-"""The built-in motion scenarios (:data:`SCENARIOS`): ``bench``, ``hand-tilts``, ``yaw-spin``, ``hover``,
-``freefall``, ``demo``, ``flight``, ``preflight``, and what they are built of: smooth functions of time (float64, s
-since power-up) — eased moves (:class:`Steps`), random wander (:class:`Sines`) — so rates and accelerations are exact
-derivatives the sensors can sample anywhere. Each scenario is a short function of the run's length and a random
-generator that returns its :class:`Kinematics`; the seed randomises tilt amplitudes, tremor, wander and surface
-tilt. Every scenario starts at rest, so the firmware's power-up offset calibration (1–2 s after TIM9 starts) sees a
+"""The built-in motion scenarios (:data:`SCENARIOS`) and what they are built of: smooth functions of time (float64,
+s since power-up), eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are
+exact derivatives the sensors can sample anywhere. A scenario is a function of the run's length and a random
+generator that returns its :class:`Kinematics`; each starts at rest, so the firmware's offset calibration sees a
 still drone. :mod:`steval_link.emulation.motion` renders them.
 """
 
@@ -18,8 +16,7 @@ from steval_link import constants as C
 from steval_link.errors import ParamError
 from steval_link.quat import quaternion_from_euler
 
-#: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
-G_MPS2 = 9.80665
+G_MPS2 = 9.80665  #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 MG_PER_MPS2 = 1000.0 / G_MPS2
 DEG = np.pi / 180.0
 
@@ -58,9 +55,11 @@ def _s_dd(u):
 class Steps:
     """``base + Σ delta_i · S((t − t0_i) / dur_i)``: smooth moves that do not overlap (sorted by t0)."""
 
-    def __init__(self, base: float = 0.0) -> None:
+    def __init__(self, base: float = 0.0, moves=()) -> None:
         self.base = float(base)
         self.moves: list[tuple[float, float, float]] = []
+        for t0, dur, delta in moves:
+            self.move(t0, dur, delta)
 
     def move(self, t0: float, dur: float, delta: float) -> None:
         if self.moves and t0 < sum(self.moves[-1][:2]) - 1e-12:
@@ -150,8 +149,33 @@ class Kinematics:
         return quaternion_from_euler(self.thx(t), self.thy(t), self.yaw(t))
 
 
+@dataclass(frozen=True)
+class Scenario:
+    """A built-in motion scenario; ``summary`` is its builder's docstring."""
+
+    name: str
+    summary: str
+    default_duration_s: float
+    min_duration_s: float
+    build: Callable[[float, np.random.Generator], Kinematics]
+
+
+#: Built-in scenarios by name, in the order they are defined below.
+SCENARIOS: dict[str, Scenario] = {}
+
+
+def _scenario(name: str, default_duration_s: float, min_duration_s: float):
+    """Registers the decorated builder ``(T, rng) -> Kinematics`` as the built-in scenario ``name``."""
+
+    def register(build):
+        SCENARIOS[name] = Scenario(name, " ".join(build.__doc__.split()), default_duration_s, min_duration_s, build)
+        return build
+
+    return register
+
+
 def _at_rest(rng) -> tuple[float, float, float]:
-    """(thx, thy, yaw) of a drone put down anywhere: :func:`_surface_tilt`, then any heading."""
+    """(thx, thy, yaw) of a drone put down anywhere."""
     return (*_surface_tilt(rng), rng.uniform(-np.pi, np.pi))
 
 
@@ -161,9 +185,7 @@ def _surface_tilt(rng) -> tuple[float, float]:
 
 
 def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng) -> float:
-    """Hand tilts: pitch ±30°, roll ±30°, then both, each out-hold-back-pause; repeated until ``t_end``.
-
-    Returns the time the last move ends."""
+    """Hand tilts (pitch ±30°, roll ±30°, then both; each out, hold, back, pause) until ``t_end``; when they end."""
     t = t_start
     pattern = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)]
     last = t_start
@@ -202,8 +224,7 @@ def _plus(a: Callable, b: Callable) -> Callable:
 
 def _held(axes: list[Steps], hand: list[Callable], **kw) -> Kinematics:
     """Held at the wrist (below and behind the board): each attitude axis ``axes[i]`` plus the hand's ``hand[i]``."""
-    thx, thy, yaw = (_plus(axes[i], hand[i]) for i in range(3))
-    return Kinematics(thx=thx, thy=thy, yaw=yaw, lever_m=np.array([0.0, -0.04, 0.07]), **kw)
+    return Kinematics(*(_plus(axes[i], hand[i]) for i in range(3)), lever_m=np.array([0.0, -0.04, 0.07]), **kw)
 
 
 def _between(t_on: float, t_off: float) -> Callable:
@@ -211,11 +232,8 @@ def _between(t_on: float, t_off: float) -> Callable:
 
 
 def _lift(t_up: float, height_m: float, dur: float = 1.0, t_down: float | None = None) -> Steps:
-    z = Steps()
-    z.move(t_up - dur / 2, dur, height_m)
-    if t_down is not None:
-        z.move(t_down - dur / 2, dur, -height_m)
-    return z
+    down = [] if t_down is None else [(t_down - dur / 2, dur, -height_m)]
+    return Steps(0.0, [(t_up - dur / 2, dur, height_m), *down])
 
 
 def _vertical_acc(steps: list[Steps]) -> Callable:
@@ -228,13 +246,15 @@ def _vertical_acc(steps: list[Steps]) -> Callable:
     return f
 
 
+@_scenario("bench", 30.0, 3.0)
 def _bench(T: float, rng) -> Kinematics:
-    thx, thy, yaw = (Steps(v) for v in _at_rest(rng))
-    return Kinematics(thx=thx, thy=thy, yaw=yaw)
+    """lying still on the bench (noise, bias, calibration only); throttle 0"""
+    return Kinematics(*(Steps(v) for v in _at_rest(rng)))
 
 
+@_scenario("hand-tilts", 40.0, 8.0)
 def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
-    """Picked up at T_start, tilted, put back down before T_end."""
+    """picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0"""
     axes = [Steps(v) for v in _at_rest(rng)]
     last = _add_tilts(axes[0], axes[1], T_start + 1.0, T_end - 1.5, rng)
     t_put = max(last + 0.8, T_start + 1.5)
@@ -242,7 +262,9 @@ def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
     return _held(axes, hand, lin_acc_mg=_vertical_acc([_lift(T_start, 0.12, 1.0, t_put)]), lever_weight=w)
 
 
+@_scenario("yaw-spin", 40.0, 14.0)
 def _yaw_spin(T: float, rng) -> Kinematics:
+    """on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0"""
     x0, y0 = _surface_tilt(rng)
     rate = Steps()
     t = 4.0
@@ -274,13 +296,11 @@ def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero)
     thr.move(t_land, 2.0, -140.0)  # descend
     thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
     thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
-    air = Steps()
-    air.move(t0 + 2.0, 0.4, 1.0)
-    air.move(t_land + 2.3, 0.3, -1.0)
+    air = Steps(0.0, [(t0 + 2.0, 0.4, 1.0), (t_land + 2.3, 0.3, -1.0)])
     climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
-    fly = Steps()  # the wander fades in and out slowly around take-off and landing
-    fly.move(t0 + 2.0, 2.5, 1.0)
-    fly.move(t_land, 2.3, -1.0)
+    fly = Steps(
+        0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)]
+    )  # the wander fades in and out around take-off, landing
     wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
     yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
 
@@ -299,11 +319,16 @@ def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero)
     )
 
 
+@_scenario("hover", 40.0, 16.0)
 def _hover(T: float, rng, t0: float = 4.0) -> Kinematics:
+    """take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and small attitude wander,
+    landing"""
     return _take_off(_bench(T, rng), t0, T, rng)
 
 
+@_scenario("freefall", 10.0, 7.5)
 def _freefall(T: float, rng) -> Kinematics:
+    """held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0"""
     axes = [Steps(v) for v in _at_rest(rng)]
     t_pick = 3.0
     drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
@@ -338,7 +363,9 @@ def _freefall(T: float, rng) -> Kinematics:
     return _held(axes, hand, lin_acc_mg=lin_acc, lever_weight=lambda t: w_hand(t) * (1 - falling(t)))
 
 
+@_scenario("demo", 60.0, 40.0)
 def _demo(T: float, rng) -> Kinematics:
+    """hand tilts on the bench, then a short hover"""
     t_hover = max(T * 0.5, 20.0)
     return _take_off(_hand_tilts(t_hover - 1.0, rng), t_hover + 1.0, T, rng)
 
@@ -358,8 +385,9 @@ def _lagged(moves: list[tuple[float, float, float]], scale: float, lag_s: float,
     return out
 
 
+@_scenario("flight", 30.0, 27.0)
 def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
-    """Armed, take-off, hover, then stick moves the drone follows: nose down, roll right, turn right; landing."""
+    """armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed"""
     ground = _bench(T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
     t = t0 + 5.0
@@ -389,9 +417,10 @@ PREFLIGHT_MOVES = (("tilt right", 1, 25.0 * DEG), ("nose up", 0, 25.0 * DEG), ("
 PREFLIGHT_IDLE_THR = 210.0
 
 
+@_scenario("preflight", 32.0, 30.0)
 def _preflight(T: float, rng) -> Kinematics:
-    """The preflight check: armed on the bench, throttle at idle (props off), picked up, tilted right, nose up,
-    turned right (each out, hold, back), put down, throttle 0, disarmed."""
+    """the preflight check's hand moves: armed with the throttle at idle (props off), picked up, tilt right, nose up,
+    turn right, put down, disarmed"""
     axes = [Steps(v) for v in _at_rest(rng)]
     t_arm, t_pick = 3.5, 6.0
     t = t_pick + 2.0
@@ -402,9 +431,7 @@ def _preflight(T: float, rng) -> Kinematics:
         t += 2 * move + 2.0 + 1.5
     t_put = t + 0.5
     w, hand = _hand_held(rng, t_pick, t_put)
-    thr = Steps()
-    thr.move(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR)
-    thr.move(t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)
+    thr = Steps(0.0, [(t_arm + 0.5, 0.5, PREFLIGHT_IDLE_THR), (t_put + 1.0, 0.5, -PREFLIGHT_IDLE_THR)])
     return _held(
         axes,
         hand,
@@ -414,71 +441,6 @@ def _preflight(T: float, rng) -> Kinematics:
         sticks=lambda t: np.zeros((len(np.atleast_1d(t)), 3)),
         armed=_between(t_arm, t_put + 2.0),
     )
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """A built-in motion scenario."""
-
-    name: str
-    summary: str
-    default_duration_s: float
-    min_duration_s: float
-    build: Callable[[float, np.random.Generator], Kinematics]
-
-
-#: Built-in scenarios by name.
-SCENARIOS: dict[str, Scenario] = {
-    s.name: s
-    for s in (
-        Scenario("bench", "lying still on the bench (noise, bias, calibration only); throttle 0", 30.0, 3.0, _bench),
-        Scenario(
-            "hand-tilts",
-            "picked up from the bench, smooth pitch/roll tilts of about ±30° with pauses, put back; throttle 0",
-            40.0,
-            8.0,
-            _hand_tilts,
-        ),
-        Scenario(
-            "yaw-spin",
-            "on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0",
-            40.0,
-            14.0,
-            _yaw_spin,
-        ),
-        Scenario(
-            "hover",
-            "take-off (throttle ramp past 200), hover at throttle 450-550 with motor vibration and "
-            "small attitude wander, landing",
-            40.0,
-            16.0,
-            _hover,
-        ),
-        Scenario(
-            "freefall",
-            "held in the hand, dropped (0.5 s free fall: acc ≈ 0), caught (≈ 4 g), lifted back; every 7 s; throttle 0",
-            10.0,
-            7.5,
-            _freefall,
-        ),
-        Scenario("demo", "hand tilts on the bench, then a short hover", 60.0, 40.0, _demo),
-        Scenario(
-            "flight",
-            "armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed",
-            30.0,
-            27.0,
-            _flight,
-        ),
-        Scenario(
-            "preflight",
-            "the preflight check's hand moves: armed with the throttle at idle (props off), "
-            "picked up, tilt right, nose up, turn right, put down, disarmed",
-            32.0,
-            30.0,
-            _preflight,
-        ),
-    )
-}
 
 
 def scenario(name: str, otherwise: str) -> Scenario:

@@ -7,8 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
-SEED_SALT = 0x5EA1
+SEED_SALT = 0x5EA1  #: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
 
 
 @dataclass(frozen=True)
@@ -26,5 +25,4 @@ class RandomStreams:
 
 def random_streams(seed: int) -> RandomStreams:
     """The streams of ``seed``: ``SeedSequence([seed, SEED_SALT])`` spawned into seven generators."""
-    root = np.random.SeedSequence([int(seed), SEED_SALT])
-    return RandomStreams(*(np.random.default_rng(s) for s in root.spawn(7)))
+    return RandomStreams(*(np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), SEED_SALT]).spawn(7)))

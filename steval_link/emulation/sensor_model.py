@@ -1,27 +1,14 @@
 """LSM6DSL sensor model and the STEVAL-FCU001V1 firmware's sensor pipeline (ST release 170120), as numpy functions.
 
-The chain the drone runs, and the functions here that model each link:
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white noise → int16 ADC counts → the ST
+   driver's integer mg (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
+2. TIM9 ISR at ``constants.ISR_RATE_HZ`` ≈ 807.69 Hz: power-up calibration (:func:`calibrate_offsets`), offset
+   removal (:func:`remove_offsets`), gyro IIR (:func:`gyro_iir`); the acc sample and the IIR output go to 5-sample
+   FIFOs.
+3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz): the boxcar average (:func:`fifo_average`) →
+   ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white
-   noise → ADC counts (round, saturate at int16) → the ST driver's ``(int32_t)(raw * sensitivity)`` (float32
-   product truncated toward zero): integer mg (0.122 mg/LSB, ±4 g) and integer mdps (70 mdps/LSB, ±2000 dps).
-2. TIM9 ISR at ``constants.ISR_RATE_HZ`` = 84 MHz / (52 · 2000) ≈ 807.69 Hz:
-   - power-up calibration (:func:`calibrate_offsets`): ticks 1–800 ignored, ticks 801–1600 summed (int32),
-     offset = ``(int32_t)(sum * 0.00125f)``; the ISR that finishes the calibration also runs the pipeline, so the
-     first pipeline sample is the 1600th tick (index 1599);
-   - offset removal (:func:`remove_offsets`): ``acc -= off``, except ``acc_z -= (off_z − 1000)`` so z keeps
-     +1000 mg of gravity; ``gyro -= off`` (integer arithmetic);
-   - gyro IIR (:func:`gyro_iir`): 2nd-order Butterworth, 100 Hz at 800 Hz, float32 coefficients, evaluated left to
-     right in float32 as ``b0·x + b1·x1 + b2·x2 + a1·y1 + a2·y2`` (state starts at 0 after calibration);
-   - the acc sample (unfiltered) and the IIR output go to 5-sample FIFOs; every 5th tick they are copied for the
-     main loop.
-3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz, :func:`fifo_average`): float32 sum of the 5 FIFO
-   entries starting from 0, then ``*= (1.0/5)`` in double, stored back to float32 → ``acc_ahrs`` (mg),
-   ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
-
-:func:`run_isr` runs 2–3 on per-tick driver readings; :func:`resample_to_tick` brings a signal recorded at
-another rate onto the tick grid; :func:`isr_yaw_rad` is the ISR's integrated yaw ``thz``.
-All arrays are (N, 3) with axes x right, y forward, z up (the firmware's COORDINATE_SYSTEM 3).
+:func:`run_isr` runs 2–3. Arrays are (N, 3) in the firmware's axes: x right, y forward, z up.
 """
 
 from __future__ import annotations
@@ -34,10 +21,8 @@ from steval_link import constants as C
 
 _F32 = np.float32
 
-#: ticks ignored after power-up before the offset calibration starts
-CALIBRATION_SKIP_TICKS: int = 800
-#: ticks summed for the offset calibration
-CALIBRATION_TICKS: int = 800
+CALIBRATION_SKIP_TICKS: int = 800  #: ticks ignored after power-up before the offset calibration starts
+CALIBRATION_TICKS: int = 800  #: ticks summed for the offset calibration
 
 #: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
 #: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
@@ -56,10 +41,8 @@ def gyro_hold_times_s(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np
     return t0_s + gyro_hold_index(t_s, t0_s, odr_hz) / odr_hz
 
 
-#: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
-ACC_SENSITIVITY_MG = 0.122
-#: LSM6DSL ±2000 dps sensitivity, mdps/LSB
-GYRO_SENSITIVITY_MDPS = 70.0
+ACC_SENSITIVITY_MG = 0.122  #: LSM6DSL ±4 g sensitivity, mg/LSB (``LSM6DSL_ACC_SENSITIVITY_FOR_FS_4G``)
+GYRO_SENSITIVITY_MDPS = 70.0  #: LSM6DSL ±2000 dps sensitivity, mdps/LSB
 
 
 #: the ISR's gyro IIR coefficients (a1, a2, b0, b1, b2) as the firmware's float32: Butterworth low-pass, 100 Hz
@@ -99,12 +82,9 @@ def quantise(value, sensitivity: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Lsm6dsl:
-    """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick.
-
-    Noise: white RMS per reading, the datasheet's typical values that UMaine Lab 5 Appendix B quotes (gyro
-    75 mdps, acc 2 mg at ±4 g). Biases: constant offsets (3,) added before quantisation (the datasheet allows ±40 mg
-    and ±2 dps).
-    """
+    """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick. Noise: white, RMS
+    per reading (the datasheet's typical values, as UMaine Lab 5 Appendix B quotes). Biases: constant offsets (3,)
+    added before quantisation."""
 
     acc_noise_mg: float = 2.0
     gyro_noise_mdps: float = 75.0
@@ -116,10 +96,7 @@ class Lsm6dsl:
         the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
         noise is drawn once per 416 Hz ODR sample and held like the reading; otherwise fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        acc = np.asarray(acc_true_mg, dtype=np.float64)
-        gyro = np.asarray(gyro_true_mdps, dtype=np.float64)
-        if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
-            raise ValueError(f"acc_true_mg and gyro_true_mdps must both be (N, 3), got {acc.shape}, {gyro.shape}")
+        acc, gyro = np.asarray(acc_true_mg, dtype=np.float64), np.asarray(gyro_true_mdps, dtype=np.float64)
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
         if t_tick_s is not None:
             t = np.asarray(t_tick_s, dtype=np.float64)
@@ -131,8 +108,7 @@ class Lsm6dsl:
         return quantise(acc_meas, ACC_SENSITIVITY_MG), quantise(gyro_meas, GYRO_SENSITIVITY_MDPS)
 
 
-#: the emulated board's zero-g and zero-rate offsets are drawn per seed, normal per axis with these sigmas (mg, mdps):
-#: well inside the datasheet's ±40 mg / ±2 dps
+#: sigmas (mg, mdps) of the zero-g and zero-rate offsets drawn per seed: well inside the datasheet's ±40 mg / ±2 dps
 ACC_BIAS_SIGMA_MG: float = 12.0
 GYRO_BIAS_SIGMA_MDPS: float = 600.0
 
@@ -149,8 +125,7 @@ def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
     """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
     int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
     sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
-    acc_off, gyro_off = (np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
-    return acc_off, gyro_off
+    return tuple(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
 
 
 def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[np.ndarray, np.ndarray]:
@@ -195,9 +170,8 @@ def iir_frequency_response(freq_hz, fs_hz: float = C.ISR_RATE_HZ):
     return h, gain_db, np.angle(h), tau_samples / fs_hz
 
 
-#: delay of the gyro input of an AHRS step relative to its accelerometer input, s (≈ 3.3 ms): the IIR's group
-#: delay at low frequency (≈ 2.1 ms at the 807.7 Hz tick) plus the mean age of a 416 Hz sample-and-hold read
-#: (half an ODR period, 1.2 ms). Both inputs share the boxcar, whose centre lies 2 ticks before the step.
+#: delay of an AHRS step's gyro input relative to its accelerometer input, s (≈ 3.3 ms): the IIR's group delay at low
+#: frequency (≈ 2.1 ms) plus the mean age of a 416 Hz sample-and-hold read (1.2 ms); both share the boxcar.
 GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_ODR_HZ
 
 
@@ -218,8 +192,6 @@ class IsrOutput:
     acc_ahrs_mg: np.ndarray  #: (M, 3) the main loop's ``acc_ahrs`` per AHRS step, mg
     gyro_ahrs_mdps: np.ndarray  #: (M, 3) ``gyro_ahrs`` per step, mdps
     gyro_fil_mdps: np.ndarray  #: (T, 3) the IIR output of every pipeline tick (for the ISR yaw and the PID)
-    acc_offset_mg: np.ndarray  #: (3,) int32 offsets removed (the measured z offset; 1000 mg are kept)
-    gyro_offset_mdps: np.ndarray  #: (3,) int32
     first_tick: int  #: the first pipeline tick (1599 after the power-up calibration)
     #: (M,) the tick whose ISR completed each step's FIFO: step k averages ticks ``step_tick[k]-4 … step_tick[k]``
     step_tick: np.ndarray
@@ -227,13 +199,10 @@ class IsrOutput:
 
 def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
     """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps
-    (floats are truncated like the driver's int32 cast). ``calibrate``: the power-up calibration (the pipeline
-    starts at tick 1599); False: from tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000),
-    gyro 0)."""
+    (floats truncated). ``calibrate``: the power-up calibration (the pipeline starts at tick 1599); False: from
+    tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000), gyro 0)."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
-    if acc.ndim != 2 or acc.shape[1] != 3 or gyro.shape != acc.shape:
-        raise ValueError(f"acc_mg_807 and gyro_mdps_807 must both be (T, 3), got {acc.shape}, {gyro.shape}")
     if calibrate:
         end = CALIBRATION_SKIP_TICKS + CALIBRATION_TICKS
         if acc.shape[0] < end:
@@ -241,9 +210,7 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
         acc_off, gyro_off = calibrate_offsets(acc[CALIBRATION_SKIP_TICKS:end], gyro[CALIBRATION_SKIP_TICKS:end])
         first = end - 1  # the calibrating ISR call also runs the pipeline on a fresh read
     else:
-        acc_off = np.array([0, 0, C.ACC_Z_KEPT_MG], dtype=np.int32)
-        gyro_off = np.zeros(3, dtype=np.int32)
-        first = 0
+        acc_off, gyro_off, first = np.array([0, 0, C.ACC_Z_KEPT_MG], np.int32), np.zeros(3, np.int32), 0
     acc_c, gyro_c = remove_offsets(acc[first:], gyro[first:], acc_off, gyro_off)
     gyro_fil = gyro_iir(gyro_c)
     fifo = C.FIFO_ORDER
@@ -252,15 +219,13 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
     acc_ahrs = fifo_average(acc_c[:n].astype(_F32).reshape(m, fifo, 3))
     gyro_ahrs = fifo_average(gyro_fil[:n].reshape(m, fifo, 3))
     step_tick = first + fifo * np.arange(m, dtype=np.int64) + (fifo - 1)
-    return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, acc_off, gyro_off, first, step_tick)
+    return IsrOutput(acc_ahrs, gyro_ahrs, gyro_fil, first, step_tick)
 
 
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
-    """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad.
-
-    ``thz += ((float)gyro_fil.z * (float)COE_MDPS_TO_RADPS) * 0.00125f`` every tick; reset to 0 on ticks where the
-    throttle ``thr`` (per tick, or a scalar; None = 0) is below MIN_THR (200).
-    """
+    """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad: ``thz += ((float)gyro_fil.z *
+    (float)COE_MDPS_TO_RADPS) * 0.00125f``, reset to 0 while the throttle ``thr`` (per tick, a scalar or None = 0)
+    is below MIN_THR."""
     gz = np.asarray(gyro_fil_z_mdps, dtype=_F32)
     inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
@@ -273,14 +238,11 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
 
 
 def resample_to_tick(t_s, signal, hold_hz: float | None = None):
-    """Linear interpolation of ``signal`` (N, ...) sampled at times ``t_s`` onto the ISR ticks from ``t_s[0]`` to
-    ``t_s[-1]``: ``(t_tick_s, signal_tick)``, float64 (NaN samples propagate to the ticks next to them).
-    ``hold_hz``: each tick reads the latest sample of a sensor whose output register updates at that ODR (the
-    gyro's 416 Hz sample-and-hold, ≈ 1.2 ms mean delay)."""
+    """``signal`` (N, ...) sampled at ``t_s`` linearly interpolated onto the ISR ticks from ``t_s[0]`` to ``t_s[-1]``:
+    ``(t_tick_s, signal_tick)``, float64. ``hold_hz``: each tick reads the latest sample of an output register
+    refreshed at that ODR (the gyro's 416 Hz sample-and-hold)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
-    if t.ndim != 1 or x.shape[0] != t.shape[0]:
-        raise ValueError(f"t_s must be (N,) and signal (N, ...), got {t.shape}, {x.shape}")
     n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1
     t_tick = t[0] + np.arange(max(n, 0)) / C.ISR_RATE_HZ
     tt = t_tick if hold_hz is None else gyro_hold_times_s(t_tick, t[0], hold_hz)

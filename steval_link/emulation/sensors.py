@@ -1,23 +1,12 @@
 """Register models of the STEVAL-FCU001V1's SPI sensors, answering the firmware's ``Sensor_IO_Read/Write``.
 
-Each sensor is a 128-byte register file with the identity, status and reset behaviour ST's drivers check, and
-output registers filled from a motion source at the moment of the read:
-
-- LSM6DSL (``spiDevice`` 0): WHO_AM_I 0x6A, STATUS_REG data ready, gyro ``OUTX_L_G`` 0x22..0x27 and acc
-  ``OUTX_L_XL`` 0x28..0x2D as int16 ADC counts in the *sensor's* axes; the driver scales them with the full scale
-  it configured (read back from CTRL1_XL / CTRL2_G), so ST's own scaling runs.
-- LIS2MDL (1): WHO_AM_I 0x40, a constant field (the lab's magnetometer is unused by the AHRS).
-- LPS22HB (2): WHO_AM_I 0xB1, a constant 1013.25 hPa and 25 °C.
-
-The board's body axes (COORDINATE_SYSTEM 3: x right, y forward, z up) come from the sensor's by ST's
-``ReadSensorRawData``: body x = −sensor y, body y = sensor x, body z = sensor z. :func:`body_to_sensor_counts`
-does the inverse on ADC counts. :class:`SensorBus` logs the LSM6DSL samples it served, so a test can run
-:mod:`steval_link.emulation.sensor_model`'s ISR pipeline on exactly what the firmware read.
+Each is a 128-byte register file with the identity, status and reset behaviour ST's drivers check. The LSM6DSL
+(``spiDevice`` 0) holds the motion's int16 ADC counts in the *sensor's* axes at the moment of the read (ST's driver
+scales them); the LIS2MDL (1) a constant field, the LPS22HB (2) a constant 1013.25 hPa and 25 °C. ST's
+``ReadSensorRawData`` maps them to body axes (x right, y forward, z up): body x = −sensor y, body y = sensor x.
 """
 
 from __future__ import annotations
-
-from typing import Protocol
 
 import numpy as np
 
@@ -26,15 +15,6 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import UnmodelledHardware
 
 LSM6DSL, LIS2MDL, LPS22HB = 0, 1, 2
-_NAMES = {LSM6DSL: "LSM6DSL", LIS2MDL: "LIS2MDL", LPS22HB: "LPS22HB"}
-
-
-class MotionSource(Protocol):
-    """Per TIM9 tick ``k`` (0 = the first tick after power-up), the LSM6DSL's ADC counts in sensor axes."""
-
-    def counts(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(acc int16[3], gyro int16[3]) sensor-axis counts of tick k."""
-        ...
 
 
 def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
@@ -42,19 +22,15 @@ def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
 
     def counts(v, sens):
         raw = sm.adc_counts(v, sens)
-        # sensor x = body y, sensor y = -body x (saturating the negation like the int16 register would)
-        return np.stack([raw[:, 1], np.clip(-raw[:, 0].astype(np.int32), -32768, 32767), raw[:, 2]], -1).astype(
-            np.int16
-        )
+        minus_x = np.clip(-raw[:, 0].astype(np.int32), -32768, 32767)  # saturating, as the int16 register would
+        return np.stack([raw[:, 1], minus_x, raw[:, 2]], -1).astype(np.int16)  # sensor x = body y, y = −body x
 
     return counts(acc_mg, sm.ACC_SENSITIVITY_MG), counts(gyro_mdps, sm.GYRO_SENSITIVITY_MDPS)
 
 
 class _Regs:
-    """A sensor's 128-byte register file; ``read``/``write`` with the auto-increment the drivers use.
-
-    ``init``: register → its bytes at reset; ``self_clearing``: register → the bits that clear themselves (reset,
-    reboot)."""
+    """A sensor's 128-byte register file with the drivers' auto-increment. ``init``: register → its bytes at reset;
+    ``self_clearing``: register → the bits that clear themselves (reset, reboot)."""
 
     def __init__(self, who_am_i_reg: int, who_am_i: int, init: dict[int, bytes], self_clearing: dict[int, int]):
         self.r = bytearray(128)
@@ -104,15 +80,12 @@ def _devices() -> dict[int, _Regs]:
 
 
 class SensorBus:
-    """The SPI2 sensors as ``Sensor_IO_Read/Write`` see them, fed by a motion source.
+    """The SPI2 sensors as ``Sensor_IO_Read/Write`` see them, fed by ``motion.counts(k)``: the LSM6DSL's (acc, gyro)
+    int16 sensor-axis counts of TIM9 tick ``k`` (0 = the first tick after power-up). Before TIM9 runs a read sees
+    the tick of the emulated time; then the tick of the ISR's update event (one consecutive sample per tick).
+    ``log_limit``: keep at most this many served LSM6DSL samples in :attr:`served` (for tests)."""
 
-    The LSM6DSL's outputs at a read are those of the motion source's current tick: before TIM9 runs, the tick of
-    the emulated time (``now // 104000``); once it runs, the tick the ISR's update event belongs to (so each TIM9
-    tick reads one consecutive sample). ``log_limit``: keep at most this many served LSM6DSL samples in
-    :attr:`served` (for tests).
-    """
-
-    def __init__(self, motion: MotionSource, *, log_limit: int = 0) -> None:
+    def __init__(self, motion, *, log_limit: int = 0) -> None:
         self.motion = motion
         self.devices = _devices()
         self.log_limit = log_limit

@@ -1,12 +1,10 @@
 """The firmware's attitude read by symbol on the emulated board, each AHRS step, as a debugger would.
 
-Any build with its symbols (ST's own, unpatched; a patched one; the reference firmware) keeps the filter's inputs
-and outputs in globals: ``acc_ahrs`` / ``gyro_ahrs`` (float x, y, z in mg / mdps) and ``gTHR`` (int16) when
-``ahrs_fusion_ag`` is entered; ``ahrs`` (q0..q3 first) and ``euler_ahrs`` (float thx, thy, thz in rad) when the step
-ends. :class:`SymbolAttitude` reads them with the emulator's per-step observers (``Emulation.step_start_observers``
-and ``step_end_observers``) and hands them out as rows of ``SYMBOL_DTYPE`` for the capture's chunks ``S``: what the
-emulator read, never frames the firmware sent. AHRS step ``i`` (from 0) is the ``i``-th call of ``ahrs_fusion_ag``,
-the step counter of the patch's frames.
+Any build with its symbols (ST's own, a patched one, the reference firmware) keeps the filter's inputs and outputs
+in globals: ``acc_ahrs`` / ``gyro_ahrs`` (float x, y, z in mg / mdps) and ``gTHR`` (int16) when ``ahrs_fusion_ag``
+is entered; ``ahrs`` (q0..q3 first) and ``euler_ahrs`` (float thx, thy, thz in rad) when the step ends.
+:class:`SymbolAttitude` reads them as rows of ``SYMBOL_DTYPE`` for the capture's chunks ``S``: what the emulator
+read, never frames the firmware sent. AHRS step ``i`` (from 0) is the ``i``-th call of ``ahrs_fusion_ag``.
 """
 
 from __future__ import annotations
@@ -26,26 +24,22 @@ _READ_INPUTS, _READ_Q, _READ_EULER = 1, 2, 4
 
 
 class SymbolAttitude:
-    """Reads the AHRS globals of ``emu``'s firmware every step (see the module docstring).
-
-    ``available``: the ELF has ``euler_ahrs`` or ``ahrs`` (else nothing is read). ``take()`` returns the rows read
-    since the last call; ``count`` is every row so far.
-    """
+    """Reads the AHRS globals of ``emu``'s firmware every step with its step observers (a missing global's fields
+    stay NaN / 0). ``available``: the ELF has ``euler_ahrs`` or ``ahrs`` (else nothing is read); ``count``: every row
+    so far."""
 
     def __init__(self, emu: Emulation) -> None:
-        e = emu.elf
-        self.addr = {name: e.addr(name) for name in SYMBOLS}
-        self.available = self.addr["euler_ahrs"] is not None or self.addr["ahrs"] is not None
+        a = self.addr = {name: emu.elf.addr(name) for name in SYMBOLS}
+        self.available = a["euler_ahrs"] is not None or a["ahrs"] is not None
+        #: what each row holds: q and Euler angles by the ELF's symbols; the inputs too when a step's start was seen
+        self._read = (_READ_Q if a["ahrs"] is not None else 0) | (_READ_EULER if a["euler_ahrs"] else 0)
+        self._read_inputs = _READ_INPUTS if a["acc_ahrs"] and a["gyro_ahrs"] else 0
         self.count = 0
         self._rows: list[tuple] = []
         self._inputs: tuple | None = None
         if self.available:
             emu.step_start_observers.append(self._start)
             emu.step_end_observers.append(self._end)
-
-    def missing(self) -> list[str]:
-        """The globals this ELF lacks (their fields stay NaN / 0 in the rows)."""
-        return [name for name, a in self.addr.items() if a is None]
 
     def _floats(self, board, name: str, n: int) -> list[float]:
         a = self.addr[name]
@@ -58,20 +52,16 @@ class SymbolAttitude:
 
     def _end(self, board) -> None:
         acc, gyro, thr = self._inputs or ([math.nan] * 3, [math.nan] * 3, 0)
-        read = (_READ_INPUTS if self._inputs and self.addr["acc_ahrs"] and self.addr["gyro_ahrs"] else 0) | (
-            (_READ_Q if self.addr["ahrs"] is not None else 0) | (_READ_EULER if self.addr["euler_ahrs"] else 0)
-        )
-        q = self._floats(board, "ahrs", 4)
-        euler = self._floats(board, "euler_ahrs", 3)
+        read = self._read | (self._read_inputs if self._inputs else 0)
+        q, euler = self._floats(board, "ahrs", 4), self._floats(board, "euler_ahrs", 3)
         self._rows.append((self.count, board.now / C.CPU_HZ, acc, gyro, thr, q, euler, read))
         self.count += 1
         self._inputs = None
 
     def take(self) -> np.ndarray:
         """The rows read since the last call (``SYMBOL_DTYPE``)."""
-        rows = np.array(self._rows, dtype=SYMBOL_DTYPE) if self._rows else np.zeros(0, SYMBOL_DTYPE)
-        self._rows = []
-        return rows
+        rows, self._rows = self._rows, []
+        return np.array(rows, dtype=SYMBOL_DTYPE)
 
 
 #: the run-time helpers of double arithmetic on a single-precision FPU (Cortex-M4F): 221117's ahrs_fusion_ag calls
@@ -95,9 +85,8 @@ def _bl_targets(code: bytes, base: int) -> set[int]:
 
 
 def elf_filter_variant(elf) -> tuple[str | None, str]:
-    """The ST release whose filter an ELF (``emulation.elf.Elf``) has, from ``ahrs_fusion_ag``'s code: (variant or
-    None, why in one sentence). 221117's calls the double-arithmetic helpers, 170120's (= 170318, 301117 beta)
-    none; None without the function's symbol and size."""
+    """(The ST release whose filter an ``Elf`` has, or None; why, in one sentence), from the helpers that
+    ``ahrs_fusion_ag`` calls (:data:`_DOUBLE_HELPERS`; 170120 = 170318 = 301117 beta)."""
     sym = elf.by_name.get("ahrs_fusion_ag")
     if sym is None or sym.size <= 0:
         return None, "no ahrs_fusion_ag symbol with a size in the ELF"

@@ -1,21 +1,18 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
 ``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
-drops, the adapter model, text-mode logs. The chain: motion (:mod:`~steval_link.emulation.motion`, a scenario or a
-BROAD trial) → the LSM6DSL and the ISR pipeline (:mod:`~steval_link.emulation.sensor_model`) → the bit-exact
-``ahrs_fusion_ag`` replica (:func:`steval_link.estimators.st_mahony.run`) → the patch's link and TX queue
-(:mod:`~steval_link.emulation.fw_link`) → a USB-UART adapter (:mod:`~steval_link.emulation.usb_adapter`) → a
-``.stv`` capture or the plain bytes.
+drops, the adapter model, text-mode logs. The chain: motion (a scenario or a BROAD trial) → the LSM6DSL and the
+ISR pipeline → the bit-exact ``ahrs_fusion_ag`` replica → the patch's link and TX queue (:mod:`.fw_link`) → a
+USB-UART adapter (:func:`host_chunks`) → a ``.stv`` capture or the plain bytes.
 
-Emulated rather than measured: the main loop's latency after each tick, the DWT counts' noise, the gyro's slow
-zero-rate drift after calibration, the BLE module's banner values, the adapter. ``--drop-rate P`` makes the queue
-refuse about a fraction P of the attitude frames (bursts of about 3); a baud rate too low for the stream overflows
-the queue by itself. The same :class:`SynthOptions` give the same bytes (seeded generators; capture start time
-:data:`EPOCH_UNIX_S` + the join time).
+Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's zero-rate drift after
+calibration, the BLE module's banner values, the adapter. The same :class:`SynthOptions` give the same bytes
+(seeded generators; capture start time :data:`EPOCH_UNIX_S` + the join time).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections.abc import Callable
@@ -31,15 +28,13 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
 from steval_link.emulation.scenarios import scenario
 from steval_link.emulation.seeds import random_streams
-from steval_link.emulation.usb_adapter import host_chunks
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.estimators.st_mahony import run as mahony_run
 from steval_link.link import capture
 from steval_link.link import protocol as P
 
-#: Capture start time of emulated captures: 2026-01-01T00:00:00Z (+ ``--join-at``), never the wall clock.
-EPOCH_UNIX_S = 1767225600.0
+EPOCH_UNIX_S = 1767225600.0  #: capture start time: 2026-01-01T00:00:00Z (+ the join time), never the wall clock
 MAX_BAUD = 5_250_000  # USART1 at 84 MHz, oversampling by 16
 MIN_BAUD = 1200
 _GENERATOR = (
@@ -64,11 +59,8 @@ class SynthOptions:
     drop_rate: float = 0.0  #: fraction of attitude frames the TX queue refuses (0 ≤ P < 1)
     encoder: str = "python"  #: "python" or "c" (frames made by ``firmware_patch/host/stv_encode``)
     c_encoder: str | None = None  #: path of the host-built C encoder (default :func:`default_c_encoder`)
-    #: ``--vibration`` specs (``SENSOR-AXIS:HZ:AMPLITUDE``): pure sinusoids added to the motion
-    vibration: tuple[str, ...] = ()
-
-    #: the command line that made this capture, for its header (the CLI's)
-    command_line: str | None = None
+    vibration: tuple[str, ...] = ()  #: ``SENSOR-AXIS:HZ:AMPLITUDE`` specs: pure sinusoids added to the motion
+    command_line: str | None = None  #: the command line that made this capture, for its header (the CLI's)
 
     def settings(self) -> dict:
         """The settings that determine the serial bytes, by parameter name (no output path, no encoder choice)."""
@@ -106,28 +98,25 @@ def default_c_encoder() -> Path:
     return Path(__file__).resolve().parents[2] / "firmware_patch" / "host" / "stv_encode"
 
 
-def _is_path(scenario: str) -> bool:
-    return scenario.endswith(".npz") or os.sep in scenario or "/" in scenario
+def _finite(v) -> bool:
+    return v is not None and math.isfinite(v)
+
+
+#: the numeric options: (parameter, test, what it must be)
+_LIMITS = (
+    ("duration_s", lambda v: v is None or (_finite(v) and v > 0), "a positive number of seconds"),
+    ("join_at_s", lambda v: _finite(v) and v >= 0, "≥ 0 seconds"),
+    ("drop_rate", lambda v: _finite(v) and 0 <= v < 1, "a fraction in [0, 1)"),
+    ("baud", lambda v: MIN_BAUD <= v <= MAX_BAUD, f"between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz)"),
+    ("ki", lambda v: _finite(v) and math.isfinite(float(np.float32(v))), "a finite number"),
+    ("seed", lambda v: 0 <= v < 2**63, "a non-negative integer"),
+)
 
 
 def _check(opts: SynthOptions) -> None:
-    def finite(v):
-        return v is not None and math.isfinite(v)
-
-    if opts.duration_s is not None and not (finite(opts.duration_s) and opts.duration_s > 0):
-        raise ParamError(f"{{duration_s}} must be a positive number of seconds, got {opts.duration_s}", "duration_s")
-    if not (finite(opts.join_at_s) and opts.join_at_s >= 0):
-        raise ParamError(f"{{join_at_s}} must be ≥ 0 seconds, got {opts.join_at_s}", "join_at_s")
-    if not (finite(opts.drop_rate) and 0 <= opts.drop_rate < 1):
-        raise ParamError(f"{{drop_rate}} must be a fraction in [0, 1), got {opts.drop_rate}", "drop_rate")
-    if not MIN_BAUD <= opts.baud <= MAX_BAUD:
-        raise ParamError(
-            f"{{baud}} must be between {MIN_BAUD} and {MAX_BAUD} (USART1 at 84 MHz), got {opts.baud}", "baud"
-        )
-    if not finite(opts.ki) or not math.isfinite(float(np.float32(opts.ki))):
-        raise ParamError(f"{{ki}} must be a finite number, got {opts.ki}", "ki")
-    if not 0 <= opts.seed < 2**63:
-        raise ParamError(f"{{seed}} must be a non-negative integer, got {opts.seed}", "seed")
+    for name, ok, what in _LIMITS:
+        if not ok(getattr(opts, name)):
+            raise ParamError(f"{{{name}}} must be {what}, got {getattr(opts, name)}", name)
     if opts.encoder not in ("python", "c"):
         raise ParamError(f"{{encoder}} must be 'python' or 'c', got {opts.encoder!r}", "encoder")
     for spec in opts.vibration:
@@ -153,14 +142,11 @@ def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def _settings(opts: SynthOptions) -> MahonySettings:
-    return MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
-
-
 def _span(opts: SynthOptions):
-    """(BROAD trial or None, capture duration s, s from power-up to the capture's end) of ``opts``; UserError for
+    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end); UserError for
     an unknown scenario or a span too short for the firmware's 2 s calibration."""
-    trial = load_trial(opts.scenario) if _is_path(opts.scenario) else None
+    is_path = opts.scenario.endswith(".npz") or os.sep in opts.scenario or "/" in opts.scenario
+    trial = load_trial(opts.scenario) if is_path else None
     sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
     min_total = 3.0 if sc is None else sc.min_duration_s
     if opts.duration_s is not None:
@@ -179,27 +165,20 @@ def _span(opts: SynthOptions):
             f"scenario {opts.scenario} needs at least {min_total:g} s from power-up "
             f"(the firmware calibrates for 2 s before the first AHRS step); got {total:g} s"
         )
-    return trial, duration, total
+    return trial, sc, duration, total
 
 
 def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings):
     """The bit-exact replica over every AHRS step: (q, thx, thy, the filter state after each status step)."""
     n_steps = len(isr.step_tick)
     q = np.empty((n_steps, 4), np.float32)
-    thx = np.empty(n_steps, np.float32)
-    thy = np.empty(n_steps, np.float32)
-    status_steps = np.arange(fwl.STATUS_EVERY_STEPS - 1, n_steps, fwl.STATUS_EVERY_STEPS)
-    snapshots = []
-    state = MahonyState()
-    a = 0
-    for b in list(status_steps + 1) + [n_steps]:
-        if b <= a:
-            continue
+    thx, thy = np.empty(n_steps, np.float32), np.empty(n_steps, np.float32)
+    snapshots, state = [], MahonyState()
+    for a, b in itertools.pairwise([*range(0, n_steps, fwl.STATUS_EVERY_STEPS), n_steps]):
         q[a:b], thx[a:b], thy[a:b], state = mahony_run(
             isr.acc_ahrs_mg[a:b], isr.gyro_ahrs_mdps[a:b], thr_step[a:b], settings=settings, state=state
         )
         snapshots.append(state)
-        a = b
     return q, thx, thy, snapshots
 
 
@@ -210,30 +189,29 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     if progress is None:
         progress = lambda fraction, stage="": None  # noqa: E731
     rs = random_streams(opts.seed)
-    trial, duration, total = _span(opts)
-    profile, isr, n_ticks = _sensed(opts, rs, trial, total, progress)
+    trial, sc, duration, total = _span(opts)
+    profile, isr = _sensed(opts, rs, trial, sc, total, progress)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     thr_step = thr_tick[isr.step_tick]
 
     # 4: the replica, in runs between status snapshots
     progress(0.8, "filter replica")
-    settings = _settings(opts)
+    settings = MahonySettings(ki=float(np.float32(opts.ki)), correction=opts.correction)
     q, thx, thy, snapshots = _replica_with_snapshots(isr, thr_step, settings)
 
     # 5: the link, step by step, with the TX queue
-    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, n_ticks, rs.fw)
+    begin, cyc_noise, txe_u = fwl.step_timing(isr.step_tick, rs.fw)
     att = _attitude_rows(isr, begin, q, yaw[isr.step_tick - isr.first_tick], thr_step)
     forced = fwl.forced_drops(len(att), opts.drop_rate, rs.drop)
-    link = fwl.LinkEmulation(att, settings, opts.ki, opts.baud, opts.text_mode, snapshots, forced)
+    link = fwl.LinkEmulation(att, thx, thy, settings, opts.baud, opts.text_mode, snapshots, forced)
     for cyc, line in fwl.boot_lines(rs.boot):
         link.text(cyc, line)
     progress(0.85, "link and TX queue")
-    rows = {"thx": thx, "thy": thy}
     for k in range(len(att)):
         if k % 8192 == 0:
             progress(0.85 + 0.1 * k / len(att), "link and TX queue")
-        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]), rows)
+        link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]))
     status = link.status_table()
 
     # 6-7: the bytes in transmit order, and the host
@@ -246,18 +224,18 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
     )
 
 
-def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
+def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
     """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
-    the firmware's ISR and main-loop averaging. Returns (profile, ISR result, number of ticks)."""
+    the firmware's ISR and main-loop averaging. Returns (profile, ISR result)."""
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
-    t = M.tick_times_s(n_ticks, first_tick_s)
+    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
     thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
     if trial is not None:
         profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
     else:
-        profile = M.build_profile(opts.scenario, t, rs.motion, throttle=thr_fn, total_s=total)
+        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
     profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
     gyro_true = profile.gyro_mdps
     if profile.measured:
@@ -268,7 +246,7 @@ def _sensed(opts: SynthOptions, rs, trial, total: float, progress):
     progress(0.55, "LSM6DSL model")
     acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
     progress(0.6, "ISR pipeline")
-    return profile, sm.run_isr(acc_raw, gyro_raw), n_ticks
+    return profile, sm.run_isr(acc_raw, gyro_raw)
 
 
 def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_step: np.ndarray) -> np.ndarray:
@@ -289,12 +267,63 @@ def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
     """The bytes the link sent, in transmit order, as the host receives them from the join time on: (data, chunk
     offsets, chunk times, frame counts)."""
     order = link.order
-    c_encoder = (Path(opts.c_encoder) if opts.c_encoder else default_c_encoder()) if opts.encoder == "c" else None
-    stream = fwl.encode(order, att, c_encoder)
+    if opts.encoder == "c":
+        stream = fwl.encode_c(order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
+    else:
+        stream = fwl.encode(order, att)
     sizes = np.array([o[3] for o in order], dtype=np.int64)
     starts = np.array([o[2] for o in order], dtype=np.float64)
     offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
     return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
+
+
+#: data bytes per USB packet, latency timer, USB frame
+ADAPTER_PACKET_BYTES = 62
+ADAPTER_LATENCY_S = 0.016
+USB_FRAME_S = 0.001
+
+
+def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng, total_s: float):
+    """What the host receives through a USB-UART adapter (FTDI FT232R-like) in [join, join + duration]: ``((first,
+    end) stream offsets of the captured bytes, USB packet offsets, their receive times s since the join)``."""
+    n = len(stream)
+    if n == 0:
+        return (0, 0), np.zeros(0, np.int64), np.zeros(0)
+    frame_off = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    rep_start = np.repeat(starts, sizes)
+    idx = np.arange(n, dtype=np.float64) - np.repeat(frame_off, sizes)
+    end_s = (rep_start + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
+    join = float(join_at_s)
+    first = int(np.searchsorted(end_s, join, side="right")) if join > 0 else 0
+    e = end_s[first:]
+    # adapter: a packet when 62 bytes are in, or when the latency timer expires with data waiting
+    sof_phase = rng.uniform(0.0, USB_FRAME_S)
+    t_last = (e[0] if len(e) else 0.0) - rng.uniform(0.0, ADAPTER_LATENCY_S)
+    flush_t, flush_end = [], []
+    i, m = 0, len(e)
+    while i < m:
+        k = max(1, math.ceil((e[i] - t_last) / ADAPTER_LATENCY_S - 1e-12))
+        expiry = t_last + k * ADAPTER_LATENCY_S
+        j_full = i + ADAPTER_PACKET_BYTES - 1
+        if j_full < m and e[j_full] <= expiry:
+            t_f, j = e[j_full], j_full
+        else:
+            j = int(np.searchsorted(e, expiry, side="right")) - 1
+            t_f = expiry
+        flush_t.append(t_f)
+        flush_end.append(j + 1)
+        t_last, i = t_f, j + 1
+    flush_t = np.array(flush_t)
+    # USB: the host controller picks the packet up at the next 1 ms frame; the OS hands it to the reader later
+    arrive = sof_phase + np.ceil((flush_t - sof_phase) / USB_FRAME_S) * USB_FRAME_S
+    arrive = arrive + rng.exponential(0.00015, len(arrive))
+    arrive = np.maximum.accumulate(arrive)
+    keep = arrive <= total_s
+    flush_end = np.array(flush_end, dtype=np.int64)[keep]
+    arrive = arrive[keep]
+    n_cap = int(flush_end[-1]) if len(flush_end) else 0
+    chunk_offsets = np.concatenate(([0], flush_end[:-1])) if len(flush_end) else np.zeros(0, np.int64)
+    return (first, first + n_cap), chunk_offsets.astype(np.int64), arrive - join
 
 
 def _header(opts: SynthOptions, name: str, duration: float) -> dict:

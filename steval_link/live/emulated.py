@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from steval_link import constants as C
+from steval_link.emulation.broad import StepTruth
 from steval_link.emulation.runner import Emulation, EmulationOptions
-from steval_link.emulation.step_truth import StepTruth
 from steval_link.emulation.symbol_attitude import SymbolAttitude, elf_filter_variant
 from steval_link.link.commands import Command
 from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source

@@ -75,7 +75,7 @@ def run(elf: Path, name: str) -> dict:
     scenario, duration_s, seed, commands, ble = RUNS[name]
     opts = EmulationOptions(elf=elf, scenario=scenario, duration_s=duration_s, seed=seed)
     if ble:  # what `steval emulate --ble` records: every notification the emulated BlueNRG accepted
-        from steval_link.emulation.bluenrg import EmulatedBlueNrg
+        from steval_link.emulation.ble_capture import EmulatedBlueNrg
 
         nrg = EmulatedBlueNrg()
         emu = Emulation(opts, bluenrg=nrg, ble_connect_s=0.5)
