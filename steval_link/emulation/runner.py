@@ -287,7 +287,7 @@ class Emulation:
     def __init__(
         self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0, ble_connect_s: float | None = None
     ) -> None:
-        """``bluenrg``: an ``emulation.bluenrg.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
+        """``bluenrg``: an ``ble_capture.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
         RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
         before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
         stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""

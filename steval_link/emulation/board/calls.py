@@ -4,7 +4,7 @@ glue (``hci_send_req``), and the fault handlers that stop the run with their nam
 ``Sensor_IO_Read``/``Sensor_IO_Write`` answer from the sensor register models
 (:mod:`steval_link.emulation.sensors`), so ST's drivers and scaling run unchanged. ``hci_send_req`` (the only path to
 the BlueNRG chip) returns success with a zeroed reply, so the BLE init runs its real code (or the reply of the
-board's ``hci_handler``, :mod:`steval_link.emulation.bluenrg`). The replaced calls are reported to optional
+board's ``hci_handler``, :mod:`steval_link.emulation.ble_capture`). The replaced calls are reported to optional
 observers (``board.call_observers[name]``).
 """
 
@@ -101,7 +101,7 @@ class FirmwareCalls:
         b = self.board
         ogf, ocf, _event, cparam, clen, rparam, rlen = HCI_REQUEST.unpack(b.uc.mem_read(req, HCI_REQUEST.size))
         reply = b""
-        if b.hci_handler is not None:  # e.g. emulation.bluenrg: GATT handles, RSSI, the notifications sent
+        if b.hci_handler is not None:  # e.g. emulation.ble_capture: GATT handles, RSSI, the notifications sent
             params = bytes(b.uc.mem_read(cparam, clen)) if cparam and 0 < clen <= 1024 else b""
             reply = b.hci_handler(ogf, ocf, params, b) or b""
         if rparam and rlen > 0:
