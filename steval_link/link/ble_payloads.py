@@ -33,36 +33,6 @@ from dataclasses import dataclass
 
 from steval_link.link.capture import CHUNK_BLE
 
-__all__ = [
-    "SERVICE_UUID",
-    "CHAR_UUIDS",
-    "CHAR_NAMES",
-    "CHAR_MOTION",
-    "CHAR_ENV",
-    "CHAR_ARMING",
-    "CHAR_STDOUT",
-    "CHAR_STDERR",
-    "DEVICE_NAME_PREFIX",
-    "TICK_S",
-    "TICK_WRAP",
-    "char_id_of_uuid",
-    "unpack_payload",
-    "TickUnwrapper",
-    "BadPayload",
-    "ble_records",
-    "is_ble_source",
-    "ble_items",
-    "ble_chunk",
-    "BleMotionFrame",
-    "BleEnvFrame",
-    "BleArmingFrame",
-    "BleConsoleFrame",
-    "BleDecoder",
-    "BleLayout",
-    "LAYOUTS",
-    "layout_named",
-]
-
 #: the HW sensor service of ST's firmware (BlueST)
 SERVICE_UUID = "00000000-0001-11e1-9ab4-0002a5d5c51b"
 CHAR_MOTION, CHAR_ENV, CHAR_ARMING, CHAR_STDOUT, CHAR_STDERR = 1, 2, 3, 4, 5

@@ -39,19 +39,6 @@ from steval_link.link.ble_payloads import (
 from steval_link.link.frames import DecoderStats
 from steval_link.link.telemetry import AttitudeArrays, Telemetry, TelemetryParts
 
-__all__ = [
-    "NOT_BIT_EXACT",
-    "EULER_NOTE",
-    "link_notes",
-    "BleStream",
-    "ble_layout_of",
-    "ble_telemetry",
-    "motion_payload_note",
-    "attitude_rows",
-    "LiveGrid",
-]
-
-
 NOT_BIT_EXACT = (
     "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
     "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "

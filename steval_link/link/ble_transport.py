@@ -21,20 +21,6 @@ from typing import Protocol
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import CHAR_NAMES, CHAR_UUIDS, DEVICE_NAME_PREFIX
 
-__all__ = [
-    "BleDevice",
-    "BleError",
-    "BleBackend",
-    "BleakBackend",
-    "BleLink",
-    "explain_ble_error",
-    "is_address",
-    "pick_device",
-    "SCAN_TIMEOUT_S",
-    "RETRY_MAX_S",
-    "bleak_backend",
-]
-
 SCAN_TIMEOUT_S = 5.0
 #: longest wait between two reconnection attempts, s
 RETRY_MAX_S = 5.0

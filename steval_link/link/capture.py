@@ -27,25 +27,6 @@ import numpy as np
 from steval_link import __version__
 from steval_link.errors import ParamError, UserError
 
-__all__ = [
-    "MAGIC",
-    "Capture",
-    "CaptureEvent",
-    "CaptureTruth",
-    "capture_truth",
-    "capture_symbol_rows",
-    "truth_payloads",
-    "HostChunk",
-    "CaptureTruncatedWarning",
-    "CaptureWriter",
-    "OutputLostError",
-    "output_gone",
-    "demo_capture_path",
-    "read_capture",
-    "read_file_bytes",
-    "resolve_capture_out",
-]
-
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
 MAGIC = b"\x89STV\r\n\x1a\n"
 FORMAT_VERSION = 2

@@ -20,20 +20,6 @@ from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.frames import AckFrame
 
-__all__ = [
-    "PARAMS",
-    "Command",
-    "CommandChannel",
-    "Sent",
-    "ack_of_text",
-    "command_log",
-    "describe_ack",
-    "describe_settings",
-    "param_of_status",
-    "parse_command",
-    "parse_script",
-]
-
 #: SET_PARAM parameter names (``steval param set NAME VALUE``) → ids
 PARAMS = {
     "kp_ground": P.PARAM_KP_GROUND,

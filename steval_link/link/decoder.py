@@ -59,8 +59,6 @@ from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
-__all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
-
 #: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``;
 #: whether the class has ``exact`` before ``offset``).
 _UNPACK = {}

@@ -30,8 +30,6 @@ from steval_link.link.symbol_rows import merge_symbol_attitude
 from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
 from steval_link.link.text_series import FLOATLESS_NOTE
 
-__all__ = ["Recording", "load_telemetry", "read_recording", "sent_command_rows", "telemetry_of_recording"]
-
 
 @dataclass
 class Recording(Capture):

@@ -30,20 +30,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = [
-    "PlausibilityGate",
-    "attitude_values_ok",
-    "attitude_rows_bad",
-    "attitude_frame_bad",
-    "attitude_inputs_bad",
-    "status_values_ok",
-    "status_rows_bad",
-    "gate_rows",
-    "values_bad_sentence",
-    "held_back_sentence",
-    "q_off_sphere",
-]
-
 #: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
 ACC_MAX_MG = 1.0e5
 GYRO_MAX_MDPS = 2.0e7

@@ -13,8 +13,6 @@ import subprocess
 import sys
 from dataclasses import asdict, dataclass
 
-__all__ = ["PortInfo", "holders_sentence", "list_ports", "port_holders"]
-
 #: Longest wait for ``lsof``, s.
 LSOF_TIMEOUT_S = 2.0
 

@@ -29,8 +29,6 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.transport import READ_TIMEOUT_S
 
-__all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
-
 SCHEME = "replay://"
 #: Bytes released together when pacing at the baud rate.
 BAUD_BLOCK_BYTES = 32

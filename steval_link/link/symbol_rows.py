@@ -14,8 +14,6 @@ import numpy as np
 from steval_link.link.capture import SYMBOL_DTYPE
 from steval_link.link.telemetry import AttitudeArrays, Telemetry
 
-__all__ = ["symbol_attitude", "merge_symbol_attitude"]
-
 _F32 = np.float32
 
 

@@ -41,15 +41,6 @@ from steval_link.link.unwrap import host_times as _host_times
 if TYPE_CHECKING:  # annotations only
     from steval_link.link.frames import DecoderStats, Frame
 
-__all__ = [
-    "AttitudeArrays",
-    "StatusArrays",
-    "FlightControlArrays",
-    "Telemetry",
-    "TelemetryParts",
-    "telemetry_from_frames",
-]
-
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
 ATT_RECORD_DTYPE = np.dtype(

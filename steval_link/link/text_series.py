@@ -25,20 +25,6 @@ from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.frames import AttitudeFrame
 
-__all__ = [
-    "FLOATLESS_NOTE",
-    "MAP_TARGETS",
-    "RecordAttitude",
-    "RecordBlock",
-    "apply_plan",
-    "attitude_plan",
-    "TextSeries",
-    "map_attitude",
-    "parse_map",
-    "record_blocks",
-    "text_series",
-]
-
 #: The sentence for ST's line with empty float fields.
 FLOATLESS_NOTE = (
     "The output has empty float fields (newlib nano prints no %f): in STM32CubeIDE tick Project Properties > "

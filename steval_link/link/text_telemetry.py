@@ -36,18 +36,6 @@ import numpy as np
 
 from steval_link.link.frames import TextFrame, TextRecordFrame
 
-__all__ = [
-    "CONFIRM",
-    "LineTemplate",
-    "MAX_PENDING",
-    "ST_221117_NAMES",
-    "ST_221117_UNITS",
-    "ParsedLine",
-    "TextTelemetryReader",
-    "looks_like_text",
-    "parse_line",
-]
-
 #: Times a record shape must repeat in a row before its lines are records.
 CONFIRM = 3
 #: Lines held while a shape is learned; older ones go out as text lines.

@@ -9,8 +9,6 @@ import numpy as np
 
 from steval_link.link.protocol import SEQ_MODULUS, T_US_MODULUS
 
-__all__ = ["SeqUnwrapper", "StreamClock", "TimeUnwrapper", "host_times"]
-
 _HALF = T_US_MODULUS // 2
 
 
