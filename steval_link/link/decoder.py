@@ -29,7 +29,6 @@ normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1)
 from __future__ import annotations
 
 import re
-import zlib
 
 import numpy as np
 
@@ -85,8 +84,7 @@ _VT_TEXT = {P.vt_byte(_V1, P.TYPE_TEXT), P.vt_byte(_V2, P.TYPE_TEXT)}
 _SYNC0, _SYNC1 = P.SYNC
 _NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
-#: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
-_CHECK = {_V1: (P.CRC_SIZE_V1, P.crc16), _V2: (P.CRC_SIZE, zlib.crc32)}
+_CHECK = P.CHECK
 
 
 def _crc_ok(buf, start: int, end: int, version: int) -> bool:
