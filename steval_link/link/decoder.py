@@ -495,7 +495,9 @@ def decode_bytes(
         parts.add_frame(f)
     gate = PlausibilityGate()
     if plausibility:
-        parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
+        att, sta = parts.attitude_records(), parts.status_records()
+        keep_a, keep_s = gate_rows(att, sta, gate)
+        parts.att_blocks, parts.sta_blocks = [att[keep_a]], [sta[keep_s]]
         gate.finish()
     v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
     stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)

@@ -54,6 +54,22 @@ ACK_ROW_DTYPE = np.dtype(P.ACK_DTYPE.descr + _ROW_EXTRA)
 COMMAND_ROW_DTYPE = np.dtype(P.COMMAND_DTYPE.descr + _ROW_EXTRA)
 
 
+#: the attitude columns taken as they are from the records (ATT_RECORD_DTYPE has each one's type)
+_RECORD_COLUMNS = (
+    "seq",
+    "t_us",
+    "acc_mg",
+    "gyro_mdps",
+    "thr",
+    "q_wxyz",
+    "thz_rad",
+    "thx_rad",
+    "thy_rad",
+    "exact",
+    "offset",
+)
+
+
 @dataclass
 class AttitudeArrays:
     """One row per attitude frame (see the module docstring for the derived fields).
@@ -115,29 +131,14 @@ class AttitudeArrays:
 
     @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
-        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
-        and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
-        thx = att["thx_rad"].copy()
-        thy = att["thy_rad"].copy()
-        ex = att["exact"]
+        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order, each field already of its column's type) with
+        their step and times; ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        cols = {name: np.array(att[name]) for name in _RECORD_COLUMNS}  # copies
+        ex = cols["exact"]
         if ex.any():
-            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
-        return cls(
-            step=np.asarray(step, dtype=np.int64),
-            seq=att["seq"].astype(np.uint16),
-            t_us=att["t_us"].astype(np.uint32),
-            t_fw_s=np.asarray(t_fw_s, dtype=np.float64),
-            t_host_s=np.asarray(t_host_s, dtype=np.float64),
-            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
-            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
-            thr=att["thr"].astype(np.int16),
-            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
-            thz_rad=att["thz_rad"].astype(np.float32),
-            thx_rad=thx.astype(np.float32),
-            thy_rad=thy.astype(np.float32),
-            exact=att["exact"].astype(bool),
-            offset=att["offset"].astype(np.int64),
-        )
+            cols["thx_rad"][ex], cols["thy_rad"][ex] = quaternion_to_euler(att["q_wxyz"][ex])
+        times = dict(t_fw_s=np.asarray(t_fw_s, dtype=np.float64), t_host_s=np.asarray(t_host_s, dtype=np.float64))
+        return cls(step=np.asarray(step, dtype=np.int64), **times, **cols)
 
     @classmethod
     def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
@@ -205,35 +206,10 @@ class FlightControlArrays:
             t = att.t_fw_s[j] + (step - att.step[j]) * C.AHRS_PERIOD_S
         else:
             t = step * C.AHRS_PERIOD_S
-        return cls(
-            step=step,
-            t_fw_s=np.asarray(t, np.float64),
-            t_host_s=rows["t_host_s"].astype(np.float64),
-            euler_rc_rad=np.ascontiguousarray(rows["euler_rc_rad"], np.float32),
-            rc=np.ascontiguousarray(rows["rc"], np.int16),
-            outer_s1_radps=np.ascontiguousarray(rows["outer_s1"], np.float32),
-            inner_s2_pwm=np.ascontiguousarray(rows["inner_s2"], np.float32),
-            motor_pwm=np.ascontiguousarray(rows["motor_pwm"], np.float32),
-            vbat_v=rows["vbat_v"].astype(np.float32),
-            fc_flags=rows["fc_flags"].astype(np.uint16),
-            fc_every=rows["fc_every"].astype(np.uint8),
-            offset=rows["offset"].astype(np.int64),
-        )
-
-
-def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dtype, frame_size) -> np.ndarray:
-    """Records of ``record_dtype`` from the binary payloads starting at ``payload_starts`` in the byte array ``arr``
-    (fields of ``payload_dtype`` copied; ``offset``/``nbytes`` (``frame_size``, scalar or per frame) of the frame;
-    ``exact`` True)."""
-    win = np.lib.stride_tricks.sliding_window_view(arr, payload_dtype.itemsize)
-    pay = np.ascontiguousarray(win[payload_starts]).view(payload_dtype).reshape(-1)
-    rec = np.empty(len(pay), record_dtype)
-    for name in payload_dtype.names:
-        rec[name] = pay[name]
-    rec["offset"] = frame_starts
-    rec["nbytes"] = frame_size
-    rec["exact"] = True
-    return rec
+        cols = {name: np.array(rows[name]) for name in FLIGHT_ROW_DTYPE.names if name not in (P.RESERVED, "nbytes")}
+        cols["outer_s1_radps"], cols["inner_s2_pwm"] = cols.pop("outer_s1"), cols.pop("inner_s2")  # units named
+        cols["step"] = step
+        return cls(t_fw_s=np.asarray(t, np.float64), **cols)
 
 
 #: the columns of ``steval export --csv`` that make its rows the frames' own (each float32 written so that it reads
@@ -263,8 +239,13 @@ class TelemetryParts:
         if len(payload_starts) == 0:
             return
         attitude = kind == P.TYPE_ATTITUDE
-        dtypes = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
-        rec = _payload_records(arr, payload_starts, frame_starts, *dtypes, frame_sizes)
+        payload, record = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
+        win = np.lib.stride_tricks.sliding_window_view(arr, payload.itemsize)
+        pay = np.ascontiguousarray(win[payload_starts]).view(payload).reshape(-1)
+        rec = np.empty(len(pay), record)
+        for name in payload.names:
+            rec[name] = pay[name]
+        rec["offset"], rec["nbytes"], rec["exact"] = frame_starts, frame_sizes, True
         if attitude:
             rec["step"], rec["thx_rad"], rec["thy_rad"] = -1, np.nan, np.nan
         (self.att_blocks if attitude else self.sta_blocks).append(rec)
@@ -275,13 +256,6 @@ class TelemetryParts:
         lists = {AttitudeFrame: self.att_frames, StatusFrame: self.sta_frames, TextFrame: self.texts}
         lists.get(kind, self.records if kind is TextRecordFrame else self.others).append(frame)
         self._settled = self._settled and kind not in (AttitudeFrame, StatusFrame)
-
-    def apply_gate(self, keep_masks) -> None:
-        """Filter the attitude and status rows: ``keep_masks(att_records, sta_records)`` returns two boolean masks
-        (e.g. :func:`steval_link.link.plausibility.gate_rows`)."""
-        att, sta = self.attitude_records(), self.status_records()
-        keep_a, keep_s = keep_masks(att, sta)
-        self.att_blocks, self.sta_blocks = [att[keep_a]], [sta[keep_s]]
 
     def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
         """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
