@@ -11,16 +11,14 @@ Rules (position by position, from the start of the stream):
   a v1 frame that passed only the weaker CRC-16).
 * Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$``
   line is accepted wherever it starts when its checksum and fields are right (else ``crc_failures``). A plain line
-  has no checksum, so it is accepted only at a clean line start: after a frame or line handed out, or after a whole
-  printable line. So a stream joined mid-line never yields that line's tail (the first plain line is skipped), and
-  a glitch byte before a ``$ATT`` line yields the sentence, not a log line. ``line_start=True``: the stream's first
-  byte starts a line (a log file), so its first line is kept.
+  has no checksum: it is accepted only at a clean line start (after a frame or line handed out, or a whole printable
+  line), so a stream joined mid-line never yields that line's tail. ``line_start=True``: the stream's first byte
+  starts a line (a log file).
 * Blank lines and the ``\\r`` of ``\\n\\r`` endings at a line start count in ``blank_bytes`` (text, not damage).
 * Every other byte not in a handed-out frame or line counts in ``bytes_skipped``.
 
-The decoder waits for more bytes only while the candidate at its position could still become valid, so its
-buffer never holds more than one frame (≤ 261 bytes) or line (≤ 512 bytes), and the frames do not depend on how
-the bytes are chunked.
+The decoder waits only while the candidate at its position could still become valid: it holds at most one frame or
+line, and the frames do not depend on how the bytes are chunked.
 
 Sequence counters between consecutive binary attitude frames: ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
 normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1), else a firmware restart (``seq_resets``).
@@ -115,9 +113,8 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them;
-    :meth:`finish` decides the last incomplete candidate. ``stats``: the counters (:class:`DecoderStats`); a frame's
-    ``offset``: its position in the stream."""
+    """Incremental decoder: :meth:`feed` any chunks and get the frames they complete; :meth:`finish` decides the
+    last candidate. ``stats``: the counters (:class:`DecoderStats`)."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
@@ -144,8 +141,7 @@ class StreamDecoder:
         return self._run(final=False)
 
     def finish(self) -> list[Frame]:
-        """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames.
-        Frames the plausibility gate still holds are dropped (counted in ``implausible``)."""
+        """End of stream: the pending bytes decided, frames the plausibility gate still holds dropped."""
         out = self._run(final=True)
         self._read_text(out, "finish")
         if self.gate is not None:
@@ -155,8 +151,8 @@ class StreamDecoder:
         return out
 
     def resume_at(self, offset: int, *, line_start: bool) -> None:
-        """Continue as if the stream were at byte ``offset``, the bytes before it decoded elsewhere (the bulk
-        decoder's runs of clean frames); ``line_start``: a line starts there. Only with no bytes pending."""
+        """Continue at stream byte ``offset``, the bytes before it decoded elsewhere (the bulk decoder's runs);
+        ``line_start``: a line starts there. Only with no bytes pending."""
         if self._buf:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
@@ -164,28 +160,21 @@ class StreamDecoder:
         self._skipping = self._skipping and not line_start
 
     def text_template(self):
-        """The text reader's template for lines that would be records now (see
-        :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template`), when the decoder is at a clean
-        line start with nothing pending; else None."""
+        """The text reader's :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template` when the
+        decoder is at a clean line start with nothing pending; else None."""
         if self._buf or not self._boundary or self._damaged:
             return None
         return self.text_reader.bulk_template()
 
     def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
-        """``count`` records up to byte ``offset`` (whole lines, ``blank_bytes`` of blank lines among them, one
-        last when ``blank_last``) were made elsewhere (the bulk decoder): counted, and the stream continues at
-        ``offset``, a line start."""
+        """``count`` records up to byte ``offset`` were made by the bulk decoder (``blank_bytes`` of blank lines among
+        them, one last when ``blank_last``): counted, and the stream continues at ``offset``, a line start."""
         self.resume_at(offset, line_start=True)
         self._ended_nl = True
         self.text_reader.bulk_records(count, blank_last=blank_last)
         self.stats.text_records += count
         self.stats.frames_ok += count
         self.stats.blank_bytes += blank_bytes
-
-    def lock_version_2(self) -> None:
-        """A version-2 frame was accepted before the current position (e.g. by the bulk decoder): version-1
-        candidates are refused from now on."""
-        self._v2_seen = True
 
     # -- internals ---------------------------------------------------------------------------------------------
 
@@ -299,8 +288,7 @@ class StreamDecoder:
         return nl + 1
 
     def _read_text(self, out: list[Frame], method: str, *args) -> None:
-        """One call of the text reader (``line``, ``cut_line``, ``blank``, ``finish``), told first of any damage
-        since its last call; its frames into ``out``."""
+        """One call of the text reader, told first of any damage since its last call; its frames into ``out``."""
         reader = self.text_reader
         if self._damaged:
             self._damaged = False
@@ -308,8 +296,7 @@ class StreamDecoder:
         self._text(out, getattr(reader, method)(*args))
 
     def _text(self, out: list[Frame], frames: list) -> None:
-        """Frames of the text reader: records counted and handed out; a text line only when it reads as text
-        (else dropped: ``text_dropped``, its bytes skipped)."""
+        """Frames of the text reader into ``out``; a text line that does not read as text is dropped."""
         for frame in frames:
             if isinstance(frame, TextFrame) and not looks_like_text(frame.text):
                 self.stats.text_dropped += 1
@@ -385,9 +372,8 @@ _TEXT_WINDOW_MAX = 1 << 20
 
 
 def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[RecordBlock]) -> list[Frame]:
-    """``data[p:end]`` through ``sd``, but runs of text lines that fit a learned one-line record shape
-    (``sd.text_template()``) are read as arrays at once (one regex pass and one table parse per window of lines)
-    into ``blocks``: the same records ``sd`` would make line by line, many times faster."""
+    """``data[p:end]`` through ``sd``, but runs of lines that fit a learned one-line record shape are read as arrays
+    into ``blocks``: the records ``sd`` would make line by line, many times faster."""
     out: list[Frame] = []
     window = _TEXT_WINDOW
     while p < end:
@@ -430,9 +416,8 @@ for _vt in _VT_TEXT:
 
 
 def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included), with
-    the version lock applied: no version-1 frame after the first valid version-2 frame; and that frame's offset
-    (infinity when there is none)."""
+    """Start offsets, sizes and VT bytes of every valid binary frame in ``data`` (overlaps included; no version-1
+    frame after the first version-2 frame), and that first version-2 frame's offset (infinity: none)."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == _SYNC0) & (arr[1:] == _SYNC1)) if n >= 2 else np.zeros(0, np.int64)
     idx = idx[idx + _HEAD <= n]
@@ -480,11 +465,10 @@ def decode_bytes(
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (s since capture start; None: NaN host
-    times). A frame takes the time of the chunk of its last byte, less the bytes after it at ``baud`` (10 bit times a
-    byte). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks, kept after the commands in the
-    bytes. ``line_start`` and ``plausibility`` as for :class:`StreamDecoder`, whose frames and counters it gives: runs
-    of back-to-back valid binary frames are decoded with numpy, every other region by one :class:`StreamDecoder`."""
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times; see
+    :func:`~steval_link.link.unwrap.host_times`). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's
+    H chunks. The frames and counters are :class:`StreamDecoder`'s: runs of back-to-back valid binary frames are
+    decoded with numpy, every other region by one :class:`StreamDecoder`."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
@@ -508,9 +492,8 @@ def decode_bytes(
 
 
 def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: bool, blocks: list[RecordBlock]):
-    """Walk ``data``: runs of back-to-back valid frames (``starts``, ``sizes``) are left to numpy, the regions
-    between them go through one :class:`StreamDecoder`. Returns (indices of the frames in runs, that decoder after
-    :meth:`~StreamDecoder.finish`, its frames)."""
+    """Runs of back-to-back valid frames are left to numpy, the rest goes through one :class:`StreamDecoder`.
+    Returns (indices of the frames in runs, that decoder, its frames)."""
     n, count = len(data), len(starts)
     nxt = starts + sizes
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run
@@ -530,8 +513,8 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
             continue
         if not sd.pending_bytes:
             sd.resume_at(p, line_start=(last_fast or sd._boundary) if p else line_start)
-        if first_v2 < p:
-            sd.lock_version_2()
+        if first_v2 < p:  # a version-2 frame was accepted before: version-1 candidates are refused
+            sd._v2_seen = True
         last_fast = False
         end = int(nxt[k]) if k < count else n
         frames.extend(_feed_region(sd, data, p, end, blocks))

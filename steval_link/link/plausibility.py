@@ -1,7 +1,6 @@
 """Plausibility checks behind the frame check: a CRC-valid frame that cannot be what the firmware sent is held back.
 
-A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
-about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
+A frame check passes a damaged candidate now and then (v1's CRC-16: one in 65 536; v2's CRC-32: one in 4.3·10⁹):
 
 * **Values** (binary frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
   2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps); quaternion components within ±2.
@@ -9,15 +8,11 @@ about one in 4.3·10⁹). What the firmware sends is also predictable, and that 
   difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and ``d·P − tol ≤ Δt_us ≤ 3·d·P +
   0.5 s`` (P the AHRS period; the upper side allows skipped steps). A status frame must fit with ``d ≥ 0``.
 
-Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
-time is what the firmware sent (its own filter diverged). Such rows are kept and flagged (``values_bad``,
-:func:`values_bad_sentence`), and still anchor the sequence and time.
-
-An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
-(a firmware restart, or the link away longer than the window), they are released and become the new anchor;
-otherwise they are dropped and counted in ``held_back``. Other frames, text-mode rows and the first attitude frame
-pass through. :class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frames, the
-bulk decoder rows (after a vectorised pass that finds nothing to check on a clean stream).
+A v2 frame with bad values that continues the sequence and time is what the firmware sent (its filter diverged):
+kept and flagged (``values_bad``). An attitude frame that does not fit the anchor is held back; ``confirm`` such
+frames in a row that fit each other (a restart) are released as the new anchor, else dropped (``held_back``).
+Other frames, text-mode rows and the first attitude frame pass. :class:`PlausibilityGate` is the one implementation,
+fed frames by the incremental decoder and rows by the bulk one.
 """
 
 from __future__ import annotations
@@ -60,9 +55,8 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
 
 
 def attitude_frame_bad(frame) -> bool:
-    """True when an :class:`~steval_link.link.frames.AttitudeFrame` carries bad values (what ``values_bad``
-    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with an infinite value, or with
-    neither an angle nor the accelerometer (``$ATT`` rows are finite; rows of text telemetry NaN where not printed)."""
+    """True when an ``AttitudeFrame`` carries bad values (``values_bad``): a binary frame failing
+    :func:`attitude_values_ok`; a text row with an infinite value, or with neither an angle nor the accelerometer."""
     if frame.exact:
         return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
     vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
@@ -84,8 +78,7 @@ def _within(v, limit: float, width: int) -> np.ndarray:
 
 
 def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
-    """(N,) bool, rows with bad values, as :func:`attitude_frame_bad` row by row: binary rows outside the limits of
-    :func:`attitude_values_ok`, text-mode rows (no q) as :func:`attitude_frame_bad` says."""
+    """(N,) bool: :func:`attitude_frame_bad` row by row."""
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
@@ -109,8 +102,7 @@ def attitude_inputs_bad(acc_mg, gyro_mdps) -> np.ndarray:
 
 
 def status_rows_bad(exact, q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> np.ndarray:
-    """(N,) bool, binary status rows failing :func:`status_values_ok` (text-mode rows: False, they carry no
-    snapshot)."""
+    """(N,) bool, binary status rows failing :func:`status_values_ok`."""
     ok = _within(q_wxyz, Q_MAX, 4)
     ints = np.asarray(int_xyz).reshape(-1, 3)
     for v in (ints[:, 0], ints[:, 1], ints[:, 2], kp_ground, kp_flight, ki, dt_s):
@@ -131,10 +123,8 @@ def _count(n: int) -> str:
 
 
 def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
-    """The one sentence every summary prints about ``n`` kept frames with bad values (NaN or out of range), the first
-    at AHRS step ``first_step`` and firmware time ``first_t_s``; ``inputs``: the filter inputs (acc, gyro) are bad
-    too, so the fault is before the filter. E.g. "1,939 frames carry NaN or |q| > 2 from step 2 on (t = 2.998 s):
-    the firmware's own filter output; check ahrs.c"."""
+    """The sentence about ``n`` kept frames with bad values, the first at ``first_step`` (``first_t_s``);
+    ``inputs``: the filter inputs (acc, gyro) are bad too, so the fault is before the filter."""
     where = "" if first_step is None else f" from step {first_step} on"
     if first_t_s is not None and math.isfinite(first_t_s):
         where += f" (t = {first_t_s:.3f} s)"
@@ -148,8 +138,7 @@ def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None,
 
 
 def held_back_sentence(n: int, held_values: int = 0) -> str:
-    """The sentence about ``n`` CRC-valid frames the gate held back, ``held_values`` of them (protocol v1 only) for
-    NaN or out-of-range values, the others for a sequence and time that do not continue."""
+    """The sentence about ``n`` CRC-valid frames held back, ``held_values`` of them (v1 only) for their values."""
     noun = "frame" if n == 1 else "frames"
     parts = []
     if held_values:
@@ -187,8 +176,7 @@ class PlausibilityGate:
         self._pending: list[tuple[int, int, Any]] = []
 
     def offer(self, kind: int, seq: int, t_us: int, values_ok: bool, item: Any) -> list[Any]:
-        """Offer one row: ``seq`` is the attitude ``seq`` or the status ``step`` (any width), ``t_us`` mod 2³².
-        Returns the items released by it, in order (possibly none, possibly earlier held ones)."""
+        """Offer one row (``seq``: the attitude ``seq`` or status ``step``); returns the items it releases, in order."""
         if not values_ok:
             self.held_back += 1
             self.held_values += 1
@@ -226,10 +214,8 @@ class PlausibilityGate:
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
-    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a
-    :class:`PlausibilityGate` fed row by row in stream order would decide
-    (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
+    """Keep masks for attitude and status records (stream order; ``nbytes`` tells the version) as ``gate`` fed row
+    by row would decide (its counters updated). Text-mode rows are always kept."""
     gate = gate or PlausibilityGate()
     keep_a = np.ones(len(att), bool)
     keep_s = np.ones(len(sta), bool)

@@ -72,11 +72,8 @@ _RECORD_COLUMNS = (
 
 @dataclass
 class AttitudeArrays:
-    """One row per attitude frame (see the module docstring for the derived fields).
-
-    Axes are the firmware's: x right, y forward, z up; ``thx_rad`` is pitch (about x, nose up +), ``thy_rad`` roll
-    (about y), ``thz_rad`` the ISR-integrated yaw.
-    """
+    """One row per attitude frame. Axes are the firmware's (x right, y forward, z up): ``thx_rad`` is pitch (about
+    x, nose up +), ``thy_rad`` roll (about y), ``thz_rad`` the ISR-integrated yaw."""
 
     step: np.ndarray  #: (N,) int64, AHRS step counter
     seq: np.ndarray  #: (N,) uint16, as sent
@@ -171,12 +168,9 @@ class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name 
 
 @dataclass
 class FlightControlArrays:
-    """One row per flight-control frame (type 4, sent right after ``FlightControlPID_OuterLoop`` of step ``step``),
-    units in the names; ``tel.fc``. Axes x (pitch, about x), y (roll, about y), z (yaw).
-
-    ``t_fw_s`` is the firmware time of the frame's step: the time of the attitude row before it in the stream plus
-    the steps between (one AHRS period each); the frame itself carries no time.
-    """
+    """One row per flight-control frame (sent after ``FlightControlPID_OuterLoop`` of step ``step``); ``tel.fc``.
+    Axes x (pitch), y (roll), z (yaw). ``t_fw_s``: the time of the attitude row before it plus the AHRS periods
+    between (the frame carries no time)."""
 
     step: np.ndarray  #: (N,) int64, the AHRS step (as the attitude rows' step)
     t_fw_s: np.ndarray  #: (N,) float64, firmware time of the step, s since boot
@@ -234,8 +228,7 @@ class TelemetryParts:
         self._settled = False  # the blocks are one sorted block each (records asked for, nothing added since)
 
     def add_payloads(self, kind: int, arr: np.ndarray, payload_starts, frame_starts, frame_sizes) -> None:
-        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in the byte array
-        ``arr``."""
+        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in ``arr``."""
         if len(payload_starts) == 0:
             return
         attitude = kind == P.TYPE_ATTITUDE
@@ -302,9 +295,8 @@ def _sorted_records(blocks: list[np.ndarray], frames: list, dtype: np.dtype) -> 
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(step per attitude row, restart offsets) — see the module docstring. The binary rows' ``seq`` go through
-    :class:`~steval_link.link.unwrap.SeqUnwrapper` (as on the live path); then each firmware run takes the high
-    bits from its first status frame whose step agrees, for all its rows, before that frame too."""
+    """(step per attitude row, restart offsets): binary rows' ``seq`` unwrapped as live; each firmware run takes the
+    high bits from its first status frame whose step agrees, for all its rows."""
     step = att["step"].copy()
     b = np.flatnonzero(att["exact"])
     restarts = np.zeros(0, np.int64)
@@ -428,9 +420,8 @@ class Telemetry:
         return 0 if self.printed_only else int(self.attitude.exact.sum())
 
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
-        """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
-        names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
-        ``text_attitude_notes``. UserError for a ``user_map`` that cannot hold."""
+        """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`) when the
+        stream has no attitude frames of its own; the notes in ``text_attitude_notes``."""
         if len(self.attitude) and self.attitude.exact.any():
             return
         cols, notes = map_attitude(self.text_series, user_map)
@@ -533,10 +524,8 @@ def telemetry_from_frames(
     source: dict | None = None,
     events: list | None = None,
 ) -> Telemetry:
-    """A :class:`Telemetry` from the frames of a :class:`~steval_link.link.decoder.StreamDecoder` (e.g. the live path).
-
-    ``frame_times`` (one host time per frame, s) sets ``t_host_s``; else host times are NaN.
-    """
+    """A :class:`Telemetry` from a :class:`~steval_link.link.decoder.StreamDecoder`'s frames; ``frame_times``
+    (one host time per frame, s; None: NaN) sets ``t_host_s``."""
     parts = TelemetryParts()
     for f in frames:
         parts.add_frame(f)

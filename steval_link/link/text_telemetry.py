@@ -1,7 +1,6 @@
 """Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
 
-:class:`TextTelemetryReader` takes the plain lines the decoder found and hands each back as a
-:class:`~steval_link.link.frames.TextRecordFrame` (a record) or a :class:`~steval_link.link.frames.TextFrame`.
+:class:`TextTelemetryReader` hands each plain line back as a record (``TextRecordFrame``) or a ``TextFrame``.
 
 Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
@@ -15,11 +14,9 @@ Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``
 A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
 stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
 between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
-lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines, so a
-damaged line is not a record. Bytes the decoder skipped end what is being learned.
-
-For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`, a regex matching exactly the lines
-that would be records, so long runs of them are read as arrays at once.
+lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines. For the bulk
+decoder a learned one-line shape has a :class:`LineTemplate`: a regex matching exactly the lines that would be
+records.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
