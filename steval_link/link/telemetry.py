@@ -34,7 +34,7 @@ from steval_link.link.frames import (
     TextRecordFrame,
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
-from steval_link.link.text_series import RecordBlock, TextSeries, map_attitude, record_blocks, text_series
+from steval_link.link.text_series import RecordBlock, TextSeries, apply_plan, attitude_plan, record_blocks, text_series
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.link.unwrap import host_times as _host_times
 
@@ -420,15 +420,15 @@ class Telemetry:
         return 0 if self.printed_only else int(self.attitude.exact.sum())
 
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
-        """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`) when the
+        """The attitude rows from the text series (:func:`~steval_link.link.text_series.attitude_plan`) when the
         stream has no attitude frames of its own; the notes in ``text_attitude_notes``."""
         if len(self.attitude) and self.attitude.exact.any():
             return
-        cols, notes = map_attitude(self.text_series, user_map)
-        self.text_attitude_notes = notes
-        if not cols:
-            return
         s = self.text_series
+        plan, self.text_attitude_notes = attitude_plan(s, user_map)
+        if not plan:
+            return
+        cols = apply_plan(plan, s.values)
         n = len(s)
         t_fw = np.asarray(s.t_s, np.float64)
         # AHRS steps from the records' times: the estimators run at the line rate (rows decimated as text mode's)
