@@ -29,8 +29,6 @@ from dataclasses import dataclass
 
 from steval_link.link.capture import CHUNK_BLE
 
-#: the HW sensor service of ST's firmware (BlueST)
-SERVICE_UUID = "00000000-0001-11e1-9ab4-0002a5d5c51b"
 CHAR_MOTION, CHAR_ENV, CHAR_ARMING, CHAR_STDOUT, CHAR_STDERR = 1, 2, 3, 4, 5
 #: characteristic id (the capture's ``B`` chunk byte) → its name and UUID prefix (the rest is :data:`_UUID_TAIL`)
 _CHARS = {

@@ -1,12 +1,7 @@
 """The BLE transport: scan, connect, subscribe to the drone's notifications, reconnect when the link is lost.
 
-* :class:`BleBackend`: the small interface to a radio; :class:`BleakBackend` implements it with bleak (optional
-  extra ``steval-link[ble]``), ``tests/support/ble.py`` without a radio.
-* :class:`BleLink`: find the drone (by name or address, default the strongest ``DRN1…`` advertiser), connect,
-  subscribe to each characteristic of ``ble_payloads.CHAR_UUIDS``, hand each notification to
-  ``on_notification(char id, bytes, t_unix_s)``, and on a lost link reconnect (back off up to :data:`RETRY_MAX_S`).
-
-Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
+:class:`BleBackend` is the small interface to a radio (:class:`BleakBackend`: bleak, the optional extra
+``steval-link[ble]``). Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
 """
 
 from __future__ import annotations
@@ -163,8 +158,9 @@ class BleakBackend:
 
 
 class BleLink:
-    """Scan, connect, subscribe, reconnect (see the module docstring). ``on_event(kind, text)`` hears "connect",
-    "disconnect", "reconnect" and "missing" (a characteristic the drone lacks); ``clock`` gives Unix seconds."""
+    """Find the drone (:func:`pick_device`), subscribe to each of ``CHAR_UUIDS``, hand each notification to
+    ``on_notification(char id, bytes, t_unix_s)`` and reconnect a lost link (back off up to :data:`RETRY_MAX_S`).
+    ``on_event(kind, text)`` hears "connect", "disconnect", "reconnect" and "missing" (a characteristic lacking)."""
 
     def __init__(
         self,

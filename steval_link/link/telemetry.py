@@ -43,9 +43,7 @@ if TYPE_CHECKING:  # annotations only
 
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
-ATT_RECORD_DTYPE = np.dtype(
-    ATT_DESCR := P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")]
-)
+ATT_RECORD_DTYPE = np.dtype(P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")])
 STA_RECORD_DTYPE = np.dtype(P.STATUS_DTYPE.descr + _EXTRA)
 _ROW_EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("t_host_s", "<f8")]
 #: Rows of the v2 frames kept as structured arrays (payload fields + where and when the frame arrived).
