@@ -1,10 +1,8 @@
 """A capture's symbol chunks ``S`` (the attitude the emulator read from the firmware's globals by symbol) in its
 ``Telemetry``: :func:`merge_symbol_attitude`.
 
-Without attitude frames (a build without the patch, or its output off) the rows become ``tel.attitude``, bit-exact
-floats like a binary frame's, and ``tel.source["attitude_from"]`` says ``"symbols"``: every command then uses them
-as it uses frames. With frames the frames stay, and the two are checked step by step: ``tel.source["symbols"]``
-says whether they agree bit for bit.
+Without attitude frames the rows become ``tel.attitude`` (``tel.source["attitude_from"]`` = ``"symbols"``); with
+frames the frames stay and ``tel.source["symbols"]`` says whether the two agree bit for bit.
 """
 
 from __future__ import annotations

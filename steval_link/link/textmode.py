@@ -80,11 +80,8 @@ def format_sta(
 
 
 def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
-    """Parse one ``$`` line (without line ending); None when its checksum fails or its fields do not parse.
-
-    A ``$`` sentence of another name (upper-case letters and digits, at least 3) with a correct checksum is
-    returned as a :class:`TextFrame`.
-    """
+    """Parse one ``$`` line (without line ending); None when its checksum or fields fail. A sentence of another
+    name with a correct checksum is a :class:`TextFrame`."""
     m = _SENTENCE_RE.fullmatch(line)
     if m is None or checksum(m.group(1)) != int(m.group(2), 16):
         return None
@@ -136,8 +133,7 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
 
 
 def decode_line(raw: bytes) -> str | None:
-    """The text of one line (without its ``\\n``; a trailing ``\\r`` dropped), or None when it is not a valid text
-    line: not UTF-8, contains control characters, or empty."""
+    """The text of one line (a trailing ``\\r`` dropped), or None when it is empty, not UTF-8 or not printable."""
     if raw.endswith(b"\r"):
         raw = raw[:-1]
     if not raw or BAD_LINE_BYTE.search(raw):
