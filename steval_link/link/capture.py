@@ -331,7 +331,6 @@ class CaptureWriter:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    # -- internals ---------------------------------------------------------------------------------------------
     def _check_open(self) -> None:
         if self._closed:
             raise ValueError("write to a closed CaptureWriter")

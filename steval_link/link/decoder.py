@@ -27,6 +27,7 @@ normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1)
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 
@@ -175,8 +176,6 @@ class StreamDecoder:
         self.stats.text_records += count
         self.stats.frames_ok += count
         self.stats.blank_bytes += blank_bytes
-
-    # -- internals ---------------------------------------------------------------------------------------------
 
     def _skip(self, buf: bytearray, p: int, n: int, first: int = 1) -> int:
         """Reject the candidate at ``p`` (``first`` 0: go on with a skip cut by the end of the bytes fed before):
@@ -540,17 +539,13 @@ def _bulk_stats(parts: TelemetryParts, st: DecoderStats, gate: PlausibilityGate,
     att, sta = parts.attitude_records(), parts.status_records()  # in stream order, kept so for from_parts
     exact = att["exact"]
     kinds = [_COUNTER[type(f)] for f in parts.others]
-    stats = DecoderStats(
+    stats = replace(  # the damage counters are the stream decoder's; the frames are counted here
+        st,
         attitude=len(att),
         status=len(sta),
         text=len(parts.texts),
         **{name: kinds.count(name) for name in ("flight", "ack", "command")},
         text_records=len(parts.records) + sum(len(b.offset) for b in parts.record_blocks),
-        text_dropped=st.text_dropped,
-        crc_failures=st.crc_failures,
-        bytes_skipped=st.bytes_skipped,
-        blank_bytes=st.blank_bytes,
-        unknown_frames=st.unknown_frames,
         bytes_total=n,
         v1_frames=st.v1_frames + v1_fast,
         implausible=gate.held_back,

@@ -85,8 +85,7 @@ def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_ra
     ok = _within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz)
     if exact.all():
         return ~(ok & _within(q_wxyz, Q_MAX, 4))
-    # text-mode rows ($ATT: every value finite; no q, their angles come with the row). Rows of text telemetry
-    # carry what was printed, NaN for the rest: no infinity, and an angle or the accelerometer
+    # text rows (no q): no infinity, and an angle or the accelerometer
     acc = np.asarray(acc_mg, np.float64).reshape(-1, 3)
     gyro = np.asarray(gyro_mdps, np.float64).reshape(-1, 3)
     thx = np.broadcast_to(np.asarray(thx_rad, np.float64), (n,))

@@ -167,8 +167,6 @@ class ReplayPort:
         self._cancel = threading.Event()
         self.is_open = True
 
-    # -- timing -----------------------------------------------------------------------------------------------
-
     def _elapsed_s(self) -> float:
         now = self._clock()
         if self._t0 is None:
@@ -184,8 +182,6 @@ class ReplayPort:
         out = int(self.ends[i - 1]) if i else 0
         wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
         return out, wait
-
-    # -- the serial surface -----------------------------------------------------------------------------------
 
     @property
     def in_waiting(self) -> int:

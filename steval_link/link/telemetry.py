@@ -461,7 +461,6 @@ class Telemetry:
         """The flight-control frames with units in the names (:class:`FlightControlArrays`)."""
         return FlightControlArrays.from_rows(self.flight, self.attitude)
 
-    # -- tables ------------------------------------------------------------------------------------------------
     def flight_columns(self) -> dict[str, np.ndarray]:
         """The flight-control fields as columns on the attitude rows (joined by step; NaN in the rows of steps
         without a flight-control frame), units in the names; {} when the stream has none."""

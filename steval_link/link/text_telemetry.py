@@ -499,8 +499,6 @@ class TextTelemetryReader:
         self.records += n
         self._block_start = blank_last
 
-    # -- a learned shape ---------------------------------------------------------------------------------------
-
     def _follow(self, item: _Line) -> tuple[list, bool]:
         """The line in a learned shape: the frames it completes (or cuts short), and whether the line was taken."""
         out: list = []
@@ -534,8 +532,6 @@ class TextTelemetryReader:
         return TextRecordFrame(
             shape.names, values, shape.units, shape.kind, first.offset, last.offset + last.nbytes - first.offset
         )
-
-    # -- learning ----------------------------------------------------------------------------------------------
 
     def _learn(self, item: _Line) -> list:
         pending = self._pending
