@@ -172,7 +172,7 @@ class StreamDecoder:
         them, one last when ``blank_last``): counted, and the stream continues at ``offset``, a line start."""
         self.resume_at(offset, line_start=True)
         self._ended_nl = True
-        self.text_reader.bulk_records(count, blank_last=blank_last)
+        self.text_reader.bulk_records(blank_last=blank_last)
         self.stats.text_records += count
         self.stats.frames_ok += count
         self.stats.blank_bytes += blank_bytes

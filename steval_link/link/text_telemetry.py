@@ -243,9 +243,8 @@ _TO_SPACES = bytes.maketrans(b":=,;\t\r", b"      ")
 @dataclass(frozen=True)
 class LineTemplate:
     """Lines of one learned one-line record shape, for the bulk decoder: ``valid`` matches a run of whole lines
-    that fit (``\\r?\\n`` each), ``groups`` one line with its numbers as groups; ``sep`` the field separator of a
-    table (None: spaces, or a labelled line, whose ``words`` are removed before the numbers are read); the record's
-    ``names``, ``units``, ``kind`` and the ``kinds`` of its values ('i', 'f', '-' empty)."""
+    that fit, ``groups`` one line with its numbers as groups; ``sep`` a table's separator (None: spaces, or a
+    labelled line whose ``words`` go before the numbers are read); ``kinds`` of the values ('i', 'f', '-' empty)."""
 
     valid: re.Pattern[bytes]
     valid_blanks: re.Pattern[bytes]  #: as ``valid``, blank lines allowed between the lines
@@ -275,8 +274,7 @@ _TABLE_MIN_ROWS = 256
 
 
 def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.ndarray | None:
-    """The numbers of ``chunk`` as a (count, ncols) table read by pandas' C parser (optional: None without it, or
-    when the table does not come out whole)."""
+    """The numbers of ``chunk`` as a (count, ncols) table by pandas' C parser; None without pandas or a whole table."""
     try:
         import pandas as pd  # optional: a C parser of number tables, about 20 times numpy's
     except ImportError:
@@ -306,8 +304,8 @@ def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.n
 
 
 def line_template(shape: _Shape) -> LineTemplate | None:
-    """The :class:`LineTemplate` of a one-line shape, made from its example line: a line fits exactly when
-    :func:`parse_line` gives it that line shape. None for shapes it does not cover (Teleplot, non-ASCII, ``$``)."""
+    """The :class:`LineTemplate` of a one-line shape from its example line (a line fits exactly when
+    :func:`parse_line` gives it that shape); None for Teleplot, non-ASCII or ``$`` lines."""
     example, line = shape.example, shape.lines[0]
     if not example.isascii() or "$" in example or line[0] == "teleplot":
         return None
@@ -389,8 +387,8 @@ def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
 
 
 def looks_like_text(text: str) -> bool:
-    """True when a line reads as text a program printed (not a printable run of random bytes): at least three
-    characters, two of them letters or digits, and almost all of them ordinary text characters."""
+    """True when a line reads as printed text, not random bytes: three characters or more, two alphanumeric, 85 %
+    ordinary."""
     if len(text) < 3 or sum(c.isalnum() for c in text) < 2:
         return False
     ordinary = sum(c.isalnum() or c in _PUNCTUATION for c in text)
@@ -431,7 +429,6 @@ class TextTelemetryReader:
         self._header: tuple | None = None
         self._block_start = True  # the next line starts a block (after a blank or text line, or at the start)
         self._template: tuple | None = None  # (shape, its compiled line template) for the bulk decoder
-        self.records = 0  #: records handed out
 
     def line(self, text: str, offset: int, nbytes: int) -> list:
         """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
@@ -446,8 +443,7 @@ class TextTelemetryReader:
         return self._cut_current() + self._learn(item)
 
     def cut_line(self, text: str) -> list:
-        """A line that may be the tail of a cut line (the stream's first, or after damage): never a record; its
-        shape only tells where a record starts."""
+        """A line that may be the tail of a cut line: never a record, its shape only tells where one starts."""
         parsed = parse_line(text)
         self._block_start = False
         if parsed is None:
@@ -456,8 +452,7 @@ class TextTelemetryReader:
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
     def damage(self) -> list:
-        """Bytes were lost or damaged here: the lines before and after are not consecutive (a record in progress is
-        cut short, the lines learned from go no further back)."""
+        """Bytes were lost here: the lines before and after are not consecutive."""
         return self._end_block("break")
 
     def blank(self) -> list:
@@ -476,9 +471,8 @@ class TextTelemetryReader:
         return out
 
     def bulk_template(self) -> LineTemplate | None:
-        """For the bulk decoder: the :class:`LineTemplate` of the latest learned one-line shape when a line that
-        fits it would simply be one record now (no record in progress); else None. Blank lines between them change
-        nothing either when no line waits (:attr:`idle`)."""
+        """The :class:`LineTemplate` of the latest learned one-line shape when a line fitting it would be one record
+        now; else None."""
         if self._current is not None or not self._shapes:
             return None
         shape = self._shapes[-1]
@@ -493,10 +487,9 @@ class TextTelemetryReader:
         """No line waits to be learned from."""
         return not self._pending
 
-    def bulk_records(self, n: int, *, blank_last: bool = False) -> None:
-        """``n`` lines that fit :meth:`bulk_template` were made records elsewhere (the bulk decoder);
-        ``blank_last``: a blank line came after the last."""
-        self.records += n
+    def bulk_records(self, *, blank_last: bool = False) -> None:
+        """Lines that fit :meth:`bulk_template` were made records by the bulk decoder, a blank line last if
+        ``blank_last``."""
         self._block_start = blank_last
 
     def _follow(self, item: _Line) -> tuple[list, bool]:
@@ -526,7 +519,6 @@ class TextTelemetryReader:
         return [TextFrame(x.text, x.offset, x.nbytes) for x in current[1] if x.kind != "cut"] if current else []
 
     def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:
-        self.records += 1
         values = tuple(v for x in lines for v in x.parsed.values)
         first, last = lines[0], lines[-1]
         return TextRecordFrame(
@@ -622,9 +614,8 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
 
 
 def _value_period(rows: list[tuple[float, ...]]) -> int:
-    """Rows of one table whose values come back every p rows (p = 2..4) and differ from row to row: p (the rows of
-    a 3×3 matrix printed a row a line); else 1. The mean change over p rows must be under a quarter of that over
-    one row."""
+    """p (2..4) when the rows' values come back every p rows (a matrix printed a row a line: the mean change over p
+    rows under a quarter of that over one), else 1."""
     v = np.array(rows, np.float64)
     if len(v) < VALUE_LINES or not np.isfinite(v).all():
         return 1
