@@ -118,14 +118,17 @@ class PortFinder:
         real = os.path.realpath(path)
         return real not in self._rejected or self._rejected[real] != _node(path)
 
-    def candidates(self) -> list[str]:
-        """Every path that may be the port now, most likely first (rejected ones left out)."""
+    def find(self) -> str | None:
+        """The path to reopen (the most likely of those that may be the port now), or None while it is not back."""
         ident = self.identity
         if ident.has_usb_id:
-            return [p for p in self._usb_matches() if self._usable(p)]
-        found = [ident.path] if self._usable(ident.path) else []
-        found += [p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)]
-        return found
+            found = [p for p in self._usb_matches() if self._usable(p)]
+        else:
+            found = [ident.path] if self._usable(ident.path) else []
+            found += [
+                p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)
+            ]
+        return found[0] if found else None
 
     def _usb_matches(self) -> list[str]:
         ident = self.identity
@@ -135,11 +138,6 @@ class PortFinder:
         # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
         infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
         return [info.device for info in infos]
-
-    def find(self) -> str | None:
-        """The path to reopen, or ``None`` when the port is not back yet."""
-        found = self.candidates()
-        return found[0] if found else None
 
 
 def _node(path: str) -> tuple:
@@ -153,18 +151,12 @@ def _node(path: str) -> tuple:
 
 @dataclass
 class ProbeResult:
-    """What a short read of one port found."""
+    """What a short read of one port found: ``frames_ok`` valid frames but text frames."""
 
     port: str
     baud: int
     frames_ok: int = 0
     error: str | None = None
-    seconds: float = 0.0
-
-    @property
-    def answered(self) -> bool:
-        """True when at least one valid attitude or status frame (binary or text mode) arrived."""
-        return self.frames_ok > 0
 
 
 def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
@@ -194,7 +186,6 @@ def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int 
                     break
     finally:
         close_quietly(ser)
-    result.seconds = time.monotonic() - t0
     return result
 
 
@@ -234,7 +225,7 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
     if len(candidates) == 1:
         return candidates[0]
     results = probe_ports(candidates, baud, probe_s)
-    answering = [r.port for r in results if r.answered]
+    answering = [r.port for r in results if r.frames_ok > 0]
     if len(answering) == 1:
         return answering[0]
     listing = ", ".join(candidates)
