@@ -188,9 +188,6 @@ class BleLink:
         self.notifications = 0
         self._lost: asyncio.Event | None = None
 
-    def _what(self) -> str:
-        return repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
-
     async def find(self, scans: int) -> BleDevice | None:
         """Scan up to ``scans`` times for the target; platform failures raise UserError."""
         for _ in range(max(scans, 1)):
@@ -232,8 +229,9 @@ class BleLink:
         """The drone, found by the first scans; UserError when the platform fails or it is not found."""
         dev = await self.find(self.first_scans)
         if dev is None:
+            what = repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
             raise UserError(
-                f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
+                f"no BLE device matching {what} found in {self.scan_timeout_s:g} s of scanning "
                 "(is the drone on, in range, and not connected to a phone?)."
             )
         return dev

@@ -258,7 +258,10 @@ class CaptureWriter:
         """Chunks of type ``kind`` at ``t_host_s`` (None: now), under the lock (so an event's offset is never stale)."""
         t = time.monotonic() - self._t0 if t_host_s is None else float(t_host_s)
         with self._lock:
-            self._check_open()
+            if self._closed:
+                raise ValueError("write to a closed CaptureWriter")
+            if self.failure is not None:
+                raise self.failure
             for payload in payloads:
                 if kind == CHUNK_EVENT:
                     payload = json.dumps({**payload, "offset": self.bytes_written}).encode()
@@ -330,12 +333,6 @@ class CaptureWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise ValueError("write to a closed CaptureWriter")
-        if self.failure is not None:
-            raise self.failure
 
     def _write_all(self, b: bytes) -> None:
         view = memoryview(b)

@@ -64,10 +64,6 @@ class Command:
         """The 20-byte command frame with sequence number ``cmd_seq``."""
         return P.encode_command(cmd_seq=cmd_seq, cmd=self.cmd, param=self.param, value=self.value)
 
-    @property
-    def changes_filter(self) -> bool:
-        return self.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER)
-
     def describe(self) -> str:
         """The command as one would type it (``set ki 1``, ``correction off``, ``reset-filter``, ...)."""
         if self.cmd == P.CMD_SET_PARAM:
@@ -191,7 +187,7 @@ def describe_ack(command: Command | None, ack) -> str:
     counts = f"(commands received {int(ack.rx_ok)}, rejected {int(ack.rx_bad)})"
     if int(ack.result) != P.ACK_ACCEPTED:
         return f"{what}: {RESULTS.get(int(ack.result), f'refused (result {int(ack.result)})')} {counts}"
-    if command is not None and command.changes_filter:
+    if command is not None and command.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER):  # it changes the filter
         return f"{what}: accepted, applies from step {int(ack.step)} {counts}"
     return f"{what}: accepted {counts}"
 
