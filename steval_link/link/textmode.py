@@ -62,21 +62,13 @@ def format_att(
     return _sentence("ATT," + ",".join(str(_trunc(v)) for v in vals))
 
 
-def format_sta(
-    *,
-    step: int,
-    t_ms: int,
-    cyc_min: int,
-    cyc_mean: int,
-    cyc_max: int,
-    cyc_n: int,
-    tx_dropped: int,
-    flags: int,
-    ki_micro: int,
-) -> bytes:
-    """One ``$STA`` line with checksum and ``\\r\\n``."""
-    vals = [step, t_ms, cyc_min, cyc_mean, cyc_max, cyc_n, tx_dropped, flags, ki_micro]
-    return _sentence("STA," + ",".join(str(_trunc(v)) for v in vals))
+#: The fields of a ``$STA`` line, in order.
+STA_FIELDS = ("step", "t_ms", "cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped", "flags", "ki_micro")
+
+
+def format_sta(**fields: int) -> bytes:
+    """One ``$STA`` line of the :data:`STA_FIELDS` (each one required) with checksum and ``\\r\\n``."""
+    return _sentence("STA," + ",".join(str(_trunc(fields[k])) for k in STA_FIELDS))
 
 
 def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
