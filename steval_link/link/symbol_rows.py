@@ -15,23 +15,6 @@ from steval_link.link.telemetry import AttitudeArrays, Telemetry
 _F32 = np.float32
 
 
-def symbol_attitude(rows: np.ndarray) -> AttitudeArrays:
-    """``SYMBOL_DTYPE`` rows as attitude rows (step from the emulator's count, times = emulated s since power-up)."""
-    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
-    t_s = rows["t_s"].astype(np.float64)
-    return AttitudeArrays.of(
-        rows["step"],
-        t_s,
-        t_s.copy(),
-        rows["acc_mg"],
-        rows["gyro_mdps"],
-        rows["euler_rad"],
-        thr=rows["thr"],
-        q_wxyz=rows["q_wxyz"],
-        exact=True,
-    )
-
-
 def _bits(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=_F32)
     return np.where(np.isnan(a), np.uint32(0x7FC00000), a.view(np.uint32))
@@ -41,7 +24,10 @@ def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
     """Put the symbol rows into ``tel`` (see the module docstring); ``rows`` None or empty: ``tel`` unchanged."""
     if rows is None or len(rows) == 0:
         return tel
-    read = symbol_attitude(rows)
+    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
+    t_s = rows["t_s"].astype(np.float64)  # emulated s since power-up, as firmware and host time
+    args = (rows["step"], t_s, t_s.copy(), rows["acc_mg"], rows["gyro_mdps"], rows["euler_rad"])
+    read = AttitudeArrays.of(*args, thr=rows["thr"], q_wxyz=rows["q_wxyz"], exact=True)
     if len(tel.attitude) == 0:
         tel.attitude = read
         tel.source["attitude_from"] = "symbols"
