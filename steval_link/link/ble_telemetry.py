@@ -149,19 +149,11 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
     kept = [f for f in motion if f is not None and not (grid.reads and f.repeat)]
     samples = np.array([(0, f.tick, f.t_host_s, f.acc_mg, f.gyro_mdps, f.mag_mgauss) for f in kept], dtype=SAMPLE_DTYPE)
     samples["row"] = np.searchsorted(a.step, grid.numbers)
-    stream = BleStream(
-        lay,
-        grid.found,
-        float(grid.dt_s),
-        grid.rows_held,
-        samples,
-        np.array(env, dtype=ENV_DTYPE),
-        np.array(arm, dtype=ARMING_DTYPE),
-        dict(dec.counts),
-        dec.bad_payloads,
-        dec.unknown,
-        grid.repeats,
+    env, arm = np.array(env, dtype=ENV_DTYPE), np.array(arm, dtype=ARMING_DTYPE)
+    counts = dict(
+        counts=dict(dec.counts), bad_payloads=dec.bad_payloads, unknown=dec.unknown, repeated_reads=grid.repeats
     )
+    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, samples, env, arm, **counts)
     source = dict(path=str(src.path), kind="stv", link="ble", header=src.header, warnings=list(src.warnings))
     tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
     tel.attitude, tel.text, tel.link = a, text, stream

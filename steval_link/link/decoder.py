@@ -485,9 +485,7 @@ def decode_bytes(
     v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
     stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)
     parts.sent_commands = sent_commands
-    return Telemetry.from_parts(
-        parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=len(data)
-    )
+    return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events)
 
 
 def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: bool, blocks: list[RecordBlock]):

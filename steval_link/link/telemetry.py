@@ -350,14 +350,13 @@ class Telemetry:
         *,
         chunk_times: tuple[np.ndarray, np.ndarray] | None = None,
         baud: int | None = None,
-        total_bytes: int | None = None,
         source: dict | None = None,
         events: list | None = None,
     ) -> Telemetry:
         att = parts.attitude_records()
         sta = parts.status_records()
         texts = sorted(parts.texts, key=lambda f: f.offset)
-        total = int(total_bytes if total_bytes is not None else stats.bytes_total)
+        total = int(stats.bytes_total)
 
         def host_s(last_byte) -> np.ndarray:
             return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
@@ -374,13 +373,10 @@ class Telemetry:
         attitude = AttitudeArrays.from_records(
             att, step=step, t_fw_s=t_all[:na], t_host_s=host_s(att["offset"] + att["nbytes"] - 1)
         )
-        st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(
-            **st_fields,
+            **{name: np.array(sta[name]) for name in (*P.STATUS_DTYPE.names, "exact", "offset")},  # their own types
             t_fw_s=t_all[na:],
             t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
-            exact=sta["exact"].astype(bool),
-            offset=sta["offset"].astype(np.int64),
         )
         t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
         text = [(float(t), f.text) for t, f in zip(t_text, texts)]
