@@ -37,14 +37,7 @@ CHUNK_TRUTH = ord("T")
 CHUNK_SYMBOLS = ord("S")
 #: every chunk type the reader knows; D, E and H are read into the byte stream, the events and ``Capture.host``, the
 #: others (and a newer writer's unknown type whose CRC holds) are kept as they are in ``Capture.chunks``.
-CHUNK_TYPES: dict[int, str] = {
-    CHUNK_DATA: "data",
-    CHUNK_EVENT: "event",
-    CHUNK_BLE: "ble",
-    CHUNK_HOST: "host",
-    CHUNK_TRUTH: "truth",
-    CHUNK_SYMBOLS: "symbols",
-}
+CHUNK_TYPES = (CHUNK_DATA, CHUNK_EVENT, CHUNK_BLE, CHUNK_HOST, CHUNK_TRUTH, CHUNK_SYMBOLS)
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
 TRUTH_ROWS_PER_CHUNK = (1 << 20) // TRUTH_DTYPE.itemsize
