@@ -166,8 +166,7 @@ class BleConsoleFrame:
 
 
 class BleDecoder:
-    """Notifications → typed frames, one at a time: every characteristic's ticks on one unwrapped clock; wrong-length
-    and unknown notifications are counted and skipped."""
+    """Notifications → typed frames on one unwrapped tick clock; bad and unknown notifications counted, skipped."""
 
     def __init__(self) -> None:
         self.unwrap = TickUnwrapper()

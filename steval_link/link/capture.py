@@ -83,8 +83,7 @@ class CaptureEvent:
 
 @dataclass(frozen=True, slots=True)
 class HostChunk:
-    """Bytes the host sent to the drone (command frames), at host time ``t_host_s``, after ``offset`` received
-    bytes."""
+    """Bytes the host sent to the drone at host time ``t_host_s``, after ``offset`` received bytes."""
 
     t_host_s: float
     data: bytes
@@ -137,8 +136,7 @@ def capture_header(port: str, baud: int, start_unix_s: float, extra: dict[str, A
 def encode_capture(
     header: dict[str, Any], chunks: Iterable[tuple[bytes, float]], typed: Iterable[tuple[int, bytes, float]] = ()
 ) -> bytes:
-    """A whole ``.stv`` file in memory: ``header``, data chunks ``(bytes, t_host_s)``, then ``typed`` chunks
-    ``(chunk type, payload, t_host_s)``."""
+    """A whole ``.stv`` file: ``header``, ``(bytes, t_host_s)`` chunks, then ``(type, payload, t_host_s)`` ones."""
     parts = [_file_header(header)]
     for data, t_host_s in chunks:
         data = bytes(data)
@@ -386,8 +384,7 @@ def _failed(path: Path, exc: OSError) -> OSError:
 
 
 def output_gone(path: str | os.PathLike, identity: tuple[int, int]) -> str | None:
-    """Why an output file open with ``identity`` (``st_dev``, ``st_ino``) is no longer at ``path`` (``"was
-    deleted"``...), or ``None``."""
+    """Why the file open with ``identity`` (``st_dev``, ``st_ino``) is gone from ``path``, in a few words, or None."""
     path = Path(path)
     try:
         st = os.stat(path)
@@ -504,8 +501,7 @@ def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
 def _chunk_at(
     raw: bytes, mv: memoryview, p: int, size=_CHUNK_HEAD.size, head=_CHUNK_HEAD.unpack_from, crc=_CRC.unpack_from
 ) -> tuple[int, int, float, int] | str:
-    """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none (defaults bound for
-    speed)."""
+    """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none."""
     if p + size > len(raw):
         return "incomplete chunk header"
     kind, length, t = head(raw, p)

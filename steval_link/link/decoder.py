@@ -489,8 +489,7 @@ def decode_bytes(
 
 
 def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: bool, blocks: list[RecordBlock]):
-    """Runs of back-to-back valid frames are left to numpy, the rest goes through one :class:`StreamDecoder`.
-    Returns (indices of the frames in runs, that decoder, its frames)."""
+    """(indices of the frames in runs left to numpy, the :class:`StreamDecoder` of the rest, its frames)."""
     n, count = len(data), len(starts)
     nxt = starts + sizes
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run

@@ -33,8 +33,7 @@ from steval_link.link.text_series import FLOATLESS_NOTE
 
 @dataclass
 class Recording(Capture):
-    """The bytes of a capture, raw dump or text log, and what the file holds besides. ``kind``: "stv", or "bytes"
-    until decoding tells "raw" from "text"."""
+    """A capture, raw dump or text log; ``kind``: "stv", or "bytes" until decoding tells "raw" from "text"."""
 
     kind: str = "stv"
 
@@ -138,8 +137,7 @@ _FLOATLESS = re.compile(r"(?:[A-Za-z_][\w .()/-]*\s*[=:]\s*)+")
 
 
 def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
-    """The command frames of a capture's H chunks as ``COMMAND_ROW_DTYPE`` rows (``offset``: in the received
-    stream)."""
+    """The command frames of a capture's H chunks as ``COMMAND_ROW_DTYPE`` rows."""
     dec = StreamDecoder()
     rows = []
     for h in host:

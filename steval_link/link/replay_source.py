@@ -229,8 +229,7 @@ class ReplayPort:
 
 
 def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
-    """Open ``replay://PATH[?speed=X]``: the file read, decoded and paced once; ``baud``: the pace of a file
-    without times (a capture's own header wins)."""
+    """Open ``replay://PATH[?speed=X]``; ``baud``: the pace of a file without times (a capture's header wins)."""
     parsed = parse_replay_url(url)
     try:
         src = read_recording(parsed.path)

@@ -275,8 +275,7 @@ class TelemetryParts:
 
 
 def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
-    """Records of ``dtype`` from frames with attributes of the same names (``skip``: fields left 0; an attitude
-    frame's ``step`` None is -1)."""
+    """Records of ``dtype`` from the frames' attributes (``skip``: fields left 0; a ``step`` None is -1)."""
     rec = np.zeros(len(frames), dtype)
     for name in dtype.names if frames else ():
         if name not in skip:
@@ -517,8 +516,7 @@ def telemetry_from_frames(
     source: dict | None = None,
     events: list | None = None,
 ) -> Telemetry:
-    """A :class:`Telemetry` from a :class:`~steval_link.link.decoder.StreamDecoder`'s frames; ``frame_times``
-    (one host time per frame, s; None: NaN) sets ``t_host_s``."""
+    """A :class:`Telemetry` from a ``StreamDecoder``'s frames; ``frame_times``: one host time per frame, s."""
     parts = TelemetryParts()
     for f in frames:
         parts.add_frame(f)

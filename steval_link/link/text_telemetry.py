@@ -387,8 +387,7 @@ def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
 
 
 def looks_like_text(text: str) -> bool:
-    """True when a line reads as printed text, not random bytes: three characters or more, two alphanumeric, 85 %
-    ordinary."""
+    """True when a line reads as printed text: three characters or more, two alphanumeric, 85 % ordinary."""
     if len(text) < 3 or sum(c.isalnum() for c in text) < 2:
         return False
     ordinary = sum(c.isalnum() or c in _PUNCTUATION for c in text)
@@ -471,8 +470,7 @@ class TextTelemetryReader:
         return out
 
     def bulk_template(self) -> LineTemplate | None:
-        """The :class:`LineTemplate` of the latest learned one-line shape when a line fitting it would be one record
-        now; else None."""
+        """The latest one-line shape's :class:`LineTemplate` when a line fitting it would be a record now, else None."""
         if self._current is not None or not self._shapes:
             return None
         shape = self._shapes[-1]
@@ -488,8 +486,7 @@ class TextTelemetryReader:
         return not self._pending
 
     def bulk_records(self, *, blank_last: bool = False) -> None:
-        """Lines that fit :meth:`bulk_template` were made records by the bulk decoder, a blank line last if
-        ``blank_last``."""
+        """Lines fitting :meth:`bulk_template` were made records in bulk; ``blank_last``: a blank line came last."""
         self._block_start = blank_last
 
     def _follow(self, item: _Line) -> tuple[list, bool]:

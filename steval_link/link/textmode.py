@@ -72,8 +72,7 @@ def format_sta(**fields: int) -> bytes:
 
 
 def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
-    """Parse one ``$`` line (without line ending); None when its checksum or fields fail. A sentence of another
-    name with a correct checksum is a :class:`TextFrame`."""
+    """One ``$`` line (no ending) as a frame (another name: a :class:`TextFrame`); None when it does not check."""
     m = _SENTENCE_RE.fullmatch(line)
     if m is None or checksum(m.group(1)) != int(m.group(2), 16):
         return None

@@ -34,8 +34,7 @@ RECONNECT_POLL_S = 0.1
 
 
 class HostClock:
-    """Host receive times: Unix seconds from ``wall0_s`` (default now) that advance with the monotonic clock (never
-    jump with NTP or suspend)."""
+    """Host receive times: Unix seconds from ``wall0_s`` (default now), advancing with the monotonic clock."""
 
     def __init__(self, wall0_s: float | None = None) -> None:
         self.mono0_s = time.monotonic()
@@ -47,8 +46,7 @@ class HostClock:
 
 
 class PortRejected(Exception):
-    """Raised by a :class:`Protocol` method: the port reopened is not the device; the reader drops it and looks
-    again."""
+    """Raised by a :class:`Protocol` method: the port reopened is not the device (the reader looks again)."""
 
 
 class Protocol:
@@ -73,8 +71,7 @@ class Protocol:
 
 
 def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, exclusive: bool = True) -> serial.Serial:
-    """Open ``port`` at ``baud`` 8N1 (``exclusive``: fail if another program holds its lock); errors as
-    pyserial's ``SerialException``."""
+    """Open ``port`` at ``baud`` 8N1 (``exclusive``: fail if another program holds its lock)."""
     kwargs = {"exclusive": True} if exclusive else {}
     try:
         return serial.Serial(port, baud, timeout=timeout_s, **kwargs)
@@ -83,8 +80,7 @@ def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, excl
 
 
 def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> ParamError:
-    """Why ``port`` could not be opened and the fix, one sentence; ``available``: the ports listed when it does
-    not exist."""
+    """Why ``port`` could not be opened and the fix; ``available``: the ports listed when it does not exist."""
     code = getattr(exc, "errno", None)
     text = str(exc)
     cause = exc.__cause__ or exc.__context__
