@@ -57,13 +57,11 @@ from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
-#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``;
-#: whether the class has ``exact`` before ``offset``).
+#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``)
 _UNPACK = {}
 for _t, _dtype in P.PAYLOAD_DTYPE.items():
     _layout, _pick = P.payload_layout(_dtype)
-    _cls = FRAME_OF_TYPE[_t]
-    _UNPACK[_t] = (_cls, _layout.unpack_from, _pick, "exact" in _cls.__dataclass_fields__)
+    _UNPACK[_t] = (FRAME_OF_TYPE[_t], _layout.unpack_from, _pick)
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
@@ -84,12 +82,6 @@ _SYNC0, _SYNC1 = P.SYNC
 _NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
 _CHECK = P.CHECK
-
-
-def _crc_ok(buf, start: int, end: int, version: int) -> bool:
-    """Frame check of the frame whose ``VT`` is at ``start`` and whose CRC starts at ``end``."""
-    size, check = _CHECK[version]
-    return check(memoryview(buf)[start:end]) == int.from_bytes(buf[end : end + size], "little")
 
 
 def _hides_sentence(raw: bytes) -> bool:
@@ -229,10 +221,10 @@ class StreamDecoder:
         if not known and (want is not None or vt in _VT_TEXT):
             return self._skip(buf, p, n)  # known type, wrong length
         end = p + _HEAD + ln
-        csz = _CHECK[ver][0]
+        csz, check = _CHECK[ver]
         if end + csz > n:
             return None if not final else self._skip(buf, p, n)
-        crc_ok = _crc_ok(buf, p + 2, end, ver)
+        crc_ok = check(memoryview(buf)[p + 2 : end]) == int.from_bytes(buf[end : end + csz], "little")
         if not (known and crc_ok):
             if known:
                 self.stats.crc_failures += 1
@@ -357,10 +349,8 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     size = _HEAD + ln + crc_size
     fixed = _UNPACK.get(vt & 0x0F)
     if fixed is not None:
-        cls, unpack_from, pick, exact = fixed
-        if exact:
-            return cls(*pick(unpack_from(buf, p + _HEAD)), True, offset, size)
-        return cls(*pick(unpack_from(buf, p + _HEAD)), offset, size)
+        cls, unpack_from, pick = fixed
+        return cls(*pick(unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
