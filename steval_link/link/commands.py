@@ -71,13 +71,9 @@ class Command:
             if name == "correction":
                 return "correction " + ("on" if self.value else "off")
             return f"set {name} {_fmt(name, self.value)}"
-        if self.cmd == P.CMD_RESET_FILTER:
-            return "reset-filter"
-        if self.cmd == P.CMD_REQUEST_STATUS:
-            return "status"
         if self.cmd == P.CMD_SET_MODE:
             return "mode " + ("text" if self.param == P.MODE_TEXT else "binary")
-        return f"command {self.cmd}"
+        return {P.CMD_RESET_FILTER: "reset-filter", P.CMD_REQUEST_STATUS: "status"}.get(self.cmd, f"command {self.cmd}")
 
 
 def _fmt(name: str, value: float) -> str:
