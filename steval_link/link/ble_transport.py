@@ -10,7 +10,7 @@ import asyncio
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass, field
 from typing import Protocol
 
 from steval_link.errors import UserError
@@ -157,36 +157,29 @@ class BleakBackend:
                 pass
 
 
+@dataclass(eq=False)
 class BleLink:
     """Find the drone (:func:`pick_device`), subscribe to each of ``CHAR_UUIDS``, hand each notification to
     ``on_notification(char id, bytes, t_unix_s)`` and reconnect a lost link (back off up to :data:`RETRY_MAX_S`).
     ``on_event(kind, text)`` hears "connect", "disconnect", "reconnect" and "missing" (a characteristic lacking)."""
 
-    def __init__(
-        self,
-        backend: BleBackend,
-        target: str | None,
-        on_notification: Callable[[int, bytes, float], None],
-        *,
-        on_event: Callable[[str, str], None] | None = None,
-        clock: Callable[[], float] = time.time,
-        scan_timeout_s: float = SCAN_TIMEOUT_S,
-        retry_max_s: float = RETRY_MAX_S,
-        first_scans: int = 1,
-    ) -> None:
-        self.backend = backend
-        self.target = target
-        self.on_notification = on_notification
-        self.on_event = on_event or (lambda kind, text: None)
-        self.clock = clock
-        self.scan_timeout_s = float(scan_timeout_s)
-        self.retry_max_s = float(retry_max_s)
-        self.first_scans = int(first_scans)
-        self.device: BleDevice | None = None
-        self.connections = 0
-        self.losses = 0
-        self.notifications = 0
-        self._lost: asyncio.Event | None = None
+    backend: BleBackend
+    target: str | None
+    on_notification: Callable[[int, bytes, float], None]
+    _: KW_ONLY
+    on_event: Callable[[str, str], None] | None = None
+    clock: Callable[[], float] = time.time
+    scan_timeout_s: float = SCAN_TIMEOUT_S
+    retry_max_s: float = RETRY_MAX_S
+    first_scans: int = 1
+    device: BleDevice | None = field(default=None, init=False)
+    connections: int = field(default=0, init=False)
+    losses: int = field(default=0, init=False)
+    notifications: int = field(default=0, init=False)
+    _lost: asyncio.Event | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        self.on_event = self.on_event or (lambda kind, text: None)
 
     async def find(self, scans: int) -> BleDevice | None:
         """Scan up to ``scans`` times for the target; platform failures raise UserError."""
