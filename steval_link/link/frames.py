@@ -54,6 +54,14 @@ class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
     thx_rad: float = NAN
     thy_rad: float = NAN
 
+    @classmethod
+    def text_row(cls, step: int, t_us: int, acc_mg, gyro_mdps, euler_rad, thr: int, offset: int, nbytes: int):
+        """A row that is no binary frame (``exact`` False, no quaternion): ``euler_rad`` thx, thy, thz."""
+        thx, thy, thz = euler_rad
+        acc, gyro = tuple(acc_mg), tuple(gyro_mdps)
+        seq, t_us = step % P.SEQ_MODULUS, t_us % P.T_US_MODULUS
+        return cls(t_us, acc, gyro, (NAN,) * 4, thz, seq, thr, False, offset, nbytes, step, thx, thy)
+
 
 @dataclass(slots=True)
 class StatusFrame(_wire_fields(P.STATUS_DTYPE, required=2)):

@@ -22,7 +22,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link import protocol as P
 from steval_link.link.frames import AttitudeFrame
 
 #: The sentence for ST's line with empty float fields.
@@ -346,20 +345,11 @@ class RecordAttitude:
         if self._t0_s is None:
             self._t0_s = t_s
         self._step = max(self._step + 1, round((t_s - self._t0_s) / C.AHRS_PERIOD_S))
-        return AttitudeFrame(
-            t_us=int(round(max(t_s, 0.0) * 1e6)) % P.T_US_MODULUS,  # a line estimated to end before the start: 0
-            acc_mg=tuple(float(x) for x in c["acc_mg"][0]),
-            gyro_mdps=tuple(float(x) for x in c["gyro_mdps"][0]),
-            q_wxyz=(math.nan,) * 4,
-            thz_rad=float(c["thz_rad"][0]),
-            seq=self._step % P.SEQ_MODULUS,
-            thr=int(c["thr"][0]),
-            exact=False,
-            offset=record.offset,
-            nbytes=record.nbytes,
-            step=self._step,
-            thx_rad=float(c["thx_rad"][0]),
-            thy_rad=float(c["thy_rad"][0]),
+        t_us = int(round(max(t_s, 0.0) * 1e6))  # a line estimated to end before the start: 0
+        acc, gyro = map(float, c["acc_mg"][0]), map(float, c["gyro_mdps"][0])
+        euler = [float(c[k][0]) for k in ("thx_rad", "thy_rad", "thz_rad")]
+        return AttitudeFrame.text_row(
+            self._step, t_us, acc, gyro, euler, int(c["thr"][0]), record.offset, record.nbytes
         )
 
 

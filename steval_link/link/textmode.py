@@ -33,7 +33,6 @@ _SENTENCE_RE = re.compile(rb"\$([A-Z][A-Z0-9]{2,}(?:,[^*]*)?)\*([0-9A-F]{2})")
 BAD_LINE_BYTE = re.compile(rb"[\x00-\x08\x0a-\x1f\x7f]")
 
 _MDEG_TO_RAD = math.pi / 180_000.0
-_NAN4 = (math.nan,) * 4
 
 
 def checksum(body: bytes) -> int:
@@ -84,21 +83,8 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
         step, t_ms, thr = v[0], v[1], v[2]
         if step < 0 or t_ms < 0 or not -32768 <= thr <= 32767:
             return None
-        return AttitudeFrame(
-            t_us=(t_ms * 1000) % P.T_US_MODULUS,
-            acc_mg=(float(v[6]), float(v[7]), float(v[8])),
-            gyro_mdps=(float(v[9]), float(v[10]), float(v[11])),
-            q_wxyz=_NAN4,
-            thz_rad=v[5] * _MDEG_TO_RAD,
-            seq=step % P.SEQ_MODULUS,
-            thr=thr,
-            exact=False,
-            offset=offset,
-            nbytes=nbytes,
-            step=step,
-            thx_rad=v[3] * _MDEG_TO_RAD,
-            thy_rad=v[4] * _MDEG_TO_RAD,
-        )
+        acc, gyro, euler = map(float, v[6:9]), map(float, v[9:12]), (x * _MDEG_TO_RAD for x in v[3:6])
+        return AttitudeFrame.text_row(step, t_ms * 1000, acc, gyro, euler, thr, offset, nbytes)
     if line.startswith(b"$STA,"):
         s = _STA_RE.fullmatch(line)
         if s is None:
