@@ -248,13 +248,6 @@ class TelemetryParts:
         lists.get(kind, self.records if kind is TextRecordFrame else self.others).append(frame)
         self._settled = self._settled and kind not in (AttitudeFrame, StatusFrame)
 
-    def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
-        """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
-        frames = sorted((f for f in self.others if isinstance(f, kind)), key=lambda f: f.offset)
-        rec = _frame_records(frames, dtype, skip=("t_host_s", P.RESERVED))
-        rec["t_host_s"] = np.nan
-        return rec
-
     def attitude_records(self) -> np.ndarray:
         """Every attitude row so far, in stream order."""
         self._settle()
@@ -385,7 +378,8 @@ class Telemetry:
             ("acks", AckFrame, ACK_ROW_DTYPE),
             ("commands", CommandFrame, COMMAND_ROW_DTYPE),
         ):
-            rec = parts.other_rows(kind, dtype)
+            frames = sorted((f for f in parts.others if isinstance(f, kind)), key=lambda f: f.offset)
+            rec = _frame_records(frames, dtype, skip=("t_host_s", P.RESERVED))
             rec["t_host_s"] = host_s(rec["offset"] + rec["nbytes"] - 1)
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
