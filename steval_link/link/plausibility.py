@@ -5,7 +5,7 @@ A frame check passes a damaged candidate now and then (v1's CRC-16: one in 65 53
 * **Values** (binary frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
   2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps); quaternion components within ±2.
 * **Sequence and time** (both versions): against the last accepted attitude frame (the anchor), the step
-  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and ``d·P − tol ≤ Δt_us ≤ 3·d·P +
+  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. WINDOW_STEPS`` and ``d·P − TOL_US ≤ Δt_us ≤ 3·d·P +
   0.5 s`` (P the AHRS period; the upper side allows skipped steps). A status frame must fit with ``d ≥ 0``.
 
 A v2 frame with bad values that continues the sequence and time is what the firmware sent (its filter diverged):
@@ -32,7 +32,7 @@ Q_MAX = 2.0
 #: The firmware keeps |q| ≈ 0.9983 (release 170120 normalises with the squares from before the update); a q further
 #: than this from the unit sphere means its filter left it (compare's divergence diagnosis, the replay summary).
 Q_NORM_TOL = 0.05
-#: Default gate parameters.
+#: The gate's rule: at most this many steps forward, time within ``TOL_US`` of them, ``CONFIRM`` frames a restart.
 WINDOW_STEPS = 8192  # 50.7 s of AHRS steps
 TOL_US = 5_000.0
 CONFIRM = 3
@@ -153,22 +153,19 @@ def held_back_sentence(n: int, held_values: int = 0) -> str:
     return f"{_count(n)} CRC-valid {noun} held back, not shown: " + "; ".join(parts)
 
 
-def _steps_fit(d, dt, d_min: int, window: int, tol: float):
+def _steps_fit(d, dt, d_min: int):
     """The sequence-and-time rule for ``d`` steps and ``dt`` µs forward (Python ints or numpy arrays alike)."""
-    return (d >= d_min) & (d <= window) & (dt >= d * PERIOD_US - tol) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
+    return (d >= d_min) & (d <= WINDOW_STEPS) & (dt >= d * PERIOD_US - TOL_US) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
 
 
-def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int, window: int, tol: float) -> bool:
-    return bool(_steps_fit((seq - seq_a) % P.SEQ_MODULUS, (t_us - t_a) % P.T_US_MODULUS, d_min, window, tol))
+def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int) -> bool:
+    return bool(_steps_fit((seq - seq_a) % P.SEQ_MODULUS, (t_us - t_a) % P.T_US_MODULUS, d_min))
 
 
 class PlausibilityGate:
     """Sequential gate over attitude/status rows (see the module docstring). Items are opaque to the gate."""
 
-    def __init__(self, window_steps: int = WINDOW_STEPS, tol_us: float = TOL_US, confirm: int = CONFIRM) -> None:
-        self.window = int(window_steps)
-        self.tol = float(tol_us)
-        self.confirm = int(confirm)
+    def __init__(self) -> None:
         self.held_back = 0  #: frames dropped for good
         self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
         self._anchor: tuple[int, int] | None = None
@@ -183,23 +180,23 @@ class PlausibilityGate:
         seq %= P.SEQ_MODULUS
         anchor = self._anchor
         if kind == P.TYPE_STATUS:
-            if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0, self.window, self.tol):
+            if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0):
                 return [item]
             self.held_back += 1
             return []
-        if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1, self.window, self.tol):
+        if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1):
             self._anchor = (seq, t_us)
             if self._pending:
                 self.held_back += len(self._pending)
                 self._pending = []
             return [item]
         pend = self._pending
-        if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1, self.window, self.tol):
+        if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1):
             pend.append((seq, t_us, item))
         else:
             self.held_back += len(pend)
             pend[:] = [(seq, t_us, item)]
-        if len(pend) >= self.confirm:
+        if len(pend) >= CONFIRM:
             self._anchor = (pend[-1][0], pend[-1][1])
             items = [x[2] for x in pend]
             pend.clear()
@@ -239,7 +236,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     if clean and len(a) > 1:
         d = (a["seq"][1:].astype(np.int64) - a["seq"][:-1]) % P.SEQ_MODULUS
         dt = (a["t_us"][1:].astype(np.int64) - a["t_us"][:-1]) % P.T_US_MODULUS
-        clean = bool(np.all(_steps_fit(d, dt, 1, gate.window, gate.tol)))
+        clean = bool(np.all(_steps_fit(d, dt, 1)))
     if clean and len(s):
         j = np.searchsorted(a["offset"], s["offset"]) - 1
         has = j >= 0
@@ -247,7 +244,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
             jj = j[has]
             d = (s["step"][has].astype(np.int64) - a["seq"][jj]) % P.SEQ_MODULUS
             dt = (s["t_us"][has].astype(np.int64) - a["t_us"][jj]) % P.T_US_MODULUS
-            clean = bool(np.all(_steps_fit(d, dt, 0, gate.window, gate.tol)))
+            clean = bool(np.all(_steps_fit(d, dt, 0)))
     if clean:
         if len(a):
             gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))
