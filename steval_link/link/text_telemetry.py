@@ -190,8 +190,7 @@ def _labelled_line(text: str) -> ParsedLine | None:
         return None
     names: list[str] = []
     units: list[str] = []
-    values: list[float] = []
-    kinds: list[str] = []
+    numbers: list[str] = []  # every value field, in order
     for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
@@ -202,11 +201,11 @@ def _labelled_line(text: str) -> ParsedLine | None:
             label_names = [label] if len(fields) == 1 else [f"{label}_{s}" for s in suffixes]
         names += label_names
         units += [unit] * len(fields)
-        values += [_number(f) for f in fields]
-        kinds += [_kind(f) for f in fields]
+        numbers += fields
     if len(set(names)) != len(names):
         return None
-    return ParsedLine(("labelled", tuple(names), tuple(kinds)), tuple(names), tuple(units), tuple(values), "labelled")
+    shape = ("labelled", tuple(names), tuple(map(_kind, numbers)))
+    return ParsedLine(shape, tuple(names), tuple(units), tuple(map(_number, numbers)), "labelled")
 
 
 def _teleplot_line(text: str) -> ParsedLine | None:
