@@ -1,11 +1,4 @@
-"""Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again.
-
-- :func:`probe_port` reads a port briefly and says whether it carries valid frames; :func:`choose_port` implements
-  ``--port auto`` and glob patterns.
-- :func:`no_frames_message` says what bytes without a valid frame look like and which ``--baud`` to try.
-- :class:`PortFinder` finds a port again after an unplug by its USB identity, even under another name, never
-  taking another adapter now at the old name; a port without USB identity by its path or a new sibling name.
-"""
+"""Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again."""
 
 from __future__ import annotations
 
@@ -37,16 +30,8 @@ def is_glob(port: str) -> bool:
     return bool(_GLOB_CHARS.search(port))
 
 
-# --------------------------------------------------------------------------------------------------------------
-# listing
-
-
 def list_candidate_ports() -> list[str]:
-    """Serial ports that may carry the drone (from :mod:`steval_link.link.ports`), device paths.
-
-    USB ports (USB-UART adapters, ST-LINK virtual COM ports) when there are any, else every port listed (a board's
-    own UART such as a Raspberry Pi's ``/dev/ttyAMA0``).
-    """
+    """Device paths that may carry the drone: the USB ports when there are any, else every port."""
 
     listed = ports.list_ports()
     usb = [p.device for p in listed if p.vid_pid]
@@ -60,10 +45,6 @@ def _comports():
         return list(list_ports.comports())
     except OSError:  # a sysfs entry vanished while being read (unplug in progress)
         return []
-
-
-# --------------------------------------------------------------------------------------------------------------
-# identity
 
 
 @dataclass(frozen=True)
@@ -107,11 +88,9 @@ def family_glob(path: str) -> str | None:
 
 @dataclass
 class PortFinder:
-    """Finds a port again after it vanished (call :meth:`find` while disconnected; cheap enough to poll at 10 Hz).
-
-    A USB adapter by its VID:PID, serial number or USB location, whatever its new name; never another device at its
-    old path. A port without USB identity at its path, else at a new name matching ``pattern`` (default
-    :func:`family_glob`). A candidate :meth:`reject` ed is skipped while its device node stays the same."""
+    """Finds a port again after it vanished (:meth:`find`, cheap enough to poll at 10 Hz): a USB adapter by its
+    identity whatever its new name, never another device at its old path; else at its path or a new name matching
+    ``pattern``. A path :meth:`reject` ed is skipped while its device node stays the same."""
 
     identity: PortIdentity
     pattern: str | None = None
@@ -139,14 +118,17 @@ class PortFinder:
         real = os.path.realpath(path)
         return real not in self._rejected or self._rejected[real] != _node(path)
 
-    def candidates(self) -> list[str]:
-        """Every path that may be the port now, most likely first (rejected ones left out)."""
+    def find(self) -> str | None:
+        """The path to reopen (the most likely of those that may be the port now), or None while it is not back."""
         ident = self.identity
         if ident.has_usb_id:
-            return [p for p in self._usb_matches() if self._usable(p)]
-        found = [ident.path] if self._usable(ident.path) else []
-        found += [p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)]
-        return found
+            found = [p for p in self._usb_matches() if self._usable(p)]
+        else:
+            found = [ident.path] if self._usable(ident.path) else []
+            found += [
+                p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)
+            ]
+        return found[0] if found else None
 
     def _usb_matches(self) -> list[str]:
         ident = self.identity
@@ -156,11 +138,6 @@ class PortFinder:
         # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
         infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
         return [info.device for info in infos]
-
-    def find(self) -> str | None:
-        """The path to reopen, or ``None`` when the port is not back yet."""
-        found = self.candidates()
-        return found[0] if found else None
 
 
 def _node(path: str) -> tuple:
@@ -172,24 +149,14 @@ def _node(path: str) -> tuple:
     return st.st_rdev, st.st_ino, st.st_ctime_ns
 
 
-# --------------------------------------------------------------------------------------------------------------
-# probing
-
-
 @dataclass
 class ProbeResult:
-    """What a short read of one port found."""
+    """What a short read of one port found: ``frames_ok`` valid frames but text frames."""
 
     port: str
     baud: int
     frames_ok: int = 0
     error: str | None = None
-    seconds: float = 0.0
-
-    @property
-    def answered(self) -> bool:
-        """True when at least one valid attitude or status frame (binary or text mode) arrived."""
-        return self.frames_ok > 0
 
 
 def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
@@ -219,7 +186,6 @@ def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int 
                     break
     finally:
         close_quietly(ser)
-    result.seconds = time.monotonic() - t0
     return result
 
 
@@ -243,12 +209,8 @@ class PortChoiceError(ParamError):
 
 
 def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[str] | None = None) -> str:
-    """Resolve ``--port``: a path is returned as is; ``auto`` or a glob picks the candidate that carries frames.
-
-    One candidate is taken without probing (the live session then diagnoses it). Several are probed for
-    ``probe_s`` at once; the one with valid frames wins. Raises :class:`PortChoiceError` when none or several
-    answer, listing them.
-    """
+    """A path as is; ``auto`` or a glob: the one candidate, or the one of several probed that sends frames
+    (:class:`PortChoiceError` when none or several do)."""
     if spec != "auto" and not is_glob(spec):
         return spec
     if candidates is None:
@@ -263,7 +225,7 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
     if len(candidates) == 1:
         return candidates[0]
     results = probe_ports(candidates, baud, probe_s)
-    answering = [r.port for r in results if r.answered]
+    answering = [r.port for r in results if r.frames_ok > 0]
     if len(answering) == 1:
         return answering[0]
     listing = ", ".join(candidates)
@@ -278,15 +240,8 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
     )
 
 
-# --------------------------------------------------------------------------------------------------------------
-# describing bytes without frames
-
-
 def describe_bytes(data: bytes, total: int | None = None) -> str:
-    """A few words on what bytes without any valid frame look like (for the wrong-baud message).
-
-    ``data``: a sample of the bytes (the first few kB); ``total``: how many arrived in all (default ``len(data)``).
-    """
+    """A few words on what bytes without any valid frame look like; ``data``: a sample, ``total``: all bytes."""
     n = len(data) if total is None else total
     if n == 0:
         return "no bytes at all"
@@ -314,12 +269,8 @@ def describe_bytes(data: bytes, total: int | None = None) -> str:
 
 
 def bit_run_length(data: bytes) -> float:
-    """Mean length of runs of equal bits inside the 8N1 frames of ``data`` (start bit, 8 data bits, stop bit).
-
-    Bytes sent at the reader's baud rate give about 1.8 (random-looking payloads). A sender k times *slower* than the
-    reader stretches every bit over k sampled bits, so runs get longer: about 2.7 for k = 2, 3.8 for k = 3..4,
-    5 for k ≥ 8. A *faster* sender gives samples of unrelated bits: about 1.8 again.
-    """
+    """Mean length of runs of equal bits inside the 8N1 frames of ``data``: about 1.8 at the reader's rate (or a
+    faster one), 2.7 for a sender 2 times slower, 3.8 for 3..4, 5 for 8 and more."""
     a = np.frombuffer(bytes(data[:8192]), dtype=np.uint8)
     if a.size == 0:
         return 0.0
@@ -331,11 +282,8 @@ def bit_run_length(data: bytes) -> float:
 
 
 def suggest_bauds(data: bytes, baud: int) -> list[int]:
-    """Baud rates worth trying, most likely first, for bytes without frames read at ``baud``.
-
-    Long bit runs (:func:`bit_run_length`) mean a slower sender; the run length estimates by how much. Otherwise
-    the sender is faster (or speaks another protocol): faster rates first, 921600 (the patch's fast setting) first.
-    """
+    """Baud rates worth trying, most likely first, for bytes without frames read at ``baud``: slower ones by
+    :func:`bit_run_length` when bit runs are long, else faster ones, 921600 (the patch's fast setting) first."""
     others = [b for b in COMMON_BAUDS if b != baud]
     faster = sorted((b for b in others if b > baud), key=lambda b: (b != 921600, -b))
     slower = [b for b in others if b < baud]
@@ -349,11 +297,8 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
 
 
 def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> ParamError:
-    """The one line for a port that sent bytes but no valid frame (or nothing at all) in ``seconds`` (a
-    :class:`ParamError`: its advice names the parameters ``port``, ``baud``, ``wait``).
-
-    ``data``: a sample of the bytes (the first few kB); ``total``: how many arrived in all (default ``len(data)``).
-    """
+    """The one line for a port that sent no valid frame in ``seconds``: what the bytes look like (``data``: a
+    sample, ``total``: all) and which baud rate to try."""
     if not data:
         return ParamError(
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "

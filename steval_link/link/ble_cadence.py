@@ -1,9 +1,5 @@
-"""The motion stream's cadence from its ticks: the sender's own rate, ST's congestion skips, gaps, or a poller's
-reads (:func:`motion_cadence`), with its dropped notifications and the sender's number of each sample.
-
-The stock firmware tries a motion notification at every AHRS step and skips 30 updates after a failed one
-(``ACC_BLUENRG_CONGESTION``); its ticks are 8 ms units (:data:`~steval_link.link.ble_payloads.TICK_S`). Pure
-functions and small classes over numpy arrays; no I/O.
+"""The motion stream's cadence from its ticks (8 ms units): the sender's own rate, ST's congestion skips (30
+updates after a failed notification), gaps, or a poller's reads, with the sender's number of each sample.
 """
 
 from __future__ import annotations
@@ -29,13 +25,9 @@ STEADY, CONGESTION, GAPS, POLLED = "steady", "congestion", "gaps", "polled"
 
 @dataclass(frozen=True, slots=True)
 class Cadence:
-    """The motion stream's cadence found in its ticks (:func:`motion_cadence`).
-
-    ``kind``: ``steady`` (one interval throughout: the sender's own rate, nothing dropped), ``congestion`` (ST's
-    AHRS step period with notifications missing: the stock firmware skipping updates while the radio is full),
-    ``gaps`` (another cadence with gaps of its own: only those count as dropped), ``polled`` (the same sample
-    received twice: reads of the characteristic, not notifications; nothing is dropped).
-    """
+    """The motion stream's cadence. ``kind``: ``steady`` (the sender's own rate, nothing dropped), ``congestion``
+    (ST's AHRS step with notifications missing), ``gaps`` (another cadence with gaps), ``polled`` (samples received
+    twice: reads of the characteristic, nothing dropped)."""
 
     kind: str
     interval_s: float  #: the sender's interval (polled: the mean interval between distinct samples), s
@@ -57,8 +49,7 @@ class Cadence:
         return int(min(2, max(0, np.floor(-np.log10(blur))))) if blur > 0 else 2
 
     def describe(self) -> str:
-        """One phrase for the summary and the health line, e.g. "motion every 20.0 ms (50.0 Hz, the sender's own
-        rate), 0 dropped" or "motion every 6.19 ms (161.54 Hz) with 1 212 dropped in 40 gaps (congestion ...)"."""
+        """One phrase for the summary and the health line ("motion every 20.0 ms (50.0 Hz, ...), 0 dropped")."""
         ms, hz = self.interval_s * 1e3, self.rate_hz
         every = f"every {ms:.{self._decimals(ms)}f} ms"
         rate = f"{hz:.{self._decimals(hz)}f} Hz"
@@ -84,17 +75,13 @@ def _n(k: int) -> str:
 
 
 def gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
-    """Tick deltas that are gaps: at least 1.5 periods beyond one tick of quantisation (and beyond one period's
-    own spread, a tick either side)."""
+    """Tick deltas that are gaps: 1.5 periods and more beyond a tick of quantisation and a period's own spread."""
     return (d_ticks >= GAP_PERIODS * period_ticks + 1) & (d_ticks > np.floor(period_ticks) + 1)
 
 
 def period_ticks(d_ticks) -> float | None:
-    """The sender's period in ticks from consecutive tick deltas: the mean of the deltas that are not gaps.
-
-    Start from the bulk (deltas within one tick above the median: the quantisation of one period gives its floor or
-    its ceiling), then drop the gaps (:func:`gap_mask`) and iterate. The mean of a run's deltas telescopes to the
-    run's span, so it is not biased by the 8 ms quantisation. None when every delta is 0 or there is none."""
+    """The sender's period in ticks: the mean of the tick deltas that are not gaps, from the bulk (within a tick
+    above the median) on (unbiased by the 8 ms quantisation: it telescopes to the span). None: no delta above 0."""
     d = np.maximum(np.asarray(d_ticks, dtype=np.int64), 0)
     if d.size == 0:
         return None
@@ -115,10 +102,8 @@ def period_ticks(d_ticks) -> float | None:
 
 
 def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
-    """Whether motion notifications equal to the one before them (``repeat``) are reads of an unchanged
-    characteristic (a poller) rather than samples of their own: true when, counted as samples, the stream is not
-    faster than one 8 ms tick on both the drone's ticks and the arrival times (ST's 161.5 Hz sender puts two samples in
-    many ticks, and a value at rest repeats there as often as a poller re-reads)."""
+    """Whether repeated motion notifications are a poller's reads rather than samples: true when, counted as
+    samples, the stream is not faster than one 8 ms tick on both the drone's ticks and the arrival times."""
     t = np.asarray(ticks, dtype=np.int64)
     rep = np.asarray(repeat, dtype=bool)
     n = len(t)
@@ -135,16 +120,10 @@ def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
 
 
 def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
-    """The cadence of a motion stream from its unwrapped ticks (8 ms units, one per distinct sample), the count of
-    repeated samples removed and the samples first after a reconnection (``breaks``: no drop before them). None below
-    2 samples or when all share one tick.
-
-    - Period: :func:`period_ticks`; within :data:`STEP_SNAP` of ST's AHRS step it is that step (exact), else refined
-      by a least-squares fit of the ticks against the sample numbers.
-    - ``polled`` when samples came twice and the period is at least a tick: reads, nothing dropped.
-    - At ST's step the missing notifications come from the ticks' phase (:func:`sample_numbers`): ``congestion`` or
-      ``steady``; at any other period from the phases of the runs around each gap (:class:`RunNumberer`): ``gaps`` or
-      ``steady``."""
+    """The cadence of unwrapped ticks (one per distinct sample), ``repeats`` removed, ``breaks`` the samples after a
+    reconnection (no drop before them); None below 2 samples or on one tick. The period (:func:`period_ticks`) is
+    ST's step within :data:`STEP_SNAP`, else a least-squares fit; drops come from the ticks' phase at ST's step
+    (:func:`sample_numbers`), else from the runs around each gap (:class:`RunNumberer`)."""
     t = np.asarray(ticks, dtype=np.int64)
     n = len(t)
     if n < 2 or t[-1] <= t[0]:
@@ -180,11 +159,8 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
 
 
 class RunNumberer:
-    """The sender's sample numbers of a stream with gaps, in batches of ticks, for any period but ST's step.
-
-    Samples between gaps (:func:`gap_mask`) are a run. A run's phase, the mean of tick + ½ − i·period over its
-    samples, smooths out the 8 ms quantisation and the sender's jitter; a run after a gap starts at the number the
-    two runs' phases say, so a gap counts the periods that really passed."""
+    """The sender's sample numbers of a stream with gaps, in batches, for any period but ST's step: a run after a
+    gap starts at the number the two runs' phases (mean of tick + ½ − i·period) say."""
 
     def __init__(self, period_ticks: float) -> None:
         self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)
@@ -228,8 +204,8 @@ class RunNumberer:
 
 
 def sender_phase(t: np.ndarray, interval: float) -> float:
-    """The sender's clock phase t0 (sample k at ``t0 + k·interval``) from the first 64 samples, taken as
-    consecutive: the intersection of the intervals [tick, tick + 8 ms) that their ticks allow."""
+    """The sender's phase t0 (sample k at ``t0 + k·interval``, s): the intersection of the [tick, tick + 8 ms)
+    that the first 64 samples allow."""
     w = min(len(t), 64)
     i = np.arange(w)
     lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
@@ -237,9 +213,8 @@ def sender_phase(t: np.ndarray, interval: float) -> float:
 
 
 def sample_numbers(ticks, interval: float, t0: float | None = None, prev: int | None = None) -> np.ndarray:
-    """The sender's sample number of each received notification: the smallest increasing numbering that the ticks
-    allow, so a drop is placed where the ticks first prove it (within a sample or two). ``t0``: the sender's phase
-    (None: from these ticks); ``prev``: the number of the sample before (None: the first is 0)."""
+    """The smallest increasing sample numbering the ticks allow; ``t0``: the sender's phase (None: from these
+    ticks); ``prev``: the number of the sample before (None: the first is 0)."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     if len(t) == 0:
         return np.zeros(0, np.int64)

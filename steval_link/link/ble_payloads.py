@@ -1,9 +1,8 @@
 """The BLE notifications of ST's stock firmware (release 170120, ``Src/sensor_service.c``): UUIDs, payload layouts,
-one notification decoded, tick unwrapping, and the capture's ``B`` chunks that hold them. A whole stream as arrays
-is :mod:`steval_link.link.ble_telemetry`; the motion stream's cadence :mod:`steval_link.link.ble_cadence`.
+one notification decoded, tick unwrapping, and the capture's ``B`` chunks that hold them.
 
-What the unmodified drone sends while a central is connected (from the main loop, once per AHRS step for each
-characteristic, skipping 30 motion updates after a failed one: ``ACC_BLUENRG_CONGESTION``):
+What the drone sends while a central is connected (once per AHRS step for each characteristic, skipping 30 motion
+updates after a failed one: ``ACC_BLUENRG_CONGESTION``):
 
 =========== ======================================== ===== ==================================================
 char id     characteristic (UUID)                    bytes layout (little endian)
@@ -18,12 +17,9 @@ char id     characteristic (UUID)                    bytes layout (little endian
 =========== ======================================== ===== ==================================================
 
 The tick is ``HAL_GetTick() >> 3``: 8 ms units, wrapping every 2^16 ticks (524.288 s). The motion sample is the
-ISR's last single sample after offset removal (acc z keeps +1000 mg), *before* the gyro IIR filter and the 5-sample
-boxcar, so it is not the AHRS input: a host replica of the firmware's filter cannot be bit-exact on BLE data.
-(The ST app labels the environment's battery and RSSI as BlueST "temperature/humidity" bits; the firmware sends
-battery = VBAT·100/4.2 in ‰ clipped to 1000 and RSSI·10.)
-
-Pure functions and small classes over numpy arrays; no I/O.
+ISR's last single sample after offset removal, *before* the gyro IIR filter and the 5-sample boxcar: not the AHRS
+input, so a replica of the firmware's filter cannot be bit-exact on BLE data. Battery is VBAT·100/4.2 in ‰ (clipped
+to 1000), RSSI dBm·10.
 """
 
 from __future__ import annotations
@@ -33,54 +29,18 @@ from dataclasses import dataclass
 
 from steval_link.link.capture import CHUNK_BLE
 
-__all__ = [
-    "SERVICE_UUID",
-    "CHAR_UUIDS",
-    "CHAR_NAMES",
-    "CHAR_MOTION",
-    "CHAR_ENV",
-    "CHAR_ARMING",
-    "CHAR_STDOUT",
-    "CHAR_STDERR",
-    "DEVICE_NAME_PREFIX",
-    "TICK_S",
-    "TICK_WRAP",
-    "char_id_of_uuid",
-    "unpack_payload",
-    "TickUnwrapper",
-    "BadPayload",
-    "ble_records",
-    "is_ble_source",
-    "ble_items",
-    "ble_chunk",
-    "BleMotionFrame",
-    "BleEnvFrame",
-    "BleArmingFrame",
-    "BleConsoleFrame",
-    "BleDecoder",
-    "BleLayout",
-    "LAYOUTS",
-    "layout_named",
-]
-
-#: the HW sensor service of ST's firmware (BlueST)
-SERVICE_UUID = "00000000-0001-11e1-9ab4-0002a5d5c51b"
 CHAR_MOTION, CHAR_ENV, CHAR_ARMING, CHAR_STDOUT, CHAR_STDERR = 1, 2, 3, 4, 5
-#: characteristic id (the capture's ``B`` chunk byte) → UUID
-CHAR_UUIDS: dict[int, str] = {
-    CHAR_MOTION: "00e00000-0001-11e1-ac36-0002a5d5c51b",
-    CHAR_ENV: "001d0000-0001-11e1-ac36-0002a5d5c51b",
-    CHAR_ARMING: "20000000-0001-11e1-ac36-0002a5d5c51b",
-    CHAR_STDOUT: "00000001-000e-11e1-ac36-0002a5d5c51b",
-    CHAR_STDERR: "00000002-000e-11e1-ac36-0002a5d5c51b",
+#: characteristic id (the capture's ``B`` chunk byte) → its name and UUID prefix (the rest is :data:`_UUID_TAIL`)
+_CHARS = {
+    CHAR_MOTION: ("motion", "00e00000-0001"),
+    CHAR_ENV: ("environment", "001d0000-0001"),
+    CHAR_ARMING: ("arming", "20000000-0001"),
+    CHAR_STDOUT: ("stdout", "00000001-000e"),
+    CHAR_STDERR: ("stderr", "00000002-000e"),
 }
-CHAR_NAMES: dict[int, str] = {
-    CHAR_MOTION: "motion",
-    CHAR_ENV: "environment",
-    CHAR_ARMING: "arming",
-    CHAR_STDOUT: "stdout",
-    CHAR_STDERR: "stderr",
-}
+_UUID_TAIL = "-11e1-ac36-0002a5d5c51b"
+CHAR_UUIDS = {cid: prefix + _UUID_TAIL for cid, (_, prefix) in _CHARS.items()}
+CHAR_NAMES = {cid: name for cid, (name, _) in _CHARS.items()}
 #: the firmware advertises "DRN1" + its version digits (release 170120: "DRN1110")
 DEVICE_NAME_PREFIX = "DRN1"
 #: one tick of ``HAL_GetTick() >> 3``, s
@@ -115,9 +75,8 @@ def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
 
 
 class TickUnwrapper:
-    """u16 ticks → int64 ticks, one at a time: consecutive ticks step forward modulo 2^16 (a small step back, samples
-    of one connection event out of order, stays back); with the host time since the tick before, a gap longer than
-    a wrap period (524 s, e.g. a long disconnect) adds the whole wraps the host clock says passed."""
+    """u16 ticks → int64 ticks, one at a time: a small step back (out-of-order samples) stays back; a host gap
+    longer than a wrap (524 s) adds the whole wraps the host clock says passed."""
 
     def __init__(self) -> None:
         self.last: int | None = None
@@ -171,9 +130,8 @@ def is_ble_source(src) -> bool:
 
 @dataclass(frozen=True, slots=True)
 class BleMotionFrame:
-    """One motion notification as sent: ``tick`` unwrapped (8 ms units), the payload's fields in their units (the
-    stock layout: acc mg, gyro mdps, mag mgauss), ``t_host_s`` its arrival, ``repeat``: the same payload as the motion
-    notification before it (same tick and values)."""
+    """One motion notification: ``tick`` unwrapped (8 ms units), the stock layout's fields (acc mg, gyro mdps, mag
+    mgauss), ``t_host_s`` its arrival, ``repeat``: the same payload as the motion notification before it."""
 
     tick: int
     acc_mg: tuple[int, int, int]
@@ -208,9 +166,7 @@ class BleConsoleFrame:
 
 
 class BleDecoder:
-    """Notifications → typed frames, one at a time (a capture's ``B`` chunks, live or replayed): the ticks of every
-    characteristic unwrapped on one clock in arrival order (a host gap longer than a wrap adds the wraps it
-    spans); wrong-length and unknown notifications are counted and skipped, never raised."""
+    """Notifications → typed frames on one unwrapped tick clock; bad and unknown notifications counted, skipped."""
 
     def __init__(self) -> None:
         self.unwrap = TickUnwrapper()
@@ -249,10 +205,8 @@ class BleDecoder:
 
 @dataclass(frozen=True, slots=True)
 class BleLayout:
-    """What a motion notification's fields hold. ``stock``: ST's firmware, raw sensors (acc mg, gyro mdps/100, mag
-    mgauss). ``euler``: a modified 170120 firmware that sends its own attitude in the acc fields (thx, thy, thz,
-    rad × ``angle_scale``) and gyro-integrated odometry in the gyro fields: no sensor values, the drone's own
-    attitude."""
+    """What a motion notification's fields hold. ``stock``: raw sensors (acc mg, gyro mdps/100, mag mgauss).
+    ``euler``: a modified firmware's own attitude in the acc fields (thx, thy, thz, rad × ``angle_scale``)."""
 
     name: str
     angle_scale: float = 0.0  #: payload units per radian (euler)

@@ -1,6 +1,5 @@
 """A BLE capture as the one model: notifications → frames → the sender's samples on one grid (:class:`LiveGrid`,
-live and replayed alike, dt from the cadence) → :class:`~steval_link.link.telemetry.Telemetry`
-(:func:`ble_telemetry`), the link's facts on it (:class:`BleStream`), and the notes that say what BLE rows are.
+live and replayed alike) → :class:`~steval_link.link.telemetry.Telemetry` with the link's facts (:class:`BleStream`).
 """
 
 from __future__ import annotations
@@ -39,19 +38,6 @@ from steval_link.link.ble_payloads import (
 from steval_link.link.frames import DecoderStats
 from steval_link.link.telemetry import AttitudeArrays, Telemetry, TelemetryParts
 
-__all__ = [
-    "NOT_BIT_EXACT",
-    "EULER_NOTE",
-    "link_notes",
-    "BleStream",
-    "ble_layout_of",
-    "ble_telemetry",
-    "motion_payload_note",
-    "attitude_rows",
-    "LiveGrid",
-]
-
-
 NOT_BIT_EXACT = (
     "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
     "samples (before the firmware's gyro IIR filter and 5-sample boxcar) with dt from the cadence of "
@@ -67,8 +53,7 @@ EULER_NOTE = (
 
 
 def link_notes(acc_mg, layout: BleLayout) -> list[str]:
-    """What a BLE stream's rows are, said once: the euler layout's note, or the stock layout's (the drone's attitude
-    is not sent) and, when its acc fields cannot be an accelerometer's, that sentence too."""
+    """What a BLE stream's rows are, one sentence each (the layout's note, or why the acc fields contradict it)."""
     other = motion_payload_note(acc_mg, layout)
     if layout.sends_attitude:
         return [EULER_NOTE, other] if other else [EULER_NOTE]
@@ -88,8 +73,7 @@ ARMING_DTYPE = np.dtype([("t_host_s", "<f8"), ("t_fw_s", "<f8"), ("armed", "?")]
 
 @dataclass
 class BleStream:
-    """What the rows of a BLE capture come with (``Telemetry.link``): the link's own facts, as data. The rows
-    themselves are the sender's samples on one grid, as live (:class:`LiveGrid`)."""
+    """The link's own facts of a BLE capture (``Telemetry.link``), as data."""
 
     layout: BleLayout
     cadence: Cadence | None  #: the motion stream's cadence (None below 2 samples or on one tick)
@@ -137,19 +121,12 @@ def _held(t_at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def ble_layout_of(header: dict | None) -> str:
-    """The motion layout a BLE capture's header names (``extra.ble_layout``; stock when it names none)."""
-    extra = (header or {}).get("extra") or {}
-    return str(extra.get("ble_layout") or "stock") if isinstance(extra, dict) else "stock"
-
-
 def ble_telemetry(src, layout: str | None = None) -> Telemetry:
-    """A BLE capture (a ``link.load.Recording``: its ``B`` chunks and ``reconnect`` events) as the one model:
-    notifications → frames (:class:`BleDecoder`) → the sender's samples on one grid (:class:`LiveGrid`, as live:
-    dt from the cadence, rows held only over notifications sent and lost, none over a lost link) →
-    :class:`Telemetry` whose ``link`` is the :class:`BleStream`. ``layout``: the motion payload's (None: the
-    header's). UserError without motion notifications."""
-    lay = layout_named(layout or ble_layout_of(src.header))
+    """A BLE capture (a ``link.load.Recording``: its ``B`` chunks and ``reconnect`` events) as :class:`Telemetry`
+    whose ``link`` is the :class:`BleStream`. ``layout``: the motion payload's (None: the header's
+    ``extra.ble_layout``, else stock). UserError without motion notifications."""
+    extra = (src.header or {}).get("extra") or {}
+    lay = layout_named(layout or (str(extra.get("ble_layout") or "stock") if isinstance(extra, dict) else "stock"))
     dec, grid = BleDecoder(), LiveGrid(lay)
     motion, env, arm, text = [], [], [], []
     for cid, payload, t in ble_items(src.chunks or {}, src.events or []):
@@ -172,37 +149,20 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
     kept = [f for f in motion if f is not None and not (grid.reads and f.repeat)]
     samples = np.array([(0, f.tick, f.t_host_s, f.acc_mg, f.gyro_mdps, f.mag_mgauss) for f in kept], dtype=SAMPLE_DTYPE)
     samples["row"] = np.searchsorted(a.step, grid.numbers)
-    stream = BleStream(
-        lay,
-        grid.found,
-        float(grid.dt_s),
-        grid.rows_held,
-        samples,
-        np.array(env, dtype=ENV_DTYPE),
-        np.array(arm, dtype=ARMING_DTYPE),
-        dict(dec.counts),
-        dec.bad_payloads,
-        dec.unknown,
-        grid.repeats,
+    env, arm = np.array(env, dtype=ENV_DTYPE), np.array(arm, dtype=ARMING_DTYPE)
+    counts = dict(
+        counts=dict(dec.counts), bad_payloads=dec.bad_payloads, unknown=dec.unknown, repeated_reads=grid.repeats
     )
-    source = {
-        "path": str(src.path),
-        "kind": "stv",
-        "link": "ble",
-        "header": src.header,
-        "warnings": list(getattr(src, "warnings", [])),
-    }
+    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, samples, env, arm, **counts)
+    source = dict(path=str(src.path), kind="stv", link="ble", header=src.header, warnings=list(src.warnings))
     tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
     tel.attitude, tel.text, tel.link = a, text, stream
     return tel
 
 
 def motion_payload_note(acc_mg, layout: BleLayout) -> str | None:
-    """One sentence when the acc fields contradict the layout; None when they fit it.
-
-    Stock layout: they cannot be an accelerometer's when hardly a sample is near 1 g (a raw accelerometer reads
-    about 1000 mg at rest, and near it most of a flight) and every value is in an angle's range (rad x 1000, or
-    degrees x 100). Euler layout: they look like an accelerometer's when nearly every sample is near 1 g."""
+    """One sentence when the acc fields contradict the layout, else None. Stock: hardly a sample near 1 g and every
+    value in an angle's range is no accelerometer. Euler: nearly every sample near 1 g is one."""
     acc = np.asarray(acc_mg, dtype=np.float64).reshape(-1, 3)
     if len(acc) < 2:
         return None
@@ -237,19 +197,6 @@ SENSOR_1G_SHARE = 0.9
 ANGLE_RANGE_MAX = 18000.0
 
 
-def attitude_rows(t_fw_s, t_host_s, k, acc_mg, gyro_mdps, layout: BleLayout) -> AttitudeArrays:
-    """The motion samples on the estimators' grid as the one attitude model (:class:`AttitudeArrays`): ``k`` the
-    sender's sample numbers (``step``), no throttle, no firmware quaternion, rows not bit-exact (BLE carries no AHRS
-    input). The stock layout's rows carry the sensors and no attitude (NaN); the euler layout's the drone's
-    attitude (rad) and no sensor values (NaN: the estimators skip the rows)."""
-    acc = np.asarray(acc_mg, dtype=np.float32).reshape(-1, 3)
-    ang = np.full(acc.shape, np.nan, np.float32)
-    if layout.sends_attitude:
-        ang, acc = acc / np.float32(layout.angle_scale), ang.copy()
-    gyro = np.asarray(gyro_mdps, dtype=np.float32).reshape(-1, 3) if not layout.sends_attitude else acc.copy()
-    return AttitudeArrays.of(k, t_fw_s, t_host_s, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
-
-
 #: motion samples that fix the cadence (and the estimators' dt) live; fewer when 3 s of drone time pass or at the end
 LOCK_SAMPLES = 64
 LOCK_SPAN_S = 3.0
@@ -258,10 +205,12 @@ TICKS_KEPT = 20_000
 
 
 class LiveGrid:
-    """Motion frames → the rows of the sender's samples on one grid, a round at a time (``steval live --ble``) or all
-    at once (:func:`ble_telemetry`). The first :data:`LOCK_SAMPLES` samples fix the cadence, dt and the numbering
-    (:meth:`rows` holds them back until then): one row per sender sample, a row held over a notification only when
-    the ticks show it was sent and lost; repeats are reads or samples as :func:`repeats_are_reads` finds."""
+    """Motion frames → one row per sender sample, a round at a time (live) or all at once (:func:`ble_telemetry`).
+    The first :data:`LOCK_SAMPLES` samples fix the cadence, dt and the numbering (:meth:`rows` holds them back until
+    then); a row holds the last sample only over a notification the ticks show as sent and lost.
+
+    Rows are the one attitude model: ``step`` the sender's sample number, not bit-exact (BLE carries no AHRS input).
+    Stock rows carry the sensors and no attitude (NaN); euler rows the drone's attitude (rad) and no sensors."""
 
     def __init__(self, layout: BleLayout) -> None:
         self.layout = layout
@@ -372,8 +321,11 @@ class LiveGrid:
         self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
         self._last_sample = sensors[-1]
         self.mag_mgauss = rows[:, 6:]
+        acc, gyro, ang = rows[:, :3], rows[:, 3:6], np.full((len(rows), 3), np.nan, np.float32)
+        if self.layout.sends_attitude:  # no sensor values: the estimators skip the rows
+            ang, acc, gyro = acc / np.float32(self.layout.angle_scale), ang.copy(), ang.copy()
         k_rows = grid if c.kind != POLLED else k
-        return attitude_rows(t_rows, t_host, k_rows, rows[:, :3], rows[:, 3:6], self.layout)
+        return AttitudeArrays.of(k_rows, t_rows, t_host, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 
     def _period_s(self) -> float:
         """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample

@@ -1,12 +1,7 @@
 """The BLE transport: scan, connect, subscribe to the drone's notifications, reconnect when the link is lost.
 
-* :class:`BleBackend`: the small interface to a radio; :class:`BleakBackend` implements it with bleak (optional
-  extra ``steval-link[ble]``), ``tests/support/ble.py`` without a radio.
-* :class:`BleLink`: find the drone (by name or address, default the strongest ``DRN1…`` advertiser), connect,
-  subscribe to each characteristic of ``ble_payloads.CHAR_UUIDS``, hand each notification to
-  ``on_notification(char id, bytes, t_unix_s)``, and on a lost link reconnect (back off up to :data:`RETRY_MAX_S`).
-
-Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
+:class:`BleBackend` is the small interface to a radio (:class:`BleakBackend`: bleak, the optional extra
+``steval-link[ble]``). Radio and permission failures become one-sentence UserErrors (:func:`explain_ble_error`).
 """
 
 from __future__ import annotations
@@ -15,25 +10,11 @@ import asyncio
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass, field
 from typing import Protocol
 
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import CHAR_NAMES, CHAR_UUIDS, DEVICE_NAME_PREFIX
-
-__all__ = [
-    "BleDevice",
-    "BleError",
-    "BleBackend",
-    "BleakBackend",
-    "BleLink",
-    "explain_ble_error",
-    "is_address",
-    "pick_device",
-    "SCAN_TIMEOUT_S",
-    "RETRY_MAX_S",
-    "bleak_backend",
-]
 
 SCAN_TIMEOUT_S = 5.0
 #: longest wait between two reconnection attempts, s
@@ -176,38 +157,29 @@ class BleakBackend:
                 pass
 
 
+@dataclass(eq=False)
 class BleLink:
-    """Scan, connect, subscribe, reconnect (see the module docstring). ``on_event(kind, text)`` hears "connect",
-    "disconnect", "reconnect" and "missing" (a characteristic the drone lacks); ``clock`` gives Unix seconds."""
+    """Find the drone (:func:`pick_device`), subscribe to each of ``CHAR_UUIDS``, hand each notification to
+    ``on_notification(char id, bytes, t_unix_s)`` and reconnect a lost link (back off up to :data:`RETRY_MAX_S`).
+    ``on_event(kind, text)`` hears "connect", "disconnect", "reconnect" and "missing" (a characteristic lacking)."""
 
-    def __init__(
-        self,
-        backend: BleBackend,
-        target: str | None,
-        on_notification: Callable[[int, bytes, float], None],
-        *,
-        on_event: Callable[[str, str], None] | None = None,
-        clock: Callable[[], float] = time.time,
-        scan_timeout_s: float = SCAN_TIMEOUT_S,
-        retry_max_s: float = RETRY_MAX_S,
-        first_scans: int = 1,
-    ) -> None:
-        self.backend = backend
-        self.target = target
-        self.on_notification = on_notification
-        self.on_event = on_event or (lambda kind, text: None)
-        self.clock = clock
-        self.scan_timeout_s = float(scan_timeout_s)
-        self.retry_max_s = float(retry_max_s)
-        self.first_scans = int(first_scans)
-        self.device: BleDevice | None = None
-        self.connections = 0
-        self.losses = 0
-        self.notifications = 0
-        self._lost: asyncio.Event | None = None
+    backend: BleBackend
+    target: str | None
+    on_notification: Callable[[int, bytes, float], None]
+    _: KW_ONLY
+    on_event: Callable[[str, str], None] | None = None
+    clock: Callable[[], float] = time.time
+    scan_timeout_s: float = SCAN_TIMEOUT_S
+    retry_max_s: float = RETRY_MAX_S
+    first_scans: int = 1
+    device: BleDevice | None = field(default=None, init=False)
+    connections: int = field(default=0, init=False)
+    losses: int = field(default=0, init=False)
+    notifications: int = field(default=0, init=False)
+    _lost: asyncio.Event | None = field(default=None, init=False)
 
-    def _what(self) -> str:
-        return repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
+    def __post_init__(self) -> None:
+        self.on_event = self.on_event or (lambda kind, text: None)
 
     async def find(self, scans: int) -> BleDevice | None:
         """Scan up to ``scans`` times for the target; platform failures raise UserError."""
@@ -250,8 +222,9 @@ class BleLink:
         """The drone, found by the first scans; UserError when the platform fails or it is not found."""
         dev = await self.find(self.first_scans)
         if dev is None:
+            what = repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
             raise UserError(
-                f"no BLE device matching {self._what()} found in {self.scan_timeout_s:g} s of scanning "
+                f"no BLE device matching {what} found in {self.scan_timeout_s:g} s of scanning "
                 "(is the drone on, in range, and not connected to a phone?)."
             )
         return dev

@@ -2,8 +2,7 @@
 
 Format (``firmware_patch/CAPTURE_FORMAT.md``): an 8-byte magic, a JSON header, then self-checking chunks (CRC-32),
 so a file cut anywhere reads back up to its last complete chunk. Raw bytes are the source of truth: a decoder fix
-re-decodes old captures. :class:`CaptureWriter` appends crash-safely; :func:`read_capture` reads a
-:class:`Capture`. Decoding a capture is :mod:`steval_link.link.load`.
+re-decodes old captures.
 """
 
 from __future__ import annotations
@@ -27,25 +26,6 @@ import numpy as np
 from steval_link import __version__
 from steval_link.errors import ParamError, UserError
 
-__all__ = [
-    "MAGIC",
-    "Capture",
-    "CaptureEvent",
-    "CaptureTruth",
-    "capture_truth",
-    "capture_symbol_rows",
-    "truth_payloads",
-    "HostChunk",
-    "CaptureTruncatedWarning",
-    "CaptureWriter",
-    "OutputLostError",
-    "output_gone",
-    "demo_capture_path",
-    "read_capture",
-    "read_file_bytes",
-    "resolve_capture_out",
-]
-
 #: First 8 bytes of every capture file (PNG-style: catches text-mode transfers and truncation of the magic).
 MAGIC = b"\x89STV\r\n\x1a\n"
 FORMAT_VERSION = 2
@@ -55,22 +35,14 @@ CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
 CHUNK_TRUTH = ord("T")
 CHUNK_SYMBOLS = ord("S")
-#: every chunk type the reader knows (format 2 adds B, H and T); D and E are read into the byte stream and the events,
-#: H (bytes the host sent to the drone) into ``Capture.host``, the others are kept as they are in ``Capture.chunks``
-#: for the module that reads them. A type it does not know (a newer writer's) is kept there too when its CRC holds.
-CHUNK_TYPES: dict[int, str] = {
-    CHUNK_DATA: "data",
-    CHUNK_EVENT: "event",
-    CHUNK_BLE: "ble",
-    CHUNK_HOST: "host",
-    CHUNK_TRUTH: "truth",
-    CHUNK_SYMBOLS: "symbols",
-}
+#: every chunk type the reader knows; D, E and H are read into the byte stream, the events and ``Capture.host``, the
+#: others (and a newer writer's unknown type whose CRC holds) are kept as they are in ``Capture.chunks``.
+CHUNK_TYPES = (CHUNK_DATA, CHUNK_EVENT, CHUNK_BLE, CHUNK_HOST, CHUNK_TRUTH, CHUNK_SYMBOLS)
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
 TRUTH_ROWS_PER_CHUNK = (1 << 20) // TRUTH_DTYPE.itemsize
-#: one row of a symbol chunk S (an AHRS step's inputs and outputs the emulator read from the firmware's globals by
-#: symbol, never sent by the firmware; CAPTURE_FORMAT.md), packed. ``read``: bit 0 inputs, 1 q, 2 Euler angles.
+#: one row of a symbol chunk S (an AHRS step's inputs and outputs the emulator read from the firmware's globals),
+#: packed. ``read``: bit 0 inputs, 1 q, 2 Euler angles.
 SYMBOL_DTYPE = np.dtype(
     [
         ("step", "<u4"),
@@ -111,8 +83,7 @@ class CaptureEvent:
 
 @dataclass(frozen=True, slots=True)
 class HostChunk:
-    """Bytes the host sent to the drone (command frames), at host time ``t_host_s``, after ``offset`` received
-    bytes."""
+    """Bytes the host sent to the drone at host time ``t_host_s``, after ``offset`` received bytes."""
 
     t_host_s: float
     data: bytes
@@ -148,9 +119,7 @@ def _file_header(header: dict[str, Any]) -> bytes:
     return MAGIC + _HEADER_LEN.pack(len(head)) + head + _CRC.pack(zlib.crc32(head))
 
 
-def capture_header(
-    port: str, baud: int, start_unix_s: float, extra: dict[str, Any] | None = None, *, tool_version: str | None = None
-) -> dict[str, Any]:
+def capture_header(port: str, baud: int, start_unix_s: float, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """The JSON header of a capture (CAPTURE_FORMAT.md): where and when it was recorded, by which tool version."""
     return {
         "format": "steval-capture",
@@ -159,7 +128,7 @@ def capture_header(
         "baud": int(baud),
         "start_time_utc": datetime.fromtimestamp(start_unix_s, timezone.utc).isoformat(timespec="microseconds"),
         "start_time_unix_s": start_unix_s,
-        "tool_version": __version__ if tool_version is None else tool_version,
+        "tool_version": __version__,
         "extra": dict(extra or {}),
     }
 
@@ -167,9 +136,7 @@ def capture_header(
 def encode_capture(
     header: dict[str, Any], chunks: Iterable[tuple[bytes, float]], typed: Iterable[tuple[int, bytes, float]] = ()
 ) -> bytes:
-    """A whole ``.stv`` file in memory: ``header`` (dict, as :class:`CaptureWriter` writes it) and data chunks
-    ``(bytes, t_host_s)`` in order (for tools that make captures offline, e.g. ``steval synth``), then ``typed``
-    chunks ``(chunk type, payload, t_host_s)`` (e.g. :data:`CHUNK_BLE`)."""
+    """A whole ``.stv`` file: ``header``, ``(bytes, t_host_s)`` chunks, then ``(type, payload, t_host_s)`` ones."""
     parts = [_file_header(header)]
     for data, t_host_s in chunks:
         data = bytes(data)
@@ -182,9 +149,9 @@ def encode_capture(
 
 @dataclass(frozen=True)
 class CaptureTruth:
-    """The ground truth a capture keeps (truth chunks T, CAPTURE_FORMAT.md): per AHRS step ``step`` (M,) int64,
-    ``t_s`` (M,) emulated time of the step's middle input tick (s since power-up), ``q_wxyz`` (M, 4) float64 body →
-    earth (NaN: none), ``movement`` (M,) bool (the step counts for the metric)."""
+    """The ground truth of truth chunks T, per AHRS step: ``step`` int64, ``t_s`` emulated time of the step's middle
+    input tick (s since power-up), ``q_wxyz`` (M, 4) float64 body → earth (NaN: none), ``movement`` bool (the step
+    counts for the metric)."""
 
     step: np.ndarray
     t_s: np.ndarray
@@ -193,17 +160,6 @@ class CaptureTruth:
 
     def __len__(self) -> int:
         return int(self.step.shape[0])
-
-
-def truth_payloads(step, t_s, q_wxyz, movement) -> list[bytes]:
-    """Truth rows as the payloads of T chunks (at most :data:`TRUTH_ROWS_PER_CHUNK` rows each)."""
-    step = np.asarray(step, dtype=np.int64).reshape(-1)
-    rows = np.zeros(step.shape[0], dtype=TRUTH_DTYPE)
-    rows["step"] = step
-    rows["t_s"] = np.asarray(t_s, dtype=np.float64).reshape(-1)
-    rows["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
-    rows["movement"] = np.asarray(movement, dtype=bool).reshape(-1)
-    return [rows[i : i + TRUTH_ROWS_PER_CHUNK].tobytes() for i in range(0, len(rows), TRUTH_ROWS_PER_CHUNK)]
 
 
 def capture_truth(chunks: dict[int, list[tuple[float, bytes]]]) -> CaptureTruth | None:
@@ -220,8 +176,7 @@ def capture_symbol_rows(chunks: dict[int, list[tuple[float, bytes]]]) -> np.ndar
 
 
 def _chunk_rows(chunks: dict[int, list[tuple[float, bytes]]], kind: int, dtype: np.dtype) -> np.ndarray | None:
-    """The ``dtype`` rows of the chunks of type ``kind``, in file order (a payload keeps its whole rows); None
-    when there is no such chunk."""
+    """The ``dtype`` rows of the chunks of type ``kind`` in file order (whole rows), or None when there are none."""
     size = dtype.itemsize
     parts = [np.frombuffer(p[: len(p) - len(p) % size], dtype=dtype) for _, p in chunks.get(kind, [])]
     return np.concatenate(parts) if parts else None
@@ -234,11 +189,9 @@ def _known_kind(kind: int) -> int:
 
 
 class CaptureWriter:
-    """Append-only ``.stv`` writer; use as a context manager.
-
-    Every chunk goes to the OS at once (nothing is lost on ``kill -9``); a background thread ``fsync``\\s at least
-    every :data:`SYNC_INTERVAL_S` (power cuts). ``t_host_s``: s since the capture started (default: now). An existing
-    file is never overwritten; ``discard_empty``: a capture without serial bytes is deleted on :meth:`close`."""
+    """Append-only ``.stv`` writer and context manager. Every chunk goes to the OS at once (``kill -9`` loses
+    nothing); a thread ``fsync``\\s every :data:`SYNC_INTERVAL_S`. ``t_host_s``: s since the capture started
+    (default: now). Never overwrites; ``discard_empty``: a capture without bytes is deleted on :meth:`close`."""
 
     def __init__(
         self,
@@ -246,7 +199,6 @@ class CaptureWriter:
         *,
         port: str,
         baud: int,
-        tool_version: str | None = None,
         extra: dict[str, Any] | None = None,
         sync_interval_s: float = SYNC_INTERVAL_S,
         discard_empty: bool = False,
@@ -254,7 +206,7 @@ class CaptureWriter:
         self.path = Path(path)
         self._t0 = time.monotonic()
         now = time.time()
-        self.header: dict[str, Any] = capture_header(port, baud, now, extra, tool_version=tool_version)
+        self.header: dict[str, Any] = capture_header(port, baud, now, extra)
         self._file = open(self.path, "xb", buffering=0)
         st = os.fstat(self._file.fileno())
         self._identity = (st.st_dev, st.st_ino)
@@ -279,11 +231,6 @@ class CaptureWriter:
         self._thread = threading.Thread(target=self._sync_loop, name="stv-fsync", daemon=True)
         self._thread.start()
 
-    # -- public ------------------------------------------------------------------------------------------------
-    def now(self) -> float:
-        """Seconds since the capture started (the time base of ``t_host_s``)."""
-        return time.monotonic() - self._t0
-
     def write(self, data: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
         """Store one chunk of received bytes (``t_host_s``: when it was received, s since capture start)."""
         self._write_stream(CHUNK_DATA, data, t_host_s)
@@ -299,11 +246,13 @@ class CaptureWriter:
             self._append(kind, [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)], t_host_s)
 
     def _append(self, kind: int, payloads: list, t_host_s: float | None) -> None:
-        """Chunks of type ``kind`` received at ``t_host_s`` (None: now), written under the lock: received bytes count
-        in ``bytes_written`` there, so an event's offset (a dict payload given it there) is never stale."""
-        t = self.now() if t_host_s is None else float(t_host_s)
+        """Chunks of type ``kind`` at ``t_host_s`` (None: now), under the lock (so an event's offset is never stale)."""
+        t = time.monotonic() - self._t0 if t_host_s is None else float(t_host_s)
         with self._lock:
-            self._check_open()
+            if self._closed:
+                raise ValueError("write to a closed CaptureWriter")
+            if self.failure is not None:
+                raise self.failure
             for payload in payloads:
                 if kind == CHUNK_EVENT:
                     payload = json.dumps({**payload, "offset": self.bytes_written}).encode()
@@ -313,8 +262,7 @@ class CaptureWriter:
             self._dirty = True
 
     def write_chunk(self, kind: int, payload: bytes | bytearray | memoryview, t_host_s: float | None = None) -> None:
-        """Store one typed chunk (a type of :data:`CHUNK_TYPES` other than D and E, e.g. :data:`CHUNK_BLE`: one BLE
-        notification, ``char id + bytes``), received at ``t_host_s`` (s since capture start)."""
+        """Store one typed chunk (not D or E; e.g. :data:`CHUNK_BLE`: ``char id + bytes``) received at ``t_host_s``."""
         kind = _known_kind(kind)
         payload = bytes(payload)
         if len(payload) > MAX_CHUNK:
@@ -322,19 +270,18 @@ class CaptureWriter:
         self._append(kind, [payload], t_host_s)
 
     def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
-        """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks at ``t_host_s``."""
-        for payload in truth_payloads(step, t_s, q_wxyz, movement):
-            self.write_chunk(CHUNK_TRUTH, payload, t_host_s)
+        """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks of at most :data:`TRUTH_ROWS_PER_CHUNK`."""
+        step = np.asarray(step, dtype=np.int64).reshape(-1)
+        rows = np.zeros(step.shape[0], dtype=TRUTH_DTYPE)
+        rows["step"], rows["t_s"] = step, np.asarray(t_s, dtype=np.float64).reshape(-1)
+        rows["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+        rows["movement"] = np.asarray(movement, dtype=bool).reshape(-1)
+        for i in range(0, len(rows), TRUTH_ROWS_PER_CHUNK):
+            self.write_chunk(CHUNK_TRUTH, rows[i : i + TRUTH_ROWS_PER_CHUNK].tobytes(), t_host_s)
 
     def mark_event(self, kind: str, text: str = "", t_host_s: float | None = None) -> None:
         """Store an event (e.g. kind "disconnect" / "reconnect") at the current position of the byte stream."""
         self._append(CHUNK_EVENT, [{"kind": str(kind), "text": str(text)}], t_host_s)
-
-    def flush(self) -> None:
-        """Force everything written so far to disk (``fsync``)."""
-        with self._lock:
-            if not self._closed:
-                self._sync()
 
     def close(self) -> None:
         """Flush and close (idempotent)."""
@@ -378,13 +325,6 @@ class CaptureWriter:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    # -- internals ---------------------------------------------------------------------------------------------
-    def _check_open(self) -> None:
-        if self._closed:
-            raise ValueError("write to a closed CaptureWriter")
-        if self.failure is not None:
-            raise self.failure
-
     def _write_all(self, b: bytes) -> None:
         view = memoryview(b)
         try:
@@ -404,8 +344,7 @@ class CaptureWriter:
         self._dirty = False
 
     def check_present(self) -> OSError | None:
-        """The file is still where it was written (not deleted, its folder not removed, not replaced): else the
-        failure (also raised by the next write). Cheap (two ``stat`` calls): the sync thread runs it every second."""
+        """None while the file is still where it was written, else the failure (also raised by the next write)."""
         if self.failure is None and not self._closed:
             gone = output_gone(self.path, self._identity)
             if gone is not None:
@@ -413,8 +352,7 @@ class CaptureWriter:
         return self.failure
 
     def _sync_loop(self) -> None:
-        # fsync outside the lock: a slow disk must never hold up write() in the serial reader thread. close()
-        # joins this thread before it closes the file, so the descriptor stays valid here.
+        # fsync outside the lock: a slow disk must never hold up write(); close() joins this thread first
         while not self._stop.wait(self._interval):
             with self._lock:
                 if self._closed or self.check_present() is not None or not self._dirty:
@@ -446,8 +384,7 @@ def _failed(path: Path, exc: OSError) -> OSError:
 
 
 def output_gone(path: str | os.PathLike, identity: tuple[int, int]) -> str | None:
-    """Why an output file open with ``identity`` (``st_dev``, ``st_ino``) is no longer at ``path``, in a few words
-    (``"was deleted"``, ``"was deleted with its folder"``, ``"was replaced by another file"``), or ``None``."""
+    """Why the file open with ``identity`` (``st_dev``, ``st_ino``) is gone from ``path``, in a few words, or None."""
     path = Path(path)
     try:
         st = os.stat(path)
@@ -471,11 +408,8 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
 
 
 def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
-    """Where ``record``/``live`` ``--out`` writes, checked before the port is opened.
-
-    None stays None (the default path); an existing directory: a new file inside it; a file name must be in an
-    existing directory (no folders are created) and must not exist yet (captures are never overwritten). Else a
-    :class:`~steval_link.errors.UserError`."""
+    """Where a capture ``out`` goes, checked before the port is opened: None stays None; a directory gets a new file;
+    a new file name must be in an existing directory (never overwritten). Else a ParamError."""
     if out is None:
         return None
     path = Path(out).expanduser()
@@ -497,8 +431,7 @@ def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
 
 
 def read_file_bytes(path: Path) -> bytes:
-    """The whole file ``path``; :class:`~steval_link.errors.UserError` when it is missing, a directory, a device or
-    unreadable."""
+    """The whole file ``path``; a UserError when it is missing, a directory, a device or unreadable."""
     if not path.exists():
         raise UserError(f"{path}: no such file.")
     if path.is_dir():
@@ -512,10 +445,9 @@ def read_file_bytes(path: Path) -> bytes:
 
 
 def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Capture:
-    """Read a ``.stv`` file. A file cut short reads up to its last complete chunk; a damaged chunk inside the file
-    is skipped (reading resumes at the next valid chunk, and a "damaged" event marks the spot). Either way
-    ``truncated`` is set, ``warning`` says where, and a :class:`CaptureTruncatedWarning` is issued. Raises
-    :class:`~steval_link.errors.UserError` when the file is missing, unreadable or not a capture."""
+    """Read a ``.stv`` file. A file cut short reads up to its last complete chunk; a damaged chunk is skipped (a
+    "damaged" event marks the spot). Either way ``truncated`` is set, ``warning`` says where, and a
+    :class:`CaptureTruncatedWarning` is issued. UserError when the file is missing, unreadable or not a capture."""
     path = Path(path)
     raw = read_file_bytes(path) if data is None else data
     header, pos = _read_header(path, raw)
@@ -569,8 +501,7 @@ def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
 def _chunk_at(
     raw: bytes, mv: memoryview, p: int, size=_CHUNK_HEAD.size, head=_CHUNK_HEAD.unpack_from, crc=_CRC.unpack_from
 ) -> tuple[int, int, float, int] | str:
-    """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none (the defaults: bound
-    once, for speed)."""
+    """(kind, length, t, end) of a valid chunk at file position ``p``, or why there is none."""
     if p + size > len(raw):
         return "incomplete chunk header"
     kind, length, t = head(raw, p)
@@ -594,8 +525,8 @@ def _next_chunk(raw: bytes, mv: memoryview, p: int) -> int | None:
 
 @dataclass
 class _Chunks:
-    """What a capture's chunks hold: the serial bytes (``pieces``, each at stream offset ``offsets`` received at
-    ``times``), events, host and other typed chunks, the damaged stretches skipped and why the file ended early."""
+    """What a capture's chunks hold: the serial bytes (``pieces`` at ``offsets``, received at ``times``), the other
+    chunks, the damaged stretches skipped and why the file ended early."""
 
     pieces: list[memoryview] = field(default_factory=list)
     offsets: list[int] = field(default_factory=list)
@@ -608,8 +539,7 @@ class _Chunks:
 
 
 def _read_chunks(raw: bytes, pos: int) -> _Chunks:
-    """Every chunk from file position ``pos``; a damaged middle loses only itself, damage with no valid chunk after
-    it ends the file."""
+    """Every chunk from file position ``pos``; damage loses only itself, unless no valid chunk follows."""
     mv = memoryview(raw)
     n = len(raw)
     out = _Chunks()
@@ -670,8 +600,7 @@ def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
 
 
 def demo_capture_path() -> Path:
-    """The bundled demo recording (``recordings/demo.stv``), in a source tree / editable install or as installed
-    package data; raises :class:`~steval_link.errors.UserError` when it cannot be found."""
+    """The bundled demo recording (``recordings/demo.stv``) of a source tree or installed package; else UserError."""
     package = Path(__file__).resolve().parents[1]  # steval_link/
     candidates = [package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"]
     try:

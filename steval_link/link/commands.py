@@ -1,10 +1,4 @@
-"""Host → drone commands (protocol v2, frame type 8) and the drone's acknowledgements (type 5).
-
-:func:`parse_command` turns a typed line (``set ki 1.0``, ``correction off``, ``reset``, ``status``, ``mode
-text``) into a :class:`Command`; :class:`CommandChannel` numbers and sends commands through any byte sink, records
-the bytes sent (the capture's ``H`` chunks) and matches acknowledgements; :func:`describe_ack` says what the drone
-did.
-"""
+"""Host → drone commands (protocol v2, frame type 8) and the drone's acknowledgements (type 5)."""
 
 from __future__ import annotations
 
@@ -19,20 +13,6 @@ import numpy as np
 from steval_link.errors import UserError
 from steval_link.link import protocol as P
 from steval_link.link.frames import AckFrame
-
-__all__ = [
-    "PARAMS",
-    "Command",
-    "CommandChannel",
-    "Sent",
-    "ack_of_text",
-    "command_log",
-    "describe_ack",
-    "describe_settings",
-    "param_of_status",
-    "parse_command",
-    "parse_script",
-]
 
 #: SET_PARAM parameter names (``steval param set NAME VALUE``) → ids
 PARAMS = {
@@ -84,10 +64,6 @@ class Command:
         """The 20-byte command frame with sequence number ``cmd_seq``."""
         return P.encode_command(cmd_seq=cmd_seq, cmd=self.cmd, param=self.param, value=self.value)
 
-    @property
-    def changes_filter(self) -> bool:
-        return self.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER)
-
     def describe(self) -> str:
         """The command as one would type it (``set ki 1``, ``correction off``, ``reset-filter``, ...)."""
         if self.cmd == P.CMD_SET_PARAM:
@@ -95,18 +71,13 @@ class Command:
             if name == "correction":
                 return "correction " + ("on" if self.value else "off")
             return f"set {name} {_fmt(name, self.value)}"
-        if self.cmd == P.CMD_RESET_FILTER:
-            return "reset-filter"
-        if self.cmd == P.CMD_REQUEST_STATUS:
-            return "status"
         if self.cmd == P.CMD_SET_MODE:
             return "mode " + ("text" if self.param == P.MODE_TEXT else "binary")
-        return f"command {self.cmd}"
+        return {P.CMD_RESET_FILTER: "reset-filter", P.CMD_REQUEST_STATUS: "status"}.get(self.cmd, f"command {self.cmd}")
 
 
 def _fmt(name: str, value: float) -> str:
-    """As typed: whole numbers without a decimal point, a gain as the shortest text of its float32 (0.1, not
-    0.100000001)."""
+    """As typed: whole numbers without a point, a gain as the shortest text of its float32."""
     if name in ("min_thr", "correction"):
         return str(int(value))
     text = str(np.float32(value))
@@ -140,10 +111,8 @@ def set_param(name: str, value: str | float) -> Command:
 
 
 def parse_command(text: str) -> Command:
-    """A typed command line → :class:`Command`; a line that is no command raises a one-sentence UserError.
-
-    ``set NAME VALUE`` (or ``NAME VALUE``), ``correction on|off``, ``reset`` / ``reset-filter``, ``status``,
-    ``mode text|binary``."""
+    """A typed line (``set NAME VALUE`` or ``NAME VALUE``, ``correction on|off``, ``reset``, ``status``, ``mode
+    text|binary``) → :class:`Command`; else a one-sentence UserError."""
     try:
         words = shlex.split(text.strip().lower())
     except ValueError:
@@ -214,7 +183,7 @@ def describe_ack(command: Command | None, ack) -> str:
     counts = f"(commands received {int(ack.rx_ok)}, rejected {int(ack.rx_bad)})"
     if int(ack.result) != P.ACK_ACCEPTED:
         return f"{what}: {RESULTS.get(int(ack.result), f'refused (result {int(ack.result)})')} {counts}"
-    if command is not None and command.changes_filter:
+    if command is not None and command.cmd in (P.CMD_SET_PARAM, P.CMD_RESET_FILTER):  # it changes the filter
         return f"{what}: accepted, applies from step {int(ack.step)} {counts}"
     return f"{what}: accepted {counts}"
 
@@ -230,11 +199,9 @@ class Sent:
 
 
 class CommandChannel:
-    """Numbers and sends commands through ``send(frame_bytes)``; ``record(frame_bytes)`` (the capture's ``H``
-    chunk writer) gets the same bytes once they are written. :meth:`match` pairs an
-    :class:`~steval_link.link.frames.AckFrame` with the command it answers (by sequence number and command).
-    Sequence numbers start at a random value so that acks left over from another session are not taken for this
-    one's."""
+    """Numbers and sends commands through ``send(frame_bytes)``, then ``record(frame_bytes)`` (the capture's ``H``
+    chunks); :meth:`match` pairs an ack with its command. Numbers start at random, so that another session's acks
+    are not taken for this one's."""
 
     def __init__(
         self,
@@ -295,10 +262,8 @@ def _ack_of_row(a) -> AckFrame:
 
 
 def command_log(commands, acks) -> list[dict]:
-    """The commands of a capture with their answers, in the order sent: ``commands`` and ``acks`` are the
-    ``Telemetry.commands`` / ``Telemetry.acks`` rows. Each: ``{"t_host_s", "cmd_seq", "command" (as typed),
-    "result" (None when no ack came), "step", "text" (one sentence)}``; acks for commands not in the capture are
-    listed too (``command`` None)."""
+    """The ``Telemetry.commands`` with their ``acks`` in time order, each ``{"t_host_s", "cmd_seq", "command" (as
+    typed; None for an ack of a command not in the capture), "result" (None: no ack), "step", "text"}``."""
     out = []
     first: dict[tuple[int, int], int] = {}  # (cmd_seq, cmd) -> its first ack row
     for j, a in enumerate(acks):

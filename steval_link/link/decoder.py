@@ -11,16 +11,14 @@ Rules (position by position, from the start of the stream):
   a v1 frame that passed only the weaker CRC-16).
 * Text mode: a line ending in ``\\n`` (``\\r`` before it dropped), at most 512 bytes, printable UTF-8. A ``$``
   line is accepted wherever it starts when its checksum and fields are right (else ``crc_failures``). A plain line
-  has no checksum, so it is accepted only at a clean line start: after a frame or line handed out, or after a whole
-  printable line. So a stream joined mid-line never yields that line's tail (the first plain line is skipped), and
-  a glitch byte before a ``$ATT`` line yields the sentence, not a log line. ``line_start=True``: the stream's first
-  byte starts a line (a log file), so its first line is kept.
+  has no checksum: it is accepted only at a clean line start (after a frame or line handed out, or a whole printable
+  line), so a stream joined mid-line never yields that line's tail. ``line_start=True``: the stream's first byte
+  starts a line (a log file).
 * Blank lines and the ``\\r`` of ``\\n\\r`` endings at a line start count in ``blank_bytes`` (text, not damage).
 * Every other byte not in a handed-out frame or line counts in ``bytes_skipped``.
 
-The decoder waits for more bytes only while the candidate at its position could still become valid, so its
-buffer never holds more than one frame (≤ 261 bytes) or line (≤ 512 bytes), and the frames do not depend on how
-the bytes are chunked.
+The decoder waits only while the candidate at its position could still become valid: it holds at most one frame or
+line, and the frames do not depend on how the bytes are chunked.
 
 Sequence counters between consecutive binary attitude frames: ``d = (seq - previous seq) mod 2¹⁶``; ``d = 1`` is
 normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1), else a firmware restart (``seq_resets``).
@@ -29,7 +27,7 @@ normal, ``2 ≤ d < 2¹⁵`` a gap (``seq_gaps``, ``frames_missing`` += d − 1)
 from __future__ import annotations
 
 import re
-import zlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -59,15 +57,11 @@ from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
-__all__ = ["DecoderStats", "StreamDecoder", "decode_bytes", "seq_gap_counts"]
-
-#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``;
-#: whether the class has ``exact`` before ``offset``).
+#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``)
 _UNPACK = {}
 for _t, _dtype in P.PAYLOAD_DTYPE.items():
     _layout, _pick = P.payload_layout(_dtype)
-    _cls = FRAME_OF_TYPE[_t]
-    _UNPACK[_t] = (_cls, _layout.unpack_from, _pick, "exact" in _cls.__dataclass_fields__)
+    _UNPACK[_t] = (FRAME_OF_TYPE[_t], _layout.unpack_from, _pick)
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
@@ -87,14 +81,7 @@ _VT_TEXT = {P.vt_byte(_V1, P.TYPE_TEXT), P.vt_byte(_V2, P.TYPE_TEXT)}
 _SYNC0, _SYNC1 = P.SYNC
 _NEXT_START = re.compile(b"[" + re.escape(P.SYNC[:1]) + rb"$\n]")
 _BAD_PARTIAL = re.compile(rb"[\x00-\x08\x0a-\x0c\x0e-\x1f\x7f]")
-#: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
-_CHECK = {_V1: (P.CRC_SIZE_V1, P.crc16), _V2: (P.CRC_SIZE, zlib.crc32)}
-
-
-def _crc_ok(buf, start: int, end: int, version: int) -> bool:
-    """Frame check of the frame whose ``VT`` is at ``start`` and whose CRC starts at ``end``."""
-    size, check = _CHECK[version]
-    return check(memoryview(buf)[start:end]) == int.from_bytes(buf[end : end + size], "little")
+_CHECK = P.CHECK
 
 
 def _hides_sentence(raw: bytes) -> bool:
@@ -119,9 +106,8 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks (1 byte or 1 MB) and get the frames completed by them;
-    :meth:`finish` decides the last incomplete candidate. ``stats``: the counters (:class:`DecoderStats`); a frame's
-    ``offset``: its position in the stream."""
+    """Incremental decoder: :meth:`feed` any chunks and get the frames they complete; :meth:`finish` decides the
+    last candidate. ``stats``: the counters (:class:`DecoderStats`)."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
@@ -148,8 +134,7 @@ class StreamDecoder:
         return self._run(final=False)
 
     def finish(self) -> list[Frame]:
-        """End of stream: decide the pending bytes (an incomplete candidate is rejected) and return any frames.
-        Frames the plausibility gate still holds are dropped (counted in ``implausible``)."""
+        """End of stream: the pending bytes decided, frames the plausibility gate still holds dropped."""
         out = self._run(final=True)
         self._read_text(out, "finish")
         if self.gate is not None:
@@ -159,8 +144,8 @@ class StreamDecoder:
         return out
 
     def resume_at(self, offset: int, *, line_start: bool) -> None:
-        """Continue as if the stream were at byte ``offset``, the bytes before it decoded elsewhere (the bulk
-        decoder's runs of clean frames); ``line_start``: a line starts there. Only with no bytes pending."""
+        """Continue at stream byte ``offset``, the bytes before it decoded elsewhere (the bulk decoder's runs);
+        ``line_start``: a line starts there. Only with no bytes pending."""
         if self._buf:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
@@ -168,30 +153,21 @@ class StreamDecoder:
         self._skipping = self._skipping and not line_start
 
     def text_template(self):
-        """The text reader's template for lines that would be records now (see
-        :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template`), when the decoder is at a clean
-        line start with nothing pending; else None."""
+        """The text reader's :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template` when the
+        decoder is at a clean line start with nothing pending; else None."""
         if self._buf or not self._boundary or self._damaged:
             return None
         return self.text_reader.bulk_template()
 
     def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
-        """``count`` records up to byte ``offset`` (whole lines, ``blank_bytes`` of blank lines among them, one
-        last when ``blank_last``) were made elsewhere (the bulk decoder): counted, and the stream continues at
-        ``offset``, a line start."""
+        """``count`` records up to byte ``offset`` were made by the bulk decoder (``blank_bytes`` of blank lines among
+        them, one last when ``blank_last``): counted, and the stream continues at ``offset``, a line start."""
         self.resume_at(offset, line_start=True)
         self._ended_nl = True
-        self.text_reader.bulk_records(count, blank_last=blank_last)
+        self.text_reader.bulk_records(blank_last=blank_last)
         self.stats.text_records += count
         self.stats.frames_ok += count
         self.stats.blank_bytes += blank_bytes
-
-    def lock_version_2(self) -> None:
-        """A version-2 frame was accepted before the current position (e.g. by the bulk decoder): version-1
-        candidates are refused from now on."""
-        self._v2_seen = True
-
-    # -- internals ---------------------------------------------------------------------------------------------
 
     def _skip(self, buf: bytearray, p: int, n: int, first: int = 1) -> int:
         """Reject the candidate at ``p`` (``first`` 0: go on with a skip cut by the end of the bytes fed before):
@@ -245,10 +221,10 @@ class StreamDecoder:
         if not known and (want is not None or vt in _VT_TEXT):
             return self._skip(buf, p, n)  # known type, wrong length
         end = p + _HEAD + ln
-        csz = _CHECK[ver][0]
+        csz, check = _CHECK[ver]
         if end + csz > n:
             return None if not final else self._skip(buf, p, n)
-        crc_ok = _crc_ok(buf, p + 2, end, ver)
+        crc_ok = check(memoryview(buf)[p + 2 : end]) == int.from_bytes(buf[end : end + csz], "little")
         if not (known and crc_ok):
             if known:
                 self.stats.crc_failures += 1
@@ -303,8 +279,7 @@ class StreamDecoder:
         return nl + 1
 
     def _read_text(self, out: list[Frame], method: str, *args) -> None:
-        """One call of the text reader (``line``, ``cut_line``, ``blank``, ``finish``), told first of any damage
-        since its last call; its frames into ``out``."""
+        """One call of the text reader, told first of any damage since its last call; its frames into ``out``."""
         reader = self.text_reader
         if self._damaged:
             self._damaged = False
@@ -312,8 +287,7 @@ class StreamDecoder:
         self._text(out, getattr(reader, method)(*args))
 
     def _text(self, out: list[Frame], frames: list) -> None:
-        """Frames of the text reader: records counted and handed out; a text line only when it reads as text
-        (else dropped: ``text_dropped``, its bytes skipped)."""
+        """Frames of the text reader into ``out``; a text line that does not read as text is dropped."""
         for frame in frames:
             if isinstance(frame, TextFrame) and not looks_like_text(frame.text):
                 self.stats.text_dropped += 1
@@ -375,10 +349,8 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     size = _HEAD + ln + crc_size
     fixed = _UNPACK.get(vt & 0x0F)
     if fixed is not None:
-        cls, unpack_from, pick, exact = fixed
-        if exact:
-            return cls(*pick(unpack_from(buf, p + _HEAD)), True, offset, size)
-        return cls(*pick(unpack_from(buf, p + _HEAD)), offset, size)
+        cls, unpack_from, pick = fixed
+        return cls(*pick(unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
@@ -389,9 +361,8 @@ _TEXT_WINDOW_MAX = 1 << 20
 
 
 def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[RecordBlock]) -> list[Frame]:
-    """``data[p:end]`` through ``sd``, but runs of text lines that fit a learned one-line record shape
-    (``sd.text_template()``) are read as arrays at once (one regex pass and one table parse per window of lines)
-    into ``blocks``: the same records ``sd`` would make line by line, many times faster."""
+    """``data[p:end]`` through ``sd``, but runs of lines that fit a learned one-line record shape are read as arrays
+    into ``blocks``: the records ``sd`` would make line by line, many times faster."""
     out: list[Frame] = []
     window = _TEXT_WINDOW
     while p < end:
@@ -434,9 +405,8 @@ for _vt in _VT_TEXT:
 
 
 def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Start offsets, frame sizes and VT bytes of every valid binary frame in ``data`` (overlaps included), with
-    the version lock applied: no version-1 frame after the first valid version-2 frame; and that frame's offset
-    (infinity when there is none)."""
+    """Start offsets, sizes and VT bytes of every valid binary frame in ``data`` (overlaps included; no version-1
+    frame after the first version-2 frame), and that first version-2 frame's offset (infinity: none)."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == _SYNC0) & (arr[1:] == _SYNC1)) if n >= 2 else np.zeros(0, np.int64)
     idx = idx[idx + _HEAD <= n]
@@ -484,11 +454,10 @@ def decode_bytes(
 ) -> Telemetry:
     """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (s since capture start; None: NaN host
-    times). A frame takes the time of the chunk of its last byte, less the bytes after it at ``baud`` (10 bit times a
-    byte). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks, kept after the commands in the
-    bytes. ``line_start`` and ``plausibility`` as for :class:`StreamDecoder`, whose frames and counters it gives: runs
-    of back-to-back valid binary frames are decoded with numpy, every other region by one :class:`StreamDecoder`."""
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times; see
+    :func:`~steval_link.link.unwrap.host_times`). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's
+    H chunks. The frames and counters are :class:`StreamDecoder`'s: runs of back-to-back valid binary frames are
+    decoded with numpy, every other region by one :class:`StreamDecoder`."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
@@ -499,20 +468,18 @@ def decode_bytes(
         parts.add_frame(f)
     gate = PlausibilityGate()
     if plausibility:
-        parts.apply_gate(lambda att, sta: gate_rows(att, sta, gate))
+        att, sta = parts.attitude_records(), parts.status_records()
+        keep_a, keep_s = gate_rows(att, sta, gate)
+        parts.att_blocks, parts.sta_blocks = [att[keep_a]], [sta[keep_s]]
         gate.finish()
     v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
     stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)
     parts.sent_commands = sent_commands
-    return Telemetry.from_parts(
-        parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events, total_bytes=len(data)
-    )
+    return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events)
 
 
 def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: bool, blocks: list[RecordBlock]):
-    """Walk ``data``: runs of back-to-back valid frames (``starts``, ``sizes``) are left to numpy, the regions
-    between them go through one :class:`StreamDecoder`. Returns (indices of the frames in runs, that decoder after
-    :meth:`~StreamDecoder.finish`, its frames)."""
+    """(indices of the frames in runs left to numpy, the :class:`StreamDecoder` of the rest, its frames)."""
     n, count = len(data), len(starts)
     nxt = starts + sizes
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run
@@ -532,8 +499,8 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
             continue
         if not sd.pending_bytes:
             sd.resume_at(p, line_start=(last_fast or sd._boundary) if p else line_start)
-        if first_v2 < p:
-            sd.lock_version_2()
+        if first_v2 < p:  # a version-2 frame was accepted before: version-1 candidates are refused
+            sd._v2_seen = True
         last_fast = False
         end = int(nxt[k]) if k < count else n
         frames.extend(_feed_region(sd, data, p, end, blocks))
@@ -559,17 +526,13 @@ def _bulk_stats(parts: TelemetryParts, st: DecoderStats, gate: PlausibilityGate,
     att, sta = parts.attitude_records(), parts.status_records()  # in stream order, kept so for from_parts
     exact = att["exact"]
     kinds = [_COUNTER[type(f)] for f in parts.others]
-    stats = DecoderStats(
+    stats = replace(  # the damage counters are the stream decoder's; the frames are counted here
+        st,
         attitude=len(att),
         status=len(sta),
         text=len(parts.texts),
         **{name: kinds.count(name) for name in ("flight", "ack", "command")},
         text_records=len(parts.records) + sum(len(b.offset) for b in parts.record_blocks),
-        text_dropped=st.text_dropped,
-        crc_failures=st.crc_failures,
-        bytes_skipped=st.bytes_skipped,
-        blank_bytes=st.blank_bytes,
-        unknown_frames=st.unknown_frames,
         bytes_total=n,
         v1_frames=st.v1_frames + v1_fast,
         implausible=gate.held_back,

@@ -1,10 +1,9 @@
 """One decoded frame each: :class:`AttitudeFrame`, :class:`StatusFrame`, :class:`TextFrame`, :class:`TextRecordFrame`
 (text telemetry), and the v2 :class:`FlightFrame`, :class:`AckFrame` (drone → host), :class:`CommandFrame`.
 
-The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol`, so a
-layout change is one edit there. Binary frames carry the firmware's exact float32 values; text-mode rows
-(``exact=False``) the rounded integers of ``$ATT``/``$STA`` lines in the same units. ``offset``: the stream byte
-offset of the frame's first byte; ``nbytes``: its length on the wire (a line with its ending).
+The wire fields of each binary frame are made from the payload dtype of :mod:`steval_link.link.protocol`. Binary
+frames carry the firmware's exact float32 values, text-mode rows (``exact=False``) the rounded integers of
+``$ATT``/``$STA`` lines. ``offset``/``nbytes``: the frame's bytes in the stream (a line with its ending).
 """
 
 from __future__ import annotations
@@ -24,10 +23,8 @@ _WHERE = [("offset", int, 0), ("nbytes", int, 0)]
 
 
 def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = False) -> type:
-    """A slotted dataclass base holding the fields of ``payload`` (a dtype of :mod:`~steval_link.link.protocol`, the
-    one statement of the layout) in wire order, a subarray field as a tuple; ``RESERVED`` fields are left out. The
-    fields after the first ``required`` get defaults (NaN for floats, 0 for integers); all are required by default.
-    ``where``: then ``offset`` and ``nbytes`` (default 0)."""
+    """A slotted dataclass base with the fields of ``payload`` but ``RESERVED``, in wire order (a subarray as a
+    tuple); the fields after the first ``required`` default to NaN or 0. ``where``: then ``offset`` and ``nbytes``."""
     fields = []
     for i, name in enumerate(P.payload_fields(payload)):
         sub = payload.fields[name][0]
@@ -45,12 +42,10 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
 
 @dataclass(slots=True)
 class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
-    """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False).
-
-    Wire fields as ATTITUDE_DTYPE: ``t_us`` µs mod 2³²; ``acc_mg`` and ``gyro_mdps`` (x, y, z) as passed to
-    ``ahrs_fusion_ag``; ``q_wxyz`` the quaternion after the step (NaN in text mode); ``thz_rad`` the ISR-integrated yaw;
-    ``seq`` the step mod 2¹⁶; ``thr`` gTHR. ``step``: the full step when the frame carries it (text mode), else None.
-    ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames (Telemetry computes them from q)."""
+    """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False): ``t_us`` mod 2³²,
+    ``acc_mg``/``gyro_mdps`` as passed to ``ahrs_fusion_ag``, ``q_wxyz`` after the step (NaN in text mode),
+    ``thz_rad`` the ISR-integrated yaw, ``seq`` the step mod 2¹⁶, ``thr`` gTHR. ``step``: the full step (text mode),
+    else None. ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames."""
 
     exact: bool = True
     offset: int = 0
@@ -59,14 +54,19 @@ class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
     thx_rad: float = NAN
     thy_rad: float = NAN
 
+    @classmethod
+    def text_row(cls, step: int, t_us: int, acc_mg, gyro_mdps, euler_rad, thr: int, offset: int, nbytes: int):
+        """A row that is no binary frame (``exact`` False, no quaternion): ``euler_rad`` thx, thy, thz."""
+        thx, thy, thz = euler_rad
+        acc, gyro = tuple(acc_mg), tuple(gyro_mdps)
+        seq, t_us = step % P.SEQ_MODULUS, t_us % P.T_US_MODULUS
+        return cls(t_us, acc, gyro, (NAN,) * 4, thz, seq, thr, False, offset, nbytes, step, thx, thy)
+
 
 @dataclass(slots=True)
 class StatusFrame(_wire_fields(P.STATUS_DTYPE, required=2)):
-    """Link statistics, filter settings and filter-state snapshot, about once a second (fields as STATUS_DTYPE).
-
-    Text-mode ``$STA`` rows (``exact`` False) carry only step, t_us, cycle figures, tx_dropped, flags and ki; the
-    other float fields are NaN and the other integers 0.
-    """
+    """Link statistics, filter settings and filter-state snapshot, about once a second. Text-mode ``$STA`` rows
+    carry only step, t_us, cycle figures, tx_dropped, flags and ki (other floats NaN, integers 0)."""
 
     exact: bool = True
     offset: int = 0
@@ -84,10 +84,9 @@ class TextFrame:
 
 @dataclass(slots=True)
 class TextRecordFrame:
-    """One record of text telemetry (:mod:`steval_link.link.text_telemetry`): the numbers of one line or of a few
-    lines, named (``names``, from the line, a header line or ST's source; ``col1..N`` else), ``units`` as written
-    ('' when none), ``values`` (NaN for an empty field), ``kind`` of format ('table', 'labelled', 'teleplot',
-    'st-221117'); ``offset``/``nbytes`` the record's bytes in the stream (its lines and their endings)."""
+    """One record of text telemetry: the ``values`` of one line or a few (NaN: an empty field), their ``names``
+    (``col1..N`` when none), ``units`` as written, the format's ``kind`` ('table', 'labelled', 'teleplot',
+    'st-221117')."""
 
     names: tuple[str, ...]
     values: tuple[float, ...]

@@ -30,23 +30,16 @@ from steval_link.link.symbol_rows import merge_symbol_attitude
 from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
 from steval_link.link.text_series import FLOATLESS_NOTE
 
-__all__ = ["Recording", "load_telemetry", "read_recording", "sent_command_rows", "telemetry_of_recording"]
-
 
 @dataclass
 class Recording(Capture):
-    """The bytes of a capture, raw dump or text log, with whatever the file holds besides (a raw dump or text log:
-    no header, chunks, timing or events).
-
-    ``kind``: "stv" (capture file), or "bytes" until decoding tells "raw" (binary dump) from "text" (text-mode log).
-    """
+    """A capture, raw dump or text log; ``kind``: "stv", or "bytes" until decoding tells "raw" from "text"."""
 
     kind: str = "stv"
 
     @property
     def line_start(self) -> bool:
-        """The first byte starts a line: a log file holds what the port sent from its start, and so does a capture
-        of its live replay (its header says so); any other capture joined the stream anywhere."""
+        """The first byte starts a line: a log file, or a capture whose header says so (of a log's live replay)."""
         return self.kind != "stv" or bool((self.header.get("extra") or {}).get("line_start"))
 
     @property
@@ -56,8 +49,7 @@ class Recording(Capture):
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
-    """The bytes of ``path``: a ``.stv`` capture (by its magic, whatever the extension) or any other file as raw
-    serial bytes. Raises :class:`~steval_link.errors.UserError` for a missing, unreadable or empty file."""
+    """The bytes of ``path``: a ``.stv`` capture (by its magic) or any other file as raw serial bytes."""
     path = Path(path)
     raw = read_file_bytes(path)
     if not raw:
@@ -72,11 +64,9 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> Telemetry:
-    """Decode a capture, raw byte dump or text-mode log (told apart by content: ``source["kind"]`` 'stv', 'raw' or
-    'text') into a :class:`~steval_link.link.telemetry.Telemetry`. A truncated capture's warning is issued
-    (:class:`CaptureTruncatedWarning`) and kept in ``source["warnings"]``; a file without frames is a one-sentence
-    UserError. Text telemetry becomes the attitude rows when the stream has none and its series say what they are, or
-    as ``text_map`` ({target: (series, unit)}, :func:`~steval_link.link.text_series.parse_map`) says."""
+    """Decode a capture, raw byte dump or text-mode log (``source["kind"]`` 'stv', 'raw' or 'text'); a truncated
+    capture's warning is issued and kept in ``source["warnings"]``. ``text_map`` ({target: (series, unit)}) maps
+    text telemetry to the attitude rows."""
     src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
@@ -84,9 +74,8 @@ def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> 
 
 
 def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_layout: str | None = None) -> Telemetry:
-    """Decode a :class:`Recording` (see :func:`load_telemetry`); an emulated capture's symbol chunks S join it
-    (:mod:`steval_link.link.symbol_rows`); a BLE capture's notifications are its rows (``ble_layout``: what its
-    motion payloads hold, None: its header's; :func:`~steval_link.link.ble_telemetry.ble_telemetry`)."""
+    """Decode a :class:`Recording` with its symbol chunks S; a BLE capture's notifications are its rows
+    (``ble_layout``: what its motion payloads hold, None: its header's)."""
     if is_ble_source(src):
         return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
@@ -148,8 +137,7 @@ _FLOATLESS = re.compile(r"(?:[A-Za-z_][\w .()/-]*\s*[=:]\s*)+")
 
 
 def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
-    """The command frames the host sent (capture chunks H) as ``COMMAND_ROW_DTYPE`` rows, timed by their chunk;
-    ``offset`` is the received-stream offset at which they were sent."""
+    """The command frames of a capture's H chunks as ``COMMAND_ROW_DTYPE`` rows."""
     dec = StreamDecoder()
     rows = []
     for h in host:

@@ -1,23 +1,18 @@
 """Plausibility checks behind the frame check: a CRC-valid frame that cannot be what the firmware sent is held back.
 
-A frame check passes a damaged candidate now and then (CRC-16 of protocol v1: about one in 65 536; CRC-32 of v2:
-about one in 4.3·10⁹). What the firmware sends is also predictable, and that costs nothing to check:
+A frame check passes a damaged candidate now and then (v1's CRC-16: one in 65 536; v2's CRC-32: one in 4.3·10⁹):
 
 * **Values** (binary frames of protocol **v1** only): every float finite; ``|acc_mg|`` ≤ 10⁵ and ``|gyro_mdps|`` ≤
   2·10⁷, several times the sensors' full scale (±16 g, ±2000 dps); quaternion components within ±2.
 * **Sequence and time** (both versions): against the last accepted attitude frame (the anchor), the step
-  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. window_steps`` and ``d·P − tol ≤ Δt_us ≤ 3·d·P +
+  difference ``d = (seq - seq_anchor) mod 2¹⁶`` is within ``1 .. WINDOW_STEPS`` and ``d·P − TOL_US ≤ Δt_us ≤ 3·d·P +
   0.5 s`` (P the AHRS period; the upper side allows skipped steps). A status frame must fit with ``d ≥ 0``.
 
-Protocol **v2** frames are not held back for their values: a CRC-32-valid frame that continues the sequence and
-time is what the firmware sent (its own filter diverged). Such rows are kept and flagged (``values_bad``,
-:func:`values_bad_sentence`), and still anchor the sequence and time.
-
-An attitude frame that does not fit the anchor is held back. If ``confirm`` such frames in a row fit each other
-(a firmware restart, or the link away longer than the window), they are released and become the new anchor;
-otherwise they are dropped and counted in ``held_back``. Other frames, text-mode rows and the first attitude frame
-pass through. :class:`PlausibilityGate` is the one implementation: the incremental decoder feeds it frames, the
-bulk decoder rows (after a vectorised pass that finds nothing to check on a clean stream).
+A v2 frame with bad values that continues the sequence and time is what the firmware sent (its filter diverged):
+kept and flagged (``values_bad``). An attitude frame that does not fit the anchor is held back; ``confirm`` such
+frames in a row that fit each other (a restart) are released as the new anchor, else dropped (``held_back``).
+Other frames, text-mode rows and the first attitude frame pass. :class:`PlausibilityGate` is the one implementation,
+fed frames by the incremental decoder and rows by the bulk one.
 """
 
 from __future__ import annotations
@@ -30,20 +25,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link import protocol as P
 
-__all__ = [
-    "PlausibilityGate",
-    "attitude_values_ok",
-    "attitude_rows_bad",
-    "attitude_frame_bad",
-    "attitude_inputs_bad",
-    "status_values_ok",
-    "status_rows_bad",
-    "gate_rows",
-    "values_bad_sentence",
-    "held_back_sentence",
-    "q_off_sphere",
-]
-
 #: Largest plausible magnitudes of the AHRS inputs (see the module docstring).
 ACC_MAX_MG = 1.0e5
 GYRO_MAX_MDPS = 2.0e7
@@ -51,7 +32,7 @@ Q_MAX = 2.0
 #: The firmware keeps |q| ≈ 0.9983 (release 170120 normalises with the squares from before the update); a q further
 #: than this from the unit sphere means its filter left it (compare's divergence diagnosis, the replay summary).
 Q_NORM_TOL = 0.05
-#: Default gate parameters.
+#: The gate's rule: at most this many steps forward, time within ``TOL_US`` of them, ``CONFIRM`` frames a restart.
 WINDOW_STEPS = 8192  # 50.7 s of AHRS steps
 TOL_US = 5_000.0
 CONFIRM = 3
@@ -74,9 +55,8 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
 
 
 def attitude_frame_bad(frame) -> bool:
-    """True when an :class:`~steval_link.link.frames.AttitudeFrame` carries bad values (what ``values_bad``
-    flags): a binary frame that fails :func:`attitude_values_ok`; a text-mode row with an infinite value, or with
-    neither an angle nor the accelerometer (``$ATT`` rows are finite; rows of text telemetry NaN where not printed)."""
+    """True when an ``AttitudeFrame`` carries bad values (``values_bad``): a binary frame failing
+    :func:`attitude_values_ok`; a text row with an infinite value, or with neither an angle nor the accelerometer."""
     if frame.exact:
         return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
     vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
@@ -98,16 +78,14 @@ def _within(v, limit: float, width: int) -> np.ndarray:
 
 
 def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
-    """(N,) bool, rows with bad values, as :func:`attitude_frame_bad` row by row: binary rows outside the limits of
-    :func:`attitude_values_ok`, text-mode rows (no q) as :func:`attitude_frame_bad` says."""
+    """(N,) bool: :func:`attitude_frame_bad` row by row."""
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
     ok = _within(acc_mg, ACC_MAX_MG, 3) & _within(gyro_mdps, GYRO_MAX_MDPS, 3) & np.isfinite(thz)
     if exact.all():
         return ~(ok & _within(q_wxyz, Q_MAX, 4))
-    # text-mode rows ($ATT: every value finite; no q, their angles come with the row). Rows of text telemetry
-    # carry what was printed, NaN for the rest: no infinity, and an angle or the accelerometer
+    # text rows (no q): no infinity, and an angle or the accelerometer
     acc = np.asarray(acc_mg, np.float64).reshape(-1, 3)
     gyro = np.asarray(gyro_mdps, np.float64).reshape(-1, 3)
     thx = np.broadcast_to(np.asarray(thx_rad, np.float64), (n,))
@@ -123,8 +101,7 @@ def attitude_inputs_bad(acc_mg, gyro_mdps) -> np.ndarray:
 
 
 def status_rows_bad(exact, q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> np.ndarray:
-    """(N,) bool, binary status rows failing :func:`status_values_ok` (text-mode rows: False, they carry no
-    snapshot)."""
+    """(N,) bool, binary status rows failing :func:`status_values_ok`."""
     ok = _within(q_wxyz, Q_MAX, 4)
     ints = np.asarray(int_xyz).reshape(-1, 3)
     for v in (ints[:, 0], ints[:, 1], ints[:, 2], kp_ground, kp_flight, ki, dt_s):
@@ -145,10 +122,8 @@ def _count(n: int) -> str:
 
 
 def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
-    """The one sentence every summary prints about ``n`` kept frames with bad values (NaN or out of range), the first
-    at AHRS step ``first_step`` and firmware time ``first_t_s``; ``inputs``: the filter inputs (acc, gyro) are bad
-    too, so the fault is before the filter. E.g. "1,939 frames carry NaN or |q| > 2 from step 2 on (t = 2.998 s):
-    the firmware's own filter output; check ahrs.c"."""
+    """The sentence about ``n`` kept frames with bad values, the first at ``first_step`` (``first_t_s``);
+    ``inputs``: the filter inputs (acc, gyro) are bad too, so the fault is before the filter."""
     where = "" if first_step is None else f" from step {first_step} on"
     if first_t_s is not None and math.isfinite(first_t_s):
         where += f" (t = {first_t_s:.3f} s)"
@@ -162,8 +137,7 @@ def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None,
 
 
 def held_back_sentence(n: int, held_values: int = 0) -> str:
-    """The sentence about ``n`` CRC-valid frames the gate held back, ``held_values`` of them (protocol v1 only) for
-    NaN or out-of-range values, the others for a sequence and time that do not continue."""
+    """The sentence about ``n`` CRC-valid frames held back, ``held_values`` of them (v1 only) for their values."""
     noun = "frame" if n == 1 else "frames"
     parts = []
     if held_values:
@@ -179,30 +153,26 @@ def held_back_sentence(n: int, held_values: int = 0) -> str:
     return f"{_count(n)} CRC-valid {noun} held back, not shown: " + "; ".join(parts)
 
 
-def _steps_fit(d, dt, d_min: int, window: int, tol: float):
+def _steps_fit(d, dt, d_min: int):
     """The sequence-and-time rule for ``d`` steps and ``dt`` µs forward (Python ints or numpy arrays alike)."""
-    return (d >= d_min) & (d <= window) & (dt >= d * PERIOD_US - tol) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
+    return (d >= d_min) & (d <= WINDOW_STEPS) & (dt >= d * PERIOD_US - TOL_US) & (dt <= 3.0 * d * PERIOD_US + 500_000.0)
 
 
-def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int, window: int, tol: float) -> bool:
-    return bool(_steps_fit((seq - seq_a) % P.SEQ_MODULUS, (t_us - t_a) % P.T_US_MODULUS, d_min, window, tol))
+def _fits(seq_a: int, t_a: int, seq: int, t_us: int, d_min: int) -> bool:
+    return bool(_steps_fit((seq - seq_a) % P.SEQ_MODULUS, (t_us - t_a) % P.T_US_MODULUS, d_min))
 
 
 class PlausibilityGate:
     """Sequential gate over attitude/status rows (see the module docstring). Items are opaque to the gate."""
 
-    def __init__(self, window_steps: int = WINDOW_STEPS, tol_us: float = TOL_US, confirm: int = CONFIRM) -> None:
-        self.window = int(window_steps)
-        self.tol = float(tol_us)
-        self.confirm = int(confirm)
+    def __init__(self) -> None:
         self.held_back = 0  #: frames dropped for good
         self.held_values = 0  #: of those, frames offered with ``values_ok`` False (protocol v1's value checks)
         self._anchor: tuple[int, int] | None = None
         self._pending: list[tuple[int, int, Any]] = []
 
     def offer(self, kind: int, seq: int, t_us: int, values_ok: bool, item: Any) -> list[Any]:
-        """Offer one row: ``seq`` is the attitude ``seq`` or the status ``step`` (any width), ``t_us`` mod 2³².
-        Returns the items released by it, in order (possibly none, possibly earlier held ones)."""
+        """Offer one row (``seq``: the attitude ``seq`` or status ``step``); returns the items it releases, in order."""
         if not values_ok:
             self.held_back += 1
             self.held_values += 1
@@ -210,23 +180,23 @@ class PlausibilityGate:
         seq %= P.SEQ_MODULUS
         anchor = self._anchor
         if kind == P.TYPE_STATUS:
-            if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0, self.window, self.tol):
+            if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 0):
                 return [item]
             self.held_back += 1
             return []
-        if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1, self.window, self.tol):
+        if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1):
             self._anchor = (seq, t_us)
             if self._pending:
                 self.held_back += len(self._pending)
                 self._pending = []
             return [item]
         pend = self._pending
-        if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1, self.window, self.tol):
+        if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1):
             pend.append((seq, t_us, item))
         else:
             self.held_back += len(pend)
             pend[:] = [(seq, t_us, item)]
-        if len(pend) >= self.confirm:
+        if len(pend) >= CONFIRM:
             self._anchor = (pend[-1][0], pend[-1][1])
             items = [x[2] for x in pend]
             pend.clear()
@@ -240,10 +210,8 @@ class PlausibilityGate:
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Keep masks for attitude and status records (structured arrays in stream order with the payload fields,
-    ``offset``, ``nbytes`` (the frame size: 60/96 for v2, 58/94 for v1) and ``exact``), as a
-    :class:`PlausibilityGate` fed row by row in stream order would decide
-    (the gate's counters are updated). Text-mode rows (``exact`` False) are always kept."""
+    """Keep masks for attitude and status records (stream order; ``nbytes`` tells the version) as ``gate`` fed row
+    by row would decide (its counters updated). Text-mode rows are always kept."""
     gate = gate or PlausibilityGate()
     keep_a = np.ones(len(att), bool)
     keep_s = np.ones(len(sta), bool)
@@ -268,7 +236,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     if clean and len(a) > 1:
         d = (a["seq"][1:].astype(np.int64) - a["seq"][:-1]) % P.SEQ_MODULUS
         dt = (a["t_us"][1:].astype(np.int64) - a["t_us"][:-1]) % P.T_US_MODULUS
-        clean = bool(np.all(_steps_fit(d, dt, 1, gate.window, gate.tol)))
+        clean = bool(np.all(_steps_fit(d, dt, 1)))
     if clean and len(s):
         j = np.searchsorted(a["offset"], s["offset"]) - 1
         has = j >= 0
@@ -276,7 +244,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
             jj = j[has]
             d = (s["step"][has].astype(np.int64) - a["seq"][jj]) % P.SEQ_MODULUS
             dt = (s["t_us"][has].astype(np.int64) - a["t_us"][jj]) % P.T_US_MODULUS
-            clean = bool(np.all(_steps_fit(d, dt, 0, gate.window, gate.tol)))
+            clean = bool(np.all(_steps_fit(d, dt, 0)))
     if clean:
         if len(a):
             gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))

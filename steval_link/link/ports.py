@@ -1,8 +1,7 @@
 """Serial ports: listing (``steval ports``) and the other programs that have a port open (:func:`port_holders`).
 
-A program that reads the port without taking its lock (``cat``, a serial monitor left open) takes bytes from our
-stream. The OS's own view finds it: Linux's ``/proc/PID/fd`` links, ``lsof`` elsewhere (macOS, BSD); Windows opens a
-port exclusively, so there is nothing to find there.
+A program reading the port without its lock (``cat``) takes bytes from our stream: Linux's ``/proc/PID/fd`` links or
+``lsof`` find it (Windows opens ports exclusively).
 """
 
 from __future__ import annotations
@@ -12,8 +11,6 @@ import shutil
 import subprocess
 import sys
 from dataclasses import asdict, dataclass
-
-__all__ = ["PortInfo", "holders_sentence", "list_ports", "port_holders"]
 
 #: Longest wait for ``lsof``, s.
 LSOF_TIMEOUT_S = 2.0
@@ -47,8 +44,7 @@ def list_ports() -> list[PortInfo]:
 
 
 def port_holders(device: str) -> list[tuple[int, str]]:
-    """(PID, program name) of every other process that has ``device`` open, sorted by PID ([] when none is found or
-    the OS cannot tell)."""
+    """(PID, program name) of every other process that has ``device`` open, sorted by PID."""
     real = os.path.realpath(device)
     if sys.platform.startswith("linux") and os.path.isdir("/proc/self/fd"):
         found = _proc_holders(real)
@@ -108,8 +104,7 @@ def _lsof_holders(real: str) -> list[tuple[int, str]]:
 
 
 def holders_sentence(device: str, holders: list[tuple[int, str]]) -> str:
-    """The sentence for other programs that have the port open: "another program (PID 1234, cat) has /dev/ttyUSB0
-    open: it takes bytes from this stream"."""
+    """The sentence for other programs that have the port open."""
     who = ", ".join(f"PID {pid}, {name}" for pid, name in holders)
     many = len(holders) > 1
     return (

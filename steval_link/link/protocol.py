@@ -26,10 +26,6 @@ VERSION_1 = 1  #: the first protocol version (CRC-16), still decoded
 HEADER_SIZE = len(SYNC) + 2  # sync, VT, LEN
 CRC_SIZE = 4  #: v2: CRC-32
 CRC_SIZE_V1 = 2  #: v1: CRC-16
-CRC_INIT = 0xFFFF  #: v1 CRC-16 initial value
-
-#: CRC size of each protocol version.
-CRC_SIZE_OF = {VERSION_1: CRC_SIZE_V1, VERSION: CRC_SIZE}
 
 TYPE_ATTITUDE = 1
 TYPE_STATUS = 2
@@ -141,8 +137,7 @@ ACK_DTYPE = np.dtype(
 COMMAND_DTYPE = np.dtype([("cmd_seq", "<u2"), ("cmd", "u1"), ("param", "u1"), ("value", "<f4"), ("reserved", "<u4")])
 
 
-#: The payload dtype of each fixed-size frame type: the one statement of the binary layout (struct formats, frame
-#: fields and sizes derive from it).
+#: The payload dtype of each fixed-size frame type: the one statement of the binary layout.
 PAYLOAD_DTYPE = {
     TYPE_ATTITUDE: ATTITUDE_DTYPE,
     TYPE_STATUS: STATUS_DTYPE,
@@ -156,15 +151,11 @@ FIXED_PAYLOAD_SIZE_V1 = {t: FIXED_PAYLOAD_SIZE[t] for t in (TYPE_ATTITUDE, TYPE_
 
 ATTITUDE_PAYLOAD_SIZE = ATTITUDE_DTYPE.itemsize  # 52
 STATUS_PAYLOAD_SIZE = STATUS_DTYPE.itemsize  # 88
-FLIGHT_PAYLOAD_SIZE = FLIGHT_DTYPE.itemsize  # 72
-ACK_PAYLOAD_SIZE = ACK_DTYPE.itemsize  # 12
-COMMAND_PAYLOAD_SIZE = COMMAND_DTYPE.itemsize  # 12
-
 ATTITUDE_FRAME_SIZE = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE  # 60
 STATUS_FRAME_SIZE = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE  # 96
-FLIGHT_FRAME_SIZE = HEADER_SIZE + FLIGHT_PAYLOAD_SIZE + CRC_SIZE  # 80
-ACK_FRAME_SIZE = HEADER_SIZE + ACK_PAYLOAD_SIZE + CRC_SIZE  # 20
-COMMAND_FRAME_SIZE = HEADER_SIZE + COMMAND_PAYLOAD_SIZE + CRC_SIZE  # 20
+FLIGHT_FRAME_SIZE = HEADER_SIZE + FLIGHT_DTYPE.itemsize + CRC_SIZE  # 80
+ACK_FRAME_SIZE = HEADER_SIZE + ACK_DTYPE.itemsize + CRC_SIZE  # 20
+COMMAND_FRAME_SIZE = HEADER_SIZE + COMMAND_DTYPE.itemsize + CRC_SIZE  # 20
 ATTITUDE_FRAME_SIZE_V1 = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE + CRC_SIZE_V1  # 58
 STATUS_FRAME_SIZE_V1 = HEADER_SIZE + STATUS_PAYLOAD_SIZE + CRC_SIZE_V1  # 94
 
@@ -179,9 +170,8 @@ def payload_fields(dtype: np.dtype) -> tuple[str, ...]:
 
 
 def payload_layout(dtype: np.dtype) -> tuple[struct.Struct, itemgetter]:
-    """How to read payload ``dtype`` with ``struct``: ``pick(layout.unpack_from(buf, pos))`` gives the values of its
-    :func:`payload_fields` in order, a subarray field as a tuple (Python ints and floats; a float32 is exact as a
-    float). Made from the dtype: one ``struct`` value per scalar, picked into fields."""
+    """How to read payload ``dtype`` with ``struct``: ``pick(layout.unpack_from(buf, pos))`` gives its
+    :func:`payload_fields` in order, a subarray field as a tuple (a float32 is exact as a float)."""
     codes, picks, i = [], [], 0
     for name in dtype.names:
         sub = dtype.fields[name][0]
@@ -197,12 +187,13 @@ def payload_layout(dtype: np.dtype) -> tuple[struct.Struct, itemgetter]:
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
     """v1 frame check: CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, no final XOR)."""
-    return binascii.crc_hqx(data, CRC_INIT)
+    return binascii.crc_hqx(data, 0xFFFF)
 
 
-def crc32(data: bytes | bytearray | memoryview) -> int:
-    """v2 frame check: CRC-32/ISO-HDLC of ``data`` (``zlib.crc32``; check value of ``b"123456789"`` 0xCBF43926)."""
-    return zlib.crc32(data)
+#: v2 frame check: CRC-32/ISO-HDLC (check value of ``b"123456789"``: 0xCBF43926).
+crc32 = zlib.crc32
+#: The frame check of each protocol version: (its size in bytes, the function of VT .. payload).
+CHECK = {VERSION_1: (CRC_SIZE_V1, crc16), VERSION: (CRC_SIZE, crc32)}
 
 
 def vt_byte(version: int, frame_type: int) -> int:
@@ -215,9 +206,8 @@ def encode_frame(frame_type: int, payload: bytes, version: int = VERSION) -> byt
     if not 0 <= len(payload) <= 255:
         raise ValueError(f"payload of {len(payload)} bytes does not fit one frame (0..255)")
     body = bytes((vt_byte(version, frame_type), len(payload))) + payload
-    if version == VERSION_1:
-        return SYNC + body + struct.pack("<H", crc16(body))
-    return SYNC + body + struct.pack("<I", crc32(body))
+    size, check = CHECK[version]
+    return SYNC + body + check(body).to_bytes(size, "little")
 
 
 def encode_attitude(
@@ -239,7 +229,7 @@ def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
     """Many attitude frames at once from a structured array of ``ATTITUDE_DTYPE`` (fast path for synthesis)."""
     records = np.ascontiguousarray(records, dtype=ATTITUDE_DTYPE)
     n = len(records)
-    crc_size = CRC_SIZE_OF[version]
+    crc_size, check = CHECK[version]
     end = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE
     out = np.empty((n, end + crc_size), dtype=np.uint8)
     out[:, 0] = SYNC[0]
@@ -247,39 +237,27 @@ def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
     out[:, 2] = vt_byte(version, TYPE_ATTITUDE)
     out[:, 3] = ATTITUDE_PAYLOAD_SIZE
     out[:, HEADER_SIZE:end] = records.view(np.uint8).reshape(n, -1)
-    check = crc16 if version == VERSION_1 else crc32
     crcs = np.fromiter((check(out[i, 2:end].tobytes()) for i in range(n)), dtype=np.uint32, count=n)
     out[:, end:] = crcs.astype("<u4").view(np.uint8).reshape(n, 4)[:, :crc_size]
     return out.tobytes()
 
 
+#: The status fields :func:`encode_status` fills in when not given (the firmware's defaults); the others are 0.
+STATUS_DEFAULTS = dict(
+    kp_ground=C.KP_GROUND, kp_flight=C.KP_FLIGHT, ki=C.KI, dt_s=C.DT_S, cpu_hz=C.CPU_HZ, baud=C.BAUD, min_thr=C.MIN_THR
+)
+
+
 def encode_status(
-    *,
-    step: int,
-    t_us: int,
-    q_wxyz: Sequence[float],
-    int_xyz: Sequence[float],
-    kp_ground: float = C.KP_GROUND,
-    kp_flight: float = C.KP_FLIGHT,
-    ki: float = C.KI,
-    dt_s: float = C.DT_S,
-    cyc_min: int = 0,
-    cyc_mean: int = 0,
-    cyc_max: int = 0,
-    cyc_n: int = 0,
-    cpu_hz: int = C.CPU_HZ,
-    tx_dropped: int = 0,
-    baud: int = C.BAUD,
-    min_thr: int = C.MIN_THR,
-    flags: int = 0,
-    queue_peak: int = 0,
-    fw_version: Sequence[int] = (2, 0),
-    fc_every: int = 0,
-    param_gen: int = 0,
-    version: int = VERSION,
+    *, step: int, t_us: int, q_wxyz: Sequence[float], int_xyz: Sequence[float], version: int = VERSION, **fields
 ) -> bytes:
-    """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``."""
-    fields = {**locals(), "step": step % STEP_MODULUS, "t_us": t_us % T_US_MODULUS}  # the arguments are the fields
+    """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``; other
+    ``STATUS_DTYPE`` fields by name (:data:`STATUS_DEFAULTS`, ``fw_version`` (2, 0), else 0)."""
+    unknown = set(fields) - set(STATUS_DTYPE.names)
+    if unknown:
+        raise TypeError(f"encode_status() got unknown fields {sorted(unknown)}")
+    fields = {**STATUS_DEFAULTS, "fw_version": (2, 0), **fields, "q_wxyz": q_wxyz, "int_xyz": int_xyz}
+    fields.update(step=step % STEP_MODULUS, t_us=t_us % T_US_MODULUS)
     return encode_frame(TYPE_STATUS, _record(STATUS_DTYPE, fields), version)
 
 

@@ -1,12 +1,8 @@
 """A recorded stream played back as a live serial port: ``--port replay://recordings/demo.stv``.
 
-As pyserial's URL handlers (``loop://``), :class:`ReplayPort` has the surface of ``serial.Serial`` the reader
-thread uses, so a replay walks the whole live path.
-
-Pace: a capture's bytes come out at their recorded host times; a raw dump or text log at its frames' firmware
-times, else at the baud rate (10 bit times a byte). The lead-in before the first attitude frame comes out at once.
-``?speed=X`` plays X times faster, ``?rate=N`` paces a text log without times at N records a second, ``?loop=1``
-starts again at the end. Commands go nowhere: :meth:`ReplayPort.write` raises.
+As pyserial's URL handlers (``loop://``), :class:`ReplayPort` has the surface of ``serial.Serial``, so a replay
+walks the whole live path. A capture's bytes come out at their recorded host times, a dump or log at its frames'
+firmware times, else at the baud rate; the lead-in before the first attitude frame at once.
 """
 
 from __future__ import annotations
@@ -29,8 +25,6 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.link.transport import READ_TIMEOUT_S
 
-__all__ = ["SCHEME", "ReplayPort", "ReplayUrl", "is_replay_url", "open_replay", "parse_replay_url", "pace_of"]
-
 SCHEME = "replay://"
 #: Bytes released together when pacing at the baud rate.
 BAUD_BLOCK_BYTES = 32
@@ -51,9 +45,8 @@ def is_replay_url(port: str) -> bool:
 
 @dataclass(frozen=True)
 class ReplayUrl:
-    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file to replay, how many times faster than recorded (1: as
-    recorded), the records per second of a text log without times, and whether it starts again at its end
-    (``loop``: for soaks and class demos, with ``--duration``)."""
+    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file, how many times faster than recorded, the records per
+    second of a text log without times, and whether it starts again at its end."""
 
     path: Path
     speed: float = 1.0
@@ -67,8 +60,7 @@ _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
 def parse_replay_url(url: str) -> ReplayUrl:
-    """Parse ``replay://recordings/demo.stv`` (relative), ``replay:///abs/x.stv`` or ``...?speed=5``; raises
-    :class:`UserError` with one sentence."""
+    """Parse ``replay://recordings/demo.stv`` (relative), ``replay:///abs/x.stv`` or ``...?speed=5``."""
     if not is_replay_url(url):
         raise UserError(f"{url} is not a replay URL (replay://CAPTURE.stv)")
     rest = url[len(SCHEME) :]
@@ -106,12 +98,8 @@ def _positive(url: str, key: str, text: str) -> float:
 
 
 def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
-    """When each byte of ``src`` (a :class:`~steval_link.link.load.Recording`, decoded as ``tel``) comes out.
-    ``rate``: records per second of a text log without times (else it comes at the baud rate).
-
-    Returns ``(ends, t_s, how)``: bytes ``[0, ends[i])`` are out at ``t_s[i]`` (s since the replay started,
-    non-decreasing), and ``how`` says which clock paced them (for the notes).
-    """
+    """``(ends, t_s, how)``: bytes ``[0, ends[i])`` of ``src`` (decoded as ``tel``) are out at ``t_s[i]`` (s since
+    the replay started), paced by ``how``; ``rate``: records per second of a text log without times."""
     n = len(src.data)
     att = tel.attitude
     first = int(att.offset[0]) if len(att) else 0
@@ -145,9 +133,8 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
 
 
 class ReplayPort:
-    """A file's bytes as a serial port that delivers them at their recorded pace (see the module doc): bytes
-    ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first read. ``read`` waits like pyserial's; after the
-    last byte :attr:`at_end` is True."""
+    """A file's bytes as a serial port: bytes ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first
+    read. Commands go nowhere: :meth:`write` raises."""
 
     def __init__(
         self,
@@ -180,8 +167,6 @@ class ReplayPort:
         self._cancel = threading.Event()
         self.is_open = True
 
-    # -- timing -----------------------------------------------------------------------------------------------
-
     def _elapsed_s(self) -> float:
         now = self._clock()
         if self._t0 is None:
@@ -197,8 +182,6 @@ class ReplayPort:
         out = int(self.ends[i - 1]) if i else 0
         wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
         return out, wait
-
-    # -- the serial surface -----------------------------------------------------------------------------------
 
     @property
     def in_waiting(self) -> int:
@@ -246,9 +229,7 @@ class ReplayPort:
 
 
 def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
-    """Open ``replay://PATH[?speed=X]``: read and decode the file once (a missing file, a damaged capture or one
-    without frames is one sentence, :class:`UserError`), then pace it (:func:`pace_of`). ``baud``: the pace of a
-    file without times (a capture's own header wins)."""
+    """Open ``replay://PATH[?speed=X]``; ``baud``: the pace of a file without times (a capture's header wins)."""
     parsed = parse_replay_url(url)
     try:
         src = read_recording(parsed.path)

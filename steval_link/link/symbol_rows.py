@@ -1,10 +1,8 @@
 """A capture's symbol chunks ``S`` (the attitude the emulator read from the firmware's globals by symbol) in its
 ``Telemetry``: :func:`merge_symbol_attitude`.
 
-Without attitude frames (a build without the patch, or its output off) the rows become ``tel.attitude``, bit-exact
-floats like a binary frame's, and ``tel.source["attitude_from"]`` says ``"symbols"``: every command then uses them
-as it uses frames. With frames the frames stay, and the two are checked step by step: ``tel.source["symbols"]``
-says whether they agree bit for bit.
+Without attitude frames the rows become ``tel.attitude`` (``tel.source["attitude_from"]`` = ``"symbols"``); with
+frames the frames stay and ``tel.source["symbols"]`` says whether the two agree bit for bit.
 """
 
 from __future__ import annotations
@@ -14,26 +12,7 @@ import numpy as np
 from steval_link.link.capture import SYMBOL_DTYPE
 from steval_link.link.telemetry import AttitudeArrays, Telemetry
 
-__all__ = ["symbol_attitude", "merge_symbol_attitude"]
-
 _F32 = np.float32
-
-
-def symbol_attitude(rows: np.ndarray) -> AttitudeArrays:
-    """``SYMBOL_DTYPE`` rows as attitude rows (step from the emulator's count, times = emulated s since power-up)."""
-    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
-    t_s = rows["t_s"].astype(np.float64)
-    return AttitudeArrays.of(
-        rows["step"],
-        t_s,
-        t_s.copy(),
-        rows["acc_mg"],
-        rows["gyro_mdps"],
-        rows["euler_rad"],
-        thr=rows["thr"],
-        q_wxyz=rows["q_wxyz"],
-        exact=True,
-    )
 
 
 def _bits(a: np.ndarray) -> np.ndarray:
@@ -45,7 +24,10 @@ def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
     """Put the symbol rows into ``tel`` (see the module docstring); ``rows`` None or empty: ``tel`` unchanged."""
     if rows is None or len(rows) == 0:
         return tel
-    read = symbol_attitude(rows)
+    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
+    t_s = rows["t_s"].astype(np.float64)  # emulated s since power-up, as firmware and host time
+    args = (rows["step"], t_s, t_s.copy(), rows["acc_mg"], rows["gyro_mdps"], rows["euler_rad"])
+    read = AttitudeArrays.of(*args, thr=rows["thr"], q_wxyz=rows["q_wxyz"], exact=True)
     if len(tel.attitude) == 0:
         tel.attitude = read
         tel.source["attitude_from"] = "symbols"

@@ -34,27 +34,16 @@ from steval_link.link.frames import (
     TextRecordFrame,
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
-from steval_link.link.text_series import RecordBlock, TextSeries, map_attitude, record_blocks, text_series
+from steval_link.link.text_series import RecordBlock, TextSeries, apply_plan, attitude_plan, record_blocks, text_series
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.link.unwrap import host_times as _host_times
 
 if TYPE_CHECKING:  # annotations only
     from steval_link.link.frames import DecoderStats, Frame
 
-__all__ = [
-    "AttitudeArrays",
-    "StatusArrays",
-    "FlightControlArrays",
-    "Telemetry",
-    "TelemetryParts",
-    "telemetry_from_frames",
-]
-
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
-ATT_RECORD_DTYPE = np.dtype(
-    ATT_DESCR := P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")]
-)
+ATT_RECORD_DTYPE = np.dtype(P.ATTITUDE_DTYPE.descr + _EXTRA + [("step", "<i8"), ("thx_rad", "<f4"), ("thy_rad", "<f4")])
 STA_RECORD_DTYPE = np.dtype(P.STATUS_DTYPE.descr + _EXTRA)
 _ROW_EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("t_host_s", "<f8")]
 #: Rows of the v2 frames kept as structured arrays (payload fields + where and when the frame arrived).
@@ -63,13 +52,26 @@ ACK_ROW_DTYPE = np.dtype(P.ACK_DTYPE.descr + _ROW_EXTRA)
 COMMAND_ROW_DTYPE = np.dtype(P.COMMAND_DTYPE.descr + _ROW_EXTRA)
 
 
+#: the attitude columns taken as they are from the records (ATT_RECORD_DTYPE has each one's type)
+_RECORD_COLUMNS = (
+    "seq",
+    "t_us",
+    "acc_mg",
+    "gyro_mdps",
+    "thr",
+    "q_wxyz",
+    "thz_rad",
+    "thx_rad",
+    "thy_rad",
+    "exact",
+    "offset",
+)
+
+
 @dataclass
 class AttitudeArrays:
-    """One row per attitude frame (see the module docstring for the derived fields).
-
-    Axes are the firmware's: x right, y forward, z up; ``thx_rad`` is pitch (about x, nose up +), ``thy_rad`` roll
-    (about y), ``thz_rad`` the ISR-integrated yaw.
-    """
+    """One row per attitude frame. Axes are the firmware's (x right, y forward, z up): ``thx_rad`` is pitch (about
+    x, nose up +), ``thy_rad`` roll (about y), ``thz_rad`` the ISR-integrated yaw."""
 
     step: np.ndarray  #: (N,) int64, AHRS step counter
     seq: np.ndarray  #: (N,) uint16, as sent
@@ -124,29 +126,14 @@ class AttitudeArrays:
 
     @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
-        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order) with their step and times (the bulk path
-        and the live one); ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
-        thx = att["thx_rad"].copy()
-        thy = att["thy_rad"].copy()
-        ex = att["exact"]
+        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order, each field already of its column's type) with
+        their step and times; ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        cols = {name: np.array(att[name]) for name in _RECORD_COLUMNS}  # copies
+        ex = cols["exact"]
         if ex.any():
-            thx[ex], thy[ex] = quaternion_to_euler(att["q_wxyz"][ex])
-        return cls(
-            step=np.asarray(step, dtype=np.int64),
-            seq=att["seq"].astype(np.uint16),
-            t_us=att["t_us"].astype(np.uint32),
-            t_fw_s=np.asarray(t_fw_s, dtype=np.float64),
-            t_host_s=np.asarray(t_host_s, dtype=np.float64),
-            acc_mg=np.ascontiguousarray(att["acc_mg"], dtype=np.float32),
-            gyro_mdps=np.ascontiguousarray(att["gyro_mdps"], dtype=np.float32),
-            thr=att["thr"].astype(np.int16),
-            q_wxyz=np.ascontiguousarray(att["q_wxyz"], dtype=np.float32),
-            thz_rad=att["thz_rad"].astype(np.float32),
-            thx_rad=thx.astype(np.float32),
-            thy_rad=thy.astype(np.float32),
-            exact=att["exact"].astype(bool),
-            offset=att["offset"].astype(np.int64),
-        )
+            cols["thx_rad"][ex], cols["thy_rad"][ex] = quaternion_to_euler(att["q_wxyz"][ex])
+        times = dict(t_fw_s=np.asarray(t_fw_s, dtype=np.float64), t_host_s=np.asarray(t_host_s, dtype=np.float64))
+        return cls(step=np.asarray(step, dtype=np.int64), **times, **cols)
 
     @classmethod
     def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
@@ -179,12 +166,9 @@ class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name 
 
 @dataclass
 class FlightControlArrays:
-    """One row per flight-control frame (type 4, sent right after ``FlightControlPID_OuterLoop`` of step ``step``),
-    units in the names; ``tel.fc``. Axes x (pitch, about x), y (roll, about y), z (yaw).
-
-    ``t_fw_s`` is the firmware time of the frame's step: the time of the attitude row before it in the stream plus
-    the steps between (one AHRS period each); the frame itself carries no time.
-    """
+    """One row per flight-control frame (sent after ``FlightControlPID_OuterLoop`` of step ``step``); ``tel.fc``.
+    Axes x (pitch), y (roll), z (yaw). ``t_fw_s``: the time of the attitude row before it plus the AHRS periods
+    between (the frame carries no time)."""
 
     step: np.ndarray  #: (N,) int64, the AHRS step (as the attitude rows' step)
     t_fw_s: np.ndarray  #: (N,) float64, firmware time of the step, s since boot
@@ -214,35 +198,10 @@ class FlightControlArrays:
             t = att.t_fw_s[j] + (step - att.step[j]) * C.AHRS_PERIOD_S
         else:
             t = step * C.AHRS_PERIOD_S
-        return cls(
-            step=step,
-            t_fw_s=np.asarray(t, np.float64),
-            t_host_s=rows["t_host_s"].astype(np.float64),
-            euler_rc_rad=np.ascontiguousarray(rows["euler_rc_rad"], np.float32),
-            rc=np.ascontiguousarray(rows["rc"], np.int16),
-            outer_s1_radps=np.ascontiguousarray(rows["outer_s1"], np.float32),
-            inner_s2_pwm=np.ascontiguousarray(rows["inner_s2"], np.float32),
-            motor_pwm=np.ascontiguousarray(rows["motor_pwm"], np.float32),
-            vbat_v=rows["vbat_v"].astype(np.float32),
-            fc_flags=rows["fc_flags"].astype(np.uint16),
-            fc_every=rows["fc_every"].astype(np.uint8),
-            offset=rows["offset"].astype(np.int64),
-        )
-
-
-def _payload_records(arr, payload_starts, frame_starts, payload_dtype, record_dtype, frame_size) -> np.ndarray:
-    """Records of ``record_dtype`` from the binary payloads starting at ``payload_starts`` in the byte array ``arr``
-    (fields of ``payload_dtype`` copied; ``offset``/``nbytes`` (``frame_size``, scalar or per frame) of the frame;
-    ``exact`` True)."""
-    win = np.lib.stride_tricks.sliding_window_view(arr, payload_dtype.itemsize)
-    pay = np.ascontiguousarray(win[payload_starts]).view(payload_dtype).reshape(-1)
-    rec = np.empty(len(pay), record_dtype)
-    for name in payload_dtype.names:
-        rec[name] = pay[name]
-    rec["offset"] = frame_starts
-    rec["nbytes"] = frame_size
-    rec["exact"] = True
-    return rec
+        cols = {name: np.array(rows[name]) for name in FLIGHT_ROW_DTYPE.names if name not in (P.RESERVED, "nbytes")}
+        cols["outer_s1_radps"], cols["inner_s2_pwm"] = cols.pop("outer_s1"), cols.pop("inner_s2")  # units named
+        cols["step"] = step
+        return cls(t_fw_s=np.asarray(t, np.float64), **cols)
 
 
 #: the columns of ``steval export --csv`` that make its rows the frames' own (each float32 written so that it reads
@@ -267,13 +226,17 @@ class TelemetryParts:
         self._settled = False  # the blocks are one sorted block each (records asked for, nothing added since)
 
     def add_payloads(self, kind: int, arr: np.ndarray, payload_starts, frame_starts, frame_sizes) -> None:
-        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in the byte array
-        ``arr``."""
+        """Binary attitude or status frames (``kind``) whose payloads start at ``payload_starts`` in ``arr``."""
         if len(payload_starts) == 0:
             return
         attitude = kind == P.TYPE_ATTITUDE
-        dtypes = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
-        rec = _payload_records(arr, payload_starts, frame_starts, *dtypes, frame_sizes)
+        payload, record = (P.ATTITUDE_DTYPE, ATT_RECORD_DTYPE) if attitude else (P.STATUS_DTYPE, STA_RECORD_DTYPE)
+        win = np.lib.stride_tricks.sliding_window_view(arr, payload.itemsize)
+        pay = np.ascontiguousarray(win[payload_starts]).view(payload).reshape(-1)
+        rec = np.empty(len(pay), record)
+        for name in payload.names:
+            rec[name] = pay[name]
+        rec["offset"], rec["nbytes"], rec["exact"] = frame_starts, frame_sizes, True
         if attitude:
             rec["step"], rec["thx_rad"], rec["thy_rad"] = -1, np.nan, np.nan
         (self.att_blocks if attitude else self.sta_blocks).append(rec)
@@ -284,20 +247,6 @@ class TelemetryParts:
         lists = {AttitudeFrame: self.att_frames, StatusFrame: self.sta_frames, TextFrame: self.texts}
         lists.get(kind, self.records if kind is TextRecordFrame else self.others).append(frame)
         self._settled = self._settled and kind not in (AttitudeFrame, StatusFrame)
-
-    def apply_gate(self, keep_masks) -> None:
-        """Filter the attitude and status rows: ``keep_masks(att_records, sta_records)`` returns two boolean masks
-        (e.g. :func:`steval_link.link.plausibility.gate_rows`)."""
-        att, sta = self.attitude_records(), self.status_records()
-        keep_a, keep_s = keep_masks(att, sta)
-        self.att_blocks, self.sta_blocks = [att[keep_a]], [sta[keep_s]]
-
-    def other_rows(self, kind: type, dtype: np.dtype) -> np.ndarray:
-        """Rows of the frames of class ``kind`` (flight, ack or command) in stream order; ``t_host_s`` NaN here."""
-        frames = sorted((f for f in self.others if isinstance(f, kind)), key=lambda f: f.offset)
-        rec = _frame_records(frames, dtype, skip=("t_host_s", P.RESERVED))
-        rec["t_host_s"] = np.nan
-        return rec
 
     def attitude_records(self) -> np.ndarray:
         """Every attitude row so far, in stream order."""
@@ -319,8 +268,7 @@ class TelemetryParts:
 
 
 def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
-    """Records of ``dtype`` from frames with attributes of the same names (``skip``: fields left 0; an attitude
-    frame's ``step`` None is -1)."""
+    """Records of ``dtype`` from the frames' attributes (``skip``: fields left 0; a ``step`` None is -1)."""
     rec = np.zeros(len(frames), dtype)
     for name in dtype.names if frames else ():
         if name not in skip:
@@ -337,9 +285,8 @@ def _sorted_records(blocks: list[np.ndarray], frames: list, dtype: np.dtype) -> 
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(step per attitude row, restart offsets) — see the module docstring. The binary rows' ``seq`` go through
-    :class:`~steval_link.link.unwrap.SeqUnwrapper` (as on the live path); then each firmware run takes the high
-    bits from its first status frame whose step agrees, for all its rows, before that frame too."""
+    """(step per attitude row, restart offsets): binary rows' ``seq`` unwrapped as live; each firmware run takes the
+    high bits from its first status frame whose step agrees, for all its rows."""
     step = att["step"].copy()
     b = np.flatnonzero(att["exact"])
     restarts = np.zeros(0, np.int64)
@@ -395,14 +342,13 @@ class Telemetry:
         *,
         chunk_times: tuple[np.ndarray, np.ndarray] | None = None,
         baud: int | None = None,
-        total_bytes: int | None = None,
         source: dict | None = None,
         events: list | None = None,
     ) -> Telemetry:
         att = parts.attitude_records()
         sta = parts.status_records()
         texts = sorted(parts.texts, key=lambda f: f.offset)
-        total = int(total_bytes if total_bytes is not None else stats.bytes_total)
+        total = int(stats.bytes_total)
 
         def host_s(last_byte) -> np.ndarray:
             return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
@@ -419,13 +365,10 @@ class Telemetry:
         attitude = AttitudeArrays.from_records(
             att, step=step, t_fw_s=t_all[:na], t_host_s=host_s(att["offset"] + att["nbytes"] - 1)
         )
-        st_fields = {name: np.ascontiguousarray(sta[name]) for name in P.STATUS_DTYPE.names}
         status = StatusArrays(
-            **st_fields,
+            **{name: np.array(sta[name]) for name in (*P.STATUS_DTYPE.names, "exact", "offset")},  # their own types
             t_fw_s=t_all[na:],
             t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
-            exact=sta["exact"].astype(bool),
-            offset=sta["offset"].astype(np.int64),
         )
         t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
         text = [(float(t), f.text) for t, f in zip(t_text, texts)]
@@ -435,7 +378,8 @@ class Telemetry:
             ("acks", AckFrame, ACK_ROW_DTYPE),
             ("commands", CommandFrame, COMMAND_ROW_DTYPE),
         ):
-            rec = parts.other_rows(kind, dtype)
+            frames = sorted((f for f in parts.others if isinstance(f, kind)), key=lambda f: f.offset)
+            rec = _frame_records(frames, dtype, skip=("t_host_s", P.RESERVED))
             rec["t_host_s"] = host_s(rec["offset"] + rec["nbytes"] - 1)
             rows[name] = rec
         if parts.sent_commands is not None and len(parts.sent_commands):
@@ -463,16 +407,15 @@ class Telemetry:
         return 0 if self.printed_only else int(self.attitude.exact.sum())
 
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
-        """The attitude rows from the text series (:func:`~steval_link.link.text_series.map_attitude`: ST's line,
-        names such as pitch/roll, ``user_map``), when the stream has no attitude frames of its own; the notes in
-        ``text_attitude_notes``. UserError for a ``user_map`` that cannot hold."""
+        """The attitude rows from the text series (:func:`~steval_link.link.text_series.attitude_plan`) when the
+        stream has no attitude frames of its own; the notes in ``text_attitude_notes``."""
         if len(self.attitude) and self.attitude.exact.any():
             return
-        cols, notes = map_attitude(self.text_series, user_map)
-        self.text_attitude_notes = notes
-        if not cols:
-            return
         s = self.text_series
+        plan, self.text_attitude_notes = attitude_plan(s, user_map)
+        if not plan:
+            return
+        cols = apply_plan(plan, s.values)
         n = len(s)
         t_fw = np.asarray(s.t_s, np.float64)
         # AHRS steps from the records' times: the estimators run at the line rate (rows decimated as text mode's)
@@ -507,7 +450,6 @@ class Telemetry:
         """The flight-control frames with units in the names (:class:`FlightControlArrays`)."""
         return FlightControlArrays.from_rows(self.flight, self.attitude)
 
-    # -- tables ------------------------------------------------------------------------------------------------
     def flight_columns(self) -> dict[str, np.ndarray]:
         """The flight-control fields as columns on the attitude rows (joined by step; NaN in the rows of steps
         without a flight-control frame), units in the names; {} when the stream has none."""
@@ -568,10 +510,7 @@ def telemetry_from_frames(
     source: dict | None = None,
     events: list | None = None,
 ) -> Telemetry:
-    """A :class:`Telemetry` from the frames of a :class:`~steval_link.link.decoder.StreamDecoder` (e.g. the live path).
-
-    ``frame_times`` (one host time per frame, s) sets ``t_host_s``; else host times are NaN.
-    """
+    """A :class:`Telemetry` from a ``StreamDecoder``'s frames; ``frame_times``: one host time per frame, s."""
     parts = TelemetryParts()
     for f in frames:
         parts.add_frame(f)

@@ -4,7 +4,7 @@
   name), with units and a time per record: a timestamp column (``t``, ``t_ms``, ``millis``, Teleplot's
   ``NAME_t_ms``...), else the host's receive times, else ST's main-loop rate (161.5 Hz) for ST's line and printed
   angles, else the record index (1 s apart).
-* :func:`map_attitude`: which series are the attitude and inputs: ST's 221117 line, names (pitch/roll/yaw,
+* :func:`attitude_plan`: which series are the attitude and inputs: ST's 221117 line, names (pitch/roll/yaw,
   thx/thy/thz, acc/gyro with a unit) or a user's mapping (``pitch=col2:deg``); angles in rad, acc in mg, gyro in mdps.
 
 Axes are the board's: thx is about x = pitch (nose up +), thy about y = roll. The handouts' atan(ay/az), called roll
@@ -22,22 +22,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.errors import UserError
-from steval_link.link import protocol as P
 from steval_link.link.frames import AttitudeFrame
-
-__all__ = [
-    "FLOATLESS_NOTE",
-    "MAP_TARGETS",
-    "RecordAttitude",
-    "RecordBlock",
-    "apply_plan",
-    "attitude_plan",
-    "TextSeries",
-    "map_attitude",
-    "parse_map",
-    "record_blocks",
-    "text_series",
-]
 
 #: The sentence for ST's line with empty float fields.
 FLOATLESS_NOTE = (
@@ -77,9 +62,8 @@ _TIME_NAME_RE = re.compile(r"(?:t|time)(?:_[a-z0-9]+)*_(s|ms|us)")
 @dataclass
 class TextSeries:
     """Every record of text telemetry: ``values`` (N, M) float64, a column per name of ``names`` (``units`` as
-    written, '' when none); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (s since the capture started,
-    NaN when unknown), ``offset`` (stream byte offset), ``kind`` (the format), ``shape`` (its index in ``shapes``,
-    the names of each record shape); ``notes`` what was recognised."""
+    written); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (NaN when unknown), stream ``offset``, ``kind``
+    (the format), ``shape`` (its index in ``shapes``); ``notes`` what was recognised."""
 
     names: list[str] = field(default_factory=list)
     units: list[str] = field(default_factory=list)
@@ -114,8 +98,7 @@ class TextSeries:
 
 @dataclass
 class RecordBlock:
-    """Records of one shape, as the bulk decoder makes them: ``names``, ``units``, ``kind``; ``values`` (k, m)
-    float64, ``offset`` and ``nbytes`` (k,) int64 (each record's bytes in the stream)."""
+    """Records of one shape: ``values`` (k, m) float64, each record's bytes at ``offset`` (``nbytes`` long)."""
 
     names: tuple[str, ...]
     units: tuple[str, ...]
@@ -266,18 +249,10 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
     return out
 
 
-def map_attitude(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[dict, list[str]]:
-    """The attitude columns the series stand for (``thx_rad``, ``thy_rad``, ``thz_rad`` (N,) float32, ``acc_mg``,
-    ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped) and one note per mapped name;
-    ({}, notes) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
-    :func:`parse_map`) goes before the names; UserError for a series that is not there or a unit that does not fit."""
-    plan, notes = attitude_plan(s, user_map)
-    return (apply_plan(plan, s.values) if plan else {}), notes
-
-
 def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[list, list[str]]:
     """How the series become the attitude: [(target, column, factor to rad / mg / mdps)], and a note per mapped
-    name; ([], []) when neither an angle nor acc and gyro are found (see :func:`map_attitude`)."""
+    name; ([], []) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
+    :func:`parse_map`) goes before the names; UserError for a series not there or a unit that does not fit."""
     mapped = {name for name, _ in (user_map or {}).values()}  # a series the user mapped is not also auto-mapped
     found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any() and v[0] not in mapped}
     defaulted = set()  # user-mapped angles without a unit anywhere: degrees, said as assumed
@@ -317,7 +292,8 @@ _ANGLE_COLUMN = {"pitch": "thx_rad", "roll": "thy_rad", "yaw": "thz_rad"}
 
 
 def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
-    """The attitude columns (see :func:`map_attitude`) of ``values`` (N, M) by ``plan`` (:func:`attitude_plan`)."""
+    """The attitude columns of ``values`` (N, M) by ``plan``: ``thx_rad``, ``thy_rad``, ``thz_rad`` (N,) float32,
+    ``acc_mg``, ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped."""
     n = len(values)
     cols = {name: np.full(n, np.nan, np.float32) for name in _ANGLE_COLUMN.values()}
     cols |= {name: np.full((n, 3), np.nan, np.float32) for name in ("acc_mg", "gyro_mdps")}
@@ -335,11 +311,9 @@ def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
 
 
 class RecordAttitude:
-    """Records of a live stream as text-mode attitude frames (``exact`` False), mapped as :func:`map_attitude`
-    maps a whole log (the plan made once per record shape): ``frame(record, t_s)`` with the record's host time,
-    s; None for a record that is no attitude. Steps count AHRS periods from the first record (the estimators run
-    at the line rate), firmware time is the host time. :meth:`take_notes`: what each new record shape mapped to
-    ("Drone_Pitch → pitch, degrees"), or why ``user_map`` cannot hold on it, once each."""
+    """Records of a live stream as text-mode attitude frames, mapped as a whole log is (a plan per record shape):
+    ``frame(record, t_s)`` with the record's host time, s; None for a record that is no attitude. Steps count AHRS
+    periods from the first record. :meth:`take_notes`: what each new shape mapped to, once each."""
 
     def __init__(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         self.user_map = user_map
@@ -371,20 +345,11 @@ class RecordAttitude:
         if self._t0_s is None:
             self._t0_s = t_s
         self._step = max(self._step + 1, round((t_s - self._t0_s) / C.AHRS_PERIOD_S))
-        return AttitudeFrame(
-            t_us=int(round(max(t_s, 0.0) * 1e6)) % P.T_US_MODULUS,  # a line estimated to end before the start: 0
-            acc_mg=tuple(float(x) for x in c["acc_mg"][0]),
-            gyro_mdps=tuple(float(x) for x in c["gyro_mdps"][0]),
-            q_wxyz=(math.nan,) * 4,
-            thz_rad=float(c["thz_rad"][0]),
-            seq=self._step % P.SEQ_MODULUS,
-            thr=int(c["thr"][0]),
-            exact=False,
-            offset=record.offset,
-            nbytes=record.nbytes,
-            step=self._step,
-            thx_rad=float(c["thx_rad"][0]),
-            thy_rad=float(c["thy_rad"][0]),
+        t_us = int(round(max(t_s, 0.0) * 1e6))  # a line estimated to end before the start: 0
+        acc, gyro = map(float, c["acc_mg"][0]), map(float, c["gyro_mdps"][0])
+        euler = [float(c[k][0]) for k in ("thx_rad", "thy_rad", "thz_rad")]
+        return AttitudeFrame.text_row(
+            self._step, t_us, acc, gyro, euler, int(c["thr"][0]), record.offset, record.nbytes
         )
 
 

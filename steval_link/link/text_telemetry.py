@@ -1,7 +1,6 @@
 """Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
 
-:class:`TextTelemetryReader` takes the plain lines the decoder found and hands each back as a
-:class:`~steval_link.link.frames.TextRecordFrame` (a record) or a :class:`~steval_link.link.frames.TextFrame`.
+:class:`TextTelemetryReader` hands each plain line back as a record (``TextRecordFrame``) or a ``TextFrame``.
 
 Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
@@ -15,11 +14,9 @@ Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``
 A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
 stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
 between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
-lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines, so a
-damaged line is not a record. Bytes the decoder skipped end what is being learned.
-
-For the bulk decoder a learned one-line shape also has a :class:`LineTemplate`, a regex matching exactly the lines
-that would be records, so long runs of them are read as arrays at once.
+lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines. For the bulk
+decoder a learned one-line shape has a :class:`LineTemplate`: a regex matching exactly the lines that would be
+records.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
@@ -35,18 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from steval_link.link.frames import TextFrame, TextRecordFrame
-
-__all__ = [
-    "CONFIRM",
-    "LineTemplate",
-    "MAX_PENDING",
-    "ST_221117_NAMES",
-    "ST_221117_UNITS",
-    "ParsedLine",
-    "TextTelemetryReader",
-    "looks_like_text",
-    "parse_line",
-]
 
 #: Times a record shape must repeat in a row before its lines are records.
 CONFIRM = 3
@@ -205,8 +190,7 @@ def _labelled_line(text: str) -> ParsedLine | None:
         return None
     names: list[str] = []
     units: list[str] = []
-    values: list[float] = []
-    kinds: list[str] = []
+    numbers: list[str] = []  # every value field, in order
     for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
@@ -217,11 +201,11 @@ def _labelled_line(text: str) -> ParsedLine | None:
             label_names = [label] if len(fields) == 1 else [f"{label}_{s}" for s in suffixes]
         names += label_names
         units += [unit] * len(fields)
-        values += [_number(f) for f in fields]
-        kinds += [_kind(f) for f in fields]
+        numbers += fields
     if len(set(names)) != len(names):
         return None
-    return ParsedLine(("labelled", tuple(names), tuple(kinds)), tuple(names), tuple(units), tuple(values), "labelled")
+    shape = ("labelled", tuple(names), tuple(map(_kind, numbers)))
+    return ParsedLine(shape, tuple(names), tuple(units), tuple(map(_number, numbers)), "labelled")
 
 
 def _teleplot_line(text: str) -> ParsedLine | None:
@@ -258,9 +242,8 @@ _TO_SPACES = bytes.maketrans(b":=,;\t\r", b"      ")
 @dataclass(frozen=True)
 class LineTemplate:
     """Lines of one learned one-line record shape, for the bulk decoder: ``valid`` matches a run of whole lines
-    that fit (``\\r?\\n`` each), ``groups`` one line with its numbers as groups; ``sep`` the field separator of a
-    table (None: spaces, or a labelled line, whose ``words`` are removed before the numbers are read); the record's
-    ``names``, ``units``, ``kind`` and the ``kinds`` of its values ('i', 'f', '-' empty)."""
+    that fit, ``groups`` one line with its numbers as groups; ``sep`` a table's separator (None: spaces, or a
+    labelled line whose ``words`` go before the numbers are read); ``kinds`` of the values ('i', 'f', '-' empty)."""
 
     valid: re.Pattern[bytes]
     valid_blanks: re.Pattern[bytes]  #: as ``valid``, blank lines allowed between the lines
@@ -290,8 +273,7 @@ _TABLE_MIN_ROWS = 256
 
 
 def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.ndarray | None:
-    """The numbers of ``chunk`` as a (count, ncols) table read by pandas' C parser (optional: None without it, or
-    when the table does not come out whole)."""
+    """The numbers of ``chunk`` as a (count, ncols) table by pandas' C parser; None without pandas or a whole table."""
     try:
         import pandas as pd  # optional: a C parser of number tables, about 20 times numpy's
     except ImportError:
@@ -321,8 +303,8 @@ def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.n
 
 
 def line_template(shape: _Shape) -> LineTemplate | None:
-    """The :class:`LineTemplate` of a one-line shape, made from its example line: a line fits exactly when
-    :func:`parse_line` gives it that line shape. None for shapes it does not cover (Teleplot, non-ASCII, ``$``)."""
+    """The :class:`LineTemplate` of a one-line shape from its example line (a line fits exactly when
+    :func:`parse_line` gives it that shape); None for Teleplot, non-ASCII or ``$`` lines."""
     example, line = shape.example, shape.lines[0]
     if not example.isascii() or "$" in example or line[0] == "teleplot":
         return None
@@ -404,8 +386,7 @@ def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
 
 
 def looks_like_text(text: str) -> bool:
-    """True when a line reads as text a program printed (not a printable run of random bytes): at least three
-    characters, two of them letters or digits, and almost all of them ordinary text characters."""
+    """True when a line reads as printed text: three characters or more, two alphanumeric, 85 % ordinary."""
     if len(text) < 3 or sum(c.isalnum() for c in text) < 2:
         return False
     ordinary = sum(c.isalnum() or c in _PUNCTUATION for c in text)
@@ -446,7 +427,6 @@ class TextTelemetryReader:
         self._header: tuple | None = None
         self._block_start = True  # the next line starts a block (after a blank or text line, or at the start)
         self._template: tuple | None = None  # (shape, its compiled line template) for the bulk decoder
-        self.records = 0  #: records handed out
 
     def line(self, text: str, offset: int, nbytes: int) -> list:
         """A whole plain line (without its ending) at stream ``offset``: the frames it completes."""
@@ -461,8 +441,7 @@ class TextTelemetryReader:
         return self._cut_current() + self._learn(item)
 
     def cut_line(self, text: str) -> list:
-        """A line that may be the tail of a cut line (the stream's first, or after damage): never a record; its
-        shape only tells where a record starts."""
+        """A line that may be the tail of a cut line: never a record, its shape only tells where one starts."""
         parsed = parse_line(text)
         self._block_start = False
         if parsed is None:
@@ -471,8 +450,7 @@ class TextTelemetryReader:
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
     def damage(self) -> list:
-        """Bytes were lost or damaged here: the lines before and after are not consecutive (a record in progress is
-        cut short, the lines learned from go no further back)."""
+        """Bytes were lost here: the lines before and after are not consecutive."""
         return self._end_block("break")
 
     def blank(self) -> list:
@@ -491,9 +469,7 @@ class TextTelemetryReader:
         return out
 
     def bulk_template(self) -> LineTemplate | None:
-        """For the bulk decoder: the :class:`LineTemplate` of the latest learned one-line shape when a line that
-        fits it would simply be one record now (no record in progress); else None. Blank lines between them change
-        nothing either when no line waits (:attr:`idle`)."""
+        """The latest one-line shape's :class:`LineTemplate` when a line fitting it would be a record now, else None."""
         if self._current is not None or not self._shapes:
             return None
         shape = self._shapes[-1]
@@ -508,13 +484,9 @@ class TextTelemetryReader:
         """No line waits to be learned from."""
         return not self._pending
 
-    def bulk_records(self, n: int, *, blank_last: bool = False) -> None:
-        """``n`` lines that fit :meth:`bulk_template` were made records elsewhere (the bulk decoder);
-        ``blank_last``: a blank line came after the last."""
-        self.records += n
+    def bulk_records(self, *, blank_last: bool = False) -> None:
+        """Lines fitting :meth:`bulk_template` were made records in bulk; ``blank_last``: a blank line came last."""
         self._block_start = blank_last
-
-    # -- a learned shape ---------------------------------------------------------------------------------------
 
     def _follow(self, item: _Line) -> tuple[list, bool]:
         """The line in a learned shape: the frames it completes (or cuts short), and whether the line was taken."""
@@ -543,14 +515,11 @@ class TextTelemetryReader:
         return [TextFrame(x.text, x.offset, x.nbytes) for x in current[1] if x.kind != "cut"] if current else []
 
     def _record(self, shape: _Shape, lines: list[_Line]) -> TextRecordFrame:
-        self.records += 1
         values = tuple(v for x in lines for v in x.parsed.values)
         first, last = lines[0], lines[-1]
         return TextRecordFrame(
             shape.names, values, shape.units, shape.kind, first.offset, last.offset + last.nbytes - first.offset
         )
-
-    # -- learning ----------------------------------------------------------------------------------------------
 
     def _learn(self, item: _Line) -> list:
         pending = self._pending
@@ -641,9 +610,8 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
 
 
 def _value_period(rows: list[tuple[float, ...]]) -> int:
-    """Rows of one table whose values come back every p rows (p = 2..4) and differ from row to row: p (the rows of
-    a 3×3 matrix printed a row a line); else 1. The mean change over p rows must be under a quarter of that over
-    one row."""
+    """p (2..4) when the rows' values come back every p rows (a matrix printed a row a line: the mean change over p
+    rows under a quarter of that over one), else 1."""
     v = np.array(rows, np.float64)
     if len(v) < VALUE_LINES or not np.isfinite(v).all():
         return 1

@@ -33,7 +33,6 @@ _SENTENCE_RE = re.compile(rb"\$([A-Z][A-Z0-9]{2,}(?:,[^*]*)?)\*([0-9A-F]{2})")
 BAD_LINE_BYTE = re.compile(rb"[\x00-\x08\x0a-\x1f\x7f]")
 
 _MDEG_TO_RAD = math.pi / 180_000.0
-_NAN4 = (math.nan,) * 4
 
 
 def checksum(body: bytes) -> int:
@@ -62,29 +61,17 @@ def format_att(
     return _sentence("ATT," + ",".join(str(_trunc(v)) for v in vals))
 
 
-def format_sta(
-    *,
-    step: int,
-    t_ms: int,
-    cyc_min: int,
-    cyc_mean: int,
-    cyc_max: int,
-    cyc_n: int,
-    tx_dropped: int,
-    flags: int,
-    ki_micro: int,
-) -> bytes:
-    """One ``$STA`` line with checksum and ``\\r\\n``."""
-    vals = [step, t_ms, cyc_min, cyc_mean, cyc_max, cyc_n, tx_dropped, flags, ki_micro]
-    return _sentence("STA," + ",".join(str(_trunc(v)) for v in vals))
+#: The fields of a ``$STA`` line, in order.
+STA_FIELDS = ("step", "t_ms", "cyc_min", "cyc_mean", "cyc_max", "cyc_n", "tx_dropped", "flags", "ki_micro")
+
+
+def format_sta(**fields: int) -> bytes:
+    """One ``$STA`` line of the :data:`STA_FIELDS` (each one required) with checksum and ``\\r\\n``."""
+    return _sentence("STA," + ",".join(str(_trunc(fields[k])) for k in STA_FIELDS))
 
 
 def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> AttitudeFrame | StatusFrame | TextFrame | None:
-    """Parse one ``$`` line (without line ending); None when its checksum fails or its fields do not parse.
-
-    A ``$`` sentence of another name (upper-case letters and digits, at least 3) with a correct checksum is
-    returned as a :class:`TextFrame`.
-    """
+    """One ``$`` line (no ending) as a frame (another name: a :class:`TextFrame`); None when it does not check."""
     m = _SENTENCE_RE.fullmatch(line)
     if m is None or checksum(m.group(1)) != int(m.group(2), 16):
         return None
@@ -96,21 +83,8 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
         step, t_ms, thr = v[0], v[1], v[2]
         if step < 0 or t_ms < 0 or not -32768 <= thr <= 32767:
             return None
-        return AttitudeFrame(
-            t_us=(t_ms * 1000) % P.T_US_MODULUS,
-            acc_mg=(float(v[6]), float(v[7]), float(v[8])),
-            gyro_mdps=(float(v[9]), float(v[10]), float(v[11])),
-            q_wxyz=_NAN4,
-            thz_rad=v[5] * _MDEG_TO_RAD,
-            seq=step % P.SEQ_MODULUS,
-            thr=thr,
-            exact=False,
-            offset=offset,
-            nbytes=nbytes,
-            step=step,
-            thx_rad=v[3] * _MDEG_TO_RAD,
-            thy_rad=v[4] * _MDEG_TO_RAD,
-        )
+        acc, gyro, euler = map(float, v[6:9]), map(float, v[9:12]), (x * _MDEG_TO_RAD for x in v[3:6])
+        return AttitudeFrame.text_row(step, t_ms * 1000, acc, gyro, euler, thr, offset, nbytes)
     if line.startswith(b"$STA,"):
         s = _STA_RE.fullmatch(line)
         if s is None:
@@ -136,8 +110,7 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
 
 
 def decode_line(raw: bytes) -> str | None:
-    """The text of one line (without its ``\\n``; a trailing ``\\r`` dropped), or None when it is not a valid text
-    line: not UTF-8, contains control characters, or empty."""
+    """The text of one line (a trailing ``\\r`` dropped), or None when it is empty, not UTF-8 or not printable."""
     if raw.endswith(b"\r"):
         raw = raw[:-1]
     if not raw or BAD_LINE_BYTE.search(raw):

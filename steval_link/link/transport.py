@@ -2,12 +2,8 @@
 
 The thread only moves bytes (as pyserial's ``serial.threaded``): it gathers a burst (until no byte came for
 :data:`CHUNK_GAP_S`, at most :data:`CHUNK_MAX_S`), stamps it with its host time and calls
-:meth:`Protocol.data_received`. Decoding and estimation live in the protocol (``steval_link.live``).
-
-When the port fails (adapter unplugged, pty closed) the thread calls :meth:`Protocol.connection_lost`, polls
-``find_port`` for the device to come back (:mod:`steval_link.link.autodetect`), reopens it and calls
-:meth:`Protocol.connection_made` again; only :meth:`SerialReader.stop` ends it. :func:`open_error_message` turns
-an open error into one sentence with the fix.
+:meth:`Protocol.data_received`. When the port fails it calls :meth:`Protocol.connection_lost`, polls ``find_port``
+for the device, reopens it and calls :meth:`Protocol.connection_made` again; only :meth:`SerialReader.stop` ends it.
 """
 
 from __future__ import annotations
@@ -38,8 +34,7 @@ RECONNECT_POLL_S = 0.1
 
 
 class HostClock:
-    """Host receive times: wall-clock seconds (Unix epoch) that advance with the monotonic clock, so that they never
-    jump (NTP, suspend). ``wall0_s``: the origin (e.g. a capture's start time), else ``time.time()`` now."""
+    """Host receive times: Unix seconds from ``wall0_s`` (default now), advancing with the monotonic clock."""
 
     def __init__(self, wall0_s: float | None = None) -> None:
         self.mono0_s = time.monotonic()
@@ -51,20 +46,15 @@ class HostClock:
 
 
 class PortRejected(Exception):
-    """Raised by a :class:`Protocol` method: the port reopened after a loss is not the device (no valid frames);
-    the reader closes it, tells :meth:`Protocol.connection_lost` (with this exception) and looks again."""
+    """Raised by a :class:`Protocol` method: the port reopened is not the device (the reader looks again)."""
 
 
 class Protocol:
-    """What the reader thread calls; every method runs in the reader thread. Subclass and override.
-
-    Exceptions raised by a method stop the thread (kept in :attr:`SerialReader.error`), except
-    :class:`PortRejected`.
-    """
+    """What the reader thread calls, in the reader thread; an exception but :class:`PortRejected` stops it."""
 
     def shared_access(self, exc: BaseException) -> bool:
-        """A read found bytes announced but taken (pyserial: "returned no data ... multiple access on port?"): True
-        when another program reading the port explains it (the port is kept), False for a lost port."""
+        """A read found bytes announced but taken: True when another program reading the port explains it (the
+        port is kept), False for a lost port."""
         return False
 
     def connection_made(self, port: str) -> None:
@@ -81,10 +71,7 @@ class Protocol:
 
 
 def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, exclusive: bool = True) -> serial.Serial:
-    """Open ``port`` at ``baud`` 8N1 for reading (``exclusive``: fail if another program holds the port's lock).
-
-    Raises ``serial.SerialException`` (with ``errno`` set where the OS gave one) like pyserial.
-    """
+    """Open ``port`` at ``baud`` 8N1 (``exclusive``: fail if another program holds its lock)."""
     kwargs = {"exclusive": True} if exclusive else {}
     try:
         return serial.Serial(port, baud, timeout=timeout_s, **kwargs)
@@ -93,11 +80,7 @@ def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, excl
 
 
 def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> ParamError:
-    """One sentence saying why ``port`` could not be opened and what to do about it (a :class:`ParamError`: its
-    advice names the parameters ``port`` and ``wait``).
-
-    ``available``: the serial ports that do exist, listed when ``port`` does not.
-    """
+    """Why ``port`` could not be opened and the fix; ``available``: the ports listed when it does not exist."""
     code = getattr(exc, "errno", None)
     text = str(exc)
     cause = exc.__cause__ or exc.__context__
@@ -132,11 +115,7 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
 
 class SerialReader(threading.Thread):
     """Reads an open serial port in a thread and feeds a :class:`Protocol`; reconnects when the port fails.
-
-    ``find_port``: called while disconnected, returns the path to reopen (or ``None``: not back yet); ``None``
-    disables reconnection (the thread ends after :meth:`Protocol.connection_lost`). ``opener(path)`` opens a path
-    (default :func:`open_serial` at ``baud``). Times come from ``clock``.
-    """
+    ``find_port()``: the path to reopen, or None while it is not back (``find_port`` None: no reconnection)."""
 
     def __init__(
         self,
@@ -170,9 +149,7 @@ class SerialReader(threading.Thread):
         self._stop_event = threading.Event()
 
     def write(self, data: bytes) -> int:
-        """Send ``data`` on the current port from any thread (as pyserial's ``ReaderThread.write``: under the lock
-        that a reconnection also holds, so a write never meets a port being swapped). Raises ``OSError`` (pyserial's
-        ``SerialException`` is one) when no port is open."""
+        """Send ``data`` from any thread, under the lock a reconnection holds; ``OSError`` when no port is open."""
         with self.lock:
             ser = self.serial
             if ser is None:

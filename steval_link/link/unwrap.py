@@ -9,16 +9,12 @@ import numpy as np
 
 from steval_link.link.protocol import SEQ_MODULUS, T_US_MODULUS
 
-__all__ = ["SeqUnwrapper", "StreamClock", "TimeUnwrapper", "host_times"]
-
 _HALF = T_US_MODULUS // 2
 
 
 class TimeUnwrapper:
-    """Firmware seconds since boot from ``t_us`` values in stream order, across calls.
-
-    A drop by more than half the range is the counter wrapping; a smaller step back is taken as it comes (a repeated
-    or slightly earlier time), never as 71.6 minutes gone."""
+    """Firmware seconds since boot from ``t_us`` values in stream order, across calls: a drop by more than half the
+    range is a wrap, a smaller step back is taken as it comes."""
 
     def __init__(self) -> None:
         self.wraps = 0
@@ -36,9 +32,7 @@ class TimeUnwrapper:
         return (raw + wraps * T_US_MODULUS) / 1e6
 
     def nearest(self, t_us: int) -> float:
-        """Seconds of one ``t_us`` near the latest value seen (a status frame's time, which repeats the time of
-        the attitude frame before it), without changing the state: the wrap count giving the time closest to the
-        latest one (so a value just before or just after a wrap is placed right)."""
+        """Seconds of one ``t_us`` (a status frame's) at the wrap count closest to the latest value; no state change."""
         v = int(t_us) % T_US_MODULUS
         if self.last is None:
             return v / 1e6
@@ -51,11 +45,8 @@ class TimeUnwrapper:
 
 
 class SeqUnwrapper:
-    """Full AHRS step numbers from the u16 ``seq`` of binary attitude frames, in stream order, across calls.
-
-    A step forward of less than half the range is frames passing (gaps included); a repeated ``seq`` is the same
-    step; a step back (or forward by half the range or more) is a firmware restart, counted again from its ``seq``. A
-    status frame's full step (:meth:`status`) gives back the high bits ``seq`` lacks, from there on."""
+    """Full AHRS steps from the u16 ``seq`` of binary attitude frames, across calls: a step back (or forward by half
+    the range or more) is a firmware restart, counted again from its ``seq``; :meth:`status` gives the high bits."""
 
     def __init__(self) -> None:
         #: full step of the latest binary frame (None before the first)
@@ -90,11 +81,8 @@ class SeqUnwrapper:
 
 
 def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s: float = -np.inf) -> np.ndarray:
-    """(N,) float64 host receive time of each frame, s on the chunks' base, from the offset of its ``last_byte``.
-
-    ``chunk_times``: (offsets, times) of the received chunks (None: NaN). A frame takes its chunk's time, less the
-    bytes after it at ``baud`` (10 bits each), never before the previous chunk came (``before_s`` for the first).
-    ``total``: the bytes of the stream so far."""
+    """(N,) float64 host receive time of each frame by its ``last_byte``: its chunk's time (``chunk_times``:
+    offsets, times; None: NaN) less the bytes after it at ``baud``, never before the previous chunk's."""
     if chunk_times is None or len(chunk_times[0]) == 0:
         return np.full(len(last_byte), np.nan)
     c_off = np.asarray(chunk_times[0], dtype=np.int64)
@@ -111,12 +99,8 @@ def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s
 
 
 class StreamClock:
-    """Firmware and host times of a live stream's rows by the bulk path's rules, on the capture's base.
-
-    ``t0_unix_s``: the capture's ``start_time_unix_s`` (default: the first chunk's time), ``baud`` its header's.
-    Call :meth:`chunk` for each chunk before decoding it; :meth:`host_s` times frames by their last byte,
-    :meth:`fw_s` unwraps attitude and status ``t_us`` in stream order; :meth:`prune` forgets decoded chunks.
-    """
+    """Firmware and host times of a live stream's rows by the bulk path's rules, on the capture's base
+    (``t0_unix_s``; default: the first chunk's time). Call :meth:`chunk` for each chunk before decoding it."""
 
     def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
         self.t0_unix_s, self.baud = t0_unix_s, baud
