@@ -12,8 +12,6 @@ import numpy as np
 
 from steval_link.link.ble_payloads import TICK_S, TICK_WRAP
 
-__all__ = ["summarize_ble", "format_ble_summary"]
-
 
 def summarize_ble(tel) -> dict[str, Any]:
     """A JSON-ready summary of a BLE capture's telemetry (``tel.link``: its :class:`BleStream`)."""

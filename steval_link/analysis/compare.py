@@ -15,16 +15,6 @@ Text-mode captures carry rounded values and no quaternion: the replica cannot be
 
 from __future__ import annotations
 
-__all__ = [
-    "REPLICA_TRACE",
-    "AngleStats",
-    "ComparisonReport",
-    "TraceComparison",
-    "compare_capture",
-    "format_report",
-    "angle_diff_rad",
-]
-
 import math
 from typing import Any, Sequence
 
@@ -40,7 +30,7 @@ from steval_link.analysis.report import (
     ComparisonReport,
     TraceComparison,
     angle_diff_rad,
-    format_report,
+    format_report,  # noqa: F401 (the CLI imports it from here)
     json_number,
     on_rows,
     truth_on_steps,

@@ -13,8 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Coverage", "coverage_of", "percent"]
-
 
 @dataclass(frozen=True)
 class Coverage:

@@ -41,18 +41,6 @@ from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = [
-    "Check",
-    "CheckReport",
-    "interface_checks",
-    "capture_scores",
-    "broad_scores",
-    "run_check",
-    "format_check",
-    "LIVE_MIN_STEPS_PER_S",
-    "COMPANIONS",
-]
-
 #: steps per second an estimator needs to run live (the stream's rate, twice over)
 LIVE_MIN_STEPS_PER_S = 2.0 * C.AHRS_RATE_HZ
 #: estimators scored next to the one checked (those installed)

@@ -40,29 +40,6 @@ from steval_link.estimators.plugins import Selected, split_list
 from steval_link.link.capture import capture_truth
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = [
-    "EstimatorSpec",
-    "TrialResult",
-    "default_specs",
-    "evaluate_view",
-    "evaluate_capture",
-    "truth_sidecar_path",
-    "summary",
-    "format_table",
-    "plot_evaluation",
-    "evaluation_figure",
-    "MEAN_TRIALS",
-    "add_firmware",
-    "firmware_lines",
-    "incomplete_labels",
-    "table_rows",
-    "coverage_lines",
-    "write_csv",
-    "write_markdown",
-    "estimator_specs",
-    "evaluate_data",
-]
-
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
 MEAN_TRIALS = ("02", "07", "15", "24")
 #: throttle of the firmware's "flight mode" (kp 0.4) and "ground mode" (kp 10) runs

@@ -46,8 +46,6 @@ from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
 
-__all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler", "gains_text"]
-
 _F32 = np.float32
 
 

@@ -29,17 +29,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.link.protocol import FC_ARMED
 
-__all__ = [
-    "MOTORS",
-    "Motor",
-    "mixer_matrix",
-    "motor_thr",
-    "mixer_pwm",
-    "expected_motor_pwm",
-    "outer_p",
-    "no_flight_figure_reason",
-]
-
 
 @dataclass(frozen=True)
 class Motor:

@@ -14,9 +14,6 @@ import numpy as np
 
 from steval_link.estimators.st_mahony import MahonySettings
 
-__all__ = ["labels_by_difference", "setting_f32"]
-
-
 #: Settings in label order, with their names in a label (a label names a setting that differs from its default).
 _SETTING_WORDS = {
     "ki": "ki",

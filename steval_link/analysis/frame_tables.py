@@ -12,8 +12,6 @@ import numpy as np
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.link import protocol as P
 
-__all__ = ["attitude_table", "status_table", "fc_table", "record_table", "frame_tables", "settings_of", "header_of"]
-
 
 def attitude_table(tel) -> dict[str, np.ndarray]:
     """The CSV's columns: one row per attitude frame, flight-control columns joined on by step (NaN elsewhere)."""

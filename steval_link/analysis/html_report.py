@@ -24,20 +24,6 @@ from steval_link.analysis.side_by_side import format_side_by_side
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Peak, Spectra
 from steval_link.analysis.summary import format_summary, summarize
 
-__all__ = [
-    "Figure",
-    "Table",
-    "Section",
-    "LabReport",
-    "figure_png",
-    "capture_sections",
-    "side_by_side_section",
-    "render_html",
-    "render_markdown",
-    "report_of",
-    "verdict_sentences",
-]
-
 
 @dataclass(frozen=True)
 class Figure:

@@ -22,8 +22,6 @@ import numpy as np
 
 from steval_link.errors import ParamError
 
-__all__ = ["INSTALL_HINT", "require_scipy", "mat_name", "write_mat"]
-
 INSTALL_HINT = 'pip install "steval-link[mat]"'
 #: MATLAB's longest field name.
 MAX_NAME = 63

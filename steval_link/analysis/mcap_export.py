@@ -31,8 +31,6 @@ from steval_link.errors import ParamError
 from steval_link.link import protocol as P
 from steval_link.quat import quaternion_from_euler
 
-__all__ = ["TOPICS", "ATTITUDE_SCHEMA", "STATUS_SCHEMA", "FLIGHT_CONTROL_SCHEMA", "write_mcap", "require_mcap"]
-
 INSTALL_HINT = 'pip install "steval-link[mcap]"'
 _TIME = {
     "type": "object",

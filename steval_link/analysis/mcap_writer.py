@@ -12,8 +12,6 @@ from typing import BinaryIO
 
 import numpy as np
 
-__all__ = ["MCAP_MAGIC", "McapWriter"]
-
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _INDEX_HEAD = struct.Struct("<BQHI")
 _MESSAGE_DTYPE = np.dtype(

@@ -18,18 +18,6 @@ from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_link.analysis.report import angle_diff_rad, on_rows, true_runs
 from steval_link.errors import ParamError, UserError
 
-__all__ = [
-    "INSTALL_HINT",
-    "require_matplotlib",
-    "plot_comparison",
-    "comparison_figure",
-    "differences_figure",
-    "plot_simulation",
-    "simulation_figure",
-    "plot_flight_control",
-    "flight_control_figure",
-]
-
 INSTALL_HINT = 'pip install "steval-link[plot]"'
 
 #: Line styles per trace: (colour, width, linestyle, z-order).

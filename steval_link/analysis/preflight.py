@@ -30,8 +30,6 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, expected_motor_pwm, mixer_matrix, mixer_pwm
 
-__all__ = ["MOVES", "Move", "PreflightReport", "check_preflight"]
-
 
 @dataclass(frozen=True)
 class Move:

@@ -36,21 +36,6 @@ from steval_link.estimators.accel_tilt import AccelTilt
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
 
-__all__ = [
-    "ALIGN_MODES",
-    "STILL_GYRO_DPS",
-    "STILL_ACC_MG",
-    "STILL_MIN_S",
-    "Flight",
-    "SideBySide",
-    "flight_of_telemetry",
-    "flight_of_ble",
-    "side_by_side",
-    "still_mask",
-    "motion_lag_s",
-    "format_side_by_side",
-]
-
 ALIGN_MODES = ("time", "motion")
 #: A row is still when the gyro's norm is below this (deg/s) ...
 STILL_GYRO_DPS = 3.0

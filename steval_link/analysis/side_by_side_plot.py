@@ -15,8 +15,6 @@ from steval_link.analysis.plots import _decimate, _spans, require_matplotlib, sa
 from steval_link.analysis.report import fmt_number
 from steval_link.analysis.side_by_side import SideBySide, difference_series
 
-__all__ = ["plot_side_by_side", "side_by_side_figure"]
-
 #: Flight colours, in order (the viewer uses the same).
 COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
 

@@ -25,27 +25,6 @@ from steval_link import constants as C
 from steval_link.emulation.sensor_model import GYRO_ODR_HZ, iir_frequency_response
 from steval_link.errors import ParamError, UserError
 
-__all__ = [
-    "SIGNALS",
-    "UNITS",
-    "REGISTER_BEAT_HZ",
-    "DEFAULT_NPERSEG",
-    "MIN_NPERSEG",
-    "AliasLine",
-    "Peak",
-    "Spectra",
-    "alias_hz",
-    "alias_lines",
-    "chain_gain",
-    "contiguous_runs",
-    "compute_spectra",
-    "find_peaks",
-    "welch_windows",
-    "CSV_COLUMNS",
-    "write_csv",
-    "format_summary",
-]
-
 #: the beat of the gyro's 416 Hz output register read at the ISR rate (2·416 − 807.7 ≈ 24.3 Hz): a gyro line at f
 #: also shows, weakly, at |f ± 24.3| and |f ± 48.6| Hz
 REGISTER_BEAT_HZ = 2 * GYRO_ODR_HZ - C.ISR_RATE_HZ

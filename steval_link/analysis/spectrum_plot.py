@@ -20,8 +20,6 @@ from steval_link import constants as C
 from steval_link.analysis.plots import require_matplotlib, save_figure
 from steval_link.analysis.spectrum import REGISTER_BEAT_HZ, SIGNALS, UNITS, Peak, Spectra, alias_lines
 
-__all__ = ["spectra_figure", "plot_spectra", "throttle_varied", "image_of", "EXPLANATION"]
-
 _AXIS_NAMES = {"x": "x (right)", "y": "y (forward)", "z": "z (up)"}
 _MARK_COLOURS = ["tab:purple", "tab:green", "tab:brown", "tab:olive", "tab:cyan"]
 #: matplotlib settings of the figure: every text 9 pt or more at the saved size

@@ -16,8 +16,6 @@ import numpy as np
 
 from steval_link.analysis.link_stats import cycles_are_emulated
 
-__all__ = ["StepCost", "step_cost", "DWT_CYCLES", "EMULATED_INSTRUCTIONS"]
-
 DWT_CYCLES = "DWT cycles"
 EMULATED_INSTRUCTIONS = "emulated instructions"
 

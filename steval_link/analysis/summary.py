@@ -20,8 +20,6 @@ from steval_link.link.plausibility import (
     values_bad_sentence,
 )
 
-__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report", "text_telemetry_report"]
-
 _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
     P.FLAG_FRESH_SQUARES: "fresh-squares",
