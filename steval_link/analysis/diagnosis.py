@@ -33,18 +33,12 @@ DIAGNOSIS_WINDOW_ROWS = 600
 
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
+_FLOAT_SETTINGS = ("kp_ground", "kp_flight", "ki", "dt_s")
 
 
 def _settings_dict(s: MahonySettings) -> dict[str, Any]:
-    return {
-        "kp_ground": float(np.float32(s.kp_ground)),
-        "kp_flight": float(np.float32(s.kp_flight)),
-        "ki": float(np.float32(s.ki)),
-        "dt_s": float(np.float32(s.dt_s)),
-        "min_thr": s.min_thr,
-        "correction": s.correction,
-        "variant": s.variant,
-    }
+    floats = {k: float(np.float32(getattr(s, k))) for k in _FLOAT_SETTINGS}
+    return floats | {k: getattr(s, k) for k in ("min_thr", "correction", "variant")}
 
 
 def _same_settings(a: MahonySettings, b: MahonySettings) -> bool:
@@ -73,7 +67,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
             "changes": 0,
         }
     # a snapshot holding NaN (a diverged filter) still reports the build's settings; non-finite settings do not
-    for k in ("kp_ground", "kp_flight", "ki", "dt_s"):
+    for k in _FLOAT_SETTINGS:
         ex = ex & np.isfinite(np.asarray(getattr(s, k), np.float64))
     if not ex.any():
         return None

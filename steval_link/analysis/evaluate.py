@@ -79,10 +79,13 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
         return [s for k, s in specs.items() if k != "vqf" or registry.is_available("vqf")]
     out: list[EstimatorSpec] = []
     for item in only:
-        item = item.strip()
-        if not item:
+        if not isinstance(item, str) or isinstance(item, Selected):  # an object chosen already: run as it is
+            chosen = [EstimatorSpec(str(item), item, {})]
+        elif not item.strip():
             continue
-        chosen = [s for k, s in specs.items() if k == item or s.name == item]
+        else:
+            item = item.strip()
+            chosen = [s for k, s in specs.items() if k == item or s.name == item]
         if not chosen and registry.is_known(item):  # your own (FILE.py:CLASS, module:CLASS, a plug-in, options)
             sel = registry.resolve(item)
             chosen = [EstimatorSpec(str(sel), sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
@@ -539,21 +542,8 @@ def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> li
     """The specs of ``estimators`` in their order (None: :func:`default_specs`): labels and references (text, a
     comma-separated list too) and selected objects (:class:`~steval_link.estimators.plugins.Selected`, run as
     they are). UserError when two share a label (never a silent merge) or none is chosen."""
-    if estimators is None:
-        return default_specs(rate_hz, own_rate=own_rate)
-    items = split_list(estimators) if isinstance(estimators, str) else list(estimators)
-    out: list[EstimatorSpec] = []
-    for item in items:
-        if isinstance(item, str) and not isinstance(item, Selected):
-            specs = default_specs(rate_hz, own_rate=own_rate, only=[item]) if item.strip() else []
-        else:
-            specs = [EstimatorSpec(str(item), item, {})]
-        for spec in specs:
-            registry.unique_name(spec.label, {o.label for o in out})  # UserError for a label already taken
-            out.append(spec)
-    if not out:
-        raise ParamError("{estimators} selects no estimator", "estimators")
-    return out
+    items = split_list(estimators) if isinstance(estimators, str) else estimators
+    return default_specs(rate_hz, own_rate=own_rate, only=None if items is None else list(items))
 
 
 def evaluate_data(

@@ -173,7 +173,7 @@ def _step_cost(report: ComparisonReport) -> Section:
     period = C.AHRS_PERIOD_US
     rows = []
     for what in ("min", "mean", "max"):
-        us = getattr(rt, f"ahrs_us_{what}")
+        us = rt.ahrs_us(what)
         share = fmt_number(100 * us / period if us is not None else None, ".1f")
         rows.append([what, fmt_number(us, ".1f"), fmt_number(getattr(rt, f"ahrs_cycles_{what}"), ".0f"), share])
     mhz = (rt.cpu_hz or 0) / 1e6

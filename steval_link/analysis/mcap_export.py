@@ -26,6 +26,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from steval_link.analysis.frame_tables import RENAMED
 from steval_link.analysis.mcap_writer import McapWriter
 from steval_link.errors import ParamError
 from steval_link.link import protocol as P
@@ -262,16 +263,6 @@ def _list(v) -> list:
     return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(v).tolist()]
 
 
-#: JSON names of the status and flight-control messages whose column in the frame table is named otherwise
-_COLUMNS = {
-    "ahrs_cycles_min": "cyc_min",
-    "ahrs_cycles_mean": "cyc_mean",
-    "ahrs_cycles_max": "cyc_max",
-    "ahrs_cycles_n": "cyc_n",
-    "tx_dropped_frames": "tx_dropped",
-    "queue_peak_bytes": "queue_peak",
-    "target_rad": "euler_rc_rad",
-}
 #: the messages' booleans: (flags column, bit, the value when the bit is set)
 _BITS = {
     "correction": ("flags", P.FLAG_NO_CORRECTION, False),
@@ -290,7 +281,7 @@ def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
             name, bit, when_set = _BITS[key]
             columns[key] = (((np.asarray(getattr(rows, name), np.int64) & bit) != 0) == when_set).tolist()
         elif key != "timestamp":
-            values = np.asarray(getattr(rows, _COLUMNS.get(key, key)))
+            values = np.asarray(getattr(rows, RENAMED.get(key, key)))
             columns[key] = [_list(v) for v in values] if prop["type"] == "array" else _list(values)
     datas = [
         json.dumps(dict(zip(columns, row)), separators=(",", ":"), allow_nan=False).encode()

@@ -202,7 +202,7 @@ class RateStats:
         seq_gaps, frames_missing: attitude frames lost on the way (decoder). tx_dropped: frames the firmware's
             TX queue could not take (last status frame; None without status frames). crc_failures: damaged frames.
         ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them);
-            ``ahrs_us_*`` the same in µs at ``cpu_hz``.
+            ``ahrs_us(what)`` the same in µs at ``cpu_hz``.
     """
 
     duration_s: float
@@ -224,26 +224,14 @@ class RateStats:
     cpu_hz: int | None = None
     cycles_emulated: bool = False  #: ``ahrs_cycles_*`` are an emulator's instruction counts, not M4 cycles
 
-    def _us(self, cycles) -> float | None:
-        if cycles is None or not self.cpu_hz:
-            return None
-        return float(cycles) / self.cpu_hz * 1e6
-
-    @property
-    def ahrs_us_min(self) -> float | None:
-        return self._us(self.ahrs_cycles_min)
-
-    @property
-    def ahrs_us_mean(self) -> float | None:
-        return self._us(self.ahrs_cycles_mean)
-
-    @property
-    def ahrs_us_max(self) -> float | None:
-        return self._us(self.ahrs_cycles_max)
+    def ahrs_us(self, what: str) -> float | None:
+        """``ahrs_cycles_<what>`` (min, mean, max) in µs at ``cpu_hz``."""
+        cycles = getattr(self, f"ahrs_cycles_{what}")
+        return None if cycles is None or not self.cpu_hz else float(cycles) / self.cpu_hz * 1e6
 
     def as_dict(self) -> dict[str, Any]:
         out = {k: (json_number(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
-        return out | {f"ahrs_us_{k}": json_number(getattr(self, f"ahrs_us_{k}")) for k in ("min", "mean", "max")}
+        return out | {f"ahrs_us_{k}": json_number(self.ahrs_us(k)) for k in ("min", "mean", "max")}
 
 
 @dataclass

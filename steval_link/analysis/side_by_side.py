@@ -94,6 +94,10 @@ class Flight:
         return len(self.t_s)
 
 
+#: the fields of a flight in ``--json``, in order
+_FLIGHT_KEYS = "label path kind angles settings facts rows duration_s frames_lost warnings figures"
+
+
 @dataclass
 class SideBySide:
     """Flights on one time axis (``flights[0]`` is the reference of the differences), how they were aligned, the
@@ -112,19 +116,8 @@ class SideBySide:
                 "meaning": "each flight's times are s since its first frame minus its lag (the first: 0)",
             },
             "flights": [
-                {
-                    "label": f.label,
-                    "path": str(f.path),
-                    "kind": f.kind,
-                    "angles": f.angles,
-                    "settings": f.settings,
-                    "facts": f.facts,
-                    "rows": f.rows,
-                    "duration_s": json_number(f.duration_s),
-                    "frames_lost": f.frames_lost,
-                    "warnings": list(f.warnings),
-                    "figures": f.figures,
-                }
+                {k: getattr(f, k) for k in _FLIGHT_KEYS.split()}
+                | {"path": str(f.path), "duration_s": json_number(f.duration_s), "warnings": list(f.warnings)}
                 for f in self.flights
             ],
             "differences": self.differences,
@@ -254,12 +247,7 @@ def _still_figures(f: Flight) -> dict[str, Any]:
         err = np.degrees(angle_diff_rad(est, ref))
         e = err[still]
         t = f.t_s[still]
-        fig: dict[str, Any] = {
-            "rms_still_deg": None,
-            "mean_still_deg": None,
-            "drift_deg": None,
-            "drift_rate_deg_per_min": None,
-        }
+        fig: dict[str, Any] = dict.fromkeys(("rms_still_deg", "mean_still_deg", "drift_deg", "drift_rate_deg_per_min"))
         if e.size:
             fig["rms_still_deg"] = json_number(np.sqrt(np.mean(e * e)))
             fig["mean_still_deg"] = json_number(np.mean(e))
