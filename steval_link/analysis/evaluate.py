@@ -1,19 +1,12 @@
 """Accuracy against ground truth: every estimator on BROAD trials (through the STEVAL sensor pipeline model, or at
 the trial's own rate) or on a capture with a ground-truth sidecar; inclination RMSE per trial and estimator.
 
-Metric (BROAD): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in
-degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See :mod:`steval_link.emulation.broad`.
+Metric: ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in degrees over
+the ``movement`` samples, ignoring NaN (occluded ground truth). A firmware ELF (``--firmware``) is one more column
+(:mod:`steval_link.analysis.firmware_eval`).
 
-Firmware (``--firmware ELF``): each ELF runs on the emulated board fed with the trial's motion and its own attitude
-output is scored against the same truth, aligned per step the same way (:mod:`steval_link.analysis.firmware_eval`):
-one more column of the table, and one line per firmware per trial with its instructions per AHRS step and the
-bit-exact replica's score on the firmware's own inputs.
-
-Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
-given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
-(M, 4) float wxyz body → earth (x right, y forward, z up body axes; z up earth), and optionally ``movement`` (M,)
-bool (default: all True). Steps without a truth row are ignored.
-"""
+A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int (``tel.attitude.step``), ``quat`` (M, 4) float wxyz
+body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all True)."""
 
 from __future__ import annotations
 
@@ -58,14 +51,10 @@ class EstimatorSpec:
 
 
 def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
-    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``.
-
-    ``st-mahony-flight``/``-ground``: the firmware's filter with thr 450 (kp 0.4) / thr 0 (kp 10); with ``own_rate``
-    its dt is 1/rate (the firmware's 6.25 ms otherwise). ``accel``: accelerometer-only tilt. ``ekf3``, ``mekf``,
-    ``vqf`` at ``rate_hz`` (mekf's pipeline-latency compensation is off with ``own_rate``). ``vqf`` is left out when
-    the package is missing (unless asked for by name in ``only``, which then raises UserError). ``only`` selects
-    labels; the registry name of an estimator (``st-mahony``) selects both Mahony runs.
-    """
+    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450:
+    kp 0.4 / thr 0: kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``,
+    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order
+    (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice or none."""
     mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
         "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
@@ -110,20 +99,9 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
 
 @dataclass
 class TrialResult:
-    """The outcome of one trial (or capture).
-
-    Attributes:
-        name: trial name (file stem).
-        rate_hz: step rate of the evaluated inputs, Hz.
-        t_s: (M,) step times, s.
-        movement: (M,) bool, steps that count.
-        rmse_deg: label → inclination RMSE, degrees.
-        err_rad: label → (M,) inclination error, rad.
-        steps_per_s: label → estimator speed, steps/s.
-        err_t_s: label → (K,) times of ``err_rad[label]`` when not ``t_s`` (a firmware's own steps), s.
-        firmware: the firmware runs on this trial (``--firmware``).
-        coverage: label → the share of the scored rows its score covers (:mod:`steval_link.analysis.coverage`).
-    """
+    """The outcome of one trial (or capture): its name, step rate (Hz), step times ``t_s`` (M,) and ``movement``
+    (M,) bool; per label the inclination RMSE (deg), error (M,) rad, speed (steps/s), ``err_t_s`` (a firmware's own step
+    times, s) and :class:`~steval_link.analysis.coverage.Coverage`; the firmware runs (``--firmware``)."""
 
     name: str
     rate_hz: float
@@ -224,9 +202,7 @@ def evaluate_view(
     *,
     steps: np.ndarray | None = None,
 ) -> TrialResult:
-    """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth.
-
-    ``steps``: the step number of each row, for ``diverged_at_step`` (default: the row index)."""
+    """Run ``specs`` on ``view``'s inputs and score them against its truth (``steps``: each row's step number)."""
     taken: set[str] = set()
     for spec in specs:  # two estimators under one label would share one column: never a silent merge
         taken.add(registry.unique_name(spec.label, taken))
@@ -280,11 +256,8 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def evaluate_capture(
     path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None, progress: Progress | None = None
 ) -> TrialResult:
-    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc), or,
-    without one, the truth the capture keeps (chunks T of ``steval emulate --broad``).
-
-    The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
-    """
+    """Evaluate estimators on a capture's AHRS inputs against its sidecar, or the truth it keeps (chunks T of
+    ``steval emulate --broad``); the firmware's own ``q`` of binary frames is scored as ``firmware``."""
 
     p = Path(path)
     src = read_recording(p)  # missing, unreadable, empty: its own sentence
@@ -337,12 +310,9 @@ def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
 
 
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
-    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials, and over BROAD 02/07/15/24
-    if present. An incomplete estimator (``scored_fraction`` < 1 on a trial) has no mean (None) and is listed
-    under ``incomplete``.
-
-    ``number``: how each figure is written (default: to 4 decimals, for JSON; the table rounds the raw values once).
-    """
+    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials and over BROAD 02/07/15/24;
+    an incomplete estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default:
+    4 decimals)."""
     rnd = number or _rounded
     labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)
@@ -400,9 +370,7 @@ def _rounded(x) -> float | None:
 
 
 def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str]]]:
-    """The table as cells: the header and one row per trial (then the means), each RMSE marked with its coverage
-    (``2.851 (63 %)``, ``no score``); an incomplete estimator's mean reads ``incomplete``. Text, CSV and Markdown
-    are written from these."""
+    """The table as cells (header, a row per trial, the means), each RMSE marked with its coverage."""
     s = summary(results, json_number)  # raw values: the table rounds once, as the firmware lines below
     labels = s["estimators"]
     header = ["trial", *labels]
@@ -486,9 +454,8 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
-    """Bars of RMSE per estimator per trial (top; an incomplete score hollow, hatched, its coverage on it, "not
-    ranked" in the legend) and the inclination error over time of trial ``detail`` (NaN a gap; a dashed line where
-    an estimate diverged). Returns the matplotlib figure."""
+    """Bars of RMSE per estimator per trial (an incomplete score hollow and hatched, its coverage on it)
+    and the inclination error over time of trial ``detail`` (a dashed line where an estimate diverged)."""
     plt = require_matplotlib()
     s = summary(results)
     labels = s["estimators"]
@@ -539,9 +506,7 @@ FIRMWARE_WEIGHT = 20
 
 
 def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> list[EstimatorSpec]:
-    """The specs of ``estimators`` in their order (None: :func:`default_specs`): labels and references (text, a
-    comma-separated list too) and selected objects (:class:`~steval_link.estimators.plugins.Selected`, run as
-    they are). UserError when two share a label (never a silent merge) or none is chosen."""
+    """The specs of ``estimators`` (None: the defaults; text, a comma-separated list, or selected objects)."""
     items = split_list(estimators) if isinstance(estimators, str) else estimators
     return default_specs(rate_hz, own_rate=own_rate, only=None if items is None else list(items))
 
@@ -558,13 +523,12 @@ def evaluate_data(
     variant: str | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> list[TrialResult]:
-    """Score ``estimators`` (:func:`estimator_specs`) on BROAD trials and captures with ground truth (``paths``:
-    files and directories of them), and each ``firmware`` ELF on the emulated board with each trial.
+    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and
+    each ``firmware`` ELF on the emulated board with each trial.
 
-    ``own_rate``: BROAD trials at their own rate, not through the STEVAL pipeline model (``seed``, with
-    ``sensor_noise`` the LSM6DSL's white noise too); ``max_seconds``: the first seconds of each trial; ``variant``:
-    the release of the replica run on a firmware's inputs; ``progress(fraction, stage)``. Every input is checked
-    before the work; UserError names what is wrong."""
+    ``own_rate``: trials at their own rate, not through the STEVAL pipeline (``seed``; ``sensor_noise``: the LSM6DSL's
+    white noise); ``max_seconds``: each trial's first seconds; ``variant``: the replica's release on a firmware's
+    inputs; ``progress(fraction, stage)``. Every input is checked before the work."""
     items = broad.trial_paths(paths)
     n_specs = len(estimator_specs(estimators, 100.0))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):

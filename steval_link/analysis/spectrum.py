@@ -1,17 +1,13 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
 gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
 
-The attitude rows hold the main loop's 5-sample averages (a boxcar) of the 807.7 Hz ISR reads, at 161.54 Hz; the
-gyro register refreshes at 416 Hz and its IIR is −3 dB near 101 Hz. The spectra end at 80.77 Hz. A vibration above
-it is aliased, not lost: it lands at ``|f − k · 161.54 Hz|``, scaled by the boxcar (zeros at multiples of
-161.54 Hz), the IIR and the 416 Hz register (:func:`alias_lines`).
+The rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads, at 161.54 Hz: the spectra end at
+80.77 Hz. A vibration above it is aliased, not lost (:func:`alias_lines`).
 
-Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps (a dropped
-frame, a restart or a time jump ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by
-half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's ``welch(..., scaling="density")``
-convention) is averaged over every window of every run. The spectrogram is the PSD of each window at its centre;
-the throttle map averages the windows by mean ``thr``. The sample rate is measured on the firmware's clock.
-"""
+Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps; each run is
+cut into Hann windows overlapping by half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's
+``welch(..., scaling="density")`` convention) is averaged over every window. The rate is measured on the firmware's
+clock."""
 
 from __future__ import annotations
 
@@ -78,16 +74,9 @@ def chain_gain(f_hz: float, sensor: str) -> float:
 
 @dataclass(frozen=True)
 class AliasLine:
-    """Where a vibration at ``source_hz`` shows in the rows of one sensor.
-
-    Attributes:
-        sensor: "gyro" or "acc".
-        source_hz: the frequency at the sensor (the vibration, or for the gyro an image ``|k·416 Hz ± f|`` its
-            416 Hz output register makes).
-        seen_hz: where it appears in the spectrum (0 … 80.77 Hz).
-        gain: amplitude seen / amplitude at the sensor (:func:`chain_gain` of ``source_hz``, hold of the image).
-        what: a few words: "direct", "alias", "416 Hz ODR image".
-    """
+    """Where a vibration at ``source_hz`` (at the sensor, or a gyro image ``|k·416 Hz ± f|``) shows in one sensor's
+    rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude seen / at the sensor) and ``what`` ("direct", "alias",
+    "416 Hz ODR image")."""
 
     sensor: str
     source_hz: float
@@ -97,14 +86,10 @@ class AliasLine:
 
 
 def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.005) -> list[AliasLine]:
-    """The lines a sinusoid at ``f_hz`` (Hz, at the sensor) makes in the spectrum of ``sensor``'s rows.
-
-    The main line is at :func:`alias_hz` of f with :func:`chain_gain`; the gyro's 416 Hz output register adds images
-    at ``|k·416 ± f|`` (k = 1 … 4) weighted by the hold, each then aliased the same way; images weaker than
-    ``min_gain`` are left out. Read at 807.7 Hz, the register's images land at ``|f ± m·24.3 Hz|`` (m = 1, 2:
-    2·416 − 807.7 = 24.3 Hz): a 12 Hz gyro line also shows at 36.3 and 60.6 Hz, about 1 % as strong.
-    ``rate_hz``: the rows' rate (161.54 Hz, or less for decimated text-mode rows).
-    """
+    """The lines a sinusoid at ``f_hz`` (at the sensor) makes in the spectrum of ``sensor``'s rows sampled at
+    ``rate_hz``: the main line (:func:`alias_hz`, :func:`chain_gain`), then for the gyro the images of its 416 Hz output
+    register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong: a 12 Hz gyro line also shows at 36.3 and
+    60.6 Hz, about 1 % as strong."""
     f = abs(float(f_hz))
     direct = f <= rate_hz / 2
     lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
@@ -147,10 +132,7 @@ def contiguous_runs(
 
 def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
-
-    Windows start every ``hop`` rows; each window's mean is removed; density scaling (unit²/Hz), so the mean of
-    the windows equals ``scipy.signal.welch(x, fs, nperseg=nperseg, noverlap=nperseg-hop, axis=0)``.
-    """
+    Windows start every ``hop`` rows, their mean removed; their mean is ``scipy.signal.welch``'s."""
     a = np.asarray(x, dtype=np.float64)
     if a.ndim == 1:
         a = a[:, None]
@@ -177,25 +159,17 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
 
 @dataclass
 class Spectra:
-    """Spectra of one capture. Column k of every array is signal ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc
-    x, y, z in mg²/Hz).
+    """Spectra of one capture; column k of every PSD is ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc x, y, z
+    in mg²/Hz).
 
     Attributes:
-        freq_hz: (F,) bin centres, 0 … Nyquist.
-        psd: (F, 6) Welch average over every window.
-        window_t_fw_s: (W,) firmware time of each window's centre, s since boot.
-        window_thr: (W,) mean throttle ``thr`` over each window.
-        spectrogram: (W, F, 6) PSD of each window.
-        thr_edges: (B+1,) throttle bin edges (gTHR units).
-        thr_psd: (B, F, 6) mean PSD of the windows in each throttle bin (NaN for an empty bin).
-        thr_windows: (B,) windows in each bin.
-        rate_hz: the rows' sample rate measured on the firmware clock (≈ 161.54 Hz, or /16 for text mode).
-        decimation: AHRS steps per row.
-        nperseg, hop: rows per window and between window starts.
-        runs: ``(start, stop)`` row ranges of the runs of consecutive rows long enough for a window.
-        rows: attitude rows in the capture; rows_used: rows inside those runs.
-        notes: sentences about what was left out or assumed.
-    """
+        freq_hz: (F,) bins, 0 … Nyquist. psd: (F, 6) Welch average. spectrogram: (W, F, 6) PSD of each window.
+        window_t_fw_s: (W,) each window's centre, s since boot. window_thr: (W,) its mean throttle ``thr``.
+        thr_edges: (B+1,) throttle bin edges (gTHR). thr_psd: (B, F, 6) mean PSD per bin (NaN: empty).
+        thr_windows: (B,) windows per bin.
+        rate_hz: rows per second on the firmware clock (≈ 161.54 Hz). decimation: AHRS steps per row.
+        nperseg, hop: rows per window and between window starts. runs: the ``(start, stop)`` runs used.
+        rows: attitude rows; rows_used: rows inside the runs. notes: what was left out or assumed."""
 
     freq_hz: np.ndarray
     psd: np.ndarray
@@ -236,23 +210,11 @@ def _measured_rate(step, t, runs, decimation: int) -> float:
     return steps / secs / decimation
 
 
-def _throttle_bins(thr: np.ndarray, bins: int) -> np.ndarray:
-    """``bins`` equal-width throttle bins over the windows' mean throttles (one unit wide at least)."""
-    if thr.size == 0:
-        return np.array([0.0, 1.0])
-    lo, hi = math.floor(float(thr.min())), math.ceil(float(thr.max()))
-    if hi - lo < 1:
-        hi = lo + 1
-    return np.linspace(lo, hi, bins + 1)
-
-
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
-    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry` (see the module docstring).
+    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``nperseg`` rows per window (default :data:`DEFAULT_NPERSEG`, reduced to the longest run's power of two for a
-    short capture, but never below :data:`MIN_NPERSEG`); ``overlap`` the fraction windows share (0 ≤ overlap < 1).
-    Raises :class:`UserError` when the capture has no attitude rows or no run long enough for one window.
-    """
+    ``nperseg``: rows per window (default 256, or the longest run's power of two, never below 32); ``overlap``: the
+    fraction windows share. UserError without attitude rows or a run long enough for one window."""
     if not 0 <= overlap < 1:
         raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:
@@ -352,7 +314,8 @@ def _windows(values, t, thr, runs, rate: float, nperseg: int, hop: int):
 
 def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
     """The windows' mean PSD per throttle bin: (edges, PSD per bin (NaN: empty), windows per bin)."""
-    edges = _throttle_bins(window_thr, bins)
+    lo, hi = (math.floor(float(window_thr.min())), math.ceil(float(window_thr.max()))) if window_thr.size else (0, 1)
+    edges = np.linspace(lo, max(hi, lo + 1), bins + 1)  # one gTHR unit wide at least
     which = np.clip(np.searchsorted(edges, window_thr, side="right") - 1, 0, len(edges) - 2)
     thr_psd = np.full((len(edges) - 1, *spectrogram.shape[1:]), np.nan)
     counts = np.bincount(which, minlength=len(edges) - 1)
@@ -366,15 +329,9 @@ def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
 
 @dataclass(frozen=True)
 class Peak:
-    """A peak of a PSD.
-
-    Attributes:
-        freq_hz: centre, interpolated between bins (Gaussian fit of the three bins around the maximum).
-        psd: the PSD at the peak bin (unit²/Hz).
-        amplitude: amplitude of the sinusoid that would make it (unit, peak): ``sqrt(2 · power)``, the power summed
-            over ±3 bins above the noise floor.
-        above_floor_db: the peak over the median PSD (the floor), dB.
-    """
+    """A PSD peak: ``freq_hz`` (interpolated by a Gaussian fit of three bins), ``psd`` (unit²/Hz at the peak bin),
+    ``amplitude`` (unit, peak, of the sinusoid that makes the power over ±3 bins above the floor) and
+    ``above_floor_db`` (over the median PSD)."""
 
     freq_hz: float
     psd: float
@@ -452,10 +409,9 @@ def _num(v) -> str:
 
 
 def write_csv(sp: Spectra, stream) -> int:
-    """The spectra as one CSV table (:data:`CSV_COLUMNS`), a ``section`` column telling the three apart:
-    ``psd`` (the Welch average, one row per frequency), ``spectrogram`` (one row per window and frequency:
-    ``t_fw_s`` the window's centre, ``thr`` its mean throttle) and ``throttle`` (one row per throttle bin and
-    frequency: ``thr_lo`` … ``thr_hi``, ``windows`` averaged; empty bins are left out). Returns the rows written."""
+    """The spectra as one CSV table (:data:`CSV_COLUMNS`); ``section`` is ``psd`` (the Welch average),
+    ``spectrogram`` (per window: its centre ``t_fw_s`` and mean ``thr``) or ``throttle`` (per non-empty bin
+    ``thr_lo`` … ``thr_hi``). Returns the rows written."""
     w = csv.writer(stream, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     # (the row's first cells, its PSD (F, 6)) per section
