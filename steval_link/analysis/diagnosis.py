@@ -1,13 +1,10 @@
 """The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): steps that match bit for bit, the
-first that differs and *why*: the replica is re-run from the same seed with alternative settings (normalisation variant,
-KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named. Also the
-filter settings the status frames announce (:func:`filter_settings_report`).
+first that differs and *why*: the replica is re-run from the same seed with other settings (release variant, KI,
+correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named.
 
-A firmware whose own filter *diverged* (:func:`find_divergence`: its q left the unit sphere, ``| |q| − 1 |`` >
-``Q_NORM_TOL`` = 0.05, or went non-finite) is named with the step, the inputs at that step and the one before, and
-whether the replica stayed finite on the same inputs. When it did, no setting of the release's filter explains the
-firmware, so no settings are searched: the firmware's ``ahrs.c`` differs (a student's filter, a refactor).
-"""
+A firmware whose own filter diverged (:func:`find_divergence`: q off the unit sphere or non-finite) is named with
+the step and its inputs; when the replica stayed finite on them, no setting is searched: the firmware's ``ahrs.c``
+differs."""
 
 from __future__ import annotations
 
@@ -375,12 +372,9 @@ def _norm(q) -> float:
 
 
 def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
-    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite, or None.
-
-    ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the replica replayed over them (or None).
-    Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
-    "gyro_mdps", "thr"} of the step before (when received) and of the step], "replica": "finite" | "diverged" |
-    "unseeded", "replica_q_wxyz", "replica_diverged_step", "text": [sentences]}`` ."""
+    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none):
+    its step, time, q and |q|, the inputs of that step and the one before, what the replica did (``rep``: replayed over
+    ``rows``) and the sentences saying so."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -465,11 +459,9 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
 def compare_replica(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
-    """The seeded replica against the firmware's binary rows: (report, replay over the binary rows, those rows'
-    indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row.
-
-    ``variant`` forces a release's filter (``variant_source`` says who named it, e.g. "firmware ELF");
-    without it the release is the variant bit-exact on the most steps."""
+    """The seeded replica against the firmware's binary rows: (report, its replay, those rows' indices into
+    ``tel.attitude``), or (None, None, None) without binary rows. ``variant`` forces a release (named by
+    ``variant_source``); default: the one bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None

@@ -1,22 +1,12 @@
 """Flights side by side (``steval compare A.stv B.stv ...``): two or more captures on one time axis, labelled by
-what differs between them, each measured against its own accelerometer-only tilt.
+what differs between them ("ki 0.1" against "ki 1, correction off"), each measured against its own
+accelerometer-only tilt.
 
-* **Aligned** by firmware time from each capture's first frame (``align="time"``), or by motion
-  (``align="motion"``): the gyro of each flight is cross-correlated with the first flight's and the lag found is
-  taken off its times (hand-held or real flights that did not start together).
-* **Labelled** by what differs (:mod:`steval_link.analysis.flight_labels`): "ki 0.1" against "ki 1, correction off".
-* **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
-  accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
-  :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (the mean error in the last still
-  phase, deg: where the flight ended up against the accelerometer) and its rate (least-squares slope of the error
-  over the still rows, deg/min, when they span at least :data:`RATE_SPAN_S`); per later flight its difference from
-  the first.
-* **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
-  one, frames lost on the link, a truncated capture.
-
-A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony replica's, run on its raw samples
-(dt from the ticks' cadence: :mod:`steval_link.link.ble_telemetry`), and the notes say so.
-"""
+Aligned by firmware time from each first frame, or by motion (the gyro cross-correlated with the first flight's).
+Figures per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt
+in the still phases, the drift (the mean error in the last still phase) and its rate (deg/min); each later flight
+minus the first. Mismatches (durations, BLE against serial, lost frames, a truncated capture) are notes, not errors.
+A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
 
 from __future__ import annotations
 
@@ -29,7 +19,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
-from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
 from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number, true_runs
 from steval_link.estimators.accel_tilt import AccelTilt
@@ -51,22 +40,111 @@ DURATION_TOLERANCE_S = 1.0
 MAX_LAG_FRACTION = 0.5
 
 
+# -- labels: what differs between the flights (settings, else header facts, else file names) ---------------
+
+#: Settings in label order, with their names in a label (a label names a setting that differs from its default).
+_SETTING_WORDS = {
+    "ki": "ki",
+    "correction": "correction",
+    "kp_ground": "kp ground",
+    "kp_flight": "kp flight",
+    "min_thr": "min_thr",
+    "dt_s": "dt",
+    "variant": "filter",
+    "text_mode": "text mode",
+    "inflight_tuning": "in-flight tuning",
+}
+_NO_FLAGS = {"text_mode": False, "inflight_tuning": False}
+_FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
+
+
+def setting_f32(x) -> float:
+    """A float32 setting as its shortest decimal (0.4, not 0.4000000059604645)."""
+    return float(str(np.float32(x)))
+
+
+def _defaults() -> dict[str, Any]:
+    d = MahonySettings()
+    floats = {k: setting_f32(getattr(d, k)) for k in ("ki", "kp_ground", "kp_flight", "dt_s")}
+    return floats | {"correction": True, "min_thr": int(d.min_thr), "variant": d.variant} | _NO_FLAGS
+
+
+def _word(key: str, value) -> str:
+    """How a setting reads in a label: "ki 1", "correction off", "binary", "filter ST 221117", ..."""
+    name = _SETTING_WORDS[key]
+    if key == "variant":
+        return f"filter {value}"
+    if key == "correction":
+        return f"correction {'on' if value else 'off'}"
+    if key == "text_mode":
+        return "text mode" if value else "binary"
+    if isinstance(value, bool):
+        return name if value else f"no {name}"
+    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
+
+
+def _fact_word(key: str, value) -> str:
+    """How a header fact reads in a label: "BLE", "firmware X.elf", "scenario demo", ..."""
+    if key == "link":
+        return "BLE" if value == "ble" else "serial"
+    return f"{key.replace('_path', '')} {value}"
+
+
+def labels_by_difference(flights: Sequence) -> list[str]:
+    """A label per flight naming what differs between them: the settings first ("ki 0.1" against "ki 1,
+    correction off": a differing setting is named where it is not the default, and the first one where nothing
+    else would be), else the header facts (link, firmware, scenario, seed, port), else the file names. Labels
+    that still collide get their file name added."""
+    n = len(flights)
+    labels = [""] * n
+    known = [f.settings for f in flights]
+    defaults = _defaults()
+    if all(s is not None for s in known):
+        differing = [k for k in _SETTING_WORDS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
+        if differing:
+            for i, s in enumerate(known):
+                words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
+                labels[i] = ", ".join(words) or _word(differing[0], s.get(differing[0], defaults[differing[0]]))
+    if not all(labels):
+        facts = [f.facts for f in flights]
+        differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
+        if "firmware" in differing:  # the ELF names tell them apart; else the paths may (other build folders)
+            differing.remove("firmware_path")
+        words: list[list[str]] = [[] for _ in flights]
+        for k in differing:  # in order of priority, until the labels tell the flights apart
+            for i, x in enumerate(facts):
+                if x.get(k) is not None:
+                    words[i].append(_fact_word(k, x[k]))
+            if len({", ".join(w) for w in words}) == n:
+                break
+        for i in range(n):
+            if not labels[i]:
+                labels[i] = ", ".join(words[i])
+    for i, f in enumerate(flights):
+        if f.settings and f.settings.get("changes"):
+            labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
+    names = [f.path.name for f in flights]
+    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
+    labels = [
+        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
+        for i in range(n)
+    ]
+    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
+    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
+    return labels
+
+
 @dataclass
 class Flight:
     """One capture on the common time axis.
 
     Attributes:
-        path: the capture file. label: what the plot, the viewer and the JSON call it.
-        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE: the replica's).
-        t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
-        thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
-        accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
-        settings: the filter settings from the first status frame (None without status frames), with
-            ``changes`` (changes announced during the capture) and ``from``.
-        facts: link, firmware, scenario, seed, serial port from the capture header (None where unknown).
-        duration_s, rows, frames_lost, warnings (the reader's, e.g. a truncated capture), lag_s (motion alignment).
-        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the replica's on BLE).
-    """
+        path, label (the plot's, the viewer's and the JSON's name). kind: "serial" or "ble".
+        angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE).
+        t_s: (N,) s since the first frame, minus the motion lag. thx_rad, thy_rad: (N,) pitch (about x), roll (about y).
+        acc_mg, gyro_mdps: (N, 3) float32. q_wxyz: (N, 4) the attitude for the 3D view.
+        accel_thx_rad, accel_thy_rad: (N,) accel-only tilt. still: (N,) bool, the still rows.
+        settings: the first status frame's filter settings (None without). facts: capture-header facts."""
 
     path: Path
     label: str
