@@ -1,9 +1,5 @@
-"""Figures for lab reports (PNG): ``steval compare --plot`` and ``steval simulate --plot``.
-
-matplotlib is an optional dependency (``pip install "steval-link[plot]"``); :func:`require_matplotlib` turns its
-absence into one :class:`~steval_link.errors.UserError` sentence. Figures are drawn with the Agg backend (no display
-needed). Angles are in degrees; thx is labelled pitch (about x), thy roll (about y), as in the firmware.
-"""
+"""Figures for lab reports (PNG): ``steval compare --plot`` and ``steval simulate --plot``; matplotlib is optional
+(:func:`require_matplotlib`), on the Agg backend. Angles in degrees; thx is pitch (about x), thy roll (about y)."""
 
 from __future__ import annotations
 
@@ -104,13 +100,9 @@ def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
 
 
 def comparison_figure(tel, report, *, title: str | None = None):
-    """Angles over time and differences per estimator, for a :class:`~steval_link.analysis.compare.ComparisonReport`.
-
-    Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time: the firmware, the seeded
-    replica, the estimators and accel-only tilt. Below them: firmware − replica in degrees, with the throttle.
-    Spans at flight throttle (≥ MIN_THR, kp_flight) are shaded. Right: RMS and max |Δ| against the firmware per
-    estimator. Returns the matplotlib figure (Agg).
-    """
+    """Pitch (thx, about x) and roll (thy, about y) over firmware time: the firmware, the replica, the
+    estimators, accel-only tilt, flight-throttle spans shaded; below, firmware − replica with the throttle; right, RMS
+    and max |Δ| against the firmware per estimator."""
     plt = require_matplotlib()
     from matplotlib.gridspec import GridSpec
 
@@ -367,10 +359,9 @@ def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
 
 
 def flight_control_figure(tel, *, title: str | None = None):
-    """The flight-control frames of ``tel`` (``tel.fc``) as Betaflight's Blackbox shows a flight: per axis the
-    remote's target against the firmware's angle (left; pitch = thx about x, roll = thy about y), the outer loop's
-    output s1 with its P and I terms recomputed with the firmware's gains (right), the four motor commands and the
-    inner loop's outputs s2 (bottom)."""
+    """The flight-control frames as Betaflight's Blackbox shows a flight: per axis the remote's target against
+    the firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1 with its P and I terms, the
+    motors and the inner loop's s2."""
     plt = require_matplotlib()
     a, fc = tel.attitude, tel.fc
     t0 = float(a.t_fw_s[0]) if len(a) else 0.0
