@@ -82,7 +82,7 @@ class CheckReport:
             "reference": self.reference,
             "ok": self.ok,
             "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
-            "steps_per_s": _num(self.steps_per_s),
+            "steps_per_s": ev.rounded(self.steps_per_s),
             "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
             "captures": self.captures,
         }
@@ -90,10 +90,6 @@ class CheckReport:
         if self.broad_note:
             d["broad_note"] = self.broad_note
         return d
-
-
-def _num(x) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(float(x), 4)
 
 
 # ---- inputs --------------------------------------------------------------------------------------------------------
@@ -301,16 +297,9 @@ def _demo_inputs():
 
 #: the recordings the repository ships (``recordings/make_recordings.sh`` makes them); a user's own captures in the
 #: same folder (``steval live`` writes ``recordings/steval-<UTC>.stv``) are not among them
-BUNDLED_CAPTURES = (
-    "ble_demo.stv",
-    "broad_07.stv",
-    "demo.stv",
-    "flight.stv",
-    "freefall.stv",
-    "live_params.stv",
-    "midflight_drops.stv",
-    "preflight_ok.stv",
-    "preflight_swapped_motors.stv",
+BUNDLED_CAPTURES = tuple(
+    "ble_demo.stv broad_07.stv demo.stv flight.stv freefall.stv live_params.stv midflight_drops.stv preflight_ok.stv "
+    "preflight_swapped_motors.stv".split()
 )
 
 
@@ -351,8 +340,8 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
             est = registry.create(name).run(acc, gyro, thr)
             q = np.asarray(est.q_wxyz, np.float64).copy()
             q[~np.asarray(est.valid, bool)] = np.nan
-            vs_fw[label] = _num(_tilt_rms_deg(q, q_fw))
-            vs_acc[label] = _num(_tilt_rms_deg(q, q_acc))
+            vs_fw[label] = ev.rounded(_tilt_rms_deg(q, q_fw))
+            vs_acc[label] = ev.rounded(_tilt_rms_deg(q, q_acc))
         out.append({"capture": p.name, "frames": int(rows.sum()), "vs_firmware_deg": vs_fw, "vs_accel_deg": vs_acc})
     return out
 

@@ -132,13 +132,13 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "firmware": fw.label,
         "elf": fw.elf,
         "attitude_from": fw.source,
-        "rmse_deg": _rounded(fw.rmse_deg),
+        "rmse_deg": rounded(fw.rmse_deg),
         **fw.coverage.to_json(),
         "gains": fw.gains,
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
-        "replica_rmse_deg": _rounded(fw.replica_rmse_deg),
+        "replica_rmse_deg": rounded(fw.replica_rmse_deg),
         "replica_bit_exact_steps": fw.replica_bit_exact,
         "replica_steps": fw.replica_steps,
         "filter": None if st is None else st.variant,
@@ -313,7 +313,7 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
     """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials and over BROAD 02/07/15/24;
     an incomplete estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default:
     4 decimals)."""
-    rnd = number or _rounded
+    rnd = number or rounded
     labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)
     trials = []
@@ -363,7 +363,7 @@ def _mean(values) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def _rounded(x) -> float | None:
+def rounded(x) -> float | None:
     """A JSON number to 4 decimals (None for NaN/inf)."""
     v = json_number(x)
     return None if v is None else round(v, 4)
