@@ -34,11 +34,7 @@ from steval_link.link import protocol as P
 from steval_link.quat import quaternion_from_euler
 
 INSTALL_HINT = 'pip install "steval-link[mcap]"'
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0}},
-}
+_TIME = dict(type="object", title="time", properties={k: {"type": "integer", "minimum": 0} for k in ("sec", "nsec")})
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
 
@@ -73,13 +69,7 @@ def _num(description: str) -> dict[str, Any]:
 
 
 def _arr(n: int, description: str) -> dict[str, Any]:
-    return {
-        "type": "array",
-        "items": {"type": ["number", "null"]},
-        "minItems": n,
-        "maxItems": n,
-        "description": description,
-    }
+    return dict(type="array", items={"type": ["number", "null"]}, minItems=n, maxItems=n, description=description)
 
 
 def _int(description: str) -> dict[str, Any]:

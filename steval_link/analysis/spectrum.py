@@ -392,13 +392,7 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
 
 #: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
 CSV_COLUMNS = (
-    "section",
-    "t_fw_s",
-    "thr",
-    "thr_lo",
-    "thr_hi",
-    "windows",
-    "freq_hz",
+    *"section t_fw_s thr thr_lo thr_hi windows freq_hz".split(),
     *(f"{name}_psd_{UNITS[sensor]}2_per_hz" for name, sensor, _ in SIGNALS),
 )
 
