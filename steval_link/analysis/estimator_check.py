@@ -1,24 +1,13 @@
 """``steval estimator check``: an estimator's interface checks, then its scores next to ST-Mahony and VQF.
 
-Interface checks, each on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward,
-z up, 161.5 Hz steps), with light sensor noise from a fixed seed:
+Each check runs on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward, z up,
+161.5 Hz steps, light noise from a fixed seed): shapes and a unit quaternion; level at rest; the pitch sign (20° nose
+up → thx ≈ +20°) and roll sign (thy ≈ +20°); a +20 dps turn about x (gyro units and sign); NaN, free fall and
+saturated inputs (no exception, finite at the end); determinism across instances and ``reset()``; and speed (live
+needs twice the stream's 161.5 steps/s).
 
-* **shapes**: ``step()`` gives a (4,) quaternion of unit norm (within 1 %), ``run()`` one row per input row;
-* **at rest**: level and still for 10 s → thx, thy within 1° of 0;
-* **pitch sign** / **roll sign**: held 20° nose up (gravity seen as acc ≈ (0, +342, +940) mg) → thx ≈ +20°,
-  thy ≈ 0; 20° roll (acc ≈ (−342, 0, +940) mg) → thy ≈ +20° (within 2° after 10 s);
-* **turn**: +20 dps about x for 0.5 s with gravity turning along → thx ≈ +10° (within 2°): gyro units and sign;
-* **invalid input**: rows with NaN (flagged invalid, or a finite held estimate), 0.5 s of free fall (acc 0),
-  0.1 s of saturated sensors (±16 g, ±2000 dps), then rest: no exception, a finite estimate at the end;
-* **determinism**: two fresh instances, and one after ``reset()``, give the same output bit for bit;
-* **speed**: steps per second of ``run()`` on the demo capture's inputs; live needs at least twice the stream's
-  161.5 steps/s (``steval_link.live.estimators.SLOW_SHARE``).
-
-Scores: on the bundled captures, the RMS tilt difference (inclination of one attitude against the other, degrees)
-from the firmware's attitude and from accelerometer-only tilt; on BROAD trials, the inclination RMSE against
-ground truth with :mod:`steval_link.analysis.evaluate`'s metric. ST-Mahony, the built-in EKF and VQF (when
-installed) run next to it.
-"""
+Scores: the RMS tilt difference (deg) from the firmware's attitude and from accel-only tilt on the bundled
+captures; the inclination RMSE against ground truth on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
 
 from __future__ import annotations
 
@@ -149,10 +138,8 @@ def _last_deg(est) -> tuple[float, float]:
 
 
 def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
-    """Run every interface check on the estimator ``name`` names.
-
-    Returns the checks, steps per second, and the user's trimmed traceback of the first failure (or "").
-    """
+    """Every interface check of the estimator ``name`` names: (checks, steps/s, the first failure's trimmed
+    traceback or "")."""
     rate = [math.nan]
 
     def speed():

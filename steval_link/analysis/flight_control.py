@@ -98,11 +98,8 @@ def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
 
 
 def no_flight_figure_reason(fc) -> str | None:
-    """Why a capture gets no flight-control figure (one sentence), or None when it gets one.
-
-    ``fc``: a telemetry's flight-control rows (``tel.fc``). A figure needs frames, and the drone armed in at least
-    one of them (``fc_flags`` bit 0): while disarmed the targets are the sticks' idle positions and the motors 0.
-    """
+    """Why a capture gets no flight-control figure (one sentence), or None: it needs frames (``tel.fc``)
+    and the drone armed in one (disarmed, the targets sit at the sticks' rest and the motors at 0)."""
     if len(fc) == 0:
         return "the capture has no flight-control frames"
     if not (np.asarray(fc.fc_flags).astype(np.int64) & FC_ARMED).any():

@@ -1,13 +1,9 @@
 """``steval report``: one capture (or several) as a lab report: a self-contained HTML page or Markdown with images.
 
-The report is data first: :class:`Section` s of sentences, monospace lines, tables and figures (PNG bytes), built from
-what the other analysis modules already computed (:func:`~steval_link.analysis.summary.summarize`,
-:func:`~steval_link.analysis.compare.compare_capture`, :func:`~steval_link.analysis.spectrum.compute_spectra`,
-:func:`~steval_link.analysis.side_by_side.side_by_side`) and drawn with their figures. Two writers turn it into text:
-:func:`render_html` (figures as ``data:`` URIs, inline CSS, no script, nothing loaded from the network) and
-:func:`render_markdown` (GitHub tables, figures as PNG files next to it). The page is written here with the standard
-library's ``html.escape``: a template engine would be one more dependency for a dozen tags.
-"""
+The report is data first: :class:`Section` s of sentences, lines, tables and figures (PNG), built from what the
+other analysis modules computed. :func:`render_html` inlines the CSS and figures (no script, nothing from the
+network); :func:`render_markdown` writes GitHub tables and PNG files. The page is written with the standard
+library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
 
 from __future__ import annotations
 

@@ -1,17 +1,10 @@
-"""A decoded capture as a MATLAB ``.mat`` file (``steval export --mat``; needs scipy, extra ``mat``).
-
-One struct per frame type, one field per CSV column, each a column vector with one row per frame (units in the
-names, as in the CSV: ``attitude.thx_pitch_rad``, ``attitude.acc_x_mg``, ``status.ki``, ``fc.motor1_pwm``, ...),
-and two more structs: ``settings`` (the filter settings the status frames report) and ``header`` (the capture
-header: port, baud, start time, tool version, ``extra``). MATLAB::
+"""A decoded capture as a MATLAB ``.mat`` file (``steval export --mat``; needs scipy, extra ``mat``): one struct per
+frame type, one column vector per CSV column (units in the names), plus ``settings`` and ``header``. MATLAB::
 
     S = load('flight.mat');
-    t = S.attitude.t_fw_s; pitch = rad2deg(S.attitude.thx_pitch_rad);
-    plot(t, pitch); xlabel('firmware time (s)'); ylabel('pitch thx (deg)'); disp(S.settings.ki)
+    plot(S.attitude.t_fw_s, rad2deg(S.attitude.thx_pitch_rad)); disp(S.settings.ki)
 
-Numbers keep their types (float32 as ``single``, counters as integers, flags as ``uint8`` 0/1); missing values are
-NaN; text (text-mode lines) is a cell array of char.
-"""
+float32 stays ``single``, counters integers, flags ``uint8``; missing values are NaN; text a cell array of char."""
 
 from __future__ import annotations
 

@@ -1,20 +1,16 @@
-"""A decoded capture as an MCAP file (``steval export --mcap``): Foxglove, PlotJuggler, ROS 2 tools and Rerun read
-it. Every message is JSON (``message_encoding`` ``json``, schemas ``jsonschema``), logged at the firmware's time
-(``log_time`` and ``publish_time``: ns since the drone booted, not since 1970).
+"""A decoded capture as an MCAP file (``steval export --mcap``) for Foxglove, PlotJuggler, ROS 2 tools and Rerun: JSON
+messages (``jsonschema`` schemas, written in full in the file) logged at the firmware's time (ns since boot).
 
 | topic | schema | one message per |
 |---|---|---|
 | ``/attitude/transform`` | ``foxglove.FrameTransform`` (``world`` → ``drone``) | attitude frame |
 | ``/attitude/pose`` | ``foxglove.PoseInFrame`` (frame ``world``) | attitude frame |
-| ``/attitude`` | ``steval.Attitude`` (:data:`ATTITUDE_SCHEMA`): IMU inputs, the firmware's estimate | attitude frame |
-| ``/status`` | ``steval.Status`` (:data:`STATUS_SCHEMA`) | status frame |
-| ``/flight_control`` | ``steval.FlightControl`` (:data:`FLIGHT_CONTROL_SCHEMA`) | flight-control frame |
+| ``/attitude`` | ``steval.Attitude``: IMU inputs, the firmware's estimate | attitude frame |
+| ``/status`` | ``steval.Status`` | status frame |
+| ``/flight_control`` | ``steval.FlightControl`` | flight-control frame |
 
-The Foxglove quaternions are the firmware's ``q`` normalised (its |q| is about 0.9983 by design; the exact ``q``
-is in ``/attitude``); text-mode rows, which carry no ``q``, get it from their angles. Numbers are float32 values
-written with 9 significant digits (they read back as the same float32); values the frame does not hold (NaN) are
-``null``. The schemas are written out in full in the file (``rerun mcap info FILE`` or any MCAP reader lists them).
-"""
+Foxglove quaternions are the firmware's ``q`` normalised (text-mode rows: from their angles). Numbers are float32
+written with 9 significant digits; NaN is ``null``."""
 
 from __future__ import annotations
 
@@ -335,10 +331,8 @@ _MESSAGE_DTYPE = np.dtype(
 
 
 class McapWriter:
-    """A chunked, indexed MCAP writer (zstd chunks, message indexes, summary with statistics and chunk indexes)
-    that packs the message heads of a block with numpy: the ``mcap`` package's ``Writer`` spends about 15 µs on
-    each message, 26 s on the 1.7 million messages of a 1-hour capture. The records other than messages are the
-    ``mcap`` package's own."""
+    """A chunked, indexed MCAP writer packing each block's message heads with numpy: the ``mcap`` package's
+    ``Writer`` spends about 15 µs a message, 26 s on a 1-hour capture. Its other records are the package's own."""
 
     def __init__(self, stream: BinaryIO, records) -> None:
         import zstandard  # the mcap package's own dependency: there only when it is installed

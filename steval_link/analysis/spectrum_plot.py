@@ -1,13 +1,6 @@
-"""The ``steval spectrum --plot`` figure: at most nine panels, fonts of 9 pt or more at the saved size.
-
-Rows one and two: the Welch PSD of the gyro and of the accelerometer per axis (x, y, z), with the AHRS Nyquist, the
-``--mark-hz`` lines and the strongest peaks; a peak that is an image of a stronger one (the gyro's 416 Hz output
-register, read at 807.7 Hz) says so where it appears. Row three: the spectrogram of each sensor over firmware time
-(power summed over the axes) and, when the throttle varied, the frequency-vs-throttle map (Blackbox's heat map) of
-the gyro, else a panel that explains what the lines are. A footer says what the rows sample (the ISR's 5-sample
-average, the gyro IIR, the 416 Hz register). matplotlib is optional (:func:`~steval_link.analysis.plots.
-require_matplotlib`).
-"""
+"""The ``steval spectrum --plot`` figure: the Welch PSD of the gyro and the accelerometer per axis (the Nyquist, the
+marks, the peaks, a register image named), the spectrograms and the gyro's frequency-vs-throttle map (else a panel
+saying what the lines are); nine panels at most, fonts of 9 pt or more."""
 
 from __future__ import annotations
 

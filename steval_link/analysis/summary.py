@@ -133,13 +133,9 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
 def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
-    ``duration_s`` is firmware time covered by the attitude rows (host time when there is none). ``rate_hz`` is
-    attitude frames per second over it; ``step_rate_hz`` AHRS steps per second (161.5 on the drone; text-mode rows
-    are decimated, so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in ``seq_gaps``
-    gaps, ``drop_ratio`` = missing / (received + missing), ``tx_dropped`` the firmware's own count from the last
-    status frame. ``release``: the ST release whose filter the replica reproduces the rows with (``variant`` forces
-    one). ``attitude_from``: "frames", or "symbols" (read by the emulator).
-    """
+    ``duration_s``: firmware time of the attitude rows (host time without one); ``rate_hz``: attitude frames per second;
+    ``step_rate_hz``: AHRS steps per second (161.5); ``drop_ratio`` = missing / (received + missing); ``release``: the
+    ST release whose filter reproduces the rows (``variant`` forces one)."""
     if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
         return summarize_ble(tel)
     a, s, st = tel.attitude, tel.status, tel.stats
