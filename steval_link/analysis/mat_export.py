@@ -43,9 +43,7 @@ def _value(v: Any) -> Any:
     if isinstance(v, dict):
         return {mat_name(k): _value(x) for k, x in v.items()}
     if isinstance(v, np.ndarray):
-        if v.dtype == bool:
-            return v.astype(np.uint8)
-        return v
+        return v.astype(np.uint8) if v.dtype == bool else v
     if isinstance(v, bool):
         return np.uint8(v)
     if isinstance(v, (list, tuple)):

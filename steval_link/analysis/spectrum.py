@@ -147,10 +147,7 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
-    if nperseg % 2 == 0:
-        psd[:, 1:-1] *= 2.0
-    else:
-        psd[:, 1:] *= 2.0
+    psd[:, 1 : len(freq) - 1 + nperseg % 2] *= 2.0  # one-sided: all but 0 Hz and an even window's Nyquist bin
     return freq, starts, psd
 
 
@@ -201,15 +198,6 @@ class Spectra:
         return self.rows_used / self.rate_hz
 
 
-def _measured_rate(step, t, runs, decimation: int) -> float:
-    """Rows per second of firmware time over ``runs`` (the nominal rate when no run spans any time)."""
-    steps = sum(int(step[b - 1] - step[a]) for a, b in runs)
-    secs = sum(float(t[b - 1] - t[a]) for a, b in runs)
-    if steps <= 0 or secs <= 0:
-        return C.AHRS_RATE_HZ / decimation
-    return steps / secs / decimation
-
-
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
     """The spectra of a :class:`~steval_link.link.telemetry.Telemetry`.
 
@@ -238,8 +226,10 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     nperseg = _window_rows(nperseg, max((b - a for a, b in runs), default=0), decimation, notes)
     hop = max(1, int(round(nperseg * (1 - overlap))))
     used = [(a, b) for a, b in runs if b - a >= nperseg]
-    rate = _measured_rate(step, t, used, decimation)
     nominal = C.AHRS_RATE_HZ / decimation
+    steps = sum(int(step[b - 1] - step[a]) for a, b in used)  # the rate measured on the firmware clock
+    secs = sum(float(t[b - 1] - t[a]) for a, b in used)
+    rate = steps / secs / decimation if steps > 0 and secs > 0 else nominal
     if abs(rate / nominal - 1) > 0.02:
         notes.append(
             f"the firmware clock gives {rate:.2f} rows/s, not the nominal {nominal:.2f}; the spectra use the "
