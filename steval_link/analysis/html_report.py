@@ -247,7 +247,7 @@ def capture_sections(
     if spectra is None:
         spectrum.sentences.append(spectrum_note or "no spectrum")
     else:
-        from steval_link.analysis.spectrum_plot import spectra_figure  # matplotlib (checked)
+        from steval_link.analysis.spectrum import spectra_figure  # matplotlib (checked)
 
         spectrum.figures.append(
             Figure("spectrum", "gyro and accelerometer spectra", figure_png(spectra_figure(spectra, peaks=peaks)))
@@ -268,7 +268,7 @@ def capture_sections(
 
 def side_by_side_section(result) -> Section:
     """The flights side by side (:class:`~steval_link.analysis.side_by_side.SideBySide`): its lines and figure."""
-    from steval_link.analysis.side_by_side_plot import side_by_side_figure  # matplotlib (checked)
+    from steval_link.analysis.side_by_side import side_by_side_figure  # matplotlib (checked)
 
     return Section(
         "the captures side by side",
