@@ -88,6 +88,13 @@ def save_figure(fig, out_png, *, dpi: int = 130) -> Path:
     return out
 
 
+def _label_panel(ax, ylabel: str, title: str) -> None:
+    """A panel's y label, its title on the left and a light grid."""
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10, loc="left")
+    ax.grid(True, alpha=0.3)
+
+
 def _spans(ax, t: np.ndarray, mask: np.ndarray, label: str | None, color: str = "gold", alpha: float = 0.18) -> None:
     """Shade every run of rows where ``mask`` is True (one legend entry)."""
     for k, (a, b) in enumerate(true_runs(mask)):
@@ -195,9 +202,7 @@ def _angle_panel(ax, t, key, what, fw_deg, traces, replica_deg, report, at_fligh
     if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
         why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
         _spans(ax, t, nan_rows, f"firmware NaN ({why})", color="crimson", alpha=0.15)
-    ax.set_ylabel(f"{what} [deg]")
-    ax.set_title(what, fontsize=10, loc="left")
-    ax.grid(True, alpha=0.3)
+    _label_panel(ax, f"{what} [deg]", what)
 
 
 def _restart_lines(axes, t, step) -> None:
@@ -342,9 +347,7 @@ def differences_figure(tel, report, *, title: str | None = None):
             d = _wrap_deg(vals[key] - fw[key])
             ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
         ax.axhline(0.0, color="black", lw=0.8)
-        ax.set_ylabel("estimator − firmware [deg]")
-        ax.set_title(f"{what}: each estimator minus the firmware", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, "estimator − firmware [deg]", f"{what}: each estimator minus the firmware")
         ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     axes[-1].set_xlabel("firmware time since the first frame [s]")
     src = report.source.get("path") or "capture"
@@ -384,17 +387,13 @@ def flight_control_figure(tel, *, title: str | None = None):
         ax = axes[i, 0]
         ax.plot(*_decimate(t, fw_ang[:, i]), color="black", lw=1.2, label="firmware angle")
         ax.step(tf, rc[:, i], where="post", color="tab:red", lw=1.4, label="target (remote, euler_rc)")
-        ax.set_ylabel(f"{name.split(' ')[0]} [deg]")
-        ax.set_title(f"{name}: target vs firmware", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, f"{name.split(' ')[0]} [deg]", f"{name}: target vs firmware")
         ax = axes[i, 1]
         ax.plot(tf, s1[:, i], ".-", color="tab:red", lw=1.0, ms=3, label=f"{'xyz'[i]}_s1 (firmware)")
         ax.plot(tf, p[:, i], "--", color="tab:blue", lw=1.0, label="P = kp1·(target − angle)")
         if i < 2:
             ax.plot(tf, s1[:, i] - p[:, i], color="tab:green", lw=1.0, label="I = s1 − P (ki1 = 0)")
-        ax.set_ylabel("rate setpoint [rad/s]")
-        ax.set_title(f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, "rate setpoint [rad/s]", f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I")
     axes[0, 0].legend(fontsize=8, loc="upper right")
     for i in range(3):
         axes[i, 1].legend(fontsize=7, loc="upper right")
@@ -487,9 +486,7 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
         if k.size and not compare:
             final = f"final {v[-1]:+.6f}°" if np.isfinite(v[-1]) else "final: NaN"
             ax.set_title(final, fontsize=9, loc="right", color=c)
-        ax.set_ylabel(f"{label.split(':')[0]} [deg]")
-        ax.set_title(label, fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, f"{label.split(':')[0]} [deg]", label)
         if bad.any() and not compare:
             ax.legend(fontsize=7, loc="upper left")
     if compare:

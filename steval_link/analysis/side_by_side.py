@@ -21,7 +21,7 @@ import numpy as np
 from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.analysis.link_stats import relative_time_s
-from steval_link.analysis.plots import _decimate, _spans, require_matplotlib, save_figure
+from steval_link.analysis.plots import _decimate, _label_panel, _spans, require_matplotlib, save_figure
 from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number, true_runs
 from steval_link.estimators.accel_tilt import AccelTilt
 from steval_link.estimators.st_mahony import MahonySettings
@@ -577,9 +577,7 @@ def _angle_panel(ax, r: SideBySide, attr: str, acc_attr: str, title: str) -> Non
     for i, f in enumerate(r.flights):
         t, y = _decimate(f.t_s, np.degrees(getattr(f, attr)))
         ax.plot(t, y, color=COLOURS[i % len(COLOURS)], lw=1.6 if i == 0 else 1.2, label=f.label, zorder=3 + i)
-    ax.set_ylabel(f"{title.split(' ')[0]} {attr[:3]} (deg)")
-    ax.set_title(title, fontsize=10, loc="left")
-    ax.grid(alpha=0.3)
+    _label_panel(ax, f"{title.split(' ')[0]} {attr[:3]} (deg)", title)
     ax.legend(fontsize=8, loc="upper right")
 
 
@@ -592,9 +590,7 @@ def _differences_panel(ax, r: SideBySide) -> None:
         ax.plot(*_decimate(t, dx), color=c, lw=1.2, label=f"pitch thx: {f.label} − {ref.label}")
         ax.plot(*_decimate(t, dy), color=c, lw=1.0, ls="--", label=f"roll thy: {f.label} − {ref.label}")
     ax.axhline(0, color="0.3", lw=0.6)
-    ax.set_ylabel("difference (deg)")
-    ax.set_title("each flight minus the first", fontsize=10, loc="left")
-    ax.grid(alpha=0.3)
+    _label_panel(ax, "difference (deg)", "each flight minus the first")
     ax.legend(fontsize=8, loc="upper right")
     how = "firmware time from each first frame" if r.align == "time" else "motion (gyro cross-correlation)"
     ax.set_xlabel(f"time (s), aligned by {how}")
