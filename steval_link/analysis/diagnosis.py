@@ -121,39 +121,29 @@ def _binary_view(tel):
     return SimpleNamespace(attitude=att, status=sta), rows
 
 
+#: what each change says of the firmware build (``{v}``: its value; ``{b}``: the settings the status frames report)
+_CHANGE_SENTENCES = {
+    "ki": "KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?",
+    "correction": "the accelerometer correction on, though the status frames say it is off",
+    "no correction": "no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?",
+    "variant": "the filter of {v} ({name})",
+    "kp": "kp_ground={v[0]:g}, kp_flight={v[1]:g} (status/default {b.kp_ground:g}, {b.kp_flight:g}): were "
+    "AHRS_KP_BIG/AHRS_KP_NORM changed?",
+    "dt_s": "dt={v:.7g} s (status/default {b.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the real main-loop "
+    "period?",
+    "min_thr": "MIN_THR={v} (status/default {b.min_thr}): was the gain-switch threshold changed?",
+    "defaults": "the firmware's default settings: the status frames report settings the filter does not use (or "
+    "the replica was given other settings)",
+}
+
+
 def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
     """A sentence naming the firmware build that ``changes`` (field → value) describe."""
-    parts = []
-    for k, v in changes.items():
-        if k == "ki":
-            parts.append(f"KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?")
-        elif k == "correction":
-            parts.append(
-                "no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?"
-                if not v
-                else "the accelerometer correction on, though the status frames say it is off"
-            )
-        elif k == "variant":
-            parts.append(f"the filter of {v} ({VARIANTS[v]})")
-        elif k == "kp":
-            kg, kf = v
-            parts.append(
-                f"kp_ground={kg:g}, kp_flight={kf:g} (status/default {base.kp_ground:g}, "
-                f"{base.kp_flight:g}): were AHRS_KP_BIG/AHRS_KP_NORM changed?"
-            )
-        elif k == "dt_s":
-            parts.append(
-                f"dt={v:.7g} s (status/default {base.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the "
-                "real main-loop period?"
-            )
-        elif k == "min_thr":
-            parts.append(f"MIN_THR={v} (status/default {base.min_thr}): was the gain-switch threshold changed?")
-        elif k == "defaults":
-            parts.append(
-                "the firmware's default settings: the status frames report settings the filter does not "
-                "use (or the replica was given other settings)"
-            )
-    return "; ".join(parts)
+    keys = ["no correction" if k == "correction" and not v else k for k, v in changes.items()]
+    return "; ".join(
+        _CHANGE_SENTENCES[key].format(v=v, b=base, name=VARIANTS.get(v) if key == "variant" else None)
+        for key, v in zip(keys, changes.values())
+    )
 
 
 def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
