@@ -300,10 +300,6 @@ def evaluate_capture(
     return res
 
 
-def _trial_key(name: str) -> str:
-    return name.split("_", 1)[0]
-
-
 def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
     """Labels whose score misses scored rows on some trial (their mean is not given, they are not ranked)."""
     return list(dict.fromkeys(k for r in results for k, c in r.coverage.items() if not c.complete))
@@ -352,8 +348,9 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
             "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
             "output (the replica's the same way), over movement steps, degrees"
         )
-    sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
-    if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
+    keys = {r.name: r.name.split("_", 1)[0] for r in results}  # "07" of "07_undisturbed_fast_rotation_B"
+    sel = [r for r in results if keys[r.name] in MEAN_TRIALS]
+    if {keys[r.name] for r in sel} == set(MEAN_TRIALS):
         out["mean_02_07_15_24_rmse_deg"] = mean(sel)
     return out
 

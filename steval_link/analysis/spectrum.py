@@ -417,11 +417,6 @@ def write_csv(sp: Spectra, stream) -> int:
     return len(blocks) * len(sp.freq_hz)
 
 
-def _label(name: str) -> str:
-    sensor, axis = name.split("_")
-    return f"{sensor} {axis} ({UNITS[sensor]})"
-
-
 def format_summary(
     sp: Spectra, peaks: dict[str, list[Peak]], marks_hz=(), *, min_hz: float = 1.0, source: str = ""
 ) -> list[str]:
@@ -440,16 +435,13 @@ def format_summary(
     lines.append(
         f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that would make it):"
     )
-    for name, _, _ in SIGNALS:
+    for name, sensor, i in SIGNALS:
         found = peaks.get(name, [])
-        text = (
-            "   ".join(
-                f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} (+{p.above_floor_db:.0f} dB)"
-                for p in found
-            )
-            or "no clear peak"
+        text = "   ".join(
+            f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[sensor]} (+{p.above_floor_db:.0f} dB)" for p in found
         )
-        lines.append(f"  {_label(name):<16} {text}")
+        label = f"{sensor} {'xyz'[i]} ({UNITS[sensor]})"
+        lines.append(f"  {label:<16} {text or 'no clear peak'}")
     if len(sp.thr_edges) > 2 or sp.thr_windows.sum():
         occupied = np.flatnonzero(sp.thr_windows)
         lines.append(

@@ -31,10 +31,8 @@ _FLAG_NAMES = {
 
 
 def values_bad_report(tel) -> dict[str, Any] | None:
-    """The rows kept with NaN or out-of-range values (the ``values_bad`` flag; protocol v2 keeps what the firmware
-    sent), None when there is none: ``frames`` (attitude rows), ``status_frames``, the first such row (``first_row``,
-    ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (the filter inputs acc/gyro are bad too) and ``text``, the
-    sentence every summary prints."""
+    """The rows kept with NaN or out-of-range values (None: none): ``frames``, ``status_frames``, the first
+    (``first_row``, ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (acc/gyro bad too) and ``text``, its sentence."""
     a = tel.attitude
     bad = np.asarray(getattr(a, "values_bad", np.zeros(len(a), bool)), bool)
     sbad = np.asarray(getattr(tel.status, "values_bad", np.zeros(len(tel.status), bool)), bool)
@@ -100,10 +98,8 @@ def q_norm_report(tel) -> dict[str, Any] | None:
 
 
 def text_telemetry_report(tel) -> dict[str, Any] | None:
-    """The records of text telemetry (``tel.text_series``), None when there is none: ``records``, ``series``
-    (names), ``units``, ``other_lines`` (text lines that are not records), ``dropped_lines`` (printable lines that
-    did not read as text), ``time_source``, ``notes`` (ST's %f-less output...) and ``attitude`` (how series became
-    the attitude rows)."""
+    """The records of text telemetry (None: none): their count, series names and units, other and dropped
+    lines, the time source, notes, and how series became the attitude rows."""
     ts = getattr(tel, "text_series", None)
     if ts is None or not len(ts):
         return None
