@@ -525,9 +525,8 @@ def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
 
 
 def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
-    """The ST release whose filter reproduces the capture's binary rows (``variant`` forces one, named by
-    ``source``): ``{"filter", "from", "variant_bit_exact_steps", "bit_exact_steps", "seeded_steps", "text"}``, or
-    None without binary attitude rows. No settings are searched (``compare`` does that)."""
+    """The ST release whose filter reproduces the binary rows (``variant`` forces one, named by ``source``),
+    its bit-exact steps and sentence; None without binary rows. No settings are searched."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None

@@ -207,8 +207,7 @@ def capture_sections(
     spectrum_note: str | None = None,
 ) -> list[Section]:
     """The sections of one capture: summary and settings, attitude, the replica's verdict, the estimators, the
-    step cost, the spectrum and (when the drone was armed) the flight control. ``spectra`` None: ``spectrum_note``
-    says why there is none."""
+    step cost, the spectrum (else ``spectrum_note``) and the flight control."""
     from steval_link.analysis.plots import (  # matplotlib (checked by the caller)
         comparison_figure,
         differences_figure,

@@ -330,9 +330,8 @@ def _summary_lines(report, fs: dict) -> list[str]:
 
 
 def differences_figure(tel, report, *, title: str | None = None):
-    """Each estimator minus the firmware over time (degrees), pitch (thx, about x) above roll (thy, about y), from a
-    :class:`~steval_link.analysis.compare.ComparisonReport`'s estimates; each line's label carries its RMS. The
-    accelerometer-only tilt is drawn thin and grey behind the others. Returns the matplotlib figure (Agg)."""
+    """Each estimator minus the firmware over time (degrees, its RMS in its label), pitch (thx, about x) above
+    roll (thy, about y); accel-only tilt thin and grey."""
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
@@ -458,8 +457,7 @@ def _run_name(res) -> str:
 
 def simulation_figure(result, *, title: str | None = None, compare=()):
     """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    :class:`steval_link.emulation.lab5.SimulationResult` (UMaine Lab 5), with the inputs in the title. ``compare``:
-    ``(label, result)`` of other runs on the same inputs, overlaid with a legend. Returns the matplotlib figure."""
+    ``steval simulate`` run, the inputs in the title; ``compare``: ``(label, result)`` of other runs, overlaid."""
     plt = require_matplotlib()
     res = result
     k = np.asarray(res.step, dtype=np.int64)

@@ -93,10 +93,8 @@ def _fact_word(key: str, value) -> str:
 
 
 def labels_by_difference(flights: Sequence) -> list[str]:
-    """A label per flight naming what differs between them: the settings first ("ki 0.1" against "ki 1,
-    correction off": a differing setting is named where it is not the default, and the first one where nothing
-    else would be), else the header facts (link, firmware, scenario, seed, port), else the file names. Labels
-    that still collide get their file name added."""
+    """A label per flight naming what differs: the settings that differ from their default ("ki 0.1" against
+    "ki 1, correction off"), else the header facts, else the file names; a label that collides gets its file name."""
     n = len(flights)
     labels = [""] * n
     known = [f.settings for f in flights]
@@ -353,9 +351,8 @@ def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
 def motion_lag_s(
     t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray, dt: float = C.AHRS_PERIOD_S
 ) -> tuple[float, float]:
-    """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
-    and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that
-    happens 2 s later in the flight than in the reference gives +2.0; its aligned times are ``t − lag``."""
+    """The lag (s) of a flight's motion behind the reference's (the three gyro axes cross-correlated: 2 s later
+    gives +2.0, aligned times are ``t − lag``) and the gyro samples' correlation at that lag (1: the same motion)."""
     if len(t_ref) < 8 or len(t) < 8:
         return 0.0, 0.0
     a = _grid(t_ref, gyro_ref, dt)
@@ -442,9 +439,8 @@ def side_by_side(
     align: str = "time",
     labels: Sequence[str] | None = None,
 ) -> SideBySide:
-    """Put ``flights`` (two or more, from :func:`flight_of_telemetry` / :func:`flight_of_ble`) on one time axis,
-    label them (``labels`` overrides, in order; missing ones are derived), measure each against its accel-only
-    tilt and each later one against the first. Raises ValueError for an unknown ``align`` or an empty flight."""
+    """Put ``flights`` on one time axis, label them (``labels`` first, the rest derived), measure each against
+    its accel-only tilt and each later one against the first. ValueError: an unknown ``align`` or an empty flight."""
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)
