@@ -114,6 +114,16 @@ class TrialResult:
     firmware: list[FirmwareResult] = field(default_factory=list)
     coverage: dict[str, Coverage] = field(default_factory=dict)
 
+    def score(self, label: str, q_wxyz, view: broad.SteValView, steps, steps_per_s: float) -> None:
+        """Score an estimate (N, 4) wxyz against ``view``'s truth under ``label`` (``steps``: each row's step)."""
+        q = np.asarray(q_wxyz, dtype=np.float64)
+        err = broad.inclination_error_rad(q, view.quat_true_wxyz)
+        scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
+        self.err_rad[label] = err
+        self.rmse_deg[label] = broad.rmse_deg(err, view.movement)
+        self.coverage[label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
+        self.steps_per_s[label] = steps_per_s
+
 
 def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
     """Put a firmware run into a trial's result: its column (RMSE, error over its own steps) and its line."""
@@ -207,7 +217,6 @@ def evaluate_view(
     for spec in specs:  # two estimators under one label would share one column: never a silent merge
         taken.add(registry.unique_name(spec.label, taken))
     res = TrialResult(name, view.rate_hz, view.t_s, view.movement)
-    scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
     for spec in specs:
         if progress:
             progress(name, spec.label)
@@ -221,12 +230,7 @@ def evaluate_view(
         elapsed = time.perf_counter() - t0
         # the quaternion is scored wherever it is finite (``valid`` may also flag Euler-angle trouble, e.g. the
         # firmware's thy = NaN when |q| < 1 pushes asin's argument out of range; q itself is still the estimate)
-        q = np.asarray(out.q_wxyz, dtype=np.float64)
-        err = broad.inclination_error_rad(q, view.quat_true_wxyz)
-        res.err_rad[spec.label] = err
-        res.rmse_deg[spec.label] = broad.rmse_deg(err, view.movement)
-        res.coverage[spec.label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
-        res.steps_per_s[spec.label] = view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf")
+        res.score(spec.label, out.q_wxyz, view, steps, view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf"))
     return res
 
 
@@ -289,14 +293,8 @@ def evaluate_capture(
     if specs is None:
         specs = default_specs(AHRS_RATE_HZ)
     res = evaluate_view(view, specs, p.stem, progress, steps=np.asarray(att.step))
-    q_fw = np.asarray(att.q_wxyz, dtype=np.float64)
     if np.asarray(att.exact).any():  # binary frames carry the firmware's quaternion (text rows: NaN)
-        err = broad.inclination_error_rad(q_fw, q_true)
-        res.err_rad["firmware"] = err
-        res.rmse_deg["firmware"] = broad.rmse_deg(err, movement)
-        res.steps_per_s["firmware"] = float("nan")
-        scored = movement & np.isfinite(q_true).all(axis=1)
-        res.coverage["firmware"] = coverage_of(np.isfinite(q_fw).all(axis=1), scored, att.step, t)
+        res.score("firmware", att.q_wxyz, view, att.step, float("nan"))
     return res
 
 
