@@ -357,7 +357,7 @@ def test_rate_statistics():
     assert rt.period_mean_ms == pytest.approx(6.1919, abs=2e-3)
     assert rt.period_std_ms < 0.001 and rt.period_p99_ms <= 6.193
     assert rt.rate_hz == pytest.approx(161.5, rel=1e-3)
-    assert rt.ahrs_cycles_mean == 4200 and rt.ahrs_us_mean == pytest.approx(50.0)
+    assert rt.ahrs_cycles_mean == 4200 and rt.ahrs_us("mean") == pytest.approx(50.0)
     assert rt.ahrs_cycles_min == 4000 and rt.ahrs_cycles_max == 5000
 
 

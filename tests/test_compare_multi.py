@@ -13,9 +13,9 @@ import pytest
 from support.cli import run_cli
 
 from steval_link import constants as C
-from steval_link.analysis.flight_labels import labels_by_difference
 from steval_link.analysis.side_by_side import (
     flight_of_telemetry,
+    labels_by_difference,
     motion_lag_s,
     side_by_side,
     still_mask,

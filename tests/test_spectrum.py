@@ -356,7 +356,7 @@ def test_figure_has_at_most_nine_readable_panels_and_names_the_register_images(v
     pytest.importorskip("matplotlib")
     import matplotlib.pyplot as plt
 
-    from steval_link.analysis.spectrum_plot import spectra_figure, throttle_varied
+    from steval_link.analysis.spectrum import spectra_figure, throttle_varied
 
     sp = vib_spectra
     peaks = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k], 4) for k, (name, _, _) in enumerate(S.SIGNALS)}
@@ -377,7 +377,7 @@ def test_figure_of_a_flight_has_the_throttle_map():
     pytest.importorskip("matplotlib")
     import matplotlib.pyplot as plt
 
-    from steval_link.analysis.spectrum_plot import spectra_figure, throttle_varied
+    from steval_link.analysis.spectrum import spectra_figure, throttle_varied
 
     sp = S.compute_spectra(load_telemetry(RECORDINGS / "demo.stv"))
     assert throttle_varied(sp)

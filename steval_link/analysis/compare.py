@@ -1,29 +1,10 @@
-"""``steval compare``: the firmware's own angles against the Python replica, the EKFs and accelerometer tilt.
-
-One capture in, one :class:`ComparisonReport` out (ETH lecture 4, exercise 8 and the EKF project):
-
-* **ST-Mahony replica**: the bit-exact replica re-run over the capture's inputs from power-up or from a status
-  frame's filter snapshot, restarted after dropped frames. The report counts bit-exact steps and diagnoses the
-  first step that differs (:mod:`steval_link.analysis.diagnosis`).
-* **Other estimators** (``ekf3``, ``mekf``, ``accel`` by default) run from power-up over the same inputs.
-
-Every trace is compared with the firmware's ``thx`` (pitch, about x) and ``thy`` (roll, about y): RMS and max |Δ|
-in degrees, differences wrapped to ±180°. Firmware NaN rows (``asin`` out of range) are counted and excluded.
-Rate, jitter, drops, CRC failures, the AHRS step cost and the filter settings complete the report.
-Text-mode captures carry rounded values and no quaternion: the replica cannot be bit-exact there, so it is not run.
-"""
+"""``steval compare``: the firmware's own angles against the bit-exact replica (seeded from power-up or a status
+snapshot, restarted after dropped frames; its first difference diagnosed by :mod:`~steval_link.analysis.diagnosis`),
+the EKFs and accelerometer tilt: RMS and max |Δ| of ``thx`` (pitch, about x) and ``thy`` (roll, about y) in degrees,
+wrapped to ±180°, firmware NaN rows excluded; rate, jitter, drops, the step cost and the filter settings.
+Text-mode rows carry rounded values and no quaternion: the replica is not run on them."""
 
 from __future__ import annotations
-
-__all__ = [
-    "REPLICA_TRACE",
-    "AngleStats",
-    "ComparisonReport",
-    "TraceComparison",
-    "compare_capture",
-    "format_report",
-    "angle_diff_rad",
-]
 
 import math
 from typing import Any, Sequence
@@ -40,7 +21,7 @@ from steval_link.analysis.report import (
     ComparisonReport,
     TraceComparison,
     angle_diff_rad,
-    format_report,
+    format_report,  # noqa: F401 (the CLI imports it from here)
     json_number,
     on_rows,
     truth_on_steps,
@@ -80,23 +61,9 @@ def compare_capture(
     variant: str | None = None,
     variant_source: str = "variant setting",
 ) -> ComparisonReport:
-    """Compare a capture's firmware angles with the seeded ST-Mahony replica and with ``estimators``.
-
-    Args:
-        tel: a :class:`steval_link.link.telemetry.Telemetry` with at least one attitude row.
-        estimators: registry names run from power-up over the capture's inputs (``st-mahony`` here means the
-            unseeded replica from power-up; the seeded replica is always compared). Names this installation lacks are
-            reported as unavailable.
-        settings: filter settings for the replica (default: those of the status frames, else the firmware's).
-        variant: the ST release whose filter the replica runs (named by ``variant_source``); default: recognised
-            from the data (the variant bit-exact on the most steps).
-
-    Returns:
-        A :class:`ComparisonReport`; angles in the report are degrees, thx = pitch (about x), thy = roll (about y).
-
-    Raises:
-        ValueError: the telemetry has no attitude row.
-    """
+    """Compare a capture's firmware angles with the seeded replica and with ``estimators`` (registry names run
+    from power-up; missing ones reported unavailable). ``settings``: the replica's (default: the status frames', else
+    the firmware's); ``variant``: its ST release (default: recognised from the data). ValueError: no attitude row."""
     a = tel.attitude
     n = len(a)
     if n == 0:
@@ -205,10 +172,8 @@ def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
 
 
 def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] | None:
-    """Inclination RMSE (deg, movement steps) of the firmware, the replica and each estimator against the ground truth
-    a capture keeps (chunks T of an emulated BROAD run, matched to the frames by AHRS step), or None without one.
-    The firmware and the replica are scored from their thx/thy (``quaternion_from_euler(thx, thy, 0)``) as
-    ``steval evaluate --firmware`` scores them; the estimators from their quaternions as ``steval evaluate``."""
+    """Inclination RMSE (deg, movement steps) of the firmware, the replica and each estimator against the truth
+    a capture keeps (chunks T, matched by AHRS step), or None; scored as ``steval evaluate`` scores them."""
     src = tel.source or {}
     if src.get("kind") != "stv" or not src.get("path"):
         return None

@@ -1,10 +1,8 @@
-"""Coverage of a score: which of the scored rows (movement rows with ground truth) an estimate actually covered.
+"""Coverage of a score: the share of the scored rows (movement rows with ground truth) an estimate covered.
 
-An RMSE over the finite rows alone flatters a filter that gives up half-way. Every score therefore comes with its
-:class:`Coverage`: the fraction of the scored rows it covered (``scored_fraction``), the step from which its estimate
-stayed non-finite for good (``diverged_at_step``, with the trial time), and, when it covered no row, why.
-Tables mark an incomplete cell (``2.851 (63 %)``), give no plain mean for it and never rank it with complete ones.
-"""
+An RMSE over the finite rows alone flatters a filter that gives up half-way: each score carries its coverage, where
+it diverged for good, and why it has none. An incomplete cell is marked (``2.851 (63 %)``), has no mean and is not
+ranked."""
 
 from __future__ import annotations
 
@@ -13,20 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Coverage", "coverage_of", "percent"]
-
 
 @dataclass(frozen=True)
 class Coverage:
-    """How much of the scored rows one estimate covered.
-
-    Attributes:
-        scored_rows: movement rows with a finite ground truth.
-        covered_rows: of those, rows with a finite estimate.
-        diverged_at_step: first step of the estimate's final non-finite run when scored rows fall in it, else None.
-        diverged_at_s: the time of that step, s (trial time for BROAD, firmware time for a capture).
-        why: one phrase when it covered no scored row (None otherwise).
-    """
+    """How much of the scored rows (movement with finite truth) one estimate covered (finite): ``diverged_at_step``
+    starts its final non-finite run (``diverged_at_s``: its time, s), ``why`` it covered none."""
 
     scored_rows: int
     covered_rows: int
@@ -88,14 +77,8 @@ def _at(t_s: float | None) -> str:
 
 
 def coverage_of(estimate_ok, scored, steps=None, t_s=None) -> Coverage:
-    """The coverage of one estimate.
-
-    Args:
-        estimate_ok: (N,) bool, rows where the estimate is finite.
-        scored: (N,) bool, rows that count (movement with a finite ground truth).
-        steps: (N,) int, the step number of each row (default: the row index).
-        t_s: (N,) float, the time of each row, s (default: unknown).
-    """
+    """The coverage of one estimate: ``estimate_ok`` (N,) its finite rows, ``scored`` (N,) the rows that count,
+    ``steps`` each row's step (default: its index), ``t_s`` each row's time, s."""
     ok = np.asarray(estimate_ok, bool).reshape(-1)
     sc = np.asarray(scored, bool).reshape(-1)
     n = ok.shape[0]

@@ -1,13 +1,10 @@
 """The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): steps that match bit for bit, the
-first that differs and *why*: the replica is re-run from the same seed with alternative settings (normalisation variant,
-KI, correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named. Also the
-filter settings the status frames announce (:func:`filter_settings_report`).
+first that differs and *why*: the replica is re-run from the same seed with other settings (release variant, KI,
+correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named.
 
-A firmware whose own filter *diverged* (:func:`find_divergence`: its q left the unit sphere, ``| |q| − 1 |`` >
-``Q_NORM_TOL`` = 0.05, or went non-finite) is named with the step, the inputs at that step and the one before, and
-whether the replica stayed finite on the same inputs. When it did, no setting of the release's filter explains the
-firmware, so no settings are searched: the firmware's ``ahrs.c`` differs (a student's filter, a refactor).
-"""
+A firmware whose own filter diverged (:func:`find_divergence`: q off the unit sphere or non-finite) is named with
+the step and its inputs; when the replica stayed finite on them, no setting is searched: the firmware's ``ahrs.c``
+differs."""
 
 from __future__ import annotations
 
@@ -33,18 +30,12 @@ DIAGNOSIS_WINDOW_ROWS = 600
 
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
+_FLOAT_SETTINGS = ("kp_ground", "kp_flight", "ki", "dt_s")
 
 
 def _settings_dict(s: MahonySettings) -> dict[str, Any]:
-    return {
-        "kp_ground": float(np.float32(s.kp_ground)),
-        "kp_flight": float(np.float32(s.kp_flight)),
-        "ki": float(np.float32(s.ki)),
-        "dt_s": float(np.float32(s.dt_s)),
-        "min_thr": s.min_thr,
-        "correction": s.correction,
-        "variant": s.variant,
-    }
+    floats = {k: float(np.float32(getattr(s, k))) for k in _FLOAT_SETTINGS}
+    return floats | {k: getattr(s, k) for k in ("min_thr", "correction", "variant")}
 
 
 def _same_settings(a: MahonySettings, b: MahonySettings) -> bool:
@@ -73,7 +64,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
             "changes": 0,
         }
     # a snapshot holding NaN (a diverged filter) still reports the build's settings; non-finite settings do not
-    for k in ("kp_ground", "kp_flight", "ki", "dt_s"):
+    for k in _FLOAT_SETTINGS:
         ex = ex & np.isfinite(np.asarray(getattr(s, k), np.float64))
     if not ex.any():
         return None
@@ -130,39 +121,29 @@ def _binary_view(tel):
     return SimpleNamespace(attitude=att, status=sta), rows
 
 
+#: what each change says of the firmware build (``{v}``: its value; ``{b}``: the settings the status frames report)
+_CHANGE_SENTENCES = {
+    "ki": "KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?",
+    "correction": "the accelerometer correction on, though the status frames say it is off",
+    "no correction": "no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?",
+    "variant": "the filter of {v} ({name})",
+    "kp": "kp_ground={v[0]:g}, kp_flight={v[1]:g} (status/default {b.kp_ground:g}, {b.kp_flight:g}): were "
+    "AHRS_KP_BIG/AHRS_KP_NORM changed?",
+    "dt_s": "dt={v:.7g} s (status/default {b.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the real main-loop "
+    "period?",
+    "min_thr": "MIN_THR={v} (status/default {b.min_thr}): was the gain-switch threshold changed?",
+    "defaults": "the firmware's default settings: the status frames report settings the filter does not use (or "
+    "the replica was given other settings)",
+}
+
+
 def _describe_variant(changes: dict[str, Any], base: MahonySettings) -> str:
     """A sentence naming the firmware build that ``changes`` (field → value) describe."""
-    parts = []
-    for k, v in changes.items():
-        if k == "ki":
-            parts.append(f"KI={v:g}: was the firmware built with AHRS_KI={v:g}f (ETH exercise 4)?")
-        elif k == "correction":
-            parts.append(
-                "no accelerometer correction (g* = g): was the correction commented out (ETH exercise 5)?"
-                if not v
-                else "the accelerometer correction on, though the status frames say it is off"
-            )
-        elif k == "variant":
-            parts.append(f"the filter of {v} ({VARIANTS[v]})")
-        elif k == "kp":
-            kg, kf = v
-            parts.append(
-                f"kp_ground={kg:g}, kp_flight={kf:g} (status/default {base.kp_ground:g}, "
-                f"{base.kp_flight:g}): were AHRS_KP_BIG/AHRS_KP_NORM changed?"
-            )
-        elif k == "dt_s":
-            parts.append(
-                f"dt={v:.7g} s (status/default {base.dt_s:g} s): was SENSOR_SAMPLING_TIME changed to the "
-                "real main-loop period?"
-            )
-        elif k == "min_thr":
-            parts.append(f"MIN_THR={v} (status/default {base.min_thr}): was the gain-switch threshold changed?")
-        elif k == "defaults":
-            parts.append(
-                "the firmware's default settings: the status frames report settings the filter does not "
-                "use (or the replica was given other settings)"
-            )
-    return "; ".join(parts)
+    keys = ["no correction" if k == "correction" and not v else k for k, v in changes.items()]
+    return "; ".join(
+        _CHANGE_SENTENCES[key].format(v=v, b=base, name=VARIANTS.get(v) if key == "variant" else None)
+        for key, v in zip(keys, changes.values())
+    )
 
 
 def _cli_flags(s: MahonySettings, base: MahonySettings) -> str:
@@ -381,12 +362,9 @@ def _norm(q) -> float:
 
 
 def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
-    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite, or None.
-
-    ``view``/``rows``: the binary rows (:func:`_binary_view`); ``rep``: the replica replayed over them (or None).
-    Returns ``{"row", "step", "t_fw_s", "q_wxyz", "q_norm", "first_nonfinite_step", "inputs": [{"step", "acc_mg",
-    "gyro_mdps", "thr"} of the step before (when received) and of the step], "replica": "finite" | "diverged" |
-    "unseeded", "replica_q_wxyz", "replica_diverged_step", "text": [sentences]}`` ."""
+    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none):
+    its step, time, q and |q|, the inputs of that step and the one before, what the replica did (``rep``: replayed over
+    ``rows``) and the sentences saying so."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -471,11 +449,9 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
 def compare_replica(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
-    """The seeded replica against the firmware's binary rows: (report, replay over the binary rows, those rows'
-    indices into ``tel.attitude``); (None, None, None) when the capture has no binary attitude row.
-
-    ``variant`` forces a release's filter (``variant_source`` says who named it, e.g. "firmware ELF");
-    without it the release is the variant bit-exact on the most steps."""
+    """The seeded replica against the firmware's binary rows: (report, its replay, those rows' indices into
+    ``tel.attitude``), or (None, None, None) without binary rows. ``variant`` forces a release (named by
+    ``variant_source``); default: the one bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None
@@ -549,9 +525,8 @@ def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
 
 
 def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
-    """The ST release whose filter reproduces the capture's binary rows (``variant`` forces one, named by
-    ``source``): ``{"filter", "from", "variant_bit_exact_steps", "bit_exact_steps", "seeded_steps", "text"}``, or
-    None without binary attitude rows. No settings are searched (``compare`` does that)."""
+    """The ST release whose filter reproduces the binary rows (``variant`` forces one, named by ``source``),
+    its bit-exact steps and sentence; None without binary rows. No settings are searched."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None

@@ -1,24 +1,13 @@
 """``steval estimator check``: an estimator's interface checks, then its scores next to ST-Mahony and VQF.
 
-Interface checks, each on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward,
-z up, 161.5 Hz steps), with light sensor noise from a fixed seed:
+Each check runs on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward, z up,
+161.5 Hz steps, light noise from a fixed seed): shapes and a unit quaternion; level at rest; the pitch sign (20° nose
+up → thx ≈ +20°) and roll sign (thy ≈ +20°); a +20 dps turn about x (gyro units and sign); NaN, free fall and
+saturated inputs (no exception, finite at the end); determinism across instances and ``reset()``; and speed (live
+needs twice the stream's 161.5 steps/s).
 
-* **shapes**: ``step()`` gives a (4,) quaternion of unit norm (within 1 %), ``run()`` one row per input row;
-* **at rest**: level and still for 10 s → thx, thy within 1° of 0;
-* **pitch sign** / **roll sign**: held 20° nose up (gravity seen as acc ≈ (0, +342, +940) mg) → thx ≈ +20°,
-  thy ≈ 0; 20° roll (acc ≈ (−342, 0, +940) mg) → thy ≈ +20° (within 2° after 10 s);
-* **turn**: +20 dps about x for 0.5 s with gravity turning along → thx ≈ +10° (within 2°): gyro units and sign;
-* **invalid input**: rows with NaN (flagged invalid, or a finite held estimate), 0.5 s of free fall (acc 0),
-  0.1 s of saturated sensors (±16 g, ±2000 dps), then rest: no exception, a finite estimate at the end;
-* **determinism**: two fresh instances, and one after ``reset()``, give the same output bit for bit;
-* **speed**: steps per second of ``run()`` on the demo capture's inputs; live needs at least twice the stream's
-  161.5 steps/s (``steval_link.live.estimators.SLOW_SHARE``).
-
-Scores: on the bundled captures, the RMS tilt difference (inclination of one attitude against the other, degrees)
-from the firmware's attitude and from accelerometer-only tilt; on BROAD trials, the inclination RMSE against
-ground truth with :mod:`steval_link.analysis.evaluate`'s metric. ST-Mahony, the built-in EKF and VQF (when
-installed) run next to it.
-"""
+Scores: the RMS tilt difference (deg) from the firmware's attitude and from accel-only tilt on the bundled
+captures; the inclination RMSE against ground truth on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
 
 from __future__ import annotations
 
@@ -40,18 +29,6 @@ from steval_link.estimators.plugins import PluginError
 from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.capture import demo_capture_path
 from steval_link.link.load import read_recording, telemetry_of_recording
-
-__all__ = [
-    "Check",
-    "CheckReport",
-    "interface_checks",
-    "capture_scores",
-    "broad_scores",
-    "run_check",
-    "format_check",
-    "LIVE_MIN_STEPS_PER_S",
-    "COMPANIONS",
-]
 
 #: steps per second an estimator needs to run live (the stream's rate, twice over)
 LIVE_MIN_STEPS_PER_S = 2.0 * C.AHRS_RATE_HZ
@@ -94,7 +71,7 @@ class CheckReport:
             "reference": self.reference,
             "ok": self.ok,
             "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
-            "steps_per_s": _num(self.steps_per_s),
+            "steps_per_s": ev.rounded(self.steps_per_s),
             "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
             "captures": self.captures,
         }
@@ -102,10 +79,6 @@ class CheckReport:
         if self.broad_note:
             d["broad_note"] = self.broad_note
         return d
-
-
-def _num(x) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(float(x), 4)
 
 
 # ---- inputs --------------------------------------------------------------------------------------------------------
@@ -165,10 +138,8 @@ def _last_deg(est) -> tuple[float, float]:
 
 
 def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
-    """Run every interface check on the estimator ``name`` names.
-
-    Returns the checks, steps per second, and the user's trimmed traceback of the first failure (or "").
-    """
+    """Every interface check of the estimator ``name`` names: (checks, steps/s, the first failure's trimmed
+    traceback or "")."""
     rate = [math.nan]
 
     def speed():
@@ -313,16 +284,9 @@ def _demo_inputs():
 
 #: the recordings the repository ships (``recordings/make_recordings.sh`` makes them); a user's own captures in the
 #: same folder (``steval live`` writes ``recordings/steval-<UTC>.stv``) are not among them
-BUNDLED_CAPTURES = (
-    "ble_demo.stv",
-    "broad_07.stv",
-    "demo.stv",
-    "flight.stv",
-    "freefall.stv",
-    "live_params.stv",
-    "midflight_drops.stv",
-    "preflight_ok.stv",
-    "preflight_swapped_motors.stv",
+BUNDLED_CAPTURES = tuple(
+    "ble_demo.stv broad_07.stv demo.stv flight.stv freefall.stv live_params.stv midflight_drops.stv preflight_ok.stv "
+    "preflight_swapped_motors.stv".split()
 )
 
 
@@ -363,8 +327,8 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
             est = registry.create(name).run(acc, gyro, thr)
             q = np.asarray(est.q_wxyz, np.float64).copy()
             q[~np.asarray(est.valid, bool)] = np.nan
-            vs_fw[label] = _num(_tilt_rms_deg(q, q_fw))
-            vs_acc[label] = _num(_tilt_rms_deg(q, q_acc))
+            vs_fw[label] = ev.rounded(_tilt_rms_deg(q, q_fw))
+            vs_acc[label] = ev.rounded(_tilt_rms_deg(q, q_acc))
         out.append({"capture": p.name, "frames": int(rows.sum()), "vs_firmware_deg": vs_fw, "vs_accel_deg": vs_acc})
     return out
 

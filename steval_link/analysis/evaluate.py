@@ -1,19 +1,12 @@
 """Accuracy against ground truth: every estimator on BROAD trials (through the STEVAL sensor pipeline model, or at
 the trial's own rate) or on a capture with a ground-truth sidecar; inclination RMSE per trial and estimator.
 
-Metric (BROAD): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in
-degrees over the ``movement`` samples, ignoring NaN (occluded ground truth). See :mod:`steval_link.emulation.broad`.
+Metric: ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in degrees over
+the ``movement`` samples, ignoring NaN (occluded ground truth). A firmware ELF (``--firmware``) is one more column
+(:mod:`steval_link.analysis.firmware_eval`).
 
-Firmware (``--firmware ELF``): each ELF runs on the emulated board fed with the trial's motion and its own attitude
-output is scored against the same truth, aligned per step the same way (:mod:`steval_link.analysis.firmware_eval`):
-one more column of the table, and one line per firmware per trial with its instructions per AHRS step and the
-bit-exact replica's score on the firmware's own inputs.
-
-Ground truth for a capture (``.stv``, raw dump or text log): a sidecar ``<capture>.truth.npz`` next to it (or
-given explicitly) with ``step`` (M,) int (the AHRS step counter of the frames, ``tel.attitude.step``), ``quat``
-(M, 4) float wxyz body → earth (x right, y forward, z up body axes; z up earth), and optionally ``movement`` (M,)
-bool (default: all True). Steps without a truth row are ignored.
-"""
+A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int (``tel.attitude.step``), ``quat`` (M, 4) float wxyz
+body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all True)."""
 
 from __future__ import annotations
 
@@ -40,29 +33,6 @@ from steval_link.estimators.plugins import Selected, split_list
 from steval_link.link.capture import capture_truth
 from steval_link.link.load import read_recording, telemetry_of_recording
 
-__all__ = [
-    "EstimatorSpec",
-    "TrialResult",
-    "default_specs",
-    "evaluate_view",
-    "evaluate_capture",
-    "truth_sidecar_path",
-    "summary",
-    "format_table",
-    "plot_evaluation",
-    "evaluation_figure",
-    "MEAN_TRIALS",
-    "add_firmware",
-    "firmware_lines",
-    "incomplete_labels",
-    "table_rows",
-    "coverage_lines",
-    "write_csv",
-    "write_markdown",
-    "estimator_specs",
-    "evaluate_data",
-]
-
 #: the trials of the headline mean (BROAD 02, 07, 15, 24: slow/fast rotation, fast translation, tapping)
 MEAN_TRIALS = ("02", "07", "15", "24")
 #: throttle of the firmware's "flight mode" (kp 0.4) and "ground mode" (kp 10) runs
@@ -81,14 +51,10 @@ class EstimatorSpec:
 
 
 def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
-    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``.
-
-    ``st-mahony-flight``/``-ground``: the firmware's filter with thr 450 (kp 0.4) / thr 0 (kp 10); with ``own_rate``
-    its dt is 1/rate (the firmware's 6.25 ms otherwise). ``accel``: accelerometer-only tilt. ``ekf3``, ``mekf``,
-    ``vqf`` at ``rate_hz`` (mekf's pipeline-latency compensation is off with ``own_rate``). ``vqf`` is left out when
-    the package is missing (unless asked for by name in ``only``, which then raises UserError). ``only`` selects
-    labels; the registry name of an estimator (``st-mahony``) selects both Mahony runs.
-    """
+    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450:
+    kp 0.4 / thr 0: kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``,
+    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order
+    (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice or none."""
     mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
         "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
@@ -102,10 +68,13 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
         return [s for k, s in specs.items() if k != "vqf" or registry.is_available("vqf")]
     out: list[EstimatorSpec] = []
     for item in only:
-        item = item.strip()
-        if not item:
+        if not isinstance(item, str) or isinstance(item, Selected):  # an object chosen already: run as it is
+            chosen = [EstimatorSpec(str(item), item, {})]
+        elif not item.strip():
             continue
-        chosen = [s for k, s in specs.items() if k == item or s.name == item]
+        else:
+            item = item.strip()
+            chosen = [s for k, s in specs.items() if k == item or s.name == item]
         if not chosen and registry.is_known(item):  # your own (FILE.py:CLASS, module:CLASS, a plug-in, options)
             sel = registry.resolve(item)
             chosen = [EstimatorSpec(str(sel), sel, {"rate_hz": rate_hz} if registry.accepts(sel, "rate_hz") else {})]
@@ -130,20 +99,9 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
 
 @dataclass
 class TrialResult:
-    """The outcome of one trial (or capture).
-
-    Attributes:
-        name: trial name (file stem).
-        rate_hz: step rate of the evaluated inputs, Hz.
-        t_s: (M,) step times, s.
-        movement: (M,) bool, steps that count.
-        rmse_deg: label → inclination RMSE, degrees.
-        err_rad: label → (M,) inclination error, rad.
-        steps_per_s: label → estimator speed, steps/s.
-        err_t_s: label → (K,) times of ``err_rad[label]`` when not ``t_s`` (a firmware's own steps), s.
-        firmware: the firmware runs on this trial (``--firmware``).
-        coverage: label → the share of the scored rows its score covers (:mod:`steval_link.analysis.coverage`).
-    """
+    """The outcome of one trial (or capture): its name, step rate (Hz), step times ``t_s`` (M,) and ``movement``
+    (M,) bool; per label the inclination RMSE (deg), error (M,) rad, speed (steps/s), ``err_t_s`` (a firmware's own step
+    times, s) and :class:`~steval_link.analysis.coverage.Coverage`; the firmware runs (``--firmware``)."""
 
     name: str
     rate_hz: float
@@ -155,6 +113,16 @@ class TrialResult:
     err_t_s: dict[str, np.ndarray] = field(default_factory=dict)
     firmware: list[FirmwareResult] = field(default_factory=list)
     coverage: dict[str, Coverage] = field(default_factory=dict)
+
+    def score(self, label: str, q_wxyz, view: broad.SteValView, steps, steps_per_s: float) -> None:
+        """Score an estimate (N, 4) wxyz against ``view``'s truth under ``label`` (``steps``: each row's step)."""
+        q = np.asarray(q_wxyz, dtype=np.float64)
+        err = broad.inclination_error_rad(q, view.quat_true_wxyz)
+        scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
+        self.err_rad[label] = err
+        self.rmse_deg[label] = broad.rmse_deg(err, view.movement)
+        self.coverage[label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
+        self.steps_per_s[label] = steps_per_s
 
 
 def add_firmware(res: TrialResult, fw: FirmwareResult) -> None:
@@ -174,13 +142,13 @@ def _firmware_dict(fw: FirmwareResult) -> dict:
         "firmware": fw.label,
         "elf": fw.elf,
         "attitude_from": fw.source,
-        "rmse_deg": _rounded(fw.rmse_deg),
+        "rmse_deg": rounded(fw.rmse_deg),
         **fw.coverage.to_json(),
         "gains": fw.gains,
         "steps": fw.steps,
         "movement_steps": int(np.count_nonzero(fw.truth.movement)),
         "instructions_per_step": fw.instructions_summary(),
-        "replica_rmse_deg": _rounded(fw.replica_rmse_deg),
+        "replica_rmse_deg": rounded(fw.replica_rmse_deg),
         "replica_bit_exact_steps": fw.replica_bit_exact,
         "replica_steps": fw.replica_steps,
         "filter": None if st is None else st.variant,
@@ -244,14 +212,11 @@ def evaluate_view(
     *,
     steps: np.ndarray | None = None,
 ) -> TrialResult:
-    """Run every estimator of ``specs`` on ``view``'s inputs and score it against ``view``'s ground truth.
-
-    ``steps``: the step number of each row, for ``diverged_at_step`` (default: the row index)."""
+    """Run ``specs`` on ``view``'s inputs and score them against its truth (``steps``: each row's step number)."""
     taken: set[str] = set()
     for spec in specs:  # two estimators under one label would share one column: never a silent merge
         taken.add(registry.unique_name(spec.label, taken))
     res = TrialResult(name, view.rate_hz, view.t_s, view.movement)
-    scored = np.asarray(view.movement, bool) & np.isfinite(view.quat_true_wxyz).all(axis=1)
     for spec in specs:
         if progress:
             progress(name, spec.label)
@@ -265,12 +230,7 @@ def evaluate_view(
         elapsed = time.perf_counter() - t0
         # the quaternion is scored wherever it is finite (``valid`` may also flag Euler-angle trouble, e.g. the
         # firmware's thy = NaN when |q| < 1 pushes asin's argument out of range; q itself is still the estimate)
-        q = np.asarray(out.q_wxyz, dtype=np.float64)
-        err = broad.inclination_error_rad(q, view.quat_true_wxyz)
-        res.err_rad[spec.label] = err
-        res.rmse_deg[spec.label] = broad.rmse_deg(err, view.movement)
-        res.coverage[spec.label] = coverage_of(np.isfinite(q).all(axis=1), scored, steps, view.t_s)
-        res.steps_per_s[spec.label] = view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf")
+        res.score(spec.label, out.q_wxyz, view, steps, view.acc_mg.shape[0] / elapsed if elapsed > 0 else float("inf"))
     return res
 
 
@@ -300,11 +260,8 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def evaluate_capture(
     path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None, progress: Progress | None = None
 ) -> TrialResult:
-    """Evaluate estimators on a capture's own AHRS inputs against a ground-truth sidecar (see the module doc), or,
-    without one, the truth the capture keeps (chunks T of ``steval emulate --broad``).
-
-    The firmware's own estimate (``q`` of binary frames) is scored as ``firmware`` when present.
-    """
+    """Evaluate estimators on a capture's AHRS inputs against its sidecar, or the truth it keeps (chunks T of
+    ``steval emulate --broad``); the firmware's own ``q`` of binary frames is scored as ``firmware``."""
 
     p = Path(path)
     src = read_recording(p)  # missing, unreadable, empty: its own sentence
@@ -336,19 +293,9 @@ def evaluate_capture(
     if specs is None:
         specs = default_specs(AHRS_RATE_HZ)
     res = evaluate_view(view, specs, p.stem, progress, steps=np.asarray(att.step))
-    q_fw = np.asarray(att.q_wxyz, dtype=np.float64)
     if np.asarray(att.exact).any():  # binary frames carry the firmware's quaternion (text rows: NaN)
-        err = broad.inclination_error_rad(q_fw, q_true)
-        res.err_rad["firmware"] = err
-        res.rmse_deg["firmware"] = broad.rmse_deg(err, movement)
-        res.steps_per_s["firmware"] = float("nan")
-        scored = movement & np.isfinite(q_true).all(axis=1)
-        res.coverage["firmware"] = coverage_of(np.isfinite(q_fw).all(axis=1), scored, att.step, t)
+        res.score("firmware", att.q_wxyz, view, att.step, float("nan"))
     return res
-
-
-def _trial_key(name: str) -> str:
-    return name.split("_", 1)[0]
 
 
 def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
@@ -357,13 +304,10 @@ def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
 
 
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
-    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials, and over BROAD 02/07/15/24
-    if present. An incomplete estimator (``scored_fraction`` < 1 on a trial) has no mean (None) and is listed
-    under ``incomplete``.
-
-    ``number``: how each figure is written (default: to 4 decimals, for JSON; the table rounds the raw values once).
-    """
-    rnd = number or _rounded
+    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials and over BROAD 02/07/15/24;
+    an incomplete estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default:
+    4 decimals)."""
+    rnd = number or rounded
     labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)
     trials = []
@@ -402,8 +346,9 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
             "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
             "output (the replica's the same way), over movement steps, degrees"
         )
-    sel = [r for r in results if _trial_key(r.name) in MEAN_TRIALS]
-    if {_trial_key(r.name) for r in sel} == set(MEAN_TRIALS):
+    keys = {r.name: r.name.split("_", 1)[0] for r in results}  # "07" of "07_undisturbed_fast_rotation_B"
+    sel = [r for r in results if keys[r.name] in MEAN_TRIALS]
+    if {keys[r.name] for r in sel} == set(MEAN_TRIALS):
         out["mean_02_07_15_24_rmse_deg"] = mean(sel)
     return out
 
@@ -413,16 +358,14 @@ def _mean(values) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def _rounded(x) -> float | None:
+def rounded(x) -> float | None:
     """A JSON number to 4 decimals (None for NaN/inf)."""
     v = json_number(x)
     return None if v is None else round(v, 4)
 
 
 def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str]]]:
-    """The table as cells: the header and one row per trial (then the means), each RMSE marked with its coverage
-    (``2.851 (63 %)``, ``no score``); an incomplete estimator's mean reads ``incomplete``. Text, CSV and Markdown
-    are written from these."""
+    """The table as cells (header, a row per trial, the means), each RMSE marked with its coverage."""
     s = summary(results, json_number)  # raw values: the table rounds once, as the firmware lines below
     labels = s["estimators"]
     header = ["trial", *labels]
@@ -506,9 +449,8 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
-    """Bars of RMSE per estimator per trial (top; an incomplete score hollow, hatched, its coverage on it, "not
-    ranked" in the legend) and the inclination error over time of trial ``detail`` (NaN a gap; a dashed line where
-    an estimate diverged). Returns the matplotlib figure."""
+    """Bars of RMSE per estimator per trial (an incomplete score hollow and hatched, its coverage on it)
+    and the inclination error over time of trial ``detail`` (a dashed line where an estimate diverged)."""
     plt = require_matplotlib()
     s = summary(results)
     labels = s["estimators"]
@@ -559,24 +501,9 @@ FIRMWARE_WEIGHT = 20
 
 
 def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> list[EstimatorSpec]:
-    """The specs of ``estimators`` in their order (None: :func:`default_specs`): labels and references (text, a
-    comma-separated list too) and selected objects (:class:`~steval_link.estimators.plugins.Selected`, run as
-    they are). UserError when two share a label (never a silent merge) or none is chosen."""
-    if estimators is None:
-        return default_specs(rate_hz, own_rate=own_rate)
-    items = split_list(estimators) if isinstance(estimators, str) else list(estimators)
-    out: list[EstimatorSpec] = []
-    for item in items:
-        if isinstance(item, str) and not isinstance(item, Selected):
-            specs = default_specs(rate_hz, own_rate=own_rate, only=[item]) if item.strip() else []
-        else:
-            specs = [EstimatorSpec(str(item), item, {})]
-        for spec in specs:
-            registry.unique_name(spec.label, {o.label for o in out})  # UserError for a label already taken
-            out.append(spec)
-    if not out:
-        raise ParamError("{estimators} selects no estimator", "estimators")
-    return out
+    """The specs of ``estimators`` (None: the defaults; text, a comma-separated list, or selected objects)."""
+    items = split_list(estimators) if isinstance(estimators, str) else estimators
+    return default_specs(rate_hz, own_rate=own_rate, only=None if items is None else list(items))
 
 
 def evaluate_data(
@@ -591,13 +518,12 @@ def evaluate_data(
     variant: str | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> list[TrialResult]:
-    """Score ``estimators`` (:func:`estimator_specs`) on BROAD trials and captures with ground truth (``paths``:
-    files and directories of them), and each ``firmware`` ELF on the emulated board with each trial.
+    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and
+    each ``firmware`` ELF on the emulated board with each trial.
 
-    ``own_rate``: BROAD trials at their own rate, not through the STEVAL pipeline model (``seed``, with
-    ``sensor_noise`` the LSM6DSL's white noise too); ``max_seconds``: the first seconds of each trial; ``variant``:
-    the release of the replica run on a firmware's inputs; ``progress(fraction, stage)``. Every input is checked
-    before the work; UserError names what is wrong."""
+    ``own_rate``: trials at their own rate, not through the STEVAL pipeline (``seed``; ``sensor_noise``: the LSM6DSL's
+    white noise); ``max_seconds``: each trial's first seconds; ``variant``: the replica's release on a firmware's
+    inputs; ``progress(fraction, stage)``. Every input is checked before the work."""
     items = broad.trial_paths(paths)
     n_specs = len(estimator_specs(estimators, 100.0))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):

@@ -1,28 +1,15 @@
-"""A firmware ELF scored against ground truth: it runs on the emulated board fed with a BROAD trial's motion, and its
-own attitude output is scored like the Python estimators (``steval evaluate --firmware``).
+"""A firmware ELF scored against ground truth (``steval evaluate --firmware``): it runs on the emulated board fed with
+a BROAD trial's motion, and its own ``thx``/``thy`` (pitch about x, roll about y) per AHRS step are scored like the
+Python estimators.
 
-The firmware's output is ``thx``/``thy`` (pitch about x, roll about y) per AHRS step:
+The output comes from its attitude frames when it streams them (frame step ``i`` is the ``i``-th AHRS step), else
+from its globals read by symbol once per step: ``euler_ahrs`` (float thx, thy, thz) and ``ahrs`` (q0..q3) when the
+step ends, the inputs ``acc_ahrs`` / ``gyro_ahrs`` (float mg / mdps) and ``gTHR`` (int16) when it starts.
 
-* from its attitude frames when it streams them (the patched release, the reference firmware): frame step ``i`` is
-  the ``i``-th AHRS step;
-* else (an unpatched build) from its globals, read by symbol once per step as a debugger would: ``euler_ahrs``
-  (``EulerAngleTypeDef``: float thx, thy, thz) when the step ends, and ``ahrs`` (``AHRS_State_TypeDef``: q0..q3
-  first) for the quaternion; the step's inputs from ``acc_ahrs`` / ``gyro_ahrs`` (``AxesRaw_TypeDef_Float``: float
-  x, y, z in mg / mdps) and ``gTHR`` (int16) when it starts.
-
-Metric: the inclination error of the quaternion ``quaternion_from_euler(thx, thy, 0)`` against the truth (yaw
-does not enter the inclination), RMSE in degrees over the trial's movement steps: the same
-:func:`~steval_link.emulation.broad.inclination_error_rad` and :func:`~steval_link.emulation.broad.rmse_deg` as
-the Python estimators, on the ground truth aligned per step by :class:`~steval_link.emulation.broad.StepTruth` (the
-middle tick of the step's 5-tick input window, as the Python estimators' STEVAL view).
-
-The bit-exact ST-Mahony replica runs over the firmware's own inputs (frames, or the globals) with the firmware's
-settings (status frames, else ST's defaults) and is scored the same way from its thx/thy: for a stock build the
-two scores agree exactly; ``replica_bit_exact`` counts the steps whose q, thx and thy carry the firmware's bits.
-
-Cost: instructions per AHRS step (``ahrs_fusion_ag`` to the end of the step, interrupts excluded) as the emulator
-counts them (not Cortex-M4 cycles).
-"""
+Metric: the inclination error of ``quaternion_from_euler(thx, thy, 0)`` against the truth aligned per step
+(:class:`~steval_link.emulation.broad.StepTruth`), RMSE in degrees over the movement steps. The bit-exact replica
+runs on the firmware's own inputs and is scored the same way. Cost: emulated instructions per AHRS step, not M4
+cycles."""
 
 from __future__ import annotations
 
@@ -44,8 +31,6 @@ from steval_link.errors import ParamError, UserError
 from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link.decoder import decode_bytes
-
-__all__ = ["FirmwareResult", "firmware_labels", "cut_trial", "run_firmware", "score_euler", "gains_text"]
 
 _F32 = np.float32
 
@@ -92,22 +77,14 @@ class FirmwareResult:
     """One firmware on one trial.
 
     Attributes:
-        label: table label (:func:`firmware_labels`).
-        elf: the ELF's path.
-        trial: trial name.
-        source: where the attitude came from: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by
-            symbol).
-        truth: per-step ground truth (:class:`~steval_link.emulation.broad.TruthRows`).
-        thx_rad, thy_rad: (M,) float32 the firmware's output per step (NaN: no frame for that step).
-        err_rad: (M,) inclination error, rad.
-        rmse_deg: inclination RMSE over the movement steps, degrees.
+        label: table label (:func:`firmware_labels`). elf: its path. trial: trial name.
+        source: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by symbol).
+        truth: per-step ground truth. thx_rad, thy_rad: (M,) float32 its output per step (NaN: none for that step).
+        err_rad: (M,) inclination error, rad. rmse_deg: RMSE over the movement steps, degrees.
         instructions: (K,) instructions per AHRS step.
-        replica_rmse_deg: the bit-exact replica's RMSE on the firmware's own inputs (None: inputs unknown).
-        replica_bit_exact: steps where the replica carries the firmware's bits, of ``replica_steps``.
-        settings: the replica's filter settings (status frames, else ST's defaults).
-        emulated_s: emulated seconds.
-        gains: the filter gains it ran with, in words (:func:`gains_text`).
-    """
+        replica_rmse_deg: the replica's RMSE on the firmware's inputs (None: inputs unknown); replica_bit_exact of
+            replica_steps carry the firmware's bits. settings: the replica's settings (status frames, else defaults).
+        emulated_s: emulated seconds. gains: the gains it ran with, in words (:func:`gains_text`)."""
 
     label: str
     elf: str
@@ -152,10 +129,8 @@ class FirmwareResult:
 
 
 def gains_text(settings: MahonySettings | None, thr, *, from_status: bool) -> str:
-    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``.
-
-    ``thr``: the throttle of each step (which of the two kp the filter took); ``from_status``: the settings came
-    from the firmware's status frames (else ST's defaults are assumed)."""
+    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``;
+    ``thr``: each step's throttle; ``from_status``: the settings came from its status frames."""
     st = settings or MahonySettings()
     t = np.asarray(thr).reshape(-1)
     ground = t < st.min_thr
@@ -237,10 +212,8 @@ def run_firmware(
 ) -> FirmwareResult:
     """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output.
 
-    ``progress(fraction)`` is called as the emulation advances. The replica runs the filter of ``variant`` (an ST
-    release), else of the release the ELF's code or the data shows. UserError: an ELF that streams no attitude
-    frames and has no ``euler_ahrs`` symbol, or that makes no AHRS step.
-    """
+    The replica runs the filter of ``variant``, else of the release the ELF's code or the data shows. UserError: no
+    attitude frames and no ``euler_ahrs`` symbol, or no AHRS step."""
     t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)

@@ -1,11 +1,9 @@
 """The firmware's flight control (ST's ``flight_control.c``, ``rc.c``, ``motor.c``) recomputed on the host from a
 flight-control frame: the outer loop's P and I terms, the mixer, what each motor is and where it sits.
 
-Everything here is float32 in the firmware's order of operations, so a value the firmware computed from the same
-inputs comes out bit for bit: the outer loop ``s1 = kp1·(target − angle) + ki1·integ1`` with ``ki1 = 0`` in ST's
-build is exactly ``P = kp1·(target − angle)`` (``I = 0``) for pitch and roll, whose angles ``thx``/``thy`` only
-the main loop writes; yaw's angle ``thz`` is integrated in the TIM9 ISR, which may run between the attitude frame
-and the outer loop, so its P is close but not exact. The mixer of ``FlightControlPID_innerLoop``::
+Everything is float32 in the firmware's order of operations, so it comes out bit for bit: with ``ki1 = 0`` the outer
+loop ``s1`` is exactly ``P = kp1·(target − angle)`` for pitch and roll; yaw's ``thz`` is integrated in the ISR, so
+its P is close but not exact. The mixer of ``FlightControlPID_innerLoop``::
 
     motor_thr = (int16)(0.05f·gTHR + 633.333f)
     motor1 = motor_thr − x_s2 − y_s2 + z_s2      (right rear,  clockwise)
@@ -13,12 +11,9 @@ and the outer loop, so its P is close but not exact. The mixer of ``FlightContro
     motor3 = motor_thr + x_s2 + y_s2 + z_s2      (left front,  clockwise)
     motor4 = motor_thr − x_s2 + y_s2 − z_s2      (left rear,   counter-clockwise)
 
-Positions and spin directions follow from the mixer's signs with the firmware's axes (x right, y forward, z up):
-a positive ``x_s2`` (pitch nose up) speeds up motors 2 and 3, so they are at the front; a positive ``y_s2`` (roll
-right side down, ``thy`` > 0) speeds up 3 and 4, so they are on the left; a positive ``z_s2`` (yaw
-counter-clockwise seen from above) speeds up 1 and 3, whose reaction torque turns the body counter-clockwise, so
-their props spin clockwise. The firmware zeroes the outputs while disarmed or below ``MIN_THR``.
-"""
+Positions and spins follow from the signs (x right, y forward, z up): ``x_s2`` > 0 (nose up) speeds up the front
+motors 2 and 3, ``y_s2`` > 0 (right side down) the left ones 3 and 4, ``z_s2`` > 0 (yaw counter-clockwise) 1 and 3,
+whose props therefore spin clockwise. The outputs are 0 while disarmed or below ``MIN_THR``."""
 
 from __future__ import annotations
 
@@ -28,17 +23,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.link.protocol import FC_ARMED
-
-__all__ = [
-    "MOTORS",
-    "Motor",
-    "mixer_matrix",
-    "motor_thr",
-    "mixer_pwm",
-    "expected_motor_pwm",
-    "outer_p",
-    "no_flight_figure_reason",
-]
 
 
 @dataclass(frozen=True)
@@ -109,11 +93,8 @@ def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
 
 
 def no_flight_figure_reason(fc) -> str | None:
-    """Why a capture gets no flight-control figure (one sentence), or None when it gets one.
-
-    ``fc``: a telemetry's flight-control rows (``tel.fc``). A figure needs frames, and the drone armed in at least
-    one of them (``fc_flags`` bit 0): while disarmed the targets are the sticks' idle positions and the motors 0.
-    """
+    """Why a capture gets no flight-control figure (one sentence), or None: it needs frames (``tel.fc``)
+    and the drone armed in one (disarmed, the targets sit at the sticks' rest and the motors at 0)."""
     if len(fc) == 0:
         return "the capture has no flight-control frames"
     if not (np.asarray(fc.fc_flags).astype(np.int64) & FC_ARMED).any():

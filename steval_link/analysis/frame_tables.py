@@ -12,7 +12,20 @@ import numpy as np
 from steval_link.analysis.diagnosis import filter_settings_report
 from steval_link.link import protocol as P
 
-__all__ = ["attitude_table", "status_table", "fc_table", "record_table", "frame_tables", "settings_of", "header_of"]
+#: columns of the status and flight-control tables (and MCAP messages) named otherwise in the frame tables
+RENAMED = {
+    "ahrs_cycles_min": "cyc_min",
+    "ahrs_cycles_mean": "cyc_mean",
+    "ahrs_cycles_max": "cyc_max",
+    "ahrs_cycles_n": "cyc_n",
+    "tx_dropped_frames": "tx_dropped",
+    "queue_peak_bytes": "queue_peak",
+    "target_rad": "euler_rc_rad",
+}
+_STATUS_COLUMNS = (
+    "kp_ground kp_flight ki dt_s min_thr flags ahrs_cycles_min ahrs_cycles_mean ahrs_cycles_max ahrs_cycles_n "
+    "cpu_hz tx_dropped_frames baud queue_peak_bytes"
+)
 
 
 def attitude_table(tel) -> dict[str, np.ndarray]:
@@ -30,30 +43,12 @@ def status_table(tel) -> dict[str, np.ndarray]:
     for name, values, axes in (("q", s.q_wxyz, "wxyz"), ("int", s.int_xyz, "xyz")):
         for i, c in enumerate(axes):
             cols[f"{name}_{c}"] = np.asarray(values)[:, i] if len(s) else np.zeros(0, np.float32)
-    cols.update(
-        {
-            "kp_ground": s.kp_ground,
-            "kp_flight": s.kp_flight,
-            "ki": s.ki,
-            "dt_s": s.dt_s,
-            "min_thr": s.min_thr,
-            "flags": s.flags,
-            "ahrs_cycles_min": s.cyc_min,
-            "ahrs_cycles_mean": s.cyc_mean,
-            "ahrs_cycles_max": s.cyc_max,
-            "ahrs_cycles_n": s.cyc_n,
-            "cpu_hz": s.cpu_hz,
-            "tx_dropped_frames": s.tx_dropped,
-            "baud": s.baud,
-            "queue_peak_bytes": s.queue_peak,
-            "fw_version_major": np.asarray(s.fw_version)[:, 0] if len(s) else np.zeros(0, np.uint8),
-            "fw_version_minor": np.asarray(s.fw_version)[:, 1] if len(s) else np.zeros(0, np.uint8),
-            "fc_every": s.fc_every,
-            "param_gen": s.param_gen,
-            "exact": s.exact,
-            "offset": s.offset,
-        }
-    )
+    for name in _STATUS_COLUMNS.split():
+        cols[name] = getattr(s, RENAMED.get(name, name))
+    version = np.asarray(s.fw_version) if len(s) else np.zeros((0, 2), np.uint8)
+    cols["fw_version_major"], cols["fw_version_minor"] = version[:, 0], version[:, 1]
+    for name in ("fc_every", "param_gen", "exact", "offset"):
+        cols[name] = getattr(s, name)
     return {k: np.asarray(v) for k, v in cols.items()}
 
 

@@ -1,13 +1,9 @@
 """``steval report``: one capture (or several) as a lab report: a self-contained HTML page or Markdown with images.
 
-The report is data first: :class:`Section` s of sentences, monospace lines, tables and figures (PNG bytes), built from
-what the other analysis modules already computed (:func:`~steval_link.analysis.summary.summarize`,
-:func:`~steval_link.analysis.compare.compare_capture`, :func:`~steval_link.analysis.spectrum.compute_spectra`,
-:func:`~steval_link.analysis.side_by_side.side_by_side`) and drawn with their figures. Two writers turn it into text:
-:func:`render_html` (figures as ``data:`` URIs, inline CSS, no script, nothing loaded from the network) and
-:func:`render_markdown` (GitHub tables, figures as PNG files next to it). The page is written here with the standard
-library's ``html.escape``: a template engine would be one more dependency for a dozen tags.
-"""
+The report is data first: :class:`Section` s of sentences, lines, tables and figures (PNG), built from what the
+other analysis modules computed. :func:`render_html` inlines the CSS and figures (no script, nothing from the
+network); :func:`render_markdown` writes GitHub tables and PNG files. The page is written with the standard
+library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
 
 from __future__ import annotations
 
@@ -23,20 +19,6 @@ from steval_link.analysis.report import ComparisonReport, fmt_number, setting_te
 from steval_link.analysis.side_by_side import format_side_by_side
 from steval_link.analysis.spectrum import SIGNALS, UNITS, Peak, Spectra
 from steval_link.analysis.summary import format_summary, summarize
-
-__all__ = [
-    "Figure",
-    "Table",
-    "Section",
-    "LabReport",
-    "figure_png",
-    "capture_sections",
-    "side_by_side_section",
-    "render_html",
-    "render_markdown",
-    "report_of",
-    "verdict_sentences",
-]
 
 
 @dataclass(frozen=True)
@@ -187,7 +169,7 @@ def _step_cost(report: ComparisonReport) -> Section:
     period = C.AHRS_PERIOD_US
     rows = []
     for what in ("min", "mean", "max"):
-        us = getattr(rt, f"ahrs_us_{what}")
+        us = rt.ahrs_us(what)
         share = fmt_number(100 * us / period if us is not None else None, ".1f")
         rows.append([what, fmt_number(us, ".1f"), fmt_number(getattr(rt, f"ahrs_cycles_{what}"), ".0f"), share])
     mhz = (rt.cpu_hz or 0) / 1e6
@@ -225,8 +207,7 @@ def capture_sections(
     spectrum_note: str | None = None,
 ) -> list[Section]:
     """The sections of one capture: summary and settings, attitude, the replica's verdict, the estimators, the
-    step cost, the spectrum and (when the drone was armed) the flight control. ``spectra`` None: ``spectrum_note``
-    says why there is none."""
+    step cost, the spectrum (else ``spectrum_note``) and the flight control."""
     from steval_link.analysis.plots import (  # matplotlib (checked by the caller)
         comparison_figure,
         differences_figure,
@@ -265,7 +246,7 @@ def capture_sections(
     if spectra is None:
         spectrum.sentences.append(spectrum_note or "no spectrum")
     else:
-        from steval_link.analysis.spectrum_plot import spectra_figure  # matplotlib (checked)
+        from steval_link.analysis.spectrum import spectra_figure  # matplotlib (checked)
 
         spectrum.figures.append(
             Figure("spectrum", "gyro and accelerometer spectra", figure_png(spectra_figure(spectra, peaks=peaks)))
@@ -286,7 +267,7 @@ def capture_sections(
 
 def side_by_side_section(result) -> Section:
     """The flights side by side (:class:`~steval_link.analysis.side_by_side.SideBySide`): its lines and figure."""
-    from steval_link.analysis.side_by_side_plot import side_by_side_figure  # matplotlib (checked)
+    from steval_link.analysis.side_by_side import side_by_side_figure  # matplotlib (checked)
 
     return Section(
         "the captures side by side",

@@ -1,17 +1,10 @@
-"""A decoded capture as a MATLAB ``.mat`` file (``steval export --mat``; needs scipy, extra ``mat``).
-
-One struct per frame type, one field per CSV column, each a column vector with one row per frame (units in the
-names, as in the CSV: ``attitude.thx_pitch_rad``, ``attitude.acc_x_mg``, ``status.ki``, ``fc.motor1_pwm``, ...),
-and two more structs: ``settings`` (the filter settings the status frames report) and ``header`` (the capture
-header: port, baud, start time, tool version, ``extra``). MATLAB::
+"""A decoded capture as a MATLAB ``.mat`` file (``steval export --mat``; needs scipy, extra ``mat``): one struct per
+frame type, one column vector per CSV column (units in the names), plus ``settings`` and ``header``. MATLAB::
 
     S = load('flight.mat');
-    t = S.attitude.t_fw_s; pitch = rad2deg(S.attitude.thx_pitch_rad);
-    plot(t, pitch); xlabel('firmware time (s)'); ylabel('pitch thx (deg)'); disp(S.settings.ki)
+    plot(S.attitude.t_fw_s, rad2deg(S.attitude.thx_pitch_rad)); disp(S.settings.ki)
 
-Numbers keep their types (float32 as ``single``, counters as integers, flags as ``uint8`` 0/1); missing values are
-NaN; text (text-mode lines) is a cell array of char.
-"""
+float32 stays ``single``, counters integers, flags ``uint8``; missing values are NaN; text a cell array of char."""
 
 from __future__ import annotations
 
@@ -21,8 +14,6 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from steval_link.errors import ParamError
-
-__all__ = ["INSTALL_HINT", "require_scipy", "mat_name", "write_mat"]
 
 INSTALL_HINT = 'pip install "steval-link[mat]"'
 #: MATLAB's longest field name.
@@ -52,9 +43,7 @@ def _value(v: Any) -> Any:
     if isinstance(v, dict):
         return {mat_name(k): _value(x) for k, x in v.items()}
     if isinstance(v, np.ndarray):
-        if v.dtype == bool:
-            return v.astype(np.uint8)
-        return v
+        return v.astype(np.uint8) if v.dtype == bool else v
     if isinstance(v, bool):
         return np.uint8(v)
     if isinstance(v, (list, tuple)):

@@ -1,9 +1,5 @@
-"""Figures for lab reports (PNG): ``steval compare --plot`` and ``steval simulate --plot``.
-
-matplotlib is an optional dependency (``pip install "steval-link[plot]"``); :func:`require_matplotlib` turns its
-absence into one :class:`~steval_link.errors.UserError` sentence. Figures are drawn with the Agg backend (no display
-needed). Angles are in degrees; thx is labelled pitch (about x), thy roll (about y), as in the firmware.
-"""
+"""Figures for lab reports (PNG): ``steval compare --plot`` and ``steval simulate --plot``; matplotlib is optional
+(:func:`require_matplotlib`), on the Agg backend. Angles in degrees; thx is pitch (about x), thy roll (about y)."""
 
 from __future__ import annotations
 
@@ -17,18 +13,6 @@ from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
 from steval_link.analysis.report import angle_diff_rad, on_rows, true_runs
 from steval_link.errors import ParamError, UserError
-
-__all__ = [
-    "INSTALL_HINT",
-    "require_matplotlib",
-    "plot_comparison",
-    "comparison_figure",
-    "differences_figure",
-    "plot_simulation",
-    "simulation_figure",
-    "plot_flight_control",
-    "flight_control_figure",
-]
 
 INSTALL_HINT = 'pip install "steval-link[plot]"'
 
@@ -104,6 +88,13 @@ def save_figure(fig, out_png, *, dpi: int = 130) -> Path:
     return out
 
 
+def _label_panel(ax, ylabel: str, title: str) -> None:
+    """A panel's y label, its title on the left and a light grid."""
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10, loc="left")
+    ax.grid(True, alpha=0.3)
+
+
 def _spans(ax, t: np.ndarray, mask: np.ndarray, label: str | None, color: str = "gold", alpha: float = 0.18) -> None:
     """Shade every run of rows where ``mask`` is True (one legend entry)."""
     for k, (a, b) in enumerate(true_runs(mask)):
@@ -116,13 +107,9 @@ def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
 
 
 def comparison_figure(tel, report, *, title: str | None = None):
-    """Angles over time and differences per estimator, for a :class:`~steval_link.analysis.compare.ComparisonReport`.
-
-    Left: pitch (thx, about x) and roll (thy, about y) in degrees over firmware time: the firmware, the seeded
-    replica, the estimators and accel-only tilt. Below them: firmware − replica in degrees, with the throttle.
-    Spans at flight throttle (≥ MIN_THR, kp_flight) are shaded. Right: RMS and max |Δ| against the firmware per
-    estimator. Returns the matplotlib figure (Agg).
-    """
+    """Pitch (thx, about x) and roll (thy, about y) over firmware time: the firmware, the replica, the
+    estimators, accel-only tilt, flight-throttle spans shaded; below, firmware − replica with the throttle; right, RMS
+    and max |Δ| against the firmware per estimator."""
     plt = require_matplotlib()
     from matplotlib.gridspec import GridSpec
 
@@ -215,9 +202,7 @@ def _angle_panel(ax, t, key, what, fw_deg, traces, replica_deg, report, at_fligh
     if nan_rows.any():  # a gap in the firmware's line, shaded: never drawn as 0°
         why = "its filter diverged" if getattr(report, "values_bad", None) else "asin out of range"
         _spans(ax, t, nan_rows, f"firmware NaN ({why})", color="crimson", alpha=0.15)
-    ax.set_ylabel(f"{what} [deg]")
-    ax.set_title(what, fontsize=10, loc="left")
-    ax.grid(True, alpha=0.3)
+    _label_panel(ax, f"{what} [deg]", what)
 
 
 def _restart_lines(axes, t, step) -> None:
@@ -345,9 +330,8 @@ def _summary_lines(report, fs: dict) -> list[str]:
 
 
 def differences_figure(tel, report, *, title: str | None = None):
-    """Each estimator minus the firmware over time (degrees), pitch (thx, about x) above roll (thy, about y), from a
-    :class:`~steval_link.analysis.compare.ComparisonReport`'s estimates; each line's label carries its RMS. The
-    accelerometer-only tilt is drawn thin and grey behind the others. Returns the matplotlib figure (Agg)."""
+    """Each estimator minus the firmware over time (degrees, its RMS in its label), pitch (thx, about x) above
+    roll (thy, about y); accel-only tilt thin and grey."""
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
@@ -362,9 +346,7 @@ def differences_figure(tel, report, *, title: str | None = None):
             d = _wrap_deg(vals[key] - fw[key])
             ax.plot(*_decimate(t, d), color=c, lw=lw, ls=ls, zorder=z, label=f"{label} (RMS {rms:.2f}°)")
         ax.axhline(0.0, color="black", lw=0.8)
-        ax.set_ylabel("estimator − firmware [deg]")
-        ax.set_title(f"{what}: each estimator minus the firmware", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, "estimator − firmware [deg]", f"{what}: each estimator minus the firmware")
         ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     axes[-1].set_xlabel("firmware time since the first frame [s]")
     src = report.source.get("path") or "capture"
@@ -379,10 +361,9 @@ def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
 
 
 def flight_control_figure(tel, *, title: str | None = None):
-    """The flight-control frames of ``tel`` (``tel.fc``) as Betaflight's Blackbox shows a flight: per axis the
-    remote's target against the firmware's angle (left; pitch = thx about x, roll = thy about y), the outer loop's
-    output s1 with its P and I terms recomputed with the firmware's gains (right), the four motor commands and the
-    inner loop's outputs s2 (bottom)."""
+    """The flight-control frames as Betaflight's Blackbox shows a flight: per axis the remote's target against
+    the firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1 with its P and I terms, the
+    motors and the inner loop's s2."""
     plt = require_matplotlib()
     a, fc = tel.attitude, tel.fc
     t0 = float(a.t_fw_s[0]) if len(a) else 0.0
@@ -405,17 +386,13 @@ def flight_control_figure(tel, *, title: str | None = None):
         ax = axes[i, 0]
         ax.plot(*_decimate(t, fw_ang[:, i]), color="black", lw=1.2, label="firmware angle")
         ax.step(tf, rc[:, i], where="post", color="tab:red", lw=1.4, label="target (remote, euler_rc)")
-        ax.set_ylabel(f"{name.split(' ')[0]} [deg]")
-        ax.set_title(f"{name}: target vs firmware", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, f"{name.split(' ')[0]} [deg]", f"{name}: target vs firmware")
         ax = axes[i, 1]
         ax.plot(tf, s1[:, i], ".-", color="tab:red", lw=1.0, ms=3, label=f"{'xyz'[i]}_s1 (firmware)")
         ax.plot(tf, p[:, i], "--", color="tab:blue", lw=1.0, label="P = kp1·(target − angle)")
         if i < 2:
             ax.plot(tf, s1[:, i] - p[:, i], color="tab:green", lw=1.0, label="I = s1 − P (ki1 = 0)")
-        ax.set_ylabel("rate setpoint [rad/s]")
-        ax.set_title(f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I", fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, "rate setpoint [rad/s]", f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I")
     axes[0, 0].legend(fontsize=8, loc="upper right")
     for i in range(3):
         axes[i, 1].legend(fontsize=7, loc="upper right")
@@ -480,8 +457,7 @@ def _run_name(res) -> str:
 
 def simulation_figure(result, *, title: str | None = None, compare=()):
     """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    :class:`steval_link.emulation.lab5.SimulationResult` (UMaine Lab 5), with the inputs in the title. ``compare``:
-    ``(label, result)`` of other runs on the same inputs, overlaid with a legend. Returns the matplotlib figure."""
+    ``steval simulate`` run, the inputs in the title; ``compare``: ``(label, result)`` of other runs, overlaid."""
     plt = require_matplotlib()
     res = result
     k = np.asarray(res.step, dtype=np.int64)
@@ -508,9 +484,7 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
         if k.size and not compare:
             final = f"final {v[-1]:+.6f}°" if np.isfinite(v[-1]) else "final: NaN"
             ax.set_title(final, fontsize=9, loc="right", color=c)
-        ax.set_ylabel(f"{label.split(':')[0]} [deg]")
-        ax.set_title(label, fontsize=10, loc="left")
-        ax.grid(True, alpha=0.3)
+        _label_panel(ax, f"{label.split(':')[0]} [deg]", label)
         if bad.any() and not compare:
             ax.legend(fontsize=7, loc="upper left")
     if compare:

@@ -1,25 +1,12 @@
 """The preflight wiring check (``steval preflight``): guided hand moves checked against the firmware's own chain.
 
-The user holds the drone (props off), armed with the throttle at idle (``gTHR`` just above ``MIN_THR``, so the
-firmware drives the motors) or with the motors off, and makes three moves in this order, each out, hold, back:
-**tilt right** (roll, right side down: ``thy`` > 0), **nose up** (pitch: ``thx`` > 0), **turn right** (yaw,
-clockwise seen from above: gyro z < 0). :data:`MOVES` lists them; the emulator's ``preflight`` scenario makes them.
-
-For each move the check finds the move in the gyro (bursts of rotation, in order, paired out/back, so a swapped or
-reversed axis cannot make it mistake one move for another) and asks, link by link:
-
-1. sensor: did the firmware's gyro turn about the right axis with the right sign, and did its attitude (``thx``,
-   ``thy``: accelerometer + AHRS) follow? Otherwise: a swapped axis or a reversed sensor axis, named.
-2. controller (flight-control frames): did the outer loop ask to go back (``s1`` of the opposite sign), and the
-   inner loop (``s2``, computed only while armed) too?
-3. motors: with the motors idling, did each motor speed up or slow down as the firmware's mixer says for this move
-   (tilt right: the right motors 1 and 2 speed up, 3 and 4 slow down)? And, over every flight-control frame with
-   the motors on: does each output carry its own mixer line (``motorN = motor_thr ± s2…``)? A build whose outputs
-   carry another motor's line (the mixer edited for a frame numbered otherwise, e.g. Betaflight's order) is named.
-
-Spin directions cannot be seen in the data; the report states what the mixer expects of each motor, to check by
-eye. Rest: the accelerometer must read about +1 g on z (else the board is upside down).
-"""
+Props off, armed at idle throttle (``gTHR`` just above ``MIN_THR``) or with the motors off, the user makes three
+moves, each out, hold, back (:data:`MOVES`): tilt right (roll, right side down: ``thy`` > 0), nose up (pitch:
+``thx`` > 0), turn right (yaw, clockwise from above: gyro z < 0). Each move is found in the gyro (bursts of rotation,
+paired out/back) and checked link by link: the sensor (axis and sign of the gyro, then of ``thx``/``thy``), the
+controller (``s1``, ``s2`` push back), the motors (each speeds up or slows down as the mixer says) and, over every
+frame with the motors on, that each output carries its own mixer line (a swapped motor order is named).
+Spin directions cannot be seen in the data: the report says what the mixer expects. At rest acc z must be ≈ +1 g."""
 
 from __future__ import annotations
 
@@ -29,8 +16,6 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, expected_motor_pwm, mixer_matrix, mixer_pwm
-
-__all__ = ["MOVES", "Move", "PreflightReport", "check_preflight"]
 
 
 @dataclass(frozen=True)

@@ -87,16 +87,9 @@ class AngleStats:
 
 @dataclass(frozen=True)
 class TraceComparison:
-    """One estimator's angles against the firmware's.
-
-    Attributes:
-        name: registry name (``st-mahony`` for the seeded replica).
-        label: human-readable name.
-        available: False when the estimator could not run here (``note`` says why); the stats are then empty.
-        pitch: differences of thx (about x), degrees. roll: differences of thy (about y), degrees.
-        n_invalid: rows the estimator flagged invalid (or did not cover, e.g. replica rows before a seed); excluded.
-        note: why it is unavailable, or a remark about the trace.
-    """
+    """One estimator's angles against the firmware's: ``pitch`` (thx, about x) and ``roll`` (thy, about y)
+    differences in degrees; ``available`` False when it could not run (``note`` says why); ``n_invalid`` rows it did not
+    cover (excluded)."""
 
     name: str
     label: str
@@ -123,21 +116,14 @@ class ReplicaComparison:
     """The bit-exact replica against the firmware.
 
     Attributes:
-        rows: attitude rows considered (binary rows only). seeded: rows where the replica had a known state.
-        bit_exact: seeded rows whose q, thx and thy carry the firmware's exact bits.
-        seeds: every (re)start: ``{"row", "step", "source" ("power-up"|"status"), "status_row"}``.
+        rows: binary attitude rows. seeded: rows with a known replica state. bit_exact: seeded rows whose q, thx and thy
+            carry the firmware's bits. seeds: every (re)start ``{"row", "step", "source", "status_row"}``.
         first_mismatch: ``{"row", "step", "t_fw_s", "t_rel_s"}`` of the first seeded row that differs, or None.
-        settings: the settings the replica used (from the status frames, or overridden, or the defaults).
-        diagnosis: sentences saying why the replica disagrees (empty when it agrees).
-        matching_variant: the alternative settings that reproduce the firmware (dict of the changed fields), or None.
-        matching_bit_exact: with ``matching_variant``, bit-exact rows over the whole capture.
-        unseeded_reason: why no row could be seeded (None when some were).
-        divergence: the first step where the firmware's q left the unit sphere or went non-finite, its inputs and
-            whether the replica stayed finite (:func:`steval_link.analysis.diagnosis.find_divergence`), or None.
-        filter: the ST release whose filter the replica ran ("ST 221117"); filter_from: who named it (an option,
-            "firmware ELF", "data": the variant bit-exact on the most steps, "settings": every variant as exact);
-            variant_bit_exact: bit-exact steps of each variant tried (empty when forced).
-    """
+        settings: the replica's settings. diagnosis: sentences saying why it disagrees.
+        matching_variant: the changed settings that reproduce the firmware, or None; matching_bit_exact: their
+            bit-exact rows over the capture. unseeded_reason: why no row was seeded.
+        divergence: where the firmware's q left the unit sphere (:func:`~.diagnosis.find_divergence`).
+        filter: the ST release the replica ran; filter_from: who named it; variant_bit_exact: steps per variant."""
 
     rows: int
     seeded: int
@@ -195,15 +181,11 @@ class RateStats:
     """Timing and link health of a capture.
 
     Attributes:
-        duration_s: firmware time covered by the attitude rows (sum over stretches between firmware restarts).
-        rate_hz: attitude rows per second. step_rate_hz: AHRS steps per second (161.5 Hz on the drone).
-        period_mean_ms, period_std_ms, period_p99_ms, period_max_ms: Δt_fw between consecutive AHRS steps, ms
-            (rows whose step advanced by one).
-        seq_gaps, frames_missing: attitude frames lost on the way (decoder). tx_dropped: frames the firmware's
-            TX queue could not take (last status frame; None without status frames). crc_failures: damaged frames.
-        ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them);
-            ``ahrs_us_*`` the same in µs at ``cpu_hz``.
-    """
+        duration_s: firmware time of the attitude rows (summed between restarts). rate_hz: rows per second.
+        step_rate_hz: AHRS steps per second (161.5 Hz). period_*_ms: Δt_fw between consecutive AHRS steps, ms.
+        seq_gaps, frames_missing: frames lost on the link. tx_dropped: frames the firmware's TX queue could not take
+            (None without status frames). crc_failures: damaged frames.
+        ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them)."""
 
     duration_s: float
     rate_hz: float | None
@@ -224,35 +206,20 @@ class RateStats:
     cpu_hz: int | None = None
     cycles_emulated: bool = False  #: ``ahrs_cycles_*`` are an emulator's instruction counts, not M4 cycles
 
-    def _us(self, cycles) -> float | None:
-        if cycles is None or not self.cpu_hz:
-            return None
-        return float(cycles) / self.cpu_hz * 1e6
-
-    @property
-    def ahrs_us_min(self) -> float | None:
-        return self._us(self.ahrs_cycles_min)
-
-    @property
-    def ahrs_us_mean(self) -> float | None:
-        return self._us(self.ahrs_cycles_mean)
-
-    @property
-    def ahrs_us_max(self) -> float | None:
-        return self._us(self.ahrs_cycles_max)
+    def ahrs_us(self, what: str) -> float | None:
+        """``ahrs_cycles_<what>`` (min, mean, max) in µs at ``cpu_hz``."""
+        cycles = getattr(self, f"ahrs_cycles_{what}")
+        return None if cycles is None or not self.cpu_hz else float(cycles) / self.cpu_hz * 1e6
 
     def as_dict(self) -> dict[str, Any]:
         out = {k: (json_number(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
-        return out | {f"ahrs_us_{k}": json_number(getattr(self, f"ahrs_us_{k}")) for k in ("min", "mean", "max")}
+        return out | {f"ahrs_us_{k}": json_number(self.ahrs_us(k)) for k in ("min", "mean", "max")}
 
 
 @dataclass
 class ComparisonReport:
-    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json`` output).
-
-    The arrays behind the numbers (``t_rel_s``, the replica replay, every estimator's estimate) are kept for plots
-    (:func:`steval_link.analysis.plots.plot_comparison`) but are not part of ``as_dict()``.
-    """
+    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json``); the arrays
+    behind it (``t_rel_s``, the replica replay, the estimates) are kept for the plots."""
 
     source: dict[str, Any]
     rows: int
@@ -265,12 +232,10 @@ class ComparisonReport:
     replica: ReplicaComparison | None
     traces: list[TraceComparison]
     notes: list[str] = field(default_factory=list)
-    #: the rows kept with NaN or out-of-range values (:func:`steval_link.analysis.summary.values_bad_report`)
     values_bad: dict[str, Any] | None = None
     held_back: str | None = None  #: CRC-valid frames the decoder held back, in words (None: none)
-    #: ground truth the capture keeps (an emulated BROAD run's chunks T): inclination RMSE per trace, or None
+    #: inclination RMSE per trace against the ground truth the capture keeps (chunks T), or None
     truth: dict[str, Any] | None = None
-    #: the AHRS step cost (``analysis.step_cost``: its ``to_json()`` and ``sentence()``), None without status frames
     ahrs_step_cost: dict[str, Any] | None = None
     ahrs_step_cost_text: str | None = None
     # arrays for plots (not serialised)

@@ -1,26 +1,17 @@
 """Flights side by side (``steval compare A.stv B.stv ...``): two or more captures on one time axis, labelled by
-what differs between them, each measured against its own accelerometer-only tilt.
+what differs between them ("ki 0.1" against "ki 1, correction off"), each measured against its own
+accelerometer-only tilt.
 
-* **Aligned** by firmware time from each capture's first frame (``align="time"``), or by motion
-  (``align="motion"``): the gyro of each flight is cross-correlated with the first flight's and the lag found is
-  taken off its times (hand-held or real flights that did not start together).
-* **Labelled** by what differs (:mod:`steval_link.analysis.flight_labels`): "ki 0.1" against "ki 1, correction off".
-* **Figures** per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against the
-  accelerometer-only tilt over the still phases (gyro below :data:`STILL_GYRO_DPS` and the accelerometer within
-  :data:`STILL_ACC_MG` of 1 g, for at least :data:`STILL_MIN_S`), the drift (the mean error in the last still
-  phase, deg: where the flight ended up against the accelerometer) and its rate (least-squares slope of the error
-  over the still rows, deg/min, when they span at least :data:`RATE_SPAN_S`); per later flight its difference from
-  the first.
-* **Mismatches** are said, one sentence each (not errors): different durations, a BLE capture against a serial
-  one, frames lost on the link, a truncated capture.
-
-A BLE capture carries no firmware angles: its pitch and roll are the ST-Mahony replica's, run on its raw samples
-(dt from the ticks' cadence: :mod:`steval_link.link.ble_telemetry`), and the notes say so.
-"""
+Aligned by firmware time from each first frame, or by motion (the gyro cross-correlated with the first flight's).
+Figures per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt
+in the still phases, the drift (the mean error in the last still phase) and its rate (deg/min); each later flight
+minus the first. Mismatches (durations, BLE against serial, lost frames, a truncated capture) are notes, not errors.
+A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
 
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -29,27 +20,12 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.diagnosis import filter_settings_report
-from steval_link.analysis.flight_labels import labels_by_difference, setting_f32
 from steval_link.analysis.link_stats import relative_time_s
+from steval_link.analysis.plots import _decimate, _label_panel, _spans, require_matplotlib, save_figure
 from steval_link.analysis.report import angle_diff_rad, fmt_number, json_number, true_runs
 from steval_link.estimators.accel_tilt import AccelTilt
 from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
-
-__all__ = [
-    "ALIGN_MODES",
-    "STILL_GYRO_DPS",
-    "STILL_ACC_MG",
-    "STILL_MIN_S",
-    "Flight",
-    "SideBySide",
-    "flight_of_telemetry",
-    "flight_of_ble",
-    "side_by_side",
-    "still_mask",
-    "motion_lag_s",
-    "format_side_by_side",
-]
 
 ALIGN_MODES = ("time", "motion")
 #: A row is still when the gyro's norm is below this (deg/s) ...
@@ -66,22 +42,109 @@ DURATION_TOLERANCE_S = 1.0
 MAX_LAG_FRACTION = 0.5
 
 
+# -- labels: what differs between the flights (settings, else header facts, else file names) ---------------
+
+#: Settings in label order, with their names in a label (a label names a setting that differs from its default).
+_SETTING_WORDS = {
+    "ki": "ki",
+    "correction": "correction",
+    "kp_ground": "kp ground",
+    "kp_flight": "kp flight",
+    "min_thr": "min_thr",
+    "dt_s": "dt",
+    "variant": "filter",
+    "text_mode": "text mode",
+    "inflight_tuning": "in-flight tuning",
+}
+_NO_FLAGS = {"text_mode": False, "inflight_tuning": False}
+_FACT_KEYS = ("link", "firmware", "firmware_path", "scenario", "seed", "port")
+
+
+def setting_f32(x) -> float:
+    """A float32 setting as its shortest decimal (0.4, not 0.4000000059604645)."""
+    return float(str(np.float32(x)))
+
+
+def _defaults() -> dict[str, Any]:
+    d = MahonySettings()
+    floats = {k: setting_f32(getattr(d, k)) for k in ("ki", "kp_ground", "kp_flight", "dt_s")}
+    return floats | {"correction": True, "min_thr": int(d.min_thr), "variant": d.variant} | _NO_FLAGS
+
+
+def _word(key: str, value) -> str:
+    """How a setting reads in a label: "ki 1", "correction off", "binary", "filter ST 221117", ..."""
+    name = _SETTING_WORDS[key]
+    if key == "variant":
+        return f"filter {value}"
+    if key == "correction":
+        return f"correction {'on' if value else 'off'}"
+    if key == "text_mode":
+        return "text mode" if value else "binary"
+    if isinstance(value, bool):
+        return name if value else f"no {name}"
+    return f"{name} {value:g}" if isinstance(value, float) else f"{name} {value}"
+
+
+def _fact_word(key: str, value) -> str:
+    """How a header fact reads in a label: "BLE", "firmware X.elf", "scenario demo", ..."""
+    if key == "link":
+        return "BLE" if value == "ble" else "serial"
+    return f"{key.replace('_path', '')} {value}"
+
+
+def labels_by_difference(flights: Sequence) -> list[str]:
+    """A label per flight naming what differs: the settings that differ from their default ("ki 0.1" against
+    "ki 1, correction off"), else the header facts, else the file names; a label that collides gets its file name."""
+    n = len(flights)
+    labels = [""] * n
+    known = [f.settings for f in flights]
+    defaults = _defaults()
+    if all(s is not None for s in known):
+        differing = [k for k in _SETTING_WORDS if len({repr(s.get(k, defaults[k])) for s in known}) > 1]
+        if differing:
+            for i, s in enumerate(known):
+                words = [_word(k, s.get(k, defaults[k])) for k in differing if s.get(k, defaults[k]) != defaults[k]]
+                labels[i] = ", ".join(words) or _word(differing[0], s.get(differing[0], defaults[differing[0]]))
+    if not all(labels):
+        facts = [f.facts for f in flights]
+        differing = [k for k in _FACT_KEYS if len({repr(x.get(k)) for x in facts}) > 1]
+        if "firmware" in differing:  # the ELF names tell them apart; else the paths may (other build folders)
+            differing.remove("firmware_path")
+        words: list[list[str]] = [[] for _ in flights]
+        for k in differing:  # in order of priority, until the labels tell the flights apart
+            for i, x in enumerate(facts):
+                if x.get(k) is not None:
+                    words[i].append(_fact_word(k, x[k]))
+            if len({", ".join(w) for w in words}) == n:
+                break
+        for i in range(n):
+            if not labels[i]:
+                labels[i] = ", ".join(words[i])
+    for i, f in enumerate(flights):
+        if f.settings and f.settings.get("changes"):
+            labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
+    names = [f.path.name for f in flights]
+    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
+    labels = [
+        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
+        for i in range(n)
+    ]
+    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
+    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
+    return labels
+
+
 @dataclass
 class Flight:
     """One capture on the common time axis.
 
     Attributes:
-        path: the capture file. label: what the plot, the viewer and the JSON call it.
-        kind: "serial" or "ble". angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE: the replica's).
-        t_s: (N,) s since the flight's first frame, after alignment (the motion lag taken off).
-        thx_rad, thy_rad: (N,) pitch (about x) and roll (about y). acc_mg, gyro_mdps: (N, 3) float32.
-        accel_thx_rad, accel_thy_rad: (N,) accelerometer-only tilt. still: (N,) bool, the still rows.
-        settings: the filter settings from the first status frame (None without status frames), with
-            ``changes`` (changes announced during the capture) and ``from``.
-        facts: link, firmware, scenario, seed, serial port from the capture header (None where unknown).
-        duration_s, rows, frames_lost, warnings (the reader's, e.g. a truncated capture), lag_s (motion alignment).
-        q_wxyz: (N, 4) the attitude for the 3D view (firmware q, or the replica's on BLE).
-    """
+        path, label (the plot's, the viewer's and the JSON's name). kind: "serial" or "ble".
+        angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE).
+        t_s: (N,) s since the first frame, minus the motion lag. thx_rad, thy_rad: (N,) pitch (about x), roll (about y).
+        acc_mg, gyro_mdps: (N, 3) float32. q_wxyz: (N, 4) the attitude for the 3D view.
+        accel_thx_rad, accel_thy_rad: (N,) accel-only tilt. still: (N,) bool, the still rows.
+        settings: the first status frame's filter settings (None without). facts: capture-header facts."""
 
     path: Path
     label: str
@@ -109,6 +172,10 @@ class Flight:
         return len(self.t_s)
 
 
+#: the fields of a flight in ``--json``, in order
+_FLIGHT_KEYS = "label path kind angles settings facts rows duration_s frames_lost warnings figures"
+
+
 @dataclass
 class SideBySide:
     """Flights on one time axis (``flights[0]`` is the reference of the differences), how they were aligned, the
@@ -127,19 +194,8 @@ class SideBySide:
                 "meaning": "each flight's times are s since its first frame minus its lag (the first: 0)",
             },
             "flights": [
-                {
-                    "label": f.label,
-                    "path": str(f.path),
-                    "kind": f.kind,
-                    "angles": f.angles,
-                    "settings": f.settings,
-                    "facts": f.facts,
-                    "rows": f.rows,
-                    "duration_s": json_number(f.duration_s),
-                    "frames_lost": f.frames_lost,
-                    "warnings": list(f.warnings),
-                    "figures": f.figures,
-                }
+                {k: getattr(f, k) for k in _FLIGHT_KEYS.split()}
+                | {"path": str(f.path), "duration_s": json_number(f.duration_s), "warnings": list(f.warnings)}
                 for f in self.flights
             ],
             "differences": self.differences,
@@ -269,12 +325,7 @@ def _still_figures(f: Flight) -> dict[str, Any]:
         err = np.degrees(angle_diff_rad(est, ref))
         e = err[still]
         t = f.t_s[still]
-        fig: dict[str, Any] = {
-            "rms_still_deg": None,
-            "mean_still_deg": None,
-            "drift_deg": None,
-            "drift_rate_deg_per_min": None,
-        }
+        fig: dict[str, Any] = dict.fromkeys(("rms_still_deg", "mean_still_deg", "drift_deg", "drift_rate_deg_per_min"))
         if e.size:
             fig["rms_still_deg"] = json_number(np.sqrt(np.mean(e * e)))
             fig["mean_still_deg"] = json_number(np.mean(e))
@@ -300,9 +351,8 @@ def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
 def motion_lag_s(
     t_ref: np.ndarray, gyro_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray, dt: float = C.AHRS_PERIOD_S
 ) -> tuple[float, float]:
-    """The lag (s) of a flight's motion behind the reference's, from the cross-correlation of the three gyro axes,
-    and the correlation coefficient of the overlapping gyro samples at that lag (1: the same motion). A motion that
-    happens 2 s later in the flight than in the reference gives +2.0; its aligned times are ``t − lag``."""
+    """The lag (s) of a flight's motion behind the reference's (the three gyro axes cross-correlated: 2 s later
+    gives +2.0, aligned times are ``t − lag``) and the gyro samples' correlation at that lag (1: the same motion)."""
     if len(t_ref) < 8 or len(t) < 8:
         return 0.0, 0.0
     a = _grid(t_ref, gyro_ref, dt)
@@ -389,9 +439,8 @@ def side_by_side(
     align: str = "time",
     labels: Sequence[str] | None = None,
 ) -> SideBySide:
-    """Put ``flights`` (two or more, from :func:`flight_of_telemetry` / :func:`flight_of_ble`) on one time axis,
-    label them (``labels`` overrides, in order; missing ones are derived), measure each against its accel-only
-    tilt and each later one against the first. Raises ValueError for an unknown ``align`` or an empty flight."""
+    """Put ``flights`` on one time axis, label them (``labels`` first, the rest derived), measure each against
+    its accel-only tilt and each later one against the first. ValueError: an unknown ``align`` or an empty flight."""
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)
@@ -483,3 +532,93 @@ def format_side_by_side(r: SideBySide) -> list[str]:
     for n in r.notes:
         lines.append(f"note: {n}")
     return lines
+
+
+# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
+
+
+#: Flight colours, in order (the viewer uses the same).
+COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
+
+
+def plot_side_by_side(r: SideBySide, out_png) -> Path:
+    """Write :func:`side_by_side_figure` as a PNG to ``out_png`` (UserError when it cannot be written)."""
+    return save_figure(side_by_side_figure(r), out_png)
+
+
+def side_by_side_figure(r: SideBySide):
+    """Pitch and roll of every flight over the first's accel-only tilt, the differences, and the still-phase table."""
+    plt = require_matplotlib()
+    fig = plt.figure(figsize=(13, 11))
+    grid = fig.add_gridspec(4, 1, height_ratios=[3, 3, 2, 1.0], hspace=0.38)
+    fig.subplots_adjust(top=0.93, bottom=0.02, left=0.07, right=0.98)
+    ax_p = fig.add_subplot(grid[0])
+    ax_r = fig.add_subplot(grid[1], sharex=ax_p)
+    ax_d = fig.add_subplot(grid[2], sharex=ax_p)
+    ax_t = fig.add_subplot(grid[3])
+    _angle_panel(ax_p, r, "thx_rad", "accel_thx_rad", "pitch = thx (rotation about x, nose up +)")
+    _angle_panel(ax_r, r, "thy_rad", "accel_thy_rad", "roll = thy (rotation about y, right side down +)")
+    _differences_panel(ax_d, r)
+    _still_table(ax_t, r)
+    fig.suptitle(textwrap.fill(" vs ".join(f.label for f in r.flights), 150), fontsize=12)
+    return fig
+
+
+def _angle_panel(ax, r: SideBySide, attr: str, acc_attr: str, title: str) -> None:
+    """One angle of every flight over the first flight's accel-only tilt, its still phases shaded."""
+    ref = r.flights[0]
+    _spans(ax, ref.t_s, ref.still, f"still phases ({ref.label})")
+    t, y = _decimate(ref.t_s, np.degrees(getattr(ref, acc_attr)))
+    ax.plot(t, y, color="0.55", lw=0.8, label=f"accel-only tilt ({ref.label}): reference", zorder=1)
+    for i, f in enumerate(r.flights):
+        t, y = _decimate(f.t_s, np.degrees(getattr(f, attr)))
+        ax.plot(t, y, color=COLOURS[i % len(COLOURS)], lw=1.6 if i == 0 else 1.2, label=f.label, zorder=3 + i)
+    _label_panel(ax, f"{title.split(' ')[0]} {attr[:3]} (deg)", title)
+    ax.legend(fontsize=8, loc="upper right")
+
+
+def _differences_panel(ax, r: SideBySide) -> None:
+    """Each later flight minus the first, pitch solid and roll dashed."""
+    ref = r.flights[0]
+    for i, f in enumerate(r.flights[1:], start=1):
+        t, dx, dy = difference_series(ref, f)
+        c = COLOURS[i % len(COLOURS)]
+        ax.plot(*_decimate(t, dx), color=c, lw=1.2, label=f"pitch thx: {f.label} − {ref.label}")
+        ax.plot(*_decimate(t, dy), color=c, lw=1.0, ls="--", label=f"roll thy: {f.label} − {ref.label}")
+    ax.axhline(0, color="0.3", lw=0.6)
+    _label_panel(ax, "difference (deg)", "each flight minus the first")
+    ax.legend(fontsize=8, loc="upper right")
+    how = "firmware time from each first frame" if r.align == "time" else "motion (gyro cross-correlation)"
+    ax.set_xlabel(f"time (s), aligned by {how}")
+
+
+def _still_table(ax, r: SideBySide) -> None:
+    """Per flight: still time, RMS against accel-only tilt in still phases, drift and drift rate."""
+    ax.axis("off")
+    head = ["flight", "still (s)", "RMS pitch thx (deg)", "RMS roll thy (deg)", "drift pitch (deg)",
+            "drift roll (deg)", "drift rate p / r (deg/min)"]  # fmt: skip
+    rows = []
+    for f in r.flights:
+        g = f.figures
+        px, ry = g["pitch_thx"], g["roll_thy"]
+        rows.append([
+            textwrap.shorten(f.label, 46, placeholder=" …"),  # the legend above has the whole label
+            f"{g['still_s']:.1f}",
+            fmt_number(px["rms_still_deg"], ".3f"),
+            fmt_number(ry["rms_still_deg"], ".3f"),
+            fmt_number(px["drift_deg"], "+.3f"),
+            fmt_number(ry["drift_deg"], "+.3f"),
+            f"{fmt_number(px['drift_rate_deg_per_min'], '+.2f')} / {fmt_number(ry['drift_rate_deg_per_min'], '+.2f')}",
+        ])  # fmt: skip
+    widths = [0.26] + [0.74 / (len(head) - 1)] * (len(head) - 1)
+    table = ax.table(cellText=rows, colLabels=head, loc="center", cellLoc="center", colWidths=widths)
+    table.auto_set_font_size(False)
+    table.set_fontsize(8.5)
+    table.scale(1, 1.4)
+    for i in range(len(rows)):
+        table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
+    ax.set_title(
+        "against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
+        fontsize=10,
+        loc="left",
+    )

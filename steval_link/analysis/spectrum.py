@@ -1,50 +1,28 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
 gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
 
-The attitude rows hold the main loop's 5-sample averages (a boxcar) of the 807.7 Hz ISR reads, at 161.54 Hz; the
-gyro register refreshes at 416 Hz and its IIR is −3 dB near 101 Hz. The spectra end at 80.77 Hz. A vibration above
-it is aliased, not lost: it lands at ``|f − k · 161.54 Hz|``, scaled by the boxcar (zeros at multiples of
-161.54 Hz), the IIR and the 416 Hz register (:func:`alias_lines`).
+The rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads, at 161.54 Hz: the spectra end at
+80.77 Hz. A vibration above it is aliased, not lost (:func:`alias_lines`).
 
-Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps (a dropped
-frame, a restart or a time jump ends a run); each run is cut into Hann windows of ``nperseg`` rows overlapping by
-half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's ``welch(..., scaling="density")``
-convention) is averaged over every window of every run. The spectrogram is the PSD of each window at its centre;
-the throttle map averages the windows by mean ``thr``. The sample rate is measured on the firmware's clock.
-"""
+Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps; each run is
+cut into Hann windows overlapping by half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's
+``welch(..., scaling="density")`` convention) is averaged over every window. The rate is measured on the firmware's
+clock."""
 
 from __future__ import annotations
 
 import csv
 import math
+import textwrap
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.analysis.plots import require_matplotlib, save_figure
 from steval_link.emulation.sensor_model import GYRO_ODR_HZ, iir_frequency_response
 from steval_link.errors import ParamError, UserError
-
-__all__ = [
-    "SIGNALS",
-    "UNITS",
-    "REGISTER_BEAT_HZ",
-    "DEFAULT_NPERSEG",
-    "MIN_NPERSEG",
-    "AliasLine",
-    "Peak",
-    "Spectra",
-    "alias_hz",
-    "alias_lines",
-    "chain_gain",
-    "contiguous_runs",
-    "compute_spectra",
-    "find_peaks",
-    "welch_windows",
-    "CSV_COLUMNS",
-    "write_csv",
-    "format_summary",
-]
 
 #: the beat of the gyro's 416 Hz output register read at the ISR rate (2·416 − 807.7 ≈ 24.3 Hz): a gyro line at f
 #: also shows, weakly, at |f ± 24.3| and |f ± 48.6| Hz
@@ -99,16 +77,9 @@ def chain_gain(f_hz: float, sensor: str) -> float:
 
 @dataclass(frozen=True)
 class AliasLine:
-    """Where a vibration at ``source_hz`` shows in the rows of one sensor.
-
-    Attributes:
-        sensor: "gyro" or "acc".
-        source_hz: the frequency at the sensor (the vibration, or for the gyro an image ``|k·416 Hz ± f|`` its
-            416 Hz output register makes).
-        seen_hz: where it appears in the spectrum (0 … 80.77 Hz).
-        gain: amplitude seen / amplitude at the sensor (:func:`chain_gain` of ``source_hz``, hold of the image).
-        what: a few words: "direct", "alias", "416 Hz ODR image".
-    """
+    """Where a vibration at ``source_hz`` (at the sensor, or a gyro image ``|k·416 Hz ± f|``) shows in one sensor's
+    rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude seen / at the sensor) and ``what`` ("direct", "alias",
+    "416 Hz ODR image")."""
 
     sensor: str
     source_hz: float
@@ -118,14 +89,10 @@ class AliasLine:
 
 
 def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.005) -> list[AliasLine]:
-    """The lines a sinusoid at ``f_hz`` (Hz, at the sensor) makes in the spectrum of ``sensor``'s rows.
-
-    The main line is at :func:`alias_hz` of f with :func:`chain_gain`; the gyro's 416 Hz output register adds images
-    at ``|k·416 ± f|`` (k = 1 … 4) weighted by the hold, each then aliased the same way; images weaker than
-    ``min_gain`` are left out. Read at 807.7 Hz, the register's images land at ``|f ± m·24.3 Hz|`` (m = 1, 2:
-    2·416 − 807.7 = 24.3 Hz): a 12 Hz gyro line also shows at 36.3 and 60.6 Hz, about 1 % as strong.
-    ``rate_hz``: the rows' rate (161.54 Hz, or less for decimated text-mode rows).
-    """
+    """The lines a sinusoid at ``f_hz`` (at the sensor) makes in the spectrum of ``sensor``'s rows sampled at
+    ``rate_hz``: the main line (:func:`alias_hz`, :func:`chain_gain`), then for the gyro the images of its 416 Hz output
+    register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong: a 12 Hz gyro line also shows at 36.3 and
+    60.6 Hz, about 1 % as strong."""
     f = abs(float(f_hz))
     direct = f <= rate_hz / 2
     lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
@@ -168,10 +135,7 @@ def contiguous_runs(
 
 def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
-
-    Windows start every ``hop`` rows; each window's mean is removed; density scaling (unit²/Hz), so the mean of
-    the windows equals ``scipy.signal.welch(x, fs, nperseg=nperseg, noverlap=nperseg-hop, axis=0)``.
-    """
+    Windows start every ``hop`` rows, their mean removed; their mean is ``scipy.signal.welch``'s."""
     a = np.asarray(x, dtype=np.float64)
     if a.ndim == 1:
         a = a[:, None]
@@ -186,10 +150,7 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
-    if nperseg % 2 == 0:
-        psd[:, 1:-1] *= 2.0
-    else:
-        psd[:, 1:] *= 2.0
+    psd[:, 1 : len(freq) - 1 + nperseg % 2] *= 2.0  # one-sided: all but 0 Hz and an even window's Nyquist bin
     return freq, starts, psd
 
 
@@ -198,25 +159,17 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
 
 @dataclass
 class Spectra:
-    """Spectra of one capture. Column k of every array is signal ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc
-    x, y, z in mg²/Hz).
+    """Spectra of one capture; column k of every PSD is ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc x, y, z
+    in mg²/Hz).
 
     Attributes:
-        freq_hz: (F,) bin centres, 0 … Nyquist.
-        psd: (F, 6) Welch average over every window.
-        window_t_fw_s: (W,) firmware time of each window's centre, s since boot.
-        window_thr: (W,) mean throttle ``thr`` over each window.
-        spectrogram: (W, F, 6) PSD of each window.
-        thr_edges: (B+1,) throttle bin edges (gTHR units).
-        thr_psd: (B, F, 6) mean PSD of the windows in each throttle bin (NaN for an empty bin).
-        thr_windows: (B,) windows in each bin.
-        rate_hz: the rows' sample rate measured on the firmware clock (≈ 161.54 Hz, or /16 for text mode).
-        decimation: AHRS steps per row.
-        nperseg, hop: rows per window and between window starts.
-        runs: ``(start, stop)`` row ranges of the runs of consecutive rows long enough for a window.
-        rows: attitude rows in the capture; rows_used: rows inside those runs.
-        notes: sentences about what was left out or assumed.
-    """
+        freq_hz: (F,) bins, 0 … Nyquist. psd: (F, 6) Welch average. spectrogram: (W, F, 6) PSD of each window.
+        window_t_fw_s: (W,) each window's centre, s since boot. window_thr: (W,) its mean throttle ``thr``.
+        thr_edges: (B+1,) throttle bin edges (gTHR). thr_psd: (B, F, 6) mean PSD per bin (NaN: empty).
+        thr_windows: (B,) windows per bin.
+        rate_hz: rows per second on the firmware clock (≈ 161.54 Hz). decimation: AHRS steps per row.
+        nperseg, hop: rows per window and between window starts. runs: the ``(start, stop)`` runs used.
+        rows: attitude rows; rows_used: rows inside the runs. notes: what was left out or assumed."""
 
     freq_hz: np.ndarray
     psd: np.ndarray
@@ -248,32 +201,11 @@ class Spectra:
         return self.rows_used / self.rate_hz
 
 
-def _measured_rate(step, t, runs, decimation: int) -> float:
-    """Rows per second of firmware time over ``runs`` (the nominal rate when no run spans any time)."""
-    steps = sum(int(step[b - 1] - step[a]) for a, b in runs)
-    secs = sum(float(t[b - 1] - t[a]) for a, b in runs)
-    if steps <= 0 or secs <= 0:
-        return C.AHRS_RATE_HZ / decimation
-    return steps / secs / decimation
-
-
-def _throttle_bins(thr: np.ndarray, bins: int) -> np.ndarray:
-    """``bins`` equal-width throttle bins over the windows' mean throttles (one unit wide at least)."""
-    if thr.size == 0:
-        return np.array([0.0, 1.0])
-    lo, hi = math.floor(float(thr.min())), math.ceil(float(thr.max()))
-    if hi - lo < 1:
-        hi = lo + 1
-    return np.linspace(lo, hi, bins + 1)
-
-
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
-    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry` (see the module docstring).
+    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry`.
 
-    ``nperseg`` rows per window (default :data:`DEFAULT_NPERSEG`, reduced to the longest run's power of two for a
-    short capture, but never below :data:`MIN_NPERSEG`); ``overlap`` the fraction windows share (0 ≤ overlap < 1).
-    Raises :class:`UserError` when the capture has no attitude rows or no run long enough for one window.
-    """
+    ``nperseg``: rows per window (default 256, or the longest run's power of two, never below 32); ``overlap``: the
+    fraction windows share. UserError without attitude rows or a run long enough for one window."""
     if not 0 <= overlap < 1:
         raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:
@@ -297,8 +229,10 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     nperseg = _window_rows(nperseg, max((b - a for a, b in runs), default=0), decimation, notes)
     hop = max(1, int(round(nperseg * (1 - overlap))))
     used = [(a, b) for a, b in runs if b - a >= nperseg]
-    rate = _measured_rate(step, t, used, decimation)
     nominal = C.AHRS_RATE_HZ / decimation
+    steps = sum(int(step[b - 1] - step[a]) for a, b in used)  # the rate measured on the firmware clock
+    secs = sum(float(t[b - 1] - t[a]) for a, b in used)
+    rate = steps / secs / decimation if steps > 0 and secs > 0 else nominal
     if abs(rate / nominal - 1) > 0.02:
         notes.append(
             f"the firmware clock gives {rate:.2f} rows/s, not the nominal {nominal:.2f}; the spectra use the "
@@ -373,7 +307,8 @@ def _windows(values, t, thr, runs, rate: float, nperseg: int, hop: int):
 
 def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
     """The windows' mean PSD per throttle bin: (edges, PSD per bin (NaN: empty), windows per bin)."""
-    edges = _throttle_bins(window_thr, bins)
+    lo, hi = (math.floor(float(window_thr.min())), math.ceil(float(window_thr.max()))) if window_thr.size else (0, 1)
+    edges = np.linspace(lo, max(hi, lo + 1), bins + 1)  # one gTHR unit wide at least
     which = np.clip(np.searchsorted(edges, window_thr, side="right") - 1, 0, len(edges) - 2)
     thr_psd = np.full((len(edges) - 1, *spectrogram.shape[1:]), np.nan)
     counts = np.bincount(which, minlength=len(edges) - 1)
@@ -387,15 +322,9 @@ def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
 
 @dataclass(frozen=True)
 class Peak:
-    """A peak of a PSD.
-
-    Attributes:
-        freq_hz: centre, interpolated between bins (Gaussian fit of the three bins around the maximum).
-        psd: the PSD at the peak bin (unit²/Hz).
-        amplitude: amplitude of the sinusoid that would make it (unit, peak): ``sqrt(2 · power)``, the power summed
-            over ±3 bins above the noise floor.
-        above_floor_db: the peak over the median PSD (the floor), dB.
-    """
+    """A PSD peak: ``freq_hz`` (interpolated by a Gaussian fit of three bins), ``psd`` (unit²/Hz at the peak bin),
+    ``amplitude`` (unit, peak, of the sinusoid that makes the power over ±3 bins above the floor) and
+    ``above_floor_db`` (over the median PSD)."""
 
     freq_hz: float
     psd: float
@@ -456,13 +385,7 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
 
 #: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
 CSV_COLUMNS = (
-    "section",
-    "t_fw_s",
-    "thr",
-    "thr_lo",
-    "thr_hi",
-    "windows",
-    "freq_hz",
+    *"section t_fw_s thr thr_lo thr_hi windows freq_hz".split(),
     *(f"{name}_psd_{UNITS[sensor]}2_per_hz" for name, sensor, _ in SIGNALS),
 )
 
@@ -473,10 +396,9 @@ def _num(v) -> str:
 
 
 def write_csv(sp: Spectra, stream) -> int:
-    """The spectra as one CSV table (:data:`CSV_COLUMNS`), a ``section`` column telling the three apart:
-    ``psd`` (the Welch average, one row per frequency), ``spectrogram`` (one row per window and frequency:
-    ``t_fw_s`` the window's centre, ``thr`` its mean throttle) and ``throttle`` (one row per throttle bin and
-    frequency: ``thr_lo`` … ``thr_hi``, ``windows`` averaged; empty bins are left out). Returns the rows written."""
+    """The spectra as one CSV table (:data:`CSV_COLUMNS`); ``section`` is ``psd`` (the Welch average),
+    ``spectrogram`` (per window: its centre ``t_fw_s`` and mean ``thr``) or ``throttle`` (per non-empty bin
+    ``thr_lo`` … ``thr_hi``). Returns the rows written."""
     w = csv.writer(stream, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     # (the row's first cells, its PSD (F, 6)) per section
@@ -493,11 +415,6 @@ def write_csv(sp: Spectra, stream) -> int:
         for f, row in zip(sp.freq_hz, psd):
             w.writerow([*head, _num(f), *map(_num, row)])
     return len(blocks) * len(sp.freq_hz)
-
-
-def _label(name: str) -> str:
-    sensor, axis = name.split("_")
-    return f"{sensor} {axis} ({UNITS[sensor]})"
 
 
 def format_summary(
@@ -518,16 +435,13 @@ def format_summary(
     lines.append(
         f"top peaks per axis (>= {min_hz:g} Hz, >= 6 dB over the median; amplitude of the sinusoid that would make it):"
     )
-    for name, _, _ in SIGNALS:
+    for name, sensor, i in SIGNALS:
         found = peaks.get(name, [])
-        text = (
-            "   ".join(
-                f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[name.split('_')[0]]} (+{p.above_floor_db:.0f} dB)"
-                for p in found
-            )
-            or "no clear peak"
+        text = "   ".join(
+            f"{p.freq_hz:6.2f} Hz {p.amplitude:8.1f} {UNITS[sensor]} (+{p.above_floor_db:.0f} dB)" for p in found
         )
-        lines.append(f"  {_label(name):<16} {text}")
+        label = f"{sensor} {'xyz'[i]} ({UNITS[sensor]})"
+        lines.append(f"  {label:<16} {text or 'no clear peak'}")
     if len(sp.thr_edges) > 2 or sp.thr_windows.sum():
         occupied = np.flatnonzero(sp.thr_windows)
         lines.append(
@@ -548,3 +462,175 @@ def format_summary(
         where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
         lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))
     return lines
+
+
+# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
+
+
+_AXIS_NAMES = {"x": "x (right)", "y": "y (forward)", "z": "z (up)"}
+_MARK_COLOURS = ["tab:purple", "tab:green", "tab:brown", "tab:olive", "tab:cyan"]
+#: matplotlib settings of the figure: every text 9 pt or more at the saved size
+_RC = {"font.size": 10, "axes.titlesize": 11, "axes.labelsize": 10, "xtick.labelsize": 9, "ytick.labelsize": 9,
+       "legend.fontsize": 9}  # fmt: skip
+
+#: what the lines of a spectrum are, in a student's words (the footer, and the panel when the throttle is constant)
+EXPLANATION = (
+    f"What the rows sample: the TIM9 ISR reads the sensors at {C.ISR_RATE_HZ:.1f} Hz; the main loop averages 5 "
+    f"reads (a boxcar) and runs the AHRS at {C.AHRS_RATE_HZ:.2f} Hz, so the spectra end at its Nyquist, "
+    f"{C.AHRS_RATE_HZ / 2:.2f} Hz (red). A vibration above it is aliased to |f − k·{C.AHRS_RATE_HZ:.2f}| Hz, "
+    f"weakened by the average (zero at multiples of {C.AHRS_RATE_HZ:.2f} Hz) and, for the gyro, by its IIR "
+    f"(−3 dB near 101 Hz). The gyro's output register refreshes at 416 Hz and is read at {C.ISR_RATE_HZ:.1f} Hz: "
+    f"the two beat at {REGISTER_BEAT_HZ:.1f} Hz, so every gyro line at f also shows, about 1 % as strong, at "
+    f"|f ± {REGISTER_BEAT_HZ:.1f}| and |f ± {2 * REGISTER_BEAT_HZ:.1f}| Hz (a 12 Hz motion: 36.3 and 60.6 Hz)."
+)
+
+
+def _db(psd: np.ndarray) -> np.ndarray:
+    p = np.asarray(psd, dtype=np.float64)
+    tiny = np.nanmax(p) * 1e-12 if np.isfinite(p).any() and np.nanmax(p) > 0 else 1e-30
+    with np.errstate(invalid="ignore"):
+        return 10 * np.log10(np.maximum(p, tiny))
+
+
+def _levels(values: np.ndarray) -> tuple[float, float]:
+    """Colour range of a heat map: the 2nd to the top percentile of its finite dB values (noise floor to peak)."""
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return 0.0, 1.0
+    lo, hi = float(np.percentile(v, 2)), float(v.max())
+    return lo, hi if hi > lo else lo + 1.0
+
+
+def throttle_varied(sp: Spectra) -> bool:
+    """True when the windows fall in two throttle bins or more (a frequency-vs-throttle map shows something)."""
+    return int(np.count_nonzero(sp.thr_windows)) >= 2
+
+
+def image_of(peak: Peak, stronger: list[Peak], sensor: str, rate_hz: float, tolerance_hz: float) -> Peak | None:
+    """The stronger peak whose 416 Hz-register image (:func:`alias_lines`) lands on ``peak`` (within
+    ``tolerance_hz``) with about the predicted amplitude (a third to three times its gain), or None."""
+    if sensor != "gyro":
+        return None
+    for s in stronger:
+        main, *images = alias_lines(s.freq_hz, sensor, rate_hz)
+        for line in images:
+            ratio = peak.amplitude / max(s.amplitude, 1e-30) * main.gain / line.gain
+            if abs(line.seen_hz - peak.freq_hz) <= tolerance_hz and 1 / 3 <= ratio <= 3:
+                return s
+    return None
+
+
+def _psd_panel(ax, sp: Spectra, k: int, marks_hz, found: list[Peak], legend: bool) -> None:
+    """One PSD panel: the line, the Nyquist, the marks' lines, the peaks (an image of a stronger one named)."""
+    name, sensor, axis_i = SIGNALS[k]
+    f, nyq = sp.freq_hz, sp.nyquist_hz
+    ax.semilogy(f, np.maximum(sp.psd[:, k], 1e-30), color="black", lw=1.0)
+    ax.axvline(nyq, color="red", lw=1.2, label=f"Nyquist {nyq:.2f} Hz")
+    for m, fm in enumerate(marks_hz):
+        colour = _MARK_COLOURS[m % len(_MARK_COLOURS)]
+        for j, line in enumerate(alias_lines(fm, sensor, sp.rate_hz)):
+            image = line.what == "416 Hz ODR image"
+            ax.axvline(
+                line.seen_hz,
+                color=colour,
+                lw=1.0,
+                ls=":" if image else "--",
+                label=(f"{fm:g} Hz input" if not image else f"{fm:g} Hz: register images") if j < 2 else None,
+            )
+    for i, p in enumerate(found):
+        src = image_of(p, found[:i], sensor, sp.rate_hz, 1.5 * sp.resolution_hz)
+        text = f"{p.freq_hz:.1f} Hz" + (f"\nimage of {src.freq_hz:.1f} Hz" if src else "")
+        ax.plot([p.freq_hz], [p.psd], "o", color="tab:orange", ms=4)
+        left = p.freq_hz > 0.7 * nyq  # near the right edge: the label to the left of the peak
+        ax.annotate(
+            text,
+            (p.freq_hz, p.psd),
+            textcoords="offset points",
+            xytext=(-4 if left else 4, 2),
+            ha="right" if left else "left",
+            fontsize=9,
+            color="darkorange",
+        )
+    ax.set_xlim(0, nyq * 1.02)
+    ax.set_title(f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel(f"{UNITS[sensor]}²/Hz")
+    ax.grid(True, which="major", alpha=0.3)
+    if legend:
+        ax.legend(loc="upper right", framealpha=0.85)
+
+
+def _spectrogram_panel(fig, ax, sp: Spectra, sensor: str) -> None:
+    """The sensor's spectrogram, power summed over x, y, z, in dB."""
+    cols = [k for k, (_, s, _) in enumerate(SIGNALS) if s == sensor]
+    z = _db(sp.spectrogram[:, :, cols].sum(axis=2)).T
+    lo, hi = _levels(z)
+    mesh = ax.pcolormesh(sp.window_t_fw_s, sp.freq_hz, z, shading="nearest", cmap="inferno", vmin=lo, vmax=hi)
+    fig.colorbar(mesh, ax=ax, label=f"dB re 1 {UNITS[sensor]}²/Hz")
+    ax.set_ylim(0, sp.nyquist_hz)
+    ax.set_title(f"{sensor} spectrogram (x + y + z)")
+    ax.set_xlabel("firmware time [s since boot]")
+    ax.set_ylabel("frequency [Hz]")
+
+
+def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
+    """The gyro's frequency-vs-throttle map over the throttle bins that hold windows (empty bins left out)."""
+    occupied = np.flatnonzero(sp.thr_windows)
+    cols = [k for k, (_, s, _) in enumerate(SIGNALS) if s == "gyro"]
+    z = _db(sp.thr_psd[occupied][:, :, cols].sum(axis=2)).T
+    lo, hi = _levels(z)
+    f = sp.freq_hz
+    f_edges = np.concatenate(([0.0], 0.5 * (f[1:] + f[:-1]), [f[-1]]))
+    mesh = ax.pcolormesh(np.arange(len(occupied) + 1), f_edges, z, shading="flat", cmap="inferno", vmin=lo, vmax=hi)
+    fig.colorbar(mesh, ax=ax, label="dB re 1 mdps²/Hz")
+    for m, fm in enumerate(marks_hz):
+        seen = alias_lines(fm, "gyro", sp.rate_hz)[0].seen_hz
+        ax.axhline(seen, color=_MARK_COLOURS[m % len(_MARK_COLOURS)], lw=1.0, ls="--")
+    e = sp.thr_edges
+    labels = [f"{e[b]:.0f}–{e[b + 1]:.0f}" for b in occupied]
+    step = max(1, len(labels) // 5)
+    ax.set_xticks(np.arange(len(occupied))[::step] + 0.5, labels[::step])
+    ax.set_ylim(0, sp.nyquist_hz)
+    ax.set_title("gyro (x + y + z) vs throttle")
+    ax.set_xlabel(f"throttle gTHR (bins with data; motors from {C.MIN_THR})")
+    ax.set_ylabel("frequency [Hz]")
+
+
+def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | None = None, title: str = ""):
+    """The ``--plot`` figure: the Welch PSD per axis (Nyquist, marks, peaks, a register image named), the
+    spectrograms, and the gyro's frequency-vs-throttle map (else a panel saying what the lines are)."""
+    plt = require_matplotlib()
+    with plt.rc_context(_RC):
+        fig, axes = plt.subplots(3, 3, figsize=(16, 14), squeeze=False)
+        for k, (name, sensor, axis_i) in enumerate(SIGNALS):
+            row = 0 if sensor == "gyro" else 1
+            _psd_panel(axes[row, axis_i], sp, k, marks_hz, (peaks or {}).get(name, []), legend=axis_i == 0)
+        _spectrogram_panel(fig, axes[2, 0], sp, "gyro")
+        _spectrogram_panel(fig, axes[2, 1], sp, "acc")
+        footer = EXPLANATION
+        if throttle_varied(sp):
+            _throttle_panel(fig, axes[2, 2], sp, marks_hz)
+        else:
+            ax = axes[2, 2]
+            ax.axis("off")
+            ax.set_title("what the lines are", loc="left")
+            thr = f"The throttle stayed at {sp.window_thr.mean():.0f}: no frequency-vs-throttle map."
+            ax.text(0, 1, textwrap.fill(EXPLANATION, 52) + "\n\n" + textwrap.fill(thr, 52), va="top", fontsize=9.5,
+                    transform=ax.transAxes)  # fmt: skip
+            footer = ""
+        head = (title + ": " if title else "") + (
+            f"{len(sp.window_t_fw_s)} Hann windows of {sp.nperseg} rows ({sp.resolution_hz:.2f} Hz resolution) over "
+            f"{sp.seconds_used:.1f} s in {len(sp.runs)} run(s) of consecutive steps; rows at {sp.rate_hz:.2f} Hz"
+        )
+        fig.suptitle(head, fontsize=12)
+        bottom = 0.0
+        if footer:
+            fig.text(0.01, 0.01, textwrap.fill(footer, 200), va="bottom", ha="left", fontsize=9.5)
+            bottom = 0.075
+        fig.tight_layout(rect=(0, bottom, 1, 0.97))
+    return fig
+
+
+def plot_spectra(sp: Spectra, out_png, *, marks_hz=(), peaks=None, title: str = "") -> Path:
+    """Write :func:`spectra_figure` to ``out_png`` (returns the path; UserError when it cannot be written)."""
+    return save_figure(spectra_figure(sp, marks_hz=marks_hz, peaks=peaks, title=title), out_png, dpi=100)

@@ -1,12 +1,8 @@
 """The AHRS step cost (ETH exercise 6), computed once from a capture's status frames and said one way everywhere.
 
-The firmware times ``ahrs_fusion_ag`` + ``QuaternionToEuler`` with the DWT cycle counter and reports, in each status
-frame, the min/mean/max over the ``cyc_n`` steps since the previous one. :func:`step_cost` joins the windows: the
-mean weighted by ``cyc_n``, the max of the maxima, the median of the window means weighted by ``cyc_n`` (the frames
-carry no single step), the number of steps counted. The unit is said as it is: ``DWT cycles`` from a real drone
-(µs at the frame's ``cpu_hz``), ``emulated instructions`` when the capture says it was emulated (its header's
-``extra.emulated``: the emulator's CYCCNT advances once per instruction, so no time is given).
-"""
+Each status frame carries the min/mean/max DWT cycles of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` over its
+``cyc_n`` steps; :func:`step_cost` joins them (means and medians weighted by ``cyc_n``). The unit is said as it is:
+``DWT cycles`` from a drone (µs at ``cpu_hz``), ``emulated instructions`` from an emulated capture (no time given)."""
 
 from __future__ import annotations
 
@@ -16,22 +12,14 @@ import numpy as np
 
 from steval_link.analysis.link_stats import cycles_are_emulated
 
-__all__ = ["StepCost", "step_cost", "DWT_CYCLES", "EMULATED_INSTRUCTIONS"]
-
 DWT_CYCLES = "DWT cycles"
 EMULATED_INSTRUCTIONS = "emulated instructions"
 
 
 @dataclass(frozen=True)
 class StepCost:
-    """One AHRS step's cost over a capture.
-
-    Attributes:
-        median, mean: cycles (or instructions) per step; max: the largest single step.
-        steps: steps the status frames counted.
-        unit: :data:`DWT_CYCLES` or :data:`EMULATED_INSTRUCTIONS`.
-        cpu_hz: core clock the frames report (None: unknown); time is given only for DWT cycles.
-    """
+    """One AHRS step's cost over a capture: ``median``, ``mean``, ``max`` per step in ``unit``, over ``steps``;
+    ``cpu_hz`` the core clock (None: unknown)."""
 
     median: float
     mean: float

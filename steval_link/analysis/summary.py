@@ -6,11 +6,11 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.analysis.ble import format_ble_summary, summarize_ble
 from steval_link.analysis.diagnosis import recognise_release
 from steval_link.analysis.report import fmt_number, json_number
 from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
+from steval_link.link.ble_payloads import TICK_S, TICK_WRAP
 from steval_link.link.commands import command_log
 from steval_link.link.plausibility import (
     Q_NORM_TOL,
@@ -19,8 +19,6 @@ from steval_link.link.plausibility import (
     q_off_sphere,
     values_bad_sentence,
 )
-
-__all__ = ["summarize", "format_summary", "values_bad_report", "q_norm_report", "text_telemetry_report"]
 
 _FLAG_NAMES = {
     P.FLAG_NO_CORRECTION: "no-correction",
@@ -33,10 +31,8 @@ _FLAG_NAMES = {
 
 
 def values_bad_report(tel) -> dict[str, Any] | None:
-    """The rows kept with NaN or out-of-range values (the ``values_bad`` flag; protocol v2 keeps what the firmware
-    sent), None when there is none: ``frames`` (attitude rows), ``status_frames``, the first such row (``first_row``,
-    ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (the filter inputs acc/gyro are bad too) and ``text``, the
-    sentence every summary prints."""
+    """The rows kept with NaN or out-of-range values (None: none): ``frames``, ``status_frames``, the first
+    (``first_row``, ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (acc/gyro bad too) and ``text``, its sentence."""
     a = tel.attitude
     bad = np.asarray(getattr(a, "values_bad", np.zeros(len(a), bool)), bool)
     sbad = np.asarray(getattr(tel.status, "values_bad", np.zeros(len(tel.status), bool)), bool)
@@ -102,10 +98,8 @@ def q_norm_report(tel) -> dict[str, Any] | None:
 
 
 def text_telemetry_report(tel) -> dict[str, Any] | None:
-    """The records of text telemetry (``tel.text_series``), None when there is none: ``records``, ``series``
-    (names), ``units``, ``other_lines`` (text lines that are not records), ``dropped_lines`` (printable lines that
-    did not read as text), ``time_source``, ``notes`` (ST's %f-less output...) and ``attitude`` (how series became
-    the attitude rows)."""
+    """The records of text telemetry (None: none): their count, series names and units, other and dropped
+    lines, the time source, notes, and how series became the attitude rows."""
     ts = getattr(tel, "text_series", None)
     if ts is None or not len(ts):
         return None
@@ -135,13 +129,9 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
 def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
     """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
 
-    ``duration_s`` is firmware time covered by the attitude rows (host time when there is none). ``rate_hz`` is
-    attitude frames per second over it; ``step_rate_hz`` AHRS steps per second (161.5 on the drone; text-mode rows
-    are decimated, so ``rate_hz`` is lower). ``drops``: ``frames_missing`` attitude frames lost in ``seq_gaps``
-    gaps, ``drop_ratio`` = missing / (received + missing), ``tx_dropped`` the firmware's own count from the last
-    status frame. ``release``: the ST release whose filter the replica reproduces the rows with (``variant`` forces
-    one). ``attitude_from``: "frames", or "symbols" (read by the emulator).
-    """
+    ``duration_s``: firmware time of the attitude rows (host time without one); ``rate_hz``: attitude frames per second;
+    ``step_rate_hz``: AHRS steps per second (161.5); ``drop_ratio`` = missing / (received + missing); ``release``: the
+    ST release whose filter reproduces the rows (``variant`` forces one)."""
     if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
         return summarize_ble(tel)
     a, s, st = tel.attitude, tel.status, tel.stats
@@ -350,4 +340,120 @@ def _filter_summary_lines(flt: dict[str, Any]) -> list[str]:
     ]
     if flt["fw_version"] is not None:
         lines.append(f"firmware: version {flt['fw_version']}, link {flt['link_baud']} baud")
+    return lines
+
+
+# ---- a BLE capture: notifications, cadence, dt, environment (no firmware attitude unless the layout sends it) ----
+
+
+def summarize_ble(tel) -> dict[str, Any]:
+    """A JSON-ready summary of a BLE capture's telemetry (``tel.link``: its :class:`BleStream`)."""
+    ble, src = tel.link, tel.source
+    header = src.get("header") or {}
+    extra = header.get("extra") or {}
+    c = ble.cadence
+    tick, t = ble.samples["tick"], ble.samples["t_host_s"]
+    env = ble.environment
+
+    def stat(v: np.ndarray, how) -> float | None:
+        v = np.asarray(v, dtype=np.float64)
+        return round(float(how(v)), 3) if v.size else None
+
+    return {
+        "kind": "ble",
+        "file": src.get("path", ""),
+        "port": header.get("port"),
+        "device": extra.get("device"),
+        "address": extra.get("address"),
+        "emulated": bool(extra.get("emulated", False)),
+        "start_time_utc": header.get("start_time_utc"),
+        "tool_version": header.get("tool_version"),
+        "notifications": dict(ble.counts),
+        "bad_payloads": ble.bad_payloads,
+        "unknown_characteristics": ble.unknown,
+        "duration_host_s": round(float(t[-1] - t[0]), 3) if len(t) > 1 else 0.0,
+        "duration_fw_s": round(float(tick[-1] * TICK_S - tick[0] * TICK_S), 3) if len(t) > 1 else 0.0,
+        "motion_rate_hz": round(1.0 / c.interval_s, 2) if c else None,
+        "motion_interval_ms": round(c.interval_s * 1e3, 3) if c else None,
+        "motion_dropped_estimate": c.dropped if c else 0,
+        "motion_cadence": c.kind if c else None,
+        "motion_cadence_text": c.describe() if c else None,
+        "motion_gaps": c.gaps if c else 0,
+        "motion_repeated_reads": ble.repeated_reads,
+        "tick_wraps": int(tick[-1] // TICK_WRAP - tick[0] // TICK_WRAP),
+        "estimator_dt_ms": round(c.interval_s * 1e3, 3) if c else None,
+        "rows_held_over_drops": ble.rows_held,
+        "pressure_hpa_mean": stat(env["pressure_hpa"], np.mean),
+        "temperature_c_mean": stat(env["temperature_c"], np.mean),
+        "battery_pct_last": stat(env["battery_pct"][-1:], np.mean),
+        "rssi_dbm_mean": stat(env["rssi_dbm"], np.mean),
+        "armed_notifications": int(ble.arming["armed"].sum()),
+        "console_lines": len(tel.text),
+        "events": [{"t_host_s": round(e.t_host_s, 6), "kind": e.kind, "text": e.text} for e in tel.events],
+        "ble_layout": ble.layout.name,
+        "note": " ".join(ble.notes()),
+        "attitude_deg_range": _attitude_range(tel),
+        "warnings": list(src.get("warnings") or []),
+    }
+
+
+def _attitude_range(tel) -> dict[str, list[float]] | None:
+    """The drone's own pitch and roll range, deg, when the layout sends them (None: it does not)."""
+    if not tel.link.layout.sends_attitude:
+        return None
+    a = tel.attitude
+    return {
+        name: [round(float(np.degrees(v.min())), 2), round(float(np.degrees(v.max())), 2)]
+        for name, v in (("thx", a.thx_rad), ("thy", a.thy_rad))
+    }
+
+
+def format_ble_summary(s: dict[str, Any]) -> list[str]:
+    """The text lines of ``steval replay`` for a BLE capture."""
+    counts = ", ".join(f"{k} {v}" for k, v in s["notifications"].items() if v)
+    dev = " ".join(x for x in (s.get("device"), s.get("address")) if x) or s.get("port") or "?"
+    lines = [
+        f"file              {s['file']}  (BLE capture{', emulated firmware' if s['emulated'] else ''})",
+        f"device            {dev}",
+        f"notifications     {counts}",
+        f"duration          {s['duration_fw_s']:.3f} s drone clock (8 ms ticks, {s['tick_wraps']} wrap(s)), "
+        f"{s['duration_host_s']:.3f} s host",
+    ]
+    if s["motion_cadence_text"]:
+        lines.append(f"cadence           {s['motion_cadence_text']}")
+    if s["estimator_dt_ms"]:
+        held = s["rows_held_over_drops"]
+        lines.append(
+            f"estimators        dt {s['estimator_dt_ms']:.3f} ms from the cadence; "
+            + (f"{held} rows held over dropped notifications" if held else "no rows held (nothing dropped)")
+        )
+    env = [
+        f"{label} {s[key]:{fmt}} {unit}"
+        for label, key, fmt, unit in (
+            ("pressure", "pressure_hpa_mean", ".2f", "hPa"),
+            ("temperature", "temperature_c_mean", ".1f", "°C"),
+            ("battery", "battery_pct_last", ".1f", "%"),
+            ("RSSI", "rssi_dbm_mean", ".1f", "dBm"),
+        )
+        if s[key] is not None
+    ]
+    if env:
+        lines.append("environment       " + ", ".join(env))
+    lines.append(
+        f"arming            armed in {s['armed_notifications']} of {s['notifications']['arming']} notifications"
+    )
+    if s["bad_payloads"] or s["unknown_characteristics"]:
+        lines.append(
+            f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
+            "unknown-characteristic notifications"
+        )
+    for e in s["events"]:
+        lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
+    rng = s.get("attitude_deg_range")
+    if rng:
+        lines.append(
+            f"firmware attitude thx pitch {rng['thx'][0]:.1f}..{rng['thx'][1]:.1f} deg, thy roll "
+            f"{rng['thy'][0]:.1f}..{rng['thy'][1]:.1f} deg (the drone's own, {s['ble_layout']} layout)"
+        )
+    lines.append("note              " + s["note"])
     return lines

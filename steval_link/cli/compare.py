@@ -210,7 +210,7 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
         if plot is not None:
-            from steval_link.analysis.side_by_side_plot import plot_side_by_side  # matplotlib: only for --plot
+            from steval_link.analysis.side_by_side import plot_side_by_side  # matplotlib: only for --plot
 
             progress(0.7, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:

@@ -88,7 +88,7 @@ def spectrum_cmd(
             progress(0.4, f"writing {csv_out.name}")
             write_atomic(csv_out, "--csv", lambda fh: S.write_csv(sp, fh), text=True)
         if plot is not None:
-            from steval_link.analysis.spectrum_plot import plot_spectra  # matplotlib loads only for --plot
+            from steval_link.analysis.spectrum import plot_spectra  # matplotlib loads only for --plot
 
             progress(0.5, f"plotting {plot.name}")
             with atomic_output(plot, option="--plot", keep_suffix=True) as part:
