@@ -9,8 +9,6 @@ by symbol as ``S`` chunks. Commands (scripted at emulated times, or typed) reach
 from __future__ import annotations
 
 import contextlib
-import queue
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -52,8 +50,6 @@ class EmulatedSource(Source):
         self.truth: StepTruth | None = None
         self.status = LinkStatus()
         self._closed = False
-        self._board: threading.Thread | None = None  # runs the board a round ahead (_run_board)
-        self._failed = False  # the board's run ended with an exception
         self._record: Record | None = None
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
 
@@ -116,72 +112,43 @@ class EmulatedSource(Source):
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
-        """The board's rounds, made by :meth:`_run_board` one round ahead in a thread (the session's work on a round
-        overlaps the next round's emulation): each round's chunks to the capture first, in the order the board made
-        them, then its USART1 and RX bytes to the session."""
+        """One slice of the board at a time: the RX bytes, the USART1 bytes and the truth of its steps, each to the
+        capture first; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
+        t0, t_round = time.monotonic(), 0.0
+        pending: list[Chunk] = []
         if self._closed:
             return
-        rounds: queue.Queue = queue.Queue(maxsize=1)
-        self._board = threading.Thread(target=self._run_board, args=(rounds,), name="emulated board", daemon=True)
-        self._board.start()
-        while (item := rounds.get()) is not None:
-            if isinstance(item, BaseException):
-                raise item
-            kept, sent, t_s = item
-            for c in kept:
+        for data, t_s in self.emu.chunks():
+            out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
+            out.append(Chunk("D", data, t_s))
+            for c in out:
                 record(c)  # first: whatever happens next, the bytes are kept
             self.status.t_link_s = t_s
-            if sent:
-                yield sent
+            self._truth(record)
+            pending += out
+            if self.realtime:
+                time.sleep(max(0.0, t_s - (time.monotonic() - t0)))
+            elif t_s - t_round < ROUND_S:
+                continue
+            t_round = t_s
+            yield pending
+            pending = []
             if self._closed:
                 break
+        if pending:
+            yield pending
+        self._truth(record)  # the steps of the last slice
+        self.status.report = self.emu.report()
 
-    def _run_board(self, rounds: queue.Queue) -> None:
-        """Slices of the board, a round at a time into ``rounds`` (one slice when paced, else :data:`ROUND_S`
-        emulated): (chunks for the capture: RX bytes, USART1 bytes, the truth and symbols of its steps; chunks for
-        the session; emulated s), then None at the end, or the exception that ended the run."""
-        t0, t_round, t_s = time.monotonic(), 0.0, 0.0
-        kept: list[Chunk] = []
-        sent: list[Chunk] = []
-        try:
-            for data, t_s in self.emu.chunks():
-                out = [Chunk("H", b, t_b) for b, t_b in self.emu.take_host_bytes()]
-                out.append(Chunk("D", data, t_s))
-                kept += out + self._truth(t_s)
-                sent += out
-                if self.realtime:
-                    time.sleep(max(0.0, t_s - (time.monotonic() - t0)))
-                elif t_s - t_round < ROUND_S:
-                    continue
-                t_round = t_s
-                if not self._put(rounds, (kept, sent, t_s)):
-                    return
-                kept, sent = [], []
-            self.status.report = self.emu.report()
-            if self._put(rounds, (kept, sent, t_s)) and self._put(rounds, (self._truth(t_s), [], t_s)):
-                self._put(rounds, None)
-        except BaseException as exc:  # to the session's thread, after the chunks made before it (truth: close)
-            self._failed = True
-            if self._put(rounds, (kept, [], t_s)):
-                self._put(rounds, exc)
-
-    def _put(self, rounds: queue.Queue, item) -> bool:
-        """``item`` into ``rounds`` when the session takes it; False when the source was closed first."""
-        while not self._closed:
-            with contextlib.suppress(queue.Full):
-                rounds.put(item, timeout=0.1)
-                return True
-        return False
-
-    def _truth(self, t_s: float) -> list[Chunk]:
-        """The ``T`` (a trial's truth) and ``S`` (attitude read by symbol) chunks of the steps since the last call."""
+    def _truth(self, record: Record) -> None:
         rows = self.truth.take() if self.truth is not None else ()
-        out = [Chunk("T", rows, t_s)] if len(rows) else []
+        if len(rows):
+            record(Chunk("T", rows, self.status.t_link_s))
         symbols = self.symbols.available
         read = self.symbols.take() if symbols else ()
-        out += [Chunk("S", read[i : i + 4096].tobytes(), t_s) for i in range(0, len(read), 4096)]
+        for i in range(0, len(read), 4096):
+            record(Chunk("S", read[i : i + 4096].tobytes(), self.status.t_link_s))
         self.status.symbol_rows = self.symbols.count if symbols else 0
-        return out
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
         """Onto the firmware's RX: at emulated time ``at_s``, or with the next slice (thread-safe)."""
@@ -191,13 +158,9 @@ class EmulatedSource(Source):
             self.emu.send_at(frame, at_s)
 
     def close(self) -> None:
-        """Stop the board after its slice (a round it made that the session did not take is not recorded)."""
         self._closed = True
-        if self._board is not None:
-            self._board.join()
-        if self._failed:  # the truth of the steps of the slice that failed
-            with contextlib.suppress(Exception):  # (the capture is closed by the session whatever happens)
-                for c in self._truth(self.status.t_link_s):
-                    self._record(c)
+        with contextlib.suppress(Exception):  # the capture is closed by the session whatever happens
+            if self._record is not None:
+                self._truth(self._record)  # the steps of the last slice, whatever stopped the session
         if self.emu is not None and self.status.report is None:
             self.status.report = self.emu.report()
