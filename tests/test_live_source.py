@@ -237,3 +237,24 @@ def test_the_link_interface_is_narrow_and_runs_one_way():
         names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
         names |= {a.arg for a in ast.walk(tree) if isinstance(a, ast.arg)}
         assert not {"session", "LiveSession"} & names, module.__name__
+
+
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_the_emulated_source_records_every_byte_and_step_of_the_board(reference_elf):
+    # the capture of an emulated session holds the board's USART1 bytes at their emulated times, in order, and the
+    # attitude read by symbol of every AHRS step, even when the session is slow
+    from steval_link.emulation.runner import Emulation, EmulationOptions
+    from steval_link.emulation.symbol_attitude import SYMBOL_DTYPE
+
+    options = EmulationOptions(elf=reference_elf, scenario="hand-tilts", duration_s=7.0, seed=2)
+    alone = [(data, t_s) for data, t_s in Emulation(options).chunks()]
+    source = EmulatedSource(options)
+    source.open()
+    recorded: list = []
+    for _batch in source.chunks(recorded.append, None):
+        time.sleep(0.05)  # the session's work on a round
+    source.close()
+    assert [(c.data, c.t_s) for c in recorded if c.kind == "D"] == alone
+    s_rows = sum(len(c.data) for c in recorded if c.kind == "S") // SYMBOL_DTYPE.itemsize
+    assert s_rows == source.status.symbol_rows > 500
+    assert source.status.report is not None and source.status.report.emulated_s == pytest.approx(7.0)
