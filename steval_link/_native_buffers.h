@@ -7,7 +7,10 @@
 /* Every loop zero-initialises its views and releases them all on one path: releasing a view never taken is a
  * no-op (PyBuffer_Release ignores obj == NULL, which a failed PyObject_GetBuffer leaves). */
 
-/* A C-contiguous view (writable when asked) of exactly nbytes, or of whole rows of -nbytes when nbytes < 0: the
+/* get_buffer's nbytes for a view of whole rows of row_bytes each (any number of them) */
+#define ROWS_OF(row_bytes) (-(Py_ssize_t)(row_bytes))
+
+/* A C-contiguous view (writable when asked) of exactly nbytes, or of whole rows (nbytes = ROWS_OF(row bytes)): the
  * number of rows (1 for exactly nbytes), or -1 with a ValueError. */
 static Py_ssize_t get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t nbytes, const char *what)
 {

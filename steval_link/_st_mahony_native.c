@@ -62,7 +62,7 @@ static PyObject *native_run(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &flags)) {
         return NULL;
     }
-    if ((n = get_buffer(o[2], &b[2], 0, -8, "thr")) < 0) return NULL;
+    if ((n = get_buffer(o[2], &b[2], 0, ROWS_OF(8), "thr")) < 0) return NULL;
     have_euler = (o[4] != Py_None) && (o[5] != Py_None);
     if (get_buffer(o[0], &b[0], 0, 3 * n * 4, "acc") < 0 || get_buffer(o[1], &b[1], 0, 3 * n * 4, "gyro") < 0 ||
         get_buffer(o[3], &b[3], 1, 4 * n * 4, "q_out") < 0 ||
@@ -160,7 +160,7 @@ static PyObject *native_euler(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOO", &o[0], &o[1], &o[2])) return NULL;
-    if ((n = get_buffer(o[0], &b[0], 0, -16, "q")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, ROWS_OF(16), "q")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 1, n * 4, "thx_out") < 0 || get_buffer(o[2], &b[2], 1, n * 4, "thy_out") < 0)
         return release(b, 3);
     {

@@ -33,8 +33,10 @@ import pytest
 import typer
 from support.cli import run_cli
 
-from steval_link.cli import app
+from steval_link.cli import register
 from steval_link.cli.outputs import OUTPUT_OPTIONS
+
+app = register()  # the typer app with every command
 
 #: file name extension given to a bad output of each option
 EXTENSION = {

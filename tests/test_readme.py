@@ -11,7 +11,9 @@ import pytest
 from support.cli import run_cli
 from support.docs import ROOT, code_blocks, doc_pages, doc_text
 
-from steval_link.cli import app
+from steval_link.cli import register
+
+app = register()  # the typer app with every command
 
 
 def _setup_block() -> list[str]:

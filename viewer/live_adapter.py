@@ -23,7 +23,9 @@ class ViewerLogger:
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
         file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
-        self.file = file_rec and live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
+        self.file = None
+        if file_rec is not None:
+            self.file = live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
 
     @property
     def output_failure(self) -> str | None:

@@ -22,9 +22,9 @@ def cli_markdown() -> str:
     """Markdown of every ``steval`` command: usage, help, and a table of its arguments and options."""
     import typer.main
 
-    from steval_link.cli import app
+    from steval_link.cli import register
 
-    root = typer.main.get_command(app)
+    root = typer.main.get_command(register())
     out: list[str] = []
     for name, cmd in sorted(root.commands.items()):
         if getattr(cmd, "hidden", False):

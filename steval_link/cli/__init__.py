@@ -15,7 +15,7 @@ from steval_link.cli.app import app as _app
 from steval_link.errors import UserError, printable
 from steval_link.stop_signals import interrupt, on_stop_signals
 
-__all__ = ["app", "main", "register"]
+__all__ = ["main", "register"]
 
 #: the sub-command modules by the command words they register (importing a module registers its commands)
 COMMANDS = {
@@ -39,8 +39,6 @@ COMMANDS = {
     "spectrum": "spectrum",
     "synth": "synth",
 }
-# the name ``app`` here is the typer app with every command (see __getattr__), not the submodule import bound
-globals().pop("app")
 
 
 def register(args: list[str] | None = None) -> typer.Typer:
@@ -52,10 +50,6 @@ def register(args: list[str] | None = None) -> typer.Typer:
     return _app
 
 
-def __getattr__(name: str):
-    if name == "app":
-        return register()
-    raise AttributeError(f"module 'steval_link.cli' has no attribute {name!r}")
 
 
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:

@@ -21,7 +21,10 @@ from steval_link.link.ble_payloads import CHAR_MOTION, CHAR_NAMES, ble_chunk, ch
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 
 #: HCI (OGF, OCF) of the requests answered
-GATT_ADD_SERV, GATT_ADD_CHAR, GATT_UPD_CHAR_VAL, READ_RSSI = (0x3F, 0x0102), (0x3F, 0x0104), (0x3F, 0x0106), (5, 5)
+GATT_ADD_SERV = (0x3F, 0x0102)
+GATT_ADD_CHAR = (0x3F, 0x0104)
+GATT_UPD_CHAR_VAL = (0x3F, 0x0106)
+READ_RSSI = (5, 5)
 UUID_TYPE_128 = 0x02
 
 

@@ -203,7 +203,7 @@ static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &flags)) return NULL;
-    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, ROWS_OF(24), "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 3 * n * 8, "x_out") < 0 ||
         get_buffer(o[3], &b[3], 1, EKF3_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 0, EKF3_NPARAMS * 8, "params") < 0)
@@ -452,7 +452,7 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
 
     (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &flags)) return NULL;
-    if ((n = get_buffer(o[0], &b[0], 0, -24, "acc")) < 0) return NULL;
+    if ((n = get_buffer(o[0], &b[0], 0, ROWS_OF(24), "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 4 * n * 8, "q_out") < 0 ||
         get_buffer(o[3], &b[3], 1, MEKF_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 1, MEKF_ISTATE * 8, "istate") < 0 ||

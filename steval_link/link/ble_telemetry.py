@@ -322,8 +322,10 @@ class LiveGrid:
         self._last_sample = sensors[-1]
         self.mag_mgauss = rows[:, 6:]
         acc, gyro, ang = rows[:, :3], rows[:, 3:6], np.full((len(rows), 3), np.nan, np.float32)
-        if self.layout.sends_attitude:  # no sensor values: the estimators skip the rows
-            ang, acc, gyro = acc / np.float32(self.layout.angle_scale), ang.copy(), ang.copy()
+        if self.layout.sends_attitude:  # angles in the acc fields; no sensor values: the estimators skip the rows
+            angles = acc / np.float32(self.layout.angle_scale)
+            acc, gyro = ang.copy(), ang.copy()  # (NaN)
+            ang = angles
         k_rows = grid if c.kind != POLLED else k
         return AttitudeArrays.of(k_rows, t_rows, t_host, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 

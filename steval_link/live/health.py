@@ -156,7 +156,8 @@ def pipeline_health(head: str, pipe, serial=None) -> str:
         parts.append(f"disconnects {serial.disconnects}" if serial.disconnects else None)
         lag = serial.live_dropped_bytes
         parts.append(f"live lag: {_fmt_bytes(lag)} not shown" if lag else None)
-    parts.append(records := h.records_part(most=3))
+    records = h.records_part(most=3)
+    parts.append(records)
     if pipe.mahony is not None and (pipe.binary or not records):  # text alone has no bit-exact inputs
         parts.append(pipe.mahony.describe())
     if serial is not None:

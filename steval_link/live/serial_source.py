@@ -10,6 +10,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any
 
 import serial
@@ -239,9 +240,9 @@ class SerialSource(Source):
     def status(self) -> LinkStatus:
         if self.proto is None:
             return LinkStatus(port=self.path, wait=self.wait)
-        st = self.proto.status  # the reader thread's, kept up to date
-        st.live_dropped_bytes, st.reopen_error = self.inbox.dropped_bytes, self.reader.reopen_error
-        return st
+        st = self.proto.status  # the reader thread's: a copy, with the session's side of the link
+        dropped, reopen_error = self.inbox.dropped_bytes, self.reader.reopen_error
+        return replace(st, offline=list(st.offline), live_dropped_bytes=dropped, reopen_error=reopen_error)
 
     def open(self, note=print) -> None:
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""

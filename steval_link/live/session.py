@@ -281,8 +281,10 @@ class LiveSession:
         if stream is None or self.pipeline is None or not (error is None or isinstance(error, LinkError)):
             return
         with contextlib.suppress(Exception):  # the capture is whole whatever happens here
-            for chunks in stream:  # (a BLE link's last round ends it: its held rows go out)
+            for chunks in stream:
                 self._take(chunks)
+            if self.info.kind == "ble":  # the rows held for the cadence, also when a stop cut the last round
+                self.pipeline.feed_ble([], final=True)
             self.pipeline.flush_view()
 
     def _error_of(self, error: BaseException) -> BaseException:
