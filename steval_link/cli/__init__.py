@@ -50,8 +50,6 @@ def register(args: list[str] | None = None) -> typer.Typer:
     return _app
 
 
-
-
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
     """(usage errors, exits, aborts) of typer and of the click it runs on (its own vendored copy in typer ≥ 0.25)."""
     usage: list[type] = []
