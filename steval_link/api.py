@@ -147,17 +147,30 @@ class Scores:
 
     results: list
     summary: dict
-    rmse_deg: dict[str, dict[str, float | None]] = field(init=False)
-    mean_rmse_deg: dict[str, float | None] = field(init=False)
-    scored_fraction: dict[str, dict[str, float | None]] = field(init=False)
-    diverged_at_step: dict[str, dict[str, int | None]] = field(init=False)
-    incomplete: list[str] = field(init=False)
 
-    def __post_init__(self) -> None:
-        for key in ("rmse_deg", "scored_fraction", "diverged_at_step"):  # trial → label → value
-            setattr(self, key, {t["trial"]: dict(t[key]) for t in self.summary["trials"]})
-        self.mean_rmse_deg = dict(self.summary["mean_rmse_deg"])
-        self.incomplete = list(self.summary["incomplete"])
+    @property
+    def rmse_deg(self) -> dict[str, dict[str, float | None]]:
+        return self._per_trial("rmse_deg")
+
+    @property
+    def mean_rmse_deg(self) -> dict[str, float | None]:
+        return dict(self.summary["mean_rmse_deg"])
+
+    @property
+    def scored_fraction(self) -> dict[str, dict[str, float | None]]:
+        return self._per_trial("scored_fraction")
+
+    @property
+    def diverged_at_step(self) -> dict[str, dict[str, int | None]]:
+        return self._per_trial("diverged_at_step")
+
+    @property
+    def incomplete(self) -> list[str]:
+        return list(self.summary["incomplete"])
+
+    def _per_trial(self, key: str) -> dict:
+        """trial → label → the summary's ``key`` (a copy)."""
+        return {t["trial"]: dict(t[key]) for t in self.summary["trials"]}
 
     def table(self) -> str:
         return ev.format_table(self.results)

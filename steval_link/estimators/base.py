@@ -43,7 +43,10 @@ class AttitudeEstimate:
 
 class Estimator(abc.ABC):
     """An attitude estimator fed with the firmware's inputs, one AHRS step at a time or a whole run at once.
-    Subclasses set :attr:`name` and implement :meth:`reset` and :meth:`step`; fast ones override :meth:`run`."""
+
+    Subclasses set :attr:`name` (the registry name) and implement :meth:`reset` and :meth:`step`; :meth:`run` has a
+    generic implementation over :meth:`step` that fast estimators override.
+    """
 
     #: registry name, e.g. ``"st-mahony"``
     name: str = "estimator"
@@ -54,13 +57,27 @@ class Estimator(abc.ABC):
 
     @abc.abstractmethod
     def step(self, acc_mg, gyro_mdps, thr: int = 0) -> np.ndarray:
-        """Advance one AHRS step: (3,) ``acc_mg``, (3,) ``gyro_mdps``, throttle ``gTHR`` (for estimators that switch
-        gains on it) → (4,) quaternion after the step, scalar first."""
+        """Advance one AHRS step.
+
+        Args:
+            acc_mg: (3,) accelerometer, mg.
+            gyro_mdps: (3,) gyro rate, mdps.
+            thr: throttle ``gTHR`` of the step (only estimators that switch gains on it use it).
+
+        Returns:
+            (4,) quaternion after the step, scalar first.
+        """
 
     def run(self, acc_mg, gyro_mdps, thr=None) -> AttitudeEstimate:
-        """:meth:`step` over N rows of (N, 3) ``acc_mg``, (N, 3) ``gyro_mdps`` and (N,) ``thr`` (None: 0), from the
-        current state: ``q_wxyz`` as step() returned it, the angles by ``QuaternionToEuler``'s formulas in float64,
-        ``valid`` where q is finite (a step with no estimate returns NaN)."""
+        """Run :meth:`step` over N steps (continuing from the current state, no reset) and return every step's
+        attitude: ``q_wxyz`` as step() returned it, the angles derived from it (``QuaternionToEuler``'s formulas in
+        float64), ``valid`` where q is finite (a step with no estimate returns NaN).
+
+        Args:
+            acc_mg: (N, 3) accelerometer, mg.
+            gyro_mdps: (N, 3) gyro, mdps.
+            thr: (N,) throttle, or None for 0 throughout.
+        """
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
         n = acc.shape[0]
         q = np.empty((n, 4), dtype=np.float64)
