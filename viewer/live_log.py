@@ -24,7 +24,7 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, log_text_style, send_records, send_scalars, unit_xyzw
-from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
+from steval_viewer.replay_log import REPLICA_NAMES, display_quaternions, firmware_series, send_values_bad_note
 
 #: (column name, archetype, component type) of each component kind a live round logs
 _SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
@@ -111,18 +111,13 @@ class RowBatch:
             v2 = np.where(good[:, None], v2, 0.0)
         self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
 
-    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
-        self._kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
+    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray) -> None:
+        self.kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
 
-    def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
-        v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
-        self._kept(path, _VEC, v, np.isfinite(v).all(axis=1), select)
-
-    def _kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray | None) -> None:
-        """A 3D entity's ``good`` rows (and ``select``): it keeps its last value, never cleared. A path never good is
+    def kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray) -> None:
+        """A 3D entity's ``good`` and ``select`` rows: it keeps its last value, never cleared. A path never good is
         not sent (the viewer rejects an all-null column); a path sent once is in ``bad_state``."""
-        if select is not None:
-            good = good & select
+        good = good & select
         if path not in self.bad_state and not good.any():
             return
         self._add(path, kind, np.where(good[:, None], values, 0.0), values.shape[1], good, bool(good.all()))
@@ -149,9 +144,6 @@ LINK_INTERVAL_S = 0.5
 RECORDS_PER_SEND = 64
 RECORDS_INTERVAL_S = 0.05
 
-#: Estimator names of the live session that mean the bit-exact firmware replica.
-REPLICA_NAMES = ("st-mahony", "st_mahony", "st-mahony-replica", "st_mahony_replica")
-
 
 def live_source(name: str) -> str:
     """Entity segment of a live estimate name (the seeded ST replica -> ``st_mahony_replica``, as in replays)."""
@@ -168,8 +160,7 @@ class LiveLogger:
         self.rec = rec
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
-        #: the 3D view's updates per second of stream time at most (a replay: every row)
-        self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
+        self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf  # a replay: every row
         self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
         self._tabs = dict(ble=False, text=False)  # the tabs the blueprint sent last has
         self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
@@ -180,25 +171,20 @@ class LiveLogger:
             bp.send_blueprint(rec, **self._tabs, **self._blueprint)
         drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
-        self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
-        self.frames = 0
-        self.frames_missing = 0
+        self.frames = self.frames_missing = self._bin_count = self._records_queued = 0
+        # fw s of the last motor-arrow and 3D updates, host s of the last link row and text-record send
+        self._last_motors_fw = self._last_3d_s = self._last_link_s = self._records_sent_s = -math.inf
         self._last_step: int | None = None
         self._bin_start: float | None = None  # host s of the current 1 s frame-rate bin
-        self._bin_count = 0
-        self._last_link_s = -math.inf
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
         self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
-        self._last_3d_s = -math.inf  # fw time of the last 3D update
         self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
-        #: link/status rows waiting for the next batch (see the module docstring): path -> [(fw s, host s, values)]
+        #: rows waiting (see the module docstring), [(fw s, host s, values)]: link/status rows by path, text records
+        #: by record shape (its names)
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
-        #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
-        self._records_queued = 0  # text records queued since the last send
-        self._records_sent_s = -math.inf  # host time of that send, s
 
     def log_batch(self, batch: Any) -> None:
         """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
@@ -239,7 +225,8 @@ class LiveLogger:
             sel_fw[good_rows if every else good_rows[-1:]] = True
             rb.quaternions(ent.DRONE_FIRMWARE, display_quaternions(a), sel_fw)
             with np.errstate(invalid="ignore"):
-                rb.vectors(ent.ACC_GRAVITY, -a.acc_mg.astype(np.float64) / 1000.0, sel3d)
+                gravity = -a.acc_mg.astype(np.float64).reshape(n, 3) / 1000.0
+            rb.kept(ent.ACC_GRAVITY, _VEC, gravity, np.isfinite(gravity).all(axis=1), sel3d)
         for path, values in firmware_series(a):
             rb.scalars(path, values)
         if getattr(batch, "mag_mgauss", None) is not None:
@@ -307,11 +294,7 @@ class LiveLogger:
 
     def log_text(self, frame: Any, at: Any) -> None:
         """A firmware text line (TextFrame or str) at ``at``."""
-        self._log_line(ent.LOG_FIRMWARE, frame if isinstance(frame, str) else frame.text, at, "INFO")
-
-    def _log_line(self, path: str, text: str, at: Any, level: str) -> None:
-        host = math.nan if at is None else at.t_host_s
-        self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
+        self.log_event(frame if isinstance(frame, str) else frame.text, at, path=ent.LOG_FIRMWARE)
 
     def _log_at(self, path: str, archetype: Any, fw: float, host: float) -> None:
         """Log ``archetype`` at ``path`` on the firmware and host timelines (each only when finite)."""
@@ -404,9 +387,10 @@ class LiveLogger:
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
-    def log_event(self, text: str, at: Any, level: str = "INFO") -> None:
+    def log_event(self, text: str, at: Any, level: str = "INFO", path: str = ent.LOG_COMMANDS) -> None:
         """A command sent to the drone, its acknowledgement or the settings it announced (``log/commands``)."""
-        self._log_line(ent.LOG_COMMANDS, text, at, level)
+        host = math.nan if at is None else at.t_host_s
+        self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
 
     def log_link(self, stats: Any, t_unix_s: float) -> None:
         """Decoder CRC failures (cumulative) at the latest row's times, at most every LINK_INTERVAL_S (host s)."""
