@@ -3,6 +3,7 @@ non-finite row is never sent as a value; a ``Clear`` where each bad run starts m
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -14,12 +15,13 @@ from steval_viewer import entities as ent
 
 @dataclass
 class Times:
-    """The timelines of N rows: ``t_fw_s`` (firmware s since boot), ``t_host_s`` (host s, may be None or contain
-    NaN; None when no row has one), ``step`` (AHRS step counter, may be None)."""
+    """The timelines of N rows: ``t_fw_s`` (firmware s since boot, on ``timeline``), ``t_host_s`` (host s, may be
+    None or contain NaN; None when no row has one), ``step`` (AHRS step counter, may be None)."""
 
     t_fw_s: np.ndarray
     t_host_s: np.ndarray | None = None
     step: np.ndarray | None = None
+    timeline: str = ent.TIMELINE_FW
 
     def __post_init__(self) -> None:
         self.t_fw_s = np.asarray(self.t_fw_s, dtype=np.float64)
@@ -34,7 +36,7 @@ class Times:
     def take(self, idx: np.ndarray) -> "Times":
         """The rows ``idx`` (integer indices or a boolean mask)."""
         host, step = (None if a is None else a[idx] for a in (self.t_host_s, self.step))
-        return Times(self.t_fw_s[idx], host, step)
+        return dataclasses.replace(self, t_fw_s=self.t_fw_s[idx], t_host_s=host, step=step)
 
     def host_complete(self) -> bool:
         return self.t_host_s is not None and bool(np.isfinite(self.t_host_s).all())
@@ -42,7 +44,7 @@ class Times:
     @functools.cached_property
     def indexes(self) -> list[rr.TimeColumn]:
         """Time columns for ``send_columns`` (host time only when every row has one; see :func:`send_rows`)."""
-        cols = [rr.TimeColumn(ent.TIMELINE_FW, duration=self.t_fw_s)]
+        cols = [rr.TimeColumn(self.timeline, duration=self.t_fw_s)]
         if self.host_complete():
             cols.append(rr.TimeColumn(ent.TIMELINE_HOST, duration=self.t_host_s))
         if self.step is not None:
@@ -76,17 +78,18 @@ def send_texts(rec: rr.RecordingStream, path: str, times: Times, texts: list[str
 
 
 def send_scalars(
-    rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None
+    rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None, gaps=True
 ) -> int:
-    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps (a ``Clear``
-    where each run of them starts). Returns the rows with a value."""
+    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows are left out (``gaps``: a
+    ``Clear`` where each run of them starts). Returns the rows with a value."""
     v = np.asarray(values, dtype=np.float64)
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
     sent = send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)), good)
-    starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
-    send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
+    if gaps:
+        starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
+        send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
     return sent
 
 

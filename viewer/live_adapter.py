@@ -3,6 +3,7 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 from steval_link.link.ble_payloads import ble_items, layout_named
@@ -47,14 +48,11 @@ class ViewerLogger:
             self.file.log_link(stats, t_unix_s)
 
     def close(self) -> None:
-        try:
-            try:
-                self.logger.close()
-            finally:
-                if self.file is not None:
-                    self.file.close()
-        finally:
-            self.session.close()
+        with contextlib.ExitStack() as stack:  # each closes even when the one before raised
+            stack.callback(self.session.close)
+            if self.file is not None:
+                stack.callback(self.file.close)
+            self.logger.close()
 
 
 #: notifications fed to the pipeline at a time by :func:`recording_sink`

@@ -44,17 +44,15 @@ class RowBatch:
     """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
     a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
 
-    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
+    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict) -> None:
         import pyarrow as pa
 
-        self._pa = pa
-        self.times = times
-        self.n = len(times)
+        self._pa, self.times, self.n = pa, times, len(times)
         self.fields: list = []
         self.arrays: list = []
-        self.bad_state = bad_state
+        self.bad_state = bad_state  # entity path -> its last row was a gap
         self.clear_rows: dict[str, np.ndarray] = {}
-        self.cache = {} if cache is None else cache  # Arrow fields and offsets, reused across batches
+        self.cache = cache  # Arrow fields and offsets, reused across batches
 
     def _index(self) -> None:
         pa = self._pa
@@ -177,8 +175,8 @@ class LiveLogger:
         self._last_step: int | None = None
         self._bin_start: float | None = None  # host s of the current 1 s frame-rate bin
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
-        self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
-        self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
+        self._bad: dict[str, bool] = {}  # RowBatch.bad_state
+        self._arrow_cache: dict = {}  # RowBatch.cache
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
         #: rows waiting (see the module docstring), [(fw s, host s, values)]: link/status rows by path, text records
@@ -204,8 +202,7 @@ class LiveLogger:
                 f"the firmware's values are NaN or out of range from step {int(step[i])} on "
                 f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
             )
-            good = np.flatnonzero(~bad[:i])
-            last = int(step[good[-1]]) if good.size else self._last_good_step
+            last = int(step[i - 1]) if i else self._last_good_step  # the rows before the first bad one are good
             send_values_bad_note(self.rec, times.take(np.array([i])), sentence, last)
         good_rows = np.flatnonzero(~bad)
         if good_rows.size:

@@ -36,14 +36,9 @@ from steval_viewer.sinks import log_whole
 Progress = Callable[[float, str], None] | None
 
 
-def _report(progress: Progress, fraction: float, stage: str = "") -> None:
-    if progress is not None:
-        progress(fraction, stage)
-
-
-def _part(progress: Progress, start: float, span: float) -> Progress:
-    """``progress`` for one part of a job: its 0..1 maps to ``start``..``start + span`` (None stays None)."""
-    return None if progress is None else (lambda f, stage="": progress(start + span * f, stage))
+def _part(progress: Progress, start: float = 0.0, span: float = 1.0) -> Callable[..., None]:
+    """``progress`` for one part of a job: its 0..1 maps to ``start``..``start + span`` (None: no reports)."""
+    return lambda f, stage="": None if progress is None else progress(start + span * f, stage)
 
 
 def estimate_mask(est: Any, n: int) -> np.ndarray:
@@ -154,9 +149,14 @@ class _Replay:
         """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
         times, n = self.times, len(self.times)
         if n:
-            last, counts = _bins_1s(times.t_fw_s)
+            t = times.t_fw_s
+            rows = np.flatnonzero(np.isfinite(t))
+            # 1 s bins of firmware time (NaN rows ignored, time never goes back): each one's last row, rows per bin
+            k = np.maximum.accumulate(np.floor(t[rows] - t[rows[:1]]).astype(np.int64))
+            ends = np.flatnonzero(np.diff(k, append=k[-1:] + 1))
+            last, counts = rows[ends], np.diff(np.concatenate(([-1], ends)))
             # frames per second of firmware time inside each bin (exact for partial first/last bins too)
-            span = times.t_fw_s[last] - times.t_fw_s[np.concatenate(([0], last[:-1] + 1))]
+            span = t[last] - t[np.concatenate(([0], last[:-1] + 1))]
             with np.errstate(invalid="ignore", divide="ignore"):
                 rate = np.where((counts > 1) & (span > 0), (counts - 1) / span, np.nan)
             self.scalars(ent.LINK_RATE, rate, times=times.take(last))
@@ -209,16 +209,6 @@ class _Replay:
         last = int(np.asarray(att.step)[good[-1]]) if good.size else None
         send_values_bad_note(self.rec, self.times.take(np.array([i])), rep["text"], last)
         self.summary.samples[ent.LOG_FILTER] = 1
-
-
-def _bins_1s(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(last row index of each 1 s bin, rows per bin) over a time array (NaN rows ignored)."""
-    rows = np.flatnonzero(np.isfinite(t_s))
-    if not rows.size:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    k = np.maximum.accumulate(np.floor(t_s[rows] - t_s[rows[0]]).astype(np.int64))  # time never goes back
-    ends = np.flatnonzero(np.diff(k, append=k[-1] + 1))
-    return rows[ends], np.diff(np.concatenate(([-1], ends)))
 
 
 def absent_plots(tel, replica) -> list[str]:
@@ -276,12 +266,13 @@ def log_replay(
 
     summary = ReplaySummary(sources=names)
     log = _Replay(rec, Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
-    _report(progress, 0.0, "logging the firmware's series")
+    report = _part(progress)
+    report(0.0, "logging the firmware's series")
     log.firmware(att)
     for i, (source, est) in enumerate(sources):
-        _report(progress, (i + 1) / (len(sources) + 2), f"logging {source}")
+        report((i + 1) / (len(sources) + 2), f"logging {source}")
         log.estimate(source, est, ghost=source in ghost_sources)
-    _report(progress, (len(sources) + 1) / (len(sources) + 2), "logging link health and text")
+    report((len(sources) + 1) / (len(sources) + 2), "logging link health and text")
     if replica is not None:
         log.replica_difference(att, replica)
     if link:
@@ -322,7 +313,7 @@ def log_telemetry(
 ) -> ReplaySummary:
     """Run the seeded firmware replica (the release whose filter is bit-exact; none without bit-exact rows: text
     mode) and log it with ``estimates``; a registry ``st-mahony`` estimate (not seeded) gives way to the replica."""
-    _report(progress, 0.0, "ST-Mahony replica")
+    _part(progress)(0.0, "ST-Mahony replica")
     replica = None
     if np.asarray(getattr(tel.attitude, "exact", True)).any():
         replica = replay_variants(tel, hint=capture_variant_hint(tel)).replay
@@ -337,6 +328,6 @@ def replay_sink(options: Any, tel: Any, estimates: Mapping[str, Any], *, progres
 
     def log(rec):
         log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
-        _report(progress, 0.6, "writing to Rerun")
+        _part(progress)(0.6, "writing to Rerun")
 
     log_whole(options, name, log)

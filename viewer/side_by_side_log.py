@@ -12,7 +12,7 @@ import rerun.blueprint as rrb
 from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
 from steval_viewer import drone_model
 from steval_viewer.blueprint import window
-from steval_viewer.columns import series_style, unit_xyzw
+from steval_viewer.columns import Times, send_scalars, send_transforms, series_style
 from steval_viewer.sinks import log_whole
 
 TIMELINE = "aligned_time"
@@ -59,17 +59,6 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
     return window(rrb.Horizontal(plots, drones, column_shares=[3, 1]), rrb.TimePanel(timeline=TIMELINE))
 
 
-def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarray) -> int:
-    """A scalar series (N,) or group (N, k) on :data:`TIMELINE`; non-finite rows are left out. Returns rows sent."""
-    v = np.asarray(values, np.float64)
-    good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
-    if not good.any():
-        return 0
-    t = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])]
-    rec.send_columns(path, indexes=t, columns=rr.Scalars.columns(scalars=v[good]))
-    return int(good.sum())
-
-
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     """Log every flight of ``r`` under its own subtree; returns the rows logged per entity path."""
     rec.send_blueprint(side_by_side_blueprint([f.label for f in r.flights]), make_active=True, make_default=True)
@@ -100,15 +89,11 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         for leaf, (name, colour, width, t, values) in leaves.items():
             path = flight_path(i, leaf)
             series_style(rec, path, name, colour, width)
-            counts[path] = _send(rec, path, t, values)
+            counts[path] = send_scalars(rec, path, Times(t, timeline=TIMELINE), values, gaps=False)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
-        xyzw, good = unit_xyzw(f.q_wxyz)
-        if good.any():
-            t = [rr.TimeColumn(TIMELINE, duration=f.t_s[good])]
-            rec.send_columns(f"{world}/drone", indexes=t, columns=rr.Transform3D.columns(quaternion=xyzw[good]))
-        counts[f"{world}/drone"] = int(good.sum())
+        counts[f"{world}/drone"] = send_transforms(rec, f"{world}/drone", Times(f.t_s, timeline=TIMELINE), f.q_wxyz)
     text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
     counts[NOTES] = 1

@@ -162,9 +162,13 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
 
 
-def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
-    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program."""
-    log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
+def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 0.0) -> subprocess.Popen:
+    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives this program; else the web viewer;
+    OSError when it cannot start) and wait
+    until it listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot open its window
+    dies right after it binds); ParamError with its last words otherwise."""
+    what = "viewer" if detached else "web viewer"
+    log_path = Path(tempfile.gettempdir()) / f"steval-{what.replace(' ', '-')}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
         env.pop("RUST_LOG", None)
@@ -178,21 +182,17 @@ def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tupl
     with open(log_path, "wb") as log:
         cmd = rerun_command() + args
         child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
-    return child, log_path
-
-
-def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path: Path, settle_s: float = 0.0):
-    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot
-    open its window dies right after it binds); ParamError with its last words otherwise."""
     deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
     while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
-            raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
+            raise ParamError(
+                f"the Rerun {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd"
+            )
         if time.monotonic() >= deadline:
             stop_child(child)
             raise ParamError(
-                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
-                "FILE instead",
+                f"the Rerun {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use "
+                "{rrd} FILE instead",
                 "rrd",
             )
         time.sleep(0.05)
@@ -206,6 +206,7 @@ def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path:
                 "serve",
             )
         time.sleep(0.05)
+    return child
 
 
 def _last_line(log_path: Path) -> str:
@@ -228,12 +229,11 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
         return url
     cmd = ["--port", str(tcp_port), "--bind", "127.0.0.1", "--hide-welcome-screen", "--memory-limit", "75%"]
     try:
-        child, log_path = _start(cmd, "viewer", tcp_port, detached=True)
+        _start(cmd, tcp_port, detached=True, settle_s=VIEWER_SETTLE_S)
     except OSError as exc:
         raise ParamError(
             f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
         ) from None
-    _wait_listening(child, tcp_port, "Rerun viewer", log_path, VIEWER_SETTLE_S)
     return url
 
 
@@ -241,10 +241,9 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
     """Start ``rerun --serve-web`` on 127.0.0.1 (ports checked free); returns (process, page URL, gRPC URL)."""
     cmd = ["--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
     try:
-        child, log_path = _start(cmd, "web-viewer", grpc_port, detached=False)
+        child = _start(cmd, grpc_port, detached=False)
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
-    _wait_listening(child, grpc_port, "Rerun web viewer", log_path)
     proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
