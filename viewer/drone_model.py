@@ -57,20 +57,16 @@ class Mesh(NamedTuple):
     triangles: np.ndarray  # (T, 3) uint32
 
 
-def _rot_z(angle_rad: float) -> np.ndarray:
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 #: a box's faces (-x, +x, -y, +y, -z, +z) by corner index 4*ix + 2*iy + iz, outward winding
 _BOX_QUADS = np.array([(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)])
 
 
-def _box_triangles(center, half, rot=None) -> np.ndarray:
-    """(12, 3, 3) triangles of a box, outward winding."""
-    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half
-    if rot is not None:
-        corners = corners @ rot.T
+def _box_triangles(center, half, angle_rad: float = 0.0) -> np.ndarray:
+    """(12, 3, 3) triangles of a box turned by ``angle_rad`` about z, outward winding."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    corners = (
+        np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    )
     corners = corners + np.asarray(center, dtype=float)
     return corners[np.stack([_BOX_QUADS[:, [0, 1, 2]], _BOX_QUADS[:, [0, 2, 3]]], axis=1).reshape(-1, 3)]
 
@@ -91,20 +87,13 @@ def _disc_triangles(center, radius, n=32, z_thickness=0.012) -> np.ndarray:
     return _pairs((c + top, p + top, q + top), (c - top, q - top, p - top))
 
 
-def _cone_triangles(base_center, tip, radius, n=20) -> np.ndarray:
-    """A cone from a circular base (in the plane normal to tip - base) to ``tip``, with its base cap."""
-    base_center = np.asarray(base_center, dtype=float)
-    tip = np.asarray(tip, dtype=float)
-    axis = tip - base_center
-    axis /= np.linalg.norm(axis)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
+def _nose_triangles(radius: float = 0.1, n: int = 20) -> np.ndarray:
+    """The nose cone along +y from the plate's front edge, with its base cap."""
+    base = np.array([0.0, BODY_HALF[1], 0.0])
     ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    p = base_center + radius * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    p = base + radius * np.stack([np.cos(ang), np.zeros(n), -np.sin(ang)], axis=1)
     q = np.roll(p, -1, axis=0)
-    return _pairs((p, q, tip), (base_center, q, p))
+    return _pairs((p, q, base + (0.0, NOSE_LENGTH, 0.0)), (base, q, p))
 
 
 def quadcopter_mesh() -> Mesh:
@@ -112,12 +101,11 @@ def quadcopter_mesh() -> Mesh:
     parts = [(_box_triangles((0, 0, 0), BODY_HALF), FRAME_COLOR)]
     for m in motor_positions():
         arm = (ARM_LENGTH / 2, ARM_HALF_WIDTH, ARM_HALF_HEIGHT)
-        parts.append((_box_triangles(m / 2, arm, _rot_z(np.arctan2(m[1], m[0]))), ARM_COLOR))
+        parts.append((_box_triangles(m / 2, arm, np.arctan2(m[1], m[0])), ARM_COLOR))
         parts.append((_box_triangles(m + (0, 0, 0.04), (MOTOR_RADIUS, MOTOR_RADIUS, 0.06)), MOTOR_COLOR))
         color = PROP_FRONT_COLOR if m[1] > 0 else PROP_REAR_COLOR
         parts.append((_disc_triangles(m + (0, 0, PROP_Z), PROP_RADIUS), color))
-    y0 = BODY_HALF[1]
-    parts.append((_cone_triangles((0, y0, 0), (0, y0 + NOSE_LENGTH, 0), 0.1), NOSE_COLOR))
+    parts.append((_nose_triangles(), NOSE_COLOR))
     tris = np.concatenate([t for t, _ in parts])
     colors = np.concatenate([np.tile(np.array(c, dtype=np.uint8), (len(t) * 3, 1)) for t, c in parts])
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])

@@ -159,14 +159,14 @@ class LiveLogger:
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf  # a replay: every row
-        self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
-        self._tabs = dict(ble=False, text=False)  # the tabs the blueprint sent last has
+        # the blueprint's arguments; ``ble`` and ``text``: the tabs the blueprint sent last has
+        self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True, ble=False, text=False)
         self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if ble:
             self._ble_layout()
         else:
-            bp.send_blueprint(rec, **self._tabs, **self._blueprint)
+            bp.send_blueprint(rec, **self._blueprint)
         drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
         self.frames = self.frames_missing = self._bin_count = self._records_queued = 0
@@ -187,13 +187,11 @@ class LiveLogger:
     def log_batch(self, batch: Any) -> None:
         """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
         q_wxyz, NaN where undefined). Non-finite values are gaps, never plotted."""
-        a = batch.attitude
-        n = len(a)
+        a, n = batch.attitude, len(batch.attitude)
         if n == 0:
             return
         self._binary_seen = self._binary_seen or bool(a.exact.any())
-        step = a.step
-        times = Times(a.t_fw_s, a.t_host_s, step)
+        step, times = a.step, Times(a.t_fw_s, a.t_host_s, a.step)
         bad = a.values_bad
         if bad.any() and not self._values_bad_noted:  # the first row of the session with bad values: one warning
             self._values_bad_noted = True
@@ -362,10 +360,10 @@ class LiveLogger:
 
     def _show(self, tab: str) -> bool:
         """Send the blueprint with ``tab`` (``ble``, ``text``) added the first time; whether it was sent."""
-        if self._tabs[tab]:
+        if self._blueprint[tab]:
             return False
-        self._tabs[tab] = True
-        bp.send_blueprint(self.rec, **self._tabs, **self._blueprint)
+        self._blueprint[tab] = True
+        bp.send_blueprint(self.rec, **self._blueprint)
         return True
 
     def _text_layout(self) -> None:

@@ -19,6 +19,8 @@ DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
 #: longest wait to reach the gRPC port of a ``--connect`` URL
 CONNECT_TIMEOUT_S = 3.0
+#: the ports of a served viewer: SinkOptions field -> what listens there
+_PORTS = {"web_port": "web viewer", "grpc_port": "gRPC"}
 
 
 @dataclass
@@ -78,7 +80,8 @@ def check_sinks(options: SinkOptions) -> None:
     """Check what can be checked before any work (the ``.rrd``'s folder, URL, ports, display); UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
-    for tcp_port, name in ((options.web_port, "web_port"), (options.grpc_port, "grpc_port")):
+    ports = {name: getattr(options, name) for name in _PORTS}
+    for name, tcp_port in ports.items():
         if not 1 <= int(tcp_port) <= 65535:
             raise ParamError(f"{{{name}}} must be a TCP port from 1 to 65535, got {tcp_port}", name)
     if options.serve:
@@ -86,14 +89,11 @@ def check_sinks(options: SinkOptions) -> None:
             raise ParamError(
                 f"{{web_port}} and {{grpc_port}} must differ, both are {options.web_port}", "web_port", "grpc_port"
             )
-        for tcp_port, name, what in (
-            (options.web_port, "web_port", "web viewer"),
-            (options.grpc_port, "grpc_port", "gRPC"),
-        ):
+        for name, tcp_port in ports.items():
             if not port_free(tcp_port):
                 raise ParamError(
-                    f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier {{serve}} still running?); "
-                    f"stop that program or pick another port with {{{name}}} N",
+                    f"port {tcp_port} for the {_PORTS[name]} is in use on 127.0.0.1 (an earlier {{serve}} still "
+                    f"running?); stop that program or pick another port with {{{name}}} N",
                     "serve",
                     name,
                 )
