@@ -64,10 +64,8 @@ _BOX_QUADS = np.array([(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (
 def _box_triangles(center, half, angle_rad: float = 0.0) -> np.ndarray:
     """(12, 3, 3) triangles of a box turned by ``angle_rad`` about z, outward winding."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)
-    corners = (
-        np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
-    )
-    corners = corners + np.asarray(center, dtype=float)
+    turn = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])  # row vectors turned about z
+    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half @ turn + np.asarray(center, dtype=float)
     return corners[np.stack([_BOX_QUADS[:, [0, 1, 2]], _BOX_QUADS[:, [0, 2, 3]]], axis=1).reshape(-1, 3)]
 
 

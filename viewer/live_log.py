@@ -161,7 +161,6 @@ class LiveLogger:
         self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf  # a replay: every row
         # the blueprint's arguments; ``ble`` and ``text``: the tabs the blueprint sent last has
         self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True, ble=False, text=False)
-        self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if ble:
             self._ble_layout()
@@ -246,8 +245,9 @@ class LiveLogger:
         self._link_from_frames(times, step)
         self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
-    def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
-        self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
+    def _queue_row(self, path: str, at: tuple[float, float], values) -> None:
+        """Queue ``values`` for ``path`` at ``at`` = (fw s, host s), e.g. an ``EventTime``."""
+        self._pending_rows.setdefault(path, []).append((*at, tuple(float(v) for v in values)))
 
     def flush_rows(self, *, records: bool = True) -> None:
         """Send the queued rows (and, with ``records``, the text records): one ``send_columns`` per entity."""
@@ -273,26 +273,26 @@ class LiveLogger:
             if h - self._bin_start >= 1.0:
                 fw = float(times.t_fw_s[i])
                 host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
-                self._queue_row(ent.LINK_RATE, fw, host_i, (self._bin_count / (h - self._bin_start),))
-                self._queue_row(ent.LINK_MISSING, fw, host_i, (float(self.frames_missing),))
+                self._queue_row(ent.LINK_RATE, (fw, host_i), (self._bin_count / (h - self._bin_start),))
+                self._queue_row(ent.LINK_MISSING, (fw, host_i), (float(self.frames_missing),))
                 self._bin_start, self._bin_count = h, 0
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
         """A status frame at ``at`` (the time of the attitude frame before it): AHRS cycles (min/mean/max), TX drops
         and queue peak, queued for the next batch."""
-        fw, host = at.t_fw_s, at.t_host_s
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
-            self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
-        self._queue_row(ent.LINK_TX_DROPPED, fw, host, (float(frame.tx_dropped),))
-        self._queue_row(ent.LINK_QUEUE, fw, host, (float(getattr(frame, "queue_peak", 0)),))
+            self._queue_row(ent.LINK_CYCLES, at, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
+        self._queue_row(ent.LINK_TX_DROPPED, at, (float(frame.tx_dropped),))
+        self._queue_row(ent.LINK_QUEUE, at, (float(getattr(frame, "queue_peak", 0)),))
 
     def log_text(self, frame: Any, at: Any) -> None:
         """A firmware text line (TextFrame or str) at ``at``."""
         self.log_event(frame if isinstance(frame, str) else frame.text, at, path=ent.LOG_FIRMWARE)
 
-    def _log_at(self, path: str, archetype: Any, fw: float, host: float) -> None:
-        """Log ``archetype`` at ``path`` on the firmware and host timelines (each only when finite)."""
+    def _log_at(self, path: str, archetype: Any, at: tuple[float, float]) -> None:
+        """Log ``archetype`` at ``path`` at ``at`` = (fw s, host s), on each timeline only when finite."""
+        fw, host = at
         self.rec.reset_time()
         for timeline, t in ((ent.TIMELINE_FW, fw), (ent.TIMELINE_HOST, host)):
             if math.isfinite(t):
@@ -322,36 +322,34 @@ class LiveLogger:
         motors' arrows at most every 0.1 s."""
         if self._last_times is None:
             return
-        fw, host = at.t_fw_s, at.t_host_s
         rc = np.degrees(np.asarray(frame.euler_rc_rad, dtype=np.float64))
         for path, v in zip(ent.FC_TARGETS, rc):
-            self._queue_row(path, fw, host, (v,))
+            self._queue_row(path, at, (v,))
         for path, v in zip(ent.FC_OUTER, frame.outer_s1):
-            self._queue_row(f"{path}/s1", fw, host, (v,))
-        self._queue_row(ent.FC_INNER, fw, host, frame.inner_s2)
-        self._queue_row(ent.FC_MOTORS, fw, host, frame.motor_pwm)
-        self._queue_row(ent.FC_STICKS, fw, host, frame.rc)
-        self._queue_row(ent.FC_VBAT, fw, host, (frame.vbat_v,))
-        if abs(fw - self._last_motors_fw) >= 0.1:
-            self._last_motors_fw = fw
-            if not self._motors_shown:  # the arrows' fixed parts with their first vectors
-                self._motors_shown = True
+            self._queue_row(f"{path}/s1", at, (v,))
+        self._queue_row(ent.FC_INNER, at, frame.inner_s2)
+        self._queue_row(ent.FC_MOTORS, at, frame.motor_pwm)
+        self._queue_row(ent.FC_STICKS, at, frame.rc)
+        self._queue_row(ent.FC_VBAT, at, (frame.vbat_v,))
+        if abs(at.t_fw_s - self._last_motors_fw) >= 0.1:
+            if self._last_motors_fw == -math.inf:  # the arrows' fixed parts with their first vectors
                 flight_log.log_motors_static(self.rec)
+            self._last_motors_fw = at.t_fw_s
             for k, v in enumerate(frame.motor_pwm):
                 frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
-                self._log_at(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]), fw, host)
+                self._log_at(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]), at)
 
     def log_environment(self, frame: Any, at: Any) -> None:
         """A BLE environment frame (``BleEnvFrame``) at its tick: pressure, battery, temperature, RSSI (queued)."""
         self._ble_layout()
         values = (frame.pressure_hpa, frame.battery_pct, frame.temperature_c, frame.rssi_dbm)
         for path, v in zip(ent.BLE_ENVIRONMENT, values):
-            self._queue_row(path, at.t_fw_s, at.t_host_s, (v,))
+            self._queue_row(path, at, (v,))
 
     def log_arming(self, frame: Any, at: Any) -> None:
         """A BLE arming frame (``BleArmingFrame``) at its tick (queued)."""
         self._ble_layout()
-        self._queue_row(ent.BLE_ARMED, at.t_fw_s, at.t_host_s, (float(frame.armed),))
+        self._queue_row(ent.BLE_ARMED, at, (float(frame.armed),))
 
     def log_note(self, text: str, at: Any) -> None:
         """What the link's rows are (a BLE stream's note), shown beside its values."""
@@ -385,15 +383,14 @@ class LiveLogger:
     def log_event(self, text: str, at: Any, level: str = "INFO", path: str = ent.LOG_COMMANDS) -> None:
         """A command sent to the drone, its acknowledgement or the settings it announced (``log/commands``)."""
         host = math.nan if at is None else at.t_host_s
-        self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
+        self._log_at(path, rr.TextLog(text, level=level), (at.t_fw_s if math.isfinite(host) else math.nan, host))
 
     def log_link(self, stats: Any, t_unix_s: float) -> None:
         """Decoder CRC failures (cumulative) at the latest row's times, at most every LINK_INTERVAL_S (host s)."""
         if t_unix_s - self._last_link_s < LINK_INTERVAL_S or self._last_times is None:
             return
         self._last_link_s = t_unix_s
-        fw, host = self._last_times
-        self._queue_row(ent.LINK_CRC, fw, host, (float(getattr(stats, "crc_failures", 0)),))
+        self._queue_row(ent.LINK_CRC, self._last_times, (float(getattr(stats, "crc_failures", 0)),))
 
     def close(self) -> None:
         self.flush_rows()
