@@ -44,7 +44,7 @@ def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
 def axis_limit(max_abs: float) -> float | None:
     """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks (1, 2 or 5 × 10^k: Rerun labels
     only powers of ten), with room for the legend; None for no finite data."""
-    if not (max_abs == max_abs and 0 < max_abs < float("inf")):
+    if not 0 < max_abs < math.inf:
         return None
     need = 1.6 * max_abs
     k = math.floor(math.log10(need))
@@ -117,8 +117,7 @@ def link_view(plot: Callable, yr: Mapping[str, tuple[float, float]], ble: bool, 
 
 
 def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
-    """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
-    the ``absent`` plots are left out, and rows left empty."""
+    """The plots on the right, but ``absent`` ones; the replica only in the difference plot (it hides the firmware)."""
     diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
     titles = {
         ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",

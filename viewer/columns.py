@@ -3,9 +3,8 @@ non-finite row is never sent as a value; a ``Clear`` where each bad run starts m
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import rerun as rr
@@ -36,7 +35,7 @@ class Times:
     def take(self, idx: np.ndarray) -> "Times":
         """The rows ``idx`` (integer indices or a boolean mask)."""
         host, step = (None if a is None else a[idx] for a in (self.t_host_s, self.step))
-        return dataclasses.replace(self, t_fw_s=self.t_fw_s[idx], t_host_s=host, step=step)
+        return replace(self, t_fw_s=self.t_fw_s[idx], t_host_s=host, step=step)
 
     def host_complete(self) -> bool:
         return self.t_host_s is not None and bool(np.isfinite(self.t_host_s).all())
@@ -63,8 +62,7 @@ def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, ro
     if rows is None and (times.t_host_s is None or times.host_complete()):
         rec.send_columns(path, indexes=times.indexes, columns=make_columns(None))
         return len(idx)
-    sub = times.take(idx)
-    has = np.ones(len(idx), bool) if sub.t_host_s is None else np.isfinite(sub.t_host_s)
+    has = np.ones(len(idx), bool) if times.t_host_s is None else np.isfinite(times.t_host_s[idx])
     for part in (idx[has], idx[~has]):
         if len(part):  # host times all finite, or all NaN (then dropped by Times)
             rec.send_columns(path, indexes=times.take(part).indexes, columns=make_columns(part))
@@ -140,8 +138,7 @@ def unit_xyzw(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def send_transforms(
     rec: rr.RecordingStream, path: str, times: Times, q_wxyz: np.ndarray, valid: np.ndarray | None = None
 ) -> int:
-    """Log the attitude ``q_wxyz`` as a Transform3D on ``path``; rows with no quaternion (or ``valid`` False) are
-    skipped: the drone keeps its last known attitude."""
+    """Log ``q_wxyz`` as Transform3D rows on ``path``; a row without a quaternion or ``valid`` keeps the last one."""
     xyzw, good = unit_xyzw(q_wxyz)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)

@@ -4,6 +4,7 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 from __future__ import annotations
 
 import contextlib
+import functools
 from pathlib import Path
 
 from steval_link.link.ble_payloads import ble_items, layout_named
@@ -22,18 +23,16 @@ class ViewerLogger:
         #: whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)
         self.has_viewer = self.session.viewer_url is not None
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
-        self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
-        file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
-        self.file = None
-        if file_rec is not None:
-            self.file = live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
+        logger = functools.partial(live_log.LiveLogger, estimator_names=options.estimators, ble=ble)
+        self.logger = logger(self.session.rec)
+        # a viewer and an .rrd: the file's own stream and logger
+        self.file = None if self.session.file_rec is None else logger(self.session.file_rec)
 
     @property
     def output_failure(self) -> str | None:
         """Why the ``.rrd`` stopped being written, one sentence (the session says it: closing does not raise it)."""
         failure = self.session.rrd_failure
-        if failure is not None:
-            self.session.rrd_failure_said = True
+        self.session.rrd_failure_said |= failure is not None
         return failure
 
     def __getattr__(self, name: str):

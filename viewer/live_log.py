@@ -41,8 +41,7 @@ def _field(pa, cache: dict, name: str, typ, **meta: str):
 
 
 class RowBatch:
-    """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
-    a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
+    """Many entities' columns for N rows in one record batch; a non-finite value is a null, a ``Clear`` a gap."""
 
     def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict) -> None:
         import pyarrow as pa
@@ -167,7 +166,7 @@ class LiveLogger:
         else:
             bp.send_blueprint(rec, **self._blueprint)
         drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
-        flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
+        flight_log.log_flight_static(rec)  # the motor arrows with the first flight-control frame
         self.frames = self.frames_missing = self._bin_count = self._records_queued = 0
         # fw s of the last motor-arrow and 3D updates, host s of the last link row and text-record send
         self._last_motors_fw = self._last_3d_s = self._last_link_s = self._records_sent_s = -math.inf
@@ -178,14 +177,12 @@ class LiveLogger:
         self._arrow_cache: dict = {}  # RowBatch.cache
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
-        #: rows waiting (see the module docstring), [(fw s, host s, values)]: link/status rows by path, text records
-        #: by record shape (its names)
+        #: rows waiting, [(fw s, host s, values)]: link/status rows by path, text records by shape (their names)
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
 
     def log_batch(self, batch: Any) -> None:
-        """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
-        q_wxyz, NaN where undefined). Non-finite values are gaps, never plotted."""
+        """N attitude rows that arrived together (``LiveRows``: ``attitude``; ``estimates``, name -> (N, 4) q_wxyz)."""
         a, n = batch.attitude, len(batch.attitude)
         if n == 0:
             return
@@ -279,8 +276,7 @@ class LiveLogger:
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
-        """A status frame at ``at`` (the time of the attitude frame before it): AHRS cycles (min/mean/max), TX drops
-        and queue peak, queued for the next batch."""
+        """A status frame: AHRS cycles (min/mean/max), TX drops and queue peak, queued for the next batch."""
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
             self._queue_row(ent.LINK_CYCLES, at, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
         self._queue_row(ent.LINK_TX_DROPPED, at, (float(frame.tx_dropped),))
@@ -301,8 +297,7 @@ class LiveLogger:
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry: a row of its shape's entity under ``text/`` at the host time (firmware time:
-        the latest row's, else the host time), sent in blocks."""
+        """A record of text telemetry: a row of its shape's entity under ``text/`` at host time, sent in blocks."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
@@ -318,8 +313,7 @@ class LiveLogger:
             self.flush_rows()
 
     def log_flight(self, frame: Any, at: Any) -> None:
-        """A flight-control frame at ``at`` (queued like the status rows; none before the first attitude row); the
-        motors' arrows at most every 0.1 s."""
+        """A flight-control frame, queued (none before the first attitude row); the motors' arrows every 0.1 s."""
         if self._last_times is None:
             return
         rc = np.degrees(np.asarray(frame.euler_rc_rad, dtype=np.float64))

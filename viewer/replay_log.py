@@ -75,8 +75,7 @@ def firmware_series(att: Any) -> list[tuple[str, np.ndarray]]:
 
 
 def display_quaternions(att: Any) -> np.ndarray:
-    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz. Rows flagged
-    ``values_bad`` are NaN: the drone stays at its last finite attitude."""
+    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz; NaN where values_bad."""
     q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
     thx, thy = np.asarray(att.thx_rad, dtype=np.float64), np.asarray(att.thy_rad, dtype=np.float64)
     rows = ~np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
@@ -106,8 +105,7 @@ class _Replay:
         self.summary.samples[path] = send_scalars(self.rec, path, times or self.times, values, valid)
 
     def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
-        """Text entries at host times ``t_host`` (s), their firmware time interpolated from the attitude rows'; an
-        entry without a time is logged without a timeline."""
+        """Text entries at host times ``t_host`` (s), firmware time interpolated; one without a time has no timeline."""
         timed = np.isfinite(t_host) & (self.times.t_host_s is not None)
         idx = np.flatnonzero(timed)
         if idx.size:
@@ -182,8 +180,7 @@ class _Replay:
             self.texts_at(ent.LOG_FIRMWARE, t_host, [str(s) for _, s in text], ["INFO"] * len(text))
         series = getattr(tel, "text_series", None)
         if series is not None and len(series):
-            # an entity per record shape under ``text/``, a named line per series, at each record's time (``t_s``:
-            # a timestamp column, the host's times, ST's line rate or the record index) and host time
+            # an entity per record shape under ``text/``, a named line per series, at each record's t_s and host time
             times = Times(series.t_s, series.t_host_s)
             for k, names in enumerate(series.shapes):
                 rows = np.flatnonzero(series.shape == k)
@@ -263,6 +260,7 @@ def log_replay(
     drone_model.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
         flight_log.log_flight_static(rec)
+        flight_log.log_motors_static(rec)
 
     summary = ReplaySummary(sources=names)
     log = _Replay(rec, Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
@@ -280,7 +278,7 @@ def log_replay(
     log.text(tel)
     log.values_bad(tel)
     if has_fc:
-        flight_log.log_flight_control(rec, tel, summary)
+        summary.samples[ent.FC_MOTORS] = flight_log.log_flight_control(rec, tel)
     return summary
 
 

@@ -45,11 +45,10 @@ def log_simulation(res: Any, path: str | Path) -> ReplaySummary:
         rec = session.rec
         tel = simulation_telemetry(res)
         summary = log_replay(rec, tel, {}, None, link=False)
-        label = f"simulated {res.estimator}"
         fw = ent.SOURCE_FIRMWARE
         paths = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
         for path, angle in zip(paths, ("thx pitch", "thy roll", "thz yaw")):
-            series_style(rec, path, f"{angle} ({label})", ent.source_color(fw), 2.5)
+            series_style(rec, path, f"{angle} (simulated {res.estimator})", ent.source_color(fw), 2.5)
         noise = ""
         if getattr(res, "gyro_noise_mdps", 0) or getattr(res, "acc_noise_mg", 0):
             noise = f", noise gyro {res.gyro_noise_mdps:g} mdps / acc {res.acc_noise_mg:g} mg (seed {res.seed})"

@@ -97,19 +97,9 @@ class ViewerSession:
         if error is not None:
             raise error
 
-    def wait_for_viewer(self) -> None:
-        """With ``--serve``: keep the web viewer up until Ctrl-C or until it exits."""
-        if not self.children:
-            return
-        print("steval: serving until Ctrl-C", file=sys.stderr)
-        with contextlib.suppress(KeyboardInterrupt):
-            while all(c.poll() is None for c in self.children):
-                time.sleep(0.2)
-
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
-    """``rec.flush`` waited for in short slices (Ctrl-C gets through at once); UserError when a viewer cannot be
-    reached or does not keep up within ``timeout_s``."""
+    """``rec.flush`` in short slices (Ctrl-C gets through); UserError when a viewer is gone or not done in time."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
@@ -163,10 +153,9 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
 
 
 def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 0.0) -> subprocess.Popen:
-    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives this program; else the web viewer;
-    OSError when it cannot start) and wait
+    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives us; else the web viewer) and wait
     until it listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot open its window
-    dies right after it binds); ParamError with its last words otherwise."""
+    dies right after it binds). OSError when it cannot start; ParamError with its last words when it fails."""
     what = "viewer" if detached else "web viewer"
     log_path = Path(tempfile.gettempdir()) / f"steval-{what.replace(' ', '-')}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
@@ -220,8 +209,7 @@ def _last_line(log_path: Path) -> str:
 
 
 def spawn_desktop_viewer(tcp_port: int) -> str:
-    """Start the desktop viewer on 127.0.0.1:``tcp_port`` (or reuse one that listens there); returns its gRPC URL.
-    Detached: it stays open after we exit."""
+    """Start the desktop viewer (detached) on 127.0.0.1:``tcp_port``, or reuse one listening there; its gRPC URL."""
     url = f"rerun+http://127.0.0.1:{tcp_port}/proxy"
     if not port_free(tcp_port):
         note = f"sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)"
@@ -259,8 +247,7 @@ def open_session(
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options``; UserError when one cannot be opened. ``split_file``: with
     a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same recording.
-    ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`.
-    """
+    ``atomic_rrd``: the ``.rrd`` is ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`."""
     if not options.any():
         raise ParamError(
             "no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL",
@@ -336,7 +323,11 @@ def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.Recor
     try:
         result = log(session.rec)
         session.flush()
-        session.wait_for_viewer()  # with --serve only (the web viewer is a child)
+        if session.children:  # --serve: the web viewer stays up until Ctrl-C or until it exits
+            print("steval: serving until Ctrl-C", file=sys.stderr)
+            with contextlib.suppress(KeyboardInterrupt):
+                while all(c.poll() is None for c in session.children):
+                    time.sleep(0.2)
     except UserError:  # a viewer went away: the .rrd is still complete
         with contextlib.suppress(UserError):
             session.close()
