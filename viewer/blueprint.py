@@ -65,9 +65,8 @@ def make_blueprint(
     text: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint. ``live``: the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
-    ``ghost_sources``: the sources with a ghost drone (one shown, by ``entities.GHOST_PREFERENCE``).
-    ``gyro_max_dps``: the gyro plot's symmetric range. ``y_ranges``: fixed y ranges by plot entity. ``absent``:
-    plots left out. ``text``: the text telemetry tab in front."""
+    ``ghost_sources``: those with a ghost drone (one shown, by ``GHOST_PREFERENCE``). ``gyro_max_dps``: the gyro
+    plot's ± range. ``y_ranges``: by plot entity. ``absent``: plots left out. ``text``: the text tab in front."""
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)

@@ -1,8 +1,6 @@
 """The 3D scene of every recording: axes, the quadcopter (solid: firmware attitude; wireframe ghosts: host
-estimates) and the series styles.
-
-Body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ centre to motor (the model is scaled
-so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone."""
+estimates) and the series styles. Body frame: x right, y forward (nose), z up; 1 unit ≈ centre to motor. X
+configuration: arms at ±45° from the nose, front propellers red, a red nose cone."""
 
 from __future__ import annotations
 
@@ -138,9 +136,8 @@ def log_mesh(rec, path: str, m: Mesh) -> None:
 
 
 AXIS_LENGTH = 1.6
-#: The world axes' names sit just beyond their arrow tips, clear of the rotors (Rerun labels an arrow's middle).
+#: The axes' names: beyond the arrow tips (Rerun labels an arrow's middle), x and y lifted above the front rotors.
 AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
-#: ... and the horizontal axes' names a little above the ground plane (above the front rotors from the default eye).
 AXIS_LABEL_LIFT = 0.3
 
 
@@ -163,10 +160,9 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     rec.log(ent.ACC_GRAVITY, gravity, static=True)
 
     for source in [ent.SOURCE_FIRMWARE, *sources]:
-        color = ent.source_color(source)
         width = 2.5 if source == ent.SOURCE_FIRMWARE else 1.5
-        series_style(rec, ent.pitch_path(source), ent.source_label(source), color, width)
-        series_style(rec, ent.roll_path(source), ent.source_label(source), color, width)
+        for path in (ent.pitch_path(source), ent.roll_path(source)):
+            series_style(rec, path, ent.source_label(source), ent.source_color(source), width)
     series_style(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
     if with_replica:
         series_style(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
@@ -180,10 +176,6 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     series_style(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
     series_style(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
     series_style(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
-    series_style(
-        rec,
-        ent.LINK_CYCLES,
-        ["cycles min", "cycles mean", "cycles max"],
-        [(44, 160, 44), (127, 127, 127), (214, 39, 40)],
-        visible=[False, True, True],  # the plot's title names max and mean; min can be shown in the blueprint panel
-    )
+    # the plot's title names max and mean; min can be shown in the blueprint panel
+    colors = [(44, 160, 44), (127, 127, 127), (214, 39, 40)]
+    series_style(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], colors, visible=[False, True, True])

@@ -59,8 +59,7 @@ REPLAY_BATCH = 4096
 
 
 def recording_sink(options, estimators: list[str], src, *, layout: str = "stock", progress=None) -> int:
-    """``steval replay`` of a BLE capture ``src`` in Rerun: its notifications through the one pipeline into the one
-    logger (every row's attitude); returns the rows logged."""
+    """``steval replay`` of a BLE capture ``src`` in Rerun, through the one pipeline and logger; the rows logged."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
     items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])

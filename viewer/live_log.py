@@ -1,13 +1,10 @@
-"""Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
-
-Attitude rows go out before ``log_batch`` returns, in one Arrow record batch for every entity (:class:`RowBatch`,
-one ``send_record_batch`` call; Rerun splits it into one chunk per entity). Status and link rows are queued for the
-next batch, text records every :data:`RECORDS_INTERVAL_S`: an ``.rrd`` sink keeps some memory per chunk.
+"""Low-latency logging of a live session: the attitude rows of each batch of frames go out before ``log_batch``
+returns, in one Arrow record batch for every entity (:class:`RowBatch`). Status and link rows wait for the next
+batch, text records :data:`RECORDS_INTERVAL_S` (an ``.rrd`` sink keeps some memory per chunk).
 
 Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
-batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
-column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
-back, so a change of that format fails the tests, not the users."""
+batch costs about half as much (``benchmarks/bench_live_latency.py``). The price: Rerun's column metadata keys tie
+this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity back."""
 
 from __future__ import annotations
 

@@ -292,8 +292,7 @@ def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, fl
         out[path] = bp.legend_room(np.concatenate(vals), share=share, bottom=False)
     acc = np.asarray(att.acc_mg, np.float64)
     out[ent.PLOT_ACC] = bp.legend_room(acc, share=bp.LEGEND_SHARE["sensors"], bottom=True)
-    step = np.asarray(att.step, dtype=np.int64)
-    lost = [float(np.clip(np.diff(step) - 1, 0, None).sum()) if len(step) > 1 else 0.0]
+    lost = [float(np.clip(np.diff(np.asarray(att.step, dtype=np.int64)) - 1, 0, None).sum())]
     lost.append(float(getattr(getattr(tel, "stats", None), "crc_failures", 0) or 0))
     st = getattr(tel, "status", None)
     if st is not None and len(getattr(st, "t_fw_s", ())):

@@ -33,8 +33,7 @@ def flight_path(i: int, leaf: str) -> str:
 
 
 def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
-    """Pitch of every flight overlaid (with their accel-only tilt), roll the same, the differences from the first
-    flight, one 3D view per flight, and the notes."""
+    """Pitch and roll of every flight overlaid (with accel-only tilt), differences from the first, 3D views, notes."""
     n = len(labels)
 
     def series(name: str, leaves: list[str]) -> rrb.TimeSeriesView:

@@ -28,7 +28,6 @@ def simulation_telemetry(res: Any) -> SimpleNamespace:
     att = SimpleNamespace(
         step=step,
         t_fw_s=(step + 1) * float(res.dt_s),
-        t_host_s=np.full(len(step), np.nan),
         acc_mg=np.asarray(res.acc_mg),
         gyro_mdps=np.asarray(res.gyro_mdps),
         thr=np.asarray(res.thr),

@@ -1,6 +1,5 @@
 """The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
-import (the ``.rrd``'s folder, the ``--connect`` URL, free ports, a display), so the CLI can check its options
-before any work and before Rerun is loaded."""
+import (the ``.rrd``'s folder, URL, ports, display): the CLI checks its options before any work."""
 
 from __future__ import annotations
 
@@ -147,8 +146,7 @@ def parse_grpc_url(url: str) -> tuple[str, int]:
 
 
 def port_free(tcp_port: int) -> bool:
-    """Whether nothing listens on 127.0.0.1:``tcp_port`` (a server could bind it; connections of an earlier run still
-    in TIME_WAIT do not count, as servers bind with SO_REUSEADDR)."""
+    """Whether nothing listens on 127.0.0.1:``tcp_port`` (TIME_WAIT connections do not count: servers reuse them)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         if sys.platform != "win32":  # on Windows SO_REUSEADDR would let us bind over a live listener
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

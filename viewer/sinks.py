@@ -33,7 +33,6 @@ VIEWER_SETTLE_S = 1.0
 FLUSH_TIMEOUT_S = 120.0
 #: a flush is waited for in slices this long (Ctrl-C is handled between two)
 FLUSH_SLICE_S = 0.25
-#: suffix of an ``.rrd`` being written by a session opened with ``atomic_rrd=True``
 PARTIAL_SUFFIX = ".partial"
 
 

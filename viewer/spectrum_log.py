@@ -1,6 +1,5 @@
 """``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
-``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
-``viewer/README.md``."""
+``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist; listed in ``viewer/README.md``), their blueprint."""
 
 from __future__ import annotations
 
@@ -62,9 +61,8 @@ def _heat(origin: str, name: str) -> rrb.TensorView:
 
 
 def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
-    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), the spectrograms, frequency vs
-    throttle; the notes on the right. ``nyquist_hz``: the top of the frequency axes, named in the bar charts' titles
-    (Rerun labels few ticks)."""
+    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), spectrograms, frequency vs throttle;
+    the notes on the right. ``nyquist_hz``: named in the bar charts' titles (Rerun labels few ticks)."""
     span = f"0–{nyquist_hz:.2f} Hz →"
     cursor = rrb.Vertical(
         _grid("window", _bars, f"at the cursor, {span}"),
