@@ -128,7 +128,6 @@ def quadcopter_wireframe() -> list[np.ndarray]:
 
 
 def log_mesh(rec, path: str, m: Mesh) -> None:
-    """Log the solid quadcopter mesh ``m`` as static data on ``path``."""
     mesh3d = rr.Mesh3D(
         vertex_positions=m.positions, vertex_normals=m.normals, vertex_colors=m.colors, triangle_indices=m.triangles
     )

@@ -265,10 +265,9 @@ class LiveLogger:
             if self._bin_start is None:
                 self._bin_start = h
             if h - self._bin_start >= 1.0:
-                fw = float(times.t_fw_s[i])
-                host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
-                self._queue_row(ent.LINK_RATE, (fw, host_i), (self._bin_count / (h - self._bin_start),))
-                self._queue_row(ent.LINK_MISSING, (fw, host_i), (float(self.frames_missing),))
+                at = (float(times.t_fw_s[i]), float(times.t_host_s[i]) if times.t_host_s is not None else math.nan)
+                self._queue_row(ent.LINK_RATE, at, (self._bin_count / (h - self._bin_start),))
+                self._queue_row(ent.LINK_MISSING, at, (float(self.frames_missing),))
                 self._bin_start, self._bin_count = h, 0
             self._bin_count += 1
 

@@ -155,8 +155,8 @@ def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 
     """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives us; else the web viewer) and wait
     until it listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot open its window
     dies right after it binds). OSError when it cannot start; ParamError with its last words when it fails."""
-    what = "viewer" if detached else "web viewer"
-    log_path = Path(tempfile.gettempdir()) / f"steval-{what.replace(' ', '-')}-{tcp_port}.log"
+    what = "Rerun viewer" if detached else "Rerun web viewer"
+    log_path = Path(tempfile.gettempdir()) / f"steval-{'viewer' if detached else 'web-viewer'}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
         env.pop("RUST_LOG", None)
@@ -173,27 +173,23 @@ def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 
     deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
     while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
-            raise ParamError(
-                f"the Rerun {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd"
-            )
+            raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
         if time.monotonic() >= deadline:
             stop_child(child)
             raise ParamError(
-                f"the Rerun {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use "
-                "{rrd} FILE instead",
+                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
+                "FILE instead",
                 "rrd",
             )
         time.sleep(0.05)
-    settled = time.monotonic() + settle_s
-    while time.monotonic() < settled:
-        if child.poll() is not None:
-            raise ParamError(
-                f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
-                "rrd",
-                "serve",
-            )
-        time.sleep(0.05)
+    time.sleep(settle_s)
+    if settle_s and child.poll() is not None:
+        raise ParamError(
+            f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
+            f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
+            "rrd",
+            "serve",
+        )
     return child
 
 

@@ -124,9 +124,7 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
     text = "\n".join(f"- {line}" if i else f"**{line}**" for i, line in enumerate(notes))
     edges = sp.thr_edges
-    bins = ", ".join(
-        f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})" for b in np.flatnonzero(sp.thr_windows)
-    )
+    bins = ", ".join(f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})" for b in occupied)
     text += (
         f"\n\nBar charts: frequency 0 … {sp.nyquist_hz:.2f} Hz (the AHRS Nyquist) along x, PSD in dB. Heat maps: "
         f"frequency up (bin {sp.resolution_hz:.2f} Hz), windows of {sp.nperseg} rows or throttle bins to the "
