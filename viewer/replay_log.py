@@ -18,18 +18,9 @@ from steval_link.estimators.firmware_replay import replay_variants
 from steval_link.link.commands import command_log
 from steval_link.quat import quaternion_from_euler
 from steval_viewer import blueprint as bp
+from steval_viewer import columns as col
 from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
-from steval_viewer.columns import (
-    Times,
-    log_text_style,
-    send_arrows,
-    send_records,
-    send_scalars,
-    send_texts,
-    send_transforms,
-    text_path,
-)
 from steval_viewer.sinks import log_whole
 
 #: ``progress(fraction done 0..1, stage)``, e.g. ``steval_link.cli.progress``; None: no reports
@@ -87,22 +78,22 @@ def display_quaternions(att: Any) -> np.ndarray:
     return q
 
 
-def send_values_bad_note(rec: rr.RecordingStream, at: Times, sentence: str, last_good_step: int | None) -> None:
+def send_values_bad_note(rec: rr.RecordingStream, at: col.Times, sentence: str, last_good_step: int | None) -> None:
     """The warning at the first row with bad values ``at``: ``sentence`` and where the 3D drone stays."""
     where = "without an attitude (no finite one before)"
     if last_good_step is not None:
         where = f"at its last finite attitude (step {last_good_step})"
-    send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
+    col.send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
 
 
 class _Replay:
     """One replay being logged: its recording, the attitude rows' times and the samples sent per entity path."""
 
-    def __init__(self, rec: rr.RecordingStream, times: Times, summary: ReplaySummary) -> None:
+    def __init__(self, rec: rr.RecordingStream, times: col.Times, summary: ReplaySummary) -> None:
         self.rec, self.times, self.summary = rec, times, summary
 
-    def scalars(self, path: str, values: np.ndarray, valid: np.ndarray | None = None, times: Times | None = None):
-        self.summary.samples[path] = send_scalars(self.rec, path, times or self.times, values, valid)
+    def scalars(self, path: str, values: np.ndarray, valid: np.ndarray | None = None, times: col.Times | None = None):
+        self.summary.samples[path] = col.send_scalars(self.rec, path, times or self.times, values, valid)
 
     def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
         """Text entries at host times ``t_host`` (s), firmware time interpolated; one without a time has no timeline."""
@@ -110,8 +101,8 @@ class _Replay:
         idx = np.flatnonzero(timed)
         if idx.size:
             pairs = np.isfinite(self.times.t_host_s)
-            t_fw = np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs])
-            send_texts(self.rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
+            at = col.Times(np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs]), t_host[idx])
+            col.send_texts(self.rec, path, at, [texts[i] for i in idx], [levels[i] for i in idx])
         for i in np.flatnonzero(~timed):
             self.rec.log(path, rr.TextLog(texts[i], level=levels[i]))
         self.summary.samples[path] = len(texts)
@@ -120,10 +111,10 @@ class _Replay:
         """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
         samples = self.summary.samples
         q = display_quaternions(att)
-        samples[ent.DRONE_FIRMWARE] = send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
+        samples[ent.DRONE_FIRMWARE] = col.send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
         with np.errstate(invalid="ignore"):  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
             gravity = -np.asarray(att.acc_mg, dtype=np.float64) / 1000.0
-        samples[ent.ACC_GRAVITY] = send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
+        samples[ent.ACC_GRAVITY] = col.send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
         for path, values in firmware_series(att):
             self.scalars(path, values)
 
@@ -132,7 +123,7 @@ class _Replay:
         valid = estimate_mask(est, len(self.times))
         if ghost:
             path = ent.estimate_path(source)
-            self.summary.samples[path] = send_transforms(self.rec, path, self.times, est.q_wxyz, valid)
+            self.summary.samples[path] = col.send_transforms(self.rec, path, self.times, est.q_wxyz, valid)
         self.scalars(ent.pitch_path(source), _deg(est.thx_rad), valid)
         self.scalars(ent.roll_path(source), _deg(est.thy_rad), valid)
 
@@ -166,7 +157,7 @@ class _Replay:
                 self.scalars(ent.LINK_CRC, np.array([float(crc)]), times=times.take(np.array([n - 1])))
         st = getattr(tel, "status", None)
         if st is not None and len(getattr(st, "t_fw_s", ())):
-            stimes = Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
+            stimes = col.Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
             cyc = np.stack([st.cyc_min, st.cyc_mean, st.cyc_max], axis=1).astype(np.float64)
             self.scalars(ent.LINK_CYCLES, cyc, np.asarray(st.cyc_n) > 0, stimes)  # no steps covered: no figures
             self.scalars(ent.LINK_TX_DROPPED, np.asarray(st.tx_dropped, dtype=np.float64), times=stimes)
@@ -181,13 +172,13 @@ class _Replay:
         series = getattr(tel, "text_series", None)
         if series is not None and len(series):
             # an entity per record shape under ``text/``, a named line per series, at each record's t_s and host time
-            times = Times(series.t_s, series.t_host_s)
+            times = col.Times(series.t_s, series.t_host_s)
             for k, names in enumerate(series.shapes):
                 rows = np.flatnonzero(series.shape == k)
                 cols = [series.names.index(name) for name in names]
-                log_text_style(self.rec, names, [series.units[c] for c in cols])
-                send_records(self.rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
-                self.summary.samples[text_path(names)] = len(rows)
+                col.log_text_style(self.rec, names, [series.units[c] for c in cols])
+                col.send_records(self.rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
+                self.summary.samples[col.text_path(names)] = len(rows)
         # one entry per command at the time it was sent; a refusal or a missing ack as a warning
         entries = command_log(getattr(tel, "commands", ()), getattr(tel, "acks", ()))
         if entries:
@@ -263,7 +254,7 @@ def log_replay(
         flight_log.log_motors_static(rec)
 
     summary = ReplaySummary(sources=names)
-    log = _Replay(rec, Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
+    log = _Replay(rec, col.Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
     report = _part(progress)
     report(0.0, "logging the firmware's series")
     log.firmware(att)

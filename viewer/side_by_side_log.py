@@ -68,18 +68,13 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         c = COLOURS[i % len(COLOURS)]
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
         grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
+        gyro_names = [f"{f.label}: gyro {a}" for a in "xyz"]
         leaves = {
             "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, f.t_s, np.degrees(f.thx_rad)),
             "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, f.t_s, np.degrees(f.thy_rad)),
             "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, f.t_s, np.degrees(f.accel_thx_rad)),
             "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, f.t_s, np.degrees(f.accel_thy_rad)),
-            "gyro_dps": (
-                [f"{f.label}: gyro {a}" for a in "xyz"],
-                [c, light, _ACCEL_GREY],
-                1.0,
-                f.t_s,
-                np.asarray(f.gyro_mdps, np.float64) / 1000.0,
-            ),
+            "gyro_dps": (gyro_names, [c, light, _ACCEL_GREY], 1.0, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0),
         }
         if i:
             t, dx, dy = difference_series(ref, f)
