@@ -122,21 +122,14 @@ def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, a
         ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",
         ent.PLOT_ROLL: "thy roll, about y (deg, right side down +)",
     }
-    rows = (
-        [
-            plot(path, title, ["$origin/**", f"- {path}/{ent.SOURCE_REPLICA}"], yr.get(path))
-            for path, title in titles.items()
-        ],
-        [
-            plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False),
-            plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF)),
-        ],
-        [
-            plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
-            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
-            plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
-        ],
-    )
+    angles = [plot(p, title, ["$origin/**", f"- {p}/{ent.SOURCE_REPLICA}"], yr.get(p)) for p, title in titles.items()]
+    yaw = plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False)
+    sensors = [
+        plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
+        plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
+        plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
+    ]
+    rows = (angles, [yaw, plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF))], sensors)
     kept, shares = [], []
     for row, share, columns in zip(rows, (3, 2, 2), (None, None, [2, 2, 1])):
         views = [v for v in row if str(v.origin) not in absent]
@@ -148,17 +141,9 @@ def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, a
 
 def ble_view(plot: Callable) -> rrb.Vertical:
     """A BLE link's own values: what its rows are, the drone's battery, pressure, temperature, RSSI and arming."""
-    plots = [
-        plot(path, name, legend=False)
-        for path, name in (
-            (ent.BLE_BATTERY, "battery (%)"),
-            (ent.BLE_PRESSURE, "pressure (hPa)"),
-            (ent.BLE_RSSI, "RSSI (dBm)"),
-            (ent.BLE_ARMED, "armed (0/1)"),
-            (ent.BLE_TEMPERATURE, "temperature (°C)"),
-            (ent.BLE_MAG, "magnetometer (mgauss)"),
-        )
-    ]
+    paths = (ent.BLE_BATTERY, ent.BLE_PRESSURE, ent.BLE_RSSI, ent.BLE_ARMED, ent.BLE_TEMPERATURE, ent.BLE_MAG)
+    titles = ("battery (%)", "pressure (hPa)", "RSSI (dBm)", "armed (0/1)", "temperature (°C)", "magnetometer (mgauss)")
+    plots = [plot(path, title, legend=False) for path, title in zip(paths, titles)]
     note = rrb.TextDocumentView(origin=ent.BLE_NOTE, name="Note")
     return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
@@ -171,10 +156,8 @@ def flight_view(plot: Callable, never_armed: bool = False) -> rrb.Vertical:
         plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
         for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
     ]
-    outer = [
-        plot(path, f"outer {axis}: s1, P, I (rad/s)")
-        for path, axis in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
-    ]
+    axes = ("pitch (x)", "roll (y)", "yaw (z)")
+    outer = [plot(path, f"outer {axis}: s1, P, I (rad/s)") for path, axis in zip(ent.FC_OUTER, axes)]
     out = rrb.Horizontal(
         plot(ent.FC_INNER, "inner loop s2 (PWM)", bottom=True),
         plot(ent.FC_MOTORS, "motors (of 2000)", bottom=True),

@@ -18,6 +18,7 @@ from steval_viewer.sinks import log_whole
 ROOT = "spectrum"
 NOTES = f"{ROOT}/notes"
 _COLOURS = {"x": (220, 60, 60), "y": (60, 170, 60), "z": (60, 100, 230)}
+_NO_LEGEND = rrb.PlotLegend(visible=False)
 
 
 def _path(kind: str, name: str) -> str:
@@ -44,7 +45,7 @@ def _grid(kind: str, view, title: str) -> rrb.Grid:
 
 
 def _bars(origin: str, name: str) -> rrb.BarChartView:
-    return rrb.BarChartView(origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=False))
+    return rrb.BarChartView(origin=origin, name=name, plot_legend=_NO_LEGEND)
 
 
 def _heat(origin: str, name: str) -> rrb.TensorView:
@@ -69,9 +70,7 @@ def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
         rrb.Horizontal(
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
             rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
-            rrb.TimeSeriesView(
-                origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=rrb.PlotLegend(visible=False)
-            ),
+            rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=_NO_LEGEND),
         ),
         row_shares=[3, 1],
         name="Spectrum at the cursor",
