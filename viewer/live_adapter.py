@@ -25,7 +25,6 @@ class ViewerLogger:
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
         logger = functools.partial(live_log.LiveLogger, estimator_names=options.estimators, ble=ble)
         self.logger = logger(self.session.rec)
-        # a viewer and an .rrd: the file's own stream and logger
         self.file = None if self.session.file_rec is None else logger(self.session.file_rec)
 
     @property

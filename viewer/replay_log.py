@@ -299,8 +299,7 @@ REPLICA_NAMES = ("st-mahony", "st_mahony")
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Run the seeded firmware replica (the release whose filter is bit-exact; none without bit-exact rows: text
-    mode) and log it with ``estimates``; a registry ``st-mahony`` estimate (not seeded) gives way to the replica."""
+    """Log ``tel`` with its seeded bit-exact replica (none in text mode) and ``estimates``; ``st-mahony`` gives way."""
     _part(progress)(0.0, "ST-Mahony replica")
     replica = None
     if np.asarray(getattr(tel.attitude, "exact", True)).any():

@@ -55,8 +55,7 @@ def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
 
 
 class RrdWriter:
-    """Writes the stream ``rec`` to ``path`` (a new file) until :meth:`close`; UserError (nothing left behind)
-    when the file cannot be made or its first bytes cannot be written."""
+    """Writes the stream ``rec`` to the new file ``path`` until :meth:`close`; UserError when it cannot start."""
 
     def __init__(self, rec, path: str | os.PathLike, *, shown: str | None = None) -> None:
         self.path = Path(path)

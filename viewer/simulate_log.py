@@ -1,6 +1,5 @@
-"""Log a ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` with the standard layout and blueprint.
-The simulated filter takes the place of the drone's own (the ``firmware`` series, labelled ``simulated <name>``);
-``fw_time`` is the simulated time ``(step + 1) * dt_s``."""
+"""A ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` in the standard layout: the simulated filter in
+the ``firmware`` series (labelled ``simulated <name>``), ``fw_time`` the simulated ``(step + 1) * dt_s``."""
 
 from __future__ import annotations
 

@@ -38,8 +38,7 @@ PARTIAL_SUFFIX = ".partial"
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it. ``file_rec``: the ``.rrd``'s own stream when split;
-    ``viewer_url``: the viewer's gRPC URL (None: file only); ``rrd_partial``: where an atomic ``.rrd`` is written."""
+    """An open recording and its viewers; ``file_rec``: the ``.rrd``'s own stream when split, ``viewer_url``: gRPC."""
 
     rec: rr.RecordingStream
     options: SinkOptions
@@ -152,9 +151,8 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
 
 
 def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 0.0) -> subprocess.Popen:
-    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives us; else the web viewer) and wait
-    until it listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot open its window
-    dies right after it binds). OSError when it cannot start; ParamError with its last words when it fails."""
+    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives us; else the web viewer) until it
+    listens on ``tcp_port`` and still runs ``settle_s`` later (one with no window dies then); OSError, ParamError."""
     what = "Rerun viewer" if detached else "Rerun web viewer"
     log_path = Path(tempfile.gettempdir()) / f"steval-{'viewer' if detached else 'web-viewer'}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
@@ -312,8 +310,7 @@ T = TypeVar("T")
 
 
 def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
-    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, close and return what ``log`` returned. The
-    ``.rrd`` is complete (a line on stderr says where) or, interrupted, not written at all."""
+    """``log(rec)`` on the sinks of ``options`` (checked) and its result; the ``.rrd`` whole, or none if interrupted."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
