@@ -23,19 +23,16 @@ LIVE_WINDOW_S = 10.0
 def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
     """Time-series views of one layout: ``live`` scrolls the last :data:`LIVE_WINDOW_S` of ``timeline``."""
     start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
-    scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
+    scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative()) if live else None
 
     def plot(origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
         """A time-series view; ``legend``: False for one-series plots. The legend sits right in a replay (a flight's
         calm end), left live (the newest data is on the right) or with ``left``; ``bottom`` for data at the top."""
         corner = ("Left" if live or left else "Right") + ("Bottom" if bottom else "Top")
+        key = rrb.PlotLegend(corner=getattr(rrb.Corner2D, corner), visible=legend)
+        axis = None if y_range is None else rrb.ScalarAxis(range=y_range)
         return rrb.TimeSeriesView(
-            origin=origin,
-            contents=contents,
-            name=name,
-            time_ranges=scroll if live else None,
-            plot_legend=rrb.PlotLegend(corner=getattr(rrb.Corner2D, corner), visible=legend),
-            axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
+            origin=origin, contents=contents, name=name, time_ranges=scroll, plot_legend=key, axis_y=axis
         )
 
     return plot

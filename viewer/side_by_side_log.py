@@ -37,12 +37,8 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
     n = len(labels)
 
     def series(name: str, leaves: list[str]) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(
-            origin=ROOT,
-            name=name,
-            contents=[f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves],
-            plot_legend=rrb.PlotLegend(visible=True),
-        )
+        contents = [f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves]
+        return rrb.TimeSeriesView(origin=ROOT, name=name, contents=contents, plot_legend=rrb.PlotLegend(visible=True))
 
     plots = rrb.Vertical(
         series("pitch thx (about x, nose up +), deg", ["pitch_thx_deg", "accel_pitch_thx_deg"]),

@@ -24,15 +24,8 @@ def simulation_telemetry(res: Any) -> SimpleNamespace:
     q = np.asarray(res.q_wxyz, dtype=np.float64).copy()
     q[~valid] = np.nan
     angles = {f"th{a}_rad": np.where(valid, np.asarray(getattr(res, f"ea{a}_rad"), np.float64), np.nan) for a in "xyz"}
-    att = SimpleNamespace(
-        step=step,
-        t_fw_s=(step + 1) * float(res.dt_s),
-        acc_mg=np.asarray(res.acc_mg),
-        gyro_mdps=np.asarray(res.gyro_mdps),
-        thr=np.asarray(res.thr),
-        q_wxyz=q,
-        **angles,
-    )
+    raw = {name: np.asarray(getattr(res, name)) for name in ("acc_mg", "gyro_mdps", "thr")}
+    att = SimpleNamespace(step=step, t_fw_s=(step + 1) * float(res.dt_s), q_wxyz=q, **angles, **raw)
     return SimpleNamespace(attitude=att, status=None, text=[], stats=None)
 
 

@@ -49,16 +49,10 @@ def _bars(origin: str, name: str) -> rrb.BarChartView:
 
 
 def _heat(origin: str, name: str) -> rrb.TensorView:
-    return rrb.TensorView(
-        origin=origin,
-        name=name,
-        slice_selection=rrb.TensorSliceSelection(
-            width=rr.encodings.TensorDimensionSelection(dimension=1, invert=False),
-            height=rr.encodings.TensorDimensionSelection(dimension=0, invert=True),
-        ),
-        scalar_mapping=rrb.TensorScalarMapping(colormap="Inferno"),
-        view_fit="Fill",
-    )
+    dim = rr.encodings.TensorDimensionSelection
+    axes = rrb.TensorSliceSelection(width=dim(dimension=1, invert=False), height=dim(dimension=0, invert=True))
+    mapping = rrb.TensorScalarMapping(colormap="Inferno")
+    return rrb.TensorView(origin=origin, name=name, slice_selection=axes, scalar_mapping=mapping, view_fit="Fill")
 
 
 def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
