@@ -90,30 +90,21 @@ def check_sinks(options: SinkOptions) -> None:
             )
         for name, tcp_port in ports.items():
             if not port_free(tcp_port):
-                raise ParamError(
-                    f"port {tcp_port} for the {_PORTS[name]} is in use on 127.0.0.1 (an earlier {{serve}} still "
-                    f"running?); stop that program or pick another port with {{{name}}} N",
-                    "serve",
-                    name,
-                )
+                busy = f"port {tcp_port} for the {_PORTS[name]} is in use on 127.0.0.1"
+                fix = f"stop that program or pick another port with {{{name}}} N"
+                raise ParamError(f"{busy} (an earlier {{serve}} still running?); {fix}", "serve", name)
     if options.spawn:
         free = port_free(options.grpc_port)
         if not free and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
-            raise ParamError(
-                f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
-                "pick another port with {grpc_port} N",
-                "grpc_port",
-            )
+            busy = f"port {options.grpc_port} is in use by a program that is not a Rerun viewer"
+            raise ParamError(f"{busy}; pick another port with {{grpc_port}} N", "grpc_port")
         if free and not display_available():  # no viewer there to reuse, and none can open
             raise no_display_error(" ({spawn})")
     if options.connect:
         host, tcp_port = parse_grpc_url(options.connect)
         if not port_open(host, tcp_port, CONNECT_TIMEOUT_S):
-            raise ParamError(
-                f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use {{spawn}} or {{serve}}",
-                "spawn",
-                "serve",
-            )
+            why = f"no Rerun viewer listens at {options.connect}"
+            raise ParamError(f"{why}; start one (`rerun`) or use {{spawn}} or {{serve}}", "spawn", "serve")
         plain = options.connect.startswith(("rerun://", "rerun+http://"))
         if plain and not speaks_grpc(host, tcp_port, CONNECT_TIMEOUT_S):
             raise UserError(f"something listens at {options.connect} but it is not a Rerun viewer (no gRPC answer)")

@@ -174,20 +174,13 @@ def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 
             raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
         if time.monotonic() >= deadline:
             stop_child(child)
-            raise ParamError(
-                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
-                "FILE instead",
-                "rrd",
-            )
+            why = f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s"
+            raise ParamError(f"{why}; use {{rrd}} FILE instead", "rrd")
         time.sleep(0.05)
     time.sleep(settle_s)
     if settle_s and child.poll() is not None:
-        raise ParamError(
-            f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-            f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
-            "rrd",
-            "serve",
-        )
+        why = f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log {log_path})"
+        raise ParamError(f"{why}; use {{rrd}} FILE or {{serve}} instead", "rrd", "serve")
     return child
 
 
@@ -242,13 +235,8 @@ def open_session(
     a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same recording.
     ``atomic_rrd``: the ``.rrd`` is ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`."""
     if not options.any():
-        raise ParamError(
-            "no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL",
-            "rrd",
-            "spawn",
-            "serve",
-            "connect",
-        )
+        flags = ("rrd", "spawn", "serve", "connect")
+        raise ParamError("no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL", *flags)
     if not checked:
         check_sinks(options)
     rec = rr.RecordingStream(APPLICATION_ID, make_default=False, make_thread_default=False)
