@@ -95,21 +95,15 @@ def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
 def link_view(plot: Callable, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
     """The link tabs under the 3D view: link health, firmware log, text telemetry (in front when ``text``), BLE."""
     losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
-    return rrb.Tabs(
-        rrb.Grid(
-            plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
-            plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
-            plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
-            plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
-            grid_columns=2,
-            name="Link health",
-        ),
-        rrb.TextLogView(origin="log", name="Firmware log"),
-        plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True),
-        *([ble_view(plot)] if ble else []),
-        active_tab=2 if text else None,
-        name="Link",
-    )
+    health = [
+        plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
+        plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
+        plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
+        plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
+    ]
+    tabs = [rrb.Grid(*health, grid_columns=2, name="Link health"), rrb.TextLogView(origin="log", name="Firmware log")]
+    tabs += [plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True), *([ble_view(plot)] if ble else [])]
+    return rrb.Tabs(*tabs, active_tab=2 if text else None, name="Link")
 
 
 def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:

@@ -59,16 +59,13 @@ def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
     """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), spectrograms, frequency vs throttle;
     the notes on the right. ``nyquist_hz``: named in the bar charts' titles (Rerun labels few ticks)."""
     span = f"0–{nyquist_hz:.2f} Hz →"
-    cursor = rrb.Vertical(
-        _grid("window", _bars, f"at the cursor, {span}"),
-        rrb.Horizontal(
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=_NO_LEGEND),
-        ),
-        row_shares=[3, 1],
-        name="Spectrum at the cursor",
+    signals = rrb.Horizontal(
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=_NO_LEGEND),
     )
+    window_plots = _grid("window", _bars, f"at the cursor, {span}")
+    cursor = rrb.Vertical(window_plots, signals, row_shares=[3, 1], name="Spectrum at the cursor")
     tabs = rrb.Tabs(
         _grid("psd", _bars, f"PSD, {span}"),
         cursor,
@@ -77,10 +74,9 @@ def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
         name="Spectra",
         active_tab=0,
     )
-    return window(
-        rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
-        rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed"),
-    )
+    notes = rrb.TextDocumentView(origin=NOTES, name="Notes")
+    panel = rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed")
+    return window(rrb.Horizontal(tabs, notes, column_shares=[4, 1]), panel)
 
 
 def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
