@@ -83,7 +83,5 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any) -> int:
     # thrust arrows: the command TIM4 gets (clamped to 0..MOTOR_MAX_PWM), 1 unit = 100 % duty
     frac = np.clip(mp, 0.0, C.MOTOR_MAX_PWM) / C.PWM_PERIOD
     for k, m in enumerate(MOTORS):
-        v = np.zeros((len(mp), 3), np.float32)
-        v[:, 2] = frac[:, k]
-        send_arrows(rec, ent.motor_path(m.number), times, v)
+        send_arrows(rec, ent.motor_path(m.number), times, np.column_stack([np.zeros((len(mp), 2)), frac[:, k]]))
     return len(fc)

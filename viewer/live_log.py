@@ -109,8 +109,7 @@ class RowBatch:
         self.kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
 
     def kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray) -> None:
-        """A 3D entity's ``good`` and ``select`` rows: it keeps its last value, never cleared. A path never good is
-        not sent (the viewer rejects an all-null column); a path sent once is in ``bad_state``."""
+        """A 3D entity's ``good`` and ``select`` rows, never cleared; unsent until one is (no all-null column)."""
         good = good & select
         if path not in self.bad_state and not good.any():
             return
@@ -240,7 +239,6 @@ class LiveLogger:
         self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
     def _queue_row(self, path: str, at: tuple[float, float], values) -> None:
-        """Queue ``values`` for ``path`` at ``at`` = (fw s, host s), e.g. an ``EventTime``."""
         self._pending_rows.setdefault(path, []).append((*at, tuple(float(v) for v in values)))
 
     def flush_rows(self, *, records: bool = True) -> None:
