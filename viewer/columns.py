@@ -148,9 +148,8 @@ def send_transforms(
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> int:
     """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped."""
     v = np.asarray(vectors, dtype=np.float32)
-    return send_rows(
-        rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), np.isfinite(v).all(axis=1)
-    )
+    good = np.isfinite(v).all(axis=1)
+    return send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), good)
 
 
 def _take(values, idx):

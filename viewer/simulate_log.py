@@ -34,8 +34,7 @@ def log_simulation(res: Any, path: str | Path) -> ReplaySummary:
     session = open_session(SinkOptions(rrd=Path(path)), recording_name=f"steval simulate ({res.estimator})")
     try:
         rec = session.rec
-        tel = simulation_telemetry(res)
-        summary = log_replay(rec, tel, {}, None, link=False)
+        summary = log_replay(rec, simulation_telemetry(res), {}, None, link=False)
         fw = ent.SOURCE_FIRMWARE
         paths = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
         for path, angle in zip(paths, ("thx pitch", "thy roll", "thz yaw")):
@@ -43,7 +42,7 @@ def log_simulation(res: Any, path: str | Path) -> ReplaySummary:
         noise = ""
         if getattr(res, "gyro_noise_mdps", 0) or getattr(res, "acc_noise_mg", 0):
             noise = f", noise gyro {res.gyro_noise_mdps:g} mdps / acc {res.acc_noise_mg:g} mg (seed {res.seed})"
-        note = f"steval simulate: {len(tel.attitude.step)} iterations of {res.estimator}, dt {res.dt_s:g} s{noise}"
+        note = f"steval simulate: {len(res.step)} iterations of {res.estimator}, dt {res.dt_s:g} s{noise}"
         rec.log(ent.LOG_HOST, rr.TextLog(note, level="INFO"), static=True)
         return summary
     finally:
