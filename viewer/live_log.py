@@ -188,10 +188,8 @@ class LiveLogger:
         if bad.any() and not self._values_bad_noted:  # the first row of the session with bad values: one warning
             self._values_bad_noted = True
             i = int(np.argmax(bad))
-            sentence = (
-                f"the firmware's values are NaN or out of range from step {int(step[i])} on "
-                f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
-            )
+            where = f"from step {int(step[i])} on (t = {float(times.t_fw_s[i]):.3f} s)"
+            sentence = f"the firmware's values are NaN or out of range {where}, as sent"
             last = int(step[i - 1]) if i else self._last_good_step  # the rows before the first bad one are good
             send_values_bad_note(self.rec, times.take(np.array([i])), sentence, last)
         good_rows = np.flatnonzero(~bad)
