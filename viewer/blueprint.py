@@ -23,19 +23,16 @@ LIVE_WINDOW_S = 10.0
 def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
     """Time-series views of one layout: ``live`` scrolls the last :data:`LIVE_WINDOW_S` of ``timeline``."""
     start = rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_WINDOW_S)
-    scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative())
+    scroll = rrb.VisibleTimeRange(timeline, start=start, end=rrb.TimeRangeBoundary.cursor_relative()) if live else None
 
     def plot(origin, name, contents="$origin/**", y_range=None, *, legend=True, bottom=False, left=False):
         """A time-series view; ``legend``: False for one-series plots. The legend sits right in a replay (a flight's
         calm end), left live (the newest data is on the right) or with ``left``; ``bottom`` for data at the top."""
         corner = ("Left" if live or left else "Right") + ("Bottom" if bottom else "Top")
+        key = rrb.PlotLegend(corner=getattr(rrb.Corner2D, corner), visible=legend)
+        axis = None if y_range is None else rrb.ScalarAxis(range=y_range)
         return rrb.TimeSeriesView(
-            origin=origin,
-            contents=contents,
-            name=name,
-            time_ranges=scroll if live else None,
-            plot_legend=rrb.PlotLegend(corner=getattr(rrb.Corner2D, corner), visible=legend),
-            axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
+            origin=origin, contents=contents, name=name, time_ranges=scroll, plot_legend=key, axis_y=axis
         )
 
     return plot
@@ -44,7 +41,7 @@ def _plotter(live: bool, timeline: str) -> Callable[..., rrb.TimeSeriesView]:
 def axis_limit(max_abs: float) -> float | None:
     """A symmetric y range ±limit holding ``max_abs`` whose ends are labelled ticks (1, 2 or 5 × 10^k: Rerun labels
     only powers of ten), with room for the legend; None for no finite data."""
-    if not (max_abs == max_abs and 0 < max_abs < float("inf")):
+    if not 0 < max_abs < math.inf:
         return None
     need = 1.6 * max_abs
     k = math.floor(math.log10(need))
@@ -65,9 +62,8 @@ def make_blueprint(
     text: bool = False,
 ) -> rrb.Blueprint:
     """The default blueprint. ``live``: the last 10 s on ``host_time`` (else the whole flight on ``fw_time``).
-    ``ghost_sources``: the sources with a ghost drone (one shown, by ``entities.GHOST_PREFERENCE``).
-    ``gyro_max_dps``: the gyro plot's symmetric range. ``y_ranges``: fixed y ranges by plot entity. ``absent``:
-    plots left out. ``text``: the text telemetry tab in front."""
+    ``ghost_sources``: those with a ghost drone (one shown, by ``GHOST_PREFERENCE``). ``gyro_max_dps``: the gyro
+    plot's ± range. ``y_ranges``: by plot entity. ``absent``: plots left out. ``text``: the text tab in front."""
     yr = dict(y_ranges or {})
     sources = list(ghost_sources)
     ghost = next((s for s in ent.GHOST_PREFERENCE if s in sources), sources[0] if sources else None)
@@ -99,46 +95,32 @@ def window(content, time_panel: rrb.TimePanel) -> rrb.Blueprint:
 def link_view(plot: Callable, yr: Mapping[str, tuple[float, float]], ble: bool, text: bool) -> rrb.Tabs:
     """The link tabs under the 3D view: link health, firmware log, text telemetry (in front when ``text``), BLE."""
     losses = [f"+ {ent.LINK_MISSING}", f"+ {ent.LINK_CRC}", f"+ {ent.LINK_TX_DROPPED}"]
-    return rrb.Tabs(
-        rrb.Grid(
-            plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
-            plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
-            plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
-            plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
-            grid_columns=2,
-            name="Link health",
-        ),
-        rrb.TextLogView(origin="log", name="Firmware log"),
-        plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True),
-        *([ble_view(plot)] if ble else []),
-        active_tab=2 if text else None,
-        name="Link",
-    )
+    health = [
+        plot(ent.LINK_RATE, "Frame rate (frames/s)", y_range=(0.0, 200.0), legend=False),
+        plot(ent.LINK, "Link losses (count, cumulative)", losses, yr.get(ent.LINK), left=True),
+        plot(ent.LINK_CYCLES, "AHRS cycles/step (max, mean)", legend=False),
+        plot(ent.LINK_QUEUE, "TX queue peak (bytes)", legend=False),
+    ]
+    tabs = [rrb.Grid(*health, grid_columns=2, name="Link health"), rrb.TextLogView(origin="log", name="Firmware log")]
+    tabs += [plot(TEXT_ROOT, "Text telemetry (your printed series)", bottom=True), *([ble_view(plot)] if ble else [])]
+    return rrb.Tabs(*tabs, active_tab=2 if text else None, name="Link")
 
 
 def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, absent: frozenset[str]) -> rrb.Vertical:
-    """The plots on the right (the replica only in the difference plot: bit-exact, it would hide the firmware);
-    the ``absent`` plots are left out, and rows left empty."""
+    """The plots on the right, but ``absent`` ones; the replica only in the difference plot (it hides the firmware)."""
     diff = "firmware − replica (deg)" + (f": {replica_verdict}" if replica_verdict else "")
     titles = {
         ent.PLOT_PITCH: "thx pitch, about x (deg, nose up +)",
         ent.PLOT_ROLL: "thy roll, about y (deg, right side down +)",
     }
-    rows = (
-        [
-            plot(path, title, ["$origin/**", f"- {path}/{ent.SOURCE_REPLICA}"], yr.get(path))
-            for path, title in titles.items()
-        ],
-        [
-            plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False),
-            plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF)),
-        ],
-        [
-            plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
-            plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
-            plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
-        ],
-    )
+    angles = [plot(p, title, ["$origin/**", f"- {p}/{ent.SOURCE_REPLICA}"], yr.get(p)) for p, title in titles.items()]
+    yaw = plot(ent.PLOT_YAW, f"thz yaw (deg): integrated at gTHR ≥ {C.MIN_THR}, else 0", legend=False)
+    sensors = [
+        plot(ent.PLOT_ACC, "accelerometer (mg)", y_range=yr.get(ent.PLOT_ACC), bottom=True),
+        plot(ent.PLOT_GYRO, "gyro (deg/s)", y_range=gyro_range, bottom=True),
+        plot(ent.PLOT_THROTTLE, "gTHR", legend=False),
+    ]
+    rows = (angles, [yaw, plot(ent.PLOT_DIFF, diff, y_range=yr.get(ent.PLOT_DIFF))], sensors)
     kept, shares = [], []
     for row, share, columns in zip(rows, (3, 2, 2), (None, None, [2, 2, 1])):
         views = [v for v in row if str(v.origin) not in absent]
@@ -150,17 +132,9 @@ def attitude_view(plot: Callable, yr, replica_verdict: str | None, gyro_range, a
 
 def ble_view(plot: Callable) -> rrb.Vertical:
     """A BLE link's own values: what its rows are, the drone's battery, pressure, temperature, RSSI and arming."""
-    plots = [
-        plot(path, name, legend=False)
-        for path, name in (
-            (ent.BLE_BATTERY, "battery (%)"),
-            (ent.BLE_PRESSURE, "pressure (hPa)"),
-            (ent.BLE_RSSI, "RSSI (dBm)"),
-            (ent.BLE_ARMED, "armed (0/1)"),
-            (ent.BLE_TEMPERATURE, "temperature (°C)"),
-            (ent.BLE_MAG, "magnetometer (mgauss)"),
-        )
-    ]
+    paths = (ent.BLE_BATTERY, ent.BLE_PRESSURE, ent.BLE_RSSI, ent.BLE_ARMED, ent.BLE_TEMPERATURE, ent.BLE_MAG)
+    titles = ("battery (%)", "pressure (hPa)", "RSSI (dBm)", "armed (0/1)", "temperature (°C)", "magnetometer (mgauss)")
+    plots = [plot(path, title, legend=False) for path, title in zip(paths, titles)]
     note = rrb.TextDocumentView(origin=ent.BLE_NOTE, name="Note")
     return rrb.Vertical(note, rrb.Grid(*plots, grid_columns=3), row_shares=[1, 3], name="BLE")
 
@@ -173,10 +147,8 @@ def flight_view(plot: Callable, never_armed: bool = False) -> rrb.Vertical:
         plot("/", f"{name} vs target (deg)", [f"+ {target}", f"+ {angle}"])
         for name, target, angle in zip(("pitch thx", "roll thy", "yaw thz"), ent.FC_TARGETS, angles)
     ]
-    outer = [
-        plot(path, f"outer {axis}: s1, P, I (rad/s)")
-        for path, axis in zip(ent.FC_OUTER, ("pitch (x)", "roll (y)", "yaw (z)"))
-    ]
+    axes = ("pitch (x)", "roll (y)", "yaw (z)")
+    outer = [plot(path, f"outer {axis}: s1, P, I (rad/s)") for path, axis in zip(ent.FC_OUTER, axes)]
     out = rrb.Horizontal(
         plot(ent.FC_INNER, "inner loop s2 (PWM)", bottom=True),
         plot(ent.FC_MOTORS, "motors (of 2000)", bottom=True),

@@ -4,7 +4,7 @@ non-finite row is never sent as a value; a ``Clear`` where each bad run starts m
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import rerun as rr
@@ -14,12 +14,13 @@ from steval_viewer import entities as ent
 
 @dataclass
 class Times:
-    """The timelines of N rows: ``t_fw_s`` (firmware s since boot), ``t_host_s`` (host s, may be None or contain
-    NaN; None when no row has one), ``step`` (AHRS step counter, may be None)."""
+    """The timelines of N rows: ``t_fw_s`` (firmware s since boot, on ``timeline``), ``t_host_s`` (host s, may be
+    None or contain NaN; None when no row has one), ``step`` (AHRS step counter, may be None)."""
 
     t_fw_s: np.ndarray
     t_host_s: np.ndarray | None = None
     step: np.ndarray | None = None
+    timeline: str = ent.TIMELINE_FW
 
     def __post_init__(self) -> None:
         self.t_fw_s = np.asarray(self.t_fw_s, dtype=np.float64)
@@ -34,7 +35,7 @@ class Times:
     def take(self, idx: np.ndarray) -> "Times":
         """The rows ``idx`` (integer indices or a boolean mask)."""
         host, step = (None if a is None else a[idx] for a in (self.t_host_s, self.step))
-        return Times(self.t_fw_s[idx], host, step)
+        return replace(self, t_fw_s=self.t_fw_s[idx], t_host_s=host, step=step)
 
     def host_complete(self) -> bool:
         return self.t_host_s is not None and bool(np.isfinite(self.t_host_s).all())
@@ -42,7 +43,7 @@ class Times:
     @functools.cached_property
     def indexes(self) -> list[rr.TimeColumn]:
         """Time columns for ``send_columns`` (host time only when every row has one; see :func:`send_rows`)."""
-        cols = [rr.TimeColumn(ent.TIMELINE_FW, duration=self.t_fw_s)]
+        cols = [rr.TimeColumn(self.timeline, duration=self.t_fw_s)]
         if self.host_complete():
             cols.append(rr.TimeColumn(ent.TIMELINE_HOST, duration=self.t_host_s))
         if self.step is not None:
@@ -61,8 +62,7 @@ def send_rows(rec: rr.RecordingStream, path: str, times: Times, make_columns, ro
     if rows is None and (times.t_host_s is None or times.host_complete()):
         rec.send_columns(path, indexes=times.indexes, columns=make_columns(None))
         return len(idx)
-    sub = times.take(idx)
-    has = np.ones(len(idx), bool) if sub.t_host_s is None else np.isfinite(sub.t_host_s)
+    has = np.ones(len(idx), bool) if times.t_host_s is None else np.isfinite(times.t_host_s[idx])
     for part in (idx[has], idx[~has]):
         if len(part):  # host times all finite, or all NaN (then dropped by Times)
             rec.send_columns(path, indexes=times.take(part).indexes, columns=make_columns(part))
@@ -76,17 +76,18 @@ def send_texts(rec: rr.RecordingStream, path: str, times: Times, texts: list[str
 
 
 def send_scalars(
-    rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None
+    rec: rr.RecordingStream, path: str, times: Times, values: np.ndarray, valid: np.ndarray | None = None, gaps=True
 ) -> int:
-    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows become gaps (a ``Clear``
-    where each run of them starts). Returns the rows with a value."""
+    """Log a scalar series (N,) or a group (N, k) on ``path``; non-finite or invalid rows are left out (``gaps``: a
+    ``Clear`` where each run of them starts). Returns the rows with a value."""
     v = np.asarray(values, dtype=np.float64)
     good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
     sent = send_rows(rec, path, times, lambda idx: rr.Scalars.columns(scalars=_take(v, idx)), good)
-    starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
-    send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
+    if gaps:
+        starts = np.flatnonzero(~good & ~np.concatenate(([False], ~good[:-1])))
+        send_rows(rec, path, times, lambda idx: rr.Clear.columns(is_recursive=np.zeros(len(idx), dtype=bool)), starts)
     return sent
 
 
@@ -137,8 +138,7 @@ def unit_xyzw(q_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def send_transforms(
     rec: rr.RecordingStream, path: str, times: Times, q_wxyz: np.ndarray, valid: np.ndarray | None = None
 ) -> int:
-    """Log the attitude ``q_wxyz`` as a Transform3D on ``path``; rows with no quaternion (or ``valid`` False) are
-    skipped: the drone keeps its last known attitude."""
+    """Log ``q_wxyz`` as Transform3D rows on ``path``; a row without a quaternion or ``valid`` keeps the last one."""
     xyzw, good = unit_xyzw(q_wxyz)
     if valid is not None:
         good &= np.asarray(valid, dtype=bool)
@@ -148,9 +148,8 @@ def send_transforms(
 def send_arrows(rec: rr.RecordingStream, path: str, times: Times, vectors: np.ndarray) -> int:
     """Log one arrow per row from the origin (``vectors`` (N, 3)); non-finite rows are skipped."""
     v = np.asarray(vectors, dtype=np.float32)
-    return send_rows(
-        rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), np.isfinite(v).all(axis=1)
-    )
+    good = np.isfinite(v).all(axis=1)
+    return send_rows(rec, path, times, lambda idx: rr.Arrows3D.columns(vectors=_take(v, idx)), good)
 
 
 def _take(values, idx):

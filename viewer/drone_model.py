@@ -1,8 +1,6 @@
 """The 3D scene of every recording: axes, the quadcopter (solid: firmware attitude; wireframe ghosts: host
-estimates) and the series styles.
-
-Body frame, the firmware's axes: x right, y forward (nose), z up; 1 unit ≈ centre to motor (the model is scaled
-so the 3D view reads well). X configuration: arms at ±45° from the nose, front propellers red, a red nose cone."""
+estimates) and the series styles. Body frame: x right, y forward (nose), z up; 1 unit ≈ centre to motor. X
+configuration: arms at ±45° from the nose, front propellers red, a red nose cone."""
 
 from __future__ import annotations
 
@@ -57,21 +55,15 @@ class Mesh(NamedTuple):
     triangles: np.ndarray  # (T, 3) uint32
 
 
-def _rot_z(angle_rad: float) -> np.ndarray:
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 #: a box's faces (-x, +x, -y, +y, -z, +z) by corner index 4*ix + 2*iy + iz, outward winding
 _BOX_QUADS = np.array([(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)])
 
 
-def _box_triangles(center, half, rot=None) -> np.ndarray:
-    """(12, 3, 3) triangles of a box, outward winding."""
-    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half
-    if rot is not None:
-        corners = corners @ rot.T
-    corners = corners + np.asarray(center, dtype=float)
+def _box_triangles(center, half, angle_rad: float = 0.0) -> np.ndarray:
+    """(12, 3, 3) triangles of a box turned by ``angle_rad`` about z, outward winding."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    turn = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])  # row vectors turned about z
+    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3))) * half @ turn + np.asarray(center, dtype=float)
     return corners[np.stack([_BOX_QUADS[:, [0, 1, 2]], _BOX_QUADS[:, [0, 2, 3]]], axis=1).reshape(-1, 3)]
 
 
@@ -91,20 +83,13 @@ def _disc_triangles(center, radius, n=32, z_thickness=0.012) -> np.ndarray:
     return _pairs((c + top, p + top, q + top), (c - top, q - top, p - top))
 
 
-def _cone_triangles(base_center, tip, radius, n=20) -> np.ndarray:
-    """A cone from a circular base (in the plane normal to tip - base) to ``tip``, with its base cap."""
-    base_center = np.asarray(base_center, dtype=float)
-    tip = np.asarray(tip, dtype=float)
-    axis = tip - base_center
-    axis /= np.linalg.norm(axis)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
+def _nose_triangles(radius: float = 0.1, n: int = 20) -> np.ndarray:
+    """The nose cone along +y from the plate's front edge, with its base cap."""
+    base = np.array([0.0, BODY_HALF[1], 0.0])
     ang = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    p = base_center + radius * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    p = base + radius * np.stack([np.cos(ang), np.zeros(n), -np.sin(ang)], axis=1)
     q = np.roll(p, -1, axis=0)
-    return _pairs((p, q, tip), (base_center, q, p))
+    return _pairs((p, q, base + (0.0, NOSE_LENGTH, 0.0)), (base, q, p))
 
 
 def quadcopter_mesh() -> Mesh:
@@ -112,12 +97,11 @@ def quadcopter_mesh() -> Mesh:
     parts = [(_box_triangles((0, 0, 0), BODY_HALF), FRAME_COLOR)]
     for m in motor_positions():
         arm = (ARM_LENGTH / 2, ARM_HALF_WIDTH, ARM_HALF_HEIGHT)
-        parts.append((_box_triangles(m / 2, arm, _rot_z(np.arctan2(m[1], m[0]))), ARM_COLOR))
+        parts.append((_box_triangles(m / 2, arm, np.arctan2(m[1], m[0])), ARM_COLOR))
         parts.append((_box_triangles(m + (0, 0, 0.04), (MOTOR_RADIUS, MOTOR_RADIUS, 0.06)), MOTOR_COLOR))
         color = PROP_FRONT_COLOR if m[1] > 0 else PROP_REAR_COLOR
         parts.append((_disc_triangles(m + (0, 0, PROP_Z), PROP_RADIUS), color))
-    y0 = BODY_HALF[1]
-    parts.append((_cone_triangles((0, y0, 0), (0, y0 + NOSE_LENGTH, 0), 0.1), NOSE_COLOR))
+    parts.append((_nose_triangles(), NOSE_COLOR))
     tris = np.concatenate([t for t, _ in parts])
     colors = np.concatenate([np.tile(np.array(c, dtype=np.uint8), (len(t) * 3, 1)) for t, c in parts])
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
@@ -144,7 +128,6 @@ def quadcopter_wireframe() -> list[np.ndarray]:
 
 
 def log_mesh(rec, path: str, m: Mesh) -> None:
-    """Log the solid quadcopter mesh ``m`` as static data on ``path``."""
     mesh3d = rr.Mesh3D(
         vertex_positions=m.positions, vertex_normals=m.normals, vertex_colors=m.colors, triangle_indices=m.triangles
     )
@@ -152,9 +135,8 @@ def log_mesh(rec, path: str, m: Mesh) -> None:
 
 
 AXIS_LENGTH = 1.6
-#: The world axes' names sit just beyond their arrow tips, clear of the rotors (Rerun labels an arrow's middle).
+#: The axes' names: beyond the arrow tips (Rerun labels an arrow's middle), x and y lifted above the front rotors.
 AXIS_LABEL_AT = 1.08 * AXIS_LENGTH
-#: ... and the horizontal axes' names a little above the ground plane (above the front rotors from the default eye).
 AXIS_LABEL_LIFT = 0.3
 
 
@@ -177,10 +159,9 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     rec.log(ent.ACC_GRAVITY, gravity, static=True)
 
     for source in [ent.SOURCE_FIRMWARE, *sources]:
-        color = ent.source_color(source)
         width = 2.5 if source == ent.SOURCE_FIRMWARE else 1.5
-        series_style(rec, ent.pitch_path(source), ent.source_label(source), color, width)
-        series_style(rec, ent.roll_path(source), ent.source_label(source), color, width)
+        for path in (ent.pitch_path(source), ent.roll_path(source)):
+            series_style(rec, path, ent.source_label(source), ent.source_color(source), width)
     series_style(rec, ent.yaw_path(ent.SOURCE_FIRMWARE), "thz yaw (firmware)", ent.source_color(ent.SOURCE_FIRMWARE))
     if with_replica:
         series_style(rec, ent.DIFF_THX, "thx pitch: firmware − replica", (230, 90, 90))
@@ -194,10 +175,6 @@ def log_static(rec: rr.RecordingStream, estimate_sources: Iterable[str], *, with
     series_style(rec, ent.LINK_CRC, "CRC failures", (230, 60, 60))
     series_style(rec, ent.LINK_TX_DROPPED, "dropped by firmware (TX queue full)", (200, 120, 255))
     series_style(rec, ent.LINK_QUEUE, "TX queue peak (bytes)", (127, 127, 127))
-    series_style(
-        rec,
-        ent.LINK_CYCLES,
-        ["cycles min", "cycles mean", "cycles max"],
-        [(44, 160, 44), (127, 127, 127), (214, 39, 40)],
-        visible=[False, True, True],  # the plot's title names max and mean; min can be shown in the blueprint panel
-    )
+    # the plot's title names max and mean; min can be shown in the blueprint panel
+    colors = [(44, 160, 44), (127, 127, 127), (214, 39, 40)]
+    series_style(rec, ent.LINK_CYCLES, ["cycles min", "cycles mean", "cycles max"], colors, visible=[False, True, True])

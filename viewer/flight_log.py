@@ -34,8 +34,8 @@ def flight_angles(fc: Any, att: Any) -> tuple[np.ndarray, np.ndarray]:
     return ang, found
 
 
-def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
-    """Series styles of the flight-control view and the motors' arrow origins on the 3D drone."""
+def log_flight_static(rec: rr.RecordingStream) -> None:
+    """Series styles of the flight-control view."""
     for path, label in zip(ent.FC_TARGETS, ("target thx (remote)", "target thy (remote)", "target thz (remote)")):
         series_style(rec, path, label, _TARGET_COLOR, 2.0)
     for path, axis in zip(ent.FC_OUTER, ("x pitch", "y roll", "z yaw")):
@@ -48,8 +48,6 @@ def log_flight_static(rec: rr.RecordingStream, motors: bool = True) -> None:
     sticks = ["gAIL (roll stick)", "gELE (pitch stick)", "gRUD (yaw stick)", "gTHR"]
     series_style(rec, ent.FC_STICKS, sticks, [*ent.XYZ_COLORS, (127, 127, 127)])
     series_style(rec, ent.FC_VBAT, "VBAT", (127, 127, 127))
-    if motors:
-        log_motors_static(rec)
 
 
 def log_motors_static(rec: rr.RecordingStream) -> None:
@@ -61,7 +59,7 @@ def log_motors_static(rec: rr.RecordingStream) -> None:
         rec.log(ent.motor_path(m.number), arrow, static=True)
 
 
-def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = None) -> int:
+def log_flight_control(rec: rr.RecordingStream, tel: Any) -> int:
     """Log the flight-control rows of ``tel`` (``tel.fc``); returns the rows logged (0: none in the stream)."""
     fc = getattr(tel, "fc", None)
     if fc is None or len(fc) == 0:
@@ -85,9 +83,5 @@ def log_flight_control(rec: rr.RecordingStream, tel: Any, summary: Any | None = 
     # thrust arrows: the command TIM4 gets (clamped to 0..MOTOR_MAX_PWM), 1 unit = 100 % duty
     frac = np.clip(mp, 0.0, C.MOTOR_MAX_PWM) / C.PWM_PERIOD
     for k, m in enumerate(MOTORS):
-        v = np.zeros((len(mp), 3), np.float32)
-        v[:, 2] = frac[:, k]
-        send_arrows(rec, ent.motor_path(m.number), times, v)
-    if summary is not None:
-        summary.samples[ent.FC_MOTORS] = len(fc)
+        send_arrows(rec, ent.motor_path(m.number), times, np.column_stack([np.zeros((len(mp), 2)), frac[:, k]]))
     return len(fc)

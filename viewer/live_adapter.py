@@ -3,6 +3,8 @@ to them; the session knows it only through the :class:`steval_link.live.pipeline
 
 from __future__ import annotations
 
+import contextlib
+import functools
 from pathlib import Path
 
 from steval_link.link.ble_payloads import ble_items, layout_named
@@ -21,18 +23,15 @@ class ViewerLogger:
         #: whether a viewer gets the stream (else only the ``.rrd``: merged batches, few chunks)
         self.has_viewer = self.session.viewer_url is not None
         ble = getattr(options, "link_kind", None) == "ble"  # a BLE link: its layout from the start
-        self.logger = live_log.LiveLogger(self.session.rec, estimator_names=options.estimators, ble=ble)
-        file_rec = self.session.file_rec  # a viewer and an .rrd: the file's own stream and logger
-        self.file = None
-        if file_rec is not None:
-            self.file = live_log.LiveLogger(file_rec, estimator_names=options.estimators, ble=ble)
+        logger = functools.partial(live_log.LiveLogger, estimator_names=options.estimators, ble=ble)
+        self.logger = logger(self.session.rec)
+        self.file = None if self.session.file_rec is None else logger(self.session.file_rec)
 
     @property
     def output_failure(self) -> str | None:
         """Why the ``.rrd`` stopped being written, one sentence (the session says it: closing does not raise it)."""
         failure = self.session.rrd_failure
-        if failure is not None:
-            self.session.rrd_failure_said = True
+        self.session.rrd_failure_said |= failure is not None
         return failure
 
     def __getattr__(self, name: str):
@@ -47,14 +46,11 @@ class ViewerLogger:
             self.file.log_link(stats, t_unix_s)
 
     def close(self) -> None:
-        try:
-            try:
-                self.logger.close()
-            finally:
-                if self.file is not None:
-                    self.file.close()
-        finally:
-            self.session.close()
+        with contextlib.ExitStack() as stack:  # each closes even when the one before raised
+            stack.callback(self.session.close)
+            if self.file is not None:
+                stack.callback(self.file.close)
+            self.logger.close()
 
 
 #: notifications fed to the pipeline at a time by :func:`recording_sink`
@@ -62,8 +58,7 @@ REPLAY_BATCH = 4096
 
 
 def recording_sink(options, estimators: list[str], src, *, layout: str = "stock", progress=None) -> int:
-    """``steval replay`` of a BLE capture ``src`` in Rerun: its notifications through the one pipeline into the one
-    logger (every row's attitude); returns the rows logged."""
+    """``steval replay`` of a BLE capture ``src`` in Rerun, through the one pipeline and logger; the rows logged."""
     from steval_viewer import live_log, sinks  # Rerun loads only for a viewer or an .rrd (start-up time)
 
     items = ble_items(src.chunks or {}, getattr(src, "events", None) or [])

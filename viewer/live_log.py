@@ -1,13 +1,10 @@
-"""Low-latency logging of a live session: each batch of frames that arrived together is logged at once.
-
-Attitude rows go out before ``log_batch`` returns, in one Arrow record batch for every entity (:class:`RowBatch`,
-one ``send_record_batch`` call; Rerun splits it into one chunk per entity). Status and link rows are queued for the
-next batch, text records every :data:`RECORDS_INTERVAL_S`: an ``.rrd`` sink keeps some memory per chunk.
+"""Low-latency logging of a live session: the attitude rows of each batch of frames go out before ``log_batch``
+returns, in one Arrow record batch for every entity (:class:`RowBatch`). Status and link rows wait for the next
+batch, text records :data:`RECORDS_INTERVAL_S` (an ``.rrd`` sink keeps some memory per chunk).
 
 Why not ``rr.send_columns`` per entity: a live round logs ~22 entities for a handful of frames, and one record
-batch costs about half as much (the live latency goal, ``benchmarks/bench_live_latency.py``). The price: Rerun's
-column metadata keys tie this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity
-back, so a change of that format fails the tests, not the users."""
+batch costs about half as much (``benchmarks/bench_live_latency.py``). The price: Rerun's column metadata keys tie
+this module to the pinned Rerun SDK; ``tests/test_viewer.py`` reads every live entity back."""
 
 from __future__ import annotations
 
@@ -24,7 +21,7 @@ from steval_viewer import blueprint as bp
 from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
 from steval_viewer.columns import Times, log_text_style, send_records, send_scalars, unit_xyzw
-from steval_viewer.replay_log import display_quaternions, firmware_series, send_values_bad_note
+from steval_viewer.replay_log import REPLICA_NAMES, display_quaternions, firmware_series, send_values_bad_note
 
 #: (column name, archetype, component type) of each component kind a live round logs
 _SCALAR = ("Scalars:scalars", "rerun.archetypes.Scalars", "rerun.components.Scalar")
@@ -41,20 +38,17 @@ def _field(pa, cache: dict, name: str, typ, **meta: str):
 
 
 class RowBatch:
-    """Many entities' columns for the same N rows in one record batch. A non-finite value is a null (no sample);
-    a ``Clear`` is sent when an entity turns bad, so plots show a gap."""
+    """Many entities' columns for N rows in one record batch; a non-finite value is a null, a ``Clear`` a gap."""
 
-    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict | None = None) -> None:
+    def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict) -> None:
         import pyarrow as pa
 
-        self._pa = pa
-        self.times = times
-        self.n = len(times)
+        self._pa, self.times, self.n = pa, times, len(times)
         self.fields: list = []
         self.arrays: list = []
-        self.bad_state = bad_state
+        self.bad_state = bad_state  # entity path -> its last row was a gap
         self.clear_rows: dict[str, np.ndarray] = {}
-        self.cache = {} if cache is None else cache  # Arrow fields and offsets, reused across batches
+        self.cache = cache  # Arrow fields and offsets, reused across batches
 
     def _index(self) -> None:
         pa = self._pa
@@ -111,18 +105,12 @@ class RowBatch:
             v2 = np.where(good[:, None], v2, 0.0)
         self._add(path, _SCALAR, v2, v2.shape[1], good, all_good)
 
-    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray | None = None) -> None:
-        self._kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
+    def quaternions(self, path: str, q_wxyz: np.ndarray, select: np.ndarray) -> None:
+        self.kept(path, _QUAT, *unit_xyzw(np.reshape(q_wxyz, (self.n, 4))), select)
 
-    def vectors(self, path: str, v: np.ndarray, select: np.ndarray | None = None) -> None:
-        v = np.asarray(v, dtype=np.float64).reshape(self.n, 3)
-        self._kept(path, _VEC, v, np.isfinite(v).all(axis=1), select)
-
-    def _kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray | None) -> None:
-        """A 3D entity's ``good`` rows (and ``select``): it keeps its last value, never cleared. A path never good is
-        not sent (the viewer rejects an all-null column); a path sent once is in ``bad_state``."""
-        if select is not None:
-            good = good & select
+    def kept(self, path: str, kind, values: np.ndarray, good: np.ndarray, select: np.ndarray) -> None:
+        """A 3D entity's ``good`` and ``select`` rows, never cleared; unsent until one is (no all-null column)."""
+        good = good & select
         if path not in self.bad_state and not good.any():
             return
         self._add(path, kind, np.where(good[:, None], values, 0.0), values.shape[1], good, bool(good.all()))
@@ -149,9 +137,6 @@ LINK_INTERVAL_S = 0.5
 RECORDS_PER_SEND = 64
 RECORDS_INTERVAL_S = 0.05
 
-#: Estimator names of the live session that mean the bit-exact firmware replica.
-REPLICA_NAMES = ("st-mahony", "st_mahony", "st-mahony-replica", "st_mahony_replica")
-
 
 def live_source(name: str) -> str:
     """Entity segment of a live estimate name (the seeded ST replica -> ``st_mahony_replica``, as in replays)."""
@@ -168,58 +153,44 @@ class LiveLogger:
         self.rec = rec
         self.sources = {name: live_source(name) for name in estimator_names}
         segs = list(dict.fromkeys(self.sources.values()))
-        #: the 3D view's updates per second of stream time at most (a replay: every row)
-        self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf
-        self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True)
-        self._tabs = dict(ble=False, text=False)  # the tabs the blueprint sent last has
-        self._motors_shown = False  # the motor arrows' fixed parts were logged (with the first flight frame)
+        self.max_3d_hz = LIVE_3D_MAX_HZ if live else math.inf  # a replay: every row
+        # the blueprint's arguments; ``ble`` and ``text``: the tabs the blueprint sent last has
+        self._blueprint = dict(live=live, ghost_sources=segs, flight_control=True, ble=False, text=False)
         self._binary_seen = False  # binary attitude frames came: the attitude tabs stay in front
         if ble:
             self._ble_layout()
         else:
-            bp.send_blueprint(rec, **self._tabs, **self._blueprint)
+            bp.send_blueprint(rec, **self._blueprint)
         drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
-        flight_log.log_flight_static(rec, motors=False)  # the motor arrows with the first flight-control frame
-        self._last_motors_fw = -math.inf  # fw time of the last motor-arrow update
-        self.frames = 0
-        self.frames_missing = 0
+        flight_log.log_flight_static(rec)  # the motor arrows with the first flight-control frame
+        self.frames = self.frames_missing = self._bin_count = self._records_queued = 0
+        # fw s of the last motor-arrow and 3D updates, host s of the last link row and text-record send
+        self._last_motors_fw = self._last_3d_s = self._last_link_s = self._records_sent_s = -math.inf
         self._last_step: int | None = None
         self._bin_start: float | None = None  # host s of the current 1 s frame-rate bin
-        self._bin_count = 0
-        self._last_link_s = -math.inf
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame
-        self._bad: dict[str, bool] = {}  # entity path -> its last row was a gap
-        self._last_3d_s = -math.inf  # fw time of the last 3D update
-        self._arrow_cache: dict = {}  # Arrow fields/offsets reused by every batch
+        self._bad: dict[str, bool] = {}  # RowBatch.bad_state
+        self._arrow_cache: dict = {}  # RowBatch.cache
         self._values_bad_noted = False  # the first frame with NaN/out-of-range values has its note
         self._last_good_step: int | None = None  # step of the latest frame without bad values
-        #: link/status rows waiting for the next batch (see the module docstring): path -> [(fw s, host s, values)]
+        #: rows waiting, [(fw s, host s, values)]: link/status rows by path, text records by shape (their names)
         self._pending_rows: dict[str, list[tuple[float, float, tuple[float, ...]]]] = {}
-        #: text records waiting, per record shape (its names): [(fw s, host s, values)]
         self._records: dict[tuple[str, ...], list[tuple[float, float, tuple[float, ...]]]] = {}
-        self._records_queued = 0  # text records queued since the last send
-        self._records_sent_s = -math.inf  # host time of that send, s
 
     def log_batch(self, batch: Any) -> None:
-        """Log N attitude rows that arrived together (``LiveRows``: ``attitude`` and ``estimates``, name -> (N, 4)
-        q_wxyz, NaN where undefined). Non-finite values are gaps, never plotted."""
-        a = batch.attitude
-        n = len(a)
+        """N attitude rows that arrived together (``LiveRows``: ``attitude``; ``estimates``, name -> (N, 4) q_wxyz)."""
+        a, n = batch.attitude, len(batch.attitude)
         if n == 0:
             return
         self._binary_seen = self._binary_seen or bool(a.exact.any())
-        step = a.step
-        times = Times(a.t_fw_s, a.t_host_s, step)
+        step, times = a.step, Times(a.t_fw_s, a.t_host_s, a.step)
         bad = a.values_bad
         if bad.any() and not self._values_bad_noted:  # the first row of the session with bad values: one warning
             self._values_bad_noted = True
             i = int(np.argmax(bad))
-            sentence = (
-                f"the firmware's values are NaN or out of range from step {int(step[i])} on "
-                f"(t = {float(times.t_fw_s[i]):.3f} s), as sent"
-            )
-            good = np.flatnonzero(~bad[:i])
-            last = int(step[good[-1]]) if good.size else self._last_good_step
+            where = f"from step {int(step[i])} on (t = {float(times.t_fw_s[i]):.3f} s)"
+            sentence = f"the firmware's values are NaN or out of range {where}, as sent"
+            last = int(step[i - 1]) if i else self._last_good_step  # the rows before the first bad one are good
             send_values_bad_note(self.rec, times.take(np.array([i])), sentence, last)
         good_rows = np.flatnonzero(~bad)
         if good_rows.size:
@@ -239,7 +210,8 @@ class LiveLogger:
             sel_fw[good_rows if every else good_rows[-1:]] = True
             rb.quaternions(ent.DRONE_FIRMWARE, display_quaternions(a), sel_fw)
             with np.errstate(invalid="ignore"):
-                rb.vectors(ent.ACC_GRAVITY, -a.acc_mg.astype(np.float64) / 1000.0, sel3d)
+                gravity = -a.acc_mg.astype(np.float64).reshape(n, 3) / 1000.0
+            rb.kept(ent.ACC_GRAVITY, _VEC, gravity, np.isfinite(gravity).all(axis=1), sel3d)
         for path, values in firmware_series(a):
             rb.scalars(path, values)
         if getattr(batch, "mag_mgauss", None) is not None:
@@ -264,8 +236,8 @@ class LiveLogger:
         self._link_from_frames(times, step)
         self.flush_rows(records=False)  # the records go after the rows (log_record): not in the rows' latency
 
-    def _queue_row(self, path: str, t_fw_s: float, t_host_s: float, values) -> None:
-        self._pending_rows.setdefault(path, []).append((t_fw_s, t_host_s, tuple(float(v) for v in values)))
+    def _queue_row(self, path: str, at: tuple[float, float], values) -> None:
+        self._pending_rows.setdefault(path, []).append((*at, tuple(float(v) for v in values)))
 
     def flush_rows(self, *, records: bool = True) -> None:
         """Send the queued rows (and, with ``records``, the text records): one ``send_columns`` per entity."""
@@ -289,32 +261,26 @@ class LiveLogger:
             if self._bin_start is None:
                 self._bin_start = h
             if h - self._bin_start >= 1.0:
-                fw = float(times.t_fw_s[i])
-                host_i = float(times.t_host_s[i]) if times.t_host_s is not None else math.nan
-                self._queue_row(ent.LINK_RATE, fw, host_i, (self._bin_count / (h - self._bin_start),))
-                self._queue_row(ent.LINK_MISSING, fw, host_i, (float(self.frames_missing),))
+                at = (float(times.t_fw_s[i]), float(times.t_host_s[i]) if times.t_host_s is not None else math.nan)
+                self._queue_row(ent.LINK_RATE, at, (self._bin_count / (h - self._bin_start),))
+                self._queue_row(ent.LINK_MISSING, at, (float(self.frames_missing),))
                 self._bin_start, self._bin_count = h, 0
             self._bin_count += 1
 
     def log_status(self, frame: Any, at: Any) -> None:
-        """A status frame at ``at`` (the time of the attitude frame before it): AHRS cycles (min/mean/max), TX drops
-        and queue peak, queued for the next batch."""
-        fw, host = at.t_fw_s, at.t_host_s
+        """A status frame: AHRS cycles (min/mean/max), TX drops and queue peak, queued for the next batch."""
         if int(getattr(frame, "cyc_n", 0) or 0) > 0:
-            self._queue_row(ent.LINK_CYCLES, fw, host, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
-        self._queue_row(ent.LINK_TX_DROPPED, fw, host, (float(frame.tx_dropped),))
-        self._queue_row(ent.LINK_QUEUE, fw, host, (float(getattr(frame, "queue_peak", 0)),))
+            self._queue_row(ent.LINK_CYCLES, at, (frame.cyc_min, frame.cyc_mean, frame.cyc_max))
+        self._queue_row(ent.LINK_TX_DROPPED, at, (float(frame.tx_dropped),))
+        self._queue_row(ent.LINK_QUEUE, at, (float(getattr(frame, "queue_peak", 0)),))
 
     def log_text(self, frame: Any, at: Any) -> None:
         """A firmware text line (TextFrame or str) at ``at``."""
-        self._log_line(ent.LOG_FIRMWARE, frame if isinstance(frame, str) else frame.text, at, "INFO")
+        self.log_event(frame if isinstance(frame, str) else frame.text, at, path=ent.LOG_FIRMWARE)
 
-    def _log_line(self, path: str, text: str, at: Any, level: str) -> None:
-        host = math.nan if at is None else at.t_host_s
-        self._log_at(path, rr.TextLog(text, level=level), at.t_fw_s if math.isfinite(host) else math.nan, host)
-
-    def _log_at(self, path: str, archetype: Any, fw: float, host: float) -> None:
-        """Log ``archetype`` at ``path`` on the firmware and host timelines (each only when finite)."""
+    def _log_at(self, path: str, archetype: Any, at: tuple[float, float]) -> None:
+        """Log ``archetype`` at ``path`` at ``at`` = (fw s, host s), on each timeline only when finite."""
+        fw, host = at
         self.rec.reset_time()
         for timeline, t in ((ent.TIMELINE_FW, fw), (ent.TIMELINE_HOST, host)):
             if math.isfinite(t):
@@ -323,8 +289,7 @@ class LiveLogger:
         self.rec.reset_time()
 
     def log_record(self, frame: Any, at: Any) -> None:
-        """A record of text telemetry: a row of its shape's entity under ``text/`` at the host time (firmware time:
-        the latest row's, else the host time), sent in blocks."""
+        """A record of text telemetry: a row of its shape's entity under ``text/`` at host time, sent in blocks."""
         host = at.t_host_s
         if not math.isfinite(host):
             return
@@ -340,40 +305,37 @@ class LiveLogger:
             self.flush_rows()
 
     def log_flight(self, frame: Any, at: Any) -> None:
-        """A flight-control frame at ``at`` (queued like the status rows; none before the first attitude row); the
-        motors' arrows at most every 0.1 s."""
+        """A flight-control frame, queued (none before the first attitude row); the motors' arrows every 0.1 s."""
         if self._last_times is None:
             return
-        fw, host = at.t_fw_s, at.t_host_s
         rc = np.degrees(np.asarray(frame.euler_rc_rad, dtype=np.float64))
         for path, v in zip(ent.FC_TARGETS, rc):
-            self._queue_row(path, fw, host, (v,))
+            self._queue_row(path, at, (v,))
         for path, v in zip(ent.FC_OUTER, frame.outer_s1):
-            self._queue_row(f"{path}/s1", fw, host, (v,))
-        self._queue_row(ent.FC_INNER, fw, host, frame.inner_s2)
-        self._queue_row(ent.FC_MOTORS, fw, host, frame.motor_pwm)
-        self._queue_row(ent.FC_STICKS, fw, host, frame.rc)
-        self._queue_row(ent.FC_VBAT, fw, host, (frame.vbat_v,))
-        if abs(fw - self._last_motors_fw) >= 0.1:
-            self._last_motors_fw = fw
-            if not self._motors_shown:  # the arrows' fixed parts with their first vectors
-                self._motors_shown = True
+            self._queue_row(f"{path}/s1", at, (v,))
+        self._queue_row(ent.FC_INNER, at, frame.inner_s2)
+        self._queue_row(ent.FC_MOTORS, at, frame.motor_pwm)
+        self._queue_row(ent.FC_STICKS, at, frame.rc)
+        self._queue_row(ent.FC_VBAT, at, (frame.vbat_v,))
+        if abs(at.t_fw_s - self._last_motors_fw) >= 0.1:
+            if self._last_motors_fw == -math.inf:  # the arrows' fixed parts with their first vectors
                 flight_log.log_motors_static(self.rec)
+            self._last_motors_fw = at.t_fw_s
             for k, v in enumerate(frame.motor_pwm):
                 frac = min(max(float(v), 0.0), C.MOTOR_MAX_PWM) / C.PWM_PERIOD
-                self._log_at(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]), fw, host)
+                self._log_at(ent.motor_path(k + 1), rr.Arrows3D.from_fields(vectors=[(0.0, 0.0, frac)]), at)
 
     def log_environment(self, frame: Any, at: Any) -> None:
         """A BLE environment frame (``BleEnvFrame``) at its tick: pressure, battery, temperature, RSSI (queued)."""
         self._ble_layout()
         values = (frame.pressure_hpa, frame.battery_pct, frame.temperature_c, frame.rssi_dbm)
         for path, v in zip(ent.BLE_ENVIRONMENT, values):
-            self._queue_row(path, at.t_fw_s, at.t_host_s, (v,))
+            self._queue_row(path, at, (v,))
 
     def log_arming(self, frame: Any, at: Any) -> None:
         """A BLE arming frame (``BleArmingFrame``) at its tick (queued)."""
         self._ble_layout()
-        self._queue_row(ent.BLE_ARMED, at.t_fw_s, at.t_host_s, (float(frame.armed),))
+        self._queue_row(ent.BLE_ARMED, at, (float(frame.armed),))
 
     def log_note(self, text: str, at: Any) -> None:
         """What the link's rows are (a BLE stream's note), shown beside its values."""
@@ -382,10 +344,10 @@ class LiveLogger:
 
     def _show(self, tab: str) -> bool:
         """Send the blueprint with ``tab`` (``ble``, ``text``) added the first time; whether it was sent."""
-        if self._tabs[tab]:
+        if self._blueprint[tab]:
             return False
-        self._tabs[tab] = True
-        bp.send_blueprint(self.rec, **self._tabs, **self._blueprint)
+        self._blueprint[tab] = True
+        bp.send_blueprint(self.rec, **self._blueprint)
         return True
 
     def _text_layout(self) -> None:
@@ -404,17 +366,17 @@ class LiveLogger:
             self.rec.log(path, rr.SeriesLines(names=[path.rsplit("/", 1)[-1]], widths=[1.5]), static=True)
         self.rec.log(ent.BLE_MAG, rr.SeriesLines(names=["mag x", "mag y", "mag z"], widths=[1.5] * 3), static=True)
 
-    def log_event(self, text: str, at: Any, level: str = "INFO") -> None:
+    def log_event(self, text: str, at: Any, level: str = "INFO", path: str = ent.LOG_COMMANDS) -> None:
         """A command sent to the drone, its acknowledgement or the settings it announced (``log/commands``)."""
-        self._log_line(ent.LOG_COMMANDS, text, at, level)
+        host = math.nan if at is None else at.t_host_s
+        self._log_at(path, rr.TextLog(text, level=level), (at.t_fw_s if math.isfinite(host) else math.nan, host))
 
     def log_link(self, stats: Any, t_unix_s: float) -> None:
         """Decoder CRC failures (cumulative) at the latest row's times, at most every LINK_INTERVAL_S (host s)."""
         if t_unix_s - self._last_link_s < LINK_INTERVAL_S or self._last_times is None:
             return
         self._last_link_s = t_unix_s
-        fw, host = self._last_times
-        self._queue_row(ent.LINK_CRC, fw, host, (float(getattr(stats, "crc_failures", 0)),))
+        self._queue_row(ent.LINK_CRC, self._last_times, (float(getattr(stats, "crc_failures", 0)),))
 
     def close(self) -> None:
         self.flush_rows()

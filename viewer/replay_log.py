@@ -18,32 +18,18 @@ from steval_link.estimators.firmware_replay import replay_variants
 from steval_link.link.commands import command_log
 from steval_link.quat import quaternion_from_euler
 from steval_viewer import blueprint as bp
+from steval_viewer import columns as col
 from steval_viewer import drone_model, flight_log
 from steval_viewer import entities as ent
-from steval_viewer.columns import (
-    Times,
-    log_text_style,
-    send_arrows,
-    send_records,
-    send_scalars,
-    send_texts,
-    send_transforms,
-    text_path,
-)
 from steval_viewer.sinks import log_whole
 
 #: ``progress(fraction done 0..1, stage)``, e.g. ``steval_link.cli.progress``; None: no reports
 Progress = Callable[[float, str], None] | None
 
 
-def _report(progress: Progress, fraction: float, stage: str = "") -> None:
-    if progress is not None:
-        progress(fraction, stage)
-
-
-def _part(progress: Progress, start: float, span: float) -> Progress:
-    """``progress`` for one part of a job: its 0..1 maps to ``start``..``start + span`` (None stays None)."""
-    return None if progress is None else (lambda f, stage="": progress(start + span * f, stage))
+def _part(progress: Progress, start: float = 0.0, span: float = 1.0) -> Callable[..., None]:
+    """``progress`` for one part of a job: its 0..1 maps to ``start``..``start + span`` (None: no reports)."""
+    return lambda f, stage="": None if progress is None else progress(start + span * f, stage)
 
 
 def estimate_mask(est: Any, n: int) -> np.ndarray:
@@ -80,8 +66,7 @@ def firmware_series(att: Any) -> list[tuple[str, np.ndarray]]:
 
 
 def display_quaternions(att: Any) -> np.ndarray:
-    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz. Rows flagged
-    ``values_bad`` are NaN: the drone stays at its last finite attitude."""
+    """The firmware attitude for the 3D view: ``q_wxyz``, else (text mode) from thx/thy/thz; NaN where values_bad."""
     q = np.asarray(att.q_wxyz, dtype=np.float64).copy()
     thx, thy = np.asarray(att.thx_rad, dtype=np.float64), np.asarray(att.thy_rad, dtype=np.float64)
     rows = ~np.isfinite(q).all(axis=1) & np.isfinite(thx) & np.isfinite(thy)
@@ -93,32 +78,31 @@ def display_quaternions(att: Any) -> np.ndarray:
     return q
 
 
-def send_values_bad_note(rec: rr.RecordingStream, at: Times, sentence: str, last_good_step: int | None) -> None:
+def send_values_bad_note(rec: rr.RecordingStream, at: col.Times, sentence: str, last_good_step: int | None) -> None:
     """The warning at the first row with bad values ``at``: ``sentence`` and where the 3D drone stays."""
     where = "without an attitude (no finite one before)"
     if last_good_step is not None:
         where = f"at its last finite attitude (step {last_good_step})"
-    send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
+    col.send_texts(rec, ent.LOG_FILTER, at, [f"{sentence}; the 3D drone stays {where}"], ["WARN"])
 
 
 class _Replay:
     """One replay being logged: its recording, the attitude rows' times and the samples sent per entity path."""
 
-    def __init__(self, rec: rr.RecordingStream, times: Times, summary: ReplaySummary) -> None:
+    def __init__(self, rec: rr.RecordingStream, times: col.Times, summary: ReplaySummary) -> None:
         self.rec, self.times, self.summary = rec, times, summary
 
-    def scalars(self, path: str, values: np.ndarray, valid: np.ndarray | None = None, times: Times | None = None):
-        self.summary.samples[path] = send_scalars(self.rec, path, times or self.times, values, valid)
+    def scalars(self, path: str, values: np.ndarray, valid: np.ndarray | None = None, times: col.Times | None = None):
+        self.summary.samples[path] = col.send_scalars(self.rec, path, times or self.times, values, valid)
 
     def texts_at(self, path: str, t_host: np.ndarray, texts: list, levels: list) -> None:
-        """Text entries at host times ``t_host`` (s), their firmware time interpolated from the attitude rows'; an
-        entry without a time is logged without a timeline."""
+        """Text entries at host times ``t_host`` (s), firmware time interpolated; one without a time has no timeline."""
         timed = np.isfinite(t_host) & (self.times.t_host_s is not None)
         idx = np.flatnonzero(timed)
         if idx.size:
             pairs = np.isfinite(self.times.t_host_s)
-            t_fw = np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs])
-            send_texts(self.rec, path, Times(t_fw, t_host[idx]), [texts[i] for i in idx], [levels[i] for i in idx])
+            at = col.Times(np.interp(t_host[idx], self.times.t_host_s[pairs], self.times.t_fw_s[pairs]), t_host[idx])
+            col.send_texts(self.rec, path, at, [texts[i] for i in idx], [levels[i] for i in idx])
         for i in np.flatnonzero(~timed):
             self.rec.log(path, rr.TextLog(texts[i], level=levels[i]))
         self.summary.samples[path] = len(texts)
@@ -127,10 +111,10 @@ class _Replay:
         """The firmware's side of each attitude row: 3D attitude, gravity arrow, angles, raw sensors, throttle."""
         samples = self.summary.samples
         q = display_quaternions(att)
-        samples[ent.DRONE_FIRMWARE] = send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
+        samples[ent.DRONE_FIRMWARE] = col.send_transforms(self.rec, ent.DRONE_FIRMWARE, self.times, q)
         with np.errstate(invalid="ignore"):  # body frame, 1 g = 1 unit; the accelerometer reads +1 g up at rest
             gravity = -np.asarray(att.acc_mg, dtype=np.float64) / 1000.0
-        samples[ent.ACC_GRAVITY] = send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
+        samples[ent.ACC_GRAVITY] = col.send_arrows(self.rec, ent.ACC_GRAVITY, self.times, gravity)
         for path, values in firmware_series(att):
             self.scalars(path, values)
 
@@ -139,7 +123,7 @@ class _Replay:
         valid = estimate_mask(est, len(self.times))
         if ghost:
             path = ent.estimate_path(source)
-            self.summary.samples[path] = send_transforms(self.rec, path, self.times, est.q_wxyz, valid)
+            self.summary.samples[path] = col.send_transforms(self.rec, path, self.times, est.q_wxyz, valid)
         self.scalars(ent.pitch_path(source), _deg(est.thx_rad), valid)
         self.scalars(ent.roll_path(source), _deg(est.thy_rad), valid)
 
@@ -154,9 +138,14 @@ class _Replay:
         """Link health over time: frame rate and missing frames per 1 s bin, status-frame counters, decoder totals."""
         times, n = self.times, len(self.times)
         if n:
-            last, counts = _bins_1s(times.t_fw_s)
+            t = times.t_fw_s
+            rows = np.flatnonzero(np.isfinite(t))
+            # 1 s bins of firmware time (NaN rows ignored, time never goes back): each one's last row, rows per bin
+            k = np.maximum.accumulate(np.floor(t[rows] - t[rows[:1]]).astype(np.int64))
+            ends = np.flatnonzero(np.diff(k, append=k[-1:] + 1))
+            last, counts = rows[ends], np.diff(np.concatenate(([-1], ends)))
             # frames per second of firmware time inside each bin (exact for partial first/last bins too)
-            span = times.t_fw_s[last] - times.t_fw_s[np.concatenate(([0], last[:-1] + 1))]
+            span = t[last] - t[np.concatenate(([0], last[:-1] + 1))]
             with np.errstate(invalid="ignore", divide="ignore"):
                 rate = np.where((counts > 1) & (span > 0), (counts - 1) / span, np.nan)
             self.scalars(ent.LINK_RATE, rate, times=times.take(last))
@@ -168,7 +157,7 @@ class _Replay:
                 self.scalars(ent.LINK_CRC, np.array([float(crc)]), times=times.take(np.array([n - 1])))
         st = getattr(tel, "status", None)
         if st is not None and len(getattr(st, "t_fw_s", ())):
-            stimes = Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
+            stimes = col.Times(st.t_fw_s, getattr(st, "t_host_s", None), getattr(st, "step", None))
             cyc = np.stack([st.cyc_min, st.cyc_mean, st.cyc_max], axis=1).astype(np.float64)
             self.scalars(ent.LINK_CYCLES, cyc, np.asarray(st.cyc_n) > 0, stimes)  # no steps covered: no figures
             self.scalars(ent.LINK_TX_DROPPED, np.asarray(st.tx_dropped, dtype=np.float64), times=stimes)
@@ -182,15 +171,14 @@ class _Replay:
             self.texts_at(ent.LOG_FIRMWARE, t_host, [str(s) for _, s in text], ["INFO"] * len(text))
         series = getattr(tel, "text_series", None)
         if series is not None and len(series):
-            # an entity per record shape under ``text/``, a named line per series, at each record's time (``t_s``:
-            # a timestamp column, the host's times, ST's line rate or the record index) and host time
-            times = Times(series.t_s, series.t_host_s)
+            # an entity per record shape under ``text/``, a named line per series, at each record's t_s and host time
+            times = col.Times(series.t_s, series.t_host_s)
             for k, names in enumerate(series.shapes):
                 rows = np.flatnonzero(series.shape == k)
                 cols = [series.names.index(name) for name in names]
-                log_text_style(self.rec, names, [series.units[c] for c in cols])
-                send_records(self.rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
-                self.summary.samples[text_path(names)] = len(rows)
+                col.log_text_style(self.rec, names, [series.units[c] for c in cols])
+                col.send_records(self.rec, names, times.take(rows), series.values[np.ix_(rows, cols)])
+                self.summary.samples[col.text_path(names)] = len(rows)
         # one entry per command at the time it was sent; a refusal or a missing ack as a warning
         entries = command_log(getattr(tel, "commands", ()), getattr(tel, "acks", ()))
         if entries:
@@ -209,16 +197,6 @@ class _Replay:
         last = int(np.asarray(att.step)[good[-1]]) if good.size else None
         send_values_bad_note(self.rec, self.times.take(np.array([i])), rep["text"], last)
         self.summary.samples[ent.LOG_FILTER] = 1
-
-
-def _bins_1s(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(last row index of each 1 s bin, rows per bin) over a time array (NaN rows ignored)."""
-    rows = np.flatnonzero(np.isfinite(t_s))
-    if not rows.size:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    k = np.maximum.accumulate(np.floor(t_s[rows] - t_s[rows[0]]).astype(np.int64))  # time never goes back
-    ends = np.flatnonzero(np.diff(k, append=k[-1] + 1))
-    return rows[ends], np.diff(np.concatenate(([-1], ends)))
 
 
 def absent_plots(tel, replica) -> list[str]:
@@ -273,15 +251,17 @@ def log_replay(
     drone_model.log_static(rec, names, with_replica=replica is not None)
     if has_fc:
         flight_log.log_flight_static(rec)
+        flight_log.log_motors_static(rec)
 
     summary = ReplaySummary(sources=names)
-    log = _Replay(rec, Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
-    _report(progress, 0.0, "logging the firmware's series")
+    log = _Replay(rec, col.Times(att.t_fw_s, getattr(att, "t_host_s", None), getattr(att, "step", None)), summary)
+    report = _part(progress)
+    report(0.0, "logging the firmware's series")
     log.firmware(att)
     for i, (source, est) in enumerate(sources):
-        _report(progress, (i + 1) / (len(sources) + 2), f"logging {source}")
+        report((i + 1) / (len(sources) + 2), f"logging {source}")
         log.estimate(source, est, ghost=source in ghost_sources)
-    _report(progress, (len(sources) + 1) / (len(sources) + 2), "logging link health and text")
+    report((len(sources) + 1) / (len(sources) + 2), "logging link health and text")
     if replica is not None:
         log.replica_difference(att, replica)
     if link:
@@ -289,7 +269,7 @@ def log_replay(
     log.text(tel)
     log.values_bad(tel)
     if has_fc:
-        flight_log.log_flight_control(rec, tel, summary)
+        summary.samples[ent.FC_MOTORS] = flight_log.log_flight_control(rec, tel)
     return summary
 
 
@@ -303,8 +283,7 @@ def replay_y_ranges(tel: Any, estimates: list[Any]) -> dict[str, tuple[float, fl
         out[path] = bp.legend_room(np.concatenate(vals), share=share, bottom=False)
     acc = np.asarray(att.acc_mg, np.float64)
     out[ent.PLOT_ACC] = bp.legend_room(acc, share=bp.LEGEND_SHARE["sensors"], bottom=True)
-    step = np.asarray(att.step, dtype=np.int64)
-    lost = [float(np.clip(np.diff(step) - 1, 0, None).sum()) if len(step) > 1 else 0.0]
+    lost = [float(np.clip(np.diff(np.asarray(att.step, dtype=np.int64)) - 1, 0, None).sum())]
     lost.append(float(getattr(getattr(tel, "stats", None), "crc_failures", 0) or 0))
     st = getattr(tel, "status", None)
     if st is not None and len(getattr(st, "t_fw_s", ())):
@@ -320,9 +299,8 @@ REPLICA_NAMES = ("st-mahony", "st_mahony")
 def log_telemetry(
     rec: rr.RecordingStream, tel: Any, estimates: Mapping[str, Any] | None = None, *, progress: Progress = None
 ) -> ReplaySummary:
-    """Run the seeded firmware replica (the release whose filter is bit-exact; none without bit-exact rows: text
-    mode) and log it with ``estimates``; a registry ``st-mahony`` estimate (not seeded) gives way to the replica."""
-    _report(progress, 0.0, "ST-Mahony replica")
+    """Log ``tel`` with its seeded bit-exact replica (none in text mode) and ``estimates``; ``st-mahony`` gives way."""
+    _part(progress)(0.0, "ST-Mahony replica")
     replica = None
     if np.asarray(getattr(tel.attitude, "exact", True)).any():
         replica = replay_variants(tel, hint=capture_variant_hint(tel)).replay
@@ -337,6 +315,6 @@ def replay_sink(options: Any, tel: Any, estimates: Mapping[str, Any], *, progres
 
     def log(rec):
         log_telemetry(rec, tel, estimates, progress=_part(progress, 0.0, 0.6))
-        _report(progress, 0.6, "writing to Rerun")
+        _part(progress)(0.6, "writing to Rerun")
 
     log_whole(options, name, log)

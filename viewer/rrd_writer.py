@@ -33,8 +33,7 @@ FOOTER_BYTES = 32
 
 
 def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
-    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data``, end messages and footers left
-    out; ValueError on other bytes."""
+    """(stream header, [(kind, whole message)...]) of the RRD streams in ``data`` but end messages; ValueError."""
     header, out, pos, n = b"", [], 0, len(data)
     while pos < n:
         if data[pos : pos + 4] != STREAM_MAGIC:
@@ -56,8 +55,7 @@ def rrd_messages(data: bytes) -> tuple[bytes, list[tuple[int, bytes]]]:
 
 
 class RrdWriter:
-    """Writes the stream ``rec`` to ``path`` (a new file) until :meth:`close`; UserError (nothing left behind)
-    when the file cannot be made or its first bytes cannot be written."""
+    """Writes the stream ``rec`` to the new file ``path`` until :meth:`close`; UserError when it cannot start."""
 
     def __init__(self, rec, path: str | os.PathLike, *, shown: str | None = None) -> None:
         self.path = Path(path)
@@ -72,7 +70,6 @@ class RrdWriter:
         self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         self._stream = rec.binary_stream()
-        self._header_done = False
         self._store_infos: set[bytes] = set()
         try:
             self._write(self._stream.read(flush=True) or b"")
@@ -90,7 +87,7 @@ class RrdWriter:
         if not segment:
             return
         header, messages = rrd_messages(segment)
-        parts = [] if self._header_done else [header]
+        parts = [] if self.bytes_written else [header]  # the stream header once, first
         for kind, message in messages:
             if kind == STORE_INFO_KIND:
                 if message in self._store_infos:
@@ -102,7 +99,6 @@ class RrdWriter:
         while view:
             view = view[self._file.write(view) :]
         self.bytes_written += len(data)  # after the whole write: a failed one is cut back to here
-        self._header_done = True
 
     def _fail(self, why: str) -> None:
         """Stop writing (the file is closed) and keep one sentence saying what happened and what the file holds."""

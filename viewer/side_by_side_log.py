@@ -12,7 +12,7 @@ import rerun.blueprint as rrb
 from steval_link.analysis.side_by_side import SideBySide, difference_series, format_side_by_side
 from steval_viewer import drone_model
 from steval_viewer.blueprint import window
-from steval_viewer.columns import series_style, unit_xyzw
+from steval_viewer.columns import Times, send_scalars, send_transforms, series_style
 from steval_viewer.sinks import log_whole
 
 TIMELINE = "aligned_time"
@@ -33,17 +33,12 @@ def flight_path(i: int, leaf: str) -> str:
 
 
 def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
-    """Pitch of every flight overlaid (with their accel-only tilt), roll the same, the differences from the first
-    flight, one 3D view per flight, and the notes."""
+    """Pitch and roll of every flight overlaid (with accel-only tilt), differences from the first, 3D views, notes."""
     n = len(labels)
 
     def series(name: str, leaves: list[str]) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(
-            origin=ROOT,
-            name=name,
-            contents=[f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves],
-            plot_legend=rrb.PlotLegend(visible=True),
-        )
+        contents = [f"$origin/{flight_key(i)}/{leaf}" for i in range(n) for leaf in leaves]
+        return rrb.TimeSeriesView(origin=ROOT, name=name, contents=contents, plot_legend=rrb.PlotLegend(visible=True))
 
     plots = rrb.Vertical(
         series("pitch thx (about x, nose up +), deg", ["pitch_thx_deg", "accel_pitch_thx_deg"]),
@@ -59,17 +54,6 @@ def side_by_side_blueprint(labels: list[str]) -> rrb.Blueprint:
     return window(rrb.Horizontal(plots, drones, column_shares=[3, 1]), rrb.TimePanel(timeline=TIMELINE))
 
 
-def _send(rec: rr.RecordingStream, path: str, t_s: np.ndarray, values: np.ndarray) -> int:
-    """A scalar series (N,) or group (N, k) on :data:`TIMELINE`; non-finite rows are left out. Returns rows sent."""
-    v = np.asarray(values, np.float64)
-    good = np.isfinite(v) if v.ndim == 1 else np.isfinite(v).all(axis=1)
-    if not good.any():
-        return 0
-    t = [rr.TimeColumn(TIMELINE, duration=np.asarray(t_s, np.float64)[good])]
-    rec.send_columns(path, indexes=t, columns=rr.Scalars.columns(scalars=v[good]))
-    return int(good.sum())
-
-
 def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
     """Log every flight of ``r`` under its own subtree; returns the rows logged per entity path."""
     rec.send_blueprint(side_by_side_blueprint([f.label for f in r.flights]), make_active=True, make_default=True)
@@ -80,18 +64,13 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         c = COLOURS[i % len(COLOURS)]
         light = tuple(int(0.55 * x + 0.45 * g) for x, g in zip(c, _ACCEL_GREY))
         grey = tuple(max(60, g - 35 * i) for g in _ACCEL_GREY)  # accel-only tilt: greys, the flights stand out
+        gyro_names = [f"{f.label}: gyro {a}" for a in "xyz"]
         leaves = {
             "pitch_thx_deg": (f"{f.label}: pitch thx", c, 2.0, f.t_s, np.degrees(f.thx_rad)),
             "roll_thy_deg": (f"{f.label}: roll thy", c, 2.0, f.t_s, np.degrees(f.thy_rad)),
             "accel_pitch_thx_deg": (f"{f.label}: accel-only pitch", grey, 1.0, f.t_s, np.degrees(f.accel_thx_rad)),
             "accel_roll_thy_deg": (f"{f.label}: accel-only roll", grey, 1.0, f.t_s, np.degrees(f.accel_thy_rad)),
-            "gyro_dps": (
-                [f"{f.label}: gyro {a}" for a in "xyz"],
-                [c, light, _ACCEL_GREY],
-                1.0,
-                f.t_s,
-                np.asarray(f.gyro_mdps, np.float64) / 1000.0,
-            ),
+            "gyro_dps": (gyro_names, [c, light, _ACCEL_GREY], 1.0, f.t_s, np.asarray(f.gyro_mdps, np.float64) / 1000.0),
         }
         if i:
             t, dx, dy = difference_series(ref, f)
@@ -100,15 +79,11 @@ def log_side_by_side(rec: rr.RecordingStream, r: SideBySide) -> dict[str, int]:
         for leaf, (name, colour, width, t, values) in leaves.items():
             path = flight_path(i, leaf)
             series_style(rec, path, name, colour, width)
-            counts[path] = _send(rec, path, t, values)
+            counts[path] = send_scalars(rec, path, Times(t, timeline=TIMELINE), values, gaps=False)
         world = flight_path(i, "world")
         rec.log(world, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         drone_model.log_mesh(rec, f"{world}/drone/model", mesh)
-        xyzw, good = unit_xyzw(f.q_wxyz)
-        if good.any():
-            t = [rr.TimeColumn(TIMELINE, duration=f.t_s[good])]
-            rec.send_columns(f"{world}/drone", indexes=t, columns=rr.Transform3D.columns(quaternion=xyzw[good]))
-        counts[f"{world}/drone"] = int(good.sum())
+        counts[f"{world}/drone"] = send_transforms(rec, f"{world}/drone", Times(f.t_s, timeline=TIMELINE), f.q_wxyz)
     text = "```text\n" + "\n".join(format_side_by_side(r)) + "\n```"
     rec.log(NOTES, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
     counts[NOTES] = 1

@@ -1,6 +1,5 @@
-"""Log a ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` with the standard layout and blueprint.
-The simulated filter takes the place of the drone's own (the ``firmware`` series, labelled ``simulated <name>``);
-``fw_time`` is the simulated time ``(step + 1) * dt_s``."""
+"""A ``steval simulate`` run (UMaine Lab 5 simulator) to an ``.rrd`` in the standard layout: the simulated filter in
+the ``firmware`` series (labelled ``simulated <name>``), ``fw_time`` the simulated ``(step + 1) * dt_s``."""
 
 from __future__ import annotations
 
@@ -25,16 +24,8 @@ def simulation_telemetry(res: Any) -> SimpleNamespace:
     q = np.asarray(res.q_wxyz, dtype=np.float64).copy()
     q[~valid] = np.nan
     angles = {f"th{a}_rad": np.where(valid, np.asarray(getattr(res, f"ea{a}_rad"), np.float64), np.nan) for a in "xyz"}
-    att = SimpleNamespace(
-        step=step,
-        t_fw_s=(step + 1) * float(res.dt_s),
-        t_host_s=np.full(len(step), np.nan),
-        acc_mg=np.asarray(res.acc_mg),
-        gyro_mdps=np.asarray(res.gyro_mdps),
-        thr=np.asarray(res.thr),
-        q_wxyz=q,
-        **angles,
-    )
+    raw = {name: np.asarray(getattr(res, name)) for name in ("acc_mg", "gyro_mdps", "thr")}
+    att = SimpleNamespace(step=step, t_fw_s=(step + 1) * float(res.dt_s), q_wxyz=q, **angles, **raw)
     return SimpleNamespace(attitude=att, status=None, text=[], stats=None)
 
 
@@ -43,17 +34,15 @@ def log_simulation(res: Any, path: str | Path) -> ReplaySummary:
     session = open_session(SinkOptions(rrd=Path(path)), recording_name=f"steval simulate ({res.estimator})")
     try:
         rec = session.rec
-        tel = simulation_telemetry(res)
-        summary = log_replay(rec, tel, {}, None, link=False)
-        label = f"simulated {res.estimator}"
+        summary = log_replay(rec, simulation_telemetry(res), {}, None, link=False)
         fw = ent.SOURCE_FIRMWARE
         paths = (ent.pitch_path(fw), ent.roll_path(fw), ent.yaw_path(fw))
         for path, angle in zip(paths, ("thx pitch", "thy roll", "thz yaw")):
-            series_style(rec, path, f"{angle} ({label})", ent.source_color(fw), 2.5)
+            series_style(rec, path, f"{angle} (simulated {res.estimator})", ent.source_color(fw), 2.5)
         noise = ""
         if getattr(res, "gyro_noise_mdps", 0) or getattr(res, "acc_noise_mg", 0):
             noise = f", noise gyro {res.gyro_noise_mdps:g} mdps / acc {res.acc_noise_mg:g} mg (seed {res.seed})"
-        note = f"steval simulate: {len(tel.attitude.step)} iterations of {res.estimator}, dt {res.dt_s:g} s{noise}"
+        note = f"steval simulate: {len(res.step)} iterations of {res.estimator}, dt {res.dt_s:g} s{noise}"
         rec.log(ent.LOG_HOST, rr.TextLog(note, level="INFO"), static=True)
         return summary
     finally:

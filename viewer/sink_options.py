@@ -1,6 +1,5 @@
 """The Rerun sink choices of a command (:class:`SinkOptions`) and the checks that need no viewer and no Rerun
-import (the ``.rrd``'s folder, the ``--connect`` URL, free ports, a display), so the CLI can check its options
-before any work and before Rerun is loaded."""
+import (the ``.rrd``'s folder, URL, ports, display): the CLI checks its options before any work."""
 
 from __future__ import annotations
 
@@ -19,6 +18,8 @@ DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
 #: longest wait to reach the gRPC port of a ``--connect`` URL
 CONNECT_TIMEOUT_S = 3.0
+#: the ports of a served viewer: SinkOptions field -> what listens there
+_PORTS = {"web_port": "web viewer", "grpc_port": "gRPC"}
 
 
 @dataclass
@@ -78,7 +79,8 @@ def check_sinks(options: SinkOptions) -> None:
     """Check what can be checked before any work (the ``.rrd``'s folder, URL, ports, display); UserError."""
     if options.rrd is not None:
         check_rrd_path(Path(options.rrd))
-    for tcp_port, name in ((options.web_port, "web_port"), (options.grpc_port, "grpc_port")):
+    ports = {name: getattr(options, name) for name in _PORTS}
+    for name, tcp_port in ports.items():
         if not 1 <= int(tcp_port) <= 65535:
             raise ParamError(f"{{{name}}} must be a TCP port from 1 to 65535, got {tcp_port}", name)
     if options.serve:
@@ -86,35 +88,23 @@ def check_sinks(options: SinkOptions) -> None:
             raise ParamError(
                 f"{{web_port}} and {{grpc_port}} must differ, both are {options.web_port}", "web_port", "grpc_port"
             )
-        for tcp_port, name, what in (
-            (options.web_port, "web_port", "web viewer"),
-            (options.grpc_port, "grpc_port", "gRPC"),
-        ):
+        for name, tcp_port in ports.items():
             if not port_free(tcp_port):
-                raise ParamError(
-                    f"port {tcp_port} for the {what} is in use on 127.0.0.1 (an earlier {{serve}} still running?); "
-                    f"stop that program or pick another port with {{{name}}} N",
-                    "serve",
-                    name,
-                )
+                busy = f"port {tcp_port} for the {_PORTS[name]} is in use on 127.0.0.1"
+                fix = f"stop that program or pick another port with {{{name}}} N"
+                raise ParamError(f"{busy} (an earlier {{serve}} still running?); {fix}", "serve", name)
     if options.spawn:
         free = port_free(options.grpc_port)
         if not free and not speaks_grpc("127.0.0.1", options.grpc_port, 2.0):
-            raise ParamError(
-                f"port {options.grpc_port} is in use by a program that is not a Rerun viewer; "
-                "pick another port with {grpc_port} N",
-                "grpc_port",
-            )
+            busy = f"port {options.grpc_port} is in use by a program that is not a Rerun viewer"
+            raise ParamError(f"{busy}; pick another port with {{grpc_port}} N", "grpc_port")
         if free and not display_available():  # no viewer there to reuse, and none can open
             raise no_display_error(" ({spawn})")
     if options.connect:
         host, tcp_port = parse_grpc_url(options.connect)
         if not port_open(host, tcp_port, CONNECT_TIMEOUT_S):
-            raise ParamError(
-                f"no Rerun viewer listens at {options.connect}; start one (`rerun`) or use {{spawn}} or {{serve}}",
-                "spawn",
-                "serve",
-            )
+            why = f"no Rerun viewer listens at {options.connect}"
+            raise ParamError(f"{why}; start one (`rerun`) or use {{spawn}} or {{serve}}", "spawn", "serve")
         plain = options.connect.startswith(("rerun://", "rerun+http://"))
         if plain and not speaks_grpc(host, tcp_port, CONNECT_TIMEOUT_S):
             raise UserError(f"something listens at {options.connect} but it is not a Rerun viewer (no gRPC answer)")
@@ -147,8 +137,7 @@ def parse_grpc_url(url: str) -> tuple[str, int]:
 
 
 def port_free(tcp_port: int) -> bool:
-    """Whether nothing listens on 127.0.0.1:``tcp_port`` (a server could bind it; connections of an earlier run still
-    in TIME_WAIT do not count, as servers bind with SO_REUSEADDR)."""
+    """Whether nothing listens on 127.0.0.1:``tcp_port`` (TIME_WAIT connections do not count: servers reuse them)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         if sys.platform != "win32":  # on Windows SO_REUSEADDR would let us bind over a live listener
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -33,14 +33,12 @@ VIEWER_SETTLE_S = 1.0
 FLUSH_TIMEOUT_S = 120.0
 #: a flush is waited for in slices this long (Ctrl-C is handled between two)
 FLUSH_SLICE_S = 0.25
-#: suffix of an ``.rrd`` being written by a session opened with ``atomic_rrd=True``
 PARTIAL_SUFFIX = ".partial"
 
 
 @dataclass
 class ViewerSession:
-    """An open recording and the processes serving it. ``file_rec``: the ``.rrd``'s own stream when split;
-    ``viewer_url``: the viewer's gRPC URL (None: file only); ``rrd_partial``: where an atomic ``.rrd`` is written."""
+    """An open recording and its viewers; ``file_rec``: the ``.rrd``'s own stream when split, ``viewer_url``: gRPC."""
 
     rec: rr.RecordingStream
     options: SinkOptions
@@ -97,19 +95,9 @@ class ViewerSession:
         if error is not None:
             raise error
 
-    def wait_for_viewer(self) -> None:
-        """With ``--serve``: keep the web viewer up until Ctrl-C or until it exits."""
-        if not self.children:
-            return
-        print("steval: serving until Ctrl-C", file=sys.stderr)
-        with contextlib.suppress(KeyboardInterrupt):
-            while all(c.poll() is None for c in self.children):
-                time.sleep(0.2)
-
 
 def _flush_bounded(rec: rr.RecordingStream, timeout_s: float, viewer_url: str | None) -> None:
-    """``rec.flush`` waited for in short slices (Ctrl-C gets through at once); UserError when a viewer cannot be
-    reached or does not keep up within ``timeout_s``."""
+    """``rec.flush`` in short slices (Ctrl-C gets through); UserError when a viewer is gone or not done in time."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
@@ -162,9 +150,11 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
 
 
-def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tuple[subprocess.Popen, Path]:
-    """Start ``rerun`` with ``args``; returns the process and its log file. ``detached``: it outlives this program."""
-    log_path = Path(tempfile.gettempdir()) / f"steval-{what}-{tcp_port}.log"
+def _start(args: list[str], tcp_port: int, *, detached: bool, settle_s: float = 0.0) -> subprocess.Popen:
+    """Start ``rerun`` with ``args`` (``detached``: the desktop viewer, it outlives us; else the web viewer) until it
+    listens on ``tcp_port`` and still runs ``settle_s`` later (one with no window dies then); OSError, ParamError."""
+    what = "Rerun viewer" if detached else "Rerun web viewer"
+    log_path = Path(tempfile.gettempdir()) / f"steval-{'viewer' if detached else 'web-viewer'}-{tcp_port}.log"
     env = dict(os.environ, RERUN_APP_ONLY="true")  # no first-run analytics banner
     if QUIETED_RUST_LOG or env.get("RUST_LOG") == "off":  # quiet here; the viewer's log file keeps its lines
         env.pop("RUST_LOG", None)
@@ -178,34 +168,20 @@ def _start(args: list[str], what: str, tcp_port: int, *, detached: bool) -> tupl
     with open(log_path, "wb") as log:
         cmd = rerun_command() + args
         child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, **kwargs)
-    return child, log_path
-
-
-def _wait_listening(child: subprocess.Popen, tcp_port: int, what: str, log_path: Path, settle_s: float = 0.0):
-    """Wait until ``child`` listens on 127.0.0.1:``tcp_port`` and still runs ``settle_s`` later (a viewer that cannot
-    open its window dies right after it binds); ParamError with its last words otherwise."""
     deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
     while not port_open("127.0.0.1", tcp_port, 0.2):
         if child.poll() is not None:
             raise ParamError(f"the {what} exited at start ({_last_line(log_path)}); use {{rrd}} FILE instead", "rrd")
         if time.monotonic() >= deadline:
             stop_child(child)
-            raise ParamError(
-                f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s; use {{rrd}} "
-                "FILE instead",
-                "rrd",
-            )
+            why = f"the {what} did not listen on port {tcp_port} within {VIEWER_START_TIMEOUT_S:.0f} s"
+            raise ParamError(f"{why}; use {{rrd}} FILE instead", "rrd")
         time.sleep(0.05)
-    settled = time.monotonic() + settle_s
-    while time.monotonic() < settled:
-        if child.poll() is not None:
-            raise ParamError(
-                f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log "
-                f"{log_path}); use {{rrd}} FILE or {{serve}} instead",
-                "rrd",
-                "serve",
-            )
-        time.sleep(0.05)
+    time.sleep(settle_s)
+    if settle_s and child.poll() is not None:
+        why = f"the Rerun viewer exited right after it started ({_last_line(log_path)}; log {log_path})"
+        raise ParamError(f"{why}; use {{rrd}} FILE or {{serve}} instead", "rrd", "serve")
+    return child
 
 
 def _last_line(log_path: Path) -> str:
@@ -219,8 +195,7 @@ def _last_line(log_path: Path) -> str:
 
 
 def spawn_desktop_viewer(tcp_port: int) -> str:
-    """Start the desktop viewer on 127.0.0.1:``tcp_port`` (or reuse one that listens there); returns its gRPC URL.
-    Detached: it stays open after we exit."""
+    """Start the desktop viewer (detached) on 127.0.0.1:``tcp_port``, or reuse one listening there; its gRPC URL."""
     url = f"rerun+http://127.0.0.1:{tcp_port}/proxy"
     if not port_free(tcp_port):
         note = f"sending to the viewer already listening on port {tcp_port} (another grpc_port for a new one)"
@@ -228,12 +203,11 @@ def spawn_desktop_viewer(tcp_port: int) -> str:
         return url
     cmd = ["--port", str(tcp_port), "--bind", "127.0.0.1", "--hide-welcome-screen", "--memory-limit", "75%"]
     try:
-        child, log_path = _start(cmd, "viewer", tcp_port, detached=True)
+        _start(cmd, tcp_port, detached=True, settle_s=VIEWER_SETTLE_S)
     except OSError as exc:
         raise ParamError(
             f"could not start the Rerun viewer ({exc.strerror or exc}); use {{rrd}} FILE or {{serve}}", "rrd", "serve"
         ) from None
-    _wait_listening(child, tcp_port, "Rerun viewer", log_path, VIEWER_SETTLE_S)
     return url
 
 
@@ -241,10 +215,9 @@ def start_web_viewer(web_port: int, grpc_port: int) -> tuple[subprocess.Popen, s
     """Start ``rerun --serve-web`` on 127.0.0.1 (ports checked free); returns (process, page URL, gRPC URL)."""
     cmd = ["--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
     try:
-        child, log_path = _start(cmd, "web-viewer", grpc_port, detached=False)
+        child = _start(cmd, grpc_port, detached=False)
     except OSError as exc:
         raise UserError(f"could not start the Rerun web viewer ({exc.strerror or exc})") from None
-    _wait_listening(child, grpc_port, "Rerun web viewer", log_path)
     proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     page = f"http://127.0.0.1:{web_port}/?url={urllib.parse.quote(proxy, safe='')}"
     return child, page, proxy
@@ -260,16 +233,10 @@ def open_session(
 ) -> ViewerSession:
     """Open a RecordingStream on the sinks of ``options``; UserError when one cannot be opened. ``split_file``: with
     a viewer and an ``.rrd``, the file gets its own stream (``session.file_rec``) of the same recording.
-    ``atomic_rrd``: the ``.rrd`` is written as ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`.
-    """
+    ``atomic_rrd``: the ``.rrd`` is ``NAME.partial`` until ``close()``. ``checked``: by :func:`check_sinks`."""
     if not options.any():
-        raise ParamError(
-            "no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL",
-            "rrd",
-            "spawn",
-            "serve",
-            "connect",
-        )
+        flags = ("rrd", "spawn", "serve", "connect")
+        raise ParamError("no Rerun sink chosen: pass {rrd} FILE, {spawn}, {serve} or {connect} URL", *flags)
     if not checked:
         check_sinks(options)
     rec = rr.RecordingStream(APPLICATION_ID, make_default=False, make_thread_default=False)
@@ -331,13 +298,16 @@ T = TypeVar("T")
 
 
 def log_whole(options: SinkOptions, recording_name: str, log: Callable[[rr.RecordingStream], T]) -> T:
-    """Open the sinks of ``options`` (checked by the CLI), ``log(rec)``, close and return what ``log`` returned. The
-    ``.rrd`` is complete (a line on stderr says where) or, interrupted, not written at all."""
+    """``log(rec)`` on the sinks of ``options`` (checked) and its result; the ``.rrd`` whole, or none if interrupted."""
     session = open_session(options, recording_name=recording_name, atomic_rrd=True, checked=True)
     try:
         result = log(session.rec)
         session.flush()
-        session.wait_for_viewer()  # with --serve only (the web viewer is a child)
+        if session.children:  # --serve: the web viewer stays up until Ctrl-C or until it exits
+            print("steval: serving until Ctrl-C", file=sys.stderr)
+            with contextlib.suppress(KeyboardInterrupt):
+                while all(c.poll() is None for c in session.children):
+                    time.sleep(0.2)
     except UserError:  # a viewer went away: the .rrd is still complete
         with contextlib.suppress(UserError):
             session.close()

@@ -1,6 +1,5 @@
 """``steval spectrum`` in Rerun: the spectra of a capture (:class:`steval_link.analysis.spectrum.Spectra`) under
-``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist), and their blueprint. The entities are listed in
-``viewer/README.md``."""
+``spectrum/...`` (PSD in dB, frequency from 0 to the AHRS Nyquist; listed in ``viewer/README.md``), their blueprint."""
 
 from __future__ import annotations
 
@@ -19,6 +18,7 @@ from steval_viewer.sinks import log_whole
 ROOT = "spectrum"
 NOTES = f"{ROOT}/notes"
 _COLOURS = {"x": (220, 60, 60), "y": (60, 170, 60), "z": (60, 100, 230)}
+_NO_LEGEND = rrb.PlotLegend(visible=False)
 
 
 def _path(kind: str, name: str) -> str:
@@ -45,39 +45,27 @@ def _grid(kind: str, view, title: str) -> rrb.Grid:
 
 
 def _bars(origin: str, name: str) -> rrb.BarChartView:
-    return rrb.BarChartView(origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=False))
+    return rrb.BarChartView(origin=origin, name=name, plot_legend=_NO_LEGEND)
 
 
 def _heat(origin: str, name: str) -> rrb.TensorView:
-    return rrb.TensorView(
-        origin=origin,
-        name=name,
-        slice_selection=rrb.TensorSliceSelection(
-            width=rr.encodings.TensorDimensionSelection(dimension=1, invert=False),
-            height=rr.encodings.TensorDimensionSelection(dimension=0, invert=True),
-        ),
-        scalar_mapping=rrb.TensorScalarMapping(colormap="Inferno"),
-        view_fit="Fill",
-    )
+    dim = rr.encodings.TensorDimensionSelection
+    axes = rrb.TensorSliceSelection(width=dim(dimension=1, invert=False), height=dim(dimension=0, invert=True))
+    mapping = rrb.TensorScalarMapping(colormap="Inferno")
+    return rrb.TensorView(origin=origin, name=name, slice_selection=axes, scalar_mapping=mapping, view_fit="Fill")
 
 
 def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
-    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), the spectrograms, frequency vs
-    throttle; the notes on the right. ``nyquist_hz``: the top of the frequency axes, named in the bar charts' titles
-    (Rerun labels few ticks)."""
+    """Tabs: the capture's PSD, the spectrum at the time cursor (with the signals), spectrograms, frequency vs throttle;
+    the notes on the right. ``nyquist_hz``: named in the bar charts' titles (Rerun labels few ticks)."""
     span = f"0–{nyquist_hz:.2f} Hz →"
-    cursor = rrb.Vertical(
-        _grid("window", _bars, f"at the cursor, {span}"),
-        rrb.Horizontal(
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
-            rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
-            rrb.TimeSeriesView(
-                origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=rrb.PlotLegend(visible=False)
-            ),
-        ),
-        row_shares=[3, 1],
-        name="Spectrum at the cursor",
+    signals = rrb.Horizontal(
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/gyro", name="gyro (mdps)"),
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/acc", name="accelerometer (mg)"),
+        rrb.TimeSeriesView(origin=f"{ROOT}/signal/thr", name="throttle gTHR", plot_legend=_NO_LEGEND),
     )
+    window_plots = _grid("window", _bars, f"at the cursor, {span}")
+    cursor = rrb.Vertical(window_plots, signals, row_shares=[3, 1], name="Spectrum at the cursor")
     tabs = rrb.Tabs(
         _grid("psd", _bars, f"PSD, {span}"),
         cursor,
@@ -86,10 +74,9 @@ def spectrum_blueprint(nyquist_hz: float) -> rrb.Blueprint:
         name="Spectra",
         active_tab=0,
     )
-    return window(
-        rrb.Horizontal(tabs, rrb.TextDocumentView(origin=NOTES, name="Notes"), column_shares=[4, 1]),
-        rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed"),
-    )
+    notes = rrb.TextDocumentView(origin=NOTES, name="Notes")
+    panel = rrb.TimePanel(timeline=ent.TIMELINE_FW, state="collapsed")
+    return window(rrb.Horizontal(tabs, notes, column_shares=[4, 1]), panel)
 
 
 def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]) -> dict[str, int]:
@@ -126,9 +113,7 @@ def log_spectra(rec: rr.RecordingStream, tel: Any, sp: Spectra, notes: list[str]
     send_scalars(rec, f"{ROOT}/signal/thr", times, np.asarray(att.thr, dtype=np.float64))
     text = "\n".join(f"- {line}" if i else f"**{line}**" for i, line in enumerate(notes))
     edges = sp.thr_edges
-    bins = ", ".join(
-        f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})" for b in np.flatnonzero(sp.thr_windows)
-    )
+    bins = ", ".join(f"{edges[b]:.0f}–{edges[b + 1]:.0f} ({int(sp.thr_windows[b])})" for b in occupied)
     text += (
         f"\n\nBar charts: frequency 0 … {sp.nyquist_hz:.2f} Hz (the AHRS Nyquist) along x, PSD in dB. Heat maps: "
         f"frequency up (bin {sp.resolution_hz:.2f} Hz), windows of {sp.nperseg} rows or throttle bins to the "
