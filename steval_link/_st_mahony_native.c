@@ -38,8 +38,7 @@ static float inv_sqrt(float x)
     /* the firmware's 32-bit `long`: arithmetic shift, then a subtraction that wraps (done unsigned: no UB) */
     u = 0x5f3759dfu - (uint32_t)(i >> 1);
     memcpy(&y, &u, sizeof y);
-    y = y * (1.5f - (halfx * y * y));
-    return y;
+    return y * (1.5f - (halfx * y * y));
 }
 
 /* QuaternionToEuler: float products and sums in the C source's order, double atan2/asin, stored to float. */
@@ -128,20 +127,13 @@ static PyObject *native_run(PyObject *self, PyObject *args)
             q2 = q2 + (q0 * g[1] - q1 * g[2] + q3 * g[0]) * halfT;
             q3 = q3 + (q0 * g[2] + q1 * g[1] - q2 * g[0]) * halfT;
 
-            if (st221117) {
-                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3);
-            } else {
-                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3);
-            }
+            norm = st221117 ? inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3) : inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3);
             q0 *= norm;
             q1 *= norm;
             q2 *= norm;
             q3 *= norm;
 
-            qo[4 * k + 0] = q0;
-            qo[4 * k + 1] = q1;
-            qo[4 * k + 2] = q2;
-            qo[4 * k + 3] = q3;
+            memcpy(qo + 4 * k, (const float[4]){q0, q1, q2, q3}, 4 * sizeof(float));
             if (have_euler) quaternion_to_euler(q0, q1, q2, q3, &thx_o[k], &thy_o[k]);
         }
         Py_END_ALLOW_THREADS

@@ -193,26 +193,17 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, *integral = (_F32(v) for v in st)  # q, then exInt, eyInt, ezInt
     with np.errstate(all="ignore"):
+        gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         if st221117:  # float * double literal: a double product, stored to float
             gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
-        else:
-            gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
         kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
         for k, (a, g, ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
             g = list(g)  # float32 scalars, as a, v and e
-            q0q0 = q0 * q0
-            q0q1 = q0 * q1
-            q0q2 = q0 * q2
-            q1q1 = q1 * q1
-            q1q3 = q1 * q3
-            q2q2 = q2 * q2
-            q2q3 = q2 * q3
-            q3q3 = q3 * q3
+            q0q0, q0q1, q0q2, q1q1 = q0 * q0, q0 * q1, q0 * q2, q1 * q1
+            q1q3, q2q2, q2q3, q3q3 = q1 * q3, q2 * q2, q2 * q3, q3 * q3
 
-            if (
-                settings.correction
-            ):  # as the C loop: e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
+            if settings.correction:  # e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
                 v = (_TWO * (q1q3 - q0q2), _TWO * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
                 for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
                     e = a[j] * v[m] - a[m] * v[j]
@@ -227,14 +218,8 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * half_t
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * half_t
 
-            if st221117:
-                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-            else:
-                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3)
-            q0 = q0 * norm
-            q1 = q1 * norm
-            q2 = q2 * norm
-            q3 = q3 * norm
+            norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 if st221117 else q0q0 + q1q1 + q2q2 + q3q3)
+            q0, q1, q2, q3 = q0 * norm, q1 * norm, q2 * norm, q3 * norm
             q_out[k] = (q0, q1, q2, q3)
     return np.array([q0, q1, q2, q3, *integral], dtype=_F32)
 
