@@ -75,7 +75,7 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* S⁻¹ by the adjugate (_inv3 of mekf.py): column j holds rows j+1 × j+2 of S, over det */
+/* S⁻¹ by the adjugate (np.linalg.inv in mekf.py, equal to rounding): column j holds rows j+1 × j+2 of S, over det */
 static void inv3(const double *S, double *Si)
 {
     double c[9], det;

@@ -45,15 +45,11 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
+from steval_link.estimators.base import ekf_native as _native
 from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
-try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
-    from steval_link.estimators import _ekf_native as _native
-except ImportError:  # pragma: no cover - depends on the build
-    _native = None
-
-#: True when the compiled loop of :meth:`Ekf3.run` is available (same results to rounding, ≈ 100× faster).
+#: True when the C loop of :meth:`Ekf3.run` is built (≈ 100× faster; the Python step is the reference).
 NATIVE_AVAILABLE = _native is not None
 
 _MIN_COS = 1e-3
