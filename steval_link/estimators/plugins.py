@@ -469,15 +469,12 @@ class Guarded(Estimator):
                 f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
                 f"expected ({m}, 4) ({where})"
             )
-        out = [
-            None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
-            for k, a in zip(optional, arrays)
-        ]
-        for label, arr in zip(optional, out):
+        out = []
+        for k, a in zip(optional, arrays):
+            arr = None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
             if arr is not None and arr.shape != (m,):
-                raise PluginError(
-                    f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows ({where})"
-                )
+                raise PluginError(f"estimator {self.name}: run() gave {k} of shape {arr.shape} for {m} rows ({where})")
+            out.append(arr)
         return (q, *out)
 
     def __repr__(self) -> str:
