@@ -134,8 +134,7 @@ class ReplicaFollower:
         step = np.asarray(step, dtype=np.int64)
         n = step.shape[0]
         q = np.full((n, 4), np.nan, dtype=_F32)
-        thx = np.full(n, np.nan, dtype=_F32) if self.euler else None
-        thy = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        thx, thy = np.full((2, n), np.nan, dtype=_F32) if self.euler else (None, None)
         seeded = np.zeros(n, dtype=bool)
         breaks = np.flatnonzero((np.diff(step) != 1) | ~usable[1:] | ~usable[:-1]) + 1
         for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
@@ -304,14 +303,11 @@ class _Snapshots:
             has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
         return cls(status, order, st_steps[order], events, has_settings)
 
-    def settings(self, j: int) -> MahonySettings:
-        return MahonySettings.of_status(self.status, j)
-
     def default_settings(self) -> MahonySettings:
         """The build's settings: the first snapshot's, else the first status frame's that reports them (a diverged
         filter's snapshot holds NaN), else the firmware's defaults."""
         first = np.concatenate([self.order[:1], np.flatnonzero(self.has_settings)[:1]])
-        return self.settings(int(first[0])) if first.size else MahonySettings()
+        return MahonySettings.of_status(self.status, int(first[0])) if first.size else MahonySettings()
 
     def state(self, j: int) -> MahonyState:
         return MahonyState(table_column(self.status, "q_wxyz")[j], table_column(self.status, "int_xyz")[j])
@@ -331,7 +327,8 @@ def _replay_run(replica: ReplicaFollower, rows: _AttitudeRows, snaps: _Snapshots
             if end > cut:
                 parts.append(rows.run(replica, cut, end))
                 cut = end
-            replica.snapshot(step, snaps.state(j), snaps.settings(j), snapshot_id=j, event=bool(snaps.events[j]))
+            settings = MahonySettings.of_status(snaps.status, j)
+            replica.snapshot(step, snaps.state(j), settings, snapshot_id=j, event=bool(snaps.events[j]))
     parts.append(rows.run(replica, cut, b))
     return parts
 
@@ -374,11 +371,9 @@ def replay_variants(
 
 def _status_variant(tel) -> str:
     """The variant the first binary status frame's flags announce (ST 170120 without one)."""
-    status = getattr(tel, "status", None)
-    if status is None or len(np.asarray(table_column(status, "step"))) == 0:
-        return DEFAULT_VARIANT
-    rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
-    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
+    snaps = _Snapshots.of(getattr(tel, "status", None))
+    rows = np.flatnonzero(snaps.has_settings)
+    return MahonySettings.of_status(snaps.status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
 
 
 def release_sentence(

@@ -174,8 +174,7 @@ def run(
     q = np.empty((n, 4), dtype=_F32)
     st = state.as_array()
     if native:
-        thx = np.empty(n, dtype=_F32) if euler else None
-        thy = np.empty(n, dtype=_F32) if euler else None
+        thx, thy = np.empty((2, n), dtype=_F32) if euler else (None, None)
         flags = (settings.min_thr & 0xFFFFFFFF) | ((not settings.correction) << 32) | (settings.fresh_squares << 33)
         _native.run(acc, gyro, thr_arr, q, thx, thy, st, settings._params(), flags)
     else:
