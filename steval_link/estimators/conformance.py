@@ -6,7 +6,6 @@ number parses (as a double, cast to float32) to the firmware's exact value. :fun
 
 from __future__ import annotations
 
-import io
 from dataclasses import astuple, dataclass, replace
 from pathlib import Path
 
@@ -70,13 +69,11 @@ def load_conformance_csv(path) -> ConformanceVectors:
         raise ValueError(f"{path}: no header line (expected {','.join(COLUMNS)})")
     if tuple(h.strip() for h in rows[0].split(",")) != COLUMNS:
         raise ValueError(f"{path}: unexpected header {rows[0][:80]!r} (expected {','.join(COLUMNS)})")
-    before_header = lines[: lines.index(rows[0])]
-    description = next((line.lstrip("#").strip() for line in before_header if line.startswith("#")), "")
-    body = "\n".join(rows[1:])
-    if not body:
+    description = next((line.lstrip("#").strip() for line in lines[: lines.index(rows[0])] if line[:1] == "#"), "")
+    if len(rows) < 2:
         raise ValueError(f"{path}: no data rows")
     try:
-        data = np.loadtxt(io.StringIO(body), delimiter=",", dtype=np.float64, ndmin=2)
+        data = np.loadtxt(rows[1:], delimiter=",", dtype=np.float64, ndmin=2)
     except ValueError as exc:
         raise ValueError(f"{path}: malformed data row ({exc})") from None
     if data.shape[1] != len(COLUMNS):
