@@ -252,13 +252,11 @@ class StMahony(Estimator):
         kp: float | None = None,
         **setting_overrides,
     ) -> None:
-        base = MahonySettings() if settings is None else settings
         if kp is not None:
             setting_overrides = {"kp_ground": kp, "kp_flight": kp, **setting_overrides}
-        unknown = set(setting_overrides) - set(MahonySettings.__dataclass_fields__)
-        if unknown:
+        if unknown := set(setting_overrides) - set(MahonySettings.__dataclass_fields__):
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
-        self.settings = replace(base, **setting_overrides) if setting_overrides else base
+        self.settings = replace(settings or MahonySettings(), **setting_overrides)
         choose_native(native, NATIVE_AVAILABLE, "Mahony")  # raises now when the C loop is asked for and not built
         self.native = native
         self.state = MahonyState() if state is None else state
