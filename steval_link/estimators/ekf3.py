@@ -15,10 +15,6 @@ Prediction with the body rates ``ω = (p, q, r)`` (gyro, rad/s) and the Euler-ra
 (by default the mean takes the exact solution for a rate constant over the step: no forward-Euler error, no
 tan θ blow-up near ±90°; ``exact_propagation=False`` gives the course's forward-Euler step)
 
-    ∂φ̇/∂φ = tanθ·(cosφ·q − sinφ·r)       ∂φ̇/∂θ = (sinφ·q + cosφ·r) / cos²θ
-    ∂θ̇/∂φ = −sinφ·q − cosφ·r              ∂θ̇/∂θ = 0
-    ∂ψ̇/∂φ = (cosφ·q − sinφ·r) / cosθ      ∂ψ̇/∂θ = (sinφ·q + cosφ·r)·sinθ / cos²θ      (ψ column: 0)
-
     Q = dt²·W·(σ_ω²·I)·Wᵀ + dt·σ_p²·I     (W: the matrix of the Euler-rate equations above, f = W·ω)
 
 σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS), σ_p what the gyro model leaves out

@@ -222,9 +222,7 @@ class Mekf(Estimator):
     def _correct(self, ax: float, ay: float, az: float, an: float) -> None:
         dev = abs(an - 1.0)
         if self._acc_lp is not None:
-            w, x, y, z = self.qs
-            a_i = _rotmat(w, x, y, z) @ np.array([ax, ay, az])
-            m = self._acc_lp(a_i)
+            m = self._acc_lp(_rotmat(*self.qs) @ np.array([ax, ay, az]))  # a_I, low-passed
             d = float(self._norm_lp(np.array([dev]))[0]) if self.norm_gain > 0.0 else 0.0
             mn = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
             if mn < 1e-6:
@@ -240,18 +238,14 @@ class Mekf(Estimator):
         hz = w * w - x * x - y * y + z * z
         Hh = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
         P = self.P
-        if self.estimate_bias:
-            H = np.empty((3, 6))
-            H[:, :3] = Hh
+        H = Hh
+        if self.estimate_bias:  # D = 0: the direct MEKF, or the low-pass still warming up (its mean has no such model)
+            D = np.zeros((3, 3))
             if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
                 # the low-passed measurement lags: a bias error shows as the drift of the last ≈ τ s, D = C − LP(C)
                 # (LP the measurement's low-pass; it copies the view of _cum_rs, which _predict updates in place)
-                d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
-                H[:, 3:] = Hh @ d
-            else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)
-                H[:, 3:] = 0.0
-        else:
-            H = Hh
+                D = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
+            H = np.hstack([Hh, Hh @ D])
         PHt = P @ H.T
         S = H @ PHt
         S[_DIAG] += var
@@ -284,8 +278,8 @@ class Mekf(Estimator):
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
-        st = np.zeros(_native.MEKF_STATE)
-        ist = np.zeros(_native.MEKF_ISTATE, dtype=np.int64)
+        st = np.zeros(114)  # MEKF_STATE; the C loop checks every buffer's size
+        ist = np.zeros(6, dtype=np.int64)  # MEKF_ISTATE
         nb = self.P.shape[0]
         st[0:14] = (*self.qs, *self.qc, *self.b, *self._w)
         st[14 : 14 + nb * nb] = self.P.ravel()
