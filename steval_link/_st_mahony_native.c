@@ -57,9 +57,8 @@ static PyObject *native_run(PyObject *Py_UNUSED(self), PyObject *args)
     int have_euler;
     Py_ssize_t n, k;
 
-    if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &flags)) {
+    if (!PyArg_ParseTuple(args, "OOOOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &flags))
         return NULL;
-    }
     if ((n = get_buffer(o[2], &b[2], 0, ROWS_OF(8), "thr")) < 0) return NULL;
     have_euler = (o[4] != Py_None) && (o[5] != Py_None);
     if (get_buffer(o[0], &b[0], 0, 3 * n * 4, "acc") < 0 || get_buffer(o[1], &b[1], 0, 3 * n * 4, "gyro") < 0 ||
@@ -69,12 +68,10 @@ static PyObject *native_run(PyObject *Py_UNUSED(self), PyObject *args)
         get_buffer(o[6], &b[6], 1, 7 * 4, "state") < 0 || get_buffer(o[7], &b[7], 0, 4 * 8, "params") < 0)
         return release(b, 8);
 
-    const float *acc = (const float *)b[0].buf;
-    const float *gyro = (const float *)b[1].buf;
+    const float *acc = (const float *)b[0].buf, *gyro = (const float *)b[1].buf;
     const int64_t *thr = (const int64_t *)b[2].buf;
     float *qo = (float *)b[3].buf;
-    float *thx_o = have_euler ? (float *)b[4].buf : NULL;
-    float *thy_o = have_euler ? (float *)b[5].buf : NULL;
+    float *thx_o = have_euler ? (float *)b[4].buf : NULL, *thy_o = have_euler ? (float *)b[5].buf : NULL;
     float *st = (float *)b[6].buf;
     const double *prm = (const double *)b[7].buf;
     const float kp_ground = (float)prm[0], kp_flight = (float)prm[1], ki = (float)prm[2], dt = (float)prm[3];
@@ -162,10 +159,8 @@ static PyObject *native_euler(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef native_methods[] = {
-    {"euler", native_euler, METH_VARARGS,
-     "euler(q, thx_out, thy_out): the firmware's QuaternionToEuler over 4*N float32 values, in place."},
-    {"run", native_run, METH_VARARGS,
-     "run(acc, gyro, thr, q_out, thx_out, thy_out, state, params, flags): the firmware's Mahony loop, in place."},
+    {"euler", native_euler, METH_VARARGS, "The firmware's QuaternionToEuler over 4*N float32 values, in place."},
+    {"run", native_run, METH_VARARGS, "The firmware's Mahony loop over N steps, in place (see _st_mahony_native.c)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -205,8 +205,7 @@ static PyObject *native_ekf3_run(PyObject *Py_UNUSED(self), PyObject *args)
         get_buffer(o[3], &b[3], 1, EKF3_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 0, EKF3_NPARAMS * 8, "params") < 0)
         return release(b, 5);
-    const double *acc = (const double *)b[0].buf;
-    const double *gyro = (const double *)b[1].buf;
+    const double *acc = (const double *)b[0].buf, *gyro = (const double *)b[1].buf;
     double *xo = (double *)b[2].buf, *st = (double *)b[3].buf;
     double *x = st + EKF3_X, *P = st + EKF3_PM; /* the state, updated in place */
     const double *prm = (const double *)b[4].buf, k_rad = prm[EKF3_P_MDPS_TO_RADPS];
@@ -443,8 +442,7 @@ static PyObject *native_mekf_run(PyObject *Py_UNUSED(self), PyObject *args)
         get_buffer(o[4], &b[4], 1, MEKF_ISTATE * 8, "istate") < 0 ||
         get_buffer(o[5], &b[5], 0, MEKF_NPARAMS * 8, "params") < 0)
         return release(b, 6);
-    const double *acc = (const double *)b[0].buf;
-    const double *gyro = (const double *)b[1].buf;
+    const double *acc = (const double *)b[0].buf, *gyro = (const double *)b[1].buf;
     double *qo = (double *)b[2].buf;
     const double *prm = (const double *)b[5].buf;
     const double k_rad = prm[MEKF_P_MDPS_TO_RADPS], reject = prm[MEKF_P_REJECT];
@@ -481,10 +479,8 @@ static PyObject *native_mekf_run(PyObject *Py_UNUSED(self), PyObject *args)
 }
 
 static PyMethodDef native_methods[] = {
-    {"ekf3_run", native_ekf3_run, METH_VARARGS,
-     "ekf3_run(acc, gyro, x_out, state, params, flags): Ekf3's per-step loop over N steps, in place."},
-    {"mekf_run", native_mekf_run, METH_VARARGS,
-     "mekf_run(acc, gyro, q_out, state, istate, params, flags): Mekf's per-step loop over N steps, in place."},
+    {"ekf3_run", native_ekf3_run, METH_VARARGS, "Ekf3's per-step loop over N steps, in place (see _ekf_native.c)."},
+    {"mekf_run", native_mekf_run, METH_VARARGS, "Mekf's per-step loop over N steps, in place (see _ekf_native.c)."},
     {NULL, NULL, 0, NULL},
 };
 
