@@ -41,7 +41,6 @@ class ReplicaFollower:
         initial: MahonySettings | None = None,
         follow_snapshots: bool = True,
         euler: bool = True,
-        native: bool | None = None,
         variant: str | None = None,
     ) -> None:
         self.variant = variant
@@ -49,7 +48,7 @@ class ReplicaFollower:
         self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
-        self._run = functools.partial(run, euler=euler, native=native)
+        self._run = functools.partial(run, euler=euler)
         self.state: MahonyState | None = None
         self.next_step: int | None = None
         self.seed_count = 0  #: (re)starts of the replica so far (power-up or snapshot)
@@ -209,16 +208,14 @@ class FirmwareReplay:
         return self.n_seeded > 0 and self.first_mismatch is None
 
 
-def replay_firmware(
-    tel, settings: MahonySettings | None = None, *, variant: str | None = None, native: bool | None = None
-) -> FirmwareReplay:
+def replay_firmware(tel, settings: MahonySettings | None = None, *, variant: str | None = None) -> FirmwareReplay:
     """Re-run the replica over a capture (a :class:`~steval_link.link.telemetry.Telemetry`) and compare it with the
     firmware's outputs, bit for bit. ``settings`` default: the status frames' (else the firmware's defaults);
     ``variant`` default: the settings' own. Seeds as :class:`ReplicaFollower`; rows before a seed are NaN."""
     rows = _AttitudeRows.of(tel.attitude)
     snaps = _Snapshots.of(getattr(tel, "status", None))
     initial = settings or snaps.default_settings()
-    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native, variant=variant)
+    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, variant=variant)
     steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
     parts = [rows.run(replica, 0, 0)]  # no row yet: the empty arrays of each output
     # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
@@ -351,13 +348,12 @@ def replay_variants(
     variant: str | None = None,
     source: str = "variant setting",
     hint: tuple[str, str] | None = None,
-    native: bool | None = None,
 ) -> VariantReplay:
     """Replay the capture with ``variant`` (named by ``source``), else with each of ``VARIANTS``, keeping the most
     bit-exact; on a tie ``hint`` (variant, who named it) when given, else the settings' own."""
     if variant is not None:
-        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
-    replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
+        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant), {})
+    replays = {v: replay_firmware(tel, settings, variant=v) for v in VARIANTS}
     preferred = settings.variant if settings is not None else _status_variant(tel)
     counts = {v: r.n_bit_exact for v, r in replays.items()}
     best = max(counts.values())

@@ -35,8 +35,8 @@ def _class(name: str) -> Callable[..., Estimator]:
     return getattr(importlib.import_module(module), attr)
 
 
-#: what each command runs next to the firmware when ``--estimators`` is not given (uninstalled ones skipped):
-#: ``steval live`` (every frame as it comes), ``steval replay`` with a viewer or ``--rrd``, ``steval compare``
+#: what steval live, replay (with a viewer or a recording) and compare run next to the firmware by default
+#: (uninstalled ones skipped)
 LIVE_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3")
 REPLAY_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
 COMPARE_DEFAULT: tuple[str, ...] = ("ekf3", "mekf", "accel")
