@@ -84,9 +84,8 @@ class Estimator(abc.ABC):
             thr: (N,) throttle, or None for 0 throughout.
         """
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
-        n = acc.shape[0]
-        q = np.empty((n, 4), dtype=np.float64)
-        for k in range(n):
+        q = np.empty((acc.shape[0], 4), dtype=np.float64)
+        for k in range(acc.shape[0]):
             q[k] = self.step(acc[k], gyro[k], int(thr_arr[k]))
         thx, thy, thz = euler_from_quaternion(q)
         valid = np.isfinite(q).all(axis=1)

@@ -88,9 +88,7 @@ def load_conformance_csv(path) -> ConformanceVectors:
 
 def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
     both = np.isfinite(a) & np.isfinite(b)
-    if not both.any():
-        return 0.0
-    return float(np.max(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64))))
+    return float(np.max(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64)), initial=0.0))
 
 
 def check_conformance(

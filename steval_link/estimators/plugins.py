@@ -199,8 +199,7 @@ def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, s
         return f"{Path(exc.filename).name}, line {exc.lineno}", line.rstrip()
     if not frames:
         return "", ""
-    last = frames[-1]
-    where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
+    where = f"{Path(frames[-1].filename).name}, line {frames[-1].lineno}, in {frames[-1].name}"
     return where, ("Traceback (your code):\n" + "".join(traceback.format_list(frames)) + line).rstrip()
 
 
