@@ -62,12 +62,9 @@ def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, 
 
 
 class Ekf3(Estimator):
-    """3-state Euler-angle EKF; its options are the module docstring's symbols, in their units.
-
-    :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built (equal to
-    rounding) and leaves the same state. A zero accelerometer variance runs in Python, where ``np.linalg.solve`` may
-    raise on a singular innovation covariance.
-    """
+    """3-state Euler-angle EKF; its options are the module docstring's symbols, in their units. :meth:`step` is the
+    Python reference; :meth:`run` uses the C loop when built (equal to rounding), except with a zero accelerometer
+    variance (Python's ``np.linalg.solve`` may raise on the singular innovation covariance)."""
 
     name = "ekf3"
 

@@ -1,6 +1,4 @@
-"""The firmware filter's replica (:mod:`steval_link.estimators.st_mahony`) followed along a stream of status
-snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's own outputs.
-"""
+"""The firmware filter's replica followed along status snapshots and attitude rows, next to the firmware's outputs."""
 
 from __future__ import annotations
 
@@ -24,15 +22,14 @@ from steval_link.link.protocol import FLAG_EVENT
 
 
 class ReplicaFollower:
-    """The bit-exact replica followed along a stream of attitude rows and status snapshots (replay and live). It
-    starts at power-up when a run of consecutive steps begins at step 0, or from a status snapshot; a step gap or a
-    row marked not usable (text mode, non-finite) leaves it unseeded (NaN) until the next one.
+    """The bit-exact replica along attitude rows and status snapshots (replay and live). It starts at power-up (a run
+    of consecutive steps from step 0) or from a snapshot; a step gap or an unusable row (text mode, non-finite)
+    leaves it unseeded (NaN) until the next one.
 
-    ``settings``: fixed for every seed (a what-if replay); None takes each snapshot's own and ``initial`` at
-    power-up. ``follow_snapshots``: a snapshot while in sync is confirmed when it agrees bit for bit, else seeds
-    (True, live), or is ignored (False, a replay, which measures agreement). An EVENT snapshot (a host command
-    changed the filter) is always followed. ``variant``: the release every settings runs with (None: their own).
-    """
+    ``settings``: fixed for every seed (a what-if replay); None: each snapshot's own, ``initial`` at power-up.
+    ``follow_snapshots``: an in-sync snapshot is confirmed when bit-equal, else seeds (True, live) or is ignored
+    (False, a replay). An EVENT snapshot (a host command changed the filter) is always followed. ``variant``: the
+    release every settings runs with (None: their own)."""
 
     def __init__(
         self,

@@ -48,8 +48,8 @@ _PACKAGE_DIR = str(Path(__file__).resolve().parents[1])
 
 
 class PluginError(UserError):
-    """A user's estimator failed (import, construction, a step): one line, exit 2; ``details`` holds the user's
-    own traceback trimmed to their frames (printed before the line), or "" when there is none."""
+    """A user's estimator failed (import, construction, a step): one line, exit 2; ``details``: their traceback,
+    trimmed to their frames (printed before the line; "" without one)."""
 
     def __init__(self, message: str, details: str = "") -> None:
         super().__init__(message)

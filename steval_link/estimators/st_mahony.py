@@ -235,11 +235,9 @@ def handout_yaw(q_wxyz) -> np.ndarray:
 
 
 class StMahony(Estimator):
-    """The firmware's Mahony filter as an :class:`~steval_link.estimators.base.Estimator` (bit-exact, float32).
-
-    Options: the fields of :class:`MahonySettings` (``kp`` sets both gains) or a whole ``settings``; ``state``
-    seeds the filter; ``native`` forces the C or pure loop. thz is :func:`handout_yaw`.
-    """
+    """The firmware's Mahony filter as an estimator (bit-exact, float32). Options: the fields of
+    :class:`MahonySettings` (``kp`` sets both gains) or a whole ``settings``; ``state`` seeds the filter; ``native``
+    forces the C or pure loop. thz is :func:`handout_yaw`."""
 
     name = "st-mahony"
 
