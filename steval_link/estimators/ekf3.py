@@ -155,9 +155,7 @@ class Ekf3(Estimator):
         sp, cp, st, ct = math.sin(phi), math.cos(phi), math.sin(th), math.cos(th)
         h = (-st, sp * ct, cp * ct)
         H = np.array([[0.0, -ct, 0.0], [cp * ct, -sp * st, 0.0], [-sp * ct, -cp * st, 0.0]])
-        var = self.acc_var
-        if self.adaptive:
-            var += (self.norm_gain * (an - 1.0)) ** 2
+        var = self.acc_var + ((self.norm_gain * (an - 1.0)) ** 2 if self.adaptive else 0.0)
         P = self.P
         PHt = P @ H.T
         S = H @ PHt
