@@ -116,7 +116,7 @@ def variant_scores(
     cases: list[ConformanceVectors], settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> dict[str, int]:
     """Bit-exact steps over all ``cases`` of each of ``VARIANTS`` with ``settings``' constants."""
-    base = MahonySettings() if settings is None else settings
+    base = settings or MahonySettings()
     return {
         variant: sum(check_conformance(c, replace(base, variant=variant), native=native).exact_steps for c in cases)
         for variant in VARIANTS

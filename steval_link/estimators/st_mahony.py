@@ -167,12 +167,11 @@ def run(
     NaN where the firmware gives NaN; None without ``euler``) and the final state.
     """
     settings = MahonySettings() if settings is None else settings
-    state = MahonyState() if state is None else state
     acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
     native = choose_native(native, NATIVE_AVAILABLE, "Mahony")
     n = acc.shape[0]
     q = np.empty((n, 4), dtype=_F32)
-    st = state.as_array()
+    st = (state or MahonyState()).as_array()
     if native:
         thx, thy = np.empty((2, n), dtype=_F32) if euler else (None, None)
         flags = (settings.min_thr & 0xFFFFFFFF) | ((not settings.correction) << 32) | (settings.fresh_squares << 33)
