@@ -40,9 +40,8 @@ MIN_THR: int = 200
 BAUD: int = 115_200
 
 #: delay of the gyro input of an AHRS step relative to its accelerometer input, s (≈ 3.3 ms): the ISR gyro IIR's
-#: group delay at low frequency plus the mean age of a 416 Hz sample-and-hold read. Derived in
-#: :data:`steval_link.emulation.sensor_model.GYRO_LATENCY_S` from the IIR coefficients (a test keeps the two equal);
-#: stated here so that estimators can compensate it without depending on the sensor model.
+#: group delay plus the mean age of a 416 Hz sample-and-hold read (:mod:`steval_link.emulation.sensor_model` derives
+#: it from the IIR coefficients; a test keeps the two equal).
 GYRO_LATENCY_S: float = 0.003315483788573155
 
 # ---- flight control (flight_control.h, rc.c, motor.h; MOTOR_DC, REMOCON_BLE: the default build) ----------------

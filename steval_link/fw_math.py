@@ -49,10 +49,8 @@ def quaternion_to_euler(q_wxyz, *, native: bool | None = None) -> tuple[np.ndarr
     if q.shape[-1] != 4:
         raise ValueError(f"q_wxyz must have 4 components in its last axis, got shape {q.shape}")
     if choose_native(native, NATIVE_AVAILABLE, "Mahony"):
-        qc = np.ascontiguousarray(q)
-        thx = np.empty(q.shape[:-1], dtype=_F32)
-        thy = np.empty(q.shape[:-1], dtype=_F32)
-        _native.euler(qc, thx, thy)  # the C library's atan2/asin, same as the native filter loop
+        thx, thy = (np.empty(q.shape[:-1], dtype=_F32) for _ in range(2))
+        _native.euler(np.ascontiguousarray(q), thx, thy)  # the C library's atan2/asin, as the native filter loop
         return thx, thy
     with np.errstate(invalid="ignore", over="ignore"):
         q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]

@@ -70,8 +70,7 @@ def qexp(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
 
 def quat_conjugate(q) -> np.ndarray:
     """Conjugate (inverse of a unit quaternion), (..., 4) wxyz."""
-    q = np.asarray(q, dtype=np.float64)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    return np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_normalize(q) -> np.ndarray:

@@ -27,10 +27,8 @@ def on_stop_signals(handler: Callable[[int], None], *, sigint: bool = True) -> I
     names = STOP_SIGNALS if sigint else STOP_SIGNALS[1:]
     old = {}
     for sig in (getattr(signal, name) for name in names if hasattr(signal, name)):
-        try:
+        with contextlib.suppress(ValueError, OSError):  # a signal this platform will not hand over
             old[sig] = signal.signal(sig, lambda signum, _frame: handler(signum))
-        except (ValueError, OSError):  # pragma: no cover - a signal this platform will not hand over
-            pass
     try:
         yield
     finally:

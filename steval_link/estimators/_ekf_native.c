@@ -75,7 +75,7 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* S⁻¹ by the adjugate (_inv3 of mekf.py): column j holds rows j+1 × j+2 of S, over det */
+/* S⁻¹ by the adjugate (np.linalg.inv in mekf.py, equal to rounding): column j holds rows j+1 × j+2 of S, over det */
 static void inv3(const double *S, double *Si)
 {
     double c[9], det;
@@ -155,15 +155,13 @@ static void ekf3_predict(double *x, double *P, const double *prm, int exact, dou
     tt = st / ct;
     a = sp * q + cp * r;
     c = cp * q - sp * r;
-    {
-        const double F[9] = {1.0 + dt * tt * c, dt * a / (ct * ct), 0.0, /* row 0 */
-                             -dt * a, 1.0, 0.0,                         /* row 1 */
-                             dt * c / ct, dt * a * st / (ct * ct), 1.0};
-        const double W[9] = {1.0, sp * tt, cp * tt, 0.0, cp, -sp, 0.0, sp / ct, cp / ct};
-        matmul(W, W, Q, 3, 3, 3, 1);
-        matmul(F, P, FP, 3, 3, 3, 0);
-        matmul(FP, F, P, 3, 3, 3, 1);
-    }
+    const double F[9] = {1.0 + dt * tt * c, dt * a / (ct * ct), 0.0, /* row 0 */
+                         -dt * a, 1.0, 0.0,                         /* row 1 */
+                         dt * c / ct, dt * a * st / (ct * ct), 1.0};
+    const double W[9] = {1.0, sp * tt, cp * tt, 0.0, cp, -sp, 0.0, sp / ct, cp / ct};
+    matmul(W, W, Q, 3, 3, 3, 1);
+    matmul(F, P, FP, 3, 3, 3, 0);
+    matmul(FP, F, P, 3, 3, 3, 1);
     if (exact) {
         ekf3_propagate_exact(x, p * dt, q * dt, r * dt);
     } else {
@@ -194,51 +192,47 @@ static void ekf3_update(double *x, double *P, const double *prm, int adaptive, d
     for (i = 0; i < 3; i++) x[i] += d[i];
 }
 
-static PyObject *native_ekf3_run(PyObject *self, PyObject *args)
+static PyObject *native_ekf3_run(PyObject *Py_UNUSED(self), PyObject *args)
 {
     PyObject *o[5]; /* acc, gyro, x_out, state, params */
     long long flags;
     Py_buffer b[5] = {{0}};
     Py_ssize_t n, k;
 
-    (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &flags)) return NULL;
     if ((n = get_buffer(o[0], &b[0], 0, ROWS_OF(24), "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 3 * n * 8, "x_out") < 0 ||
         get_buffer(o[3], &b[3], 1, EKF3_STATE * 8, "state") < 0 ||
         get_buffer(o[4], &b[4], 0, EKF3_NPARAMS * 8, "params") < 0)
         return release(b, 5);
-    {
-        const double *acc = (const double *)b[0].buf;
-        const double *gyro = (const double *)b[1].buf;
-        double *xo = (double *)b[2].buf, *st = (double *)b[3].buf;
-        double *x = st + EKF3_X, *P = st + EKF3_PM; /* the state, updated in place */
-        const double *prm = (const double *)b[4].buf, k_rad = prm[EKF3_P_MDPS_TO_RADPS];
-        const int adaptive = (int)(flags & 1), exact = (int)((flags >> 1) & 1);
-        int init = st[EKF3_INIT] != 0.0;
+    const double *acc = (const double *)b[0].buf, *gyro = (const double *)b[1].buf;
+    double *xo = (double *)b[2].buf, *st = (double *)b[3].buf;
+    double *x = st + EKF3_X, *P = st + EKF3_PM; /* the state, updated in place */
+    const double *prm = (const double *)b[4].buf, k_rad = prm[EKF3_P_MDPS_TO_RADPS];
+    const int adaptive = (int)(flags & 1), exact = (int)((flags >> 1) & 1);
+    int init = st[EKF3_INIT] != 0.0;
 
-        Py_BEGIN_ALLOW_THREADS
-        for (k = 0; k < n; k++) {
-            double ax = acc[3 * k] * 1e-3, ay = acc[3 * k + 1] * 1e-3, az = acc[3 * k + 2] * 1e-3;
-            double p = gyro[3 * k] * k_rad, q = gyro[3 * k + 1] * k_rad, r = gyro[3 * k + 2] * k_rad;
-            double an = sqrt(ax * ax + ay * ay + az * az);
-            int acc_ok = isfinite(an) && an > 1e-6;
-            if (!init) {
-                if (acc_ok) {
-                    x[0] = atan2(ay, az);
-                    x[1] = asin(py_clip1(-ax / an));
-                    x[2] = 0.0;
-                    init = 1;
-                }
-            } else {
-                if (isfinite(p) && isfinite(q) && isfinite(r)) ekf3_predict(x, P, prm, exact, p, q, r);
-                if (acc_ok) ekf3_update(x, P, prm, adaptive, ax / an, ay / an, az / an, an);
+    Py_BEGIN_ALLOW_THREADS
+    for (k = 0; k < n; k++) {
+        double ax = acc[3 * k] * 1e-3, ay = acc[3 * k + 1] * 1e-3, az = acc[3 * k + 2] * 1e-3;
+        double p = gyro[3 * k] * k_rad, q = gyro[3 * k + 1] * k_rad, r = gyro[3 * k + 2] * k_rad;
+        double an = sqrt(ax * ax + ay * ay + az * az);
+        int acc_ok = isfinite(an) && an > 1e-6;
+        if (!init) {
+            if (acc_ok) {
+                x[0] = atan2(ay, az);
+                x[1] = asin(py_clip1(-ax / an));
+                x[2] = 0.0;
+                init = 1;
             }
-            memcpy(xo + 3 * k, x, 3 * sizeof(double));
+        } else {
+            if (isfinite(p) && isfinite(q) && isfinite(r)) ekf3_predict(x, P, prm, exact, p, q, r);
+            if (acc_ok) ekf3_update(x, P, prm, adaptive, ax / an, ay / an, az / an, an);
         }
-        Py_END_ALLOW_THREADS
-        st[EKF3_INIT] = init ? 1.0 : 0.0;
+        memcpy(xo + 3 * k, x, 3 * sizeof(double));
     }
+    Py_END_ALLOW_THREADS
+    st[EKF3_INIT] = init ? 1.0 : 0.0;
     release(b, 5);
     Py_RETURN_NONE;
 }
@@ -288,18 +282,15 @@ static void lowpass(const double *c, double *s, int m, int64_t *ready, int64_t *
 {
     double *x1 = s, *x2 = s + m, *y1 = s + 2 * m, *y2 = s + 3 * m, *sum = s + 4 * m;
     int i;
-    if (n != NULL && *n < warmup) {
-        for (i = 0; i < m; i++) sum[i] = (*n == 0) ? x[i] : sum[i] + x[i];
-        *n += 1;
-        for (i = 0; i < m; i++) {
-            out[i] = sum[i] / (double)*n;
-            x1[i] = x2[i] = y1[i] = y2[i] = out[i];
+    if ((n != NULL && *n < warmup) || !*ready) { /* warming up (the running mean), or the first sample */
+        if (n != NULL && *n < warmup) {
+            for (i = 0; i < m; i++) sum[i] = (*n == 0) ? x[i] : sum[i] + x[i];
+            *n += 1;
         }
-        *ready = 1;
-        return;
-    }
-    if (!*ready) {
-        for (i = 0; i < m; i++) out[i] = x1[i] = x2[i] = y1[i] = y2[i] = x[i];
+        for (i = 0; i < m; i++) {
+            const double start = (n != NULL && *n > 0) ? sum[i] / (double)*n : x[i];
+            out[i] = x1[i] = x2[i] = y1[i] = y2[i] = start;
+        }
         *ready = 1;
         return;
     }
@@ -340,8 +331,6 @@ static void mekf_predict(mekf_t *f, double wx, double wy, double wz)
         for (i = 0; i < 9; i++) {
             cum[i] += dt * rs[i];
             G[i] = -dt * rs[i];
-        }
-        for (i = 0; i < 9; i++) {
             Pab[i] = P[(i / 3) * nb + 3 + i % 3];
             Pbb[i] = P[(3 + i / 3) * nb + 3 + i % 3];
         }
@@ -405,16 +394,12 @@ static void mekf_correct(mekf_t *f, double ax, double ay, double az, double an)
         matmul(Hh, D, HD, 3, 3, 3, 0);
         for (i = 0; i < 9; i++) H[(i / 3) * 6 + 3 + i % 3] = HD[i];
     }
-    {
-        const double e[3] = {u[0] - hx, u[1] - hy, u[2] - hz};
-        /* while the low-pass warms up its mean says nothing about the bias: attitude-only update */
-        ekf_update(P, H, var, nb, (f->estimate_bias && f->have_lp && warming) ? 3 : nb, e, dxs);
-    }
-    {
-        double e[4] = {1.0, 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]}, o[4];
-        qmul(qc, e, o);
-        normalized(o, qc);
-    }
+    const double e[3] = {u[0] - hx, u[1] - hy, u[2] - hz};
+    /* while the low-pass warms up its mean says nothing about the bias: attitude-only update */
+    ekf_update(P, H, var, nb, (f->estimate_bias && f->have_lp && warming) ? 3 : nb, e, dxs);
+    double dq[4] = {1.0, 0.5 * dxs[0], 0.5 * dxs[1], 0.5 * dxs[2]}, o[4];
+    qmul(qc, dq, o);
+    normalized(o, qc);
     if (f->estimate_bias) {
         double tr, cap;
         for (i = 0; i < 3; i++) st[MEKF_B + i] += dxs[3 + i];
@@ -443,14 +428,13 @@ static void mekf_output(const mekf_t *f, double *out)
     }
 }
 
-static PyObject *native_mekf_run(PyObject *self, PyObject *args)
+static PyObject *native_mekf_run(PyObject *Py_UNUSED(self), PyObject *args)
 {
     PyObject *o[6]; /* acc, gyro, q_out, state, istate, params */
     long long flags;
     Py_buffer b[6] = {{0}};
     Py_ssize_t n, k;
 
-    (void)self;
     if (!PyArg_ParseTuple(args, "OOOOOOL", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &flags)) return NULL;
     if ((n = get_buffer(o[0], &b[0], 0, ROWS_OF(24), "acc")) < 0) return NULL;
     if (get_buffer(o[1], &b[1], 0, 3 * n * 8, "gyro") < 0 || get_buffer(o[2], &b[2], 1, 4 * n * 8, "q_out") < 0 ||
@@ -458,50 +442,45 @@ static PyObject *native_mekf_run(PyObject *self, PyObject *args)
         get_buffer(o[4], &b[4], 1, MEKF_ISTATE * 8, "istate") < 0 ||
         get_buffer(o[5], &b[5], 0, MEKF_NPARAMS * 8, "params") < 0)
         return release(b, 6);
-    {
-        const double *acc = (const double *)b[0].buf;
-        const double *gyro = (const double *)b[1].buf;
-        double *qo = (double *)b[2].buf;
-        const double *prm = (const double *)b[5].buf;
-        const double k_rad = prm[MEKF_P_MDPS_TO_RADPS], reject = prm[MEKF_P_REJECT];
-        mekf_t f = {.st = (double *)b[3].buf, .ist = (int64_t *)b[4].buf, .prm = prm, .nb = (flags & 1) ? 6 : 3,
-                    .estimate_bias = (int)(flags & 1), .have_lp = (int)((flags >> 1) & 1)};
+    const double *acc = (const double *)b[0].buf, *gyro = (const double *)b[1].buf;
+    double *qo = (double *)b[2].buf;
+    const double *prm = (const double *)b[5].buf;
+    const double k_rad = prm[MEKF_P_MDPS_TO_RADPS], reject = prm[MEKF_P_REJECT];
+    mekf_t f = {.st = (double *)b[3].buf, .ist = (int64_t *)b[4].buf, .prm = prm, .nb = (flags & 1) ? 6 : 3,
+                .estimate_bias = (int)(flags & 1), .have_lp = (int)((flags >> 1) & 1)};
 
-        Py_BEGIN_ALLOW_THREADS
-        for (k = 0; k < n; k++) {
-            double ax = acc[3 * k] * 1e-3, ay = acc[3 * k + 1] * 1e-3, az = acc[3 * k + 2] * 1e-3;
-            double gx = gyro[3 * k] * k_rad, gy = gyro[3 * k + 1] * k_rad, gz = gyro[3 * k + 2] * k_rad;
-            double an = sqrt(ax * ax + ay * ay + az * az);
-            int acc_ok = isfinite(an) && an > 1e-6 && fabs(an - 1.0) <= reject;
-            if (!f.ist[MEKF_I_INIT]) {
-                if (acc_ok) {
-                    tilt_quat(ax, ay, az, f.st + MEKF_QC);
-                    f.ist[MEKF_I_INIT] = 1;
-                }
-                qmul(f.st + MEKF_QC, f.st + MEKF_QS, qo + 4 * k); /* no extrapolation on this step */
-                continue;
+    Py_BEGIN_ALLOW_THREADS
+    for (k = 0; k < n; k++) {
+        double ax = acc[3 * k] * 1e-3, ay = acc[3 * k + 1] * 1e-3, az = acc[3 * k + 2] * 1e-3;
+        double gx = gyro[3 * k] * k_rad, gy = gyro[3 * k + 1] * k_rad, gz = gyro[3 * k + 2] * k_rad;
+        double an = sqrt(ax * ax + ay * ay + az * az);
+        int acc_ok = isfinite(an) && an > 1e-6 && fabs(an - 1.0) <= reject;
+        if (!f.ist[MEKF_I_INIT]) {
+            if (acc_ok) {
+                tilt_quat(ax, ay, az, f.st + MEKF_QC);
+                f.ist[MEKF_I_INIT] = 1;
             }
-            if (isfinite(gx) && isfinite(gy) && isfinite(gz)) {
-                double *w = f.st + MEKF_W, *bias = f.st + MEKF_B;
-                w[0] = gx - bias[0];
-                w[1] = gy - bias[1];
-                w[2] = gz - bias[2];
-                mekf_predict(&f, w[0], w[1], w[2]);
-            }
-            if (acc_ok) mekf_correct(&f, ax, ay, az, an);
-            mekf_output(&f, qo + 4 * k);
+            qmul(f.st + MEKF_QC, f.st + MEKF_QS, qo + 4 * k); /* no extrapolation on this step */
+            continue;
         }
-        Py_END_ALLOW_THREADS
+        if (isfinite(gx) && isfinite(gy) && isfinite(gz)) {
+            double *w = f.st + MEKF_W, *bias = f.st + MEKF_B;
+            w[0] = gx - bias[0];
+            w[1] = gy - bias[1];
+            w[2] = gz - bias[2];
+            mekf_predict(&f, w[0], w[1], w[2]);
+        }
+        if (acc_ok) mekf_correct(&f, ax, ay, az, an);
+        mekf_output(&f, qo + 4 * k);
     }
+    Py_END_ALLOW_THREADS
     release(b, 6);
     Py_RETURN_NONE;
 }
 
 static PyMethodDef native_methods[] = {
-    {"ekf3_run", native_ekf3_run, METH_VARARGS,
-     "ekf3_run(acc, gyro, x_out, state, params, flags): Ekf3's per-step loop over N steps, in place."},
-    {"mekf_run", native_mekf_run, METH_VARARGS,
-     "mekf_run(acc, gyro, q_out, state, istate, params, flags): Mekf's per-step loop over N steps, in place."},
+    {"ekf3_run", native_ekf3_run, METH_VARARGS, "Ekf3's per-step loop over N steps, in place (see _ekf_native.c)."},
+    {"mekf_run", native_mekf_run, METH_VARARGS, "Mekf's per-step loop over N steps, in place (see _ekf_native.c)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -511,15 +490,4 @@ static struct PyModuleDef native_module = {
     NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__ekf_native(void)
-{
-    PyObject *m = PyModule_Create(&native_module);
-    if (m == NULL) return NULL;
-    if (PyModule_AddIntConstant(m, "EKF3_STATE", EKF3_STATE) < 0 ||
-        PyModule_AddIntConstant(m, "MEKF_STATE", MEKF_STATE) < 0 ||
-        PyModule_AddIntConstant(m, "MEKF_ISTATE", MEKF_ISTATE) < 0) {
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
-}
+PyMODINIT_FUNC PyInit__ekf_native(void) { return PyModule_Create(&native_module); }

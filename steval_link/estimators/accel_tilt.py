@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from steval_link.estimators.base import AttitudeEstimate, Estimator, check_inputs
+from steval_link.quat import quaternion_from_euler
 
 
 def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -30,10 +31,7 @@ def accel_tilt(acc_mg, *, max_dev_mg: float | None = None) -> tuple[np.ndarray, 
 
 def tilt_quaternion(thx_rad, thy_rad) -> np.ndarray:
     """Quaternion (wxyz, float64) of pitch ``thx_rad`` (about x), roll ``thy_rad`` (about y) and zero yaw."""
-    hx = 0.5 * np.asarray(thx_rad, dtype=np.float64)
-    hy = 0.5 * np.asarray(thy_rad, dtype=np.float64)
-    cx, sx, cy, sy = np.cos(hx), np.sin(hx), np.cos(hy), np.sin(hy)
-    return np.stack([cx * cy, sx * cy, cx * sy, -sx * sy], axis=-1)
+    return quaternion_from_euler(thx_rad, thy_rad, 0.0)
 
 
 class AccelTilt(Estimator):

@@ -18,6 +18,11 @@ import numpy as np
 from steval_link.fw_math import choose_native
 from steval_link.quat import euler_from_quaternion
 
+try:  # the C loops of the EKFs' run() (built by setup.py, optional)
+    from steval_link.estimators import _ekf_native as ekf_native
+except ImportError:  # pragma: no cover - depends on the build
+    ekf_native = None
+
 
 @dataclass(frozen=True)
 class AttitudeEstimate:
@@ -79,9 +84,8 @@ class Estimator(abc.ABC):
             thr: (N,) throttle, or None for 0 throughout.
         """
         acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
-        n = acc.shape[0]
-        q = np.empty((n, 4), dtype=np.float64)
-        for k in range(n):
+        q = np.empty((acc.shape[0], 4), dtype=np.float64)
+        for k in range(acc.shape[0]):
             q[k] = self.step(acc[k], gyro[k], int(thr_arr[k]))
         thx, thy, thz = euler_from_quaternion(q)
         valid = np.isfinite(q).all(axis=1)

@@ -6,7 +6,6 @@ number parses (as a double, cast to float32) to the firmware's exact value. :fun
 
 from __future__ import annotations
 
-import io
 from dataclasses import astuple, dataclass, replace
 from pathlib import Path
 
@@ -70,13 +69,11 @@ def load_conformance_csv(path) -> ConformanceVectors:
         raise ValueError(f"{path}: no header line (expected {','.join(COLUMNS)})")
     if tuple(h.strip() for h in rows[0].split(",")) != COLUMNS:
         raise ValueError(f"{path}: unexpected header {rows[0][:80]!r} (expected {','.join(COLUMNS)})")
-    before_header = lines[: lines.index(rows[0])]
-    description = next((line.lstrip("#").strip() for line in before_header if line.startswith("#")), "")
-    body = "\n".join(rows[1:])
-    if not body:
+    description = next((line.lstrip("#").strip() for line in lines[: lines.index(rows[0])] if line[:1] == "#"), "")
+    if len(rows) < 2:
         raise ValueError(f"{path}: no data rows")
     try:
-        data = np.loadtxt(io.StringIO(body), delimiter=",", dtype=np.float64, ndmin=2)
+        data = np.loadtxt(rows[1:], delimiter=",", dtype=np.float64, ndmin=2)
     except ValueError as exc:
         raise ValueError(f"{path}: malformed data row ({exc})") from None
     if data.shape[1] != len(COLUMNS):
@@ -91,9 +88,7 @@ def load_conformance_csv(path) -> ConformanceVectors:
 
 def _max_abs(a: np.ndarray, b: np.ndarray) -> float:
     both = np.isfinite(a) & np.isfinite(b)
-    if not both.any():
-        return 0.0
-    return float(np.max(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64))))
+    return float(np.max(np.abs(a[both].astype(np.float64) - b[both].astype(np.float64)), initial=0.0))
 
 
 def check_conformance(
@@ -121,7 +116,7 @@ def variant_scores(
     cases: list[ConformanceVectors], settings: MahonySettings | None = None, *, native: bool | None = None
 ) -> dict[str, int]:
     """Bit-exact steps over all ``cases`` of each of ``VARIANTS`` with ``settings``' constants."""
-    base = MahonySettings() if settings is None else settings
+    base = settings or MahonySettings()
     return {
         variant: sum(check_conformance(c, replace(base, variant=variant), native=native).exact_steps for c in cases)
         for variant in VARIANTS

@@ -15,10 +15,6 @@ Prediction with the body rates ``ω = (p, q, r)`` (gyro, rad/s) and the Euler-ra
 (by default the mean takes the exact solution for a rate constant over the step: no forward-Euler error, no
 tan θ blow-up near ±90°; ``exact_propagation=False`` gives the course's forward-Euler step)
 
-    ∂φ̇/∂φ = tanθ·(cosφ·q − sinφ·r)       ∂φ̇/∂θ = (sinφ·q + cosφ·r) / cos²θ
-    ∂θ̇/∂φ = −sinφ·q − cosφ·r              ∂θ̇/∂θ = 0
-    ∂ψ̇/∂φ = (cosφ·q − sinφ·r) / cosθ      ∂ψ̇/∂θ = (sinφ·q + cosφ·r)·sinθ / cos²θ      (ψ column: 0)
-
     Q = dt²·W·(σ_ω²·I)·Wᵀ + dt·σ_p²·I     (W: the matrix of the Euler-rate equations above, f = W·ω)
 
 σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS), σ_p what the gyro model leaves out
@@ -45,15 +41,11 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
+from steval_link.estimators.base import ekf_native as _native
 from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
 
-try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
-    from steval_link.estimators import _ekf_native as _native
-except ImportError:  # pragma: no cover - depends on the build
-    _native = None
-
-#: True when the compiled loop of :meth:`Ekf3.run` is available (same results to rounding, ≈ 100× faster).
+#: True when the C loop of :meth:`Ekf3.run` is built (≈ 100× faster; the Python step is the reference).
 NATIVE_AVAILABLE = _native is not None
 
 _MIN_COS = 1e-3
@@ -70,12 +62,9 @@ def _propagate_exact(x, rx: float, ry: float, rz: float) -> tuple[float, float, 
 
 
 class Ekf3(Estimator):
-    """3-state Euler-angle EKF; its options are the module docstring's symbols, in their units.
-
-    :meth:`step` is the Python reference; :meth:`run` uses the C loop of ``_ekf_native`` when built (equal to
-    rounding) and leaves the same state. A zero accelerometer variance runs in Python, where ``np.linalg.solve`` may
-    raise on a singular innovation covariance.
-    """
+    """3-state Euler-angle EKF; its options are the module docstring's symbols, in their units. :meth:`step` is the
+    Python reference; :meth:`run` uses the C loop when built (equal to rounding), except with a zero accelerometer
+    variance (Python's ``np.linalg.solve`` may raise on the singular innovation covariance)."""
 
     name = "ekf3"
 
@@ -166,9 +155,7 @@ class Ekf3(Estimator):
         sp, cp, st, ct = math.sin(phi), math.cos(phi), math.sin(th), math.cos(th)
         h = (-st, sp * ct, cp * ct)
         H = np.array([[0.0, -ct, 0.0], [cp * ct, -sp * st, 0.0], [-sp * ct, -cp * st, 0.0]])
-        var = self.acc_var
-        if self.adaptive:
-            var += (self.norm_gain * (an - 1.0)) ** 2
+        var = self.acc_var + ((self.norm_gain * (an - 1.0)) ** 2 if self.adaptive else 0.0)
         P = self.P
         PHt = P @ H.T
         S = H @ PHt

@@ -1,6 +1,4 @@
-"""The firmware filter's replica (:mod:`steval_link.estimators.st_mahony`) followed along a stream of status
-snapshots and attitude rows (:class:`ReplicaFollower`), next to the firmware's own outputs.
-"""
+"""The firmware filter's replica followed along status snapshots and attitude rows, next to the firmware's outputs."""
 
 from __future__ import annotations
 
@@ -24,15 +22,14 @@ from steval_link.link.protocol import FLAG_EVENT
 
 
 class ReplicaFollower:
-    """The bit-exact replica followed along a stream of attitude rows and status snapshots (replay and live). It
-    starts at power-up when a run of consecutive steps begins at step 0, or from a status snapshot; a step gap or a
-    row marked not usable (text mode, non-finite) leaves it unseeded (NaN) until the next one.
+    """The bit-exact replica along attitude rows and status snapshots (replay and live). It starts at power-up (a run
+    of consecutive steps from step 0) or from a snapshot; a step gap or an unusable row (text mode, non-finite)
+    leaves it unseeded (NaN) until the next one.
 
-    ``settings``: fixed for every seed (a what-if replay); None takes each snapshot's own and ``initial`` at
-    power-up. ``follow_snapshots``: a snapshot while in sync is confirmed when it agrees bit for bit, else seeds
-    (True, live), or is ignored (False, a replay, which measures agreement). An EVENT snapshot (a host command
-    changed the filter) is always followed. ``variant``: the release every settings runs with (None: their own).
-    """
+    ``settings``: fixed for every seed (a what-if replay); None: each snapshot's own, ``initial`` at power-up.
+    ``follow_snapshots``: an in-sync snapshot is confirmed when bit-equal, else seeds (True, live) or is ignored
+    (False, a replay). An EVENT snapshot (a host command changed the filter) is always followed. ``variant``: the
+    release every settings runs with (None: their own)."""
 
     def __init__(
         self,
@@ -41,7 +38,6 @@ class ReplicaFollower:
         initial: MahonySettings | None = None,
         follow_snapshots: bool = True,
         euler: bool = True,
-        native: bool | None = None,
         variant: str | None = None,
     ) -> None:
         self.variant = variant
@@ -49,7 +45,7 @@ class ReplicaFollower:
         self.settings = self._with_variant(settings or initial or MahonySettings())
         self.follow_snapshots = follow_snapshots
         self.euler = euler
-        self._run = functools.partial(run, euler=euler, native=native)
+        self._run = functools.partial(run, euler=euler)
         self.state: MahonyState | None = None
         self.next_step: int | None = None
         self.seed_count = 0  #: (re)starts of the replica so far (power-up or snapshot)
@@ -134,8 +130,7 @@ class ReplicaFollower:
         step = np.asarray(step, dtype=np.int64)
         n = step.shape[0]
         q = np.full((n, 4), np.nan, dtype=_F32)
-        thx = np.full(n, np.nan, dtype=_F32) if self.euler else None
-        thy = np.full(n, np.nan, dtype=_F32) if self.euler else None
+        thx, thy = np.full((2, n), np.nan, dtype=_F32) if self.euler else (None, None)
         seeded = np.zeros(n, dtype=bool)
         breaks = np.flatnonzero((np.diff(step) != 1) | ~usable[1:] | ~usable[:-1]) + 1
         for a, b in zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [n])).tolist()):
@@ -210,16 +205,14 @@ class FirmwareReplay:
         return self.n_seeded > 0 and self.first_mismatch is None
 
 
-def replay_firmware(
-    tel, settings: MahonySettings | None = None, *, variant: str | None = None, native: bool | None = None
-) -> FirmwareReplay:
+def replay_firmware(tel, settings: MahonySettings | None = None, *, variant: str | None = None) -> FirmwareReplay:
     """Re-run the replica over a capture (a :class:`~steval_link.link.telemetry.Telemetry`) and compare it with the
     firmware's outputs, bit for bit. ``settings`` default: the status frames' (else the firmware's defaults);
     ``variant`` default: the settings' own. Seeds as :class:`ReplicaFollower`; rows before a seed are NaN."""
     rows = _AttitudeRows.of(tel.attitude)
     snaps = _Snapshots.of(getattr(tel, "status", None))
     initial = settings or snaps.default_settings()
-    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, native=native, variant=variant)
+    replica = ReplicaFollower(settings, initial=initial, follow_snapshots=False, variant=variant)
     steps, exact_rows, n = rows.steps, rows.exact, len(rows.steps)
     parts = [rows.run(replica, 0, 0)]  # no row yet: the empty arrays of each output
     # in stream order: each run of consecutive exact rows, seeded at power-up or by the first snapshot inside it
@@ -304,14 +297,11 @@ class _Snapshots:
             has_settings = np.all([np.isfinite(col(k)) for k in ("kp_ground", "kp_flight", "ki", "dt_s")], axis=0)
         return cls(status, order, st_steps[order], events, has_settings)
 
-    def settings(self, j: int) -> MahonySettings:
-        return MahonySettings.of_status(self.status, j)
-
     def default_settings(self) -> MahonySettings:
         """The build's settings: the first snapshot's, else the first status frame's that reports them (a diverged
         filter's snapshot holds NaN), else the firmware's defaults."""
         first = np.concatenate([self.order[:1], np.flatnonzero(self.has_settings)[:1]])
-        return self.settings(int(first[0])) if first.size else MahonySettings()
+        return MahonySettings.of_status(self.status, int(first[0])) if first.size else MahonySettings()
 
     def state(self, j: int) -> MahonyState:
         return MahonyState(table_column(self.status, "q_wxyz")[j], table_column(self.status, "int_xyz")[j])
@@ -331,7 +321,8 @@ def _replay_run(replica: ReplicaFollower, rows: _AttitudeRows, snaps: _Snapshots
             if end > cut:
                 parts.append(rows.run(replica, cut, end))
                 cut = end
-            replica.snapshot(step, snaps.state(j), snaps.settings(j), snapshot_id=j, event=bool(snaps.events[j]))
+            settings = MahonySettings.of_status(snaps.status, j)
+            replica.snapshot(step, snaps.state(j), settings, snapshot_id=j, event=bool(snaps.events[j]))
     parts.append(rows.run(replica, cut, b))
     return parts
 
@@ -354,13 +345,12 @@ def replay_variants(
     variant: str | None = None,
     source: str = "variant setting",
     hint: tuple[str, str] | None = None,
-    native: bool | None = None,
 ) -> VariantReplay:
     """Replay the capture with ``variant`` (named by ``source``), else with each of ``VARIANTS``, keeping the most
     bit-exact; on a tie ``hint`` (variant, who named it) when given, else the settings' own."""
     if variant is not None:
-        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant, native=native), {})
-    replays = {v: replay_firmware(tel, settings, variant=v, native=native) for v in VARIANTS}
+        return VariantReplay(variant, source, replay_firmware(tel, settings, variant=variant), {})
+    replays = {v: replay_firmware(tel, settings, variant=v) for v in VARIANTS}
     preferred = settings.variant if settings is not None else _status_variant(tel)
     counts = {v: r.n_bit_exact for v, r in replays.items()}
     best = max(counts.values())
@@ -374,11 +364,9 @@ def replay_variants(
 
 def _status_variant(tel) -> str:
     """The variant the first binary status frame's flags announce (ST 170120 without one)."""
-    status = getattr(tel, "status", None)
-    if status is None or len(np.asarray(table_column(status, "step"))) == 0:
-        return DEFAULT_VARIANT
-    rows = np.flatnonzero(np.isfinite(np.asarray(table_column(status, "kp_ground"), dtype=np.float64)))
-    return MahonySettings.of_status(status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
+    snaps = _Snapshots.of(getattr(tel, "status", None))
+    rows = np.flatnonzero(snaps.has_settings)
+    return MahonySettings.of_status(snaps.status, int(rows[0])).variant if rows.size else DEFAULT_VARIANT
 
 
 def release_sentence(

@@ -38,15 +38,11 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
 from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
+from steval_link.estimators.base import ekf_native as _native
 from steval_link.quat import euler_from_quaternion, qexp, qmul
 from steval_link.units import MDPS_TO_RADPS
 
-try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
-    from steval_link.estimators import _ekf_native as _native
-except ImportError:  # pragma: no cover - depends on the build
-    _native = None
-
-#: True when the compiled loop of :meth:`Mekf.run` is available (same results to rounding, ≈ 100× faster).
+#: True when the C loop of :meth:`Mekf.run` is built (≈ 100× faster; the Python step is the reference).
 NATIVE_AVAILABLE = _native is not None
 _DIAG = np.diag_indices(3)  # the diagonal of a 3×3 matrix
 
@@ -71,23 +67,6 @@ def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
             [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
-    )
-
-
-def _inv3(S: np.ndarray) -> np.ndarray:
-    """Inverse of a 3×3 matrix by its adjugate (S = H P Hᵀ + σ²I is symmetric positive definite: σ² > 0)."""
-    a, b, c = S[0]
-    d, e, f = S[1]
-    g, h, i = S[2]
-    A = e * i - f * h
-    B = f * g - d * i
-    C = d * h - e * g
-    det = a * A + b * B + c * C
-    return (
-        np.array(
-            [[A, c * h - b * i, b * f - c * e], [B, a * i - c * g, c * d - a * f], [C, b * g - a * h, a * e - b * d]]
-        )
-        / det
     )
 
 
@@ -243,9 +222,7 @@ class Mekf(Estimator):
     def _correct(self, ax: float, ay: float, az: float, an: float) -> None:
         dev = abs(an - 1.0)
         if self._acc_lp is not None:
-            w, x, y, z = self.qs
-            a_i = _rotmat(w, x, y, z) @ np.array([ax, ay, az])
-            m = self._acc_lp(a_i)
+            m = self._acc_lp(_rotmat(*self.qs) @ np.array([ax, ay, az]))  # a_I, low-passed
             d = float(self._norm_lp(np.array([dev]))[0]) if self.norm_gain > 0.0 else 0.0
             mn = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
             if mn < 1e-6:
@@ -261,22 +238,18 @@ class Mekf(Estimator):
         hz = w * w - x * x - y * y + z * z
         Hh = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
         P = self.P
-        if self.estimate_bias:
-            H = np.empty((3, 6))
-            H[:, :3] = Hh
+        H = Hh
+        if self.estimate_bias:  # D = 0: the direct MEKF, or the low-pass still warming up (its mean has no such model)
+            D = np.zeros((3, 3))
             if self._cum_lp is not None and self._acc_lp.n >= self._acc_lp.warmup:
                 # the low-passed measurement lags: a bias error shows as the drift of the last ≈ τ s, D = C − LP(C)
                 # (LP the measurement's low-pass; it copies the view of _cum_rs, which _predict updates in place)
-                d = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
-                H[:, 3:] = Hh @ d
-            else:  # the direct MEKF, or the low-pass still warming up (its running mean has no such model)
-                H[:, 3:] = 0.0
-        else:
-            H = Hh
+                D = self._cum_rs - self._cum_lp(self._cum_rs.ravel()).reshape(3, 3)
+            H = np.hstack([Hh, Hh @ D])
         PHt = P @ H.T
         S = H @ PHt
         S[_DIAG] += var
-        K = PHt @ _inv3(S)
+        K = PHt @ np.linalg.inv(S)  # S = H P Hᵀ + σ²I: symmetric positive definite (σ² > 0)
         if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
             K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
         dxs = K @ np.array([ux - hx, uy - hy, uz - hz])
@@ -305,8 +278,8 @@ class Mekf(Estimator):
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
-        st = np.zeros(_native.MEKF_STATE)
-        ist = np.zeros(_native.MEKF_ISTATE, dtype=np.int64)
+        st = np.zeros(114)  # MEKF_STATE; the C loop checks every buffer's size
+        ist = np.zeros(6, dtype=np.int64)  # MEKF_ISTATE
         nb = self.P.shape[0]
         st[0:14] = (*self.qs, *self.qc, *self.b, *self._w)
         st[14 : 14 + nb * nb] = self.P.ravel()

@@ -48,8 +48,8 @@ _PACKAGE_DIR = str(Path(__file__).resolve().parents[1])
 
 
 class PluginError(UserError):
-    """A user's estimator failed (import, construction, a step): one line, exit 2; ``details`` holds the user's
-    own traceback trimmed to their frames (printed before the line), or "" when there is none."""
+    """A user's estimator failed (import, construction, a step): one line, exit 2; ``details``: their traceback,
+    trimmed to their frames (printed before the line; "" without one)."""
 
     def __init__(self, message: str, details: str = "") -> None:
         super().__init__(message)
@@ -199,8 +199,7 @@ def _user_trace(exc: BaseException, user_files: tuple[str, ...]) -> tuple[str, s
         return f"{Path(exc.filename).name}, line {exc.lineno}", line.rstrip()
     if not frames:
         return "", ""
-    last = frames[-1]
-    where = f"{Path(last.filename).name}, line {last.lineno}, in {last.name}"
+    where = f"{Path(frames[-1].filename).name}, line {frames[-1].lineno}, in {frames[-1].name}"
     return where, ("Traceback (your code):\n" + "".join(traceback.format_list(frames)) + line).rstrip()
 
 
@@ -469,15 +468,12 @@ class Guarded(Estimator):
                 f"estimator {self.name}: run() gave quaternions of shape {q.shape} for {m} rows, "
                 f"expected ({m}, 4) ({where})"
             )
-        out = [
-            None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
-            for k, a in zip(optional, arrays)
-        ]
-        for label, arr in zip(optional, out):
+        out = []
+        for k, a in zip(optional, arrays):
+            arr = None if a is None else np.asarray(a, dtype=bool if k == "valid" else np.float64)
             if arr is not None and arr.shape != (m,):
-                raise PluginError(
-                    f"estimator {self.name}: run() gave {label} of shape {arr.shape} for {m} rows ({where})"
-                )
+                raise PluginError(f"estimator {self.name}: run() gave {k} of shape {arr.shape} for {m} rows ({where})")
+            out.append(arr)
         return (q, *out)
 
     def __repr__(self) -> str:

@@ -35,8 +35,8 @@ def _class(name: str) -> Callable[..., Estimator]:
     return getattr(importlib.import_module(module), attr)
 
 
-#: what each command runs next to the firmware when ``--estimators`` is not given (uninstalled ones skipped):
-#: ``steval live`` (every frame as it comes), ``steval replay`` with a viewer or ``--rrd``, ``steval compare``
+#: what steval live, replay (with a viewer or a recording) and compare run next to the firmware by default
+#: (uninstalled ones skipped)
 LIVE_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3")
 REPLAY_DEFAULT: tuple[str, ...] = ("st-mahony", "accel", "ekf3", "mekf")
 COMPARE_DEFAULT: tuple[str, ...] = ("ekf3", "mekf", "accel")
@@ -58,8 +58,7 @@ def is_available(name: str) -> bool:
 
 
 def is_known(name: str) -> bool:
-    """True for a registry name, a :class:`Selected`, or text that reads as a reference (whether it loads is
-    :func:`resolve`'s question)."""
+    """True for a registry name, a :class:`Selected`, or text that reads as a reference (:func:`resolve` loads it)."""
     if isinstance(name, Selected) or name in ESTIMATORS:
         return True
     try:
@@ -136,10 +135,9 @@ def create(name: str, **options) -> Estimator:
 
 
 def parse_names(spec: str | None, default: tuple[str, ...], *, require_installed: bool = True) -> list[str]:
-    """A comma-separated list of registry names, references or ``none``; None gives the installed ones of
-    ``default``. Registry names come back as they are, references as :class:`Selected`, each loaded and constructed
-    once here so that every mistake is one line before any work. UserError for two with one display name, an
-    unknown name, or (with ``require_installed``) one whose package is missing."""
+    """A comma-separated list of registry names, references or ``none`` (None: the installed ones of ``default``):
+    names as they are, references as :class:`Selected`, each constructed once now (every mistake one line before any
+    work). UserError for a display name given twice, an unknown name, or (``require_installed``) a missing package."""
     if spec is None:
         return [n for n in default if is_available(n) or not require_installed]
     chosen = plugins.split_list(spec)

@@ -25,8 +25,7 @@ def run_estimator(name: str, tel, *, decimation: int | None = None) -> tuple[Any
     """Run estimator ``name`` (see :func:`registry.create`) from power-up over every attitude row: (estimate, note)
     or (None, why not). With ``decimation`` steps per row (default: :func:`row_decimation`) those that take
     ``rate_hz`` run at the row rate; the others assume one AHRS step per row (the note says which)."""
-    if decimation is None:
-        decimation = row_decimation(tel)
+    decimation = row_decimation(tel) if decimation is None else decimation
     if not registry.is_known(name):
         return None, f"not available in this installation (known: {', '.join(registry.names())})"
     note = ""

@@ -167,15 +167,13 @@ def run(
     NaN where the firmware gives NaN; None without ``euler``) and the final state.
     """
     settings = MahonySettings() if settings is None else settings
-    state = MahonyState() if state is None else state
     acc, gyro, thr_arr = check_inputs(acc_mg, gyro_mdps, thr)
     native = choose_native(native, NATIVE_AVAILABLE, "Mahony")
     n = acc.shape[0]
     q = np.empty((n, 4), dtype=_F32)
-    st = state.as_array()
+    st = (state or MahonyState()).as_array()
     if native:
-        thx = np.empty(n, dtype=_F32) if euler else None
-        thy = np.empty(n, dtype=_F32) if euler else None
+        thx, thy = np.empty((2, n), dtype=_F32) if euler else (None, None)
         flags = (settings.min_thr & 0xFFFFFFFF) | ((not settings.correction) << 32) | (settings.fresh_squares << 33)
         _native.run(acc, gyro, thr_arr, q, thx, thy, st, settings._params(), flags)
     else:
@@ -193,26 +191,17 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
     half_t = _F32(0.5 * dt_d) if st221117 else _HALF * dt
     q0, q1, q2, q3, *integral = (_F32(v) for v in st)  # q, then exInt, eyInt, ezInt
     with np.errstate(all="ignore"):
+        gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         if st221117:  # float * double literal: a double product, stored to float
             gyro_rad = (gyro.astype(np.float64) * C.COE_MDPS_TO_RADPS).astype(_F32)
-        else:
-            gyro_rad = gyro * COE_MDPS_TO_RADPS_F32
         acc_unit = acc * inv_sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])[:, None]
         kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
         for k, (a, g, ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
             g = list(g)  # float32 scalars, as a, v and e
-            q0q0 = q0 * q0
-            q0q1 = q0 * q1
-            q0q2 = q0 * q2
-            q1q1 = q1 * q1
-            q1q3 = q1 * q3
-            q2q2 = q2 * q2
-            q2q3 = q2 * q3
-            q3q3 = q3 * q3
+            q0q0, q0q1, q0q2, q1q1 = q0 * q0, q0 * q1, q0 * q2, q1 * q1
+            q1q3, q2q2, q2q3, q3q3 = q1 * q3, q2 * q2, q2 * q3, q3 * q3
 
-            if (
-                settings.correction
-            ):  # as the C loop: e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
+            if settings.correction:  # e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
                 v = (_TWO * (q1q3 - q0q2), _TWO * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)
                 for i, j, m in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
                     e = a[j] * v[m] - a[m] * v[j]
@@ -227,14 +216,8 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
             q2 = q2 + (q0 * gyf - q1 * gzf + q3 * gxf) * half_t
             q3 = q3 + (q0 * gzf + q1 * gyf - q2 * gxf) * half_t
 
-            if st221117:
-                norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-            else:
-                norm = inv_sqrt(q0q0 + q1q1 + q2q2 + q3q3)
-            q0 = q0 * norm
-            q1 = q1 * norm
-            q2 = q2 * norm
-            q3 = q3 * norm
+            norm = inv_sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3 if st221117 else q0q0 + q1q1 + q2q2 + q3q3)
+            q0, q1, q2, q3 = q0 * norm, q1 * norm, q2 * norm, q3 * norm
             q_out[k] = (q0, q1, q2, q3)
     return np.array([q0, q1, q2, q3, *integral], dtype=_F32)
 
@@ -251,11 +234,9 @@ def handout_yaw(q_wxyz) -> np.ndarray:
 
 
 class StMahony(Estimator):
-    """The firmware's Mahony filter as an :class:`~steval_link.estimators.base.Estimator` (bit-exact, float32).
-
-    Options: the fields of :class:`MahonySettings` (``kp`` sets both gains) or a whole ``settings``; ``state``
-    seeds the filter; ``native`` forces the C or pure loop. thz is :func:`handout_yaw`.
-    """
+    """The firmware's Mahony filter as an estimator (bit-exact, float32). Options: the fields of
+    :class:`MahonySettings` (``kp`` sets both gains) or a whole ``settings``; ``state`` seeds the filter; ``native``
+    forces the C or pure loop. thz is :func:`handout_yaw`."""
 
     name = "st-mahony"
 
@@ -268,13 +249,11 @@ class StMahony(Estimator):
         kp: float | None = None,
         **setting_overrides,
     ) -> None:
-        base = MahonySettings() if settings is None else settings
         if kp is not None:
             setting_overrides = {"kp_ground": kp, "kp_flight": kp, **setting_overrides}
-        unknown = set(setting_overrides) - set(MahonySettings.__dataclass_fields__)
-        if unknown:
+        if unknown := set(setting_overrides) - set(MahonySettings.__dataclass_fields__):
             raise TypeError(f"StMahony() got an unexpected keyword argument {sorted(unknown)[0]!r}")
-        self.settings = replace(base, **setting_overrides) if setting_overrides else base
+        self.settings = replace(settings or MahonySettings(), **setting_overrides)
         choose_native(native, NATIVE_AVAILABLE, "Mahony")  # raises now when the C loop is asked for and not built
         self.native = native
         self.state = MahonyState() if state is None else state
