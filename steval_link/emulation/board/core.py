@@ -482,9 +482,6 @@ class PythonBoard:
         self._slice_start = 0
         self._skip_base = 0
 
-    def timer_moved(self, tim: Timer) -> None:
-        """A timer's next update changed (the Python scheduler reads the timers directly)."""
-
     def reschedule(self) -> None:
         """A peripheral scheduled an event possibly earlier than the current slice's end: stop there."""
         t = self._earliest()

@@ -370,9 +370,6 @@ class NativeBoard(PythonBoard):
             st.out_len = 0
 
     # -- the board's interface, over the C state
-    def timer_moved(self, tim) -> None:
-        """(The timers live in the C core.)"""
-
     def sync_now(self) -> None:
         """``now`` from the counter, in Python and in the C core (a model called from Python reads it there)."""
         st = self.st

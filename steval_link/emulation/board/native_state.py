@@ -126,24 +126,6 @@ def core_library() -> ctypes.CDLL | None:
     for name in ("core_run", "core_next_exception", "usart_inject", "core_add_site"):
         getattr(lib, name).restype = I64
     lib.usart_read.restype = U32
-    for name in (
-        "core_run",
-        "core_request_stop",
-        "core_reschedule",
-        "core_irq_check",
-        "core_next_exception",
-        "usart_read",
-        "usart_write",
-        "usart_inject",
-        "rx_complete",
-        "shift_complete_now",
-        "core_fire_events",
-        "core_take",
-        "core_add_site",
-        "timer_read",
-        "timer_write",
-    ):
-        getattr(lib, name).argtypes = None
     return lib
 
 
@@ -252,7 +234,7 @@ class NativeUsart(Peripheral):
         self.lib.rx_complete(self.ptr)
 
     def shift_complete(self) -> None:
-        self.lib.shift_complete_now(self.ptr)
+        self.lib.shift_complete(self.ptr)
 
     @property
     def rx_log(self) -> list[tuple[int, int]]:
