@@ -207,18 +207,13 @@ PLAIN = (
     ("I2C2", 0x5800),
     ("I2C3", 0x5C00),
 )
-GPIOS = (
-    ("GPIOA", 0x20000),
-    ("GPIOB", 0x20400),
-    ("GPIOC", 0x20800),
-    ("GPIOD", 0x20C00),
-    ("GPIOE", 0x21000),
-    ("GPIOH", 0x21C00),
-)
+#: GPIOx at 0x20000 + 0x400 · (x - A)
+GPIOS = tuple((f"GPIO{x}", 0x20000 + 0x400 * (ord(x) - ord("A"))) for x in "ABCDEH")
 SPIS = (("SPI1", 0x13000), ("SPI2", 0x3800), ("SPI3", 0x3C00), ("SPI4", 0x13400))
 RCC_OFF, PWR_OFF, ADC1_OFF = 0x23800, 0x7000, 0x12000
-TIM2_OFF, TIM4_OFF, TIM9_OFF = 0x0000, 0x0800, 0x14000
 USART1_OFF = 0x11000
+#: the timers: name, offset from PERIPH_BASE, IRQn (TIM4: none); the C core's ``tim[]`` in this order
+TIMERS = (("TIM9", 0x14000, IRQ_TIM9), ("TIM2", 0x0000, IRQ_TIM2), ("TIM4", 0x0800, None))
 
 
 def simple_peripherals(board) -> list[Peripheral]:

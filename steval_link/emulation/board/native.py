@@ -16,15 +16,9 @@ from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
     BITBAND_PERIPH,
     BITBAND_SIZE,
-    IRQ_TIM2,
-    IRQ_TIM9,
-    IRQ_USART1,
     PERIPH_BASE,
     RAM_BASE,
     RAM_SIZE,
-    TIM2_OFF,
-    TIM4_OFF,
-    TIM9_OFF,
     USART1_OFF,
     EmulationError,
     Peripheral,
@@ -73,8 +67,9 @@ class NativeBoard(PythonBoard):
     #: ``planner(board)``: the next TIM9 updates as tables, applied in C without the tick observers (see
     #: ``Emulation.plan_ticks``); None: every update calls them
     tick_planner = None
+    timer_model, usart_model, scs_model = NativeTimer, NativeUsart, NativeScs
 
-    def __init__(self, elf, sensors, *, skip_idle: bool = True, native: bool | None = None):
+    def __init__(self, elf, sensors, *, skip_idle: bool = True):
         self.lib = core_library()
         self.st = CoreState()
         self.st_ptr = ctypes.byref(self.st)
@@ -120,19 +115,6 @@ class NativeBoard(PythonBoard):
         st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
-
-    def _make_usart(self):
-        return NativeUsart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
-
-    def _make_timers(self):
-        return (
-            NativeTimer(self, PERIPH_BASE + TIM9_OFF, IRQ_TIM9, "TIM9", 0),
-            NativeTimer(self, PERIPH_BASE + TIM2_OFF, IRQ_TIM2, "TIM2", 1),
-            NativeTimer(self, PERIPH_BASE + TIM4_OFF, None, "TIM4", 2),
-        )
-
-    def _make_scs(self):
-        return NativeScs(self)
 
     def _map_usart(self, uc, usart) -> None:
         self._map_c(usart, "usart_mmio_read", "usart_mmio_write", self.st_ptr)
@@ -213,7 +195,7 @@ class NativeBoard(PythonBoard):
         if err:
             raise EmulationError(f"unicorn refused the C hook {fn} (error {err})")
 
-    def _install_counter(self, native) -> None:
+    def _install_counter(self) -> None:
         from unicorn import UC_HOOK_CODE, UC_HOOK_TLB_FILL, UC_TLB_VIRTUAL  # reason: unicorn is optional
 
         self._c_hook(UC_HOOK_CODE, "core_count_hook")
@@ -277,23 +259,17 @@ class NativeBoard(PythonBoard):
                 self._plan_ticks()
             elif kind == EV_OUT_FULL:
                 self._drain()
-            elif kind == EV_MMIO:
-                p, st = self._mirrored[arg], self.st
-                self._pull_mirror(p)
-                if st.mmio_write:
-                    self._mmio_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, p)
-                else:
-                    st.mmio_value = self._mmio_read(self.uc, st.hook_addr, st.hook_size, p)
-                self._refresh_mirror(p)
-            elif kind == EV_BITBAND:
-                st = self.st
-                for p in self._mirrored:
+            elif kind in (EV_MMIO, EV_BITBAND):  # one mirrored page's access, or a bit-band one (any page's bit)
+                st, mmio = self.st, kind == EV_MMIO
+                pages = [self._mirrored[arg]] if mmio else self._mirrored
+                read, write = (self._mmio_read, self._mmio_write) if mmio else (self._bb_read, self._bb_write)
+                for p in pages:
                     self._pull_mirror(p)
                 if st.mmio_write:
-                    self._bb_write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, None)
+                    write(self.uc, st.hook_addr, st.hook_size, st.mmio_value, pages[0] if mmio else None)
                 else:
-                    st.mmio_value = self._bb_read(self.uc, st.hook_addr, st.hook_size, None)
-                for p in self._mirrored:
+                    st.mmio_value = read(self.uc, st.hook_addr, st.hook_size, pages[0] if mmio else None)
+                for p in pages:
                     self._refresh_mirror(p)
             elif kind == EV_CODE:
                 if self.st.hook_addr == self._sensor_write:

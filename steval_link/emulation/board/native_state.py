@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import ctypes
 
-from steval_link.emulation.board.memory_map import IRQ_BASE, EmulationError, Peripheral
+from steval_link.emulation.board.memory_map import IRQ_BASE, TIMERS, EmulationError, Peripheral
 from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
 from steval_link.emulation.board.timer import TimReg
 from steval_link.emulation.board.usart import BITS_PER_BYTE, BRR_DEFAULT, SR_RESET, UsartReg
@@ -254,10 +254,10 @@ class NativeUsart(Peripheral):
 class NativeTimer(Peripheral):
     """TIMx in the C core (the Python model: timer.Timer); ``regs`` is a copy of its nonzero registers."""
 
-    def __init__(self, board, base, irq: int | None, name: str, index: int):
+    def __init__(self, board, base, irq: int | None, name: str):
         super().__init__(board, base, name=name)
-        self.irq, self.index = irq, index
-        self.t = board.st.tim[index]
+        self.irq, self.index = irq, [t[0] for t in TIMERS].index(name)
+        self.t = board.st.tim[self.index]
         self.t.core, self.t.irq, self.t.next, self.t.first_update = ctypes.addressof(board.st), _raw(irq), NONE, NONE
         self.lib, self.ptr = board.lib, board.st_ptr
 

@@ -40,8 +40,8 @@ class ScsReg(IntEnum):
 
 
 NVIC_WORDS = 0x20  # bytes of each ISER/ICER/ISPR/ICPR/IABR bank
-NVIC_IPR_END = 0xE4F0
-SHPR_END = 0xED24
+#: the priority words: first offset, end, the exception number of the first byte
+PRIO_WORDS = ((ScsReg.NVIC_IPR, 0xE4F0, IRQ_BASE), (ScsReg.SHPR1, 0xED24, 4))
 CPUID_M4 = 0x410FC241
 IDCODE_F401 = 0x10006423  # STM32F401xB/C
 AIRCR_VECTKEY, AIRCR_VECTKEYSTAT = 0x05FA, 0xFA050000
@@ -172,12 +172,10 @@ class Scs(Peripheral):
         ):
             if start <= off < start + NVIC_WORDS:
                 return nvic.word(bank, (off - start) // 4)
-        if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
-            i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
-        if ScsReg.SHPR1 <= off < SHPR_END:
-            i = off - ScsReg.SHPR1 + 4
-            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
+        for start, end, first in PRIO_WORDS:
+            if start <= off < end:
+                i = off - start + first
+                return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
         if off == ScsReg.ICSR:  # VECTACTIVE, PENDSTSET
             return nvic.current() | (ICSR_PENDSTSET if nvic.is_pending(EXC_SYSTICK) else 0)
         if off == ScsReg.AIRCR:
@@ -216,14 +214,11 @@ class Scs(Peripheral):
                 if on:
                     board.irq_check()
                 return
-        if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
-            i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
-            return
-        if ScsReg.SHPR1 <= off < SHPR_END:
-            i = off - ScsReg.SHPR1 + 4
-            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
-            return
+        for start, end, first in PRIO_WORDS:
+            if start <= off < end:
+                i = off - start + first
+                nvic.prio[i : i + 4] = value.to_bytes(4, "little")
+                return
         if off == ScsReg.ICSR:
             if value & ICSR_PENDSTSET:
                 nvic.pend(EXC_SYSTICK)
