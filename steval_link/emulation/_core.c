@@ -29,40 +29,21 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define FP_FRAME_WORDS 26
 #define NONE (-1)
 
-/* py_event kinds */
-#define EV_TICK 1       /* TIM9's update event: the tick observers */
-#define EV_OUT_FULL 2   /* drain the output buffer */
-#define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
-#define EV_MMIO 5       /* an access to a Python peripheral's mirrored page that the mirror cannot serve */
-#define EV_CODE 4       /* a Python code hook (arg: its index; hook_addr, hook_size) */
-#define EV_BITBAND 6    /* a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
-
+/* py_event kinds: TIM9's update event (the tick observers), drain the output buffer, a Sensor_IO_Read the images
+ * cannot answer, a Python code hook (arg: its index; hook_addr, hook_size), an access to a mirrored page the mirror
+ * cannot serve, a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
+enum { EV_TICK = 1, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND };
 /* fault codes (Python words the message) */
-#define F_PYTHON 1
-#define F_STACK 2
-#define F_RETURN 3
-#define F_CPU_EXC 4
-#define F_EMU 5
+enum { F_PYTHON = 1, F_STACK, F_RETURN, F_CPU_EXC, F_EMU };
 
-/* USART bits */
-#define SR_TXE 0x80
-#define SR_TC 0x40
-#define SR_RXNE 0x20
-#define SR_ORE 0x08
-#define CR1_UE 0x2000
-#define CR1_TXEIE 0x80
-#define CR1_TCIE 0x40
-#define CR1_RXNEIE 0x20
-#define CR1_RE 0x04
+/* USART bits: SR, CR1 */
+enum { SR_TXE = 0x80, SR_TC = 0x40, SR_RXNE = 0x20, SR_ORE = 0x08 };
+enum { CR1_UE = 0x2000, CR1_TXEIE = 0x80, CR1_TCIE = 0x40, CR1_RXNEIE = 0x20, CR1_RE = 0x04 };
 
 #define MAX_SITES 512
 #define FLASH_BASE 0x08000000u
 /* code site kinds */
-#define K_UNMASK 1
-#define K_IDLE 2
-#define K_WFI 3
-#define K_SENSOR 4
-#define K_PY 5
+enum { K_UNMASK = 1, K_IDLE, K_WFI, K_SENSOR, K_PY };
 #define MAX_IDLE 4
 #define MAX_MIRROR 10
 #define MAX_IDLE_WORDS 8
@@ -233,13 +214,18 @@ static int64_t earliest(core_t *s) {
   return m;
 }
 
+/* the counter's limit that stops the slice at instruction count t (not before the next instruction) */
+static uint64_t limit_at(core_t *s, int64_t t) {
+  int64_t lim = t - s->slice_start - s->skip_base + 1;
+  return lim < (int64_t)s->n + 1 ? s->n + 1 : (uint64_t)lim;
+}
+
 EXPORT void core_reschedule(core_t *s) {
   int64_t t = earliest(s);
   if (t != NONE && t < s->next_event) {
-    int64_t lim = t - s->slice_start - s->skip_base + 1;
-    if (lim < (int64_t)s->n + 1) lim = (int64_t)s->n + 1;
+    uint64_t lim = limit_at(s, t);
     s->next_event = t;
-    if ((uint64_t)lim < s->limit) s->limit = (uint64_t)lim;
+    if (lim < s->limit) s->limit = lim;
   }
 }
 
@@ -796,9 +782,7 @@ static void skip_to_event(core_t *s) {
   int64_t end = earliest(s);
   end = (end == NONE || end > s->run_end) ? s->run_end : end;
   s->next_event = end;
-  int64_t lim = end - s->slice_start - s->skip_base + 1;
-  if (lim < (int64_t)s->n + 1) lim = (int64_t)s->n + 1;
-  s->limit = (uint64_t)lim;
+  s->limit = limit_at(s, end);
 }
 
 static void idle_hook(core_t *s, uint64_t address) {

@@ -7,6 +7,7 @@ import ctypes
 import struct
 from collections import deque
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import SimpleNamespace
 from typing import Callable
 
@@ -453,18 +454,21 @@ class PythonBoard:
             self._next_event = t
             self._ic.limit = min(self._ic.limit, max(t - self._slice_start - self._skip_base + 1, self._ic.n + 1))
 
+    @cached_property
+    def _events(self) -> tuple:
+        """The scheduled events in firing order: (model, the attribute holding its time or None, what fires it)."""
+        u, scs = self.usart1, self.scs
+        return (
+            (u, "shift_done", u.shift_complete),
+            (u, "rx_done", u.rx_complete),
+            (scs, "systick_next", scs.systick_fire),
+            (self.tim9, "next_update", self._tim9_update),
+            (self.tim2, "next_update", self.tim2.update),
+        )
+
     def _earliest(self) -> int | None:
-        best = None
-        for t in (
-            self.scs.systick_next,
-            self.tim9.next_update,
-            self.tim2.next_update,
-            self.usart1.shift_done,
-            self.usart1.rx_done,
-        ):
-            if t is not None and (best is None or t < best):
-                best = t
-        return best
+        times = (getattr(model, attr) for model, attr, _ in self._events)
+        return min((t for t in times if t is not None), default=None)
 
     def uart_out(self, byte: int, t: int) -> None:
         self.out.append((byte, t))
@@ -522,24 +526,15 @@ class PythonBoard:
         now = self.now
         for _ in range(64):
             fired = False
-            if self.usart1.shift_done is not None and self.usart1.shift_done <= now:
-                self.usart1.shift_complete()
-                fired = True
-            if self.usart1.rx_done is not None and self.usart1.rx_done <= now:
-                self.usart1.rx_complete()
-                fired = True
-            if self.scs.systick_next is not None and self.scs.systick_next <= now:
-                self.scs.systick_fire()
-                fired = True
-            for tim in (self.tim9, self.tim2):
-                if tim.next_update is not None and tim.next_update <= now:
-                    self.timer_update(tim)
+            for model, attr, fire in self._events:
+                t = getattr(model, attr)
+                if t is not None and t <= now:
+                    fire()
                     fired = True
             if not fired:
                 return
 
-    def timer_update(self, tim: Timer) -> None:
-        tim.update()
-        if tim is self.tim9:
-            for ob in self.tick_observers:
-                ob(self)
+    def _tim9_update(self) -> None:
+        self.tim9.update()
+        for ob in self.tick_observers:
+            ob(self)

@@ -126,41 +126,29 @@ def describe_cpu(board) -> str:
     return f"the CPU is {where}{_handler_clause(board, pc, exc)}{_last_function(board, exc, sp)}"
 
 
-def fault_registers(board, intno: int) -> tuple[str, dict[str, int]] | None:
-    """What a Cortex-M4 records for unicorn's exception ``intno``: (the sentence's fault part, the registers), or
-    None for an exception that is not a fault. A configurable fault whose enable bit (SHCSR) is clear escalates to
-    HardFault (HFSR.FORCED), as on the chip after reset."""
-    fault = CPU_FAULTS.get(intno)
-    if fault is None:
-        return None
-    kind, bit, what = fault
-    shcsr = board.scs.regs.get(0xED24, 0) if hasattr(board.scs, "regs") else 0
-    enabled = {"MemManage": 1 << 16, "BusFault": 1 << 17, "UsageFault": 1 << 18}.get(kind, 0)
-    hfsr = HFSR_DEBUGEVT if intno == 7 else 0
-    text = f"{kind}: {what}"
-    if kind != "HardFault" and not shcsr & enabled:
-        hfsr |= HFSR_FORCED
-        text += ", escalated to HardFault"
-    regs = {"CFSR": bit, "HFSR": hfsr, "MMFAR": 0, "BFAR": 0}
-    return text, regs
-
-
 def describe_fault(board, intno: int, t_s: float) -> str:
-    """The sentence for a CPU exception unicorn raised (the board stops there instead of entering the handler)."""
+    """The sentence for a CPU exception unicorn raised (the board stops there instead of entering the handler), with
+    the CFSR and HFSR a Cortex-M4 records for it. A configurable fault whose enable bit (SHCSR) is clear escalates to
+    HardFault (HFSR.FORCED), as on the chip after reset."""
     pc, exc, sp, lr = _state(board)
     where = board.elf.func_at(pc)
-    found = fault_registers(board, intno)
-    if found is None:
+    fault = CPU_FAULTS.get(intno)
+    if fault is None:
         return (
             f"the CPU raised exception {intno} in {where} (pc 0x{pc:08x}, t = {t_s:.6f} s)"
             + (f" while handling exception {exception_name(exc)}" if exc else "")
             + _last_function(board, exc, sp)
         )
-    text, regs = found
-    reg = ", ".join(f"{k} 0x{v:08x}" for k, v in regs.items() if k in ("CFSR", "HFSR"))
+    kind, cfsr, what = fault
+    shcsr = board.scs.regs.get(0xED24, 0)
+    enabled = {"MemManage": 1 << 16, "BusFault": 1 << 17, "UsageFault": 1 << 18}.get(kind, 0)
+    hfsr = HFSR_DEBUGEVT if intno == 7 else 0
+    if kind != "HardFault" and not shcsr & enabled:
+        hfsr |= HFSR_FORCED
+        what += ", escalated to HardFault"
     return (
-        f"the firmware faulted in {where} at t = {t_s:.6f} s: {text} ({reg}; MMFAR, BFAR not valid; "
-        f"pc 0x{pc:08x}, lr 0x{lr:08x} in {board.elf.func_at(lr)}"
+        f"the firmware faulted in {where} at t = {t_s:.6f} s: {kind}: {what} (CFSR 0x{cfsr:08x}, HFSR 0x{hfsr:08x}; "
+        f"MMFAR, BFAR not valid; pc 0x{pc:08x}, lr 0x{lr:08x} in {board.elf.func_at(lr)}"
         + (f", while handling exception {exception_name(exc)}" if exc else "")
         + ")"
         + _last_function(board, exc, sp)

@@ -150,12 +150,6 @@ class NativeNvic:
     def _put(self, arr, i: int, on: bool) -> None:
         arr[i >> 6] = arr[i >> 6] | (1 << (i & 63)) if on else arr[i >> 6] & ~(1 << (i & 63))
 
-    def set_pending(self, irq: int) -> None:
-        self._put(self.st.pending, irq + IRQ_BASE, True)
-
-    def clear_pending(self, irq: int) -> None:
-        self._put(self.st.pending, irq + IRQ_BASE, False)
-
     def pend(self, exc: int) -> None:
         self._put(self.st.pending, exc, True)
 

@@ -63,12 +63,6 @@ class Nvic:
         self.prio = bytearray(256)  # by exception number
         self.prigroup = 0
 
-    def set_pending(self, irq: int) -> None:
-        self.pending.add(irq + IRQ_BASE)
-
-    def clear_pending(self, irq: int) -> None:
-        self.pending.discard(irq + IRQ_BASE)
-
     def pend(self, exc: int) -> None:
         self.pending.add(exc)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from steval_link.emulation.board.memory_map import Peripheral
+from steval_link.emulation.board.memory_map import IRQ_BASE, Peripheral
 
 
 class TimReg(IntEnum):
@@ -81,4 +81,4 @@ class Timer(Peripheral):
 
     def irq_line(self) -> None:
         if self.irq is not None and self.regs.get(TimReg.SR, 0) & self.regs.get(TimReg.DIER, 0) & 0xFF:
-            self.board.nvic.set_pending(self.irq)
+            self.board.nvic.pend(self.irq + IRQ_BASE)
