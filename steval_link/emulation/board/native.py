@@ -10,8 +10,9 @@ import ctypes
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.emulation.board.calls import FirmwareCalls
 from steval_link.emulation.board.core import PythonBoard
-from steval_link.emulation.board.cpu import uclib, wfi_sites
+from steval_link.emulation.board.cpu import cpsie_sites, uclib, wfi_sites
 from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
     BITBAND_PERIPH,
@@ -106,13 +107,10 @@ class NativeBoard(PythonBoard):
             setattr(st, name, NONE)
         st.tc = 1
         st.systick_period = 1
-        st.rx_t, st.rx_b, st.rx_cap = ctypes.addressof(self.rx_t), ctypes.addressof(self.rx_b), RX_CAPACITY
-        st.rxlog_t, st.rxlog_b, st.rxlog_cap = (
-            ctypes.addressof(self.rxlog_t),
-            ctypes.addressof(self.rxlog_b),
-            RXLOG_CAPACITY,
-        )
-        st.out_t, st.out_b, st.out_cap = ctypes.addressof(self.out_t), ctypes.addressof(self.out_b), OUT_CAPACITY
+        addr = ctypes.addressof
+        st.rx_t, st.rx_b, st.rx_cap = addr(self.rx_t), addr(self.rx_b), RX_CAPACITY
+        st.rxlog_t, st.rxlog_b, st.rxlog_cap = addr(self.rxlog_t), addr(self.rxlog_b), RXLOG_CAPACITY
+        st.out_t, st.out_b, st.out_cap = addr(self.out_t), addr(self.out_b), OUT_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
 
@@ -206,9 +204,6 @@ class NativeBoard(PythonBoard):
 
     def _install_hooks(self, skip_idle: bool) -> None:
         from unicorn import UC_HOOK_INTR, UC_HOOK_MEM_INVALID  # reason: unicorn is optional
-
-        from steval_link.emulation.board.calls import FirmwareCalls  # reason: (kept next to its use)
-        from steval_link.emulation.board.cpu import cpsie_sites  # reason: (kept next to its use)
 
         self._c_hook(UC_HOOK_INTR, "core_intr_hook")
         for lo, hi in ((0, RAM_BASE - 1), (RAM_BASE + RAM_SIZE, 0xFFFFFFFF)):  # (none over RAM: see above)
@@ -366,20 +361,15 @@ class NativeBoard(PythonBoard):
         self.lib.core_request_stop(self.st_ptr)
 
     def stop_with(self, exc: BaseException) -> None:
-        if self.fault is None:
-            self.fault = exc
         if not self.st.fault:
             self.st.fault = F_PYTHON
-        self.request_stop()
+        super().stop_with(exc)
 
     def reschedule(self) -> None:
         self.lib.core_reschedule(self.st_ptr)
 
     def irq_check(self) -> None:
         self.lib.core_irq_check(self.st_ptr)
-
-    def vtor(self) -> int:
-        return self.st.vtor
 
     def _reset(self) -> None:
         super()._reset()
