@@ -1,6 +1,6 @@
 /* The emulated board's hot path in C (board/native.py; the model: the board package's docstring). The Python models
  * translated (usart.py, timer.py, scs.py, cpu.py, core.py, memory_map.py's ADC1): the same registers at the same
- * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in native_state.py), registers
+ * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in board/native.py), registers
  * these functions with unicorn's C API and hands over its entry points (no unicorn header here). Python is called
  * back (py_event) for TIM9 updates without a plan, a full output buffer, sensor reads without an image, code sites. */
 #define PY_SSIZE_T_CLEAN
