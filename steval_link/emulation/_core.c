@@ -679,12 +679,8 @@ static void leave(core_t *s) {
   void *ptrs[23];
   for (int i = 0; i < 23; i++) ptrs[i] = &w[i];
   memcpy(w, raw, 6 * 4);
-  if (extended) {
-    memcpy(w + 6, raw + 8, 17 * 4);
-    ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, 23);
-  } else {
-    ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, 6);
-  }
+  if (extended) memcpy(w + 6, raw + 8, 17 * 4);
+  ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, extended ? 23 : 6);
   reg_set(s, s->SP, sp);
   reg_set(s, s->XPSR, xpsr & ~(1u << 9));
   reg_set(s, s->PC, raw[6] | 1);

@@ -148,9 +148,7 @@ class Exceptions:
         w[0:6] = raw[0:6]
         if extended:
             w[6:23] = raw[8:25]
-            r.write_batch(r.uch, ids, ptrs, 23)
-        else:
-            r.write_batch(r.uch, ids, ptrs, 6)
+        r.write_batch(r.uch, ids, ptrs, 23 if extended else 6)
         r.set(r.SP, sp)
         r.set(r.XPSR, xpsr & ~XPSR_ALIGN)
         r.set(r.PC, raw[6] | 1)

@@ -29,7 +29,7 @@ from steval_link.emulation.board.memory_map import (
     EmulationError,
     Peripheral,
 )
-from steval_link.emulation.board.scs import SYST_TICKINT, Scs, ScsReg
+from steval_link.emulation.board.scs import SYST_TICKINT, Nvic, Scs, ScsReg
 from steval_link.emulation.board.timer import TimReg
 from steval_link.emulation.board.usart import BITS_PER_BYTE, BRR_DEFAULT, SR_RESET, UsartReg
 
@@ -145,8 +145,8 @@ def core_library() -> ctypes.CDLL | None:
     return lib
 
 
-class NativeNvic:
-    """:class:`~steval_link.emulation.board.scs.Nvic`'s methods over the C core's NVIC state."""
+class NativeNvic(Nvic):
+    """:class:`~steval_link.emulation.board.scs.Nvic` over the C core's NVIC state."""
 
     def __init__(self, st: CoreState, lib, ptr) -> None:
         self.st, self.lib, self.ptr = st, lib, ptr
@@ -172,28 +172,17 @@ class NativeNvic:
     def unpend(self, exc: int) -> None:
         self._put(self.st.pending, exc, False)
 
-    def is_pending(self, exc: int) -> bool:
-        return self._bit(self.st.pending, exc)
-
     @property
     def pending(self) -> set[int]:
         return {e for e in range(256) if self._bit(self.st.pending, e)}
 
     @property
+    def enabled(self) -> set[int]:
+        return {e for e in range(256) if self._bit(self.st.enabled, e)}
+
+    @property
     def active(self) -> list[int]:
         return list(self.st.active[: self.st.n_active])
-
-    def current(self) -> int:
-        n = self.st.n_active
-        return self.st.active[n - 1] if n else 0
-
-    def word(self, bank: str, i: int) -> int:
-        if bank == "enabled":
-            return (self.st.enabled[i >> 1] >> (32 * (i & 1))) & 0xFFFFFFFF
-        if bank == "pending":
-            return sum(1 << b for b in range(32) if self._bit(self.st.pending, 32 * i + b + IRQ_BASE))
-        act = set(self.active)
-        return sum(1 << b for b in range(32) if 32 * i + b + IRQ_BASE in act)
 
     def set_word(self, bank: str, i: int, mask: int, on: bool) -> None:
         for b in range(32):
