@@ -73,15 +73,6 @@ def _state(board) -> tuple[int, int, int, int]:
     return board.pc(), board.reg(r.XPSR) & 0x1FF, board.reg(r.SP), board.reg(r.LR)
 
 
-def _stacked(board, sp: int) -> tuple[int, int] | None:
-    """(pc, lr) of the exception frame at sp, or None when it cannot be read."""
-    try:
-        lr, pc = struct.unpack("<II", bytes(board.uc.mem_read(sp + STACKED_LR, 8)))
-    except Exception:  # noqa: BLE001 - an unreadable frame is left out of the sentence
-        return None
-    return pc, lr
-
-
 def _handler_clause(board, pc: int, exc: int) -> str:
     """`` handling exception 15 (SysTick): SysTick_Handler is missing (...)`` (or `` in thread mode``)."""
     e = board.elf
@@ -109,12 +100,13 @@ def _handler_clause(board, pc: int, exc: int) -> str:
 
 
 def _last_function(board, exc: int, sp: int) -> str:
+    """The stacked pc and lr of the exception frame at sp ("" in thread mode, or when it cannot be read)."""
     if exc == 0:
         return ""
-    frame = _stacked(board, sp)
-    if frame is None:
+    try:
+        lr, pc = struct.unpack("<II", bytes(board.uc.mem_read(sp + STACKED_LR, 8)))
+    except Exception:  # noqa: BLE001 - an unreadable frame is left out of the sentence
         return ""
-    pc, lr = frame
     return f"; the firmware was last in {board.elf.func_at(pc)} (stacked pc 0x{pc:08x}, lr 0x{lr:08x})"
 
 

@@ -40,6 +40,14 @@ class ScsReg(IntEnum):
 
 
 NVIC_WORDS = 0x20  # bytes of each ISER/ICER/ISPR/ICPR/IABR bank
+#: the NVIC's banks: Nvic.word's bank, first offset, set (True) or clear (False) on write (None: read only)
+NVIC_BANKS = (
+    ("enabled", ScsReg.NVIC_ISER, True),
+    ("enabled", ScsReg.NVIC_ICER, False),
+    ("pending", ScsReg.NVIC_ISPR, True),
+    ("pending", ScsReg.NVIC_ICPR, False),
+    ("active", ScsReg.NVIC_IABR, None),
+)
 #: the priority words: first offset, end, the exception number of the first byte
 PRIO_WORDS = ((ScsReg.NVIC_IPR, 0xE4F0, IRQ_BASE), (ScsReg.SHPR1, 0xED24, 4))
 CPUID_M4 = 0x410FC241
@@ -157,13 +165,7 @@ class Scs(Peripheral):
             if self.systick_next is None:
                 return self.regs.get(off, 0)
             return max(0, self.systick_next - self.board.now - 1) % self.systick_period()
-        for bank, start in (
-            ("enabled", ScsReg.NVIC_ISER),
-            ("enabled", ScsReg.NVIC_ICER),
-            ("pending", ScsReg.NVIC_ISPR),
-            ("pending", ScsReg.NVIC_ICPR),
-            ("active", ScsReg.NVIC_IABR),
-        ):
+        for bank, start, _ in NVIC_BANKS:
             if start <= off < start + NVIC_WORDS:
                 return nvic.word(bank, (off - start) // 4)
         for start, end, first in PRIO_WORDS:
@@ -197,13 +199,8 @@ class Scs(Peripheral):
                 self.systick_next = board.now + self.systick_period()
                 board.reschedule()
             return
-        for bank, start, on in (
-            ("enabled", ScsReg.NVIC_ISER, True),
-            ("enabled", ScsReg.NVIC_ICER, False),
-            ("pending", ScsReg.NVIC_ISPR, True),
-            ("pending", ScsReg.NVIC_ICPR, False),
-        ):
-            if start <= off < start + NVIC_WORDS:
+        for bank, start, on in NVIC_BANKS:
+            if start <= off < start + NVIC_WORDS and on is not None:
                 nvic.set_word(bank, (off - start) // 4, value, on)
                 if on:
                     board.irq_check()
