@@ -428,12 +428,10 @@ EXPORT uint64_t usart_mmio_read(void *uc, uint64_t off, unsigned size, void *use
   core_t *s = (core_t *)user;
   (void)uc;
   sync_now(s);
-  if ((off & ~3u) == 0x00) {
-    uint32_t sr = usart_sr(s);
-    poll_check(s, sr);
-  } else {
+  if ((off & ~3u) == 0x00)
+    poll_check(s, usart_sr(s));
+  else
     touched(s);
-  }
   return lanes(usart_read(s, (uint32_t)off & ~3u), off, size);
 }
 

@@ -30,8 +30,7 @@ from steval_link.emulation.board.memory_map import (
     Peripheral,
 )
 from steval_link.emulation.board.scs import SYST_TICKINT, Nvic, Scs, ScsReg
-from steval_link.emulation.board.timer import TimReg
-from steval_link.emulation.board.usart import BITS_PER_BYTE, BRR_DEFAULT, SR_RESET, UsartReg
+from steval_link.emulation.board.usart import SR_RESET, UsartReg
 
 I64, U64, I32, U32 = ctypes.c_int64, ctypes.c_uint64, ctypes.c_int32, ctypes.c_uint32
 U8, P = ctypes.c_uint8, ctypes.c_void_p
@@ -220,9 +219,6 @@ class NativeUsart(Peripheral):
     def bitband_base(self, off):
         return self.st.uregs[0] if off == UsartReg.SR else self.read(off)
 
-    def byte_cycles(self) -> int:
-        return BITS_PER_BYTE * (self.st.uregs[UsartReg.BRR // 4] or BRR_DEFAULT)
-
     def inject(self, data: bytes, t: int) -> None:
         data = bytes(data)
         t = max(int(t), self.board.now)
@@ -278,20 +274,12 @@ class NativeTimer(Peripheral):
         pass
 
     @property
-    def next_update(self) -> int | None:
-        return _opt(self.t.next)
-
-    @property
     def updates(self) -> int:
         return self.t.updates
 
     @property
     def first_update(self) -> int | None:
         return _opt(self.t.first_update)
-
-    @property
-    def period(self) -> int:
-        return (self.t.regs[TimReg.PSC // 4] + 1) * (self.t.regs[TimReg.ARR // 4] + 1)
 
 
 class NativeScs(Scs):
