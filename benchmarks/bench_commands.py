@@ -28,7 +28,7 @@ def measure(elf: Path, *, commands: bool) -> dict[str, list[int]]:
 
     def entry(name):
         def hook(board):
-            lr = board.reg(board._LR) & ~1
+            lr = board.reg(board.regs.LR) & ~1
             if lr not in returns:
                 returns[lr] = name
                 b.probe(lr, exit_hook(name))

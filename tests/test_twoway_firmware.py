@@ -66,7 +66,7 @@ def _through_firmware(elf, vec, rows: int, ki: float | None = None, correction: 
     and read back ahrs.q and the Euler angles it sends (at stv_fw_step_end's entry)."""
     emu = _emulation(elf, "bench", FIRST_STEP_S + (rows + 3) * STEP_S)
     b, e = emu.board, emu.elf
-    R = b._R
+    R = b.regs.R
     g_thr = e.addr("gTHR")
     filt = e.addr("stv_filter")
     k = {"in": 0, "out": 0}
@@ -369,7 +369,7 @@ def test_instruction_cost_of_the_command_check_is_tiny(fw):
 
     def enter(board):
         start["n"] = board.instructions_now()
-        start["lr"] = board.reg(board._LR) & ~1
+        start["lr"] = board.reg(board.regs.LR) & ~1
 
     def next_entry(board):
         start["c"] = board.instructions_now()
@@ -384,7 +384,7 @@ def test_instruction_cost_of_the_command_check_is_tiny(fw):
     seen = set()
 
     def on_next(board):
-        lr = board.reg(board._LR) & ~1
+        lr = board.reg(board.regs.LR) & ~1
         if lr not in seen:
             seen.add(lr)
             b.probe(lr, after_next)

@@ -1,6 +1,6 @@
 /* The emulated board's hot path in C (board/native.py; the model: the board package's docstring). The Python models
  * translated (usart.py, timer.py, scs.py, cpu.py, core.py, memory_map.py's ADC1): the same registers at the same
- * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in native_state.py), registers
+ * instruction counts. Python owns the state (a core_t allocated with ctypes, mirrored in board/native.py), registers
  * these functions with unicorn's C API and hands over its entry points (no unicorn header here). Python is called
  * back (py_event) for TIM9 updates without a plan, a full output buffer, sensor reads without an image, code sites. */
 #define PY_SSIZE_T_CLEAN
@@ -29,40 +29,21 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define FP_FRAME_WORDS 26
 #define NONE (-1)
 
-/* py_event kinds */
-#define EV_TICK 1       /* TIM9's update event: the tick observers */
-#define EV_OUT_FULL 2   /* drain the output buffer */
-#define EV_SENSOR 3     /* a Sensor_IO_Read the images cannot answer: Python does it */
-#define EV_MMIO 5       /* an access to a Python peripheral's mirrored page that the mirror cannot serve */
-#define EV_CODE 4       /* a Python code hook (arg: its index; hook_addr, hook_size) */
-#define EV_BITBAND 6    /* a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
-
+/* py_event kinds: TIM9's update event (the tick observers), drain the output buffer, a Sensor_IO_Read the images
+ * cannot answer, a Python code hook (arg: its index; hook_addr, hook_size), an access to a mirrored page the mirror
+ * cannot serve, a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
+enum { EV_TICK = 1, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND };
 /* fault codes (Python words the message) */
-#define F_PYTHON 1
-#define F_STACK 2
-#define F_RETURN 3
-#define F_CPU_EXC 4
-#define F_EMU 5
+enum { F_PYTHON = 1, F_STACK, F_RETURN, F_CPU_EXC, F_EMU };
 
-/* USART bits */
-#define SR_TXE 0x80
-#define SR_TC 0x40
-#define SR_RXNE 0x20
-#define SR_ORE 0x08
-#define CR1_UE 0x2000
-#define CR1_TXEIE 0x80
-#define CR1_TCIE 0x40
-#define CR1_RXNEIE 0x20
-#define CR1_RE 0x04
+/* USART bits: SR, CR1 */
+enum { SR_TXE = 0x80, SR_TC = 0x40, SR_RXNE = 0x20, SR_ORE = 0x08 };
+enum { CR1_UE = 0x2000, CR1_TXEIE = 0x80, CR1_TCIE = 0x40, CR1_RXNEIE = 0x20, CR1_RE = 0x04 };
 
 #define MAX_SITES 512
 #define FLASH_BASE 0x08000000u
 /* code site kinds */
-#define K_UNMASK 1
-#define K_IDLE 2
-#define K_WFI 3
-#define K_SENSOR 4
-#define K_PY 5
+enum { K_UNMASK = 1, K_IDLE, K_WFI, K_SENSOR, K_PY };
 #define MAX_IDLE 4
 #define MAX_MIRROR 10
 #define MAX_IDLE_WORDS 8
@@ -154,6 +135,30 @@ static inline void touched(core_t *s) { s->io_epoch++; }
 static inline void sync_now(core_t *s) { s->now = s->slice_start + (int64_t)s->n + s->skip_base; }
 static inline int64_t instructions_now(core_t *s) { return s->instructions + (int64_t)s->n; }
 
+/* the size bytes at off & 3 of a 32-bit register (a byte, half-word or word read) */
+static inline uint64_t lanes(uint32_t w, uint64_t off, unsigned size) {
+  return (w >> ((off & 3) * 8)) & (size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1));
+}
+
+/* a byte or half-word write merged into the register word it modifies (old) */
+static inline uint32_t merged(uint32_t old, uint64_t off, unsigned size, uint64_t value) {
+  if (size == 4) return (uint32_t)value;
+  uint32_t sh = (off & 3) * 8, mask = (uint32_t)(((1ull << (8 * size)) - 1) << sh);
+  return (old & ~mask) | (((uint32_t)value << sh) & mask);
+}
+
+/* an access handed to Python (py_event kind, arg): hook_addr, hook_size, mmio_write, mmio_value; a read's value */
+static uint64_t ask_python(core_t *s, int64_t kind, int64_t arg, uint64_t off, unsigned size, int write,
+                           uint64_t value) {
+  sync_now(s);
+  s->hook_addr = (int64_t)off;
+  s->hook_size = size;
+  s->mmio_write = write;
+  s->mmio_value = (int64_t)value;
+  ((py_event_t)s->py_event)(kind, arg);
+  return (uint64_t)s->mmio_value;
+}
+
 static inline uint32_t reg_get(core_t *s, int64_t id) {
   uint32_t v = 0;
   ((reg_rw_t)s->reg_read)(s->uc, (int)id, &v);
@@ -209,13 +214,18 @@ static int64_t earliest(core_t *s) {
   return m;
 }
 
+/* the counter's limit that stops the slice at instruction count t (not before the next instruction) */
+static uint64_t limit_at(core_t *s, int64_t t) {
+  int64_t lim = t - s->slice_start - s->skip_base + 1;
+  return lim < (int64_t)s->n + 1 ? s->n + 1 : (uint64_t)lim;
+}
+
 EXPORT void core_reschedule(core_t *s) {
   int64_t t = earliest(s);
   if (t != NONE && t < s->next_event) {
-    int64_t lim = t - s->slice_start - s->skip_base + 1;
-    if (lim < (int64_t)s->n + 1) lim = (int64_t)s->n + 1;
+    uint64_t lim = limit_at(s, t);
     s->next_event = t;
-    if ((uint64_t)lim < s->limit) s->limit = (uint64_t)lim;
+    if (lim < s->limit) s->limit = lim;
   }
 }
 
@@ -306,7 +316,7 @@ static void uart_out(core_t *s, int64_t byte, int64_t t) {
   }
 }
 
-static void shift_complete(core_t *s) {
+EXPORT void shift_complete(core_t *s) {
   touched(s);
   uart_out(s, s->shift_byte, s->shift_done);
   s->shift_done = NONE;
@@ -373,8 +383,6 @@ EXPORT void rx_complete(core_t *s) {
   usart_irq_line(s);
 }
 
-EXPORT void shift_complete_now(core_t *s) { shift_complete(s); }
-
 /* MMIO callbacks of the USART1 page (uc_mmio_map) */
 /* A USART1 SR read in thread mode. When the one before it was at the same instruction, read the same value, and
  * nothing in between could change what the CPU sees (no event, exception, other MMIO or Python call: the epoch;
@@ -420,29 +428,19 @@ EXPORT uint64_t usart_mmio_read(void *uc, uint64_t off, unsigned size, void *use
   core_t *s = (core_t *)user;
   (void)uc;
   sync_now(s);
-  if ((off & ~3u) == 0x00) {
-    uint32_t sr = usart_sr(s);
-    poll_check(s, sr);
-  } else {
+  if ((off & ~3u) == 0x00)
+    poll_check(s, usart_sr(s));
+  else
     touched(s);
-  }
-  uint32_t w = usart_read(s, (uint32_t)off & ~3u);
-  uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
-  return (w >> ((off & 3) * 8)) & mask;
+  return lanes(usart_read(s, (uint32_t)off & ~3u), off, size);
 }
 
 EXPORT void usart_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
   core_t *s = (core_t *)user;
   (void)uc;
   sync_now(s);
-  uint32_t o = (uint32_t)off & ~3u, v = (uint32_t)value;
-  if (size != 4) {
-    uint32_t sh = (off & 3) * 8, mask = (uint32_t)(((1ull << (8 * size)) - 1) << sh);
-    uint32_t old = (o == 0x04) ? 0 : s->uregs[(o >> 2) & 255]; /* as last written (DR is never stored) */
-    if (o == 0x00) old = s->uregs[0];
-    v = (old & ~mask) | ((v << sh) & mask);
-  }
-  usart_write(s, o, v);
+  uint32_t o = (uint32_t)off & ~3u;
+  usart_write(s, o, merged(o == 0x04 ? 0 : s->uregs[(o >> 2) & 255], off, size, value)); /* DR is never stored */
 }
 
 enum { ADC_CR2 = 0x08, ADC_DR = 0x4C, ADC_EOC = 0x02, ADC_STRT = 0x10 }; /* ADC1: registers, SR bits */
@@ -454,23 +452,17 @@ EXPORT uint64_t mirror_mmio_read(void *uc, uint64_t off, unsigned size, void *us
   core_t *s = (core_t *)m->core;
   (void)uc;
   touched(s);
-  uint64_t w = off >> 2, mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
+  uint64_t w = off >> 2;
   if (m->page == s->adc_page && w == ADC_DR / 4) { /* a conversion's reading; clears EOC */
     m->vals[0] &= ~ADC_EOC;
-    return ((uint32_t)s->adc_dr >> ((off & 3) * 8)) & mask;
+    return lanes((uint32_t)s->adc_dr, off, size);
   }
-  if (w < 256 && m->served[w]) return (m->vals[w] >> ((off & 3) * 8)) & mask;
+  if (w < 256 && m->served[w]) return lanes(m->vals[w], off, size);
   if (m->page == s->scs_page && w == 0x1004 / 4 && s->cyccnt_on) { /* DWT CYCCNT: the instruction clock */
     sync_now(s);
-    return ((uint32_t)(s->now - s->cyccnt_base) >> ((off & 3) * 8)) & mask;
+    return lanes((uint32_t)(s->now - s->cyccnt_base), off, size);
   }
-  sync_now(s);
-  s->hook_addr = (int64_t)off;
-  s->hook_size = size;
-  s->mmio_write = 0;
-  s->mmio_value = 0;
-  ((py_event_t)s->py_event)(EV_MMIO, m->page);
-  return (uint64_t)s->mmio_value;
+  return ask_python(s, EV_MMIO, m->page, off, size, 0, 0);
 }
 
 EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
@@ -489,11 +481,7 @@ EXPORT void mirror_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t va
     m->vals[0] &= v;
     return;
   }
-  s->hook_addr = (int64_t)off;
-  s->hook_size = size;
-  s->mmio_write = 1;
-  s->mmio_value = (int64_t)value;
-  ((py_event_t)s->py_event)(EV_MMIO, m->page);
+  ask_python(s, EV_MMIO, m->page, off, size, 1, value);
 }
 
 /* The peripheral bit-band alias: accesses to USART1's bits run here (as board/core.py's _bb_read/_bb_write on
@@ -507,22 +495,12 @@ static int bb_usart(core_t *s, uint64_t off, uint32_t *reg, uint32_t *bit) {
   return 1;
 }
 
-static uint64_t bb_python(core_t *s, uint64_t off, unsigned size, int write, uint64_t value) {
-  sync_now(s);
-  s->hook_addr = (int64_t)off;
-  s->hook_size = size;
-  s->mmio_write = write;
-  s->mmio_value = (int64_t)value;
-  ((py_event_t)s->py_event)(EV_BITBAND, 0);
-  return (uint64_t)s->mmio_value;
-}
-
 EXPORT uint64_t bb_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
   core_t *s = (core_t *)user;
   uint32_t reg, bit;
   (void)uc;
   touched(s);
-  if (!bb_usart(s, off, &reg, &bit)) return bb_python(s, off, size, 0, 0);
+  if (!bb_usart(s, off, &reg, &bit)) return ask_python(s, EV_BITBAND, 0, off, size, 0, 0);
   sync_now(s);
   return (usart_read(s, reg) >> bit) & 1;
 }
@@ -533,7 +511,7 @@ EXPORT void bb_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value,
   (void)uc;
   touched(s);
   if (!bb_usart(s, off, &reg, &bit)) {
-    bb_python(s, off, size, 1, value);
+    ask_python(s, EV_BITBAND, 0, off, size, 1, value);
     return;
   }
   sync_now(s);
@@ -616,31 +594,23 @@ static void timer_update(core_t *s, int64_t i) {
   if (s->plan_len) memcpy(s->ram + (s->plan_addr - RAM_BASE), s->plan_ram + s->plan_len * j, (size_t)s->plan_len);
 }
 
-static ctimer_t *timer_of(void *user) { return (ctimer_t *)user; }
-
 EXPORT uint64_t timer_mmio_read(void *uc, uint64_t off, unsigned size, void *user) {
-  ctimer_t *t = timer_of(user);
+  ctimer_t *t = (ctimer_t *)user;
   core_t *s = (core_t *)t->core;
   (void)uc;
   sync_now(s);
   touched(s);
-  uint32_t w = timer_read(s, t - s->tim, (uint32_t)off & ~3u);
-  uint64_t mask = size >= 4 ? 0xFFFFFFFFull : ((1ull << (8 * size)) - 1);
-  return (w >> ((off & 3) * 8)) & mask;
+  return lanes(timer_read(s, t - s->tim, (uint32_t)off & ~3u), off, size);
 }
 
 EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t value, void *user) {
-  ctimer_t *t = timer_of(user);
+  ctimer_t *t = (ctimer_t *)user;
   core_t *s = (core_t *)t->core;
   (void)uc;
   sync_now(s);
   touched(s);
-  uint32_t o = (uint32_t)off & ~3u, v = (uint32_t)value;
-  if (size != 4) {
-    uint32_t sh = (off & 3) * 8, mask = (uint32_t)(((1ull << (8 * size)) - 1) << sh);
-    v = (t->regs[(o >> 2) & 255] & ~mask) | ((v << sh) & mask);
-  }
-  timer_write(s, t - s->tim, o, v);
+  uint32_t o = (uint32_t)off & ~3u;
+  timer_write(s, t - s->tim, o, merged(t->regs[(o >> 2) & 255], off, size, value));
 }
 
 /* ---- exceptions -------------------------------------------------------------------------------------------- */
@@ -676,8 +646,6 @@ static void take(core_t *s, int exc) {
   reg_set(s, s->PC, vector | 1);
 }
 
-EXPORT void core_take(core_t *s, int64_t exc) { take(s, (int)exc); }
-
 static void leave(core_t *s) {
   touched(s);
   uint32_t exc_return = reg_get(s, s->PC) | 0xF0000000u;
@@ -709,12 +677,8 @@ static void leave(core_t *s) {
   void *ptrs[23];
   for (int i = 0; i < 23; i++) ptrs[i] = &w[i];
   memcpy(w, raw, 6 * 4);
-  if (extended) {
-    memcpy(w + 6, raw + 8, 17 * 4);
-    ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, 23);
-  } else {
-    ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, 6);
-  }
+  if (extended) memcpy(w + 6, raw + 8, 17 * 4);
+  ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, extended ? 23 : 6);
   reg_set(s, s->SP, sp);
   reg_set(s, s->XPSR, xpsr & ~(1u << 9));
   reg_set(s, s->PC, raw[6] | 1);
@@ -774,17 +738,7 @@ static void fire_events(core_t *s) {
   }
 }
 
-EXPORT void core_fire_events(core_t *s) { fire_events(s); }
-
 /* ---- hooks ------------------------------------------------------------------------------------------------- */
-
-/* after cpsie i / msr primask: take what became pending */
-EXPORT void core_unmask_hook(void *uc, uint64_t address, uint32_t size, void *user) {
-  (void)uc;
-  (void)address;
-  (void)size;
-  core_irq_check((core_t *)user);
-}
 
 /* The CPU (thread mode) has nothing to do until the next event: jump there, fire it, take its interrupt in the
  * hook; the polled instruction runs again after the handler, normally. */
@@ -822,15 +776,10 @@ static void skip_to_event(core_t *s) {
   int64_t end = earliest(s);
   end = (end == NONE || end > s->run_end) ? s->run_end : end;
   s->next_event = end;
-  int64_t lim = end - s->slice_start - s->skip_base + 1;
-  if (lim < (int64_t)s->n + 1) lim = (int64_t)s->n + 1;
-  s->limit = (uint64_t)lim;
+  s->limit = limit_at(s, end);
 }
 
-EXPORT void core_idle_hook(void *uc, uint64_t address, uint32_t size, void *user) {
-  core_t *s = (core_t *)user;
-  (void)uc;
-  (void)size;
+static void idle_hook(core_t *s, uint64_t address) {
   for (int k = 0; k < s->n_idle; k++) {
     if ((uint64_t)s->idle_addr[k] != address) continue;
     if (any_pending(s)) return;
@@ -849,20 +798,12 @@ EXPORT void core_idle_hook(void *uc, uint64_t address, uint32_t size, void *user
 }
 
 /* wfi in thread mode with no interrupt to take (PRIMASK aside): sleep to the next event (core.py's _on_wfi) */
-EXPORT void core_wfi_hook(void *uc, uint64_t address, uint32_t size, void *user) {
-  core_t *s = (core_t *)user;
-  (void)uc;
-  (void)address;
-  (void)size;
+static void wfi_hook(core_t *s) {
   if (!s->n_active && core_next_exception(s, 0) < 0) skip_to_event(s);
 }
 
 /* Sensor_IO_Read(handle, reg, buf, n) from the register images; Python when the image is not current */
-EXPORT void core_sensor_read_hook(void *uc, uint64_t address, uint32_t size, void *user) {
-  core_t *s = (core_t *)user;
-  (void)uc;
-  (void)address;
-  (void)size;
+static void sensor_read_hook(core_t *s) {
   uint32_t handle = reg_get(s, s->rid[5]), reg = reg_get(s, s->rid[6]) & 0x7F, buf = reg_get(s, s->rid[7]);
   uint32_t n = reg_get(s, s->rid[8]) & 0xFFFF;
   int64_t dev = -1;
@@ -900,7 +841,7 @@ EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg)
   return 1;
 }
 
-static void dispatch(core_t *s, void *uc, uint64_t address, uint32_t size) {
+static void dispatch(core_t *s, uint64_t address, uint32_t size) {
   touched(s);
   int64_t lo = 0, hi = s->n_sites;
   while (lo < hi) {
@@ -912,10 +853,10 @@ static void dispatch(core_t *s, void *uc, uint64_t address, uint32_t size) {
   }
   for (int64_t i = lo; i < s->n_sites && (uint64_t)s->site_addr[i] == address; i++) {
     switch (s->site_kind[i]) {
-      case K_UNMASK: core_unmask_hook(uc, address, size, s); break;
-      case K_IDLE: core_idle_hook(uc, address, size, s); break;
-      case K_WFI: core_wfi_hook(uc, address, size, s); break;
-      case K_SENSOR: core_sensor_read_hook(uc, address, size, s); break;
+      case K_UNMASK: core_irq_check(s); break; /* after cpsie i / msr primask: take what became pending */
+      case K_IDLE: idle_hook(s, address); break;
+      case K_WFI: wfi_hook(s); break;
+      case K_SENSOR: sensor_read_hook(s); break;
       case K_PY:
         s->hook_addr = (int64_t)address;
         s->hook_size = size;
@@ -933,7 +874,7 @@ EXPORT void core_count_hook(void *uc, uint64_t address, uint32_t size, void *use
     return;
   }
   uint64_t off = address - FLASH_BASE;
-  if (off < FLASH_SIZE && (s->site_map[off >> 4] >> ((off >> 1) & 7) & 1)) dispatch(s, uc, address, size);
+  if (off < FLASH_SIZE && (s->site_map[off >> 4] >> ((off >> 1) & 7) & 1)) dispatch(s, address, size);
 }
 
 /* unicorn's virtual TLB (UC_TLB_VIRTUAL): addresses map to themselves; RAM is not executable unless fetched from

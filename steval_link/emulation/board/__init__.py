@@ -20,12 +20,9 @@ instructions, not real M4 cycles. docs/explanation/emulated-board.md tells the w
 Anything else the firmware touches stops the run with :class:`UnmodelledHardware`, one line naming it.
 """
 
-from steval_link.emulation.board.core import BoardStats, PythonBoard
+from steval_link.emulation.board.core import PythonBoard
 from steval_link.emulation.board.memory_map import (
-    EXC_SYSTICK,
     IRQ_BASE,
-    IRQ_TIM2,
-    IRQ_TIM9,
     IRQ_USART1,
     EmulationError,
     FirmwareStuck,
@@ -55,11 +52,7 @@ class Board(PythonBoard):
 
 __all__ = [
     "Board",
-    "BoardStats",
-    "EXC_SYSTICK",
     "IRQ_BASE",
-    "IRQ_TIM2",
-    "IRQ_TIM9",
     "IRQ_USART1",
     "EmulationError",
     "FirmwareStuck",

@@ -10,12 +10,11 @@ observers (``board.call_observers[name]``).
 
 from __future__ import annotations
 
-import ctypes
 import struct
 from typing import Callable
 
 from steval_link.emulation.board.fault import describe_fault_handler
-from steval_link.emulation.board.memory_map import RAM_BASE, RAM_SIZE, FirmwareStuck
+from steval_link.emulation.board.memory_map import FirmwareStuck
 
 #: DrvContextTypeDef.spiDevice: the byte that names the sensor behind a driver handle
 SPI_DEVICE_OFFSET = 3
@@ -78,24 +77,15 @@ class FirmwareCalls:
 
     def _sensor_read(self, handle, reg, buf, n) -> int:
         b = self.board
-        device = self._ram_byte(handle + SPI_DEVICE_OFFSET)
-        data = b.sensors.read(device, reg & ~SPI_READ_FLAG & 0xFF, n & 0xFFFF, b)
-        if RAM_BASE <= buf and buf + len(data) <= RAM_BASE + RAM_SIZE:
-            ctypes.memmove(ctypes.addressof(b.ram) + buf - RAM_BASE, data, len(data))
-        else:
-            b.uc.mem_write(buf, data)
+        device = b.uc.mem_read(handle + SPI_DEVICE_OFFSET, 1)[0]
+        b.uc.mem_write(buf, b.sensors.read(device, reg & ~SPI_READ_FLAG & 0xFF, n & 0xFFFF, b))
         return 0
 
     def _sensor_write(self, handle, reg, buf, n) -> int:
         b = self.board
-        device = self._ram_byte(handle + SPI_DEVICE_OFFSET)
+        device = b.uc.mem_read(handle + SPI_DEVICE_OFFSET, 1)[0]
         b.sensors.write(device, reg & ~SPI_READ_FLAG & 0xFF, bytes(b.uc.mem_read(buf, n & 0xFFFF)), b)
         return 0
-
-    def _ram_byte(self, addr: int) -> int:
-        if RAM_BASE <= addr < RAM_BASE + RAM_SIZE:
-            return ctypes.c_uint8.from_buffer(self.board.ram, addr - RAM_BASE).value
-        return self.board.uc.mem_read(addr, 1)[0]
 
     def _hci_send_req(self, req, is_async, _r2, _r3) -> int:
         b = self.board

@@ -7,6 +7,8 @@ import ctypes
 import struct
 from collections import deque
 from dataclasses import dataclass, field
+from functools import cached_property
+from types import SimpleNamespace
 from typing import Callable
 
 from steval_link import constants as C
@@ -26,8 +28,6 @@ from steval_link.emulation.board.memory_map import (
     FLASH_BASE,
     FLASH_SIZE,
     INTNO_EXC_RETURN,
-    IRQ_TIM2,
-    IRQ_TIM9,
     IRQ_USART1,
     PERIPH_BASE,
     PERIPH_PAGE,
@@ -35,9 +35,7 @@ from steval_link.emulation.board.memory_map import (
     RAM_SIZE,
     SYSMEM_BASE,
     SYSMEM_SIZE,
-    TIM2_OFF,
-    TIM4_OFF,
-    TIM9_OFF,
+    TIMERS,
     UID_ADDR,
     UID_WORDS,
     USART1_OFF,
@@ -61,15 +59,6 @@ TIM_EVENT_CNT = 16
 UC_PROT_RX, UC_PROT_RWX, UC_PROT_R = 5, 7, 1
 
 
-class _Counter:
-    """The Python block counter's state: instructions in this slice, and the count at which to stop."""
-
-    __slots__ = ("n", "limit")
-
-    def __init__(self) -> None:
-        self.n, self.limit = 0, 1
-
-
 @dataclass
 class BoardStats:
     instructions: int = 0
@@ -86,7 +75,6 @@ class PythonBoard:
         elf: the firmware (path or :class:`Elf`).
         sensors: the sensor bus (:class:`steval_link.emulation.sensors.SensorBus`) answering ``Sensor_IO_*``.
         skip_idle: jump the clock over idle polling (no payload changes; off only to check exactly that).
-        native: ignored (:class:`~steval_link.emulation.board.Board` chooses).
     """
 
     #: the C core runs the hot path (NativeBoard)
@@ -95,8 +83,10 @@ class PythonBoard:
     hci_requests = 0
     #: ``handler(ogf, ocf, command parameters, board) -> reply bytes`` for ``hci_send_req`` (None: zeroed replies)
     hci_handler: Callable | None = None
+    #: the models of the timed peripherals (NativeBoard: theirs, over the C core)
+    timer_model, usart_model, scs_model = Timer, Usart, Scs
 
-    def __init__(self, elf: Elf | str, sensors, *, skip_idle: bool = True, native: bool | None = None):
+    def __init__(self, elf: Elf | str, sensors, *, skip_idle: bool = True):
         from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc  # reason: unicorn is optional
         from unicorn import arm_const as A  # reason: unicorn is optional
 
@@ -125,7 +115,7 @@ class PythonBoard:
         self.regs = Registers(uc)
         self.exceptions = Exceptions(self)
         self._make_peripherals()
-        self._install_counter(native)
+        self._install_counter()
         self._install_hooks(skip_idle)
         self._reset()
 
@@ -166,9 +156,10 @@ class PythonBoard:
 
     # -- peripherals
     def _make_peripherals(self) -> None:
-        self.tim9, self.tim2, self.tim4 = self._make_timers()
-        self.usart1 = self._make_usart()
-        self.scs = self._make_scs()
+        P = PERIPH_BASE
+        self.tim9, self.tim2, self.tim4 = (self.timer_model(self, P + off, irq, name) for name, off, irq in TIMERS)
+        self.usart1 = self.usart_model(self, P + USART1_OFF, IRQ_USART1)
+        self.scs = self.scs_model(self)
         periphs: list[Peripheral] = [self.tim9, self.tim2, self.tim4, self.usart1] + simple_peripherals(self)
         self.rcc = next(p for p in periphs if p.name == "RCC")
         self.periphs = sorted(periphs, key=lambda p: p.base)
@@ -182,20 +173,6 @@ class PythonBoard:
                 self._map_python(uc, p, rd, wr)
         self._map_bitband(uc)
         self._map_python(uc, self.scs, rd, wr)
-
-    def _make_timers(self):
-        P = PERIPH_BASE
-        return (
-            Timer(self, P + TIM9_OFF, IRQ_TIM9, "TIM9"),
-            Timer(self, P + TIM2_OFF, IRQ_TIM2, "TIM2"),
-            Timer(self, P + TIM4_OFF, None, "TIM4"),
-        )
-
-    def _make_usart(self):
-        return Usart(self, PERIPH_BASE + USART1_OFF, IRQ_USART1)
-
-    def _make_scs(self):
-        return Scs(self)
 
     def _map_python(self, uc, p: Peripheral, rd, wr) -> None:
         uc.mmio_map(p.base, p.size, rd, p, wr, p)
@@ -255,14 +232,6 @@ class PythonBoard:
     def set_reg(self, reg_id: int, value: int) -> None:
         self.regs.set(reg_id, value)
 
-    @property
-    def _LR(self) -> int:  # (tests and benchmarks read arguments and the caller's return address)
-        return self.regs.LR
-
-    @property
-    def _R(self) -> list[int]:
-        return self.regs.R
-
     def pc(self) -> int:
         return self.regs.get(self.regs.PC)
 
@@ -320,12 +289,12 @@ class PythonBoard:
         self.stop_with(EmulationError(message))
 
     # -- the counter
-    def _install_counter(self, native: bool | None) -> None:
+    def _install_counter(self) -> None:
         from unicorn import UC_HOOK_BLOCK  # reason: unicorn is optional
 
-        self._ic = _Counter()
+        # instructions in this slice, and the count at which to stop
+        self._ic = ic = SimpleNamespace(n=0, limit=1)
         sizes: dict[int, int] = {}
-        ic = self._ic
         flash = self.flash
 
         def count_block(uc, address, size, user):
@@ -355,16 +324,12 @@ class PythonBoard:
         FirmwareCalls(self).install()
         # PRIMASK cleared (cpsie i, msr primask): take what became pending
         for a in cpsie_sites(self.flash, self.elf):
-            uc.hook_add(UC_HOOK_CODE, self._after_unmask, begin=a, end=a)
+            uc.hook_add(UC_HOOK_CODE, lambda uc, address, size, user: self.irq_check(), begin=a, end=a)
         if skip_idle:
             self._setup_idle(self.elf)
             # wfi sleeps to the next event (without skip_idle it runs as unicorn's no-op: the CPU spins through it)
             for a in wfi_sites(self.flash, self.elf):
                 uc.hook_add(UC_HOOK_CODE, self.guarded(self._on_wfi), begin=a, end=a)
-
-    def _after_unmask(self, uc, address, size, user):
-        if self.nvic.pending:
-            self.request_stop()
 
     def irq_check(self) -> None:
         """A register write may have made an interrupt takeable: stop soon to deliver it."""
@@ -482,9 +447,6 @@ class PythonBoard:
         self._slice_start = 0
         self._skip_base = 0
 
-    def timer_moved(self, tim: Timer) -> None:
-        """A timer's next update changed (the Python scheduler reads the timers directly)."""
-
     def reschedule(self) -> None:
         """A peripheral scheduled an event possibly earlier than the current slice's end: stop there."""
         t = self._earliest()
@@ -492,18 +454,21 @@ class PythonBoard:
             self._next_event = t
             self._ic.limit = min(self._ic.limit, max(t - self._slice_start - self._skip_base + 1, self._ic.n + 1))
 
+    @cached_property
+    def _events(self) -> tuple:
+        """The scheduled events in firing order: (model, the attribute holding its time or None, what fires it)."""
+        u, scs = self.usart1, self.scs
+        return (
+            (u, "shift_done", u.shift_complete),
+            (u, "rx_done", u.rx_complete),
+            (scs, "systick_next", scs.systick_fire),
+            (self.tim9, "next_update", self._tim9_update),
+            (self.tim2, "next_update", self.tim2.update),
+        )
+
     def _earliest(self) -> int | None:
-        best = None
-        for t in (
-            self.scs.systick_next,
-            self.tim9.next_update,
-            self.tim2.next_update,
-            self.usart1.shift_done,
-            self.usart1.rx_done,
-        ):
-            if t is not None and (best is None or t < best):
-                best = t
-        return best
+        times = (getattr(model, attr) for model, attr, _ in self._events)
+        return min((t for t in times if t is not None), default=None)
 
     def uart_out(self, byte: int, t: int) -> None:
         self.out.append((byte, t))
@@ -561,24 +526,15 @@ class PythonBoard:
         now = self.now
         for _ in range(64):
             fired = False
-            if self.usart1.shift_done is not None and self.usart1.shift_done <= now:
-                self.usart1.shift_complete()
-                fired = True
-            if self.usart1.rx_done is not None and self.usart1.rx_done <= now:
-                self.usart1.rx_complete()
-                fired = True
-            if self.scs.systick_next is not None and self.scs.systick_next <= now:
-                self.scs.systick_fire()
-                fired = True
-            for tim in (self.tim9, self.tim2):
-                if tim.next_update is not None and tim.next_update <= now:
-                    self.timer_update(tim)
+            for model, attr, fire in self._events:
+                t = getattr(model, attr)
+                if t is not None and t <= now:
+                    fire()
                     fired = True
             if not fired:
                 return
 
-    def timer_update(self, tim: Timer) -> None:
-        tim.update()
-        if tim is self.tim9:
-            for ob in self.tick_observers:
-                ob(self)
+    def _tim9_update(self) -> None:
+        self.tim9.update()
+        for ob in self.tick_observers:
+            ob(self)

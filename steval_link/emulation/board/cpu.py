@@ -148,9 +148,7 @@ class Exceptions:
         w[0:6] = raw[0:6]
         if extended:
             w[6:23] = raw[8:25]
-            r.write_batch(r.uch, ids, ptrs, 23)
-        else:
-            r.write_batch(r.uch, ids, ptrs, 6)
+        r.write_batch(r.uch, ids, ptrs, 23 if extended else 6)
         r.set(r.SP, sp)
         r.set(r.XPSR, xpsr & ~XPSR_ALIGN)
         r.set(r.PC, raw[6] | 1)
@@ -174,18 +172,11 @@ def thumb_count(flash, address: int, size: int) -> int:
     return n
 
 
-def _code_end(e: Elf) -> int:
-    end = 0
-    for s in e.symbols:
-        if s.is_func and FLASH_BASE <= s.addr < FLASH_BASE + FLASH_SIZE:
-            end = max(end, (s.addr & ~1) - FLASH_BASE + s.size)
-    return end
-
-
 def cpsie_sites(flash, e: Elf) -> list[int]:
     """Addresses right after each ``cpsie i`` / ``msr primask, rN`` in the firmware's code."""
     raw = flash.raw
-    end = _code_end(e)
+    funcs = [s for s in e.symbols if s.is_func and FLASH_BASE <= s.addr < FLASH_BASE + FLASH_SIZE]
+    end = max(((s.addr & ~1) - FLASH_BASE + s.size for s in funcs), default=0)  # the end of the code in flash
     out = []
     for off in range(0, end - 1, 2):
         hw = raw[off] | raw[off + 1] << 8

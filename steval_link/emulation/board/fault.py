@@ -13,61 +13,23 @@ import struct
 
 from steval_link.emulation.board.memory_map import SCS_BASE
 
+
+def _numbered(names: str) -> dict[int, str]:
+    """Names in number order from 0, ``-`` where the number has none."""
+    return {i: n for i, n in enumerate(names.split()) if n != "-"}
+
+
 #: core exceptions: number → CMSIS name (the handler is NAME_Handler)
-CORE_EXCEPTIONS = {
-    2: "NMI",
-    3: "HardFault",
-    4: "MemManage",
-    5: "BusFault",
-    6: "UsageFault",
-    11: "SVC",
-    12: "DebugMon",
-    14: "PendSV",
-    15: "SysTick",
-}
+CORE_EXCEPTIONS = _numbered("- - NMI HardFault MemManage BusFault UsageFault - - - - SVC DebugMon - PendSV SysTick")
 #: STM32F401 interrupts: IRQ number → CMSIS name (the handler is NAME_IRQHandler; exception = 16 + IRQ)
-IRQ_NAMES = {
-    0: "WWDG",
-    1: "PVD",
-    2: "TAMP_STAMP",
-    3: "RTC_WKUP",
-    4: "FLASH",
-    5: "RCC",
-    **{6 + i: f"EXTI{i}" for i in range(5)},
-    **{11 + i: f"DMA1_Stream{i}" for i in range(7)},
-    18: "ADC",
-    23: "EXTI9_5",
-    24: "TIM1_BRK_TIM9",
-    25: "TIM1_UP_TIM10",
-    26: "TIM1_TRG_COM_TIM11",
-    27: "TIM1_CC",
-    28: "TIM2",
-    29: "TIM3",
-    30: "TIM4",
-    31: "I2C1_EV",
-    32: "I2C1_ER",
-    33: "I2C2_EV",
-    34: "I2C2_ER",
-    35: "SPI1",
-    36: "SPI2",
-    37: "USART1",
-    38: "USART2",
-    40: "EXTI15_10",
-    41: "RTC_Alarm",
-    42: "OTG_FS_WKUP",
-    47: "DMA1_Stream7",
-    49: "SDIO",
-    50: "TIM5",
-    51: "SPI3",
-    **{56 + i: f"DMA2_Stream{i}" for i in range(5)},
-    67: "OTG_FS",
-    **{68 + i: f"DMA2_Stream{5 + i}" for i in range(3)},
-    71: "USART6",
-    72: "I2C3_EV",
-    73: "I2C3_ER",
-    81: "FPU",
-    84: "SPI4",
-}
+IRQ_NAMES = _numbered("""
+WWDG PVD TAMP_STAMP RTC_WKUP FLASH RCC EXTI0 EXTI1 EXTI2 EXTI3 EXTI4 DMA1_Stream0 DMA1_Stream1 DMA1_Stream2
+DMA1_Stream3 DMA1_Stream4 DMA1_Stream5 DMA1_Stream6 ADC - - - - EXTI9_5 TIM1_BRK_TIM9 TIM1_UP_TIM10
+TIM1_TRG_COM_TIM11 TIM1_CC TIM2 TIM3 TIM4 I2C1_EV I2C1_ER I2C2_EV I2C2_ER SPI1 SPI2 USART1 USART2 - EXTI15_10
+RTC_Alarm OTG_FS_WKUP - - - - DMA1_Stream7 - SDIO TIM5 SPI3 - - - - DMA2_Stream0 DMA2_Stream1 DMA2_Stream2
+DMA2_Stream3 DMA2_Stream4 - - - - - - OTG_FS DMA2_Stream5 DMA2_Stream6 DMA2_Stream7 USART6 I2C3_EV I2C3_ER
+- - - - - - - FPU - - SPI4
+""")
 #: SCB fault status and address registers
 CFSR, HFSR, MMFAR, BFAR = 0xE000ED28, 0xE000ED2C, 0xE000ED34, 0xE000ED38
 #: unicorn's (QEMU's) exception numbers → (fault, CFSR bit, what): what the M4 records for the same event
@@ -111,15 +73,6 @@ def _state(board) -> tuple[int, int, int, int]:
     return board.pc(), board.reg(r.XPSR) & 0x1FF, board.reg(r.SP), board.reg(r.LR)
 
 
-def _stacked(board, sp: int) -> tuple[int, int] | None:
-    """(pc, lr) of the exception frame at sp, or None when it cannot be read."""
-    try:
-        lr, pc = struct.unpack("<II", bytes(board.uc.mem_read(sp + STACKED_LR, 8)))
-    except Exception:  # noqa: BLE001 - an unreadable frame is left out of the sentence
-        return None
-    return pc, lr
-
-
 def _handler_clause(board, pc: int, exc: int) -> str:
     """`` handling exception 15 (SysTick): SysTick_Handler is missing (...)`` (or `` in thread mode``)."""
     e = board.elf
@@ -147,12 +100,13 @@ def _handler_clause(board, pc: int, exc: int) -> str:
 
 
 def _last_function(board, exc: int, sp: int) -> str:
+    """The stacked pc and lr of the exception frame at sp ("" in thread mode, or when it cannot be read)."""
     if exc == 0:
         return ""
-    frame = _stacked(board, sp)
-    if frame is None:
+    try:
+        lr, pc = struct.unpack("<II", bytes(board.uc.mem_read(sp + STACKED_LR, 8)))
+    except Exception:  # noqa: BLE001 - an unreadable frame is left out of the sentence
         return ""
-    pc, lr = frame
     return f"; the firmware was last in {board.elf.func_at(pc)} (stacked pc 0x{pc:08x}, lr 0x{lr:08x})"
 
 
@@ -164,41 +118,29 @@ def describe_cpu(board) -> str:
     return f"the CPU is {where}{_handler_clause(board, pc, exc)}{_last_function(board, exc, sp)}"
 
 
-def fault_registers(board, intno: int) -> tuple[str, dict[str, int]] | None:
-    """What a Cortex-M4 records for unicorn's exception ``intno``: (the sentence's fault part, the registers), or
-    None for an exception that is not a fault. A configurable fault whose enable bit (SHCSR) is clear escalates to
-    HardFault (HFSR.FORCED), as on the chip after reset."""
-    fault = CPU_FAULTS.get(intno)
-    if fault is None:
-        return None
-    kind, bit, what = fault
-    shcsr = board.scs.regs.get(0xED24, 0) if hasattr(board.scs, "regs") else 0
-    enabled = {"MemManage": 1 << 16, "BusFault": 1 << 17, "UsageFault": 1 << 18}.get(kind, 0)
-    hfsr = HFSR_DEBUGEVT if intno == 7 else 0
-    text = f"{kind}: {what}"
-    if kind != "HardFault" and not shcsr & enabled:
-        hfsr |= HFSR_FORCED
-        text += ", escalated to HardFault"
-    regs = {"CFSR": bit, "HFSR": hfsr, "MMFAR": 0, "BFAR": 0}
-    return text, regs
-
-
 def describe_fault(board, intno: int, t_s: float) -> str:
-    """The sentence for a CPU exception unicorn raised (the board stops there instead of entering the handler)."""
+    """The sentence for a CPU exception unicorn raised (the board stops there instead of entering the handler), with
+    the CFSR and HFSR a Cortex-M4 records for it. A configurable fault whose enable bit (SHCSR) is clear escalates to
+    HardFault (HFSR.FORCED), as on the chip after reset."""
     pc, exc, sp, lr = _state(board)
     where = board.elf.func_at(pc)
-    found = fault_registers(board, intno)
-    if found is None:
+    fault = CPU_FAULTS.get(intno)
+    if fault is None:
         return (
             f"the CPU raised exception {intno} in {where} (pc 0x{pc:08x}, t = {t_s:.6f} s)"
             + (f" while handling exception {exception_name(exc)}" if exc else "")
             + _last_function(board, exc, sp)
         )
-    text, regs = found
-    reg = ", ".join(f"{k} 0x{v:08x}" for k, v in regs.items() if k in ("CFSR", "HFSR"))
+    kind, cfsr, what = fault
+    shcsr = board.scs.regs.get(0xED24, 0)
+    enabled = {"MemManage": 1 << 16, "BusFault": 1 << 17, "UsageFault": 1 << 18}.get(kind, 0)
+    hfsr = HFSR_DEBUGEVT if intno == 7 else 0
+    if kind != "HardFault" and not shcsr & enabled:
+        hfsr |= HFSR_FORCED
+        what += ", escalated to HardFault"
     return (
-        f"the firmware faulted in {where} at t = {t_s:.6f} s: {text} ({reg}; MMFAR, BFAR not valid; "
-        f"pc 0x{pc:08x}, lr 0x{lr:08x} in {board.elf.func_at(lr)}"
+        f"the firmware faulted in {where} at t = {t_s:.6f} s: {kind}: {what} (CFSR 0x{cfsr:08x}, HFSR 0x{hfsr:08x}; "
+        f"MMFAR, BFAR not valid; pc 0x{pc:08x}, lr 0x{lr:08x} in {board.elf.func_at(lr)}"
         + (f", while handling exception {exception_name(exc)}" if exc else "")
         + ")"
         + _last_function(board, exc, sp)

@@ -7,8 +7,6 @@ USART1, SysTick/NVIC) have their own modules.
 
 from __future__ import annotations
 
-from enum import IntEnum
-
 from steval_link.errors import UserError
 
 FLASH_BASE, FLASH_SIZE = 0x08000000, 256 * 1024
@@ -83,28 +81,21 @@ class Peripheral:
         return self.read(off)
 
 
-class RccReg(IntEnum):
-    CR = 0x00
-    PLLCFGR = 0x04
-    CFGR = 0x08
-    BDCR = 0x70
-    CSR = 0x74
-
-
 class Rcc(Peripheral):
     name = "RCC"
+    CR, PLLCFGR, CFGR, BDCR, CSR = 0x00, 0x04, 0x08, 0x70, 0x74
 
     def __init__(self, board, base):
-        super().__init__(board, base, reset={RccReg.CR: 0x83, RccReg.PLLCFGR: 0x24003010, RccReg.CSR: 0x0E000000})
+        super().__init__(board, base, reset={self.CR: 0x83, self.PLLCFGR: 0x24003010, self.CSR: 0x0E000000})
 
     def read(self, off):
         v = self.regs.get(off, 0)
-        if off == RccReg.CR:  # HSIRDY, HSERDY, PLLRDY, PLLI2SRDY follow HSION, HSEON, PLLON, PLLI2SON
+        if off == self.CR:  # HSIRDY, HSERDY, PLLRDY, PLLI2SRDY follow HSION, HSEON, PLLON, PLLI2SON
             for on, rdy in ((0, 1), (16, 17), (24, 25), (26, 27)):
                 v = (v | (1 << rdy)) if v & (1 << on) else (v & ~(1 << rdy))
-        elif off == RccReg.CFGR:  # SWS = SW
+        elif off == self.CFGR:  # SWS = SW
             v = (v & ~0xC) | ((v & 3) << 2)
-        elif off in (RccReg.CSR, RccReg.BDCR):  # LSIRDY follows LSION, LSERDY follows LSEON
+        elif off in (self.CSR, self.BDCR):  # LSIRDY follows LSION, LSERDY follows LSEON
             v = (v | 2) if v & 1 else v & ~2
         return v
 
@@ -119,26 +110,21 @@ class Pwr(Peripheral):
         return v | self.VOSRDY if off == self.CSR else v
 
 
-class GpioReg(IntEnum):
-    IDR = 0x10
-    ODR = 0x14
-    BSRR = 0x18
-
-
 class Gpio(Peripheral):
     name = "GPIO"
-    c_readable = (GpioReg.IDR,)
+    IDR, ODR, BSRR = 0x10, 0x14, 0x18
+    c_readable = (IDR,)
 
     def read(self, off):
-        if off == GpioReg.IDR:  # inputs read low (no buttons, no RC receiver)
+        if off == self.IDR:  # inputs read low (no buttons, no RC receiver)
             return 0
         return self.regs.get(off, 0)
 
     def write(self, off, value):
-        if off == GpioReg.BSRR:
-            odr = self.regs.get(GpioReg.ODR, 0)
+        if off == self.BSRR:
+            odr = self.regs.get(self.ODR, 0)
             odr = (odr | (value & 0xFFFF)) & ~((value >> 16) & 0xFFFF)
-            self.regs[GpioReg.ODR] = odr & 0xFFFF
+            self.regs[self.ODR] = odr & 0xFFFF
             return
         super().write(off, value)
 
@@ -154,34 +140,29 @@ class Spi(Peripheral):
         return self.regs.get(off, 0)
 
 
-class AdcReg(IntEnum):
-    SR = 0x00
-    CR2 = 0x08
-    DR = 0x4C
-
-
 class Adc(Peripheral):
     """ADC1: a conversion completes at once on SWSTART; DR holds the battery divider's reading."""
 
     name = "ADC1"
-    c_readable = c_owned = (AdcReg.SR, AdcReg.CR2)
+    SR, CR2, DR = 0x00, 0x08, 0x4C
+    c_readable = c_owned = (SR, CR2)
     #: 12-bit reading of the battery sense divider: the firmware's VBAT = counts·3.3/4095·(10k + 20k)/20k = 3.90 V, a
     #: charged 1S LiPo
     VBAT_COUNTS = 3226
     EOC, STRT, SWSTART = 1 << 1, 1 << 4, 1 << 30
 
     def read(self, off):
-        if off == AdcReg.DR:  # reading clears EOC
-            self.regs[AdcReg.SR] = self.regs.get(AdcReg.SR, 0) & ~self.EOC
+        if off == self.DR:  # reading clears EOC
+            self.regs[self.SR] = self.regs.get(self.SR, 0) & ~self.EOC
             return self.VBAT_COUNTS
         return self.regs.get(off, 0)
 
     def write(self, off, value):
-        if off == AdcReg.CR2 and value & self.SWSTART:
-            self.regs[AdcReg.SR] = self.regs.get(AdcReg.SR, 0) | self.EOC | self.STRT
+        if off == self.CR2 and value & self.SWSTART:
+            self.regs[self.SR] = self.regs.get(self.SR, 0) | self.EOC | self.STRT
             value &= ~self.SWSTART
-        if off == AdcReg.SR:  # rc_w0
-            value = self.regs.get(AdcReg.SR, 0) & value
+        if off == self.SR:  # rc_w0
+            value = self.regs.get(self.SR, 0) & value
         super().write(off, value)
 
 
@@ -207,18 +188,13 @@ PLAIN = (
     ("I2C2", 0x5800),
     ("I2C3", 0x5C00),
 )
-GPIOS = (
-    ("GPIOA", 0x20000),
-    ("GPIOB", 0x20400),
-    ("GPIOC", 0x20800),
-    ("GPIOD", 0x20C00),
-    ("GPIOE", 0x21000),
-    ("GPIOH", 0x21C00),
-)
+#: GPIOx at 0x20000 + 0x400 · (x - A)
+GPIOS = tuple((f"GPIO{x}", 0x20000 + 0x400 * (ord(x) - ord("A"))) for x in "ABCDEH")
 SPIS = (("SPI1", 0x13000), ("SPI2", 0x3800), ("SPI3", 0x3C00), ("SPI4", 0x13400))
 RCC_OFF, PWR_OFF, ADC1_OFF = 0x23800, 0x7000, 0x12000
-TIM2_OFF, TIM4_OFF, TIM9_OFF = 0x0000, 0x0800, 0x14000
 USART1_OFF = 0x11000
+#: the timers: name, offset from PERIPH_BASE, IRQn (TIM4: none); the C core's ``tim[]`` in this order
+TIMERS = (("TIM9", 0x14000, IRQ_TIM9), ("TIM2", 0x0000, IRQ_TIM2), ("TIM4", 0x0800, None))
 
 
 def simple_peripherals(board) -> list[Peripheral]:

@@ -40,8 +40,16 @@ class ScsReg(IntEnum):
 
 
 NVIC_WORDS = 0x20  # bytes of each ISER/ICER/ISPR/ICPR/IABR bank
-NVIC_IPR_END = 0xE4F0
-SHPR_END = 0xED24
+#: the NVIC's banks: Nvic.word's bank, first offset, set (True) or clear (False) on write (None: read only)
+NVIC_BANKS = (
+    ("enabled", ScsReg.NVIC_ISER, True),
+    ("enabled", ScsReg.NVIC_ICER, False),
+    ("pending", ScsReg.NVIC_ISPR, True),
+    ("pending", ScsReg.NVIC_ICPR, False),
+    ("active", ScsReg.NVIC_IABR, None),
+)
+#: the priority words: first offset, end, the exception number of the first byte
+PRIO_WORDS = ((ScsReg.NVIC_IPR, 0xE4F0, IRQ_BASE), (ScsReg.SHPR1, 0xED24, 4))
 CPUID_M4 = 0x410FC241
 IDCODE_F401 = 0x10006423  # STM32F401xB/C
 AIRCR_VECTKEY, AIRCR_VECTKEYSTAT = 0x05FA, 0xFA050000
@@ -62,12 +70,6 @@ class Nvic:
         self.active: list[int] = []  # stack of active exception numbers
         self.prio = bytearray(256)  # by exception number
         self.prigroup = 0
-
-    def set_pending(self, irq: int) -> None:
-        self.pending.add(irq + IRQ_BASE)
-
-    def clear_pending(self, irq: int) -> None:
-        self.pending.discard(irq + IRQ_BASE)
 
     def pend(self, exc: int) -> None:
         self.pending.add(exc)
@@ -163,21 +165,13 @@ class Scs(Peripheral):
             if self.systick_next is None:
                 return self.regs.get(off, 0)
             return max(0, self.systick_next - self.board.now - 1) % self.systick_period()
-        for bank, start in (
-            ("enabled", ScsReg.NVIC_ISER),
-            ("enabled", ScsReg.NVIC_ICER),
-            ("pending", ScsReg.NVIC_ISPR),
-            ("pending", ScsReg.NVIC_ICPR),
-            ("active", ScsReg.NVIC_IABR),
-        ):
+        for bank, start, _ in NVIC_BANKS:
             if start <= off < start + NVIC_WORDS:
                 return nvic.word(bank, (off - start) // 4)
-        if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
-            i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
-        if ScsReg.SHPR1 <= off < SHPR_END:
-            i = off - ScsReg.SHPR1 + 4
-            return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
+        for start, end, first in PRIO_WORDS:
+            if start <= off < end:
+                i = off - start + first
+                return int.from_bytes(bytes(nvic.prio[i : i + 4]), "little")
         if off == ScsReg.ICSR:  # VECTACTIVE, PENDSTSET
             return nvic.current() | (ICSR_PENDSTSET if nvic.is_pending(EXC_SYSTICK) else 0)
         if off == ScsReg.AIRCR:
@@ -205,25 +199,17 @@ class Scs(Peripheral):
                 self.systick_next = board.now + self.systick_period()
                 board.reschedule()
             return
-        for bank, start, on in (
-            ("enabled", ScsReg.NVIC_ISER, True),
-            ("enabled", ScsReg.NVIC_ICER, False),
-            ("pending", ScsReg.NVIC_ISPR, True),
-            ("pending", ScsReg.NVIC_ICPR, False),
-        ):
-            if start <= off < start + NVIC_WORDS:
+        for bank, start, on in NVIC_BANKS:
+            if start <= off < start + NVIC_WORDS and on is not None:
                 nvic.set_word(bank, (off - start) // 4, value, on)
                 if on:
                     board.irq_check()
                 return
-        if ScsReg.NVIC_IPR <= off < NVIC_IPR_END:
-            i = off - ScsReg.NVIC_IPR + IRQ_BASE
-            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
-            return
-        if ScsReg.SHPR1 <= off < SHPR_END:
-            i = off - ScsReg.SHPR1 + 4
-            nvic.prio[i : i + 4] = value.to_bytes(4, "little")
-            return
+        for start, end, first in PRIO_WORDS:
+            if start <= off < end:
+                i = off - start + first
+                nvic.prio[i : i + 4] = value.to_bytes(4, "little")
+                return
         if off == ScsReg.ICSR:
             if value & ICSR_PENDSTSET:
                 nvic.pend(EXC_SYSTICK)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from steval_link.emulation.board.memory_map import Peripheral
+from steval_link.emulation.board.memory_map import IRQ_BASE, Peripheral
 
 
 class TimReg(IntEnum):
@@ -29,9 +29,7 @@ UG = 1 << 0  # EGR
 class Timer(Peripheral):
     """TIMx with update events: counter clock 84 MHz / (PSC + 1), update every ARR + 1 counts when CEN is set.
 
-    ``next_update`` (instruction count of the next update event, or None), the update count and the interrupt line
-    are told to the board after every change (``board.timer_moved``: the C core keeps a copy).
-    """
+    ``next_update``: the instruction count of the next update event, or None."""
 
     name = "TIM"
 
@@ -47,10 +45,6 @@ class Timer(Peripheral):
         return (self.regs.get(TimReg.PSC, 0) + 1) * (self.regs.get(TimReg.ARR, 0) + 1)
 
     def write(self, off, value):
-        self._write(off, value)
-        self.board.timer_moved(self)
-
-    def _write(self, off, value):
         if off == TimReg.SR:  # rc_w0
             super().write(off, self.regs.get(TimReg.SR, 0) & value)
             self.irq_line()
@@ -84,8 +78,7 @@ class Timer(Peripheral):
         self.next_update = (self.next_update or self.board.now) + max(self.period, 1)
         self.regs[TimReg.SR] = self.regs.get(TimReg.SR, 0) | UIF
         self.irq_line()
-        self.board.timer_moved(self)
 
     def irq_line(self) -> None:
         if self.irq is not None and self.regs.get(TimReg.SR, 0) & self.regs.get(TimReg.DIER, 0) & 0xFF:
-            self.board.nvic.set_pending(self.irq)
+            self.board.nvic.pend(self.irq + IRQ_BASE)

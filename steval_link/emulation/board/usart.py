@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections import deque
 from enum import IntEnum
 
-from steval_link.emulation.board.memory_map import Peripheral
+from steval_link.emulation.board.memory_map import IRQ_BASE, Peripheral
 
 
 class UsartReg(IntEnum):
@@ -183,6 +183,6 @@ class Usart(Peripheral):
         cr1 = self.regs.get(UsartReg.CR1, 0)
         sr = self._sr()
         if (cr1 & TXEIE and sr & TXE) or (cr1 & TCIE and sr & TC) or (cr1 & RXNEIE and sr & (RXNE | ORE)):
-            self.board.nvic.set_pending(self.irq)
+            self.board.nvic.pend(self.irq + IRQ_BASE)
         else:
-            self.board.nvic.clear_pending(self.irq)
+            self.board.nvic.unpend(self.irq + IRQ_BASE)
