@@ -22,9 +22,8 @@ from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import AttitudeFrame, StatusFrame
 from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import PortRejected, Protocol, SerialReader, open_error_message, open_serial
-from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
-from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
+from steval_link.live.sources import END, NOTE, PROMPT_HELP, Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["LinkError", "SerialSource", "open_port", "serial_health", "serial_summary"]
 

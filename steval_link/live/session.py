@@ -7,8 +7,11 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import os
+import queue
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,16 +20,16 @@ from typing import Any, Callable, TextIO
 from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.autodetect import no_frames_message
 from steval_link.link.capture import CaptureWriter, default_capture_path
+from steval_link.link.commands import CommandChannel, parse_command
 from steval_link.link.transport import HostClock
 from steval_link.live import health
-from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
-__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
+__all__ = ["CommandConsole", "LiveOptions", "LiveSession", "LiveSummary", "source_for"]
 
 #: A serial link with bytes but no valid frame (wrong baud, not a STEVAL): one sentence after this long, s ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -356,3 +359,113 @@ def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
+
+
+class CommandConsole:
+    """The command prompt: typed lines (``set ki 1.0``, ``reset``...) → commands → ``send(frame)``; ``record(frame)``
+    gets each frame once sent. A thread reads ``stream`` (default stdin; ``enabled=False``: nothing); on a POSIX
+    terminal key by key without echo, the line being typed shown in the health line so a redraw never wipes it."""
+
+    def __init__(
+        self,
+        send: Callable[[bytes], object],
+        note: Callable[[str], None],
+        *,
+        record: Callable[[bytes], object] | None = None,
+        stream: TextIO | None = None,
+        enabled: bool = True,
+    ) -> None:
+        self.channel = CommandChannel(send, record)
+        self.note = note
+        self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.typing = ""  # the line being typed on a terminal (shown in the health line), "" otherwise
+        self.typing_changed = False
+        self._restore = None
+        if enabled:
+            src = stream if stream is not None else sys.stdin
+            target = self._read_keys if self._raw_terminal(src) else self._read
+            threading.Thread(target=target, args=(src,), name="steval-prompt", daemon=True).start()
+
+    def _raw_terminal(self, stream) -> bool:
+        """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
+        try:
+            import termios  # reason: POSIX only (Windows reads whole lines)
+            import tty
+
+            fd = stream.fileno()
+            if not os.isatty(fd):
+                return False
+            old = termios.tcgetattr(fd)
+            tty.setcbreak(fd, termios.TCSANOW)
+        except (ImportError, AttributeError, ValueError, OSError):
+            return False
+        self._restore = (fd, old)
+        return True
+
+    def close(self) -> None:
+        """Give the terminal its line mode and echo back (idempotent)."""
+        if self._restore is not None:
+            import termios  # reason: only set on POSIX
+
+            (fd, old), self._restore = self._restore, None
+            with contextlib.suppress(OSError, ValueError):
+                termios.tcsetattr(fd, termios.TCSANOW, old)
+
+    def _read(self, stream: TextIO) -> None:
+        with contextlib.suppress(OSError, ValueError):  # stdin closed
+            for line in stream:
+                self._lines.put(line)
+
+    def _read_keys(self, stream) -> None:
+        fd, buf = stream.fileno(), ""
+        with contextlib.suppress(OSError):
+            while b := os.read(fd, 64):
+                for ch in b.decode("utf-8", "replace"):
+                    if ch in "\r\n":
+                        self._lines.put(buf + "\n")
+                        buf = ""
+                    elif ch in "\x7f\b":
+                        buf = buf[:-1]
+                    elif ch == "\x15":  # Ctrl-U: the whole line
+                        buf = ""
+                    elif ch.isprintable():
+                        buf += ch
+                self.typing = buf
+                self.typing_changed = True
+
+    def type_line(self, line: str) -> None:
+        self._lines.put(line)
+
+    def decorate(self, health_line: str) -> str:
+        """The health line after the command being typed (on a terminal)."""
+        if self._restore is None:
+            return health_line
+        return f"> {self.typing}_  | {health_line}"
+
+    def take_typing_change(self) -> bool:
+        """True once after each key typed (the session then redraws at once, so typing shows without delay)."""
+        changed, self.typing_changed = self.typing_changed, False
+        return changed
+
+    def poll(self, notes=()) -> int:
+        """Send what was typed since the last call; print ``notes`` (the pipeline's answers). Returns commands sent."""
+        n = 0
+        while not self._lines.empty():
+            line = self._lines.get_nowait()
+            if not line.strip():
+                continue
+            try:
+                command = parse_command(line)
+            except UserError as exc:
+                self.note(str(exc))
+                continue
+            try:
+                self.channel.send(command)
+            except (OSError, UserError) as exc:
+                self.note(f"{command.describe()}: not sent ({exc})")
+                continue
+            self.note(f"sent: {command.describe()}")
+            n += 1
+        for _ in range(len(notes)):
+            self.note(notes.popleft())
+        return n

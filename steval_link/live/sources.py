@@ -21,9 +21,14 @@ from typing import Any
 from steval_link.errors import UserError
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
-from steval_link.live.console import PROMPT_HELP
 
-__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source", "record_chunk"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "PROMPT_HELP", "Record", "Source", "record_chunk"]
+
+#: What the command prompt says it takes
+PROMPT_HELP = (
+    "type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
+    "set min_thr 300 | mode text"
+)
 
 #: Chunk kinds besides the capture's own
 NOTE, BREAK, END = "note", "break", "end"
