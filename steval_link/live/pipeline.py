@@ -76,8 +76,7 @@ class LiveMahony(firmware_replay.ReplicaFollower):
 
     def __init__(self) -> None:
         super().__init__(euler=False)
-        self.rows_exact = 0
-        self.rows_mismatch = 0
+        self.rows_exact = self.rows_mismatch = 0
         self.last_rows_mismatch = 0  # mismatching rows of the latest call
 
     def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
@@ -130,8 +129,7 @@ class LiveEstimators:
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.mahony = LiveMahony() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
-        self.names = list(names)
-        self.clock = clock
+        self.names, self.clock = list(names), clock
         self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
         self.notes: list[str] = []  # sentences not shown yet (the pipeline hands them on)
         now = clock()
@@ -145,8 +143,7 @@ class LiveEstimators:
         self._watch = {name: _Watch(self.clock()) for name in self.others}
 
     def process(self, rows: LiveRows) -> None:
-        a = rows.attitude
-        finite = rows.finite
+        a, finite = rows.attitude, rows.finite
         if self.mahony is not None:
             rows.estimates["st-mahony"] = self.mahony.attitude(
                 a.step, a.acc_mg, a.gyro_mdps, a.thr, a.q_wxyz, finite & a.exact
@@ -254,8 +251,7 @@ class BatchOutlet:
     ``max_stream_s`` (else ``interval_s``) × 161.5 rows of stream; events follow the merged batch in stream order."""
 
     def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
-        self.logger = logger
-        self.interval_s = interval_s
+        self.logger, self.interval_s = logger, interval_s
         self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
         self._events: list[tuple[str, tuple]] = []  # (logger method, its arguments)
@@ -270,21 +266,17 @@ class BatchOutlet:
             self._events.append(event)
 
     def tick(self, now_mono: float | None = None) -> None:
-        if not (self._batches or self._events):
-            return
-        rows = sum(map(len, self._batches))
-        if rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+        late = (now_mono or time.monotonic()) - self._since >= self.interval_s
+        if (self._batches or self._events) and (late or sum(map(len, self._batches)) >= self.max_rows):
             self.flush()
 
     def flush(self) -> None:
         if self._batches:
-            batch = LiveRows.concat(self._batches)
-            self._batches = []
-            self.logger.log_batch(batch)
+            batches, self._batches = self._batches, []
+            self.logger.log_batch(LiveRows.concat(batches))
         events, self._events = self._events, []
         for name, args in events:
-            log = getattr(self.logger, name, None)
-            if log is not None:
+            if (log := getattr(self.logger, name, None)) is not None:
                 log(*args)
 
 
@@ -356,11 +348,10 @@ class LivePipeline:
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
         """Decode and process chunks received at host times ``t_unix_s`` (s, Unix epoch), in stream order."""
         att: list[tuple[object, float]] = []  # attitude frames and rows not processed yet, with their chunk's time
-        clock = self.clock
         for data, t_unix_s in chunks:
             if len(self.sample) < SAMPLE_BYTES:
                 self.sample += data[: SAMPLE_BYTES - len(self.sample)]
-            clock.chunk(len(data), t_unix_s)
+            self.clock.chunk(len(data), t_unix_s)
             for frame in self.decoder.feed(data):
                 if isinstance(frame, F.AttitudeFrame):
                     att.append((frame, t_unix_s))
@@ -376,7 +367,7 @@ class LivePipeline:
                     self.step_unwrap.status(int(frame.step))
                     if self.mahony is not None:
                         self.mahony.status(frame)
-                    at = EventTime(float(clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
+                    at = EventTime(float(self.clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
                     self._event("log_status", frame, at)
                     if int(frame.flags) & P.FLAG_EVENT:
                         text = f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}"
@@ -398,7 +389,7 @@ class LivePipeline:
                         att.append((row, t_unix_s))
                     self._event("log_record", frame, self._at_frame(frame))
         self._attitude(att)
-        clock.prune(self.decoder.pending_bytes)
+        self.clock.prune(self.decoder.pending_bytes)
         self.tick()
 
     def _host_of_frame(self, frame) -> float:
@@ -463,14 +454,13 @@ class LivePipeline:
         all_finite &= np.where(
             a.exact, np.isfinite(a.q_wxyz).all(axis=1), np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad)
         )
-        h = self.health
-        if h.count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
+        if (h := self.health).count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
             self.notes.append(  # the session's first bad frame; the viewer marks the step itself (log/filter)
                 f"firmware values bad from step {h.first_bad_step} on (t = {h.first_bad_t_s:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
         # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)
-        self.health.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
+        h.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
         self._deliver(rows, float(att[0][1]), float(att[-1][1]))
         att.clear()
 
