@@ -5,6 +5,7 @@ unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import os
 import threading
@@ -61,10 +62,9 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
                 return path, open_serial(path, baud)
             except serial.SerialException as exc:
                 if not (waiting and (getattr(exc, "errno", None) == 2 or not os.path.exists(path))):
-                    try:
+                    available = []
+                    with contextlib.suppress(Exception):  # the listing is only a hint in the message
                         available = autodetect.list_candidate_ports()
-                    except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                        available = []
                     raise open_error_message(path, exc, available) from None
                 why, pause_s = f"{path} is not there; waiting for it", 0.1
         if not said:
@@ -115,10 +115,9 @@ class RecorderProtocol(Protocol):
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self._probe: StreamDecoder | None = None
         self._probe_frames = 0
-        self._holders_said: set[int] = set()
+        self._holders_said: set[int] = set()  # the pids named already
         self._holders: list[tuple[int, str]] = []
-        self._last_data_s = -math.inf  # monotonic time of the last chunk
-        self._holders_checked_s = -math.inf
+        self._last_data_s = self._holders_checked_s = -math.inf  # monotonic times of the last chunk and lookup
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
@@ -332,9 +331,7 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
         what = f"differs from the firmware on {p.rows_mismatch}" if p.rows_mismatch else f"bit-exact on {p.rows_exact}"
         filter_note = f"ST replica {what} frames with {p.settings.variant}'s filter"
     elif p is not None:
-        why = (
-            "run (no binary frames: text has no bit-exact inputs)" if not pipe.binary else "seeded (no status snapshot)"
-        )
+        why = "seeded (no status snapshot)" if pipe.binary else "run (no binary frames: text has no bit-exact inputs)"
         filter_note = f"ST replica not {why}"
     return {
         **pipeline_counts(pipe),

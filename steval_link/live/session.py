@@ -26,7 +26,7 @@ from steval_link.live import health
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, record_chunk
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, Source, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["CommandConsole", "LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -101,17 +101,12 @@ class LiveSession:
     ) -> None:
         if options.sinks is not None and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
-        self.options = options
-        self.source = source
-        self.check_outputs = check_outputs
+        self.options, self.source = options, source
+        self.viewer_factory, self.check_outputs = viewer_factory, check_outputs
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
-        self.viewer_factory = viewer_factory
         self.clock = HostClock()
-        self.capture: CaptureWriter | None = None
-        self.viewer = None
-        self.console: CommandConsole | None = None
+        self.capture = self.viewer = self.console = self.info = None  # set by run()
         self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
-        self.info: LinkInfo | None = None
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
         self._connected = True
@@ -150,8 +145,7 @@ class LiveSession:
             raise
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
-        error: BaseException | None = None
-        started, stream = False, None
+        error, started, stream = None, False, None
         with on_stop_signals(self._on_signal):
             try:
                 if info.note:  # (BLE says when it is connected)
@@ -438,9 +432,7 @@ class CommandConsole:
 
     def decorate(self, health_line: str) -> str:
         """The health line after the command being typed (on a terminal)."""
-        if self._restore is None:
-            return health_line
-        return f"> {self.typing}_  | {health_line}"
+        return health_line if self._restore is None else f"> {self.typing}_  | {health_line}"
 
     def take_typing_change(self) -> bool:
         """True once after each key typed (the session then redraws at once, so typing shows without delay)."""
