@@ -26,7 +26,7 @@ from steval_link.live import health
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, Source, record_chunk
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, Source, open_capture, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["CommandConsole", "LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -333,18 +333,6 @@ class LiveSession:
         if said and said not in self.output_failures:
             self.output_failures.append(said)
             self.display.note(said)
-
-
-def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
-    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
-    try:
-        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
-    except FileExistsError:
-        raise ParamError(
-            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
-        ) from None
-    except OSError as exc:
-        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
 
 
 def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:

@@ -18,11 +18,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
 
-__all__ = ["Chunk", "LinkInfo", "LinkStatus", "PROMPT_HELP", "Record", "Source", "record_chunk"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "PROMPT_HELP", "Record", "Source", "open_capture", "record_chunk"]
 
 #: What the command prompt says it takes
 PROMPT_HELP = (
@@ -65,6 +65,18 @@ def record_chunk(capture: CaptureWriter, chunk: Chunk) -> None:
     """A chunk into ``capture`` as its kind is written (notes, breaks and ends are not recorded)."""
     if (write := _WRITE.get(chunk.kind)) is not None:
         write(capture, chunk.data, chunk.t_s)
+
+
+def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
+    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
+    try:
+        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
+    except FileExistsError:
+        raise ParamError(
+            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
+        ) from None
+    except OSError as exc:
+        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
 
 
 @dataclass
