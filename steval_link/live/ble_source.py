@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, layout_named
-from steval_link.link.ble_transport import BleBackend, BleDevice, BleLink
+from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["BleSource", "INBOX_MAX"]
@@ -32,11 +32,9 @@ class BleSource(Source):
         self.backend = backend
         self.layout = layout_named(layout)
         self._inbox: deque[Chunk] = deque(maxlen=INBOX_MAX)
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
         self._closed = False
         self.link: BleLink | None = None
-        self._device: BleDevice | None = None  # the drone found by open()
+        self._thread = self._error = self._device = None  # the link's thread, its error, the drone found by open()
         self._loop = self._stop = None  # the link's event loop and its stop event, once its thread runs
 
     @classmethod

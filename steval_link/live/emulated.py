@@ -1,10 +1,6 @@
-"""The emulated board as a live session's source (``steval emulate``): its USART1 bytes through the live path a
-real port uses, each round one slice of the board (or :data:`ROUND_S` of them).
-
-The capture's receive times are emulated times (s since power-up), so a replay of it sees the drone's own timing.
-A BROAD trial's ground truth goes into the capture as ``T`` chunks per AHRS step, the attitude the emulator reads
-by symbol as ``S`` chunks. Commands (scripted at emulated times, or typed) reach the firmware's RX.
-"""
+"""The emulated board as a live session's source (``steval emulate``): its USART1 bytes, timed in emulated s since
+power-up; a BROAD trial's truth as ``T`` chunks, the attitude read by symbol as ``S`` chunks. Commands (scripted at
+emulated times, or typed) reach the firmware's RX."""
 
 from __future__ import annotations
 
@@ -47,11 +43,9 @@ class EmulatedSource(Source):
         self.realtime = realtime
         self.commands = list(commands or [])
         self.emu: Emulation | None = None
-        self.truth: StepTruth | None = None
-        self.status = LinkStatus()
-        self._closed = False
-        self._record: Record | None = None
+        self.truth = self._record = None  # the trial's truth and the capture, once chunks() starts
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
+        self.status, self._closed = LinkStatus(), False
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:

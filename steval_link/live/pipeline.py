@@ -1,7 +1,6 @@
-"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`).
-The pipeline times the rows (``t_fw_s``, ``t_host_s`` on the capture's base, by ``load_telemetry``'s rules). The
-estimators run per :class:`LiveRows`: the ST Mahony filter followed bit for bit from status snapshots
-(:class:`LiveMahony`), the registry's and your own (:class:`LiveEstimators`)."""
+"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`),
+rows timed by ``load_telemetry``'s rules. Estimators per :class:`LiveRows`: the ST Mahony filter followed bit for
+bit from status snapshots (:class:`LiveMahony`), the registry's and your own (:class:`LiveEstimators`)."""
 
 from __future__ import annotations
 
@@ -136,8 +135,7 @@ class LiveEstimators:
         self._watch = {name: _Watch(now) for name in self.others}
 
     def use_dt(self, dt_s: float) -> None:
-        """Run every estimator at ``dt_s`` on rows no firmware filter produced (BLE): the replica as a plain filter
-        at that dt (nothing to follow), the others at 1/dt where they take a rate."""
+        """Every estimator at ``dt_s`` on rows no firmware filter made (BLE): the replica as a plain filter."""
         self.mahony = None
         self.others = {name: created_at(name, dt_s) for name in self.names}
         self._watch = {name: _Watch(self.clock()) for name in self.others}
@@ -281,10 +279,9 @@ class BatchOutlet:
 
 
 class LivePipeline:
-    """Bytes → frames → estimators → viewer, in the session's main thread: each round's attitude frames become one
-    :class:`LiveRows`; other frames are events at their :class:`EventTime`. ``view_interval_s``: batches go to the
-    viewer merged at most this often (fewer, larger batches keep Rerun's memory flat); ``file_logger``: the
-    ``.rrd``'s own, at ``file_interval_s``. Call :meth:`tick` regularly and :meth:`flush_view` at the end."""
+    """Each round's attitude frames → one :class:`LiveRows`; other frames → events at their :class:`EventTime`.
+    ``view_interval_s``: viewer batches merged at most this often (keeps Rerun's memory flat); ``file_logger``: the
+    ``.rrd``'s own, at ``file_interval_s``. Call :meth:`tick` often, :meth:`flush_view` at the end."""
 
     def __init__(
         self,
@@ -478,9 +475,8 @@ class LivePipeline:
             outlet.add(rows)
 
     def feed_ble(self, records: list, *, final: bool = False) -> None:
-        """BLE notifications ``(char id, payload, t_host_s)`` (char id None: the link was lost and found again) →
-        the sender's samples on one grid (dt from their cadence) → estimators → loggers; other frames are events.
-        ``final``: the stream ended (rows held back for the cadence go out)."""
+        """BLE notifications ``(char id, payload, t_host_s)`` (char id None: a reconnection) → samples on one grid
+        (dt from their cadence) → estimators → loggers; other frames are events. ``final``: release held rows."""
         motion = []
         for cid, payload, t_host_s in records:
             frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)

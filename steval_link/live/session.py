@@ -42,8 +42,7 @@ EMULATED_SCHEME = "emulated:"
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
-    ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
+    """The source a URL names (table in :mod:`.sources`); its driver parses the URL and takes ``settings``."""
     if url.lower().startswith(BLE_SCHEME):
         from steval_link.live.ble_source import BleSource  # reason: BLE loads only when used
 
