@@ -103,9 +103,8 @@ class Inbox:
         with self._cond:
             if not self._chunks:
                 self._cond.wait(timeout_s)
-            out = list(self._chunks)
+            out, self._bytes = list(self._chunks), 0
             self._chunks.clear()
-            self._bytes = 0
             return out
 
 
@@ -118,10 +117,9 @@ class RecorderProtocol(Protocol):
         self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock
         self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
-        self._probe: StreamDecoder | None = None
+        self._probe: StreamDecoder | None = None  # a port reopened on probation: its frames so far
         self._probe_frames = 0
-        self._holders_said: set[int] = set()  # the pids named already
-        self._holders: list[tuple[int, str]] = []
+        self._holders_said, self._holders = set(), []  # the pids named already; the (pid, name) last looked up
         self._last_data_s = self._holders_checked_s = -math.inf  # monotonic times of the last chunk and lookup
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
@@ -256,10 +254,8 @@ class SerialSource(Source):
             self._extra.update({flag: True for flag in ("emulated", "line_start") if getattr(self.ser, flag)})
         else:
             identity = autodetect.PortIdentity.of(self.path)
-            glob = self.url if autodetect.is_glob(self.url) else None
-            self.finder = autodetect.PortFinder(identity, pattern=glob)
-            self._described = identity.describe()
-            self._extra = {"device": identity.device, "usb": identity.describe()}
+            self.finder = autodetect.PortFinder(identity, pattern=self.url if autodetect.is_glob(self.url) else None)
+            self._described, self._extra = identity.describe(), {"device": identity.device, "usb": identity.describe()}
 
     def describe(self) -> LinkInfo:
         return LinkInfo(
@@ -397,10 +393,8 @@ def run_command(port: str, baud: int, command: Command, *, timeout_s: float = 2.
 
 def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s: float, capture) -> Reply:
     sent = channel.send(command)
-    decoder = StreamDecoder()
-    deadline = time.monotonic() + timeout_s
-    ack: AckFrame | None = None
-    got_bytes = False
+    decoder, deadline = StreamDecoder(), time.monotonic() + timeout_s
+    ack, got_bytes = None, False
     while time.monotonic() < deadline:
         try:
             data = ser.read(4096)
