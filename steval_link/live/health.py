@@ -244,10 +244,6 @@ class LiveSummary:
     records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
     pace: float = 1.0  # a replay played X times faster (replay://FILE?speed=X): its rate is X times the drone's
 
-    @property
-    def losses(self) -> int:
-        return self.disconnects
-
     def lines(self) -> list[str]:
         if self.kind == "emulated":
             return self._emulated_lines()
@@ -274,7 +270,7 @@ class LiveSummary:
         n, gone = self.disconnects, "; the port did not come back" if self.lost_for_good else ""
         dropped = _fmt_bytes(self.live_dropped_bytes)
         parts = [
-            f"{_fmt_duration(self.seconds)}",
+            _fmt_duration(self.seconds),
             f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
             f"{self.frames_missing} missing",
             f"{self.crc_failures} CRC failures",
