@@ -115,8 +115,7 @@ class HealthDisplay:
         self.stream = stream
         self.tty = stream.isatty() if tty is None else tty
         self.interval_s = HEALTH_TTY_INTERVAL_S if self.tty else HEALTH_PLAIN_INTERVAL_S
-        self._last = -math.inf
-        self._dirty = False
+        self._last, self._dirty = -math.inf, False  # the last health line's time; it is on the terminal
 
     def note(self, text: str) -> None:
         """A message on its own line (events: connected, disconnected...)."""

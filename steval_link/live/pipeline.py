@@ -229,8 +229,7 @@ class StepUnwrapper(SeqUnwrapper):
 
     def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these frames."""
-        out = np.empty(len(frames), dtype=np.int64)
-        restart = np.zeros(len(frames), dtype=bool)
+        out, restart = np.empty(len(frames), dtype=np.int64), np.zeros(len(frames), dtype=bool)
         run: list[int] = []  # indexes of the current run of binary frames
         for i, f in enumerate(frames + [None]):
             if f is not None and f.step is None:
@@ -302,8 +301,7 @@ class LivePipeline:
             for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
             if logger is not None
         ]
-        self.decoder = StreamDecoder(line_start=line_start)
-        self.health = LinkHealth()
+        self.decoder, self.health = StreamDecoder(line_start=line_start), LinkHealth()
         self.estimators = LiveEstimators(estimator_names) if estimator_names else None
         self.step_unwrap = StepUnwrapper()
         self.clock = StreamClock(t0_unix_s, baud)  # the rows' firmware and host times (the capture's base)

@@ -83,8 +83,7 @@ class Inbox:
 
     def __init__(self, max_bytes: int = INBOX_MAX_BYTES) -> None:
         self.max_bytes = max_bytes
-        self._chunks: collections.deque[tuple[bytes, float]] = collections.deque()
-        self._bytes = 0
+        self._chunks, self._bytes = collections.deque(), 0  # (data, t_unix_s) waiting, and their bytes
         self._cond = threading.Condition()
         self.dropped_bytes = 0  # dropped from the live view as the main thread fell behind (still in the capture)
 

@@ -108,8 +108,7 @@ class LiveSession:
         self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
-        self._connected = True
-        self._warned_no_frames = False
+        self._connected, self._warned_no_frames = True, False
         self.output_failures: list[str] = []  # outputs that failed during the run (the ``.rrd``), one sentence each
 
     def request_stop(self, reason: str = "stopped") -> None:
@@ -356,12 +355,10 @@ class CommandConsole:
         stream: TextIO | None = None,
         enabled: bool = True,
     ) -> None:
-        self.channel = CommandChannel(send, record)
-        self.note = note
+        self.channel, self.note = CommandChannel(send, record), note
         self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.typing = ""  # the line being typed on a terminal (shown in the health line), "" otherwise
-        self.typing_changed = False
-        self._restore = None
+        self.typing, self.typing_changed = "", False  # the line being typed on a terminal (shown in the health line)
+        self._restore = None  # (fd, its old mode) while the terminal is raw
         if enabled:
             src = stream if stream is not None else sys.stdin
             target = self._read_keys if self._raw_terminal(src) else self._read
@@ -411,8 +408,7 @@ class CommandConsole:
                         buf = ""
                     elif ch.isprintable():
                         buf += ch
-                self.typing = buf
-                self.typing_changed = True
+                self.typing, self.typing_changed = buf, True
 
     def type_line(self, line: str) -> None:
         self._lines.put(line)
