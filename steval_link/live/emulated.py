@@ -44,7 +44,8 @@ class EmulatedSource(Source):
         self.emu: Emulation | None = None
         self.truth = self._record = None  # the trial's truth and the capture, once chunks() starts
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
-        self.status, self._closed = LinkStatus(), False
+        self.status = LinkStatus()
+        self._closed = False
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:

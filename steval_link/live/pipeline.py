@@ -301,7 +301,8 @@ class LivePipeline:
             for logger, interval_s in ((viewer, view_interval_s), (file_logger, file_interval_s))
             if logger is not None
         ]
-        self.decoder, self.health = StreamDecoder(line_start=line_start), LinkHealth()
+        self.decoder = StreamDecoder(line_start=line_start)
+        self.health = LinkHealth()
         self.estimators = LiveEstimators(estimator_names) if estimator_names else None
         self.step_unwrap = StepUnwrapper()
         self.clock = StreamClock(t0_unix_s, baud)  # the rows' firmware and host times (the capture's base)
@@ -449,7 +450,8 @@ class LivePipeline:
         all_finite &= np.where(
             a.exact, np.isfinite(a.q_wxyz).all(axis=1), np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad)
         )
-        if (h := self.health).count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
+        h = self.health
+        if h.count_bad(a.values_bad, attitude_inputs_bad(a.acc_mg, a.gyro_mdps), step, t_us):
             self.notes.append(  # the session's first bad frame; the viewer marks the step itself (log/filter)
                 f"firmware values bad from step {h.first_bad_step} on (t = {h.first_bad_t_s:.3f} s): "
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"

@@ -392,7 +392,8 @@ def run_command(port: str, baud: int, command: Command, *, timeout_s: float = 2.
 
 def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s: float, capture) -> Reply:
     sent = channel.send(command)
-    decoder, deadline = StreamDecoder(), time.monotonic() + timeout_s
+    decoder = StreamDecoder()
+    deadline = time.monotonic() + timeout_s
     ack, got_bytes = None, False
     while time.monotonic() < deadline:
         try:
