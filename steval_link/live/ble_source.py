@@ -23,8 +23,8 @@ ROUND_S = 0.1
 
 
 class BleSource(Source):
-    """``target``: a drone's name or address (None: the strongest ``DRN1…``); ``backend``: a ``BleBackend`` (bleak,
-    or a fake in tests); ``layout``: what the motion notifications hold (``stock``, ``euler``)."""
+    """``target``: name or address (None: the strongest ``DRN1…``); ``backend``: bleak's or a test's; ``layout``:
+    what the motion notifications hold (``stock``, ``euler``)."""
 
     def __init__(self, target: str | None, *, backend: BleBackend, layout: str = "stock") -> None:
         self.target = target

@@ -25,8 +25,7 @@ ROUND_S = 0.5
 
 
 class EmulatedSource(Source):
-    """``emulation``: the board and its motion. ``commands``: (emulated s, command) the session sends to the
-    firmware's USART1 RX at those times."""
+    """``emulation``: the board and its motion; ``commands``: (emulated s, command) sent to the firmware's RX then."""
 
     def __init__(
         self,

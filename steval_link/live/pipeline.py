@@ -121,9 +121,8 @@ class _Watch:
 
 
 class LiveEstimators:
-    """Every host estimator on each attitude row. A row with a non-finite input is fed to none (one NaN would poison
-    its state). An estimator that raises, floods NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN
-    estimates from then on, and the session goes on."""
+    """Every host estimator on each row with finite inputs (one NaN would poison its state). One that raises, floods
+    NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN from then on, and the session goes on."""
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.mahony = LiveMahony() if "st-mahony" in names else None

@@ -108,9 +108,8 @@ class Inbox:
 
 
 class RecorderProtocol(Protocol):
-    """Reader-thread side: every chunk to the capture first, then to the inbox; connection events to the capture
-    and :attr:`status`. A port reopened after a loss that sends no valid frame on probation is rejected and the
-    search goes on. Another program that reads the port is named once and the port is kept."""
+    """Reader-thread side: each chunk to the capture, then the inbox; events to the capture and :attr:`status`. A port
+    reopened that sends no valid frame on probation is rejected; another program reading the port is named once."""
 
     def __init__(self, record: Record, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
         self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock

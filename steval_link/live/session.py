@@ -1,6 +1,5 @@
-"""The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`) → capture → decoder → estimators → viewer. Each chunk goes to the capture first, so a slow
-viewer never costs bytes; the session owns the capture, viewer, prompt, stop requests and summary."""
+"""The live session (``steval live``, ``record``, ``emulate``, ``live --ble``): a source by URL (:func:`source_for`)
+→ capture → decoder → estimators → viewer; each chunk to the capture first (a slow viewer costs no byte)."""
 
 from __future__ import annotations
 
@@ -69,11 +68,10 @@ def port_source(port: str, **settings: Any) -> Source:
 
 @dataclass
 class LiveOptions:
-    """What every live session configures (a source's own settings are its driver's). ``sinks``: the Rerun outputs
-    (``steval_viewer.sink_options.SinkOptions``, None: no Rerun)."""
+    """What every live session configures (a source's own settings are its driver's)."""
 
     out: Path | None = None
-    sinks: Any = None
+    sinks: Any = None  # the Rerun outputs (``steval_viewer.sink_options.SinkOptions``); None: no Rerun
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal

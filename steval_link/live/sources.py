@@ -24,7 +24,6 @@ from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
 
 __all__ = ["Chunk", "LinkInfo", "LinkStatus", "PROMPT_HELP", "Record", "Source", "open_capture", "record_chunk"]
 
-#: What the command prompt says it takes
 PROMPT_HELP = (
     "type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
     "set min_thr 300 | mode text"
@@ -38,9 +37,8 @@ NOTE, BREAK, END = "note", "break", "end"
 class Chunk:
     """One timestamped piece of a link; ``t_s`` on the capture's clock (s since it started; None: now)."""
 
-    #: D (drone bytes), B ((char id, payload): a BLE notification), H (host bytes), T (a trial's truth rows),
-    #: E ((kind, text): a link event), S (symbol rows), ``note`` (for the terminal), ``break`` (a BLE link lost
-    #: and found again) or ``end`` (the link ended: the stop reason)
+    #: D drone bytes, B (char id, payload) a BLE notification, H host bytes, T truth rows, E (kind, text) a link
+    #: event, S symbol rows; ``note`` for the terminal, ``break`` a BLE reconnection, ``end`` the stop reason
     kind: str
     data: Any
     t_s: float | None
