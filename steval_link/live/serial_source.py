@@ -393,7 +393,7 @@ def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s
     sent = channel.send(command)
     decoder = StreamDecoder()
     deadline = time.monotonic() + timeout_s
-    ack, got_bytes = None, False
+    ack: AckFrame | None = None
     while time.monotonic() < deadline:
         try:
             data = ser.read(4096)
@@ -401,7 +401,6 @@ def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s
             raise UserError(f"reading {path} failed: {exc}") from None
         if not data:
             continue
-        got_bytes = True
         if capture is not None:
             capture.write(data)
         for frame in decoder.feed(data):
@@ -415,7 +414,7 @@ def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s
                 return Reply(command, ack, frame, describe_ack(command, ack))
     if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer
         return Reply(command, ack, None, describe_ack(command, ack))
-    if not got_bytes:
+    if not decoder.stats.bytes_total:  # nothing received
         raise UserError(
             f"no answer from the drone on {path} within {timeout_s:g} s (nothing received: is it on, and "
             "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)"

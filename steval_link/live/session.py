@@ -436,9 +436,9 @@ class CommandConsole:
                 self.channel.send(command)
             except (OSError, UserError) as exc:
                 self.note(f"{command.describe()}: not sent ({exc})")
-                continue
-            self.note(f"sent: {command.describe()}")
-            n += 1
+            else:
+                self.note(f"sent: {command.describe()}")
+                n += 1
         for _ in range(len(notes)):
             self.note(notes.popleft())
         return n
