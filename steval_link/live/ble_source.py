@@ -23,8 +23,7 @@ ROUND_S = 0.1
 
 
 class BleSource(Source):
-    """``target``: name or address (None: the strongest ``DRN1…``); ``backend``: bleak's or a test's; ``layout``:
-    what the motion notifications hold (``stock``, ``euler``)."""
+    """``target``: name or address (None: the strongest ``DRN1…``); ``layout``: what motion notifications hold."""
 
     def __init__(self, target: str | None, *, backend: BleBackend, layout: str = "stock") -> None:
         self.target = target

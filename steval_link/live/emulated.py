@@ -105,8 +105,7 @@ class EmulatedSource(Source):
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
-        """One slice of the board at a time: the RX bytes, the USART1 bytes and the truth of its steps, each to the
-        capture first; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
+        """Slice by slice, each chunk to the capture first; to the session each slice when paced, else each ROUND_S."""
         t0, t_round = time.monotonic(), 0.0
         pending: list[Chunk] = []
         if self._closed:

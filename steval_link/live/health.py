@@ -144,8 +144,7 @@ class HealthDisplay:
 
 
 def pipeline_health(head: str, pipe, serial=None) -> str:
-    """A health line: ``head``, what ``pipe`` (a ``LivePipeline``) counted and what the ST filter's replica did;
-    with a serial link's status ``serial``, the bytes skipped, disconnects, live lag and bytes recorded too."""
+    """A health line: ``head``, ``pipe``'s counts, the replica's state; a ``serial`` status adds bytes and losses."""
     s, h = pipe.decoder.stats, pipe.health
     parts = [head, f"frames {h.attitude}", h.values_sentence(), f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
     if serial is not None:

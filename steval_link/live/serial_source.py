@@ -360,8 +360,7 @@ class Reply:
 
 
 def run_command(port: str, baud: int, command: Command, *, timeout_s: float = 2.0, out: Path | None = None) -> Reply:
-    """Send ``command`` and return the drone's reply (UserError on no answer). ``out``: also record the exchange
-    (received bytes, the bytes sent as ``H`` chunks) to this new capture."""
+    """The drone's reply to ``command`` (UserError: no answer); ``out``: record the exchange to this new capture."""
     try:
         path, ser = open_port(port, baud)
     except UserError as exc:  # the advice to wait goes: no waiting for one command
