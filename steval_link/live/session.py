@@ -364,19 +364,16 @@ class CommandConsole:
 
     def _raw_terminal(self, stream) -> bool:
         """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
-        try:
+        with contextlib.suppress(ImportError, AttributeError, ValueError, OSError):  # not a POSIX terminal
             import termios  # reason: POSIX only (Windows reads whole lines)
             import tty
 
             fd = stream.fileno()
-            if not os.isatty(fd):
-                return False
-            old = termios.tcgetattr(fd)
-            tty.setcbreak(fd, termios.TCSANOW)
-        except (ImportError, AttributeError, ValueError, OSError):
-            return False
-        self._restore = (fd, old)
-        return True
+            if os.isatty(fd):
+                old = termios.tcgetattr(fd)
+                tty.setcbreak(fd, termios.TCSANOW)
+                self._restore = (fd, old)
+        return self._restore is not None
 
     def close(self) -> None:
         """Give the terminal its line mode and echo back (idempotent)."""
