@@ -1,5 +1,4 @@
-"""Link health of a live session: counters (:class:`LinkHealth`), the health line on stderr (:class:`HealthDisplay`),
-and what the session did (:class:`LiveSummary`), whatever its source."""
+"""A live session's counters (:class:`LinkHealth`), health line (:class:`HealthDisplay`) and :class:`LiveSummary`."""
 
 from __future__ import annotations
 

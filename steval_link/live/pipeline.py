@@ -206,9 +206,8 @@ class EventTime(NamedTuple):
 
 
 class LiveViewer(Protocol):
-    """What a live session logs to (``steval_viewer.live_adapter.ViewerLogger``, a test's fake). Optional, used when
-    present: ``has_viewer``, ``file`` (the ``.rrd``'s own LiveViewer), ``log_flight``, ``log_record``,
-    ``log_environment``, ``log_arming`` and ``log_note`` (each ``(frame, at)``)."""
+    """What a live session logs to (the viewer's ``ViewerLogger``, a test's fake). Optional: ``has_viewer``, ``file``
+    (the .rrd's own) and ``log_flight/record/environment/arming/note``, each ``(frame, at)``."""
 
     def log_batch(self, batch: LiveRows) -> None: ...
 

@@ -38,8 +38,7 @@ INBOX_MAX_BYTES = 4 * 1024 * 1024  # bytes held for the decoder before the oldes
 #: A port reopened after a loss is the drone once it sent PROBATION_FRAMES valid frames; none in PROBATION_S: not
 PROBATION_S = 3.0
 PROBATION_FRAMES = 2
-#: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
-#: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
+#: Port holders are looked up at a (re)connection, a taken read or SILENT_S of silence; at most every HOLDERS_CHECK_S, s
 HOLDERS_CHECK_S = 5.0
 SILENT_S = 1.0
 

@@ -82,9 +82,8 @@ class LiveOptions:
 
 
 class LiveSession:
-    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`. ``stream``: where
-    the health line and notes go (stderr); ``viewer_factory(options, recording_name)``: the Rerun side (needed with
-    ``options.sinks``); ``check_outputs``: the CLI's output checks, run once the input is open, before any file."""
+    """One live run over ``source``: :meth:`run` returns the summary or raises UserError. ``stream``: the health line's
+    (stderr); ``viewer_factory(options, name)``: the Rerun side; ``check_outputs()``: run once the input is open."""
 
     def __init__(
         self,
@@ -340,9 +339,8 @@ def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
 
 
 class CommandConsole:
-    """The command prompt: typed lines (``set ki 1.0``, ``reset``...) → commands → ``send(frame)``; ``record(frame)``
-    gets each frame once sent. A thread reads ``stream`` (default stdin; ``enabled=False``: nothing); on a POSIX
-    terminal key by key without echo, the line being typed shown in the health line so a redraw never wipes it."""
+    """Typed lines (``set ki 1.0``...) → commands → ``send(frame)``, then ``record(frame)``. A thread reads ``stream``
+    (stdin); a POSIX terminal key by key, the line being typed shown in the health line (a redraw cannot wipe it)."""
 
     def __init__(
         self,
