@@ -126,12 +126,11 @@ class HealthDisplay:
         if not force and now_mono - self._last < self.interval_s:
             return
         self._last = now_mono
-        if self.tty:
-            width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
-            self.stream.write("\r\x1b[2K" + line[:width])
-            self._dirty = True
-        else:
-            self.stream.write(f"steval: {line}\n")
+        if not self.tty:
+            return self.note(line)
+        width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
+        self.stream.write("\r\x1b[2K" + line[:width])
+        self._dirty = True
         self.stream.flush()
 
     def close(self) -> None:

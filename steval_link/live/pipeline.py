@@ -130,8 +130,7 @@ class LiveEstimators:
         self.names, self.clock = list(names), clock
         self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
         self.notes: list[str] = []  # sentences not shown yet (the pipeline hands them on)
-        now = clock()
-        self._watch = {name: _Watch(now) for name in self.others}
+        self._watch = {name: _Watch(clock()) for name in self.others}
 
     def use_dt(self, dt_s: float) -> None:
         """Every estimator at ``dt_s`` on rows no firmware filter made (BLE): the replica as a plain filter."""
