@@ -54,13 +54,12 @@ class LinkHealth:
         return f"text telemetry: {self.records} records, series {', '.join(names[:most])}{more}"
 
     def count(self, n_attitude: int, t_first_s: float, t_last_s: float) -> None:
-        """``n_attitude`` frames received between host times ``t_first_s`` and ``t_last_s``."""
-        if n_attitude:
-            if self.first_frame_s is None:
-                self.first_frame_s = t_first_s
-            self.last_frame_s = t_last_s
-            self.attitude += n_attitude
-            self._times.append((t_last_s, self.attitude))
+        """``n_attitude`` (≥ 1) frames received between host times ``t_first_s`` and ``t_last_s``."""
+        if self.first_frame_s is None:
+            self.first_frame_s = t_first_s
+        self.last_frame_s = t_last_s
+        self.attitude += n_attitude
+        self._times.append((t_last_s, self.attitude))
 
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
         """Count the frames flagged ``bad`` (``inputs_bad``: bad acc/gyro); True if the session's first bad is here."""

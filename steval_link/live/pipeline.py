@@ -122,14 +122,13 @@ class _Watch:
 
 class LiveEstimators:
     """Every host estimator on each row with finite inputs (one NaN would poison its state). One that raises, floods
-    NaN or cannot keep up is disabled: one line in :attr:`notes`, NaN from then on, and the session goes on."""
+    NaN or cannot keep up is disabled: one line from :meth:`process`, NaN from then on, and the session goes on."""
 
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.mahony = LiveMahony() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
         self.names, self.clock = list(names), clock
         self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
-        self.notes: list[str] = []  # sentences not shown yet (the pipeline hands them on)
         self._watch = {name: _Watch(clock()) for name in self.others}
 
     def use_dt(self, dt_s: float) -> None:
@@ -138,8 +137,9 @@ class LiveEstimators:
         self.others = {name: created_at(name, dt_s) for name in self.names}
         self._watch = {name: _Watch(self.clock()) for name in self.others}
 
-    def process(self, rows: LiveRows) -> None:
+    def process(self, rows: LiveRows) -> list[str]:
         a, finite = rows.attitude, rows.finite
+        notes: list[str] = []  # a sentence per estimator disabled now (returned)
         if self.mahony is not None:
             rows.estimates["st-mahony"] = self.mahony.attitude(
                 a.step, a.acc_mg, a.gyro_mdps, a.thr, a.q_wxyz, finite & a.exact
@@ -162,8 +162,9 @@ class LiveEstimators:
                     why = self._verdict(name, est, rows_in.size, valid, self.clock() - t0)
                 if why is not None:
                     self.disabled[name] = why
-                    self.notes.append(f"{why}; {name} disabled, recording and viewing go on")
+                    notes.append(f"{why}; {name} disabled, recording and viewing go on")
             rows.estimates[name] = q
+        return notes
 
     def _verdict(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float) -> str | None:
         """Why ``name`` is disabled after a call of ``n`` rows (None: it keeps up)."""
@@ -464,10 +465,8 @@ class LivePipeline:
         self._last_row = (int(a.step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
         self.health.count(len(a), t_first_unix_s, t_last_unix_s)
         if self.estimators is not None:
-            self.estimators.process(rows)
-            for why in self.estimators.notes:  # an estimator disabled: one line, the session goes on
+            for why in self.estimators.process(rows):  # an estimator disabled: one line, the session goes on
                 self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
-            self.estimators.notes.clear()
         for outlet in self.outlets:
             outlet.add(rows)
 
