@@ -167,8 +167,7 @@ def emulated_health(status, pipe, wall_s: float) -> str:
 
 
 def emulated_summary(status, pipe, flt: dict) -> dict:
-    """The summary fields of the emulated board: its report; the replica's verdict, its release (``flt``: the
-    capture header's ``filter``) and the steps read by symbol as the filter note."""
+    """The emulated board's summary: its report; a filter note of the replica, its release ``flt``, the symbol reads."""
     read = status.symbol_rows
     note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
     if note and flt:

@@ -242,8 +242,7 @@ class StepUnwrapper(SeqUnwrapper):
 
 
 class BatchOutlet:
-    """One logger fed merged rows at its own cadence: batches wait at most ``interval_s`` (monotonic) or
-    ``max_stream_s`` (else ``interval_s``) × 161.5 rows of stream; events follow the merged batch in stream order."""
+    """One logger's merged batches, out after ``interval_s`` or ``max_stream_s`` × 161.5 rows; events after them."""
 
     def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
         self.logger, self.interval_s = logger, interval_s
