@@ -1,6 +1,5 @@
-"""The links a live session reads, behind one narrow interface (as pyserial's ``Protocol`` and cflib's link
-drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.session.source_for`, as pyserial's
-``serial_for_url``); each driver parses its own URL (``from_url``):
+"""The links a live session reads, behind one interface, :class:`Source` (as pyserial's ``Protocol``, cflib's
+drivers); a URL picks the driver (:func:`.session.source_for`, as ``serial_for_url``), which parses it (``from_url``):
 
 ====================================  ======================================================================
 ``/dev/ttyUSB0``, ``COM3``, ``auto``  a serial port, or the one that carries frames (:mod:`.serial_source`)
