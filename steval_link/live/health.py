@@ -98,7 +98,6 @@ def _fmt_bytes(n: float) -> str:
 
 
 def _fmt_duration(s: float) -> str:
-    s = max(0.0, s)
     if s < 60:
         return f"{s:.1f} s"
     m, sec = divmod(int(round(s)), 60)
