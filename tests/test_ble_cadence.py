@@ -311,7 +311,7 @@ def test_a_lost_link_is_no_drop(tmp_path, monkeypatch, capsys):
     recs = recs[: lost.start] + recs[lost.stop :]
     n = len(recs)
     summary, rows, pipe = run_live(tmp_path, recs, drop_after=[lost.start])
-    assert summary.losses == 1 and summary.counts["motion"] == n
+    assert summary.disconnects == 1 and summary.counts["motion"] == n
     c = summary.cadence
     assert c.kind == BC.STEADY and c.dropped == summary.rows_held == 0
     assert sum(len(r) for r in rows) == n  # no row over the 2 s the drone sent nothing

@@ -162,7 +162,7 @@ def test_live_session_records_reconnects_and_estimates(tmp_path, firmware_notifi
     session = LiveSession(opts, source, viewer_factory=lambda o, name: viewer, stream=sys.stderr)
 
     summary = run_until_played(session, fake)
-    assert summary.losses == 2 and summary.connections == 3 and summary.stopped_by == "test"
+    assert summary.disconnects == 2 and summary.connections == 3 and summary.stopped_by == "test"
     # the capture holds every notification, in order, as B chunks, with the link's events
     cap = read_capture(out)
     assert [(c, p) for _, c, p in B.ble_records(cap.chunks)] == firmware_notifications

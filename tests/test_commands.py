@@ -333,7 +333,7 @@ def test_refused_and_silent_are_one_line_errors(drone, monkeypatch, capsys, tmp_
 
 
 def test_console_sends_typed_lines_and_reports_mistakes():
-    from steval_link.live.console import CommandConsole
+    from steval_link.live.session import CommandConsole
 
     sent, notes = [], []
     console = CommandConsole(sent.append, notes.append, enabled=False)
@@ -414,7 +414,7 @@ def test_console_on_a_terminal_reads_keys_and_shows_the_line_being_typed():
     pty = pytest.importorskip("pty", reason="a terminal console needs a pseudo-terminal (POSIX only)")
     termios = pytest.importorskip("termios", reason="a terminal console needs termios (POSIX only)")
 
-    from steval_link.live.console import CommandConsole
+    from steval_link.live.session import CommandConsole
 
     master, slave = pty.openpty()
     stream = os.fdopen(slave, "rb", buffering=0)

@@ -22,9 +22,8 @@ from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
-from steval_link.live.estimators import LiveRows
 from steval_link.live.health import LinkHealth
-from steval_link.live.pipeline import LivePipeline
+from steval_link.live.pipeline import LivePipeline, LiveRows
 
 PERIOD_US = 1e6 / C.AHRS_RATE_HZ
 T0_US = 2_985_000  # the first AHRS step of a real boot

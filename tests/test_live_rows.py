@@ -11,8 +11,7 @@ from support.viewers import NullViewer
 from steval_link.link.capture import read_capture
 from steval_link.link.load import load_telemetry
 from steval_link.link.telemetry import AttitudeArrays
-from steval_link.live.estimators import LiveRows
-from steval_link.live.pipeline import LivePipeline
+from steval_link.live.pipeline import LivePipeline, LiveRows
 
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 

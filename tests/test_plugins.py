@@ -16,7 +16,7 @@ from support.ptyfeed import flight_stream
 from steval_link import constants as C
 from steval_link.errors import UserError
 from steval_link.estimators import plugins, registry
-from steval_link.live import estimators as live_est
+from steval_link.live import pipeline as live_est
 from steval_link.live.pipeline import LivePipeline
 
 ROOT = Path(__file__).resolve().parents[1]

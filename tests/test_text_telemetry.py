@@ -532,8 +532,7 @@ def test_live_text_rows_start_their_firmware_time_at_zero(demo):
 
 def test_live_pipeline_makes_the_same_attitude_rows_of_records(demo):
     """ST's line live: each record an attitude row (pitch = thx, roll = thy), as the bulk path's Telemetry."""
-    from steval_link.live.estimators import LiveRows
-    from steval_link.live.pipeline import LivePipeline
+    from steval_link.live.pipeline import LivePipeline, LiveRows
 
     class Viewer:  # the LiveViewer protocol, keeping what it is given
         def __init__(self):

@@ -18,8 +18,7 @@ from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.unwrap import TimeUnwrapper
-from steval_link.live.estimators import LiveRows
-from steval_link.live.pipeline import EventTime
+from steval_link.live.pipeline import EventTime, LiveRows
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent
 from steval_viewer.live_log import LiveLogger

@@ -28,7 +28,7 @@ def _exchange(port: str, baud: int, timeout: float, out: Path | None):
     """The link options as one function: ``send(command)`` sends it and returns the drone's reply."""
 
     def send(command: Command):
-        from steval_link.live.remote import run_command  # reason: start-up time
+        from steval_link.live.serial_source import run_command  # reason: start-up time
 
         if not (timeout > 0):
             raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")

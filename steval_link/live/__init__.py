@@ -1,2 +1,1 @@
-"""A live session (``steval live``, ``record``, ``emulate``, ``live --ble``) over one source interface: see
-:mod:`steval_link.live.session`."""
+"""A live session over one source interface (``steval live``, ``record``, ``emulate``): :mod:`.session`."""

@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from steval_link.link.ble_payloads import DEVICE_NAME_PREFIX, layout_named
-from steval_link.link.ble_transport import BleBackend, BleDevice, BleLink
+from steval_link.link.ble_transport import BleBackend, BleLink
 from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
 
 __all__ = ["BleSource", "INBOX_MAX"]
@@ -23,20 +23,16 @@ ROUND_S = 0.1
 
 
 class BleSource(Source):
-    """``target``: a drone's name or address (None: the strongest ``DRN1…``); ``backend``: a ``BleBackend`` (bleak,
-    or a fake in tests); ``layout``: what the motion notifications hold (``stock``, ``euler``)."""
+    """``target``: name or address (None: the strongest ``DRN1…``); ``layout``: what motion notifications hold."""
 
     def __init__(self, target: str | None, *, backend: BleBackend, layout: str = "stock") -> None:
         self.target = target
         self.what = target or f"{DEVICE_NAME_PREFIX}*"  # the drone asked for: its name or address, or any DRN1…
-        self.backend = backend
-        self.layout = layout_named(layout)
+        self.backend, self.layout = backend, layout_named(layout)
         self._inbox: deque[Chunk] = deque(maxlen=INBOX_MAX)
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
         self._closed = False
         self.link: BleLink | None = None
-        self._device: BleDevice | None = None  # the drone found by open()
+        self._thread = self._error = self._device = None  # the link's thread, its error, the drone found by open()
         self._loop = self._stop = None  # the link's event loop and its stop event, once its thread runs
 
     @classmethod

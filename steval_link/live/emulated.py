@@ -1,10 +1,6 @@
-"""The emulated board as a live session's source (``steval emulate``): its USART1 bytes through the live path a
-real port uses, each round one slice of the board (or :data:`ROUND_S` of them).
-
-The capture's receive times are emulated times (s since power-up), so a replay of it sees the drone's own timing.
-A BROAD trial's ground truth goes into the capture as ``T`` chunks per AHRS step, the attitude the emulator reads
-by symbol as ``S`` chunks. Commands (scripted at emulated times, or typed) reach the firmware's RX.
-"""
+"""The emulated board as a live session's source (``steval emulate``): its USART1 bytes, timed in emulated s since
+power-up; a BROAD trial's truth as ``T`` chunks, the attitude read by symbol as ``S`` chunks. Commands (scripted at
+emulated times, or typed) reach the firmware's RX."""
 
 from __future__ import annotations
 
@@ -29,8 +25,7 @@ ROUND_S = 0.5
 
 
 class EmulatedSource(Source):
-    """``emulation``: the board and its motion. ``commands``: (emulated s, command) the session sends to the
-    firmware's USART1 RX at those times."""
+    """``emulation``: the board and its motion; ``commands``: (emulated s, command) sent to the firmware's RX then."""
 
     def __init__(
         self,
@@ -44,14 +39,12 @@ class EmulatedSource(Source):
         self.emu_options = emulation
         #: the release whose filter the replica runs (named by ``variant_from``; else the ELF's code: see open)
         self._filter = {"variant": variant, "from": variant_from} if variant is not None else None
-        self.realtime = realtime
-        self.commands = list(commands or [])
+        self.realtime, self.commands = realtime, list(commands or [])
         self.emu: Emulation | None = None
-        self.truth: StepTruth | None = None
+        self.truth = self._record = None  # the trial's truth and the capture, once chunks() starts
+        self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
         self.status = LinkStatus()
         self._closed = False
-        self._record: Record | None = None
-        self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
@@ -112,8 +105,7 @@ class EmulatedSource(Source):
         return self._rounds(record)
 
     def _rounds(self, record: Record) -> Iterator[list[Chunk]]:
-        """One slice of the board at a time: the RX bytes, the USART1 bytes and the truth of its steps, each to the
-        capture first; to the session every slice when paced, else every :data:`ROUND_S` emulated."""
+        """Slice by slice, each chunk to the capture first; to the session each slice when paced, else each ROUND_S."""
         t0, t_round = time.monotonic(), 0.0
         pending: list[Chunk] = []
         if self._closed:

@@ -1,5 +1,4 @@
-"""Link health of a live session: counters (:class:`LinkHealth`), the health line on stderr (:class:`HealthDisplay`),
-and what the session did (:class:`LiveSummary`), whatever its source."""
+"""A live session's counters (:class:`LinkHealth`), health line (:class:`HealthDisplay`) and :class:`LiveSummary`."""
 
 from __future__ import annotations
 
@@ -55,13 +54,12 @@ class LinkHealth:
         return f"text telemetry: {self.records} records, series {', '.join(names[:most])}{more}"
 
     def count(self, n_attitude: int, t_first_s: float, t_last_s: float) -> None:
-        """``n_attitude`` frames received between host times ``t_first_s`` and ``t_last_s``."""
-        if n_attitude:
-            if self.first_frame_s is None:
-                self.first_frame_s = t_first_s
-            self.last_frame_s = t_last_s
-            self.attitude += n_attitude
-            self._times.append((t_last_s, self.attitude))
+        """``n_attitude`` (≥ 1) frames received between host times ``t_first_s`` and ``t_last_s``."""
+        if self.first_frame_s is None:
+            self.first_frame_s = t_first_s
+        self.last_frame_s = t_last_s
+        self.attitude += n_attitude
+        self._times.append((t_last_s, self.attitude))
 
     def count_bad(self, bad, inputs_bad, step, t_us) -> bool:
         """Count the frames flagged ``bad`` (``inputs_bad``: bad acc/gyro); True if the session's first bad is here."""
@@ -100,7 +98,6 @@ def _fmt_bytes(n: float) -> str:
 
 
 def _fmt_duration(s: float) -> str:
-    s = max(0.0, s)
     if s < 60:
         return f"{s:.1f} s"
     m, sec = divmod(int(round(s)), 60)
@@ -115,8 +112,7 @@ class HealthDisplay:
         self.stream = stream
         self.tty = stream.isatty() if tty is None else tty
         self.interval_s = HEALTH_TTY_INTERVAL_S if self.tty else HEALTH_PLAIN_INTERVAL_S
-        self._last = -math.inf
-        self._dirty = False
+        self._last, self._dirty = -math.inf, False  # the last health line's time; it is on the terminal
 
     def note(self, text: str) -> None:
         """A message on its own line (events: connected, disconnected...)."""
@@ -128,12 +124,11 @@ class HealthDisplay:
         if not force and now_mono - self._last < self.interval_s:
             return
         self._last = now_mono
-        if self.tty:
-            width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
-            self.stream.write("\r\x1b[2K" + line[:width])
-            self._dirty = True
-        else:
-            self.stream.write(f"steval: {line}\n")
+        if not self.tty:
+            return self.note(line)
+        width = max(20, shutil.get_terminal_size((160, 24)).columns - 1)  # a wrapped line cannot be redrawn
+        self.stream.write("\r\x1b[2K" + line[:width])
+        self._dirty = True
         self.stream.flush()
 
     def close(self) -> None:
@@ -145,8 +140,7 @@ class HealthDisplay:
 
 
 def pipeline_health(head: str, pipe, serial=None) -> str:
-    """A health line: ``head``, what ``pipe`` (a ``LivePipeline``) counted and what the ST filter's replica did;
-    with a serial link's status ``serial``, the bytes skipped, disconnects, live lag and bytes recorded too."""
+    """A health line: ``head``, ``pipe``'s counts, the replica's state; a ``serial`` status adds bytes and losses."""
     s, h = pipe.decoder.stats, pipe.health
     parts = [head, f"frames {h.attitude}", h.values_sentence(), f"missing {s.frames_missing}", f"CRC {s.crc_failures}"]
     if serial is not None:
@@ -172,8 +166,7 @@ def emulated_health(status, pipe, wall_s: float) -> str:
 
 
 def emulated_summary(status, pipe, flt: dict) -> dict:
-    """The summary fields of the emulated board: its report; the replica's verdict, its release (``flt``: the
-    capture header's ``filter``) and the steps read by symbol as the filter note."""
+    """The emulated board's summary: its report; a filter note of the replica, its release ``flt``, the symbol reads."""
     read = status.symbol_rows
     note = pipe.mahony.describe() if pipe is not None and pipe.mahony is not None else None
     if note and flt:
@@ -244,10 +237,6 @@ class LiveSummary:
     records_part: str | None = None  # "text telemetry: N records, series a, b, c" (None: no record)
     pace: float = 1.0  # a replay played X times faster (replay://FILE?speed=X): its rate is X times the drone's
 
-    @property
-    def losses(self) -> int:
-        return self.disconnects
-
     def lines(self) -> list[str]:
         if self.kind == "emulated":
             return self._emulated_lines()
@@ -274,7 +263,7 @@ class LiveSummary:
         n, gone = self.disconnects, "; the port did not come back" if self.lost_for_good else ""
         dropped = _fmt_bytes(self.live_dropped_bytes)
         parts = [
-            f"{_fmt_duration(self.seconds)}",
+            _fmt_duration(self.seconds),
             f"{self.attitude} attitude frames" + ("" if math.isnan(rate) else f" ({self._rate(rate)})"),
             f"{self.frames_missing} missing",
             f"{self.crc_failures} CRC failures",

@@ -1,16 +1,20 @@
-"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`).
-The pipeline times the rows (``t_fw_s``, ``t_host_s`` on the capture's base, by ``load_telemetry``'s rules)."""
+"""Chunks → frames → rows → estimators → viewer for one live stream, whatever the link (:class:`LivePipeline`),
+rows timed by ``load_telemetry``'s rules. Estimators per :class:`LiveRows`: the ST Mahony filter followed bit for
+bit from status snapshots (:class:`LiveMahony`), the registry's and your own (:class:`LiveEstimators`)."""
 
 from __future__ import annotations
 
 import collections
 import math
 import time
+from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from steval_link import constants as C
+from steval_link.estimators import firmware_replay, registry, st_mahony
+from steval_link.estimators.runner import created_at
 from steval_link.link import ble_payloads as B
 from steval_link.link import frames as F
 from steval_link.link import protocol as P
@@ -21,7 +25,6 @@ from steval_link.link.plausibility import attitude_inputs_bad
 from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
 from steval_link.link.text_series import RecordAttitude
 from steval_link.link.unwrap import SeqUnwrapper, StreamClock
-from steval_link.live.estimators import LiveEstimators, LiveMahony, LiveRows
 from steval_link.live.health import LinkHealth
 
 #: Bytes kept from the start of a connection to describe a stream without frames.
@@ -36,6 +39,165 @@ RRD_ONLY_INTERVAL_S = 0.5
 RRD_BATCH_MAX_STREAM_S = 30.0
 
 
+@dataclass
+class LiveRows:
+    """The attitude rows of one processing round (times on the capture's base) with every live estimate:
+    ``estimates`` maps a source name (``st-mahony``, ``accel``...) to (N, 4) q_wxyz, NaN where undefined."""
+
+    attitude: AttitudeArrays
+    estimates: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (N, 3) float32 magnetometer of each row, mgauss, where the link sends it (BLE); None: not sent
+    mag_mgauss: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.attitude)
+
+    @property
+    def finite(self) -> np.ndarray:
+        """(N,) bool: the filter inputs (acc, gyro) are finite, so estimators may take the row."""
+        a = self.attitude
+        return np.isfinite(a.acc_mg).all(axis=1) & np.isfinite(a.gyro_mdps).all(axis=1)
+
+    @classmethod
+    def concat(cls, parts: list[LiveRows]) -> LiveRows:
+        """One set of the rows of ``parts``, in order (estimate names must agree)."""
+        if len(parts) == 1:
+            return parts[0]
+        estimates = {name: np.concatenate([p.estimates[name] for p in parts]) for name in parts[0].estimates}
+        mags = [p.mag_mgauss for p in parts]
+        mag = np.concatenate(mags) if all(m is not None for m in mags) else None
+        return cls(AttitudeArrays.concat([p.attitude for p in parts]), estimates, mag)
+
+
+class LiveMahony(firmware_replay.ReplicaFollower):
+    """The bit-exact ST Mahony filter run live (``replay_firmware``'s follower), (re)seeded from the firmware's status
+    snapshots: NaN until one unless the stream starts at step 0; a snapshot that disagrees re-seeds it."""
+
+    def __init__(self) -> None:
+        super().__init__(euler=False)
+        self.rows_exact = self.rows_mismatch = 0
+        self.last_rows_mismatch = 0  # mismatching rows of the latest call
+
+    def attitude(self, step: np.ndarray, acc_mg, gyro_mdps, thr, fw_q_wxyz, finite: np.ndarray) -> np.ndarray:
+        """Step the filter over these frames (in order); returns (N, 4) float32 q, NaN where unseeded."""
+        q, _, _, seeded = self.rows_recognising(step, acc_mg, gyro_mdps, thr, finite, fw_q_wxyz)
+        k = int(np.count_nonzero(seeded & st_mahony.bits_equal(q, fw_q_wxyz).all(axis=1)))
+        self.rows_exact += k
+        self.last_rows_mismatch = int(np.count_nonzero(seeded)) - k
+        self.rows_mismatch += self.last_rows_mismatch
+        return q
+
+    def status(self, frame) -> None:
+        if not frame.exact:  # a text-mode $STA row has no q, integral or gains: nothing to seed from
+            return
+        snap = st_mahony.MahonyState(q_wxyz=frame.q_wxyz, int_xyz=frame.int_xyz)
+        self.snapshot(int(frame.step), snap, st_mahony.MahonySettings.of_status(frame))
+
+    def describe(self) -> str:
+        """The filter's state in a few words for the health line."""
+        if not self.seeded:
+            return "replica resyncing" if self.seed_count else "replica waiting for a status snapshot"
+        if self.last_rows_mismatch:
+            return f"replica DIFFERS from firmware ({self.rows_mismatch} frames)"
+        return "replica bit-exact" if self.rows_exact else "replica seeded"
+
+
+#: A live estimator is disabled when it gives NaN on NAN_FLOOD_S of finite input in a row, needs more than SLOW_SHARE
+#: of the stream time it is fed over SLOW_WINDOW_S of wall time, or stalls the view in one call over STALL_S, s.
+NAN_FLOOD_S = 3.0
+SLOW_SHARE = 0.5
+SLOW_WINDOW_S = 5.0
+STALL_S = 2.0
+
+
+@dataclass
+class _Watch:
+    """One estimator's NaN rows in a row and its processing and stream time in the current window."""
+
+    window_start_s: float
+    nan_rows: int = 0
+    busy_s: float = 0.0
+    stream_s: float = 0.0
+
+
+class LiveEstimators:
+    """Every host estimator on each row with finite inputs (one NaN would poison its state). One that raises, floods
+    NaN or cannot keep up is disabled: one line from :meth:`process`, NaN from then on, and the session goes on."""
+
+    def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
+        self.mahony = LiveMahony() if "st-mahony" in names else None
+        self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
+        self.names, self.clock = list(names), clock
+        self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
+        self._watch = {name: _Watch(clock()) for name in self.others}
+
+    def use_dt(self, dt_s: float) -> None:
+        """Every estimator at ``dt_s`` on rows no firmware filter made (BLE): the replica as a plain filter."""
+        self.mahony = None
+        self.others = {name: created_at(name, dt_s) for name in self.names}
+        self._watch = {name: _Watch(self.clock()) for name in self.others}
+
+    def process(self, rows: LiveRows) -> list[str]:
+        a, finite = rows.attitude, rows.finite
+        notes: list[str] = []  # a sentence per estimator disabled now (returned)
+        if self.mahony is not None:
+            rows.estimates["st-mahony"] = self.mahony.attitude(
+                a.step, a.acc_mg, a.gyro_mdps, a.thr, a.q_wxyz, finite & a.exact
+            )
+        rows_in = np.flatnonzero(finite)
+        for name, est in self.others.items():
+            q = np.full((len(rows), 4), np.nan, dtype=np.float64)
+            if rows_in.size and name not in self.disabled:
+                t0 = self.clock()
+                try:
+                    res = est.run(a.acc_mg[rows_in], a.gyro_mdps[rows_in], a.thr[rows_in].astype(np.int64))
+                    valid = np.asarray(res.valid, dtype=bool)
+                    q[rows_in] = np.where(valid[:, None], res.q_wxyz, np.nan)
+                except registry.PluginError as exc:  # a user's estimator: names their file and line
+                    why = str(exc)
+                except Exception as exc:  # noqa: BLE001 - any failure of an estimator costs it, never the session
+                    text = str(exc).strip().splitlines()
+                    why = f"estimator {name} failed: {type(exc).__name__}" + (f": {text[0]}" if text else "")
+                else:
+                    why = self._verdict(name, est, rows_in.size, valid, self.clock() - t0)
+                if why is not None:
+                    self.disabled[name] = why
+                    notes.append(f"{why}; {name} disabled, recording and viewing go on")
+            rows.estimates[name] = q
+        return notes
+
+    def _verdict(self, name: str, est, n: int, valid: np.ndarray, elapsed_s: float) -> str | None:
+        """Why ``name`` is disabled after a call of ``n`` rows (None: it keeps up)."""
+        w = self._watch[name]
+        last_valid = np.flatnonzero(valid)
+        w.nan_rows = n - 1 - int(last_valid[-1]) if last_valid.size else w.nan_rows + n
+        if w.nan_rows >= NAN_FLOOD_S * C.AHRS_RATE_HZ:
+            where = est.origin("step") if hasattr(est, "origin") else name
+            return (
+                f"estimator {name} gave no estimate (NaN) for {w.nan_rows} frames of valid input in "
+                f"a row ({w.nan_rows / C.AHRS_RATE_HZ:.1f} s); look at {where}"
+            )
+        if elapsed_s > STALL_S:
+            return (
+                f"estimator {name} took {elapsed_s:.1f} s for {n} frames ({n / C.AHRS_RATE_HZ:.2f} s "
+                "of stream): too slow to run live (steval compare runs it offline)"
+            )
+        w.busy_s += elapsed_s
+        w.stream_s += n / C.AHRS_RATE_HZ
+        now = self.clock()
+        if now - w.window_start_s < SLOW_WINDOW_S:
+            return None
+        if w.stream_s > 0 and w.busy_s > SLOW_SHARE * w.stream_s:
+            return (
+                f"estimator {name} needed {1000 * w.busy_s / max(w.stream_s, 1e-9):.0f} ms per "
+                f"second of stream for {now - w.window_start_s:.0f} s (at most "
+                f"{1000 * SLOW_SHARE:.0f} ms to keep up live; steval compare runs it offline)"
+            )
+        w.busy_s = w.stream_s = 0.0
+        w.window_start_s = now
+        return None
+
+
 class EventTime(NamedTuple):
     """When a frame or a note happened: firmware s since boot (NaN before the first row), host s since capture start."""
 
@@ -44,9 +206,8 @@ class EventTime(NamedTuple):
 
 
 class LiveViewer(Protocol):
-    """What a live session logs to (``steval_viewer.live_adapter.ViewerLogger``, a test's fake). Optional, used when
-    present: ``has_viewer``, ``file`` (the ``.rrd``'s own LiveViewer), ``log_flight``, ``log_record``,
-    ``log_environment``, ``log_arming`` and ``log_note`` (each ``(frame, at)``)."""
+    """What a live session logs to (the viewer's ``ViewerLogger``, a test's fake). Optional: ``has_viewer``, ``file``
+    (the .rrd's own) and ``log_flight/record/environment/arming/note``, each ``(frame, at)``."""
 
     def log_batch(self, batch: LiveRows) -> None: ...
 
@@ -66,8 +227,7 @@ class StepUnwrapper(SeqUnwrapper):
 
     def frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(steps (N,) int64, restart (N,) bool: a binary frame that begins a new firmware run) of these frames."""
-        out = np.empty(len(frames), dtype=np.int64)
-        restart = np.zeros(len(frames), dtype=bool)
+        out, restart = np.empty(len(frames), dtype=np.int64), np.zeros(len(frames), dtype=bool)
         run: list[int] = []  # indexes of the current run of binary frames
         for i, f in enumerate(frames + [None]):
             if f is not None and f.step is None:
@@ -82,12 +242,10 @@ class StepUnwrapper(SeqUnwrapper):
 
 
 class BatchOutlet:
-    """One logger fed merged rows at its own cadence: batches wait at most ``interval_s`` (monotonic) or
-    ``max_stream_s`` (else ``interval_s``) × 161.5 rows of stream; events follow the merged batch in stream order."""
+    """One logger's merged batches, out after ``interval_s`` or ``max_stream_s`` × 161.5 rows; events after them."""
 
     def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
-        self.logger = logger
-        self.interval_s = interval_s
+        self.logger, self.interval_s = logger, interval_s
         self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
         self._events: list[tuple[str, tuple]] = []  # (logger method, its arguments)
@@ -102,29 +260,24 @@ class BatchOutlet:
             self._events.append(event)
 
     def tick(self, now_mono: float | None = None) -> None:
-        if not (self._batches or self._events):
-            return
-        rows = sum(map(len, self._batches))
-        if rows >= self.max_rows or (now_mono or time.monotonic()) - self._since >= self.interval_s:
+        late = (now_mono or time.monotonic()) - self._since >= self.interval_s
+        if (self._batches or self._events) and (late or sum(map(len, self._batches)) >= self.max_rows):
             self.flush()
 
     def flush(self) -> None:
         if self._batches:
-            batch = LiveRows.concat(self._batches)
-            self._batches = []
-            self.logger.log_batch(batch)
+            batches, self._batches = self._batches, []
+            self.logger.log_batch(LiveRows.concat(batches))
         events, self._events = self._events, []
         for name, args in events:
-            log = getattr(self.logger, name, None)
-            if log is not None:
+            if (log := getattr(self.logger, name, None)) is not None:
                 log(*args)
 
 
 class LivePipeline:
-    """Bytes → frames → estimators → viewer, in the session's main thread: each round's attitude frames become one
-    :class:`LiveRows`; other frames are events at their :class:`EventTime`. ``view_interval_s``: batches go to the
-    viewer merged at most this often (fewer, larger batches keep Rerun's memory flat); ``file_logger``: the
-    ``.rrd``'s own, at ``file_interval_s``. Call :meth:`tick` regularly and :meth:`flush_view` at the end."""
+    """Each round's attitude frames → one :class:`LiveRows`; other frames → events at their :class:`EventTime`.
+    ``view_interval_s``: viewer batches merged at most this often (keeps Rerun's memory flat); ``file_logger``: the
+    ``.rrd``'s own, at ``file_interval_s``. Call :meth:`tick` often, :meth:`flush_view` at the end."""
 
     def __init__(
         self,
@@ -188,11 +341,10 @@ class LivePipeline:
     def feed(self, chunks: list[tuple[bytes, float]]) -> None:
         """Decode and process chunks received at host times ``t_unix_s`` (s, Unix epoch), in stream order."""
         att: list[tuple[object, float]] = []  # attitude frames and rows not processed yet, with their chunk's time
-        clock = self.clock
         for data, t_unix_s in chunks:
             if len(self.sample) < SAMPLE_BYTES:
                 self.sample += data[: SAMPLE_BYTES - len(self.sample)]
-            clock.chunk(len(data), t_unix_s)
+            self.clock.chunk(len(data), t_unix_s)
             for frame in self.decoder.feed(data):
                 if isinstance(frame, F.AttitudeFrame):
                     att.append((frame, t_unix_s))
@@ -208,7 +360,7 @@ class LivePipeline:
                     self.step_unwrap.status(int(frame.step))
                     if self.mahony is not None:
                         self.mahony.status(frame)
-                    at = EventTime(float(clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
+                    at = EventTime(float(self.clock.fw_s([int(frame.t_us)])[0]), self._host_of_frame(frame))
                     self._event("log_status", frame, at)
                     if int(frame.flags) & P.FLAG_EVENT:
                         text = f"drone: {describe_settings(frame)} from step {int(frame.step) + 1}"
@@ -230,7 +382,7 @@ class LivePipeline:
                         att.append((row, t_unix_s))
                     self._event("log_record", frame, self._at_frame(frame))
         self._attitude(att)
-        clock.prune(self.decoder.pending_bytes)
+        self.clock.prune(self.decoder.pending_bytes)
         self.tick()
 
     def _host_of_frame(self, frame) -> float:
@@ -302,7 +454,7 @@ class LivePipeline:
                 "NaN or out of range, as sent (CRC-valid); the summary counts them"
             )
         # (text-mode rows: those flagged; a row of text telemetry is NaN where nothing was printed)
-        self.health.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
+        h.nonfinite += int(np.count_nonzero(np.where(a.exact, ~all_finite, a.values_bad)))
         self._deliver(rows, float(att[0][1]), float(att[-1][1]))
         att.clear()
 
@@ -312,17 +464,14 @@ class LivePipeline:
         self._last_row = (int(a.step[-1]), float(a.t_fw_s[-1]), float(a.t_host_s[-1]))
         self.health.count(len(a), t_first_unix_s, t_last_unix_s)
         if self.estimators is not None:
-            self.estimators.process(rows)
-            for why in self.estimators.notes:  # an estimator disabled: one line, the session goes on
+            for why in self.estimators.process(rows):  # an estimator disabled: one line, the session goes on
                 self._note(why, EventTime(float(a.t_fw_s[-1]), float(a.t_host_s[-1])), "WARN")
-            self.estimators.notes.clear()
         for outlet in self.outlets:
             outlet.add(rows)
 
     def feed_ble(self, records: list, *, final: bool = False) -> None:
-        """BLE notifications ``(char id, payload, t_host_s)`` (char id None: the link was lost and found again) →
-        the sender's samples on one grid (dt from their cadence) → estimators → loggers; other frames are events.
-        ``final``: the stream ended (rows held back for the cadence go out)."""
+        """BLE notifications ``(char id, payload, t_host_s)`` (char id None: a reconnection) → samples on one grid
+        (dt from their cadence) → estimators → loggers; other frames are events. ``final``: release held rows."""
         motion = []
         for cid, payload, t_host_s in records:
             frame = None if cid is None else self.ble.feed(cid, payload, t_host_s)

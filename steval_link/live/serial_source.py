@@ -1,40 +1,44 @@
 """The serial driver of a live session: a port (``/dev/ttyUSB0``, ``COM3``, a glob, ``auto``) or a replay
 (``replay://FILE.stv``, played at its recorded pace as a port). A reader thread (``SerialReader``, which reopens an
-unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox`."""
+unplugged port) hands each chunk to :class:`RecorderProtocol`: the capture first, then a bounded :class:`Inbox`.
+:func:`run_command` (``steval param``/``command``) sends one command on a port and waits for its answer."""
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import os
+import re
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import serial
 
 from steval_link import constants as C
 from steval_link.errors import ParamError, UserError, param_word
-from steval_link.link import autodetect, ports
+from steval_link.link import autodetect, ports, transport
+from steval_link.link import protocol as P
+from steval_link.link.commands import Command, CommandChannel, ack_of_text, describe_ack
 from steval_link.link.decoder import StreamDecoder
-from steval_link.link.frames import AttitudeFrame, StatusFrame
+from steval_link.link.frames import AckFrame, AttitudeFrame, StatusFrame, TextFrame
 from steval_link.link.replay_source import is_replay_url, open_replay
 from steval_link.link.transport import PortRejected, Protocol, SerialReader, open_error_message, open_serial
-from steval_link.live.console import PROMPT_HELP
 from steval_link.live.health import LinkHealth, _fmt_bytes, pipeline_counts, pipeline_health
-from steval_link.live.sources import END, NOTE, Chunk, LinkInfo, LinkStatus, Record, Source
+from steval_link.live.sources import END, NOTE, PROMPT_HELP, Chunk, LinkInfo, LinkStatus, Record, Source, open_capture
 
-__all__ = ["LinkError", "SerialSource", "open_port", "serial_health", "serial_summary"]
+__all__ = ["LinkError", "Reply", "SerialSource", "open_port", "run_command", "serial_health", "serial_summary"]
 
 ROUND_WAIT_S = 0.02  # how long a round waits for the reader's first chunk, s
 INBOX_MAX_BYTES = 4 * 1024 * 1024  # bytes held for the decoder before the oldest leave the live view
 #: A port reopened after a loss is the drone once it sent PROBATION_FRAMES valid frames; none in PROBATION_S: not
 PROBATION_S = 3.0
 PROBATION_FRAMES = 2
-#: Other programs holding the port are looked for at a (re)connection, when a read finds its bytes taken, and
-#: while the port is silent for SILENT_S; at most every HOLDERS_CHECK_S, s.
+#: Port holders are looked up at a (re)connection, a taken read or SILENT_S of silence; at most every HOLDERS_CHECK_S, s
 HOLDERS_CHECK_S = 5.0
 SILENT_S = 1.0
 
@@ -62,10 +66,9 @@ def open_port(url: str, baud: int, *, wait: bool = False, note=None, stopped=Non
                 return path, open_serial(path, baud)
             except serial.SerialException as exc:
                 if not (waiting and (getattr(exc, "errno", None) == 2 or not os.path.exists(path))):
-                    try:
+                    available = []
+                    with contextlib.suppress(Exception):  # the listing is only a hint in the message
                         available = autodetect.list_candidate_ports()
-                    except Exception:  # noqa: BLE001 - the listing is only a hint in the message
-                        available = []
                     raise open_error_message(path, exc, available) from None
                 why, pause_s = f"{path} is not there; waiting for it", 0.1
         if not said:
@@ -79,8 +82,7 @@ class Inbox:
 
     def __init__(self, max_bytes: int = INBOX_MAX_BYTES) -> None:
         self.max_bytes = max_bytes
-        self._chunks: collections.deque[tuple[bytes, float]] = collections.deque()
-        self._bytes = 0
+        self._chunks, self._bytes = collections.deque(), 0  # (data, t_unix_s) waiting, and their bytes
         self._cond = threading.Condition()
         self.dropped_bytes = 0  # dropped from the live view as the main thread fell behind (still in the capture)
 
@@ -99,27 +101,23 @@ class Inbox:
         with self._cond:
             if not self._chunks:
                 self._cond.wait(timeout_s)
-            out = list(self._chunks)
+            out, self._bytes = list(self._chunks), 0
             self._chunks.clear()
-            self._bytes = 0
             return out
 
 
 class RecorderProtocol(Protocol):
-    """Reader-thread side: every chunk to the capture first, then to the inbox; connection events to the capture
-    and :attr:`status`. A port reopened after a loss that sends no valid frame on probation is rejected and the
-    search goes on. Another program that reads the port is named once and the port is kept."""
+    """Reader-thread side: each chunk to the capture, then the inbox; events to the capture and :attr:`status`. A port
+    reopened that sends no valid frame on probation is rejected; another program reading the port is named once."""
 
     def __init__(self, record: Record, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
         self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock
         self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
-        self._probe: StreamDecoder | None = None
+        self._probe: StreamDecoder | None = None  # a port reopened on probation: its frames so far
         self._probe_frames = 0
-        self._holders_said: set[int] = set()
-        self._holders: list[tuple[int, str]] = []
-        self._last_data_s = -math.inf  # monotonic time of the last chunk
-        self._holders_checked_s = -math.inf
+        self._holders_said, self._holders = set(), []  # the pids named already; the (pid, name) last looked up
+        self._last_data_s = self._holders_checked_s = -math.inf  # monotonic times of the last chunk and lookup
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
         """Capture time base: s since the capture started (the clock's origin is the capture's start)."""
@@ -253,10 +251,8 @@ class SerialSource(Source):
             self._extra.update({flag: True for flag in ("emulated", "line_start") if getattr(self.ser, flag)})
         else:
             identity = autodetect.PortIdentity.of(self.path)
-            glob = self.url if autodetect.is_glob(self.url) else None
-            self.finder = autodetect.PortFinder(identity, pattern=glob)
-            self._described = identity.describe()
-            self._extra = {"device": identity.device, "usb": identity.describe()}
+            self.finder = autodetect.PortFinder(identity, pattern=self.url if autodetect.is_glob(self.url) else None)
+            self._described, self._extra = identity.describe(), {"device": identity.device, "usb": identity.describe()}
 
     def describe(self) -> LinkInfo:
         return LinkInfo(
@@ -333,9 +329,7 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
         what = f"differs from the firmware on {p.rows_mismatch}" if p.rows_mismatch else f"bit-exact on {p.rows_exact}"
         filter_note = f"ST replica {what} frames with {p.settings.variant}'s filter"
     elif p is not None:
-        why = (
-            "run (no binary frames: text has no bit-exact inputs)" if not pipe.binary else "seeded (no status snapshot)"
-        )
+        why = "seeded (no status snapshot)" if pipe.binary else "run (no binary frames: text has no bit-exact inputs)"
         filter_note = f"ST replica not {why}"
     return {
         **pipeline_counts(pipe),
@@ -348,3 +342,89 @@ def serial_summary(status: LinkStatus, pipe, now_s: float) -> dict[str, Any]:
         "pace": status.pace,
         "filter_note": filter_note,
     }
+
+
+@dataclass
+class Reply:
+    """What the drone answered to one command: its ack and the EVENT status frame after it (None if none came)."""
+
+    command: Command
+    ack: AckFrame
+    status: StatusFrame | None
+    text: str
+
+    @property
+    def accepted(self) -> bool:
+        return int(self.ack.result) == P.ACK_ACCEPTED
+
+
+def run_command(port: str, baud: int, command: Command, *, timeout_s: float = 2.0, out: Path | None = None) -> Reply:
+    """The drone's reply to ``command`` (UserError: no answer); ``out``: record the exchange to this new capture."""
+    try:
+        path, ser = open_port(port, baud)
+    except UserError as exc:  # the advice to wait goes: no waiting for one command
+        message = re.sub(r" \(or use [^)]*\)$", "", getattr(exc, "template", str(exc)))
+        if " is busy" in message:
+            message += " (if steval live has it, type the command at its prompt instead)"
+        raise ParamError(message, *getattr(exc, "params", ())) from None
+    capture = None
+    try:
+        if out is not None:
+            capture = open_capture(out, port=path, baud=baud, extra={"source": "steval param/command"})
+
+        def write(frame: bytes) -> None:
+            try:
+                ser.write(frame)
+                ser.flush()
+            except (serial.SerialException, OSError) as exc:
+                raise UserError(f"cannot write to {path}: {exc}") from None
+
+        channel = CommandChannel(write, capture.write_host if capture is not None else None)
+        return _answer(ser, path, channel, command, timeout_s, capture)
+    finally:
+        if capture is not None:
+            capture.close()
+        transport.close_quietly(ser)
+
+
+def _answer(ser, path: str, channel: CommandChannel, command: Command, timeout_s: float, capture) -> Reply:
+    sent = channel.send(command)
+    decoder = StreamDecoder()
+    deadline = time.monotonic() + timeout_s
+    ack: AckFrame | None = None
+    while time.monotonic() < deadline:
+        try:
+            data = ser.read(4096)
+        except (serial.SerialException, OSError) as exc:
+            raise UserError(f"reading {path} failed: {exc}") from None
+        if not data:
+            continue
+        if capture is not None:
+            capture.write(data)
+        for frame in decoder.feed(data):
+            if isinstance(frame, TextFrame):
+                frame = ack_of_text(frame.text) or frame
+            if ack is None and isinstance(frame, AckFrame) and channel.match(frame) is sent:
+                ack = frame
+                if int(ack.result) != P.ACK_ACCEPTED:  # a refused command: no status frame follows
+                    return Reply(command, ack, None, describe_ack(command, ack))
+            elif ack is not None and isinstance(frame, StatusFrame) and int(frame.flags) & P.FLAG_EVENT:
+                return Reply(command, ack, frame, describe_ack(command, ack))
+    if ack is not None:  # the ack came, the status frame did not (dropped): the ack is the answer
+        return Reply(command, ack, None, describe_ack(command, ack))
+    if not decoder.stats.bytes_total:  # nothing received
+        raise UserError(
+            f"no answer from the drone on {path} within {timeout_s:g} s (nothing received: is it on, and "
+            "is the adapter's RX wired to PA9 and its TX to PA10 on header P7?)"
+        )
+    if not decoder.stats.frames_ok:
+        raise ParamError(
+            f"no answer from the drone on {path} within {timeout_s:g} s (no valid frames either: wrong "
+            "{baud}, or not a STEVAL with the steval-link firmware)",
+            "baud",
+        )
+    raise UserError(
+        f"the drone on {path} did not acknowledge '{command.describe()}' within {timeout_s:g} s (its "
+        "frames arrive: is the adapter's TX wired to PA10 on header P7, and does the firmware have the "
+        "two-way link, protocol v2?)"
+    )

@@ -1,14 +1,16 @@
-"""The live session behind ``steval live``, ``record``, ``emulate`` and ``live --ble``: one source, chosen by URL
-(:func:`source_for`) → capture → decoder → estimators → viewer. Each chunk goes to the capture first, so a slow
-viewer never costs bytes; the session owns the capture, viewer, prompt, stop requests and summary."""
+"""The live session (``steval live``, ``record``, ``emulate``, ``live --ble``): a source by URL (:func:`source_for`)
+→ capture → decoder → estimators → viewer; each chunk to the capture first (a slow viewer costs no byte)."""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
 import functools
+import os
+import queue
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,16 +19,16 @@ from typing import Any, Callable, TextIO
 from steval_link.errors import ParamError, UserError, param_word
 from steval_link.link.autodetect import no_frames_message
 from steval_link.link.capture import CaptureWriter, default_capture_path
+from steval_link.link.commands import CommandChannel, parse_command
 from steval_link.link.transport import HostClock
 from steval_link.live import health
-from steval_link.live.console import CommandConsole
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, record_chunk
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, Source, open_capture, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
-__all__ = ["LiveOptions", "LiveSession", "LiveSummary", "source_for"]
+__all__ = ["CommandConsole", "LiveOptions", "LiveSession", "LiveSummary", "source_for"]
 
 #: A serial link with bytes but no valid frame (wrong baud, not a STEVAL): one sentence after this long, s ...
 NO_FRAMES_TIMEOUT_S = 2.5
@@ -39,8 +41,7 @@ EMULATED_SCHEME = "emulated:"
 
 
 def source_for(url: str, **settings: Any) -> Source:
-    """The source a URL names (table in :mod:`steval_link.live.sources`); the driver parses its own URL and takes
-    ``settings`` (``baud``, ``wait``; ``emulation``, ``realtime``, ``commands``; ``backend``, ``layout``)."""
+    """The source a URL names (table in :mod:`.sources`); its driver parses the URL and takes ``settings``."""
     if url.lower().startswith(BLE_SCHEME):
         from steval_link.live.ble_source import BleSource  # reason: BLE loads only when used
 
@@ -67,11 +68,10 @@ def port_source(port: str, **settings: Any) -> Source:
 
 @dataclass
 class LiveOptions:
-    """What every live session configures (a source's own settings are its driver's). ``sinks``: the Rerun outputs
-    (``steval_viewer.sink_options.SinkOptions``, None: no Rerun)."""
+    """What every live session configures (a source's own settings are its driver's)."""
 
     out: Path | None = None
-    sinks: Any = None
+    sinks: Any = None  # the Rerun outputs (``steval_viewer.sink_options.SinkOptions``); None: no Rerun
     estimators: list[str] = field(default_factory=list)
     duration_s: float | None = None
     prompt: bool | None = None  # lines typed on stdin → commands to the drone; None: when stdin is a terminal
@@ -82,9 +82,8 @@ class LiveOptions:
 
 
 class LiveSession:
-    """One live run over ``source``; :meth:`run` returns the summary or raises :class:`UserError`. ``stream``: where
-    the health line and notes go (stderr); ``viewer_factory(options, recording_name)``: the Rerun side (needed with
-    ``options.sinks``); ``check_outputs``: the CLI's output checks, run once the input is open, before any file."""
+    """One live run over ``source``: :meth:`run` returns the summary or raises UserError. ``stream``: the health line's
+    (stderr); ``viewer_factory(options, name)``: the Rerun side; ``check_outputs()``: run once the input is open."""
 
     def __init__(
         self,
@@ -98,21 +97,15 @@ class LiveSession:
     ) -> None:
         if options.sinks is not None and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
-        self.options = options
-        self.source = source
-        self.check_outputs = check_outputs
+        self.options, self.source = options, source
+        self.viewer_factory, self.check_outputs = viewer_factory, check_outputs
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
-        self.viewer_factory = viewer_factory
         self.clock = HostClock()
-        self.capture: CaptureWriter | None = None
-        self.viewer = None
-        self.console: CommandConsole | None = None
+        self.capture = self.viewer = self.console = self.info = None  # set by run()
         self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
-        self.info: LinkInfo | None = None
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
-        self._connected = True
-        self._warned_no_frames = False
+        self._connected, self._warned_no_frames = True, False
         self.output_failures: list[str] = []  # outputs that failed during the run (the ``.rrd``), one sentence each
 
     def request_stop(self, reason: str = "stopped") -> None:
@@ -147,8 +140,7 @@ class LiveSession:
             raise
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
         t0 = time.monotonic()
-        error: BaseException | None = None
-        started, stream = False, None
+        error, started, stream = None, False, None
         with on_stop_signals(self._on_signal):
             try:
                 if info.note:  # (BLE says when it is connected)
@@ -338,21 +330,110 @@ class LiveSession:
             self.display.note(said)
 
 
-def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
-    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
-    try:
-        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
-    except FileExistsError:
-        raise ParamError(
-            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
-        ) from None
-    except OSError as exc:
-        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
-
-
 def capture_failure_sentence(capture: CaptureWriter, failure: OSError) -> str:
     """The one sentence for a capture that can take no more (disk full, deleted, replaced), naming what it holds."""
     amount = _fmt_bytes(capture.bytes_written)
     if "cannot be written" in str(failure) and capture.path.exists():
         return f"{failure}; stopped: the {amount} received until then are in {capture.path}"
     return f"the capture {failure}; stopped: the {amount} received until then went with it"
+
+
+class CommandConsole:
+    """Typed lines (``set ki 1.0``...) → commands → ``send(frame)``, then ``record(frame)``. A thread reads ``stream``
+    (stdin); a POSIX terminal key by key, the line being typed shown in the health line (a redraw cannot wipe it)."""
+
+    def __init__(
+        self,
+        send: Callable[[bytes], object],
+        note: Callable[[str], None],
+        *,
+        record: Callable[[bytes], object] | None = None,
+        stream: TextIO | None = None,
+        enabled: bool = True,
+    ) -> None:
+        self.channel, self.note = CommandChannel(send, record), note
+        self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.typing, self.typing_changed = "", False  # the line being typed on a terminal (shown in the health line)
+        self._restore = None  # (fd, its old mode) while the terminal is raw
+        if enabled:
+            src = stream if stream is not None else sys.stdin
+            target = self._read_keys if self._raw_terminal(src) else self._read
+            threading.Thread(target=target, args=(src,), name="steval-prompt", daemon=True).start()
+
+    def _raw_terminal(self, stream) -> bool:
+        """Switch a terminal to key-by-key input without echo (Ctrl-C still interrupts); False when not one."""
+        with contextlib.suppress(ImportError, AttributeError, ValueError, OSError):  # not a POSIX terminal
+            import termios  # reason: POSIX only (Windows reads whole lines)
+            import tty
+
+            fd = stream.fileno()
+            if os.isatty(fd):
+                old = termios.tcgetattr(fd)
+                tty.setcbreak(fd, termios.TCSANOW)
+                self._restore = (fd, old)
+        return self._restore is not None
+
+    def close(self) -> None:
+        """Give the terminal its line mode and echo back (idempotent)."""
+        if self._restore is not None:
+            import termios  # reason: only set on POSIX
+
+            (fd, old), self._restore = self._restore, None
+            with contextlib.suppress(OSError, ValueError):
+                termios.tcsetattr(fd, termios.TCSANOW, old)
+
+    def _read(self, stream: TextIO) -> None:
+        with contextlib.suppress(OSError, ValueError):  # stdin closed
+            for line in stream:
+                self._lines.put(line)
+
+    def _read_keys(self, stream) -> None:
+        fd, buf = stream.fileno(), ""
+        with contextlib.suppress(OSError):
+            while b := os.read(fd, 64):
+                for ch in b.decode("utf-8", "replace"):
+                    if ch in "\r\n":
+                        self._lines.put(buf + "\n")
+                        buf = ""
+                    elif ch in "\x7f\b":
+                        buf = buf[:-1]
+                    elif ch == "\x15":  # Ctrl-U: the whole line
+                        buf = ""
+                    elif ch.isprintable():
+                        buf += ch
+                self.typing, self.typing_changed = buf, True
+
+    def type_line(self, line: str) -> None:
+        self._lines.put(line)
+
+    def decorate(self, health_line: str) -> str:
+        """The health line after the command being typed (on a terminal)."""
+        return health_line if self._restore is None else f"> {self.typing}_  | {health_line}"
+
+    def take_typing_change(self) -> bool:
+        """True once after each key typed (the session then redraws at once, so typing shows without delay)."""
+        changed, self.typing_changed = self.typing_changed, False
+        return changed
+
+    def poll(self, notes=()) -> int:
+        """Send what was typed since the last call; print ``notes`` (the pipeline's answers). Returns commands sent."""
+        n = 0
+        while not self._lines.empty():
+            line = self._lines.get_nowait()
+            if not line.strip():
+                continue
+            try:
+                command = parse_command(line)
+            except UserError as exc:
+                self.note(str(exc))
+                continue
+            try:
+                self.channel.send(command)
+            except (OSError, UserError) as exc:
+                self.note(f"{command.describe()}: not sent ({exc})")
+            else:
+                self.note(f"sent: {command.describe()}")
+                n += 1
+        for _ in range(len(notes)):
+            self.note(notes.popleft())
+        return n

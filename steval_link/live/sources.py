@@ -1,6 +1,5 @@
-"""The links a live session reads, behind one narrow interface (as pyserial's ``Protocol`` and cflib's link
-drivers): :class:`Source`. A URL chooses the driver (:func:`steval_link.live.session.source_for`, as pyserial's
-``serial_for_url``); each driver parses its own URL (``from_url``):
+"""The links a live session reads, behind one interface, :class:`Source` (as pyserial's ``Protocol``, cflib's
+drivers); a URL picks the driver (:func:`.session.source_for`, as ``serial_for_url``), which parses it (``from_url``):
 
 ====================================  ======================================================================
 ``/dev/ttyUSB0``, ``COM3``, ``auto``  a serial port, or the one that carries frames (:mod:`.serial_source`)
@@ -18,12 +17,16 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from steval_link.errors import UserError
+from steval_link.errors import ParamError, UserError
 from steval_link.link.ble_payloads import ble_chunk
 from steval_link.link.capture import CHUNK_BLE, CHUNK_SYMBOLS, CaptureWriter
-from steval_link.live.console import PROMPT_HELP
 
-__all__ = ["Chunk", "LinkInfo", "LinkStatus", "Record", "Source", "record_chunk"]
+__all__ = ["Chunk", "LinkInfo", "LinkStatus", "PROMPT_HELP", "Record", "Source", "open_capture", "record_chunk"]
+
+PROMPT_HELP = (
+    "type a command and Enter: set ki 1.0 | correction off | correction on | reset | status | "
+    "set min_thr 300 | mode text"
+)
 
 #: Chunk kinds besides the capture's own
 NOTE, BREAK, END = "note", "break", "end"
@@ -33,9 +36,8 @@ NOTE, BREAK, END = "note", "break", "end"
 class Chunk:
     """One timestamped piece of a link; ``t_s`` on the capture's clock (s since it started; None: now)."""
 
-    #: D (drone bytes), B ((char id, payload): a BLE notification), H (host bytes), T (a trial's truth rows),
-    #: E ((kind, text): a link event), S (symbol rows), ``note`` (for the terminal), ``break`` (a BLE link lost
-    #: and found again) or ``end`` (the link ended: the stop reason)
+    #: D drone bytes, B (char id, payload) a BLE notification, H host bytes, T truth rows, E (kind, text) a link
+    #: event, S symbol rows; ``note`` for the terminal, ``break`` a BLE reconnection, ``end`` the stop reason
     kind: str
     data: Any
     t_s: float | None
@@ -60,6 +62,18 @@ def record_chunk(capture: CaptureWriter, chunk: Chunk) -> None:
     """A chunk into ``capture`` as its kind is written (notes, breaks and ends are not recorded)."""
     if (write := _WRITE.get(chunk.kind)) is not None:
         write(capture, chunk.data, chunk.t_s)
+
+
+def open_capture(path, *, port: str, baud: int, extra: dict, discard_empty: bool = False) -> CaptureWriter:
+    """A new capture at ``path`` (never overwritten): one UserError sentence when it exists or cannot be written."""
+    try:
+        return CaptureWriter(path, discard_empty=discard_empty, port=port, baud=baud, extra=extra)
+    except FileExistsError:
+        raise ParamError(
+            f"{path} already exists; choose another {{out}} (captures are never overwritten)", "out"
+        ) from None
+    except OSError as exc:
+        raise UserError(f"cannot write the capture {path}: {exc.strerror or exc}") from None
 
 
 @dataclass
