@@ -17,6 +17,7 @@ from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.ble_telemetry import ble_telemetry
 from steval_link.link.capture import (
     MAGIC,
+    SYMBOL_DTYPE,
     Capture,
     CaptureTruncatedWarning,
     HostChunk,
@@ -26,8 +27,7 @@ from steval_link.link.capture import (
 )
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import CommandFrame
-from steval_link.link.symbol_rows import merge_symbol_attitude
-from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
+from steval_link.link.telemetry import COMMAND_ROW_DTYPE, AttitudeArrays, Telemetry
 from steval_link.link.text_series import FLOATLESS_NOTE
 
 
@@ -145,3 +145,57 @@ def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
             if isinstance(f, CommandFrame):
                 rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
     return np.array(rows, dtype=COMMAND_ROW_DTYPE) if rows else np.zeros(0, COMMAND_ROW_DTYPE)
+
+
+def _f32_bits(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float32)
+    return np.where(np.isnan(a), np.uint32(0x7FC00000), a.view(np.uint32))
+
+
+def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
+    """A capture's symbol rows S (the attitude the emulator read by symbol) in ``tel``: without attitude frames they
+    become ``tel.attitude`` (``source["attitude_from"]`` "symbols"); else ``source["symbols"]`` says whether the
+    frames agree with them bit for bit. ``rows`` None or empty: ``tel`` unchanged."""
+    if rows is None or len(rows) == 0:
+        return tel
+    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
+    t_s = rows["t_s"].astype(np.float64)  # emulated s since power-up, as firmware and host time
+    args = (rows["step"], t_s, t_s.copy(), rows["acc_mg"], rows["gyro_mdps"], rows["euler_rad"])
+    read = AttitudeArrays.of(*args, thr=rows["thr"], q_wxyz=rows["q_wxyz"], exact=True)
+    if len(tel.attitude) == 0:
+        tel.attitude = read
+        tel.source["attitude_from"] = "symbols"
+        tel.source["symbols"] = (
+            f"no attitude frames: the attitude of {len(read)} AHRS steps as the emulator read it from the "
+            "firmware's globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames it sent"
+        )
+        return tel
+    a = tel.attitude
+    frames = np.flatnonzero(np.asarray(a.exact, bool))
+    common, fi, ri = np.intersect1d(np.asarray(a.step)[frames], read.step, return_indices=True)
+    fi = frames[fi]
+    tel.source["attitude_from"] = "frames"
+    if common.size == 0:  # text-mode frames (rounded) or no step in common: nothing to compare bit for bit
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude of {len(read)} AHRS steps by symbol (chunks S); no binary frame "
+            "shares a step with them, so they are not compared bit for bit"
+        )
+        return tel
+    fields = ("acc_mg", "gyro_mdps", "q_wxyz", "thx_rad", "thy_rad")
+    same = np.ones(common.size, dtype=bool)
+    for name in fields:
+        x, y = _f32_bits(getattr(a, name)[fi]), _f32_bits(getattr(read, name)[ri])
+        same &= (x == y).reshape(common.size, -1).all(axis=1)
+    same &= np.asarray(a.thr)[fi] == read.thr[ri]
+    if same.all():
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames agree with it bit for bit on all "
+            f"{common.size} steps both have"
+        )
+    else:
+        first = int(common[np.argmax(~same)])
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames differ from it on {int((~same).sum())} of "
+            f"{common.size} steps (first at step {first}): the frames do not carry the filter's globals"
+        )
+    return tel

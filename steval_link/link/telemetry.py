@@ -53,19 +53,7 @@ COMMAND_ROW_DTYPE = np.dtype(P.COMMAND_DTYPE.descr + _ROW_EXTRA)
 
 
 #: the attitude columns taken as they are from the records (ATT_RECORD_DTYPE has each one's type)
-_RECORD_COLUMNS = (
-    "seq",
-    "t_us",
-    "acc_mg",
-    "gyro_mdps",
-    "thr",
-    "q_wxyz",
-    "thz_rad",
-    "thx_rad",
-    "thy_rad",
-    "exact",
-    "offset",
-)
+_RECORD_COLUMNS = tuple(name for name in ATT_RECORD_DTYPE.names if name not in ("nbytes", "step"))
 
 
 @dataclass

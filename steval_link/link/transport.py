@@ -126,8 +126,6 @@ class SerialReader(threading.Thread):
         clock: HostClock | None = None,
         find_port: Callable[[], str | None] | None = None,
         opener: Callable[[str], serial.Serial] | None = None,
-        read_size: int = READ_SIZE,
-        reconnect_poll_s: float = RECONNECT_POLL_S,
     ) -> None:
         super().__init__(name="steval-serial-reader", daemon=True)
         self.serial: serial.Serial | None = ser
@@ -136,8 +134,6 @@ class SerialReader(threading.Thread):
         self.clock = clock or HostClock()
         self.find_port = find_port
         self.opener = opener or (lambda path: open_serial(path, baud))
-        self.read_size = read_size
-        self.reconnect_poll_s = reconnect_poll_s
         self.port: str = ser.port
         #: The exception that ended the thread (raised by the protocol), or ``None``.
         self.error: BaseException | None = None
@@ -211,7 +207,7 @@ class SerialReader(threading.Thread):
         buf = bytearray(data)
         t_end = time.monotonic() + CHUNK_MAX_S
         fd = _fileno(ser)
-        while len(buf) < self.read_size and not self._stop_event.is_set():
+        while len(buf) < READ_SIZE and not self._stop_event.is_set():
             if fd is None:
                 time.sleep(CHUNK_GAP_S)
             else:
@@ -222,7 +218,7 @@ class SerialReader(threading.Thread):
             try:
                 n = ser.in_waiting
                 if n:
-                    buf += ser.read(min(n, self.read_size - len(buf)))
+                    buf += ser.read(min(n, READ_SIZE - len(buf)))
             except (serial.SerialException, OSError):  # the bytes so far are handed on; the next read fails again
                 break
             if n == 0 or time.monotonic() >= t_end:
@@ -263,7 +259,7 @@ class SerialReader(threading.Thread):
                     self.protocol.connection_made(path)
                     return True
             self.protocol.idle(self.clock.now_s())
-            self._stop_event.wait(self.reconnect_poll_s)
+            self._stop_event.wait(RECONNECT_POLL_S)
         return False
 
 
