@@ -252,7 +252,7 @@ class StreamDecoder:
             # a blank line keeps the boundary state: text at a line start, maybe a damaged line's end after damage
             if self._boundary:
                 self.stats.blank_bytes += nbytes
-                self._read_text(out, "blank")
+                self._read_text(out, "end_block", "blank")
             else:
                 self.stats.bytes_skipped += nbytes
             return nl + 1
@@ -283,7 +283,7 @@ class StreamDecoder:
         reader = self.text_reader
         if self._damaged:
             self._damaged = False
-            self._text(out, reader.damage())
+            self._text(out, reader.end_block("break"))
         self._text(out, getattr(reader, method)(*args))
 
     def _text(self, out: list[Frame], frames: list) -> None:

@@ -1,8 +1,7 @@
-"""Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
+"""Text telemetry: numeric records in any serial text (a student's ``PRINTF``, ST's output, plotter formats).
 
-:class:`TextTelemetryReader` hands each plain line back as a record (``TextRecordFrame``) or a ``TextFrame``.
-
-Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
+:class:`TextTelemetryReader` hands each plain line back as a ``TextRecordFrame`` or a ``TextFrame``. Lines it reads
+(each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
 * bare values split by tab, comma, semicolon or spaces, named by a header line of labels before them
   (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
@@ -11,12 +10,11 @@ Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``
 * Teleplot lines ``>name:value`` (``>name:t_ms:value``, ``§unit`` and ``|flags`` allowed);
 * ST's release 221117 line, named from ST's source, and its ``%f``-less form (the float fields empty: NaN).
 
-A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
-stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
-between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
-lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines. For the bulk
-decoder a learned one-line shape has a :class:`LineTemplate`: a regex matching exactly the lines that would be
-records.
+A record's shape (names or count, and the int/float/empty kind of each value, per line) is learned: lines become
+records once it repeated :data:`CONFIRM` times in a row. A record is one line, a block between blank lines, a cycle
+of lines of different shapes, or the rows of a matrix (values coming back every 2..4 lines). Lines wait meanwhile (at
+most :data:`MAX_PENDING`); lines that never fit go out as text. A learned one-line shape has a :class:`LineTemplate`
+for the bulk decoder.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
@@ -92,10 +90,15 @@ class ParsedLine:
     kind: str
 
 
+def _split(text: str) -> tuple[str | None, list[str]]:
+    """A line's separator (tab, comma, semicolon; None: spaces) and its fields."""
+    sep = next((c for c in "\t,;" if c in text), None)
+    return sep, [f.strip() for f in (text.split(sep) if sep else text.split())]
+
+
 def _split_bare(text: str) -> list[str] | None:
     """The fields of a line of bare values (None when a field is not a number)."""
-    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
-    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    sep, fields = _split(text)
     if sep and len(fields) > 1 and fields[-1] == "" and not _st_fields(fields):
         fields.pop()  # one separator after the last value (``%f\t\n``)
     if not fields or not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields):
@@ -213,11 +216,9 @@ def _teleplot_line(text: str) -> ParsedLine | None:
     if m is None:
         return None
     name, t_ms, value, unit = m.group(1).strip(), m.group(2), m.group(3), (m.group(4) or "").strip()
+    names, values, units = (name,), (float(value),), (unit,)
     if t_ms is not None:
-        names, values = (f"{name}_t_ms", name), (float(t_ms), float(value))
-        units = ("ms", unit)
-    else:
-        names, values, units = (name,), (float(value),), (unit,)
+        names, values, units = (f"{name}_t_ms", name), (float(t_ms), float(value)), ("ms", unit)
     return ParsedLine(("teleplot", names), names, units, values, "teleplot")
 
 
@@ -314,7 +315,7 @@ def line_template(shape: _Shape) -> LineTemplate | None:
     if line[0] == "labelled":
         body, words = _labelled_template(example, kinds)
     else:
-        sep_text = "\t" if "\t" in example else "," if "," in example else ";" if ";" in example else None
+        sep_text = _split(example)[0]
         if line[0] == "table" and sep_text == "\t" and len(kinds) == 9:
             return None  # ST's count of fields: the line might read as ST's (another shape)
         number = {"i": _INT_PAT, "f": _ST_FLOAT_PAT if line[0] == ST_221117 else _FLOAT_PAT}
@@ -374,8 +375,7 @@ _NUMBER_PIECES = {b"n", b"a", b"i", b"f", b"na", b"an", b"in", b"nf", b"e"}
 def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
     """A header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, Arduino's ``a b c``): (names,
     units), or None when the line is not one."""
-    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
-    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    fields = _split(text)[1]
     if len(fields) < 2 or not all(_HEADER_WORD.fullmatch(f) for f in fields):
         return None
     pairs = [_label_and_unit(f) for f in fields]
@@ -449,15 +449,8 @@ class TextTelemetryReader:
             return []
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
-    def damage(self) -> list:
-        """Bytes were lost here: the lines before and after are not consecutive."""
-        return self._end_block("break")
-
-    def blank(self) -> list:
-        """A blank line: it ends a block of lines."""
-        return self._end_block("blank")
-
-    def _end_block(self, kind: str) -> list:
+    def end_block(self, kind: str) -> list:
+        """A "blank" line ends a block of lines; a "break": bytes were lost (the lines around are not consecutive)."""
         out = self._cut_current()
         self._block_start = kind == "blank"
         return out + (self._learn(_Line(None, "", -1, 0, kind)) if self._pending else [])
@@ -524,21 +517,17 @@ class TextTelemetryReader:
     def _learn(self, item: _Line) -> list:
         pending = self._pending
         pending.append(item)
-        out: list = []
         shape, start = _find_shape(pending, self._header)
         if shape is not None:
             self._shapes = [s for s in self._shapes if s.lines[0] not in shape.lines] + [shape]
             self._pending = []
-            out += self._flush(pending[:start])
-            out += self._replay(shape, pending[start:])
-            return out
+            return self._flush(pending[:start]) + self._replay(shape, pending[start:])
         if item.kind in ("text", "break") and not any(x.kind in ("rec", "cut") for x in pending[:-1]):
             self._pending = []
             return self._flush(pending)
         if len(pending) > MAX_PENDING:
-            out += self._flush(pending[:1])
-            del pending[:1]
-        return out
+            return self._flush([pending.pop(0)])
+        return []
 
     def _replay(self, shape: _Shape, items: list[_Line]) -> list:
         """The waiting lines from the start of the first record of a newly learned shape, through the shape."""
@@ -618,10 +607,7 @@ def _value_period(rows: list[tuple[float, ...]]) -> int:
     step1 = float(np.abs(np.diff(v, axis=0)).mean())
     if step1 <= 0:
         return 1
-    for p in range(2, 5):
-        if float(np.abs(v[p:] - v[:-p]).mean()) < 0.25 * step1:
-            return p
-    return 1
+    return next((p for p in range(2, 5) if float(np.abs(v[p:] - v[:-p]).mean()) < 0.25 * step1), 1)
 
 
 def _blocks(pending: list[_Line], tail: list[int]) -> list[list[int]]:
@@ -644,15 +630,11 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
     if len(blocks) < CONFIRM:
         return None
     last = [pending[k].parsed.shape for k in blocks[-1]]
-    if len(last) > MAX_RECORD_LINES or any(pending[k].kind == "cut" for k in blocks[-1]):
+    # one line per block: the lines' own repetition is the shape
+    if len(last) == 1 or len(last) > MAX_RECORD_LINES or any(pending[k].kind == "cut" for k in blocks[-1]):
         return None
-    if len(last) == 1:
-        return None  # one line per block: the lines' own repetition is the shape
-    same = 0
-    for b in reversed(blocks):
-        if [pending[k].parsed.shape for k in b] != last:
-            break
-        same += 1
+    shapes = [[pending[k].parsed.shape for k in b] for b in reversed(blocks)]
+    same = next((i for i, b in enumerate(shapes) if b != last), len(shapes))  # blocks of that shape at the end
     if same < CONFIRM:
         return None
     first = blocks[len(blocks) - same][0]
@@ -665,14 +647,9 @@ def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, 
     of the header's count), else ``col1..N`` over the whole record."""
     names: list[str] = []
     units: list[str] = []
-    bare = all(p.names is None for p in items)
     total = sum(len(p.values) for p in items)
-    if (
-        bare
-        and header is not None
-        and total <= len(header[0]) <= total + 1
-        and (len(header[0]) == total or len(items) == 1)
-    ):
+    fits = header is not None and (len(header[0]) == total or (len(items) == 1 and len(header[0]) == total + 1))
+    if fits and all(p.names is None for p in items):
         names, units = list(header[0])[:total], list(header[1])[:total]  # one more label: its field left empty last
     else:
         for p in items:
