@@ -57,11 +57,8 @@ from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
-#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``)
-_UNPACK = {}
-for _t, _dtype in P.PAYLOAD_DTYPE.items():
-    _layout, _pick = P.payload_layout(_dtype)
-    _UNPACK[_t] = (FRAME_OF_TYPE[_t], _layout.unpack_from, _pick)
+#: frame type -> (frame class, its payload's struct layout and field picker, made from ``protocol.PAYLOAD_DTYPE``)
+_UNPACK = {t: (FRAME_OF_TYPE[t], *P.payload_layout(d)) for t, d in P.PAYLOAD_DTYPE.items()}
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
@@ -139,9 +136,11 @@ class StreamDecoder:
         self._read_text(out, "finish")
         if self.gate is not None:
             self.gate.finish()
-            self.stats.implausible = self.gate.held_back
-            self.stats.held_values = self.gate.held_values
+            self._gate_stats()
         return out
+
+    def _gate_stats(self) -> None:
+        self.stats.implausible, self.stats.held_values = self.gate.held_back, self.gate.held_values
 
     def resume_at(self, offset: int, *, line_start: bool) -> None:
         """Continue at stream byte ``offset``, the bytes before it decoded elsewhere (the bulk decoder's runs);
@@ -153,8 +152,7 @@ class StreamDecoder:
         self._skipping = self._skipping and not line_start
 
     def text_template(self):
-        """The text reader's :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template` when the
-        decoder is at a clean line start with nothing pending; else None."""
+        """The text reader's ``bulk_template`` at a clean line start with nothing pending; else None."""
         if self._buf or not self._boundary or self._damaged:
             return None
         return self.text_reader.bulk_template()
@@ -301,25 +299,21 @@ class StreamDecoder:
         if version == _V1:
             self.stats.v1_frames += 1
         gate = self.gate
-        if gate is None:
-            released = [frame]
-        elif isinstance(frame, AttitudeFrame):
+        released = [frame]
+        if gate is not None and isinstance(frame, AttitudeFrame):
             # values gate v1 only: a v2 frame with NaN is what the firmware sent (kept, counted in values_bad)
             ok = version == _V2 or attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
             released = gate.offer(P.TYPE_ATTITUDE, frame.seq, frame.t_us, ok, frame)
-        elif isinstance(frame, StatusFrame):
+        elif gate is not None and isinstance(frame, StatusFrame):
             ok = version == _V2 or status_values_ok(
                 frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s
             )
             released = gate.offer(P.TYPE_STATUS, frame.step, frame.t_us, ok, frame)
-        else:
-            released = [frame]
         for f in released:
             self._count(f)
             out.append(f)
         if gate is not None:
-            self.stats.implausible = gate.held_back
-            self.stats.held_values = gate.held_values
+            self._gate_stats()
 
     def _count(self, frame: Frame) -> None:
         stats = self.stats
@@ -328,17 +322,15 @@ class StreamDecoder:
             stats.attitude += 1
             if attitude_frame_bad(frame):
                 stats.values_bad += 1
+            if frame.exact and self._last_seq is not None:
+                d = (frame.seq - self._last_seq) % P.SEQ_MODULUS
+                if 2 <= d < P.SEQ_MODULUS // 2:
+                    stats.seq_gaps += 1
+                    stats.frames_missing += d - 1
+                elif d != 1:
+                    stats.seq_resets += 1
             if frame.exact:
-                seq = frame.seq
-                last = self._last_seq
-                if last is not None:
-                    d = (seq - last) % P.SEQ_MODULUS
-                    if 2 <= d < P.SEQ_MODULUS // 2:
-                        stats.seq_gaps += 1
-                        stats.frames_missing += d - 1
-                    elif d != 1:
-                        stats.seq_resets += 1
-                self._last_seq = seq
+                self._last_seq = frame.seq
         else:
             name = _COUNTER[type(frame)]
             setattr(stats, name, getattr(stats, name) + 1)
@@ -349,8 +341,8 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     size = _HEAD + ln + crc_size
     fixed = _UNPACK.get(vt & 0x0F)
     if fixed is not None:
-        cls, unpack_from, pick = fixed
-        return cls(*pick(unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
+        cls, layout, pick = fixed
+        return cls(*pick(layout.unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
@@ -542,8 +534,6 @@ def _bulk_stats(parts: TelemetryParts, st: DecoderStats, gate: PlausibilityGate,
         exact, *(att[k] for k in ("acc_mg", "gyro_mdps", "q_wxyz", "thz_rad", "thx_rad", "thy_rad"))
     )
     stats.values_bad = int(np.count_nonzero(bad))
-    stats.frames_ok = (
-        stats.attitude + stats.status + stats.text + stats.text_records + stats.flight + stats.ack + stats.command
-    )
+    stats.frames_ok = stats.attitude + sum(getattr(stats, name) for name in _COUNTER.values())
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
     return stats
