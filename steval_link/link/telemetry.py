@@ -8,9 +8,8 @@ Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetr
 * ``t_fw_s`` (float64): ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
 * ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
 * ``thx_rad``/``thy_rad``: of binary rows ``QuaternionToEuler`` of ``q_wxyz``, bit-exact; of text rows the line's.
-* ``values_bad`` (bool): the row carries NaN/inf or values out of range (:mod:`steval_link.link.plausibility`).
-  Protocol v2 keeps such frames when CRC, sequence and time are right: the firmware sent them (its filter
-  diverged). It is a column of :meth:`Telemetry.attitude_table` (CSV, Parquet).
+* ``values_bad`` (bool): NaN/inf or out-of-range values (:mod:`steval_link.link.plausibility`). Protocol v2 keeps
+  such frames when CRC, sequence and time are right: the firmware sent them (its filter diverged).
 """
 
 from __future__ import annotations
@@ -114,18 +113,16 @@ class AttitudeArrays:
 
     @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
-        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order, each field already of its column's type) with
-        their step and times; ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        """Rows of ATT_RECORD_DTYPE records (stream order) with their step and times; binary rows' angles from q."""
         cols = {name: np.array(att[name]) for name in _RECORD_COLUMNS}  # copies
         ex = cols["exact"]
         if ex.any():
             cols["thx_rad"][ex], cols["thy_rad"][ex] = quaternion_to_euler(att["q_wxyz"][ex])
-        times = dict(t_fw_s=np.asarray(t_fw_s, dtype=np.float64), t_host_s=np.asarray(t_host_s, dtype=np.float64))
-        return cls(step=np.asarray(step, dtype=np.int64), **times, **cols)
+        t_fw_s, t_host_s = np.asarray(t_fw_s, np.float64), np.asarray(t_host_s, np.float64)
+        return cls(step=np.asarray(step, dtype=np.int64), t_fw_s=t_fw_s, t_host_s=t_host_s, **cols)
 
     @classmethod
     def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
-        """The rows of ``parts``, in order."""
         if len(parts) == 1:
             return parts[0]
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
@@ -136,9 +133,8 @@ _STATUS_COLUMNS = (*P.STATUS_DTYPE.names, "t_fw_s", "t_host_s", "exact", "offset
 
 @dataclass
 class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name in _STATUS_COLUMNS])):
-    """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
-    (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact``, ``offset`` and ``values_bad`` (a snapshot holding NaN or
-    ``|q|`` > 2: its settings are still the firmware's) as in :class:`AttitudeArrays`."""
+    """One row per status frame: every STATUS_DTYPE field, and ``t_fw_s``, ``t_host_s``, ``exact``, ``offset``,
+    ``values_bad`` (a snapshot holding NaN or ``|q|`` > 2: its settings are still the firmware's)."""
 
     values_bad: np.ndarray | None = None
 
@@ -192,8 +188,7 @@ class FlightControlArrays:
         return cls(t_fw_s=np.asarray(t, np.float64), **cols)
 
 
-#: the columns of ``steval export --csv`` that make its rows the frames' own (each float32 written so that it reads
-#: back as the same float32): the replica runs on them bit-exact
+#: the columns of ``steval export --csv`` that make its rows the frames' own float32 values (the replica runs bit-exact)
 EXPORT_EXACT_COLUMNS = ("step", "exact", "q_w", "q_x", "q_y", "q_z")
 
 
@@ -238,21 +233,20 @@ class TelemetryParts:
 
     def attitude_records(self) -> np.ndarray:
         """Every attitude row so far, in stream order."""
-        self._settle()
-        return self.att_blocks[0]
+        return self._settle()[0]
 
     def status_records(self) -> np.ndarray:
         """Every status row so far, in stream order."""
-        self._settle()
-        return self.sta_blocks[0]
+        return self._settle()[1]
 
-    def _settle(self) -> None:
+    def _settle(self) -> tuple[np.ndarray, np.ndarray]:
         """Blocks and single frames into one block each, in stream order (once until more rows come)."""
         if not self._settled:
             self.att_blocks = [_sorted_records(self.att_blocks, self.att_frames, ATT_RECORD_DTYPE)]
             self.sta_blocks = [_sorted_records(self.sta_blocks, self.sta_frames, STA_RECORD_DTYPE)]
             self.att_frames, self.sta_frames = [], []
             self._settled = True
+        return self.att_blocks[0], self.sta_blocks[0]
 
 
 def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
@@ -333,8 +327,7 @@ class Telemetry:
         source: dict | None = None,
         events: list | None = None,
     ) -> Telemetry:
-        att = parts.attitude_records()
-        sta = parts.status_records()
+        att, sta = parts._settle()
         texts = sorted(parts.texts, key=lambda f: f.offset)
         total = int(stats.bytes_total)
 
@@ -381,12 +374,12 @@ class Telemetry:
 
     @property
     def has_own_attitude(self) -> bool:
-        """True when the attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
+        """The attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
         return len(self.attitude) > 0 and not self.text_attitude_notes
 
     @property
     def printed_only(self) -> bool:
-        """True when the stream is text telemetry alone: records, and no attitude frames of its own."""
+        """The stream is text telemetry alone: records, and no attitude frames of its own."""
         return len(self.text_series) > 0 and not self.has_own_attitude
 
     @property
@@ -419,19 +412,8 @@ class Telemetry:
             step = s.column("step").astype(np.int64)
             q = np.stack([s.column(f"q_{c}") for c in "wxyz"], axis=1).astype(np.float32)
             exact = (s.column("exact") == 1) & np.isfinite(q).all(axis=1) & np.isfinite(acc).all(axis=1)
-        self.attitude = AttitudeArrays.of(
-            step,
-            t_fw,
-            s.t_host_s,
-            acc,
-            gyro,
-            euler,
-            thr=cols["thr"],
-            q_wxyz=q,
-            offset=s.offset,
-            values_bad=bad,
-            exact=exact,
-        )
+        kw = dict(thr=cols["thr"], q_wxyz=q, offset=s.offset, values_bad=bad, exact=exact)
+        self.attitude = AttitudeArrays.of(step, t_fw, s.t_host_s, acc, gyro, euler, **kw)
 
     @cached_property
     def fc(self) -> FlightControlArrays:
@@ -503,8 +485,7 @@ def telemetry_from_frames(
     for f in frames:
         parts.add_frame(f)
     chunk_times = None
-    if frame_times is not None and len(frames):
-        # one pseudo-chunk per frame, ending at the frame's last byte
+    if frame_times is not None and len(frames):  # one pseudo-chunk per frame, ending at the frame's last byte
         offs = np.array([f.offset + f.nbytes - 1 for f in frames], dtype=np.int64)
         order = np.argsort(offs, kind="stable")
         chunk_times = (offs[order], np.asarray(frame_times, dtype=np.float64)[order])
