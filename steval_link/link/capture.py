@@ -379,7 +379,7 @@ def _failed(path: Path, exc: OSError) -> OSError:
     """``exc`` as an :class:`OutputLostError` naming ``path`` (disk full, I/O error)."""
     if isinstance(exc, OutputLostError):
         return exc
-    why = (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
+    why = exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
     return OutputLostError(f"{path} cannot be written ({why})", exc.errno or 0)
 
 
@@ -456,18 +456,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     warning = f"{path}: " + "; ".join(problems) + "." if problems else None
     if warning is not None:
         warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
-    return Capture(
-        path=path,
-        header=header,
-        data=b"".join(body.pieces),
-        chunk_offsets=np.asarray(body.offsets, dtype=np.int64),
-        chunk_times_s=np.asarray(body.times, dtype=np.float64),
-        events=body.events,
-        truncated=warning is not None,
-        warning=warning,
-        chunks=body.typed,
-        host=body.host,
-    )
+    data, offsets, times = b"".join(body.pieces), np.asarray(body.offsets, np.int64), np.asarray(body.times, np.float64)
+    return Capture(path, header, data, offsets, times, body.events, warning is not None, warning, body.typed, body.host)
 
 
 def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
@@ -601,15 +591,8 @@ def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
 
 def demo_capture_path() -> Path:
     """The bundled demo recording (``recordings/demo.stv``) of a source tree or installed package; else UserError."""
-    package = Path(__file__).resolve().parents[1]  # steval_link/
-    candidates = [package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"]
-    try:
-        from importlib.resources import files
-
-        candidates.append(Path(str(files("steval_link.recordings") / "demo.stv")))
-    except (ImportError, ModuleNotFoundError, TypeError, ValueError):
-        pass
-    for c in candidates:
+    package = Path(__file__).resolve().parents[1]  # steval_link/ (steval_link/recordings/ once installed)
+    for c in (package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"):
         if c.is_file():
             return c
     raise UserError("the demo recording (recordings/demo.stv) is not installed; pass a capture file.")
