@@ -118,7 +118,7 @@ def period_ticks(d_ticks) -> float | None:
     return p
 
 
-def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
+def repeats_are_reads(ticks, repeat, t_host_s) -> bool:
     """Whether repeated motion notifications are a poller's reads rather than samples: true when, counted as
     samples, the stream is not faster than one 8 ms tick on both the drone's ticks and the arrival times."""
     t = np.asarray(ticks, dtype=np.int64)
@@ -129,8 +129,6 @@ def repeats_are_reads(ticks, repeat, t_host_s=None) -> bool:
     step_ticks = float(t[-1] - t[0]) / (n - 1)
     if step_ticks >= 1.0:
         return True
-    if t_host_s is None:
-        return False
     h = np.asarray(t_host_s, dtype=np.float64)
     host_span = float(h[-1] - h[0])
     return not (host_span > 0 and host_span / (n - 1) < 1.5 * TICK_S)
@@ -355,10 +353,8 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
     samples = np.array([(0, f.tick, f.t_host_s, f.acc_mg, f.gyro_mdps, f.mag_mgauss) for f in kept], dtype=SAMPLE_DTYPE)
     samples["row"] = np.searchsorted(a.step, grid.numbers)
     env, arm = np.array(env, dtype=ENV_DTYPE), np.array(arm, dtype=ARMING_DTYPE)
-    counts = dict(
-        counts=dict(dec.counts), bad_payloads=dec.bad_payloads, unknown=dec.unknown, repeated_reads=grid.repeats
-    )
-    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, samples, env, arm, **counts)
+    facts = (samples, env, arm, dict(dec.counts), dec.bad_payloads, dec.unknown, grid.repeats)
+    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, *facts)
     source = dict(path=str(src.path), kind="stv", link="ble", header=src.header, warnings=list(src.warnings))
     tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
     tel.attitude, tel.text, tel.link = a, text, stream
@@ -528,9 +524,7 @@ class LiveGrid:
         self.mag_mgauss = rows[:, 6:]
         acc, gyro, ang = rows[:, :3], rows[:, 3:6], np.full((len(rows), 3), np.nan, np.float32)
         if self.layout.sends_attitude:  # angles in the acc fields; no sensor values: the estimators skip the rows
-            angles = acc / np.float32(self.layout.angle_scale)
-            acc, gyro = ang.copy(), ang.copy()  # (NaN)
-            ang = angles
+            acc, gyro, ang = ang, ang.copy(), acc / np.float32(self.layout.angle_scale)
         k_rows = grid if c.kind != POLLED else k
         return AttitudeArrays.of(k_rows, t_rows, t_host, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 

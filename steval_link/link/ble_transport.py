@@ -97,9 +97,7 @@ def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | Non
 
 
 def _strongest(devices: list[BleDevice]) -> BleDevice | None:
-    if not devices:
-        return None
-    return max(devices, key=lambda d: -1e9 if d.rssi_dbm is None else d.rssi_dbm)
+    return max(devices, key=lambda d: -1e9 if d.rssi_dbm is None else d.rssi_dbm, default=None)
 
 
 def bleak_backend() -> BleakBackend:
@@ -121,11 +119,10 @@ class BleakBackend:
         from bleak import BleakScanner  # reason: optional extra
 
         found = await BleakScanner.discover(timeout=timeout_s, return_adv=True)
-        out = []
-        for dev, adv in found.values():
-            name = adv.local_name or dev.name
-            out.append(BleDevice(name, dev.address, float(adv.rssi) if adv.rssi is not None else None))
-        return out
+        return [
+            BleDevice(adv.local_name or dev.name, dev.address, None if adv.rssi is None else float(adv.rssi))
+            for dev, adv in found.values()
+        ]
 
     async def connect(self, address: str, on_disconnect: Callable[[], None]) -> None:
         from bleak import BleakClient  # reason: optional extra

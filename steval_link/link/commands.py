@@ -91,11 +91,9 @@ def set_param(name: str, value: str | float) -> Command:
         raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
     if key == "correction":
         text = str(value).strip().lower()
-        if text in _ON:
-            return Command(P.CMD_SET_PARAM, PARAMS[key], 1.0)
-        if text in _OFF:
-            return Command(P.CMD_SET_PARAM, PARAMS[key], 0.0)
-        raise UserError(f"correction takes on or off, got {value!r}")
+        if text not in _ON | _OFF:
+            raise UserError(f"correction takes on or off, got {value!r}")
+        return Command(P.CMD_SET_PARAM, PARAMS[key], 1.0 if text in _ON else 0.0)
     try:
         v = float(value)
     except ValueError:

@@ -35,14 +35,8 @@ FLOATLESS_NOTE = (
 MAP_TARGETS = ("pitch", "roll", "yaw", "acc_x", "acc_y", "acc_z", "gyro_x", "gyro_y", "gyro_z", "thr")
 _ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0, "mdeg": math.pi / 180_000.0, "cdeg": math.pi / 18_000.0}
 _ACC_UNITS = {"mg": 1.0, "g": 1000.0, "m/s2": 1000.0 / 9.80665, "m/s^2": 1000.0 / 9.80665, "ms2": 1000.0 / 9.80665}
-_GYRO_UNITS = {
-    "mdps": 1.0,
-    "dps": 1000.0,
-    "deg/s": 1000.0,
-    "°/s": 1000.0,
-    "rad/s": 180_000.0 / math.pi,
-    "mrad/s": 180.0 / math.pi,
-}
+_GYRO_UNITS = {"mdps": 1.0, "dps": 1000.0, "deg/s": 1000.0, "°/s": 1000.0, "rad/s": 180_000 / math.pi}
+_GYRO_UNITS["mrad/s"] = 180.0 / math.pi
 _TARGET_UNITS = {
     **dict.fromkeys(("pitch", "roll", "yaw"), (_ANGLE_UNITS, "deg, rad, mdeg")),
     "acc": (_ACC_UNITS, "mg, g, m/s2"),
