@@ -416,8 +416,6 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     good = np.zeros(len(idx), bool)
     for v, (csz, check) in _CHECK.items():
         sel = np.flatnonzero(ver == v)
-        if not len(sel):
-            continue
         e = end[sel]
         stored = np.zeros(len(sel), np.int64)
         for k in range(csz):
@@ -427,9 +425,8 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     idx, size, vt, ver = idx[good], size[good], vt[good], ver[good]
     v2 = np.flatnonzero(ver == _V2)
     first_v2 = float(idx[v2[0]]) if len(v2) else float("inf")
-    if len(v2):
-        keep = (ver == _V2) | (idx < first_v2)
-        idx, size, vt = idx[keep], size[keep], vt[keep]
+    keep = (ver == _V2) | (idx < first_v2)
+    idx, size, vt = idx[keep], size[keep], vt[keep]
     return idx.astype(np.int64), size, vt, first_v2
 
 

@@ -213,14 +213,11 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
     """Keep masks for attitude and status records (stream order; ``nbytes`` tells the version) as ``gate`` fed row
     by row would decide (its counters updated). Text-mode rows are always kept."""
     gate = gate or PlausibilityGate()
-    keep_a = np.ones(len(att), bool)
-    keep_s = np.ones(len(sta), bool)
-    ea = np.flatnonzero(att["exact"]) if len(att) else np.zeros(0, np.int64)
-    es = np.flatnonzero(sta["exact"]) if len(sta) else np.zeros(0, np.int64)
+    keep_a, keep_s = np.ones(len(att), bool), np.ones(len(sta), bool)
+    ea, es = np.flatnonzero(att["exact"]), np.flatnonzero(sta["exact"])
     if len(ea) == 0 and len(es) == 0:
         return keep_a, keep_s
-    a = att[ea]
-    s = sta[es]
+    a, s = att[ea], sta[es]
     # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
     vals_a, vals_s = np.ones(len(a), bool), np.ones(len(s), bool)
     b = a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE]
@@ -250,8 +247,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
             gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))
         return keep_a, keep_s
     # slow path: the gate row by row, in stream order
-    keep_a[ea] = False
-    keep_s[es] = False
+    keep_a[ea], keep_s[es] = False, False
     rows = [(o, P.TYPE_ATTITUDE, j) for j, o in enumerate(a["offset"].tolist())]
     rows += [(o, P.TYPE_STATUS, j) for j, o in enumerate(s["offset"].tolist())]
     for _, kind, j in sorted(rows):

@@ -67,7 +67,7 @@ def parse_replay_url(url: str) -> ReplayUrl:
     path_text, _, query = rest.partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
-    speed, rate, loop = 1.0, None, False
+    opts: dict = {}
     try:
         params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
@@ -79,12 +79,10 @@ def parse_replay_url(url: str) -> ReplayUrl:
             word = values[-1].strip().lower()
             if word not in _TRUE + _FALSE:
                 raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
-            loop = word in _TRUE
-        elif key == "rate":  # a text log without times: its records per second
-            rate = _positive(url, key, values[-1])
-        else:
-            speed = _positive(url, key, values[-1])
-    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate, loop)
+            opts[key] = word in _TRUE
+        else:  # speed, or rate: the records per second of a text log without times
+            opts[key] = _positive(url, key, values[-1])
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), **opts)
 
 
 def _positive(url: str, key: str, text: str) -> float:
