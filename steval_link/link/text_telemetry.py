@@ -191,9 +191,7 @@ def _labelled_line(text: str) -> ParsedLine | None:
     groups = None if tokens is None else _groups(tokens)
     if groups is None:
         return None
-    names: list[str] = []
-    units: list[str] = []
-    numbers: list[str] = []  # every value field, in order
+    names, units, numbers = [], [], []  # numbers: every value field, in order
     for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
@@ -331,18 +329,9 @@ def line_template(shape: _Shape) -> LineTemplate | None:
     if body is None:
         return None
     plain = re.sub(rb"\((?!\?)", b"(?:", body)  # the same without groups
-    return LineTemplate(
-        re.compile(b"(?:" + plain + rb"\r?+\n)*+"),
-        re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+"),
-        re.compile(body + rb"\r?+\n"),
-        sep,
-        words,
-        trailing,
-        shape.names,
-        shape.units,
-        shape.kind,
-        kinds,
-    )
+    valid, blanks = re.compile(b"(?:" + plain + rb"\r?+\n)*+"), re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+")
+    groups = re.compile(body + rb"\r?+\n")
+    return LineTemplate(valid, blanks, groups, sep, words, trailing, shape.names, shape.units, shape.kind, kinds)
 
 
 def _labelled_template(example: str, kinds: tuple) -> tuple[bytes | None, tuple[bytes, ...]]:
@@ -645,8 +634,7 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
 def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, blank_ended: bool) -> _Shape:
     """Names and units of a record made of the parsed lines ``items``: the lines' own names, a header's (bare values
     of the header's count), else ``col1..N`` over the whole record."""
-    names: list[str] = []
-    units: list[str] = []
+    names, units = [], []
     total = sum(len(p.values) for p in items)
     fits = header is not None and (len(header[0]) == total or (len(items) == 1 and len(header[0]) == total + 1))
     if fits and all(p.names is None for p in items):
