@@ -34,8 +34,7 @@ def list_candidate_ports() -> list[str]:
     """Device paths that may carry the drone: the USB ports when there are any, else every port."""
 
     listed = ports.list_ports()
-    usb = [p.device for p in listed if p.vid_pid]
-    return usb or [p.device for p in listed]
+    return [p.device for p in listed if p.vid_pid] or [p.device for p in listed]
 
 
 def _comports():
@@ -290,8 +289,7 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
     run = bit_run_length(data)
     if run < 2.3 or not slower:
         return faster + sorted(slower, key=lambda b: -b)
-    ratio = 2.0 if run < 3.2 else 4.0 if run < 4.4 else 8.0
-    guess = baud / ratio
+    guess = baud / (2.0 if run < 3.2 else 4.0 if run < 4.4 else 8.0)  # the sender's rate by the bit runs
     slower.sort(key=lambda b: abs(math.log(b / guess)))
     return slower + faster
 

@@ -196,8 +196,7 @@ class BleDecoder:
         if char_id == CHAR_MOTION:
             repeat = bytes(payload) == self._last_motion
             self._last_motion = bytes(payload)
-            gyro = (v[4] * 100, v[5] * 100, v[6] * 100)
-            return BleMotionFrame(tick, v[1:4], gyro, v[7:10], t_host_s, repeat)
+            return BleMotionFrame(tick, v[1:4], (v[4] * 100, v[5] * 100, v[6] * 100), v[7:10], t_host_s, repeat)
         if char_id == CHAR_ENV:
             return BleEnvFrame(tick, v[1] / 100.0, v[2] / 10.0, v[3] / 10.0, v[4] / 10.0, t_host_s)
         return BleArmingFrame(tick, bool(v[1]), t_host_s)

@@ -166,8 +166,7 @@ def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
             p = fit
             k = RunNumberer(p).numbers(t)
         interval = p * TICK_S
-    jump = np.diff(k) - 1
-    dropped = int(jump[~brk[1:]].sum())
+    dropped = int((np.diff(k) - 1)[~brk[1:]].sum())
     gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p) & ~brk[1:])) if dropped else 0
     kind = STEADY if not dropped else CONGESTION if exact else GAPS
     return Cadence(kind, interval, dropped, gaps, int(repeats), span_s, exact)

@@ -193,8 +193,7 @@ class BleLink:
 
     async def _connect(self, dev: BleDevice) -> None:
         self._lost = asyncio.Event()
-        lost = self._lost
-        await self.backend.connect(dev.address, lost.set)
+        await self.backend.connect(dev.address, self._lost.set)
         for cid, uuid in CHAR_UUIDS.items():
             try:
                 await self.backend.start_notify(uuid, self._handler(cid))

@@ -205,8 +205,7 @@ class CaptureWriter:
     ) -> None:
         self.path = Path(path)
         self._t0 = time.monotonic()
-        now = time.time()
-        self.header: dict[str, Any] = capture_header(port, baud, now, extra)
+        self.header: dict[str, Any] = capture_header(port, baud, time.time(), extra)
         self._file = open(self.path, "xb", buffering=0)
         st = os.fstat(self._file.fileno())
         self._identity = (st.st_dev, st.st_ino)

@@ -220,8 +220,7 @@ class CommandChannel:
         """Number ``command`` and encode it, without sending (scripts that send at a given time)."""
         seq = self._seq
         self._seq = (self._seq + 1) % P.SEQ_MODULUS
-        frame = command.encode(seq)
-        s = Sent(seq, command, frame, self._clock() if self._clock else math.nan)
+        s = Sent(seq, command, command.encode(seq), self._clock() if self._clock else math.nan)
         self.pending[seq] = s
         while len(self.pending) > 256:  # never answered (lost): forget the oldest
             self.pending.pop(next(iter(self.pending)))

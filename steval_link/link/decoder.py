@@ -461,8 +461,7 @@ def decode_bytes(
         keep_a, keep_s = gate_rows(att, sta, gate)
         parts.att_blocks, parts.sta_blocks = [att[keep_a]], [sta[keep_s]]
         gate.finish()
-    v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
-    stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)
+    stats = _bulk_stats(parts, sd.stats, gate, len(data), int(np.count_nonzero((vts[fast] >> 4) == _V1)))
     parts.sent_commands = sent_commands
     return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events)
 

@@ -111,8 +111,7 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
                 f"{src.path} is not a steval capture, raw serial dump or text log (no frames found, and no records "
                 f"of numbers, in {len(src.data)} bytes{_text_lines(tel)})."
             )
-        binary = tel.binary_rows + int(tel.status.exact.sum())
-        tel.source["kind"] = "raw" if binary else "text"
+        tel.source["kind"] = "raw" if tel.binary_rows + int(tel.status.exact.sum()) else "text"
     elif tel.stats.frames_ok == 0 and symbols is None:
         raise UserError(
             f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "

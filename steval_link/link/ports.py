@@ -52,8 +52,7 @@ def port_holders(device: str) -> list[tuple[int, str]]:
         found = []
     else:
         found = _lsof_holders(real)
-    me = os.getpid()
-    return sorted((pid, name) for pid, name in found if pid != me)
+    return sorted((pid, name) for pid, name in found if pid != os.getpid())
 
 
 def _proc_holders(real: str) -> list[tuple[int, str]]:

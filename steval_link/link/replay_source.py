@@ -63,8 +63,7 @@ def parse_replay_url(url: str) -> ReplayUrl:
     """Parse ``replay://recordings/demo.stv`` (relative), ``replay:///abs/x.stv`` or ``...?speed=5``."""
     if not is_replay_url(url):
         raise UserError(f"{url} is not a replay URL (replay://CAPTURE.stv)")
-    rest = url[len(SCHEME) :]
-    path_text, _, query = rest.partition("?")
+    path_text, _, query = url[len(SCHEME) :].partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
     opts: dict = {}
@@ -178,8 +177,7 @@ class ReplayPort:
         el = self._elapsed_s() - self._t_loop
         i = int(np.searchsorted(self.t_s, el, side="right"))
         out = int(self.ends[i - 1]) if i else 0
-        wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
-        return out, wait
+        return out, float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
 
     @property
     def in_waiting(self) -> int:
@@ -267,5 +265,4 @@ def _to_whole_frames(data: bytes, ends: np.ndarray, t_s: np.ndarray) -> tuple[by
         return data, ends, t_s
     ends, t_s = np.asarray(ends), np.asarray(t_s)
     keep = ends < cut
-    t_cut = t_s[int(np.argmax(ends >= cut))]
-    return data[:cut], np.append(ends[keep], cut), np.append(t_s[keep], t_cut)
+    return data[:cut], np.append(ends[keep], cut), np.append(t_s[keep], t_s[int(np.argmax(ends >= cut))])

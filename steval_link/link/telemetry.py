@@ -277,8 +277,7 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
         seg = np.cumsum(reset)
         delta = np.zeros(int(seg[-1]) + 1, np.int64)
         if len(sta):
-            off_b = att["offset"][b]
-            j = np.searchsorted(off_b, sta["offset"]) - 1
+            j = np.searchsorted(att["offset"][b], sta["offset"]) - 1
             ok = j >= 0
             j_ok = j[ok]
             sstep = sta["step"][ok].astype(np.int64)
@@ -351,8 +350,7 @@ class Telemetry:
             t_fw_s=t_all[na:],
             t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
         )
-        t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
-        text = [(float(t), f.text) for t, f in zip(t_text, texts)]
+        text = [(float(t), f.text) for t, f in zip(host_s([f.offset + f.nbytes - 1 for f in texts]), texts)]
         rows = {}
         for name, kind, dtype in (
             ("flight", FlightFrame, FLIGHT_ROW_DTYPE),

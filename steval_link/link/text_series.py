@@ -266,8 +266,7 @@ def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = N
         return [], []
     plan, notes = [], []
     for target, (name, unit) in found.items():
-        k = _scale(target, unit, name)
-        plan.append((target, s.names.index(name), k))
+        plan.append((target, s.names.index(name), _scale(target, unit, name)))
         if target == "thr":
             notes.append(f"{name} → thr (gTHR)")
         elif target in _ANGLE_COLUMN:

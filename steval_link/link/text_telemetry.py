@@ -261,8 +261,7 @@ class LineTemplate:
         out = np.full((count, len(self.kinds)), np.nan)
         table = _number_table(self, chunk, count, len(cols)) if count >= _TABLE_MIN_ROWS else None
         if table is None:  # the one-line-at-a-time way: each line's groups
-            rows = self.groups.findall(chunk)
-            table = np.array(rows, dtype=bytes).reshape(count, -1).astype(np.float64)
+            table = np.array(self.groups.findall(chunk), dtype=bytes).reshape(count, -1).astype(np.float64)
         out[:, cols] = table
         return out
 
@@ -551,8 +550,7 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
     if blocks is not None:
         return blocks
     lines = [k for k in tail if pending[k].kind in ("rec", "cut")]
-    has_blank = any(pending[k].kind == "blank" for k in tail)
-    sizes = [len(b) for b in _blocks(pending, tail)] if has_blank else []
+    sizes = [len(b) for b in _blocks(pending, tail)] if any(pending[k].kind == "blank" for k in tail) else []
     shapes = [pending[k].parsed.shape for k in lines]
     n = len(shapes)
     if not sizes and n and shapes[-1][0] == "table" and all(x == shapes[-1] for x in shapes[-VALUE_LINES:]):
@@ -627,8 +625,7 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
     if same < CONFIRM:
         return None
     first = blocks[len(blocks) - same][0]
-    items = [pending[k].parsed for k in blocks[-1]]
-    return _make_shape(tuple(last), items, None, blank_ended=True), first
+    return _make_shape(tuple(last), [pending[k].parsed for k in blocks[-1]], None, blank_ended=True), first
 
 
 def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, blank_ended: bool) -> _Shape:
@@ -651,5 +648,4 @@ def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, 
         if name in given[:k]:
             names[k] = f"{name}_{given[:k].count(name) + 1}"
     kinds = {p.kind for p in items}
-    kind = kinds.pop() if len(kinds) == 1 else "labelled"
-    return _Shape(lines, tuple(names), tuple(units), kind, blank_ended)
+    return _Shape(lines, tuple(names), tuple(units), kinds.pop() if len(kinds) == 1 else "labelled", blank_ended)

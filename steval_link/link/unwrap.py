@@ -61,12 +61,10 @@ class SeqUnwrapper:
         prev = np.concatenate([[raw[0] if self.last is None else self.last % SEQ_MODULUS], raw[:-1]])
         advance = (raw - prev) % SEQ_MODULUS
         restart = advance >= SEQ_MODULUS // 2
-        inc = np.where(restart, 0, advance)
-        cs = np.cumsum(inc)
+        cs = np.cumsum(np.where(restart, 0, advance))
         seg = np.cumsum(restart)  # 0: continues the previous call's run
         first = np.flatnonzero(restart)  # the row where each later run starts
-        base0 = raw[0] if self.last is None else self.last
-        steps = base0 + cs
+        steps = (raw[0] if self.last is None else self.last) + cs
         if first.size:
             later = seg > 0
             starts = first[seg[later] - 1]
