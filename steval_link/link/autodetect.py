@@ -80,9 +80,7 @@ class PortIdentity:
 def family_glob(path: str) -> str | None:
     """The pattern of a port's sibling names: ``/dev/ttyUSB0`` → ``/dev/ttyUSB*``; ``None`` when no trailing digits."""
     m = re.match(r"^(.*?)(\d+)$", path)
-    if not m or not m.group(1):
-        return None
-    return glob.escape(m.group(1)) + "*"
+    return glob.escape(m.group(1)) + "*" if m and m.group(1) else None
 
 
 @dataclass

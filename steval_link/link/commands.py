@@ -170,9 +170,7 @@ def param_of_status(status, name: str):
     """One parameter's value as a status frame reports it (correction as "on"/"off")."""
     if name == "correction":
         return "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
-    if name == "min_thr":
-        return int(status.min_thr)
-    return float(getattr(status, name))
+    return int(status.min_thr) if name == "min_thr" else float(getattr(status, name))
 
 
 def describe_ack(command: Command | None, ack) -> str:

@@ -153,9 +153,7 @@ class StreamDecoder:
 
     def text_template(self):
         """The text reader's ``bulk_template`` at a clean line start with nothing pending; else None."""
-        if self._buf or not self._boundary or self._damaged:
-            return None
-        return self.text_reader.bulk_template()
+        return None if self._buf or not self._boundary or self._damaged else self.text_reader.bulk_template()
 
     def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
         """``count`` records up to byte ``offset`` were made by the bulk decoder (``blank_bytes`` of blank lines among

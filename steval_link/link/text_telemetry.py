@@ -69,9 +69,7 @@ _SUFFIXES = {2: ("x", "y"), 3: ("x", "y", "z")}
 
 def _kind(field: str) -> str:
     """'i' an integer, 'f' any other number, '-' empty."""
-    if not field:
-        return "-"
-    return "i" if _INT_RE.fullmatch(field) else "f"
+    return "-" if not field else "i" if _INT_RE.fullmatch(field) else "f"
 
 
 def _number(field: str) -> float:
@@ -101,9 +99,7 @@ def _split_bare(text: str) -> list[str] | None:
     sep, fields = _split(text)
     if sep and len(fields) > 1 and fields[-1] == "" and not _st_fields(fields):
         fields.pop()  # one separator after the last value (``%f\t\n``)
-    if not fields or not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields):
-        return None
-    return fields
+    return None if not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields) else fields
 
 
 def _st_fields(fields: list[str]) -> bool:
@@ -224,9 +220,7 @@ def parse_line(text: str) -> ParsedLine | None:
     """The numbers of one text line, or None when it is not a line of numbers (then it is text)."""
     if text.startswith(">"):
         return _teleplot_line(text)
-    if not any(c.isdigit() or c in "ni" for c in text):
-        return None
-    return _bare_line(text) or _labelled_line(text)
+    return (_bare_line(text) or _labelled_line(text)) if any(c.isdigit() or c in "ni" for c in text) else None
 
 
 # possessive (no backtracking): about 6 times faster on long runs of lines
@@ -368,9 +362,7 @@ def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
         return None
     pairs = [_label_and_unit(f) for f in fields]
     names = tuple(p[0] for p in pairs)
-    if len(set(names)) != len(names):
-        return None
-    return names, tuple(p[1] for p in pairs)
+    return (names, tuple(p[1] for p in pairs)) if len(set(names)) == len(names) else None
 
 
 def looks_like_text(text: str) -> bool:
@@ -513,9 +505,7 @@ class TextTelemetryReader:
         if item.kind in ("text", "break") and not any(x.kind in ("rec", "cut") for x in pending[:-1]):
             self._pending = []
             return self._flush(pending)
-        if len(pending) > MAX_PENDING:
-            return self._flush([pending.pop(0)])
-        return []
+        return self._flush([pending.pop(0)]) if len(pending) > MAX_PENDING else []
 
     def _replay(self, shape: _Shape, items: list[_Line]) -> list:
         """The waiting lines from the start of the first record of a newly learned shape, through the shape."""

@@ -104,6 +104,4 @@ def decode_line(raw: bytes) -> str | None:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         return None
-    if not text.replace("\t", " ").isprintable():
-        return None
-    return text
+    return text if text.replace("\t", " ").isprintable() else None
