@@ -165,10 +165,7 @@ class BleLink:
     on_notification: Callable[[int, bytes, float], None]
     _: KW_ONLY
     on_event: Callable[[str, str], None] | None = None
-    clock: Callable[[], float] = time.time
-    scan_timeout_s: float = SCAN_TIMEOUT_S
     retry_max_s: float = RETRY_MAX_S
-    first_scans: int = 1
     device: BleDevice | None = field(default=None, init=False)
     connections: int = field(default=0, init=False)
     losses: int = field(default=0, init=False)
@@ -178,18 +175,14 @@ class BleLink:
     def __post_init__(self) -> None:
         self.on_event = self.on_event or (lambda kind, text: None)
 
-    async def find(self, scans: int) -> BleDevice | None:
-        """Scan up to ``scans`` times for the target; platform failures raise UserError."""
-        for _ in range(max(scans, 1)):
-            try:
-                devices = await self.backend.scan(self.scan_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
-                _raise_explained(exc)
-                raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
-            dev = pick_device(devices, self.target)
-            if dev is not None:
-                return dev
-        return None
+    async def find(self) -> BleDevice | None:
+        """Scan once for the target; platform failures raise UserError."""
+        try:
+            devices = await self.backend.scan(SCAN_TIMEOUT_S)
+        except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
+            _raise_explained(exc)
+            raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
+        return pick_device(devices, self.target)
 
     async def _connect(self, dev: BleDevice) -> None:
         self._lost = asyncio.Event()
@@ -210,17 +203,17 @@ class BleLink:
     def _handler(self, cid: int) -> Callable[[bytes], None]:
         def cb(data: bytes) -> None:
             self.notifications += 1
-            self.on_notification(cid, data, self.clock())
+            self.on_notification(cid, data, time.time())
 
         return cb
 
     async def find_first(self) -> BleDevice:
-        """The drone, found by the first scans; UserError when the platform fails or it is not found."""
-        dev = await self.find(self.first_scans)
+        """The drone, found by a first scan; UserError when the platform fails or it is not found."""
+        dev = await self.find()
         if dev is None:
             what = repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
             raise UserError(
-                f"no BLE device matching {what} found in {self.scan_timeout_s:g} s of scanning "
+                f"no BLE device matching {what} found in {SCAN_TIMEOUT_S:g} s of scanning "
                 "(is the drone on, in range, and not connected to a phone?)."
             )
         return dev
@@ -250,7 +243,7 @@ class BleLink:
                 if stop.is_set():
                     break
                 try:
-                    found = await self.find(1)
+                    found = await self.find()
                     if found is not None:
                         await self._connect(found)
                         self.on_event("reconnect", f"{found.name or ''} {found.address}".strip())
