@@ -470,21 +470,9 @@ class Telemetry:
         return cols
 
 
-def telemetry_from_frames(
-    frames: list[Frame],
-    stats: DecoderStats,
-    *,
-    frame_times: np.ndarray | None = None,
-    source: dict | None = None,
-    events: list | None = None,
-) -> Telemetry:
-    """A :class:`Telemetry` from a ``StreamDecoder``'s frames; ``frame_times``: one host time per frame, s."""
+def telemetry_from_frames(frames: list[Frame], stats: DecoderStats) -> Telemetry:
+    """A :class:`Telemetry` from a ``StreamDecoder``'s frames (host times unknown)."""
     parts = TelemetryParts()
     for f in frames:
         parts.add_frame(f)
-    chunk_times = None
-    if frame_times is not None and len(frames):  # one pseudo-chunk per frame, ending at the frame's last byte
-        offs = np.array([f.offset + f.nbytes - 1 for f in frames], dtype=np.int64)
-        order = np.argsort(offs, kind="stable")
-        chunk_times = (offs[order], np.asarray(frame_times, dtype=np.float64)[order])
-    return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, source=source, events=events)
+    return Telemetry.from_parts(parts, stats)

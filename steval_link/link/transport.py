@@ -70,11 +70,10 @@ class Protocol:
         """Called after every read (even an empty one) and while waiting to reconnect: a periodic tick."""
 
 
-def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, exclusive: bool = True) -> serial.Serial:
-    """Open ``port`` at ``baud`` 8N1 (``exclusive``: fail if another program holds its lock)."""
-    kwargs = {"exclusive": True} if exclusive else {}
+def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S) -> serial.Serial:
+    """Open ``port`` at ``baud`` 8N1, exclusively (fail if another program holds its lock)."""
     try:
-        return serial.Serial(port, baud, timeout=timeout_s, **kwargs)
+        return serial.Serial(port, baud, timeout=timeout_s, exclusive=True)
     except ValueError as exc:  # pyserial: baud rate out of range
         raise serial.SerialException(errno.EINVAL, f"cannot open {port} at {baud} baud: {exc}") from exc
 
