@@ -191,7 +191,9 @@ class Sent:
     cmd_seq: int
     command: Command
     frame: bytes
-    t_s: float
+
+
+Writer = Callable[[bytes], object]  #: takes a frame's bytes (sends or records them)
 
 
 class CommandChannel:
@@ -199,18 +201,10 @@ class CommandChannel:
     chunks); :meth:`match` pairs an ack with its command. Numbers start at random, so that another session's acks
     are not taken for this one's."""
 
-    def __init__(
-        self,
-        send: Callable[[bytes], object],
-        record: Callable[[bytes], object] | None = None,
-        *,
-        first_seq: int | None = None,
-        clock: Callable[[], float] | None = None,
-    ) -> None:
+    def __init__(self, send: Writer, record: Writer | None = None, *, first_seq: int | None = None) -> None:
         self._send = send
         self._record = record
         self._seq = random.randrange(P.SEQ_MODULUS) if first_seq is None else int(first_seq) % P.SEQ_MODULUS
-        self._clock = clock
         self.pending: dict[int, Sent] = {}
         self.sent = 0
 
@@ -218,7 +212,7 @@ class CommandChannel:
         """Number ``command`` and encode it, without sending (scripts that send at a given time)."""
         seq = self._seq
         self._seq = (self._seq + 1) % P.SEQ_MODULUS
-        s = Sent(seq, command, command.encode(seq), self._clock() if self._clock else math.nan)
+        s = Sent(seq, command, command.encode(seq))
         self.pending[seq] = s
         while len(self.pending) > 256:  # never answered (lost): forget the oldest
             self.pending.pop(next(iter(self.pending)))

@@ -224,7 +224,7 @@ class ReplayPort:
         return f"{self.path} replayed at {pace} ({self.paced_by})" + (", in a loop" if self.loop else "")
 
 
-def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
+def open_replay(url: str, *, baud: int = C.BAUD) -> ReplayPort:
     """Open ``replay://PATH[?speed=X]``; ``baud``: the pace of a file without times (a capture's header wins)."""
     parsed = parse_replay_url(url)
     try:
@@ -247,7 +247,6 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         path=parsed.path,
         baudrate=rate,
         speed=parsed.speed,
-        timeout=timeout,
         paced_by=how,
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
         loop=parsed.loop,
