@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import re
 import time
 from collections.abc import Callable
@@ -148,10 +149,8 @@ class BleakBackend:
     async def disconnect(self) -> None:
         client, self._client = self._client, None
         if client is not None:
-            try:
+            with contextlib.suppress(Exception):  # already gone: nothing to release
                 await client.disconnect()
-            except Exception:  # noqa: BLE001 - already gone: nothing to release
-                pass
 
 
 @dataclass(eq=False)

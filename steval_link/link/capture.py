@@ -7,6 +7,7 @@ re-decodes old captures.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -289,11 +290,9 @@ class CaptureWriter:
         self._stop.set()
         self._thread.join()
         with self._lock:
-            try:
+            with contextlib.suppress(OSError):  # kept in ``failure`` for the caller; the file is closed all the same
                 if self.failure is None:
                     self._sync()
-            except OSError:  # kept in ``failure`` for the caller; the file is closed all the same
-                pass
             self._closed = True
             try:
                 self._file.close()
@@ -311,11 +310,9 @@ class CaptureWriter:
     def discard(self) -> None:
         """Close and delete the file (a session that failed to start leaves nothing half-made behind)."""
         self.close()
-        try:
+        with contextlib.suppress(OSError):
             if output_gone(self.path, self._identity) is None:  # only our own file, never one that replaced it
                 self.path.unlink()
-        except OSError:
-            pass
         self.discarded = True
 
     def __enter__(self) -> CaptureWriter:

@@ -6,6 +6,8 @@ A program reading the port without its lock (``cat``) takes bytes from our strea
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import os
 import shutil
 import subprocess
@@ -56,24 +58,12 @@ def port_holders(device: str) -> list[tuple[int, str]]:
 
 
 def _proc_holders(real: str) -> list[tuple[int, str]]:
-    out = []
-    for entry in os.scandir("/proc"):
-        if not entry.name.isdigit():
-            continue
-        fd_dir = f"/proc/{entry.name}/fd"
-        try:
-            fds = os.listdir(fd_dir)
-        except OSError:  # gone, or another user's process
-            continue
-        for fd in fds:
-            try:
-                target = os.readlink(f"{fd_dir}/{fd}")
-            except OSError:
-                continue
-            if target == real:
-                out.append((int(entry.name), _proc_name(entry.name)))
-                break
-    return out
+    pids = set()
+    for link in glob.glob("/proc/[0-9]*/fd/*"):  # another user's processes: their fds are not listed
+        with contextlib.suppress(OSError):  # gone meanwhile
+            if os.readlink(link) == real:
+                pids.add(int(link.split("/")[2]))
+    return [(pid, _proc_name(str(pid))) for pid in pids]
 
 
 def _proc_name(pid: str) -> str:

@@ -8,6 +8,7 @@ for the device, reopens it and calls :meth:`Protocol.connection_made` again; onl
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import select
 import sys
@@ -154,12 +155,8 @@ class SerialReader(threading.Thread):
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to finish, wait for it (up to ``timeout_s``) and close the port."""
         self._stop_event.set()
-        ser = self.serial
-        if ser is not None and hasattr(ser, "cancel_read"):
-            try:
-                ser.cancel_read()  # wake a read that waits for bytes
-            except (serial.SerialException, OSError, AttributeError):
-                pass
+        with contextlib.suppress(serial.SerialException, OSError, AttributeError):  # no port, or no cancel_read
+            self.serial.cancel_read()  # wake a read that waits for bytes
         if self.ident is None:  # never started: close the port here
             self._release()
         elif self.is_alive() and threading.current_thread() is not self:
@@ -275,7 +272,5 @@ def _fileno(ser) -> int | None:
 
 def close_quietly(ser: serial.Serial) -> None:
     """Close a port that may have failed already (its errors say nothing more)."""
-    try:
+    with contextlib.suppress(serial.SerialException, OSError):
         ser.close()
-    except (serial.SerialException, OSError):
-        pass
