@@ -103,8 +103,7 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks and get the frames they complete; :meth:`finish` decides the
-    last candidate. ``stats``: the counters (:class:`DecoderStats`)."""
+    """Incremental decoder: :meth:`feed` chunks, get the frames they complete; :meth:`finish` decides the last one."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
@@ -143,8 +142,7 @@ class StreamDecoder:
         self.stats.implausible, self.stats.held_values = self.gate.held_back, self.gate.held_values
 
     def resume_at(self, offset: int, *, line_start: bool) -> None:
-        """Continue at stream byte ``offset``, the bytes before it decoded elsewhere (the bulk decoder's runs);
-        ``line_start``: a line starts there. Only with no bytes pending."""
+        """Continue at stream byte ``offset`` (the bytes before it decoded elsewhere), with no bytes pending."""
         if self._buf:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
@@ -156,8 +154,7 @@ class StreamDecoder:
         return None if self._buf or not self._boundary or self._damaged else self.text_reader.bulk_template()
 
     def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
-        """``count`` records up to byte ``offset`` were made by the bulk decoder (``blank_bytes`` of blank lines among
-        them, one last when ``blank_last``): counted, and the stream continues at ``offset``, a line start."""
+        """``count`` records (and ``blank_bytes`` of blank lines) up to line start ``offset`` were made in bulk."""
         self.resume_at(offset, line_start=True)
         self._ended_nl = True
         self.text_reader.bulk_records(blank_last=blank_last)
@@ -351,8 +348,7 @@ _TEXT_WINDOW_MAX = 1 << 20
 
 
 def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[RecordBlock]) -> list[Frame]:
-    """``data[p:end]`` through ``sd``, but runs of lines that fit a learned one-line record shape are read as arrays
-    into ``blocks``: the records ``sd`` would make line by line, many times faster."""
+    """``data[p:end]`` through ``sd``; runs of lines of a learned one-line record shape go into ``blocks`` as arrays."""
     out: list[Frame] = []
     window = _TEXT_WINDOW
     while p < end:
@@ -439,12 +435,11 @@ def decode_bytes(
     sent_commands: np.ndarray | None = None,
     line_start: bool = False,
 ) -> Telemetry:
-    """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
+    """A whole byte stream as :class:`~steval_link.link.telemetry.Telemetry`, with :class:`StreamDecoder`'s frames
+    and counters (runs of back-to-back binary frames decoded with numpy, the rest by one :class:`StreamDecoder`).
 
-    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times; see
-    :func:`~steval_link.link.unwrap.host_times`). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's
-    H chunks. The frames and counters are :class:`StreamDecoder`'s: runs of back-to-back valid binary frames are
-    decoded with numpy, every other region by one :class:`StreamDecoder`."""
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times).
+    ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)

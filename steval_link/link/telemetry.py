@@ -88,8 +88,7 @@ class AttitudeArrays:
 
     @classmethod
     def of(cls, step, t_fw_s, t_host_s, acc_mg, gyro_mdps, euler_rad, *, thr=None, q_wxyz=None, offset=None, **kw):
-        """Rows that are not binary frames (``exact`` False unless given): ``seq`` and ``t_us`` from ``step`` and
-        ``t_fw_s``; ``euler_rad`` (N, 3) thx, thy, thz; throttle 0, quaternion NaN and offset -1 unless given."""
+        """Rows that are not binary frames: ``euler_rad`` (N, 3) thx, thy, thz; thr 0, q NaN, offset -1 by default."""
         step, t_fw_s = np.asarray(step, np.int64), np.asarray(t_fw_s, np.float64)
         n = len(step)
         euler = np.asarray(euler_rad, np.float32).reshape(n, 3)
@@ -150,9 +149,8 @@ class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name 
 
 @dataclass
 class FlightControlArrays:
-    """One row per flight-control frame (sent after ``FlightControlPID_OuterLoop`` of step ``step``); ``tel.fc``.
-    Axes x (pitch), y (roll), z (yaw). ``t_fw_s``: the time of the attitude row before it plus the AHRS periods
-    between (the frame carries no time)."""
+    """One row per flight-control frame (after ``FlightControlPID_OuterLoop`` of ``step``); axes x (pitch), y (roll),
+    z (yaw). ``t_fw_s``: the attitude row before it plus the AHRS periods between (the frame carries no time)."""
 
     step: np.ndarray  #: (N,) int64, the AHRS step (as the attitude rows' step)
     t_fw_s: np.ndarray  #: (N,) float64, firmware time of the step, s since boot
@@ -386,8 +384,7 @@ class Telemetry:
         return 0 if self.printed_only else int(self.attitude.exact.sum())
 
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
-        """The attitude rows from the text series (:func:`~steval_link.link.text_series.attitude_plan`) when the
-        stream has no attitude frames of its own; the notes in ``text_attitude_notes``."""
+        """Attitude rows from the text series when the stream has no frames of its own (``text_attitude_notes``)."""
         if len(self.attitude) and self.attitude.exact.any():
             return
         s = self.text_series
@@ -419,8 +416,7 @@ class Telemetry:
         return FlightControlArrays.from_rows(self.flight, self.attitude)
 
     def flight_columns(self) -> dict[str, np.ndarray]:
-        """The flight-control fields as columns on the attitude rows (joined by step; NaN in the rows of steps
-        without a flight-control frame), units in the names; {} when the stream has none."""
+        """The flight-control fields as columns on the attitude rows, joined by step (NaN where none); {} if none."""
         fc = self.fc
         if len(fc) == 0:
             return {}

@@ -114,8 +114,7 @@ def record_blocks(records: list) -> list[RecordBlock]:
 
 
 def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
-    """The record blocks as one :class:`TextSeries` in stream order; ``host_times(last_byte_offsets)`` gives their
-    host times (s since the capture started, NaN when unknown)."""
+    """The record blocks as one :class:`TextSeries` in stream order; ``host_times(last_byte_offsets)``: their times."""
     blocks = [b for b in blocks if len(b.offset)]
     if not blocks:
         return TextSeries()
@@ -180,8 +179,7 @@ def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
 
 
 def parse_map(spec: str | list[str] | None) -> dict[str, tuple[str, str]]:
-    """``pitch=col2:deg,roll=col3`` (or a list of such items) → {target: (series name, unit)}; UserError with one
-    sentence for a target that is not one of :data:`MAP_TARGETS` or an item that does not read."""
+    """``pitch=col2:deg,roll=col3`` (or a list of such items) → {target: (series name, unit)}, else a UserError."""
     items = [spec] if isinstance(spec, str) else list(spec or [])
     out: dict[str, tuple[str, str]] = {}
     for item in (x.strip() for s in items for x in s.split(",")):
@@ -285,8 +283,8 @@ _ANGLE_COLUMN = {"pitch": "thx_rad", "roll": "thy_rad", "yaw": "thz_rad"}
 
 
 def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
-    """The attitude columns of ``values`` (N, M) by ``plan``: ``thx_rad``, ``thy_rad``, ``thz_rad`` (N,) float32,
-    ``acc_mg``, ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped."""
+    """The attitude columns (``thx_rad``, ``thy_rad``, ``thz_rad``, ``acc_mg``, ``gyro_mdps``, ``thr``) of ``values``
+    by ``plan``; NaN / 0 where not mapped."""
     n = len(values)
     cols = {name: np.full(n, np.nan, np.float32) for name in _ANGLE_COLUMN.values()}
     cols |= {name: np.full((n, 3), np.nan, np.float32) for name in ("acc_mg", "gyro_mdps")}
