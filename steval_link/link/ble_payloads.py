@@ -66,8 +66,7 @@ _LAYOUTS = {CHAR_MOTION: _MOTION, CHAR_ENV: _ENV, CHAR_ARMING: _ARMING}
 
 
 def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
-    """The raw fields of a motion, environment or arming notification in payload order (the table above);
-    :class:`BadPayload` when its length does not match."""
+    """The raw fields of a motion, environment or arming notification (the table above), else :class:`BadPayload`."""
     layout = _LAYOUTS[char_id]
     if len(payload) != layout.size:
         raise BadPayload(f"{CHAR_NAMES[char_id]} notification of {len(payload)} bytes (expected {layout.size})")

@@ -109,8 +109,7 @@ def set_param(name: str, value: str | float) -> Command:
 
 
 def parse_command(text: str) -> Command:
-    """A typed line (``set NAME VALUE`` or ``NAME VALUE``, ``correction on|off``, ``reset``, ``status``, ``mode
-    text|binary``) → :class:`Command`; else a one-sentence UserError."""
+    """A typed line (see ``_SYNTAX``; ``NAME VALUE`` as ``set NAME VALUE``) → :class:`Command`, else a UserError."""
     try:
         words = shlex.split(text.strip().lower())
     except ValueError:
@@ -251,8 +250,7 @@ def _ack_of_row(a) -> AckFrame:
 
 
 def command_log(commands, acks) -> list[dict]:
-    """The ``Telemetry.commands`` with their ``acks`` in time order, each ``{"t_host_s", "cmd_seq", "command" (as
-    typed; None for an ack of a command not in the capture), "result" (None: no ack), "step", "text"}``."""
+    """The ``Telemetry.commands`` with their ``acks`` in time order, as :func:`_log_row` dicts."""
     out = []
     first: dict[tuple[int, int], int] = {}  # (cmd_seq, cmd) -> its first ack row
     for j, a in enumerate(acks):
@@ -273,7 +271,7 @@ def command_log(commands, acks) -> list[dict]:
 
 
 def _log_row(t_host_s, cmd_seq: int, command: Command | None, ack: AckFrame | None) -> dict:
-    """One entry of :func:`command_log`: a command sent (``command``) or an ack of one not in the capture."""
+    """A command sent, or (``command`` None) an ack of one not in the capture; ``result`` None: no ack."""
     return {
         "t_host_s": float(t_host_s),
         "cmd_seq": cmd_seq,

@@ -64,9 +64,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> Telemetry:
-    """Decode a capture, raw byte dump or text-mode log (``source["kind"]`` 'stv', 'raw' or 'text'); a truncated
-    capture's warning is issued and kept in ``source["warnings"]``. ``text_map`` ({target: (series, unit)}) maps
-    text telemetry to the attitude rows."""
+    """Decode a capture, raw byte dump or text-mode log (``source["kind"]``); a truncated capture's warning is issued
+    and kept in ``source["warnings"]``. ``text_map`` ({target: (series, unit)}) maps text telemetry to attitude."""
     src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)

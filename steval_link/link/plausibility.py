@@ -55,8 +55,7 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
 
 
 def attitude_frame_bad(frame) -> bool:
-    """True when an ``AttitudeFrame`` carries bad values (``values_bad``): a binary frame failing
-    :func:`attitude_values_ok`; a text row with an infinite value, or with neither an angle nor the accelerometer."""
+    """``values_bad`` of an ``AttitudeFrame``: see :func:`attitude_rows_bad`."""
     if frame.exact:
         return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
     vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
@@ -78,7 +77,8 @@ def _within(v, limit: float, width: int) -> np.ndarray:
 
 
 def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
-    """(N,) bool: :func:`attitude_frame_bad` row by row."""
+    """(N,) bool: a binary row failing :func:`attitude_values_ok`; a text row with an infinite value, or with neither
+    an angle nor the accelerometer."""
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
@@ -210,8 +210,7 @@ class PlausibilityGate:
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Keep masks for attitude and status records (stream order; ``nbytes`` tells the version) as ``gate`` fed row
-    by row would decide (its counters updated). Text-mode rows are always kept."""
+    """Keep masks of attitude and status records (stream order) as ``gate`` fed row by row would decide them."""
     gate = gate or PlausibilityGate()
     keep_a, keep_s = np.ones(len(att), bool), np.ones(len(sta), bool)
     ea, es = np.flatnonzero(att["exact"]), np.flatnonzero(sta["exact"])

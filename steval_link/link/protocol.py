@@ -243,8 +243,7 @@ STATUS_DEFAULTS = dict(
 
 
 def encode_status(*, step: int, t_us: int, q_wxyz: Vec, int_xyz: Vec, version: int = VERSION, **fields) -> bytes:
-    """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``; other
-    ``STATUS_DTYPE`` fields by name (:data:`STATUS_DEFAULTS`, ``fw_version`` (2, 0), else 0)."""
+    """A status frame; other ``STATUS_DTYPE`` fields by name (default :data:`STATUS_DEFAULTS`, fw_version 2.0, 0)."""
     unknown = set(fields) - set(STATUS_DTYPE.names)
     if unknown:
         raise TypeError(f"encode_status() got unknown fields {sorted(unknown)}")

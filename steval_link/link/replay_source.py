@@ -45,8 +45,7 @@ def is_replay_url(port: str) -> bool:
 
 @dataclass(frozen=True)
 class ReplayUrl:
-    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file, how many times faster than recorded, the records per
-    second of a text log without times, and whether it starts again at its end."""
+    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file, times faster than recorded, ``rate``, start again at end."""
 
     path: Path
     speed: float = 1.0

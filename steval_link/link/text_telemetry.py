@@ -78,8 +78,7 @@ def _number(field: str) -> float:
 
 @dataclass(frozen=True, slots=True)
 class ParsedLine:
-    """One line read as numbers: ``shape`` (what a repeat must match), ``names`` (None: bare values), ``units``,
-    ``values`` and ``kind`` ('table', 'labelled', 'teleplot', 'st-221117')."""
+    """One line read as numbers: ``shape`` (what a repeat must match), ``names`` (None: bare values), ``kind``."""
 
     shape: tuple
     names: tuple[str, ...] | None
@@ -295,8 +294,7 @@ def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.n
 
 
 def line_template(shape: _Shape) -> LineTemplate | None:
-    """The :class:`LineTemplate` of a one-line shape from its example line (a line fits exactly when
-    :func:`parse_line` gives it that shape); None for Teleplot, non-ASCII or ``$`` lines."""
+    """The :class:`LineTemplate` of a one-line shape, from its example line; None for Teleplot, non-ASCII or ``$``."""
     example, line = shape.example, shape.lines[0]
     if not example.isascii() or "$" in example or line[0] == "teleplot":
         return None
@@ -355,8 +353,7 @@ _NUMBER_PIECES = {b"n", b"a", b"i", b"f", b"na", b"an", b"in", b"nf", b"e"}
 
 
 def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
-    """A header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, Arduino's ``a b c``): (names,
-    units), or None when the line is not one."""
+    """(names, units) of a header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, ``a b c``), or None."""
     fields = _split(text)[1]
     if len(fields) < 2 or not all(_HEADER_WORD.fullmatch(f) for f in fields):
         return None
@@ -529,8 +526,7 @@ class TextTelemetryReader:
 
 
 def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | None, int]:
-    """A record shape that the latest lines repeat :data:`CONFIRM` times in a row, and the index in ``pending`` where
-    its first record starts; (None, 0) when there is none yet."""
+    """A shape the latest lines repeat :data:`CONFIRM` times in a row, where its first record starts; or (None, 0)."""
     # the latest run of lines of numbers, with blank markers, back to a text line
     start = next((k + 1 for k in range(len(pending) - 1, -1, -1) if pending[k].kind in ("text", "break")), 0)
     tail = list(range(start, len(pending)))
@@ -576,8 +572,7 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
 
 
 def _value_period(rows: list[tuple[float, ...]]) -> int:
-    """p (2..4) when the rows' values come back every p rows (a matrix printed a row a line: the mean change over p
-    rows under a quarter of that over one), else 1."""
+    """p (2..4) when the values come back every p rows (a matrix: mean change over p rows < ¼ that over 1), else 1."""
     v = np.array(rows, np.float64)
     if len(v) < VALUE_LINES or not np.isfinite(v).all():
         return 1
@@ -619,8 +614,7 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
 
 
 def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, blank_ended: bool) -> _Shape:
-    """Names and units of a record made of the parsed lines ``items``: the lines' own names, a header's (bare values
-    of the header's count), else ``col1..N`` over the whole record."""
+    """A record of the parsed lines ``items``, named by the lines, else a header of their count, else ``col1..N``."""
     names, units = [], []
     total = sum(len(p.values) for p in items)
     fits = header is not None and (len(header[0]) == total or (len(items) == 1 and len(header[0]) == total + 1))

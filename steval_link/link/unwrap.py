@@ -79,8 +79,8 @@ class SeqUnwrapper:
 
 
 def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s: float = -np.inf) -> np.ndarray:
-    """(N,) float64 host receive time of each frame by its ``last_byte``: its chunk's time (``chunk_times``:
-    offsets, times; None: NaN) less the bytes after it at ``baud``, never before the previous chunk's."""
+    """Host time of each frame's ``last_byte``: its chunk's (offsets, times; None: NaN) less the bytes after it at
+    ``baud``, never before the previous chunk's."""
     if chunk_times is None or len(chunk_times[0]) == 0:
         return np.full(len(last_byte), np.nan)
     c_off = np.asarray(chunk_times[0], dtype=np.int64)
