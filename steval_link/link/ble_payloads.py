@@ -47,10 +47,6 @@ DEVICE_NAME_PREFIX = "DRN1"
 TICK_S = 0.008
 TICK_WRAP = 1 << 16
 
-_MOTION = struct.Struct("<H3h3h3h")
-_ENV = struct.Struct("<HiHhh")
-_ARMING = struct.Struct("<HB")
-
 
 class BadPayload(ValueError):
     """A notification whose length does not match its characteristic."""
@@ -62,7 +58,11 @@ def char_id_of_uuid(uuid: str) -> int | None:
 
 
 #: characteristic id → payload layout of the fixed-size notifications
-_LAYOUTS = {CHAR_MOTION: _MOTION, CHAR_ENV: _ENV, CHAR_ARMING: _ARMING}
+_LAYOUTS = {
+    CHAR_MOTION: struct.Struct("<H3h3h3h"),
+    CHAR_ENV: struct.Struct("<HiHhh"),
+    CHAR_ARMING: struct.Struct("<HB"),
+}
 
 
 def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
