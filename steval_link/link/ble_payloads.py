@@ -24,8 +24,8 @@ to 1000), RSSI dBm·10.
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
+from struct import Struct
 
 from steval_link.link.capture import CHUNK_BLE
 
@@ -58,11 +58,7 @@ def char_id_of_uuid(uuid: str) -> int | None:
 
 
 #: characteristic id → payload layout of the fixed-size notifications
-_LAYOUTS = {
-    CHAR_MOTION: struct.Struct("<H3h3h3h"),
-    CHAR_ENV: struct.Struct("<HiHhh"),
-    CHAR_ARMING: struct.Struct("<HB"),
-}
+_LAYOUTS = {CHAR_MOTION: Struct("<H3h3h3h"), CHAR_ENV: Struct("<HiHhh"), CHAR_ARMING: Struct("<HB")}
 
 
 def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
