@@ -139,13 +139,15 @@ def encode_capture(
 ) -> bytes:
     """A whole ``.stv`` file: ``header``, ``(bytes, t_host_s)`` chunks, then ``(type, payload, t_host_s)`` ones."""
     parts = [_file_header(header)]
-    for data, t_host_s in chunks:
-        data = bytes(data)
-        for i in range(0, len(data), MAX_CHUNK):
-            parts.append(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], float(t_host_s)))
-    for kind, payload, t_host_s in typed:
-        parts.append(_chunk(_known_kind(kind), bytes(payload), float(t_host_s)))
+    parts += [_chunk(CHUNK_DATA, piece, float(t_host_s)) for data, t_host_s in chunks for piece in _pieces(data)]
+    parts += [_chunk(_known_kind(kind), bytes(payload), float(t_host_s)) for kind, payload, t_host_s in typed]
     return b"".join(parts)
+
+
+def _pieces(data: bytes | bytearray | memoryview) -> list[bytes]:
+    """``data`` in pieces of at most :data:`MAX_CHUNK` bytes."""
+    data = bytes(data)
+    return [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)]
 
 
 @dataclass(frozen=True)
@@ -242,8 +244,7 @@ class CaptureWriter:
     def _write_stream(self, kind: int, data: bytes | bytearray | memoryview, t_host_s: float | None) -> None:
         """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes."""
         if data:
-            data = bytes(data)
-            self._append(kind, [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)], t_host_s)
+            self._append(kind, _pieces(data), t_host_s)
 
     def _append(self, kind: int, payloads: list, t_host_s: float | None) -> None:
         """Chunks of type ``kind`` at ``t_host_s`` (None: now), under the lock (so an event's offset is never stale)."""

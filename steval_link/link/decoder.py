@@ -62,14 +62,8 @@ _UNPACK = {t: (FRAME_OF_TYPE[t], *P.payload_layout(d)) for t, d in P.PAYLOAD_DTY
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
-_COUNTER = {
-    StatusFrame: "status",
-    TextFrame: "text",
-    TextRecordFrame: "text_records",
-    FlightFrame: "flight",
-    AckFrame: "ack",
-    CommandFrame: "command",
-}
+_COUNTED = (StatusFrame, TextFrame, TextRecordFrame, FlightFrame, AckFrame, CommandFrame)
+_COUNTER = dict(zip(_COUNTED, ("status", "text", "text_records", "flight", "ack", "command")))
 _HEAD = P.HEADER_SIZE
 #: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
 _FIXED_LEN = {P.vt_byte(_V2, t): n for t, n in P.FIXED_PAYLOAD_SIZE.items()}

@@ -107,14 +107,8 @@ class CommandFrame(_wire_fields(P.COMMAND_DTYPE)):
 
 
 Frame = AttitudeFrame | StatusFrame | TextFrame | TextRecordFrame | FlightFrame | AckFrame | CommandFrame
-#: The frame class of each fixed-size binary frame type (its wire fields are those of ``protocol.PAYLOAD_DTYPE``).
-FRAME_OF_TYPE = {
-    P.TYPE_ATTITUDE: AttitudeFrame,
-    P.TYPE_STATUS: StatusFrame,
-    P.TYPE_FLIGHT: FlightFrame,
-    P.TYPE_ACK: AckFrame,
-    P.TYPE_COMMAND: CommandFrame,
-}
+#: The frame class of each fixed-size binary frame type, in the order of ``protocol.PAYLOAD_DTYPE`` (its wire fields).
+FRAME_OF_TYPE = dict(zip(P.PAYLOAD_DTYPE, (AttitudeFrame, StatusFrame, FlightFrame, AckFrame, CommandFrame)))
 
 
 @dataclass(slots=True)

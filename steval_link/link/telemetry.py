@@ -1,15 +1,13 @@
 """``Telemetry``: every field of a decoded stream as numpy arrays in stream order, with units in the names.
 
-Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames`. Derived fields:
+Derived fields:
 
-* ``step`` (int64): binary rows unwrap ``seq`` (u16); a status frame, which carries the full u32 step of the
-  attitude frame before it, anchors the absolute step (the first of each firmware run wins). Text-mode rows carry
-  the full step.
-* ``t_fw_s`` (float64): ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
-* ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
+* ``step``: binary rows unwrap ``seq`` (u16); a status frame (the full u32 step of the attitude frame before it)
+  anchors the absolute step, the first of each firmware run. Text-mode rows carry the full step.
+* ``t_fw_s``: ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
 * ``thx_rad``/``thy_rad``: of binary rows ``QuaternionToEuler`` of ``q_wxyz``, bit-exact; of text rows the line's.
-* ``values_bad`` (bool): NaN/inf or out-of-range values (:mod:`steval_link.link.plausibility`). Protocol v2 keeps
-  such frames when CRC, sequence and time are right: the firmware sent them (its filter diverged).
+* ``values_bad``: NaN/inf or out-of-range values (:mod:`steval_link.link.plausibility`); protocol v2 keeps such
+  frames when CRC, sequence and time are right (the firmware's filter diverged).
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """Records of text telemetry as named series (:class:`TextSeries`), their time, and the attitude they stand for.
 
-* :func:`text_series`: the records of a stream as one array, a column per name (NaN where a record has no such
-  name), with units and a time per record: a timestamp column (``t``, ``t_ms``, ``millis``, Teleplot's
-  ``NAME_t_ms``...), else the host's receive times, else ST's main-loop rate (161.5 Hz) for ST's line and printed
-  angles, else the record index (1 s apart).
+* :func:`text_series`: the records as one array, a column per name (NaN where a record has none), a time per
+  record: a timestamp column (``t``, ``t_ms``, ``millis``, ``NAME_t_ms``...), else the host's receive times, else
+  ST's main-loop rate (161.5 Hz) for ST's line and printed angles, else the record index (1 s apart).
 * :func:`attitude_plan`: which series are the attitude and inputs: ST's 221117 line, names (pitch/roll/yaw,
   thx/thy/thz, acc/gyro with a unit) or a user's mapping (``pitch=col2:deg``); angles in rad, acc in mg, gyro in mdps.
 
