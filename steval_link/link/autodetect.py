@@ -302,8 +302,7 @@ class PortChoiceError(ParamError):
 
 
 def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[str] | None = None) -> str:
-    """A path as is; ``auto`` or a glob: the one candidate, or the one of several probed that sends frames
-    (:class:`PortChoiceError` when none or several do)."""
+    """A path as is; ``auto`` or a glob: the one candidate, or the one probed that sends frames (else an error)."""
     if spec != "auto" and not is_glob(spec):
         return spec
     if candidates is None:
@@ -389,8 +388,7 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
 
 
 def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> ParamError:
-    """The one line for a port that sent no valid frame in ``seconds``: what the bytes look like (``data``: a
-    sample, ``total``: all) and which baud rate to try."""
+    """The one line for a port without valid frames in ``seconds``: what its bytes look like, which baud to try."""
     if not data:
         return ParamError(
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "

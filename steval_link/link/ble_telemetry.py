@@ -97,8 +97,8 @@ def gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
 
 
 def period_ticks(d_ticks) -> float | None:
-    """The sender's period in ticks: the mean of the tick deltas that are not gaps, from the bulk (within a tick
-    above the median) on (unbiased by the 8 ms quantisation: it telescopes to the span). None: no delta above 0."""
+    """The sender's period in ticks: the mean of the tick deltas that are not gaps (unbiased by the 8 ms quantisation:
+    it telescopes to the span), found from the bulk within a tick above the median. None: no delta above 0."""
     d = np.maximum(np.asarray(d_ticks, dtype=np.int64), 0)
     if d.size == 0:
         return None
@@ -218,8 +218,7 @@ class RunNumberer:
 
 
 def sender_phase(t: np.ndarray, interval: float) -> float:
-    """The sender's phase t0 (sample k at ``t0 + k·interval``, s): the intersection of the [tick, tick + 8 ms)
-    that the first 64 samples allow."""
+    """The sender's phase t0 (sample k at ``t0 + k·interval``, s) the first 64 samples' [tick, tick + 8 ms) allow."""
     w = min(len(t), 64)
     i = np.arange(w)
     lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
@@ -227,8 +226,7 @@ def sender_phase(t: np.ndarray, interval: float) -> float:
 
 
 def sample_numbers(ticks, interval: float, t0: float | None = None, prev: int | None = None) -> np.ndarray:
-    """The smallest increasing sample numbering the ticks allow; ``t0``: the sender's phase (None: from these
-    ticks); ``prev``: the number of the sample before (None: the first is 0)."""
+    """The smallest increasing numbering the ticks allow at phase ``t0`` (None: theirs), after number ``prev``."""
     t = np.asarray(ticks, dtype=np.float64) * TICK_S
     if len(t) == 0:
         return np.zeros(0, np.int64)
@@ -481,8 +479,7 @@ class LiveGrid:
         self._numberer = RunNumberer(c.interval_s / TICK_S)
 
     def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
-        """This round's rows: one per sender sample since the last round's; a row of a notification the ticks show
-        as sent and lost holds the last sample (the numbering of :func:`motion_cadence`, a round at a time)."""
+        """This round's rows: one per sender sample since the last round's (a lost one holds the last sample)."""
         c, n = self._cadence, len(mo)
         tick = np.array([f.tick for f in mo], np.int64)
         t_fw = tick * TICK_S
@@ -528,8 +525,7 @@ class LiveGrid:
         return AttitudeArrays.of(k_rows, t_rows, t_host, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 
     def _period_s(self) -> float:
-        """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample
-        numbers once they span more than the samples that found the cadence; until then the cadence's own."""
+        """The sender's interval so far, s: the ticks' least-squares slope on their numbers, or the cadence's own."""
         if len(self._numbers) > LOCK_SAMPLES and self._numbers[-1] - self._numbers[0] > 1:
             k = np.asarray(self._numbers, dtype=np.float64)
             return float(np.polyfit(k, np.asarray(self._ticks, dtype=np.float64), 1)[0]) * TICK_S

@@ -73,8 +73,7 @@ class CaptureTruncatedWarning(UserWarning):
 
 @dataclass(frozen=True, slots=True)
 class CaptureEvent:
-    """A marked event of the recording (``kind`` e.g. "disconnect", "reconnect"), at host time ``t_host_s`` (s since
-    capture start) and stream byte ``offset`` (bytes recorded before it)."""
+    """A marked event (``kind`` e.g. "disconnect") at ``t_host_s`` (s since capture start), stream byte ``offset``."""
 
     t_host_s: float
     kind: str
@@ -93,8 +92,8 @@ class HostChunk:
 
 @dataclass
 class Capture:
-    """A capture file read back: ``data`` is every received byte in order; chunk ``i`` starts at stream offset
-    ``chunk_offsets[i]`` and was received at ``chunk_times_s[i]`` (s since capture start)."""
+    """A capture read back: every received byte; chunk i starts at ``chunk_offsets[i]``, came at ``chunk_times_s[i]``
+    (s since capture start)."""
 
     path: Path
     header: dict[str, Any]
@@ -405,8 +404,7 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
 
 
 def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
-    """Where a capture ``out`` goes, checked before the port is opened: None stays None; a directory gets a new file;
-    a new file name must be in an existing directory (never overwritten). Else a ParamError."""
+    """Where a capture ``out`` goes (a directory: a new file in it; never an existing file), else a ParamError."""
     if out is None:
         return None
     path = Path(out).expanduser()
@@ -512,8 +510,7 @@ def _next_chunk(raw: bytes, mv: memoryview, p: int) -> int | None:
 
 @dataclass
 class _Chunks:
-    """What a capture's chunks hold: the serial bytes (``pieces`` at ``offsets``, received at ``times``), the other
-    chunks, the damaged stretches skipped and why the file ended early."""
+    """A capture's chunks: serial bytes, the other chunks, damaged stretches skipped, why the file ended early."""
 
     pieces: list[memoryview] = field(default_factory=list)
     offsets: list[int] = field(default_factory=list)

@@ -54,8 +54,7 @@ class Protocol:
     """What the reader thread calls, in the reader thread; an exception but :class:`PortRejected` stops it."""
 
     def shared_access(self, exc: BaseException) -> bool:
-        """A read found bytes announced but taken: True when another program reading the port explains it (the
-        port is kept), False for a lost port."""
+        """Bytes announced were taken: True when another program reading the port explains it, False: port lost."""
         return False
 
     def connection_made(self, port: str) -> None:
