@@ -242,59 +242,43 @@ def _node(path: str) -> tuple:
     return st.st_rdev, st.st_ino, st.st_ctime_ns
 
 
-@dataclass
-class ProbeResult:
-    """What a short read of one port found: ``frames_ok`` valid frames but text frames."""
-
-    port: str
-    baud: int
-    frames_ok: int = 0
-    error: str | None = None
+#: Bytes a probe reads at most.
+PROBE_MAX_BYTES = 64 * 1024
 
 
-def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
-    """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
-
-    result = ProbeResult(port, baud)
+def probe_port(port: str, baud: int, duration_s: float = 0.6) -> int:
+    """Valid frames but text frames read from ``port`` at ``baud`` within ``duration_s`` (it stops at 2; 0: failed)."""
     t0 = time.monotonic()
     try:
         ser = open_serial(port, baud, timeout_s=0.02)
-    except (serial.SerialException, OSError) as exc:
-        result.error = str(exc)
-        return result
-    decoder = StreamDecoder()
-    buf = bytearray()
+    except (serial.SerialException, OSError):
+        return 0
+    decoder, frames, nbytes = StreamDecoder(), 0, 0
     try:
-        while time.monotonic() - t0 < duration_s and len(buf) < max_bytes:
-            try:
+        with contextlib.suppress(serial.SerialException, OSError):  # a read failed: the frames so far
+            while time.monotonic() - t0 < duration_s and nbytes < PROBE_MAX_BYTES and frames < 2:
                 data = ser.read(4096)
-            except (serial.SerialException, OSError) as exc:
-                result.error = str(exc)
-                break
-            if data:
-                buf += data
+                nbytes += len(data)
                 # text frames do not count: any device's text lines decode as firmware log lines
-                result.frames_ok += sum(1 for f in decoder.feed(data) if not isinstance(f, TextFrame))
-                if result.frames_ok >= 2:
-                    break
+                frames += sum(1 for f in decoder.feed(data) if not isinstance(f, TextFrame))
     finally:
         close_quietly(ser)
-    return result
+    return frames
 
 
-def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[ProbeResult]:
-    """:func:`probe_port` on several ports at once (one thread each), results in the order of ``ports``."""
-    results: list[ProbeResult | None] = [None] * len(ports)
+def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[int]:
+    """:func:`probe_port` on several ports at once (one thread each): their frame counts, in the order of ``ports``."""
+    counts = [0] * len(ports)  # a probe that does not finish counts none
 
     def work(i: int, p: str) -> None:
-        results[i] = probe_port(p, baud, duration_s)
+        counts[i] = probe_port(p, baud, duration_s)
 
     threads = [threading.Thread(target=work, args=(i, p), daemon=True) for i, p in enumerate(ports)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(duration_s + 5.0)
-    return [r if r is not None else ProbeResult(p, baud, error="probe did not finish") for r, p in zip(results, ports)]
+    return counts
 
 
 class PortChoiceError(ParamError):
@@ -316,8 +300,7 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
         )
     if len(candidates) == 1:
         return candidates[0]
-    results = probe_ports(candidates, baud, probe_s)
-    answering = [r.port for r in results if r.frames_ok > 0]
+    answering = [p for p, frames in zip(candidates, probe_ports(candidates, baud, probe_s)) if frames > 0]
     if len(answering) == 1:
         return answering[0]
     listing = ", ".join(candidates)
