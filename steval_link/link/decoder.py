@@ -348,8 +348,7 @@ def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[
     while p < end:
         tpl = sd.text_template()
         if tpl is None:
-            nl = data.find(b"\n", min(p + _TEXT_PROBE, end - 1), end)
-            stop = end if nl < 0 else nl + 1
+            stop = data.find(b"\n", min(p + _TEXT_PROBE, end - 1), end) + 1 or end
             out += sd.feed(data[p:stop])
             p = stop
             continue
@@ -458,11 +457,9 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
     n, count = len(data), len(starts)
     nxt = starts + sizes
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run
-    fast: list[np.ndarray] = []
+    fast, frames = [], []  # index arrays of the runs left to numpy; the stream decoder's frames
     sd = StreamDecoder(plausibility=False, line_start=line_start)
-    frames: list[Frame] = []
-    p = 0
-    last_fast = False
+    p, last_fast = 0, False
     while p < n:
         k = int(np.searchsorted(starts, p))
         if not sd.pending_bytes and k < count and starts[k] == p:
