@@ -181,9 +181,8 @@ def family_glob(path: str) -> str | None:
 
 @dataclass
 class PortFinder:
-    """Finds a port again after it vanished (:meth:`find`, cheap enough to poll at 10 Hz): a USB adapter by its
-    identity whatever its new name, never another device at its old path; else at its path or a new name matching
-    ``pattern``. A path :meth:`reject` ed is skipped while its device node stays the same."""
+    """Finds a lost port again (:meth:`find`, cheap at 10 Hz): a USB adapter by its identity, whatever its name; else
+    its path or a new name matching ``pattern``. A path :meth:`reject` ed is skipped while its node stays the same."""
 
     identity: PortIdentity
     pattern: str | None = None

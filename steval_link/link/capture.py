@@ -92,8 +92,7 @@ class HostChunk:
 
 @dataclass
 class Capture:
-    """A capture read back: every received byte; chunk i starts at ``chunk_offsets[i]``, came at ``chunk_times_s[i]``
-    (s since capture start)."""
+    """A capture read back: its bytes; chunk i starts at ``chunk_offsets[i]``, came at ``chunk_times_s[i]`` s."""
 
     path: Path
     header: dict[str, Any]
@@ -151,9 +150,8 @@ def _pieces(data: bytes | bytearray | memoryview) -> list[bytes]:
 
 @dataclass(frozen=True)
 class CaptureTruth:
-    """The ground truth of truth chunks T, per AHRS step: ``step`` int64, ``t_s`` emulated time of the step's middle
-    input tick (s since power-up), ``q_wxyz`` (M, 4) float64 body → earth (NaN: none), ``movement`` bool (the step
-    counts for the metric)."""
+    """Truth chunks T, per AHRS step: ``step``, ``t_s`` (the step's middle input tick, emulated s since power-up),
+    ``q_wxyz`` (M, 4) body → earth (NaN: none), ``movement`` (the step counts for the metric)."""
 
     step: np.ndarray
     t_s: np.ndarray

@@ -196,9 +196,8 @@ Writer = Callable[[bytes], object]  #: takes a frame's bytes (sends or records t
 
 
 class CommandChannel:
-    """Numbers and sends commands through ``send(frame_bytes)``, then ``record(frame_bytes)`` (the capture's ``H``
-    chunks); :meth:`match` pairs an ack with its command. Numbers start at random, so that another session's acks
-    are not taken for this one's."""
+    """Numbers commands (from a random start: another session's acks are not taken for ours), sends and records them
+    (the capture's ``H`` chunks); :meth:`match` pairs an ack with its command."""
 
     def __init__(self, send: Writer, record: Writer | None = None, *, first_seq: int | None = None) -> None:
         self._send = send

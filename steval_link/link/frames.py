@@ -44,10 +44,9 @@ def _wire_fields(payload: np.dtype, required: int | None = None, extra: list = _
 
 @dataclass(slots=True)
 class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE, extra=_EXACT_WHERE)):
-    """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False): ``t_us`` mod 2³²,
-    ``acc_mg``/``gyro_mdps`` as passed to ``ahrs_fusion_ag``, ``q_wxyz`` after the step (NaN in text mode),
-    ``thz_rad`` the ISR-integrated yaw, ``seq`` the step mod 2¹⁶, ``thr`` gTHR. ``step``: the full step (text mode),
-    else None. ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames."""
+    """One AHRS step (a binary frame, or a text-mode row: ``exact`` False): ``acc_mg``/``gyro_mdps`` as passed to
+    ``ahrs_fusion_ag``, ``q_wxyz`` after the step (text: NaN), ``thz_rad`` the ISR-integrated yaw, ``thr`` gTHR.
+    ``step``: text rows' full step (binary: None); ``thx_rad`` (pitch), ``thy_rad`` (roll): text rows' (binary: NaN)."""
 
     step: int | None = None
     thx_rad: float = NAN
@@ -80,8 +79,7 @@ class TextFrame:
 @dataclass(slots=True)
 class TextRecordFrame:
     """One record of text telemetry: the ``values`` of one line or a few (NaN: an empty field), their ``names``
-    (``col1..N`` when none), ``units`` as written, the format's ``kind`` ('table', 'labelled', 'teleplot',
-    'st-221117')."""
+    (``col1..N`` when none), ``units`` as written, the format's ``kind`` ('table', 'labelled', 'teleplot', ...)."""
 
     names: tuple[str, ...]
     values: tuple[float, ...]

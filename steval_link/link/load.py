@@ -73,8 +73,7 @@ def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> 
 
 
 def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_layout: str | None = None) -> Telemetry:
-    """Decode a :class:`Recording` with its symbol chunks S; a BLE capture's notifications are its rows
-    (``ble_layout``: what its motion payloads hold, None: its header's)."""
+    """Decode a :class:`Recording` and its symbol chunks S; ``ble_layout``: a BLE capture's (None: its header's)."""
     if is_ble_source(src):
         return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
@@ -151,9 +150,8 @@ def _f32_bits(a: np.ndarray) -> np.ndarray:
 
 
 def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
-    """A capture's symbol rows S (the attitude the emulator read by symbol) in ``tel``: without attitude frames they
-    become ``tel.attitude`` (``source["attitude_from"]`` "symbols"); else ``source["symbols"]`` says whether the
-    frames agree with them bit for bit. ``rows`` None or empty: ``tel`` unchanged."""
+    """A capture's symbol rows S in ``tel``: the attitude when it has no frames (``source["attitude_from"]``), else
+    checked against the frames bit for bit (``source["symbols"]``)."""
     if rows is None or len(rows) == 0:
         return tel
     rows = np.asarray(rows, dtype=SYMBOL_DTYPE)

@@ -129,8 +129,7 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
 
 
 class ReplayPort:
-    """A file's bytes as a serial port: bytes ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first
-    read. Commands go nowhere: :meth:`write` raises."""
+    """A file's bytes as a serial port: bytes ``[0, ends[i])`` readable ``t_s[i] / speed`` s after the first read."""
 
     def __init__(
         self,

@@ -424,10 +424,9 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 @dataclass
 class Telemetry:
-    """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
-    and ``source`` (``path``, ``kind`` 'stv' | 'raw' | 'text', ``header`` of a capture, ``warnings``); the v2
-    frames as structured arrays: ``flight`` (FLIGHT_ROW_DTYPE), ``acks`` (ACK_ROW_DTYPE) and ``commands``
-    (COMMAND_ROW_DTYPE, commands found in the decoded bytes themselves)."""
+    """A decoded stream: ``attitude``/``status`` rows, ``text`` lines, ``events``, ``stats``, ``source`` (``path``,
+    ``kind`` 'stv' | 'raw' | 'text', capture ``header``, ``warnings``); the v2 frames as structured arrays (``flight``,
+    ``acks``, ``commands``: found in the bytes, then those the host sent)."""
 
     attitude: AttitudeArrays
     status: StatusArrays

@@ -54,9 +54,8 @@ _TIME_NAME_RE = re.compile(r"(?:t|time)(?:_[a-z0-9]+)*_(s|ms|us)")
 
 @dataclass
 class TextSeries:
-    """Every record of text telemetry: ``values`` (N, M) float64, a column per name of ``names`` (``units`` as
-    written); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (NaN when unknown), stream ``offset``, ``kind``
-    (the format), ``shape`` (its index in ``shapes``); ``notes`` what was recognised."""
+    """Every record: ``values`` (N, M), a column per name (``units`` as written); per record ``t_s`` (s, see
+    ``t_source``), ``t_host_s``, stream ``offset``, ``kind``, ``shape`` (index in ``shapes``); ``notes`` on them."""
 
     names: list[str] = field(default_factory=list)
     units: list[str] = field(default_factory=list)
@@ -241,9 +240,8 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
 
 
 def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[list, list[str]]:
-    """How the series become the attitude: [(target, column, factor to rad / mg / mdps)], and a note per mapped
-    name; ([], []) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
-    :func:`parse_map`) goes before the names; UserError for a series not there or a unit that does not fit."""
+    """[(target, column, factor to rad / mg / mdps)] and a note per mapped name; ([], []) without an angle or acc and
+    gyro. ``user_map`` (:func:`parse_map`) goes first; UserError for a series not there or a unit that does not fit."""
     mapped = {name for name, _ in (user_map or {}).values()}  # a series the user mapped is not also auto-mapped
     found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any() and v[0] not in mapped}
     defaulted = set()  # user-mapped angles without a unit anywhere: degrees, said as assumed
@@ -301,9 +299,8 @@ def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
 
 
 class RecordAttitude:
-    """Records of a live stream as text-mode attitude frames, mapped as a whole log is (a plan per record shape):
-    ``frame(record, t_s)`` with the record's host time, s; None for a record that is no attitude. Steps count AHRS
-    periods from the first record. :meth:`take_notes`: what each new shape mapped to, once each."""
+    """Records of a live stream as text-mode attitude frames (None: no attitude), mapped as a whole log is, a plan per
+    record shape; steps count AHRS periods from the first record. :meth:`take_notes`: each new shape's mapping."""
 
     def __init__(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         self.user_map = user_map

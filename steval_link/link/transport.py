@@ -113,8 +113,7 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
 
 
 class SerialReader(threading.Thread):
-    """Reads an open serial port in a thread and feeds a :class:`Protocol`; reconnects when the port fails.
-    ``find_port()``: the path to reopen, or None while it is not back (``find_port`` None: no reconnection)."""
+    """Reads an open port in a thread into a :class:`Protocol`; a failed port is reopened at ``find_port()``."""
 
     def __init__(
         self,
