@@ -210,6 +210,11 @@ def _scale(target: str, unit: str, name: str) -> float:
     return table[u]
 
 
+_SETPOINT = re.compile(r"(^|_)(rc|target|set|ref|cmd)(_|$)")  #: rc_pitch, target_roll...: not the attitude
+#: an acc/gyro axis, its unit written apart or as the name's suffix (``acc_x_mg``, ``gyro_z_dps``)
+_AXIS_NAME = re.compile(r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])(?:_(mg|g|mdps|dps))?")
+
+
 def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
     """Targets found by name (see the module docstring)."""
     out: dict[str, tuple[str, str]] = {}
@@ -220,15 +225,11 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
         unit_of_name = re.search(r"_(deg|rad)$", low)
         angle_unit = _unit(unit) or (unit_of_name.group(1) if unit_of_name else "deg")
         for target, words in (("pitch", ("pitch", "thx")), ("roll", ("roll", "thy")), ("yaw", ("yaw", "thz"))):
-            if target not in out and (low in words or any(w in low for w in words[:1])):
-                if not re.search(r"(^|_)(rc|target|set|ref|cmd)(_|$)", low):
-                    out[target] = (name, angle_unit)
+            if target not in out and (low in words or words[0] in low) and not _SETPOINT.search(low):
+                out[target] = (name, angle_unit)
         if low in ("thr", "gthr", "throttle") and "thr" not in out:
             out["thr"] = (name, "")
-        # acc/gyro axes with a unit, written apart or as the name's suffix (acc_x_mg, gyro_z_dps)
-        group = re.fullmatch(
-            r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])(?:_(mg|g|mdps|dps))?", low
-        )
+        group = _AXIS_NAME.fullmatch(low)
         if group and (unit or group.group(3)):
             base = "acc" if group.group(1).startswith("a") else "gyro"
             target = f"{base}_{group.group(2)}"
