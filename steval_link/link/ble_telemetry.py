@@ -199,9 +199,8 @@ class RunNumberer:
             if e <= s:
                 continue
             i = np.arange(e - s)
-            if self.k is None:
+            if self.k is None:  # the first run (the sums start at 0)
                 k0 = 0
-                self._k0, self._sum_t, self._sum_i, self._n = 0, 0.0, 0, 0
             elif gap[s]:  # a new run: placed by the phases of the run before and of this one
                 phase_a = (self._sum_t - self.p * self._sum_i) / self._n - self._k0 * self.p  # number 0's time
                 phase_b = float(np.mean(t[s:e] + 0.5 - i * self.p))  # this run's first sample's time
@@ -426,9 +425,7 @@ class LiveGrid:
         self._last_sample: np.ndarray | None = None  # acc, gyro and mag of the last sample
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)
-        self.rows_held = 0
-        self.gaps = 0
-        self.repeats = 0
+        self.rows_held = self.gaps = self.repeats = 0  #: rows held over lost samples, gaps, repeated reads
         #: (N, 3) magnetometer of the rows :meth:`rows` gave last, mgauss
         self.mag_mgauss = np.zeros((0, 3), np.float32)
 
