@@ -522,9 +522,7 @@ class _Chunks:
 
 def _read_chunks(raw: bytes, pos: int) -> _Chunks:
     """Every chunk from file position ``pos``; damage loses only itself, unless no valid chunk follows."""
-    mv = memoryview(raw)
-    n = len(raw)
-    out = _Chunks()
+    mv, n, out = memoryview(raw), len(raw), _Chunks()
     offsets, times, pieces, chunk_at, head = out.offsets, out.times, out.pieces, _chunk_at, _CHUNK_HEAD.size
     total = 0
     while pos < n:

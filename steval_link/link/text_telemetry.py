@@ -434,16 +434,13 @@ class TextTelemetryReader:
 
     def finish(self) -> list:
         """End of stream: whatever waits goes out as text lines (an incomplete record is not a record)."""
-        out = self._cut_current() + self._flush(self._pending)
-        self._pending = []
-        return out
+        pending, self._pending = self._pending, []
+        return self._cut_current() + self._flush(pending)
 
     def bulk_template(self) -> LineTemplate | None:
         """The latest one-line shape's :class:`LineTemplate` when a line fitting it would be a record now, else None."""
-        if self._current is not None or not self._shapes:
-            return None
-        shape = self._shapes[-1]
-        if len(shape.lines) != 1 or not shape.example:
+        shape = self._shapes[-1] if self._shapes else None
+        if self._current is not None or shape is None or len(shape.lines) != 1 or not shape.example:
             return None
         if self._template is None or self._template[0] is not shape:
             self._template = (shape, line_template(shape))
