@@ -198,8 +198,7 @@ class StreamDecoder:
             if not final and (n - p < 2 or buf[p + 1] == _SYNC1):
                 return None
             return self._skip(buf, p, n)
-        vt = buf[p + 2]
-        ln = buf[p + 3]
+        vt, ln = buf[p + 2], buf[p + 3]
         ver = vt >> 4
         if buf[p + 1] != _SYNC1 or ver not in _CHECK or (ver == _V1 and self._v2_seen):
             return self._skip(buf, p, n)
@@ -218,8 +217,7 @@ class StreamDecoder:
             elif crc_ok:
                 self.stats.unknown_frames += 1
             return self._skip(buf, p, n)
-        if ver == _V2:
-            self._v2_seen = True
+        self._v2_seen |= ver == _V2
         self._emit(out, _frame_at(buf, p, vt, ln, csz, self._base + p), ver)
         self._boundary = True
         return end + csz
@@ -233,8 +231,7 @@ class StreamDecoder:
             if final or limit - p >= MAX_LINE_BYTES or _BAD_PARTIAL.search(buf, p, limit) is not None:
                 return self._skip(buf, p, n)
             return None if buf.find(b"\r", p, limit - 1) < 0 else self._skip(buf, p, n)
-        raw = bytes(buf[p:nl])
-        nbytes = nl + 1 - p
+        raw, nbytes = bytes(buf[p:nl]), nl + 1 - p
         if not (raw[:-1] if raw[-1:] == b"\r" else raw).strip(b" \t"):
             # a blank line keeps the boundary state: text at a line start, maybe a damaged line's end after damage
             if self._boundary:

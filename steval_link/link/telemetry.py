@@ -54,8 +54,7 @@ class TimeUnwrapper:
             return np.zeros(0, dtype=np.float64)
         prev = np.concatenate([[raw[0] if self.last is None else self.last], raw[:-1]])
         wraps = self.wraps + np.cumsum((prev - raw) > _HALF)
-        self.wraps = int(wraps[-1])
-        self.last = int(raw[-1])
+        self.wraps, self.last = int(wraps[-1]), int(raw[-1])
         return (raw + wraps * P.T_US_MODULUS) / 1e6
 
     def nearest(self, t_us: int) -> float:
@@ -130,8 +129,7 @@ class StreamClock:
     def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
         self.t0_unix_s, self.baud = t0_unix_s, baud
         self.total = 0  # bytes of the stream so far
-        self._offsets: list[int] = []
-        self._times: list[float] = []
+        self._offsets, self._times = [], []  # the kept chunks' stream offsets and host times, s
         self._before_s = -np.inf  # time of the chunk before the first kept one
         self.fw = TimeUnwrapper()
 

@@ -80,11 +80,9 @@ def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S) -> s
 
 def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> ParamError:
     """Why ``port`` could not be opened and the fix; ``available``: the ports listed when it does not exist."""
-    code = getattr(exc, "errno", None)
-    text = str(exc)
-    cause = exc.__cause__ or exc.__context__
-    if code is None and cause is not None:
-        code = getattr(cause, "errno", None)
+    code, text = getattr(exc, "errno", None), str(exc)
+    if code is None:  # pyserial's own exception: its cause's
+        code = getattr(exc.__cause__ or exc.__context__, "errno", None)
     if code == errno.ENOENT or "No such file or directory" in text:
         if available:
             return ParamError(
