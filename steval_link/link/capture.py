@@ -212,8 +212,7 @@ class CaptureWriter:
         self._lock = threading.Lock()
         #: why the file can take no more (disk full, removed, replaced): an OSError whose text is one sentence
         self.failure: OSError | None = None
-        self._dirty = False
-        self._closed = False
+        self._dirty = self._closed = False
         self._discard_empty = bool(discard_empty)
         self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far

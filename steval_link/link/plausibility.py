@@ -186,9 +186,8 @@ class PlausibilityGate:
             return []
         if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1):
             self._anchor = (seq, t_us)
-            if self._pending:
-                self.held_back += len(self._pending)
-                self._pending = []
+            self.held_back += len(self._pending)  # a restart not confirmed
+            self._pending.clear()
             return [item]
         pend = self._pending
         if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1):
