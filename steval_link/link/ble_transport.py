@@ -229,8 +229,7 @@ class BleLink:
             _raise_explained(exc)
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
-        first_delay = min(0.5, self.retry_max_s)
-        delay = first_delay
+        delay = first_delay = min(0.5, self.retry_max_s)  # s before the next attempt, doubling up to retry_max_s
         while not stop.is_set():
             await _first(stop, self._lost)
             if stop.is_set():

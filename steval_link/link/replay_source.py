@@ -99,17 +99,14 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
     n = len(src.data)
     att = tel.attitude
     first = int(att.offset[0]) if len(att) else 0
-    if src.chunk_offsets is not None and src.chunk_times_s is not None and len(src.chunk_offsets):
-        t = np.asarray(src.chunk_times_s, np.float64)
-        if np.all(np.isfinite(t)):
-            ends = np.append(np.asarray(src.chunk_offsets[1:], np.int64), n)
-            t = np.maximum.accumulate(t)
-            k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
-            return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
-    t_fw = np.asarray(att.t_fw_s, np.float64) if len(att) else np.zeros(0)
-    how = "the frames' firmware times"
-    series = getattr(tel, "text_series", None)
-    if series is not None and len(series) >= 2 and not tel.has_own_attitude:  # text telemetry: records paced
+    t = np.maximum.accumulate(np.asarray(src.chunk_times_s, np.float64))  # a capture's chunks (NaN: none)
+    if len(t) and np.isfinite(t).all():
+        ends = np.append(np.asarray(src.chunk_offsets[1:], np.int64), n)
+        k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
+        return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
+    t_fw, how = np.asarray(att.t_fw_s, np.float64), "the frames' firmware times"
+    series = tel.text_series
+    if len(series) >= 2 and not tel.has_own_attitude:  # text telemetry: records paced
         if rate is None and series.t_source.startswith("the record index"):
             t_fw = np.zeros(0)  # no times: the baud rate below
         else:
@@ -121,9 +118,7 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
         t = np.concatenate([[0.0], np.cumsum(dt)])
         # frame i (and the bytes before frame i+1) is out at its own firmware time; the tail at the baud rate
         ends = np.append(np.asarray(att.offset[1:], np.int64), n)
-        tail_s = (n - int(att.offset[-1])) * BITS_PER_BYTE / baud
-        t = np.append(t[:-1], t[-1] + tail_s)
-        return ends, t, how
+        return ends, np.append(t[:-1], t[-1] + (n - int(att.offset[-1])) * BITS_PER_BYTE / baud), how
     ends = np.append(np.arange(BAUD_BLOCK_BYTES, n, BAUD_BLOCK_BYTES, dtype=np.int64), n)
     return ends, ends * (BITS_PER_BYTE / baud), f"{baud} baud"
 
