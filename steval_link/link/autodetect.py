@@ -190,8 +190,7 @@ class PortFinder:
     _rejected: dict[str, tuple] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.pattern is None:
-            self.pattern = family_glob(self.identity.path)
+        self.pattern = family_glob(self.identity.path) if self.pattern is None else self.pattern
 
     def mark_lost(self) -> None:
         """Remember which sibling names exist now, so that only a name that appears later is taken for the port."""
@@ -205,31 +204,21 @@ class PortFinder:
         return sorted(glob.glob(self.pattern)) if self.pattern else []
 
     def _usable(self, path: str) -> bool:
-        if not os.path.exists(path):
-            return False
-        real = os.path.realpath(path)
-        return real not in self._rejected or self._rejected[real] != _node(path)
+        return os.path.exists(path) and self._rejected.get(os.path.realpath(path)) != _node(path)
 
     def find(self) -> str | None:
         """The path to reopen (the most likely of those that may be the port now), or None while it is not back."""
         ident = self.identity
         if ident.has_usb_id:
-            found = [p for p in self._usb_matches() if self._usable(p)]
-        else:
-            found = [ident.path] if self._usable(ident.path) else []
-            found += [
-                p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)
-            ]
-        return found[0] if found else None
-
-    def _usb_matches(self) -> list[str]:
-        ident = self.identity
-        infos = [info for info in _comports() if info.vid == ident.vid and info.pid == ident.pid]
-        if ident.serial_number is not None:
-            infos = [info for info in infos if info.serial_number == ident.serial_number]
-        # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
-        infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
-        return [info.device for info in infos]
+            infos = [info for info in _comports() if info.vid == ident.vid and info.pid == ident.pid]
+            if ident.serial_number is not None:
+                infos = [info for info in infos if info.serial_number == ident.serial_number]
+            # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
+            infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
+            found = [info.device for info in infos]
+        else:  # its path, then a name that appeared since it was lost
+            found = [ident.path] + [p for p in self._siblings() if p not in self._present_at_loss and p != ident.path]
+        return next((p for p in found if self._usable(p)), None)
 
 
 def _node(path: str) -> tuple:

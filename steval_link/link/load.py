@@ -88,12 +88,11 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
                 "short): no frames."
             )
         raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
-    source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
     tel = decode_bytes(
         src.data,
         (src.chunk_offsets, src.chunk_times_s),
         baud=src.header.get("baud"),
-        source=source,
+        source={"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)},
         events=src.events,
         sent_commands=sent_command_rows(src.host),
         line_start=src.line_start,
@@ -102,9 +101,8 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
         if not len(tel.text_series):
             raise UserError(f"{src.path} has no text telemetry to map (no records of numbers found).")
         tel.map_text(text_map)
-    a = tel.attitude
     if src.kind != "stv":
-        if len(a) + len(tel.status) + len(tel.text_series) == 0:
+        if len(tel.attitude) + len(tel.status) + len(tel.text_series) == 0:
             raise UserError(
                 f"{src.path} is not a steval capture, raw serial dump or text log (no frames found, and no records "
                 f"of numbers, in {len(src.data)} bytes{_text_lines(tel)})."
