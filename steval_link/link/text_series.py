@@ -121,9 +121,7 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
         for name, unit in zip(b.names, b.units):
             unit_of.setdefault(name, unit)
     index = {name: k for k, name in enumerate(unit_of)}
-    units = list(unit_of.values())
-    total = sum(len(b.offset) for b in blocks)
-    values = np.full((total, len(index)), np.nan)
+    values = np.full((sum(len(b.offset) for b in blocks), len(index)), np.nan)
     offset = np.concatenate([b.offset for b in blocks])
     last = np.concatenate([b.offset + b.nbytes - 1 for b in blocks])
     kinds = np.concatenate([np.full(len(b.offset), b.kind, dtype=object) for b in blocks])
@@ -135,7 +133,7 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
         row += len(b.offset)
     order = np.argsort(offset, kind="stable")
     values, offset, last, kinds = values[order], offset[order], last[order], kinds[order]
-    series = TextSeries(list(index), units, values, np.zeros(0), host_times(last), offset, kinds)
+    series = TextSeries(list(index), list(unit_of.values()), values, np.zeros(0), host_times(last), offset, kinds)
     series.shape, series.shapes = shape[order], shapes
     series.t_s, series.t_source = _record_times(series)
     st = kinds == "st-221117"
