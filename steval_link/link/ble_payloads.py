@@ -103,8 +103,8 @@ def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[floa
 
 
 def ble_items(chunks: dict, events=()) -> list[tuple[int | None, bytes, float]]:
-    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks in order, as a live link hands them over: a
-    ``(None, b"", t)`` before the first notification after each ``reconnect`` event (the link was lost)."""
+    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks as a live link hands them: ``(None, b"", t)`` where
+    a ``reconnect`` event says the link was lost."""
     marks = sorted(e.t_host_s for e in events if e.kind == "reconnect")
     out: list[tuple[int | None, bytes, float]] = []
     m = 0

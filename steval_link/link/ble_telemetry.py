@@ -28,9 +28,8 @@ from steval_link.link.ble_payloads import (
 from steval_link.link.frames import DecoderStats
 from steval_link.link.telemetry import AttitudeArrays, Telemetry, TelemetryParts
 
-#: the stock firmware sends at most one motion notification per main-loop AHRS step (5 TIM9 ticks of 104000 cycles
-#: at 84 MHz: 6.190 ms) and tries at every step; a measured interval within :data:`STEP_SNAP` of it is that step
-#: (known exactly), and missing notifications are then counted from the ticks' phase (sub-tick precise)
+#: the stock firmware tries a motion notification every AHRS step (6.190 ms); an interval within :data:`STEP_SNAP`
+#: of it is that step, known exactly (notifications missing are then counted from the ticks' phase)
 STEP_PERIOD_S = AHRS_PERIOD_S
 STEP_SNAP = 0.02  #: relative
 #: a tick delta is a gap (notifications missing) from 1.5 periods plus one tick (the 8 ms quantisation) on

@@ -36,8 +36,7 @@ CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
 CHUNK_TRUTH = ord("T")
 CHUNK_SYMBOLS = ord("S")
-#: every chunk type the reader knows; D, E and H are read into the byte stream, the events and ``Capture.host``, the
-#: others (and a newer writer's unknown type whose CRC holds) are kept as they are in ``Capture.chunks``.
+#: the chunk types known: D, E, H go to the bytes, events, ``Capture.host``; others (and a newer writer's) as they are
 CHUNK_TYPES = (CHUNK_DATA, CHUNK_EVENT, CHUNK_BLE, CHUNK_HOST, CHUNK_TRUTH, CHUNK_SYMBOLS)
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])

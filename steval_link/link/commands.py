@@ -133,8 +133,7 @@ def parse_command(text: str) -> Command:
 
 
 def parse_script(text: str, source: str = "commands") -> list[tuple[float, Command]]:
-    """A command script (``steval emulate --commands FILE``): one ``TIME_S COMMAND...`` per line (emulated seconds
-    since power-up), ``#`` comments and blank lines ignored. Errors name the line."""
+    """A command script: ``TIME_S COMMAND...`` lines (emulated s since power-up), ``#`` comments; errors name lines."""
     out: list[tuple[float, Command]] = []
     for i, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].strip()

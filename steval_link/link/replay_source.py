@@ -94,8 +94,7 @@ def _positive(url: str, key: str, text: str) -> float:
 
 
 def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
-    """``(ends, t_s, how)``: bytes ``[0, ends[i])`` of ``src`` (decoded as ``tel``) are out at ``t_s[i]`` (s since
-    the replay started), paced by ``how``; ``rate``: records per second of a text log without times."""
+    """``(ends, t_s, how)``: bytes ``[0, ends[i])`` of ``src`` are out ``t_s[i]`` s into the replay, paced by how."""
     n = len(src.data)
     att = tel.attitude
     first = int(att.offset[0]) if len(att) else 0

@@ -40,8 +40,7 @@ _HALF = P.T_US_MODULUS // 2
 
 
 class TimeUnwrapper:
-    """Firmware seconds since boot from ``t_us`` values in stream order, across calls: a drop by more than half the
-    range is a wrap, a smaller step back is taken as it comes."""
+    """Firmware seconds since boot from ``t_us`` in stream order, across calls: a drop by over half the range wraps."""
 
     def __init__(self) -> None:
         self.wraps = 0
@@ -123,8 +122,7 @@ def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s
 
 
 class StreamClock:
-    """Firmware and host times of a live stream's rows by the bulk path's rules, on the capture's base
-    (``t0_unix_s``; default: the first chunk's time). Call :meth:`chunk` for each chunk before decoding it."""
+    """A live stream's rows timed by the bulk rules from ``t0_unix_s`` (None: the first chunk's); :meth:`chunk` each."""
 
     def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
         self.t0_unix_s, self.baud = t0_unix_s, baud
@@ -396,8 +394,7 @@ def _sorted_records(blocks: list[np.ndarray], frames: list, dtype: np.dtype) -> 
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(step per attitude row, restart offsets): binary rows' ``seq`` unwrapped as live; each firmware run takes the
-    high bits from its first status frame whose step agrees, for all its rows."""
+    """(step per attitude row, restart offsets): ``seq`` unwrapped, each firmware run anchored by its first status."""
     step = att["step"].copy()
     b = np.flatnonzero(att["exact"])
     restarts = np.zeros(0, np.int64)

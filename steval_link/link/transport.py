@@ -22,9 +22,8 @@ from steval_link.errors import ParamError
 
 #: How long one read waits for a first byte, s (the tick of :meth:`Protocol.idle` on a silent port).
 READ_TIMEOUT_S = 0.05
-#: A chunk ends when no more bytes came for this long, s (0.2 ms: a USB adapter delivers a frame in one or a few
-#: bursts; the consumer decodes every chunk at once, so a short gap hands a complete frame on quickly, and the
-#: wait for more bytes returns as soon as they arrive: ``select`` on the port's descriptor) ...
+#: A chunk ends when no more bytes came for this long, s (a USB adapter delivers a frame in a burst or a few: a short
+#: gap hands a whole frame on quickly; ``select`` on the port returns as soon as more bytes arrive) ...
 CHUNK_GAP_S = 0.0002
 #: ... or after this long since its first byte, s (bounds the latency of a continuous stream) ...
 CHUNK_MAX_S = 0.01
