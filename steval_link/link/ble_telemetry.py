@@ -511,8 +511,7 @@ class LiveGrid:
         t_rows = t_fw + TICK_S / 2 if c.kind == POLLED else self._t0_s + grid * dt
         host = np.array([f.t_host_s for f in mo], np.float64)
         t_host = np.interp(t_rows, t_fw, host) if n > 1 else np.full(len(grid), host[0])
-        self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
-        self._last_sample = sensors[-1]
+        self._last_k, self._last_tick, self._last_sample = int(k[-1]), int(tick[-1]), sensors[-1]
         self.mag_mgauss = rows[:, 6:]
         acc, gyro, ang = rows[:, :3], rows[:, 3:6], np.full((len(rows), 3), np.nan, np.float32)
         if self.layout.sends_attitude:  # angles in the acc fields; no sensor values: the estimators skip the rows

@@ -169,10 +169,8 @@ class StreamDecoder:
 
     def _run(self, final: bool) -> list[Frame]:
         """Decide every candidate in the buffer that can be decided now; the rest waits for more bytes."""
-        buf = self._buf
+        buf, p, out = self._buf, 0, []
         n = len(buf)
-        p = 0
-        out: list[Frame] = []
         while p < n:
             if self._skipping:
                 p = self._skip(buf, p, n, 0)
