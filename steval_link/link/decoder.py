@@ -379,8 +379,7 @@ for _vt in _VT_TEXT:
 
 
 def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Start offsets, sizes and VT bytes of every valid binary frame in ``data`` (overlaps included; no version-1
-    frame after the first version-2 frame), and that first version-2 frame's offset (infinity: none)."""
+    """Offsets, sizes and VT bytes of the valid binary frames (overlaps too; no v1 after v2), the first v2's offset."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == _SYNC0) & (arr[1:] == _SYNC1)) if n >= 2 else np.zeros(0, np.int64)
     idx = idx[idx + _HEAD <= n]

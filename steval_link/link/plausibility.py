@@ -122,8 +122,7 @@ def _count(n: int) -> str:
 
 
 def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
-    """The sentence about ``n`` kept frames with bad values, the first at ``first_step`` (``first_t_s``);
-    ``inputs``: the filter inputs (acc, gyro) are bad too, so the fault is before the filter."""
+    """The sentence on ``n`` kept frames with bad values from ``first_step`` on; ``inputs``: acc and gyro bad too."""
     where = "" if first_step is None else f" from step {first_step} on"
     if first_t_s is not None and math.isfinite(first_t_s):
         where += f" (t = {first_t_s:.3f} s)"

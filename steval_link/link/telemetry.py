@@ -70,8 +70,7 @@ class TimeUnwrapper:
 
 
 class SeqUnwrapper:
-    """Full AHRS steps from the u16 ``seq`` of binary attitude frames, across calls: a step back (or forward by half
-    the range or more) is a firmware restart, counted again from its ``seq``; :meth:`status` gives the high bits."""
+    """Full AHRS steps from binary frames' u16 ``seq`` (high bits: :meth:`status`); a step back is a restart."""
 
     def __init__(self) -> None:
         #: full step of the latest binary frame (None before the first)
@@ -261,8 +260,7 @@ _STATUS_COLUMNS = (*P.STATUS_DTYPE.names, "t_fw_s", "t_host_s", "exact", "offset
 
 @dataclass
 class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name in _STATUS_COLUMNS])):
-    """One row per status frame: every STATUS_DTYPE field, and ``t_fw_s``, ``t_host_s``, ``exact``, ``offset``,
-    ``values_bad`` (a snapshot holding NaN or ``|q|`` > 2: its settings are still the firmware's)."""
+    """One row per status frame: its STATUS_DTYPE fields, times, ``exact``, ``offset``, ``values_bad`` (NaN, |q|>2)."""
 
     values_bad: np.ndarray | None = None
 
