@@ -91,9 +91,8 @@ def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | Non
         if is_address(t):
             return next((d for d in devices if d.address.lower() == t.lower()), None)
         exact = [d for d in devices if d.name == t]
-        return (
-            exact[0] if exact else _strongest([d for d in devices if d.name and d.name.lower().startswith(t.lower())])
-        )
+        prefixed = [d for d in devices if d.name and d.name.lower().startswith(t.lower())]
+        return exact[0] if exact else _strongest(prefixed)
     return _strongest([d for d in devices if d.name and d.name.startswith(DEVICE_NAME_PREFIX)])
 
 

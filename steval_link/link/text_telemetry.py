@@ -126,8 +126,7 @@ def _label_and_unit(label: str) -> tuple[str, str]:
 
 
 def _tokens(text: str) -> list[tuple[str, str]] | None:
-    out = []
-    pos = 0
+    out, pos = [], 0
     for m in _TOKEN.finditer(text):
         if m.start() != pos:
             return None
@@ -327,9 +326,7 @@ def line_template(shape: _Shape) -> LineTemplate | None:
 
 def _labelled_template(example: str, kinds: tuple) -> tuple[bytes | None, tuple[bytes, ...]]:
     """The regex of a labelled line like ``example`` and its words (labels, units), longest first."""
-    parts: list[bytes] = []
-    words: set[bytes] = set()
-    k = 0
+    parts, words, k = [], set(), 0  # the regex's pieces, the words (labels, units), values seen
     for m in _TOKEN.finditer(example):
         if m.lastgroup == "glued":
             return None, ()  # (read line by line)
