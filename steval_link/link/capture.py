@@ -267,10 +267,8 @@ class CaptureWriter:
 
     def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
         """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks of at most :data:`TRUTH_ROWS_PER_CHUNK`."""
-        step = np.asarray(step, dtype=np.int64).reshape(-1)
-        rows = np.zeros(step.shape[0], dtype=TRUTH_DTYPE)
-        rows["step"], rows["t_s"] = step, np.asarray(t_s, dtype=np.float64).reshape(-1)
-        rows["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+        rows = np.zeros(np.size(step), dtype=TRUTH_DTYPE)
+        rows["step"], rows["t_s"], rows["q_wxyz"] = np.ravel(step), np.ravel(t_s), np.reshape(q_wxyz, (-1, 4))
         rows["movement"] = np.asarray(movement, dtype=bool).reshape(-1)
         for i in range(0, len(rows), TRUTH_ROWS_PER_CHUNK):
             self.write_chunk(CHUNK_TRUTH, rows[i : i + TRUTH_ROWS_PER_CHUNK].tobytes(), t_host_s)
