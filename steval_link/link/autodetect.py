@@ -30,12 +30,10 @@ from steval_link.link.transport import close_quietly, open_serial
 #: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
 COMMON_BAUDS = (115200, 921600, 460800, 230400, 57600, 38400, 19200, 9600)
 
-_GLOB_CHARS = re.compile(r"[*?\[]")
-
 
 def is_glob(port: str) -> bool:
     """True when ``port`` is a pattern (``*``, ``?`` or ``[``) rather than one path."""
-    return bool(_GLOB_CHARS.search(port))
+    return any(c in port for c in "*?[")
 
 
 #: Longest wait for ``lsof``, s.
@@ -59,10 +57,8 @@ class PortInfo:
 
 def list_ports() -> list[PortInfo]:
     """Every serial port of this machine, sorted by device name."""
-    from serial.tools import list_ports as lp
-
     out = []
-    for p in lp.comports():
+    for p in _comports():
         vid_pid = f"{p.vid:04X}:{p.pid:04X}" if p.vid is not None and p.pid is not None else None
         desc = p.description if p.description and p.description != "n/a" else ""
         out.append(PortInfo(p.device, desc, vid_pid, p.serial_number, p.manufacturer, p.hwid or ""))
