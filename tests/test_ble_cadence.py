@@ -1,4 +1,4 @@
-"""The motion stream's cadence (steval_link.link.ble_cadence.motion_cadence) on streams a drone really sends: a
+"""The motion stream's cadence (steval_link.link.ble_telemetry.motion_cadence) on streams a drone really sends: a
 firmware that notifies at its own rate from its main loop (40, 50, 80 Hz and ST's 161.54 Hz), the same with ST's
 congestion skips (30 motion updates after a refused one), across the 8 ms tick's wrap, with jittered host arrival
 times, and a poller reading the characteristic at 30-40 Hz (repeated reads of one sample). Each is decoded from its
@@ -16,8 +16,8 @@ import pytest
 from support.ble import FakeBleBackend, RecordingViewer, held_rows, run_until_played, telemetry_of_records
 from support.cli import run_cli
 
-from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BC
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 from steval_link.link.load import load_telemetry
 

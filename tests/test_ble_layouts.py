@@ -15,8 +15,8 @@ import pytest
 from support.ble import held_rows, telemetry_of_records
 from support.cli import run_cli
 
-from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BC
 from steval_link.link.ble_telemetry import EULER_NOTE, link_notes
 from steval_link.link.capture import CHUNK_BLE, CaptureWriter
 from steval_link.link.load import load_telemetry, read_recording

@@ -14,8 +14,8 @@ import pytest
 from support.ble import FakeBleBackend, RecordingViewer, run_until_played
 
 from steval_link.errors import UserError
-from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BC
 from steval_link.link.ble_transport import BleDevice, BleLink, explain_ble_error, is_address, pick_device
 from steval_link.link.capture import read_capture
 from steval_link.link.load import read_recording

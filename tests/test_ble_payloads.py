@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from support.ble import held_rows, telemetry_of_records
 
-from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BC
 from steval_link.link.capture import read_capture
 from steval_link.link.load import load_telemetry
 

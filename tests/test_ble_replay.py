@@ -15,8 +15,8 @@ import pytest
 from support.cli import run_cli
 
 from steval_link.errors import UserError
-from steval_link.link import ble_cadence as BC
 from steval_link.link import ble_payloads as B
+from steval_link.link import ble_telemetry as BC
 from steval_link.link.capture import (
     CHUNK_BLE,
     FORMAT_VERSION,

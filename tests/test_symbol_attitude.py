@@ -13,8 +13,7 @@ from steval_link.estimators.st_mahony import MahonySettings, run
 from steval_link.link import protocol as P
 from steval_link.link.capture import CHUNK_SYMBOLS, SYMBOL_DTYPE, CaptureWriter, capture_symbol_rows, read_capture
 from steval_link.link.decoder import decode_bytes
-from steval_link.link.load import load_telemetry
-from steval_link.link.symbol_rows import merge_symbol_attitude
+from steval_link.link.load import load_telemetry, merge_symbol_attitude
 
 
 def symbol_rows(n: int, variant: str = "ST 221117", seed: int = 5) -> np.ndarray:

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from steval_link.link import protocol as P
-from steval_link.link.unwrap import SeqUnwrapper, TimeUnwrapper
+from steval_link.link.telemetry import SeqUnwrapper, TimeUnwrapper
 
 
 def _stream(draw_ops, start: int) -> np.ndarray:

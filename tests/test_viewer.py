@@ -16,8 +16,7 @@ from steval_link.estimators.st_mahony import quaternion_to_euler
 from steval_link.link import protocol as P
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import AttitudeFrame, StatusFrame, TextFrame
-from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
-from steval_link.link.unwrap import TimeUnwrapper
+from steval_link.link.telemetry import AttitudeArrays, TelemetryParts, TimeUnwrapper
 from steval_link.live.pipeline import EventTime, LiveRows
 from steval_viewer import blueprint, drone_model
 from steval_viewer import entities as ent

@@ -7,7 +7,7 @@ import json
 import typer
 
 from steval_link.cli.app import app, option
-from steval_link.link.ports import list_ports
+from steval_link.link.autodetect import list_ports
 
 
 @app.command()

@@ -1,20 +1,28 @@
-"""Finding the drone's serial port: probing candidates, recognising a wrong baud rate, finding a port again."""
+"""Serial ports: listing them (``steval ports``), finding the drone's (probing candidates, recognising a wrong baud
+rate, finding a port again), and the other programs that have it open (:func:`port_holders`).
+
+A program reading the port without its lock (``cat``) takes bytes from our stream: Linux's ``/proc/PID/fd`` links or
+``lsof`` find it (Windows opens ports exclusively).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import math
 import os
 import re
+import shutil
+import subprocess
+import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import serial
 
 from steval_link.errors import ParamError
-from steval_link.link import ports
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.frames import TextFrame
 from steval_link.link.transport import close_quietly, open_serial
@@ -22,20 +30,103 @@ from steval_link.link.transport import close_quietly, open_serial
 #: Baud rates the USART1 setups of the STEVAL firmware use, most likely first after the default.
 COMMON_BAUDS = (115200, 921600, 460800, 230400, 57600, 38400, 19200, 9600)
 
-_GLOB_CHARS = re.compile(r"[*?\[]")
-
 
 def is_glob(port: str) -> bool:
     """True when ``port`` is a pattern (``*``, ``?`` or ``[``) rather than one path."""
-    return bool(_GLOB_CHARS.search(port))
+    return any(c in port for c in "*?[")
+
+
+#: Longest wait for ``lsof``, s.
+LSOF_TIMEOUT_S = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class PortInfo:
+    """One serial port as pyserial sees it; ``vid_pid`` is ``"0483:5740"`` style or None (not USB)."""
+
+    device: str
+    description: str
+    vid_pid: str | None
+    serial_number: str | None
+    manufacturer: str | None
+    hwid: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def list_ports() -> list[PortInfo]:
+    """Every serial port of this machine, sorted by device name."""
+    out = []
+    for p in _comports():
+        vid_pid = f"{p.vid:04X}:{p.pid:04X}" if p.vid is not None and p.pid is not None else None
+        desc = p.description if p.description and p.description != "n/a" else ""
+        out.append(PortInfo(p.device, desc, vid_pid, p.serial_number, p.manufacturer, p.hwid or ""))
+    return sorted(out, key=lambda x: x.device)
+
+
+def port_holders(device: str) -> list[tuple[int, str]]:
+    """(PID, program name) of every other process that has ``device`` open, sorted by PID."""
+    real = os.path.realpath(device)
+    if sys.platform.startswith("linux") and os.path.isdir("/proc/self/fd"):
+        found = _proc_holders(real)
+    elif sys.platform == "win32":  # a port is opened exclusively there
+        found = []
+    else:
+        found = _lsof_holders(real)
+    return sorted((pid, name) for pid, name in found if pid != os.getpid())
+
+
+def _proc_holders(real: str) -> list[tuple[int, str]]:
+    pids = set()
+    for link in glob.glob("/proc/[0-9]*/fd/*"):  # another user's processes: their fds are not listed
+        with contextlib.suppress(OSError):  # gone meanwhile
+            if os.readlink(link) == real:
+                pids.add(int(link.split("/")[2]))
+    return [(pid, _proc_name(str(pid))) for pid in pids]
+
+
+def _proc_name(pid: str) -> str:
+    try:
+        with open(f"/proc/{pid}/comm") as f:
+            return f.read().strip() or "?"
+    except OSError:
+        return "?"
+
+
+def _lsof_holders(real: str) -> list[tuple[int, str]]:
+    lsof = shutil.which("lsof")
+    if lsof is None:
+        return []
+    try:
+        done = subprocess.run([lsof, "-F", "pc", real], capture_output=True, text=True, timeout=LSOF_TIMEOUT_S)
+    except (OSError, subprocess.SubprocessError):
+        return []
+    out, pid = [], None
+    for line in done.stdout.splitlines():
+        if line.startswith("p") and line[1:].isdigit():
+            pid = int(line[1:])
+        elif line.startswith("c") and pid is not None:
+            out.append((pid, line[1:] or "?"))
+            pid = None
+    return out
+
+
+def holders_sentence(device: str, holders: list[tuple[int, str]]) -> str:
+    """The sentence for other programs that have the port open."""
+    who = ", ".join(f"PID {pid}, {name}" for pid, name in holders)
+    many = len(holders) > 1
+    return (
+        f"{'other programs' if many else 'another program'} ({who}) {'have' if many else 'has'} {device} open: "
+        f"{'they take' if many else 'it takes'} bytes from this stream (close {'them' if many else 'it'})"
+    )
 
 
 def list_candidate_ports() -> list[str]:
     """Device paths that may carry the drone: the USB ports when there are any, else every port."""
 
-    listed = ports.list_ports()
-    usb = [p.device for p in listed if p.vid_pid]
-    return usb or [p.device for p in listed]
+    listed = list_ports()
+    return [p.device for p in listed if p.vid_pid] or [p.device for p in listed]
 
 
 def _comports():
@@ -81,16 +172,13 @@ class PortIdentity:
 def family_glob(path: str) -> str | None:
     """The pattern of a port's sibling names: ``/dev/ttyUSB0`` → ``/dev/ttyUSB*``; ``None`` when no trailing digits."""
     m = re.match(r"^(.*?)(\d+)$", path)
-    if not m or not m.group(1):
-        return None
-    return glob.escape(m.group(1)) + "*"
+    return glob.escape(m.group(1)) + "*" if m and m.group(1) else None
 
 
 @dataclass
 class PortFinder:
-    """Finds a port again after it vanished (:meth:`find`, cheap enough to poll at 10 Hz): a USB adapter by its
-    identity whatever its new name, never another device at its old path; else at its path or a new name matching
-    ``pattern``. A path :meth:`reject` ed is skipped while its device node stays the same."""
+    """Finds a lost port again (:meth:`find`, cheap at 10 Hz): a USB adapter by its identity, whatever its name; else
+    its path or a new name matching ``pattern``. A path :meth:`reject` ed is skipped while its node stays the same."""
 
     identity: PortIdentity
     pattern: str | None = None
@@ -98,8 +186,7 @@ class PortFinder:
     _rejected: dict[str, tuple] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.pattern is None:
-            self.pattern = family_glob(self.identity.path)
+        self.pattern = family_glob(self.identity.path) if self.pattern is None else self.pattern
 
     def mark_lost(self) -> None:
         """Remember which sibling names exist now, so that only a name that appears later is taken for the port."""
@@ -113,31 +200,21 @@ class PortFinder:
         return sorted(glob.glob(self.pattern)) if self.pattern else []
 
     def _usable(self, path: str) -> bool:
-        if not os.path.exists(path):
-            return False
-        real = os.path.realpath(path)
-        return real not in self._rejected or self._rejected[real] != _node(path)
+        return os.path.exists(path) and self._rejected.get(os.path.realpath(path)) != _node(path)
 
     def find(self) -> str | None:
         """The path to reopen (the most likely of those that may be the port now), or None while it is not back."""
         ident = self.identity
         if ident.has_usb_id:
-            found = [p for p in self._usb_matches() if self._usable(p)]
-        else:
-            found = [ident.path] if self._usable(ident.path) else []
-            found += [
-                p for p in self._siblings() if p not in self._present_at_loss and p != ident.path and self._usable(p)
-            ]
-        return found[0] if found else None
-
-    def _usb_matches(self) -> list[str]:
-        ident = self.identity
-        infos = [info for info in _comports() if info.vid == ident.vid and info.pid == ident.pid]
-        if ident.serial_number is not None:
-            infos = [info for info in infos if info.serial_number == ident.serial_number]
-        # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
-        infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
-        return [info.device for info in infos]
+            infos = [info for info in _comports() if info.vid == ident.vid and info.pid == ident.pid]
+            if ident.serial_number is not None:
+                infos = [info for info in infos if info.serial_number == ident.serial_number]
+            # without a serial number: the same USB socket first, then the old name, then any adapter of that kind
+            infos.sort(key=lambda info: (info.location != ident.location, info.device != ident.device, info.device))
+            found = [info.device for info in infos]
+        else:  # its path, then a name that appeared since it was lost
+            found = [ident.path] + [p for p in self._siblings() if p not in self._present_at_loss and p != ident.path]
+        return next((p for p in found if self._usable(p)), None)
 
 
 def _node(path: str) -> tuple:
@@ -149,59 +226,43 @@ def _node(path: str) -> tuple:
     return st.st_rdev, st.st_ino, st.st_ctime_ns
 
 
-@dataclass
-class ProbeResult:
-    """What a short read of one port found: ``frames_ok`` valid frames but text frames."""
-
-    port: str
-    baud: int
-    frames_ok: int = 0
-    error: str | None = None
+#: Bytes a probe reads at most.
+PROBE_MAX_BYTES = 64 * 1024
 
 
-def probe_port(port: str, baud: int, duration_s: float = 0.6, *, max_bytes: int = 64 * 1024) -> ProbeResult:
-    """Read ``port`` at ``baud`` for up to ``duration_s`` (less once a valid frame arrived) and decode the bytes."""
-
-    result = ProbeResult(port, baud)
+def probe_port(port: str, baud: int, duration_s: float = 0.6) -> int:
+    """Valid frames but text frames read from ``port`` at ``baud`` within ``duration_s`` (it stops at 2; 0: failed)."""
     t0 = time.monotonic()
     try:
         ser = open_serial(port, baud, timeout_s=0.02)
-    except (serial.SerialException, OSError) as exc:
-        result.error = str(exc)
-        return result
-    decoder = StreamDecoder()
-    buf = bytearray()
+    except (serial.SerialException, OSError):
+        return 0
+    decoder, frames, nbytes = StreamDecoder(), 0, 0
     try:
-        while time.monotonic() - t0 < duration_s and len(buf) < max_bytes:
-            try:
+        with contextlib.suppress(serial.SerialException, OSError):  # a read failed: the frames so far
+            while time.monotonic() - t0 < duration_s and nbytes < PROBE_MAX_BYTES and frames < 2:
                 data = ser.read(4096)
-            except (serial.SerialException, OSError) as exc:
-                result.error = str(exc)
-                break
-            if data:
-                buf += data
+                nbytes += len(data)
                 # text frames do not count: any device's text lines decode as firmware log lines
-                result.frames_ok += sum(1 for f in decoder.feed(data) if not isinstance(f, TextFrame))
-                if result.frames_ok >= 2:
-                    break
+                frames += sum(1 for f in decoder.feed(data) if not isinstance(f, TextFrame))
     finally:
         close_quietly(ser)
-    return result
+    return frames
 
 
-def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[ProbeResult]:
-    """:func:`probe_port` on several ports at once (one thread each), results in the order of ``ports``."""
-    results: list[ProbeResult | None] = [None] * len(ports)
+def probe_ports(ports: list[str], baud: int, duration_s: float = 0.6) -> list[int]:
+    """:func:`probe_port` on several ports at once (one thread each): their frame counts, in the order of ``ports``."""
+    counts = [0] * len(ports)  # a probe that does not finish counts none
 
     def work(i: int, p: str) -> None:
-        results[i] = probe_port(p, baud, duration_s)
+        counts[i] = probe_port(p, baud, duration_s)
 
     threads = [threading.Thread(target=work, args=(i, p), daemon=True) for i, p in enumerate(ports)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(duration_s + 5.0)
-    return [r if r is not None else ProbeResult(p, baud, error="probe did not finish") for r, p in zip(results, ports)]
+    return counts
 
 
 class PortChoiceError(ParamError):
@@ -209,8 +270,7 @@ class PortChoiceError(ParamError):
 
 
 def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[str] | None = None) -> str:
-    """A path as is; ``auto`` or a glob: the one candidate, or the one of several probed that sends frames
-    (:class:`PortChoiceError` when none or several do)."""
+    """A path as is; ``auto`` or a glob: the one candidate, or the one probed that sends frames (else an error)."""
     if spec != "auto" and not is_glob(spec):
         return spec
     if candidates is None:
@@ -224,8 +284,7 @@ def choose_port(spec: str, baud: int, *, probe_s: float = 0.6, candidates: list[
         )
     if len(candidates) == 1:
         return candidates[0]
-    results = probe_ports(candidates, baud, probe_s)
-    answering = [r.port for r in results if r.frames_ok > 0]
+    answering = [p for p, frames in zip(candidates, probe_ports(candidates, baud, probe_s)) if frames > 0]
     if len(answering) == 1:
         return answering[0]
     listing = ", ".join(candidates)
@@ -290,15 +349,13 @@ def suggest_bauds(data: bytes, baud: int) -> list[int]:
     run = bit_run_length(data)
     if run < 2.3 or not slower:
         return faster + sorted(slower, key=lambda b: -b)
-    ratio = 2.0 if run < 3.2 else 4.0 if run < 4.4 else 8.0
-    guess = baud / ratio
+    guess = baud / (2.0 if run < 3.2 else 4.0 if run < 4.4 else 8.0)  # the sender's rate by the bit runs
     slower.sort(key=lambda b: abs(math.log(b / guess)))
     return slower + faster
 
 
 def no_frames_message(port: str, baud: int, data: bytes, seconds: float, total: int | None = None) -> ParamError:
-    """The one line for a port that sent no valid frame in ``seconds``: what the bytes look like (``data``: a
-    sample, ``total``: all) and which baud rate to try."""
+    """The one line for a port without valid frames in ``seconds``: what its bytes look like, which baud to try."""
     if not data:
         return ParamError(
             f"no bytes at all from {port} in {seconds:.1f} s: is the drone powered and its TX (PA9, header P7) "

@@ -24,8 +24,8 @@ to 1000), RSSI dBm·10.
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
+from struct import Struct
 
 from steval_link.link.capture import CHUNK_BLE
 
@@ -47,10 +47,6 @@ DEVICE_NAME_PREFIX = "DRN1"
 TICK_S = 0.008
 TICK_WRAP = 1 << 16
 
-_MOTION = struct.Struct("<H3h3h3h")
-_ENV = struct.Struct("<HiHhh")
-_ARMING = struct.Struct("<HB")
-
 
 class BadPayload(ValueError):
     """A notification whose length does not match its characteristic."""
@@ -62,12 +58,11 @@ def char_id_of_uuid(uuid: str) -> int | None:
 
 
 #: characteristic id → payload layout of the fixed-size notifications
-_LAYOUTS = {CHAR_MOTION: _MOTION, CHAR_ENV: _ENV, CHAR_ARMING: _ARMING}
+_LAYOUTS = {CHAR_MOTION: Struct("<H3h3h3h"), CHAR_ENV: Struct("<HiHhh"), CHAR_ARMING: Struct("<HB")}
 
 
 def unpack_payload(char_id: int, payload: bytes) -> tuple[int, ...]:
-    """The raw fields of a motion, environment or arming notification in payload order (the table above);
-    :class:`BadPayload` when its length does not match."""
+    """The raw fields of a motion, environment or arming notification (the table above), else :class:`BadPayload`."""
     layout = _LAYOUTS[char_id]
     if len(payload) != layout.size:
         raise BadPayload(f"{CHAR_NAMES[char_id]} notification of {len(payload)} bytes (expected {layout.size})")
@@ -108,8 +103,8 @@ def ble_records(chunks: dict[int, list[tuple[float, bytes]]]) -> list[tuple[floa
 
 
 def ble_items(chunks: dict, events=()) -> list[tuple[int | None, bytes, float]]:
-    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks in order, as a live link hands them over: a
-    ``(None, b"", t)`` before the first notification after each ``reconnect`` event (the link was lost)."""
+    """``(char id, payload, t_host_s)`` of a capture's ``B`` chunks as a live link hands them: ``(None, b"", t)`` where
+    a ``reconnect`` event says the link was lost."""
     marks = sorted(e.t_host_s for e in events if e.kind == "reconnect")
     out: list[tuple[int | None, bytes, float]] = []
     m = 0
@@ -196,8 +191,7 @@ class BleDecoder:
         if char_id == CHAR_MOTION:
             repeat = bytes(payload) == self._last_motion
             self._last_motion = bytes(payload)
-            gyro = (v[4] * 100, v[5] * 100, v[6] * 100)
-            return BleMotionFrame(tick, v[1:4], gyro, v[7:10], t_host_s, repeat)
+            return BleMotionFrame(tick, v[1:4], (v[4] * 100, v[5] * 100, v[6] * 100), v[7:10], t_host_s, repeat)
         if char_id == CHAR_ENV:
             return BleEnvFrame(tick, v[1] / 100.0, v[2] / 10.0, v[3] / 10.0, v[4] / 10.0, t_host_s)
         return BleArmingFrame(tick, bool(v[1]), t_host_s)

@@ -1,5 +1,8 @@
 """A BLE capture as the one model: notifications → frames → the sender's samples on one grid (:class:`LiveGrid`,
 live and replayed alike) → :class:`~steval_link.link.telemetry.Telemetry` with the link's facts (:class:`BleStream`).
+
+The motion stream's cadence comes from its ticks (8 ms units): the sender's own rate, ST's congestion skips (30
+updates after a failed notification), gaps, or a poller's reads, with the sender's number of each sample.
 """
 
 from __future__ import annotations
@@ -9,21 +12,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from steval_link.constants import AHRS_PERIOD_S
 from steval_link.errors import UserError
-from steval_link.link.ble_cadence import (
-    CONGESTION,
-    GAPS,
-    POLLED,
-    STEADY,
-    STEP_PERIOD_S,
-    Cadence,
-    RunNumberer,
-    gap_mask,
-    motion_cadence,
-    repeats_are_reads,
-    sample_numbers,
-    sender_phase,
-)
 from steval_link.link.ble_payloads import (
     TICK_S,
     BleArmingFrame,
@@ -37,6 +27,214 @@ from steval_link.link.ble_payloads import (
 )
 from steval_link.link.frames import DecoderStats
 from steval_link.link.telemetry import AttitudeArrays, Telemetry, TelemetryParts
+
+#: the stock firmware tries a motion notification every AHRS step (6.190 ms); an interval within :data:`STEP_SNAP`
+#: of it is that step, known exactly (notifications missing are then counted from the ticks' phase)
+STEP_PERIOD_S = AHRS_PERIOD_S
+STEP_SNAP = 0.02  #: relative
+#: a tick delta is a gap (notifications missing) from 1.5 periods plus one tick (the 8 ms quantisation) on
+GAP_PERIODS = 1.5
+
+#: :attr:`Cadence.kind`: what the ticks show
+STEADY, CONGESTION, GAPS, POLLED = "steady", "congestion", "gaps", "polled"
+
+
+@dataclass(frozen=True, slots=True)
+class Cadence:
+    """The motion stream's cadence. ``kind``: ``steady`` (the sender's own rate, nothing dropped), ``congestion``
+    (ST's AHRS step with notifications missing), ``gaps`` (another cadence with gaps), ``polled`` (samples received
+    twice: reads of the characteristic, nothing dropped)."""
+
+    kind: str
+    interval_s: float  #: the sender's interval (polled: the mean interval between distinct samples), s
+    dropped: int  #: motion samples missing between the first and the last received
+    gaps: int  #: tick deltas of 1.5 periods or more plus the tick's quantisation (:func:`gap_mask`), if any dropped
+    repeats: int  #: samples received again (same tick and payload), counted once
+    span_s: float  #: first to last sample, drone clock, s
+    exact: bool  #: the interval is ST's AHRS step (known exactly), not a measurement
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.interval_s
+
+    def _decimals(self, value: float) -> int:
+        """Decimals worth showing for ``value`` measured over the span (two ticks of blur), at most 2."""
+        if self.exact or not self.span_s > 0:
+            return 2
+        blur = abs(value) * 2 * TICK_S / self.span_s
+        return int(min(2, max(0, np.floor(-np.log10(blur))))) if blur > 0 else 2
+
+    def describe(self) -> str:
+        """One phrase for the summary and the health line ("motion every 20.0 ms (50.0 Hz, ...), 0 dropped")."""
+        ms, hz = self.interval_s * 1e3, self.rate_hz
+        every = f"every {ms:.{self._decimals(ms)}f} ms"
+        rate = f"{hz:.{self._decimals(hz)}f} Hz"
+        if self.kind == POLLED:
+            return (
+                f"motion read {every} on average ({rate}: reads of the characteristic, {_n(self.repeats)} "
+                f"repeated read(s) of one sample counted once), 0 dropped"
+            )
+        if self.kind == STEADY:
+            return f"motion {every} ({rate}, the sender's own rate), 0 dropped"
+        where = f" in {_n(self.gaps)} gap(s)" if self.gaps else ""
+        why = (
+            "congestion: ST's firmware skips motion updates while the radio is full"
+            if self.kind == CONGESTION
+            else "gaps in the sender's own cadence"
+        )
+        return f"motion {every} ({rate}) with {_n(self.dropped)} dropped{where} ({why})"
+
+
+def _n(k: int) -> str:
+    """An integer with a space between thousands (1 212)."""
+    return f"{int(k):,}".replace(",", " ")
+
+
+def gap_mask(d_ticks: np.ndarray, period_ticks: float) -> np.ndarray:
+    """Tick deltas that are gaps: 1.5 periods and more beyond a tick of quantisation and a period's own spread."""
+    return (d_ticks >= GAP_PERIODS * period_ticks + 1) & (d_ticks > np.floor(period_ticks) + 1)
+
+
+def period_ticks(d_ticks) -> float | None:
+    """The sender's period in ticks: the mean of the tick deltas that are not gaps (unbiased by the 8 ms quantisation:
+    it telescopes to the span), found from the bulk within a tick above the median. None: no delta above 0."""
+    d = np.maximum(np.asarray(d_ticks, dtype=np.int64), 0)
+    if d.size == 0:
+        return None
+    bulk = d[d <= np.median(d) + 1]
+    p = float(bulk.mean()) if bulk.size else 0.0
+    for _ in range(4):
+        if not p > 0:
+            break
+        keep = d[~gap_mask(d, p)]
+        q = float(keep.mean()) if keep.size else p
+        if q == p:
+            break
+        p = q
+    if not p > 0:
+        total = float(d.sum())
+        return total / d.size if total > 0 else None
+    return p
+
+
+def repeats_are_reads(ticks, repeat, t_host_s) -> bool:
+    """Whether repeated motion notifications are a poller's reads rather than samples: true when, counted as
+    samples, the stream is not faster than one 8 ms tick on both the drone's ticks and the arrival times."""
+    t = np.asarray(ticks, dtype=np.int64)
+    rep = np.asarray(repeat, dtype=bool)
+    n = len(t)
+    if n < 2 or not rep.any():
+        return False
+    step_ticks = float(t[-1] - t[0]) / (n - 1)
+    if step_ticks >= 1.0:
+        return True
+    h = np.asarray(t_host_s, dtype=np.float64)
+    host_span = float(h[-1] - h[0])
+    return not (host_span > 0 and host_span / (n - 1) < 1.5 * TICK_S)
+
+
+def motion_cadence(ticks, repeats: int = 0, breaks=()) -> Cadence | None:
+    """The cadence of unwrapped ticks (one per distinct sample), ``repeats`` removed, ``breaks`` the samples after a
+    reconnection (no drop before them); None below 2 samples or on one tick. The period (:func:`period_ticks`) is
+    ST's step within :data:`STEP_SNAP`, else a least-squares fit; drops come from the ticks' phase at ST's step
+    (:func:`sample_numbers`), else from the runs around each gap (:class:`RunNumberer`)."""
+    t = np.asarray(ticks, dtype=np.int64)
+    n = len(t)
+    if n < 2 or t[-1] <= t[0]:
+        return None
+    d = np.diff(t)
+    brk = np.zeros(n, bool)  # the samples that follow a reconnection (never the first)
+    b = np.asarray(breaks, dtype=np.int64).reshape(-1)
+    brk[b[(b > 0) & (b < n)]] = True
+    p = period_ticks(d[~brk[1:]]) if brk.any() else period_ticks(d)
+    if p is None:
+        return None
+    span_s = float(t[-1] - t[0]) * TICK_S
+    if repeats > 0 and p >= 1:
+        return Cadence(POLLED, span_s / (n - 1), 0, 0, int(repeats), span_s, False)
+    exact = abs(p * TICK_S - STEP_PERIOD_S) <= STEP_SNAP * STEP_PERIOD_S
+    if exact:
+        interval = STEP_PERIOD_S
+        k = sample_numbers(t, interval)
+    else:
+        k = RunNumberer(p).numbers(t)
+        for _ in range(2):  # the period from all samples at their numbers (least squares): precise over the span
+            fit = float(np.polyfit(k, t + 0.5, 1)[0]) if k[-1] > 1 else p
+            if not abs(fit - p) < 0.05 * p or fit == p:
+                break
+            p = fit
+            k = RunNumberer(p).numbers(t)
+        interval = p * TICK_S
+    dropped = int((np.diff(k) - 1)[~brk[1:]].sum())
+    gaps = int(np.count_nonzero(gap_mask(np.maximum(d, 0), p) & ~brk[1:])) if dropped else 0
+    kind = STEADY if not dropped else CONGESTION if exact else GAPS
+    return Cadence(kind, interval, dropped, gaps, int(repeats), span_s, exact)
+
+
+class RunNumberer:
+    """The sender's sample numbers of a stream with gaps, in batches, for any period but ST's step: a run after a
+    gap starts at the number the two runs' phases (mean of tick + ½ − i·period) say."""
+
+    def __init__(self, period_ticks: float) -> None:
+        self.p = float(period_ticks)  #: the period, ticks (live: refined as the stream goes on)
+        self.k: int | None = None  #: the last number given
+        self.tick: int | None = None  #: the last tick seen
+        self._k0 = 0  # the current run's first number
+        self._sum_t = 0.0  # Σ (tick + ½) over the current run
+        self._sum_i = 0  # Σ (k − k0) over the current run
+        self._n = 0
+
+    def numbers(self, ticks) -> np.ndarray:
+        t = np.asarray(ticks, dtype=np.int64)
+        out = np.zeros(len(t), np.int64)
+        if len(t) == 0:
+            return out
+        d = np.diff(t, prepend=t[0] if self.tick is None else self.tick)
+        gap = gap_mask(np.maximum(d, 0), self.p)
+        if self.tick is None:
+            gap[0] = False
+        bounds = np.concatenate([[0], np.flatnonzero(gap), [len(t)]])
+        for s, e in zip(bounds[:-1], bounds[1:]):
+            if e <= s:
+                continue
+            i = np.arange(e - s)
+            if self.k is None:  # the first run (the sums start at 0)
+                k0 = 0
+            elif gap[s]:  # a new run: placed by the phases of the run before and of this one
+                phase_a = (self._sum_t - self.p * self._sum_i) / self._n - self._k0 * self.p  # number 0's time
+                phase_b = float(np.mean(t[s:e] + 0.5 - i * self.p))  # this run's first sample's time
+                k0 = max(self.k + 1, int(round((phase_b - phase_a) / self.p)))
+                self._k0, self._sum_t, self._sum_i, self._n = k0, 0.0, 0, 0
+            else:  # the current run goes on
+                k0 = self.k + 1
+            out[s:e] = k0 + i
+            self._sum_t += float(np.sum(t[s:e] + 0.5))
+            self._sum_i += int(np.sum(out[s:e] - self._k0))
+            self._n += e - s
+            self.k, self.tick = int(out[e - 1]), int(t[e - 1])
+        return out
+
+
+def sender_phase(t: np.ndarray, interval: float) -> float:
+    """The sender's phase t0 (sample k at ``t0 + k·interval``, s) the first 64 samples' [tick, tick + 8 ms) allow."""
+    w = min(len(t), 64)
+    i = np.arange(w)
+    lo, hi = float(np.max(t[:w] - i * interval)), float(np.min(t[:w] + TICK_S - i * interval))
+    return (lo + hi) / 2 if lo < hi else float(t[0]) + TICK_S / 2
+
+
+def sample_numbers(ticks, interval: float, t0: float | None = None, prev: int | None = None) -> np.ndarray:
+    """The smallest increasing numbering the ticks allow at phase ``t0`` (None: theirs), after number ``prev``."""
+    t = np.asarray(ticks, dtype=np.float64) * TICK_S
+    if len(t) == 0:
+        return np.zeros(0, np.int64)
+    lo = np.ceil((t - (sender_phase(t, interval) if t0 is None else t0)) / interval - 1e-9).astype(np.int64)
+    if prev is None:
+        lo[0], prev = 0, -1
+    # k_i = max(k_{i-1} + 1, lo_i): with j_i = k_i - i, j is the running maximum of lo_i - i
+    j = np.arange(len(t))
+    return np.maximum.accumulate(np.maximum(lo, prev + 1 + j) - j) + j
+
 
 NOT_BIT_EXACT = (
     "BLE data: the drone's own attitude is not sent over BLE, and the host filters run on single ISR "
@@ -150,10 +348,8 @@ def ble_telemetry(src, layout: str | None = None) -> Telemetry:
     samples = np.array([(0, f.tick, f.t_host_s, f.acc_mg, f.gyro_mdps, f.mag_mgauss) for f in kept], dtype=SAMPLE_DTYPE)
     samples["row"] = np.searchsorted(a.step, grid.numbers)
     env, arm = np.array(env, dtype=ENV_DTYPE), np.array(arm, dtype=ARMING_DTYPE)
-    counts = dict(
-        counts=dict(dec.counts), bad_payloads=dec.bad_payloads, unknown=dec.unknown, repeated_reads=grid.repeats
-    )
-    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, samples, env, arm, **counts)
+    facts = (samples, env, arm, dict(dec.counts), dec.bad_payloads, dec.unknown, grid.repeats)
+    stream = BleStream(lay, grid.found, float(grid.dt_s), grid.rows_held, *facts)
     source = dict(path=str(src.path), kind="stv", link="ble", header=src.header, warnings=list(src.warnings))
     tel = Telemetry.from_parts(TelemetryParts(), DecoderStats(), source=source, events=src.events)
     tel.attitude, tel.text, tel.link = a, text, stream
@@ -228,9 +424,7 @@ class LiveGrid:
         self._last_sample: np.ndarray | None = None  # acc, gyro and mag of the last sample
         self._ticks: deque[int] = deque(maxlen=TICKS_KEPT)
         self._numbers: deque[int] = deque(maxlen=TICKS_KEPT)
-        self.rows_held = 0
-        self.gaps = 0
-        self.repeats = 0
+        self.rows_held = self.gaps = self.repeats = 0  #: rows held over lost samples, gaps, repeated reads
         #: (N, 3) magnetometer of the rows :meth:`rows` gave last, mgauss
         self.mag_mgauss = np.zeros((0, 3), np.float32)
 
@@ -281,8 +475,7 @@ class LiveGrid:
         self._numberer = RunNumberer(c.interval_s / TICK_S)
 
     def _grid(self, mo: list, breaks: np.ndarray) -> AttitudeArrays:
-        """This round's rows: one per sender sample since the last round's; a row of a notification the ticks show
-        as sent and lost holds the last sample (the numbering of :func:`motion_cadence`, a round at a time)."""
+        """This round's rows: one per sender sample since the last round's (a lost one holds the last sample)."""
         c, n = self._cadence, len(mo)
         tick = np.array([f.tick for f in mo], np.int64)
         t_fw = tick * TICK_S
@@ -318,20 +511,16 @@ class LiveGrid:
         t_rows = t_fw + TICK_S / 2 if c.kind == POLLED else self._t0_s + grid * dt
         host = np.array([f.t_host_s for f in mo], np.float64)
         t_host = np.interp(t_rows, t_fw, host) if n > 1 else np.full(len(grid), host[0])
-        self._last_k, self._last_tick = int(k[-1]), int(tick[-1])
-        self._last_sample = sensors[-1]
+        self._last_k, self._last_tick, self._last_sample = int(k[-1]), int(tick[-1]), sensors[-1]
         self.mag_mgauss = rows[:, 6:]
         acc, gyro, ang = rows[:, :3], rows[:, 3:6], np.full((len(rows), 3), np.nan, np.float32)
         if self.layout.sends_attitude:  # angles in the acc fields; no sensor values: the estimators skip the rows
-            angles = acc / np.float32(self.layout.angle_scale)
-            acc, gyro = ang.copy(), ang.copy()  # (NaN)
-            ang = angles
+            acc, gyro, ang = ang, ang.copy(), acc / np.float32(self.layout.angle_scale)
         k_rows = grid if c.kind != POLLED else k
         return AttitudeArrays.of(k_rows, t_rows, t_host, acc, gyro, ang, values_bad=np.zeros(len(acc), bool))
 
     def _period_s(self) -> float:
-        """The sender's interval measured so far, s: the least-squares slope of the ticks kept against their sample
-        numbers once they span more than the samples that found the cadence; until then the cadence's own."""
+        """The sender's interval so far, s: the ticks' least-squares slope on their numbers, or the cadence's own."""
         if len(self._numbers) > LOCK_SAMPLES and self._numbers[-1] - self._numbers[0] > 1:
             k = np.asarray(self._numbers, dtype=np.float64)
             return float(np.polyfit(k, np.asarray(self._ticks, dtype=np.float64), 1)[0]) * TICK_S

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import re
 import time
 from collections.abc import Callable
@@ -90,16 +91,13 @@ def pick_device(devices: list[BleDevice], target: str | None) -> BleDevice | Non
         if is_address(t):
             return next((d for d in devices if d.address.lower() == t.lower()), None)
         exact = [d for d in devices if d.name == t]
-        return (
-            exact[0] if exact else _strongest([d for d in devices if d.name and d.name.lower().startswith(t.lower())])
-        )
+        prefixed = [d for d in devices if d.name and d.name.lower().startswith(t.lower())]
+        return exact[0] if exact else _strongest(prefixed)
     return _strongest([d for d in devices if d.name and d.name.startswith(DEVICE_NAME_PREFIX)])
 
 
 def _strongest(devices: list[BleDevice]) -> BleDevice | None:
-    if not devices:
-        return None
-    return max(devices, key=lambda d: -1e9 if d.rssi_dbm is None else d.rssi_dbm)
+    return max(devices, key=lambda d: -1e9 if d.rssi_dbm is None else d.rssi_dbm, default=None)
 
 
 def bleak_backend() -> BleakBackend:
@@ -121,11 +119,10 @@ class BleakBackend:
         from bleak import BleakScanner  # reason: optional extra
 
         found = await BleakScanner.discover(timeout=timeout_s, return_adv=True)
-        out = []
-        for dev, adv in found.values():
-            name = adv.local_name or dev.name
-            out.append(BleDevice(name, dev.address, float(adv.rssi) if adv.rssi is not None else None))
-        return out
+        return [
+            BleDevice(adv.local_name or dev.name, dev.address, None if adv.rssi is None else float(adv.rssi))
+            for dev, adv in found.values()
+        ]
 
     async def connect(self, address: str, on_disconnect: Callable[[], None]) -> None:
         from bleak import BleakClient  # reason: optional extra
@@ -151,10 +148,8 @@ class BleakBackend:
     async def disconnect(self) -> None:
         client, self._client = self._client, None
         if client is not None:
-            try:
+            with contextlib.suppress(Exception):  # already gone: nothing to release
                 await client.disconnect()
-            except Exception:  # noqa: BLE001 - already gone: nothing to release
-                pass
 
 
 @dataclass(eq=False)
@@ -168,10 +163,7 @@ class BleLink:
     on_notification: Callable[[int, bytes, float], None]
     _: KW_ONLY
     on_event: Callable[[str, str], None] | None = None
-    clock: Callable[[], float] = time.time
-    scan_timeout_s: float = SCAN_TIMEOUT_S
     retry_max_s: float = RETRY_MAX_S
-    first_scans: int = 1
     device: BleDevice | None = field(default=None, init=False)
     connections: int = field(default=0, init=False)
     losses: int = field(default=0, init=False)
@@ -181,23 +173,18 @@ class BleLink:
     def __post_init__(self) -> None:
         self.on_event = self.on_event or (lambda kind, text: None)
 
-    async def find(self, scans: int) -> BleDevice | None:
-        """Scan up to ``scans`` times for the target; platform failures raise UserError."""
-        for _ in range(max(scans, 1)):
-            try:
-                devices = await self.backend.scan(self.scan_timeout_s)
-            except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
-                _raise_explained(exc)
-                raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
-            dev = pick_device(devices, self.target)
-            if dev is not None:
-                return dev
-        return None
+    async def find(self) -> BleDevice | None:
+        """Scan once for the target; platform failures raise UserError."""
+        try:
+            devices = await self.backend.scan(SCAN_TIMEOUT_S)
+        except Exception as exc:  # noqa: BLE001 - the platform's errors come in many types
+            _raise_explained(exc)
+            raise UserError(f"Bluetooth scan failed: {exc or type(exc).__name__}") from None
+        return pick_device(devices, self.target)
 
     async def _connect(self, dev: BleDevice) -> None:
         self._lost = asyncio.Event()
-        lost = self._lost
-        await self.backend.connect(dev.address, lost.set)
+        await self.backend.connect(dev.address, self._lost.set)
         for cid, uuid in CHAR_UUIDS.items():
             try:
                 await self.backend.start_notify(uuid, self._handler(cid))
@@ -214,17 +201,17 @@ class BleLink:
     def _handler(self, cid: int) -> Callable[[bytes], None]:
         def cb(data: bytes) -> None:
             self.notifications += 1
-            self.on_notification(cid, data, self.clock())
+            self.on_notification(cid, data, time.time())
 
         return cb
 
     async def find_first(self) -> BleDevice:
-        """The drone, found by the first scans; UserError when the platform fails or it is not found."""
-        dev = await self.find(self.first_scans)
+        """The drone, found by a first scan; UserError when the platform fails or it is not found."""
+        dev = await self.find()
         if dev is None:
             what = repr(self.target) if self.target else f"a {DEVICE_NAME_PREFIX}… drone"
             raise UserError(
-                f"no BLE device matching {what} found in {self.scan_timeout_s:g} s of scanning "
+                f"no BLE device matching {what} found in {SCAN_TIMEOUT_S:g} s of scanning "
                 "(is the drone on, in range, and not connected to a phone?)."
             )
         return dev
@@ -241,8 +228,7 @@ class BleLink:
             _raise_explained(exc)
             raise UserError(f"cannot connect to {dev.name or ''} {dev.address}: {exc}".replace("  ", " ")) from None
         self.on_event("connect", f"{dev.name or ''} {dev.address}".strip())
-        first_delay = min(0.5, self.retry_max_s)
-        delay = first_delay
+        delay = first_delay = min(0.5, self.retry_max_s)  # s before the next attempt, doubling up to retry_max_s
         while not stop.is_set():
             await _first(stop, self._lost)
             if stop.is_set():
@@ -254,7 +240,7 @@ class BleLink:
                 if stop.is_set():
                     break
                 try:
-                    found = await self.find(1)
+                    found = await self.find()
                     if found is not None:
                         await self._connect(found)
                         self.on_event("reconnect", f"{found.name or ''} {found.address}".strip())

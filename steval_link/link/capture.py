@@ -7,6 +7,7 @@ re-decodes old captures.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -35,8 +36,7 @@ CHUNK_BLE = ord("B")
 CHUNK_HOST = ord("H")
 CHUNK_TRUTH = ord("T")
 CHUNK_SYMBOLS = ord("S")
-#: every chunk type the reader knows; D, E and H are read into the byte stream, the events and ``Capture.host``, the
-#: others (and a newer writer's unknown type whose CRC holds) are kept as they are in ``Capture.chunks``.
+#: the chunk types known: D, E, H go to the bytes, events, ``Capture.host``; others (and a newer writer's) as they are
 CHUNK_TYPES = (CHUNK_DATA, CHUNK_EVENT, CHUNK_BLE, CHUNK_HOST, CHUNK_TRUTH, CHUNK_SYMBOLS)
 #: one row of a truth chunk T (the ground truth an emulated run was fed, per AHRS step; CAPTURE_FORMAT.md), packed
 TRUTH_DTYPE = np.dtype([("step", "<u4"), ("t_s", "<f8"), ("q_wxyz", "<f8", (4,)), ("movement", "u1")])
@@ -72,8 +72,7 @@ class CaptureTruncatedWarning(UserWarning):
 
 @dataclass(frozen=True, slots=True)
 class CaptureEvent:
-    """A marked event of the recording (``kind`` e.g. "disconnect", "reconnect"), at host time ``t_host_s`` (s since
-    capture start) and stream byte ``offset`` (bytes recorded before it)."""
+    """A marked event (``kind`` e.g. "disconnect") at ``t_host_s`` (s since capture start), stream byte ``offset``."""
 
     t_host_s: float
     kind: str
@@ -92,8 +91,7 @@ class HostChunk:
 
 @dataclass
 class Capture:
-    """A capture file read back: ``data`` is every received byte in order; chunk ``i`` starts at stream offset
-    ``chunk_offsets[i]`` and was received at ``chunk_times_s[i]`` (s since capture start)."""
+    """A capture read back: its bytes; chunk i starts at ``chunk_offsets[i]``, came at ``chunk_times_s[i]`` s."""
 
     path: Path
     header: dict[str, Any]
@@ -138,20 +136,21 @@ def encode_capture(
 ) -> bytes:
     """A whole ``.stv`` file: ``header``, ``(bytes, t_host_s)`` chunks, then ``(type, payload, t_host_s)`` ones."""
     parts = [_file_header(header)]
-    for data, t_host_s in chunks:
-        data = bytes(data)
-        for i in range(0, len(data), MAX_CHUNK):
-            parts.append(_chunk(CHUNK_DATA, data[i : i + MAX_CHUNK], float(t_host_s)))
-    for kind, payload, t_host_s in typed:
-        parts.append(_chunk(_known_kind(kind), bytes(payload), float(t_host_s)))
+    parts += [_chunk(CHUNK_DATA, piece, float(t_host_s)) for data, t_host_s in chunks for piece in _pieces(data)]
+    parts += [_chunk(_known_kind(kind), bytes(payload), float(t_host_s)) for kind, payload, t_host_s in typed]
     return b"".join(parts)
+
+
+def _pieces(data: bytes | bytearray | memoryview) -> list[bytes]:
+    """``data`` in pieces of at most :data:`MAX_CHUNK` bytes."""
+    data = bytes(data)
+    return [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)]
 
 
 @dataclass(frozen=True)
 class CaptureTruth:
-    """The ground truth of truth chunks T, per AHRS step: ``step`` int64, ``t_s`` emulated time of the step's middle
-    input tick (s since power-up), ``q_wxyz`` (M, 4) float64 body → earth (NaN: none), ``movement`` bool (the step
-    counts for the metric)."""
+    """Truth chunks T, per AHRS step: ``step``, ``t_s`` (the step's middle input tick, emulated s since power-up),
+    ``q_wxyz`` (M, 4) body → earth (NaN: none), ``movement`` (the step counts for the metric)."""
 
     step: np.ndarray
     t_s: np.ndarray
@@ -205,16 +204,14 @@ class CaptureWriter:
     ) -> None:
         self.path = Path(path)
         self._t0 = time.monotonic()
-        now = time.time()
-        self.header: dict[str, Any] = capture_header(port, baud, now, extra)
+        self.header: dict[str, Any] = capture_header(port, baud, time.time(), extra)
         self._file = open(self.path, "xb", buffering=0)
         st = os.fstat(self._file.fileno())
         self._identity = (st.st_dev, st.st_ino)
         self._lock = threading.Lock()
         #: why the file can take no more (disk full, removed, replaced): an OSError whose text is one sentence
         self.failure: OSError | None = None
-        self._dirty = False
-        self._closed = False
+        self._dirty = self._closed = False
         self._discard_empty = bool(discard_empty)
         self.discarded = False  #: True once close() deleted a capture without serial bytes (discard_empty)
         self.bytes_written = 0  #: raw serial bytes stored so far
@@ -242,8 +239,7 @@ class CaptureWriter:
     def _write_stream(self, kind: int, data: bytes | bytearray | memoryview, t_host_s: float | None) -> None:
         """Bytes of one stream (D received, H sent) as chunks of at most MAX_CHUNK bytes."""
         if data:
-            data = bytes(data)
-            self._append(kind, [data[i : i + MAX_CHUNK] for i in range(0, len(data), MAX_CHUNK)], t_host_s)
+            self._append(kind, _pieces(data), t_host_s)
 
     def _append(self, kind: int, payloads: list, t_host_s: float | None) -> None:
         """Chunks of type ``kind`` at ``t_host_s`` (None: now), under the lock (so an event's offset is never stale)."""
@@ -271,10 +267,8 @@ class CaptureWriter:
 
     def write_truth(self, step, t_s, q_wxyz, movement, t_host_s: float | None = None) -> None:
         """Store ground-truth rows (see :class:`CaptureTruth`) as T chunks of at most :data:`TRUTH_ROWS_PER_CHUNK`."""
-        step = np.asarray(step, dtype=np.int64).reshape(-1)
-        rows = np.zeros(step.shape[0], dtype=TRUTH_DTYPE)
-        rows["step"], rows["t_s"] = step, np.asarray(t_s, dtype=np.float64).reshape(-1)
-        rows["q_wxyz"] = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+        rows = np.zeros(np.size(step), dtype=TRUTH_DTYPE)
+        rows["step"], rows["t_s"], rows["q_wxyz"] = np.ravel(step), np.ravel(t_s), np.reshape(q_wxyz, (-1, 4))
         rows["movement"] = np.asarray(movement, dtype=bool).reshape(-1)
         for i in range(0, len(rows), TRUTH_ROWS_PER_CHUNK):
             self.write_chunk(CHUNK_TRUTH, rows[i : i + TRUTH_ROWS_PER_CHUNK].tobytes(), t_host_s)
@@ -290,11 +284,9 @@ class CaptureWriter:
         self._stop.set()
         self._thread.join()
         with self._lock:
-            try:
+            with contextlib.suppress(OSError):  # kept in ``failure`` for the caller; the file is closed all the same
                 if self.failure is None:
                     self._sync()
-            except OSError:  # kept in ``failure`` for the caller; the file is closed all the same
-                pass
             self._closed = True
             try:
                 self._file.close()
@@ -312,11 +304,9 @@ class CaptureWriter:
     def discard(self) -> None:
         """Close and delete the file (a session that failed to start leaves nothing half-made behind)."""
         self.close()
-        try:
+        with contextlib.suppress(OSError):
             if output_gone(self.path, self._identity) is None:  # only our own file, never one that replaced it
                 self.path.unlink()
-        except OSError:
-            pass
         self.discarded = True
 
     def __enter__(self) -> CaptureWriter:
@@ -379,7 +369,7 @@ def _failed(path: Path, exc: OSError) -> OSError:
     """``exc`` as an :class:`OutputLostError` naming ``path`` (disk full, I/O error)."""
     if isinstance(exc, OutputLostError):
         return exc
-    why = (exc.strerror or str(exc)).rstrip(".").lower() if exc.strerror else str(exc)
+    why = exc.strerror.rstrip(".").lower() if exc.strerror else str(exc)
     return OutputLostError(f"{path} cannot be written ({why})", exc.errno or 0)
 
 
@@ -408,8 +398,7 @@ def default_capture_path(directory: str | os.PathLike = "recordings", now: datet
 
 
 def resolve_capture_out(out: str | os.PathLike | None) -> Path | None:
-    """Where a capture ``out`` goes, checked before the port is opened: None stays None; a directory gets a new file;
-    a new file name must be in an existing directory (never overwritten). Else a ParamError."""
+    """Where a capture ``out`` goes (a directory: a new file in it; never an existing file), else a ParamError."""
     if out is None:
         return None
     path = Path(out).expanduser()
@@ -456,18 +445,8 @@ def read_capture(path: str | os.PathLike, *, data: bytes | None = None) -> Captu
     warning = f"{path}: " + "; ".join(problems) + "." if problems else None
     if warning is not None:
         warnings.warn(warning, CaptureTruncatedWarning, stacklevel=2)
-    return Capture(
-        path=path,
-        header=header,
-        data=b"".join(body.pieces),
-        chunk_offsets=np.asarray(body.offsets, dtype=np.int64),
-        chunk_times_s=np.asarray(body.times, dtype=np.float64),
-        events=body.events,
-        truncated=warning is not None,
-        warning=warning,
-        chunks=body.typed,
-        host=body.host,
-    )
+    data, offsets, times = b"".join(body.pieces), np.asarray(body.offsets, np.int64), np.asarray(body.times, np.float64)
+    return Capture(path, header, data, offsets, times, body.events, warning is not None, warning, body.typed, body.host)
 
 
 def _read_header(path: Path, raw: bytes) -> tuple[dict, int]:
@@ -525,8 +504,7 @@ def _next_chunk(raw: bytes, mv: memoryview, p: int) -> int | None:
 
 @dataclass
 class _Chunks:
-    """What a capture's chunks hold: the serial bytes (``pieces`` at ``offsets``, received at ``times``), the other
-    chunks, the damaged stretches skipped and why the file ended early."""
+    """A capture's chunks: serial bytes, the other chunks, damaged stretches skipped, why the file ended early."""
 
     pieces: list[memoryview] = field(default_factory=list)
     offsets: list[int] = field(default_factory=list)
@@ -540,9 +518,7 @@ class _Chunks:
 
 def _read_chunks(raw: bytes, pos: int) -> _Chunks:
     """Every chunk from file position ``pos``; damage loses only itself, unless no valid chunk follows."""
-    mv = memoryview(raw)
-    n = len(raw)
-    out = _Chunks()
+    mv, n, out = memoryview(raw), len(raw), _Chunks()
     offsets, times, pieces, chunk_at, head = out.offsets, out.times, out.pieces, _chunk_at, _CHUNK_HEAD.size
     total = 0
     while pos < n:
@@ -601,15 +577,8 @@ def _damage_summary(damaged: list[tuple[int, int, str]]) -> str:
 
 def demo_capture_path() -> Path:
     """The bundled demo recording (``recordings/demo.stv``) of a source tree or installed package; else UserError."""
-    package = Path(__file__).resolve().parents[1]  # steval_link/
-    candidates = [package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"]
-    try:
-        from importlib.resources import files
-
-        candidates.append(Path(str(files("steval_link.recordings") / "demo.stv")))
-    except (ImportError, ModuleNotFoundError, TypeError, ValueError):
-        pass
-    for c in candidates:
+    package = Path(__file__).resolve().parents[1]  # steval_link/ (steval_link/recordings/ once installed)
+    for c in (package.parent / "recordings" / "demo.stv", package / "recordings" / "demo.stv"):
         if c.is_file():
             return c
     raise UserError("the demo recording (recordings/demo.stv) is not installed; pass a capture file.")

@@ -91,11 +91,9 @@ def set_param(name: str, value: str | float) -> Command:
         raise UserError(f"unknown parameter {name!r}; parameters: {', '.join(PARAMS)}")
     if key == "correction":
         text = str(value).strip().lower()
-        if text in _ON:
-            return Command(P.CMD_SET_PARAM, PARAMS[key], 1.0)
-        if text in _OFF:
-            return Command(P.CMD_SET_PARAM, PARAMS[key], 0.0)
-        raise UserError(f"correction takes on or off, got {value!r}")
+        if text not in _ON | _OFF:
+            raise UserError(f"correction takes on or off, got {value!r}")
+        return Command(P.CMD_SET_PARAM, PARAMS[key], 1.0 if text in _ON else 0.0)
     try:
         v = float(value)
     except ValueError:
@@ -111,8 +109,7 @@ def set_param(name: str, value: str | float) -> Command:
 
 
 def parse_command(text: str) -> Command:
-    """A typed line (``set NAME VALUE`` or ``NAME VALUE``, ``correction on|off``, ``reset``, ``status``, ``mode
-    text|binary``) → :class:`Command`; else a one-sentence UserError."""
+    """A typed line (see ``_SYNTAX``; ``NAME VALUE`` as ``set NAME VALUE``) → :class:`Command`, else a UserError."""
     try:
         words = shlex.split(text.strip().lower())
     except ValueError:
@@ -136,8 +133,7 @@ def parse_command(text: str) -> Command:
 
 
 def parse_script(text: str, source: str = "commands") -> list[tuple[float, Command]]:
-    """A command script (``steval emulate --commands FILE``): one ``TIME_S COMMAND...`` per line (emulated seconds
-    since power-up), ``#`` comments and blank lines ignored. Errors name the line."""
+    """A command script: ``TIME_S COMMAND...`` lines (emulated s since power-up), ``#`` comments; errors name lines."""
     out: list[tuple[float, Command]] = []
     for i, raw in enumerate(text.splitlines(), 1):
         line = raw.split("#", 1)[0].strip()
@@ -172,9 +168,7 @@ def param_of_status(status, name: str):
     """One parameter's value as a status frame reports it (correction as "on"/"off")."""
     if name == "correction":
         return "off" if int(status.flags) & P.FLAG_NO_CORRECTION else "on"
-    if name == "min_thr":
-        return int(status.min_thr)
-    return float(getattr(status, name))
+    return int(status.min_thr) if name == "min_thr" else float(getattr(status, name))
 
 
 def describe_ack(command: Command | None, ack) -> str:
@@ -195,26 +189,19 @@ class Sent:
     cmd_seq: int
     command: Command
     frame: bytes
-    t_s: float
+
+
+Writer = Callable[[bytes], object]  #: takes a frame's bytes (sends or records them)
 
 
 class CommandChannel:
-    """Numbers and sends commands through ``send(frame_bytes)``, then ``record(frame_bytes)`` (the capture's ``H``
-    chunks); :meth:`match` pairs an ack with its command. Numbers start at random, so that another session's acks
-    are not taken for this one's."""
+    """Numbers commands (from a random start: another session's acks are not taken for ours), sends and records them
+    (the capture's ``H`` chunks); :meth:`match` pairs an ack with its command."""
 
-    def __init__(
-        self,
-        send: Callable[[bytes], object],
-        record: Callable[[bytes], object] | None = None,
-        *,
-        first_seq: int | None = None,
-        clock: Callable[[], float] | None = None,
-    ) -> None:
+    def __init__(self, send: Writer, record: Writer | None = None, *, first_seq: int | None = None) -> None:
         self._send = send
         self._record = record
         self._seq = random.randrange(P.SEQ_MODULUS) if first_seq is None else int(first_seq) % P.SEQ_MODULUS
-        self._clock = clock
         self.pending: dict[int, Sent] = {}
         self.sent = 0
 
@@ -222,8 +209,7 @@ class CommandChannel:
         """Number ``command`` and encode it, without sending (scripts that send at a given time)."""
         seq = self._seq
         self._seq = (self._seq + 1) % P.SEQ_MODULUS
-        frame = command.encode(seq)
-        s = Sent(seq, command, frame, self._clock() if self._clock else math.nan)
+        s = Sent(seq, command, command.encode(seq))
         self.pending[seq] = s
         while len(self.pending) > 256:  # never answered (lost): forget the oldest
             self.pending.pop(next(iter(self.pending)))
@@ -262,12 +248,10 @@ def _ack_of_row(a) -> AckFrame:
 
 
 def command_log(commands, acks) -> list[dict]:
-    """The ``Telemetry.commands`` with their ``acks`` in time order, each ``{"t_host_s", "cmd_seq", "command" (as
-    typed; None for an ack of a command not in the capture), "result" (None: no ack), "step", "text"}``."""
+    """The ``Telemetry.commands`` with their ``acks`` in time order, as :func:`_log_row` dicts."""
     out = []
-    first: dict[tuple[int, int], int] = {}  # (cmd_seq, cmd) -> its first ack row
-    for j, a in enumerate(acks):
-        first.setdefault((int(a["cmd_seq"]), int(a["cmd"])), j)
+    # (cmd_seq, cmd) -> its first ack row
+    first = {(int(a["cmd_seq"]), int(a["cmd"])): j for j, a in reversed(list(enumerate(acks)))}
     answered = set()
     for c in commands:
         command = Command(int(c["cmd"]), int(c["param"]), float(c["value"]))
@@ -284,7 +268,7 @@ def command_log(commands, acks) -> list[dict]:
 
 
 def _log_row(t_host_s, cmd_seq: int, command: Command | None, ack: AckFrame | None) -> dict:
-    """One entry of :func:`command_log`: a command sent (``command``) or an ack of one not in the capture."""
+    """A command sent, or (``command`` None) an ack of one not in the capture; ``result`` None: no ack."""
     return {
         "t_host_s": float(t_host_s),
         "cmd_seq": cmd_seq,

@@ -57,22 +57,13 @@ from steval_link.link.text_series import RecordBlock
 from steval_link.link.text_telemetry import TextTelemetryReader, looks_like_text
 from steval_link.link.textmode import MAX_LINE_BYTES, decode_line, parse_sentence
 
-#: frame type -> (frame class, its payload's struct reader and field picker, made from ``protocol.PAYLOAD_DTYPE``)
-_UNPACK = {}
-for _t, _dtype in P.PAYLOAD_DTYPE.items():
-    _layout, _pick = P.payload_layout(_dtype)
-    _UNPACK[_t] = (FRAME_OF_TYPE[_t], _layout.unpack_from, _pick)
+#: frame type -> (frame class, its payload's struct layout and field picker, made from ``protocol.PAYLOAD_DTYPE``)
+_UNPACK = {t: (FRAME_OF_TYPE[t], *P.payload_layout(d)) for t, d in P.PAYLOAD_DTYPE.items()}
 
 _V1, _V2 = P.VERSION_1, P.VERSION
 #: the ``DecoderStats`` counter of each frame class but attitude (whose count goes with the ``seq`` checks)
-_COUNTER = {
-    StatusFrame: "status",
-    TextFrame: "text",
-    TextRecordFrame: "text_records",
-    FlightFrame: "flight",
-    AckFrame: "ack",
-    CommandFrame: "command",
-}
+_COUNTED = (StatusFrame, TextFrame, TextRecordFrame, FlightFrame, AckFrame, CommandFrame)
+_COUNTER = dict(zip(_COUNTED, ("status", "text", "text_records", "flight", "ack", "command")))
 _HEAD = P.HEADER_SIZE
 #: (VT byte) -> payload length of the fixed-size types; text frames (type 3) take 1..255 bytes.
 _FIXED_LEN = {P.vt_byte(_V2, t): n for t, n in P.FIXED_PAYLOAD_SIZE.items()}
@@ -106,8 +97,7 @@ def seq_gap_counts(seq: np.ndarray) -> tuple[int, int, int]:
 
 
 class StreamDecoder:
-    """Incremental decoder: :meth:`feed` any chunks and get the frames they complete; :meth:`finish` decides the
-    last candidate. ``stats``: the counters (:class:`DecoderStats`)."""
+    """Incremental decoder: :meth:`feed` chunks, get the frames they complete; :meth:`finish` decides the last one."""
 
     def __init__(self, *, plausibility: bool = True, line_start: bool = False) -> None:
         self.stats = DecoderStats()
@@ -139,13 +129,14 @@ class StreamDecoder:
         self._read_text(out, "finish")
         if self.gate is not None:
             self.gate.finish()
-            self.stats.implausible = self.gate.held_back
-            self.stats.held_values = self.gate.held_values
+            self._gate_stats()
         return out
 
+    def _gate_stats(self) -> None:
+        self.stats.implausible, self.stats.held_values = self.gate.held_back, self.gate.held_values
+
     def resume_at(self, offset: int, *, line_start: bool) -> None:
-        """Continue at stream byte ``offset``, the bytes before it decoded elsewhere (the bulk decoder's runs);
-        ``line_start``: a line starts there. Only with no bytes pending."""
+        """Continue at stream byte ``offset`` (the bytes before it decoded elsewhere), with no bytes pending."""
         if self._buf:
             raise ValueError(f"resume_at({offset}) with {len(self._buf)} bytes pending")
         self._base = offset
@@ -153,15 +144,11 @@ class StreamDecoder:
         self._skipping = self._skipping and not line_start
 
     def text_template(self):
-        """The text reader's :meth:`~steval_link.link.text_telemetry.TextTelemetryReader.bulk_template` when the
-        decoder is at a clean line start with nothing pending; else None."""
-        if self._buf or not self._boundary or self._damaged:
-            return None
-        return self.text_reader.bulk_template()
+        """The text reader's ``bulk_template`` at a clean line start with nothing pending; else None."""
+        return None if self._buf or not self._boundary or self._damaged else self.text_reader.bulk_template()
 
     def skip_records(self, offset: int, count: int, *, blank_bytes: int = 0, blank_last: bool = False) -> None:
-        """``count`` records up to byte ``offset`` were made by the bulk decoder (``blank_bytes`` of blank lines among
-        them, one last when ``blank_last``): counted, and the stream continues at ``offset``, a line start."""
+        """``count`` records (and ``blank_bytes`` of blank lines) up to line start ``offset`` were made in bulk."""
         self.resume_at(offset, line_start=True)
         self._ended_nl = True
         self.text_reader.bulk_records(blank_last=blank_last)
@@ -182,10 +169,8 @@ class StreamDecoder:
 
     def _run(self, final: bool) -> list[Frame]:
         """Decide every candidate in the buffer that can be decided now; the rest waits for more bytes."""
-        buf = self._buf
+        buf, p, out = self._buf, 0, []
         n = len(buf)
-        p = 0
-        out: list[Frame] = []
         while p < n:
             if self._skipping:
                 p = self._skip(buf, p, n, 0)
@@ -211,8 +196,7 @@ class StreamDecoder:
             if not final and (n - p < 2 or buf[p + 1] == _SYNC1):
                 return None
             return self._skip(buf, p, n)
-        vt = buf[p + 2]
-        ln = buf[p + 3]
+        vt, ln = buf[p + 2], buf[p + 3]
         ver = vt >> 4
         if buf[p + 1] != _SYNC1 or ver not in _CHECK or (ver == _V1 and self._v2_seen):
             return self._skip(buf, p, n)
@@ -231,8 +215,7 @@ class StreamDecoder:
             elif crc_ok:
                 self.stats.unknown_frames += 1
             return self._skip(buf, p, n)
-        if ver == _V2:
-            self._v2_seen = True
+        self._v2_seen |= ver == _V2
         self._emit(out, _frame_at(buf, p, vt, ln, csz, self._base + p), ver)
         self._boundary = True
         return end + csz
@@ -246,13 +229,12 @@ class StreamDecoder:
             if final or limit - p >= MAX_LINE_BYTES or _BAD_PARTIAL.search(buf, p, limit) is not None:
                 return self._skip(buf, p, n)
             return None if buf.find(b"\r", p, limit - 1) < 0 else self._skip(buf, p, n)
-        raw = bytes(buf[p:nl])
-        nbytes = nl + 1 - p
+        raw, nbytes = bytes(buf[p:nl]), nl + 1 - p
         if not (raw[:-1] if raw[-1:] == b"\r" else raw).strip(b" \t"):
             # a blank line keeps the boundary state: text at a line start, maybe a damaged line's end after damage
             if self._boundary:
                 self.stats.blank_bytes += nbytes
-                self._read_text(out, "blank")
+                self._read_text(out, "end_block", "blank")
             else:
                 self.stats.bytes_skipped += nbytes
             return nl + 1
@@ -283,7 +265,7 @@ class StreamDecoder:
         reader = self.text_reader
         if self._damaged:
             self._damaged = False
-            self._text(out, reader.damage())
+            self._text(out, reader.end_block("break"))
         self._text(out, getattr(reader, method)(*args))
 
     def _text(self, out: list[Frame], frames: list) -> None:
@@ -301,25 +283,21 @@ class StreamDecoder:
         if version == _V1:
             self.stats.v1_frames += 1
         gate = self.gate
-        if gate is None:
-            released = [frame]
-        elif isinstance(frame, AttitudeFrame):
+        released = [frame]
+        if gate is not None and isinstance(frame, AttitudeFrame):
             # values gate v1 only: a v2 frame with NaN is what the firmware sent (kept, counted in values_bad)
             ok = version == _V2 or attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
             released = gate.offer(P.TYPE_ATTITUDE, frame.seq, frame.t_us, ok, frame)
-        elif isinstance(frame, StatusFrame):
+        elif gate is not None and isinstance(frame, StatusFrame):
             ok = version == _V2 or status_values_ok(
                 frame.q_wxyz, frame.int_xyz, frame.kp_ground, frame.kp_flight, frame.ki, frame.dt_s
             )
             released = gate.offer(P.TYPE_STATUS, frame.step, frame.t_us, ok, frame)
-        else:
-            released = [frame]
         for f in released:
             self._count(f)
             out.append(f)
         if gate is not None:
-            self.stats.implausible = gate.held_back
-            self.stats.held_values = gate.held_values
+            self._gate_stats()
 
     def _count(self, frame: Frame) -> None:
         stats = self.stats
@@ -328,17 +306,15 @@ class StreamDecoder:
             stats.attitude += 1
             if attitude_frame_bad(frame):
                 stats.values_bad += 1
+            if frame.exact and self._last_seq is not None:
+                d = (frame.seq - self._last_seq) % P.SEQ_MODULUS
+                if 2 <= d < P.SEQ_MODULUS // 2:
+                    stats.seq_gaps += 1
+                    stats.frames_missing += d - 1
+                elif d != 1:
+                    stats.seq_resets += 1
             if frame.exact:
-                seq = frame.seq
-                last = self._last_seq
-                if last is not None:
-                    d = (seq - last) % P.SEQ_MODULUS
-                    if 2 <= d < P.SEQ_MODULUS // 2:
-                        stats.seq_gaps += 1
-                        stats.frames_missing += d - 1
-                    elif d != 1:
-                        stats.seq_resets += 1
-                self._last_seq = seq
+                self._last_seq = frame.seq
         else:
             name = _COUNTER[type(frame)]
             setattr(stats, name, getattr(stats, name) + 1)
@@ -349,8 +325,8 @@ def _frame_at(buf, p: int, vt: int, ln: int, crc_size: int, offset: int) -> Fram
     size = _HEAD + ln + crc_size
     fixed = _UNPACK.get(vt & 0x0F)
     if fixed is not None:
-        cls, unpack_from, pick = fixed
-        return cls(*pick(unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
+        cls, layout, pick = fixed
+        return cls(*pick(layout.unpack_from(buf, p + _HEAD)), offset=offset, nbytes=size)
     return TextFrame(bytes(buf[p + _HEAD : p + _HEAD + ln]).decode("utf-8", "replace"), offset, size)
 
 
@@ -361,15 +337,13 @@ _TEXT_WINDOW_MAX = 1 << 20
 
 
 def _feed_region(sd: StreamDecoder, data: bytes, p: int, end: int, blocks: list[RecordBlock]) -> list[Frame]:
-    """``data[p:end]`` through ``sd``, but runs of lines that fit a learned one-line record shape are read as arrays
-    into ``blocks``: the records ``sd`` would make line by line, many times faster."""
+    """``data[p:end]`` through ``sd``; runs of lines of a learned one-line record shape go into ``blocks`` as arrays."""
     out: list[Frame] = []
     window = _TEXT_WINDOW
     while p < end:
         tpl = sd.text_template()
         if tpl is None:
-            nl = data.find(b"\n", min(p + _TEXT_PROBE, end - 1), end)
-            stop = end if nl < 0 else nl + 1
+            stop = data.find(b"\n", min(p + _TEXT_PROBE, end - 1), end) + 1 or end
             out += sd.feed(data[p:stop])
             p = stop
             continue
@@ -405,8 +379,7 @@ for _vt in _VT_TEXT:
 
 
 def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Start offsets, sizes and VT bytes of every valid binary frame in ``data`` (overlaps included; no version-1
-    frame after the first version-2 frame), and that first version-2 frame's offset (infinity: none)."""
+    """Offsets, sizes and VT bytes of the valid binary frames (overlaps too; no v1 after v2), the first v2's offset."""
     n = len(arr)
     idx = np.flatnonzero((arr[:-1] == _SYNC0) & (arr[1:] == _SYNC1)) if n >= 2 else np.zeros(0, np.int64)
     idx = idx[idx + _HEAD <= n]
@@ -424,8 +397,6 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     good = np.zeros(len(idx), bool)
     for v, (csz, check) in _CHECK.items():
         sel = np.flatnonzero(ver == v)
-        if not len(sel):
-            continue
         e = end[sel]
         stored = np.zeros(len(sel), np.int64)
         for k in range(csz):
@@ -435,9 +406,8 @@ def _valid_binary_starts(arr: np.ndarray, data: bytes) -> tuple[np.ndarray, np.n
     idx, size, vt, ver = idx[good], size[good], vt[good], ver[good]
     v2 = np.flatnonzero(ver == _V2)
     first_v2 = float(idx[v2[0]]) if len(v2) else float("inf")
-    if len(v2):
-        keep = (ver == _V2) | (idx < first_v2)
-        idx, size, vt = idx[keep], size[keep], vt[keep]
+    keep = (ver == _V2) | (idx < first_v2)
+    idx, size, vt = idx[keep], size[keep], vt[keep]
     return idx.astype(np.int64), size, vt, first_v2
 
 
@@ -452,12 +422,11 @@ def decode_bytes(
     sent_commands: np.ndarray | None = None,
     line_start: bool = False,
 ) -> Telemetry:
-    """Decode a whole byte stream at once into a :class:`~steval_link.link.telemetry.Telemetry`.
+    """A whole byte stream as :class:`~steval_link.link.telemetry.Telemetry`, with :class:`StreamDecoder`'s frames
+    and counters (runs of back-to-back binary frames decoded with numpy, the rest by one :class:`StreamDecoder`).
 
-    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times; see
-    :func:`~steval_link.link.unwrap.host_times`). ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's
-    H chunks. The frames and counters are :class:`StreamDecoder`'s: runs of back-to-back valid binary frames are
-    decoded with numpy, every other region by one :class:`StreamDecoder`."""
+    ``chunk_times``: ``(chunk_offsets, t_host_s)`` of the received chunks (None: NaN host times).
+    ``sent_commands``: timed ``COMMAND_ROW_DTYPE`` rows of a capture's H chunks."""
     data = bytes(data)
     arr = np.frombuffer(data, dtype=np.uint8)
     starts, sizes, vts, first_v2 = _valid_binary_starts(arr, data)
@@ -472,8 +441,7 @@ def decode_bytes(
         keep_a, keep_s = gate_rows(att, sta, gate)
         parts.att_blocks, parts.sta_blocks = [att[keep_a]], [sta[keep_s]]
         gate.finish()
-    v1_fast = int(np.count_nonzero((vts[fast] >> 4) == _V1))
-    stats = _bulk_stats(parts, sd.stats, gate, len(data), v1_fast)
+    stats = _bulk_stats(parts, sd.stats, gate, len(data), int(np.count_nonzero((vts[fast] >> 4) == _V1)))
     parts.sent_commands = sent_commands
     return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, baud=baud, source=source, events=events)
 
@@ -483,11 +451,9 @@ def _decode_regions(data: bytes, starts, sizes, first_v2: float, line_start: boo
     n, count = len(data), len(starts)
     nxt = starts + sizes
     breaks = np.flatnonzero(nxt[:-1] != starts[1:]) if count > 1 else np.zeros(0, np.int64)  # last frame of a run
-    fast: list[np.ndarray] = []
+    fast, frames = [], []  # index arrays of the runs left to numpy; the stream decoder's frames
     sd = StreamDecoder(plausibility=False, line_start=line_start)
-    frames: list[Frame] = []
-    p = 0
-    last_fast = False
+    p, last_fast = 0, False
     while p < n:
         k = int(np.searchsorted(starts, p))
         if not sd.pending_bytes and k < count and starts[k] == p:
@@ -542,8 +508,6 @@ def _bulk_stats(parts: TelemetryParts, st: DecoderStats, gate: PlausibilityGate,
         exact, *(att[k] for k in ("acc_mg", "gyro_mdps", "q_wxyz", "thz_rad", "thx_rad", "thy_rad"))
     )
     stats.values_bad = int(np.count_nonzero(bad))
-    stats.frames_ok = (
-        stats.attitude + stats.status + stats.text + stats.text_records + stats.flight + stats.ack + stats.command
-    )
+    stats.frames_ok = stats.attitude + sum(getattr(stats, name) for name in _COUNTER.values())
     stats.seq_gaps, stats.frames_missing, stats.seq_resets = seq_gap_counts(att["seq"][exact])
     return stats

@@ -20,11 +20,13 @@ NAN = math.nan
 
 #: where a frame came from: its stream offset and its length on the wire, bytes
 _WHERE = [("offset", int, 0), ("nbytes", int, 0)]
+#: a binary frame (True) or a text-mode row, then where it came from
+_EXACT_WHERE = [("exact", bool, True), *_WHERE]
 
 
-def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = False) -> type:
+def _wire_fields(payload: np.dtype, required: int | None = None, extra: list = _WHERE) -> type:
     """A slotted dataclass base with the fields of ``payload`` but ``RESERVED``, in wire order (a subarray as a
-    tuple); the fields after the first ``required`` default to NaN or 0. ``where``: then ``offset`` and ``nbytes``."""
+    tuple), then ``extra``; the fields after the first ``required`` default to NaN or 0."""
     fields = []
     for i, name in enumerate(P.payload_fields(payload)):
         sub = payload.fields[name][0]
@@ -35,21 +37,17 @@ def _wire_fields(payload: np.dtype, required: int | None = None, where: bool = F
             fields.append((name, typ, (blank,) * sub.shape[0] if sub.shape else blank))
         else:
             fields.append((name, typ))
-    base = make_dataclass("WireFields", fields + (_WHERE if where else []), slots=True)
+    base = make_dataclass("WireFields", fields + extra, slots=True)
     base.__module__ = __name__
     return base
 
 
 @dataclass(slots=True)
-class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
-    """One AHRS step (binary attitude frame, or a text-mode ``$ATT`` row when ``exact`` is False): ``t_us`` mod 2³²,
-    ``acc_mg``/``gyro_mdps`` as passed to ``ahrs_fusion_ag``, ``q_wxyz`` after the step (NaN in text mode),
-    ``thz_rad`` the ISR-integrated yaw, ``seq`` the step mod 2¹⁶, ``thr`` gTHR. ``step``: the full step (text mode),
-    else None. ``thx_rad`` (pitch) / ``thy_rad`` (roll): a text line's; NaN for binary frames."""
+class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE, extra=_EXACT_WHERE)):
+    """One AHRS step (a binary frame, or a text-mode row: ``exact`` False): ``acc_mg``/``gyro_mdps`` as passed to
+    ``ahrs_fusion_ag``, ``q_wxyz`` after the step (text: NaN), ``thz_rad`` the ISR-integrated yaw, ``thr`` gTHR.
+    ``step``: text rows' full step (binary: None); ``thx_rad`` (pitch), ``thy_rad`` (roll): text rows' (binary: NaN)."""
 
-    exact: bool = True
-    offset: int = 0
-    nbytes: int = 0
     step: int | None = None
     thx_rad: float = NAN
     thy_rad: float = NAN
@@ -64,13 +62,9 @@ class AttitudeFrame(_wire_fields(P.ATTITUDE_DTYPE)):
 
 
 @dataclass(slots=True)
-class StatusFrame(_wire_fields(P.STATUS_DTYPE, required=2)):
+class StatusFrame(_wire_fields(P.STATUS_DTYPE, required=2, extra=_EXACT_WHERE)):
     """Link statistics, filter settings and filter-state snapshot, about once a second. Text-mode ``$STA`` rows
     carry only step, t_us, cycle figures, tx_dropped, flags and ki (other floats NaN, integers 0)."""
-
-    exact: bool = True
-    offset: int = 0
-    nbytes: int = 0
 
 
 @dataclass(slots=True)
@@ -85,8 +79,7 @@ class TextFrame:
 @dataclass(slots=True)
 class TextRecordFrame:
     """One record of text telemetry: the ``values`` of one line or a few (NaN: an empty field), their ``names``
-    (``col1..N`` when none), ``units`` as written, the format's ``kind`` ('table', 'labelled', 'teleplot',
-    'st-221117')."""
+    (``col1..N`` when none), ``units`` as written, the format's ``kind`` ('table', 'labelled', 'teleplot', ...)."""
 
     names: tuple[str, ...]
     values: tuple[float, ...]
@@ -97,29 +90,23 @@ class TextRecordFrame:
 
 
 @dataclass(slots=True)
-class FlightFrame(_wire_fields(P.FLIGHT_DTYPE, where=True)):
+class FlightFrame(_wire_fields(P.FLIGHT_DTYPE)):
     """Flight control of one AHRS step (v2 type 4; fields as FLIGHT_DTYPE). ``rc`` is (gAIL, gELE, gRUD, gTHR)."""
 
 
 @dataclass(slots=True)
-class AckFrame(_wire_fields(P.ACK_DTYPE, where=True)):
+class AckFrame(_wire_fields(P.ACK_DTYPE)):
     """The drone's answer to one command (v2 type 5; fields as ACK_DTYPE)."""
 
 
 @dataclass(slots=True)
-class CommandFrame(_wire_fields(P.COMMAND_DTYPE, where=True)):
+class CommandFrame(_wire_fields(P.COMMAND_DTYPE)):
     """One host → drone command (v2 type 8; fields as COMMAND_DTYPE)."""
 
 
 Frame = AttitudeFrame | StatusFrame | TextFrame | TextRecordFrame | FlightFrame | AckFrame | CommandFrame
-#: The frame class of each fixed-size binary frame type (its wire fields are those of ``protocol.PAYLOAD_DTYPE``).
-FRAME_OF_TYPE = {
-    P.TYPE_ATTITUDE: AttitudeFrame,
-    P.TYPE_STATUS: StatusFrame,
-    P.TYPE_FLIGHT: FlightFrame,
-    P.TYPE_ACK: AckFrame,
-    P.TYPE_COMMAND: CommandFrame,
-}
+#: The frame class of each fixed-size binary frame type, in the order of ``protocol.PAYLOAD_DTYPE`` (its wire fields).
+FRAME_OF_TYPE = dict(zip(P.PAYLOAD_DTYPE, (AttitudeFrame, StatusFrame, FlightFrame, AckFrame, CommandFrame)))
 
 
 @dataclass(slots=True)

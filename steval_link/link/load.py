@@ -17,6 +17,7 @@ from steval_link.link.ble_payloads import is_ble_source
 from steval_link.link.ble_telemetry import ble_telemetry
 from steval_link.link.capture import (
     MAGIC,
+    SYMBOL_DTYPE,
     Capture,
     CaptureTruncatedWarning,
     HostChunk,
@@ -26,8 +27,7 @@ from steval_link.link.capture import (
 )
 from steval_link.link.decoder import StreamDecoder, decode_bytes
 from steval_link.link.frames import CommandFrame
-from steval_link.link.symbol_rows import merge_symbol_attitude
-from steval_link.link.telemetry import COMMAND_ROW_DTYPE, Telemetry
+from steval_link.link.telemetry import COMMAND_ROW_DTYPE, AttitudeArrays, Telemetry
 from steval_link.link.text_series import FLOATLESS_NOTE
 
 
@@ -64,9 +64,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> Telemetry:
-    """Decode a capture, raw byte dump or text-mode log (``source["kind"]`` 'stv', 'raw' or 'text'); a truncated
-    capture's warning is issued and kept in ``source["warnings"]``. ``text_map`` ({target: (series, unit)}) maps
-    text telemetry to the attitude rows."""
+    """Decode a capture, raw byte dump or text-mode log (``source["kind"]``); a truncated capture's warning is issued
+    and kept in ``source["warnings"]``. ``text_map`` ({target: (series, unit)}) maps text telemetry to attitude."""
     src = read_recording(path)
     for w in src.warnings:
         warnings.warn(w, CaptureTruncatedWarning, stacklevel=2)
@@ -74,8 +73,7 @@ def load_telemetry(path: str | os.PathLike, *, text_map: dict | None = None) -> 
 
 
 def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_layout: str | None = None) -> Telemetry:
-    """Decode a :class:`Recording` with its symbol chunks S; a BLE capture's notifications are its rows
-    (``ble_layout``: what its motion payloads hold, None: its header's)."""
+    """Decode a :class:`Recording` and its symbol chunks S; ``ble_layout``: a BLE capture's (None: its header's)."""
     if is_ble_source(src):
         return ble_telemetry(src, ble_layout)
     symbols = capture_symbol_rows(src.chunks) if src.kind == "stv" else None
@@ -90,12 +88,11 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
                 "short): no frames."
             )
         raise UserError(f"{src.path}: {size}, an empty capture (a header, no bytes were received): no frames.")
-    source = {"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)}
     tel = decode_bytes(
         src.data,
         (src.chunk_offsets, src.chunk_times_s),
         baud=src.header.get("baud"),
-        source=source,
+        source={"path": str(src.path), "kind": src.kind, "header": src.header, "warnings": list(src.warnings)},
         events=src.events,
         sent_commands=sent_command_rows(src.host),
         line_start=src.line_start,
@@ -104,15 +101,13 @@ def telemetry_of_recording(src: Recording, *, text_map: dict | None = None, ble_
         if not len(tel.text_series):
             raise UserError(f"{src.path} has no text telemetry to map (no records of numbers found).")
         tel.map_text(text_map)
-    a = tel.attitude
     if src.kind != "stv":
-        if len(a) + len(tel.status) + len(tel.text_series) == 0:
+        if len(tel.attitude) + len(tel.status) + len(tel.text_series) == 0:
             raise UserError(
                 f"{src.path} is not a steval capture, raw serial dump or text log (no frames found, and no records "
                 f"of numbers, in {len(src.data)} bytes{_text_lines(tel)})."
             )
-        binary = tel.binary_rows + int(tel.status.exact.sum())
-        tel.source["kind"] = "raw" if binary else "text"
+        tel.source["kind"] = "raw" if tel.binary_rows + int(tel.status.exact.sum()) else "text"
     elif tel.stats.frames_ok == 0 and symbols is None:
         raise UserError(
             f"{src.path}: no frames in {len(src.data)} received bytes (wrong baud rate, or not the steval-link "
@@ -145,3 +140,56 @@ def sent_command_rows(host: list[HostChunk]) -> np.ndarray:
             if isinstance(f, CommandFrame):
                 rows.append((f.cmd_seq, f.cmd, f.param, f.value, 0, h.offset, f.nbytes, h.t_host_s))
     return np.array(rows, dtype=COMMAND_ROW_DTYPE) if rows else np.zeros(0, COMMAND_ROW_DTYPE)
+
+
+def _f32_bits(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float32)
+    return np.where(np.isnan(a), np.uint32(0x7FC00000), a.view(np.uint32))
+
+
+def merge_symbol_attitude(tel: Telemetry, rows: np.ndarray | None) -> Telemetry:
+    """A capture's symbol rows S in ``tel``: the attitude when it has no frames (``source["attitude_from"]``), else
+    checked against the frames bit for bit (``source["symbols"]``)."""
+    if rows is None or len(rows) == 0:
+        return tel
+    rows = np.asarray(rows, dtype=SYMBOL_DTYPE)
+    t_s = rows["t_s"].astype(np.float64)  # emulated s since power-up, as firmware and host time
+    args = (rows["step"], t_s, t_s.copy(), rows["acc_mg"], rows["gyro_mdps"], rows["euler_rad"])
+    read = AttitudeArrays.of(*args, thr=rows["thr"], q_wxyz=rows["q_wxyz"], exact=True)
+    if len(tel.attitude) == 0:
+        tel.attitude = read
+        tel.source["attitude_from"] = "symbols"
+        tel.source["symbols"] = (
+            f"no attitude frames: the attitude of {len(read)} AHRS steps as the emulator read it from the "
+            "firmware's globals by symbol (acc_ahrs, gyro_ahrs, gTHR, ahrs, euler_ahrs), not frames it sent"
+        )
+        return tel
+    a = tel.attitude
+    frames = np.flatnonzero(np.asarray(a.exact, bool))
+    common, fi, ri = np.intersect1d(np.asarray(a.step)[frames], read.step, return_indices=True)
+    fi = frames[fi]
+    tel.source["attitude_from"] = "frames"
+    if common.size == 0:  # text-mode frames (rounded) or no step in common: nothing to compare bit for bit
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude of {len(read)} AHRS steps by symbol (chunks S); no binary frame "
+            "shares a step with them, so they are not compared bit for bit"
+        )
+        return tel
+    fields = ("acc_mg", "gyro_mdps", "q_wxyz", "thx_rad", "thy_rad")
+    same = np.ones(common.size, dtype=bool)
+    for name in fields:
+        x, y = _f32_bits(getattr(a, name)[fi]), _f32_bits(getattr(read, name)[ri])
+        same &= (x == y).reshape(common.size, -1).all(axis=1)
+    same &= np.asarray(a.thr)[fi] == read.thr[ri]
+    if same.all():
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames agree with it bit for bit on all "
+            f"{common.size} steps both have"
+        )
+    else:
+        first = int(common[np.argmax(~same)])
+        tel.source["symbols"] = (
+            f"the emulator also read the attitude by symbol: the frames differ from it on {int((~same).sum())} of "
+            f"{common.size} steps (first at step {first}): the frames do not carry the filter's globals"
+        )
+    return tel

@@ -55,8 +55,7 @@ def status_values_ok(q_wxyz, int_xyz, kp_ground, kp_flight, ki, dt_s) -> bool:
 
 
 def attitude_frame_bad(frame) -> bool:
-    """True when an ``AttitudeFrame`` carries bad values (``values_bad``): a binary frame failing
-    :func:`attitude_values_ok`; a text row with an infinite value, or with neither an angle nor the accelerometer."""
+    """``values_bad`` of an ``AttitudeFrame``: see :func:`attitude_rows_bad`."""
     if frame.exact:
         return not attitude_values_ok(frame.acc_mg, frame.gyro_mdps, frame.q_wxyz, frame.thz_rad)
     vals = (*frame.acc_mg, *frame.gyro_mdps, frame.thz_rad, frame.thx_rad, frame.thy_rad)
@@ -78,7 +77,8 @@ def _within(v, limit: float, width: int) -> np.ndarray:
 
 
 def attitude_rows_bad(exact, acc_mg, gyro_mdps, q_wxyz, thz_rad, thx_rad, thy_rad) -> np.ndarray:
-    """(N,) bool: :func:`attitude_frame_bad` row by row."""
+    """(N,) bool: a binary row failing :func:`attitude_values_ok`; a text row with an infinite value, or with neither
+    an angle nor the accelerometer."""
     thz = np.asarray(thz_rad).reshape(-1)
     n = thz.shape[0]
     exact = np.broadcast_to(np.asarray(exact, bool), (n,))
@@ -122,8 +122,7 @@ def _count(n: int) -> str:
 
 
 def values_bad_sentence(n: int, first_step: int | None, first_t_s: float | None, *, inputs: bool = False) -> str:
-    """The sentence about ``n`` kept frames with bad values, the first at ``first_step`` (``first_t_s``);
-    ``inputs``: the filter inputs (acc, gyro) are bad too, so the fault is before the filter."""
+    """The sentence on ``n`` kept frames with bad values from ``first_step`` on; ``inputs``: acc and gyro bad too."""
     where = "" if first_step is None else f" from step {first_step} on"
     if first_t_s is not None and math.isfinite(first_t_s):
         where += f" (t = {first_t_s:.3f} s)"
@@ -186,9 +185,8 @@ class PlausibilityGate:
             return []
         if anchor is None or _fits(anchor[0], anchor[1], seq, t_us, 1):
             self._anchor = (seq, t_us)
-            if self._pending:
-                self.held_back += len(self._pending)
-                self._pending = []
+            self.held_back += len(self._pending)  # a restart not confirmed
+            self._pending.clear()
             return [item]
         pend = self._pending
         if pend and _fits(pend[-1][0], pend[-1][1], seq, t_us, 1):
@@ -210,17 +208,13 @@ class PlausibilityGate:
 
 
 def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Keep masks for attitude and status records (stream order; ``nbytes`` tells the version) as ``gate`` fed row
-    by row would decide (its counters updated). Text-mode rows are always kept."""
+    """Keep masks of attitude and status records (stream order) as ``gate`` fed row by row would decide them."""
     gate = gate or PlausibilityGate()
-    keep_a = np.ones(len(att), bool)
-    keep_s = np.ones(len(sta), bool)
-    ea = np.flatnonzero(att["exact"]) if len(att) else np.zeros(0, np.int64)
-    es = np.flatnonzero(sta["exact"]) if len(sta) else np.zeros(0, np.int64)
+    keep_a, keep_s = np.ones(len(att), bool), np.ones(len(sta), bool)
+    ea, es = np.flatnonzero(att["exact"]), np.flatnonzero(sta["exact"])
     if len(ea) == 0 and len(es) == 0:
         return keep_a, keep_s
-    a = att[ea]
-    s = sta[es]
+    a, s = att[ea], sta[es]
     # values gate protocol v1 frames only (v2: kept and flagged); the frame size tells the version
     vals_a, vals_s = np.ones(len(a), bool), np.ones(len(s), bool)
     b = a[a["nbytes"] != P.ATTITUDE_FRAME_SIZE]
@@ -250,8 +244,7 @@ def gate_rows(att: np.ndarray, sta: np.ndarray, gate: PlausibilityGate | None = 
             gate._anchor = (int(a["seq"][-1]), int(a["t_us"][-1]))
         return keep_a, keep_s
     # slow path: the gate row by row, in stream order
-    keep_a[ea] = False
-    keep_s[es] = False
+    keep_a[ea], keep_s[es] = False, False
     rows = [(o, P.TYPE_ATTITUDE, j) for j, o in enumerate(a["offset"].tolist())]
     rows += [(o, P.TYPE_STATUS, j) for j, o in enumerate(s["offset"].tolist())]
     for _, kind, j in sorted(rows):

@@ -20,6 +20,8 @@ import numpy as np
 
 from steval_link import constants as C
 
+Vec = Sequence[float]  #: a vector argument (stored as float32)
+
 SYNC = b"\xa5\x5a"
 VERSION = 2  #: the version this tool's firmware patch sends
 VERSION_1 = 1  #: the first protocol version (CRC-16), still decoded
@@ -211,14 +213,7 @@ def encode_frame(frame_type: int, payload: bytes, version: int = VERSION) -> byt
 
 
 def encode_attitude(
-    *,
-    t_us: int,
-    acc_mg: Sequence[float],
-    gyro_mdps: Sequence[float],
-    q_wxyz: Sequence[float],
-    thz_rad: float,
-    seq: int,
-    thr: int,
+    *, t_us: int, acc_mg: Vec, gyro_mdps: Vec, q_wxyz: Vec, thz_rad: float, seq: int, thr: int
 ) -> bytes:
     """An attitude frame (v2); floats are stored as float32 (pass float32 values to keep their exact bits)."""
     fields = {**locals(), "t_us": t_us % T_US_MODULUS, "seq": seq % SEQ_MODULUS}  # the arguments are the fields
@@ -232,10 +227,9 @@ def encode_attitude_block(records: np.ndarray, version: int = VERSION) -> bytes:
     crc_size, check = CHECK[version]
     end = HEADER_SIZE + ATTITUDE_PAYLOAD_SIZE
     out = np.empty((n, end + crc_size), dtype=np.uint8)
-    out[:, 0] = SYNC[0]
-    out[:, 1] = SYNC[1]
-    out[:, 2] = vt_byte(version, TYPE_ATTITUDE)
-    out[:, 3] = ATTITUDE_PAYLOAD_SIZE
+    out[:, :HEADER_SIZE] = np.frombuffer(
+        SYNC + bytes((vt_byte(version, TYPE_ATTITUDE), ATTITUDE_PAYLOAD_SIZE)), np.uint8
+    )
     out[:, HEADER_SIZE:end] = records.view(np.uint8).reshape(n, -1)
     crcs = np.fromiter((check(out[i, 2:end].tobytes()) for i in range(n)), dtype=np.uint32, count=n)
     out[:, end:] = crcs.astype("<u4").view(np.uint8).reshape(n, 4)[:, :crc_size]
@@ -248,11 +242,8 @@ STATUS_DEFAULTS = dict(
 )
 
 
-def encode_status(
-    *, step: int, t_us: int, q_wxyz: Sequence[float], int_xyz: Sequence[float], version: int = VERSION, **fields
-) -> bytes:
-    """A status frame: link statistics, filter settings and the filter-state snapshot after ``step``; other
-    ``STATUS_DTYPE`` fields by name (:data:`STATUS_DEFAULTS`, ``fw_version`` (2, 0), else 0)."""
+def encode_status(*, step: int, t_us: int, q_wxyz: Vec, int_xyz: Vec, version: int = VERSION, **fields) -> bytes:
+    """A status frame; other ``STATUS_DTYPE`` fields by name (default :data:`STATUS_DEFAULTS`, fw_version 2.0, 0)."""
     unknown = set(fields) - set(STATUS_DTYPE.names)
     if unknown:
         raise TypeError(f"encode_status() got unknown fields {sorted(unknown)}")

@@ -45,8 +45,7 @@ def is_replay_url(port: str) -> bool:
 
 @dataclass(frozen=True)
 class ReplayUrl:
-    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file, how many times faster than recorded, the records per
-    second of a text log without times, and whether it starts again at its end."""
+    """``replay://PATH[?speed=X&rate=N&loop=1]``: the file, times faster than recorded, ``rate``, start again at end."""
 
     path: Path
     speed: float = 1.0
@@ -63,11 +62,10 @@ def parse_replay_url(url: str) -> ReplayUrl:
     """Parse ``replay://recordings/demo.stv`` (relative), ``replay:///abs/x.stv`` or ``...?speed=5``."""
     if not is_replay_url(url):
         raise UserError(f"{url} is not a replay URL (replay://CAPTURE.stv)")
-    rest = url[len(SCHEME) :]
-    path_text, _, query = rest.partition("?")
+    path_text, _, query = url[len(SCHEME) :].partition("?")
     if not path_text:
         raise UserError(f"{url}: no file to replay; give one as replay://recordings/demo.stv")
-    speed, rate, loop = 1.0, None, False
+    opts: dict = {}
     try:
         params = urllib.parse.parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
@@ -79,12 +77,10 @@ def parse_replay_url(url: str) -> ReplayUrl:
             word = values[-1].strip().lower()
             if word not in _TRUE + _FALSE:
                 raise UserError(f"{url}: loop is 1 (start again at the end) or 0, got {values[-1]!r}")
-            loop = word in _TRUE
-        elif key == "rate":  # a text log without times: its records per second
-            rate = _positive(url, key, values[-1])
-        else:
-            speed = _positive(url, key, values[-1])
-    return ReplayUrl(Path(urllib.parse.unquote(path_text)), speed, rate, loop)
+            opts[key] = word in _TRUE
+        else:  # speed, or rate: the records per second of a text log without times
+            opts[key] = _positive(url, key, values[-1])
+    return ReplayUrl(Path(urllib.parse.unquote(path_text)), **opts)
 
 
 def _positive(url: str, key: str, text: str) -> float:
@@ -98,22 +94,18 @@ def _positive(url: str, key: str, text: str) -> float:
 
 
 def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
-    """``(ends, t_s, how)``: bytes ``[0, ends[i])`` of ``src`` (decoded as ``tel``) are out at ``t_s[i]`` (s since
-    the replay started), paced by ``how``; ``rate``: records per second of a text log without times."""
+    """``(ends, t_s, how)``: bytes ``[0, ends[i])`` of ``src`` are out ``t_s[i]`` s into the replay, paced by how."""
     n = len(src.data)
     att = tel.attitude
     first = int(att.offset[0]) if len(att) else 0
-    if src.chunk_offsets is not None and src.chunk_times_s is not None and len(src.chunk_offsets):
-        t = np.asarray(src.chunk_times_s, np.float64)
-        if np.all(np.isfinite(t)):
-            ends = np.append(np.asarray(src.chunk_offsets[1:], np.int64), n)
-            t = np.maximum.accumulate(t)
-            k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
-            return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
-    t_fw = np.asarray(att.t_fw_s, np.float64) if len(att) else np.zeros(0)
-    how = "the frames' firmware times"
-    series = getattr(tel, "text_series", None)
-    if series is not None and len(series) >= 2 and not tel.has_own_attitude:  # text telemetry: records paced
+    t = np.maximum.accumulate(np.asarray(src.chunk_times_s, np.float64))  # a capture's chunks (NaN: none)
+    if len(t) and np.isfinite(t).all():
+        ends = np.append(np.asarray(src.chunk_offsets[1:], np.int64), n)
+        k = min(int(np.searchsorted(ends, first, side="right")), len(t) - 1)  # the chunk holding frame 0's start
+        return ends, np.maximum(t - t[k], 0.0), "the capture's host times"
+    t_fw, how = np.asarray(att.t_fw_s, np.float64), "the frames' firmware times"
+    series = tel.text_series
+    if len(series) >= 2 and not tel.has_own_attitude:  # text telemetry: records paced
         if rate is None and series.t_source.startswith("the record index"):
             t_fw = np.zeros(0)  # no times: the baud rate below
         else:
@@ -125,16 +117,13 @@ def pace_of(src, tel, baud: int, rate: float | None = None) -> tuple[np.ndarray,
         t = np.concatenate([[0.0], np.cumsum(dt)])
         # frame i (and the bytes before frame i+1) is out at its own firmware time; the tail at the baud rate
         ends = np.append(np.asarray(att.offset[1:], np.int64), n)
-        tail_s = (n - int(att.offset[-1])) * BITS_PER_BYTE / baud
-        t = np.append(t[:-1], t[-1] + tail_s)
-        return ends, t, how
+        return ends, np.append(t[:-1], t[-1] + (n - int(att.offset[-1])) * BITS_PER_BYTE / baud), how
     ends = np.append(np.arange(BAUD_BLOCK_BYTES, n, BAUD_BLOCK_BYTES, dtype=np.int64), n)
     return ends, ends * (BITS_PER_BYTE / baud), f"{baud} baud"
 
 
 class ReplayPort:
-    """A file's bytes as a serial port: bytes ``[0, ends[i])`` are readable ``t_s[i] / speed`` s after the first
-    read. Commands go nowhere: :meth:`write` raises."""
+    """A file's bytes as a serial port: bytes ``[0, ends[i])`` readable ``t_s[i] / speed`` s after the first read."""
 
     def __init__(
         self,
@@ -180,8 +169,7 @@ class ReplayPort:
         el = self._elapsed_s() - self._t_loop
         i = int(np.searchsorted(self.t_s, el, side="right"))
         out = int(self.ends[i - 1]) if i else 0
-        wait = float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
-        return out, wait
+        return out, float(self.t_s[i]) - el if i < len(self.t_s) else math.inf
 
     @property
     def in_waiting(self) -> int:
@@ -228,7 +216,7 @@ class ReplayPort:
         return f"{self.path} replayed at {pace} ({self.paced_by})" + (", in a loop" if self.loop else "")
 
 
-def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S) -> ReplayPort:
+def open_replay(url: str, *, baud: int = C.BAUD) -> ReplayPort:
     """Open ``replay://PATH[?speed=X]``; ``baud``: the pace of a file without times (a capture's header wins)."""
     parsed = parse_replay_url(url)
     try:
@@ -251,7 +239,6 @@ def open_replay(url: str, *, baud: int = C.BAUD, timeout: float = READ_TIMEOUT_S
         path=parsed.path,
         baudrate=rate,
         speed=parsed.speed,
-        timeout=timeout,
         paced_by=how,
         emulated=bool((src.header or {}).get("extra", {}).get("emulated")),
         loop=parsed.loop,
@@ -269,5 +256,4 @@ def _to_whole_frames(data: bytes, ends: np.ndarray, t_s: np.ndarray) -> tuple[by
         return data, ends, t_s
     ends, t_s = np.asarray(ends), np.asarray(t_s)
     keep = ends < cut
-    t_cut = t_s[int(np.argmax(ends >= cut))]
-    return data[:cut], np.append(ends[keep], cut), np.append(t_s[keep], t_cut)
+    return data[:cut], np.append(ends[keep], cut), np.append(t_s[keep], t_s[int(np.argmax(ends >= cut))])

@@ -1,16 +1,13 @@
 """``Telemetry``: every field of a decoded stream as numpy arrays in stream order, with units in the names.
 
-Built by :func:`steval_link.link.decoder.decode_bytes` (bulk) or :func:`telemetry_from_frames`. Derived fields:
+Derived fields (one implementation for the whole stream and the live path, :class:`StreamClock`):
 
-* ``step`` (int64): binary rows unwrap ``seq`` (u16); a status frame, which carries the full u32 step of the
-  attitude frame before it, anchors the absolute step (the first of each firmware run wins). Text-mode rows carry
-  the full step.
-* ``t_fw_s`` (float64): ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
-* ``t_host_s`` (float64): host receive time, s since capture start (NaN when unknown).
+* ``step``: binary rows unwrap ``seq`` (u16); a status frame (the full u32 step of the attitude frame before it)
+  anchors the absolute step, the first of each firmware run. Text-mode rows carry the full step.
+* ``t_fw_s``: ``t_us`` unwrapped mod 2³² (from 0 again after a firmware restart) / 10⁶.
 * ``thx_rad``/``thy_rad``: of binary rows ``QuaternionToEuler`` of ``q_wxyz``, bit-exact; of text rows the line's.
-* ``values_bad`` (bool): the row carries NaN/inf or values out of range (:mod:`steval_link.link.plausibility`).
-  Protocol v2 keeps such frames when CRC, sequence and time are right: the firmware sent them (its filter
-  diverged). It is a column of :meth:`Telemetry.attitude_table` (CSV, Parquet).
+* ``values_bad``: NaN/inf or out-of-range values (:mod:`steval_link.link.plausibility`); protocol v2 keeps such
+  frames when CRC, sequence and time are right (the firmware's filter diverged).
 """
 
 from __future__ import annotations
@@ -35,11 +32,141 @@ from steval_link.link.frames import (
 )
 from steval_link.link.plausibility import attitude_rows_bad, status_rows_bad
 from steval_link.link.text_series import RecordBlock, TextSeries, apply_plan, attitude_plan, record_blocks, text_series
-from steval_link.link.unwrap import SeqUnwrapper, StreamClock
-from steval_link.link.unwrap import host_times as _host_times
 
 if TYPE_CHECKING:  # annotations only
     from steval_link.link.frames import DecoderStats, Frame
+
+_HALF = P.T_US_MODULUS // 2
+
+
+class TimeUnwrapper:
+    """Firmware seconds since boot from ``t_us`` in stream order, across calls: a drop by over half the range wraps."""
+
+    def __init__(self) -> None:
+        self.wraps = 0
+        self.last: int | None = None
+
+    def seconds(self, t_us) -> np.ndarray:
+        """(N,) float64 seconds of these ``t_us`` values, in order (state carried to the next call)."""
+        raw = np.asarray(t_us, dtype=np.int64) % P.T_US_MODULUS
+        if raw.size == 0:
+            return np.zeros(0, dtype=np.float64)
+        prev = np.concatenate([[raw[0] if self.last is None else self.last], raw[:-1]])
+        wraps = self.wraps + np.cumsum((prev - raw) > _HALF)
+        self.wraps, self.last = int(wraps[-1]), int(raw[-1])
+        return (raw + wraps * P.T_US_MODULUS) / 1e6
+
+    def nearest(self, t_us: int) -> float:
+        """Seconds of one ``t_us`` (a status frame's) at the wrap count closest to the latest value; no state change."""
+        v = int(t_us) % P.T_US_MODULUS
+        if self.last is None:
+            return v / 1e6
+        wraps = self.wraps
+        if v - self.last > _HALF and wraps > 0:
+            wraps -= 1  # from before the latest wrap
+        elif self.last - v > _HALF:
+            wraps += 1  # already past the next wrap
+        return (v + wraps * P.T_US_MODULUS) / 1e6
+
+
+class SeqUnwrapper:
+    """Full AHRS steps from binary frames' u16 ``seq`` (high bits: :meth:`status`); a step back is a restart."""
+
+    def __init__(self) -> None:
+        #: full step of the latest binary frame (None before the first)
+        self.last: int | None = None
+
+    def steps(self, seq) -> tuple[np.ndarray, np.ndarray]:
+        """(steps (N,) int64, restart (N,) bool: this frame begins a new firmware run) for these ``seq`` values."""
+        raw = np.asarray(seq, dtype=np.int64) % P.SEQ_MODULUS
+        n = raw.size
+        if n == 0:
+            return np.zeros(0, np.int64), np.zeros(0, bool)
+        prev = np.concatenate([[raw[0] if self.last is None else self.last % P.SEQ_MODULUS], raw[:-1]])
+        advance = (raw - prev) % P.SEQ_MODULUS
+        restart = advance >= P.SEQ_MODULUS // 2
+        cs = np.cumsum(np.where(restart, 0, advance))
+        seg = np.cumsum(restart)  # 0: continues the previous call's run
+        first = np.flatnonzero(restart)  # the row where each later run starts
+        steps = (raw[0] if self.last is None else self.last) + cs
+        if first.size:
+            later = seg > 0
+            starts = first[seg[later] - 1]
+            steps[later] = raw[starts] + (cs[later] - cs[starts])
+        self.last = int(steps[-1])
+        return steps, restart
+
+    def status(self, step: int) -> None:
+        """A status frame names the full step of the attitude frame just before it: take it when it agrees."""
+        if self.last is None or self.last % P.SEQ_MODULUS == step % P.SEQ_MODULUS:
+            self.last = int(step)
+
+
+def host_times(last_byte, chunk_times, baud: int | None, total: int, *, before_s: float = -np.inf) -> np.ndarray:
+    """Host time of each frame's ``last_byte``: its chunk's (offsets, times; None: NaN) less the bytes after it at
+    ``baud``, never before the previous chunk's."""
+    if chunk_times is None or len(chunk_times[0]) == 0:
+        return np.full(len(last_byte), np.nan)
+    c_off = np.asarray(chunk_times[0], dtype=np.int64)
+    c_t = np.asarray(chunk_times[1], dtype=np.float64)
+    k = np.clip(np.searchsorted(c_off, last_byte, side="right") - 1, 0, len(c_off) - 1)
+    t = c_t[k].copy()
+    if baud:
+        c_end = np.append(c_off[1:], total)
+        t -= (c_end[k] - (last_byte + 1)) * (10.0 / baud)
+        # a byte cannot have arrived before the previous chunk was received
+        prev = np.where(k > 0, c_t[np.maximum(k - 1, 0)], before_s)
+        t = np.maximum(t, prev)
+    return t
+
+
+class StreamClock:
+    """A live stream's rows timed by the bulk rules from ``t0_unix_s`` (None: the first chunk's); :meth:`chunk` each."""
+
+    def __init__(self, t0_unix_s: float | None = None, baud: int | None = None) -> None:
+        self.t0_unix_s, self.baud = t0_unix_s, baud
+        self.total = 0  # bytes of the stream so far
+        self._offsets, self._times = [], []  # the kept chunks' stream offsets and host times, s
+        self._before_s = -np.inf  # time of the chunk before the first kept one
+        self.fw = TimeUnwrapper()
+
+    def host_of(self, t_unix_s: float) -> float:
+        """A host time (s, Unix epoch) on the capture's base (as the recorder stores chunk times)."""
+        if self.t0_unix_s is None:
+            self.t0_unix_s = float(t_unix_s)
+        return float(t_unix_s) - self.t0_unix_s
+
+    def chunk(self, nbytes: int, t_unix_s: float) -> None:
+        """A chunk of ``nbytes`` received at ``t_unix_s`` (an empty one is not kept, as in a capture)."""
+        t_s = self.host_of(t_unix_s)
+        if nbytes:
+            self._offsets.append(self.total)
+            self._times.append(t_s)
+            self.total += nbytes
+
+    def host_s(self, last_byte) -> np.ndarray:
+        """Host times of frames ending at stream offsets ``last_byte`` (:func:`host_times` over the chunks)."""
+        chunks = (self._offsets, self._times)
+        return host_times(np.asarray(last_byte), chunks, self.baud, self.total, before_s=self._before_s)
+
+    def fw_s(self, t_us, restart=None) -> np.ndarray:
+        """Firmware seconds of these ``t_us`` (stream order); counting starts again at each ``restart`` row."""
+        restart = np.zeros(len(t_us), bool) if restart is None else np.asarray(restart, bool)
+        cuts = sorted({0, len(t_us), *np.flatnonzero(restart).tolist()})
+        out = [np.zeros(0)]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if restart[a]:
+                self.fw = TimeUnwrapper()  # a firmware restart: its own time from boot
+            out.append(self.fw.seconds(t_us[a:b]))
+        return np.concatenate(out)
+
+    def prune(self, pending_bytes: int) -> None:
+        """Forget the chunks before the one holding the first of the ``pending_bytes`` not decoded yet."""
+        k = int(np.searchsorted(self._offsets, self.total - pending_bytes, side="right")) - 1
+        if k > 0:
+            self._before_s = self._times[k - 1]  # a frame's time is never before the previous chunk's
+            del self._offsets[:k], self._times[:k]
+
 
 _EXTRA = [("offset", "<i8"), ("nbytes", "<i4"), ("exact", "?")]
 #: Internal row layouts: the wire payload plus where the row came from.
@@ -53,19 +180,7 @@ COMMAND_ROW_DTYPE = np.dtype(P.COMMAND_DTYPE.descr + _ROW_EXTRA)
 
 
 #: the attitude columns taken as they are from the records (ATT_RECORD_DTYPE has each one's type)
-_RECORD_COLUMNS = (
-    "seq",
-    "t_us",
-    "acc_mg",
-    "gyro_mdps",
-    "thr",
-    "q_wxyz",
-    "thz_rad",
-    "thx_rad",
-    "thy_rad",
-    "exact",
-    "offset",
-)
+_RECORD_COLUMNS = tuple(name for name in ATT_RECORD_DTYPE.names if name not in ("nbytes", "step"))
 
 
 @dataclass
@@ -101,8 +216,7 @@ class AttitudeArrays:
 
     @classmethod
     def of(cls, step, t_fw_s, t_host_s, acc_mg, gyro_mdps, euler_rad, *, thr=None, q_wxyz=None, offset=None, **kw):
-        """Rows that are not binary frames (``exact`` False unless given): ``seq`` and ``t_us`` from ``step`` and
-        ``t_fw_s``; ``euler_rad`` (N, 3) thx, thy, thz; throttle 0, quaternion NaN and offset -1 unless given."""
+        """Rows that are not binary frames: ``euler_rad`` (N, 3) thx, thy, thz; thr 0, q NaN, offset -1 by default."""
         step, t_fw_s = np.asarray(step, np.int64), np.asarray(t_fw_s, np.float64)
         n = len(step)
         euler = np.asarray(euler_rad, np.float32).reshape(n, 3)
@@ -126,18 +240,16 @@ class AttitudeArrays:
 
     @classmethod
     def from_records(cls, att: np.ndarray, *, step, t_fw_s, t_host_s) -> AttitudeArrays:
-        """Rows of the records ``att`` (ATT_RECORD_DTYPE, stream order, each field already of its column's type) with
-        their step and times; ``thx_rad``/``thy_rad`` of binary rows from ``q_wxyz``."""
+        """Rows of ATT_RECORD_DTYPE records (stream order) with their step and times; binary rows' angles from q."""
         cols = {name: np.array(att[name]) for name in _RECORD_COLUMNS}  # copies
         ex = cols["exact"]
         if ex.any():
             cols["thx_rad"][ex], cols["thy_rad"][ex] = quaternion_to_euler(att["q_wxyz"][ex])
-        times = dict(t_fw_s=np.asarray(t_fw_s, dtype=np.float64), t_host_s=np.asarray(t_host_s, dtype=np.float64))
-        return cls(step=np.asarray(step, dtype=np.int64), **times, **cols)
+        t_fw_s, t_host_s = np.asarray(t_fw_s, np.float64), np.asarray(t_host_s, np.float64)
+        return cls(step=np.asarray(step, dtype=np.int64), t_fw_s=t_fw_s, t_host_s=t_host_s, **cols)
 
     @classmethod
     def concat(cls, parts: list[AttitudeArrays]) -> AttitudeArrays:
-        """The rows of ``parts``, in order."""
         if len(parts) == 1:
             return parts[0]
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
@@ -148,9 +260,7 @@ _STATUS_COLUMNS = (*P.STATUS_DTYPE.names, "t_fw_s", "t_host_s", "exact", "offset
 
 @dataclass
 class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name in _STATUS_COLUMNS])):
-    """One row per status frame: every STATUS_DTYPE field (``q_wxyz`` (N,4), ``int_xyz`` (N,3), ``fw_version``
-    (N,2)), plus ``t_fw_s``, ``t_host_s``, ``exact``, ``offset`` and ``values_bad`` (a snapshot holding NaN or
-    ``|q|`` > 2: its settings are still the firmware's) as in :class:`AttitudeArrays`."""
+    """One row per status frame: its STATUS_DTYPE fields, times, ``exact``, ``offset``, ``values_bad`` (NaN, |q|>2)."""
 
     values_bad: np.ndarray | None = None
 
@@ -166,9 +276,8 @@ class StatusArrays(make_dataclass("StatusColumns", [(name, np.ndarray) for name 
 
 @dataclass
 class FlightControlArrays:
-    """One row per flight-control frame (sent after ``FlightControlPID_OuterLoop`` of step ``step``); ``tel.fc``.
-    Axes x (pitch), y (roll), z (yaw). ``t_fw_s``: the time of the attitude row before it plus the AHRS periods
-    between (the frame carries no time)."""
+    """One row per flight-control frame (after ``FlightControlPID_OuterLoop`` of ``step``); axes x (pitch), y (roll),
+    z (yaw). ``t_fw_s``: the attitude row before it plus the AHRS periods between (the frame carries no time)."""
 
     step: np.ndarray  #: (N,) int64, the AHRS step (as the attitude rows' step)
     t_fw_s: np.ndarray  #: (N,) float64, firmware time of the step, s since boot
@@ -204,8 +313,7 @@ class FlightControlArrays:
         return cls(t_fw_s=np.asarray(t, np.float64), **cols)
 
 
-#: the columns of ``steval export --csv`` that make its rows the frames' own (each float32 written so that it reads
-#: back as the same float32): the replica runs on them bit-exact
+#: the columns of ``steval export --csv`` that make its rows the frames' own float32 values (the replica runs bit-exact)
 EXPORT_EXACT_COLUMNS = ("step", "exact", "q_w", "q_x", "q_y", "q_z")
 
 
@@ -250,21 +358,20 @@ class TelemetryParts:
 
     def attitude_records(self) -> np.ndarray:
         """Every attitude row so far, in stream order."""
-        self._settle()
-        return self.att_blocks[0]
+        return self._settle()[0]
 
     def status_records(self) -> np.ndarray:
         """Every status row so far, in stream order."""
-        self._settle()
-        return self.sta_blocks[0]
+        return self._settle()[1]
 
-    def _settle(self) -> None:
+    def _settle(self) -> tuple[np.ndarray, np.ndarray]:
         """Blocks and single frames into one block each, in stream order (once until more rows come)."""
         if not self._settled:
             self.att_blocks = [_sorted_records(self.att_blocks, self.att_frames, ATT_RECORD_DTYPE)]
             self.sta_blocks = [_sorted_records(self.sta_blocks, self.sta_frames, STA_RECORD_DTYPE)]
             self.att_frames, self.sta_frames = [], []
             self._settled = True
+        return self.att_blocks[0], self.sta_blocks[0]
 
 
 def _frame_records(frames: list, dtype: np.dtype, skip: tuple[str, ...] = ()) -> np.ndarray:
@@ -285,8 +392,7 @@ def _sorted_records(blocks: list[np.ndarray], frames: list, dtype: np.dtype) -> 
 
 
 def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(step per attitude row, restart offsets): binary rows' ``seq`` unwrapped as live; each firmware run takes the
-    high bits from its first status frame whose step agrees, for all its rows."""
+    """(step per attitude row, restart offsets): ``seq`` unwrapped, each firmware run anchored by its first status."""
     step = att["step"].copy()
     b = np.flatnonzero(att["exact"])
     restarts = np.zeros(0, np.int64)
@@ -295,8 +401,7 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
         seg = np.cumsum(reset)
         delta = np.zeros(int(seg[-1]) + 1, np.int64)
         if len(sta):
-            off_b = att["offset"][b]
-            j = np.searchsorted(off_b, sta["offset"]) - 1
+            j = np.searchsorted(att["offset"][b], sta["offset"]) - 1
             ok = j >= 0
             j_ok = j[ok]
             sstep = sta["step"][ok].astype(np.int64)
@@ -312,10 +417,9 @@ def _unwrap_steps(att: np.ndarray, sta: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 @dataclass
 class Telemetry:
-    """A decoded stream: ``attitude`` and ``status`` rows, ``text`` lines, capture ``events``, decoder ``stats``
-    and ``source`` (``path``, ``kind`` 'stv' | 'raw' | 'text', ``header`` of a capture, ``warnings``); the v2
-    frames as structured arrays: ``flight`` (FLIGHT_ROW_DTYPE), ``acks`` (ACK_ROW_DTYPE) and ``commands``
-    (COMMAND_ROW_DTYPE, commands found in the decoded bytes themselves)."""
+    """A decoded stream: ``attitude``/``status`` rows, ``text`` lines, ``events``, ``stats``, ``source`` (``path``,
+    ``kind`` 'stv' | 'raw' | 'text', capture ``header``, ``warnings``); the v2 frames as structured arrays (``flight``,
+    ``acks``, ``commands``: found in the bytes, then those the host sent)."""
 
     attitude: AttitudeArrays
     status: StatusArrays
@@ -345,13 +449,12 @@ class Telemetry:
         source: dict | None = None,
         events: list | None = None,
     ) -> Telemetry:
-        att = parts.attitude_records()
-        sta = parts.status_records()
+        att, sta = parts._settle()
         texts = sorted(parts.texts, key=lambda f: f.offset)
         total = int(stats.bytes_total)
 
         def host_s(last_byte) -> np.ndarray:
-            return _host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
+            return host_times(np.asarray(last_byte, np.int64), chunk_times, baud, total)
 
         step, restarts = _unwrap_steps(att, sta)
         # firmware time over attitude and status rows together, in stream order, from 0 again at each restart
@@ -370,8 +473,7 @@ class Telemetry:
             t_fw_s=t_all[na:],
             t_host_s=host_s(sta["offset"] + sta["nbytes"] - 1),
         )
-        t_text = host_s([f.offset + f.nbytes - 1 for f in texts])
-        text = [(float(t), f.text) for t, f in zip(t_text, texts)]
+        text = [(float(t), f.text) for t, f in zip(host_s([f.offset + f.nbytes - 1 for f in texts]), texts)]
         rows = {}
         for name, kind, dtype in (
             ("flight", FlightFrame, FLIGHT_ROW_DTYPE),
@@ -393,12 +495,12 @@ class Telemetry:
 
     @property
     def has_own_attitude(self) -> bool:
-        """True when the attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
+        """The attitude rows are the stream's own frames (binary or ``$ATT``), not text telemetry."""
         return len(self.attitude) > 0 and not self.text_attitude_notes
 
     @property
     def printed_only(self) -> bool:
-        """True when the stream is text telemetry alone: records, and no attitude frames of its own."""
+        """The stream is text telemetry alone: records, and no attitude frames of its own."""
         return len(self.text_series) > 0 and not self.has_own_attitude
 
     @property
@@ -407,8 +509,7 @@ class Telemetry:
         return 0 if self.printed_only else int(self.attitude.exact.sum())
 
     def map_text(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
-        """The attitude rows from the text series (:func:`~steval_link.link.text_series.attitude_plan`) when the
-        stream has no attitude frames of its own; the notes in ``text_attitude_notes``."""
+        """Attitude rows from the text series when the stream has no frames of its own (``text_attitude_notes``)."""
         if len(self.attitude) and self.attitude.exact.any():
             return
         s = self.text_series
@@ -431,19 +532,8 @@ class Telemetry:
             step = s.column("step").astype(np.int64)
             q = np.stack([s.column(f"q_{c}") for c in "wxyz"], axis=1).astype(np.float32)
             exact = (s.column("exact") == 1) & np.isfinite(q).all(axis=1) & np.isfinite(acc).all(axis=1)
-        self.attitude = AttitudeArrays.of(
-            step,
-            t_fw,
-            s.t_host_s,
-            acc,
-            gyro,
-            euler,
-            thr=cols["thr"],
-            q_wxyz=q,
-            offset=s.offset,
-            values_bad=bad,
-            exact=exact,
-        )
+        kw = dict(thr=cols["thr"], q_wxyz=q, offset=s.offset, values_bad=bad, exact=exact)
+        self.attitude = AttitudeArrays.of(step, t_fw, s.t_host_s, acc, gyro, euler, **kw)
 
     @cached_property
     def fc(self) -> FlightControlArrays:
@@ -451,8 +541,7 @@ class Telemetry:
         return FlightControlArrays.from_rows(self.flight, self.attitude)
 
     def flight_columns(self) -> dict[str, np.ndarray]:
-        """The flight-control fields as columns on the attitude rows (joined by step; NaN in the rows of steps
-        without a flight-control frame), units in the names; {} when the stream has none."""
+        """The flight-control fields as columns on the attitude rows, joined by step (NaN where none); {} if none."""
         fc = self.fc
         if len(fc) == 0:
             return {}
@@ -502,22 +591,9 @@ class Telemetry:
         return cols
 
 
-def telemetry_from_frames(
-    frames: list[Frame],
-    stats: DecoderStats,
-    *,
-    frame_times: np.ndarray | None = None,
-    source: dict | None = None,
-    events: list | None = None,
-) -> Telemetry:
-    """A :class:`Telemetry` from a ``StreamDecoder``'s frames; ``frame_times``: one host time per frame, s."""
+def telemetry_from_frames(frames: list[Frame], stats: DecoderStats) -> Telemetry:
+    """A :class:`Telemetry` from a ``StreamDecoder``'s frames (host times unknown)."""
     parts = TelemetryParts()
     for f in frames:
         parts.add_frame(f)
-    chunk_times = None
-    if frame_times is not None and len(frames):
-        # one pseudo-chunk per frame, ending at the frame's last byte
-        offs = np.array([f.offset + f.nbytes - 1 for f in frames], dtype=np.int64)
-        order = np.argsort(offs, kind="stable")
-        chunk_times = (offs[order], np.asarray(frame_times, dtype=np.float64)[order])
-    return Telemetry.from_parts(parts, stats, chunk_times=chunk_times, source=source, events=events)
+    return Telemetry.from_parts(parts, stats)

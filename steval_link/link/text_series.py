@@ -1,9 +1,8 @@
 """Records of text telemetry as named series (:class:`TextSeries`), their time, and the attitude they stand for.
 
-* :func:`text_series`: the records of a stream as one array, a column per name (NaN where a record has no such
-  name), with units and a time per record: a timestamp column (``t``, ``t_ms``, ``millis``, Teleplot's
-  ``NAME_t_ms``...), else the host's receive times, else ST's main-loop rate (161.5 Hz) for ST's line and printed
-  angles, else the record index (1 s apart).
+* :func:`text_series`: the records as one array, a column per name (NaN where a record has none), a time per
+  record: a timestamp column (``t``, ``t_ms``, ``millis``, ``NAME_t_ms``...), else the host's receive times, else
+  ST's main-loop rate (161.5 Hz) for ST's line and printed angles, else the record index (1 s apart).
 * :func:`attitude_plan`: which series are the attitude and inputs: ST's 221117 line, names (pitch/roll/yaw,
   thx/thy/thz, acc/gyro with a unit) or a user's mapping (``pitch=col2:deg``); angles in rad, acc in mg, gyro in mdps.
 
@@ -35,14 +34,8 @@ FLOATLESS_NOTE = (
 MAP_TARGETS = ("pitch", "roll", "yaw", "acc_x", "acc_y", "acc_z", "gyro_x", "gyro_y", "gyro_z", "thr")
 _ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0, "mdeg": math.pi / 180_000.0, "cdeg": math.pi / 18_000.0}
 _ACC_UNITS = {"mg": 1.0, "g": 1000.0, "m/s2": 1000.0 / 9.80665, "m/s^2": 1000.0 / 9.80665, "ms2": 1000.0 / 9.80665}
-_GYRO_UNITS = {
-    "mdps": 1.0,
-    "dps": 1000.0,
-    "deg/s": 1000.0,
-    "°/s": 1000.0,
-    "rad/s": 180_000.0 / math.pi,
-    "mrad/s": 180.0 / math.pi,
-}
+_GYRO_UNITS = {"mdps": 1.0, "dps": 1000.0, "deg/s": 1000.0, "°/s": 1000.0, "rad/s": 180_000 / math.pi}
+_GYRO_UNITS["mrad/s"] = 180.0 / math.pi
 _TARGET_UNITS = {
     **dict.fromkeys(("pitch", "roll", "yaw"), (_ANGLE_UNITS, "deg, rad, mdeg")),
     "acc": (_ACC_UNITS, "mg, g, m/s2"),
@@ -61,9 +54,8 @@ _TIME_NAME_RE = re.compile(r"(?:t|time)(?:_[a-z0-9]+)*_(s|ms|us)")
 
 @dataclass
 class TextSeries:
-    """Every record of text telemetry: ``values`` (N, M) float64, a column per name of ``names`` (``units`` as
-    written); per record ``t_s`` (s, see ``t_source``), ``t_host_s`` (NaN when unknown), stream ``offset``, ``kind``
-    (the format), ``shape`` (its index in ``shapes``); ``notes`` what was recognised."""
+    """Every record: ``values`` (N, M), a column per name (``units`` as written); per record ``t_s`` (s, see
+    ``t_source``), ``t_host_s``, stream ``offset``, ``kind``, ``shape`` (index in ``shapes``); ``notes`` on them."""
 
     names: list[str] = field(default_factory=list)
     units: list[str] = field(default_factory=list)
@@ -120,8 +112,7 @@ def record_blocks(records: list) -> list[RecordBlock]:
 
 
 def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
-    """The record blocks as one :class:`TextSeries` in stream order; ``host_times(last_byte_offsets)`` gives their
-    host times (s since the capture started, NaN when unknown)."""
+    """The record blocks as one :class:`TextSeries` in stream order; ``host_times(last_byte_offsets)``: their times."""
     blocks = [b for b in blocks if len(b.offset)]
     if not blocks:
         return TextSeries()
@@ -130,9 +121,7 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
         for name, unit in zip(b.names, b.units):
             unit_of.setdefault(name, unit)
     index = {name: k for k, name in enumerate(unit_of)}
-    units = list(unit_of.values())
-    total = sum(len(b.offset) for b in blocks)
-    values = np.full((total, len(index)), np.nan)
+    values = np.full((sum(len(b.offset) for b in blocks), len(index)), np.nan)
     offset = np.concatenate([b.offset for b in blocks])
     last = np.concatenate([b.offset + b.nbytes - 1 for b in blocks])
     kinds = np.concatenate([np.full(len(b.offset), b.kind, dtype=object) for b in blocks])
@@ -144,7 +133,7 @@ def text_series(blocks: list[RecordBlock], host_times) -> TextSeries:
         row += len(b.offset)
     order = np.argsort(offset, kind="stable")
     values, offset, last, kinds = values[order], offset[order], last[order], kinds[order]
-    series = TextSeries(list(index), units, values, np.zeros(0), host_times(last), offset, kinds)
+    series = TextSeries(list(index), list(unit_of.values()), values, np.zeros(0), host_times(last), offset, kinds)
     series.shape, series.shapes = shape[order], shapes
     series.t_s, series.t_source = _record_times(series)
     st = kinds == "st-221117"
@@ -186,8 +175,7 @@ def _record_times(s: TextSeries) -> tuple[np.ndarray, str]:
 
 
 def parse_map(spec: str | list[str] | None) -> dict[str, tuple[str, str]]:
-    """``pitch=col2:deg,roll=col3`` (or a list of such items) → {target: (series name, unit)}; UserError with one
-    sentence for a target that is not one of :data:`MAP_TARGETS` or an item that does not read."""
+    """``pitch=col2:deg,roll=col3`` (or a list of such items) → {target: (series name, unit)}, else a UserError."""
     items = [spec] if isinstance(spec, str) else list(spec or [])
     out: dict[str, tuple[str, str]] = {}
     for item in (x.strip() for s in items for x in s.split(",")):
@@ -220,6 +208,11 @@ def _scale(target: str, unit: str, name: str) -> float:
     return table[u]
 
 
+_SETPOINT = re.compile(r"(^|_)(rc|target|set|ref|cmd)(_|$)")  #: rc_pitch, target_roll...: not the attitude
+#: an acc/gyro axis, its unit written apart or as the name's suffix (``acc_x_mg``, ``gyro_z_dps``)
+_AXIS_NAME = re.compile(r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])(?:_(mg|g|mdps|dps))?")
+
+
 def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
     """Targets found by name (see the module docstring)."""
     out: dict[str, tuple[str, str]] = {}
@@ -230,15 +223,11 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
         unit_of_name = re.search(r"_(deg|rad)$", low)
         angle_unit = _unit(unit) or (unit_of_name.group(1) if unit_of_name else "deg")
         for target, words in (("pitch", ("pitch", "thx")), ("roll", ("roll", "thy")), ("yaw", ("yaw", "thz"))):
-            if target not in out and (low in words or any(w in low for w in words[:1])):
-                if not re.search(r"(^|_)(rc|target|set|ref|cmd)(_|$)", low):
-                    out[target] = (name, angle_unit)
+            if target not in out and (low in words or words[0] in low) and not _SETPOINT.search(low):
+                out[target] = (name, angle_unit)
         if low in ("thr", "gthr", "throttle") and "thr" not in out:
             out["thr"] = (name, "")
-        # acc/gyro axes with a unit, written apart or as the name's suffix (acc_x_mg, gyro_z_dps)
-        group = re.fullmatch(
-            r"(acc|accel|accelerometer|a|gyro|gyr|g|gyroscope|w|omega)_?([xyz])(?:_(mg|g|mdps|dps))?", low
-        )
+        group = _AXIS_NAME.fullmatch(low)
         if group and (unit or group.group(3)):
             base = "acc" if group.group(1).startswith("a") else "gyro"
             target = f"{base}_{group.group(2)}"
@@ -250,9 +239,8 @@ def _auto_map(s: TextSeries) -> dict[str, tuple[str, str]]:
 
 
 def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = None) -> tuple[list, list[str]]:
-    """How the series become the attitude: [(target, column, factor to rad / mg / mdps)], and a note per mapped
-    name; ([], []) when neither an angle nor acc and gyro are found. ``user_map`` ({target: (name, unit)},
-    :func:`parse_map`) goes before the names; UserError for a series not there or a unit that does not fit."""
+    """[(target, column, factor to rad / mg / mdps)] and a note per mapped name; ([], []) without an angle or acc and
+    gyro. ``user_map`` (:func:`parse_map`) goes first; UserError for a series not there or a unit that does not fit."""
     mapped = {name for name, _ in (user_map or {}).values()}  # a series the user mapped is not also auto-mapped
     found = {t: v for t, v in _auto_map(s).items() if np.isfinite(s.column(v[0])).any() and v[0] not in mapped}
     defaulted = set()  # user-mapped angles without a unit anywhere: degrees, said as assumed
@@ -272,8 +260,7 @@ def attitude_plan(s: TextSeries, user_map: dict[str, tuple[str, str]] | None = N
         return [], []
     plan, notes = [], []
     for target, (name, unit) in found.items():
-        k = _scale(target, unit, name)
-        plan.append((target, s.names.index(name), k))
+        plan.append((target, s.names.index(name), _scale(target, unit, name)))
         if target == "thr":
             notes.append(f"{name} → thr (gTHR)")
         elif target in _ANGLE_COLUMN:
@@ -292,8 +279,8 @@ _ANGLE_COLUMN = {"pitch": "thx_rad", "roll": "thy_rad", "yaw": "thz_rad"}
 
 
 def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
-    """The attitude columns of ``values`` (N, M) by ``plan``: ``thx_rad``, ``thy_rad``, ``thz_rad`` (N,) float32,
-    ``acc_mg``, ``gyro_mdps`` (N, 3) float32, ``thr`` (N,) int16; NaN / 0 where not mapped."""
+    """The attitude columns (``thx_rad``, ``thy_rad``, ``thz_rad``, ``acc_mg``, ``gyro_mdps``, ``thr``) of ``values``
+    by ``plan``; NaN / 0 where not mapped."""
     n = len(values)
     cols = {name: np.full(n, np.nan, np.float32) for name in _ANGLE_COLUMN.values()}
     cols |= {name: np.full((n, 3), np.nan, np.float32) for name in ("acc_mg", "gyro_mdps")}
@@ -311,9 +298,8 @@ def apply_plan(plan: list, values: np.ndarray) -> dict[str, np.ndarray]:
 
 
 class RecordAttitude:
-    """Records of a live stream as text-mode attitude frames, mapped as a whole log is (a plan per record shape):
-    ``frame(record, t_s)`` with the record's host time, s; None for a record that is no attitude. Steps count AHRS
-    periods from the first record. :meth:`take_notes`: what each new shape mapped to, once each."""
+    """Records of a live stream as text-mode attitude frames (None: no attitude), mapped as a whole log is, a plan per
+    record shape; steps count AHRS periods from the first record. :meth:`take_notes`: each new shape's mapping."""
 
     def __init__(self, user_map: dict[str, tuple[str, str]] | None = None) -> None:
         self.user_map = user_map

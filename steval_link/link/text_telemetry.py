@@ -1,8 +1,7 @@
-"""Text telemetry: numeric records in any serial text (a student's own ``PRINTF``, ST's own output, plotter formats).
+"""Text telemetry: numeric records in any serial text (a student's ``PRINTF``, ST's output, plotter formats).
 
-:class:`TextTelemetryReader` hands each plain line back as a record (``TextRecordFrame``) or a ``TextFrame``.
-
-Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
+:class:`TextTelemetryReader` hands each plain line back as a ``TextRecordFrame`` or a ``TextFrame``. Lines it reads
+(each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``%e``, ``nan``, ``inf``):
 
 * bare values split by tab, comma, semicolon or spaces, named by a header line of labels before them
   (``t,pitch,roll``; ``pitch(deg)`` keeps its unit), else ``col1..N``;
@@ -11,12 +10,11 @@ Lines it reads (each value a C ``printf`` number: ``%d``, ``%f``, ``%10.2f``, ``
 * Teleplot lines ``>name:value`` (``>name:t_ms:value``, ``§unit`` and ``|flags`` allowed);
 * ST's release 221117 line, named from ST's source, and its ``%f``-less form (the float fields empty: NaN).
 
-A record's shape (the names or count and the int/float/empty kind of each value, per line) is learned from the
-stream: it becomes a record only when it repeated :data:`CONFIRM` times in a row. A record is one line, a block
-between blank lines, a cycle of lines of different shapes, or the rows of a matrix (values coming back every 2..4
-lines). Until then lines wait (at most :data:`MAX_PENDING`); lines that never fit go out as text lines. For the bulk
-decoder a learned one-line shape has a :class:`LineTemplate`: a regex matching exactly the lines that would be
-records.
+A record's shape (names or count, and the int/float/empty kind of each value, per line) is learned: lines become
+records once it repeated :data:`CONFIRM` times in a row. A record is one line, a block between blank lines, a cycle
+of lines of different shapes, or the rows of a matrix (values coming back every 2..4 lines). Lines wait meanwhile (at
+most :data:`MAX_PENDING`); lines that never fit go out as text. A learned one-line shape has a :class:`LineTemplate`
+for the bulk decoder.
 
 Written here rather than taken from a library: the plotter tools (Arduino's, Teleplot, Serial Studio) each parse
 their one format inside an application; none is a library that learns a record from mixed lines.
@@ -71,9 +69,7 @@ _SUFFIXES = {2: ("x", "y"), 3: ("x", "y", "z")}
 
 def _kind(field: str) -> str:
     """'i' an integer, 'f' any other number, '-' empty."""
-    if not field:
-        return "-"
-    return "i" if _INT_RE.fullmatch(field) else "f"
+    return "-" if not field else "i" if _INT_RE.fullmatch(field) else "f"
 
 
 def _number(field: str) -> float:
@@ -82,8 +78,7 @@ def _number(field: str) -> float:
 
 @dataclass(frozen=True, slots=True)
 class ParsedLine:
-    """One line read as numbers: ``shape`` (what a repeat must match), ``names`` (None: bare values), ``units``,
-    ``values`` and ``kind`` ('table', 'labelled', 'teleplot', 'st-221117')."""
+    """One line read as numbers: ``shape`` (what a repeat must match), ``names`` (None: bare values), ``kind``."""
 
     shape: tuple
     names: tuple[str, ...] | None
@@ -92,15 +87,18 @@ class ParsedLine:
     kind: str
 
 
+def _split(text: str) -> tuple[str | None, list[str]]:
+    """A line's separator (tab, comma, semicolon; None: spaces) and its fields."""
+    sep = next((c for c in "\t,;" if c in text), None)
+    return sep, [f.strip() for f in (text.split(sep) if sep else text.split())]
+
+
 def _split_bare(text: str) -> list[str] | None:
     """The fields of a line of bare values (None when a field is not a number)."""
-    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
-    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    sep, fields = _split(text)
     if sep and len(fields) > 1 and fields[-1] == "" and not _st_fields(fields):
         fields.pop()  # one separator after the last value (``%f\t\n``)
-    if not fields or not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields):
-        return None
-    return fields
+    return None if not any(fields) or any(f and not _NUM_RE.fullmatch(f) for f in fields) else fields
 
 
 def _st_fields(fields: list[str]) -> bool:
@@ -128,8 +126,7 @@ def _label_and_unit(label: str) -> tuple[str, str]:
 
 
 def _tokens(text: str) -> list[tuple[str, str]] | None:
-    out = []
-    pos = 0
+    out, pos = [], 0
     for m in _TOKEN.finditer(text):
         if m.start() != pos:
             return None
@@ -188,9 +185,7 @@ def _labelled_line(text: str) -> ParsedLine | None:
     groups = None if tokens is None else _groups(tokens)
     if groups is None:
         return None
-    names: list[str] = []
-    units: list[str] = []
-    numbers: list[str] = []  # every value field, in order
+    names, units, numbers = [], [], []  # numbers: every value field, in order
     for label, fields, unit in groups:
         if label is None:
             label_names = [f"col{len(names) + 1}"]
@@ -213,11 +208,9 @@ def _teleplot_line(text: str) -> ParsedLine | None:
     if m is None:
         return None
     name, t_ms, value, unit = m.group(1).strip(), m.group(2), m.group(3), (m.group(4) or "").strip()
+    names, values, units = (name,), (float(value),), (unit,)
     if t_ms is not None:
-        names, values = (f"{name}_t_ms", name), (float(t_ms), float(value))
-        units = ("ms", unit)
-    else:
-        names, values, units = (name,), (float(value),), (unit,)
+        names, values, units = (f"{name}_t_ms", name), (float(t_ms), float(value)), ("ms", unit)
     return ParsedLine(("teleplot", names), names, units, values, "teleplot")
 
 
@@ -225,9 +218,7 @@ def parse_line(text: str) -> ParsedLine | None:
     """The numbers of one text line, or None when it is not a line of numbers (then it is text)."""
     if text.startswith(">"):
         return _teleplot_line(text)
-    if not any(c.isdigit() or c in "ni" for c in text):
-        return None
-    return _bare_line(text) or _labelled_line(text)
+    return (_bare_line(text) or _labelled_line(text)) if any(c.isdigit() or c in "ni" for c in text) else None
 
 
 # possessive (no backtracking): about 6 times faster on long runs of lines
@@ -262,8 +253,7 @@ class LineTemplate:
         out = np.full((count, len(self.kinds)), np.nan)
         table = _number_table(self, chunk, count, len(cols)) if count >= _TABLE_MIN_ROWS else None
         if table is None:  # the one-line-at-a-time way: each line's groups
-            rows = self.groups.findall(chunk)
-            table = np.array(rows, dtype=bytes).reshape(count, -1).astype(np.float64)
+            table = np.array(self.groups.findall(chunk), dtype=bytes).reshape(count, -1).astype(np.float64)
         out[:, cols] = table
         return out
 
@@ -303,8 +293,7 @@ def _number_table(t: LineTemplate, chunk: bytes, count: int, ncols: int) -> np.n
 
 
 def line_template(shape: _Shape) -> LineTemplate | None:
-    """The :class:`LineTemplate` of a one-line shape from its example line (a line fits exactly when
-    :func:`parse_line` gives it that shape); None for Teleplot, non-ASCII or ``$`` lines."""
+    """The :class:`LineTemplate` of a one-line shape, from its example line; None for Teleplot, non-ASCII or ``$``."""
     example, line = shape.example, shape.lines[0]
     if not example.isascii() or "$" in example or line[0] == "teleplot":
         return None
@@ -314,7 +303,7 @@ def line_template(shape: _Shape) -> LineTemplate | None:
     if line[0] == "labelled":
         body, words = _labelled_template(example, kinds)
     else:
-        sep_text = "\t" if "\t" in example else "," if "," in example else ";" if ";" in example else None
+        sep_text = _split(example)[0]
         if line[0] == "table" and sep_text == "\t" and len(kinds) == 9:
             return None  # ST's count of fields: the line might read as ST's (another shape)
         number = {"i": _INT_PAT, "f": _ST_FLOAT_PAT if line[0] == ST_221117 else _FLOAT_PAT}
@@ -330,25 +319,14 @@ def line_template(shape: _Shape) -> LineTemplate | None:
     if body is None:
         return None
     plain = re.sub(rb"\((?!\?)", b"(?:", body)  # the same without groups
-    return LineTemplate(
-        re.compile(b"(?:" + plain + rb"\r?+\n)*+"),
-        re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+"),
-        re.compile(body + rb"\r?+\n"),
-        sep,
-        words,
-        trailing,
-        shape.names,
-        shape.units,
-        shape.kind,
-        kinds,
-    )
+    valid, blanks = re.compile(b"(?:" + plain + rb"\r?+\n)*+"), re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+")
+    groups = re.compile(body + rb"\r?+\n")
+    return LineTemplate(valid, blanks, groups, sep, words, trailing, shape.names, shape.units, shape.kind, kinds)
 
 
 def _labelled_template(example: str, kinds: tuple) -> tuple[bytes | None, tuple[bytes, ...]]:
     """The regex of a labelled line like ``example`` and its words (labels, units), longest first."""
-    parts: list[bytes] = []
-    words: set[bytes] = set()
-    k = 0
+    parts, words, k = [], set(), 0  # the regex's pieces, the words (labels, units), values seen
     for m in _TOKEN.finditer(example):
         if m.lastgroup == "glued":
             return None, ()  # (read line by line)
@@ -372,17 +350,13 @@ _NUMBER_PIECES = {b"n", b"a", b"i", b"f", b"na", b"an", b"in", b"nf", b"e"}
 
 
 def header_names(text: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
-    """A header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, Arduino's ``a b c``): (names,
-    units), or None when the line is not one."""
-    sep = "\t" if "\t" in text else "," if "," in text else ";" if ";" in text else None
-    fields = [f.strip() for f in (text.split(sep) if sep else text.split())]
+    """(names, units) of a header line of labels (``t,pitch,roll``, ``pitch(deg)\\troll(deg)``, ``a b c``), or None."""
+    fields = _split(text)[1]
     if len(fields) < 2 or not all(_HEADER_WORD.fullmatch(f) for f in fields):
         return None
     pairs = [_label_and_unit(f) for f in fields]
     names = tuple(p[0] for p in pairs)
-    if len(set(names)) != len(names):
-        return None
-    return names, tuple(p[1] for p in pairs)
+    return (names, tuple(p[1] for p in pairs)) if len(set(names)) == len(names) else None
 
 
 def looks_like_text(text: str) -> bool:
@@ -449,31 +423,21 @@ class TextTelemetryReader:
             return []
         return self._learn(_Line(parsed, text, -1, 0, "cut"))
 
-    def damage(self) -> list:
-        """Bytes were lost here: the lines before and after are not consecutive."""
-        return self._end_block("break")
-
-    def blank(self) -> list:
-        """A blank line: it ends a block of lines."""
-        return self._end_block("blank")
-
-    def _end_block(self, kind: str) -> list:
+    def end_block(self, kind: str) -> list:
+        """A "blank" line ends a block of lines; a "break": bytes were lost (the lines around are not consecutive)."""
         out = self._cut_current()
         self._block_start = kind == "blank"
         return out + (self._learn(_Line(None, "", -1, 0, kind)) if self._pending else [])
 
     def finish(self) -> list:
         """End of stream: whatever waits goes out as text lines (an incomplete record is not a record)."""
-        out = self._cut_current() + self._flush(self._pending)
-        self._pending = []
-        return out
+        pending, self._pending = self._pending, []
+        return self._cut_current() + self._flush(pending)
 
     def bulk_template(self) -> LineTemplate | None:
         """The latest one-line shape's :class:`LineTemplate` when a line fitting it would be a record now, else None."""
-        if self._current is not None or not self._shapes:
-            return None
-        shape = self._shapes[-1]
-        if len(shape.lines) != 1 or not shape.example:
+        shape = self._shapes[-1] if self._shapes else None
+        if self._current is not None or shape is None or len(shape.lines) != 1 or not shape.example:
             return None
         if self._template is None or self._template[0] is not shape:
             self._template = (shape, line_template(shape))
@@ -524,21 +488,15 @@ class TextTelemetryReader:
     def _learn(self, item: _Line) -> list:
         pending = self._pending
         pending.append(item)
-        out: list = []
         shape, start = _find_shape(pending, self._header)
         if shape is not None:
             self._shapes = [s for s in self._shapes if s.lines[0] not in shape.lines] + [shape]
             self._pending = []
-            out += self._flush(pending[:start])
-            out += self._replay(shape, pending[start:])
-            return out
+            return self._flush(pending[:start]) + self._replay(shape, pending[start:])
         if item.kind in ("text", "break") and not any(x.kind in ("rec", "cut") for x in pending[:-1]):
             self._pending = []
             return self._flush(pending)
-        if len(pending) > MAX_PENDING:
-            out += self._flush(pending[:1])
-            del pending[:1]
-        return out
+        return self._flush([pending.pop(0)]) if len(pending) > MAX_PENDING else []
 
     def _replay(self, shape: _Shape, items: list[_Line]) -> list:
         """The waiting lines from the start of the first record of a newly learned shape, through the shape."""
@@ -562,8 +520,7 @@ class TextTelemetryReader:
 
 
 def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | None, int]:
-    """A record shape that the latest lines repeat :data:`CONFIRM` times in a row, and the index in ``pending`` where
-    its first record starts; (None, 0) when there is none yet."""
+    """A shape the latest lines repeat :data:`CONFIRM` times in a row, where its first record starts; or (None, 0)."""
     # the latest run of lines of numbers, with blank markers, back to a text line
     start = next((k + 1 for k in range(len(pending) - 1, -1, -1) if pending[k].kind in ("text", "break")), 0)
     tail = list(range(start, len(pending)))
@@ -573,8 +530,7 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
     if blocks is not None:
         return blocks
     lines = [k for k in tail if pending[k].kind in ("rec", "cut")]
-    has_blank = any(pending[k].kind == "blank" for k in tail)
-    sizes = [len(b) for b in _blocks(pending, tail)] if has_blank else []
+    sizes = [len(b) for b in _blocks(pending, tail)] if any(pending[k].kind == "blank" for k in tail) else []
     shapes = [pending[k].parsed.shape for k in lines]
     n = len(shapes)
     if not sizes and n and shapes[-1][0] == "table" and all(x == shapes[-1] for x in shapes[-VALUE_LINES:]):
@@ -610,18 +566,14 @@ def _find_shape(pending: list[_Line], header: tuple | None) -> tuple[_Shape | No
 
 
 def _value_period(rows: list[tuple[float, ...]]) -> int:
-    """p (2..4) when the rows' values come back every p rows (a matrix printed a row a line: the mean change over p
-    rows under a quarter of that over one), else 1."""
+    """p (2..4) when the values come back every p rows (a matrix: mean change over p rows < ¼ that over 1), else 1."""
     v = np.array(rows, np.float64)
     if len(v) < VALUE_LINES or not np.isfinite(v).all():
         return 1
     step1 = float(np.abs(np.diff(v, axis=0)).mean())
     if step1 <= 0:
         return 1
-    for p in range(2, 5):
-        if float(np.abs(v[p:] - v[:-p]).mean()) < 0.25 * step1:
-            return p
-    return 1
+    return next((p for p in range(2, 5) if float(np.abs(v[p:] - v[:-p]).mean()) < 0.25 * step1), 1)
 
 
 def _blocks(pending: list[_Line], tail: list[int]) -> list[list[int]]:
@@ -644,35 +596,23 @@ def _blank_blocks(pending: list[_Line], tail: list[int]) -> tuple[_Shape, int] |
     if len(blocks) < CONFIRM:
         return None
     last = [pending[k].parsed.shape for k in blocks[-1]]
-    if len(last) > MAX_RECORD_LINES or any(pending[k].kind == "cut" for k in blocks[-1]):
+    # one line per block: the lines' own repetition is the shape
+    if len(last) == 1 or len(last) > MAX_RECORD_LINES or any(pending[k].kind == "cut" for k in blocks[-1]):
         return None
-    if len(last) == 1:
-        return None  # one line per block: the lines' own repetition is the shape
-    same = 0
-    for b in reversed(blocks):
-        if [pending[k].parsed.shape for k in b] != last:
-            break
-        same += 1
+    shapes = [[pending[k].parsed.shape for k in b] for b in reversed(blocks)]
+    same = next((i for i, b in enumerate(shapes) if b != last), len(shapes))  # blocks of that shape at the end
     if same < CONFIRM:
         return None
     first = blocks[len(blocks) - same][0]
-    items = [pending[k].parsed for k in blocks[-1]]
-    return _make_shape(tuple(last), items, None, blank_ended=True), first
+    return _make_shape(tuple(last), [pending[k].parsed for k in blocks[-1]], None, blank_ended=True), first
 
 
 def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, blank_ended: bool) -> _Shape:
-    """Names and units of a record made of the parsed lines ``items``: the lines' own names, a header's (bare values
-    of the header's count), else ``col1..N`` over the whole record."""
-    names: list[str] = []
-    units: list[str] = []
-    bare = all(p.names is None for p in items)
+    """A record of the parsed lines ``items``, named by the lines, else a header of their count, else ``col1..N``."""
+    names, units = [], []
     total = sum(len(p.values) for p in items)
-    if (
-        bare
-        and header is not None
-        and total <= len(header[0]) <= total + 1
-        and (len(header[0]) == total or len(items) == 1)
-    ):
+    fits = header is not None and (len(header[0]) == total or (len(items) == 1 and len(header[0]) == total + 1))
+    if fits and all(p.names is None for p in items):
         names, units = list(header[0])[:total], list(header[1])[:total]  # one more label: its field left empty last
     else:
         for p in items:
@@ -686,5 +626,4 @@ def _make_shape(lines: tuple, items: list[ParsedLine], header: tuple | None, *, 
         if name in given[:k]:
             names[k] = f"{name}_{given[:k].count(name) + 1}"
     kinds = {p.kind for p in items}
-    kind = kinds.pop() if len(kinds) == 1 else "labelled"
-    return _Shape(lines, tuple(names), tuple(units), kind, blank_ended)
+    return _Shape(lines, tuple(names), tuple(units), kinds.pop() if len(kinds) == 1 else "labelled", blank_ended)

@@ -75,38 +75,23 @@ def parse_sentence(line: bytes, *, offset: int = 0, nbytes: int = 0) -> Attitude
     m = _SENTENCE_RE.fullmatch(line)
     if m is None or checksum(m.group(1)) != int(m.group(2), 16):
         return None
-    if line.startswith(b"$ATT,"):
-        a = _ATT_RE.fullmatch(line)
-        if a is None:
-            return None
-        v = [int(x) for x in a.group(1)[1:].split(b",")]
+    if not line.startswith((b"$ATT,", b"$STA,")):
+        return TextFrame(line.decode("ascii", "replace"), offset=offset, nbytes=nbytes)
+    attitude = line.startswith(b"$ATT,")
+    fields = (_ATT_RE if attitude else _STA_RE).fullmatch(line)
+    if fields is None:
+        return None
+    v = [int(x) for x in fields.group(1)[1:].split(b",")]
+    if attitude:
         step, t_ms, thr = v[0], v[1], v[2]
         if step < 0 or t_ms < 0 or not -32768 <= thr <= 32767:
             return None
         acc, gyro, euler = map(float, v[6:9]), map(float, v[9:12]), (x * _MDEG_TO_RAD for x in v[3:6])
         return AttitudeFrame.text_row(step, t_ms * 1000, acc, gyro, euler, thr, offset, nbytes)
-    if line.startswith(b"$STA,"):
-        s = _STA_RE.fullmatch(line)
-        if s is None:
-            return None
-        v = [int(x) for x in s.group(1)[1:].split(b",")]
-        if min(v[:8]) < 0:
-            return None
-        return StatusFrame(
-            step=v[0] % P.STEP_MODULUS,
-            t_us=(v[1] * 1000) % P.T_US_MODULUS,
-            cyc_min=v[2],
-            cyc_mean=v[3],
-            cyc_max=v[4],
-            cyc_n=v[5],
-            tx_dropped=v[6],
-            flags=v[7],
-            ki=v[8] / 1e6,
-            exact=False,
-            offset=offset,
-            nbytes=nbytes,
-        )
-    return TextFrame(line.decode("ascii", "replace"), offset=offset, nbytes=nbytes)
+    if min(v[:8]) < 0:
+        return None
+    kw = dict(zip(STA_FIELDS[2:8], v[2:8]), step=v[0] % P.STEP_MODULUS, t_us=(v[1] * 1000) % P.T_US_MODULUS)
+    return StatusFrame(**kw, ki=v[8] / 1e6, exact=False, offset=offset, nbytes=nbytes)
 
 
 def decode_line(raw: bytes) -> str | None:
@@ -119,6 +104,4 @@ def decode_line(raw: bytes) -> str | None:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         return None
-    if not text.replace("\t", " ").isprintable():
-        return None
-    return text
+    return text if text.replace("\t", " ").isprintable() else None

@@ -8,6 +8,7 @@ for the device, reopens it and calls :meth:`Protocol.connection_made` again; onl
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import select
 import sys
@@ -21,9 +22,8 @@ from steval_link.errors import ParamError
 
 #: How long one read waits for a first byte, s (the tick of :meth:`Protocol.idle` on a silent port).
 READ_TIMEOUT_S = 0.05
-#: A chunk ends when no more bytes came for this long, s (0.2 ms: a USB adapter delivers a frame in one or a few
-#: bursts; the consumer decodes every chunk at once, so a short gap hands a complete frame on quickly, and the
-#: wait for more bytes returns as soon as they arrive: ``select`` on the port's descriptor) ...
+#: A chunk ends when no more bytes came for this long, s (a USB adapter delivers a frame in a burst or a few: a short
+#: gap hands a whole frame on quickly; ``select`` on the port returns as soon as more bytes arrive) ...
 CHUNK_GAP_S = 0.0002
 #: ... or after this long since its first byte, s (bounds the latency of a continuous stream) ...
 CHUNK_MAX_S = 0.01
@@ -53,8 +53,7 @@ class Protocol:
     """What the reader thread calls, in the reader thread; an exception but :class:`PortRejected` stops it."""
 
     def shared_access(self, exc: BaseException) -> bool:
-        """A read found bytes announced but taken: True when another program reading the port explains it (the
-        port is kept), False for a lost port."""
+        """Bytes announced were taken: True when another program reading the port explains it, False: port lost."""
         return False
 
     def connection_made(self, port: str) -> None:
@@ -70,22 +69,19 @@ class Protocol:
         """Called after every read (even an empty one) and while waiting to reconnect: a periodic tick."""
 
 
-def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S, exclusive: bool = True) -> serial.Serial:
-    """Open ``port`` at ``baud`` 8N1 (``exclusive``: fail if another program holds its lock)."""
-    kwargs = {"exclusive": True} if exclusive else {}
+def open_serial(port: str, baud: int, *, timeout_s: float = READ_TIMEOUT_S) -> serial.Serial:
+    """Open ``port`` at ``baud`` 8N1, exclusively (fail if another program holds its lock)."""
     try:
-        return serial.Serial(port, baud, timeout=timeout_s, **kwargs)
+        return serial.Serial(port, baud, timeout=timeout_s, exclusive=True)
     except ValueError as exc:  # pyserial: baud rate out of range
         raise serial.SerialException(errno.EINVAL, f"cannot open {port} at {baud} baud: {exc}") from exc
 
 
 def open_error_message(port: str, exc: BaseException, available: list[str] | None = None) -> ParamError:
     """Why ``port`` could not be opened and the fix; ``available``: the ports listed when it does not exist."""
-    code = getattr(exc, "errno", None)
-    text = str(exc)
-    cause = exc.__cause__ or exc.__context__
-    if code is None and cause is not None:
-        code = getattr(cause, "errno", None)
+    code, text = getattr(exc, "errno", None), str(exc)
+    if code is None:  # pyserial's own exception: its cause's
+        code = getattr(exc.__cause__ or exc.__context__, "errno", None)
     if code == errno.ENOENT or "No such file or directory" in text:
         if available:
             return ParamError(
@@ -114,8 +110,7 @@ def open_error_message(port: str, exc: BaseException, available: list[str] | Non
 
 
 class SerialReader(threading.Thread):
-    """Reads an open serial port in a thread and feeds a :class:`Protocol`; reconnects when the port fails.
-    ``find_port()``: the path to reopen, or None while it is not back (``find_port`` None: no reconnection)."""
+    """Reads an open port in a thread into a :class:`Protocol`; a failed port is reopened at ``find_port()``."""
 
     def __init__(
         self,
@@ -126,8 +121,6 @@ class SerialReader(threading.Thread):
         clock: HostClock | None = None,
         find_port: Callable[[], str | None] | None = None,
         opener: Callable[[str], serial.Serial] | None = None,
-        read_size: int = READ_SIZE,
-        reconnect_poll_s: float = RECONNECT_POLL_S,
     ) -> None:
         super().__init__(name="steval-serial-reader", daemon=True)
         self.serial: serial.Serial | None = ser
@@ -136,8 +129,6 @@ class SerialReader(threading.Thread):
         self.clock = clock or HostClock()
         self.find_port = find_port
         self.opener = opener or (lambda path: open_serial(path, baud))
-        self.read_size = read_size
-        self.reconnect_poll_s = reconnect_poll_s
         self.port: str = ser.port
         #: The exception that ended the thread (raised by the protocol), or ``None``.
         self.error: BaseException | None = None
@@ -159,12 +150,8 @@ class SerialReader(threading.Thread):
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to finish, wait for it (up to ``timeout_s``) and close the port."""
         self._stop_event.set()
-        ser = self.serial
-        if ser is not None and hasattr(ser, "cancel_read"):
-            try:
-                ser.cancel_read()  # wake a read that waits for bytes
-            except (serial.SerialException, OSError, AttributeError):
-                pass
+        with contextlib.suppress(serial.SerialException, OSError, AttributeError):  # no port, or no cancel_read
+            self.serial.cancel_read()  # wake a read that waits for bytes
         if self.ident is None:  # never started: close the port here
             self._release()
         elif self.is_alive() and threading.current_thread() is not self:
@@ -211,7 +198,7 @@ class SerialReader(threading.Thread):
         buf = bytearray(data)
         t_end = time.monotonic() + CHUNK_MAX_S
         fd = _fileno(ser)
-        while len(buf) < self.read_size and not self._stop_event.is_set():
+        while len(buf) < READ_SIZE and not self._stop_event.is_set():
             if fd is None:
                 time.sleep(CHUNK_GAP_S)
             else:
@@ -222,7 +209,7 @@ class SerialReader(threading.Thread):
             try:
                 n = ser.in_waiting
                 if n:
-                    buf += ser.read(min(n, self.read_size - len(buf)))
+                    buf += ser.read(min(n, READ_SIZE - len(buf)))
             except (serial.SerialException, OSError):  # the bytes so far are handed on; the next read fails again
                 break
             if n == 0 or time.monotonic() >= t_end:
@@ -263,7 +250,7 @@ class SerialReader(threading.Thread):
                     self.protocol.connection_made(path)
                     return True
             self.protocol.idle(self.clock.now_s())
-            self._stop_event.wait(self.reconnect_poll_s)
+            self._stop_event.wait(RECONNECT_POLL_S)
         return False
 
 
@@ -280,7 +267,5 @@ def _fileno(ser) -> int | None:
 
 def close_quietly(ser: serial.Serial) -> None:
     """Close a port that may have failed already (its errors say nothing more)."""
-    try:
+    with contextlib.suppress(serial.SerialException, OSError):
         ser.close()
-    except (serial.SerialException, OSError):
-        pass

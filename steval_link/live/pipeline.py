@@ -22,9 +22,8 @@ from steval_link.link.ble_telemetry import NOT_BIT_EXACT, LiveGrid, link_notes
 from steval_link.link.commands import Command, ack_of_text, describe_ack, describe_settings
 from steval_link.link.decoder import StreamDecoder
 from steval_link.link.plausibility import attitude_inputs_bad
-from steval_link.link.telemetry import AttitudeArrays, TelemetryParts
+from steval_link.link.telemetry import AttitudeArrays, SeqUnwrapper, StreamClock, TelemetryParts
 from steval_link.link.text_series import RecordAttitude
-from steval_link.link.unwrap import SeqUnwrapper, StreamClock
 from steval_link.live.health import LinkHealth
 
 #: Bytes kept from the start of a connection to describe a stream without frames.

@@ -21,7 +21,7 @@ import serial
 
 from steval_link import constants as C
 from steval_link.errors import ParamError, UserError, param_word
-from steval_link.link import autodetect, ports, transport
+from steval_link.link import autodetect, transport
 from steval_link.link import protocol as P
 from steval_link.link.commands import Command, CommandChannel, ack_of_text, describe_ack
 from steval_link.link.decoder import StreamDecoder
@@ -180,10 +180,10 @@ class RecorderProtocol(Protocol):
         if now - self._holders_checked_s < (1.0 if force else HOLDERS_CHECK_S):
             return self._holders if force else []
         self._holders_checked_s = now
-        self._holders = ports.port_holders(port)
+        self._holders = autodetect.port_holders(port)
         if new := [h for h in self._holders if h[0] not in self._holders_said]:
             self._holders_said.update(pid for pid, _ in new)
-            sentence = ports.holders_sentence(port, new)
+            sentence = autodetect.holders_sentence(port, new)
             self._mark("shared", sentence)
             self.events.append(sentence)
         return self._holders
