@@ -59,19 +59,12 @@ def _boxcar_gain(f_hz: float) -> float:
     return abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
 
 
-def _hold_gain(f_hz: float, rate_hz: float = GYRO_ODR_HZ) -> float:
-    """|gain| of a sample-and-hold at ``rate_hz`` (the gyro's output register): |sinc(f / rate)|."""
-    x = math.pi * f_hz / rate_hz
-    return 1.0 if x == 0 else abs(math.sin(x) / x)
-
-
 def chain_gain(f_hz: float, sensor: str) -> float:
     """|gain| from a sinusoid at ``f_hz`` at the sensor to what the AHRS rows hold (at its alias): the boxcar for
     the accelerometer; the 416 Hz register hold, the gyro IIR and the boxcar for the gyro."""
     g = _boxcar_gain(f_hz)
-    if sensor == "gyro":
-        h = iir_frequency_response([f_hz])[0][0]
-        g *= abs(complex(h)) * _hold_gain(f_hz)
+    if sensor == "gyro":  # the 416 Hz register's hold is |sinc(f / 416 Hz)|
+        g *= abs(complex(iir_frequency_response([f_hz])[0][0])) * abs(float(np.sinc(f_hz / GYRO_ODR_HZ)))
     return g
 
 
@@ -100,11 +93,8 @@ def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_g
         for k in (1, 2, 3, 4):
             for image in (k * GYRO_ODR_HZ - f, k * GYRO_ODR_HZ + f):
                 image = abs(image)
-                if abs(image - f) < 1e-9:
-                    continue
-                # the image's amplitude relative to f's: hold(image) / hold(f) of the register, then the same chain
-                g = _boxcar_gain(image) * abs(complex(iir_frequency_response([image])[0][0])) * _hold_gain(image)
-                if g >= min_gain:
+                g = chain_gain(image, "gyro")
+                if abs(image - f) >= 1e-9 and g >= min_gain:
                     lines.append(AliasLine(sensor, image, alias_hz(image, rate_hz), g, "416 Hz ODR image"))
     return lines
 
@@ -136,17 +126,14 @@ def contiguous_runs(
 def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
     Windows start every ``hop`` rows, their mean removed; their mean is ``scipy.signal.welch``'s."""
-    a = np.asarray(x, dtype=np.float64)
-    if a.ndim == 1:
-        a = a[:, None]
+    a = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
     n = a.shape[0]
     freq = np.fft.rfftfreq(nperseg, 1.0 / fs_hz)
     if n < nperseg:
         return freq, np.zeros(0, np.int64), np.zeros((0, len(freq), a.shape[1]))
     starts = np.arange(0, n - nperseg + 1, hop, dtype=np.int64)
     idx = starts[:, None] + np.arange(nperseg)[None, :]
-    frames = a[idx]  # (W, nperseg, K)
-    frames = frames - frames.mean(axis=1, keepdims=True)
+    frames = a[idx] - a[idx].mean(axis=1, keepdims=True)  # (W, nperseg, K)
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
@@ -218,12 +205,9 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         raise UserError("the capture has no attitude frames, so there is nothing to take a spectrum of.")
     step = np.asarray(att.step, dtype=np.int64)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
-    values = np.concatenate(
-        [np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)], axis=1
-    )
+    values = np.concatenate([att.gyro_mdps, att.acc_mg], axis=1).astype(np.float64)
     d = np.diff(step)
-    d = d[d > 0]
-    decimation = int(np.median(d)) if d.size else 1
+    decimation = int(np.median(d[d > 0])) if (d > 0).any() else 1
     runs = contiguous_runs(step, t, values, decimation)
     notes: list[str] = []
     nperseg = _window_rows(nperseg, max((b - a for a, b in runs), default=0), decimation, notes)
@@ -245,11 +229,10 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     )
     edges, thr_psd, counts = _by_throttle(spectrogram, window_thr, throttle_bins)
     if len(runs) > 1:
-        dropped_runs = len(runs) - len(used)
         notes.append(
             f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
             f"{len(used)} long enough for a window"
-            + (f", {dropped_runs} shorter ones left out" if dropped_runs else "")
+            + (f", {len(runs) - len(used)} shorter ones left out" if len(runs) > len(used) else "")
         )
     return Spectra(
         freq_hz=freq,
