@@ -433,12 +433,7 @@ def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, n
     return t, dx, dy
 
 
-def side_by_side(
-    flights: Sequence[Flight],
-    *,
-    align: str = "time",
-    labels: Sequence[str] | None = None,
-) -> SideBySide:
+def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None) -> SideBySide:
     """Put ``flights`` on one time axis, label them (``labels`` first, the rest derived), measure each against
     its accel-only tilt and each later one against the first. ValueError: an unknown ``align`` or an empty flight."""
     if align not in ALIGN_MODES:

@@ -147,16 +147,9 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
 @dataclass
 class Spectra:
     """Spectra of one capture; column k of every PSD is ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc x, y, z
-    in mg²/Hz).
-
-    Attributes:
-        freq_hz: (F,) bins, 0 … Nyquist. psd: (F, 6) Welch average. spectrogram: (W, F, 6) PSD of each window.
-        window_t_fw_s: (W,) each window's centre, s since boot. window_thr: (W,) its mean throttle ``thr``.
-        thr_edges: (B+1,) throttle bin edges (gTHR). thr_psd: (B, F, 6) mean PSD per bin (NaN: empty).
-        thr_windows: (B,) windows per bin.
-        rate_hz: rows per second on the firmware clock (≈ 161.54 Hz). decimation: AHRS steps per row.
-        nperseg, hop: rows per window and between window starts. runs: the ``(start, stop)`` runs used.
-        rows: attitude rows; rows_used: rows inside the runs. notes: what was left out or assumed."""
+    in mg²/Hz). Shapes: F bins 0 … Nyquist, W windows (centre ``window_t_fw_s`` s since boot, mean throttle
+    ``window_thr``), B throttle bins (``thr_edges`` gTHR; ``thr_psd`` NaN when empty). ``rate_hz``: rows per second
+    on the firmware clock (≈ 161.54 Hz); ``decimation``: AHRS steps per row; ``hop``: rows between window starts."""
 
     freq_hz: np.ndarray
     psd: np.ndarray
@@ -353,14 +346,8 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
                 centre += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) * df
         lo, hi = max(int(i) - 3, 0), min(int(i) + 4, len(p))
         power = max(float(np.sum(p[lo:hi]) - floor * (hi - lo)), 0.0) * df
-        out.append(
-            Peak(
-                centre,
-                float(p[i]),
-                math.sqrt(2 * power),
-                float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf,
-            )
-        )
+        db = float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf
+        out.append(Peak(centre, float(p[i]), math.sqrt(2 * power), db))
     return out
 
 
@@ -513,27 +500,15 @@ def _psd_panel(ax, sp: Spectra, k: int, marks_hz, found: list[Peak], legend: boo
         colour = _MARK_COLOURS[m % len(_MARK_COLOURS)]
         for j, line in enumerate(alias_lines(fm, sensor, sp.rate_hz)):
             image = line.what == "416 Hz ODR image"
-            ax.axvline(
-                line.seen_hz,
-                color=colour,
-                lw=1.0,
-                ls=":" if image else "--",
-                label=(f"{fm:g} Hz input" if not image else f"{fm:g} Hz: register images") if j < 2 else None,
-            )
+            label = (f"{fm:g} Hz: register images" if image else f"{fm:g} Hz input") if j < 2 else None
+            ax.axvline(line.seen_hz, color=colour, lw=1.0, ls=":" if image else "--", label=label)
     for i, p in enumerate(found):
         src = image_of(p, found[:i], sensor, sp.rate_hz, 1.5 * sp.resolution_hz)
         text = f"{p.freq_hz:.1f} Hz" + (f"\nimage of {src.freq_hz:.1f} Hz" if src else "")
         ax.plot([p.freq_hz], [p.psd], "o", color="tab:orange", ms=4)
         left = p.freq_hz > 0.7 * nyq  # near the right edge: the label to the left of the peak
-        ax.annotate(
-            text,
-            (p.freq_hz, p.psd),
-            textcoords="offset points",
-            xytext=(-4 if left else 4, 2),
-            ha="right" if left else "left",
-            fontsize=9,
-            color="darkorange",
-        )
+        style = dict(textcoords="offset points", fontsize=9, color="darkorange", ha="right" if left else "left")
+        ax.annotate(text, (p.freq_hz, p.psd), xytext=(-4 if left else 4, 2), **style)
     ax.set_xlim(0, nyq * 1.02)
     ax.set_title(f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD")
     ax.set_xlabel("frequency [Hz]")
