@@ -28,6 +28,7 @@ from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
 
 ALIGN_MODES = ("time", "motion")
+_MOTION_HOW = "motion (gyro cross-correlation with the first flight)"
 #: A row is still when the gyro's norm is below this (deg/s) ...
 STILL_GYRO_DPS = 3.0
 #: ... and the accelerometer's norm within this of 1000 mg ...
@@ -378,15 +379,13 @@ def motion_lag_s(
 
 def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     notes: list[str] = []
-    durations = [f.duration_s for f in flights]
-    lo, hi = min(durations), max(durations)
+    lo, hi = min(f.duration_s for f in flights), max(f.duration_s for f in flights)
     if hi - lo > max(DURATION_TOLERANCE_S, 0.05 * hi):
         each = ", ".join(f"{f.label} {f.duration_s:.1f} s" for f in flights)
         notes.append(f"durations differ ({each}): the differences cover the overlap only.")
     kinds = {f.kind for f in flights}
     if len(kinds) > 1:
-        ble = [f.label for f in flights if f.kind == "ble"]
-        ser = [f.label for f in flights if f.kind == "serial"]
+        ble, ser = ([f.label for f in flights if f.kind == k] for k in ("ble", "serial"))
         notes.append(
             f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
             "host's ST-Mahony replica on raw ISR samples (dt from the 8 ms ticks), not the drone's own."
@@ -398,8 +397,7 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
             notes.append(
                 f"{f.label}: {f.frames_lost} frames lost on the link; its lines are interpolated across the gaps."
             )
-        for w in f.warnings:
-            notes.append(f"{f.label}: {w}")
+        notes += [f"{f.label}: {w}" for w in f.warnings]
     text = [f.label for f in flights if f.settings and f.settings.get("text_mode")]
     if text and len(text) < len(flights):
         notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary frames.")
@@ -439,13 +437,12 @@ def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequ
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)
-    for f in flights:
-        if f.rows == 0:
-            raise ValueError(f"{f.path} has no rows")
-    derived = labels_by_difference(flights)
+    empty = [f.path for f in flights if f.rows == 0]
+    if empty:
+        raise ValueError(f"{empty[0]} has no rows")
     given = list(labels or [])
-    for i, f in enumerate(flights):
-        f.label = given[i] if i < len(given) else derived[i]
+    for i, (f, derived) in enumerate(zip(flights, labels_by_difference(flights))):
+        f.label = given[i] if i < len(given) else derived
     notes: list[str] = []
     if align == "motion":
         ref = flights[0]
@@ -459,16 +456,14 @@ def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequ
                     f"{f.label}: the gyro correlates weakly with {ref.label} ({r:.2f}): the motions may "
                     "not be the same, the lag may be wrong."
                 )
-    tilt = AccelTilt()
     for f in flights:
-        est = tilt.run(f.acc_mg, f.gyro_mdps)
-        f.accel_thx_rad = np.asarray(est.thx_rad, np.float64)
-        f.accel_thy_rad = np.asarray(est.thy_rad, np.float64)
+        est = AccelTilt().run(f.acc_mg, f.gyro_mdps)
+        f.accel_thx_rad, f.accel_thy_rad = np.asarray(est.thx_rad, np.float64), np.asarray(est.thy_rad, np.float64)
         f.still = still_mask(f.acc_mg, f.gyro_mdps, f.t_s)
         f.figures = _still_figures(f)
-    notes = _mismatch_notes(flights) + notes
-    diffs = [_difference(flights[0], f) for f in flights[1:]]
-    return SideBySide(flights, align, diffs, notes)
+    return SideBySide(
+        flights, align, [_difference(flights[0], f) for f in flights[1:]], _mismatch_notes(flights) + notes
+    )
 
 
 # -- text ------------------------------------------------------------------------------------------------------
@@ -488,11 +483,7 @@ def _settings_text(s: dict[str, Any] | None) -> str:
 
 def format_side_by_side(r: SideBySide) -> list[str]:
     """The text form: flights, their figures against accel-only tilt, the differences, the notes."""
-    how = (
-        "firmware time from each capture's first frame"
-        if r.align == "time"
-        else "motion (gyro cross-correlation with the first flight)"
-    )
+    how = "firmware time from each capture's first frame" if r.align == "time" else _MOTION_HOW
     lines = [f"{len(r.flights)} flights side by side, aligned by {how}"]
     width = max(len(f.label) for f in r.flights)
     for i, f in enumerate(r.flights):
@@ -501,12 +492,11 @@ def format_side_by_side(r: SideBySide) -> list[str]:
             f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
             f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}"
         )
-    lines.append(
+    lines += [
         "against accel-only tilt in still phases (deg; drift: the last still phase; rate deg/min): pitch = "
-        "thx (about x, nose up +), "
-        "roll = thy (about y)"
-    )
-    lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll")
+        "thx (about x, nose up +), roll = thy (about y)",
+        f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll",
+    ]
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
@@ -524,9 +514,7 @@ def format_side_by_side(r: SideBySide) -> list[str]:
         lines.append(
             f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch {pitch}, roll {roll}"
         )
-    for n in r.notes:
-        lines.append(f"note: {n}")
-    return lines
+    return lines + [f"note: {n}" for n in r.notes]
 
 
 # ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
