@@ -50,11 +50,14 @@ class EstimatorSpec:
     thr: int = 0
 
 
-def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
+def default_specs(
+    rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | str | None = None
+) -> list[EstimatorSpec]:
     """The estimators of ``steval evaluate`` for inputs at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450:
     kp 0.4 / thr 0: kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``,
-    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order
-    (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice or none."""
+    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order, or one
+    comma-separated text (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice
+    or none."""
     mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
         "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
@@ -67,7 +70,7 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
     if only is None:
         return [s for k, s in specs.items() if k != "vqf" or registry.is_available("vqf")]
     out: list[EstimatorSpec] = []
-    for item in only:
+    for item in split_list(only) if isinstance(only, str) else list(only):
         if not isinstance(item, str) or isinstance(item, Selected):  # an object chosen already: run as it is
             chosen = [EstimatorSpec(str(item), item, {})]
         elif not item.strip():
@@ -371,18 +374,11 @@ def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str
     header = ["trial", *labels]
     rows: list[list[str]] = []
     for r, t in zip(results, s["trials"]):
-        cells = []
-        for k in labels:
-            v = t["rmse_deg"][k]
-            text = "—" if v is None else f"{v:.3f}"
-            cov = r.coverage.get(k)
-            cells.append(text if cov is None else cov.cell(text))
-        rows.append([t["trial"], *cells])
+        cells = [(_fmt(t["rmse_deg"][k]), r.coverage.get(k)) for k in labels]
+        rows.append([t["trial"], *(text if cov is None else cov.cell(text) for text, cov in cells)])
 
     def mean_row(name: str, values: dict) -> list[str]:
-        return [name] + [
-            "incomplete" if k in s["incomplete"] else ("—" if values[k] is None else f"{values[k]:.3f}") for k in labels
-        ]
+        return [name] + ["incomplete" if k in s["incomplete"] else _fmt(values[k]) for k in labels]
 
     if len(results) > 1:
         rows.append(mean_row("mean", s["mean_rmse_deg"]))
@@ -402,11 +398,8 @@ def format_table(results: Sequence[TrialResult]) -> str:
     header, rows = table_rows(results)
     w0 = max([len("trial")] + [len(row[0]) for row in rows])
     widths = [max([len(header[j]), 7] + [len(row[j]) for row in rows]) for j in range(1, len(header))]
-    lines = [
-        "inclination RMSE (deg) over movement samples",
-        "  ".join([header[0].ljust(w0)] + [k.rjust(w) for k, w in zip(header[1:], widths)]),
-    ]
-    for row in rows:
+    lines = ["inclination RMSE (deg) over movement samples"]
+    for row in [header, *rows]:
         lines.append("  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]))
     cov = coverage_lines(results)
     if cov:
@@ -422,17 +415,14 @@ def write_csv(results: Sequence[TrialResult], path) -> Path:
     header, rows = table_rows(results)
     out = Path(path)
     with out.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
+        csv.writer(fh).writerows([header, *rows])
     return out
 
 
 def write_markdown(results: Sequence[TrialResult], path) -> Path:
     """The table as a Markdown table, with the coverage lines under it."""
     header, rows = table_rows(results)
-    lines = ["inclination RMSE (deg) over movement samples", ""]
-    lines.append("| " + " | ".join(header) + " |")
+    lines = ["inclination RMSE (deg) over movement samples", "", "| " + " | ".join(header) + " |"]
     lines.append("|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|")
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
     cov = coverage_lines(results)
@@ -500,12 +490,6 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
 FIRMWARE_WEIGHT = 20
 
 
-def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> list[EstimatorSpec]:
-    """The specs of ``estimators`` (None: the defaults; text, a comma-separated list, or selected objects)."""
-    items = split_list(estimators) if isinstance(estimators, str) else estimators
-    return default_specs(rate_hz, own_rate=own_rate, only=None if items is None else list(items))
-
-
 def evaluate_data(
     paths,
     estimators=None,
@@ -525,7 +509,7 @@ def evaluate_data(
     white noise); ``max_seconds``: each trial's first seconds; ``variant``: the replica's release on a firmware's
     inputs; ``progress(fraction, stage)``. Every input is checked before the work."""
     items = broad.trial_paths(paths)
-    n_specs = len(estimator_specs(estimators, 100.0))  # the selection, checked before any work (any rate)
+    n_specs = len(default_specs(100.0, only=estimators))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):
         raise ParamError(f"{{max_seconds}} must be a positive number of seconds, got {max_seconds}", "max_seconds")
     elfs = list(firmware)
@@ -548,14 +532,13 @@ def evaluate_data(
     for p in items:
         tick(p.name, "loading", 0)
         if p.suffix != ".npz":
-            results.append(evaluate_capture(p, estimator_specs(estimators, AHRS_RATE_HZ), progress=tick))
+            results.append(evaluate_capture(p, default_specs(AHRS_RATE_HZ, only=estimators), progress=tick))
             continue
         trial = cut_trial(broad.load_trial(p), max_seconds)
-        if own_rate:
-            view = broad.own_rate_view(trial)
-        else:
-            view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
-        res = evaluate_view(view, estimator_specs(estimators, view.rate_hz, own_rate=own_rate), trial.name, tick)
+        sensor = Lsm6dsl() if sensor_noise else None
+        view = broad.own_rate_view(trial) if own_rate else broad.steval_view(trial, seed=seed, sensor=sensor)
+        specs = default_specs(view.rate_hz, own_rate=own_rate, only=estimators)
+        res = evaluate_view(view, specs, trial.name, tick)
         for elf, label in zip(elfs, labels):
             start = done
 
