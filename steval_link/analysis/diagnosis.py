@@ -30,6 +30,7 @@ DIAGNOSIS_WINDOW_ROWS = 600
 
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
+_KP_DEFAULTS = (C.KP_GROUND, C.KP_FLIGHT)
 _FLOAT_SETTINGS = ("kp_ground", "kp_flight", "ki", "dt_s")
 
 
@@ -171,13 +172,7 @@ def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings
         add({"variant": variant}, replace(base, variant=variant))
     for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
         add({"dt_s": dt}, replace(base, dt_s=dt))
-    kps = [
-        (base.kp_flight, base.kp_flight),
-        (base.kp_ground, base.kp_ground),
-        (base.kp_flight, base.kp_ground),
-        (C.KP_GROUND, C.KP_FLIGHT),
-    ]
-    for kg, kf in kps:
+    for kg, kf in ((base.kp_flight,) * 2, (base.kp_ground,) * 2, (base.kp_flight, base.kp_ground), _KP_DEFAULTS):
         add({"kp": (kg, kf)}, replace(base, kp_ground=kg, kp_flight=kf))
     add({"min_thr": C.MIN_THR}, replace(base, min_thr=C.MIN_THR))
     return out
@@ -257,8 +252,7 @@ def _search_settings(view, state: MahonyState, base: MahonySettings, r0: int, r1
     for ch, s in candidates:
         if _window_exact(view, state, s, r0, r1) == r1 - r0:
             return ch, s
-    singles = [c for c in candidates if "defaults" not in c[0]]
-    for x, y in combinations(singles, 2):
+    for x, y in combinations(candidates, 2):  # _combine skips "defaults" and pairs touching one field
         c = _combine(x, y, base)
         if c is not None and _window_exact(view, state, c[1], r0, r1) == r1 - r0:
             return c
@@ -271,12 +265,8 @@ def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings
     lines = [f"the capture matches {_describe_variant(ch, base)}"]
     flags = _cli_flags(s, _status_base(view) or MahonySettings())
     how = f" (settings {flags})" if flags else ""
-    if full.all_exact:
-        lines.append(f"with these settings the replica is bit-exact on all {full.n_seeded} seeded steps{how}")
-    else:
-        lines.append(
-            f"with these settings the replica is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
-        )
+    exact = f"all {full.n_seeded}" if full.all_exact else f"{full.n_bit_exact} of {full.n_seeded}"
+    lines.append(f"with these settings the replica is bit-exact on {exact} seeded steps{how}")
     variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
     if settings_override is not None and _same_settings(s, _status_base(view)):
         lines.append("these are the settings the status frames report: the settings override is wrong")
@@ -287,15 +277,13 @@ def _restart_lines(view, seed, seg_start: int) -> list[str]:
     """A mismatch right after the replica restarted from a status snapshot: where, and whether the snapshot fits."""
     steps = view.attitude.step
     snap = int(view.status.step[seed.status_row])
-    if seg_start > 0:
-        lines = [
-            f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
-            f"{int(steps[seg_start])}); the replica restarted there from the status snapshot of step "
-            f"{snap}, which does not reproduce the next step"
-        ]
-    else:
-        lines = [f"the replica started from the status snapshot of step {snap}, which does not reproduce the next step"]
-    return lines + (
+    where = (
+        f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
+        f"{int(steps[seg_start])}); the replica restarted there"
+        if seg_start > 0
+        else "the replica started"
+    )
+    return [f"{where} from the status snapshot of step {snap}, which does not reproduce the next step"] + (
         _snapshot_check(view, seed.status_row)
         or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
     )
@@ -345,10 +333,7 @@ def _snapshot_check(view, j: int) -> list[str]:
 
 def _status_base(view) -> MahonySettings | None:
     s = view.status
-    if s.step.size == 0:
-        return None
-    j = int(np.argmin(s.step))
-    return MahonySettings.of_status(s, j)
+    return MahonySettings.of_status(s, int(np.argmin(s.step))) if s.step.size else None
 
 
 def _vec(v, fmt: str = ".6g") -> str:
