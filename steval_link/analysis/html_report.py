@@ -90,12 +90,9 @@ def _settings_table(report: ComparisonReport) -> Table | None:
         ("correction", "accelerometer correction"),
         ("variant", "the ST release whose filter it runs"),
     ):
-        if key not in fs:
-            continue
-        v = fs[key]
-        default = diff.get(key, [None, None])[1]
-        dtext = "" if default is None else setting_text(default)
-        rows.append([what, setting_text(v), dtext or "same"])
+        if key in fs:
+            default = diff.get(key, [None, None])[1]
+            rows.append([what, setting_text(fs[key]), "same" if default is None else setting_text(default)])
     return Table(f"filter settings (from {fs['status_frames']} status frames)", ["setting", "value", "default"], rows)
 
 
@@ -131,9 +128,7 @@ def _estimator_table(report: ComparisonReport) -> Table:
     """Each estimator against the firmware (RMS, max |Δ| in degrees), with the RMSE against truth when kept."""
     truth = (report.truth or {}).get("rmse_deg")
     head = ["estimator", "steps", "pitch RMS", "pitch max |Δ|", "roll RMS", "roll max |Δ|"]
-    if truth:
-        head.append("RMSE vs truth")
-    head.append("note")
+    head += ["RMSE vs truth", "note"] if truth else ["note"]
     rows = []
     if truth:
         rows.append(
@@ -172,14 +167,8 @@ def _step_cost(report: ComparisonReport) -> Section:
         us = rt.ahrs_us(what)
         share = fmt_number(100 * us / period if us is not None else None, ".1f")
         rows.append([what, fmt_number(us, ".1f"), fmt_number(getattr(rt, f"ahrs_cycles_{what}"), ".0f"), share])
-    mhz = (rt.cpu_hz or 0) / 1e6
-    sec.tables.append(
-        Table(
-            f"ahrs_fusion_ag per step at {mhz:g} MHz ({unit}); the AHRS period is {period:.0f} µs",
-            ["", "µs", unit, "% of the period"],
-            rows,
-        )
-    )
+    caption = f"ahrs_fusion_ag per step at {(rt.cpu_hz or 0) / 1e6:g} MHz ({unit}); the AHRS period is {period:.0f} µs"
+    sec.tables.append(Table(caption, ["", "µs", unit, "% of the period"], rows))
     if rt.cycles_emulated:
         sec.sentences.append(
             "This capture comes from the emulated board: the counts are instructions, not Cortex-M4 cycles (a real "
@@ -191,9 +180,8 @@ def _step_cost(report: ComparisonReport) -> Section:
 def _peak_table(peaks: dict[str, list[Peak]]) -> Table:
     rows = []
     for name, sensor, _ in SIGNALS:
-        found = peaks.get(name, [])
-        text = ", ".join(f"{p.freq_hz:.1f} Hz ({p.amplitude:.1f} {UNITS[sensor]})" for p in found) or "no clear peak"
-        rows.append([name.replace("_", " "), text])
+        text = ", ".join(f"{p.freq_hz:.1f} Hz ({p.amplitude:.1f} {UNITS[sensor]})" for p in peaks.get(name, []))
+        rows.append([name.replace("_", " "), text or "no clear peak"])
     return Table("strongest peaks per axis (frequency, amplitude of the sinusoid)", ["signal", "peaks"], rows)
 
 
@@ -224,24 +212,16 @@ def capture_sections(
         "Pitch is thx (rotation about x, the right axis, nose up +) and roll is thy (rotation about y, the forward "
         "axis): the firmware's names. The lab handouts' textbook formulas call them the other way round."
     )
-    attitude.figures.append(
-        Figure(
-            "attitude",
-            "the firmware's angles with the replica, the estimators and accelerometer-only tilt; below, firmware "
-            "− replica; right, each estimator's difference from the firmware",
-            figure_png(comparison_figure(tel, report)),
-        )
+    what = (
+        "the firmware's angles with the replica, the estimators and accelerometer-only tilt; below, firmware − replica"
     )
+    what += "; right, each estimator's difference from the firmware"
+    attitude.figures.append(Figure("attitude", what, figure_png(comparison_figure(tel, report))))
     verdict = Section("firmware against the replica", sentences=verdict_sentences(report))
     estimators = Section("estimators", tables=[_estimator_table(report)], sentences=list(report.notes))
     if report.estimates:
-        estimators.figures.append(
-            Figure(
-                "estimators",
-                "each estimator minus the firmware over time, degrees (accelerometer-only tilt in grey)",
-                figure_png(differences_figure(tel, report)),
-            )
-        )
+        what = "each estimator minus the firmware over time, degrees (accelerometer-only tilt in grey)"
+        estimators.figures.append(Figure("estimators", what, figure_png(differences_figure(tel, report))))
     spectrum = Section("sensor spectrum")
     if spectra is None:
         spectrum.sentences.append(spectrum_note or "no spectrum")
@@ -255,11 +235,8 @@ def capture_sections(
     flight = Section("flight control")
     why = no_flight_figure_reason(tel.fc)
     if why is None:
-        flight.figures.append(
-            Figure(
-                "flight-control", "targets against angles, PID terms, motors", figure_png(flight_control_figure(tel))
-            )
-        )
+        what = "targets against angles, PID terms, motors"
+        flight.figures.append(Figure("flight-control", what, figure_png(flight_control_figure(tel))))
     else:
         flight.sentences.append(f"No flight-control figure: {why}.")
     return [summary, attitude, verdict, estimators, _step_cost(report), spectrum, flight]
@@ -269,17 +246,9 @@ def side_by_side_section(result) -> Section:
     """The flights side by side (:class:`~steval_link.analysis.side_by_side.SideBySide`): its lines and figure."""
     from steval_link.analysis.side_by_side import side_by_side_figure  # matplotlib (checked)
 
-    return Section(
-        "the captures side by side",
-        lines=format_side_by_side(result),
-        figures=[
-            Figure(
-                "side-by-side",
-                "every flight on one time axis against the first one's accelerometer-only tilt",
-                figure_png(side_by_side_figure(result)),
-            )
-        ],
-    )
+    what = "every flight on one time axis against the first one's accelerometer-only tilt"
+    figure = Figure("side-by-side", what, figure_png(side_by_side_figure(result)))
+    return Section("the captures side by side", lines=format_side_by_side(result), figures=[figure])
 
 
 # ---- writers -----------------------------------------------------------------------------------------------------
@@ -299,9 +268,9 @@ figcaption{font-size:.9em;color:#555}
 def _cell_class(text: str) -> str:
     try:
         float(text.replace(",", ""))
+        return ' class="n"'
     except ValueError:
         return ""
-    return ' class="n"'
 
 
 def _html_table(t: Table) -> str:
